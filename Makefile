@@ -1,0 +1,50 @@
+# make demo | make test | make bench — each installs what it needs (Debian packages, a .venv, the
+# package) and reuses what is already there, so a second run only rebuilds what changed.
+SHELL := /bin/bash
+PYTHON ?= python3
+VENV := .venv
+PY := $(VENV)/bin/python
+BUILD := build/cpp
+APT_PACKAGES := build-essential cmake ninja-build python3-dev python3-venv \
+                libeigen3-dev libceres-dev libgtest-dev libbenchmark-dev
+PY_BUILD_DEPS := scikit-build-core pybind11 numpy scipy matplotlib pytest
+SUDO := $(shell [ "$$(id -u)" = 0 ] || echo sudo)
+
+.PHONY: demo test bench deps install cpp clean
+
+demo: install
+	$(VENV)/bin/fluxcal demo -o build/demo
+
+test: install cpp
+	ctest --test-dir $(BUILD) --output-on-failure
+	$(PY) -m pytest -q
+
+bench: install cpp
+	$(BUILD)/bench/bench_ellipsoid --benchmark_min_time=0.5
+	$(PY) bench/ellipsoid.py
+
+# Debian packages: only the missing ones, without recommends (Ceres would pull ~180 MB of GraphBLAS).
+deps:
+	@missing=$$(for p in $(APT_PACKAGES); do dpkg -s $$p >/dev/null 2>&1 || echo $$p; done); \
+	if [ -n "$$missing" ]; then \
+	  echo "installing Debian packages:" $$missing; \
+	  $(SUDO) apt-get update -qq && \
+	  DEBIAN_FRONTEND=noninteractive $(SUDO) apt-get install -y -qq --no-install-recommends $$missing; \
+	fi
+
+$(VENV)/.deps: pyproject.toml | deps
+	$(PYTHON) -m venv $(VENV)
+	$(PY) -m pip install -q --upgrade pip
+	$(PY) -m pip install -q $(PY_BUILD_DEPS)
+	touch $@
+
+# The package is built in build/<wheel tag> (pyproject.toml), so reinstalling only rebuilds changes.
+install: $(VENV)/.deps
+	$(PY) -m pip install -q --no-build-isolation .
+
+cpp: deps
+	cmake -S . -B $(BUILD) -G Ninja -DCMAKE_BUILD_TYPE=Release -DFLUXCAL_BUILD_TESTS=ON -DFLUXCAL_BUILD_BENCH=ON
+	cmake --build $(BUILD)
+
+clean:
+	rm -rf build $(VENV)

@@ -1,0 +1,72 @@
+// fluxcal/types.hpp — the value types every fluxcal solver shares.
+//
+//   Samples      N×3 readings, one row per reading (row-major, double).
+//   Calibration  the correction h = A (m − b) of a three-axis sensor: offset b, matrix A, field norm.
+//   Summary      what every solver reports about its run.
+//   Error        what every solver throws on bad input; the message names the input and the problem.
+#pragma once
+
+#include <Eigen/Dense>
+
+#include <stdexcept>
+#include <string>
+#include <vector>
+
+namespace fluxcal {
+
+/// Library version, "MAJOR.MINOR.PATCH".
+const char* version();
+
+/// N×3 readings, one row a reading. Row-major so a C-contiguous NumPy array maps without a copy.
+using Samples = Eigen::Matrix<double, Eigen::Dynamic, 3, Eigen::RowMajor>;
+/// Read-only view of any N×3 row-major block (an Eigen matrix, a mapped NumPy array, ...).
+using SamplesRef = Eigen::Ref<const Samples>;
+
+/// Thrown on bad input (NaN, too few samples, degenerate coverage, ...). Never an abort.
+class Error : public std::runtime_error {
+ public:
+  using std::runtime_error::runtime_error;
+};
+
+/// What a solver reports. Fields that do not apply to a solver keep their defaults.
+struct Summary {
+  std::size_t samples = 0;         ///< readings used by the fit
+  int iterations = 0;              ///< solver iterations (0 for a closed-form solution)
+  double cost = 0.0;               ///< final cost of the solver's own objective (per sample)
+  double residual_rms = 0.0;       ///< RMS of |h| − field_norm after correction (data units of h)
+  double norm_mean = 0.0;          ///< mean of |h| after correction
+  double norm_std_over_mean = 0.0; ///< std/mean of |h| after correction (0.01 = 1 %)
+  double condition_number = 0.0;   ///< of the solver's (normalised) linear system
+  double coverage_ratio = 0.0;     ///< thinnest/widest spread of the readings (0 planar, 1 sphere-like)
+  double direction_coverage = -1;  ///< fraction of direction bins seen after correction (−1: not computed)
+  bool exact_statistics = false;   ///< residual statistics from a pass over the samples, not moments
+  bool converged = false;          ///< the solver reached a valid solution
+  std::string message;             ///< one human-readable line
+  std::vector<std::string> warnings;  ///< conditions the caller should know about (poor coverage, ...)
+};
+
+/// Correction of a three-axis sensor that reads m = W h + b + noise: h = A (m − b), A = W⁻¹.
+struct Calibration {
+  Eigen::Vector3d offset = Eigen::Vector3d::Zero();      ///< b, in reading units
+  Eigen::Matrix3d matrix = Eigen::Matrix3d::Identity();  ///< A, field units per reading unit
+  double field_norm = 1.0;  ///< |h| the correction maps the readings to
+  std::string units;        ///< units of the readings, as the recording states them ("" = not stated)
+  std::string model;        ///< which solver produced it ("ellipsoid", ...)
+
+  /// Corrected field of one reading.
+  Eigen::Vector3d apply(const Eigen::Vector3d& reading) const { return matrix * (reading - offset); }
+  /// Corrected field of every row.
+  Samples apply_rows(const SamplesRef& readings) const;
+  /// The reading a true field h would produce (the forward model, without noise).
+  Eigen::Vector3d reading(const Eigen::Vector3d& field) const;
+};
+
+/// Throws Error unless `samples` has at least `min_rows` rows and only finite values.
+/// `name` is the input's name in the message, `purpose` says why so many rows are needed.
+void check_samples(const SamplesRef& samples, const std::string& name, Eigen::Index min_rows,
+                   const std::string& purpose);
+
+/// Throws Error naming the first non-finite value of `samples` (row and axis), if there is one.
+void check_finite(const SamplesRef& samples, const std::string& name);
+
+}  // namespace fluxcal

@@ -1,0 +1,32 @@
+#include "fluxcal/coverage.hpp"
+
+#include <algorithm>
+#include <bitset>
+
+namespace fluxcal {
+
+namespace {
+
+template <class Field>
+double coverage_of(Eigen::Index rows, Eigen::Index max_rows, Field&& field) {
+  const Eigen::Index step = max_rows > 0 ? std::max<Eigen::Index>(1, rows / max_rows) : 1;
+  std::bitset<kDirectionBins> seen;
+  for (Eigen::Index i = 0; i < rows; i += step) {
+    const int bin = direction_bin(field(i));
+    if (bin >= 0) seen.set(static_cast<std::size_t>(bin));
+  }
+  return static_cast<double>(seen.count()) / kDirectionBins;
+}
+
+}  // namespace
+
+double direction_coverage(const SamplesRef& fields, Eigen::Index max_rows) {
+  return coverage_of(fields.rows(), max_rows, [&](Eigen::Index i) { return Eigen::Vector3d(fields.row(i)); });
+}
+
+double direction_coverage(const SamplesRef& readings, const Calibration& cal, Eigen::Index max_rows) {
+  return coverage_of(readings.rows(), max_rows,
+                     [&](Eigen::Index i) { return cal.apply(readings.row(i).transpose()); });
+}
+
+}  // namespace fluxcal

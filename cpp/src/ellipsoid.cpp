@@ -1,0 +1,392 @@
+#include "fluxcal/ellipsoid.hpp"
+
+#include "fluxcal/coverage.hpp"
+
+#include <Eigen/Eigenvalues>
+
+#include <algorithm>
+#include <cmath>
+#include <cstdio>
+#include <limits>
+#include <sstream>
+
+namespace fluxcal {
+namespace {
+
+// ---- moment bookkeeping --------------------------------------------------------------------------
+// Moments are stored in the order: 1; u v w; then for degree 2, 3, 4 the exponents (i, j, k) with
+// i descending, then j descending (uu uv uw vv vw ww, uuu uuv ...). The hot kernel below writes them
+// in exactly this order.
+struct MomentIndex {
+  int index[5][5][5];
+  MomentIndex() {
+    int n = 0;
+    for (int d = 0; d <= 4; ++d)
+      for (int i = d; i >= 0; --i)
+        for (int j = d - i; j >= 0; --j) index[i][j][d - i - j] = n++;
+  }
+};
+const MomentIndex kIndex;
+
+// Exponents of the design row d = [u², v², w², 2uv, 2uw, 2vw, 2u, 2v, 2w, 1] and its factors.
+constexpr int kDesignExp[10][3] = {{2, 0, 0}, {0, 2, 0}, {0, 0, 2}, {1, 1, 0}, {1, 0, 1},
+                                   {0, 1, 1}, {1, 0, 0}, {0, 1, 0}, {0, 0, 1}, {0, 0, 0}};
+constexpr double kDesignFactor[10] = {1, 1, 1, 2, 2, 2, 2, 2, 2, 1};
+
+// The 34 non-constant monomials of (x, y, z) in the storage order, written to out[0..33].
+#define FLUXCAL_MONOMIALS(x, y, z, OUT)                                                      \
+  do {                                                                                       \
+    const double xx = x * x, xy = x * y, xz = x * z, yy = y * y, yz = y * z, zz = z * z;     \
+    OUT(0, x); OUT(1, y); OUT(2, z);                                                         \
+    OUT(3, xx); OUT(4, xy); OUT(5, xz); OUT(6, yy); OUT(7, yz); OUT(8, zz);                  \
+    OUT(9, xx * x); OUT(10, xx * y); OUT(11, xx * z); OUT(12, xy * y); OUT(13, xy * z);      \
+    OUT(14, xz * z); OUT(15, yy * y); OUT(16, yy * z); OUT(17, yz * z); OUT(18, zz * z);     \
+    OUT(19, xx * xx); OUT(20, xx * xy); OUT(21, xx * xz); OUT(22, xx * yy);                  \
+    OUT(23, xx * yz); OUT(24, xx * zz); OUT(25, xy * yy); OUT(26, xy * yz);                  \
+    OUT(27, xy * zz); OUT(28, xz * zz); OUT(29, yy * yy); OUT(30, yy * yz);                  \
+    OUT(31, yy * zz); OUT(32, yz * zz); OUT(33, zz * zz);                                    \
+  } while (0)
+
+// Accumulation kernel: a block of kLanes readings is normalised into small arrays, then every lane
+// keeps its own partial sums so the compiler can vectorise across readings without reassociating.
+// On x86-64 GCC also builds an x86-64-v3 (AVX2/FMA) clone chosen at run time by CPU features (not
+// by CPU model, which "arch=haswell" would test); the rest of the library, and the Eigen ABI it shares
+// with Ceres, stays at the baseline instruction set.
+#if defined(__GNUC__) && !defined(__clang__) && defined(__x86_64__) && defined(__linux__)
+#define FLUXCAL_CLONES __attribute__((target_clones("arch=x86-64-v3", "default")))
+#else
+#define FLUXCAL_CLONES
+#endif
+
+constexpr int kLanes = 8;
+
+FLUXCAL_CLONES
+void accumulate_moments(const double* p, std::size_t n, const double* centre, double inv_scale,
+                        double* sums /* 34 */) {
+  alignas(64) double acc[34][kLanes] = {};
+  std::size_t i = 0;
+  for (; i + kLanes <= n; i += kLanes) {
+    double xs[kLanes], ys[kLanes], zs[kLanes];
+    for (int l = 0; l < kLanes; ++l) {
+      xs[l] = (p[3 * (i + l)] - centre[0]) * inv_scale;
+      ys[l] = (p[3 * (i + l) + 1] - centre[1]) * inv_scale;
+      zs[l] = (p[3 * (i + l) + 2] - centre[2]) * inv_scale;
+    }
+    for (int l = 0; l < kLanes; ++l) {
+      const double x = xs[l], y = ys[l], z = zs[l];
+#define FLUXCAL_ACC(m, value) acc[m][l] += (value)
+      FLUXCAL_MONOMIALS(x, y, z, FLUXCAL_ACC);
+#undef FLUXCAL_ACC
+    }
+  }
+  for (int m = 0; m < 34; ++m)
+    for (int l = 0; l < kLanes; ++l) sums[m] += acc[m][l];
+  for (; i < n; ++i) {
+    const double x = (p[3 * i] - centre[0]) * inv_scale;
+    const double y = (p[3 * i + 1] - centre[1]) * inv_scale;
+    const double z = (p[3 * i + 2] - centre[2]) * inv_scale;
+#define FLUXCAL_ADD(m, value) sums[m] += (value)
+    FLUXCAL_MONOMIALS(x, y, z, FLUXCAL_ADD);
+#undef FLUXCAL_ADD
+  }
+}
+
+// Statistics pass: Σ(|h| − H), Σ(|h| − H)² over h = A (m − b), lane-blocked like the moments.
+FLUXCAL_CLONES
+void accumulate_residuals(const double* p, std::size_t n, const double* A /* 3×3 row-major */,
+                          const double* b, double H, double* sums /* 2 */) {
+  double sd[kLanes] = {}, sd2[kLanes] = {};
+  double hx[kLanes], hy[kLanes], hz[kLanes];
+  auto correct = [&](const double* m, int l) {
+    const double x = m[0] - b[0], y = m[1] - b[1], z = m[2] - b[2];
+    hx[l] = A[0] * x + A[1] * y + A[2] * z;
+    hy[l] = A[3] * x + A[4] * y + A[5] * z;
+    hz[l] = A[6] * x + A[7] * y + A[8] * z;
+  };
+  std::size_t i = 0;
+  for (; i + kLanes <= n; i += kLanes) {
+    for (int l = 0; l < kLanes; ++l) correct(p + 3 * (i + l), l);
+    for (int l = 0; l < kLanes; ++l) {
+      const double d = std::sqrt(hx[l] * hx[l] + hy[l] * hy[l] + hz[l] * hz[l]) - H;
+      sd[l] += d;
+      sd2[l] += d * d;
+    }
+  }
+  for (; i < n; ++i) {
+    correct(p + 3 * i, 0);
+    const double d = std::sqrt(hx[0] * hx[0] + hy[0] * hy[0] + hz[0] * hz[0]) - H;
+    sd[0] += d;
+    sd2[0] += d * d;
+  }
+  for (int l = 0; l < kLanes; ++l) {
+    sums[0] += sd[l];
+    sums[1] += sd2[l];
+  }
+}
+
+// Calls f(rows, count) on the readings as packed N×3 doubles: the data itself when the rows are
+// packed (a C-contiguous NumPy array), else copies of 512-row blocks.
+template <class F>
+void for_each_packed_block(const SamplesRef& readings, F&& f) {
+  if (readings.rows() == 0) return;
+  if (readings.outerStride() == 3) {
+    f(readings.data(), static_cast<std::size_t>(readings.rows()));
+    return;
+  }
+  constexpr Eigen::Index kBlock = 512;
+  double packed[3 * kBlock];
+  for (Eigen::Index start = 0; start < readings.rows(); start += kBlock) {
+    const Eigen::Index len = std::min(kBlock, readings.rows() - start);
+    for (Eigen::Index i = 0; i < len; ++i)
+      for (int j = 0; j < 3; ++j) packed[3 * i + j] = readings(start + i, j);
+    f(packed, static_cast<std::size_t>(len));
+  }
+}
+
+std::string percent(double ratio) {
+  char buf[32];
+  std::snprintf(buf, sizeof buf, "%.3g %%", 100.0 * ratio);
+  return buf;
+}
+
+// Thinnest/widest standard deviation of the normalised readings, from the first two moments.
+double coverage_ratio(const EllipsoidMoments& mom, const Eigen::Matrix<double, 10, 10>& scatter) {
+  const double n = static_cast<double>(mom.count());
+  // scatter(9, 6..8) = Σ 2u etc.; scatter(0..5, 9) = Σ u², Σ 2uv ...
+  const Eigen::Vector3d mean = scatter.block<1, 3>(9, 6).transpose() / (2.0 * n);
+  Eigen::Matrix3d second;
+  second << scatter(0, 9), scatter(3, 9) / 2, scatter(4, 9) / 2,  //
+      scatter(3, 9) / 2, scatter(1, 9), scatter(5, 9) / 2,        //
+      scatter(4, 9) / 2, scatter(5, 9) / 2, scatter(2, 9);
+  const Eigen::Matrix3d cov = second / n - mean * mean.transpose();
+  const Eigen::Vector3d ev = Eigen::SelfAdjointEigenSolver<Eigen::Matrix3d>(cov, Eigen::EigenvaluesOnly).eigenvalues();
+  if (!(ev(2) > 0.0)) return 0.0;
+  return std::sqrt(std::max(ev(0), 0.0) / ev(2));
+}
+
+}  // namespace
+
+// ---- EllipsoidMoments ----------------------------------------------------------------------------
+
+EllipsoidMoments::EllipsoidMoments(const Eigen::Vector3d& centre, double scale)
+    : centre_(centre), scale_(scale), inv_scale_(1.0 / scale) {
+  if (!(scale > 0.0) || !std::isfinite(scale) || !centre.allFinite())
+    throw Error("ellipsoid moments: normalisation needs a finite centre and a positive scale");
+}
+
+void EllipsoidMoments::add(const Eigen::Vector3d& reading) {
+  sums_[0] += 1.0;
+  accumulate_moments(reading.data(), 1, centre_.data(), inv_scale_, sums_.data() + 1);
+}
+
+void EllipsoidMoments::add_rows(const SamplesRef& readings) {
+  sums_[0] += static_cast<double>(readings.rows());
+  for_each_packed_block(readings, [&](const double* rows, std::size_t len) {
+    accumulate_moments(rows, len, centre_.data(), inv_scale_, sums_.data() + 1);
+  });
+}
+
+void EllipsoidMoments::merge(const EllipsoidMoments& other) {
+  if (other.centre_ != centre_ || other.scale_ != scale_)
+    throw Error("ellipsoid moments: cannot merge sums taken with a different normalisation");
+  for (int m = 0; m < kMoments; ++m) sums_[m] += other.sums_[m];
+}
+
+bool EllipsoidMoments::finite() const {
+  return std::all_of(sums_.begin(), sums_.end(), [](double s) { return std::isfinite(s); });
+}
+
+Eigen::Matrix<double, 10, 10> EllipsoidMoments::scatter() const {
+  Eigen::Matrix<double, 10, 10> s;
+  for (int a = 0; a < 10; ++a)
+    for (int b = 0; b < 10; ++b) {
+      const int i = kDesignExp[a][0] + kDesignExp[b][0];
+      const int j = kDesignExp[a][1] + kDesignExp[b][1];
+      const int k = kDesignExp[a][2] + kDesignExp[b][2];
+      s(a, b) = kDesignFactor[a] * kDesignFactor[b] * sums_[kIndex.index[i][j][k]];
+    }
+  return s;
+}
+
+std::pair<Eigen::Vector3d, double> normalisation(const SamplesRef& samples, Eigen::Index max_rows) {
+  const Eigen::Index n = samples.rows();
+  if (n == 0) throw Error("samples: no rows");
+  const Eigen::Index step = std::max<Eigen::Index>(1, n / std::max<Eigen::Index>(1, max_rows));
+  Eigen::Vector3d lo = Eigen::Vector3d::Constant(std::numeric_limits<double>::infinity());
+  Eigen::Vector3d hi = -lo;
+  for (Eigen::Index i = 0; i < n; i += step) {
+    const Eigen::Vector3d r = samples.row(i).transpose();
+    if (!r.allFinite()) continue;  // reported precisely by the caller's finiteness check
+    lo = lo.cwiseMin(r);
+    hi = hi.cwiseMax(r);
+  }
+  if (!(lo.array() <= hi.array()).all()) return {Eigen::Vector3d::Zero(), 1.0};
+  const double scale = 0.5 * (hi - lo).maxCoeff();
+  return {0.5 * (lo + hi), scale > 0.0 ? scale : 1.0};
+}
+
+// ---- the fit ---------------------------------------------------------------------------------------
+
+namespace {
+
+EllipsoidResult solve(const EllipsoidMoments& mom, const EllipsoidOptions& opt) {
+  const double n = static_cast<double>(mom.count());
+  if (mom.count() < 9) {
+    std::ostringstream msg;
+    msg << "samples: " << mom.count() << " rows, need at least 9 for a 9-parameter ellipsoid fit";
+    throw Error(msg.str());
+  }
+  if (!(opt.field_norm >= 0.0) || !std::isfinite(opt.field_norm))
+    throw Error("field_norm: must be a positive finite magnitude, or 0 to use the fitted radius");
+
+  const Eigen::Matrix<double, 10, 10> S = mom.scatter();
+  EllipsoidResult out;
+  Summary& sum = out.summary;
+  sum.samples = mom.count();
+  sum.coverage_ratio = coverage_ratio(mom, S);
+  if (sum.coverage_ratio < opt.planar_ratio) {
+    throw Error("samples: the readings lie nearly in one plane (thinnest/widest spread " +
+                percent(sum.coverage_ratio) +
+                "); a 3-D ellipsoid is not identifiable — rotate the sensor about at least two axes, "
+                "or use a 2-D calibration");
+  }
+
+  // Eliminate M11 = 1 − M22 − M33 (trace constraint): p = e0 + E q, q the other 9 coefficients.
+  Eigen::Matrix<double, 10, 9> E = Eigen::Matrix<double, 10, 9>::Zero();
+  E.bottomRows<9>().setIdentity();
+  E(0, 0) = E(0, 1) = -1.0;
+  Eigen::Matrix<double, 10, 1> e0 = Eigen::Matrix<double, 10, 1>::Zero();
+  e0(0) = 1.0;
+  const Eigen::Matrix<double, 9, 9> normal = E.transpose() * S * E / n;
+  const Eigen::Matrix<double, 9, 1> rhs = -E.transpose() * S * e0 / n;
+  Eigen::SelfAdjointEigenSolver<Eigen::Matrix<double, 9, 9>> eig(normal);
+  const auto& lam = eig.eigenvalues();
+  sum.condition_number = lam(0) > 0.0 ? lam(8) / lam(0) : std::numeric_limits<double>::infinity();
+  if (!(sum.condition_number < 1e14)) {
+    throw Error("samples: the ellipsoid fit is rank deficient (condition number " +
+                std::to_string(sum.condition_number) +
+                "); the readings do not determine a 3-D ellipsoid — cover more orientations");
+  }
+  const Eigen::Matrix<double, 9, 1> q =
+      eig.eigenvectors() * (eig.eigenvectors().transpose() * rhs).cwiseQuotient(lam);
+  const Eigen::Matrix<double, 10, 1> p = e0 + E * q;
+  out.quadric = p;
+
+  Eigen::Matrix3d M;
+  M << p(0), p(3), p(4), p(3), p(1), p(5), p(4), p(5), p(2);
+  const Eigen::Vector3d v = p.segment<3>(6);
+  Eigen::SelfAdjointEigenSolver<Eigen::Matrix3d> meig(M);
+  if (!(meig.eigenvalues()(0) > 0.0)) {
+    std::ostringstream msg;
+    msg << "samples: the readings do not lie on an ellipsoid (the fitted quadric has eigenvalues "
+        << meig.eigenvalues().transpose()
+        << "); check for mixed recordings, saturation or a field that changes during the recording";
+    throw Error(msg.str());
+  }
+  const Eigen::Vector3d c = -meig.eigenvectors() *
+                            (meig.eigenvectors().transpose() * v).cwiseQuotient(meig.eigenvalues());
+  const double rho2 = c.dot(M * c) - p(9);
+  if (!(rho2 > 0.0)) throw Error("samples: the fitted ellipsoid is imaginary (no real points); the readings are degenerate");
+
+  const double s = mom.scale();
+  const Eigen::Vector3d lamB = meig.eigenvalues() / rho2;        // B = M/ρ² ⇒ (u−c)ᵀB(u−c) = 1
+  const Eigen::Vector3d semi_axes = s * lamB.cwiseSqrt().cwiseInverse();  // in reading units
+  const double fitted_radius = std::cbrt(semi_axes.prod());
+  const double H = opt.field_norm > 0.0 ? opt.field_norm : fitted_radius;
+
+  Calibration& cal = out.calibration;
+  cal.offset = mom.centre() + s * c;
+  cal.matrix = (H / s) * meig.eigenvectors() * lamB.cwiseSqrt().asDiagonal() * meig.eigenvectors().transpose();
+  cal.field_norm = H;
+  cal.units = opt.units;
+  cal.model = "ellipsoid";
+
+  // Residual statistics from the moments: |h|² = H² (1 + pᵀd/ρ²), d the design row.
+  const Eigen::Matrix<double, 10, 1> dmean = S.col(9) / n;
+  const double alg = p.dot(S * p) / n;  // mean (pᵀd)²
+  const double mean_pd = p.dot(dmean);
+  const double mean_q = H * H * (1.0 + mean_pd / rho2);
+  const double var_q = std::max(0.0, H * H * H * H / (rho2 * rho2) * (alg - mean_pd * mean_pd));
+  sum.cost = alg;
+  sum.norm_mean = std::sqrt(mean_q) * (1.0 - var_q / (8.0 * mean_q * mean_q));
+  sum.norm_std_over_mean = std::sqrt(var_q) / (2.0 * std::sqrt(mean_q)) / sum.norm_mean;
+  sum.residual_rms = H * std::sqrt(alg) / (2.0 * rho2);
+  sum.exact_statistics = false;
+  sum.converged = true;
+
+  if (sum.coverage_ratio < opt.poor_coverage_ratio)
+    sum.warnings.push_back("poor coverage: thinnest/widest spread of the readings is " +
+                           percent(sum.coverage_ratio) +
+                           "; the offset and matrix along the thin direction are poorly determined");
+  if (opt.field_norm > 0.0) {
+    // A known field norm far from the fitted volume radius usually means mismatched units.
+    const double gain = H / fitted_radius;
+    if (gain > 5.0 || gain < 0.2) {
+      std::ostringstream msg;
+      msg << "field_norm " << H << " is " << gain << " times the fitted radius " << fitted_radius
+          << " of the readings — check the units";
+      sum.warnings.push_back(msg.str());
+    }
+  }
+  return out;
+}
+
+void finish_message(EllipsoidResult& r) {
+  std::ostringstream msg;
+  msg << "ellipsoid fit: " << r.summary.samples << " samples, |h| std/mean "
+      << percent(r.summary.norm_std_over_mean) << ", residual RMS " << r.summary.residual_rms
+      << (r.calibration.units.empty() ? "" : " " + r.calibration.units) << ", condition number "
+      << r.summary.condition_number;
+  if (!r.summary.warnings.empty()) msg << " (" << r.summary.warnings.size() << " warning(s))";
+  r.summary.message = msg.str();
+}
+
+}  // namespace
+
+EllipsoidResult fit_ellipsoid(const EllipsoidMoments& moments, const EllipsoidOptions& options) {
+  if (!moments.finite()) throw Error("samples: the accumulated sums are not finite (a NaN or Inf reading was added)");
+  EllipsoidResult r = solve(moments, options);
+  finish_message(r);
+  return r;
+}
+
+EllipsoidResult fit_ellipsoid(const SamplesRef& samples, const EllipsoidOptions& options) {
+  if (samples.rows() < 9) {
+    std::ostringstream msg;
+    msg << "samples: " << samples.rows() << " rows, need at least 9 for a 9-parameter ellipsoid fit";
+    throw Error(msg.str());
+  }
+  const auto [centre, scale] = normalisation(samples);
+  EllipsoidMoments mom(centre, scale);
+  mom.add_rows(samples);
+  if (!mom.finite()) {
+    check_finite(samples, "samples");  // names the first bad row
+    throw Error("samples: values too large, their fourth powers overflow");
+  }
+  EllipsoidResult r = solve(mom, options);
+
+  if (options.exact_statistics) {  // one more pass: |h| of every corrected reading
+    const Calibration& cal = r.calibration;
+    const double H = cal.field_norm;
+    const Eigen::Matrix<double, 3, 3, Eigen::RowMajor> A = cal.matrix;
+    double sums[2] = {0.0, 0.0};  // Σ(|h| − H), Σ(|h| − H)²
+    for_each_packed_block(samples, [&](const double* rows, std::size_t len) {
+      accumulate_residuals(rows, len, A.data(), cal.offset.data(), H, sums);
+    });
+    const double sd = sums[0], sd2 = sums[1];
+    r.summary.direction_coverage = direction_coverage(samples, cal, options.coverage_rows);
+    if (r.summary.direction_coverage < options.poor_direction_coverage)
+      r.summary.warnings.push_back("poor coverage: only " + percent(r.summary.direction_coverage) +
+                                   " of field directions seen; turn the sensor through more orientations");
+    const double n = static_cast<double>(samples.rows());
+    const double mean_d = sd / n;
+    r.summary.norm_mean = H + mean_d;
+    r.summary.norm_std_over_mean = std::sqrt(std::max(0.0, sd2 / n - mean_d * mean_d)) / r.summary.norm_mean;
+    r.summary.residual_rms = std::sqrt(sd2 / n);
+    r.summary.exact_statistics = true;
+  }
+  finish_message(r);
+  return r;
+}
+
+}  // namespace fluxcal

@@ -1,0 +1,52 @@
+#include "fluxcal/types.hpp"
+
+#include <Eigen/LU>
+
+#include <cmath>
+#include <sstream>
+
+namespace fluxcal {
+
+#ifndef FLUXCAL_VERSION
+#define FLUXCAL_VERSION "unknown"
+#endif
+
+const char* version() { return FLUXCAL_VERSION; }
+
+Samples Calibration::apply_rows(const SamplesRef& readings) const {
+  // Row form of h = A (m − b): H = (M − 1 bᵀ) Aᵀ.
+  return (readings.rowwise() - offset.transpose()) * matrix.transpose();
+}
+
+Eigen::Vector3d Calibration::reading(const Eigen::Vector3d& field) const {
+  Eigen::FullPivLU<Eigen::Matrix3d> lu(matrix);
+  if (!lu.isInvertible()) throw Error("calibration: matrix A is singular, the forward model m = A⁻¹h + b does not exist");
+  return lu.solve(field) + offset;
+}
+
+void check_finite(const SamplesRef& samples, const std::string& name) {
+  static const char* axis[] = {"x", "y", "z"};
+  for (Eigen::Index i = 0; i < samples.rows(); ++i) {
+    for (int j = 0; j < 3; ++j) {
+      const double v = samples(i, j);
+      if (!std::isfinite(v)) {
+        std::ostringstream msg;
+        msg << name << ": row " << i << ", column " << j << " (" << axis[j] << ") is "
+            << (std::isnan(v) ? "NaN" : "infinite") << "; remove or repair non-finite readings first";
+        throw Error(msg.str());
+      }
+    }
+  }
+}
+
+void check_samples(const SamplesRef& samples, const std::string& name, Eigen::Index min_rows,
+                   const std::string& purpose) {
+  if (samples.rows() < min_rows) {
+    std::ostringstream msg;
+    msg << name << ": " << samples.rows() << " rows, need at least " << min_rows << " for " << purpose;
+    throw Error(msg.str());
+  }
+  check_finite(samples, name);
+}
+
+}  // namespace fluxcal

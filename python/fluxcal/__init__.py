@@ -1,0 +1,29 @@
+"""fluxcal — calibration and error compensation of magnetic-field and current sensors.
+
+    import fluxcal
+    cal = fluxcal.fit_ellipsoid(readings)          # readings: N×3, or a fluxcal.io.Recording
+    fields = cal.apply(readings)                   # h = A (m − b)
+    cal.save("cal.json"); fluxcal.Calibration.load("cal.json")
+"""
+from . import _core
+from .calibration import Calibration
+from .coverage import direction_coverage
+from .ellipsoid import EllipsoidMoments, fit_ellipsoid
+from .io import Recording, read_csv, write_csv
+
+__version__ = _core.__version__
+
+__all__ = ["Calibration", "EllipsoidMoments", "Recording", "direction_coverage", "fit_ellipsoid",
+           "read_csv", "write_csv", "__version__", "cmake_dir"]
+
+
+def cmake_dir() -> str:
+    """Folder holding fluxcalConfig.cmake of the C++ library inside this installed package:
+    `cmake -DCMAKE_PREFIX_PATH=$(python -m fluxcal --cmake-dir)` lets C++ code find_package(fluxcal)."""
+    from importlib.resources import files
+    from pathlib import Path
+
+    found = sorted(Path(str(files("fluxcal"))).glob("lib*/**/fluxcalConfig.cmake"))
+    if not found:
+        raise FileNotFoundError("this fluxcal installation carries no C++ library (built without install rules?)")
+    return str(found[0].parent)

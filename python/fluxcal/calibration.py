@@ -1,0 +1,126 @@
+"""The Calibration value: h = A (m − b) for a three-axis sensor that reads m = W h + b + noise."""
+from __future__ import annotations
+
+import json
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from ._arrays import as_samples
+
+CONVENTION = "h = A (m - b); rows of samples are readings; A = W^-1 for a sensor reading m = W h + b"
+
+
+@dataclass
+class Calibration:
+    """Offset `offset` (b, reading units), matrix `matrix` (A) and the field norm |h| it maps to.
+
+    `summary` holds the fit statistics of the solver that produced it; `metadata` anything the caller
+    wants stored with it (source file, columns, date).
+    """
+
+    offset: np.ndarray
+    matrix: np.ndarray
+    field_norm: float = 1.0
+    units: str = ""
+    model: str = ""
+    summary: dict = field(default_factory=dict)
+    metadata: dict = field(default_factory=dict)
+
+    def __post_init__(self):
+        self.offset = np.asarray(self.offset, dtype=float).reshape(3)
+        self.matrix = np.asarray(self.matrix, dtype=float).reshape(3, 3)
+        self.field_norm = float(self.field_norm)
+
+    # -- use ---------------------------------------------------------------------------------------
+    def apply(self, samples) -> np.ndarray:
+        """Corrected field of each reading: one row (3,) or N×3 in, the same shape out."""
+        if np.ndim(samples) == 1:
+            return self.matrix @ (np.asarray(samples, dtype=float).reshape(3) - self.offset)
+        return (as_samples(samples) - self.offset) @ self.matrix.T
+
+    def reading(self, field_vectors) -> np.ndarray:
+        """The readings true fields would produce (the forward model m = A⁻¹ h + b, no noise)."""
+        h = np.asarray(field_vectors, dtype=float)
+        return np.linalg.solve(self.matrix, h.T).T + self.offset
+
+    @property
+    def forward_matrix(self) -> np.ndarray:
+        """W = A⁻¹: how the sensor distorts the field."""
+        return np.linalg.inv(self.matrix)
+
+    # -- other conventions ----------------------------------------------------------------------------
+    def to_magcal(self):
+        """MATLAB magcal convention (row vectors, C = (D − b)·A): returns (A_magcal, b, expmfs)."""
+        return self.matrix.T.copy(), self.offset.copy(), self.field_norm
+
+    @classmethod
+    def from_magcal(cls, A, b, expmfs=1.0, units: str = "") -> "Calibration":
+        """From MATLAB magcal's [A, b, expmfs] (C = (D − b)·A)."""
+        return cls(offset=np.ravel(b), matrix=np.asarray(A, dtype=float).T, field_norm=expmfs, units=units,
+                   model="magcal")
+
+    # -- files ---------------------------------------------------------------------------------------
+    def to_dict(self) -> dict:
+        from . import __version__
+
+        return {
+            "fluxcal_version": __version__,
+            "convention": CONVENTION,
+            "model": self.model,
+            "units": self.units,
+            "offset": self.offset.tolist(),
+            "matrix": self.matrix.tolist(),
+            "field_norm": self.field_norm,
+            "summary": _jsonable(self.summary),
+            "metadata": _jsonable(self.metadata),
+        }
+
+    @classmethod
+    def from_dict(cls, data: dict, source: str = "calibration") -> "Calibration":
+        missing = [k for k in ("offset", "matrix", "field_norm") if k not in data]
+        if missing:
+            raise ValueError(f"{source}: missing {', '.join(missing)}")
+        try:
+            return cls(offset=data["offset"], matrix=data["matrix"], field_norm=data["field_norm"],
+                       units=data.get("units", ""), model=data.get("model", ""),
+                       summary=data.get("summary", {}), metadata=data.get("metadata", {}))
+        except (TypeError, ValueError) as exc:
+            raise ValueError(f"{source}: offset must hold 3 numbers and matrix 3×3 ({exc})") from None
+
+    def save(self, path) -> Path:
+        path = Path(path)
+        path.write_text(json.dumps(self.to_dict(), indent=2) + "\n")
+        return path
+
+    @classmethod
+    def load(cls, path) -> "Calibration":
+        path = Path(path)
+        try:
+            data = json.loads(path.read_text())
+        except json.JSONDecodeError as exc:
+            raise ValueError(f"{path}: not a fluxcal calibration (JSON error at line {exc.lineno}: {exc.msg})") from None
+        if not isinstance(data, dict):
+            raise ValueError(f"{path}: not a fluxcal calibration (expected a JSON object)")
+        return cls.from_dict(data, source=str(path))
+
+    def __str__(self) -> str:
+        u = f" {self.units}" if self.units else ""
+        with np.printoptions(precision=6, suppress=True):
+            rows = "\n".join("    " + line.strip() for line in np.array2string(self.matrix).splitlines())
+            return (f"{self.model or 'calibration'}: h = A (m - b), |h| = {self.field_norm:.6g}{u}\n"
+                    f"  offset b = {self.offset}{u}\n"
+                    f"  matrix A =\n{rows}")
+
+
+def _jsonable(value):
+    if isinstance(value, dict):
+        return {str(k): _jsonable(v) for k, v in value.items()}
+    if isinstance(value, (list, tuple)):
+        return [_jsonable(v) for v in value]
+    if isinstance(value, np.ndarray):
+        return value.tolist()
+    if isinstance(value, np.generic):
+        return value.item()
+    return value

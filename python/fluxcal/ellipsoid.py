@@ -1,0 +1,70 @@
+"""Ellipsoid-fit integrated calibration of a three-axis magnetometer (seed 004), on the C++ core."""
+from __future__ import annotations
+
+import numpy as np
+
+from . import _core
+from ._arrays import as_samples
+from .calibration import Calibration
+
+
+def _calibration(result: dict, metadata: dict | None = None) -> Calibration:
+    return Calibration(offset=result["offset"], matrix=result["matrix"], field_norm=result["field_norm"],
+                       units=result["units"], model=result["model"], summary=result["summary"],
+                       metadata=dict(metadata or {}))
+
+
+def _options(field_norm, units, **settings):
+    options = _core.EllipsoidOptions()
+    options.field_norm = 0.0 if field_norm is None else float(field_norm)
+    options.units = units or ""
+    for name, value in settings.items():
+        if not hasattr(options, name):
+            raise TypeError(f"fit_ellipsoid: unknown option {name!r}")
+        setattr(options, name, value)
+    return options
+
+
+def fit_ellipsoid(samples, field_norm: float | None = None, units: str | None = None,
+                  **settings) -> Calibration:
+    """Fit h = A (m − b) to N×3 readings taken in a uniform field (N ≥ 9).
+
+    field_norm: the known |h| (e.g. from IGRF, in the units you want h in); None uses the fitted mean
+    radius (geometric mean of the semi-axes, so det A = 1). A is symmetric. `samples` may be a
+    `fluxcal.io.Recording`, whose units are then carried. Raises ValueError on NaN/Inf, too few rows,
+    planar readings, or readings that do not lie on an ellipsoid.
+
+    settings (defaults in cpp/include/fluxcal/ellipsoid.hpp): planar_ratio=0.02 (reject below this
+    thinnest/widest spread), poor_coverage_ratio=0.3 and poor_direction_coverage=0.5 (warn below),
+    exact_statistics=True (residual statistics and coverage from a pass over the samples).
+    """
+    if units is None:
+        units = getattr(samples, "field_units", lambda: "")()
+    arr = as_samples(samples)
+    return _calibration(_core.fit_ellipsoid(arr, _options(field_norm, units, **settings)))
+
+
+class EllipsoidMoments:
+    """Streaming ellipsoid fit: constant-size sufficient statistics, updated block by block.
+
+    The normalisation (centre, scale) only keeps the sums well conditioned; take it from the first
+    block (`EllipsoidMoments.from_first(block)`) or from what you know of the sensor.
+    """
+
+    def __init__(self, centre, scale: float):
+        self._m = _core.EllipsoidMoments(np.asarray(centre, dtype=float).reshape(3), float(scale))
+
+    @classmethod
+    def from_first(cls, block) -> "EllipsoidMoments":
+        centre, scale = _core.normalisation(as_samples(block))
+        return cls(centre, scale)
+
+    def add(self, block) -> None:
+        self._m.add_rows(as_samples(block))
+
+    @property
+    def count(self) -> int:
+        return self._m.count
+
+    def fit(self, field_norm: float | None = None, units: str = "") -> Calibration:
+        return _calibration(self._m.fit(_options(field_norm, units)))

@@ -1,0 +1,133 @@
+"""CSV recordings.
+
+Layout written (and read) by fluxcal:
+
+    # fluxcal recording
+    # units: mx=nT, my=nT, mz=nT, t=s
+    # sensor: RM3100            <- any other "# key: value" line is metadata
+    t,mx,my,mz
+    0.00,123.4,-456.7,890.1
+
+Units may also sit in the header cells: `mx[nT]` or `mx (nT)`. A header-only CSV (no comments) reads
+with empty units. Errors name the file, line and column.
+"""
+from __future__ import annotations
+
+import io
+import re
+from pathlib import Path
+
+import numpy as np
+
+from .recording import Recording
+
+_UNIT_IN_HEADER = re.compile(r"^\s*([^\[\(]+?)\s*[\[\(]\s*([^\]\)]*)\s*[\]\)]\s*$")
+
+
+def _split_header(cell: str):
+    m = _UNIT_IN_HEADER.match(cell)
+    return (m.group(1).strip(), m.group(2).strip()) if m else (cell.strip(), "")
+
+
+def read_csv(path, columns=None, units: str | None = None, delimiter: str = ",") -> Recording:
+    """Read a CSV recording. `columns`: the three magnetometer columns (default mx,my,mz, or x,y,z).
+    `units`: the field unit, when the file does not state it."""
+    path = Path(path)
+    try:
+        text = path.read_text()
+    except (OSError, UnicodeDecodeError) as exc:
+        raise ValueError(f"{path}: cannot read ({exc})") from None
+    lines = text.splitlines()
+    metadata, unit_map = {}, {}
+    i = 0
+    while i < len(lines) and (lines[i].startswith("#") or not lines[i].strip()):
+        body = lines[i].lstrip("#").strip()
+        if ":" in body:
+            key, value = (s.strip() for s in body.split(":", 1))
+            if key == "units":
+                for pair in filter(None, (p.strip() for p in value.split(","))):
+                    if "=" not in pair:
+                        raise ValueError(f"{path}, line {i + 1}: units entry {pair!r} is not name=unit")
+                    name, unit = (s.strip() for s in pair.split("=", 1))
+                    unit_map[name] = unit
+            else:
+                metadata[key] = value
+        i += 1
+    if i >= len(lines):
+        raise ValueError(f"{path}: no header line (expected column names such as t,mx,my,mz)")
+    header_line = i + 1
+    names = []
+    for cell in lines[i].split(delimiter):
+        name, unit = _split_header(cell)
+        names.append(name)
+        if unit:
+            unit_map.setdefault(name, unit)
+    if any(not n for n in names) or len(set(names)) != len(names):
+        raise ValueError(f"{path}, line {header_line}: header {lines[i]!r} has empty or repeated column names")
+    if _is_number(names[0]):
+        raise ValueError(f"{path}, line {header_line}: the first line holds numbers, not column names; "
+                         "add a header such as mx,my,mz")
+    body_start = i + 1
+    body = lines[body_start:]
+    keep = [k for k, line in enumerate(body) if line.strip()]
+    line_numbers = np.array([body_start + k + 1 for k in keep], dtype=int)
+    if not keep:
+        raise ValueError(f"{path}: header but no data rows")
+    try:
+        data = np.loadtxt(io.StringIO("\n".join(body[k] for k in keep)), delimiter=delimiter, ndmin=2,
+                          dtype=float)
+        if data.shape[1] != len(names):
+            raise ValueError("column count")
+    except ValueError:
+        _raise_parse_error(path, [body[k] for k in keep], line_numbers, names, delimiter)
+        raise  # unreachable: _raise_parse_error always raises
+    rec = Recording(columns={n: data[:, j] for j, n in enumerate(names)}, units=unit_map, metadata=metadata,
+                    source=str(path), line_numbers=line_numbers)
+    if columns is not None:
+        rec.select(columns.split(",") if isinstance(columns, str) else columns)
+    if units:
+        for n in rec.mag_names():
+            rec.units[n] = units
+    return rec
+
+
+def _is_number(text: str) -> bool:
+    try:
+        float(text)
+        return True
+    except ValueError:
+        return False
+
+
+def _raise_parse_error(path, rows, line_numbers, names, delimiter):
+    """Find the first bad cell the slow way, so the message names line and column."""
+    for row, line_no in zip(rows, line_numbers):
+        cells = row.split(delimiter)
+        if len(cells) != len(names):
+            raise ValueError(f"{path}, line {line_no}: {len(cells)} fields, the header has {len(names)} "
+                             "(truncated or garbled line?)")
+        for cell, name in zip(cells, names):
+            if not _is_number(cell):
+                what = "empty" if not cell.strip() else f"{cell.strip()!r} is not a number"
+                raise ValueError(f"{path}, line {line_no}, column {name!r}: {what}")
+    raise ValueError(f"{path}: could not parse the data rows")
+
+
+def write_csv(path, recording_or_columns, units=None, metadata=None, fmt: str = "%.10g") -> Path:
+    """Write a recording (or a dict of columns) with its units and metadata as comment lines."""
+    if isinstance(recording_or_columns, Recording):
+        rec = recording_or_columns
+        columns, units, metadata = rec.columns, {**rec.units, **(units or {})}, {**rec.metadata, **(metadata or {})}
+    else:
+        columns, units, metadata = dict(recording_or_columns), dict(units or {}), dict(metadata or {})
+    names = list(columns)
+    data = np.column_stack([np.asarray(columns[n], dtype=float) for n in names])
+    head = ["# fluxcal recording"]
+    if units:
+        head.append("# units: " + ", ".join(f"{n}={u}" for n, u in units.items() if n in columns and u))
+    head += [f"# {k}: {v}" for k, v in metadata.items()]
+    path = Path(path)
+    with path.open("w") as f:
+        f.write("\n".join(head) + "\n" + ",".join(names) + "\n")
+        np.savetxt(f, data, delimiter=",", fmt=fmt)
+    return path

@@ -1,0 +1,36 @@
+#include <fluxcal/coverage.hpp>
+
+#include <gtest/gtest.h>
+
+#include <cmath>
+#include <random>
+#include <set>
+
+TEST(Coverage, EveryBinIsReachedAndBinsAreInRange) {
+  std::mt19937 rng(1);
+  std::normal_distribution<double> g;
+  std::set<int> bins;
+  for (int i = 0; i < 20000; ++i) {
+    const int b = fluxcal::direction_bin(Eigen::Vector3d(g(rng), g(rng), g(rng)));
+    ASSERT_GE(b, 0);
+    ASSERT_LT(b, fluxcal::kDirectionBins);
+    bins.insert(b);
+  }
+  EXPECT_EQ(static_cast<int>(bins.size()), fluxcal::kDirectionBins);
+}
+
+TEST(Coverage, AxesLandOnTheirFacesAndDegenerateVectorsHaveNoBin) {
+  EXPECT_EQ(fluxcal::direction_bin({1, 0, 0}) / 16, 0);
+  EXPECT_EQ(fluxcal::direction_bin({-1, 0, 0}) / 16, 1);
+  EXPECT_EQ(fluxcal::direction_bin({0, 0, -2}) / 16, 5);
+  EXPECT_EQ(fluxcal::direction_bin({0, 0, 0}), -1);
+  EXPECT_EQ(fluxcal::direction_bin({NAN, 0, 0}), -1);
+}
+
+TEST(Coverage, AHorizontalTurnSeesFewDirections) {
+  fluxcal::Samples ring(360, 3);
+  for (int i = 0; i < 360; ++i) ring.row(i) << std::cos(i * M_PI / 180), std::sin(i * M_PI / 180), 0.0;
+  const double c = fluxcal::direction_coverage(ring);
+  EXPECT_GT(c, 0.05);
+  EXPECT_LT(c, 0.2);
+}

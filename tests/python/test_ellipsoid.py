@@ -1,0 +1,176 @@
+import json
+
+import numpy as np
+import pytest
+
+import fluxcal
+import fluxcal.oracle
+from conftest import simulated
+
+
+@pytest.mark.parametrize("seed", range(5))
+@pytest.mark.parametrize("known_norm", [False, True])
+def test_core_agrees_with_numpy_oracle(seed, known_norm):
+    s = simulated(seed, n=500 + 300 * seed, noise=0.01)
+    norm = s.field_norm if known_norm else None
+    cal = fluxcal.fit_ellipsoid(s.readings, field_norm=norm)
+    ref = fluxcal.oracle.fit_ellipsoid(s.readings, field_norm=norm)
+    assert np.linalg.norm(cal.offset - ref["offset"]) <= 1e-8 * np.linalg.norm(ref["offset"])
+    assert np.linalg.norm(cal.matrix - ref["matrix"]) <= 1e-8 * np.linalg.norm(ref["matrix"])
+    assert cal.field_norm == pytest.approx(ref["field_norm"], rel=1e-10)
+
+
+@pytest.mark.parametrize("seed", range(20))
+def test_recovers_simulated_sensor_within_one_percent(seed):
+    # N = 2000, noise 0.5 % of the field, soft iron within ±20 %, offset up to 50 % of the field.
+    s = simulated(100 + seed)
+    truth = s.true_calibration()
+    cal = fluxcal.fit_ellipsoid(s.readings, field_norm=s.field_norm)
+    assert np.linalg.norm(cal.offset - truth.offset) < 0.01 * s.field_norm
+    assert np.linalg.norm(cal.matrix - truth.matrix) < 0.01 * np.linalg.norm(truth.matrix)
+    # after correction the magnitude spread is the noise (0.5 %), before it is the distortion
+    assert cal.summary["norm_std_over_mean"] < 0.007
+    assert cal.summary["exact_statistics"] is True
+
+
+def test_summary_statistics_are_those_of_the_corrected_readings():
+    s = simulated(7, noise=0.01)
+    cal = fluxcal.fit_ellipsoid(s.readings, field_norm=s.field_norm)
+    norm = np.linalg.norm(cal.apply(s.readings), axis=1)
+    assert cal.summary["samples"] == len(s.readings)
+    assert cal.summary["norm_mean"] == pytest.approx(norm.mean(), rel=1e-12)
+    assert cal.summary["norm_std_over_mean"] == pytest.approx(norm.std() / norm.mean(), rel=1e-9)
+    assert cal.summary["residual_rms"] == pytest.approx(np.sqrt(np.mean((norm - s.field_norm) ** 2)), rel=1e-9)
+    moments = fluxcal.fit_ellipsoid(s.readings, field_norm=s.field_norm, exact_statistics=False)
+    assert moments.summary["norm_std_over_mean"] == pytest.approx(norm.std() / norm.mean(), rel=0.02)
+
+
+def test_without_field_norm_scale_is_volume_radius():
+    s = simulated(3, noise=0.0)
+    cal = fluxcal.fit_ellipsoid(s.readings)
+    assert np.linalg.det(cal.matrix) == pytest.approx(1.0, abs=1e-10)
+    W = s.true_calibration().forward_matrix
+    assert cal.field_norm == pytest.approx(s.field_norm * abs(np.linalg.det(W)) ** (1 / 3), rel=1e-9)
+
+
+def test_streaming_moments_match_batch_fit():
+    s = simulated(4)
+    acc = fluxcal.EllipsoidMoments.from_first(s.readings[:50])
+    for block in np.array_split(s.readings, 7):
+        acc.add(block)
+    assert acc.count == len(s.readings)
+    streamed, batch = acc.fit(field_norm=s.field_norm), fluxcal.fit_ellipsoid(s.readings, field_norm=s.field_norm)
+    np.testing.assert_allclose(streamed.offset, batch.offset, rtol=1e-9, atol=1e-9 * s.field_norm)
+    np.testing.assert_allclose(streamed.matrix, batch.matrix, rtol=1e-9, atol=1e-12)
+
+
+def test_accepts_lists_fortran_order_and_float32():
+    s = simulated(5)
+    ref = fluxcal.fit_ellipsoid(s.readings)
+    for variant in (s.readings.tolist(), np.asfortranarray(s.readings), s.readings[::1].copy()):
+        np.testing.assert_allclose(fluxcal.fit_ellipsoid(variant).matrix, ref.matrix, rtol=1e-12)
+    f32 = fluxcal.fit_ellipsoid(s.readings.astype(np.float32))
+    np.testing.assert_allclose(f32.matrix, ref.matrix, rtol=1e-4)
+
+
+def test_apply_reading_and_magcal_conventions():
+    s = simulated(6)
+    cal = fluxcal.fit_ellipsoid(s.readings, field_norm=s.field_norm)
+    h = cal.apply(s.readings)
+    np.testing.assert_allclose(cal.apply(s.readings[0]), h[0])
+    np.testing.assert_allclose(cal.reading(h), s.readings, rtol=1e-12, atol=1e-9 * s.field_norm)
+    A, b, expmfs = cal.to_magcal()  # MATLAB: C = (D − b)·A
+    np.testing.assert_allclose((s.readings - b) @ A, h)
+    assert expmfs == cal.field_norm
+    back = fluxcal.Calibration.from_magcal(A, b, expmfs)
+    np.testing.assert_allclose(back.matrix, cal.matrix)
+
+
+def test_save_and_load_round_trip(tmp_path):
+    s = simulated(8)
+    cal = fluxcal.fit_ellipsoid(s.readings, field_norm=s.field_norm, units="nT")
+    path = cal.save(tmp_path / "cal.json")
+    data = json.loads(path.read_text())
+    assert data["fluxcal_version"] == fluxcal.__version__
+    assert data["model"] == "ellipsoid" and data["units"] == "nT"
+    assert data["summary"]["samples"] == 2000
+    back = fluxcal.Calibration.load(path)
+    np.testing.assert_array_equal(back.matrix, cal.matrix)
+    np.testing.assert_array_equal(back.offset, cal.offset)
+    assert back.summary == cal.summary and back.units == "nT"
+
+
+def test_load_errors_name_the_file(tmp_path):
+    bad = tmp_path / "bad.json"
+    bad.write_text("{not json")
+    with pytest.raises(ValueError, match="bad.json: not a fluxcal calibration"):
+        fluxcal.Calibration.load(bad)
+    bad.write_text('{"offset": [1, 2, 3]}')
+    with pytest.raises(ValueError, match="bad.json: missing matrix, field_norm"):
+        fluxcal.Calibration.load(bad)
+
+
+# -- bad input: a clear ValueError naming the input, never a crash or a silent answer --------------------
+
+def test_nan_and_inf_rows_are_named():
+    x = simulated(9).readings.copy()
+    x[17, 2] = np.nan
+    with pytest.raises(ValueError, match=r"samples: row 17, column 2 \(z\) is NaN"):
+        fluxcal.fit_ellipsoid(x)
+    x[17, 2] = 1.0
+    x[3, 0] = -np.inf
+    with pytest.raises(ValueError, match=r"row 3, column 0 \(x\) is infinite"):
+        fluxcal.fit_ellipsoid(x)
+
+
+def test_too_few_samples():
+    with pytest.raises(ValueError, match="samples: 8 rows, need at least 9"):
+        fluxcal.fit_ellipsoid(simulated(1).readings[:8])
+
+
+def test_planar_samples_are_rejected():
+    a = np.linspace(0, 2 * np.pi, 400)
+    planar = np.column_stack([np.cos(a), np.sin(a), 0.1 * np.cos(a)]) + [0.3, -0.2, 0.5]
+    with pytest.raises(ValueError, match="lie nearly in one plane"):
+        fluxcal.fit_ellipsoid(planar)
+
+
+def test_wrong_shapes_and_types():
+    x = simulated(2).readings
+    with pytest.raises(ValueError, match=r"shape \(3, 2000\).*transposed"):
+        fluxcal.fit_ellipsoid(x.T)
+    with pytest.raises(ValueError, match="samples: not numeric"):
+        fluxcal.fit_ellipsoid([["a", "b", "c"]] * 10)
+    with pytest.raises(ValueError, match="field_norm"):
+        fluxcal.fit_ellipsoid(x, field_norm=-1.0)
+
+
+def test_poor_coverage_warns():
+    # half the azimuths, elevation within ±25°: about a fifth of the directions
+    rng = np.random.default_rng(0)
+    az, el = rng.uniform(0, np.pi, 2000), np.deg2rad(rng.uniform(-25, 25, 2000))
+    x = np.column_stack([np.cos(el) * np.cos(az), np.cos(el) * np.sin(az), np.sin(el)])
+    cal = fluxcal.fit_ellipsoid(x + 0.001 * rng.standard_normal(x.shape))
+    assert cal.summary["direction_coverage"] < 0.5
+    assert any("poor coverage" in w for w in cal.summary["warnings"])
+    full = fluxcal.fit_ellipsoid(simulated(1).readings)
+    assert full.summary["direction_coverage"] > 0.95 and not full.summary["warnings"]
+
+
+@pytest.mark.parametrize("seed", range(3))
+def test_direction_coverage_agrees_with_oracle(seed):
+    rng = np.random.default_rng(seed)
+    v = rng.standard_normal((50 + 100 * seed, 3)) * [1, 1, 0.3 * seed + 0.1]
+    assert fluxcal.direction_coverage(v) == fluxcal.oracle.direction_coverage(v)
+    from fluxcal import _core
+    assert [_core.direction_bin(r) for r in v[:20]] == list(fluxcal.oracle.direction_bins(v[:20]))
+    assert fluxcal.direction_coverage(rng.standard_normal((20000, 3))) == 1.0
+
+
+def test_summary_coverage_is_that_of_the_corrected_fields():
+    s = simulated(12, n=3000)
+    s.readings[:2000] = np.tile(s.readings[2000:], (2, 1))  # a third repeated: fewer directions
+    cal = fluxcal.fit_ellipsoid(s.readings)
+    assert cal.summary["direction_coverage"] == fluxcal.oracle.direction_coverage(cal.apply(s.readings))
+    sub = fluxcal.fit_ellipsoid(s.readings, coverage_rows=300)  # strided subsample: never more bins
+    assert sub.summary["direction_coverage"] <= cal.summary["direction_coverage"]
