@@ -37,7 +37,7 @@ struct EllipsoidOptions {
   /// than from the moments (first order in the residual, no direction coverage; free).
   bool exact_statistics = true;
   /// Direction coverage looks at an evenly strided subsample of at most this many readings (0 = all).
-  Eigen::Index coverage_rows = 65536;
+  Eigen::Index coverage_rows = 16384;
 };
 
 struct EllipsoidResult {
