@@ -1,0 +1,3 @@
+// bench_twostep — placeholder until the TWOSTEP solvers land.
+#include <benchmark/benchmark.h>
+BENCHMARK_MAIN();

@@ -1,0 +1,1 @@
+#include "fluxcal/twostep.hpp"

@@ -1,0 +1,22 @@
+// Shared by the binding files of fluxcal._core: conversion helpers and one bind_* per capability.
+#pragma once
+
+#include <fluxcal/types.hpp>
+
+#include <pybind11/eigen.h>
+#include <pybind11/pybind11.h>
+#include <pybind11/stl.h>
+
+namespace fluxcal_py {
+
+namespace py = pybind11;
+
+/// A Summary as a plain dict (what Calibration.summary holds and JSON stores).
+py::dict summary_dict(const fluxcal::Summary& s);
+/// A Calibration plus its Summary as the dict fluxcal's Python layer turns into a Calibration.
+py::dict calibration_dict(const fluxcal::Calibration& c, const fluxcal::Summary& s);
+
+void bind_ellipsoid(py::module_& m);  // ellipsoid.cpp (also coverage)
+void bind_twostep(py::module_& m);    // twostep.cpp
+
+}  // namespace fluxcal_py
