@@ -196,14 +196,33 @@ bool EllipsoidMoments::finite() const {
   return std::all_of(sums_.begin(), sums_.end(), [](double s) { return std::isfinite(s); });
 }
 
-Eigen::Matrix<double, 10, 10> EllipsoidMoments::scatter() const {
+Eigen::Matrix<double, 10, 10> EllipsoidMoments::scatter(double noise_variance) const {
+  // E[t_n(x + e)] = xⁿ for e ~ N(0, v) with t_0..t_4 = 1, x, x² − v, x³ − 3vx, x⁴ − 6vx² + 3v²
+  // (Hermite); axes are independent, so Π t gives the unbiased moment of a monomial. herm[n][a] is
+  // the coefficient of xᵃ in t_n.
+  const double v = noise_variance;
+  const double herm[5][5] = {{1, 0, 0, 0, 0},
+                             {0, 1, 0, 0, 0},
+                             {-v, 0, 1, 0, 0},
+                             {0, -3 * v, 0, 1, 0},
+                             {3 * v * v, 0, -6 * v, 0, 1}};
+  auto moment = [&](int i, int j, int k) {
+    if (v == 0.0) return sums_[kIndex.index[i][j][k]];
+    double total = 0.0;
+    for (int a = 0; a <= i; ++a)
+      for (int b = 0; b <= j; ++b)
+        for (int c = 0; c <= k; ++c) {
+          const double coef = herm[i][a] * herm[j][b] * herm[k][c];
+          if (coef != 0.0) total += coef * sums_[kIndex.index[a][b][c]];
+        }
+    return total;
+  };
   Eigen::Matrix<double, 10, 10> s;
   for (int a = 0; a < 10; ++a)
-    for (int b = 0; b < 10; ++b) {
-      const int i = kDesignExp[a][0] + kDesignExp[b][0];
-      const int j = kDesignExp[a][1] + kDesignExp[b][1];
-      const int k = kDesignExp[a][2] + kDesignExp[b][2];
-      s(a, b) = kDesignFactor[a] * kDesignFactor[b] * sums_[kIndex.index[i][j][k]];
+    for (int b = 0; b <= a; ++b) {
+      s(a, b) = s(b, a) = kDesignFactor[a] * kDesignFactor[b] *
+                          moment(kDesignExp[a][0] + kDesignExp[b][0], kDesignExp[a][1] + kDesignExp[b][1],
+                                 kDesignExp[a][2] + kDesignExp[b][2]);
     }
   return s;
 }
@@ -228,6 +247,36 @@ std::pair<Eigen::Vector3d, double> normalisation(const SamplesRef& samples, Eige
 // ---- the fit ---------------------------------------------------------------------------------------
 
 namespace {
+
+double smallest_eigenvalue(const Eigen::Matrix<double, 10, 10>& m) {
+  return Eigen::SelfAdjointEigenSolver<Eigen::Matrix<double, 10, 10>>(m, Eigen::EigenvaluesOnly).eigenvalues()(0);
+}
+
+// ALS: the noise variance v (normalised units) at which the adjusted scatter ψ(v) turns singular,
+// found by bracketing from v = 0 (ψ(0) is the ordinary scatter, positive semi-definite) and
+// bisection; the quadric is the null vector of ψ(v), scaled to trace(M) = 1.
+Eigen::Matrix<double, 10, 1> adjusted_quadric(const EllipsoidMoments& mom, double& noise_sigma) {
+  const double n = static_cast<double>(mom.count());
+  auto lambda_min = [&](double v) { return smallest_eigenvalue(mom.scatter(v) / n); };
+  double lo = 0.0, hi = 1e-8;
+  while (lambda_min(hi) > 0.0) {
+    lo = hi;
+    hi *= 4.0;
+    if (hi > 1.0) throw Error("samples: adjusted least squares found no noise level that fits (noise above the data's spread?)");
+  }
+  for (int it = 0; it < 200 && hi - lo > 1e-15 * hi; ++it) {
+    const double mid = 0.5 * (lo + hi);
+    (lambda_min(mid) > 0.0 ? lo : hi) = mid;
+  }
+  const double v = 0.5 * (lo + hi);
+  Eigen::SelfAdjointEigenSolver<Eigen::Matrix<double, 10, 10>> eig(mom.scatter(v) / n);
+  Eigen::Matrix<double, 10, 1> p = eig.eigenvectors().col(0);
+  const double trace = p(0) + p(1) + p(2);
+  if (!(std::abs(trace) > 1e-12 * p.norm()))
+    throw Error("samples: adjusted least squares gave a degenerate quadric (trace 0); use the ordinary fit");
+  noise_sigma = std::sqrt(v) * mom.scale();
+  return p / trace;
+}
 
 EllipsoidResult solve(const EllipsoidMoments& mom, const EllipsoidOptions& opt) {
   const double n = static_cast<double>(mom.count());
@@ -269,7 +318,8 @@ EllipsoidResult solve(const EllipsoidMoments& mom, const EllipsoidOptions& opt) 
   }
   const Eigen::Matrix<double, 9, 1> q =
       eig.eigenvectors() * (eig.eigenvectors().transpose() * rhs).cwiseQuotient(lam);
-  const Eigen::Matrix<double, 10, 1> p = e0 + E * q;
+  Eigen::Matrix<double, 10, 1> p = e0 + E * q;
+  if (opt.method == EllipsoidMethod::adjusted) p = adjusted_quadric(mom, out.noise_sigma);
   out.quadric = p;
 
   Eigen::Matrix3d M;
@@ -299,7 +349,7 @@ EllipsoidResult solve(const EllipsoidMoments& mom, const EllipsoidOptions& opt) 
   cal.matrix = (H / s) * meig.eigenvectors() * lamB.cwiseSqrt().asDiagonal() * meig.eigenvectors().transpose();
   cal.field_norm = H;
   cal.units = opt.units;
-  cal.model = "ellipsoid";
+  cal.model = opt.method == EllipsoidMethod::adjusted ? "ellipsoid_als" : "ellipsoid";
 
   // Residual statistics from the moments: |h|² = H² (1 + pᵀd/ρ²), d the design row.
   const Eigen::Matrix<double, 10, 1> dmean = S.col(9) / n;
@@ -333,10 +383,11 @@ EllipsoidResult solve(const EllipsoidMoments& mom, const EllipsoidOptions& opt) 
 
 void finish_message(EllipsoidResult& r) {
   std::ostringstream msg;
-  msg << "ellipsoid fit: " << r.summary.samples << " samples, |h| std/mean "
+  msg << (r.calibration.model == "ellipsoid_als" ? "ellipsoid fit (adjusted LS)" : "ellipsoid fit") << ": " << r.summary.samples << " samples, |h| std/mean "
       << percent(r.summary.norm_std_over_mean) << ", residual RMS " << r.summary.residual_rms
       << (r.calibration.units.empty() ? "" : " " + r.calibration.units) << ", condition number "
       << r.summary.condition_number;
+  if (r.noise_sigma > 0.0) msg << ", noise σ " << r.noise_sigma;
   if (!r.summary.warnings.empty()) msg << " (" << r.summary.warnings.size() << " warning(s))";
   r.summary.message = msg.str();
 }

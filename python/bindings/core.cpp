@@ -28,4 +28,5 @@ PYBIND11_MODULE(_core, m) {
   pybind11::register_exception<fluxcal::Error>(m, "Error", PyExc_ValueError);
   fluxcal_py::bind_ellipsoid(m);
   fluxcal_py::bind_twostep(m);
+  fluxcal_py::bind_refine(m);
 }

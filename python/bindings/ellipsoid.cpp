@@ -12,6 +12,7 @@ namespace {
 py::dict result_dict(const fluxcal::EllipsoidResult& r) {
   py::dict d = calibration_dict(r.calibration, r.summary);
   d["quadric"] = r.quadric;
+  d["noise_sigma"] = r.noise_sigma;
   return d;
 }
 
@@ -19,8 +20,12 @@ py::dict result_dict(const fluxcal::EllipsoidResult& r) {
 
 void bind_ellipsoid(py::module_& m) {
   using fluxcal::EllipsoidOptions;
+  py::enum_<fluxcal::EllipsoidMethod>(m, "EllipsoidMethod")
+      .value("ordinary", fluxcal::EllipsoidMethod::ordinary)
+      .value("adjusted", fluxcal::EllipsoidMethod::adjusted);
   py::class_<EllipsoidOptions>(m, "EllipsoidOptions")
       .def(py::init<>())
+      .def_readwrite("method", &EllipsoidOptions::method)
       .def_readwrite("field_norm", &EllipsoidOptions::field_norm)
       .def_readwrite("units", &EllipsoidOptions::units)
       .def_readwrite("planar_ratio", &EllipsoidOptions::planar_ratio)

@@ -8,13 +8,16 @@
 from . import _core
 from .calibration import Calibration
 from .coverage import direction_coverage
+from .bounds import crlb
 from .ellipsoid import EllipsoidMoments, fit_ellipsoid
 from .io import Recording, read_csv, write_csv
+from .pipeline import calibrate
+from .refine import fit_vector, refine
 
 __version__ = _core.__version__
 
-__all__ = ["Calibration", "EllipsoidMoments", "Recording", "direction_coverage", "fit_ellipsoid",
-           "read_csv", "write_csv", "__version__", "cmake_dir"]
+__all__ = ["Calibration", "EllipsoidMoments", "Recording", "calibrate", "crlb", "direction_coverage",
+           "fit_ellipsoid", "fit_vector", "read_csv", "refine", "write_csv", "__version__", "cmake_dir"]
 
 
 def cmake_dir() -> str:

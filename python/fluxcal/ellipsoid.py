@@ -8,14 +8,23 @@ from ._arrays import as_samples
 from .calibration import Calibration
 
 
+METHODS = {"ls": _core.EllipsoidMethod.ordinary, "als": _core.EllipsoidMethod.adjusted}
+
+
 def _calibration(result: dict, metadata: dict | None = None) -> Calibration:
+    summary = dict(result["summary"])
+    if result.get("noise_sigma"):
+        summary["noise_sigma"] = result["noise_sigma"]
     return Calibration(offset=result["offset"], matrix=result["matrix"], field_norm=result["field_norm"],
-                       units=result["units"], model=result["model"], summary=result["summary"],
+                       units=result["units"], model=result["model"], summary=summary,
                        metadata=dict(metadata or {}))
 
 
-def _options(field_norm, units, **settings):
+def _options(field_norm, units, method="ls", **settings):
     options = _core.EllipsoidOptions()
+    if method not in METHODS:
+        raise ValueError(f"method: {method!r} is not one of {', '.join(METHODS)}")
+    options.method = METHODS[method]
     options.field_norm = 0.0 if field_norm is None else float(field_norm)
     options.units = units or ""
     for name, value in settings.items():
@@ -25,10 +34,13 @@ def _options(field_norm, units, **settings):
     return options
 
 
-def fit_ellipsoid(samples, field_norm: float | None = None, units: str | None = None,
+def fit_ellipsoid(samples, field_norm: float | None = None, units: str | None = None, method: str = "ls",
                   **settings) -> Calibration:
     """Fit h = A (m − b) to N×3 readings taken in a uniform field (N ≥ 9).
 
+    method: "ls" — ordinary algebraic least squares (fast; biased by noise, by a relative σ²/H²);
+    "als" — adjusted least squares (Markovsky et al. 2004), consistent under isotropic Gaussian noise,
+    and reports the estimated noise σ per axis as summary["noise_sigma"].
     field_norm: the known |h| (e.g. from IGRF, in the units you want h in); None uses the fitted mean
     radius (geometric mean of the semi-axes, so det A = 1). A is symmetric. `samples` may be a
     `fluxcal.io.Recording`, whose units are then carried. Raises ValueError on NaN/Inf, too few rows,
@@ -41,7 +53,7 @@ def fit_ellipsoid(samples, field_norm: float | None = None, units: str | None = 
     if units is None:
         units = getattr(samples, "field_units", lambda: "")()
     arr = as_samples(samples)
-    return _calibration(_core.fit_ellipsoid(arr, _options(field_norm, units, **settings)))
+    return _calibration(_core.fit_ellipsoid(arr, _options(field_norm, units, method, **settings)))
 
 
 class EllipsoidMoments:

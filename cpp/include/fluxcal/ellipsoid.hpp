@@ -22,7 +22,21 @@
 
 namespace fluxcal {
 
+/// Which algebraic estimator fits the quadric.
+enum class EllipsoidMethod {
+  /// Ordinary least squares (trace(M) = 1). Biased by noise: the offset and shape shrink toward
+  /// the noise-free ellipsoid only as σ → 0 (a relative bias of order σ²/H²).
+  ordinary,
+  /// Adjusted least squares (Markovsky, Kukush & Van Huffel 2004): each moment of the noisy readings
+  /// is replaced by an unbiased estimate of the noise-free moment (Hermite polynomials in σ²), with
+  /// σ² estimated so the adjusted scatter becomes singular. Consistent for isotropic, independent
+  /// Gaussian noise on each axis; also returns that noise estimate.
+  adjusted,
+};
+
 struct EllipsoidOptions {
+  /// Estimator of the quadric (see EllipsoidMethod).
+  EllipsoidMethod method = EllipsoidMethod::ordinary;
   /// Known field magnitude |h| (e.g. from IGRF). 0 = use the fitted mean radius.
   double field_norm = 0.0;
   /// Units of the readings, carried into the Calibration ("" = not stated).
@@ -45,6 +59,8 @@ struct EllipsoidResult {
   Summary summary;
   /// Quadric coefficients [M11 M22 M33 M12 M13 M23 v1 v2 v3 k] in normalised coordinates.
   Eigen::Matrix<double, 10, 1> quadric;
+  /// Adjusted fit only: the estimated noise standard deviation per axis, in reading units (else 0).
+  double noise_sigma = 0.0;
 };
 
 /// Sufficient statistics of the fit: the 35 moments Σ uˣ vʸ wᶻ (x+y+z ≤ 4) of the normalised readings.
@@ -66,7 +82,9 @@ class EllipsoidMoments {
   const Eigen::Vector3d& centre() const { return centre_; }
   double scale() const { return scale_; }
   /// Σ dᵢdᵢᵀ for the design row d = [u², v², w², 2uv, 2uw, 2vw, 2u, 2v, 2w, 1] (normalised).
-  Eigen::Matrix<double, 10, 10> scatter() const;
+  /// With `noise_variance` > 0 (per axis, normalised units: (σ/scale)²) every moment is replaced by
+  /// its unbiased estimate for noise-free readings — the adjusted scatter of the ALS fit.
+  Eigen::Matrix<double, 10, 10> scatter(double noise_variance = 0.0) const;
   /// True when every sum is finite (a NaN or Inf reading poisons them all).
   bool finite() const;
 

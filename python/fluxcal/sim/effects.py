@@ -8,9 +8,11 @@ import numpy as np
 
 
 class Effect:
-    """Base class. `apply(values, context)`: context has `t` (s), `rng` and `truth` (true field)."""
+    """Base class. `apply(values, context)`: context has `t` (s), `rng` and `truth` (true field).
+    `is_noise`: a random effect, left out of Simulation.clean (the noise-free readings)."""
 
     n_params = 0
+    is_noise = False
 
     def apply(self, values: np.ndarray, context) -> np.ndarray:  # pragma: no cover - interface
         raise NotImplementedError
@@ -44,6 +46,7 @@ class WhiteNoise(Effect):
 
     sigma: float
     n_params = 1
+    is_noise = True
 
     def apply(self, values, context):
         return values + self.sigma * context.rng.standard_normal(values.shape)

@@ -15,6 +15,7 @@ from .effects import HardIron, SoftIron
 class Simulation:
     readings: np.ndarray  # N×3, what the sensor reports
     truth: np.ndarray     # N×3, true field in the sensor frame
+    clean: np.ndarray     # N×3, the readings without the random (is_noise) effects
     t: np.ndarray
     effects: list
     field_norm: float
@@ -37,9 +38,11 @@ def simulate(scene, effects, field, rng=None) -> Simulation:
     field `field` (3-vector, world frame)."""
     rng = np.random.default_rng(rng)
     truth = scene.sensor_field(field)
-    values = truth.copy()
+    values, clean = truth.copy(), truth.copy()
     context = SimpleNamespace(t=scene.t, rng=rng, truth=truth)
     for effect in effects:
         values = effect.apply(values, context)
-    return Simulation(readings=values, truth=truth, t=scene.t, effects=list(effects),
+        if not effect.is_noise:
+            clean = effect.apply(clean, context)
+    return Simulation(readings=values, truth=truth, clean=clean, t=scene.t, effects=list(effects),
                       field_norm=float(np.linalg.norm(field)))

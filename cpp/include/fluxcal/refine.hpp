@@ -1,0 +1,76 @@
+// fluxcal/refine.hpp — maximum-likelihood joint refinement of a calibration (Ceres).
+//
+// Magnitude model (no direction reference): readings m = W h + b + e, |h| = H known, e ~ N(0, σ²I).
+// Parameters θ = [b (3), A (6: a00 a01 a02 a11 a12 a22)], A symmetric, h = A (m − b). The residual of
+// reading i is its first-order geometric distance to the ellipsoid |A (m − b)| = H (Sampson):
+//     r_i = (|h_i| − H) · |h_i| / |A h_i|      (reading units)
+// so least squares on r is maximum likelihood for isotropic Gaussian noise on the readings, and
+// σ̂² = Σr²/(N − 9) estimates the noise.
+//
+// Vector model (each reading has its true field r_i in the sensor frame, e.g. IGRF rotated by an
+// attitude): m_i = W r_i + b + e_i. Parameters θ = [b (3), W (9, row-major)]; residual m_i − W r_i − b.
+// The correction reported is A = W⁻¹ (full, not symmetric: the reference fixes the rotation).
+//
+// Both return the covariance of θ, σ̂² (JᵀJ)⁻¹ (ceres::Covariance), standard errors, whether the data
+// determine each parameter, and the condition number of the (column-scaled) Fisher information.
+#pragma once
+
+#include "fluxcal/types.hpp"
+
+#include <string>
+#include <vector>
+
+namespace fluxcal {
+
+enum class Loss {
+  none,    ///< plain least squares (maximum likelihood under Gaussian noise)
+  huber,   ///< quadratic below loss_scale, linear above
+  cauchy,  ///< log(1 + (r/loss_scale)²): strong down-weighting of outliers
+};
+
+struct RefineOptions {
+  Loss loss = Loss::none;
+  /// Residual size (reading units) where the robust loss bends; 0 = 3 × a robust estimate of the noise
+  /// (1.4826 · median |r| at the start).
+  double loss_scale = 0.0;
+  int max_iterations = 100;
+  double function_tolerance = 1e-14;
+  double gradient_tolerance = 1e-14;
+  double parameter_tolerance = 1e-12;
+  /// Compute the covariance, standard errors and identifiability (one factorisation of JᵀJ).
+  bool covariance = true;
+  /// A parameter counts as determined when its standard error is below this fraction of its scale:
+  /// the field norm for offsets, the RMS entry of the matrix for matrix entries.
+  double determined_tolerance = 0.01;
+  std::string units;  ///< carried into the Calibration (default: the start's units)
+};
+
+struct RefineResult {
+  Calibration calibration;
+  Summary summary;
+  Eigen::VectorXd parameters;               ///< θ, in the order of parameter_names
+  std::vector<std::string> parameter_names;  ///< "b0".."b2", then "a00".. or "w00"..
+  Eigen::MatrixXd covariance;               ///< σ̂² (JᵀJ)⁻¹; +inf on the diagonal where undetermined
+  Eigen::VectorXd standard_errors;          ///< sqrt of the covariance diagonal
+  std::vector<bool> determined;             ///< per parameter (see RefineOptions::determined_tolerance)
+  bool identifiable = true;                 ///< every parameter determined
+  double noise_sigma = 0.0;                 ///< σ̂ from the final residuals (reading units)
+  double fisher_condition = 0.0;            ///< condition number of the column-scaled JᵀJ
+  std::string solver_report;                ///< Ceres' brief report
+};
+
+/// Magnitude model, starting from `start` (offset, matrix — made symmetric by its polar factor — and
+/// the known field norm start.field_norm). Needs ≥ 10 finite readings.
+RefineResult refine(const Calibration& start, const SamplesRef& samples, const RefineOptions& options = {});
+
+/// Vector model: `reference` holds the true field of each reading in the sensor frame (N×3, the
+/// same units as the corrected field h). Starts from `start` (A⁻¹ and b). Needs ≥ 5 readings whose
+/// reference directions span 3-D.
+RefineResult refine_vector(const Calibration& start, const SamplesRef& samples, const SamplesRef& reference,
+                           const RefineOptions& options = {});
+
+/// Linear least-squares vector calibration (closed form, one pass): m = W r + b fitted by least
+/// squares, A = W⁻¹. Covariance σ̂² (XᵀX)⁻¹ per output axis. Use refine_vector for a robust loss.
+RefineResult fit_vector(const SamplesRef& samples, const SamplesRef& reference, const RefineOptions& options = {});
+
+}  // namespace fluxcal

@@ -1,0 +1,389 @@
+#include "fluxcal/refine.hpp"
+
+#include "fluxcal/coverage.hpp"
+
+#include <ceres/ceres.h>
+
+#include <algorithm>
+#include <cmath>
+#include <limits>
+#include <memory>
+#include <sstream>
+
+namespace fluxcal {
+namespace {
+
+constexpr const char* kMagnitudeNames[] = {"b0", "b1", "b2", "a00", "a01", "a02", "a11", "a12", "a22"};
+constexpr const char* kVectorNames[] = {"b0",  "b1",  "b2",  "w00", "w01", "w02",
+                                        "w10", "w11", "w12", "w20", "w21", "w22"};
+
+// r = (|h| − H)|h| / |A h|, h = A (m − b), A symmetric: the Sampson distance to |A (m − b)| = H.
+struct MagnitudeResidual {
+  double m[3];
+  double H;
+  template <class T>
+  bool operator()(const T* th, T* r) const {
+    const T d0 = T(m[0]) - th[0], d1 = T(m[1]) - th[1], d2 = T(m[2]) - th[2];
+    const T &a00 = th[3], &a01 = th[4], &a02 = th[5], &a11 = th[6], &a12 = th[7], &a22 = th[8];
+    const T h0 = a00 * d0 + a01 * d1 + a02 * d2;
+    const T h1 = a01 * d0 + a11 * d1 + a12 * d2;
+    const T h2 = a02 * d0 + a12 * d1 + a22 * d2;
+    const T g0 = a00 * h0 + a01 * h1 + a02 * h2;
+    const T g1 = a01 * h0 + a11 * h1 + a12 * h2;
+    const T g2 = a02 * h0 + a12 * h1 + a22 * h2;
+    const T hn = ceres::sqrt(h0 * h0 + h1 * h1 + h2 * h2);
+    r[0] = (hn - T(H)) * hn / ceres::sqrt(g0 * g0 + g1 * g1 + g2 * g2);
+    return true;
+  }
+};
+
+// r = m − W ref − b.
+struct VectorResidual {
+  double m[3];
+  double ref[3];
+  template <class T>
+  bool operator()(const T* th, T* r) const {
+    for (int j = 0; j < 3; ++j)
+      r[j] = T(m[j]) - th[j] - th[3 + 3 * j] * ref[0] - th[4 + 3 * j] * ref[1] - th[5 + 3 * j] * ref[2];
+    return true;
+  }
+};
+
+Eigen::Matrix3d symmetric_part(const Eigen::Matrix3d& A) {
+  // Polar factor sqrt(AᵀA): the symmetric matrix with the same |A x| for every x.
+  Eigen::SelfAdjointEigenSolver<Eigen::Matrix3d> eig(A.transpose() * A);
+  return eig.eigenvectors() * eig.eigenvalues().cwiseMax(0.0).cwiseSqrt().asDiagonal() *
+         eig.eigenvectors().transpose();
+}
+
+std::string percent(double ratio) {
+  std::ostringstream s;
+  s << 100.0 * ratio << " %";
+  return s.str();
+}
+
+double robust_sigma(std::vector<double> abs_residuals) {
+  if (abs_residuals.empty()) return 0.0;
+  auto mid = abs_residuals.begin() + static_cast<std::ptrdiff_t>(abs_residuals.size() / 2);
+  std::nth_element(abs_residuals.begin(), mid, abs_residuals.end());
+  return 1.4826 * *mid;
+}
+
+ceres::LossFunction* make_loss(const RefineOptions& opt, double sigma_start) {
+  if (opt.loss == Loss::none) return nullptr;
+  const double scale = opt.loss_scale > 0.0 ? opt.loss_scale : 3.0 * sigma_start;
+  if (!(scale > 0.0)) throw Error("loss_scale: the robust loss needs a positive scale (the start fits exactly?)");
+  if (opt.loss == Loss::huber) return new ceres::HuberLoss(scale);
+  return new ceres::CauchyLoss(scale);
+}
+
+void check_inputs(const SamplesRef& samples, Eigen::Index min_rows, const std::string& purpose) {
+  check_samples(samples, "samples", min_rows, purpose);
+}
+
+// Covariance, standard errors and identifiability from the information matrix F = JᵀJ.
+void finish_statistics(RefineResult& out, const Eigen::MatrixXd& F, double sigma2, bool have_covariance,
+                       const Eigen::VectorXd& scales, const RefineOptions& opt) {
+  const Eigen::Index p = F.rows();
+  const Eigen::VectorXd d = F.diagonal().cwiseMax(1e-300).cwiseSqrt().cwiseInverse();
+  const Eigen::MatrixXd scaled = d.asDiagonal() * F * d.asDiagonal();
+  Eigen::SelfAdjointEigenSolver<Eigen::MatrixXd> eig(scaled);
+  const Eigen::VectorXd lam = eig.eigenvalues();
+  out.fisher_condition = lam(0) > 0.0 ? lam(p - 1) / lam(0) : std::numeric_limits<double>::infinity();
+  if (!have_covariance) {  // near-null directions get a huge (not infinite) variance
+    const Eigen::VectorXd inv = lam.cwiseMax(lam(p - 1) * 1e-300).cwiseInverse();
+    out.covariance = sigma2 * d.asDiagonal() * eig.eigenvectors() * inv.asDiagonal() *
+                     eig.eigenvectors().transpose() * d.asDiagonal();
+  }
+  out.standard_errors = out.covariance.diagonal().cwiseMax(0.0).cwiseSqrt();
+  out.determined.assign(static_cast<std::size_t>(p), true);
+  std::ostringstream undetermined;
+  for (Eigen::Index k = 0; k < p; ++k) {
+    const bool ok = std::isfinite(out.standard_errors(k)) &&
+                    out.standard_errors(k) < opt.determined_tolerance * scales(k);
+    out.determined[static_cast<std::size_t>(k)] = ok;
+    if (!ok) undetermined << (out.identifiable ? "" : ", ") << out.parameter_names[static_cast<std::size_t>(k)];
+    if (!ok) out.identifiable = false;
+  }
+  if (!out.identifiable)
+    out.summary.warnings.push_back(
+        "not identifiable: the data do not determine " + undetermined.str() +
+        " (standard error above " + percent(opt.determined_tolerance) +
+        " of its scale); rotate the sensor through more orientations, give a reference vector, "
+        "or use a 2-D model");
+}
+
+// Fills the Summary's residual statistics from the final calibration.
+void finish_summary(RefineResult& out, const SamplesRef& samples, const SamplesRef* reference) {
+  const Calibration& cal = out.calibration;
+  double sd = 0.0, sd2 = 0.0, sv2 = 0.0;
+  for (Eigen::Index i = 0; i < samples.rows(); ++i) {
+    const Eigen::Vector3d h = cal.apply(samples.row(i).transpose());
+    const double dev = h.norm() - cal.field_norm;
+    sd += dev;
+    sd2 += dev * dev;
+    if (reference) sv2 += (h - reference->row(i).transpose()).squaredNorm();
+  }
+  const double n = static_cast<double>(samples.rows());
+  Summary& s = out.summary;
+  s.samples = static_cast<std::size_t>(samples.rows());
+  s.norm_mean = cal.field_norm + sd / n;
+  s.norm_std_over_mean = std::sqrt(std::max(0.0, sd2 / n - (sd / n) * (sd / n))) / s.norm_mean;
+  s.residual_rms = reference ? std::sqrt(sv2 / n) : std::sqrt(sd2 / n);
+  s.exact_statistics = true;
+  s.direction_coverage = direction_coverage(samples, cal, 16384);
+  s.condition_number = out.fisher_condition;
+  std::ostringstream msg;
+  msg << cal.model << ": " << s.samples << " samples, " << (s.converged ? "converged" : "NOT converged")
+      << " in " << s.iterations << " iterations, noise σ " << out.noise_sigma << ", |h| std/mean "
+      << 100.0 * s.norm_std_over_mean << " %, " << (reference ? "vector residual RMS " : "residual RMS ")
+      << s.residual_rms << (out.identifiable ? "" : " — NOT IDENTIFIABLE");
+  s.message = msg.str();
+}
+
+// Solves, then evaluates the Jacobian for the statistics. Returns F = JᵀJ and Σr² (unweighted).
+void solve_problem(ceres::Problem& problem, double* theta, int p, RefineResult& out, const RefineOptions& opt,
+                   Eigen::MatrixXd& F, double& ssr, bool& have_covariance) {
+  ceres::Solver::Options so;
+  so.linear_solver_type = ceres::DENSE_QR;
+  so.max_num_iterations = opt.max_iterations;
+  so.function_tolerance = opt.function_tolerance;
+  so.gradient_tolerance = opt.gradient_tolerance;
+  so.parameter_tolerance = opt.parameter_tolerance;
+  so.logging_type = ceres::SILENT;
+  ceres::Solver::Summary summary;
+  ceres::Solve(so, &problem, &summary);
+  out.solver_report = summary.BriefReport();
+  out.summary.iterations = static_cast<int>(summary.iterations.size()) - 1;
+  out.summary.converged = summary.termination_type == ceres::CONVERGENCE;
+  if (!summary.IsSolutionUsable()) throw Error("refine: the solver failed: " + summary.message);
+  if (!out.summary.converged)
+    out.summary.warnings.push_back("refinement stopped before converging: " + summary.message);
+
+  // Jacobian and plain residuals (no loss) for σ̂ and the information matrix.
+  ceres::Problem::EvaluateOptions eo;
+  eo.apply_loss_function = false;
+  std::vector<double> residuals;
+  ceres::CRSMatrix jac;
+  problem.Evaluate(eo, nullptr, &residuals, nullptr, &jac);
+  ssr = 0.0;
+  for (double r : residuals) ssr += r * r;
+  out.summary.cost = ssr / static_cast<double>(residuals.size());
+  F = Eigen::MatrixXd::Zero(p, p);
+  Eigen::VectorXd row(p);
+  for (int i = 0; i < jac.num_rows; ++i) {
+    row.setZero();
+    for (int k = jac.rows[static_cast<std::size_t>(i)]; k < jac.rows[static_cast<std::size_t>(i) + 1]; ++k)
+      row(jac.cols[static_cast<std::size_t>(k)]) = jac.values[static_cast<std::size_t>(k)];
+    F.selfadjointView<Eigen::Lower>().rankUpdate(row);
+  }
+  F = F.selfadjointView<Eigen::Lower>();
+
+  // ceres::Covariance logs an error on a near-singular JᵀJ (fluxcal prints nothing): leave those
+  // cases to finish_statistics, which reports the undetermined directions instead.
+  have_covariance = false;
+  Eigen::SelfAdjointEigenSolver<Eigen::MatrixXd> feig(F, Eigen::EigenvaluesOnly);
+  const bool well_posed = feig.eigenvalues()(0) > 1e-12 * feig.eigenvalues()(p - 1);
+  if (opt.covariance && well_posed) {
+    ceres::Covariance::Options co;
+    co.algorithm_type = ceres::DENSE_SVD;
+    co.min_reciprocal_condition_number = 1e-14;
+    co.apply_loss_function = false;
+    ceres::Covariance covariance(co);
+    const std::vector<std::pair<const double*, const double*>> blocks = {{theta, theta}};
+    Eigen::Matrix<double, Eigen::Dynamic, Eigen::Dynamic, Eigen::RowMajor> c(p, p);
+    if (covariance.Compute(blocks, &problem) && covariance.GetCovarianceBlock(theta, theta, c.data())) {
+      out.covariance = c;  // scaled by σ̂² by the caller
+      have_covariance = true;
+    }
+  }
+}
+
+}  // namespace
+
+RefineResult refine(const Calibration& start, const SamplesRef& samples, const RefineOptions& opt) {
+  check_inputs(samples, 10, "a 9-parameter magnitude refinement");
+  if (!(start.field_norm > 0.0)) throw Error("start: field_norm must be positive (the known |h|)");
+  if (!start.offset.allFinite() || !start.matrix.allFinite()) throw Error("start: offset or matrix is not finite");
+  const Eigen::Matrix3d A = symmetric_part(start.matrix);
+  RefineResult out;
+  out.parameter_names.assign(std::begin(kMagnitudeNames), std::end(kMagnitudeNames));
+  out.parameters.resize(9);
+  out.parameters << start.offset, A(0, 0), A(0, 1), A(0, 2), A(1, 1), A(1, 2), A(2, 2);
+  double* theta = out.parameters.data();
+
+  std::vector<double> start_abs;
+  ceres::Problem::Options po;
+  po.loss_function_ownership = ceres::DO_NOT_TAKE_OWNERSHIP;
+  ceres::Problem problem(po);
+  std::vector<MagnitudeResidual> functors(static_cast<std::size_t>(samples.rows()));
+  for (Eigen::Index i = 0; i < samples.rows(); ++i) {
+    auto& f = functors[static_cast<std::size_t>(i)];
+    f = {{samples(i, 0), samples(i, 1), samples(i, 2)}, start.field_norm};
+    double r;
+    f(theta, &r);
+    start_abs.push_back(std::abs(r));
+  }
+  std::unique_ptr<ceres::LossFunction> loss(make_loss(opt, robust_sigma(start_abs)));
+  for (auto& f : functors)
+    problem.AddResidualBlock(
+        new ceres::AutoDiffCostFunction<MagnitudeResidual, 1, 9>(new MagnitudeResidual(f)), loss.get(), theta);
+
+  Eigen::MatrixXd F;
+  double ssr;
+  bool have_cov;
+  solve_problem(problem, theta, 9, out, opt, F, ssr, have_cov);
+  const double sigma2 = ssr / static_cast<double>(samples.rows() - 9);
+  out.noise_sigma = std::sqrt(sigma2);
+  if (have_cov) out.covariance *= sigma2;
+
+  Calibration& cal = out.calibration;
+  cal.offset = out.parameters.head<3>();
+  const Eigen::VectorXd& t = out.parameters;
+  cal.matrix << t(3), t(4), t(5), t(4), t(6), t(7), t(5), t(7), t(8);
+  cal.field_norm = start.field_norm;
+  cal.units = opt.units.empty() ? start.units : opt.units;
+  cal.model = "refine";
+  if (!(Eigen::SelfAdjointEigenSolver<Eigen::Matrix3d>(cal.matrix).eigenvalues()(0) > 0.0))
+    throw Error("refine: the refined matrix is not positive definite; the start was too far off or the data "
+                "do not lie on an ellipsoid");
+
+  double radius = 0.0;  // reading-space radius: the scale of the offsets
+  for (Eigen::Index i = 0; i < samples.rows(); ++i) radius += (samples.row(i).transpose() - cal.offset).norm();
+  radius /= static_cast<double>(samples.rows());
+  Eigen::VectorXd scales(9);
+  const double entry = cal.matrix.norm() / std::sqrt(3.0);
+  scales << radius, radius, radius, entry, entry, entry, entry, entry, entry;
+  finish_statistics(out, F, sigma2, have_cov, scales, opt);
+  finish_summary(out, samples, nullptr);
+  return out;
+}
+
+RefineResult refine_vector(const Calibration& start, const SamplesRef& samples, const SamplesRef& reference,
+                           const RefineOptions& opt) {
+  check_inputs(samples, 5, "a 12-parameter vector calibration");
+  check_samples(reference, "reference", samples.rows(), "one reference vector per reading");
+  if (reference.rows() != samples.rows())
+    throw Error("reference: " + std::to_string(reference.rows()) + " rows, samples have " +
+                std::to_string(samples.rows()));
+  Eigen::FullPivLU<Eigen::Matrix3d> lu(start.matrix);
+  if (!lu.isInvertible()) throw Error("start: matrix is singular");
+  const Eigen::Matrix<double, 3, 3, Eigen::RowMajor> W = lu.inverse();
+  RefineResult out;
+  out.parameter_names.assign(std::begin(kVectorNames), std::end(kVectorNames));
+  out.parameters.resize(12);
+  out.parameters.head<3>() = start.offset;
+  out.parameters.tail<9>() = Eigen::Map<const Eigen::Matrix<double, 9, 1>>(W.data());
+  double* theta = out.parameters.data();
+
+  std::vector<VectorResidual> functors(static_cast<std::size_t>(samples.rows()));
+  std::vector<double> start_abs;
+  for (Eigen::Index i = 0; i < samples.rows(); ++i) {
+    auto& f = functors[static_cast<std::size_t>(i)];
+    f = {{samples(i, 0), samples(i, 1), samples(i, 2)}, {reference(i, 0), reference(i, 1), reference(i, 2)}};
+    double r[3];
+    f(theta, r);
+    for (double v : r) start_abs.push_back(std::abs(v));
+  }
+  ceres::Problem::Options po;
+  po.loss_function_ownership = ceres::DO_NOT_TAKE_OWNERSHIP;
+  ceres::Problem problem(po);
+  std::unique_ptr<ceres::LossFunction> loss(make_loss(opt, robust_sigma(start_abs)));
+  for (auto& f : functors)
+    problem.AddResidualBlock(new ceres::AutoDiffCostFunction<VectorResidual, 3, 12>(new VectorResidual(f)),
+                             loss.get(), theta);
+  Eigen::MatrixXd F;
+  double ssr;
+  bool have_cov;
+  solve_problem(problem, theta, 12, out, opt, F, ssr, have_cov);
+  const double sigma2 = ssr / static_cast<double>(3 * samples.rows() - 12);
+  out.noise_sigma = std::sqrt(sigma2);
+  if (have_cov) out.covariance *= sigma2;
+
+  Calibration& cal = out.calibration;
+  cal.offset = out.parameters.head<3>();
+  const Eigen::Matrix<double, 3, 3, Eigen::RowMajor> Wf(out.parameters.tail<9>().data());
+  Eigen::FullPivLU<Eigen::Matrix3d> wlu(Wf);
+  if (!wlu.isInvertible()) throw Error("refine_vector: the fitted W is singular");
+  cal.matrix = wlu.inverse();
+  cal.field_norm = reference.rowwise().norm().mean();
+  cal.units = opt.units.empty() ? start.units : opt.units;
+  cal.model = "refine_vector";
+
+  const double radius = (samples.rowwise() - cal.offset.transpose()).rowwise().norm().mean();
+  const double entry = Wf.norm() / std::sqrt(3.0);
+  Eigen::VectorXd scales(12);
+  scales.head<3>().setConstant(radius);
+  scales.tail<9>().setConstant(entry);
+  finish_statistics(out, F, sigma2, have_cov, scales, opt);
+  finish_summary(out, samples, &reference);
+  return out;
+}
+
+RefineResult fit_vector(const SamplesRef& samples, const SamplesRef& reference, const RefineOptions& opt) {
+  check_inputs(samples, 5, "a 12-parameter vector calibration");
+  check_samples(reference, "reference", samples.rows(), "one reference vector per reading");
+  if (reference.rows() != samples.rows())
+    throw Error("reference: " + std::to_string(reference.rows()) + " rows, samples have " +
+                std::to_string(samples.rows()));
+  // One pass: XᵀX and XᵀM for X = [r 1] (N×4), M the readings (N×3).
+  Eigen::Matrix4d XtX = Eigen::Matrix4d::Zero();
+  Eigen::Matrix<double, 4, 3> XtM = Eigen::Matrix<double, 4, 3>::Zero();
+  for (Eigen::Index i = 0; i < samples.rows(); ++i) {
+    const Eigen::Vector4d x(reference(i, 0), reference(i, 1), reference(i, 2), 1.0);
+    XtX.selfadjointView<Eigen::Lower>().rankUpdate(x);
+    XtM += x * samples.row(i);
+  }
+  XtX = XtX.selfadjointView<Eigen::Lower>();
+  const Eigen::Vector4d d = XtX.diagonal().cwiseSqrt().cwiseInverse();
+  Eigen::SelfAdjointEigenSolver<Eigen::Matrix4d> eig(d.asDiagonal() * XtX * d.asDiagonal());
+  if (!(eig.eigenvalues()(0) > 1e-12 * eig.eigenvalues()(3)))
+    throw Error("reference: the reference vectors do not span 3-D (all in one plane or one direction); "
+                "the full 3×3 matrix is not identifiable — turn the sensor about more axes");
+  const Eigen::Matrix<double, 4, 3> beta = XtX.ldlt().solve(XtM);  // rows: W columns 0..2, then b
+
+  RefineResult out;
+  out.parameter_names.assign(std::begin(kVectorNames), std::end(kVectorNames));
+  out.parameters.resize(12);
+  out.parameters.head<3>() = beta.row(3).transpose();
+  for (int j = 0; j < 3; ++j)
+    for (int k = 0; k < 3; ++k) out.parameters(3 + 3 * j + k) = beta(k, j);  // W(j, k)
+  double ssr = 0.0;
+  for (Eigen::Index i = 0; i < samples.rows(); ++i) {
+    const Eigen::Vector4d x(reference(i, 0), reference(i, 1), reference(i, 2), 1.0);
+    ssr += (samples.row(i) - x.transpose() * beta).squaredNorm();
+  }
+  const double sigma2 = ssr / static_cast<double>(3 * samples.rows() - 12);
+  out.noise_sigma = std::sqrt(sigma2);
+  out.summary.cost = ssr / static_cast<double>(3 * samples.rows());
+  out.summary.converged = true;
+
+  // Information matrix in θ order [b, W row-major]: for output axis j the block over (b_j, W_j·)
+  // is XᵀX with the constant column first.
+  Eigen::MatrixXd F = Eigen::MatrixXd::Zero(12, 12);
+  const int order[4] = {3, 0, 1, 2};  // X columns: constant, r0, r1, r2
+  for (int j = 0; j < 3; ++j) {
+    const int idx[4] = {j, 3 + 3 * j, 4 + 3 * j, 5 + 3 * j};
+    for (int a = 0; a < 4; ++a)
+      for (int c = 0; c < 4; ++c) F(idx[a], idx[c]) = XtX(order[a], order[c]);
+  }
+  Calibration& cal = out.calibration;
+  cal.offset = out.parameters.head<3>();
+  const Eigen::Matrix<double, 3, 3, Eigen::RowMajor> W(out.parameters.tail<9>().data());
+  Eigen::FullPivLU<Eigen::Matrix3d> wlu(W);
+  if (!wlu.isInvertible()) throw Error("fit_vector: the fitted W is singular");
+  cal.matrix = wlu.inverse();
+  cal.field_norm = reference.rowwise().norm().mean();
+  cal.units = opt.units;
+  cal.model = "vector";
+  const double radius = (samples.rowwise() - cal.offset.transpose()).rowwise().norm().mean();
+  const double entry = W.norm() / std::sqrt(3.0);
+  Eigen::VectorXd scales(12);
+  scales.head<3>().setConstant(radius);
+  scales.tail<9>().setConstant(entry);
+  finish_statistics(out, F, sigma2, false, scales, opt);
+  finish_summary(out, samples, &reference);
+  return out;
+}
+
+}  // namespace fluxcal

@@ -1,0 +1,94 @@
+// Bindings of refine.hpp.
+#include "bindings.hpp"
+
+#include <fluxcal/refine.hpp>
+
+using namespace pybind11::literals;
+
+namespace fluxcal_py {
+namespace {
+
+py::dict result_dict(const fluxcal::RefineResult& r) {
+  py::dict d = calibration_dict(r.calibration, r.summary);
+  d["parameters"] = r.parameters;
+  d["parameter_names"] = r.parameter_names;
+  d["covariance"] = r.covariance;
+  d["standard_errors"] = r.standard_errors;
+  d["determined"] = r.determined;
+  d["identifiable"] = r.identifiable;
+  d["noise_sigma"] = r.noise_sigma;
+  d["fisher_condition"] = r.fisher_condition;
+  d["solver_report"] = r.solver_report;
+  return d;
+}
+
+fluxcal::Calibration make_calibration(const Eigen::Vector3d& offset, const Eigen::Matrix3d& matrix, double field_norm,
+                                      const std::string& units) {
+  fluxcal::Calibration c;
+  c.offset = offset;
+  c.matrix = matrix;
+  c.field_norm = field_norm;
+  c.units = units;
+  return c;
+}
+
+}  // namespace
+
+void bind_refine(py::module_& m) {
+  using fluxcal::RefineOptions;
+  py::enum_<fluxcal::Loss>(m, "Loss")
+      .value("none", fluxcal::Loss::none)
+      .value("huber", fluxcal::Loss::huber)
+      .value("cauchy", fluxcal::Loss::cauchy);
+  py::class_<RefineOptions>(m, "RefineOptions")
+      .def(py::init<>())
+      .def_readwrite("loss", &RefineOptions::loss)
+      .def_readwrite("loss_scale", &RefineOptions::loss_scale)
+      .def_readwrite("max_iterations", &RefineOptions::max_iterations)
+      .def_readwrite("function_tolerance", &RefineOptions::function_tolerance)
+      .def_readwrite("gradient_tolerance", &RefineOptions::gradient_tolerance)
+      .def_readwrite("parameter_tolerance", &RefineOptions::parameter_tolerance)
+      .def_readwrite("covariance", &RefineOptions::covariance)
+      .def_readwrite("determined_tolerance", &RefineOptions::determined_tolerance)
+      .def_readwrite("units", &RefineOptions::units);
+
+  m.def(
+      "refine",
+      [](const Eigen::Vector3d& offset, const Eigen::Matrix3d& matrix, double field_norm, const std::string& units,
+         const fluxcal::SamplesRef& samples, const RefineOptions& options) {
+        fluxcal::RefineResult r;
+        {
+          py::gil_scoped_release release;
+          r = fluxcal::refine(make_calibration(offset, matrix, field_norm, units), samples, options);
+        }
+        return result_dict(r);
+      },
+      "offset"_a, "matrix"_a, "field_norm"_a, "units"_a, "samples"_a.noconvert(), "options"_a);
+  m.def(
+      "refine_vector",
+      [](const Eigen::Vector3d& offset, const Eigen::Matrix3d& matrix, double field_norm, const std::string& units,
+         const fluxcal::SamplesRef& samples, const fluxcal::SamplesRef& reference, const RefineOptions& options) {
+        fluxcal::RefineResult r;
+        {
+          py::gil_scoped_release release;
+          r = fluxcal::refine_vector(make_calibration(offset, matrix, field_norm, units), samples, reference,
+                                     options);
+        }
+        return result_dict(r);
+      },
+      "offset"_a, "matrix"_a, "field_norm"_a, "units"_a, "samples"_a.noconvert(), "reference"_a.noconvert(),
+      "options"_a);
+  m.def(
+      "fit_vector",
+      [](const fluxcal::SamplesRef& samples, const fluxcal::SamplesRef& reference, const RefineOptions& options) {
+        fluxcal::RefineResult r;
+        {
+          py::gil_scoped_release release;
+          r = fluxcal::fit_vector(samples, reference, options);
+        }
+        return result_dict(r);
+      },
+      "samples"_a.noconvert(), "reference"_a.noconvert(), "options"_a);
+}
+
+}  // namespace fluxcal_py

@@ -1,0 +1,76 @@
+"""Maximum-likelihood joint refinement (Ceres) and reference-vector calibration.
+
+Magnitude model: parameters [b0 b1 b2, a00 a01 a02 a11 a12 a22] (A symmetric), Sampson residual
+(|h| − H)|h|/|A h| in reading units — maximum likelihood for isotropic Gaussian noise on the readings.
+Vector model: each reading m has its true field r in the sensor frame; m = W r + b, parameters
+[b0 b1 b2, w00 … w22] (W row-major), A = W⁻¹. See cpp/include/fluxcal/refine.hpp.
+
+The returned Calibration's summary carries the parameters, their covariance and standard errors,
+which of them the data determine, the Fisher-information condition number and the noise estimate.
+"""
+from __future__ import annotations
+
+import numpy as np
+
+from . import _core
+from ._arrays import as_samples
+from .calibration import Calibration
+
+LOSSES = {"none": _core.Loss.none, "huber": _core.Loss.huber, "cauchy": _core.Loss.cauchy}
+
+
+def _options(loss="none", loss_scale=0.0, units="", **settings):
+    options = _core.RefineOptions()
+    if loss not in LOSSES:
+        raise ValueError(f"loss: {loss!r} is not one of {', '.join(LOSSES)}")
+    options.loss = LOSSES[loss]
+    options.loss_scale = float(loss_scale)
+    options.units = units or ""
+    for name, value in settings.items():
+        if not hasattr(options, name):
+            raise TypeError(f"unknown refinement option {name!r}")
+        setattr(options, name, value)
+    return options
+
+
+def _calibration(result: dict, method: str) -> Calibration:
+    summary = dict(result["summary"])
+    for key in ("parameter_names", "identifiable", "noise_sigma", "fisher_condition", "solver_report"):
+        summary[key] = result[key]
+    for key in ("parameters", "standard_errors", "covariance"):
+        summary[key] = np.asarray(result[key]).tolist()
+    summary["determined"] = list(result["determined"])
+    summary["method"] = method
+    return Calibration(offset=result["offset"], matrix=result["matrix"], field_norm=result["field_norm"],
+                       units=result["units"], model=result["model"], summary=summary)
+
+
+def refine(calibration: Calibration, samples, reference=None, loss: str = "none", loss_scale: float = 0.0,
+           **settings) -> Calibration:
+    """Refine `calibration` on `samples` by maximum likelihood (Ceres).
+
+    Without `reference` the magnitude model is used with |h| = calibration.field_norm (known); A is
+    made symmetric first. With `reference` (N×3 true field per reading, sensor frame) the vector model.
+    loss: "none", "huber" or "cauchy"; loss_scale in reading units (0 = 3 × robust noise estimate).
+    settings: max_iterations, function_tolerance, gradient_tolerance, parameter_tolerance,
+    covariance (bool), determined_tolerance (default 0.01 of each parameter's scale).
+    """
+    m = as_samples(samples)
+    options = _options(loss, loss_scale, calibration.units, **settings)
+    args = (calibration.offset, calibration.matrix, calibration.field_norm, calibration.units, m)
+    if reference is None:
+        return _calibration(_core.refine(*args, options), "refine")
+    return _calibration(_core.refine_vector(*args, as_samples(reference, "reference"), options), "refine_vector")
+
+
+def fit_vector(samples, reference, units: str = "", loss: str = "none", loss_scale: float = 0.0,
+               **settings) -> Calibration:
+    """Reference-vector calibration: m = W r + b by linear least squares (closed form; the maximum-
+    likelihood estimate under Gaussian noise), A = W⁻¹ — a full matrix, since the reference fixes the
+    rotation. With a robust `loss` the linear fit then seeds a Ceres refinement of the same model.
+    `reference`: the true field of each reading in the sensor frame (see fluxcal.attitude)."""
+    m, r = as_samples(samples), as_samples(reference, "reference")
+    cal = _calibration(_core.fit_vector(m, r, _options(units=units, **settings)), "vector")
+    if loss != "none":
+        cal = refine(cal, m, reference=r, loss=loss, loss_scale=loss_scale, **settings)
+    return cal
