@@ -17,24 +17,72 @@ constexpr const char* kMagnitudeNames[] = {"b0", "b1", "b2", "a00", "a01", "a02"
 constexpr const char* kVectorNames[] = {"b0",  "b1",  "b2",  "w00", "w01", "w02",
                                         "w10", "w11", "w12", "w20", "w21", "w22"};
 
-// r = (|h| − H)|h| / |A h|, h = A (m − b), A symmetric: the Sampson distance to |A (m − b)| = H.
-struct MagnitudeResidual {
-  double m[3];
-  double H;
-  template <class T>
-  bool operator()(const T* th, T* r) const {
-    const T d0 = T(m[0]) - th[0], d1 = T(m[1]) - th[1], d2 = T(m[2]) - th[2];
-    const T &a00 = th[3], &a01 = th[4], &a02 = th[5], &a11 = th[6], &a12 = th[7], &a22 = th[8];
-    const T h0 = a00 * d0 + a01 * d1 + a02 * d2;
-    const T h1 = a01 * d0 + a11 * d1 + a12 * d2;
-    const T h2 = a02 * d0 + a12 * d1 + a22 * d2;
-    const T g0 = a00 * h0 + a01 * h1 + a02 * h2;
-    const T g1 = a01 * h0 + a11 * h1 + a12 * h2;
-    const T g2 = a02 * h0 + a12 * h1 + a22 * h2;
-    const T hn = ceres::sqrt(h0 * h0 + h1 * h1 + h2 * h2);
-    r[0] = (hn - T(H)) * hn / ceres::sqrt(g0 * g0 + g1 * g1 + g2 * g2);
+// Sampson residual r = (|h| − H)|h| / |g|, h = A (m − b), g = A h (A symmetric): the first-order
+// distance of m to the ellipsoid |A (m − b)| = H. With s = |h|, q = |g|:
+//   dr = ((2s − H)/q) ds − (r/q) dq,   ds = ĥᵀ dh,   dq = ĝᵀ dg,
+//   d/db: dh = −A db, dg = −A² db;   d/da_kl: dh = E_kl d, dg = E_kl h + A E_kl d,
+// with uᵀ E_kl v = u_k v_l + u_l v_k (k ≠ l) or u_k v_k, for the symmetric basis E_kl.
+constexpr int kSym[6][2] = {{0, 0}, {0, 1}, {0, 2}, {1, 1}, {1, 2}, {2, 2}};
+
+double sampson(const double* m, const double* th, double H, double* jac /* 9 or nullptr */) {
+  Eigen::Matrix3d A;
+  A << th[3], th[4], th[5], th[4], th[6], th[7], th[5], th[7], th[8];
+  const Eigen::Vector3d d(m[0] - th[0], m[1] - th[1], m[2] - th[2]);
+  const Eigen::Vector3d h = A * d, g = A * h;
+  const double sn = h.norm(), q = g.norm();
+  const double r = (sn - H) * sn / q;
+  if (jac) {
+    const Eigen::Vector3d uh = h / sn, ug = g / q;
+    const double cs = (2.0 * sn - H) / q, cq = r / q;
+    const Eigen::Vector3d Aug = A * ug;
+    // d/db: ds = −(A ĥ)ᵀ db, dq = −(A² ĝ)ᵀ db
+    const Eigen::Vector3d jb = -cs * (A * uh) + cq * (A * Aug);
+    for (int k = 0; k < 3; ++k) jac[k] = jb(k);
+    auto form = [](const Eigen::Vector3d& u, const Eigen::Vector3d& v, int k, int l) {
+      return k == l ? u(k) * v(k) : u(k) * v(l) + u(l) * v(k);
+    };
+    for (int c = 0; c < 6; ++c) {
+      const int k = kSym[c][0], l = kSym[c][1];
+      const double ds = form(uh, d, k, l);
+      const double dq = form(ug, h, k, l) + form(Aug, d, k, l);
+      jac[3 + c] = cs * ds - cq * dq;
+    }
+  }
+  return r;
+}
+
+// All N Sampson residuals in one block (plain least squares: Ceres then works on one dense N×9
+// Jacobian instead of N small blocks).
+class MagnitudeBatch : public ceres::CostFunction {
+ public:
+  MagnitudeBatch(const SamplesRef& m, double H) : m_(m), H_(H) {
+    set_num_residuals(static_cast<int>(m.rows()));
+    mutable_parameter_block_sizes()->push_back(9);
+  }
+  bool Evaluate(double const* const* p, double* r, double** jac) const override {
+    const Samples& m = m_;
+    for (Eigen::Index i = 0; i < m.rows(); ++i)
+      r[i] = sampson(m.row(i).data(), p[0], H_, jac && jac[0] ? jac[0] + 9 * i : nullptr);
     return true;
   }
+
+ private:
+  Samples m_;  // a packed copy: rows must be contiguous for sampson()
+  double H_;
+};
+
+// One Sampson residual (a robust loss acts per residual block).
+class MagnitudeOne : public ceres::SizedCostFunction<1, 9> {
+ public:
+  MagnitudeOne(const Eigen::Vector3d& m, double H) : m_(m), H_(H) {}
+  bool Evaluate(double const* const* p, double* r, double** jac) const override {
+    r[0] = sampson(m_.data(), p[0], H_, jac ? jac[0] : nullptr);
+    return true;
+  }
+
+ private:
+  Eigen::Vector3d m_;
+  double H_;
 };
 
 // r = m − W ref − b.
@@ -82,19 +130,19 @@ void check_inputs(const SamplesRef& samples, Eigen::Index min_rows, const std::s
 }
 
 // Covariance, standard errors and identifiability from the information matrix F = JᵀJ.
-void finish_statistics(RefineResult& out, const Eigen::MatrixXd& F, double sigma2, bool have_covariance,
-                       const Eigen::VectorXd& scales, const RefineOptions& opt) {
+void finish_statistics(RefineResult& out, const Eigen::MatrixXd& F, double sigma2, const Eigen::VectorXd& scales,
+                       const RefineOptions& opt) {
   const Eigen::Index p = F.rows();
   const Eigen::VectorXd d = F.diagonal().cwiseMax(1e-300).cwiseSqrt().cwiseInverse();
   const Eigen::MatrixXd scaled = d.asDiagonal() * F * d.asDiagonal();
   Eigen::SelfAdjointEigenSolver<Eigen::MatrixXd> eig(scaled);
   const Eigen::VectorXd lam = eig.eigenvalues();
   out.fisher_condition = lam(0) > 0.0 ? lam(p - 1) / lam(0) : std::numeric_limits<double>::infinity();
-  if (!have_covariance) {  // near-null directions get a huge (not infinite) variance
-    const Eigen::VectorXd inv = lam.cwiseMax(lam(p - 1) * 1e-300).cwiseInverse();
-    out.covariance = sigma2 * d.asDiagonal() * eig.eigenvectors() * inv.asDiagonal() *
-                     eig.eigenvectors().transpose() * d.asDiagonal();
-  }
+  // σ̂² F⁻¹ through the scaled eigen-decomposition: near-null directions get a huge (not infinite)
+  // variance, so undetermined parameters show up as such instead of as a failed factorisation.
+  const Eigen::VectorXd inv = lam.cwiseMax(lam(p - 1) * 1e-300).cwiseInverse();
+  out.covariance = sigma2 * d.asDiagonal() * eig.eigenvectors() * inv.asDiagonal() *
+                   eig.eigenvectors().transpose() * d.asDiagonal();
   out.standard_errors = out.covariance.diagonal().cwiseMax(0.0).cwiseSqrt();
   out.determined.assign(static_cast<std::size_t>(p), true);
   std::ostringstream undetermined;
@@ -142,10 +190,10 @@ void finish_summary(RefineResult& out, const SamplesRef& samples, const SamplesR
 }
 
 // Solves, then evaluates the Jacobian for the statistics. Returns F = JᵀJ and Σr² (unweighted).
-void solve_problem(ceres::Problem& problem, double* theta, int p, RefineResult& out, const RefineOptions& opt,
-                   Eigen::MatrixXd& F, double& ssr, bool& have_covariance) {
+void solve_problem(ceres::Problem& problem, int p, RefineResult& out, const RefineOptions& opt,
+                   Eigen::MatrixXd& F, double& ssr) {
   ceres::Solver::Options so;
-  so.linear_solver_type = ceres::DENSE_QR;
+  so.linear_solver_type = ceres::DENSE_NORMAL_CHOLESKY;  // tall and thin: N residuals, ≤ 12 parameters
   so.max_num_iterations = opt.max_iterations;
   so.function_tolerance = opt.function_tolerance;
   so.gradient_tolerance = opt.gradient_tolerance;
@@ -179,24 +227,6 @@ void solve_problem(ceres::Problem& problem, double* theta, int p, RefineResult& 
   }
   F = F.selfadjointView<Eigen::Lower>();
 
-  // ceres::Covariance logs an error on a near-singular JᵀJ (fluxcal prints nothing): leave those
-  // cases to finish_statistics, which reports the undetermined directions instead.
-  have_covariance = false;
-  Eigen::SelfAdjointEigenSolver<Eigen::MatrixXd> feig(F, Eigen::EigenvaluesOnly);
-  const bool well_posed = feig.eigenvalues()(0) > 1e-12 * feig.eigenvalues()(p - 1);
-  if (opt.covariance && well_posed) {
-    ceres::Covariance::Options co;
-    co.algorithm_type = ceres::DENSE_SVD;
-    co.min_reciprocal_condition_number = 1e-14;
-    co.apply_loss_function = false;
-    ceres::Covariance covariance(co);
-    const std::vector<std::pair<const double*, const double*>> blocks = {{theta, theta}};
-    Eigen::Matrix<double, Eigen::Dynamic, Eigen::Dynamic, Eigen::RowMajor> c(p, p);
-    if (covariance.Compute(blocks, &problem) && covariance.GetCovarianceBlock(theta, theta, c.data())) {
-      out.covariance = c;  // scaled by σ̂² by the caller
-      have_covariance = true;
-    }
-  }
 }
 
 }  // namespace
@@ -212,30 +242,28 @@ RefineResult refine(const Calibration& start, const SamplesRef& samples, const R
   out.parameters << start.offset, A(0, 0), A(0, 1), A(0, 2), A(1, 1), A(1, 2), A(2, 2);
   double* theta = out.parameters.data();
 
-  std::vector<double> start_abs;
   ceres::Problem::Options po;
   po.loss_function_ownership = ceres::DO_NOT_TAKE_OWNERSHIP;
   ceres::Problem problem(po);
-  std::vector<MagnitudeResidual> functors(static_cast<std::size_t>(samples.rows()));
-  for (Eigen::Index i = 0; i < samples.rows(); ++i) {
-    auto& f = functors[static_cast<std::size_t>(i)];
-    f = {{samples(i, 0), samples(i, 1), samples(i, 2)}, start.field_norm};
-    double r;
-    f(theta, &r);
-    start_abs.push_back(std::abs(r));
+  std::unique_ptr<ceres::LossFunction> loss;
+  if (opt.loss == Loss::none) {
+    problem.AddResidualBlock(new MagnitudeBatch(samples, start.field_norm), nullptr, theta);
+  } else {
+    std::vector<double> start_abs;
+    for (Eigen::Index i = 0; i < samples.rows(); ++i) {
+      const Eigen::Vector3d m = samples.row(i).transpose();
+      start_abs.push_back(std::abs(sampson(m.data(), theta, start.field_norm, nullptr)));
+    }
+    loss.reset(make_loss(opt, robust_sigma(start_abs)));
+    for (Eigen::Index i = 0; i < samples.rows(); ++i)
+      problem.AddResidualBlock(new MagnitudeOne(samples.row(i).transpose(), start.field_norm), loss.get(), theta);
   }
-  std::unique_ptr<ceres::LossFunction> loss(make_loss(opt, robust_sigma(start_abs)));
-  for (auto& f : functors)
-    problem.AddResidualBlock(
-        new ceres::AutoDiffCostFunction<MagnitudeResidual, 1, 9>(new MagnitudeResidual(f)), loss.get(), theta);
 
   Eigen::MatrixXd F;
   double ssr;
-  bool have_cov;
-  solve_problem(problem, theta, 9, out, opt, F, ssr, have_cov);
+  solve_problem(problem, 9, out, opt, F, ssr);
   const double sigma2 = ssr / static_cast<double>(samples.rows() - 9);
   out.noise_sigma = std::sqrt(sigma2);
-  if (have_cov) out.covariance *= sigma2;
 
   Calibration& cal = out.calibration;
   cal.offset = out.parameters.head<3>();
@@ -254,7 +282,7 @@ RefineResult refine(const Calibration& start, const SamplesRef& samples, const R
   Eigen::VectorXd scales(9);
   const double entry = cal.matrix.norm() / std::sqrt(3.0);
   scales << radius, radius, radius, entry, entry, entry, entry, entry, entry;
-  finish_statistics(out, F, sigma2, have_cov, scales, opt);
+  finish_statistics(out, F, sigma2, scales, opt);
   finish_summary(out, samples, nullptr);
   return out;
 }
@@ -294,11 +322,9 @@ RefineResult refine_vector(const Calibration& start, const SamplesRef& samples, 
                              loss.get(), theta);
   Eigen::MatrixXd F;
   double ssr;
-  bool have_cov;
-  solve_problem(problem, theta, 12, out, opt, F, ssr, have_cov);
+  solve_problem(problem, 12, out, opt, F, ssr);
   const double sigma2 = ssr / static_cast<double>(3 * samples.rows() - 12);
   out.noise_sigma = std::sqrt(sigma2);
-  if (have_cov) out.covariance *= sigma2;
 
   Calibration& cal = out.calibration;
   cal.offset = out.parameters.head<3>();
@@ -315,7 +341,7 @@ RefineResult refine_vector(const Calibration& start, const SamplesRef& samples, 
   Eigen::VectorXd scales(12);
   scales.head<3>().setConstant(radius);
   scales.tail<9>().setConstant(entry);
-  finish_statistics(out, F, sigma2, have_cov, scales, opt);
+  finish_statistics(out, F, sigma2, scales, opt);
   finish_summary(out, samples, &reference);
   return out;
 }
@@ -381,7 +407,7 @@ RefineResult fit_vector(const SamplesRef& samples, const SamplesRef& reference, 
   Eigen::VectorXd scales(12);
   scales.head<3>().setConstant(radius);
   scales.tail<9>().setConstant(entry);
-  finish_statistics(out, F, sigma2, false, scales, opt);
+  finish_statistics(out, F, sigma2, scales, opt);
   finish_summary(out, samples, &reference);
   return out;
 }

@@ -48,7 +48,6 @@ void bind_refine(py::module_& m) {
       .def_readwrite("function_tolerance", &RefineOptions::function_tolerance)
       .def_readwrite("gradient_tolerance", &RefineOptions::gradient_tolerance)
       .def_readwrite("parameter_tolerance", &RefineOptions::parameter_tolerance)
-      .def_readwrite("covariance", &RefineOptions::covariance)
       .def_readwrite("determined_tolerance", &RefineOptions::determined_tolerance)
       .def_readwrite("units", &RefineOptions::units);
 

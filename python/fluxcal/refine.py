@@ -53,7 +53,7 @@ def refine(calibration: Calibration, samples, reference=None, loss: str = "none"
     made symmetric first. With `reference` (N×3 true field per reading, sensor frame) the vector model.
     loss: "none", "huber" or "cauchy"; loss_scale in reading units (0 = 3 × robust noise estimate).
     settings: max_iterations, function_tolerance, gradient_tolerance, parameter_tolerance,
-    covariance (bool), determined_tolerance (default 0.01 of each parameter's scale).
+    determined_tolerance (default 0.01 of each parameter's scale).
     """
     m = as_samples(samples)
     options = _options(loss, loss_scale, calibration.units, **settings)

@@ -11,8 +11,11 @@
 // attitude): m_i = W r_i + b + e_i. Parameters θ = [b (3), W (9, row-major)]; residual m_i − W r_i − b.
 // The correction reported is A = W⁻¹ (full, not symmetric: the reference fixes the rotation).
 //
-// Both return the covariance of θ, σ̂² (JᵀJ)⁻¹ (ceres::Covariance), standard errors, whether the data
-// determine each parameter, and the condition number of the (column-scaled) Fisher information.
+// Both return the covariance of θ, σ̂² (JᵀJ)⁻¹ at the solution, standard errors, whether the data
+// determine each parameter, and the condition number of the (column-scaled) Fisher information JᵀJ.
+// (The covariance comes from an eigen-decomposition of JᵀJ rather than ceres::Covariance: the same
+// matrix, a 9×9 problem instead of an SVD of the N×9 Jacobian, and near-singular cases are reported
+// as undetermined parameters instead of a failed computation.)
 #pragma once
 
 #include "fluxcal/types.hpp"
@@ -37,8 +40,6 @@ struct RefineOptions {
   double function_tolerance = 1e-14;
   double gradient_tolerance = 1e-14;
   double parameter_tolerance = 1e-12;
-  /// Compute the covariance, standard errors and identifiability (one factorisation of JᵀJ).
-  bool covariance = true;
   /// A parameter counts as determined when its standard error is below this fraction of its scale:
   /// the field norm for offsets, the RMS entry of the matrix for matrix entries.
   double determined_tolerance = 0.01;
