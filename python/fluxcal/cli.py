@@ -9,8 +9,8 @@ import numpy as np
 
 from . import __version__, cmake_dir
 from .calibration import Calibration
-from .ellipsoid import fit_ellipsoid
-from .io import Recording, read_csv, write_csv
+from .io import read_csv, write_csv
+from .pipeline import METHODS, calibrate
 
 def _spread(values: np.ndarray) -> float:
     norm = np.linalg.norm(values, axis=1)
@@ -27,6 +27,15 @@ def _report(cal: Calibration, raw: np.ndarray, out=sys.stdout) -> None:
     print(f"  condition number      {s['condition_number']:.3g}", file=out)
     print(f"  coverage              {100 * s['direction_coverage']:.0f} % of directions, thinnest/widest "
           f"spread {s['coverage_ratio']:.2f}", file=out)
+    if "method" in s:
+        print(f"  method                {s['method']}", file=out)
+    if s.get("noise_sigma"):
+        print(f"  noise σ (estimated)   {s['noise_sigma']:.4g} {cal.units}".rstrip(), file=out)
+    if "standard_errors" in s:
+        se = np.array(s["standard_errors"])
+        with np.printoptions(precision=3):
+            print(f"  std error of b        {se[:3]} {cal.units}".rstrip(), file=out)
+        print(f"  identifiable          {'yes' if s['identifiable'] else 'NO'}", file=out)
     for w in s["warnings"]:
         print(f"warning: {w}", file=out)
 
@@ -34,7 +43,7 @@ def _report(cal: Calibration, raw: np.ndarray, out=sys.stdout) -> None:
 def cmd_calibrate(args) -> int:
     rec = read_csv(args.file, columns=args.columns, units=args.units)
     raw = rec.samples()
-    cal = fit_ellipsoid(raw, field_norm=args.field_norm, units=rec.field_units())
+    cal = calibrate(raw, method=args.method, field_norm=args.field_norm, units=rec.field_units())
     cal.metadata.update(source=str(args.file), columns=",".join(rec.mag_names()))
     _report(cal, raw)
     if args.output:
@@ -94,7 +103,7 @@ def cmd_demo(args) -> int:
     rec_path = write_csv(out / "demo_recording.csv", cols, units={"t": "s", "mx": "uT", "my": "uT", "mz": "uT"},
                          metadata={"simulated": "fluxcal demo"})
     rec = read_csv(rec_path)
-    cal = fit_ellipsoid(rec, field_norm=float(np.linalg.norm(field)))
+    cal = calibrate(rec, field_norm=float(np.linalg.norm(field)))
     print(f"fluxcal {__version__} demo: simulated hand-turned magnetometer, {len(raw)} readings, "
           f"|field| {np.linalg.norm(field):.2f} uT (written to {rec_path})\n")
     _report(cal, raw)
@@ -119,6 +128,8 @@ def build_parser() -> argparse.ArgumentParser:
     c.add_argument("--field-norm", type=float, default=None, help="known |field| in the units of h")
     c.add_argument("--columns", default=None, help="the three magnetometer columns (default mx,my,mz)")
     c.add_argument("--units", default=None, help="units of the readings when the file does not say")
+    c.add_argument("--method", default="auto", choices=METHODS,
+                   help="auto = consistent ellipsoid fit (ALS) + maximum-likelihood refinement (default)")
     c.add_argument("-o", "--output", help="write the calibration (JSON)")
     c.add_argument("--plot", help="write a before/after plot (PNG)")
     c.set_defaults(run=cmd_calibrate)

@@ -37,6 +37,7 @@ def calibrate(samples, method: str = "auto", field_norm: float | None = None, re
         start = fit_ellipsoid(m, field_norm=field_norm, units=units, method="als")
         cal = refine(start, m, loss=loss, **settings)
         cal.summary["method"] = "als+refine"
+        cal.summary["coverage_ratio"] = start.summary["coverage_ratio"]
         cal.summary["warnings"] = list(start.summary["warnings"]) + [
             w for w in cal.summary["warnings"] if w not in start.summary["warnings"]]
         if start.summary.get("noise_sigma"):
