@@ -229,6 +229,35 @@ void solve_problem(ceres::Problem& problem, int p, RefineResult& out, const Refi
 
 }
 
+// The vector model's inputs: finite readings and one finite reference vector per reading.
+void check_vector_inputs(const SamplesRef& samples, const SamplesRef& reference) {
+  check_inputs(samples, 5, "a 12-parameter vector calibration");
+  if (reference.rows() != samples.rows())
+    throw Error("reference: " + std::to_string(reference.rows()) + " rows, samples have " +
+                std::to_string(samples.rows()));
+  check_finite(reference, "reference");
+}
+
+// Calibration (A = W⁻¹), statistics and summary of a vector-model result whose θ = [b, W] is set.
+void finish_vector(RefineResult& out, const SamplesRef& samples, const SamplesRef& reference,
+                   const Eigen::MatrixXd& F, double sigma2, const std::string& units, const char* model,
+                   const RefineOptions& opt) {
+  Calibration& cal = out.calibration;
+  cal.offset = out.parameters.head<3>();
+  const Eigen::Matrix<double, 3, 3, Eigen::RowMajor> W(out.parameters.tail<9>().data());
+  Eigen::FullPivLU<Eigen::Matrix3d> lu(W);
+  if (!lu.isInvertible()) throw Error(std::string(model) + ": the fitted W is singular");
+  cal.matrix = lu.inverse();
+  cal.field_norm = reference.rowwise().norm().mean();
+  cal.units = units;
+  cal.model = model;
+  Eigen::VectorXd scales(12);  // offsets: the reading-space radius; W entries: its gain ‖W‖/√3
+  scales.head<3>().setConstant((samples.rowwise() - cal.offset.transpose()).rowwise().norm().mean());
+  scales.tail<9>().setConstant(W.norm() / std::sqrt(3.0));
+  finish_statistics(out, F, sigma2, scales, opt);
+  finish_summary(out, samples, &reference);
+}
+
 }  // namespace
 
 RefineResult refine(const Calibration& start, const SamplesRef& samples, const RefineOptions& opt) {
@@ -242,26 +271,40 @@ RefineResult refine(const Calibration& start, const SamplesRef& samples, const R
   out.parameters << start.offset, A(0, 0), A(0, 1), A(0, 2), A(1, 1), A(1, 2), A(2, 2);
   double* theta = out.parameters.data();
 
-  ceres::Problem::Options po;
-  po.loss_function_ownership = ceres::DO_NOT_TAKE_OWNERSHIP;
-  ceres::Problem problem(po);
   std::unique_ptr<ceres::LossFunction> loss;
-  if (opt.loss == Loss::none) {
-    problem.AddResidualBlock(new MagnitudeBatch(samples, start.field_norm), nullptr, theta);
-  } else {
+  if (opt.loss != Loss::none) {
     std::vector<double> start_abs;
     for (Eigen::Index i = 0; i < samples.rows(); ++i) {
       const Eigen::Vector3d m = samples.row(i).transpose();
       start_abs.push_back(std::abs(sampson(m.data(), theta, start.field_norm, nullptr)));
     }
     loss.reset(make_loss(opt, robust_sigma(start_abs)));
-    for (Eigen::Index i = 0; i < samples.rows(); ++i)
-      problem.AddResidualBlock(new MagnitudeOne(samples.row(i).transpose(), start.field_norm), loss.get(), theta);
   }
-
   Eigen::MatrixXd F;
   double ssr;
-  solve_problem(problem, 9, out, opt, F, ssr);
+  auto solve_for = [&](double H) {  // fits |h| to H
+    ceres::Problem::Options po;
+    po.loss_function_ownership = ceres::DO_NOT_TAKE_OWNERSHIP;
+    ceres::Problem problem(po);
+    if (!loss) {
+      problem.AddResidualBlock(new MagnitudeBatch(samples, H), nullptr, theta);
+    } else {
+      for (Eigen::Index i = 0; i < samples.rows(); ++i)
+        problem.AddResidualBlock(new MagnitudeOne(samples.row(i).transpose(), H), loss.get(), theta);
+    }
+    solve_problem(problem, 9, out, opt, F, ssr);
+  };
+  const double H = start.field_norm;
+  solve_for(H);
+  if (opt.noise_bias_correction) {
+    const double s2 = ssr / static_cast<double>(samples.rows() - 9);
+    const Eigen::VectorXd& t = out.parameters;
+    const double a2 = t(3) * t(3) + t(6) * t(6) + t(8) * t(8) + 2 * (t(4) * t(4) + t(5) * t(5) + t(7) * t(7));
+    const int first_iterations = out.summary.iterations;
+    out.summary.warnings.clear();
+    solve_for(H + s2 * a2 / (3.0 * H));
+    out.summary.iterations += first_iterations;
+  }
   const double sigma2 = ssr / static_cast<double>(samples.rows() - 9);
   out.noise_sigma = std::sqrt(sigma2);
 
@@ -289,11 +332,7 @@ RefineResult refine(const Calibration& start, const SamplesRef& samples, const R
 
 RefineResult refine_vector(const Calibration& start, const SamplesRef& samples, const SamplesRef& reference,
                            const RefineOptions& opt) {
-  check_inputs(samples, 5, "a 12-parameter vector calibration");
-  check_samples(reference, "reference", samples.rows(), "one reference vector per reading");
-  if (reference.rows() != samples.rows())
-    throw Error("reference: " + std::to_string(reference.rows()) + " rows, samples have " +
-                std::to_string(samples.rows()));
+  check_vector_inputs(samples, reference);
   Eigen::FullPivLU<Eigen::Matrix3d> lu(start.matrix);
   if (!lu.isInvertible()) throw Error("start: matrix is singular");
   const Eigen::Matrix<double, 3, 3, Eigen::RowMajor> W = lu.inverse();
@@ -326,32 +365,13 @@ RefineResult refine_vector(const Calibration& start, const SamplesRef& samples, 
   const double sigma2 = ssr / static_cast<double>(3 * samples.rows() - 12);
   out.noise_sigma = std::sqrt(sigma2);
 
-  Calibration& cal = out.calibration;
-  cal.offset = out.parameters.head<3>();
-  const Eigen::Matrix<double, 3, 3, Eigen::RowMajor> Wf(out.parameters.tail<9>().data());
-  Eigen::FullPivLU<Eigen::Matrix3d> wlu(Wf);
-  if (!wlu.isInvertible()) throw Error("refine_vector: the fitted W is singular");
-  cal.matrix = wlu.inverse();
-  cal.field_norm = reference.rowwise().norm().mean();
-  cal.units = opt.units.empty() ? start.units : opt.units;
-  cal.model = "refine_vector";
-
-  const double radius = (samples.rowwise() - cal.offset.transpose()).rowwise().norm().mean();
-  const double entry = Wf.norm() / std::sqrt(3.0);
-  Eigen::VectorXd scales(12);
-  scales.head<3>().setConstant(radius);
-  scales.tail<9>().setConstant(entry);
-  finish_statistics(out, F, sigma2, scales, opt);
-  finish_summary(out, samples, &reference);
+  finish_vector(out, samples, reference, F, sigma2, opt.units.empty() ? start.units : opt.units, "refine_vector",
+                opt);
   return out;
 }
 
 RefineResult fit_vector(const SamplesRef& samples, const SamplesRef& reference, const RefineOptions& opt) {
-  check_inputs(samples, 5, "a 12-parameter vector calibration");
-  check_samples(reference, "reference", samples.rows(), "one reference vector per reading");
-  if (reference.rows() != samples.rows())
-    throw Error("reference: " + std::to_string(reference.rows()) + " rows, samples have " +
-                std::to_string(samples.rows()));
+  check_vector_inputs(samples, reference);
   // One pass: XᵀX and XᵀM for X = [r 1] (N×4), M the readings (N×3).
   Eigen::Matrix4d XtX = Eigen::Matrix4d::Zero();
   Eigen::Matrix<double, 4, 3> XtM = Eigen::Matrix<double, 4, 3>::Zero();
@@ -393,22 +413,7 @@ RefineResult fit_vector(const SamplesRef& samples, const SamplesRef& reference, 
     for (int a = 0; a < 4; ++a)
       for (int c = 0; c < 4; ++c) F(idx[a], idx[c]) = XtX(order[a], order[c]);
   }
-  Calibration& cal = out.calibration;
-  cal.offset = out.parameters.head<3>();
-  const Eigen::Matrix<double, 3, 3, Eigen::RowMajor> W(out.parameters.tail<9>().data());
-  Eigen::FullPivLU<Eigen::Matrix3d> wlu(W);
-  if (!wlu.isInvertible()) throw Error("fit_vector: the fitted W is singular");
-  cal.matrix = wlu.inverse();
-  cal.field_norm = reference.rowwise().norm().mean();
-  cal.units = opt.units;
-  cal.model = "vector";
-  const double radius = (samples.rowwise() - cal.offset.transpose()).rowwise().norm().mean();
-  const double entry = W.norm() / std::sqrt(3.0);
-  Eigen::VectorXd scales(12);
-  scales.head<3>().setConstant(radius);
-  scales.tail<9>().setConstant(entry);
-  finish_statistics(out, F, sigma2, scales, opt);
-  finish_summary(out, samples, &reference);
+  finish_vector(out, samples, reference, F, sigma2, opt.units, "vector", opt);
   return out;
 }
 

@@ -49,7 +49,8 @@ void bind_refine(py::module_& m) {
       .def_readwrite("gradient_tolerance", &RefineOptions::gradient_tolerance)
       .def_readwrite("parameter_tolerance", &RefineOptions::parameter_tolerance)
       .def_readwrite("determined_tolerance", &RefineOptions::determined_tolerance)
-      .def_readwrite("units", &RefineOptions::units);
+      .def_readwrite("units", &RefineOptions::units)
+      .def_readwrite("noise_bias_correction", &RefineOptions::noise_bias_correction);
 
   m.def(
       "refine",

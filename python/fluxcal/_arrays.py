@@ -26,3 +26,12 @@ def first_nonfinite(arr: np.ndarray):
         return None
     row = int(np.argmax(bad.any(axis=1)))
     return row, int(np.argmax(bad[row]))
+
+
+def set_options(options, settings: dict, what: str):
+    """Set each keyword of `settings` on a bound C++ options struct; unknown names are a TypeError."""
+    for name, value in settings.items():
+        if not hasattr(options, name):
+            raise TypeError(f"{what}: unknown option {name!r}")
+        setattr(options, name, value)
+    return options

@@ -4,7 +4,7 @@ from __future__ import annotations
 import numpy as np
 
 from . import _core
-from ._arrays import as_samples
+from ._arrays import as_samples, set_options
 from .calibration import Calibration
 
 
@@ -27,11 +27,7 @@ def _options(field_norm, units, method="ls", **settings):
     options.method = METHODS[method]
     options.field_norm = 0.0 if field_norm is None else float(field_norm)
     options.units = units or ""
-    for name, value in settings.items():
-        if not hasattr(options, name):
-            raise TypeError(f"fit_ellipsoid: unknown option {name!r}")
-        setattr(options, name, value)
-    return options
+    return set_options(options, settings, "fit_ellipsoid")
 
 
 def fit_ellipsoid(samples, field_norm: float | None = None, units: str | None = None, method: str = "ls",

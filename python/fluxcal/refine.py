@@ -13,7 +13,7 @@ from __future__ import annotations
 import numpy as np
 
 from . import _core
-from ._arrays import as_samples
+from ._arrays import as_samples, set_options
 from .calibration import Calibration
 
 LOSSES = {"none": _core.Loss.none, "huber": _core.Loss.huber, "cauchy": _core.Loss.cauchy}
@@ -26,11 +26,7 @@ def _options(loss="none", loss_scale=0.0, units="", **settings):
     options.loss = LOSSES[loss]
     options.loss_scale = float(loss_scale)
     options.units = units or ""
-    for name, value in settings.items():
-        if not hasattr(options, name):
-            raise TypeError(f"unknown refinement option {name!r}")
-        setattr(options, name, value)
-    return options
+    return set_options(options, settings, "refine")
 
 
 def _calibration(result: dict, method: str) -> Calibration:

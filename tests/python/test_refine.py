@@ -32,7 +32,7 @@ def test_als_agrees_with_oracle(seed):
 def test_refine_agrees_with_scipy_oracle(seed):
     s = simulated(10 + seed, n=300, noise=0.01)
     start = fluxcal.fit_ellipsoid(s.readings, field_norm=s.field_norm)
-    cal = fluxcal.refine(start, s.readings)
+    cal = fluxcal.refine(start, s.readings, noise_bias_correction=False)  # the oracle's plain estimator
     ref = oracle.refine(start.offset, start.matrix, start.field_norm, s.readings)
     assert np.abs(cal.offset - ref["offset"]).max() < 1e-8 * s.field_norm
     assert np.abs(cal.matrix - ref["matrix"]).max() < 1e-8
@@ -88,18 +88,24 @@ def test_refinement_reaches_the_cramer_rao_bound(sensor_seed):
     assert np.all(np.abs(se_ratio.mean(axis=0) / z.std(axis=0) - 1) <= 0.15)
 
 
-def test_ordinary_fit_is_biased_at_5_percent_noise_and_als_is_not():
+def test_ordinary_fit_is_biased_at_5_percent_noise_and_als_and_refine_are_not():
     rng = np.random.default_rng(5)
     effects = sim.random_sensor(1.0, rng, soft_iron=0.1, offset=0.5, noise=0.05)
-    errors = {"ls": [], "als": []}
+    errors = {"ls": [], "als": [], "refine": [], "refine_uncorrected": []}
     for _ in range(200):
         s = sim.simulate(sim.uniform(1000, rng), effects, [0, 0, 1.0], rng)
         truth = theta_magnitude(s.true_calibration())
-        for method, e in errors.items():
-            e.append(theta_magnitude(fluxcal.fit_ellipsoid(s.readings, field_norm=1.0, method=method)) - truth)
+        ls = fluxcal.fit_ellipsoid(s.readings, field_norm=1.0)
+        als = fluxcal.fit_ellipsoid(s.readings, field_norm=1.0, method="als")
+        fits = {"ls": ls, "als": als, "refine": fluxcal.refine(als, s.readings),
+                "refine_uncorrected": fluxcal.refine(als, s.readings, noise_bias_correction=False)}
+        for name, cal in fits.items():
+            errors[name].append(theta_magnitude(cal) - truth)
     t = {m: np.abs(np.mean(e, 0) / (np.std(e, 0) / np.sqrt(len(e)))) for m, e in errors.items()}
     assert t["ls"].max() > 8.0   # measured ≈ 15 standard errors on the diagonal of A
+    assert t["refine_uncorrected"].max() > 5.0  # the Sampson ML shrinks A by ≈ σ²/H² (≈ 9 SE)
     assert t["als"].max() < 3.5  # measured ≈ 1.8
+    assert t["refine"].max() < 3.5  # with the noise-bias correction
 
 
 # -- identifiability, real data ----------------------------------------------------------------------------
