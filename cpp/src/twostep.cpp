@@ -1,1 +1,607 @@
 #include "fluxcal/twostep.hpp"
+
+#include "fluxcal/coverage.hpp"
+#include "fluxcal/ellipsoid.hpp"
+
+#include <Eigen/Eigenvalues>
+
+#include <algorithm>
+#include <cmath>
+#include <cstdio>
+#include <limits>
+#include <sstream>
+
+namespace fluxcal {
+namespace {
+
+constexpr double kInf = std::numeric_limits<double>::infinity();
+// Field magnitudes within this relative spread count as one magnitude (2-D known-radius first step).
+constexpr double kConstantField = 1e-6;
+// A column-scaled normal matrix above this condition number is rank deficient (the design matrix
+// above ~1e6): the data leave a direction of the first-step state undetermined.
+constexpr double kRankDeficient2D = 1e12;
+constexpr double kRankDeficient3D = 1e14;  // the same threshold as the ellipsoid fit
+// Step halvings before a Gauss–Newton step counts as failed.
+constexpr int kLineSearchSteps = 40;
+
+std::string num(double v) {
+  char buf[32];
+  std::snprintf(buf, sizeof buf, "%.6g", v);
+  return buf;
+}
+
+std::string percent(double ratio) {
+  char buf[32];
+  std::snprintf(buf, sizeof buf, "%.3g %%", 100.0 * ratio);
+  return buf;
+}
+
+// Solves N x = rhs for symmetric positive semi-definite N after scaling it to unit diagonal (so the
+// condition number measures the geometry, not the units of the columns). Returns that condition number
+// (∞ when singular); x is only meaningful when it is finite.
+template <int K>
+double solve_scaled(const Eigen::Matrix<double, K, K>& N, const Eigen::Matrix<double, K, 1>& rhs,
+                    Eigen::Matrix<double, K, 1>& x) {
+  Eigen::Matrix<double, K, 1> d;
+  for (int i = 0; i < K; ++i) d(i) = N(i, i) > 0.0 ? 1.0 / std::sqrt(N(i, i)) : 1.0;
+  const Eigen::Matrix<double, K, K> Ns = d.asDiagonal() * N * d.asDiagonal();
+  Eigen::SelfAdjointEigenSolver<Eigen::Matrix<double, K, K>> eig(Ns);
+  const auto& lam = eig.eigenvalues();
+  if (!(lam(0) > 0.0) || !lam.allFinite()) {
+    x.setConstant(std::numeric_limits<double>::quiet_NaN());
+    return kInf;
+  }
+  x = d.asDiagonal() *
+      (eig.eigenvectors() * (eig.eigenvectors().transpose() * d.cwiseProduct(rhs)).cwiseQuotient(lam));
+  return lam(K - 1) / lam(0);
+}
+
+// ---- 2-D ---------------------------------------------------------------------------------------------
+
+void check_2d(const Readings2DRef& readings, const Eigen::Ref<const Eigen::VectorXd>& h,
+              const TwoStep2DOptions& opt) {
+  if (readings.rows() < 5) {
+    std::ostringstream msg;
+    msg << "readings: " << readings.rows()
+        << " rows, need at least 5 for the 5-parameter first step of the 2-D two-step calibration";
+    throw Error(msg.str());
+  }
+  static const char* axis[] = {"x", "y"};
+  for (Eigen::Index i = 0; i < readings.rows(); ++i)
+    for (int j = 0; j < 2; ++j)
+      if (!std::isfinite(readings(i, j))) {
+        std::ostringstream msg;
+        msg << "readings: row " << i << ", column " << j << " (" << axis[j] << ") is "
+            << (std::isnan(readings(i, j)) ? "NaN" : "infinite") << "; remove or repair non-finite readings first";
+        throw Error(msg.str());
+      }
+  if (h.size() != readings.rows()) {
+    std::ostringstream msg;
+    msg << "field_norms: " << h.size() << " values for " << readings.rows()
+        << " readings; give the true field magnitude of every reading";
+    throw Error(msg.str());
+  }
+  for (Eigen::Index i = 0; i < h.size(); ++i)
+    if (!(h(i) > 0.0) || !std::isfinite(h(i))) {
+      std::ostringstream msg;
+      msg << "field_norms: value " << i << " is " << h(i)
+          << "; every reading needs a positive finite true field magnitude (drop zero-field readings)";
+      throw Error(msg.str());
+    }
+  if (opt.max_iterations < 0) throw Error("options.max_iterations: must be 0 or more");
+  if (!(opt.tolerance > 0.0) || !std::isfinite(opt.tolerance))
+    throw Error("options.tolerance: must be a positive finite number");
+}
+
+// Normalised problem: u = (ĥ − centre)/scale, f = h/field_scale. The model keeps its form:
+// b = centre + scale·β, γ = scale·κ/field_scale.
+struct Normalised2D {
+  Eigen::Vector2d centre;
+  double scale;
+  double field_scale;
+};
+
+// Sum of squared magnitude residuals Σ (ρ_k − f_k)², ρ = |(u − β) ⊘ κ|, θ = (βx, βy, κx, κy), and the
+// Gauss–Newton normal matrix F = JᵀJ and gradient g = Jᵀe, all in one pass.
+double magnitude_residuals(const Readings2DRef& readings, const Eigen::Ref<const Eigen::VectorXd>& h,
+                           const Normalised2D& nz, const Eigen::Vector4d& th, Eigen::Matrix4d& F,
+                           Eigen::Vector4d& g) {
+  const double inv_s = 1.0 / nz.scale, inv_t = 1.0 / nz.field_scale;
+  const double ikx = 1.0 / th(2), iky = 1.0 / th(3);
+  // u − β = ĥ·inv_s − (centre·inv_s + β)
+  const double ox = nz.centre(0) * inv_s + th(0), oy = nz.centre(1) * inv_s + th(1);
+  // Scalar sums of the 10 distinct entries of JᵀJ and the 4 of Jᵀe (plain doubles keep the loop tight).
+  double cost = 0.0, f00 = 0, f01 = 0, f02 = 0, f03 = 0, f11 = 0, f12 = 0, f13 = 0, f22 = 0, f23 = 0, f33 = 0;
+  double g0 = 0, g1 = 0, g2 = 0, g3 = 0;
+  for (Eigen::Index k = 0; k < readings.rows(); ++k) {
+    const double a = (readings(k, 0) * inv_s - ox) * ikx;
+    const double c = (readings(k, 1) * inv_s - oy) * iky;
+    const double rho = std::sqrt(a * a + c * c);  // normalised: O(1), no overflow to guard against
+    const double e = rho - h(k) * inv_t;
+    cost += e * e;
+    if (rho > 0.0) {  // at ρ = 0 the magnitude has no derivative; such a reading adds nothing
+      const double ir = 1.0 / rho;
+      const double j0 = -a * ikx * ir, j1 = -c * iky * ir, j2 = a * j0, j3 = c * j1;
+      f00 += j0 * j0; f01 += j0 * j1; f02 += j0 * j2; f03 += j0 * j3;
+      f11 += j1 * j1; f12 += j1 * j2; f13 += j1 * j3;
+      f22 += j2 * j2; f23 += j2 * j3; f33 += j3 * j3;
+      g0 += e * j0; g1 += e * j1; g2 += e * j2; g3 += e * j3;
+    }
+  }
+  F << f00, f01, f02, f03, 0, f11, f12, f13, 0, 0, f22, f23, 0, 0, 0, f33;
+  g << g0, g1, g2, g3;
+  F.triangularView<Eigen::StrictlyLower>() = F.transpose();
+  return cost;
+}
+
+}  // namespace
+
+Readings2D TwoStep2DResult::apply_rows(const Readings2DRef& readings) const {
+  return (readings.rowwise() - offset.transpose()) * gain.cwiseInverse().asDiagonal();
+}
+
+TwoStep2DResult twostep_2d(const Readings2DRef& readings, const Eigen::Ref<const Eigen::VectorXd>& field_norms,
+                           const TwoStep2DOptions& options) {
+  check_2d(readings, field_norms, options);
+  const Eigen::Index n = readings.rows();
+  const double nd = static_cast<double>(n);
+
+  Normalised2D nz;
+  const Eigen::Vector2d lo = readings.colwise().minCoeff().transpose();
+  const Eigen::Vector2d hi = readings.colwise().maxCoeff().transpose();
+  nz.centre = 0.5 * (lo + hi);
+  nz.scale = 0.5 * (hi - lo).maxCoeff();
+  if (!(nz.scale > 0.0)) nz.scale = 1.0;
+  const double hmax = field_norms.maxCoeff(), hmin = field_norms.minCoeff();
+  nz.field_scale = hmax;
+
+  TwoStep2DResult out;
+  Summary& sum = out.summary;
+  sum.samples = static_cast<std::size_t>(n);
+  out.units = options.units;
+  out.constant_field = (hmax - hmin) <= kConstantField * hmax;
+
+  // First step, normal equations in one pass: z = ux², row d = [2ux, 2uy, −uy², −1, f²].
+  using Mat5 = Eigen::Matrix<double, 5, 5>;
+  using Vec5 = Eigen::Matrix<double, 5, 1>;
+  Mat5 N = Mat5::Zero();
+  Vec5 rhs = Vec5::Zero();
+  double zz = 0.0, f2sum = 0.0;
+  {
+    // Plain scalar sums of the monomials that make up N, rhs and zᵀz: independent add chains, no 5×5 updates.
+    const double inv_s = 1.0 / nz.scale, inv_t = 1.0 / nz.field_scale;
+    const double cx = nz.centre(0) * inv_s, cy = nz.centre(1) * inv_s;
+    double sx = 0, sy = 0, sg = 0, sxx = 0, sxy = 0, syy = 0, sxg = 0, syg = 0, sgg = 0, sxyy = 0, syyy = 0,
+           syyg = 0, syyyy = 0, sxxx = 0, sxxy = 0, sxxyy = 0, sxxg = 0, sxxxx = 0;
+    for (Eigen::Index k = 0; k < n; ++k) {
+      const double x = readings(k, 0) * inv_s - cx, y = readings(k, 1) * inv_s - cy;
+      const double f = field_norms(k) * inv_t, g = f * f;
+      const double xx = x * x, yy = y * y;
+      sx += x; sy += y; sg += g;
+      sxx += xx; sxy += x * y; syy += yy;
+      sxg += x * g; syg += y * g; sgg += g * g;
+      sxyy += x * yy; syyy += y * yy; syyg += yy * g; syyyy += yy * yy;
+      sxxx += xx * x; sxxy += xx * y; sxxyy += xx * yy; sxxg += xx * g; sxxxx += xx * xx;
+    }
+    // d = [2x, 2y, −y², −1, g], z = x²
+    N << 4 * sxx, 4 * sxy, -2 * sxyy, -2 * sx, 2 * sxg,  //
+        0, 4 * syy, -2 * syyy, -2 * sy, 2 * syg,           //
+        0, 0, syyyy, syy, -syyg,                           //
+        0, 0, 0, nd, -sg,                                  //
+        0, 0, 0, 0, sgg;
+    N.triangularView<Eigen::StrictlyLower>() = N.transpose();
+    rhs << 2 * sxxx, 2 * sxxy, -sxxyy, -sxx, sxxg;
+    zz = sxxxx;
+    f2sum = sg;
+  }
+  {  // thinnest/widest spread of the readings, from the sums already in N (Σ2u, Σ4uuᵀ)
+    const Eigen::Vector2d mean(-N(0, 3) / (2.0 * nd), -N(1, 3) / (2.0 * nd));
+    Eigen::Matrix2d second;
+    second << N(0, 0), N(0, 1), N(0, 1), N(1, 1);
+    const Eigen::Matrix2d cov = second / (4.0 * nd) - mean * mean.transpose();
+    const Eigen::Vector2d ev = Eigen::SelfAdjointEigenSolver<Eigen::Matrix2d>(cov, Eigen::EigenvaluesOnly).eigenvalues();
+    sum.coverage_ratio = ev(1) > 0.0 ? std::sqrt(std::max(ev(0), 0.0) / ev(1)) : 0.0;
+  }
+
+  double r = 0.0, kx2 = 0.0;  // (γx/γy)² and κx² (normalised γx²)
+  Eigen::Vector2d beta;
+  if (!out.constant_field) {
+    Vec5 x;
+    sum.condition_number = solve_scaled<5>(N, rhs, x);
+    if (!(sum.condition_number < kRankDeficient2D))
+      throw Error("readings: the first step of the 2-D two-step calibration is rank deficient (condition number " +
+                  num(sum.condition_number) +
+                  "); the readings and field_norms do not determine offset and gains. The field must change "
+                  "direction between readings (turn the sensor; the paper turns the ring 5 × 72°) and the "
+                  "readings must not lie on a line; field magnitudes that differ by less than ~0.1 % should "
+                  "be given as one common value");
+    sum.cost = std::max(0.0, zz - 2.0 * x.dot(rhs) + x.dot(N * x)) / nd;
+    r = x(2);
+    kx2 = x(4);
+    beta << x(0), x(1) / r;
+  } else {
+    // One magnitude: x4 and x5 are not separable; the known radius gives γx² = (x4 − x4′)/f² with
+    // x4 = x1² + x2²/x3 and x4′ = x4 − γx² f² the fitted constant.
+    const Eigen::Matrix4d N4 = N.topLeftCorner<4, 4>();
+    const Eigen::Vector4d rhs4 = rhs.head<4>();
+    Eigen::Vector4d x;
+    sum.condition_number = solve_scaled<4>(N4, rhs4, x);
+    if (!(sum.condition_number < kRankDeficient2D))
+      throw Error("readings: the first step of the 2-D two-step calibration is rank deficient (condition number " +
+                  num(sum.condition_number) +
+                  "); with one field magnitude the readings must trace an ellipse — turn the sensor through "
+                  "more directions in its plane (readings on a line or at a few points do not determine it)");
+    sum.cost = std::max(0.0, zz - 2.0 * x.dot(rhs4) + x.dot(N4 * x)) / nd;
+    r = x(2);
+    kx2 = (x(0) * x(0) + x(1) * x(1) / r - x(3)) / (f2sum / nd);
+    beta << x(0), x(1) / r;
+  }
+  if (!(r > 0.0))
+    throw Error("readings: the first step gives (γx/γy)² = " + num(r) +
+                " ≤ 0, i.e. γy² < 0: the readings are not consistent with h² = (ĥx − bx)²/γx² + "
+                "(ĥy − by)²/γy² — check that field_norms belong to the readings (same order, same field "
+                "units) and that no axis is saturated");
+  if (!(kx2 > 0.0))
+    throw Error("readings: the first step gives γx² = " + num(kx2 * nz.scale * nz.scale / (nz.field_scale * nz.field_scale)) +
+                " ≤ 0: the readings are not consistent with h² = (ĥx − bx)²/γx² + (ĥy − by)²/γy² — check "
+                "that field_norms belong to the readings (same order, same field units)");
+
+  Eigen::Vector4d th(beta(0), beta(1), std::sqrt(kx2), std::sqrt(kx2 / r));
+  sum.converged = true;
+  if (options.refine && options.max_iterations > 0) {
+    sum.converged = false;
+    Eigen::Matrix4d F, Fn;
+    Eigen::Vector4d g, gn;
+    double cost = magnitude_residuals(readings, field_norms, nz, th, F, g);
+    bool failed = false;
+    for (int it = 0; it < options.max_iterations; ++it) {
+      Eigen::Vector4d delta;
+      if (!(solve_scaled<4>(F, Eigen::Vector4d(-g), delta) < kInf)) {
+        failed = true;
+        break;
+      }
+      const double size = delta.cwiseAbs().maxCoeff();
+      const double tol = options.tolerance * std::max(1.0, th.cwiseAbs().maxCoeff());
+      if (size <= tol) {  // below the tolerance the cost cannot tell the step apart from rounding
+        th += delta;
+        sum.iterations = it + 1;
+        sum.converged = true;
+        break;
+      }
+      // The trial pass also accumulates F and g, so an accepted step (the rule) costs one pass.
+      double t = 1.0, trial = kInf;
+      Eigen::Vector4d next;
+      for (int ls = 0; ls < kLineSearchSteps; ++ls, t *= 0.5) {
+        next = th + t * delta;
+        trial = magnitude_residuals(readings, field_norms, nz, next, Fn, gn);
+        if (trial < cost) break;
+      }
+      if (!(trial < cost)) {  // no decrease along a descent direction: at the minimum to rounding
+        sum.converged = size <= std::sqrt(options.tolerance) * std::max(1.0, th.cwiseAbs().maxCoeff());
+        failed = !sum.converged;
+        break;
+      }
+      th = next;
+      cost = trial;
+      F = Fn;
+      g = gn;
+      sum.iterations = it + 1;
+    }
+    if (!sum.converged)
+      sum.warnings.push_back(std::string("refinement did not converge ") +
+                             (failed ? "(no descent step found" : "(iteration limit") + " after " +
+                             std::to_string(sum.iterations) +
+                             " iterations); the result is the last iterate — check the readings for outliers");
+  }
+
+  out.offset = nz.centre + nz.scale * th.head<2>();
+  out.gain = (nz.scale / nz.field_scale) * th.tail<2>().cwiseAbs();
+
+  // Statistics of the compensated magnitudes.
+  double sd2 = 0.0, sq = 0.0, sq2 = 0.0;
+  const double igx = 1.0 / out.gain(0), igy = 1.0 / out.gain(1);
+  for (Eigen::Index k = 0; k < n; ++k) {
+    const double hx = (readings(k, 0) - out.offset(0)) * igx, hy = (readings(k, 1) - out.offset(1)) * igy;
+    const double mag = std::sqrt(hx * hx + hy * hy);
+    const double d = mag - field_norms(k), q = mag / field_norms(k);
+    sd2 += d * d;
+    sq += q;
+    sq2 += q * q;
+  }
+  sum.residual_rms = std::sqrt(sd2 / nd);
+  sum.norm_mean = sq / nd;
+  sum.norm_std_over_mean = std::sqrt(std::max(0.0, sq2 / nd - sum.norm_mean * sum.norm_mean)) / sum.norm_mean;
+  sum.exact_statistics = true;
+  if (options.refine && options.max_iterations > 0) sum.cost = sd2 / nd;
+
+  std::ostringstream msg;
+  const std::string u = out.units.empty() ? "" : " " + out.units;
+  msg << "two-step 2-D: " << n << " readings, "
+      << (out.constant_field ? "one field magnitude (known-radius first step), " : "")
+      << (options.refine && options.max_iterations > 0
+              ? (sum.converged ? "refined in " + std::to_string(sum.iterations) + " iterations"
+                               : "refinement not converged")
+              : std::string("closed form"))
+      << ", offset (" << num(out.offset(0)) << ", " << num(out.offset(1)) << ")" << u << ", gain ("
+      << num(out.gain(0)) << ", " << num(out.gain(1)) << "), |h|/h std " << percent(sum.norm_std_over_mean)
+      << ", condition number " << num(sum.condition_number);
+  if (!sum.warnings.empty()) msg << " (" << sum.warnings.size() << " warning(s))";
+  sum.message = msg.str();
+  return out;
+}
+
+// ---- 3-D ---------------------------------------------------------------------------------------------
+
+namespace {
+
+using Vec9 = Eigen::Matrix<double, 9, 1>;
+using Vec10 = Eigen::Matrix<double, 10, 1>;
+using Mat9 = Eigen::Matrix<double, 9, 9>;
+using Mat10 = Eigen::Matrix<double, 10, 10>;
+
+// Normalised coordinates u = (m − centre)/scale (EllipsoidMoments), unit field: the residual of
+// reading k is R_k = (u_k − q)ᵀ N (u_k − q) − 1 − μ′ = (|h_k|² − H² − μ)/H², with o = centre + scale·q
+// and A² = (H/scale)² N. R_k = pᵀd_k for the moment design row d = [u², v², w², 2uv, 2uw, 2vw, 2u, 2v,
+// 2w, 1] and the quadric p below, so every sum over the readings comes from the 10×10 scatter.
+Vec10 quadric(const Eigen::Vector3d& q, const Eigen::Matrix3d& N, double mu) {
+  const Eigen::Vector3d Nq = N * q;
+  Vec10 p;
+  p << N(0, 0), N(1, 1), N(2, 2), N(0, 1), N(0, 2), N(1, 2), -Nq, q.dot(Nq) - 1.0 - mu;
+  return p;
+}
+
+// ∂R_k/∂θ = T d_k for θ = [q0 q1 q2 N00 N11 N22 N01 N02 N12] (the Jacobian is quadratic in u too).
+Eigen::Matrix<double, 9, 10> jacobian_map(const Eigen::Vector3d& q, const Eigen::Matrix3d& N) {
+  Eigen::Matrix<double, 9, 10> T = Eigen::Matrix<double, 9, 10>::Zero();
+  const Eigen::Vector3d Nq = N * q;
+  for (int j = 0; j < 3; ++j) {  // ∂R/∂q_j = −2 [N (u − q)]_j
+    for (int i = 0; i < 3; ++i) T(j, 6 + i) = -N(j, i);
+    T(j, 9) = 2.0 * Nq(j);
+  }
+  for (int i = 0; i < 3; ++i) {  // ∂R/∂N_ii = (u_i − q_i)²
+    T(3 + i, i) = 1.0;
+    T(3 + i, 6 + i) = -q(i);
+    T(3 + i, 9) = q(i) * q(i);
+  }
+  constexpr int pairs[3][3] = {{0, 1, 3}, {0, 2, 4}, {1, 2, 5}};  // (i, j, design column of 2u_iu_j)
+  for (int r = 0; r < 3; ++r) {  // ∂R/∂N_ij = 2 (u_i − q_i)(u_j − q_j), N_ij = N_ji
+    const int i = pairs[r][0], j = pairs[r][1];
+    T(6 + r, pairs[r][2]) = 1.0;
+    T(6 + r, 6 + i) = -q(j);
+    T(6 + r, 6 + j) = -q(i);
+    T(6 + r, 9) = 2.0 * q(i) * q(j);
+  }
+  return T;
+}
+
+// Thinnest/widest standard deviation of the normalised readings, from the scatter's first two moments.
+double coverage_ratio(const Mat10& S) {
+  const double n = S(9, 9);
+  const Eigen::Vector3d mean = S.block<1, 3>(9, 6).transpose() / (2.0 * n);
+  Eigen::Matrix3d second;
+  second << S(0, 9), S(3, 9) / 2, S(4, 9) / 2, S(3, 9) / 2, S(1, 9), S(5, 9) / 2, S(4, 9) / 2, S(5, 9) / 2, S(2, 9);
+  const Eigen::Matrix3d cov = second / n - mean * mean.transpose();
+  const Eigen::Vector3d ev = Eigen::SelfAdjointEigenSolver<Eigen::Matrix3d>(cov, Eigen::EigenvaluesOnly).eigenvalues();
+  if (!(ev(2) > 0.0)) return 0.0;
+  return std::sqrt(std::max(ev(0), 0.0) / ev(2));
+}
+
+struct Model3D {
+  Eigen::Vector3d q;
+  Eigen::Matrix3d N;
+};
+
+// Noise mean μ′ = μ/H² at the current estimate (header: A&S's E[v_k]).
+double noise_mean(const Mat10& S, const Model3D& m, double noise_sigma, double scale) {
+  if (noise_sigma == 0.0) return 0.0;
+  if (noise_sigma > 0.0) return noise_sigma * noise_sigma * m.N.trace() / (scale * scale);
+  const double n = S(9, 9);
+  const Vec10 p = quadric(m.q, m.N, 0.0);
+  const double mean = p.dot(S.col(9)) / n;
+  const double var = std::max(0.0, p.dot(S * p) / n - mean * mean);
+  return 0.75 * var;
+}
+
+}  // namespace
+
+TwoStepResult twostep(const SamplesRef& samples, const TwoStepOptions& options) {
+  const double H = options.field_norm;
+  if (!(H > 0.0) || !std::isfinite(H))
+    throw Error("field_norm: must be a positive finite magnitude (the known |H|, e.g. from IGRF), got " + num(H));
+  if (options.max_iterations < 0) throw Error("options.max_iterations: must be 0 or more");
+  if (!(options.tolerance > 0.0) || !std::isfinite(options.tolerance))
+    throw Error("options.tolerance: must be a positive finite number");
+  if (!std::isfinite(options.noise_sigma)) throw Error("options.noise_sigma: must be finite (< 0 to estimate it)");
+  if (samples.rows() < 9) check_samples(samples, "samples", 9, "the 9-parameter two-step calibration");
+
+  // One pass: the 35 moments of the normalised readings (shared with the ellipsoid fit). A NaN or Inf
+  // poisons them; only then is the data searched for the row to name.
+  const auto [centre, scale] = normalisation(samples);
+  EllipsoidMoments mom(centre, scale);
+  mom.add_rows(samples);
+  if (!mom.finite()) {
+    check_finite(samples, "samples");
+    throw Error("samples: values too large, their fourth powers overflow");
+  }
+  const Mat10 S = mom.scatter();
+  const double n = S(9, 9);
+
+  TwoStepResult out;
+  Summary& sum = out.summary;
+  sum.samples = mom.count();
+  sum.coverage_ratio = coverage_ratio(S);
+  if (sum.coverage_ratio < options.planar_ratio)
+    throw Error("samples: the readings lie nearly in one plane (thinnest/widest spread " + percent(sum.coverage_ratio) +
+                "), so the first step of the two-step calibration is rank deficient — rotate the sensor about "
+                "more axes (at least two), or use the 2-D calibration");
+
+  // First step (centred, tr E = 0): minimise Σ (aᵀ(d_k − d̄))² over the 9 non-constant quadric
+  // coefficients a with a0 + a1 + a2 = 3 (tr N′ = tr(I + E) = 3); the constant absorbs |b|², H² and μ.
+  const Vec9 s9 = S.block<9, 1>(0, 9);
+  const Mat9 C = S.topLeftCorner<9, 9>() - s9 * s9.transpose() / n;
+  Eigen::Matrix<double, 9, 8> Emap = Eigen::Matrix<double, 9, 8>::Zero();
+  Emap.bottomRows<8>().setIdentity();
+  Emap(0, 0) = Emap(0, 1) = -1.0;
+  Vec9 a0 = Vec9::Zero();
+  a0(0) = 3.0;
+  const Eigen::Matrix<double, 8, 8> normal = Emap.transpose() * C * Emap;
+  const Eigen::Matrix<double, 8, 1> rhs = -Emap.transpose() * C * a0;
+  Eigen::Matrix<double, 8, 1> free;
+  const double first_condition = solve_scaled<8>(normal, rhs, free);
+  if (!(first_condition < kRankDeficient3D))
+    throw Error("samples: the first step of the two-step calibration is rank deficient (condition number " +
+                num(first_condition) +
+                "); the readings do not determine offset and soft iron — rotate the sensor about more axes");
+  const Vec9 a = a0 + Emap * free;
+  const double k = -a.dot(s9) / n;
+  Eigen::Matrix3d Np;
+  Np << a(0), a(3), a(4), a(3), a(1), a(5), a(4), a(5), a(2);
+  Eigen::SelfAdjointEigenSolver<Eigen::Matrix3d> peig(Np);
+  if (!(peig.eigenvalues()(0) > 0.0)) {
+    std::ostringstream msg;
+    msg << "samples: the readings do not lie on an ellipsoid (the first step's quadric has eigenvalues "
+        << peig.eigenvalues().transpose()
+        << "); check for mixed recordings, saturation or a field that changes during the recording";
+    throw Error(msg.str());
+  }
+  Model3D m;
+  m.q = -peig.eigenvectors() * (peig.eigenvectors().transpose() * a.segment<3>(6)).cwiseQuotient(peig.eigenvalues());
+  const double rho2 = m.q.dot(Np * m.q) - k;
+  if (!(rho2 > 0.0)) throw Error("samples: the first step's ellipsoid is imaginary (no real points); the readings are degenerate");
+  m.N = Np / rho2;  // the scale from H: (u − q)ᵀ N (u − q) = 1 ⇔ |h| = H
+
+  // Second step: Fisher scoring (Gauss–Newton) on Σ R_k², all sums from the scatter.
+  double mu = 0.0;
+  sum.condition_number = first_condition;
+  sum.converged = true;
+  if (options.max_iterations > 0) {
+    sum.converged = false;
+    bool failed = false;
+    double last_step = kInf;
+    for (int it = 0; it < options.max_iterations; ++it) {
+      mu = noise_mean(S, m, options.noise_sigma, scale);  // held fixed within the iteration
+      const Vec10 p = quadric(m.q, m.N, mu);
+      const Eigen::Matrix<double, 9, 10> T = jacobian_map(m.q, m.N);
+      const Mat9 F = T * S * T.transpose();
+      const Vec9 g = T * (S * p);
+      Vec9 delta;
+      if (!(solve_scaled<9>(F, Vec9(-g), delta) < kInf)) {
+        failed = true;
+        break;
+      }
+      const auto step = [&](double t) {
+        Model3D next = m;
+        next.q += t * delta.head<3>();
+        Eigen::Matrix3d dN;
+        dN << delta(3), delta(6), delta(7), delta(6), delta(4), delta(8), delta(7), delta(8), delta(5);
+        next.N += t * dN;
+        return next;
+      };
+      last_step = delta.cwiseAbs().maxCoeff();
+      if (last_step <= options.tolerance) {  // below the tolerance the cost cannot tell the step from rounding
+        m = step(1.0);
+        sum.iterations = it + 1;
+        sum.converged = true;
+        break;
+      }
+      const double cost = p.dot(S * p);
+      double t = 1.0, trial = kInf;
+      Model3D next;
+      for (int ls = 0; ls < kLineSearchSteps; ++ls, t *= 0.5) {
+        next = step(t);
+        const Vec10 pn = quadric(next.q, next.N, mu);
+        trial = pn.dot(S * pn);
+        if (trial < cost) break;
+      }
+      if (!(trial < cost)) {  // no decrease along a descent direction: at the minimum to rounding
+        sum.converged = last_step <= std::sqrt(options.tolerance);
+        failed = !sum.converged;
+        break;
+      }
+      m = next;
+      sum.iterations = it + 1;
+    }
+    mu = noise_mean(S, m, options.noise_sigma, scale);
+    const Mat9 F = [&] {
+      const Eigen::Matrix<double, 9, 10> T = jacobian_map(m.q, m.N);
+      return Mat9(T * S * T.transpose());
+    }();
+    Vec9 unused;
+    sum.condition_number = solve_scaled<9>(F, Vec9::Zero(), unused);
+    if (!sum.converged)
+      sum.warnings.push_back(std::string("second step did not converge ") +
+                             (failed ? "(no descent step found" : "(iteration limit") + " after " +
+                             std::to_string(sum.iterations) + " iterations, last step " + num(last_step) +
+                             "); the result is the last iterate — check the readings for outliers");
+  }
+  {
+    const Vec10 p = quadric(m.q, m.N, mu);
+    sum.cost = p.dot(S * p) / n;
+  }
+
+  Eigen::SelfAdjointEigenSolver<Eigen::Matrix3d> eig(m.N);
+  if (!(eig.eigenvalues()(0) > 0.0)) {
+    std::ostringstream msg;
+    msg << "samples: the two-step solution is not positive definite (eigenvalues of A² ∝ "
+        << eig.eigenvalues().transpose()
+        << "); the readings do not determine a calibration — check for mixed recordings or saturation";
+    throw Error(msg.str());
+  }
+  Calibration& cal = out.calibration;
+  cal.offset = centre + scale * m.q;
+  cal.matrix = (H / scale) * eig.eigenvectors() * eig.eigenvalues().cwiseSqrt().asDiagonal() *
+               eig.eigenvectors().transpose();
+  cal.field_norm = H;
+  cal.units = options.units;
+  cal.model = "twostep";
+
+  // Statistics of |h| from a pass over the samples, and direction coverage.
+  double sd = 0.0, sd2 = 0.0;
+  {
+    const Eigen::Matrix3d& A = cal.matrix;
+    const Eigen::Vector3d& o = cal.offset;
+    for (Eigen::Index i = 0; i < samples.rows(); ++i) {
+      const double x = samples(i, 0) - o(0), y = samples(i, 1) - o(1), z = samples(i, 2) - o(2);
+      const double hx = A(0, 0) * x + A(0, 1) * y + A(0, 2) * z;
+      const double hy = A(1, 0) * x + A(1, 1) * y + A(1, 2) * z;
+      const double hz = A(2, 0) * x + A(2, 1) * y + A(2, 2) * z;
+      const double d = std::sqrt(hx * hx + hy * hy + hz * hz) - H;
+      sd += d;
+      sd2 += d * d;
+    }
+  }
+  const double mean_d = sd / n;
+  sum.norm_mean = H + mean_d;
+  sum.norm_std_over_mean = std::sqrt(std::max(0.0, sd2 / n - mean_d * mean_d)) / sum.norm_mean;
+  sum.residual_rms = std::sqrt(sd2 / n);
+  sum.exact_statistics = true;
+  sum.direction_coverage = direction_coverage(samples, cal, options.coverage_rows);
+
+  if (sum.coverage_ratio < options.poor_coverage_ratio)
+    sum.warnings.push_back("poor coverage: thinnest/widest spread of the readings is " + percent(sum.coverage_ratio) +
+                           "; the offset and matrix along the thin direction are poorly determined");
+  if (sum.direction_coverage < options.poor_direction_coverage)
+    sum.warnings.push_back("poor coverage: only " + percent(sum.direction_coverage) +
+                           " of field directions seen; turn the sensor through more orientations");
+  {  // a field_norm far from the readings' own radius usually means mismatched units
+    const double gain = std::cbrt(cal.matrix.determinant());
+    if (gain > 5.0 || gain < 0.2)
+      sum.warnings.push_back("field_norm " + num(H) + " is " + num(gain) + " times the radius " + num(H / gain) +
+                             " of the readings — check the units");
+  }
+
+  std::ostringstream msg;
+  const std::string u = cal.units.empty() ? "" : " " + cal.units;
+  msg << "two-step fit: " << sum.samples << " samples, "
+      << (options.max_iterations == 0
+              ? std::string("first step only")
+              : (sum.converged ? "second step converged in " + std::to_string(sum.iterations) + " iterations"
+                               : std::string("second step not converged")))
+      << ", |h| std/mean " << percent(sum.norm_std_over_mean) << ", residual RMS " << num(sum.residual_rms) << u
+      << ", condition number " << num(sum.condition_number);
+  if (!sum.warnings.empty()) msg << " (" << sum.warnings.size() << " warning(s))";
+  sum.message = msg.str();
+  return out;
+}
+
+}  // namespace fluxcal

@@ -3,8 +3,59 @@
 
 #include <fluxcal/twostep.hpp>
 
+using namespace pybind11::literals;
+
 namespace fluxcal_py {
 
-void bind_twostep(py::module_&) {}
+void bind_twostep(py::module_& m) {
+  using fluxcal::TwoStep2DOptions;
+  using fluxcal::TwoStepOptions;
+  py::class_<TwoStep2DOptions>(m, "TwoStep2DOptions")
+      .def(py::init<>())
+      .def_readwrite("refine", &TwoStep2DOptions::refine)
+      .def_readwrite("max_iterations", &TwoStep2DOptions::max_iterations)
+      .def_readwrite("tolerance", &TwoStep2DOptions::tolerance)
+      .def_readwrite("units", &TwoStep2DOptions::units);
+
+  py::class_<TwoStepOptions>(m, "TwoStepOptions")
+      .def(py::init<>())
+      .def_readwrite("field_norm", &TwoStepOptions::field_norm)
+      .def_readwrite("max_iterations", &TwoStepOptions::max_iterations)
+      .def_readwrite("tolerance", &TwoStepOptions::tolerance)
+      .def_readwrite("noise_sigma", &TwoStepOptions::noise_sigma)
+      .def_readwrite("units", &TwoStepOptions::units)
+      .def_readwrite("planar_ratio", &TwoStepOptions::planar_ratio)
+      .def_readwrite("poor_coverage_ratio", &TwoStepOptions::poor_coverage_ratio)
+      .def_readwrite("poor_direction_coverage", &TwoStepOptions::poor_direction_coverage)
+      .def_readwrite("coverage_rows", &TwoStepOptions::coverage_rows);
+
+  // readings arrive as a C-contiguous float64 (N, 2) array and field_norms as float64 (N,) (the Python
+  // layer ensures it): no copy.
+  m.def(
+      "twostep_2d",
+      [](const fluxcal::Readings2DRef& readings, const Eigen::Ref<const Eigen::VectorXd>& field_norms,
+         const TwoStep2DOptions& options) {
+        fluxcal::TwoStep2DResult r;
+        {
+          py::gil_scoped_release release;
+          r = fluxcal::twostep_2d(readings, field_norms, options);
+        }
+        return py::dict("offset"_a = r.offset, "gain"_a = r.gain, "constant_field"_a = r.constant_field,
+                        "units"_a = r.units, "summary"_a = summary_dict(r.summary));
+      },
+      "readings"_a.noconvert(), "field_norms"_a.noconvert(), "options"_a);
+
+  m.def(
+      "twostep",
+      [](const fluxcal::SamplesRef& samples, const TwoStepOptions& options) {
+        fluxcal::TwoStepResult r;
+        {
+          py::gil_scoped_release release;
+          r = fluxcal::twostep(samples, options);
+        }
+        return calibration_dict(r.calibration, r.summary);
+      },
+      "samples"_a.noconvert(), "options"_a);
+}
 
 }  // namespace fluxcal_py

@@ -13,11 +13,13 @@ from .ellipsoid import EllipsoidMoments, fit_ellipsoid
 from .io import Recording, read_csv, write_csv
 from .pipeline import calibrate
 from .refine import fit_vector, refine
+from .twostep import TwoStep2D, twostep, twostep_2d
 
 __version__ = _core.__version__
 
-__all__ = ["Calibration", "EllipsoidMoments", "Recording", "calibrate", "crlb", "direction_coverage",
-           "fit_ellipsoid", "fit_vector", "read_csv", "refine", "write_csv", "__version__", "cmake_dir"]
+__all__ = ["Calibration", "EllipsoidMoments", "Recording", "TwoStep2D", "calibrate", "crlb", "direction_coverage",
+           "fit_ellipsoid", "fit_vector", "read_csv", "refine", "twostep", "twostep_2d", "write_csv",
+           "__version__", "cmake_dir"]
 
 
 def cmake_dir() -> str:

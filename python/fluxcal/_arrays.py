@@ -5,17 +5,18 @@ from __future__ import annotations
 import numpy as np
 
 
-def as_samples(values, name: str = "samples") -> np.ndarray:
-    """Return `values` as a C-contiguous float64 (N, 3) array; ValueError naming `name` otherwise."""
+def as_samples(values, name: str = "samples", columns: int = 3) -> np.ndarray:
+    """Return `values` as a C-contiguous float64 (N, columns) array; ValueError naming `name` otherwise."""
     if hasattr(values, "samples") and callable(values.samples):  # a Recording
         values = values.samples()
     try:
         arr = np.asarray(values, dtype=np.float64)
     except (TypeError, ValueError) as exc:
         raise ValueError(f"{name}: not numeric ({exc})") from None
-    if arr.ndim != 2 or arr.shape[1] != 3:
-        hint = " (it looks transposed: pass one row per reading)" if arr.ndim == 2 and arr.shape[0] == 3 else ""
-        raise ValueError(f"{name}: shape {arr.shape}, expected (N, 3) with one row per reading{hint}")
+    if arr.ndim != 2 or arr.shape[1] != columns:
+        transposed = arr.ndim == 2 and arr.shape[0] == columns
+        hint = " (it looks transposed: pass one row per reading)" if transposed else ""
+        raise ValueError(f"{name}: shape {arr.shape}, expected (N, {columns}) with one row per reading{hint}")
     return np.ascontiguousarray(arr)
 
 

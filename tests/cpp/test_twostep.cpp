@@ -1,1 +1,258 @@
 #include <fluxcal/twostep.hpp>
+
+#include <gtest/gtest.h>
+
+#include <cmath>
+#include <limits>
+#include <random>
+
+using fluxcal::Readings2D;
+using fluxcal::Samples;
+
+namespace {
+
+// ---- 2-D: a biaxial sensor turned to 5 ring positions (72° apart), 20 currents at each ------------
+
+struct Truth2D {
+  Eigen::Vector2d b{0.005, -0.0035};
+  Eigen::Vector2d gamma{1.0302, 0.9796};
+};
+
+struct Data2D {
+  Readings2D readings;
+  Eigen::VectorXd norms;
+};
+
+Data2D paper_like(const Truth2D& t, double noise, unsigned seed, int positions = 5) {
+  std::mt19937 rng(seed);
+  std::normal_distribution<double> g(0.0, 1.0);
+  std::uniform_real_distribution<double> phase(0.0, 2.0 * M_PI);
+  const double start = phase(rng);
+  const int currents = 20;
+  Data2D d{Readings2D(positions * currents, 2), Eigen::VectorXd(positions * currents)};
+  for (int p = 0; p < positions; ++p)
+    for (int c = 0; c < currents; ++c) {
+      const int k = p * currents + c;
+      const double angle = start + 2.0 * M_PI * p / 5.0;
+      const double h = 0.01 * (c + 1);  // field ∝ current, 0.5 … 10 A
+      const Eigen::Vector2d field(h * std::cos(angle), h * std::sin(angle));
+      d.readings.row(k) = (t.gamma.cwiseProduct(field) + t.b + noise * Eigen::Vector2d(g(rng), g(rng))).transpose();
+      d.norms(k) = h;
+    }
+  return d;
+}
+
+// ---- 3-D: readings of a sensor with symmetric soft iron in a field of constant magnitude ---------
+
+struct Truth3D {
+  Eigen::Matrix3d W;  // m = W h + b
+  Eigen::Vector3d b;
+  double field;
+};
+
+Truth3D make_truth(unsigned seed, double field) {
+  std::mt19937 rng(seed);
+  std::uniform_real_distribution<double> u(-1.0, 1.0);
+  Eigen::Matrix3d W;
+  for (int i = 0; i < 3; ++i)
+    for (int j = i; j < 3; ++j) W(i, j) = W(j, i) = (i == j ? 1.0 : 0.0) + 0.2 * u(rng);
+  return {W, Eigen::Vector3d(u(rng), u(rng), u(rng)) * 0.5 * field, field};
+}
+
+Samples simulate(const Truth3D& t, int n, double noise, unsigned seed) {
+  std::mt19937 rng(seed);
+  std::normal_distribution<double> g(0.0, 1.0);
+  Samples s(n, 3);
+  for (int i = 0; i < n; ++i) {
+    const Eigen::Vector3d dir = Eigen::Vector3d(g(rng), g(rng), g(rng)).normalized();
+    const Eigen::Vector3d e(g(rng), g(rng), g(rng));
+    s.row(i) = (t.W * dir * t.field + t.b + noise * t.field * e).transpose();
+  }
+  return s;
+}
+
+template <class F>
+std::string error_of(F&& f) {
+  try {
+    f();
+  } catch (const fluxcal::Error& e) {
+    return e.what();
+  }
+  return "";
+}
+
+}  // namespace
+
+// ---- 2-D ---------------------------------------------------------------------------------------------
+
+TEST(TwoStep2D, ClosedFormRecoversNoiseFreeSensorExactly) {
+  const Truth2D t;
+  const Data2D d = paper_like(t, 0.0, 1);
+  fluxcal::TwoStep2DOptions opt;
+  opt.refine = false;
+  const auto r = fluxcal::twostep_2d(d.readings, d.norms, opt);
+  EXPECT_LT((r.offset - t.b).norm(), 1e-12);
+  EXPECT_LT((r.gain - t.gamma).norm(), 1e-10);
+  EXPECT_FALSE(r.constant_field);
+  EXPECT_EQ(r.summary.iterations, 0);
+  EXPECT_TRUE(r.summary.converged);
+  EXPECT_LT(r.summary.residual_rms, 1e-12);
+  EXPECT_EQ(r.summary.samples, 100u);
+}
+
+TEST(TwoStep2D, RefinementKeepsExactSolutionAndCompensates) {
+  const Truth2D t;
+  const Data2D d = paper_like(t, 0.0, 2);
+  const auto r = fluxcal::twostep_2d(d.readings, d.norms);
+  EXPECT_LT((r.offset - t.b).norm(), 1e-12);
+  EXPECT_LT((r.gain - t.gamma).norm(), 1e-10);
+  EXPECT_TRUE(r.summary.converged);
+  EXPECT_GE(r.summary.iterations, 1);
+  // eq. 19: the compensated readings have the known magnitudes
+  const Readings2D h = r.apply_rows(d.readings);
+  EXPECT_LT((h.rowwise().norm() - d.norms).cwiseAbs().maxCoeff(), 1e-12);
+  EXPECT_LT((r.reading(r.apply(d.readings.row(3).transpose())) - d.readings.row(3).transpose()).norm(), 1e-15);
+  EXPECT_NEAR(r.summary.norm_mean, 1.0, 1e-12);
+}
+
+TEST(TwoStep2D, RefinementLowersTheResidualOfNoisyData) {
+  const Truth2D t;
+  const Data2D d = paper_like(t, 1.5e-4, 3);
+  fluxcal::TwoStep2DOptions closed;
+  closed.refine = false;
+  const auto r0 = fluxcal::twostep_2d(d.readings, d.norms, closed);
+  const auto r1 = fluxcal::twostep_2d(d.readings, d.norms);
+  EXPECT_TRUE(r1.summary.converged);
+  EXPECT_LE(r1.summary.residual_rms, r0.summary.residual_rms);
+  EXPECT_LT((r1.offset - t.b).norm(), 1e-4);
+  EXPECT_LT((r1.gain - t.gamma).cwiseAbs().maxCoeff(), 2e-3);
+}
+
+TEST(TwoStep2D, OneFieldMagnitudeUsesKnownRadiusForm) {
+  // A full turn in a constant field (Earth's field in the sensor plane): h² column ∝ constant column.
+  const Truth2D t;
+  Readings2D x(60, 2);
+  for (int k = 0; k < 60; ++k) {
+    const double a = 2.0 * M_PI * k / 60.0;
+    x.row(k) = (t.gamma.cwiseProduct(Eigen::Vector2d(std::cos(a), std::sin(a)) * 0.3) + t.b).transpose();
+  }
+  const auto r = fluxcal::twostep_2d(x, Eigen::VectorXd::Constant(60, 0.3));
+  EXPECT_TRUE(r.constant_field);
+  EXPECT_LT((r.offset - t.b).norm(), 1e-12);
+  EXPECT_LT((r.gain - t.gamma).norm(), 1e-10);
+}
+
+TEST(TwoStep2D, BadInputThrowsNamedErrors) {
+  const Truth2D t;
+  Data2D d = paper_like(t, 0.0, 4);
+  EXPECT_NE(error_of([&] { fluxcal::twostep_2d(d.readings.topRows(4), d.norms.head(4)); })
+                .find("readings: 4 rows, need at least 5"), std::string::npos);
+  EXPECT_NE(error_of([&] { fluxcal::twostep_2d(d.readings, d.norms.head(99)); })
+                .find("field_norms: 99 values for 100 readings"), std::string::npos);
+  Eigen::VectorXd bad = d.norms;
+  bad(7) = 0.0;
+  EXPECT_NE(error_of([&] { fluxcal::twostep_2d(d.readings, bad); }).find("field_norms: value 7 is 0"),
+            std::string::npos);
+  Readings2D nan = d.readings;
+  nan(11, 1) = std::numeric_limits<double>::quiet_NaN();
+  EXPECT_NE(error_of([&] { fluxcal::twostep_2d(nan, d.norms); }).find("readings: row 11, column 1 (y) is NaN"),
+            std::string::npos);
+  // The ring never turned: the field keeps one direction, readings on a line.
+  const Data2D line = paper_like(t, 0.0, 5, 1);
+  EXPECT_NE(error_of([&] { fluxcal::twostep_2d(line.readings, line.norms); }).find("rank deficient"),
+            std::string::npos);
+  // Magnitudes that do not belong to the readings.
+  Eigen::VectorXd shuffled = d.norms.reverse();
+  EXPECT_NE(error_of([&] { fluxcal::twostep_2d(d.readings, shuffled); }).find("≤ 0"), std::string::npos);
+  fluxcal::TwoStep2DOptions opt;
+  opt.tolerance = 0.0;
+  EXPECT_THROW(fluxcal::twostep_2d(d.readings, d.norms, opt), fluxcal::Error);
+}
+
+// ---- 3-D ---------------------------------------------------------------------------------------------
+
+TEST(TwoStep3D, RecoversNoiseFreeSensorExactly) {
+  const Truth3D t = make_truth(1, 48.0);
+  const Samples s = simulate(t, 500, 0.0, 2);
+  fluxcal::TwoStepOptions opt;
+  opt.field_norm = t.field;
+  opt.units = "uT";
+  for (int iterations : {0, 50}) {
+    opt.max_iterations = iterations;
+    const auto r = fluxcal::twostep(s, opt);
+    EXPECT_LT((r.calibration.offset - t.b).norm() / t.field, 1e-9);
+    EXPECT_LT((r.calibration.matrix - t.W.inverse()).norm(), 1e-9);
+    EXPECT_LT(r.summary.residual_rms / t.field, 1e-10);
+    EXPECT_TRUE(r.summary.converged);
+    EXPECT_EQ(r.summary.samples, 500u);
+    EXPECT_EQ(r.calibration.model, "twostep");
+    EXPECT_EQ(r.calibration.units, "uT");
+    EXPECT_TRUE(r.summary.warnings.empty());
+  }
+}
+
+TEST(TwoStep3D, NoisyFitConvergesWithinOnePercent) {
+  const Truth3D t = make_truth(3, 50000.0);
+  const Samples s = simulate(t, 2000, 0.01, 4);
+  fluxcal::TwoStepOptions opt;
+  opt.field_norm = t.field;
+  const auto r = fluxcal::twostep(s, opt);
+  EXPECT_TRUE(r.summary.converged);
+  EXPECT_GE(r.summary.iterations, 1);
+  EXPECT_LT(r.summary.iterations, 20);
+  EXPECT_LT((r.calibration.offset - t.b).norm() / t.field, 0.01);
+  EXPECT_LT((r.calibration.matrix - t.W.inverse()).norm() / t.W.inverse().norm(), 0.01);
+  EXPECT_NEAR(r.summary.residual_rms / t.field, 0.01, 0.003);  // the projected noise
+  EXPECT_GT(r.summary.direction_coverage, 0.95);
+  // symmetric positive definite A
+  EXPECT_LT((r.calibration.matrix - r.calibration.matrix.transpose()).norm(), 1e-12);
+  EXPECT_GT(Eigen::SelfAdjointEigenSolver<Eigen::Matrix3d>(r.calibration.matrix).eigenvalues()(0), 0.0);
+}
+
+TEST(TwoStep3D, KnownNoiseAgreesWithEstimatedNoise) {
+  const Truth3D t = make_truth(5, 1.0);
+  const Samples s = simulate(t, 5000, 0.02, 6);
+  fluxcal::TwoStepOptions est, known, none;
+  est.field_norm = known.field_norm = none.field_norm = 1.0;
+  known.noise_sigma = 0.02;
+  none.noise_sigma = 0.0;
+  const auto a = fluxcal::twostep(s, est), b = fluxcal::twostep(s, known), c = fluxcal::twostep(s, none);
+  // Without the noise mean the scale shrinks by about 1.5 σ²; with it the two ways agree.
+  const double det_a = a.calibration.matrix.determinant(), det_b = b.calibration.matrix.determinant();
+  const double det_c = c.calibration.matrix.determinant(), det_t = t.W.inverse().determinant();
+  EXPECT_NEAR(det_a / det_b, 1.0, 3e-4);
+  EXPECT_LT(std::abs(det_a / det_t - 1.0), std::abs(det_c / det_t - 1.0));
+}
+
+TEST(TwoStep3D, BadInputThrowsNamedErrors) {
+  const Truth3D t = make_truth(7, 1.0);
+  const Samples s = simulate(t, 200, 0.0, 8);
+  fluxcal::TwoStepOptions opt;
+  EXPECT_NE(error_of([&] { fluxcal::twostep(s, opt); }).find("field_norm: must be a positive"), std::string::npos);
+  opt.field_norm = 1.0;
+  EXPECT_NE(error_of([&] { fluxcal::twostep(s.topRows(8), opt); }).find("samples: 8 rows, need at least 9"),
+            std::string::npos);
+  Samples nan = s;
+  nan(5, 2) = std::numeric_limits<double>::infinity();
+  EXPECT_NE(error_of([&] { fluxcal::twostep(nan, opt); }).find("samples: row 5, column 2 (z) is infinite"),
+            std::string::npos);
+  Samples planar = s;
+  planar.col(2) = 0.3 * planar.col(0);
+  EXPECT_NE(error_of([&] { fluxcal::twostep(planar, opt); }).find("rotate the sensor about more axes"),
+            std::string::npos);
+  opt.max_iterations = -1;
+  EXPECT_THROW(fluxcal::twostep(s, opt), fluxcal::Error);
+}
+
+TEST(TwoStep3D, IterationLimitIsReportedNotThrown) {
+  const Truth3D t = make_truth(9, 1.0);
+  const Samples s = simulate(t, 1000, 0.05, 10);
+  fluxcal::TwoStepOptions opt;
+  opt.field_norm = 1.0;
+  opt.max_iterations = 1;
+  opt.tolerance = 1e-300;
+  const auto r = fluxcal::twostep(s, opt);
+  EXPECT_FALSE(r.summary.converged);
+  ASSERT_FALSE(r.summary.warnings.empty());
+  EXPECT_NE(r.summary.warnings[0].find("did not converge"), std::string::npos);
+}

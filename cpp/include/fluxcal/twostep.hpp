@@ -1,6 +1,142 @@
-// fluxcal/twostep.hpp — TWOSTEP calibration (placeholder: being written).
+// fluxcal/twostep.hpp — TWOSTEP calibration from field magnitudes: the 2-D form with a known field
+// magnitude per reading (seed 000: Song et al. 2017, eqs. 6–19) and the 3-D form with a symmetric
+// soft-iron matrix (Alonso & Shuster 2002, "Complete linear attitude-independent magnetometer
+// calibration", J. Astronaut. Sci. 50(4); Gebre-Egziabher et al. 2006, J. Aerosp. Eng. 19(2):87).
+//
+// Both are "two-step" estimators: a pseudo-linear least-squares first step in a redundant
+// parametrisation (closed form, one pass over the data), a second step that maps it back to the
+// physical parameters, then an iterated refinement of the physical parameters on the full model.
+//
+// ---- 2-D (biaxial sensor, seed 000) ----------------------------------------------------------------
+// Model (eq. 6): h_k² = (ĥx − bx)²/γx² + (ĥy − by)²/γy², with ĥ the reading, b the offset (hard iron
+// and zero drift, reading units), γ the per-axis gain (scale factor and soft iron merged; reading
+// units per field unit) and h_k the true field magnitude of reading k, known (from the reference
+// current and the geometry) and allowed to differ between readings. With r = (γx/γy)² it expands to
+//   z_k = ĥx² = [2ĥx, 2ĥy, −ĥy², −1, h_k²] · x,   x = (bx, r·by, r, bx² + r·by², γx²)
+// (first step, eqs. 7–17). The paper prints z = ĥx² with the row [−2ĥx, −2ĥy, ĥy², 1, h²] and
+// x5 = −γx²: those signs are inconsistent (they give z = −ĥx²); the row above is the derived one.
+// Second step: bx = x1, by = x2/x3, γx² = x5, γy² = x5/x3. When every h_k is the same (within 1e-6)
+// the h² column duplicates the constant one and x4, x5 are not separable; the first step then uses
+// x4 = x1² + x2²/x3 (the known-radius ellipse): z = [2ĥx, 2ĥy, −ĥy², 1]·(x1, x2, x3, γx²h² − x4).
+// The first step is not the maximum-likelihood estimate (it ignores x4's dependence on x1..x3 and
+// weights the readings algebraically); the refinement (default on) is Gauss–Newton on
+//   e_k = √((ĥx − bx)²/γx² + (ĥy − by)²/γy²) − h_k
+// over (bx, by, γx, γy), which for white reading noise reaches the Cramér–Rao bound.
+// Compensation (eq. 19): h = (ĥ − b) ⊘ γ per axis; the frame change C_w→b of eq. 19 (sensor x/y to
+// radial/tangential) belongs to the application.
+//
+// ---- 3-D (Alonso & Shuster 2002) ---------------------------------------------------------------------
+// Model: B_k = (I + D)⁻¹ (O_k H_k + b + ε_k), D symmetric, |H_k| = H known and constant, ε_k white with
+// covariance Σ_ε. With E = 2D + D², c = (I + D) b and
+//   z_k = |B_k|² − H² = −B_kᵀ E B_k + 2 cᵀ B_k − |b|² + v_k,   v_k = 2(O_k H_k)ᵀε_k + |ε_k|²,  E[v_k] = μ = tr Σ_ε
+// the first step is A&S's centred estimate: subtracting the means removes the |b|² term (and μ) and
+// leaves a linear least-squares problem in (c, E). With a constant |H| the centring also removes H²
+// and the centred problem has a null direction (E → λ(I + E) − I, c → λc: every λ fits equally, λ = 0
+// trivially); fluxcal fixes it by tr E = 0 and recovers the scale from H in the second step, which
+// makes the first step the trace-normalised algebraic ellipsoid fit. The iterated second step is
+// A&S's Fisher scoring on the full model (|b|² tied to c and E) — with isotropic ε and constant H
+// every v_k has the same variance 4H²σ_ε², so the objective is Σ (|A(m_k − o)|² − H² − μ)² — run on the
+// 35 moments of the readings: one pass over the data, then each iteration costs O(1). μ is A&S's
+// noise mean: from options.noise_sigma when given (reading noise σ per axis: Σ_ε = σ²A², μ = σ² tr A²),
+// else estimated from the residual variance (var v ≈ (4/3) H² tr Σ_ε ⇒ μ ≈ ¾ var v / H²). It removes
+// the noise-mean part of the O(σ²/H²) shrinkage of the scale that a plain Σ (|h|² − H²)² fit has
+// (about half of it in simulation; the rest is the errors-in-variables bias of any fit that uses the
+// noisy readings as regressors). The offset is unbiased to that order on a well-covered sphere.
+// Result in fluxcal's convention h = A (m − o): A = I + D (symmetric positive definite),
+// o = (I + D)⁻¹ b.
 #pragma once
 
 #include "fluxcal/types.hpp"
 
-namespace fluxcal {}  // namespace fluxcal
+#include <Eigen/Core>
+
+#include <string>
+
+namespace fluxcal {
+
+// ---- 2-D ---------------------------------------------------------------------------------------------
+
+/// N×2 readings (ĥx, ĥy), one row a reading, row-major (a C-contiguous NumPy array maps without a copy).
+using Readings2D = Eigen::Matrix<double, Eigen::Dynamic, 2, Eigen::RowMajor>;
+using Readings2DRef = Eigen::Ref<const Readings2D>;
+
+struct TwoStep2DOptions {
+  /// Refine (bx, by, γx, γy) by Gauss–Newton on the magnitude residual after the closed form.
+  bool refine = true;
+  /// Gauss–Newton iterations at most.
+  int max_iterations = 50;
+  /// Stop when no parameter (in normalised units, O(1)) changes by more than this.
+  double tolerance = 1e-12;
+  /// Units of the readings, carried into the result ("" = not stated).
+  std::string units;
+};
+
+/// Offset and gains of a biaxial sensor, and how the fit went.
+/// Summary: cost is the mean squared magnitude residual (|h| − h_k)² after refinement, or the first
+/// step's mean algebraic residual (normalised units) without it; residual_rms is the RMS of
+/// |h| − h_k; norm_mean and norm_std_over_mean are the mean and std/mean of |h|/h_k (ideally 1, 0);
+/// condition_number is that of the first step's (column-scaled) normal matrix; coverage_ratio is the
+/// thinnest/widest spread of the readings.
+struct TwoStep2DResult {
+  Eigen::Vector2d offset = Eigen::Vector2d::Zero();  ///< b, reading units
+  Eigen::Vector2d gain = Eigen::Vector2d::Ones();    ///< γ, reading units per field unit
+  bool constant_field = false;  ///< every h_k equal: the first step used the known-radius form
+  std::string units;            ///< units of the readings
+  Summary summary;
+
+  /// Compensated field of one reading (eq. 19): (ĥ − b) ⊘ γ.
+  Eigen::Vector2d apply(const Eigen::Vector2d& reading) const { return (reading - offset).cwiseQuotient(gain); }
+  /// Compensated field of every row.
+  Readings2D apply_rows(const Readings2DRef& readings) const;
+  /// The reading a true field h would produce (the forward model ĥ = γ ⊙ h + b, without noise).
+  Eigen::Vector2d reading(const Eigen::Vector2d& field) const { return gain.cwiseProduct(field) + offset; }
+};
+
+/// TWOSTEP for a biaxial sensor from N ≥ 5 readings and the true field magnitude of each
+/// (`field_norms`, N values > 0, field units). Throws Error on NaN/Inf, too few readings, a length
+/// mismatch, non-positive magnitudes, a rank-deficient first step (the field never changed direction,
+/// or readings on a line) or a first step that gives γ² ≤ 0 (readings and magnitudes inconsistent).
+/// A refinement that does not converge is reported in the Summary (converged = false, a warning).
+TwoStep2DResult twostep_2d(const Readings2DRef& readings, const Eigen::Ref<const Eigen::VectorXd>& field_norms,
+                           const TwoStep2DOptions& options = {});
+
+// ---- 3-D ---------------------------------------------------------------------------------------------
+
+struct TwoStepOptions {
+  /// Known field magnitude |H| (e.g. from IGRF), required > 0, in the units h should come out in.
+  double field_norm = 0.0;
+  /// Fisher-scoring iterations of the second step at most; 0 returns the centred first step.
+  int max_iterations = 50;
+  /// Stop when no parameter (normalised units, O(1)) changes by more than this.
+  double tolerance = 1e-10;
+  /// Standard deviation of the reading noise per axis (reading units), for the noise mean μ.
+  /// < 0: estimate μ from the residuals (default); 0: no noise-mean correction.
+  double noise_sigma = -1.0;
+  /// Units of the readings, carried into the Calibration ("" = not stated).
+  std::string units;
+  /// Reject the readings as planar when their thinnest/widest spread is below this.
+  double planar_ratio = 0.02;
+  /// Warn about poor coverage below this thinnest/widest spread ...
+  double poor_coverage_ratio = 0.3;
+  /// ... or when fewer than this fraction of direction bins hold a corrected reading (coverage.hpp).
+  double poor_direction_coverage = 0.5;
+  /// Direction coverage looks at an evenly strided subsample of at most this many readings (0 = all).
+  Eigen::Index coverage_rows = 16384;
+};
+
+/// Calibration (model "twostep", A symmetric) and Summary: iterations and converged of the second
+/// step; cost = mean ((|h|² − H² − μ)/H²)², its objective; residual_rms, norm_mean and
+/// norm_std_over_mean of |h| from a pass over the samples (exact_statistics); condition_number of the
+/// (column-scaled) Fisher matrix, or of the first step's normal matrix when max_iterations = 0.
+struct TwoStepResult {
+  Calibration calibration;
+  Summary summary;
+};
+
+/// TWOSTEP for a three-axis sensor in a field of known constant magnitude (N ≥ 9 readings).
+/// Throws Error on a missing field_norm, NaN/Inf, too few rows, planar readings (rank-deficient first
+/// step), readings that do not lie on an ellipsoid, or a result that is not positive definite.
+/// A second step that does not converge is reported (converged = false, a warning), not thrown.
+TwoStepResult twostep(const SamplesRef& samples, const TwoStepOptions& options);
+
+}  // namespace fluxcal

@@ -1,0 +1,123 @@
+"""Reference TWOSTEP solvers: the same estimators as the C++ core (cpp/include/fluxcal/twostep.hpp),
+computed the textbook way — explicit design matrices in the papers' own layout solved by
+np.linalg.lstsq, and scipy.optimize.least_squares for the iterated steps (the core uses one-pass
+normal equations, moment sums and its own Gauss–Newton)."""
+from __future__ import annotations
+
+import numpy as np
+from scipy.optimize import least_squares
+
+# Field magnitudes within this relative spread count as one magnitude (as in the core).
+CONSTANT_FIELD = 1e-6
+
+
+def _lstsq_scaled(H, z):
+    """Least squares with the columns scaled to unit norm (a standard conditioning step)."""
+    norms = np.linalg.norm(H, axis=0)
+    norms[norms == 0] = 1.0
+    x, *_ = np.linalg.lstsq(H / norms, z, rcond=None)
+    return x / norms
+
+
+# ---- 2-D (seed 000) ------------------------------------------------------------------------------------
+
+def twostep_2d_first_step(readings, field_norms) -> dict:
+    """Closed-form two-step estimate. The paper's layout (eq. 8, H = [−2ĥx, −2ĥy, ĥy², 1, h²],
+    x = (bx, r·by, r, bx² + r·by², −γx²), r = (γx/γy)²) with the sign of z corrected: z = −ĥx².
+    Readings are centred on their mean first (the estimator does not depend on the origin)."""
+    m = np.asarray(readings, dtype=float)
+    h = np.asarray(field_norms, dtype=float)
+    mean = m.mean(axis=0)
+    hx, hy = (m - mean).T
+    one = np.ones_like(hx)
+    constant = np.ptp(h) <= CONSTANT_FIELD * h.max()
+    if not constant:
+        H = np.column_stack([-2 * hx, -2 * hy, hy**2, one, h**2])
+        x = _lstsq_scaled(H, -hx**2)
+        gx2 = -x[4]
+    else:
+        # x4' = x4 − γx² h²: the h² column merges with the constant one; x4 = x1² + x2²/x3.
+        H = np.column_stack([-2 * hx, -2 * hy, hy**2, one])
+        x = _lstsq_scaled(H, -hx**2)
+        gx2 = (x[0] ** 2 + x[1] ** 2 / x[2] - x[3]) / np.mean(h**2)
+    b = np.array([x[0], x[1] / x[2]]) + mean
+    gain = np.sqrt([gx2, gx2 / x[2]])
+    return {"offset": b, "gain": gain, "constant_field": bool(constant), "state": x}
+
+
+def twostep_2d(readings, field_norms, refine: bool = True) -> dict:
+    """First step, then (refine) least squares on √((ĥx − bx)²/γx² + (ĥy − by)²/γy²) − h_k."""
+    first = twostep_2d_first_step(readings, field_norms)
+    if not refine:
+        return first
+    m = np.asarray(readings, dtype=float)
+    h = np.asarray(field_norms, dtype=float)
+
+    def residual(p):
+        return np.hypot((m[:, 0] - p[0]) / p[2], (m[:, 1] - p[1]) / p[3]) - h
+
+    p0 = np.concatenate([first["offset"], first["gain"]])
+    sol = least_squares(residual, p0, method="lm", x_scale="jac", xtol=1e-15, ftol=1e-15, gtol=1e-15)
+    return {"offset": sol.x[:2], "gain": np.abs(sol.x[2:]), "constant_field": first["constant_field"],
+            "first_step": first}
+
+
+# ---- 3-D (Alonso & Shuster 2002) ----------------------------------------------------------------------
+
+def _sym(v):
+    return np.array([[v[0], v[3], v[4]], [v[3], v[1], v[5]], [v[4], v[5], v[2]]])
+
+
+def _sqrtm_spd(M):
+    w, V = np.linalg.eigh(M)
+    if np.any(w <= 0):
+        raise ValueError("oracle: not positive definite")
+    return (V * np.sqrt(w)) @ V.T
+
+
+def twostep(samples, field_norm, iterate: bool = True, noise_sigma: float = -1.0) -> dict:
+    """A&S TWOSTEP with a constant field magnitude H, in coordinates u = (m − mean)/std.
+
+    First step: centred least squares of z_k = |u_k|² − H² on L_k = [−(v² − u²), −(w² − u²), −2uv,
+    −2uw, −2vw, 2u, 2v, 2w] (E with tr E = 0 eliminated through E11; c), then M = I + E, o = M⁻¹c and
+    the scale from H. Second step (iterate): least_squares on |A(u − o)|² − H² − μ over (o, M = A²),
+    μ = ¾ var(|A(u − o)|² − H²)/H² (or σ² tr A² for a known noise σ, 0 for none), repeated with μ
+    updated until it stops changing — the fixed point the core's scoring reaches."""
+    B = np.asarray(samples, dtype=float)
+    mean, std = B.mean(axis=0), B.std()
+    u = (B - mean) / std
+    Hs = float(field_norm) / std
+    x, y, w = u.T
+    z = (u * u).sum(axis=1) - Hs**2
+    L = np.column_stack([-(y * y - x * x), -(w * w - x * x), -2 * x * y, -2 * x * w, -2 * y * w, 2 * x, 2 * y, 2 * w])
+    th = _lstsq_scaled(L - L.mean(axis=0), z - z.mean())
+    E = _sym([-th[0] - th[1], th[0], th[1], th[2], th[3], th[4]])
+    c = th[5:8]
+    kappa = z.mean() - L.mean(axis=0) @ th
+    M = np.eye(3) + E
+    o = np.linalg.solve(M, c)
+    rho2 = Hs**2 + kappa + o @ M @ o
+    M = M * Hs**2 / rho2
+
+    if iterate:
+        def raw(p):
+            d = u - p[:3]
+            return np.einsum("ij,jk,ik->i", d, _sym(p[3:]), d) - Hs**2
+
+        def noise_mean(p):
+            if noise_sigma == 0:
+                return 0.0
+            if noise_sigma > 0:
+                return (noise_sigma / std) ** 2 * np.trace(_sym(p[3:]))
+            return 0.75 * raw(p).var() / Hs**2
+
+        p = np.concatenate([o, M[[0, 1, 2, 0, 0, 1], [0, 1, 2, 1, 2, 2]]])
+        for _ in range(100):
+            mu = noise_mean(p)
+            p = least_squares(lambda q: raw(q) - mu, p, method="lm", xtol=1e-15, ftol=1e-15, gtol=1e-15).x
+            if abs(noise_mean(p) - mu) <= 1e-14 * Hs**2:
+                break
+        o, M = p[:3], _sym(p[3:])
+
+    A = _sqrtm_spd(M)  # h = std·A_u(u − o) = A_u (m − offset): the std cancels
+    return {"offset": mean + std * o, "matrix": A, "field_norm": float(field_norm)}

@@ -1,0 +1,106 @@
+"""TWOSTEP calibration from field magnitudes, on the C++ core (cpp/include/fluxcal/twostep.hpp).
+
+2-D (seed 000, Song et al. 2017): a biaxial sensor whose reading ĥ obeys
+    h_k² = (ĥx − bx)²/γx² + (ĥy − by)²/γy²
+with h_k the true field magnitude of reading k, known per reading (reference current and geometry) and
+allowed to differ between readings. `twostep_2d` returns the offset b (reading units) and gains γ
+(reading units per field unit); compensation (eq. 19) is h = (ĥ − b) ⊘ γ.
+
+3-D (Alonso & Shuster 2002; Gebre-Egziabher et al. 2006): a three-axis sensor in a field of known
+constant magnitude H. `twostep` returns a `fluxcal.Calibration` in fluxcal's convention
+h = A (m − b), A symmetric (A = I + D, b = (I + D)⁻¹ b_AS in Alonso & Shuster's notation).
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from . import _core
+from ._arrays import as_samples, set_options
+from .calibration import Calibration
+from .ellipsoid import _calibration
+
+
+@dataclass
+class TwoStep2D:
+    """Offset and gains of a biaxial sensor: reading ĥ = γ ⊙ h + b + noise, so h = (ĥ − b) ⊘ γ.
+
+    `constant_field` is True when every field magnitude was the same (the first step then used the
+    known-radius ellipse form); `summary` holds the fit statistics (see twostep.hpp).
+    """
+
+    offset: np.ndarray
+    gain: np.ndarray
+    units: str = ""
+    constant_field: bool = False
+    summary: dict = field(default_factory=dict)
+
+    def __post_init__(self):
+        self.offset = np.asarray(self.offset, dtype=float).reshape(2)
+        self.gain = np.asarray(self.gain, dtype=float).reshape(2)
+
+    def apply(self, readings) -> np.ndarray:
+        """Compensated field (eq. 19) of one reading (2,) or of N×2 readings, the same shape out."""
+        if np.ndim(readings) == 1:
+            return (np.asarray(readings, dtype=float).reshape(2) - self.offset) / self.gain
+        return (as_samples(readings, "readings", columns=2) - self.offset) / self.gain
+
+    def reading(self, fields) -> np.ndarray:
+        """The readings true fields would produce (the forward model ĥ = γ ⊙ h + b, no noise)."""
+        return np.asarray(fields, dtype=float) * self.gain + self.offset
+
+
+def twostep_2d(readings, field_norms, units: str | None = None, refine: bool = True,
+               **settings) -> TwoStep2D:
+    """Two-step calibration of a biaxial sensor from N ≥ 5 readings (N×2) and the true field
+    magnitude of each (`field_norms`, N values > 0, field units).
+
+    First step: least squares on z = ĥx² = [2ĥx, 2ĥy, −ĥy², −1, h²]·x with
+    x = (bx, r·by, r, bx² + r·by², γx²), r = (γx/γy)² (the paper's eqs. 8–17 with corrected signs);
+    second step: bx = x1, by = x2/x3, γx² = x5, γy² = x5/x3. With `refine` (default) Gauss–Newton then
+    minimises Σ (|(ĥ − b) ⊘ γ| − h_k)² over (b, γ). The field must change direction between readings
+    (turn the sensor) and, unless all magnitudes are equal, its magnitude between readings too.
+
+    settings: max_iterations=50, tolerance=1e-12 (refinement). Raises ValueError on NaN/Inf, too few
+    readings, a length mismatch, non-positive magnitudes, a rank-deficient first step, or γ² ≤ 0.
+    """
+    arr = as_samples(readings, "readings", columns=2)
+    norms = np.asarray(field_norms, dtype=np.float64)
+    if norms.ndim != 1:
+        raise ValueError(f"field_norms: shape {norms.shape}, expected one magnitude per reading (N,)")
+    options = _core.TwoStep2DOptions()
+    options.refine = bool(refine)
+    options.units = units or ""
+    set_options(options, settings, "twostep_2d")
+    r = _core.twostep_2d(arr, np.ascontiguousarray(norms), options)
+    return TwoStep2D(offset=r["offset"], gain=r["gain"], units=r["units"], constant_field=r["constant_field"],
+                     summary=r["summary"])
+
+
+def twostep(samples, field_norm: float, units: str | None = None, **settings) -> Calibration:
+    """Two-step (Alonso–Shuster) calibration h = A (m − b) of N×3 readings (N ≥ 9) taken in a field
+    of known constant magnitude `field_norm` (e.g. from IGRF, in the units h should come out in).
+
+    First step: the centred linear estimate of z_k = |m_k|² − H² = −m_kᵀ E m_k + 2cᵀm_k + const with
+    tr E = 0 (a constant |H| leaves the scale to the second step); second step: Fisher scoring of
+    Σ (|A(m_k − b)|² − H² − μ)² over the offset and the symmetric A, μ the noise mean (estimated from
+    the residuals, or from `noise_sigma`, the reading noise per axis). `samples` may be a
+    `fluxcal.io.Recording`, whose units are then carried.
+
+    settings (defaults in cpp/include/fluxcal/twostep.hpp): max_iterations=50 (0 = first step only),
+    tolerance=1e-10, noise_sigma=-1 (estimate; 0 = no noise-mean correction), planar_ratio=0.02,
+    poor_coverage_ratio=0.3, poor_direction_coverage=0.5, coverage_rows=16384. Raises ValueError on a
+    missing field_norm, NaN/Inf, too few rows, planar readings, or a non-positive-definite result; a
+    second step that does not converge is reported in summary["converged"] and summary["warnings"].
+    """
+    if units is None:
+        units = getattr(samples, "field_units", lambda: "")()
+    arr = as_samples(samples)
+    if field_norm is None:
+        raise ValueError("field_norm: required (the known |H|, e.g. from IGRF)")
+    options = _core.TwoStepOptions()
+    options.field_norm = float(field_norm)
+    options.units = units or ""
+    set_options(options, settings, "twostep")
+    return _calibration(_core.twostep(arr, options))

@@ -1,0 +1,340 @@
+import numpy as np
+import pytest
+
+import fluxcal
+from conftest import simulated
+from fluxcal import sim
+from fluxcal.oracle import twostep as oracle
+from fluxcal.twostep import TwoStep2D, twostep, twostep_2d
+
+
+def rel(a, b):
+    return np.linalg.norm(np.asarray(a) - np.asarray(b)) / np.linalg.norm(b)
+
+
+# -- 2-D data ----------------------------------------------------------------------------------------------
+
+PAPER_OFFSET = np.array([0.005, 0.005])   # seed 000's simulation: true errors b = 0.005,
+PAPER_GAIN = np.array([1.0302, 1.0296])    # non-linear factors 1.0302 (x), 1.0296 (y)
+
+
+def paper_like(rng, noise=1.5e-4, positions=5, offset=PAPER_OFFSET, gain=PAPER_GAIN):
+    """The paper's scheme: the ring turned 5 × 72°, at each position currents 0.5 … 10 A (field ∝
+    current), so the field magnitude differs between readings; noise σ within the paper's [1e-4, 2e-4]."""
+    start = rng.uniform(0, 2 * np.pi)
+    angle = np.repeat(start + 2 * np.pi * np.arange(positions) / 5, 20)
+    h = np.tile(0.01 * np.arange(1, 21), positions)
+    field = np.column_stack([h * np.cos(angle), h * np.sin(angle)])
+    return field * gain + offset + noise * rng.standard_normal(field.shape), h, field
+
+
+def random_like(rng, noise=1e-3, n=200):
+    """Random directions and magnitudes, offset ±1, gains 0.8 … 1.2 (returns readings, norms, truth)."""
+    angle, h = rng.uniform(0, 2 * np.pi, n), rng.uniform(0.5, 2.0, n)
+    b, g = rng.uniform(-1, 1, 2), rng.uniform(0.8, 1.2, 2)
+    field = np.column_stack([h * np.cos(angle), h * np.sin(angle)])
+    return field * g + b + noise * rng.standard_normal(field.shape), h, (b, g)
+
+
+def crb_2d(field, offset, gain, sigma):
+    """Cramér–Rao bound (std) of (bx, by, γx, γy) for the magnitude model with white reading noise σ;
+    the field directions are nuisance parameters (hence the projection onto the magnitude gradient)."""
+    e = field * gain  # reading − offset without noise
+    rho = np.linalg.norm(field, axis=1)
+    J = np.column_stack([-e / gain**2 / rho[:, None], -(e**2) / gain**3 / rho[:, None]])
+    var = sigma**2 * (((e / gain**2) / rho[:, None]) ** 2).sum(axis=1)
+    return np.sqrt(np.diag(np.linalg.inv((J / var[:, None]).T @ J)))
+
+
+# -- 2-D: C++ against the NumPy oracle -----------------------------------------------------------------------
+
+@pytest.mark.parametrize("seed", range(5))
+@pytest.mark.parametrize("generator", [paper_like, random_like])
+def test_2d_closed_form_agrees_with_oracle(seed, generator):
+    readings, h, _ = generator(np.random.default_rng(seed))
+    cal = twostep_2d(readings, h, refine=False)
+    ref = oracle.twostep_2d(readings, h, refine=False)
+    assert rel(cal.offset, ref["offset"]) < 1e-8
+    assert rel(cal.gain, ref["gain"]) < 1e-8
+    assert cal.constant_field is False and cal.summary["iterations"] == 0
+
+
+@pytest.mark.parametrize("seed", range(5))
+@pytest.mark.parametrize("generator", [paper_like, random_like])
+def test_2d_refinement_agrees_with_oracle(seed, generator):
+    readings, h, _ = generator(np.random.default_rng(seed))
+    cal = twostep_2d(readings, h)
+    ref = oracle.twostep_2d(readings, h)
+    assert cal.summary["converged"] and 1 <= cal.summary["iterations"] <= 10
+    assert rel(cal.offset, ref["offset"]) < 1e-7  # measured ≤ 2e-9
+    assert rel(cal.gain, ref["gain"]) < 1e-7
+
+
+@pytest.mark.parametrize("seed", range(5))
+def test_2d_one_field_magnitude_agrees_with_oracle(seed):
+    # A turn in Earth's field: every h_k equal, the known-radius form of the first step.
+    rng = np.random.default_rng(seed)
+    angle = rng.uniform(0, 2 * np.pi, 100)
+    b, g = rng.uniform(-0.3, 0.3, 2), rng.uniform(0.8, 1.2, 2)
+    readings = 0.5 * np.column_stack([np.cos(angle), np.sin(angle)]) * g + b + 1e-3 * rng.standard_normal((100, 2))
+    h = np.full(100, 0.5)
+    for refine in (False, True):
+        cal, ref = twostep_2d(readings, h, refine=refine), oracle.twostep_2d(readings, h, refine=refine)
+        assert cal.constant_field and ref["constant_field"]
+        assert rel(cal.offset, ref["offset"]) < 1e-8 and rel(cal.gain, ref["gain"]) < 1e-8
+        assert rel(cal.offset, b) < 0.01 and rel(cal.gain, g) < 0.01
+
+
+# -- 2-D: accuracy against the simulation's truth --------------------------------------------------------
+
+def test_2d_noise_free_recovery_and_compensation():
+    readings, h, field = paper_like(np.random.default_rng(0), noise=0.0)
+    for refine in (False, True):
+        cal = twostep_2d(readings, h, refine=refine, units="mV")
+        np.testing.assert_allclose(cal.offset, PAPER_OFFSET, rtol=1e-10)
+        np.testing.assert_allclose(cal.gain, PAPER_GAIN, rtol=1e-10)
+        np.testing.assert_allclose(cal.apply(readings), field, atol=1e-12)  # eq. 19
+        np.testing.assert_allclose(cal.apply(readings[4]), field[4], atol=1e-12)
+        np.testing.assert_allclose(cal.reading(field), readings, atol=1e-12)
+        assert cal.units == "mV" and cal.summary["residual_rms"] < 1e-12
+
+
+def test_2d_refinement_reaches_the_cramer_rao_bound():
+    # Seed 000's Monte Carlo: 300 runs of the paper's scheme, σ = 1.5e-4.
+    rng = np.random.default_rng(2017)
+    first, refined, bound = [], [], []
+    for _ in range(300):
+        readings, h, field = paper_like(rng)
+        c0, c1 = twostep_2d(readings, h, refine=False), twostep_2d(readings, h)
+        first.append(np.r_[c0.offset, c0.gain])
+        refined.append(np.r_[c1.offset, c1.gain])
+        bound.append(crb_2d(field, PAPER_OFFSET, PAPER_GAIN, 1.5e-4) ** 2)
+    truth = np.r_[PAPER_OFFSET, PAPER_GAIN]
+    e0, e1 = np.array(first) - truth, np.array(refined) - truth
+    crb = np.sqrt(np.mean(bound, axis=0))
+    # measured: refined std / CRB ≈ 1.0–1.1, first step ≈ 1.1–1.35 × CRB
+    assert np.all(e1.std(axis=0) < 1.2 * crb)
+    assert np.all(e1.std(axis=0) <= e0.std(axis=0) * 1.02)
+    assert np.all(np.abs(e1.mean(axis=0)) < 0.25 * e1.std(axis=0))  # no gross bias
+    # the paper's largest deviations of the non-linear factor: 7e-4 (x), 1.1e-3 (y)
+    assert np.abs(e1[:, 2:]).max() < 1.5e-3
+
+
+def test_2d_summary_is_that_of_the_compensated_readings():
+    readings, h, _ = random_like(np.random.default_rng(5))
+    cal = twostep_2d(readings, h)
+    mag = np.linalg.norm(cal.apply(readings), axis=1)
+    s = cal.summary
+    assert s["samples"] == 200 and s["converged"] and s["exact_statistics"]
+    assert s["residual_rms"] == pytest.approx(np.sqrt(np.mean((mag - h) ** 2)), rel=1e-10)
+    assert s["cost"] == pytest.approx(np.mean((mag - h) ** 2), rel=1e-10)
+    assert s["norm_mean"] == pytest.approx(np.mean(mag / h), rel=1e-12)
+    assert s["norm_std_over_mean"] == pytest.approx(np.std(mag / h) / np.mean(mag / h), rel=1e-8)
+    assert s["condition_number"] > 1 and "refined in" in s["message"]
+
+
+def test_2d_accepts_lists_fortran_order_and_dataclass():
+    readings, h, _ = random_like(np.random.default_rng(6))
+    ref = twostep_2d(readings, h)
+    for variant in (readings.tolist(), np.asfortranarray(readings)):
+        np.testing.assert_allclose(twostep_2d(variant, list(h)).offset, ref.offset, rtol=1e-12)
+    assert isinstance(ref, TwoStep2D)
+
+
+# -- 2-D bad input ------------------------------------------------------------------------------------------
+
+def test_2d_bad_input_errors():
+    readings, h, _ = paper_like(np.random.default_rng(7))
+    with pytest.raises(ValueError, match="readings: 4 rows, need at least 5"):
+        twostep_2d(readings[:4], h[:4])
+    bad = readings.copy()
+    bad[9, 0] = np.nan
+    with pytest.raises(ValueError, match=r"readings: row 9, column 0 \(x\) is NaN"):
+        twostep_2d(bad, h)
+    bad[9, 0], bad[3, 1] = 0.0, np.inf
+    with pytest.raises(ValueError, match=r"readings: row 3, column 1 \(y\) is infinite"):
+        twostep_2d(bad, h)
+    with pytest.raises(ValueError, match="field_norms: 99 values for 100 readings"):
+        twostep_2d(readings, h[:99])
+    for value in (0.0, -1.0, np.nan):
+        hb = h.copy()
+        hb[12] = value
+        with pytest.raises(ValueError, match="field_norms: value 12 is"):
+            twostep_2d(readings, hb)
+    with pytest.raises(ValueError, match=r"shape \(2, 100\).*transposed"):
+        twostep_2d(readings.T, h)
+    with pytest.raises(ValueError, match="field_norms: shape"):
+        twostep_2d(readings, h[:, None])
+    with pytest.raises(TypeError, match="unknown option 'iterations'"):
+        twostep_2d(readings, h, iterations=3)
+
+
+def test_2d_rank_deficient_first_step_says_what_to_do():
+    # The ring never turned: one field direction, readings on a line.
+    readings, h, _ = paper_like(np.random.default_rng(8), noise=0.0, positions=1)
+    with pytest.raises(ValueError, match="rank deficient.*change direction"):
+        twostep_2d(readings, h)
+    # One field magnitude and readings on a line.
+    with pytest.raises(ValueError, match="rank deficient.*turn the sensor"):
+        twostep_2d(readings, np.full(len(h), 0.1))
+
+
+def test_2d_inconsistent_magnitudes_give_negative_gamma_squared():
+    readings, h, _ = paper_like(np.random.default_rng(9))
+    with pytest.raises(ValueError, match=r"γ[xy]² .*≤ 0|γy² < 0"):
+        twostep_2d(readings, h[::-1])
+
+
+# -- 3-D: C++ against the NumPy oracle ----------------------------------------------------------------------
+
+@pytest.mark.parametrize("seed", range(5))
+def test_3d_first_step_agrees_with_oracle(seed):
+    s = simulated(seed, n=500 + 300 * seed, noise=0.01)
+    cal = twostep(s.readings, s.field_norm, max_iterations=0)
+    ref = oracle.twostep(s.readings, s.field_norm, iterate=False)
+    assert rel(cal.offset, ref["offset"]) < 1e-8  # measured ≤ 3e-15
+    assert rel(cal.matrix, ref["matrix"]) < 1e-8
+    assert cal.summary["iterations"] == 0 and cal.summary["converged"]
+
+
+@pytest.mark.parametrize("seed", range(5))
+@pytest.mark.parametrize("noise_sigma", [-1.0, 0.0, "known"])
+def test_3d_second_step_agrees_with_oracle(seed, noise_sigma):
+    s = simulated(seed, n=500 + 300 * seed, noise=0.01)
+    if noise_sigma == "known":
+        noise_sigma = 0.01 * s.field_norm
+    cal = twostep(s.readings, s.field_norm, noise_sigma=noise_sigma)
+    ref = oracle.twostep(s.readings, s.field_norm, noise_sigma=noise_sigma)
+    assert cal.summary["converged"] and 1 <= cal.summary["iterations"] <= 10
+    assert rel(cal.offset, ref["offset"]) < 1e-6  # measured ≤ 3e-10
+    assert rel(cal.matrix, ref["matrix"]) < 1e-6
+
+
+# -- 3-D: accuracy against the simulation's truth ----------------------------------------------------------
+
+def test_3d_noise_free_recovery():
+    s = simulated(11, n=300, noise=0.0)
+    truth = s.true_calibration()
+    for iterations in (0, 50):
+        cal = twostep(s.readings, s.field_norm, max_iterations=iterations, units="nT")
+        assert rel(cal.offset, truth.offset) < 1e-9 and rel(cal.matrix, truth.matrix) < 1e-9
+        assert cal.model == "twostep" and cal.units == "nT" and cal.field_norm == s.field_norm
+        assert isinstance(cal, fluxcal.Calibration)
+
+
+@pytest.mark.parametrize("seed", range(10))
+def test_3d_recovers_simulated_sensor_within_one_percent(seed):
+    s = simulated(200 + seed)  # N = 2000, noise 0.5 %, soft iron ±20 %, offset ≤ 50 % of the field
+    truth = s.true_calibration()
+    cal = twostep(s.readings, s.field_norm)
+    assert np.linalg.norm(cal.offset - truth.offset) < 0.01 * s.field_norm
+    assert rel(cal.matrix, truth.matrix) < 0.01
+    np.testing.assert_allclose(cal.matrix, cal.matrix.T, atol=1e-14)
+    assert cal.summary["norm_std_over_mean"] < 0.007 and not cal.summary["warnings"]
+
+
+def test_3d_offset_is_unbiased_and_at_the_bound():
+    # 100 runs of one sensor (N = 300, noise 1 % of H): the mean offset error is small against its spread,
+    # and the spread is close to the KCR (Cramér–Rao with nuisance directions) bound.
+    rng = np.random.default_rng(2002)
+    H, sigma = 50.0, 0.5
+    E = rng.uniform(-0.2, 0.2, (3, 3))
+    W = np.eye(3) + np.triu(E) + np.triu(E, 1).T
+    b = np.array([10.0, -7.0, 5.0])
+    A = np.linalg.inv(W)
+    errors, bound = [], []
+    for _ in range(100):
+        s = sim.simulate(sim.uniform(300, rng), [sim.SoftIron(W), sim.HardIron(b), sim.WhiteNoise(sigma)],
+                         [H, 0.0, 0.0], rng)
+        cal = twostep(s.readings, H)
+        assert cal.summary["converged"]
+        errors.append(cal.offset - b)
+        # Fisher information of (offset, A) for the residual |A(m − b)| − H, per-reading variance σ²|A u|²
+        u = s.truth / H
+        d = s.truth @ W.T
+        x, y, z = d.T
+        ux, uy, uz = u.T
+        J = np.column_stack([-(u @ A), ux * x, uy * y, uz * z, ux * y + uy * x, ux * z + uz * x, uy * z + uz * y])
+        var = sigma**2 * ((u @ A) ** 2).sum(axis=1)
+        bound.append(np.diag(np.linalg.inv((J / var[:, None]).T @ J))[:3])
+    errors = np.array(errors)
+    spread, kcr = errors.std(axis=0), np.sqrt(np.mean(bound, axis=0))
+    # measured: |mean| / spread ≤ 0.1, spread / bound ≈ 1.0–1.1
+    assert np.all(np.abs(errors.mean(axis=0)) < 0.3 * spread)
+    assert np.all(spread < 1.25 * kcr)
+
+
+def test_3d_noise_mean_correction_removes_scale_shrinkage():
+    # σ = 2 %: without μ the scale shrinks by 1.3e-3, with the estimated μ by 6.2e-4 (measured; the
+    # rest is errors-in-variables bias), with the true σ the same as estimated.
+    s = simulated(21, n=20000, noise=0.02)
+    truth = np.cbrt(np.linalg.det(s.true_calibration().matrix))
+    with_mu = np.cbrt(np.linalg.det(twostep(s.readings, s.field_norm).matrix))
+    without = np.cbrt(np.linalg.det(twostep(s.readings, s.field_norm, noise_sigma=0.0).matrix))
+    known = np.cbrt(np.linalg.det(twostep(s.readings, s.field_norm, noise_sigma=0.02 * s.field_norm).matrix))
+    assert abs(with_mu / truth - 1) < 0.6 * abs(without / truth - 1)
+    assert known / with_mu == pytest.approx(1.0, abs=1e-4)
+
+
+def test_3d_summary_is_that_of_the_corrected_readings():
+    s = simulated(7, noise=0.01)
+    cal = twostep(s.readings, s.field_norm)
+    norm = np.linalg.norm(cal.apply(s.readings), axis=1)
+    m = cal.summary
+    assert m["samples"] == len(s.readings) and m["exact_statistics"] and m["converged"]
+    assert m["norm_mean"] == pytest.approx(norm.mean(), rel=1e-12)
+    assert m["norm_std_over_mean"] == pytest.approx(norm.std() / norm.mean(), rel=1e-8)
+    assert m["residual_rms"] == pytest.approx(np.sqrt(np.mean((norm - s.field_norm) ** 2)), rel=1e-10)
+    mu = 0.75 * np.var(norm**2 - s.field_norm**2) / s.field_norm**2
+    assert m["cost"] == pytest.approx(np.mean(((norm**2 - s.field_norm**2 - mu) / s.field_norm**2) ** 2), rel=1e-6)
+    assert m["direction_coverage"] > 0.95 and m["coverage_ratio"] > 0.5
+    assert "converged in" in m["message"]
+
+
+def test_3d_accepts_a_recording():
+    s = simulated(8)
+    rec = fluxcal.Recording({"mx": s.readings[:, 0], "my": s.readings[:, 1], "mz": s.readings[:, 2]},
+                            units={"mx": "nT", "my": "nT", "mz": "nT"})
+    cal = twostep(rec, s.field_norm)
+    assert cal.units == "nT"
+    np.testing.assert_array_equal(cal.offset, twostep(s.readings, s.field_norm).offset)
+
+
+# -- 3-D bad input ------------------------------------------------------------------------------------------
+
+def test_3d_bad_input_errors():
+    x = simulated(9).readings.copy()
+    for norm in (0.0, -5.0, np.nan):
+        with pytest.raises(ValueError, match="field_norm: must be a positive"):
+            twostep(x, norm)
+    with pytest.raises(ValueError, match="field_norm: required"):
+        twostep(x, None)
+    with pytest.raises(ValueError, match="samples: 8 rows, need at least 9"):
+        twostep(x[:8], 50000.0)
+    x[17, 2] = np.nan
+    with pytest.raises(ValueError, match=r"samples: row 17, column 2 \(z\) is NaN"):
+        twostep(x, 50000.0)
+    with pytest.raises(TypeError, match="unknown option 'refine'"):
+        twostep(x, 50000.0, refine=False)
+    with pytest.raises(ValueError, match="options.max_iterations"):
+        twostep(simulated(9).readings, 50000.0, max_iterations=-1)
+
+
+def test_3d_planar_readings_are_rejected():
+    a = np.linspace(0, 2 * np.pi, 400)
+    planar = np.column_stack([np.cos(a), np.sin(a), 0.1 * np.cos(a)]) + [0.3, -0.2, 0.5]
+    with pytest.raises(ValueError, match="lie nearly in one plane.*rotate the sensor about more axes"):
+        twostep(planar, 1.0)
+
+
+def test_3d_non_convergence_is_reported_not_raised():
+    s = simulated(10, noise=0.05)
+    cal = twostep(s.readings, s.field_norm, max_iterations=1, tolerance=1e-300)
+    assert cal.summary["converged"] is False
+    assert any("did not converge" in w for w in cal.summary["warnings"])
+
+
+def test_3d_wrong_units_warn():
+    s = simulated(12)
+    cal = twostep(s.readings, s.field_norm / 1000)  # µT field for nT readings
+    assert any("check the units" in w for w in cal.summary["warnings"])
