@@ -190,8 +190,7 @@ void finish_summary(RefineResult& out, const SamplesRef& samples, const SamplesR
 }
 
 // Solves, then evaluates the Jacobian for the statistics. Returns F = JᵀJ and Σr² (unweighted).
-void solve_problem(ceres::Problem& problem, int p, RefineResult& out, const RefineOptions& opt,
-                   Eigen::MatrixXd& F, double& ssr) {
+void solve_problem(ceres::Problem& problem, RefineResult& out, const RefineOptions& opt) {
   ceres::Solver::Options so;
   so.linear_solver_type = ceres::DENSE_NORMAL_CHOLESKY;  // tall and thin: N residuals, ≤ 12 parameters
   so.max_num_iterations = opt.max_iterations;
@@ -207,8 +206,10 @@ void solve_problem(ceres::Problem& problem, int p, RefineResult& out, const Refi
   if (!summary.IsSolutionUsable()) throw Error("refine: the solver failed: " + summary.message);
   if (!out.summary.converged)
     out.summary.warnings.push_back("refinement stopped before converging: " + summary.message);
+}
 
-  // Jacobian and plain residuals (no loss) for σ̂ and the information matrix.
+// Plain (no loss) residuals and Jacobian of a solved problem: Σr² and the information F = JᵀJ.
+void information(ceres::Problem& problem, int p, RefineResult& out, Eigen::MatrixXd& F, double& ssr) {
   ceres::Problem::EvaluateOptions eo;
   eo.apply_loss_function = false;
   std::vector<double> residuals;
@@ -226,7 +227,6 @@ void solve_problem(ceres::Problem& problem, int p, RefineResult& out, const Refi
     F.selfadjointView<Eigen::Lower>().rankUpdate(row);
   }
   F = F.selfadjointView<Eigen::Lower>();
-
 }
 
 // The vector model's inputs: finite readings and one finite reference vector per reading.
@@ -292,19 +292,51 @@ RefineResult refine(const Calibration& start, const SamplesRef& samples, const R
       for (Eigen::Index i = 0; i < samples.rows(); ++i)
         problem.AddResidualBlock(new MagnitudeOne(samples.row(i).transpose(), H), loss.get(), theta);
     }
-    solve_problem(problem, 9, out, opt, F, ssr);
+    solve_problem(problem, out, opt);
+  };
+  Eigen::Matrix<double, 9, 1> gradient;
+  auto plain_fit = [&](double H, Eigen::MatrixXd& info, double& sum_sq) {  // Σr², JᵀJ and Jᵀr at θ
+    Eigen::Matrix<double, 9, 9> f = Eigen::Matrix<double, 9, 9>::Zero();
+    Eigen::Matrix<double, 9, 1> j;
+    gradient.setZero();
+    sum_sq = 0.0;
+    for (Eigen::Index i = 0; i < samples.rows(); ++i) {
+      const Eigen::Vector3d m = samples.row(i).transpose();
+      const double r = sampson(m.data(), theta, H, j.data());
+      sum_sq += r * r;
+      gradient += r * j;
+      f.selfadjointView<Eigen::Lower>().rankUpdate(j);
+    }
+    info = f.selfadjointView<Eigen::Lower>();
+    out.summary.cost = sum_sq / static_cast<double>(samples.rows());
   };
   const double H = start.field_norm;
+  double H_fit = H;
   solve_for(H);
   if (opt.noise_bias_correction) {
+    plain_fit(H, F, ssr);
     const double s2 = ssr / static_cast<double>(samples.rows() - 9);
     const Eigen::VectorXd& t = out.parameters;
     const double a2 = t(3) * t(3) + t(6) * t(6) + t(8) * t(8) + 2 * (t(4) * t(4) + t(5) * t(5) + t(7) * t(7));
-    const int first_iterations = out.summary.iterations;
-    out.summary.warnings.clear();
-    solve_for(H + s2 * a2 / (3.0 * H));
-    out.summary.iterations += first_iterations;
+    // The target moves by O(σ²/H): Gauss–Newton steps from the solution converge at once (plain
+    // least squares; with a robust loss the full solve again).
+    H_fit = H + s2 * a2 / (3.0 * H);
+    if (loss) {
+      const int first_iterations = out.summary.iterations;
+      out.summary.warnings.clear();
+      solve_for(H_fit);
+      out.summary.iterations += first_iterations;
+    } else {
+      for (int step = 0; step < 3; ++step) {
+        plain_fit(H_fit, F, ssr);
+        const Eigen::Matrix<double, 9, 1> delta = -F.ldlt().solve(gradient);
+        out.parameters += delta;
+        ++out.summary.iterations;
+        if (delta.norm() <= 1e-12 * out.parameters.norm()) break;
+      }
+    }
   }
+  plain_fit(H_fit, F, ssr);
   const double sigma2 = ssr / static_cast<double>(samples.rows() - 9);
   out.noise_sigma = std::sqrt(sigma2);
 
@@ -361,7 +393,8 @@ RefineResult refine_vector(const Calibration& start, const SamplesRef& samples, 
                              loss.get(), theta);
   Eigen::MatrixXd F;
   double ssr;
-  solve_problem(problem, 12, out, opt, F, ssr);
+  solve_problem(problem, out, opt);
+  information(problem, 12, out, F, ssr);
   const double sigma2 = ssr / static_cast<double>(3 * samples.rows() - 12);
   out.noise_sigma = std::sqrt(sigma2);
 
