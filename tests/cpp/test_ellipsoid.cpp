@@ -1,5 +1,7 @@
 #include <fluxcal/ellipsoid.hpp>
 
+#include "simulate.hpp"
+
 #include <gtest/gtest.h>
 
 #include <cmath>
@@ -7,37 +9,9 @@
 #include <random>
 
 using fluxcal::Samples;
-
-namespace {
-
-struct Truth {
-  Eigen::Matrix3d W;  // forward distortion, m = W h + b
-  Eigen::Vector3d b;
-  double field;
-};
-
-Truth make_truth(unsigned seed, double field) {
-  std::mt19937 rng(seed);
-  std::uniform_real_distribution<double> u(-1.0, 1.0);
-  Eigen::Matrix3d R = Eigen::Matrix3d::Identity();
-  for (int i = 0; i < 3; ++i)
-    for (int j = i; j < 3; ++j) R(i, j) = R(j, i) = (i == j ? 1.0 : 0.0) + 0.2 * u(rng);
-  return {R, Eigen::Vector3d(u(rng), u(rng), u(rng)) * 0.5 * field, field};
-}
-
-Samples simulate(const Truth& t, int n, double noise, unsigned seed) {
-  std::mt19937 rng(seed);
-  std::normal_distribution<double> g(0.0, 1.0);
-  Samples s(n, 3);
-  for (int i = 0; i < n; ++i) {
-    const Eigen::Vector3d dir = Eigen::Vector3d(g(rng), g(rng), g(rng)).normalized();
-    const Eigen::Vector3d e(g(rng), g(rng), g(rng));
-    s.row(i) = (t.W * dir * t.field + t.b + noise * t.field * e).transpose();
-  }
-  return s;
-}
-
-}  // namespace
+using fluxcal_test::make_truth;
+using fluxcal_test::simulate;
+using fluxcal_test::Truth;
 
 TEST(Ellipsoid, RecoversNoiseFreeEllipsoidExactly) {
   const Truth t = make_truth(1, 48.0);

@@ -1,5 +1,7 @@
 #include <fluxcal/twostep.hpp>
 
+#include "simulate.hpp"
+
 #include <gtest/gtest.h>
 
 #include <cmath>
@@ -44,32 +46,9 @@ Data2D paper_like(const Truth2D& t, double noise, unsigned seed, int positions =
 
 // ---- 3-D: readings of a sensor with symmetric soft iron in a field of constant magnitude ---------
 
-struct Truth3D {
-  Eigen::Matrix3d W;  // m = W h + b
-  Eigen::Vector3d b;
-  double field;
-};
-
-Truth3D make_truth(unsigned seed, double field) {
-  std::mt19937 rng(seed);
-  std::uniform_real_distribution<double> u(-1.0, 1.0);
-  Eigen::Matrix3d W;
-  for (int i = 0; i < 3; ++i)
-    for (int j = i; j < 3; ++j) W(i, j) = W(j, i) = (i == j ? 1.0 : 0.0) + 0.2 * u(rng);
-  return {W, Eigen::Vector3d(u(rng), u(rng), u(rng)) * 0.5 * field, field};
-}
-
-Samples simulate(const Truth3D& t, int n, double noise, unsigned seed) {
-  std::mt19937 rng(seed);
-  std::normal_distribution<double> g(0.0, 1.0);
-  Samples s(n, 3);
-  for (int i = 0; i < n; ++i) {
-    const Eigen::Vector3d dir = Eigen::Vector3d(g(rng), g(rng), g(rng)).normalized();
-    const Eigen::Vector3d e(g(rng), g(rng), g(rng));
-    s.row(i) = (t.W * dir * t.field + t.b + noise * t.field * e).transpose();
-  }
-  return s;
-}
+using Truth3D = fluxcal_test::Truth;
+using fluxcal_test::make_truth;
+using fluxcal_test::simulate;
 
 template <class F>
 std::string error_of(F&& f) {
