@@ -425,7 +425,7 @@ EllipsoidResult fit_ellipsoid(const SamplesRef& samples, const EllipsoidOptions&
       accumulate_residuals(rows, len, A.data(), cal.offset.data(), H, sums);
     });
     const double sd = sums[0], sd2 = sums[1];
-    r.summary.direction_coverage = direction_coverage(samples, cal, options.coverage_rows);
+    describe_coverage(r.summary, samples, cal, options.coverage_rows);
     if (r.summary.direction_coverage < options.poor_direction_coverage)
       r.summary.warnings.push_back("poor coverage: only " + percent(r.summary.direction_coverage) +
                                    " of field directions seen; turn the sensor through more orientations");

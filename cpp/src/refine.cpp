@@ -179,7 +179,7 @@ void finish_summary(RefineResult& out, const SamplesRef& samples, const SamplesR
   s.norm_std_over_mean = std::sqrt(std::max(0.0, sd2 / n - (sd / n) * (sd / n))) / s.norm_mean;
   s.residual_rms = reference ? std::sqrt(sv2 / n) : std::sqrt(sd2 / n);
   s.exact_statistics = true;
-  s.direction_coverage = direction_coverage(samples, cal, 16384);
+  describe_coverage(s, samples, cal, 16384);
   s.condition_number = out.fisher_condition;
   std::ostringstream msg;
   msg << cal.model << ": " << s.samples << " samples, " << (s.converged ? "converged" : "NOT converged")

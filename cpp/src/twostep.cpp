@@ -575,7 +575,7 @@ TwoStepResult twostep(const SamplesRef& samples, const TwoStepOptions& options) 
   sum.norm_std_over_mean = std::sqrt(std::max(0.0, sd2 / n - mean_d * mean_d)) / sum.norm_mean;
   sum.residual_rms = std::sqrt(sd2 / n);
   sum.exact_statistics = true;
-  sum.direction_coverage = direction_coverage(samples, cal, options.coverage_rows);
+  describe_coverage(sum, samples, cal, options.coverage_rows);
 
   if (sum.coverage_ratio < options.poor_coverage_ratio)
     sum.warnings.push_back("poor coverage: thinnest/widest spread of the readings is " + percent(sum.coverage_ratio) +

@@ -11,6 +11,7 @@ py::dict summary_dict(const fluxcal::Summary& s) {
                   "residual_rms"_a = s.residual_rms, "norm_mean"_a = s.norm_mean,
                   "norm_std_over_mean"_a = s.norm_std_over_mean, "condition_number"_a = s.condition_number,
                   "coverage_ratio"_a = s.coverage_ratio, "direction_coverage"_a = s.direction_coverage,
+                  "direction_eigenvalues"_a = std::vector<double>(s.direction_eigenvalues.data(), s.direction_eigenvalues.data() + 3),
                   "exact_statistics"_a = s.exact_statistics, "converged"_a = s.converged,
                   "message"_a = s.message, "warnings"_a = s.warnings);
 }

@@ -26,7 +26,8 @@ def _report(cal: Calibration, raw: np.ndarray, out=sys.stdout) -> None:
     print(f"  residual RMS          {s['residual_rms']:.6g} {cal.units}".rstrip(), file=out)
     print(f"  condition number      {s['condition_number']:.3g}", file=out)
     print(f"  coverage              {100 * s['direction_coverage']:.0f} % of directions, thinnest/widest "
-          f"spread {s['coverage_ratio']:.2f}", file=out)
+          f"spread {s['coverage_ratio']:.2f}, direction scatter eigenvalues "
+          f"{', '.join(f'{v:.2f}' for v in s['direction_eigenvalues'])} (1/3 each = full sphere)", file=out)
     if "method" in s:
         print(f"  method                {s['method']}", file=out)
     if s.get("noise_sigma"):

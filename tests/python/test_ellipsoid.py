@@ -150,11 +150,18 @@ def test_poor_coverage_warns():
     rng = np.random.default_rng(0)
     az, el = rng.uniform(0, np.pi, 2000), np.deg2rad(rng.uniform(-25, 25, 2000))
     x = np.column_stack([np.cos(el) * np.cos(az), np.cos(el) * np.sin(az), np.sin(el)])
-    cal = fluxcal.fit_ellipsoid(x + 0.001 * rng.standard_normal(x.shape))
+    x = x + 0.001 * rng.standard_normal(x.shape)
+    cal = fluxcal.fit_ellipsoid(x)
     assert cal.summary["direction_coverage"] < 0.5
     assert any("poor coverage" in w for w in cal.summary["warnings"])
+    # direction scatter: the thin (z) direction holds mean(ĥz²) ≈ 0.07 instead of 1/3
+    h = cal.apply(x)
+    u = h / np.linalg.norm(h, axis=1, keepdims=True)
+    np.testing.assert_allclose(cal.summary["direction_eigenvalues"], np.linalg.eigvalsh(u.T @ u / len(u)), atol=1e-12)
+    assert cal.summary["direction_eigenvalues"][0] < 0.1
     full = fluxcal.fit_ellipsoid(simulated(1).readings)
     assert full.summary["direction_coverage"] > 0.95 and not full.summary["warnings"]
+    np.testing.assert_allclose(full.summary["direction_eigenvalues"], 1 / 3, atol=0.03)
 
 
 @pytest.mark.parametrize("seed", range(3))

@@ -42,4 +42,9 @@ double direction_coverage(const SamplesRef& fields, Eigen::Index max_rows = 0);
 /// The same for the corrected fields A (m − b) of raw readings m, without forming them.
 double direction_coverage(const SamplesRef& readings, const Calibration& calibration, Eigen::Index max_rows = 0);
 
+/// Sets summary.direction_coverage and summary.direction_eigenvalues for the corrected fields of
+/// `readings`, from one strided pass over at most `max_rows` rows (0 = all).
+void describe_coverage(Summary& summary, const SamplesRef& readings, const Calibration& calibration,
+                       Eigen::Index max_rows);
+
 }  // namespace fluxcal

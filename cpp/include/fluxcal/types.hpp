@@ -39,6 +39,9 @@ struct Summary {
   double condition_number = 0.0;   ///< of the solver's (normalised) linear system
   double coverage_ratio = 0.0;     ///< thinnest/widest spread of the readings (0 planar, 1 sphere-like)
   double direction_coverage = -1;  ///< fraction of direction bins seen after correction (−1: not computed)
+  /// Eigenvalues (ascending) of the direction scatter mean(ĥĥᵀ) of the corrected fields: 1/3 each on a
+  /// full sphere, one near 0 for a planar (yaw-only) turn, two near 0 for a single direction.
+  Eigen::Vector3d direction_eigenvalues = Eigen::Vector3d::Zero();
   bool exact_statistics = false;   ///< residual statistics from a pass over the samples, not moments
   bool converged = false;          ///< the solver reached a valid solution
   std::string message;             ///< one human-readable line
