@@ -24,6 +24,7 @@ import time
 import numpy as np
 
 import fluxcal
+from _timing import best_time  # noqa: E402
 import fluxcal.oracle
 
 TARGET_RATIO = 4.0
@@ -39,14 +40,6 @@ def simulate(n: int, seed: int) -> np.ndarray:
     return np.ascontiguousarray(x, dtype=np.float64)
 
 
-def best_time(fn, repeat: int) -> float:
-    fn()  # warm-up
-    best = float("inf")
-    for _ in range(repeat):
-        t0 = time.perf_counter()
-        fn()
-        best = min(best, time.perf_counter() - t0)
-    return best
 
 
 def cpu_model() -> str:

@@ -33,6 +33,7 @@ import scipy
 from scipy.optimize import least_squares
 
 import fluxcal
+from _timing import best_time  # noqa: E402
 from fluxcal import sim
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
@@ -104,14 +105,6 @@ def check_jacobian(m, theta, H) -> float:
 
 
 # ------------------------------------------------------------------------------------- timing
-def best_time(fn, repeat: int) -> float:
-    fn()
-    best = float("inf")
-    for _ in range(repeat):
-        t0 = time.perf_counter()
-        fn()
-        best = min(best, time.perf_counter() - t0)
-    return best
 
 
 def fmt_t(t) -> str:

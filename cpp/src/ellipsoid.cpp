@@ -1,6 +1,7 @@
 #include "fluxcal/ellipsoid.hpp"
 
 #include "fluxcal/coverage.hpp"
+#include "quadric.hpp"
 
 #include <Eigen/Eigenvalues>
 
@@ -325,18 +326,10 @@ EllipsoidResult solve(const EllipsoidMoments& mom, const EllipsoidOptions& opt) 
   Eigen::Matrix3d M;
   M << p(0), p(3), p(4), p(3), p(1), p(5), p(4), p(5), p(2);
   const Eigen::Vector3d v = p.segment<3>(6);
-  Eigen::SelfAdjointEigenSolver<Eigen::Matrix3d> meig(M);
-  if (!(meig.eigenvalues()(0) > 0.0)) {
-    std::ostringstream msg;
-    msg << "samples: the readings do not lie on an ellipsoid (the fitted quadric has eigenvalues "
-        << meig.eigenvalues().transpose()
-        << "); check for mixed recordings, saturation or a field that changes during the recording";
-    throw Error(msg.str());
-  }
-  const Eigen::Vector3d c = -meig.eigenvectors() *
-                            (meig.eigenvectors().transpose() * v).cwiseQuotient(meig.eigenvalues());
-  const double rho2 = c.dot(M * c) - p(9);
-  if (!(rho2 > 0.0)) throw Error("samples: the fitted ellipsoid is imaginary (no real points); the readings are degenerate");
+  const detail::EllipsoidShape shape = detail::ellipsoid_shape(M, v, p(9), "fitted");
+  const auto& meig = shape.eig;
+  const Eigen::Vector3d& c = shape.centre;
+  const double rho2 = shape.rho2;
 
   const double s = mom.scale();
   const Eigen::Vector3d lamB = meig.eigenvalues() / rho2;        // B = M/ρ² ⇒ (u−c)ᵀB(u−c) = 1

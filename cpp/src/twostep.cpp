@@ -2,6 +2,7 @@
 
 #include "fluxcal/coverage.hpp"
 #include "fluxcal/ellipsoid.hpp"
+#include "quadric.hpp"
 
 #include <Eigen/Eigenvalues>
 
@@ -456,18 +457,10 @@ TwoStepResult twostep(const SamplesRef& samples, const TwoStepOptions& options) 
   const double k = -a.dot(s9) / n;
   Eigen::Matrix3d Np;
   Np << a(0), a(3), a(4), a(3), a(1), a(5), a(4), a(5), a(2);
-  Eigen::SelfAdjointEigenSolver<Eigen::Matrix3d> peig(Np);
-  if (!(peig.eigenvalues()(0) > 0.0)) {
-    std::ostringstream msg;
-    msg << "samples: the readings do not lie on an ellipsoid (the first step's quadric has eigenvalues "
-        << peig.eigenvalues().transpose()
-        << "); check for mixed recordings, saturation or a field that changes during the recording";
-    throw Error(msg.str());
-  }
+  const detail::EllipsoidShape shape = detail::ellipsoid_shape(Np, a.segment<3>(6), k, "first step's");
   Model3D m;
-  m.q = -peig.eigenvectors() * (peig.eigenvectors().transpose() * a.segment<3>(6)).cwiseQuotient(peig.eigenvalues());
-  const double rho2 = m.q.dot(Np * m.q) - k;
-  if (!(rho2 > 0.0)) throw Error("samples: the first step's ellipsoid is imaginary (no real points); the readings are degenerate");
+  m.q = shape.centre;
+  const double rho2 = shape.rho2;
   m.N = Np / rho2;  // the scale from H: (u − q)ᵀ N (u − q) = 1 ⇔ |h| = H
 
   // Second step: Fisher scoring (Gauss–Newton) on Σ R_k², all sums from the scatter.
