@@ -40,7 +40,7 @@ $(VENV)/.deps: pyproject.toml | deps
 
 # The package is built in build/<wheel tag> (pyproject.toml), so reinstalling only rebuilds changes.
 install: $(VENV)/.deps
-	$(PY) -m pip install -q --no-build-isolation .
+	$(PY) -m pip install -q --no-build-isolation '.[test]'
 
 cpp: deps
 	cmake -S . -B $(BUILD) -G Ninja -DCMAKE_BUILD_TYPE=Release -DFLUXCAL_BUILD_TESTS=ON -DFLUXCAL_BUILD_BENCH=ON
