@@ -258,6 +258,61 @@ void finish_vector(RefineResult& out, const SamplesRef& samples, const SamplesRe
   finish_summary(out, samples, &reference);
 }
 
+// The diagnosis' augmented model as one block of residuals: readings corrected by the terms,
+// m'_i = m_i − Σ_j c_j f_ij, then the magnitude (Sampson) or vector residual of m'_i.
+// Parameter blocks: base θ (9 or 12), then the term coefficients c (p, when p > 0).
+class TermsBatch : public ceres::CostFunction {
+ public:
+  TermsBatch(const SamplesRef& m, const Eigen::Ref<const Eigen::MatrixXd>& f, double H, const SamplesRef* ref)
+      : m_(m), f_(f), H_(H), vector_(ref != nullptr), p_(static_cast<int>(f.cols() / 3)) {
+    if (ref) ref_ = *ref;
+    set_num_residuals(static_cast<int>(m.rows()) * (vector_ ? 3 : 1));
+    mutable_parameter_block_sizes()->push_back(vector_ ? 12 : 9);
+    if (p_ > 0) mutable_parameter_block_sizes()->push_back(p_);
+  }
+  int terms() const { return p_; }
+  int base() const { return vector_ ? 12 : 9; }
+
+  bool Evaluate(double const* const* par, double* r, double** jac) const override {
+    const double* th = par[0];
+    const Eigen::Map<const Eigen::VectorXd> c(p_ > 0 ? par[1] : nullptr, p_);
+    const bool want_base = jac && jac[0], want_terms = jac && p_ > 0 && jac[1];
+    double jb[9];
+    for (Eigen::Index i = 0; i < m_.rows(); ++i) {
+      Eigen::Vector3d mi = m_.row(i).transpose();
+      for (int j = 0; j < p_; ++j) mi -= c(j) * f_.row(i).segment<3>(3 * j).transpose();
+      if (!vector_) {
+        double* ji = want_base ? jac[0] + 9 * i : jb;
+        r[i] = sampson(mi.data(), th, H_, ji);
+        // r depends on m' − b, so ∂r/∂c_j = (∂r/∂b) · f_ij.
+        if (want_terms)
+          for (int j = 0; j < p_; ++j) jac[1][p_ * i + j] = Eigen::Vector3d(ji[0], ji[1], ji[2]).dot(f_.row(i).segment<3>(3 * j));
+        continue;
+      }
+      for (int a = 0; a < 3; ++a) {
+        const Eigen::Index row = 3 * i + a;
+        r[row] = mi(a) - th[a] - th[3 + 3 * a] * ref_(i, 0) - th[4 + 3 * a] * ref_(i, 1) - th[5 + 3 * a] * ref_(i, 2);
+        if (want_base) {
+          double* jr = jac[0] + 12 * row;
+          std::fill(jr, jr + 12, 0.0);
+          jr[a] = -1.0;
+          for (int k = 0; k < 3; ++k) jr[3 + 3 * a + k] = -ref_(i, k);
+        }
+        if (want_terms)
+          for (int j = 0; j < p_; ++j) jac[1][p_ * row + j] = -f_(i, 3 * j + a);
+      }
+    }
+    return true;
+  }
+
+ private:
+  Samples m_, ref_;
+  Eigen::MatrixXd f_;
+  double H_;
+  bool vector_;
+  int p_;
+};
+
 }  // namespace
 
 RefineResult refine(const Calibration& start, const SamplesRef& samples, const RefineOptions& opt) {
@@ -447,6 +502,115 @@ RefineResult fit_vector(const SamplesRef& samples, const SamplesRef& reference, 
       for (int c = 0; c < 4; ++c) F(idx[a], idx[c]) = XtX(order[a], order[c]);
   }
   finish_vector(out, samples, reference, F, sigma2, opt.units, "vector", opt);
+  return out;
+}
+
+RefineResult refine_terms(const Calibration& start, const SamplesRef& samples, const Eigen::Ref<const Eigen::MatrixXd>& features,
+                          const Eigen::VectorXd& start_terms, const std::vector<std::string>& fixed,
+                          const RefineOptions& opt, const SamplesRef* reference) {
+  const bool vector = reference != nullptr;
+  if (vector) check_vector_inputs(samples, *reference);
+  else check_inputs(samples, 10, "a magnitude model with extra terms");
+  if (features.rows() != samples.rows() || features.cols() % 3 != 0)
+    throw Error("features: " + std::to_string(features.rows()) + "×" + std::to_string(features.cols()) +
+                ", need " + std::to_string(samples.rows()) + " rows (one per reading) and 3 columns per term");
+  if (!features.allFinite()) throw Error("features: contains NaN or Inf");
+  const int p = static_cast<int>(features.cols() / 3);
+  if (start_terms.size() != p)
+    throw Error("start_terms: " + std::to_string(start_terms.size()) + " values for " + std::to_string(p) + " terms");
+  if (!vector && !(start.field_norm > 0.0)) throw Error("start: field_norm must be positive (the known |h|)");
+  if (opt.loss != Loss::none) throw Error("refine_terms: only plain least squares (loss none)");
+
+  RefineResult out;
+  const int nb = vector ? 12 : 9;
+  if (vector) {
+    Eigen::FullPivLU<Eigen::Matrix3d> lu(start.matrix);
+    if (!lu.isInvertible()) throw Error("start: matrix is singular");
+    const Eigen::Matrix<double, 3, 3, Eigen::RowMajor> W = lu.inverse();
+    out.parameter_names.assign(std::begin(kVectorNames), std::end(kVectorNames));
+    out.parameters.resize(nb + p);
+    out.parameters.head<3>() = start.offset;
+    out.parameters.segment<9>(3) = Eigen::Map<const Eigen::Matrix<double, 9, 1>>(W.data());
+  } else {
+    const Eigen::Matrix3d A = symmetric_part(start.matrix);
+    out.parameter_names.assign(std::begin(kMagnitudeNames), std::end(kMagnitudeNames));
+    out.parameters.resize(nb + p);
+    out.parameters.head<9>() << start.offset, A(0, 0), A(0, 1), A(0, 2), A(1, 1), A(1, 2), A(2, 2);
+  }
+  out.parameters.tail(p) = start_terms;
+  for (int j = 0; j < p; ++j) out.parameter_names.push_back("c" + std::to_string(j));
+  std::vector<int> held;
+  for (const std::string& name : fixed) {
+    const auto it = std::find(out.parameter_names.begin(), out.parameter_names.begin() + nb, name);
+    if (it == out.parameter_names.begin() + nb) throw Error("fixed: no base parameter named '" + name + "'");
+    held.push_back(static_cast<int>(it - out.parameter_names.begin()));
+  }
+  std::sort(held.begin(), held.end());
+  held.erase(std::unique(held.begin(), held.end()), held.end());
+
+  // Ceres works on separate arrays for the two blocks.
+  Eigen::VectorXd base = out.parameters.head(nb), terms = out.parameters.tail(p);
+  auto* cost = new TermsBatch(samples, features, start.field_norm, reference);
+  ceres::Problem problem;
+  std::vector<double*> blocks{base.data()};
+  if (p > 0) blocks.push_back(terms.data());
+  problem.AddResidualBlock(cost, nullptr, blocks);
+  if (!held.empty()) problem.SetManifold(base.data(), new ceres::SubsetManifold(nb, held));
+  solve_problem(problem, out, opt);
+  out.parameters << base, terms;
+
+  // Residuals and the full Jacobian at the solution (fixed columns zeroed: they are not estimated).
+  const Eigen::Index nr = cost->num_residuals();
+  out.residuals.resize(nr);
+  Eigen::Matrix<double, Eigen::Dynamic, Eigen::Dynamic, Eigen::RowMajor> jb(nr, nb), jt(nr, std::max(p, 1));
+  double* jacs[2] = {jb.data(), jt.data()};
+  const double* pars[2] = {base.data(), terms.data()};
+  cost->Evaluate(pars, out.residuals.data(), jacs);
+  out.jacobian.resize(nr, nb + p);
+  out.jacobian << jb, jt.leftCols(p);
+  for (int k : held) out.jacobian.col(k).setZero();
+
+  const Eigen::Index free = nb + p - static_cast<Eigen::Index>(held.size());
+  const double ssr = out.residuals.squaredNorm();
+  const double sigma2 = ssr / static_cast<double>(std::max<Eigen::Index>(nr - free, 1));
+  out.noise_sigma = std::sqrt(sigma2);
+  out.summary.cost = ssr / static_cast<double>(nr);
+  out.summary.residual_rms = std::sqrt(out.summary.cost);
+  out.summary.samples = static_cast<std::size_t>(samples.rows());
+
+  // Covariance σ̂² (JᵀJ)⁺ over the free parameters, through the column-scaled eigen-decomposition.
+  const Eigen::MatrixXd info = out.jacobian.transpose() * out.jacobian;
+  const Eigen::VectorXd d = info.diagonal().unaryExpr([](double v) { return v > 0.0 ? 1.0 / std::sqrt(v) : 0.0; });
+  Eigen::SelfAdjointEigenSolver<Eigen::MatrixXd> eig(d.asDiagonal() * info * d.asDiagonal());
+  const Eigen::VectorXd lam = eig.eigenvalues();
+  const double top = lam.maxCoeff();
+  const Eigen::VectorXd inv = lam.unaryExpr([top](double v) { return v > 1e-14 * top ? 1.0 / v : 0.0; });
+  out.covariance = sigma2 * d.asDiagonal() * eig.eigenvectors() * inv.asDiagonal() * eig.eigenvectors().transpose() *
+                   d.asDiagonal();
+  out.standard_errors = out.covariance.diagonal().cwiseMax(0.0).cwiseSqrt();
+  double smallest = std::numeric_limits<double>::infinity();
+  for (Eigen::Index k = 0; k < lam.size(); ++k)
+    if (lam(k) > 1e-300) smallest = std::min(smallest, lam(k));
+  out.fisher_condition = top / smallest;
+  out.determined.assign(static_cast<std::size_t>(nb + p), true);
+
+  Calibration& cal = out.calibration;
+  cal.offset = base.head<3>();
+  if (vector) {
+    const Eigen::Matrix<double, 3, 3, Eigen::RowMajor> W(base.tail<9>().data());
+    cal.matrix = W.inverse();
+    cal.field_norm = reference->rowwise().norm().mean();
+  } else {
+    cal.matrix << base(3), base(4), base(5), base(4), base(6), base(7), base(5), base(7), base(8);
+    cal.field_norm = start.field_norm;
+  }
+  cal.units = opt.units.empty() ? start.units : opt.units;
+  cal.model = vector ? "vector+terms" : "magnitude+terms";
+  std::ostringstream msg;
+  msg << cal.model << ": " << samples.rows() << " samples, " << p << " extra terms, "
+      << (out.summary.converged ? "converged" : "NOT converged") << " in " << out.summary.iterations
+      << " iterations, residual RMS " << out.summary.residual_rms;
+  out.summary.message = msg.str();
   return out;
 }
 

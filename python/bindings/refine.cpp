@@ -3,6 +3,8 @@
 
 #include <fluxcal/refine.hpp>
 
+#include <optional>
+
 using namespace pybind11::literals;
 
 namespace fluxcal_py {
@@ -19,6 +21,8 @@ py::dict result_dict(const fluxcal::RefineResult& r) {
   d["noise_sigma"] = r.noise_sigma;
   d["fisher_condition"] = r.fisher_condition;
   d["solver_report"] = r.solver_report;
+  d["residuals"] = r.residuals;
+  d["jacobian"] = r.jacobian;
   return d;
 }
 
@@ -89,6 +93,22 @@ void bind_refine(py::module_& m) {
         return result_dict(r);
       },
       "samples"_a.noconvert(), "reference"_a.noconvert(), "options"_a);
+  m.def(
+      "refine_terms",
+      [](const Eigen::Vector3d& offset, const Eigen::Matrix3d& matrix, double field_norm, const std::string& units,
+         const fluxcal::SamplesRef& samples, const Eigen::Ref<const Eigen::MatrixXd>& features,
+         const Eigen::VectorXd& start_terms, const std::vector<std::string>& fixed, const RefineOptions& options,
+         std::optional<fluxcal::SamplesRef> reference) {
+        fluxcal::RefineResult r;
+        {
+          py::gil_scoped_release release;
+          r = fluxcal::refine_terms(make_calibration(offset, matrix, field_norm, units), samples, features,
+                                    start_terms, fixed, options, reference ? &*reference : nullptr);
+        }
+        return result_dict(r);
+      },
+      "offset"_a, "matrix"_a, "field_norm"_a, "units"_a, "samples"_a.noconvert(), "features"_a, "start_terms"_a,
+      "fixed"_a, "options"_a, "reference"_a = py::none());
 }
 
 }  // namespace fluxcal_py

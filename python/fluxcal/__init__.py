@@ -8,6 +8,7 @@
 from . import _core
 from .calibration import Calibration
 from .coverage import direction_coverage
+from .diagnose import diagnose
 from .bounds import crlb
 from .ellipsoid import EllipsoidMoments, fit_ellipsoid
 from .io import Recording, read_csv, write_csv
@@ -17,7 +18,7 @@ from .twostep import TwoStep2D, twostep, twostep_2d
 
 __version__ = _core.__version__
 
-__all__ = ["Calibration", "EllipsoidMoments", "Recording", "TwoStep2D", "calibrate", "crlb", "direction_coverage",
+__all__ = ["Calibration", "EllipsoidMoments", "Recording", "TwoStep2D", "calibrate", "crlb", "diagnose", "direction_coverage",
            "fit_ellipsoid", "fit_vector", "read_csv", "refine", "twostep", "twostep_2d", "write_csv",
            "__version__", "cmake_dir"]
 

@@ -86,6 +86,29 @@ def cmd_simulate(args) -> int:
     return 0
 
 
+def cmd_diagnose(args) -> int:
+    from .diagnose import diagnose
+
+    rec = read_csv(args.file, columns=args.columns, units=args.units)
+    reference = None
+    if args.reference:
+        names = args.reference.split(",")
+        missing = [n for n in names if n not in rec.columns]
+        if len(names) != 3 or missing:
+            raise ValueError(f"--reference: need three columns of {args.file} (columns are: {', '.join(rec.columns)})")
+        reference = np.column_stack([rec.columns[n] for n in names])
+    candidates = args.candidates.split(",") if args.candidates else None
+    result = diagnose(rec, reference=reference, field_norm=args.field_norm, model=args.model,
+                      noise_sigma=args.noise_sigma, candidates=candidates, alpha=args.alpha,
+                      progress=not args.quiet)
+    print(result.text())
+    if args.json:
+        print(f"wrote {result.save_json(args.json)}")
+    if args.report:
+        print(f"wrote {result.report(args.report)}")
+    return 0
+
+
 def cmd_demo(args) -> int:
     from . import sim
     from .plots import before_after
@@ -150,6 +173,23 @@ def build_parser() -> argparse.ArgumentParser:
     s.add_argument("--field-norm", type=float, default=50000.0)
     s.add_argument("--units", default="nT")
     s.set_defaults(run=cmd_simulate)
+
+    g = sub.add_parser("diagnose", help="find which unmodelled effect makes a recording depart from its model")
+    g.add_argument("file", help="CSV with mx,my,mz and whatever of t, temp it has")
+    g.add_argument("--model", default=None, choices=["ellipsoid", "scale", "vector", "vector_scale"],
+                   help="base model (default: ellipsoid, or vector with --reference)")
+    g.add_argument("--reference", default=None, help="three columns with the true field per reading (vector model)")
+    g.add_argument("--columns", default=None, help="the three magnetometer columns (default mx,my,mz)")
+    g.add_argument("--units", default=None, help="units of the readings when the file does not say")
+    g.add_argument("--field-norm", type=float, default=None, help="known |field| (default: fitted)")
+    g.add_argument("--noise-sigma", type=float, default=None,
+                   help="white-noise σ of the readings (default: estimated from second differences)")
+    g.add_argument("--candidates", default=None, help="comma-separated effect names (default: all)")
+    g.add_argument("--alpha", type=float, default=0.01, help="significance level (default 0.01)")
+    g.add_argument("--json", default=None, help="write the ranking and tables (JSON)")
+    g.add_argument("--report", default=None, help="folder for the report: summary, figures, index.html")
+    g.add_argument("--quiet", action="store_true", help="no progress bar")
+    g.set_defaults(run=cmd_diagnose)
 
     d = sub.add_parser("demo", help="simulate a magnetometer, calibrate it, print and plot the result")
     d.add_argument("-o", "--output", default="fluxcal-demo", help="folder for the outputs")

@@ -64,6 +64,10 @@ struct RefineResult {
   double noise_sigma = 0.0;                 ///< σ̂ from the final residuals (reading units)
   double fisher_condition = 0.0;            ///< condition number of the column-scaled JᵀJ
   std::string solver_report;                ///< Ceres' brief report
+  /// refine_terms only: the residuals at the solution (N magnitude, 3N vector: reading-major) and their
+  /// Jacobian over all parameters (zero columns for fixed ones) — what score tests need.
+  Eigen::VectorXd residuals;
+  Eigen::MatrixXd jacobian;
 };
 
 /// Magnitude model, starting from `start` (offset, matrix — made symmetric by its polar factor — and
@@ -79,5 +83,17 @@ RefineResult refine_vector(const Calibration& start, const SamplesRef& samples, 
 /// Linear least-squares vector calibration (closed form, one pass): m = W r + b fitted by least
 /// squares, A = W⁻¹. Covariance σ̂² (XᵀX)⁻¹ per output axis. Use refine_vector for a robust loss.
 RefineResult fit_vector(const SamplesRef& samples, const SamplesRef& reference, const RefineOptions& options = {});
+
+/// The models of the sim-to-real diagnosis (fluxcal.diagnose): the magnitude model (no `reference`) or
+/// the vector model with extra terms. Reading i is modelled as m_i = (base model)_i + Σ_j c_j f_ij, where
+/// f_ij (a 3-vector) is the change term j makes to reading i per unit coefficient; `features` is N × 3p,
+/// column 3j + k = axis k of term j. A physical effect enters through its exact (when linear in its
+/// parameters) or first-order effect on the readings. θ = [b, A (6) or W (9), c_0 … c_{p−1}], names
+/// "c0", "c1", …; `fixed` names base parameters held at their start value (e.g. {"a01", "a02", "a12"}
+/// for a scale-only model). Plain least squares without the noise-bias correction, so that nested
+/// models are compared at the same target |h| = H. The result holds the residuals and their Jacobian.
+RefineResult refine_terms(const Calibration& start, const SamplesRef& samples, const Eigen::Ref<const Eigen::MatrixXd>& features,
+                          const Eigen::VectorXd& start_terms, const std::vector<std::string>& fixed = {},
+                          const RefineOptions& options = {}, const SamplesRef* reference = nullptr);
 
 }  // namespace fluxcal

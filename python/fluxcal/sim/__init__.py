@@ -5,9 +5,13 @@
     result = sim.simulate(scene, sensor, field=[20e3, 1e3, 45e3], rng=rng)   # result.readings, result.truth
 
 A new effect is one small class (see effects.py)."""
-from .effects import Effect, HardIron, SoftIron, WhiteNoise, random_sensor
-from .scene import Scene, sweeps, uniform
+from .effects import (CANDIDATES, ColoredNoise, CrossAxis, CubicNonlinearity, EddyCurrent, Effect, HardIron,
+                      Hysteresis, Misalignment, MovingDipole, NonOrthogonality, OffsetDrift, Quantization, Saturation,
+                      SoftIron, TemperatureOffset, TemperatureScale, WhiteNoise, ZLeakage, random_sensor)
+from .scene import Scene, sweeps, tumble, uniform
 from .simulate import Simulation, simulate
 
-__all__ = ["Effect", "HardIron", "SoftIron", "WhiteNoise", "random_sensor", "Scene", "sweeps", "uniform",
-           "Simulation", "simulate"]
+__all__ = ["CANDIDATES", "ColoredNoise", "CrossAxis", "CubicNonlinearity", "EddyCurrent", "Effect", "HardIron",
+           "Hysteresis", "Misalignment", "MovingDipole", "NonOrthogonality", "OffsetDrift", "Quantization", "Saturation",
+           "SoftIron", "TemperatureOffset", "TemperatureScale", "WhiteNoise", "ZLeakage", "random_sensor", "Scene",
+           "sweeps", "tumble", "uniform", "Simulation", "simulate"]

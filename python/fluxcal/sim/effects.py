@@ -1,22 +1,74 @@
-"""Sensor effects. Each turns the values so far (N×3, starting from the true field in the sensor frame)
-into what the next stage sees. Adding an effect means adding one class with `apply` and `n_params`."""
+"""Sensor effects: each one both simulates and, in the sim-to-real diagnosis, is a candidate model term.
+
+Simulation: `apply(values, context)` turns the values so far (N×3, starting from the true field in the
+sensor frame) into what the next stage sees. The physical order a sensor imposes is: field effects
+(a moving dipole, eddy currents) → soft iron (`SoftIron`) → hard iron (`HardIron`) → transducer
+effects (scale and its temperature coefficient, non-orthogonality, misalignment, cross-axis field,
+non-linearity, saturation, hysteresis) → electronic offsets (temperature coefficient, drift) → noise →
+quantisation. `context` has `t` (s), `temp` (°C or None), `rotations` (sensor → world, or None), `rng`
+and `truth`.
+
+Diagnosis: a class with a `name` is a candidate. `features(ctx)` returns its effect on the readings
+per unit coefficient, N × p × 3 (exact when the effect is linear in its parameters, first-order
+otherwise), computed from what the base fit estimates: `ctx.signal` (N×3, the raw readings: what the
+transducer saw — hard iron is a field and passes through it; electronic offsets are taken as small), `ctx.scale` (a typical |signal|), `ctx.direction` (N×3, the fitted
+field direction mapped back to reading space, times H), and the regressors `ctx.t`, `ctx.temp`. A
+candidate with an unknown non-linear parameter (a switching time) returns several alternatives from
+`alternatives(ctx)`; the diagnosis takes the best and pays for the choice in its p-value. `regime` names
+the variable whose unseen values validate it (held out). `n_params` counts the candidate's
+coefficients.
+
+Default magnitudes (`typical(field_norm, rng)`) follow datasheet classes and are stated per class.
+"""
 from __future__ import annotations
 
 from dataclasses import dataclass
 
 import numpy as np
+from scipy.signal import lfilter, savgol_filter
+from scipy.spatial.transform import Rotation
+
+AXES = np.eye(3)
 
 
 class Effect:
-    """Base class. `apply(values, context)`: context has `t` (s), `rng` and `truth` (true field).
-    `is_noise`: a random effect, left out of Simulation.clean (the noise-free readings)."""
+    """Base class. `is_noise`: a random effect, left out of Simulation.clean (the noise-free readings).
+    Candidates set `name`, `regime` ("orientation", "temperature", "time"), `needs` (regressors)."""
 
+    name = ""
     n_params = 0
     is_noise = False
+    regime = "orientation"
+    needs: tuple = ()
 
     def apply(self, values: np.ndarray, context) -> np.ndarray:  # pragma: no cover - interface
         raise NotImplementedError
 
+    @classmethod
+    def features(cls, ctx) -> np.ndarray:  # pragma: no cover - interface
+        raise NotImplementedError
+
+    @classmethod
+    def alternatives(cls, ctx) -> list:
+        """Feature arrays to choose from (one unless the candidate has a non-linear parameter)."""
+        return [cls.features(ctx)]
+
+
+def _per_axis(columns: np.ndarray) -> np.ndarray:
+    """N×3 columns → N × 3 × 3 features: term k moves axis k only."""
+    return columns[:, :, None] * AXES[None, :, :]
+
+
+def _rate(values: np.ndarray, t: np.ndarray) -> np.ndarray:
+    """d(values)/dt, smoothed (Savitzky–Golay, ≈ 0.2 s window) so reading noise is not amplified."""
+    dt = float(np.median(np.diff(t))) if len(t) > 1 else 1.0
+    window = max(5, int(round(0.2 / dt)) | 1)  # odd
+    if window > len(values):
+        return np.gradient(values, t, axis=0)
+    return savgol_filter(values, window, 2, deriv=1, delta=dt, axis=0)
+
+
+# ---------------------------------------------------------------- linear model (the base, never candidates)
 
 @dataclass
 class SoftIron(Effect):
@@ -50,6 +102,405 @@ class WhiteNoise(Effect):
 
     def apply(self, values, context):
         return values + self.sigma * context.rng.standard_normal(values.shape)
+
+
+# ---------------------------------------------------------------- transducer effects
+
+@dataclass
+class NonOrthogonality(Effect):
+    """Axes not at 90°: axis y leans towards x by `angles[0]`, z towards x and y by `angles[1:]` (rad).
+    Typical: ±0.5° (MEMS/AMR packages; RM3100 boards ≈ 0.2°). From field magnitudes alone it is the
+    symmetric off-diagonal part of the matrix — absorbed by a full soft-iron matrix, visible against a
+    scale-only model."""
+
+    angles: np.ndarray
+    name = "non_orthogonality"
+    n_params = 3
+
+    def apply(self, values, context):
+        a = np.asarray(self.angles, dtype=float)
+        L = np.array([[1.0, 0, 0], [np.sin(a[0]), np.cos(a[0]), 0], [np.sin(a[1]), np.sin(a[2]), 1.0]])
+        L[2, 2] = np.sqrt(max(1.0 - L[2, 0] ** 2 - L[2, 1] ** 2, 0.0))
+        return values @ L.T
+
+    @classmethod
+    def features(cls, ctx):
+        s = ctx.signal
+        pairs = [(0, 1), (0, 2), (1, 2)]
+        return np.stack([s[:, [k]] * AXES[j] + s[:, [j]] * AXES[k] for j, k in pairs], axis=1)
+
+    @classmethod
+    def typical(cls, field_norm, rng):
+        return cls(np.deg2rad(rng.choice([-1, 1], 3) * rng.uniform(0.3, 0.8, 3)))
+
+
+@dataclass
+class Misalignment(Effect):
+    """The sensor axes rotated from the body axes by the rotation vector `rotvec` (rad). Typical ±1°
+    (board mounting). Invisible in field magnitudes; against a reference vector it is absorbed by a
+    full matrix and visible against a scale-only one."""
+
+    rotvec: np.ndarray
+    name = "misalignment"
+    n_params = 3
+
+    def apply(self, values, context):
+        return Rotation.from_rotvec(self.rotvec).apply(values)
+
+    @classmethod
+    def features(cls, ctx):
+        return np.stack([np.cross(AXES[k], ctx.signal) for k in range(3)], axis=1)
+
+    @classmethod
+    def typical(cls, field_norm, rng):
+        return cls(np.deg2rad(rng.choice([-1, 1], 3) * rng.uniform(0.5, 1.5, 3)))
+
+
+@dataclass
+class CrossAxis(Effect):
+    """AMR cross-field error: a bridge's sensitivity falls with the field along its easy axis,
+    m_k = s_k / (1 + s_e(k)/H_k) (x's easy axis is y; y's and z's are x). `hk`: anisotropy field per
+    axis, reading units. Typical: H_k ≈ 20 Oe for HMC100x-class bridges, 40× the Earth's field —
+    errors up to ≈ 2.5 % (Honeywell AN-215)."""
+
+    hk: np.ndarray
+    name = "cross_axis"
+    n_params = 3
+    EASY = (1, 0, 0)
+
+    def apply(self, values, context):
+        hk = np.asarray(self.hk, dtype=float)
+        easy = values[:, list(self.EASY)]
+        return values / (1.0 + easy / hk)
+
+    @classmethod
+    def features(cls, ctx):
+        s = ctx.signal
+        return _per_axis(-s * s[:, list(cls.EASY)] / ctx.scale)
+
+    @classmethod
+    def typical(cls, field_norm, rng):
+        return cls(rng.choice([-1, 1], 3) * field_norm * rng.uniform(30, 50, 3))
+
+
+@dataclass
+class CubicNonlinearity(Effect):
+    """m_k = s_k (1 + c_k (s_k / S)²): `relative[k]` is the error fraction at |s_k| = S (`scale`). Typical
+    ±1–2 % at S: a sensor used at 50–70 % of its range with a datasheet linearity of ±0.5 % FS
+    (QMC5883L/AMR class), or a fluxgate near the end of its range."""
+
+    relative: np.ndarray
+    scale: float
+    name = "nonlinearity_cubic"
+    n_params = 3
+
+    def apply(self, values, context):
+        return values * (1.0 + np.asarray(self.relative) * (values / self.scale) ** 2)
+
+    @classmethod
+    def features(cls, ctx):
+        return _per_axis(ctx.signal ** 3 / ctx.scale ** 2)
+
+    @classmethod
+    def typical(cls, field_norm, rng):
+        return cls(rng.choice([-1, 1], 3) * rng.uniform(0.01, 0.02, 3), field_norm)
+
+
+@dataclass
+class Saturation(Effect):
+    """Soft saturation of every axis at `limit`: m = L tanh(s / L). First order: the same cubic on every
+    axis (one coefficient). Typical: L = 4× the field (a 2 G range sensor in 0.5 G) — 2 % compression
+    at the field's magnitude."""
+
+    limit: float
+    name = "saturation"
+    n_params = 1
+
+    def apply(self, values, context):
+        return self.limit * np.tanh(values / self.limit)
+
+    @classmethod
+    def features(cls, ctx):
+        return (-(ctx.signal ** 3) / ctx.scale ** 2)[:, None, :]
+
+    @classmethod
+    def typical(cls, field_norm, rng):
+        return cls(field_norm * rng.uniform(3.5, 5.0))
+
+
+@dataclass
+class Hysteresis(Effect):
+    """Magnetic hysteresis of the core: each axis lags its input by `width` (reading units), a play
+    operator — the output holds until the input moves `width` away, then follows it. Typical: 0.1–0.3 %
+    of the field (AMR without set/reset, fluxgate cores)."""
+
+    width: np.ndarray
+    name = "hysteresis"
+    n_params = 3
+    regime = "time"
+    needs = ("t",)
+
+    def apply(self, values, context):
+        return _play(values, np.asarray(self.width, dtype=float))
+
+    @classmethod
+    def features(cls, ctx):
+        # Direction of the last move of each axis, from the smoothed signal: +1 rising, −1 falling. A
+        # lagging output reads below a rising input, so the reading moves by −width · direction.
+        rate = _rate(ctx.signal, ctx.t)
+        moving = np.abs(rate) > 0.05 * np.std(rate, axis=0)
+        direction = np.where(moving, np.sign(rate), np.nan)
+        for k in range(3):  # hold the last direction while the axis is still
+            col = direction[:, k]
+            idx = np.where(~np.isnan(col), np.arange(len(col)), 0)
+            np.maximum.accumulate(idx, out=idx)
+            direction[:, k] = np.nan_to_num(col[idx])
+        return _per_axis(-direction)
+
+    @classmethod
+    def typical(cls, field_norm, rng):
+        return cls(field_norm * rng.uniform(0.001, 0.003, 3))
+
+
+def _play(values: np.ndarray, width: np.ndarray) -> np.ndarray:
+    out = np.empty_like(values)
+    y = values[0].copy()
+    for i, v in enumerate(values):
+        y = np.clip(y, v - width, v + width)
+        out[i] = y
+    return out
+
+
+@dataclass
+class TemperatureScale(Effect):
+    """Sensitivity drift with temperature: s_k (1 + α_k (T − T0)), α in 1/°C. Typical: ±0.1 %/°C
+    (QMC5883L/HMC5883L class without compensation; RM3100 ≈ 0.03 %/°C)."""
+
+    alpha: np.ndarray
+    t0: float = 25.0
+    name = "temp_scale"
+    n_params = 3
+    regime = "temperature"
+    needs = ("temp",)
+
+    def apply(self, values, context):
+        return values * (1.0 + np.outer(context.temp - self.t0, self.alpha))
+
+    @classmethod
+    def features(cls, ctx):
+        return _per_axis(ctx.signal * (ctx.temp - ctx.temp.mean())[:, None])
+
+    @classmethod
+    def typical(cls, field_norm, rng):
+        return cls(rng.choice([-1, 1], 3) * rng.uniform(0.0006, 0.0012, 3))
+
+
+@dataclass
+class TemperatureOffset(Effect):
+    """Offset drift with temperature: m + β (T − T0), β in reading units per °C. Typical: ±0.02–0.04 %
+    of the Earth's field per °C (QMC5883L/HMC5883L class: ≈ 10–20 nT/°C)."""
+
+    beta: np.ndarray
+    t0: float = 25.0
+    name = "temp_offset"
+    n_params = 3
+    regime = "temperature"
+    needs = ("temp",)
+
+    def apply(self, values, context):
+        return values + np.outer(context.temp - self.t0, self.beta)
+
+    @classmethod
+    def features(cls, ctx):
+        return _per_axis(np.repeat((ctx.temp - ctx.temp.mean())[:, None], 3, axis=1))
+
+    @classmethod
+    def typical(cls, field_norm, rng):
+        return cls(rng.choice([-1, 1], 3) * field_norm * rng.uniform(0.0002, 0.0004, 3))
+
+
+@dataclass
+class OffsetDrift(Effect):
+    """Offset that drifts in time: a linear rate (reading units per s) plus a random walk of
+    `random_walk` reading units per √s. Typical: 0.5 % of the field over a minute's recording (warm-up)."""
+
+    rate: np.ndarray
+    random_walk: float = 0.0
+    name = "offset_drift"
+    n_params = 3
+    regime = "time"
+    needs = ("t",)
+
+    def apply(self, values, context):
+        t = context.t - context.t[0]
+        drift = np.outer(t, self.rate)
+        if self.random_walk > 0:
+            dt = np.diff(t, prepend=t[0])
+            drift += np.cumsum(self.random_walk * np.sqrt(dt)[:, None] * context.rng.standard_normal(values.shape),
+                               axis=0)
+        return values + drift
+
+    @classmethod
+    def features(cls, ctx):
+        t = ctx.t - ctx.t.mean()
+        return _per_axis(np.repeat((t / max(np.ptp(ctx.t), 1e-12))[:, None], 3, axis=1))
+
+    @classmethod
+    def typical(cls, field_norm, rng, duration_s: float = 60.0):
+        return cls(rng.choice([-1, 1], 3) * field_norm * rng.uniform(0.003, 0.006, 3) / duration_s)
+
+
+# ---------------------------------------------------------------- field effects
+
+@dataclass
+class MovingDipole(Effect):
+    """A nearby magnet that moves or switches: a dipole of moment `moment` (reading units × m³, μ0/4π
+    folded in) on at `t_on`…`t_off`, moving from `start` to `end` (m, world frame, relative to the
+    sensor) meanwhile. Its field is added in the world frame and turned into the sensor frame.
+    Typical: a tool or phone passing 0.3 m away, 1–2 % of the Earth's field.
+
+    As a candidate: while the disturbance is on, the total field's magnitude changes (what a magnitude
+    model sees): a level and a slope (the magnet moving) within a box in time whose edges are chosen
+    from a grid of GRID + 1 times."""
+
+    moment: np.ndarray
+    start: np.ndarray
+    end: np.ndarray
+    t_on: float
+    t_off: float
+    name = "moving_dipole"
+    n_params = 2
+    regime = "time"
+    needs = ("t",)
+    GRID = 32  # box edges scanned: every pair of GRID + 1 equally spaced times
+
+    def apply(self, values, context):
+        t = context.t
+        on = (t >= self.t_on) & (t <= self.t_off)
+        frac = np.clip((t - self.t_on) / max(self.t_off - self.t_on, 1e-12), 0, 1)[:, None]
+        r = -(np.asarray(self.start) + frac * (np.asarray(self.end) - np.asarray(self.start)))  # dipole → sensor
+        d = np.linalg.norm(r, axis=1, keepdims=True)
+        rhat = r / d
+        mvec = np.asarray(self.moment, dtype=float)
+        world = (3 * rhat * (rhat @ mvec)[:, None] - mvec) / d ** 3 * on[:, None]
+        return values + context.rotations.inv().apply(world)
+
+    @classmethod
+    def alternatives(cls, ctx):
+        edges = np.quantile(ctx.t, np.linspace(0, 1, cls.GRID + 1))
+        out = []
+        for a in range(cls.GRID):
+            for b in range(a + 1, cls.GRID + 1):
+                if a == 0 and b == cls.GRID:
+                    continue  # on throughout = a different field norm, not a disturbance
+                on = (ctx.t >= edges[a]) & (ctx.t <= edges[b])
+                ramp = np.where(on, (ctx.t - 0.5 * (edges[a] + edges[b])) / (edges[b] - edges[a]), 0.0)
+                out.append(np.stack([on * 1.0, ramp], axis=1)[:, :, None] * ctx.direction[:, None, :])
+        return out
+
+    @classmethod
+    def features(cls, ctx):
+        return cls.alternatives(ctx)[0]
+
+    @classmethod
+    def typical(cls, field_norm, rng, duration_s: float = 60.0):
+        direction = rng.standard_normal(3)
+        direction /= np.linalg.norm(direction)
+        distance = 0.3
+        moment = field_norm * rng.uniform(0.02, 0.04) * distance ** 3 * direction
+        t_on = duration_s * rng.uniform(0.2, 0.35)
+        start = distance * np.array([1.0, 0.0, 0.0])
+        end = distance * np.array([0.8, 0.6, 0.0])
+        return cls(moment, start, end, t_on, t_on + duration_s * rng.uniform(0.2, 0.3))
+
+
+@dataclass
+class EddyCurrent(Effect):
+    """Eddy currents in a conductive housing oppose the change of the field: m = s − τ ds/dt per axis
+    (τ in s). Typical: τ ≈ μ0 σ d r / 2 ≈ 1 ms for a 2 mm aluminium wall 2 cm from the sensor, larger
+    (3–5 ms) along the normal of a flat box's large faces. A rotating field changes direction, not
+    magnitude, so a magnitude model sees only the differences between the axes' τ."""
+
+    tau: np.ndarray
+    name = "eddy_current"
+    n_params = 3
+    regime = "time"
+    needs = ("t",)
+
+    def apply(self, values, context):
+        return values - np.asarray(self.tau) * np.gradient(values, context.t, axis=0)
+
+    @classmethod
+    def features(cls, ctx):
+        return _per_axis(-_rate(ctx.signal, ctx.t))
+
+    @classmethod
+    def typical(cls, field_norm, rng):
+        tau = rng.uniform(0.0005, 0.0015, 3)
+        tau[rng.integers(3)] = rng.uniform(0.003, 0.005)  # the flat box's normal
+        return cls(tau)
+
+
+@dataclass
+class ZLeakage(Effect):
+    """A biaxial sensor's x and y read a fraction `k` (2 values) of the out-of-plane field z (package
+    tilt, cross-axis). Typical 1–2 %. Simulation only: the 3-axis models absorb it in the matrix."""
+
+    k: np.ndarray
+    n_params = 2
+
+    def apply(self, values, context):
+        out = values.copy()
+        out[:, :2] += np.outer(values[:, 2], self.k)
+        return out
+
+
+# ---------------------------------------------------------------- noise effects
+
+@dataclass
+class ColoredNoise(Effect):
+    """Correlated noise of standard deviation `sigma`: AR(1) with coefficient `phi`, or flicker (1/f)
+    when `kind` = "flicker". Typical: AMR/fluxgate 1/f corner near 1–10 Hz; σ comparable to the white
+    noise."""
+
+    sigma: float
+    phi: float = 0.95
+    kind: str = "ar1"
+    name = "colored_noise"
+    n_params = 1
+    is_noise = True
+    regime = "time"
+    needs = ("t",)
+
+    def apply(self, values, context):
+        n = len(values)
+        white = context.rng.standard_normal(values.shape)
+        if self.kind == "flicker":
+            f = np.fft.rfftfreq(n)
+            shaping = np.where(f > 0, 1.0 / np.sqrt(np.maximum(f, 1.0 / n)), 0.0)
+            noise = np.fft.irfft(np.fft.rfft(white, axis=0) * shaping[:, None], n, axis=0)
+        else:
+            noise = lfilter([1.0], [1.0, -self.phi], white, axis=0)
+        return values + self.sigma * noise / noise.std(axis=0)
+
+
+@dataclass
+class Quantization(Effect):
+    """An ADC: readings rounded to multiples of `step` (1 LSB). Typical: HMC5883L 0.92 mG/LSB at ±1.3 G
+    (0.2 % of the Earth's field), QMC5883L 0.083 mG/LSB."""
+
+    step: float
+    name = "quantization"
+    n_params = 1
+    is_noise = True
+
+    def apply(self, values, context):
+        return self.step * np.round(values / self.step)
+
+
+CANDIDATES = (TemperatureScale, TemperatureOffset, OffsetDrift, CubicNonlinearity, Saturation, CrossAxis,
+              NonOrthogonality, Misalignment, Hysteresis, MovingDipole, EddyCurrent, ColoredNoise, Quantization)
+"""Every effect the diagnosis can rank, by its candidate name (`fluxcal diagnose` documents them)."""
 
 
 def random_sensor(field_norm: float, rng=None, soft_iron: float = 0.2, offset: float = 0.5,

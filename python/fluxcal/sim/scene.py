@@ -4,15 +4,18 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
+from scipy.signal import lfilter
 from scipy.spatial.transform import Rotation
 
 
 @dataclass
 class Scene:
-    """`rotations[i]` turns sensor-frame vectors into the world frame at time `t[i]`."""
+    """`rotations[i]` turns sensor-frame vectors into the world frame at time `t[i]`; `temperature`
+    (°C) is the sensor's temperature at each time, when the scene has one."""
 
     rotations: Rotation
     t: np.ndarray
+    temperature: np.ndarray | None = None
 
     def __len__(self) -> int:
         return len(self.t)
@@ -47,3 +50,35 @@ def sweeps(axes: str = "yxz", per_turn: int = 600, tilt_deg: float = 0.0, rate_h
     if tilt_deg > 0:
         rot = rot * Rotation.from_rotvec(np.deg2rad(tilt_deg) * rng.standard_normal((len(rot), 3)))
     return Scene(rot, np.arange(len(rot)) / rate_hz)
+
+
+def tumble(duration_s: float = 60.0, rate_hz: float = 50.0, turn_rate_deg: float = 60.0,
+           temperature: tuple | None = (25.0, 10.0, 40.0), rng=None) -> Scene:
+    """A sensor turned smoothly by hand through every orientation: the body rate wanders (a low-pass
+    random process of RMS `turn_rate_deg` °/s per axis), so the path is smooth at the sample rate and
+    covers the sphere within a minute. `temperature` = (mean, amplitude, period s): the sensor warms and
+    cools as a sine plus a slow random wander (not monotonic in time, so temperature and time effects
+    can be told apart); None for no temperature."""
+    rng = np.random.default_rng(rng)
+    n = int(round(duration_s * rate_hz))
+    dt = 1.0 / rate_hz
+    # Body rate: white noise through three first-order low-passes (0.5 s each), scaled to the requested
+    # RMS — smooth to its second derivative, as a hand is at the sample rate.
+    alpha = dt / 0.5
+    omega = rng.standard_normal((n, 3))
+    for _ in range(3):
+        omega = lfilter([alpha], [1.0, alpha - 1.0], omega, axis=0)
+    omega *= np.deg2rad(turn_rate_deg) / np.sqrt(np.mean(omega ** 2))
+    steps = Rotation.from_rotvec(omega * dt)
+    quats = np.empty((n, 4))
+    current = Rotation.random(random_state=rng)
+    for i in range(n):
+        quats[i] = current.as_quat()
+        current = current * steps[i]
+    t = np.arange(n) * dt
+    temp = None
+    if temperature is not None:
+        mean, amplitude, period = temperature
+        wander = np.cumsum(rng.standard_normal(n)) * np.sqrt(dt) * 0.05 * amplitude
+        temp = mean + amplitude * np.sin(2 * np.pi * t / period + rng.uniform(0, 2 * np.pi)) + wander - wander.mean()
+    return Scene(Rotation.from_quat(quats), t, temp)

@@ -19,6 +19,7 @@ class Simulation:
     t: np.ndarray
     effects: list
     field_norm: float
+    temperature: np.ndarray | None = None  # °C, when the scene has one
 
     def true_calibration(self, units: str = "") -> Calibration:
         """The correction that undoes the linear effects: offset = Σ hard iron, matrix = (Π W)⁻¹ made
@@ -39,10 +40,10 @@ def simulate(scene, effects, field, rng=None) -> Simulation:
     rng = np.random.default_rng(rng)
     truth = scene.sensor_field(field)
     values, clean = truth.copy(), truth.copy()
-    context = SimpleNamespace(t=scene.t, rng=rng, truth=truth)
+    context = SimpleNamespace(t=scene.t, temp=scene.temperature, rotations=scene.rotations, rng=rng, truth=truth)
     for effect in effects:
         values = effect.apply(values, context)
         if not effect.is_noise:
             clean = effect.apply(clean, context)
     return Simulation(readings=values, truth=truth, clean=clean, t=scene.t, effects=list(effects),
-                      field_norm=float(np.linalg.norm(field)))
+                      field_norm=float(np.linalg.norm(field)), temperature=scene.temperature)

@@ -1,0 +1,614 @@
+"""The diagnosis itself (see fluxcal.diagnose for the method)."""
+from __future__ import annotations
+
+import json
+from dataclasses import dataclass, field
+from pathlib import Path
+from types import SimpleNamespace
+
+import numpy as np
+from scipy import stats
+
+from .. import _core
+from .._arrays import as_samples
+from ..calibration import Calibration
+from ..sim.effects import CANDIDATES
+
+# Base models: (uses a reference vector, base parameters held at their start values).
+MODELS = {
+    "ellipsoid": (False, ()),                      # offset + symmetric matrix, |h| = H
+    "scale": (False, ("a01", "a02", "a12")),       # offset + three scale factors, |h| = H
+    "vector": (True, ()),                          # offset + full matrix against reference vectors
+    "vector_scale": (True, ("w01", "w02", "w10", "w12", "w20", "w21")),
+}
+ABSORBED = 0.01       # a candidate direction is absorbed when < 1 % of it is new to the base Jacobian
+HELDOUT_FRACTION = 0.25
+MIN_GAIN = 0.1        # an effect worth modelling removes at least 10 % of the held-out gap
+NOISE_CANDIDATES = ("colored_noise", "quantization")
+
+
+@dataclass
+class _Data:
+    m: np.ndarray
+    t: np.ndarray
+    temp: np.ndarray | None
+    reference: np.ndarray | None
+    field_norm: float
+    units: str
+    source: str
+
+
+@dataclass
+class Diagnosis:
+    """What `diagnose` found. `ranking`: one dict per candidate, accepted effects first (in the order
+    they were added), then the rest by ΔBIC. `where`: residual tables per regime. `significant`: any
+    effect found."""
+
+    model: str
+    noise_sigma: float
+    noise_source: str
+    units: str
+    source: str
+    ranking: list
+    accepted: list
+    where: dict
+    remaining: dict
+    base: Calibration
+    series: dict = field(repr=False, default_factory=dict)  # per-reading arrays for the figures
+
+    @property
+    def significant(self) -> bool:
+        return bool(self.accepted)
+
+    def to_dict(self) -> dict:
+        return {"source": self.source, "model": self.model, "units": self.units,
+                "noise_sigma": self.noise_sigma, "noise_source": self.noise_source,
+                "significant": self.significant, "accepted": self.accepted, "ranking": self.ranking,
+                "where": self.where, "remaining": self.remaining}
+
+    def save_json(self, path) -> Path:
+        path = Path(path)
+        path.parent.mkdir(parents=True, exist_ok=True)
+        path.write_text(json.dumps(self.to_dict(), indent=2, default=_jsonable) + "\n")
+        return path
+
+    def text(self) -> str:
+        from .report import text
+
+        return text(self)
+
+    def report(self, folder) -> Path:
+        from .report import write_report
+
+        return write_report(self, folder)
+
+
+def _jsonable(value):
+    if isinstance(value, (np.floating, np.integer)):
+        return value.item()
+    if isinstance(value, np.ndarray):
+        return value.tolist()
+    if isinstance(value, np.bool_):
+        return bool(value)
+    raise TypeError(f"not JSON: {type(value)}")
+
+
+def estimate_noise(samples) -> float:
+    """White-noise σ of the readings (per axis, then RMS over axes) from second differences:
+    Δ²m = m[i+1] − 2m[i] + m[i−1] has variance 6σ² for white noise, and a motion that is smooth at the
+    sample rate adds little; the median absolute deviation ignores the samples where it does not."""
+    m = as_samples(samples)
+    if len(m) < 20:
+        raise ValueError(f"samples: {len(m)} readings, need at least 20 to estimate the noise")
+    d2 = m[2:] - 2 * m[1:-1] + m[:-2]
+    mad = np.median(np.abs(d2 - np.median(d2, axis=0)), axis=0)
+    return float(np.sqrt(np.mean((1.4826 * mad) ** 2 / 6.0)))
+
+
+# ---------------------------------------------------------------- the model and its residuals
+
+def _features(alternative_list, rows=None):
+    """Stack N × p_j × 3 feature arrays into N × p × 3 (optionally only `rows`)."""
+    if not alternative_list:
+        return None
+    f = np.concatenate(alternative_list, axis=1)
+    return f if rows is None else f[rows]
+
+
+def _fit(data: _Data, start: Calibration, fixed, feats, rows=None, start_terms=None) -> dict:
+    """Refit the base model plus `feats` (N × p × 3 or None) on `rows` (Ceres, refine_terms)."""
+    sel = slice(None) if rows is None else rows
+    m = np.ascontiguousarray(data.m[sel])
+    p = 0 if feats is None else feats.shape[1]
+    f = np.zeros((len(m), 0)) if feats is None else np.ascontiguousarray(feats[sel].reshape(len(m), 3 * p))
+    terms = np.zeros(p) if start_terms is None else np.asarray(start_terms, dtype=float)
+    options = _core.RefineOptions()
+    options.max_iterations = 100
+    ref = None if data.reference is None else np.ascontiguousarray(data.reference[sel])
+    return _core.refine_terms(start.offset, start.matrix, start.field_norm, start.units, m, f, terms,
+                              list(fixed), options, ref)
+
+
+def _residuals(result: dict, data: _Data, feats, rows) -> np.ndarray:
+    """The model's residuals (reading units) on `rows`, with the fitted parameters of `result`."""
+    theta = np.asarray(result["parameters"])
+    nb = 12 if data.reference is not None else 9
+    m = data.m[rows].copy()
+    if feats is not None and feats.shape[1]:
+        m -= np.einsum("p,npk->nk", theta[nb:], feats[rows])
+    b = theta[:3]
+    if data.reference is not None:
+        W = theta[3:12].reshape(3, 3)
+        return (m - b - data.reference[rows] @ W.T).ravel()
+    a = theta[3:9]
+    A = np.array([[a[0], a[1], a[2]], [a[1], a[3], a[4]], [a[2], a[4], a[5]]])
+    h = (m - b) @ A
+    g = h @ A
+    s = np.linalg.norm(h, axis=1)
+    return (s - data.field_norm) * s / np.linalg.norm(g, axis=1)
+
+
+def _field_error(result: dict, data: _Data, feats, rows) -> float:
+    """Downstream error on `rows`: RMS of |h| − H (magnitude model) or of |h − r| (vector model)."""
+    cal = Calibration(offset=result["offset"], matrix=result["matrix"], field_norm=data.field_norm)
+    m = data.m[rows].copy()
+    theta = np.asarray(result["parameters"])
+    nb = 12 if data.reference is not None else 9
+    if feats is not None and feats.shape[1]:
+        m -= np.einsum("p,npk->nk", theta[nb:], feats[rows])
+    h = cal.apply(m)
+    if data.reference is not None:
+        return float(np.sqrt(np.mean(np.sum((h - data.reference[rows]) ** 2, axis=1))))
+    return float(np.sqrt(np.mean((np.linalg.norm(h, axis=1) - data.field_norm) ** 2)))
+
+
+def _context(data: _Data, result: dict) -> SimpleNamespace:
+    """What candidates compute their features from: the current fit's estimate of the signal."""
+    theta = np.asarray(result["parameters"])
+    # The transducer sees the field including hard iron (a field too): the raw readings, taking
+    # electronic offsets as small next to the field.
+    signal = data.m
+    if data.reference is not None:
+        W = theta[3:12].reshape(3, 3)
+        direction = data.reference @ W.T
+    else:
+        A = np.asarray(result["matrix"])
+        h = (data.m - theta[:3]) @ A.T
+        unit = h / np.linalg.norm(h, axis=1, keepdims=True)
+        direction = data.field_norm * unit @ np.linalg.inv(A).T
+    return SimpleNamespace(signal=signal, scale=float(np.median(np.linalg.norm(signal, axis=1))),
+                           direction=direction, t=data.t, temp=data.temp)
+
+
+def _field_directions(data: _Data, result: dict) -> np.ndarray:
+    if data.reference is not None:
+        return data.reference / np.linalg.norm(data.reference, axis=1, keepdims=True)
+    h = Calibration(offset=result["offset"], matrix=result["matrix"], field_norm=data.field_norm).apply(data.m)
+    return h / np.linalg.norm(h, axis=1, keepdims=True)
+
+
+def _project(result: dict, feats: np.ndarray, vector: bool) -> np.ndarray:
+    """Candidate columns in residual space: ∂r/∂c at the current fit."""
+    if vector:
+        return -feats.transpose(0, 2, 1).reshape(-1, feats.shape[1])
+    jb = np.asarray(result["jacobian"])[:, :3]  # ∂r/∂b; r depends on m − b, so ∂r/∂c = jb · f
+    return np.einsum("nk,npk->np", jb, feats)
+
+
+# ---------------------------------------------------------------- held-out regimes
+
+def _heldout(regime: str, data: _Data, directions: np.ndarray) -> np.ndarray:
+    """Boolean mask of the held-out readings: the last quarter in time, the hottest quarter, or the
+    quarter of the readings nearest one octant's diagonal (orientations the fit never sees)."""
+    n = len(data.m)
+    if regime == "temperature" and data.temp is not None:
+        return data.temp >= np.quantile(data.temp, 1 - HELDOUT_FRACTION)
+    if regime == "orientation":
+        diagonals = np.array([[x, y, z] for x in (-1, 1) for y in (-1, 1) for z in (-1, 1)]) / np.sqrt(3)
+        dots = directions @ diagonals.T
+        centre = np.argmax(np.sum(dots > 0.8, axis=0))  # the best-populated octant
+        d = dots[:, centre]
+        return d >= np.quantile(d, 1 - HELDOUT_FRACTION)
+    order = np.argsort(data.t, kind="stable")
+    mask = np.zeros(n, bool)
+    mask[order[int(round(n * (1 - HELDOUT_FRACTION))):]] = True
+    return mask
+
+
+def _improvement_pvalue(before: np.ndarray, after: np.ndarray, blocks: int = 20) -> float:
+    """One-sided test that held-out squared residuals fell: a t-test on the means of `blocks`
+    consecutive blocks (blocks, not readings, so correlated residuals do not fake significance)."""
+    d = before ** 2 - after ** 2
+    if len(d) < 2 * blocks:
+        blocks = max(2, len(d) // 2)
+    means = np.array([c.mean() for c in np.array_split(d, blocks)])
+    if np.allclose(means, means[0]):
+        return 0.0 if means[0] > 0 else 1.0
+    return float(stats.ttest_1samp(means, 0.0, alternative="greater").pvalue)
+
+
+def _gap(residuals: np.ndarray, sigma: float) -> float:
+    return float(np.sqrt(max(np.mean(residuals ** 2) - sigma ** 2, 0.0)))
+
+
+# ---------------------------------------------------------------- where
+
+def _where(data: _Data, e: np.ndarray, sigma: float, directions: np.ndarray, vector: bool) -> dict:
+    """Residuals normalised by the noise, by regime, each with a test."""
+    z = e / sigma
+    per_reading = np.sqrt(np.mean(z.reshape(-1, 3) ** 2, axis=1)) if vector else z
+    signed = z.reshape(-1, 3).mean(axis=1) if vector else z
+    out = {"overall": {"n": int(len(per_reading)), "rms_z": float(np.sqrt(np.mean(z ** 2))),
+                       "gap": _gap(e, sigma)}}
+    tables = {}
+
+    # Orientation: 24 bins (cube face × quadrant of the field direction); χ² of the bin means.
+    face = np.argmax(np.abs(directions), axis=1)
+    sign = np.sign(directions[np.arange(len(directions)), face]) > 0
+    others = np.array([[1, 2], [0, 2], [0, 1]])[face]
+    quadrant = (directions[np.arange(len(directions)), others[:, 0]] > 0) * 2 + \
+               (directions[np.arange(len(directions)), others[:, 1]] > 0)
+    bins = face * 8 + sign * 4 + quadrant
+    tables["orientation"] = _binned(signed, bins, [f"{'+' if (b // 4) % 2 else '-'}{'xyz'[b // 8]} q{b % 4}"
+                                                   for b in range(24)])
+    # Temperature and time: quantile bins plus a regression slope.
+    if data.temp is not None:
+        tables["temperature"] = _binned(signed, _quantile_bins(data.temp, 8), None, data.temp)
+    tables["time"] = _binned(signed, _quantile_bins(data.t, 10), None, data.t)
+    # Per axis: the vector model's own axes; for a magnitude model, the residual's regression on the
+    # field direction cosines (a scale or non-linearity error of one axis leans on its cosine²).
+    if vector:
+        zz = z.reshape(-1, 3)
+        tables["axis"] = [{"bin": "xyz"[k], "n": len(zz), "mean_z": float(zz[:, k].mean()),
+                           "rms_z": float(np.sqrt(np.mean(zz[:, k] ** 2)))} for k in range(3)]
+    else:
+        X = np.column_stack([np.ones(len(z)), directions ** 2])
+        beta, *_ = np.linalg.lstsq(X, z, rcond=None)
+        tables["axis"] = [{"bin": f"cos²({'xyz'[k]})", "slope_z": float(beta[k + 1])} for k in range(3)]
+    tests = []
+    for name in ("orientation", "temperature", "time"):
+        if name in tables:
+            rows = tables[name]
+            chi2 = sum(r["n"] * r["mean_z"] ** 2 for r in rows)
+            tests.append({"regime": name, "test": "bin means (χ²)", "statistic": chi2,
+                          "pvalue": float(stats.chi2.sf(chi2, len(rows)))})
+    for name, x in (("temperature", data.temp), ("time", data.t)):
+        if x is not None and np.ptp(x) > 0:
+            res = stats.linregress(x, signed)
+            tests.append({"regime": name, "test": "slope", "statistic": float(res.slope / res.stderr),
+                          "pvalue": float(res.pvalue)})
+    lags = int(min(20, max(1, len(signed) // 10)))
+    from statsmodels.stats.diagnostic import acorr_ljungbox
+
+    lb = acorr_ljungbox(signed[np.argsort(data.t, kind="stable")], lags=[lags])
+    tests.append({"regime": "time", "test": f"whiteness (Ljung-Box, {lags} lags)",
+                  "statistic": float(lb["lb_stat"].iloc[0]), "pvalue": float(lb["lb_pvalue"].iloc[0])})
+    out["tables"] = tables
+    out["tests"] = tests
+    return out
+
+
+def _quantile_bins(x: np.ndarray, k: int) -> np.ndarray:
+    edges = np.quantile(x, np.linspace(0, 1, k + 1)[1:-1])
+    return np.searchsorted(edges, x, side="right")
+
+
+def _binned(z: np.ndarray, bins: np.ndarray, labels, x=None) -> list:
+    rows = []
+    for b in np.unique(bins):
+        sel = bins == b
+        zb = z[sel]
+        row = {"bin": labels[b] if labels else (f"{x[sel].min():.4g}…{x[sel].max():.4g}"), "n": int(sel.sum()),
+               "mean_z": float(zb.mean()), "rms_z": float(np.sqrt(np.mean(zb ** 2))),
+               "pvalue": float(stats.chi2.sf(np.sum(zb ** 2), sel.sum()))}
+        rows.append(row)
+    return rows
+
+
+# ---------------------------------------------------------------- which and how far
+
+def _evaluate(cls, data, model, state, sigma, n_candidates) -> dict:
+    """Score test, absorption check, refit, likelihood ratio and held-out validation of one candidate."""
+    vector, fixed = MODELS[model]
+    base = state["result"]
+    e = np.asarray(base["residuals"])
+    n = len(e)
+    ctx = _context(data, base)
+    alternatives = cls.alternatives(ctx)
+    J = np.asarray(base["jacobian"])
+    J = J[:, np.any(J != 0, axis=0)]
+    Q, _ = np.linalg.qr(J)
+    best = None
+    for feats in alternatives:
+        Z = _project(base, feats, vector)
+        norms = np.linalg.norm(Z, axis=0)
+        norms[norms == 0] = 1.0
+        Zt = (Z - Q @ (Q.T @ Z)) / norms
+        U, s, _ = np.linalg.svd(Zt, full_matrices=False)
+        new = s >= ABSORBED
+        score = float(np.sum((U[:, new].T @ e) ** 2) / (e @ e / (n - J.shape[1]))) if new.any() else 0.0
+        if best is None or score > best[0]:
+            best = (score, feats, int(new.sum()), s)
+    score, feats, dims, singular = best
+    row = {"effect": cls.name, "regime": cls.regime, "n_params": int(feats.shape[1]), "new_dimensions": dims,
+           "absorbed": dims == 0, "alternatives": len(alternatives), "score": score,
+           "score_pvalue": min(1.0, float(stats.chi2.sf(score, max(dims, 1))) * len(alternatives)),
+           "absorbed_fraction": float(1 - singular.min()) if len(singular) else 1.0}
+    if dims == 0:
+        row.update(lr=0.0, lr_pvalue=1.0, delta_aic=0.0, delta_bic=0.0, significant=False,
+                   heldout_gap_before=None, heldout_gap_after=None,
+                   note="absorbed by the base model's parameters (cannot be told apart from them)")
+        return row
+    all_feats = _features(state["features"] + [feats])
+    fit = _fit(data, state["start"], fixed, all_feats,
+               start_terms=np.concatenate([state["terms"], np.zeros(feats.shape[1])]))
+    rss0, rss1 = float(e @ e), float(np.sum(np.asarray(fit["residuals"]) ** 2))
+    lr = max(0.0, n * np.log(rss0 / rss1))
+    row.update(lr=lr, lr_pvalue=min(1.0, float(stats.chi2.sf(lr, dims)) * len(alternatives)),
+               delta_aic=-lr + 2 * dims, delta_bic=-lr + dims * np.log(n),
+               coefficients=np.asarray(fit["parameters"])[-feats.shape[1]:].tolist(),
+               standard_errors=np.asarray(fit["standard_errors"])[-feats.shape[1]:].tolist())
+    row.update(_validate(data, model, state, feats, cls.regime, sigma))
+    row["significant"] = bool(row["lr_pvalue"] * n_candidates < state["alpha"] and row["delta_bic"] < 0
+                              and row["heldout_pvalue"] < state["alpha"]
+                              and row["heldout_gap_after"] < (1 - MIN_GAIN) * row["heldout_gap_before"])
+    row["_fit"], row["_features"] = fit, feats
+    return row
+
+
+def _validate(data, model, state, feats, regime, sigma) -> dict:
+    """Fit with and without the candidate on all but a held-out regime; judge on the held-out part."""
+    vector, fixed = MODELS[model]
+    held = _heldout(regime, data, state["directions"])
+    key = regime
+    if key not in state["train_fits"]:
+        state["train_fits"][key] = _fit(data, state["start"], fixed, _features(state["features"]), ~held,
+                                        start_terms=state["terms"])
+    before = state["train_fits"][key]
+    base_feats = _features(state["features"])
+    all_feats = _features(state["features"] + [feats])
+    after = _fit(data, state["start"], fixed, all_feats, ~held,
+                 start_terms=np.concatenate([state["terms"], np.zeros(feats.shape[1])]))
+    e0 = _residuals(before, data, base_feats, held)
+    e1 = _residuals(after, data, all_feats, held)
+    return {"heldout": regime, "heldout_n": int(held.sum()),
+            "heldout_gap_before": _gap(e0, sigma), "heldout_gap_after": _gap(e1, sigma),
+            "heldout_rms_before": float(np.sqrt(np.mean(e0 ** 2))), "heldout_rms_after": float(np.sqrt(np.mean(e1 ** 2))),
+            "heldout_pvalue": _improvement_pvalue(e0, e1),
+            "field_error_before": _field_error(before, data, base_feats, held),
+            "field_error_after": _field_error(after, data, all_feats, held)}
+
+
+def _colored_noise(data, state, sigma, n_candidates, max_order: int = 5) -> dict:
+    """AR(p) model of the residual series (order by AIC), judged by one-step prediction of the last
+    quarter in time."""
+    vector = data.reference is not None
+    e = np.asarray(state["result"]["residuals"])
+    series = e.reshape(-1, 3).mean(axis=1) if vector else e
+    series = series[np.argsort(data.t, kind="stable")]
+    n = len(series)
+    row = {"effect": "colored_noise", "regime": "time", "n_params": 0, "new_dimensions": 0, "absorbed": False,
+           "alternatives": 1}
+    if n < 10 * max_order:
+        row.update(lr=0.0, lr_pvalue=1.0, delta_aic=0.0, delta_bic=0.0, significant=False,
+                   heldout_gap_before=None, heldout_gap_after=None, note="too few readings for an AR model")
+        return row
+    y = series[max_order:]
+    lagged = np.column_stack([series[max_order - k:n - k] for k in range(1, max_order + 1)])
+    rss = [float(y @ y)]
+    coefs = [np.zeros(0)]
+    for p in range(1, max_order + 1):
+        c, *_ = np.linalg.lstsq(lagged[:, :p], y, rcond=None)
+        coefs.append(c)
+        rss.append(float(np.sum((y - lagged[:, :p] @ c) ** 2)))
+    aic = [len(y) * np.log(r / len(y)) + 2 * p for p, r in enumerate(rss)]
+    order = int(np.argmin(aic))
+    lr = len(y) * np.log(rss[0] / rss[order]) if order else 0.0
+    split = int(round(n * (1 - HELDOUT_FRACTION)))
+    train_y, train_x = y[:split - max_order], lagged[:split - max_order, :max(order, 1)]
+    c, *_ = np.linalg.lstsq(train_x, train_y, rcond=None) if order else (np.zeros(1), None, None, None)
+    test_y, test_x = y[split - max_order:], lagged[split - max_order:, :max(order, 1)]
+    innovations = test_y - (test_x @ c if order else 0.0)
+    scale = np.sqrt(3.0) if vector else 1.0  # the mean of three axes has σ/√3
+    row.update(n_params=order, new_dimensions=order, order=order, coefficients=coefs[order].tolist(), lr=lr,
+               lr_pvalue=float(stats.chi2.sf(lr, order)) if order else 1.0,
+               delta_aic=-lr + 2 * order, delta_bic=-lr + order * np.log(len(y)),
+               heldout="time", heldout_n=int(len(test_y)),
+               heldout_gap_before=_gap(test_y * scale, sigma), heldout_gap_after=_gap(innovations * scale, sigma),
+               heldout_rms_before=float(np.sqrt(np.mean(test_y ** 2))),
+               heldout_rms_after=float(np.sqrt(np.mean(innovations ** 2))),
+               heldout_pvalue=_improvement_pvalue(test_y, innovations))
+    row["significant"] = bool(order > 0 and row["lr_pvalue"] * n_candidates < state["alpha"] and row["delta_bic"] < 0
+                              and row["heldout_pvalue"] < state["alpha"]
+                              and row["heldout_gap_after"] < (1 - MIN_GAIN) * row["heldout_gap_before"])
+    return row
+
+
+def _lattice_step(values: np.ndarray) -> float:
+    """The ADC step when every value of a column is a multiple of one step (0 otherwise)."""
+    u = np.unique(values)
+    if len(u) < 3 or len(u) > 0.5 * len(values):
+        return 0.0
+    step = float(np.min(np.diff(u)))
+    k = values / step
+    return step if np.mean(np.abs(k - np.round(k)) < 1e-3) > 0.999 else 0.0
+
+
+def _quantization(data, state, sigma, n_candidates, noise_given: bool) -> dict:
+    """Readings on a lattice: the quantisation noise q²/12 belongs in the noise model. Only a given
+    noise σ (a datasheet noise density) can show it: a σ estimated from the readings already holds it."""
+    steps = np.array([_lattice_step(data.m[:, k]) for k in range(3)])
+    row = {"effect": "quantization", "regime": "noise", "n_params": 1, "new_dimensions": int(steps.all()),
+           "absorbed": False, "alternatives": 1, "steps": steps.tolist()}
+    e = np.asarray(state["result"]["residuals"])
+    if not steps.all():
+        row.update(lr=0.0, lr_pvalue=1.0, delta_aic=0.0, delta_bic=0.0, significant=False,
+                   heldout_gap_before=None, heldout_gap_after=None, note="readings are not on a lattice")
+        return row
+    q2 = float(np.mean(steps ** 2)) / 12.0
+    n = len(e)
+    mse = float(np.mean(e ** 2))
+    loglik = lambda var: -0.5 * n * (np.log(var) + mse / var)  # noqa: E731 - Gaussian, known variance
+    lr = max(0.0, 2 * (loglik(sigma ** 2 + q2) - loglik(sigma ** 2)))
+    held = _heldout("time", data, state["directions"])
+    eh = _residuals(state["result"], data, _features(state["features"]), held)
+    before, after = _gap(eh, sigma), _gap(eh, np.sqrt(sigma ** 2 + q2))
+    row.update(lr=lr, lr_pvalue=float(stats.chi2.sf(lr, 1)), delta_aic=-lr + 2, delta_bic=-lr + np.log(n),
+               heldout="time", heldout_n=int(held.sum()), heldout_gap_before=before, heldout_gap_after=after,
+               heldout_pvalue=0.0 if after < before else 1.0, noise_given=noise_given)
+    row["significant"] = bool(noise_given and row["lr_pvalue"] * n_candidates < state["alpha"]
+                              and row["delta_bic"] < 0 and after < 0.3 * before)
+    return row
+
+
+def _prepare(samples, t, temp, reference, field_norm, units, source) -> _Data:
+    m = as_samples(samples)
+    n = len(m)
+    t = np.arange(n, dtype=float) if t is None else np.asarray(t, dtype=float)
+    if t.shape != (n,) or not np.all(np.isfinite(t)):
+        raise ValueError(f"t: need {n} finite times, got shape {t.shape}")
+    if temp is not None:
+        temp = np.asarray(temp, dtype=float)
+        if temp.shape != (n,) or not np.all(np.isfinite(temp)):
+            raise ValueError(f"temp: need {n} finite temperatures, got shape {temp.shape}")
+        if np.ptp(temp) <= 0:
+            temp = None  # a constant temperature carries no information
+    if reference is not None:
+        reference = as_samples(reference, "reference")
+        if len(reference) != n:
+            raise ValueError(f"reference: {len(reference)} rows, samples have {n}")
+    return _Data(m, t, temp, reference, float(field_norm) if field_norm else 0.0, units, source)
+
+
+def diagnose(samples, t=None, temp=None, reference=None, field_norm=None, model: str | None = None,
+             noise_sigma: float | None = None, candidates=None, alpha: float = 0.01, max_effects: int = 3,
+             progress: bool = False, units: str = "", source: str = "samples") -> Diagnosis:
+    """Diagnose the gap between `samples` (N×3 readings, or a Recording) and the base `model`.
+
+    t (s; default the row number), temp (°C), reference (N×3 true field per reading, sensor frame: the
+    vector models): the regressors. field_norm: the known |h| (default: the fitted ellipsoid's own
+    scale). model: "ellipsoid" (default without reference), "scale", "vector" (default with one),
+    "vector_scale". noise_sigma: white-noise σ of the readings (default: estimated, see
+    estimate_noise). candidates: effect names to try (default all whose regressors are present).
+    alpha: significance level (Bonferroni-corrected over the candidates). max_effects: how many
+    effects to add greedily.
+    """
+    from ..io.recording import Recording
+    from ..pipeline import calibrate
+
+    if isinstance(samples, Recording):
+        rec = samples
+        samples = rec.samples()
+        cols = rec.columns
+        t = cols.get("t") if t is None else t
+        temp = cols.get("temp") if temp is None else temp
+        units = units or rec.field_units()
+        source = rec.source
+    model = model or ("vector" if reference is not None else "ellipsoid")
+    if model not in MODELS:
+        raise ValueError(f"model: {model!r} is not one of {', '.join(MODELS)}")
+    vector, fixed = MODELS[model]
+    if vector and reference is None:
+        raise ValueError(f"model {model!r} needs reference vectors (the true field per reading)")
+    data = _prepare(samples, t, temp, reference if vector else None, field_norm, units, source)
+    if len(data.m) < 50:
+        raise ValueError(f"{source}: {len(data.m)} readings, the diagnosis needs at least 50")
+
+    if vector:
+        start = calibrate(data.m, reference=data.reference, units=units)
+        data.field_norm = float(np.mean(np.linalg.norm(data.reference, axis=1)))
+    else:
+        start = calibrate(data.m, field_norm=field_norm or None, units=units)
+        data.field_norm = start.field_norm
+        if fixed:  # the scale-only model starts from the diagonal of the full fit
+            start = Calibration(offset=start.offset, matrix=np.diag(np.diag(start.matrix)),
+                                field_norm=start.field_norm, units=units, model="scale")
+    base = _fit(data, start, fixed, None)
+    if noise_sigma is None:
+        sigma, noise_source = estimate_noise(data.m), "estimated from second differences of the readings"
+    else:
+        sigma, noise_source = float(noise_sigma), "given"
+    if not sigma > 0:
+        raise ValueError(f"{source}: the noise σ is zero (readings constant or repeated?); give noise_sigma")
+
+    names = {c.name: c for c in CANDIDATES}
+    wanted = list(names) if candidates is None else list(candidates)
+    unknown = [w for w in wanted if w not in names]
+    if unknown:
+        raise ValueError(f"candidates: unknown effect(s) {', '.join(unknown)}; known: {', '.join(names)}")
+    have = {"t": True, "temp": data.temp is not None}
+    pool = [names[w] for w in wanted if all(have.get(r, False) for r in names[w].needs)]
+    skipped = [w for w in wanted if names[w] not in pool]
+
+    directions = _field_directions(data, base)
+    e0 = np.asarray(base["residuals"])
+    where = _where(data, e0, sigma, directions, vector)
+    state = {"start": start, "result": base, "features": [], "terms": np.zeros(0), "train_fits": {},
+             "directions": directions, "alpha": alpha}
+    accepted, last_rows = [], {}
+    n_candidates = max(len(pool), 1)
+    bar = None
+    if progress:
+        from tqdm import tqdm
+
+        bar = tqdm(total=len(pool) * (max_effects + 1), desc="diagnose", unit="candidate", leave=False)
+    for _round in range(max_effects + 1):
+        rows = []
+        systematic = [c for c in pool if c.name not in NOISE_CANDIDATES and c.name not in accepted]
+        for cls in systematic:
+            rows.append(_evaluate(cls, data, model, state, sigma, n_candidates))
+            if bar:
+                bar.update(1)
+        winners = sorted([r for r in rows if r["significant"]], key=lambda r: r["delta_bic"])
+        for r in rows:
+            last_rows[r["effect"]] = r
+        if winners and len(accepted) < max_effects:
+            w = winners[0]
+            accepted.append(w["effect"])
+            state["features"].append(w["_features"])
+            state["terms"] = np.asarray(w["_fit"]["parameters"])[12 if vector else 9:]
+            state["result"] = w["_fit"]
+            state["train_fits"] = {}
+            w["step"] = len(accepted)
+            last_rows[w["effect"]] = w
+            continue
+        # No systematic effect left: is the rest correlated noise or quantisation?
+        for name in NOISE_CANDIDATES:
+            if name in [c.name for c in pool]:
+                r = (_colored_noise(data, state, sigma, n_candidates) if name == "colored_noise"
+                     else _quantization(data, state, sigma, n_candidates, noise_sigma is not None))
+                last_rows[name] = r
+                if bar:
+                    bar.update(1)
+        noise_winners = sorted([last_rows[n] for n in NOISE_CANDIDATES if n in last_rows and last_rows[n]["significant"]],
+                               key=lambda r: r["delta_bic"])
+        for w in noise_winners:
+            if len(accepted) < max_effects:
+                accepted.append(w["effect"])
+                w["step"] = len(accepted)
+        break
+    if bar:
+        bar.close()
+
+    ranking = [last_rows[name] for name in accepted]
+    rest = sorted([r for name, r in last_rows.items() if name not in accepted],
+                  key=lambda r: (r.get("absorbed", False), r["delta_bic"]))
+    ranking += rest
+    for r in ranking:
+        r.pop("_fit", None)
+        r.pop("_features", None)
+        r.setdefault("significant", False)
+        r["significant"] = r["effect"] in accepted
+
+    final = state["result"]
+    e_final = np.asarray(final["residuals"])
+    final_dirs = _field_directions(data, final)
+    remaining = _where(data, e_final, sigma, final_dirs, vector)
+    remaining["skipped_candidates"] = skipped
+    base_cal = Calibration(offset=base["offset"], matrix=base["matrix"], field_norm=data.field_norm, units=units,
+                           model=model)
+    series = {"t": data.t, "temp": data.temp, "directions": directions, "residual_before": e0,
+              "residual_after": e_final, "vector": vector}
+    return Diagnosis(model=model, noise_sigma=sigma, noise_source=noise_source, units=units, source=source,
+                     ranking=ranking, accepted=accepted, where=where, remaining=remaining, base=base_cal,
+                     series=series)

@@ -1,0 +1,146 @@
+"""The diagnosis as text, figures (PNG) and one HTML page."""
+from __future__ import annotations
+
+import html
+from pathlib import Path
+
+import numpy as np
+
+
+def _num(x, fmt=".3g") -> str:
+    return "—" if x is None else format(x, fmt)
+
+
+def ranking_lines(d) -> list:
+    head = (f"{'effect':20s} {'signif.':>7s} {'ΔBIC':>10s} {'LR p':>9s} {'dims':>4s} {'held out':>11s} "
+            f"{'gap before':>10s} {'gap after':>10s} {'field err before → after':>26s}")
+    lines = [head, "-" * len(head)]
+    for r in d.ranking:
+        fe = (f"{_num(r.get('field_error_before'))} → {_num(r.get('field_error_after'))}"
+              if r.get("field_error_before") is not None else "")
+        note = "  (absorbed)" if r.get("absorbed") else ""
+        lines.append(f"{r['effect']:20s} {'YES' if r['significant'] else 'no':>7s} {r['delta_bic']:10.1f} "
+                     f"{r['lr_pvalue']:9.2g} {r.get('new_dimensions', 0):4d} {str(r.get('heldout', '')):>11s} "
+                     f"{_num(r.get('heldout_gap_before')):>10s} {_num(r.get('heldout_gap_after')):>10s} "
+                     f"{fe:>26s}{note}")
+    return lines
+
+
+def text(d) -> str:
+    u = f" {d.units}" if d.units else ""
+    w, rem = d.where, d.remaining
+    out = [f"fluxcal diagnose — {d.source}: model {d.model}, {w['overall']['n']} readings",
+           f"noise σ {d.noise_sigma:.4g}{u} ({d.noise_source})",
+           f"base model: residual RMS {w['overall']['rms_z']:.2f} σ, gap √(RMS² − σ²) {w['overall']['gap']:.4g}{u}",
+           "", "WHERE (base model residuals / σ; tests per regime):"]
+    for t in w["tests"]:
+        flag = "  <-- departs" if t["pvalue"] < 0.01 else ""
+        out.append(f"  {t['regime']:12s} {t['test']:32s} stat {t['statistic']:10.3g}  p {t['pvalue']:.2g}{flag}")
+    for name in ("orientation", "temperature", "time"):
+        rows = w["tables"].get(name)
+        if rows:
+            worst = max(rows, key=lambda r: abs(r["mean_z"]))
+            out.append(f"  worst {name} bin: {worst['bin']} (n {worst['n']}): mean {worst['mean_z']:+.2f} σ, "
+                       f"RMS {worst['rms_z']:.2f} σ")
+    out += ["", "WHICH and HOW FAR (candidates; held-out gap = √(RMS² − σ²) on the unseen regime):"]
+    out += ["  " + line for line in ranking_lines(d)]
+    out.append("")
+    if d.accepted:
+        out.append(f"FOUND: {', '.join(d.accepted)} (added in this order)")
+    else:
+        out.append("FOUND: no significant effect — the base model explains the data to the noise")
+    out.append(f"remaining: residual RMS {rem['overall']['rms_z']:.2f} σ, gap {rem['overall']['gap']:.4g}{u}; "
+               + "; ".join(f"{t['regime']} {t['test']} p {t['pvalue']:.2g}" for t in rem["tests"]))
+    if rem.get("skipped_candidates"):
+        out.append(f"not tried (the recording lacks their regressor): {', '.join(rem['skipped_candidates'])}")
+    return "\n".join(out)
+
+
+def write_report(d, folder) -> Path:
+    """Text summary, JSON, figures and index.html into `folder`; returns the HTML page's path."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    folder = Path(folder)
+    folder.mkdir(parents=True, exist_ok=True)
+    (folder / "summary.txt").write_text(text(d) + "\n")
+    d.save_json(folder / "diagnosis.json")
+    s = d.series
+    sigma = d.noise_sigma
+    z0 = _per_reading(s["residual_before"], s["vector"]) / sigma
+    z1 = _per_reading(s["residual_after"], s["vector"]) / sigma
+    figures = []
+
+    # Residual against orientation: the field direction on the sphere (longitude/latitude).
+    dirs = s["directions"]
+    lon, lat = np.degrees(np.arctan2(dirs[:, 1], dirs[:, 0])), np.degrees(np.arcsin(np.clip(dirs[:, 2], -1, 1)))
+    fig, axes = plt.subplots(1, 2, figsize=(11, 4), sharey=True)
+    lim = max(3.0, float(np.percentile(np.abs(z0), 99)))
+    for ax, z, title in ((axes[0], z0, "base model"), (axes[1], z1, "with the effects found")):
+        sc = ax.scatter(lon, lat, c=z, s=4, cmap="coolwarm", vmin=-lim, vmax=lim)
+        ax.set_title(f"residual / σ vs field direction — {title}")
+        ax.set_xlabel("longitude of the field direction (°)")
+    axes[0].set_ylabel("latitude (°)")
+    fig.colorbar(sc, ax=axes, label="residual / σ")
+    figures.append(_save(fig, folder / "orientation.png"))
+
+    for name, x, label in (("time", s["t"], "time (s)"), ("temperature", s["temp"], "temperature (°C)")):
+        if x is None:
+            continue
+        fig, ax = plt.subplots(figsize=(11, 3.5))
+        order = np.argsort(x, kind="stable")
+        ax.plot(x[order], z0[order], ".", ms=2, alpha=0.4, label="base model")
+        ax.plot(x[order], _smooth(z0[order]), "-", lw=2, label="base, running mean")
+        ax.plot(x[order], _smooth(z1[order]), "-", lw=2, label="with the effects found, running mean")
+        ax.set_xlabel(label)
+        ax.set_ylabel("residual / σ")
+        ax.legend(loc="upper right", fontsize=8)
+        figures.append(_save(fig, folder / f"{name}.png"))
+
+    rows = [r for r in d.ranking if r.get("heldout_gap_before") is not None]
+    if rows:
+        fig, ax = plt.subplots(figsize=(11, 3.5))
+        xs = np.arange(len(rows))
+        ax.bar(xs - 0.2, [r["heldout_gap_before"] for r in rows], 0.4, label="held-out gap before")
+        ax.bar(xs + 0.2, [r["heldout_gap_after"] for r in rows], 0.4, label="after adding the effect")
+        ax.set_xticks(xs, [r["effect"] + (" *" if r["significant"] else "") for r in rows], rotation=30, ha="right")
+        ax.set_ylabel(f"√(RMS² − σ²) {d.units}".strip())
+        ax.legend(fontsize=8)
+        figures.append(_save(fig, folder / "heldout.png"))
+
+    table = "\n".join(ranking_lines(d))
+    body = [f"<h1>fluxcal diagnose — {html.escape(d.source)}</h1>",
+            f"<pre>{html.escape(text(d))}</pre>", "<h2>Ranking</h2>", f"<pre>{html.escape(table)}</pre>"]
+    for regime, rows_ in d.where["tables"].items():
+        body.append(f"<h2>Base residual by {regime}</h2><table border=1 cellpadding=3><tr>"
+                    + "".join(f"<th>{html.escape(k)}</th>" for k in rows_[0]) + "</tr>")
+        for r in rows_:
+            body.append("<tr>" + "".join(f"<td>{html.escape(_cell(v))}</td>" for v in r.values()) + "</tr>")
+        body.append("</table>")
+    body += [f'<h2>{p.stem}</h2><img src="{p.name}" style="max-width:100%">' for p in figures]
+    page = folder / "index.html"
+    page.write_text("<!doctype html><meta charset='utf-8'><title>fluxcal diagnose</title>\n" + "\n".join(body) + "\n")
+    return page
+
+
+def _cell(v) -> str:
+    return f"{v:.4g}" if isinstance(v, float) else str(v)
+
+
+def _per_reading(e: np.ndarray, vector: bool) -> np.ndarray:
+    return e.reshape(-1, 3).mean(axis=1) * np.sqrt(3) if vector else e
+
+
+def _smooth(z: np.ndarray) -> np.ndarray:
+    k = max(1, len(z) // 50)
+    return np.convolve(z, np.ones(k) / k, mode="same")
+
+
+def _save(fig, path: Path) -> Path:
+    fig.savefig(path, dpi=90, bbox_inches="tight")
+    import matplotlib.pyplot as plt
+
+    plt.close(fig)
+    return path
