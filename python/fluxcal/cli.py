@@ -183,7 +183,7 @@ def build_parser() -> argparse.ArgumentParser:
     g.add_argument("--units", default=None, help="units of the readings when the file does not say")
     g.add_argument("--field-norm", type=float, default=None, help="known |field| (default: fitted)")
     g.add_argument("--noise-sigma", type=float, default=None,
-                   help="white-noise σ of the readings (default: estimated from second differences)")
+                   help="white-noise σ of the readings (default: estimated from third differences)")
     g.add_argument("--candidates", default=None, help="comma-separated effect names (default: all)")
     g.add_argument("--alpha", type=float, default=0.01, help="significance level (default 0.01)")
     g.add_argument("--json", default=None, help="write the ranking and tables (JSON)")

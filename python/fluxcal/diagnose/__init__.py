@@ -7,16 +7,20 @@ it, and how far the gap shrinks once that effect is modelled — proved on held-
     result.save_json("out.json"); result.report("report_dir")
 
 1. Where: the base model's residuals, normalised by the noise (σ given, or estimated from second
-   differences of the readings, which a smooth motion does not disturb), broken down by orientation,
+   differences of the readings, which a smooth motion hardly disturbs), broken down by orientation,
    temperature, time and per axis, with a test per regime and a whiteness test over time.
 2. Which: every candidate effect of `fluxcal.sim.effects.CANDIDATES` (whose regressors the recording
    has) gets a score test at the base fit, a check that existing parameters do not absorb it, then a
-   refit of the augmented model (Ceres, `refine_terms`): likelihood-ratio statistic, ΔAIC, ΔBIC.
+   refit of the augmented model (Ceres, `refine_terms`): likelihood-ratio statistic, ΔAIC, ΔBIC. The
+   p-value comes from the likelihood ratio under the augmented fit's own noise model (an AR(p) of its
+   residuals whitens both fits), so slow correlated noise is not taken for a drift or a disturbance.
 3. How far: each candidate is fitted again without a held-out regime — the last quarter in time, the
-   hottest quarter, a cap of unseen orientations — and judged there: the gap √(RMS² − σ²) before and
-   after, and the downstream field-magnitude error. Effects are added greedily while the best one is
-   significant (likelihood ratio after a Bonferroni correction over the candidates, ΔBIC < 0, and a
-   held-out improvement that a block t-test finds significant). Systematic effects are tried before
+   hottest quarter, a cap of unseen orientations, or interleaved blocks of time for events — and judged
+   there: the gap √(RMS² − σ²) before and after, and the downstream errors (field; with reference
+   vectors the direction and, given the down direction, the heading). Effects are added greedily while
+   the best one is significant (whitened likelihood ratio after a Bonferroni correction over the
+   candidates and their alternatives, ΔBIC < 0, and a held-out improvement that a block t-test finds
+   significant). Systematic effects are tried before
    noise models: a systematic effect predicts unseen regimes, correlated noise only the next sample.
 """
 from .core import MODELS, Diagnosis, diagnose, estimate_noise

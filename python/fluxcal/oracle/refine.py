@@ -29,3 +29,19 @@ def refine(offset, matrix, field_norm, samples) -> dict:
     cov = sigma2 * np.linalg.inv(sol.jac.T @ sol.jac)
     return {"parameters": sol.x, "offset": sol.x[:3], "matrix": _matrix(sol.x), "covariance": cov,
             "noise_sigma": np.sqrt(sigma2)}
+
+
+def refine_terms(start, samples, features) -> np.ndarray:
+    """The magnitude model with extra terms (fluxcal._core.refine_terms): readings corrected by
+    m − Σ_j c_j f_j (features N × p × 3), then the Sampson residual; θ = [b, A (6), c]."""
+    m = np.asarray(samples, dtype=float)
+    f = np.asarray(features, dtype=float)
+    w, V = np.linalg.eigh(np.asarray(start.matrix).T @ np.asarray(start.matrix))
+    A = (V * np.sqrt(w)) @ V.T
+    theta0 = np.r_[start.offset, A[0, 0], A[0, 1], A[0, 2], A[1, 1], A[1, 2], A[2, 2], np.zeros(f.shape[1])]
+
+    def fun(theta):
+        return residuals(theta[:9], m - np.einsum("p,npk->nk", theta[9:], f), start.field_norm)
+
+    sol = least_squares(fun, theta0, method="lm", xtol=1e-15, ftol=1e-15, gtol=1e-15)
+    return sol.x

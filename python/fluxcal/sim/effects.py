@@ -11,7 +11,9 @@ and `truth`.
 Diagnosis: a class with a `name` is a candidate. `features(ctx)` returns its effect on the readings
 per unit coefficient, N × p × 3 (exact when the effect is linear in its parameters, first-order
 otherwise), computed from what the base fit estimates: `ctx.signal` (N×3, the raw readings: what the
-transducer saw — hard iron is a field and passes through it; electronic offsets are taken as small), `ctx.scale` (a typical |signal|), `ctx.direction` (N×3, the fitted
+transducer saw — hard iron is a field and passes through it; electronic offsets are taken as small),
+`ctx.field` (N×3, the field in the sensor frame: the calibrated readings or the reference), `ctx.W`
+(the fitted reading-from-field matrix), `ctx.scale` (a typical |signal|), `ctx.direction` (N×3, the fitted
 field direction mapped back to reading space, times H), and the regressors `ctx.t`, `ctx.temp`. A
 candidate with an unknown non-linear parameter (a switching time) returns several alternatives from
 `alternatives(ctx)`; the diagnosis takes the best and pays for the choice in its p-value. `regime` names
@@ -33,7 +35,9 @@ AXES = np.eye(3)
 
 class Effect:
     """Base class. `is_noise`: a random effect, left out of Simulation.clean (the noise-free readings).
-    Candidates set `name`, `regime` ("orientation", "temperature", "time"), `needs` (regressors)."""
+    Candidates set `name`, `regime` ("orientation", "temperature", "time", "events"), `needs` (regressors).
+    The regime names what the validation holds back: the quarter of the orientations, the hottest quarter,
+    the last quarter in time, or interleaved blocks of time (an event can be interpolated, not foretold)."""
 
     name = ""
     n_params = 0
@@ -53,19 +57,28 @@ class Effect:
         """Feature arrays to choose from (one unless the candidate has a non-linear parameter)."""
         return [cls.features(ctx)]
 
+    @classmethod
+    def search(cls, ctx, score):
+        """The alternative with the highest `score(features)`, and how many were tried (the multiple-
+        comparison correction counts them)."""
+        alternatives = cls.alternatives(ctx)
+        scores = [score(f) for f in alternatives]
+        return alternatives[int(np.argmax(scores))], len(alternatives)
+
 
 def _per_axis(columns: np.ndarray) -> np.ndarray:
     """N×3 columns → N × 3 × 3 features: term k moves axis k only."""
     return columns[:, :, None] * AXES[None, :, :]
 
 
-def _rate(values: np.ndarray, t: np.ndarray) -> np.ndarray:
-    """d(values)/dt, smoothed (Savitzky–Golay, ≈ 0.2 s window) so reading noise is not amplified."""
+def _smooth(values: np.ndarray, t: np.ndarray, deriv: int = 0) -> np.ndarray:
+    """The values (or their time derivative) smoothed by a Savitzky–Golay filter over ≈ 0.2 s, so that
+    reading noise is not amplified."""
     dt = float(np.median(np.diff(t))) if len(t) > 1 else 1.0
     window = max(5, int(round(0.2 / dt)) | 1)  # odd
     if window > len(values):
-        return np.gradient(values, t, axis=0)
-    return savgol_filter(values, window, 2, deriv=1, delta=dt, axis=0)
+        return np.gradient(values, t, axis=0) if deriv else values
+    return savgol_filter(values, window, 2, deriv=deriv, delta=dt, axis=0)
 
 
 # ---------------------------------------------------------------- linear model (the base, never candidates)
@@ -125,9 +138,10 @@ class NonOrthogonality(Effect):
 
     @classmethod
     def features(cls, ctx):
-        s = ctx.signal
+        # The axes lean in the field's frame: m = W (I + S) h + b with S symmetric off-diagonal.
+        u, W = ctx.field, ctx.W
         pairs = [(0, 1), (0, 2), (1, 2)]
-        return np.stack([s[:, [k]] * AXES[j] + s[:, [j]] * AXES[k] for j, k in pairs], axis=1)
+        return np.stack([(u[:, [k]] * AXES[j] + u[:, [j]] * AXES[k]) @ W.T for j, k in pairs], axis=1)
 
     @classmethod
     def typical(cls, field_norm, rng):
@@ -149,7 +163,7 @@ class Misalignment(Effect):
 
     @classmethod
     def features(cls, ctx):
-        return np.stack([np.cross(AXES[k], ctx.signal) for k in range(3)], axis=1)
+        return np.stack([np.cross(AXES[k], ctx.field) @ ctx.W.T for k in range(3)], axis=1)
 
     @classmethod
     def typical(cls, field_norm, rng):
@@ -243,19 +257,20 @@ class Hysteresis(Effect):
     def apply(self, values, context):
         return _play(values, np.asarray(self.width, dtype=float))
 
+    WIDTHS = (0.0005, 0.001, 0.002, 0.004, 0.008)  # trial widths, fractions of the field
+
+    @classmethod
+    def alternatives(cls, ctx):
+        # The reading lags by up to the width: feature = (play(s, w) − s)/w per axis, for trial widths w
+        # (the coefficient then scales the width); the diagnosis keeps the best-scoring width.
+        widths = np.asarray(cls.WIDTHS) * ctx.scale
+        smooth = _smooth(ctx.signal, ctx.t)  # the play operator would follow the reading noise
+        played = _play(np.repeat(smooth[:, None, :], len(widths), axis=1), widths[:, None])
+        return [_per_axis((played[:, j] - smooth) / w) for j, w in enumerate(widths)]
+
     @classmethod
     def features(cls, ctx):
-        # Direction of the last move of each axis, from the smoothed signal: +1 rising, −1 falling. A
-        # lagging output reads below a rising input, so the reading moves by −width · direction.
-        rate = _rate(ctx.signal, ctx.t)
-        moving = np.abs(rate) > 0.05 * np.std(rate, axis=0)
-        direction = np.where(moving, np.sign(rate), np.nan)
-        for k in range(3):  # hold the last direction while the axis is still
-            col = direction[:, k]
-            idx = np.where(~np.isnan(col), np.arange(len(col)), 0)
-            np.maximum.accumulate(idx, out=idx)
-            direction[:, k] = np.nan_to_num(col[idx])
-        return _per_axis(-direction)
+        return cls.alternatives(ctx)[2]
 
     @classmethod
     def typical(cls, field_norm, rng):
@@ -357,11 +372,11 @@ class MovingDipole(Effect):
     """A nearby magnet that moves or switches: a dipole of moment `moment` (reading units × m³, μ0/4π
     folded in) on at `t_on`…`t_off`, moving from `start` to `end` (m, world frame, relative to the
     sensor) meanwhile. Its field is added in the world frame and turned into the sensor frame.
-    Typical: a tool or phone passing 0.3 m away, 1–2 % of the Earth's field.
+    Typical: a tool or phone passing 0.25 m away, 3–12 % of the Earth's field.
 
     As a candidate: while the disturbance is on, the total field's magnitude changes (what a magnitude
-    model sees): a level and a slope (the magnet moving) within a box in time whose edges are chosen
-    from a grid of GRID + 1 times."""
+    model sees): a level, a slope and a curvature (the magnet moving; its field falls as 1/r³) within a
+    box in time whose edges are scanned on a grid of GRID + 1 times, then refined to the sample."""
 
     moment: np.ndarray
     start: np.ndarray
@@ -369,10 +384,11 @@ class MovingDipole(Effect):
     t_on: float
     t_off: float
     name = "moving_dipole"
-    n_params = 2
-    regime = "time"
+    n_params = 3
+    regime = "events"
     needs = ("t",)
     GRID = 32  # box edges scanned: every pair of GRID + 1 equally spaced times
+    FINE = 4   # refinement: 2·FINE + 1 positions of an edge per level, each level FINE times finer
 
     def apply(self, values, context):
         t = context.t
@@ -386,17 +402,43 @@ class MovingDipole(Effect):
         return values + context.rotations.inv().apply(world)
 
     @classmethod
-    def alternatives(cls, ctx):
+    def _coarse_edges(cls, ctx):
         edges = np.quantile(ctx.t, np.linspace(0, 1, cls.GRID + 1))
-        out = []
-        for a in range(cls.GRID):
-            for b in range(a + 1, cls.GRID + 1):
-                if a == 0 and b == cls.GRID:
-                    continue  # on throughout = a different field norm, not a disturbance
-                on = (ctx.t >= edges[a]) & (ctx.t <= edges[b])
-                ramp = np.where(on, (ctx.t - 0.5 * (edges[a] + edges[b])) / (edges[b] - edges[a]), 0.0)
-                out.append(np.stack([on * 1.0, ramp], axis=1)[:, :, None] * ctx.direction[:, None, :])
-        return out
+        return [(edges[a], edges[b]) for a in range(cls.GRID) for b in range(a + 1, cls.GRID + 1)
+                if not (a == 0 and b == cls.GRID)]  # on throughout = a different field norm, not a disturbance
+
+    @staticmethod
+    def _box(ctx, t_on, t_off):
+        on = (ctx.t >= t_on) & (ctx.t <= t_off)
+        u = np.where(on, 2 * (ctx.t - 0.5 * (t_on + t_off)) / (t_off - t_on), 0.0)  # −1…1 across the box
+        return np.stack([on * 1.0, u, on * (u ** 2 - 1 / 3)], axis=1)[:, :, None] * ctx.direction[:, None, :]
+
+    @classmethod
+    def alternatives(cls, ctx):
+        return [cls._box(ctx, a, b) for a, b in cls._coarse_edges(ctx)]
+
+    @classmethod
+    def search(cls, ctx, score):
+        """Coarse scan of the box edges, then each edge refined in turn on ever finer grids down to the
+        sample spacing (a misplaced edge of a step leaves large residuals)."""
+        coarse = cls._coarse_edges(ctx)
+        scores = [score(cls._box(ctx, a, b)) for a, b in coarse]
+        edges, best, tried = list(coarse[int(np.argmax(scores))]), max(scores), len(coarse)
+        dt = float(np.median(np.diff(np.sort(ctx.t)))) if len(ctx.t) > 1 else 1.0
+        width = np.ptp(ctx.t) / cls.GRID
+        while width > dt / 2:
+            for side in (0, 1):
+                for x in np.linspace(edges[side] - width, edges[side] + width, 2 * cls.FINE + 1):
+                    trial = list(edges)
+                    trial[side] = x
+                    if trial[1] - trial[0] < 4 * dt:
+                        continue
+                    value = score(cls._box(ctx, *trial))
+                    tried += 1
+                    if value > best:
+                        best, edges = value, trial
+            width /= cls.FINE
+        return cls._box(ctx, *edges), tried
 
     @classmethod
     def features(cls, ctx):
@@ -406,8 +448,8 @@ class MovingDipole(Effect):
     def typical(cls, field_norm, rng, duration_s: float = 60.0):
         direction = rng.standard_normal(3)
         direction /= np.linalg.norm(direction)
-        distance = 0.3
-        moment = field_norm * rng.uniform(0.02, 0.04) * distance ** 3 * direction
+        distance = 0.25
+        moment = field_norm * rng.uniform(0.03, 0.06) * distance ** 3 * direction
         t_on = duration_s * rng.uniform(0.2, 0.35)
         start = distance * np.array([1.0, 0.0, 0.0])
         end = distance * np.array([0.8, 0.6, 0.0])
@@ -432,7 +474,7 @@ class EddyCurrent(Effect):
 
     @classmethod
     def features(cls, ctx):
-        return _per_axis(-_rate(ctx.signal, ctx.t))
+        return _per_axis(-_smooth(ctx.signal, ctx.t, deriv=1))
 
     @classmethod
     def typical(cls, field_norm, rng):
@@ -472,6 +514,10 @@ class ColoredNoise(Effect):
     regime = "time"
     needs = ("t",)
 
+    @classmethod
+    def typical(cls, field_norm, rng):
+        return cls(field_norm * rng.uniform(0.001, 0.002), phi=rng.uniform(0.97, 0.99))
+
     def apply(self, values, context):
         n = len(values)
         white = context.rng.standard_normal(values.shape)
@@ -486,13 +532,18 @@ class ColoredNoise(Effect):
 
 @dataclass
 class Quantization(Effect):
-    """An ADC: readings rounded to multiples of `step` (1 LSB). Typical: HMC5883L 0.92 mG/LSB at ±1.3 G
-    (0.2 % of the Earth's field), QMC5883L 0.083 mG/LSB."""
+    """An ADC: readings rounded to multiples of `step` (1 LSB). HMC5883L: 0.92 mG/LSB at ±1.3 G (0.2 % of
+    the Earth's field); typical here 0.2–0.4 % of the field, several times the white noise of a
+    low-noise sensor read through a coarse ADC."""
 
     step: float
     name = "quantization"
     n_params = 1
     is_noise = True
+
+    @classmethod
+    def typical(cls, field_norm, rng):
+        return cls(field_norm * rng.uniform(0.002, 0.004))  # a low-noise sensor on a coarse ADC
 
     def apply(self, values, context):
         return self.step * np.round(values / self.step)

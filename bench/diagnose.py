@@ -1,0 +1,91 @@
+"""The sim-to-real diagnosis on every real recording, and its blind record on withheld-effect simulations.
+
+    .venv/bin/python bench/diagnose.py --real ../shared/data/real          # real recordings
+    .venv/bin/python bench/diagnose.py --trials 10                          # withheld-effect table
+    .venv/bin/python bench/diagnose.py --timing                             # 20 000 readings, all candidates
+
+Prints Markdown tables for bench/RESULTS.md.
+"""
+from __future__ import annotations
+
+import argparse
+import time
+from pathlib import Path
+
+import numpy as np
+
+import fluxcal
+from fluxcal import attitude
+from fluxcal.diagnose import diagnose
+from fluxcal.sim.effects import CANDIDATES
+from fluxcal.sim.withheld import withheld_trial
+
+
+def real(folder: Path):
+    sets = [("phone_acc_mag.csv", None, {}), ("handheld_set1.csv", "x,y,z", {"field_norm": 0.47})]
+    print("| recording | model | readings | noise σ (est.) | base gap | found (in order) | top candidates: ΔBIC, held-out gap before → after |")
+    print("|---|---|---:|---:|---:|---|---|")
+    for name, cols, kw in sets:
+        rec = fluxcal.read_csv(folder / name, columns=cols)
+        t0 = time.perf_counter()
+        d = diagnose(rec, **kw)
+        _row(name, d, time.perf_counter() - t0)
+    q = np.loadtxt(folder / "qmc5883l_filtered.csv", delimiter=",", skiprows=3)  # Fs 50 Hz, 60 s static first
+    t0 = time.perf_counter()
+    d = diagnose(q, t=np.arange(len(q)) / 50.0, units="counts", source="qmc5883l_filtered.csv")
+    _row("qmc5883l_filtered.csv", d, time.perf_counter() - t0)
+    a = np.loadtxt(folder / "airborne_flt1002_02.tsv")
+    ref = attitude.reference_vectors(a[:, 7:10], a[:, 4], a[:, 5], a[:, 6])
+    t0 = time.perf_counter()
+    down = attitude.reference_vectors([0.0, 0.0, 1.0], a[:, 4], a[:, 5], a[:, 6])
+    d = diagnose(a[:, 1:4], t=a[:, 0], reference=ref, gravity=down, units="nT", source="airborne_flt1002_02.tsv")
+    _row("airborne_flt1002_02.tsv", d, time.perf_counter() - t0)
+
+
+def _row(name, d, seconds):
+    top = "; ".join(f"{r['effect']} {r['delta_bic']:.0f}, {_g(r.get('heldout_gap_before'))} → {_g(r.get('heldout_gap_after'))}"
+                    for r in d.ranking[:3])
+    print(f"| {name} | {d.model} | {d.where['overall']['n']} | {d.noise_sigma:.3g} | {d.where['overall']['gap']:.3g} | "
+          f"{', '.join(d.accepted) or 'nothing'} | {top} |  ({seconds:.1f} s)")
+
+
+def _g(x):
+    return "—" if x is None else f"{x:.3g}"
+
+
+def trials(n: int):
+    print("| withheld effect | base model | ranked first & significant | held-out gap shrink (median, min) | s/trial |")
+    print("|---|---|---:|---:|---:|")
+    for cls in CANDIDATES:
+        hits, shrink, t0 = 0, [], time.perf_counter()
+        for seed in range(n):
+            r, kw = withheld_trial([cls.name], seed)
+            top = diagnose(r.readings, **kw).ranking[0]
+            if top["effect"] == cls.name and top["significant"]:
+                hits += 1
+                shrink.append(1 - top["heldout_gap_after"] / top["heldout_gap_before"])
+        med = f"{np.median(shrink):.2f}, {np.min(shrink):.2f}" if shrink else "—"
+        print(f"| {cls.name} | {kw['model']} | {hits}/{n} | {med} | {(time.perf_counter() - t0) / n:.1f} |")
+    quiet = sum(not diagnose(r.readings, **kw).significant for r, kw in (withheld_trial([], 200 + s) for s in range(2 * n)))
+    print(f"| (nothing withheld) | ellipsoid | {quiet}/{2 * n} report nothing | — | — |")
+
+
+def timing():
+    r, kw = withheld_trial(["temp_scale"], 1, duration_s=400.0)  # 20 000 readings
+    t0 = time.perf_counter()
+    d = diagnose(r.readings, **kw, progress=True)
+    print(f"{len(r.readings)} readings, {len(d.ranking)} candidates: {time.perf_counter() - t0:.1f} s; found {d.accepted}")
+
+
+if __name__ == "__main__":
+    p = argparse.ArgumentParser()
+    p.add_argument("--real", type=Path)
+    p.add_argument("--trials", type=int)
+    p.add_argument("--timing", action="store_true")
+    args = p.parse_args()
+    if args.real:
+        real(args.real)
+    if args.trials:
+        trials(args.trials)
+    if args.timing:
+        timing()

@@ -1,0 +1,116 @@
+"""The sim-to-real diagnosis, checked blind on simulations with withheld effects (fluxcal.sim.withheld):
+the diagnosis sees only readings, time and temperature; candidates are fitted, never looked up."""
+import json
+
+import numpy as np
+import pytest
+from conftest import run_cli
+
+import fluxcal
+from fluxcal.diagnose import diagnose, estimate_noise
+from fluxcal.oracle.refine import refine_terms as oracle_refine_terms
+from fluxcal.sim.effects import CANDIDATES
+from fluxcal.sim.withheld import withheld_trial
+
+TRIALS = 10
+EFFECTS = [c.name for c in CANDIDATES]
+
+
+def _run(names, seed):
+    result, kwargs = withheld_trial(names, seed)
+    return diagnose(result.readings, **kwargs)
+
+
+@pytest.mark.parametrize("name", EFFECTS)
+def test_withheld_effect_ranks_first_and_closes_the_gap(name):
+    hits, shrinks = 0, []
+    for seed in range(TRIALS):
+        top = _run([name], seed).ranking[0]
+        if top["effect"] == name and top["significant"]:
+            hits += 1
+            shrinks.append(1 - top["heldout_gap_after"] / top["heldout_gap_before"])
+    assert hits >= 0.9 * TRIALS, f"{name} ranked first and significant in {hits}/{TRIALS}"
+    assert np.median(shrinks) >= 0.7, f"{name}: held-out gap shrinks {np.round(shrinks, 2)}"
+
+
+@pytest.mark.parametrize("pair", [("temp_offset", "nonlinearity_cubic"), ("offset_drift", "cross_axis"),
+                                  ("temp_scale", "hysteresis")])
+def test_two_withheld_effects_are_both_found(pair):
+    found = sum(set(pair) <= set(_run(list(pair), 100 + seed).accepted) for seed in range(5))
+    assert found >= 4, f"{pair} both found in {found}/5"
+
+
+def test_nothing_withheld_reports_nothing():
+    quiet = sum(not _run([], 200 + seed).significant for seed in range(20))
+    assert quiet >= 19, f"no significant effect in only {quiet}/20"
+
+
+def test_downstream_heading_error_with_an_accelerometer():
+    # A misaligned sensor against reference vectors: modelling the misalignment must bring the held-out
+    # heading error (horizontal projections of h and r, about the down direction) down with the field error.
+    for seed in range(3):
+        top = _run(["misalignment"], seed).ranking[0]
+        assert top["effect"] == "misalignment"
+        assert top["heading_error_deg_before"] > 1.0
+        assert top["heading_error_deg_after"] < 0.25 * top["heading_error_deg_before"]
+        assert top["direction_error_deg_after"] < 0.25 * top["direction_error_deg_before"]
+        assert top["field_error_after"] < 0.25 * top["field_error_before"]
+
+
+def test_noise_estimate_from_third_differences():
+    result, _ = withheld_trial([], 7)
+    assert estimate_noise(result.readings) == pytest.approx(0.05, rel=0.05)
+
+
+def test_refine_terms_matches_scipy_oracle():
+    result, kwargs = withheld_trial(["temp_offset"], 3)
+    m = result.readings[:800]
+    temp = kwargs["temp"][:800]
+    feats = np.zeros((len(m), 3, 3))
+    for k in range(3):
+        feats[:, k, k] = temp - temp.mean()
+    start = fluxcal.calibrate(m, field_norm=50.0)
+    got = fluxcal._core.refine_terms(start.offset, start.matrix, 50.0, "", np.ascontiguousarray(m),
+                                     feats.reshape(len(m), 9), np.zeros(3), [], fluxcal._core.RefineOptions(), None)
+    want = oracle_refine_terms(start, m, feats)
+    np.testing.assert_allclose(got["parameters"], want, rtol=0, atol=1e-7 * np.abs(want).max())
+    # a fixed parameter stays at its start value
+    fixed = fluxcal._core.refine_terms(start.offset, start.matrix, 50.0, "", np.ascontiguousarray(m),
+                                       feats.reshape(len(m), 9), np.zeros(3), ["a01"], fluxcal._core.RefineOptions(),
+                                       None)
+    assert fixed["parameters"][4] == pytest.approx(start.matrix[0, 1], abs=1e-12)
+
+
+def test_cli_diagnose_writes_json_and_report(tmp_path):
+    result, kwargs = withheld_trial(["temp_offset"], 11)
+    m = result.readings
+    path = fluxcal.write_csv(tmp_path / "rec.csv", {"t": result.t, "temp": kwargs["temp"], "mx": m[:, 0],
+                                                   "my": m[:, 1], "mz": m[:, 2]}, units={"mx": "uT", "my": "uT", "mz": "uT"})
+    out = run_cli("diagnose", str(path), "--json", str(tmp_path / "out.json"), "--report", str(tmp_path / "rep"),
+                  "--quiet")
+    assert out.returncode == 0, out.stderr
+    d = json.loads((tmp_path / "out.json").read_text())
+    assert d["significant"] is True
+    top = d["ranking"][0]
+    assert top["effect"] == "temp_offset"
+    for key in ("delta_bic", "lr_pvalue", "heldout_gap_before", "heldout_gap_after"):
+        assert isinstance(top[key], float)
+    assert top["heldout_gap_after"] < 0.3 * top["heldout_gap_before"]
+    assert (tmp_path / "rep" / "index.html").exists() and (tmp_path / "rep" / "orientation.png").exists()
+
+
+def test_bad_input_is_a_clear_error():
+    with pytest.raises(ValueError, match="at least 50"):
+        diagnose(np.random.default_rng(0).standard_normal((20, 3)))
+    result, kwargs = withheld_trial([], 1)
+    with pytest.raises(ValueError, match="unknown effect"):
+        diagnose(result.readings, candidates=["gremlins"], **kwargs)
+    with pytest.raises(ValueError, match="reference"):
+        diagnose(np.random.default_rng(0).standard_normal((100, 3)), model="vector")
+
+
+@pytest.mark.parametrize("name", ["phone_acc_mag.csv", "handheld_set1.csv"])
+def test_real_recordings_run(real_data, name):
+    rec = fluxcal.read_csv(real_data / name, columns="x,y,z" if name.startswith("handheld") else None)
+    d = diagnose(rec)
+    assert d.ranking and all(np.isfinite(r["delta_bic"]) for r in d.ranking)
