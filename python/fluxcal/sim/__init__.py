@@ -11,3 +11,4 @@ from .simulate import Simulation, simulate
 
 __all__ = ["Effect", "HardIron", "SoftIron", "WhiteNoise", "random_sensor", "Scene", "sweeps", "uniform",
            "Simulation", "simulate"]
+from .positions import Accelerometer, PositionsScene, PositionsSimulation, paper_sensor, random_scene, simulate_positions, twelve_scene  # noqa: E402,F401
