@@ -99,38 +99,111 @@ struct TiltPrior {
   }
 };
 
-// Statistics shared by the linear and the joint fit: σ̂, covariance σ̂²(JᵀJ)⁻¹ through an
-// eigen-decomposition of the column-scaled JᵀJ (near-null directions → +inf, undetermined).
-void finish_statistics(PositionsResult& r, const Eigen::MatrixXd& J, const Eigen::VectorXd& scales,
-                       double tolerance) {
+// Pseudo-inverse of a symmetric positive semi-definite matrix by eigen-decomposition; marks the
+// coordinates that take part in a near-null direction (relative eigenvalue < 1e-14).
+Eigen::MatrixXd spd_pinv(const Eigen::MatrixXd& M, std::vector<bool>& null_coord, double* condition = nullptr) {
+  const Eigen::Index n = M.rows();
+  null_coord.assign(static_cast<std::size_t>(n), false);
+  if (n == 0) return M;
+  Eigen::SelfAdjointEigenSolver<Eigen::MatrixXd> eig(M);
+  const Eigen::VectorXd ev = eig.eigenvalues();
+  const double evmax = std::max(ev.maxCoeff(), 0.0), floor = evmax * 1e-14;
+  if (condition)
+    *condition = ev.minCoeff() > 0 ? std::sqrt(evmax / ev.minCoeff()) : std::numeric_limits<double>::infinity();
+  Eigen::VectorXd inv = Eigen::VectorXd::Zero(n);
+  for (Eigen::Index i = 0; i < n; ++i) {
+    if (ev(i) > floor && ev(i) > 0) {
+      inv(i) = 1.0 / ev(i);
+    } else {
+      for (Eigen::Index j = 0; j < n; ++j)
+        if (std::abs(eig.eigenvectors()(j, i)) > 1e-3) null_coord[static_cast<std::size_t>(j)] = true;
+    }
+  }
+  return eig.eigenvectors() * inv.asDiagonal() * eig.eigenvectors().transpose();
+}
+
+// Statistics shared by the linear and the joint fit: σ̂ and the covariance σ̂²(JᵀJ)⁻¹ of the
+// column-scaled Jacobian (near-null directions → +inf, undetermined). `local[j]` ≥ 0 marks parameter j
+// as belonging to position local[j] only (heading, levelling correction): those are eliminated by the
+// Schur complement, so the cost is O(N) in the number of positions instead of O(N³).
+void finish_statistics(PositionsResult& r, const Eigen::MatrixXd& J, const Eigen::VectorXd& scales, double tolerance,
+                       const std::vector<int>& local = {}) {
   const Eigen::Index p = J.cols(), m = J.rows();
   const double ssr = r.residuals.squaredNorm();
   r.noise_sigma = m > p ? std::sqrt(ssr / static_cast<double>(m - p)) : 0.0;
   Eigen::VectorXd colnorm = J.colwise().norm().transpose();
   for (Eigen::Index j = 0; j < p; ++j) colnorm(j) = colnorm(j) > 0 ? colnorm(j) : 1.0;
   const Eigen::MatrixXd Js = J * colnorm.cwiseInverse().asDiagonal();
-  Eigen::SelfAdjointEigenSolver<Eigen::MatrixXd> eig(Js.transpose() * Js);
-  const Eigen::VectorXd ev = eig.eigenvalues();
-  const double evmax = ev.maxCoeff();
-  const double floor = evmax * 1e-14;
-  r.summary.condition_number = ev.minCoeff() > 0 ? std::sqrt(evmax / ev.minCoeff()) : std::numeric_limits<double>::infinity();
-  Eigen::VectorXd inv = Eigen::VectorXd::Zero(p);
+  std::vector<Eigen::Index> global;
+  int groups = 0;
+  for (Eigen::Index j = 0; j < p; ++j) {
+    const int g = local.empty() ? -1 : local[static_cast<std::size_t>(j)];
+    if (g < 0) global.push_back(j);
+    groups = std::max(groups, g + 1);
+  }
+  std::vector<std::vector<Eigen::Index>> cols(static_cast<std::size_t>(groups)), rows(static_cast<std::size_t>(groups));
+  for (Eigen::Index j = 0; j < p; ++j)
+    if (!local.empty() && local[static_cast<std::size_t>(j)] >= 0) cols[static_cast<std::size_t>(local[static_cast<std::size_t>(j)])].push_back(j);
+  for (Eigen::Index i = 0; i < m; ++i)
+    for (int g = 0; g < groups; ++g)
+      for (Eigen::Index j : cols[static_cast<std::size_t>(g)])
+        if (Js(i, j) != 0.0) {
+          rows[static_cast<std::size_t>(g)].push_back(i);
+          break;
+        }
+  const Eigen::Index ng = static_cast<Eigen::Index>(global.size());
+  Eigen::MatrixXd JG(m, ng);
+  for (Eigen::Index c = 0; c < ng; ++c) JG.col(c) = Js.col(global[static_cast<std::size_t>(c)]);
+  Eigen::MatrixXd S = JG.transpose() * JG;
+  std::vector<Eigen::MatrixXd> Cinv(static_cast<std::size_t>(groups)), B(static_cast<std::size_t>(groups));
+  std::vector<std::vector<bool>> null_local(static_cast<std::size_t>(groups));
+  for (int g = 0; g < groups; ++g) {
+    const auto& R = rows[static_cast<std::size_t>(g)];
+    const auto& L = cols[static_cast<std::size_t>(g)];
+    Eigen::MatrixXd JL(R.size(), L.size()), JGr(R.size(), ng);
+    for (std::size_t a = 0; a < R.size(); ++a) {
+      for (std::size_t c = 0; c < L.size(); ++c) JL(static_cast<Eigen::Index>(a), static_cast<Eigen::Index>(c)) = Js(R[a], L[c]);
+      JGr.row(static_cast<Eigen::Index>(a)) = JG.row(R[a]);
+    }
+    Cinv[static_cast<std::size_t>(g)] = spd_pinv(JL.transpose() * JL, null_local[static_cast<std::size_t>(g)]);
+    B[static_cast<std::size_t>(g)] = JGr.transpose() * JL;
+    S -= B[static_cast<std::size_t>(g)] * Cinv[static_cast<std::size_t>(g)] * B[static_cast<std::size_t>(g)].transpose();
+  }
+  std::vector<bool> null_global;
+  double condition = 0.0;
+  const Eigen::MatrixXd Sinv = spd_pinv(0.5 * (S + S.transpose()), null_global, &condition);
+  r.summary.condition_number = condition;
+  Eigen::VectorXd var(p);
   std::vector<bool> null_dir(static_cast<std::size_t>(p), false);
-  for (Eigen::Index i = 0; i < p; ++i) {
-    if (ev(i) > floor) {
-      inv(i) = 1.0 / ev(i);
-    } else {
-      for (Eigen::Index j = 0; j < p; ++j)
-        if (std::abs(eig.eigenvectors()(j, i)) > 1e-3) null_dir[static_cast<std::size_t>(j)] = true;
+  for (Eigen::Index c = 0; c < ng; ++c) {
+    var(global[static_cast<std::size_t>(c)]) = Sinv(c, c);
+    null_dir[static_cast<std::size_t>(global[static_cast<std::size_t>(c)])] = null_global[static_cast<std::size_t>(c)];
+  }
+  bool any_null_global = false;
+  for (bool b : null_global) any_null_global = any_null_global || b;
+  for (int g = 0; g < groups; ++g) {
+    const Eigen::MatrixXd& Ci = Cinv[static_cast<std::size_t>(g)];
+    const Eigen::MatrixXd V = Ci + Ci * B[static_cast<std::size_t>(g)].transpose() * Sinv * B[static_cast<std::size_t>(g)] * Ci;
+    const auto& L = cols[static_cast<std::size_t>(g)];
+    for (std::size_t c = 0; c < L.size(); ++c) {
+      var(L[c]) = V(static_cast<Eigen::Index>(c), static_cast<Eigen::Index>(c));
+      // A local parameter is undetermined if its own block is singular, or if it couples to an
+      // undetermined global direction.
+      bool null = null_local[static_cast<std::size_t>(g)][c];
+      if (any_null_global) {
+        const Eigen::VectorXd coupling = (Ci * B[static_cast<std::size_t>(g)].transpose()).row(static_cast<Eigen::Index>(c));
+        for (Eigen::Index k = 0; k < ng; ++k)
+          if (null_global[static_cast<std::size_t>(k)] && std::abs(coupling(k)) > 1e-6) null = true;
+      }
+      null_dir[static_cast<std::size_t>(L[c])] = null;
     }
   }
-  const Eigen::MatrixXd cov_s = eig.eigenvectors() * inv.asDiagonal() * eig.eigenvectors().transpose();
   r.standard_errors.resize(p);
   r.determined.assign(static_cast<std::size_t>(p), true);
   for (Eigen::Index j = 0; j < p; ++j) {
     const bool null = null_dir[static_cast<std::size_t>(j)];
     r.standard_errors(j) = null ? std::numeric_limits<double>::infinity()
-                                : r.noise_sigma * std::sqrt(std::max(cov_s(j, j), 0.0)) / colnorm(j);
+                                : r.noise_sigma * std::sqrt(std::max(var(j), 0.0)) / colnorm(j);
     r.determined[static_cast<std::size_t>(j)] = !null && r.standard_errors(j) <= tolerance * scales(j);
   }
 }
@@ -491,13 +564,30 @@ PositionsResult calibrate_positions(const SamplesRef& outputs, const SamplesRef&
     for (auto& y : yp) problem.SetParameterBlockConstant(&y);
   if (!options.estimate_inclination) problem.SetParameterBlockConstant(&inclination);
   ceres::Solver::Options so;
-  so.linear_solver_type = ceres::DENSE_QR;
+  // Per-position parameters (heading, levelling correction) are eliminated first (Schur complement,
+  // as for points in bundle adjustment): the reduced system has only U0, K and the dip.
+  so.linear_solver_type = ceres::DENSE_SCHUR;
   so.max_num_iterations = options.max_iterations;
   so.function_tolerance = 1e-15;
   so.gradient_tolerance = 1e-15;
   so.parameter_tolerance = 1e-13;
   so.num_threads = 1;
   ceres::Solver::Summary summary;
+  // A fresh ordering for every solve: Ceres drops constant blocks from the ordering it is given.
+  auto solve = [&]() {
+    auto ordering = std::make_shared<ceres::ParameterBlockOrdering>();
+    // The eliminated group must be an independent set (no two of its blocks in one residual): the
+    // headings, or with levelling corrections the tilts (then the headings join the reduced system).
+    for (Eigen::Index i = 0; i < n; ++i) {
+      ordering->AddElementToGroup(&yp[static_cast<std::size_t>(i)], with_tilt ? 1 : 0);
+      ordering->AddElementToGroup(&tp[static_cast<std::size_t>(2 * i)], with_tilt ? 0 : 1);
+    }
+    ordering->AddElementToGroup(u0p, 1);
+    ordering->AddElementToGroup(kp, 1);
+    ordering->AddElementToGroup(&inclination, 1);
+    so.linear_solver_ordering = ordering;
+    ceres::Solve(so, &problem, &summary);
+  };
   const Eigen::Index free_params = 12 + (options.estimate_yaw ? n : 0) + (options.estimate_inclination ? 1 : 0);
   const double dof = static_cast<double>(std::max<Eigen::Index>(3 * n - free_params, 1));
   auto output_residual_ss = [&]() {
@@ -523,17 +613,17 @@ PositionsResult calibrate_positions(const SamplesRef& outputs, const SamplesRef&
         if (pass == 0) {
           for (auto& t : tp) t = 0.0;
           for (Eigen::Index i = 0; i < n; ++i) problem.SetParameterBlockConstant(&tp[static_cast<std::size_t>(2 * i)]);
-          ceres::Solve(so, &problem, &summary);
+          solve();
           for (Eigen::Index i = 0; i < n; ++i) problem.SetParameterBlockVariable(&tp[static_cast<std::size_t>(2 * i)]);
         }
         sigma_out = std::sqrt(output_residual_ss() / dof);
       }
       prior_weight = std::max(sigma_out, 1e-12 * field.norm()) / sigma_tilt;
-      ceres::Solve(so, &problem, &summary);
+      solve();
       if (options.output_sigma > 0.0) break;
     }
   } else {
-    ceres::Solve(so, &problem, &summary);
+    solve();
   }
 
   PositionsResult r;
@@ -600,7 +690,13 @@ PositionsResult calibrate_positions(const SamplesRef& outputs, const SamplesRef&
   const double out_scale = std::sqrt(Eigen::MatrixXd(outputs).squaredNorm() / static_cast<double>(n));
   scales << Eigen::Vector3d::Constant(out_scale), Eigen::VectorXd::Constant(9, r.K.diagonal().cwiseAbs().mean()),
       Eigen::VectorXd::Constant(p - 12, kPi);
-  finish_statistics(r, J, scales, options.determined_tolerance);
+  std::vector<int> local(static_cast<std::size_t>(p), -1);
+  for (Eigen::Index j = 12; j < p; ++j) {
+    const std::string& name = r.parameter_names[static_cast<std::size_t>(j)];
+    if (name.rfind("yaw_", 0) == 0 || name.rfind("tilt_", 0) == 0)
+      local[static_cast<std::size_t>(j)] = std::stoi(name.substr(name.find('_') + 1));
+  }
+  finish_statistics(r, J, scales, options.determined_tolerance, local);
   std::vector<std::string> unobservable;
   for (Eigen::Index j = 0; j < p; ++j)
     if (!std::isfinite(r.standard_errors(j))) unobservable.push_back(r.parameter_names[static_cast<std::size_t>(j)]);

@@ -146,6 +146,7 @@ def test_heading_errors_estimated_jointly():
     s = sim.simulate_positions(scene, PAPER_FIELD, noise=0.45, accelerometer=acc, rng=rng)
     fixed = fp.calibrate(s.outputs, s.acc_raw, PAPER_FIELD, frame="nue", rotations=scene.nominal)
     joint = fp.calibrate(s.outputs, s.acc_raw, PAPER_FIELD, frame="nue", rotations=scene.nominal, estimate_yaw=True)
+    assert joint.summary["converged"] and not joint.summary["warnings"]
     err = lambda r: np.abs(r.K - K_TRUE).max() / K_SCALE  # noqa: E731
     assert err(joint) < 2e-3 < err(fixed)
     assert np.abs(joint.offset - U0_TRUE).max() / K_SCALE < 10
@@ -257,6 +258,7 @@ def test_sap6_against_makers_calibration(real_data, unit):
     start = fp.reference_field(total=cfg["mag"]["field_avg"], inclination=60.0)
     res = fp.calibrate(mag_frd, sf, start, frame="ned", estimate_inclination=True, units="uT",
                        gravity_tolerance=0.1, tilt_sigma_deg=acc_cal.tilt_error_deg)
+    assert res.summary["converged"], res.summary["warnings"]
     rep = res.verify(mag_frd, sf)
     ours_rel_std = rep["field_magnitude_std"] / rep["field_magnitude_mean"]
     assert ours_rel_std <= maker_rel_std
