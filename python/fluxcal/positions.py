@@ -92,11 +92,26 @@ def igrf_field(lat: float, lon: float, alt_km: float = 0.0, date=None) -> np.nda
         date = _dt.datetime(date.year, date.month, date.day)
     if not (-90.0 <= lat <= 90.0) or not np.isfinite(lon):
         raise ValueError(f"lat/lon: ({lat}, {lon}) is not a place on Earth")
+    # ppigrf returns NaN before its first epoch and silently holds the last secular variation after the
+    # model's end (printing a warning): refuse both rather than return a wrong field.
+    try:
+        from ppigrf.ppigrf import read_shc
+
+        epochs = read_shc()[0].index
+        first, last = epochs[0].to_pydatetime(), epochs[-1].to_pydatetime()
+    except Exception:  # a ppigrf without read_shc: fall back to IGRF-14's validity
+        first, last = _dt.datetime(1900, 1, 1), _dt.datetime(2030, 1, 1)
+    if not (first <= date <= last):
+        raise ValueError(f"date: {date:%Y-%m-%d} is outside the IGRF model of ppigrf ({first:%Y-%m-%d} to "
+                         f"{last:%Y-%m-%d}); give the field directly (--field N,E,D or total/inclination)")
     try:
         be, bn, bu = ppigrf.igrf(lon, lat, alt_km, date)
     except Exception as exc:  # ppigrf raises plain exceptions for dates outside its model
         raise ValueError(f"IGRF (ppigrf) cannot evaluate {date:%Y-%m-%d}: {exc}") from None
-    return np.array([float(np.squeeze(bn)), float(np.squeeze(be)), -float(np.squeeze(bu))])
+    f = np.array([float(np.squeeze(bn)), float(np.squeeze(be)), -float(np.squeeze(bu))])
+    if not np.all(np.isfinite(f)):
+        raise ValueError(f"IGRF (ppigrf) gave no finite field at ({lat}, {lon}), {date:%Y-%m-%d}")
+    return f
 
 
 def reference_field(field=None, *, total=None, inclination=None, declination=0.0, lat=None, lon=None,
@@ -170,7 +185,11 @@ def pitch_sensitivity(field_body=(32140.0, 41132.0, 0.0), pitch_error_deg=0.01, 
 
     field_body: (H_bx, H_by, H_bz) in the seed 002 body frame (default: the paper's x-north level
     position). Returns the exact error (eq. 8 − eq. 7), the first-order one (eq. 9 generalised to any
-    attitude: ∂H_py/∂θ Δθ + ∂H_py/∂γ Δγ) and the level-position approximation Δθ H_bx − Δγ H_bz."""
+    attitude: ∂H_py/∂θ Δθ + ∂H_py/∂γ Δγ) and the level-position approximation Δθ H_bx − Δγ H_bz.
+    `local_error` is the exact error of all three local components (N, U, E) = (R(θ+Δθ, γ+Δγ) − R(θ, γ)) H_b
+    (eq. 6): at the paper's level x-north position a 0.01° pitch error moves the north component by
+    H_by Δθ ≈ 7.2 nT and the up component by H_bx Δθ ≈ 5.6 nT — the paper's "≈ 7 nT" matches the former
+    although it quotes H_bx = 32140 nT."""
     hx, hy, hz = (float(v) for v in field_body)
 
     def up(theta, gamma):  # eq. 7
@@ -181,7 +200,11 @@ def pitch_sensitivity(field_body=(32140.0, 41132.0, 0.0), pitch_error_deg=0.01, 
     exact = up(th + dth, ga + dga) - up(th, ga)
     d_theta = np.cos(th) * hx - np.sin(th) * np.cos(ga) * hy + np.sin(th) * np.sin(ga) * hz
     d_gamma = -np.cos(th) * np.sin(ga) * hy - np.cos(th) * np.cos(ga) * hz
+    nue = _FRAME["nue"]
+    local_error = (np.asarray(_core.body_to_local(th + dth, ga + dga, 0.0, nue))
+                   - np.asarray(_core.body_to_local(th, ga, 0.0, nue))) @ np.array([hx, hy, hz])
     return {"exact": float(exact), "first_order": float(d_theta * dth + d_gamma * dga),
+            "local_error": local_error.tolist(), "local_error_norm": float(np.linalg.norm(local_error)),
             "eq9": float(dth * hx - dga * hz), "pitch_error_deg": pitch_error_deg, "roll_error_deg": roll_error_deg,
             "per_degree_pitch": float(d_theta * np.radians(1.0))}
 

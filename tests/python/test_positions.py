@@ -54,6 +54,13 @@ def test_pitch_sensitivity_computed():
     assert s["exact"] == pytest.approx(32140 * np.radians(0.01), rel=1e-3)  # 5.61 nT (the paper says ≈ 7)
     assert s["first_order"] == pytest.approx(s["eq9"])
     assert 5.5 < s["exact"] < 5.7
+    # All three local components (eq. 6): the north one moves by H_by·Δθ ≈ 7.18 nT — the paper's "≈ 7 nT";
+    # the up one is eq. 7's difference; the whole error vector is |H_b|·Δθ (a rotation by Δθ).
+    n_err, u_err, e_err = s["local_error"]
+    assert u_err == pytest.approx(s["exact"], rel=1e-9)
+    assert abs(n_err) == pytest.approx(41132 * np.radians(0.01), rel=1e-3) and 7.1 < abs(n_err) < 7.3
+    assert abs(e_err) < 1e-9
+    assert s["local_error_norm"] == pytest.approx(np.hypot(32140, 41132) * np.radians(0.01), rel=1e-5)
     # Away from level the other components enter (first order still matches the exact difference).
     t = fp.pitch_sensitivity((20000.0, 30000.0, 10000.0), 0.01, 0.005, pitch_deg=30, roll_deg=-20)
     assert t["exact"] == pytest.approx(t["first_order"], rel=1e-2)
@@ -159,6 +166,34 @@ def test_heading_errors_estimated_jointly():
     se = joint.standard_errors[3:12].reshape(3, 3)
     assert np.all(np.abs(joint.K - K_TRUE) < 4 * se + 1e-12)
 
+
+
+def test_joint_standard_errors_match_dense_covariance():
+    """The joint fit's standard errors (computed by eliminating the per-position headings, a Schur
+    complement) equal σ̂ √diag((JᵀJ)⁻¹) of a dense finite-difference Jacobian of the oracle's residual."""
+    rng = np.random.default_rng(17)
+    sc = sim.random_scene(20, "ned", rng)
+    turn = Rotation.from_rotvec(np.outer(rng.uniform(-2, 2, 20), [0, 0, np.radians(1.0)])).as_matrix()
+    scene = sim.PositionsScene("ned", sc.nominal, turn @ sc.nominal)
+    s = sim.simulate_positions(scene, PAPER_FIELD, noise=0.45, rng=rng)
+    res = fp.calibrate(s.outputs, s.acc_raw, PAPER_FIELD, frame="ned", rotations=scene.nominal, estimate_yaw=True)
+    f_local = fp.to_local(PAPER_FIELD, "ned")
+    L = [oracle.level(R, a, "ned") for R, a in zip(scene.nominal, s.acc_raw)]
+
+    def resid(p):
+        u0, K, psi = p[:3], p[3:12].reshape(3, 3), p[12:]
+        H = np.array([(oracle.heading(psi[i], "ned") @ L[i]).T @ f_local for i in range(len(L))])
+        return (s.outputs - u0 - H @ K.T).ravel()
+
+    p0 = res.parameters
+    assert res.parameter_names[12:] == [f"yaw_{i}" for i in range(20)]
+    steps = np.maximum(np.abs(p0), 1e-3) * 1e-6
+    J = np.column_stack([(resid(p0 + h * e) - resid(p0 - h * e)) / (2 * h) for h, e in zip(steps, np.eye(len(p0)))])
+    sigma = np.sqrt(np.sum(resid(p0) ** 2) / (J.shape[0] - J.shape[1]))
+    assert sigma == pytest.approx(res.noise_sigma, rel=1e-6)
+    se = sigma * np.sqrt(np.diag(np.linalg.inv(J.T @ J)))
+    assert np.allclose(res.standard_errors, se, rtol=1e-4)
+    assert all(res.determined)
 
 def test_unknown_headings_with_inclination_and_verification():
     """No nominal attitudes at all (random static positions, headings unknown): U0, K, each heading and the
@@ -288,3 +323,31 @@ def test_cli_positions(tmp_path):
     assert "dip_error_deg_rms" in d["verification"]
     bad = run_cli("positions", path, "--frame", "nue", "--preset", "twelve", "-o", out)
     assert bad.returncode == 2 and "reference field" in bad.stderr
+
+
+def test_cli_positions_igrf_unknown_headings(tmp_path):
+    """The interface without a preset or position column: random static attitudes, headings unknown
+    (estimated from an ellipsoid start), the field from IGRF for --lat/--lon/--date, frame ned."""
+    rng = np.random.default_rng(12)
+    field = fp.reference_field(lat=48.1, lon=11.6, date="2025-03-01")
+    scene = sim.random_scene(24, "ned", rng)
+    U0 = np.array([150.0, -60.0, 20.0])
+    K = np.array([[0.0895, -0.022, -0.0005], [0.0002, 0.0895, -0.0001], [0.0004, 0.0002, 0.0893]])
+    acc = sim.Accelerometer(np.zeros(3), np.eye(3), G * np.radians(0.005))
+    s = sim.simulate_positions(scene, field, sensor=(U0, K), noise=0.45, accelerometer=acc, rng=rng)
+    path = tmp_path / "shots.csv"
+    rows = np.column_stack([s.acc_raw, s.outputs])
+    path.write_text("ax,ay,az,mx,my,mz\n" + "\n".join(",".join(f"{v:.12g}" for v in r) for r in rows) + "\n")
+    out = tmp_path / "out.json"
+    proc = run_cli("positions", path, "--lat", "48.1", "--lon", "11.6", "--date", "2025-03-01", "-o", out)
+    assert proc.returncode == 0, proc.stderr
+    d = json.loads(out.read_text())
+    assert np.allclose(d["field_ned"], field, atol=1e-6)
+    assert np.abs(np.array(d["K"]) - K).max() / 0.0895 < 2e-3
+    assert np.abs(np.array(d["offset"]) - U0).max() / 0.0895 < 10
+    v = d["verification"]
+    assert v["magnitude_error_rms"] < 15 and v["dip_error_deg_rms"] < 0.05
+    bad_date = run_cli("positions", path, "--lat", "48.1", "--lon", "11.6", "--date", "1850-01-01", "-o", out)
+    assert bad_date.returncode == 2 and "outside the IGRF model" in bad_date.stderr
+    with pytest.raises(ValueError, match="outside the IGRF model"):  # ppigrf would hold the 2030 field silently
+        fp.reference_field(lat=48.1, lon=11.6, date="2031-06-01")
