@@ -2,6 +2,7 @@
 
 #include "fluxcal/ellipsoid.hpp"
 
+#include <Eigen/Sparse>
 #include <ceres/ceres.h>
 #include <ceres/rotation.h>
 
@@ -125,44 +126,65 @@ Eigen::MatrixXd spd_pinv(const Eigen::MatrixXd& M, std::vector<bool>& null_coord
 // Statistics shared by the linear and the joint fit: σ̂ and the covariance σ̂²(JᵀJ)⁻¹ of the
 // column-scaled Jacobian (near-null directions → +inf, undetermined). `local[j]` ≥ 0 marks parameter j
 // as belonging to position local[j] only (heading, levelling correction): those are eliminated by the
-// Schur complement, so the cost is O(N) in the number of positions instead of O(N³).
-void finish_statistics(PositionsResult& r, const Eigen::MatrixXd& J, const Eigen::VectorXd& scales, double tolerance,
+// Schur complement, so the cost is O(N) in the number of positions instead of O(N³). J is sparse
+// (row-major) so that nothing of size rows × parameters is ever formed.
+using SparseRows = Eigen::SparseMatrix<double, Eigen::RowMajor>;
+void finish_statistics(PositionsResult& r, const SparseRows& J, const Eigen::VectorXd& scales, double tolerance,
                        const std::vector<int>& local = {}) {
   const Eigen::Index p = J.cols(), m = J.rows();
   const double ssr = r.residuals.squaredNorm();
   r.noise_sigma = m > p ? std::sqrt(ssr / static_cast<double>(m - p)) : 0.0;
-  Eigen::VectorXd colnorm = J.colwise().norm().transpose();
-  for (Eigen::Index j = 0; j < p; ++j) colnorm(j) = colnorm(j) > 0 ? colnorm(j) : 1.0;
-  const Eigen::MatrixXd Js = J * colnorm.cwiseInverse().asDiagonal();
+  Eigen::VectorXd colnorm = Eigen::VectorXd::Zero(p);
+  for (Eigen::Index i = 0; i < m; ++i)
+    for (SparseRows::InnerIterator it(J, i); it; ++it) colnorm(it.col()) += it.value() * it.value();
+  for (Eigen::Index j = 0; j < p; ++j) colnorm(j) = colnorm(j) > 0 ? std::sqrt(colnorm(j)) : 1.0;
+  // Global parameters get a dense column index; local ones an index within their position's block.
   std::vector<Eigen::Index> global;
+  std::vector<Eigen::Index> index_of(static_cast<std::size_t>(p), -1);
   int groups = 0;
   for (Eigen::Index j = 0; j < p; ++j) {
     const int g = local.empty() ? -1 : local[static_cast<std::size_t>(j)];
-    if (g < 0) global.push_back(j);
+    if (g < 0) {
+      index_of[static_cast<std::size_t>(j)] = static_cast<Eigen::Index>(global.size());
+      global.push_back(j);
+    }
     groups = std::max(groups, g + 1);
   }
   std::vector<std::vector<Eigen::Index>> cols(static_cast<std::size_t>(groups)), rows(static_cast<std::size_t>(groups));
   for (Eigen::Index j = 0; j < p; ++j)
-    if (!local.empty() && local[static_cast<std::size_t>(j)] >= 0) cols[static_cast<std::size_t>(local[static_cast<std::size_t>(j)])].push_back(j);
+    if (!local.empty() && local[static_cast<std::size_t>(j)] >= 0) {
+      auto& c = cols[static_cast<std::size_t>(local[static_cast<std::size_t>(j)])];
+      index_of[static_cast<std::size_t>(j)] = static_cast<Eigen::Index>(c.size());
+      c.push_back(j);
+    }
+  // Each row (one position's residual, or its tilt prior) touches the local parameters of at most one
+  // position.
   for (Eigen::Index i = 0; i < m; ++i)
-    for (int g = 0; g < groups; ++g)
-      for (Eigen::Index j : cols[static_cast<std::size_t>(g)])
-        if (Js(i, j) != 0.0) {
-          rows[static_cast<std::size_t>(g)].push_back(i);
-          break;
-        }
+    for (SparseRows::InnerIterator it(J, i); it; ++it) {
+      const int g = local.empty() ? -1 : local[static_cast<std::size_t>(it.col())];
+      if (g >= 0 && it.value() != 0.0) {
+        rows[static_cast<std::size_t>(g)].push_back(i);
+        break;
+      }
+    }
   const Eigen::Index ng = static_cast<Eigen::Index>(global.size());
-  Eigen::MatrixXd JG(m, ng);
-  for (Eigen::Index c = 0; c < ng; ++c) JG.col(c) = Js.col(global[static_cast<std::size_t>(c)]);
+  Eigen::MatrixXd JG = Eigen::MatrixXd::Zero(m, ng);  // scaled global columns (ng ≤ 13)
+  for (Eigen::Index i = 0; i < m; ++i)
+    for (SparseRows::InnerIterator it(J, i); it; ++it)
+      if (local.empty() || local[static_cast<std::size_t>(it.col())] < 0)
+        JG(i, index_of[static_cast<std::size_t>(it.col())]) = it.value() / colnorm(it.col());
   Eigen::MatrixXd S = JG.transpose() * JG;
   std::vector<Eigen::MatrixXd> Cinv(static_cast<std::size_t>(groups)), B(static_cast<std::size_t>(groups));
   std::vector<std::vector<bool>> null_local(static_cast<std::size_t>(groups));
   for (int g = 0; g < groups; ++g) {
     const auto& R = rows[static_cast<std::size_t>(g)];
     const auto& L = cols[static_cast<std::size_t>(g)];
-    Eigen::MatrixXd JL(R.size(), L.size()), JGr(R.size(), ng);
+    Eigen::MatrixXd JL = Eigen::MatrixXd::Zero(static_cast<Eigen::Index>(R.size()), static_cast<Eigen::Index>(L.size()));
+    Eigen::MatrixXd JGr(static_cast<Eigen::Index>(R.size()), ng);
     for (std::size_t a = 0; a < R.size(); ++a) {
-      for (std::size_t c = 0; c < L.size(); ++c) JL(static_cast<Eigen::Index>(a), static_cast<Eigen::Index>(c)) = Js(R[a], L[c]);
+      for (SparseRows::InnerIterator it(J, R[a]); it; ++it)
+        if (local[static_cast<std::size_t>(it.col())] == g)
+          JL(static_cast<Eigen::Index>(a), index_of[static_cast<std::size_t>(it.col())]) = it.value() / colnorm(it.col());
       JGr.row(static_cast<Eigen::Index>(a)) = JG.row(R[a]);
     }
     Cinv[static_cast<std::size_t>(g)] = spd_pinv(JL.transpose() * JL, null_local[static_cast<std::size_t>(g)]);
@@ -430,7 +452,7 @@ PositionsResult fit_positions(const SamplesRef& outputs, const SamplesRef& refer
   const double out_scale = std::sqrt(Eigen::MatrixXd(outputs).squaredNorm() / static_cast<double>(n));
   const double k_scale = r.K.diagonal().cwiseAbs().mean();
   scales << Eigen::Vector3d::Constant(out_scale), Eigen::VectorXd::Constant(9, k_scale);
-  finish_statistics(r, J, scales, options.determined_tolerance);
+  finish_statistics(r, J.sparseView(), scales, options.determined_tolerance);
   r.summary.condition_number = sv(0) / sv(3);
   fill_summary(r, "positions (linear least squares)");
   return r;
@@ -682,10 +704,8 @@ PositionsResult calibrate_positions(const SamplesRef& outputs, const SamplesRef&
   eo.parameter_blocks = blocks;
   ceres::CRSMatrix crs;
   problem.Evaluate(eo, nullptr, nullptr, nullptr, &crs);
-  Eigen::MatrixXd J = Eigen::MatrixXd::Zero(crs.num_rows, crs.num_cols);
-  for (int row = 0; row < crs.num_rows; ++row)
-    for (int idx = crs.rows[static_cast<std::size_t>(row)]; idx < crs.rows[static_cast<std::size_t>(row) + 1]; ++idx)
-      J(row, crs.cols[static_cast<std::size_t>(idx)]) = crs.values[static_cast<std::size_t>(idx)];
+  const SparseRows J = Eigen::Map<const SparseRows>(crs.num_rows, crs.num_cols, static_cast<Eigen::Index>(crs.values.size()),
+                                                     crs.rows.data(), crs.cols.data(), crs.values.data());
   Eigen::VectorXd scales(p);
   const double out_scale = std::sqrt(Eigen::MatrixXd(outputs).squaredNorm() / static_cast<double>(n));
   scales << Eigen::Vector3d::Constant(out_scale), Eigen::VectorXd::Constant(9, r.K.diagonal().cwiseAbs().mean()),
