@@ -441,18 +441,19 @@ PositionsResult fit_positions(const SamplesRef& outputs, const SamplesRef& refer
   r.parameter_names = base_names();
   r.parameters.resize(12);
   r.parameters << r.offset, Eigen::Map<const Eigen::Matrix<double, 9, 1>>(Eigen::Matrix<double, 3, 3, Eigen::RowMajor>(r.K).data());
-  // Jacobian of the stacked residuals (3N × 12): dr/dU0 = −I, dr_j/dK_jk = −H_k.
-  Eigen::MatrixXd J = Eigen::MatrixXd::Zero(3 * n, 12);
+  // Jacobian of the stacked residuals (3N × 12, four non-zeros a row): dr/dU0 = −I, dr_j/dK_jk = −H_k.
+  SparseRows J(3 * n, 12);
+  J.reserve(Eigen::VectorXi::Constant(3 * n, 4));
   for (Eigen::Index i = 0; i < n; ++i)
     for (int j = 0; j < 3; ++j) {
-      J(3 * i + j, j) = -1.0;
-      for (int k = 0; k < 3; ++k) J(3 * i + j, 3 + 3 * j + k) = -reference(i, k);
+      J.insert(3 * i + j, j) = -1.0;
+      for (int k = 0; k < 3; ++k) J.insert(3 * i + j, 3 + 3 * j + k) = -reference(i, k);
     }
   Eigen::VectorXd scales(12);
   const double out_scale = std::sqrt(Eigen::MatrixXd(outputs).squaredNorm() / static_cast<double>(n));
   const double k_scale = r.K.diagonal().cwiseAbs().mean();
   scales << Eigen::Vector3d::Constant(out_scale), Eigen::VectorXd::Constant(9, k_scale);
-  finish_statistics(r, J.sparseView(), scales, options.determined_tolerance);
+  finish_statistics(r, J, scales, options.determined_tolerance);
   r.summary.condition_number = sv(0) / sv(3);
   fill_summary(r, "positions (linear least squares)");
   return r;
