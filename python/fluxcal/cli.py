@@ -140,6 +140,12 @@ def cmd_demo(args) -> int:
     return 0
 
 
+def cmd_positions(args) -> int:
+    from .positions import run_cli
+
+    return run_cli(args)
+
+
 def build_parser() -> argparse.ArgumentParser:
     p = argparse.ArgumentParser(prog="fluxcal", description="Calibrate magnetic-field and current sensors.")
     p.add_argument("--version", action="version", version=f"fluxcal {__version__}")
@@ -195,6 +201,28 @@ def build_parser() -> argparse.ArgumentParser:
     d.add_argument("-o", "--output", default="fluxcal-demo", help="folder for the outputs")
     d.add_argument("--seed", type=int, default=2017)
     d.set_defaults(run=cmd_demo)
+
+    q = sub.add_parser("positions", help="multi-position calibration U = U0 + K H with accelerometer levelling")
+    q.add_argument("file", help="CSV with ax,ay,az,mx,my,mz and optionally position (rows averaged per position)")
+    q.add_argument("--preset", choices=["twelve"], default=None, help="nominal attitudes (seed 002's twelve)")
+    q.add_argument("--frame", choices=["ned", "nue"], default="ned",
+                   help="ned: body forward-right-down; nue: seed 002 forward-up-right (default ned)")
+    q.add_argument("--field", help="local field N,E,D (field units)")
+    q.add_argument("--total", type=float, help="field magnitude (with --inclination)")
+    q.add_argument("--inclination", type=float, help="dip in degrees, positive down")
+    q.add_argument("--declination", type=float, help="degrees east (default 0)")
+    q.add_argument("--lat", type=float, help="latitude (IGRF)")
+    q.add_argument("--lon", type=float, help="longitude (IGRF)")
+    q.add_argument("--alt-km", type=float, help="altitude in km (IGRF)")
+    q.add_argument("--date", help="YYYY-MM-DD (IGRF; default today)")
+    q.add_argument("--estimate-yaw", action="store_true", help="estimate a heading correction per position")
+    q.add_argument("--estimate-inclination", action="store_true", help="estimate the dip jointly")
+    q.add_argument("--tilt-sigma", type=float, default=0.0, help="levelling uncertainty (deg); 0 = exact")
+    q.add_argument("--acc-measures", choices=["specific_force", "gravity"], default="specific_force")
+    q.add_argument("--calibrate-accelerometer", action="store_true",
+                   help="calibrate the accelerometer from the same positions first (>= 6)")
+    q.add_argument("-o", "--output", help="write the result (JSON)")
+    q.set_defaults(run=cmd_positions)
     return p
 
 

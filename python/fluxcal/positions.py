@@ -1,0 +1,524 @@
+"""Multi-position calibration with accelerometer levelling (seed 002, the twelve-position method).
+
+Model: a three-axis sensor at rest reads U = U0 + K H (U, U0 in output units such as mV or counts;
+H the field in the body frame, nT or µT; K = scale factors on the diagonal, installation /
+non-orthogonality coefficients off it). Each static position has an accelerometer reading that
+levels it; the local geomagnetic field (from IGRF, or given) rotated into the body frame is the
+reference H. U0 and K come from least squares over any ≥ 4 well-spread positions (C++ core,
+`fluxcal._core.calibrate_positions`); seed 002's closed-form sums are kept as a check
+(`closed_form_twelve`).
+
+Frames (`frame=`):
+  "ned"  body x forward, y right, z down; local north, east, down. A level static accelerometer
+         reads specific force (0, 0, −g). The usual INS/AHRS convention (fluxcal.attitude "aerospace").
+  "nue"  seed 002: body x forward, y up, z right; local north, up, east. Level: (0, +g, 0); pitch
+         θ = arcsin(Ax/|A|), roll γ = arctan(−Az/Ay) (eq. 4); fluxcal.attitude "seed002".
+The field is always given in NED (what IGRF/WMM give); K relates U to H written in the frame's body
+axes, so K differs between frames by a permutation and signs of its columns.
+
+Headings: with `estimate_yaw=True` a heading correction per position is estimated jointly with U0
+and K (Ceres). Observable then: U0, all of K, each position's magnetic heading and (with
+`estimate_inclination=True`) the dip. Not observable: the field magnitude separately from K's scale
+(give it), and the declination (headings are relative to the given field's horizontal direction).
+Without nominal attitudes at all (`preset=None, attitudes=None`), headings are estimated from an
+ellipsoid-fit start (≥ 10 positions).
+
+    import fluxcal.positions as fp
+    f = fp.reference_field(total=52200, inclination=52)            # (N, E, D) nT
+    acc_cal = fp.calibrate_accelerometer(acc_raw_six_or_more)      # offset, scale, misalignment
+    res = fp.calibrate(mag, acc_cal.apply(acc_raw), f, frame="nue", preset="twelve")
+    res.offset, res.K, res.verify(mag2, acc2, attitudes=...)
+"""
+from __future__ import annotations
+
+import datetime as _dt
+from dataclasses import dataclass, field as _field
+
+import numpy as np
+
+from . import _core
+from ._arrays import as_samples
+
+FRAMES = ("ned", "nue")
+_FRAME = {"ned": _core.Frame.ned, "nue": _core.Frame.nue}
+#: The twelve positions of seed 002: where the body axes x, y, z (x forward, y up, z right) point,
+#: N/S/U/D/E/W. Order as in the paper (positions 1–12).
+TWELVE = ("N-U-E", "S-U-W", "S-D-E", "N-D-W", "U-S-E", "U-N-W", "D-N-E", "D-S-W", "N-W-U", "S-E-U", "N-E-D", "S-W-D")
+PRESETS = {"twelve": TWELVE}
+STANDARD_GRAVITY = 9.80665
+# Rows: the frame's local axes written in NED.
+_NED_TO_LOCAL = {"ned": np.eye(3), "nue": np.array([[1.0, 0, 0], [0, 0, -1.0], [0, 1.0, 0]])}
+
+
+def _frame(frame: str):
+    if frame not in _FRAME:
+        raise ValueError(f"frame: {frame!r} is not one of {', '.join(FRAMES)}")
+    return _FRAME[frame]
+
+
+def _rotations(rows) -> np.ndarray:
+    return np.asarray(rows, dtype=float).reshape(-1, 3, 3)
+
+
+# --- reference field --------------------------------------------------------------------------------
+
+def field_from_inclination(total, inclination, declination=0.0) -> np.ndarray:
+    """(N, E, D) from total intensity F, inclination I (degrees, positive down) and declination D
+    (degrees east): N = F cos I cos D, E = F cos I sin D, D = F sin I."""
+    F, inc, dec = float(total), np.radians(float(inclination)), np.radians(float(declination))
+    return np.array([F * np.cos(inc) * np.cos(dec), F * np.cos(inc) * np.sin(dec), F * np.sin(inc)])
+
+
+def up_component(total, inclination) -> float:
+    """Magnitude of the vertical field, F sin I (seed 002: H = 52200 nT, I = 52° → 41134 nT). Seed 002
+    calls it H_u and quotes it unsigned; with the field dipping down (I > 0) the up component proper is
+    negative: (N, U, E) = (F cos I, −F sin I, 0)."""
+    return float(total) * np.sin(np.radians(float(inclination)))
+
+
+def igrf_field(lat: float, lon: float, alt_km: float = 0.0, date=None) -> np.ndarray:
+    """IGRF field (N, E, D) in nT at geodetic latitude/longitude (degrees), altitude (km above the
+    ellipsoid) and date (datetime.date/datetime or 'YYYY-MM-DD'; default today), from `ppigrf`."""
+    import ppigrf
+
+    if date is None:
+        date = _dt.date.today()
+    if isinstance(date, str):
+        try:
+            date = _dt.date.fromisoformat(date)
+        except ValueError:
+            raise ValueError(f"date: {date!r} is not YYYY-MM-DD") from None
+    if isinstance(date, _dt.date) and not isinstance(date, _dt.datetime):
+        date = _dt.datetime(date.year, date.month, date.day)
+    if not (-90.0 <= lat <= 90.0) or not np.isfinite(lon):
+        raise ValueError(f"lat/lon: ({lat}, {lon}) is not a place on Earth")
+    # ppigrf returns NaN before its first epoch and silently holds the last secular variation after the
+    # model's end (printing a warning): refuse both rather than return a wrong field.
+    try:
+        from ppigrf.ppigrf import read_shc
+
+        epochs = read_shc()[0].index
+        first, last = epochs[0].to_pydatetime(), epochs[-1].to_pydatetime()
+    except Exception:  # a ppigrf without read_shc: fall back to IGRF-14's validity
+        first, last = _dt.datetime(1900, 1, 1), _dt.datetime(2030, 1, 1)
+    if not (first <= date <= last):
+        raise ValueError(f"date: {date:%Y-%m-%d} is outside the IGRF model of ppigrf ({first:%Y-%m-%d} to "
+                         f"{last:%Y-%m-%d}); give the field directly (--field N,E,D or total/inclination)")
+    try:
+        be, bn, bu = ppigrf.igrf(lon, lat, alt_km, date)
+    except Exception as exc:  # ppigrf raises plain exceptions for dates outside its model
+        raise ValueError(f"IGRF (ppigrf) cannot evaluate {date:%Y-%m-%d}: {exc}") from None
+    f = np.array([float(np.squeeze(bn)), float(np.squeeze(be)), -float(np.squeeze(bu))])
+    if not np.all(np.isfinite(f)):
+        raise ValueError(f"IGRF (ppigrf) gave no finite field at ({lat}, {lon}), {date:%Y-%m-%d}")
+    return f
+
+
+def reference_field(field=None, *, total=None, inclination=None, declination=0.0, lat=None, lon=None,
+                    alt_km=0.0, date=None) -> np.ndarray:
+    """The local field (N, E, D) from exactly one of: `field` = (N, E, D); `total` + `inclination`
+    (+ `declination`, default 0 = magnetic north); `lat` + `lon` (+ `alt_km`, `date`) through IGRF.
+    Missing or contradictory input is a ValueError."""
+    given = [field is not None, total is not None or inclination is not None, lat is not None or lon is not None]
+    if sum(given) == 0:
+        raise ValueError("reference field missing: give field=(N, E, D), total= and inclination=, or lat=/lon= "
+                         "(and date=) for IGRF")
+    if sum(given) > 1:
+        raise ValueError("reference field: give only one of field=, total/inclination=, lat/lon=")
+    if field is not None:
+        f = np.asarray(field, dtype=float).reshape(-1)
+        if f.shape != (3,) or not np.all(np.isfinite(f)) or not np.any(f):
+            raise ValueError(f"field: {field!r} is not a finite, non-zero (N, E, D) 3-vector")
+        return f
+    if total is not None:
+        if inclination is None or total is None:
+            raise ValueError("reference field: total and inclination are both needed")
+        return field_from_inclination(total, inclination, declination)
+    if lat is None or lon is None:
+        raise ValueError("reference field: lat and lon are both needed")
+    return igrf_field(float(lat), float(lon), float(alt_km), date)
+
+
+def to_local(field_ned, frame: str) -> np.ndarray:
+    """The NED field written in the frame's local axes ((N, E, D) or (N, U, E))."""
+    _frame(frame)
+    return _NED_TO_LOCAL[frame] @ np.asarray(field_ned, dtype=float)
+
+
+def inclination_of(field_ned) -> float:
+    """Inclination (dip, degrees, positive down) of an (N, E, D) field."""
+    n, e, d = np.asarray(field_ned, dtype=float)
+    return float(np.degrees(np.arctan2(d, np.hypot(n, e))))
+
+
+# --- presets and attitudes --------------------------------------------------------------------------
+
+def preset_rotations(preset="twelve", frame: str = "ned") -> np.ndarray:
+    """Body→local rotations (N×3×3) of a preset's positions in `frame` (columns: where the body axes point)."""
+    if isinstance(preset, str):
+        if preset.lower() not in PRESETS:
+            raise ValueError(f"preset: {preset!r} is not one of {', '.join(PRESETS)}")
+        return _rotations(_core.twelve_positions(_frame(frame)))
+    raise ValueError("preset: give a preset name such as 'twelve'")
+
+
+def attitude_rotations(attitudes, frame: str = "ned") -> np.ndarray:
+    """Body→local rotations from an N×3 array of (pitch, roll, heading) in degrees."""
+    a = np.asarray(attitudes, dtype=float)
+    if a.ndim != 2 or a.shape[1] != 3:
+        raise ValueError(f"attitudes: shape {a.shape}, expected (N, 3) rows of pitch, roll, heading (degrees)")
+    f = _frame(frame)
+    r = np.radians(a)
+    return np.stack([_core.body_to_local(p, q, y, f) for p, q, y in r])
+
+
+def pitch_roll(acc, frame: str = "ned") -> np.ndarray:
+    """(pitch, roll) in degrees of each static accelerometer reading (specific force, N×3)."""
+    f = _frame(frame)
+    a = as_samples(np.atleast_2d(acc), "acc")
+    return np.degrees(np.array([_core.pitch_roll(row, f) for row in a]))
+
+
+def pitch_sensitivity(field_body=(32140.0, 41132.0, 0.0), pitch_error_deg=0.01, roll_error_deg=0.0,
+                      pitch_deg=0.0, roll_deg=0.0) -> dict:
+    """Error of the up component caused by a levelling error (seed 002 eqs. 7–9), computed.
+
+    field_body: (H_bx, H_by, H_bz) in the seed 002 body frame (default: the paper's x-north level
+    position). Returns the exact error (eq. 8 − eq. 7), the first-order one (eq. 9 generalised to any
+    attitude: ∂H_py/∂θ Δθ + ∂H_py/∂γ Δγ) and the level-position approximation Δθ H_bx − Δγ H_bz.
+    `local_error` is the exact error of all three local components (N, U, E) = (R(θ+Δθ, γ+Δγ) − R(θ, γ)) H_b
+    (eq. 6): at the paper's level x-north position a 0.01° pitch error moves the north component by
+    H_by Δθ ≈ 7.2 nT and the up component by H_bx Δθ ≈ 5.6 nT — the paper's "≈ 7 nT" matches the former
+    although it quotes H_bx = 32140 nT."""
+    hx, hy, hz = (float(v) for v in field_body)
+
+    def up(theta, gamma):  # eq. 7
+        return np.sin(theta) * hx + np.cos(theta) * np.cos(gamma) * hy - np.cos(theta) * np.sin(gamma) * hz
+
+    th, ga = np.radians(pitch_deg), np.radians(roll_deg)
+    dth, dga = np.radians(pitch_error_deg), np.radians(roll_error_deg)
+    exact = up(th + dth, ga + dga) - up(th, ga)
+    d_theta = np.cos(th) * hx - np.sin(th) * np.cos(ga) * hy + np.sin(th) * np.sin(ga) * hz
+    d_gamma = -np.cos(th) * np.sin(ga) * hy - np.cos(th) * np.cos(ga) * hz
+    nue = _FRAME["nue"]
+    local_error = (np.asarray(_core.body_to_local(th + dth, ga + dga, 0.0, nue))
+                   - np.asarray(_core.body_to_local(th, ga, 0.0, nue))) @ np.array([hx, hy, hz])
+    return {"exact": float(exact), "first_order": float(d_theta * dth + d_gamma * dga),
+            "local_error": local_error.tolist(), "local_error_norm": float(np.linalg.norm(local_error)),
+            "eq9": float(dth * hx - dga * hz), "pitch_error_deg": pitch_error_deg, "roll_error_deg": roll_error_deg,
+            "per_degree_pitch": float(d_theta * np.radians(1.0))}
+
+
+# --- accelerometer ----------------------------------------------------------------------------------
+
+@dataclass
+class AccelerometerCalibration:
+    """a = T (raw − b), T upper triangular (see fluxcal/positions.hpp)."""
+    offset: np.ndarray
+    matrix: np.ndarray
+    gravity: float
+    misalignment_estimated: bool
+    magnitude_errors: np.ndarray
+    tilt_error_deg: float
+    summary: dict
+
+    def apply(self, raw) -> np.ndarray:
+        r = as_samples(np.atleast_2d(raw), "acc")
+        return (r - self.offset) @ self.matrix.T
+
+
+def calibrate_accelerometer(readings, gravity: float = STANDARD_GRAVITY, max_iterations: int = 100
+                            ) -> AccelerometerCalibration:
+    """Multi-position accelerometer calibration from ≥ 6 static positions (offset + scales; ≥ 9 adds the
+    three misalignments), |a| = gravity as the reference."""
+    d = _core.calibrate_accelerometer(as_samples(readings, "readings"), float(gravity), int(max_iterations))
+    return AccelerometerCalibration(np.asarray(d["offset"]), np.asarray(d["matrix"]), d["gravity"],
+                                    d["misalignment_estimated"], np.asarray(d["magnitude_errors"]),
+                                    d["tilt_error_deg"], dict(d["summary"]))
+
+
+# --- magnetometer -----------------------------------------------------------------------------------
+
+@dataclass
+class PositionsResult:
+    """U = U0 + K H. `offset` = U0, `K`; `field_ned` the field used (dip estimated if asked);
+    `yaw_deg` heading corrections; `reference` body-frame field per position; `residuals`."""
+    offset: np.ndarray
+    K: np.ndarray
+    frame: str
+    field_ned: np.ndarray
+    yaw_deg: np.ndarray
+    rotations: np.ndarray
+    reference: np.ndarray
+    residuals: np.ndarray
+    parameter_names: list
+    parameters: np.ndarray
+    standard_errors: np.ndarray
+    determined: list
+    noise_sigma: float
+    units: str
+    summary: dict
+    metadata: dict = _field(default_factory=dict)
+
+    def field_of(self, outputs) -> np.ndarray:
+        """Body-frame field H = K⁻¹ (U − U0) of each output row (N×3)."""
+        u = as_samples(np.atleast_2d(outputs), "outputs")
+        return np.linalg.solve(self.K, (u - self.offset).T).T
+
+    def verify(self, outputs, acc, preset=None, attitudes=None, rotations=None, acc_measures="specific_force") -> dict:
+        """Verification at positions not used in the fit (see `verification_report`)."""
+        return verification_report(self, outputs, acc, preset=preset, attitudes=attitudes, rotations=rotations,
+                                   acc_measures=acc_measures)
+
+    def to_dict(self) -> dict:
+        return {"offset": self.offset.tolist(), "K": self.K.tolist(), "units": self.units, "frame": self.frame,
+                "field_ned": self.field_ned.tolist(), "inclination_deg": inclination_of(self.field_ned),
+                "yaw_deg": self.yaw_deg.tolist(), "noise_sigma": self.noise_sigma,
+                "parameter_names": list(self.parameter_names), "standard_errors": [
+                    (float(v) if np.isfinite(v) else None) for v in self.standard_errors],
+                "residual_rms": self.summary["residual_rms"], "condition_number": self.summary["condition_number"],
+                "message": self.summary["message"], "warnings": list(self.summary["warnings"]), **self.metadata}
+
+
+def _specific_force(acc, acc_measures: str) -> np.ndarray:
+    a = as_samples(np.atleast_2d(acc), "acc")
+    if acc_measures == "specific_force":
+        return a
+    if acc_measures == "gravity":
+        return -a
+    raise ValueError(f"acc_measures: {acc_measures!r} is not 'specific_force' (a level device reads up) or "
+                     f"'gravity' (it reads down)")
+
+
+def _nominal(n: int, frame: str, preset, attitudes, rotations) -> np.ndarray:
+    chosen = sum(x is not None for x in (preset, attitudes, rotations))
+    if chosen > 1:
+        raise ValueError("give only one of preset=, attitudes=, rotations=")
+    if preset is not None:
+        R = preset_rotations(preset, frame)
+    elif attitudes is not None:
+        R = attitude_rotations(attitudes, frame)
+    elif rotations is not None:
+        R = _rotations(rotations)
+    else:
+        return np.zeros((0, 9))
+    if len(R) != n:
+        raise ValueError(f"positions: {n} readings but the nominal attitudes describe {len(R)} positions")
+    return np.ascontiguousarray(R.reshape(-1, 9))
+
+
+def calibrate(mag, acc, field_ned, frame: str = "ned", preset=None, attitudes=None, rotations=None,
+              estimate_yaw=None, estimate_inclination: bool = False, acc_measures: str = "specific_force",
+              units: str = "", gravity: float = 0.0, gravity_tolerance: float = 0.05, **settings) -> PositionsResult:
+    """Calibrate U = U0 + K H from N static positions.
+
+    mag: N×3 outputs; acc: N×3 calibrated accelerometer readings in the same body axes
+    (`acc_measures`: "specific_force" — a level device reads up — or "gravity"); field_ned: (N, E, D)
+    local field (see `reference_field`; None is an error). Nominal attitudes: `preset` ("twelve", in
+    the paper's order), `attitudes` (N×3 pitch, roll, heading in degrees) or `rotations` (N×3×3
+    body→local); none = headings unknown. estimate_yaw: None = only when no nominal attitudes are
+    given. settings: max_iterations, determined_tolerance.
+    """
+    if field_ned is None:
+        raise ValueError("field_ned: the reference field is missing; give (N, E, D), or use reference_field() "
+                         "with total/inclination or lat/lon/date (IGRF)")
+    f = reference_field(field_ned)
+    fr = _frame(frame)
+    U = as_samples(mag, "mag")
+    sf = _specific_force(acc, acc_measures)
+    nominal = _nominal(len(U), frame, preset, attitudes, rotations)
+    options = _core.PositionsOptions()
+    options.frame = fr
+    options.estimate_yaw = bool(len(nominal) == 0) if estimate_yaw is None else bool(estimate_yaw)
+    options.estimate_inclination = bool(estimate_inclination)
+    options.gravity = float(gravity)
+    options.gravity_tolerance = float(gravity_tolerance)
+    options.units = units or ""
+    for k, v in settings.items():
+        if not hasattr(options, k):
+            raise TypeError(f"calibrate: unknown option {k!r}")
+        setattr(options, k, v)
+    d = _core.calibrate_positions(U, np.ascontiguousarray(sf), nominal, to_local(f, frame), options)
+    return _result(d, frame)
+
+
+def fit(mag, reference, units: str = "", frame: str = "ned") -> PositionsResult:
+    """Linear least squares of U = U0 + K H when each position's body-frame field H is known (N×3)."""
+    options = _core.PositionsOptions()
+    options.frame = _frame(frame)
+    options.units = units or ""
+    d = _core.fit_positions(as_samples(mag, "mag"), as_samples(reference, "reference"), options)
+    d = dict(d, field=np.full(3, np.nan))
+    return _result(d, frame)
+
+
+def _result(d: dict, frame: str) -> PositionsResult:
+    local = np.asarray(d["field"], dtype=float)
+    field_ned = _NED_TO_LOCAL[frame].T @ local
+    return PositionsResult(offset=np.asarray(d["offset"]), K=np.asarray(d["K"]), frame=frame, field_ned=field_ned,
+                           yaw_deg=np.degrees(np.asarray(d["yaw"])), rotations=_rotations(d["rotations"]),
+                           reference=np.asarray(d["reference"]), residuals=np.asarray(d["residuals"]),
+                           parameter_names=list(d["parameter_names"]), parameters=np.asarray(d["parameters"]),
+                           standard_errors=np.asarray(d["standard_errors"]), determined=list(d["determined"]),
+                           noise_sigma=float(d["noise_sigma"]), units=d["units"], summary=dict(d["summary"]))
+
+
+def closed_form_twelve(mag, field_up: float):
+    """Seed 002's closed-form sums (eqs. 14–29, typos corrected; see cpp/src/positions.cpp) for the
+    twelve positions in the paper's order, seed 002 body axes. `field_up`: the SIGNED up component
+    (to_local(f, "nue")[1]; −41134 nT for 52200 nT at 52° dip — the paper quotes the magnitude).
+    Returns (U0, K)."""
+    d = _core.twelve_position_closed_form(as_samples(mag, "mag"), float(field_up))
+    return np.asarray(d["offset"]), np.asarray(d["K"])
+
+
+# --- verification -----------------------------------------------------------------------------------
+
+def _azimuth(v_local: np.ndarray, frame: str) -> np.ndarray:
+    """Azimuth (degrees clockwise from north) of local vectors' horizontal parts."""
+    v = np.atleast_2d(v_local)
+    east = v[:, 1] if frame == "ned" else v[:, 2]
+    return np.degrees(np.arctan2(east, v[:, 0]))
+
+
+def verification_report(result: PositionsResult, outputs, acc, preset=None, attitudes=None, rotations=None,
+                        acc_measures: str = "specific_force") -> dict:
+    """Errors of the calibrated sensor at positions not used in the fit.
+
+    Each position is levelled by its accelerometer. With nominal attitudes (preset/attitudes/rotations)
+    the per-axis field error H − Rᵀf (body axes, field units) and the heading error are reported; the
+    magnitude error |H| − |f| and the dip error (angle of H below the horizontal, from the
+    accelerometer, minus the field's inclination) need no heading. Heading error: the tilt-compensated
+    magnetic heading the calibrated sensor would give minus the nominal heading (degrees)."""
+    U = as_samples(outputs, "outputs")
+    sf = _specific_force(acc, acc_measures)
+    if len(sf) != len(U):
+        raise ValueError(f"acc: {len(sf)} rows for {len(U)} outputs")
+    frame = result.frame
+    fr = _frame(frame)
+    H = result.field_of(U)
+    up_b = sf / np.linalg.norm(sf, axis=1, keepdims=True)
+    f = result.field_ned
+    F = float(np.linalg.norm(f))
+    dip = np.degrees(np.arcsin(np.clip(-(H * up_b).sum(axis=1) / np.linalg.norm(H, axis=1), -1, 1)))
+    report = {"positions": int(len(U)), "units_field": "as the reference field",
+              "magnitude_error": (np.linalg.norm(H, axis=1) - F).tolist(),
+              "dip_error_deg": (dip - inclination_of(f)).tolist()}
+    nominal = _nominal(len(U), frame, preset, attitudes, rotations)
+    if len(nominal):
+        f_local = to_local(f, frame)
+        axis_err, heading_err = [], []
+        for i, R0 in enumerate(nominal.reshape(-1, 3, 3)):
+            L = np.asarray(_core.level_rotation(R0, up_b[i], fr))
+            axis_err.append(H[i] - L.T @ f_local)
+            # Heading error: the measured field seen in the levelled local frame is turned by −δ if the
+            # sensor's heading is off by δ.
+            d = _azimuth(f_local, frame)[0] - _azimuth(L @ H[i], frame)[0]
+            heading_err.append((d + 180.0) % 360.0 - 180.0)
+        axis_err = np.array(axis_err)
+        report["field_error"] = axis_err.tolist()
+        report["field_error_rms"] = np.sqrt((axis_err ** 2).mean(axis=0)).tolist()
+        report["heading_error_deg"] = heading_err
+        report["heading_error_rms_deg"] = float(np.sqrt(np.mean(np.square(heading_err))))
+    for key in ("magnitude_error", "dip_error_deg"):
+        report[key + "_rms"] = float(np.sqrt(np.mean(np.square(report[key]))))
+    report["dip_deg"] = dip.tolist()
+    report["dip_mean_deg"] = float(dip.mean())
+    report["dip_std_deg"] = float(dip.std())
+    mags = np.linalg.norm(H, axis=1)
+    report["field_magnitude_mean"] = float(mags.mean())
+    report["field_magnitude_std"] = float(mags.std())
+    return report
+
+
+def average_positions(ids, *arrays):
+    """Average rows sharing a position id (order of first appearance). Returns (unique ids, averaged arrays...)."""
+    ids = np.asarray(ids)
+    uniq, first, inverse = np.unique(ids, return_index=True, return_inverse=True)
+    order = np.argsort(first)
+    rank = np.empty_like(order)
+    rank[order] = np.arange(len(order))
+    groups = rank[inverse]
+    out = []
+    for a in arrays:
+        a = np.asarray(a, dtype=float)
+        sums = np.zeros((len(uniq), a.shape[1]))
+        np.add.at(sums, groups, a)
+        out.append(sums / np.bincount(groups)[:, None])
+    return (uniq[order], *out)
+
+
+__all__ = ["FRAMES", "PRESETS", "TWELVE", "STANDARD_GRAVITY", "AccelerometerCalibration", "PositionsResult",
+           "attitude_rotations", "average_positions", "calibrate", "calibrate_accelerometer", "closed_form_twelve",
+           "field_from_inclination", "fit", "igrf_field", "inclination_of", "pitch_roll", "pitch_sensitivity",
+           "preset_rotations", "reference_field", "to_local", "up_component", "verification_report"]
+
+
+# --- command line (fluxcal positions) ---------------------------------------------------------------
+
+def run_cli(args, out=None) -> int:
+    """`fluxcal positions FILE ...`: CSV with ax,ay,az,mx,my,mz (+ optional position) → OUT.json."""
+    import json
+    import sys
+    from pathlib import Path
+
+    from .io import read_csv
+
+    out = out or sys.stdout
+    rec = read_csv(args.file)
+    missing = [c for c in ("ax", "ay", "az", "mx", "my", "mz") if c not in rec.columns]
+    if missing:
+        raise ValueError(f"{args.file}: no column {', '.join(missing)} (need ax,ay,az,mx,my,mz; optional position)")
+    acc = np.column_stack([rec.columns[c] for c in ("ax", "ay", "az")])
+    mag = np.column_stack([rec.columns[c] for c in ("mx", "my", "mz")])
+    for name, arr in (("ax,ay,az", acc), ("mx,my,mz", mag)):
+        if not np.all(np.isfinite(arr)):
+            row = int(np.argmax(~np.isfinite(arr).all(axis=1)))
+            raise ValueError(f"{args.file}: row {row + 1} of {name} is not finite")
+    ids = rec.columns.get("position")
+    if ids is not None:
+        _, acc, mag = average_positions(ids, acc, mag)
+    field_args = {}
+    if args.field:
+        try:
+            field_args["field"] = [float(v) for v in args.field.split(",")]
+        except ValueError:
+            raise ValueError(f"--field: {args.field!r} is not N,E,D") from None
+    if args.total is not None or args.inclination is not None:
+        field_args.update(total=args.total, inclination=args.inclination, declination=args.declination or 0.0)
+    if args.lat is not None or args.lon is not None:
+        field_args.update(lat=args.lat, lon=args.lon, alt_km=args.alt_km or 0.0, date=args.date)
+    if not field_args:
+        raise ValueError("reference field missing: give --field N,E,D, --total/--inclination, or --lat/--lon/--date")
+    f = reference_field(**field_args)
+    units = rec.field_units() if all(c in rec.units for c in ("mx", "my", "mz")) else ""
+    acc_cal = None
+    if args.calibrate_accelerometer:
+        acc_cal = calibrate_accelerometer(acc, gravity=float(np.median(np.linalg.norm(acc, axis=1))))
+        acc = acc_cal.apply(acc)
+    res = calibrate(mag, acc, f, frame=args.frame, preset=args.preset, estimate_yaw=args.estimate_yaw or None,
+                    estimate_inclination=args.estimate_inclination, units=units, acc_measures=args.acc_measures,
+                    tilt_sigma_deg=args.tilt_sigma)
+    report = res.verify(mag, acc, preset=args.preset, acc_measures=args.acc_measures) if args.preset else \
+        res.verify(mag, acc, acc_measures=args.acc_measures)
+    doc = res.to_dict()
+    doc.update(source=str(args.file), positions=int(len(mag)), preset=args.preset,
+               verification={k: v for k, v in report.items() if not isinstance(v, list) or k == "field_error_rms"})
+    if acc_cal is not None:
+        doc["accelerometer"] = {"offset": acc_cal.offset.tolist(), "matrix": acc_cal.matrix.tolist(),
+                                "tilt_error_deg": acc_cal.tilt_error_deg}
+    with np.printoptions(precision=8, suppress=True):
+        print(res.summary["message"], file=out)
+        print(f"  U0 = {res.offset} {res.units}".rstrip(), file=out)
+        print(f"  K  = {res.K.tolist()}", file=out)
+        print(f"  field (N, E, D) = {res.field_ned}  inclination {inclination_of(res.field_ned):.3f}°", file=out)
+        v = doc["verification"]
+        print(f"  in-sample: |H| error RMS {v['magnitude_error_rms']:.4g}, dip error RMS {v['dip_error_deg_rms']:.4g}°"
+              + (f", heading error RMS {v['heading_error_rms_deg']:.4g}°" if "heading_error_rms_deg" in v else ""),
+              file=out)
+    for w in res.summary["warnings"]:
+        print(f"warning: {w}", file=out)
+    if args.output:
+        Path(args.output).write_text(json.dumps(doc, indent=2))
+        print(f"wrote {args.output}", file=out)
+    return 0

@@ -1,0 +1,353 @@
+"""Multi-position calibration with accelerometer levelling (seed 002): C++ core against the NumPy/SciPy
+oracle, simulation truth, the paper's numbers, bad input, and the SAP6 real recordings."""
+import json
+
+import numpy as np
+import pytest
+from scipy.spatial.transform import Rotation
+
+import fluxcal.positions as fp
+from fluxcal import sim
+from fluxcal.oracle import positions as oracle
+
+from conftest import run_cli
+
+G = 9.80665
+PAPER_FIELD = fp.reference_field(total=52200.0, inclination=52.0)  # (N, E, D) nT, magnetic north
+U0_TRUE, K_TRUE = sim.paper_sensor()
+K_SCALE = float(np.mean(np.diag(K_TRUE)))  # mV/nT, to express errors in nT
+
+
+def _twelve(rng, tilt=1.0, yaw=0.0, noise=0.45, acc_sigma_deg=0.01):
+    """Paper-like twelve-position scene: 0.45 mV ≈ 5 nT noise, accelerometer good to ~0.01°."""
+    scene = sim.twelve_scene("nue", tilt_deg=tilt, yaw_deg=yaw, rng=rng)
+    acc = sim.Accelerometer(np.zeros(3), np.eye(3), G * np.radians(acc_sigma_deg) / np.sqrt(2))
+    return sim.simulate_positions(scene, PAPER_FIELD, noise=noise, accelerometer=acc, rng=rng)
+
+
+def test_paper_up_component():
+    # Seed 002: H = 52200 nT, inclination 52° → H_u = 41134 nT.
+    assert round(fp.up_component(52200, 52)) == 41134
+    f = fp.reference_field(total=52200, inclination=52)
+    assert round(f[2]) == 41134 and round(-fp.to_local(f, "nue")[1]) == 41134
+    assert fp.inclination_of(f) == pytest.approx(52.0)
+
+
+def test_reference_field_sources():
+    f = fp.reference_field(total=50000, inclination=60, declination=10)
+    assert np.linalg.norm(f) == pytest.approx(50000)
+    assert np.degrees(np.arctan2(f[1], f[0])) == pytest.approx(10)
+    assert np.allclose(fp.reference_field(field=(1.0, 2.0, 3.0)), [1, 2, 3])
+    # IGRF (ppigrf): Oslo has a steep, strong field; the equator near 0° E a shallow one.
+    oslo = fp.reference_field(lat=59.9, lon=10.7, alt_km=0.0, date="2024-06-01")
+    assert 49000 < np.linalg.norm(oslo) < 54000 and 70 < fp.inclination_of(oslo) < 76
+    gulf = fp.reference_field(lat=0.0, lon=5.0, date="2024-06-01")
+    assert abs(fp.inclination_of(gulf)) < 30
+    for bad in ({}, {"field": (0, 0, 0)}, {"total": 50000}, {"lat": 10.0}, {"field": (1, 2, 3), "total": 5}):
+        with pytest.raises(ValueError):
+            fp.reference_field(**bad)
+
+
+def test_pitch_sensitivity_computed():
+    # Seed 002 eq. 9 at its level x-north position (H_bx = 32140 nT): 0.01° pitch error.
+    s = fp.pitch_sensitivity((32140.0, 41132.0, 0.0), pitch_error_deg=0.01)
+    assert s["exact"] == pytest.approx(32140 * np.radians(0.01), rel=1e-3)  # 5.61 nT (the paper says ≈ 7)
+    assert s["first_order"] == pytest.approx(s["eq9"])
+    assert 5.5 < s["exact"] < 5.7
+    # All three local components (eq. 6): the north one moves by H_by·Δθ ≈ 7.18 nT — the paper's "≈ 7 nT";
+    # the up one is eq. 7's difference; the whole error vector is |H_b|·Δθ (a rotation by Δθ).
+    n_err, u_err, e_err = s["local_error"]
+    assert u_err == pytest.approx(s["exact"], rel=1e-9)
+    assert abs(n_err) == pytest.approx(41132 * np.radians(0.01), rel=1e-3) and 7.1 < abs(n_err) < 7.3
+    assert abs(e_err) < 1e-9
+    assert s["local_error_norm"] == pytest.approx(np.hypot(32140, 41132) * np.radians(0.01), rel=1e-5)
+    # Away from level the other components enter (first order still matches the exact difference).
+    t = fp.pitch_sensitivity((20000.0, 30000.0, 10000.0), 0.01, 0.005, pitch_deg=30, roll_deg=-20)
+    assert t["exact"] == pytest.approx(t["first_order"], rel=1e-2)
+    assert abs(t["exact"] - t["eq9"]) > 0.3 * abs(t["exact"])  # eq. 9 holds only near level
+
+
+def test_pitch_roll_and_rotations_match_oracle():
+    rng = np.random.default_rng(3)
+    for frame in fp.FRAMES:
+        for _ in range(20):
+            pitch, roll, yaw = rng.uniform(-80, 80), rng.uniform(-170, 170), rng.uniform(-180, 180)
+            R = fp.attitude_rotations([[pitch, roll, yaw]], frame)[0]
+            assert np.allclose(R, oracle.body_to_local(*np.radians([pitch, roll, yaw]), frame), atol=1e-12)
+            up = np.array([0, 0, -1.0]) if frame == "ned" else np.array([0, 1.0, 0])
+            a = 9.8 * R.T @ up
+            assert np.allclose(fp.pitch_roll(a, frame)[0], np.degrees(oracle.pitch_roll(a, frame)), atol=1e-9)
+            assert np.allclose(fp.pitch_roll(a, frame)[0], [pitch, roll], atol=1e-9)
+    # Seed 002 eq. 6 as printed, at zero heading.
+    th, ga = np.radians(12.0), np.radians(-40.0)
+    assert np.allclose(fp.attitude_rotations([[12.0, -40.0, 0.0]], "nue")[0], oracle.eq6(th, ga), atol=1e-14)
+
+
+def test_twelve_preset_directions():
+    R = fp.preset_rotations("twelve", "nue")
+    letters = {"N": (1, 0, 0), "U": (0, 1, 0), "E": (0, 0, 1), "S": (-1, 0, 0), "D": (0, -1, 0), "W": (0, 0, -1)}
+    for name, Ri in zip(fp.TWELVE, R):
+        assert np.allclose(Ri, np.array([letters[c] for c in name.split("-")]).T)
+    # ned: the same physical positions (body FRD = seed x, seed z, −seed y; local NED).
+    ned = fp.preset_rotations("twelve", "ned")
+    to_ned = np.array([[1, 0, 0], [0, 0, 1], [0, -1, 0]])  # (N, E, D) from (N, U, E); also FRD from FUR
+    assert np.allclose(np.einsum("ij,njk,lk->nil", to_ned, R, to_ned), ned)
+
+
+def test_least_squares_matches_oracle():
+    rng = np.random.default_rng(5)
+    for n in (4, 7, 30):
+        H = rng.standard_normal((n, 3)) * 30000
+        U = U0_TRUE + H @ K_TRUE.T + 0.5 * rng.standard_normal((n, 3))
+        r = fp.fit(U, H, units="mV")
+        u0, K = oracle.fit_positions(U, H)
+        assert np.allclose(r.offset, u0, atol=1e-8 * 500) and np.allclose(r.K, K, atol=1e-12)
+
+
+def test_closed_form_agrees_with_least_squares_noise_free():
+    rng = np.random.default_rng(1)
+    s = _twelve(rng, tilt=0.0, noise=0.0, acc_sigma_deg=0.0)
+    res = fp.calibrate(s.outputs, s.acc_raw, PAPER_FIELD, frame="nue", preset="twelve")
+    hu = fp.to_local(PAPER_FIELD, "nue")[1]  # signed up component: −41134 nT (the paper quotes the magnitude)
+    u0_cf, K_cf = fp.closed_form_twelve(s.outputs, hu)
+    u0_or, K_or = oracle.closed_form_twelve(s.outputs, hu)
+    assert np.abs(K_cf - res.K).max() / K_SCALE < 1e-9
+    assert np.abs(u0_cf - res.offset).max() < 1e-9 * 500
+    assert np.allclose(K_cf, K_or, rtol=0, atol=1e-15) and np.allclose(u0_cf, u0_or, atol=1e-12)
+    assert np.abs(res.K - K_TRUE).max() / K_SCALE < 1e-12
+
+
+def test_paper_like_twelve_positions_accuracy():
+    """Done-when: K within 0.2 % (of the diagonal), U0 within 10 nT, at 5 nT noise, accelerometer to 0.01°,
+    tilted positions levelled by the accelerometer (after its own multi-position calibration)."""
+    worst_K, worst_U0 = 0.0, 0.0
+    for seed in range(10):
+        rng = np.random.default_rng(100 + seed)
+        scene = sim.twelve_scene("nue", tilt_deg=2.0, yaw_deg=0.0, rng=rng)
+        acc_sensor = sim.Accelerometer.random(rng, noise=G * np.radians(0.005))
+        s = sim.simulate_positions(scene, PAPER_FIELD, noise=0.45, accelerometer=acc_sensor, rng=rng)
+        # Accelerometer first: the same twelve shots plus twelve more static attitudes.
+        extra = sim.random_scene(12, "nue", rng).true
+        acc_extra = acc_sensor.read(G * np.einsum("nji,j->ni", extra, [0, 1.0, 0]), rng)
+        acc_cal = fp.calibrate_accelerometer(np.vstack([s.acc_raw, acc_extra]))
+        assert acc_cal.tilt_error_deg < 0.02
+        res = fp.calibrate(s.outputs, acc_cal.apply(s.acc_raw), PAPER_FIELD, frame="nue", preset="twelve",
+                           units="mV")
+        worst_K = max(worst_K, np.abs(res.K - K_TRUE).max() / K_SCALE)
+        worst_U0 = max(worst_U0, np.abs(res.offset - U0_TRUE).max() / K_SCALE)
+    assert worst_K < 2e-3
+    assert worst_U0 < 10.0
+
+
+def test_heading_errors_estimated_jointly():
+    """Positions turned by up to 2° in heading: fixed-heading least squares is biased; estimating the
+    headings removes the bias. The twelve alone determine headings poorly (symmetric set: K's standard
+    error ~1 %), so the scene is the twelve plus the twelve turned 45° in heading."""
+    rng = np.random.default_rng(9)
+    a = sim.twelve_scene("nue", tilt_deg=1.0, yaw_deg=2.0, rng=rng)
+    b = sim.twelve_scene("nue", tilt_deg=1.0, yaw_deg=2.0, rng=rng)
+    turn = Rotation.from_rotvec([0, -np.radians(45), 0]).as_matrix()
+    scene = sim.PositionsScene("nue", np.concatenate([a.nominal, turn @ b.nominal]),
+                               np.concatenate([a.true, turn @ b.true]))
+    acc = sim.Accelerometer(np.zeros(3), np.eye(3), G * np.radians(0.005))
+    s = sim.simulate_positions(scene, PAPER_FIELD, noise=0.45, accelerometer=acc, rng=rng)
+    fixed = fp.calibrate(s.outputs, s.acc_raw, PAPER_FIELD, frame="nue", rotations=scene.nominal)
+    joint = fp.calibrate(s.outputs, s.acc_raw, PAPER_FIELD, frame="nue", rotations=scene.nominal, estimate_yaw=True)
+    assert joint.summary["converged"] and not joint.summary["warnings"]
+    err = lambda r: np.abs(r.K - K_TRUE).max() / K_SCALE  # noqa: E731
+    assert err(joint) < 2e-3 < err(fixed)
+    assert np.abs(joint.offset - U0_TRUE).max() / K_SCALE < 10
+    # Against the SciPy oracle of the same joint problem.
+    up = s.acc_raw
+    u0_o, K_o, yaw_o = oracle.calibrate_joint(s.outputs, up, scene.nominal, fp.to_local(PAPER_FIELD, "nue"), "nue")
+    assert np.abs(joint.K - K_o).max() / K_SCALE < 1e-7
+    assert np.allclose(joint.yaw_deg, np.degrees(yaw_o), atol=1e-5)
+    # Standard errors are honest: the error is within 4 σ for every K entry.
+    se = joint.standard_errors[3:12].reshape(3, 3)
+    assert np.all(np.abs(joint.K - K_TRUE) < 4 * se + 1e-12)
+
+
+
+def test_joint_standard_errors_match_dense_covariance():
+    """The joint fit's standard errors (computed by eliminating the per-position headings, a Schur
+    complement) equal σ̂ √diag((JᵀJ)⁻¹) of a dense finite-difference Jacobian of the oracle's residual."""
+    rng = np.random.default_rng(17)
+    sc = sim.random_scene(20, "ned", rng)
+    turn = Rotation.from_rotvec(np.outer(rng.uniform(-2, 2, 20), [0, 0, np.radians(1.0)])).as_matrix()
+    scene = sim.PositionsScene("ned", sc.nominal, turn @ sc.nominal)
+    s = sim.simulate_positions(scene, PAPER_FIELD, noise=0.45, rng=rng)
+    res = fp.calibrate(s.outputs, s.acc_raw, PAPER_FIELD, frame="ned", rotations=scene.nominal, estimate_yaw=True)
+    f_local = fp.to_local(PAPER_FIELD, "ned")
+    L = [oracle.level(R, a, "ned") for R, a in zip(scene.nominal, s.acc_raw)]
+
+    def resid(p):
+        u0, K, psi = p[:3], p[3:12].reshape(3, 3), p[12:]
+        H = np.array([(oracle.heading(psi[i], "ned") @ L[i]).T @ f_local for i in range(len(L))])
+        return (s.outputs - u0 - H @ K.T).ravel()
+
+    p0 = res.parameters
+    assert res.parameter_names[12:] == [f"yaw_{i}" for i in range(20)]
+    steps = np.maximum(np.abs(p0), 1e-3) * 1e-6
+    J = np.column_stack([(resid(p0 + h * e) - resid(p0 - h * e)) / (2 * h) for h, e in zip(steps, np.eye(len(p0)))])
+    sigma = np.sqrt(np.sum(resid(p0) ** 2) / (J.shape[0] - J.shape[1]))
+    assert sigma == pytest.approx(res.noise_sigma, rel=1e-6)
+    se = sigma * np.sqrt(np.diag(np.linalg.inv(J.T @ J)))
+    assert np.allclose(res.standard_errors, se, rtol=1e-4)
+    assert all(res.determined)
+
+def test_unknown_headings_with_inclination_and_verification():
+    """No nominal attitudes at all (random static positions, headings unknown): U0, K, each heading and the
+    dip from an ellipsoid start; verification at extra positions."""
+    rng = np.random.default_rng(21)
+    field = fp.reference_field(total=50000, inclination=65.0)
+    scene = sim.random_scene(30, "ned", rng)
+    acc = sim.Accelerometer(np.zeros(3), np.eye(3), G * np.radians(0.005))
+    U0 = np.array([120.0, -80.0, 40.0])
+    K = np.array([[1.05, 0.02, -0.01], [0.0, 0.97, 0.03], [0.01, -0.02, 1.01]])
+    s = sim.simulate_positions(scene, field, sensor=(U0, K), noise=5.0, accelerometer=acc, rng=rng)
+    start = fp.reference_field(total=50000, inclination=55.0)  # wrong dip on purpose
+    res = fp.calibrate(s.outputs, s.acc_raw, start, frame="ned", estimate_inclination=True)
+    assert fp.inclination_of(res.field_ned) == pytest.approx(65.0, abs=0.05)
+    assert np.abs(res.K - K).max() < 2e-3 and np.abs(res.offset - U0).max() < 10
+    check = sim.random_scene(10, "ned", rng)
+    t = sim.simulate_positions(check, field, sensor=(U0, K), noise=5.0, accelerometer=acc, rng=rng)
+    report = res.verify(t.outputs, t.acc_raw, rotations=check.true)
+    assert report["magnitude_error_rms"] < 15 and report["dip_error_deg_rms"] < 0.05
+    assert report["heading_error_rms_deg"] < 0.1 and max(report["field_error_rms"]) < 20
+    # A deliberately wrong calibration shows up in every statistic.
+    bad = fp.PositionsResult(**{**res.__dict__, "K": res.K @ Rotation.from_euler("z", 2, degrees=True).as_matrix()})
+    worse = bad.verify(t.outputs, t.acc_raw, rotations=check.true)
+    assert worse["heading_error_rms_deg"] > 1.0
+
+
+def test_accelerometer_calibration_matches_oracle():
+    rng = np.random.default_rng(2)
+    acc = sim.Accelerometer.random(rng, noise=0.002)
+    raw = acc.read(G * sim.random_scene(15, "ned", rng).true[:, 2, :] * -1, rng)
+    cal = fp.calibrate_accelerometer(raw)
+    b, T = oracle.calibrate_accelerometer(raw)
+    assert np.allclose(cal.offset, b, atol=1e-7) and np.allclose(cal.matrix, T, atol=1e-8)
+    assert np.allclose(cal.matrix, np.linalg.inv(acc.matrix), atol=2e-3)
+    assert cal.misalignment_estimated
+
+
+def test_bad_input_messages():
+    rng = np.random.default_rng(4)
+    s = _twelve(rng, tilt=0.0, noise=0.0, acc_sigma_deg=0.0)
+    with pytest.raises(ValueError, match="need at least 4"):
+        fp.fit(s.outputs[:3], s.reference[:3])
+    # Only positions 1-2-5-6 (each with its vertical axis up): a plane of body fields -> names U0 and K·n.
+    idx = [0, 1, 4, 5, 0]
+    H = s.reference[idx]
+    with pytest.raises(ValueError, match="cannot be separated|not observable"):
+        fp.fit(s.outputs[idx], H)
+    moving = s.acc_raw.copy()
+    moving[3] *= 1.3
+    with pytest.raises(ValueError, match="position 3.*moving"):
+        fp.calibrate(s.outputs, moving, PAPER_FIELD, frame="nue", preset="twelve")
+    with pytest.raises(ValueError, match="reference field is missing"):
+        fp.calibrate(s.outputs, s.acc_raw, None, frame="nue", preset="twelve")
+    with pytest.raises(ValueError, match="gravity .down."):
+        fp.calibrate(s.outputs, -s.acc_raw, PAPER_FIELD, frame="nue", preset="twelve")
+    with pytest.raises(ValueError, match="frame"):
+        fp.calibrate(s.outputs, s.acc_raw, PAPER_FIELD, frame="enu", preset="twelve")
+    with pytest.raises(ValueError, match="describe 12"):
+        fp.calibrate(s.outputs[:8], s.acc_raw[:8], PAPER_FIELD, frame="nue", preset="twelve")
+    # Yaw-only turns: heading estimated with the sensor never tilted -> the vertical response is unobservable.
+    level = np.array([fp.attitude_rotations([[0, 0, y]], "ned")[0] for y in np.linspace(0, 330, 12)])
+    t = sim.simulate_positions(sim.PositionsScene("ned", level, level), PAPER_FIELD, sensor=(U0_TRUE, K_TRUE),
+                               rng=rng)
+    with pytest.raises(ValueError, match="not observable|cannot be separated"):
+        fp.calibrate(t.outputs, t.acc_raw, PAPER_FIELD, frame="ned", rotations=level, estimate_yaw=True)
+
+
+# ---- real data: SAP6 cave-survey instruments (six units, 24 static shots each) -----------------------------
+
+def _fix_axes(data, axes):
+    """mag_cal's axes string: for each device axis, which sensor axis (with sign) feeds it."""
+    idx = ["XYZ".index(axes[2 * i + 1]) for i in range(3)]
+    sign = [1.0 if axes[2 * i] == "+" else -1.0 for i in range(3)]
+    return np.column_stack([sign[i] * data[:, idx[i]] for i in range(3)])
+
+
+@pytest.mark.parametrize("unit", ["BB", "CF", "FG", "HC", "IB", "JG"])
+def test_sap6_against_makers_calibration(real_data, unit):
+    folder = real_data / "sap6"
+    shots = json.loads((folder / f"{unit}.json").read_text())
+    cfg = json.loads((folder / f"{unit}.cfg").read_text())["calib"]
+    mag = _fix_axes(np.array(shots["mag"], float), cfg["mag"]["axes"])      # device axes, µT
+    grav = _fix_axes(np.array(shots["grav"], float), cfg["grav"]["axes"])   # device axes, m/s², pointing DOWN
+    # Maker's dips from its linear calibration (mag_cal: (raw − centre) @ transform; dip = 90° − angle to grav).
+    m = (mag - cfg["mag"]["centre"]) @ np.array(cfg["mag"]["transform"])
+    g = (grav - cfg["grav"]["centre"]) @ np.array(cfg["grav"]["transform"])
+    cos = np.sum(m * g, axis=1) / np.linalg.norm(m, axis=1) / np.linalg.norm(g, axis=1)
+    maker_dip = 90.0 - np.degrees(np.arccos(cos))
+    maker_rel_std = cfg["mag"]["field_std"] / cfg["mag"]["field_avg"]
+    # Device axes are (right, forward, up); fluxcal's ned body axes are (forward, right, down).
+    mag_frd = np.column_stack([mag[:, 1], mag[:, 0], -mag[:, 2]])
+    sf_raw = -np.column_stack([grav[:, 1], grav[:, 0], -grav[:, 2]])  # specific force = −gravity
+    acc_cal = fp.calibrate_accelerometer(sf_raw)
+    sf = acc_cal.apply(sf_raw)
+    # Field magnitude from the maker (only a scale: spreads are compared relative), dip estimated from 60°;
+    # headings unknown; levelling uncertainty = the accelerometer's own residual (in degrees).
+    start = fp.reference_field(total=cfg["mag"]["field_avg"], inclination=60.0)
+    res = fp.calibrate(mag_frd, sf, start, frame="ned", estimate_inclination=True, units="uT",
+                       gravity_tolerance=0.1, tilt_sigma_deg=acc_cal.tilt_error_deg)
+    assert res.summary["converged"], res.summary["warnings"]
+    rep = res.verify(mag_frd, sf)
+    ours_rel_std = rep["field_magnitude_std"] / rep["field_magnitude_mean"]
+    assert ours_rel_std <= maker_rel_std
+    assert rep["dip_std_deg"] <= maker_dip.std()
+    assert abs(rep["dip_mean_deg"] - cfg["dip_avg"]) < 0.5
+
+
+# ---- command line -----------------------------------------------------------------------------------------
+
+def test_cli_positions(tmp_path):
+    rng = np.random.default_rng(8)
+    s = _twelve(rng, tilt=1.0, noise=0.45, acc_sigma_deg=0.005)
+    rows = []
+    for i in range(12):  # three samples per position, averaged by the CLI
+        for _ in range(3):
+            rows.append([i + 1, *s.acc_raw[i], *(s.outputs[i] + 0.1 * rng.standard_normal(3))])
+    path = tmp_path / "twelve.csv"
+    header = "# units: mx=mV, my=mV, mz=mV\nposition,ax,ay,az,mx,my,mz\n"
+    path.write_text(header + "\n".join(",".join(f"{v:.10g}" for v in r) for r in rows) + "\n")
+    out = tmp_path / "out.json"
+    f = ",".join(f"{v:.6f}" for v in PAPER_FIELD)
+    proc = run_cli("positions", path, "--field", f, "--frame", "nue", "--preset", "twelve", "-o", out)
+    assert proc.returncode == 0, proc.stderr
+    d = json.loads(out.read_text())
+    assert np.abs(np.array(d["K"]) - K_TRUE).max() / K_SCALE < 3e-3
+    assert len(d["offset"]) == 3 and d["units"] == "mV" and "verification" in d
+    assert "dip_error_deg_rms" in d["verification"]
+    bad = run_cli("positions", path, "--frame", "nue", "--preset", "twelve", "-o", out)
+    assert bad.returncode == 2 and "reference field" in bad.stderr
+
+
+def test_cli_positions_igrf_unknown_headings(tmp_path):
+    """The interface without a preset or position column: random static attitudes, headings unknown
+    (estimated from an ellipsoid start), the field from IGRF for --lat/--lon/--date, frame ned."""
+    rng = np.random.default_rng(12)
+    field = fp.reference_field(lat=48.1, lon=11.6, date="2025-03-01")
+    scene = sim.random_scene(24, "ned", rng)
+    U0 = np.array([150.0, -60.0, 20.0])
+    K = np.array([[0.0895, -0.022, -0.0005], [0.0002, 0.0895, -0.0001], [0.0004, 0.0002, 0.0893]])
+    acc = sim.Accelerometer(np.zeros(3), np.eye(3), G * np.radians(0.005))
+    s = sim.simulate_positions(scene, field, sensor=(U0, K), noise=0.45, accelerometer=acc, rng=rng)
+    path = tmp_path / "shots.csv"
+    rows = np.column_stack([s.acc_raw, s.outputs])
+    path.write_text("ax,ay,az,mx,my,mz\n" + "\n".join(",".join(f"{v:.12g}" for v in r) for r in rows) + "\n")
+    out = tmp_path / "out.json"
+    proc = run_cli("positions", path, "--lat", "48.1", "--lon", "11.6", "--date", "2025-03-01", "-o", out)
+    assert proc.returncode == 0, proc.stderr
+    d = json.loads(out.read_text())
+    assert np.allclose(d["field_ned"], field, atol=1e-6)
+    assert np.abs(np.array(d["K"]) - K).max() / 0.0895 < 2e-3
+    assert np.abs(np.array(d["offset"]) - U0).max() / 0.0895 < 10
+    v = d["verification"]
+    assert v["magnitude_error_rms"] < 15 and v["dip_error_deg_rms"] < 0.05
+    bad_date = run_cli("positions", path, "--lat", "48.1", "--lon", "11.6", "--date", "1850-01-01", "-o", out)
+    assert bad_date.returncode == 2 and "outside the IGRF model" in bad_date.stderr
+    with pytest.raises(ValueError, match="outside the IGRF model"):  # ppigrf would hold the 2030 field silently
+        fp.reference_field(lat=48.1, lon=11.6, date="2031-06-01")
