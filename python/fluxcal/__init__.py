@@ -15,6 +15,7 @@ from .io import Recording, read_csv, write_csv
 from .pipeline import calibrate
 from .refine import fit_vector, refine
 from .twostep import TwoStep2D, twostep, twostep_2d
+from . import cable
 
 __version__ = _core.__version__
 

@@ -15,3 +15,4 @@ __all__ = ["CANDIDATES", "ColoredNoise", "CrossAxis", "CubicNonlinearity", "Eddy
            "Hysteresis", "Misalignment", "MovingDipole", "NonOrthogonality", "OffsetDrift", "Quantization", "Saturation",
            "SoftIron", "TemperatureOffset", "TemperatureScale", "WhiteNoise", "ZLeakage", "random_sensor", "Scene",
            "sweeps", "tumble", "uniform", "Simulation", "simulate"]
+from . import cable
