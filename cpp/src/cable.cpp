@@ -18,8 +18,6 @@ namespace {
 constexpr double kInf = std::numeric_limits<double>::infinity();
 // Column-scaled Fisher matrices above this condition number are singular to double precision.
 constexpr double kSingularFisher = 1e14;
-// Two grid points closer than this (normalised) are one point for the seeds.
-constexpr double kSameSeed = 1e-9;
 
 std::string num(double v) {
   char buf[32];
@@ -165,6 +163,12 @@ double seed_cost(const RingFrame& f, const std::vector<double>& pos, int n, bool
   return total - (Q.transpose() * R).squaredNorm();
 }
 
+Eigen::Matrix<double, Eigen::Dynamic, 2, Eigen::RowMajor> field_kernel(const CableRing& ring,
+                                                                       const Eigen::Ref<const ConductorPositions>& positions,
+                                                                       const Eigen::Ref<const Eigen::VectorXd>& currents);
+Eigen::MatrixXd jacobian_kernel(const CableRing& ring, const Eigen::Ref<const ConductorPositions>& positions,
+                                const Eigen::Ref<const Eigen::VectorXd>& currents);
+
 }  // namespace
 
 void CableRing::validate() const {
@@ -203,6 +207,20 @@ Eigen::Matrix<double, Eigen::Dynamic, 2, Eigen::RowMajor> cable_field(const Cabl
   for (Eigen::Index j = 0; j < currents.size(); ++j)
     if (!std::isfinite(currents(j))) throw Error("currents: value " + std::to_string(j) + " is not finite");
   check_positions(ring, positions, "positions");
+  return field_kernel(ring, positions, currents);
+}
+
+Eigen::MatrixXd cable_field_jacobian(const CableRing& ring, const Eigen::Ref<const ConductorPositions>& positions,
+                                     const Eigen::Ref<const Eigen::VectorXd>& currents) {
+  cable_field(ring, positions, currents);  // the same checks
+  return jacobian_kernel(ring, positions, currents);
+}
+
+namespace {
+
+Eigen::Matrix<double, Eigen::Dynamic, 2, Eigen::RowMajor> field_kernel(const CableRing& ring,
+                                                                       const Eigen::Ref<const ConductorPositions>& positions,
+                                                                       const Eigen::Ref<const Eigen::VectorXd>& currents) {
   const RingFrame f(ring);
   const double R = ring.radius, k = kMu0Over2Pi / R;
   Eigen::Matrix<double, Eigen::Dynamic, 2, Eigen::RowMajor> out =
@@ -217,9 +235,8 @@ Eigen::Matrix<double, Eigen::Dynamic, 2, Eigen::RowMajor> cable_field(const Cabl
   return out;
 }
 
-Eigen::MatrixXd cable_field_jacobian(const CableRing& ring, const Eigen::Ref<const ConductorPositions>& positions,
-                                     const Eigen::Ref<const Eigen::VectorXd>& currents) {
-  cable_field(ring, positions, currents);  // the same checks
+Eigen::MatrixXd jacobian_kernel(const CableRing& ring, const Eigen::Ref<const ConductorPositions>& positions,
+                                const Eigen::Ref<const Eigen::VectorXd>& currents) {
   const RingFrame f(ring);
   const Eigen::Index n = positions.rows();
   const double R = ring.radius, k = kMu0Over2Pi / R;
@@ -236,6 +253,8 @@ Eigen::MatrixXd cable_field_jacobian(const CableRing& ring, const Eigen::Ref<con
     }
   return J;
 }
+
+}  // namespace
 
 CableSolution solve_cable(const CableRing& ring, const Eigen::Ref<const Eigen::MatrixXd>& readings,
                           const CableSolveOptions& opt) {
@@ -331,9 +350,18 @@ CableSolution solve_cable(const CableRing& ring, const Eigen::Ref<const Eigen::M
     }
     std::sort(scored.begin(), scored.end(),
               [](const auto& l, const auto& r) { return l.first < r.first; });
+    // diverse seeds: skip one whose every coordinate is within a grid step of a chosen seed (neighbouring
+    // grid cells fall into the same basin; the best few are often neighbours)
+    const double step = 2.0 * bore / g * 1.01;
     for (const auto& sc : scored) {
       if (static_cast<int>(seeds.size()) >= opt.starts || !std::isfinite(sc.first)) break;
-      seeds.push_back(sc.second);
+      bool near = false;
+      for (const auto& chosen : seeds) {
+        double d = 0.0;
+        for (std::size_t k = 0; k < chosen.size(); ++k) d = std::max(d, std::abs(chosen[k] - sc.second[k]));
+        if (d <= step) near = true;
+      }
+      if (!near) seeds.push_back(sc.second);
     }
     if (seeds.empty()) throw Error("readings: no usable starting point on the grid (every seed is degenerate)");
   }
@@ -415,8 +443,8 @@ CableSolution solve_cable(const CableRing& ring, const Eigen::Ref<const Eigen::M
   Eigen::MatrixXd J = Eigen::MatrixXd::Zero(2 * m * S, pf);
   out.residuals.resize(S, 2 * m);
   for (Eigen::Index s = 0; s < S; ++s) {
-    const Eigen::MatrixXd Js = cable_field_jacobian(ring, out.positions, out.currents.row(s).transpose());
-    const auto model = cable_field(ring, out.positions, out.currents.row(s).transpose());
+    const Eigen::MatrixXd Js = jacobian_kernel(ring, out.positions, out.currents.row(s).transpose());
+    const auto model = field_kernel(ring, out.positions, out.currents.row(s).transpose());
     for (Eigen::Index i = 0; i < m; ++i)
       for (int a = 0; a < 2; ++a) out.residuals(s, 2 * i + a) = readings(s, 2 * i + a) - model(i, a);
     J.block(2 * m * s, 0, 2 * m, 2 * n) = Js.leftCols(2 * n);

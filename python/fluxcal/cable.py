@@ -23,7 +23,7 @@ from ._arrays import set_options
 from .twostep import TwoStep2D, twostep_2d
 
 #: μ0/(2π) in T·m/A (the core's constant).
-MU0_OVER_2PI = 1.25663706212e-6 / (2.0 * np.pi)
+MU0_OVER_2PI = 1.25663706127e-6 / (2.0 * np.pi)
 
 
 def _positions(positions_m) -> np.ndarray:
@@ -206,3 +206,62 @@ def calibration_fields(ring: Ring, positions_m, currents_a, rotations_deg) -> np
     each set of reference currents (inner; `currents_a` (c, n) or (n,))."""
     cur = np.atleast_2d(np.asarray(currents_a, dtype=float))
     return np.concatenate([ring.rotated(a).field(positions_m, cur) for a in np.atleast_1d(rotations_deg)])
+
+
+# ---- recordings (CLI) ------------------------------------------------------------------------------
+# A ring recording is a fluxcal CSV with one row per snapshot: `rotation_deg` (the ring's turn, optional),
+# the reference currents `i0`, `i1`, … (calibration recordings), and the readings `s<k>_x`, `s<k>_y` of
+# every sensor k (tesla). Metadata lines carry the ring (`ring_angles_deg`, `ring_radius_m`) and, for a
+# calibration, the conductor positions (`positions_m`: x0 y0 x1 y1 …).
+
+def _floats(text) -> np.ndarray:
+    return np.array([float(v) for v in str(text).replace(",", " ").split()])
+
+
+def write_ring_csv(path, ring: Ring, readings, rotations_deg=None, currents_a=None, positions_m=None,
+                   metadata=None):
+    """Write snapshots (K, n_sensors, 2) with their rotations (K,) and reference currents (K, n)."""
+    from .io import write_csv
+
+    r = np.asarray(readings, float)
+    cols = {}
+    if rotations_deg is not None:
+        cols["rotation_deg"] = np.asarray(rotations_deg, float)
+    if currents_a is not None:
+        cur = np.atleast_2d(np.asarray(currents_a, float))
+        for j in range(cur.shape[1]):
+            cols[f"i{j}"] = cur[:, j]
+    for k in range(r.shape[1]):
+        cols[f"s{k}_x"], cols[f"s{k}_y"] = r[:, k, 0], r[:, k, 1]
+    units = {n: ("T" if n.startswith("s") else "A" if n.startswith("i") else "deg") for n in cols}
+    meta = {"ring_angles_deg": " ".join(f"{a:.10g}" for a in ring.angles_deg), "ring_radius_m": f"{ring.radius_m:.10g}",
+            "ring_bore_radius_m": f"{ring.bore_radius_m:.10g}"}
+    if positions_m is not None:
+        meta["positions_m"] = " ".join(f"{v:.10g}" for v in np.ravel(positions_m))
+    meta.update(metadata or {})
+    return write_csv(path, cols, units=units, metadata=meta, fmt="%.12g")
+
+
+def read_ring_csv(path) -> dict:
+    """Read a ring recording: dict with ring, readings (K, n_sensors, 2), rotations_deg (K,) (zeros when
+    absent), currents_a (K, n) or None, positions_m (n, 2) or None."""
+    from .io import read_csv
+
+    rec = read_csv(path)
+    meta = rec.metadata
+    if "ring_angles_deg" not in meta or "ring_radius_m" not in meta:
+        raise ValueError(f"{path}: no ring_angles_deg / ring_radius_m metadata lines")
+    ring = Ring(_floats(meta["ring_angles_deg"]), float(meta["ring_radius_m"]),
+                bore_radius_m=float(meta["ring_bore_radius_m"]) if "ring_bore_radius_m" in meta else None)
+    names = [(f"s{k}_x", f"s{k}_y") for k in range(ring.n_sensors)]
+    missing = [n for pair in names for n in pair if n not in rec.columns]
+    if missing:
+        raise ValueError(f"{path}: no column {', '.join(missing)} for the ring's {ring.n_sensors} sensors")
+    readings = np.stack([np.column_stack([rec.columns[x], rec.columns[y]]) for x, y in names], axis=1)
+    k = readings.shape[0]
+    rotations = rec.columns.get("rotation_deg", np.zeros(k))
+    cur_names = sorted((n for n in rec.columns if n[0] == "i" and n[1:].isdigit()), key=lambda n: int(n[1:]))
+    currents = np.column_stack([rec.columns[n] for n in cur_names]) if cur_names else None
+    positions = _floats(meta["positions_m"]).reshape(-1, 2) if "positions_m" in meta else None
+    return {"ring": ring, "readings": readings, "rotations_deg": np.asarray(rotations, float), "currents_a": currents,
+            "positions_m": positions}

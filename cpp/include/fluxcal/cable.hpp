@@ -38,8 +38,8 @@
 
 namespace fluxcal {
 
-/// μ0/(2π) in T·m/A (CODATA 2018 μ0 = 1.25663706212e-6 N/A²).
-constexpr double kMu0Over2Pi = 1.25663706212e-6 / (2.0 * 3.14159265358979323846);
+/// μ0/(2π) in T·m/A (CODATA 2022 μ0 = 1.25663706127e-6 N/A², as magpylib and recent SciPy).
+constexpr double kMu0Over2Pi = 1.25663706127e-6 / (2.0 * 3.14159265358979323846);
 
 /// A ring of biaxial sensors around a cable. Angles in radians, lengths in metres.
 struct CableRing {
