@@ -375,6 +375,7 @@ CableSolution solve_cable(const CableRing& ring, const Eigen::Ref<const Eigen::M
   so.parameter_tolerance = opt.parameter_tolerance;
   so.logging_type = ceres::SILENT;
   so.num_threads = 1;
+  if (opt.dogleg) so.trust_region_strategy_type = ceres::DOGLEG;
 
   double best_cost = kInf;
   std::vector<double> best_pos;
@@ -397,6 +398,7 @@ CableSolution solve_cable(const CableRing& ring, const Eigen::Ref<const Eigen::M
     }
     ceres::Problem::Options po;
     po.cost_function_ownership = ceres::TAKE_OWNERSHIP;
+    po.disable_all_safety_checks = true;  // the blocks are built right here
     ceres::Problem problem(po);
     for (Eigen::Index s = 0; s < S; ++s)
       problem.AddResidualBlock(new SnapshotCost(f, Rn.col(s).data(), n, zs), nullptr, pos.data(), cur.col(s).data());

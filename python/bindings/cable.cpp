@@ -32,6 +32,7 @@ void bind_cable(py::module_& m) {
       .def_readwrite("function_tolerance", &CableSolveOptions::function_tolerance)
       .def_readwrite("gradient_tolerance", &CableSolveOptions::gradient_tolerance)
       .def_readwrite("parameter_tolerance", &CableSolveOptions::parameter_tolerance)
+      .def_readwrite("dogleg", &CableSolveOptions::dogleg)
       .def_readwrite("noise_sigma", &CableSolveOptions::noise_sigma)
       .def_readwrite("max_position_sigma", &CableSolveOptions::max_position_sigma)
       .def_readwrite("max_current_relative_sigma", &CableSolveOptions::max_current_relative_sigma)

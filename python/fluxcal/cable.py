@@ -111,7 +111,7 @@ class Ring:
         (snapshots, n_sensors, 2) sharing the positions (AC waveforms), tesla in each sensor's axes.
 
         settings (defaults in cable.hpp): grid_points=9, starts=6, max_iterations=100, noise_sigma=1e-8 (T;
-        ≤ 0 = estimate from the residuals), max_position_sigma=1e-4 (m), max_current_relative_sigma=0.01.
+        ≤ 0 = estimate from the residuals), max_position_sigma=1e-4 (m), max_current_relative_sigma=0.05.
         `initial_positions` (n, 2) warm-starts the solver (no grid). Raises ValueError on NaN readings,
         too few sensors for the unknowns, or a start outside the bore."""
         arr = np.asarray(readings, dtype=float)

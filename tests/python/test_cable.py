@@ -92,9 +92,9 @@ def test_inverse_recovers_two_core_cables_over_the_bore():
                 cases += 1
                 flagged += not sol.well_conditioned
     assert cases >= 100
-    # at the paper's noise (10 nT) a few layouts (close to a sensor's blind direction) have current
-    # standard errors above 1 % and are flagged; most are not
-    assert flagged <= 0.25 * cases, (flagged, cases)
+    # at the paper's noise (10 nT) these layouts have current standard errors of 0.5–1.5 %, positions
+    # ~0.01 mm: well below the flag's 5 % / 0.1 mm
+    assert flagged <= 0.1 * cases, (flagged, cases)
 
 
 def test_inverse_matches_the_scipy_oracle_with_noise():
