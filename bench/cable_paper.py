@@ -157,13 +157,16 @@ def end_to_end(sw):
     rows = sc.end_to_end(sw)
     print("\n3. End to end: single snapshots of the lab rig at rotations 0°, 37°, 123°; max error over the two "
           "conductors")
-    print(f"   {'I (A)':>6}{'method':>16}{'position (mm)':>16}{'current (%)':>14}   (mean over rotations; max)")
+    print(f"   {'I (A)':>6}{'method':>16}{'position (mm)':>18}{'current (%)':>20}{'ill':>6}{'misfit':>8}   (mean; max over rotations)")
     for current in sorted({r[0] for r in rows}):
         for method in ("uncalibrated", "twostep", "least_squares"):
             sel = [r for r in rows if r[0] == current and r[2] == method]
             p = np.array([r[3] for r in sel])
             c = np.array([r[4] for r in sel])
-            print(f"   {current:>6.1f}{method:>16}{np.mean(p):>9.4f}; {np.max(p):.4f}{np.mean(c):>9.3f}; {np.max(c):.3f}")
+            flagged = sum(not r[5] for r in sel)
+            misfit = sum(not r[6] for r in sel)
+            print(f"   {current:>6.1f}{method:>16}{np.mean(p):>10.4f}; {np.max(p):<7.4f}{np.mean(c):>11.3f}; "
+                  f"{np.max(c):<8.3f}{flagged:>4d}/{len(sel)}{misfit:>6d}/{len(sel)}")
 
 
 def timing(repeat):
@@ -175,6 +178,7 @@ def timing(repeat):
     readings = ring.field(pos, cur) + 1e-8 * rig_rng.standard_normal((4, 2))
     start = pos + 0.2e-3
     ours = lambda: ring.solve(readings, initial_positions=start)  # noqa: E731
+    dense = lambda: ring.solve(readings, initial_positions=start, dense_solver=True)  # noqa: E731
     cold = lambda: ring.solve(readings)  # noqa: E731
     k = MU0_OVER_2PI / ring.radius_m
 
@@ -194,12 +198,15 @@ def timing(repeat):
     s = scipy_trf()
     agree = np.abs(s.x[:4] * ring.radius_m - ours().positions.ravel()).max()
     t_ours, t_cold = best_time(ours, repeat), best_time(cold, max(5, repeat // 20))
+    t_dense = best_time(dense, repeat)
     t_trf, t_lm = best_time(scipy_trf, repeat), best_time(scipy_lm, repeat)
     print(f"\n4. Single-snapshot solve from Python (best of {repeat}; 2 conductors, 4 sensors, warm start 0.2 mm off)")
     print(f"   fluxcal Ring.solve warm          {t_ours * 1e6:9.1f} µs")
+    print(f"   fluxcal Ring.solve warm, dense   {t_dense * 1e6:9.1f} µs   (dense_solver=True)")
     print(f"   fluxcal Ring.solve cold (grid)   {t_cold * 1e6:9.1f} µs")
     print(f"   SciPy least_squares trf (bounds) {t_trf * 1e6:9.1f} µs   ratio {t_trf / t_ours:.1f}×")
     print(f"   SciPy least_squares lm           {t_lm * 1e6:9.1f} µs   ratio {t_lm / t_ours:.1f}×")
+    print(f"   (ratios against the dense path: trf {t_trf / t_dense:.1f}×, lm {t_lm / t_dense:.1f}×)")
     print(f"   (same residuals in normalised units, analytic Jacobian from fluxcal; positions agree to {agree:.2g} m)")
 
 

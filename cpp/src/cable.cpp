@@ -9,6 +9,7 @@
 #include <cmath>
 #include <cstdio>
 #include <limits>
+#include <memory>
 #include <numeric>
 #include <sstream>
 
@@ -134,6 +135,95 @@ class SnapshotCost : public ceres::CostFunction {
   int n_;
   bool zero_sum_;
 };
+
+// How a refinement went.
+struct RunInfo {
+  double cost = kInf;  // ½ Σ r² (normalised), as Ceres reports it
+  int iterations = 0;
+  bool converged = false;
+  bool usable = false;
+  std::string message;
+};
+
+// Dense Levenberg–Marquardt (Marquardt's diagonal scaling, bounds by projection) on the same residual
+// blocks: no set-up cost, for the warm-started path of a continuous measurement.
+RunInfo dense_lm(const std::vector<std::unique_ptr<SnapshotCost>>& costs, std::vector<double>& pos, Eigen::MatrixXd& cur, int n,
+                 double bore, const CableSolveOptions& opt) {
+  const int nc = static_cast<int>(cur.rows());
+  const Eigen::Index S = cur.cols(), rows = costs.empty() ? 0 : costs[0]->num_residuals();
+  const Eigen::Index p = 2 * n + nc * S;
+  using RowMat = Eigen::Matrix<double, Eigen::Dynamic, Eigen::Dynamic, Eigen::RowMajor>;
+  Eigen::VectorXd r(rows * S), r_try(rows * S);
+  Eigen::MatrixXd J = Eigen::MatrixXd::Zero(rows * S, p);
+  RowMat Jp(rows, 2 * n), Jc(rows, nc);
+  auto evaluate = [&](const std::vector<double>& ps, const Eigen::MatrixXd& cs, Eigen::VectorXd& res, bool jac) {
+    for (Eigen::Index k = 0; k < S; ++k) {
+      const double* params[2] = {ps.data(), cs.col(k).data()};
+      double* jacs[2] = {Jp.data(), Jc.data()};
+      costs[static_cast<std::size_t>(k)]->Evaluate(params, res.data() + rows * k, jac ? jacs : nullptr);
+      if (jac) {
+        J.block(rows * k, 0, rows, 2 * n) = Jp;
+        J.block(rows * k, 2 * n + nc * k, rows, nc) = Jc;
+      }
+    }
+    return 0.5 * res.squaredNorm();
+  };
+  RunInfo info;
+  double cost = evaluate(pos, cur, r, true);
+  Eigen::MatrixXd A = J.transpose() * J;
+  Eigen::VectorXd g = J.transpose() * r;
+  double lambda = 1e-4;
+  std::vector<double> pos_try(pos.size());
+  Eigen::MatrixXd cur_try(cur.rows(), cur.cols());
+  for (info.iterations = 0; info.iterations < opt.max_iterations;) {
+    if (g.cwiseAbs().maxCoeff() <= opt.gradient_tolerance) {
+      info.converged = true;
+      info.message = "gradient tolerance reached";
+      break;
+    }
+    Eigen::MatrixXd M = A;
+    M.diagonal() += lambda * A.diagonal().cwiseMax(1e-300);
+    const Eigen::VectorXd step = -M.ldlt().solve(g);
+    if (!step.allFinite()) {
+      info.message = "the normal equations are singular";
+      break;
+    }
+    for (int k = 0; k < 2 * n; ++k) pos_try[static_cast<std::size_t>(k)] = std::clamp(pos[static_cast<std::size_t>(k)] + step(k), -bore, bore);
+    for (Eigen::Index k = 0; k < S; ++k)
+      for (int j = 0; j < nc; ++j) cur_try(j, k) = cur(j, k) + step(2 * n + nc * k + j);
+    const double cost_try = evaluate(pos_try, cur_try, r_try, false);
+    ++info.iterations;
+    if (cost_try < cost) {
+      double x_norm = 0.0;
+      for (double v : pos) x_norm += v * v;
+      x_norm = std::sqrt(x_norm + cur.squaredNorm());
+      const bool small_step = step.norm() <= opt.parameter_tolerance * (x_norm + opt.parameter_tolerance);
+      const bool small_change = (cost - cost_try) <= opt.function_tolerance * cost;
+      pos = pos_try;
+      cur = cur_try;
+      cost = evaluate(pos, cur, r, true);
+      A.noalias() = J.transpose() * J;
+      g.noalias() = J.transpose() * r;
+      lambda = std::max(lambda / 3.0, 1e-12);
+      if (small_step || small_change) {
+        info.converged = true;
+        info.message = small_step ? "parameter tolerance reached" : "function tolerance reached";
+        break;
+      }
+    } else {
+      lambda *= 4.0;
+      if (lambda > 1e12) {  // no descent left: at a minimum to working precision
+        info.converged = true;
+        info.message = "no further decrease";
+        break;
+      }
+    }
+  }
+  if (info.message.empty()) info.message = "maximum iterations reached";
+  info.cost = cost;
+  info.usable = std::isfinite(cost);
+  return info;
+}
 
 void check_positions(const CableRing& ring, const Eigen::Ref<const ConductorPositions>& positions,
                      const char* name) {
@@ -315,6 +405,8 @@ CableSolution solve_cable(const CableRing& ring, const Eigen::Ref<const Eigen::M
         if (c.norm() < bore) grid.push_back(c);
       }
     const int P = static_cast<int>(grid.size());
+    // three or more conductors: the greedy seeds are cheap and their basins small, so take more of them
+    const int starts = n > 2 ? std::max(opt.starts, 8 * n) : opt.starts;
     std::vector<std::pair<double, std::vector<double>>> scored;
     auto score = [&](const std::vector<double>& pos, int k) { return seed_cost(f, pos, k, zs && k == n, Rn, total); };
     if (n <= 2) {
@@ -329,7 +421,7 @@ CableSolution solve_cable(const CableRing& ring, const Eigen::Ref<const Eigen::M
       std::vector<std::pair<double, int>> first;
       for (int a = 0; a < P; ++a) first.emplace_back(score({grid[a](0), grid[a](1)}, 1), a);
       std::sort(first.begin(), first.end());
-      for (int t = 0; t < std::min<int>(opt.starts, P); ++t) {
+      for (int t = 0; t < std::min<int>(starts, P); ++t) {
         std::vector<double> pos = {grid[first[t].second](0), grid[first[t].second](1)};
         double c = kInf;
         for (int k = 2; k <= n; ++k) {
@@ -354,7 +446,7 @@ CableSolution solve_cable(const CableRing& ring, const Eigen::Ref<const Eigen::M
     // grid cells fall into the same basin; the best few are often neighbours)
     const double step = 2.0 * bore / g * 1.01;
     for (const auto& sc : scored) {
-      if (static_cast<int>(seeds.size()) >= opt.starts || !std::isfinite(sc.first)) break;
+      if (static_cast<int>(seeds.size()) >= starts || !std::isfinite(sc.first)) break;
       bool near = false;
       for (const auto& chosen : seeds) {
         double d = 0.0;
@@ -380,8 +472,13 @@ CableSolution solve_cable(const CableRing& ring, const Eigen::Ref<const Eigen::M
   double best_cost = kInf;
   std::vector<double> best_pos;
   Eigen::MatrixXd best_cur;  // nc × S
-  ceres::Solver::Summary best_summary;
+  RunInfo best_run;
   int tried = 0;
+  std::vector<std::unique_ptr<SnapshotCost>> costs;  // for the dense solver
+  if (opt.dense_solver) {
+    costs.reserve(static_cast<std::size_t>(S));
+    for (Eigen::Index s = 0; s < S; ++s) costs.push_back(std::make_unique<SnapshotCost>(f, Rn.col(s).data(), n, zs));
+  }
   for (std::size_t t = 0; t < seeds.size(); ++t) {
     std::vector<double> pos = seeds[t];
     Eigen::MatrixXd cur(nc, S);
@@ -396,24 +493,34 @@ CableSolution solve_cable(const CableRing& ring, const Eigen::Ref<const Eigen::M
       design(f, pos.data(), n, G);
       cur = reduce(G, zs).colPivHouseholderQr().solve(Rn);
     }
-    ceres::Problem::Options po;
-    po.cost_function_ownership = ceres::TAKE_OWNERSHIP;
-    po.disable_all_safety_checks = true;  // the blocks are built right here
-    ceres::Problem problem(po);
-    for (Eigen::Index s = 0; s < S; ++s)
-      problem.AddResidualBlock(new SnapshotCost(f, Rn.col(s).data(), n, zs), nullptr, pos.data(), cur.col(s).data());
-    for (int k = 0; k < 2 * n; ++k) {
-      problem.SetParameterLowerBound(pos.data(), k, -bore);
-      problem.SetParameterUpperBound(pos.data(), k, bore);
+    RunInfo run;
+    if (opt.dense_solver) {
+      run = dense_lm(costs, pos, cur, n, bore, opt);
+    } else {
+      ceres::Problem::Options po;
+      po.cost_function_ownership = ceres::TAKE_OWNERSHIP;
+      po.disable_all_safety_checks = true;  // the blocks are built right here
+      ceres::Problem problem(po);
+      for (Eigen::Index s = 0; s < S; ++s)
+        problem.AddResidualBlock(new SnapshotCost(f, Rn.col(s).data(), n, zs), nullptr, pos.data(), cur.col(s).data());
+      for (int k = 0; k < 2 * n; ++k) {
+        problem.SetParameterLowerBound(pos.data(), k, -bore);
+        problem.SetParameterUpperBound(pos.data(), k, bore);
+      }
+      ceres::Solver::Summary summary;
+      ceres::Solve(so, &problem, &summary);
+      run.cost = summary.final_cost;
+      run.iterations = static_cast<int>(summary.iterations.size()) - 1;
+      run.converged = summary.termination_type == ceres::CONVERGENCE;
+      run.usable = summary.IsSolutionUsable();
+      run.message = summary.message;
     }
-    ceres::Solver::Summary summary;
-    ceres::Solve(so, &problem, &summary);
     ++tried;
-    if (summary.IsSolutionUsable() && summary.final_cost < best_cost) {
-      best_cost = summary.final_cost;
+    if (run.usable && run.cost < best_cost) {
+      best_cost = run.cost;
       best_pos = pos;
       best_cur = cur;
-      best_summary = summary;
+      best_run = run;
     }
   }
   if (best_pos.empty()) throw Error("solve_cable: the solver failed from every starting point");
@@ -528,19 +635,28 @@ CableSolution solve_cable(const CableRing& ring, const Eigen::Ref<const Eigen::M
       ok = false;
     }
   out.well_conditioned = ok;
+  if (opt.noise_sigma > 0.0 && dof > 0) {
+    const double per_dof = std::sqrt(ssr / static_cast<double>(dof));
+    if (per_dof > opt.misfit_ratio * opt.noise_sigma) {
+      out.fits_model = false;
+      out.summary.warnings.push_back("the readings do not fit the model: residual " + num(per_dof) + " T per degree of "
+                                     "freedom vs noise σ = " + num(opt.noise_sigma) +
+                                     " T (uncalibrated sensors, a wrong number of conductors or an external field?)");
+    }
+  }
   if (!ok) out.summary.warnings.push_back("ill-conditioned: " + why + "; do not trust these positions and currents");
 
   Summary& sum = out.summary;
   sum.samples = static_cast<std::size_t>(equations);
-  sum.iterations = static_cast<int>(best_summary.iterations.size()) - 1;
+  sum.iterations = best_run.iterations;
   sum.cost = ssr / static_cast<double>(equations);
   sum.residual_rms = std::sqrt(sum.cost);
   sum.condition_number = out.fisher_condition;
-  sum.converged = best_summary.termination_type == ceres::CONVERGENCE;
-  if (!sum.converged) sum.warnings.push_back("the best start stopped before converging: " + best_summary.message);
+  sum.converged = best_run.converged;
+  if (!sum.converged) sum.warnings.push_back("the best start stopped before converging: " + best_run.message);
   std::ostringstream msg;
   msg << n << " conductor(s) from " << m << " sensors × " << S << " snapshot(s); residual RMS "
-      << num(sum.residual_rms) << " T; " << (ok ? "well conditioned" : "ILL-CONDITIONED") << "; " << tried
+      << num(sum.residual_rms) << " T; " << (ok ? "well conditioned" : "ILL-CONDITIONED") << (out.fits_model ? "" : ", MISFIT") << "; " << tried
       << " start(s)";
   sum.message = msg.str();
   return out;

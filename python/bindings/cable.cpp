@@ -33,9 +33,11 @@ void bind_cable(py::module_& m) {
       .def_readwrite("gradient_tolerance", &CableSolveOptions::gradient_tolerance)
       .def_readwrite("parameter_tolerance", &CableSolveOptions::parameter_tolerance)
       .def_readwrite("dogleg", &CableSolveOptions::dogleg)
+      .def_readwrite("dense_solver", &CableSolveOptions::dense_solver)
       .def_readwrite("noise_sigma", &CableSolveOptions::noise_sigma)
       .def_readwrite("max_position_sigma", &CableSolveOptions::max_position_sigma)
       .def_readwrite("max_current_relative_sigma", &CableSolveOptions::max_current_relative_sigma)
+      .def_readwrite("misfit_ratio", &CableSolveOptions::misfit_ratio)
       .def_readwrite("initial_positions", &CableSolveOptions::initial_positions)
       .def_readwrite("initial_currents", &CableSolveOptions::initial_currents);
 
@@ -66,7 +68,7 @@ void bind_cable(py::module_& m) {
           r = fluxcal::solve_cable(ring, readings, options);
         }
         return py::dict("positions"_a = r.positions, "currents"_a = r.currents, "covariance"_a = r.covariance,
-                        "standard_errors"_a = r.standard_errors, "well_conditioned"_a = r.well_conditioned,
+                        "standard_errors"_a = r.standard_errors, "well_conditioned"_a = r.well_conditioned, "fits_model"_a = r.fits_model,
                         "noise_sigma"_a = r.noise_sigma, "fisher_condition"_a = r.fisher_condition,
                         "residuals"_a = r.residuals, "starts_tried"_a = r.starts_tried,
                         "summary"_a = summary_dict(r.summary));

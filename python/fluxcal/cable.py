@@ -38,14 +38,16 @@ def _positions(positions_m) -> np.ndarray:
 @dataclass
 class CableSolution:
     """Conductor positions (n, 2) in metres, currents (n,) — or (snapshots, n) for several snapshots —
-    in amperes, the covariance of [x0, y0, x1, y1, …, currents of snapshot 0, …] (m, A), and whether the
-    geometry determines them (`well_conditioned`; see cable.hpp)."""
+    in amperes, the covariance of [x0, y0, x1, y1, …, currents of snapshot 0, …] (m, A), whether the
+    geometry determines them (`well_conditioned`) and whether the readings fit the model to within a few
+    noise σ (`fits_model`; see cable.hpp)."""
 
     positions: np.ndarray
     currents: np.ndarray
     covariance: np.ndarray
     standard_errors: np.ndarray
     well_conditioned: bool
+    fits_model: bool = True
     noise_sigma: float = 0.0
     fisher_condition: float = 0.0
     residuals: np.ndarray = None
@@ -111,7 +113,8 @@ class Ring:
         (snapshots, n_sensors, 2) sharing the positions (AC waveforms), tesla in each sensor's axes.
 
         settings (defaults in cable.hpp): grid_points=9, starts=6, max_iterations=100, noise_sigma=1e-8 (T;
-        ≤ 0 = estimate from the residuals), max_position_sigma=1e-4 (m), max_current_relative_sigma=0.05.
+        ≤ 0 = estimate from the residuals), max_position_sigma=1e-4 (m), max_current_relative_sigma=0.05,
+        misfit_ratio=5, dense_solver=False (True: fluxcal's dense Levenberg–Marquardt instead of Ceres, for warm starts).
         `initial_positions` (n, 2) warm-starts the solver (no grid). Raises ValueError on NaN readings,
         too few sensors for the unknowns, or a start outside the bore."""
         arr = np.asarray(readings, dtype=float)
@@ -133,7 +136,8 @@ class Ring:
         currents = np.asarray(r["currents"])
         return CableSolution(positions=np.asarray(r["positions"]), currents=currents[0] if single else currents,
                              covariance=np.asarray(r["covariance"]), standard_errors=np.asarray(r["standard_errors"]),
-                             well_conditioned=bool(r["well_conditioned"]), noise_sigma=r["noise_sigma"],
+                             well_conditioned=bool(r["well_conditioned"]), fits_model=bool(r["fits_model"]),
+                             noise_sigma=r["noise_sigma"],
                              fisher_condition=r["fisher_condition"],
                              residuals=np.asarray(r["residuals"]).reshape(arr.shape), starts_tried=r["starts_tried"],
                              summary=r["summary"])

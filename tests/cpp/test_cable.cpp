@@ -4,6 +4,7 @@
 
 #include <cmath>
 #include <limits>
+#include <random>
 
 using fluxcal::CableRing;
 using fluxcal::ConductorPositions;
@@ -128,6 +129,27 @@ TEST(Cable, WarmStartConverges) {
   const auto sol = fluxcal::solve_cable(ring, snapshot(ring, p, Eigen::Vector2d(5.0, -5.0)), o);
   EXPECT_EQ(sol.starts_tried, 1);
   EXPECT_LT((sol.positions - p).cwiseAbs().maxCoeff(), 1e-9);
+}
+
+TEST(Cable, DenseSolverAgreesWithCeres) {
+  const CableRing ring = paper_ring();
+  ConductorPositions p(2, 2);
+  p << -1.7e-3, 0.4e-3, 2.3e-3, 0.1e-3;
+  Eigen::MatrixXd R = snapshot(ring, p, Eigen::Vector2d(5.0, -5.0));
+  std::mt19937 rng(3);
+  std::normal_distribution<double> g(0.0, 1e-8);
+  for (int k = 0; k < 8; ++k) R(0, k) += g(rng);
+  fluxcal::CableSolveOptions o;
+  const auto ceres_cold = fluxcal::solve_cable(ring, R, o);
+  o.dense_solver = true;
+  const auto dense_cold = fluxcal::solve_cable(ring, R, o);
+  o.initial_positions = p;
+  o.initial_positions.array() += 0.2e-3;
+  const auto dense_warm = fluxcal::solve_cable(ring, R, o);
+  EXPECT_LT((dense_cold.positions - ceres_cold.positions).cwiseAbs().maxCoeff(), 1e-10);
+  EXPECT_LT((dense_warm.positions - ceres_cold.positions).cwiseAbs().maxCoeff(), 1e-10);
+  EXPECT_LT((dense_warm.currents - ceres_cold.currents).cwiseAbs().maxCoeff(), 1e-7);
+  EXPECT_TRUE(dense_warm.summary.converged) << dense_warm.summary.message;
 }
 
 TEST(Cable, BadInputIsAClearError) {

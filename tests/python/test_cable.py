@@ -136,6 +136,19 @@ def test_ill_conditioned_layouts_are_flagged():
     assert not ring.solve(ring.field(good, [5.0, -5.0]), noise_sigma=1e-5).well_conditioned
 
 
+def test_misfit_is_reported():
+    """Readings the model cannot explain (three conductors solved as two, uncalibrated offsets) are not
+    returned as a good fit."""
+    ring = Ring(np.arange(6) * 60.0, 0.012)
+    three = [[-2.5e-3, -1.0e-3], [0.5e-3, 2.5e-3], [2.2e-3, -1.5e-3]]
+    assert not ring.solve(ring.field(three, [5.0, -2.0, -3.0]), n_conductors=2).fits_model
+    assert ring.solve(ring.field(three, [5.0, -2.0, -3.0]), n_conductors=3).fits_model
+    two = [[-1.7e-3, 0.4e-3], [2.3e-3, 0.1e-3]]
+    offsets = np.full((6, 2), 5e-7)  # the paper's hard iron, uncompensated
+    sol = ring.solve(ring.field(two, [5.0, -5.0]) + offsets)
+    assert not sol.fits_model and any("do not fit" in w for w in sol.summary["warnings"])
+
+
 def test_multi_snapshot_ac_three_conductors():
     """Three conductors need several snapshots: a 50 Hz three-phase load with a 3rd harmonic."""
     ring = Ring(np.arange(6) * 60.0, 0.012)

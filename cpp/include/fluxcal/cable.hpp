@@ -19,7 +19,8 @@
 // (lengths / R, fields / (μ0/2πR)) from a grid over the bore: the currents are linear given the
 // positions, so every pair (N = 2) or a greedy sequence (N > 2) of grid points is scored by linear least
 // squares on the currents, and the best `starts` distinct seeds are refined (multi-start); the lowest
-// cost wins. A warm start (positions, optionally currents) skips the grid.
+// cost wins. A warm start (positions, optionally currents) skips the grid; options.dense_solver swaps
+// Ceres for a built-in dense Levenberg–Marquardt on the same residuals (no set-up cost).
 //
 // Conditioning. The covariance is σ² (JᵀJ)⁻¹ at the solution with σ the reading noise
 // (options.noise_sigma, or the residual estimate). Two conductors close together are only seen through
@@ -80,7 +81,7 @@ struct CableSolveOptions {
   bool zero_sum_currents = false;
   /// Initialisation grid: points per bore diameter (those inside the bore are used).
   int grid_points = 9;
-  /// Seeds refined by Ceres (multi-start); the lowest final cost wins.
+  /// Seeds refined by Ceres (multi-start); the lowest final cost wins. With N > 2 conductors at least 8·N.
   int starts = 6;
   int max_iterations = 100;
   /// Ceres stopping rules (relative; parameters are normalised to the ring radius, so 1e-10 is ~1e-12 m).
@@ -90,6 +91,11 @@ struct CableSolveOptions {
   /// Trust-region strategy: dogleg (Gauss–Newton steps where they work: fewer iterations on these small
   /// well-posed problems) or Levenberg–Marquardt.
   bool dogleg = true;
+  /// Refine with fluxcal's own dense Levenberg–Marquardt (the same residuals and analytic Jacobian, bounds
+  /// by projection) instead of Ceres: no per-solve set-up (Ceres' problem and program construction cost
+  /// more than the few iterations of a warm-started 8 × 6 problem). Meant for the warm-started path of a
+  /// continuous measurement.
+  bool dense_solver = false;
   /// Reading noise σ per axis (tesla) for the covariance; ≤ 0: estimate it from the residuals (needs
   /// more readings than unknowns). Default: 1e-8 T (10 nT, the paper's 1e-4 G).
   double noise_sigma = 1e-8;
@@ -98,6 +104,9 @@ struct CableSolveOptions {
   /// ... and every current standard error below this fraction of the largest |current| of its snapshot (a
   /// 2-core cable with 2 mm spacing on a 10 mm ring has ~1 % at 10 nT; 0.6 mm spacing ~50 %).
   double max_current_relative_sigma = 0.05;
+  /// fits_model is false when the residual RMS per degree of freedom exceeds this multiple of noise_sigma
+  /// (uncalibrated sensors, a wrong number of conductors, an external field).
+  double misfit_ratio = 5.0;
   /// Warm start: N×2 positions (metres; empty = grid initialisation) ...
   ConductorPositions initial_positions;
   /// ... and S×N currents (empty = linear least squares at the initial positions).
@@ -113,6 +122,9 @@ struct CableSolution {
   Eigen::MatrixXd covariance;
   Eigen::VectorXd standard_errors;  ///< sqrt of its diagonal (+inf where undetermined)
   bool well_conditioned = false;
+  /// The readings fit the model to within misfit_ratio × noise_sigma (only judged with more readings than
+  /// unknowns and a given noise_sigma; true otherwise).
+  bool fits_model = true;
   double noise_sigma = 0.0;       ///< σ used for the covariance (tesla)
   double fisher_condition = 0.0;  ///< condition number of the column-scaled JᵀJ
   Eigen::MatrixXd residuals;      ///< S × 2M, reading − model (tesla)

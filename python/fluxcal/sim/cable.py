@@ -247,7 +247,7 @@ def current_sweep(seed: int = 2017, currents_a=np.arange(1.0, 10.01, 0.5), calib
 def end_to_end(sweep: dict, currents_a=(1.0, 5.0, 10.0), rotations_deg=(0.0, 37.0, 123.0), seed: int = 7) -> list:
     """Recovered conductor positions and currents from single snapshots of the sweep's rig, with the raw
     readings, the two-step-compensated and the least-squares-compensated ones: rows of (current, rotation,
-    method, max position error mm, max current error %)."""
+    method, max position error mm, max current error %, well_conditioned, fits_model)."""
     rng = np.random.default_rng(seed)
     rig = sweep["rig"]
     rows = []
@@ -260,7 +260,7 @@ def end_to_end(sweep: dict, currents_a=(1.0, 5.0, 10.0), rotations_deg=(0.0, 37.
                 try:
                     sol = ring.solve(readings, n_conductors=2)
                 except ValueError:
-                    rows.append((current, rot, name, np.nan, np.nan))
+                    rows.append((current, rot, name, np.nan, np.nan, False, False))
                     continue
                 truth = np.asarray(rig.positions_m)
                 cur = np.array([current, -current])
@@ -269,5 +269,6 @@ def end_to_end(sweep: dict, currents_a=(1.0, 5.0, 10.0), rotations_deg=(0.0, 37.
                 for perm in ([0, 1], [1, 0]):
                     errs.append((np.abs(sol.positions[perm] - truth).max(), np.abs(sol.currents[perm] - cur).max()))
                 pos_err, cur_err = min(errs)
-                rows.append((current, rot, name, 1e3 * pos_err, 100 * cur_err / current))
+                rows.append((current, rot, name, 1e3 * pos_err, 100 * cur_err / current, sol.well_conditioned,
+                             sol.fits_model))
     return rows
