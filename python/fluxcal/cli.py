@@ -147,8 +147,11 @@ def cmd_cable(args) -> int:
     from .sim import cable as simcable
 
     if args.cable_command == "simulate":
-        rng = np.random.default_rng(args.seed)
-        rig = simcable.lab_rig(rng) if args.lab else simcable.paper_rig(rng)
+        # the rig (sensor errors) comes from --seed; the noise from --noise-seed, so that a calibration and
+        # later measurements can share one simulated instrument
+        rig_rng = np.random.default_rng(args.seed)
+        rig = simcable.lab_rig(rig_rng) if args.lab else simcable.paper_rig(rig_rng)
+        rng = np.random.default_rng(args.seed if args.noise_seed is None else args.noise_seed)
         if args.calibration:
             raw, _ = simcable.calibration_data(rig, simcable.reference_currents(args.current), rng,
                                                repeats=args.repeats)
@@ -160,7 +163,8 @@ def cmd_cable(args) -> int:
             raw = rig.read(rot, [args.current, -args.current], rng) - rig.earth_in_sensor_axes(rot)
             cur = np.tile([args.current, -args.current], (len(rot), 1))
         cable.write_ring_csv(args.output, rig.ring, raw, rot, cur, rig.positions_m,
-                             {"simulated": f"fluxcal {__version__} cable rig, seed {args.seed}",
+                             {"simulated": f"fluxcal {__version__} cable rig, seed {args.seed}, noise seed "
+                                           f"{args.seed if args.noise_seed is None else args.noise_seed}",
                               "true_offsets": " ".join(f"{v:.10g}" for v in rig.errors.true_offset().ravel()),
                               "true_gains": " ".join(f"{v:.10g}" for v in rig.errors.gain.ravel())})
         print(f"wrote {args.output}: {len(rot)} snapshots of {rig.ring.n_sensors} sensors")
@@ -187,7 +191,8 @@ def cmd_cable(args) -> int:
     for k, (snap, rot) in enumerate(zip(readings, data["rotations_deg"])):
         sol = ring.rotated(rot).solve(snap, n_conductors=args.conductors)
         where = "; ".join(f"({x * 1e3:.4f}, {y * 1e3:.4f}) mm {i:.5g} A" for (x, y), i in zip(sol.positions, sol.currents))
-        flag = "well conditioned" if sol.well_conditioned else "ILL-CONDITIONED"
+        flag = ("well conditioned" if sol.well_conditioned else "ILL-CONDITIONED") + \
+            ("" if sol.fits_model else ", MISFIT (residual above 5 noise σ)")
         print(f"snapshot {k}: {where}; residual {sol.summary['residual_rms']:.3g} T; {flag}")
     return 0
 
@@ -252,7 +257,8 @@ def build_parser() -> argparse.ArgumentParser:
     ks.add_argument("--rotations", default="0", help="comma-separated ring rotations (degrees) of the snapshots")
     ks.add_argument("--repeats", type=int, default=5, help="readings per calibration state")
     ks.add_argument("--lab", action="store_true", help="add the unmodelled effects (ferro parts, z leakage, Earth)")
-    ks.add_argument("--seed", type=int, default=0)
+    ks.add_argument("--seed", type=int, default=0, help="the simulated instrument (sensor errors)")
+    ks.add_argument("--noise-seed", type=int, default=None, help="the noise (default: --seed)")
     kc = ksub.add_parser("calibrate", help="per-sensor calibration from a calibration recording")
     kc.add_argument("file")
     kc.add_argument("--method", default="twostep", choices=["twostep", "least_squares"])

@@ -239,10 +239,15 @@ def test_cli_simulate_calibrate_solve(tmp_path):
     assert r.returncode == 0, r.stderr
     r = run_cli("cable", "calibrate", cal_csv, "-o", cal_json)
     assert r.returncode == 0, r.stderr
-    r = run_cli("cable", "simulate", "-o", meas, "--current", "5", "--seed", "4", "--rotations", "0,40")
+    r = run_cli("cable", "simulate", "-o", meas, "--current", "5", "--seed", "3", "--noise-seed", "4",
+                "--rotations", "0,40")
     assert r.returncode == 0, r.stderr
     r = run_cli("cable", "solve", meas, "--calibration", cal_json)
     assert r.returncode == 0, r.stderr
     lines = [ln for ln in r.stdout.splitlines() if ln.startswith("snapshot")]
-    assert len(lines) == 2
-    assert "well conditioned" in r.stdout
+    assert len(lines) == 2 and all("well conditioned" in ln for ln in lines), r.stdout
+    # the calibrated instrument measures the simulated ±5 A to 1 %
+    amps = [float(w) for ln in lines for w, unit in zip(ln.split(), ln.split()[1:]) if unit.startswith("A")]
+    assert len(amps) == 4 and np.allclose(np.abs(amps), 5.0, rtol=0.01), amps
+    r = run_cli("cable", "solve", tmp_path / "missing.csv")
+    assert r.returncode == 2 and "error" in r.stderr
