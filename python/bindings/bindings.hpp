@@ -20,5 +20,6 @@ void bind_ellipsoid(py::module_& m);  // ellipsoid.cpp (also coverage)
 void bind_twostep(py::module_& m);    // twostep.cpp
 void bind_refine(py::module_& m);     // refine.cpp (also fit_vector)
 void bind_positions(py::module_& m);  // positions.cpp (multi-position, accelerometer)
+void bind_cable(py::module_& m);      // cable.cpp
 
 }  // namespace fluxcal_py

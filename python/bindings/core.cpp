@@ -31,4 +31,5 @@ PYBIND11_MODULE(_core, m) {
   fluxcal_py::bind_twostep(m);
   fluxcal_py::bind_refine(m);
   fluxcal_py::bind_positions(m);
+  fluxcal_py::bind_cable(m);
 }

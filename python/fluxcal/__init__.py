@@ -16,6 +16,7 @@ from .pipeline import calibrate
 from .refine import fit_vector, refine
 from .twostep import TwoStep2D, twostep, twostep_2d
 from . import positions  # noqa: E402  (fluxcal.positions: multi-position calibration, seed 002)
+from . import cable
 
 __version__ = _core.__version__
 

@@ -16,3 +16,4 @@ __all__ = ["CANDIDATES", "ColoredNoise", "CrossAxis", "CubicNonlinearity", "Eddy
            "SoftIron", "TemperatureOffset", "TemperatureScale", "WhiteNoise", "ZLeakage", "random_sensor", "Scene",
            "sweeps", "tumble", "uniform", "Simulation", "simulate"]
 from .positions import Accelerometer, PositionsScene, PositionsSimulation, paper_sensor, random_scene, simulate_positions, twelve_scene  # noqa: E402,F401
+from . import cable

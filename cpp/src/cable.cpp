@@ -1,0 +1,665 @@
+#include "fluxcal/cable.hpp"
+
+#include <ceres/ceres.h>
+
+#include <Eigen/Dense>
+#include <Eigen/Eigenvalues>
+
+#include <algorithm>
+#include <cmath>
+#include <cstdio>
+#include <limits>
+#include <memory>
+#include <numeric>
+#include <sstream>
+
+namespace fluxcal {
+namespace {
+
+constexpr double kInf = std::numeric_limits<double>::infinity();
+// Column-scaled Fisher matrices above this condition number are singular to double precision.
+constexpr double kSingularFisher = 1e14;
+
+std::string num(double v) {
+  char buf[32];
+  std::snprintf(buf, sizeof buf, "%.6g", v);
+  return buf;
+}
+
+// Sensor positions and axes of a ring in normalised units (radius 1).
+struct RingFrame {
+  Eigen::Index m = 0;
+  Eigen::Matrix2Xd p, x, y;  // position, x axis, y axis of each sensor
+  explicit RingFrame(const CableRing& ring) : m(ring.sensors()), p(2, m), x(2, m), y(2, m) {
+    for (Eigen::Index i = 0; i < m; ++i) {
+      const double th = ring.angles(i), a = th + ring.axis_angle(i);
+      p.col(i) << std::cos(th), std::sin(th);
+      x.col(i) << std::cos(a), std::sin(a);
+      y.col(i) << -std::sin(a), std::cos(a);
+    }
+  }
+};
+
+// Unit-current reading of sensor i from a conductor at c (normalised): g = (−dy, dx)/|d|², d = p − c,
+// projected on the sensor axes; optionally its derivatives over c (∂/∂c = −∂/∂d).
+inline void unit_reading(const RingFrame& f, Eigen::Index i, double cx, double cy, double out[2], double dcx[2],
+                         double dcy[2]) {
+  const double dx = f.p(0, i) - cx, dy = f.p(1, i) - cy;
+  const double q = dx * dx + dy * dy, iq = 1.0 / q;
+  const double gx = -dy * iq, gy = dx * iq;
+  const double xx = f.x(0, i), xy = f.x(1, i), yx = f.y(0, i), yy = f.y(1, i);
+  out[0] = gx * xx + gy * xy;
+  out[1] = gx * yx + gy * yy;
+  if (dcx) {
+    // ∂g/∂dx = ((0,1) − 2dx g)/q, ∂g/∂dy = ((−1,0) − 2dy g)/q; ∂/∂c = −∂/∂d
+    const double ax = (-2.0 * dx * gx) * iq, ay = (1.0 - 2.0 * dx * gy) * iq;
+    const double bx = (-1.0 - 2.0 * dy * gx) * iq, by = (-2.0 * dy * gy) * iq;
+    dcx[0] = -(ax * xx + ay * xy);
+    dcx[1] = -(ax * yx + ay * yy);
+    dcy[0] = -(bx * xx + by * xy);
+    dcy[1] = -(bx * yx + by * yy);
+  }
+}
+
+// Design matrix of the currents at given (normalised) positions: 2M × N, column j = unit-current readings.
+void design(const RingFrame& f, const double* pos, int n, Eigen::MatrixXd& G) {
+  G.resize(2 * f.m, n);
+  for (int j = 0; j < n; ++j)
+    for (Eigen::Index i = 0; i < f.m; ++i) {
+      double r[2];
+      unit_reading(f, i, pos[2 * j], pos[2 * j + 1], r, nullptr, nullptr);
+      G(2 * i, j) = r[0];
+      G(2 * i + 1, j) = r[1];
+    }
+}
+
+// Currents columns for the reduced parametrisation: with ΣI = 0 the last current is −Σ others.
+Eigen::MatrixXd reduce(const Eigen::MatrixXd& G, bool zero_sum) {
+  if (!zero_sum) return G;
+  const Eigen::Index n = G.cols();
+  return G.leftCols(n - 1).colwise() - G.col(n - 1);
+}
+
+// One snapshot: residuals 2M (model − reading, normalised), parameter blocks: positions (2N), currents
+// (N, or N − 1 with ΣI = 0).
+class SnapshotCost : public ceres::CostFunction {
+ public:
+  SnapshotCost(const RingFrame& f, const double* reading, int n, bool zero_sum)
+      : f_(f), reading_(reading), n_(n), zero_sum_(zero_sum) {
+    set_num_residuals(static_cast<int>(2 * f.m));
+    mutable_parameter_block_sizes()->push_back(2 * n);
+    mutable_parameter_block_sizes()->push_back(zero_sum ? n - 1 : n);
+  }
+
+  bool Evaluate(double const* const* params, double* residuals, double** jacobians) const override {
+    const double* pos = params[0];
+    const double* cur = params[1];
+    const int nc = zero_sum_ ? n_ - 1 : n_;
+    const int rows = static_cast<int>(2 * f_.m);
+    double last = 0.0;
+    if (zero_sum_)
+      for (int j = 0; j < nc; ++j) last -= cur[j];
+    for (int k = 0; k < rows; ++k) residuals[k] = -reading_[k];
+    double* jp = jacobians ? jacobians[0] : nullptr;
+    double* jc = jacobians ? jacobians[1] : nullptr;
+    if (jc)
+      for (int k = 0; k < rows * nc; ++k) jc[k] = 0.0;
+    for (int j = 0; j < n_; ++j) {
+      const double I = (j < nc) ? cur[j] : last;
+      for (Eigen::Index i = 0; i < f_.m; ++i) {
+        double r[2], dx[2], dy[2];
+        unit_reading(f_, i, pos[2 * j], pos[2 * j + 1], r, jp ? dx : nullptr, jp ? dy : nullptr);
+        for (int a = 0; a < 2; ++a) {
+          const int row = static_cast<int>(2 * i) + a;
+          residuals[row] += I * r[a];
+          if (jp) {
+            jp[row * 2 * n_ + 2 * j] = I * dx[a];
+            jp[row * 2 * n_ + 2 * j + 1] = I * dy[a];
+          }
+          if (jc) {
+            if (j < nc) {
+              jc[row * nc + j] += r[a];
+            } else {
+              for (int k = 0; k < nc; ++k) jc[row * nc + k] -= r[a];
+            }
+          }
+        }
+      }
+    }
+    return true;
+  }
+
+ private:
+  const RingFrame& f_;
+  const double* reading_;
+  int n_;
+  bool zero_sum_;
+};
+
+// How a refinement went.
+struct RunInfo {
+  double cost = kInf;  // ½ Σ r² (normalised), as Ceres reports it
+  int iterations = 0;
+  bool converged = false;
+  bool usable = false;
+  std::string message;
+};
+
+// Dense Levenberg–Marquardt (Marquardt's diagonal scaling, bounds by projection) on the same residual
+// blocks: no set-up cost, for the warm-started path of a continuous measurement.
+RunInfo dense_lm(const std::vector<std::unique_ptr<SnapshotCost>>& costs, std::vector<double>& pos, Eigen::MatrixXd& cur, int n,
+                 double bore, const CableSolveOptions& opt) {
+  const int nc = static_cast<int>(cur.rows());
+  const Eigen::Index S = cur.cols(), rows = costs.empty() ? 0 : costs[0]->num_residuals();
+  const Eigen::Index p = 2 * n + nc * S;
+  using RowMat = Eigen::Matrix<double, Eigen::Dynamic, Eigen::Dynamic, Eigen::RowMajor>;
+  Eigen::VectorXd r(rows * S), r_try(rows * S);
+  Eigen::MatrixXd J = Eigen::MatrixXd::Zero(rows * S, p);
+  RowMat Jp(rows, 2 * n), Jc(rows, nc);
+  auto evaluate = [&](const std::vector<double>& ps, const Eigen::MatrixXd& cs, Eigen::VectorXd& res, bool jac) {
+    for (Eigen::Index k = 0; k < S; ++k) {
+      const double* params[2] = {ps.data(), cs.col(k).data()};
+      double* jacs[2] = {Jp.data(), Jc.data()};
+      costs[static_cast<std::size_t>(k)]->Evaluate(params, res.data() + rows * k, jac ? jacs : nullptr);
+      if (jac) {
+        J.block(rows * k, 0, rows, 2 * n) = Jp;
+        J.block(rows * k, 2 * n + nc * k, rows, nc) = Jc;
+      }
+    }
+    return 0.5 * res.squaredNorm();
+  };
+  RunInfo info;
+  double cost = evaluate(pos, cur, r, true);
+  Eigen::MatrixXd A = J.transpose() * J;
+  Eigen::VectorXd g = J.transpose() * r;
+  double lambda = 1e-4;
+  std::vector<double> pos_try(pos.size());
+  Eigen::MatrixXd cur_try(cur.rows(), cur.cols());
+  for (info.iterations = 0; info.iterations < opt.max_iterations;) {
+    if (g.cwiseAbs().maxCoeff() <= opt.gradient_tolerance) {
+      info.converged = true;
+      info.message = "gradient tolerance reached";
+      break;
+    }
+    Eigen::MatrixXd M = A;
+    M.diagonal() += lambda * A.diagonal().cwiseMax(1e-300);
+    const Eigen::VectorXd step = -M.ldlt().solve(g);
+    if (!step.allFinite()) {
+      info.message = "the normal equations are singular";
+      break;
+    }
+    for (int k = 0; k < 2 * n; ++k) pos_try[static_cast<std::size_t>(k)] = std::clamp(pos[static_cast<std::size_t>(k)] + step(k), -bore, bore);
+    for (Eigen::Index k = 0; k < S; ++k)
+      for (int j = 0; j < nc; ++j) cur_try(j, k) = cur(j, k) + step(2 * n + nc * k + j);
+    const double cost_try = evaluate(pos_try, cur_try, r_try, false);
+    ++info.iterations;
+    if (cost_try < cost) {
+      double x_norm = 0.0;
+      for (double v : pos) x_norm += v * v;
+      x_norm = std::sqrt(x_norm + cur.squaredNorm());
+      const bool small_step = step.norm() <= opt.parameter_tolerance * (x_norm + opt.parameter_tolerance);
+      const bool small_change = (cost - cost_try) <= opt.function_tolerance * cost;
+      pos = pos_try;
+      cur = cur_try;
+      cost = evaluate(pos, cur, r, true);
+      A.noalias() = J.transpose() * J;
+      g.noalias() = J.transpose() * r;
+      lambda = std::max(lambda / 3.0, 1e-12);
+      if (small_step || small_change) {
+        info.converged = true;
+        info.message = small_step ? "parameter tolerance reached" : "function tolerance reached";
+        break;
+      }
+    } else {
+      lambda *= 4.0;
+      if (lambda > 1e12) {  // no descent left: at a minimum to working precision
+        info.converged = true;
+        info.message = "no further decrease";
+        break;
+      }
+    }
+  }
+  if (info.message.empty()) info.message = "maximum iterations reached";
+  info.cost = cost;
+  info.usable = std::isfinite(cost);
+  return info;
+}
+
+void check_positions(const CableRing& ring, const Eigen::Ref<const ConductorPositions>& positions,
+                     const char* name) {
+  const double bore = ring.bore();
+  for (Eigen::Index j = 0; j < positions.rows(); ++j) {
+    if (!std::isfinite(positions(j, 0)) || !std::isfinite(positions(j, 1)))
+      throw Error(std::string(name) + ": conductor " + std::to_string(j) + " has a non-finite position");
+    const double r = positions.row(j).norm();
+    if (r > bore)
+      throw Error(std::string(name) + ": conductor " + std::to_string(j) + " at (" + num(positions(j, 0)) + ", " +
+                  num(positions(j, 1)) + ") m is " + num(r) + " m from the centre, outside the bore (radius " +
+                  num(bore) + " m); conductors must pass through the ring's hole");
+  }
+}
+
+// Score of a set of positions: residual sum of squares after the best currents (all snapshots).
+double seed_cost(const RingFrame& f, const std::vector<double>& pos, int n, bool zero_sum,
+                 const Eigen::MatrixXd& R, double total) {
+  Eigen::MatrixXd G;
+  design(f, pos.data(), n, G);
+  const Eigen::MatrixXd Gr = reduce(G, zero_sum);
+  Eigen::HouseholderQR<Eigen::MatrixXd> qr(Gr);
+  const Eigen::MatrixXd Q = qr.householderQ() * Eigen::MatrixXd::Identity(Gr.rows(), Gr.cols());
+  // a (near) rank-deficient design (two seeds at one point) scores as useless
+  const Eigen::VectorXd diag = qr.matrixQR().diagonal().cwiseAbs();
+  if (diag.minCoeff() < 1e-9 * std::max(diag.maxCoeff(), 1e-300)) return kInf;
+  return total - (Q.transpose() * R).squaredNorm();
+}
+
+Eigen::Matrix<double, Eigen::Dynamic, 2, Eigen::RowMajor> field_kernel(const CableRing& ring,
+                                                                       const Eigen::Ref<const ConductorPositions>& positions,
+                                                                       const Eigen::Ref<const Eigen::VectorXd>& currents);
+Eigen::MatrixXd jacobian_kernel(const CableRing& ring, const Eigen::Ref<const ConductorPositions>& positions,
+                                const Eigen::Ref<const Eigen::VectorXd>& currents);
+
+}  // namespace
+
+void CableRing::validate() const {
+  if (angles.size() < 1) throw Error("ring: no sensors (angles is empty)");
+  for (Eigen::Index i = 0; i < angles.size(); ++i)
+    if (!std::isfinite(angles(i))) throw Error("ring: angle " + std::to_string(i) + " is not finite");
+  if (!(radius > 0.0) || !std::isfinite(radius)) throw Error("ring: radius must be a positive finite length (metres)");
+  if (axis_angles.size() != 0 && axis_angles.size() != angles.size())
+    throw Error("ring: " + std::to_string(axis_angles.size()) + " axis angles for " + std::to_string(angles.size()) +
+                " sensors");
+  for (Eigen::Index i = 0; i < axis_angles.size(); ++i)
+    if (!std::isfinite(axis_angles(i))) throw Error("ring: axis angle " + std::to_string(i) + " is not finite");
+  if (bore_radius < 0.0 || !std::isfinite(bore_radius) || bore() >= radius)
+    throw Error("ring: bore radius " + num(bore()) + " m must be positive and smaller than the ring radius " +
+                num(radius) + " m");
+  for (Eigen::Index i = 0; i < angles.size(); ++i)
+    for (Eigen::Index k = 0; k < i; ++k)
+      if (std::abs(std::remainder(angles(i) - angles(k), 2.0 * M_PI)) < 1e-9)
+        throw Error("ring: sensors " + std::to_string(k) + " and " + std::to_string(i) + " are at the same angle");
+}
+
+CableRing CableRing::rotated(double angle) const {
+  CableRing r = *this;
+  r.angles.array() += angle;
+  return r;
+}
+
+Eigen::Matrix<double, Eigen::Dynamic, 2, Eigen::RowMajor> cable_field(const CableRing& ring,
+                                                                      const Eigen::Ref<const ConductorPositions>& positions,
+                                                                      const Eigen::Ref<const Eigen::VectorXd>& currents) {
+  ring.validate();
+  if (positions.rows() < 1) throw Error("positions: no conductors");
+  if (currents.size() != positions.rows())
+    throw Error("currents: " + std::to_string(currents.size()) + " values for " + std::to_string(positions.rows()) +
+                " conductors");
+  for (Eigen::Index j = 0; j < currents.size(); ++j)
+    if (!std::isfinite(currents(j))) throw Error("currents: value " + std::to_string(j) + " is not finite");
+  check_positions(ring, positions, "positions");
+  return field_kernel(ring, positions, currents);
+}
+
+Eigen::MatrixXd cable_field_jacobian(const CableRing& ring, const Eigen::Ref<const ConductorPositions>& positions,
+                                     const Eigen::Ref<const Eigen::VectorXd>& currents) {
+  cable_field(ring, positions, currents);  // the same checks
+  return jacobian_kernel(ring, positions, currents);
+}
+
+namespace {
+
+Eigen::Matrix<double, Eigen::Dynamic, 2, Eigen::RowMajor> field_kernel(const CableRing& ring,
+                                                                       const Eigen::Ref<const ConductorPositions>& positions,
+                                                                       const Eigen::Ref<const Eigen::VectorXd>& currents) {
+  const RingFrame f(ring);
+  const double R = ring.radius, k = kMu0Over2Pi / R;
+  Eigen::Matrix<double, Eigen::Dynamic, 2, Eigen::RowMajor> out =
+      Eigen::Matrix<double, Eigen::Dynamic, 2, Eigen::RowMajor>::Zero(f.m, 2);
+  for (Eigen::Index j = 0; j < positions.rows(); ++j)
+    for (Eigen::Index i = 0; i < f.m; ++i) {
+      double r[2];
+      unit_reading(f, i, positions(j, 0) / R, positions(j, 1) / R, r, nullptr, nullptr);
+      out(i, 0) += k * currents(j) * r[0];
+      out(i, 1) += k * currents(j) * r[1];
+    }
+  return out;
+}
+
+Eigen::MatrixXd jacobian_kernel(const CableRing& ring, const Eigen::Ref<const ConductorPositions>& positions,
+                                const Eigen::Ref<const Eigen::VectorXd>& currents) {
+  const RingFrame f(ring);
+  const Eigen::Index n = positions.rows();
+  const double R = ring.radius, k = kMu0Over2Pi / R;
+  Eigen::MatrixXd J = Eigen::MatrixXd::Zero(2 * f.m, 3 * n);
+  for (Eigen::Index j = 0; j < n; ++j)
+    for (Eigen::Index i = 0; i < f.m; ++i) {
+      double r[2], dx[2], dy[2];
+      unit_reading(f, i, positions(j, 0) / R, positions(j, 1) / R, r, dx, dy);
+      for (int a = 0; a < 2; ++a) {
+        J(2 * i + a, 2 * j) = k * currents(j) * dx[a] / R;
+        J(2 * i + a, 2 * j + 1) = k * currents(j) * dy[a] / R;
+        J(2 * i + a, 2 * n + j) = k * r[a];
+      }
+    }
+  return J;
+}
+
+}  // namespace
+
+CableSolution solve_cable(const CableRing& ring, const Eigen::Ref<const Eigen::MatrixXd>& readings,
+                          const CableSolveOptions& opt) {
+  ring.validate();
+  const int n = opt.n_conductors;
+  const bool zs = opt.zero_sum_currents;
+  if (n < 1) throw Error("options.n_conductors: must be 1 or more");
+  if (zs && n < 2) throw Error("options.zero_sum_currents: needs at least 2 conductors (one conductor would carry 0 A)");
+  if (opt.grid_points < 2) throw Error("options.grid_points: must be 2 or more");
+  if (opt.starts < 1) throw Error("options.starts: must be 1 or more");
+  if (opt.max_iterations < 1) throw Error("options.max_iterations: must be 1 or more");
+  const Eigen::Index m = ring.sensors(), S = readings.rows();
+  if (readings.cols() != 2 * m)
+    throw Error("readings: " + std::to_string(readings.cols()) + " columns, the ring has " + std::to_string(m) +
+                " biaxial sensors: give 2 × " + std::to_string(m) + " = " + std::to_string(2 * m) +
+                " columns (x_0, y_0, x_1, …) per snapshot");
+  if (S < 1) throw Error("readings: no snapshots");
+  for (Eigen::Index s = 0; s < S; ++s)
+    for (Eigen::Index c = 0; c < readings.cols(); ++c)
+      if (!std::isfinite(readings(s, c)))
+        throw Error("readings: snapshot " + std::to_string(s) + ", sensor " + std::to_string(c / 2) + ", axis " +
+                    (c % 2 ? "y" : "x") + " is " + (std::isnan(readings(s, c)) ? "NaN" : "infinite") +
+                    "; remove or repair non-finite readings first");
+  const int nc = zs ? n - 1 : n;
+  const Eigen::Index unknowns = 2 * n + static_cast<Eigen::Index>(nc) * S, equations = 2 * m * S;
+  if (equations < unknowns || 2 * m < nc)
+    throw Error("readings: " + std::to_string(m) + " biaxial sensors × " + std::to_string(S) + " snapshot(s) give " +
+                std::to_string(equations) + " readings for " + std::to_string(unknowns) + " unknowns (" +
+                std::to_string(n) + " conductors: 2 coordinates each + " + std::to_string(nc) +
+                " currents per snapshot); too few sensors for the unknowns — add sensors, give more snapshots "
+                "sharing the positions (AC waveforms), or set zero_sum_currents");
+
+  const double R = ring.radius, field_unit = kMu0Over2Pi / R, bore = ring.bore() / R;
+  const RingFrame f(ring);
+  // Normalised readings, one column per snapshot (2M × S).
+  const Eigen::MatrixXd Rn = readings.transpose() / field_unit;
+  const double total = Rn.squaredNorm();
+
+  // ---- seeds -------------------------------------------------------------------------------------
+  std::vector<std::vector<double>> seeds;
+  if (opt.initial_positions.rows() > 0) {
+    if (opt.initial_positions.rows() != n)
+      throw Error("options.initial_positions: " + std::to_string(opt.initial_positions.rows()) + " rows for " +
+                  std::to_string(n) + " conductors");
+    check_positions(ring, opt.initial_positions, "options.initial_positions");
+    std::vector<double> s(2 * n);
+    for (int j = 0; j < n; ++j) {
+      s[2 * j] = opt.initial_positions(j, 0) / R;
+      s[2 * j + 1] = opt.initial_positions(j, 1) / R;
+    }
+    seeds.push_back(s);
+  } else {
+    std::vector<Eigen::Vector2d> grid;
+    const int g = opt.grid_points;
+    for (int a = 0; a < g; ++a)
+      for (int b = 0; b < g; ++b) {
+        const Eigen::Vector2d c(-bore + (a + 0.5) * 2.0 * bore / g, -bore + (b + 0.5) * 2.0 * bore / g);
+        if (c.norm() < bore) grid.push_back(c);
+      }
+    const int P = static_cast<int>(grid.size());
+    // three or more conductors: the greedy seeds are cheap and their basins small, so take more of them
+    const int starts = n > 2 ? std::max(opt.starts, 8 * n) : opt.starts;
+    std::vector<std::pair<double, std::vector<double>>> scored;
+    auto score = [&](const std::vector<double>& pos, int k) { return seed_cost(f, pos, k, zs && k == n, Rn, total); };
+    if (n <= 2) {
+      for (int a = 0; a < P; ++a)
+        for (int b = (n == 1 ? a : a + 1); b < (n == 1 ? a + 1 : P); ++b) {
+          std::vector<double> pos = {grid[a](0), grid[a](1)};
+          if (n == 2) pos.insert(pos.end(), {grid[b](0), grid[b](1)});
+          scored.emplace_back(score(pos, n), pos);
+        }
+    } else {
+      // greedy: the best first conductors, each completed by adding the grid point that helps most
+      std::vector<std::pair<double, int>> first;
+      for (int a = 0; a < P; ++a) first.emplace_back(score({grid[a](0), grid[a](1)}, 1), a);
+      std::sort(first.begin(), first.end());
+      for (int t = 0; t < std::min<int>(starts, P); ++t) {
+        std::vector<double> pos = {grid[first[t].second](0), grid[first[t].second](1)};
+        double c = kInf;
+        for (int k = 2; k <= n; ++k) {
+          double best = kInf;
+          int best_b = -1;
+          for (int b = 0; b < P; ++b) {
+            std::vector<double> trial = pos;
+            trial.insert(trial.end(), {grid[b](0), grid[b](1)});
+            const double sc = score(trial, k);
+            if (sc < best) best = sc, best_b = b;
+          }
+          if (best_b < 0) break;
+          pos.insert(pos.end(), {grid[best_b](0), grid[best_b](1)});
+          c = best;
+        }
+        if (static_cast<int>(pos.size()) == 2 * n) scored.emplace_back(c, pos);
+      }
+    }
+    std::sort(scored.begin(), scored.end(),
+              [](const auto& l, const auto& r) { return l.first < r.first; });
+    // diverse seeds: skip one whose every coordinate is within a grid step of a chosen seed (neighbouring
+    // grid cells fall into the same basin; the best few are often neighbours)
+    const double step = 2.0 * bore / g * 1.01;
+    for (const auto& sc : scored) {
+      if (static_cast<int>(seeds.size()) >= starts || !std::isfinite(sc.first)) break;
+      bool near = false;
+      for (const auto& chosen : seeds) {
+        double d = 0.0;
+        for (std::size_t k = 0; k < chosen.size(); ++k) d = std::max(d, std::abs(chosen[k] - sc.second[k]));
+        if (d <= step) near = true;
+      }
+      if (!near) seeds.push_back(sc.second);
+    }
+    if (seeds.empty()) throw Error("readings: no usable starting point on the grid (every seed is degenerate)");
+  }
+
+  // ---- refine every seed -------------------------------------------------------------------------
+  ceres::Solver::Options so;
+  so.linear_solver_type = S == 1 ? ceres::DENSE_QR : ceres::DENSE_SCHUR;
+  so.max_num_iterations = opt.max_iterations;
+  so.function_tolerance = opt.function_tolerance;
+  so.gradient_tolerance = opt.gradient_tolerance;
+  so.parameter_tolerance = opt.parameter_tolerance;
+  so.logging_type = ceres::SILENT;
+  so.num_threads = 1;
+  if (opt.dogleg) so.trust_region_strategy_type = ceres::DOGLEG;
+
+  double best_cost = kInf;
+  std::vector<double> best_pos;
+  Eigen::MatrixXd best_cur;  // nc × S
+  RunInfo best_run;
+  int tried = 0;
+  std::vector<std::unique_ptr<SnapshotCost>> costs;  // for the dense solver
+  if (opt.dense_solver) {
+    costs.reserve(static_cast<std::size_t>(S));
+    for (Eigen::Index s = 0; s < S; ++s) costs.push_back(std::make_unique<SnapshotCost>(f, Rn.col(s).data(), n, zs));
+  }
+  for (std::size_t t = 0; t < seeds.size(); ++t) {
+    std::vector<double> pos = seeds[t];
+    Eigen::MatrixXd cur(nc, S);
+    if (t == 0 && opt.initial_positions.rows() > 0 && opt.initial_currents.size() > 0) {
+      if (opt.initial_currents.rows() != S || opt.initial_currents.cols() != n)
+        throw Error("options.initial_currents: shape " + std::to_string(opt.initial_currents.rows()) + "×" +
+                    std::to_string(opt.initial_currents.cols()) + ", expected " + std::to_string(S) + "×" +
+                    std::to_string(n) + " (snapshots × conductors)");
+      cur = opt.initial_currents.leftCols(nc).transpose();
+    } else {
+      Eigen::MatrixXd G;
+      design(f, pos.data(), n, G);
+      cur = reduce(G, zs).colPivHouseholderQr().solve(Rn);
+    }
+    RunInfo run;
+    if (opt.dense_solver) {
+      run = dense_lm(costs, pos, cur, n, bore, opt);
+    } else {
+      ceres::Problem::Options po;
+      po.cost_function_ownership = ceres::TAKE_OWNERSHIP;
+      po.disable_all_safety_checks = true;  // the blocks are built right here
+      ceres::Problem problem(po);
+      for (Eigen::Index s = 0; s < S; ++s)
+        problem.AddResidualBlock(new SnapshotCost(f, Rn.col(s).data(), n, zs), nullptr, pos.data(), cur.col(s).data());
+      for (int k = 0; k < 2 * n; ++k) {
+        problem.SetParameterLowerBound(pos.data(), k, -bore);
+        problem.SetParameterUpperBound(pos.data(), k, bore);
+      }
+      ceres::Solver::Summary summary;
+      ceres::Solve(so, &problem, &summary);
+      run.cost = summary.final_cost;
+      run.iterations = static_cast<int>(summary.iterations.size()) - 1;
+      run.converged = summary.termination_type == ceres::CONVERGENCE;
+      run.usable = summary.IsSolutionUsable();
+      run.message = summary.message;
+    }
+    ++tried;
+    if (run.usable && run.cost < best_cost) {
+      best_cost = run.cost;
+      best_pos = pos;
+      best_cur = cur;
+      best_run = run;
+    }
+  }
+  if (best_pos.empty()) throw Error("solve_cable: the solver failed from every starting point");
+
+  // ---- canonical order (x, then y) and physical units ------------------------------------------------
+  std::vector<int> order(n);
+  std::iota(order.begin(), order.end(), 0);
+  std::sort(order.begin(), order.end(), [&](int a, int b) {
+    return best_pos[2 * a] != best_pos[2 * b] ? best_pos[2 * a] < best_pos[2 * b] : best_pos[2 * a + 1] < best_pos[2 * b + 1];
+  });
+  Eigen::MatrixXd full_cur(S, n);  // every current, including a derived last one
+  for (Eigen::Index s = 0; s < S; ++s) {
+    double last = 0.0;
+    for (int j = 0; j < nc; ++j) full_cur(s, j) = best_cur(j, s), last -= best_cur(j, s);
+    if (zs) full_cur(s, n - 1) = last;
+  }
+  CableSolution out;
+  out.positions.resize(n, 2);
+  out.currents.resize(S, n);
+  for (int j = 0; j < n; ++j) {
+    out.positions(j, 0) = best_pos[2 * order[j]] * R;
+    out.positions(j, 1) = best_pos[2 * order[j] + 1] * R;
+    out.currents.col(j) = full_cur.col(order[j]);
+  }
+  out.starts_tried = tried;
+
+  // ---- residuals, Jacobian (physical units, full parametrisation), covariance ------------------------
+  const Eigen::Index pf = 2 * n + n * S;
+  Eigen::MatrixXd J = Eigen::MatrixXd::Zero(2 * m * S, pf);
+  out.residuals.resize(S, 2 * m);
+  for (Eigen::Index s = 0; s < S; ++s) {
+    const Eigen::MatrixXd Js = jacobian_kernel(ring, out.positions, out.currents.row(s).transpose());
+    const auto model = field_kernel(ring, out.positions, out.currents.row(s).transpose());
+    for (Eigen::Index i = 0; i < m; ++i)
+      for (int a = 0; a < 2; ++a) out.residuals(s, 2 * i + a) = readings(s, 2 * i + a) - model(i, a);
+    J.block(2 * m * s, 0, 2 * m, 2 * n) = Js.leftCols(2 * n);
+    J.block(2 * m * s, 2 * n + n * s, 2 * m, n) = Js.rightCols(n);
+  }
+  // reduced parametrisation: θ_full = T θ_reduced
+  const Eigen::Index pr = 2 * n + nc * S;
+  Eigen::MatrixXd T = Eigen::MatrixXd::Zero(pf, pr);
+  T.topLeftCorner(2 * n, 2 * n).setIdentity();
+  // after sorting, the derived conductor is order⁻¹(n − 1); its current is −Σ of the others
+  int derived = -1;
+  if (zs)
+    for (int j = 0; j < n; ++j)
+      if (order[j] == n - 1) derived = j;
+  for (Eigen::Index s = 0; s < S; ++s) {
+    int col = 0;
+    for (int j = 0; j < n; ++j) {
+      if (j == derived) continue;
+      T(2 * n + n * s + j, 2 * n + nc * s + col) = 1.0;
+      if (zs) T(2 * n + n * s + derived, 2 * n + nc * s + col) = -1.0;
+      ++col;
+    }
+  }
+  const Eigen::MatrixXd Jr = J * T;
+  const double ssr = out.residuals.squaredNorm();
+  const Eigen::Index dof = equations - pr;
+  if (opt.noise_sigma > 0.0) {
+    out.noise_sigma = opt.noise_sigma;
+  } else if (dof > 0) {
+    out.noise_sigma = std::sqrt(ssr / static_cast<double>(dof));
+  } else {
+    out.summary.warnings.push_back("as many readings as unknowns: the noise cannot be estimated from the residuals; "
+                                   "set noise_sigma for a covariance");
+  }
+  Eigen::MatrixXd F = Jr.transpose() * Jr;
+  Eigen::VectorXd d(pr);
+  for (Eigen::Index k = 0; k < pr; ++k) d(k) = F(k, k) > 0.0 ? 1.0 / std::sqrt(F(k, k)) : 1.0;
+  const Eigen::MatrixXd Fs = d.asDiagonal() * F * d.asDiagonal();
+  Eigen::SelfAdjointEigenSolver<Eigen::MatrixXd> eig(Fs);
+  const Eigen::VectorXd lam = eig.eigenvalues();
+  out.fisher_condition = lam(0) > 0.0 ? lam(pr - 1) / lam(0) : kInf;
+  const bool singular = !(out.fisher_condition < kSingularFisher);
+  if (singular) {
+    out.covariance = Eigen::MatrixXd::Zero(pf, pf);
+    out.covariance.diagonal().setConstant(kInf);
+  } else {
+    const Eigen::MatrixXd inv = eig.eigenvectors() * lam.cwiseInverse().asDiagonal() * eig.eigenvectors().transpose();
+    const Eigen::MatrixXd cov_r = out.noise_sigma * out.noise_sigma * (d.asDiagonal() * inv * d.asDiagonal());
+    out.covariance = T * cov_r * T.transpose();
+  }
+  out.standard_errors = out.covariance.diagonal().cwiseMax(0.0).cwiseSqrt();
+
+  bool ok = !singular;
+  std::string why;
+  if (singular) why = "the Fisher matrix is singular (condition " + num(out.fisher_condition) + ")";
+  for (Eigen::Index k = 0; k < 2 * n && ok; ++k)
+    if (!(out.standard_errors(k) <= opt.max_position_sigma)) {
+      ok = false;
+      why = "position standard error " + num(out.standard_errors(k)) + " m of conductor " + std::to_string(k / 2) +
+            " exceeds " + num(opt.max_position_sigma) + " m at noise σ = " + num(out.noise_sigma) + " T";
+    }
+  for (Eigen::Index s = 0; s < S && ok; ++s) {
+    const double scale = out.currents.row(s).cwiseAbs().maxCoeff();
+    if (!(scale > 0.0)) continue;
+    for (int j = 0; j < n && ok; ++j) {
+      const double se = out.standard_errors(2 * n + n * s + j);
+      if (!(se <= opt.max_current_relative_sigma * scale)) {
+        ok = false;
+        why = "current standard error " + num(se) + " A of conductor " + std::to_string(j) + " exceeds " +
+              num(100 * opt.max_current_relative_sigma) + " % of " + num(scale) + " A";
+      }
+    }
+  }
+  for (int j = 0; j < n; ++j)
+    if (out.positions.row(j).norm() > ring.bore() * (1.0 - 1e-9)) {
+      out.summary.warnings.push_back("conductor " + std::to_string(j) +
+                                     " ended on the bore's edge: the readings fit no conductor inside the bore");
+      if (ok) why = "a conductor ended on the bore's edge";
+      ok = false;
+    }
+  out.well_conditioned = ok;
+  if (opt.noise_sigma > 0.0 && dof > 0) {
+    const double per_dof = std::sqrt(ssr / static_cast<double>(dof));
+    if (per_dof > opt.misfit_ratio * opt.noise_sigma) {
+      out.fits_model = false;
+      out.summary.warnings.push_back("the readings do not fit the model: residual " + num(per_dof) + " T per degree of "
+                                     "freedom vs noise σ = " + num(opt.noise_sigma) +
+                                     " T (uncalibrated sensors, a wrong number of conductors or an external field?)");
+    }
+  }
+  if (!ok) out.summary.warnings.push_back("ill-conditioned: " + why + "; do not trust these positions and currents");
+
+  Summary& sum = out.summary;
+  sum.samples = static_cast<std::size_t>(equations);
+  sum.iterations = best_run.iterations;
+  sum.cost = ssr / static_cast<double>(equations);
+  sum.residual_rms = std::sqrt(sum.cost);
+  sum.condition_number = out.fisher_condition;
+  sum.converged = best_run.converged;
+  if (!sum.converged) sum.warnings.push_back("the best start stopped before converging: " + best_run.message);
+  std::ostringstream msg;
+  msg << n << " conductor(s) from " << m << " sensors × " << S << " snapshot(s); residual RMS "
+      << num(sum.residual_rms) << " T; " << (ok ? "well conditioned" : "ILL-CONDITIONED") << (out.fits_model ? "" : ", MISFIT") << "; " << tried
+      << " start(s)";
+  sum.message = msg.str();
+  return out;
+}
+
+}  // namespace fluxcal

@@ -1,0 +1,271 @@
+"""Non-invasive current measurement of multicore cables (seed 000: Song et al. 2017), on the C++ core
+(cpp/include/fluxcal/cable.hpp).
+
+    ring = fluxcal.cable.Ring([0, 90, 180, 270], 0.010)          # 4 biaxial sensors on a 10 mm radius
+    b = ring.field([[-2e-3, 0], [2e-3, 0]], [5.0, -5.0])          # (4, 2): radial, tangential in tesla
+    sol = ring.solve(b, n_conductors=2)                            # .positions (m), .currents (A)
+    sol.covariance, sol.well_conditioned
+
+Calibration (the paper's procedure): turn the ring about the cable (5 × 72°) with known reference
+currents; the model gives the true field at each sensor; TWOSTEP 2-D (fluxcal.twostep_2d) per sensor;
+compensation (eq. 19) h = (ĥ − b) ⊘ γ of every later reading — `calibrate_ring`. The ordinary
+least-squares ellipse calibration the paper compares against is `calibrate_ring(..., method="least_squares")`.
+SI units throughout: metres, amperes, tesla, degrees only where a name says `_deg`.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from . import _core
+from ._arrays import set_options
+from .twostep import TwoStep2D, twostep_2d
+
+#: μ0/(2π) in T·m/A (the core's constant).
+MU0_OVER_2PI = 1.25663706127e-6 / (2.0 * np.pi)
+
+
+def _positions(positions_m) -> np.ndarray:
+    arr = np.asarray(positions_m, dtype=float)
+    if arr.ndim == 1 and arr.size == 2:
+        arr = arr.reshape(1, 2)
+    if arr.ndim != 2 or arr.shape[1] != 2:
+        raise ValueError(f"positions_m: shape {arr.shape}, expected (n_conductors, 2) with (x, y) in metres")
+    return np.ascontiguousarray(arr)
+
+
+@dataclass
+class CableSolution:
+    """Conductor positions (n, 2) in metres, currents (n,) — or (snapshots, n) for several snapshots —
+    in amperes, the covariance of [x0, y0, x1, y1, …, currents of snapshot 0, …] (m, A), whether the
+    geometry determines them (`well_conditioned`) and whether the readings fit the model to within a few
+    noise σ (`fits_model`; see cable.hpp)."""
+
+    positions: np.ndarray
+    currents: np.ndarray
+    covariance: np.ndarray
+    standard_errors: np.ndarray
+    well_conditioned: bool
+    fits_model: bool = True
+    noise_sigma: float = 0.0
+    fisher_condition: float = 0.0
+    residuals: np.ndarray = None
+    starts_tried: int = 0
+    summary: dict = field(default_factory=dict)
+
+    @property
+    def position_sigma(self) -> np.ndarray:
+        """Standard errors of the positions, (n, 2) metres."""
+        n = self.positions.shape[0]
+        return self.standard_errors[: 2 * n].reshape(n, 2)
+
+
+class Ring:
+    """A ring of biaxial sensors around a cable: sensor i at `angles_deg[i]` on `radius_m`, its x axis
+    radial and y tangential unless `axis_angles_deg` turns it; conductors must lie within
+    `bore_radius_m` (default 0.4 × radius: the paper's 8 mm hole with sensors at ~10 mm)."""
+
+    def __init__(self, angles_deg=(0.0, 90.0, 180.0, 270.0), radius_m: float = 0.010, axis_angles_deg=None,
+                 bore_radius_m: float | None = None):
+        self.angles_deg = np.atleast_1d(np.asarray(angles_deg, dtype=float)).copy()
+        self.radius_m = float(radius_m)
+        self.axis_angles_deg = (np.zeros_like(self.angles_deg) if axis_angles_deg is None
+                                else np.atleast_1d(np.asarray(axis_angles_deg, dtype=float)).copy())
+        self.bore_radius_m = 0.4 * self.radius_m if bore_radius_m is None else float(bore_radius_m)
+        if self.axis_angles_deg.shape != self.angles_deg.shape:
+            raise ValueError(f"axis_angles_deg: {self.axis_angles_deg.size} values for {self.angles_deg.size} sensors")
+        # let the core check the rest (finite, radius > 0, bore < radius, distinct angles)
+        _core.cable_field(*self._args(), np.zeros((1, 2)), np.zeros(1))
+
+    def _args(self):
+        return (np.radians(self.angles_deg), self.radius_m, np.radians(self.axis_angles_deg), self.bore_radius_m)
+
+    @property
+    def n_sensors(self) -> int:
+        return self.angles_deg.size
+
+    def __repr__(self):
+        return (f"Ring(angles_deg={self.angles_deg.tolist()}, radius_m={self.radius_m}, "
+                f"bore_radius_m={self.bore_radius_m})")
+
+    def rotated(self, angle_deg: float) -> "Ring":
+        """The ring turned by `angle_deg` counter-clockwise about the cable (sensors and axes together)."""
+        return Ring(self.angles_deg + angle_deg, self.radius_m, self.axis_angles_deg, self.bore_radius_m)
+
+    def field(self, positions_m, currents_a) -> np.ndarray:
+        """Field at every sensor in its axes (radial, tangential for the default axes), tesla: (n_sensors, 2)
+        for currents (n,), or (snapshots, n_sensors, 2) for currents (snapshots, n)."""
+        pos = _positions(positions_m)
+        cur = np.asarray(currents_a, dtype=float)
+        if cur.ndim == 2:
+            return np.stack([self.field(pos, c) for c in cur])
+        return np.asarray(_core.cable_field(*self._args(), pos, np.atleast_1d(cur)))
+
+    def jacobian(self, positions_m, currents_a) -> np.ndarray:
+        """∂(readings, sensor-major x0, y0, x1, …)/∂(x0, y0, …, I0, …): (2·n_sensors, 3n)."""
+        return np.asarray(_core.cable_field_jacobian(*self._args(), _positions(positions_m),
+                                                     np.atleast_1d(np.asarray(currents_a, dtype=float))))
+
+    def solve(self, readings, n_conductors: int = 2, zero_sum_currents: bool = False, initial_positions=None,
+              initial_currents=None, **settings) -> CableSolution:
+        """Conductor positions and currents from readings (n_sensors, 2) — one snapshot — or
+        (snapshots, n_sensors, 2) sharing the positions (AC waveforms), tesla in each sensor's axes.
+
+        settings (defaults in cable.hpp): grid_points=9, starts=6, max_iterations=100, noise_sigma=1e-8 (T;
+        ≤ 0 = estimate from the residuals), max_position_sigma=1e-4 (m), max_current_relative_sigma=0.05,
+        misfit_ratio=5, dense_solver=False (True: fluxcal's dense Levenberg–Marquardt instead of Ceres, for warm starts).
+        `initial_positions` (n, 2) warm-starts the solver (no grid). Raises ValueError on NaN readings,
+        too few sensors for the unknowns, or a start outside the bore."""
+        arr = np.asarray(readings, dtype=float)
+        single = arr.ndim == 2
+        if single:
+            arr = arr[None]
+        if arr.ndim != 3 or arr.shape[1:] != (self.n_sensors, 2):
+            raise ValueError(f"readings: shape {np.shape(readings)}, expected ({self.n_sensors}, 2) or "
+                             f"(snapshots, {self.n_sensors}, 2) for this ring of {self.n_sensors} biaxial sensors")
+        options = _core.CableSolveOptions()
+        options.n_conductors = int(n_conductors)
+        options.zero_sum_currents = bool(zero_sum_currents)
+        if initial_positions is not None:
+            options.initial_positions = _positions(initial_positions)
+        if initial_currents is not None:
+            options.initial_currents = np.atleast_2d(np.asarray(initial_currents, dtype=float))
+        set_options(options, settings, "Ring.solve")
+        r = _core.solve_cable(*self._args(), arr.reshape(arr.shape[0], -1), options)
+        currents = np.asarray(r["currents"])
+        return CableSolution(positions=np.asarray(r["positions"]), currents=currents[0] if single else currents,
+                             covariance=np.asarray(r["covariance"]), standard_errors=np.asarray(r["standard_errors"]),
+                             well_conditioned=bool(r["well_conditioned"]), fits_model=bool(r["fits_model"]),
+                             noise_sigma=r["noise_sigma"],
+                             fisher_condition=r["fisher_condition"],
+                             residuals=np.asarray(r["residuals"]).reshape(arr.shape), starts_tried=r["starts_tried"],
+                             summary=r["summary"])
+
+
+def ac_currents(phasors, times_s, frequency_hz: float = 50.0) -> np.ndarray:
+    """Instantaneous currents (len(times), n) of AC conductors: `phasors` (n,) complex amplitudes (peak,
+    A) of the fundamental, or (harmonics, n) for harmonics 1, 2, …: i(t) = Re Σ_h P_h e^{j h ω t}."""
+    p = np.atleast_2d(np.asarray(phasors, dtype=complex))
+    t = np.asarray(times_s, dtype=float)[:, None, None]
+    h = np.arange(1, p.shape[0] + 1)[None, :, None]
+    return np.real((p[None] * np.exp(1j * 2 * np.pi * frequency_hz * h * t)).sum(axis=1))
+
+
+# ---- calibration -----------------------------------------------------------------------------------
+
+@dataclass
+class RingCalibration:
+    """Per-sensor offsets b (n_sensors, 2) and gains γ (n_sensors, 2) in each sensor's axes;
+    compensation (eq. 19) h = (ĥ − b) ⊘ γ. `method` is "twostep" or "least_squares"."""
+
+    offsets: np.ndarray
+    gains: np.ndarray
+    method: str = "twostep"
+    sensors: list = field(default_factory=list)  # the TwoStep2D of each sensor
+
+    def apply(self, readings) -> np.ndarray:
+        """Compensated readings, same shape as `readings` (…, n_sensors, 2)."""
+        r = np.asarray(readings, dtype=float)
+        if r.shape[-2:] != self.offsets.shape:
+            raise ValueError(f"readings: shape {r.shape}, expected (…, {self.offsets.shape[0]}, 2)")
+        return (r - self.offsets) / self.gains
+
+    def to_dict(self) -> dict:
+        return {"method": self.method, "offsets": self.offsets.tolist(), "gains": self.gains.tolist()}
+
+    @classmethod
+    def from_dict(cls, d: dict) -> "RingCalibration":
+        return cls(offsets=np.asarray(d["offsets"], float), gains=np.asarray(d["gains"], float),
+                   method=d.get("method", "twostep"))
+
+
+def calibrate_ring(readings, true_fields, method: str = "twostep") -> RingCalibration:
+    """Calibrate every sensor of a ring from K calibration readings (K, n_sensors, 2) and the true field
+    of each (K, n_sensors, 2; from the model at the known rotation and reference currents).
+
+    method="twostep": TWOSTEP 2-D per sensor with the true magnitude of every reading (eqs. 7–18,
+    refined). method="least_squares": the ordinary ellipse fit, which knows one field magnitude only
+    (the RMS of the true magnitudes) — the method the paper compares against."""
+    r = np.asarray(readings, dtype=float)
+    h = np.asarray(true_fields, dtype=float)
+    if r.ndim != 3 or r.shape[2] != 2 or h.shape != r.shape:
+        raise ValueError(f"readings {r.shape} and true_fields {h.shape}: expected the same shape (K, n_sensors, 2)")
+    norms = np.linalg.norm(h, axis=2)
+    fits: list[TwoStep2D] = []
+    for i in range(r.shape[1]):
+        if method == "twostep":
+            fits.append(twostep_2d(r[:, i], norms[:, i]))
+        elif method == "least_squares":
+            common = np.full(r.shape[0], np.sqrt(np.mean(norms[:, i] ** 2)))
+            fits.append(twostep_2d(r[:, i], common, refine=False))
+        else:
+            raise ValueError(f"method: {method!r}, expected 'twostep' or 'least_squares'")
+    return RingCalibration(offsets=np.array([f.offset for f in fits]), gains=np.array([f.gain for f in fits]),
+                           method=method, sensors=fits)
+
+
+def calibration_fields(ring: Ring, positions_m, currents_a, rotations_deg) -> np.ndarray:
+    """True fields (len(rotations) · len(currents), n_sensors, 2) at each rotation of the ring (outer) and
+    each set of reference currents (inner; `currents_a` (c, n) or (n,))."""
+    cur = np.atleast_2d(np.asarray(currents_a, dtype=float))
+    return np.concatenate([ring.rotated(a).field(positions_m, cur) for a in np.atleast_1d(rotations_deg)])
+
+
+# ---- recordings (CLI) ------------------------------------------------------------------------------
+# A ring recording is a fluxcal CSV with one row per snapshot: `rotation_deg` (the ring's turn, optional),
+# the reference currents `i0`, `i1`, … (calibration recordings), and the readings `s<k>_x`, `s<k>_y` of
+# every sensor k (tesla). Metadata lines carry the ring (`ring_angles_deg`, `ring_radius_m`) and, for a
+# calibration, the conductor positions (`positions_m`: x0 y0 x1 y1 …).
+
+def _floats(text) -> np.ndarray:
+    return np.array([float(v) for v in str(text).replace(",", " ").split()])
+
+
+def write_ring_csv(path, ring: Ring, readings, rotations_deg=None, currents_a=None, positions_m=None,
+                   metadata=None):
+    """Write snapshots (K, n_sensors, 2) with their rotations (K,) and reference currents (K, n)."""
+    from .io import write_csv
+
+    r = np.asarray(readings, float)
+    cols = {}
+    if rotations_deg is not None:
+        cols["rotation_deg"] = np.asarray(rotations_deg, float)
+    if currents_a is not None:
+        cur = np.atleast_2d(np.asarray(currents_a, float))
+        for j in range(cur.shape[1]):
+            cols[f"i{j}"] = cur[:, j]
+    for k in range(r.shape[1]):
+        cols[f"s{k}_x"], cols[f"s{k}_y"] = r[:, k, 0], r[:, k, 1]
+    units = {n: ("T" if n.startswith("s") else "A" if n.startswith("i") else "deg") for n in cols}
+    meta = {"ring_angles_deg": " ".join(f"{a:.10g}" for a in ring.angles_deg), "ring_radius_m": f"{ring.radius_m:.10g}",
+            "ring_bore_radius_m": f"{ring.bore_radius_m:.10g}"}
+    if positions_m is not None:
+        meta["positions_m"] = " ".join(f"{v:.10g}" for v in np.ravel(positions_m))
+    meta.update(metadata or {})
+    return write_csv(path, cols, units=units, metadata=meta, fmt="%.12g")
+
+
+def read_ring_csv(path) -> dict:
+    """Read a ring recording: dict with ring, readings (K, n_sensors, 2), rotations_deg (K,) (zeros when
+    absent), currents_a (K, n) or None, positions_m (n, 2) or None."""
+    from .io import read_csv
+
+    rec = read_csv(path)
+    meta = rec.metadata
+    if "ring_angles_deg" not in meta or "ring_radius_m" not in meta:
+        raise ValueError(f"{path}: no ring_angles_deg / ring_radius_m metadata lines")
+    ring = Ring(_floats(meta["ring_angles_deg"]), float(meta["ring_radius_m"]),
+                bore_radius_m=float(meta["ring_bore_radius_m"]) if "ring_bore_radius_m" in meta else None)
+    names = [(f"s{k}_x", f"s{k}_y") for k in range(ring.n_sensors)]
+    missing = [n for pair in names for n in pair if n not in rec.columns]
+    if missing:
+        raise ValueError(f"{path}: no column {', '.join(missing)} for the ring's {ring.n_sensors} sensors")
+    readings = np.stack([np.column_stack([rec.columns[x], rec.columns[y]]) for x, y in names], axis=1)
+    k = readings.shape[0]
+    rotations = rec.columns.get("rotation_deg", np.zeros(k))
+    cur_names = sorted((n for n in rec.columns if n[0] == "i" and n[1:].isdigit()), key=lambda n: int(n[1:]))
+    currents = np.column_stack([rec.columns[n] for n in cur_names]) if cur_names else None
+    positions = _floats(meta["positions_m"]).reshape(-1, 2) if "positions_m" in meta else None
+    return {"ring": ring, "readings": readings, "rotations_deg": np.asarray(rotations, float), "currents_a": currents,
+            "positions_m": positions}
