@@ -12,7 +12,7 @@ Prints
   3. end to end: recovered conductor positions and currents from single snapshots, raw and calibrated;
   4. the Python-level solve time against SciPy least_squares on the same problem.
 Writes fig4.png … fig7.png (and fig12.png, the sweep) into OUTDIR with matplotlib.
-Assumptions where the paper is silent: see python/fluxcal/sim/cable.py and bench/RESULTS-cable.md.
+Assumptions where the paper is silent: see python/fluxcal/sim/cable.py and bench/RESULTS.md (cable section).
 """
 from __future__ import annotations
 
