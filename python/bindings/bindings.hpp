@@ -19,5 +19,6 @@ py::dict calibration_dict(const fluxcal::Calibration& c, const fluxcal::Summary&
 void bind_ellipsoid(py::module_& m);  // ellipsoid.cpp (also coverage)
 void bind_twostep(py::module_& m);    // twostep.cpp
 void bind_refine(py::module_& m);     // refine.cpp (also fit_vector)
+void bind_timeseries(py::module_& m); // timeseries.cpp (also kalman, fixed_kalman, drift)
 
 }  // namespace fluxcal_py

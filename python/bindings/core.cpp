@@ -30,4 +30,5 @@ PYBIND11_MODULE(_core, m) {
   fluxcal_py::bind_ellipsoid(m);
   fluxcal_py::bind_twostep(m);
   fluxcal_py::bind_refine(m);
+  fluxcal_py::bind_timeseries(m);
 }

@@ -11,3 +11,4 @@ from .simulate import Simulation, simulate
 
 __all__ = ["Effect", "HardIron", "SoftIron", "WhiteNoise", "random_sensor", "Scene", "sweeps", "uniform",
            "Simulation", "simulate"]
+from .foct import FoctSimulation, foct_zero_bias
