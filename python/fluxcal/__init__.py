@@ -14,6 +14,7 @@ from .io import Recording, read_csv, write_csv
 from .pipeline import calibrate
 from .refine import fit_vector, refine
 from .twostep import TwoStep2D, twostep, twostep_2d
+from . import drift, kalman, timeseries  # seed 001: drift compensation, AR Kalman filters, time-series tests
 
 __version__ = _core.__version__
 

@@ -9,7 +9,8 @@ Steps of fit_pipeline:
   1. zero-mean; reverse-arrangement stationarity test of the differenced series (and a second difference
      plus trend removal when it fails); skewness/kurtosis of the stationary series (diagnostics, S2);
   2. AR(p) model of the zero-mean series, order by AIC, RLS coefficients, Ljung–Box whiteness (S3);
-  3. Kalman filter on that AR model (Q = the AR residual variance, R given or Q) → L (S4);
+  3. Kalman filter on that AR model (Q = the AR residual variance, R given or Q) → L (S4), divided by
+     the filter's DC gain so that the slow drift in L keeps its size;
   4. piecewise polynomial drift Y = T A of L in the device temperature or the inside/outside difference,
      balanced columns, F-test orders, AR-whitened (generalised) least squares (S5; see
      cpp/include/fluxcal/drift.hpp for why the whitening).
@@ -169,6 +170,17 @@ def drift_span(values, temp, step: float = 5.0) -> float:
     return float(m.max() - m.min())
 
 
+def dc_gain(kalman: ArKalman) -> float:
+    """Output per unit constant input of the steady-state filter: e1ᵀ (I − F)⁻¹ K, F = (I − K e1ᵀ) A."""
+    n = kalman.order
+    A = np.zeros((n, n))
+    A[0] = kalman.ar_coeffs
+    A[np.arange(1, n), np.arange(n - 1)] = 1.0
+    K = kalman.steady_gain
+    F = (np.eye(n) - np.outer(K, np.eye(n)[0])) @ A
+    return float(np.linalg.solve(np.eye(n) - F, K)[0])
+
+
 def fit_pipeline(zero_bias, temp, temp_outside=None, regressor: str = "temp", breakpoints=DEFAULT_BREAKPOINTS,
                  max_order: int = 4, significance: float = 0.05, continuous: bool = False, ar_max_order: int = 10,
                  q: float | None = None, r: float | None = None, steady_state: bool = False, subseries: int = 20,
@@ -186,12 +198,15 @@ def fit_pipeline(zero_bias, temp, temp_outside=None, regressor: str = "temp", br
     q = ar.sigma2 if q is None else float(q)
     r = ar.sigma2 if r is None else float(r)
     kalman = ArKalman(ar.coefficients, q, r, steady_state=steady_state)
-    filtered = kalman.filter(level) + pre["mean"]
+    # The filter estimates a zero-mean AR signal, so a slow drift passes with its DC gain g < 1
+    # (≈ S(0)/(S(0) + R), S the AR spectrum); dividing by g keeps the drift fitted on L unbiased.
+    gain = dc_gain(kalman)
+    filtered = kalman.filter(level) / gain + pre["mean"]
     model = fit_drift(filtered, temp, temp_outside, regressor=regressor, breakpoints=breakpoints,
                       max_order=max_order, significance=significance, continuous=continuous, whiten=whiten)
     model.settings.update({"ar": {"order": ar.order, "coefficients": ar.coefficients.tolist(), "sigma2": ar.sigma2,
                                   "max_order": ar_max_order, "order_at_maximum": ar.order_at_maximum},
-                           "kalman": {"q": q, "r": r, "steady_state": steady_state}})
+                           "kalman": {"q": q, "r": r, "steady_state": steady_state, "dc_gain": gain}})
     compensated = model.compensate(w, temp, temp_outside)
     residual_filtered = filtered - model.evaluate(temp, temp_outside)
     report = {"preprocess": {k: v for k, v in pre.items() if k != "series"},
