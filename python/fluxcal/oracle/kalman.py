@@ -256,3 +256,45 @@ def golden_vectors(coefficients: dict, y_int) -> dict:
     out, overflowed = FixedModel(coefficients).filter(list(map(int, y_int)))
     return {"coefficients": dict(coefficients), "input": [int(v) for v in y_int], "output": [int(v) for v in out],
             "overflowed": bool(overflowed)}
+
+
+def write_golden_cpp(path, n: int = 1500) -> None:
+    """Write the golden vectors of tests/cpp/test_kalman.cpp (C++ include file): three seeded cases —
+    time-varying AR(3), steady-state AR(3), and a full-scale step that saturates (overflow flagged).
+    Regenerate with: python -c "from fluxcal.oracle.kalman import write_golden_cpp as w; w('tests/cpp/fixed_kalman_golden.inc')"
+    """
+    from scipy.signal import lfilter
+
+    from ..kalman import FixedArKalman
+
+    rng = np.random.default_rng(2016)
+    a, q, r = (0.6, -0.3, 0.2), 0.5, 0.3
+    s = lfilter([1.0], [1.0, -0.6, 0.3, -0.2], np.sqrt(q) * rng.standard_normal(n + 500))[500:]
+    y = s + np.sqrt(r) * rng.standard_normal(n)
+    y = 0.9 * y / np.max(np.abs(y))
+    step = np.where(np.arange(n) < n // 2, 1.9, -1.9)
+    cases = [("time_varying", FixedArKalman(a, q, r), y), ("steady_state", FixedArKalman(a, q, r, steady_state=True), y),
+             ("saturating", FixedArKalman((0.99,), 1.0, 0.1, frac_bits=30), step)]
+    lines = ["// Golden vectors of the fixed-point AR Kalman filter, written by fluxcal.oracle.kalman.write_golden_cpp",
+             "// from the bit-exact Python integer model. Do not edit by hand.", "#include <cstdint>", "#include <vector>",
+             "struct GoldenCase { const char* name; int order; int signal_frac_bits; int coef_frac_bits; int cov_frac_bits;",
+             "  bool steady_state; std::vector<std::int32_t> a, gain, p0; std::int32_t q, r;",
+             "  std::vector<std::int32_t> input, output; bool overflowed; };",
+             "static const std::vector<GoldenCase> kGoldenCases = {"]
+
+    def arr(v):
+        return "{" + ",".join(str(int(x)) for x in v) + "}"
+
+    for name, f, series in cases:
+        if f.frac_bits is None:
+            f.frac_bits = 30
+        y_int = f.to_fixed(series)[0]
+        g = golden_vectors(f.coefficients(), y_int)
+        c = g["coefficients"]
+        lines.append(f'  {{"{name}", {len(c["a"])}, {c["signal_frac_bits"]}, {c["coef_frac_bits"]}, {c["cov_frac_bits"]}, '
+                     f'{"true" if c["steady_state"] else "false"}, {arr(c["a"])}, {arr(c["gain"])}, {arr(c["p0"])}, '
+                     f'{c["q"]}, {c["r"]},\n   {arr(g["input"])},\n   {arr(g["output"])}, '
+                     f'{"true" if g["overflowed"] else "false"}}},')
+    lines.append("};")
+    with open(path, "w") as fh:
+        fh.write("\n".join(lines) + "\n")
