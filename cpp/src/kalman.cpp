@@ -78,6 +78,14 @@ ArKalman::ArKalman(const Eigen::VectorXd& ar_coefficients, double q, double r, c
   }
 }
 
+ArKalman ArKalman::from_ar(const ArResult& fit, double r, const KalmanOptions& options) {
+  if (fit.order < 1 || fit.coefficients.size() != fit.order)
+    throw Error("ar fit: order " + std::to_string(fit.order) +
+                ", the Kalman filter needs an AR order p ≥ 1 (a white series has no dynamics to filter)");
+  if (!(fit.sigma2 > 0.0)) throw Error("ar fit: residual variance " + std::to_string(fit.sigma2) + " is not > 0");
+  return ArKalman(fit.coefficients, fit.sigma2, r >= 0.0 ? r : fit.sigma2, options);
+}
+
 double ArKalman::spectral_radius() const { return companion(a_).eigenvalues().cwiseAbs().maxCoeff(); }
 
 Eigen::VectorXd ArKalman::steady_state_gain(Eigen::MatrixXd* prior_covariance, int* iterations) const {

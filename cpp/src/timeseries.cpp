@@ -318,4 +318,47 @@ ArResult fit_ar(const SeriesRef& y, const ArOptions& options) {
   return result;
 }
 
+PreprocessResult preprocess(const SeriesRef& x, const PreprocessOptions& options) {
+  if (options.subseries < 3)
+    throw Error("preprocess: subseries = " + std::to_string(options.subseries) + ", need ≥ 3");
+  if (options.trend_degree < 0) throw Error("preprocess: trend_degree is negative");
+  // Enough for the test on the twice-differenced series: N − 2 ≥ 2 l.
+  check_series(x, "series", 2 * static_cast<Eigen::Index>(options.subseries) + 2,
+               "for the stationarity test on " + std::to_string(options.subseries) + " sub-series");
+  if (!((x.array() != x[0]).any()))
+    throw Error("series: constant (every sample equals " + std::to_string(x[0]) + "), nothing to model");
+  PreprocessResult r;
+  const Eigen::VectorXd z = zero_mean(x, &r.mean);
+  Eigen::VectorXd d1 = difference(z, 1);
+  r.stationarity = reverse_arrangement(d1, options.subseries, options.threshold);
+  Summary& s = r.summary;
+  if (r.stationarity.stationary) {
+    r.series = std::move(d1);
+    r.differences = 1;
+    r.stationarity_after = r.stationarity;
+  } else {
+    r.series = remove_trend(difference(d1, 1), options.trend_degree);
+    r.differences = 2;
+    r.stationarity_after = reverse_arrangement(r.series, options.subseries, options.threshold);
+  }
+  if (!((r.series.array() != r.series[0]).any()))
+    throw Error("series: its differences are constant (a pure polynomial trend), the noise model needs variation");
+  r.normality = normality(r.series, options.significance);
+  s.samples = static_cast<std::size_t>(x.size());
+  s.converged = r.stationarity_after.stationary;
+  std::ostringstream msg;
+  msg << "differenced " << r.differences << "x, reverse arrangement u = " << r.stationarity.u;
+  if (r.differences == 2) msg << " (after: " << r.stationarity_after.u << ")";
+  msg << ", skewness " << r.normality.skewness << ", kurtosis " << r.normality.kurtosis;
+  s.message = msg.str();
+  if (!r.stationarity_after.stationary)
+    s.warnings.push_back("the series is not stationary even after differencing twice and removing a trend (u = " +
+                         std::to_string(r.stationarity_after.u) + ")");
+  if (!r.normality.normal)
+    s.warnings.push_back("the stationary series is not normal (Jarque-Bera p = " +
+                         std::to_string(r.normality.p_value) + ", skewness " + std::to_string(r.normality.skewness) +
+                         ", kurtosis " + std::to_string(r.normality.kurtosis) + ")");
+  return r;
+}
+
 }  // namespace fluxcal

@@ -65,6 +65,25 @@ void bind_timeseries(py::module_& m) {
   m.def("ts_ljung_box", [](const SeriesRef& x, int lags, int model_df, double significance) {
     return ljung_dict(fluxcal::ljung_box(x, lags, model_df, significance));
   }, "x"_a.noconvert(), "lags"_a, "model_df"_a, "significance"_a);
+  m.def("ts_preprocess", [](const SeriesRef& x, int subseries, double threshold, int trend_degree,
+                            double significance) {
+    fluxcal::PreprocessOptions options;
+    options.subseries = subseries;
+    options.threshold = threshold;
+    options.trend_degree = trend_degree;
+    options.significance = significance;
+    const auto r = fluxcal::preprocess(x, options);
+    auto ra = [](const fluxcal::ReverseArrangementResult& t) {
+      return py::dict("subseries"_a = t.subseries, "arrangements"_a = t.arrangements, "expected"_a = t.expected,
+                      "variance"_a = t.variance, "u"_a = t.u, "stationary"_a = t.stationary, "means"_a = t.means);
+    };
+    return py::dict("mean"_a = r.mean, "series"_a = r.series, "differences"_a = r.differences,
+                    "stationarity"_a = ra(r.stationarity), "stationarity_after"_a = ra(r.stationarity_after),
+                    "normality"_a = py::dict("skewness"_a = r.normality.skewness, "kurtosis"_a = r.normality.kurtosis,
+                                             "jarque_bera"_a = r.normality.jarque_bera,
+                                             "p_value"_a = r.normality.p_value, "normal"_a = r.normality.normal),
+                    "summary"_a = summary_dict(r.summary));
+  }, "x"_a.noconvert(), "subseries"_a, "threshold"_a, "trend_degree"_a, "significance"_a);
   m.def("ts_chi2_sf", &fluxcal::chi2_sf, "x"_a, "df"_a);
   m.def("ts_f1_sf", &fluxcal::f1_sf, "x"_a, "df"_a);
 
@@ -112,6 +131,14 @@ void bind_timeseries(py::module_& m) {
     return py::dict("filtered"_a = res.filtered, "innovations"_a = res.innovations, "state"_a = res.state,
                     "covariance"_a = res.covariance, "gain"_a = res.gain, "summary"_a = summary_dict(res.summary));
   }, "a"_a, "q"_a, "r"_a, "options"_a, "y"_a.noconvert());
+  m.def("kalman_noise_from_ar", [](int order, const Eigen::VectorXd& coefficients, double sigma2, double r) {
+    fluxcal::ArResult fit;
+    fit.order = order;
+    fit.coefficients = coefficients;
+    fit.sigma2 = sigma2;
+    const auto k = fluxcal::ArKalman::from_ar(fit, r);
+    return py::make_tuple(k.coefficients(), k.q(), k.r());
+  }, "order"_a, "coefficients"_a, "sigma2"_a, "r"_a);
   m.def("ar_stationary_covariance", &fluxcal::ar_stationary_covariance, "a"_a, "q"_a);
 
   m.attr("FIXED_MAX_ORDER") = kFixedMaxOrder;

@@ -141,7 +141,7 @@ def cmd_drift(args) -> int:
               f"{pre['stationarity']['u']:.3f} ({'stationary' if pre['stationarity']['stationary'] else 'NOT stationary'})")
         print(f"  normality: skewness {pre['normality']['skewness']:.3f}, kurtosis {pre['normality']['kurtosis']:.3f}")
         print(f"  AR({ar['order']}) by AIC, sigma2 {ar['sigma2']:.4g}, Ljung-Box p {ar['whiteness']['p_value']:.3g}")
-        for w in ar["warnings"]:
+        for w in report["warnings"]:
             print(f"warning: {w}")
         for seg in model.segments:
             lo, hi = seg["range"]

@@ -9,7 +9,7 @@ Steps of fit_pipeline:
   1. zero-mean; reverse-arrangement stationarity test of the differenced series (and a second difference
      plus trend removal when it fails); skewness/kurtosis of the stationary series (diagnostics, S2);
   2. AR(p) model of the zero-mean series, order by AIC, RLS coefficients, Ljung–Box whiteness (S3);
-  3. Kalman filter on that AR model (Q = the AR residual variance, R given or Q) → L (S4), divided by
+  3. Kalman filter on that AR model (`ArKalman.from_ar`: Q = the AR residual variance, R given or Q) → L (S4), divided by
      the filter's DC gain so that the slow drift in L keeps its size;
   4. piecewise polynomial drift Y = T A of L in the device temperature or the inside/outside difference,
      balanced columns, F-test orders, AR-whitened (generalised) least squares (S5; see
@@ -195,9 +195,11 @@ def fit_pipeline(zero_bias, temp, temp_outside=None, regressor: str = "temp", br
     ar = ts.fit_ar(level, max_order=ar_max_order)
     if ar.order == 0:
         raise ValueError("zero_bias: AIC chose AR order 0 (white series), the Kalman filter needs p ≥ 1")
-    q = ar.sigma2 if q is None else float(q)
-    r = ar.sigma2 if r is None else float(r)
-    kalman = ArKalman(ar.coefficients, q, r, steady_state=steady_state)
+    if q is None:  # Q (and R unless given) estimated from the AR fit
+        kalman = ArKalman.from_ar(ar, r=r, steady_state=steady_state)
+    else:
+        kalman = ArKalman(ar.coefficients, float(q), ar.sigma2 if r is None else float(r), steady_state=steady_state)
+    q, r = kalman.q, kalman.r
     # The filter estimates a zero-mean AR signal, so a slow drift passes with its DC gain g < 1
     # (≈ S(0)/(S(0) + R), S the AR spectrum); dividing by g keeps the drift fitted on L unbiased.
     gain = dc_gain(kalman)
@@ -210,6 +212,7 @@ def fit_pipeline(zero_bias, temp, temp_outside=None, regressor: str = "temp", br
     compensated = model.compensate(w, temp, temp_outside)
     residual_filtered = filtered - model.evaluate(temp, temp_outside)
     report = {"preprocess": {k: v for k, v in pre.items() if k != "series"},
+              "warnings": list(pre["summary"]["warnings"]) + list(ar.summary["warnings"]),
               "ar": {"order": ar.order, "coefficients": ar.coefficients.tolist(), "sigma2": ar.sigma2,
                      "order_at_maximum": ar.order_at_maximum, "whiteness": ar.whiteness,
                      "warnings": ar.summary["warnings"]},

@@ -55,6 +55,18 @@ class ArKalman:
         self.spectral_radius = setup["spectral_radius"]
         self.result: dict | None = None
 
+    @classmethod
+    def from_ar(cls, model, r: float | None = None, initial_variance: float = 0.0,
+                steady_state: bool = False) -> "ArKalman":
+        """Filter on a fitted AR model (`fluxcal.timeseries.fit_ar`): Q = its residual variance σ², R = `r`
+        or, when None, σ² too (an AR fit cannot tell measurement noise from process noise; give r when the
+        sensor's white-noise floor is known). ValueError for an order-0 fit."""
+        if r is not None and not r >= 0:
+            raise ValueError(f"r: measurement variance {r} must be ≥ 0")
+        a, q, r = _core.kalman_noise_from_ar(int(model.order), np.asarray(model.coefficients, dtype=np.float64),
+                                             float(model.sigma2), -1.0 if r is None else float(r))
+        return cls(a, q, r, initial_variance=initial_variance, steady_state=steady_state)
+
     @property
     def order(self) -> int:
         return self.ar_coeffs.size

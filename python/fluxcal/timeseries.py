@@ -90,17 +90,13 @@ def fit_ar(y, max_order: int = 10, order: int | None = None, **settings) -> ArMo
                    residuals=np.asarray(r["residuals"]), whiteness=r["whiteness"], summary=r["summary"])
 
 
-def preprocess(x, subseries: int = 20, threshold: float = 1.96, trend_degree: int = 1) -> dict:
+def preprocess(x, subseries: int = 20, threshold: float = 1.96, trend_degree: int = 1,
+               significance: float = 0.05) -> dict:
     """Seed 001 S2: zero-mean, reverse-arrangement test of the once-differenced series; if it is not
-    stationary, difference once more and remove a trend. Returns `mean`, `series` (what the AR model
-    should be fitted to), `differences` (1 or 2), `stationarity` (the test of the first difference),
-    `normality` (of `series`)."""
-    z, mean = zero_mean(x)
-    d1 = difference(z, 1)
-    test = reverse_arrangement(d1, subseries, threshold)
-    if test["stationary"]:
-        series, differences = d1, 1
-    else:
-        series, differences = remove_trend(difference(d1, 1), trend_degree), 2
-    return {"mean": mean, "series": series, "differences": differences, "stationarity": test,
-            "normality": normality(series)}
+    stationary, difference once more and remove a polynomial trend of `trend_degree`. Returns `mean`,
+    `series` (the stationary series), `differences` (1 or 2), `stationarity` (the test of the first
+    difference), `stationarity_after` (the test of `series`), `normality` (of `series`) and `summary`
+    (warnings when `series` is still not stationary or not normal)."""
+    r = _core.ts_preprocess(as_series(x), int(subseries), float(threshold), int(trend_degree), float(significance))
+    r["series"] = np.asarray(r["series"])
+    return r

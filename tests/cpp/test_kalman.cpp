@@ -36,6 +36,22 @@ TEST(Kalman, TimeVaryingConvergesToSteadyState) {
   EXPECT_NEAR((rhs - p).cwiseAbs().maxCoeff(), 0.0, 1e-12);
 }
 
+TEST(Kalman, FromArFit) {
+  fluxcal::ArResult fit;
+  fit.order = 2;
+  fit.coefficients = Eigen::Vector2d(0.5, -0.2);
+  fit.sigma2 = 0.3;
+  const auto k = fluxcal::ArKalman::from_ar(fit);
+  EXPECT_EQ(k.order(), 2);
+  EXPECT_EQ(k.q(), 0.3);
+  EXPECT_EQ(k.r(), 0.3);  // R defaults to σ²
+  EXPECT_EQ(fluxcal::ArKalman::from_ar(fit, 0.01).r(), 0.01);
+  EXPECT_EQ(fluxcal::ArKalman::from_ar(fit, 0.0).r(), 0.0);
+  fit.order = 0;
+  fit.coefficients.resize(0);
+  EXPECT_THROW(fluxcal::ArKalman::from_ar(fit), fluxcal::Error);
+}
+
 TEST(Kalman, BadInput) {
   EXPECT_THROW(fluxcal::ArKalman(Eigen::VectorXd(), 1.0, 1.0), fluxcal::Error);
   EXPECT_THROW(fluxcal::ArKalman(Eigen::VectorXd::Constant(1, 0.5), -1.0, 1.0), fluxcal::Error);

@@ -85,6 +85,43 @@ TEST(TimeSeries, NormalityAndLjungBox) {
   EXPECT_FALSE(fluxcal::ljung_box(ar_series({0.3}, 20000, 10), 10).white);
 }
 
+TEST(TimeSeries, PreprocessDifferencesOnceOrTwice) {
+  std::mt19937_64 rng(3);
+  std::normal_distribution<double> normal;
+  const int n = 4000;
+  // A random walk: its first difference is white, one difference suffices.
+  Eigen::VectorXd walk(n);
+  double level = 5.0;
+  for (auto& v : walk) v = (level += normal(rng));
+  const auto r1 = fluxcal::preprocess(walk);
+  EXPECT_EQ(r1.differences, 1);
+  EXPECT_TRUE(r1.stationarity.stationary);
+  EXPECT_NEAR(r1.mean, walk.mean(), 1e-12);
+  ASSERT_EQ(r1.series.size(), n - 1);
+  EXPECT_NEAR(r1.series[10], walk[11] - walk[10], 1e-12);
+  // A quadratic trend on an integrated noise: the first difference rises (not stationary), the second
+  // difference minus its line is stationary.
+  Eigen::VectorXd quad(n);
+  double noise = 0.0;
+  for (int i = 0; i < n; ++i) {
+    const double t = static_cast<double>(i) / n;
+    quad[i] = 300.0 * t * t + (noise += 0.01 * normal(rng));
+  }
+  const auto r2 = fluxcal::preprocess(quad);
+  EXPECT_FALSE(r2.stationarity.stationary);
+  EXPECT_LT(r2.stationarity.u, -1.96);  // rising means: few reverse arrangements
+  EXPECT_EQ(r2.differences, 2);
+  EXPECT_TRUE(r2.stationarity_after.stationary);
+  EXPECT_EQ(r2.series.size(), n - 2);
+  EXPECT_TRUE(r2.summary.warnings.empty());
+  // A pure line has constant differences: nothing left to model.
+  Eigen::VectorXd line(100);
+  for (int i = 0; i < 100; ++i) line[i] = 0.5 * i;
+  EXPECT_THROW(fluxcal::preprocess(line), fluxcal::Error);
+  EXPECT_THROW(fluxcal::preprocess(Eigen::VectorXd::Constant(100, 1.5)), fluxcal::Error);
+  EXPECT_THROW(fluxcal::preprocess(walk.head(41)), fluxcal::Error);  // 20 sub-series need 42 samples
+}
+
 TEST(TimeSeries, BadInput) {
   fluxcal::ArOptions options;
   EXPECT_THROW(fluxcal::fit_ar(Eigen::VectorXd::Ones(1000), options), fluxcal::Error);   // constant

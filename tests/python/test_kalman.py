@@ -200,6 +200,27 @@ int main() {{
     assert not golden["overflowed"]
 
 
+def test_from_ar_estimates_q_and_r_from_the_fit():
+    from fluxcal import timeseries as ts
+
+    a, q = (0.6, -0.3, 0.2), 0.5
+    y = ar_signal(a, q, 0.0, 20_000, 7)
+    fit = ts.fit_ar(y, max_order=8)
+    assert fit.order == 3
+    k = ArKalman.from_ar(fit)
+    assert k.q == fit.sigma2 and k.r == fit.sigma2  # R defaults to σ² as well
+    assert k.q == pytest.approx(q, rel=0.03)  # the driving variance is recovered
+    np.testing.assert_array_equal(k.ar_coeffs, fit.coefficients)
+    np.testing.assert_array_equal(k.filter(y), ArKalman(fit.coefficients, fit.sigma2, fit.sigma2).filter(y))
+    k2 = ArKalman.from_ar(fit, r=0.01, steady_state=True)
+    assert k2.r == 0.01 and k2.options.steady_state
+    with pytest.raises(ValueError, match="r"):
+        ArKalman.from_ar(fit, r=-1.0)
+    fit.order, fit.coefficients = 0, np.zeros(0)  # what AIC returns for a white series
+    with pytest.raises(ValueError, match="order 0"):
+        ArKalman.from_ar(fit)
+
+
 def test_bad_input():
     with pytest.raises(ValueError, match="q"):
         ArKalman((0.5,), 0.0, 1.0)

@@ -119,6 +119,48 @@ def test_difference_and_trend():
     assert pre["mean"] == pytest.approx(x.mean())
 
 
+@pytest.mark.parametrize("kind", ["random_walk", "quadratic_trend"])
+def test_preprocess_matches_oracle(kind):
+    """S2: a random walk needs one difference; a quadratic trend on AR noise leaves a linear trend in the
+    first difference (not stationary), so a second difference and a trend removal follow."""
+    rng = np.random.default_rng(12)
+    n = 4000
+    if kind == "random_walk":
+        x = 5.0 + rng.standard_normal(n).cumsum()
+    else:
+        t = np.arange(n) / n
+        x = 300.0 * t ** 2 + ar_series((0.5,), n, 13, sigma=0.01).cumsum()
+    got, ref = ts.preprocess(x), oracle.preprocess(x)
+    assert got["differences"] == ref["differences"] == (1 if kind == "random_walk" else 2)
+    assert got["mean"] == pytest.approx(ref["mean"], rel=1e-12)
+    np.testing.assert_allclose(got["series"], ref["series"], rtol=0, atol=1e-9)
+    for key in ("stationarity", "stationarity_after"):
+        assert got[key]["arrangements"] == ref[key]["arrangements"]
+        assert got[key]["u"] == pytest.approx(ref[key]["u"], rel=1e-12)
+    assert got["stationarity_after"]["stationary"]
+    assert got["normality"]["kurtosis"] == pytest.approx(ref["normality"]["kurtosis"], rel=1e-9)
+    assert got["summary"]["warnings"] == []
+    if kind == "quadratic_trend":
+        assert not got["stationarity"]["stationary"]
+
+
+def test_preprocess_reports_what_it_cannot_fix():
+    rng = np.random.default_rng(14)
+    # Exponential growth keeps a curved second difference, which removing a line cannot flatten
+    # (u ≈ 2.7 after; the NumPy oracle gives the same).
+    t = np.linspace(0.0, 1.0, 4000)
+    x = np.exp(12.0 * t) + 0.01 * rng.standard_normal(t.size)
+    pre = ts.preprocess(x)
+    assert pre["differences"] == 2 and not pre["stationarity_after"]["stationary"]
+    assert any("not stationary" in w for w in pre["summary"]["warnings"])
+    with pytest.raises(ValueError, match="constant"):
+        ts.preprocess(np.full(100, 1.5))
+    with pytest.raises(ValueError, match="polynomial trend"):
+        ts.preprocess(np.arange(100.0) * 0.5)
+    with pytest.raises(ValueError, match="need at least 42"):
+        ts.preprocess(rng.standard_normal(41))
+
+
 def test_bad_input():
     with pytest.raises(ValueError, match="need at least"):
         ts.fit_ar(np.arange(10.0), max_order=8)

@@ -40,6 +40,13 @@ class ArKalman {
  public:
   ArKalman(const Eigen::VectorXd& ar_coefficients, double q, double r, const KalmanOptions& options = {});
 
+  /// Q and R estimated from an AR fit: Q = the residual variance σ² (what drives the AR model);
+  /// R = `r` when r ≥ 0, else σ² as well. An AR fit alone cannot separate measurement noise from the
+  /// process (white noise on an AR signal only raises the fitted order), so R = σ² is a convention that
+  /// lets the filter smooth; give r when the sensor's white-noise floor is known. Throws Error for an
+  /// order-0 fit (a white series has no dynamics to filter).
+  static ArKalman from_ar(const ArResult& fit, double r = -1.0, const KalmanOptions& options = {});
+
   /// Filter a whole series from the initial state x = 0, P = P0.
   KalmanResult filter(const SeriesRef& y) const;
 

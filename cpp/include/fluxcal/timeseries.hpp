@@ -12,6 +12,9 @@
 //                        statsmodels' ar_select_order(ic='aic', trend='n') does), coefficients by
 //                        recursive least squares started from batch least squares on the first rows
 //   ljung_box            Q = n(n+2) Σ_{k=1..h} ρ_k²/(n−k) against χ²(h − model_df)
+//   preprocess           seed 001 S2 in one call: zero-mean, reverse-arrangement test of the once-
+//                        differenced series, a second difference plus trend removal when it fails,
+//                        skewness/kurtosis of the result
 //
 // Everything streams over the series in O(N p²) time and O(p²) memory beyond the input, so 10⁶ and
 // more samples are fine.
@@ -107,6 +110,29 @@ struct ArResult {
 /// AR(p) fit of a (zero-mean) series. Needs N > 2 max_order + 2 (or 2 order + 2 for a fixed order)
 /// finite samples, not all equal.
 ArResult fit_ar(const SeriesRef& y, const ArOptions& options = {});
+
+struct PreprocessOptions {
+  int subseries = 20;        ///< l of the reverse-arrangement test
+  double threshold = 1.96;   ///< |u| below it: stationary (1.96 = 5 % two-sided)
+  int trend_degree = 1;      ///< polynomial removed after the second difference (S2.3)
+  double significance = 0.05;  ///< of the normality check
+};
+
+struct PreprocessResult {
+  double mean = 0.0;                       ///< removed by the zero-mean step (S2.1)
+  Eigen::VectorXd series;                  ///< the stationary series (differenced once, or twice and detrended)
+  int differences = 1;                     ///< 1 or 2
+  ReverseArrangementResult stationarity;   ///< of the once-differenced series (S2.2)
+  /// Of the twice-differenced, detrended series when `differences` = 2 (its stationarity is reported,
+  /// not enforced: a series that fails it has a drift S2 cannot remove).
+  ReverseArrangementResult stationarity_after;
+  NormalityResult normality;               ///< of `series` (S2.4)
+  Summary summary;                         ///< warnings when the final series is still not stationary / not normal
+};
+
+/// Seed 001 S2 on a raw series. Needs enough samples for l sub-series of the twice-differenced series
+/// (N ≥ 2 l + 2) and a non-constant series.
+PreprocessResult preprocess(const SeriesRef& x, const PreprocessOptions& options = {});
 
 /// P(χ²(df) > x) (regularised upper incomplete gamma Q(df/2, x/2)).
 double chi2_sf(double x, double df);

@@ -71,3 +71,22 @@ def rls(y, p, init_samples=20, forgetting=1.0):
         theta = theta + k * (target - phi @ theta)
         P = (P - np.outer(k, phi @ P)) / forgetting
     return theta
+
+
+def remove_trend(x, degree=1):
+    """x minus its least-squares polynomial in the sample index (numpy.polynomial on the scaled index)."""
+    x = np.asarray(x, dtype=float)
+    s = np.linspace(-1.0, 1.0, x.size)
+    return x - np.polynomial.polynomial.polyval(s, np.polynomial.polynomial.polyfit(s, x, degree))
+
+
+def preprocess(x, subseries=20, threshold=1.96, trend_degree=1):
+    """Seed 001 S2: zero-mean; reverse-arrangement test of np.diff; if it fails, np.diff again and detrend."""
+    x = np.asarray(x, dtype=float)
+    z = x - x.mean()
+    d1 = np.diff(z)
+    test = reverse_arrangement(d1, subseries, threshold)
+    series = d1 if test["stationary"] else remove_trend(np.diff(d1), trend_degree)
+    return {"mean": x.mean(), "series": series, "differences": 1 if test["stationary"] else 2,
+            "stationarity": test, "stationarity_after": reverse_arrangement(series, subseries, threshold),
+            "normality": normality(series)}
