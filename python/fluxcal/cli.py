@@ -123,20 +123,24 @@ def cmd_drift(args) -> int:
 
     if args.drift_command == "fit":
         rec = read_csv(args.file)
-        for name in ("zero_bias", "temp"):
+        for name in (args.column, "temp"):
             if name not in rec.columns:
                 raise ValueError(f"{args.file}: no column {name!r} (columns: {', '.join(rec.columns)})")
         outside = rec.columns.get("temp_outside")
-        breakpoints = [float(v) for v in args.breakpoints.split(",")]
-        model, report = drift.fit_pipeline(rec.columns["zero_bias"], rec.columns["temp"], outside,
+        try:
+            breakpoints = [float(v) for v in args.breakpoints.split(",")]
+        except ValueError:
+            raise ValueError(f"--breakpoints: {args.breakpoints!r} is not a comma-separated list of numbers") from None
+        model, report = drift.fit_pipeline(rec.columns[args.column], rec.columns["temp"], outside,
                                            regressor=args.regressor, breakpoints=breakpoints,
                                            max_order=args.max_order, significance=args.significance,
                                            continuous=args.continuous, ar_max_order=args.ar_max_order,
                                            steady_state=args.steady_state, rated=args.rated,
                                            accuracy_class=args.accuracy_class)
         model.settings["source"] = str(args.file)
+        model.settings["column"] = args.column
         pre, ar = report["preprocess"], report["ar"]
-        print(f"zero bias: {len(rec)} samples, mean {pre['mean']:.6g}")
+        print(f"{args.column}: {len(rec)} samples, mean {pre['mean']:.6g}")
         print(f"  stationarity (reverse arrangement, differenced {pre['differences']}x): u = "
               f"{pre['stationarity']['u']:.3f} ({'stationary' if pre['stationarity']['stationary'] else 'NOT stationary'})")
         print(f"  normality: skewness {pre['normality']['skewness']:.3f}, kurtosis {pre['normality']['kurtosis']:.3f}")
@@ -161,15 +165,17 @@ def cmd_drift(args) -> int:
         return 0
     model = drift.DriftModel.load(args.model)
     rec = read_csv(args.file)
-    for name in ("zero_bias", "temp"):
+    column = args.column or model.settings.get("column", "zero_bias")  # the model remembers what it was fitted on
+    for name in (column, "temp"):
         if name not in rec.columns:
             raise ValueError(f"{args.file}: no column {name!r} (columns: {', '.join(rec.columns)})")
-    compensated = model.compensate(rec.columns["zero_bias"], rec.columns["temp"], rec.columns.get("temp_outside"))
-    columns = {**rec.columns, "zero_bias_compensated": compensated}
-    units = {**rec.units, **({"zero_bias_compensated": rec.units["zero_bias"]} if rec.units.get("zero_bias") else {})}
+    compensated = model.compensate(rec.columns[column], rec.columns["temp"], rec.columns.get("temp_outside"))
+    out_name = f"{column}_compensated"
+    columns = {**rec.columns, out_name: compensated}
+    units = {**rec.units, **({out_name: rec.units[column]} if rec.units.get(column) else {})}
     write_csv(args.output, columns, units=units, metadata={**rec.metadata, "drift_model": args.model})
-    print(f"wrote {args.output}: {len(rec)} rows, column zero_bias_compensated "
-          f"(drift span {drift.drift_span(rec.columns['zero_bias'], rec.columns['temp']):.4g} -> "
+    print(f"wrote {args.output}: {len(rec)} rows, column {out_name} "
+          f"(drift span {drift.drift_span(rec.columns[column], rec.columns['temp']):.4g} -> "
           f"{drift.drift_span(compensated, rec.columns['temp']):.4g})")
     return 0
 
@@ -218,6 +224,7 @@ def build_parser() -> argparse.ArgumentParser:
     df = drs.add_parser("fit", help="fit a drift model to a CSV with columns t, zero_bias, temp [, temp_outside]")
     df.add_argument("file")
     df.add_argument("-o", "--output", required=True, help="drift model (JSON)")
+    df.add_argument("--column", default="zero_bias", help="the zero-bias column to model (e.g. one phase's)")
     df.add_argument("--regressor", default="temp", choices=("temp", "difference"),
                     help="polynomial variable: device temperature or temp - temp_outside")
     df.add_argument("--breakpoints", default="-20,0,30,50", help="temperature range edges (degC)")
@@ -232,6 +239,7 @@ def build_parser() -> argparse.ArgumentParser:
     da.add_argument("model")
     da.add_argument("file")
     da.add_argument("-o", "--output", required=True)
+    da.add_argument("--column", default=None, help="column to compensate (default: the one the model was fitted on)")
     dr.set_defaults(run=cmd_drift)
     return p
 

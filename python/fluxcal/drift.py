@@ -181,13 +181,20 @@ def dc_gain(kalman: ArKalman) -> float:
     return float(np.linalg.solve(np.eye(n) - F, K)[0])
 
 
+def _finite(values: np.ndarray, name: str) -> np.ndarray:
+    bad = ~np.isfinite(values)
+    if bad.any():
+        raise ValueError(f"{name}: sample {int(np.argmax(bad))} is {values[np.argmax(bad)]} (NaN/Inf not allowed)")
+    return values
+
+
 def fit_pipeline(zero_bias, temp, temp_outside=None, regressor: str = "temp", breakpoints=DEFAULT_BREAKPOINTS,
                  max_order: int = 4, significance: float = 0.05, continuous: bool = False, ar_max_order: int = 10,
                  q: float | None = None, r: float | None = None, steady_state: bool = False, subseries: int = 20,
                  rated: float | None = None, accuracy_class: str = "0.2S", whiten: bool = True):
     """Seed 001 end to end (module doc). Returns (DriftModel, report dict)."""
-    w = ts.as_series(zero_bias, "zero_bias")
-    temp = ts.as_series(temp, "temp")
+    w = _finite(ts.as_series(zero_bias, "zero_bias"), "zero_bias")
+    temp = _finite(ts.as_series(temp, "temp"), "temp")
     if temp.size != w.size:
         raise ValueError(f"temp: {temp.size} samples, zero_bias has {w.size}")
     pre = ts.preprocess(w, subseries=subseries)

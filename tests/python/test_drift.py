@@ -104,6 +104,20 @@ def test_bad_input(foct):
         drift.fit_drift(w, c["temp"])
     with pytest.raises(ValueError, match="constant"):
         drift.fit_pipeline(np.full(1000, 0.3), np.linspace(-20, 50, 1000))
+    with pytest.raises(ValueError, match="zero_bias: sample 5 is nan"):
+        drift.fit_pipeline(w, c["temp"])
+    t = c["temp"].copy()
+    t[9] = np.inf
+    with pytest.raises(ValueError, match="temp: sample 9 is inf"):
+        drift.fit_pipeline(c["zero_bias"], t)
+    with pytest.raises(ValueError, match="need at least"):  # too short for the stationarity test and AR fit
+        drift.fit_pipeline(c["zero_bias"][:30], c["temp"][:30])
+    # Samples outside every range: the fit leaves them out (with a warning), compensation refuses them.
+    hot = c["temp"] + 5.0
+    m_hot = drift.fit_drift(c["zero_bias"], hot)
+    assert any("outside every temperature range" in w for w in m_hot.summary["warnings"])
+    with pytest.raises(ValueError, match="outside every range"):
+        m_hot.compensate(c["zero_bias"], hot)
     with pytest.raises(ValueError, match="accuracy_class"):
         drift.accuracy([0.1], RATED, "0.1")
     with pytest.raises(ValueError, match="not a drift model"):
@@ -129,6 +143,18 @@ def test_cli_fit_and_apply(tmp_path, foct):
     assert list(rec.columns)[:4] == ["t", "zero_bias", "temp", "temp_outside"]
     expected = drift.DriftModel.load(model_path).compensate(rec.columns["zero_bias"], rec.columns["temp"])
     np.testing.assert_allclose(rec.columns["zero_bias_compensated"], expected, rtol=1e-9, atol=1e-9)
+    # Another phase through --column: the model remembers it, apply writes <column>_compensated.
+    src_b = write_csv(tmp_path / "foct_b.csv", {k: c[k] for k in ("t", "zero_bias_b", "temp")}, units=foct.units)
+    run = run_cli("drift", "fit", src_b, "-o", tmp_path / "b.json", "--column", "zero_bias_b", "--significance", "0.01")
+    assert run.returncode == 0, run.stderr
+    assert [s["order"] for s in json.loads((tmp_path / "b.json").read_text())["segments"]] == [2, 1, 3]
+    run = run_cli("drift", "apply", tmp_path / "b.json", src_b, "-o", tmp_path / "b.csv")
+    assert run.returncode == 0, run.stderr
+    rec_b = read_csv(tmp_path / "b.csv")
+    comp_b = rec_b.columns["zero_bias_b_compensated"]
+    assert drift.drift_span(comp_b, c["temp"]) < 0.1 * drift.drift_span(c["zero_bias_b"], c["temp"])
+    run = run_cli("drift", "fit", src_b, "-o", tmp_path / "x.json")  # no zero_bias column
+    assert run.returncode == 2 and "no column 'zero_bias'" in run.stderr
     bad = write_csv(tmp_path / "bad.csv", {"t": [0.0, 1.0], "zero_bias": [0.1, 0.2], "temp": [20.0, 70.0]})
     run = run_cli("drift", "apply", model_path, bad, "-o", tmp_path / "x.csv")
     assert run.returncode == 2 and "outside every range" in run.stderr
