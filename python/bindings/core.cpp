@@ -32,4 +32,5 @@ PYBIND11_MODULE(_core, m) {
   fluxcal_py::bind_refine(m);
   fluxcal_py::bind_positions(m);
   fluxcal_py::bind_cable(m);
+  fluxcal_py::bind_timeseries(m);
 }

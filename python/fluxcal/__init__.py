@@ -17,6 +17,7 @@ from .refine import fit_vector, refine
 from .twostep import TwoStep2D, twostep, twostep_2d
 from . import positions  # noqa: E402  (fluxcal.positions: multi-position calibration, seed 002)
 from . import cable
+from . import drift, kalman, timeseries  # seed 001: drift compensation, AR Kalman filters, time-series tests
 
 __version__ = _core.__version__
 

@@ -203,6 +203,69 @@ def cmd_cable(args) -> int:
     return 0
 
 
+def cmd_drift(args) -> int:
+    """`fluxcal drift fit FILE -o MODEL.json` and `fluxcal drift apply MODEL.json FILE -o OUT` (seed 001)."""
+    from . import drift
+
+    if args.drift_command == "fit":
+        rec = read_csv(args.file)
+        for name in (args.column, "temp"):
+            if name not in rec.columns:
+                raise ValueError(f"{args.file}: no column {name!r} (columns: {', '.join(rec.columns)})")
+        outside = rec.columns.get("temp_outside")
+        try:
+            breakpoints = [float(v) for v in args.breakpoints.split(",")]
+        except ValueError:
+            raise ValueError(f"--breakpoints: {args.breakpoints!r} is not a comma-separated list of numbers") from None
+        model, report = drift.fit_pipeline(rec.columns[args.column], rec.columns["temp"], outside,
+                                           regressor=args.regressor, breakpoints=breakpoints,
+                                           max_order=args.max_order, significance=args.significance,
+                                           continuous=args.continuous, ar_max_order=args.ar_max_order,
+                                           steady_state=args.steady_state, rated=args.rated,
+                                           accuracy_class=args.accuracy_class)
+        model.settings["source"] = str(args.file)
+        model.settings["column"] = args.column
+        pre, ar = report["preprocess"], report["ar"]
+        print(f"{args.column}: {len(rec)} samples, mean {pre['mean']:.6g}")
+        print(f"  stationarity (reverse arrangement, differenced {pre['differences']}x): u = "
+              f"{pre['stationarity']['u']:.3f} ({'stationary' if pre['stationarity']['stationary'] else 'NOT stationary'})")
+        print(f"  normality: skewness {pre['normality']['skewness']:.3f}, kurtosis {pre['normality']['kurtosis']:.3f}")
+        print(f"  AR({ar['order']}) by AIC, sigma2 {ar['sigma2']:.4g}, Ljung-Box p {ar['whiteness']['p_value']:.3g}")
+        for w in report["warnings"]:
+            print(f"warning: {w}")
+        for seg in model.segments:
+            lo, hi = seg["range"]
+            print(f"  range [{lo:g}, {hi:g}]: order {seg['order']}, {seg['samples']} samples, residual RMS "
+                  f"{seg['residual_rms']:.4g}")
+        print(f"  drift over the temperature span (per-level means, peak to peak): "
+              f"{report['drift_span_before']:.4g} -> {report['drift_span_after']:.4g} "
+              f"({report['drift_reduction']:.1f}x smaller)")
+        for key, what in (("accuracy", "filtered output, sample by sample"),
+                          ("accuracy_drift", "drift alone, per-level means")):
+            if key in report:
+                acc = report[key]
+                cells = ", ".join(f"{p['percent_rated']}%: {p['ratio_error_percent']:.3g} % "
+                                  f"({'ok' if p['met'] else 'over'} {p['limit_percent']} %)" for p in acc["points"])
+                print(f"  class {acc['class']} {'MET' if acc['met'] else 'NOT met'} for the {what} ({cells})")
+        print(f"wrote {model.save(args.output)}")
+        return 0
+    model = drift.DriftModel.load(args.model)
+    rec = read_csv(args.file)
+    column = args.column or model.settings.get("column", "zero_bias")  # the model remembers what it was fitted on
+    for name in (column, "temp"):
+        if name not in rec.columns:
+            raise ValueError(f"{args.file}: no column {name!r} (columns: {', '.join(rec.columns)})")
+    compensated = model.compensate(rec.columns[column], rec.columns["temp"], rec.columns.get("temp_outside"))
+    out_name = f"{column}_compensated"
+    columns = {**rec.columns, out_name: compensated}
+    units = {**rec.units, **({out_name: rec.units[column]} if rec.units.get(column) else {})}
+    write_csv(args.output, columns, units=units, metadata={**rec.metadata, "drift_model": args.model})
+    print(f"wrote {args.output}: {len(rec)} rows, column {out_name} "
+          f"(drift span {drift.drift_span(rec.columns[column], rec.columns['temp']):.4g} -> "
+          f"{drift.drift_span(compensated, rec.columns['temp']):.4g})")
+    return 0
+
+
 def build_parser() -> argparse.ArgumentParser:
     p = argparse.ArgumentParser(prog="fluxcal", description="Calibrate magnetic-field and current sensors.")
     p.add_argument("--version", action="version", version=f"fluxcal {__version__}")
@@ -301,6 +364,28 @@ def build_parser() -> argparse.ArgumentParser:
                    help="calibrate the accelerometer from the same positions first (>= 6)")
     q.add_argument("-o", "--output", help="write the result (JSON)")
     q.set_defaults(run=cmd_positions)
+    dr = sub.add_parser("drift", help="temperature-drift compensation of a current transformer's zero bias (seed 001)")
+    drs = dr.add_subparsers(dest="drift_command", required=True)
+    df = drs.add_parser("fit", help="fit a drift model to a CSV with columns t, zero_bias, temp [, temp_outside]")
+    df.add_argument("file")
+    df.add_argument("-o", "--output", required=True, help="drift model (JSON)")
+    df.add_argument("--column", default="zero_bias", help="the zero-bias column to model (e.g. one phase's)")
+    df.add_argument("--regressor", default="temp", choices=("temp", "difference"),
+                    help="polynomial variable: device temperature or temp - temp_outside")
+    df.add_argument("--breakpoints", default="-20,0,30,50", help="temperature range edges (degC)")
+    df.add_argument("--max-order", type=int, default=4)
+    df.add_argument("--significance", type=float, default=0.05, help="of the F-test (0.05 or 0.01)")
+    df.add_argument("--continuous", action="store_true", help="drift continuous at the breakpoints")
+    df.add_argument("--ar-max-order", type=int, default=10)
+    df.add_argument("--steady-state", action="store_true", help="Kalman filter with the steady-state gain")
+    df.add_argument("--rated", type=float, default=None, help="rated current (zero-bias units) for the class check")
+    df.add_argument("--class", dest="accuracy_class", default="0.2S", choices=("0.2S", "0.5S"))
+    da = drs.add_parser("apply", help="compensate a recording: writes its columns plus zero_bias_compensated")
+    da.add_argument("model")
+    da.add_argument("file")
+    da.add_argument("-o", "--output", required=True)
+    da.add_argument("--column", default=None, help="column to compensate (default: the one the model was fitted on)")
+    dr.set_defaults(run=cmd_drift)
     return p
 
 

@@ -17,3 +17,4 @@ __all__ = ["CANDIDATES", "ColoredNoise", "CrossAxis", "CubicNonlinearity", "Eddy
            "sweeps", "tumble", "uniform", "Simulation", "simulate"]
 from .positions import Accelerometer, PositionsScene, PositionsSimulation, paper_sensor, random_scene, simulate_positions, twelve_scene  # noqa: E402,F401
 from . import cable
+from .foct import FoctSimulation, foct_zero_bias

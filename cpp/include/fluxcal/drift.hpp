@@ -1,0 +1,69 @@
+// fluxcal/drift.hpp — piecewise polynomial temperature-drift model (seed 001, S5).
+//
+// Within each temperature range [lo, hi] the drift is Y = T A + e with T the Vandermonde matrix
+// [1 x x² … x^m] of the regressor x (the device temperature or the inside/outside difference).
+// Columns are balanced by their maximum |value| before least squares (same SSE, far smaller
+// condition number), A solved by a column-pivoted QR. The order m rises from 0 while the F-test
+//   F = (SSE_m − SSE_{m+1}) / (SSE_{m+1} / (N − m − 2))  >  F(1, N − m − 2; significance)
+// says the next power is significant, up to max_order. Optionally the segments are refitted jointly
+// with equality constraints so the drift is continuous at the breakpoints. A sample belongs to the
+// range [lo, hi) of its selecting temperature (the last range includes hi).
+#pragma once
+
+#include "fluxcal/timeseries.hpp"
+
+#include <Eigen/Dense>
+
+#include <vector>
+
+namespace fluxcal {
+
+struct DriftOptions {
+  /// Range edges of the selecting temperature, ascending: k + 1 edges make k ranges.
+  std::vector<double> breakpoints = {-20.0, 0.0, 30.0, 50.0};
+  int max_order = 4;
+  double significance = 0.05;  ///< of the F-test (seed 001: 0.05 or 0.01)
+  /// Fixed order for every segment (−1 = choose by F-test).
+  int order = -1;
+  bool continuous = false;     ///< refit with continuity of the drift at the inner breakpoints
+  /// Fewest samples a range must hold (it needs at least order + 2 anyway).
+  int min_samples = 10;
+  /// Generalised least squares for correlated noise: pre-fit every range at its highest order, fit
+  /// an AR model (order by AIC ≤ whiten_max_order) to the residual, and run the fits and F-tests on
+  /// rows whitened by that AR filter. Without it the F-test assumes white noise and, on AR noise
+  /// (and on Kalman-smoothed data even more), keeps too many orders.
+  bool whiten = true;
+  int whiten_max_order = 10;
+};
+
+struct DriftSegment {
+  double lo = 0.0, hi = 0.0;
+  int order = 0;
+  Eigen::VectorXd coefficients;  ///< c0 … cm of f(x) = Σ c_i x^i (unbalanced, in data units)
+  std::size_t samples = 0;
+  double sse = 0.0;
+  double residual_rms = 0.0;
+  double condition_number = 0.0;  ///< of the balanced Vandermonde matrix
+  std::vector<double> f_statistics;  ///< F of each step m → m+1 that was tested
+};
+
+struct DriftModel {
+  std::vector<DriftSegment> segments;
+  Eigen::VectorXd noise_ar;  ///< AR coefficients used for whitening (empty: none)
+  Summary summary;
+  /// The drift f(x) of each sample; `select` decides the segment. Throws Error for a sample whose
+  /// selecting temperature is outside every range.
+  Eigen::VectorXd evaluate(const SeriesRef& select, const SeriesRef& x) const;
+  /// W − f(x).
+  Eigen::VectorXd compensate(const SeriesRef& w, const SeriesRef& select, const SeriesRef& x) const;
+};
+
+/// Fit the drift of `w` (e.g. the Kalman-filtered zero bias) in the regressor `x`, segments chosen by
+/// the temperature `select` (pass the same series twice for the device temperature).
+DriftModel fit_drift(const SeriesRef& select, const SeriesRef& x, const SeriesRef& w, const DriftOptions& options = {});
+
+/// Polynomial least squares of one order with balanced columns; returns coefficients in data units.
+Eigen::VectorXd fit_polynomial(const SeriesRef& x, const SeriesRef& w, int order, double* sse = nullptr,
+                               double* condition = nullptr);
+
+}  // namespace fluxcal

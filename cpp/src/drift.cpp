@@ -1,0 +1,307 @@
+#include "fluxcal/drift.hpp"
+
+#include <Eigen/SVD>
+
+#include <algorithm>
+#include <cmath>
+#include <limits>
+#include <sstream>
+
+namespace fluxcal {
+
+namespace {
+
+// Vandermonde matrix [1 x … x^m] and the column scales s_i = max_j |x_j^i| that balance it.
+Eigen::MatrixXd vandermonde(const Eigen::VectorXd& x, int order) {
+  Eigen::MatrixXd v(x.size(), order + 1);
+  v.col(0).setOnes();
+  for (int i = 1; i <= order; ++i) v.col(i) = v.col(i - 1).cwiseProduct(x);
+  return v;
+}
+
+Eigen::VectorXd column_scales(const Eigen::MatrixXd& v) {
+  Eigen::VectorXd s = v.cwiseAbs().colwise().maxCoeff().transpose();
+  for (Eigen::Index i = 0; i < s.size(); ++i)
+    if (!(s[i] > 0.0)) s[i] = 1.0;
+  return s;
+}
+
+std::string range_name(double lo, double hi) {
+  std::ostringstream o;
+  o << "[" << lo << ", " << hi << "]";
+  return o.str();
+}
+
+int segment_of(const std::vector<double>& edges, double t) {
+  const int k = static_cast<int>(edges.size()) - 1;
+  for (int s = 0; s < k; ++s)
+    if (t >= edges[s] && (t < edges[s + 1] || (s == k - 1 && t <= edges[s + 1]))) return s;
+  return -1;
+}
+
+// Rows of a range usable after AR(p) whitening: those whose p predecessors in time are in the range too.
+bool whitenable(const std::vector<Eigen::Index>& idx, std::size_t j, Eigen::Index p) {
+  if (static_cast<Eigen::Index>(j) < p) return false;
+  return idx[j - static_cast<std::size_t>(p)] == idx[j] - p;  // indices ascend, so p steps back = consecutive
+}
+
+Eigen::Index whitened_rows(const std::vector<Eigen::Index>& idx, Eigen::Index p) {
+  if (p == 0) return static_cast<Eigen::Index>(idx.size());
+  Eigen::Index n = 0;
+  for (std::size_t j = 0; j < idx.size(); ++j) n += whitenable(idx, j, p);
+  return n;
+}
+
+// Balanced least squares on the (optionally AR-whitened) Vandermonde rows; SSE in the fitted space.
+Eigen::VectorXd fit_rows(const Eigen::VectorXd& x, const Eigen::VectorXd& w, const std::vector<Eigen::Index>& idx,
+                         const Eigen::VectorXd& ar, int order, double* sse, double* condition) {
+  const Eigen::MatrixXd v = vandermonde(x, order);
+  const Eigen::Index p = ar.size();
+  Eigen::MatrixXd vw;
+  Eigen::VectorXd ww;
+  if (p == 0) {
+    vw = v;
+    ww = w;
+  } else {
+    const Eigen::Index rows = whitened_rows(idx, p);
+    vw.resize(rows, order + 1);
+    ww.resize(rows);
+    Eigen::Index r = 0;
+    for (std::size_t j = 0; j < idx.size(); ++j) {
+      if (!whitenable(idx, j, p)) continue;
+      const Eigen::Index jj = static_cast<Eigen::Index>(j);
+      vw.row(r) = v.row(jj);
+      ww[r] = w[jj];
+      for (Eigen::Index q = 1; q <= p; ++q) {
+        vw.row(r) -= ar[q - 1] * v.row(jj - q);
+        ww[r] -= ar[q - 1] * w[jj - q];
+      }
+      ++r;
+    }
+  }
+  if (vw.rows() < order + 2)
+    throw Error("drift: too few consecutive samples in a range for order " + std::to_string(order));
+  const Eigen::VectorXd s = column_scales(vw);
+  const Eigen::MatrixXd vb = vw * s.cwiseInverse().asDiagonal();
+  Eigen::ColPivHouseholderQR<Eigen::MatrixXd> qr(vb);
+  if (qr.rank() < order + 1)
+    throw Error("drift: the temperatures take too few distinct values for a polynomial of order " +
+                std::to_string(order));
+  const Eigen::VectorXd coef = qr.solve(ww).cwiseQuotient(s);
+  if (sse) *sse = (ww - vw * coef).squaredNorm();
+  if (condition) {
+    const Eigen::VectorXd sv = Eigen::JacobiSVD<Eigen::MatrixXd>(vb).singularValues();
+    *condition = sv[0] / sv[sv.size() - 1];
+  }
+  return coef;
+}
+
+}  // namespace
+
+Eigen::VectorXd fit_polynomial(const SeriesRef& x, const SeriesRef& w, int order, double* sse, double* condition) {
+  check_series(x, "regressor", order + 2, "for a polynomial of order " + std::to_string(order));
+  check_series(w, "zero_bias", x.size(), "(one per regressor value)");
+  std::vector<Eigen::Index> idx(static_cast<std::size_t>(x.size()));
+  for (std::size_t i = 0; i < idx.size(); ++i) idx[i] = static_cast<Eigen::Index>(i);
+  return fit_rows(x, w, idx, Eigen::VectorXd(), order, sse, condition);
+}
+
+DriftModel fit_drift(const SeriesRef& select, const SeriesRef& x, const SeriesRef& w, const DriftOptions& options) {
+  check_series(select, "temperature", 1, "to fit a drift model");
+  check_series(x, "regressor", 1, "to fit a drift model");
+  check_series(w, "zero_bias", 1, "to fit a drift model");
+  if (select.size() != w.size() || x.size() != w.size())
+    throw Error("drift: temperature, regressor and zero_bias lengths differ (" + std::to_string(select.size()) +
+                ", " + std::to_string(x.size()) + ", " + std::to_string(w.size()) + ")");
+  const auto& edges = options.breakpoints;
+  if (edges.size() < 2) throw Error("breakpoints: need at least two edges (one range)");
+  for (std::size_t i = 1; i < edges.size(); ++i)
+    if (!(edges[i] > edges[i - 1])) throw Error("breakpoints: not strictly ascending");
+  if (options.max_order < 0 || options.order > 12 || options.max_order > 12)
+    throw Error("drift: order must be within 0 … 12");
+  if (!(options.significance > 0.0 && options.significance < 1.0))
+    throw Error("significance: must be in (0, 1)");
+  const int k = static_cast<int>(edges.size()) - 1;
+  std::vector<std::vector<Eigen::Index>> members(k);
+  std::size_t outside = 0;
+  for (Eigen::Index i = 0; i < select.size(); ++i) {
+    const int s = segment_of(edges, select[i]);
+    if (s < 0)
+      ++outside;
+    else
+      members[s].push_back(i);
+  }
+
+  DriftModel model;
+  std::vector<Eigen::VectorXd> xs(k), ws(k);
+  std::vector<int> top(k);
+  for (int s = 0; s < k; ++s) {
+    const Eigen::Index n = static_cast<Eigen::Index>(members[s].size());
+    const int need = std::max(options.min_samples, (options.order >= 0 ? options.order : 0) + 2);
+    if (n < need)
+      throw Error("temperature range " + range_name(edges[s], edges[s + 1]) + ": " + std::to_string(n) +
+                  " samples, need at least " + std::to_string(need));
+    xs[s].resize(n);
+    ws[s].resize(n);
+    for (Eigen::Index j = 0; j < n; ++j) {
+      xs[s][j] = x[members[s][j]];
+      ws[s][j] = w[members[s][j]];
+    }
+    std::vector<double> v(xs[s].data(), xs[s].data() + n);
+    std::sort(v.begin(), v.end());
+    const int distinct = static_cast<int>(std::unique(v.begin(), v.end()) - v.begin());
+    top[s] = options.order >= 0 ? options.order : std::min<int>(options.max_order, std::min<Eigen::Index>(distinct - 1, n - 3));
+    if (options.order >= 0 && distinct <= options.order)
+      throw Error("temperature range " + range_name(edges[s], edges[s + 1]) + ": the regressor takes " +
+                  std::to_string(distinct) + " distinct values, too few for order " + std::to_string(options.order));
+  }
+
+  // Noise model for generalised least squares: AR fit to the residual of the highest-order fits,
+  // taken in time order over every sample inside a range.
+  Eigen::VectorXd ar;
+  if (options.whiten) {
+    Eigen::VectorXd residual = Eigen::VectorXd::Constant(w.size(), std::numeric_limits<double>::quiet_NaN());
+    for (int s = 0; s < k; ++s) {
+      const Eigen::VectorXd c = fit_polynomial(xs[s], ws[s], top[s]);
+      const Eigen::VectorXd r = ws[s] - vandermonde(xs[s], top[s]) * c;
+      for (std::size_t j = 0; j < members[s].size(); ++j) residual[members[s][j]] = r[static_cast<Eigen::Index>(j)];
+    }
+    std::vector<double> kept;
+    for (Eigen::Index i = 0; i < residual.size(); ++i)
+      if (!std::isnan(residual[i])) kept.push_back(residual[i]);
+    const Eigen::Map<const Eigen::VectorXd> series(kept.data(), static_cast<Eigen::Index>(kept.size()));
+    ArOptions ar_options;
+    ar_options.max_order = std::max(0, std::min<int>(options.whiten_max_order, (static_cast<int>(kept.size()) - 3) / 2));
+    if (ar_options.max_order > 0 && (series.array() != series[0]).any()) ar = fit_ar(series, ar_options).coefficients;
+  }
+  model.noise_ar = ar;
+
+  for (int s = 0; s < k; ++s) {
+    DriftSegment seg;
+    seg.lo = edges[s];
+    seg.hi = edges[s + 1];
+    const Eigen::Index n = xs[s].size();
+    int m = options.order >= 0 ? options.order : 0;
+    double sse = 0.0, cond = 0.0;
+    Eigen::VectorXd coef = fit_rows(xs[s], ws[s], members[s], ar, m, &sse, &cond);
+    const Eigen::Index rows = whitened_rows(members[s], ar.size());
+    if (options.order < 0) {
+      while (m < top[s] && rows - m - 2 > 0) {
+        double sse_next = 0.0, cond_next = 0.0;
+        const Eigen::VectorXd next = fit_rows(xs[s], ws[s], members[s], ar, m + 1, &sse_next, &cond_next);
+        const double dof = static_cast<double>(rows - m - 2);
+        const double f = sse_next > 0.0 ? (sse - sse_next) / (sse_next / dof)
+                                        : std::numeric_limits<double>::infinity();
+        seg.f_statistics.push_back(f);
+        if (!(f1_sf(f, dof) < options.significance)) break;
+        ++m;
+        coef = next;
+        sse = sse_next;
+        cond = cond_next;
+      }
+    }
+    seg.order = m;
+    seg.coefficients = coef;
+    seg.samples = static_cast<std::size_t>(n);
+    seg.sse = (ws[s] - vandermonde(xs[s], m) * coef).squaredNorm();
+    seg.residual_rms = std::sqrt(seg.sse / static_cast<double>(n));
+    seg.condition_number = cond;
+    model.segments.push_back(seg);
+  }
+
+  if (options.continuous && k > 1) {
+    // Joint least squares of all segments (balanced columns) under f_s(b) = f_{s+1}(b) at the inner
+    // breakpoints, solved in the null space of the constraints.
+    std::vector<Eigen::Index> offset(k + 1, 0);
+    for (int s = 0; s < k; ++s) offset[s + 1] = offset[s] + model.segments[s].order + 1;
+    const Eigen::Index cols = offset[k];
+    Eigen::Index rows = 0;
+    for (int s = 0; s < k; ++s) rows += xs[s].size();
+    Eigen::MatrixXd big = Eigen::MatrixXd::Zero(rows, cols);
+    Eigen::VectorXd rhs(rows), scale(cols);
+    Eigen::Index r0 = 0;
+    for (int s = 0; s < k; ++s) {
+      const Eigen::MatrixXd v = vandermonde(xs[s], model.segments[s].order);
+      const Eigen::VectorXd sc = column_scales(v);
+      big.block(r0, offset[s], v.rows(), v.cols()) = v * sc.cwiseInverse().asDiagonal();
+      scale.segment(offset[s], sc.size()) = sc;
+      rhs.segment(r0, v.rows()) = ws[s];
+      r0 += v.rows();
+    }
+    Eigen::MatrixXd con = Eigen::MatrixXd::Zero(k - 1, cols);
+    for (int s = 0; s + 1 < k; ++s) {
+      const double b = edges[s + 1];
+      for (int side = 0; side < 2; ++side) {
+        const int seg = s + side;
+        double p = 1.0;
+        for (int i = 0; i <= model.segments[seg].order; ++i, p *= b)
+          con(s, offset[seg] + i) = (side == 0 ? 1.0 : -1.0) * p / scale[offset[seg] + i];
+      }
+    }
+    Eigen::JacobiSVD<Eigen::MatrixXd> svd(con, Eigen::ComputeFullV);
+    const Eigen::MatrixXd null = svd.matrixV().rightCols(cols - (k - 1));
+    const Eigen::VectorXd z = (big * null).colPivHouseholderQr().solve(rhs);
+    const Eigen::VectorXd theta = (null * z).cwiseQuotient(scale);
+    r0 = 0;
+    for (int s = 0; s < k; ++s) {
+      DriftSegment& seg = model.segments[s];
+      seg.coefficients = theta.segment(offset[s], seg.order + 1);
+      seg.sse = (ws[s] - vandermonde(xs[s], seg.order) * seg.coefficients).squaredNorm();
+      seg.residual_rms = std::sqrt(seg.sse / static_cast<double>(xs[s].size()));
+    }
+  }
+
+  Summary& sum = model.summary;
+  double sse_total = 0.0;
+  std::size_t used = 0;
+  std::ostringstream msg;
+  msg << "drift model, orders";
+  for (const auto& seg : model.segments) {
+    sse_total += seg.sse;
+    used += seg.samples;
+    msg << " " << seg.order;
+    sum.condition_number = std::max(sum.condition_number, seg.condition_number);
+  }
+  if (model.noise_ar.size() > 0) msg << "; fits and F-tests whitened by an AR(" << model.noise_ar.size() << ") noise model";
+  sum.samples = used;
+  sum.residual_rms = std::sqrt(sse_total / static_cast<double>(used));
+  sum.cost = sse_total / static_cast<double>(used);
+  sum.converged = true;
+  sum.message = msg.str();
+  if (outside > 0)
+    sum.warnings.push_back(std::to_string(outside) + " samples outside every temperature range were not used");
+  return model;
+}
+
+Eigen::VectorXd DriftModel::evaluate(const SeriesRef& select, const SeriesRef& x) const {
+  check_series(select, "temperature", 0, "");
+  check_series(x, "regressor", 0, "");
+  if (select.size() != x.size()) throw Error("drift: temperature and regressor lengths differ");
+  if (segments.empty()) throw Error("drift: the model has no segments");
+  std::vector<double> edges;
+  for (const auto& seg : segments) edges.push_back(seg.lo);
+  edges.push_back(segments.back().hi);
+  Eigen::VectorXd f(x.size());
+  for (Eigen::Index i = 0; i < x.size(); ++i) {
+    const int s = segment_of(edges, select[i]);
+    if (s < 0) {
+      std::ostringstream msg;
+      msg << "temperature: sample " << i << " is " << select[i] << ", outside every range of the drift model ("
+          << edges.front() << " … " << edges.back() << ")";
+      throw Error(msg.str());
+    }
+    const Eigen::VectorXd& c = segments[s].coefficients;
+    double v = 0.0;
+    for (Eigen::Index j = c.size() - 1; j >= 0; --j) v = v * x[i] + c[j];
+    f[i] = v;
+  }
+  return f;
+}
+
+Eigen::VectorXd DriftModel::compensate(const SeriesRef& w, const SeriesRef& select, const SeriesRef& x) const {
+  check_series(w, "zero_bias", 0, "");
+  if (w.size() != x.size()) throw Error("drift: zero_bias and temperature lengths differ");
+  return w - evaluate(select, x);
+}
+
+}  // namespace fluxcal

@@ -1,0 +1,364 @@
+#include "fluxcal/timeseries.hpp"
+
+#include <algorithm>
+#include <cmath>
+#include <limits>
+#include <sstream>
+
+namespace fluxcal {
+
+namespace {
+
+// Regularised lower incomplete gamma P(a, x) by its series (x < a + 1) and the upper Q(a, x) by
+// Lentz's continued fraction otherwise (Numerical Recipes §6.2, written from the formulas).
+double gamma_q(double a, double x) {
+  if (x <= 0.0) return 1.0;
+  const double log_prefactor = -x + a * std::log(x) - std::lgamma(a);
+  if (x < a + 1.0) {
+    double term = 1.0 / a, sum = term;
+    for (int n = 1; n < 10000; ++n) {
+      term *= x / (a + n);
+      sum += term;
+      if (std::abs(term) < std::abs(sum) * 1e-16) break;
+    }
+    return std::max(0.0, 1.0 - sum * std::exp(log_prefactor));
+  }
+  const double tiny = 1e-300;
+  double b = x + 1.0 - a, c = 1.0 / tiny, d = 1.0 / b, h = d;
+  for (int i = 1; i < 10000; ++i) {
+    const double an = -i * (i - a);
+    b += 2.0;
+    d = an * d + b;
+    if (std::abs(d) < tiny) d = tiny;
+    c = b + an / c;
+    if (std::abs(c) < tiny) c = tiny;
+    d = 1.0 / d;
+    const double delta = d * c;
+    h *= delta;
+    if (std::abs(delta - 1.0) < 1e-16) break;
+  }
+  return std::exp(log_prefactor) * h;
+}
+
+// Continued fraction of the incomplete beta function (modified Lentz).
+double beta_cf(double a, double b, double x) {
+  const double tiny = 1e-300;
+  double c = 1.0, d = 1.0 - (a + b) * x / (a + 1.0);
+  if (std::abs(d) < tiny) d = tiny;
+  d = 1.0 / d;
+  double h = d;
+  for (int m = 1; m < 10000; ++m) {
+    const int m2 = 2 * m;
+    double aa = m * (b - m) * x / ((a + m2 - 1.0) * (a + m2));
+    d = 1.0 + aa * d;
+    if (std::abs(d) < tiny) d = tiny;
+    c = 1.0 + aa / c;
+    if (std::abs(c) < tiny) c = tiny;
+    d = 1.0 / d;
+    h *= d * c;
+    aa = -(a + m) * (a + b + m) * x / ((a + m2) * (a + m2 + 1.0));
+    d = 1.0 + aa * d;
+    if (std::abs(d) < tiny) d = tiny;
+    c = 1.0 + aa / c;
+    if (std::abs(c) < tiny) c = tiny;
+    d = 1.0 / d;
+    const double delta = d * c;
+    h *= delta;
+    if (std::abs(delta - 1.0) < 1e-16) break;
+  }
+  return h;
+}
+
+// Regularised incomplete beta I_x(a, b).
+double beta_i(double a, double b, double x) {
+  if (x <= 0.0) return 0.0;
+  if (x >= 1.0) return 1.0;
+  const double front =
+      std::exp(std::lgamma(a + b) - std::lgamma(a) - std::lgamma(b) + a * std::log(x) + b * std::log1p(-x));
+  if (x < (a + 1.0) / (a + b + 2.0)) return front * beta_cf(a, b, x) / a;
+  return 1.0 - front * beta_cf(b, a, 1.0 - x) / b;
+}
+
+// Upper-triangular R of the QR factorisation of the lagged matrix [y_{t−1} … y_{t−k}, y_t] over rows
+// t = first … N−1, accumulated block by block (TSQR) so memory stays O(k²) for any N.
+Eigen::MatrixXd lagged_r(const SeriesRef& y, int k, Eigen::Index first) {
+  const Eigen::Index block = 4096, cols = k + 1;
+  Eigen::MatrixXd r = Eigen::MatrixXd::Zero(0, cols);
+  for (Eigen::Index start = first; start < y.size(); start += block) {
+    const Eigen::Index rows = std::min(block, y.size() - start);
+    Eigen::MatrixXd stack(r.rows() + rows, cols);
+    stack.topRows(r.rows()) = r;
+    for (Eigen::Index i = 0; i < rows; ++i) {
+      const Eigen::Index t = start + i;
+      for (int j = 0; j < k; ++j) stack(r.rows() + i, j) = y[t - 1 - j];
+      stack(r.rows() + i, k) = y[t];
+    }
+    Eigen::HouseholderQR<Eigen::MatrixXd> qr(stack);
+    const Eigen::Index keep = std::min<Eigen::Index>(stack.rows(), cols);
+    r = qr.matrixQR().topRows(keep).triangularView<Eigen::Upper>();
+  }
+  return r;
+}
+
+}  // namespace
+
+double chi2_sf(double x, double df) { return gamma_q(0.5 * df, 0.5 * x); }
+
+double f1_sf(double x, double df) {
+  if (x <= 0.0) return 1.0;
+  return beta_i(0.5 * df, 0.5, df / (df + x));
+}
+
+void check_series(const SeriesRef& series, const std::string& name, Eigen::Index min_length,
+                  const std::string& purpose) {
+  if (series.size() < min_length) {
+    std::ostringstream msg;
+    msg << name << ": " << series.size() << " samples, need at least " << min_length << " " << purpose;
+    throw Error(msg.str());
+  }
+  for (Eigen::Index i = 0; i < series.size(); ++i) {
+    if (!std::isfinite(series[i])) {
+      std::ostringstream msg;
+      msg << name << ": sample " << i << " is " << series[i] << " (NaN/Inf not allowed)";
+      throw Error(msg.str());
+    }
+  }
+}
+
+Eigen::VectorXd zero_mean(const SeriesRef& x, double* mean) {
+  check_series(x, "series", 1, "to remove the mean");
+  const double m = x.mean();
+  if (mean) *mean = m;
+  return x.array() - m;
+}
+
+Eigen::VectorXd difference(const SeriesRef& x, int order) {
+  if (order < 0) throw Error("difference: order " + std::to_string(order) + " is negative");
+  check_series(x, "series", order + 1, "to difference " + std::to_string(order) + " times");
+  Eigen::VectorXd d = x;
+  for (int k = 0; k < order; ++k) d = (d.tail(d.size() - 1) - d.head(d.size() - 1)).eval();
+  return d;
+}
+
+Eigen::VectorXd remove_trend(const SeriesRef& x, int degree) {
+  if (degree < 0) throw Error("remove_trend: degree " + std::to_string(degree) + " is negative");
+  check_series(x, "series", degree + 2, "to remove a degree-" + std::to_string(degree) + " trend");
+  const Eigen::Index n = x.size();
+  // Index scaled to [−1, 1] keeps the Vandermonde matrix well conditioned.
+  Eigen::MatrixXd v(n, degree + 1);
+  for (Eigen::Index i = 0; i < n; ++i) {
+    const double s = n > 1 ? 2.0 * i / (n - 1) - 1.0 : 0.0;
+    double p = 1.0;
+    for (int j = 0; j <= degree; ++j, p *= s) v(i, j) = p;
+  }
+  const Eigen::VectorXd coef = v.colPivHouseholderQr().solve(x);
+  return x - v * coef;
+}
+
+ReverseArrangementResult reverse_arrangement(const SeriesRef& x, int subseries, double threshold) {
+  if (subseries < 3) throw Error("reverse_arrangement: subseries = " + std::to_string(subseries) + ", need ≥ 3");
+  check_series(x, "series", 2 * static_cast<Eigen::Index>(subseries),
+               "for " + std::to_string(subseries) + " sub-series of ≥ 2 samples");
+  ReverseArrangementResult r;
+  const Eigen::Index n = x.size(), l = subseries;
+  r.subseries = subseries;
+  r.means.resize(l);
+  for (Eigen::Index k = 0; k < l; ++k) {
+    const Eigen::Index a = k * n / l, b = (k + 1) * n / l;
+    r.means[k] = x.segment(a, b - a).mean();
+  }
+  for (Eigen::Index i = 0; i < l; ++i)
+    for (Eigen::Index j = i + 1; j < l; ++j) r.arrangements += r.means[i] > r.means[j];
+  const double dl = static_cast<double>(l);
+  r.expected = dl * (dl - 1.0) / 4.0;
+  r.variance = dl * (2.0 * dl + 5.0) * (dl - 1.0) / 72.0;
+  r.u = (static_cast<double>(r.arrangements) - r.expected) / std::sqrt(r.variance);
+  r.stationary = std::abs(r.u) < threshold;
+  return r;
+}
+
+NormalityResult normality(const SeriesRef& x, double significance) {
+  check_series(x, "series", 3, "for skewness and kurtosis");
+  const double mean = x.mean();
+  double m2 = 0.0, m3 = 0.0, m4 = 0.0;
+  for (Eigen::Index i = 0; i < x.size(); ++i) {
+    const double d = x[i] - mean, d2 = d * d;
+    m2 += d2;
+    m3 += d2 * d;
+    m4 += d2 * d2;
+  }
+  const double n = static_cast<double>(x.size());
+  m2 /= n;
+  m3 /= n;
+  m4 /= n;
+  if (!(m2 > 0.0)) throw Error("series: constant (zero variance), skewness and kurtosis are undefined");
+  NormalityResult r;
+  r.skewness = m3 / std::pow(m2, 1.5);
+  r.kurtosis = m4 / (m2 * m2);
+  r.jarque_bera = n / 6.0 * (r.skewness * r.skewness + 0.25 * (r.kurtosis - 3.0) * (r.kurtosis - 3.0));
+  r.p_value = std::exp(-0.5 * r.jarque_bera);
+  r.normal = r.p_value > significance;
+  return r;
+}
+
+LjungBoxResult ljung_box(const SeriesRef& x, int lags, int model_df, double significance) {
+  if (lags < 1) throw Error("ljung_box: lags = " + std::to_string(lags) + ", need ≥ 1");
+  check_series(x, "series", static_cast<Eigen::Index>(lags) + 1, "for " + std::to_string(lags) + " lags");
+  const Eigen::VectorXd d = x.array() - x.mean();
+  const double c0 = d.squaredNorm();
+  if (!(c0 > 0.0)) throw Error("series: constant (zero variance), autocorrelations are undefined");
+  const Eigen::Index n = d.size();
+  LjungBoxResult r;
+  r.lags = lags;
+  r.model_df = model_df;
+  double q = 0.0;
+  for (int k = 1; k <= lags; ++k) {
+    const double rho = d.tail(n - k).dot(d.head(n - k)) / c0;
+    q += rho * rho / static_cast<double>(n - k);
+  }
+  r.statistic = static_cast<double>(n) * (n + 2.0) * q;
+  const int df = lags - model_df;
+  r.p_value = df > 0 ? chi2_sf(r.statistic, df) : std::numeric_limits<double>::quiet_NaN();
+  r.white = df > 0 && r.p_value > significance;
+  return r;
+}
+
+ArResult fit_ar(const SeriesRef& y, const ArOptions& options) {
+  const bool fixed = options.order >= 0;
+  const int k = fixed ? options.order : options.max_order;
+  if (k < 0) throw Error("fit_ar: max_order = " + std::to_string(k) + " is negative");
+  if (!(options.forgetting > 0.0 && options.forgetting <= 1.0))
+    throw Error("fit_ar: forgetting factor " + std::to_string(options.forgetting) + " is not in (0, 1]");
+  check_series(y, "series", 2 * static_cast<Eigen::Index>(k) + 3,
+               "for an AR model of order " + std::to_string(k) + (fixed ? "" : " (max_order)"));
+  if (!((y.array() != y[0]).any())) throw Error("series: constant (every sample equals " + std::to_string(y[0]) +
+                                                "), an AR model needs a varying series");
+  ArResult result;
+  const Eigen::Index n_total = y.size();
+
+  // Order: AIC on the common sample t = k … N−1. SSR of order p is the squared tail of the last
+  // column of R of [lags | y] (nested least squares from one QR).
+  int p = k;
+  if (!fixed) {
+    const Eigen::MatrixXd r = lagged_r(y, k, k);
+    const double n = static_cast<double>(n_total - k);
+    result.aic.resize(k + 1);
+    for (int q = 0; q <= k; ++q) {
+      const double ssr = r.col(k).segment(q, r.rows() - q).squaredNorm();
+      result.aic[q] = n * std::log(ssr / n) + 2.0 * q;
+    }
+    result.aic.minCoeff(&p);
+    result.order_at_maximum = k > 0 && p == k;
+  }
+  result.order = p;
+
+  // Coefficients: batch least squares on the first rows, then recursive least squares on the rest.
+  const Eigen::Index rows = n_total - p;
+  Eigen::VectorXd theta = Eigen::VectorXd::Zero(p);
+  if (p > 0) {
+    const Eigen::Index n0 = std::min<Eigen::Index>(rows, std::max(options.init_samples, 2 * p));
+    Eigen::MatrixXd x0(n0, p);
+    Eigen::VectorXd y0(n0);
+    for (Eigen::Index i = 0; i < n0; ++i) {
+      for (int j = 0; j < p; ++j) x0(i, j) = y[p + i - 1 - j];
+      y0[i] = y[p + i];
+    }
+    Eigen::HouseholderQR<Eigen::MatrixXd> qr(x0);
+    const Eigen::MatrixXd r0 = qr.matrixQR().topRows(p).triangularView<Eigen::Upper>();
+    const double diag_min = r0.diagonal().cwiseAbs().minCoeff(), diag_max = r0.diagonal().cwiseAbs().maxCoeff();
+    if (!(diag_min > 1e-12 * diag_max))
+      throw Error("series: the first " + std::to_string(n0) +
+                  " regression rows are rank deficient, cannot start the recursive least squares (raise init_samples)");
+    theta = qr.solve(y0);
+    const Eigen::MatrixXd r_inv = r0.triangularView<Eigen::Upper>().solve(Eigen::MatrixXd::Identity(p, p));
+    Eigen::MatrixXd cov = r_inv * r_inv.transpose();  // (X0ᵀX0)⁻¹
+    const double lambda = options.forgetting;
+    Eigen::VectorXd phi(p), g(p);
+    for (Eigen::Index t = p + n0; t < n_total; ++t) {
+      for (int j = 0; j < p; ++j) phi[j] = y[t - 1 - j];
+      g.noalias() = cov * phi;
+      const double denom = lambda + phi.dot(g);
+      const double err = y[t] - phi.dot(theta);
+      theta += g * (err / denom);
+      // Symmetric rank-one downdate keeps cov symmetric over millions of steps.
+      cov.noalias() -= g * (g.transpose() / denom);
+      if (lambda != 1.0) cov /= lambda;
+    }
+  }
+  result.coefficients = theta;
+  result.residuals.resize(rows);
+  for (Eigen::Index i = 0; i < rows; ++i) {
+    const Eigen::Index t = p + i;
+    double pred = 0.0;
+    for (int j = 0; j < p; ++j) pred += theta[j] * y[t - 1 - j];
+    result.residuals[i] = y[t] - pred;
+  }
+  result.sigma2 = result.residuals.squaredNorm() / static_cast<double>(rows);
+
+  int lags = options.whiteness_lags > 0 ? options.whiteness_lags : std::max(10, 2 * p);
+  lags = static_cast<int>(std::min<Eigen::Index>(lags, std::max<Eigen::Index>(1, rows / 2)));
+  if (result.sigma2 > 0.0) result.whiteness = ljung_box(result.residuals, lags, p, options.significance);
+
+  Summary& s = result.summary;
+  s.samples = static_cast<std::size_t>(n_total);
+  s.iterations = static_cast<int>(rows);
+  s.cost = result.sigma2;
+  s.residual_rms = std::sqrt(result.sigma2);
+  s.converged = true;
+  std::ostringstream msg;
+  msg << "AR(" << p << ")" << (fixed ? " (fixed order)" : " by AIC") << ", sigma2 " << result.sigma2
+      << ", Ljung-Box p " << result.whiteness.p_value;
+  s.message = msg.str();
+  if (result.order_at_maximum)
+    s.warnings.push_back("AIC chose the maximum order " + std::to_string(k) +
+                         ": the noise may have longer memory than max_order allows");
+  if (result.sigma2 > 0.0 && !result.whiteness.white)
+    s.warnings.push_back("residuals are not white (Ljung-Box p = " + std::to_string(result.whiteness.p_value) +
+                         "): the AR model is rejected by seed 001's S3.3 check");
+  return result;
+}
+
+PreprocessResult preprocess(const SeriesRef& x, const PreprocessOptions& options) {
+  if (options.subseries < 3)
+    throw Error("preprocess: subseries = " + std::to_string(options.subseries) + ", need ≥ 3");
+  if (options.trend_degree < 0) throw Error("preprocess: trend_degree is negative");
+  // Enough for the test on the twice-differenced series: N − 2 ≥ 2 l.
+  check_series(x, "series", 2 * static_cast<Eigen::Index>(options.subseries) + 2,
+               "for the stationarity test on " + std::to_string(options.subseries) + " sub-series");
+  if (!((x.array() != x[0]).any()))
+    throw Error("series: constant (every sample equals " + std::to_string(x[0]) + "), nothing to model");
+  PreprocessResult r;
+  const Eigen::VectorXd z = zero_mean(x, &r.mean);
+  Eigen::VectorXd d1 = difference(z, 1);
+  r.stationarity = reverse_arrangement(d1, options.subseries, options.threshold);
+  Summary& s = r.summary;
+  if (r.stationarity.stationary) {
+    r.series = std::move(d1);
+    r.differences = 1;
+    r.stationarity_after = r.stationarity;
+  } else {
+    r.series = remove_trend(difference(d1, 1), options.trend_degree);
+    r.differences = 2;
+    r.stationarity_after = reverse_arrangement(r.series, options.subseries, options.threshold);
+  }
+  if (!((r.series.array() != r.series[0]).any()))
+    throw Error("series: its differences are constant (a pure polynomial trend), the noise model needs variation");
+  r.normality = normality(r.series, options.significance);
+  s.samples = static_cast<std::size_t>(x.size());
+  s.converged = r.stationarity_after.stationary;
+  std::ostringstream msg;
+  msg << "differenced " << r.differences << "x, reverse arrangement u = " << r.stationarity.u;
+  if (r.differences == 2) msg << " (after: " << r.stationarity_after.u << ")";
+  msg << ", skewness " << r.normality.skewness << ", kurtosis " << r.normality.kurtosis;
+  s.message = msg.str();
+  if (!r.stationarity_after.stationary)
+    s.warnings.push_back("the series is not stationary even after differencing twice and removing a trend (u = " +
+                         std::to_string(r.stationarity_after.u) + ")");
+  if (!r.normality.normal)
+    s.warnings.push_back("the stationary series is not normal (Jarque-Bera p = " +
+                         std::to_string(r.normality.p_value) + ", skewness " + std::to_string(r.normality.skewness) +
+                         ", kurtosis " + std::to_string(r.normality.kurtosis) + ")");
+  return r;
+}
+
+}  // namespace fluxcal

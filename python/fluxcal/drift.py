@@ -1,0 +1,235 @@
+"""Temperature-drift compensation of a current transformer's zero bias (seed 001, the whole pipeline).
+
+    model, report = drift.fit_pipeline(zero_bias, temp)          # S2 tests, AR, Kalman, S5 drift model
+    compensated = model.compensate(zero_bias, temp)              # W_c = W − f(T)
+    model.save("drift.json"); drift.DriftModel.load("drift.json")
+    drift.accuracy(residual, rated=1000.0, accuracy_class="0.2S")
+
+Steps of fit_pipeline:
+  1. zero-mean; reverse-arrangement stationarity test of the differenced series (and a second difference
+     plus trend removal when it fails); skewness/kurtosis of the stationary series (diagnostics, S2);
+  2. AR(p) model of the zero-mean series, order by AIC, RLS coefficients, Ljung–Box whiteness (S3);
+  3. Kalman filter on that AR model (`ArKalman.from_ar`: Q = the AR residual variance, R given or Q) → L (S4), divided by
+     the filter's DC gain so that the slow drift in L keeps its size;
+  4. piecewise polynomial drift Y = T A of L in the device temperature or the inside/outside difference,
+     balanced columns, F-test orders, AR-whitened (generalised) least squares (S5; see
+     cpp/include/fluxcal/drift.hpp for why the whitening).
+"""
+from __future__ import annotations
+
+import json
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from . import _core
+from . import timeseries as ts
+from .kalman import ArKalman
+
+DEFAULT_BREAKPOINTS = (-20.0, 0.0, 30.0, 50.0)
+CURRENT_POINTS = (1, 5, 20, 100, 120)  # % of rated current
+# IEC 61869-2 ratio-error limits (± %) at 1 / 5 / 20 / 100 / 120 % of rated current.
+IEC_LIMITS = {"0.2S": (0.75, 0.35, 0.2, 0.2, 0.2), "0.5S": (1.5, 0.75, 0.5, 0.5, 0.5)}
+REGRESSORS = ("temp", "difference")
+
+
+def _regressor(temp, temp_outside, regressor: str) -> np.ndarray:
+    if regressor not in REGRESSORS:
+        raise ValueError(f"regressor: {regressor!r} is not one of {', '.join(REGRESSORS)}")
+    if regressor == "temp":
+        return temp
+    if temp_outside is None:
+        raise ValueError("temp_outside: needed for the inside/outside temperature difference regressor")
+    outside = ts.as_series(temp_outside, "temp_outside")
+    if outside.size != temp.size:
+        raise ValueError(f"temp_outside: {outside.size} samples, temp has {temp.size}")
+    return np.ascontiguousarray(temp - outside)
+
+
+@dataclass
+class DriftModel:
+    """Piecewise polynomial drift f of the zero bias; segments are chosen by the device temperature,
+    the polynomial variable is `regressor` ("temp" or "difference" = temp − temp_outside)."""
+    segments: list
+    regressor: str = "temp"
+    settings: dict = field(default_factory=dict)   # AR / Kalman / fit settings (what fit_pipeline used)
+    summary: dict = field(default_factory=dict)
+
+    def evaluate(self, temp, temp_outside=None) -> np.ndarray:
+        temp = ts.as_series(temp, "temp")
+        x = _regressor(temp, temp_outside, self.regressor)
+        segs = [((float(s["range"][0]), float(s["range"][1])), [float(c) for c in s["coefficients"]])
+                for s in self.segments]
+        return np.asarray(_core.drift_evaluate(segs, temp, np.ascontiguousarray(x)))
+
+    def compensate(self, zero_bias, temp, temp_outside=None) -> np.ndarray:
+        """W_c = W − f(T). ValueError for a temperature outside every range."""
+        w = ts.as_series(zero_bias, "zero_bias")
+        f = self.evaluate(temp, temp_outside)
+        if f.size != w.size:
+            raise ValueError(f"zero_bias: {w.size} samples, temp has {f.size}")
+        return w - f
+
+    def to_dict(self) -> dict:
+        return {"kind": "fluxcal drift model", "regressor": self.regressor,
+                "segments": [{"range": list(map(float, s["range"])), "order": int(s["order"]),
+                              "coefficients": list(map(float, s["coefficients"])),
+                              **{k: v for k, v in s.items() if k not in ("range", "order", "coefficients")}}
+                             for s in self.segments],
+                **self.settings, "summary": self.summary}
+
+    @classmethod
+    def from_dict(cls, data: dict, source: str = "drift model") -> "DriftModel":
+        try:
+            segments = data["segments"]
+            for s in segments:
+                lo, hi = s["range"]
+                if len(s["coefficients"]) != int(s["order"]) + 1:
+                    raise ValueError(f"{source}: segment [{lo}, {hi}] has order {s['order']} but "
+                                     f"{len(s['coefficients'])} coefficients")
+        except (KeyError, TypeError) as exc:
+            raise ValueError(f"{source}: not a drift model (missing or malformed {exc})") from None
+        settings = {k: v for k, v in data.items() if k not in ("kind", "regressor", "segments", "summary")}
+        return cls(segments=segments, regressor=data.get("regressor", "temp"), settings=settings,
+                   summary=data.get("summary", {}))
+
+    def save(self, path) -> Path:
+        path = Path(path)
+        path.write_text(json.dumps(self.to_dict(), indent=2, default=_jsonable) + "\n")
+        return path
+
+    @classmethod
+    def load(cls, path) -> "DriftModel":
+        path = Path(path)
+        try:
+            data = json.loads(path.read_text())
+        except (OSError, json.JSONDecodeError) as exc:
+            raise ValueError(f"{path}: cannot read a drift model ({exc})") from None
+        return cls.from_dict(data, str(path))
+
+
+def _jsonable(v):
+    if isinstance(v, np.ndarray):
+        return v.tolist()
+    if isinstance(v, (np.integer, np.floating, np.bool_)):
+        return v.item()
+    raise TypeError(f"not JSON serialisable: {type(v).__name__}")
+
+
+def fit_drift(zero_bias, temp, temp_outside=None, regressor: str = "temp", breakpoints=DEFAULT_BREAKPOINTS,
+              max_order: int = 4, significance: float = 0.05, order: int | None = None, continuous: bool = False,
+              whiten: bool = True, whiten_max_order: int = 10, min_samples: int = 10) -> DriftModel:
+    """S5 alone: the piecewise polynomial drift of `zero_bias` (e.g. the Kalman-filtered L)."""
+    temp = ts.as_series(temp, "temp")
+    w = ts.as_series(zero_bias, "zero_bias")
+    x = _regressor(temp, temp_outside, regressor)
+    options = _core.DriftOptions()
+    options.breakpoints = [float(b) for b in breakpoints]
+    options.max_order = int(max_order)
+    options.significance = float(significance)
+    options.order = -1 if order is None else int(order)
+    options.continuous = bool(continuous)
+    options.whiten = bool(whiten)
+    options.whiten_max_order = int(whiten_max_order)
+    options.min_samples = int(min_samples)
+    r = _core.fit_drift(temp, np.ascontiguousarray(x), w, options)
+    settings = {"breakpoints": list(options.breakpoints), "max_order": options.max_order,
+                "significance": options.significance, "continuous": options.continuous, "whiten": options.whiten,
+                "noise_ar": np.asarray(r["noise_ar"]).tolist()}
+    return DriftModel(segments=list(r["segments"]), regressor=regressor, settings=settings, summary=r["summary"])
+
+
+def accuracy(residual, rated: float, accuracy_class: str = "0.2S") -> dict:
+    """Ratio error that a residual zero bias causes at 1/5/20/100/120 % of rated current against the
+    IEC 61869 limits of `accuracy_class` ("0.2S" or "0.5S"): error % = 100 · max|residual| / (I_pct)."""
+    if accuracy_class not in IEC_LIMITS:
+        raise ValueError(f"accuracy_class: {accuracy_class!r} is not one of {', '.join(IEC_LIMITS)}")
+    if not rated > 0:
+        raise ValueError(f"rated: {rated} must be > 0")
+    worst = float(np.max(np.abs(ts.as_series(residual, "residual"))))
+    points = []
+    for pct, limit in zip(CURRENT_POINTS, IEC_LIMITS[accuracy_class]):
+        err = 100.0 * worst / (pct / 100.0 * rated)
+        points.append({"percent_rated": pct, "ratio_error_percent": err, "limit_percent": limit, "met": err <= limit})
+    return {"class": accuracy_class, "rated": rated, "max_abs_residual": worst, "points": points,
+            "met": all(p["met"] for p in points)}
+
+
+def level_means(values, temp, step: float = 5.0) -> dict:
+    """Mean of `values` in each temperature bin of width `step` centred on multiples of `step`
+    (the chamber's hold levels)."""
+    values, temp = ts.as_series(values, "values"), ts.as_series(temp, "temp")
+    bins = np.round(temp / step) * step
+    return {float(b): float(values[bins == b].mean()) for b in np.unique(bins)}
+
+
+def drift_span(values, temp, step: float = 5.0) -> float:
+    """Peak-to-peak of the per-level means: the zero-bias drift over the temperature span, noise averaged."""
+    m = np.array(list(level_means(values, temp, step).values()))
+    return float(m.max() - m.min())
+
+
+def dc_gain(kalman: ArKalman) -> float:
+    """Output per unit constant input of the steady-state filter: e1ᵀ (I − F)⁻¹ K, F = (I − K e1ᵀ) A."""
+    n = kalman.order
+    A = np.zeros((n, n))
+    A[0] = kalman.ar_coeffs
+    A[np.arange(1, n), np.arange(n - 1)] = 1.0
+    K = kalman.steady_gain
+    F = (np.eye(n) - np.outer(K, np.eye(n)[0])) @ A
+    return float(np.linalg.solve(np.eye(n) - F, K)[0])
+
+
+def _finite(values: np.ndarray, name: str) -> np.ndarray:
+    bad = ~np.isfinite(values)
+    if bad.any():
+        raise ValueError(f"{name}: sample {int(np.argmax(bad))} is {values[np.argmax(bad)]} (NaN/Inf not allowed)")
+    return values
+
+
+def fit_pipeline(zero_bias, temp, temp_outside=None, regressor: str = "temp", breakpoints=DEFAULT_BREAKPOINTS,
+                 max_order: int = 4, significance: float = 0.05, continuous: bool = False, ar_max_order: int = 10,
+                 q: float | None = None, r: float | None = None, steady_state: bool = False, subseries: int = 20,
+                 rated: float | None = None, accuracy_class: str = "0.2S", whiten: bool = True):
+    """Seed 001 end to end (module doc). Returns (DriftModel, report dict)."""
+    w = _finite(ts.as_series(zero_bias, "zero_bias"), "zero_bias")
+    temp = _finite(ts.as_series(temp, "temp"), "temp")
+    if temp.size != w.size:
+        raise ValueError(f"temp: {temp.size} samples, zero_bias has {w.size}")
+    pre = ts.preprocess(w, subseries=subseries)
+    level = w - pre["mean"]
+    ar = ts.fit_ar(level, max_order=ar_max_order)
+    if ar.order == 0:
+        raise ValueError("zero_bias: AIC chose AR order 0 (white series), the Kalman filter needs p ≥ 1")
+    if q is None:  # Q (and R unless given) estimated from the AR fit
+        kalman = ArKalman.from_ar(ar, r=r, steady_state=steady_state)
+    else:
+        kalman = ArKalman(ar.coefficients, float(q), ar.sigma2 if r is None else float(r), steady_state=steady_state)
+    q, r = kalman.q, kalman.r
+    # The filter estimates a zero-mean AR signal, so a slow drift passes with its DC gain g < 1
+    # (≈ S(0)/(S(0) + R), S the AR spectrum); dividing by g keeps the drift fitted on L unbiased.
+    gain = dc_gain(kalman)
+    filtered = kalman.filter(level) / gain + pre["mean"]
+    model = fit_drift(filtered, temp, temp_outside, regressor=regressor, breakpoints=breakpoints,
+                      max_order=max_order, significance=significance, continuous=continuous, whiten=whiten)
+    model.settings.update({"ar": {"order": ar.order, "coefficients": ar.coefficients.tolist(), "sigma2": ar.sigma2,
+                                  "max_order": ar_max_order, "order_at_maximum": ar.order_at_maximum},
+                           "kalman": {"q": q, "r": r, "steady_state": steady_state, "dc_gain": gain}})
+    compensated = model.compensate(w, temp, temp_outside)
+    residual_filtered = filtered - model.evaluate(temp, temp_outside)
+    report = {"preprocess": {k: v for k, v in pre.items() if k != "series"},
+              "warnings": list(pre["summary"]["warnings"]) + list(ar.summary["warnings"]),
+              "ar": {"order": ar.order, "coefficients": ar.coefficients.tolist(), "sigma2": ar.sigma2,
+                     "order_at_maximum": ar.order_at_maximum, "whiteness": ar.whiteness,
+                     "warnings": ar.summary["warnings"]},
+              "orders": [s["order"] for s in model.segments],
+              "drift_span_before": drift_span(w, temp), "drift_span_after": drift_span(compensated, temp),
+              "compensated": compensated, "filtered": filtered}
+    report["drift_reduction"] = report["drift_span_before"] / max(report["drift_span_after"], 1e-300)
+    if rated is not None:
+        # Two views: the filtered output sample by sample (drift residual plus what noise the filter
+        # leaves), and the drift alone (the compensated zero bias averaged per temperature level).
+        report["accuracy"] = accuracy(residual_filtered, rated, accuracy_class)
+        report["accuracy_drift"] = accuracy(list(level_means(compensated, temp).values()), rated, accuracy_class)
+    return model, report

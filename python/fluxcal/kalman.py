@@ -1,0 +1,248 @@
+"""Kalman filter on the AR(p) companion state space (seed 001, S4), in double and in fixed point.
+
+    k = ArKalman(ar_coeffs, q, r)                  # A companion, B = e1, C = e1ᵀ, Joseph form
+    filtered = k.filter(y)                         # C x̂_{k|k} of every sample; k.result has the rest
+    f = FixedArKalman(ar_coeffs, q, r, frac_bits=30)
+    filtered_fx = f.filter(y)                      # floats at the boundary, int32 Q-format inside
+    f.overflowed                                   # sticky saturation flag of the last filter() call
+    f.export_header("drift_kalman.h")              # the integer coefficients for firmware
+
+The fixed-point arithmetic is cpp/include/fluxcal/fixed_kalman.hpp; fluxcal.oracle.kalman.FixedModel is
+its bit-exact Python integer model (and writes golden vectors).
+"""
+from __future__ import annotations
+
+import math
+from pathlib import Path
+
+import numpy as np
+
+from . import _core
+from .timeseries import as_series
+
+INT32_MIN, INT32_MAX = -(2 ** 31), 2 ** 31 - 1
+
+
+def _coefficients(ar_coeffs) -> np.ndarray:
+    a = np.atleast_1d(np.asarray(ar_coeffs, dtype=np.float64))
+    if a.ndim != 1 or a.size < 1:
+        raise ValueError(f"ar_coeffs: shape {a.shape}, expected a non-empty 1-D sequence a1 … ap")
+    if not np.all(np.isfinite(a)):
+        raise ValueError("ar_coeffs: NaN/Inf")
+    return a
+
+
+def _options(initial_variance: float, steady_state: bool):
+    o = _core.KalmanOptions()
+    o.initial_variance = float(initial_variance)
+    o.steady_state = bool(steady_state)
+    return o
+
+
+class ArKalman:
+    """Double-precision Kalman filter on the AR(p) model a1 … ap with process variance q and measurement
+    variance r. initial_variance: P0 = initial_variance · I (0 = the AR process's stationary covariance).
+    steady_state: filter with the constant steady-state gain."""
+
+    def __init__(self, ar_coeffs, q: float, r: float, initial_variance: float = 0.0, steady_state: bool = False):
+        self.ar_coeffs = _coefficients(ar_coeffs)
+        self.q, self.r = float(q), float(r)
+        self.options = _options(initial_variance, steady_state)
+        setup = _core.kalman_setup(self.ar_coeffs, self.q, self.r, self.options)
+        self.initial_covariance = np.asarray(setup["initial_covariance"])
+        self.steady_gain = np.asarray(setup["steady_gain"])
+        self.steady_prior_covariance = np.asarray(setup["steady_prior_covariance"])
+        self.spectral_radius = setup["spectral_radius"]
+        self.result: dict | None = None
+
+    @classmethod
+    def from_ar(cls, model, r: float | None = None, initial_variance: float = 0.0,
+                steady_state: bool = False) -> "ArKalman":
+        """Filter on a fitted AR model (`fluxcal.timeseries.fit_ar`): Q = its residual variance σ², R = `r`
+        or, when None, σ² too (an AR fit cannot tell measurement noise from process noise; give r when the
+        sensor's white-noise floor is known). ValueError for an order-0 fit."""
+        if r is not None and not r >= 0:
+            raise ValueError(f"r: measurement variance {r} must be ≥ 0")
+        a, q, r = _core.kalman_noise_from_ar(int(model.order), np.asarray(model.coefficients, dtype=np.float64),
+                                             float(model.sigma2), -1.0 if r is None else float(r))
+        return cls(a, q, r, initial_variance=initial_variance, steady_state=steady_state)
+
+    @property
+    def order(self) -> int:
+        return self.ar_coeffs.size
+
+    def filter(self, y) -> np.ndarray:
+        """Filtered output C x̂_{k|k} of every sample (starting from x = 0, P = P0). `self.result` then
+        holds innovations, final state, covariance and gain."""
+        self.result = _core.kalman_filter(self.ar_coeffs, self.q, self.r, self.options, as_series(y, "y"))
+        return np.asarray(self.result["filtered"])
+
+
+def _int_bits(value: float) -> int:
+    """Bits left of the binary point that hold |value| (0 for |value| ≤ 1)."""
+    return max(0, math.ceil(math.log2(value))) if value > 0 else 0
+
+
+def _quantize(values, frac_bits: int, name: str) -> np.ndarray:
+    scaled = np.rint(np.asarray(values, dtype=np.float64) * 2.0 ** frac_bits)
+    if np.any(scaled > INT32_MAX) or np.any(scaled < INT32_MIN):
+        raise ValueError(f"{name}: does not fit int32 with {frac_bits} fraction bits")
+    return scaled.astype(np.int64)
+
+
+class FixedArKalman:
+    """The ArKalman filter in int32 fixed point with 64-bit accumulators (see fixed_kalman.hpp).
+
+    frac_bits: fraction bits of the signal format (y, state, innovation); None = derived from the first
+    series filtered so that 2·max|y| fits (one guard bit). coef_frac_bits (AR coefficients and gain) and
+    cov_frac_bits (Q, R, P) default to values derived from the model: the largest of |a|, the
+    steady-state |K| and 1, and the largest of P0, the steady-state prior covariance and q + r, each
+    with one guard bit (two for the covariances: S = M00 + R). The filter takes and returns floats; inside everything is int32.
+    `overflowed` is the sticky saturation flag of the last filter() call (also set when y itself does
+    not fit the signal format)."""
+
+    def __init__(self, ar_coeffs, q: float, r: float, frac_bits: int | None = None, steady_state: bool = False,
+                 coef_frac_bits: int | None = None, cov_frac_bits: int | None = None,
+                 initial_variance: float = 0.0):
+        self.double = ArKalman(ar_coeffs, q, r, initial_variance=initial_variance, steady_state=steady_state)
+        if self.double.order > _core.FIXED_MAX_ORDER:
+            raise ValueError(f"ar_coeffs: order {self.double.order} exceeds the fixed-point filter's maximum "
+                             f"{_core.FIXED_MAX_ORDER}")
+        self.steady_state = bool(steady_state)
+        d = self.double
+        if coef_frac_bits is None:
+            biggest = max(1.0, float(np.max(np.abs(d.ar_coeffs))), float(np.max(np.abs(d.steady_gain))))
+            coef_frac_bits = 30 - _int_bits(biggest)
+        if not 0 <= coef_frac_bits <= 30:
+            raise ValueError(f"coef_frac_bits: {coef_frac_bits} outside 0 … 30")
+        if cov_frac_bits is None:
+            biggest = max(float(np.max(np.abs(d.initial_covariance))), float(np.max(np.abs(d.steady_prior_covariance))),
+                          d.q + d.r)
+            cov_frac_bits = 29 - math.ceil(math.log2(biggest))  # S = M00 + R may reach twice the largest
+        self.coef_frac_bits, self.cov_frac_bits = int(coef_frac_bits), int(cov_frac_bits)
+        self.frac_bits = None if frac_bits is None else int(frac_bits)
+        self.a_int = _quantize(d.ar_coeffs, self.coef_frac_bits, "ar_coeffs")
+        self.gain_int = _quantize(d.steady_gain, self.coef_frac_bits, "steady-state gain")
+        self.q_int = int(_quantize(d.q, self.cov_frac_bits, "q"))
+        self.r_int = int(_quantize(d.r, self.cov_frac_bits, "r"))
+        p0 = d.initial_covariance
+        self.p0_int = _quantize(p0, self.cov_frac_bits, "initial covariance")
+        if self.q_int <= 0:
+            raise ValueError(f"q: {d.q} rounds to 0 with {self.cov_frac_bits} covariance fraction bits")
+        self.overflowed = False
+        self.result: dict | None = None
+
+    @property
+    def order(self) -> int:
+        return self.double.order
+
+    def coefficients(self) -> dict:
+        """The integer coefficient set (what the firmware and fluxcal.oracle.kalman.FixedModel take)."""
+        if self.frac_bits is None:
+            raise ValueError("frac_bits: not set yet (give it, or filter a series to derive it)")
+        return {"a": [int(v) for v in self.a_int], "gain": [int(v) for v in self.gain_int], "q": self.q_int,
+                "r": self.r_int, "p0": [int(v) for v in self.p0_int.ravel()], "signal_frac_bits": self.frac_bits,
+                "coef_frac_bits": self.coef_frac_bits, "cov_frac_bits": self.cov_frac_bits,
+                "steady_state": self.steady_state}
+
+    def to_fixed(self, y) -> tuple[np.ndarray, bool]:
+        """y in the signal format (round half to even, saturated) and whether any value saturated."""
+        scaled = np.rint(as_series(y, "y") * 2.0 ** self.frac_bits)
+        clipped = np.clip(scaled, INT32_MIN, INT32_MAX)
+        return clipped.astype(np.int32), bool(np.any(clipped != scaled))
+
+    def filter_int(self, y_int, checkpoint_every: int = 0) -> np.ndarray:
+        """Filter a series already in the signal format (int32 in, int32 out). checkpoint_every > 0 also
+        records the filter's whole state (x, K, P) before every checkpoint_every-th sample in
+        self.result["checkpoint_state" / "checkpoint_gain" / "checkpoint_covariance"]."""
+        c = self.coefficients()
+        self.result = _core.fixed_kalman_filter(c["a"], c["gain"], c["q"], c["r"], c["p0"], c["signal_frac_bits"],
+                                                c["coef_frac_bits"], c["cov_frac_bits"], c["steady_state"],
+                                                np.ascontiguousarray(y_int, dtype=np.int32), int(checkpoint_every))
+        self.overflowed = bool(self.result["overflowed"])
+        return np.asarray(self.result["output"])
+
+    def filter(self, y) -> np.ndarray:
+        """Filtered output of every sample, as floats (the int32 outputs times 2^−frac_bits)."""
+        y = as_series(y, "y")
+        if not np.all(np.isfinite(y)):
+            raise ValueError(f"y: sample {int(np.argmax(~np.isfinite(y)))} is NaN/Inf")
+        if self.frac_bits is None:
+            self.frac_bits = min(31, 31 - _int_bits(2.0 * float(np.max(np.abs(y))) if y.size else 1.0))
+        y_int, clipped = self.to_fixed(y)
+        out = self.filter_int(y_int)
+        self.overflowed = self.overflowed or clipped
+        return out.astype(np.float64) * 2.0 ** -self.frac_bits
+
+    def error_bound(self, y) -> float:
+        """First-order bound on |fixed − double| of the steady-state filter's output on series y.
+
+        With F = (I − K C) A the double recursion is x_k = F x_{k−1} + K y_k. The fixed filter runs the
+        same recursion with quantised F̃, K̃, quantised y and per-step rounding ρ (the predicted x0, each
+        K_i e and y: at most h = 2^−(frac_bits+1) each, |ρ|∞ ≤ h (2 + |K̃|∞)). Its error e_k therefore obeys
+        e_k = F e_{k−1} + d_k with |d_k|∞ ≤ ‖F̃ − F‖∞ X + |K̃|∞ h + |K̃ − K|∞ Y + h (2 + |K̃|∞), X = max‖x_k‖∞
+        (from the double run), Y = max|y|, so |e|∞ ≤ G · max|d| with G = Σ_k ‖F^k‖∞ (summed until the
+        terms vanish; finite because F is stable). Second-order terms (‖F̃ − F‖ · |e|) are neglected."""
+        if self.frac_bits is None:
+            raise ValueError("frac_bits: not set yet")
+        y = as_series(y, "y")
+        d = self.double
+        n = d.order
+        a_q = self.a_int / 2.0 ** self.coef_frac_bits
+        k_q = self.gain_int / 2.0 ** self.coef_frac_bits
+
+        def closed_loop(a, k):
+            comp = np.zeros((n, n))
+            comp[0] = a
+            comp[np.arange(1, n), np.arange(n - 1)] = 1.0
+            return (np.eye(n) - np.outer(k, np.eye(n)[0])) @ comp
+
+        f, f_q = closed_loop(d.ar_coeffs, d.steady_gain), closed_loop(a_q, k_q)
+        g, power = 0.0, np.eye(n)
+        for _ in range(100000):
+            term = np.abs(power).sum(axis=1).max()
+            g += term
+            if term < 1e-12:
+                break
+            power = f @ power
+        steady = ArKalman(d.ar_coeffs, d.q, d.r, steady_state=True)
+        steady.filter(y)
+        x_max = float(np.max(np.abs(steady.result["filtered"]))) if y.size else 0.0
+        # The state holds delayed filtered outputs, so max‖x‖∞ = max|C x|; a little slack for the final state.
+        x_max = max(x_max, float(np.max(np.abs(steady.result["state"]))))
+        h = 2.0 ** -(self.frac_bits + 1)
+        k_inf = float(np.max(np.abs(k_q)))
+        d_max = (np.abs(f_q - f).sum(axis=1).max() * x_max + k_inf * h
+                 + float(np.max(np.abs(k_q - d.steady_gain))) * float(np.max(np.abs(y))) + h * (2.0 + k_inf))
+        return float(g * d_max)
+
+    def export_header(self, path, name: str = "fluxcal_ar_kalman") -> Path:
+        """Write the integer coefficients as a C header (include it next to fixed_kalman.hpp or any C
+        implementation of the same arithmetic)."""
+        c = self.coefficients()
+        up = name.upper()
+        n = self.order
+
+        def arr(values):
+            return "{" + ", ".join(f"{int(v)}" for v in values) + "}"
+
+        lines = [
+            f"/* {name}: fixed-point AR({n}) Kalman filter coefficients, written by fluxcal.",
+            f" * AR coefficients (double): {', '.join(f'{v:.17g}' for v in self.double.ar_coeffs)}",
+            f" * q = {self.double.q:.17g}, r = {self.double.r:.17g}",
+            " * Formats: value = integer * 2^-frac_bits; arithmetic as cpp/include/fluxcal/fixed_kalman.hpp. */",
+            f"#ifndef {up}_H", f"#define {up}_H", "#include <stdint.h>",
+            f"#define {up}_ORDER {n}",
+            f"#define {up}_SIGNAL_FRAC_BITS {c['signal_frac_bits']}",
+            f"#define {up}_COEF_FRAC_BITS {c['coef_frac_bits']}",
+            f"#define {up}_COV_FRAC_BITS {c['cov_frac_bits']}",
+            f"#define {up}_STEADY_STATE {1 if c['steady_state'] else 0}",
+            f"static const int32_t {name}_a[{n}] = {arr(c['a'])};",
+            f"static const int32_t {name}_gain[{n}] = {arr(c['gain'])};",
+            f"static const int32_t {name}_q = {c['q']};",
+            f"static const int32_t {name}_r = {c['r']};",
+            f"static const int32_t {name}_p0[{n * n}] = {arr(c['p0'])}; /* row-major */",
+            f"#endif /* {up}_H */", ""]
+        path = Path(path)
+        path.write_text("\n".join(lines))
+        return path

@@ -1,0 +1,64 @@
+"""NumPy/SciPy reference for fluxcal.drift.fit_drift: per-range polynomial least squares (numpy lstsq on
+the raw Vandermonde matrix, no balancing), F-test with scipy.stats.f, optional AR whitening."""
+from __future__ import annotations
+
+import numpy as np
+from scipy import stats
+
+from .timeseries import ar_aic, ar_fit
+
+
+def _members(temp, edges, k):
+    lo, hi = edges[k], edges[k + 1]
+    last = k == len(edges) - 2
+    return np.flatnonzero((temp >= lo) & ((temp < hi) | (last & (temp <= hi))))
+
+
+def _rows(x, w, idx, ar, order):
+    V = np.vander(x[idx], order + 1, increasing=True)
+    target = w[idx]
+    p = len(ar)
+    if p == 0:
+        return V, target
+    keep = [j for j in range(p, idx.size) if idx[j - p] == idx[j] - p]
+    keep = np.array(keep, dtype=int)
+    Vw, tw = V[keep].copy(), target[keep].copy()
+    for q in range(1, p + 1):
+        Vw -= ar[q - 1] * V[keep - q]
+        tw -= ar[q - 1] * target[keep - q]
+    return Vw, tw
+
+
+def fit_drift(select, x, w, breakpoints=(-20.0, 0.0, 30.0, 50.0), max_order=4, significance=0.05, whiten=True,
+              whiten_max_order=10):
+    select, x, w = (np.asarray(v, dtype=float) for v in (select, x, w))
+    edges = list(breakpoints)
+    groups = [_members(select, edges, k) for k in range(len(edges) - 1)]
+    tops = [min(max_order, np.unique(x[g]).size - 1, g.size - 3) for g in groups]
+    ar = np.zeros(0)
+    if whiten:
+        resid = np.full(w.size, np.nan)
+        for g, top in zip(groups, tops):
+            V = np.vander(x[g], top + 1, increasing=True)
+            resid[g] = w[g] - V @ np.linalg.lstsq(V, w[g], rcond=None)[0]
+        series = resid[~np.isnan(resid)]
+        p = int(np.argmin(ar_aic(series, whiten_max_order)))
+        ar = ar_fit(series, p)[0] if p else np.zeros(0)
+    segments = []
+    for g, top in zip(groups, tops):
+        def sse(m):
+            V, t = _rows(x, w, g, ar, m)
+            c = np.linalg.lstsq(V, t, rcond=None)[0]
+            return c, np.sum((t - V @ c) ** 2), t.size
+
+        m = 0
+        c, s, rows = sse(0)
+        while m < top:
+            c1, s1, _ = sse(m + 1)
+            dof = rows - m - 2
+            f = (s - s1) / (s1 / dof)
+            if not stats.f.sf(f, 1, dof) < significance:
+                break
+            m, c, s = m + 1, c1, s1
+        segments.append({"order": m, "coefficients": c})
+    return segments, ar

@@ -1,0 +1,92 @@
+"""NumPy/SciPy references for fluxcal.timeseries (clarity over speed; no shared code with the core)."""
+from __future__ import annotations
+
+import numpy as np
+from scipy import stats
+
+
+def reverse_arrangement(x, subseries=20, threshold=1.96):
+    x = np.asarray(x, dtype=float)
+    # Sub-series k holds samples [k·N/l, (k+1)·N/l) (integer division), as in fluxcal.
+    n, l = x.size, subseries
+    edges = [k * n // l for k in range(l + 1)]
+    means = np.array([x[edges[k]:edges[k + 1]].mean() for k in range(l)])
+    a = sum(1 for i in range(l) for j in range(i + 1, l) if means[i] > means[j])
+    e = l * (l - 1) / 4.0
+    var = l * (2 * l + 5) * (l - 1) / 72.0
+    u = (a - e) / np.sqrt(var)
+    return {"arrangements": a, "expected": e, "variance": var, "u": u, "stationary": abs(u) < threshold,
+            "means": means}
+
+
+def normality(x):
+    x = np.asarray(x, dtype=float)
+    s, k = stats.skew(x), stats.kurtosis(x, fisher=False)
+    jb = x.size / 6.0 * (s ** 2 + (k - 3.0) ** 2 / 4.0)
+    return {"skewness": s, "kurtosis": k, "jarque_bera": jb, "p_value": stats.chi2.sf(jb, 2)}
+
+
+def ljung_box(x, lags, model_df=0):
+    x = np.asarray(x, dtype=float)
+    d = x - x.mean()
+    n = d.size
+    acf = np.array([np.dot(d[k:], d[:n - k]) for k in range(lags + 1)]) / np.dot(d, d)
+    q = n * (n + 2) * np.sum(acf[1:] ** 2 / (n - np.arange(1, lags + 1)))
+    df = lags - model_df
+    return {"statistic": q, "p_value": stats.chi2.sf(q, df) if df > 0 else np.nan}
+
+
+def lagged(y, p, first):
+    """Rows t = first … N−1 of [y_{t−1} … y_{t−p}] and the targets y_t."""
+    y = np.asarray(y, dtype=float)
+    X = np.column_stack([y[first - j:y.size - j] for j in range(1, p + 1)]) if p else np.empty((y.size - first, 0))
+    return X, y[first:]
+
+
+def ar_aic(y, max_order):
+    """AIC(p) = n ln(SSR_p/n) + 2p on the common sample t = max_order … N−1 (lstsq per order)."""
+    out = []
+    for p in range(max_order + 1):
+        X, t = lagged(y, p, max_order)
+        ssr = np.sum((t - X @ np.linalg.lstsq(X, t, rcond=None)[0]) ** 2) if p else np.sum(t ** 2)
+        out.append(t.size * np.log(ssr / t.size) + 2 * p)
+    return np.array(out)
+
+
+def ar_fit(y, p):
+    """Batch least squares on every row t = p … N−1 (what AutoReg does); (coefficients, sigma2)."""
+    X, t = lagged(y, p, p)
+    a = np.linalg.lstsq(X, t, rcond=None)[0]
+    return a, np.mean((t - X @ a) ** 2)
+
+
+def rls(y, p, init_samples=20, forgetting=1.0):
+    """Recursive least squares with forgetting, started by batch least squares on the first rows."""
+    X, t = lagged(y, p, p)
+    n0 = min(t.size, max(init_samples, 2 * p))
+    theta = np.linalg.lstsq(X[:n0], t[:n0], rcond=None)[0]
+    P = np.linalg.inv(X[:n0].T @ X[:n0])
+    for phi, target in zip(X[n0:], t[n0:]):
+        k = P @ phi / (forgetting + phi @ P @ phi)
+        theta = theta + k * (target - phi @ theta)
+        P = (P - np.outer(k, phi @ P)) / forgetting
+    return theta
+
+
+def remove_trend(x, degree=1):
+    """x minus its least-squares polynomial in the sample index (numpy.polynomial on the scaled index)."""
+    x = np.asarray(x, dtype=float)
+    s = np.linspace(-1.0, 1.0, x.size)
+    return x - np.polynomial.polynomial.polyval(s, np.polynomial.polynomial.polyfit(s, x, degree))
+
+
+def preprocess(x, subseries=20, threshold=1.96, trend_degree=1):
+    """Seed 001 S2: zero-mean; reverse-arrangement test of np.diff; if it fails, np.diff again and detrend."""
+    x = np.asarray(x, dtype=float)
+    z = x - x.mean()
+    d1 = np.diff(z)
+    test = reverse_arrangement(d1, subseries, threshold)
+    series = d1 if test["stationary"] else remove_trend(np.diff(d1), trend_degree)
+    return {"mean": x.mean(), "series": series, "differences": 1 if test["stationary"] else 2,
+            "stationarity": test, "stationarity_after": reverse_arrangement(series, subseries, threshold),
+            "normality": normality(series)}

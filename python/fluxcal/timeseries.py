@@ -1,0 +1,102 @@
+"""Statistical pre-processing and AR(p) noise models of a sensor series (seed 001, S2–S3).
+
+    z, mean = timeseries.zero_mean(x)
+    timeseries.reverse_arrangement(np.diff(z), subseries=20)["stationary"]
+    model = timeseries.fit_ar(z, max_order=10)          # order by AIC, coefficients by RLS
+    model.order, model.coefficients, model.sigma2, model.whiteness["p_value"]
+
+Conventions follow statsmodels where users compare: AIC selection on the common sample N − max_order
+(`ar_select_order(..., ic='aic', trend='n')`), sigma2 = SSR/(N − p) (`AutoReg`), Ljung–Box on the
+demeaned series (`acorr_ljungbox(model_df=p)`), kurtosis not excess. Unlike statsmodels every
+function streams: 10⁶ samples and more fit in memory. See cpp/include/fluxcal/timeseries.hpp.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from . import _core
+from ._arrays import set_options
+
+
+def as_series(values, name: str = "series") -> np.ndarray:
+    """`values` as a contiguous float64 1-D array; ValueError naming `name` otherwise."""
+    try:
+        arr = np.asarray(values, dtype=np.float64)
+    except (TypeError, ValueError) as exc:
+        raise ValueError(f"{name}: not numeric ({exc})") from None
+    if arr.ndim != 1:
+        raise ValueError(f"{name}: shape {arr.shape}, expected a 1-D series")
+    return np.ascontiguousarray(arr)
+
+
+def zero_mean(x):
+    """(x − mean(x), mean)."""
+    z, mean = _core.ts_zero_mean(as_series(x))
+    return np.asarray(z), float(mean)
+
+
+def difference(x, order: int = 1) -> np.ndarray:
+    return np.asarray(_core.ts_difference(as_series(x), int(order)))
+
+
+def remove_trend(x, degree: int = 1) -> np.ndarray:
+    """x minus its least-squares polynomial of `degree` in the sample index."""
+    return np.asarray(_core.ts_remove_trend(as_series(x), int(degree)))
+
+
+def reverse_arrangement(x, subseries: int = 20, threshold: float = 1.96) -> dict:
+    """Reverse-arrangement stationarity test on the means of `subseries` consecutive sub-series.
+    Returns arrangements A, expected, variance, u, stationary (|u| < threshold), means."""
+    return _core.ts_reverse_arrangement(as_series(x), int(subseries), float(threshold))
+
+
+def normality(x, significance: float = 0.05) -> dict:
+    """Skewness, kurtosis (3 for a normal law), Jarque–Bera and its χ²(2) p-value, normal flag."""
+    return _core.ts_normality(as_series(x), float(significance))
+
+
+def ljung_box(x, lags: int, model_df: int = 0, significance: float = 0.05) -> dict:
+    """Ljung–Box Q over `lags` lags against χ²(lags − model_df); keys statistic, p_value, white."""
+    return _core.ts_ljung_box(as_series(x), int(lags), int(model_df), float(significance))
+
+
+@dataclass
+class ArModel:
+    order: int
+    coefficients: np.ndarray
+    sigma2: float
+    aic: np.ndarray                 # AIC(p) for p = 0 … max_order (empty for a fixed order)
+    order_at_maximum: bool
+    residuals: np.ndarray
+    whiteness: dict                 # Ljung–Box of the residuals, model_df = order
+    summary: dict = field(default_factory=dict)
+
+
+def fit_ar(y, max_order: int = 10, order: int | None = None, **settings) -> ArModel:
+    """AR(p) model y_k = Σ a_i y_{k−i} + r_k (no constant: pass a zero-mean series).
+
+    order None: chosen by AIC among 0 … max_order (`order_at_maximum` and a warning when the maximum
+    wins). settings: init_samples (20: rows of the batch least-squares start of the RLS), forgetting
+    (1.0: RLS forgetting factor), whiteness_lags (0 = max(10, 2p)), significance (0.05)."""
+    options = _core.ArOptions()
+    options.max_order = int(max_order)
+    options.order = -1 if order is None else int(order)
+    set_options(options, settings, "fit_ar")
+    r = _core.fit_ar(as_series(y), options)
+    return ArModel(order=r["order"], coefficients=np.asarray(r["coefficients"]), sigma2=r["sigma2"],
+                   aic=np.asarray(r["aic"]), order_at_maximum=r["order_at_maximum"],
+                   residuals=np.asarray(r["residuals"]), whiteness=r["whiteness"], summary=r["summary"])
+
+
+def preprocess(x, subseries: int = 20, threshold: float = 1.96, trend_degree: int = 1,
+               significance: float = 0.05) -> dict:
+    """Seed 001 S2: zero-mean, reverse-arrangement test of the once-differenced series; if it is not
+    stationary, difference once more and remove a polynomial trend of `trend_degree`. Returns `mean`,
+    `series` (the stationary series), `differences` (1 or 2), `stationarity` (the test of the first
+    difference), `stationarity_after` (the test of `series`), `normality` (of `series`) and `summary`
+    (warnings when `series` is still not stationary or not normal)."""
+    r = _core.ts_preprocess(as_series(x), int(subseries), float(threshold), int(trend_degree), float(significance))
+    r["series"] = np.asarray(r["series"])
+    return r

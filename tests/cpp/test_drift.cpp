@@ -1,0 +1,76 @@
+// drift.hpp: piecewise polynomial drift, F-test order, continuity, errors.
+#include <fluxcal/drift.hpp>
+
+#include <gtest/gtest.h>
+
+#include <random>
+
+namespace {
+
+double law(double t) {
+  if (t < 0.0) return 0.8 + 0.05 * t + 0.004 * t * t;
+  if (t < 30.0) return 0.8 - 0.03 * t;
+  const double u = t - 30.0;
+  return -0.1 - 0.02 * u + 0.004 * u * u - 0.0004 * u * u * u;
+}
+
+struct Data {
+  Eigen::VectorXd temp, w;
+};
+
+Data make(int n, double sigma, unsigned seed) {
+  std::mt19937_64 rng(seed);
+  std::normal_distribution<double> normal(0.0, sigma);
+  Data d;
+  d.temp = Eigen::VectorXd::LinSpaced(n, -20.0, 50.0);
+  d.w.resize(n);
+  for (int i = 0; i < n; ++i) d.w[i] = law(d.temp[i]) + normal(rng);
+  return d;
+}
+
+TEST(Drift, RecoversOrdersAndCoefficients) {
+  const Data d = make(30000, 0.02, 5);
+  fluxcal::DriftOptions options;
+  options.significance = 0.01;
+  const auto m = fluxcal::fit_drift(d.temp, d.temp, d.w, options);
+  ASSERT_EQ(m.segments.size(), 3u);
+  EXPECT_EQ(m.segments[0].order, 2);
+  EXPECT_EQ(m.segments[1].order, 1);
+  EXPECT_EQ(m.segments[2].order, 3);
+  EXPECT_NEAR(m.segments[0].coefficients[2], 0.004, 2e-4);
+  EXPECT_NEAR(m.segments[1].coefficients[1], -0.03, 1e-3);
+  const Eigen::VectorXd wc = m.compensate(d.w, d.temp, d.temp);
+  EXPECT_NEAR(wc.cwiseAbs().maxCoeff(), 0.0, 0.12);  // noise (σ = 0.02) only: ≈ 5 σ at most
+  EXPECT_LT(std::sqrt(wc.squaredNorm() / wc.size()), 0.021);
+}
+
+TEST(Drift, ExactPolynomialWithContinuity) {
+  const Data d = make(3000, 0.0, 1);
+  fluxcal::DriftOptions options;
+  options.order = 3;
+  options.continuous = true;
+  options.whiten = false;
+  const auto m = fluxcal::fit_drift(d.temp, d.temp, d.w, options);
+  Eigen::VectorXd probe(2), probe_hi(2);
+  probe << -1e-12, 29.999999999999;
+  probe_hi << 0.0, 30.0;
+  const Eigen::VectorXd lo = m.evaluate(probe, probe), hi = m.evaluate(probe_hi, probe_hi);
+  EXPECT_NEAR(lo[0], hi[0], 1e-9);
+  EXPECT_NEAR(lo[1], hi[1], 1e-9);
+  EXPECT_NEAR((m.evaluate(d.temp, d.temp) - d.w).cwiseAbs().maxCoeff(), 0.0, 1e-9);
+}
+
+TEST(Drift, BadInput) {
+  const Data d = make(3000, 0.01, 2);
+  Eigen::VectorXd outside(1);
+  outside << 60.0;
+  const auto m = fluxcal::fit_drift(d.temp, d.temp, d.w);
+  EXPECT_THROW(m.evaluate(outside, outside), fluxcal::Error);
+  fluxcal::DriftOptions options;
+  options.breakpoints = {-20.0, 0.0, 30.0, 80.0, 90.0};  // the last range has no samples
+  EXPECT_THROW(fluxcal::fit_drift(d.temp, d.temp, d.w, options), fluxcal::Error);
+  options.breakpoints = {0.0, -20.0};
+  EXPECT_THROW(fluxcal::fit_drift(d.temp, d.temp, d.w, options), fluxcal::Error);
+}
+
+}  // namespace

@@ -1,0 +1,110 @@
+// kalman.hpp and fixed_kalman.hpp: the double filter's properties and the fixed-point filter against
+// golden vectors of its bit-exact Python integer model (fluxcal.oracle.kalman).
+#include <fluxcal/fixed_kalman.hpp>
+#include <fluxcal/kalman.hpp>
+
+#include <gtest/gtest.h>
+
+#include <random>
+
+#include "fixed_kalman_golden.inc"
+
+namespace {
+
+TEST(Kalman, TimeVaryingConvergesToSteadyState) {
+  Eigen::VectorXd a(3);
+  a << 0.6, -0.3, 0.2;
+  const fluxcal::ArKalman tv(a, 0.5, 0.3);
+  fluxcal::KalmanOptions options;
+  options.steady_state = true;
+  const fluxcal::ArKalman ss(a, 0.5, 0.3, options);
+  std::mt19937_64 rng(1);
+  std::normal_distribution<double> normal;
+  Eigen::VectorXd y(3000);
+  for (auto& v : y) v = normal(rng);
+  const auto r1 = tv.filter(y), r2 = ss.filter(y);
+  EXPECT_NEAR((r1.gain - r2.gain).cwiseAbs().maxCoeff(), 0.0, 1e-10);
+  // Once the gain has converged the two outputs coincide.
+  EXPECT_NEAR((r1.filtered.tail(1000) - r2.filtered.tail(1000)).cwiseAbs().maxCoeff(), 0.0, 1e-9);
+  // The stationary covariance solves P = A P Aᵀ + Q e1 e1ᵀ.
+  const Eigen::MatrixXd p = fluxcal::ar_stationary_covariance(a, 0.5);
+  Eigen::MatrixXd A = Eigen::MatrixXd::Zero(3, 3);
+  A.row(0) = a.transpose();
+  A(1, 0) = A(2, 1) = 1.0;
+  Eigen::MatrixXd rhs = A * p * A.transpose();
+  rhs(0, 0) += 0.5;
+  EXPECT_NEAR((rhs - p).cwiseAbs().maxCoeff(), 0.0, 1e-12);
+}
+
+TEST(Kalman, FromArFit) {
+  fluxcal::ArResult fit;
+  fit.order = 2;
+  fit.coefficients = Eigen::Vector2d(0.5, -0.2);
+  fit.sigma2 = 0.3;
+  const auto k = fluxcal::ArKalman::from_ar(fit);
+  EXPECT_EQ(k.order(), 2);
+  EXPECT_EQ(k.q(), 0.3);
+  EXPECT_EQ(k.r(), 0.3);  // R defaults to σ²
+  EXPECT_EQ(fluxcal::ArKalman::from_ar(fit, 0.01).r(), 0.01);
+  EXPECT_EQ(fluxcal::ArKalman::from_ar(fit, 0.0).r(), 0.0);
+  fit.order = 0;
+  fit.coefficients.resize(0);
+  EXPECT_THROW(fluxcal::ArKalman::from_ar(fit), fluxcal::Error);
+}
+
+TEST(Kalman, BadInput) {
+  EXPECT_THROW(fluxcal::ArKalman(Eigen::VectorXd(), 1.0, 1.0), fluxcal::Error);
+  EXPECT_THROW(fluxcal::ArKalman(Eigen::VectorXd::Constant(1, 0.5), -1.0, 1.0), fluxcal::Error);
+  EXPECT_THROW(fluxcal::ar_stationary_covariance(Eigen::VectorXd::Constant(1, 1.2), 1.0), fluxcal::Error);
+}
+
+TEST(FixedKalman, GoldenVectorsOfTheIntegerModel) {
+  ASSERT_EQ(kGoldenCases.size(), 3u);
+  for (const auto& g : kGoldenCases) {
+    SCOPED_TRACE(g.name);
+    fluxcal::FixedArKalmanCoefficients<8> c;
+    c.order = g.order;
+    c.format = {g.signal_frac_bits, g.coef_frac_bits, g.cov_frac_bits};
+    c.steady_state = g.steady_state;
+    c.q = g.q;
+    c.r = g.r;
+    for (int i = 0; i < g.order; ++i) {
+      c.a[i] = g.a[i];
+      c.gain[i] = g.gain[i];
+      for (int j = 0; j < g.order; ++j) c.p0[i * 8 + j] = g.p0[i * g.order + j];
+    }
+    fluxcal::FixedArKalman<8> f;
+    ASSERT_TRUE(f.configure(c));
+    std::vector<std::int32_t> out(g.input.size());
+    f.filter(g.input.data(), out.data(), static_cast<long>(out.size()));
+    EXPECT_EQ(out, g.output);
+    EXPECT_EQ(f.overflowed(), g.overflowed);
+  }
+}
+
+TEST(FixedKalman, SaturatesWithStickyFlag) {
+  fluxcal::FixedArKalmanCoefficients<2> c;
+  c.order = 1;
+  c.format = {30, 30, 30};
+  c.steady_state = true;
+  c.a[0] = 1 << 30;         // a = 1.0
+  c.gain[0] = 1 << 29;      // K = 0.5
+  fluxcal::FixedArKalman<2> f;
+  ASSERT_TRUE(f.configure(c));
+  const std::int32_t big = std::numeric_limits<std::int32_t>::max();
+  std::int32_t last = 0;
+  for (int i = 0; i < 100; ++i) last = f.step(big);
+  EXPECT_FALSE(f.overflowed());  // tracking +full scale from below stays in range
+  EXPECT_GT(last, big - 100);
+  last = f.step(std::numeric_limits<std::int32_t>::min());  // innovation ≈ −2 full scales
+  EXPECT_TRUE(f.overflowed());
+  EXPECT_GT(last, 0);  // clamped innovation: the output moved down by half the range, no wrap
+  f.reset();
+  EXPECT_TRUE(f.overflowed());  // sticky across reset
+  f.clear_overflow();
+  EXPECT_FALSE(f.overflowed());
+  c.order = 3;  // more than MaxOrder
+  EXPECT_FALSE(f.configure(c));
+}
+
+}  // namespace

@@ -1,0 +1,141 @@
+// timeseries.hpp: AR(p) by AIC and RLS, the statistical tests and their distributions.
+#include <fluxcal/timeseries.hpp>
+
+#include <gtest/gtest.h>
+
+#include <cmath>
+#include <random>
+
+namespace {
+
+Eigen::VectorXd ar_series(const std::vector<double>& a, int n, unsigned seed, double sigma = 1.0) {
+  std::mt19937_64 rng(seed);
+  std::normal_distribution<double> normal(0.0, sigma);
+  const int burn = 1000, p = static_cast<int>(a.size());
+  Eigen::VectorXd y = Eigen::VectorXd::Zero(n + burn);
+  for (int t = 0; t < n + burn; ++t) {
+    double v = normal(rng);
+    for (int i = 0; i < p && t - 1 - i >= 0; ++i) v += a[i] * y[t - 1 - i];
+    y[t] = v;
+  }
+  return y.tail(n);
+}
+
+TEST(TimeSeries, ArRecoversOrderAndCoefficients) {
+  const std::vector<double> a = {0.6, -0.3, 0.2};
+  const Eigen::VectorXd y = ar_series(a, 200000, 7);
+  fluxcal::ArOptions options;
+  options.max_order = 8;
+  const auto r = fluxcal::fit_ar(y, options);
+  ASSERT_EQ(r.order, 3);
+  for (int i = 0; i < 3; ++i) EXPECT_NEAR(r.coefficients[i], a[i], 0.01);  // se ≈ 1/√N ≈ 2e-3
+  EXPECT_NEAR(r.sigma2, 1.0, 0.01);
+  EXPECT_FALSE(r.order_at_maximum);
+  EXPECT_TRUE(r.whiteness.white);
+  EXPECT_EQ(r.aic.size(), 9);
+}
+
+TEST(TimeSeries, RlsWithoutForgettingIsBatchLeastSquares) {
+  const Eigen::VectorXd y = ar_series({0.5, -0.4}, 5000, 3);
+  fluxcal::ArOptions options;
+  options.order = 2;
+  const auto r = fluxcal::fit_ar(y, options);
+  Eigen::MatrixXd x(y.size() - 2, 2);
+  for (Eigen::Index t = 2; t < y.size(); ++t) x.row(t - 2) << y[t - 1], y[t - 2];
+  const Eigen::VectorXd batch = x.colPivHouseholderQr().solve(y.tail(y.size() - 2));
+  EXPECT_NEAR((r.coefficients - batch).cwiseAbs().maxCoeff(), 0.0, 1e-10);
+}
+
+TEST(TimeSeries, MaximumOrderIsReported) {
+  const Eigen::VectorXd y = ar_series({0.3, 0.2, 0.1, 0.1, 0.1, 0.1, 0.05}, 20000, 4);
+  fluxcal::ArOptions options;
+  options.max_order = 3;
+  const auto r = fluxcal::fit_ar(y, options);
+  EXPECT_EQ(r.order, 3);
+  EXPECT_TRUE(r.order_at_maximum);
+  EXPECT_FALSE(r.summary.warnings.empty());
+}
+
+TEST(TimeSeries, Distributions) {
+  EXPECT_NEAR(fluxcal::chi2_sf(3.841458820694124, 1), 0.05, 1e-12);
+  EXPECT_NEAR(fluxcal::chi2_sf(18.307038053275146, 10), 0.05, 1e-12);
+  EXPECT_NEAR(fluxcal::chi2_sf(2.0, 2), std::exp(-1.0), 1e-14);
+  EXPECT_NEAR(fluxcal::f1_sf(161.44763879758855, 1), 0.05, 1e-10);   // F(1,1) upper 5 %
+  EXPECT_NEAR(fluxcal::f1_sf(3.8414588206941245 * 1.0000000, 1e8), 0.05, 1e-6);  // → χ²(1)
+  EXPECT_NEAR(fluxcal::f1_sf(6.607890972, 50), 0.0132, 1e-3);
+}
+
+TEST(TimeSeries, ReverseArrangement) {
+  Eigen::VectorXd rising = Eigen::VectorXd::LinSpaced(400, 0.0, 1.0);
+  const auto r = fluxcal::reverse_arrangement(rising, 20);
+  EXPECT_EQ(r.arrangements, 0);
+  EXPECT_DOUBLE_EQ(r.expected, 95.0);
+  EXPECT_NEAR(r.variance, 20.0 * 45.0 * 19.0 / 72.0, 1e-12);
+  EXPECT_FALSE(r.stationary);
+  const auto w = fluxcal::reverse_arrangement(ar_series({}, 4000, 9), 20);
+  EXPECT_TRUE(w.stationary);
+}
+
+TEST(TimeSeries, NormalityAndLjungBox) {
+  const Eigen::VectorXd e = ar_series({}, 20000, 10);
+  const auto n = fluxcal::normality(e);
+  EXPECT_NEAR(n.skewness, 0.0, 0.05);
+  EXPECT_NEAR(n.kurtosis, 3.0, 0.1);
+  EXPECT_TRUE(fluxcal::ljung_box(e, 10).white);
+  EXPECT_FALSE(fluxcal::ljung_box(ar_series({0.3}, 20000, 10), 10).white);
+}
+
+TEST(TimeSeries, PreprocessDifferencesOnceOrTwice) {
+  std::mt19937_64 rng(3);
+  std::normal_distribution<double> normal;
+  const int n = 4000;
+  // A random walk: its first difference is white, one difference suffices.
+  Eigen::VectorXd walk(n);
+  double level = 5.0;
+  for (auto& v : walk) v = (level += normal(rng));
+  const auto r1 = fluxcal::preprocess(walk);
+  EXPECT_EQ(r1.differences, 1);
+  EXPECT_TRUE(r1.stationarity.stationary);
+  EXPECT_NEAR(r1.mean, walk.mean(), 1e-12);
+  ASSERT_EQ(r1.series.size(), n - 1);
+  EXPECT_NEAR(r1.series[10], walk[11] - walk[10], 1e-12);
+  // A quadratic trend on an integrated noise: the first difference rises (not stationary), the second
+  // difference minus its line is stationary.
+  Eigen::VectorXd quad(n);
+  double noise = 0.0;
+  for (int i = 0; i < n; ++i) {
+    const double t = static_cast<double>(i) / n;
+    quad[i] = 300.0 * t * t + (noise += 0.01 * normal(rng));
+  }
+  const auto r2 = fluxcal::preprocess(quad);
+  EXPECT_FALSE(r2.stationarity.stationary);
+  EXPECT_LT(r2.stationarity.u, -1.96);  // rising means: few reverse arrangements
+  EXPECT_EQ(r2.differences, 2);
+  EXPECT_TRUE(r2.stationarity_after.stationary);
+  EXPECT_EQ(r2.series.size(), n - 2);
+  EXPECT_TRUE(r2.summary.warnings.empty());
+  // A pure line has constant differences: nothing left to model.
+  Eigen::VectorXd line(100);
+  for (int i = 0; i < 100; ++i) line[i] = 0.5 * i;
+  EXPECT_THROW(fluxcal::preprocess(line), fluxcal::Error);
+  EXPECT_THROW(fluxcal::preprocess(Eigen::VectorXd::Constant(100, 1.5)), fluxcal::Error);
+  EXPECT_THROW(fluxcal::preprocess(walk.head(41)), fluxcal::Error);  // 20 sub-series need 42 samples
+}
+
+TEST(TimeSeries, BadInput) {
+  fluxcal::ArOptions options;
+  EXPECT_THROW(fluxcal::fit_ar(Eigen::VectorXd::Ones(1000), options), fluxcal::Error);   // constant
+  EXPECT_THROW(fluxcal::fit_ar(Eigen::VectorXd::LinSpaced(10, 0, 1), options), fluxcal::Error);  // short
+  Eigen::VectorXd y = ar_series({0.5}, 100, 1);
+  y[3] = std::nan("");
+  try {
+    fluxcal::fit_ar(y, options);
+    FAIL() << "NaN accepted";
+  } catch (const fluxcal::Error& e) {
+    EXPECT_NE(std::string(e.what()).find("sample 3"), std::string::npos);
+  }
+  options.forgetting = 1.5;
+  EXPECT_THROW(fluxcal::fit_ar(ar_series({0.5}, 100, 1), options), fluxcal::Error);
+}
+
+}  // namespace

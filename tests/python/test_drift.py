@@ -1,0 +1,160 @@
+"""fluxcal.drift on the simulated FOCT (truth known), against the NumPy oracle, and through the CLI."""
+import json
+
+import numpy as np
+import pytest
+
+from conftest import run_cli
+from fluxcal import drift, read_csv, sim, write_csv
+from fluxcal.oracle import drift as oracle
+
+RATED = 1000.0  # A: the simulated FOCT's rated current
+
+
+@pytest.fixture(scope="module")
+def foct():
+    return sim.foct_zero_bias(rng=np.random.default_rng(2016))
+
+
+@pytest.mark.parametrize("seed", [2016, 7])
+def test_pipeline_recovers_the_generating_orders_and_removes_the_drift(seed, foct):
+    s = foct if seed == 2016 else sim.foct_zero_bias(rng=np.random.default_rng(seed))
+    c = s.columns
+    model, report = drift.fit_pipeline(c["zero_bias"], c["temp"], c["temp_outside"], rated=RATED)
+    assert report["orders"] == [seg["order"] for seg in s.truth["segments"]]
+    assert report["drift_reduction"] >= 10.0
+    # Against the truth: the fitted drift follows the generating law to a few mA over the whole span.
+    truth = s.truth["drift"]["zero_bias"]
+    assert np.max(np.abs(model.evaluate(c["temp"]) - truth)) < 0.02
+    acc = report["accuracy"]
+    assert acc["met"] == all(p["ratio_error_percent"] <= p["limit_percent"] for p in acc["points"])
+    assert [p["limit_percent"] for p in acc["points"]] == [0.75, 0.35, 0.2, 0.2, 0.2]
+    # The compensated drift (noise averaged per level) meets 0.2S even at 1 % of rated current.
+    assert report["accuracy_drift"]["met"]
+    assert report["accuracy_drift"]["max_abs_residual"] < 0.075 * 0.1
+
+
+def test_other_phases_and_the_temperature_difference(foct):
+    c = foct.columns
+    for name in ("zero_bias_b", "zero_bias_c"):
+        # γ = 0.01 (seed 001's stricter level): at 0.05 an extra order is accepted at about the nominal
+        # false-positive rate (phase B's 0…30 °C range does so with this seed).
+        m = drift.fit_drift(c[name], c["temp"], significance=0.01)
+        assert [seg["order"] for seg in m.segments] == [2, 1, 3]
+        assert drift.drift_span(m.compensate(c[name], c["temp"]), c["temp"]) < 0.1 * drift.drift_span(c[name], c["temp"])
+    m = drift.fit_drift(c["zero_bias"], c["temp"], c["temp_outside"], regressor="difference", max_order=2)
+    diff = c["temp"] - c["temp_outside"]
+    assert m.regressor == "difference"
+    np.testing.assert_allclose(m.evaluate(c["temp"], c["temp_outside"]),
+                               [np.polynomial.polynomial.polyval(d, m.segments[_segment(t)]["coefficients"])
+                                for d, t in zip(diff[:200], c["temp"][:200])] + list(m.evaluate(c["temp"], c["temp_outside"])[200:]),
+                               rtol=1e-12)
+    with pytest.raises(ValueError, match="temp_outside"):
+        drift.fit_drift(c["zero_bias"], c["temp"], regressor="difference")
+
+
+def _segment(t):
+    return 0 if t < 0 else (1 if t < 30 else 2)
+
+
+@pytest.mark.parametrize("whiten", [True, False])
+def test_matches_oracle(whiten, foct):
+    c = foct.columns
+    w = c["zero_bias"][::3]  # a thinned copy keeps the oracle quick
+    t = c["temp"][::3]
+    got = drift.fit_drift(w, t, whiten=whiten, significance=0.01)
+    ref, ar = oracle.fit_drift(t, t, w, significance=0.01, whiten=whiten)
+    np.testing.assert_allclose(got.settings["noise_ar"], ar, atol=1e-8)
+    for g, r in zip(got.segments, ref):
+        assert g["order"] == r["order"]
+        np.testing.assert_allclose(g["coefficients"], r["coefficients"], rtol=1e-6, atol=1e-9)
+
+
+def test_balancing_and_continuity(foct):
+    c = foct.columns
+    m = drift.fit_drift(c["zero_bias"], c["temp"], continuous=True)
+    for left, right in zip(m.segments[:-1], m.segments[1:]):
+        b = left["range"][1]
+        assert np.polynomial.polynomial.polyval(b, left["coefficients"]) == pytest.approx(
+            np.polynomial.polynomial.polyval(b, right["coefficients"]), abs=1e-9)
+    # Balancing the columns cuts the condition number of the cubic over 30…50 °C by orders of magnitude
+    # (it cannot remove the collinearity of 1, T, T², T³ on a range away from 0: ≈ 4e3 remains).
+    cubic = m.segments[2]
+    assert cubic["order"] == 3
+    assert cubic["condition_number"] < 1e-3 * np.linalg.cond(np.vander(np.linspace(30, 50, 100), 4))
+
+
+def test_json_round_trip(tmp_path, foct):
+    c = foct.columns
+    m = drift.fit_drift(c["zero_bias"], c["temp"])
+    back = drift.DriftModel.load(m.save(tmp_path / "m.json"))
+    np.testing.assert_array_equal(back.compensate(c["zero_bias"], c["temp"]), m.compensate(c["zero_bias"], c["temp"]))
+
+
+def test_bad_input(foct):
+    c = foct.columns
+    m = drift.fit_drift(c["zero_bias"], c["temp"])
+    with pytest.raises(ValueError, match="outside every range"):
+        m.compensate([0.1, 0.2], [25.0, 61.0])
+    with pytest.raises(ValueError, match=r"range \[30, 50\]: 0 samples"):
+        drift.fit_drift(c["zero_bias"][c["temp"] < 30], c["temp"][c["temp"] < 30])
+    w = c["zero_bias"].copy()
+    w[5] = np.nan
+    with pytest.raises(ValueError, match="sample 5"):
+        drift.fit_drift(w, c["temp"])
+    with pytest.raises(ValueError, match="constant"):
+        drift.fit_pipeline(np.full(1000, 0.3), np.linspace(-20, 50, 1000))
+    with pytest.raises(ValueError, match="zero_bias: sample 5 is nan"):
+        drift.fit_pipeline(w, c["temp"])
+    t = c["temp"].copy()
+    t[9] = np.inf
+    with pytest.raises(ValueError, match="temp: sample 9 is inf"):
+        drift.fit_pipeline(c["zero_bias"], t)
+    with pytest.raises(ValueError, match="need at least"):  # too short for the stationarity test and AR fit
+        drift.fit_pipeline(c["zero_bias"][:30], c["temp"][:30])
+    # Samples outside every range: the fit leaves them out (with a warning), compensation refuses them.
+    hot = c["temp"] + 5.0
+    m_hot = drift.fit_drift(c["zero_bias"], hot)
+    assert any("outside every temperature range" in w for w in m_hot.summary["warnings"])
+    with pytest.raises(ValueError, match="outside every range"):
+        m_hot.compensate(c["zero_bias"], hot)
+    with pytest.raises(ValueError, match="accuracy_class"):
+        drift.accuracy([0.1], RATED, "0.1")
+    with pytest.raises(ValueError, match="not a drift model"):
+        drift.DriftModel.from_dict({"segments": [{"order": 1}]})
+
+
+def test_cli_fit_and_apply(tmp_path, foct):
+    c = foct.columns
+    src = write_csv(tmp_path / "foct.csv", {k: c[k] for k in ("t", "zero_bias", "temp", "temp_outside")},
+                    units=foct.units)
+    model_path, out = tmp_path / "model.json", tmp_path / "out.csv"
+    run = run_cli("drift", "fit", src, "-o", model_path, "--rated", RATED)
+    assert run.returncode == 0, run.stderr
+    assert "class 0.2S" in run.stdout
+    data = json.loads(model_path.read_text())
+    assert [s["order"] for s in data["segments"]] == [2, 1, 3]
+    assert all(set(s) >= {"range", "order", "coefficients"} for s in data["segments"])
+    assert data["segments"][0]["range"] == [-20.0, 0.0]
+    assert data["ar"]["order"] >= 1 and "kalman" in data
+    run = run_cli("drift", "apply", model_path, src, "-o", out)
+    assert run.returncode == 0, run.stderr
+    rec = read_csv(out)
+    assert list(rec.columns)[:4] == ["t", "zero_bias", "temp", "temp_outside"]
+    expected = drift.DriftModel.load(model_path).compensate(rec.columns["zero_bias"], rec.columns["temp"])
+    np.testing.assert_allclose(rec.columns["zero_bias_compensated"], expected, rtol=1e-9, atol=1e-9)
+    # Another phase through --column: the model remembers it, apply writes <column>_compensated.
+    src_b = write_csv(tmp_path / "foct_b.csv", {k: c[k] for k in ("t", "zero_bias_b", "temp")}, units=foct.units)
+    run = run_cli("drift", "fit", src_b, "-o", tmp_path / "b.json", "--column", "zero_bias_b", "--significance", "0.01")
+    assert run.returncode == 0, run.stderr
+    assert [s["order"] for s in json.loads((tmp_path / "b.json").read_text())["segments"]] == [2, 1, 3]
+    run = run_cli("drift", "apply", tmp_path / "b.json", src_b, "-o", tmp_path / "b.csv")
+    assert run.returncode == 0, run.stderr
+    rec_b = read_csv(tmp_path / "b.csv")
+    comp_b = rec_b.columns["zero_bias_b_compensated"]
+    assert drift.drift_span(comp_b, c["temp"]) < 0.1 * drift.drift_span(c["zero_bias_b"], c["temp"])
+    run = run_cli("drift", "fit", src_b, "-o", tmp_path / "x.json")  # no zero_bias column
+    assert run.returncode == 2 and "no column 'zero_bias'" in run.stderr
+    bad = write_csv(tmp_path / "bad.csv", {"t": [0.0, 1.0], "zero_bias": [0.1, 0.2], "temp": [20.0, 70.0]})
+    run = run_cli("drift", "apply", model_path, bad, "-o", tmp_path / "x.csv")
+    assert run.returncode == 2 and "outside every range" in run.stderr
