@@ -20,8 +20,14 @@ test: install cpp
 	$(PY) -m pytest -q
 
 bench: install cpp
-	$(BUILD)/bench/bench_ellipsoid --benchmark_min_time=0.5
+	for b in ellipsoid twostep refine positions cable kalman; do \
+	  $(BUILD)/bench/bench_$$b --benchmark_min_time=0.5 || exit 1; done
 	$(PY) bench/ellipsoid.py
+	$(PY) bench/solvers.py
+	$(PY) bench/positions.py
+	$(PY) bench/kalman.py
+	$(PY) bench/cable_paper.py build/cable_figs
+	$(PY) bench/diagnose.py --real ../shared/data/real --timing
 
 # Debian packages: only the missing ones, without recommends (Ceres would pull ~180 MB of GraphBLAS).
 deps:
