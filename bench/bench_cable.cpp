@@ -3,9 +3,9 @@
 //   BM_CableSolveWarm   one snapshot of a 2-core cable (4 sensors at 90° on 10 mm, conductors at
 //                       (−1.7, 0.4) and (2.3, 0.1) mm, ±5 A, noise 1e-8 T), warm-started from positions
 //                       0.2 mm off (what a continuous measurement has from its previous snapshot):
-//                       one Ceres solve + residuals + covariance.
-//   BM_CableSolveWarmDense  the same with options.dense_solver (fluxcal's dense Levenberg–Marquardt
-//                       instead of Ceres: no per-solve set-up).
+//                       one dense Levenberg–Marquardt solve (the default for a warm start) + residuals
+//                       + covariance.
+//   BM_CableSolveWarmCeres  the same refined by Ceres (options.refiner = ceres).
 //   BM_CableSolveCold   the same snapshot from the grid initialisation (9 points per diameter, 6 starts).
 //   BM_CableField       the forward model alone (4 sensors, 2 conductors).
 #include "fluxcal/cable.hpp"
@@ -48,15 +48,15 @@ void BM_CableSolveWarm(benchmark::State& state) {
 }
 BENCHMARK(BM_CableSolveWarm)->Unit(benchmark::kMicrosecond);
 
-void BM_CableSolveWarmDense(benchmark::State& state) {
+void BM_CableSolveWarmCeres(benchmark::State& state) {
   const Problem& p = problem();
   fluxcal::CableSolveOptions o;
   o.initial_positions = p.truth;
   o.initial_positions.array() += 0.2e-3;
-  o.dense_solver = true;
+  o.refiner = fluxcal::CableSolveOptions::Refiner::ceres;
   for (auto _ : state) benchmark::DoNotOptimize(fluxcal::solve_cable(p.ring, p.readings, o));
 }
-BENCHMARK(BM_CableSolveWarmDense)->Unit(benchmark::kMicrosecond);
+BENCHMARK(BM_CableSolveWarmCeres)->Unit(benchmark::kMicrosecond);
 
 void BM_CableSolveCold(benchmark::State& state) {
   const Problem& p = problem();

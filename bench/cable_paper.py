@@ -178,7 +178,7 @@ def timing(repeat):
     readings = ring.field(pos, cur) + 1e-8 * rig_rng.standard_normal((4, 2))
     start = pos + 0.2e-3
     ours = lambda: ring.solve(readings, initial_positions=start)  # noqa: E731
-    dense = lambda: ring.solve(readings, initial_positions=start, dense_solver=True)  # noqa: E731
+    ceres = lambda: ring.solve(readings, initial_positions=start, refiner="ceres")  # noqa: E731
     cold = lambda: ring.solve(readings)  # noqa: E731
     k = MU0_OVER_2PI / ring.radius_m
 
@@ -198,15 +198,15 @@ def timing(repeat):
     s = scipy_trf()
     agree = np.abs(s.x[:4] * ring.radius_m - ours().positions.ravel()).max()
     t_ours, t_cold = best_time(ours, repeat), best_time(cold, max(5, repeat // 20))
-    t_dense = best_time(dense, repeat)
+    t_ceres = best_time(ceres, repeat)
     t_trf, t_lm = best_time(scipy_trf, repeat), best_time(scipy_lm, repeat)
     print(f"\n4. Single-snapshot solve from Python (best of {repeat}; 2 conductors, 4 sensors, warm start 0.2 mm off)")
-    print(f"   fluxcal Ring.solve warm          {t_ours * 1e6:9.1f} µs")
-    print(f"   fluxcal Ring.solve warm, dense   {t_dense * 1e6:9.1f} µs   (dense_solver=True)")
+    print(f"   fluxcal Ring.solve warm          {t_ours * 1e6:9.1f} µs   (default: dense Levenberg–Marquardt)")
+    print(f"   fluxcal Ring.solve warm, Ceres   {t_ceres * 1e6:9.1f} µs   (refiner='ceres')")
     print(f"   fluxcal Ring.solve cold (grid)   {t_cold * 1e6:9.1f} µs")
     print(f"   SciPy least_squares trf (bounds) {t_trf * 1e6:9.1f} µs   ratio {t_trf / t_ours:.1f}×")
     print(f"   SciPy least_squares lm           {t_lm * 1e6:9.1f} µs   ratio {t_lm / t_ours:.1f}×")
-    print(f"   (ratios against the dense path: trf {t_trf / t_dense:.1f}×, lm {t_lm / t_dense:.1f}×)")
+    print(f"   (ratios against the Ceres path: trf {t_trf / t_ceres:.1f}×, lm {t_lm / t_ceres:.1f}×)")
     print(f"   (same residuals in normalised units, analytic Jacobian from fluxcal; positions agree to {agree:.2g} m)")
 
 

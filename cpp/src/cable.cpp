@@ -474,8 +474,11 @@ CableSolution solve_cable(const CableRing& ring, const Eigen::Ref<const Eigen::M
   Eigen::MatrixXd best_cur;  // nc × S
   RunInfo best_run;
   int tried = 0;
+  const bool warm = opt.initial_positions.rows() > 0;
+  const bool dense = opt.refiner == CableSolveOptions::Refiner::dense ||
+                     (opt.refiner == CableSolveOptions::Refiner::automatic && warm);
   std::vector<std::unique_ptr<SnapshotCost>> costs;  // for the dense solver
-  if (opt.dense_solver) {
+  if (dense) {
     costs.reserve(static_cast<std::size_t>(S));
     for (Eigen::Index s = 0; s < S; ++s) costs.push_back(std::make_unique<SnapshotCost>(f, Rn.col(s).data(), n, zs));
   }
@@ -494,7 +497,7 @@ CableSolution solve_cable(const CableRing& ring, const Eigen::Ref<const Eigen::M
       cur = reduce(G, zs).colPivHouseholderQr().solve(Rn);
     }
     RunInfo run;
-    if (opt.dense_solver) {
+    if (dense) {
       run = dense_lm(costs, pos, cur, n, bore, opt);
     } else {
       ceres::Problem::Options po;

@@ -324,6 +324,18 @@ double best_heading(const Eigen::Vector3d& y, const Eigen::Matrix3d& KLt, const 
   return 0.5 * (a + b);
 }
 
+// Tight stopping rules: the problems are small, and the tests hold the answers closely to the oracle.
+ceres::Solver::Options tight_solver_options(ceres::LinearSolverType linear_solver, int max_iterations) {
+  ceres::Solver::Options so;
+  so.linear_solver_type = linear_solver;
+  so.max_num_iterations = max_iterations;
+  so.function_tolerance = 1e-15;
+  so.gradient_tolerance = 1e-15;
+  so.parameter_tolerance = 1e-13;
+  so.num_threads = 1;
+  return so;
+}
+
 }  // namespace
 
 Eigen::Vector3d local_up(Frame frame) {
@@ -586,15 +598,9 @@ PositionsResult calibrate_positions(const SamplesRef& outputs, const SamplesRef&
   if (!options.estimate_yaw)
     for (auto& y : yp) problem.SetParameterBlockConstant(&y);
   if (!options.estimate_inclination) problem.SetParameterBlockConstant(&inclination);
-  ceres::Solver::Options so;
   // Per-position parameters (heading, levelling correction) are eliminated first (Schur complement,
   // as for points in bundle adjustment): the reduced system has only U0, K and the dip.
-  so.linear_solver_type = ceres::DENSE_SCHUR;
-  so.max_num_iterations = options.max_iterations;
-  so.function_tolerance = 1e-15;
-  so.gradient_tolerance = 1e-15;
-  so.parameter_tolerance = 1e-13;
-  so.num_threads = 1;
+  ceres::Solver::Options so = tight_solver_options(ceres::DENSE_SCHUR, options.max_iterations);
   ceres::Solver::Summary summary;
   // A fresh ordering for every solve: Ceres drops constant blocks from the ordering it is given.
   auto solve = [&]() {
@@ -816,13 +822,7 @@ AccelerometerResult calibrate_accelerometer(const SamplesRef& readings, const Ac
                              nullptr, b, t);
   }
   if (!misalignment) problem.SetManifold(t, new ceres::SubsetManifold(6, {1, 2, 4}));
-  ceres::Solver::Options so;
-  so.linear_solver_type = ceres::DENSE_QR;
-  so.max_num_iterations = options.max_iterations;
-  so.function_tolerance = 1e-15;
-  so.gradient_tolerance = 1e-15;
-  so.parameter_tolerance = 1e-13;
-  so.num_threads = 1;
+  ceres::Solver::Options so = tight_solver_options(ceres::DENSE_QR, options.max_iterations);
   ceres::Solver::Summary summary;
   ceres::Solve(so, &problem, &summary);
 

@@ -22,6 +22,10 @@ fluxcal::CableRing make_ring(const Eigen::VectorXd& angles, double radius, const
 
 void bind_cable(py::module_& m) {
   using fluxcal::CableSolveOptions;
+  py::enum_<CableSolveOptions::Refiner>(m, "CableRefiner")
+      .value("automatic", CableSolveOptions::Refiner::automatic)
+      .value("ceres", CableSolveOptions::Refiner::ceres)
+      .value("dense", CableSolveOptions::Refiner::dense);
   py::class_<CableSolveOptions>(m, "CableSolveOptions")
       .def(py::init<>())
       .def_readwrite("n_conductors", &CableSolveOptions::n_conductors)
@@ -33,7 +37,7 @@ void bind_cable(py::module_& m) {
       .def_readwrite("gradient_tolerance", &CableSolveOptions::gradient_tolerance)
       .def_readwrite("parameter_tolerance", &CableSolveOptions::parameter_tolerance)
       .def_readwrite("dogleg", &CableSolveOptions::dogleg)
-      .def_readwrite("dense_solver", &CableSolveOptions::dense_solver)
+      .def_readwrite("refiner", &CableSolveOptions::refiner)
       .def_readwrite("noise_sigma", &CableSolveOptions::noise_sigma)
       .def_readwrite("max_position_sigma", &CableSolveOptions::max_position_sigma)
       .def_readwrite("max_current_relative_sigma", &CableSolveOptions::max_current_relative_sigma)

@@ -114,7 +114,8 @@ class Ring:
 
         settings (defaults in cable.hpp): grid_points=9, starts=6, max_iterations=100, noise_sigma=1e-8 (T;
         ≤ 0 = estimate from the residuals), max_position_sigma=1e-4 (m), max_current_relative_sigma=0.05,
-        misfit_ratio=5, dense_solver=False (True: fluxcal's dense Levenberg–Marquardt instead of Ceres, for warm starts).
+        misfit_ratio=5, refiner="automatic" ("ceres", or "dense": fluxcal's dense Levenberg–Marquardt on the same
+        residuals; "automatic" = dense for a warm start, Ceres for the multi-start from the grid).
         `initial_positions` (n, 2) warm-starts the solver (no grid). Raises ValueError on NaN readings,
         too few sensors for the unknowns, or a start outside the bore."""
         arr = np.asarray(readings, dtype=float)
@@ -131,6 +132,11 @@ class Ring:
             options.initial_positions = _positions(initial_positions)
         if initial_currents is not None:
             options.initial_currents = np.atleast_2d(np.asarray(initial_currents, dtype=float))
+        if isinstance(settings.get("refiner"), str):
+            names = _core.CableRefiner.__members__
+            if settings["refiner"] not in names:
+                raise ValueError(f"refiner: {settings['refiner']!r} is not one of {', '.join(names)}")
+            settings = {**settings, "refiner": names[settings["refiner"]]}
         set_options(options, settings, "Ring.solve")
         r = _core.solve_cable(*self._args(), arr.reshape(arr.shape[0], -1), options)
         currents = np.asarray(r["currents"])

@@ -140,14 +140,18 @@ TEST(Cable, DenseSolverAgreesWithCeres) {
   std::normal_distribution<double> g(0.0, 1e-8);
   for (int k = 0; k < 8; ++k) R(0, k) += g(rng);
   fluxcal::CableSolveOptions o;
-  const auto ceres_cold = fluxcal::solve_cable(ring, R, o);
-  o.dense_solver = true;
+  const auto ceres_cold = fluxcal::solve_cable(ring, R, o);  // automatic: Ceres from the grid
+  o.refiner = fluxcal::CableSolveOptions::Refiner::dense;
   const auto dense_cold = fluxcal::solve_cable(ring, R, o);
   o.initial_positions = p;
   o.initial_positions.array() += 0.2e-3;
+  o.refiner = fluxcal::CableSolveOptions::Refiner::automatic;  // a warm start: the dense solver
   const auto dense_warm = fluxcal::solve_cable(ring, R, o);
+  o.refiner = fluxcal::CableSolveOptions::Refiner::ceres;
+  const auto ceres_warm = fluxcal::solve_cable(ring, R, o);
   EXPECT_LT((dense_cold.positions - ceres_cold.positions).cwiseAbs().maxCoeff(), 1e-10);
   EXPECT_LT((dense_warm.positions - ceres_cold.positions).cwiseAbs().maxCoeff(), 1e-10);
+  EXPECT_LT((ceres_warm.positions - ceres_cold.positions).cwiseAbs().maxCoeff(), 1e-10);
   EXPECT_LT((dense_warm.currents - ceres_cold.currents).cwiseAbs().maxCoeff(), 1e-7);
   EXPECT_TRUE(dense_warm.summary.converged) << dense_warm.summary.message;
 }
