@@ -9,7 +9,7 @@ import numpy as np
 
 from . import __version__, cmake_dir
 from .calibration import Calibration
-from .io import read_csv, write_csv
+from .io import Recording, read_csv, read_recording, write_csv, write_recording
 from .pipeline import METHODS, calibrate
 
 def _spread(values: np.ndarray) -> float:
@@ -30,6 +30,9 @@ def _report(cal: Calibration, raw: np.ndarray, out=sys.stdout) -> None:
           f"{', '.join(f'{v:.2f}' for v in s['direction_eigenvalues'])} (1/3 each = full sphere)", file=out)
     if "method" in s:
         print(f"  method                {s['method']}", file=out)
+    if "held_out_rms" in s:
+        print(f"  held-out vector RMS   {s['held_out_rms']:.6g} {cal.units}   (fit on the first half, "
+              "|h - reference| on the second)", file=out)
     if s.get("noise_sigma"):
         print(f"  noise σ (estimated)   {s['noise_sigma']:.4g} {cal.units}".rstrip(), file=out)
     if "standard_errors" in s:
@@ -41,11 +44,25 @@ def _report(cal: Calibration, raw: np.ndarray, out=sys.stdout) -> None:
         print(f"warning: {w}", file=out)
 
 
+def _held_out_rms(raw, reference, units) -> float:
+    """Vector-fit check on data the fit did not see: fit the first half, RMS of |h − r| on the second."""
+    half = len(raw) // 2
+    first = calibrate(raw[:half], reference=reference[:half], units=units)
+    return float(np.sqrt(np.mean(np.sum((first.apply(raw[half:]) - reference[half:]) ** 2, axis=1))))
+
+
 def cmd_calibrate(args) -> int:
-    rec = read_csv(args.file, columns=args.columns, units=args.units)
+    rec = read_recording(args.file, columns=args.columns, units=args.units)
     raw = rec.samples()
-    cal = calibrate(raw, method=args.method, field_norm=args.field_norm, units=rec.field_units())
+    # attitude + local field in the recording (e.g. the airborne layout): the vector fit, unless a
+    # magnitude-only method is asked for
+    reference = rec.reference_field() if args.method in ("auto", "vector") else None
+    cal = calibrate(raw, method=args.method, field_norm=args.field_norm, reference=reference, units=rec.field_units())
     cal.metadata.update(source=str(args.file), columns=",".join(rec.mag_names()))
+    if reference is not None:
+        cal.metadata["reference"] = "attitude pitch,roll,yaw and local field igrf_n,igrf_e,igrf_d of the recording"
+        if len(raw) >= 40:
+            cal.summary["held_out_rms"] = _held_out_rms(raw, reference, cal.units)
     _report(cal, raw)
     if args.output:
         print(f"wrote {cal.save(args.output)}")
@@ -58,11 +75,12 @@ def cmd_calibrate(args) -> int:
 
 def cmd_apply(args) -> int:
     cal = Calibration.load(args.calibration)
-    rec = read_csv(args.file, columns=args.columns)
+    rec = read_recording(args.file, columns=args.columns)
     h = cal.apply(rec.samples())
     columns = {**rec.columns, "hx": h[:, 0], "hy": h[:, 1], "hz": h[:, 2]}
     units = {**rec.units, **({k: cal.units for k in ("hx", "hy", "hz")} if cal.units else {})}
-    write_csv(args.output, columns, units=units, metadata={**rec.metadata, "calibration": args.calibration})
+    write_recording(args.output, Recording(columns=columns, units=units, source=str(args.output),
+                                           metadata={**rec.metadata, "calibration": args.calibration}))
     print(f"wrote {args.output}: {len(rec)} rows, corrected columns hx,hy,hz "
           f"(|h| std/mean {100 * _spread(h):.3f} %)")
     return 0
@@ -89,8 +107,11 @@ def cmd_simulate(args) -> int:
 def cmd_diagnose(args) -> int:
     from .diagnose import diagnose
 
-    rec = read_csv(args.file, columns=args.columns, units=args.units)
-    reference = None
+    if args.model == "cable":
+        return _diagnose_cable(args)
+    rec = read_recording(args.file, columns=args.columns, units=args.units)
+    # a recording with attitude + local field gives the vector model its reference, unless told otherwise
+    reference = None if args.reference or args.model in ("ellipsoid", "scale") else rec.reference_field()
     if args.reference:
         names = args.reference.split(",")
         missing = [n for n in names if n not in rec.columns]
@@ -106,6 +127,15 @@ def cmd_diagnose(args) -> int:
         print(f"wrote {result.save_json(args.json)}")
     if args.report:
         print(f"wrote {result.report(args.report)}")
+    return 0
+
+
+def cmd_export_c(args) -> int:
+    from .export_c import export_c
+
+    cal = Calibration.load(args.calibration)
+    print(export_c(cal, args.output, q_format=args.q_format, name=args.name, kalman=args.kalman,
+                   source=Path(args.calibration).name).describe())
     return 0
 
 
@@ -266,6 +296,26 @@ def cmd_drift(args) -> int:
     return 0
 
 
+def _diagnose_cable(args) -> int:
+    """`fluxcal diagnose RING.csv --model cable`: the ring's sim-to-real gap (fluxcal.diagnose.diagnose_cable)."""
+    from . import cable
+    from .diagnose import diagnose_cable
+
+    ring = cable.read_ring_csv(args.file)
+    candidates = args.candidates.split(",") if args.candidates else None
+    result = diagnose_cable(ring["readings"], ring["ring"], currents=ring["currents_a"],
+                            rotations_deg=ring["rotations_deg"], positions=ring["positions_m"],
+                            calibration=args.calibration, noise_sigma=args.noise_sigma, candidates=candidates,
+                            fit_currents=args.fit_currents or None, alpha=args.alpha, progress=not args.quiet,
+                            source=str(args.file))
+    print(result.text())
+    if args.json:
+        print(f"wrote {result.save_json(args.json)}")
+    if args.report:
+        print(f"wrote {result.report(args.report)}")
+    return 0
+
+
 def build_parser() -> argparse.ArgumentParser:
     p = argparse.ArgumentParser(prog="fluxcal", description="Calibrate magnetic-field and current sensors.")
     p.add_argument("--version", action="version", version=f"fluxcal {__version__}")
@@ -273,10 +323,13 @@ def build_parser() -> argparse.ArgumentParser:
                    help="print the folder of fluxcalConfig.cmake (for C++: find_package(fluxcal))")
     sub = p.add_subparsers(dest="command")
 
-    c = sub.add_parser("calibrate", help="fit an ellipsoid calibration to a CSV recording")
+    columns_help = ("the three magnetometer columns (default mx,my,mz or x,y,z); for a table without a header "
+                    "one name per column; for .mat/.npz the N×3 matrix variable")
+    c = sub.add_parser("calibrate", help="calibrate a magnetometer from a recording (CSV, TSV, .npz, .mat, Parquet, "
+                                         "JSON)")
     c.add_argument("file")
     c.add_argument("--field-norm", type=float, default=None, help="known |field| in the units of h")
-    c.add_argument("--columns", default=None, help="the three magnetometer columns (default mx,my,mz)")
+    c.add_argument("--columns", default=None, help=columns_help)
     c.add_argument("--units", default=None, help="units of the readings when the file does not say")
     c.add_argument("--method", default="auto", choices=METHODS,
                    help="auto = consistent ellipsoid fit (ALS) + maximum-likelihood refinement (default)")
@@ -287,8 +340,9 @@ def build_parser() -> argparse.ArgumentParser:
     a = sub.add_parser("apply", help="correct a recording with a saved calibration")
     a.add_argument("calibration")
     a.add_argument("file")
-    a.add_argument("-o", "--output", required=True)
-    a.add_argument("--columns", default=None)
+    a.add_argument("-o", "--output", required=True, help="the format follows the extension (.csv .npz .mat "
+                                                         ".parquet .json)")
+    a.add_argument("--columns", default=None, help=columns_help)
     a.set_defaults(run=cmd_apply)
 
     s = sub.add_parser("simulate", help="write a simulated magnetometer recording (CSV)")
@@ -302,10 +356,14 @@ def build_parser() -> argparse.ArgumentParser:
 
     g = sub.add_parser("diagnose", help="find which unmodelled effect makes a recording depart from its model")
     g.add_argument("file", help="CSV with mx,my,mz and whatever of t, temp it has")
-    g.add_argument("--model", default=None, choices=["ellipsoid", "scale", "vector", "vector_scale"],
-                   help="base model (default: ellipsoid, or vector with --reference)")
+    g.add_argument("--model", default=None, choices=["ellipsoid", "scale", "vector", "vector_scale", "cable"],
+                   help="base model (default: ellipsoid, or vector with --reference; cable: a ring CSV)")
+    g.add_argument("--calibration", default=None,
+                   help="--model cable: ring calibration JSON (`fluxcal cable calibrate`); readings raw")
+    g.add_argument("--fit-currents", action="store_true",
+                   help="--model cable: fit currents per snapshot (i0, i1… only judge the error)")
     g.add_argument("--reference", default=None, help="three columns with the true field per reading (vector model)")
-    g.add_argument("--columns", default=None, help="the three magnetometer columns (default mx,my,mz)")
+    g.add_argument("--columns", default=None, help=columns_help)
     g.add_argument("--units", default=None, help="units of the readings when the file does not say")
     g.add_argument("--field-norm", type=float, default=None, help="known |field| (default: fitted)")
     g.add_argument("--noise-sigma", type=float, default=None,
@@ -337,6 +395,16 @@ def build_parser() -> argparse.ArgumentParser:
     kv.add_argument("--calibration", help="a calibration JSON from `fluxcal cable calibrate`")
     kv.add_argument("--conductors", type=int, default=2)
     k.set_defaults(run=cmd_cable)
+
+    x = sub.add_parser("export-c", help="write a calibration as a C header for firmware (float and Q-format)")
+    x.add_argument("calibration", help="a calibration JSON (fluxcal calibrate -o)")
+    x.add_argument("-o", "--output", required=True, help="the header to write (.h)")
+    x.add_argument("--q-format", default=None, help="int32 fixed-point format Qm.n, m + n = 31 (default: the "
+                                                    "smallest m that holds the calibration's range)")
+    x.add_argument("--name", default=None, help="C prefix of every name (default: the header's file name)")
+    x.add_argument("--kalman", default=None, help="also export a fixed-point AR Kalman filter: a JSON of "
+                                                  "fluxcal.export_c.save_kalman or a drift model (fluxcal drift fit)")
+    x.set_defaults(run=cmd_export_c)
 
     d = sub.add_parser("demo", help="simulate a magnetometer, calibrate it, print and plot the result")
     d.add_argument("-o", "--output", default="fluxcal-demo", help="folder for the outputs")
@@ -386,6 +454,13 @@ def build_parser() -> argparse.ArgumentParser:
     da.add_argument("-o", "--output", required=True)
     da.add_argument("--column", default=None, help="column to compensate (default: the one the model was fitted on)")
     dr.set_defaults(run=cmd_drift)
+    from .batch import add_batch_parser
+    from .io.serial import add_record_parser
+    from .live import add_live_parser
+
+    add_record_parser(sub)
+    add_live_parser(sub)
+    add_batch_parser(sub)
     return p
 
 

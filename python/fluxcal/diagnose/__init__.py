@@ -22,7 +22,21 @@ it, and how far the gap shrinks once that effect is modelled — proved on held-
    candidates and their alternatives, ΔBIC < 0, and a held-out improvement that a block t-test finds
    significant). Systematic effects are tried before
    noise models: a systematic effect predicts unseen regimes, correlated noise only the next sample.
+
+The cable-current ring (seed 000) has its own base model and candidates, with the same statistics:
+
+    from fluxcal.diagnose import diagnose_cable      # (fluxcal.diagnose itself is the function above)
+    d = diagnose_cable(readings, ring, currents=reference, rotations_deg=rot, positions=known_positions,
+                       calibration=ring_calibration)
+
+readings (snapshots, sensors, 2) in tesla against the ring's straight-infinite-conductor model (positions
+shared, reference currents or currents fitted per snapshot, the per-sensor calibration's gains and offsets
+refined); candidates `helical_lay`, `finite_length`, `sensor_position_error`, `z_leakage`
+(`fluxcal.sim.cable_effects`); held out: unseen rotations, the highest current level, later snapshots;
+downstream: the error of the currents measured on the held-out snapshots (A and %) and of the conductor
+positions. See `fluxcal.diagnose.cable`.
 """
+from .cable import CableDiagnosis, diagnose_cable
 from .core import MODELS, Diagnosis, diagnose, estimate_noise
 
-__all__ = ["MODELS", "Diagnosis", "diagnose", "estimate_noise"]
+__all__ = ["MODELS", "CableDiagnosis", "Diagnosis", "diagnose", "diagnose_cable", "estimate_noise"]

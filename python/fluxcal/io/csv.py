@@ -33,11 +33,12 @@ def read_csv(path, columns=None, units: str | None = None, delimiter: str = ",")
     """Read a CSV recording. `columns`: the three magnetometer columns (default mx,my,mz, or x,y,z).
     `units`: the field unit, when the file does not state it."""
     path = Path(path)
-    try:
-        text = path.read_text()
-    except (OSError, UnicodeDecodeError) as exc:
-        raise ValueError(f"{path}: cannot read ({exc})") from None
-    lines = text.splitlines()
+    return parse_csv(path, read_text(path).splitlines(), delimiter).choose(columns, units)
+
+
+def parse_csv(path, lines, delimiter=",", preamble_lines: int = 0) -> Recording:
+    """The CSV layout above from the file's lines; `preamble_lines` lines between the comments and the
+    header are left to the caller (fluxcal.io.real reads `key,value` preambles)."""
     metadata, unit_map = {}, {}
     i = 0
     while i < len(lines) and (lines[i].startswith("#") or not lines[i].strip()):
@@ -53,6 +54,7 @@ def read_csv(path, columns=None, units: str | None = None, delimiter: str = ",")
             else:
                 metadata[key] = value
         i += 1
+    i += preamble_lines
     if i >= len(lines):
         raise ValueError(f"{path}: no header line (expected column names such as t,mx,my,mz)")
     header_line = i + 1
@@ -67,28 +69,49 @@ def read_csv(path, columns=None, units: str | None = None, delimiter: str = ",")
     if _is_number(names[0]):
         raise ValueError(f"{path}, line {header_line}: the first line holds numbers, not column names; "
                          "add a header such as mx,my,mz")
-    body_start = i + 1
-    body = lines[body_start:]
-    keep = [k for k, line in enumerate(body) if line.strip()]
-    line_numbers = np.array([body_start + k + 1 for k in keep], dtype=int)
+    data, line_numbers, notes = parse_rows(path, lines, i + 1, names, delimiter)
+    if notes:  # comment lines among the data (e.g. a recorder's reconnection note) are kept, not parsed
+        metadata["notes"] = "; ".join(f"line {n}: {text}" for n, text in notes)
+    return Recording(columns={n: data[:, j] for j, n in enumerate(names)}, units=unit_map, metadata=metadata,
+                     source=str(path), line_numbers=line_numbers)
+
+
+def read_text(path) -> str:
+    """The file's text; undecodable bytes are an error naming their line and column."""
+    path = Path(path)
+    try:
+        raw = path.read_bytes()
+    except OSError as exc:
+        raise ValueError(f"{path}: cannot read ({exc.strerror or exc})") from None
+    try:
+        return raw.decode("utf-8-sig")
+    except UnicodeDecodeError as exc:
+        line = raw.count(b"\n", 0, exc.start) + 1
+        column = exc.start - (raw.rfind(b"\n", 0, exc.start) + 1) + 1
+        raise ValueError(f"{path}, line {line}, column {column} (character): byte 0x{raw[exc.start]:02x} is not "
+                         "text (UTF-8); a binary file, or garbage from a serial line?") from None
+
+
+def parse_rows(path, lines, start: int, names, delimiter, expected: str = "the header"):
+    """Parse lines[start:] as rows of len(names) numbers; blank lines are skipped and "#" lines returned
+    as notes. Returns (data N×len(names), the 1-based file line of each row, [(line, note)]); errors
+    name line and column (`expected`: where the column names came from, for those messages)."""
+    body = lines[start:]
+    keep = [k for k, line in enumerate(body) if line.strip() and not line.lstrip().startswith("#")]
+    notes = [(start + k + 1, line.lstrip().lstrip("#").strip()) for k, line in enumerate(body)
+             if line.lstrip().startswith("#")]
     if not keep:
         raise ValueError(f"{path}: header but no data rows")
+    line_numbers = np.array([start + k + 1 for k in keep], dtype=int)
     try:
         data = np.loadtxt(io.StringIO("\n".join(body[k] for k in keep)), delimiter=delimiter, ndmin=2,
-                          dtype=float)
+                          dtype=float, comments=None)
         if data.shape[1] != len(names):
             raise ValueError("column count")
     except ValueError:
-        _raise_parse_error(path, [body[k] for k in keep], line_numbers, names, delimiter)
+        _raise_parse_error(path, [body[k] for k in keep], line_numbers, names, delimiter, expected)
         raise  # unreachable: _raise_parse_error always raises
-    rec = Recording(columns={n: data[:, j] for j, n in enumerate(names)}, units=unit_map, metadata=metadata,
-                    source=str(path), line_numbers=line_numbers)
-    if columns is not None:
-        rec.select(columns.split(",") if isinstance(columns, str) else columns)
-    if units:
-        for n in rec.mag_names():
-            rec.units[n] = units
-    return rec
+    return data, line_numbers, notes
 
 
 def _is_number(text: str) -> bool:
@@ -99,13 +122,16 @@ def _is_number(text: str) -> bool:
         return False
 
 
-def _raise_parse_error(path, rows, line_numbers, names, delimiter):
+def _raise_parse_error(path, rows, line_numbers, names, delimiter, expected="the header"):
     """Find the first bad cell the slow way, so the message names line and column."""
     for row, line_no in zip(rows, line_numbers):
         cells = row.split(delimiter)
-        if len(cells) != len(names):
-            raise ValueError(f"{path}, line {line_no}: {len(cells)} fields, the header has {len(names)} "
-                             "(truncated or garbled line?)")
+        if len(cells) < len(names):
+            raise ValueError(f"{path}, line {line_no}: {len(cells)} fields, {expected} has {len(names)}: column "
+                             f"{names[len(cells)]!r} (field {len(cells) + 1}) is missing (truncated or garbled line?)")
+        if len(cells) > len(names):
+            raise ValueError(f"{path}, line {line_no}: {len(cells)} fields, {expected} has {len(names)}: field "
+                             f"{len(names) + 1} ({cells[len(names)].strip()!r}) has no column (garbled line?)")
         for cell, name in zip(cells, names):
             if not _is_number(cell):
                 what = "empty" if not cell.strip() else f"{cell.strip()!r} is not a number"
@@ -113,8 +139,10 @@ def _raise_parse_error(path, rows, line_numbers, names, delimiter):
     raise ValueError(f"{path}: could not parse the data rows")
 
 
-def write_csv(path, recording_or_columns, units=None, metadata=None, fmt: str = "%.10g") -> Path:
-    """Write a recording (or a dict of columns) with its units and metadata as comment lines."""
+def write_csv(path, recording_or_columns, units=None, metadata=None, fmt: str | None = None) -> Path:
+    """Write a recording (or a dict of columns) with its units and metadata as comment lines.
+    Numbers are written in the shortest form that reads back to the same double (nothing lost), unless
+    `fmt` (a printf format such as "%.10g") asks for fewer digits."""
     if isinstance(recording_or_columns, Recording):
         rec = recording_or_columns
         columns, units, metadata = rec.columns, {**rec.units, **(units or {})}, {**rec.metadata, **(metadata or {})}
@@ -129,5 +157,8 @@ def write_csv(path, recording_or_columns, units=None, metadata=None, fmt: str = 
     path = Path(path)
     with path.open("w") as f:
         f.write("\n".join(head) + "\n" + ",".join(names) + "\n")
-        np.savetxt(f, data, delimiter=",", fmt=fmt)
+        if fmt is not None:
+            np.savetxt(f, data, delimiter=",", fmt=fmt)
+        else:  # repr of a Python float is the shortest string that round-trips
+            f.writelines(",".join(map(repr, row)) + "\n" for row in data.tolist())
     return path

@@ -8,6 +8,10 @@ import numpy as np
 from .._arrays import first_nonfinite
 
 MAG_COLUMNS = ("mx", "my", "mz")
+# A recording that carries its attitude and the local field (north, east, down) gives a reference vector
+# per reading: the vector fit then determines the full matrix (fluxcal.attitude, fluxcal.calibrate).
+ATTITUDE_COLUMNS = ("pitch", "roll", "yaw")
+FIELD_NED_COLUMNS = ("igrf_n", "igrf_e", "igrf_d")
 
 
 @dataclass
@@ -61,9 +65,109 @@ class Recording:
                              f"(non-finite readings cannot be calibrated; remove or repair them)")
         return arr
 
+    def choose(self, columns=None, units: str | None = None) -> "Recording":
+        """Apply the reader options every format shares: `columns` (three names, or "a,b,c") selects the
+        magnetometer axes, `units` states their unit when the file does not."""
+        if columns is not None:
+            self.select(columns.split(",") if isinstance(columns, str) else columns)
+        if units:
+            for n in self.mag_names():
+                self.units[n] = units
+        return self
+
+    def reference_field(self):
+        """The true field of each reading in the sensor frame, N×3, when the recording carries attitude
+        (pitch, roll, yaw) and the local field (igrf_n, igrf_e, igrf_d); None otherwise. The attitude
+        convention is metadata "attitude_convention" (default "aerospace", see fluxcal.attitude)."""
+        if not all(c in self.columns for c in ATTITUDE_COLUMNS + FIELD_NED_COLUMNS):
+            return None
+        from ..attitude import reference_vectors
+
+        angle_units = {self.units.get(c, "deg") for c in ATTITUDE_COLUMNS}
+        if not angle_units <= {"deg", "rad"} or len(angle_units) > 1:
+            raise ValueError(f"{self.source}: attitude columns pitch, roll, yaw must all be in deg or all in rad "
+                             f"(units are {', '.join(sorted(angle_units))})")
+        field_units = {self.units.get(c, "") for c in FIELD_NED_COLUMNS}
+        if field_units != {self.field_units()}:
+            raise ValueError(f"{self.source}: the field columns {', '.join(FIELD_NED_COLUMNS)} are in "
+                             f"{', '.join(sorted(field_units)) or 'no stated unit'}, the magnetometer in "
+                             f"{self.field_units() or 'no stated unit'}; they must agree")
+        ned = np.column_stack([self.columns[c] for c in FIELD_NED_COLUMNS])
+        pitch, roll, yaw = (self.columns[c] for c in ATTITUDE_COLUMNS)
+        for name, values in zip(ATTITUDE_COLUMNS + FIELD_NED_COLUMNS, (pitch, roll, yaw, *ned.T)):
+            bad = np.flatnonzero(~np.isfinite(values))
+            if bad.size:
+                row = int(bad[0])
+                where = f"line {self.line_numbers[row]}" if self.line_numbers is not None else f"row {row}"
+                raise ValueError(f"{self.source}: {where}, column {name!r} is {values[row]} (non-finite)")
+        return reference_vectors(ned, pitch, roll, yaw, degrees=angle_units == {"deg"},
+                                 convention=str(self.metadata.get("attitude_convention", "aerospace")))
+
     def field_units(self) -> str:
         """The unit of the magnetometer columns ("" when the recording does not state it)."""
         units = {self.units.get(n, "") for n in self.mag_names()}
         if len(units) > 1:
             raise ValueError(f"{self.source}: magnetometer columns have different units {sorted(units)}")
         return units.pop()
+
+
+def recording_from_arrays(variables: dict, source: str, matrix: str | None = None) -> Recording:
+    """A Recording from named arrays of a file that fluxcal did not write (.mat, .npz, Parquet).
+
+    Rule: the magnetometer is the N×3 variable named `matrix`; else columns mx,my,mz (or x,y,z) when
+    vectors of those names exist; else the only N×3 variable (MATLAB magcal users keep one such matrix).
+    The chosen matrix becomes mx,my,mz; any other N×3 variable V becomes V_x, V_y, V_z; vectors of length N
+    are columns under their own names; scalars and strings go to the metadata; anything else is listed in
+    metadata["ignored_variables"] so that nothing disappears unmentioned.
+    """
+    vectors, matrices, metadata, ignored = {}, {}, {}, []
+    for name, value in variables.items():
+        if isinstance(value, str):
+            metadata[name] = value
+            continue
+        arr = np.asarray(value)
+        if arr.dtype.kind not in "biuf":
+            ignored.append(f"{name} ({arr.dtype.kind} {arr.shape})")
+        elif arr.size == 1 and arr.ndim <= 2 and name not in ("mx", "my", "mz", "x", "y", "z"):
+            metadata[name] = arr.item()
+        elif arr.ndim == 1 or (arr.ndim == 2 and 1 in arr.shape):
+            vectors[name] = arr.astype(float).ravel()
+        elif arr.ndim == 2 and arr.shape[1] == 3:
+            matrices[name] = arr.astype(float)
+        else:
+            hint = ", transposed?" if arr.ndim == 2 and arr.shape[0] == 3 else ""
+            ignored.append(f"{name} ({'×'.join(map(str, arr.shape))}{hint})")
+    listing = ", ".join(f"{n} ({'×'.join(map(str, np.shape(v)))})" for n, v in variables.items()
+                        if not isinstance(v, str)) or "none"
+    if matrix is not None:
+        if matrix not in matrices:
+            raise ValueError(f"{source}: no N×3 variable {matrix!r}; numeric variables are: {listing}")
+        chosen = matrix
+    elif any(all(c in vectors for c in names) for names in (MAG_COLUMNS, ("x", "y", "z"))):
+        chosen = None
+    elif len(matrices) == 1:
+        chosen = next(iter(matrices))
+    elif matrices:
+        raise ValueError(f"{source}: several N×3 variables ({', '.join(matrices)}); name the magnetometer "
+                         "one (--columns NAME, or matrix=NAME)")
+    else:
+        raise ValueError(f"{source}: no N×3 magnetometer matrix and no mx,my,mz vectors; variables are: {listing}"
+                         " (readings go one per row: a 3×N matrix must be transposed)")
+    n_rows = len(matrices[chosen]) if chosen else len(vectors["mx" if "mx" in vectors else "x"])
+    columns = {}
+    for name, arr in matrices.items():
+        if len(arr) != n_rows:
+            ignored.append(f"{name} ({arr.shape[0]}×3, not {n_rows} rows)")
+            continue
+        axes = MAG_COLUMNS if name == chosen else tuple(f"{name}_{a}" for a in "xyz")
+        columns.update(zip(axes, arr.T))
+    for name, arr in vectors.items():
+        if len(arr) == n_rows and name not in columns:
+            columns[name] = arr
+        else:
+            ignored.append(f"{name} (length {len(arr)}, not {n_rows})")
+    if chosen:
+        metadata["magnetometer_variable"] = chosen
+    if ignored:
+        metadata["ignored_variables"] = "; ".join(ignored)
+    return Recording(columns=columns, metadata=metadata, source=source)

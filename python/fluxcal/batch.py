@@ -1,0 +1,489 @@
+"""Fleet calibration: every recording in a folder calibrated as one Dask task, plus a fleet summary.
+
+    from fluxcal.batch import calibrate_fleet
+    result = calibrate_fleet("recordings/", "calibrations/", workers=4)       # a local Dask cluster
+    result = calibrate_fleet("recordings/", "calibrations/", scheduler="tcp://host:8786")
+    print(result.report())
+
+Each recording `<unit>.csv` gives `<out>/<unit>.json` (fluxcal.Calibration, written atomically). A unit
+that cannot be calibrated (unreadable file, NaN, planar readings, ...) is recorded with its message in
+`<out>/failures.json` and does not stop the batch. Re-running skips every unit whose calibration exists,
+is valid, and was made from the same recording bytes with the same settings. The fleet summary
+(`fleet_summary.csv`, one row per unit; `fleet_summary.json`, distributions and outlier units) is
+rewritten from all units, calibrated now or before.
+
+With a remote scheduler the workers need fluxcal installed and must see the same paths (a shared file
+system): tasks receive absolute paths and write the calibrations themselves. The local cluster starts
+its workers as new processes, so a script calling calibrate_fleet needs the usual
+`if __name__ == "__main__":` guard. Dask costs a few milliseconds per task: for small recordings (a few
+hundred readings, ~1 ms to calibrate) a plain loop over calibrate_unit is faster on one machine;
+bench/batch.py measures where the cluster pays off.
+"""
+from __future__ import annotations
+
+import argparse
+import csv
+import hashlib
+import importlib
+import json
+import logging
+import math
+import os
+import sys
+import time
+import uuid
+from collections import Counter
+from dataclasses import dataclass, field
+from datetime import datetime, timezone
+from pathlib import Path
+
+import numpy as np
+
+DEFAULT_PATTERN = "*.csv"
+OUTLIER_K = 5.0
+"""Default outlier threshold in robust standard deviations (1.4826·MAD). 5 rather than the usual 3.5:
+a fleet of thousands of units times a dozen quantities would flag about one good value in 2000 at 3.5
+for a Gaussian spread, at 5 about one in two million."""
+MIN_UNITS_FOR_OUTLIERS = 5  # below this a median/MAD says little about "the fleet"
+SUMMARY_FILES = ("fleet_summary.csv", "fleet_summary.json", "failures.json")
+
+# The per-unit quantities whose fleet distribution is summarised and screened for outliers.
+QUANTITIES = ("offset_x", "offset_y", "offset_z", "offset_norm", "scale_1", "scale_2", "scale_3", "field_norm",
+              "norm_std_over_mean", "residual_rms", "direction_coverage")
+DEFINITIONS = {
+    "offset_x, offset_y, offset_z": "offset b of h = A (m - b), reading units",
+    "offset_norm": "|b|, reading units",
+    "scale_1, scale_2, scale_3": "singular values of the sensor gain W = A^-1, largest first (dimensionless "
+                                 "when field_norm was given: 1 = nominal gain; otherwise det W = 1 and the overall "
+                                 "gain is field_norm, the fitted mean radius)",
+    "field_norm": "|h| the calibration maps to: the given --field-norm, or the fitted mean radius (reading units)",
+    "norm_std_over_mean": "residual spread: std/mean of |h| after correction",
+    "residual_rms": "RMS of the fit residuals, field units",
+    "direction_coverage": "fraction of the 96 direction bins the readings visit",
+}
+CSV_COLUMNS = ("unit", "status", "method", "units", "samples", "offset_x", "offset_y", "offset_z", "offset_norm",
+               "scale_1", "scale_2", "scale_3", "field_norm", "norm_std_over_mean", "residual_rms",
+               "direction_coverage", "coverage_ratio", "identifiable", "noise_sigma", "outlier", "source",
+               "warnings", "error")
+
+log = logging.getLogger(__name__)
+
+
+def _read(path):
+    """The one reader of the batch: any recording format fluxcal reads (by content)."""
+    from .io import read_recording
+
+    return read_recording(path)
+
+
+# -- one unit (runs on a worker) ---------------------------------------------------------------------
+def _digest(path: Path) -> str:
+    return hashlib.sha256(Path(path).read_bytes()).hexdigest()
+
+
+def _status(cal) -> str:
+    # Fits without a refinement ("als", "ls") carry no identifiability verdict: taken as identifiable.
+    return "ok" if cal.summary.get("identifiable", True) else "not_identifiable"
+
+
+def unit_row(unit: str, source, cal) -> dict:
+    """The fleet-summary row of one calibrated unit."""
+    s = cal.summary
+    gains = np.linalg.svd(np.linalg.inv(cal.matrix), compute_uv=False)  # sorted largest first
+    return {
+        "unit": unit, "status": _status(cal), "method": s.get("method", cal.model), "units": cal.units,
+        "samples": s.get("samples"),
+        "offset_x": float(cal.offset[0]), "offset_y": float(cal.offset[1]), "offset_z": float(cal.offset[2]),
+        "offset_norm": float(np.linalg.norm(cal.offset)),
+        "scale_1": float(gains[0]), "scale_2": float(gains[1]), "scale_3": float(gains[2]),
+        "field_norm": cal.field_norm, "norm_std_over_mean": s.get("norm_std_over_mean"),
+        "residual_rms": s.get("residual_rms"), "direction_coverage": s.get("direction_coverage"),
+        "coverage_ratio": s.get("coverage_ratio"), "identifiable": s.get("identifiable"),
+        "noise_sigma": s.get("noise_sigma"), "outlier": "", "source": str(source),
+        "warnings": "; ".join(s.get("warnings", [])), "error": "",
+    }
+
+
+def failure_row(unit: str, source, error: str) -> dict:
+    row = dict.fromkeys(CSV_COLUMNS, "")
+    row.update(unit=unit, status="failed", source=str(source), error=error)
+    return row
+
+
+def _message(path, exc: BaseException) -> str:
+    text = str(exc) or type(exc).__name__
+    # Readers already name the file; solver errors name only "samples": say which recording it was.
+    return text if str(path) in text else f"{path}: {text}"
+
+
+def calibrate_unit(path, out_path, method: str = "auto", field_norm: float | None = None) -> dict:
+    """Read one recording, calibrate it and write its calibration atomically. Never raises for a bad
+    unit: returns {"unit", "source", "status", "row" | "error", "seconds"}."""
+    from .pipeline import calibrate
+
+    path, out_path = Path(path), Path(out_path)
+    unit, start = path.stem, time.perf_counter()
+    try:
+        digest = _digest(path)
+        rec = _read(path)
+        cal = calibrate(rec.samples(), method=method, field_norm=field_norm, units=rec.field_units())
+        cal.metadata.update(unit=unit, source=str(path), source_sha256=digest, columns=",".join(rec.mag_names()),
+                            batch_settings=_settings(method, field_norm))
+        tmp = out_path.with_name(f".{out_path.name}.{os.getpid()}.tmp")
+        try:
+            cal.save(tmp)
+            os.replace(tmp, out_path)  # a reader never sees a half-written calibration
+        finally:
+            tmp.unlink(missing_ok=True)
+        return {"unit": unit, "source": str(path), "status": _status(cal), "row": unit_row(unit, path, cal),
+                "seconds": time.perf_counter() - start}
+    except Exception as exc:  # one bad unit must not stop the fleet
+        return {"unit": unit, "source": str(path), "status": "failed", "error": _message(path, exc),
+                "seconds": time.perf_counter() - start}
+
+
+def _settings(method, field_norm) -> dict:
+    return {"method": method, "field_norm": None if field_norm is None else float(field_norm)}
+
+
+def _already_done(json_path: Path, source: Path, settings: dict):
+    """The existing calibration of a unit if it is valid and made from this recording with these
+    settings, else None (and why)."""
+    from .calibration import Calibration
+
+    if not json_path.exists():
+        return None, "new"
+    try:
+        cal = Calibration.load(json_path)
+    except (ValueError, OSError):
+        return None, "invalid"
+    if cal.metadata.get("source_sha256") != _digest(source) or cal.metadata.get("batch_settings") != settings:
+        return None, "stale"
+    return cal, "done"
+
+
+# -- fleet statistics ---------------------------------------------------------------------------------
+def robust_spread(values) -> tuple[float, float, float]:
+    """(median, MAD, robust σ). Robust σ = 1.4826·MAD (the Gaussian σ); when over half the values are
+    identical (MAD 0) it falls back to 1.2533·mean absolute deviation (also σ for a Gaussian)."""
+    x = np.asarray(values, dtype=float)
+    median = float(np.median(x))
+    mad = float(np.median(np.abs(x - median)))
+    sigma = 1.4826 * mad if mad > 0 else 1.2533 * float(np.mean(np.abs(x - median)))
+    return median, mad, sigma
+
+
+def distribution(values) -> dict:
+    x = np.asarray(values, dtype=float)
+    median, mad, sigma = robust_spread(x)
+    p = np.percentile(x, [5, 25, 75, 95])
+    return {"n": int(x.size), "median": median, "mad": mad, "robust_sigma": sigma, "p5": float(p[0]),
+            "p25": float(p[1]), "p75": float(p[2]), "p95": float(p[3]), "min": float(x.min()), "max": float(x.max())}
+
+
+def fleet_statistics(rows: list, outlier_k: float = OUTLIER_K) -> tuple[dict, list]:
+    """Distributions of QUANTITIES over the identifiable units in the fleet's (most common) units, and
+    the outliers: |x − median| > outlier_k·robust σ, per quantity, each with its reason."""
+    ok = [r for r in rows if r["status"] == "ok"]
+    outliers = []
+    fleet_units = Counter(r["units"] for r in ok).most_common(1)[0][0] if ok else ""
+    for r in ok:
+        if r["units"] != fleet_units:
+            outliers.append({"unit": r["unit"], "quantity": "units", "value": r["units"], "reason":
+                             f"readings in {r['units'] or 'unstated units'}, the fleet's are in "
+                             f"{fleet_units or 'unstated units'}: left out of the distributions"})
+    same = [r for r in ok if r["units"] == fleet_units]
+    dist = {}
+    for q in QUANTITIES:
+        values = np.array([r[q] for r in same if r[q] is not None and np.isfinite(r[q])], dtype=float)
+        if values.size == 0:
+            continue
+        dist[q] = d = distribution(values)
+        if len(same) < MIN_UNITS_FOR_OUTLIERS or d["robust_sigma"] == 0:
+            continue
+        limit = outlier_k * d["robust_sigma"]
+        for r in same:
+            value = r[q]
+            if value is None or not np.isfinite(value) or abs(value - d["median"]) <= limit:
+                continue
+            deviation = (value - d["median"]) / d["robust_sigma"]
+            outliers.append({
+                "unit": r["unit"], "quantity": q, "value": value, "median": d["median"],
+                "robust_sigma": d["robust_sigma"], "deviation_sigmas": deviation,
+                "reason": f"{q} = {value:.6g} is {abs(deviation):.1f} robust σ {'above' if deviation > 0 else 'below'} "
+                          f"the fleet median {d['median']:.6g} (limit {outlier_k:g}·1.4826·MAD = {limit:.4g})"})
+    return dist, outliers
+
+
+# -- the batch ----------------------------------------------------------------------------------------
+@dataclass
+class FleetResult:
+    directory: Path
+    out_dir: Path
+    rows: list                      # one dict per unit (CSV_COLUMNS), sorted by unit
+    summary: dict                   # what fleet_summary.json holds
+    skipped: int = 0                # units whose calibration was already done
+    calibrated: int = 0             # tasks run in this call
+    seconds: float = 0.0            # from the first submission to the last result
+    startup_seconds: float = 0.0    # starting the local cluster / connecting to the scheduler
+    workers: int = 0
+    files: list = field(default_factory=list)
+
+    @property
+    def failures(self) -> list:
+        return [r for r in self.rows if r["status"] == "failed"]
+
+    def report(self) -> str:
+        c = self.summary["counts"]
+        rate = f", {self.calibrated / self.seconds:.1f} units/s" if self.calibrated and self.seconds > 0 else ""
+        lines = [f"fleet calibration of {self.directory} -> {self.out_dir}",
+                 f"  units {c['units']}: {c['ok']} ok, {c['not_identifiable']} not identifiable, {c['failed']} failed; "
+                 f"{self.calibrated} calibrated now, {self.skipped} skipped (already done)",
+                 f"  {self.seconds:.2f} s on {self.workers} worker{'s' * (self.workers != 1)}{rate} "
+                 f"(+ {self.startup_seconds:.2f} s to start or reach the cluster)"]
+        dist = self.summary["distribution"]
+        if dist:
+            units = self.summary["fleet_units"]
+            lines.append(f"  {'quantity':<20}{'median':>13}{'robust σ':>13}{'p5':>13}{'p95':>13}  ({units or 'units not stated'})")
+            for q, d in dist.items():
+                lines.append(f"  {q:<20}{d['median']:>13.6g}{d['robust_sigma']:>13.4g}{d['p5']:>13.6g}{d['p95']:>13.6g}")
+        k = self.summary["settings"]["outlier_k"]
+        outliers = self.summary["outliers"]
+        lines.append(f"outliers (|x - median| > {k:g}·1.4826·MAD): {len({o['unit'] for o in outliers}) or 'none'}")
+        lines += [f"  {o['unit']}: {o['reason']}" for o in outliers]
+        for r in self.rows:
+            if r["status"] == "not_identifiable":
+                lines.append(f"not identifiable: {r['unit']}: {r['warnings'] or 'the data do not determine every parameter'}")
+        if self.failures:
+            lines.append(f"failed: {len(self.failures)} (listed in {self.out_dir / 'failures.json'})")
+            lines += [f"  {r['unit']}: {r['error']}" for r in self.failures]
+        lines.append("wrote " + ", ".join(str(f) for f in self.files))
+        return "\n".join(lines)
+
+
+def _recordings(directory: Path, out_dir: Path, pattern: str) -> list:
+    ours = {out_dir / name for name in SUMMARY_FILES}  # never read our own summary back as a recording
+    paths = sorted(p for p in directory.glob(pattern) if p.is_file() and p not in ours)
+    if not paths:
+        raise ValueError(f"{directory}: no recordings matching {pattern!r}")
+    seen = {}
+    for p in paths:
+        if p.stem in seen:
+            raise ValueError(f"{directory}: {seen[p.stem].name} and {p.name} would both be unit {p.stem!r}; "
+                             f"rename one or narrow --pattern")
+        seen[p.stem] = p
+    return paths
+
+
+def _write_atomic(path: Path, text: str) -> Path:
+    tmp = path.with_name(f".{path.name}.{os.getpid()}.tmp")
+    try:
+        tmp.write_text(text)
+        os.replace(tmp, path)
+    finally:
+        tmp.unlink(missing_ok=True)
+    return path
+
+
+def _csv_text(rows) -> str:
+    import io
+
+    buf = io.StringIO()
+    writer = csv.DictWriter(buf, fieldnames=CSV_COLUMNS, lineterminator="\n")
+    writer.writeheader()
+    for r in rows:
+        writer.writerow({k: ("" if r.get(k) is None else r.get(k)) for k in CSV_COLUMNS})
+    return buf.getvalue()
+
+
+def _connect(workers, scheduler, dashboard_address):
+    """A Dask client and the cluster it owns (None for a remote scheduler)."""
+    from dask.distributed import Client, LocalCluster
+
+    if scheduler:
+        try:
+            return Client(scheduler, timeout="10s"), None
+        except (OSError, TimeoutError) as exc:
+            raise ValueError(f"scheduler {scheduler}: cannot connect ({exc})") from None
+    cluster = LocalCluster(n_workers=workers, threads_per_worker=1, processes=True, host="127.0.0.1",
+                           dashboard_address=dashboard_address, silence_logs=logging.ERROR)
+    return Client(cluster), cluster
+
+
+def calibrate_fleet(directory, out_dir, workers: int | None = None, scheduler: str | None = None,
+                    method: str = "auto", field_norm: float | None = None, pattern: str = DEFAULT_PATTERN,
+                    progress: bool = True, outlier_k: float = OUTLIER_K,
+                    dashboard_address: str | None = None) -> FleetResult:
+    """Calibrate every recording of `directory` matching `pattern`, one Dask task each, into `out_dir`.
+
+    `scheduler` (an address such as "tcp://host:8786") uses an existing Dask cluster; otherwise a
+    LocalCluster of `workers` single-threaded processes (default: one per core) is started and closed.
+    `method` and `field_norm` go to fluxcal.calibrate. Outliers: |x − median| > outlier_k·1.4826·MAD.
+    Raises ValueError for a missing or empty directory and bad settings; a unit's own failure is
+    recorded, never raised.
+    """
+    from .pipeline import METHODS
+
+    directory, out_dir = Path(directory).resolve(), Path(out_dir).resolve()
+    if not directory.is_dir():
+        raise ValueError(f"{directory}: no such directory")
+    if method not in METHODS or method == "vector":
+        raise ValueError(f"method: {method!r} is not one of {', '.join(m for m in METHODS if m != 'vector')} "
+                         f"(the vector fit needs reference fields a recording folder does not give)")
+    if field_norm is not None and not (math.isfinite(field_norm) and field_norm > 0):
+        raise ValueError(f"field_norm: {field_norm} must be a positive number")
+    if workers is not None and workers < 1:
+        raise ValueError(f"workers: {workers} must be at least 1")
+    if scheduler and workers is not None:
+        raise ValueError("workers: the number of workers is the remote scheduler's; give --workers or --scheduler")
+    paths = _recordings(directory, out_dir, pattern)
+    out_dir.mkdir(parents=True, exist_ok=True)
+
+    settings = _settings(method, field_norm)
+    rows, todo, why = {}, [], Counter()
+    for p in paths:
+        cal, state = _already_done(out_dir / f"{p.stem}.json", p, settings)
+        why[state] += 1
+        if cal is None:
+            todo.append(p)
+        else:
+            rows[p.stem] = unit_row(p.stem, p, cal)
+
+    n_workers, startup, seconds = 0, 0.0, 0.0
+    if todo:
+        from dask.distributed import as_completed
+        from tqdm import tqdm
+
+        start = time.perf_counter()
+        client, cluster = _connect(workers, scheduler, dashboard_address)
+        try:
+            if cluster is None:
+                try:  # a remote scheduler without workers would leave every task waiting
+                    client.wait_for_workers(1, timeout=60)
+                except TimeoutError:
+                    raise ValueError(f"scheduler {scheduler}: no workers joined within 60 s") from None
+            n_workers = len(client.scheduler_info()["workers"])
+            startup = time.perf_counter() - start
+            # By module name, so workers import it even when this file runs as __main__ (python -m).
+            task = importlib.import_module("fluxcal.batch").calibrate_unit
+            # A fresh key per submission: a scheduler that still remembers an earlier run must not
+            # hand back that run's result instead of writing this one.
+            # client.map: one message to the scheduler for all tasks instead of one per task.
+            submitted = client.map(task, [str(p) for p in todo], [str(out_dir / f"{p.stem}.json") for p in todo],
+                                   method=method, field_norm=field_norm,
+                                   key=[f"fluxcal-calibrate-{p.stem}-{uuid.uuid4().hex}" for p in todo])
+            futures = dict(zip(submitted, todo))
+            failed = 0
+            with tqdm(total=len(futures), desc="calibrating", unit="unit", disable=not progress,
+                      file=sys.stderr) as bar:
+                for future in as_completed(futures):
+                    p = futures.pop(future)
+                    try:
+                        record = future.result()
+                    except Exception as exc:  # the task itself died (worker killed, lost): still one unit
+                        record = {"unit": p.stem, "source": str(p), "status": "failed",
+                                  "error": _message(p, exc) + " (the worker running it failed)"}
+                    if record["status"] == "failed":
+                        failed += 1
+                        rows[p.stem] = failure_row(p.stem, p, record["error"])
+                    else:
+                        rows[p.stem] = record["row"]
+                    bar.set_postfix(failed=failed, refresh=False)
+                    bar.update()
+            seconds = time.perf_counter() - start - startup  # without closing the cluster
+        finally:
+            client.close()
+            if cluster is not None:
+                cluster.close()
+
+    ordered = [rows[p.stem] for p in paths]
+    dist, outliers = fleet_statistics(ordered, outlier_k)
+    flagged = {}
+    for o in outliers:
+        flagged.setdefault(o["unit"], []).append(o["quantity"])
+    for r in ordered:
+        r["outlier"] = ",".join(flagged.get(r["unit"], []))
+    status = Counter(r["status"] for r in ordered)
+    failures = [{"unit": r["unit"], "source": r["source"], "error": r["error"]} for r in ordered if r["status"] == "failed"]
+    summary = {
+        "created": datetime.now(timezone.utc).isoformat(timespec="seconds"),
+        "directory": str(directory), "out_dir": str(out_dir),
+        "settings": {**settings, "pattern": pattern, "outlier_k": outlier_k},
+        "counts": {"units": len(ordered), "ok": status["ok"], "not_identifiable": status["not_identifiable"],
+                   "failed": status["failed"], "calibrated_now": len(todo), "skipped": why["done"],
+                   "recalibrated_stale": why["stale"], "recalibrated_invalid": why["invalid"]},
+        "fleet_units": Counter(r["units"] for r in ordered if r["status"] == "ok").most_common(1)[0][0]
+        if status["ok"] else "",
+        "definitions": DEFINITIONS,
+        "outlier_rule": f"|x - median| > {outlier_k:g} * 1.4826 * MAD per quantity, over the identifiable units "
+                        f"(at least {MIN_UNITS_FOR_OUTLIERS}); MAD 0 falls back to 1.2533 * mean |x - median|",
+        "distribution": dist,
+        "outliers": outliers,
+        "not_identifiable": [r["unit"] for r in ordered if r["status"] == "not_identifiable"],
+        "failures": failures,
+    }
+    files = [_write_atomic(out_dir / "fleet_summary.csv", _csv_text(ordered)),
+             _write_atomic(out_dir / "fleet_summary.json", json.dumps(summary, indent=2) + "\n"),
+             _write_atomic(out_dir / "failures.json", json.dumps(failures, indent=2) + "\n")]
+    return FleetResult(directory=directory, out_dir=out_dir, rows=ordered, summary=summary, skipped=why["done"],
+                       calibrated=len(todo), seconds=seconds, startup_seconds=startup, workers=n_workers, files=files)
+
+
+# -- command line ----------------------------------------------------------------------------------
+def _positive_int(text: str) -> int:
+    value = int(text)
+    if value < 1:
+        raise argparse.ArgumentTypeError(f"{text} is not a positive number of workers")
+    return value
+
+
+def add_batch_parser(subparsers):
+    """`fluxcal batch DIR -o OUTDIR [--workers N] [--scheduler ADDRESS] ...` for cli.build_parser."""
+    from .pipeline import METHODS
+
+    b = subparsers.add_parser("batch", help="calibrate every recording in a folder on a Dask cluster (fleet)")
+    b.add_argument("directory", help="folder of recordings, one unit per file (unit name = file name stem)")
+    b.add_argument("-o", "--output", required=True, help="folder for <unit>.json and the fleet summary")
+    b.add_argument("--workers", type=_positive_int, default=None,
+                   help="worker processes of the local Dask cluster (default: one per core)")
+    b.add_argument("--scheduler", default=None, help="address of an existing Dask scheduler (tcp://host:8786)")
+    b.add_argument("--method", default="auto", choices=[m for m in METHODS if m != "vector"],
+                   help="auto = consistent ellipsoid fit (ALS) + maximum-likelihood refinement (default)")
+    b.add_argument("--field-norm", type=float, default=None, help="known |field| in the units of h")
+    b.add_argument("--pattern", default=DEFAULT_PATTERN, help=f"recordings to take (glob, default {DEFAULT_PATTERN})")
+    b.add_argument("--outlier-k", type=float, default=OUTLIER_K,
+                   help=f"flag |x - median| > k·1.4826·MAD (default {OUTLIER_K:g})")
+    b.add_argument("--dashboard", default=None, metavar="ADDRESS",
+                   help="serve the Dask dashboard of the local cluster here (e.g. :8787); off by default")
+    b.add_argument("--no-progress", action="store_true", help="no progress bar")
+    b.set_defaults(run=cmd_batch)
+    return b
+
+
+def cmd_batch(args) -> int:
+    """0 when the batch ran, even if some units failed (they are listed); bad arguments raise
+    ValueError, which the command line turns into exit status 2."""
+    result = calibrate_fleet(args.directory, args.output, workers=args.workers, scheduler=args.scheduler,
+                             method=args.method, field_norm=args.field_norm, pattern=args.pattern,
+                             progress=not args.no_progress, outlier_k=args.outlier_k,
+                             dashboard_address=args.dashboard)
+    print(result.report())
+    if result.failures:
+        print(f"note: {len(result.failures)} of {len(result.rows)} units failed; the batch itself ran (exit 0)")
+    return 0
+
+
+def main(argv=None) -> int:
+    """`python -m fluxcal.batch DIR -o OUT ...`: the same command without the fluxcal front end."""
+    parser = argparse.ArgumentParser(prog="fluxcal")
+    add_batch_parser(parser.add_subparsers(dest="command"))
+    args = parser.parse_args(["batch", *(sys.argv[1:] if argv is None else argv)])
+    try:
+        return args.run(args)
+    except (ValueError, FileNotFoundError) as exc:
+        print(f"fluxcal batch: error: {exc}", file=sys.stderr)
+        return 2
+
+
+if __name__ == "__main__":
+    sys.exit(main())

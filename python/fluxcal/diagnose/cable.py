@@ -1,0 +1,1047 @@
+"""Sim-to-real diagnosis of the cable-current ring (seed 000): where the ring's readings depart from the
+straight-infinite-conductor model, which cable effect causes it, and how far the gap — and the error of
+the currents measured — shrinks once that effect is modelled, proved on held-out regimes.
+
+    from fluxcal.diagnose import diagnose_cable   # the attribute fluxcal.diagnose is the magnetometer function
+    d = diagnose_cable(readings, ring, currents=reference, rotations_deg=rot, positions=known_positions,
+                       calibration=ring_calibration)
+    print(d.text()); d.save_json("out.json"); d.ranking[0]["effect"]
+
+Base model: readings (K snapshots, M sensors, 2 axes, tesla), compensated by the per-sensor calibration
+(`fluxcal.cable.RingCalibration`, eq. 19) when one is given, against the ring's model — straight
+infinite conductors, `Ring.rotated(rotation).field`'s Biot–Savart vectorised over the rotations (the
+tests hold the two equal) — at positions shared by all snapshots, with the reference currents (known)
+or currents fitted per snapshot, and the calibration's own parameters refined: a relative gain and an
+offset per sensor axis (the calibration run absorbs part of any effect into them at its own rotations
+and current; refined here, what a per-sensor calibration can absorb is not blamed on an effect, and the
+calibration's own noise is not taken for one). The gain multiplies the whole reading, the candidates'
+terms included — a bilinear model, solved by Gauss–Newton inside a variable projection: Levenberg–Marquardt
+(SciPy) over the conductor positions and the candidates' non-linear parameters, the currents and the
+linear coefficients solved at every step. Residuals are weighted by each sensor's noise σ (given, or
+from consecutive repeated snapshots, which are then averaged).
+
+1. Where: residual / σ per sensor, per axis (radial, tangential), per current level, per rotation and in
+   time, with a χ² test per bin (worst bin, Bonferroni), a regression of z² on the current and of z on
+   time, and a whiteness test over time.
+2. Which: every candidate of `fluxcal.sim.cable_effects.CABLE_CANDIDATES` — helical_lay, finite_length,
+   sensor_position_error, z_leakage — gets the statistics of `fluxcal.diagnose.core`: a score test at the
+   current fit, the check whether the model's own parameters absorb it (the part of its columns outside
+   their span — positions, currents, the calibration's gains and offsets: `ABSORBED`), a refit with its
+   coefficients (the features recomputed at every trial position; a non-linear parameter — the lay
+   length, the tilt direction — searched on a grid, profiled when the effect is large, then fitted), the
+   likelihood ratio (its p-value whitened in time and Bonferroni-corrected over the candidates and their
+   alternatives), ΔAIC and ΔBIC.
+3. How far: fitted again without a held-out regime — the unseen rotations (a quarter of the turn), the
+   highest current level, or the last quarter in time — and judged there: the gap √(RMS² − σ²) before
+   and after, the block t-test of the improvement, and the downstream errors: the currents measured on
+   the held-out snapshots (fitted per snapshot with the trained positions and coefficients) against the
+   reference currents (RMS, amperes and % of the current), and the conductor positions against the truth
+   when it is given. Effects are added greedily: the in-sample significant candidates are validated in
+   order of ΔBIC and the first that holds on the held-out regime is accepted (core's rule: the lowest ΔBIC
+   among the significant), until none does.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+from pathlib import Path
+from types import SimpleNamespace
+
+import numpy as np
+from scipy import stats
+from scipy.optimize import least_squares
+
+from ..cable import Ring, RingCalibration
+from ..sim.cable_effects import CABLE_CANDIDATES, sensor_points, straight_unit_fields, to_axes
+from .core import (ABSORBED, HELDOUT_ALPHA, HELDOUT_FRACTION, MIN_GAIN, Diagnosis, _binned, _gap,
+                   _improvement_pvalue, _quantile_bins, _whitened_lr)
+
+REGIMES = ("rotation", "current", "time")
+PROFILE_GAIN = 1000.0  # χ² a candidate's best alternative removes at fixed positions above which it is profiled
+
+
+@dataclass
+class _Data:
+    y: np.ndarray            # (K, M, 2) compensated readings, tesla
+    ring: Ring
+    rotations: np.ndarray    # (K,) degrees
+    t: np.ndarray            # (K,)
+    reference: np.ndarray | None  # (K, n) reference currents
+    fit_currents: bool
+    n: int
+    sigma: np.ndarray        # (M,) noise σ per sensor (one reading)
+    counts: np.ndarray       # (K,) readings averaged into each snapshot (consecutive repeats)
+    truth: np.ndarray | None  # (n, 2) true positions
+    refine_calibration: bool      # the calibration's gain and offset corrections are base parameters
+    gain_currents: np.ndarray | None  # (K, n) currents of the gain columns' model reading
+    unique: np.ndarray       # (R,) unique rotations
+    rot_index: np.ndarray    # (K,)
+    points: np.ndarray       # (R, M) complex sensor positions, cable frame
+    axes: np.ndarray         # (R, M) x-axis directions, radians
+    source: str
+
+    @property
+    def refines(self) -> bool:
+        return self.refine_calibration and self.gain_currents is not None
+
+    @property
+    def sigma_eff(self) -> np.ndarray:
+        """(K, M) the noise σ of every (averaged) snapshot's readings."""
+        return self.sigma[None, :] / np.sqrt(self.counts)[:, None]
+
+    @property
+    def weights(self) -> np.ndarray:
+        """(K, M) 1/σ."""
+        return 1.0 / self.sigma_eff
+
+    @property
+    def shape(self):
+        return self.y.shape
+
+
+@dataclass
+class CableDiagnosis(Diagnosis):
+    """What `diagnose_cable` found: a `Diagnosis` (ranking, accepted, where, remaining, significant,
+    save_json) whose text and report speak of sensors, rotations and currents."""
+
+    def text(self) -> str:
+        return _text(self)
+
+    def report(self, folder) -> Path:
+        return _write_report(self, folder)
+
+
+# ---------------------------------------------------------------- the model
+
+def _unit(data: _Data, positions) -> np.ndarray:
+    """Readings per unit current of each conductor: (R, M, 2, n)."""
+    b = straight_unit_fields(data.points, np.asarray(positions, float))  # (R, M, n)
+    return to_axes(b, data.axes[..., None]).transpose(0, 1, 3, 2)
+
+
+def _context(data: _Data, positions, currents, extra=None, net=None) -> SimpleNamespace:
+    """What candidates compute their features from (see fluxcal.sim.cable_effects): the fitted positions
+    and the currents, the sensors' geometry, and the field in the cable frame at every sensor — the straight
+    conductors' plus `extra` (K, M) complex, the accepted terms' field (a sensor effect found after a field
+    effect then moves and turns the sensors in the whole field)."""
+    pos = np.asarray(positions, float)
+    lab = straight_unit_fields(data.points, pos)[data.rot_index]  # (K, M, n)
+    extra = np.zeros(lab.shape[:2], complex) if extra is None else extra
+    if net is None:  # does the recording have a net current (cores not summing to zero)?
+        net = bool(np.max(np.abs(np.sum(currents, axis=1))) > 1e-6 * np.max(np.abs(currents)))
+    return SimpleNamespace(ring=data.ring, positions=pos, currents=currents, points=data.points, axes=data.axes,
+                           rot_index=data.rot_index, rotations=data.rotations, extra=extra, net_current=net,
+                           field_lab=np.einsum("kmn,kn->km", lab, currents) + extra)
+
+
+def _calibration_columns(reading: np.ndarray) -> np.ndarray:
+    """(k, M, 2, 4M): a relative gain correction of every sensor axis (per unit: the model's `reading`
+    (k, M, 2) — not the noisy measured reading, whose noise a gain would shrink) and an offset correction
+    (1 T per unit): the per-sensor calibration's own parameters."""
+    k, m, _ = reading.shape
+    cols = np.zeros((k, m, 2, 2, m, 2))  # (…, gain or offset, sensor, axis): each acts on its own axis
+    idx = np.arange(m)
+    for a in range(2):
+        cols[:, idx, a, 0, idx, a] = reading[:, :, a]
+        cols[:, idx, a, 1, idx, a] = 1.0
+    return cols.reshape(k, m, 2, 4 * m)
+
+
+def _lstsq(X: np.ndarray, y: np.ndarray) -> np.ndarray:
+    """Least squares by the normal equations of the unit-norm columns, solved through their eigenvalues
+    (directions below 1e-12 of the largest dropped, as lstsq's minimum norm would): 7× faster than
+    numpy's SVD-based lstsq on these tall, narrow problems, and called thousands of times per diagnosis."""
+    norms = np.linalg.norm(X, axis=0)
+    norms[norms == 0] = 1.0
+    Xn = X / norms
+    lam, V = np.linalg.eigh(Xn.T @ Xn)
+    keep = lam > 1e-12 * lam[-1]
+    return (V[:, keep] @ ((V[:, keep].T @ (Xn.T @ y)) / lam[keep])) / norms
+
+
+def _lstsq_snapshots(A, target, X, known):
+    """Weighted least squares of `target` (k, 2M) on the currents — `known` (k, n), or fitted per snapshot
+    through the matrices A (k, 2M, n) by projection — and the shared columns X (k, 2M, p) or None.
+    Returns (residuals (k, 2M), currents (k, n), coefficients (p,))."""
+    p = 0 if X is None else X.shape[-1]
+    if known is not None:
+        r0 = target - np.einsum("kij,kj->ki", A, known)
+        coef = _lstsq(X.reshape(-1, p), r0.ravel()) if p else np.zeros(0)
+        return r0 - (np.einsum("kip,p->ki", X, coef) if p else 0.0), known, coef
+    Q, R = np.linalg.qr(A)
+    proj = lambda v: v - np.einsum("kij,kj->ki", Q, np.einsum("kij,ki->kj", Q, v))  # noqa: E731
+    coef = np.zeros(0)
+    if p:
+        Xp = X - np.einsum("kij,kjp->kip", Q, np.einsum("kji,kjp->kip", Q, X))
+        coef = _lstsq(Xp.reshape(-1, p), proj(target).ravel())
+        target = target - np.einsum("kip,p->ki", X, coef)
+    cur = np.linalg.solve(R, np.einsum("kij,ki->kj", Q, target)[..., None])[..., 0]
+    return proj(target), cur, coef
+
+
+def _solve_linear(data: _Data, positions, feats, rows, coefficients=None, fit_currents=None, warm=None):
+    """For fixed positions: the currents (reference, or fitted per snapshot) and the linear coefficients —
+    the calibration's corrections (4M: a relative gain δ and an offset β per sensor axis, when refined) then
+    the candidates' c — solved, or given. `feats`: (K, M, 2, p) at given currents, or (K, M, 2, p, n) per
+    ampere of each conductor (the terms then follow the fitted currents). Returns (weighted residuals
+    (k, M, 2), currents (k, n), coefficients).
+
+    The model ĥ = (1 + δ) ⊙ (G I + F(I) c) + β is bilinear (the calibration's gain multiplies the whole
+    reading, the effects' terms included; with fitted currents the terms scale with them). Gauss–Newton
+    from δ = 0, c = 0 and the reference (or base-fit) currents: at (δ_n, c_n, I_n), with the model's
+    reading g_n = (G + F c_n) I_n, solve the linear problem
+        y + δ_n g_n + (1 + δ_n) F(I_n) c_n = (1 + δ_n)(G + F c_n) I + δ g_n + (1 + δ_n) F(I_n) c + β
+    (F c_n in the current columns only for per-ampere terms) — quadratic convergence, a few iterations.
+    `warm`: a dict holding the last solution, to start from it (a fit evaluates nearby positions)."""
+    fit_currents = data.fit_currents if fit_currents is None else fit_currents
+    k, m = len(rows), data.shape[1]
+    w = data.weights[rows][:, :, None]
+    unit = _unit(data, positions)[data.rot_index[rows]]  # (k, M, 2, n)
+    y = data.y[rows]
+    known = None if fit_currents else data.reference[rows]
+    F = None if feats is None else feats[rows]
+    if F is not None and F.ndim == 5 and known is not None:
+        F = np.einsum("kmapn,kn->kmap", F, known)  # known currents: the terms are fixed
+    per_ampere = F is not None and F.ndim == 5
+    p = 0 if F is None else F.shape[3]
+    refine = data.refines
+    ncal = 4 * m if refine else 0
+    flat = lambda v: (v * w).reshape(k, 2 * m)  # noqa: E731 - weighted (k, M, 2) → (k, 2M)
+    cols = lambda v: (v * w[..., None]).reshape(k, 2 * m, v.shape[-1])  # noqa: E731
+    gain = lambda d: (1 + d)[None, :, :, None]  # noqa: E731 - (M, 2) → broadcast over (k, M, 2, ·)
+
+    if coefficients is not None:  # evaluation with given δ, β, c: only the currents are solved
+        coefficients = np.asarray(coefficients)
+        delta = coefficients[:2 * m].reshape(m, 2) if refine else np.zeros((m, 2))
+        beta = coefficients[2 * m:ncal].reshape(m, 2) if refine else np.zeros((m, 2))
+        c = coefficients[ncal:]
+        if per_ampere:
+            A, target = (unit + np.einsum("kmapn,p->kman", F, c)) * gain(delta), y - beta
+        else:
+            A = unit * gain(delta)
+            target = y - beta - ((1 + delta) * (F @ c) if F is not None and len(c) else 0.0)
+        r, cur, _ = _lstsq_snapshots(cols(A), flat(target), None, known)
+        return r.reshape(k, m, 2), cur, coefficients
+
+    delta, c = np.zeros((m, 2)), np.zeros(p)
+    currents = known if known is not None else data.gain_currents[rows] if data.gain_currents is not None else None
+    if warm is not None and warm.get("coefficients") is not None and len(warm["coefficients"]) == ncal + p:
+        delta = warm["coefficients"][:2 * m].reshape(m, 2) if refine else delta
+        c = warm["coefficients"][ncal:]
+        if known is None and warm.get("currents") is not None and len(warm["currents"]) == k:
+            currents = warm["currents"]
+    if currents is None:  # no reference and no base fit yet: the currents' first guess from the plain model
+        currents = _lstsq_snapshots(cols(unit), flat(y), None, None)[1]
+    # With currents fitted per snapshot a common gain is a common current scale: the gains' mean is held
+    # at the calibration's (only their differences are refined).
+    gauge = _zero_sum_basis(2 * m) if refine and known is None else None
+    linear = not per_ampere and (not refine or (known is not None and F is None))
+    # Iterated until a step changes the residuals by < 1e-9, then once more: quadratic convergence puts
+    # them at the solver's floor (~1e-12), so the fit's finite differences do not see where it stopped.
+    last, extra = None, False
+    for _ in range(20):
+        per_amp = unit + (np.einsum("kmapn,p->kman", F, c) if per_ampere and p else 0.0)
+        F_now = np.einsum("kmapn,kn->kmap", F, currents) if per_ampere else F
+        reading = np.einsum("kman,kn->kma", per_amp, currents)
+        if F is not None and not per_ampere and p:
+            reading = reading + F @ c
+        X, target = [], y + (delta * reading if refine else 0.0)
+        if refine:
+            cal = _calibration_columns(reading)
+            if gauge is not None:
+                cal = np.concatenate([cal[..., :2 * m] @ gauge, cal[..., 2 * m:]], axis=-1)
+            X.append(cal)
+        if F is not None:
+            X.append(F_now * gain(delta))
+            if per_ampere and p:
+                target = target + (1 + delta) * (F_now @ c)
+        X = np.concatenate(X, axis=-1) if X else None
+        r, cur, coef = _lstsq_snapshots(cols(per_amp * gain(delta)), flat(target), None if X is None else cols(X),
+                                        known)
+        if gauge is not None:
+            coef = np.concatenate([gauge @ coef[:2 * m - 1], coef[2 * m - 1:]])
+        if refine:
+            delta = coef[:2 * m].reshape(m, 2)
+        c = coef[ncal:]
+        if known is None:
+            currents = cur
+        if linear or extra:
+            break
+        extra = last is not None and np.linalg.norm(r - last) <= 1e-9 * np.linalg.norm(r)
+        last = r
+    if warm is not None:
+        warm["coefficients"], warm["currents"] = coef, (None if known is not None else cur)
+    return r.reshape(k, m, 2), cur, coef
+
+
+def _zero_sum_basis(size: int) -> np.ndarray:
+    """(size, size − 1) orthonormal columns spanning the vectors whose entries sum to zero."""
+    q, _ = np.linalg.qr(np.eye(size) - 1.0 / size)
+    return q[:, :size - 1]
+
+
+class _Model:
+    """The base model plus a list of (candidate class, alternative) terms."""
+
+    def __init__(self, data: _Data, terms, feature_currents, term_coefficients=()):
+        self.data, self.terms, self.feature_currents = data, list(terms), feature_currents
+        # the accepted terms' coefficients (from the fit that accepted them): their field is `extra` for the
+        # terms after them
+        self.term_coefficients = list(term_coefficients)
+
+    @property
+    def n_calibration(self) -> int:
+        return 4 * self.data.shape[1] if self.data.refines else 0
+
+    def features(self, positions, terms=None, currents=None, net=None):
+        """The terms' features (K, M, 2, p) at `positions` for `currents` (default the feature currents)."""
+        terms = self.terms if terms is None else terms
+        if not terms:
+            return None
+        currents = self.feature_currents if currents is None else currents
+        blocks, extra = [], None
+        for j, (cls, alt) in enumerate(terms):
+            f = cls.features(_context(self.data, positions, currents, extra, net), alt)
+            blocks.append(f)
+            if j < len(self.term_coefficients):  # an accepted term: its field, cable frame
+                field = f @ self.term_coefficients[j]
+                extra = (0.0 if extra is None else extra) + (field[..., 0] + 1j * field[..., 1]) * np.exp(
+                    1j * self.data.axes[self.data.rot_index])
+        return np.concatenate(blocks, axis=-1)
+
+    def unit_features(self, positions, terms=None):
+        """Per ampere of each conductor (K, M, 2, p, n): every candidate is linear in the currents, so with
+        currents fitted per snapshot the terms follow them: (1 + δ) ⊙ (G + Σ_p F_p c_p) I + β."""
+        terms = self.terms if terms is None else terms
+        if not terms:
+            return None
+        k, n = len(self.data.y), self.data.n
+        net = _context(self.data, positions, self.feature_currents).net_current
+        out = []
+        for j in range(n):
+            e = np.zeros((k, n))
+            e[:, j] = 1.0
+            out.append(self.features(positions, terms, e, net))
+        return np.stack(out, axis=-1)
+
+    def solver_features(self, positions, terms=None):
+        """What `_solve_linear` takes: per-ampere features when the currents are fitted, else the features."""
+        if self.data.fit_currents:
+            return self.unit_features(positions, terms)
+        return self.features(positions, terms)
+
+    def extra(self, positions):
+        """The accepted terms' field at the sensors, cable frame (K, M) complex, or None."""
+        if not self.term_coefficients:
+            return None
+        f = self.features(positions, self.terms[:len(self.term_coefficients)])
+        field = f @ np.concatenate(self.term_coefficients)
+        return (field[..., 0] + 1j * field[..., 1]) * np.exp(1j * self.data.axes[self.data.rot_index])
+
+    def features_at(self, fit, positions, rows):
+        """The terms' features on `rows` (k, M, 2, p) with the fit's currents, or None."""
+        if not fit["terms"]:
+            return None
+        if self.data.fit_currents:
+            return np.einsum("kmapn,kn->kmap", self.unit_features(positions, fit["terms"])[rows], fit["currents"])
+        return self.features(positions, fit["terms"])[rows]
+
+    def fit(self, start, rows, terms=None, refine: bool = True, max_nfev: int = 20) -> dict:
+        """Positions by Levenberg–Marquardt (millimetres inside), with the non-linear parameter of every
+        term that has one (the lay length, the tilt direction: `refinable`) unless `refine` is False,
+        currents and coefficients linear."""
+        terms = list(self.terms if terms is None else terms)
+        free = [j for j, (cls, alt) in enumerate(terms) if alt is not None and cls.refinable and refine]
+        npos = np.size(start)
+
+        def unpack(x):
+            pos = x[:npos].reshape(-1, 2) * 1e-3
+            trial = list(terms)
+            for j, u in zip(free, x[npos:]):
+                trial[j] = (terms[j][0], terms[j][0].decode(u))
+            return pos, trial
+
+        warm = {}
+
+        def residual(x):
+            pos, trial = unpack(x)
+            return _solve_linear(self.data, pos, self.solver_features(pos, trial), rows, warm=warm)[0].ravel()
+
+        x0 = np.concatenate([np.asarray(start, float).ravel() * 1e3, [terms[j][0].encode(terms[j][1]) for j in free]])
+        # max_nfev: a term that does not fit wanders in its non-linear parameter; it is cut short
+        sol = least_squares(residual, x0, method="lm", xtol=1e-8, ftol=1e-8, max_nfev=max_nfev, x_scale="jac")
+        pos, terms = unpack(sol.x)
+        r, cur, coef = _solve_linear(self.data, pos, self.solver_features(pos, terms), rows)
+        fit = {"positions": pos, "currents": cur, "coefficients": coef, "residuals": r, "rows": rows, "terms": terms,
+               "rss": float(np.sum(r ** 2))}
+        fit["features"] = self.features_at(fit, pos, rows)  # (k, M, 2, p) on the rows, the fit's currents
+        return fit
+
+    def _split(self, coefficients):
+        """(δ (M, 2), β (M, 2), c) from a fit's coefficients (δ = 0, β = 0 without the refinement)."""
+        m = self.data.shape[1]
+        if not self.data.refines:
+            return np.zeros((m, 2)), np.zeros((m, 2)), np.asarray(coefficients)
+        return (np.asarray(coefficients[:2 * m]).reshape(m, 2), np.asarray(coefficients[2 * m:4 * m]).reshape(m, 2),
+                np.asarray(coefficients[4 * m:]))
+
+    def _predict(self, pos, fit, rows):
+        """Weighted model readings (k, M, 2) on `rows` (the fit's) at positions `pos` with the currents,
+        coefficients and terms of `fit`: (1 + δ) ⊙ (G I + F c) + β."""
+        delta, beta, c = self._split(fit["coefficients"])
+        reading = np.einsum("kman,kn->kma", _unit(self.data, pos)[self.data.rot_index[rows]], fit["currents"])
+        feats = self.features_at(fit, pos, rows)
+        if feats is not None and len(c):
+            reading = reading + feats @ c
+        return ((1 + delta) * reading + beta) * self.data.weights[rows][:, :, None]
+
+    def basis(self, fit):
+        """What the model's own parameters can do to the weighted residuals of `fit`: (project, U) with
+        `project` removing each snapshot's currents (when fitted) and U an orthonormal basis of the
+        projected derivatives of the model with respect to the positions, the calibration's corrections
+        and the accepted terms' coefficients."""
+        data, rows = self.data, fit["rows"]
+        pos = fit["positions"]
+        k, m = len(rows), data.shape[1]
+        w = data.weights[rows][:, :, None]
+        delta, _, c = self._split(fit["coefficients"])
+        cols = []
+        for j in range(pos.size):  # positions: central differences, currents and coefficients held
+            step = np.zeros(pos.size)
+            step[j] = 1e-7
+            up = self._predict(pos + step.reshape(pos.shape), fit, rows)
+            down = self._predict(pos - step.reshape(pos.shape), fit, rows)
+            cols.append(((up - down) / 2e-7).reshape(-1))
+        J = [np.column_stack(cols)]
+        unit = _unit(data, pos)[data.rot_index[rows]]
+        if data.refines:
+            reading = np.einsum("kman,kn->kma", unit, fit["currents"])
+            if fit["features"] is not None and len(c):
+                reading = reading + fit["features"] @ c
+            J.append((_calibration_columns(reading) * w[..., None]).reshape(-1, self.n_calibration))
+        if fit["features"] is not None:
+            J.append((fit["features"] * ((1 + delta) * w)[..., None]).reshape(-1, fit["features"].shape[-1]))
+        J = np.column_stack(J)
+        if data.fit_currents:
+            per_ampere = unit
+            if fit["terms"] and len(c):
+                per_ampere = unit + np.einsum("kmapn,p->kman", self.unit_features(pos, fit["terms"])[rows], c)
+            A = (per_ampere * ((1 + delta) * w)[..., None]).reshape(k, 2 * m, data.n)
+            Q, _ = np.linalg.qr(A)
+
+            def project(Z):
+                Zk = Z.reshape(k, -1, Z.shape[-1])
+                return (Zk - np.einsum("kij,kjp->kip", Q, np.einsum("kji,kjp->kip", Q, Zk))).reshape(Z.shape)
+        else:
+            def project(Z):
+                return Z
+        Jp = project(J)
+        norms = np.linalg.norm(Jp, axis=0)
+        Jp = Jp[:, norms > 0] / norms[norms > 0]
+        U, s, _ = np.linalg.svd(Jp, full_matrices=False)
+        return project, U[:, s > 1e-9 * s.max()] if s.size else U[:, :0]
+
+
+def _calibration_summary(coefficients, n_calibration: int) -> dict:
+    """The refined calibration's corrections: largest relative gain and offset change (tesla)."""
+    if not n_calibration:
+        return {}
+    c = np.asarray(coefficients[:n_calibration])
+    half = n_calibration // 2
+    return {"max_gain_correction": float(np.max(np.abs(c[:half]))),
+            "max_offset_correction_t": float(np.max(np.abs(c[half:])))}
+
+
+# ---------------------------------------------------------------- held-out regimes
+
+def _levels(data: _Data, currents) -> np.ndarray:
+    """The current level of every snapshot: the largest |current| of its conductors, rounded."""
+    return np.round(np.max(np.abs(currents), axis=1), 6)
+
+
+def _regime(wanted: str, data: _Data, levels) -> str:
+    """The regime a candidate is held out on, falling back when the recording does not vary it."""
+    order = list(REGIMES[REGIMES.index(wanted):]) + list(REGIMES[:REGIMES.index(wanted)])
+    for name in order:
+        if name == "rotation" and len(data.unique) >= 3:
+            return name
+        if name == "current" and len(np.unique(levels)) >= 3:
+            return name
+        if name == "time":
+            return name
+    return "time"
+
+
+def _heldout(regime: str, data: _Data, levels) -> np.ndarray:
+    """Snapshots held out: a quarter of the turn (consecutive rotations, the last in angle), the highest
+    current level(s) (a quarter of the levels, at least one), or the last quarter in time."""
+    k = len(data.y)
+    if regime == "rotation":
+        angles = np.sort(np.unique(np.mod(data.unique, 360.0)))
+        count = max(1, int(round(len(angles) * HELDOUT_FRACTION)))
+        return np.isin(np.mod(data.rotations, 360.0), angles[-count:])
+    if regime == "current":
+        lv = np.sort(np.unique(levels))
+        count = max(1, int(round(len(lv) * HELDOUT_FRACTION)))
+        return levels >= lv[-count]
+    order = np.argsort(data.t, kind="stable")
+    mask = np.zeros(k, bool)
+    mask[order[int(round(k * (1 - HELDOUT_FRACTION))):]] = True
+    return mask
+
+
+# ---------------------------------------------------------------- noise
+
+def _noise_from_repeats(y, rotations, reference):
+    """σ per sensor from consecutive snapshots repeated at the same rotation and reference currents
+    (pooled within-run variance, both axes; repeats far apart in time could differ by a drift); None
+    when fewer than 10 degrees of freedom."""
+    if reference is None:
+        return None
+    key = np.column_stack([rotations, reference])
+    group = np.cumsum(np.concatenate([[True], np.any(key[1:] != key[:-1], axis=1)])) - 1
+    counts = np.bincount(group)
+    dof = int(np.sum(counts[counts > 1] - 1))
+    if dof < 10:
+        return None
+    means = np.zeros((counts.size,) + y.shape[1:])
+    np.add.at(means, group, y)
+    means /= counts[:, None, None]
+    dev = y - means[group]
+    return np.sqrt(np.sum(dev ** 2, axis=(0, 2)) / (2 * dof))
+
+
+# ---------------------------------------------------------------- where
+
+def _where(data: _Data, r_w: np.ndarray, levels) -> dict:
+    """Residual / σ (r_w: weighted residuals (K, M, 2)) by sensor, axis, current level, rotation, time."""
+    k, m, _ = r_w.shape
+    z = r_w.ravel()
+    sig_rms = float(np.sqrt(np.mean(data.sigma_eff ** 2)))
+    resid_t = (r_w * data.sigma_eff[:, :, None]).ravel()
+    out = {"overall": {"n": int(z.size), "snapshots": int(k), "recorded_snapshots": int(data.counts.sum()),
+                       "rms_z": float(np.sqrt(np.mean(z ** 2))), "gap": _gap(resid_t, sig_rms)},
+           "noise_sigma_per_sensor": data.sigma.tolist()}
+    per_value = lambda v: np.repeat(np.asarray(v), 2 * m)  # noqa: E731 - snapshot variable per value
+    sensor = np.tile(np.repeat(np.arange(m), 2), k)
+    axis = np.tile(np.arange(2), k * m)
+    tables = {"sensor": _binned(z, sensor, [f"sensor {i}" for i in range(m)]),
+              "axis": _binned(z, axis, ["radial (x)", "tangential (y)"])}
+    lv = np.unique(levels)
+    tables["current"] = _binned(z, per_value(np.searchsorted(lv, levels)), [f"{v:g} A" for v in lv])
+    rot = np.mod(data.rotations, 360.0)
+    ur = np.unique(rot)
+    if len(ur) <= 24:
+        tables["rotation"] = _binned(z, per_value(np.searchsorted(ur, rot)), [f"{v:g}°" for v in ur])
+    else:
+        tables["rotation"] = _binned(z, per_value(_quantile_bins(rot, 12)), None, per_value(rot))
+    tables["time"] = _binned(z, per_value(_quantile_bins(data.t, min(10, k))), None, per_value(data.t))
+    tests = []
+    for name, rows in tables.items():
+        worst = min(rows, key=lambda r: r["pvalue"])
+        tests.append({"regime": name, "test": f"worst bin χ² ({worst['bin']}, ×{len(rows)})",
+                      "statistic": worst["rms_z"] ** 2, "pvalue": min(1.0, worst["pvalue"] * len(rows))})
+    if len(lv) >= 2:
+        res = stats.linregress(per_value(levels), z ** 2)
+        tests.append({"regime": "current", "test": "slope of z² on the current",
+                      "statistic": float(res.slope / res.stderr), "pvalue": float(res.pvalue)})
+    if np.ptp(data.t) > 0:
+        res = stats.linregress(per_value(data.t), z)
+        tests.append({"regime": "time", "test": "slope of z on time", "statistic": float(res.slope / res.stderr),
+                      "pvalue": float(res.pvalue)})
+    series = r_w.reshape(k, -1).mean(axis=1)[np.argsort(data.t, kind="stable")]
+    lags = int(min(20, max(1, k // 10)))
+    from statsmodels.stats.diagnostic import acorr_ljungbox
+
+    lb = acorr_ljungbox(series, lags=[lags])
+    tests.append({"regime": "time", "test": f"whiteness (Ljung-Box, {lags} lags)",
+                  "statistic": float(lb["lb_stat"].iloc[0]), "pvalue": float(lb["lb_pvalue"].iloc[0])})
+    out["tables"], out["tests"] = tables, tests
+    return out
+
+
+# ---------------------------------------------------------------- which and how far
+
+def _position_error(fitted, truth) -> float | None:
+    """Largest distance (mm) between fitted and true conductor positions, best matching."""
+    if truth is None:
+        return None
+    from itertools import permutations
+
+    n = len(truth)
+    best = min(np.max(np.linalg.norm(fitted[list(p)] - truth, axis=1)) for p in permutations(range(n)))
+    return float(1e3 * best)
+
+
+def _evaluate_heldout(data: _Data, model: _Model, fit: dict, held) -> dict:
+    """Residuals on the held-out snapshots with the trained positions and coefficients — with the reference
+    currents (or currents fitted per snapshot when the base model fits them) — and the currents measured
+    there (fitted per snapshot) against the reference."""
+    per_ampere = model.unit_features(fit["positions"], fit["terms"])
+    r, _, _ = _solve_linear(data, fit["positions"], per_ampere, held, coefficients=fit["coefficients"])
+    out = {"r_w": r}
+    if data.reference is not None:  # the terms scale with the measured currents
+        _, measured, _ = _solve_linear(data, fit["positions"], per_ampere, held, coefficients=fit["coefficients"],
+                                       fit_currents=True)
+        err = measured - data.reference[held]
+        rms = float(np.sqrt(np.mean(err ** 2)))
+        out["current_error_a"] = rms
+        out["current_error_pct"] = float(100.0 * rms / np.sqrt(np.mean(data.reference[held] ** 2)))
+    out["position_error_mm"] = _position_error(fit["positions"], data.truth)
+    return out
+
+
+def _evaluate(cls, data: _Data, state: dict, n_candidates: int, levels) -> dict:
+    """Score test, absorption check, refit, likelihood ratio and held-out validation of one candidate."""
+    current = state["fit"]
+    e = current["residuals"].ravel()
+    project, U = state["basis"]
+    sigma2 = float(e @ e) / max(e.size - U.shape[1] - (len(current["rows"]) * data.n if data.fit_currents else 0), 1)
+    delta = state["model"]._split(current["coefficients"])[0]
+    w = ((1 + delta)[None] * data.weights[current["rows"]][:, :, None])[..., None]  # the gain multiplies the terms too
+
+    def new_part(feats):
+        """The candidate's columns outside what the model's parameters do: (score, new dimensions, singular values)."""
+        raw = -(feats * w).reshape(-1, feats.shape[-1])
+        norms = np.linalg.norm(raw, axis=0)
+        norms[norms == 0] = 1.0
+        Z = project(raw)
+        V, s, _ = np.linalg.svd((Z - U @ (U.T @ Z)) / norms, full_matrices=False)
+        new = s >= ABSORBED
+        return (float(np.sum((V[:, new].T @ e) ** 2) / sigma2) if new.any() else 0.0), int(new.sum()), s
+
+    ctx = _context(data, current["positions"], state["feature_currents"], state["model"].extra(current["positions"]))
+    accepted = current["features"]
+    rss0 = float(e @ e)
+
+    def gain(f):
+        """What the alternative's terms remove at the current positions (the calibration's gains solved
+        with them: they are bilinear, and a first-order score at the base fit misjudges large effects)."""
+        feats = f if accepted is None else np.concatenate([accepted, f], axis=-1)
+        r = _solve_linear(data, current["positions"], feats, current["rows"])[0]
+        return rss0 - float(np.sum(r ** 2))
+
+    alternative, tried = cls.search(ctx, gain)
+    if getattr(cls, "profile", False) and gain(cls.features(ctx, alternative)) > PROFILE_GAIN:
+        # a large effect biases the base positions, and judged there the trial values mislead: each is
+        # judged by a short fit of the positions with it (a profile)
+        trial_model = _Model(data, state["terms"], state["feature_currents"], state["term_coefficients"])
+        rss = [trial_model.fit(current["positions"], current["rows"], state["terms"] + [(cls, a)], refine=False,
+                               max_nfev=4)["rss"] for a in cls.PROFILE]
+        alternative, tried = cls.PROFILE[int(np.argmin(rss))], tried + len(cls.PROFILE)
+    feats = cls.features(ctx, alternative)
+    score, dims, singular = new_part(feats)
+    regime = _regime(cls.regime, data, levels)
+    row = {"effect": cls.name, "regime": regime, "n_params": int(feats.shape[-1]), "new_dimensions": dims,
+           "absorbed": dims == 0, "alternatives": tried, **cls.describe(alternative), "score": score,
+           "score_pvalue": min(1.0, float(stats.chi2.sf(score, max(dims, 1))) * tried),
+           "absorbed_fraction": float(1 - singular.min()) if len(singular) else 1.0}
+    if dims == 0:
+        row.update(lr=0.0, lr_pvalue=1.0, delta_aic=0.0, delta_bic=0.0, significant=False,
+                   heldout_gap_before=None, heldout_gap_after=None,
+                   note="absorbed by the conductor positions, the currents and the calibration's gains and "
+                        "offsets (cannot be told apart from them)")
+        return row
+    terms = state["terms"] + [(cls, alternative)]
+    model = _Model(data, terms, state["feature_currents"], state["term_coefficients"])
+    fit = model.fit(current["positions"], state["all_rows"])
+    model.terms = fit["terms"]  # the non-linear parameter refined with the positions
+    refined = int(cls.refinable and alternative is not None)
+    row.update(cls.describe(fit["terms"][-1][1]))
+    row["n_params"] += refined
+    e1 = fit["residuals"].ravel()
+    n = e.size
+    lr = max(0.0, n * np.log(float(e @ e) / float(e1 @ e1)))
+    lr_whitened = _whitened_lr(e, e1, state["time_of_values"])
+    dof = dims + refined
+    row.update(lr=lr, lr_whitened=lr_whitened, lr_pvalue=min(1.0, float(stats.chi2.sf(lr_whitened, dof)) * tried),
+               delta_aic=-lr + 2 * dof, delta_bic=-lr + dof * np.log(n),
+               coefficients=fit["coefficients"][-feats.shape[-1]:].tolist(),
+               calibration_correction=_calibration_summary(fit["coefficients"], model.n_calibration))
+    row["_in_sample"] = bool(row["lr_pvalue"] * n_candidates < state["alpha"] and row["delta_bic"] < 0)
+    row["significant"] = False
+    row.update(heldout=regime, heldout_gap_before=None, heldout_gap_after=None, heldout_pvalue=None,
+               note="not validated on held-out data: " + ("not significant in sample" if not row["_in_sample"]
+                                                          else "a candidate with a lower ΔBIC was accepted"))
+    row["_fit"], row["_model"] = fit, model
+    return row
+
+
+def _confirm(row: dict, data: _Data, state: dict, levels) -> dict:
+    """The held-out validation of an evaluated candidate, and its verdict."""
+    row.pop("note", None)
+    row.update(_validate(data, state, row["_model"], row["regime"], levels))
+    row["significant"] = bool(row["_in_sample"] and row["heldout_pvalue"] < HELDOUT_ALPHA
+                              and row["heldout_gap_after"] < (1 - MIN_GAIN) * row["heldout_gap_before"])
+    return row
+
+
+def _validate(data: _Data, state: dict, model: _Model, regime: str, levels) -> dict:
+    """Fit with and without the candidate on all but the held-out regime; judge on the held-out part."""
+    held = _heldout(regime, data, levels)
+    train = np.nonzero(~held)[0]
+    rows = np.nonzero(held)[0]
+    if regime not in state["train_fits"]:
+        state["train_fits"][regime] = state["model"].fit(state["fit"]["positions"], train)
+    before_fit = state["train_fits"][regime]
+    after_fit = model.fit(before_fit["positions"], train)
+    before = _evaluate_heldout(data, state["model"], before_fit, rows)
+    after = _evaluate_heldout(data, model, after_fit, rows)
+    sig_rms = float(np.sqrt(np.mean(data.sigma_eff[rows] ** 2)))
+    unweight = data.sigma_eff[rows][:, :, None]
+    order = np.argsort(data.t[rows], kind="stable")
+    e0, e1 = before["r_w"][order].ravel(), after["r_w"][order].ravel()
+    out = {"heldout": regime, "heldout_n": int(len(rows)),
+           "heldout_gap_before": _gap((before["r_w"] * unweight).ravel(), sig_rms),
+           "heldout_gap_after": _gap((after["r_w"] * unweight).ravel(), sig_rms),
+           "heldout_rms_z_before": float(np.sqrt(np.mean(e0 ** 2))),
+           "heldout_rms_z_after": float(np.sqrt(np.mean(e1 ** 2))),
+           "heldout_pvalue": _improvement_pvalue(e0, e1),
+           "field_error_before": float(np.sqrt(np.mean(np.sum((before["r_w"] * unweight) ** 2, axis=-1)))),
+           "field_error_after": float(np.sqrt(np.mean(np.sum((after["r_w"] * unweight) ** 2, axis=-1))))}
+    for key in ("current_error_a", "current_error_pct", "position_error_mm"):
+        if before.get(key) is not None:
+            out[f"{key}_before"], out[f"{key}_after"] = before[key], after[key]
+    return out
+
+
+# ---------------------------------------------------------------- inputs
+
+def _prepare(readings, ring, currents, rotations_deg, positions, calibration, noise_sigma, t, n_conductors,
+             fit_currents, refine_calibration, average_repeats, source) -> tuple:
+    if not isinstance(ring, Ring):
+        raise ValueError(f"ring: expected a fluxcal.cable.Ring, got {type(ring).__name__}")
+    y = np.asarray(readings, dtype=float)
+    m = ring.n_sensors
+    if y.ndim != 3 or y.shape[1:] != (m, 2):
+        raise ValueError(f"readings: shape {y.shape}, expected (snapshots, {m}, 2) for this ring of {m} "
+                         f"biaxial sensors")
+    k = len(y)
+    bad = np.argwhere(~np.isfinite(y))
+    if len(bad):
+        s, i, a = bad[0]
+        raise ValueError(f"readings: snapshot {s}, sensor {i}, axis {'xy'[a]} is not finite ({len(bad)} such values)")
+    if calibration is not None:
+        if isinstance(calibration, (str, Path)):
+            import json
+
+            calibration = RingCalibration.from_dict(json.loads(Path(calibration).read_text()))
+        elif isinstance(calibration, dict):
+            calibration = RingCalibration.from_dict(calibration)
+        y = calibration.apply(y)
+    rot = np.zeros(k) if rotations_deg is None else np.asarray(rotations_deg, dtype=float).ravel()
+    if rot.shape != (k,) or not np.all(np.isfinite(rot)):
+        raise ValueError(f"rotations_deg: need {k} finite rotations (one per snapshot), got shape {rot.shape}")
+    t = np.arange(k, dtype=float) if t is None else np.asarray(t, dtype=float).ravel()
+    if t.shape != (k,) or not np.all(np.isfinite(t)):
+        raise ValueError(f"t: need {k} finite times, got shape {t.shape}")
+    reference = None
+    if currents is not None:
+        reference = np.asarray(currents, dtype=float)
+        if reference.ndim == 1:
+            reference = reference[:, None]
+        if reference.shape[0] != k or not np.all(np.isfinite(reference)):
+            raise ValueError(f"currents: need ({k}, n_conductors) finite reference currents, "
+                             f"got shape {reference.shape}")
+    truth = None if positions is None else np.asarray(positions, dtype=float).reshape(-1, 2)
+    n = (reference.shape[1] if reference is not None else len(truth) if truth is not None
+         else int(n_conductors or 2))
+    if truth is not None and len(truth) != n:
+        raise ValueError(f"positions: {len(truth)} conductors, the currents have {n}")
+    fit = reference is None if fit_currents is None else bool(fit_currents)
+    unknowns = 2 * n + (k * n if fit else 0) + (4 * m if refine_calibration else 0)
+    if k * 2 * m <= unknowns + 4:
+        raise ValueError(f"{source}: {k} snapshots of {m} sensors give {2 * k * m} readings for {unknowns} unknowns; "
+                         f"the diagnosis needs more snapshots")
+    sigma_given = noise_sigma is not None
+    if sigma_given:
+        sigma = np.broadcast_to(np.asarray(noise_sigma, dtype=float), (m,)).astype(float)
+        if not np.all(sigma > 0):
+            raise ValueError(f"noise_sigma: need a positive σ (tesla) per sensor, got {noise_sigma}")
+        source_noise = "given"
+    else:
+        sigma = _noise_from_repeats(y, rot, reference)
+        source_noise = "from repeated snapshots (same rotation and currents)"
+    counts = np.ones(k)
+    if average_repeats and reference is not None:
+        # consecutive repeats of one rotation and currents are averaged: the same information (their spread
+        # is the noise, estimated above) in half the fitting time
+        key = np.column_stack([rot, reference])
+        start = np.concatenate([[True], np.any(key[1:] != key[:-1], axis=1)])
+        group = np.cumsum(start) - 1
+        counts = np.bincount(group).astype(float)
+
+        def mean(v):
+            return np.stack([np.bincount(group, weights=c) for c in v.reshape(k, -1).T], axis=-1) / counts[:, None]
+
+        y = mean(y).reshape((-1,) + y.shape[1:])
+        t = mean(t)[:, 0]
+        rot, reference = rot[start], reference[start]
+    unique, rot_index = np.unique(rot, return_inverse=True)
+    geometry = [sensor_points(ring, a) for a in unique]
+    pts = np.array([g[0] for g in geometry])
+    axes = np.array([g[1] for g in geometry])
+    data = _Data(y=y, ring=ring, rotations=rot, t=t, reference=reference, fit_currents=fit, n=n,
+                 sigma=np.ones(m) if sigma is None else sigma, counts=counts, truth=truth,
+                 refine_calibration=bool(refine_calibration), gain_currents=reference, unique=unique,
+                 rot_index=np.ravel(rot_index), points=pts, axes=axes, source=source)
+    return data, sigma is not None, source_noise
+
+
+def _start_positions(data: _Data) -> np.ndarray:
+    """Known positions, or the ring's own solver on the snapshots at the most common rotation."""
+    if data.truth is not None:
+        return data.truth.copy()
+    common = np.argmax(np.bincount(data.rot_index))
+    rows = data.rot_index == common
+    sol = data.ring.rotated(data.unique[common]).solve(data.y[rows], n_conductors=data.n)
+    return np.asarray(sol.positions)
+
+
+# ---------------------------------------------------------------- the diagnosis
+
+def diagnose_cable(readings, ring: Ring, currents=None, rotations_deg=None, positions=None, calibration=None,
+                   noise_sigma=None, candidates=None, t=None, n_conductors: int | None = None,
+                   fit_currents: bool | None = None, refine_calibration: bool = True, alpha: float = 0.01,
+                   max_effects: int = 3, validate_all: bool = False, average_repeats: bool = True,
+                   progress: bool = False, source: str = "ring readings") -> CableDiagnosis:
+    """Diagnose the gap between a ring's readings and the straight-infinite-conductor model.
+
+    readings: (K snapshots, M sensors, 2) tesla, raw when `calibration` (a RingCalibration, its dict or
+    JSON file) is given, else already compensated. ring: the nominal `fluxcal.cable.Ring`. currents:
+    (K, n) reference currents (amperes): the base model uses them unless `fit_currents`, and the
+    downstream current error needs them. rotations_deg: (K,) the ring's turn about the cable per snapshot
+    (default 0). positions: (n, 2) the conductors' known positions (metres): the fit's start and the truth
+    for the position error (default: the ring's solver finds them). noise_sigma: σ per sensor (scalar or
+    (M,), tesla; default from consecutive repeated snapshots, else the base fit's residuals). candidates:
+    effect names (default all four). t: (K,) times (default the snapshot order). fit_currents: fit the
+    currents per snapshot even when the reference is given (default: only without one; the gains' mean is
+    then held at the calibration's, a common gain being a common current scale). refine_calibration:
+    refine each sensor axis's gain and offset in the base model (default True). average_repeats: average
+    consecutive snapshots of the same rotation and reference currents (default True: the same
+    information, half the time). alpha: significance level (Bonferroni over the candidates);
+    max_effects: how many effects to add greedily; validate_all: hold out every candidate, not only
+    until the greedy choice is confirmed (slower; the ranking then has held-out numbers for all)."""
+    names = {c.name: c for c in CABLE_CANDIDATES}
+    wanted = list(names) if candidates is None else list(candidates)
+    unknown = [w for w in wanted if w not in names]
+    if unknown:
+        raise ValueError(f"candidates: unknown cable effect(s) {', '.join(unknown)}; known: {', '.join(names)}")
+    pool = [names[w] for w in wanted]
+    data, noise_known, noise_source = _prepare(readings, ring, currents, rotations_deg, positions, calibration,
+                                               noise_sigma, t, n_conductors, fit_currents, refine_calibration,
+                                               average_repeats, source)
+    k, m, _ = data.shape
+    all_rows = np.arange(k)
+    start = _start_positions(data)
+    base_model = _Model(data, [], None)
+    base = base_model.fit(start, all_rows)  # weighted by 1/σ when σ is known
+    if data.refine_calibration and data.gain_currents is None:  # no reference: gains of the fitted currents' reading
+        data.gain_currents = base["currents"]
+        base = base_model.fit(base["positions"], all_rows)
+    if not noise_known:  # σ per sensor from the base fit's residuals: an effect present inflates it
+        dof = 2 * k - (2 * data.n + (k * data.n if data.fit_currents else 0) + base_model.n_calibration) / m
+        data.sigma = np.sqrt(np.sum(base["residuals"] ** 2, axis=(0, 2)) / max(dof, 1.0))
+        noise_source = "from the base fit's residuals (no repeated snapshots: an effect present inflates it)"
+        base = base_model.fit(base["positions"], all_rows)
+    feature_currents = data.reference if not data.fit_currents else base["currents"]
+    levels = _levels(data, data.reference if data.reference is not None else base["currents"])
+    base_model.feature_currents = feature_currents
+    where = _where(data, base["residuals"], levels)
+    state = {"model": base_model, "fit": base, "terms": [], "train_fits": {}, "alpha": alpha,
+             "validate_all": validate_all, "term_coefficients": [],
+             "feature_currents": feature_currents, "all_rows": all_rows,
+             "time_of_values": SimpleNamespace(t=np.repeat(data.t, 2 * m), reference=None)}
+    state["basis"] = base_model.basis(base)
+    accepted, last_rows = [], {}
+    n_candidates = max(len(pool), 1)
+    bar = None
+    if progress:
+        from tqdm import tqdm
+
+        bar = tqdm(total=len(pool) * (max_effects + 1), desc="diagnose cable", unit="candidate", leave=False)
+    for _round in range(max_effects + 1):
+        rows = []
+        for cls in [c for c in pool if c.name not in accepted]:
+            rows.append(_evaluate(cls, data, state, n_candidates, levels))
+            if bar:
+                bar.update(1)
+        for r in rows:
+            last_rows[r["effect"]] = r
+        # Validate in order of ΔBIC: the first significant one is the greedy choice (core's rule: the lowest
+        # ΔBIC among the significant), so the rest need no held-out fits this round.
+        winner = None
+        for r in sorted([r for r in rows if "_fit" in r and (r["_in_sample"] or validate_all)],
+                        key=lambda r: r["delta_bic"]):
+            _confirm(r, data, state, levels)
+            if r["significant"] and winner is None:
+                winner = r
+                if not validate_all:
+                    break
+        if winner is None or len(accepted) >= max_effects:
+            break
+        w = winner
+        accepted.append(w["effect"])
+        state["terms"] = list(w["_fit"]["terms"])
+        sizes = [cls.features(_context(data, w["_fit"]["positions"], feature_currents), alt).shape[-1]
+                 for cls, alt in state["terms"]]
+        own = np.asarray(w["_fit"]["coefficients"])[w["_model"].n_calibration:]
+        state["term_coefficients"] = np.split(own, np.cumsum(sizes)[:-1])
+        state["model"] = _Model(data, state["terms"], feature_currents, state["term_coefficients"])
+        state["fit"] = w["_fit"]
+        state["basis"] = w["_model"].basis(w["_fit"])
+        state["train_fits"] = {}
+        w["step"] = len(accepted)
+    if bar:
+        bar.close()
+
+    ranking = [last_rows[name] for name in accepted]
+    ranking += sorted([r for name, r in last_rows.items() if name not in accepted],
+                      key=lambda r: (r.get("absorbed", False), r["delta_bic"]))
+    for r in ranking:
+        for key in ("_fit", "_model", "_in_sample"):
+            r.pop(key, None)
+        r["significant"] = r["effect"] in accepted
+    final = state["fit"]
+    remaining = _where(data, final["residuals"], levels)
+    base_info = {"positions_m": base["positions"].tolist(), "final_positions_m": final["positions"].tolist(),
+                 "position_error_mm": _position_error(base["positions"], data.truth),
+                 "final_position_error_mm": _position_error(final["positions"], data.truth),
+                 "fit_currents": data.fit_currents, "calibration": calibration is not None}
+    remaining["base"] = base_info
+    series = {"t": data.t, "rotations": data.rotations, "levels": levels, "residual_before": base["residuals"],
+              "residual_after": final["residuals"]}
+    return CableDiagnosis(model="cable_ring", noise_sigma=float(np.sqrt(np.mean(data.sigma ** 2))),
+                          noise_source=noise_source, units="T", source=source, ranking=ranking, accepted=accepted,
+                          where=where, remaining=remaining, base=base_info, series=series)
+
+
+# ---------------------------------------------------------------- text and report
+
+def _num(x, fmt=".3g") -> str:
+    return "—" if x is None else format(x, fmt)
+
+
+def _ranking_lines(d) -> list:
+    head = (f"{'effect':22s} {'signif.':>7s} {'ΔBIC':>10s} {'LR p':>9s} {'dims':>4s} {'held out':>9s} "
+            f"{'gap before':>10s} {'gap after':>10s}  current error (held out) before → after")
+    lines = [head, "-" * len(head)]
+    for r in d.ranking:
+        cur = ""
+        if r.get("current_error_a_before") is not None:
+            cur = (f"{r['current_error_a_before']:.3g} A ({r['current_error_pct_before']:.3g} %) → "
+                   f"{r['current_error_a_after']:.3g} A ({r['current_error_pct_after']:.3g} %)")
+        if r.get("position_error_mm_before") is not None:
+            cur += f"; position {r['position_error_mm_before']:.3g} → {r['position_error_mm_after']:.3g} mm"
+        note = "  (absorbed)" if r.get("absorbed") else ""
+        lines.append(f"{r['effect']:22s} {'YES' if r['significant'] else 'no':>7s} {r['delta_bic']:10.1f} "
+                     f"{r['lr_pvalue']:9.2g} {r.get('new_dimensions', 0):4d} {str(r.get('heldout', '')):>9s} "
+                     f"{_num(r.get('heldout_gap_before')):>10s} {_num(r.get('heldout_gap_after')):>10s}  {cur}{note}")
+    return lines
+
+
+def _text(d) -> str:
+    w, rem = d.where, d.remaining
+    sig = ", ".join(f"{s:.3g}" for s in w["noise_sigma_per_sensor"])
+    out = [f"fluxcal diagnose — {d.source}: cable ring, {w['overall']['snapshots']} snapshots "
+           f"({w['overall']['n']} readings)",
+           f"noise σ per sensor {sig} T ({d.noise_source})",
+           f"base model (straight infinite conductors, "
+           f"{'currents fitted per snapshot' if d.base['fit_currents'] else 'reference currents'}): "
+           f"residual RMS {w['overall']['rms_z']:.2f} σ, gap √(RMS² − σ²) {w['overall']['gap']:.4g} T",
+           "", "WHERE (base model residuals / σ; tests per regime):"]
+    for t in w["tests"]:
+        flag = "  <-- departs" if t["pvalue"] < 0.01 else ""
+        out.append(f"  {t['regime']:9s} {t['test']:44s} stat {t['statistic']:10.3g}  p {t['pvalue']:.2g}{flag}")
+    for name in ("sensor", "axis", "current", "rotation"):
+        rows = w["tables"].get(name)
+        if rows:
+            out.append(f"  {name:9s} RMS/σ by bin: " + ", ".join(f"{r['bin']} {r['rms_z']:.2f}" for r in rows))
+    out += ["", "WHICH and HOW FAR (candidates; held-out gap = √(RMS² − σ²) on the unseen regime, tesla):"]
+    out += ["  " + line for line in _ranking_lines(d)]
+    out.append("")
+    if d.accepted:
+        out.append(f"FOUND: {', '.join(d.accepted)} (added in this order)")
+    else:
+        out.append("FOUND: no significant effect — the ring's model explains the readings to the noise")
+    b = d.base
+    if b.get("position_error_mm") is not None:
+        out.append(f"conductor positions vs the truth: {b['position_error_mm']:.3g} mm (base) → "
+                   f"{b['final_position_error_mm']:.3g} mm (with the effects found)")
+    out.append(f"remaining: residual RMS {rem['overall']['rms_z']:.2f} σ, gap {rem['overall']['gap']:.4g} T; "
+               + "; ".join(f"{t['regime']} {t['test']} p {t['pvalue']:.2g}" for t in rem["tests"]))
+    return "\n".join(out)
+
+
+def _write_report(d, folder) -> Path:
+    """summary.txt, diagnosis.json, figures (residual / σ by rotation and sensor, by current, in time;
+    held-out gaps and current errors) and index.html in `folder`."""
+    import html
+
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    folder = Path(folder)
+    folder.mkdir(parents=True, exist_ok=True)
+    (folder / "summary.txt").write_text(_text(d) + "\n")
+    d.save_json(folder / "diagnosis.json")
+    s = d.series
+    figures = []
+    rms = lambda r: np.sqrt(np.mean(r ** 2, axis=2))  # noqa: E731 - (K, M) RMS over the two axes
+    z0, z1 = rms(s["residual_before"]), rms(s["residual_after"])
+    rot = np.mod(s["rotations"], 360.0)
+    fig, axes = plt.subplots(1, 2, figsize=(11, 4))  # own scales: the gap may shrink a hundredfold
+    for ax, z, title in ((axes[0], z0, "base model"), (axes[1], z1, "with the effects found")):
+        for i in range(z.shape[1]):
+            ax.plot(rot + 2 * i, z[:, i], ".", ms=4, label=f"sensor {i}")
+        ax.set_title(f"RMS residual / σ vs ring rotation — {title}")
+        ax.set_xlabel("rotation (°)")
+    axes[0].set_ylabel("RMS residual / σ")
+    axes[0].legend(fontsize=8)
+    figures.append(_save(fig, folder / "rotation.png"))
+    for name, x, label in (("current", s["levels"], "current level (A)"), ("time", s["t"], "snapshot time")):
+        fig, ax = plt.subplots(figsize=(11, 3.5))
+        ax.plot(x, z0.mean(axis=1), ".", ms=3, label="base model")
+        ax.plot(x, z1.mean(axis=1), ".", ms=3, label="with the effects found")
+        ax.set_xlabel(label)
+        ax.set_ylabel("RMS residual / σ")
+        ax.legend(fontsize=8)
+        figures.append(_save(fig, folder / f"{name}.png"))
+    rows = [r for r in d.ranking if r.get("heldout_gap_before") is not None]
+    if rows:
+        fig, axes = plt.subplots(1, 2, figsize=(11, 3.5))
+        xs = np.arange(len(rows))
+        labels = [r["effect"] + (" *" if r["significant"] else "") for r in rows]
+        axes[0].bar(xs - 0.2, [r["heldout_gap_before"] for r in rows], 0.4, label="before")
+        axes[0].bar(xs + 0.2, [r["heldout_gap_after"] for r in rows], 0.4, label="after")
+        axes[0].set_ylabel("held-out gap √(RMS² − σ²) (T)")
+        if all(r.get("current_error_a_before") is not None for r in rows):
+            axes[1].bar(xs - 0.2, [r["current_error_pct_before"] for r in rows], 0.4, label="before")
+            axes[1].bar(xs + 0.2, [r["current_error_pct_after"] for r in rows], 0.4, label="after")
+            axes[1].set_ylabel("held-out current error (% RMS)")
+        for ax in axes:
+            ax.set_xticks(xs, labels, rotation=30, ha="right")
+            ax.legend(fontsize=8)
+        figures.append(_save(fig, folder / "heldout.png"))
+    body = [f"<h1>fluxcal diagnose — {html.escape(d.source)}</h1>", f"<pre>{html.escape(_text(d))}</pre>"]
+    for regime, rows_ in d.where["tables"].items():
+        body.append(f"<h2>Base residual by {regime}</h2><table border=1 cellpadding=3><tr>"
+                    + "".join(f"<th>{html.escape(k)}</th>" for k in rows_[0]) + "</tr>")
+        for r in rows_:
+            body.append("<tr>" + "".join(f"<td>{html.escape(f'{v:.4g}' if isinstance(v, float) else str(v))}</td>"
+                                         for v in r.values()) + "</tr>")
+        body.append("</table>")
+    body += [f'<h2>{p.stem}</h2><img src="{p.name}" style="max-width:100%">' for p in figures]
+    page = folder / "index.html"
+    page.write_text("<!doctype html><meta charset='utf-8'><title>fluxcal diagnose cable</title>\n"
+                    + "\n".join(body) + "\n")
+    return page
+
+
+def _save(fig, path: Path) -> Path:
+    import matplotlib.pyplot as plt
+
+    fig.savefig(path, dpi=90, bbox_inches="tight")
+    plt.close(fig)
+    return path

@@ -1,0 +1,472 @@
+"""Firmware export: a calibration as a C header, in float and in int32 Q-format fixed point.
+
+    from fluxcal.export_c import export_c
+    result = export_c(cal, "magcal.h", q_format=None, name="magcal", kalman="drift.json")
+    print(result.describe())
+
+The header (C99, also valid C++) holds the offset b and matrix A in float and in fixed point, a static
+inline correction h = A (m − b) for each, a test vector (inputs and fluxcal's double-precision outputs)
+and `<name>_self_test()`, so firmware can check itself. Fixed point:
+
+* Signal format Qm.n (int32: a sign bit, m integer and n fraction bits, m + n = 31) for the readings m,
+  the offset b and the output h. Matrix entries have their own fraction bits na, chosen so that
+  |a_ij| ≤ 2^30 · 2^-na: three products of an int32 difference sum exactly in int64.
+* Arithmetic: d = m − b in int64 saturated to int32; acc = Σ a_ij d_j exact in int64; h_i = acc / 2^na
+  rounded to nearest, ties away from zero, saturated to int32; the function returns 1 if anything
+  saturated (values never wrap). Constants are rounded to nearest.
+* Stated input range |m_j| ≤ R: R = 2 × the readings' extent (max_i |b_i| + F ‖row i of A⁻¹‖, the largest
+  component of a reading of the calibration's field magnitude F), so that fields up to twice the
+  calibration field still fit, reduced if needed so that neither d nor h can saturate in the format.
+* Default format: the smallest m for which inputs of ±R, the differences d and every output for such
+  inputs (max_i Σ_j |a_ij| (R + |b_j|)) fit — all remaining bits are fraction bits.
+* Error bound, for every input in the range: |h_fixed − A (m − b)| ≤ E per component,
+  E = max_i [2^-(n+1) (1 + Σ_j |a_ij|) + 2^-(na+1) Σ_j (R + |b̃_j|)] — rounding of b, of A and of the output;
+  exact arithmetic otherwise, so E is a bound, not an estimate.
+
+With `kalman` (a JSON saved by `save_kalman`, or a drift model from `fluxcal drift fit`) the header also
+carries the fixed-point AR Kalman coefficients (`FixedArKalman.export_header`) and a test vector of
+int32 inputs and the outputs of `FixedArKalman.filter_int` that cpp/include/fluxcal/fixed_kalman.hpp
+must reproduce bit for bit.
+"""
+from __future__ import annotations
+
+import json
+import math
+import re
+import tempfile
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from .calibration import Calibration
+
+INT32_MIN, INT32_MAX = -(2 ** 31), 2 ** 31 - 1
+FLOAT_RELATIVE_TOLERANCE = 1e-6  # float32 result vs double: relative to max(|h|∞, field norm)
+RANGE_MARGIN = 2.0               # the stated input range is this many times the readings' extent
+KALMAN_KIND = "fluxcal fixed AR Kalman"
+
+
+@dataclass(frozen=True)
+class QFormat:
+    """int32 Qm.n: value = integer · 2^-n; a sign bit, m integer bits and n fraction bits (m + n = 31)."""
+
+    int_bits: int
+    frac_bits: int
+
+    @classmethod
+    def parse(cls, text: str) -> "QFormat":
+        match = re.fullmatch(r"\s*[Qq](\d+)\.(\d+)\s*", str(text))
+        if not match:
+            raise ValueError(f"--q-format: {text!r} is not Qm.n (e.g. Q12.19)")
+        m, n = int(match.group(1)), int(match.group(2))
+        if m + n != 31:
+            raise ValueError(f"--q-format: {text}: an int32 has a sign bit and 31 more, so m + n must be 31 "
+                             f"(e.g. Q{min(m, 31)}.{31 - min(m, 31)})")
+        return cls(m, n)
+
+    @property
+    def lsb(self) -> float:
+        return 2.0 ** -self.frac_bits
+
+    @property
+    def max_value(self) -> float:
+        return 2.0 ** self.int_bits - self.lsb
+
+    def __str__(self) -> str:
+        return f"Q{self.int_bits}.{self.frac_bits}"
+
+
+def reading_extent(cal: Calibration) -> float:
+    """The largest |component| of a reading of a field of the calibration's magnitude: max_i |b_i| + F ‖W_i‖."""
+    w = cal.forward_matrix
+    return float(np.max(np.abs(cal.offset) + cal.field_norm * np.linalg.norm(w, axis=1)))
+
+
+def _output_range(a: np.ndarray, b: np.ndarray, r: float) -> float:
+    """max |h_i| over inputs |m_j| ≤ r."""
+    return float(np.max(np.abs(a) @ (r + np.abs(b))))
+
+
+@dataclass
+class FixedCalibration:
+    """The fixed-point form of a calibration (module docstring for the rules)."""
+
+    calibration: Calibration
+    fmt: QFormat
+    matrix_frac_bits: int
+    offset_q: np.ndarray  # int64 (3,), signal format
+    matrix_q: np.ndarray  # int64 (3, 3), 2^-matrix_frac_bits
+    input_range_q: int    # |m_j| ≤ input_range_q (signal format) is the stated range
+    error_bound: float    # per component, in the calibration's units
+    range_note: str
+
+    @property
+    def input_range(self) -> float:
+        return self.input_range_q * self.fmt.lsb
+
+    @property
+    def error_bound_lsb(self) -> float:
+        return self.error_bound / self.fmt.lsb
+
+    def to_fixed(self, m) -> np.ndarray:
+        """Readings in the signal format: round to nearest, saturate to int32."""
+        scaled = np.rint(np.asarray(m, dtype=float) * 2.0 ** self.fmt.frac_bits)
+        return np.clip(scaled, INT32_MIN, INT32_MAX).astype(np.int64)
+
+    def apply_int(self, m_q) -> tuple[np.ndarray, bool]:
+        """The firmware's fixed-point correction, bit for bit (N×3 int in, N×3 int out, saturated?)."""
+        m_q = np.atleast_2d(np.asarray(m_q, dtype=np.int64))
+        raw_d = m_q - self.offset_q
+        d = np.clip(raw_d, INT32_MIN, INT32_MAX)
+        saturated = bool(np.any(d != raw_d))
+        h = []
+        for row in d.tolist():  # Python integers: exact like the firmware's int64
+            out = []
+            for i in range(3):
+                acc = sum(int(self.matrix_q[i, j]) * row[j] for j in range(3))
+                half = 1 << (self.matrix_frac_bits - 1)
+                acc = (acc + half) >> self.matrix_frac_bits if acc >= 0 else -((-acc + half) >> self.matrix_frac_bits)
+                saturated |= not INT32_MIN <= acc <= INT32_MAX
+                out.append(min(max(acc, INT32_MIN), INT32_MAX))
+            h.append(out)
+        return np.array(h, dtype=np.int64), saturated
+
+
+def _matrix_frac_bits(a: np.ndarray) -> int:
+    biggest = float(np.max(np.abs(a)))
+    if not biggest > 0:
+        raise ValueError("calibration: the matrix is zero")
+    bits = 30 - math.ceil(math.log2(biggest))
+    if bits < 1:
+        raise ValueError(f"calibration: matrix entries up to {biggest:.6g} do not fit an int32 with a fraction bit")
+    return min(bits, 61)  # 61: the rounding add (acc + 2^(na-1)) stays inside int64
+
+
+def _error_bound(a, b_q, fmt: QFormat, na: int, r: float) -> float:
+    rows = fmt.lsb / 2 * (1.0 + np.abs(a).sum(axis=1)) + 2.0 ** -(na + 1) * np.sum(r + np.abs(b_q))
+    return float(np.max(rows))
+
+
+def _fits(a, b, fmt: QFormat, na: int, r: float) -> bool:
+    """Inputs |m| ≤ r: the differences d and the outputs (with their rounding error) fit the format."""
+    slack = _error_bound(a, b, fmt, na, r)
+    return r + float(np.max(np.abs(b))) <= fmt.max_value and _output_range(a, b, r) + slack <= fmt.max_value
+
+
+def fixed_point(cal: Calibration, q_format: str | QFormat | None = None) -> FixedCalibration:
+    """Quantise `cal` (module docstring: format choice, range and bound)."""
+    a, b = cal.matrix, cal.offset
+    if not (np.all(np.isfinite(a)) and np.all(np.isfinite(b)) and np.isfinite(cal.field_norm)):
+        raise ValueError("calibration: offset, matrix and field norm must be finite")
+    na = _matrix_frac_bits(a)
+    extent = reading_extent(cal)
+    wanted = RANGE_MARGIN * extent
+    if q_format is None:
+        fmt = next((QFormat(m, 31 - m) for m in range(32) if _fits(a, b, QFormat(m, 31 - m), na, wanted)), None)
+        if fmt is None:
+            raise ValueError(f"calibration: readings up to {wanted:.6g} {cal.units} do not fit any int32 Q format")
+        r, note = wanted, f"{RANGE_MARGIN:g} x the readings' extent {extent:.6g} {cal.units}".rstrip()
+    else:
+        fmt = q_format if isinstance(q_format, QFormat) else QFormat.parse(q_format)
+        if not _fits(a, b, fmt, na, extent):
+            smallest = next((f"Q{m}.{31 - m}" for m in range(32) if _fits(a, b, QFormat(m, 31 - m), na, extent)), None)
+            raise ValueError(f"--q-format {fmt}: readings of the calibration field reach ±{extent:.6g} {cal.units} "
+                             f"and their corrections ±{_output_range(a, b, extent):.6g}, beyond the format's "
+                             f"±{fmt.max_value:.6g}; use at least {smallest}")
+        lo, hi = extent, wanted  # the largest range up to `wanted` that fits: bisection (both sides monotone)
+        if _fits(a, b, fmt, na, hi):
+            lo = hi
+        for _ in range(60):
+            mid = (lo + hi) / 2
+            lo, hi = (mid, hi) if _fits(a, b, fmt, na, mid) else (lo, mid)
+        r = lo
+        note = (f"{RANGE_MARGIN:g} x the readings' extent {extent:.6g} {cal.units}".rstrip() if r == wanted else
+                f"{r / extent:.3g} x the readings' extent {extent:.6g} {cal.units} ({fmt} holds no more "
+                f"without saturating)")
+    offset_q = np.rint(b * 2.0 ** fmt.frac_bits).astype(np.int64)
+    matrix_q = np.rint(a * 2.0 ** na).astype(np.int64)
+    range_q = int(math.floor(r * 2.0 ** fmt.frac_bits))
+    bound = _error_bound(a, offset_q * fmt.lsb, fmt, na, range_q * fmt.lsb)
+    return FixedCalibration(cal, fmt, na, offset_q, matrix_q, range_q, bound, note)
+
+
+def vector_inputs(fx: FixedCalibration, seed: int = 0) -> np.ndarray:
+    """Test readings on the signal grid (int64 N×3): the calibration field from 14 directions, the 8
+    corners of the stated range, 6 random points in it, the offset (h = 0) and zero."""
+    cal = fx.calibration
+    axes = np.vstack([np.eye(3), -np.eye(3)])
+    diagonals = np.array([[x, y, z] for x in (-1, 1) for y in (-1, 1) for z in (-1, 1)]) / np.sqrt(3.0)
+    on_sphere = cal.reading(cal.field_norm * np.vstack([axes, diagonals]))
+    r = fx.input_range
+    corners = r * np.array([[x, y, z] for x in (-1, 1) for y in (-1, 1) for z in (-1, 1)], dtype=float)
+    random = np.random.default_rng(seed).uniform(-r, r, (6, 3))
+    m = np.vstack([on_sphere, corners, random, cal.offset, np.zeros(3)])
+    return np.clip(fx.to_fixed(m), -fx.input_range_q, fx.input_range_q)
+
+
+# -- Kalman filter coefficients ----------------------------------------------------------------------------
+
+def save_kalman(f, path) -> Path:
+    """Save a FixedArKalman's settings as JSON (what `export_c(kalman=...)` and `--kalman` read)."""
+    d = f.double
+    data = {"kind": KALMAN_KIND, "ar_coeffs": d.ar_coeffs.tolist(), "q": d.q, "r": d.r,
+            "steady_state": f.steady_state, "initial_variance": float(d.options.initial_variance),
+            "frac_bits": f.frac_bits, "coef_frac_bits": f.coef_frac_bits, "cov_frac_bits": f.cov_frac_bits}
+    path = Path(path)
+    path.write_text(json.dumps(data, indent=2) + "\n")
+    return path
+
+
+def load_kalman(path):
+    """A FixedArKalman from a JSON of `save_kalman` or a drift model of `fluxcal drift fit` (its AR model and
+    Kalman q, r). Without stated signal fraction bits they follow FixedArKalman's own rule (2·max|y| fits)
+    with max|y| = 8 σ_y, σ_y² = the AR process's stationary variance + r."""
+    from .kalman import FixedArKalman, _int_bits
+
+    path = Path(path)
+    try:
+        data = json.loads(path.read_text())
+    except OSError as exc:
+        raise ValueError(f"{path}: cannot read ({exc.strerror or exc})") from None
+    except json.JSONDecodeError as exc:
+        raise ValueError(f"{path}, line {exc.lineno}, column {exc.colno}: not valid JSON ({exc.msg})") from None
+    if not isinstance(data, dict):
+        raise ValueError(f"{path}: expected a JSON object (a saved FixedArKalman or a drift model)")
+    try:
+        if data.get("kind") == KALMAN_KIND:
+            settings = dict(ar_coeffs=data["ar_coeffs"], q=data["q"], r=data["r"],
+                            steady_state=bool(data.get("steady_state", False)),
+                            initial_variance=float(data.get("initial_variance", 0.0)),
+                            coef_frac_bits=data.get("coef_frac_bits"), cov_frac_bits=data.get("cov_frac_bits"))
+            frac_bits = data.get("frac_bits")
+        elif data.get("kind") == "fluxcal drift model" and "ar" in data and "kalman" in data:
+            settings = dict(ar_coeffs=data["ar"]["coefficients"], q=data["kalman"]["q"], r=data["kalman"]["r"],
+                            steady_state=bool(data["kalman"].get("steady_state", False)))
+            frac_bits = None
+        else:
+            raise ValueError(f"{path}: neither a saved FixedArKalman (kind {KALMAN_KIND!r}) nor a drift model with "
+                             "'ar' and 'kalman' sections (fluxcal drift fit)")
+        f = FixedArKalman(**settings, frac_bits=frac_bits)
+    except (KeyError, TypeError) as exc:
+        raise ValueError(f"{path}: malformed Kalman settings (missing or wrong {exc})") from None
+    if f.frac_bits is None:
+        sigma = math.sqrt(float(f.double.initial_covariance[0, 0]) + f.double.r)
+        if not math.isfinite(sigma):
+            raise ValueError(f"{path}: the AR model is not stationary; give frac_bits explicitly")
+        f.frac_bits = min(31, 31 - _int_bits(2.0 * 8.0 * sigma))
+    return f
+
+
+def _kalman_test_vector(f, n: int = 256, seed: int = 0):
+    """An AR series of the filter's own model (seeded) in the signal format, and filter_int's outputs."""
+    d = f.double
+    rng = np.random.default_rng(seed)
+    burn = 200
+    x = np.zeros(n + burn)
+    for k in range(n + burn):
+        past = x[max(0, k - d.order):k][::-1]
+        x[k] = float(np.dot(d.ar_coeffs[:past.size], past)) + math.sqrt(d.q) * rng.standard_normal()
+    y = x[burn:] + math.sqrt(d.r) * rng.standard_normal(n)
+    limit = 0.45 * 2.0 ** (31 - f.frac_bits)  # keep the test inside the signal range: no saturation to test here
+    if np.max(np.abs(y)) > limit:
+        y *= limit / np.max(np.abs(y))
+    y_int, _ = f.to_fixed(y)
+    out = f.filter_int(y_int)
+    return np.asarray(y_int, dtype=np.int64), np.asarray(out, dtype=np.int64), f.overflowed
+
+
+# -- the header ----------------------------------------------------------------------------------------------
+
+@dataclass
+class ExportResult:
+    path: Path
+    fixed: FixedCalibration
+    inputs_q: np.ndarray
+    kalman: object = None
+    kalman_test: tuple | None = None
+
+    def describe(self) -> str:
+        fx, u = self.fixed, self.fixed.calibration.units
+        unit = f" {u}" if u else ""
+        text = (f"wrote {self.path}: float and {fx.fmt} fixed point (matrix 2^-{fx.matrix_frac_bits}); inputs "
+                f"|m| ≤ {fx.input_range:.6g}{unit}; fixed-point error ≤ {fx.error_bound:.3g}{unit} "
+                f"({fx.error_bound_lsb:.2f} LSB); {len(self.inputs_q)} test vectors")
+        if self.kalman is not None:
+            text += (f"; AR({self.kalman.order}) Kalman coefficients (signal Q{31 - self.kalman.frac_bits}."
+                     f"{self.kalman.frac_bits}) with a {len(self.kalman_test[0])}-sample bit-exact test vector")
+        return text
+
+
+def _c_name(name: str) -> str:
+    if not re.fullmatch(r"[A-Za-z_][A-Za-z0-9_]*", name or ""):
+        raise ValueError(f"--name: {name!r} is not a C identifier (letters, digits, _; not starting with a digit)")
+    return name
+
+
+def default_name(path) -> str:
+    stem = re.sub(r"\W", "_", Path(path).stem) or "fluxcal_cal"
+    return stem if not stem[0].isdigit() else "cal_" + stem
+
+
+def _float_literal(v: float) -> str:
+    text = str(np.float32(v))  # the shortest digits that give back this float
+    return (text if any(c in text for c in ".en") else text + ".0") + "f"
+
+
+def _rows(values, fmt, indent="  ") -> str:
+    return ",\n".join(indent + "{" + ", ".join(fmt(v) for v in row) + "}" for row in values)
+
+
+def export_c(cal: Calibration, path, q_format=None, name: str | None = None, kalman=None,
+             source: str = "") -> ExportResult:
+    """Write the firmware header (module docstring). `kalman`: a FixedArKalman, or a JSON path for
+    `load_kalman`. Returns what was written (ExportResult.describe() says it in one line)."""
+    from . import __version__
+
+    path = Path(path)
+    name = _c_name(name if name is not None else default_name(path))
+    up = name.upper()
+    fx = fixed_point(cal, q_format)
+    inputs_q = vector_inputs(fx)
+    inputs = inputs_q * fx.fmt.lsb                      # the exact values the fixed inputs stand for
+    inputs_f = inputs.astype(np.float32).astype(float)  # what the float function is given
+    expected = cal.apply(inputs)
+    expected_f = cal.apply(inputs_f)
+    expected_q = np.rint(expected * 2.0 ** fx.fmt.frac_bits).astype(np.int64)
+    tolerance_lsb = math.ceil(fx.error_bound_lsb + 0.5)  # the expected value itself is rounded to the grid
+    _, saturated = fx.apply_int(inputs_q)
+    if saturated:  # cannot happen by construction; a guard against a broken range rule
+        raise AssertionError("export-c: a test input saturates inside the stated range")
+    units = cal.units or "(units not stated)"
+    u = f" {cal.units}" if cal.units else ""
+    n, na, lsb = fx.fmt.frac_bits, fx.matrix_frac_bits, fx.fmt.lsb
+    i32 = lambda v: str(int(v)) if v != INT32_MIN else "INT32_MIN"  # noqa: E731
+    lines = [
+        f"/* {path.name}: magnetometer calibration for firmware, written by fluxcal {__version__}"
+        + (f" from {source}." if source else "."),
+        " *",
+        f" * Model: h = A (m - b). m: a raw reading in {units}; h: the corrected field, |h| = {cal.field_norm:.9g}"
+        f" in the calibration field.",
+        f" * Float: {name}_apply_float(m, h): A and b in float (single precision). On the test vector it",
+        f" *   reproduces fluxcal's double result within {FLOAT_RELATIVE_TOLERANCE:g} x max(|h| (largest component), "
+        f"{cal.field_norm:.6g}).",
+        f" * Fixed: {name}_apply_fixed(m, h): int32 in and out, int64 inside, no division, no floating point.",
+        f" *   Signal format {fx.fmt} for m, b and h: value = int32 / 2^{n}; a sign bit, {fx.fmt.int_bits} integer and "
+        f"{n} fraction bits;",
+        f" *     range [-2^{fx.fmt.int_bits}, 2^{fx.fmt.int_bits} - 2^-{n}], LSB 2^-{n} = {lsb:.6g}{u}.",
+        f" *     A raw reading r converts as round(r * 2^{n}), saturated to int32 (integer counts: r * 2^{n}).",
+        f" *   Matrix: a_ij = int32 / 2^{na}, |a_ij| <= 2^30, so sums of three products are exact in int64.",
+        " *   Arithmetic: d_j = m_j - b_j in int64, saturated to int32; acc_i = sum_j a_ij d_j (exact);",
+        f" *     h_i = acc_i / 2^{na} rounded to nearest, ties away from zero, saturated to int32. Constants are",
+        " *     rounded to nearest. The function returns 1 when anything saturated (values never wrap), else 0.",
+        f" *   Stated input range: |m_j| <= R = {fx.input_range:.9g}{u} ({up}_INPUT_RANGE_Q), {fx.range_note}.",
+        f" *     In it nothing saturates and every component of h is within E = {fx.error_bound:.6g}{u}",
+        f" *     ({fx.error_bound_lsb:.3f} LSB) of the exact h = A (m - b):",
+        f" *     E = max_i [2^-{n + 1} (1 + sum_j |a_ij|) + 2^-{na + 1} sum_j (R + |b_j|)]  (rounding of b, A, h).",
+        f" * Self-check: {name}_self_test() runs the {len(inputs_q)} test vectors through both functions and",
+        " *   returns how many components miss fluxcal's double result by more than the tolerance (0 = pass):",
+        f" *   float {up}_FLOAT_REL_TOL relative as above, fixed {up}_FIXED_TOL_LSB LSB (E plus the rounding of",
+        " *   the expected value to the grid); a saturated test vector counts as a miss.",
+        " */",
+        f"#ifndef {up}_H", f"#define {up}_H", "", "#include <stdint.h>", "",
+        f"#define {up}_FIELD_NORM {_float_literal(cal.field_norm)}",
+        f"#define {up}_Q_INT_BITS {fx.fmt.int_bits}",
+        f"#define {up}_Q_FRAC_BITS {n}",
+        f"#define {up}_MATRIX_FRAC_BITS {na}",
+        f"#define {up}_INPUT_RANGE {_float_literal(fx.input_range)}",
+        f"#define {up}_INPUT_RANGE_Q {fx.input_range_q}",
+        f"#define {up}_FIXED_ERROR_BOUND {_float_literal(fx.error_bound)}",
+        f"#define {up}_FIXED_TOL_LSB {tolerance_lsb}",
+        f"#define {up}_FLOAT_REL_TOL {_float_literal(FLOAT_RELATIVE_TOLERANCE)}",
+        "",
+        f"/* double: b = {', '.join(f'{v:.17g}' for v in cal.offset)} */",
+        f"static const float {name}_offset_f[3] = {{{', '.join(_float_literal(v) for v in cal.offset)}}};",
+        f"/* row-major, h_i = sum_j A[i][j] (m_j - b_j); double: "
+        f"{', '.join(f'{v:.17g}' for v in cal.matrix.ravel())} */",
+        f"static const float {name}_matrix_f[3][3] = {{\n{_rows(cal.matrix, _float_literal)}}};",
+        f"static const int32_t {name}_offset_q[3] = {{{', '.join(i32(v) for v in fx.offset_q)}}};",
+        f"static const int32_t {name}_matrix_q[3][3] = {{\n{_rows(fx.matrix_q, i32)}}};",
+        "",
+        f"static inline void {name}_apply_float(const float m[3], float h[3]) {{",
+        f"  const float d0 = m[0] - {name}_offset_f[0], d1 = m[1] - {name}_offset_f[1],",
+        f"              d2 = m[2] - {name}_offset_f[2];",
+        "  int i;",
+        f"  for (i = 0; i < 3; ++i) h[i] = {name}_matrix_f[i][0] * d0 + {name}_matrix_f[i][1] * d1 + "
+        f"{name}_matrix_f[i][2] * d2;",
+        "}", "",
+        f"static inline int32_t {name}_saturate_(int64_t v, int *saturated) {{",
+        "  if (v > INT32_MAX) { *saturated = 1; return INT32_MAX; }",
+        "  if (v < INT32_MIN) { *saturated = 1; return INT32_MIN; }",
+        "  return (int32_t)v;",
+        "}", "",
+        f"static inline int {name}_apply_fixed(const int32_t m[3], int32_t h[3]) {{",
+        f"  const int64_t half = (int64_t)1 << ({up}_MATRIX_FRAC_BITS - 1);",
+        "  int saturated = 0, i, j;",
+        "  int32_t d[3];",
+        f"  for (j = 0; j < 3; ++j) d[j] = {name}_saturate_((int64_t)m[j] - {name}_offset_q[j], &saturated);",
+        "  for (i = 0; i < 3; ++i) {",
+        "    int64_t acc = 0;",
+        f"    for (j = 0; j < 3; ++j) acc += (int64_t){name}_matrix_q[i][j] * d[j];",
+        "    /* nearest, ties away from zero; shifting only non-negative values keeps it portable C99 */",
+        f"    acc = acc >= 0 ? (acc + half) >> {up}_MATRIX_FRAC_BITS : -((-acc + half) >> {up}_MATRIX_FRAC_BITS);",
+        f"    h[i] = {name}_saturate_(acc, &saturated);",
+        "  }",
+        "  return saturated;",
+        "}", "",
+        f"/* Test vector: readings (the calibration field from 14 directions, the corners of the range, random",
+        f" * points in it, m = b, m = 0) and fluxcal's double-precision h, rounded to float and to {fx.fmt}. */",
+        f"#define {up}_TEST_COUNT {len(inputs_q)}",
+        f"static const float {name}_test_input_f[{up}_TEST_COUNT][3] = {{\n{_rows(inputs_f, _float_literal)}}};",
+        f"static const float {name}_test_expected_f[{up}_TEST_COUNT][3] = {{\n{_rows(expected_f, _float_literal)}}};",
+        f"static const int32_t {name}_test_input_q[{up}_TEST_COUNT][3] = {{\n{_rows(inputs_q, i32)}}};",
+        f"static const int32_t {name}_test_expected_q[{up}_TEST_COUNT][3] = {{\n{_rows(expected_q, i32)}}};",
+        "",
+        f"static inline int {name}_self_test(void) {{",
+        "  int misses = 0, k, i;",
+        f"  for (k = 0; k < {up}_TEST_COUNT; ++k) {{",
+        "    float hf[3], scale = " + f"{up}_FIELD_NORM;",
+        "    int32_t hq[3];",
+        f"    {name}_apply_float({name}_test_input_f[k], hf);",
+        f"    if ({name}_apply_fixed({name}_test_input_q[k], hq)) ++misses;",
+        "    for (i = 0; i < 3; ++i) {",
+        f"      float e = {name}_test_expected_f[k][i];",
+        "      if (e > scale) scale = e;",
+        "      if (-e > scale) scale = -e;",
+        "    }",
+        "    for (i = 0; i < 3; ++i) {",
+        f"      float ef = hf[i] - {name}_test_expected_f[k][i];",
+        f"      int64_t eq = (int64_t)hq[i] - {name}_test_expected_q[k][i];",
+        f"      if (ef > {up}_FLOAT_REL_TOL * scale || -ef > {up}_FLOAT_REL_TOL * scale) ++misses;",
+        f"      if (eq > {up}_FIXED_TOL_LSB || -eq > {up}_FIXED_TOL_LSB) ++misses;",
+        "    }",
+        "  }",
+        "  return misses;",
+        "}",
+    ]
+    result = ExportResult(path, fx, inputs_q)
+    if kalman is not None:
+        f = load_kalman(kalman) if isinstance(kalman, (str, Path)) else kalman
+        if f.frac_bits is None:
+            raise ValueError("kalman: the filter's signal format (frac_bits) is not set")
+        y_int, out, overflowed = _kalman_test_vector(f)
+        if overflowed:
+            raise ValueError("kalman: the filter saturates on its own test signal; check its fraction bits")
+        kname = f"{name}_kalman"
+        with tempfile.TemporaryDirectory() as tmp:  # reuse FixedArKalman's own header writer
+            coefficients = f.export_header(Path(tmp) / "kalman.h", name=kname).read_text()
+        lines += [
+            "", f"/* ---- Fixed-point AR({f.order}) Kalman filter (fluxcal.kalman.FixedArKalman) ----",
+            " * Run it with fluxcal::FixedArKalman<MaxOrder> of cpp/include/fluxcal/fixed_kalman.hpp (C++,",
+            " * header-only)",
+            f" * configured from these coefficients: fed {kname}_test_input, it must return {kname}_test_output",
+            " * bit for bit (fluxcal's FixedArKalman.filter_int computed them). */",
+            coefficients.rstrip("\n"),
+            f"#define {kname.upper()}_TEST_COUNT {len(y_int)}",
+            f"static const int32_t {kname}_test_input[{len(y_int)}] = {{{', '.join(i32(v) for v in y_int)}}};",
+            f"static const int32_t {kname}_test_output[{len(out)}] = {{{', '.join(i32(v) for v in out)}}};",
+        ]
+        result.kalman, result.kalman_test = f, (y_int, out)
+    lines += ["", f"#endif /* {up}_H */", ""]
+    path.write_text("\n".join(lines))
+    return result

@@ -1,0 +1,141 @@
+"""read_recording / write_recording: every recording format fluxcal knows, chosen by content.
+
+Reading looks at the bytes, not the name (a file's extension is only a hint in messages):
+
+    PK\\x03\\x04 (zip)              → NumPy .npz            (fluxcal.io.npz)
+    \\x93NUMPY                      → NumPy .npy (one N×3 array)
+    "MATLAB 5.0 MAT-file" header   → MATLAB .mat v5/v7     (fluxcal.io.matlab; v7.3/HDF5 is refused with advice)
+    PAR1                           → Parquet               (fluxcal.io.parquet)
+    text starting with { or [      → JSON readings         (fluxcal.io.real: fluxcal's layout or shot triples)
+    other text                     → a table. Its delimiter is that of the first data line: tab, else
+                                     comma, else semicolon, else whitespace. Then:
+        `name,number` lines before the header → key,value preamble (QMC5883L logger; Fs gives t)
+        a header of names                     → fluxcal CSV (fluxcal.io.csv), any of those delimiters
+        numbers on the first line             → header-less: `columns` names every column, else the
+                                                 airborne 10-column layout if it fits, else an error
+                                                 asking for --columns (one name per column)
+
+`columns` is also how to pick the magnetometer: three names (or "a,b,c") select columns; a single name
+picks the N×3 matrix variable of a .mat/.npz. `units` states the magnetometer unit when the file does not.
+Writing goes by extension: .csv .npz .mat .parquet/.pq .json.
+"""
+from __future__ import annotations
+
+from pathlib import Path
+
+from .csv import _is_number, read_csv, read_text, write_csv
+from .recording import Recording
+
+WRITERS = (".csv", ".npz", ".mat", ".parquet", ".pq", ".json")
+
+
+def sniff(path) -> str:
+    """The format of a file by its content: "npz", "npy", "mat", "hdf5", "parquet", "json" or "text"."""
+    path = Path(path)
+    try:
+        with path.open("rb") as f:
+            head = f.read(128)
+    except OSError as exc:
+        raise ValueError(f"{path}: cannot read ({exc.strerror or exc})") from None
+    if head.startswith(b"PK\x03\x04") or head.startswith(b"PK\x05\x06"):
+        return "npz"
+    if head.startswith(b"\x93NUMPY"):
+        return "npy"
+    if head.startswith(b"MATLAB 7.3") or (head.startswith(b"MATLAB") and b"HDF5" in head):
+        return "hdf5"
+    if head.startswith(b"MATLAB"):
+        return "mat"
+    if head.startswith(b"\x89HDF"):
+        return "hdf5"
+    if head.startswith(b"PAR1"):
+        return "parquet"
+    if head.lstrip(b"\xef\xbb\xbf \t\r\n")[:1] in (b"{", b"["):
+        return "json"
+    if not head:
+        raise ValueError(f"{path}: empty file")
+    return "text"
+
+
+def read_recording(path, columns=None, units: str | None = None) -> Recording:
+    """Read any recording format fluxcal knows (module docstring); errors name the file, and for text
+    formats the line and column."""
+    path = Path(path)
+    kind = sniff(path)
+    single = isinstance(columns, str) and "," not in columns and columns.strip() != ""
+    if kind in ("npz", "npy", "mat"):
+        matrix, cols = (columns, None) if single else (None, columns)
+        if kind == "mat":
+            from .matlab import read_mat
+
+            return read_mat(path, columns=cols, units=units, matrix=matrix)
+        from .npz import read_npz
+
+        return read_npz(path, columns=cols, units=units, matrix=matrix)
+    if kind == "hdf5":
+        raise ValueError(f"{path}: an HDF5 file (MATLAB v7.3?); SciPy reads MAT v5/v7 only: in MATLAB save it with "
+                         "save(name, '-v7')")
+    if kind == "parquet":
+        from .parquet import read_parquet
+
+        return read_parquet(path, columns=columns, units=units)
+    if kind == "json":
+        from .real import read_json_recording
+
+        return read_json_recording(path, columns=columns, units=units)
+    return _read_table(path, columns, units)
+
+
+def _read_table(path: Path, columns, units) -> Recording:
+    from . import real
+
+    lines = read_text(path).splitlines()
+    start = real._skip_comments(lines)
+    if start >= len(lines):
+        raise ValueError(f"{path}: no header line and no data (only comments or blank lines)")
+    delimiter = _delimiter(lines, start)
+    if real.preamble_length(lines, start, delimiter) > 0:
+        return real.read_preamble_csv(path, columns=columns, units=units, delimiter=delimiter)
+    first = [c.strip() for c in lines[start].split(delimiter)]
+    if all(_is_number(c) for c in first):
+        names = columns.split(",") if isinstance(columns, str) else columns
+        if names is not None and (len(names) == len(first) or len(names) != 3):
+            return real.read_headerless(path, names=names, units=units, delimiter=delimiter)
+        # no names, or three: the magnetometer of a recognised layout
+        return real.read_headerless(path, columns=columns, units=units, delimiter=delimiter)
+    return read_csv(path, columns=columns, units=units, delimiter=delimiter)
+
+
+def _delimiter(lines, start: int):
+    """The delimiter of the first line after the header (or of the header itself): tab, comma,
+    semicolon or whitespace (None)."""
+    sample = next((line for line in lines[start + 1:] if line.strip() and not line.lstrip().startswith("#")),
+                  lines[start])
+    for candidate in ("\t", ",", ";"):
+        if candidate in sample:
+            return candidate
+    return None
+
+
+def write_recording(path, rec: Recording) -> Path:
+    """Write `rec` in the format of the path's extension (.csv .npz .mat .parquet/.pq .json)."""
+    path = Path(path)
+    suffix = path.suffix.lower()
+    if suffix == ".csv":
+        return write_csv(path, rec)
+    if suffix == ".npz":
+        from .npz import write_npz
+
+        return write_npz(path, rec)
+    if suffix == ".mat":
+        from .matlab import write_mat
+
+        return write_mat(path, rec)
+    if suffix in (".parquet", ".pq"):
+        from .parquet import write_parquet
+
+        return write_parquet(path, rec)
+    if suffix == ".json":
+        from .real import write_json_recording
+
+        return write_json_recording(path, rec)
+    raise ValueError(f"{path}: unknown recording extension {suffix or '(none)'!r}; use one of {', '.join(WRITERS)}")

@@ -1,0 +1,680 @@
+"""Recording from a serial port (pyserial): parse device lines, timestamp them, append them to a CSV.
+
+Formats a device may print, one record per line (`--format`):
+
+  csv          numbers separated by commas, semicolons, tabs or spaces: `12.3,-4,7` / `12.3 -4 7`.
+               `--columns` names them in order (default mx,my,mz), e.g. `t,mx[nT],my[nT],mz[nT]`.
+  kv           `key=value` or `key:value` pairs: `X=12.3 Y=-4 Z=7`, `mx:1,my:2,mz:3`. Keys match the
+               column names case-insensitively; `KEY=NAME` in `--columns` renames (default
+               `x=mx,y=my,z=mz`, which also accepts the keys mx,my,mz). Every key must be in the spec.
+  binary-spec  fixed-size binary frames: a sync word (`--sync A55A`, hex), then a `struct` layout
+               (`--frame "<hhh"`, one field per column), then optionally a one-byte checksum of the
+               payload (`--checksum sum8|xor8`). Bytes between frames are garbage and counted.
+
+A column `t` is the device's own time and is kept as it is; every record also gets `t_host`, the
+host's monotonic time (s) since the recording started when the chunk holding it was read.
+
+What is rejected, and counted by reason (never written as data): `binary` (bytes that are not text:
+invalid UTF-8 or control characters, or garbage between binary frames), `partial` (the first line
+after the port opens, which may be the tail of a line already in flight; the line in flight at a
+disconnect or at the end), `fields` (wrong number of fields, unknown or missing keys), `non_numeric`
+(a field that is not a finite decimal number), `out_of_range` (outside `--range`), `too_long` (no line
+end within 1024 bytes), `checksum` (binary frame whose checksum does not match).
+
+The output is the CSV layout of fluxcal.io.write_csv (`# fluxcal recording`, `# units: ...`, metadata,
+header, rows), flushed after every record so that a crash loses at most the line in flight. A
+disconnect writes `# note: disconnected ...`, then the port is reopened with growing back-off until
+the duration ends (`# note: reconnected ...`); the last line is a `# note: summary ...`. read_csv
+keeps those comment lines as metadata["notes"].
+"""
+from __future__ import annotations
+
+import contextlib
+import functools
+import operator
+import os
+import re
+import signal
+import struct
+import threading
+import time
+from collections import Counter
+from dataclasses import dataclass, field
+from datetime import datetime, timezone
+from pathlib import Path
+
+import serial  # pyserial (absolute import: this module's own name does not shadow it)
+
+REASONS = {
+    "binary": "non-text bytes (invalid UTF-8, control characters, garbage between frames)",
+    "partial": "partial line (first after opening the port, or in flight at a disconnect or the end)",
+    "fields": "wrong number of fields or unknown/missing keys",
+    "non_numeric": "a field that is not a finite number",
+    "out_of_range": "a value outside --range",
+    "too_long": "no line end within 1024 bytes",
+    "checksum": "binary frame checksum mismatch",
+}
+FORMATS = ("csv", "kv", "binary-spec")
+MAX_LINE = 1024
+_NUMBER = re.compile(r"[+-]?(?:\d+\.?\d*|\.\d+)(?:[eE][+-]?\d+)?")  # strict: no "nan", "1_000", "0x10"
+_ENTRY = re.compile(r"(?:([A-Za-z_][\w.]*)=)?([A-Za-z_][\w.]*)\s*(?:\[([^\]]*)\])?")
+_PAIR = re.compile(r"([A-Za-z_][\w.]*)\s*[=:]\s*([^\s,;=:]+)")
+_PAIR_SEPARATOR = re.compile(r"[\s,;]*")
+_LINE_END = re.compile(rb"\r\n|\r|\n")
+_CONTROL = re.compile(r"[\x00-\x08\x0b-\x1f\x7f]")
+
+
+class Reject(Exception):
+    """A line (or frame) that does not become a record: `reason` is a key of REASONS."""
+
+    def __init__(self, reason: str, detail: str):
+        super().__init__(detail)
+        self.reason, self.detail = reason, detail
+
+
+@dataclass(frozen=True)
+class Column:
+    name: str       # column in the recording
+    key: str = ""   # kv: the device's key (matched case-insensitively); "" = the name
+    unit: str = ""
+
+
+def parse_columns(spec: str | None, fmt: str = "csv", units: str | None = None) -> list:
+    """Columns from a spec such as "t,mx[nT],my[nT],mz[nT]" (kv also "X=mx,..."). `units` is given to
+    mx, my, mz when the spec does not state theirs. Default: mx,my,mz (kv: keys x,y,z or mx,my,mz)."""
+    if not spec:
+        spec = "x=mx,y=my,z=mz" if fmt == "kv" else "mx,my,mz"
+    columns = []
+    for entry in (e.strip() for e in spec.split(",")):
+        m = _ENTRY.fullmatch(entry)
+        if not m:
+            raise ValueError(f"--columns: entry {entry!r} is not NAME or NAME[unit]"
+                             + (" or KEY=NAME[unit]" if fmt == "kv" else ""))
+        key, name, unit = m.group(1) or "", m.group(2), (m.group(3) or "").strip()
+        if key and fmt != "kv":
+            raise ValueError(f"--columns: entry {entry!r}: KEY=NAME renames keys of --format kv only")
+        if name == "t_host":
+            raise ValueError("--columns: t_host is the host time the recorder adds; name the device's time t")
+        if not unit and units and name in ("mx", "my", "mz"):
+            unit = units
+        columns.append(Column(name, key, unit))
+    names = [c.name for c in columns]
+    if len(set(names)) != len(names):
+        raise ValueError(f"--columns: repeated column name in {spec!r}")
+    return columns
+
+
+def parse_range(text: str, columns) -> dict:
+    """`LO:HI` (every column but the device time t) or `NAME=LO:HI` → {name: (lo, hi)}."""
+    names = [c.name for c in columns]
+    target, _, bounds = text.rpartition("=")
+    lo_text, sep, hi_text = bounds.partition(":")
+    try:
+        lo, hi = float(lo_text), float(hi_text)
+    except ValueError:
+        lo = hi = None
+    if not sep or lo is None or not lo < hi:
+        raise ValueError(f"--range: {text!r} is not LO:HI or NAME=LO:HI with LO < HI")
+    if target and target not in names:
+        raise ValueError(f"--range: {text!r}: no column {target!r} (columns: {', '.join(names)})")
+    return {n: (lo, hi) for n in ([target] if target else [n for n in names if n != "t"])}
+
+
+def _number(text: str, column: str) -> float:
+    if not _NUMBER.fullmatch(text):
+        raise Reject("non_numeric", f"column {column!r}: {text!r} is not a number" if text else
+                     f"column {column!r} is empty")
+    value = float(text)
+    if value in (float("inf"), float("-inf")):
+        raise Reject("non_numeric", f"column {column!r}: {text!r} overflows a double")
+    return value
+
+
+def _check_ranges(values, names, ranges):
+    for value, name in zip(values, names):
+        if value != value or value in (float("inf"), float("-inf")):  # from a binary float field
+            raise Reject("non_numeric", f"column {name!r} is {value}")
+        if name in ranges:
+            lo, hi = ranges[name]
+            if not lo <= value <= hi:
+                raise Reject("out_of_range", f"column {name!r}: {value:g} outside [{lo:g}, {hi:g}]")
+
+
+class TextDecoder:
+    """Bytes from the port → records (tuples of floats, in column order) and Rejects, for csv and kv."""
+
+    def __init__(self, columns, fmt: str = "csv", ranges: dict | None = None):
+        if fmt not in ("csv", "kv"):
+            raise ValueError(f"--format: {fmt!r} is not a text format (csv, kv)")
+        self.columns, self.format, self.ranges = list(columns), fmt, dict(ranges or {})
+        self.names = [c.name for c in self.columns]
+        self._keys = {}
+        for j, c in enumerate(self.columns):
+            for k in {c.key.lower(), c.name.lower()} - {""}:
+                self._keys[k] = j
+        self._buffer = bytearray()
+        self._first = True
+        self._rest_of_long_line = False
+        self.blank_lines = 0
+
+    def reset(self) -> None:
+        """The port was (re)opened: the next line may start mid-line."""
+        self._buffer.clear()
+        self._first = True
+        self._rest_of_long_line = False
+
+    def feed(self, data: bytes):
+        """Yield a tuple of values or a Reject for every line completed by `data`."""
+        self._buffer += data
+        start = 0
+        for m in _LINE_END.finditer(self._buffer):
+            raw = bytes(self._buffer[start:m.start()])
+            start = m.end()
+            if self._rest_of_long_line:  # the end of a line already rejected as too long
+                self._rest_of_long_line = False
+                continue
+            if len(raw) > MAX_LINE:
+                self._first = False
+                yield Reject("too_long", f"{len(raw)} bytes without a line end: {_show(raw[:40])}...")
+                continue
+            if not raw.strip():
+                self.blank_lines += 1  # blank lines carry nothing (a CR LF split across reads gives one)
+                continue
+            if self._first:
+                self._first = False
+                yield Reject("partial", f"first line after opening the port: {_show(raw)}")
+                continue
+            try:
+                yield self.parse(raw)
+            except Reject as reject:
+                yield reject
+        del self._buffer[:start]
+        if len(self._buffer) > MAX_LINE:  # bound the memory a stream without line ends can take
+            if not self._rest_of_long_line:
+                yield Reject("too_long", f"{len(self._buffer)} bytes without a line end: "
+                                         f"{_show(self._buffer[:40])}...")
+            self._buffer.clear()
+            self._first = False
+            self._rest_of_long_line = True
+
+    def flush(self, why: str):
+        """The line in flight when the port is lost or the recording ends, as a Reject (or None)."""
+        pending, self._buffer = bytes(self._buffer), bytearray()
+        if self._rest_of_long_line:
+            self._rest_of_long_line = False
+            return None
+        return Reject("partial", f"{why}: {_show(pending)}") if pending.strip() else None
+
+    def parse(self, raw: bytes) -> tuple:
+        """One line (without its end) → values in column order; raises Reject."""
+        try:
+            text = raw.decode("utf-8")
+        except UnicodeDecodeError as exc:
+            raise Reject("binary", f"byte 0x{raw[exc.start]:02x} at column {exc.start + 1} is not UTF-8 text: "
+                                   f"{_show(raw)}") from None
+        bad = _CONTROL.search(text)
+        if bad:
+            raise Reject("binary", f"control character 0x{ord(bad.group()):02x} at column {bad.start() + 1}: "
+                                   f"{_show(raw)}")
+        text = text.strip()
+        values = self._parse_kv(text) if self.format == "kv" else self._parse_csv(text)
+        _check_ranges(values, self.names, self.ranges)
+        return values
+
+    def _parse_csv(self, text: str) -> tuple:
+        fields = [f.strip() for f in re.split(r"[,;]", text)] if ("," in text or ";" in text) else text.split()
+        if len(fields) != len(self.columns):
+            raise Reject("fields", f"{len(fields)} fields, expected {len(self.columns)} ({','.join(self.names)}): "
+                                   f"{text!r}")
+        return tuple(_number(f, n) for f, n in zip(fields, self.names))
+
+    def _parse_kv(self, text: str) -> tuple:
+        values = [None] * len(self.columns)
+        pos, unknown = 0, []
+        while pos < len(text):
+            m = _PAIR.match(text, pos)
+            if not m:
+                raise Reject("fields", f"column {pos + 1}: {text[pos:pos + 20]!r} is not key=value or key:value")
+            key, value = m.group(1), m.group(2)
+            j = self._keys.get(key.lower())
+            if j is None:
+                unknown.append(key)
+            elif values[j] is not None:
+                raise Reject("fields", f"key {key!r} appears twice: {text!r}")
+            else:
+                values[j] = value
+            pos = _PAIR_SEPARATOR.match(text, m.end()).end()
+        missing = [n for n, v in zip(self.names, values) if v is None]
+        if unknown or missing:
+            raise Reject("fields", (f"keys {', '.join(unknown)} not in --columns; " if unknown else "")
+                         + (f"missing {', '.join(missing)}; " if missing else "") + f"line {text!r}")
+        return tuple(_number(v, n) for v, n in zip(values, self.names))
+
+
+class FrameDecoder:
+    """Fixed-size binary frames: sync word, struct payload (one field per column), optional checksum.
+
+    The decoder hunts for the sync word; bytes skipped to find it are one `binary` reject per run
+    (`partial` right after the port opens). A frame must begin right where the previous one ended,
+    otherwise hunting resumes. Without a checksum a sync word inside garbage can frame a wrong record;
+    use `--checksum` where the device provides one.
+    """
+
+    CHECKSUMS = {"sum8": lambda payload: sum(payload) & 0xFF,
+                 "xor8": lambda payload: functools.reduce(operator.xor, payload, 0)}
+
+    def __init__(self, frame: str, sync: bytes, columns, checksum: str | None = None, ranges: dict | None = None):
+        try:
+            self.struct = struct.Struct(frame)
+            n_fields = len(self.struct.unpack(bytes(self.struct.size)))
+        except struct.error as exc:
+            raise ValueError(f"--frame: {frame!r} is not a struct layout ({exc})") from None
+        if re.search(r"[spP?]", frame):
+            raise ValueError(f"--frame: {frame!r}: only numeric fields (bBhHiIlLqQefd, x for padding)")
+        self.columns, self.ranges = list(columns), dict(ranges or {})
+        self.names = [c.name for c in self.columns]
+        if n_fields != len(self.columns):
+            raise ValueError(f"--frame: {frame!r} has {n_fields} fields, --columns names {len(self.columns)} "
+                             f"({','.join(self.names)})")
+        if not sync:
+            raise ValueError("--sync: give the frame's sync word in hex, e.g. A55A")
+        if checksum not in (None, "none", *self.CHECKSUMS):
+            raise ValueError(f"--checksum: {checksum!r} is not none, sum8 or xor8")
+        self.sync = bytes(sync)
+        self.checksum = None if checksum in (None, "none") else self.CHECKSUMS[checksum]
+        self.frame_size = len(self.sync) + self.struct.size + (1 if self.checksum else 0)
+        self._buffer = bytearray()
+        self._skipped = 0
+        self._first = True
+        self.blank_lines = 0
+
+    def reset(self) -> None:
+        self._buffer.clear()
+        self._skipped = 0
+        self._first = True
+
+    def _skipped_reject(self, why: str = ""):
+        n, self._skipped = self._skipped, 0
+        if self._first:
+            return Reject("partial", f"{n} bytes before the first sync word after opening the port{why}")
+        return Reject("binary", f"{n} bytes of garbage before a sync word{why}")
+
+    def feed(self, data: bytes):
+        self._buffer += data
+        while True:
+            at = self._buffer.find(self.sync)
+            if at < 0:  # keep a possible start of the sync word
+                keep = len(self.sync) - 1
+                drop = max(len(self._buffer) - keep, 0)
+                self._skipped += drop
+                del self._buffer[:drop]
+                return
+            if at > 0:
+                self._skipped += at
+                del self._buffer[:at]
+            if len(self._buffer) < self.frame_size:
+                return
+            if self._skipped:
+                yield self._skipped_reject()
+            self._first = False
+            frame = bytes(self._buffer[:self.frame_size])
+            payload = frame[len(self.sync):len(self.sync) + self.struct.size]
+            if self.checksum and self.checksum(payload) != frame[-1]:
+                # assume a frame was there: drop it whole so its bytes are not counted again as garbage
+                del self._buffer[:self.frame_size]
+                yield Reject("checksum", f"frame {frame.hex()}: checksum 0x{frame[-1]:02x}, payload gives "
+                                         f"0x{self.checksum(payload):02x}")
+                continue
+            del self._buffer[:self.frame_size]
+            values = tuple(float(v) for v in self.struct.unpack(payload))
+            try:
+                _check_ranges(values, self.names, self.ranges)
+            except Reject as reject:
+                yield reject
+                continue
+            yield values
+
+    def flush(self, why: str):
+        pending = len(self._buffer) + self._skipped
+        self._buffer.clear()
+        self._skipped = 0
+        return Reject("partial", f"{why}: {pending} bytes of an incomplete frame") if pending else None
+
+
+def _show(raw) -> str:
+    """A short printable form of raw line bytes, for messages."""
+    text = repr(bytes(raw))[2:-1]
+    return text if len(text) <= 80 else text[:77] + "..."
+
+
+class RecordingWriter:
+    """Appends records to a CSV in the layout of fluxcal.io.write_csv, flushing after each."""
+
+    def __init__(self, path, names, units: dict | None = None, metadata: dict | None = None):
+        self.path = Path(path)
+        self.names = list(names)
+        self.rows = 0
+        self._file = self.path.open("w", encoding="utf-8", newline="\n")
+        head = ["# fluxcal recording"]
+        units = {n: u for n, u in (units or {}).items() if n in self.names and u}
+        if units:
+            head.append("# units: " + ", ".join(f"{n}={u}" for n, u in units.items()))
+        head += [f"# {k}: {_one_line(v)}" for k, v in (metadata or {}).items()]
+        self._file.write("\n".join(head) + "\n" + ",".join(self.names) + "\n")
+        self._file.flush()
+
+    def append(self, values) -> None:
+        # repr of a float is the shortest text that reads back to the same double (as write_csv)
+        self._file.write(",".join(map(repr, map(float, values))) + "\n")
+        self._file.flush()
+        self.rows += 1
+
+    def note(self, text: str) -> None:
+        self._file.write(f"# note: {_one_line(text)}\n")
+        self._file.flush()
+
+    def close(self) -> None:
+        if not self._file.closed:
+            self._file.flush()
+            os.fsync(self._file.fileno())  # the file is complete on disk, not only in the OS cache
+            self._file.close()
+
+
+def _one_line(value) -> str:
+    return " ".join(str(value).split())
+
+
+@dataclass
+class RecordStats:
+    """What a recording kept, rejected (by reason) and survived."""
+
+    port: str
+    records: int = 0
+    rejected: Counter = field(default_factory=Counter)
+    examples: dict = field(default_factory=dict)  # reason -> the first rejected line's description
+    reconnects: int = 0
+    disconnected_s: float = 0.0
+    duration_s: float = 0.0
+    stopped: str = ""      # "duration", "interrupted" (Ctrl-C), "done" (a callback asked to stop)
+    blank_lines: int = 0
+    output: str | None = None
+
+    def reject(self, reject: Reject, t_host: float) -> None:
+        self.rejected[reject.reason] += 1
+        self.examples.setdefault(reject.reason, f"at t_host={t_host:.3f} s: {reject.detail}")
+
+    def rejected_text(self) -> str:
+        total = sum(self.rejected.values())
+        if not total:
+            return "no lines rejected"
+        parts = ", ".join(f"{n} {reason}" for reason, n in sorted(self.rejected.items()))
+        return f"{total} rejected ({parts})"
+
+    def report(self) -> str:
+        """A one-paragraph account for the user."""
+        where = f" into {self.output} (flushed after each record)" if self.output else ""
+        text = (f"Kept {self.records} records from {self.port} in {self.duration_s:.1f} s{where}; "
+                f"{self.rejected_text()}.")
+        for reason in sorted(self.rejected):
+            text += f" First {reason} {self.examples[reason]}."
+        if self.reconnects:
+            text += (f" Reconnected {self.reconnects} time{'s' if self.reconnects > 1 else ''} "
+                     f"({self.disconnected_s:.2f} s without the port).")
+        elif self.disconnected_s:
+            text += f" The port was lost and not regained ({self.disconnected_s:.2f} s without it)."
+        else:
+            text += " No disconnects."
+        return text + f" Stopped: {self.stopped or 'end'}."
+
+    def summary_note(self) -> str:
+        return (f"summary: {self.records} records, {self.rejected_text()}, {self.reconnects} reconnects, "
+                f"{self.duration_s:.3f} s, stopped: {self.stopped or 'end'}")
+
+
+class Recorder:
+    """Reads a serial port (any pyserial URL: /dev/ttyUSB0, loop://, rfc2217://...) and appends every good
+    record to `output` (or only hands it to `on_record` when output is None).
+
+    `on_record(t_host, values)` is called for every good record after it is written; a true return stops
+    the recording (stopped = "done"), as does `should_stop()` returning true (checked between reads).
+    `duration` None records until Ctrl-C. `stats` is filled as it goes and returned by run().
+    """
+
+    def __init__(self, port: str, baudrate: int = 115200, decoder=None, output=None, duration: float | None = None,
+                 units: dict | None = None, metadata: dict | None = None, on_record=None, should_stop=None,
+                 read_timeout: float = 0.05, max_backoff: float = 1.0, clock=time.monotonic):
+        self.port, self.baudrate = port, int(baudrate)
+        self.decoder = decoder or TextDecoder(parse_columns(None))
+        self.output, self.duration = output, duration
+        self.units, self.metadata = dict(units or {}), dict(metadata or {})
+        self.should_stop = should_stop or (lambda: False)
+        self.on_record, self.read_timeout, self.max_backoff, self.clock = on_record, read_timeout, max_backoff, clock
+        self.names = ["t_host"] + list(self.decoder.names)
+        self.stats = RecordStats(port=port, output=str(output) if output else None)
+        self.writer = None
+
+    def _open(self):
+        return serial.serial_for_url(self.port, baudrate=self.baudrate, timeout=self.read_timeout)
+
+    def run(self) -> RecordStats:
+        """Record until the duration ends, Ctrl-C, or a stop request. Raises ValueError when the port
+        cannot be opened at the start (afterwards a lost port is reopened, not an error)."""
+        try:
+            port = self._open()
+        except (serial.SerialException, OSError, ValueError) as exc:
+            raise ValueError(f"{self.port}: cannot open the serial port ({exc})") from None
+        start = self.clock()
+        deadline = None if self.duration is None else start + float(self.duration)
+        if self.output is not None:
+            from .. import __version__
+
+            meta = {"source": f"serial port {self.port} at {self.baudrate} baud",
+                    "started": datetime.now(timezone.utc).isoformat(timespec="seconds"),
+                    "recorder": f"fluxcal {__version__}", **self.metadata}
+            self.writer = RecordingWriter(self.output, self.names, {"t_host": "s", **self.units}, meta)
+        self.decoder.reset()
+        stats = self.stats
+        with _ctrl_c_as_request() as self._interrupted:
+            try:
+                while True:
+                    stop = self._stop_reason(deadline)
+                    if stop:
+                        stats.stopped = stop
+                        break
+                    try:
+                        data = port.read(port.in_waiting or 1)
+                    except (serial.SerialException, OSError) as exc:
+                        port = self._reconnect(port, exc, start, deadline)
+                        if port is None:
+                            break
+                        continue
+                    if data and self._handle(self.decoder.feed(data), self.clock() - start):
+                        stats.stopped = "done"
+                        break
+            except KeyboardInterrupt:  # a second Ctrl-C, or Ctrl-C outside the main thread
+                stats.stopped = "interrupted"
+            finally:
+                now = self.clock()
+                if port is not None:
+                    reject = self.decoder.flush("line in flight at the end")
+                    if reject:
+                        stats.reject(reject, now - start)
+                    port.close()
+                stats.duration_s = now - start
+                stats.blank_lines = self.decoder.blank_lines
+                if self.writer:
+                    self.writer.note(stats.summary_note())
+                    self.writer.close()
+        return stats
+
+    def _stop_reason(self, deadline) -> str:
+        if self._interrupted.is_set():
+            return "interrupted"
+        if self.should_stop():
+            return "done"
+        if deadline is not None and self.clock() >= deadline:
+            return "duration"
+        return ""
+
+    def _handle(self, events, t_host: float) -> bool:
+        stop = False
+        for event in events:
+            if isinstance(event, Reject):
+                self.stats.reject(event, t_host)
+                continue
+            if self.writer:
+                self.writer.append((t_host, *event))
+            self.stats.records += 1
+            if self.on_record is not None and self.on_record(t_host, event):
+                stop = True  # finish the chunk: its records are written, nothing read is dropped
+        return stop
+
+    def _reconnect(self, port, exc, start, deadline):
+        """The port failed: note it, reopen with back-off until a stop. Returns the new port or None."""
+        lost = self.clock()
+        reject = self.decoder.flush("line in flight at the disconnect")
+        if reject:
+            self.stats.reject(reject, lost - start)
+        try:
+            port.close()
+        except (serial.SerialException, OSError):
+            pass  # already gone
+        if self.writer:
+            self.writer.note(f"disconnected at t_host={lost - start:.3f} s ({exc}), reconnecting")
+        backoff, attempts = 0.02, 0
+        while not (stop := self._stop_reason(deadline)):
+            time.sleep(backoff if deadline is None else min(backoff, max(deadline - self.clock(), 0.0)))
+            attempts += 1
+            try:
+                port = self._open()
+            except (serial.SerialException, OSError, ValueError):
+                backoff = min(2 * backoff, self.max_backoff)
+                continue
+            back = self.clock()
+            self.decoder.reset()
+            self.stats.reconnects += 1
+            self.stats.disconnected_s += back - lost
+            if self.writer:
+                self.writer.note(f"reconnected at t_host={back - start:.3f} s after {back - lost:.3f} s "
+                                 f"({attempts} attempts)")
+            return port
+        self.stats.disconnected_s += self.clock() - lost
+        self.stats.stopped = stop
+        if self.writer:
+            self.writer.note(f"still disconnected at the end, t_host={self.clock() - start:.3f} s")
+        return None
+
+
+@contextlib.contextmanager
+def _ctrl_c_as_request():
+    """While recording, the first Ctrl-C asks the loop to stop between records (no row is cut in half and
+    the summary is written); a second one interrupts at once. Signals reach only the main thread."""
+    requested = threading.Event()
+    if threading.current_thread() is not threading.main_thread():
+        yield requested
+        return
+
+    def handler(signum, frame):
+        if requested.is_set():
+            raise KeyboardInterrupt
+        requested.set()
+
+    previous = signal.signal(signal.SIGINT, handler)
+    try:
+        yield requested
+    finally:
+        signal.signal(signal.SIGINT, previous if previous is not None else signal.default_int_handler)
+
+
+# -- command line ---------------------------------------------------------------------------------------
+
+def add_stream_arguments(p) -> None:
+    """Port and parsing options shared by `fluxcal record` and `fluxcal live`."""
+    p.add_argument("--port", required=True, help="serial port or pyserial URL (/dev/ttyUSB0, COM3, loop://, "
+                                                 "rfc2217://host:port)")
+    p.add_argument("--baud", type=int, default=115200, help="baud rate (default 115200)")
+    p.add_argument("--duration", type=float, default=None, help="stop after this many seconds (default: Ctrl-C)")
+    p.add_argument("--format", choices=FORMATS, default="csv",
+                   help="csv: separated numbers; kv: key=value or key:value pairs; binary-spec: --frame/--sync")
+    p.add_argument("--columns", default=None,
+                   help="names of the fields in order, optional unit in brackets: t,mx[nT],my[nT],mz[nT] "
+                        "(default mx,my,mz; kv: KEY=NAME renames, default x=mx,y=my,z=mz); t = device time")
+    p.add_argument("--units", default=None, help="unit of mx,my,mz when --columns does not state it (nT, uT, counts)")
+    p.add_argument("--range", action="append", default=[], metavar="[NAME=]LO:HI",
+                   help="reject records with a value outside LO..HI (every column but t, or NAME only); "
+                        "repeatable; a negative LO needs '=': --range=-1e5:1e5")
+    p.add_argument("--frame", default=None, help="binary-spec: struct layout of a frame's payload, e.g. '<hhh'")
+    p.add_argument("--sync", default=None, help="binary-spec: sync word in hex before each frame, e.g. A55A")
+    p.add_argument("--checksum", default="none", choices=("none", "sum8", "xor8"),
+                   help="binary-spec: one checksum byte after the payload (default none)")
+
+
+def decoder_from_args(args):
+    """The decoder the stream options describe; ValueError names the bad option."""
+    columns = parse_columns(args.columns, args.format, args.units)
+    ranges = {}
+    for text in args.range:
+        ranges.update(parse_range(text, columns))
+    if args.format == "binary-spec":
+        if not args.frame or not args.sync:
+            raise ValueError("--format binary-spec needs --frame (struct layout, e.g. '<hhh') and --sync (hex)")
+        try:
+            sync = bytes.fromhex(args.sync)
+        except ValueError:
+            raise ValueError(f"--sync: {args.sync!r} is not hex bytes (e.g. A55A)") from None
+        return FrameDecoder(args.frame, sync, columns, args.checksum, ranges)
+    if args.frame or args.sync:
+        raise ValueError("--frame and --sync belong to --format binary-spec")
+    return TextDecoder(columns, args.format, ranges)
+
+
+def stream_units(decoder) -> dict:
+    return {c.name: c.unit for c in decoder.columns if c.unit}
+
+
+def add_record_parser(subparsers):
+    p = subparsers.add_parser(
+        "record", help="record a serial device to a CSV, flushed per record, surviving disconnects",
+        description="Read records from a serial port, timestamp them (t_host, s) and append every good one to "
+                    "FILE as it arrives. Rejected lines are counted by reason and reported; a lost port is "
+                    "reopened. Exit status 0, 1 when no record was kept, 2 on a bad argument or a port that "
+                    "cannot be opened.",
+        epilog="Rejected lines, by reason: " + "; ".join(f"{k}: {v}" for k, v in REASONS.items()) + ".")
+    add_stream_arguments(p)
+    p.add_argument("-o", "--output", required=True, metavar="FILE",
+                   help="recording CSV to write (read it with fluxcal.read_csv)")
+    p.set_defaults(run=cmd_record)
+    return p
+
+
+def cmd_record(args) -> int:
+    if args.duration is not None and not args.duration > 0:
+        raise ValueError(f"--duration: {args.duration} is not a positive number of seconds")
+    decoder = decoder_from_args(args)
+    recorder = Recorder(args.port, args.baud, decoder, output=args.output, duration=args.duration,
+                        units=stream_units(decoder), metadata={"format": args.format})
+    stats = recorder.run()
+    print(stats.report())
+    if not stats.records:
+        print(f"fluxcal record: no good record from {args.port}; check --baud, --format and --columns", flush=True)
+        return 1
+    return 0
+
+
+def main(argv=None) -> int:
+    """`python -m fluxcal.io.serial record ...` works before the command is part of `fluxcal`."""
+    import argparse
+    import sys
+
+    parser = argparse.ArgumentParser(prog="fluxcal")
+    add_record_parser(parser.add_subparsers(dest="command", required=True))
+    args = parser.parse_args(argv)
+    try:
+        return args.run(args)
+    except ValueError as exc:
+        print(f"fluxcal {args.command}: error: {exc}", file=sys.stderr)
+        return 2
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

@@ -1,0 +1,262 @@
+"""Live calibration from a serial port: the ellipsoid fit follows the readings as they arrive.
+
+Each record adds its reading to the constant-size sufficient statistics of the ellipsoid fit
+(fluxcal.EllipsoidMoments: O(1) per record); a few times a second the fit is solved from them
+(constant time too) and the display shows which of the 96 direction bins (fluxcal.coverage: cube
+sphere, 6 faces × 4 × 4 cells) the corrected readings have not reached yet, a progress bar of the
+bins covered, and the quality: std/mean of |h| after the current fit. The session ends when coverage
+and quality meet the thresholds, at the duration, or on Ctrl-C; the calibration written is then
+fitted on all readings kept (fluxcal.calibrate: adjusted least squares refined by maximum likelihood),
+and the raw recording is written as it arrives when asked (the Recorder's writer, flushed per record).
+"""
+from __future__ import annotations
+
+import sys
+import time
+from dataclasses import dataclass
+
+import numpy as np
+from tqdm import tqdm
+
+from .coverage import N_DIRECTION_BINS
+from .ellipsoid import EllipsoidMoments
+from .io.serial import Recorder, add_stream_arguments, decoder_from_args, stream_units
+
+FACES = ("+X", "-X", "+Y", "-Y", "+Z", "-Z")
+MAG = ("mx", "my", "mz")
+
+
+def direction_bins(fields) -> np.ndarray:
+    """Bin (0 … 95, −1 for a zero or non-finite vector) of each row of `fields`: the cube-sphere bins of
+    cpp/include/fluxcal/coverage.hpp (direction_bin), vectorised so that the live display can say which
+    bins are empty; tests hold it equal to fluxcal._core.direction_bin."""
+    v = np.asarray(fields, dtype=float).reshape(-1, 3)
+    a = np.abs(v)
+    axis = np.where((a[:, 0] >= a[:, 1]) & (a[:, 0] >= a[:, 2]), 0, np.where(a[:, 1] >= a[:, 2], 1, 2))
+    rows = np.arange(len(v))
+    big, u, w = v[rows, axis], v[rows, (axis + 1) % 3], v[rows, (axis + 2) % 3]
+    mag = np.abs(big)
+    tm = 0.41421356237309503 * mag  # tan(π/8): equal-angle cells
+    cu = (u >= -tm).astype(int) + (u >= 0) + (u >= tm)
+    cw = (w >= -tm).astype(int) + (w >= 0) + (w >= tm)
+    bins = (2 * axis + (big < 0)) * 16 + cu * 4 + cw
+    bins[~((mag > 0) & np.isfinite(mag))] = -1
+    return bins
+
+
+def coverage_map(seen) -> str:
+    """The 96 bins as six 4×4 faces, '#' seen and '.' empty (rows: first in-face axis, columns: second;
+    faces +X -X +Y -Y +Z -Z: the direction of the field in the sensor frame)."""
+    seen = np.asarray(seen, dtype=bool).reshape(6, 4, 4)
+    lines = ["  ".join(f"{f:^4}" for f in FACES)]
+    for row in range(4):
+        lines.append("  ".join("".join("#" if seen[face, row, col] else "." for col in range(4)) for face in range(6)))
+    return "\n".join(lines)
+
+
+def missing_text(seen) -> str:
+    """Which faces still have empty bins, fullest gaps first: "missing: -Z 12/16, +Y 3/16"."""
+    empty = (~np.asarray(seen, dtype=bool)).reshape(6, 16).sum(axis=1)
+    if not empty.any():
+        return "all 96 directions seen"
+    order = np.argsort(-empty, kind="stable")
+    return "missing: " + ", ".join(f"{FACES[f]} {empty[f]}/16" for f in order if empty[f])
+
+
+@dataclass
+class LiveState:
+    records: int
+    coverage: float = 0.0          # fraction of the 96 bins the corrected readings reach
+    spread: float = float("nan")   # std/mean of |h| after the current fit
+    seen: np.ndarray | None = None
+    calibration: object = None
+    error: str = ""                # why there is no fit yet (too few readings, planar so far, ...)
+
+
+class LiveFit:
+    """Readings in, current fit and coverage out. add() is O(1) (moments update); state() solves the fit
+    from the moments (constant time) and bins the corrected readings kept so far (one vectorised pass)."""
+
+    def __init__(self, field_norm: float | None = None, units: str = "", warmup: int = 20):
+        self.field_norm, self.units, self.warmup = field_norm, units, warmup
+        self._readings = np.empty((1024, 3))
+        self.count = 0
+        self._moments = None
+
+    @property
+    def readings(self) -> np.ndarray:
+        return self._readings[:self.count]
+
+    def add(self, reading) -> None:
+        if self.count == len(self._readings):
+            self._readings = np.concatenate([self._readings, np.empty_like(self._readings)])
+        self._readings[self.count] = reading
+        self.count += 1
+        if self._moments is not None:
+            self._moments.add(self._readings[self.count - 1:self.count])
+        elif self.count >= self.warmup:  # the first readings set the normalisation of the sums
+            self._moments = EllipsoidMoments.from_first(self.readings)
+            self._moments.add(self.readings)
+
+    def state(self) -> LiveState:
+        state = LiveState(records=self.count, seen=np.zeros(N_DIRECTION_BINS, dtype=bool))
+        if self._moments is None:
+            state.error = f"{self.count} readings, fitting from {self.warmup}"
+            return state
+        try:
+            cal = self._moments.fit(field_norm=self.field_norm, units=self.units)
+        except ValueError as exc:  # e.g. all readings so far in one plane
+            state.error = str(exc)
+            return state
+        bins = direction_bins(cal.apply(self.readings))
+        state.seen[bins[bins >= 0]] = True
+        state.coverage = float(state.seen.mean())
+        state.spread = float(cal.summary["norm_std_over_mean"])
+        state.calibration = cal
+        return state
+
+
+class LiveSession:
+    """Feeds a LiveFit from the Recorder's records, refreshes the display and says when to stop."""
+
+    def __init__(self, fit: LiveFit, mag_index, min_coverage: float = 0.9, max_spread: float = 0.03,
+                 min_records: int = 200, refresh_s: float = 0.25, show: bool = True, clock=time.monotonic):
+        self.fit, self.mag_index = fit, list(mag_index)
+        self.min_coverage, self.max_spread, self.min_records = min_coverage, max_spread, min_records
+        self.refresh_s, self.clock = refresh_s, clock
+        self.state = LiveState(records=0)
+        self.met = False
+        self._last = -float("inf")
+        self._last_map, self._last_missing = -float("inf"), ""
+        self.bar = tqdm(total=N_DIRECTION_BINS, desc="direction bins", file=sys.stderr, disable=not show,
+                        mininterval=0.2, dynamic_ncols=True,
+                        bar_format="{desc}: {percentage:3.0f}%|{bar}| {n}/{total} [{elapsed}{postfix}]")
+
+    def on_record(self, t_host: float, values) -> bool:
+        self.fit.add([values[j] for j in self.mag_index])
+        now = self.clock()
+        if now - self._last < self.refresh_s:
+            return False
+        self._last = now
+        return self.refresh()
+
+    def refresh(self) -> bool:
+        """Refit, update the display; True when the thresholds are met."""
+        s = self.state = self.fit.state()
+        self.met = (s.calibration is not None and s.records >= self.min_records and s.coverage >= self.min_coverage
+                    and s.spread <= self.max_spread)
+        self.bar.n = int(round(s.coverage * N_DIRECTION_BINS))
+        quality = f"|h| std/mean {100 * s.spread:.2f} %" if s.calibration is not None else s.error[:50]
+        self.bar.set_postfix_str(f"{quality}, {s.records} records", refresh=False)
+        self.bar.refresh()
+        missing = missing_text(s.seen) if s.calibration is not None else ""
+        now = self.clock()
+        if missing and missing != self._last_missing and now - self._last_map >= 2.0:
+            self.bar.write(missing)  # which way to turn the sensor next
+            self._last_map, self._last_missing = now, missing
+        return self.met
+
+    def close(self) -> None:
+        self.bar.close()
+
+    def thresholds_text(self) -> str:
+        return (f"coverage ≥ {100 * self.min_coverage:.0f} %, |h| std/mean ≤ {100 * self.max_spread:.2f} %, "
+                f"≥ {self.min_records} records")
+
+
+def add_live_parser(subparsers):
+    p = subparsers.add_parser(
+        "live", help="calibrate live from a serial port: coverage display, stop when good enough",
+        description="Fit the magnetometer while it is turned: shows the direction bins still empty, a progress "
+                    "bar and the current |h| std/mean; stops when coverage and quality meet the thresholds, at "
+                    "--duration or on Ctrl-C, and writes the calibration (fitted on every reading kept). "
+                    "Exit status 0 when the thresholds were met, 1 when the calibration was written without "
+                    "meeting them, 2 on a bad argument, a port that cannot be opened or too few readings.")
+    add_stream_arguments(p)
+    p.add_argument("-o", "--output", required=True, help="calibration JSON to write")
+    p.add_argument("--raw", default=None, help="also write every record to this recording CSV as it arrives")
+    p.add_argument("--min-coverage", type=float, default=0.9,
+                   help="fraction of the 96 direction bins to reach (default 0.9; a hand-turned full recording "
+                        "reaches 0.9-1.0)")
+    p.add_argument("--max-spread", type=float, default=0.03,
+                   help="largest std/mean of |h| after the fit (default 0.03: cheap MEMS sensors reach 1.3-2.7 %%)")
+    p.add_argument("--min-records", type=int, default=200, help="fewest records before stopping (default 200)")
+    p.add_argument("--field-norm", type=float, default=None, help="known |field| in the units of h")
+    p.add_argument("--quiet", action="store_true", help="no progress bar or coverage display")
+    p.set_defaults(run=cmd_live)
+    return p
+
+
+def cmd_live(args) -> int:
+    from .pipeline import calibrate
+
+    if args.duration is not None and not args.duration > 0:
+        raise ValueError(f"--duration: {args.duration} is not a positive number of seconds")
+    if not 0 < args.min_coverage <= 1:
+        raise ValueError(f"--min-coverage: {args.min_coverage} is not a fraction in (0, 1]")
+    if not args.max_spread > 0:
+        raise ValueError(f"--max-spread: {args.max_spread} is not positive")
+    decoder = decoder_from_args(args)
+    missing = [m for m in MAG if m not in decoder.names]
+    if missing:
+        raise ValueError(f"--columns: live calibration needs columns mx,my,mz; {', '.join(missing)} not among "
+                         f"{','.join(decoder.names)}")
+    units = stream_units(decoder)
+    mag_units = {units.get(m, "") for m in MAG}
+    if len(mag_units) > 1:
+        raise ValueError(f"--columns: mx, my, mz have different units ({', '.join(sorted(mag_units))})")
+    unit = mag_units.pop()
+    session = LiveSession(LiveFit(args.field_norm, unit), [decoder.names.index(m) for m in MAG],
+                          args.min_coverage, args.max_spread, args.min_records, show=not args.quiet)
+    recorder = Recorder(args.port, args.baud, decoder, output=args.raw, duration=args.duration, units=units,
+                        metadata={"format": args.format, "purpose": "fluxcal live calibration"},
+                        on_record=session.on_record)
+    try:
+        stats = recorder.run()
+        session.refresh()  # the last records, and the state after a stop by duration or Ctrl-C
+    finally:
+        session.close()
+    state = session.state
+    print(stats.report())
+    print(coverage_map(state.seen))
+    print(missing_text(state.seen) if state.calibration is not None else f"no live fit: {state.error}")
+    readings = session.fit.readings
+    if len(readings) < 9:
+        raise ValueError(f"{args.port}: {len(readings)} good readings, need at least 9 to calibrate"
+                         + (f" (raw records in {args.raw})" if args.raw else ""))
+    cal = calibrate(readings, field_norm=args.field_norm, units=unit)
+    cal.metadata.update(source=f"serial port {args.port} at {args.baud} baud (fluxcal live)",
+                        records=stats.records, rejected=stats.rejected_text(), reconnects=stats.reconnects,
+                        stopped=stats.stopped, thresholds=session.thresholds_text(), thresholds_met=session.met,
+                        live_coverage=state.coverage, live_spread=state.spread)
+    if args.raw:
+        cal.metadata["recording"] = str(args.raw)
+    cal.save(args.output)
+    s = cal.summary
+    verdict = "met" if session.met else "NOT met"
+    print(f"Calibration from {len(readings)} readings ({s.get('method', cal.model)}): offset "
+          f"{np.array2string(cal.offset, precision=6)} {unit}".rstrip()
+          + f", |h| std/mean {100 * s['norm_std_over_mean']:.3f} %, coverage "
+          f"{100 * s['direction_coverage']:.0f} % of directions; thresholds ({session.thresholds_text()}) "
+          f"{verdict}. Wrote {args.output}" + (f" and the recording {args.raw}." if args.raw else "."))
+    for warning in s.get("warnings", []):
+        print(f"warning: {warning}")
+    return 0 if session.met else 1
+
+
+def main(argv=None) -> int:
+    """`python -m fluxcal.live live ...` works before the command is part of `fluxcal`."""
+    import argparse
+
+    parser = argparse.ArgumentParser(prog="fluxcal")
+    add_live_parser(parser.add_subparsers(dest="command", required=True))
+    args = parser.parse_args(argv)
+    try:
+        return args.run(args)
+    except ValueError as exc:
+        print(f"fluxcal {args.command}: error: {exc}", file=sys.stderr)
+        return 2
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

@@ -1,0 +1,628 @@
+"""Cable effects the ring's model leaves out: each one both simulates and, in the cable diagnosis
+(`fluxcal.diagnose.diagnose_cable`), is a candidate model term — the pattern of `fluxcal.sim.effects`.
+
+The ring's model (`fluxcal.cable.Ring.field`) takes the conductors as straight, infinitely long lines
+parallel to the ring's axis, and the sensors exactly where the drawing puts them. A real cable and ring
+depart from that:
+
+  helical_lay             the cores of a multicore cable are twisted with a lay length L (10–40× the pitch
+                          circle diameter, manufacturers' practice for multicore cables): near the ring a
+                          core is not where it crosses the sensor plane, but spread over angle
+  finite_length           a bench rig: straight cores of finite length, the circuit closing a distance ℓ
+                          either side of the ring (cross pieces to the cable's centre, and leads to a
+                          return wire when the cores' currents do not sum to zero)
+  sensor_position_error   each sensor's angle, radius and axis angle off the drawing (PCB assembly:
+                          ≈ 0.5°, 0.1–0.2 mm, 1°)
+  z_leakage               each in-plane axis reads a fraction k_z of the field along the ring's axis B_z:
+                          the Earth's (constant, an offset the per-sensor calibration removes) and the
+                          cable field's share when the cable is tilted by τ in direction ψ
+
+Simulation (exact): `EffectRig` is a `fluxcal.sim.cable.CableRig` whose true field comes from the effects:
+Biot–Savart of discretised conductor paths (closed-form field of a finite straight segment, vectorised
+NumPy) at the sensors where they really are, in their real axes, plus k_z B_z. `cable_trial(names, seed)`
+simulates a calibration run and a diagnosis recording with the named effects withheld from the model.
+
+Candidate (first order in its coefficients): `features(ctx, alternative)` is the effect on the readings
+per unit coefficient, (K snapshots, M sensors, 2 axes, p) in tesla, at the fitted conductor positions
+`ctx.positions` and the currents `ctx.currents` — linear in the currents, so the diagnosis can also ask
+for them per ampere of each conductor — with `ctx.field_lab` the field at the sensors in the cable frame
+(complex, including `ctx.extra`, what effects already found add) and `ctx.net_current` whether the
+recording's cores carry a net current (see `fluxcal.diagnose.cable._context`). Where an effect has a
+non-linear parameter (the lay length, the tilt direction), `alternatives(ctx)` lists trial values and
+`search(ctx, score)` returns the best-scoring one and how many were tried (the diagnosis pays for the
+choice in its p-value, as in `fluxcal.sim.effects`); `refinable` effects then have it fitted with the
+positions (`encode`/`decode` map it to the fit's variable). Each class's docstring states its typical
+magnitudes (`typical`) and the approximation of its candidate; tests/python/test_diagnose_cable.py checks
+the candidates against the exact simulation. SI units: metres, amperes, tesla; degrees only where a name
+says `_deg`.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+from scipy.special import ive, kve
+
+from ..cable import MU0_OVER_2PI, Ring
+from .cable import CableRig, reference_currents
+from .effects import Effect
+
+MU0_OVER_4PI = MU0_OVER_2PI / 2.0
+
+
+# ---------------------------------------------------------------- geometry and Biot–Savart
+
+def segment_field(points, starts, ends, currents) -> np.ndarray:
+    """Field (P, 3) in tesla at `points` (P, 3) of straight segments `starts` → `ends` (S, 3) carrying
+    `currents` (S,) amperes. Closed form B = μ0I/4π · (a × b)(|a| + |b|) / (|a||b|(|a||b| + a·b)) with
+    a, b the vectors from the point to the ends; where a·b < 0 (a long segment seen from its side) the
+    same value as (a × b)(|a| + |b|)(|a||b| − a·b) / (|a||b| |a × b|²), which does not cancel."""
+    p = np.asarray(points, float)
+    a = np.asarray(starts, float)[None] - p[:, None]
+    b = np.asarray(ends, float)[None] - p[:, None]
+    na, nb = np.linalg.norm(a, axis=-1), np.linalg.norm(b, axis=-1)
+    ab = np.sum(a * b, axis=-1)
+    c = np.cross(a, b)
+    c2 = np.sum(c * c, axis=-1)
+    nab = na * nb
+    with np.errstate(divide="ignore", invalid="ignore"):
+        f = np.where(ab >= 0, (na + nb) / (nab * (nab + ab)),
+                     (na + nb) * (nab - ab) / (nab * np.where(c2 > 0, c2, 1.0)))
+    return MU0_OVER_4PI * np.einsum("ps,psk->pk", f * np.asarray(currents, float)[None], c)
+
+
+def sensor_points(ring: Ring, rotation_deg: float = 0.0, angle_error_deg=None, radius_error_m=None,
+                  axis_error_deg=None):
+    """Where the sensors of `ring` turned by `rotation_deg` are, as complex numbers x + iy (M,) in the
+    cable frame, and the direction of each sensor's x axis (M,) in radians; optionally each sensor off
+    the drawing by an angle (its axes turn with it), a radius and an axis angle."""
+    m = ring.n_sensors
+    zero = np.zeros(m)
+    theta = np.radians(ring.angles_deg + rotation_deg + (zero if angle_error_deg is None else angle_error_deg))
+    radius = ring.radius_m + (zero if radius_error_m is None else np.asarray(radius_error_m, float))
+    axis = theta + np.radians(ring.axis_angles_deg + (zero if axis_error_deg is None else axis_error_deg))
+    return radius * np.exp(1j * theta), axis
+
+
+def straight_unit_fields(points, positions) -> np.ndarray:
+    """The ring model: field of infinite straight conductors along +z at `positions` (n, 2), 1 A each,
+    at `points` (…) complex: (…, n) complex Bx + iBy. Same physics as `Ring.field`:
+    B = μ0/(2π) · i / conj(s − p)."""
+    w = np.asarray(points)[..., None] - (positions[:, 0] + 1j * positions[:, 1])
+    return MU0_OVER_2PI * 1j / np.conj(w)
+
+
+def to_axes(b_complex, axis_rad) -> np.ndarray:
+    """Complex lab fields (…) → readings (…, 2) along the sensor axes at angle `axis_rad` (broadcast)."""
+    r = b_complex * np.exp(-1j * np.asarray(axis_rad))
+    return np.stack([r.real, r.imag], axis=-1)
+
+
+def _paths_field(points, paths) -> np.ndarray:
+    """In-plane field (P, n) complex Bx + iBy, cable frame, per ampere in each conductor's closed path at
+    `points` (P,) complex; `paths` is a list (one per conductor) of (starts, ends) arrays."""
+    pts = np.column_stack([np.real(points), np.imag(points), np.zeros(len(points))])
+    out = [segment_field(pts, s, e, np.ones(len(s)))[:, :2] for s, e in paths]
+    b = np.stack(out, axis=-1)  # (P, 2, n)
+    return b[:, 0] + 1j * b[:, 1]  # (P, n) complex
+
+
+# ---------------------------------------------------------------- the effects
+
+class CableEffect(Effect):
+    """A cable effect. Simulation, by `kind`: "conductors" — `unit_fields(points, positions)`, the complex
+    field (P, n) per ampere of each conductor; "sensors" — `sensors(ring, rotation_deg)`, where the sensors
+    are and their axes; "readings" — `readings(field_lab, axis_rad)`, what the transducer adds.
+    Candidate: `features(ctx, alternative)`, `alternatives`, `search`, `regime` (held out: "rotation",
+    "current" or "time")."""
+
+    kind = "conductors"  # "conductors", "sensors" or "readings"
+    regime = "rotation"
+    refinable = False  # the non-linear parameter (the alternative) is refined with the positions in a fit
+
+    @staticmethod
+    def encode(alternative) -> float:
+        return float(alternative)
+
+    @staticmethod
+    def decode(value) -> float:
+        return float(value)
+
+    @classmethod
+    def alternatives(cls, ctx) -> list:
+        return [None]
+
+    @classmethod
+    def search(cls, ctx, score):
+        alts = cls.alternatives(ctx)
+        scores = [score(cls.features(ctx, a)) for a in alts]
+        return alts[int(np.argmax(scores))], len(alts)
+
+    @classmethod
+    def describe(cls, alternative) -> dict:
+        """What the chosen alternative means, for the report."""
+        return {}
+
+
+def helix_paths(positions, lay_length_m: float, turns: int = 20, per_turn: int = 128, near_turns: int = 3,
+                far_per_turn: int = 32, far_m: float = 1e5, fine_m: float = 2.5e-4) -> list:
+    """Closed current paths of cores twisted about their centroid with lay length L (right-handed; the
+    in-plane field at z = 0 does not depend on the hand): each core a polyline of `per_turn` chords per
+    turn within `near_turns` of the sensor plane (and no longer than max(`fine_m`, |z|/16)) and
+    `far_per_turn` beyond, to ±`turns`·L; then radial
+    chords back to the lay axis and straight lines along it to ±`far_m` (beyond ±turns·L the helix
+    averages to a current on its axis). Chord vertices sit at the helix radius × (1 + ⅔(1 − cos Δφ/2)) so
+    that the chords carry the current at the helix's mean radius (the sag error falls from O(Δφ²) to
+    O(Δφ⁴))."""
+    pos = np.asarray(positions, float)
+    c = pos.mean(axis=0)
+    k = 2 * np.pi / lay_length_m
+    # chords no longer than L/per_turn, nor than max(fine_m, |z|/16) near the sensor plane (where a
+    # sensor ~1 cm away sees the path's shape), then far_per_turn per turn beyond near_turns
+    zp, h_max = [0.0], lay_length_m / per_turn
+    while zp[-1] < near_turns * lay_length_m:
+        zp.append(zp[-1] + min(h_max, max(fine_m, zp[-1] / 16.0)))
+    z_far = np.linspace(zp[-1], max(turns * lay_length_m, zp[-1]),
+                        max((turns - near_turns) * far_per_turn, 1) + 1)[1:]
+    zp = np.concatenate([zp, z_far])
+    z = np.concatenate([-zp[::-1], zp[1:]])
+    dphi = k * np.diff(z)
+    chord_sag = 1.0 - np.cos(dphi / 2.0)
+    # a vertex takes the mean sag of its two chords
+    sag = 1.0 + (2.0 / 3.0) * 0.5 * (np.concatenate([[chord_sag[0]], chord_sag])
+                                     + np.concatenate([chord_sag, [chord_sag[-1]]]))
+    ends = z[-1]
+    paths = []
+    for p in pos:
+        d = (p - c)[0] + 1j * (p - c)[1]
+        xy = (c[0] + 1j * c[1]) + sag * d * np.exp(1j * k * z)
+        path = np.column_stack([xy.real, xy.imag, z])
+        far_lo, axis_lo = [c[0], c[1], -far_m], [c[0], c[1], -ends]
+        axis_hi, far_hi = [c[0], c[1], ends], [c[0], c[1], far_m]
+        # along the axis from −far, out to the helix, along it, back to the axis, along the axis to +far
+        points = np.vstack([far_lo, axis_lo, path, axis_hi, far_hi])
+        starts, stops = points[:-1], points[1:]
+        paths.append((starts, stops))
+    return paths
+
+
+def helix_series_unit_fields(points, positions, lay_length_m: float, terms: int | None = None) -> np.ndarray:
+    """The exact in-plane field at z = 0 (outside the helix radius) of infinite helical cores twisted about
+    their centroid, 1 A each: complex (P, n). The helix's multipole series (modified Bessel functions;
+    e.g. Hagel et al. 1994), for a core at radius a, angle φ_j about the lay axis and k = 2π/L:
+      B_φ = μ0I/(2πr) + (μ0 I k a / (π r)) Σ_m m I_m'(mka) K_m(mkr) cos m(φ − φ_j)
+      B_r =             (μ0 I k² a / π)   Σ_m m I_m'(mka) K_m'(mkr) sin m(φ − φ_j)
+    which tends to the straight conductor's multipoles as k → 0. Used by the candidate (fast); the
+    simulation uses the segment sum (tests hold the two equal)."""
+    pos = np.asarray(positions, float)
+    c = pos.mean(axis=0)
+    s = np.asarray(points) - (c[0] + 1j * c[1])
+    r, phi = np.abs(s), np.angle(s)
+    k = 2 * np.pi / lay_length_m
+    d = (pos[:, 0] - c[0]) + 1j * (pos[:, 1] - c[1])
+    a, phj = np.abs(d), np.angle(d)
+    if terms is None:  # terms fall as (a/r)^m: enough for 1e-12, at most 60
+        ratio = float(np.max(a) / np.min(r))
+        terms = int(np.clip(np.ceil(np.log(1e-12) / np.log(max(ratio, 1e-3))), 2, 60))
+    m = np.arange(1, terms + 1)[:, None, None]
+    x = m * k * a[None, None, :]                            # (terms, 1, n)
+    y = m * k * r[None, :, None]                            # (terms, P, 1)
+    ip = 0.5 * (ive(m - 1, x) + ive(m + 1, x))              # I_m'(x) e^{-x}
+    km = kve(m, y)                                          # K_m(y) e^{y}
+    kp = -0.5 * (kve(m - 1, y) + kve(m + 1, y))             # K_m'(y) e^{y}
+    scale = np.exp(x - y)
+    chi = m * (phi[None, :, None] - phj[None, None, :])
+    mono = MU0_OVER_2PI / r[:, None]
+    b_phi = mono + (2 * MU0_OVER_2PI * k * a / r[:, None]) * np.sum(m * ip * km * scale * np.cos(chi), axis=0)
+    b_r = (2 * MU0_OVER_2PI * k * k * a) * np.sum(m * ip * kp * scale * np.sin(chi), axis=0)
+    out = (b_r + 1j * b_phi) * np.exp(1j * phi)[:, None]   # (P, n)
+    on_axis = a == 0  # a core on the lay axis is straight
+    if on_axis.any():
+        out[:, on_axis] = straight_unit_fields(points, pos[on_axis])
+    return out
+
+
+@dataclass
+class HelicalLay(CableEffect):
+    """Cores twisted about the cable's centre (the centroid of the cores at the sensor plane) with lay
+    length `lay_length_m`. Typical: 10–40× the pitch circle diameter D of a multicore cable; for the
+    paper's two cores 4 mm apart, L = 40–160 mm, and the field at the 10 mm ring changes by 3–14 % RMS
+    (k = 2π/L, kR = 0.4–1.6: the ring sees the cores' helical spread, not a small correction).
+
+    Candidate: the change of the ring's readings from straight to twisted cores, Δ(L_ref) — the helix's
+    multipole series at the fitted positions and currents — times a coefficient c. The effect is not one
+    shape scaled: from L_ref = L to √2·L its shape changes by 7–20 % (and c ≈ (L_ref/L)^1.2–1.4, not the
+    small-kR (L_ref/L)²), so a grid of L_ref alone would leave that much. The reference lay is therefore
+    searched on a grid of L/D (√2 steps, refined by the score test) and then fitted with the positions as
+    a non-linear parameter (`refinable`); c ≈ 1 then confirms the model (the check against the exact
+    segment sum is in tests/python/test_diagnose_cable.py). Handedness does not change the in-plane field
+    at the sensor plane (a mirror argument), so it is neither simulated nor a parameter."""
+
+    lay_length_m: float
+    turns: int = 20
+    per_turn: int = 128
+    name = "helical_lay"
+    n_params = 1
+    regime = "rotation"
+    kind = "conductors"
+    refinable = True
+    LAY_RATIOS = 5.0 * np.sqrt(2.0) ** np.arange(12)  # L / pitch-circle diameter: 5 … 226
+    PROFILE = tuple(5.0 * 2.0 ** np.arange(7))  # the diagnosis's coarse profile: 5 … 320 (then fitted)
+    profile = True
+    REFINE = 3  # levels of refinement of the best ratio, each √2^(1/2^level)
+
+    def unit_fields(self, points, positions) -> np.ndarray:
+        return _paths_field(np.asarray(points).ravel(), helix_paths(positions, self.lay_length_m, self.turns,
+                                                                    self.per_turn)).reshape(np.shape(points) + (-1,))
+
+    @staticmethod
+    def pitch_diameter(positions) -> float:
+        pos = np.asarray(positions, float)
+        return 2.0 * float(np.max(np.linalg.norm(pos - pos.mean(axis=0), axis=1)))
+
+    @classmethod
+    def delta_unit(cls, ctx, lay_length_m) -> np.ndarray:
+        """Δ per unit current of each core: (R rotations, M, 2, n) real, sensor axes."""
+        pts = ctx.points  # (R, M) complex
+        twisted = helix_series_unit_fields(pts.ravel(), ctx.positions, lay_length_m).reshape(pts.shape + (-1,))
+        straight = straight_unit_fields(pts, ctx.positions)
+        return to_axes(twisted - straight, ctx.axes[..., None]).transpose(0, 1, 3, 2)
+
+    @classmethod
+    def features(cls, ctx, alternative=None):
+        ratio = 20.0 if alternative is None else alternative
+        lay = ratio * cls.pitch_diameter(ctx.positions)
+        delta = cls.delta_unit(ctx, lay)[ctx.rot_index]  # (K, M, 2, n)
+        return np.einsum("kman,kn->kma", delta, ctx.currents)[..., None]
+
+    @classmethod
+    def alternatives(cls, ctx):
+        return list(cls.LAY_RATIOS)
+
+    @classmethod
+    def search(cls, ctx, score):
+        """The grid of lay ratios, then the best one refined by halving the (log) step REFINE times."""
+        if cls.pitch_diameter(ctx.positions) <= 0:
+            return None, 1
+        ratios = list(cls.LAY_RATIOS)
+        scores = [score(cls.features(ctx, r)) for r in ratios]
+        best, value, tried = ratios[int(np.argmax(scores))], max(scores), len(ratios)
+        step = np.sqrt(2.0)
+        for _ in range(cls.REFINE):
+            step = np.sqrt(step)
+            for trial in (best / step, best * step):
+                s = score(cls.features(ctx, trial))
+                tried += 1
+                if s > value:
+                    best, value = trial, s
+        return best, tried
+
+    @staticmethod
+    def encode(alternative) -> float:
+        return float(np.log(alternative))
+
+    @staticmethod
+    def decode(value) -> float:
+        # kept within 2–2000 pitch diameters: shorter is not a cable, longer changes the field < 2e-4
+        return float(np.exp(np.clip(value, np.log(2.0), np.log(2000.0))))
+
+    @classmethod
+    def describe(cls, alternative) -> dict:
+        return {"reference_lay_over_pitch_diameter": None if alternative is None else float(alternative)}
+
+    @classmethod
+    def typical(cls, positions, rng):
+        return cls(float(rng.uniform(10.0, 40.0)) * cls.pitch_diameter(positions))
+
+
+@dataclass
+class FiniteLength(CableEffect):
+    """A bench rig: the cores run straight from `near_m` before the sensor plane (the source end) to
+    `far_m` beyond it; at each end every core joins the cable's centre (cross pieces), and a net current
+    returns through a straight wire `return_offset_m` from the cable's centre at `return_angle_deg`
+    (leads at both ends). Each core's current thus flows in its own closed loop. Typical: ℓ = 0.1–0.25 m
+    either side (a cable clamped on a bench, shorted at one end), return wire 0.15–0.3 m away.
+
+    Candidate, to first order in (r/ℓ)² (r: sensor–core distances): the truncated cores lose
+    −(μ0/8π) S Σ_j I_j ẑ×(s − p_j) and the cross pieces add −(μ0/4π) S ẑ×Σ_j I_j (p_j − p̄), with
+    S = 1/ℓ_near² + 1/ℓ_far² the coefficient (1/m²). Their sum's part from the cores' own currents is
+    a uniform field fixed to the cable, −(μ0/8π) S ẑ×Σ I_j (p_j − p̄): not something moving the cores can
+    make, so it is identifiable (the trials' geometry: two cores carrying ±I, go and return through the
+    ring). The part ∝ the net current Σ I_j (a field ∝ ẑ×s, with a curl) is cancelled by the leads'
+    field — the in-plane field at the sensor plane is curl-free — and what the net current leaves is the
+    return wire's nearly uniform field: four more coefficients (x, y and their gradient, per ampere of
+    net current) when the recording has a net current."""
+
+    near_m: float
+    far_m: float
+    return_offset_m: float = 0.2
+    return_angle_deg: float = 0.0
+    name = "finite_length"
+    n_params = 1
+    regime = "current"
+    kind = "conductors"
+
+    def paths(self, positions) -> list:
+        pos = np.asarray(positions, float)
+        c = pos.mean(axis=0)
+        q = c + self.return_offset_m * np.array([np.cos(np.radians(self.return_angle_deg)),
+                                                 np.sin(np.radians(self.return_angle_deg))])
+        lo, hi = -self.near_m, self.far_m
+        out = []
+        for p in pos:
+            # core → cross piece → lead → return wire → lead → cross piece: a closed loop
+            corners = np.array([[p[0], p[1], lo], [p[0], p[1], hi], [c[0], c[1], hi], [q[0], q[1], hi],
+                                [q[0], q[1], lo], [c[0], c[1], lo], [p[0], p[1], lo]])
+            out.append((corners[:-1], corners[1:]))
+        return out
+
+    def unit_fields(self, points, positions) -> np.ndarray:
+        return _paths_field(np.asarray(points).ravel(), self.paths(positions)).reshape(np.shape(points) + (-1,))
+
+    @classmethod
+    def features(cls, ctx, alternative=None):
+        pos = ctx.positions
+        p = pos[:, 0] + 1j * pos[:, 1]
+        pbar = p.mean()
+        s = ctx.points[ctx.rot_index]  # (K, M) complex
+        cur = ctx.currents  # (K, n)
+        # −(μ0/8π) S ẑ×Σ I_j (p_j − p̄), uniform; ẑ × v = i v for complex in-plane vectors
+        uniform = -(MU0_OVER_4PI / 2.0) * 1j * (cur @ (p - pbar))[:, None] * np.ones_like(s)
+        cols = [to_axes(uniform, ctx.axes[ctx.rot_index])]
+        net = cur.sum(axis=1)
+        has_net = getattr(ctx, "net_current", None)  # the recording's, when ctx holds per-ampere currents
+        if has_net is None:
+            has_net = np.max(np.abs(net)) > 1e-6 * np.max(np.abs(cur))
+        if has_net:
+            # the return wire: a uniform field and its gradient per ampere of net current (a 2-D field
+            # B = conj(g(s)), g analytic: g = α and g = α s, cable frame)
+            r0 = np.abs(s).mean()
+            for column in (np.ones_like(s), 1j * np.ones_like(s), np.conj(s) / r0, -1j * np.conj(s) / r0):
+                cols.append(to_axes(1e-7 * net[:, None] * column, ctx.axes[ctx.rot_index]))
+        return np.stack(cols, axis=-1)
+
+    @classmethod
+    def typical(cls, positions, rng):
+        return cls(float(rng.uniform(0.1, 0.25)), float(rng.uniform(0.1, 0.25)), float(rng.uniform(0.15, 0.3)),
+                   float(rng.uniform(0, 360)))
+
+
+@dataclass
+class SensorPositionError(CableEffect):
+    """Each sensor off the drawing: `angle_deg` along the ring (its axes turn with it), `radius_m` and
+    `axis_deg` (its axes turned about its own normal), all (M,). Typical (PCB assembly): ±0.3–0.7°,
+    ±0.1–0.2 mm, ±0.5–1.5°.
+
+    Candidate: the derivative of every sensor's reading with respect to its own angle, radius and axis
+    angle (per degree, millimetre, degree) at the fitted positions: 3M coefficients (analytic derivatives
+    of the straight-conductor field). A common turn of all sensors is a turn of the cable (absorbed by the
+    positions); the diagnosis finds that by itself."""
+
+    angle_deg: np.ndarray
+    radius_m: np.ndarray
+    axis_deg: np.ndarray
+    name = "sensor_position_error"
+    n_params = 12  # 3 per sensor of the 4-sensor ring (the diagnosis counts the features it gets)
+    regime = "rotation"
+    kind = "sensors"
+
+    def sensors(self, ring, rotation_deg):
+        return sensor_points(ring, rotation_deg, self.angle_deg, self.radius_m, self.axis_deg)
+
+    @classmethod
+    def features(cls, ctx, alternative=None):
+        pos = ctx.positions
+        p = pos[:, 0] + 1j * pos[:, 1]
+        s = ctx.points  # (R, M)
+        w = s[..., None] - p  # (R, M, n)
+        unit = MU0_OVER_2PI * 1j / np.conj(w)
+        slope = -MU0_OVER_2PI * 1j / np.conj(w) ** 2  # dB/ds along u: slope · conj(u)
+        cur = ctx.currents
+        # the field the sensors sit in: the conductors' plus what accepted terms add (ctx.extra, a uniform
+        # field to first order: its gradient is left out)
+        b = np.einsum("kmn,kn->km", unit[ctx.rot_index], cur) + getattr(ctx, "extra", 0.0)
+        g = np.einsum("kmn,kn->km", slope[ctx.rot_index], cur)
+        sk = s[ctx.rot_index]
+        rhat = sk / np.abs(sk)
+        axes = ctx.axes[ctx.rot_index]
+        deg = np.pi / 180.0
+        d_angle = (g * np.conj(1j * sk) - 1j * b) * deg           # position moves along the ring, axes turn
+        d_radius = g * np.conj(rhat) * 1e-3                         # per millimetre
+        d_axis = -1j * b * deg                                      # axes turn about the normal
+        m = s.shape[1]
+        derivs = to_axes(np.stack([d_angle, d_radius, d_axis], axis=-1), axes[..., None])  # (K, M, 3, 2)
+        out = np.zeros(b.shape + (2, m, 3))
+        out[:, np.arange(m), :, np.arange(m), :] = derivs.transpose(1, 0, 3, 2)  # sensor i moves only itself
+        return out.reshape(b.shape + (2, 3 * m))
+
+    @classmethod
+    def typical(cls, n_sensors, rng):
+        sign = lambda: rng.choice([-1.0, 1.0], n_sensors)  # noqa: E731
+        return cls(sign() * rng.uniform(0.3, 0.7, n_sensors), sign() * rng.uniform(0.1e-3, 0.2e-3, n_sensors),
+                   sign() * rng.uniform(0.5, 1.5, n_sensors))
+
+
+@dataclass
+class CableZLeakage(CableEffect):
+    """Each in-plane axis of sensor i reads k[i, axis] × B_z, the field along the ring's axis: the Earth's
+    `earth_z_t` (constant: the per-sensor calibration's offset removes it) plus the cable field's share
+    when the cable is tilted by `tilt_rad` towards `tilt_direction_deg` (cable frame): B_z = τ t̂·B.
+    Typical: k_z ±1–2 % (biaxial AMR / Hall packages), τ = 2–4° (a cable that is not square to the ring
+    on a bench). (`fluxcal.sim.effects.ZLeakage` is the three-axis sensor's simulation-only version.)
+
+    Candidate: per sensor axis, the tilt share B_z = t̂(ψ)·B of the fitted field in the cable frame, 2M
+    coefficients k·τ (exact: the effect is linear in them); the tilt direction ψ is searched on a 15° grid
+    over 180° (the sign goes into k), then fitted with the positions. The Earth's constant B_z is an
+    offset, the calibration's: with the ring never turned, the tilt share is a fixed mix of each sensor's
+    radial and tangential field, partly a gain — the turns of the ring are what tell it apart."""
+
+    k: np.ndarray
+    tilt_rad: float
+    tilt_direction_deg: float = 0.0
+    earth_z_t: float = 40e-6
+    name = "z_leakage"
+    n_params = 8  # 2 per sensor of the 4-sensor ring
+    regime = "rotation"
+    kind = "readings"
+    refinable = True
+    DIRECTIONS = np.arange(0.0, 180.0, 15.0)
+
+    def readings(self, field_lab, axis_rad):
+        """k ⊙ B_z (…, M, 2) for the true cable field `field_lab` (…, M) complex."""
+        t = np.exp(1j * np.radians(self.tilt_direction_deg))
+        bz = self.earth_z_t + self.tilt_rad * np.real(field_lab * np.conj(t))
+        return np.asarray(self.k) * bz[..., None]
+
+    @classmethod
+    def features(cls, ctx, alternative=None):
+        psi = 0.0 if alternative is None else alternative
+        t = np.exp(1j * np.radians(psi))
+        bz = np.real(ctx.field_lab * np.conj(t))  # (K, M)
+        k, m = bz.shape
+        out = np.zeros((k, m, 2, m, 2))
+        for a in range(2):  # sensor i's axis a reads only its own B_z
+            out[:, np.arange(m), a, np.arange(m), a] = bz
+        return out.reshape(k, m, 2, 2 * m)
+
+    @classmethod
+    def alternatives(cls, ctx):
+        return list(cls.DIRECTIONS)
+
+    @staticmethod
+    def encode(alternative) -> float:
+        return float(np.radians(alternative))
+
+    @staticmethod
+    def decode(value) -> float:
+        return float(np.degrees(value))
+
+    @classmethod
+    def describe(cls, alternative) -> dict:
+        return {"tilt_direction_deg": None if alternative is None else float(np.mod(alternative, 180.0))}
+
+    @classmethod
+    def typical(cls, n_sensors, rng):
+        return cls(rng.choice([-1.0, 1.0], (n_sensors, 2)) * rng.uniform(0.01, 0.02, (n_sensors, 2)),
+                   float(np.radians(rng.uniform(2.0, 4.0))), float(rng.uniform(0.0, 360.0)))
+
+
+CABLE_CANDIDATES = (HelicalLay, FiniteLength, SensorPositionError, CableZLeakage)
+"""The cable candidates by name: helical_lay, finite_length, sensor_position_error, z_leakage."""
+
+
+# ---------------------------------------------------------------- a rig with effects
+
+@dataclass
+class EffectRig(CableRig):
+    """A `CableRig` whose true field comes from `effects` (instances of the classes above): `ideal` is the
+    field the sensors really see, `nominal` what the ring's model says (straight infinite cores, sensors
+    on the drawing). `read` adds the sensor errors of `errors` as CableRig does (gain, hard iron, drift
+    wire, moving iron, noise; the in-plane Earth field is taken as removed), and k_z B_z of a
+    `CableZLeakage` effect."""
+
+    effects: list = field(default_factory=list)
+    _cache: dict = field(default_factory=dict, repr=False)  # per rotation: the sensors' unit fields and axes
+
+    def _one(self, kind):
+        found = [e for e in self.effects if e.kind == kind]
+        if len(found) > 1:
+            raise ValueError(f"effects: {len(found)} effects of kind {kind!r} ({', '.join(e.name for e in found)}); "
+                             f"one at a time")
+        return found[0] if found else None
+
+    def true_fields(self, rotation_deg, currents_a):
+        """(n_rot, M) complex lab field at the real sensors and (n_rot, M) their x-axis directions."""
+        conductors, sensors = self._one("conductors"), self._one("sensors")
+        fields, axes = [], []
+        cur = np.asarray(currents_a, float)
+        for rot in np.atleast_1d(np.asarray(rotation_deg, float)):
+            key = (float(rot), tuple(id(e) for e in self.effects), np.asarray(self.positions_m, float).tobytes())
+            if key not in self._cache:  # the segment sums are the cost: once per rotation
+                pts, ax = (sensors.sensors(self.ring, rot) if sensors else sensor_points(self.ring, rot))
+                unit = (conductors.unit_fields(pts, self.positions_m) if conductors
+                        else straight_unit_fields(pts, np.asarray(self.positions_m, float)))
+                self._cache[key] = (unit, ax)
+            unit, ax = self._cache[key]
+            fields.append(unit @ cur)
+            axes.append(ax)
+        return np.array(fields), np.array(axes)
+
+    def ideal(self, rotation_deg, currents_a) -> np.ndarray:
+        b, ax = self.true_fields(rotation_deg, currents_a)
+        return to_axes(b, ax)
+
+    def nominal(self, rotation_deg, currents_a) -> np.ndarray:
+        """What the ring's model says: (n_rot, M, 2)."""
+        rot = np.atleast_1d(np.asarray(rotation_deg, dtype=float))
+        return np.stack([self.ring.rotated(a).field(self.positions_m, currents_a) for a in rot])
+
+    def read(self, rotation_deg, currents_a, rng=None, repeats: int = 1) -> np.ndarray:
+        rot = np.atleast_1d(np.asarray(rotation_deg, dtype=float))
+        e = self.errors
+        b, ax = self.true_fields(rot, currents_a)
+        h = to_axes(b, ax)
+        h = h + np.einsum("mij,rmj->rmi", e.ferro, h)
+        clean = e.gain * (h + e.wire_field() + e.hard_iron)
+        leak = self._one("readings")
+        if leak is not None:
+            clean = clean + leak.readings(b, ax)
+        clean = np.repeat(clean, repeats, axis=0)
+        if rng is not None:
+            clean = clean + rng.standard_normal(clean.shape) * e.noise_sigma[None, :, None]
+        return clean
+
+
+def make_effect(name: str, rig: CableRig, rng):
+    """An effect of the named class at a typical magnitude for `rig`."""
+    by_name = {c.name: c for c in CABLE_CANDIDATES}
+    if name not in by_name:
+        raise ValueError(f"names: unknown cable effect {name!r}; known: {', '.join(by_name)}")
+    cls = by_name[name]
+    if cls in (HelicalLay, FiniteLength):
+        return cls.typical(rig.positions_m, rng)
+    return cls.typical(rig.ring.n_sensors, rng)
+
+
+#: The diagnosis recording of `cable_trial`: the ring turned in 45° steps; at each step three current
+#: levels in three patterns — go and return through the ring (I, −I), and each core alone (I, 0), (0, I)
+#: with the current returning outside the ring — both polarities, two snapshots each.
+TRIAL_ROTATIONS_DEG = np.arange(0.0, 360.0, 45.0)
+TRIAL_LEVELS_A = (2.0, 5.0, 10.0)
+TRIAL_PATTERNS = ((1.0, -1.0), (1.0, 0.0), (0.0, 1.0))
+
+
+def cable_trial(names, seed: int, rotations_deg=TRIAL_ROTATIONS_DEG, levels_a=TRIAL_LEVELS_A,
+                patterns=TRIAL_PATTERNS, repeats: int = 2, calibration_repeats: int = 50,
+                calibration_current_a: float = 5.0, effects=None):
+    """Withheld-effect trial of the cable diagnosis: the paper's rig (4 sensors on 10 mm, the paper's
+    sensor errors and noise σ 1–2e-8 T, cores of PAPER_POSITIONS_M) with the named effects at typical
+    magnitudes (or `effects`, instances), calibrated as the paper does (5 × 72°, ±5 A equal and opposite,
+    `calibration_repeats` snapshots each) against the ring's model — which knows nothing of the effects —
+    then recorded at `rotations_deg` × `levels_a` × `patterns` × both polarities × `repeats` (in that
+    order in time). Returns (keyword arguments of `diagnose_cable`, the rig)."""
+    from ..cable import calibrate_ring
+    from .cable import paper_rig
+
+    rng = np.random.default_rng(seed)
+    base = paper_rig(rng)
+    rig = EffectRig(ring=base.ring, positions_m=base.positions_m, errors=base.errors)
+    rig.effects = list(effects) if effects is not None else [make_effect(n, rig, rng) for n in names]
+    cal_raw, cal_truth = [], []
+    for rot in (72.0 * np.arange(5)):
+        for cur in reference_currents(calibration_current_a):
+            cal_raw.append(rig.read([rot], cur, rng, repeats=calibration_repeats))
+            cal_truth.append(np.repeat(rig.nominal([rot], cur), calibration_repeats, axis=0))
+    calibration = calibrate_ring(np.concatenate(cal_raw), np.concatenate(cal_truth))
+    raw, rots, curs = [], [], []
+    for rot in np.atleast_1d(rotations_deg):
+        for level in levels_a:
+            for pattern in patterns:
+                for sign in (1.0, -1.0):
+                    cur = sign * level * np.asarray(pattern, float)
+                    raw.append(rig.read([rot], cur, rng, repeats=repeats))
+                    rots += [rot] * repeats
+                    curs += [cur] * repeats
+    kwargs = {"readings": np.concatenate(raw), "ring": rig.ring, "currents": np.array(curs),
+              "rotations_deg": np.array(rots), "positions": np.asarray(rig.positions_m, float),
+              "calibration": calibration}
+    return kwargs, rig

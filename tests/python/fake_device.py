@@ -1,0 +1,220 @@
+"""A fake serial magnetometer on a pseudo-terminal, run as its own process by tests/python/test_serial.py.
+
+    python fake_device.py --link LINK --recording REC.csv --sent SENT.json [--script full|endless] ...
+
+The device owns the master side of a pty pair; the program under test opens the slave through the
+stable symlink LINK, as it would open /dev/serial/by-id/usb-... for a USB adapter. A disconnect is a
+replug: the device closes the master (the reader gets EIO → SerialException, and the slave node
+disappears), waits, makes a NEW pty pair and atomically repoints LINK at the new slave — what udev
+does when a USB adapter re-enumerates as another /dev/ttyACMn. The reader has to reopen LINK.
+
+Synchronisation without timing guesses:
+- "ready" on stdout once LINK exists (the test then starts the recorder, which must open it at once);
+- the device starts writing on connection k only when the recorder has opened the port: pyserial's
+  open flushes the input queue, so anything written earlier would be lost by design of the port, not
+  by the recorder. The recorder writes the recording's header after opening, and a
+  "# note: reconnected" line after each reopen; the device waits for those in REC.csv;
+- before a disconnect and at the end it waits until the reader has consumed every byte (the slave's
+  input queue, FIONREAD on the slave fd the device also holds, stays empty), because a hang-up
+  discards bytes not yet read.
+
+Stream: a simulated rotating magnetometer (fluxcal.sim.tumble, random_sensor, field 50000 nT, seeded),
+one record per line `t,mx,my,mz` (csv) or `t=.. X=.. Y=.. Z=..` (kv), t the device time (s), fields in nT.
+Script "full" injects: a partial line at the start of each connection (2), garbage bytes (2 lines),
+a non-numeric line, an out-of-range line (needs --range -200000:200000), a line with too few fields,
+a 0.5 s pause, a partial line just before the disconnect, and the reconnect. SENT.json (written when
+the reader has consumed everything) lists the exact text of every good record and the injected
+counts by reason. Script "endless" streams good records until terminated, appending each one to
+SENT.json's sibling SENT.jsonl as it goes, and writes the true calibration to SENT.json first.
+"""
+from __future__ import annotations
+
+import argparse
+import fcntl
+import json
+import os
+import struct
+import sys
+import termios
+import threading
+import time
+import tty
+from pathlib import Path
+
+import numpy as np
+
+FIELD_NT = 50000.0
+
+
+class Pty:
+    """A pty pair whose slave is published at `link`."""
+
+    def __init__(self, link: Path):
+        self.master, self.slave = os.openpty()
+        tty.setraw(self.slave)  # no echo, no line editing, no signals from garbage bytes such as 0x03
+        tmp = link.with_name(link.name + ".new")
+        tmp.unlink(missing_ok=True)
+        os.symlink(os.ttyname(self.slave), tmp)
+        os.replace(tmp, link)  # atomic: the reader sees the old or the new target, never none
+
+    def write(self, data: bytes) -> None:
+        view = memoryview(data)
+        while view:
+            view = view[os.write(self.master, view):]
+
+    def unread(self) -> int:
+        return struct.unpack("i", fcntl.ioctl(self.slave, termios.FIONREAD, b"\0" * 4))[0]
+
+    def drain(self, timeout: float = 20.0) -> None:
+        """Wait until the reader has taken every byte (three empty looks 20 ms apart: the kernel moves
+        written bytes to the slave's queue asynchronously)."""
+        end, empty = time.monotonic() + timeout, 0
+        while empty < 3:
+            if time.monotonic() > end:
+                raise SystemExit("fake_device: the reader does not consume the stream")
+            empty = empty + 1 if self.unread() == 0 else 0
+            time.sleep(0.02)
+
+    def close(self) -> None:
+        os.close(self.master)
+        os.close(self.slave)
+
+
+def wait_for(recording: Path, text: str, count: int = 1, timeout: float = 20.0) -> None:
+    """Wait until the recorder has written `text` `count` times into its recording."""
+    end = time.monotonic() + timeout
+    while time.monotonic() < end:
+        if recording.exists() and recording.read_text(errors="replace").count(text) >= count:
+            return
+        time.sleep(0.01)
+    raise SystemExit(f"fake_device: {recording} never showed {text!r} x{count}")
+
+
+class Stream:
+    """Good records of the simulated sensor, formatted as the device prints them."""
+
+    def __init__(self, seed: int, fmt: str, rate_hz: float, turn_rate_deg: float, n: int):
+        from fluxcal import sim
+
+        rng = np.random.default_rng(seed)
+        direction = np.array([0.4, 0.05, 0.915])
+        field = FIELD_NT * direction / np.linalg.norm(direction)
+        scene = sim.tumble(duration_s=n / rate_hz, rate_hz=rate_hz, turn_rate_deg=turn_rate_deg,
+                           temperature=None, rng=rng)
+        self.simulation = sim.simulate(scene, sim.random_sensor(FIELD_NT, rng, noise=0.002), field, rng)
+        self.fmt, self.rate_hz, self.i = fmt, rate_hz, 0
+
+    def truth(self) -> dict:
+        cal = self.simulation.true_calibration(units="nT")
+        return {"offset": cal.offset.tolist(), "matrix": cal.matrix.tolist(), "field_norm": cal.field_norm}
+
+    def next(self):
+        """(fields as text, the line's bytes) of the next record."""
+        k = self.i % len(self.simulation.t)  # the endless script goes round the scene again
+        t = self.i / self.rate_hz
+        self.i += 1
+        fields = [f"{t:.3f}", *(f"{v:.2f}" for v in self.simulation.readings[k])]
+        if self.fmt == "kv":
+            line = " ".join(f"{k}={v}" for k, v in zip(("t", "X", "Y", "Z"), fields))
+        else:
+            line = ",".join(fields)
+        return fields, (line + "\r\n").encode()
+
+
+def send_good(port: Pty, stream: Stream, n: int, rate: float, sent: list) -> None:
+    """n good records at `rate` lines per second, written in 10 ms batches."""
+    batch = max(1, int(rate * 0.01))
+    for start in range(0, n, batch):
+        chunk = b""
+        for _ in range(min(batch, n - start)):
+            fields, line = stream.next()
+            sent.append(fields)
+            chunk += line
+        port.write(chunk)
+        time.sleep(batch / rate)
+
+
+def run_full(args, stream: Stream, link: Path, recording: Path) -> None:
+    sent, injected = [], {"partial": 0, "binary": 0, "non_numeric": 0, "out_of_range": 0, "fields": 0}
+    block = args.records // 3
+
+    def inject(port, data, reason):
+        port.write(data)
+        injected[reason] += 1
+
+    port = Pty(link)
+    print("ready", flush=True)
+    wait_for(recording, "\nt_host,")                            # connection 1 is open
+    inject(port, b"5,-1520.25,331.5\r\n", "partial")              # tail of a line the device was printing
+    send_good(port, stream, block // 2, args.rate, sent)
+    inject(port, b"\x00\x13\xff\xfe\x1b[2J\x80\x81\r\n", "binary")   # line noise
+    send_good(port, stream, 5, args.rate, sent)
+    inject(port, b"12.5,\xff\xfe,3.0,4.0\r\n", "binary")          # a good-looking line with a bad byte
+    send_good(port, stream, 5, args.rate, sent)
+    inject(port, (b"t=1 X=a Y=b Z=c" if args.format == "kv" else b"1.000,12.5,abc,7.0") + b"\r\n", "non_numeric")
+    inject(port, (b"t=1.0 X=9900000.00 Y=1.00 Z=2.00" if args.format == "kv" else b"1.000,9900000.00,1.00,2.00")
+           + b"\r\n", "out_of_range")
+    inject(port, (b"t=1.0 X=1.00" if args.format == "kv" else b"1.000,1.00") + b"\r\n", "fields")
+    send_good(port, stream, block - block // 2, args.rate, sent)
+    time.sleep(0.5)                                             # the pause: quiet, not a disconnect
+    send_good(port, stream, block, args.rate, sent)
+    port.drain()
+    inject(port, b"1234.5,-6", "partial")                       # cut off by the disconnect
+    port.drain()
+    port.close()                                                # unplugged: reader gets EIO
+    time.sleep(0.3)                                             # LINK points nowhere meanwhile
+    port = Pty(link)                                            # plugged in again, new pty
+    wait_for(recording, "# note: reconnected")
+    inject(port, b"7.5,88.25\r\n", "partial")
+    send_good(port, stream, args.records - 2 * block, args.rate, sent)
+    port.drain()
+    tmp = Path(args.sent).with_suffix(".tmp")
+    tmp.write_text(json.dumps({"records": sent, "injected": injected, "truth": stream.truth()}))
+    os.replace(tmp, args.sent)
+    linger(port)
+
+
+def run_endless(args, stream: Stream, link: Path, recording: Path) -> None:
+    Path(args.sent).write_text(json.dumps({"truth": stream.truth()}))
+    port = Pty(link)
+    print("ready", flush=True)
+    wait_for(recording, "\nt_host,")
+    port.write(b"-1520.25,331.5\r\n")                           # partial first line, as in "full"
+    unplugged = threading.Event()  # set when the test closes our stdin
+    threading.Thread(target=lambda: (sys.stdin.read(), unplugged.set()), daemon=True).start()
+    with Path(args.sent).with_suffix(".jsonl").open("w") as log:
+        while not unplugged.is_set():
+            sent = []
+            send_good(port, stream, max(1, int(args.rate * 0.05)), args.rate, sent)
+            log.writelines(json.dumps(fields) + "\n" for fields in sent)
+            log.flush()
+    port.close()
+
+
+def linger(port: Pty) -> None:
+    """Stay plugged in, quiet, until the test closes our stdin or terminates us."""
+    sys.stdin.read()
+    port.close()
+
+
+def main() -> None:
+    p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    p.add_argument("--link", required=True, help="symlink the reader opens (repointed on a replug)")
+    p.add_argument("--recording", required=True, help="the recorder's output, watched to know it has opened")
+    p.add_argument("--sent", required=True, help="JSON of the good records sent and the injected counts")
+    p.add_argument("--script", choices=("full", "endless"), default="full")
+    p.add_argument("--format", choices=("csv", "kv"), default="csv")
+    p.add_argument("--seed", type=int, default=0)
+    p.add_argument("--records", type=int, default=450, help="good records in the full script")
+    p.add_argument("--rate", type=float, default=500.0, help="lines per second of wall time")
+    p.add_argument("--sim-rate", type=float, default=50.0, help="device sample rate (Hz): the t column")
+    p.add_argument("--turn-rate", type=float, default=90.0, help="RMS turn rate of the hand, deg/s")
+    args = p.parse_args()
+    n = args.records if args.script == "full" else 6000
+    stream = Stream(args.seed, args.format, args.sim_rate, args.turn_rate, n)
+    runner = run_full if args.script == "full" else run_endless
+    runner(args, stream, Path(args.link), Path(args.recording))
+
+
+if __name__ == "__main__":
+    main()

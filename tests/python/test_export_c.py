@@ -1,0 +1,239 @@
+"""fluxcal export-c: the generated C header compiles (C99, -Wall -Werror; and as C++), its float and
+fixed-point corrections reproduce Calibration.apply on the generated test vector within the stated
+precision (float: relative 1e-6; fixed: the stated bound, and bit for bit with the Python model), the
+self-test catches a damaged constant, and the Kalman part runs bit-exactly in fixed_kalman.hpp."""
+import json
+import shutil
+import subprocess
+
+import numpy as np
+import pytest
+
+import fluxcal
+from conftest import REPO, run_cli, simulated
+from fluxcal import drift, sim
+from fluxcal.export_c import (FLOAT_RELATIVE_TOLERANCE, QFormat, export_c, fixed_point, load_kalman,
+                              reading_extent, save_kalman)
+from fluxcal.kalman import FixedArKalman
+
+# Prints, per test vector, the float input and output (9 digits: exact for float) and the fixed output,
+# then the header's own self-test result.
+DRIVER = r"""
+#include <stdio.h>
+#include "HEADER"
+int main(void) {
+  int k;
+  for (k = 0; k < P_TEST_COUNT; ++k) {
+    float hf[3];
+    int32_t hq[3];
+    int saturated;
+    p_apply_float(p_test_input_f[k], hf);
+    saturated = p_apply_fixed(p_test_input_q[k], hq);
+    printf("%.9g %.9g %.9g %.9g %.9g %.9g %ld %ld %ld %d\n", p_test_input_f[k][0], p_test_input_f[k][1],
+           p_test_input_f[k][2], hf[0], hf[1], hf[2], (long)hq[0], (long)hq[1], (long)hq[2], saturated);
+  }
+  printf("self_test %d\n", p_self_test());
+  return 0;
+}
+"""
+
+
+def compiler(c_plus_plus=False):
+    found = shutil.which("c++" if c_plus_plus else "cc") or shutil.which("g++" if c_plus_plus else "gcc")
+    if found is None:
+        pytest.fail("no C/C++ compiler on PATH (the build needs one anyway)")
+    return found
+
+
+def run_driver(tmp_path, header, c_plus_plus=False):
+    """Compile the driver against `header` (prefix p) and return (rows as an array, self-test result)."""
+    source = tmp_path / ("driver.cpp" if c_plus_plus else "driver.c")
+    source.write_text(DRIVER.replace("HEADER", header.name))
+    exe = tmp_path / ("driver_cpp" if c_plus_plus else "driver_c")
+    flags = ["-std=c++17"] if c_plus_plus else ["-std=c99"]
+    build = subprocess.run([compiler(c_plus_plus), *flags, "-Wall", "-Werror", "-O2", f"-I{header.parent}",
+                            str(source), "-o", str(exe)], capture_output=True, text=True)
+    assert build.returncode == 0, build.stderr
+    out = subprocess.run([str(exe)], capture_output=True, text=True, check=True).stdout.splitlines()
+    rows = np.array([[float(v) for v in line.split()] for line in out[:-1]])
+    return rows, int(out[-1].split()[1])
+
+
+def calibrations():
+    s = simulated(11, n=1500)  # nT, soft iron ±20 %, offset up to half the field
+    nt = fluxcal.calibrate(s.readings, field_norm=s.field_norm, units="nT")
+    gauss = fluxcal.calibrate(simulated(12, n=1500, field_norm=0.47).readings, units="Gauss")
+    return {"nT": nt, "Gauss": gauss}
+
+
+CALS = calibrations()
+
+
+@pytest.mark.parametrize("which, q_format", [("nT", None), ("nT", "Q22.9"), ("Gauss", None), ("Gauss", "Q4.27")])
+def test_header_reproduces_calibration_apply(tmp_path, which, q_format):
+    cal = CALS[which]
+    header = tmp_path / "magcal.h"
+    result = export_c(cal, header, q_format=q_format, name="p")
+    fx = result.fixed
+    rows, self_test = run_driver(tmp_path, header)
+    assert self_test == 0
+    inputs_f, h_float, h_fixed, saturated = rows[:, :3], rows[:, 3:6], rows[:, 6:9], rows[:, 9]
+    assert len(rows) == len(result.inputs_q) == 30
+    assert not saturated.any()
+    # float: relative 1e-6 of the result (of the field norm when the result is small)
+    expected_f = cal.apply(inputs_f)
+    scale = np.maximum(np.abs(expected_f).max(axis=1, keepdims=True), cal.field_norm)
+    float_error = np.abs(h_float - expected_f) / scale
+    assert float_error.max() <= FLOAT_RELATIVE_TOLERANCE
+    # fixed: within the stated bound of the double result for the exact values the inputs stand for
+    exact = cal.apply(result.inputs_q * fx.fmt.lsb)
+    fixed_error = np.abs(h_fixed * fx.fmt.lsb - exact)
+    assert fixed_error.max() <= fx.error_bound
+    assert fixed_error.max() > 0.05 * fx.error_bound  # the bound is not vacuous (measured 0.1–0.4 of it)
+    # and bit for bit what the Python model of the firmware arithmetic says
+    model, model_saturated = fx.apply_int(result.inputs_q)
+    np.testing.assert_array_equal(h_fixed, model)
+    assert not model_saturated
+    if q_format is not None:
+        assert str(fx.fmt) == q_format
+    header_text = header.read_text()
+    assert f"Signal format {fx.fmt}" in header_text and f"#define P_Q_FRAC_BITS {fx.fmt.frac_bits}" in header_text
+
+
+def test_default_format_follows_the_range_rule():
+    cal = CALS["nT"]
+    fx = fixed_point(cal)
+    extent = reading_extent(cal)
+    assert fx.input_range == pytest.approx(2 * extent, rel=1e-6)
+    # the smallest m that holds the range and every output for it: one integer bit fewer would not
+    outputs = np.abs(cal.matrix) @ (fx.input_range + np.abs(cal.offset))
+    assert outputs.max() + fx.error_bound <= fx.fmt.max_value
+    smaller = QFormat(fx.fmt.int_bits - 1, fx.fmt.frac_bits + 1)
+    assert outputs.max() > smaller.max_value or fx.input_range + np.abs(cal.offset).max() > smaller.max_value
+    # a format with too few integer bits for the field is refused with the smallest that works
+    with pytest.raises(ValueError, match=r"--q-format Q10.21: readings of the calibration field reach .* use at least Q1[5-7]\.1[4-6]"):
+        fixed_point(cal, "Q10.21")
+    # a tight format keeps the range it can hold (between 1 and 2 extents), and says so
+    tight = fixed_point(cal, f"Q{fx.fmt.int_bits - 1}.{fx.fmt.frac_bits + 1}")
+    assert extent <= tight.input_range < 2 * extent and "holds no more" in tight.range_note
+
+
+def test_self_test_catches_a_damaged_constant(tmp_path):
+    header = tmp_path / "magcal.h"
+    export_c(CALS["nT"], header, name="p")
+    text = header.read_text()
+    start = text.index("p_matrix_q[3][3] = {\n  {") + len("p_matrix_q[3][3] = {\n  {")
+    end = text.index(",", start)
+    damaged = int(text[start:end]) + 4096  # a matrix entry off by 2^12 units of 2^-na
+    header.write_text(text[:start] + str(damaged) + text[end:])
+    _, self_test = run_driver(tmp_path, header)
+    assert self_test > 0
+
+
+def test_header_is_valid_cplusplus(tmp_path):
+    header = tmp_path / "magcal.h"
+    export_c(CALS["Gauss"], header, name="p")
+    rows, self_test = run_driver(tmp_path, header, c_plus_plus=True)
+    assert self_test == 0 and len(rows) == 30
+
+
+def test_q_format_parsing():
+    assert QFormat.parse("Q12.19") == QFormat(12, 19) and str(QFormat.parse(" q1.30 ")) == "Q1.30"
+    with pytest.raises(ValueError, match="m \\+ n must be 31"):
+        QFormat.parse("Q3.3")
+    with pytest.raises(ValueError, match="is not Qm.n"):
+        QFormat.parse("16.15")
+
+
+# -- Kalman coefficients ----------------------------------------------------------------------------------------
+
+KALMAN_DRIVER = r"""
+#include <cstdio>
+#include <fluxcal/fixed_kalman.hpp>
+#include "HEADER"
+int main() {
+  constexpr int N = P_KALMAN_ORDER;
+  fluxcal::FixedArKalmanCoefficients<N> c;
+  c.order = N;
+  c.format = {P_KALMAN_SIGNAL_FRAC_BITS, P_KALMAN_COEF_FRAC_BITS, P_KALMAN_COV_FRAC_BITS};
+  c.steady_state = P_KALMAN_STEADY_STATE;
+  c.q = p_kalman_q; c.r = p_kalman_r;
+  for (int i = 0; i < N; ++i) { c.a[i] = p_kalman_a[i]; c.gain[i] = p_kalman_gain[i]; }
+  for (int i = 0; i < N * N; ++i) c.p0[i] = p_kalman_p0[i];
+  fluxcal::FixedArKalman<N> f;
+  if (!f.configure(c)) return 2;
+  int mismatches = 0;
+  for (int k = 0; k < P_KALMAN_TEST_COUNT; ++k) {
+    const std::int32_t out = f.step(p_kalman_test_input[k]);
+    mismatches += out != p_kalman_test_output[k];
+    std::printf("%d\n", out);
+  }
+  std::printf("mismatches %d\n", mismatches);
+  return f.overflowed() ? 3 : 0;
+}
+"""
+
+
+def run_kalman_driver(tmp_path, header):
+    source = tmp_path / "kalman.cpp"
+    source.write_text(KALMAN_DRIVER.replace("HEADER", header.name))
+    exe = tmp_path / "kalman"
+    build = subprocess.run([compiler(True), "-std=c++17", "-Wall", "-Werror", "-O1", f"-I{REPO / 'cpp' / 'include'}",
+                            f"-I{header.parent}", str(source), "-o", str(exe)], capture_output=True, text=True)
+    assert build.returncode == 0, build.stderr
+    run = subprocess.run([str(exe)], capture_output=True, text=True)
+    assert run.returncode == 0, run.stderr
+    lines = run.stdout.split("\n")
+    return np.array([int(v) for v in lines[:-2]]), int(lines[-2].split()[1])
+
+
+@pytest.mark.parametrize("steady_state", [False, True])
+def test_kalman_coefficients_run_bit_exact_in_the_firmware_filter(tmp_path, steady_state):
+    f = FixedArKalman((0.6, -0.3, 0.2), 0.5, 0.3, frac_bits=28, steady_state=steady_state)
+    saved = save_kalman(f, tmp_path / "kf.json")
+    assert load_kalman(saved).coefficients() == f.coefficients()
+    header = tmp_path / "p.h"
+    r = run_cli("export-c", CALS["nT"].save(tmp_path / "cal.json"), "-o", header, "--name", "p", "--kalman", saved)
+    assert r.returncode == 0, r.stderr
+    assert "AR(3) Kalman coefficients" in r.stdout
+    outputs, mismatches = run_kalman_driver(tmp_path, header)
+    assert mismatches == 0
+    text = header.read_text()
+    y_int = np.array([int(v) for v in text.split("p_kalman_test_input[256] = {")[1].split("}")[0].split(",")])
+    np.testing.assert_array_equal(outputs, FixedArKalman((0.6, -0.3, 0.2), 0.5, 0.3, frac_bits=28,
+                                                         steady_state=steady_state).filter_int(y_int))
+    assert np.abs(y_int).max() > 2 ** 24  # the test signal uses the format's range, not a few LSB
+    _, self_test = run_driver(tmp_path, header)  # the calibration part is still C99 with the Kalman part in
+    assert self_test == 0
+
+
+def test_kalman_from_a_drift_model(tmp_path):
+    foct = sim.foct_zero_bias(rng=np.random.default_rng(1), hold_s=300, ramp_s=150)
+    model, _ = drift.fit_pipeline(foct.columns["zero_bias"], foct.columns["temp"])
+    path = model.save(tmp_path / "drift.json")
+    f = load_kalman(path)
+    data = json.loads(path.read_text())
+    np.testing.assert_allclose(f.double.ar_coeffs, data["ar"]["coefficients"])
+    assert f.double.q == data["kalman"]["q"] and f.double.r == data["kalman"]["r"]
+    sigma = np.sqrt(f.double.initial_covariance[0, 0] + f.double.r)
+    assert 2.0 ** (31 - f.frac_bits) >= 2 * 8 * sigma > 2.0 ** (30 - f.frac_bits)  # the stated rule
+    header = tmp_path / "p.h"
+    export_c(CALS["nT"], header, name="p", kalman=path)
+    outputs, mismatches = run_kalman_driver(tmp_path, header)
+    assert mismatches == 0 and len(outputs) == 256
+
+
+def test_cli_export_c_and_its_errors(tmp_path):
+    cal = CALS["nT"].save(tmp_path / "cal.json")
+    r = run_cli("export-c", cal, "-o", tmp_path / "sensor-7.h")
+    assert r.returncode == 0, r.stderr
+    assert "fixed-point error ≤" in r.stdout and "30 test vectors" in r.stdout
+    assert "sensor_7_apply_fixed" in (tmp_path / "sensor-7.h").read_text()  # default prefix from the file name
+    for args, message in [(("--q-format", "Q8.8"), "m + n must be 31"),
+                          (("--q-format", "Q3.28"), "use at least Q1"),
+                          (("--name", "7up"), "not a C identifier"),
+                          (("--kalman", tmp_path / "absent.json"), "absent.json: cannot read")]:
+        r = run_cli("export-c", cal, "-o", tmp_path / "x.h", *args)
+        assert r.returncode == 2 and message in r.stderr and "Traceback" not in r.stderr, r.stderr
+    r = run_cli("export-c", tmp_path / "nocal.json", "-o", tmp_path / "x.h")
+    assert r.returncode == 2 and "nocal.json" in r.stderr
