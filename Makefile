@@ -28,6 +28,8 @@ bench: install cpp
 	$(PY) bench/kalman.py
 	$(PY) bench/cable_paper.py build/cable_figs
 	$(PY) bench/diagnose.py --real ../shared/data/real --timing
+	$(PY) bench/diagnose_cable.py
+	$(PY) bench/batch.py
 
 # Debian packages: only the missing ones, without recommends (Ceres would pull ~180 MB of GraphBLAS).
 deps:
