@@ -242,21 +242,3 @@ def cmd_live(args) -> int:
     for warning in s.get("warnings", []):
         print(f"warning: {warning}")
     return 0 if session.met else 1
-
-
-def main(argv=None) -> int:
-    """`python -m fluxcal.live live ...` works before the command is part of `fluxcal`."""
-    import argparse
-
-    parser = argparse.ArgumentParser(prog="fluxcal")
-    add_live_parser(parser.add_subparsers(dest="command", required=True))
-    args = parser.parse_args(argv)
-    try:
-        return args.run(args)
-    except ValueError as exc:
-        print(f"fluxcal {args.command}: error: {exc}", file=sys.stderr)
-        return 2
-
-
-if __name__ == "__main__":
-    raise SystemExit(main())

@@ -54,6 +54,7 @@ from ..cable import Ring, RingCalibration
 from ..sim.cable_effects import CABLE_CANDIDATES, sensor_points, straight_unit_fields, to_axes
 from .core import (ABSORBED, HELDOUT_ALPHA, HELDOUT_FRACTION, MIN_GAIN, Diagnosis, _binned, _gap,
                    _improvement_pvalue, _quantile_bins, _whitened_lr)
+from .report import _num
 
 REGIMES = ("rotation", "current", "time")
 PROFILE_GAIN = 1000.0  # χ² a candidate's best alternative removes at fixed positions above which it is profiled
@@ -916,10 +917,6 @@ def diagnose_cable(readings, ring: Ring, currents=None, rotations_deg=None, posi
 
 
 # ---------------------------------------------------------------- text and report
-
-def _num(x, fmt=".3g") -> str:
-    return "—" if x is None else format(x, fmt)
-
 
 def _ranking_lines(d) -> list:
     head = (f"{'effect':22s} {'signif.':>7s} {'ΔBIC':>10s} {'LR p':>9s} {'dims':>4s} {'held out':>9s} "

@@ -659,22 +659,3 @@ def cmd_record(args) -> int:
         print(f"fluxcal record: no good record from {args.port}; check --baud, --format and --columns", flush=True)
         return 1
     return 0
-
-
-def main(argv=None) -> int:
-    """`python -m fluxcal.io.serial record ...` works before the command is part of `fluxcal`."""
-    import argparse
-    import sys
-
-    parser = argparse.ArgumentParser(prog="fluxcal")
-    add_record_parser(parser.add_subparsers(dest="command", required=True))
-    args = parser.parse_args(argv)
-    try:
-        return args.run(args)
-    except ValueError as exc:
-        print(f"fluxcal {args.command}: error: {exc}", file=sys.stderr)
-        return 2
-
-
-if __name__ == "__main__":
-    raise SystemExit(main())
