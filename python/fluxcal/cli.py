@@ -122,12 +122,7 @@ def cmd_diagnose(args) -> int:
     result = diagnose(rec, reference=reference, field_norm=args.field_norm, model=args.model,
                       noise_sigma=args.noise_sigma, candidates=candidates, alpha=args.alpha,
                       progress=not args.quiet)
-    print(result.text())
-    if args.json:
-        print(f"wrote {result.save_json(args.json)}")
-    if args.report:
-        print(f"wrote {result.report(args.report)}")
-    return 0
+    return _print_diagnosis(result, args)
 
 
 def cmd_export_c(args) -> int:
@@ -296,6 +291,16 @@ def cmd_drift(args) -> int:
     return 0
 
 
+def _print_diagnosis(result, args) -> int:
+    """The diagnosis as text, plus the JSON and the report folder when asked (both models)."""
+    print(result.text())
+    if args.json:
+        print(f"wrote {result.save_json(args.json)}")
+    if args.report:
+        print(f"wrote {result.report(args.report)}")
+    return 0
+
+
 def _diagnose_cable(args) -> int:
     """`fluxcal diagnose RING.csv --model cable`: the ring's sim-to-real gap (fluxcal.diagnose.diagnose_cable)."""
     from . import cable
@@ -308,12 +313,7 @@ def _diagnose_cable(args) -> int:
                             calibration=args.calibration, noise_sigma=args.noise_sigma, candidates=candidates,
                             fit_currents=args.fit_currents or None, alpha=args.alpha, progress=not args.quiet,
                             source=str(args.file))
-    print(result.text())
-    if args.json:
-        print(f"wrote {result.save_json(args.json)}")
-    if args.report:
-        print(f"wrote {result.report(args.report)}")
-    return 0
+    return _print_diagnosis(result, args)
 
 
 def build_parser() -> argparse.ArgumentParser:
