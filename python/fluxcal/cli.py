@@ -51,9 +51,15 @@ def _held_out_rms(raw, reference, units) -> float:
     return float(np.sqrt(np.mean(np.sum((first.apply(raw[half:]) - reference[half:]) ** 2, axis=1))))
 
 
+def _print_roles(rec: Recording):
+    """Say which columns were taken for what, so a name-guessed choice is visible."""
+    print("columns: " + "; ".join(f"{role} {names}" for role, names in rec.roles().items()))
+
+
 def cmd_calibrate(args) -> int:
     rec = read_recording(args.file, columns=args.columns, units=args.units)
     raw = rec.samples()
+    _print_roles(rec)
     # attitude + local field in the recording (e.g. the airborne layout): the vector fit, unless a
     # magnitude-only method is asked for
     reference = rec.reference_field() if args.method in ("auto", "vector") else None
@@ -110,6 +116,8 @@ def cmd_diagnose(args) -> int:
     if args.model == "cable":
         return _diagnose_cable(args)
     rec = read_recording(args.file, columns=args.columns, units=args.units)
+    rec.samples()  # the magnetometer columns exist and are finite before the diagnosis starts
+    _print_roles(rec)
     # a recording with attitude + local field gives the vector model its reference, unless told otherwise
     reference = None if args.reference or args.model in ("ellipsoid", "scale") else rec.reference_field()
     if args.reference:

@@ -575,11 +575,9 @@ def diagnose(samples, t=None, temp=None, reference=None, gravity=None, field_nor
     if isinstance(samples, Recording):
         rec = samples
         samples = rec.samples()
-        cols = rec.columns
-        t = cols.get("t") if t is None else t
-        temp = cols.get("temp") if temp is None else temp
-        if gravity is None and all(k in cols for k in ("ax", "ay", "az")):
-            gravity = np.column_stack([cols["ax"], cols["ay"], cols["az"]])
+        t = rec.time() if t is None else t
+        temp = rec.temperature() if temp is None else temp
+        gravity = rec.acceleration() if gravity is None else gravity
         units = units or rec.field_units()
         source = rec.source
     model = model or ("vector" if reference is not None else "ellipsoid")

@@ -6,6 +6,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from .._arrays import first_nonfinite
+from .columns import field_unit_of, find_accelerometer, find_magnetometer, find_temperature, find_time
 
 MAG_COLUMNS = ("mx", "my", "mz")
 # A recording that carries its attitude and the local field (north, east, down) gives a reference vector
@@ -45,13 +46,63 @@ class Recording:
         return self
 
     def mag_names(self) -> tuple:
-        """The three magnetometer columns: those selected, else mx,my,mz, else x,y,z."""
+        """The three magnetometer columns: those selected, else mx,my,mz, else the triple recognised by
+        name (MagX.., mag_x.., Bx.., x,y,z; see fluxcal.io.columns). A unit carried by the names
+        (mag_x_uT) is recorded when the file states none."""
         if self.mag_columns is None:
-            if all(c in self.columns for c in ("x", "y", "z")):
-                return ("x", "y", "z")
-            raise ValueError(f"{self.source}: no magnetometer columns mx,my,mz (columns are: "
-                             f"{', '.join(self.columns)}); choose three with --columns / select()")
+            found = find_magnetometer(self.columns, self.source)
+            if found is None:
+                raise ValueError(f"{self.source}: no magnetometer columns (looked for mx,my,mz, MagX.., mag_x.., "
+                                 f"Bx.., x,y,z; columns are: {', '.join(self.columns)}); choose three with "
+                                 "--columns / select()")
+            self.mag_columns = found
+            for n in found:
+                if not self.units.get(n) and field_unit_of(n):
+                    self.units[n] = field_unit_of(n)
         return self.mag_columns
+
+    def time(self):
+        """Time of each reading in seconds (column t, else one recognised by name such as time, TimeUS,
+        time_ms, timestamp, converted by its unit), or None."""
+        hit = find_time(self.columns, self.units)
+        return None if hit is None else self.columns[hit[0]] * hit[1]
+
+    def temperature(self):
+        """Temperature of each reading in °C (column temp, else temperature, temp_C, die_temp, ... in °C, K
+        or °F by its unit), or None."""
+        hit = find_temperature(self.columns, self.units)
+        if hit is None:
+            return None
+        values = self.columns[hit[0]]
+        return {"C": values, "K": values - 273.15, "F": (values - 32.0) / 1.8}[hit[1]]
+
+    def acceleration(self):
+        """The accelerometer, N×3 (ax,ay,az, else a triple recognised by name such as AccX, accel_x), or None."""
+        names = self._acc_names()
+        return None if names is None else np.column_stack([self.columns[n] for n in names])
+
+    def _acc_names(self):
+        if all(c in self.columns for c in ("ax", "ay", "az")):
+            return ("ax", "ay", "az")
+        return find_accelerometer(self.columns)
+
+    def roles(self) -> dict:
+        """Which column plays which part, for reports: {"magnetometer": "MagX,MagY,MagZ", "time": ..., ...}."""
+        out = {}
+        try:
+            out["magnetometer"] = ",".join(self.mag_names())
+        except ValueError:
+            pass
+        hit = find_time(self.columns, self.units)
+        if hit:
+            out["time"] = hit[0] + (f" (×{hit[1]:g} → s)" if hit[1] != 1.0 else "")
+        hit = find_temperature(self.columns, self.units)
+        if hit:
+            out["temperature"] = hit[0] + (f" ({hit[1]} → °C)" if hit[1] != "C" else "")
+        acc = self._acc_names()
+        if acc:
+            out["accelerometer"] = ",".join(acc)
+        return out
 
     def samples(self, check_finite: bool = True) -> np.ndarray:
         """The magnetometer readings, N×3. NaN/Inf is an error naming the file line and column."""

@@ -1,0 +1,155 @@
+"""Which column is which: the magnetometer axes, time, temperature and accelerometer of a recording
+whose columns are not named fluxcal's way (mx,my,mz, t, temp, ax,ay,az).
+
+Loggers name them MagX, mag_x, Mag_X (uT), magnetometer_ga[0], Bx, compass_x, x_mag; TimeUS, time_ms,
+timestamp; Temperature, temp_C, die_temp; AccX, accel_x, acc_x_g. A name is split into lowercase words
+(at separators, case changes and brackets); trailing unit words are peeled off and become the column's
+unit when the file states none; the axis is a last word x/y/z (or a last word such as "magx", or an
+index 0/1/2 after a magnetometer word). Three axes under the same words that include a magnetometer
+word (mag, magnetometer, magnetic, compass, field, b, h, m, ...) are a magnetometer. When two such
+triples exist (raw and calibrated, two compasses) the one without a "calibrated/corrected" word wins,
+else the one marked raw/uncalibrated; anything still ambiguous is an error listing the triples, so the
+user picks one with --columns. Plain x,y,z (any case) is a magnetometer only when nothing else is.
+"""
+from __future__ import annotations
+
+import re
+
+MAG_WORDS = {"m", "mag", "mags", "magn", "magnet", "magnetometer", "magnetic", "magneticfield", "compass",
+             "b", "bfield", "h", "field", "flux", "fluxgate"}
+ACC_WORDS = {"a", "acc", "accel", "accelerometer", "acceleration", "accl"}
+TIME_WORDS = {"t", "time", "times", "timestamp", "timeus", "timems", "elapsed", "sec", "secs", "seconds"}
+TEMP_WORDS = {"temp", "temperature", "tmp", "temperatur", "celsius"}
+CALIBRATED_WORDS = {"cal", "calibrated", "corr", "corrected", "comp", "compensated", "filtered", "fused"}
+RAW_WORDS = {"raw", "uncal", "uncalibrated", "uncorrected"}
+# unit words a logger appends to a name -> the unit string fluxcal records
+FIELD_UNITS = {"nt": "nT", "ut": "uT", "µt": "uT", "mt": "mT", "g": "G", "ga": "G", "gauss": "G", "mg": "mG",
+               "mgauss": "mG", "milligauss": "mG", "counts": "counts", "lsb": "counts"}
+TIME_UNITS = {"s": 1.0, "sec": 1.0, "secs": 1.0, "seconds": 1.0, "ms": 1e-3, "us": 1e-6, "µs": 1e-6,
+              "ns": 1e-9}
+TEMP_UNITS = {"c": "C", "degc": "C", "celsius": "C", "°c": "C", "k": "K", "kelvin": "K", "f": "F",
+              "degf": "F", "fahrenheit": "F"}
+_UNIT_WORDS = set(FIELD_UNITS) | set(TIME_UNITS) | set(TEMP_UNITS)
+_AXES = {"x": 0, "y": 1, "z": 2}
+_CAMEL = re.compile(r"(?<=[a-z0-9])(?=[A-Z])|(?<=[A-Za-z])(?=[0-9])|(?<=[0-9])(?=[A-Za-z])")
+
+
+def words(name: str) -> list[str]:
+    """'Mag_X (uT)' -> ['mag', 'x', 'ut']; 'TimeUS' -> ['time', 'us']; 'magnetometer_ga[0]' -> [..., '0']."""
+    out = []
+    for segment in filter(None, re.split(r"[^0-9A-Za-zµ°]+", name)):
+        if segment.lower() in _UNIT_WORDS:  # uT, mGauss: a unit, not two words
+            out.append(segment.lower())
+        else:
+            out += [w.lower() for w in _CAMEL.sub(" ", segment).split()]
+    return out
+
+
+def _peel_unit(ws: list[str], table) -> tuple[list[str], str | None]:
+    if len(ws) > 1 and ws[-1] in table:
+        return ws[:-1], ws[-1]
+    return ws, None
+
+
+def _axis_of(ws: list[str]):
+    """(prefix words, axis 0..2) when the name ends in an axis, else None."""
+    if len(ws) >= 2 and ws[-1] in _AXES:
+        return tuple(ws[:-1]), _AXES[ws[-1]]
+    if len(ws) >= 2 and ws[0] in _AXES:  # x_mag, XMag
+        return tuple(ws[1:]), _AXES[ws[0]]
+    if ws and len(ws[-1]) > 1 and ws[-1][-1] in _AXES and ws[-1][:-1] in MAG_WORDS | ACC_WORDS:  # magx, bx, ax
+        return tuple(ws[:-1]) + (ws[-1][:-1],), _AXES[ws[-1][-1]]
+    if len(ws) >= 2 and ws[-1] in ("0", "1", "2") and set(ws[:-1]) & (MAG_WORDS | ACC_WORDS | {"ga"}):
+        return tuple(ws[:-1]), int(ws[-1])
+    return None
+
+
+def _triples(names, kind_words):
+    """{prefix words: (name_x, name_y, name_z)} for complete triples whose prefix has a word of kind_words."""
+    groups: dict[tuple, dict[int, str]] = {}
+    for name in names:
+        ws, _ = _peel_unit(words(name), FIELD_UNITS if kind_words is MAG_WORDS else {"g": 1, "ms2": 1, "mss": 1})
+        hit = _axis_of(ws)
+        if hit is None:
+            continue
+        prefix, axis = hit
+        if set(prefix) & kind_words:
+            groups.setdefault(prefix, {}).setdefault(axis, name)
+    return {p: (g[0], g[1], g[2]) for p, g in groups.items() if len(g) == 3}
+
+
+def find_magnetometer(names, source: str = "recording"):
+    """The three magnetometer columns among `names`, or None when there is no candidate. An ambiguous
+    choice is a ValueError that lists the candidates."""
+    names = list(names)
+    found = _triples(names, MAG_WORDS)
+    if len(found) > 1:
+        plain = {p: t for p, t in found.items() if not set(p) & CALIBRATED_WORDS}
+        if len(plain) > 1:
+            plain = {p: t for p, t in plain.items() if set(p) & RAW_WORDS} or plain
+        found = plain or found
+    if len(found) == 1:
+        return next(iter(found.values()))
+    if len(found) > 1:
+        listed = "; ".join(",".join(t) for t in found.values())
+        raise ValueError(f"{source}: several magnetometer column triples ({listed}); choose one with --columns "
+                         "/ select()")
+    lower = {n.lower(): n for n in names}
+    if all(a in lower for a in "xyz"):
+        return tuple(lower[a] for a in "xyz")
+    return None
+
+
+def find_accelerometer(names):
+    found = _triples(list(names), ACC_WORDS)
+    return next(iter(found.values())) if len(found) == 1 else None
+
+
+def _single(names, kind_words, unit_table):
+    """(column name, unit word or None) of the only column whose words are kind_words (+ a unit)."""
+    hits = []
+    for name in names:
+        if name == "T":  # time to some loggers, temperature to others: not guessed
+            continue
+        ws, unit = _peel_unit(words(name), unit_table)
+        if ws and all(w in kind_words or w in ("sensor", "die", "chip", "imu", "mag", "board") for w in ws) \
+                and set(ws) & kind_words:
+            hits.append((name, unit))
+        elif len(ws) == 1 and ws[0] in ("timeus", "timems"):
+            hits.append((name, ws[0][4:]))
+    return hits[0] if len(hits) == 1 else None
+
+
+def find_time(names, units: dict):
+    """(column, factor to seconds) or None. The unit comes from the units map, else the name's unit
+    word (TimeUS, time_ms), else seconds."""
+    if "t" in names:
+        name, word = "t", None
+    else:
+        hit = _single(names, TIME_WORDS, TIME_UNITS)
+        if hit is None:
+            return None
+        name, word = hit
+    stated = (units.get(name) or "").strip().lower().replace("μ", "µ")
+    factor = TIME_UNITS.get(stated) or TIME_UNITS.get(word or "", 1.0)
+    return name, factor
+
+
+def find_temperature(names, units: dict):
+    """(column, unit "C"/"K"/"F") or None."""
+    if "temp" in names:
+        name, word = "temp", None
+    else:
+        hit = _single(names, TEMP_WORDS, TEMP_UNITS)
+        if hit is None:
+            return None
+        name, word = hit
+    stated = (units.get(name) or "").strip().lower().replace("°", "")
+    unit = TEMP_UNITS.get(stated) or TEMP_UNITS.get(stated.replace("deg", "")) or TEMP_UNITS.get(word or "", "C")
+    return name, unit
+
+
+def field_unit_of(name: str) -> str:
+    """The field unit a column's name carries (mag_x_uT -> "uT"), "" when none."""
+    _, unit = _peel_unit(words(name), FIELD_UNITS)
+    return FIELD_UNITS.get(unit, "") if unit else ""

@@ -1,0 +1,104 @@
+"""Columns named the way loggers name them (MagX, mag_x_uT, TimeUS, Temperature (°F), AccX) are
+recognised, converted, reported, and used by calibrate and diagnose; ambiguity is an error."""
+import json
+
+import numpy as np
+import pytest
+from conftest import run_cli
+
+import fluxcal
+from fluxcal.io.columns import find_accelerometer, find_magnetometer, find_temperature, find_time
+from fluxcal.sim.withheld import withheld_trial
+
+
+@pytest.mark.parametrize("names, expected", [
+    (["t", "mag_x", "mag_y", "mag_z"], ("mag_x", "mag_y", "mag_z")),
+    (["MagX", "MagY", "MagZ", "GyrX", "GyrY", "GyrZ"], ("MagX", "MagY", "MagZ")),
+    (["Bx", "By", "Bz"], ("Bx", "By", "Bz")),
+    (["x_mag", "y_mag", "z_mag"], ("x_mag", "y_mag", "z_mag")),
+    (["magnetometer_ga[0]", "magnetometer_ga[1]", "magnetometer_ga[2]"],
+     ("magnetometer_ga[0]", "magnetometer_ga[1]", "magnetometer_ga[2]")),
+    (["MagneticFieldX", "MagneticFieldY", "MagneticFieldZ"], ("MagneticFieldX", "MagneticFieldY", "MagneticFieldZ")),
+    (["X", "Y", "Z"], ("X", "Y", "Z")),
+    # raw beside calibrated: the raw triple
+    (["mag_x_uT", "mag_y_uT", "mag_z_uT", "mag_cal_x", "mag_cal_y", "mag_cal_z"], ("mag_x_uT", "mag_y_uT", "mag_z_uT")),
+    (["mag_raw_x", "mag_raw_y", "mag_raw_z", "mag_x", "mag_y", "mag_z"], ("mag_raw_x", "mag_raw_y", "mag_raw_z")),
+    # not a magnetometer
+    (["ax", "ay", "az", "gx", "gy", "gz"], None),
+    (["gyro_x", "gyro_y", "gyro_z"], None),
+    (["mag_x", "mag_y"], None),
+])
+def test_magnetometer_triples(names, expected):
+    assert find_magnetometer(names) == expected
+
+
+def test_two_compasses_is_an_error_listing_both():
+    with pytest.raises(ValueError, match=r"several magnetometer column triples \(mag1_x,mag1_y,mag1_z; "
+                                         r"mag2_x,mag2_y,mag2_z\); choose one with --columns"):
+        find_magnetometer(["mag1_x", "mag1_y", "mag1_z", "mag2_x", "mag2_y", "mag2_z"])
+
+
+def test_time_temperature_and_accelerometer_names():
+    assert find_time(["TimeUS", "MagX"], {}) == ("TimeUS", 1e-6)
+    assert find_time(["time_ms"], {}) == ("time_ms", 1e-3)
+    assert find_time(["timestamp"], {"timestamp": "us"}) == ("timestamp", 1e-6)
+    assert find_time(["elapsed"], {"elapsed": "ms"}) == ("elapsed", 1e-3)  # the header unit wins
+    assert find_time(["T", "mx"], {}) is None  # a lone T is not guessed
+    assert find_temperature(["die_temp_C"], {}) == ("die_temp_C", "C")
+    assert find_temperature(["Temperature"], {"Temperature": "°F"}) == ("Temperature", "F")
+    assert find_temperature(["temp", "temp_outside"], {}) == ("temp", "C")
+    assert find_temperature(["temp_a", "temp_b"], {}) is None  # two candidates: none guessed
+    assert find_accelerometer(["AccX", "AccY", "AccZ", "MagX", "MagY", "MagZ"]) == ("AccX", "AccY", "AccZ")
+
+
+def _write_logger_csv(path, t_us, m, temp_f):
+    header = "TimeUS,MagX (mGauss),MagY (mGauss),MagZ (mGauss),Temperature (°F),AccX,AccY,AccZ"
+    rows = [f"{t:.0f},{a!r},{b!r},{c!r},{f!r},0,0,9.81" for t, (a, b, c), f in zip(t_us, m.tolist(), temp_f.tolist())]
+    path.write_text(header + "\n" + "\n".join(rows) + "\n")
+    return path
+
+
+def test_logger_names_read_converted_and_calibrated(tmp_path):
+    rng = np.random.default_rng(5)
+    truth_offset = np.array([120.0, -80.0, 40.0])
+    dirs = rng.normal(size=(800, 3))
+    h = 500.0 * dirs / np.linalg.norm(dirs, axis=1)[:, None]
+    m = h * [1.05, 0.97, 1.0] + truth_offset + rng.normal(scale=1.0, size=h.shape)
+    t_us = np.arange(800) * 20000.0
+    temp_f = 68.0 + np.linspace(0, 18, 800)
+    path = _write_logger_csv(tmp_path / "log.csv", t_us, m, temp_f)
+    rec = fluxcal.read_recording(path)
+    assert rec.mag_names() == ("MagX", "MagY", "MagZ") and rec.field_units() == "mGauss"
+    assert rec.time()[1] == pytest.approx(0.02)
+    assert rec.temperature()[[0, -1]] == pytest.approx([20.0, 30.0])
+    assert rec.acceleration().shape == (800, 3)
+    out = run_cli("calibrate", str(path), "-o", str(tmp_path / "cal.json"))
+    assert out.returncode == 0, out.stderr
+    assert "columns: magnetometer MagX,MagY,MagZ; time TimeUS (×1e-06 → s); temperature Temperature (F → °C)" \
+        in out.stdout
+    cal = json.loads((tmp_path / "cal.json").read_text())
+    assert np.allclose(cal["offset"], truth_offset, atol=1.0)
+
+
+def test_diagnose_finds_temperature_effect_under_a_logger_name(tmp_path):
+    """A temperature offset the diagnosis can only find if it recognises `Temperature (K)` as temperature
+    (column `temp` is absent) and converts K to °C; the same file with the column renamed to something
+    unrecognisable leaves temp_offset untried."""
+    result, kwargs = withheld_trial(["temp_offset"], 11)
+    m = result.readings
+    lines = [f"{t!r},{a!r},{b!r},{c!r},{k!r}" for t, (a, b, c), k in zip(result.t.tolist(), m.tolist(),
+                                                                       (kwargs["temp"] + 273.15).tolist())]
+    good = tmp_path / "named.csv"
+    good.write_text("time_s,mag_x,mag_y,mag_z,Temperature (K)\n" + "\n".join(lines) + "\n")
+    out = run_cli("diagnose", str(good), "--json", str(tmp_path / "d.json"), "--quiet")
+    assert out.returncode == 0, out.stderr
+    assert "temperature Temperature (K → °C)" in out.stdout
+    top = json.loads((tmp_path / "d.json").read_text())["ranking"][0]
+    assert top["effect"] == "temp_offset" and top["significant"]
+
+    hidden = tmp_path / "unnamed.csv"
+    hidden.write_text("time_s,mag_x,mag_y,mag_z,channel5\n" + "\n".join(lines) + "\n")
+    out = run_cli("diagnose", str(hidden), "--json", str(tmp_path / "h.json"), "--quiet")
+    assert out.returncode == 0, out.stderr
+    tried = {r["effect"] for r in json.loads((tmp_path / "h.json").read_text())["ranking"]}
+    assert "temp_offset" not in tried
