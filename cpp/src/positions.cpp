@@ -129,11 +129,14 @@ Eigen::MatrixXd spd_pinv(const Eigen::MatrixXd& M, std::vector<bool>& null_coord
 // Schur complement, so the cost is O(N) in the number of positions instead of O(N³). J is sparse
 // (row-major) so that nothing of size rows × parameters is ever formed.
 using SparseRows = Eigen::SparseMatrix<double, Eigen::RowMajor>;
+// `prior_ss`: the sum of squares of J's prior rows (the tilt prior, in output units), part of the SSR;
+// `known_sigma` > 0: the output noise σ the caller knows, which then scales the standard errors.
 void finish_statistics(PositionsResult& r, const SparseRows& J, const Eigen::VectorXd& scales, double tolerance,
-                       const std::vector<int>& local = {}) {
+                       const std::vector<int>& local = {}, double prior_ss = 0.0, double known_sigma = 0.0) {
   const Eigen::Index p = J.cols(), m = J.rows();
-  const double ssr = r.residuals.squaredNorm();
+  const double ssr = r.residuals.squaredNorm() + prior_ss;
   r.noise_sigma = m > p ? std::sqrt(ssr / static_cast<double>(m - p)) : 0.0;
+  const double se_sigma = known_sigma > 0.0 ? known_sigma : r.noise_sigma;
   Eigen::VectorXd colnorm = Eigen::VectorXd::Zero(p);
   for (Eigen::Index i = 0; i < m; ++i)
     for (SparseRows::InnerIterator it(J, i); it; ++it) colnorm(it.col()) += it.value() * it.value();
@@ -225,7 +228,7 @@ void finish_statistics(PositionsResult& r, const SparseRows& J, const Eigen::Vec
   for (Eigen::Index j = 0; j < p; ++j) {
     const bool null = null_dir[static_cast<std::size_t>(j)];
     r.standard_errors(j) = null ? std::numeric_limits<double>::infinity()
-                                : r.noise_sigma * std::sqrt(std::max(var(j), 0.0)) / colnorm(j);
+                                : se_sigma * std::sqrt(std::max(var(j), 0.0)) / colnorm(j);
     r.determined[static_cast<std::size_t>(j)] = !null && r.standard_errors(j) <= tolerance * scales(j);
   }
 }
@@ -546,7 +549,9 @@ PositionsResult calibrate_positions(const SamplesRef& outputs, const SamplesRef&
   }
   // Alternate: headings for fixed (U0, K), then (U0, K) by linear least squares (a few rounds), so
   // that the joint solve starts near the right basin even from an ellipsoid fit's symmetric K.
-  for (int round = 0; round < 8; ++round) {
+  // Only when the headings are unknowns: a heading fitted here but held fixed later would be a hidden
+  // parameter, outside the standard errors and the degrees of freedom.
+  for (int round = 0; options.estimate_yaw && round < 8; ++round) {
     for (Eigen::Index i = 0; i < n; ++i) {
       const Eigen::Matrix3d KLt = K * level[static_cast<std::size_t>(i)].transpose();
       yaw(i) = best_heading(outputs.row(i).transpose() - u0, KLt, field, options.frame, yaw(i),
@@ -632,24 +637,35 @@ PositionsResult calibrate_positions(const SamplesRef& outputs, const SamplesRef&
     }
     return ss;
   };
+  auto prior_ss = [&]() {  // the tilt prior's residuals, in output units
+    double ss = 0.0;
+    for (double t : tp) ss += (t * prior_weight) * (t * prior_weight);
+    return ss;
+  };
   if (with_tilt) {
-    // Levelling errors as unknowns with a prior σ_tilt: the weight needs the output noise σ, which is
-    // estimated from the fit itself (first with the accelerometer taken as exact, then re-estimated).
+    // Levelling errors as unknowns with a prior σ_tilt: the weight σ/σ_tilt needs the output noise σ.
+    // Unknown σ is estimated from the fit itself: first with the accelerometer taken as exact, then
+    // σ̂² = (output SSR + prior SSR)/(3N − p) until it settles. With the prior rows included this is
+    // r'V⁻¹r/(3N − p) for the marginal covariance V = σ²I + σ_t²ZZᵀ, whose expectation is σ² at the
+    // right weight; the output SSR alone shrinks as the tilts soak up noise, and iterating on it drove σ̂
+    // to about half the truth.
     const double sigma_tilt = options.tilt_sigma_deg * kPi / 180.0;
     double sigma_out = options.output_sigma;
-    for (int pass = 0; pass < 3; ++pass) {
-      if (options.output_sigma <= 0.0) {
-        if (pass == 0) {
-          for (auto& t : tp) t = 0.0;
-          for (Eigen::Index i = 0; i < n; ++i) problem.SetParameterBlockConstant(&tp[static_cast<std::size_t>(2 * i)]);
-          solve();
-          for (Eigen::Index i = 0; i < n; ++i) problem.SetParameterBlockVariable(&tp[static_cast<std::size_t>(2 * i)]);
-        }
-        sigma_out = std::sqrt(output_residual_ss() / dof);
-      }
+    if (sigma_out <= 0.0) {
+      for (auto& t : tp) t = 0.0;
+      for (Eigen::Index i = 0; i < n; ++i) problem.SetParameterBlockConstant(&tp[static_cast<std::size_t>(2 * i)]);
+      solve();
+      for (Eigen::Index i = 0; i < n; ++i) problem.SetParameterBlockVariable(&tp[static_cast<std::size_t>(2 * i)]);
+      sigma_out = std::sqrt(output_residual_ss() / dof);
+    }
+    for (int pass = 0; pass < 20; ++pass) {
       prior_weight = std::max(sigma_out, 1e-12 * field.norm()) / sigma_tilt;
       solve();
       if (options.output_sigma > 0.0) break;
+      const double next = std::sqrt((output_residual_ss() + prior_ss()) / dof);
+      const bool settled = std::abs(next - sigma_out) <= 1e-4 * sigma_out;
+      sigma_out = next;
+      if (settled) break;
     }
   } else {
     solve();
@@ -723,7 +739,7 @@ PositionsResult calibrate_positions(const SamplesRef& outputs, const SamplesRef&
     if (name.rfind("yaw_", 0) == 0 || name.rfind("tilt_", 0) == 0)
       local[static_cast<std::size_t>(j)] = std::stoi(name.substr(name.find('_') + 1));
   }
-  finish_statistics(r, J, scales, options.determined_tolerance, local);
+  finish_statistics(r, J, scales, options.determined_tolerance, local, prior_ss(), options.output_sigma);
   std::vector<std::string> unobservable;
   for (Eigen::Index j = 0; j < p; ++j)
     if (!std::isfinite(r.standard_errors(j))) unobservable.push_back(r.parameter_names[static_cast<std::size_t>(j)]);

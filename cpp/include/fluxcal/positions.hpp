@@ -84,7 +84,8 @@ struct PositionsOptions {
   /// maximum-likelihood answer when the accelerometer is noisier than the sensor (then field
   /// magnitude, which needs no levelling, carries more weight). 0: the accelerometer is taken as exact.
   double tilt_sigma_deg = 0.0;
-  /// Output noise σ (output units) that weighs the tilt prior; 0 = estimated from the fit.
+  /// Output noise σ (output units), when known: it weighs the tilt prior and scales the joint solve's
+  /// standard errors. 0 = estimated from the fit (noise_sigma).
   double output_sigma = 0.0;
   /// Expected magnitude of the accelerometer readings (their units); 0 = the median of the readings.
   double gravity = 0.0;
@@ -110,7 +111,8 @@ struct PositionsResult {
   Eigen::VectorXd parameters;       ///< in the order of parameter_names
   Eigen::VectorXd standard_errors;  ///< σ̂ √diag((JᵀJ)⁻¹); +inf where undetermined
   std::vector<bool> determined;     ///< per parameter (PositionsOptions::determined_tolerance)
-  double noise_sigma = 0.0;         ///< σ̂ = √(SSR/(3N − p)) (output units); 0 when 3N = p
+  double noise_sigma = 0.0;         ///< σ̂ = √(SSR/(3N − p)) (output units; SSR includes the tilt prior's
+                                    ///< residuals); 0 when 3N = p
   std::string units;
   Summary summary;
 
