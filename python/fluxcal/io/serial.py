@@ -10,6 +10,10 @@ Formats a device may print, one record per line (`--format`):
   binary-spec  fixed-size binary frames: a sync word (`--sync A55A`, hex), then a `struct` layout
                (`--frame "<hhh"`, one field per column), then optionally a one-byte checksum of the
                payload (`--checksum sum8|xor8`). Bytes between frames are garbage and counted.
+               `--scale` turns raw counts into units: one factor per column in --columns order
+               (`--scale 1,0.1,0.1,0.1`), or one factor for every column but the device time t
+               (`--scale 0.1`). The units in --columns and the bounds of --range are those of the
+               scaled values; the factors are written to the recording's metadata.
 
 A column `t` is the device's own time and is kept as it is; every record also gets `t_host`, the
 host's monotonic time (s) since the recording started when the chunk holding it was read.
@@ -31,6 +35,7 @@ from __future__ import annotations
 
 import contextlib
 import functools
+import math
 import operator
 import os
 import re
@@ -118,6 +123,27 @@ def parse_range(text: str, columns) -> dict:
     if target and target not in names:
         raise ValueError(f"--range: {text!r}: no column {target!r} (columns: {', '.join(names)})")
     return {n: (lo, hi) for n in ([target] if target else [n for n in names if n != "t"])}
+
+
+def parse_scale(text: str, columns) -> tuple:
+    """`F1,F2,...` (one factor per column, in order) or `F` (every column but the device time t, which
+    keeps 1) → factors in column order. A negative factor flips an axis; zero is refused."""
+    names = [c.name for c in columns]
+    factors = []
+    for item in text.split(","):
+        try:
+            factor = float(item)
+        except ValueError:
+            raise ValueError(f"--scale: {item.strip()!r} in {text!r} is not a number") from None
+        if not math.isfinite(factor) or factor == 0:
+            raise ValueError(f"--scale: {item.strip()!r} in {text!r} must be a finite, non-zero factor")
+        factors.append(factor)
+    if len(factors) == 1:
+        return tuple(1.0 if n == "t" else factors[0] for n in names)
+    if len(factors) != len(names):
+        raise ValueError(f"--scale: {text!r} has {len(factors)} factors; give one, or one per column "
+                         f"({len(names)}: {','.join(names)})")
+    return tuple(factors)
 
 
 def _number(text: str, column: str) -> float:
@@ -256,14 +282,18 @@ class FrameDecoder:
 
     The decoder hunts for the sync word; bytes skipped to find it are one `binary` reject per run
     (`partial` right after the port opens). A frame must begin right where the previous one ended,
-    otherwise hunting resumes. Without a checksum a sync word inside garbage can frame a wrong record;
-    use `--checksum` where the device provides one.
+    otherwise hunting resumes. A frame whose checksum fails is one `checksum` reject, and hunting
+    resumes at the next sync word inside it: a sync word in garbage, or a frame cut short by lost
+    bytes, must not swallow the good frame that starts within its length. Without a checksum a sync
+    word inside garbage can frame a wrong record; use `--checksum` where the device provides one.
+    `scale` (factors in column order, see parse_scale) multiplies the unpacked fields.
     """
 
     CHECKSUMS = {"sum8": lambda payload: sum(payload) & 0xFF,
                  "xor8": lambda payload: functools.reduce(operator.xor, payload, 0)}
 
-    def __init__(self, frame: str, sync: bytes, columns, checksum: str | None = None, ranges: dict | None = None):
+    def __init__(self, frame: str, sync: bytes, columns, checksum: str | None = None, ranges: dict | None = None,
+                 scale=None):
         try:
             self.struct = struct.Struct(frame)
             n_fields = len(self.struct.unpack(bytes(self.struct.size)))
@@ -282,6 +312,14 @@ class FrameDecoder:
             raise ValueError(f"--checksum: {checksum!r} is not none, sum8 or xor8")
         self.sync = bytes(sync)
         self.checksum = None if checksum in (None, "none") else self.CHECKSUMS[checksum]
+        self.scale = None if scale is None else tuple(float(f) for f in scale)
+        if self.scale is not None and len(self.scale) != len(self.columns):
+            raise ValueError(f"scale: {len(self.scale)} factors for {len(self.columns)} columns "
+                             f"({','.join(self.names)})")
+        # provenance for the recording's header: how raw bytes became the recorded values
+        self.metadata = {"frame": frame, "sync": self.sync.hex().upper(), "checksum": checksum or "none"}
+        if self.scale is not None:
+            self.metadata["scale"] = ",".join(f"{n}={f!r}" for n, f in zip(self.names, self.scale))
         self.frame_size = len(self.sync) + self.struct.size + (1 if self.checksum else 0)
         self._buffer = bytearray()
         self._skipped = 0
@@ -320,13 +358,17 @@ class FrameDecoder:
             frame = bytes(self._buffer[:self.frame_size])
             payload = frame[len(self.sync):len(self.sync) + self.struct.size]
             if self.checksum and self.checksum(payload) != frame[-1]:
-                # assume a frame was there: drop it whole so its bytes are not counted again as garbage
-                del self._buffer[:self.frame_size]
+                # drop the bad frame's bytes (not garbage to count again), but only up to a sync word
+                # inside it: a false sync in garbage or a frame cut short is followed by a good frame
+                again = frame.find(self.sync, 1)
+                del self._buffer[:again if again > 0 else self.frame_size]
                 yield Reject("checksum", f"frame {frame.hex()}: checksum 0x{frame[-1]:02x}, payload gives "
                                          f"0x{self.checksum(payload):02x}")
                 continue
             del self._buffer[:self.frame_size]
             values = tuple(float(v) for v in self.struct.unpack(payload))
+            if self.scale is not None:
+                values = tuple(v * f for v, f in zip(values, self.scale))
             try:
                 _check_ranges(values, self.names, self.ranges)
             except Reject as reject:
@@ -470,7 +512,8 @@ class Recorder:
 
             meta = {"source": f"serial port {self.port} at {self.baudrate} baud",
                     "started": datetime.now(timezone.utc).isoformat(timespec="seconds"),
-                    "recorder": f"fluxcal {__version__}", **self.metadata}
+                    "recorder": f"fluxcal {__version__}", **getattr(self.decoder, "metadata", {}),
+                    **self.metadata}
             self.writer = RecordingWriter(self.output, self.names, {"t_host": "s", **self.units}, meta)
         self.decoder.reset()
         stats = self.stats
@@ -607,6 +650,9 @@ def add_stream_arguments(p) -> None:
     p.add_argument("--sync", default=None, help="binary-spec: sync word in hex before each frame, e.g. A55A")
     p.add_argument("--checksum", default="none", choices=("none", "sum8", "xor8"),
                    help="binary-spec: one checksum byte after the payload (default none)")
+    p.add_argument("--scale", default=None, metavar="F[,F...]",
+                   help="binary-spec: multiply raw fields into the units of --columns: one factor per column "
+                        "(1,0.1,0.1,0.1) or one for every column but t (0.1); --range applies to scaled values")
 
 
 def decoder_from_args(args):
@@ -615,6 +661,7 @@ def decoder_from_args(args):
     ranges = {}
     for text in args.range:
         ranges.update(parse_range(text, columns))
+    scale_text = getattr(args, "scale", None)  # callers that build args by hand may not set it
     if args.format == "binary-spec":
         if not args.frame or not args.sync:
             raise ValueError("--format binary-spec needs --frame (struct layout, e.g. '<hhh') and --sync (hex)")
@@ -622,9 +669,10 @@ def decoder_from_args(args):
             sync = bytes.fromhex(args.sync)
         except ValueError:
             raise ValueError(f"--sync: {args.sync!r} is not hex bytes (e.g. A55A)") from None
-        return FrameDecoder(args.frame, sync, columns, args.checksum, ranges)
-    if args.frame or args.sync:
-        raise ValueError("--frame and --sync belong to --format binary-spec")
+        scale = parse_scale(scale_text, columns) if scale_text is not None else None
+        return FrameDecoder(args.frame, sync, columns, args.checksum, ranges, scale)
+    if args.frame or args.sync or scale_text is not None:
+        raise ValueError("--frame, --sync and --scale belong to --format binary-spec")
     return TextDecoder(columns, args.format, ranges)
 
 
