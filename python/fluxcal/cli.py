@@ -52,12 +52,17 @@ def _held_out_rms(raw, reference, units) -> float:
 
 
 def _print_roles(rec: Recording):
-    """Say which columns were taken for what, so a name-guessed choice is visible."""
+    """Say which columns were taken for what (so a name-guessed choice is visible), and which lines and
+    text columns the reader left out."""
     print("columns: " + "; ".join(f"{role} {names}" for role, names in rec.roles().items()))
+    if "skipped_lines" in rec.metadata:
+        print(f"skipped {rec.metadata['skipped_lines'].replace(':', ' lines:', 1)}")
+    if "text_columns" in rec.metadata:
+        print(f"text columns not used: {rec.metadata['text_columns']}")
 
 
 def cmd_calibrate(args) -> int:
-    rec = read_recording(args.file, columns=args.columns, units=args.units)
+    rec = read_recording(args.file, columns=args.columns, units=args.units, bad_lines=args.bad_lines)
     raw = rec.samples()
     _print_roles(rec)
     # attitude + local field in the recording (e.g. the airborne layout): the vector fit, unless a
@@ -81,7 +86,7 @@ def cmd_calibrate(args) -> int:
 
 def cmd_apply(args) -> int:
     cal = Calibration.load(args.calibration)
-    rec = read_recording(args.file, columns=args.columns)
+    rec = read_recording(args.file, columns=args.columns, bad_lines=args.bad_lines)
     h = cal.apply(rec.samples())
     columns = {**rec.columns, "hx": h[:, 0], "hy": h[:, 1], "hz": h[:, 2]}
     units = {**rec.units, **({k: cal.units for k in ("hx", "hy", "hz")} if cal.units else {})}
@@ -115,7 +120,7 @@ def cmd_diagnose(args) -> int:
 
     if args.model == "cable":
         return _diagnose_cable(args)
-    rec = read_recording(args.file, columns=args.columns, units=args.units)
+    rec = read_recording(args.file, columns=args.columns, units=args.units, bad_lines=args.bad_lines)
     rec.samples()  # the magnetometer columns exist and are finite before the diagnosis starts
     _print_roles(rec)
     # a recording with attitude + local field gives the vector model its reference, unless told otherwise
@@ -333,11 +338,14 @@ def build_parser() -> argparse.ArgumentParser:
 
     columns_help = ("the three magnetometer columns (default mx,my,mz or x,y,z); for a table without a header "
                     "one name per column; for .mat/.npz the N×3 matrix variable")
+    bad_lines_help = ("a text line with the wrong number of fields or a non-number: stop with its line and column "
+                      "(error, default) or leave it out and list it (skip)")
     c = sub.add_parser("calibrate", help="calibrate a magnetometer from a recording (CSV, TSV, .npz, .mat, Parquet, "
                                          "JSON)")
     c.add_argument("file")
     c.add_argument("--field-norm", type=float, default=None, help="known |field| in the units of h")
     c.add_argument("--columns", default=None, help=columns_help)
+    c.add_argument("--bad-lines", default="error", choices=["error", "skip"], help=bad_lines_help)
     c.add_argument("--units", default=None, help="units of the readings when the file does not say")
     c.add_argument("--method", default="auto", choices=METHODS,
                    help="auto = consistent ellipsoid fit (ALS) + maximum-likelihood refinement (default)")
@@ -351,6 +359,7 @@ def build_parser() -> argparse.ArgumentParser:
     a.add_argument("-o", "--output", required=True, help="the format follows the extension (.csv .npz .mat "
                                                          ".parquet .json)")
     a.add_argument("--columns", default=None, help=columns_help)
+    a.add_argument("--bad-lines", default="error", choices=["error", "skip"], help=bad_lines_help)
     a.set_defaults(run=cmd_apply)
 
     s = sub.add_parser("simulate", help="write a simulated magnetometer recording (CSV)")
@@ -372,6 +381,7 @@ def build_parser() -> argparse.ArgumentParser:
                    help="--model cable: fit currents per snapshot (i0, i1… only judge the error)")
     g.add_argument("--reference", default=None, help="three columns with the true field per reading (vector model)")
     g.add_argument("--columns", default=None, help=columns_help)
+    g.add_argument("--bad-lines", default="error", choices=["error", "skip"], help=bad_lines_help)
     g.add_argument("--units", default=None, help="units of the readings when the file does not say")
     g.add_argument("--field-norm", type=float, default=None, help="known |field| (default: fitted)")
     g.add_argument("--noise-sigma", type=float, default=None,

@@ -102,3 +102,57 @@ def test_diagnose_finds_temperature_effect_under_a_logger_name(tmp_path):
     assert out.returncode == 0, out.stderr
     tried = {r["effect"] for r in json.loads((tmp_path / "h.json").read_text())["ranking"]}
     assert "temp_offset" not in tried
+
+
+def _stamped_log(tmp_path, garble: bool):
+    """ISO timestamps, a status text column, the magnetometer in µT; optionally three garbled lines."""
+    rng = np.random.default_rng(9)
+    dirs = rng.normal(size=(600, 3))
+    m = 48.0 * dirs / np.linalg.norm(dirs, axis=1)[:, None] + [3.0, -2.0, 1.0] + rng.normal(scale=0.05, size=(600, 3))
+    lines = ["datetime,status,mag_x_uT,mag_y_uT,mag_z_uT"]
+    for k, (a, b, c) in enumerate(m.tolist()):
+        stamp = f"2026-11-23T10:{k // 3000:02d}:{(k * 0.02) % 60:06.3f}Z"
+        lines.append(f"{stamp},{'OK' if k % 50 else 'WARN'},{a!r},{b!r},{c!r}")
+    if garble:
+        lines[101] = lines[101].replace(",", ";", 1)           # one field short
+        lines[202] = lines[202][:-4] + "#?x"                   # garbage in mag_z
+        lines[303] = "2026-11-2?" + lines[303][24:]             # a broken timestamp
+    path = tmp_path / ("garbled.csv" if garble else "stamped.csv")
+    path.write_text("\n".join(lines) + "\n")
+    return path, m
+
+
+def test_timestamp_and_text_columns(tmp_path):
+    path, m = _stamped_log(tmp_path, garble=False)
+    rec = fluxcal.read_recording(path)
+    assert rec.units["datetime"] == "s" and rec.metadata["datetime_start"].startswith("2026-11-23T10:00:00")
+    assert rec.time()[[1, 599]] == pytest.approx([0.02, 11.98])
+    assert "status (e.g. OK, WARN)" in rec.metadata["text_columns"] and "status" not in rec.columns
+    assert np.array_equal(rec.samples(), m) and rec.field_units() == "uT"
+
+
+def test_bad_lines_error_names_the_line_or_are_skipped_and_listed(tmp_path):
+    path, m = _stamped_log(tmp_path, garble=True)
+    with pytest.raises(ValueError, match=r"garbled.csv, line 102: 4 fields, the header has 5.*--bad-lines skip"):
+        fluxcal.read_recording(path)
+    rec = fluxcal.read_recording(path, bad_lines="skip")
+    assert rec.metadata["skipped_lines"].startswith("3 of 600: 102 (4 fields")
+    assert "203 (column 'mag_z_uT': " in rec.metadata["skipped_lines"]
+    assert "304 (column 'datetime': '2026-11-2?" in rec.metadata["skipped_lines"]
+    keep = np.setdiff1d(np.arange(600), [100, 201, 302])
+    assert np.array_equal(rec.samples(), m[keep]) and np.array_equal(rec.line_numbers, keep + 2)
+    out = run_cli("calibrate", str(path), "--bad-lines", "skip")
+    assert out.returncode == 0, out.stderr
+    assert "skipped 3 of 600 lines: 102 (4 fields" in out.stdout
+    out = run_cli("calibrate", str(path))
+    assert out.returncode != 0 and "line 102: 4 fields" in out.stderr
+
+
+def test_time_from_a_stated_sample_rate(tmp_path):
+    path = tmp_path / "rate.csv"
+    path.write_text("# sample rate: 25 Hz\nmag_x,mag_y,mag_z\n1,2,3\n4,5,6\n7,8,9\n")
+    rec = fluxcal.read_recording(path)
+    assert rec.time() == pytest.approx([0.0, 0.04, 0.08])
+    assert rec.roles()["time"] == "row / 25 Hz (metadata sample rate)"
+    path.write_text("# sensor: RM3100\nmag_x,mag_y,mag_z\n1,2,3\n")
+    assert fluxcal.read_recording(path).time() is None

@@ -15,10 +15,13 @@ from __future__ import annotations
 
 import re
 
+import numpy as np
+
 MAG_WORDS = {"m", "mag", "mags", "magn", "magnet", "magnetometer", "magnetic", "magneticfield", "compass",
              "b", "bfield", "h", "field", "flux", "fluxgate"}
 ACC_WORDS = {"a", "acc", "accel", "accelerometer", "acceleration", "accl"}
-TIME_WORDS = {"t", "time", "times", "timestamp", "timeus", "timems", "elapsed", "sec", "secs", "seconds"}
+TIME_WORDS = {"t", "time", "times", "timestamp", "timeus", "timems", "elapsed", "sec", "secs", "seconds", "datetime",
+              "utc", "gpstime"}
 TEMP_WORDS = {"temp", "temperature", "tmp", "temperatur", "celsius"}
 CALIBRATED_WORDS = {"cal", "calibrated", "corr", "corrected", "comp", "compensated", "filtered", "fused"}
 RAW_WORDS = {"raw", "uncal", "uncalibrated", "uncorrected"}
@@ -29,7 +32,7 @@ TIME_UNITS = {"s": 1.0, "sec": 1.0, "secs": 1.0, "seconds": 1.0, "ms": 1e-3, "us
               "ns": 1e-9}
 TEMP_UNITS = {"c": "C", "degc": "C", "celsius": "C", "°c": "C", "k": "K", "kelvin": "K", "f": "F",
               "degf": "F", "fahrenheit": "F"}
-_UNIT_WORDS = set(FIELD_UNITS) | set(TIME_UNITS) | set(TEMP_UNITS)
+_UNIT_WORDS = set(FIELD_UNITS) | set(TIME_UNITS) | set(TEMP_UNITS) | {"hz", "khz"}
 _AXES = {"x": 0, "y": 1, "z": 2}
 _CAMEL = re.compile(r"(?<=[a-z0-9])(?=[A-Z])|(?<=[A-Za-z])(?=[0-9])|(?<=[0-9])(?=[A-Za-z])")
 
@@ -153,3 +156,29 @@ def field_unit_of(name: str) -> str:
     """The field unit a column's name carries (mag_x_uT -> "uT"), "" when none."""
     _, unit = _peel_unit(words(name), FIELD_UNITS)
     return FIELD_UNITS.get(unit, "") if unit else ""
+
+
+_RATE_KEYS = {"fs", "rate", "samplerate", "samplingrate", "samplerate hz", "odr", "datarate", "frequency", "freq"}
+
+
+def sample_rate(metadata: dict):
+    """(key, rate in Hz) from metadata such as `sample_rate_hz: 50`, `Fs: 50`, `rate: 100 Hz`, `odr: 10`
+    (a value in kHz is converted), or None."""
+    for key, value in metadata.items():
+        ws = words(str(key))
+        unit = "khz" if "khz" in ws else "hz"
+        name = "".join(w for w in ws if w not in ("hz", "khz"))
+        if name not in _RATE_KEYS and name.replace("sampling", "sample") not in _RATE_KEYS:
+            continue
+        text = str(value).strip().lower()
+        if text.endswith("khz"):
+            unit, text = "khz", text[:-3]
+        elif text.endswith("hz"):
+            text = text[:-2]
+        try:
+            rate = float(text) * (1000.0 if unit == "khz" else 1.0)
+        except ValueError:
+            continue
+        if rate > 0 and np.isfinite(rate):
+            return key, rate
+    return None

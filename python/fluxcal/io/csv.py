@@ -21,6 +21,7 @@ import numpy as np
 
 from .recording import Recording
 
+BAD_LINES = ("error", "skip")
 _UNIT_IN_HEADER = re.compile(r"^\s*([^\[\(]+?)\s*[\[\(]\s*([^\]\)]*)\s*[\]\)]\s*$")
 
 
@@ -29,16 +30,20 @@ def _split_header(cell: str):
     return (m.group(1).strip(), m.group(2).strip()) if m else (cell.strip(), "")
 
 
-def read_csv(path, columns=None, units: str | None = None, delimiter: str = ",") -> Recording:
+def read_csv(path, columns=None, units: str | None = None, delimiter: str = ",", bad_lines: str = "error"
+             ) -> Recording:
     """Read a CSV recording. `columns`: the three magnetometer columns (default mx,my,mz, or x,y,z).
-    `units`: the field unit, when the file does not state it."""
+    `units`: the field unit, when the file does not state it. `bad_lines`: "error" or "skip"."""
     path = Path(path)
-    return parse_csv(path, read_text(path).splitlines(), delimiter).choose(columns, units)
+    return parse_csv(path, read_text(path).splitlines(), delimiter, bad_lines=bad_lines).choose(columns, units)
 
 
-def parse_csv(path, lines, delimiter=",", preamble_lines: int = 0) -> Recording:
+def parse_csv(path, lines, delimiter=",", preamble_lines: int = 0, bad_lines: str = "error") -> Recording:
     """The CSV layout above from the file's lines; `preamble_lines` lines between the comments and the
-    header are left to the caller (fluxcal.io.real reads `key,value` preambles)."""
+    header are left to the caller (fluxcal.io.real reads `key,value` preambles). `bad_lines`: "error"
+    (default) or "skip" (see parse_mixed_rows)."""
+    if bad_lines not in BAD_LINES:
+        raise ValueError(f"bad_lines: {bad_lines!r} is not one of {', '.join(BAD_LINES)}")
     metadata, unit_map = {}, {}
     i = 0
     while i < len(lines) and (lines[i].startswith("#") or not lines[i].strip()):
@@ -69,11 +74,110 @@ def parse_csv(path, lines, delimiter=",", preamble_lines: int = 0) -> Recording:
     if _is_number(names[0]):
         raise ValueError(f"{path}, line {header_line}: the first line holds numbers, not column names; "
                          "add a header such as mx,my,mz")
-    data, line_numbers, notes = parse_rows(path, lines, i + 1, names, delimiter)
+    try:
+        data, line_numbers, notes = parse_rows(path, lines, i + 1, names, delimiter)
+    except ValueError as exc:
+        # text or timestamp columns, or lines to skip: the slow per-cell parse (the same errors otherwise)
+        names, data, line_numbers, notes = parse_mixed_rows(path, lines, i + 1, names, delimiter, bad_lines,
+                                                            unit_map, metadata, exc)
     if notes:  # comment lines among the data (e.g. a recorder's reconnection note) are kept, not parsed
         metadata["notes"] = "; ".join(f"line {n}: {text}" for n, text in notes)
     return Recording(columns={n: data[:, j] for j, n in enumerate(names)}, units=unit_map, metadata=metadata,
                      source=str(path), line_numbers=line_numbers)
+
+
+def parse_mixed_rows(path, lines, start: int, names, delimiter, bad_lines: str, units: dict, metadata: dict,
+                     plain_error: Exception):
+    """Rows that np.loadtxt refused. A column without a single number is text: timestamps (ISO 8601 or
+    what pandas recognises) become seconds since the first row (unit s, the first stamp in metadata
+    "<name>_start"); other text columns are left out and named in metadata "text_columns" with a few of
+    their values. Then a line with the wrong number of fields or a non-number in a numeric column is an
+    error naming line and column (bad_lines="error"), or is left out and listed in metadata
+    "skipped_lines" (bad_lines="skip"). Returns (names kept, data, line numbers, notes); fills units
+    and metadata. `plain_error`: the all-numeric parser's error, raised as it was when there is no text
+    column and bad lines are errors."""
+    body = lines[start:]
+    keep = [k for k, line in enumerate(body) if line.strip() and not line.lstrip().startswith("#")]
+    if not keep:
+        raise plain_error
+    notes = [(start + k + 1, line.lstrip().lstrip("#").strip()) for k, line in enumerate(body)
+             if line.lstrip().startswith("#")]
+    line_numbers = np.array([start + k + 1 for k in keep], dtype=int)
+    cells = [body[k].split(delimiter) for k in keep]
+    whole = [c for c in cells if len(c) == len(names)]
+    text = [j for j in range(len(names)) if whole and not any(_is_number(c[j]) for c in whole)]
+    columns, text_notes = {}, []
+    for j in text:
+        values = [c[j].strip() if len(c) == len(names) else "" for c in cells]
+        seconds, first = _timestamps(values)
+        if seconds is None:
+            shown = sorted({v for v in values if v})[:4]
+            text_notes.append(f"{names[j]} (e.g. {', '.join(shown)})" if shown else f"{names[j]} (empty)")
+            continue
+        columns[j] = seconds
+        units[names[j]] = "s"
+        metadata[f"{names[j]}_start"] = first
+    if text_notes:
+        metadata["text_columns"] = "; ".join(text_notes)
+    numeric = [j for j in range(len(names)) if j not in text]
+    good, skipped = [], []
+    for row, (c, line_no) in enumerate(zip(cells, line_numbers)):
+        problem = None
+        if len(c) != len(names):
+            problem = (f"{len(c)} fields, the header has {len(names)} (truncated or garbled line?)")
+        else:
+            bad = next((j for j in numeric if not _is_number(c[j])), None)
+            stamp = next((j for j in columns if not np.isfinite(columns[j][row])), None)
+            if bad is not None:
+                what = "empty" if not c[bad].strip() else f"{c[bad].strip()!r} is not a number"
+                problem = f"column {names[bad]!r}: {what}"
+            elif stamp is not None:
+                what = "empty" if not c[stamp].strip() else f"{c[stamp].strip()!r} is not a date/time"
+                problem = f"column {names[stamp]!r}: {what}"
+        if problem is None:
+            good.append(row)
+        elif bad_lines == "error":
+            if not text:
+                raise plain_error
+            raise ValueError(f"{path}, line {line_no}: {problem}; pass bad_lines='skip' (--bad-lines skip) to "
+                             "leave such lines out")
+        else:
+            skipped.append(f"{line_no} ({problem})")
+    if not good:
+        raise ValueError(f"{path}: no readable data rows" + (f" (all {len(skipped)} lines bad)" if skipped else ""))
+    if skipped:
+        metadata["skipped_lines"] = f"{len(skipped)} of {len(cells)}: " + "; ".join(skipped[:10]) + \
+            (f"; … {len(skipped) - 10} more" if len(skipped) > 10 else "")
+    kept = [j for j in range(len(names)) if j in numeric or j in columns]
+    data = np.empty((len(good), len(kept)))
+    for out, j in enumerate(kept):
+        data[:, out] = columns[j][good] if j in columns else [float(cells[r][j]) for r in good]
+    return [names[j] for j in kept], data, line_numbers[good], notes
+
+
+def _timestamps(values):
+    """(seconds since the first, first as ISO text) when at least 90 % of the values are dates/times
+    (the rest, garbled or empty, become NaN and their lines bad lines), else (None, None)."""
+    import warnings
+
+    import pandas as pd
+
+    present = [v for v in values if v]
+    if not present or _is_number(present[0]):
+        return None, None
+    for fmt in ("ISO8601", "mixed"):
+        try:
+            with warnings.catch_warnings():
+                warnings.simplefilter("ignore")
+                stamps = pd.to_datetime(pd.Series(values).replace("", None), format=fmt, errors="coerce")
+        except (ValueError, TypeError, OverflowError):
+            continue
+        if stamps.notna().sum() < 0.9 * len(values):
+            continue
+        first = stamps[stamps.notna()].iloc[0]
+        seconds = ((stamps - first).dt.total_seconds()).to_numpy(dtype=float)
+        return seconds, first.isoformat()
+    return None, None
 
 
 def read_text(path) -> str:

@@ -6,6 +6,9 @@ Reading looks at the bytes, not the name (a file's extension is only a hint in m
     \\x93NUMPY                      → NumPy .npy (one N×3 array)
     "MATLAB 5.0 MAT-file" header   → MATLAB .mat v5/v7     (fluxcal.io.matlab; v7.3/HDF5 is refused with advice)
     PAR1                           → Parquet               (fluxcal.io.parquet)
+    \\xA3\\x95                      → ArduPilot DataFlash .bin (fluxcal.io.drone; needs fluxcal[drone])
+    ULog\\x01\\x12\\x35             → PX4 ULog .ulg            (fluxcal.io.drone; needs fluxcal[drone])
+    text with FMT, <n> lines first → ArduPilot DataFlash text .log (fluxcal.io.drone; needs fluxcal[drone])
     text starting with { or [      → JSON readings         (fluxcal.io.real: fluxcal's layout or shot triples)
     other text                     → a table. Its delimiter is that of the first data line: tab, else
                                      comma, else semicolon, else whitespace. Then:
@@ -16,11 +19,14 @@ Reading looks at the bytes, not the name (a file's extension is only a hint in m
                                                  asking for --columns (one name per column)
 
 `columns` is also how to pick the magnetometer: three names (or "a,b,c") select columns; a single name
-picks the N×3 matrix variable of a .mat/.npz. `units` states the magnetometer unit when the file does not.
+picks the N×3 matrix variable of a .mat/.npz; for a flight log it may name the compass instance
+("MAG[1]", "sensor_mag[1]"), optionally followed by three column names (see fluxcal.io.drone).
+`units` states the magnetometer unit when the file does not.
 Writing goes by extension: .csv .npz .mat .parquet/.pq .json.
 """
 from __future__ import annotations
 
+import re
 from pathlib import Path
 
 from .csv import _is_number, read_csv, read_text, write_csv
@@ -30,7 +36,8 @@ WRITERS = (".csv", ".npz", ".mat", ".parquet", ".pq", ".json")
 
 
 def sniff(path) -> str:
-    """The format of a file by its content: "npz", "npy", "mat", "hdf5", "parquet", "json" or "text"."""
+    """The format of a file by its content: "npz", "npy", "mat", "hdf5", "parquet", "dataflash",
+    "dataflash_text", "ulog", "json" or "text"."""
     path = Path(path)
     try:
         with path.open("rb") as f:
@@ -49,6 +56,12 @@ def sniff(path) -> str:
         return "hdf5"
     if head.startswith(b"PAR1"):
         return "parquet"
+    if head.startswith(b"\xa3\x95"):  # every DataFlash message starts with these two bytes
+        return "dataflash"
+    if head.startswith(b"ULog\x01\x12\x35"):
+        return "ulog"
+    if re.search(rb"(?:^|\n)\s*FMT, ?\d", head.lstrip(b"\xef\xbb\xbf")):  # a text log's FMT lines come first
+        return "dataflash_text"
     if head.lstrip(b"\xef\xbb\xbf \t\r\n")[:1] in (b"{", b"["):
         return "json"
     if not head:
@@ -56,11 +69,22 @@ def sniff(path) -> str:
     return "text"
 
 
-def read_recording(path, columns=None, units: str | None = None) -> Recording:
+def read_recording(path, columns=None, units: str | None = None, bad_lines: str = "error") -> Recording:
     """Read any recording format fluxcal knows (module docstring); errors name the file, and for text
-    formats the line and column."""
+    formats the line and column.
+    `bad_lines` (text tables with a header): "error" stops at a line with the wrong number of fields or a
+    non-number, naming line and column; "skip" leaves such lines out and lists them in
+    metadata["skipped_lines"]."""
     path = Path(path)
     kind = sniff(path)
+    if kind in ("dataflash", "dataflash_text"):
+        from .drone import read_dataflash
+
+        return read_dataflash(path, columns=columns, units=units)
+    if kind == "ulog":
+        from .drone import read_ulog
+
+        return read_ulog(path, columns=columns, units=units)
     single = isinstance(columns, str) and "," not in columns and columns.strip() != ""
     if kind in ("npz", "npy", "mat"):
         matrix, cols = (columns, None) if single else (None, columns)
@@ -82,10 +106,10 @@ def read_recording(path, columns=None, units: str | None = None) -> Recording:
         from .real import read_json_recording
 
         return read_json_recording(path, columns=columns, units=units)
-    return _read_table(path, columns, units)
+    return _read_table(path, columns, units, bad_lines)
 
 
-def _read_table(path: Path, columns, units) -> Recording:
+def _read_table(path: Path, columns, units, bad_lines: str = "error") -> Recording:
     from . import real
 
     lines = read_text(path).splitlines()
@@ -94,7 +118,7 @@ def _read_table(path: Path, columns, units) -> Recording:
         raise ValueError(f"{path}: no header line and no data (only comments or blank lines)")
     delimiter = _delimiter(lines, start)
     if real.preamble_length(lines, start, delimiter) > 0:
-        return real.read_preamble_csv(path, columns=columns, units=units, delimiter=delimiter)
+        return real.read_preamble_csv(path, columns=columns, units=units, delimiter=delimiter, bad_lines=bad_lines)
     first = [c.strip() for c in lines[start].split(delimiter)]
     if all(_is_number(c) for c in first):
         names = columns.split(",") if isinstance(columns, str) else columns
@@ -102,7 +126,7 @@ def _read_table(path: Path, columns, units) -> Recording:
             return real.read_headerless(path, names=names, units=units, delimiter=delimiter)
         # no names, or three: the magnetometer of a recognised layout
         return real.read_headerless(path, columns=columns, units=units, delimiter=delimiter)
-    return read_csv(path, columns=columns, units=units, delimiter=delimiter)
+    return read_csv(path, columns=columns, units=units, delimiter=delimiter, bad_lines=bad_lines)
 
 
 def _delimiter(lines, start: int):

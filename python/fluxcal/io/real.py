@@ -40,7 +40,8 @@ def preamble_length(lines, start: int, delimiter) -> int:
     return k - start
 
 
-def read_preamble_csv(path, columns=None, units: str | None = None, delimiter=",") -> Recording:
+def read_preamble_csv(path, columns=None, units: str | None = None, delimiter=",", bad_lines: str = "error"
+                      ) -> Recording:
     """A CSV with `key,value` lines before its header (see the module docstring)."""
     path = Path(path)
     lines = read_text(path).splitlines()
@@ -51,7 +52,7 @@ def read_preamble_csv(path, columns=None, units: str | None = None, delimiter=",
         key, value = (c.strip() for c in lines[k].split(delimiter))
         preamble[key], line_of[key] = float(value), k + 1
     # the rest is an ordinary CSV: parse it with line numbers of the real file
-    rec = parse_csv(path, lines, delimiter, preamble_lines=n)
+    rec = parse_csv(path, lines, delimiter, preamble_lines=n, bad_lines=bad_lines)
     known = {"Fs": "sample_rate_hz", "Initialization time": "initialization_time_s"}
     rec.metadata.update({known.get(k, _key(k)): v for k, v in preamble.items()})
     if "Fs" in preamble and "t" not in rec.columns:

@@ -6,7 +6,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from .._arrays import first_nonfinite
-from .columns import field_unit_of, find_accelerometer, find_magnetometer, find_temperature, find_time
+from .columns import field_unit_of, find_accelerometer, find_magnetometer, find_temperature, find_time, sample_rate
 
 MAG_COLUMNS = ("mx", "my", "mz")
 # A recording that carries its attitude and the local field (north, east, down) gives a reference vector
@@ -63,9 +63,13 @@ class Recording:
 
     def time(self):
         """Time of each reading in seconds (column t, else one recognised by name such as time, TimeUS,
-        time_ms, timestamp, converted by its unit), or None."""
+        time_ms, timestamp, converted by its unit; else row / rate when the metadata states a sample rate
+        such as `# sample_rate_hz: 50`), or None."""
         hit = find_time(self.columns, self.units)
-        return None if hit is None else self.columns[hit[0]] * hit[1]
+        if hit is not None:
+            return self.columns[hit[0]] * hit[1]
+        rate = sample_rate(self.metadata)
+        return None if rate is None else np.arange(len(self)) / rate[1]
 
     def temperature(self):
         """Temperature of each reading in °C (column temp, else temperature, temp_C, die_temp, ... in °C, K
@@ -93,9 +97,11 @@ class Recording:
             out["magnetometer"] = ",".join(self.mag_names())
         except ValueError:
             pass
-        hit = find_time(self.columns, self.units)
+        hit, rate = find_time(self.columns, self.units), sample_rate(self.metadata)
         if hit:
             out["time"] = hit[0] + (f" (×{hit[1]:g} → s)" if hit[1] != 1.0 else "")
+        elif rate:
+            out["time"] = f"row / {rate[1]:g} Hz (metadata {rate[0]})"
         hit = find_temperature(self.columns, self.units)
         if hit:
             out["temperature"] = hit[0] + (f" ({hit[1]} → °C)" if hit[1] != "C" else "")
