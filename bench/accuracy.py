@@ -470,7 +470,7 @@ def part_gap(split, fits, worker, notes, reps: int = 200, seed: int = 2026) -> d
                      f"{np.std(so):.3f} / {np.std(sp):.3f}", f"{np.mean(d2 < 0):.2f}"])
         out[name] = {"diff": diff, "judge_ci": list(q1), "fit_ci": list(q2), "fit_runs": len(d2),
                      "p_fluxcal_better": float(np.mean(d2 < 0))}
-    print(f"\n### Is the gap to the best peer resolvable? fluxcal ALS − magyc Fang, held-out spread (points)\n")
+    print("\n### Is the gap to the best peer resolvable? fluxcal ALS − magyc Fang, held-out spread (points)\n")
     table(["recording", "difference", "block (held)", "95 % judging noise", "block (fit)", "refits",
            "95 % fitting noise", "sd of each (fluxcal / Fang)", "share fluxcal better"], rows)
     print("\nCircular block bootstrap (arch), block lengths by Politis & White on the |h| series. 'judging':"

@@ -16,8 +16,6 @@ from __future__ import annotations
 
 import argparse
 import logging
-import os
-import platform
 import sys
 import tempfile
 import time
@@ -28,6 +26,7 @@ import numpy as np
 import fluxcal
 from fluxcal import sim, write_csv
 from fluxcal.batch import calibrate_fleet, calibrate_unit
+from _timing import machine_facts  # noqa: E402  (bench/ is on sys.path when run as a script)
 
 H = 50000.0
 
@@ -82,16 +81,9 @@ def main(argv=None) -> int:
 
     import dask
 
-    cpu = platform.processor() or "unknown"
-    try:
-        with open("/proc/cpuinfo") as f:
-            cpu = next(line.split(":", 1)[1].strip() for line in f if line.startswith("model name"))
-    except (OSError, StopIteration):
-        pass
     print(f"command: python bench/batch.py {' '.join(argv if argv is not None else sys.argv[1:])}".rstrip())
-    print(f"machine: nproc {len(os.sched_getaffinity(0))}, {cpu}, load average {os.getloadavg()[0]:.2f} "
-          f"(1 min) before the run; Python {platform.python_version()}, fluxcal {fluxcal.__version__}, "
-          f"dask {dask.__version__}")
+    print("machine (before the run): " + "; ".join(f"{k} {v}" for k, v in machine_facts(
+        fluxcal=fluxcal.__version__, dask=dask.__version__)))
     print(f"fleet: {args.units} units × {args.readings} readings (CSV), calibrate method auto (ALS + ML "
           f"refinement), field norm given")
 

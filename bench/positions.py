@@ -20,8 +20,6 @@ warm-up (bench/_timing.py). Agreement of fluxcal and oracle (max |ΔK| in nT equ
 from __future__ import annotations
 
 import argparse
-import os
-import platform
 import sys
 
 import numpy as np
@@ -31,7 +29,7 @@ import fluxcal
 import fluxcal.positions as fp
 from fluxcal import sim
 from fluxcal.oracle import positions as oracle
-from _timing import best_time  # noqa: E402
+from _timing import best_time, machine_facts  # noqa: E402
 
 G = 9.80665
 FIELD = fp.reference_field(total=52200.0, inclination=52.0)
@@ -49,19 +47,6 @@ def scene(n: int, rng):
     return sc, s
 
 
-def machine_facts():
-    cpu = platform.processor() or "unknown"
-    try:
-        with open("/proc/cpuinfo") as f:
-            cpu = next(line.split(":", 1)[1].strip() for line in f if line.startswith("model name"))
-    except (OSError, StopIteration):
-        pass
-    return [("CPU", cpu), ("cores (os.cpu_count / usable)", f"{os.cpu_count()} / {len(os.sched_getaffinity(0))}"),
-            ("load average (1/5/15 min)", "%.2f %.2f %.2f" % os.getloadavg()),
-            ("OS", f"{platform.system()} {platform.release()}"), ("Python", platform.python_version()),
-            ("NumPy", np.__version__), ("fluxcal", getattr(fluxcal, "__version__", "?"))]
-
-
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--sizes", default="12,1000", help="numbers of positions (comma separated)")
@@ -73,7 +58,7 @@ def main(argv=None) -> int:
     sizes_joint_oracle = sorted(set(sizes) | {min(args.oracle_max_joint, max(sizes))})
 
     print("machine")
-    for k, v in machine_facts():
+    for k, v in machine_facts(NumPy=np.__version__, fluxcal=getattr(fluxcal, "__version__", "?")):
         print(f"  {k:<32} {v}")
     print(f"\nbest of {args.repeat} after one warm-up; oracle joint only for N <= {args.oracle_max_joint}\n")
     k_scale = float(np.mean(np.diag(sim.paper_sensor()[1])))
