@@ -1,12 +1,15 @@
-// Bindings of timeseries.hpp, kalman.hpp, fixed_kalman.hpp and drift.hpp (seed 001).
+// Bindings of timeseries.hpp, kalman.hpp, fixed_kalman.hpp, drift.hpp and foct.hpp (seed 001).
 #include "bindings.hpp"
 
 #include <fluxcal/drift.hpp>
 #include <fluxcal/fixed_kalman.hpp>
+#include <fluxcal/foct.hpp>  // section "foct.hpp" below
 #include <fluxcal/kalman.hpp>
 #include <fluxcal/timeseries.hpp>
 
 #include <pybind11/numpy.h>
+
+#include <optional>
 
 using namespace pybind11::literals;
 
@@ -42,6 +45,123 @@ fluxcal::DriftModel model_from(const std::vector<std::pair<std::pair<double, dou
 }
 
 }  // namespace
+
+// ==== foct.hpp: seed 001 end to end (fit_foct and its helpers) =====================================
+// Kept in this file with the other seed-001 bindings (python/CMakeLists.txt lists the binding sources).
+namespace {
+
+py::dict reverse_arrangement_dict(const fluxcal::ReverseArrangementResult& t) {
+  return py::dict("subseries"_a = t.subseries, "arrangements"_a = t.arrangements, "expected"_a = t.expected,
+                  "variance"_a = t.variance, "u"_a = t.u, "stationary"_a = t.stationary, "means"_a = t.means);
+}
+
+/// The keys of fluxcal.drift.accuracy.
+py::dict accuracy_dict(const fluxcal::AccuracyResult& a) {
+  py::list points;
+  for (const auto& p : a.points)
+    points.append(py::dict("percent_rated"_a = p.percent_rated, "ratio_error_percent"_a = p.ratio_error_percent,
+                           "limit_percent"_a = p.limit_percent, "met"_a = p.met));
+  return py::dict("class"_a = a.accuracy_class, "rated"_a = a.rated, "max_abs_residual"_a = a.max_abs_residual,
+                  "points"_a = points, "met"_a = a.met);
+}
+
+py::object accuracy_or_none(const std::optional<fluxcal::AccuracyResult>& a) {
+  return a ? py::object(accuracy_dict(*a)) : py::object(py::none());
+}
+
+py::dict foct_dict(const fluxcal::FoctResult& r) {
+  py::list segs;
+  for (const auto& s : r.drift.segments) segs.append(segment_dict(s));
+  const auto& pre = r.preprocess;
+  const auto& ar = r.ar;
+  return py::dict(
+      "segments"_a = segs, "noise_ar"_a = r.drift.noise_ar, "drift_summary"_a = summary_dict(r.drift.summary),
+      "regressor"_a = r.regressor == fluxcal::DriftRegressor::temperature ? "temp" : "difference",
+      "orders"_a = r.orders,
+      "preprocess"_a = py::dict("mean"_a = pre.mean, "differences"_a = pre.differences,
+                                "stationarity"_a = reverse_arrangement_dict(pre.stationarity),
+                                "stationarity_after"_a = reverse_arrangement_dict(pre.stationarity_after),
+                                "normality"_a = py::dict("skewness"_a = pre.normality.skewness,
+                                                         "kurtosis"_a = pre.normality.kurtosis,
+                                                         "jarque_bera"_a = pre.normality.jarque_bera,
+                                                         "p_value"_a = pre.normality.p_value,
+                                                         "normal"_a = pre.normality.normal),
+                                "summary"_a = summary_dict(pre.summary)),
+      "ar"_a = py::dict("order"_a = ar.order, "coefficients"_a = ar.coefficients, "sigma2"_a = ar.sigma2,
+                        "aic"_a = ar.aic, "order_at_maximum"_a = ar.order_at_maximum,
+                        "whiteness"_a = ljung_dict(ar.whiteness), "summary"_a = summary_dict(ar.summary)),
+      "kalman"_a = py::dict("q"_a = r.q, "r"_a = r.r, "steady_state"_a = r.steady_state, "dc_gain"_a = r.dc_gain),
+      "filtered"_a = r.filtered, "compensated"_a = r.compensated, "residual"_a = r.residual,
+      "drift_span_before"_a = r.drift_span_before, "drift_span_after"_a = r.drift_span_after,
+      "drift_reduction"_a = r.drift_reduction, "accuracy"_a = accuracy_or_none(r.accuracy),
+      "accuracy_drift"_a = accuracy_or_none(r.accuracy_drift), "warnings"_a = r.summary.warnings,
+      "summary"_a = summary_dict(r.summary));
+}
+
+void bind_foct(py::module_& m) {
+  using fluxcal::SeriesRef;
+  py::class_<fluxcal::PreprocessOptions>(m, "PreprocessOptions")
+      .def(py::init<>())
+      .def_readwrite("subseries", &fluxcal::PreprocessOptions::subseries)
+      .def_readwrite("threshold", &fluxcal::PreprocessOptions::threshold)
+      .def_readwrite("trend_degree", &fluxcal::PreprocessOptions::trend_degree)
+      .def_readwrite("significance", &fluxcal::PreprocessOptions::significance);
+  py::enum_<fluxcal::DriftRegressor>(m, "DriftRegressor")
+      .value("temp", fluxcal::DriftRegressor::temperature)
+      .value("difference", fluxcal::DriftRegressor::difference);
+  // Nested options are returned by reference: options.drift.max_order = 3 changes options.
+  py::class_<fluxcal::FoctOptions>(m, "FoctOptions")
+      .def(py::init<>())
+      .def_readwrite("preprocess", &fluxcal::FoctOptions::preprocess)
+      .def_readwrite("ar", &fluxcal::FoctOptions::ar)
+      .def_readwrite("q", &fluxcal::FoctOptions::q)
+      .def_readwrite("r", &fluxcal::FoctOptions::r)
+      .def_readwrite("kalman", &fluxcal::FoctOptions::kalman)
+      .def_readwrite("regressor", &fluxcal::FoctOptions::regressor)
+      .def_readwrite("drift", &fluxcal::FoctOptions::drift)
+      .def_readwrite("level_step", &fluxcal::FoctOptions::level_step)
+      .def_readwrite("rated", &fluxcal::FoctOptions::rated)
+      .def_readwrite("accuracy_class", &fluxcal::FoctOptions::accuracy_class);
+  // temp_outside is copied (optional of a Ref would dangle after a dtype conversion).
+  m.def("fit_foct", [](const SeriesRef& zero_bias, const SeriesRef& temp,
+                       const std::optional<Eigen::VectorXd>& temp_outside, const fluxcal::FoctOptions& options) {
+    fluxcal::FoctResult r;
+    {
+      py::gil_scoped_release release;
+      if (temp_outside) {
+        const SeriesRef outside(*temp_outside);
+        r = fluxcal::fit_foct(zero_bias, temp, &outside, options);
+      } else {
+        r = fluxcal::fit_foct(zero_bias, temp, nullptr, options);
+      }
+    }
+    return foct_dict(r);
+  }, "zero_bias"_a.noconvert(), "temp"_a.noconvert(), "temp_outside"_a = py::none(),
+     "options"_a = fluxcal::FoctOptions());
+  m.def("foct_compensate", [](const std::vector<std::pair<std::pair<double, double>, std::vector<double>>>& segments,
+                              fluxcal::DriftRegressor regressor, const SeriesRef& zero_bias, const SeriesRef& temp,
+                              const std::optional<Eigen::VectorXd>& temp_outside) {
+    const fluxcal::DriftModel model = model_from(segments);
+    if (!temp_outside) return fluxcal::compensate_zero_bias(model, regressor, zero_bias, temp);
+    const SeriesRef outside(*temp_outside);
+    return fluxcal::compensate_zero_bias(model, regressor, zero_bias, temp, &outside);
+  }, "segments"_a, "regressor"_a, "zero_bias"_a.noconvert(), "temp"_a.noconvert(), "temp_outside"_a = py::none());
+  m.def("foct_level_means", [](const SeriesRef& values, const SeriesRef& temp, double step) {
+    py::dict out;
+    for (const auto& l : fluxcal::level_means(values, temp, step)) out[py::float_(l.level)] = l.mean;
+    return out;
+  }, "values"_a.noconvert(), "temp"_a.noconvert(), "step"_a = 5.0);
+  m.def("foct_drift_span", &fluxcal::drift_span, "values"_a.noconvert(), "temp"_a.noconvert(), "step"_a = 5.0);
+  m.def("kalman_dc_gain", [](const Eigen::VectorXd& a, double q, double r, const fluxcal::KalmanOptions& options) {
+    return fluxcal::kalman_dc_gain(fluxcal::ArKalman(a, q, r, options));
+  }, "a"_a, "q"_a, "r"_a, "options"_a);
+  m.def("zero_bias_accuracy", [](const SeriesRef& residual, double rated, const std::string& accuracy_class) {
+    return accuracy_dict(fluxcal::zero_bias_accuracy(residual, rated, accuracy_class));
+  }, "residual"_a.noconvert(), "rated"_a, "accuracy_class"_a = "0.2S");
+}
+
+}  // namespace
+// ==== end of the foct.hpp section ====================================================================
 
 void bind_timeseries(py::module_& m) {
   using fluxcal::SeriesRef;
@@ -227,6 +347,7 @@ void bind_timeseries(py::module_& m) {
                              const SeriesRef& select, const SeriesRef& x) {
     return model_from(segments).evaluate(select, x);
   }, "segments"_a, "select"_a.noconvert(), "x"_a.noconvert());
+  bind_foct(m);  // the foct.hpp section above
 }
 
 }  // namespace fluxcal_py

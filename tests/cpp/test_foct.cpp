@@ -1,0 +1,245 @@
+// foct.hpp: seed 001 end to end on a simulated FOCT (chamber cycle, thermal lag, AR noise, drift of
+// orders 2 / 1 / 3 over −20…0 / 0…30 / 30…50 °C), the helpers it adds, and its errors.
+#include <fluxcal/foct.hpp>
+
+#include <gtest/gtest.h>
+
+#include <algorithm>
+#include <cmath>
+#include <random>
+#include <string>
+
+namespace {
+
+// The drift law of fluxcal.sim.foct (amperes): meets at 0 and 30 °C; the cubic is in u = T − 30.
+double law(double t) {
+  if (t < 0.0) return 0.8 + 0.05 * t + 0.004 * t * t;
+  if (t < 30.0) return 0.8 - 0.03 * t;
+  const double u = t - 30.0;
+  return -0.1 - 0.02 * u + 0.004 * u * u - 0.0004 * u * u * u;
+}
+
+struct Foct {
+  Eigen::VectorXd zero_bias, temp, temp_outside, truth;
+};
+
+// Holds of 1200 s every 5 °C from −20 to 50 °C, 600 s linear ramps, 1 Hz; the device lags the chamber
+// by 60 s (first order); zero bias = law(device) + AR(0.5, −0.2) noise with σ = 0.05 (as fluxcal.sim.foct).
+Foct simulate(unsigned seed) {
+  std::vector<double> chamber;
+  for (int level = 0; level < 15; ++level) {
+    const double t = -20.0 + 5.0 * level;
+    chamber.insert(chamber.end(), 1200, t);
+    if (level < 14)
+      for (int k = 1; k <= 600; ++k) chamber.push_back(t + 5.0 * k / 601.0);
+  }
+  const Eigen::Index n = static_cast<Eigen::Index>(chamber.size());
+  Foct s;
+  s.temp_outside = Eigen::Map<const Eigen::VectorXd>(chamber.data(), n);
+  s.temp.resize(n);
+  s.truth.resize(n);
+  s.zero_bias.resize(n);
+  const double alpha = 1.0 - std::exp(-1.0 / 60.0);
+  std::mt19937_64 rng(seed);
+  std::normal_distribution<double> normal(0.0, 0.05);
+  double device = chamber[0], y1 = 0.0, y2 = 0.0;
+  for (int k = 0; k < 1000; ++k) {  // burn-in: stationary noise from the first sample
+    const double y = 0.5 * y1 - 0.2 * y2 + normal(rng);
+    y2 = y1;
+    y1 = y;
+  }
+  for (Eigen::Index i = 0; i < n; ++i) {
+    device = alpha * chamber[static_cast<std::size_t>(i)] + (1.0 - alpha) * device;
+    s.temp[i] = std::clamp(device, -20.0, 50.0);
+    s.truth[i] = law(s.temp[i]);
+    const double y = 0.5 * y1 - 0.2 * y2 + normal(rng);
+    y2 = y1;
+    y1 = y;
+    s.zero_bias[i] = s.truth[i] + y;
+  }
+  return s;
+}
+
+// The Error's message, or "" when `call` does not throw fluxcal::Error.
+template <class Call>
+std::string error_of(Call&& call) {
+  try {
+    call();
+  } catch (const fluxcal::Error& e) {
+    return e.what();
+  }
+  return "";
+}
+
+TEST(Foct, RecoversTheGeneratingOrdersAndRemovesTheDrift) {
+  for (unsigned seed : {2016u, 7u}) {
+    const Foct s = simulate(seed);
+    fluxcal::FoctOptions options;
+    options.rated = 1000.0;
+    const auto fit = fluxcal::fit_foct(s.zero_bias, s.temp, options);
+    EXPECT_EQ(fit.orders, (std::vector<int>{2, 1, 3})) << "seed " << seed;
+    EXPECT_GE(fit.drift_reduction, 10.0) << "seed " << seed;
+    EXPECT_NEAR(fit.drift_reduction, fit.drift_span_before / fit.drift_span_after, 1e-9 * fit.drift_reduction);
+    // The law spans 1.4 … −2.1 A over the holds; after compensation only noise averages remain.
+    EXPECT_GT(fit.drift_span_before, 3.0);
+    EXPECT_LT(fit.drift_span_after, 0.01);
+    // Against the truth: the fitted drift follows the law to a few mA over the whole span.
+    const Eigen::VectorXd f = s.zero_bias - fit.compensated;
+    EXPECT_LT((f - s.truth).cwiseAbs().maxCoeff(), 0.02) << "seed " << seed;
+    EXPECT_GE(fit.ar.order, 1);
+    EXPECT_GT(fit.dc_gain, 0.0);
+    EXPECT_LT(fit.dc_gain, 1.0);  // the filter attenuates a slow drift; the pipeline undoes it
+    EXPECT_EQ(fit.q, fit.ar.sigma2);
+    EXPECT_EQ(fit.r, fit.ar.sigma2);
+    ASSERT_TRUE(fit.accuracy_drift.has_value());
+    EXPECT_TRUE(fit.accuracy_drift->met);
+    ASSERT_EQ(fit.accuracy->points.size(), 5u);
+    EXPECT_EQ(fit.accuracy->points[0].limit_percent, 0.75);
+    EXPECT_EQ(fit.filtered.size(), s.zero_bias.size());
+    EXPECT_NEAR(fit.residual.cwiseAbs().maxCoeff(), fit.accuracy->max_abs_residual, 0.0);
+    EXPECT_TRUE(fit.summary.converged);
+    EXPECT_EQ(fit.summary.samples, static_cast<std::size_t>(s.zero_bias.size()));
+    EXPECT_NE(fit.summary.message.find("drift orders 2 1 3"), std::string::npos) << fit.summary.message;
+  }
+}
+
+TEST(Foct, CompensatesNewData) {
+  const Foct train = simulate(11), fresh = simulate(12);
+  const auto fit = fluxcal::fit_foct(train.zero_bias, train.temp);
+  // On the training data compensate() is exactly what the fit reported.
+  EXPECT_EQ((fit.compensate(train.zero_bias, train.temp) - fit.compensated).cwiseAbs().maxCoeff(), 0.0);
+  const Eigen::VectorXd wc = fit.compensate(fresh.zero_bias, fresh.temp);
+  EXPECT_LT(fluxcal::drift_span(wc, fresh.temp), 0.1 * fluxcal::drift_span(fresh.zero_bias, fresh.temp));
+  Eigen::VectorXd hot = fresh.temp;
+  hot[3] = 61.0;
+  EXPECT_NE(error_of([&] { fit.compensate(fresh.zero_bias, hot); }).find("outside every range"), std::string::npos);
+}
+
+TEST(Foct, TemperatureDifferenceRegressor) {
+  const Foct s = simulate(5);
+  fluxcal::FoctOptions options;
+  options.regressor = fluxcal::DriftRegressor::difference;
+  options.drift.max_order = 2;
+  const auto fit = fluxcal::fit_foct(s.zero_bias, s.temp, s.temp_outside, options);
+  EXPECT_EQ(fit.regressor, fluxcal::DriftRegressor::difference);
+  const Eigen::VectorXd diff = s.temp - s.temp_outside;
+  EXPECT_EQ((fit.compensated - fit.drift.compensate(s.zero_bias, s.temp, diff)).cwiseAbs().maxCoeff(), 0.0);
+  EXPECT_EQ((fit.compensate(s.zero_bias, s.temp, s.temp_outside) - fit.compensated).cwiseAbs().maxCoeff(), 0.0);
+  EXPECT_NE(error_of([&] { fit.compensate(s.zero_bias, s.temp); }).find("temp_outside"), std::string::npos);
+  for (int m : fit.orders) EXPECT_LE(m, 2);
+}
+
+TEST(Foct, GivenNoiseVariancesAndSteadyState) {
+  const Foct s = simulate(3);
+  fluxcal::FoctOptions options;
+  options.q = 2e-3;
+  options.r = 1e-3;
+  options.kalman.steady_state = true;
+  const auto fit = fluxcal::fit_foct(s.zero_bias, s.temp, options);
+  EXPECT_EQ(fit.q, 2e-3);
+  EXPECT_EQ(fit.r, 1e-3);
+  EXPECT_TRUE(fit.steady_state);
+  EXPECT_EQ(fit.orders, (std::vector<int>{2, 1, 3}));
+  options.q.reset();  // R alone given: Q from the AR fit
+  const auto fit_r = fluxcal::fit_foct(s.zero_bias, s.temp, options);
+  EXPECT_EQ(fit_r.q, fit_r.ar.sigma2);
+  EXPECT_EQ(fit_r.r, 1e-3);
+}
+
+TEST(Foct, DcGainIsTheSteadyStateResponseToAConstant) {
+  Eigen::VectorXd a(2);
+  a << 0.5, -0.2;
+  fluxcal::KalmanOptions options;
+  options.steady_state = true;
+  const fluxcal::ArKalman kalman(a, 0.0025, 0.0025, options);
+  const double gain = fluxcal::kalman_dc_gain(kalman);
+  const Eigen::VectorXd out = kalman.filter(Eigen::VectorXd::Ones(400)).filtered;
+  EXPECT_NEAR(out[399], gain, 1e-12);
+  // With R → 0 the filter passes the measurement through: gain → 1.
+  EXPECT_NEAR(fluxcal::kalman_dc_gain(fluxcal::ArKalman(a, 0.0025, 0.0)), 1.0, 1e-12);
+}
+
+TEST(Foct, LevelMeansAndDriftSpan) {
+  Eigen::VectorXd temp(6), values(6);
+  // 2.5 and 7.5 °C round half to even: to levels 0 and 10; −0.4 joins level 0 (−0 = +0).
+  temp << -0.4, 2.5, 7.5, 9.0, 12.4, 4.9;
+  values << 1.0, 2.0, 3.0, 5.0, 7.0, 10.0;
+  const auto levels = fluxcal::level_means(values, temp);
+  ASSERT_EQ(levels.size(), 3u);
+  EXPECT_EQ(levels[0].level, 0.0);
+  EXPECT_FALSE(std::signbit(levels[0].level));
+  EXPECT_EQ(levels[0].samples, 2u);
+  EXPECT_DOUBLE_EQ(levels[0].mean, 1.5);
+  EXPECT_EQ(levels[1].level, 5.0);
+  EXPECT_DOUBLE_EQ(levels[1].mean, 10.0);
+  EXPECT_EQ(levels[2].level, 10.0);
+  EXPECT_DOUBLE_EQ(levels[2].mean, 5.0);
+  EXPECT_DOUBLE_EQ(fluxcal::drift_span(values, temp), 8.5);
+  EXPECT_NE(error_of([&] { fluxcal::drift_span(values, temp, 0.0); }).find("level_step"), std::string::npos);
+  EXPECT_NE(error_of([&] { fluxcal::drift_span(values, temp.head(5)); }).find("temp: 5 samples"), std::string::npos);
+}
+
+TEST(Foct, Accuracy) {
+  Eigen::VectorXd residual(3);
+  residual << 0.001, -0.006, 0.002;
+  const auto acc = fluxcal::zero_bias_accuracy(residual, 1000.0, "0.2S");
+  EXPECT_EQ(acc.max_abs_residual, 0.006);
+  ASSERT_EQ(acc.points.size(), 5u);
+  // At 1 % of 1000 A the residual 6 mA is 0.06 % (limit 0.75 %).
+  EXPECT_EQ(acc.points[0].percent_rated, 1);
+  EXPECT_NEAR(acc.points[0].ratio_error_percent, 0.06, 1e-15);
+  EXPECT_TRUE(acc.met);
+  const auto bad = fluxcal::zero_bias_accuracy(residual * 100.0, 1000.0, "0.5S");  // 0.6 A: 6 % at 1 %
+  EXPECT_FALSE(bad.met);
+  EXPECT_FALSE(bad.points[0].met);
+  EXPECT_TRUE(bad.points[4].met);  // 0.6 A of 1200 A: 0.05 %
+  EXPECT_EQ(bad.points[4].limit_percent, 0.5);
+  EXPECT_NE(error_of([&] { fluxcal::zero_bias_accuracy(residual, 1000.0, "0.1"); }).find("accuracy_class"),
+            std::string::npos);
+  EXPECT_NE(error_of([&] { fluxcal::zero_bias_accuracy(residual, 0.0); }).find("rated"), std::string::npos);
+}
+
+TEST(Foct, BadInput) {
+  const Foct s = simulate(2);
+  auto message = [&](const Eigen::VectorXd& w, const Eigen::VectorXd& t, const fluxcal::FoctOptions& o = {}) {
+    return error_of([&] { fluxcal::fit_foct(w, t, o); });
+  };
+  Eigen::VectorXd w = s.zero_bias, t = s.temp;
+  w[5] = std::nan("");
+  EXPECT_NE(message(w, s.temp).find("zero_bias: sample 5 is nan"), std::string::npos) << message(w, s.temp);
+  t[9] = INFINITY;
+  EXPECT_NE(message(s.zero_bias, t).find("temp: sample 9 is inf"), std::string::npos);
+  EXPECT_NE(message(s.zero_bias, s.temp.head(100)).find("temp: 100 samples"), std::string::npos);
+  EXPECT_NE(message(s.zero_bias.head(30), s.temp.head(30)).find("zero_bias: 30 samples, need at least 42"),
+            std::string::npos)
+      << message(s.zero_bias.head(30), s.temp.head(30));
+  EXPECT_NE(message(Eigen::VectorXd::Constant(1000, 0.3), Eigen::VectorXd::LinSpaced(1000, -20, 50)).find(
+                "zero_bias: constant"),
+            std::string::npos);
+  fluxcal::FoctOptions o;
+  o.ar.order = 0;
+  EXPECT_NE(message(s.zero_bias, s.temp, o).find("zero_bias: the fixed AR order is 0"), std::string::npos);
+  o = {};
+  o.regressor = fluxcal::DriftRegressor::difference;
+  EXPECT_NE(message(s.zero_bias, s.temp, o).find("temp_outside: needed"), std::string::npos);
+  Eigen::VectorXd outside = s.temp_outside.head(10);
+  EXPECT_NE(error_of([&] { fluxcal::fit_foct(s.zero_bias, s.temp, outside, o); }).find("temp_outside: 10 samples"),
+            std::string::npos);
+  o = {};
+  o.r = -1.0;
+  EXPECT_NE(message(s.zero_bias, s.temp, o).find("r: measurement variance"), std::string::npos);
+  o = {};
+  o.q = 0.0;
+  EXPECT_NE(message(s.zero_bias, s.temp, o).find("q: process variance"), std::string::npos);
+  o = {};
+  o.rated = -5.0;
+  EXPECT_NE(message(s.zero_bias, s.temp, o).find("rated"), std::string::npos);
+  o.rated = 1000.0;
+  o.accuracy_class = "1S";
+  EXPECT_NE(message(s.zero_bias, s.temp, o).find("accuracy_class: '1S'"), std::string::npos);
+  o = {};
+  o.drift.breakpoints = {-20.0, 0.0, 30.0, 60.0, 70.0};  // the last range holds no samples
+  EXPECT_NE(message(s.zero_bias, s.temp, o).find("range [60, 70]: 0 samples"), std::string::npos);
+}
+
+}  // namespace
