@@ -7,6 +7,7 @@ import pytest
 from conftest import run_cli
 
 import fluxcal
+from fluxcal import sim
 from fluxcal.diagnose import diagnose, estimate_noise
 from fluxcal.oracle.refine import refine_terms as oracle_refine_terms
 from fluxcal.sim.effects import CANDIDATES
@@ -114,3 +115,39 @@ def test_real_recordings_run(real_data, name):
     rec = fluxcal.read_csv(real_data / name, columns="x,y,z" if name.startswith("handheld") else None)
     d = diagnose(rec)
     assert d.ranking and all(np.isfinite(r["delta_bic"]) for r in d.ranking)
+
+
+def test_sample_and_hold_repeats_are_left_out():
+    """A logger at 3× the sensor's rate repeats each reading three times: the noise is still estimated right
+    (third differences of the copies would shrink it) and nothing is reported (the copies would look like
+    coloured noise); the report says what was left out."""
+    quiet = 0
+    for seed in range(5):
+        result, kwargs = withheld_trial([], 300 + seed)
+        held = np.repeat(result.readings, 3, axis=0)
+        t = np.arange(len(held)) * (result.t[1] - result.t[0]) / 3.0
+        temp = np.repeat(kwargs["temp"], 3)
+        d = diagnose(held, t=t, temp=temp, field_norm=kwargs["field_norm"])
+        assert d.noise_sigma == pytest.approx(0.05, rel=0.1)
+        assert f"{2 * len(result.readings)} of {len(held)} readings (67 %) repeat the previous one" in d.noise_source
+        quiet += not d.significant
+    assert quiet >= 4, f"no significant effect in only {quiet}/5"
+
+
+def test_quantization_floor_on_the_noise_estimate():
+    from fluxcal.diagnose.core import quantization_step
+
+    rng = np.random.default_rng(4)
+    assert quantization_step(rng.normal(size=(500, 3))) == 0.0  # continuous readings: no grid
+    grid = np.round(rng.normal(scale=20.0, size=(500, 3)) / 0.25) * 0.25 + 3.0
+    assert quantization_step(grid) == pytest.approx(0.25)
+    # Slow turns with a 1-LSB ADC and noise of 0.1 LSB: most third differences are exactly zero, so the
+    # MAD estimate collapses; the σ used is LSB/√12.
+    scene = sim.sweeps("yxz", per_turn=3000)
+    field = np.array([20.0, 5.0, 45.0])
+    clean = scene.sensor_field(field) * [1.02, 0.98, 1.0] + [4.0, -3.0, 2.0]
+    readings = np.round((clean + rng.normal(scale=0.1, size=clean.shape)) / 1.0) * 1.0
+    assert estimate_noise(readings) < 0.1
+    d = diagnose(readings, t=scene.t, field_norm=float(np.linalg.norm(field)), candidates=["offset_drift"])
+    assert d.noise_sigma == pytest.approx(1.0 / np.sqrt(12.0))
+    assert "quantization floor" in d.noise_source and "repeat" not in d.noise_source

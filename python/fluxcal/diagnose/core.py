@@ -39,6 +39,7 @@ class _Data:
     field_norm: float
     units: str
     source: str
+    notes: list = field(default_factory=list)  # what _prepare changed in the data, for the report
 
 
 @dataclass
@@ -552,7 +553,48 @@ def _prepare(samples, t, temp, reference, down, field_norm, units, source) -> _D
         down = as_samples(down, "gravity")
         if len(down) != n or np.any(np.linalg.norm(down, axis=1) == 0):
             raise ValueError(f"gravity: need {n} non-zero vectors (the accelerometer), got {len(down)}")
-    return _Data(m, t, temp, reference, down, float(field_norm) if field_norm else 0.0, units, source)
+    notes = []
+    # A logger faster than its sensor repeats the last reading (sample and hold): the copies carry no new
+    # information, make the noise look correlated and shrink the third differences the noise σ comes
+    # from, so they are left out. Told apart from a coarse ADC on a slow turn (whose repeats are real
+    # readings) by the regular runs: held copies come in runs of one length (two adjacent lengths when
+    # the rates are not in a whole ratio), an ADC's runs are spread out.
+    repeat = np.concatenate([[False], np.all(m[1:] == m[:-1], axis=1)])
+    if repeat.mean() >= 0.1 and _regular_runs(repeat):
+        keep = ~repeat
+        m, t = m[keep], t[keep]
+        temp, reference, down = (None if a is None else a[keep] for a in (temp, reference, down))
+        notes.append(f"{int(repeat.sum())} of {n} readings ({100 * repeat.mean():.0f} %) repeat the previous one "
+                     "exactly (sample and hold: the logger ran faster than the sensor) and were left out")
+    return _Data(m, t, temp, reference, down, float(field_norm) if field_norm else 0.0, units, source, notes)
+
+
+def _regular_runs(repeat: np.ndarray) -> bool:
+    """Whether the runs of identical readings (`repeat[i]`: row i equals row i − 1) have one typical length
+    L ≥ 2, with ≥ 80 % of the runs of length L − 1, L or L + 1."""
+    starts = np.flatnonzero(~repeat)
+    runs = np.diff(np.append(starts, len(repeat)))
+    counts = np.bincount(runs)
+    mode = int(np.argmax(counts))
+    return mode >= 2 and counts[max(mode - 1, 1):mode + 2].sum() >= 0.8 * len(runs)
+
+
+def quantization_step(samples) -> float:
+    """RMS over axes of the readings' grid step (the smallest positive difference between the values of
+    an axis, when every value lies on that grid: an ADC's LSB), or 0 when the readings are not on a grid."""
+    m = as_samples(samples)
+    steps = []
+    for axis in m.T:
+        values = np.unique(axis)
+        gaps = np.diff(values)
+        if len(values) < 3 or len(values) > len(axis) // 2 or gaps.min() <= 0:
+            return 0.0  # nearly every value distinct: continuous readings
+        q = gaps.min()
+        k = (values - values[0]) / q
+        if np.max(np.abs(k - np.round(k))) > 1e-6 * max(1.0, np.max(k)):
+            return 0.0
+        steps.append(q)
+    return float(np.sqrt(np.mean(np.square(steps))))
 
 
 def diagnose(samples, t=None, temp=None, reference=None, gravity=None, field_norm=None, model: str | None = None,
@@ -604,8 +646,14 @@ def diagnose(samples, t=None, temp=None, reference=None, gravity=None, field_nor
     base = _fit(data, start, fixed, None)
     if noise_sigma is None:
         sigma, noise_source = estimate_noise(data.m), "estimated from third differences of the readings"
+        step = quantization_step(data.m)
+        if sigma < step / np.sqrt(12.0):  # rounding alone leaves LSB/√12 even when the noise is below 1 LSB
+            sigma = step / np.sqrt(12.0)
+            noise_source += f", raised to the quantization floor {step:.4g}/√12 (readings on a {step:.4g} grid)"
     else:
         sigma, noise_source = float(noise_sigma), "given"
+    if data.notes:
+        noise_source += "; " + "; ".join(data.notes)
     if not sigma > 0:
         raise ValueError(f"{source}: the noise σ is zero (readings constant or repeated?); give noise_sigma")
 
