@@ -3,16 +3,11 @@
 
 #include <gtest/gtest.h>
 
+#include "foct_law.hpp"
+
 #include <random>
 
 namespace {
-
-double law(double t) {
-  if (t < 0.0) return 0.8 + 0.05 * t + 0.004 * t * t;
-  if (t < 30.0) return 0.8 - 0.03 * t;
-  const double u = t - 30.0;
-  return -0.1 - 0.02 * u + 0.004 * u * u - 0.0004 * u * u * u;
-}
 
 struct Data {
   Eigen::VectorXd temp, w;
@@ -24,7 +19,7 @@ Data make(int n, double sigma, unsigned seed) {
   Data d;
   d.temp = Eigen::VectorXd::LinSpaced(n, -20.0, 50.0);
   d.w.resize(n);
-  for (int i = 0; i < n; ++i) d.w[i] = law(d.temp[i]) + normal(rng);
+  for (int i = 0; i < n; ++i) d.w[i] = foct_drift_law(d.temp[i]) + normal(rng);
   return d;
 }
 

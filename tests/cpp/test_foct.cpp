@@ -4,6 +4,8 @@
 
 #include <gtest/gtest.h>
 
+#include "foct_law.hpp"
+
 #include <algorithm>
 #include <cmath>
 #include <random>
@@ -11,20 +13,12 @@
 
 namespace {
 
-// The drift law of fluxcal.sim.foct (amperes): meets at 0 and 30 °C; the cubic is in u = T − 30.
-double law(double t) {
-  if (t < 0.0) return 0.8 + 0.05 * t + 0.004 * t * t;
-  if (t < 30.0) return 0.8 - 0.03 * t;
-  const double u = t - 30.0;
-  return -0.1 - 0.02 * u + 0.004 * u * u - 0.0004 * u * u * u;
-}
-
 struct Foct {
   Eigen::VectorXd zero_bias, temp, temp_outside, truth;
 };
 
 // Holds of 1200 s every 5 °C from −20 to 50 °C, 600 s linear ramps, 1 Hz; the device lags the chamber
-// by 60 s (first order); zero bias = law(device) + AR(0.5, −0.2) noise with σ = 0.05 (as fluxcal.sim.foct).
+// by 60 s (first order); zero bias = foct_drift_law(device) + AR(0.5, −0.2) noise with σ = 0.05 (as fluxcal.sim.foct).
 Foct simulate(unsigned seed) {
   std::vector<double> chamber;
   for (int level = 0; level < 15; ++level) {
@@ -51,7 +45,7 @@ Foct simulate(unsigned seed) {
   for (Eigen::Index i = 0; i < n; ++i) {
     device = alpha * chamber[static_cast<std::size_t>(i)] + (1.0 - alpha) * device;
     s.temp[i] = std::clamp(device, -20.0, 50.0);
-    s.truth[i] = law(s.temp[i]);
+    s.truth[i] = foct_drift_law(s.temp[i]);
     const double y = 0.5 * y1 - 0.2 * y2 + normal(rng);
     y2 = y1;
     y1 = y;

@@ -49,6 +49,7 @@ frame carries them (unscaled, float32 fields rounded as packed), in order.
 from __future__ import annotations
 
 import argparse
+import contextlib
 import fcntl
 import functools
 import json
@@ -56,6 +57,7 @@ import operator
 import os
 import re
 import struct
+import subprocess
 import sys
 import termios
 import threading
@@ -379,6 +381,30 @@ def linger(port: Pty) -> None:
     """Stay plugged in, quiet, until the test closes our stdin or terminates us."""
     sys.stdin.read()
     port.close()
+
+
+@contextlib.contextmanager
+def running(tmp_path, *args):
+    """For the tests: start this device as a process; yields (link, recording, sent) once its port exists.
+    `args` are its command-line options (e.g. "--format", "binary", "--seed", 3)."""
+    link, recording, sent = tmp_path / "ttyFAKE", tmp_path / "recording.csv", tmp_path / "sent.json"
+    proc = subprocess.Popen([sys.executable, str(Path(__file__).resolve()), "--link", str(link), "--recording",
+                             str(recording), "--sent", str(sent), *map(str, args)],
+                            stdin=subprocess.PIPE, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    try:
+        assert proc.stdout.readline().strip() == "ready", "fake device did not start: " + proc.stderr.read()
+        yield link, recording, sent
+    finally:
+        proc.stdin.close()  # the device lingers, plugged in, until its stdin closes
+        try:
+            proc.wait(timeout=5)
+        except subprocess.TimeoutExpired:
+            proc.terminate()
+            proc.wait(timeout=5)
+        if not sent.exists():  # the device stopped early: say why (e.g. a fault it could not place)
+            print("fake device stderr:", proc.stderr.read())
+        proc.stderr.close()
+        proc.stdout.close()
 
 
 def main() -> None:

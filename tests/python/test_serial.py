@@ -22,6 +22,7 @@ from fluxcal import _core
 from fluxcal.io.serial import (FrameDecoder, RecordingWriter, Recorder, Reject, TextDecoder, decoder_from_args,
                                parse_columns, parse_range)
 from fluxcal.live import LiveFit, coverage_map, direction_bins, missing_text
+from fake_device import running  # noqa: E402  (tests/python is on sys.path)
 
 HERE = Path(__file__).resolve().parent
 FIELD_NT = 50000.0
@@ -236,20 +237,8 @@ def test_live_fit_follows_the_stream():
 @contextlib.contextmanager
 def fake_device(tmp_path, *args):
     """Start tests/python/fake_device.py; yields (link, recording, sent) once its port exists."""
-    link, recording, sent = tmp_path / "ttyFAKE", tmp_path / "recording.csv", tmp_path / "sent.json"
-    proc = subprocess.Popen([sys.executable, str(HERE / "fake_device.py"), "--link", str(link), "--recording",
-                             str(recording), "--sent", str(sent), *map(str, args)],
-                            stdin=subprocess.PIPE, stdout=subprocess.PIPE, text=True)
-    try:
-        assert proc.stdout.readline().strip() == "ready", "fake device did not start"
-        yield link, recording, sent
-    finally:
-        proc.stdin.close()  # the device lingers, plugged in, until its stdin closes
-        try:
-            proc.wait(timeout=5)
-        except subprocess.TimeoutExpired:
-            proc.terminate()
-            proc.wait(timeout=5)
+    with running(tmp_path, *args) as handles:
+        yield handles
 
 
 def run_fluxcal(*args, timeout=60):

@@ -19,6 +19,7 @@ import pytest
 import fluxcal
 from fluxcal.io.serial import FrameDecoder, Recorder, Reject, decoder_from_args, parse_columns, parse_range, \
     parse_scale
+from fake_device import running  # noqa: E402  (tests/python is on sys.path)
 
 HERE = Path(__file__).resolve().parent
 SYNC = bytes.fromhex("A55A")
@@ -93,24 +94,8 @@ def test_scale_factors_per_column():
 @contextlib.contextmanager
 def binary_device(tmp_path, *args):
     """Start the fake device sending binary frames; yields (link, recording, sent) once its port exists."""
-    link, recording, sent = tmp_path / "ttyFAKE", tmp_path / "recording.csv", tmp_path / "sent.json"
-    proc = subprocess.Popen([sys.executable, str(HERE / "fake_device.py"), "--format", "binary", "--link", str(link),
-                             "--recording", str(recording), "--sent", str(sent), *map(str, args)],
-                            stdin=subprocess.PIPE, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
-    try:
-        assert proc.stdout.readline().strip() == "ready", "fake device did not start: " + proc.stderr.read()
-        yield link, recording, sent
-    finally:
-        proc.stdin.close()  # the device lingers, plugged in, until its stdin closes
-        try:
-            proc.wait(timeout=5)
-        except subprocess.TimeoutExpired:
-            proc.terminate()
-            proc.wait(timeout=5)
-        if not sent.exists():  # the device stopped early: say why (e.g. a fault it could not place)
-            print("fake device stderr:", proc.stderr.read())
-        proc.stderr.close()
-        proc.stdout.close()
+    with running(tmp_path, "--format", "binary", *args) as handles:
+        yield handles
 
 
 def recorded(recording, names):

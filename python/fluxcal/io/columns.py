@@ -123,33 +123,32 @@ def _single(names, kind_words, unit_table):
     return hits[0] if len(hits) == 1 else None
 
 
+def _find_one(names, canonical: str, kind_words, unit_table):
+    """(column, unit word or None): the canonical column if present, else the only one named by kind_words."""
+    if canonical in names:
+        return canonical, None
+    return _single(names, kind_words, unit_table)
+
+
 def find_time(names, units: dict):
     """(column, factor to seconds) or None. The unit comes from the units map, else the name's unit
     word (TimeUS, time_ms), else seconds."""
-    if "t" in names:
-        name, word = "t", None
-    else:
-        hit = _single(names, TIME_WORDS, TIME_UNITS)
-        if hit is None:
-            return None
-        name, word = hit
+    hit = _find_one(names, "t", TIME_WORDS, TIME_UNITS)
+    if hit is None:
+        return None
+    name, word = hit
     stated = (units.get(name) or "").strip().lower().replace("μ", "µ")
-    factor = TIME_UNITS.get(stated) or TIME_UNITS.get(word or "", 1.0)
-    return name, factor
+    return name, TIME_UNITS.get(stated) or TIME_UNITS.get(word or "", 1.0)
 
 
 def find_temperature(names, units: dict):
     """(column, unit "C"/"K"/"F") or None."""
-    if "temp" in names:
-        name, word = "temp", None
-    else:
-        hit = _single(names, TEMP_WORDS, TEMP_UNITS)
-        if hit is None:
-            return None
-        name, word = hit
-    stated = (units.get(name) or "").strip().lower().replace("°", "")
-    unit = TEMP_UNITS.get(stated) or TEMP_UNITS.get(stated.replace("deg", "")) or TEMP_UNITS.get(word or "", "C")
-    return name, unit
+    hit = _find_one(names, "temp", TEMP_WORDS, TEMP_UNITS)
+    if hit is None:
+        return None
+    name, word = hit
+    stated = (units.get(name) or "").strip().lower().replace("°", "").replace("deg", "")
+    return name, TEMP_UNITS.get(stated) or TEMP_UNITS.get(word or "", "C")
 
 
 def field_unit_of(name: str) -> str:
