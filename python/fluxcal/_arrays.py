@@ -36,3 +36,19 @@ def set_options(options, settings: dict, what: str):
             raise TypeError(f"{what}: unknown option {name!r}")
         setattr(options, name, value)
     return options
+
+
+def held_copies(m: np.ndarray):
+    """Mask of the readings that are sample-and-hold copies of the one before (a logger faster than its
+    sensor repeats the last reading), or None when there are none to speak of. Copies: ≥ 10 % of the rows
+    repeat the previous row exactly, in runs of one typical length L ≥ 2 (≥ 80 % of the runs of length
+    L − 1, L or L + 1). A coarse ADC on a slow turn also repeats readings, but in runs of spread-out
+    lengths, and those repeats are real readings."""
+    repeat = np.concatenate([[False], np.all(m[1:] == m[:-1], axis=1)])
+    if len(m) < 3 or repeat.mean() < 0.1:
+        return None
+    runs = np.diff(np.append(np.flatnonzero(~repeat), len(repeat)))
+    counts = np.bincount(runs)
+    mode = int(np.argmax(counts))
+    regular = mode >= 2 and counts[max(mode - 1, 1):mode + 2].sum() >= 0.8 * len(runs)
+    return repeat if regular else None

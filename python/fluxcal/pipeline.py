@@ -1,7 +1,7 @@
 """fluxcal.calibrate: one call that picks the right solver for the data it is given."""
 from __future__ import annotations
 
-from ._arrays import as_samples
+from ._arrays import as_samples, held_copies
 from .calibration import Calibration
 from .ellipsoid import fit_ellipsoid
 from .refine import fit_vector, refine
@@ -42,4 +42,11 @@ def calibrate(samples, method: str = "auto", field_norm: float | None = None, re
             w for w in cal.summary["warnings"] if w not in start.summary["warnings"]]
         if start.summary.get("noise_sigma"):
             cal.summary["als_noise_sigma"] = start.summary["noise_sigma"]
+    copies = held_copies(m)
+    if copies is not None:
+        cal.summary["warnings"] = list(cal.summary["warnings"]) + [
+            f"{int(copies.sum())} of {len(m)} readings ({100 * copies.mean():.0f} %) repeat the previous one exactly "
+            "in regular runs (sample and hold: the logger ran faster than the sensor); the standard errors count "
+            "them as independent readings and are too small by about √(run length) — record at the sensor's "
+            "rate or drop the copies"]
     return cal

@@ -132,6 +132,9 @@ def test_sample_and_hold_repeats_are_left_out():
         assert f"{2 * len(result.readings)} of {len(held)} readings (67 %) repeat the previous one" in d.noise_source
         quiet += not d.significant
     assert quiet >= 4, f"no significant effect in only {quiet}/5"
+    # calibrate keeps every reading but says its standard errors would count the copies
+    assert any("sample and hold" in w for w in fluxcal.calibrate(held).summary["warnings"])
+    assert not any("sample and hold" in w for w in fluxcal.calibrate(result.readings).summary["warnings"])
 
 
 def test_quantization_floor_on_the_noise_estimate():

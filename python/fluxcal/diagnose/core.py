@@ -10,7 +10,7 @@ import numpy as np
 from scipy import stats
 
 from .. import _core
-from .._arrays import as_samples
+from .._arrays import as_samples, held_copies
 from ..calibration import Calibration
 from ..sim.effects import CANDIDATES
 
@@ -554,29 +554,14 @@ def _prepare(samples, t, temp, reference, down, field_norm, units, source) -> _D
         if len(down) != n or np.any(np.linalg.norm(down, axis=1) == 0):
             raise ValueError(f"gravity: need {n} non-zero vectors (the accelerometer), got {len(down)}")
     notes = []
-    # A logger faster than its sensor repeats the last reading (sample and hold): the copies carry no new
-    # information, make the noise look correlated and shrink the third differences the noise σ comes
-    # from, so they are left out. Told apart from a coarse ADC on a slow turn (whose repeats are real
-    # readings) by the regular runs: held copies come in runs of one length (two adjacent lengths when
-    # the rates are not in a whole ratio), an ADC's runs are spread out.
-    repeat = np.concatenate([[False], np.all(m[1:] == m[:-1], axis=1)])
-    if repeat.mean() >= 0.1 and _regular_runs(repeat):
-        keep = ~repeat
+    copies = held_copies(m)  # sample and hold: the copies carry no new information, make the noise look
+    if copies is not None:    # correlated and shrink the third differences the noise σ comes from
+        keep = ~copies
         m, t = m[keep], t[keep]
         temp, reference, down = (None if a is None else a[keep] for a in (temp, reference, down))
-        notes.append(f"{int(repeat.sum())} of {n} readings ({100 * repeat.mean():.0f} %) repeat the previous one "
+        notes.append(f"{int(copies.sum())} of {n} readings ({100 * copies.mean():.0f} %) repeat the previous one "
                      "exactly (sample and hold: the logger ran faster than the sensor) and were left out")
     return _Data(m, t, temp, reference, down, float(field_norm) if field_norm else 0.0, units, source, notes)
-
-
-def _regular_runs(repeat: np.ndarray) -> bool:
-    """Whether the runs of identical readings (`repeat[i]`: row i equals row i − 1) have one typical length
-    L ≥ 2, with ≥ 80 % of the runs of length L − 1, L or L + 1."""
-    starts = np.flatnonzero(~repeat)
-    runs = np.diff(np.append(starts, len(repeat)))
-    counts = np.bincount(runs)
-    mode = int(np.argmax(counts))
-    return mode >= 2 and counts[max(mode - 1, 1):mode + 2].sum() >= 0.8 * len(runs)
 
 
 def quantization_step(samples) -> float:
