@@ -584,6 +584,8 @@ PositionsResult calibrate_positions(const SamplesRef& outputs, const SamplesRef&
   std::vector<double> yp(yaw.data(), yaw.data() + n);
   std::vector<double> tp(static_cast<std::size_t>(2 * n), 0.0);
   const bool with_tilt = options.tilt_sigma_deg > 0.0;
+  bool sigma_undetermined = false;  // see the tilt-prior weighting below
+  double sigma_fallback = 0.0;
   const Eigen::Vector3d east = options.frame == Frame::ned ? Eigen::Vector3d::UnitY() : Eigen::Vector3d::UnitZ();
   double prior_weight = 0.0;
   ceres::Problem problem;
@@ -644,28 +646,70 @@ PositionsResult calibrate_positions(const SamplesRef& outputs, const SamplesRef&
   };
   if (with_tilt) {
     // Levelling errors as unknowns with a prior σ_tilt: the weight σ/σ_tilt needs the output noise σ.
-    // Unknown σ is estimated from the fit itself: first with the accelerometer taken as exact, then
-    // σ̂² = (output SSR + prior SSR)/(3N − p) until it settles. With the prior rows included this is
-    // r'V⁻¹r/(3N − p) for the marginal covariance V = σ²I + σ_t²ZZᵀ, whose expectation is σ² at the
-    // right weight; the output SSR alone shrinks as the tilts soak up noise, and iterating on it drove σ̂
-    // to about half the truth.
+    // Unknown σ is estimated from the fit itself: first with the accelerometer taken as exact (σ_exact),
+    // then σ̂ with σ̂² = (output SSR + prior SSR)/(3N − p) at prior weight σ̂/σ_tilt. With the prior rows
+    // included this is r'V⁻¹r/(3N − p) for the marginal covariance V = σ²I + σ_t²ZZᵀ, whose expectation
+    // is σ² at the right weight (the output SSR alone shrinks as the tilts soak up noise: σ̂ about half
+    // the truth). Solved as a root, not by fixed-point passes, which crawl when the map's slope is near 1.
+    //
+    // With few positions the headings and tilts (3 local unknowns per position against 3 outputs) can
+    // absorb the output noise: then there is no root above 0 and σ is not determined by the data. The
+    // fit falls back to σ_exact (which also holds the levelling scatter, so the SEs err on the large
+    // side) and says so.
     const double sigma_tilt = options.tilt_sigma_deg * kPi / 180.0;
     double sigma_out = options.output_sigma;
+    double sigma_exact = 0.0;
     if (sigma_out <= 0.0) {
       for (auto& t : tp) t = 0.0;
       for (Eigen::Index i = 0; i < n; ++i) problem.SetParameterBlockConstant(&tp[static_cast<std::size_t>(2 * i)]);
       solve();
       for (Eigen::Index i = 0; i < n; ++i) problem.SetParameterBlockVariable(&tp[static_cast<std::size_t>(2 * i)]);
-      sigma_out = std::sqrt(output_residual_ss() / dof);
+      sigma_out = sigma_exact = std::sqrt(output_residual_ss() / dof);
     }
-    for (int pass = 0; pass < 20; ++pass) {
+    if (options.output_sigma > 0.0) {
       prior_weight = std::max(sigma_out, 1e-12 * field.norm()) / sigma_tilt;
       solve();
-      if (options.output_sigma > 0.0) break;
-      const double next = std::sqrt((output_residual_ss() + prior_ss()) / dof);
-      const bool settled = std::abs(next - sigma_out) <= 1e-4 * sigma_out;
-      sigma_out = next;
-      if (settled) break;
+    } else {
+      // σ̂ solves σ² = S(σ)/(3N − p), S the penalised SSR at prior weight σ/σ_tilt. f(u) = log(S/dof) − 2u
+      // in u = log σ is ≤ 0 at σ_exact (S there is at most the accelerometer-exact SSR); step down until
+      // f > 0 to bracket the largest root, then Illinois regula falsi. No sign change down to 1e-3 σ_exact:
+      // the corrections absorb the noise (collapse).
+      auto f = [&](double u) {
+        prior_weight = std::max(std::exp(u), 1e-12 * field.norm()) / sigma_tilt;
+        solve();
+        return std::log(std::max(output_residual_ss() + prior_ss(), 1e-300) / dof) - 2.0 * u;
+      };
+      const double floor_u = std::log(1e-3 * sigma_exact);
+      double hi = std::log(sigma_exact), f_hi = f(hi), lo = hi, f_lo = f_hi;
+      while (f_lo <= 0.0 && lo > floor_u) {
+        hi = lo;
+        f_hi = f_lo;
+        lo -= std::log(4.0);
+        f_lo = f(lo);
+      }
+      if (f_lo <= 0.0) {
+        sigma_undetermined = true;
+        sigma_out = sigma_fallback = sigma_exact;
+      } else {
+        int side = 0;
+        double u = hi;
+        for (int it = 0; it < 60 && hi - lo > 1e-4; ++it) {
+          u = (lo * f_hi - hi * f_lo) / (f_hi - f_lo);
+          const double fu = f(u);
+          if (fu > 0.0) {
+            lo = u, f_lo = fu;
+            if (side == 1) f_hi *= 0.5;
+            side = 1;
+          } else {
+            hi = u, f_hi = fu;
+            if (side == -1) f_lo *= 0.5;
+            side = -1;
+          }
+        }
+        sigma_out = std::exp(u);
+      }
+      prior_weight = std::max(sigma_out, 1e-12 * field.norm()) / sigma_tilt;
+      solve();
     }
   } else {
     solve();
@@ -739,7 +783,8 @@ PositionsResult calibrate_positions(const SamplesRef& outputs, const SamplesRef&
     if (name.rfind("yaw_", 0) == 0 || name.rfind("tilt_", 0) == 0)
       local[static_cast<std::size_t>(j)] = std::stoi(name.substr(name.find('_') + 1));
   }
-  finish_statistics(r, J, scales, options.determined_tolerance, local, prior_ss(), options.output_sigma);
+  finish_statistics(r, J, scales, options.determined_tolerance, local, prior_ss(),
+                    sigma_undetermined ? sigma_fallback : options.output_sigma);
   std::vector<std::string> unobservable;
   for (Eigen::Index j = 0; j < p; ++j)
     if (!std::isfinite(r.standard_errors(j))) unobservable.push_back(r.parameter_names[static_cast<std::size_t>(j)]);
@@ -755,6 +800,11 @@ PositionsResult calibrate_positions(const SamplesRef& outputs, const SamplesRef&
   fill_summary(r, options.estimate_yaw ? "positions (joint, headings estimated)" : "positions (joint)");
   r.summary.converged = summary.IsSolutionUsable();
   if (!r.summary.converged) r.summary.warnings.push_back("Ceres: " + summary.message);
+  if (sigma_undetermined)
+    r.summary.warnings.push_back(
+        "output noise σ is not determined by these positions (headings and levelling corrections absorb it): "
+        "it used σ = " + fmt(sigma_fallback) + " from the fit with the accelerometer taken as exact, so the "
+        "standard errors err on the large side; give output_sigma (the sensor's noise) or more positions");
   return r;
 }
 
