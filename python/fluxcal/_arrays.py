@@ -41,14 +41,21 @@ def set_options(options, settings: dict, what: str):
 def held_copies(m: np.ndarray):
     """Mask of the readings that are sample-and-hold copies of the one before (a logger faster than its
     sensor repeats the last reading), or None when there are none to speak of. Copies: ≥ 10 % of the rows
-    repeat the previous row exactly, in runs of one typical length L ≥ 2 (≥ 80 % of the runs of length
-    L − 1, L or L + 1). A coarse ADC on a slow turn also repeats readings, but in runs of spread-out
-    lengths, and those repeats are real readings."""
+    repeat the previous row exactly, and regularly — in runs of one typical length L with 2 ≤ L ≤ 10
+    (logger 2–10× the sensor's rate), or, below 2×, single repeats at one typical spacing G ≥ 2 (75 Hz
+    logged at 100 Hz: every 4th row). "Typical": ≥ 80 % within ±1 of the mode. A coarse ADC on a slow
+    turn also repeats readings, but irregularly, and those repeats are real readings; so are a static
+    device's long runs."""
     repeat = np.concatenate([[False], np.all(m[1:] == m[:-1], axis=1)])
     if len(m) < 3 or repeat.mean() < 0.1:
         return None
+
+    def typical(values, low, high):
+        counts = np.bincount(values)
+        mode = int(np.argmax(counts))
+        return low <= mode <= high and counts[max(mode - 1, 1):mode + 2].sum() >= 0.8 * len(values)
+
     runs = np.diff(np.append(np.flatnonzero(~repeat), len(repeat)))
-    counts = np.bincount(runs)
-    mode = int(np.argmax(counts))
-    regular = mode >= 2 and counts[max(mode - 1, 1):mode + 2].sum() >= 0.8 * len(runs)
+    spacing = np.diff(np.flatnonzero(repeat))
+    regular = typical(runs, 2, 10) or (np.all(runs <= 2) and len(spacing) > 2 and typical(spacing, 2, 10 ** 6))
     return repeat if regular else None

@@ -156,3 +156,61 @@ def test_time_from_a_stated_sample_rate(tmp_path):
     assert rec.roles()["time"] == "row / 25 Hz (metadata sample rate)"
     path.write_text("# sensor: RM3100\nmag_x,mag_y,mag_z\n1,2,3\n")
     assert fluxcal.read_recording(path).time() is None
+
+
+@pytest.mark.parametrize("names, expected", [
+    # qualifiers after the axis (found by review): raw wins over calibrated
+    (["MagX", "MagY", "MagZ", "MagXRaw", "MagYRaw", "MagZRaw"], ("MagXRaw", "MagYRaw", "MagZRaw")),
+    (["mag_x_raw", "mag_y_raw", "mag_z_raw", "mag_x", "mag_y", "mag_z"], ("mag_x_raw", "mag_y_raw", "mag_z_raw")),
+    (["mx_raw", "my_raw", "mz_raw"], ("mx_raw", "my_raw", "mz_raw")),
+    # an accelerometer or gyro is never the magnetometer
+    (["accelerometer_m_s2[0]", "accelerometer_m_s2[1]", "accelerometer_m_s2[2]", "gyro_rad[0]", "gyro_rad[1]",
+      "gyro_rad[2]"], None),
+    (["acc_b_x", "acc_b_y", "acc_b_z", "x", "y", "z"], ("x", "y", "z")),
+])
+def test_review_cases_for_triples(names, expected):
+    assert find_magnetometer(names) == expected
+
+
+def test_review_cases_for_units_and_headers(tmp_path):
+    assert find_time(["Time"], {"Time": "min"}) == ("Time", 60.0)
+    assert find_time(["time"], {"time": "ticks"}) is None          # an unknown unit is not guessed
+    assert find_temperature(["Temp"], {"Temp": "mdegC"}) is None
+    px4 = {"timestamp": np.arange(5) * 20000.0}                      # PX4 CSV: µs without a unit
+    assert find_time(["timestamp"], {}, px4) == ("timestamp", 1e-6)
+    cases = {"ulog2csv": "magnetometer_ga[0],magnetometer_ga[1],magnetometer_ga[2]\n1,2,3\n4,5,6\n",
+             "trailing_comma": "mx,my,mz,\n1,2,3,\n4,5,6,\n",
+             "quoted": '"mx","my","mz"\n"1","2","3"\n"4","5","6"\n',
+             "status_with_numbers": "status,mx,my,mz\nOK,1,2,3\n1,4,5,6\nOK,7,8,9\nOK,1,1,1\n"}
+    for name, text in cases.items():
+        path = tmp_path / f"{name}.csv"
+        path.write_text(text)
+        assert fluxcal.read_recording(path).samples()[:2].tolist() == [[1, 2, 3], [4, 5, 6]], name
+    path = tmp_path / "garbled_first.csv"
+    path.write_text("mx,my,mz\ngarbage\n1,2,3\n4,5,6\n")
+    with pytest.raises(ValueError, match="line 2: 1 fields, the header has 3"):
+        fluxcal.read_recording(path)
+    assert fluxcal.read_recording(path, bad_lines="skip").samples().shape == (2, 3)
+
+
+def test_review_cases_for_timestamps(tmp_path):
+    from fluxcal.io.csv import _timestamps
+
+    day_first, _ = _timestamps(["12/11/2026 23:59:59", "13/11/2026 00:00:00", "13/11/2026 00:00:01"])
+    assert day_first.tolist() == [0.0, 1.0, 2.0]
+    past_midnight, _ = _timestamps(["23:59:59.5", "00:00:00.0", "00:00:00.5"])
+    assert past_midnight.tolist() == [0.0, 0.5, 1.0]
+    offsets, first = _timestamps(["2026-11-23T10:00:00+01:00", "2026-11-23T09:00:01Z"])
+    assert offsets.tolist() == [0.0, 1.0] and first.startswith("2026-11-23T09:00:00")
+    for labels in (["T1", "T2", "T3"], ["3-1", "3-2", "4-1"], ["Jan", "Feb", "Mar"]):
+        assert _timestamps(labels) == (None, None)
+
+
+def test_sample_and_hold_below_twice_the_rate():
+    from fluxcal._arrays import held_copies
+
+    rng = np.random.default_rng(0)
+    readings = rng.normal(size=(2300, 3))
+    logged = readings[np.floor(np.arange(3000) * 75 / 100).astype(int)]   # 75 Hz sensor, 100 Hz logger
+    assert held_copies(logged).mean() == pytest.approx(0.25)
+    assert held_copies(np.repeat(readings[:24], 100, axis=0)) is None      # a static device's long runs

@@ -21,20 +21,21 @@ MAG_WORDS = {"m", "mag", "mags", "magn", "magnet", "magnetometer", "magnetic", "
              "b", "bfield", "h", "field", "flux", "fluxgate"}
 ACC_WORDS = {"a", "acc", "accel", "accelerometer", "acceleration", "accl"}
 TIME_WORDS = {"t", "time", "times", "timestamp", "timeus", "timems", "elapsed", "sec", "secs", "seconds", "datetime",
-              "utc", "gpstime"}
+              "utc", "gps", "gpstime"}
 TEMP_WORDS = {"temp", "temperature", "tmp", "temperatur", "celsius"}
+GYRO_WORDS = {"gyro", "gyr", "gyroscope", "gyros", "omega", "angular", "rad"}
 CALIBRATED_WORDS = {"cal", "calibrated", "corr", "corrected", "comp", "compensated", "filtered", "fused"}
 RAW_WORDS = {"raw", "uncal", "uncalibrated", "uncorrected"}
 # unit words a logger appends to a name -> the unit string fluxcal records
 FIELD_UNITS = {"nt": "nT", "ut": "uT", "µt": "uT", "mt": "mT", "g": "G", "ga": "G", "gauss": "G", "mg": "mG",
                "mgauss": "mG", "milligauss": "mG", "counts": "counts", "lsb": "counts"}
 TIME_UNITS = {"s": 1.0, "sec": 1.0, "secs": 1.0, "seconds": 1.0, "ms": 1e-3, "us": 1e-6, "µs": 1e-6,
-              "ns": 1e-9}
+              "ns": 1e-9, "min": 60.0, "mins": 60.0, "minutes": 60.0, "h": 3600.0, "hr": 3600.0, "hours": 3600.0}
 TEMP_UNITS = {"c": "C", "degc": "C", "celsius": "C", "°c": "C", "k": "K", "kelvin": "K", "f": "F",
               "degf": "F", "fahrenheit": "F"}
 _UNIT_WORDS = set(FIELD_UNITS) | set(TIME_UNITS) | set(TEMP_UNITS) | {"hz", "khz"}
 _AXES = {"x": 0, "y": 1, "z": 2}
-_CAMEL = re.compile(r"(?<=[a-z0-9])(?=[A-Z])|(?<=[A-Za-z])(?=[0-9])|(?<=[0-9])(?=[A-Za-z])")
+_CAMEL = re.compile(r"(?<=[a-z0-9])(?=[A-Z])|(?<=[A-Z])(?=[A-Z][a-z])|(?<=[A-Za-z])(?=[0-9])|(?<=[0-9])(?=[A-Za-z])")
 
 
 def words(name: str) -> list[str]:
@@ -68,17 +69,41 @@ def _axis_of(ws: list[str]):
 
 
 def _triples(names, kind_words):
-    """{prefix words: (name_x, name_y, name_z)} for complete triples whose prefix has a word of kind_words."""
+    """{prefix words: (name_x, name_y, name_z)} for complete triples whose prefix has a word of kind_words
+    (a magnetometer's prefix must not also name an accelerometer or a gyro). Qualifiers after the axis
+    (mag_x_raw, MagXCal) count as part of the prefix."""
     groups: dict[tuple, dict[int, str]] = {}
+    other = (ACC_WORDS | GYRO_WORDS) if kind_words is MAG_WORDS else (MAG_WORDS - {"m"}) | GYRO_WORDS
     for name in names:
-        ws, _ = _peel_unit(words(name), FIELD_UNITS if kind_words is MAG_WORDS else {"g": 1, "ms2": 1, "mss": 1})
+        ws = words(name)
+        ws = _drop_accel_unit(ws)
+        ws, _ = _peel_unit(ws, FIELD_UNITS if kind_words is MAG_WORDS else {"g": 1})
+        qualifiers = []
+        while len(ws) > 1 and ws[-1] in RAW_WORDS | CALIBRATED_WORDS:
+            qualifiers.insert(0, ws.pop())
         hit = _axis_of(ws)
         if hit is None:
             continue
         prefix, axis = hit
-        if set(prefix) & kind_words:
+        prefix = prefix + tuple(qualifiers)
+        if set(prefix) & kind_words and not set(prefix) & other:
             groups.setdefault(prefix, {}).setdefault(axis, name)
     return {p: (g[0], g[1], g[2]) for p, g in groups.items() if len(g) == 3}
+
+
+def _drop_accel_unit(ws: list[str]) -> list[str]:
+    """Remove an acceleration unit written as words (m_s2, m/s^2 → m, s, 2) wherever it sits."""
+    out, k = [], 0
+    while k < len(ws):
+        if ws[k:k + 3] == ["m", "s", "2"]:
+            k += 3
+            continue
+        if ws[k] in ("ms2", "mss"):
+            k += 1
+            continue
+        out.append(ws[k])
+        k += 1
+    return out
 
 
 def find_magnetometer(names, source: str = "recording"):
@@ -130,15 +155,22 @@ def _find_one(names, canonical: str, kind_words, unit_table):
     return _single(names, kind_words, unit_table)
 
 
-def find_time(names, units: dict):
+def find_time(names, units: dict, values=None):
     """(column, factor to seconds) or None. The unit comes from the units map, else the name's unit
-    word (TimeUS, time_ms), else seconds."""
+    word (TimeUS, time_ms), else seconds — except a unitless `timestamp` stepping by ≥ 1000 per row
+    (`values`: the columns), which is PX4's microseconds. A stated unit that is not a time unit
+    ("ticks") is not guessed: None."""
     hit = _find_one(names, "t", TIME_WORDS, TIME_UNITS)
     if hit is None:
         return None
     name, word = hit
     stated = (units.get(name) or "").strip().lower().replace("μ", "µ")
-    return name, TIME_UNITS.get(stated) or TIME_UNITS.get(word or "", 1.0)
+    if stated:
+        return (name, TIME_UNITS[stated]) if stated in TIME_UNITS else None
+    if word is None and "timestamp" in words(name) and values is not None and len(values[name]) > 1:
+        if np.median(np.diff(values[name])) >= 1000.0:
+            return name, 1e-6
+    return name, TIME_UNITS.get(word or "", 1.0)
 
 
 def find_temperature(names, units: dict):
@@ -148,7 +180,9 @@ def find_temperature(names, units: dict):
         return None
     name, word = hit
     stated = (units.get(name) or "").strip().lower().replace("°", "").replace("deg", "")
-    return name, TEMP_UNITS.get(stated) or TEMP_UNITS.get(word or "", "C")
+    if stated:  # a stated unit that is not °C, K or °F (mdegC, raw) is not guessed
+        return (name, TEMP_UNITS[stated]) if stated in TEMP_UNITS else None
+    return name, TEMP_UNITS.get(word or "", "C")
 
 
 def field_unit_of(name: str) -> str:

@@ -13,6 +13,7 @@ with empty units. Errors name the file, line and column.
 """
 from __future__ import annotations
 
+import csv as _csv
 import io
 import re
 from pathlib import Path
@@ -26,8 +27,13 @@ _UNIT_IN_HEADER = re.compile(r"^\s*([^\[\(]+?)\s*[\[\(]\s*([^\]\)]*)\s*[\]\)]\s*
 
 
 def _split_header(cell: str):
+    """'mx [nT]' -> ('mx', 'nT'); an index in brackets is part of the name: 'mag[0]' -> ('mag[0]', '');
+    quotes around a name are dropped."""
+    cell = cell.strip().strip('"').strip("'")
     m = _UNIT_IN_HEADER.match(cell)
-    return (m.group(1).strip(), m.group(2).strip()) if m else (cell.strip(), "")
+    if m is None or m.group(2).strip().isdigit():
+        return cell, ""
+    return m.group(1).strip(), m.group(2).strip()
 
 
 def read_csv(path, columns=None, units: str | None = None, delimiter: str = ",", bad_lines: str = "error"
@@ -69,6 +75,8 @@ def parse_csv(path, lines, delimiter=",", preamble_lines: int = 0, bad_lines: st
         names.append(name)
         if unit:
             unit_map.setdefault(name, unit)
+    if names and not names[-1]:  # a header ending in the delimiter (mx,my,mz,): an unnamed column,
+        names[-1] = f"column{len(names)}"  # kept under this name (left out later if it is empty)
     if any(not n for n in names) or len(set(names)) != len(names):
         raise ValueError(f"{path}, line {header_line}: header {lines[i]!r} has empty or repeated column names")
     if _is_number(names[0]):
@@ -103,9 +111,14 @@ def parse_mixed_rows(path, lines, start: int, names, delimiter, bad_lines: str, 
     notes = [(start + k + 1, line.lstrip().lstrip("#").strip()) for k, line in enumerate(body)
              if line.lstrip().startswith("#")]
     line_numbers = np.array([start + k + 1 for k in keep], dtype=int)
-    cells = [body[k].split(delimiter) for k in keep]
+    if delimiter is not None and any('"' in body[k] for k in keep[:200]):  # quoted cells ("a, b")
+        cells = list(_csv.reader((body[k] for k in keep), delimiter=delimiter))
+    else:
+        cells = [body[k].split(delimiter) for k in keep]
     whole = [c for c in cells if len(c) == len(names)]
-    text = [j for j in range(len(names)) if whole and not any(_is_number(c[j]) for c in whole)]
+    # A column is text when most of its cells are not numbers (a status field that is sometimes "1");
+    # an all-empty column (from a trailing delimiter) is text too and is left out.
+    text = [j for j in range(len(names)) if whole and sum(_is_number(c[j]) for c in whole) < 0.5 * len(whole)]
     columns, text_notes = {}, []
     for j in text:
         values = [c[j].strip() if len(c) == len(names) else "" for c in cells]
@@ -149,22 +162,58 @@ def parse_mixed_rows(path, lines, start: int, names, delimiter, bad_lines: str, 
         metadata["skipped_lines"] = f"{len(skipped)} of {len(cells)}: " + "; ".join(skipped[:10]) + \
             (f"; … {len(skipped) - 10} more" if len(skipped) > 10 else "")
     kept = [j for j in range(len(names)) if j in numeric or j in columns]
+    if not any(j in numeric for j in kept):
+        raise ValueError(f"{path}: no column of numbers (" + metadata.get("text_columns", "") + ")"
+                         + (f"; is the delimiter {delimiter!r} right?" if delimiter else ""))
     data = np.empty((len(good), len(kept)))
     for out, j in enumerate(kept):
         data[:, out] = columns[j][good] if j in columns else [float(cells[r][j]) for r in good]
     return [names[j] for j in kept], data, line_numbers[good], notes
 
 
+_STAMP = re.compile(r"\d{1,2}:\d{2}|\d{4}-\d{1,2}-\d{1,2}|\d{1,2}[/.]\d{1,2}[/.]\d{2,4}")
+_DATE = re.compile(r"\d{4}-\d{1,2}-\d{1,2}|\d{1,2}[/.]\d{1,2}[/.]\d{2,4}")
+
+
 def _timestamps(values):
     """(seconds since the first, first as ISO text) when at least 90 % of the values are dates/times
-    (the rest, garbled or empty, become NaN and their lines bad lines), else (None, None)."""
+    (the rest, garbled or empty, become NaN and their lines bad lines), else (None, None). Only values
+    that look like a clock time or a date are tried (not labels such as "T1" or "3-1"); offsets are
+    taken to UTC; of month-first and day-first the reading that runs forward wins; a time of day without
+    a date is unwrapped across midnight."""
     import warnings
 
     import pandas as pd
 
     present = [v for v in values if v]
-    if not present or _is_number(present[0]):
+    sample = present[:200]
+    if not sample or sum(bool(_STAMP.search(v)) for v in sample) < 0.9 * len(sample):
         return None, None
+    series = pd.Series(values).replace("", None)
+    best = None
+    for fmt, dayfirst in (("ISO8601", False), ("mixed", False), ("mixed", True)):
+        try:
+            with warnings.catch_warnings():
+                warnings.simplefilter("ignore")
+                if pd.to_datetime(pd.Series(sample), format=fmt, dayfirst=dayfirst, utc=True,
+                                  errors="coerce").notna().mean() < 0.9:
+                    continue  # decided on a sample: a whole column of non-dates is not parsed one by one
+                stamps = pd.to_datetime(series, format=fmt, dayfirst=dayfirst, utc=True, errors="coerce")
+        except (ValueError, TypeError, OverflowError):
+            continue
+        if stamps.notna().sum() < 0.9 * len(values):
+            continue
+        first = stamps[stamps.notna()].iloc[0]
+        seconds = ((stamps - first).dt.total_seconds()).to_numpy(dtype=float)
+        if not any(_DATE.search(v) for v in sample):  # a time of day: add a day at each wrap past midnight
+            steps = np.diff(np.nan_to_num(seconds, nan=0.0), prepend=0.0)
+            seconds = seconds + 86400.0 * np.cumsum(steps < -43200.0)
+        backwards = int(np.sum(np.diff(seconds[np.isfinite(seconds)]) < 0))
+        if best is None or backwards < best[0]:
+            best = (backwards, seconds, first.isoformat())
+        if backwards == 0:
+            break
+    return (None, None) if best is None else best[1:]
     for fmt in ("ISO8601", "mixed"):
         try:
             with warnings.catch_warnings():

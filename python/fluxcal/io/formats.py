@@ -130,14 +130,13 @@ def _read_table(path: Path, columns, units, bad_lines: str = "error") -> Recordi
 
 
 def _delimiter(lines, start: int):
-    """The delimiter of the first line after the header (or of the header itself): tab, comma,
-    semicolon or whitespace (None)."""
-    sample = next((line for line in lines[start + 1:] if line.strip() and not line.lstrip().startswith("#")),
-                  lines[start])
-    for candidate in ("\t", ",", ";"):
-        if candidate in sample:
-            return candidate
-    return None
+    """The delimiter of the table: tab, comma or semicolon — the one found in most of the header and the
+    first 20 data lines (so one garbled first line does not decide) — else whitespace (None)."""
+    sample = [lines[start]] + [line for line in lines[start + 1:start + 400]
+                               if line.strip() and not line.lstrip().startswith("#")][:20]
+    counts = {c: sum(c in line for line in sample) for c in ("\t", ",", ";")}
+    best = max(counts, key=lambda c: counts[c])
+    return best if counts[best] > len(sample) / 2 else None
 
 
 def write_recording(path, rec: Recording) -> Path:

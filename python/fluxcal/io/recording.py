@@ -65,7 +65,7 @@ class Recording:
         """Time of each reading in seconds (column t, else one recognised by name such as time, TimeUS,
         time_ms, timestamp, converted by its unit; else row / rate when the metadata states a sample rate
         such as `# sample_rate_hz: 50`), or None."""
-        hit = find_time(self.columns, self.units)
+        hit = find_time(self.columns, self.units, self.columns)
         if hit is not None:
             return self.columns[hit[0]] * hit[1]
         rate = sample_rate(self.metadata)
@@ -97,7 +97,7 @@ class Recording:
             out["magnetometer"] = ",".join(self.mag_names())
         except ValueError:
             pass
-        hit, rate = find_time(self.columns, self.units), sample_rate(self.metadata)
+        hit, rate = find_time(self.columns, self.units, self.columns), sample_rate(self.metadata)
         if hit:
             out["time"] = hit[0] + (f" (×{hit[1]:g} → s)" if hit[1] != 1.0 else "")
         elif rate:
