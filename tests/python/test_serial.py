@@ -275,8 +275,9 @@ def test_recorder_through_pty_loses_nothing(tmp_path):
     notes = rec.metadata["notes"]
     assert "disconnected at t_host=" in notes and "reconnected at t_host=" in notes
     assert "summary: 460 records, 8 rejected" in notes
-    # the pause (0.5 s without data, not a disconnect) and the replug each leave a gap in t_host
-    assert np.sum(np.diff(rec.columns["t_host"]) >= 0.4) == 2
+    # the pause (0.5 s without data, not a disconnect) and the replug each leave a gap in t_host (at least
+    # these two: a loaded machine can stall the reader for as long)
+    assert np.sum(np.diff(rec.columns["t_host"]) >= 0.4) >= 2
 
 
 def test_record_command_kv_through_pty(tmp_path):
