@@ -523,6 +523,7 @@ class Recorder:
                     stop = self._stop_reason(deadline)
                     if stop:
                         stats.stopped = stop
+                        self._drain(port, start)  # bytes already received belong to the recording
                         break
                     try:
                         data = port.read(port.in_waiting or 1)
@@ -549,6 +550,20 @@ class Recorder:
                     self.writer.note(stats.summary_note())
                     self.writer.close()
         return stats
+
+    def _drain(self, port, start: float) -> None:
+        """Handle what the port has already buffered (a slow reader can be behind the device by many
+        frames when the stop comes), without waiting for more."""
+        for _ in range(10000):  # bounded: a device that never pauses cannot keep the recorder alive
+            try:
+                waiting = port.in_waiting
+                if not waiting:
+                    return
+                data = port.read(waiting)
+            except (serial.SerialException, OSError):
+                return
+            if data and self._handle(self.decoder.feed(data), self.clock() - start):
+                return
 
     def _stop_reason(self, deadline) -> str:
         if self._interrupted.is_set():
