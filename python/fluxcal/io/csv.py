@@ -214,19 +214,6 @@ def _timestamps(values):
         if backwards == 0:
             break
     return (None, None) if best is None else best[1:]
-    for fmt in ("ISO8601", "mixed"):
-        try:
-            with warnings.catch_warnings():
-                warnings.simplefilter("ignore")
-                stamps = pd.to_datetime(pd.Series(values).replace("", None), format=fmt, errors="coerce")
-        except (ValueError, TypeError, OverflowError):
-            continue
-        if stamps.notna().sum() < 0.9 * len(values):
-            continue
-        first = stamps[stamps.notna()].iloc[0]
-        seconds = ((stamps - first).dt.total_seconds()).to_numpy(dtype=float)
-        return seconds, first.isoformat()
-    return None, None
 
 
 def read_text(path) -> str:
