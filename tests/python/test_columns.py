@@ -41,6 +41,7 @@ def test_two_compasses_is_an_error_listing_both():
 def test_time_temperature_and_accelerometer_names():
     assert find_time(["TimeUS", "MagX"], {}) == ("TimeUS", 1e-6)
     assert find_time(["time_ms"], {}) == ("time_ms", 1e-3)
+    assert find_time(["timeus"], {}) == ("timeus", 1e-6)  # lower case, one word
     assert find_time(["timestamp"], {"timestamp": "us"}) == ("timestamp", 1e-6)
     assert find_time(["elapsed"], {"elapsed": "ms"}) == ("elapsed", 1e-3)  # the header unit wins
     assert find_time(["T", "mx"], {}) is None  # a lone T is not guessed
