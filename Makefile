@@ -30,6 +30,7 @@ bench: install cpp
 	$(PY) bench/diagnose.py --real ../shared/data/real --timing
 	$(PY) bench/diagnose_cable.py
 	$(PY) bench/batch.py
+	$(PY) bench/uncertainty.py
 
 # Debian packages: only the missing ones, without recommends (Ceres would pull ~180 MB of GraphBLAS).
 deps:

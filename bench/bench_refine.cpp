@@ -1,7 +1,9 @@
 // bench_refine — Google Benchmark of the iterative and consistent solvers, N = 1e3 and 1e5:
 //   BM_FitEllipsoidALS   adjusted least squares (moments pass + bisection on the adjusted scatter)
 //   BM_Refine            Ceres maximum-likelihood refinement (magnitude model) from the ALS fit,
-//                        including the covariance
+//                        including the covariance (and the Ljung–Box test of the residuals)
+//   BM_RefineIndependent / BM_RefineNeweyWest   the same with the covariance forced to assume
+//                        independent readings / forced to Newey–West: the cost of the correlation check
 //   BM_FitVector         closed-form vector calibration (one pass)
 //   BM_RefineVector      Ceres vector-model refinement with a Huber loss
 // Readings: m = W h + b + noise, |h| = 50, symmetric W, σ = 0.5 (1 % of the field).
@@ -59,6 +61,17 @@ void BM_Refine(benchmark::State& state) {
   state.SetItemsProcessed(state.iterations() * state.range(0));
 }
 
+void refine_with(benchmark::State& state, fluxcal::SerialCorrelation mode) {
+  const Data& d = data(state.range(0));
+  const fluxcal::Calibration start = fluxcal::fit_ellipsoid(d.readings, als_options()).calibration;
+  fluxcal::RefineOptions o;
+  o.serial_correlation = mode;
+  for (auto _ : state) benchmark::DoNotOptimize(fluxcal::refine(start, d.readings, o).calibration.offset);
+  state.SetItemsProcessed(state.iterations() * state.range(0));
+}
+void BM_RefineIndependent(benchmark::State& state) { refine_with(state, fluxcal::SerialCorrelation::independent); }
+void BM_RefineNeweyWest(benchmark::State& state) { refine_with(state, fluxcal::SerialCorrelation::newey_west); }
+
 void BM_FitVector(benchmark::State& state) {
   const Data& d = data(state.range(0));
   for (auto _ : state) benchmark::DoNotOptimize(fluxcal::fit_vector(d.readings, d.reference).calibration.offset);
@@ -77,6 +90,8 @@ void BM_RefineVector(benchmark::State& state) {
 #define FLUXCAL_SIZES ->Arg(1000)->Arg(100000)->Unit(benchmark::kMillisecond)
 BENCHMARK(BM_FitEllipsoidALS) FLUXCAL_SIZES;
 BENCHMARK(BM_Refine) FLUXCAL_SIZES;
+BENCHMARK(BM_RefineIndependent) FLUXCAL_SIZES;
+BENCHMARK(BM_RefineNeweyWest) FLUXCAL_SIZES;
 BENCHMARK(BM_FitVector) FLUXCAL_SIZES;
 BENCHMARK(BM_RefineVector) FLUXCAL_SIZES;
 #undef FLUXCAL_SIZES

@@ -21,6 +21,10 @@ py::dict result_dict(const fluxcal::RefineResult& r) {
   d["noise_sigma"] = r.noise_sigma;
   d["fisher_condition"] = r.fisher_condition;
   d["solver_report"] = r.solver_report;
+  const fluxcal::SerialCorrelationReport& sc = r.serial_correlation;
+  d["serial_correlation"] = py::dict("lag1"_a = sc.lag1, "ljung_box_p"_a = sc.ljung_box_p, "lags"_a = sc.lags,
+                                     "inflation"_a = sc.inflation,
+                                     "standard_errors_independent"_a = sc.standard_errors_independent);
   d["residuals"] = r.residuals;
   d["jacobian"] = r.jacobian;
   return d;
@@ -44,6 +48,10 @@ void bind_refine(py::module_& m) {
       .value("none", fluxcal::Loss::none)
       .value("huber", fluxcal::Loss::huber)
       .value("cauchy", fluxcal::Loss::cauchy);
+  py::enum_<fluxcal::SerialCorrelation>(m, "SerialCorrelation")
+      .value("automatic", fluxcal::SerialCorrelation::automatic)
+      .value("independent", fluxcal::SerialCorrelation::independent)
+      .value("newey_west", fluxcal::SerialCorrelation::newey_west);
   py::class_<RefineOptions>(m, "RefineOptions")
       .def(py::init<>())
       .def_readwrite("loss", &RefineOptions::loss)
@@ -54,7 +62,9 @@ void bind_refine(py::module_& m) {
       .def_readwrite("parameter_tolerance", &RefineOptions::parameter_tolerance)
       .def_readwrite("determined_tolerance", &RefineOptions::determined_tolerance)
       .def_readwrite("units", &RefineOptions::units)
-      .def_readwrite("noise_bias_correction", &RefineOptions::noise_bias_correction);
+      .def_readwrite("noise_bias_correction", &RefineOptions::noise_bias_correction)
+      .def_readwrite("serial_correlation", &RefineOptions::serial_correlation)
+      .def_readwrite("serial_correlation_alpha", &RefineOptions::serial_correlation_alpha);
 
   m.def(
       "refine",

@@ -17,6 +17,9 @@ from ._arrays import as_samples, set_options
 from .calibration import Calibration
 
 LOSSES = {"none": _core.Loss.none, "huber": _core.Loss.huber, "cauchy": _core.Loss.cauchy}
+SERIAL_CORRELATION = {"automatic": _core.SerialCorrelation.automatic,
+                      "independent": _core.SerialCorrelation.independent,
+                      "newey_west": _core.SerialCorrelation.newey_west}
 
 
 def _options(loss="none", loss_scale=0.0, units="", **settings):
@@ -26,6 +29,11 @@ def _options(loss="none", loss_scale=0.0, units="", **settings):
     options.loss = LOSSES[loss]
     options.loss_scale = float(loss_scale)
     options.units = units or ""
+    if isinstance(settings.get("serial_correlation"), str):
+        name = settings["serial_correlation"]
+        if name not in SERIAL_CORRELATION:
+            raise ValueError(f"serial_correlation: {name!r} is not one of {', '.join(SERIAL_CORRELATION)}")
+        settings = {**settings, "serial_correlation": SERIAL_CORRELATION[name]}
     return set_options(options, settings, "refine")
 
 
@@ -36,6 +44,9 @@ def _calibration(result: dict, method: str) -> Calibration:
     for key in ("parameters", "standard_errors", "covariance"):
         summary[key] = np.asarray(result[key]).tolist()
     summary["determined"] = list(result["determined"])
+    serial = dict(result["serial_correlation"])
+    serial["standard_errors_independent"] = np.asarray(serial["standard_errors_independent"]).tolist()
+    summary["serial_correlation"] = serial
     summary["method"] = method
     return Calibration(offset=result["offset"], matrix=result["matrix"], field_norm=result["field_norm"],
                        units=result["units"], model=result["model"], summary=summary)
@@ -49,7 +60,11 @@ def refine(calibration: Calibration, samples, reference=None, loss: str = "none"
     made symmetric first. With `reference` (N×3 true field per reading, sensor frame) the vector model.
     loss: "none", "huber" or "cauchy"; loss_scale in reading units (0 = 3 × robust noise estimate).
     settings: max_iterations, function_tolerance, gradient_tolerance, parameter_tolerance,
-    determined_tolerance (default 0.01 of each parameter's scale).
+    determined_tolerance (default 0.01 of each parameter's scale), serial_correlation ("automatic":
+    Newey–West standard errors when the residuals, rows in time order, fail a Ljung–Box test at
+    serial_correlation_alpha = 0.01; "independent"; "newey_west"). summary["serial_correlation"] holds
+    the residuals' lag-1 autocorrelation, the test's p-value, the Newey–West lags (0 = independent
+    readings assumed), the inflation of the standard errors and the independent-readings ones.
     """
     m = as_samples(samples)
     options = _options(loss, loss_scale, calibration.units, **settings)

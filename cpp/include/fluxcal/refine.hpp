@@ -13,6 +13,11 @@
 //
 // Both return the covariance of θ, σ̂² (JᵀJ)⁻¹ at the solution, standard errors, whether the data
 // determine each parameter, and the condition number of the (column-scaled) Fisher information JᵀJ.
+// Readings logged while the sensor turns are rarely independent: slow disturbances and model misfit
+// along a smooth path make the residuals correlated in time, and σ̂² (JᵀJ)⁻¹ then understates the
+// uncertainty several-fold. When the residuals fail a Ljung–Box test (taking the rows in time order),
+// the covariance is the Newey–West sandwich F⁻¹ S F⁻¹, S the Bartlett-weighted long-run covariance of
+// the per-reading scores g_i = J_iᵀ r_i, its bandwidth Politis & White's automatic block length.
 // (The covariance comes from an eigen-decomposition of JᵀJ rather than ceres::Covariance: the same
 // matrix, a 9×9 problem instead of an SVD of the N×9 Jacobian, and near-singular cases are reported
 // as undetermined parameters instead of a failed computation.)
@@ -29,6 +34,13 @@ enum class Loss {
   none,    ///< plain least squares (maximum likelihood under Gaussian noise)
   huber,   ///< quadratic below loss_scale, linear above
   cauchy,  ///< log(1 + (r/loss_scale)²): strong down-weighting of outliers
+};
+
+/// How the covariance treats correlation between readings (rows taken in time order).
+enum class SerialCorrelation {
+  automatic,    ///< Newey–West when the residuals fail the Ljung–Box test, else independent readings
+  independent,  ///< σ̂² (JᵀJ)⁻¹ whatever the residuals (rows not in time order, or for comparison)
+  newey_west,   ///< always the Newey–West sandwich
 };
 
 struct RefineOptions {
@@ -50,6 +62,19 @@ struct RefineOptions {
   /// ~σ²/H² (0.25 % at σ = 5 %). With this on, a second solve fits |h| to H + σ̂²‖A‖_F²/(3H), σ̂ from
   /// the first; the Calibration still reports H.
   bool noise_bias_correction = true;
+  SerialCorrelation serial_correlation = SerialCorrelation::automatic;
+  /// Significance of the Ljung–Box test (20 lags, or N/5 when fewer) that switches `automatic` to
+  /// Newey–West. Strict, so that white noise keeps the exact independent-readings covariance.
+  double serial_correlation_alpha = 0.01;
+};
+
+/// What the residuals say about correlation between readings, and what the covariance did about it.
+struct SerialCorrelationReport {
+  double lag1 = 0.0;                 ///< lag-1 autocorrelation of the residuals (mean over axes for vectors)
+  double ljung_box_p = 1.0;          ///< Ljung–Box p-value (smallest axis × 3 for vectors)
+  int lags = 0;                      ///< Newey–West bandwidth; 0 = independent readings assumed
+  double inflation = 1.0;            ///< largest ratio of the reported to the independent-readings standard error
+  Eigen::VectorXd standard_errors_independent;  ///< sqrt diag σ̂² (JᵀJ)⁻¹, for comparison
 };
 
 struct RefineResult {
@@ -57,13 +82,14 @@ struct RefineResult {
   Summary summary;
   Eigen::VectorXd parameters;               ///< θ, in the order of parameter_names
   std::vector<std::string> parameter_names;  ///< "b0".."b2", then "a00".. or "w00"..
-  Eigen::MatrixXd covariance;               ///< σ̂² (JᵀJ)⁻¹; +inf on the diagonal where undetermined
+  Eigen::MatrixXd covariance;               ///< σ̂² (JᵀJ)⁻¹ or Newey–West; huge on the diagonal where undetermined
   Eigen::VectorXd standard_errors;          ///< sqrt of the covariance diagonal
   std::vector<bool> determined;             ///< per parameter (see RefineOptions::determined_tolerance)
   bool identifiable = true;                 ///< every parameter determined
   double noise_sigma = 0.0;                 ///< σ̂ from the final residuals (reading units)
   double fisher_condition = 0.0;            ///< condition number of the column-scaled JᵀJ
   std::string solver_report;                ///< Ceres' brief report
+  SerialCorrelationReport serial_correlation;  ///< empty for refine_terms (the diagnosis whitens itself)
   /// refine_terms only: the residuals at the solution (N magnitude, 3N vector: reading-major) and their
   /// Jacobian over all parameters (zero columns for fixed ones) — what score tests need.
   Eigen::VectorXd residuals;

@@ -4,7 +4,7 @@ from .coverage import direction_bins, direction_coverage
 from .ellipsoid import fit_ellipsoid, fit_ellipsoid_als
 from .refine import refine
 from .vector import crlb_vector, fit_vector
-from . import twostep
+from . import serial, twostep
 
 __all__ = ["crlb_vector", "direction_bins", "direction_coverage", "fit_ellipsoid", "fit_ellipsoid_als",
-           "fit_vector", "refine", "twostep"]
+           "fit_vector", "refine", "serial", "twostep"]

@@ -28,7 +28,7 @@ def refine(offset, matrix, field_norm, samples) -> dict:
     sigma2 = np.sum(sol.fun**2) / (len(m) - 9)
     cov = sigma2 * np.linalg.inv(sol.jac.T @ sol.jac)
     return {"parameters": sol.x, "offset": sol.x[:3], "matrix": _matrix(sol.x), "covariance": cov,
-            "noise_sigma": np.sqrt(sigma2)}
+            "noise_sigma": np.sqrt(sigma2), "jacobian": sol.jac, "residuals": sol.fun}
 
 
 def refine_terms(start, samples, features) -> np.ndarray:

@@ -44,6 +44,16 @@ def fit_vector(samples, reference) -> dict:
             "sigma": float(np.sqrt(ssr / (3 * (len(m) - 4))))}
 
 
+def jacobian(reference) -> np.ndarray:
+    """∂(m − W r − b)/∂θ in fluxcal's order θ = [b (3), W row-major (9)]: 3N × 12, reading-major rows."""
+    r = np.asarray(reference, dtype=float)
+    J = np.zeros((len(r), 3, 12))
+    for a in range(3):
+        J[:, a, a] = -1.0
+        J[:, a, 3 + 3 * a:6 + 3 * a] = -r
+    return J.reshape(-1, 12)
+
+
 def crlb_vector(reference, sigma) -> np.ndarray:
     """Cramér–Rao bound (12×12 covariance) of (W row-major, b) for m = W r + b + N(0, σ² I).
 
@@ -60,4 +70,4 @@ def crlb_vector(reference, sigma) -> np.ndarray:
     return out
 
 
-__all__ = ["crlb_vector", "fit_vector"]
+__all__ = ["crlb_vector", "fit_vector", "jacobian"]

@@ -1,0 +1,74 @@
+// Serial correlation in refine: white noise keeps the independent-readings covariance, noise
+// correlated in time along a smooth path switches to Newey–West and says so. (Agreement with the
+// statsmodels oracle is tested in tests/python/test_serial_correlation.py.)
+#include <fluxcal/ellipsoid.hpp>
+#include <fluxcal/refine.hpp>
+
+#include <gtest/gtest.h>
+
+#include <cmath>
+#include <random>
+
+#include "simulate.hpp"
+
+namespace {
+
+// A spiral over the whole sphere, consecutive readings close together (a sensor turned slowly),
+// with AR(1) noise of coefficient `phi` and stationary standard deviation `noise`·field per axis.
+fluxcal::Samples spiral(const fluxcal_test::Truth& t, int n, double noise, double phi, unsigned seed) {
+  std::mt19937 rng(seed);
+  std::normal_distribution<double> g(0.0, 1.0);
+  fluxcal::Samples s(n, 3);
+  Eigen::Vector3d e = Eigen::Vector3d::Zero();
+  const double pi = std::acos(-1.0);
+  for (int i = 0; i < n; ++i) {
+    const double z = 1.0 - 2.0 * (i + 0.5) / n, phase = 2.0 * pi * 20.0 * i / n, rho = std::sqrt(1.0 - z * z);
+    const Eigen::Vector3d dir(rho * std::cos(phase), rho * std::sin(phase), z);
+    e = phi * e + std::sqrt(1.0 - phi * phi) * Eigen::Vector3d(g(rng), g(rng), g(rng));
+    s.row(i) = (t.W * dir * t.field + t.b + noise * t.field * e).transpose();
+  }
+  return s;
+}
+
+fluxcal::RefineResult refined(const fluxcal::Samples& s, double field, const fluxcal::RefineOptions& o = {}) {
+  fluxcal::Calibration start = fluxcal::fit_ellipsoid(s).calibration;
+  start.field_norm = field;
+  return fluxcal::refine(start, s, o);
+}
+
+bool warns(const fluxcal::RefineResult& r) {
+  for (const auto& w : r.summary.warnings)
+    if (w.find("correlated in time") != std::string::npos) return true;
+  return false;
+}
+
+TEST(RefineSerialCorrelation, WhiteNoiseKeepsIndependentCovariance) {
+  const auto t = fluxcal_test::make_truth(3, 50.0);
+  const auto r = refined(spiral(t, 1500, 0.01, 0.0, 4), t.field);
+  EXPECT_EQ(r.serial_correlation.lags, 0);
+  EXPECT_GT(r.serial_correlation.ljung_box_p, 0.01);
+  EXPECT_TRUE(r.standard_errors.isApprox(r.serial_correlation.standard_errors_independent));
+  EXPECT_FALSE(warns(r));
+}
+
+TEST(RefineSerialCorrelation, CorrelatedNoiseWidensTheErrors) {
+  const auto t = fluxcal_test::make_truth(5, 50.0);
+  const auto s = spiral(t, 1500, 0.01, 0.95, 6);
+  const auto r = refined(s, t.field);
+  EXPECT_GT(r.serial_correlation.lag1, 0.5);
+  EXPECT_LT(r.serial_correlation.ljung_box_p, 1e-6);
+  EXPECT_GT(r.serial_correlation.lags, 10);
+  EXPECT_GT(r.serial_correlation.inflation, 2.0);
+  EXPECT_TRUE(warns(r));
+  for (Eigen::Index k = 0; k < 9; ++k)
+    EXPECT_GT(r.standard_errors(k), r.serial_correlation.standard_errors_independent(k));
+
+  fluxcal::RefineOptions off;
+  off.serial_correlation = fluxcal::SerialCorrelation::independent;
+  const auto plain = refined(s, t.field, off);
+  EXPECT_EQ(plain.serial_correlation.lags, 0);
+  EXPECT_TRUE(plain.standard_errors.isApprox(r.serial_correlation.standard_errors_independent));
+  EXPECT_FALSE(warns(plain));
+}
+
+}  // namespace
