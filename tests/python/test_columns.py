@@ -168,12 +168,22 @@ def test_time_from_a_stated_sample_rate(tmp_path):
     (["accelerometer_m_s2[0]", "accelerometer_m_s2[1]", "accelerometer_m_s2[2]", "gyro_rad[0]", "gyro_rad[1]",
       "gyro_rad[2]"], None),
     (["acc_b_x", "acc_b_y", "acc_b_z", "x", "y", "z"], ("x", "y", "z")),
+    # the Greek mu typed for the micro sign; axes numbered from 1 (left open by the last review)
+    (["mag_x_\u03bcT", "mag_y_\u03bcT", "mag_z_\u03bcT"], ("mag_x_\u03bcT", "mag_y_\u03bcT", "mag_z_\u03bcT")),
+    (["t", "mag_1", "mag_2", "mag_3"], ("mag_1", "mag_2", "mag_3")),
+    (["Mag1", "Mag2", "Mag3", "Acc1", "Acc2", "Acc3"], ("Mag1", "Mag2", "Mag3")),
+    (["mag[0]", "mag[1]", "mag[2]", "mag[3]"], ("mag[0]", "mag[1]", "mag[2]")),  # 0-based wins
+    (["mag_1", "mag_2"], None),
 ])
 def test_review_cases_for_triples(names, expected):
     assert find_magnetometer(names) == expected
 
 
 def test_review_cases_for_units_and_headers(tmp_path):
+    from fluxcal.io.columns import field_unit_of
+
+    assert field_unit_of("mag_x_\u03bcT") == "uT"
+    assert find_time(["time_\u03bcs"], {}) == ("time_\u03bcs", 1e-6)
     assert find_time(["Time"], {"Time": "min"}) == ("Time", 60.0)
     assert find_time(["time"], {"time": "ticks"}) is None          # an unknown unit is not guessed
     assert find_temperature(["Temp"], {"Temp": "mdegC"}) is None

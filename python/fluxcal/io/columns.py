@@ -5,7 +5,7 @@ Loggers name them MagX, mag_x, Mag_X (uT), magnetometer_ga[0], Bx, compass_x, x_
 timestamp; Temperature, temp_C, die_temp; AccX, accel_x, acc_x_g. A name is split into lowercase words
 (at separators, case changes and brackets); trailing unit words are peeled off and become the column's
 unit when the file states none; the axis is a last word x/y/z (or a last word such as "magx", or an
-index 0/1/2 after a magnetometer word). Three axes under the same words that include a magnetometer
+index 0/1/2 or 1/2/3 after a magnetometer word). Three axes under the same words that include a magnetometer
 word (mag, magnetometer, magnetic, compass, field, b, h, m, ...) are a magnetometer. When two such
 triples exist (raw and calibrated, two compasses) the one without a "calibrated/corrected" word wins,
 else the one marked raw/uncalibrated; anything still ambiguous is an error listing the triples, so the
@@ -41,6 +41,7 @@ _CAMEL = re.compile(r"(?<=[a-z0-9])(?=[A-Z])|(?<=[A-Z])(?=[A-Z][a-z])|(?<=[A-Za-
 def words(name: str) -> list[str]:
     """'Mag_X (uT)' -> ['mag', 'x', 'ut']; 'TimeUS' -> ['time', 'us']; 'magnetometer_ga[0]' -> [..., '0']."""
     out = []
+    name = name.replace("\u03bc", "\u00b5")  # Greek mu (μT, as some keyboards type it) → the micro sign
     for segment in filter(None, re.split(r"[^0-9A-Za-zµ°]+", name)):
         if segment.lower() in _UNIT_WORDS:  # uT, mGauss: a unit, not two words
             out.append(segment.lower())
@@ -56,15 +57,25 @@ def _peel_unit(ws: list[str], table) -> tuple[list[str], str | None]:
 
 
 def _axis_of(ws: list[str]):
-    """(prefix words, axis 0..2) when the name ends in an axis, else None."""
+    """(prefix words, axis) when the name ends in an axis, else None. The axis is 0..2 for x/y/z, or
+    ("index", k) for a number 0..3 after a magnetometer/accelerometer word (0-based or 1-based: which
+    one is settled once the triple is complete)."""
     if len(ws) >= 2 and ws[-1] in _AXES:
         return tuple(ws[:-1]), _AXES[ws[-1]]
     if len(ws) >= 2 and ws[0] in _AXES:  # x_mag, XMag
         return tuple(ws[1:]), _AXES[ws[0]]
     if ws and len(ws[-1]) > 1 and ws[-1][-1] in _AXES and ws[-1][:-1] in MAG_WORDS | ACC_WORDS:  # magx, bx, ax
         return tuple(ws[:-1]) + (ws[-1][:-1],), _AXES[ws[-1][-1]]
-    if len(ws) >= 2 and ws[-1] in ("0", "1", "2") and set(ws[:-1]) & (MAG_WORDS | ACC_WORDS | {"ga"}):
-        return tuple(ws[:-1]), int(ws[-1])
+    if len(ws) >= 2 and ws[-1] in ("0", "1", "2", "3") and set(ws[:-1]) & (MAG_WORDS | ACC_WORDS | {"ga"}):
+        return tuple(ws[:-1]), ("index", int(ws[-1]))
+    return None
+
+
+def _complete(axes: dict):
+    """The (x, y, z) names of one prefix's columns, or None: x/y/z, else indices 0,1,2, else 1,2,3."""
+    for keys in ((0, 1, 2), (("index", 0), ("index", 1), ("index", 2)), (("index", 1), ("index", 2), ("index", 3))):
+        if all(k in axes for k in keys):
+            return tuple(axes[k] for k in keys)
     return None
 
 
@@ -88,7 +99,8 @@ def _triples(names, kind_words):
         prefix = prefix + tuple(qualifiers)
         if set(prefix) & kind_words and not set(prefix) & other:
             groups.setdefault(prefix, {}).setdefault(axis, name)
-    return {p: (g[0], g[1], g[2]) for p, g in groups.items() if len(g) == 3}
+    triples = {p: _complete(g) for p, g in groups.items()}
+    return {p: t for p, t in triples.items() if t is not None}
 
 
 def _drop_accel_unit(ws: list[str]) -> list[str]:
