@@ -63,6 +63,26 @@ def test_a_false_sync_or_a_cut_frame_does_not_swallow_the_next_frame(chunk):
     assert reasons == ["binary", "checksum", "checksum"]
 
 
+@pytest.mark.parametrize("chunk", [None, 1, 5])
+def test_one_damaged_frame_is_one_checksum_reject_even_when_the_sync_overlaps_itself(chunk):
+    """A sync word AAAA overlaps itself (AA AA AA), and payload bytes may hold it: the candidates found
+    inside a damaged frame fail too, and are counted with it, not as more damaged frames."""
+    sync = bytes.fromhex("AAAA")
+    good = [frame((k, 2 * k, -k), sync=sync) for k in (1, 2, 3)]
+    damaged = bytearray(frame((0xAA, -0x5556, 7), sync=sync))    # payload AA 00 AA AA (0xAAAA as int16) …
+    damaged = bytes([0xAA]) + bytes(damaged)                    # … after an extra AA: three overlapping syncs
+    damaged = damaged[:-1] + bytes([damaged[-1] ^ 0xFF])        # and a wrong checksum
+    decoder = FrameDecoder("<hhh", sync, parse_columns(None), "xor8")
+    decoder.reset()
+    records, reasons = decode(decoder, good[0] + damaged + good[1] + good[2], chunk)
+    assert records == [(1.0, 2.0, -1.0), (2.0, 4.0, -2.0), (3.0, 6.0, -3.0)]
+    assert reasons.count("checksum") == 1, reasons
+    # two separate damaged frames are still two rejects
+    decoder.reset()
+    records, reasons = decode(decoder, good[0] + damaged + good[1] + damaged + good[2], chunk)
+    assert len(records) == 3 and reasons.count("checksum") == 2, reasons
+
+
 def test_scale_factors_per_column():
     columns = parse_columns("t[ms],mx[nT],my[nT],mz[nT]")
     assert parse_scale("1,0.1,-0.1,2", columns) == (1.0, 0.1, -0.1, 2.0)   # a negative factor flips an axis

@@ -286,6 +286,9 @@ class FrameDecoder:
     resumes at the next sync word inside it: a sync word in garbage, or a frame cut short by lost
     bytes, must not swallow the good frame that starts within its length. Without a checksum a sync
     word inside garbage can frame a wrong record; use `--checksum` where the device provides one.
+    A candidate that starts inside a frame already rejected for its checksum and fails too (a sync word
+    that overlaps itself, AAAA, or sync bytes in the payload) is the same damage: it extends that reject
+    instead of counting another one.
     `scale` (factors in column order, see parse_scale) multiplies the unpacked fields.
     """
 
@@ -324,12 +327,18 @@ class FrameDecoder:
         self._buffer = bytearray()
         self._skipped = 0
         self._first = True
+        self._damaged = 0  # bytes at the buffer's start that belong to the last frame rejected for its checksum
         self.blank_lines = 0
 
     def reset(self) -> None:
         self._buffer.clear()
         self._skipped = 0
         self._first = True
+        self._damaged = 0
+
+    def _drop(self, n: int) -> None:
+        del self._buffer[:n]
+        self._damaged = max(self._damaged - n, 0)
 
     def _skipped_reject(self, why: str = ""):
         n, self._skipped = self._skipped, 0
@@ -345,11 +354,11 @@ class FrameDecoder:
                 keep = len(self.sync) - 1
                 drop = max(len(self._buffer) - keep, 0)
                 self._skipped += drop
-                del self._buffer[:drop]
+                self._drop(drop)
                 return
             if at > 0:
                 self._skipped += at
-                del self._buffer[:at]
+                self._drop(at)
             if len(self._buffer) < self.frame_size:
                 return
             if self._skipped:
@@ -361,11 +370,14 @@ class FrameDecoder:
                 # drop the bad frame's bytes (not garbage to count again), but only up to a sync word
                 # inside it: a false sync in garbage or a frame cut short is followed by a good frame
                 again = frame.find(self.sync, 1)
-                del self._buffer[:again if again > 0 else self.frame_size]
-                yield Reject("checksum", f"frame {frame.hex()}: checksum 0x{frame[-1]:02x}, payload gives "
-                                         f"0x{self.checksum(payload):02x}")
+                same_damage = self._damaged > 0
+                self._drop(again if again > 0 else self.frame_size)
+                self._damaged = self.frame_size - again if again > 0 else 0
+                if not same_damage:
+                    yield Reject("checksum", f"frame {frame.hex()}: checksum 0x{frame[-1]:02x}, payload gives "
+                                             f"0x{self.checksum(payload):02x}")
                 continue
-            del self._buffer[:self.frame_size]
+            self._drop(self.frame_size)
             values = tuple(float(v) for v in self.struct.unpack(payload))
             if self.scale is not None:
                 values = tuple(v * f for v, f in zip(values, self.scale))
