@@ -1,4 +1,5 @@
-"""Timing helper shared by the bench scripts (imported as a sibling module: bench/ is on sys.path)."""
+"""Helpers shared by the bench scripts — timing, machine facts, Markdown tables (imported as a sibling
+module: bench/ is on sys.path)."""
 from __future__ import annotations
 
 import os
@@ -29,3 +30,13 @@ def machine_facts(**versions) -> list[tuple[str, str]]:
              ("load average (1/5/15 min)", "%.2f %.2f %.2f" % os.getloadavg()),
              ("OS", f"{platform.system()} {platform.release()}"), ("Python", platform.python_version())]
     return facts + [(name, str(version)) for name, version in versions.items()]
+
+
+def table(header: list[str], rows: list[list[str]], out=print):
+    """A Markdown table: the first column left-aligned, the others right-aligned, padded to fit."""
+    widths = [max(len(str(c)) for c in col) for col in zip(header, *rows)]
+    out("| " + " | ".join(str(h).ljust(w) for h, w in zip(header, widths)) + " |")
+    out("|" + "|".join("-" * (w + 1) + ":" if i else "-" * (w + 2) for i, w in enumerate(widths)) + "|")
+    for r in rows:
+        out("| " + " | ".join(str(c).ljust(w) if i == 0 else str(c).rjust(w)
+                              for i, (c, w) in enumerate(zip(r, widths))) + " |")

@@ -44,6 +44,7 @@ from fluxcal.bounds import magnitude_jacobian
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 from _magyc_worker import MagycUnavailable, MagycWorker  # noqa: E402
+from _timing import table  # noqa: E402
 
 REPO = Path(__file__).resolve().parents[1]
 DEFAULT_DATA = REPO.parent / "shared" / "data" / "real"
@@ -111,15 +112,6 @@ def fmt(x, spec=".3f", width=8) -> str:
     if x is None or (isinstance(x, float) and not math.isfinite(x)):
         return f"{'NaN' if isinstance(x, float) else '—':>{width}}"
     return f"{x:{width}{spec}}"
-
-
-def table(header: list[str], rows: list[list[str]], out=print):
-    widths = [max(len(str(c)) for c in col) for col in zip(header, *rows)]
-    out("| " + " | ".join(str(h).ljust(w) for h, w in zip(header, widths)) + " |")
-    out("|" + "|".join("-" * (w + 1) + ":" if i else "-" * (w + 2) for i, w in enumerate(widths)) + "|")
-    for r in rows:
-        out("| " + " | ".join(str(c).ljust(w) if i == 0 else str(c).rjust(w)
-                              for i, (c, w) in enumerate(zip(r, widths))) + " |")
 
 
 def run_magyc(worker, arrays, jobs, notes: list[str]):
@@ -328,7 +320,6 @@ def part_real(data: Path, worker, gap_reps: int = 200) -> dict:
     # references
     raw = ["uncalibrated ‖m − mean(m)‖"] + [fmt(spread(split[k][0].mean(0), np.eye(3), split[k][1])) for k in sets]
     tgt = ["best peer (ANCHORS.md)"] + [fmt(TARGETS[k], ".2f") if k in TARGETS else "—" for k in sets]
-    q = sets["qmc"]["m"]
     P = np.loadtxt(data / "qmc5883l_reference_params.csv")
     M, c = P[:9].reshape(3, 3), P[9:]
     auth = []
@@ -481,7 +472,7 @@ def part_gap(split, fits, worker, notes, reps: int = 200, seed: int = 2026) -> d
 
 def part_sap6(folder: Path, worker, notes) -> dict:
     units = sorted(p.stem for p in folder.glob("*.json"))
-    print(f"\n### SAP6 (24 static shots per unit, µT): spread (%) fitted on all 24, and leave-one-out\n")
+    print("\n### SAP6 (24 static shots per unit, µT): spread (%) fitted on all 24, and leave-one-out\n")
     data, cfg = {}, {}
     arrays, jobs = {}, []
     for u in units:

@@ -95,7 +95,7 @@ def main(argv=None) -> int:
         rows = [("serial loop", 1, None, serial(paths, tmp / "serial"))]
         for w in workers:
             startup, seconds = on_dask(folder, tmp / f"dask{w}", w)
-            rows.append((f"dask LocalCluster", w, startup, seconds))
+            rows.append(("dask LocalCluster", w, startup, seconds))
 
     base = args.units / rows[0][3]
     print()

@@ -25,7 +25,6 @@ import datetime as _dt
 import os
 import platform
 import sys
-import time
 from pathlib import Path
 
 import numpy as np

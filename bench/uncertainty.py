@@ -38,7 +38,7 @@ from scipy import stats
 import fluxcal
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
-from _timing import machine_facts  # noqa: E402  (bench/ is on sys.path when run as a script)
+from _timing import machine_facts, table  # noqa: E402  (bench/ is on sys.path when run as a script)
 
 REPO = Path(__file__).resolve().parents[1]
 DEFAULT_REAL = REPO.parent / "shared" / "data" / "real"
@@ -60,15 +60,6 @@ def load_recordings(folder: Path) -> dict[str, np.ndarray]:
 def rms(values) -> float:
     v = np.asarray(values, dtype=float)
     return float(np.sqrt(np.mean(v**2)))
-
-
-def table(header: list[str], rows: list[list[str]]):
-    widths = [max(len(str(c)) for c in col) for col in zip(header, *rows)]
-    print("| " + " | ".join(str(h).ljust(w) for h, w in zip(header, widths)) + " |")
-    print("|" + "|".join("-" * (w + 1) + ":" if i else "-" * (w + 2) for i, w in enumerate(widths)) + "|")
-    for r in rows:
-        print("| " + " | ".join(str(c).ljust(w) if i == 0 else str(c).rjust(w)
-                                for i, (c, w) in enumerate(zip(r, widths))) + " |")
 
 
 def params_and_ses(cal) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
