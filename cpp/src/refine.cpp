@@ -219,42 +219,67 @@ Eigen::MatrixXd newey_west(const Eigen::MatrixXd& g, int lags) {
 
 // Tests the residuals for correlation in time and, when `opt` says so, replaces the covariance by the
 // Newey–West sandwich F⁻¹ S F⁻¹ (F⁻¹ the pseudo-inverse the independent covariance was built from).
-void serial_correlation(RefineResult& out, const Eigen::MatrixXd& Finv, const Scores& sc, const RefineOptions& opt) {
+// `automatic` switches when the residuals fail the Ljung–Box test and the sandwich widens an error, or
+// when it widens one by ≥ 1.5× whatever the test says: with orientations that change fast the
+// residuals r_i ≈ ĥ_iᵀe_i lose the noise's correlation that the scores ĥ_iĥ_iᵀe_i keep. It does not
+// switch to a sandwich that widens nothing (negative correlation is rare, and a small sample's
+// sandwich is noisy); `newey_west` reports the sandwich whatever it gives.
+constexpr double kWider = 1.5;
+
+void serial_correlation(RefineResult& out, const Eigen::MatrixXd& Finv, bool singular, const Scores& sc,
+                        const RefineOptions& opt) {
+  if (!(opt.serial_correlation_alpha > 0.0 && opt.serial_correlation_alpha < 1.0))
+    throw Error("serial_correlation_alpha: " + std::to_string(opt.serial_correlation_alpha) +
+                ", need a significance level in (0, 1)");
   SerialCorrelationReport& rep = out.serial_correlation;
   rep.standard_errors_independent = out.covariance.diagonal().cwiseMax(0.0).cwiseSqrt();
-  const Eigen::Index n = sc.residuals.rows(), k = sc.residuals.cols();
+  const Eigen::Index n = sc.residuals.rows(), k = sc.residuals.cols(), p = Finv.rows();
   const int test_lags = static_cast<int>(std::min<Eigen::Index>(20, n / 5));
-  if (test_lags < 1) return;
+  if (test_lags < 1 || n <= p) return;
   double smallest_p = 1.0;
+  int tested = 0;
   rep.lag1 = 0.0;
   for (Eigen::Index a = 0; a < k; ++a) {
     const Eigen::VectorXd x = sc.residuals.col(a);
+    if (!((x.array() - x.mean()).matrix().squaredNorm() > 0.0)) continue;  // an exact axis: nothing to test
     smallest_p = std::min(smallest_p, ljung_box(x, test_lags).p_value);
-    rep.lag1 += lag1_autocorrelation(x) / static_cast<double>(k);
+    rep.lag1 += lag1_autocorrelation(x);
+    ++tested;
   }
-  rep.ljung_box_p = std::min(1.0, smallest_p * static_cast<double>(k));  // Bonferroni over the axes
-  const bool use = opt.serial_correlation == SerialCorrelation::newey_west ||
-                   (opt.serial_correlation == SerialCorrelation::automatic && rep.ljung_box_p < opt.serial_correlation_alpha);
-  if (!use) return;
-  rep.lags = bandwidth(sc.scores);
-  out.covariance = Finv * newey_west(sc.scores, rep.lags) * Finv;
-  out.covariance = 0.5 * (out.covariance + out.covariance.transpose());
-  const Eigen::VectorXd se = out.covariance.diagonal().cwiseMax(0.0).cwiseSqrt();
-  rep.inflation = 0.0;
-  for (Eigen::Index j = 0; j < se.size(); ++j)
-    if (rep.standard_errors_independent(j) > 0.0 && std::isfinite(se(j)))
-      rep.inflation = std::max(rep.inflation, se(j) / rep.standard_errors_independent(j));
+  if (tested) rep.lag1 /= tested;
+  rep.ljung_box_p = std::min(1.0, smallest_p * tested);  // Bonferroni over the axes
+  // The sandwich of a singular F is not defined; the independent covariance already marks the
+  // directions the data leave undetermined.
+  if (opt.serial_correlation == SerialCorrelation::independent || singular) return;
+  const int lags = bandwidth(sc.scores);
+  Eigen::MatrixXd C = Finv * newey_west(sc.scores, lags) * Finv * (static_cast<double>(n) / static_cast<double>(n - p));
+  C = 0.5 * (C + C.transpose());
+  if (!C.allFinite()) return;
+  const Eigen::VectorXd se = C.diagonal().cwiseMax(0.0).cwiseSqrt();
+  double widest = 0.0, narrowest = std::numeric_limits<double>::infinity();
+  for (Eigen::Index j = 0; j < se.size(); ++j) {
+    if (!(rep.standard_errors_independent(j) > 0.0)) continue;
+    widest = std::max(widest, se(j) / rep.standard_errors_independent(j));
+    narrowest = std::min(narrowest, se(j) / rep.standard_errors_independent(j));
+  }
+  const bool rejected = rep.ljung_box_p < opt.serial_correlation_alpha;
+  if (opt.serial_correlation == SerialCorrelation::automatic && !((rejected && widest > 1.0) || widest >= kWider))
+    return;
+  rep.lags = lags;
+  rep.inflation = widest;
+  out.covariance = C;
   std::ostringstream msg;
   msg.precision(2);
   msg << "readings are correlated in time (residual lag-1 autocorrelation " << rep.lag1 << ", Ljung-Box p = "
-      << rep.ljung_box_p << "): standard errors are Newey-West over " << rep.lags << " lags, up to "
-      << rep.inflation << "x those for independent readings (rows must be in time order; "
-      << "serial_correlation = independent turns this off)";
+      << rep.ljung_box_p << "): standard errors are Newey-West over " << rep.lags << " lags, " << narrowest
+      << "-" << widest << "x those for independent readings (rows must be in time order: serial_correlation="
+      << "\"independent\", --serial-correlation independent, when they are not)";
   out.summary.warnings.push_back(msg.str());
 }
 
 // Covariance, standard errors and identifiability from the information matrix F = JᵀJ (and, with
-// `scores`, corrected for correlation between readings).
+// `scores`, corrected for correlation between readings). Whether the data determine a parameter is a
+// property of F (the coverage): judged on the independent-readings errors, before any correction.
 void finish_statistics(RefineResult& out, const Eigen::MatrixXd& F, double sigma2, const Eigen::VectorXd& scales,
                        const RefineOptions& opt, const Scores* scores = nullptr) {
   const Eigen::Index p = F.rows();
@@ -265,21 +290,22 @@ void finish_statistics(RefineResult& out, const Eigen::MatrixXd& F, double sigma
   out.fisher_condition = lam(0) > 0.0 ? lam(p - 1) / lam(0) : std::numeric_limits<double>::infinity();
   // F⁻¹ through the scaled eigen-decomposition: near-null directions get a huge (not infinite)
   // variance, so undetermined parameters show up as such instead of as a failed factorisation.
-  const Eigen::VectorXd inv = lam.cwiseMax(lam(p - 1) * 1e-300).cwiseInverse();
+  const double floor = lam(p - 1) * 1e-300;
+  const Eigen::VectorXd inv = lam.cwiseMax(floor).cwiseInverse();
   const Eigen::MatrixXd Finv = d.asDiagonal() * eig.eigenvectors() * inv.asDiagonal() *
                                eig.eigenvectors().transpose() * d.asDiagonal();
   out.covariance = sigma2 * Finv;
-  if (scores) serial_correlation(out, Finv, *scores, opt);
-  out.standard_errors = out.covariance.diagonal().cwiseMax(0.0).cwiseSqrt();
+  const Eigen::VectorXd independent = out.covariance.diagonal().cwiseMax(0.0).cwiseSqrt();
   out.determined.assign(static_cast<std::size_t>(p), true);
   std::ostringstream undetermined;
   for (Eigen::Index k = 0; k < p; ++k) {
-    const bool ok = std::isfinite(out.standard_errors(k)) &&
-                    out.standard_errors(k) < opt.determined_tolerance * scales(k);
+    const bool ok = std::isfinite(independent(k)) && independent(k) < opt.determined_tolerance * scales(k);
     out.determined[static_cast<std::size_t>(k)] = ok;
     if (!ok) undetermined << (out.identifiable ? "" : ", ") << out.parameter_names[static_cast<std::size_t>(k)];
     if (!ok) out.identifiable = false;
   }
+  if (scores) serial_correlation(out, Finv, lam(0) <= floor, *scores, opt);
+  out.standard_errors = out.covariance.diagonal().cwiseMax(0.0).cwiseSqrt();
   if (!out.identifiable)
     out.summary.warnings.push_back(
         "not identifiable: the data do not determine " + undetermined.str() +

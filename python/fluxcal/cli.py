@@ -68,7 +68,8 @@ def cmd_calibrate(args) -> int:
     # attitude + local field in the recording (e.g. the airborne layout): the vector fit, unless a
     # magnitude-only method is asked for
     reference = rec.reference_field() if args.method in ("auto", "vector") else None
-    cal = calibrate(raw, method=args.method, field_norm=args.field_norm, reference=reference, units=rec.field_units())
+    cal = calibrate(raw, method=args.method, field_norm=args.field_norm, reference=reference, units=rec.field_units(),
+                    outliers=args.outliers, serial_correlation=args.serial_correlation)
     cal.metadata.update(source=str(args.file), columns=",".join(rec.mag_names()))
     if reference is not None:
         cal.metadata["reference"] = "attitude pitch,roll,yaw and local field igrf_n,igrf_e,igrf_d of the recording"
@@ -349,6 +350,12 @@ def build_parser() -> argparse.ArgumentParser:
     c.add_argument("--units", default=None, help="units of the readings when the file does not say")
     c.add_argument("--method", default="auto", choices=METHODS,
                    help="auto = consistent ellipsoid fit (ALS) + maximum-likelihood refinement (default)")
+    c.add_argument("--outliers", default="drop", choices=["drop", "keep"],
+                   help="drop (default): leave gross outliers (0,0,0 glitches, ADC rails, spikes) out of a magnitude "
+                        "fit and list them; keep: fit every reading")
+    c.add_argument("--serial-correlation", default="automatic", choices=["automatic", "independent", "newey_west"],
+                   help="standard errors: automatic (default) widens them (Newey-West) when the readings are "
+                        "correlated in time; independent when the rows are not in time order")
     c.add_argument("-o", "--output", help="write the calibration (JSON)")
     c.add_argument("--plot", help="write a before/after plot (PNG)")
     c.set_defaults(run=cmd_calibrate)

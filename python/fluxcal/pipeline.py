@@ -1,16 +1,20 @@
 """fluxcal.calibrate: one call that picks the right solver for the data it is given."""
 from __future__ import annotations
 
+import numpy as np
+
 from ._arrays import as_samples, held_copies
 from .calibration import Calibration
 from .ellipsoid import fit_ellipsoid
+from .outliers import find_outliers
 from .refine import fit_vector, refine
 
 METHODS = ("auto", "vector", "als", "ls", "als+refine")
+OUTLIERS = ("drop", "keep")
 
 
 def calibrate(samples, method: str = "auto", field_norm: float | None = None, reference=None,
-              units: str | None = None, loss: str = "none", **settings) -> Calibration:
+              units: str | None = None, loss: str = "none", outliers: str = "drop", **settings) -> Calibration:
     """Calibrate a three-axis magnetometer.
 
     method "auto": with `reference` (true field per reading, sensor frame) the vector fit
@@ -20,9 +24,15 @@ def calibrate(samples, method: str = "auto", field_norm: float | None = None, re
     ("identifiable"); when they do not (yaw-only turns, small tilts), the summary warns and names the
     remedy instead of passing a confident 3-D answer off as one. Other methods: "vector", "als",
     "ls", "als+refine". `loss` ("none", "huber", "cauchy") applies to the refinement.
+
+    outliers "drop": magnitude-model fits first screen the readings for gross outliers (I²C glitches
+    reading 0,0,0, ADC rails, spikes; fluxcal.outliers) and fit without them; summary["outliers"] lists
+    the rows and a warning says how many. "keep" fits every reading.
     """
     if method not in METHODS:
         raise ValueError(f"method: {method!r} is not one of {', '.join(METHODS)}")
+    if outliers not in OUTLIERS:
+        raise ValueError(f"outliers: {outliers!r} is not one of {', '.join(OUTLIERS)}")
     if units is None:
         units = getattr(samples, "field_units", lambda: "")()
     m = as_samples(samples)
@@ -30,7 +40,12 @@ def calibrate(samples, method: str = "auto", field_norm: float | None = None, re
         if reference is None:
             raise ValueError("reference: the vector method needs the true field of each reading")
         cal = fit_vector(m, reference, units=units, loss=loss, **settings)
-    elif method in ("ls", "als"):
+        return _note_copies(cal, m)
+    left_out = find_outliers(m) if outliers == "drop" else None
+    all_readings = m
+    if left_out:
+        m = np.delete(m, left_out.rows, axis=0)
+    if method in ("ls", "als"):
         cal = fit_ellipsoid(m, field_norm=field_norm, units=units, method=method)
         cal.summary["method"] = method
     else:
@@ -42,11 +57,22 @@ def calibrate(samples, method: str = "auto", field_norm: float | None = None, re
             w for w in cal.summary["warnings"] if w not in start.summary["warnings"]]
         if start.summary.get("noise_sigma"):
             cal.summary["als_noise_sigma"] = start.summary["noise_sigma"]
+    if left_out is not None:
+        cal.summary["outliers"] = left_out.to_dict()
+        cal.summary["warnings"] = list(cal.summary["warnings"]) + left_out.messages(len(all_readings))
+    return _note_copies(cal, all_readings)
+
+
+def _note_copies(cal: Calibration, m: np.ndarray) -> Calibration:
+    """Warn about sample-and-hold copies (see fluxcal._arrays.held_copies)."""
     copies = held_copies(m)
-    if copies is not None:
-        cal.summary["warnings"] = list(cal.summary["warnings"]) + [
-            f"{int(copies.sum())} of {len(m)} readings ({100 * copies.mean():.0f} %) repeat the previous one exactly "
-            "in regular runs (sample and hold: the logger ran faster than the sensor); the standard errors count "
-            "them as independent readings and are too small by about √(run length) — record at the sensor's "
-            "rate or drop the copies"]
+    if copies is None:
+        return cal
+    corrected = cal.summary.get("serial_correlation", {}).get("lags", 0) > 0
+    errors = ("the Newey–West standard errors allow for them, but record at the sensor's rate or drop the copies"
+              if corrected else "the standard errors count them as independent readings and are too small by "
+              "about √(run length) — record at the sensor's rate or drop the copies")
+    cal.summary["warnings"] = list(cal.summary["warnings"]) + [
+        f"{int(copies.sum())} of {len(m)} readings ({100 * copies.mean():.0f} %) repeat the previous one exactly "
+        f"in regular runs (sample and hold: the logger ran faster than the sensor); {errors}"]
     return cal

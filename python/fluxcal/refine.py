@@ -29,9 +29,9 @@ def _options(loss="none", loss_scale=0.0, units="", **settings):
     options.loss = LOSSES[loss]
     options.loss_scale = float(loss_scale)
     options.units = units or ""
-    if isinstance(settings.get("serial_correlation"), str):
+    if "serial_correlation" in settings and not isinstance(settings["serial_correlation"], _core.SerialCorrelation):
         name = settings["serial_correlation"]
-        if name not in SERIAL_CORRELATION:
+        if not isinstance(name, str) or name not in SERIAL_CORRELATION:
             raise ValueError(f"serial_correlation: {name!r} is not one of {', '.join(SERIAL_CORRELATION)}")
         settings = {**settings, "serial_correlation": SERIAL_CORRELATION[name]}
     return set_options(options, settings, "refine")
@@ -62,9 +62,11 @@ def refine(calibration: Calibration, samples, reference=None, loss: str = "none"
     settings: max_iterations, function_tolerance, gradient_tolerance, parameter_tolerance,
     determined_tolerance (default 0.01 of each parameter's scale), serial_correlation ("automatic":
     Newey–West standard errors when the residuals, rows in time order, fail a Ljung–Box test at
-    serial_correlation_alpha = 0.01; "independent"; "newey_west"). summary["serial_correlation"] holds
-    the residuals' lag-1 autocorrelation, the test's p-value, the Newey–West lags (0 = independent
-    readings assumed), the inflation of the standard errors and the independent-readings ones.
+    serial_correlation_alpha = 0.01 and the sandwich widens an error, or when it widens one ≥ 1.5×;
+    never to a sandwich that widens nothing. "independent"; "newey_west": whatever it gives).
+    summary["serial_correlation"] holds the residuals' lag-1 autocorrelation, the test's p-value, the
+    Newey–West lags (0 = independent readings assumed), the inflation of the standard errors and the
+    independent-readings ones. Whether the data determine a parameter is judged on the latter.
     """
     m = as_samples(samples)
     options = _options(loss, loss_scale, calibration.units, **settings)

@@ -174,6 +174,10 @@ def test_time_from_a_stated_sample_rate(tmp_path):
     (["Mag1", "Mag2", "Mag3", "Acc1", "Acc2", "Acc3"], ("Mag1", "Mag2", "Mag3")),
     (["mag[0]", "mag[1]", "mag[2]", "mag[3]"], ("mag[0]", "mag[1]", "mag[2]")),  # 0-based wins
     (["mag_1", "mag_2"], None),
+    # numbered channels rank below x/y/z names, and single letters numbered from 1 are not axes
+    (["Mag1", "Mag2", "Mag3", "flux_x", "flux_y", "flux_z"], ("flux_x", "flux_y", "flux_z")),
+    (["field_1", "field_2", "field_3", "mag_x", "mag_y", "mag_z"], ("mag_x", "mag_y", "mag_z")),
+    (["h1", "h2", "h3"], None),
 ])
 def test_review_cases_for_triples(names, expected):
     assert find_magnetometer(names) == expected

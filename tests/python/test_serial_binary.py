@@ -77,10 +77,13 @@ def test_one_damaged_frame_is_one_checksum_reject_even_when_the_sync_overlaps_it
     records, reasons = decode(decoder, good[0] + damaged + good[1] + good[2], chunk)
     assert records == [(1.0, 2.0, -1.0), (2.0, 4.0, -2.0), (3.0, 6.0, -3.0)]
     assert reasons.count("checksum") == 1, reasons
-    # two separate damaged frames are still two rejects
-    decoder.reset()
-    records, reasons = decode(decoder, good[0] + damaged + good[1] + damaged + good[2], chunk)
-    assert len(records) == 3 and reasons.count("checksum") == 2, reasons
+    # two separate damaged frames are still two rejects, also back to back
+    other = frame((9, 9, 9), sync=sync)
+    other = other[:-1] + bytes([other[-1] ^ 0x0F])
+    for stream in (good[0] + damaged + good[1] + damaged + good[2], good[0] + damaged + other + good[1] + good[2]):
+        decoder.reset()
+        records, reasons = decode(decoder, stream, chunk)
+        assert len(records) == 3 and reasons.count("checksum") == 2, reasons
 
 
 def test_scale_factors_per_column():

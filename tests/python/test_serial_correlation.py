@@ -114,3 +114,60 @@ def test_monte_carlo_standard_errors_are_honest_under_correlated_noise():
     for g in range(2):
         assert 0.75 <= reported[g] / rms[g] <= 1.25, (reported, rms)
         assert independent[g] / rms[g] < 0.5, (independent, rms)
+
+
+def test_fast_orientation_changes_still_switch():
+    """Orientations that change every reading (shots, steps) decorrelate the residuals ĥᵀe but not the
+    scores ĥĥᵀe: the Ljung–Box test of the residuals misses the noise's correlation, the widening of the
+    sandwich does not (found by review: automatic switched in 12 of 150 such runs)."""
+    switched = 0
+    for seed in range(10):
+        rng = np.random.default_rng(300 + seed)
+        scene = sim.uniform(600, rng)
+        soft, hard, _ = random_sensor(H, rng, soft_iron=0.1, offset=0.5)
+        s = sim.simulate(scene, [soft, hard, ColoredNoise(0.01 * H, phi=0.95)], FIELD, rng)
+        serial = fluxcal.calibrate(s.readings, field_norm=H).summary["serial_correlation"]
+        switched += serial["lags"] > 0 and serial["inflation"] >= 1.5
+    assert switched >= 8
+
+
+def test_degenerate_inputs_keep_finite_errors():
+    """Yaw-only reference vectors (a singular information matrix) with correlated noise keep the
+    independent covariance (huge, not NaN); noise-free data and a bad significance level are handled."""
+    rng = np.random.default_rng(5)
+    yaw = np.linspace(0, 6 * np.pi, 900)
+    r = np.column_stack([20 * np.cos(yaw), 20 * np.sin(yaw), np.full_like(yaw, 45.0)])
+    e = np.zeros((900, 3))
+    for i in range(1, 900):
+        e[i] = 0.95 * e[i - 1] + 0.1 * rng.standard_normal(3)
+    start = fluxcal.Calibration(offset=np.zeros(3), matrix=np.eye(3), field_norm=H)
+    cal = fluxcal.refine(start, r + e, reference=r)
+    assert np.all(np.isfinite(cal.summary["standard_errors"])) and not cal.summary["identifiable"]
+    assert cal.summary["serial_correlation"]["lags"] == 0
+    exact = np.round(sim.uniform(200, rng).sensor_field(FIELD))
+    cal = fluxcal.refine(start, exact, reference=exact)  # residuals exactly zero: nothing to test
+    assert cal.summary["serial_correlation"]["lags"] == 0
+    with pytest.raises(ValueError, match=r"serial_correlation_alpha: .*need a significance level in \(0, 1\)"):
+        fluxcal.calibrate(turned(1, 0.01).readings, serial_correlation_alpha=2.0)
+    with pytest.raises(ValueError, match="serial_correlation: None is not one of"):
+        fluxcal.calibrate(turned(1, 0.01).readings, serial_correlation=None)
+
+
+def test_automatic_switches_only_to_widen():
+    """24 static shots (a cave-survey unit's calibration): a small sample's sandwich is noisy and can come
+    out narrower than the independent errors; automatic then keeps the independent ones."""
+    switched = 0
+    for seed in range(20):
+        rng = np.random.default_rng(seed)
+        s = sim.simulate(sim.uniform(24, rng), random_sensor(H, rng, soft_iron=0.05, offset=0.3, noise=0.002),
+                         FIELD, rng)
+        cal = fluxcal.calibrate(s.readings, field_norm=H)
+        serial = cal.summary["serial_correlation"]
+        if serial["lags"] == 0:
+            assert cal.summary["standard_errors"] == serial["standard_errors_independent"]
+        else:
+            switched += 1
+            assert serial["inflation"] > 1.0
+        forced = fluxcal.calibrate(s.readings, field_norm=H, serial_correlation="newey_west")
+        assert forced.summary["serial_correlation"]["lags"] > 0
+    assert switched <= 2

@@ -17,7 +17,8 @@
 // along a smooth path make the residuals correlated in time, and σ̂² (JᵀJ)⁻¹ then understates the
 // uncertainty several-fold. When the residuals fail a Ljung–Box test (taking the rows in time order),
 // the covariance is the Newey–West sandwich F⁻¹ S F⁻¹, S the Bartlett-weighted long-run covariance of
-// the per-reading scores g_i = J_iᵀ r_i, its bandwidth Politis & White's automatic block length.
+// the per-reading scores g_i = J_iᵀ r_i (× N/(N − p)), its bandwidth Politis & White's automatic block
+// length; it also switches when the sandwich widens an error ≥ 1.5× (RefineOptions::serial_correlation).
 // (The covariance comes from an eigen-decomposition of JᵀJ rather than ceres::Covariance: the same
 // matrix, a 9×9 problem instead of an SVD of the N×9 Jacobian, and near-singular cases are reported
 // as undetermined parameters instead of a failed computation.)
@@ -38,7 +39,8 @@ enum class Loss {
 
 /// How the covariance treats correlation between readings (rows taken in time order).
 enum class SerialCorrelation {
-  automatic,    ///< Newey–West when the residuals fail the Ljung–Box test, else independent readings
+  automatic,    ///< Newey–West when the residuals fail the Ljung–Box test and it widens an error, or when
+                ///< it widens one ≥ 1.5×; never to a sandwich that widens nothing
   independent,  ///< σ̂² (JᵀJ)⁻¹ whatever the residuals (rows not in time order, or for comparison)
   newey_west,   ///< always the Newey–West sandwich
 };
@@ -52,7 +54,8 @@ struct RefineOptions {
   double function_tolerance = 1e-14;
   double gradient_tolerance = 1e-14;
   double parameter_tolerance = 1e-12;
-  /// A parameter counts as determined when its standard error is below this fraction of its scale:
+  /// A parameter counts as determined when its standard error (for independent readings: a property of
+  /// the Fisher information, i.e. the coverage) is below this fraction of its scale:
   /// the mean reading-space radius |m − b| for offsets, the gain ‖A‖_F/√3 (or ‖W‖_F/√3) for
   /// matrix entries.
   double determined_tolerance = 0.01;
@@ -64,7 +67,7 @@ struct RefineOptions {
   bool noise_bias_correction = true;
   SerialCorrelation serial_correlation = SerialCorrelation::automatic;
   /// Significance of the Ljung–Box test (20 lags, or N/5 when fewer) that switches `automatic` to
-  /// Newey–West. Strict, so that white noise keeps the exact independent-readings covariance.
+  /// Newey–West. Strict, so that white noise keeps the exact independent-readings covariance. In (0, 1).
   double serial_correlation_alpha = 0.01;
 };
 

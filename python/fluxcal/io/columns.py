@@ -71,11 +71,16 @@ def _axis_of(ws: list[str]):
     return None
 
 
-def _complete(axes: dict):
-    """The (x, y, z) names of one prefix's columns, or None: x/y/z, else indices 0,1,2, else 1,2,3."""
-    for keys in ((0, 1, 2), (("index", 0), ("index", 1), ("index", 2)), (("index", 1), ("index", 2), ("index", 3))):
+def _complete(prefix: tuple, axes: dict):
+    """(names x, y, z, numbered) of one prefix's columns, or None: x/y/z, else indices 0,1,2, else 1,2,3
+    (1-based only after a word longer than two letters — mag_1, not h1 — since single-letter channels
+    numbered from 1 are as often three separate sensors)."""
+    options = [((0, 1, 2), False), ((("index", 0), ("index", 1), ("index", 2)), True)]
+    if any(len(w) > 2 and not w.isdigit() for w in prefix):
+        options.append(((("index", 1), ("index", 2), ("index", 3)), True))
+    for keys, numbered in options:
         if all(k in axes for k in keys):
-            return tuple(axes[k] for k in keys)
+            return tuple(axes[k] for k in keys), numbered
     return None
 
 
@@ -99,8 +104,10 @@ def _triples(names, kind_words):
         prefix = prefix + tuple(qualifiers)
         if set(prefix) & kind_words and not set(prefix) & other:
             groups.setdefault(prefix, {}).setdefault(axis, name)
-    triples = {p: _complete(g) for p, g in groups.items()}
-    return {p: t for p, t in triples.items() if t is not None}
+    found = {p: _complete(p, g) for p, g in groups.items()}
+    found = {p: t for p, t in found.items() if t is not None}
+    lettered = {p: names for p, (names, numbered) in found.items() if not numbered}
+    return lettered or {p: names for p, (names, _) in found.items()}  # numbered channels rank below x/y/z
 
 
 def _drop_accel_unit(ws: list[str]) -> list[str]:

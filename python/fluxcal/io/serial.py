@@ -372,8 +372,8 @@ class FrameDecoder:
                 again = frame.find(self.sync, 1)
                 same_damage = self._damaged > 0
                 self._drop(again if again > 0 else self.frame_size)
-                self._damaged = self.frame_size - again if again > 0 else 0
-                if not same_damage:
+                if not same_damage:  # a new damaged frame: its rest is the span later failures share
+                    self._damaged = self.frame_size - again if again > 0 else 0
                     yield Reject("checksum", f"frame {frame.hex()}: checksum 0x{frame[-1]:02x}, payload gives "
                                              f"0x{self.checksum(payload):02x}")
                 continue

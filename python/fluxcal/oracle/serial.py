@@ -30,12 +30,14 @@ def bandwidth(g) -> int:
 
 
 def newey_west_covariance(jacobian, residuals, per_reading: int = 1, lags: int | None = None):
-    """(covariance, lags): the sandwich F⁻¹ S F⁻¹, S over `lags` (`bandwidth` when None)."""
+    """(covariance, lags): the sandwich F⁻¹ S F⁻¹ × N/(N − p) (N readings, p parameters: the usual
+    small-sample correction), S over `lags` (`bandwidth` when None)."""
     J = np.asarray(jacobian, dtype=float)
     g = scores(J, residuals, per_reading)
     lags = bandwidth(g) if lags is None else int(lags)
     Finv = np.linalg.inv(J.T @ J)
-    return Finv @ S_hac_simple(g, nlags=lags) @ Finv, lags
+    n, p = g.shape
+    return Finv @ S_hac_simple(g, nlags=lags) @ Finv * n / (n - p), lags
 
 
 def residual_test(residuals, per_reading: int = 1) -> dict:

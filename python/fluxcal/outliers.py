@@ -1,0 +1,195 @@
+"""Gross outliers in magnetometer readings: I²C glitches that read 0,0,0, values stuck at an ADC rail,
+spikes. A few of them wreck an ellipsoid fit (0.5 % zero rows make the least-squares matrix indefinite),
+so `fluxcal.calibrate` screens for them before fitting, leaves them out, and says which rows and why.
+
+A reading is off the ellipsoid when its distance from it, |h|/median|h| − 1, lies further
+from the median than the two-sided normal quantile at α/N (Bonferroni: with Gaussian noise a whole
+recording is flagged wrongly with probability α) times the robust σ, 1.4826 · MAD. Outliers distort a
+fit of all readings and can hide each other (0.5 % zero rows and a few spikes raised the robust σ of
+an ALS fit's distances 16×, so nothing stood out), so the distances come from the least-median-of-
+squares fit (Rousseeuw 1984) over the ALS fit of all readings and 64 LS fits of random 20-reading
+subsets, refitted (ALS) on the readings it accepts until the verdicts stop changing.
+
+Left out are the readings off the ellipsoid that read exactly 0,0,0 or sit at an ADC rail, and those
+in runs of at most GLITCH_RUN consecutive readings above half the threshold (a glitch's neighbours are
+ordinary). A longer stretch off the ellipsoid (a magnet passing, the offset
+drifting, the field changing) is kept and reported: it is the sensor or its surroundings, not a bad
+reading, and `fluxcal diagnose` is the tool for it. Rows must be in time order for this distinction.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+from scipy import stats
+
+from .calibration import Calibration
+from .ellipsoid import fit_ellipsoid
+
+SUBSET = 20      # readings per LMedS subset: 10 % contamination leaves a clean subset 12 % of the time
+SUBSETS = 64     # so 64 subsets miss a clean one with probability 3e-4
+MIN_SAMPLES = 40
+GLITCH_RUN = 3   # a glitch lasts a sample or a short burst; a longer stretch off the ellipsoid is a
+                 # disturbance or a drift of the sensor, which the calibration keeps and diagnose explains
+SCORED = 1000    # readings the subset fits are scored on
+
+
+@dataclass
+class Outliers:
+    """Rows left out (indices into the readings given), and how they were judged."""
+    rows: np.ndarray
+    threshold: float = 0.0           # in robust σ
+    robust_sigma: float = 0.0        # of the relative radial distance |h|/median|h| − 1
+    largest: float = 0.0             # the largest flagged distance, in robust σ
+    kinds: dict = field(default_factory=dict)  # "zero" / "rail": how many of the rows look like that
+    screened: bool = True            # False: too few readings (< MIN_SAMPLES) or NaN, nothing judged
+    stretches: list = field(default_factory=list)  # (first, last, largest σ) of longer runs off the ellipsoid, kept
+
+    def __len__(self) -> int:
+        return len(self.rows)
+
+    def to_dict(self) -> dict:
+        return {"screened": self.screened, "rows": self.rows.tolist(), "count": len(self.rows),
+                "threshold_sigma": self.threshold,
+                "robust_sigma": self.robust_sigma, "largest_sigma": self.largest, "kinds": dict(self.kinds),
+                "stretches_kept": [list(s) for s in self.stretches]}
+
+    def messages(self, n: int) -> list:
+        """The warnings for calibrate's summary: what was left out, and which stretches were kept."""
+        out = []
+        if len(self.rows):
+            shown = ", ".join(str(r) for r in self.rows[:8]) + (", …" if len(self.rows) > 8 else "")
+            kinds = "".join(f"; {k} {what}" for what, k in (
+                ("read exactly 0,0,0 (glitches)", self.kinds.get("zero", 0)),
+                ("sit at a column's extreme value, repeated (ADC rail)", self.kinds.get("rail", 0))) if k)
+            out.append(f"left out {len(self.rows)} of {n} readings that lie more than {self.threshold:.1f} robust σ "
+                       f"(up to {self.largest:.0f}) off the ellipsoid (rows {shown}{kinds}); outliers='keep' "
+                       "(--outliers keep) keeps them")
+        if self.stretches:
+            shown = ", ".join(f"{a}–{b} (up to {z:.0f} σ)" for a, b, z in self.stretches[:4])
+            out.append(f"rows {shown}{', …' if len(self.stretches) > 4 else ''} lie off the ellipsoid for a stretch "
+                       f"of more than {GLITCH_RUN} readings: a disturbance or a drift rather than glitches, kept in "
+                       "the fit; fluxcal diagnose looks for the cause")
+        return out
+
+
+def _distances(cal, m: np.ndarray) -> np.ndarray:
+    radius = np.linalg.norm(cal.apply(m), axis=1)
+    return radius / np.median(radius) - 1.0
+
+
+def _subset_quadrics(m: np.ndarray, rng):
+    """Least-squares quadrics x'Mx + 2v'x + d = 0 through SUBSETS random subsets of SUBSET readings, all
+    at once (a batched SVD; the readings centred and scaled first for conditioning). Returns the
+    centres (k×3) and shape matrices (k×3×3, |S^½ (x − c)| = 1 on the quadric) of those that are
+    ellipsoids, in the readings' units."""
+    mu, scale = m.mean(axis=0), m.std() or 1.0
+    x = (np.stack([m[rng.choice(len(m), SUBSET, replace=False)] for _ in range(SUBSETS)]) - mu) / scale
+    X, Y, Z = x[..., 0], x[..., 1], x[..., 2]
+    design = np.stack([X * X, Y * Y, Z * Z, 2 * X * Y, 2 * X * Z, 2 * Y * Z, 2 * X, 2 * Y, 2 * Z, np.ones_like(X)], axis=-1)
+    p = np.linalg.svd(design, full_matrices=False)[2][:, -1, :]  # the null direction of each subset's design
+    M = np.stack([p[:, [0, 3, 4]], p[:, [3, 1, 5]], p[:, [4, 5, 2]]], axis=1)
+    v, d = p[:, 6:9], p[:, 9]
+    ok = np.abs(np.linalg.det(M)) > 1e-12
+    M, v, d = M[ok], v[ok], d[ok]
+    centre = -np.linalg.solve(M, v[..., None])[..., 0]
+    k = np.einsum("ni,nij,nj->n", centre, M, centre) - d
+    S = M / k[:, None, None]
+    ellipsoid = np.all(np.linalg.eigvalsh(S) > 0, axis=1)
+    return centre[ellipsoid] * scale + mu, S[ellipsoid] / scale ** 2
+
+
+def _robust_z(e: np.ndarray):
+    centre = np.median(e)
+    sigma = 1.4826 * np.median(np.abs(e - centre))
+    return np.abs(e - centre) / max(sigma, 1e-300), sigma
+
+
+def _try_fit(m: np.ndarray, method: str):
+    try:
+        cal = fit_ellipsoid(m, method=method)
+    except (ValueError, RuntimeError):
+        return None
+    w = np.linalg.eigvalsh(0.5 * (cal.matrix + cal.matrix.T))
+    return cal if np.all(np.isfinite(cal.matrix)) and w.min() > 0 else None
+
+
+def _lmeds_start(m: np.ndarray, rng):
+    """The fit with the least median absolute distance: the ALS fit of all readings, or the quadric
+    through one of the random subsets (scored on at most SCORED readings: the median needs no more).
+    Returns a Calibration or None."""
+    scored = m if len(m) <= SCORED else m[rng.choice(len(m), SCORED, replace=False)]
+
+    def score(radii):  # k × n radii → k scores: the median absolute deviation of the relative distances
+        e = radii / np.median(radii, axis=1, keepdims=True)
+        return np.median(np.abs(e - np.median(e, axis=1, keepdims=True)), axis=1)
+
+    best = _try_fit(m, "als")
+    best_score = score(np.linalg.norm(best.apply(scored), axis=1)[None])[0] if best is not None else np.inf
+    centres, shapes = _subset_quadrics(m, rng)
+    if len(centres):
+        d = scored[None, :, :] - centres[:, None, :]
+        scores = score(np.sqrt(np.sum((d @ shapes) * d, axis=2)))
+        j = int(np.argmin(scores))
+        if scores[j] < best_score:
+            w, V = np.linalg.eigh(shapes[j])
+            best = Calibration(offset=centres[j], matrix=(V * np.sqrt(w)) @ V.T, field_norm=1.0)
+    return best
+
+
+def _at_rail(m: np.ndarray) -> np.ndarray:
+    """Values at their column's minimum or maximum when that extreme is hit more than once (an ADC rail)."""
+    at_rail = np.zeros(m.shape, dtype=bool)
+    for extreme in (m.min(axis=0), m.max(axis=0)):
+        hit = m == extreme
+        at_rail |= hit & (hit.sum(axis=0) >= 2)
+    return at_rail
+
+
+def _kinds(m: np.ndarray, rows: np.ndarray) -> dict:
+    zero = np.all(m[rows] == 0.0, axis=1)
+    return {"zero": int(zero.sum()), "rail": int(np.sum(_at_rail(m)[rows].any(axis=1) & ~zero))}
+
+
+def find_outliers(samples, alpha: float = 0.01, seed: int = 0) -> Outliers:
+    """Gross outliers of `samples` (N×3 readings of a turning magnetometer); see the module doc."""
+    m = np.asarray(samples, dtype=float)
+    n = len(m)
+    threshold = float(stats.norm.isf(alpha / (2 * n))) if n else 0.0
+    none = Outliers(np.zeros(0, dtype=int), threshold, screened=False)
+    if n < MIN_SAMPLES or not np.isfinite(m).all():
+        return none  # too few to judge, or NaN: the fit itself names the problem
+    cal = _lmeds_start(m, np.random.default_rng(seed))
+    if cal is None:
+        return none  # no subset fits an ellipsoid: the fit itself will say why
+    z, sigma = _robust_z(_distances(cal, m))
+    for _ in range(3):  # refit on the accepted readings and judge everything again, until nothing changes
+        refit = _try_fit(m[z <= threshold], "als")
+        if refit is None:
+            break
+        z_new, sigma = _robust_z(_distances(refit, m))
+        changed = np.any((z_new > threshold) != (z > threshold))
+        z = z_new
+        if not changed:
+            break
+    flagged = z > threshold
+    impossible = np.all(m == 0.0, axis=1) | _at_rail(m).any(axis=1)
+    drop, stretches = flagged & impossible, []
+    # A run's extent is where the distance stays above half the threshold (hysteresis): a glitch's
+    # neighbours are ordinary readings, a disturbance's rise and fall above the noise too.
+    for first, last in _runs(z > threshold / 2):
+        if not flagged[first:last + 1].any():
+            continue
+        if last - first + 1 <= GLITCH_RUN:
+            drop[first:last + 1] |= flagged[first:last + 1]
+        else:
+            stretches.append((int(first), int(last), float(z[first:last + 1].max())))
+    rows = np.flatnonzero(drop)
+    return Outliers(rows, threshold, float(sigma), float(z[rows].max()) if len(rows) else 0.0,
+                    _kinds(m, rows) if len(rows) else {}, stretches=stretches)
+
+
+def _runs(mask: np.ndarray) -> list:
+    """(first, last) index of each run of consecutive True values."""
+    edges = np.diff(np.concatenate([[0], mask.astype(np.int8), [0]]))
+    return list(zip(np.flatnonzero(edges == 1), np.flatnonzero(edges == -1) - 1))

@@ -1,0 +1,142 @@
+"""Gross outliers (I²C glitches reading 0,0,0, ADC rails, spikes) are found, left out of calibrate's fit and
+listed; clean recordings are left alone."""
+from pathlib import Path
+
+import numpy as np
+import pytest
+from conftest import run_cli
+
+import fluxcal
+from fluxcal import sim
+from fluxcal.outliers import find_outliers
+from fluxcal.sim.effects import random_sensor
+
+FIELD = np.array([20.0, 0.0, 45.0])  # µT
+H = float(np.linalg.norm(FIELD))
+REAL = Path(__file__).resolve().parents[3] / "shared" / "data" / "real"
+LSB = 0.092  # µT per count of an HMC5883L-class part at its ±1.3 G range
+
+
+def turned(seed, noise=0.005, n_seconds=30.0):
+    rng = np.random.default_rng(seed)
+    scene = sim.tumble(duration_s=n_seconds, rng=rng, temperature=None)
+    return sim.simulate(scene, random_sensor(H, rng, soft_iron=0.1, offset=0.5, noise=noise), FIELD, rng), rng
+
+
+def corrupt(readings, rng, zeros=15, rail=10, spikes=10):
+    """Glitch rows at 0,0,0, y stuck at the −4096-count rail, and spikes of ≥ 20 % of the field."""
+    m = readings.copy()
+    rows = rng.permutation(len(m))[:zeros + rail + spikes]
+    z, r, s = rows[:zeros], rows[zeros:zeros + rail], rows[zeros + rail:]
+    m[z] = 0.0
+    m[r, 1] = -4096 * LSB
+    kick = rng.standard_normal((spikes, 3))
+    m[s] += 0.2 * H * kick / np.linalg.norm(kick, axis=1, keepdims=True) * rng.uniform(1, 3, (spikes, 1))
+    return m, z, r, s
+
+
+@pytest.mark.parametrize("seed", range(4))
+def test_glitches_are_found_listed_and_left_out(seed):
+    s, rng = turned(seed)
+    m, zeros, rail, spikes = corrupt(s.readings, rng)
+    clean = fluxcal.calibrate(s.readings, field_norm=H)
+    truth = s.true_calibration()
+    cal = fluxcal.calibrate(m, field_norm=H)
+    try:  # kept, the glitches wreck the fit (or make its matrix indefinite: an error)
+        kept_error = np.linalg.norm(fluxcal.calibrate(m, field_norm=H, outliers="keep").offset - truth.offset)
+    except ValueError:
+        kept_error = np.inf
+    assert kept_error > 10 * np.linalg.norm(cal.offset - truth.offset)
+    out = cal.summary["outliers"]
+    found = set(out["rows"])
+    assert set(zeros) | set(rail) <= found
+    assert len(set(spikes) - found) <= 1            # a spike may land near the shell again
+    assert len(found - set(zeros) - set(rail) - set(spikes)) <= 1
+    assert out["kinds"] == {"zero": len(zeros), "rail": len(rail)}
+    assert any(w.startswith(f"left out {len(found)} of {len(m)} readings") for w in cal.summary["warnings"])
+    # as good as the fit of the clean recording
+    se = np.asarray(clean.summary["standard_errors"])
+    assert np.all(np.abs(cal.offset - clean.offset) < 2 * se[:3])
+
+
+def test_heavy_contamination_still_found():
+    """10 % spikes: the least-median start still finds the shell."""
+    s, rng = turned(11)
+    m, _, _, spikes = corrupt(s.readings, rng, zeros=0, rail=0, spikes=150)
+    out = find_outliers(m)
+    truth = s.true_calibration()
+    missed = np.array(sorted(set(spikes) - set(out.rows)), dtype=int)
+    # a spike along the shell is not a gross outlier: every one missed lies near it (noise σ = 0.5 %)
+    assert np.all(np.abs(np.linalg.norm(truth.apply(m[missed]), axis=1) / H - 1) < 6 * 0.005)
+    assert len(missed) <= 15 and len(set(out.rows) - set(spikes)) <= 2
+    cal = fluxcal.calibrate(m, field_norm=H)
+    assert np.linalg.norm(cal.offset - truth.offset) < 0.01 * H
+
+
+def test_clean_recordings_are_left_alone():
+    """With Gaussian noise a recording is flagged wrongly with probability α = 1 %."""
+    flagged = 0
+    for seed in range(20):
+        s, _ = turned(100 + seed)
+        cal = fluxcal.calibrate(s.readings, field_norm=H)
+        flagged += cal.summary["outliers"]["count"] > 0
+        if not cal.summary["outliers"]["count"]:
+            kept = fluxcal.calibrate(s.readings, field_norm=H, outliers="keep")
+            np.testing.assert_array_equal(cal.offset, kept.offset)
+    assert flagged <= 1
+
+
+def test_a_disturbance_is_kept_not_trimmed():
+    """A magnet passing the sensor for 2 s (3 % of the field) leaves the ellipsoid by many robust σ for a
+    contiguous stretch: the surroundings, not glitches — kept in the fit and reported as a stretch."""
+    s, rng = turned(21, noise=0.001)
+    m = s.readings.copy()
+    m[700:800] += np.array([0.03, 0.0, 0.0]) * H * np.hanning(100)[:, None]
+    cal = fluxcal.calibrate(m, field_norm=H)
+    out = cal.summary["outliers"]
+    assert out["count"] == 0 and cal.summary["samples"] == len(m)
+    assert out["stretches_kept"] and all(700 <= a and b < 800 for a, b, _ in out["stretches_kept"])
+    # and glitches inside it are still glitches
+    m[750] = 0.0
+    out = fluxcal.calibrate(m, field_norm=H).summary["outliers"]
+    assert out["rows"] == [750]
+
+
+def test_options_and_small_inputs():
+    s, _ = turned(3)
+    with pytest.raises(ValueError, match="outliers: 'trim' is not one of drop, keep"):
+        fluxcal.calibrate(s.readings, outliers="trim")
+    few = find_outliers(s.readings[:30])
+    assert not few.screened and len(few) == 0
+    bad = s.readings.copy()
+    bad[5, 0] = np.nan
+    with pytest.raises(ValueError, match="NaN"):  # the fit names the problem; screening does not hide it
+        fluxcal.calibrate(bad)
+
+
+def test_real_handheld_recording_ends_with_a_disturbance():
+    """The handheld recording's last second leaves the shell by up to 7 robust σ (something near the
+    sensor at the end): a stretch, not glitches — kept in the fit and reported."""
+    m = np.loadtxt(REAL / "handheld_set1.csv", delimiter=",", skiprows=1)
+    cal = fluxcal.calibrate(m)
+    out = cal.summary["outliers"]
+    assert out["count"] == 0 and cal.summary["samples"] == len(m)
+    assert [last for _, last, _ in out["stretches_kept"]] == [len(m) - 1]  # the last second
+    assert out["stretches_kept"][0][0] >= len(m) - 60
+    assert any("a disturbance or a drift rather than glitches" in w for w in cal.summary["warnings"])
+    phone = np.genfromtxt(REAL / "phone_acc_mag.csv", delimiter=",", names=True)
+    assert fluxcal.calibrate(np.column_stack([phone["mx"], phone["my"], phone["mz"]])).summary["outliers"]["count"] == 0
+
+
+def test_cli_reports_and_keeps(tmp_path):
+    s, rng = turned(7)
+    m, *_ = corrupt(s.readings, rng)
+    path = tmp_path / "glitchy.csv"
+    np.savetxt(path, m, delimiter=",", header="mx,my,mz", comments="")
+    out = run_cli("calibrate", str(path), "--field-norm", str(H)).stdout
+    assert "left out 35 of 1500 readings" in out or "left out 34 of 1500 readings" in out
+    assert "15 read exactly 0,0,0" in out
+    kept = run_cli("calibrate", str(path), "--field-norm", str(H), "--outliers", "keep")
+    assert "left out" not in kept.stdout  # every reading fitted (here the fit is wrecked or fails)
+    plain = run_cli("calibrate", str(path), "--field-norm", str(H), "--serial-correlation", "independent")
+    assert plain.returncode == 0 and "Newey-West" not in plain.stdout
