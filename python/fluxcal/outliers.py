@@ -31,7 +31,7 @@ SUBSETS = 64     # so 64 subsets miss a clean one with probability 3e-4
 MIN_SAMPLES = 40
 GLITCH_RUN = 3   # a glitch lasts a sample or a short burst; a longer stretch off the ellipsoid is a
                  # disturbance or a drift of the sensor, which the calibration keeps and diagnose explains
-SCORED = 1000    # readings the subset fits are scored on
+SCORED = 400     # readings the subset fits are scored on (the median needs no more to rank them)
 
 
 @dataclass
@@ -84,7 +84,7 @@ def _subset_quadrics(m: np.ndarray, rng):
     centres (k×3) and shape matrices (k×3×3, |S^½ (x − c)| = 1 on the quadric) of those that are
     ellipsoids, in the readings' units."""
     mu, scale = m.mean(axis=0), m.std() or 1.0
-    x = (np.stack([m[rng.choice(len(m), SUBSET, replace=False)] for _ in range(SUBSETS)]) - mu) / scale
+    x = (m[rng.integers(0, len(m), (SUBSETS, SUBSET))] - mu) / scale  # a repeated reading only weakens a subset
     X, Y, Z = x[..., 0], x[..., 1], x[..., 2]
     design = np.stack([X * X, Y * Y, Z * Z, 2 * X * Y, 2 * X * Z, 2 * Y * Z, 2 * X, 2 * Y, 2 * Z, np.ones_like(X)], axis=-1)
     p = np.linalg.svd(design, full_matrices=False)[2][:, -1, :]  # the null direction of each subset's design
@@ -120,9 +120,8 @@ def _lmeds_start(m: np.ndarray, rng):
     Returns a Calibration or None."""
     scored = m if len(m) <= SCORED else m[rng.choice(len(m), SCORED, replace=False)]
 
-    def score(radii):  # k × n radii → k scores: the median absolute deviation of the relative distances
-        e = radii / np.median(radii, axis=1, keepdims=True)
-        return np.median(np.abs(e - np.median(e, axis=1, keepdims=True)), axis=1)
+    def score(radii):  # k × n radii → k scores: the median absolute relative distance (its median is 0)
+        return np.median(np.abs(radii / np.median(radii, axis=1, keepdims=True) - 1.0), axis=1)
 
     best = _try_fit(m, "als")
     best_score = score(np.linalg.norm(best.apply(scored), axis=1)[None])[0] if best is not None else np.inf

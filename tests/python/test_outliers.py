@@ -140,3 +140,12 @@ def test_cli_reports_and_keeps(tmp_path):
     assert "left out" not in kept.stdout  # every reading fitted (here the fit is wrecked or fails)
     plain = run_cli("calibrate", str(path), "--field-norm", str(H), "--serial-correlation", "independent")
     assert plain.returncode == 0 and "Newey-West" not in plain.stdout
+
+
+def test_diagnose_leaves_glitches_out_instead_of_explaining_them():
+    """Kept, the glitches of `corrupt` were 'explained' as cubic nonlinearity and non-orthogonality."""
+    s, rng = turned(7)
+    m, *_ = corrupt(s.readings, rng)
+    d = fluxcal.diagnose(m, t=s.t, field_norm=H)
+    assert not d.significant, d.accepted
+    assert "15 read exactly 0,0,0" in d.noise_source  # the report's note on what was left out
