@@ -31,6 +31,7 @@ SUBSETS = 64     # so 64 subsets miss a clean one with probability 3e-4
 MIN_SAMPLES = 40
 GLITCH_RUN = 3   # a glitch lasts a sample or a short burst; a longer stretch off the ellipsoid is a
                  # disturbance or a drift of the sensor, which the calibration keeps and diagnose explains
+NOISE_FACTOR = 2.0  # a fit whose distances scatter less than this × the white noise explains the readings
 SCORED = 400     # readings the subset fits are scored on (the median needs no more to rank them)
 
 
@@ -158,6 +159,9 @@ def find_outliers(samples, alpha: float = 0.01, seed: int = 0) -> Outliers:
     none = Outliers(np.zeros(0, dtype=int), threshold, screened=False)
     if n < MIN_SAMPLES or not np.isfinite(m).all():
         return none  # too few to judge, or NaN: the fit itself names the problem
+    quick = _fits_to_the_noise(m, threshold)
+    if quick is not None:
+        return Outliers(np.zeros(0, dtype=int), threshold, quick)
     cal = _lmeds_start(m, np.random.default_rng(seed))
     if cal is None:
         return none  # no subset fits an ellipsoid: the fit itself will say why
@@ -186,6 +190,23 @@ def find_outliers(samples, alpha: float = 0.01, seed: int = 0) -> Outliers:
     rows = np.flatnonzero(drop)
     return Outliers(rows, threshold, float(sigma), float(z[rows].max()) if len(rows) else 0.0,
                     _kinds(m, rows) if len(rows) else {}, stretches=stretches)
+
+
+def _fits_to_the_noise(m: np.ndarray, threshold: float):
+    """The robust σ of the ALS fit's distances when that fit explains the readings to their noise (σ within
+    NOISE_FACTOR of the white noise that third differences show) and no reading stands out: outliers
+    would have distorted it, so the least-median search is not needed. Else None. Only saves time: the
+    search would return this fit."""
+    from .diagnose.core import estimate_noise  # here: diagnose imports this module
+
+    cal = _try_fit(m, "als")
+    if cal is None:
+        return None
+    z, sigma = _robust_z(_distances(cal, m))
+    radius = np.median(np.linalg.norm(m - cal.offset, axis=1))
+    if np.any(z > threshold) or not sigma <= NOISE_FACTOR * estimate_noise(m) / radius:
+        return None
+    return float(sigma)
 
 
 def _runs(mask: np.ndarray) -> list:
