@@ -115,8 +115,8 @@ def _try_fit(m: np.ndarray, method: str):
     return cal if np.all(np.isfinite(cal.matrix)) and w.min() > 0 else None
 
 
-def _lmeds_start(m: np.ndarray, rng):
-    """The fit with the least median absolute distance: the ALS fit of all readings, or the quadric
+def _lmeds_start(m: np.ndarray, rng, best=None):
+    """The fit with the least median absolute distance: `best` (the ALS fit of all readings), or the quadric
     through one of the random subsets (scored on at most SCORED readings: the median needs no more).
     Returns a Calibration or None."""
     scored = m if len(m) <= SCORED else m[rng.choice(len(m), SCORED, replace=False)]
@@ -124,7 +124,6 @@ def _lmeds_start(m: np.ndarray, rng):
     def score(radii):  # k × n radii → k scores: the median absolute relative distance (its median is 0)
         return np.median(np.abs(radii / np.median(radii, axis=1, keepdims=True) - 1.0), axis=1)
 
-    best = _try_fit(m, "als")
     best_score = score(np.linalg.norm(best.apply(scored), axis=1)[None])[0] if best is not None else np.inf
     centres, shapes = _subset_quadrics(m, rng)
     if len(centres):
@@ -159,10 +158,11 @@ def find_outliers(samples, alpha: float = 0.01, seed: int = 0) -> Outliers:
     none = Outliers(np.zeros(0, dtype=int), threshold, screened=False)
     if n < MIN_SAMPLES or not np.isfinite(m).all():
         return none  # too few to judge, or NaN: the fit itself names the problem
-    quick = _fits_to_the_noise(m, threshold)
+    start = _try_fit(m, "als")
+    quick = _fits_to_the_noise(m, start, threshold)
     if quick is not None:
         return Outliers(np.zeros(0, dtype=int), threshold, quick)
-    cal = _lmeds_start(m, np.random.default_rng(seed))
+    cal = _lmeds_start(m, np.random.default_rng(seed), start)
     if cal is None:
         return none  # no subset fits an ellipsoid: the fit itself will say why
     z, sigma = _robust_z(_distances(cal, m))
@@ -192,14 +192,13 @@ def find_outliers(samples, alpha: float = 0.01, seed: int = 0) -> Outliers:
                     _kinds(m, rows) if len(rows) else {}, stretches=stretches)
 
 
-def _fits_to_the_noise(m: np.ndarray, threshold: float):
-    """The robust σ of the ALS fit's distances when that fit explains the readings to their noise (σ within
+def _fits_to_the_noise(m: np.ndarray, cal, threshold: float):
+    """The robust σ of the ALS fit `cal`'s distances when that fit explains the readings to their noise (σ within
     NOISE_FACTOR of the white noise that third differences show) and no reading stands out: outliers
     would have distorted it, so the least-median search is not needed. Else None. Only saves time: the
     search would return this fit."""
     from .diagnose.core import estimate_noise  # here: diagnose imports this module
 
-    cal = _try_fit(m, "als")
     if cal is None:
         return None
     z, sigma = _robust_z(_distances(cal, m))
