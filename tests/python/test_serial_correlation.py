@@ -6,7 +6,7 @@ import pytest
 import fluxcal
 import fluxcal.oracle as oracle
 from fluxcal import sim
-from fluxcal.sim.effects import ColoredNoise, HardIron, SoftIron, WhiteNoise, random_sensor
+from fluxcal.sim.effects import ColoredNoise, WhiteNoise, random_sensor
 
 FIELD = np.array([20.0, 0.0, 45.0])  # µT, |B| ≈ 49.2
 H = float(np.linalg.norm(FIELD))
