@@ -26,8 +26,9 @@ def _run(names, seed):
 def test_withheld_effect_ranks_first_and_closes_the_gap(name):
     hits, shrinks = 0, []
     for seed in range(TRIALS):
-        top = _run([name], seed).ranking[0]
-        if top["effect"] == name and top["significant"]:
+        d = _run([name], seed)
+        top = d.ranking[0]
+        if top["effect"] == name and top["significant"] and not d.confounded:
             hits += 1
             shrinks.append(1 - top["heldout_gap_after"] / top["heldout_gap_before"])
     assert hits >= 0.9 * TRIALS, f"{name} ranked first and significant in {hits}/{TRIALS}"
@@ -39,6 +40,36 @@ def test_withheld_effect_ranks_first_and_closes_the_gap(name):
 def test_two_withheld_effects_are_both_found(pair):
     found = sum(set(pair) <= set(_run(list(pair), 100 + seed).accepted) for seed in range(5))
     assert found >= 4, f"{pair} both found in {found}/5"
+
+
+def _warm_up(t):
+    return 20.0 + 15.0 * t / t[-1]  # a linear warm-up: the temperature follows time exactly
+
+
+@pytest.mark.parametrize("name", ["offset_drift", "temp_offset"])
+def test_temperature_that_follows_time_is_reported_as_a_confound(name):
+    # An offset drifting in time and one drifting with temperature leave the same signature when the
+    # temperature rises linearly: the diagnosis must say it cannot tell them apart, not pick one silently.
+    pair = {"offset_drift", "temp_offset"}
+    for seed in range(2):
+        result, kwargs = withheld_trial([name], seed, temperature=_warm_up)
+        d = diagnose(result.readings, **kwargs)
+        assert len(d.accepted) == 1 and d.accepted[0] in pair, d.accepted
+        rivals = d.confounded[d.accepted[0]]
+        assert [r["effect"] for r in rivals] == list(pair - set(d.accepted))
+        assert rivals[0]["temperature_time_correlation"] > 0.999
+        assert abs(rivals[0]["delta_bic_difference"]) < 1.0
+        assert "CANNOT TELL APART" in d.text() and "follows time" in d.text()
+        assert json.loads(json.dumps(d.to_dict(), default=float))["confounded"] == d.confounded
+
+
+def test_a_curved_warm_up_lets_the_data_decide():
+    # An exponential warm-up (τ = 30 s over a minute, r(T, t) ≈ 0.96): temperature no longer follows
+    # time, the right effect wins by a wide ΔBIC margin and nothing is flagged.
+    for name in ("offset_drift", "temp_offset"):
+        result, kwargs = withheld_trial([name], 7, temperature=lambda t: 20.0 + 15.0 * (1 - np.exp(-t / 30.0)))
+        d = diagnose(result.readings, **kwargs)
+        assert d.accepted == [name] and not d.confounded, (d.accepted, d.confounded)
 
 
 def test_nothing_withheld_reports_nothing():

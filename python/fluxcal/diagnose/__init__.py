@@ -22,6 +22,10 @@ it, and how far the gap shrinks once that effect is modelled — proved on held-
    candidates and their alternatives, ΔBIC < 0, and a held-out improvement that a block t-test finds
    significant). Systematic effects are tried before
    noise models: a systematic effect predicts unseen regimes, correlated noise only the next sample.
+4. What the recording cannot decide: a candidate that explained it as well as an accepted effect (ΔBIC
+   within CONFOUND_BIC = 10) and adds nothing once that effect is modelled is its rival, reported in
+   `Diagnosis.confounded` and as CANNOT TELL APART with what would separate them (a temperature that
+   follows time makes temp_offset and offset_drift one effect).
 
 The cable-current ring (seed 000) has its own base model and candidates, with the same statistics:
 

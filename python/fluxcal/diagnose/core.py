@@ -28,6 +28,8 @@ HELDOUT_FRACTION = 0.25
 HELDOUT_ALPHA = 0.05  # the held-out improvement confirms in-sample evidence that is already strong
 MIN_GAIN = 0.1        # an effect worth modelling removes at least 10 % of the held-out gap
 NOISE_CANDIDATES = ("colored_noise", "quantization")
+CONFOUND_BIC = 10.0   # a rival within 10 of the winner's ΔBIC is not told apart (2 ln Bayes factor < 10 is short of
+                      # "very strong" evidence, Kass & Raftery 1995)
 
 
 @dataclass
@@ -65,10 +67,20 @@ class Diagnosis:
     def significant(self) -> bool:
         return bool(self.accepted)
 
+    @property
+    def confounded(self) -> dict:
+        """{accepted effect: [rivals]} for the effects this recording cannot tell apart from a rival
+        candidate: the rival explains the data as well (ΔBIC within CONFOUND_BIC) and adds nothing once
+        the accepted effect is modelled. Each rival: effect, regime, delta_bic_difference,
+        signature_correlation (largest canonical correlation of the two signatures), and for a
+        temperature/time pair temperature_time_correlation."""
+        return {r["effect"]: r["confounded_with"] for r in self.ranking if r.get("confounded_with")}
+
     def to_dict(self) -> dict:
         return {"source": self.source, "model": self.model, "units": self.units,
                 "noise_sigma": self.noise_sigma, "noise_source": self.noise_source,
-                "significant": self.significant, "accepted": self.accepted, "ranking": self.ranking,
+                "significant": self.significant, "accepted": self.accepted, "confounded": self.confounded,
+                "ranking": self.ranking,
                 "where": self.where, "remaining": self.remaining}
 
     def save_json(self, path) -> Path:
@@ -357,16 +369,18 @@ def _evaluate(cls, data, model, state, sigma, n_candidates) -> dict:
     sigma2 = e @ e / (n - J.shape[1])
 
     def new_part(feats):
-        """The candidate's columns orthogonal to the base Jacobian: (score, new dimensions, singular values)."""
+        """The candidate's columns orthogonal to the base Jacobian: (score, new dimensions, singular values,
+        an orthonormal basis of the new part — the candidate's signature in the residuals)."""
         Z = _project(base, feats, vector)
         norms = np.linalg.norm(Z, axis=0)
         norms[norms == 0] = 1.0
         U, s, _ = np.linalg.svd((Z - Q @ (Q.T @ Z)) / norms, full_matrices=False)
         new = s >= ABSORBED
-        return (float(np.sum((U[:, new].T @ e) ** 2) / sigma2) if new.any() else 0.0), int(new.sum()), s
+        return ((float(np.sum((U[:, new].T @ e) ** 2) / sigma2) if new.any() else 0.0), int(new.sum()), s,
+                U[:, new])
 
     feats, tried = cls.search(ctx, lambda f: new_part(f)[0])
-    score, dims, singular = new_part(feats)
+    score, dims, singular, signature = new_part(feats)
     row = {"effect": cls.name, "regime": cls.regime, "n_params": int(feats.shape[1]), "new_dimensions": dims,
            "absorbed": dims == 0, "alternatives": tried, "score": score,
            "score_pvalue": min(1.0, float(stats.chi2.sf(score, max(dims, 1))) * tried),
@@ -393,8 +407,39 @@ def _evaluate(cls, data, model, state, sigma, n_candidates) -> dict:
     row["significant"] = bool(row["lr_pvalue"] * n_candidates < state["alpha"] and row["delta_bic"] < 0
                               and row["heldout_pvalue"] < HELDOUT_ALPHA
                               and row["heldout_gap_after"] < (1 - MIN_GAIN) * row["heldout_gap_before"])
-    row["_fit"], row["_features"] = fit, feats
+    row["_fit"], row["_features"], row["_signature"] = fit, feats, signature
     return row
+
+
+def _rivals(winner: dict, rows: list) -> list:
+    """Candidates of the same round that explain the data about as well as the winner (significant
+    themselves, ΔBIC within CONFOUND_BIC). Whether they are the same explanation is settled later: a
+    rival that is still significant once the winner is in the model is a second effect, not a rival."""
+    out = []
+    for r in rows:
+        if r is winner or not r["significant"] or r["delta_bic"] - winner["delta_bic"] >= CONFOUND_BIC:
+            continue
+        overlap = np.linalg.svd(winner["_signature"].T @ r["_signature"], compute_uv=False)
+        out.append({"effect": r["effect"], "regime": r["regime"],
+                    "delta_bic_difference": float(r["delta_bic"] - winner["delta_bic"]),
+                    "signature_correlation": float(overlap[0]) if overlap.size else 0.0})
+    return out
+
+
+def _confounds(data: _Data, accepted: list, last_rows: dict, raw_significant: dict) -> dict:
+    """{accepted effect: [rivals this recording cannot tell apart from it]}: rivals (see _rivals) that
+    were not accepted and are no longer significant once the accepted effects are modelled."""
+    out = {}
+    for name in accepted:
+        rivals = [dict(r) for r in last_rows[name].get("_rivals", [])
+                  if r["effect"] not in accepted and not raw_significant.get(r["effect"], False)]
+        for r in rivals:
+            regimes = {last_rows[name]["regime"], r["regime"]}
+            if regimes == {"temperature", "time"} and data.temp is not None and np.ptp(data.temp) > 0:
+                r["temperature_time_correlation"] = float(np.corrcoef(data.temp, data.t)[0, 1])
+        if rivals:
+            out[name] = rivals
+    return out
 
 
 def _validate(data, model, state, feats, regime, sigma) -> dict:
@@ -688,6 +733,7 @@ def diagnose(samples, t=None, temp=None, reference=None, gravity=None, field_nor
             last_rows[r["effect"]] = r
         if winners and len(accepted) < max_effects:
             w = winners[0]
+            w["_rivals"] = _rivals(w, rows)
             accepted.append(w["effect"])
             state["features"].append(w["_features"])
             state["terms"] = np.asarray(w["_fit"]["parameters"])[12 if vector else 9:]
@@ -714,14 +760,18 @@ def diagnose(samples, t=None, temp=None, reference=None, gravity=None, field_nor
     if bar:
         bar.close()
 
+    raw_significant = {name: bool(r.get("significant")) for name, r in last_rows.items()}
+    confounded = _confounds(data, accepted, last_rows, raw_significant)
+    for name, rivals in confounded.items():
+        last_rows[name]["confounded_with"] = rivals
     ranking = [last_rows[name] for name in accepted]
     # The rest: systematic effects before noise models (the order in which they are tried), each by ΔBIC.
     rest = sorted([r for name, r in last_rows.items() if name not in accepted],
                   key=lambda r: (r.get("absorbed", False), r["effect"] in NOISE_CANDIDATES, r["delta_bic"]))
     ranking += rest
     for r in ranking:
-        r.pop("_fit", None)
-        r.pop("_features", None)
+        for key in ("_fit", "_features", "_signature", "_rivals"):
+            r.pop(key, None)
         r.setdefault("significant", False)
         r["significant"] = r["effect"] in accepted
 

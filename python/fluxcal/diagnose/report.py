@@ -30,6 +30,28 @@ def ranking_lines(d) -> list:
     return lines
 
 
+def confound_lines(d) -> list:
+    """One paragraph per accepted effect that the recording cannot tell apart from a rival, with what
+    would separate them."""
+    lines = []
+    regime = {r["effect"]: r["regime"] for r in d.ranking}
+    for name, rivals in d.confounded.items():
+        for r in rivals:
+            lines.append(f"CANNOT TELL APART: {name} and {r['effect']} explain this recording equally well "
+                         f"(ΔBIC {r['delta_bic_difference']:.1f} apart, signatures correlate "
+                         f"{r['signature_correlation']:.3f}); the choice between them is not the data's.")
+            if "temperature_time_correlation" in r:
+                lines.append(f"  The temperature follows time here (r = {r['temperature_time_correlation']:.3f}): "
+                             "let it rise and fall, or hold it steady, in a recording that separates them.")
+            elif r["regime"] != regime[name]:
+                lines.append(f"  A recording in which the {regime[name]} and the {r['regime']} vary independently "
+                             "would separate them.")
+            else:
+                lines.append(f"  Both act through the {r['regime']}; this recording's {r['regime']} does not "
+                             "separate them.")
+    return lines
+
+
 def text(d) -> str:
     u = f" {d.units}" if d.units else ""
     w, rem = d.where, d.remaining
@@ -51,6 +73,7 @@ def text(d) -> str:
     out.append("")
     if d.accepted:
         out.append(f"FOUND: {', '.join(d.accepted)} (added in this order)")
+        out += confound_lines(d)
     else:
         out.append("FOUND: no significant effect — the base model explains the data to the noise")
     out.append(f"remaining: residual RMS {rem['overall']['rms_z']:.2f} σ, gap {rem['overall']['gap']:.4g}{u}; "

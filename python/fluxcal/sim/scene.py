@@ -53,12 +53,13 @@ def sweeps(axes: str = "yxz", per_turn: int = 600, tilt_deg: float = 0.0, rate_h
 
 
 def tumble(duration_s: float = 60.0, rate_hz: float = 50.0, turn_rate_deg: float = 60.0,
-           temperature: tuple | None = (25.0, 10.0, 40.0), rng=None) -> Scene:
+           temperature=(25.0, 10.0, 40.0), rng=None) -> Scene:
     """A sensor turned smoothly by hand through every orientation: the body rate wanders (a low-pass
     random process of RMS `turn_rate_deg` °/s per axis), so the path is smooth at the sample rate and
     covers the sphere within a minute. `temperature` = (mean, amplitude, period s): the sensor warms and
     cools as a sine plus a slow random wander (not monotonic in time, so temperature and time effects
-    can be told apart); None for no temperature."""
+    can be told apart); or a function of t (s) giving °C, e.g. a warm-up `lambda t: 20 + 15 * t / t[-1]`
+    (monotonic: temperature and time effects then look alike); None for no temperature."""
     rng = np.random.default_rng(rng)
     n = int(round(duration_s * rate_hz))
     dt = 1.0 / rate_hz
@@ -77,7 +78,11 @@ def tumble(duration_s: float = 60.0, rate_hz: float = 50.0, turn_rate_deg: float
         current = current * steps[i]
     t = np.arange(n) * dt
     temp = None
-    if temperature is not None:
+    if callable(temperature):
+        temp = np.asarray(temperature(t), dtype=float)
+        if temp.shape != t.shape:
+            raise ValueError(f"temperature: the function returned shape {temp.shape} for {t.size} times")
+    elif temperature is not None:
         mean, amplitude, period = temperature
         wander = np.cumsum(rng.standard_normal(n)) * np.sqrt(dt) * 0.05 * amplitude
         temp = mean + amplitude * np.sin(2 * np.pi * t / period + rng.uniform(0, 2 * np.pi)) + wander - wander.mean()

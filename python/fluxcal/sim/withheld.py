@@ -27,10 +27,11 @@ FIELD_EFFECTS = ("moving_dipole", "eddy_current")
 NOISE_EFFECTS = ("colored_noise", "quantization")
 
 
-def withheld_trial(names, seed: int, duration_s: float = DURATION):
+def withheld_trial(names, seed: int, duration_s: float = DURATION, temperature=None):
     """Simulate the effects `names` (candidate names, may be empty); returns the Simulation and the
     keyword arguments of `fluxcal.diagnose` for it (t, temp, field_norm, model, and the reference with the
-    down direction, or the given noise, where the effect needs them)."""
+    down direction, or the given noise, where the effect needs them). `temperature`: the scene's
+    temperature (see `scene.tumble`; default its sine and wander)."""
     by_name = {c.name: c for c in CANDIDATES}
     unknown = [n for n in names if n not in by_name]
     if unknown:
@@ -53,7 +54,8 @@ def withheld_trial(names, seed: int, duration_s: float = DURATION):
     effects += [make(n) for n in names if n not in FIELD_EFFECTS and n not in NOISE_EFFECTS]
     effects.append(WhiteNoise(NOISE))
     effects += [make(n) for n in names if n in NOISE_EFFECTS]
-    scene = tumble(duration_s, rng=rng)
+    scene = tumble(duration_s, rng=rng) if temperature is None else tumble(duration_s, rng=rng,
+                                                                           temperature=temperature)
     result = simulate(scene, effects, FIELD, rng)
     kwargs = {"t": result.t, "temp": result.temperature, "field_norm": 50.0, "model": model}
     if model.startswith("vector"):
