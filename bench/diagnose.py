@@ -3,6 +3,7 @@
     .venv/bin/python bench/diagnose.py --real ../shared/data/real          # real recordings
     .venv/bin/python bench/diagnose.py --trials 10                          # withheld-effect table
     .venv/bin/python bench/diagnose.py --timing                             # 20 000 readings, all candidates
+    .venv/bin/python bench/diagnose.py --warm-up 10                         # temperature following time
 
 Prints Markdown tables for bench/RESULTS.md.
 """
@@ -45,29 +46,61 @@ def real(folder: Path):
 def _row(name, d, seconds):
     top = "; ".join(f"{r['effect']} {r['delta_bic']:.0f}, {_g(r.get('heldout_gap_before'))} → {_g(r.get('heldout_gap_after'))}"
                     for r in d.ranking[:3])
+    found = ", ".join(a + "".join(f" (or {r['effect']}: cannot tell apart)" for r in d.confounded.get(a, []))
+                      for a in d.accepted)
     print(f"| {name} | {d.model} | {d.where['overall']['n']} | {d.noise_sigma:.3g} | {d.where['overall']['gap']:.3g} | "
-          f"{', '.join(d.accepted) or 'nothing'} | {top} |  ({seconds:.1f} s)")
+          f"{found or 'nothing'} | {top} |  ({seconds:.1f} s)")
 
 
 def _g(x):
     return "—" if x is None else f"{x:.3g}"
 
 
-def trials(n: int):
-    print("| withheld effect | base model | ranked first & significant | held-out gap shrink (median, min) | s/trial |")
-    print("|---|---|---:|---:|---:|")
-    for cls in CANDIDATES:
-        hits, shrink, t0 = 0, [], time.perf_counter()
+def trials(n: int, only=None):
+    print("| withheld effect | base model | ranked first & significant | found alone (no extra effect) | "
+          "flagged 'cannot tell apart' | held-out gap shrink (median, min) | s/trial |")
+    print("|---|---|---:|---:|---:|---:|---:|")
+    for cls in [c for c in CANDIDATES if not only or c.name in only]:
+        hits, alone, confounded, shrink, t0 = 0, 0, 0, [], time.perf_counter()
         for seed in range(n):
             r, kw = withheld_trial([cls.name], seed)
-            top = diagnose(r.readings, **kw).ranking[0]
+            d = diagnose(r.readings, **kw)
+            top = d.ranking[0]
+            alone += d.accepted == [cls.name]
+            confounded += bool(d.confounded)
             if top["effect"] == cls.name and top["significant"]:
                 hits += 1
                 shrink.append(1 - top["heldout_gap_after"] / top["heldout_gap_before"])
         med = f"{np.median(shrink):.2f}, {np.min(shrink):.2f}" if shrink else "—"
-        print(f"| {cls.name} | {kw['model']} | {hits}/{n} | {med} | {(time.perf_counter() - t0) / n:.1f} |")
+        print(f"| {cls.name} | {kw['model']} | {hits}/{n} | {alone}/{n} | {confounded}/{n} | {med} | "
+              f"{(time.perf_counter() - t0) / n:.1f} |")
+    if only:
+        return
     quiet = sum(not diagnose(r.readings, **kw).significant for r, kw in (withheld_trial([], 200 + s) for s in range(2 * n)))
     print(f"| (nothing withheld) | ellipsoid | {quiet}/{2 * n} report nothing | — | — |")
+
+
+def warm_up(n: int):
+    """Temperature-driven and time-driven effects when the temperature follows time (a warm-up)."""
+    ramps = {"linear 20 → 35 °C": lambda t: 20.0 + 15.0 * t / t[-1],
+             "exponential, τ = 30 s": lambda t: 20.0 + 15.0 * (1 - np.exp(-t / 30.0))}
+    print("| withheld effect | warm-up | r(T, t) | right effect accepted | flagged 'cannot tell apart' with | "
+          "wrong and not flagged |")
+    print("|---|---|---:|---:|---|---:|")
+    for name in ("offset_drift", "temp_offset", "temp_scale"):
+        for label, ramp in ramps.items():
+            right, wrong, flagged = 0, 0, {}
+            for seed in range(n):
+                r, kw = withheld_trial([name], seed, temperature=ramp)
+                d = diagnose(r.readings, **kw)
+                rivals = [x["effect"] for x in d.confounded.get(d.accepted[0], [])] if d.accepted else []
+                for x in rivals:
+                    flagged[x] = flagged.get(x, 0) + 1
+                right += bool(d.accepted) and d.accepted[0] == name
+                wrong += (not d.accepted or d.accepted[0] != name) and name not in rivals
+            corr = np.corrcoef(kw["temp"], kw["t"])[0, 1]
+            print(f"| {name} | {label} | {corr:.3f} | {right}/{n} | "
+                  f"{', '.join(f'{k} {v}/{n}' for k, v in flagged.items()) or '—'} | {wrong}/{n} |")
 
 
 def timing():
@@ -82,10 +115,14 @@ if __name__ == "__main__":
     p.add_argument("--real", type=Path)
     p.add_argument("--trials", type=int)
     p.add_argument("--timing", action="store_true")
+    p.add_argument("--warm-up", type=int)
+    p.add_argument("--only", nargs="*", help="withheld effects to run (default all)")
     args = p.parse_args()
     if args.real:
         real(args.real)
     if args.trials:
-        trials(args.trials)
+        trials(args.trials, args.only)
     if args.timing:
         timing()
+    if args.warm_up:
+        warm_up(args.warm_up)

@@ -2,7 +2,7 @@
 from __future__ import annotations
 
 import json
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 from types import SimpleNamespace
 
@@ -411,6 +411,30 @@ def _evaluate(cls, data, model, state, sigma, n_candidates) -> dict:
     return row
 
 
+def _exact_rotation(data: _Data, state: dict, model: str, cls, iterations: int = 3):
+    """Model an accepted rotation of the reference (misalignment) exactly. Its features are first order
+    in the angles, R(θ)r ≈ r + θ × r, which leaves ½ θ × (θ × r): a symmetric term that a later round
+    would take for non_orthogonality. Instead the reference is rotated by the fitted angles and the
+    features stay as corrections around that rotation (a few Gauss–Newton steps on the rotation).
+    Returns the data with the rotated reference and the whole rotation vector (rad)."""
+    from scipy.spatial.transform import Rotation
+
+    fixed = MODELS[model][1]
+    sizes = [f.shape[1] for f in state["features"]]
+    lo = sum(sizes[:-1])
+    total = Rotation.identity()
+    for _ in range(iterations):
+        step = Rotation.from_rotvec(state["terms"][lo:lo + sizes[-1]])
+        total = step * total
+        data = replace(data, reference=step.apply(data.reference))
+        state["features"][-1] = cls.features(_context(data, state["result"]))
+        terms = state["terms"].copy()
+        terms[lo:] = 0.0
+        state["result"] = _fit(data, state["start"], fixed, _features(state["features"]), start_terms=terms)
+        state["terms"] = np.asarray(state["result"]["parameters"])[12:]
+    return data, total.as_rotvec()
+
+
 def _rivals(winner: dict, rows: list) -> list:
     """Candidates of the same round that explain the data about as well as the winner (significant
     themselves, ΔBIC within CONFOUND_BIC). Whether they are the same explanation is settled later: a
@@ -739,6 +763,9 @@ def diagnose(samples, t=None, temp=None, reference=None, gravity=None, field_nor
             state["terms"] = np.asarray(w["_fit"]["parameters"])[12 if vector else 9:]
             state["result"] = w["_fit"]
             state["train_fits"] = {}
+            if vector and names[w["effect"]].rotates_reference:
+                data, rotvec = _exact_rotation(data, state, model, names[w["effect"]])
+                w["rotation_deg"] = np.degrees(rotvec).tolist()
             w["step"] = len(accepted)
             last_rows[w["effect"]] = w
             continue

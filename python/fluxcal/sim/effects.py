@@ -44,6 +44,9 @@ class Effect:
     is_noise = False
     regime = "orientation"
     needs: tuple = ()
+    # Its features are the first-order terms of a rotation of the true field (θ × r): once accepted
+    # against reference vectors, the diagnosis rotates the reference exactly (see diagnose.core).
+    rotates_reference = False
 
     def apply(self, values: np.ndarray, context) -> np.ndarray:  # pragma: no cover - interface
         raise NotImplementedError
@@ -157,6 +160,7 @@ class Misalignment(Effect):
     rotvec: np.ndarray
     name = "misalignment"
     n_params = 3
+    rotates_reference = True
 
     def apply(self, values, context):
         return Rotation.from_rotvec(self.rotvec).apply(values)

@@ -22,8 +22,9 @@ NOISE = 0.05  # µT
 DURATION = 60.0
 # Effects that a full matrix absorbs are checked against a scale-only base model.
 MODEL_FOR = {"non_orthogonality": "scale", "misalignment": "vector_scale"}
-# Effects applied before soft iron (they act on the field), the rest after the hard iron.
-FIELD_EFFECTS = ("moving_dipole", "eddy_current")
+# Effects applied before soft iron and the axes' scale factors (they act on the field, or, for
+# misalignment, turn it into the sensor's axes before each axis scales it), the rest after the hard iron.
+FIELD_EFFECTS = ("moving_dipole", "eddy_current", "misalignment")
 NOISE_EFFECTS = ("colored_noise", "quantization")
 
 
