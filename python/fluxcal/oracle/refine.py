@@ -1,6 +1,7 @@
 """Reference magnitude-model refinement: scipy.optimize.least_squares (finite-difference Jacobian)
 on the Sampson residual (|h| − H)|h|/|A h|, θ = [b (3), a00 a01 a02 a11 a12 a22]; covariance
-σ̂² (JᵀJ)⁻¹ with σ̂² = Σr²/(N − 9)."""
+σ̂² (JᵀJ)⁻¹ with σ̂² = Σr²/(N − 9), or with a robust loss (SciPy's `huber` / `cauchy`, `f_scale` =
+fluxcal's loss_scale) Huber's (1981) σ̂² = K² [Σψ²/(N − 9)] / mean(ψ')², K = 1 + (p/N) var(ψ')/mean(ψ')²."""
 from __future__ import annotations
 
 import numpy as np
@@ -19,16 +20,52 @@ def residuals(theta, m, H):
     return (hn - H) * hn / np.linalg.norm(h @ A.T, axis=1)
 
 
-def refine(offset, matrix, field_norm, samples) -> dict:
+def _psi(r, loss: str, scale: float):
+    """ψ = d/dr of ½·scale²·ρ((r/scale)²) and its derivative, for SciPy's losses."""
+    z = (r / scale) ** 2
+    if loss == "huber":
+        inside = z <= 1.0
+        return np.where(inside, r, scale * np.sign(r)), inside.astype(float)
+    if loss == "cauchy":
+        return r / (1 + z), (1 - z) / (1 + z) ** 2
+    raise ValueError(f"loss: {loss!r} is not one of linear, huber, cauchy")
+
+
+def _jacobian(theta, m, H, step=1e-6):
+    """Central differences of the plain residuals (SciPy's `jac` is rescaled by the loss)."""
+    cols = []
+    for j in range(len(theta)):
+        h = step * max(1.0, abs(theta[j]))
+        up, down = theta.copy(), theta.copy()
+        up[j] += h
+        down[j] -= h
+        cols.append((residuals(up, m, H) - residuals(down, m, H)) / (2 * h))
+    return np.column_stack(cols)
+
+
+def refine(offset, matrix, field_norm, samples, loss: str = "linear", loss_scale: float = 1.0) -> dict:
     m = np.asarray(samples, dtype=float)
     w, V = np.linalg.eigh(np.asarray(matrix).T @ np.asarray(matrix))
     A = (V * np.sqrt(w)) @ V.T  # symmetric start
     theta0 = np.r_[offset, A[0, 0], A[0, 1], A[0, 2], A[1, 1], A[1, 2], A[2, 2]]
-    sol = least_squares(residuals, theta0, args=(m, field_norm), method="lm", xtol=1e-15, ftol=1e-15, gtol=1e-15)
-    sigma2 = np.sum(sol.fun**2) / (len(m) - 9)
-    cov = sigma2 * np.linalg.inv(sol.jac.T @ sol.jac)
+    if loss == "linear":
+        sol = least_squares(residuals, theta0, args=(m, field_norm), method="lm", xtol=1e-15, ftol=1e-15,
+                            gtol=1e-15)
+        jac = sol.jac
+        sigma2 = np.sum(sol.fun**2) / (len(m) - 9)
+        variance = sigma2
+    else:
+        sol = least_squares(residuals, theta0, args=(m, field_norm), method="trf", loss=loss, f_scale=loss_scale,
+                            xtol=1e-15, ftol=1e-15, gtol=1e-15, max_nfev=2000)
+        jac = _jacobian(sol.x, m, field_norm)
+        n, p = len(m), 9
+        sigma2 = np.sum(sol.fun**2) / (n - p)
+        psi, dpsi = _psi(sol.fun, loss, loss_scale)
+        K = 1 + p / n * np.var(dpsi) / np.mean(dpsi) ** 2
+        variance = K**2 * np.sum(psi**2) / (n - p) / np.mean(dpsi) ** 2
+    cov = variance * np.linalg.inv(jac.T @ jac)
     return {"parameters": sol.x, "offset": sol.x[:3], "matrix": _matrix(sol.x), "covariance": cov,
-            "noise_sigma": np.sqrt(sigma2), "jacobian": sol.jac, "residuals": sol.fun}
+            "noise_sigma": np.sqrt(sigma2), "jacobian": jac, "residuals": sol.fun}
 
 
 def refine_terms(start, samples, features) -> np.ndarray:
