@@ -65,6 +65,38 @@ def test_temperature_that_follows_time_is_reported_as_a_confound(name):
         assert json.loads(json.dumps(d.to_dict(), default=float))["confounded"] == d.confounded
 
 
+def test_a_second_effect_is_not_taken_for_a_rival():
+    # offset_drift and cross_axis both withheld under a linear warm-up: temp_offset is offset_drift's rival
+    # (its evidence collapses once offset_drift is in), cross_axis is a second effect. With max_effects=1
+    # the search stops after one: the other significant one is reported as not modelled, not hidden.
+    result, kwargs = withheld_trial(["offset_drift", "cross_axis"], 1, temperature=_warm_up)
+    d = diagnose(result.readings, **kwargs)
+    assert set(d.accepted) >= {"cross_axis"} and len(set(d.accepted) & {"offset_drift", "temp_offset"}) == 1
+    drift = (set(d.accepted) & {"offset_drift", "temp_offset"}).pop()
+    assert [r["effect"] for r in d.confounded[drift]] == list({"offset_drift", "temp_offset"} - {drift})
+    assert "cross_axis" not in d.confounded
+    one = diagnose(result.readings, **kwargs, max_effects=1)
+    extra = [r["effect"] for r in one.ranking if r["significant_not_modelled"]]
+    assert len(one.accepted) == 1 and extra and one.accepted[0] not in extra
+    assert "ALSO SIGNIFICANT, not modelled" in one.text()
+
+
+def test_confound_report_words():
+    from fluxcal.diagnose.report import confound_lines
+
+    def fake(regime_a, regime_b, corr=None):
+        rival = {"effect": "b", "regime": regime_b, "delta_bic_difference": 2.0, "signature_correlation": 0.97}
+        if corr is not None:
+            rival["temperature_time_correlation"] = corr
+        rows = [{"effect": "a", "regime": regime_a, "confounded_with": [rival]}, {"effect": "b", "regime": regime_b}]
+        return "\n".join(confound_lines(type("D", (), {"ranking": rows, "confounded": {"a": [rival]}})()))
+
+    assert "follows time here (r = 0.995)" in fake("temperature", "time", 0.995)
+    weak = fake("temperature", "time", 0.3)  # a weak correlation is not the explanation
+    assert "follows time" not in weak and "the temperature and the elapsed time vary independently" in weak
+    assert "Both act through the orientation" in fake("orientation", "orientation")
+
+
 def test_a_curved_warm_up_lets_the_data_decide():
     # An exponential warm-up (τ = 30 s over a minute, r(T, t) ≈ 0.96): temperature no longer follows
     # time, the right effect wins by a wide ΔBIC margin and nothing is flagged.
@@ -95,6 +127,20 @@ def test_downstream_heading_error_with_an_accelerometer():
         assert top["heading_error_deg_after"] < 0.25 * top["heading_error_deg_before"]
         assert top["direction_error_deg_after"] < 0.25 * top["direction_error_deg_before"]
         assert top["field_error_after"] < 0.25 * top["field_error_before"]
+
+
+def test_rotation_refit_by_later_rounds_is_folded_in():
+    # A second effect accepted after the misalignment: the later rounds refit the rotation's block, and
+    # the reported angles include what they moved.
+    result, kwargs = withheld_trial(["misalignment", "temp_offset"], 0)
+    d = diagnose(result.readings, **kwargs)
+    assert {"misalignment", "temp_offset"} <= set(d.accepted), d.accepted
+    k = next(i for i, r in enumerate(d.ranking) if r["effect"] == "misalignment")
+    truth = next(e.rotvec for e in result.effects if e.name == "misalignment")
+    assert np.max(np.abs(np.asarray(d.ranking[k]["rotation_deg"]) - np.degrees(truth))) < 0.05
+    saved = json.loads(json.dumps(d.to_dict(), default=float))
+    assert saved["ranking"][k]["rotation_deg"] == d.ranking[k]["rotation_deg"]
+    assert "misalignment: rotation vector" in d.text()
 
 
 def test_noise_estimate_from_third_differences():

@@ -48,7 +48,10 @@ class _Data:
 @dataclass
 class Diagnosis:
     """What `diagnose` found. `ranking`: one dict per candidate, accepted effects first (in the order
-    they were added), then the rest by ΔBIC. `where`: residual tables per regime. `significant`: any
+    they were added), then the rest by ΔBIC; an accepted row may carry `confounded_with` (see
+    `confounded`) and, for a rotation of the reference (misalignment), `rotation_deg` (the whole fitted
+    rotation vector, degrees); `significant_not_modelled` marks a candidate still significant when the
+    `max_effects` limit stopped the search. `where`: residual tables per regime. `significant`: any
     effect found."""
 
     model: str
@@ -70,10 +73,10 @@ class Diagnosis:
     @property
     def confounded(self) -> dict:
         """{accepted effect: [rivals]} for the effects this recording cannot tell apart from a rival
-        candidate: the rival explains the data as well (ΔBIC within CONFOUND_BIC) and adds nothing once
-        the accepted effect is modelled. Each rival: effect, regime, delta_bic_difference,
-        signature_correlation (largest canonical correlation of the two signatures), and for a
-        temperature/time pair temperature_time_correlation."""
+        candidate: the rival was significant in the same round with ΔBIC within CONFOUND_BIC, and once
+        the accepted effect was modelled its evidence collapsed (absorbed, or ΔBIC ≥ 0). Each rival:
+        effect, regime, delta_bic_difference, signature_correlation (largest canonical correlation of
+        the two signatures in the residuals), and for a temperature/time pair temperature_time_correlation."""
         return {r["effect"]: r["confounded_with"] for r in self.ranking if r.get("confounded_with")}
 
     def to_dict(self) -> dict:
@@ -388,7 +391,8 @@ def _evaluate(cls, data, model, state, sigma, n_candidates) -> dict:
     if dims == 0:
         row.update(lr=0.0, lr_pvalue=1.0, delta_aic=0.0, delta_bic=0.0, significant=False,
                    heldout_gap_before=None, heldout_gap_after=None,
-                   note="absorbed by the base model's parameters (cannot be told apart from them)")
+                   note="absorbed by the model's parameters, the base's and the effects already accepted "
+                        "(cannot be told apart from them)")
         return row
     all_feats = _features(state["features"] + [feats])
     fit = _fit(data, state["start"], fixed, all_feats,
@@ -416,7 +420,8 @@ def _exact_rotation(data: _Data, state: dict, model: str, cls, iterations: int =
     in the angles, R(θ)r ≈ r + θ × r, which leaves ½ θ × (θ × r): a symmetric term that a later round
     would take for non_orthogonality. Instead the reference is rotated by the fitted angles and the
     features stay as corrections around that rotation (a few Gauss–Newton steps on the rotation).
-    Returns the data with the rotated reference and the whole rotation vector (rad)."""
+    Returns the data with the rotated reference, the rotation applied to it and the block's slice of
+    the terms (later rounds refit the block: `_rotation_deg` folds in what they moved)."""
     from scipy.spatial.transform import Rotation
 
     fixed = MODELS[model][1]
@@ -432,13 +437,20 @@ def _exact_rotation(data: _Data, state: dict, model: str, cls, iterations: int =
         terms[lo:] = 0.0
         state["result"] = _fit(data, state["start"], fixed, _features(state["features"]), start_terms=terms)
         state["terms"] = np.asarray(state["result"]["parameters"])[12:]
-    return data, total.as_rotvec()
+    return data, total, slice(lo, lo + sizes[-1])
+
+
+def _rotation_deg(total, block: slice, terms: np.ndarray) -> list:
+    """The whole rotation: the one applied to the reference, then the block's first-order remainder."""
+    from scipy.spatial.transform import Rotation
+
+    return np.degrees((Rotation.from_rotvec(terms[block]) * total).as_rotvec()).tolist()
 
 
 def _rivals(winner: dict, rows: list) -> list:
     """Candidates of the same round that explain the data about as well as the winner (significant
-    themselves, ΔBIC within CONFOUND_BIC). Whether they are the same explanation is settled later: a
-    rival that is still significant once the winner is in the model is a second effect, not a rival."""
+    themselves, ΔBIC within CONFOUND_BIC). Whether they are the same explanation is settled in the next
+    round (`_collapsed`)."""
     out = []
     for r in rows:
         if r is winner or not r["significant"] or r["delta_bic"] - winner["delta_bic"] >= CONFOUND_BIC:
@@ -450,19 +462,21 @@ def _rivals(winner: dict, rows: list) -> list:
     return out
 
 
-def _confounds(data: _Data, accepted: list, last_rows: dict, raw_significant: dict) -> dict:
-    """{accepted effect: [rivals this recording cannot tell apart from it]}: rivals (see _rivals) that
-    were not accepted and are no longer significant once the accepted effects are modelled."""
-    out = {}
-    for name in accepted:
-        rivals = [dict(r) for r in last_rows[name].get("_rivals", [])
-                  if r["effect"] not in accepted and not raw_significant.get(r["effect"], False)]
-        for r in rivals:
-            regimes = {last_rows[name]["regime"], r["regime"]}
-            if regimes == {"temperature", "time"} and data.temp is not None and np.ptp(data.temp) > 0:
-                r["temperature_time_correlation"] = float(np.corrcoef(data.temp, data.t)[0, 1])
-        if rivals:
-            out[name] = rivals
+def _collapsed(data: _Data, winner: dict, rows: list) -> list:
+    """The winner's rivals whose evidence collapsed once the winner was modelled — in the round straight
+    after it: absorbed, or ΔBIC ≥ 0. They explained the same thing; this recording cannot tell them
+    apart. (A rival that still improves the fit is a second effect, whatever later rounds do.)"""
+    now = {r["effect"]: r for r in rows}
+    out = []
+    for rival in winner.get("_rivals", []):
+        row = now.get(rival["effect"])
+        if row is None or not (row.get("absorbed") or row["delta_bic"] >= 0):
+            continue
+        rival = dict(rival)
+        if {winner["regime"], rival["regime"]} == {"temperature", "time"} and data.temp is not None \
+                and np.ptp(data.temp) > 0:
+            rival["temperature_time_correlation"] = float(np.corrcoef(data.temp, data.t)[0, 1])
+        out.append(rival)
     return out
 
 
@@ -745,6 +759,7 @@ def diagnose(samples, t=None, temp=None, reference=None, gravity=None, field_nor
         from tqdm import tqdm
 
         bar = tqdm(total=len(pool) * (max_effects + 1), desc="diagnose", unit="candidate", leave=False)
+    previous_winner, rotation = None, None
     for _round in range(max_effects + 1):
         rows = []
         systematic = [c for c in pool if c.name not in NOISE_CANDIDATES and c.name not in accepted]
@@ -752,11 +767,16 @@ def diagnose(samples, t=None, temp=None, reference=None, gravity=None, field_nor
             rows.append(_evaluate(cls, data, model, state, sigma, n_candidates))
             if bar:
                 bar.update(1)
+        if previous_winner is not None:
+            rivals = _collapsed(data, previous_winner, rows)
+            if rivals:
+                previous_winner["confounded_with"] = rivals
+            previous_winner = None
         winners = sorted([r for r in rows if r["significant"]], key=lambda r: r["delta_bic"])
         for r in rows:
             last_rows[r["effect"]] = r
         if winners and len(accepted) < max_effects:
-            w = winners[0]
+            w = previous_winner = winners[0]
             w["_rivals"] = _rivals(w, rows)
             accepted.append(w["effect"])
             state["features"].append(w["_features"])
@@ -764,8 +784,8 @@ def diagnose(samples, t=None, temp=None, reference=None, gravity=None, field_nor
             state["result"] = w["_fit"]
             state["train_fits"] = {}
             if vector and names[w["effect"]].rotates_reference:
-                data, rotvec = _exact_rotation(data, state, model, names[w["effect"]])
-                w["rotation_deg"] = np.degrees(rotvec).tolist()
+                data, applied, block = _exact_rotation(data, state, model, names[w["effect"]])
+                rotation = (w, applied, block)
             w["step"] = len(accepted)
             last_rows[w["effect"]] = w
             continue
@@ -787,10 +807,12 @@ def diagnose(samples, t=None, temp=None, reference=None, gravity=None, field_nor
     if bar:
         bar.close()
 
-    raw_significant = {name: bool(r.get("significant")) for name, r in last_rows.items()}
-    confounded = _confounds(data, accepted, last_rows, raw_significant)
-    for name, rivals in confounded.items():
-        last_rows[name]["confounded_with"] = rivals
+    if rotation is not None:
+        w, applied, block = rotation
+        w["rotation_deg"] = _rotation_deg(applied, block, np.asarray(state["result"]["parameters"])[12:])
+    # Significant in the last round but not modelled: the max_effects limit stopped the greedy search.
+    for name, r in last_rows.items():
+        r["significant_not_modelled"] = bool(r.get("significant")) and name not in accepted
     ranking = [last_rows[name] for name in accepted]
     # The rest: systematic effects before noise models (the order in which they are tried), each by ΔBIC.
     rest = sorted([r for name, r in last_rows.items() if name not in accepted],

@@ -30,6 +30,11 @@ def ranking_lines(d) -> list:
     return lines
 
 
+REGIME_WORDS = {"orientation": "the orientation", "temperature": "the temperature", "time": "the elapsed time",
+                "events": "the times of the disturbances"}
+FOLLOWS = 0.9  # |r(T, t)| from which "the temperature follows time" is the explanation worth printing
+
+
 def confound_lines(d) -> list:
     """One paragraph per accepted effect that the recording cannot tell apart from a rival, with what
     would separate them."""
@@ -40,15 +45,16 @@ def confound_lines(d) -> list:
             lines.append(f"CANNOT TELL APART: {name} and {r['effect']} explain this recording equally well "
                          f"(ΔBIC {r['delta_bic_difference']:.1f} apart, signatures correlate "
                          f"{r['signature_correlation']:.3f}); the choice between them is not the data's.")
-            if "temperature_time_correlation" in r:
-                lines.append(f"  The temperature follows time here (r = {r['temperature_time_correlation']:.3f}): "
-                             "let it rise and fall, or hold it steady, in a recording that separates them.")
+            corr = r.get("temperature_time_correlation")
+            if corr is not None and abs(corr) >= FOLLOWS:
+                lines.append(f"  The temperature follows time here (r = {corr:.3f}): let it rise and fall, or hold "
+                             "it steady, in a recording that separates them.")
             elif r["regime"] != regime[name]:
-                lines.append(f"  A recording in which the {regime[name]} and the {r['regime']} vary independently "
-                             "would separate them.")
+                words = [REGIME_WORDS.get(x, x) for x in (regime[name], r["regime"])]
+                lines.append(f"  A recording in which {words[0]} and {words[1]} vary independently would separate them.")
             else:
-                lines.append(f"  Both act through the {r['regime']}; this recording's {r['regime']} does not "
-                             "separate them.")
+                lines.append(f"  Both act through {REGIME_WORDS.get(r['regime'], r['regime'])}; this recording's "
+                             "range of it does not separate them.")
     return lines
 
 
@@ -73,9 +79,15 @@ def text(d) -> str:
     out.append("")
     if d.accepted:
         out.append(f"FOUND: {', '.join(d.accepted)} (added in this order)")
+        for r in d.ranking:
+            if r.get("rotation_deg") is not None:
+                out.append(f"  {r['effect']}: rotation vector {np.round(r['rotation_deg'], 3).tolist()}°")
         out += confound_lines(d)
     else:
         out.append("FOUND: no significant effect — the base model explains the data to the noise")
+    extra = [r["effect"] for r in d.ranking if r.get("significant_not_modelled")]
+    if extra:
+        out.append(f"ALSO SIGNIFICANT, not modelled (the max_effects limit stopped the search): {', '.join(extra)}")
     out.append(f"remaining: residual RMS {rem['overall']['rms_z']:.2f} σ, gap {rem['overall']['gap']:.4g}{u}; "
                + "; ".join(f"{t['regime']} {t['test']} p {t['pvalue']:.2g}" for t in rem["tests"]))
     if rem.get("skipped_candidates"):

@@ -2,9 +2,9 @@
 
 Simulation: `apply(values, context)` turns the values so far (N×3, starting from the true field in the
 sensor frame) into what the next stage sees. The physical order a sensor imposes is: field effects
-(a moving dipole, eddy currents) → soft iron (`SoftIron`) → hard iron (`HardIron`) → transducer
-effects (scale and its temperature coefficient, non-orthogonality, misalignment, cross-axis field,
-non-linearity, saturation, hysteresis) → electronic offsets (temperature coefficient, drift) → noise →
+(a moving dipole, eddy currents) → misalignment (the field turned into the sensor's axes) → soft iron
+(`SoftIron`) → hard iron (`HardIron`) → transducer effects (scale and its temperature coefficient,
+non-orthogonality, cross-axis field, non-linearity, saturation, hysteresis) → electronic offsets (temperature coefficient, drift) → noise →
 quantisation. `context` has `t` (s), `temp` (°C or None), `rotations` (sensor → world, or None), `rng`
 and `truth`.
 

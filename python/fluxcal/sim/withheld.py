@@ -50,7 +50,8 @@ def withheld_trial(names, seed: int, duration_s: float = DURATION, temperature=N
             return cls.typical(50.0, rng, duration_s)
         return cls.typical(50.0, rng)
 
-    effects = [make(n) for n in names if n in FIELD_EFFECTS]
+    # misalignment last among them: it turns the whole field, a dipole's included, into the sensor's axes
+    effects = [make(n) for n in sorted((n for n in names if n in FIELD_EFFECTS), key=lambda n: n == "misalignment")]
     effects += [SoftIron(W), HardIron(b)]
     effects += [make(n) for n in names if n not in FIELD_EFFECTS and n not in NOISE_EFFECTS]
     effects.append(WhiteNoise(NOISE))
