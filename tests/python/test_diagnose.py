@@ -239,3 +239,43 @@ def test_quantization_floor_on_the_noise_estimate():
     d = diagnose(readings, t=scene.t, field_norm=float(np.linalg.norm(field)), candidates=["offset_drift"])
     assert d.noise_sigma == pytest.approx(1.0 / np.sqrt(12.0))
     assert "quantization floor" in d.noise_source and "repeat" not in d.noise_source
+
+
+def test_noise_estimate_when_the_turns_are_fast_for_the_sample_rate():
+    # A hand turn logged at 10 Hz: third differences of the readings hold the motion (σ comes out ~1.9x),
+    # so the noise is taken from the base model's residuals in time order.
+    from fluxcal.sim.effects import HardIron, SoftIron, WhiteNoise
+    from fluxcal.sim.simulate import simulate
+    from fluxcal.sim.withheld import FIELD
+
+    rng = np.random.default_rng(0)
+    scene = sim.tumble(300.0, rate_hz=10.0, rng=rng)
+    W = np.diag([1.03, 0.97, 1.01]) + 0.02 * (np.eye(3)[[1, 0, 2]] - np.diag([0, 0, 1]))
+    result = simulate(scene, [SoftIron(W), HardIron([4.0, -3.0, 2.0]), WhiteNoise(0.05)], FIELD, rng)
+    assert estimate_noise(result.readings) > 1.5 * 0.05
+    d = diagnose(result.readings, t=result.t, field_norm=50.0, candidates=["offset_drift"])
+    assert d.noise_sigma == pytest.approx(0.05, rel=0.1)
+    assert "base model's residuals" in d.noise_source
+
+
+def test_heldout_gain_confined_to_one_block_is_significant():
+    # An event: the held-out gain sits in one block and is tiny elsewhere, but positive in every block.
+    # Signed ranks see 30 positive blocks; a t-test on such skewed means gives p ≈ 0.16.
+    from fluxcal.diagnose.core import _improvement_pvalue
+
+    after = np.random.default_rng(1).normal(size=3000)
+    gain = np.full(3000, 1e-3)
+    gain[:100] = 1.0
+    assert _improvement_pvalue(np.sqrt(after ** 2 + gain), after) < 1e-6
+    assert _improvement_pvalue(after, after) == 1.0
+
+
+def test_effects_a_magnitude_model_cannot_see_are_named():
+    result, kwargs = withheld_trial(["temp_offset"], 3)
+    d = diagnose(result.readings, t=kwargs["t"], field_norm=50.0)  # no temperature, no reference vectors
+    assert "misalignment" in d.remaining["invisible_candidates"]
+    assert "misalignment" not in [r["effect"] for r in d.ranking]
+    words = d.text()
+    assert "leaves |h| unchanged" in words
+    # the temperature effect shows up as something that varies in time; the report says what to log
+    assert d.accepted and "MAYBE TEMPERATURE" in words and "Log the sensor's temperature" in words

@@ -58,6 +58,20 @@ def confound_lines(d) -> list:
     return lines
 
 
+def temperature_caveat(d) -> list:
+    """Without a temperature column a temperature effect shows up as whatever varies in time: correlated
+    noise, a drift, an event. Say so when that is what was found (the survey: temp_offset and temp_scale
+    without temperature came out as colored_noise in 19 of 20 trials)."""
+    skipped = [n for n in d.remaining.get("skipped_candidates", []) if n.startswith("temp_")]
+    regime = {r["effect"]: r["regime"] for r in d.ranking}
+    timelike = [a for a in d.accepted if regime.get(a) in ("time", "events")]
+    if not skipped or not timelike:
+        return []
+    return [f"MAYBE TEMPERATURE: {', '.join(timelike)} follow(s) time, and without a temperature column "
+            f"{' and '.join(skipped)} could not be tried: a sensor warming and cooling looks the same. "
+            "Log the sensor's temperature to tell them apart."]
+
+
 def text(d) -> str:
     u = f" {d.units}" if d.units else ""
     w, rem = d.where, d.remaining
@@ -92,6 +106,10 @@ def text(d) -> str:
                + "; ".join(f"{t['regime']} {t['test']} p {t['pvalue']:.2g}" for t in rem["tests"]))
     if rem.get("skipped_candidates"):
         out.append(f"not tried (the recording lacks their regressor): {', '.join(rem['skipped_candidates'])}")
+        out += temperature_caveat(d)
+    if rem.get("invisible_candidates"):
+        out.append(f"not tried (a rotation of the field leaves |h| unchanged; give reference vectors): "
+                   f"{', '.join(rem['invisible_candidates'])}")
     return "\n".join(out)
 
 
