@@ -10,8 +10,10 @@ and `truth`.
 
 Diagnosis: a class with a `name` is a candidate. `features(ctx)` returns its effect on the readings
 per unit coefficient, N × p × 3 (exact when the effect is linear in its parameters, first-order
-otherwise), computed from what the base fit estimates: `ctx.signal` (N×3, the raw readings: what the
-transducer saw — hard iron is a field and passes through it; electronic offsets are taken as small),
+otherwise), computed from what the base fit estimates: `ctx.signal` (N×3, what the transducer saw —
+hard iron is a field and passes through it; electronic offsets are taken as small — as the fitted model
+predicts it, free of the reading noise), `ctx.readings` (N×3, the raw readings, for features that smooth
+them in time),
 `ctx.field` (N×3, the field in the sensor frame: the calibrated readings or the reference), `ctx.W`
 (the fitted reading-from-field matrix), `ctx.scale` (a typical |signal|), `ctx.direction` (N×3, the fitted
 field direction mapped back to reading space, times H), and the regressors `ctx.t`, `ctx.temp`. A
@@ -268,7 +270,7 @@ class Hysteresis(Effect):
         # The reading lags by up to the width: feature = (play(s, w) − s)/w per axis, for trial widths w
         # (the coefficient then scales the width); the diagnosis keeps the best-scoring width.
         widths = np.asarray(cls.WIDTHS) * ctx.scale
-        smooth = _smooth(ctx.signal, ctx.t)  # the play operator would follow the reading noise
+        smooth = _smooth(ctx.signal, ctx.t)  # the play operator would follow what noise is left
         played = _play(np.repeat(smooth[:, None, :], len(widths), axis=1), widths[:, None])
         return [_per_axis((played[:, j] - smooth) / w) for j, w in enumerate(widths)]
 
@@ -478,7 +480,7 @@ class EddyCurrent(Effect):
 
     @classmethod
     def features(cls, ctx):
-        return _per_axis(-_smooth(ctx.signal, ctx.t, deriv=1))
+        return _per_axis(-_smooth(ctx.readings, ctx.t, deriv=1))
 
     @classmethod
     def typical(cls, field_norm, rng):
