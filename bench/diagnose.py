@@ -4,6 +4,7 @@
     .venv/bin/python bench/diagnose.py --trials 10                          # withheld-effect table
     .venv/bin/python bench/diagnose.py --timing                             # 20 000 readings, all candidates
     .venv/bin/python bench/diagnose.py --warm-up 10                         # temperature following time
+    .venv/bin/python bench/diagnose.py --trials 5 --noise 0.2 --rate 10     # the same at other noise/rates
 
 Prints Markdown tables for bench/RESULTS.md.
 """
@@ -56,14 +57,14 @@ def _g(x):
     return "—" if x is None else f"{x:.3g}"
 
 
-def trials(n: int, only=None):
+def trials(n: int, only=None, **sim):
     print("| withheld effect | base model | ranked first & significant | found alone (no extra effect) | "
           "flagged 'cannot tell apart' | held-out gap shrink (median, min) | s/trial |")
     print("|---|---|---:|---:|---:|---:|---:|")
     for cls in [c for c in CANDIDATES if not only or c.name in only]:
         hits, alone, confounded, shrink, t0 = 0, 0, 0, [], time.perf_counter()
         for seed in range(n):
-            r, kw = withheld_trial([cls.name], seed)
+            r, kw = withheld_trial([cls.name], seed, **sim)
             d = diagnose(r.readings, **kw)
             top = d.ranking[0]
             alone += d.accepted == [cls.name]
@@ -76,7 +77,8 @@ def trials(n: int, only=None):
               f"{(time.perf_counter() - t0) / n:.1f} |")
     if only:
         return
-    quiet = sum(not diagnose(r.readings, **kw).significant for r, kw in (withheld_trial([], 200 + s) for s in range(2 * n)))
+    quiet = sum(not diagnose(r.readings, **kw).significant
+                for r, kw in (withheld_trial([], 200 + s, **sim) for s in range(2 * n)))
     print(f"| (nothing withheld) | ellipsoid | {quiet}/{2 * n} report nothing | — | — |")
 
 
@@ -117,11 +119,13 @@ if __name__ == "__main__":
     p.add_argument("--timing", action="store_true")
     p.add_argument("--warm-up", type=int)
     p.add_argument("--only", nargs="*", help="withheld effects to run (default all)")
+    p.add_argument("--noise", type=float, default=0.05, help="white noise σ of the trials, µT (field 50 µT)")
+    p.add_argument("--rate", type=float, default=50.0, help="sample rate of the trials, Hz")
     args = p.parse_args()
     if args.real:
         real(args.real)
     if args.trials:
-        trials(args.trials, args.only)
+        trials(args.trials, args.only, noise=args.noise, rate_hz=args.rate)
     if args.timing:
         timing()
     if args.warm_up:

@@ -310,3 +310,17 @@ def test_a_special_case_is_not_a_rival():
     d = diagnose(result.readings, **kwargs)
     assert d.accepted == ["saturation"] and not d.confounded, d.confounded
     assert next(r for r in d.ranking if r["effect"] == "nonlinearity_cubic")["delta_bic"] > 0
+
+
+def test_quantization_seen_in_a_short_fast_recording():
+    # 600 readings at 10 Hz hit ~500 distinct levels of the ADC: most values do not repeat, yet every
+    # one lies on the grid. Continuous readings, float32 ones included, are not taken for a grid.
+    from fluxcal.diagnose.core import quantization_step
+
+    rng = np.random.default_rng(2)
+    x = rng.normal(scale=20.0, size=(600, 3))
+    assert quantization_step(x) == 0.0 and quantization_step(x.astype(np.float32).astype(float)) == 0.0
+    assert quantization_step(np.round(x / 0.1) * 0.1) == pytest.approx(0.1)
+    result, kwargs = withheld_trial(["quantization"], 0, rate_hz=10.0)
+    assert len(result.readings) == 600
+    assert diagnose(result.readings, **kwargs).accepted == ["quantization"]

@@ -28,11 +28,13 @@ FIELD_EFFECTS = ("moving_dipole", "eddy_current", "misalignment")
 NOISE_EFFECTS = ("colored_noise", "quantization")
 
 
-def withheld_trial(names, seed: int, duration_s: float = DURATION, temperature=None):
+def withheld_trial(names, seed: int, duration_s: float = DURATION, temperature=None, noise: float = NOISE,
+                   rate_hz: float = 50.0):
     """Simulate the effects `names` (candidate names, may be empty); returns the Simulation and the
     keyword arguments of `fluxcal.diagnose` for it (t, temp, field_norm, model, and the reference with the
     down direction, or the given noise, where the effect needs them). `temperature`: the scene's
-    temperature (see `scene.tumble`; default its sine and wander)."""
+    temperature (see `scene.tumble`; default its sine and wander). `noise`: the white noise σ (µT);
+    `rate_hz`: the sample rate (the hand turns at the same speed whatever the rate)."""
     by_name = {c.name: c for c in CANDIDATES}
     unknown = [n for n in names if n not in by_name]
     if unknown:
@@ -54,15 +56,15 @@ def withheld_trial(names, seed: int, duration_s: float = DURATION, temperature=N
     effects = [make(n) for n in sorted((n for n in names if n in FIELD_EFFECTS), key=lambda n: n == "misalignment")]
     effects += [SoftIron(W), HardIron(b)]
     effects += [make(n) for n in names if n not in FIELD_EFFECTS and n not in NOISE_EFFECTS]
-    effects.append(WhiteNoise(NOISE))
+    effects.append(WhiteNoise(noise))
     effects += [make(n) for n in names if n in NOISE_EFFECTS]
-    scene = tumble(duration_s, rng=rng) if temperature is None else tumble(duration_s, rng=rng,
-                                                                           temperature=temperature)
+    scene = tumble(duration_s, rate_hz=rate_hz, rng=rng) if temperature is None else \
+        tumble(duration_s, rate_hz=rate_hz, rng=rng, temperature=temperature)
     result = simulate(scene, effects, FIELD, rng)
     kwargs = {"t": result.t, "temp": result.temperature, "field_norm": 50.0, "model": model}
     if model.startswith("vector"):
         kwargs["reference"] = result.truth
         kwargs["gravity"] = scene.sensor_field([0.0, 0.0, 1.0])  # down, sensor frame: an ideal accelerometer
     if "quantization" in names:
-        kwargs["noise_sigma"] = NOISE  # the datasheet noise: only a given σ can reveal quantisation
+        kwargs["noise_sigma"] = noise  # the datasheet noise: only a given σ can reveal quantisation
     return result, kwargs
