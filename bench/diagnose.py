@@ -4,7 +4,7 @@
     .venv/bin/python bench/diagnose.py --trials 10                          # withheld-effect table
     .venv/bin/python bench/diagnose.py --timing                             # 20 000 readings, all candidates
     .venv/bin/python bench/diagnose.py --warm-up 10                         # temperature following time
-    .venv/bin/python bench/diagnose.py --trials 5 --noise 0.2 --rate 10     # the same at other noise/rates
+    .venv/bin/python bench/diagnose.py --trials 5 --noise 0.2 --rate 10     # other noise, rates, --duration
 
 Prints Markdown tables for bench/RESULTS.md.
 """
@@ -121,11 +121,12 @@ if __name__ == "__main__":
     p.add_argument("--only", nargs="*", help="withheld effects to run (default all)")
     p.add_argument("--noise", type=float, default=0.05, help="white noise σ of the trials, µT (field 50 µT)")
     p.add_argument("--rate", type=float, default=50.0, help="sample rate of the trials, Hz")
+    p.add_argument("--duration", type=float, default=60.0, help="length of the trials, s")
     args = p.parse_args()
     if args.real:
         real(args.real)
     if args.trials:
-        trials(args.trials, args.only, noise=args.noise, rate_hz=args.rate)
+        trials(args.trials, args.only, noise=args.noise, rate_hz=args.rate, duration_s=args.duration)
     if args.timing:
         timing()
     if args.warm_up:

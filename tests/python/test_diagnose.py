@@ -324,3 +324,24 @@ def test_quantization_seen_in_a_short_fast_recording():
     result, kwargs = withheld_trial(["quantization"], 0, rate_hz=10.0)
     assert len(result.readings) == 600
     assert diagnose(result.readings, **kwargs).accepted == ["quantization"]
+
+
+def test_a_candidate_whose_refit_fails_is_reported_not_fatal(monkeypatch):
+    # A candidate nearly inside the model can leave Ceres no valid step; the diagnosis goes on without it.
+    import importlib
+
+    core = importlib.import_module("fluxcal.diagnose.core")
+    validate = core._validate
+
+    def failing(data, model, state, feats, regime, sigma):
+        if regime == "orientation":
+            raise fluxcal._core.Error("refine: the solver failed: (simulated)")
+        return validate(data, model, state, feats, regime, sigma)
+
+    monkeypatch.setattr(core, "_validate", failing)
+    result, kwargs = withheld_trial(["temp_offset"], 1)
+    d = diagnose(result.readings, **kwargs)
+    assert d.accepted == ["temp_offset"]
+    cubic = next(r for r in d.ranking if r["effect"] == "nonlinearity_cubic")
+    assert not cubic["significant"] and cubic["note"].startswith("not judged") and "simulated" in cubic["note"]
+    assert "not judged: its refit failed" in d.text()

@@ -434,8 +434,15 @@ def _evaluate(cls, data, model, state, sigma, n_candidates) -> dict:
                         "(cannot be told apart from them)")
         return row
     all_feats = _features(state["features"] + [feats])
-    fit = _fit(data, state["start"], fixed, all_feats,
-               start_terms=np.concatenate([state["terms"], np.zeros(feats.shape[1])]))
+    try:
+        fit = _fit(data, state["start"], fixed, all_feats,
+                   start_terms=np.concatenate([state["terms"], np.zeros(feats.shape[1])]))
+        validated = _validate(data, model, state, feats, cls.regime, sigma)
+    except _core.Error as err:  # a candidate nearly inside the model can leave the solver no valid step
+        row.update(lr=0.0, lr_pvalue=1.0, delta_aic=0.0, delta_bic=0.0, significant=False,
+                   heldout_gap_before=None, heldout_gap_after=None,
+                   note=f"not judged: the refit with it failed ({err})")
+        return row
     # ΔAIC/ΔBIC (which candidate fits best) from the plain likelihood ratio; the p-value (is it real)
     # from the whitened one, so that slow correlated noise is not taken for a systematic effect.
     e1 = np.asarray(fit["residuals"])
@@ -446,7 +453,7 @@ def _evaluate(cls, data, model, state, sigma, n_candidates) -> dict:
                delta_aic=-lr + 2 * dims, delta_bic=-lr + dims * np.log(n),
                coefficients=np.asarray(fit["parameters"])[-feats.shape[1]:].tolist(),
                standard_errors=np.asarray(fit["standard_errors"])[-feats.shape[1]:].tolist())
-    row.update(_validate(data, model, state, feats, cls.regime, sigma))
+    row.update(validated)
     row["significant"] = bool(row["lr_pvalue"] * n_candidates < state["alpha"] and row["delta_bic"] < 0
                               and row["heldout_pvalue"] < HELDOUT_ALPHA
                               and row["heldout_gap_after"] < (1 - MIN_GAIN) * row["heldout_gap_before"])

@@ -22,7 +22,8 @@ def ranking_lines(d) -> list:
             fe += f"; heading {r['heading_error_deg_before']:.3g}° → {r['heading_error_deg_after']:.3g}°"
         elif r.get("direction_error_deg_before") is not None:
             fe += f"; angle {r['direction_error_deg_before']:.3g}° → {r['direction_error_deg_after']:.3g}°"
-        note = "  (absorbed)" if r.get("absorbed") else ""
+        note = ("  (absorbed)" if r.get("absorbed")
+                else "  (not judged: its refit failed)" if r.get("note", "").startswith("not judged") else "")
         lines.append(f"{r['effect']:20s} {'YES' if r['significant'] else 'no':>7s} {r['delta_bic']:10.1f} "
                      f"{r['lr_pvalue']:9.2g} {r.get('new_dimensions', 0):4d} {str(r.get('heldout', '')):>11s} "
                      f"{_num(r.get('heldout_gap_before')):>10s} {_num(r.get('heldout_gap_after')):>10s} "
