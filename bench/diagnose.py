@@ -5,6 +5,7 @@
     .venv/bin/python bench/diagnose.py --timing                             # 20 000 readings, all candidates
     .venv/bin/python bench/diagnose.py --warm-up 10                         # temperature following time
     .venv/bin/python bench/diagnose.py --trials 5 --noise 0.2 --rate 10     # other noise, rates, --duration
+    .venv/bin/python bench/diagnose.py --nulls 30 --noise 0.5               # nothing withheld only
 
 Prints Markdown tables for bench/RESULTS.md.
 """
@@ -75,11 +76,21 @@ def trials(n: int, only=None, **sim):
         med = f"{np.median(shrink):.2f}, {np.min(shrink):.2f}" if shrink else "—"
         print(f"| {cls.name} | {kw['model']} | {hits}/{n} | {alone}/{n} | {confounded}/{n} | {med} | "
               f"{(time.perf_counter() - t0) / n:.1f} |")
-    if only:
-        return
-    quiet = sum(not diagnose(r.readings, **kw).significant
-                for r, kw in (withheld_trial([], 200 + s, **sim) for s in range(2 * n)))
-    print(f"| (nothing withheld) | ellipsoid | {quiet}/{2 * n} report nothing | — | — |")
+    if not only:
+        nulls(2 * n, **sim)
+
+
+def nulls(n: int, **sim):
+    """Nothing withheld: how many trials report nothing, and what the false finds were."""
+    quiet, found = 0, {}
+    for seed in range(n):
+        r, kw = withheld_trial([], 200 + seed, **sim)
+        d = diagnose(r.readings, **kw)
+        quiet += not d.significant
+        for a in d.accepted:
+            found[a] = found.get(a, 0) + 1
+    wrong = ", ".join(f"{k} {v}" for k, v in found.items()) or "—"
+    print(f"| (nothing withheld) | ellipsoid | {quiet}/{n} report nothing | found: {wrong} | — |")
 
 
 def warm_up(n: int):
@@ -117,6 +128,7 @@ if __name__ == "__main__":
     p.add_argument("--real", type=Path)
     p.add_argument("--trials", type=int)
     p.add_argument("--timing", action="store_true")
+    p.add_argument("--nulls", type=int, help="only the trials with nothing withheld")
     p.add_argument("--warm-up", type=int)
     p.add_argument("--only", nargs="*", help="withheld effects to run (default all)")
     p.add_argument("--noise", type=float, default=0.05, help="white noise σ of the trials, µT (field 50 µT)")
@@ -125,6 +137,8 @@ if __name__ == "__main__":
     args = p.parse_args()
     if args.real:
         real(args.real)
+    if args.nulls:
+        nulls(args.nulls, noise=args.noise, rate_hz=args.rate, duration_s=args.duration)
     if args.trials:
         trials(args.trials, args.only, noise=args.noise, rate_hz=args.rate, duration_s=args.duration)
     if args.timing:
