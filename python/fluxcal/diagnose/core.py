@@ -3,6 +3,7 @@ from __future__ import annotations
 
 import json
 from dataclasses import dataclass, field, replace
+from math import comb
 from pathlib import Path
 from types import SimpleNamespace
 
@@ -128,8 +129,6 @@ def estimate_noise(samples) -> float:
 def _difference_noise(values: np.ndarray, order: int) -> float:
     """σ from the MAD of `order`-th differences along the rows (variance C(2k, k)σ² for white noise),
     per column, then RMS over the columns."""
-    from math import comb
-
     x = np.asarray(values, dtype=float).reshape(len(values), -1)
     d = np.diff(x, n=order, axis=0)
     mad = np.median(np.abs(d - np.median(d, axis=0)), axis=0)
@@ -148,14 +147,14 @@ def _noise(data: _Data, base: dict) -> tuple:
     smaller of the two is taken."""
     sigma = estimate_noise(data.m)
     source = "estimated from third differences of the readings"
-    if len(data.m) >= 40 and _difference_noise(data.m, 4) < MOTION_DROP * sigma:
+    fourth = _difference_noise(data.m, 4) if len(data.m) >= 40 else sigma
+    if fourth < MOTION_DROP * sigma:
         order = np.argsort(data.t, kind="stable")
         e = np.asarray(base["residuals"]).reshape(len(data.m), -1)[order]
         from_residuals = _difference_noise(e, 3)
         if from_residuals < sigma:
             source = (f"estimated from third differences of the base model's residuals: the readings' own "
-                      f"differences follow the motion ({sigma:.4g} from 3rd, "
-                      f"{_difference_noise(data.m, 4):.4g} from 4th order)")
+                      f"differences follow the motion ({sigma:.4g} from 3rd, {fourth:.4g} from 4th order)")
             sigma = from_residuals
     return sigma, source
 
