@@ -6,8 +6,10 @@ it, and how far the gap shrinks once that effect is modelled — proved on held-
     result.ranking[0]["effect"], result.significant
     result.save_json("out.json"); result.report("report_dir")
 
-1. Where: the base model's residuals, normalised by the noise (σ given, or estimated from second
-   differences of the readings, which a smooth motion hardly disturbs), broken down by orientation,
+1. Where: the base model's residuals, normalised by the noise (σ given, or estimated from third
+   differences of the readings, which a smooth motion hardly disturbs — from those of the base model's
+   residuals when the motion is fast for the sample rate; at least LSB/√12 on an ADC's grid), broken
+   down by orientation,
    temperature, time and per axis, with a test per regime and a whiteness test over time.
 2. Which: every candidate effect of `fluxcal.sim.effects.CANDIDATES` (whose regressors the recording
    has) gets a score test at the base fit, a check that existing parameters do not absorb it, then a
@@ -19,13 +21,16 @@ it, and how far the gap shrinks once that effect is modelled — proved on held-
    there: the gap √(RMS² − σ²) before and after, and the downstream errors (field; with reference
    vectors the direction and, given the down direction, the heading). Effects are added greedily while
    the best one is significant (whitened likelihood ratio after a Bonferroni correction over the
-   candidates and their alternatives, ΔBIC < 0, and a held-out improvement that a block t-test finds
-   significant). Systematic effects are tried before
+   candidates and their alternatives, ΔBIC < 0, and a held-out improvement that a block test finds
+   significant: Wilcoxon signed ranks on block means). Features non-linear in the signal are computed
+   from the fitted model's noise-free reading, so the reading noise cannot fake them. Systematic effects
+   are tried before
    noise models: a systematic effect predicts unseen regimes, correlated noise only the next sample.
 4. What the recording cannot decide: a candidate that explained it as well as an accepted effect (ΔBIC
    within CONFOUND_BIC = 10) and adds nothing once that effect is modelled is its rival, reported in
    `Diagnosis.confounded` and as CANNOT TELL APART with what would separate them (a temperature that
-   follows time makes temp_offset and offset_drift one effect).
+   follows time makes temp_offset and offset_drift one effect). A special case of a rival (saturation is
+   the cubic with equal coefficients) is not one: the next round tests the extra terms.
 
 The cable-current ring (seed 000) has its own base model and candidates, with the same statistics:
 
