@@ -45,6 +45,10 @@ def test_time_temperature_and_accelerometer_names():
     assert find_time(["timestamp"], {"timestamp": "us"}) == ("timestamp", 1e-6)
     assert find_time(["elapsed"], {"elapsed": "ms"}) == ("elapsed", 1e-3)  # the header unit wins
     assert find_time(["T", "mx"], {}) is None  # a lone T is not guessed
+    assert find_time(["millis", "mx"], {}) == ("millis", 1e-3)  # Arduino's millis() / micros()
+    assert find_time(["micros", "mx"], {}) == ("micros", 1e-6)
+    assert find_time(["ms", "magX"], {}) == ("ms", 1e-3)  # named only by its unit
+    assert find_time(["s", "mx"], {}) is None  # a lone s is not guessed either
     assert find_temperature(["die_temp_C"], {}) == ("die_temp_C", "C")
     assert find_temperature(["Temperature"], {"Temperature": "°F"}) == ("Temperature", "F")
     assert find_temperature(["temp", "temp_outside"], {}) == ("temp", "C")

@@ -164,6 +164,9 @@ def _single(names, kind_words, unit_table):
             hits.append((name, unit))
         elif len(ws) == 1 and ws[0] in ("timeus", "timems"):
             hits.append((name, ws[0][4:]))
+        elif kind_words is TIME_WORDS and words(name) in (["ms"], ["us"], ["µs"], ["millis"], ["micros"]):
+            # a column named only by its unit: an Arduino sketch printing millis() or micros()
+            hits.append((name, {"millis": "ms", "micros": "us"}.get(words(name)[0], words(name)[0])))
     return hits[0] if len(hits) == 1 else None
 
 
