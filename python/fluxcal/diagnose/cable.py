@@ -52,9 +52,9 @@ from scipy.optimize import least_squares
 
 from ..cable import Ring, RingCalibration
 from ..sim.cable_effects import CABLE_CANDIDATES, sensor_points, straight_unit_fields, to_axes
-from .core import (ABSORBED, HELDOUT_ALPHA, HELDOUT_FRACTION, MIN_GAIN, Diagnosis, _binned, _gap,
-                   _improvement_pvalue, _quantile_bins, _whitened_lr)
-from .report import _num
+from .core import (ABSORBED, HELDOUT_ALPHA, HELDOUT_FRACTION, MIN_GAIN, Diagnosis, _binned, _collapsed, _gap,
+                   _improvement_pvalue, _quantile_bins, _rivals, _whitened_lr)
+from .report import _num, confound_lines
 
 REGIMES = ("rotation", "current", "time")
 PROFILE_GAIN = 1000.0  # χ² a candidate's best alternative removes at fixed positions above which it is profiled
@@ -601,14 +601,16 @@ def _evaluate(cls, data: _Data, state: dict, n_candidates: int, levels) -> dict:
     w = ((1 + delta)[None] * data.weights[current["rows"]][:, :, None])[..., None]  # the gain multiplies the terms too
 
     def new_part(feats):
-        """The candidate's columns outside what the model's parameters do: (score, new dimensions, singular values)."""
+        """The candidate's columns outside what the model's parameters do: (score, new dimensions, singular
+        values, an orthonormal basis of the new part — its signature, for telling rivals apart)."""
         raw = -(feats * w).reshape(-1, feats.shape[-1])
         norms = np.linalg.norm(raw, axis=0)
         norms[norms == 0] = 1.0
         Z = project(raw)
         V, s, _ = np.linalg.svd((Z - U @ (U.T @ Z)) / norms, full_matrices=False)
         new = s >= ABSORBED
-        return (float(np.sum((V[:, new].T @ e) ** 2) / sigma2) if new.any() else 0.0), int(new.sum()), s
+        return ((float(np.sum((V[:, new].T @ e) ** 2) / sigma2) if new.any() else 0.0), int(new.sum()), s,
+                V[:, new])
 
     ctx = _context(data, current["positions"], state["feature_currents"], state["model"].extra(current["positions"]))
     accepted = current["features"]
@@ -630,7 +632,7 @@ def _evaluate(cls, data: _Data, state: dict, n_candidates: int, levels) -> dict:
                                max_nfev=4)["rss"] for a in cls.PROFILE]
         alternative, tried = cls.PROFILE[int(np.argmin(rss))], tried + len(cls.PROFILE)
     feats = cls.features(ctx, alternative)
-    score, dims, singular = new_part(feats)
+    score, dims, singular, signature = new_part(feats)
     regime = _regime(cls.regime, data, levels)
     row = {"effect": cls.name, "regime": regime, "n_params": int(feats.shape[-1]), "new_dimensions": dims,
            "absorbed": dims == 0, "alternatives": tried, **cls.describe(alternative), "score": score,
@@ -663,7 +665,7 @@ def _evaluate(cls, data: _Data, state: dict, n_candidates: int, levels) -> dict:
     row.update(heldout=regime, heldout_gap_before=None, heldout_gap_after=None, heldout_pvalue=None,
                note="not validated on held-out data: " + ("not significant in sample" if not row["_in_sample"]
                                                           else "a candidate with a lower ΔBIC was accepted"))
-    row["_fit"], row["_model"] = fit, model
+    row["_fit"], row["_model"], row["_signature"] = fit, model, signature
     return row
 
 
@@ -860,6 +862,7 @@ def diagnose_cable(readings, ring: Ring, currents=None, rotations_deg=None, posi
         from tqdm import tqdm
 
         bar = tqdm(total=len(pool) * (max_effects + 1), desc="diagnose cable", unit="candidate", leave=False)
+    previous_winner = None
     for _round in range(max_effects + 1):
         rows = []
         for cls in [c for c in pool if c.name not in accepted]:
@@ -868,6 +871,11 @@ def diagnose_cable(readings, ring: Ring, currents=None, rotations_deg=None, posi
                 bar.update(1)
         for r in rows:
             last_rows[r["effect"]] = r
+        if previous_winner is not None:  # core's rule: a rival whose evidence collapsed once the winner was modelled
+            rivals = _collapsed(data, previous_winner, rows)
+            if rivals:
+                previous_winner["confounded_with"] = rivals
+            previous_winner = None
         # Validate in order of ΔBIC: the first significant one is the greedy choice (core's rule: the lowest
         # ΔBIC among the significant), so the rest need no held-out fits this round.
         winner = None
@@ -880,7 +888,9 @@ def diagnose_cable(readings, ring: Ring, currents=None, rotations_deg=None, posi
                     break
         if winner is None or len(accepted) >= max_effects:
             break
-        w = winner
+        w = previous_winner = winner
+        # rivals: significant in sample (only the winner is validated on held-out data, to save its fits)
+        w["_rivals"] = _rivals(w, rows, key="_in_sample")
         accepted.append(w["effect"])
         state["terms"] = list(w["_fit"]["terms"])
         sizes = [cls.features(_context(data, w["_fit"]["positions"], feature_currents), alt).shape[-1]
@@ -899,7 +909,7 @@ def diagnose_cable(readings, ring: Ring, currents=None, rotations_deg=None, posi
     ranking += sorted([r for name, r in last_rows.items() if name not in accepted],
                       key=lambda r: (r.get("absorbed", False), r["delta_bic"]))
     for r in ranking:
-        for key in ("_fit", "_model", "_in_sample"):
+        for key in ("_fit", "_model", "_in_sample", "_signature", "_rivals"):
             r.pop(key, None)
         r["significant"] = r["effect"] in accepted
     final = state["fit"]
@@ -958,6 +968,7 @@ def _text(d) -> str:
     out.append("")
     if d.accepted:
         out.append(f"FOUND: {', '.join(d.accepted)} (added in this order)")
+        out += confound_lines(d)
     else:
         out.append("FOUND: no significant effect — the ring's model explains the readings to the noise")
     b = d.base

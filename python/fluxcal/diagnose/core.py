@@ -492,13 +492,13 @@ def _rotation_deg(total, block: slice, terms: np.ndarray) -> list:
     return np.degrees((Rotation.from_rotvec(terms[block]) * total).as_rotvec()).tolist()
 
 
-def _rivals(winner: dict, rows: list) -> list:
+def _rivals(winner: dict, rows: list, key: str = "significant") -> list:
     """Candidates of the same round that explain the data about as well as the winner (significant
-    themselves, ΔBIC within CONFOUND_BIC). Whether they are the same explanation is settled in the next
-    round (`_collapsed`)."""
+    themselves — `key` of the row, True — ΔBIC within CONFOUND_BIC). Whether they are the same
+    explanation is settled in the next round (`_collapsed`)."""
     out = []
     for r in rows:
-        if r is winner or not r["significant"] or r["delta_bic"] - winner["delta_bic"] >= CONFOUND_BIC:
+        if r is winner or not r.get(key) or r["delta_bic"] - winner["delta_bic"] >= CONFOUND_BIC:
             continue
         overlap = np.linalg.svd(winner["_signature"].T @ r["_signature"], compute_uv=False)
         if overlap.size and overlap.min() >= NESTED and winner["_signature"].shape[1] != r["_signature"].shape[1]:
@@ -520,7 +520,7 @@ def _collapsed(data: _Data, winner: dict, rows: list) -> list:
         if row is None or not (row.get("absorbed") or row["delta_bic"] >= 0):
             continue
         rival = dict(rival)
-        if {winner["regime"], rival["regime"]} == {"temperature", "time"} and data.temp is not None \
+        if {winner["regime"], rival["regime"]} == {"temperature", "time"} and getattr(data, "temp", None) is not None \
                 and np.ptp(data.temp) > 0:
             rival["temperature_time_correlation"] = float(np.corrcoef(data.temp, data.t)[0, 1])
         out.append(rival)
