@@ -351,8 +351,8 @@ def build_parser() -> argparse.ArgumentParser:
     c.add_argument("--method", default="auto", choices=METHODS,
                    help="auto = consistent ellipsoid fit (ALS) + maximum-likelihood refinement (default)")
     c.add_argument("--outliers", default="drop", choices=["drop", "keep"],
-                   help="drop (default): leave gross outliers (0,0,0 glitches, ADC rails, spikes) out of a magnitude "
-                        "fit and list them; keep: fit every reading")
+                   help="drop (default): leave gross outliers (0,0,0 glitches, ADC rails, spikes) out of the fit "
+                        "and list them; keep: fit every reading")
     c.add_argument("--serial-correlation", default="automatic", choices=["automatic", "independent", "newey_west"],
                    help="standard errors: automatic (default) widens them (Newey-West) when the readings are "
                         "correlated in time; independent when the rows are not in time order")

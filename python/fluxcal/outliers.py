@@ -15,6 +15,11 @@ in runs of at most GLITCH_RUN consecutive readings above half the threshold (a g
 ordinary). A longer stretch off the ellipsoid (a magnet passing, the offset
 drifting, the field changing) is kept and reported: it is the sensor or its surroundings, not a bad
 reading, and `fluxcal diagnose` is the tool for it. Rows must be in time order for this distinction.
+
+With reference vectors (the true field of each reading in the sensor frame) the readings are judged
+against the vector model m = W r + b instead: it is linear, so the least-median start is the best of the
+least-squares fit and the subset fits, and a reading's distance is its residual per axis over that axis'
+robust σ — χ with 3 degrees of freedom under Gaussian noise, thresholded at α/N like the ellipsoid's.
 """
 from __future__ import annotations
 
@@ -33,6 +38,7 @@ GLITCH_RUN = 3   # a glitch lasts a sample or a short burst; a longer stretch of
                  # disturbance or a drift of the sensor, which the calibration keeps and diagnose explains
 NOISE_FACTOR = 2.0  # a fit whose distances scatter less than this × the white noise explains the readings
 SCORED = 400     # readings the subset fits are scored on (the median needs no more to rank them)
+VECTOR_MODEL = "the reference-vector model"
 
 
 @dataclass
@@ -44,7 +50,8 @@ class Outliers:
     largest: float = 0.0             # the largest flagged distance, in robust σ
     kinds: dict = field(default_factory=dict)  # "zero" / "rail": how many of the rows look like that
     screened: bool = True            # False: too few readings (< MIN_SAMPLES) or NaN, nothing judged
-    stretches: list = field(default_factory=list)  # (first, last, largest σ) of longer runs off the ellipsoid, kept
+    stretches: list = field(default_factory=list)  # (first, last, largest σ) of longer runs off the model, kept
+    model: str = "the ellipsoid"     # what the readings were judged against
 
     def __len__(self) -> int:
         return len(self.rows)
@@ -64,11 +71,11 @@ class Outliers:
                 ("read exactly 0,0,0 (glitches)", self.kinds.get("zero", 0)),
                 ("sit at a column's extreme value, repeated (ADC rail)", self.kinds.get("rail", 0))) if k)
             out.append(f"left out {len(self.rows)} of {n} readings that lie more than {self.threshold:.1f} robust σ "
-                       f"(up to {self.largest:.0f}) off the ellipsoid (rows {shown}{kinds}); outliers='keep' "
+                       f"(up to {self.largest:.0f}) off {self.model} (rows {shown}{kinds}); outliers='keep' "
                        "(--outliers keep) keeps them")
         if self.stretches:
             shown = ", ".join(f"{a}–{b} (up to {z:.0f} σ)" for a, b, z in self.stretches[:4])
-            out.append(f"rows {shown}{', …' if len(self.stretches) > 4 else ''} lie off the ellipsoid for a stretch "
+            out.append(f"rows {shown}{', …' if len(self.stretches) > 4 else ''} lie off {self.model} for a stretch "
                        f"of more than {GLITCH_RUN} readings: a disturbance or a drift rather than glitches, kept in "
                        "the fit; fluxcal diagnose looks for the cause")
         return out
@@ -150,10 +157,14 @@ def _kinds(m: np.ndarray, rows: np.ndarray) -> dict:
     return {"zero": int(zero.sum()), "rail": int(np.sum(_at_rail(m)[rows].any(axis=1) & ~zero))}
 
 
-def find_outliers(samples, alpha: float = 0.01, seed: int = 0) -> Outliers:
-    """Gross outliers of `samples` (N×3 readings of a turning magnetometer); see the module doc."""
+def find_outliers(samples, reference=None, alpha: float = 0.01, seed: int = 0) -> Outliers:
+    """Gross outliers of `samples` (N×3 readings of a turning magnetometer), judged against the ellipsoid,
+    or with `reference` (the true field of each reading, sensor frame) against the vector model
+    m = W r + b; see the module doc."""
     m = np.asarray(samples, dtype=float)
     n = len(m)
+    if reference is not None:
+        return _vector_outliers(m, np.asarray(reference, dtype=float), alpha, seed)
     threshold = float(stats.norm.isf(alpha / (2 * n))) if n else 0.0
     none = Outliers(np.zeros(0, dtype=int), threshold, screened=False)
     if n < MIN_SAMPLES or not np.isfinite(m).all():
@@ -175,6 +186,12 @@ def find_outliers(samples, alpha: float = 0.01, seed: int = 0) -> Outliers:
         z = z_new
         if not changed:
             break
+    return _verdicts(m, z, threshold, float(sigma))
+
+
+def _verdicts(m: np.ndarray, z: np.ndarray, threshold: float, sigma: float, model: str = "the ellipsoid") -> Outliers:
+    """From each reading's distance off the model (`z`, robust σ) to the rows left out: flagged readings that
+    cannot be real (0,0,0, at a rail) or lie in a run of at most GLITCH_RUN; longer runs are kept as stretches."""
     flagged = z > threshold
     impossible = np.all(m == 0.0, axis=1) | _at_rail(m).any(axis=1)
     drop, stretches = flagged & impossible, []
@@ -188,8 +205,48 @@ def find_outliers(samples, alpha: float = 0.01, seed: int = 0) -> Outliers:
         else:
             stretches.append((int(first), int(last), float(z[first:last + 1].max())))
     rows = np.flatnonzero(drop)
-    return Outliers(rows, threshold, float(sigma), float(z[rows].max()) if len(rows) else 0.0,
-                    _kinds(m, rows) if len(rows) else {}, stretches=stretches)
+    return Outliers(rows, threshold, sigma, float(z[rows].max()) if len(rows) else 0.0,
+                    _kinds(m, rows) if len(rows) else {}, stretches=stretches, model=model)
+
+
+def _vector_outliers(m: np.ndarray, r: np.ndarray, alpha: float, seed: int) -> Outliers:
+    """The vector model's screen. The model m = P' [r; 1] is linear, so the least-median start is the best of
+    the least-squares fit of all readings and SUBSETS fits of SUBSET random readings; a reading's distance
+    is its residual scaled per axis by the robust σ, a χ with 3 degrees of freedom under Gaussian noise
+    (threshold at α/N, as for the ellipsoid). robust_sigma: the RMS over axes, in the readings' units."""
+    n = len(m)
+    threshold = float(np.sqrt(stats.chi2.isf(alpha / n, 3))) if n else 0.0
+    none = Outliers(np.zeros(0, dtype=int), threshold, screened=False, model=VECTOR_MODEL)
+    X = np.column_stack([r, np.ones(n)]) if r.shape == m.shape and m.ndim == 2 else None
+    if n < MIN_SAMPLES or X is None or not (np.isfinite(m).all() and np.isfinite(r).all()) \
+            or np.linalg.matrix_rank(X) < 4:
+        return none  # too few, NaN, or a reference that does not turn: the fit itself names the problem
+    rng = np.random.default_rng(seed)
+    scored = rng.choice(n, min(n, SCORED), replace=False)
+    subsets = rng.integers(0, n, (SUBSETS, SUBSET))
+    fits = np.concatenate([np.linalg.lstsq(X, m, rcond=None)[0][None],
+                           np.linalg.pinv(X[subsets]) @ m[subsets]])  # k × 4 × 3
+    scores = np.median(np.sum((m[scored][None] - X[scored][None] @ fits) ** 2, axis=2), axis=1)
+    P = fits[int(np.argmin(scores))]
+    z, sigma = _vector_z(m, X, P)
+    for _ in range(3):  # refit on the accepted readings and judge everything again, until nothing changes
+        keep = z <= threshold
+        if np.linalg.matrix_rank(X[keep]) < 4:
+            break
+        z_new, sigma = _vector_z(m, X, np.linalg.lstsq(X[keep], m[keep], rcond=None)[0])
+        changed = np.any((z_new > threshold) != (z > threshold))
+        z = z_new
+        if not changed:
+            break
+    return _verdicts(m, z, threshold, sigma, VECTOR_MODEL)
+
+
+def _vector_z(m: np.ndarray, X: np.ndarray, P: np.ndarray):
+    """Each reading's residual off the vector fit P, scaled per axis by its robust σ (1.4826·MAD) → (χ, RMS σ)."""
+    e = m - X @ P
+    e = e - np.median(e, axis=0)
+    sigma = 1.4826 * np.median(np.abs(e), axis=0)
+    return np.sqrt(np.sum((e / np.maximum(sigma, 1e-300)) ** 2, axis=1)), float(np.sqrt(np.mean(sigma ** 2)))
 
 
 def _fits_to_the_noise(m: np.ndarray, cal, threshold: float):

@@ -25,9 +25,10 @@ def calibrate(samples, method: str = "auto", field_norm: float | None = None, re
     remedy instead of passing a confident 3-D answer off as one. Other methods: "vector", "als",
     "ls", "als+refine". `loss` ("none", "huber", "cauchy") applies to the refinement.
 
-    outliers "drop": magnitude-model fits first screen the readings for gross outliers (I²C glitches
-    reading 0,0,0, ADC rails, spikes; fluxcal.outliers) and fit without them; summary["outliers"] lists
-    the rows and a warning says how many. "keep" fits every reading.
+    outliers "drop": the readings are first screened for gross outliers (I²C glitches reading 0,0,0, ADC
+    rails, spikes; fluxcal.outliers) — off the ellipsoid, or with `reference` off the vector model — and
+    fitted without them; summary["outliers"] lists the rows and a warning says how many. "keep" fits
+    every reading.
     """
     if method not in METHODS:
         raise ValueError(f"method: {method!r} is not one of {', '.join(METHODS)}")
@@ -36,16 +37,20 @@ def calibrate(samples, method: str = "auto", field_norm: float | None = None, re
     if units is None:
         units = getattr(samples, "field_units", lambda: "")()
     m = as_samples(samples)
-    if method == "vector" or (method == "auto" and reference is not None):
+    vector = method == "vector" or (method == "auto" and reference is not None)
+    if vector:
         if reference is None:
             raise ValueError("reference: the vector method needs the true field of each reading")
-        cal = fit_vector(m, reference, units=units, loss=loss, **settings)
-        return _note_copies(cal, m)
-    left_out = find_outliers(m) if outliers == "drop" else None
+        reference = as_samples(reference, "reference")
+    left_out = find_outliers(m, reference if vector else None) if outliers == "drop" else None
     all_readings = m
     if left_out:
         m = np.delete(m, left_out.rows, axis=0)
-    if method in ("ls", "als"):
+        if vector:
+            reference = np.delete(reference, left_out.rows, axis=0)
+    if vector:
+        cal = fit_vector(m, reference, units=units, loss=loss, **settings)
+    elif method in ("ls", "als"):
         cal = fit_ellipsoid(m, field_norm=field_norm, units=units, method=method)
         cal.summary["method"] = method
     else:

@@ -7,7 +7,7 @@ import pytest
 from conftest import run_cli
 
 import fluxcal
-from fluxcal import sim
+from fluxcal import attitude, sim
 from fluxcal.outliers import find_outliers
 from fluxcal.sim.effects import random_sensor
 
@@ -128,6 +128,66 @@ def test_real_handheld_recording_ends_with_a_disturbance():
     assert fluxcal.calibrate(np.column_stack([phone["mx"], phone["my"], phone["mz"]])).summary["outliers"]["count"] == 0
 
 
+# -- against reference vectors ------------------------------------------------------------------------------
+
+def vector_recording(seed, n_seconds=30.0, noise=0.25):
+    """A sensor turned by hand (1500 readings at 50 Hz), m = W r + b + noise, with the true field r of each
+    reading known (µT)."""
+    rng = np.random.default_rng(seed)
+    W = np.eye(3) + rng.uniform(-0.1, 0.1, (3, 3))
+    b = rng.uniform(-20, 20, 3)
+    r = sim.tumble(duration_s=n_seconds, rng=rng, temperature=None).sensor_field(FIELD)
+    return r @ W.T + b + noise * rng.standard_normal(r.shape), r, b, rng
+
+
+@pytest.mark.parametrize("seed", range(3))
+def test_vector_glitches_are_found_and_left_out(seed):
+    m, r, b, rng = vector_recording(seed)
+    bad, zeros, rail, spikes = corrupt(m, rng)
+    cal = fluxcal.calibrate(bad, reference=r)
+    assert cal.summary["method"] == "vector"
+    out = cal.summary["outliers"]
+    found = set(out["rows"])
+    assert set(zeros) | set(rail) <= found and len(set(spikes) - found) <= 1
+    assert len(found - set(zeros) - set(rail) - set(spikes)) <= 1
+    assert out["kinds"] == {"zero": len(zeros), "rail": len(rail)}
+    assert any(f"off the reference-vector model (rows" in w for w in cal.summary["warnings"])
+    clean = fluxcal.calibrate(m, reference=r)
+    se = np.asarray(clean.summary["standard_errors"])
+    assert np.all(np.abs(cal.offset - clean.offset) < 2 * se[:3])  # measured ≤ 0.31 SE
+    kept = fluxcal.calibrate(bad, reference=r, outliers="keep")
+    assert "outliers" not in kept.summary
+    assert np.linalg.norm(kept.offset - b) > 10 * np.linalg.norm(cal.offset - b)  # measured 160–390×
+
+
+def test_vector_heavy_contamination_and_clean_recordings():
+    m, r, b, rng = vector_recording(11)
+    bad, _, _, spikes = corrupt(m, rng, zeros=0, rail=0, spikes=150)  # 10 %
+    out = find_outliers(bad, reference=r)
+    assert out.screened and len(set(spikes) - set(out.rows)) <= 2 and len(set(out.rows) - set(spikes)) <= 1
+    flagged = 0
+    for seed in range(20):  # Gaussian noise: a recording is flagged wrongly with probability α = 1 %
+        m, r, _, _ = vector_recording(100 + seed)
+        flagged += len(find_outliers(m, reference=r)) > 0
+    assert flagged <= 1
+    # too few readings, or a reference of the wrong length: not judged, and the fit names the problem
+    assert not find_outliers(m[:30], reference=r[:30]).screened
+    assert not find_outliers(m, reference=r[:-1]).screened
+    with pytest.raises(ValueError, match="reference"):
+        fluxcal.calibrate(m, reference=r[:-1])
+
+
+def test_real_airborne_recording_has_stretches_not_glitches(real_data):
+    """Manoeuvres leave the vector model for stretches of 10–50 readings (eddy currents, see diagnose): kept."""
+    d = np.loadtxt(real_data / "airborne_flt1002_02.tsv")
+    m, ref = d[:, 1:4], attitude.reference_vectors(d[:, 7:10], d[:, 4], d[:, 5], d[:, 6])
+    cal = fluxcal.calibrate(m, reference=ref, units="nT")
+    out = cal.summary["outliers"]
+    assert out["screened"] and out["count"] == 0 and out["stretches_kept"]
+    assert all(b - a + 1 > 3 for a, b, _ in out["stretches_kept"])
+    np.testing.assert_array_equal(cal.offset, fluxcal.calibrate(m, reference=ref, outliers="keep").offset)
+
+
 def test_cli_reports_and_keeps(tmp_path):
     s, rng = turned(7)
     m, *_ = corrupt(s.readings, rng)
@@ -149,3 +209,12 @@ def test_diagnose_leaves_glitches_out_instead_of_explaining_them():
     d = fluxcal.diagnose(m, t=s.t, field_norm=H)
     assert not d.significant, d.accepted
     assert "15 read exactly 0,0,0" in d.noise_source  # the report's note on what was left out
+
+
+def test_diagnose_leaves_vector_glitches_out():
+    m, r, _, rng = vector_recording(7)
+    bad, *_ = corrupt(m, rng)
+    d = fluxcal.diagnose(bad, reference=r)
+    assert not d.significant, d.accepted
+    assert "15 read exactly 0,0,0" in d.noise_source and "reference-vector model" in d.noise_source
+    assert d.noise_sigma == pytest.approx(0.25, rel=0.1)

@@ -698,16 +698,16 @@ def _prepare(samples, t, temp, reference, down, field_norm, units, source) -> _D
         temp, reference, down = (None if a is None else a[keep] for a in (temp, reference, down))
         notes.append(f"{int(copies.sum())} of {n} readings ({100 * copies.mean():.0f} %) repeat the previous one "
                      "exactly (sample and hold: the logger ran faster than the sensor) and were left out")
-    if reference is None and np.isfinite(m).all():
+    if np.isfinite(m).all():
         # Glitches (0,0,0, ADC rails, spikes of ≤ 3 readings) are bad readings, not sensor physics: left
-        # out as calibrate leaves them out. Longer stretches off the ellipsoid stay: they are what the
+        # out as calibrate leaves them out. Longer stretches off the model stay: they are what the
         # candidates (a moving dipole, a drift, saturation) explain.
-        glitches = find_outliers(m)
+        glitches = find_outliers(m, reference)
         if len(glitches):
             keep = np.ones(len(m), dtype=bool)
             keep[glitches.rows] = False
             m, t = m[keep], t[keep]
-            temp, down = (None if a is None else a[keep] for a in (temp, down))
+            temp, reference, down = (None if a is None else a[keep] for a in (temp, reference, down))
             notes.append(glitches.messages(len(keep))[0].replace("; outliers='keep' (--outliers keep) keeps them",
                                                                  " (glitches, not sensor physics)"))
     return _Data(m, t, temp, reference, down, float(field_norm) if field_norm else 0.0, units, source, notes)
