@@ -258,6 +258,33 @@ def test_noise_estimate_when_the_turns_are_fast_for_the_sample_rate():
     assert "base model's residuals" in d.noise_source
 
 
+@pytest.mark.parametrize("seed", range(2))
+def test_rows_out_of_time_order(seed):
+    # Rows shuffled (a log sorted by another column, positions in any order): third differences of the
+    # readings hold the whole field (σ 580x too high: nothing was ever found). The noise now comes from the
+    # base model's residuals, and the report says why and asks for the datasheet σ.
+    for names in (["nonlinearity_cubic"], []):
+        result, kwargs = withheld_trial(names, seed)
+        rows = np.random.default_rng(seed).permutation(len(result.readings))
+        d = diagnose(result.readings[rows], field_norm=50.0)
+        assert "not a time series" in d.noise_source and "noise_sigma" in d.noise_source
+        assert d.accepted == names
+        if not names:
+            assert d.noise_sigma == pytest.approx(0.05, rel=0.15)  # the simulated white noise
+
+
+def test_a_static_sensor_is_still_a_time_series():
+    # Readings that do not turn spread by their noise only: not to be taken for shuffled rows.
+    rng = np.random.default_rng(2)
+    m = np.array([20.0, 1.0, 45.0]) + 0.05 * rng.standard_normal((2000, 3))
+    ref = np.tile([20.0, 1.0, 45.0], (2000, 1))
+    from fluxcal.diagnose.core import _Data, _noise
+
+    data = _Data(m, np.arange(2000.0), None, ref, None, 0.0, "", "static", [])
+    sigma, source = _noise(data, {"residuals": m - m.mean(axis=0)})
+    assert "not a time series" not in source and sigma == pytest.approx(0.05, rel=0.1)
+
+
 def test_heldout_gain_confined_to_one_block_is_significant():
     # An event: the held-out gain sits in one block and is tiny elsewhere, but positive in every block.
     # Signed ranks see 30 positive blocks; a t-test on such skewed means gives p ≈ 0.16.

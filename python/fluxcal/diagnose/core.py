@@ -137,22 +137,35 @@ def _difference_noise(values: np.ndarray, order: int) -> float:
 
 MOTION_DROP = 0.9  # 4th-order estimate below 0.9 × the 3rd: the differences follow the motion, not the noise
                    # (white noise gives the same σ at every order, within ~1 % at 3000 readings)
+UNORDERED = 0.25  # a 3rd-difference σ above this × the readings' own spread: consecutive readings differ about
+                  # as much as any two (i.i.d. rows give ≈ 1, a turned sensor ≪ 0.01), so they are not a time series
 
 
 def _noise(data: _Data, base: dict) -> tuple:
     """The noise σ and where it came from. Third differences of the readings, unless the readings
     change too fast for them (a hand turn logged at 10 Hz: the estimate then falls with the difference
-    order); then third differences of the base model's residuals in time order, which no longer hold
+    order) or are not a time series at all (rows shuffled or sorted: consecutive readings differ as much
+    as any two); then third differences of the base model's residuals in time order, which no longer hold
     the field's rotation. A reference-vector model's residuals hold the attitude's errors, so the
     smaller of the two is taken."""
     sigma = estimate_noise(data.m)
     source = "estimated from third differences of the readings"
     fourth = _difference_noise(data.m, 4) if len(data.m) >= 40 else sigma
-    if fourth < MOTION_DROP * sigma:
+    spread = np.sqrt(np.mean(np.var(data.m, axis=0)))
+    if fourth < MOTION_DROP * sigma or sigma > UNORDERED * spread:
         order = np.argsort(data.t, kind="stable")
         e = np.asarray(base["residuals"]).reshape(len(data.m), -1)[order]
         from_residuals = _difference_noise(e, 3)
-        if from_residuals < sigma:
+        # the readings do vary (not a static sensor, whose spread is its noise), yet jump between rows
+        unordered = sigma > UNORDERED * spread and spread > 1 / UNORDERED * from_residuals
+        if from_residuals < sigma and unordered:
+            source = (f"estimated from the base model's residuals, which also hold whatever the model misses: "
+                      f"consecutive readings differ about as much as any two ({sigma:.4g} from their third "
+                      "differences), so they are not a time series in which noise and signal can be told apart "
+                      "(rows out of time order, or readings far apart in time); give noise_sigma (the "
+                      "datasheet's) to test the candidates against the sensor's own noise")
+            sigma = from_residuals
+        elif from_residuals < sigma:
             source = (f"estimated from third differences of the base model's residuals: the readings' own "
                       f"differences follow the motion ({sigma:.4g} from 3rd, {fourth:.4g} from 4th order)")
             sigma = from_residuals
