@@ -18,15 +18,17 @@ reading, and `fluxcal diagnose` is the tool for it. Rows must be in time order f
 
 With reference vectors (the true field of each reading in the sensor frame) the readings are judged
 against the vector model m = W r + b instead: it is linear, so the least-median start is the best of the
-least-squares fit and the subset fits, and a reading's distance is its residual per axis over that axis'
-robust σ — χ with 3 degrees of freedom under Gaussian noise, thresholded at α/N like the ellipsoid's.
+least-squares fit and the subset fits. A first verdict takes each axis' robust σ; then, refitted on the
+accepted readings, a reading's distance is the Mahalanobis distance of its residual with their
+covariance (the axes' noise may be correlated), judged by Hotelling's T² at α/N and reported as the
+normal deviate of the same tail probability, so thresholds and messages read as the ellipsoid's.
 """
 from __future__ import annotations
 
 from dataclasses import dataclass, field
 
 import numpy as np
-from scipy import stats
+from scipy import special, stats
 
 from .calibration import Calibration
 from .ellipsoid import fit_ellipsoid
@@ -46,7 +48,8 @@ class Outliers:
     """Rows left out (indices into the readings given), and how they were judged."""
     rows: np.ndarray
     threshold: float = 0.0           # in robust σ
-    robust_sigma: float = 0.0        # of the relative radial distance |h|/median|h| − 1
+    robust_sigma: float = 0.0        # of the relative radial distance |h|/median|h| − 1 (the vector
+                                     # model: the RMS residual σ over axes, in the readings' units)
     largest: float = 0.0             # the largest flagged distance, in robust σ
     kinds: dict = field(default_factory=dict)  # "zero" / "rail": how many of the rows look like that
     screened: bool = True            # False: too few readings (< MIN_SAMPLES) or NaN, nothing judged
@@ -210,12 +213,10 @@ def _verdicts(m: np.ndarray, z: np.ndarray, threshold: float, sigma: float, mode
 
 
 def _vector_outliers(m: np.ndarray, r: np.ndarray, alpha: float, seed: int) -> Outliers:
-    """The vector model's screen. The model m = P' [r; 1] is linear, so the least-median start is the best of
-    the least-squares fit of all readings and SUBSETS fits of SUBSET random readings; a reading's distance
-    is its residual scaled per axis by the robust σ, a χ with 3 degrees of freedom under Gaussian noise
-    (threshold at α/N, as for the ellipsoid). robust_sigma: the RMS over axes, in the readings' units."""
+    """The vector model's screen (see the module doc). robust_sigma: the RMS over axes of the residual σ
+    of the accepted readings, in the readings' units."""
     n = len(m)
-    threshold = float(np.sqrt(stats.chi2.isf(alpha / n, 3))) if n else 0.0
+    threshold = float(stats.norm.isf(alpha / (2 * n))) if n else 0.0
     none = Outliers(np.zeros(0, dtype=int), threshold, screened=False, model=VECTOR_MODEL)
     X = np.column_stack([r, np.ones(n)]) if r.shape == m.shape and m.ndim == 2 else None
     if n < MIN_SAMPLES or X is None or not (np.isfinite(m).all() and np.isfinite(r).all()) \
@@ -227,13 +228,17 @@ def _vector_outliers(m: np.ndarray, r: np.ndarray, alpha: float, seed: int) -> O
     fits = np.concatenate([np.linalg.lstsq(X, m, rcond=None)[0][None],
                            np.linalg.pinv(X[subsets]) @ m[subsets]])  # k × 4 × 3
     scores = np.median(np.sum((m[scored][None] - X[scored][None] @ fits) ** 2, axis=2), axis=1)
-    P = fits[int(np.argmin(scores))]
-    z, sigma = _vector_z(m, X, P)
-    for _ in range(3):  # refit on the accepted readings and judge everything again, until nothing changes
+    e = m - X @ fits[int(np.argmin(scores))]
+    e = e - np.median(e, axis=0)
+    # first verdict per axis (MAD), then Mahalanobis distances with the accepted readings' covariance: the
+    # noise of the three axes may be correlated (one ADC, one reference error), which per-axis σ misses
+    chi2 = np.sum((e / np.maximum(1.4826 * np.median(np.abs(e), axis=0), 1e-300)) ** 2, axis=1)
+    z, sigma = _normal_deviate(stats.chi2.logsf(chi2, 3), chi2), 0.0
+    for _ in range(5):  # refit on the accepted readings and judge everything again, until nothing changes
         keep = z <= threshold
-        if np.linalg.matrix_rank(X[keep]) < 4:
+        if keep.sum() < SUBSET or np.linalg.matrix_rank(X[keep]) < 4:
             break
-        z_new, sigma = _vector_z(m, X, np.linalg.lstsq(X[keep], m[keep], rcond=None)[0])
+        z_new, sigma = _vector_z(m, X, keep)
         changed = np.any((z_new > threshold) != (z > threshold))
         z = z_new
         if not changed:
@@ -241,12 +246,28 @@ def _vector_outliers(m: np.ndarray, r: np.ndarray, alpha: float, seed: int) -> O
     return _verdicts(m, z, threshold, sigma, VECTOR_MODEL)
 
 
-def _vector_z(m: np.ndarray, X: np.ndarray, P: np.ndarray):
-    """Each reading's residual off the vector fit P, scaled per axis by its robust σ (1.4826·MAD) → (χ, RMS σ)."""
-    e = m - X @ P
-    e = e - np.median(e, axis=0)
-    sigma = 1.4826 * np.median(np.abs(e), axis=0)
-    return np.sqrt(np.sum((e / np.maximum(sigma, 1e-300)) ** 2, axis=1)), float(np.sqrt(np.mean(sigma ** 2)))
+def _normal_deviate(log_tail: np.ndarray, statistic: np.ndarray) -> np.ndarray:
+    """The normal deviate whose two-sided tail is the one-sided tail exp(log_tail) of `statistic`; where
+    that underflows, √statistic (far beyond any threshold either way, and finite for the messages)."""
+    z = -special.ndtri_exp(np.log(0.5) + log_tail)
+    return np.where(np.isfinite(z), z, np.sqrt(statistic))
+
+
+def _vector_z(m: np.ndarray, X: np.ndarray, keep: np.ndarray):
+    """Each reading's residual off the least-squares fit of the `keep` readings as a Mahalanobis distance
+    with their residual covariance (ν = n_keep − 4 degrees of freedom), its variance scaled by leverage
+    (1 − h for a fitted reading, 1 + h for one left out), and turned into the normal deviate of the same
+    tail probability under Hotelling's T² (3 dimensions): the ellipsoid's threshold then applies.
+    Returns (z, RMS over axes of the residual σ)."""
+    Xk = X[keep]
+    nu = len(Xk) - 4
+    G = np.linalg.inv(Xk.T @ Xk)
+    e = m - X @ (G @ (Xk.T @ m[keep]))
+    S = e[keep].T @ e[keep] / nu
+    h = np.einsum("ij,jk,ik->i", X, G, X)
+    t2 = np.einsum("ij,jk,ik->i", e, np.linalg.pinv(S), e) / np.where(keep, 1 - h, 1 + h)
+    f = t2 * (nu - 2) / (3 * nu)  # T² ν−p+1 / (p ν) ~ F(p, ν−p+1)
+    return _normal_deviate(stats.f.logsf(f, 3, nu - 2), t2), float(np.sqrt(np.mean(np.diag(S))))
 
 
 def _fits_to_the_noise(m: np.ndarray, cal, threshold: float):
