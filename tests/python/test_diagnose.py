@@ -285,6 +285,37 @@ def test_a_static_sensor_is_still_a_time_series():
     assert "not a time series" not in source and sigma == pytest.approx(0.05, rel=0.1)
 
 
+@pytest.mark.parametrize("positions,held", [(12, 5), (24, 4)])
+def test_noise_estimate_when_positions_are_held_a_few_readings_each(positions, held):
+    # A multi-position log at 1 Hz: the steps between positions raise the 4th-order estimate above the
+    # 3rd and held the 3rd-order σ at 72-125x the noise; the base model's residuals do not step.
+    from scipy.spatial.transform import Rotation
+
+    from fluxcal.sim.effects import HardIron, SoftIron, WhiteNoise
+    from fluxcal.sim.scene import Scene
+    from fluxcal.sim.simulate import simulate
+    from fluxcal.sim.withheld import FIELD
+
+    rng = np.random.default_rng(3)
+    at = Rotation.random(positions, random_state=rng)[np.repeat(np.arange(positions), held)]
+    scene = Scene(at, np.arange(positions * held, dtype=float))
+    W = np.diag([1.03, 0.97, 1.01])
+    result = simulate(scene, [SoftIron(W), HardIron([4.0, -3.0, 2.0]), WhiteNoise(0.05)], FIELD, rng)
+    assert estimate_noise(result.readings) > 2 * 0.05
+    d = diagnose(result.readings, t=result.t, field_norm=50.0, candidates=["offset_drift"])
+    assert d.noise_sigma == pytest.approx(0.05, rel=0.3) and "steps between held positions" in d.noise_source
+
+
+def test_rows_given_out_of_time_order_are_sorted():
+    result, kwargs = withheld_trial(["nonlinearity_cubic"], 0)
+    rows = np.random.default_rng(0).permutation(len(result.readings))
+    m = result.readings[rows]
+    m[[5, 8]] = 0.0  # two I²C glitches, named by their rows in the input
+    d = diagnose(m, t=kwargs["t"][rows], temp=kwargs["temp"][rows], field_norm=50.0)
+    assert d.accepted == ["nonlinearity_cubic"] and d.noise_sigma == pytest.approx(0.05, rel=0.1)
+    assert "sorted by t" in d.noise_source and "(rows 5, 8;" in d.noise_source
+
+
 def test_heldout_gain_confined_to_one_block_is_significant():
     # An event: the held-out gain sits in one block and is tiny elsewhere, but positive in every block.
     # Signed ranks see 30 positive blocks; a t-test on such skewed means gives p ≈ 0.16.

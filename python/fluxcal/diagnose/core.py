@@ -135,8 +135,9 @@ def _difference_noise(values: np.ndarray, order: int) -> float:
     return float(np.sqrt(np.mean((1.4826 * mad) ** 2 / comb(2 * order, order))))
 
 
-MOTION_DROP = 0.9  # 4th-order estimate below 0.9 × the 3rd: the differences follow the motion, not the noise
-                   # (white noise gives the same σ at every order, within ~1 % at 3000 readings)
+MOTION_DROP = 0.9  # 4th-order estimate off the 3rd by more than 10 %: the differences hold the motion, not the
+                   # noise (below: fast turns; above: steps between held positions; white noise gives the same σ
+                   # at every order, within ~1 % at 3000 readings)
 UNORDERED = 0.25  # a 3rd-difference σ above this × the readings' own spread: consecutive readings differ about
                   # as much as any two (i.i.d. rows give ≈ 1, a turned sensor ≪ 0.01), so they are not a time series
 
@@ -144,7 +145,7 @@ UNORDERED = 0.25  # a 3rd-difference σ above this × the readings' own spread: 
 def _noise(data: _Data, base: dict) -> tuple:
     """The noise σ and where it came from. Third differences of the readings, unless the readings
     change too fast for them (a hand turn logged at 10 Hz: the estimate then falls with the difference
-    order) or are not a time series at all (rows shuffled or sorted: consecutive readings differ as much
+    order; steps between positions held a few readings each: it rises) or are not a time series at all (rows shuffled or sorted: consecutive readings differ as much
     as any two); then third differences of the base model's residuals in time order, which no longer hold
     the field's rotation. A reference-vector model's residuals hold the attitude's errors, so the
     smaller of the two is taken."""
@@ -152,7 +153,7 @@ def _noise(data: _Data, base: dict) -> tuple:
     source = "estimated from third differences of the readings"
     fourth = _difference_noise(data.m, 4) if len(data.m) >= 40 else sigma
     spread = np.sqrt(np.mean(np.var(data.m, axis=0)))
-    if fourth < MOTION_DROP * sigma or sigma > UNORDERED * spread:
+    if abs(fourth - sigma) > (1 - MOTION_DROP) * sigma or sigma > UNORDERED * spread:
         order = np.argsort(data.t, kind="stable")
         e = np.asarray(base["residuals"]).reshape(len(data.m), -1)[order]
         from_residuals = _difference_noise(e, 3)
@@ -161,13 +162,14 @@ def _noise(data: _Data, base: dict) -> tuple:
         if from_residuals < sigma and unordered:
             source = (f"estimated from the base model's residuals, which also hold whatever the model misses: "
                       f"consecutive readings differ about as much as any two ({sigma:.4g} from their third "
-                      "differences), so they are not a time series in which noise and signal can be told apart "
-                      "(rows out of time order, or readings far apart in time); give noise_sigma (the "
-                      "datasheet's) to test the candidates against the sensor's own noise")
+                      "differences), so differences in time cannot tell noise from signal (readings far apart "
+                      "in time, or rows out of time order with no times given): not a time series; give "
+                      "noise_sigma (the datasheet's) to test the candidates against the sensor's own noise")
             sigma = from_residuals
         elif from_residuals < sigma:
             source = (f"estimated from third differences of the base model's residuals: the readings' own "
-                      f"differences follow the motion ({sigma:.4g} from 3rd, {fourth:.4g} from 4th order)")
+                      f"differences hold the motion — fast turns, or steps between held positions ({sigma:.4g} "
+                      f"from 3rd, {fourth:.4g} from 4th order)")
             sigma = from_residuals
     return sigma, source
 
@@ -704,10 +706,16 @@ def _prepare(samples, t, temp, reference, down, field_norm, units, source) -> _D
         if len(down) != n or np.any(np.linalg.norm(down, axis=1) == 0):
             raise ValueError(f"gravity: need {n} non-zero vectors (the accelerometer), got {len(down)}")
     notes = []
+    rows = np.arange(n)  # each reading's row in the input, for the notes
+    if np.any(np.diff(t) < 0):  # differences, runs and time blocks all need time order
+        rows = np.argsort(t, kind="stable")
+        m, t = m[rows], t[rows]
+        temp, reference, down = (None if a is None else a[rows] for a in (temp, reference, down))
+        notes.append("the rows were not in time order and were sorted by t")
     copies = held_copies(m)  # sample and hold: the copies carry no new information, make the noise look
     if copies is not None:    # correlated and shrink the third differences the noise σ comes from
         keep = ~copies
-        m, t = m[keep], t[keep]
+        m, t, rows = m[keep], t[keep], rows[keep]
         temp, reference, down = (None if a is None else a[keep] for a in (temp, reference, down))
         notes.append(f"{int(copies.sum())} of {n} readings ({100 * copies.mean():.0f} %) repeat the previous one "
                      "exactly (sample and hold: the logger ran faster than the sensor) and were left out")
@@ -719,10 +727,10 @@ def _prepare(samples, t, temp, reference, down, field_norm, units, source) -> _D
         if len(glitches):
             keep = np.ones(len(m), dtype=bool)
             keep[glitches.rows] = False
-            m, t = m[keep], t[keep]
+            notes.append(replace(glitches, rows=np.sort(rows[glitches.rows])).messages(len(keep))[0].replace(
+                "; outliers='keep' (--outliers keep) keeps them", " (glitches, not sensor physics)"))
+            m, t, rows = m[keep], t[keep], rows[keep]
             temp, reference, down = (None if a is None else a[keep] for a in (temp, reference, down))
-            notes.append(glitches.messages(len(keep))[0].replace("; outliers='keep' (--outliers keep) keeps them",
-                                                                 " (glitches, not sensor physics)"))
     return _Data(m, t, temp, reference, down, float(field_norm) if field_norm else 0.0, units, source, notes)
 
 
