@@ -168,6 +168,7 @@ def main(argv=None) -> int:
         t["calibrate"] = best_time(lambda: fluxcal.calibrate(x, field_norm=H), R)
         t["calibrate keep"] = best_time(lambda: fluxcal.calibrate(x, field_norm=H, outliers="keep"), R)
         t["fit_vector"] = best_time(lambda: fluxcal.fit_vector(x, ref), R)
+        t["calibrate vector"] = best_time(lambda: fluxcal.calibrate(x, reference=ref), R)
 
         X = np.column_stack([ref, np.ones(n)])
         t["numpy lstsq (vector model)"] = best_time(lambda: np.linalg.lstsq(X, x, rcond=None), R)
@@ -210,7 +211,8 @@ def main(argv=None) -> int:
                ("fluxcal.refine(als fit) — magnitude model", "refine"),
                ("fluxcal.calibrate() — outlier screen, ALS + refine", "calibrate"),
                ("fluxcal.calibrate(outliers='keep') — ALS + refine", "calibrate keep"),
-               ("fluxcal.fit_vector(x, reference)", "fit_vector")]
+               ("fluxcal.fit_vector(x, reference)", "fit_vector"),
+               ("fluxcal.calibrate(x, reference=…) — outlier screen + vector fit", "calibrate vector")]
     peers = [("magyc ellipsoid_fit", "fit_ellipsoid ls"), ("magyc ellipsoid_fit_fang", "fit_ellipsoid ls"),
              ("magyc sphere_fit", "fit_ellipsoid ls"),
              ("scipy trf, analytic J", "refine"), ("scipy lm, analytic J", "refine"),
