@@ -7,9 +7,9 @@ it, and how far the gap shrinks once that effect is modelled — proved on held-
     result.save_json("out.json"); result.report("report_dir")
 
 1. Where: the base model's residuals, normalised by the noise (σ given, or estimated from third
-   differences of the readings, which a smooth motion hardly disturbs — from those of the base model's
-   residuals when the motion is fast for the sample rate; at least LSB/√12 on an ADC's grid), broken
-   down by orientation,
+   differences of the readings in time order, which a smooth motion hardly disturbs — from those of the
+   base model's residuals when the motion is fast for the sample rate, steps between held positions, or
+   rows that are no time series at all; at least LSB/√12 on an ADC's grid), broken down by orientation,
    temperature, time and per axis, with a test per regime and a whiteness test over time.
 2. Which: every candidate effect of `fluxcal.sim.effects.CANDIDATES` (whose regressors the recording
    has) gets a score test at the base fit, a check that existing parameters do not absorb it, then a

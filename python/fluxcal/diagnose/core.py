@@ -145,9 +145,10 @@ UNORDERED = 0.25  # a 3rd-difference σ above this × the readings' own spread: 
 def _noise(data: _Data, base: dict) -> tuple:
     """The noise σ and where it came from. Third differences of the readings, unless the readings
     change too fast for them (a hand turn logged at 10 Hz: the estimate then falls with the difference
-    order; steps between positions held a few readings each: it rises) or are not a time series at all (rows shuffled or sorted: consecutive readings differ as much
-    as any two); then third differences of the base model's residuals in time order, which no longer hold
-    the field's rotation. A reference-vector model's residuals hold the attitude's errors, so the
+    order; steps between positions held a few readings each: it rises) or are not a time series at all
+    (rows shuffled or sorted with no times given: consecutive readings differ as much as any two); then
+    third differences of the base model's residuals in time order, which no longer hold the field's
+    rotation. A reference-vector model's residuals hold the attitude's errors, so the
     smaller of the two is taken."""
     sigma = estimate_noise(data.m)
     source = "estimated from third differences of the readings"
