@@ -316,6 +316,16 @@ def test_rows_given_out_of_time_order_are_sorted():
     assert "sorted by t" in d.noise_source and "(rows 5, 8;" in d.noise_source
 
 
+def test_a_clock_that_wraps_keeps_the_row_order():
+    # Arduino's micros() wraps every 71.6 min: t jumps back once in a log written in time order. Sorted by
+    # t, the two halves swapped places and the drift was missed or called colored noise (0/3 seeds).
+    result, kwargs = withheld_trial(["offset_drift"], 0)
+    wrapped = ((np.round(kwargs["t"] * 1e6) + 2 ** 32 - 30e6) % 2 ** 32) * 1e-6  # wraps 30 s in
+    d = diagnose(result.readings, **dict(kwargs, t=wrapped))
+    assert d.accepted == ["offset_drift"]
+    assert "t went backwards at row 1500 (a counter wrap" in d.noise_source
+
+
 def test_heldout_gain_confined_to_one_block_is_significant():
     # An event: the held-out gain sits in one block and is tiny elsewhere, but positive in every block.
     # Signed ranks see 30 positive blocks; a t-test on such skewed means gives p ≈ 0.16.

@@ -138,6 +138,8 @@ def _difference_noise(values: np.ndarray, order: int) -> float:
 MOTION_DROP = 0.9  # 4th-order estimate off the 3rd by more than 10 %: the differences hold the motion, not the
                    # noise (below: fast turns; above: steps between held positions; white noise gives the same σ
                    # at every order, within ~1 % at 3000 readings)
+CLOCK_JUMPS = 0.01  # t going backwards at up to this fraction of the rows: a log in time order whose clock wrapped
+                   # (Arduino's micros() every 71.6 min) or was reset, kept in row order; more: rows out of order
 UNORDERED = 0.25  # a 3rd-difference σ above this × the readings' own spread: consecutive readings differ about
                   # as much as any two (i.i.d. rows give ≈ 1, a turned sensor ≪ 0.01), so they are not a time series
 
@@ -708,11 +710,23 @@ def _prepare(samples, t, temp, reference, down, field_norm, units, source) -> _D
             raise ValueError(f"gravity: need {n} non-zero vectors (the accelerometer), got {len(down)}")
     notes = []
     rows = np.arange(n)  # each reading's row in the input, for the notes
-    if np.any(np.diff(t) < 0):  # differences, runs and time blocks all need time order
+    back = np.flatnonzero(np.diff(t) < 0)  # differences, runs and time blocks all need time order
+    if len(back) > CLOCK_JUMPS * n:
         rows = np.argsort(t, kind="stable")
         m, t = m[rows], t[rows]
         temp, reference, down = (None if a is None else a[rows] for a in (temp, reference, down))
-        notes.append("the rows were not in time order and were sorted by t")
+        notes.append(f"t went backwards at {len(back)} of {n} rows: the rows were not in time order and were "
+                     "sorted by t")
+    elif len(back):
+        dt = np.diff(t)
+        step = float(np.median(dt[dt > 0])) if np.any(dt > 0) else 0.0
+        t = t.copy()
+        for i in back:  # the rows after a jump continue one ordinary step after the row before it
+            t[i + 1:] += t[i] - t[i + 1] + step
+        notes.append(f"t went backwards at row{'s' if len(back) > 1 else ''} "
+                     f"{', '.join(str(i + 1) for i in back[:5])}{', …' if len(back) > 5 else ''} (a counter "
+                     "wrap or a clock reset in a log written in time order): the rows after each jump were "
+                     "taken to follow it, one ordinary step later")
     copies = held_copies(m)  # sample and hold: the copies carry no new information, make the noise look
     if copies is not None:    # correlated and shrink the third differences the noise σ comes from
         keep = ~copies
