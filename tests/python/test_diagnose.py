@@ -143,6 +143,28 @@ def test_rotation_refit_by_later_rounds_is_folded_in():
     assert "misalignment: rotation vector" in d.text()
 
 
+def test_a_time_offset_is_measured_as_a_delay():
+    # Readings logged late (or early) against their reference vectors: found alone, modelled as an exact
+    # delay of the reference (not to first order), so the delay comes out as simulated, either sign.
+    for seed, word in ((0, "behind"), (1, "ahead of")):
+        result, kwargs = withheld_trial(["time_offset"], seed)
+        d = diagnose(result.readings, **kwargs)
+        assert d.accepted == ["time_offset"], d.accepted
+        truth = next(e.delta for e in result.effects if e.name == "time_offset")
+        assert abs(d.ranking[0]["delay_ms"] - 1e3 * truth) < 0.1, (d.ranking[0]["delay_ms"], truth)
+        assert d.ranking[0]["heldout_gap_after"] < 0.25 * d.ranking[0]["heldout_gap_before"]
+        assert f"ms {word} the reference vectors" in d.text()
+
+
+def test_an_eddy_current_is_not_taken_for_a_time_offset():
+    # A delay is an eddy current with one τ on every axis; a real eddy current (different τ per axis,
+    # always a lag) against reference vectors must stay an eddy current.
+    for seed in range(3):
+        result, kwargs = withheld_trial(["eddy_current"], seed, model="vector")
+        d = diagnose(result.readings, **kwargs)
+        assert d.accepted == ["eddy_current"], d.accepted
+
+
 def test_noise_estimate_from_third_differences():
     result, _ = withheld_trial([], 7)
     assert estimate_noise(result.readings) == pytest.approx(0.05, rel=0.05)
@@ -341,7 +363,7 @@ def test_heldout_gain_confined_to_one_block_is_significant():
 def test_effects_a_magnitude_model_cannot_see_are_named():
     result, kwargs = withheld_trial(["temp_offset"], 3)
     d = diagnose(result.readings, t=kwargs["t"], field_norm=50.0)  # no temperature, no reference vectors
-    assert "misalignment" in d.remaining["invisible_candidates"]
+    assert {"misalignment", "time_offset"} <= set(d.remaining["invisible_candidates"])
     assert "misalignment" not in [r["effect"] for r in d.ranking]
     words = d.text()
     assert "leaves |h| unchanged" in words

@@ -51,10 +51,10 @@ class _Data:
 class Diagnosis:
     """What `diagnose` found. `ranking`: one dict per candidate, accepted effects first (in the order
     they were added), then the rest by ΔBIC; an accepted row may carry `confounded_with` (see
-    `confounded`) and, for a rotation of the reference (misalignment), `rotation_deg` (the whole fitted
-    rotation vector, degrees); `significant_not_modelled` marks a candidate still significant when the
-    `max_effects` limit stopped the search. `where`: residual tables per regime. `significant`: any
-    effect found."""
+    `confounded`) and, for a move of the reference, the whole fitted move: `rotation_deg` (misalignment's
+    rotation vector, degrees) or `delay_ms` (time_offset: the readings this late);
+    `significant_not_modelled` marks a candidate still significant when the `max_effects` limit stopped
+    the search. `where`: residual tables per regime. `significant`: any effect found."""
 
     model: str
     noise_sigma: float
@@ -478,36 +478,27 @@ def _evaluate(cls, data, model, state, sigma, n_candidates) -> dict:
     return row
 
 
-def _exact_rotation(data: _Data, state: dict, model: str, cls, iterations: int = 3):
-    """Model an accepted rotation of the reference (misalignment) exactly. Its features are first order
-    in the angles, R(θ)r ≈ r + θ × r, which leaves ½ θ × (θ × r): a symmetric term that a later round
-    would take for non_orthogonality. Instead the reference is rotated by the fitted angles and the
-    features stay as corrections around that rotation (a few Gauss–Newton steps on the rotation).
-    Returns the data with the rotated reference, the rotation applied to it and the block's slice of
-    the terms (later rounds refit the block: `_rotation_deg` folds in what they moved)."""
-    from scipy.spatial.transform import Rotation
-
+def _exact_move(data: _Data, state: dict, model: str, cls, iterations: int = 3):
+    """Model an accepted move of the reference (a misalignment's rotation, a time offset's delay) exactly.
+    Its features are first order in the move, R(θ)r ≈ r + θ × r, which leaves ½ θ × (θ × r): a symmetric
+    term that a later round would take for non_orthogonality (a delay leaves ½ δ² d²m/dt²). Instead the
+    reference is moved by the fitted parameters and the features stay as corrections around that move (a
+    few Gauss–Newton steps). Returns the data with the moved reference, the move applied to it and the
+    block's slice of the terms (later rounds refit the block: its remainder is folded in at the end)."""
     fixed = MODELS[model][1]
     sizes = [f.shape[1] for f in state["features"]]
     lo = sum(sizes[:-1])
-    total = Rotation.identity()
+    block = slice(lo, lo + sizes[-1])
+    original, total = data.reference, np.zeros(sizes[-1])
     for _ in range(iterations):
-        step = Rotation.from_rotvec(state["terms"][lo:lo + sizes[-1]])
-        total = step * total
-        data = replace(data, reference=step.apply(data.reference))
+        total = cls.compose(total, state["terms"][block])
+        data = replace(data, reference=cls.move_reference(original, data.t, total))
         state["features"][-1] = cls.features(_context(data, state["result"]))
         terms = state["terms"].copy()
         terms[lo:] = 0.0
         state["result"] = _fit(data, state["start"], fixed, _features(state["features"]), start_terms=terms)
         state["terms"] = np.asarray(state["result"]["parameters"])[12:]
-    return data, total, slice(lo, lo + sizes[-1])
-
-
-def _rotation_deg(total, block: slice, terms: np.ndarray) -> list:
-    """The whole rotation: the one applied to the reference, then the block's first-order remainder."""
-    from scipy.spatial.transform import Rotation
-
-    return np.degrees((Rotation.from_rotvec(terms[block]) * total).as_rotvec()).tolist()
+    return data, total, block
 
 
 def _rivals(winner: dict, rows: list, key: str = "significant") -> list:
@@ -824,9 +815,9 @@ def diagnose(samples, t=None, temp=None, reference=None, gravity=None, field_nor
     have = {"t": True, "temp": data.temp is not None}
     pool = [names[w] for w in wanted if all(have.get(r, False) for r in names[w].needs)]
     skipped = [w for w in wanted if names[w] not in pool]
-    # A rotation of the field leaves every magnitude unchanged: against a magnitude model its columns
-    # are numerical dust that, normalised, would fit leftovers of other effects.
-    invisible = [c.name for c in pool if c.rotates_reference and not vector]
+    # A rotation or a delay of the field leaves every magnitude unchanged: against a magnitude model its
+    # columns are numerical dust that, normalised, would fit leftovers of other effects.
+    invisible = [c.name for c in pool if c.needs_reference and not vector]
     pool = [c for c in pool if c.name not in invisible]
 
     directions = _field_directions(data, base)
@@ -841,7 +832,7 @@ def diagnose(samples, t=None, temp=None, reference=None, gravity=None, field_nor
         from tqdm import tqdm
 
         bar = tqdm(total=len(pool) * (max_effects + 1), desc="diagnose", unit="candidate", leave=False)
-    previous_winner, rotation = None, None
+    previous_winner, moves = None, []
     for _round in range(max_effects + 1):
         rows = []
         systematic = [c for c in pool if c.name not in NOISE_CANDIDATES and c.name not in accepted]
@@ -865,9 +856,9 @@ def diagnose(samples, t=None, temp=None, reference=None, gravity=None, field_nor
             state["terms"] = np.asarray(w["_fit"]["parameters"])[12 if vector else 9:]
             state["result"] = w["_fit"]
             state["train_fits"] = {}
-            if vector and names[w["effect"]].rotates_reference:
-                data, applied, block = _exact_rotation(data, state, model, names[w["effect"]])
-                rotation = (w, applied, block)
+            if vector and names[w["effect"]].moves_reference:
+                data, applied, block = _exact_move(data, state, model, names[w["effect"]])
+                moves.append((w, names[w["effect"]], applied, block))
             w["step"] = len(accepted)
             last_rows[w["effect"]] = w
             continue
@@ -889,9 +880,8 @@ def diagnose(samples, t=None, temp=None, reference=None, gravity=None, field_nor
     if bar:
         bar.close()
 
-    if rotation is not None:
-        w, applied, block = rotation
-        w["rotation_deg"] = _rotation_deg(applied, block, np.asarray(state["result"]["parameters"])[12:])
+    for w, cls, applied, block in moves:  # the whole move: the one applied, then the block's remainder
+        w.update(cls.describe_move(cls.compose(applied, np.asarray(state["result"]["parameters"])[12:][block])))
     # Significant in the last round but not modelled: the max_effects limit stopped the greedy search.
     for name, r in last_rows.items():
         r["significant_not_modelled"] = bool(r.get("significant")) and name not in accepted

@@ -97,6 +97,10 @@ def text(d) -> str:
         for r in d.ranking:
             if r.get("rotation_deg") is not None:
                 out.append(f"  {r['effect']}: rotation vector {np.round(r['rotation_deg'], 3).tolist()}°")
+            if r.get("delay_ms") is not None:
+                out.append(f"  {r['effect']}: the readings {abs(r['delay_ms']):.2f} ms "
+                           f"{'behind' if r['delay_ms'] > 0 else 'ahead of'} the reference vectors"
+                           + ("" if r["delay_ms"] > 0 else " (no eddy current or filter leads: look at the timestamps)"))
         out += confound_lines(d)
     else:
         out.append("FOUND: no significant effect — the base model explains the data to the noise")
@@ -109,8 +113,8 @@ def text(d) -> str:
         out.append(f"not tried (the recording lacks their regressor): {', '.join(rem['skipped_candidates'])}")
         out += temperature_caveat(d)
     if rem.get("invisible_candidates"):
-        out.append(f"not tried (a rotation of the field leaves |h| unchanged; give reference vectors): "
-                   f"{', '.join(rem['invisible_candidates'])}")
+        out.append("not tried (a rotation or a delay of the field leaves |h| unchanged; give reference vectors): "
+                   + ", ".join(rem["invisible_candidates"]))
     return "\n".join(out)
 
 

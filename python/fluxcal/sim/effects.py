@@ -46,9 +46,25 @@ class Effect:
     is_noise = False
     regime = "orientation"
     needs: tuple = ()
-    # Its features are the first-order terms of a rotation of the true field (θ × r): once accepted
-    # against reference vectors, the diagnosis rotates the reference exactly (see diagnose.core).
-    rotates_reference = False
+    # It leaves every field magnitude unchanged (a rotation, a delay): only reference vectors show it.
+    needs_reference = False
+    # Its features are first order in a move of the reference vectors (θ × r for a rotation, −δ dm/dt for a
+    # delay): once accepted, the diagnosis moves the reference exactly (`move_reference`, see diagnose.core).
+    moves_reference = False
+
+    @staticmethod
+    def compose(total: np.ndarray, step: np.ndarray) -> np.ndarray:  # pragma: no cover - interface
+        """The move `total` followed by `step` (parameter vectors), for a candidate that moves the reference."""
+        raise NotImplementedError
+
+    @staticmethod
+    def move_reference(reference: np.ndarray, t: np.ndarray, total: np.ndarray) -> np.ndarray:  # pragma: no cover
+        raise NotImplementedError
+
+    @staticmethod
+    def describe_move(total: np.ndarray) -> dict:  # pragma: no cover - interface
+        """The whole move in the units the report gives, as the ranking row's extra fields."""
+        raise NotImplementedError
 
     def apply(self, values: np.ndarray, context) -> np.ndarray:  # pragma: no cover - interface
         raise NotImplementedError
@@ -162,10 +178,23 @@ class Misalignment(Effect):
     rotvec: np.ndarray
     name = "misalignment"
     n_params = 3
-    rotates_reference = True
+    needs_reference = True
+    moves_reference = True
 
     def apply(self, values, context):
         return Rotation.from_rotvec(self.rotvec).apply(values)
+
+    @staticmethod
+    def compose(total, step):
+        return (Rotation.from_rotvec(step) * Rotation.from_rotvec(total)).as_rotvec()
+
+    @staticmethod
+    def move_reference(reference, t, total):
+        return Rotation.from_rotvec(total).apply(reference)
+
+    @staticmethod
+    def describe_move(total):
+        return {"rotation_deg": np.degrees(total).tolist()}
 
     @classmethod
     def features(cls, ctx):
@@ -490,6 +519,46 @@ class EddyCurrent(Effect):
 
 
 @dataclass
+class TimeOffset(Effect):
+    """The readings logged `delta` seconds late against their reference vectors (attitude, field model):
+    m(t) = s(t − δ) ≈ s − δ ds/dt. Separate clocks or buffers, a filter's group delay, a timestamp taken
+    when a sample is read out instead of when it was taken. Typical 5–20 ms either way (one sample period
+    of a 50–200 Hz logger). A delayed field keeps its magnitude, so only reference vectors show it; to
+    first order it is an eddy current with one τ = δ on every axis, which a negative δ cannot be."""
+
+    delta: float
+    name = "time_offset"
+    n_params = 1
+    regime = "time"
+    needs = ("t",)
+    needs_reference = True
+    moves_reference = True
+
+    def apply(self, values, context):
+        return TimeOffset.move_reference(values, context.t, [self.delta])
+
+    @staticmethod
+    def compose(total, step):
+        return np.asarray(total) + step
+
+    @staticmethod
+    def move_reference(reference, t, total):
+        return np.column_stack([np.interp(t - total[0], t, v) for v in reference.T])
+
+    @staticmethod
+    def describe_move(total):
+        return {"delay_ms": 1e3 * float(total[0])}
+
+    @classmethod
+    def features(cls, ctx):
+        return -_smooth(ctx.readings, ctx.t, deriv=1)[:, None, :]
+
+    @classmethod
+    def typical(cls, field_norm, rng):
+        return cls(rng.choice([-1.0, 1.0]) * rng.uniform(0.005, 0.02))
+
+
+@dataclass
 class ZLeakage(Effect):
     """A biaxial sensor's x and y read a fraction `k` (2 values) of the out-of-plane field z (package
     tilt, cross-axis). Typical 1–2 %. Simulation only: the 3-axis models absorb it in the matrix."""
@@ -556,7 +625,8 @@ class Quantization(Effect):
 
 
 CANDIDATES = (TemperatureScale, TemperatureOffset, OffsetDrift, CubicNonlinearity, Saturation, CrossAxis,
-              NonOrthogonality, Misalignment, Hysteresis, MovingDipole, EddyCurrent, ColoredNoise, Quantization)
+              NonOrthogonality, Misalignment, Hysteresis, MovingDipole, EddyCurrent, TimeOffset, ColoredNoise,
+              Quantization)
 """Every effect the diagnosis can rank, by its candidate name (`fluxcal diagnose` documents them)."""
 
 

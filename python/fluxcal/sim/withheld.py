@@ -20,8 +20,9 @@ from .simulate import simulate
 FIELD = np.array([20.0, 1.0, 45.8]) * 50.0 / np.linalg.norm([20.0, 1.0, 45.8])  # µT, world (N, E, D)
 NOISE = 0.05  # µT
 DURATION = 60.0
-# Effects that a full matrix absorbs are checked against a scale-only base model.
-MODEL_FOR = {"non_orthogonality": "scale", "misalignment": "vector_scale"}
+# Effects that a full matrix absorbs are checked against a scale-only base model, and one that no
+# magnitude shows against reference vectors.
+MODEL_FOR = {"non_orthogonality": "scale", "misalignment": "vector_scale", "time_offset": "vector"}
 # Effects applied before soft iron and the axes' scale factors (they act on the field, or, for
 # misalignment, turn it into the sensor's axes before each axis scales it), the rest after the hard iron.
 FIELD_EFFECTS = ("moving_dipole", "eddy_current", "misalignment")
@@ -29,18 +30,20 @@ NOISE_EFFECTS = ("colored_noise", "quantization")
 
 
 def withheld_trial(names, seed: int, duration_s: float = DURATION, temperature=None, noise: float = NOISE,
-                   rate_hz: float = 50.0):
+                   rate_hz: float = 50.0, model: str | None = None):
     """Simulate the effects `names` (candidate names, may be empty); returns the Simulation and the
     keyword arguments of `fluxcal.diagnose` for it (t, temp, field_norm, model, and the reference with the
     down direction, or the given noise, where the effect needs them). `temperature`: the scene's
     temperature (see `scene.tumble`; default its sine and wander). `noise`: the white noise σ (µT);
-    `rate_hz`: the sample rate (the hand turns at the same speed whatever the rate)."""
+    `rate_hz`: the sample rate (the hand turns at the same speed whatever the rate). `model`: the base
+    model to check against instead of the effects' own (e.g. "vector" to see an effect against reference
+    vectors)."""
     by_name = {c.name: c for c in CANDIDATES}
     unknown = [n for n in names if n not in by_name]
     if unknown:
         raise ValueError(f"names: unknown effect(s) {', '.join(unknown)}")
     rng = np.random.default_rng(seed)
-    model = next((MODEL_FOR[n] for n in names if n in MODEL_FOR), "ellipsoid")
+    model = model or next((MODEL_FOR[n] for n in names if n in MODEL_FOR), "ellipsoid")
     scale_only = model in ("scale", "vector_scale")
     E = np.zeros((3, 3)) if scale_only else rng.uniform(-0.03, 0.03, (3, 3))
     W = np.diag(1 + rng.uniform(-0.05, 0.05, 3)) + np.triu(E, 1) + np.triu(E, 1).T
