@@ -379,7 +379,7 @@ def build_parser() -> argparse.ArgumentParser:
     s.set_defaults(run=cmd_simulate)
 
     g = sub.add_parser("diagnose", help="find which unmodelled effect makes a recording depart from its model")
-    g.add_argument("file", help="CSV with mx,my,mz and whatever of t, temp it has")
+    g.add_argument("file", help="CSV with mx,my,mz and whatever of t, temp, current it has")
     g.add_argument("--model", default=None, choices=["ellipsoid", "scale", "vector", "vector_scale", "cable"],
                    help="base model (default: ellipsoid, or vector with --reference; cable: a ring CSV)")
     g.add_argument("--calibration", default=None,

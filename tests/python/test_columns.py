@@ -7,7 +7,7 @@ import pytest
 from conftest import run_cli
 
 import fluxcal
-from fluxcal.io.columns import find_accelerometer, find_magnetometer, find_temperature, find_time
+from fluxcal.io.columns import find_accelerometer, find_current, find_magnetometer, find_temperature, find_time
 from fluxcal.sim.withheld import withheld_trial
 
 
@@ -54,6 +54,13 @@ def test_time_temperature_and_accelerometer_names():
     assert find_temperature(["temp", "temp_outside"], {}) == ("temp", "C")
     assert find_temperature(["temp_a", "temp_b"], {}) is None  # two candidates: none guessed
     assert find_accelerometer(["AccX", "AccY", "AccZ", "MagX", "MagY", "MagZ"]) == ("AccX", "AccY", "AccZ")
+    assert find_current(["current", "curr"], {}) == ("current", 1.0)
+    assert find_current(["t", "motor_current_mA"], {}) == ("motor_current_mA", 1e-3)
+    assert find_current(["Curr", "CurrTot", "Volt"], {}) == ("Curr", 1.0)  # CurrTot is mAh used, not a current
+    assert find_current(["BatteryCurrent"], {"BatteryCurrent": "mA"}) == ("BatteryCurrent", 1e-3)
+    assert find_current(["current"], {"current": "V"}) is None  # a stated unit that is not a current's
+    assert find_current(["I", "phase_a", "phase_b"], {}) is None  # ArduPilot's instance I, a CT's phases
+    assert find_current(["curr_a", "amps"], {}) is None  # two candidates: none guessed
 
 
 def _write_logger_csv(path, t_us, m, temp_f):

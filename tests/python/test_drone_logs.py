@@ -79,6 +79,7 @@ def ardupilot_header(log: DataFlash, params: dict, mag_style="current", version=
     log.define(133, "VER", "QBHBBBBIZH", "TimeUS,BT,BST,Maj,Min,Pat,FWT,GH,FWS,APJ")
     log.define(134, "MSG", "QZ", "TimeUS,Message")
     log.define(135, "ATT", "QccccCCCCB", "TimeUS,DesRoll,Roll,DesPitch,Pitch,DesYaw,Yaw,ErrRP,ErrYaw,AEKF")
+    log.define(139, "BAT", "QBfff", "TimeUS,Inst,Volt,Curr,CurrTot")
     if mag_style == "current":  # one MAG message, instance in I (ArduPilot 4.x)
         log.define(136, "MAG", "QBhhhhhhhhhBI", "TimeUS,I,MagX,MagY,MagZ,OfsX,OfsY,OfsZ,MOX,MOY,MOZ,Health,S")
     else:  # one message per compass, no units (ArduPilot 3.x)
@@ -138,8 +139,11 @@ def ardupilot():
             mid = Rotation.concatenate([scene.rotations[i], scene.rotations[i + 1]]).mean()
             r, p, y = attitude_of(mid)
             log.add("ATT", int(time_us[i]) + half_step, 0.0, float(r), 0.0, float(p), 0.0, float(y), 0.0, 0.0, 0)
+        if i % 5 == 1:  # two batteries at 5 Hz; the first feeds the motors
+            log.add("BAT", int(time_us[i]), 0, 15.2, float(25.0 * throttle[i]), 100.0 + i)
+            log.add("BAT", int(time_us[i]), 1, 5.0, 0.3, 2.0)
     return {"log": log, "scene": scene, "first": first, "second": second, "time_us": time_us, "ofs1": ofs1,
-            "mot1": mot1}
+            "mot1": mot1, "current": 25.0 * throttle}
 
 
 @pytest.fixture
@@ -192,6 +196,16 @@ def test_dataflash_attitude_is_interpolated_to_the_mag_times(ardupilot, bin_path
     error = np.linalg.norm(body - ardupilot["first"].truth[1:-1], axis=1)
     # interpolating between midpoints of a smooth turn: well under a degree (8.6 mG) almost everywhere
     assert np.median(error) < 2.0 and np.quantile(error, 0.95) < 8.6
+
+
+def test_dataflash_battery_current_is_interpolated_to_the_mag_times(ardupilot, bin_path):
+    # BAT Curr of the first battery (not the second, not CurrTot): the regressor of motor_current
+    rec = read_recording(bin_path)
+    assert rec.units["current"] == "A" and "BAT Curr" in rec.metadata["current"]
+    current = rec.current()
+    inside = slice(1, len(current) - 4)  # BAT every fifth reading from the second: held at the ends
+    assert np.max(np.abs(current[inside] - ardupilot["current"][inside])) < 0.05  # a smooth 25 A swing
+    assert current[0] == current[1] and rec.roles()["current"] == "current"
 
 
 def test_dataflash_second_compass_offsets_were_already_applied(ardupilot, bin_path):
@@ -366,6 +380,8 @@ VEHICLE_MAG = ("vehicle_magnetometer", "uint64_t timestamp;uint64_t timestamp_sa
                "float[3] magnetometer_ga;uint8_t calibration_count;uint8_t[3] _padding0;", "<QQIfffB")
 VEHICLE_ATTITUDE = ("vehicle_attitude", "uint64_t timestamp;uint64_t timestamp_sample;float[4] q;"
                     "float[4] delta_q_reset;uint8_t quat_reset_counter;uint8_t[7] _padding0;", "<QQffffffffB")
+BATTERY_STATUS = ("battery_status", "uint64_t timestamp;float voltage_v;float current_a;float discharged_mah;",
+                  "<Qfff")
 
 
 def _ulog_message(kind: str, payload: bytes) -> bytes:
@@ -377,7 +393,8 @@ def _ulog_keyed(type_name: str, key: str, value: bytes) -> bytes:
     return bytes([len(name)]) + name + value
 
 
-def ulog_file(topics: dict, data: list, info=None, params=None, formats=(SENSOR_MAG, VEHICLE_MAG, VEHICLE_ATTITUDE)):
+def ulog_file(topics: dict, data: list, info=None, params=None,
+              formats=(SENSOR_MAG, VEHICLE_MAG, VEHICLE_ATTITUDE, BATTERY_STATUS)):
     """topics: {(topic, multi_id): msg_id}; data: [(msg_id, packed bytes)] in log order."""
     out = [b"ULog\x01\x12\x35\x01" + struct.pack("<Q", BOOT_US - 1000)]
     out.append(_ulog_message("B", bytes(16) + struct.pack("<3Q", 0, 0, 0)))
@@ -408,7 +425,9 @@ def px4(tmp_path_factory):
     stamps = BOOT_US + np.round(scene.t * 1e6).astype(np.int64)
     quats = scene.rotations.as_quat()  # x, y, z, w; PX4 writes w, x, y, z
     temps = 30.0 + 0.01 * np.arange(len(stamps))
-    topics = {("sensor_mag", 0): 0, ("sensor_mag", 1): 1, ("vehicle_magnetometer", 0): 2, ("vehicle_attitude", 0): 3}
+    topics = {("sensor_mag", 0): 0, ("sensor_mag", 1): 1, ("vehicle_magnetometer", 0): 2, ("vehicle_attitude", 0): 3,
+              ("battery_status", 0): 4}
+    amps = 12.0 + 8.0 * np.sin(np.arange(len(stamps)) / 40.0)
     data = []
     for i, stamp in enumerate(stamps):
         s = int(stamp)
@@ -416,13 +435,15 @@ def px4(tmp_path_factory):
         data.append((1, struct.pack(SENSOR_MAG[2], s + 300, s, 466441, *second.readings[i], temps[i], 0)))
         data.append((2, struct.pack(VEHICLE_MAG[2], s + 400, s, 396825, *first.truth[i], 1)))
         data.append((3, struct.pack(VEHICLE_ATTITUDE[2], s + 100, s, quats[i, 3], *quats[i, :3], 0, 0, 0, 0, 0)))
+        if i % 4 == 0:  # the battery at a quarter of the rate; −1 (unknown) at first
+            data.append((4, struct.pack(BATTERY_STATUS[2], s, 15.8, -1.0 if i == 0 else amps[i], 0.0)))
     info = {"sys_name": "PX4", "ver_hw": "PX4_FMU_V6C", "ver_sw": "0f1d3a4b9c2e7f60", "ver_sw_release": 0x010E03FF}
     params = {"CAL_MAG0_ID": 396825, "CAL_MAG0_XOFF": 0.05, "CAL_MAG0_YOFF": -0.02, "CAL_MAG0_ZOFF": 0.1,
               "CAL_MAG1_ID": 466441, "CAL_MAG1_XOFF": 0.0}
     path = tmp_path_factory.mktemp("px4") / "flight.ulg"
     path.write_bytes(ulog_file(topics, data, info, params))
     return {"path": path, "scene": scene, "first": first, "second": second, "stamps": stamps, "temps": temps,
-            "topics": topics, "data": data, "info": info}
+            "topics": topics, "data": data, "info": info, "amps": amps}
 
 
 def test_ulog_raw_compass_units_times_attitude_and_calibration(px4):
@@ -443,6 +464,11 @@ def test_ulog_raw_compass_units_times_attitude_and_calibration(px4):
     assert meta["instances"] == (f"sensor_mag[0] ({n} readings, device_id 396825), sensor_mag[1] ({n} readings, "
                                  f"device_id 466441), vehicle_magnetometer[0] ({n} readings, device_id 396825)")
     assert meta["device_id"] == 396825 and "CAL_MAG0_XOFF=0.05" in meta["px4_calibration"]
+    # battery_status current_a (the −1 of "unknown" left out) at the magnetometer times: motor_current's regressor
+    assert rec.units["current"] == "A" and "battery_status[0] current_a" in meta["current"]
+    inside = slice(4, len(rec) - 4)
+    np.testing.assert_allclose(rec.current()[inside], px4["amps"][inside], atol=0.05)
+    assert rec.current()[0] == rec.current()[4]
     assert "CAL_MAG1" not in meta["px4_calibration"]
     assert meta["firmware_version"] == "v1.14.3" and meta["firmware"] == "PX4" and meta["board"] == "PX4_FMU_V6C"
     assert meta["firmware_git_hash"] == "0f1d3a4b9c2e7f60"

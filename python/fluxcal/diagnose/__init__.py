@@ -10,14 +10,14 @@ it, and how far the gap shrinks once that effect is modelled — proved on held-
    differences of the readings in time order, which a smooth motion hardly disturbs — from those of the
    base model's residuals when the motion is fast for the sample rate, steps between held positions, or
    rows that are no time series at all; at least LSB/√12 on an ADC's grid), broken down by orientation,
-   temperature, time and per axis, with a test per regime and a whiteness test over time.
+   temperature, current (when logged), time and per axis, with a test per regime and a whiteness test over time.
 2. Which: every candidate effect of `fluxcal.sim.effects.CANDIDATES` (whose regressors the recording
    has) gets a score test at the base fit, a check that existing parameters do not absorb it, then a
    refit of the augmented model (Ceres, `refine_terms`): likelihood-ratio statistic, ΔAIC, ΔBIC. The
    p-value comes from the likelihood ratio under the augmented fit's own noise model (an AR(p) of its
    residuals whitens both fits), so slow correlated noise is not taken for a drift or a disturbance.
 3. How far: each candidate is fitted again without a held-out regime — the last quarter in time, the
-   hottest quarter, a cap of unseen orientations, or interleaved blocks of time for events — and judged
+   hottest quarter, the highest-current quarter, a cap of unseen orientations, or interleaved blocks of time for events — and judged
    there: the gap √(RMS² − σ²) before and after, and the downstream errors (field; with reference
    vectors the direction and, given the down direction, the heading). Effects are added greedily while
    the best one is significant (whitened likelihood ratio after a Bonferroni correction over the

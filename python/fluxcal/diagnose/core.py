@@ -45,6 +45,7 @@ class _Data:
     units: str
     source: str
     notes: list = field(default_factory=list)  # what _prepare changed in the data, for the report
+    current: np.ndarray | None = None  # A drawn near the sensor (motors, a heater)
 
 
 @dataclass
@@ -268,7 +269,8 @@ def _context(data: _Data, result: dict) -> SimpleNamespace:
     # white-noise trials at σ = 1 % of the field, and was accepted in 6.
     signal = theta[:3] + direction
     return SimpleNamespace(signal=signal, readings=data.m, scale=float(np.median(np.linalg.norm(signal, axis=1))),
-                           field=field, W=W, direction=direction, t=data.t, temp=data.temp)
+                           field=field, W=W, direction=direction, t=data.t, temp=data.temp,
+                           current=data.current)
 
 
 def _field_directions(data: _Data, result: dict) -> np.ndarray:
@@ -299,6 +301,8 @@ def _heldout(regime: str, data: _Data, directions: np.ndarray) -> np.ndarray:
         return (rank * 16 // n) % 4 == 2
     if regime == "temperature" and data.temp is not None:
         return data.temp >= np.quantile(data.temp, 1 - HELDOUT_FRACTION)
+    if regime == "current" and data.current is not None:
+        return data.current >= np.quantile(data.current, 1 - HELDOUT_FRACTION)
     if regime == "orientation":
         diagonals = np.array([[x, y, z] for x in (-1, 1) for y in (-1, 1) for z in (-1, 1)]) / np.sqrt(3)
         dots = directions @ diagonals.T
@@ -362,6 +366,8 @@ def _where(data: _Data, e: np.ndarray, sigma: float, directions: np.ndarray, vec
     # Temperature and time: quantile bins plus a regression slope.
     if data.temp is not None:
         tables["temperature"] = _binned(signed, _quantile_bins(data.temp, 8), None, data.temp)
+    if data.current is not None:
+        tables["current"] = _binned(signed, _quantile_bins(data.current, 8), None, data.current)
     tables["time"] = _binned(signed, _quantile_bins(data.t, 10), None, data.t)
     # Per axis: the vector model's own axes; for a magnitude model, the residual's regression on the
     # field direction cosines (a scale or non-linearity error of one axis leans on its cosine²).
@@ -374,13 +380,13 @@ def _where(data: _Data, e: np.ndarray, sigma: float, directions: np.ndarray, vec
         beta, *_ = np.linalg.lstsq(X, z, rcond=None)
         tables["axis"] = [{"bin": f"cos²({'xyz'[k]})", "slope_z": float(beta[k + 1])} for k in range(3)]
     tests = []
-    for name in ("orientation", "temperature", "time"):
+    for name in ("orientation", "temperature", "current", "time"):
         if name in tables:
             rows = tables[name]
             chi2 = sum(r["n"] * r["mean_z"] ** 2 for r in rows)
             tests.append({"regime": name, "test": "bin means (χ²)", "statistic": chi2,
                           "pvalue": float(stats.chi2.sf(chi2, len(rows)))})
-    for name, x in (("temperature", data.temp), ("time", data.t)):
+    for name, x in (("temperature", data.temp), ("current", data.current), ("time", data.t)):
         if x is not None and np.ptp(x) > 0:
             res = stats.linregress(x, signed)
             tests.append({"regime": name, "test": "slope", "statistic": float(res.slope / res.stderr),
@@ -679,7 +685,7 @@ def _quantization(data, state, sigma, n_candidates, noise_given: bool) -> dict:
     return row
 
 
-def _prepare(samples, t, temp, reference, down, field_norm, units, source) -> _Data:
+def _prepare(samples, t, temp, reference, down, field_norm, units, source, current=None) -> _Data:
     m = as_samples(samples)
     n = len(m)
     t = np.arange(n, dtype=float) if t is None else np.asarray(t, dtype=float)
@@ -691,6 +697,12 @@ def _prepare(samples, t, temp, reference, down, field_norm, units, source) -> _D
             raise ValueError(f"temp: need {n} finite temperatures, got shape {temp.shape}")
         if np.ptp(temp) <= 0:
             temp = None  # a constant temperature carries no information
+    if current is not None:
+        current = np.asarray(current, dtype=float)
+        if current.shape != (n,) or not np.all(np.isfinite(current)):
+            raise ValueError(f"current: need {n} finite currents, got shape {current.shape}")
+        if np.ptp(current) <= 0:
+            current = None  # a constant current is part of the hard iron
     if reference is not None:
         reference = as_samples(reference, "reference")
         if len(reference) != n:
@@ -705,7 +717,7 @@ def _prepare(samples, t, temp, reference, down, field_norm, units, source) -> _D
     if len(back) > CLOCK_JUMPS * n:
         rows = np.argsort(t, kind="stable")
         m, t = m[rows], t[rows]
-        temp, reference, down = (None if a is None else a[rows] for a in (temp, reference, down))
+        temp, reference, down, current = (None if a is None else a[rows] for a in (temp, reference, down, current))
         notes.append(f"t went backwards at {len(back)} of {n} rows: the rows were not in time order and were "
                      "sorted by t")
     elif len(back):
@@ -722,7 +734,7 @@ def _prepare(samples, t, temp, reference, down, field_norm, units, source) -> _D
     if copies is not None:    # correlated and shrink the third differences the noise σ comes from
         keep = ~copies
         m, t, rows = m[keep], t[keep], rows[keep]
-        temp, reference, down = (None if a is None else a[keep] for a in (temp, reference, down))
+        temp, reference, down, current = (None if a is None else a[keep] for a in (temp, reference, down, current))
         notes.append(f"{int(copies.sum())} of {n} readings ({100 * copies.mean():.0f} %) repeat the previous one "
                      "exactly (sample and hold: the logger ran faster than the sensor) and were left out")
     if np.isfinite(m).all():
@@ -736,8 +748,10 @@ def _prepare(samples, t, temp, reference, down, field_norm, units, source) -> _D
             notes.append(replace(glitches, rows=np.sort(rows[glitches.rows])).messages(len(keep))[0].replace(
                 "; outliers='keep' (--outliers keep) keeps them", " (glitches, not sensor physics)"))
             m, t, rows = m[keep], t[keep], rows[keep]
-            temp, reference, down = (None if a is None else a[keep] for a in (temp, reference, down))
-    return _Data(m, t, temp, reference, down, float(field_norm) if field_norm else 0.0, units, source, notes)
+            temp, reference, down, current = (None if a is None else a[keep]
+                                              for a in (temp, reference, down, current))
+    return _Data(m, t, temp, reference, down, float(field_norm) if field_norm else 0.0, units, source, notes,
+                 current)
 
 
 def quantization_step(samples) -> float:
@@ -749,11 +763,11 @@ def quantization_step(samples) -> float:
 
 def diagnose(samples, t=None, temp=None, reference=None, gravity=None, field_norm=None, model: str | None = None,
              noise_sigma: float | None = None, candidates=None, alpha: float = 0.01, max_effects: int = 3,
-             progress: bool = False, units: str = "", source: str = "samples") -> Diagnosis:
+             progress: bool = False, units: str = "", source: str = "samples", current=None) -> Diagnosis:
     """Diagnose the gap between `samples` (N×3 readings, or a Recording) and the base `model`.
 
-    t (s; default the row number), temp (°C), reference (N×3 true field per reading, sensor frame: the
-    vector models): the regressors. gravity (N×3 accelerometer or any down/up vector, sensor frame; with
+    t (s; default the row number), temp (°C), current (A drawn near the sensor: motors, a heater),
+    reference (N×3 true field per reading, sensor frame: the vector models): the regressors. gravity (N×3 accelerometer or any down/up vector, sensor frame; with
     reference vectors it adds the heading error to the downstream errors). field_norm: the known |h| (default: the fitted ellipsoid's own
     scale). model: "ellipsoid" (default without reference), "scale", "vector" (default with one),
     "vector_scale". noise_sigma: white-noise σ of the readings (default: estimated, see
@@ -769,6 +783,7 @@ def diagnose(samples, t=None, temp=None, reference=None, gravity=None, field_nor
         samples = rec.samples()
         t = rec.time() if t is None else t
         temp = rec.temperature() if temp is None else temp
+        current = rec.current() if current is None else current
         gravity = rec.acceleration() if gravity is None else gravity
         units = units or rec.field_units()
         source = rec.source
@@ -779,7 +794,7 @@ def diagnose(samples, t=None, temp=None, reference=None, gravity=None, field_nor
     if vector and reference is None:
         raise ValueError(f"model {model!r} needs reference vectors (the true field per reading)")
     data = _prepare(samples, t, temp, reference if vector else None, gravity if vector else None, field_norm,
-                    units, source)
+                    units, source, current)
     if len(data.m) < 50:
         raise ValueError(f"{source}: {len(data.m)} readings, the diagnosis needs at least 50")
 
@@ -812,7 +827,7 @@ def diagnose(samples, t=None, temp=None, reference=None, gravity=None, field_nor
     unknown = [w for w in wanted if w not in names]
     if unknown:
         raise ValueError(f"candidates: unknown effect(s) {', '.join(unknown)}; known: {', '.join(names)}")
-    have = {"t": True, "temp": data.temp is not None}
+    have = {"t": True, "temp": data.temp is not None, "current": data.current is not None}
     pool = [names[w] for w in wanted if all(have.get(r, False) for r in names[w].needs)]
     skipped = [w for w in wanted if names[w] not in pool]
     # A rotation or a delay of the field leaves every magnitude unchanged: against a magnitude model its
@@ -904,7 +919,7 @@ def diagnose(samples, t=None, temp=None, reference=None, gravity=None, field_nor
     remaining["invisible_candidates"] = invisible
     base_cal = Calibration(offset=base["offset"], matrix=base["matrix"], field_norm=data.field_norm, units=units,
                            model=model)
-    series = {"t": data.t, "temp": data.temp, "directions": directions, "residual_before": e0,
+    series = {"t": data.t, "temp": data.temp, "current": data.current, "directions": directions, "residual_before": e0,
               "residual_after": e_final, "vector": vector}
     return Diagnosis(model=model, noise_sigma=sigma, noise_source=noise_source, units=units, source=source,
                      ranking=ranking, accepted=accepted, where=where, remaining=remaining, base=base_cal,

@@ -32,7 +32,7 @@ def ranking_lines(d) -> list:
 
 
 REGIME_WORDS = {"orientation": "the orientation", "temperature": "the temperature", "time": "the elapsed time",
-                "events": "the times of the disturbances"}
+                "events": "the times of the disturbances", "current": "the current drawn near the sensor"}
 FOLLOWS = 0.9  # |r(T, t)| from which "the temperature follows time" is the explanation worth printing
 
 
@@ -83,7 +83,7 @@ def text(d) -> str:
     for t in w["tests"]:
         flag = "  <-- departs" if t["pvalue"] < 0.01 else ""
         out.append(f"  {t['regime']:12s} {t['test']:32s} stat {t['statistic']:10.3g}  p {t['pvalue']:.2g}{flag}")
-    for name in ("orientation", "temperature", "time"):
+    for name in ("orientation", "temperature", "current", "time"):
         rows = w["tables"].get(name)
         if rows:
             worst = max(rows, key=lambda r: abs(r["mean_z"]))
@@ -101,6 +101,12 @@ def text(d) -> str:
                 out.append(f"  {r['effect']}: the readings {abs(r['delay_ms']):.2f} ms "
                            f"{'behind' if r['delay_ms'] > 0 else 'ahead of'} the reference vectors"
                            + ("" if r["delay_ms"] > 0 else " (no eddy current or filter leads: look at the timestamps)"))
+            if r["effect"] == "motor_current" and r.get("step") is not None and d.series.get("current") is not None:
+                k, peak = np.asarray(r["coefficients"]), float(np.max(np.abs(d.series["current"])))
+                out.append(f"  motor_current: {np.round(k, 4).tolist()}{u} per A (x, y, z); at the recording's peak "
+                           f"{peak:.3g} A {np.linalg.norm(k) * peak:.3g}{u}, "
+                           f"{100 * np.linalg.norm(k) * peak / d.base.field_norm:.1f} % of the field (compassmot's "
+                           "'interference')")
         out += confound_lines(d)
     else:
         out.append("FOUND: no significant effect — the base model explains the data to the noise")
@@ -148,7 +154,8 @@ def write_report(d, folder) -> Path:
     fig.colorbar(sc, ax=axes, label="residual / σ")
     figures.append(_save(fig, folder / "orientation.png"))
 
-    for name, x, label in (("time", s["t"], "time (s)"), ("temperature", s["temp"], "temperature (°C)")):
+    for name, x, label in (("time", s["t"], "time (s)"), ("temperature", s["temp"], "temperature (°C)"),
+                           ("current", s.get("current"), "current (A)")):
         if x is None:
             continue
         fig, ax = plt.subplots(figsize=(11, 3.5))

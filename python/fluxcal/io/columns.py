@@ -1,8 +1,8 @@
-"""Which column is which: the magnetometer axes, time, temperature and accelerometer of a recording
-whose columns are not named fluxcal's way (mx,my,mz, t, temp, ax,ay,az).
+"""Which column is which: the magnetometer axes, time, temperature, current and accelerometer of a
+recording whose columns are not named fluxcal's way (mx,my,mz, t, temp, current, ax,ay,az).
 
 Loggers name them MagX, mag_x, Mag_X (uT), magnetometer_ga[0], Bx, compass_x, x_mag; TimeUS, time_ms,
-timestamp; Temperature, temp_C, die_temp; AccX, accel_x, acc_x_g. A name is split into lowercase words
+timestamp; Temperature, temp_C, die_temp; Current, curr_mA, motor_current_A, BAT's Curr; AccX, accel_x, acc_x_g. A name is split into lowercase words
 (at separators, case changes and brackets); trailing unit words are peeled off and become the column's
 unit when the file states none; the axis is a last word x/y/z (or a last word such as "magx", or an
 index 0/1/2 or 1/2/3 after a magnetometer word). Three axes under the same words that include a magnetometer
@@ -33,7 +33,11 @@ TIME_UNITS = {"s": 1.0, "sec": 1.0, "secs": 1.0, "seconds": 1.0, "ms": 1e-3, "us
               "ns": 1e-9, "min": 60.0, "mins": 60.0, "minutes": 60.0, "h": 3600.0, "hr": 3600.0, "hours": 3600.0}
 TEMP_UNITS = {"c": "C", "degc": "C", "celsius": "C", "°c": "C", "k": "K", "kelvin": "K", "f": "F",
               "degf": "F", "fahrenheit": "F"}
-_UNIT_WORDS = set(FIELD_UNITS) | set(TIME_UNITS) | set(TEMP_UNITS) | {"hz", "khz"}
+CURRENT_WORDS = {"current", "curr", "amps", "amperes"}
+# what a current column's name may add: whose current it is (not "total": ArduPilot's CurrTot is mAh used)
+CURRENT_QUALIFIERS = {"motor", "motors", "bat", "batt", "battery", "load", "supply", "heater", "coil"}
+CURRENT_UNITS = {"a": 1.0, "amp": 1.0, "amps": 1.0, "ma": 1e-3}
+_UNIT_WORDS = set(FIELD_UNITS) | set(TIME_UNITS) | set(TEMP_UNITS) | set(CURRENT_UNITS) | {"hz", "khz"}
 _AXES = {"x": 0, "y": 1, "z": 2}
 _CAMEL = re.compile(r"(?<=[a-z0-9])(?=[A-Z])|(?<=[A-Z])(?=[A-Z][a-z])|(?<=[A-Za-z])(?=[0-9])|(?<=[0-9])(?=[A-Za-z])")
 
@@ -205,6 +209,24 @@ def find_temperature(names, units: dict):
     if stated:  # a stated unit that is not °C, K or °F (mdegC, raw) is not guessed
         return (name, TEMP_UNITS[stated]) if stated in TEMP_UNITS else None
     return name, TEMP_UNITS.get(word or "", "C")
+
+
+def find_current(names, units: dict):
+    """(column, factor to amperes) or None: the column current, else the only one named by a current word
+    (current, curr, amps) with at most whose current it is (motor, battery, heater, ...) and a unit (A,
+    mA). A stated unit that is not A or mA is not guessed: None."""
+    hits = [("current", None)] if "current" in names else []
+    for name in [] if hits else names:
+        ws, unit = _peel_unit(words(name), CURRENT_UNITS)
+        if ws and set(ws) & CURRENT_WORDS and set(ws) <= CURRENT_WORDS | CURRENT_QUALIFIERS:
+            hits.append((name, unit))
+    if len(hits) != 1:
+        return None
+    name, unit = hits[0]
+    stated = (units.get(name) or "").strip().lower()
+    if stated:
+        return (name, CURRENT_UNITS[stated]) if stated in CURRENT_UNITS else None
+    return name, CURRENT_UNITS.get(unit or "", 1.0)
 
 
 def field_unit_of(name: str) -> str:

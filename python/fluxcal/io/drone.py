@@ -23,6 +23,9 @@ the instance number I). Columns:
     health       the Health flag, when logged
     roll, pitch, yaw   ATT Roll, Pitch, Yaw (deg) interpolated to the MAG times (NaN outside the ATT
                  span), when the log has ATT; metadata attitude_convention "aerospace" (body FRD → NED).
+    current      BAT Curr (A) of the first battery interpolated to the MAG times (the first and last value
+                 held outside the BAT span), when logged: what `fluxcal.diagnose` tries motor_current on
+                 (compass-motor interference).
 Units: from the log's UNIT/MULT/FMTU messages when present (current logs say mGauss; a label that is not
 a multiple of the gauss is kept as stated), else ArduPilot's convention, milligauss: mx..z are "mG".
 
@@ -31,7 +34,8 @@ CAL_MAGn calibration, i.e. raw) is used when logged, else vehicle_magnetometer (
 calibrated by PX4, body frame). In logs of PX4 1.10 and older (sensor_mag has x_raw, y_raw, z_raw) the
 driver had already applied the calibration to x, y, z: metadata "offsets_applied" says so. Columns
 t (timestamp_sample, else timestamp, µs → s), mx, my, mz ("G"), temp (°C, when logged) and roll, pitch,
-yaw (deg) from vehicle_attitude q (body FRD → NED) when logged. The CAL_MAGn parameters whose CAL_MAGn_ID
+yaw (deg) from vehicle_attitude q (body FRD → NED) when logged, current (A) from battery_status[0]
+current_a interpolated to the magnetometer times (held outside its span; −1, "unknown", left out). The CAL_MAGn parameters whose CAL_MAGn_ID
 matches the device go to metadata "px4_calibration".
 
 Several compasses: the first instance is read by default. Pick another with `instance` (an integer,
@@ -304,9 +308,10 @@ def _read_dataflash(reader, path: Path, size: int, text: bool, unterminated: boo
         raise ValueError(f"{source}: no magnetometer messages (MAG) in this DataFlash log (message types present: "
                          f"{', '.join(types)}){damage}")
 
-    wanted_types = mag_types + [n for n in ("ATT", "PARM", "VER", "MSG") if n in types]
+    wanted_types = mag_types + [n for n in ("ATT", "BAT", "PARM", "VER", "MSG") if n in types]
     per_instance: dict = {}
     attitude = {"t": [], "roll": [], "pitch": [], "yaw": []}
+    battery = {"t": [], "current": []}
     params, version, messages = {}, {}, []
     time_field, kind = None, "first"
     try:
@@ -332,6 +337,10 @@ def _read_dataflash(reader, path: Path, size: int, text: bool, unterminated: boo
                                          else float(msg.TimeMS) * 1e-3)
                     for a, field in zip(ATTITUDE, ("Roll", "Pitch", "Yaw")):
                         attitude[a].append(float(getattr(msg, field)))
+                elif kind == "BAT" and "Curr" in msg.fmt.columns and int(getattr(msg, "Inst", 0)) == 0:
+                    battery["t"].append(float(msg.TimeUS) * 1e-6 if "TimeUS" in msg.fmt.columns
+                                        else float(msg.TimeMS) * 1e-3)
+                    battery["current"].append(float(msg.Curr))
                 elif kind == "PARM":
                     params.setdefault(str(msg.Name), float(msg.Value))  # the value when logging started
                 elif kind == "VER" and not version:
@@ -410,6 +419,10 @@ def _read_dataflash(reader, path: Path, size: int, text: bool, unterminated: boo
             column_units[a] = "deg"
         metadata["attitude"] = "ATT Roll, Pitch, Yaw interpolated to the MAG times (NaN outside the ATT span)"
         metadata["attitude_convention"] = "aerospace"
+    if battery["t"]:
+        cols["current"] = np.interp(cols["t"], battery["t"], battery["current"])
+        column_units["current"] = "A"
+        metadata["current"] = "BAT Curr (first battery) interpolated to the MAG times, held outside the BAT span"
     if "health" in cols:
         unhealthy = int(np.sum(cols["health"] == 0))
         if unhealthy:
@@ -588,7 +601,7 @@ def read_ulog(path, columns=None, units: str | None = None, instance=None) -> Re
         raise ValueError(f"{source}: cannot read ({exc.strerror or exc})") from None
     try:
         with _collected_output(chatter):
-            ulog = ULog(watch, message_name_filter_list=list(PX4_TOPICS) + ["vehicle_attitude"])
+            ulog = ULog(watch, message_name_filter_list=list(PX4_TOPICS) + ["vehicle_attitude", "battery_status"])
     except Exception as exc:  # ULogException, struct.error, IndexError ... from a damaged file
         watch.close()
         raise ValueError(f"{source}: not a readable ULog (truncated or garbled? pyulog: "
@@ -654,6 +667,16 @@ def read_ulog(path, columns=None, units: str | None = None, instance=None) -> Re
             cols[a], column_units[a] = angles[a], "deg"
         metadata["attitude"] = "vehicle_attitude q as roll, pitch, yaw, interpolated to the magnetometer times"
         metadata["attitude_convention"] = "aerospace"
+    battery = datasets.get(("battery_status", 0))
+    if battery is not None and "current_a" in battery.data:
+        t_bat, amps = _ulog_time(battery.data), np.asarray(battery.data["current_a"], dtype=float)
+        good = np.isfinite(amps) & (amps >= 0)  # PX4 logs −1 while the current is unknown
+        if good.sum() >= 2:
+            order = np.argsort(t_bat[good], kind="stable")
+            cols["current"] = np.interp(t, t_bat[good][order], amps[good][order])
+            column_units["current"] = "A"
+            metadata["current"] = ("battery_status[0] current_a interpolated to the magnetometer times, held outside "
+                                   "its span")
     metadata.update(_px4_version(ulog))
     _note_damage(metadata, source, problems)
     rec = Recording(columns=cols, units=column_units, metadata=metadata, source=source)

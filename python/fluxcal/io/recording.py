@@ -6,7 +6,8 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from .._arrays import first_nonfinite
-from .columns import field_unit_of, find_accelerometer, find_magnetometer, find_temperature, find_time, sample_rate
+from .columns import (field_unit_of, find_accelerometer, find_current, find_magnetometer, find_temperature, find_time,
+                      sample_rate)
 
 MAG_COLUMNS = ("mx", "my", "mz")
 # A recording that carries its attitude and the local field (north, east, down) gives a reference vector
@@ -80,6 +81,12 @@ class Recording:
         values = self.columns[hit[0]]
         return {"C": values, "K": values - 273.15, "F": (values - 32.0) / 1.8}[hit[1]]
 
+    def current(self):
+        """Current drawn near the sensor, in A (column current, else curr, motor_current_mA, BAT's Curr, ...
+        in A or mA by its unit), or None."""
+        hit = find_current(self.columns, self.units)
+        return None if hit is None else self.columns[hit[0]] * hit[1]
+
     def acceleration(self):
         """The accelerometer, N×3 (ax,ay,az, else a triple recognised by name such as AccX, accel_x), or None."""
         names = self._acc_names()
@@ -105,6 +112,9 @@ class Recording:
         hit = find_temperature(self.columns, self.units)
         if hit:
             out["temperature"] = hit[0] + (f" ({hit[1]} → °C)" if hit[1] != "C" else "")
+        hit = find_current(self.columns, self.units)
+        if hit:
+            out["current"] = hit[0] + (f" (×{hit[1]:g} → A)" if hit[1] != 1.0 else "")
         acc = self._acc_names()
         if acc:
             out["accelerometer"] = ",".join(acc)

@@ -92,6 +92,11 @@ def _per_axis(columns: np.ndarray) -> np.ndarray:
     return columns[:, :, None] * AXES[None, :, :]
 
 
+def _offset_along(x: np.ndarray) -> np.ndarray:
+    """Features of an offset per axis proportional to x, centred (its mean is part of the hard iron)."""
+    return _per_axis(np.repeat((x - x.mean())[:, None], 3, axis=1))
+
+
 def _smooth(values: np.ndarray, t: np.ndarray, deriv: int = 0) -> np.ndarray:
     """The values (or their time derivative) smoothed by a Savitzky–Golay filter over ≈ 0.2 s, so that
     reading noise is not amplified."""
@@ -362,11 +367,36 @@ class TemperatureOffset(Effect):
 
     @classmethod
     def features(cls, ctx):
-        return _per_axis(np.repeat((ctx.temp - ctx.temp.mean())[:, None], 3, axis=1))
+        return _offset_along(ctx.temp)
 
     @classmethod
     def typical(cls, field_norm, rng):
         return cls(rng.choice([-1, 1], 3) * field_norm * rng.uniform(0.0002, 0.0004, 3))
+
+
+@dataclass
+class MotorCurrent(Effect):
+    """A field proportional to a current drawn near the sensor: m + k I, k in reading units per A (per
+    axis). Motors and their battery leads on a drone (ArduPilot's compass-motor interference, which
+    `compassmot` measures), a heater, a relay coil. Typical: 1–4 % of the Earth's field per axis at 20 A
+    (a well-placed compass; ArduPilot calls up to 30 % acceptable)."""
+
+    k: np.ndarray
+    name = "motor_current"
+    n_params = 3
+    regime = "current"
+    needs = ("current",)
+
+    def apply(self, values, context):
+        return values + np.outer(context.current, self.k)
+
+    @classmethod
+    def features(cls, ctx):
+        return _offset_along(ctx.current)
+
+    @classmethod
+    def typical(cls, field_norm, rng):
+        return cls(rng.choice([-1, 1], 3) * field_norm * rng.uniform(0.01, 0.04, 3) / 20.0)
 
 
 @dataclass
@@ -624,7 +654,7 @@ class Quantization(Effect):
         return self.step * np.round(values / self.step)
 
 
-CANDIDATES = (TemperatureScale, TemperatureOffset, OffsetDrift, CubicNonlinearity, Saturation, CrossAxis,
+CANDIDATES = (TemperatureScale, TemperatureOffset, MotorCurrent, OffsetDrift, CubicNonlinearity, Saturation, CrossAxis,
               NonOrthogonality, Misalignment, Hysteresis, MovingDipole, EddyCurrent, TimeOffset, ColoredNoise,
               Quantization)
 """Every effect the diagnosis can rank, by its candidate name (`fluxcal diagnose` documents them)."""

@@ -11,11 +11,13 @@ from scipy.spatial.transform import Rotation
 @dataclass
 class Scene:
     """`rotations[i]` turns sensor-frame vectors into the world frame at time `t[i]`; `temperature`
-    (°C) is the sensor's temperature at each time, when the scene has one."""
+    (°C) is the sensor's temperature at each time, `current` (A) the current drawn near the sensor
+    (motors, a heater), when the scene has them."""
 
     rotations: Rotation
     t: np.ndarray
     temperature: np.ndarray | None = None
+    current: np.ndarray | None = None
 
     def __len__(self) -> int:
         return len(self.t)
@@ -53,13 +55,16 @@ def sweeps(axes: str = "yxz", per_turn: int = 600, tilt_deg: float = 0.0, rate_h
 
 
 def tumble(duration_s: float = 60.0, rate_hz: float = 50.0, turn_rate_deg: float = 60.0,
-           temperature=(25.0, 10.0, 40.0), rng=None) -> Scene:
+           temperature=(25.0, 10.0, 40.0), current=None, rng=None) -> Scene:
     """A sensor turned smoothly by hand through every orientation: the body rate wanders (a low-pass
     random process of RMS `turn_rate_deg` °/s per axis), so the path is smooth at the sample rate and
     covers the sphere within a minute. `temperature` = (mean, amplitude, period s): the sensor warms and
     cools as a sine plus a slow random wander (not monotonic in time, so temperature and time effects
     can be told apart); or a function of t (s) giving °C, e.g. a warm-up `lambda t: 20 + 15 * t / t[-1]`
-    (monotonic: temperature and time effects then look alike); None for no temperature."""
+    (monotonic: temperature and time effects then look alike); None for no temperature. `current` =
+    (peak A, hold s): the current drawn near the sensor steps between random levels (throttle settings,
+    10–100 % of the peak, each held for about `hold` s, with a 0.3 s spin-up lag); or a function of t;
+    None (default) for none."""
     rng = np.random.default_rng(rng)
     n = int(round(duration_s * rate_hz))
     dt = 1.0 / rate_hz
@@ -72,10 +77,10 @@ def tumble(duration_s: float = 60.0, rate_hz: float = 50.0, turn_rate_deg: float
     omega *= np.deg2rad(turn_rate_deg) / np.sqrt(np.mean(omega ** 2))
     steps = Rotation.from_rotvec(omega * dt)
     quats = np.empty((n, 4))
-    current = Rotation.random(random_state=rng)
+    attitude = Rotation.random(random_state=rng)
     for i in range(n):
-        quats[i] = current.as_quat()
-        current = current * steps[i]
+        quats[i] = attitude.as_quat()
+        attitude = attitude * steps[i]
     t = np.arange(n) * dt
     temp = None
     if callable(temperature):
@@ -86,4 +91,15 @@ def tumble(duration_s: float = 60.0, rate_hz: float = 50.0, turn_rate_deg: float
         mean, amplitude, period = temperature
         wander = np.cumsum(rng.standard_normal(n)) * np.sqrt(dt) * 0.05 * amplitude
         temp = mean + amplitude * np.sin(2 * np.pi * t / period + rng.uniform(0, 2 * np.pi)) + wander - wander.mean()
-    return Scene(Rotation.from_quat(quats), t, temp)
+    amps = None  # drawn last, so that a scene without current keeps the random stream of earlier versions
+    if callable(current):
+        amps = np.asarray(current(t), dtype=float)
+        if amps.shape != t.shape:
+            raise ValueError(f"current: the function returned shape {amps.shape} for {t.size} times")
+    elif current is not None:
+        peak, hold = current
+        ends = np.cumsum(hold * rng.uniform(0.5, 1.5, int(duration_s / (0.5 * hold)) + 2))
+        levels = peak * rng.uniform(0.1, 1.0, len(ends))
+        amps = lfilter([dt / 0.3], [1.0, dt / 0.3 - 1.0], levels[np.searchsorted(ends, t)],
+                       zi=[levels[0] * (1 - dt / 0.3)])[0]
+    return Scene(Rotation.from_quat(quats), t, temp, amps)

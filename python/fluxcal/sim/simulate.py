@@ -20,6 +20,7 @@ class Simulation:
     effects: list
     field_norm: float
     temperature: np.ndarray | None = None  # °C, when the scene has one
+    current: np.ndarray | None = None      # A, when the scene has one
 
     def true_calibration(self, units: str = "") -> Calibration:
         """The correction that undoes the linear effects: offset = Σ hard iron, matrix = (Π W)⁻¹ made
@@ -40,10 +41,12 @@ def simulate(scene, effects, field, rng=None) -> Simulation:
     rng = np.random.default_rng(rng)
     truth = scene.sensor_field(field)
     values, clean = truth.copy(), truth.copy()
-    context = SimpleNamespace(t=scene.t, temp=scene.temperature, rotations=scene.rotations, rng=rng, truth=truth)
+    current = getattr(scene, "current", None)
+    context = SimpleNamespace(t=scene.t, temp=scene.temperature, current=current, rotations=scene.rotations,
+                              rng=rng, truth=truth)
     for effect in effects:
         values = effect.apply(values, context)
         if not effect.is_noise:
             clean = effect.apply(clean, context)
     return Simulation(readings=values, truth=truth, clean=clean, t=scene.t, effects=list(effects),
-                      field_norm=float(np.linalg.norm(field)), temperature=scene.temperature)
+                      field_norm=float(np.linalg.norm(field)), temperature=scene.temperature, current=current)

@@ -20,6 +20,7 @@ from .simulate import simulate
 FIELD = np.array([20.0, 1.0, 45.8]) * 50.0 / np.linalg.norm([20.0, 1.0, 45.8])  # µT, world (N, E, D)
 NOISE = 0.05  # µT
 DURATION = 60.0
+CURRENT = (20.0, 4.0)  # A peak, s per throttle setting (scene.tumble), when motor_current is withheld
 # Effects that a full matrix absorbs are checked against a scale-only base model, and one that no
 # magnitude shows against reference vectors.
 MODEL_FOR = {"non_orthogonality": "scale", "misalignment": "vector_scale", "time_offset": "vector"}
@@ -30,14 +31,15 @@ NOISE_EFFECTS = ("colored_noise", "quantization")
 
 
 def withheld_trial(names, seed: int, duration_s: float = DURATION, temperature=None, noise: float = NOISE,
-                   rate_hz: float = 50.0, model: str | None = None):
+                   rate_hz: float = 50.0, model: str | None = None, current=None):
     """Simulate the effects `names` (candidate names, may be empty); returns the Simulation and the
     keyword arguments of `fluxcal.diagnose` for it (t, temp, field_norm, model, and the reference with the
-    down direction, or the given noise, where the effect needs them). `temperature`: the scene's
+    down direction, the current, or the given noise, where the effect needs them). `temperature`: the scene's
     temperature (see `scene.tumble`; default its sine and wander). `noise`: the white noise σ (µT);
     `rate_hz`: the sample rate (the hand turns at the same speed whatever the rate). `model`: the base
     model to check against instead of the effects' own (e.g. "vector" to see an effect against reference
-    vectors)."""
+    vectors). `current`: the scene's current (see `scene.tumble`; default `CURRENT` when motor_current is
+    withheld, else none)."""
     by_name = {c.name: c for c in CANDIDATES}
     unknown = [n for n in names if n not in by_name]
     if unknown:
@@ -61,10 +63,14 @@ def withheld_trial(names, seed: int, duration_s: float = DURATION, temperature=N
     effects += [make(n) for n in names if n not in FIELD_EFFECTS and n not in NOISE_EFFECTS]
     effects.append(WhiteNoise(noise))
     effects += [make(n) for n in names if n in NOISE_EFFECTS]
-    scene = tumble(duration_s, rate_hz=rate_hz, rng=rng) if temperature is None else \
-        tumble(duration_s, rate_hz=rate_hz, rng=rng, temperature=temperature)
+    extra = {} if temperature is None else {"temperature": temperature}
+    if current is not None or "motor_current" in names:
+        extra["current"] = CURRENT if current is None else current
+    scene = tumble(duration_s, rate_hz=rate_hz, rng=rng, **extra)
     result = simulate(scene, effects, FIELD, rng)
     kwargs = {"t": result.t, "temp": result.temperature, "field_norm": 50.0, "model": model}
+    if result.current is not None:
+        kwargs["current"] = result.current
     if model.startswith("vector"):
         kwargs["reference"] = result.truth
         kwargs["gravity"] = scene.sensor_field([0.0, 0.0, 1.0])  # down, sensor frame: an ideal accelerometer
