@@ -239,6 +239,34 @@ def test_a_current_that_follows_time_cannot_be_told_from_a_drift():
     assert "motor_current" in d.remaining["skipped_candidates"]
 
 
+def test_motors_mostly_off_still_leave_a_held_out_quarter():
+    # 0 A for four fifths of the time (motors off), 18 A bursts. A threshold at the quantile (0 A) would hold
+    # out every reading; the top quarter by rank would hold out every burst, leaving the fit no current to
+    # learn from: interleaved blocks of time are held out instead.
+    result, kwargs = withheld_trial(["motor_current"], 2, current=lambda t: np.where(t % 20.0 > 16.0, 18.0, 0.0))
+    d = diagnose(result.readings, **kwargs)
+    assert d.accepted == ["motor_current"], d.accepted
+    top = d.ranking[0]
+    assert top["heldout"] == "events" and top["heldout_n"] <= 0.26 * len(result.readings)
+    assert top["heldout_gap_after"] < 0.25 * top["heldout_gap_before"]
+
+
+def test_side_columns_with_gaps_and_missing_timestamps():
+    # A blank cell in the current column costs that column, not the diagnosis; a delay needs timestamps,
+    # not row numbers.
+    result, kwargs = withheld_trial(["temp_offset"], 3)
+    m, current = result.readings, np.linspace(1.0, 9.0, len(result.readings))
+    current[10] = np.nan
+    rec = fluxcal.Recording(columns={"t": result.t, "temp": kwargs["temp"], "current": current, "mx": m[:, 0],
+                                     "my": m[:, 1], "mz": m[:, 2]})
+    d = diagnose(rec)
+    assert d.accepted == ["temp_offset"] and "motor_current" in d.remaining["skipped_candidates"]
+    assert "its current column has 1 missing or non-finite values and was not used" in d.noise_source
+    result, kwargs = withheld_trial(["time_offset"], 0)
+    d = diagnose(result.readings, reference=kwargs["reference"], field_norm=50.0)
+    assert "time_offset" in d.remaining["skipped_candidates"]
+
+
 def test_bad_input_is_a_clear_error():
     with pytest.raises(ValueError, match="at least 50"):
         diagnose(np.random.default_rng(0).standard_normal((20, 3)))

@@ -300,18 +300,24 @@ def _heldout(regime: str, data: _Data, directions: np.ndarray) -> np.ndarray:
         rank[np.argsort(data.t, kind="stable")] = np.arange(n)
         return (rank * 16 // n) % 4 == 2
     if regime == "temperature" and data.temp is not None:
-        return data.temp >= np.quantile(data.temp, 1 - HELDOUT_FRACTION)
+        return _highest(data.temp)
     if regime == "current" and data.current is not None:
-        return data.current >= np.quantile(data.current, 1 - HELDOUT_FRACTION)
+        return _highest(data.current)
     if regime == "orientation":
         diagonals = np.array([[x, y, z] for x in (-1, 1) for y in (-1, 1) for z in (-1, 1)]) / np.sqrt(3)
         dots = directions @ diagonals.T
         centre = np.argmax(np.sum(dots > 0.8, axis=0))  # the best-populated octant
         d = dots[:, centre]
         return d >= np.quantile(d, 1 - HELDOUT_FRACTION)
-    order = np.argsort(data.t, kind="stable")
-    mask = np.zeros(n, bool)
-    mask[order[int(round(n * (1 - HELDOUT_FRACTION))):]] = True
+    return _highest(data.t)
+
+
+def _highest(x: np.ndarray) -> np.ndarray:
+    """The quarter of the readings with the highest x, by rank (ties in row order): a threshold at the
+    quantile would hold out every reading of a value most of them share (motors off at 0 A, a
+    temperature logged in whole degrees)."""
+    mask = np.zeros(len(x), bool)
+    mask[np.argsort(x, kind="stable")[int(round(len(x) * (1 - HELDOUT_FRACTION))):]] = True
     return mask
 
 
@@ -546,6 +552,12 @@ def _validate(data, model, state, feats, regime, sigma) -> dict:
     """Fit with and without the candidate on all but a held-out regime; judge on the held-out part."""
     vector, fixed = MODELS[model]
     held = _heldout(regime, data, state["directions"])
+    side = {"temperature": data.temp, "current": data.current}.get(regime)
+    if side is not None and np.ptp(side[~held]) < 0.5 * np.ptp(side):
+        # A regressor with few values (motors off or at one throttle): its top quarter is all the fit would
+        # learn the effect from. Interleaved blocks of time hold out some of every level instead.
+        regime = "events"
+        held = _heldout(regime, data, state["directions"])
     key = regime
     if key not in state["train_fits"]:
         state["train_fits"][key] = _fit(data, state["start"], fixed, _features(state["features"]), ~held,
@@ -778,12 +790,20 @@ def diagnose(samples, t=None, temp=None, reference=None, gravity=None, field_nor
     from ..io.recording import Recording
     from ..pipeline import calibrate
 
+    unusable = []
     if isinstance(samples, Recording):
         rec = samples
         samples = rec.samples()
         t = rec.time() if t is None else t
         temp = rec.temperature() if temp is None else temp
         current = rec.current() if current is None else current
+        side = {"temp": temp, "current": current}
+        for name, values in side.items():  # a blank cell in a side column costs that column, not the diagnosis
+            if values is not None and not np.all(np.isfinite(values)):
+                unusable.append(f"its {name} column has {int(np.sum(~np.isfinite(values)))} missing or non-finite "
+                                f"values and was not used (fill them in to try the {name} candidates)")
+                side[name] = None
+        temp, current = side["temp"], side["current"]
         gravity = rec.acceleration() if gravity is None else gravity
         units = units or rec.field_units()
         source = rec.source
@@ -793,8 +813,10 @@ def diagnose(samples, t=None, temp=None, reference=None, gravity=None, field_nor
     vector, fixed = MODELS[model]
     if vector and reference is None:
         raise ValueError(f"model {model!r} needs reference vectors (the true field per reading)")
+    timestamps = t is not None
     data = _prepare(samples, t, temp, reference if vector else None, gravity if vector else None, field_norm,
                     units, source, current)
+    data.notes += unusable
     if len(data.m) < 50:
         raise ValueError(f"{source}: {len(data.m)} readings, the diagnosis needs at least 50")
 
@@ -827,7 +849,7 @@ def diagnose(samples, t=None, temp=None, reference=None, gravity=None, field_nor
     unknown = [w for w in wanted if w not in names]
     if unknown:
         raise ValueError(f"candidates: unknown effect(s) {', '.join(unknown)}; known: {', '.join(names)}")
-    have = {"t": True, "temp": data.temp is not None, "current": data.current is not None}
+    have = {"t": True, "timestamps": timestamps, "temp": data.temp is not None, "current": data.current is not None}
     pool = [names[w] for w in wanted if all(have.get(r, False) for r in names[w].needs)]
     skipped = [w for w in wanted if names[w] not in pool]
     # A rotation or a delay of the field leaves every magnitude unchanged: against a magnitude model its

@@ -337,7 +337,7 @@ def _read_dataflash(reader, path: Path, size: int, text: bool, unterminated: boo
                                          else float(msg.TimeMS) * 1e-3)
                     for a, field in zip(ATTITUDE, ("Roll", "Pitch", "Yaw")):
                         attitude[a].append(float(getattr(msg, field)))
-                elif kind == "BAT" and "Curr" in msg.fmt.columns and int(getattr(msg, "Inst", 0)) == 0:
+                elif kind == "BAT" and "Curr" in msg.fmt.columns and _battery_instance(msg) == 0:
                     battery["t"].append(float(msg.TimeUS) * 1e-6 if "TimeUS" in msg.fmt.columns
                                         else float(msg.TimeMS) * 1e-3)
                     battery["current"].append(float(msg.Curr))
@@ -420,7 +420,8 @@ def _read_dataflash(reader, path: Path, size: int, text: bool, unterminated: boo
         metadata["attitude"] = "ATT Roll, Pitch, Yaw interpolated to the MAG times (NaN outside the ATT span)"
         metadata["attitude_convention"] = "aerospace"
     if battery["t"]:
-        cols["current"] = np.interp(cols["t"], battery["t"], battery["current"])
+        order = np.argsort(battery["t"], kind="stable")
+        cols["current"] = np.interp(cols["t"], np.asarray(battery["t"])[order], np.asarray(battery["current"])[order])
         column_units["current"] = "A"
         metadata["current"] = "BAT Curr (first battery) interpolated to the MAG times, held outside the BAT span"
     if "health" in cols:
@@ -442,6 +443,14 @@ _AP_MAG_NAMES = {k: n for n, k in _AP_MAG_MESSAGES.items()}
 _MAG_LAYOUT = ("t", "mx", "my", "mz", "ofs_x", "ofs_y", "ofs_z", "mot_x", "mot_y", "mot_z", "health")
 _MAG_FIELDS = (("MagX",), ("MagY",), ("MagZ",), ("OfsX",), ("OfsY",), ("OfsZ",), ("MOX", "MOfsX"),
                ("MOY", "MOfsY"), ("MOZ", "MOfsZ"), ("Health",))
+
+
+def _battery_instance(msg) -> int:
+    """BAT's battery number: Inst (ArduPilot 4.1+), Instance (3.6–4.0), none in older logs (one battery)."""
+    for name in ("Inst", "Instance"):
+        if name in msg.fmt.columns:
+            return int(getattr(msg, name))
+    return 0
 
 
 def _mag_row(msg, fields, time_field):

@@ -37,9 +37,11 @@ AXES = np.eye(3)
 
 class Effect:
     """Base class. `is_noise`: a random effect, left out of Simulation.clean (the noise-free readings).
-    Candidates set `name`, `regime` ("orientation", "temperature", "time", "events"), `needs` (regressors).
-    The regime names what the validation holds back: the quarter of the orientations, the hottest quarter,
-    the last quarter in time, or interleaved blocks of time (an event can be interpolated, not foretold)."""
+    Candidates set `name`, `regime` ("orientation", "temperature", "current", "time", "events"), `needs`
+    (regressors: "t" the time, the row number when none is given; "timestamps" a time that was given;
+    "temp"; "current"). The regime names what the validation holds back: the quarter of the orientations,
+    the hottest quarter, the highest-current quarter, the last quarter in time, or interleaved blocks of
+    time (an event can be interpolated, not foretold)."""
 
     name = ""
     n_params = 0
@@ -560,7 +562,7 @@ class TimeOffset(Effect):
     name = "time_offset"
     n_params = 1
     regime = "time"
-    needs = ("t",)
+    needs = ("t", "timestamps")  # a delay in seconds needs real times, not row numbers
     needs_reference = True
     moves_reference = True
 

@@ -100,6 +100,6 @@ def tumble(duration_s: float = 60.0, rate_hz: float = 50.0, turn_rate_deg: float
         peak, hold = current
         ends = np.cumsum(hold * rng.uniform(0.5, 1.5, int(duration_s / (0.5 * hold)) + 2))
         levels = peak * rng.uniform(0.1, 1.0, len(ends))
-        amps = lfilter([dt / 0.3], [1.0, dt / 0.3 - 1.0], levels[np.searchsorted(ends, t)],
-                       zi=[levels[0] * (1 - dt / 0.3)])[0]
+        lag = 1.0 - np.exp(-dt / 0.3)  # a first-order spin-up of 0.3 s, stable at any sample rate
+        amps = lfilter([lag], [1.0, lag - 1.0], levels[np.searchsorted(ends, t)], zi=[levels[0] * (1 - lag)])[0]
     return Scene(Rotation.from_quat(quats), t, temp, amps)
