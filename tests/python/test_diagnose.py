@@ -277,7 +277,7 @@ def test_bad_input_is_a_clear_error():
         diagnose(np.random.default_rng(0).standard_normal((100, 3)), model="vector")
     current = np.full(len(result.readings), 5.0)
     current[7] = np.nan
-    with pytest.raises(ValueError, match="current: need"):
+    with pytest.raises(ValueError, match="current: 1 of the 3000 currents are not finite"):
         diagnose(result.readings, current=current, **kwargs)
 
 

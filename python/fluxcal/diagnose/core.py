@@ -697,24 +697,26 @@ def _quantization(data, state, sigma, n_candidates, noise_given: bool) -> dict:
     return row
 
 
+def _side(values, n: int, name: str, what: str):
+    """A side regressor (temperature, current) checked: None when absent or constant (a constant carries no
+    information: the hard iron holds it)."""
+    if values is None:
+        return None
+    values = np.asarray(values, dtype=float)
+    if values.shape != (n,):
+        raise ValueError(f"{name}: need {n} {what}, got shape {values.shape}")
+    if not np.all(np.isfinite(values)):
+        raise ValueError(f"{name}: {int(np.sum(~np.isfinite(values)))} of the {n} {what} are not finite")
+    return values if np.ptp(values) > 0 else None
+
+
 def _prepare(samples, t, temp, reference, down, field_norm, units, source, current=None) -> _Data:
     m = as_samples(samples)
     n = len(m)
     t = np.arange(n, dtype=float) if t is None else np.asarray(t, dtype=float)
     if t.shape != (n,) or not np.all(np.isfinite(t)):
         raise ValueError(f"t: need {n} finite times, got shape {t.shape}")
-    if temp is not None:
-        temp = np.asarray(temp, dtype=float)
-        if temp.shape != (n,) or not np.all(np.isfinite(temp)):
-            raise ValueError(f"temp: need {n} finite temperatures, got shape {temp.shape}")
-        if np.ptp(temp) <= 0:
-            temp = None  # a constant temperature carries no information
-    if current is not None:
-        current = np.asarray(current, dtype=float)
-        if current.shape != (n,) or not np.all(np.isfinite(current)):
-            raise ValueError(f"current: need {n} finite currents, got shape {current.shape}")
-        if np.ptp(current) <= 0:
-            current = None  # a constant current is part of the hard iron
+    temp, current = _side(temp, n, "temp", "temperatures"), _side(current, n, "current", "currents")
     if reference is not None:
         reference = as_samples(reference, "reference")
         if len(reference) != n:
@@ -779,13 +781,13 @@ def diagnose(samples, t=None, temp=None, reference=None, gravity=None, field_nor
     """Diagnose the gap between `samples` (N×3 readings, or a Recording) and the base `model`.
 
     t (s; default the row number), temp (°C), current (A drawn near the sensor: motors, a heater),
-    reference (N×3 true field per reading, sensor frame: the vector models): the regressors. gravity (N×3 accelerometer or any down/up vector, sensor frame; with
-    reference vectors it adds the heading error to the downstream errors). field_norm: the known |h| (default: the fitted ellipsoid's own
-    scale). model: "ellipsoid" (default without reference), "scale", "vector" (default with one),
-    "vector_scale". noise_sigma: white-noise σ of the readings (default: estimated, see
-    estimate_noise). candidates: effect names to try (default all whose regressors are present).
-    alpha: significance level (Bonferroni-corrected over the candidates). max_effects: how many
-    effects to add greedily.
+    reference (N×3 true field per reading, sensor frame: the vector models): the regressors. gravity (N×3
+    accelerometer or any down/up vector, sensor frame; with reference vectors it adds the heading error to
+    the downstream errors). field_norm: the known |h| (default: the fitted ellipsoid's own scale).
+    model: "ellipsoid" (default without reference), "scale", "vector" (default with one), "vector_scale".
+    noise_sigma: white-noise σ of the readings (default: estimated, see estimate_noise). candidates:
+    effect names to try (default all whose regressors are present). alpha: significance level
+    (Bonferroni-corrected over the candidates). max_effects: how many effects to add greedily.
     """
     from ..io.recording import Recording
     from ..pipeline import calibrate
