@@ -239,6 +239,21 @@ def test_a_current_that_follows_time_cannot_be_told_from_a_drift():
     assert "motor_current" in d.remaining["skipped_candidates"]
 
 
+def test_accepted_coefficients_are_the_final_models():
+    # motor_current is accepted first, temp_offset second: the round that accepted the current fitted it
+    # without the temperature term (its k was up to 11 SE off); the reported k is the final joint fit's.
+    for seed in range(3):
+        result, kwargs = withheld_trial(["motor_current", "temp_offset"], seed)
+        d = diagnose(result.readings, **kwargs)
+        assert set(d.accepted) == {"motor_current", "temp_offset"}, d.accepted
+        for e in result.effects:
+            if e.name in d.accepted:
+                r = next(r for r in d.ranking if r["effect"] == e.name)
+                z = (np.asarray(r["coefficients"]) - (e.k if e.name == "motor_current" else e.beta)) \
+                    / np.asarray(r["standard_errors"])
+                assert np.all(np.abs(z) < 4), (seed, e.name, z)
+
+
 def test_motors_mostly_off_still_leave_a_held_out_quarter():
     # 0 A for four fifths of the time (motors off), 18 A bursts. A threshold at the quantile (0 A) would hold
     # out every reading; the top quarter by rank would hold out every burst, leaving the fit no current to

@@ -55,7 +55,8 @@ class Diagnosis:
     `confounded`) and, for a move of the reference, the whole fitted move: `rotation_deg` (misalignment's
     rotation vector, degrees) or `delay_ms` (time_offset: the readings this late);
     `significant_not_modelled` marks a candidate still significant when the `max_effects` limit stopped
-    the search. `where`: residual tables per regime. `significant`: any effect found."""
+    the search; an accepted row's `coefficients` and `standard_errors` are those of the final model (every
+    accepted effect fitted together), the others' those of their own round. `where`: residual tables per regime. `significant`: any effect found."""
 
     model: str
     noise_sigma: float
@@ -921,6 +922,14 @@ def diagnose(samples, t=None, temp=None, reference=None, gravity=None, field_nor
 
     for w, cls, applied, block in moves:  # the whole move: the one applied, then the block's remainder
         w.update(cls.describe_move(cls.compose(applied, np.asarray(state["result"]["parameters"])[12:][block])))
+    # Later rounds refit every accepted block: an accepted effect's coefficients are the final model's.
+    params, errors = (np.asarray(state["result"][k]) for k in ("parameters", "standard_errors"))
+    lo = 12 if vector else 9
+    for name, feats in zip([a for a in accepted if a not in NOISE_CANDIDATES], state["features"]):
+        if not (vector and names[name].moves_reference):  # a move's block is a remainder, folded in above
+            last_rows[name].update(coefficients=params[lo:lo + feats.shape[1]].tolist(),
+                                   standard_errors=errors[lo:lo + feats.shape[1]].tolist())
+        lo += feats.shape[1]
     # Significant in the last round but not modelled: the max_effects limit stopped the greedy search.
     for name, r in last_rows.items():
         r["significant_not_modelled"] = bool(r.get("significant")) and name not in accepted
