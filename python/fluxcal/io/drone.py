@@ -420,8 +420,7 @@ def _read_dataflash(reader, path: Path, size: int, text: bool, unterminated: boo
         metadata["attitude"] = "ATT Roll, Pitch, Yaw interpolated to the MAG times (NaN outside the ATT span)"
         metadata["attitude_convention"] = "aerospace"
     if battery["t"]:
-        order = np.argsort(battery["t"], kind="stable")
-        cols["current"] = np.interp(cols["t"], np.asarray(battery["t"])[order], np.asarray(battery["current"])[order])
+        cols["current"] = _current_at(cols["t"], battery["t"], battery["current"])
         column_units["current"] = "A"
         metadata["current"] = "BAT Curr (first battery) interpolated to the MAG times, held outside the BAT span"
     if "health" in cols:
@@ -443,6 +442,14 @@ _AP_MAG_NAMES = {k: n for n, k in _AP_MAG_MESSAGES.items()}
 _MAG_LAYOUT = ("t", "mx", "my", "mz", "ofs_x", "ofs_y", "ofs_z", "mot_x", "mot_y", "mot_z", "health")
 _MAG_FIELDS = (("MagX",), ("MagY",), ("MagZ",), ("OfsX",), ("OfsY",), ("OfsZ",), ("MOX", "MOfsX"),
                ("MOY", "MOfsY"), ("MOZ", "MOfsZ"), ("Health",))
+
+
+def _current_at(t_dst, t_src, amps) -> np.ndarray:
+    """The battery current at the magnetometer times: linear between battery messages (sorted by time),
+    the first and last value held outside their span."""
+    t_src, amps = np.asarray(t_src, dtype=float), np.asarray(amps, dtype=float)
+    order = np.argsort(t_src, kind="stable")
+    return np.interp(t_dst, t_src[order], amps[order])
 
 
 def _battery_instance(msg) -> int:
@@ -681,8 +688,7 @@ def read_ulog(path, columns=None, units: str | None = None, instance=None) -> Re
         t_bat, amps = _ulog_time(battery.data), np.asarray(battery.data["current_a"], dtype=float)
         good = np.isfinite(amps) & (amps >= 0)  # PX4 logs −1 while the current is unknown
         if good.sum() >= 2:
-            order = np.argsort(t_bat[good], kind="stable")
-            cols["current"] = np.interp(t, t_bat[good][order], amps[good][order])
+            cols["current"] = _current_at(t, t_bat[good], amps[good])
             column_units["current"] = "A"
             metadata["current"] = ("battery_status[0] current_a interpolated to the magnetometer times, held outside "
                                    "its span")
