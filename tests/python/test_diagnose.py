@@ -166,6 +166,31 @@ def test_an_eddy_current_is_not_taken_for_a_time_offset():
         assert d.accepted == ["eddy_current"], d.accepted
 
 
+def test_an_offset_step_is_timed_and_sized():
+    # A jump of the sensor-frame offset (perming, a device switched on): when and by how much, either way
+    # the fitted box lies (after the jump, or before it with the opposite sign), against magnitudes and
+    # against reference vectors.
+    for seed, model in ((0, None), (1, None), (2, "vector")):
+        result, kwargs = withheld_trial(["offset_step"], seed, model=model)
+        d = diagnose(result.readings, **kwargs, units="uT")
+        assert d.accepted == ["offset_step"], d.accepted
+        truth = next(e for e in result.effects if e.name == "offset_step")
+        row = d.ranking[0]
+        at, sign = (row["off_s"], -1) if row["on_s"] is None else (row["on_s"], 1)
+        assert abs(at - truth.t_on) < 0.2, (row["on_s"], row["off_s"], truth.t_on)
+        z = (sign * np.asarray(row["coefficients"]) - truth.delta) / np.asarray(row["standard_errors"])
+        assert np.all(np.abs(z) < 4), z
+        line = next(x for x in d.text().splitlines() if "offset_step: the offset jumped by" in x)
+        assert f"at t = {at:.4g} s" in line and "% of the field" in line
+
+
+def test_a_moving_dipole_gains_no_spurious_offset_step():
+    # What the dipole's low-order shape leaves inside its own box must not come back as a second event
+    # (seeds where an offset box with two free edges was accepted after the dipole).
+    for seed in (1, 5, 7):
+        assert _run(["moving_dipole"], seed).accepted == ["moving_dipole"]
+
+
 def test_noise_estimate_from_third_differences():
     result, _ = withheld_trial([], 7)
     assert estimate_noise(result.readings) == pytest.approx(0.05, rel=0.05)

@@ -456,7 +456,7 @@ def _evaluate(cls, data, model, state, sigma, n_candidates) -> dict:
     row = {"effect": cls.name, "regime": cls.regime, "n_params": int(feats.shape[1]), "new_dimensions": dims,
            "absorbed": dims == 0, "alternatives": tried, "score": score,
            "score_pvalue": min(1.0, float(stats.chi2.sf(score, max(dims, 1))) * tried),
-           "absorbed_fraction": float(1 - singular.min()) if len(singular) else 1.0}
+           "absorbed_fraction": float(1 - singular.min()) if len(singular) else 1.0, **cls.describe(ctx, feats)}
     if dims == 0:
         row.update(lr=0.0, lr_pvalue=1.0, delta_aic=0.0, delta_bic=0.0, significant=False,
                    heldout_gap_before=None, heldout_gap_after=None,

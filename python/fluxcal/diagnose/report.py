@@ -73,6 +73,17 @@ def temperature_caveat(d) -> list:
             "Log the sensor's temperature to tell them apart."]
 
 
+def offset_step_line(d, r) -> str:
+    """When the offset jumped and by how much (readings' units and % of the field). The fitted step may
+    be the stretch before the jump (a box from the recording's start): the same step, the other way round."""
+    u = f" {d.units}" if d.units else ""
+    c = np.asarray(r["coefficients"])
+    c, at = (-c, r["off_s"]) if r.get("on_s") is None else (c, r["on_s"])
+    percent = 100 * np.linalg.norm(d.base.matrix @ c) / d.base.field_norm
+    return (f"offset_step: the offset jumped by {np.round(c, 4).tolist()}{u} (x, y, z; {percent:.2g} % of the field) "
+            f"at t = {at:.4g} s and stayed (a part magnetised by a shock or a strong field, a device switched on)")
+
+
 def text(d) -> str:
     u = f" {d.units}" if d.units else ""
     w, rem = d.where, d.remaining
@@ -101,6 +112,8 @@ def text(d) -> str:
                 out.append(f"  {r['effect']}: the readings {abs(r['delay_ms']):.2f} ms "
                            f"{'behind' if r['delay_ms'] > 0 else 'ahead of'} the reference vectors"
                            + ("" if r["delay_ms"] > 0 else " (no eddy current or filter leads: look at the timestamps)"))
+            if r["effect"] == "offset_step" and r.get("step") is not None:
+                out.append("  " + offset_step_line(d, r))
             if r["effect"] == "motor_current" and r.get("step") is not None and d.series.get("current") is not None:
                 k, peak = np.asarray(r["coefficients"]), float(np.max(np.abs(d.series["current"])))
                 out.append(f"  motor_current: {np.round(k, 4).tolist()}{u} per A (x, y, z); at the recording's peak "

@@ -76,6 +76,12 @@ class Effect:
         raise NotImplementedError
 
     @classmethod
+    def describe(cls, ctx, feats) -> dict:
+        """What the chosen alternative says beyond its coefficients (e.g. when an event began), as the
+        ranking row's extra fields."""
+        return {}
+
+    @classmethod
     def alternatives(cls, ctx) -> list:
         """Feature arrays to choose from (one unless the candidate has a non-linear parameter)."""
         return [cls.features(ctx)]
@@ -434,51 +440,28 @@ class OffsetDrift(Effect):
 
 # ---------------------------------------------------------------- field effects
 
-@dataclass
-class MovingDipole(Effect):
-    """A nearby magnet that moves or switches: a dipole of moment `moment` (reading units × m³, μ0/4π
-    folded in) on at `t_on`…`t_off`, moving from `start` to `end` (m, world frame, relative to the
-    sensor) meanwhile. Its field is added in the world frame and turned into the sensor frame.
-    Typical: a tool or phone passing 0.25 m away, 3–12 % of the Earth's field.
+class _TimeBox(Effect):
+    """A candidate on within one box of time, [t_on, t_off] (a box that reaches an end of the recording is
+    one step): the edges are scanned on a grid of GRID + 1 times, then each refined to the sample. A
+    subclass gives the features within a box (`_box`)."""
 
-    As a candidate: while the disturbance is on, the total field's magnitude changes (what a magnitude
-    model sees): a level, a slope and a curvature (the magnet moving; its field falls as 1/r³) within a
-    box in time whose edges are scanned on a grid of GRID + 1 times, then refined to the sample."""
-
-    moment: np.ndarray
-    start: np.ndarray
-    end: np.ndarray
-    t_on: float
-    t_off: float
-    name = "moving_dipole"
-    n_params = 3
     regime = "events"
     needs = ("t",)
     GRID = 32  # box edges scanned: every pair of GRID + 1 equally spaced times
     FINE = 4   # refinement: 2·FINE + 1 positions of an edge per level, each level FINE times finer
 
-    def apply(self, values, context):
-        t = context.t
-        on = (t >= self.t_on) & (t <= self.t_off)
-        frac = np.clip((t - self.t_on) / max(self.t_off - self.t_on, 1e-12), 0, 1)[:, None]
-        r = -(np.asarray(self.start) + frac * (np.asarray(self.end) - np.asarray(self.start)))  # dipole → sensor
-        d = np.linalg.norm(r, axis=1, keepdims=True)
-        rhat = r / d
-        mvec = np.asarray(self.moment, dtype=float)
-        world = (3 * rhat * (rhat @ mvec)[:, None] - mvec) / d ** 3 * on[:, None]
-        return values + context.rotations.inv().apply(world)
+    @classmethod
+    def _box(cls, ctx, t_on, t_off):  # pragma: no cover - interface
+        raise NotImplementedError
+
+    STEPS = False  # True: only boxes that reach the recording's start or end (one edge: a step)
 
     @classmethod
     def _coarse_edges(cls, ctx):
         edges = np.quantile(ctx.t, np.linspace(0, 1, cls.GRID + 1))
         return [(edges[a], edges[b]) for a in range(cls.GRID) for b in range(a + 1, cls.GRID + 1)
-                if not (a == 0 and b == cls.GRID)]  # on throughout = a different field norm, not a disturbance
-
-    @staticmethod
-    def _box(ctx, t_on, t_off):
-        on = (ctx.t >= t_on) & (ctx.t <= t_off)
-        u = np.where(on, 2 * (ctx.t - 0.5 * (t_on + t_off)) / (t_off - t_on), 0.0)  # −1…1 across the box
-        return np.stack([on * 1.0, u, on * (u ** 2 - 1 / 3)], axis=1)[:, :, None] * ctx.direction[:, None, :]
+                if not (a == 0 and b == cls.GRID)  # on throughout is part of the base model
+                and (not cls.STEPS or a == 0 or b == cls.GRID)]
 
     @classmethod
     def alternatives(cls, ctx):
@@ -495,6 +478,8 @@ class MovingDipole(Effect):
         width = np.ptp(ctx.t) / cls.GRID
         while width > dt / 2:
             for side in (0, 1):
+                if cls.STEPS and edges[side] in (ctx.t.min(), ctx.t.max()):
+                    continue
                 for x in np.linspace(edges[side] - width, edges[side] + width, 2 * cls.FINE + 1):
                     trial = list(edges)
                     trial[side] = x
@@ -511,6 +496,59 @@ class MovingDipole(Effect):
     def features(cls, ctx):
         return cls.alternatives(ctx)[0]
 
+    @staticmethod
+    def span(ctx, feats):
+        """The first and last time within the box of `feats` (None when it is empty)."""
+        on = np.any(feats != 0, axis=(1, 2))
+        return (float(ctx.t[on].min()), float(ctx.t[on].max())) if on.any() else None
+
+    @classmethod
+    def describe(cls, ctx, feats) -> dict:
+        """The box found: `on_s`, `off_s` — the first and last reading's time within it; None for an edge
+        at the recording's start or end (a step, not an episode)."""
+        span = cls.span(ctx, feats)
+        if span is None:
+            return {}
+        return {"on_s": None if span[0] <= ctx.t.min() else span[0],
+                "off_s": None if span[1] >= ctx.t.max() else span[1]}
+
+
+@dataclass
+class MovingDipole(_TimeBox):
+    """A nearby magnet that moves or switches: a dipole of moment `moment` (reading units × m³, μ0/4π
+    folded in) on at `t_on`…`t_off`, moving from `start` to `end` (m, world frame, relative to the
+    sensor) meanwhile. Its field is added in the world frame and turned into the sensor frame.
+    Typical: a tool or phone passing 0.25 m away, 3–12 % of the Earth's field.
+
+    As a candidate: while the disturbance is on, the total field's magnitude changes (what a magnitude
+    model sees): a level, a slope and a curvature (the magnet moving; its field falls as 1/r³) within a
+    box in time (see _TimeBox)."""
+
+    moment: np.ndarray
+    start: np.ndarray
+    end: np.ndarray
+    t_on: float
+    t_off: float
+    name = "moving_dipole"
+    n_params = 3
+
+    def apply(self, values, context):
+        t = context.t
+        on = (t >= self.t_on) & (t <= self.t_off)
+        frac = np.clip((t - self.t_on) / max(self.t_off - self.t_on, 1e-12), 0, 1)[:, None]
+        r = -(np.asarray(self.start) + frac * (np.asarray(self.end) - np.asarray(self.start)))  # dipole → sensor
+        d = np.linalg.norm(r, axis=1, keepdims=True)
+        rhat = r / d
+        mvec = np.asarray(self.moment, dtype=float)
+        world = (3 * rhat * (rhat @ mvec)[:, None] - mvec) / d ** 3 * on[:, None]
+        return values + context.rotations.inv().apply(world)
+
+    @classmethod
+    def _box(cls, ctx, t_on, t_off):
+        on = (ctx.t >= t_on) & (ctx.t <= t_off)
+        u = np.where(on, 2 * (ctx.t - 0.5 * (t_on + t_off)) / (t_off - t_on), 0.0)  # −1…1 across the box
+        return np.stack([on * 1.0, u, on * (u ** 2 - 1 / 3)], axis=1)[:, :, None] * ctx.direction[:, None, :]
+
     @classmethod
     def typical(cls, field_norm, rng, duration_s: float = 60.0):
         direction = rng.standard_normal(3)
@@ -521,6 +559,42 @@ class MovingDipole(Effect):
         start = distance * np.array([1.0, 0.0, 0.0])
         end = distance * np.array([0.8, 0.6, 0.0])
         return cls(moment, start, end, t_on, t_on + duration_s * rng.uniform(0.2, 0.3))
+
+
+@dataclass
+class OffsetStep(_TimeBox):
+    """The offset jumps by `delta` (reading units, sensor frame) at `t_on` and stays (until `t_off`): a part
+    next to the sensor magnetised by a strong field or a shock (perming), a device on the same board
+    switched on, an AMR bridge's offset after a set/reset pulse. Unlike a moving dipole's field (world
+    frame) it turns with the sensor, so what it does to |h| changes with the orientation. Typical: 1–2 %
+    of the field.
+
+    As a candidate: a constant offset per axis from one time to the recording's end (or from its start to
+    one time: the same step), the time scanned as _TimeBox's edges. Only steps, not episodes that end
+    within the recording: with two free edges the box would also fit what a moving dipole's low-order
+    shape leaves inside its own box (3 of 10 dipole trials gained a spurious second event)."""
+
+    delta: np.ndarray
+    t_on: float
+    t_off: float = np.inf
+    name = "offset_step"
+    n_params = 3
+    STEPS = True
+
+    def apply(self, values, context):
+        on = (context.t >= self.t_on) & (context.t <= self.t_off)
+        return values + np.outer(on, self.delta)
+
+    @classmethod
+    def _box(cls, ctx, t_on, t_off):
+        on = ((ctx.t >= t_on) & (ctx.t <= t_off)) * 1.0
+        return _per_axis(np.repeat(on[:, None], 3, axis=1))
+
+    @classmethod
+    def typical(cls, field_norm, rng, duration_s: float = 60.0):
+        direction = rng.standard_normal(3)
+        delta = field_norm * rng.uniform(0.01, 0.02) * direction / np.linalg.norm(direction)
+        return cls(delta, duration_s * rng.uniform(0.2, 0.8))
 
 
 @dataclass
@@ -657,8 +731,8 @@ class Quantization(Effect):
 
 
 CANDIDATES = (TemperatureScale, TemperatureOffset, MotorCurrent, OffsetDrift, CubicNonlinearity, Saturation, CrossAxis,
-              NonOrthogonality, Misalignment, Hysteresis, MovingDipole, EddyCurrent, TimeOffset, ColoredNoise,
-              Quantization)
+              NonOrthogonality, Misalignment, Hysteresis, MovingDipole, OffsetStep, EddyCurrent, TimeOffset,
+              ColoredNoise, Quantization)
 """Every effect the diagnosis can rank, by its candidate name (`fluxcal diagnose` documents them)."""
 
 

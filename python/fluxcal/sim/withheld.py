@@ -53,7 +53,7 @@ def withheld_trial(names, seed: int, duration_s: float = DURATION, temperature=N
 
     def make(name):
         cls = by_name[name]
-        if name in ("offset_drift", "moving_dipole"):
+        if name in ("offset_drift", "moving_dipole", "offset_step"):
             return cls.typical(50.0, rng, duration_s)
         return cls.typical(50.0, rng)
 
