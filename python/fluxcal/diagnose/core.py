@@ -514,6 +514,81 @@ def _exact_move(data: _Data, state: dict, model: str, cls, iterations: int = 3):
     return data, total, block
 
 
+def _richer_shape(data: _Data, model: str, state: dict, cls, row: dict) -> None:
+    """An accepted effect whose shape was tested in a low-order form (a disturbance's time profile)
+    gets the richer form with the lowest BIC on all the readings (`cls.shapes`): the acceptance stands
+    on the low-order test; the richer shape only keeps later candidates from fitting what it left."""
+    fixed = MODELS[model][1]
+    lo = len(state["terms"]) - row["_features"].shape[1]
+    n = len(np.asarray(state["result"]["residuals"]))
+
+    def bic(result, p):
+        e = np.asarray(result["residuals"])
+        return n * np.log(float(e @ e)) + p * np.log(n)
+
+    best, best_bic = None, bic(state["result"], row["_features"].shape[1])
+    for feats in cls.shapes(_context(data, state["result"]), row["_features"]):
+        terms = np.concatenate([state["terms"][:lo], np.zeros(feats.shape[1])])
+        try:
+            fit = _fit(data, state["start"], fixed, _features(state["features"][:-1] + [feats]), start_terms=terms)
+        except _core.Error:
+            continue
+        if bic(fit, feats.shape[1]) < best_bic:
+            best, best_bic = (feats, fit), bic(fit, feats.shape[1])
+    if best is None:
+        return
+    feats, fit = best
+    row["_features"], row["_fit"], row["shape_terms"] = feats, fit, int(feats.shape[1])
+    state["features"][-1] = feats
+    state["result"] = fit
+    state["terms"] = np.asarray(fit["parameters"])[12 if data.reference is not None else 9:]
+
+
+def _with(state: dict, row: dict, vector: bool) -> dict:
+    """A copy of `state` with the candidate of `row` added (its features and its fit)."""
+    return dict(state, features=state["features"] + [row["_features"]], result=row["_fit"], train_fits={},
+                terms=np.asarray(row["_fit"]["parameters"])[12 if vector else 9:])
+
+
+def _together(data: _Data, model: str, state: dict, rows: list, pool: list, accepted: list, sigma: float,
+              n_candidates: int):
+    """Two large effects at once (a magnet passing while an offset jumps): each one's held-out test can fail
+    while the other is unmodelled (its residuals are long and correlated, leaving few blocks to test on).
+    When no candidate is significant, the strongest one that passed every in-sample test is added on
+    trial; if a second candidate is then significant, the first is searched and judged again with only
+    the second modelled. Both are kept when both pass; returns their rows in the order to add them
+    (each `found_with` the other), else None."""
+    vector, fixed = MODELS[model]
+    names = {c.name: c for c in pool}
+    hopeful = sorted([r for r in rows if "_fit" in r and not r["significant"] and r["delta_bic"] < 0
+                      and r["lr_pvalue"] * n_candidates < state["alpha"] and not names[r["effect"]].moves_reference],
+                     key=lambda r: r["delta_bic"])
+    if not hopeful:
+        return None
+    first = dict(hopeful[0])
+    trial = _with(state, first, vector)
+    if hasattr(names[first["effect"]], "shapes"):
+        _richer_shape(data, model, trial, names[first["effect"]], first)
+    others = [c for c in pool if c.name not in NOISE_CANDIDATES and c.name not in accepted
+              and c.name != first["effect"] and not c.moves_reference]
+    winners = sorted([r for r in (_evaluate(c, data, model, trial, sigma, n_candidates) for c in others)
+                      if r["significant"]], key=lambda r: r["delta_bic"])
+    if not winners:
+        return None
+    second = dict(winners[0], _rivals=[])
+    feats = second["_features"]
+    second["_fit"] = _fit(data, state["start"], fixed, _features(state["features"] + [feats]),
+                          start_terms=np.concatenate([state["terms"], np.zeros(feats.shape[1])]))
+    given = _with(state, second, vector)
+    if hasattr(names[second["effect"]], "shapes"):
+        _richer_shape(data, model, given, names[second["effect"]], second)
+    again = _evaluate(names[first["effect"]], data, model, given, sigma, n_candidates)
+    if not again["significant"]:
+        return None
+    second["found_with"], again["found_with"], again["_rivals"] = again["effect"], second["effect"], []
+    return second, again
+
+
 def _rivals(winner: dict, rows: list, key: str = "significant") -> list:
     """Candidates of the same round that explain the data about as well as the winner (significant
     themselves — `key` of the row, True — ΔBIC within CONFOUND_BIC). Whether they are the same
@@ -873,6 +948,22 @@ def diagnose(samples, t=None, temp=None, reference=None, gravity=None, field_nor
 
         bar = tqdm(total=len(pool) * (max_effects + 1), desc="diagnose", unit="candidate", leave=False)
     previous_winner, moves = None, []
+
+    def accept(w):
+        nonlocal data
+        accepted.append(w["effect"])
+        state["features"].append(w["_features"])
+        state["terms"] = np.asarray(w["_fit"]["parameters"])[12 if vector else 9:]
+        state["result"] = w["_fit"]
+        state["train_fits"] = {}
+        if hasattr(names[w["effect"]], "shapes") and "shape_terms" not in w:
+            _richer_shape(data, model, state, names[w["effect"]], w)
+        if vector and names[w["effect"]].moves_reference:
+            data, applied, block = _exact_move(data, state, model, names[w["effect"]])
+            moves.append((w, names[w["effect"]], applied, block))
+        w["step"] = len(accepted)
+        last_rows[w["effect"]] = w
+
     for _round in range(max_effects + 1):
         rows = []
         systematic = [c for c in pool if c.name not in NOISE_CANDIDATES and c.name not in accepted]
@@ -891,16 +982,13 @@ def diagnose(samples, t=None, temp=None, reference=None, gravity=None, field_nor
         if winners and len(accepted) < max_effects:
             w = previous_winner = winners[0]
             w["_rivals"] = _rivals(w, rows)
-            accepted.append(w["effect"])
-            state["features"].append(w["_features"])
-            state["terms"] = np.asarray(w["_fit"]["parameters"])[12 if vector else 9:]
-            state["result"] = w["_fit"]
-            state["train_fits"] = {}
-            if vector and names[w["effect"]].moves_reference:
-                data, applied, block = _exact_move(data, state, model, names[w["effect"]])
-                moves.append((w, names[w["effect"]], applied, block))
-            w["step"] = len(accepted)
-            last_rows[w["effect"]] = w
+            accept(w)
+            continue
+        pair = (_together(data, model, state, rows, pool, accepted, sigma, n_candidates)
+                if len(accepted) + 2 <= max_effects else None)
+        if pair:
+            for w in pair:
+                accept(w)
             continue
         # No systematic effect left: is the rest correlated noise or quantisation?
         for name in NOISE_CANDIDATES:

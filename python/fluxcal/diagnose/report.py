@@ -74,14 +74,16 @@ def temperature_caveat(d) -> list:
 
 
 def offset_step_line(d, r) -> str:
-    """When the offset jumped and by how much (readings' units and % of the field). The fitted step may
-    be the stretch before the jump (a box from the recording's start): the same step, the other way round."""
+    """When the offset jumped, by how much (readings' units and % of the field) and whether it came back.
+    A box from the recording's start is the stretch before a jump: the same step, the other way round."""
     u = f" {d.units}" if d.units else ""
     c = np.asarray(r["coefficients"])
-    c, at = (-c, r["off_s"]) if r.get("on_s") is None else (c, r["on_s"])
+    c, at, back = (-c, r["off_s"], None) if r.get("on_s") is None else (c, r["on_s"], r.get("off_s"))
     percent = 100 * np.linalg.norm(d.base.matrix @ c) / d.base.field_norm
     return (f"offset_step: the offset jumped by {np.round(c, 4).tolist()}{u} (x, y, z; {percent:.2g} % of the field) "
-            f"at t = {at:.4g} s and stayed (a part magnetised by a shock or a strong field, a device switched on)")
+            f"at t = {at:.4g} s" + (f" and came back at t = {back:.4g} s (a device near the sensor switched on and off?)"
+                                     if back is not None else
+                                     " and stayed (a part magnetised by a shock or a strong field, a device switched on?)"))
 
 
 def text(d) -> str:
@@ -106,6 +108,10 @@ def text(d) -> str:
     if d.accepted:
         out.append(f"FOUND: {', '.join(d.accepted)} (added in this order)")
         for r in d.ranking:
+            if r.get("found_with") and r.get("step", 0) > next(x.get("step", 0) for x in d.ranking
+                                                                 if x["effect"] == r["found_with"]):
+                out.append(f"  {r['found_with']} and {r['effect']} were found together: while either is unmodelled "
+                           "the other's held-out test fails; each passes with the other modelled")
             if r.get("rotation_deg") is not None:
                 out.append(f"  {r['effect']}: rotation vector {np.round(r['rotation_deg'], 3).tolist()}°")
             if r.get("delay_ms") is not None:
