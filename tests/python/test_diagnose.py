@@ -40,7 +40,7 @@ def test_withheld_effect_ranks_first_and_closes_the_gap(name):
 
 @pytest.mark.parametrize("pair", [("temp_offset", "nonlinearity_cubic"), ("offset_drift", "cross_axis"),
                                   ("temp_scale", "hysteresis"), ("motor_current", "temp_offset"),
-                                  ("moving_dipole", "offset_step")])
+                                  ("moving_dipole", "offset_step"), ("moving_dipole", "temp_offset")])
 def test_two_withheld_effects_are_both_found(pair):
     found = sum(set(pair) <= set(_run(list(pair), 100 + seed).accepted) for seed in range(5))
     assert found >= 4, f"{pair} both found in {found}/5"
@@ -186,6 +186,14 @@ def test_an_offset_step_is_timed_and_sized():
         line = next(x for x in d.text().splitlines() if "offset_step: the offset jumped by" in x)
         assert f"at t = {at:.4g} s" in line and "% of the field" in line
         assert ("came back" in line) == (back is not None)
+
+
+def test_an_offset_step_without_timestamps_is_placed_by_row():
+    result, kwargs = withheld_trial(["offset_step"], 0)
+    d = diagnose(result.readings, temp=kwargs["temp"], field_norm=50.0)  # no t: the row number is the time
+    assert d.accepted == ["offset_step"], d.accepted
+    line = next(x for x in d.text().splitlines() if "offset_step: the offset jumped by" in x)
+    assert "at row " in line and " s " not in line, line
 
 
 def test_a_moving_dipole_gains_no_spurious_offset_step():

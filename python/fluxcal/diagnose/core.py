@@ -54,6 +54,10 @@ class Diagnosis:
     they were added), then the rest by ΔBIC; an accepted row may carry `confounded_with` (see
     `confounded`) and, for a move of the reference, the whole fitted move: `rotation_deg` (misalignment's
     rotation vector, degrees) or `delay_ms` (time_offset: the readings this late);
+    `on_s`/`off_s` give an event's box (moving_dipole, offset_step: first and last time within it, None at
+    the recording's ends); `found_with` names the effect a row was found together with (each passed its
+    held-out test only with the other modelled); `shape_terms` the terms of an accepted dipole's refined
+    time profile (its `coefficients`: Legendre P0… across the box);
     `significant_not_modelled` marks a candidate still significant when the `max_effects` limit stopped
     the search; an accepted row's `coefficients` and `standard_errors` are those of the final model (every
     accepted effect fitted together), the others' those of their own round. `where`: residual tables per regime. `significant`: any effect found."""
@@ -506,7 +510,7 @@ def _exact_move(data: _Data, state: dict, model: str, cls, iterations: int = 3):
     for _ in range(iterations):
         total = cls.compose(total, state["terms"][block])
         data = replace(data, reference=cls.move_reference(original, data.t, total))
-        state["features"][-1] = cls.features(_context(data, state["result"]))
+        state["features"][-1] = state["validated"][-1] = cls.features(_context(data, state["result"]))
         terms = state["terms"].copy()
         terms[lo:] = 0.0
         state["result"] = _fit(data, state["start"], fixed, _features(state["features"]), start_terms=terms)
@@ -517,7 +521,9 @@ def _exact_move(data: _Data, state: dict, model: str, cls, iterations: int = 3):
 def _richer_shape(data: _Data, model: str, state: dict, cls, row: dict) -> None:
     """An accepted effect whose shape was tested in a low-order form (a disturbance's time profile)
     gets the richer form with the lowest BIC on all the readings (`cls.shapes`): the acceptance stands
-    on the low-order test; the richer shape only keeps later candidates from fitting what it left."""
+    on the low-order test; the richer shape only keeps later candidates from fitting what it left. Later
+    held-out fits keep the low-order form (`state["validated"]`): a quintic fitted on a sliver of its
+    box and extrapolated over a held-out quarter would make those tests meaningless."""
     fixed = MODELS[model][1]
     lo = len(state["terms"]) - row["_features"].shape[1]
     n = len(np.asarray(state["result"]["residuals"]))
@@ -538,7 +544,9 @@ def _richer_shape(data: _Data, model: str, state: dict, cls, row: dict) -> None:
     if best is None:
         return
     feats, fit = best
+    row["_validated"] = row.get("_validated", row["_features"])
     row["_features"], row["_fit"], row["shape_terms"] = feats, fit, int(feats.shape[1])
+    row["n_params"] = int(feats.shape[1])
     state["features"][-1] = feats
     state["result"] = fit
     state["terms"] = np.asarray(fit["parameters"])[12 if data.reference is not None else 9:]
@@ -547,6 +555,7 @@ def _richer_shape(data: _Data, model: str, state: dict, cls, row: dict) -> None:
 def _with(state: dict, row: dict, vector: bool) -> dict:
     """A copy of `state` with the candidate of `row` added (its features and its fit)."""
     return dict(state, features=state["features"] + [row["_features"]], result=row["_fit"], train_fits={},
+                validated=state["validated"] + [row.get("_validated", row["_features"])],
                 terms=np.asarray(row["_fit"]["parameters"])[12 if vector else 9:])
 
 
@@ -577,8 +586,11 @@ def _together(data: _Data, model: str, state: dict, rows: list, pool: list, acce
         return None
     second = dict(winners[0], _rivals=[])
     feats = second["_features"]
-    second["_fit"] = _fit(data, state["start"], fixed, _features(state["features"] + [feats]),
-                          start_terms=np.concatenate([state["terms"], np.zeros(feats.shape[1])]))
+    try:
+        second["_fit"] = _fit(data, state["start"], fixed, _features(state["features"] + [feats]),
+                              start_terms=np.concatenate([state["terms"], np.zeros(feats.shape[1])]))
+    except _core.Error:
+        return None
     given = _with(state, second, vector)
     if hasattr(names[second["effect"]], "shapes"):
         _richer_shape(data, model, given, names[second["effect"]], second)
@@ -624,6 +636,16 @@ def _collapsed(data: _Data, winner: dict, rows: list) -> list:
     return out
 
 
+def _validated_terms(state: dict) -> np.ndarray:
+    """Start values for the held-out fits' terms: each accepted block's own, its leading ones where the
+    block was fitted in a richer form (the low-order terms lead: Legendre P0–P2 of the same box)."""
+    out, lo = [], 0
+    for full, low in zip(state["features"], state["validated"]):
+        out.append(state["terms"][lo:lo + low.shape[1]])
+        lo += full.shape[1]
+    return np.concatenate(out) if out else np.zeros(0)
+
+
 def _validate(data, model, state, feats, regime, sigma) -> dict:
     """Fit with and without the candidate on all but a held-out regime; judge on the held-out part."""
     vector, fixed = MODELS[model]
@@ -635,14 +657,15 @@ def _validate(data, model, state, feats, regime, sigma) -> dict:
         regime = "events"
         held = _heldout(regime, data, state["directions"])
     key = regime
+    terms = _validated_terms(state)
     if key not in state["train_fits"]:
-        state["train_fits"][key] = _fit(data, state["start"], fixed, _features(state["features"]), ~held,
-                                        start_terms=state["terms"])
+        state["train_fits"][key] = _fit(data, state["start"], fixed, _features(state["validated"]), ~held,
+                                        start_terms=terms)
     before = state["train_fits"][key]
-    base_feats = _features(state["features"])
-    all_feats = _features(state["features"] + [feats])
+    base_feats = _features(state["validated"])
+    all_feats = _features(state["validated"] + [feats])
     after = _fit(data, state["start"], fixed, all_feats, ~held,
-                 start_terms=np.concatenate([state["terms"], np.zeros(feats.shape[1])]))
+                 start_terms=np.concatenate([terms, np.zeros(feats.shape[1])]))
     e0 = _residuals(before, data, base_feats, held)
     e1 = _residuals(after, data, all_feats, held)
     return {"heldout": regime, "heldout_n": int(held.sum()),
@@ -938,7 +961,7 @@ def diagnose(samples, t=None, temp=None, reference=None, gravity=None, field_nor
     directions = _field_directions(data, base)
     e0 = np.asarray(base["residuals"])
     where = _where(data, e0, sigma, directions, vector)
-    state = {"start": start, "result": base, "features": [], "terms": np.zeros(0), "train_fits": {},
+    state = {"start": start, "result": base, "features": [], "validated": [], "terms": np.zeros(0), "train_fits": {},
              "directions": directions, "alpha": alpha}
     accepted, last_rows = [], {}
     n_candidates = max(len(pool), 1)
@@ -953,6 +976,7 @@ def diagnose(samples, t=None, temp=None, reference=None, gravity=None, field_nor
         nonlocal data
         accepted.append(w["effect"])
         state["features"].append(w["_features"])
+        state["validated"].append(w.get("_validated", w["_features"]))
         state["terms"] = np.asarray(w["_fit"]["parameters"])[12 if vector else 9:]
         state["result"] = w["_fit"]
         state["train_fits"] = {}
@@ -1040,7 +1064,7 @@ def diagnose(samples, t=None, temp=None, reference=None, gravity=None, field_nor
     remaining["invisible_candidates"] = invisible
     base_cal = Calibration(offset=base["offset"], matrix=base["matrix"], field_norm=data.field_norm, units=units,
                            model=model)
-    series = {"t": data.t, "temp": data.temp, "current": data.current, "directions": directions, "residual_before": e0,
+    series = {"t": data.t, "timestamps": timestamps, "temp": data.temp, "current": data.current, "directions": directions, "residual_before": e0,
               "residual_after": e_final, "vector": vector}
     return Diagnosis(model=model, noise_sigma=sigma, noise_source=noise_source, units=units, source=source,
                      ranking=ranking, accepted=accepted, where=where, remaining=remaining, base=base_cal,

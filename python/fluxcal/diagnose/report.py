@@ -80,8 +80,9 @@ def offset_step_line(d, r) -> str:
     c = np.asarray(r["coefficients"])
     c, at, back = (-c, r["off_s"], None) if r.get("on_s") is None else (c, r["on_s"], r.get("off_s"))
     percent = 100 * np.linalg.norm(d.base.matrix @ c) / d.base.field_norm
+    when = (lambda x: f"t = {x:.4g} s") if d.series.get("timestamps", True) else (lambda x: f"row {x:.0f}")  # noqa: E731
     return (f"offset_step: the offset jumped by {np.round(c, 4).tolist()}{u} (x, y, z; {percent:.2g} % of the field) "
-            f"at t = {at:.4g} s" + (f" and came back at t = {back:.4g} s (a device near the sensor switched on and off?)"
+            f"at {when(at)}" + (f" and came back at {when(back)} (a device near the sensor switched on and off?)"
                                      if back is not None else
                                      " and stayed (a part magnetised by a shock or a strong field, a device switched on?)"))
 

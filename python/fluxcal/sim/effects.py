@@ -454,14 +454,11 @@ class _TimeBox(Effect):
     def _box(cls, ctx, t_on, t_off):  # pragma: no cover - interface
         raise NotImplementedError
 
-    STEPS = False  # True: only boxes that reach the recording's start or end (one edge: a step)
-
     @classmethod
     def _coarse_edges(cls, ctx):
         edges = np.quantile(ctx.t, np.linspace(0, 1, cls.GRID + 1))
         return [(edges[a], edges[b]) for a in range(cls.GRID) for b in range(a + 1, cls.GRID + 1)
-                if not (a == 0 and b == cls.GRID)  # on throughout is part of the base model
-                and (not cls.STEPS or a == 0 or b == cls.GRID)]
+                if not (a == 0 and b == cls.GRID)]  # on throughout is part of the base model
 
     @classmethod
     def alternatives(cls, ctx):
@@ -478,8 +475,6 @@ class _TimeBox(Effect):
         width = np.ptp(ctx.t) / cls.GRID
         while width > dt / 2:
             for side in (0, 1):
-                if cls.STEPS and edges[side] in (ctx.t.min(), ctx.t.max()):
-                    continue
                 for x in np.linspace(edges[side] - width, edges[side] + width, 2 * cls.FINE + 1):
                     trial = list(edges)
                     trial[side] = x
