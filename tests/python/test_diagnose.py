@@ -196,6 +196,18 @@ def test_an_offset_step_without_timestamps_is_placed_by_row():
     assert "at row " in line and " s " not in line, line
 
 
+def test_a_clock_coarser_than_the_readings_is_spread_not_a_crash():
+    # Whole-second timestamps at 50 Hz: 49 of every 50 rows repeat t (a ZeroDivisionError before).
+    result, kwargs = withheld_trial(["offset_step"], 0)
+    kwargs["t"] = np.floor(kwargs["t"])
+    d = diagnose(result.readings, **kwargs)
+    assert d.accepted == ["offset_step"], d.accepted
+    assert "a clock coarser than the readings" in d.noise_source
+    truth = next(e for e in result.effects if e.name == "offset_step")
+    row = d.ranking[0]
+    assert abs((row["on_s"] if row["on_s"] is not None else row["off_s"]) - truth.t_on) < 1.0
+
+
 def test_a_moving_dipole_gains_no_spurious_offset_step():
     # What the dipole's low-order shape leaves inside its own box must not come back as a second event
     # (seeds where an offset box with two free edges was accepted after the dipole).

@@ -809,6 +809,16 @@ def _side(values, n: int, name: str, what: str):
     return values if np.ptp(values) > 0 else None
 
 
+def _spread_ticks(t: np.ndarray) -> np.ndarray:
+    """Times in order (non-decreasing) with runs of equal values: each run spread evenly from its tick to
+    the next one (the last run over the median tick)."""
+    ticks, start, count = np.unique(t, return_index=True, return_counts=True)
+    step = np.diff(ticks)
+    step = np.append(step, np.median(step) if len(step) else 1.0)
+    within = np.arange(len(t)) - np.repeat(start, count)
+    return t + within * np.repeat(step / count, count)
+
+
 def _prepare(samples, t, temp, reference, down, field_norm, units, source, current=None) -> _Data:
     m = as_samples(samples)
     n = len(m)
@@ -843,6 +853,11 @@ def _prepare(samples, t, temp, reference, down, field_norm, units, source, curre
                      f"{', '.join(str(i + 1) for i in back[:5])}{', …' if len(back) > 5 else ''} (a counter "
                      "wrap or a clock reset in a log written in time order): the rows after each jump were "
                      "taken to follow it, one ordinary step later")
+    ties = np.diff(t) == 0
+    if ties.any():  # a clock coarser than the sample rate (whole seconds at 50 Hz): spread each tick's rows
+        t = _spread_ticks(t)
+        notes.append(f"t repeats at {int(ties.sum())} of {n} rows (a clock coarser than the readings): the rows "
+                     "of each tick were spread evenly over it")
     copies = held_copies(m)  # sample and hold: the copies carry no new information, make the noise look
     if copies is not None:    # correlated and shrink the third differences the noise σ comes from
         keep = ~copies

@@ -471,7 +471,8 @@ class _TimeBox(Effect):
         coarse = cls._coarse_edges(ctx)
         scores = [score(cls._box(ctx, a, b)) for a, b in coarse]
         edges, best, tried = list(coarse[int(np.argmax(scores))]), max(scores), len(coarse)
-        dt = float(np.median(np.diff(np.sort(ctx.t)))) if len(ctx.t) > 1 else 1.0
+        steps = np.diff(np.sort(ctx.t))
+        dt = float(np.median(steps[steps > 0])) if np.any(steps > 0) else 1.0
         width = np.ptp(ctx.t) / cls.GRID
         while width > dt / 2:
             for side in (0, 1):
