@@ -990,11 +990,7 @@ def diagnose(samples, t=None, temp=None, reference=None, gravity=None, field_nor
     def accept(w):
         nonlocal data
         accepted.append(w["effect"])
-        state["features"].append(w["_features"])
-        state["validated"].append(w.get("_validated", w["_features"]))
-        state["terms"] = np.asarray(w["_fit"]["parameters"])[12 if vector else 9:]
-        state["result"] = w["_fit"]
-        state["train_fits"] = {}
+        state.update(_with(state, w, vector))
         if hasattr(names[w["effect"]], "shapes") and "shape_terms" not in w:
             _richer_shape(data, model, state, names[w["effect"]], w)
         if vector and names[w["effect"]].moves_reference:
