@@ -57,7 +57,10 @@ class Diagnosis:
     `on_s`/`off_s` give an event's box (moving_dipole, offset_step: first and last time within it, None at
     the recording's ends); `found_with` names the effect a row was found together with (each passed its
     held-out test only with the other modelled); `shape_terms` the terms of an accepted dipole's refined
-    time profile (its `coefficients`: Legendre P0… across the box);
+    time profile (its `coefficients`: Legendre P0… across the box, times the world's north, east and down
+    when reference vectors and the down direction are given, else along the field); an accepted moving
+    dipole's largest field in field units `peak_field` at `peak_s`, with `peak_ned` (north, east, down)
+    or `peak_along_field` (signed);
     `significant_not_modelled` marks a candidate still significant when the `max_effects` limit stopped
     the search; an accepted row's `coefficients` and `standard_errors` are those of the final model (every
     accepted effect fitted together), the others' those of their own round. `where`: residual tables per regime. `significant`: any effect found."""
@@ -265,7 +268,11 @@ def _context(data: _Data, result: dict) -> SimpleNamespace:
         field = data.reference
     else:
         W = np.linalg.inv(np.asarray(result["matrix"]))
+        # on the fitted sphere: the calibrated readings' own magnitude errors in a feature would let a
+        # combination of features reproduce them (a degenerate fit to zero residuals: non_orthogonality at
+        # coefficients ±1 after a temperature scale error of 4 % was added to a real recording)
         field = (data.m - theta[:3]) @ np.asarray(result["matrix"]).T
+        field *= data.field_norm / np.linalg.norm(field, axis=1, keepdims=True)
     direction = data.field_norm * (field / np.linalg.norm(field, axis=1, keepdims=True)) @ W.T
     # The transducer sees the field including hard iron (a field too), taking electronic offsets as small
     # next to it: the fitted model's reading b + W h, with h on the fitted sphere (or the reference).
@@ -275,7 +282,45 @@ def _context(data: _Data, result: dict) -> SimpleNamespace:
     signal = theta[:3] + direction
     return SimpleNamespace(signal=signal, readings=data.m, scale=float(np.median(np.linalg.norm(signal, axis=1))),
                            field=field, W=W, direction=direction, t=data.t, temp=data.temp,
-                           current=data.current)
+                           current=data.current, world=_world_axes(data, W))
+
+
+def _world_frame(data: _Data):
+    """N × 3 × 3: the world's magnetic north, east and down (rows) in the sensor frame at each reading,
+    from the reference field and the down direction, both fixed in the world; None unless both are known."""
+    if data.reference is None or data.down is None:
+        return None
+    down = data.down / np.linalg.norm(data.down, axis=1, keepdims=True)
+    north = data.reference - np.sum(data.reference * down, axis=1, keepdims=True) * down
+    size = np.linalg.norm(north, axis=1, keepdims=True)
+    if np.median(size / np.linalg.norm(data.reference, axis=1, keepdims=True)) < 1e-3:
+        return None  # a field along the vertical (at a magnetic pole) leaves the horizontal axes unknown
+    north = north / np.where(size > 0, size, 1.0)
+    return np.stack([north, np.cross(down, north), down], axis=1)
+
+
+def _world_axes(data: _Data, W: np.ndarray):
+    """The world frame's axes times H in reading units (through W): a field fixed in the world (a magnet
+    nearby) is a combination of them. None without the frame (a magnitude shows only the part along the
+    field, `direction`)."""
+    frame = _world_frame(data)
+    return None if frame is None else data.field_norm * frame @ W.T
+
+
+def _disturbance(data: _Data, result: dict, feats: np.ndarray, coefficients: np.ndarray) -> dict:
+    """An accepted field disturbance's size in field units: the largest |Δh| (`peak_field`) and when
+    (`peak_s`); with a world frame its north, east, down components then (`peak_ned`), without one the
+    signed change along the field (`peak_along_field`)."""
+    dh = np.einsum("p,npk->nk", coefficients, feats) @ np.asarray(result["matrix"]).T
+    size = np.linalg.norm(dh, axis=1)
+    i = int(np.argmax(size))
+    out = {"peak_field": float(size[i]), "peak_s": float(data.t[i])}
+    frame = _world_frame(data)
+    if frame is not None:
+        out["peak_ned"] = (frame[i] @ dh[i]).tolist()
+    else:
+        out["peak_along_field"] = float(dh[i] @ _field_directions(data, result)[i])
+    return out
 
 
 def _field_directions(data: _Data, result: dict) -> np.ndarray:
@@ -450,10 +495,15 @@ def _evaluate(cls, data, model, state, sigma, n_candidates) -> dict:
         Z = _project(base, feats, vector)
         norms = np.linalg.norm(Z, axis=0)
         norms[norms == 0] = 1.0
-        U, s, _ = np.linalg.svd((Z - Q @ (Q.T @ Z)) / norms, full_matrices=False)
+        R = (Z - Q @ (Q.T @ Z)) / norms
+        # singular values and left vectors from the p × p Gram matrix: an SVD of the N × p matrix costs
+        # 10× more, and this runs for every alternative of a box search
+        s2, V = np.linalg.eigh(R.T @ R)
+        s2, V = s2[::-1], V[:, ::-1]
+        s = np.sqrt(np.clip(s2, 0.0, None))
         new = s >= ABSORBED
-        return ((float(np.sum((U[:, new].T @ e) ** 2) / sigma2) if new.any() else 0.0), int(new.sum()), s,
-                U[:, new])
+        U = (R @ V[:, new]) / s[new]
+        return ((float(np.sum((U.T @ e) ** 2) / sigma2) if new.any() else 0.0), int(new.sum()), s, U)
 
     feats, tried = cls.search(ctx, lambda f: new_part(f)[0])
     score, dims, singular, signature = new_part(feats)
@@ -1052,6 +1102,8 @@ def diagnose(samples, t=None, temp=None, reference=None, gravity=None, field_nor
         if not (vector and names[name].moves_reference):  # a move's block is a remainder, folded in above
             last_rows[name].update(coefficients=params[lo:lo + feats.shape[1]].tolist(),
                                    standard_errors=errors[lo:lo + feats.shape[1]].tolist())
+        if name == "moving_dipole":
+            last_rows[name].update(_disturbance(data, state["result"], feats, params[lo:lo + feats.shape[1]]))
         lo += feats.shape[1]
     # Significant in the last round but not modelled: the max_effects limit stopped the greedy search.
     for name, r in last_rows.items():

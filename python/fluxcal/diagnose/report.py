@@ -87,6 +87,24 @@ def offset_step_line(d, r) -> str:
                                      " and stayed (a part magnetised by a shock or a strong field, a device switched on?)"))
 
 
+def moving_dipole_line(d, r) -> str:
+    """How large the disturbance grew, when, and which way: north, east, down with a world frame (reference
+    vectors and the down direction), else the change along the field."""
+    u = f" {d.units}" if d.units else ""
+    when = (lambda x: f"t = {x:.4g} s") if d.series.get("timestamps", True) else (lambda x: f"row {x:.0f}")  # noqa: E731
+    on, off = (when(x) if x is not None else end for x, end in zip((r.get("on_s"), r.get("off_s")),
+                                                                   ("the start", "the end")))
+    percent = f"{100 * r['peak_field'] / d.base.field_norm:.2g} % of the field"
+    if r.get("peak_ned") is not None:
+        size = (f"{r['peak_field']:.4g}{u} ({percent}), {np.round(r['peak_ned'], 4).tolist()}{u} (north, east, down; "
+                "north: the horizontal part of the reference field)")
+    else:
+        size = (f"{r['peak_along_field']:+.4g}{u} along the field ({percent}; a magnitude shows only the part along "
+                "the field)")
+    return (f"moving_dipole: an extra field from {on} to {off}, largest at {when(r['peak_s'])}: {size} (a magnet, a "
+            "tool or a vehicle moving near the sensor?)")
+
+
 def text(d) -> str:
     u = f" {d.units}" if d.units else ""
     w, rem = d.where, d.remaining
@@ -121,6 +139,8 @@ def text(d) -> str:
                            + ("" if r["delay_ms"] > 0 else " (no eddy current or filter leads: look at the timestamps)"))
             if r["effect"] == "offset_step" and r.get("step") is not None:
                 out.append("  " + offset_step_line(d, r))
+            if r["effect"] == "moving_dipole" and r.get("peak_field") is not None:
+                out.append("  " + moving_dipole_line(d, r))
             if r["effect"] == "motor_current" and r.get("step") is not None and d.series.get("current") is not None:
                 k, peak = np.asarray(r["coefficients"]), float(np.max(np.abs(d.series["current"])))
                 out.append(f"  motor_current: {np.round(k, 4).tolist()}{u} per A (x, y, z); at the recording's peak "

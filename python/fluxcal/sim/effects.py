@@ -14,7 +14,8 @@ otherwise), computed from what the base fit estimates: `ctx.signal` (N×3, what 
 hard iron is a field and passes through it; electronic offsets are taken as small — as the fitted model
 predicts it, free of the reading noise), `ctx.readings` (N×3, the raw readings, for features that smooth
 them in time),
-`ctx.field` (N×3, the field in the sensor frame: the calibrated readings or the reference), `ctx.W`
+`ctx.field` (N×3, the field in the sensor frame: the calibrated readings' directions on the fitted sphere
+|h| = H, or the reference), `ctx.W`
 (the fitted reading-from-field matrix), `ctx.scale` (a typical |signal|), `ctx.direction` (N×3, the fitted
 field direction mapped back to reading space, times H), and the regressors `ctx.t`, `ctx.temp`. A
 candidate with an unknown non-linear parameter (a switching time) returns several alternatives from
@@ -474,6 +475,9 @@ class _TimeBox(Effect):
         steps = np.diff(np.sort(ctx.t))
         dt = float(np.median(steps[steps > 0])) if np.any(steps > 0) else 1.0
         width = np.ptp(ctx.t) / cls.GRID
+        # An edge at an end of the recording makes the box a step (one edge): moving it inside adds an
+        # edge, worth it only for more than the BIC's price of a parameter (else noise moves it a few samples)
+        price = np.log(len(ctx.t))
         while width > dt / 2:
             for side in (0, 1):
                 for x in np.linspace(edges[side] - width, edges[side] + width, 2 * cls.FINE + 1):
@@ -483,7 +487,8 @@ class _TimeBox(Effect):
                         continue
                     value = score(cls._box(ctx, *trial))
                     tried += 1
-                    if value > best:
+                    at_end = edges[side] <= ctx.t.min() if side == 0 else edges[side] >= ctx.t.max()
+                    if value > best + (price if at_end and ctx.t.min() < x < ctx.t.max() else 0.0):
                         best, edges = value, trial
             width /= cls.FINE
         return cls._box(ctx, *edges), tried
@@ -544,7 +549,12 @@ class MovingDipole(_TimeBox):
         on = (ctx.t >= t_on) & (ctx.t <= t_off)
         u = np.where(on, 2 * (ctx.t - 0.5 * (t_on + t_off)) / (t_off - t_on), 0.0)  # −1…1 across the box
         shape = np.polynomial.legendre.legvander(u, degree) * on[:, None]
-        return shape[:, :, None] * ctx.direction[:, None, :]
+        if ctx.world is None:
+            return shape[:, :, None] * ctx.direction[:, None, :]
+        # against reference vectors with the down direction known, each world component of the field
+        # (a magnitude sees only the one along the field)
+        n = len(shape)
+        return (shape[:, :, None, None] * ctx.world[:, None, :, :]).reshape(n, -1, 3)
 
     MAX_DEGREE = 5  # 8 left the fits on the training blocks ill-conditioned (a held-out block inside the box)
 
