@@ -2,6 +2,7 @@
 
     .venv/bin/python bench/diagnose.py --real ../shared/data/real          # real recordings
     .venv/bin/python bench/diagnose.py --trials 10                          # withheld-effect table
+    .venv/bin/python bench/diagnose.py --inject ../shared/data/real --trials 3  # added to real recordings
     .venv/bin/python bench/diagnose.py --timing                             # 20 000 readings, all candidates
     .venv/bin/python bench/diagnose.py --warm-up 10                         # temperature following time
     .venv/bin/python bench/diagnose.py --trials 5 --noise 0.2 --rate 10     # other noise, rates, --duration
@@ -21,28 +22,64 @@ import fluxcal
 from fluxcal import attitude
 from fluxcal.diagnose import diagnose
 from fluxcal.sim.effects import CANDIDATES
+from fluxcal.sim.inject import inject, injectable
 from fluxcal.sim.withheld import withheld_trial
 
 
+def recordings(folder: Path):
+    """The real recordings: (name, readings, diagnose keyword arguments, the arguments `inject` needs)."""
+    phone = fluxcal.read_csv(folder / "phone_acc_mag.csv")
+    yield "phone_acc_mag.csv", phone, {}, {"gravity": phone.acceleration()}
+    handheld = fluxcal.read_csv(folder / "handheld_set1.csv", columns="x,y,z")
+    yield "handheld_set1.csv", handheld, {"field_norm": 0.47}, {"field_norm": 0.47}
+    q = np.loadtxt(folder / "qmc5883l_filtered.csv", delimiter=",", skiprows=3)  # Fs 50 Hz, 60 s static first
+    t = np.arange(len(q)) / 50.0
+    yield "qmc5883l_filtered.csv", q, {"t": t, "units": "counts", "source": "qmc5883l_filtered.csv"}, {"t": t}
+    a = np.loadtxt(folder / "airborne_flt1002_02.tsv")
+    ref = attitude.reference_vectors(a[:, 7:10], a[:, 4], a[:, 5], a[:, 6])
+    down = attitude.reference_vectors([0.0, 0.0, 1.0], a[:, 4], a[:, 5], a[:, 6])
+    yield ("airborne_flt1002_02.tsv", a[:, 1:4],
+           {"t": a[:, 0], "reference": ref, "gravity": down, "units": "nT", "source": "airborne_flt1002_02.tsv"},
+           {"t": a[:, 0], "reference": ref, "gravity": down})
+
+
 def real(folder: Path):
-    sets = [("phone_acc_mag.csv", None, {}), ("handheld_set1.csv", "x,y,z", {"field_norm": 0.47})]
     print("| recording | model | readings | noise σ (est.) | base gap | found (in order) | top candidates: ΔBIC, held-out gap before → after |")
     print("|---|---|---:|---:|---:|---|---|")
-    for name, cols, kw in sets:
-        rec = fluxcal.read_csv(folder / name, columns=cols)
+    for name, rec, kw, _ in recordings(folder):
         t0 = time.perf_counter()
         d = diagnose(rec, **kw)
         _row(name, d, time.perf_counter() - t0)
-    q = np.loadtxt(folder / "qmc5883l_filtered.csv", delimiter=",", skiprows=3)  # Fs 50 Hz, 60 s static first
-    t0 = time.perf_counter()
-    d = diagnose(q, t=np.arange(len(q)) / 50.0, units="counts", source="qmc5883l_filtered.csv")
-    _row("qmc5883l_filtered.csv", d, time.perf_counter() - t0)
-    a = np.loadtxt(folder / "airborne_flt1002_02.tsv")
-    ref = attitude.reference_vectors(a[:, 7:10], a[:, 4], a[:, 5], a[:, 6])
-    t0 = time.perf_counter()
-    down = attitude.reference_vectors([0.0, 0.0, 1.0], a[:, 4], a[:, 5], a[:, 6])
-    d = diagnose(a[:, 1:4], t=a[:, 0], reference=ref, gravity=down, units="nT", source="airborne_flt1002_02.tsv")
-    _row("airborne_flt1002_02.tsv", d, time.perf_counter() - t0)
+
+
+def injected(folder: Path, n: int, only=None, strength: float = 1.0, which=None):
+    """Each candidate added to each real recording (`which`: names starting so; default all) at a typical
+    magnitude times `strength` (fluxcal.sim.inject), n seeds: found (accepted), found first, and what else
+    was accepted beyond the recording's own effects."""
+    print("| recording (own effects) | added effect | size (RMS % of the field) | found | found first | "
+          "also accepted, beyond the recording's own | s/trial |")
+    print("|---|---|---:|---:|---:|---|---:|")
+    for name, rec, kw, inject_kw in recordings(folder):
+        if which and not any(name.startswith(w) for w in which):
+            continue
+        m = rec.samples() if hasattr(rec, "samples") else rec
+        own = diagnose(m, **{**kw, **inject(m, [], 0, **inject_kw).kwargs}).accepted  # with a made-up temperature
+        cal = fluxcal.calibrate(m, field_norm=kw.get("field_norm"), reference=kw.get("reference"))
+        H = float(np.mean(np.linalg.norm(cal.apply(m), axis=1)))
+        for effect in [x for x in injectable(kw.get("reference") is not None) if not only or x in only]:
+            found, first, extra, sizes, t0 = 0, 0, {}, [], time.perf_counter()
+            for seed in range(n):
+                inj = inject(m, [effect], seed, strength=strength, **inject_kw)
+                sizes.append(np.sqrt(np.mean(np.sum(((inj.readings - m) @ np.asarray(cal.matrix).T) ** 2, axis=1))) / H)
+                d = diagnose(inj.readings, **{**kw, **inj.kwargs})
+                found += effect in d.accepted
+                first += bool(d.accepted) and d.accepted[0] == effect
+                for a in d.accepted:
+                    if a != effect and a not in own:
+                        extra[a] = extra.get(a, 0) + 1
+            print(f"| {name} ({', '.join(own) or 'nothing'}) | {effect} | {100 * np.median(sizes):.2g} | {found}/{n} | "
+                  f"{first}/{n} | {', '.join(f'{k} {v}' for k, v in extra.items()) or '—'} | "
+                  f"{(time.perf_counter() - t0) / n:.1f} |", flush=True)
 
 
 def _row(name, d, seconds):
@@ -126,6 +163,9 @@ def timing():
 if __name__ == "__main__":
     p = argparse.ArgumentParser()
     p.add_argument("--real", type=Path)
+    p.add_argument("--inject", type=Path, help="folder of the real recordings: each candidate added to each")
+    p.add_argument("--strength", type=float, default=1.0, help="--inject: the added effects' size × this")
+    p.add_argument("--recordings", nargs="*", help="--inject: only the recordings whose names start so")
     p.add_argument("--trials", type=int)
     p.add_argument("--timing", action="store_true")
     p.add_argument("--nulls", type=int, help="only the trials with nothing withheld")
@@ -139,7 +179,9 @@ if __name__ == "__main__":
         real(args.real)
     if args.nulls:
         nulls(args.nulls, noise=args.noise, rate_hz=args.rate, duration_s=args.duration)
-    if args.trials:
+    if args.inject:
+        injected(args.inject, args.trials or 3, args.only, args.strength, args.recordings)
+    elif args.trials:
         trials(args.trials, args.only, noise=args.noise, rate_hz=args.rate, duration_s=args.duration)
     if args.timing:
         timing()

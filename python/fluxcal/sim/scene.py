@@ -88,18 +88,33 @@ def tumble(duration_s: float = 60.0, rate_hz: float = 50.0, turn_rate_deg: float
         if temp.shape != t.shape:
             raise ValueError(f"temperature: the function returned shape {temp.shape} for {t.size} times")
     elif temperature is not None:
-        mean, amplitude, period = temperature
-        wander = np.cumsum(rng.standard_normal(n)) * np.sqrt(dt) * 0.05 * amplitude
-        temp = mean + amplitude * np.sin(2 * np.pi * t / period + rng.uniform(0, 2 * np.pi)) + wander - wander.mean()
+        temp = warming(t, rng, *temperature, dt=dt)
     amps = None  # drawn last, so that a scene without current keeps the random stream of earlier versions
     if callable(current):
         amps = np.asarray(current(t), dtype=float)
         if amps.shape != t.shape:
             raise ValueError(f"current: the function returned shape {amps.shape} for {t.size} times")
     elif current is not None:
-        peak, hold = current
-        ends = np.cumsum(hold * rng.uniform(0.5, 1.5, int(duration_s / (0.5 * hold)) + 2))
-        levels = peak * rng.uniform(0.1, 1.0, len(ends))
-        lag = 1.0 - np.exp(-dt / 0.3)  # a first-order spin-up of 0.3 s, stable at any sample rate
-        amps = lfilter([lag], [1.0, lag - 1.0], levels[np.searchsorted(ends, t)], zi=[levels[0] * (1 - lag)])[0]
+        amps = throttle(t, rng, *current, duration_s=duration_s, dt=dt)
     return Scene(Rotation.from_quat(quats), t, temp, amps)
+
+
+def warming(t: np.ndarray, rng, mean: float = 25.0, amplitude: float = 10.0, period: float = 40.0,
+            dt: float | None = None) -> np.ndarray:
+    """A sensor's temperature (°C) at times t: a sine of `amplitude` about `mean` with `period` s plus a
+    slow random wander (5 % of the amplitude per √s) — it rises and falls, so it does not follow time."""
+    dt = float(np.median(np.diff(t))) if dt is None else dt
+    wander = np.cumsum(rng.standard_normal(len(t))) * np.sqrt(dt) * 0.05 * amplitude
+    return mean + amplitude * np.sin(2 * np.pi * t / period + rng.uniform(0, 2 * np.pi)) + wander - wander.mean()
+
+
+def throttle(t: np.ndarray, rng, peak: float, hold: float, duration_s: float | None = None,
+             dt: float | None = None) -> np.ndarray:
+    """The current (A) drawn near the sensor at times t: random levels of 10–100 % of `peak`, each held
+    for about `hold` s, reached through a first-order spin-up of 0.3 s (throttle settings of motors)."""
+    dt = float(np.median(np.diff(t))) if dt is None else dt
+    duration_s = float(np.ptp(t)) + dt if duration_s is None else duration_s
+    ends = t[0] + np.cumsum(hold * rng.uniform(0.5, 1.5, int(duration_s / (0.5 * hold)) + 2))
+    levels = peak * rng.uniform(0.1, 1.0, len(ends))
+    lag = 1.0 - np.exp(-dt / 0.3)  # a first-order spin-up of 0.3 s, stable at any sample rate
+    return lfilter([lag], [1.0, lag - 1.0], levels[np.searchsorted(ends, t)], zi=[levels[0] * (1 - lag)])[0]
