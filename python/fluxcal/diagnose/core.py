@@ -507,6 +507,8 @@ def _evaluate(cls, data, model, state, sigma, n_candidates) -> dict:
 
     feats, tried = cls.search(ctx, lambda f: new_part(f)[0])
     score, dims, singular, signature = new_part(feats)
+    if cls.linear and not fixed:  # exactly absorbed by the full matrix; its first-order features are not
+        score, dims = 0.0, 0      # (one of three directions looked new with a 4 % temperature scale error)
     row = {"effect": cls.name, "regime": cls.regime, "n_params": int(feats.shape[1]), "new_dimensions": dims,
            "absorbed": dims == 0, "alternatives": tried, "score": score,
            "score_pvalue": min(1.0, float(stats.chi2.sf(score, max(dims, 1))) * tried),

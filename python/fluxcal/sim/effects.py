@@ -51,6 +51,9 @@ class Effect:
     needs: tuple = ()
     # It leaves every field magnitude unchanged (a rotation, a delay): only reference vectors show it.
     needs_reference = False
+    # A fixed linear map of the field: a full soft-iron matrix represents it exactly (only a scale-only
+    # model can show it), whatever its first-order features leave numerically.
+    linear = False
     # Its features are first order in a move of the reference vectors (θ × r for a rotation, −δ dm/dt for a
     # delay): once accepted, the diagnosis moves the reference exactly (`move_reference`, see diagnose.core).
     moves_reference = False
@@ -164,6 +167,7 @@ class NonOrthogonality(Effect):
     angles: np.ndarray
     name = "non_orthogonality"
     n_params = 3
+    linear = True
 
     def apply(self, values, context):
         a = np.asarray(self.angles, dtype=float)
@@ -192,6 +196,7 @@ class Misalignment(Effect):
     rotvec: np.ndarray
     name = "misalignment"
     n_params = 3
+    linear = True
     needs_reference = True
     moves_reference = True
 
