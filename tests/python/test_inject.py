@@ -50,3 +50,22 @@ def test_what_cannot_be_added_is_a_clear_error(handheld):
         inject(handheld, ["time_offset"], 0)
     with pytest.raises(ValueError, match="t: need 3000 times"):
         inject(handheld, ["offset_step"], 0, t=np.arange(10.0))
+
+
+def test_events_follow_the_recordings_own_clock(handheld):
+    # An airborne log's time starts at 46 370 s: a box timed from 0 would fall before the data and add
+    # nothing (a step that stays would add a constant, which the hard iron absorbs).
+    t = 46370.0 + np.arange(len(handheld)) / 50.0
+    for name in ("moving_dipole", "offset_step"):
+        inj = inject(handheld, [name], 3, t=t, field_norm=0.47)
+        effect = inj.effects[0]
+        assert t[0] < effect.t_on < t[-1]
+        added = np.linalg.norm(inj.readings - handheld, axis=1)
+        assert np.ptp(added) > 0.005 * 0.47, name  # on for part of the recording only
+
+
+def test_offsets_are_sized_in_the_readings_units(handheld):
+    # Readings in mG with the field norm in G: an offset is added to readings, so in mG.
+    in_mg = inject(handheld * 1000.0, ["offset_step"], 3, field_norm=0.47)
+    in_g = inject(handheld, ["offset_step"], 3, field_norm=0.47)
+    assert np.allclose(in_mg.effects[0].delta, 1000.0 * in_g.effects[0].delta, rtol=1e-6)

@@ -57,8 +57,9 @@ class Diagnosis:
     `on_s`/`off_s` give an event's box (moving_dipole, offset_step: first and last time within it, None at
     the recording's ends); `found_with` names the effect a row was found together with (each passed its
     held-out test only with the other modelled); `shape_terms` the terms of an accepted dipole's refined
-    time profile (its `coefficients`: Legendre P0… across the box, times the world's north, east and down
-    when reference vectors and the down direction are given, else along the field); an accepted moving
+    time profile (its `coefficients`, in units of the field norm: Legendre P0… across the box, each times
+    the world's north, east and down when reference vectors and the down direction are given — P0·N,
+    P0·E, P0·D, P1·N, … — else along the field); an accepted moving
     dipole's largest field in field units `peak_field` at `peak_s`, with `peak_ned` (north, east, down)
     or `peak_along_field` (signed);
     `significant_not_modelled` marks a candidate still significant when the `max_effects` limit stopped
@@ -505,10 +506,12 @@ def _evaluate(cls, data, model, state, sigma, n_candidates) -> dict:
         U = (R @ V[:, new]) / s[new]
         return ((float(np.sum((U.T @ e) ** 2) / sigma2) if new.any() else 0.0), int(new.sum()), s, U)
 
-    feats, tried = cls.search(ctx, lambda f: new_part(f)[0])
-    score, dims, singular, signature = new_part(feats)
     if cls.linear and not fixed:  # exactly absorbed by the full matrix; its first-order features are not
-        score, dims = 0.0, 0      # (one of three directions looked new with a 4 % temperature scale error)
+        # (one of three directions looked new on a real recording with a 4 % temperature scale error)
+        feats, tried, score, dims, singular, signature = cls.features(ctx), 1, 0.0, 0, np.zeros(0), None
+    else:
+        feats, tried = cls.search(ctx, lambda f: new_part(f)[0])
+        score, dims, singular, signature = new_part(feats)
     row = {"effect": cls.name, "regime": cls.regime, "n_params": int(feats.shape[1]), "new_dimensions": dims,
            "absorbed": dims == 0, "alternatives": tried, "score": score,
            "score_pvalue": min(1.0, float(stats.chi2.sf(score, max(dims, 1))) * tried),
@@ -949,7 +952,8 @@ def diagnose(samples, t=None, temp=None, reference=None, gravity=None, field_nor
     t (s; default the row number), temp (°C), current (A drawn near the sensor: motors, a heater),
     reference (N×3 true field per reading, sensor frame: the vector models): the regressors. gravity (N×3
     accelerometer or any down/up vector, sensor frame; with reference vectors it adds the heading error to
-    the downstream errors). field_norm: the known |h| (default: the fitted ellipsoid's own scale).
+    the downstream errors, and lets a moving magnet be fitted in the world's north, east and down — down
+    as `gravity` points: a vector pointing up turns east and down round). field_norm: the known |h| (default: the fitted ellipsoid's own scale).
     model: "ellipsoid" (default without reference), "scale", "vector" (default with one), "vector_scale".
     noise_sigma: white-noise σ of the readings (default: estimated, see estimate_noise). candidates:
     effect names to try (default all whose regressors are present). alpha: significance level

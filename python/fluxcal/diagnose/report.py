@@ -97,7 +97,7 @@ def moving_dipole_line(d, r) -> str:
     percent = f"{100 * r['peak_field'] / d.base.field_norm:.2g} % of the field"
     if r.get("peak_ned") is not None:
         size = (f"{r['peak_field']:.4g}{u} ({percent}), {np.round(r['peak_ned'], 4).tolist()}{u} (north, east, down; "
-                "north: the horizontal part of the reference field)")
+                "north: the horizontal part of the reference field; down as the gravity vector points)")
     else:
         size = (f"{r['peak_along_field']:+.4g}{u} along the field ({percent}; a magnitude shows only the part along "
                 "the field)")

@@ -2,12 +2,12 @@
 disturbances and coverage instead of a simulated hand (bench/diagnose.py --inject, tests).
 
     rec = fluxcal.read_csv("phone_acc_mag.csv")
-    inj = inject(rec.samples, ["temp_offset"], seed=3, gravity=rec.acceleration())
+    inj = inject(rec.samples(), ["temp_offset"], seed=3, gravity=rec.acceleration())
     fluxcal.diagnose(inj.readings, **inj.kwargs)
 
 The recording is first calibrated (readings m = b + W h); each effect is then added at a typical magnitude
-(its class's `typical`, scaled to the recording's field, or for the non-linearities to its readings' typical
-magnitude, hard iron included) where it acts in a sensor:
+(its class's `typical`, scaled to the recording's field — in readings' units for offsets, against the readings'
+typical magnitude, hard iron included, for the non-linearities) where it acts in a sensor:
 - on the field, before the soft iron (moving_dipole, eddy_current, misalignment): computed on the
   calibrated field h, smoothed in time, and mapped into readings through W;
 - on the transducer's output (temp_scale, cross_axis, nonlinearity_cubic, saturation, hysteresis):
@@ -78,6 +78,10 @@ def inject(readings, names, seed: int, t=None, rate_hz: float = 50.0, gravity=No
         raise ValueError(f"t: need {n} times, got shape {t.shape}")
     from ..pipeline import calibrate
 
+    if gravity is not None:
+        gravity = as_samples(gravity, "gravity")
+        if len(gravity) != n:
+            raise ValueError(f"gravity: {len(gravity)} rows, readings have {n}")
     cal = calibrate(m, field_norm=field_norm, reference=reference)
     W = np.linalg.inv(np.asarray(cal.matrix))
     h = cal.apply(m)
@@ -85,11 +89,17 @@ def inject(readings, names, seed: int, t=None, rate_hz: float = 50.0, gravity=No
     rng = np.random.default_rng(seed)
     by_name = {c.name: c for c in CANDIDATES}
     duration = float(np.ptp(t))
-    # Transducer non-linearities scale with what the transducer sees, the field plus the hard iron (often
-    # several times the field in a real device), as their typical sizes are given against a sensor's range.
-    signal = float(np.median(np.linalg.norm(m, axis=1)))
-    effects = [by_name[x].typical(H, rng, duration) if x in TIMED
-               else by_name[x].typical(signal if x in SIGNAL_SCALED else H, rng) for x in names]
+    # Sizes in the units each effect acts in: field effects in field units (they pass through W); offsets
+    # and quantisation in reading units (the field's size in readings, |m − b|); transducer non-linearities
+    # against what the transducer sees, the field plus the hard iron (often several times the field in a
+    # real device), as their typical sizes are given against a sensor's range.
+    size = {"field": H, "readings": float(np.median(np.linalg.norm(m - cal.offset, axis=1))),
+            "signal": float(np.median(np.linalg.norm(m, axis=1)))}
+    effects = [by_name[x].typical(size[_units(x)], rng, duration) if x in TIMED
+               else by_name[x].typical(size[_units(x)], rng) for x in names]
+    for effect in effects:  # typical() times events from 0: the recording's clock may start anywhere
+        if hasattr(effect, "t_on"):
+            effect.t_on, effect.t_off = effect.t_on + t[0], effect.t_off + t[0]
     temp = warming(t, rng)
     current = throttle(t, rng, *CURRENT) if "motor_current" in names else None
     h_smooth, m_smooth = _smooth(h, t), _smooth(m, t)
@@ -123,6 +133,11 @@ def inject(readings, names, seed: int, t=None, rate_hz: float = 50.0, gravity=No
     return Injection(out, effects, kwargs)
 
 
+def _units(name: str) -> str:
+    """Which size an effect's typical magnitude is taken against (see inject)."""
+    return "field" if name in FIELD_STAGE else "signal" if name in SIGNAL_SCALED else "readings"
+
+
 def _attitude(field: np.ndarray, gravity) -> Rotation:
     """Sensor → world rotations from the field and the down direction (TRIAD; world axes: magnetic north,
     east, down). Without gravity, a frame whose first axis is the field: only a field's component along
@@ -135,5 +150,9 @@ def _attitude(field: np.ndarray, gravity) -> Rotation:
         down = as_samples(gravity, "gravity")
     down = down / np.linalg.norm(down, axis=1, keepdims=True)
     north = f - np.sum(f * down, axis=1, keepdims=True) * down
+    size = np.linalg.norm(north, axis=1, keepdims=True)
+    # where the field is vertical (down parallel to it) any horizontal axis will do for north
+    other = np.where(np.abs(down[:, 2:]) < 0.9, np.array([[0.0, 0, 1]]), np.array([[1.0, 0, 0]]))
+    north = np.where(size > 1e-9, north, np.cross(down, other))
     north /= np.linalg.norm(north, axis=1, keepdims=True)
     return Rotation.from_matrix(np.stack([north, np.cross(down, north), down], axis=1))
