@@ -144,3 +144,20 @@ def pitch_roll_from_accelerometer(acc, convention: str = "aerospace", degrees: b
 
 __all__ = ["CONVENTIONS", "field_from_inclination", "pitch_roll_from_accelerometer", "reference_vectors",
            "rotation_from_euler"]
+
+
+def magnetic_frame(field, down) -> np.ndarray:
+    """The magnetic north, east and down axes seen in the sensor frame at each reading (N×3×3, one axis
+    a row; sensor → world is `Rotation.from_matrix` of it), from the field and the down direction, both
+    sensor frame and fixed in the world (TRIAD): north is the field's horizontal part, east = down × north.
+    Down as `down` points: an accelerometer's reading at rest points up, which turns east and down round.
+    Where the field is vertical, any horizontal axis serves as north."""
+    f = np.atleast_2d(np.asarray(field, dtype=float))
+    d = np.atleast_2d(np.asarray(down, dtype=float))
+    d = d / np.linalg.norm(d, axis=1, keepdims=True)
+    north = f - np.sum(f * d, axis=1, keepdims=True) * d
+    size = np.linalg.norm(north, axis=1, keepdims=True)
+    other = np.where(np.abs(d[:, 2:]) < 0.9, np.array([[0.0, 0.0, 1.0]]), np.array([[1.0, 0.0, 0.0]]))
+    north = np.where(size > 1e-9 * np.linalg.norm(f, axis=1, keepdims=True), north, np.cross(d, other))
+    north /= np.linalg.norm(north, axis=1, keepdims=True)
+    return np.stack([north, np.cross(d, north), d], axis=1)

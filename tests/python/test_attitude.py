@@ -258,3 +258,17 @@ def test_airborne_magnitude_only_ellipsoid_is_nonsense(airborne):
     # while the vector calibration's h = A (m − b) is within ~130 nT of the true vector
     hv = (m[h:] - vec["offset"]) @ vec["matrix"].T
     assert np.sqrt(np.mean(np.sum((hv - ref[h:]) ** 2, axis=1))) < 150.0  # measured 131.7 nT
+
+
+def test_magnetic_frame_recovers_the_attitude_about_magnetic_north():
+    # Field and down seen by a sensor at random attitudes; the frame's rows are the world's magnetic
+    # north, east, down in the sensor frame, so Rotation.from_matrix(frame) is sensor → magnetic NED.
+    from fluxcal import attitude
+
+    rot = Rotation.random(50, random_state=4)  # sensor → NED
+    field_ned = attitude.field_from_inclination(50.0, 60.0, declination=0.0)
+    frame = attitude.magnetic_frame(rot.inv().apply(field_ned), rot.inv().apply([0.0, 0.0, 1.0]))
+    assert np.allclose(frame, rot.as_matrix(), atol=1e-12)
+    assert np.allclose(np.linalg.det(frame), 1.0)
+    vertical = attitude.magnetic_frame([[0.0, 0.0, 1.0]], [[0.0, 0.0, 1.0]])  # at a magnetic pole
+    assert np.allclose(vertical[0] @ vertical[0].T, np.eye(3))

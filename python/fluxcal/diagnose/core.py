@@ -12,6 +12,7 @@ from scipy import stats
 
 from .. import _core
 from .._arrays import as_samples, held_copies
+from ..attitude import magnetic_frame
 from ..calibration import Calibration
 from ..outliers import find_outliers
 from ..sim.effects import CANDIDATES
@@ -287,17 +288,16 @@ def _context(data: _Data, result: dict) -> SimpleNamespace:
 
 
 def _world_frame(data: _Data):
-    """N × 3 × 3: the world's magnetic north, east and down (rows) in the sensor frame at each reading,
-    from the reference field and the down direction, both fixed in the world; None unless both are known."""
+    """N × 3 × 3: the world's magnetic north, east and down (rows) in the sensor frame at each reading
+    (`attitude.magnetic_frame`); None unless the reference and the down direction are both known, or when
+    the field is vertical (at a magnetic pole the horizontal axes are unknown)."""
     if data.reference is None or data.down is None:
         return None
     down = data.down / np.linalg.norm(data.down, axis=1, keepdims=True)
-    north = data.reference - np.sum(data.reference * down, axis=1, keepdims=True) * down
-    size = np.linalg.norm(north, axis=1, keepdims=True)
-    if np.median(size / np.linalg.norm(data.reference, axis=1, keepdims=True)) < 1e-3:
-        return None  # a field along the vertical (at a magnetic pole) leaves the horizontal axes unknown
-    north = north / np.where(size > 0, size, 1.0)
-    return np.stack([north, np.cross(down, north), down], axis=1)
+    horizontal = np.linalg.norm(np.cross(data.reference, down), axis=1) / np.linalg.norm(data.reference, axis=1)
+    if np.median(horizontal) < 1e-3:
+        return None
+    return magnetic_frame(data.reference, down)
 
 
 def _world_axes(data: _Data, W: np.ndarray):

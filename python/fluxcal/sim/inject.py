@@ -31,6 +31,7 @@ import numpy as np
 from scipy.spatial.transform import Rotation
 
 from .._arrays import as_samples
+from ..attitude import magnetic_frame
 from .effects import CANDIDATES, _smooth
 from .scene import throttle, warming
 
@@ -139,20 +140,10 @@ def _units(name: str) -> str:
 
 
 def _attitude(field: np.ndarray, gravity) -> Rotation:
-    """Sensor → world rotations from the field and the down direction (TRIAD; world axes: magnetic north,
-    east, down). Without gravity, a frame whose first axis is the field: only a field's component along
-    it is then meaningful."""
-    f = field / np.linalg.norm(field, axis=1, keepdims=True)
+    """Sensor → world rotations from the field and the down direction (`attitude.magnetic_frame`).
+    Without gravity, a frame whose first axis is the field: only a field's component along it is then
+    meaningful."""
     if gravity is None:
-        other = np.where(np.abs(f[:, :1]) < 0.9, np.array([[1.0, 0, 0]]), np.array([[0, 1.0, 0]]))
-        down = np.cross(f, other)
-    else:
-        down = as_samples(gravity, "gravity")
-    down = down / np.linalg.norm(down, axis=1, keepdims=True)
-    north = f - np.sum(f * down, axis=1, keepdims=True) * down
-    size = np.linalg.norm(north, axis=1, keepdims=True)
-    # where the field is vertical (down parallel to it) any horizontal axis will do for north
-    other = np.where(np.abs(down[:, 2:]) < 0.9, np.array([[0.0, 0, 1]]), np.array([[1.0, 0, 0]]))
-    north = np.where(size > 1e-9, north, np.cross(down, other))
-    north /= np.linalg.norm(north, axis=1, keepdims=True)
-    return Rotation.from_matrix(np.stack([north, np.cross(down, north), down], axis=1))
+        f = field / np.linalg.norm(field, axis=1, keepdims=True)
+        gravity = np.cross(f, np.where(np.abs(f[:, :1]) < 0.9, np.array([[1.0, 0, 0]]), np.array([[0, 1.0, 0]])))
+    return Rotation.from_matrix(magnetic_frame(field, gravity))
