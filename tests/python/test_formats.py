@@ -170,6 +170,32 @@ def test_comment_lines_among_the_data_are_kept_as_notes(tmp_path):
     assert rec.metadata["notes"] == "line 3: reconnected after 2.0 s"
 
 
+def test_decimal_commas_of_a_semicolon_or_tab_table_are_read(tmp_path):
+    path = tmp_path / "excel.csv"  # a European spreadsheet export
+    path.write_text("# logged 1,5 h after power-up\nBx [uT];By [uT];Bz [uT]\n-0,5;1,25;3\n# a note, kept\n4,5e1;-,5;6\n")
+    rec = read_recording(path)
+    np.testing.assert_array_equal(rec.samples(), [[-0.5, 1.25, 3], [45, -0.5, 6]])
+    assert rec.field_units() == "uT" and rec.metadata["decimal_separator"] == "comma"
+    assert rec.metadata["notes"] == "line 4: a note, kept"
+    tabbed = tmp_path / "tabbed.txt"
+    tabbed.write_text("mx\tmy\tmz\n1,5\t2\t3\n")
+    np.testing.assert_array_equal(read_recording(tabbed).samples(), [[1.5, 2, 3]])
+    # a decimal point anywhere: commas are not decimal separators, and the error names the cell
+    mixed = tmp_path / "mixed.csv"
+    mixed.write_text("mx;my;mz\n1.5;2;3\n1,5;2;3\n")
+    with pytest.raises(ValueError, match=r"line 3, column 'mx': '1,5' is not a number"):
+        read_recording(mixed)
+
+
+def test_a_truncated_last_line_says_how_to_leave_it_out(tmp_path):
+    path = tmp_path / "cut.csv"
+    path.write_text("mx,my,mz\n1,2,3\n4,5,6\n7,8")
+    with pytest.raises(ValueError, match=r"cut.csv, line 4: 2 fields.*--bad-lines skip"):
+        read_recording(path)
+    rec = read_recording(path, bad_lines="skip")
+    assert len(rec) == 2 and rec.metadata["skipped_lines"].startswith("1 of 3: 4 (2 fields")
+
+
 # -- the real recordings -----------------------------------------------------------------------------------------
 
 def test_real_qmc5883l_preamble(real_data):

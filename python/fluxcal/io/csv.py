@@ -82,6 +82,11 @@ def parse_csv(path, lines, delimiter=",", preamble_lines: int = 0, bad_lines: st
     if _is_number(names[0]):
         raise ValueError(f"{path}, line {header_line}: the first line holds numbers, not column names; "
                          "add a header such as mx,my,mz")
+    if _decimal_comma(lines[i + 1:i + 401], delimiter):
+        # a European spreadsheet export (1,25;0,5): decimal commas become points, comment lines stay as written
+        lines = lines[:i + 1] + [line if line.lstrip().startswith("#") else line.replace(",", ".")
+                                 for line in lines[i + 1:]]
+        metadata["decimal_separator"] = "comma"
     try:
         data, line_numbers, notes = parse_rows(path, lines, i + 1, names, delimiter)
     except ValueError as exc:
@@ -151,7 +156,8 @@ def parse_mixed_rows(path, lines, start: int, names, delimiter, bad_lines: str, 
             good.append(row)
         elif bad_lines == "error":
             if not text:
-                raise plain_error
+                raise ValueError(f"{plain_error}; pass bad_lines='skip' (--bad-lines skip) to leave such lines "
+                                 "out") from None
             raise ValueError(f"{path}, line {line_no}: {problem}; pass bad_lines='skip' (--bad-lines skip) to "
                              "leave such lines out")
         else:
@@ -252,6 +258,19 @@ def parse_rows(path, lines, start: int, names, delimiter, expected: str = "the h
         _raise_parse_error(path, [body[k] for k in keep], line_numbers, names, delimiter, expected)
         raise  # unreachable: _raise_parse_error always raises
     return data, line_numbers, notes
+
+
+_DECIMAL_COMMA = re.compile(r"^\s*[-+]?\d*,\d+([eE][-+]?\d+)?\s*$")
+
+
+def _decimal_comma(sample, delimiter) -> bool:
+    """True when a table delimited by ';' or tab writes its numbers with decimal commas: some cell of the
+    first data lines reads as one (-0,123) and no cell holds a decimal point."""
+    if delimiter not in (";", "\t"):
+        return False
+    cells = [c for line in sample if line.strip() and not line.lstrip().startswith("#")
+             for c in line.split(delimiter)]
+    return any(_DECIMAL_COMMA.match(c) for c in cells) and not any("." in c for c in cells)
 
 
 def _is_number(text: str) -> bool:
