@@ -334,8 +334,12 @@ def test_a_current_that_follows_time_cannot_be_told_from_a_drift():
     # in time are the same signature; the report says so and what would separate them.
     result, kwargs = withheld_trial(["motor_current"], 0, current=lambda t: 2 + 18 * t / t[-1])
     d = diagnose(result.readings, **kwargs)
-    assert [r["effect"] for r in d.confounded.get("motor_current", [])] == ["offset_drift"], d.confounded
-    assert "the current drawn near the sensor and the elapsed time vary independently" in d.text()
+    # the two tie to rounding (ΔBIC equal to 1e-11): which one leads depends on the machine's arithmetic,
+    # so the test asks only that each is named as the other's rival
+    pairs = {frozenset((winner, r["effect"])) for winner, rows in d.confounded.items() for r in rows}
+    assert frozenset(("motor_current", "offset_drift")) in pairs, d.confounded
+    assert any("vary independently would separate them" in line and "the current drawn near the sensor" in line
+               and "the elapsed time" in line for line in d.text().splitlines()), d.text()
     # without the current column the candidate is named as not tried
     d = diagnose(result.readings, t=kwargs["t"], field_norm=50.0)
     assert "motor_current" in d.remaining["skipped_candidates"]
