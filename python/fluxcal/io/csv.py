@@ -23,6 +23,7 @@ import numpy as np
 from .recording import Recording
 
 BAD_LINES = ("error", "skip")
+SKIP_HINT = "pass bad_lines='skip' (--bad-lines skip) to leave such lines out"
 _UNIT_IN_HEADER = re.compile(r"^\s*([^\[\(]+?)\s*[\[\(]\s*([^\]\)]*)\s*[\]\)]\s*$")
 
 
@@ -156,10 +157,8 @@ def parse_mixed_rows(path, lines, start: int, names, delimiter, bad_lines: str, 
             good.append(row)
         elif bad_lines == "error":
             if not text:
-                raise ValueError(f"{plain_error}; pass bad_lines='skip' (--bad-lines skip) to leave such lines "
-                                 "out") from None
-            raise ValueError(f"{path}, line {line_no}: {problem}; pass bad_lines='skip' (--bad-lines skip) to "
-                             "leave such lines out")
+                raise ValueError(f"{plain_error}; {SKIP_HINT}") from None
+            raise ValueError(f"{path}, line {line_no}: {problem}; {SKIP_HINT}")
         else:
             skipped.append(f"{line_no} ({problem})")
     if not good:

@@ -10,11 +10,14 @@ Reading looks at the bytes, not the name (a file's extension is only a hint in m
     ULog\\x01\\x12\\x35             → PX4 ULog .ulg            (fluxcal.io.drone; needs fluxcal[drone])
     text with FMT, <n> lines first → ArduPilot DataFlash text .log (fluxcal.io.drone; needs fluxcal[drone])
     text starting with { or [      → JSON readings         (fluxcal.io.real: fluxcal's layout or shot triples)
+    text of `label: number` pairs  → a serial monitor's capture, `Mag X: 1.2 Y: 3.4 Z: 5.6 uT` or
+                                     `mx=1.2,my=3.4,mz=5.6` (fluxcal.io.labelled)
     other text                     → a table. Its delimiter is that of the first data line: tab, else
                                      comma, else semicolon, else whitespace. Then:
         `name,number` lines before the header → key,value preamble (QMC5883L logger; Fs gives t)
         a header of names                     → fluxcal CSV (fluxcal.io.csv), any of those delimiters
-        numbers on the first line             → header-less: `columns` names every column, else the
+        numbers on the first line             → header-less: a comment line just above that names every
+                                                 column (`# t mx my mz`) is the header; else `columns` names every column, else the
                                                  airborne 10-column layout if it fits, else an error
                                                  asking for --columns (one name per column)
 
@@ -116,17 +119,54 @@ def _read_table(path: Path, columns, units, bad_lines: str = "error") -> Recordi
     start = real._skip_comments(lines)
     if start >= len(lines):
         raise ValueError(f"{path}: no header line and no data (only comments or blank lines)")
+    from . import labelled
+
+    if labelled.looks_labelled(lines, start):
+        return labelled.read_labelled(path, columns=columns, units=units, bad_lines=bad_lines)
     delimiter = _delimiter(lines, start)
     if real.preamble_length(lines, start, delimiter) > 0:
         return real.read_preamble_csv(path, columns=columns, units=units, delimiter=delimiter, bad_lines=bad_lines)
     first = [c.strip() for c in lines[start].split(delimiter)]
     if all(_is_number(c) for c in first):
-        names = columns.split(",") if isinstance(columns, str) else columns
+        header = _commented_header(lines, start, delimiter, len(first))
+        given = columns.split(",") if isinstance(columns, str) else columns
+        if header is not None and (given is None or set(given) <= set(header[1])):  # names picked from it
+            line_no, names, unit_map = header
+            rec = real.read_headerless(path, names=names, delimiter=delimiter)
+            rec.units.update(unit_map)
+            rec.metadata["header"] = f"the comment on line {line_no}"
+            if len(names) == 3:
+                rec.mag_columns = None  # found by name (or chosen below), like a header line's
+            return rec.choose(columns, units)
+        names = given
         if names is not None and (len(names) == len(first) or len(names) != 3):
             return real.read_headerless(path, names=names, units=units, delimiter=delimiter)
         # no names, or three: the magnetometer of a recognised layout
         return real.read_headerless(path, columns=columns, units=units, delimiter=delimiter)
     return read_csv(path, columns=columns, units=units, delimiter=delimiter, bad_lines=bad_lines)
+
+
+def _commented_header(lines, start: int, delimiter, count: int):
+    """(line number, names, units) when the comment line just above a header-less table names its columns
+    (`# t mx my mz`, `# time [s], Bx [nT], ...`: one name per column, none a number, a magnetometer among
+    them), else None."""
+    from .columns import find_magnetometer
+    from .csv import _split_header
+
+    if start == 0 or not lines[start - 1].lstrip().startswith("#"):
+        return None
+    body = lines[start - 1].lstrip().lstrip("#").strip()
+    cells = body.split(delimiter) if delimiter and delimiter in body else body.split()
+    pairs = [_split_header(c) for c in cells]
+    names = [n for n, _ in pairs]
+    if len(names) != count or any(not n or _is_number(n) for n in names) or len(set(names)) != len(names):
+        return None
+    try:
+        if find_magnetometer(names) is None:
+            return None
+    except ValueError:  # two magnetometer triples: the names are still the columns' (the user picks one)
+        pass
+    return start, names, {n: u for n, u in pairs if u}
 
 
 def _delimiter(lines, start: int):

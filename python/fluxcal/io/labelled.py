@@ -1,0 +1,177 @@
+"""Labelled text logs: a serial monitor's capture of a device that prints its readings with names.
+
+    Mag X: -13.62  Y: 27.37  Z: -17.02 uT              (Adafruit sensor examples)
+    X: -13.62 	Y: 27.37 	Z: -17.02 uTesla
+    mx=-13.62, my=27.37, mz=-17.02
+    12:30:01.123 -> Mag X: -13.62 Y: 27.37 Z: -17.02   (Arduino IDE serial monitor, timestamps on)
+    Accel X: 0.12 Y: -0.03 Z: 9.81 m/s^2               (one line per sensor, repeated every cycle)
+    Mag X: -13.62 Y: 27.37 Z: -17.02 uT
+
+Each `label: number` or `label=number` is a value. Words before a line's first label name its sensor
+("Mag X: …" gives the column "Mag X"; fluxcal.io.columns then finds the magnetometer by name), a unit
+word after a number ("uT", "uTesla", "m/s^2") is its column's unit. A leading clock time (the IDE's
+`hh:mm:ss.mmm ->`, or `[date time]`) becomes the column `time` in seconds.
+
+The columns are the names that most lines carry (a start-up banner's "Data rate set to: 155 Hz" is not
+one). Lines fill a row in turn; a line whose names the row already holds starts the next row, so one line
+per reading and one line per sensor per cycle both read. Lines before the first complete row are the
+preamble (banners, the partial line a capture starts with) and are kept in metadata["preamble"]. After
+it, a line that does not fit (garbled, two lines run together, a truncated row, a non-number) is an error
+naming its line (bad_lines="error") or is left out and listed in metadata["skipped_lines"] ("skip").
+"""
+from __future__ import annotations
+
+import re
+from collections import Counter
+from pathlib import Path
+
+import numpy as np
+
+from .columns import FIELD_UNITS, TEMP_UNITS, TIME_UNITS
+from .csv import BAD_LINES, SKIP_HINT, _timestamps, read_text
+from .recording import Recording
+
+# label (a word not glued to what precedes it), ':' or '=', then a number (a decimal comma is read as a point:
+# in `X: -13,62` the comma cannot separate fields, as no label follows it; a unit may be glued on)
+_PAIR = re.compile(r"(?<![\w.\-:])([A-Za-z_][\w.]*(?:\[\d+\])?)\s*[:=]\s*"
+                   r"([+-]?(?:\d+(?:\.\d*|,\d+)?|[.,]\d+)(?:[eE][+-]?\d+)?|[+-]?(?:nan|inf)\b)([^\s,;|]*)", re.IGNORECASE)
+_CLOCK = re.compile(r"^\s*\[?((?:\d{4}-\d{1,2}-\d{1,2}[ T])?\d{1,2}:\d{2}:\d{2}(?:[.,]\d+)?)\]?\s*(?:->|>|\|)?\s*")
+_WORD = re.compile(r"[^\s,;|]+")
+_EXTRA_UNITS = {"utesla", "µtesla", "microtesla", "nanotesla", "tesla", "dps", "deg", "rad", "%", "lsb"}
+SAMPLE_LINES = 50
+
+
+def _is_unit(word: str) -> bool:
+    w = word.lower().replace("\u03bc", "\u00b5")
+    return (w in FIELD_UNITS or w in TIME_UNITS or w in TEMP_UNITS or w in _EXTRA_UNITS or "/" in w
+            or "^" in w or w.startswith("°"))
+
+
+def _field_unit(word: str) -> str:
+    w = word.lower().replace("\u03bc", "\u00b5")
+    return {"utesla": "uT", "µtesla": "uT", "microtesla": "uT", "nanotesla": "nT"}.get(w) or FIELD_UNITS.get(w, word)
+
+
+def _parse_line(text: str):
+    """(clock text or None, [(name, value text, unit)]) of one line; names carry the sensor words."""
+    clock = _CLOCK.match(text)
+    stamp = clock.group(1) if clock and _PAIR.search(text, clock.end()) else None
+    pos = clock.end() if stamp else 0
+    group, values, groups = "", [], []
+    for m in _PAIR.finditer(text, pos):
+        words = _WORD.findall(text[pos:m.start()])
+        if values and words and _is_unit(words[0]) and not values[-1][2]:
+            values[-1][2] = words.pop(0)  # the previous value's unit
+        named = [w.strip(":=-") for w in words if re.search(r"[A-Za-z]", w) and not _is_unit(w)]
+        if named or not groups:
+            group = " ".join(named)
+            groups.append([])
+        groups[-1].append(len(values))
+        values.append([f"{group} {m.group(1)}" if group else m.group(1), m.group(2), m.group(3)])
+        pos = m.end()
+    if values and not values[-1][2]:
+        tail = _WORD.findall(text[pos:])
+        if tail and _is_unit(tail[0]):
+            values[-1][2] = tail[0]
+    for members in groups:  # "Mag X: 1 Y: 2 Z: 3 uT": a unit after a sensor's last value is the sensor's
+        units = [values[k][2] for k in members]
+        if units[-1] and not any(units[:-1]):
+            for k in members:
+                values[k][2] = units[-1]
+    return stamp, [tuple(v) for v in values]
+
+
+def looks_labelled(lines, start: int) -> bool:
+    """True when most of the first data lines hold `label: number` or `label=number` pairs."""
+    sample = [line for line in lines[start:start + 4 * SAMPLE_LINES]
+              if line.strip() and not line.lstrip().startswith("#")][:SAMPLE_LINES]
+    return bool(sample) and sum(bool(_parse_line(line)[1]) for line in sample) >= 0.6 * len(sample)
+
+
+def read_labelled(path, columns=None, units: str | None = None, bad_lines: str = "error") -> Recording:
+    """Read a labelled text log (module docstring). `columns`/`units` as for every reader; `bad_lines`
+    "error" (default) or "skip"."""
+    if bad_lines not in BAD_LINES:
+        raise ValueError(f"bad_lines: {bad_lines!r} is not one of {', '.join(BAD_LINES)}")
+    path = Path(path)
+    parsed = [(k + 1, line.strip(), *_parse_line(line)) for k, line in enumerate(read_text(path).splitlines())
+              if line.strip() and not line.lstrip().startswith("#")]
+    counts = Counter(name for *_, values in parsed for name in dict.fromkeys(v[0] for v in values))
+    if not counts:
+        raise ValueError(f"{path}: no 'label: number' or 'label=number' values")
+    top = max(counts.values())
+    names = [n for n in counts if counts[n] >= 0.5 * top]  # in order of first appearance
+    rows, row, lines_of_row, trouble = [], {}, [], {}
+
+    def close():
+        missing = [n for n in names if n not in row]
+        if lines_of_row and missing:
+            for n in lines_of_row:
+                trouble.setdefault(n, f"no {', '.join(repr(m) for m in missing)} (truncated line?)")
+        elif lines_of_row:
+            rows.append((lines_of_row[0], dict(row)))
+
+    for line_no, text, stamp, values in parsed:
+        seen = [v[0] for v in values]
+        problem = None
+        if not values:
+            problem = "no 'label: number' values (garbled line?)"
+        elif len(set(seen)) != len(seen):
+            problem = f"{next(n for n in seen if seen.count(n) > 1)!r} appears twice (two lines run together?)"
+        elif any(n not in names for n in seen):
+            problem = f"{next(n for n in seen if n not in names)!r} is not one of the columns ({', '.join(names)})"
+        else:
+            bad = next((v for v in values if not np.isfinite(float(v[1].replace(',', '.')))), None)
+            if bad is not None:
+                problem = f"{bad[0]}: {bad[1]!r} is not a finite number"
+        if problem:
+            trouble[line_no] = problem
+            continue
+        if any(n in row for n in seen):
+            close()
+            row, lines_of_row = {}, []
+        row.update({n: (float(v.replace(',', '.')), u) for n, v, u in values})
+        if stamp is not None and "time" not in row:
+            row["time"] = (stamp, "")
+        lines_of_row.append(line_no)
+    close()
+    if not rows:
+        raise ValueError(f"{path}: no complete reading (each needs {', '.join(names)})")
+    first = rows[0][0]
+    preamble = [(n, text) for n, text, *_ in parsed if n < first]
+    problems = sorted((n, p) for n, p in trouble.items() if n > first)
+    metadata = {"layout": f"labelled lines ({', '.join(names)})"}
+    if preamble:
+        metadata["preamble"] = "; ".join(f"line {n}: {text}" for n, text in preamble[:10]) + \
+            (f"; … {len(preamble) - 10} more" if len(preamble) > 10 else "")
+    if problems and bad_lines == "error":
+        n, p = problems[0]
+        raise ValueError(f"{path}, line {n}: {p}; {SKIP_HINT}")
+    if problems:
+        metadata["skipped_lines"] = f"{len(problems)} of {len(parsed) - len(preamble)}: " + \
+            "; ".join(f"{n} ({p})" for n, p in problems[:10]) + (f"; … {len(problems) - 10} more" if len(problems) > 10 else "")
+    good = rows
+    data = {name: np.array([r[name][0] for _, r in good]) for name in names}
+    unit_map = {}
+    for name in names:
+        found = {r[name][1] for _, r in good if r[name][1]}
+        if len(found) == 1:
+            unit_map[name] = _field_unit(found.pop())
+    stamps = [r.get("time", ("", ""))[0] for _, r in good]
+    if sum(bool(s) for s in stamps) >= 0.9 * len(stamps) and "time" not in names:
+        seconds, start = _timestamps(stamps)
+        if seconds is not None:
+            keep = np.isfinite(seconds)
+            if not keep.all() and bad_lines == "error":
+                n = good[int(np.argmin(keep))][0]
+                raise ValueError(f"{path}, line {n}: no clock time where the other lines have one; {SKIP_HINT}")
+            if not keep.all():
+                lost = [f"{n} (no clock time)" for (n, _), k in zip(good, keep) if not k]
+                metadata["skipped_lines"] = "; ".join(filter(None, [metadata.get("skipped_lines"), *lost]))
+            data = {k: v[keep] for k, v in data.items()}
+            data["time"], unit_map["time"] = seconds[keep], "s"
+            metadata["time_start"] = start
+            good = [g for g, k in zip(good, keep) if k]
+    rec = Recording(columns=data, units=unit_map, metadata=metadata, source=str(path),
+                    line_numbers=np.array([n for n, _ in good], dtype=int))
+    return rec.choose(columns, units)

@@ -1,0 +1,115 @@
+"""Labelled text logs (a serial monitor's capture: `Mag X: 1.2 Y: 3.4 Z: 5.6 uT`, `mx=1.2,my=3.4`) and a
+comment line that names a header-less table's columns: read by content, values exact, units and time
+from the text, garbled lines named by line, and `fluxcal calibrate` runs on them."""
+import numpy as np
+import pytest
+
+from conftest import run_cli, simulated
+from fluxcal.io import read_recording
+
+
+def readings(n=600, seed=3):
+    """Readings of a simulated sensor in µT, rounded as a device would print them (2 decimals)."""
+    return np.round(simulated(seed, n=n, field_norm=50.0).readings, 2)
+
+
+BANNER = "Adafruit LIS3MDL test!\nLIS3MDL Found!\nRange set to: +-4 gauss\nData rate set to: 155 Hz\n"
+
+
+def test_one_reading_per_line_with_a_banner_and_a_unit_after_the_last_axis(tmp_path):
+    m = readings()
+    path = tmp_path / "monitor.txt"
+    # a capture starts mid-line; the sketch's banner follows
+    path.write_text("-13.5 Y: 27.1 Z: -17.0 uT\n" + BANNER
+                    + "".join(f"Mag X: {x:.2f}  Y: {y:.2f}  Z: {z:.2f}  uT\n" for x, y, z in m))
+    rec = read_recording(path)
+    np.testing.assert_array_equal(rec.samples(), m)
+    assert rec.mag_names() == ("Mag X", "Mag Y", "Mag Z") and rec.field_units() == "uT"
+    assert rec.line_numbers[0] == 6 and rec.metadata["preamble"].startswith("line 1: -13.5 Y: 27.1")
+    assert "line 5: Data rate set to: 155 Hz" in rec.metadata["preamble"]
+
+
+def test_one_line_per_sensor_with_the_ides_clock_across_midnight(tmp_path):
+    m = readings()
+    acc = np.round(np.random.default_rng(1).normal(size=m.shape), 3)
+    lines = []
+    for k, (r, a) in enumerate(zip(m, acc)):
+        s = 23 * 3600 + 59 * 60 + 55 + k * 0.02  # 12 s of readings from 23:59:55
+        clock = f"{int(s // 3600) % 24:02d}:{int(s % 3600 // 60):02d}:{s % 60:06.3f} -> "
+        lines.append(f"{clock}Accel X: {a[0]:.3f} \tY: {a[1]:.3f} \tZ: {a[2]:.3f} m/s^2\n")
+        lines.append(f"{clock}Mag X: {r[0]:.2f} \tY: {r[1]:.2f} \tZ: {r[2]:.2f} uTesla\n")
+    path = tmp_path / "ide.txt"
+    path.write_text("".join(lines))
+    rec = read_recording(path)
+    np.testing.assert_array_equal(rec.samples(), m)
+    np.testing.assert_array_equal(rec.acceleration(), acc)
+    assert rec.field_units() == "uT" and rec.units["Accel X"] == "m/s^2"
+    np.testing.assert_allclose(rec.time(), np.arange(len(m)) * 0.02, atol=1e-9)  # unwrapped past midnight
+    assert rec.roles()["time"] == "time"
+
+
+@pytest.mark.parametrize("layout", ["kv", "per_axis_line", "decimal_comma"])
+def test_other_labelled_layouts(tmp_path, layout):
+    m = readings(n=200)
+    if layout == "kv":
+        text = "".join(f"t={20 * k}, mx={x:.2f}, my={y:.2f}, mz={z:.2f}\n" for k, (x, y, z) in enumerate(m))
+    elif layout == "per_axis_line":
+        text = "".join(f"X: {x:.2f}\nY: {y:.2f}\nZ: {z:.2f}\n" for x, y, z in m)
+    else:
+        text = "".join(f"X: {x:.2f} Y: {y:.2f} Z: {z:.2f}\n".replace(".", ",") for x, y, z in m)
+    path = tmp_path / "log.txt"
+    path.write_text(text)
+    rec = read_recording(path)
+    np.testing.assert_array_equal(rec.samples(), m)
+    if layout == "kv":
+        assert rec.mag_names() == ("mx", "my", "mz") and rec.time()[-1] == 20 * (len(m) - 1)
+
+
+@pytest.mark.parametrize("bad, message", [
+    ("Mag X: 1.00  Y: 2.00\n", r"line 11: no 'Mag Z' \(truncated line\?\)"),
+    ("Mag X: 1.00  Y: 2.00  Z: 3.0Mag X: 1.00  Y: 2.00  Z: 3.00 uT\n", r"line 11: 'Mag X' appears twice"),
+    ("Mag X: nan  Y: 2.00  Z: 3.00 uT\n", r"line 11: Mag X: 'nan' is not a finite number"),
+    ("Mag X: 1.00  Q: 2.00  Z: 3.00 uT\n", r"line 11: 'Mag Q' is not one of the columns \(Mag X, Mag Y, Mag Z\)"),
+    ("\x7fG@@\n", r"line 11: no 'label: number' values \(garbled line\?\)"),
+])
+def test_a_garbled_line_is_named_and_can_be_left_out(tmp_path, bad, message):
+    m = readings(n=20)
+    good = [f"Mag X: {x:.2f}  Y: {y:.2f}  Z: {z:.2f}  uT\n" for x, y, z in m]
+    path = tmp_path / "serial.txt"
+    path.write_text("".join(good[:10] + [bad] + good[10:]))
+    with pytest.raises(ValueError, match=message + r".*--bad-lines skip"):
+        read_recording(path)
+    rec = read_recording(path, bad_lines="skip")
+    np.testing.assert_array_equal(rec.samples(), m)  # every whole reading kept, the bad line only left out
+    assert rec.metadata["skipped_lines"].startswith("1 of 21: 11 (")
+    assert 11 not in rec.line_numbers
+
+
+def test_a_comment_line_naming_the_columns_is_the_header(tmp_path):
+    m = readings(n=50)
+    rows = "".join(f"{0.02 * k:.2f} {x:.2f} {y:.2f} {z:.2f}\n" for k, (x, y, z) in enumerate(m))
+    path = tmp_path / "scan.dat"
+    path.write_text("# bench scan, sensor 4\n# time[s] Bx[uT] By[uT] Bz[uT]\n" + rows)
+    rec = read_recording(path)
+    np.testing.assert_array_equal(rec.samples(), m)
+    assert rec.mag_names() == ("Bx", "By", "Bz") and rec.field_units() == "uT"
+    assert rec.metadata["header"] == "the comment on line 2" and rec.time()[1] == 0.02
+    # a comment that does not name a magnetometer is not a header: the error still asks for --columns
+    other = tmp_path / "other.dat"
+    other.write_text("# run 4 of the day\n" + rows)
+    with pytest.raises(ValueError, match="4 whitespace-separated numbers and no header"):
+        read_recording(other)
+    np.testing.assert_array_equal(read_recording(other, columns="t,mx,my,mz").samples(), m)
+
+
+def test_calibrate_reads_a_serial_monitor_capture_as_it_reads_the_table(tmp_path):
+    m = readings(n=1000)
+    table = tmp_path / "table.csv"
+    table.write_text("mx,my,mz\n" + "".join(f"{x:.2f},{y:.2f},{z:.2f}\n" for x, y, z in m))
+    capture = tmp_path / "capture.txt"
+    capture.write_text(BANNER + "".join(f"Mag X: {x:.2f}  Y: {y:.2f}  Z: {z:.2f}  uT\n" for x, y, z in m))
+    out = [run_cli("calibrate", p) for p in (table, capture)]
+    assert [o.returncode for o in out] == [0, 0], out[1].stderr
+    offset = [next(line for line in o.stdout.splitlines() if "offset b" in line) for o in out]
+    assert offset[1] == offset[0] + " uT"
+    assert "magnetometer Mag X,Mag Y,Mag Z" in out[1].stdout
