@@ -187,6 +187,27 @@ def test_decimal_commas_of_a_semicolon_or_tab_table_are_read(tmp_path):
         read_recording(mixed)
 
 
+def test_a_row_of_units_under_the_header_and_a_headerless_decimal_comma_table(tmp_path):
+    path = tmp_path / "logger.csv"  # a data logger's export: names, then units, then numbers
+    path.write_text("Time;Bx;By;Bz;Status\n(s);(µT);[µT];µT;\n0,0;-0,5;1,25;3;1\n0,1;4,5e1;-,5;6;1\n")
+    rec = read_recording(path)
+    np.testing.assert_array_equal(rec.samples(), [[-0.5, 1.25, 3], [45, -0.5, 6]])
+    assert rec.units == {"Time": "s", "Bx": "µT", "By": "µT", "Bz": "µT"} and rec.line_numbers.tolist() == [3, 4]
+    assert rec.time().tolist() == [0.0, 0.1] and rec.metadata["decimal_separator"] == "comma"
+    # a first data row that merely lacks numbers is not a row of units: it stays an error
+    garbled = tmp_path / "garbled.csv"
+    garbled.write_text("mx,my,mz\nabc,de,f\n1,2,3\n")
+    with pytest.raises(ValueError, match=r"garbled.csv, line 2, column 'mx': 'abc' is not a number"):
+        read_recording(garbled)
+    bare = tmp_path / "bare.csv"  # no header, ';' and decimal commas: read once the columns are named
+    bare.write_text("0,00;-13,5;27,25;-17\n0,02;-13,25;27;-16,5\n")
+    with pytest.raises(ValueError, match=r"4 ';'-separated numbers and no header"):
+        read_recording(bare)
+    rec = read_recording(bare, columns="t,mx,my,mz")
+    np.testing.assert_array_equal(rec.samples(), [[-13.5, 27.25, -17], [-13.25, 27, -16.5]])
+    assert rec.metadata["decimal_separator"] == "comma"
+
+
 def test_a_truncated_last_line_says_how_to_leave_it_out(tmp_path):
     path = tmp_path / "cut.csv"
     path.write_text("mx,my,mz\n1,2,3\n4,5,6\n7,8")

@@ -28,7 +28,8 @@ CALIBRATED_WORDS = {"cal", "calibrated", "corr", "corrected", "comp", "compensat
 RAW_WORDS = {"raw", "uncal", "uncalibrated", "uncorrected"}
 # unit words a logger appends to a name -> the unit string fluxcal records
 FIELD_UNITS = {"nt": "nT", "ut": "uT", "µt": "uT", "mt": "mT", "g": "G", "ga": "G", "gauss": "G", "mg": "mG",
-               "mgauss": "mG", "milligauss": "mG", "counts": "counts", "lsb": "counts"}
+               "mgauss": "mG", "milligauss": "mG", "counts": "counts", "lsb": "counts", "utesla": "uT",
+               "µtesla": "uT", "microtesla": "uT", "nanotesla": "nT"}
 TIME_UNITS = {"s": 1.0, "sec": 1.0, "secs": 1.0, "seconds": 1.0, "ms": 1e-3, "us": 1e-6, "µs": 1e-6,
               "ns": 1e-9, "min": 60.0, "mins": 60.0, "minutes": 60.0, "h": 3600.0, "hr": 3600.0, "hours": 3600.0}
 TEMP_UNITS = {"c": "C", "degc": "C", "celsius": "C", "°c": "C", "k": "K", "kelvin": "K", "f": "F",
@@ -39,6 +40,15 @@ CURRENT_QUALIFIERS = {"motor", "motors", "bat", "batt", "battery", "load", "supp
 CURRENT_UNITS = {"a": 1.0, "amp": 1.0, "amps": 1.0, "ma": 1e-3}
 _UNIT_WORDS = set(FIELD_UNITS) | set(TIME_UNITS) | set(TEMP_UNITS) | set(CURRENT_UNITS) | {"hz", "khz"}
 _AXES = {"x": 0, "y": 1, "z": 2}
+_OTHER_UNITS = {"tesla", "dps", "deg", "degrees", "rad", "%", "v", "mv", "pa", "hpa", "rpm"}
+
+
+def is_unit(text: str) -> bool:
+    """A unit as loggers write it after a value or in a row under the column names: uT, µT, nT, G, mG,
+    s, ms, °C, A, Hz, deg, m/s^2, deg/s, % (brackets around it allowed: "(µT)", "[s]")."""
+    w = text.strip().strip("[]()").strip().lower().replace("\u03bc", "\u00b5")
+    return bool(w) and (w in _UNIT_WORDS or w in _OTHER_UNITS or w.startswith("°")
+                        or bool(re.fullmatch(r"[a-zµ°]+(?:/[a-zµ°]+)?(?:\^?[23²³])?", w) and ("/" in w or "^" in w)))
 _CAMEL = re.compile(r"(?<=[a-z0-9])(?=[A-Z])|(?<=[A-Z])(?=[A-Z][a-z])|(?<=[A-Za-z])(?=[0-9])|(?<=[0-9])(?=[A-Za-z])")
 
 

@@ -83,10 +83,9 @@ def parse_csv(path, lines, delimiter=",", preamble_lines: int = 0, bad_lines: st
     if _is_number(names[0]):
         raise ValueError(f"{path}, line {header_line}: the first line holds numbers, not column names; "
                          "add a header such as mx,my,mz")
-    if _decimal_comma(lines[i + 1:i + 401], delimiter):
-        # a European spreadsheet export (1,25;0,5): decimal commas become points, comment lines stay as written
-        lines = lines[:i + 1] + [line if line.lstrip().startswith("#") else line.replace(",", ".")
-                                 for line in lines[i + 1:]]
+    lines = _units_row(lines, i + 1, names, delimiter, unit_map)
+    lines, converted = decimal_points(lines, i + 1, delimiter)
+    if converted:
         metadata["decimal_separator"] = "comma"
     try:
         data, line_numbers, notes = parse_rows(path, lines, i + 1, names, delimiter)
@@ -260,6 +259,37 @@ def parse_rows(path, lines, start: int, names, delimiter, expected: str = "the h
 
 
 _DECIMAL_COMMA = re.compile(r"^\s*[-+]?\d*,\d+([eE][-+]?\d+)?\s*$")
+
+
+def _units_row(lines, start: int, names, delimiter, unit_map: dict):
+    """The lines with a row of units under the header (`s,uT,uT,uT` or `(s);(µT);…`, as data-logger and
+    LabVIEW exports write) blanked, its units recorded for columns that have none; else the lines."""
+    from .columns import is_unit
+
+    j = start
+    while j < len(lines) and (not lines[j].strip() or lines[j].lstrip().startswith("#")):
+        j += 1
+    if j == len(lines):
+        return lines
+    cells = [c.strip().strip('"') for c in lines[j].split(delimiter)]
+    filled = [c for c in cells if c]
+    if len(cells) != len(names) or not filled or any(_is_number(c) for c in filled) \
+            or sum(is_unit(c) for c in filled) < 0.5 * len(filled):
+        return lines
+    for name, cell in zip(names, cells):
+        if cell:
+            unit_map.setdefault(name, cell.strip("[]()").strip())
+    return lines[:j] + [""] + lines[j + 1:]  # blank: later lines keep their numbers
+
+
+def decimal_points(lines, start: int, delimiter):
+    """(lines, True) with the data lines' decimal commas from `start` on made points when the table writes
+    its numbers so (a European spreadsheet export, 1,25;0,5; see _decimal_comma; comment lines stay as
+    written), else (lines, False)."""
+    if not _decimal_comma(lines[start:start + 400], delimiter):
+        return lines, False
+    return lines[:start] + [line if line.lstrip().startswith("#") else line.replace(",", ".")
+                            for line in lines[start:]], True
 
 
 def _decimal_comma(sample, delimiter) -> bool:

@@ -32,7 +32,7 @@ from __future__ import annotations
 import re
 from pathlib import Path
 
-from .csv import _is_number, read_csv, read_text, write_csv
+from .csv import _is_number, decimal_points, read_csv, read_text, write_csv
 from .recording import Recording
 
 WRITERS = (".csv", ".npz", ".mat", ".parquet", ".pq", ".json")
@@ -126,7 +126,7 @@ def _read_table(path: Path, columns, units, bad_lines: str = "error") -> Recordi
     delimiter = _delimiter(lines, start)
     if real.preamble_length(lines, start, delimiter) > 0:
         return real.read_preamble_csv(path, columns=columns, units=units, delimiter=delimiter, bad_lines=bad_lines)
-    first = [c.strip() for c in lines[start].split(delimiter)]
+    first = [c.strip() for c in decimal_points(lines[start:start + 400], 0, delimiter)[0][0].split(delimiter)]
     if all(_is_number(c) for c in first):
         header = _commented_header(lines, start, delimiter, len(first))
         given = columns.split(",") if isinstance(columns, str) else columns
@@ -171,11 +171,14 @@ def _commented_header(lines, start: int, delimiter, count: int):
 
 def _delimiter(lines, start: int):
     """The delimiter of the table: tab, comma or semicolon — the one found in most of the header and the
-    first 20 data lines (so one garbled first line does not decide) — else whitespace (None)."""
+    first 20 data lines (so one garbled first line does not decide; ';' over ',' when both are) — else
+    whitespace (None)."""
     sample = [lines[start]] + [line for line in lines[start + 1:start + 400]
                                if line.strip() and not line.lstrip().startswith("#")][:20]
     counts = {c: sum(c in line for line in sample) for c in ("\t", ",", ";")}
     best = max(counts, key=lambda c: counts[c])
+    if best == "," and counts[";"] > len(sample) / 2:
+        best = ";"  # both in most lines: a ';' table with decimal commas (1,25;0,5)
     return best if counts[best] > len(sample) / 2 else None
 
 

@@ -27,7 +27,7 @@ from pathlib import Path
 
 import numpy as np
 
-from .columns import FIELD_UNITS, TEMP_UNITS, TIME_UNITS
+from .columns import FIELD_UNITS, is_unit
 from .csv import BAD_LINES, SKIP_HINT, _timestamps, read_text
 from .recording import Recording
 
@@ -37,19 +37,11 @@ _PAIR = re.compile(r"(?<![\w.\-:])([A-Za-z_][\w.]*(?:\[\d+\])?)\s*[:=]\s*"
                    r"([+-]?(?:\d+(?:\.\d*|,\d+)?|[.,]\d+)(?:[eE][+-]?\d+)?|[+-]?(?:nan|inf)\b)([^\s,;|]*)", re.IGNORECASE)
 _CLOCK = re.compile(r"^\s*\[?((?:\d{4}-\d{1,2}-\d{1,2}[ T])?\d{1,2}:\d{2}:\d{2}(?:[.,]\d+)?)\]?\s*(?:->|>|\|)?\s*")
 _WORD = re.compile(r"[^\s,;|]+")
-_EXTRA_UNITS = {"utesla", "µtesla", "microtesla", "nanotesla", "tesla", "dps", "deg", "rad", "%", "lsb"}
 SAMPLE_LINES = 50
 
 
-def _is_unit(word: str) -> bool:
-    w = word.lower().replace("\u03bc", "\u00b5")
-    return (w in FIELD_UNITS or w in TIME_UNITS or w in TEMP_UNITS or w in _EXTRA_UNITS or "/" in w
-            or "^" in w or w.startswith("°"))
-
-
 def _field_unit(word: str) -> str:
-    w = word.lower().replace("\u03bc", "\u00b5")
-    return {"utesla": "uT", "µtesla": "uT", "microtesla": "uT", "nanotesla": "nT"}.get(w) or FIELD_UNITS.get(w, word)
+    return FIELD_UNITS.get(word.lower().replace("\u03bc", "\u00b5"), word)
 
 
 def _parse_line(text: str):
@@ -60,9 +52,9 @@ def _parse_line(text: str):
     group, values, groups = "", [], []
     for m in _PAIR.finditer(text, pos):
         words = _WORD.findall(text[pos:m.start()])
-        if values and words and _is_unit(words[0]) and not values[-1][2]:
+        if values and words and is_unit(words[0]) and not values[-1][2]:
             values[-1][2] = words.pop(0)  # the previous value's unit
-        named = [w.strip(":=-") for w in words if re.search(r"[A-Za-z]", w) and not _is_unit(w)]
+        named = [w.strip(":=-") for w in words if re.search(r"[A-Za-z]", w) and not is_unit(w)]
         if named or not groups:
             group = " ".join(named)
             groups.append([])
@@ -71,7 +63,7 @@ def _parse_line(text: str):
         pos = m.end()
     if values and not values[-1][2]:
         tail = _WORD.findall(text[pos:])
-        if tail and _is_unit(tail[0]):
+        if tail and is_unit(tail[0]):
             values[-1][2] = tail[0]
     for members in groups:  # "Mag X: 1 Y: 2 Z: 3 uT": a unit after a sensor's last value is the sensor's
         units = [values[k][2] for k in members]

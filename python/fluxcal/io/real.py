@@ -23,7 +23,7 @@ from pathlib import Path
 
 import numpy as np
 
-from .csv import _is_number, parse_csv, parse_rows, read_text
+from .csv import _is_number, decimal_points, parse_csv, parse_rows, read_text
 from .recording import ATTITUDE_COLUMNS, FIELD_NED_COLUMNS, Recording
 
 # -- key,value preamble (QMC5883L logger) -------------------------------------------------------------------
@@ -118,6 +118,14 @@ def read_headerless(path, names=None, columns=None, units: str | None = None, de
     path = Path(path)
     lines = read_text(path).splitlines()
     start = _skip_comments(lines)
+    lines, converted = decimal_points(lines, start, delimiter)
+    rec = _read_headerless(path, lines, start, names, columns, units, delimiter)
+    if converted:
+        rec.metadata["decimal_separator"] = "comma"
+    return rec
+
+
+def _read_headerless(path, lines, start, names, columns, units, delimiter) -> Recording:
     first = lines[start].split(delimiter)
     sep = {"\t": "tab", ",": "comma", None: "whitespace"}.get(delimiter, repr(delimiter))
     if names is not None:
