@@ -124,7 +124,10 @@ AIRBORNE_ROW = "46370.0\t-45289.2\t-16300.6\t-23482.6\t4.52\t16.79\t219.76\t1775
 
 @pytest.mark.parametrize("name, body, message", [
     ("garbled.csv", "mx,my,mz\n1,2,3\n4,5\x00,6\n", r"garbled.csv, line 3, column 'my': '5\\x00' is not a number"),
-    ("binary.csv", "mx,my,mz\n1,2,3\n1,\udcff2,3\n", r"binary.csv, line 3, column 3 \(character\): byte 0xff is not text"),
+    ("binary.csv", "mx,my,mz\n1,2,3\n1,\udcff2,3\n", r"binary.csv, line 3, column 'my': '\ufffd2' is not a number "
+                                                      r"\(bytes that are not text: garbage from a serial line\?\)"),
+    ("binary.bin", "mx,my,mz\n1,2,3\n\udcff\udcfe\x00\udc80\n", r"binary.bin, line 3, column 1 \(character\): byte 0xff "
+                                                              r"is not text"),
     ("short.csv", "mx,my,mz\n1,2,3\n4,5\n", r"short.csv, line 3: 2 fields, the header has 3: column 'mz' \(field 3\) is missing"),
     ("long.csv", "mx,my,mz\n1,2,3\n4,5,6,7\n", r"long.csv, line 3: 4 fields, the header has 3: field 4 \('7'\) has no column"),
     ("qmc.csv", "Fs,50.00\nInitialization time,60\nmx,my,mz\n1,2,3\n4,5\n",
@@ -206,6 +209,17 @@ def test_a_row_of_units_under_the_header_and_a_headerless_decimal_comma_table(tm
     rec = read_recording(bare, columns="t,mx,my,mz")
     np.testing.assert_array_equal(rec.samples(), [[-13.5, 27.25, -17], [-13.25, 27, -16.5]])
     assert rec.metadata["decimal_separator"] == "comma"
+
+
+@pytest.mark.parametrize("encoding", ["cp1252", "utf-16"])
+def test_a_windows_export_in_its_own_encoding_is_read(tmp_path, encoding):
+    path = tmp_path / "export.csv"  # a legacy Windows program's export, or a PowerShell redirect (UTF-16)
+    path.write_bytes("Zeit [s];Bx [µT];By [µT];Bz [µT];Temperatur [°C]\n0,0;-0,5;1,25;3;21,5\n0,1;45;-0,5;6;21,5\n"
+                     .encode(encoding))
+    rec = read_recording(path)
+    np.testing.assert_array_equal(rec.samples(), [[-0.5, 1.25, 3], [45, -0.5, 6]])
+    assert rec.field_units() == "µT" and rec.units["Temperatur"] == "°C" and rec.time().tolist() == [0.0, 0.1]
+    assert rec.temperature().tolist() == [21.5, 21.5]
 
 
 def test_a_truncated_last_line_says_how_to_leave_it_out(tmp_path):

@@ -69,6 +69,7 @@ def test_other_labelled_layouts(tmp_path, layout):
     ("Mag X: 1.00  Y: 2.00\n", r"line 11: no 'Mag Z' \(truncated line\?\)"),
     ("Mag X: 1.00  Y: 2.00  Z: 3.0Mag X: 1.00  Y: 2.00  Z: 3.00 uT\n", r"line 11: 'Mag X' appears twice"),
     ("Mag X: nan  Y: 2.00  Z: 3.00 uT\n", r"line 11: Mag X: 'nan' is not a finite number"),
+    ("Mag X: 1.00  Y: 2x5  Z: 3.00 uT\n", r"line 11: Mag Y: '2x5' is not a number"),
     ("Mag X: 1.00  Q: 2.00  Z: 3.00 uT\n", r"line 11: 'Mag Q' is not one of the columns \(Mag X, Mag Y, Mag Z\)"),
     ("\x7fG@@\n", r"line 11: no 'label: number' values \(garbled line\?\)"),
 ])
@@ -83,6 +84,21 @@ def test_a_garbled_line_is_named_and_can_be_left_out(tmp_path, bad, message):
     np.testing.assert_array_equal(rec.samples(), m)  # every whole reading kept, the bad line only left out
     assert rec.metadata["skipped_lines"].startswith("1 of 21: 11 (")
     assert 11 not in rec.line_numbers
+
+
+def test_garbage_bytes_from_the_serial_line_cost_their_lines_only(tmp_path):
+    m = readings(n=400)
+    lines = [f"Mag X: {x:.2f}  Y: {y:.2f}  Z: {z:.2f}  uT\n".encode() for x, y, z in m]
+    for k, at, byte in ((37, 9, 0xC3), (200, 14, 0xFF), (311, 3, 0x92)):  # bytes lost or flipped in transit
+        lines[k] = lines[k][:at] + bytes([byte]) + lines[k][at:]
+    path = tmp_path / "capture.txt"
+    path.write_bytes(b"".join(lines))
+    with pytest.raises(ValueError, match=r"line 38: bytes that are not text \(garbage from a serial line\?\).*"
+                                         r"--bad-lines skip"):
+        read_recording(path)
+    rec = read_recording(path, bad_lines="skip")
+    np.testing.assert_array_equal(rec.samples(), np.delete(m, [37, 200, 311], axis=0))
+    assert rec.metadata["skipped_lines"].startswith("3 of 400: 38 (bytes that are not text")
 
 
 def test_a_comment_line_naming_the_columns_is_the_header(tmp_path):

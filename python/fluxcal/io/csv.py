@@ -147,8 +147,7 @@ def parse_mixed_rows(path, lines, start: int, names, delimiter, bad_lines: str, 
             bad = next((j for j in numeric if not _is_number(c[j])), None)
             stamp = next((j for j in columns if not np.isfinite(columns[j][row])), None)
             if bad is not None:
-                what = "empty" if not c[bad].strip() else f"{c[bad].strip()!r} is not a number"
-                problem = f"column {names[bad]!r}: {what}"
+                problem = f"column {names[bad]!r}: {_not_a_number(c[bad])}"
             elif stamp is not None:
                 what = "empty" if not c[stamp].strip() else f"{c[stamp].strip()!r} is not a date/time"
                 problem = f"column {names[stamp]!r}: {what}"
@@ -220,20 +219,53 @@ def _timestamps(values):
     return (None, None) if best is None else best[1:]
 
 
+# what a legacy 8-bit export (Windows-1252: "Bx [µT]", "T [°C]", a German "Zeit") holds besides ASCII
+_LEGACY_TEXT = re.compile("[^\x00-\x7fµ°²³±·×äöüÄÖÜßéèêëàâçîïôùûñÑøØåÅæÆ€£§–—‘’“”«»]")
+NOT_TEXT = "\ufffd"  # stands for bytes that are not text
+
+
 def read_text(path) -> str:
-    """The file's text; undecodable bytes are an error naming their line and column."""
+    """The file's text: UTF-8 (a BOM dropped), UTF-16 with its BOM (a PowerShell redirect), or Windows-1252
+    when that reads every byte that is not UTF-8 as ordinary text (µ, °, umlauts: a legacy Windows export).
+    A few bytes that are none of these (garbage from a serial line) become U+FFFD, so that the parse names
+    each line holding them (and bad_lines="skip" can leave it out); more than 5 % of lines with such
+    bytes, or a NUL byte, is an error naming the first one's line and column (a binary file)."""
     path = Path(path)
     try:
         raw = path.read_bytes()
     except OSError as exc:
         raise ValueError(f"{path}: cannot read ({exc.strerror or exc})") from None
+    if raw.startswith((b"\xff\xfe", b"\xfe\xff")):
+        try:
+            return raw.decode("utf-16")
+        except UnicodeDecodeError:
+            raise ValueError(f"{path}: starts with a UTF-16 byte-order mark but is not UTF-16 text") from None
     try:
         return raw.decode("utf-8-sig")
     except UnicodeDecodeError as exc:
-        line = raw.count(b"\n", 0, exc.start) + 1
-        column = exc.start - (raw.rfind(b"\n", 0, exc.start) + 1) + 1
-        raise ValueError(f"{path}, line {line}, column {column} (character): byte 0x{raw[exc.start]:02x} is not "
-                         "text (UTF-8); a binary file, or garbage from a serial line?") from None
+        first = exc.start
+    try:
+        legacy = raw.decode("cp1252")
+        if not _LEGACY_TEXT.search(legacy):
+            return legacy
+    except UnicodeDecodeError:
+        pass
+    text = raw.decode("utf-8-sig", errors="replace")
+    lines = text.splitlines()
+    if b"\x00" in raw or sum(NOT_TEXT in line for line in lines) > max(1.0, 0.05 * len(lines)):
+        line = raw.count(b"\n", 0, first) + 1
+        column = first - (raw.rfind(b"\n", 0, first) + 1) + 1
+        raise ValueError(f"{path}, line {line}, column {column} (character): byte 0x{raw[first]:02x} is not "
+                         "text (UTF-8); a binary file, or garbage from a serial line?")
+    return text
+
+
+def _not_a_number(cell: str) -> str:
+    cell = cell.strip()
+    if not cell:
+        return "empty"
+    return f"{cell!r} is not a number" + (" (bytes that are not text: garbage from a serial line?)"
+                                          if NOT_TEXT in cell else "")
 
 
 def parse_rows(path, lines, start: int, names, delimiter, expected: str = "the header"):
@@ -322,8 +354,7 @@ def _raise_parse_error(path, rows, line_numbers, names, delimiter, expected="the
                              f"{len(names) + 1} ({cells[len(names)].strip()!r}) has no column (garbled line?)")
         for cell, name in zip(cells, names):
             if not _is_number(cell):
-                what = "empty" if not cell.strip() else f"{cell.strip()!r} is not a number"
-                raise ValueError(f"{path}, line {line_no}, column {name!r}: {what}")
+                raise ValueError(f"{path}, line {line_no}, column {name!r}: {_not_a_number(cell)}")
     raise ValueError(f"{path}: could not parse the data rows")
 
 

@@ -28,7 +28,7 @@ from pathlib import Path
 import numpy as np
 
 from .columns import FIELD_UNITS, is_unit
-from .csv import BAD_LINES, SKIP_HINT, _timestamps, read_text
+from .csv import BAD_LINES, NOT_TEXT, SKIP_HINT, _timestamps, read_text
 from .recording import Recording
 
 # label (a word not glued to what precedes it), ':' or '=', then a number (a decimal comma is read as a point:
@@ -106,7 +106,9 @@ def read_labelled(path, columns=None, units: str | None = None, bad_lines: str =
     for line_no, text, stamp, values in parsed:
         seen = [v[0] for v in values]
         problem = None
-        if not values:
+        if NOT_TEXT in text:  # a number with a garbage byte in it would read as a shorter number
+            problem = "bytes that are not text (garbage from a serial line?)"
+        elif not values:
             problem = "no 'label: number' values (garbled line?)"
         elif len(set(seen)) != len(seen):
             problem = f"{next(n for n in seen if seen.count(n) > 1)!r} appears twice (two lines run together?)"
@@ -114,8 +116,11 @@ def read_labelled(path, columns=None, units: str | None = None, bad_lines: str =
             problem = f"{next(n for n in seen if n not in names)!r} is not one of the columns ({', '.join(names)})"
         else:
             bad = next((v for v in values if not np.isfinite(float(v[1].replace(',', '.')))), None)
+            glued = next((v for v in values if v[2] and not is_unit(v[2])), None)  # 1.2x5: not 1.2
             if bad is not None:
                 problem = f"{bad[0]}: {bad[1]!r} is not a finite number"
+            elif glued is not None:
+                problem = f"{glued[0]}: {glued[1] + glued[2]!r} is not a number"
         if problem:
             trouble[line_no] = problem
             continue
