@@ -24,6 +24,18 @@ from .recording import Recording
 
 BAD_LINES = ("error", "skip")
 SKIP_HINT = "pass bad_lines='skip' (--bad-lines skip) to leave such lines out"
+
+
+def check_bad_lines(bad_lines: str) -> None:
+    if bad_lines not in BAD_LINES:
+        raise ValueError(f"bad_lines: {bad_lines!r} is not one of {', '.join(BAD_LINES)}")
+
+
+def listing(entries, total: int | None = None, shown: int = 10) -> str:
+    """'k of total: e1; e2; … n more' (the first `shown` entries), for metadata such as skipped_lines."""
+    head = f"{len(entries)} of {total}: " if total is not None else ""
+    more = f"; … {len(entries) - shown} more" if len(entries) > shown else ""
+    return head + "; ".join(entries[:shown]) + more
 _UNIT_IN_HEADER = re.compile(r"^\s*([^\[\(]+?)\s*[\[\(]\s*([^\]\)]*)\s*[\]\)]\s*$")
 
 
@@ -49,8 +61,7 @@ def parse_csv(path, lines, delimiter=",", preamble_lines: int = 0, bad_lines: st
     """The CSV layout above from the file's lines; `preamble_lines` lines between the comments and the
     header are left to the caller (fluxcal.io.real reads `key,value` preambles). `bad_lines`: "error"
     (default) or "skip" (see parse_mixed_rows)."""
-    if bad_lines not in BAD_LINES:
-        raise ValueError(f"bad_lines: {bad_lines!r} is not one of {', '.join(BAD_LINES)}")
+    check_bad_lines(bad_lines)
     metadata, unit_map = {}, {}
     i = 0
     while i < len(lines) and (lines[i].startswith("#") or not lines[i].strip()):
@@ -162,8 +173,7 @@ def parse_mixed_rows(path, lines, start: int, names, delimiter, bad_lines: str, 
     if not good:
         raise ValueError(f"{path}: no readable data rows" + (f" (all {len(skipped)} lines bad)" if skipped else ""))
     if skipped:
-        metadata["skipped_lines"] = f"{len(skipped)} of {len(cells)}: " + "; ".join(skipped[:10]) + \
-            (f"; … {len(skipped) - 10} more" if len(skipped) > 10 else "")
+        metadata["skipped_lines"] = listing(skipped, len(cells))
     kept = [j for j in range(len(names)) if j in numeric or j in columns]
     if not any(j in numeric for j in kept):
         raise ValueError(f"{path}: no column of numbers (" + metadata.get("text_columns", "") + ")"

@@ -9,7 +9,8 @@ Reading looks at the bytes, not the name (a file's extension is only a hint in m
     \\xA3\\x95                      → ArduPilot DataFlash .bin (fluxcal.io.drone; needs fluxcal[drone])
     ULog\\x01\\x12\\x35             → PX4 ULog .ulg            (fluxcal.io.drone; needs fluxcal[drone])
     text with FMT, <n> lines first → ArduPilot DataFlash text .log (fluxcal.io.drone; needs fluxcal[drone])
-    text starting with { or [      → JSON readings         (fluxcal.io.real: fluxcal's layout or shot triples)
+    text starting with { or [      → JSON readings         (fluxcal.io.real: fluxcal's layout or shot triples;
+                                     fluxcal.io.jsonrecords: JSON Lines, a list of records, a columns/data table)
     text of `label: number` pairs  → a serial monitor's capture, `Mag X: 1.2 Y: 3.4 Z: 5.6 uT` or
                                      `mx=1.2,my=3.4,mz=5.6` (fluxcal.io.labelled)
     other text                     → a table. Its delimiter is that of the first data line: tab, else
@@ -108,7 +109,7 @@ def read_recording(path, columns=None, units: str | None = None, bad_lines: str 
     if kind == "json":
         from .real import read_json_recording
 
-        return read_json_recording(path, columns=columns, units=units)
+        return read_json_recording(path, columns=columns, units=units, bad_lines=bad_lines)
     return _read_table(path, columns, units, bad_lines)
 
 

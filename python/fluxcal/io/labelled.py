@@ -28,7 +28,7 @@ from pathlib import Path
 import numpy as np
 
 from .columns import FIELD_UNITS, is_unit
-from .csv import BAD_LINES, NOT_TEXT, SKIP_HINT, _timestamps, read_text
+from .csv import NOT_TEXT, SKIP_HINT, _timestamps, check_bad_lines, listing, read_text
 from .recording import Recording
 
 # label (a word not glued to what precedes it), ':' or '=', then a number (a decimal comma is read as a point:
@@ -83,8 +83,7 @@ def looks_labelled(lines, start: int) -> bool:
 def read_labelled(path, columns=None, units: str | None = None, bad_lines: str = "error") -> Recording:
     """Read a labelled text log (module docstring). `columns`/`units` as for every reader; `bad_lines`
     "error" (default) or "skip"."""
-    if bad_lines not in BAD_LINES:
-        raise ValueError(f"bad_lines: {bad_lines!r} is not one of {', '.join(BAD_LINES)}")
+    check_bad_lines(bad_lines)
     path = Path(path)
     parsed = [(k + 1, line.strip(), *_parse_line(line)) for k, line in enumerate(read_text(path).splitlines())
               if line.strip() and not line.lstrip().startswith("#")]
@@ -139,14 +138,12 @@ def read_labelled(path, columns=None, units: str | None = None, bad_lines: str =
     problems = sorted((n, p) for n, p in trouble.items() if n > first)
     metadata = {"layout": f"labelled lines ({', '.join(names)})"}
     if preamble:
-        metadata["preamble"] = "; ".join(f"line {n}: {text}" for n, text in preamble[:10]) + \
-            (f"; … {len(preamble) - 10} more" if len(preamble) > 10 else "")
+        metadata["preamble"] = listing([f"line {n}: {text}" for n, text in preamble])
     if problems and bad_lines == "error":
         n, p = problems[0]
         raise ValueError(f"{path}, line {n}: {p}; {SKIP_HINT}")
     if problems:
-        metadata["skipped_lines"] = f"{len(problems)} of {len(parsed) - len(preamble)}: " + \
-            "; ".join(f"{n} ({p})" for n, p in problems[:10]) + (f"; … {len(problems) - 10} more" if len(problems) > 10 else "")
+        metadata["skipped_lines"] = listing([f"{n} ({p})" for n, p in problems], len(parsed) - len(preamble))
     good = rows
     data = {name: np.array([r[name][0] for _, r in good]) for name in names}
     unit_map = {}

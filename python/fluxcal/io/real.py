@@ -201,16 +201,30 @@ def write_json_recording(path, rec: Recording) -> Path:
     return path
 
 
-def read_json_recording(path, columns=None, units: str | None = None) -> Recording:
+def read_json_recording(path, columns=None, units: str | None = None, bad_lines: str = "error") -> Recording:
+    """A JSON recording: fluxcal's own layout, a shot file of [x, y, z] lists, or records — one object per
+    reading as JSON Lines or a list, or a {"columns", "data"} table (fluxcal.io.jsonrecords; `bad_lines`
+    applies to those)."""
+    from . import jsonrecords
+
     path = Path(path)
     text = read_text(path)
+    if text.lstrip().startswith("["):
+        return jsonrecords.read_records(path, jsonrecords.list_items(text), bad_lines,
+                                        what="record at line").choose(columns, units)
     try:
         data = json.loads(text)
     except json.JSONDecodeError as exc:
+        lines = jsonrecords.json_lines(text)
+        if lines is not None:
+            return jsonrecords.read_records(path, lines, bad_lines).choose(columns, units)
         raise ValueError(f"{path}, line {exc.lineno}, column {exc.colno} (character): not valid JSON "
                          f"({exc.msg}; truncated file?)") from None
     if not isinstance(data, dict):
         raise ValueError(f"{path}, line 1, column 1: expected a JSON object of readings, found a {type(data).__name__}")
+    rows = jsonrecords.table_rows(data) if data.get("kind") != JSON_KIND else None
+    if rows is not None:
+        return jsonrecords.read_records(path, rows, bad_lines, what="data row").choose(columns, units)
     if data.get("kind") == JSON_KIND:
         rec = _fluxcal_json(path, text, data)
     else:

@@ -1,0 +1,147 @@
+"""JSON records: one object per reading, as IoT loggers write them (an ESP32 over MQTT, Node-RED, a web API).
+
+    {"t": 0.02, "mag": {"x": -13.62, "y": 27.37, "z": -17.02}, "acc": [0.1, 0.0, 9.8]}   JSON Lines, one per line
+    [{"ts": 20, "mx": -13.62, "my": 27.37, "mz": -17.02}, ...]                           a list of records
+    {"columns": ["time", "Bx (uT)", ...], "data": [[0.0, -13.62, ...], ...]}               a table (pandas "split")
+
+A record is flattened: nested objects join their keys with "_" (mag.x → mag_x), a list of numbers gives
+name[0], name[1], …; fluxcal.io.columns then finds the magnetometer, time, temperature by name. The
+columns are the numeric keys most records carry. A text key whose values are dates/times becomes seconds
+since the first (metadata "<key>_start"); a text key with one value throughout goes to the metadata; other
+text is listed in metadata "text_columns". A record that is not valid JSON (a truncated last line, the
+end of a list cut off when the logger stopped), lacks a column, or holds something other than a number
+there is an error naming its line (bad_lines="error") or is left out and listed in metadata
+"skipped_lines" ("skip").
+"""
+from __future__ import annotations
+
+import json
+import re
+from collections import Counter
+from pathlib import Path
+
+import numpy as np
+
+from .csv import SKIP_HINT, _timestamps, check_bad_lines, listing
+from .recording import Recording
+
+_DECODER = json.JSONDecoder()
+_SPACE = re.compile(r"[\s,]*")
+
+
+def _line_of(text: str, offset: int) -> int:
+    return text.count("\n", 0, offset) + 1
+
+
+def json_lines(text: str):
+    """[(line, record or the reason it is not one)] when the text holds one JSON value per line (JSON
+    Lines) and more than one line, else None."""
+    lines = [(k + 1, line.strip()) for k, line in enumerate(text.splitlines()) if line.strip()]
+    if len(lines) < 2:
+        return None
+    out = []
+    for line_no, line in lines:
+        try:
+            out.append((line_no, json.loads(line)))
+        except json.JSONDecodeError as exc:
+            out.append((line_no, f"not valid JSON ({exc.msg} at column {exc.colno}; truncated or garbled line?)"))
+    return out if isinstance(out[0][1], dict) else None
+
+
+def list_items(text: str):
+    """[(line, record or the reason it is not one)] of a top-level JSON list, item by item, so that a
+    list cut off by a logger that stopped keeps its complete records."""
+    pos = _SPACE.match(text, text.index("[") + 1).end()
+    out = []
+    while pos < len(text) and text[pos] != "]":
+        try:
+            value, end = _DECODER.raw_decode(text, pos)
+        except json.JSONDecodeError as exc:
+            out.append((_line_of(text, pos), f"not valid JSON ({exc.msg}; the list is cut off here: truncated file?)"))
+            break
+        out.append((_line_of(text, pos), value))
+        pos = _SPACE.match(text, end).end()
+    return out
+
+
+def _flatten(record: dict, prefix: str = "", out: dict | None = None) -> dict:
+    out = {} if out is None else out
+    for key, value in record.items():
+        name = f"{prefix}{key}"
+        if isinstance(value, dict):
+            _flatten(value, f"{name}_", out)
+        elif isinstance(value, list) and value and all(_is_value(v) for v in value):
+            out.update({f"{name}[{i}]": v for i, v in enumerate(value)})
+        else:
+            out[name] = value
+    return out
+
+
+def _is_value(v) -> bool:
+    return v is None or isinstance(v, (int, float, str))
+
+
+def _numeric(v) -> bool:
+    return isinstance(v, (int, float)) and not isinstance(v, bool)
+
+
+def read_records(path, items, bad_lines: str = "error", what: str = "line") -> Recording:
+    """A Recording from [(line, record or reason)] (json_lines, list_items, or a table's rows)."""
+    check_bad_lines(bad_lines)
+    flat = [(n, _flatten(r) if isinstance(r, dict) else
+             (r if isinstance(r, str) else f"a JSON {type(r).__name__}, not an object of named values")) for n, r in items]
+    records = [f for _, f in flat if isinstance(f, dict)]
+    numeric = Counter(k for f in records for k, v in f.items() if _numeric(v))
+    if not numeric:
+        raise ValueError(f"{path}: no numbers in the JSON records"
+                         + (f" (keys are: {', '.join(dict.fromkeys(k for f in records for k in f))})" if records else ""))
+    top = max(numeric.values())
+    names = [k for k in dict.fromkeys(k for f in records for k in f) if numeric[k] >= 0.5 * top]
+    text_keys = [k for k in dict.fromkeys(k for f in records for k in f)
+                 if k not in names and Counter(isinstance(f.get(k), str) for f in records)[True] >= 0.5 * len(records)]
+    good, problems = [], []
+    for n, f in flat:
+        if isinstance(f, str):
+            problems.append((n, f))
+            continue
+        missing = [k for k in names if k not in f]
+        bad = next((k for k in names if k in f and not _numeric(f[k])), None)
+        if missing:
+            problems.append((n, f"no {', '.join(repr(k) for k in missing)}"))
+        elif bad is not None:
+            problems.append((n, f"{bad!r} is {json.dumps(f[bad])}, not a number"))
+        else:
+            good.append((n, f))
+    if problems and bad_lines == "error":
+        n, p = problems[0]
+        raise ValueError(f"{path}, {what} {n}: {p}; {SKIP_HINT}")
+    if not good:
+        raise ValueError(f"{path}: no readable records" + (f" (all {len(problems)} bad)" if problems else ""))
+    columns = {k: np.array([f[k] for _, f in good], dtype=float) for k in names}
+    metadata, units, notes = {}, {}, []
+    for key in text_keys:
+        values = [f.get(key) if isinstance(f.get(key), str) else "" for _, f in good]
+        seconds, first = _timestamps(values)
+        if seconds is not None and np.all(np.isfinite(seconds)):
+            columns[key], units[key], metadata[f"{key}_start"] = seconds, "s", first
+        elif len(set(values)) == 1:
+            metadata[key] = values[0]
+        else:
+            notes.append(f"{key} (e.g. {', '.join(sorted(set(v for v in values if v))[:4])})")
+    if notes:
+        metadata["text_columns"] = "; ".join(notes)
+    if problems:
+        metadata["skipped_lines"] = listing([f"{n} ({p})" for n, p in problems], len(flat))
+    return Recording(columns=columns, units=units, metadata=metadata, source=str(path),
+                     line_numbers=np.array([n for n, _ in good], dtype=int))
+
+
+def table_rows(data: dict):
+    """[(row number, record)] of a {"columns": [names], "data": [[values], ...]} table (pandas "split"),
+    or None when `data` is not one."""
+    names, rows = data.get("columns"), data.get("data")
+    if not (isinstance(names, list) and names and all(isinstance(c, str) for c in names) and isinstance(rows, list)):
+        return None
+    return [(k + 1, dict(zip(names, row)) if isinstance(row, list) and len(row) == len(names) else
+             f"{len(row) if isinstance(row, list) else 'not a list of'} values, the table has {len(names)} columns")
+            for k, row in enumerate(rows)]

@@ -1,0 +1,76 @@
+"""JSON records (JSON Lines, a list of records, a columns/data table): values exact, nested keys
+flattened and recognised by name, time stamps and constant text handled, and a damaged record (a
+truncated line, a list cut off, a null) named by line or left out with bad_lines="skip"."""
+import json
+
+import numpy as np
+import pytest
+
+from conftest import run_cli, simulated
+from fluxcal.io import read_recording
+
+
+def readings(n=300, seed=5):
+    return simulated(seed, n=n, field_norm=50.0).readings
+
+
+def test_json_lines_with_nested_objects_a_clock_and_a_device_name(tmp_path):
+    m = readings()
+    path = tmp_path / "mqtt.jsonl"
+    path.write_text("".join(json.dumps({"device": "esp32-07", "time": f"2026-11-25T10:00:{k * 0.1:06.3f}Z",
+                                        "mag": {"x": x, "y": y, "z": z}, "acc": [0.0, 0.1, 9.8]}) + "\n"
+                            for k, (x, y, z) in enumerate(m)))
+    rec = read_recording(path)
+    np.testing.assert_array_equal(rec.samples(), m)  # bit for bit: JSON keeps every digit
+    assert rec.mag_names() == ("mag_x", "mag_y", "mag_z") and rec.acceleration().shape == (len(m), 3)
+    np.testing.assert_allclose(rec.time(), np.arange(len(m)) * 0.1, atol=1e-6)
+    assert rec.metadata["device"] == "esp32-07" and rec.metadata["time_start"].startswith("2026-11-25T10:00:00")
+
+
+def test_a_truncated_last_line_and_a_null_are_named_and_can_be_left_out(tmp_path):
+    m = readings(n=50)
+    lines = [json.dumps({"mx": x, "my": y, "mz": z}) for x, y, z in m]
+    lines[20] = lines[20].replace(repr(float(m[20, 1])), "null")
+    path = tmp_path / "log.jsonl"
+    path.write_text("\n".join(lines) + '\n{"mx": 1.5, "my": ')  # the logger stopped mid-line
+    with pytest.raises(ValueError, match=r"log.jsonl, line 21: 'my' is null, not a number; pass bad_lines='skip'"):
+        read_recording(path)
+    rec = read_recording(path, bad_lines="skip")
+    np.testing.assert_array_equal(rec.samples(), np.delete(m, 20, axis=0))
+    assert rec.metadata["skipped_lines"].startswith("2 of 51: 21 ('my' is null")
+    assert "51 (not valid JSON" in rec.metadata["skipped_lines"]
+
+
+def test_a_list_of_records_cut_off_keeps_its_complete_records(tmp_path):
+    m = readings(n=40)
+    text = json.dumps([{"t": 0.02 * k, "Bx [uT]": x, "By [uT]": y, "Bz [uT]": z} for k, (x, y, z) in enumerate(m)],
+                      indent=1)
+    path = tmp_path / "cut.json"
+    path.write_text(text[:text.rfind("{") + 12])  # the last record cut off: the file ends mid-record
+    with pytest.raises(ValueError, match=r"cut.json, record at line \d+: not valid JSON .*cut off here"):
+        read_recording(path)
+    rec = read_recording(path, bad_lines="skip")
+    np.testing.assert_array_equal(rec.samples(), m[:-1])
+    assert rec.field_units() == "uT" and rec.time()[-1] == pytest.approx(0.02 * (len(m) - 2))
+
+
+def test_a_columns_and_data_table(tmp_path):
+    m = readings(n=30)
+    path = tmp_path / "split.json"
+    path.write_text(json.dumps({"columns": ["time", "Bx (nT)", "By (nT)", "Bz (nT)"],
+                                "data": [[0.01 * k, *r] for k, r in enumerate(m.tolist())]}))
+    rec = read_recording(path)
+    np.testing.assert_array_equal(rec.samples(), m)
+    assert rec.field_units() == "nT" and rec.time()[2] == 0.02
+    path.write_text(json.dumps({"columns": ["mx", "my", "mz"], "data": [[1, 2, 3], [4, 5]]}))
+    with pytest.raises(ValueError, match=r"split.json, data row 2: 2 values, the table has 3 columns"):
+        read_recording(path)
+
+
+def test_calibrate_runs_on_json_lines(tmp_path):
+    m = readings(n=800)
+    path = tmp_path / "log.jsonl"
+    path.write_text("".join(json.dumps({"mag": [x, y, z]}) + "\n" for x, y, z in m))
+    out = run_cli("calibrate", path)
+    assert out.returncode == 0, out.stderr
+    assert "magnetometer mag[0],mag[1],mag[2]" in out.stdout and "offset b" in out.stdout
