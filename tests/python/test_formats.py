@@ -222,6 +222,42 @@ def test_a_windows_export_in_its_own_encoding_is_read(tmp_path, encoding):
     assert rec.temperature().tolist() == [21.5, 21.5]
 
 
+def test_an_excel_workbook_is_read_from_its_first_sheet_of_numbers(tmp_path):
+    import datetime as dt
+
+    import openpyxl
+
+    m = np.random.default_rng(4).normal(size=(30, 3)) * 20.0
+    book = openpyxl.Workbook()
+    info = book.active
+    info.title = "Info"
+    info.append(["Operator", "B. Smith"])
+    data = book.create_sheet("Data")
+    data.append(["Timestamp", "Bx", "By", "Bz", "Temp"])
+    data.append([None, "µT", "µT", "µT", "°C"])
+    for k, row in enumerate(m):
+        data.append([dt.datetime(2026, 11, 25, 9, 0, 0) + dt.timedelta(seconds=0.5 * k), *map(float, row), 21.5])
+    data.cell(row=10, column=3, value="#N/A")  # a spreadsheet error in a cell
+    path = tmp_path / "bench.xlsx"
+    book.save(path)
+    assert sniff(path) == "xlsx"
+    with pytest.raises(ValueError, match=r"bench.xlsx, sheet 'Data', row 10: column 'By': '#N/A' is not a number"):
+        read_recording(path)
+    rec = read_recording(path, bad_lines="skip")
+    # as stored: openpyxl writes 16 significant digits (Excel itself keeps 15)
+    np.testing.assert_allclose(rec.samples(), np.delete(m, 7, axis=0), rtol=1e-15, atol=0)
+    assert rec.field_units() == "µT" and rec.temperature()[0] == 21.5 and rec.time()[1] == 0.5
+    assert rec.metadata["sheet"] == "Data" and rec.metadata["other_sheets"] == "Info"
+    (tmp_path / "old.xls").write_bytes(b"\xd0\xcf\x11\xe0\xa1\xb1\x1a\xe1" + bytes(500))
+    with pytest.raises(ValueError, match=r"old.xls: a legacy binary Excel \(.xls\).*save the sheet as .xlsx or CSV"):
+        read_recording(tmp_path / "old.xls")
+    empty = openpyxl.Workbook()
+    empty.active.append(["notes only"])
+    empty.save(tmp_path / "notes.xlsx")
+    with pytest.raises(ValueError, match=r"notes.xlsx: no sheet holds rows of numbers \(sheets: Sheet\)"):
+        read_recording(tmp_path / "notes.xlsx")
+
+
 def test_a_truncated_last_line_says_how_to_leave_it_out(tmp_path):
     path = tmp_path / "cut.csv"
     path.write_text("mx,my,mz\n1,2,3\n4,5,6\n7,8")

@@ -2,7 +2,8 @@
 
 Reading looks at the bytes, not the name (a file's extension is only a hint in messages):
 
-    PK\\x03\\x04 (zip)              → NumPy .npz            (fluxcal.io.npz)
+    PK\\x03\\x04 (zip)              → NumPy .npz            (fluxcal.io.npz), or with xl/workbook.xml an
+                                     Excel .xlsx/.xlsm      (fluxcal.io.excel; needs fluxcal[excel])
     \\x93NUMPY                      → NumPy .npy (one N×3 array)
     "MATLAB 5.0 MAT-file" header   → MATLAB .mat v5/v7     (fluxcal.io.matlab; v7.3/HDF5 is refused with advice)
     PAR1                           → Parquet               (fluxcal.io.parquet)
@@ -40,7 +41,7 @@ WRITERS = (".csv", ".npz", ".mat", ".parquet", ".pq", ".json")
 
 
 def sniff(path) -> str:
-    """The format of a file by its content: "npz", "npy", "mat", "hdf5", "parquet", "dataflash",
+    """The format of a file by its content: "npz", "npy", "xlsx", "xls", "mat", "hdf5", "parquet", "dataflash",
     "dataflash_text", "ulog", "json" or "text"."""
     path = Path(path)
     try:
@@ -49,7 +50,9 @@ def sniff(path) -> str:
     except OSError as exc:
         raise ValueError(f"{path}: cannot read ({exc.strerror or exc})") from None
     if head.startswith(b"PK\x03\x04") or head.startswith(b"PK\x05\x06"):
-        return "npz"
+        return "xlsx" if _zip_holds(path, "xl/workbook.xml") else "npz"
+    if head.startswith(b"\xd0\xcf\x11\xe0\xa1\xb1\x1a\xe1"):  # OLE2: a legacy .xls (or another Office file)
+        return "xls"
     if head.startswith(b"\x93NUMPY"):
         return "npy"
     if head.startswith(b"MATLAB 7.3") or (head.startswith(b"MATLAB") and b"HDF5" in head):
@@ -73,6 +76,16 @@ def sniff(path) -> str:
     return "text"
 
 
+def _zip_holds(path: Path, member: str) -> bool:
+    import zipfile
+
+    try:
+        with zipfile.ZipFile(path) as z:
+            return member in z.namelist()
+    except (zipfile.BadZipFile, OSError):
+        return False
+
+
 def read_recording(path, columns=None, units: str | None = None, bad_lines: str = "error") -> Recording:
     """Read any recording format fluxcal knows (module docstring); errors name the file, and for text
     formats the line and column.
@@ -89,6 +102,13 @@ def read_recording(path, columns=None, units: str | None = None, bad_lines: str 
         from .drone import read_ulog
 
         return read_ulog(path, columns=columns, units=units)
+    if kind == "xlsx":
+        from .excel import read_xlsx
+
+        return read_xlsx(path, columns=columns, units=units, bad_lines=bad_lines)
+    if kind == "xls":
+        raise ValueError(f"{path}: a legacy binary Excel (.xls) or other OLE2 Office file; save the sheet as .xlsx "
+                         "or CSV")
     single = isinstance(columns, str) and "," not in columns and columns.strip() != ""
     if kind in ("npz", "npy", "mat"):
         matrix, cols = (columns, None) if single else (None, columns)

@@ -1,0 +1,84 @@
+"""Excel workbooks (.xlsx, .xlsm; openpyxl, `pip install fluxcal[excel]`).
+
+A sheet is read as the text table it shows: each row a line, its cells joined by tabs (numbers as stored,
+dates and times in ISO 8601), then parsed exactly as a tab-delimited file — a header of names
+(units in brackets, or a row of units under it), comment or key/value rows above, time stamps, text
+columns, bad rows named or skipped (fluxcal.io.formats). The sheet is the first one holding a table of
+numbers; the others are named in metadata["other_sheets"]. Messages name the workbook, the sheet and
+the row. The legacy binary .xls is refused with the remedy (save as .xlsx or CSV).
+"""
+from __future__ import annotations
+
+import datetime as _dt
+import tempfile
+from pathlib import Path
+
+from .recording import Recording
+
+
+def _cell(value) -> str:
+    if value is None:
+        return ""
+    if isinstance(value, bool):
+        return str(int(value))
+    if isinstance(value, float):
+        return repr(value)
+    if isinstance(value, (_dt.datetime, _dt.date, _dt.time)):
+        return value.isoformat()
+    return str(value).replace("\t", " ").replace("\r", " ").replace("\n", " ")
+
+
+def _sheet_lines(sheet) -> list:
+    lines = []
+    for row in sheet.iter_rows(values_only=True):
+        cells = [_cell(v) for v in row]
+        while cells and not cells[-1]:
+            cells.pop()
+        lines.append("\t".join(cells))
+    return lines
+
+
+def _numeric_rows(lines) -> int:
+    def number(c):
+        try:
+            float(c)
+            return True
+        except ValueError:
+            return False
+    return sum(sum(number(c) for c in line.split("\t")) >= 3 for line in lines[:200])
+
+
+def read_xlsx(path, columns=None, units: str | None = None, bad_lines: str = "error") -> Recording:
+    path = Path(path)
+    try:
+        import openpyxl
+    except ImportError:
+        raise ValueError(f"{path}: an Excel workbook; reading it needs openpyxl (pip install 'fluxcal[excel]'), "
+                         "or save the sheet as CSV") from None
+    try:
+        book = openpyxl.load_workbook(path, read_only=True, data_only=True)
+    except Exception as exc:  # a damaged zip or XML: openpyxl raises many kinds
+        raise ValueError(f"{path}: not a readable Excel workbook ({type(exc).__name__}: {exc})") from None
+    try:
+        sheets = {name: _sheet_lines(book[name]) for name in book.sheetnames}
+    finally:
+        book.close()
+    name = next((n for n, lines in sheets.items() if _numeric_rows(lines) > 0), None)
+    if name is None:
+        raise ValueError(f"{path}: no sheet holds rows of numbers (sheets: {', '.join(sheets) or 'none'})")
+    from .formats import _read_table
+
+    where = f"{path}, sheet {name!r}"
+    with tempfile.TemporaryDirectory() as tmp:
+        text = Path(tmp) / "sheet.tsv"
+        text.write_text("\n".join(sheets[name]) + "\n", encoding="utf-8")
+        try:
+            rec = _read_table(text, columns, units, bad_lines)
+        except ValueError as exc:  # name the workbook, sheet and row, not the temporary text
+            raise ValueError(str(exc).replace(f"{text}, line ", f"{where}, row ").replace(str(text), where)) from None
+    rec.source = where
+    rec.metadata["sheet"] = name
+    others = [n for n in sheets if n != name]
+    if others:
+        rec.metadata["other_sheets"] = ", ".join(others)
+    return rec
