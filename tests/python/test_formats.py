@@ -258,6 +258,23 @@ def test_an_excel_workbook_is_read_from_its_first_sheet_of_numbers(tmp_path):
         read_recording(tmp_path / "notes.xlsx")
 
 
+def test_comment_lines_marked_the_xsens_or_matlab_way(tmp_path):
+    xsens = tmp_path / "MT_0001.txt"  # MT Manager's export: '//' lines, then a tab-delimited table
+    xsens.write_text("// Start Time: 2026-11-25 09:00:00\n// Update Rate: 100.0Hz\n// Filter Profile: human (46.1)\n"
+                     "PacketCounter\tAcc_X\tAcc_Y\tAcc_Z\tMag_X\tMag_Y\tMag_Z\n"
+                     "0\t0.1\t0.2\t9.8\t0.51\t-0.2\t0.33\n1\t0.1\t0.2\t9.8\t0.52\t-0.21\t0.34\n")
+    rec = read_recording(xsens)
+    np.testing.assert_array_equal(rec.samples(), [[0.51, -0.2, 0.33], [0.52, -0.21, 0.34]])
+    assert rec.metadata["Update Rate"] == "100.0Hz" and rec.time().tolist() == [0.0, 0.01]
+    assert rec.metadata["Start Time"] == "2026-11-25 09:00:00" and rec.acceleration().shape == (2, 3)
+    matlab = tmp_path / "bench.txt"  # '%' comments; 'key = value' is metadata too
+    matlab.write_text("% exported from the bench rig\n% fs = 50 Hz\nmx my mz\n1 2 3\n% paused\n4 5 6\n")
+    rec = read_recording(matlab)
+    np.testing.assert_array_equal(rec.samples(), [[1, 2, 3], [4, 5, 6]])
+    assert rec.metadata["fs"] == "50 Hz" and rec.time().tolist() == [0.0, 0.02]
+    assert rec.metadata["notes"] == "line 5: paused"
+
+
 def test_a_truncated_last_line_says_how_to_leave_it_out(tmp_path):
     path = tmp_path / "cut.csv"
     path.write_text("mx,my,mz\n1,2,3\n4,5,6\n7,8")

@@ -245,7 +245,7 @@ def field_unit_of(name: str) -> str:
     return FIELD_UNITS.get(unit, "") if unit else ""
 
 
-_RATE_KEYS = {"fs", "rate", "samplerate", "samplingrate", "samplerate hz", "odr", "datarate", "frequency", "freq"}
+_RATE_KEYS = {"updaterate", "outputrate", "samplingfrequency", "samplefrequency", "fs", "rate", "samplerate", "samplingrate", "samplerate hz", "odr", "datarate", "frequency", "freq"}
 
 
 def sample_rate(metadata: dict):

@@ -24,6 +24,19 @@ from .recording import Recording
 
 BAD_LINES = ("error", "skip")
 SKIP_HINT = "pass bad_lines='skip' (--bad-lines skip) to leave such lines out"
+# comment lines: fluxcal's and most loggers' '#', Xsens MT Manager's '//', MATLAB's '%'
+COMMENT_MARKS = ("#", "//", "%")
+
+
+def is_comment(line: str) -> bool:
+    return line.lstrip().startswith(COMMENT_MARKS)
+
+
+def comment_text(line: str) -> str:
+    """A comment line's text without its mark."""
+    body = line.strip()
+    mark = next((m for m in COMMENT_MARKS if body.startswith(m)), "")
+    return body[len(mark):].lstrip(mark[:1]).strip()  # '##' or '%%' as well
 
 
 def check_bad_lines(bad_lines: str) -> None:
@@ -64,10 +77,10 @@ def parse_csv(path, lines, delimiter=",", preamble_lines: int = 0, bad_lines: st
     check_bad_lines(bad_lines)
     metadata, unit_map = {}, {}
     i = 0
-    while i < len(lines) and (lines[i].startswith("#") or not lines[i].strip()):
-        body = lines[i].lstrip("#").strip()
-        if ":" in body:
-            key, value = (s.strip() for s in body.split(":", 1))
+    while i < len(lines) and (is_comment(lines[i]) or not lines[i].strip()):
+        body = comment_text(lines[i])
+        if ":" in body or "=" in body:
+            key, value = (s.strip() for s in body.split(":" if ":" in body else "=", 1))
             if key == "units":
                 for pair in filter(None, (p.strip() for p in value.split(","))):
                     if "=" not in pair:
@@ -121,11 +134,10 @@ def parse_mixed_rows(path, lines, start: int, names, delimiter, bad_lines: str, 
     and metadata. `plain_error`: the all-numeric parser's error, raised as it was when there is no text
     column and bad lines are errors."""
     body = lines[start:]
-    keep = [k for k, line in enumerate(body) if line.strip() and not line.lstrip().startswith("#")]
+    keep = [k for k, line in enumerate(body) if line.strip() and not is_comment(line)]
     if not keep:
         raise plain_error
-    notes = [(start + k + 1, line.lstrip().lstrip("#").strip()) for k, line in enumerate(body)
-             if line.lstrip().startswith("#")]
+    notes = [(start + k + 1, comment_text(line)) for k, line in enumerate(body) if is_comment(line)]
     line_numbers = np.array([start + k + 1 for k in keep], dtype=int)
     if delimiter is not None and any('"' in body[k] for k in keep[:200]):  # quoted cells ("a, b")
         cells = list(_csv.reader((body[k] for k in keep), delimiter=delimiter))
@@ -283,9 +295,8 @@ def parse_rows(path, lines, start: int, names, delimiter, expected: str = "the h
     as notes. Returns (data N×len(names), the 1-based file line of each row, [(line, note)]); errors
     name line and column (`expected`: where the column names came from, for those messages)."""
     body = lines[start:]
-    keep = [k for k, line in enumerate(body) if line.strip() and not line.lstrip().startswith("#")]
-    notes = [(start + k + 1, line.lstrip().lstrip("#").strip()) for k, line in enumerate(body)
-             if line.lstrip().startswith("#")]
+    keep = [k for k, line in enumerate(body) if line.strip() and not is_comment(line)]
+    notes = [(start + k + 1, comment_text(line)) for k, line in enumerate(body) if is_comment(line)]
     if not keep:
         raise ValueError(f"{path}: header but no data rows")
     line_numbers = np.array([start + k + 1 for k in keep], dtype=int)
@@ -309,7 +320,7 @@ def _units_row(lines, start: int, names, delimiter, unit_map: dict):
     from .columns import is_unit
 
     j = start
-    while j < len(lines) and (not lines[j].strip() or lines[j].lstrip().startswith("#")):
+    while j < len(lines) and (not lines[j].strip() or is_comment(lines[j])):
         j += 1
     if j == len(lines):
         return lines
@@ -330,7 +341,7 @@ def decimal_points(lines, start: int, delimiter):
     written), else (lines, False)."""
     if not _decimal_comma(lines[start:start + 400], delimiter):
         return lines, False
-    return lines[:start] + [line if line.lstrip().startswith("#") else line.replace(",", ".")
+    return lines[:start] + [line if is_comment(line) else line.replace(",", ".")
                             for line in lines[start:]], True
 
 
@@ -339,7 +350,7 @@ def _decimal_comma(sample, delimiter) -> bool:
     first data lines reads as one (-0,123) and no cell holds a decimal point."""
     if delimiter not in (";", "\t"):
         return False
-    cells = [c for line in sample if line.strip() and not line.lstrip().startswith("#")
+    cells = [c for line in sample if line.strip() and not is_comment(line)
              for c in line.split(delimiter)]
     return any(_DECIMAL_COMMA.match(c) for c in cells) and not any("." in c for c in cells)
 

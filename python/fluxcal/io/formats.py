@@ -34,7 +34,7 @@ from __future__ import annotations
 import re
 from pathlib import Path
 
-from .csv import _is_number, decimal_points, read_csv, read_text, write_csv
+from .csv import _is_number, comment_text, decimal_points, is_comment, read_csv, read_text, write_csv
 from .recording import Recording
 
 WRITERS = (".csv", ".npz", ".mat", ".parquet", ".pq", ".json")
@@ -174,9 +174,9 @@ def _commented_header(lines, start: int, delimiter, count: int):
     from .columns import find_magnetometer
     from .csv import _split_header
 
-    if start == 0 or not lines[start - 1].lstrip().startswith("#"):
+    if start == 0 or not is_comment(lines[start - 1]):
         return None
-    body = lines[start - 1].lstrip().lstrip("#").strip()
+    body = comment_text(lines[start - 1])
     cells = body.split(delimiter) if delimiter and delimiter in body else body.split()
     pairs = [_split_header(c) for c in cells]
     names = [n for n, _ in pairs]
@@ -195,7 +195,7 @@ def _delimiter(lines, start: int):
     first 20 data lines (so one garbled first line does not decide; ';' over ',' when both are) — else
     whitespace (None)."""
     sample = [lines[start]] + [line for line in lines[start + 1:start + 400]
-                               if line.strip() and not line.lstrip().startswith("#")][:20]
+                               if line.strip() and not is_comment(line)][:20]
     counts = {c: sum(c in line for line in sample) for c in ("\t", ",", ";")}
     best = max(counts, key=lambda c: counts[c])
     if best == "," and counts[";"] > len(sample) / 2:

@@ -28,7 +28,7 @@ from pathlib import Path
 import numpy as np
 
 from .columns import FIELD_UNITS, is_unit
-from .csv import NOT_TEXT, SKIP_HINT, _timestamps, check_bad_lines, listing, read_text
+from .csv import NOT_TEXT, SKIP_HINT, _timestamps, check_bad_lines, is_comment, listing, read_text
 from .recording import Recording
 
 # label (a word not glued to what precedes it), ':' or '=', then a number (a decimal comma is read as a point:
@@ -76,7 +76,7 @@ def _parse_line(text: str):
 def looks_labelled(lines, start: int) -> bool:
     """True when most of the first data lines hold `label: number` or `label=number` pairs."""
     sample = [line for line in lines[start:start + 4 * SAMPLE_LINES]
-              if line.strip() and not line.lstrip().startswith("#")][:SAMPLE_LINES]
+              if line.strip() and not is_comment(line)][:SAMPLE_LINES]
     return bool(sample) and sum(bool(_parse_line(line)[1]) for line in sample) >= 0.6 * len(sample)
 
 
@@ -86,7 +86,7 @@ def read_labelled(path, columns=None, units: str | None = None, bad_lines: str =
     check_bad_lines(bad_lines)
     path = Path(path)
     parsed = [(k + 1, line.strip(), *_parse_line(line)) for k, line in enumerate(read_text(path).splitlines())
-              if line.strip() and not line.lstrip().startswith("#")]
+              if line.strip() and not is_comment(line)]
     counts = Counter(name for *_, values in parsed for name in dict.fromkeys(v[0] for v in values))
     if not counts:
         raise ValueError(f"{path}: no 'label: number' or 'label=number' values")

@@ -23,7 +23,7 @@ from pathlib import Path
 
 import numpy as np
 
-from .csv import _is_number, decimal_points, parse_csv, parse_rows, read_text
+from .csv import _is_number, decimal_points, is_comment, parse_csv, parse_rows, read_text
 from .recording import ATTITUDE_COLUMNS, FIELD_NED_COLUMNS, Recording
 
 # -- key,value preamble (QMC5883L logger) -------------------------------------------------------------------
@@ -75,7 +75,7 @@ def _key(name: str) -> str:
 
 
 def _skip_comments(lines, start: int = 0) -> int:
-    while start < len(lines) and (not lines[start].strip() or lines[start].lstrip().startswith("#")):
+    while start < len(lines) and (not lines[start].strip() or is_comment(lines[start])):
         start += 1
     return start
 
@@ -174,7 +174,7 @@ def _probe_rows(lines, start, delimiter, count) -> np.ndarray:
     for line in lines[start:]:
         if len(rows) == count:
             break
-        if line.strip() and not line.lstrip().startswith("#"):
+        if line.strip() and not is_comment(line):
             cells = line.split(delimiter)
             if not all(_is_number(c) for c in cells) or (rows and len(cells) != len(rows[0])):
                 break
