@@ -12,6 +12,7 @@ Reading looks at the bytes, not the name (a file's extension is only a hint in m
     text with FMT, <n> lines first → ArduPilot DataFlash text .log (fluxcal.io.drone; needs fluxcal[drone])
     text starting with { or [      → JSON readings         (fluxcal.io.real: fluxcal's layout or shot triples;
                                      fluxcal.io.jsonrecords: JSON Lines, a list of records, a columns/data table)
+    text of `$TYPE,…*hh` lines     → NMEA-style IMU sentences ($VNYMR…, fluxcal.io.sentences)
     text of `label: number` pairs  → a serial monitor's capture, `Mag X: 1.2 Y: 3.4 Z: 5.6 uT` or
                                      `mx=1.2,my=3.4,mz=5.6` (fluxcal.io.labelled)
     other text                     → a table. Its delimiter is that of the first data line: tab, else
@@ -140,8 +141,10 @@ def _read_table(path: Path, columns, units, bad_lines: str = "error") -> Recordi
     start = real._skip_comments(lines)
     if start >= len(lines):
         raise ValueError(f"{path}: no header line and no data (only comments or blank lines)")
-    from . import labelled
+    from . import labelled, sentences
 
+    if sentences.looks_like_sentences(lines, start):
+        return sentences.read_sentences(path, columns=columns, units=units, bad_lines=bad_lines)
     if labelled.looks_labelled(lines, start):
         return labelled.read_labelled(path, columns=columns, units=units, bad_lines=bad_lines)
     delimiter = _delimiter(lines, start)

@@ -35,7 +35,7 @@ from .recording import Recording
 # in `X: -13,62` the comma cannot separate fields, as no label follows it; a unit may be glued on)
 _PAIR = re.compile(r"(?<![\w.\-:])([A-Za-z_][\w.]*(?:\[\d+\])?)\s*[:=]\s*"
                    r"([+-]?(?:\d+(?:\.\d*|,\d+)?|[.,]\d+)(?:[eE][+-]?\d+)?|[+-]?(?:nan|inf)\b)([^\s,;|]*)", re.IGNORECASE)
-_CLOCK = re.compile(r"^\s*\[?((?:\d{4}-\d{1,2}-\d{1,2}[ T])?\d{1,2}:\d{2}:\d{2}(?:[.,]\d+)?)\]?\s*(?:->|>|\|)?\s*")
+CLOCK = re.compile(r"^\s*\[?((?:\d{4}-\d{1,2}-\d{1,2}[ T])?\d{1,2}:\d{2}:\d{2}(?:[.,]\d+)?)\]?\s*(?:->|>|\|)?\s*")
 _WORD = re.compile(r"[^\s,;|]+")
 SAMPLE_LINES = 50
 
@@ -46,7 +46,7 @@ def _field_unit(word: str) -> str:
 
 def _parse_line(text: str):
     """(clock text or None, [(name, value text, unit)]) of one line; names carry the sensor words."""
-    clock = _CLOCK.match(text)
+    clock = CLOCK.match(text)
     stamp = clock.group(1) if clock and _PAIR.search(text, clock.end()) else None
     pos = clock.end() if stamp else 0
     group, values, groups = "", [], []
