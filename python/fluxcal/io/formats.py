@@ -10,6 +10,8 @@ Reading looks at the bytes, not the name (a file's extension is only a hint in m
     \\xA3\\x95                      → ArduPilot DataFlash .bin (fluxcal.io.drone; needs fluxcal[drone])
     ULog\\x01\\x12\\x35             → PX4 ULog .ulg            (fluxcal.io.drone; needs fluxcal[drone])
     text with FMT, <n> lines first → ArduPilot DataFlash text .log (fluxcal.io.drone; needs fluxcal[drone])
+    #ROSBAG V2.0, or a folder with
+    metadata.yaml (.db3/.mcap)     → ROS 1 / ROS 2 bag      (fluxcal.io.rosbag; needs fluxcal[ros])
     text starting with { or [      → JSON readings         (fluxcal.io.real: fluxcal's layout or shot triples;
                                      fluxcal.io.jsonrecords: JSON Lines, a list of records, a columns/data table)
     text of `$TYPE,…*hh` lines     → NMEA-style IMU sentences ($VNYMR…, fluxcal.io.sentences)
@@ -43,8 +45,14 @@ WRITERS = (".csv", ".npz", ".mat", ".parquet", ".pq", ".json")
 
 def sniff(path) -> str:
     """The format of a file by its content: "npz", "npy", "xlsx", "xls", "mat", "hdf5", "parquet", "dataflash",
-    "dataflash_text", "ulog", "json" or "text"."""
+    "dataflash_text", "ulog", "rosbag" (also a ROS 2 bag folder), "json" or "text"."""
     path = Path(path)
+    from .rosbag import bag_path
+
+    if path.is_dir():
+        if bag_path(path) is not None:
+            return "rosbag"
+        raise ValueError(f"{path}: a folder, not a recording (a ROS 2 bag folder holds a metadata.yaml)")
     try:
         with path.open("rb") as f:
             head = f.read(128)
@@ -64,6 +72,12 @@ def sniff(path) -> str:
         return "hdf5"
     if head.startswith(b"PAR1"):
         return "parquet"
+    if head.startswith(b"#ROSBAG V2.0\n") or (head.startswith((b"SQLite format 3\x00", b"\x89MCAP"))
+                                               and bag_path(path) is not None):
+        return "rosbag"
+    if head.startswith((b"SQLite format 3\x00", b"\x89MCAP")):
+        raise ValueError(f"{path}: a ROS 2 bag's storage file without its folder's metadata.yaml; read the bag "
+                         "folder")
     if head.startswith(b"\xa3\x95"):  # every DataFlash message starts with these two bytes
         return "dataflash"
     if head.startswith(b"ULog\x01\x12\x35"):
@@ -103,6 +117,10 @@ def read_recording(path, columns=None, units: str | None = None, bad_lines: str 
         from .drone import read_ulog
 
         return read_ulog(path, columns=columns, units=units)
+    if kind == "rosbag":
+        from .rosbag import read_rosbag
+
+        return read_rosbag(path, columns=columns, units=units)
     if kind == "xlsx":
         from .excel import read_xlsx
 
