@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 from scipy.io import savemat
 
-from conftest import run_cli
+from conftest import run_cli, simulated
 from fluxcal import attitude
 from fluxcal.io import Recording, read_recording, sniff, write_recording
 
@@ -98,6 +98,52 @@ def test_foreign_npz_npy_and_parquet(tmp_path):
     pq.write_table(nulls, tmp_path / "nulls.parquet")
     with pytest.raises(ValueError, match=r"nulls.parquet: row 1, column 'mx' is nan"):
         read_recording(tmp_path / "nulls.parquet").samples()
+
+
+def write_matlab_v73(path, variables):
+    """A MATLAB v7.3 .mat as MATLAB writes it: HDF5 behind a 512-byte header, arrays column-major (a
+    MATLAB N×3 stored 3×N), char arrays as uint16 with MATLAB_class 'char'."""
+    import h5py
+
+    with h5py.File(path, "w", userblock_size=512) as f:
+        for name, value in variables.items():
+            if isinstance(value, str):
+                f.create_dataset(name, data=np.array([[ord(c) for c in value]], dtype=np.uint16).T)
+                f[name].attrs["MATLAB_class"] = np.bytes_("char")
+            else:
+                f.create_dataset(name, data=np.atleast_2d(np.asarray(value, dtype=float)).T)
+                f[name].attrs["MATLAB_class"] = np.bytes_("double")
+        f.create_group("#refs#")
+    with open(path, "r+b") as f:
+        f.write(b"MATLAB 7.3 MAT-file, Platform: GLNXA64, Created on: Wed Nov 25 09:00:00 2026 HDF5 schema 1.00 .")
+
+
+def test_matlab_v73_and_other_hdf5_files(tmp_path):
+    import h5py
+
+    m = simulated(6, n=200, field_norm=50.0).readings
+    path = tmp_path / "magcal_v73.mat"
+    write_matlab_v73(path, {"D": m, "t": np.arange(200) * 0.1, "sensor": "LIS3MDL"})
+    assert sniff(path) == "hdf5"
+    rec = read_recording(path)
+    np.testing.assert_array_equal(rec.samples(), m)  # N×3 as in MATLAB, not 3×N
+    assert rec.metadata["format"] == "MATLAB v7.3 (HDF5)" and rec.metadata["sensor"] == "LIS3MDL"
+    assert rec.metadata["magnetometer_variable"] == "D" and rec.time()[1] == 0.1
+    r = run_cli("calibrate", path)
+    assert r.returncode == 0 and "offset b" in r.stdout, r.stderr
+    plain = tmp_path / "survey.h5"  # an instrument's own HDF5: row-major, units as attributes
+    with h5py.File(plain, "w") as f:
+        f.create_dataset("imu/mag", data=m).attrs["units"] = "nT"
+        f.create_dataset("imu/acc", data=np.ones((200, 3)))
+        f.create_dataset("imu/time", data=np.arange(200) * 0.1)
+    with pytest.raises(ValueError, match=r"survey.h5: several N×3 variables \(imu/acc, imu/mag\); name the magnetometer"):
+        read_recording(plain)
+    rec = read_recording(plain, columns="imu/mag")
+    np.testing.assert_array_equal(rec.samples(), m)
+    assert rec.field_units() == "nT" and rec.metadata["format"] == "HDF5"
+    plain.write_bytes(plain.read_bytes()[:3000])
+    with pytest.raises(ValueError, match=r"survey.h5: not a readable HDF5 file"):
+        read_recording(plain)
 
 
 @pytest.mark.parametrize("suffix", [".npz", ".mat", ".parquet", ".npy"])

@@ -5,7 +5,8 @@ Reading looks at the bytes, not the name (a file's extension is only a hint in m
     PK\\x03\\x04 (zip)              → NumPy .npz            (fluxcal.io.npz), or with xl/workbook.xml an
                                      Excel .xlsx/.xlsm      (fluxcal.io.excel; needs fluxcal[excel])
     \\x93NUMPY                      → NumPy .npy (one N×3 array)
-    "MATLAB 5.0 MAT-file" header   → MATLAB .mat v5/v7     (fluxcal.io.matlab; v7.3/HDF5 is refused with advice)
+    "MATLAB 5.0 MAT-file" header   → MATLAB .mat v5/v7     (fluxcal.io.matlab)
+    HDF5, "MATLAB 7.3" header      → MATLAB v7.3 / HDF5    (fluxcal.io.hdf5; needs fluxcal[hdf5])
     PAR1                           → Parquet               (fluxcal.io.parquet)
     \\xA3\\x95                      → ArduPilot DataFlash .bin (fluxcal.io.drone; needs fluxcal[drone])
     ULog\\x01\\x12\\x35             → PX4 ULog .ulg            (fluxcal.io.drone; needs fluxcal[drone])
@@ -129,8 +130,12 @@ def read_recording(path, columns=None, units: str | None = None, bad_lines: str 
         raise ValueError(f"{path}: a legacy binary Excel (.xls) or other OLE2 Office file; save the sheet as .xlsx "
                          "or CSV")
     single = isinstance(columns, str) and "," not in columns and columns.strip() != ""
-    if kind in ("npz", "npy", "mat"):
+    if kind in ("hdf5", "npz", "npy", "mat"):
         matrix, cols = (columns, None) if single else (None, columns)
+        if kind == "hdf5":
+            from .hdf5 import read_hdf5
+
+            return read_hdf5(path, columns=cols, units=units, matrix=matrix)
         if kind == "mat":
             from .matlab import read_mat
 
@@ -138,9 +143,6 @@ def read_recording(path, columns=None, units: str | None = None, bad_lines: str 
         from .npz import read_npz
 
         return read_npz(path, columns=cols, units=units, matrix=matrix)
-    if kind == "hdf5":
-        raise ValueError(f"{path}: an HDF5 file (MATLAB v7.3?); SciPy reads MAT v5/v7 only: in MATLAB save it with "
-                         "save(name, '-v7')")
     if kind == "parquet":
         from .parquet import read_parquet
 

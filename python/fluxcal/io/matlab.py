@@ -8,7 +8,7 @@ metadata and the MATLAB name of each column: names that are not MATLAB identifie
 Files fluxcal did not write are read by the rule of `recording_from_arrays`: the N×3 variable named by
 `matrix` (the CLI's `--columns NAME`), else mx,my,mz (or x,y,z) vectors, else the only N×3 variable —
 what a MATLAB magcal user has. Fields of top-level structs count as variables too. MAT v7.3 files are
-HDF5 and SciPy cannot read them: the error says how to re-save.
+HDF5, which SciPy cannot read: read_recording reads them with h5py (fluxcal.io.hdf5).
 """
 from __future__ import annotations
 
@@ -64,8 +64,8 @@ def read_mat(path, columns=None, units: str | None = None, matrix: str | None = 
     try:
         with path.open("rb") as f:
             if f.read(512)[:128].find(b"MATLAB 7.3") >= 0:
-                raise ValueError(f"{path}: a MATLAB v7.3 (HDF5) file, which SciPy cannot read; save it in MATLAB "
-                                 "with save(name, '-v7') (or read it with h5py)")
+                raise ValueError(f"{path}: a MATLAB v7.3 (HDF5) file, which SciPy cannot read; fluxcal.read_recording "
+                                 "reads it with h5py (fluxcal[hdf5]), or save it in MATLAB with save(name, '-v7')")
     except OSError as exc:
         raise ValueError(f"{path}: cannot read ({exc.strerror or exc})") from None
     try:
