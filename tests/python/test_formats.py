@@ -278,20 +278,26 @@ def test_an_excel_workbook_is_read_from_its_first_sheet_of_numbers(tmp_path):
     info = book.active
     info.title = "Info"
     info.append(["Operator", "B. Smith"])
-    data = book.create_sheet("Data")
-    data.append(["Timestamp", "Bx", "By", "Bz", "Temp"])
-    data.append([None, "µT", "µT", "µT", "°C"])
+    data = book.create_sheet("Data")  # a title row, and the table starting in column C
+    data.append([None, None, "Bench run 4"])
+    data.append([None, None, "Timestamp", "Bx", "By", "Bz", "Temp"])
+    data.append([None, None, None, "µT", "µT", "µT", "°C"])
     for k, row in enumerate(m):
-        data.append([dt.datetime(2026, 11, 25, 9, 0, 0) + dt.timedelta(seconds=0.5 * k), *map(float, row), 21.5])
-    data.cell(row=10, column=3, value="#N/A")  # a spreadsheet error in a cell
+        data.append([None, None, dt.datetime(2026, 11, 25, 9, 0, 0) + dt.timedelta(seconds=0.5 * k), *map(float, row),
+                     21.5])
+    data.cell(row=11, column=5, value="#N/A")  # spreadsheet errors in cells, one where a line's '#' would start
+    data.cell(row=14, column=3, value="#VALUE!")
     path = tmp_path / "bench.xlsx"
     book.save(path)
     assert sniff(path) == "xlsx"
-    with pytest.raises(ValueError, match=r"bench.xlsx, sheet 'Data', row 10: column 'By': '#N/A' is not a number"):
+    with pytest.raises(ValueError, match=r"bench.xlsx, sheet 'Data', row 11: column 'By': 'Excel error #N/A' is not a "
+                                         r"number"):
         read_recording(path)
     rec = read_recording(path, bad_lines="skip")
+    assert rec.metadata["skipped_lines"].startswith("2 of 30: 11 (column 'By'") and "14 (column 'Timestamp'" in \
+        rec.metadata["skipped_lines"]
     # as stored: openpyxl writes 16 significant digits (Excel itself keeps 15)
-    np.testing.assert_allclose(rec.samples(), np.delete(m, 7, axis=0), rtol=1e-15, atol=0)
+    np.testing.assert_allclose(rec.samples(), np.delete(m, [7, 10], axis=0), rtol=1e-15, atol=0)
     assert rec.field_units() == "µT" and rec.temperature()[0] == 21.5 and rec.time()[1] == 0.5
     assert rec.metadata["sheet"] == "Data" and rec.metadata["other_sheets"] == "Info"
     (tmp_path / "old.xls").write_bytes(b"\xd0\xcf\x11\xe0\xa1\xb1\x1a\xe1" + bytes(500))
@@ -319,6 +325,13 @@ def test_comment_lines_marked_the_xsens_or_matlab_way(tmp_path):
     np.testing.assert_array_equal(rec.samples(), [[1, 2, 3], [4, 5, 6]])
     assert rec.metadata["fs"] == "50 Hz" and rec.time().tolist() == [0.0, 0.02]
     assert rec.metadata["notes"] == "line 5: paused"
+
+
+def test_a_semicolon_inside_a_text_cell_keeps_the_comma_delimiter(tmp_path):
+    path = tmp_path / "flags.csv"
+    path.write_text("t,mx,my,mz,flags\n" + "".join(f"{k},1.5,2.5,3.5,ok;cal\n" for k in range(5)))
+    rec = read_recording(path)
+    assert rec.samples().shape == (5, 3) and rec.metadata["text_columns"] == "flags (e.g. ok;cal)"
 
 
 def test_a_truncated_last_line_says_how_to_leave_it_out(tmp_path):

@@ -74,3 +74,32 @@ def test_calibrate_runs_on_json_lines(tmp_path):
     out = run_cli("calibrate", path)
     assert out.returncode == 0, out.stderr
     assert "magnetometer mag[0],mag[1],mag[2]" in out.stdout and "offset b" in out.stdout
+
+
+def test_records_of_several_sensors_keep_the_magnetometers(tmp_path):
+    path = tmp_path / "mixed.jsonl"
+    path.write_text("".join(json.dumps({"sensor": "accel", "x": 0.1, "y": 0.0, "z": 9.8}) + "\n"
+                            + json.dumps({"sensor": "mag", "x": 10.0 + k, "y": -4.0, "z": 20.0}) + "\n"
+                            for k in range(6)))
+    rec = read_recording(path)
+    np.testing.assert_array_equal(rec.samples()[:, 0], 10.0 + np.arange(6))
+    assert rec.metadata["records_left_out"].startswith("sensor = accel 6")
+
+
+def test_appended_lists_nan_one_record_and_utf16(tmp_path):
+    path = tmp_path / "two_sessions.json"
+    path.write_text(json.dumps([{"mx": 1, "my": 2, "mz": 3}]) + "\n" + json.dumps([{"mx": 4, "my": 5, "mz": 6}]))
+    np.testing.assert_array_equal(read_recording(path).samples(), [[1, 2, 3], [4, 5, 6]])
+    path.write_text(json.dumps([{"mx": 1, "my": 2, "mz": 3}]) + " trailing")
+    with pytest.raises(ValueError, match=r"record at line 1: text after the list's end: 'trailing'"):
+        read_recording(path)
+    nan = tmp_path / "nan.jsonl"
+    nan.write_text('{"mx": NaN, "my": 2, "mz": 3}\n{"mx": 1, "my": 2, "mz": 3}\n')
+    with pytest.raises(ValueError, match=r"nan.jsonl, line 1: 'mx' is NaN, not a number"):
+        read_recording(nan)
+    one = tmp_path / "one.jsonl"
+    one.write_text('{"mx": 1, "my": 2, "mz": 3}\n')
+    np.testing.assert_array_equal(read_recording(one).samples(), [[1, 2, 3]])
+    wide = tmp_path / "wide.jsonl"
+    wide.write_bytes('{"mx": 1, "my": 2, "mz": 3}\n{"mx": 4, "my": 5, "mz": 6}\n'.encode("utf-16"))
+    np.testing.assert_array_equal(read_recording(wide).samples(), [[1, 2, 3], [4, 5, 6]])

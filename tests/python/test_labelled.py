@@ -129,3 +129,31 @@ def test_calibrate_reads_a_serial_monitor_capture_as_it_reads_the_table(tmp_path
     offset = [next(line for line in o.stdout.splitlines() if "offset b" in line) for o in out]
     assert offset[1] == offset[0] + " uT"
     assert "magnetometer Mag X,Mag Y,Mag Z" in out[1].stdout
+
+
+def test_two_sensors_under_the_same_names_are_an_error_not_a_mix(tmp_path):
+    path = tmp_path / "alternating.txt"  # accelerometer and magnetometer lines without the sensor's name
+    path.write_text("".join(f"X: 0.1{k} Y: 0.0 Z: 9.81 m/s^2\nX: 12.{k} Y: -40.1 Z: 20.5 uT\n" for k in range(10)))
+    with pytest.raises(ValueError, match=r"'X' is in m/s\^2 on line 1 and in uT on line 2; readings of two sensors"):
+        read_recording(path)
+    path.write_text("".join(f"Mag X: {k}.5 Y: 2 Z: 3 uT\n" for k in range(5)) + "Mag X: 150 Y: 20 Z: 30 mG\n")
+    with pytest.raises(ValueError, match=r"'Mag X' is in uT on line 1 and in mG on line 6"):
+        read_recording(path)
+
+
+def test_a_bracketed_clock_and_the_devices_own_time(tmp_path):
+    m = readings(n=20)
+    path = tmp_path / "coolterm.txt"
+    path.write_text("".join(f"[12:30:{k:02d}.500] Time: {1000 * k} ms Mag X: {x:.2f} Y: {y:.2f} Z: {z:.2f} uT\n"
+                            for k, (x, y, z) in enumerate(m)))
+    rec = read_recording(path)
+    np.testing.assert_array_equal(rec.samples(), m)
+    assert rec.time().tolist() == [float(k) for k in range(20)]  # the device's Time (ms), not the host's clock
+    assert rec.columns["clock"][1] == 1.0 and rec.metadata["clock_start"].endswith("12:30:00.500000+00:00")
+
+
+def test_a_table_with_a_key_value_text_cell_stays_a_table(tmp_path):
+    path = tmp_path / "status.csv"
+    path.write_text("t,mx,my,mz,status\n" + "".join(f"{k},{k}.5,2,3,mode={k % 2}\n" for k in range(5)))
+    rec = read_recording(path)
+    assert rec.mag_names() == ("mx", "my", "mz") and rec.metadata["text_columns"].startswith("status (e.g. mode=0")

@@ -71,3 +71,13 @@ def test_an_unknown_sentence_type_is_columns_by_position(tmp_path):
     assert rec.samples().shape == (5, 3) and rec.metadata["layout"] == "PXYZ sentences"
     with pytest.raises(ValueError, match=r"no magnetometer columns .*columns are: PXYZ_1, PXYZ_2, PXYZ_3, PXYZ_4"):
         read_recording(path).samples()
+
+
+def test_a_sentence_with_extra_fields_is_a_bad_line(tmp_path):
+    body = "VNMAG,+0.2000,-0.1000,+0.4000"
+    extra = "VNMAG,+0.2000,-0.1000,+0.4000,+0.5"
+    path = tmp_path / "mag.txt"
+    path.write_text(f"${body}*{xor8(body)}\n${extra}*{xor8(extra)}\n${body},T12AF*{xor8(body + ',T12AF')}\n")
+    with pytest.raises(ValueError, match=r"line 2: 4 fields, a VNMAG sentence has 3 \(two sentences run together\?\)"):
+        read_recording(path)
+    assert len(read_recording(path, bad_lines="skip")) == 2  # VectorNav's appended T… counter is not extra

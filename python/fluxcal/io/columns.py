@@ -47,8 +47,8 @@ def is_unit(text: str) -> bool:
     """A unit as loggers write it after a value or in a row under the column names: uT, µT, nT, G, mG,
     s, ms, °C, A, Hz, deg, m/s^2, deg/s, % (brackets around it allowed: "(µT)", "[s]")."""
     w = text.strip().strip("[]()").strip().lower().replace("\u03bc", "\u00b5")
-    return bool(w) and (w in _UNIT_WORDS or w in _OTHER_UNITS or w.startswith("°")
-                        or bool(re.fullmatch(r"[a-zµ°]+(?:/[a-zµ°]+)?(?:\^?[23²³])?", w) and ("/" in w or "^" in w)))
+    return bool(w) and (w in _UNIT_WORDS or w in _OTHER_UNITS or w in ("°", "°c", "°f", "°k")
+                        or bool(re.fullmatch(r"[a-zµ°]+/[a-zµ°]+(?:\^?[23²³])?|[a-zµ]+\^?[23²³]", w)))
 _CAMEL = re.compile(r"(?<=[a-z0-9])(?=[A-Z])|(?<=[A-Z])(?=[A-Z][a-z])|(?<=[A-Za-z])(?=[0-9])|(?<=[0-9])(?=[A-Za-z])")
 
 

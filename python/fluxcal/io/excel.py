@@ -16,9 +16,15 @@ from pathlib import Path
 from .recording import Recording
 
 
+EXCEL_ERRORS = {"#N/A", "#DIV/0!", "#VALUE!", "#REF!", "#NAME?", "#NUM!", "#NULL!", "#GETTING_DATA", "#SPILL!",
+                "#CALC!"}
+
+
 def _cell(value) -> str:
     if value is None:
         return ""
+    if isinstance(value, str) and value.strip() in EXCEL_ERRORS:  # not a '#' comment: a bad cell
+        return f"Excel error {value.strip()}"
     if isinstance(value, bool):
         return str(int(value))
     if isinstance(value, float):
@@ -29,12 +35,21 @@ def _cell(value) -> str:
 
 
 def _sheet_lines(sheet) -> list:
-    lines = []
+    """The sheet's rows as tab-joined lines: empty columns to the left of the table dropped, and single-cell
+    rows above its first row of several cells (a title, a note) made comments."""
+    rows = []
     for row in sheet.iter_rows(values_only=True):
         cells = [_cell(v) for v in row]
         while cells and not cells[-1]:
             cells.pop()
-        lines.append("\t".join(cells))
+        rows.append(cells)
+    filled = [r for r in rows if r]
+    left = min((next(k for k, c in enumerate(r) if c) for r in filled), default=0)
+    lines, table = [], False
+    for cells in rows:
+        cells = cells[left:]
+        table = table or sum(bool(c) for c in cells) > 1
+        lines.append("# " + " ".join(c for c in cells if c) if not table and cells else "\t".join(cells))
     return lines
 
 

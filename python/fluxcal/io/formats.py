@@ -38,7 +38,7 @@ from __future__ import annotations
 import re
 from pathlib import Path
 
-from .csv import _is_number, comment_text, decimal_points, is_comment, read_csv, read_text, write_csv
+from .csv import _decimal_comma, _is_number, comment_text, decimal_points, is_comment, read_csv, read_text, write_csv
 from .recording import Recording
 
 WRITERS = (".csv", ".npz", ".mat", ".parquet", ".pq", ".json")
@@ -85,7 +85,9 @@ def sniff(path) -> str:
         return "ulog"
     if re.search(rb"(?:^|\n)\s*FMT, ?\d", head.lstrip(b"\xef\xbb\xbf")):  # a text log's FMT lines come first
         return "dataflash_text"
-    if head.lstrip(b"\xef\xbb\xbf \t\r\n")[:1] in (b"{", b"["):
+    text = head.decode("utf-16", errors="ignore").encode() if head.startswith((b"\xff\xfe", b"\xfe\xff")) else head
+    text = text.lstrip(b"\xef\xbb\xbf \t\r\n")
+    if text[:1] == b"{" or (text[:1] == b"[" and not re.match(rb"\[\s*\d{1,4}[-:/]\d", text)):  # not "[12:30:01] …"
         return "json"
     if not head:
         raise ValueError(f"{path}: empty file")
@@ -221,8 +223,8 @@ def _delimiter(lines, start: int):
                                if line.strip() and not is_comment(line)][:20]
     counts = {c: sum(c in line for line in sample) for c in ("\t", ",", ";")}
     best = max(counts, key=lambda c: counts[c])
-    if best == "," and counts[";"] > len(sample) / 2:
-        best = ";"  # both in most lines: a ';' table with decimal commas (1,25;0,5)
+    if best == "," and counts[";"] > len(sample) / 2 and _decimal_comma(sample[1:], ";"):
+        best = ";"  # both in most lines, and the ';' cells are decimal-comma numbers (1,25;0,5)
     return best if counts[best] > len(sample) / 2 else None
 
 

@@ -49,19 +49,28 @@ def json_lines(text: str):
 
 
 def list_items(text: str):
-    """[(line, record or the reason it is not one)] of a top-level JSON list, item by item, so that a
-    list cut off by a logger that stopped keeps its complete records."""
-    pos = _SPACE.match(text, text.index("[") + 1).end()
-    out = []
-    while pos < len(text) and text[pos] != "]":
-        try:
-            value, end = _DECODER.raw_decode(text, pos)
-        except json.JSONDecodeError as exc:
-            out.append((_line_of(text, pos), f"not valid JSON ({exc.msg}; the list is cut off here: truncated file?)"))
-            break
-        out.append((_line_of(text, pos), value))
-        pos = _SPACE.match(text, end).end()
-    return out
+    """[(line, record or the reason it is not one)] of top-level JSON lists, item by item, so that a list
+    cut off by a logger that stopped keeps its complete records; lists written one after another (two
+    sessions appended) are read in turn, anything else after a list is a bad line."""
+    out, pos = [], 0
+    while True:
+        pos = _SPACE.match(text, pos).end()
+        if pos >= len(text):
+            return out
+        if text[pos] != "[":
+            out.append((_line_of(text, pos), f"text after the list's end: {text[pos:pos + 20]!r}"))
+            return out
+        pos = _SPACE.match(text, pos + 1).end()
+        while pos < len(text) and text[pos] != "]":
+            try:
+                value, end = _DECODER.raw_decode(text, pos)
+            except json.JSONDecodeError as exc:
+                out.append((_line_of(text, pos), f"not valid JSON ({exc.msg}; the list is cut off here: "
+                                                 "truncated file?)"))
+                return out
+            out.append((_line_of(text, pos), value))
+            pos = _SPACE.match(text, end).end()
+        pos += 1
 
 
 def _flatten(record: dict, prefix: str = "", out: dict | None = None) -> dict:
@@ -85,11 +94,33 @@ def _numeric(v) -> bool:
     return isinstance(v, (int, float)) and not isinstance(v, bool)
 
 
+def _finite(v) -> bool:
+    return _numeric(v) and bool(np.isfinite(v))
+
+
+def _magnetometer_records(flat):
+    """When a text key tells the sensors apart ({"sensor": "mag", "x": …} and {"sensor": "accel", "x": …}
+    interleaved), the magnetometer's records only, and a note of the others; else (flat, None). Mixing
+    them under the same names would be a wrong answer."""
+    from .columns import MAG_WORDS, words
+
+    records = [f for _, f in flat if isinstance(f, dict)]
+    for key in dict.fromkeys(k for f in records for k, v in f.items() if isinstance(v, str)):
+        values = Counter(f[key] for f in records if isinstance(f.get(key), str))
+        mag = [v for v in values if set(words(v)) & (MAG_WORDS - {"b", "h", "m"})]
+        if 1 <= len(mag) < len(values) <= 8:
+            others = ", ".join(f"{v} {c}" for v, c in values.items() if v not in mag)
+            kept = [(n, f) for n, f in flat if not isinstance(f, dict) or f.get(key) in mag]
+            return kept, f"{key} = {others} (the magnetometer's records are {key} = {', '.join(mag)})"
+    return flat, None
+
+
 def read_records(path, items, bad_lines: str = "error", what: str = "line") -> Recording:
     """A Recording from [(line, record or reason)] (json_lines, list_items, or a table's rows)."""
     check_bad_lines(bad_lines)
     flat = [(n, _flatten(r) if isinstance(r, dict) else
              (r if isinstance(r, str) else f"a JSON {type(r).__name__}, not an object of named values")) for n, r in items]
+    flat, kind_note = _magnetometer_records(flat)
     records = [f for _, f in flat if isinstance(f, dict)]
     numeric = Counter(k for f in records for k, v in f.items() if _numeric(v))
     if not numeric:
@@ -105,7 +136,7 @@ def read_records(path, items, bad_lines: str = "error", what: str = "line") -> R
             problems.append((n, f))
             continue
         missing = [k for k in names if k not in f]
-        bad = next((k for k in names if k in f and not _numeric(f[k])), None)
+        bad = next((k for k in names if k in f and not _finite(f[k])), None)
         if missing:
             problems.append((n, f"no {', '.join(repr(k) for k in missing)}"))
         elif bad is not None:
@@ -130,6 +161,8 @@ def read_records(path, items, bad_lines: str = "error", what: str = "line") -> R
             notes.append(f"{key} (e.g. {', '.join(sorted(set(v for v in values if v))[:4])})")
     if notes:
         metadata["text_columns"] = "; ".join(notes)
+    if kind_note:
+        metadata["records_left_out"] = kind_note
     if problems:
         metadata["skipped_lines"] = listing([f"{n} ({p})" for n, p in problems], len(flat))
     return Recording(columns=columns, units=units, metadata=metadata, source=str(path),

@@ -27,7 +27,7 @@ from pathlib import Path
 
 import numpy as np
 
-from .columns import FIELD_UNITS, is_unit
+from .columns import FIELD_UNITS, TIME_WORDS, is_unit, words
 from .csv import NOT_TEXT, SKIP_HINT, _timestamps, check_bad_lines, is_comment, listing, read_text
 from .recording import Recording
 
@@ -67,17 +67,30 @@ def _parse_line(text: str):
             values[-1][2] = tail[0]
     for members in groups:  # "Mag X: 1 Y: 2 Z: 3 uT": a unit after a sensor's last value is the sensor's
         units = [values[k][2] for k in members]
-        if units[-1] and not any(units[:-1]):
+        if units[-1] and is_unit(units[-1]) and not any(units[:-1]):
             for k in members:
                 values[k][2] = units[-1]
     return stamp, [tuple(v) for v in values]
 
 
+_BARE_NUMBER = re.compile(r"(?<![\w.])[+-]?(?:\d+\.?\d*|\.\d+)(?:[eE][+-]?\d+)?(?![\w.])")
+
+
+def _is_labelled(line: str) -> bool:
+    """The line holds `label: number` pairs and (besides a clock) at most one number outside them: a
+    table row with a `mode=1` text cell has its numbers outside the pair."""
+    if not _parse_line(line)[1]:
+        return False
+    clock = CLOCK.match(line)
+    rest = _PAIR.sub(" ", line[clock.end():] if clock else line)
+    return len(_BARE_NUMBER.findall(rest)) < 2
+
+
 def looks_labelled(lines, start: int) -> bool:
-    """True when most of the first data lines hold `label: number` or `label=number` pairs."""
+    """True when most of the first data lines are labelled (`label: number` or `label=number` pairs)."""
     sample = [line for line in lines[start:start + 4 * SAMPLE_LINES]
               if line.strip() and not is_comment(line)][:SAMPLE_LINES]
-    return bool(sample) and sum(bool(_parse_line(line)[1]) for line in sample) >= 0.6 * len(sample)
+    return bool(sample) and sum(_is_labelled(line) for line in sample) >= 0.6 * len(sample)
 
 
 def read_labelled(path, columns=None, units: str | None = None, bad_lines: str = "error") -> Recording:
@@ -92,7 +105,8 @@ def read_labelled(path, columns=None, units: str | None = None, bad_lines: str =
         raise ValueError(f"{path}: no 'label: number' or 'label=number' values")
     top = max(counts.values())
     names = [n for n in counts if counts[n] >= 0.5 * top]  # in order of first appearance
-    rows, row, lines_of_row, trouble = [], {}, [], {}
+    rows, trouble = [], {}
+    row, lines_of_row, clock = {}, [], None
 
     def close():
         missing = [n for n in names if n not in row]
@@ -100,7 +114,7 @@ def read_labelled(path, columns=None, units: str | None = None, bad_lines: str =
             for n in lines_of_row:
                 trouble.setdefault(n, f"no {', '.join(repr(m) for m in missing)} (truncated line?)")
         elif lines_of_row:
-            rows.append((lines_of_row[0], dict(row)))
+            rows.append((lines_of_row[0], dict(row), clock))
 
     for line_no, text, stamp, values in parsed:
         seen = [v[0] for v in values]
@@ -125,10 +139,9 @@ def read_labelled(path, columns=None, units: str | None = None, bad_lines: str =
             continue
         if any(n in row for n in seen):
             close()
-            row, lines_of_row = {}, []
-        row.update({n: (float(v.replace(',', '.')), u) for n, v, u in values})
-        if stamp is not None and "time" not in row:
-            row["time"] = (stamp, "")
+            row, lines_of_row, clock = {}, [], None
+        row.update({n: (float(v.replace(',', '.')), u, line_no) for n, v, u in values})
+        clock = clock or stamp
         lines_of_row.append(line_no)
     close()
     if not rows:
@@ -144,15 +157,24 @@ def read_labelled(path, columns=None, units: str | None = None, bad_lines: str =
         raise ValueError(f"{path}, line {n}: {p}; {SKIP_HINT}")
     if problems:
         metadata["skipped_lines"] = listing([f"{n} ({p})" for n, p in problems], len(parsed) - len(preamble))
-    good = rows
+    good = [(n, r) for n, r, _ in rows]
     data = {name: np.array([r[name][0] for _, r in good]) for name in names}
     unit_map = {}
     for name in names:
-        found = {r[name][1] for _, r in good if r[name][1]}
-        if len(found) == 1:
-            unit_map[name] = _field_unit(found.pop())
-    stamps = [r.get("time", ("", ""))[0] for _, r in good]
-    if sum(bool(s) for s in stamps) >= 0.9 * len(stamps) and "time" not in names:
+        found = {}
+        for _, r in good:
+            if r[name][1]:
+                found.setdefault(_field_unit(r[name][1]), r[name][2])
+        if len(found) > 1:  # two sensors printing the same names, or a range change: never mix them
+            (u1, a), (u2, b) = list(found.items())[:2]
+            raise ValueError(f"{path}: {name!r} is in {u1} on line {a} and in {u2} on line {b}; readings of two "
+                             "sensors under the same names, or a changed range? Name the sensor in each line "
+                             "(Mag X: …) or keep one unit per column")
+        if found:
+            unit_map[name] = next(iter(found))
+    stamps = [c or "" for _, _, c in rows]
+    clock_name = "clock" if any(set(words(n)) & TIME_WORDS for n in names) else "time"  # the device's own wins
+    if sum(bool(s) for s in stamps) >= 0.9 * len(stamps) and clock_name not in names:
         seconds, start = _timestamps(stamps)
         if seconds is not None:
             keep = np.isfinite(seconds)
@@ -163,8 +185,8 @@ def read_labelled(path, columns=None, units: str | None = None, bad_lines: str =
                 lost = [f"{n} (no clock time)" for (n, _), k in zip(good, keep) if not k]
                 metadata["skipped_lines"] = "; ".join(filter(None, [metadata.get("skipped_lines"), *lost]))
             data = {k: v[keep] for k, v in data.items()}
-            data["time"], unit_map["time"] = seconds[keep], "s"
-            metadata["time_start"] = start
+            data[clock_name], unit_map[clock_name] = seconds[keep], "s"
+            metadata[f"{clock_name}_start"] = start
             good = [g for g, k in zip(good, keep) if k]
     rec = Recording(columns=data, units=unit_map, metadata=metadata, source=str(path),
                     line_numbers=np.array([n for n, _ in good], dtype=int))

@@ -225,6 +225,8 @@ def read_json_recording(path, columns=None, units: str | None = None, bad_lines:
     rows = jsonrecords.table_rows(data) if data.get("kind") != JSON_KIND else None
     if rows is not None:
         return jsonrecords.read_records(path, rows, bad_lines, what="data row").choose(columns, units)
+    if data.get("kind") != JSON_KIND and not any(isinstance(v, list) for v in data.values()):
+        return jsonrecords.read_records(path, [(1, data)], bad_lines).choose(columns, units)  # one JSON line
     if data.get("kind") == JSON_KIND:
         rec = _fluxcal_json(path, text, data)
     else:

@@ -74,6 +74,8 @@ def read_rosbag(path, columns=None, units: str | None = None) -> Recording:
                 raise ValueError(f"{path}: several magnetometer topics ({', '.join(names)}); name one with "
                                  f"--columns {names[0]}")
             t_ns, msgs = _stamps(reader, mags)
+            if not msgs:
+                raise ValueError(f"{path}: the topic {names[0]} has no messages")
             field = np.array([[m.magnetic_field.x, m.magnetic_field.y, m.magnetic_field.z] for m in msgs])
             cols = {"t": (t_ns - t_ns[0]) * 1e-9, **dict(zip(("mx", "my", "mz"), (field * TESLA_TO_UT).T))}
             unit_map = {"t": "s", "mx": "uT", "my": "uT", "mz": "uT"}

@@ -44,6 +44,7 @@ UNITS = {**dict.fromkeys(_MAG, "G"), **dict.fromkeys(_ACC, "m/s^2"), **dict.from
          "yaw": "deg", "pitch": "deg", "roll": "deg", "temp": "C", "pressure": "kPa"}
 _SENTENCE = re.compile(r"\$([A-Z][A-Z0-9]{2,9}),([^*]*)(?:\*([0-9A-Fa-f]{2}|[0-9A-Fa-f]{4}|XX))?\s*$")
 _START = re.compile(r"\$[A-Z][A-Z0-9]{2,9},")
+_COUNTER = re.compile(r"^[TS][0-9A-Fa-f]+$")  # VectorNav's appended time/status fields (T…, S…)
 
 
 def _body(line: str):
@@ -97,8 +98,10 @@ def read_sentences(path, columns=None, units: str | None = None, bad_lines: str 
             continue
         cells = fields.split(",")
         problem = _checksum_problem(f"{t},{fields}", given)
-        if problem is None and len(cells) < width:
-            problem = f"{len(cells)} fields, a {kind} sentence has {width} (cut short?)"
+        extra = [c for c in cells[width:] if not _COUNTER.match(c)]
+        if problem is None and (len(cells) < width or extra):
+            problem = f"{len(cells)} fields, a {kind} sentence has {width}" + (" (cut short?)" if len(cells) < width
+                                                                             else " (two sentences run together?)")
         if problem is None:
             bad = next((j for j in range(width) if not _is_number(cells[j])), None)
             if bad is not None:
