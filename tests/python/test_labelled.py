@@ -116,6 +116,12 @@ def test_a_comment_line_naming_the_columns_is_the_header(tmp_path):
     with pytest.raises(ValueError, match="4 whitespace-separated numbers and no header"):
         read_recording(other)
     np.testing.assert_array_equal(read_recording(other, columns="t,mx,my,mz").samples(), m)
+    described = tmp_path / "described.dat"  # the usual comments above it still count, a cut line is a bad line
+    described.write_text("# units: Bx=nT, By=nT, Bz=nT\n# sensor: FGM-3\n# t Bx By Bz\n" + rows + "9.9 1.0 2.0\n")
+    with pytest.raises(ValueError, match=r"line 54: 3 fields, the header has 4"):
+        read_recording(described)
+    rec = read_recording(described, bad_lines="skip")
+    assert rec.field_units() == "nT" and rec.metadata["sensor"] == "FGM-3" and len(rec) == len(m)
 
 
 def test_calibrate_reads_a_serial_monitor_capture_as_it_reads_the_table(tmp_path):

@@ -38,7 +38,8 @@ from __future__ import annotations
 import re
 from pathlib import Path
 
-from .csv import _decimal_comma, _is_number, comment_text, decimal_points, is_comment, read_csv, read_text, write_csv
+from .csv import (_decimal_comma, _is_number, comment_text, decimal_points, is_comment, parse_csv, read_csv,
+                  read_text, write_csv)
 from .recording import Recording
 
 WRITERS = (".csv", ".npz", ".mat", ".parquet", ".pq", ".json")
@@ -177,12 +178,11 @@ def _read_table(path: Path, columns, units, bad_lines: str = "error") -> Recordi
         header = _commented_header(lines, start, delimiter, len(first))
         given = columns.split(",") if isinstance(columns, str) else columns
         if header is not None and (given is None or set(given) <= set(header[1])):  # names picked from it
-            line_no, names, unit_map = header
-            rec = real.read_headerless(path, names=names, delimiter=delimiter)
-            rec.units.update(unit_map)
+            line_no, names, cells = header
+            # read as if the comment were the header line: units, '# key: value' lines above, bad lines as there
+            body = lines[:line_no - 1] + [(delimiter or " ").join(cells)] + lines[line_no:]
+            rec = parse_csv(path, body, delimiter, bad_lines=bad_lines)
             rec.metadata["header"] = f"the comment on line {line_no}"
-            if len(names) == 3:
-                rec.mag_columns = None  # found by name (or chosen below), like a header line's
             return rec.choose(columns, units)
         names = given
         if names is not None and (len(names) == len(first) or len(names) != 3):
@@ -193,7 +193,7 @@ def _read_table(path: Path, columns, units, bad_lines: str = "error") -> Recordi
 
 
 def _commented_header(lines, start: int, delimiter, count: int):
-    """(line number, names, units) when the comment line just above a header-less table names its columns
+    """(line number, names, cells) when the comment line just above a header-less table names its columns
     (`# t mx my mz`, `# time [s], Bx [nT], ...`: one name per column, none a number, a magnetometer among
     them), else None."""
     from .columns import find_magnetometer
@@ -212,7 +212,7 @@ def _commented_header(lines, start: int, delimiter, count: int):
             return None
     except ValueError:  # two magnetometer triples: the names are still the columns' (the user picks one)
         pass
-    return start, names, {n: u for n, u in pairs if u}
+    return start, names, cells
 
 
 def _delimiter(lines, start: int):
