@@ -163,3 +163,10 @@ def test_a_table_with_a_key_value_text_cell_stays_a_table(tmp_path):
     path.write_text("t,mx,my,mz,status\n" + "".join(f"{k},{k}.5,2,3,mode={k % 2}\n" for k in range(5)))
     rec = read_recording(path)
     assert rec.mag_names() == ("mx", "my", "mz") and rec.metadata["text_columns"].startswith("status (e.g. mode=0")
+
+
+def test_a_unit_in_the_sensors_words(tmp_path):
+    path = tmp_path / "unit_first.txt"
+    path.write_text("".join(f"Magnetometer (uT) X: {k}.5 Y: 2 Z: 3\n" for k in range(4)))
+    rec = read_recording(path)
+    assert rec.mag_names() == ("Magnetometer X", "Magnetometer Y", "Magnetometer Z") and rec.field_units() == "uT"

@@ -62,6 +62,16 @@ def test_key_value_pairs(line):
     assert decoder.parse(line) == (12.3, -4.0, 7.0)
 
 
+def test_lines_as_sketches_print_them():
+    decoder = TextDecoder(parse_columns(None, "kv"), "kv")
+    assert decoder.parse(b"Mag X: 12.3  Y: -4  Z: 7 uT") == (12.3, -4.0, 7.0)
+    assert decoder.parse(b"Compass X=12.3, Y=-4, Z=7") == (12.3, -4.0, 7.0)
+    assert parsed(decoder, b"Accel X: 0.1 Y: 0.0 Z: 9.8 m/s^2") == "fields"  # another sensor: never the magnetometer
+    assert parsed(decoder, b"Mag X: 12.3 Y: -4x5 Z: 7 uT") == "non_numeric"
+    timed = TextDecoder(parse_columns("ms=t[ms],x=mx,y=my,z=mz", "kv"), "kv")
+    assert timed.parse(b"ms: 120 Mag X: 1 Y: 2 Z: 3 uT") == (120.0, 1.0, 2.0, 3.0)
+
+
 def test_column_spec_names_units_and_renames():
     columns = parse_columns("t,mx[nT],my[nT],mz[nT],temp[degC]")
     assert [c.name for c in columns] == ["t", "mx", "my", "mz", "temp"]

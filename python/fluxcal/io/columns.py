@@ -13,6 +13,7 @@ user picks one with --columns. Plain x,y,z (any case) is a magnetometer only whe
 """
 from __future__ import annotations
 
+import functools
 import re
 
 import numpy as np
@@ -43,6 +44,7 @@ _AXES = {"x": 0, "y": 1, "z": 2}
 _OTHER_UNITS = {"tesla", "dps", "deg", "degrees", "rad", "%", "v", "mv", "pa", "hpa", "rpm"}
 
 
+@functools.lru_cache(maxsize=4096)  # a log repeats the same few words on every line
 def is_unit(text: str) -> bool:
     """A unit as loggers write it after a value or in a row under the column names: uT, µT, nT, G, mG,
     s, ms, °C, A, Hz, deg, m/s^2, deg/s, % (brackets around it allowed: "(µT)", "[s]")."""

@@ -57,7 +57,7 @@ def _parse_line(text: str):
         named = [w.strip(":=-") for w in words if re.search(r"[A-Za-z]", w) and not is_unit(w)]
         if named or not groups:
             group = " ".join(named)
-            groups.append([])
+            groups.append([next((w.strip(":=-") for w in words if is_unit(w.strip(":=-"))), "")])  # "Mag (uT) X:"
         groups[-1].append(len(values))
         values.append([f"{group} {m.group(1)}" if group else m.group(1), m.group(2), m.group(3)])
         pos = m.end()
@@ -65,11 +65,12 @@ def _parse_line(text: str):
         tail = _WORD.findall(text[pos:])
         if tail and is_unit(tail[0]):
             values[-1][2] = tail[0]
-    for members in groups:  # "Mag X: 1 Y: 2 Z: 3 uT": a unit after a sensor's last value is the sensor's
+    for group_unit, *members in groups:  # "Mag X: 1 Y: 2 Z: 3 uT": a unit after the last value is the sensor's
         units = [values[k][2] for k in members]
-        if units[-1] and is_unit(units[-1]) and not any(units[:-1]):
-            for k in members:
-                values[k][2] = units[-1]
+        unit = units[-1] if units[-1] and is_unit(units[-1]) and not any(units[:-1]) else \
+            (group_unit.strip("[]()") if not any(units) else "")
+        for k in members:
+            values[k][2] = values[k][2] or unit
     return stamp, [tuple(v) for v in values]
 
 

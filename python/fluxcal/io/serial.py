@@ -7,6 +7,9 @@ Formats a device may print, one record per line (`--format`):
   kv           `key=value` or `key:value` pairs: `X=12.3 Y=-4 Z=7`, `mx:1,my:2,mz:3`. Keys match the
                column names case-insensitively; `KEY=NAME` in `--columns` renames (default
                `x=mx,y=my,z=mz`, which also accepts the keys mx,my,mz). Every key must be in the spec.
+               Lines as sketches print them are read too (fluxcal.io.labelled): `Mag X: 12.3 Y: -4 Z: 7 uT`
+               (the magnetometer's words before the labels, units after the numbers); lines of another
+               sensor (`Accel X: …`) are rejected as `fields`, never recorded as the magnetometer.
   binary-spec  fixed-size binary frames: a sync word (`--sync A55A`, hex), then a `struct` layout
                (`--frame "<hhh"`, one field per column), then optionally a one-byte checksum of the
                payload (`--checksum sum8|xor8`). Bytes between frames are garbage and counted.
@@ -255,6 +258,40 @@ class TextDecoder:
         return tuple(_number(f, n) for f, n in zip(fields, self.names))
 
     def _parse_kv(self, text: str) -> tuple:
+        try:
+            return self._parse_pairs(text)
+        except Reject as strict:
+            if strict.reason != "fields":
+                raise
+            values = self._parse_labelled(text)  # "Mag X: 1.2 Y: 3.4 Z: 5.6 uT", as sketches print it
+            if values is None:
+                raise
+            return values
+
+    def _parse_labelled(self, text: str):
+        """Values in column order from a line of fluxcal.io.labelled's form, or None when it does not fit the
+        columns. A name matches a key whole ("mag x"), or by its label ("x") when the words before it are
+        a magnetometer's (Mag, Compass) — an "Accel X:" line never fills the magnetometer."""
+        from .columns import MAG_WORDS, is_unit
+        from .labelled import _parse_line
+
+        _, pairs = _parse_line(text)
+        values = [None] * len(self.columns)
+        for name, value, unit in pairs:
+            *group, label = name.lower().split()
+            j = self._keys.get(name.lower())
+            if j is None and set(group) <= MAG_WORDS:
+                j = self._keys.get(label)
+            if j is None or values[j] is not None:
+                return None
+            if unit and not is_unit(unit):
+                raise Reject("non_numeric", f"column {self.names[j]!r}: {value + unit!r} is not a number")
+            values[j] = value.replace(",", ".")
+        if any(v is None for v in values):
+            return None
+        return tuple(_number(v, n) for v, n in zip(values, self.names))
+
+    def _parse_pairs(self, text: str) -> tuple:
         values = [None] * len(self.columns)
         pos, unknown = 0, []
         while pos < len(text):
