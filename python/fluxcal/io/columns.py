@@ -196,8 +196,8 @@ def _find_one(names, canonical: str, kind_words, unit_table):
 def find_time(names, units: dict, values=None):
     """(column, factor to seconds) or None. The unit comes from the units map, else the name's unit
     word (TimeUS, time_ms), else seconds — except a unitless `timestamp` stepping by ≥ 1000 per row
-    (`values`: the columns), which is PX4's microseconds. A stated unit that is not a time unit
-    ("ticks") is not guessed: None."""
+    (`values`: the columns), which is PX4's microseconds, and Unix times too large for seconds (above
+    1e11: ms, 1e14: µs, 1e17: ns). A stated unit that is not a time unit ("ticks") is not guessed: None."""
     hit = _find_one(names, "t", TIME_WORDS, TIME_UNITS)
     if hit is None:
         return None
@@ -208,6 +208,13 @@ def find_time(names, units: dict, values=None):
     if word is None and "timestamp" in words(name) and values is not None and len(values[name]) > 1:
         if np.median(np.diff(values[name])) >= 1000.0:
             return name, 1e-6
+    if word is None and values is not None and len(values[name]):
+        # Unix time without a unit: seconds since 1970 stay below 1e11 until the year 5138, so larger values
+        # are milli-, micro- or nanoseconds (Android's Sensor Logger writes epoch nanoseconds as "time")
+        size = float(np.nanmedian(np.abs(values[name])))
+        for limit, factor in ((1e17, 1e-9), (1e14, 1e-6), (1e11, 1e-3)):
+            if size > limit:
+                return name, factor
     return name, TIME_UNITS.get(word or "", 1.0)
 
 
