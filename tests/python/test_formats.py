@@ -296,6 +296,7 @@ def test_an_excel_workbook_is_read_from_its_first_sheet_of_numbers(tmp_path):
     rec = read_recording(path, bad_lines="skip")
     assert rec.metadata["skipped_lines"].startswith("2 of 30: 11 (column 'By'") and "14 (column 'Timestamp'" in \
         rec.metadata["skipped_lines"]
+    assert rec.metadata["comments"] == "Bench run 4"  # the title row, kept
     # as stored: openpyxl writes 16 significant digits (Excel itself keeps 15)
     np.testing.assert_allclose(rec.samples(), np.delete(m, [7, 10], axis=0), rtol=1e-15, atol=0)
     assert rec.field_units() == "µT" and rec.temperature()[0] == 21.5 and rec.time()[1] == 0.5

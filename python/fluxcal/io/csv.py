@@ -4,7 +4,7 @@ Layout written (and read) by fluxcal:
 
     # fluxcal recording
     # units: mx=nT, my=nT, mz=nT, t=s
-    # sensor: RM3100            <- any other "# key: value" line is metadata
+    # sensor: RM3100            <- any other "# key: value" line is metadata (free text: "comments")
     t,mx,my,mz
     0.00,123.4,-456.7,890.1
 
@@ -75,7 +75,7 @@ def parse_csv(path, lines, delimiter=",", preamble_lines: int = 0, bad_lines: st
     header are left to the caller (fluxcal.io.real reads `key,value` preambles). `bad_lines`: "error"
     (default) or "skip" (see parse_mixed_rows)."""
     check_bad_lines(bad_lines)
-    metadata, unit_map = {}, {}
+    metadata, unit_map, comments = {}, {}, []
     i = 0
     while i < len(lines) and (is_comment(lines[i]) or not lines[i].strip()):
         body = comment_text(lines[i])
@@ -89,7 +89,11 @@ def parse_csv(path, lines, delimiter=",", preamble_lines: int = 0, bad_lines: st
                     unit_map[name] = unit
             else:
                 metadata[key] = value
+        elif body and body != "fluxcal recording":  # free text above the header (a title, who recorded it)
+            comments.append(body)
         i += 1
+    if comments:
+        metadata.setdefault("comments", "; ".join(comments))
     i += preamble_lines
     if i >= len(lines):
         raise ValueError(f"{path}: no header line (expected column names such as t,mx,my,mz)")
