@@ -32,6 +32,11 @@ def is_comment(line: str) -> bool:
     return line.lstrip().startswith(COMMENT_MARKS)
 
 
+def data_lines(lines, start: int, count: int) -> list:
+    """Up to `count` lines from `start` on that are neither blank nor comments (a sample to sniff a layout by)."""
+    return [line for line in lines[start:start + 8 * count] if line.strip() and not is_comment(line)][:count]
+
+
 def comment_text(line: str) -> str:
     """A comment line's text without its mark."""
     body = line.strip()

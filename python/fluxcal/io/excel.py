@@ -13,6 +13,7 @@ import datetime as _dt
 import tempfile
 from pathlib import Path
 
+from .csv import _is_number
 from .recording import Recording
 
 
@@ -54,13 +55,7 @@ def _sheet_lines(sheet) -> list:
 
 
 def _numeric_rows(lines) -> int:
-    def number(c):
-        try:
-            float(c)
-            return True
-        except ValueError:
-            return False
-    return sum(sum(number(c) for c in line.split("\t")) >= 3 for line in lines[:200])
+    return sum(sum(_is_number(c) for c in line.split("\t")) >= 3 for line in lines[:200])
 
 
 def read_xlsx(path, columns=None, units: str | None = None, bad_lines: str = "error") -> Recording:

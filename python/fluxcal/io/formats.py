@@ -38,8 +38,8 @@ from __future__ import annotations
 import re
 from pathlib import Path
 
-from .csv import (_decimal_comma, _is_number, comment_text, decimal_points, is_comment, parse_csv, read_csv,
-                  read_text, write_csv)
+from .csv import (_decimal_comma, _is_number, comment_text, data_lines, decimal_points, is_comment, parse_csv,
+                  read_csv, read_text, write_csv)
 from .recording import Recording
 
 WRITERS = (".csv", ".npz", ".mat", ".parquet", ".pq", ".json")
@@ -219,8 +219,7 @@ def _delimiter(lines, start: int):
     """The delimiter of the table: tab, comma or semicolon — the one found in most of the header and the
     first 20 data lines (so one garbled first line does not decide; ';' over ',' when both are) — else
     whitespace (None)."""
-    sample = [lines[start]] + [line for line in lines[start + 1:start + 400]
-                               if line.strip() and not is_comment(line)][:20]
+    sample = [lines[start]] + data_lines(lines, start + 1, 20)
     counts = {c: sum(c in line for line in sample) for c in ("\t", ",", ";")}
     best = max(counts, key=lambda c: counts[c])
     if best == "," and counts[";"] > len(sample) / 2 and _decimal_comma(sample[1:], ";"):

@@ -28,7 +28,7 @@ from pathlib import Path
 import numpy as np
 
 from .columns import FIELD_UNITS, TIME_WORDS, is_unit, words
-from .csv import NOT_TEXT, SKIP_HINT, _timestamps, check_bad_lines, is_comment, listing, read_text
+from .csv import NOT_TEXT, SKIP_HINT, _timestamps, check_bad_lines, data_lines, is_comment, listing, read_text
 from .recording import Recording
 
 # label (a word not glued to what precedes it), ':' or '=', then a number (a decimal comma is read as a point:
@@ -89,8 +89,7 @@ def _is_labelled(line: str) -> bool:
 
 def looks_labelled(lines, start: int) -> bool:
     """True when most of the first data lines are labelled (`label: number` or `label=number` pairs)."""
-    sample = [line for line in lines[start:start + 4 * SAMPLE_LINES]
-              if line.strip() and not is_comment(line)][:SAMPLE_LINES]
+    sample = data_lines(lines, start, SAMPLE_LINES)
     return bool(sample) and sum(_is_labelled(line) for line in sample) >= 0.6 * len(sample)
 
 

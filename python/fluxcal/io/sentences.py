@@ -27,7 +27,8 @@ from pathlib import Path
 
 import numpy as np
 
-from .csv import NOT_TEXT, SKIP_HINT, _is_number, _timestamps, check_bad_lines, is_comment, listing, read_text
+from .csv import (NOT_TEXT, SKIP_HINT, _is_number, _timestamps, check_bad_lines, data_lines, is_comment, listing,
+                  read_text)
 from .labelled import CLOCK
 from .recording import Recording
 
@@ -56,7 +57,7 @@ def _body(line: str):
 
 
 def looks_like_sentences(lines, start: int, sample: int = 50) -> bool:
-    body = [_body(line)[1] for line in lines[start:start + 4 * sample] if line.strip() and not is_comment(line)][:sample]
+    body = [_body(line)[1] for line in data_lines(lines, start, sample)]
     return bool(body) and sum(bool(_START.match(b)) for b in body) >= 0.6 * len(body)
 
 
