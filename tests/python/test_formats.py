@@ -294,7 +294,7 @@ def test_an_excel_workbook_is_read_from_its_first_sheet_of_numbers(tmp_path):
                                          r"number"):
         read_recording(path)
     rec = read_recording(path, bad_lines="skip")
-    assert rec.metadata["skipped_lines"].startswith("2 of 30: 11 (column 'By'") and "14 (column 'Timestamp'" in \
+    assert rec.metadata["skipped_lines"].startswith("2 of 30: row 11 (column 'By'") and "row 14 (column 'Timestamp'" in \
         rec.metadata["skipped_lines"]
     assert rec.metadata["comments"] == "Bench run 4"  # the title row, kept
     # as stored: openpyxl writes 16 significant digits (Excel itself keeps 15)

@@ -10,7 +10,6 @@ the row. The legacy binary .xls is refused with the remedy (save as .xlsx or CSV
 from __future__ import annotations
 
 import datetime as _dt
-import tempfile
 from pathlib import Path
 
 from .csv import _is_number
@@ -76,17 +75,9 @@ def read_xlsx(path, columns=None, units: str | None = None, bad_lines: str = "er
     name = next((n for n, lines in sheets.items() if _numeric_rows(lines) > 0), None)
     if name is None:
         raise ValueError(f"{path}: no sheet holds rows of numbers (sheets: {', '.join(sheets) or 'none'})")
-    from .formats import _read_table
+    from .formats import read_table_lines
 
-    where = f"{path}, sheet {name!r}"
-    with tempfile.TemporaryDirectory() as tmp:
-        text = Path(tmp) / "sheet.tsv"
-        text.write_text("\n".join(sheets[name]) + "\n", encoding="utf-8")
-        try:
-            rec = _read_table(text, columns, units, bad_lines)
-        except ValueError as exc:  # name the workbook, sheet and row, not the temporary text
-            raise ValueError(str(exc).replace(f"{text}, line ", f"{where}, row ").replace(str(text), where)) from None
-    rec.source = where
+    rec = read_table_lines(sheets[name], f"{path}, sheet {name!r}", columns, units, bad_lines, "row")
     rec.metadata["sheet"] = name
     others = [n for n in sheets if n != name]
     if others:

@@ -13,6 +13,7 @@ Reading looks at the bytes, not the name (a file's extension is only a hint in m
     text with FMT, <n> lines first → ArduPilot DataFlash text .log (fluxcal.io.drone; needs fluxcal[drone])
     #ROSBAG V2.0, or a folder with
     metadata.yaml (.db3/.mcap)     → ROS 1 / ROS 2 bag      (fluxcal.io.rosbag; needs fluxcal[ros])
+    SQLite format 3 (not a bag)    → a database table       (fluxcal.io.sqlite; --columns TABLE picks one)
     text starting with { or [      → JSON readings         (fluxcal.io.real: fluxcal's layout or shot triples;
                                      fluxcal.io.jsonrecords: JSON Lines, a list of records, a columns/data table)
     text of `$TYPE,…*hh` lines     → NMEA-style IMU sentences ($VNYMR…, fluxcal.io.sentences)
@@ -77,7 +78,9 @@ def sniff(path) -> str:
     if head.startswith(b"#ROSBAG V2.0\n") or (head.startswith((b"SQLite format 3\x00", b"\x89MCAP"))
                                                and bag_path(path) is not None):
         return "rosbag"
-    if head.startswith((b"SQLite format 3\x00", b"\x89MCAP")):
+    if head.startswith(b"SQLite format 3\x00"):
+        return "sqlite"
+    if head.startswith(b"\x89MCAP"):
         raise ValueError(f"{path}: a ROS 2 bag's storage file without its folder's metadata.yaml; read the bag "
                          "folder")
     if head.startswith(b"\xa3\x95"):  # every DataFlash message starts with these two bytes
@@ -129,6 +132,10 @@ def read_recording(path, columns=None, units: str | None = None, bad_lines: str 
         from .excel import read_xlsx
 
         return read_xlsx(path, columns=columns, units=units, bad_lines=bad_lines)
+    if kind == "sqlite":
+        from .sqlite import read_sqlite
+
+        return read_sqlite(path, columns=columns, units=units, bad_lines=bad_lines)
     if kind == "xls":
         raise ValueError(f"{path}: a legacy binary Excel (.xls) or other OLE2 Office file; save the sheet as .xlsx "
                          "or CSV")
@@ -155,6 +162,33 @@ def read_recording(path, columns=None, units: str | None = None, bad_lines: str 
 
         return read_json_recording(path, columns=columns, units=units, bad_lines=bad_lines)
     return _read_table(path, columns, units, bad_lines)
+
+
+def read_table_lines(lines, where: str, columns, units, bad_lines: str = "error", word: str = "line",
+                     offset: int = 0) -> Recording:
+    """Text lines made from a source that is not text (a sheet, a database table) parsed as a table file;
+    messages and metadata["skipped_lines"] name `where` and its rows (`word` n, n = the line + `offset`)."""
+    import tempfile
+
+    with tempfile.TemporaryDirectory() as tmp:
+        text = Path(tmp) / "table.tsv"
+        text.write_text("\n".join(lines) + "\n", encoding="utf-8")
+
+        def renamed(message: str) -> str:
+            message = re.sub(re.escape(str(text)) + r", line (\d+)",
+                             lambda m: f"{where}, {word} {int(m.group(1)) + offset}", message)
+            return message.replace(str(text), where)
+
+        try:
+            rec = _read_table(text, columns, units, bad_lines)
+        except ValueError as exc:
+            raise ValueError(renamed(str(exc))) from None
+    skipped = rec.metadata.get("skipped_lines")
+    if skipped:
+        rec.metadata["skipped_lines"] = re.sub(r"(?:(?<=: )|(?<=; ))(\d+) \(",
+                                               lambda m: f"{word} {int(m.group(1)) + offset} (", skipped)
+    rec.source = where
+    return rec
 
 
 def _read_table(path: Path, columns, units, bad_lines: str = "error") -> Recording:
