@@ -228,8 +228,8 @@ def test_review_cases_for_timestamps(tmp_path):
 
     day_first, _ = _timestamps(["12/11/2026 23:59:59", "13/11/2026 00:00:00", "13/11/2026 00:00:01"])
     assert day_first.tolist() == [0.0, 1.0, 2.0]
-    past_midnight, _ = _timestamps(["23:59:59.5", "00:00:00.0", "00:00:00.5"])
-    assert past_midnight.tolist() == [0.0, 0.5, 1.0]
+    past_midnight, start = _timestamps(["23:59:59.5", "00:00:00.0", "00:00:00.5"])
+    assert past_midnight.tolist() == [0.0, 0.5, 1.0] and start == "23:59:59.500000"  # no date: none made up
     offsets, first = _timestamps(["2026-11-23T10:00:00+01:00", "2026-11-23T09:00:01Z"])
     assert offsets.tolist() == [0.0, 1.0] and first.startswith("2026-11-23T09:00:00")
     for labels in (["T1", "T2", "T3"], ["3-1", "3-2", "4-1"], ["Jan", "Feb", "Mar"]):

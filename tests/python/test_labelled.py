@@ -155,7 +155,7 @@ def test_a_bracketed_clock_and_the_devices_own_time(tmp_path):
     rec = read_recording(path)
     np.testing.assert_array_equal(rec.samples(), m)
     assert rec.time().tolist() == [float(k) for k in range(20)]  # the device's Time (ms), not the host's clock
-    assert rec.columns["clock"][1] == 1.0 and rec.metadata["clock_start"].endswith("12:30:00.500000+00:00")
+    assert rec.columns["clock"][1] == 1.0 and rec.metadata["clock_start"] == "12:30:00.500000"  # no date: none made up
 
 
 def test_a_table_with_a_key_value_text_cell_stays_a_table(tmp_path):

@@ -239,12 +239,14 @@ def _timestamps(values):
             continue
         first = stamps[stamps.notna()].iloc[0]
         seconds = ((stamps - first).dt.total_seconds()).to_numpy(dtype=float)
+        start = first.isoformat()
         if not any(_DATE.search(v) for v in sample):  # a time of day: add a day at each wrap past midnight
             steps = np.diff(np.nan_to_num(seconds, nan=0.0), prepend=0.0)
             seconds = seconds + 86400.0 * np.cumsum(steps < -43200.0)
+            start = first.time().isoformat()  # not the date pandas fills in (the day it is read)
         backwards = int(np.sum(np.diff(seconds[np.isfinite(seconds)]) < 0))
         if best is None or backwards < best[0]:
-            best = (backwards, seconds, first.isoformat())
+            best = (backwards, seconds, start)
         if backwards == 0:
             break
     return (None, None) if best is None else best[1:]
