@@ -70,6 +70,10 @@ def test_lines_as_sketches_print_them():
     assert parsed(decoder, b"Mag X: 12.3 Y: -4x5 Z: 7 uT") == "non_numeric"
     timed = TextDecoder(parse_columns("ms=t[ms],x=mx,y=my,z=mz", "kv"), "kv")
     assert timed.parse(b"ms: 120 Mag X: 1 Y: 2 Z: 3 uT") == (120.0, 1.0, 2.0, 3.0)
+    # two magnetometers on a line: their keys hold a space, and --columns names them whole
+    two = TextDecoder(parse_columns("Mag1 X=mx,Mag1 Y=my,Mag1  Z=mz,Mag2 X=m2x,Mag2 Y=m2y,Mag2 Z=m2z", "kv"), "kv")
+    assert two.parse(b"Mag1 X: 1 Y: 2 Z: 3 Mag2 X: 4 Y: 5 Z: 6") == (1.0, 2.0, 3.0, 4.0, 5.0, 6.0)
+    assert parsed(TextDecoder(parse_columns(None, "kv"), "kv"), b"Mag1 X: 1 Y: 2 Z: 3 Mag2 X: 4 Y: 5 Z: 6") == "fields"
 
 
 def test_column_spec_names_units_and_renames():

@@ -50,7 +50,8 @@ def is_unit(text: str) -> bool:
     s, ms, °C, A, Hz, deg, m/s^2, deg/s, % (brackets around it allowed: "(µT)", "[s]")."""
     w = text.strip().strip("[]()").strip().lower().replace("\u03bc", "\u00b5")
     return bool(w) and (w in _UNIT_WORDS or w in _OTHER_UNITS or w in ("°", "°c", "°f", "°k")
-                        or bool(re.fullmatch(r"[a-zµ°]+/[a-zµ°]+(?:\^?[23²³])?|[a-zµ]+\^?[23²³]", w)))
+                        or bool(re.fullmatch(r"[a-zµ°]+/[a-zµ°]+(?:\^?[23²³])?|(?:[cmk]?m|s|ft|in)\^?[23²³]", w)))
+    # a power only of a length or a time (m², s^2): "Mag2", "Acc2" are the second sensor's name
 _CAMEL = re.compile(r"(?<=[a-z0-9])(?=[A-Z])|(?<=[A-Z])(?=[A-Z][a-z])|(?<=[A-Za-z])(?=[0-9])|(?<=[0-9])(?=[A-Za-z])")
 
 

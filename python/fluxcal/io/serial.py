@@ -65,7 +65,7 @@ REASONS = {
 FORMATS = ("csv", "kv", "binary-spec")
 MAX_LINE = 1024
 _NUMBER = re.compile(r"[+-]?(?:\d+\.?\d*|\.\d+)(?:[eE][+-]?\d+)?")  # strict: no "nan", "1_000", "0x10"
-_ENTRY = re.compile(r"(?:([A-Za-z_][\w.]*)=)?([A-Za-z_][\w.]*)\s*(?:\[([^\]]*)\])?")
+_ENTRY = re.compile(r"(?:([A-Za-z_][\w. ]*?)\s*=)?([A-Za-z_][\w.]*)\s*(?:\[([^\]]*)\])?")  # "Mag1 X=mx": a key may hold spaces
 _PAIR = re.compile(r"([A-Za-z_][\w.]*)\s*[=:]\s*([^\s,;=:]+)")
 _PAIR_SEPARATOR = re.compile(r"[\s,;]*")
 _LINE_END = re.compile(rb"\r\n|\r|\n")
@@ -98,7 +98,7 @@ def parse_columns(spec: str | None, fmt: str = "csv", units: str | None = None) 
         if not m:
             raise ValueError(f"--columns: entry {entry!r} is not NAME or NAME[unit]"
                              + (" or KEY=NAME[unit]" if fmt == "kv" else ""))
-        key, name, unit = m.group(1) or "", m.group(2), (m.group(3) or "").strip()
+        key, name, unit = " ".join((m.group(1) or "").split()), m.group(2), (m.group(3) or "").strip()
         if key and fmt != "kv":
             raise ValueError(f"--columns: entry {entry!r}: KEY=NAME renames keys of --format kv only")
         if name == "t_host":
