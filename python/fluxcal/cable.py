@@ -16,6 +16,8 @@ from __future__ import annotations
 
 from dataclasses import dataclass, field
 
+import re
+
 import numpy as np
 
 from . import _core
@@ -246,6 +248,8 @@ def write_ring_csv(path, ring: Ring, readings, rotations_deg=None, currents_a=No
     units = {n: ("T" if n.startswith("s") else "A" if n.startswith("i") else "deg") for n in cols}
     meta = {"ring_angles_deg": " ".join(f"{a:.10g}" for a in ring.angles_deg), "ring_radius_m": f"{ring.radius_m:.10g}",
             "ring_bore_radius_m": f"{ring.bore_radius_m:.10g}"}
+    if np.any(ring.axis_angles_deg != 0.0):
+        meta["ring_axis_angles_deg"] = " ".join(f"{a:.10g}" for a in ring.axis_angles_deg)
     if positions_m is not None:
         meta["positions_m"] = " ".join(f"{v:.10g}" for v in np.ravel(positions_m))
     meta.update(metadata or {})
@@ -262,7 +266,13 @@ def read_ring_csv(path) -> dict:
     if "ring_angles_deg" not in meta or "ring_radius_m" not in meta:
         raise ValueError(f"{path}: no ring_angles_deg / ring_radius_m metadata lines")
     ring = Ring(_floats(meta["ring_angles_deg"]), float(meta["ring_radius_m"]),
+                axis_angles_deg=_floats(meta["ring_axis_angles_deg"]) if "ring_axis_angles_deg" in meta else None,
                 bore_radius_m=float(meta["ring_bore_radius_m"]) if "ring_bore_radius_m" in meta else None)
+    extra = sorted({n.split("_")[0] for n in rec.columns if re.fullmatch(r"s\d+_[xy]", n)}
+                   - {f"s{k}" for k in range(ring.n_sensors)}, key=lambda n: int(n[1:]))
+    if extra:
+        raise ValueError(f"{path}: columns of sensors {', '.join(extra)} beyond the ring's {ring.n_sensors} "
+                         "(ring_angles_deg)")
     names = [(f"s{k}_x", f"s{k}_y") for k in range(ring.n_sensors)]
     missing = [n for pair in names for n in pair if n not in rec.columns]
     if missing:
@@ -272,6 +282,10 @@ def read_ring_csv(path) -> dict:
     rotations = rec.columns.get("rotation_deg", np.zeros(k))
     cur_names = sorted((n for n in rec.columns if n[0] == "i" and n[1:].isdigit()), key=lambda n: int(n[1:]))
     currents = np.column_stack([rec.columns[n] for n in cur_names]) if cur_names else None
-    positions = _floats(meta["positions_m"]).reshape(-1, 2) if "positions_m" in meta else None
+    positions = _floats(meta["positions_m"]) if "positions_m" in meta else None
+    if positions is not None:
+        if positions.size % 2:
+            raise ValueError(f"{path}: positions_m holds {positions.size} numbers; it needs x y pairs")
+        positions = positions.reshape(-1, 2)
     return {"ring": ring, "readings": readings, "rotations_deg": np.asarray(rotations, float), "currents_a": currents,
             "positions_m": positions}
