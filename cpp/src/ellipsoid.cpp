@@ -242,7 +242,11 @@ std::pair<Eigen::Vector3d, double> normalisation(const SamplesRef& samples, Eige
   }
   if (!(lo.array() <= hi.array()).all()) return {Eigen::Vector3d::Zero(), 1.0};
   const double scale = 0.5 * (hi - lo).maxCoeff();
-  return {0.5 * (lo + hi), scale > 0.0 ? scale : 1.0};
+  const Eigen::Vector3d centre = 0.5 * (lo + hi);
+  // readings that do not spread (a sensor lying still through a live fit's first block): the size of the
+  // reading itself, not 1.0, which in tesla or nT left every later fit rank deficient
+  const double size = centre.cwiseAbs().maxCoeff();
+  return {centre, scale > 0.0 ? scale : (size > 0.0 ? size : 1.0)};
 }
 
 // ---- the fit ---------------------------------------------------------------------------------------

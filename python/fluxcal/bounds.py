@@ -53,5 +53,26 @@ def crlb(calibration: Calibration, clean_readings=None, sigma: float = 1.0, refe
         if clean_readings is None:
             raise ValueError("crlb: the magnitude model needs the noise-free readings")
         J = magnitude_jacobian(calibration, clean_readings)
+        if not np.all(np.isfinite(J)):
+            bad = int(np.flatnonzero(~np.all(np.isfinite(J), axis=1))[0])
+            raise ValueError(f"crlb: clean_readings row {bad} sits at the offset (no field direction); "
+                             "the bound is not defined there")
         F = J.T @ J
-    return sigma**2 * np.linalg.inv(F)
+    names = ["b0", "b1", "b2"] + ([f"w{i}{j}" for i in range(3) for j in range(3)] if reference is not None
+                                  else [f"a{k}{l}" for k, l in _SYM])
+    return sigma**2 * _inverse(F, names)
+
+
+def _inverse(F: np.ndarray, names) -> np.ndarray:
+    """F⁻¹ (well conditioned: checked here), or an error naming the parameters of F's null directions (singular information: the readings
+    do not determine them and no unbiased estimator has a finite variance). Judged on the scaled F, as
+    refine's identifiability, so units do not matter."""
+    d = 1.0 / np.sqrt(np.maximum(np.diag(F), 1e-300))
+    lam, V = np.linalg.eigh(d[:, None] * F * d[None, :])
+    null = lam <= 1e-10 * lam[-1]
+    if null.any():
+        weight = np.sum(V[:, null] ** 2, axis=1)
+        undetermined = [n for n, w in zip(names, weight) if w > 0.01]
+        raise ValueError(f"crlb: the Fisher information is singular: the readings do not determine "
+                         f"{', '.join(undetermined)} (no finite bound); they need more orientations")
+    return np.linalg.inv(F)

@@ -205,7 +205,7 @@ def _verdicts(m: np.ndarray, z: np.ndarray, threshold: float, sigma: float, mode
             continue
         if last - first + 1 <= GLITCH_RUN:
             drop[first:last + 1] |= flagged[first:last + 1]
-        else:
+        elif (flagged & ~drop)[first:last + 1].any():  # not a run of 0,0,0 or rail readings, all left out
             stretches.append((int(first), int(last), float(z[first:last + 1].max())))
     rows = np.flatnonzero(drop)
     return Outliers(rows, threshold, sigma, float(z[rows].max()) if len(rows) else 0.0,

@@ -20,8 +20,8 @@ def calibrate(samples, method: str = "auto", field_norm: float | None = None, re
     method "auto": with `reference` (true field per reading, sensor frame) the vector fit
     (fluxcal.fit_vector, a full 3×3 matrix); otherwise the consistent ellipsoid fit (ALS) refined by
     maximum likelihood (fluxcal.refine) — the estimate that reaches the Cramér–Rao bound. The result's
-    summary says what ran ("method") and whether the data determine every parameter
-    ("identifiable"); when they do not (yaw-only turns, small tilts), the summary warns and names the
+    summary says what ran ("method") and, after a refinement or a vector fit, whether the data determine
+    every parameter ("identifiable"); when they do not (yaw-only turns, small tilts), the summary warns and names the
     remedy instead of passing a confident 3-D answer off as one. Other methods: "vector", "als",
     "ls", "als+refine". `loss` ("none", "huber", "cauchy") applies to the refinement.
 
@@ -62,6 +62,16 @@ def calibrate(samples, method: str = "auto", field_norm: float | None = None, re
             w for w in cal.summary["warnings"] if w not in start.summary["warnings"]]
         if start.summary.get("noise_sigma"):
             cal.summary["als_noise_sigma"] = start.summary["noise_sigma"]
+    ignored = []
+    if vector and field_norm is not None:
+        scale = float(np.mean(np.linalg.norm(reference, axis=1)))
+        ignored.append(f"field_norm {field_norm:g} is not used: the reference vectors set the scale "
+                       f"(their mean |r| is {scale:.6g})")
+    if not vector and reference is not None:
+        ignored.append(f"reference is not used by method {method!r}, which fits magnitudes only; "
+                       "method='auto' or 'vector' uses it")
+    if ignored:
+        cal.summary["warnings"] = list(cal.summary["warnings"]) + ignored
     if left_out is not None:
         cal.summary["outliers"] = left_out.to_dict()
         cal.summary["warnings"] = list(cal.summary["warnings"]) + left_out.messages(len(all_readings))

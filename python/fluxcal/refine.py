@@ -48,8 +48,27 @@ def _calibration(result: dict, method: str) -> Calibration:
     serial["standard_errors_independent"] = np.asarray(serial["standard_errors_independent"]).tolist()
     summary["serial_correlation"] = serial
     summary["method"] = method
+    _few_spare_readings(summary, 3 if method == "refine_vector" or method == "vector" else 1)
     return Calibration(offset=result["offset"], matrix=result["matrix"], field_norm=result["field_norm"],
                        units=result["units"], model=result["model"], summary=summary)
+
+
+FEW_SPARE = 10  # below this many residuals beyond the parameters, t(ν) is ≥ 14 % wider than the normal
+
+
+def _few_spare_readings(summary: dict, per_reading: int) -> None:
+    """summary["degrees_of_freedom"] (residuals − parameters), and a warning when it is small: the noise σ
+    and so every standard error then rest on a few spare readings (at 11 readings for 9 parameters they
+    were 20–60× too small in some fits), and a 95 % interval is ±t·SE, not ±1.96·SE."""
+    from scipy import stats
+
+    dof = int(summary["samples"]) * per_reading - len(summary["parameters"])
+    summary["degrees_of_freedom"] = dof
+    if dof < FEW_SPARE:
+        t = float(stats.t.ppf(0.975, max(dof, 1)))
+        summary["warnings"] = list(summary.get("warnings", [])) + [
+            f"only {dof} residual(s) beyond the {len(summary['parameters'])} parameters: the noise σ and the standard "
+            f"errors are rough estimates (a 95 % interval is ±{t:.3g}·SE, not ±1.96·SE); record more readings"]
 
 
 def refine(calibration: Calibration, samples, reference=None, loss: str = "none", loss_scale: float = 0.0,

@@ -35,6 +35,17 @@ def corrupt(readings, rng, zeros=15, rail=10, spikes=10):
     return m, z, r, s
 
 
+def test_a_bus_hang_of_zero_rows_is_left_out_and_not_also_listed_as_kept():
+    """Ten 0,0,0 readings in a row (an I²C bus hang): longer than a glitch, but impossible readings, so left
+    out — and not reported as a stretch "kept in the fit" as well."""
+    s, _ = turned(11)
+    m = s.readings.copy()
+    m[400:410] = 0.0
+    out = fluxcal.calibrate(m, field_norm=H).summary["outliers"]
+    assert out["rows"] == list(range(400, 410)) and out["kinds"]["zero"] == 10
+    assert not any(a <= 409 and b >= 400 for a, b, _ in out["stretches_kept"])
+
+
 @pytest.mark.parametrize("seed", range(4))
 def test_glitches_are_found_listed_and_left_out(seed):
     s, rng = turned(seed)

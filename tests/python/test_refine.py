@@ -103,6 +103,28 @@ def test_vector_fit_agrees_with_oracle_and_bound(seed):
     np.testing.assert_allclose(robust.offset, cal.offset, atol=0.5)
 
 
+def test_calibrate_says_which_arguments_it_did_not_use():
+    rng = np.random.default_rng(5)
+    r = 50 * sim.uniform(300, rng).sensor_field([0.3, 0.2, 0.93])
+    m = r @ (np.eye(3) * 1.05).T + [3.0, -2.0, 1.0] + 0.2 * rng.standard_normal(r.shape)
+    vector = fluxcal.calibrate(m, reference=r, field_norm=50000.0)  # nT given by mistake: not silently dropped
+    assert any(w.startswith("field_norm 50000 is not used: the reference vectors set the scale") for w in
+               vector.summary["warnings"])
+    als = fluxcal.calibrate(m, method="als", reference=r)
+    assert any("reference is not used by method 'als'" in w for w in als.summary["warnings"])
+    assert not any("not used" in w for w in fluxcal.calibrate(m, reference=r).summary["warnings"])
+
+
+def test_few_spare_readings_are_warned_about():
+    s = simulated(4, n=11, field_norm=50.0)
+    cal = fluxcal.calibrate(s.readings, field_norm=50.0)  # 11 readings, 9 parameters
+    assert cal.summary["degrees_of_freedom"] == 2
+    assert any(w.startswith("only 2 residual(s) beyond the 9 parameters") and "±4.3·SE" in w
+               for w in cal.summary["warnings"])
+    many = fluxcal.calibrate(simulated(4, n=300, field_norm=50.0).readings, field_norm=50.0)
+    assert many.summary["degrees_of_freedom"] == 291 and not any("beyond the" in w for w in many.summary["warnings"])
+
+
 # -- accuracy against the Cramér–Rao bound -------------------------------------------------------------
 
 @pytest.mark.parametrize("sensor_seed", [1, 2])
@@ -163,6 +185,19 @@ def test_yaw_only_turn_is_not_passed_off_as_a_3d_calibration():
         return
     assert cal.summary["identifiable"] is False
     assert any("not identifiable" in w and "reference vector" in w for w in cal.summary["warnings"])
+
+
+def test_crlb_of_data_that_determine_nothing_is_an_error_not_negative_variances():
+    t = np.linspace(0, 2 * np.pi, 300, endpoint=False)
+    dip = np.deg2rad(60)  # a yaw-only turn: the reference's z never changes
+    ref = 50 * np.column_stack([np.cos(dip) * np.cos(t), np.cos(dip) * np.sin(t), np.full_like(t, np.sin(dip))])
+    with pytest.raises(ValueError, match=r"singular: the readings do not determine b0, b1, b2, w02, w12, w22"):
+        fluxcal.crlb(None, sigma=0.2, reference=ref)
+    flat = fluxcal.Calibration(offset=[0.0, 0.0, 0.0], matrix=np.eye(3), field_norm=50.0)
+    with pytest.raises(ValueError, match="row 1 sits at the offset"):
+        fluxcal.crlb(flat, np.array([[50.0, 0, 0], [0.0, 0, 0]]), sigma=0.2)
+    with pytest.raises(ValueError, match="singular"):  # two directions cannot fix 9 parameters
+        fluxcal.crlb(flat, np.array([[50.0, 0, 0], [0.0, 50, 0]] * 10), sigma=0.2)
 
 
 def _airborne(real_data):

@@ -246,6 +246,22 @@ def test_live_fit_follows_the_stream():
     np.testing.assert_allclose(state.calibration.offset, batch.offset, atol=1e-6 * FIELD_NT)
 
 
+
+@pytest.mark.parametrize("scale", [1e-9, 1.0])  # tesla (as ROS gives it) and nT
+def test_live_fit_starts_on_a_sensor_lying_still(scale):
+    """The first block of readings all equal (a quantised sensor lying still before it is turned): the
+    moments' normalisation took 1.0 as the scale then, and in tesla every later fit was rank deficient."""
+    from fluxcal import sim
+
+    rng = np.random.default_rng(6)
+    result = sim.simulate(sim.uniform(600, rng), sim.random_sensor(FIELD_NT, rng, noise=0.002), [2e4, 1e3, 4.5e4], rng)
+    m = np.vstack([np.repeat(result.readings[:1], 20, axis=0), result.readings]) * scale
+    live = LiveFit()
+    for reading in m:
+        live.add(reading)
+    state = live.state()
+    assert not state.error, state.error
+    np.testing.assert_allclose(state.calibration.offset, fluxcal.fit_ellipsoid(m).offset, rtol=1e-6)
 # -- through pseudo-terminals --------------------------------------------------------------------------------
 
 @contextlib.contextmanager
