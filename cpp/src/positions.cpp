@@ -11,6 +11,7 @@
 #include <limits>
 #include <memory>
 #include <sstream>
+#include <vector>
 
 namespace fluxcal {
 namespace {
@@ -135,8 +136,16 @@ void finish_statistics(PositionsResult& r, const SparseRows& J, const Eigen::Vec
                        const std::vector<int>& local = {}, double prior_ss = 0.0, double known_sigma = 0.0) {
   const Eigen::Index p = J.cols(), m = J.rows();
   const double ssr = r.residuals.squaredNorm() + prior_ss;
-  r.noise_sigma = m > p ? std::sqrt(ssr / static_cast<double>(m - p)) : 0.0;
+  // No spare equation: the fit is exact and says nothing about the noise (σ̂ = 0 made every standard
+  // error 0 and every parameter "determined" while U0 was off by 0.5 mV).
+  const bool exact = m <= p;
+  r.noise_sigma = exact ? std::numeric_limits<double>::quiet_NaN() : std::sqrt(ssr / static_cast<double>(m - p));
   const double se_sigma = known_sigma > 0.0 ? known_sigma : r.noise_sigma;
+  if (exact)
+    r.summary.warnings.push_back(
+        "as many equations as unknowns (" + std::to_string(m) + " for " + std::to_string(p) +
+        "): the fit is exact, so it cannot estimate the noise σ" +
+        (known_sigma > 0.0 ? "" : " or the standard errors (NaN)") + "; add positions");
   Eigen::VectorXd colnorm = Eigen::VectorXd::Zero(p);
   for (Eigen::Index i = 0; i < m; ++i)
     for (SparseRows::InnerIterator it(J, i); it; ++it) colnorm(it.col()) += it.value() * it.value();
@@ -229,7 +238,8 @@ void finish_statistics(PositionsResult& r, const SparseRows& J, const Eigen::Vec
     const bool null = null_dir[static_cast<std::size_t>(j)];
     r.standard_errors(j) = null ? std::numeric_limits<double>::infinity()
                                 : se_sigma * std::sqrt(std::max(var(j), 0.0)) / colnorm(j);
-    r.determined[static_cast<std::size_t>(j)] = !null && r.standard_errors(j) <= tolerance * scales(j);
+    r.determined[static_cast<std::size_t>(j)] =
+        !null && (std::isnan(se_sigma) || r.standard_errors(j) <= tolerance * scales(j));  // exact: geometry only
   }
 }
 
@@ -787,7 +797,7 @@ PositionsResult calibrate_positions(const SamplesRef& outputs, const SamplesRef&
                     sigma_undetermined ? sigma_fallback : options.output_sigma);
   std::vector<std::string> unobservable;
   for (Eigen::Index j = 0; j < p; ++j)
-    if (!std::isfinite(r.standard_errors(j))) unobservable.push_back(r.parameter_names[static_cast<std::size_t>(j)]);
+    if (std::isinf(r.standard_errors(j))) unobservable.push_back(r.parameter_names[static_cast<std::size_t>(j)]);
   if (!unobservable.empty()) {
     std::string names;
     for (std::size_t j = 0; j < unobservable.size() && j < 8; ++j) names += (j ? ", " : "") + unobservable[j];
@@ -858,6 +868,23 @@ Samples AccelerometerResult::apply_rows(const SamplesRef& raw) const {
   return ((matrix * (raw.transpose().colwise() - offset))).transpose();
 }
 
+namespace {
+constexpr double kSameDirectionDeg = 5.0;  // a static position's gravity reading repeats to well within this
+
+// Readings whose directions lie within `tolerance_deg` of a representative count once (greedy clustering).
+int distinct_directions(const SamplesRef& readings, double tolerance_deg) {
+  const double cos_tol = std::cos(tolerance_deg * kPi / 180.0);
+  std::vector<Eigen::Vector3d> seen;
+  for (Eigen::Index i = 0; i < readings.rows(); ++i) {
+    const Eigen::Vector3d u = readings.row(i).transpose().normalized();
+    bool known = false;
+    for (const auto& v : seen) known = known || u.dot(v) >= cos_tol;
+    if (!known) seen.push_back(u);
+  }
+  return static_cast<int>(seen.size());
+}
+}  // namespace
+
 AccelerometerResult calibrate_accelerometer(const SamplesRef& readings, const AccelerometerOptions& options) {
   const Eigen::Index n = readings.rows();
   check_samples(readings, "readings", 6,
@@ -880,7 +907,15 @@ AccelerometerResult calibrate_accelerometer(const SamplesRef& readings, const Ac
   t[0] = 2.0 * options.gravity / (hi(0) - lo(0));
   t[3] = 2.0 * options.gravity / (hi(1) - lo(1));
   t[5] = 2.0 * options.gravity / (hi(2) - lo(2));
-  const bool misalignment = n >= 9;
+  // What determines the unknowns is the number of distinct gravity directions, not of rows: the twelve
+  // positions turn the sensor about the vertical, which repeats each of 6 gravity readings (6 equations
+  // for 9 unknowns — the misalignment came out 5× too large, with no warning).
+  const int distinct = distinct_directions(readings, kSameDirectionDeg);
+  if (distinct < 6)
+    throw Error("readings: only " + std::to_string(distinct) + " distinct gravity directions (readings within " +
+                fmt(kSameDirectionDeg) + "° are one position); offset and scale need 6: add positions with " +
+                "other faces up");
+  const bool misalignment = distinct >= 9;
   ceres::Problem problem;
   for (Eigen::Index i = 0; i < n; ++i) {
     problem.AddResidualBlock(new ceres::AutoDiffCostFunction<GravityResidual, 1, 3, 6>(
@@ -913,8 +948,11 @@ AccelerometerResult calibrate_accelerometer(const SamplesRef& readings, const Ac
   r.summary.norm_mean = corrected.rowwise().norm().mean();
   r.summary.message = "accelerometer: " + std::to_string(n) + " positions, |a| − g RMS " + fmt(rms) + " (" +
                       fmt(r.tilt_error_deg, 3) + "° equivalent)" +
-                      (misalignment ? "" : "; fewer than 9 positions: misalignment not estimated");
-  if (!misalignment) r.summary.warnings.push_back("fewer than 9 positions: misalignment not estimated (left 0)");
+                      (misalignment ? "" : "; fewer than 9 gravity directions: misalignment not estimated");
+  if (!misalignment)
+    r.summary.warnings.push_back("only " + std::to_string(distinct) + " distinct gravity directions (turns about the " +
+                                 "vertical repeat one): misalignment not estimated (left 0); it needs 9, e.g. " +
+                                 "positions tilted between the faces");
   return r;
 }
 

@@ -454,7 +454,8 @@ def build_parser() -> argparse.ArgumentParser:
     q.add_argument("--tilt-sigma", type=float, default=0.0, help="levelling uncertainty (deg); 0 = exact")
     q.add_argument("--acc-measures", choices=["specific_force", "gravity"], default="specific_force")
     q.add_argument("--calibrate-accelerometer", action="store_true",
-                   help="calibrate the accelerometer from the same positions first (>= 6)")
+                   help="calibrate the accelerometer from the same positions first (>= 6 distinct gravity "
+                        "directions; its misalignment needs 9, which the twelve positions alone do not give)")
     q.add_argument("-o", "--output", help="write the result (JSON)")
     q.set_defaults(run=cmd_positions)
     dr = sub.add_parser("drift", help="temperature-drift compensation of a current transformer's zero bias (seed 001)")

@@ -56,8 +56,23 @@ def _frame(frame: str):
     return _FRAME[frame]
 
 
-def _rotations(rows) -> np.ndarray:
-    return np.asarray(rows, dtype=float).reshape(-1, 3, 3)
+def _rotations(rows, name: str = "rotations") -> np.ndarray:
+    """N rotation matrices (N×3×3 or N×9 rows), checked proper and orthonormal: a scaled or reflected
+    matrix would scale K or flip an axis without a word."""
+    R = np.asarray(rows, dtype=float)
+    if R.size % 9:
+        raise ValueError(f"{name}: {R.shape} is not N rotation matrices (N×3×3 or N×9)")
+    R = R.reshape(-1, 3, 3)
+    if not np.all(np.isfinite(R)):
+        raise ValueError(f"{name}: matrix {int(np.flatnonzero(~np.isfinite(R).all(axis=(1, 2)))[0])} is not finite")
+    off = np.abs(np.einsum("nji,njk->nik", R, R) - np.eye(3)).max(axis=(1, 2))
+    det = np.linalg.det(R)
+    bad = np.flatnonzero((off > 1e-6) | (det < 0))
+    if len(bad):
+        k = int(bad[0])
+        raise ValueError(f"{name}: matrix {k} is not a rotation (RᵀR − I up to {off[k]:.2g}, det {det[k]:.4g}); "
+                         "give proper orthonormal matrices")
+    return R
 
 
 # --- reference field --------------------------------------------------------------------------------
@@ -229,8 +244,10 @@ class AccelerometerCalibration:
 
 def calibrate_accelerometer(readings, gravity: float = STANDARD_GRAVITY, max_iterations: int = 100
                             ) -> AccelerometerCalibration:
-    """Multi-position accelerometer calibration from ≥ 6 static positions (offset + scales; ≥ 9 adds the
-    three misalignments), |a| = gravity as the reference."""
+    """Multi-position accelerometer calibration from static positions, |a| = gravity as the reference: ≥ 6
+    distinct gravity directions give offset + scales, ≥ 9 add the three misalignments. Directions within 5°
+    count once: turning the sensor about the vertical (the twelve positions) repeats one, so the twelve
+    positions alone give 6 and the misalignment is left 0 with a warning."""
     d = _core.calibrate_accelerometer(as_samples(readings, "readings"), float(gravity), int(max_iterations))
     return AccelerometerCalibration(np.asarray(d["offset"]), np.asarray(d["matrix"]), d["gravity"],
                                     d["misalignment_estimated"], np.asarray(d["magnitude_errors"]),

@@ -184,6 +184,17 @@ TEST(Positions, AccelerometerCalibration) {
   EXPECT_LT((r6.offset - b).norm(), 1e-8);
   EXPECT_LT((r6.matrix - Eigen::Matrix3d(D.inverse())).norm(), 1e-8);
   EXPECT_THROW(fluxcal::calibrate_accelerometer(six.topRows(5)), fluxcal::Error);
+  // Each face twice (turned about the vertical): 12 rows, still 6 directions — no misalignment from them.
+  Samples twelve(12, 3);
+  twelve << six, six;
+  twelve.bottomRows(6).array() += 1e-5;
+  const auto r12 = fluxcal::calibrate_accelerometer(twelve);
+  EXPECT_FALSE(r12.misalignment_estimated);
+  EXPECT_LT((r12.offset - b).norm(), 1e-4);
+  // Ten rows but only five directions: offset and scales are not determined.
+  Samples five(10, 3);
+  five << six.topRows(5), six.topRows(5);
+  EXPECT_THROW(fluxcal::calibrate_accelerometer(five), fluxcal::Error);
 }
 
 }  // namespace

@@ -261,6 +261,27 @@ def test_bad_input_messages():
         fp.calibrate(t.outputs, t.acc_raw, PAPER_FIELD, frame="ned", rotations=level, estimate_yaw=True)
 
 
+def test_what_the_positions_cannot_determine_is_said_not_faked():
+    """Review findings: (1) the twelve positions give 6 distinct gravity directions, too few for the
+    accelerometer's misalignment (it came out 5× too large); (2) four positions are an exact fit, whose
+    standard errors were 0; (3) a scaled or reflected rotation scaled K or flipped an axis silently."""
+    rng = np.random.default_rng(7)
+    scene = sim.twelve_scene("nue", tilt_deg=0.2, yaw_deg=0.0, rng=rng)
+    T = np.array([[1.02, 0.01, -0.005], [0.0, 0.98, 0.008], [0.0, 0.0, 1.01]])
+    acc = sim.Accelerometer(np.array([0.1, -0.05, 0.2]), np.linalg.inv(T), 1e-4)
+    s = sim.simulate_positions(scene, PAPER_FIELD, noise=0.45, accelerometer=acc, rng=rng)
+    cal = fp.calibrate_accelerometer(s.acc_raw)
+    assert not cal.misalignment_estimated
+    assert any(w.startswith("only 6 distinct gravity directions") for w in cal.summary["warnings"])
+    assert np.allclose(np.triu(cal.matrix, 1), 0.0)  # left 0, not made up
+    exact = fp.calibrate(s.outputs[:4], s.acc_raw[:4] @ T.T, PAPER_FIELD, frame="nue", rotations=scene.nominal[:4])
+    assert np.isnan(exact.noise_sigma) and np.all(np.isnan(exact.standard_errors))
+    assert any(w.startswith("as many equations as unknowns (12 for 12)") for w in exact.summary["warnings"])
+    for bad in (scene.nominal * 1.05, scene.nominal @ np.diag([1.0, 1.0, -1.0])):
+        with pytest.raises(ValueError, match="rotations: matrix 0 is not a rotation"):
+            fp.calibrate(s.outputs, s.acc_raw, PAPER_FIELD, frame="nue", rotations=bad)
+
+
 # ---- real data: SAP6 cave-survey instruments (six units, 24 static shots each) -----------------------------
 
 def _fix_axes(data, axes):
