@@ -474,6 +474,7 @@ CableSolution solve_cable(const CableRing& ring, const Eigen::Ref<const Eigen::M
   Eigen::MatrixXd best_cur;  // nc × S
   RunInfo best_run;
   int tried = 0;
+  std::vector<std::pair<double, std::vector<double>>> found;  // every usable end point: (cost, positions)
   const bool warm = opt.initial_positions.rows() > 0;
   const bool dense = opt.refiner == CableSolveOptions::Refiner::dense ||
                      (opt.refiner == CableSolveOptions::Refiner::automatic && warm);
@@ -519,6 +520,7 @@ CableSolution solve_cable(const CableRing& ring, const Eigen::Ref<const Eigen::M
       run.message = summary.message;
     }
     ++tried;
+    if (run.usable) found.emplace_back(run.cost, pos);
     if (run.usable && run.cost < best_cost) {
       best_cost = run.cost;
       best_pos = pos;
@@ -637,6 +639,34 @@ CableSolution solve_cable(const CableRing& ring, const Eigen::Ref<const Eigen::M
       if (ok) why = "a conductor ended on the bore's edge";
       ok = false;
     }
+  // Another start that ended elsewhere and fits as well (within 3 σ of the best in the sum of squares): the
+  // readings do not decide — a nonlinear system with as many readings as unknowns, or a symmetric ring, has
+  // several exact solutions, and the local covariance cannot see the others.
+  const double sigma_n = (opt.noise_sigma > 0.0 ? opt.noise_sigma : out.noise_sigma) / field_unit;
+  const double tol_ssr = 9.0 * sigma_n * sigma_n + 1e-12 * total;
+  double se_pos = 0.0;
+  for (Eigen::Index k = 0; k < 2 * n; ++k) se_pos = std::max(se_pos, out.standard_errors(k) / R);
+  const double apart = std::max(5.0 * (std::isfinite(se_pos) ? se_pos : 0.0), 0.01);  // ring radii
+  for (const auto& [cost, pos] : found) {
+    if (!(2.0 * (cost - best_cost) <= tol_ssr)) continue;
+    double d = 0.0;  // the farthest conductor from its nearest counterpart (conductors are unlabelled)
+    for (int j = 0; j < n; ++j) {
+      double nearest = kInf;
+      for (int k = 0; k < n; ++k)
+        nearest = std::min(nearest, std::hypot(pos[2 * j] - best_pos[2 * k], pos[2 * j + 1] - best_pos[2 * k + 1]));
+      d = std::max(d, nearest);
+    }
+    if (d > apart) {
+      std::ostringstream alt;
+      alt.precision(3);
+      for (int j = 0; j < n; ++j) alt << (j ? ", " : "") << "(" << pos[2 * j] * R * 1e3 << ", " << pos[2 * j + 1] * R * 1e3 << ")";
+      out.summary.warnings.push_back("ambiguous: another solution fits the readings as well, conductors at " + alt.str() +
+                                     " mm; add sensors, or snapshots with other currents, to decide");
+      if (ok) why = "another solution fits as well";
+      ok = false;
+      break;
+    }
+  }
   out.well_conditioned = ok;
   if (opt.noise_sigma > 0.0 && dof > 0) {
     const double per_dof = std::sqrt(ssr / static_cast<double>(dof));

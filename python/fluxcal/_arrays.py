@@ -30,11 +30,19 @@ def first_nonfinite(arr: np.ndarray):
 
 
 def set_options(options, settings: dict, what: str):
-    """Set each keyword of `settings` on a bound C++ options struct; unknown names are a TypeError."""
+    """Set each keyword of `settings` on a bound C++ options struct; unknown names and values of the wrong
+    type are a TypeError naming the option, NaN a ValueError (a NaN tolerance or σ silently switched a
+    check off)."""
     for name, value in settings.items():
         if not hasattr(options, name):
             raise TypeError(f"{what}: unknown option {name!r}")
-        setattr(options, name, value)
+        if isinstance(value, (float, np.floating)) and np.isnan(value):
+            raise ValueError(f"{what}: option {name} is NaN")
+        current = getattr(options, name)
+        try:
+            setattr(options, name, value)
+        except TypeError:
+            raise TypeError(f"{what}: option {name}={value!r} is not a {type(current).__name__}") from None
     return options
 
 

@@ -37,7 +37,7 @@ from dataclasses import dataclass, field as _field
 import numpy as np
 
 from . import _core
-from ._arrays import as_samples
+from ._arrays import as_samples, set_options
 
 FRAMES = ("ned", "nue")
 _FRAME = {"ned": _core.Frame.ned, "nue": _core.Frame.nue}
@@ -145,7 +145,7 @@ def reference_field(field=None, *, total=None, inclination=None, declination=0.0
         if f.shape != (3,) or not np.all(np.isfinite(f)) or not np.any(f):
             raise ValueError(f"field: {field!r} is not a finite, non-zero (N, E, D) 3-vector")
         return f
-    if total is not None:
+    if total is not None or inclination is not None:
         if inclination is None or total is None:
             raise ValueError("reference field: total and inclination are both needed")
         return field_from_inclination(total, inclination, declination)
@@ -348,13 +348,16 @@ def calibrate(mag, acc, field_ned, frame: str = "ned", preset=None, attitudes=No
     options.frame = fr
     options.estimate_yaw = bool(len(nominal) == 0) if estimate_yaw is None else bool(estimate_yaw)
     options.estimate_inclination = bool(estimate_inclination)
+    if not (np.isfinite(gravity) and gravity >= 0.0):
+        raise ValueError(f"gravity: {gravity!r}, need a finite value ≥ 0 (0 = the mean |acc|)")
+    if not (np.isfinite(gravity_tolerance) and gravity_tolerance > 0.0):  # NaN switched the |a| check off
+        raise ValueError(f"gravity_tolerance: {gravity_tolerance!r}, need a finite fraction > 0")
     options.gravity = float(gravity)
     options.gravity_tolerance = float(gravity_tolerance)
     options.units = units or ""
-    for k, v in settings.items():
-        if not hasattr(options, k):
-            raise TypeError(f"calibrate: unknown option {k!r}")
-        setattr(options, k, v)
+    set_options(options, settings, "calibrate")
+    if options.tilt_sigma_deg < 0.0:
+        raise ValueError(f"tilt_sigma_deg: {options.tilt_sigma_deg!r}, need ≥ 0 (0 = levelling taken as exact)")
     d = _core.calibrate_positions(U, np.ascontiguousarray(sf), nominal, to_local(f, frame), options)
     return _result(d, frame)
 
@@ -449,10 +452,13 @@ def verification_report(result: PositionsResult, outputs, acc, preset=None, atti
 
 
 def average_positions(ids, *arrays):
-    """Average rows sharing a position id (order of first appearance). Returns (unique ids, averaged arrays...)."""
+    """Average rows sharing a position id. Numeric ids are positions' numbers (1, 2, … as a preset numbers
+    them) and come out in that order, whatever order the rows were logged in (position 2's shots logged
+    first were taken for position 1's, and K came out wrong); other ids in order of first appearance.
+    Returns (unique ids, averaged arrays...)."""
     ids = np.asarray(ids)
     uniq, first, inverse = np.unique(ids, return_index=True, return_inverse=True)
-    order = np.argsort(first)
+    order = np.arange(len(uniq)) if np.issubdtype(uniq.dtype, np.number) else np.argsort(first)
     rank = np.empty_like(order)
     rank[order] = np.arange(len(order))
     groups = rank[inverse]

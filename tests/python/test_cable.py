@@ -166,6 +166,33 @@ def test_multi_snapshot_ac_three_conductors():
     assert sol.covariance.shape == (6 + 24, 6 + 24)
 
 
+def test_a_second_exact_solution_is_flagged_not_hidden():
+    """Three sensors, two conductors, one snapshot: six readings for six unknowns, and a second exact root.
+    The solver returned the wrong one with µm standard errors and well_conditioned=True."""
+    ring = Ring([0, 120, 240], 0.010)
+    positions = np.array([[-0.646e-3, 0.084e-3], [0.855e-3, -2.168e-3]])
+    s = ring.solve(ring.field(positions, [-8.54, 1.731]), n_conductors=2)
+    assert not s.well_conditioned
+    assert any(w.startswith("ambiguous: another solution fits the readings as well") for w in s.summary["warnings"])
+
+
+def test_a_misfit_from_the_default_starts_searches_again():
+    """A noise-free two-core cable whose default starts all fell into one local minimum (MISFIT blamed on the
+    sensors): the finer search finds the truth."""
+    ring = Ring([0, 90, 180, 270], 0.010)
+    positions = np.array([[-0.58e-3, 0.656e-3], [-0.181e-3, -0.543e-3]])
+    s = ring.solve(ring.field(positions, [9.404, -2.104]), n_conductors=2)
+    assert s.fits_model and s.well_conditioned
+    np.testing.assert_allclose(s.positions, positions, atol=1e-9)
+    assert any("searched again from 24 starts on a 15×15 grid" in w for w in s.summary["warnings"])
+    with pytest.raises(ValueError, match="n_conductors: 2.7 is not a whole number"):
+        ring.solve(ring.field(positions, [9.404, -2.104]), n_conductors=2.7)
+    with pytest.raises(ValueError, match="option noise_sigma is NaN"):
+        ring.solve(ring.field(positions, [9.404, -2.104]), n_conductors=2, noise_sigma=float("nan"))
+    with pytest.raises(ValueError, match=r"gains \(1, 2\), need both \(n_sensors, 2\)"):
+        fluxcal.cable.RingCalibration.from_dict({"offsets": np.zeros((4, 2)).tolist(), "gains": [[1.0, 1.0]]})
+
+
 def test_a_ring_csv_keeps_the_sensor_axis_angles(tmp_path):
     """A ring whose sensors are turned on the board (axis_angles_deg) read back from its CSV: the angles were
     dropped, and the positions solved from the file were millimetres off while flagged well conditioned."""

@@ -261,6 +261,13 @@ def test_bad_input_messages():
         fp.calibrate(t.outputs, t.acc_raw, PAPER_FIELD, frame="ned", rotations=level, estimate_yaw=True)
 
 
+def test_reference_field_names_what_is_missing():
+    with pytest.raises(ValueError, match="total and inclination are both needed"):
+        fp.reference_field(inclination=52.0)
+    with pytest.raises(ValueError, match="lat and lon are both needed"):
+        fp.reference_field(lat=48.1)
+
+
 def test_what_the_positions_cannot_determine_is_said_not_faked():
     """Review findings: (1) the twelve positions give 6 distinct gravity directions, too few for the
     accelerometer's misalignment (it came out 5× too large); (2) four positions are an exact fit, whose
@@ -344,6 +351,11 @@ def test_cli_positions(tmp_path):
     assert "dip_error_deg_rms" in d["verification"]
     bad = run_cli("positions", path, "--frame", "nue", "--preset", "twelve", "-o", out)
     assert bad.returncode == 2 and "reference field" in bad.stderr
+    # logged out of order (position 2's shots first): matched to the preset by number, not by first appearance
+    lines = path.read_text().splitlines()
+    path.write_text("\n".join(lines[:2] + lines[5:8] + lines[2:5] + lines[8:]) + "\n")
+    assert run_cli("positions", path, "--field", f, "--frame", "nue", "--preset", "twelve", "-o", out).returncode == 0
+    np.testing.assert_allclose(json.loads(out.read_text())["K"], d["K"], rtol=1e-12)
 
 
 def test_cli_positions_igrf_unknown_headings(tmp_path):
