@@ -110,7 +110,7 @@ class Ring:
                                                      np.atleast_1d(np.asarray(currents_a, dtype=float))))
 
     def solve(self, readings, n_conductors: int = 2, zero_sum_currents: bool = False, initial_positions=None,
-              initial_currents=None, **settings) -> CableSolution:
+              initial_currents=None, search_again: bool = True, **settings) -> CableSolution:
         """Conductor positions and currents from readings (n_sensors, 2) — one snapshot — or
         (snapshots, n_sensors, 2) sharing the positions (AC waveforms), tesla in each sensor's axes.
 
@@ -118,7 +118,9 @@ class Ring:
         ≤ 0 = estimate from the residuals), max_position_sigma=1e-4 (m), max_current_relative_sigma=0.05,
         misfit_ratio=5, refiner="automatic" ("ceres", or "dense": fluxcal's dense Levenberg–Marquardt on the same
         residuals; "automatic" = dense for a warm start, Ceres for the multi-start from the grid).
-        `initial_positions` (n, 2) warm-starts the solver (no grid). Raises ValueError on NaN readings,
+        `initial_positions` (n, 2) warm-starts the solver (no grid). search_again: when the default starts
+        leave a misfit, search again from 4× the starts on a 15×15 grid (a local minimum, not the model, is
+        then to blame; off where a misfit is expected, e.g. a diagnosis's start). Raises ValueError on NaN readings,
         too few sensors for the unknowns, or a start outside the bore."""
         arr = np.asarray(readings, dtype=float)
         single = arr.ndim == 2
@@ -143,7 +145,8 @@ class Ring:
             settings = {**settings, "refiner": names[settings["refiner"]]}
         set_options(options, settings, "Ring.solve")
         r = _core.solve_cable(*self._args(), arr.reshape(arr.shape[0], -1), options)
-        if not r["fits_model"] and initial_positions is None and not {"starts", "grid_points"} & set(settings):
+        if (search_again and not r["fits_model"] and initial_positions is None
+                and not {"starts", "grid_points"} & set(settings)):
             # a misfit from the default starts may be a local minimum (3 of 150 random two-core cables
             # on the paper's ring): search again from a finer grid and more starts before blaming the model
             options.grid_points, options.starts = 15, 4 * options.starts
