@@ -268,6 +268,7 @@ Eigen::MatrixXd newey_west(const Eigen::MatrixXd& g, int lags) {
 // switch to a sandwich that widens nothing (negative correlation is rare, and a small sample's
 // sandwich is noisy); `newey_west` reports the sandwich whatever it gives.
 constexpr double kWider = 1.5;
+constexpr double kMisfitFraction = 0.05;  // residual σ̂ / field above which a fit is a misfit, not noise
 
 void serial_correlation(RefineResult& out, const Eigen::MatrixXd& Finv, bool singular, const Scores& sc,
                         const RefineOptions& opt) {
@@ -358,7 +359,17 @@ void finish_statistics(RefineResult& out, const Eigen::MatrixXd& F, double sigma
   }
   if (scores) serial_correlation(out, Finv, lam(0) <= floor, *scores, opt);
   out.standard_errors = out.covariance.diagonal().cwiseMax(0.0).cwiseSqrt();
-  if (!out.identifiable)
+  // Residuals of several % of the field are no sensor's noise: then the standard errors are large because
+  // the readings do not fit the model, and "rotate more" would send the user the wrong way.
+  const double misfit = std::sqrt(sigma2) / scales(0);
+  if (!out.identifiable && misfit > kMisfitFraction)
+    out.summary.warnings.push_back(
+        "not identifiable: the data do not determine " + undetermined.str() + " (standard error above " +
+        percent(opt.determined_tolerance) + " of its scale) because the residuals are " + percent(misfit) +
+        " of the field, far above a sensor's noise: the readings do not fit the model — check the reference "
+        "vectors' attitude convention and time alignment, outliers or a disturbance, and that the start is in "
+        "the readings' units");
+  else if (!out.identifiable)
     out.summary.warnings.push_back(
         "not identifiable: the data do not determine " + undetermined.str() +
         " (standard error above " + percent(opt.determined_tolerance) +
@@ -384,7 +395,17 @@ void finish_summary(RefineResult& out, const SamplesRef& samples, const SamplesR
   s.norm_std_over_mean = std::sqrt(std::max(0.0, sd2 / n - (sd / n) * (sd / n))) / s.norm_mean;
   s.residual_rms = reference ? std::sqrt(sv2 / n) : std::sqrt(sd2 / n);
   s.exact_statistics = true;
-  describe_coverage(s, samples, cal, 16384);
+  if (reference) {
+    // With reference vectors the field's directions are known without the fit: coverage is theirs, and
+    // coverage_ratio the thinnest/widest spread of the reference vectors (it was left 0, "planar").
+    describe_coverage(s, *reference, Calibration{}, 16384);
+    const Eigen::RowVector3d mean = reference->colwise().mean();
+    const Eigen::Matrix3d cov = (reference->rowwise() - mean).transpose() * (reference->rowwise() - mean) / n;
+    const Eigen::Vector3d ev = Eigen::SelfAdjointEigenSolver<Eigen::Matrix3d>(cov, Eigen::EigenvaluesOnly).eigenvalues();
+    s.coverage_ratio = ev(2) > 0.0 ? std::sqrt(std::max(ev(0), 0.0) / ev(2)) : 0.0;
+  } else {
+    describe_coverage(s, samples, cal, 16384);
+  }
   s.condition_number = out.fisher_condition;
   std::ostringstream msg;
   msg << cal.model << ": " << s.samples << " samples, " << (s.converged ? "converged" : "NOT converged")

@@ -314,6 +314,11 @@ TwoStep2DResult twostep_2d(const Readings2DRef& readings, const Eigen::Ref<const
   sum.norm_std_over_mean = std::sqrt(std::max(0.0, sq2 / nd - sum.norm_mean * sum.norm_mean)) / sum.norm_mean;
   sum.exact_statistics = true;
   if (options.refine && options.max_iterations > 0) sum.cost = sd2 / nd;
+  if (sum.norm_std_over_mean > options.misfit_spread)
+    sum.warnings.push_back("the readings do not fit the model: |h|/h scatters by " + percent(sum.norm_std_over_mean) +
+                           " after the fit (more than " + percent(options.misfit_spread) +
+                           "); check that field_norms belong to the readings (same order, same field units) "
+                           "and that no axis is saturated");
 
   std::ostringstream msg;
   const std::string u = out.units.empty() ? "" : " " + out.units;

@@ -15,7 +15,8 @@ void bind_twostep(py::module_& m) {
       .def_readwrite("refine", &TwoStep2DOptions::refine)
       .def_readwrite("max_iterations", &TwoStep2DOptions::max_iterations)
       .def_readwrite("tolerance", &TwoStep2DOptions::tolerance)
-      .def_readwrite("units", &TwoStep2DOptions::units);
+      .def_readwrite("units", &TwoStep2DOptions::units)
+      .def_readwrite("misfit_spread", &TwoStep2DOptions::misfit_spread);
 
   py::class_<TwoStepOptions>(m, "TwoStepOptions")
       .def(py::init<>())

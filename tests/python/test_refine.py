@@ -115,6 +115,18 @@ def test_calibrate_says_which_arguments_it_did_not_use():
     assert not any("not used" in w for w in fluxcal.calibrate(m, reference=r).summary["warnings"])
 
 
+def test_a_vector_fit_that_does_not_fit_says_so_and_its_coverage_is_the_references():
+    rng = np.random.default_rng(6)
+    r = 50 * sim.uniform(400, rng).sensor_field([0.3, 0.2, 0.93])
+    m = r @ (np.eye(3) * 1.05).T + [3.0, -2.0, 1.0] + 0.2 * rng.standard_normal(r.shape)
+    good = fluxcal.fit_vector(m, r)
+    assert good.summary["coverage_ratio"] > 0.8 and good.summary["direction_coverage"] > 0.9  # was 0 ("planar")
+    late = fluxcal.fit_vector(m, np.roll(r, 1, axis=0))  # the reference one row late: nothing fits
+    assert not late.summary["identifiable"]
+    message = next(w for w in late.summary["warnings"] if w.startswith("not identifiable"))
+    assert "the readings do not fit the model" in message and "rotate the sensor" not in message
+
+
 def test_few_spare_readings_are_warned_about():
     s = simulated(4, n=11, field_norm=50.0)
     cal = fluxcal.calibrate(s.readings, field_norm=50.0)  # 11 readings, 9 parameters

@@ -169,6 +169,24 @@ def test_2d_bad_input_errors():
         twostep_2d(readings, h, iterations=3)
 
 
+def test_2d_field_norms_of_other_readings_are_warned_about():
+    """Shuffled field_norms that still give a converged fit (12 of 20 permutations did, silently)."""
+    rng = np.random.default_rng(0)
+    ang, hn = rng.uniform(0, 2 * np.pi, 60), rng.uniform(5, 15, 60)
+    r2 = np.column_stack([np.cos(ang), np.sin(ang)]) * hn[:, None] * [1.3, 0.8] + [2.0, -1.0] + 0.01 * rng.normal(size=(60, 2))
+    assert not fluxcal.twostep_2d(r2, hn).summary["warnings"]
+    warned = 0
+    for k in range(20):
+        try:
+            t = fluxcal.twostep_2d(r2, np.random.default_rng(k).permutation(hn))
+        except ValueError as exc:  # γ² ≤ 0: the documented error
+            assert "field_norms belong to the readings" in str(exc)
+            continue
+        assert any(w.startswith("the readings do not fit the model: |h|/h scatters by") for w in t.summary["warnings"])
+        warned += 1
+    assert warned > 0
+
+
 def test_2d_rank_deficient_first_step_says_what_to_do():
     # The ring never turned: one field direction, readings on a line.
     readings, h, _ = paper_like(np.random.default_rng(8), noise=0.0, positions=1)

@@ -69,6 +69,9 @@ struct TwoStep2DOptions {
   double tolerance = 1e-12;
   /// Units of the readings, carried into the result ("" = not stated).
   std::string units;
+  /// Warn when |h|/h_k scatters by more than this (std/mean) after the fit: readings and field_norms that
+  /// do not belong together (shuffled, another run's) can still give a converged fit.
+  double misfit_spread = 0.05;
 };
 
 /// Offset and gains of a biaxial sensor, and how the fit went.
