@@ -272,6 +272,7 @@ ArResult fit_ar(const SeriesRef& y, const ArOptions& options) {
     theta = qr.solve(y0);
     const Eigen::MatrixXd r_inv = r0.triangularView<Eigen::Upper>().solve(Eigen::MatrixXd::Identity(p, p));
     Eigen::MatrixXd cov = r_inv * r_inv.transpose();  // (X0ᵀX0)⁻¹
+    cov = (0.5 * (cov + cov.transpose())).eval();     // exactly symmetric from the start (see below)
     const double lambda = options.forgetting;
     Eigen::VectorXd phi(p), g(p);
     for (Eigen::Index t = p + n0; t < n_total; ++t) {
@@ -280,9 +281,11 @@ ArResult fit_ar(const SeriesRef& y, const ArOptions& options) {
       const double denom = lambda + phi.dot(g);
       const double err = y[t] - phi.dot(theta);
       theta += g * (err / denom);
-      // Symmetric rank-one downdate keeps cov symmetric over millions of steps.
-      cov.noalias() -= g * (g.transpose() / denom);
-      if (lambda != 1.0) cov /= lambda;
+      // Rank-one downdate computed on one triangle and mirrored, so cov stays exactly symmetric:
+      // g_i (g_j / denom) and g_j (g_i / denom) round differently, the downdate never shrinks the
+      // antisymmetric part, and dividing by λ < 1 every step then grows it as λ^−t until it swamps cov.
+      for (int j = 0; j < p; ++j)
+        for (int i = j; i < p; ++i) cov(i, j) = cov(j, i) = (cov(i, j) - g[i] * g[j] / denom) / lambda;
     }
   }
   result.coefficients = theta;

@@ -53,6 +53,19 @@ def test_rls_matches_oracle(forgetting):
         np.testing.assert_allclose(model.coefficients, oracle.ar_fit(y, 2)[0], rtol=0, atol=1e-10)
 
 
+@pytest.mark.parametrize("forgetting", [0.97, 0.9, 0.8])
+def test_rls_forgetting_is_weighted_least_squares(forgetting):
+    # RLS with λ < 1 is exponentially weighted least squares; it used to diverge (λ = 0.8: [22.8, −40.5]
+    # for [0.96, −0.59]) because the covariance downdate was not exactly symmetric and dividing by λ
+    # every step grew its antisymmetric part.
+    y = ar_series((0.5, -0.2), 2000, 1)
+    y = y - y.mean()
+    model = ts.fit_ar(y, order=2, forgetting=forgetting)
+    exact = oracle.weighted_ls(y, 2, 20, forgetting)
+    np.testing.assert_allclose(model.coefficients, exact, rtol=0, atol=1e-9)
+    np.testing.assert_allclose(model.coefficients, oracle.rls(y, 2, 20, forgetting), rtol=0, atol=1e-9)
+
+
 def test_million_samples():
     truth = np.array([0.6, -0.3, 0.2])
     y = ar_series(truth, 1_000_000, 21)

@@ -66,11 +66,27 @@ def rls(y, p, init_samples=20, forgetting=1.0):
     n0 = min(t.size, max(init_samples, 2 * p))
     theta = np.linalg.lstsq(X[:n0], t[:n0], rcond=None)[0]
     P = np.linalg.inv(X[:n0].T @ X[:n0])
+    P = 0.5 * (P + P.T)
     for phi, target in zip(X[n0:], t[n0:]):
-        k = P @ phi / (forgetting + phi @ P @ phi)
-        theta = theta + k * (target - phi @ theta)
-        P = (P - np.outer(k, phi @ P)) / forgetting
+        g = P @ phi
+        denom = forgetting + phi @ g
+        theta = theta + g * ((target - phi @ theta) / denom)
+        # np.outer(g, g) is exactly symmetric: with forgetting < 1 an antisymmetric rounding part of P
+        # would grow as forgetting^−t (the downdate never shrinks it).
+        P = (P - np.outer(g, g) / denom) / forgetting
     return theta
+
+
+def weighted_ls(y, p, init_samples=20, forgetting=1.0):
+    """What RLS with forgetting λ computes, in one batch: weighted least squares on the n rows of
+    `lagged(y, p, p)`, recursive row i weighted λ^(n−1−i) and the n0 rows of the batch start all
+    λ^(n−n0) (the start's information is scaled by λ at each of the n − n0 recursive steps)."""
+    X, t = lagged(y, p, p)
+    n0 = min(t.size, max(init_samples, 2 * p))
+    n = t.size
+    w = np.concatenate([np.full(n0, forgetting ** (n - n0)), forgetting ** (n - 1 - np.arange(n0, n))])
+    sw = np.sqrt(w)
+    return np.linalg.lstsq(X * sw[:, None], t * sw, rcond=None)[0]
 
 
 def remove_trend(x, degree=1):
