@@ -3,6 +3,8 @@
 #include <Eigen/Eigenvalues>
 
 #include <cmath>
+#include <cstdlib>
+#include <limits>
 #include <sstream>
 
 namespace fluxcal {
@@ -35,6 +37,29 @@ void update_covariance(const Eigen::MatrixXd& m, const Eigen::VectorXd& k, doubl
       p(i, j) = p(j, i) = m(i, j) - k[i] * m(j, 0) - m(i, 0) * k[j] + s * k[i] * k[j];
 }
 
+// s + e = a + b exactly (Knuth's TwoSum).
+void two_sum(double a, double b, double& s, double& e) {
+  s = a + b;
+  const double bb = s - a;
+  e = (a - (s - bb)) + (b - bb);
+}
+
+// Residual of the autocovariance equation k, q δ_k0 − γ_k + Σ_i a_i γ_|k−i|, in twice the working
+// precision (TwoSum and fma products, Ogita–Rump–Oishi Dot2) and rounded once: it is computed from the
+// coefficients themselves, so iterative refinement converges to the covariance of exactly these a.
+double autocovariance_residual(const Eigen::VectorXd& a, double q, const Eigen::VectorXd& g, Eigen::Index k) {
+  double s = k == 0 ? q : 0.0, c = 0.0, e = 0.0;
+  two_sum(s, -g[k], s, e);
+  c += e;
+  for (Eigen::Index i = 1; i <= a.size(); ++i) {
+    const double x = a[i - 1], y = g[std::abs(k - i)];
+    const double prod = x * y, prod_err = std::fma(x, y, -prod);
+    two_sum(s, prod, s, e);
+    c += e + prod_err;
+  }
+  return s + c;
+}
+
 }  // namespace
 
 Eigen::MatrixXd ar_stationary_covariance(const Eigen::VectorXd& a, double q) {
@@ -46,18 +71,43 @@ Eigen::MatrixXd ar_stationary_covariance(const Eigen::VectorXd& a, double q) {
         << " ≥ 1), it has no stationary covariance";
     throw Error(msg.str());
   }
-  // Doubling: P = Σ A^k Q A^kᵀ summed in log2 steps.
-  const Eigen::Index n = a.size();
-  Eigen::MatrixXd p = Eigen::MatrixXd::Zero(n, n), ak = A;
-  p(0, 0) = q;
-  for (int it = 0; it < 200; ++it) {
-    const Eigen::MatrixXd next = p + ak * p * ak.transpose();
-    ak = (ak * ak).eval();
-    const double change = (next - p).cwiseAbs().maxCoeff();
-    p = next;
-    if (change <= 1e-17 * p.cwiseAbs().maxCoeff() || ak.cwiseAbs().maxCoeff() < 1e-300) break;
+  // The state is (y_k … y_{k−p+1}), so P is the Toeplitz matrix of the autocovariances γ0 … γ_{p−1},
+  // and those solve the autocovariance (Yule–Walker) equations γ_k = Σ_i a_i γ_|k−i| + q δ_k0,
+  // k = 0 … p: a (p+1)² linear system instead of summing A^k Q A^kᵀ (doubling on the non-normal
+  // companion matrix lost all digits with poles near 1). Poles near 1 make the system ill conditioned
+  // (four at 0.99: a plain solve is 2 % off), so the LU solution is refined with residuals in twice the
+  // working precision until the correction is at rounding level.
+  const Eigen::Index p = a.size(), n = p + 1;
+  Eigen::MatrixXd m = Eigen::MatrixXd::Identity(n, n);
+  for (Eigen::Index k = 0; k < n; ++k)
+    for (Eigen::Index i = 1; i <= p; ++i) m(k, std::abs(k - i)) -= a[i - 1];
+  const Eigen::PartialPivLU<Eigen::MatrixXd> lu(m);
+  Eigen::VectorXd rhs = Eigen::VectorXd::Zero(n), r(n);
+  rhs[0] = q;
+  Eigen::VectorXd g = lu.solve(rhs);
+  // Each step shrinks the error by about cond(m)·ε; stop at rounding level or when it stops shrinking
+  // (cond(m)·ε ≳ 1: the covariance of these coefficients is beyond double precision).
+  double change = std::numeric_limits<double>::infinity();
+  for (int it = 0; it < 100 && g.allFinite(); ++it) {
+    for (Eigen::Index k = 0; k < n; ++k) r[k] = autocovariance_residual(a, q, g, k);
+    const Eigen::VectorXd d = lu.solve(r);
+    g += d;
+    const double previous = change;
+    change = d.cwiseAbs().maxCoeff() / g.cwiseAbs().maxCoeff();
+    if (change <= 4.0 * std::numeric_limits<double>::epsilon() || !(change < 0.9 * previous)) break;
   }
-  return 0.5 * (p + p.transpose());
+  const bool converged = change <= 1e-12;
+  Eigen::MatrixXd cov(p, p);
+  for (Eigen::Index i = 0; i < p; ++i)
+    for (Eigen::Index j = 0; j < p; ++j) cov(i, j) = g[std::abs(i - j)];
+  if (!converged || !g.allFinite() || !(g[0] > 0.0) || cov.llt().info() != Eigen::Success) {
+    std::ostringstream msg;
+    msg << "ar_coefficients: the AR model is too close to non-stationary (companion spectral radius " << rho
+        << "): its stationary covariance is not determined in double precision"
+        << (g.allFinite() ? "" : " (it overflows)") << "; give initial_variance > 0";
+    throw Error(msg.str());
+  }
+  return cov;
 }
 
 ArKalman::ArKalman(const Eigen::VectorXd& ar_coefficients, double q, double r, const KalmanOptions& options)
@@ -71,10 +121,14 @@ ArKalman::ArKalman(const Eigen::VectorXd& ar_coefficients, double q, double r, c
   const Eigen::Index n = a_.size();
   if (options.initial_variance > 0.0) {
     p0_ = options.initial_variance * Eigen::MatrixXd::Identity(n, n);
-  } else if (spectral_radius() < 1.0) {
-    p0_ = ar_stationary_covariance(a_, q_);
   } else {
-    p0_ = 10.0 * (q_ + r_) * Eigen::MatrixXd::Identity(n, n);
+    try {
+      p0_ = ar_stationary_covariance(a_, q_);
+    } catch (const Error&) {
+      // Not stationary, or so close (a double unit root's eigenvalues round to either side of 1)
+      // that no stationary covariance is determined: start diffuse.
+      p0_ = 10.0 * (q_ + r_) * Eigen::MatrixXd::Identity(n, n);
+    }
   }
 }
 
@@ -90,23 +144,66 @@ double ArKalman::spectral_radius() const { return companion(a_).eigenvalues().cw
 
 Eigen::VectorXd ArKalman::steady_state_gain(Eigen::MatrixXd* prior_covariance, int* iterations) const {
   const Eigen::Index n = a_.size();
-  Eigen::MatrixXd p = p0_, m(n, n);
-  Eigen::VectorXd pa(n), k = Eigen::VectorXd::Zero(n), k_prev;
+  Eigen::MatrixXd m(n, n);
   int it = 0;
-  for (; it < options_.riccati_max_iterations; ++it) {
-    predict_covariance(a_, q_, p, m, pa);
-    const double s = m(0, 0) + r_;
-    k_prev = k;
-    k = m.col(0) / s;
-    update_covariance(m, k, s, p);
-    if (it > 0 && (k - k_prev).norm() <= options_.riccati_tolerance * k.norm()) break;
+  bool converged = false;
+  if (r_ > 0.0) {
+    // Structure-preserving doubling (Chu, Fan, Lin 2005) on the filter DARE
+    // M = A M Aᵀ − A M Cᵀ (C M Cᵀ + R)⁻¹ C M Aᵀ + Q, written as X = Fᵀ X (I + G X)⁻¹ F + H with F = Aᵀ,
+    // G = Cᵀ R⁻¹ C, H = Q: step k covers 2^k Riccati steps, so it converges quadratically where the
+    // recursion converges at the closed-loop rate 1 − K (a random walk with q/r = 1e-8 needs ~10⁵
+    // recursion steps, ~20 doubling steps). H increases monotonically to M.
+    Eigen::MatrixXd f = companion(a_).transpose(), g = Eigen::MatrixXd::Zero(n, n), h = Eigen::MatrixXd::Zero(n, n);
+    g(0, 0) = 1.0 / r_;
+    h(0, 0) = q_;
+    const Eigen::MatrixXd eye = Eigen::MatrixXd::Identity(n, n);
+    for (; it < options_.riccati_max_iterations; ++it) {
+      const Eigen::PartialPivLU<Eigen::MatrixXd> w(eye + g * h);
+      const Eigen::MatrixXd wf = w.solve(f), wg = w.solve(g);
+      Eigen::MatrixXd h_next = h + f.transpose() * h * wf;
+      g += f * wg * f.transpose();
+      f = (f * wf).eval();
+      // Symmetric in exact arithmetic; keep them so.
+      h_next = (0.5 * (h_next + h_next.transpose())).eval();
+      g = (0.5 * (g + g.transpose())).eval();
+      if (!h_next.allFinite()) break;
+      const double change = (h_next - h).cwiseAbs().maxCoeff();
+      h = std::move(h_next);
+      if (change <= options_.riccati_tolerance * h.cwiseAbs().maxCoeff()) {
+        converged = true;
+        break;
+      }
+    }
+    m = h;
+  } else {
+    // r = 0: the state is measured exactly after p samples, so the recursion reaches its fixed point
+    // M = Q e1 e1ᵀ in about p steps (and G = Cᵀ R⁻¹ C above does not exist).
+    Eigen::MatrixXd p = p0_;
+    Eigen::VectorXd pa(n), k = Eigen::VectorXd::Zero(n), k_prev;
+    for (; it < options_.riccati_max_iterations; ++it) {
+      predict_covariance(a_, q_, p, m, pa);
+      const double s = m(0, 0) + r_;
+      k_prev = k;
+      k = m.col(0) / s;
+      update_covariance(m, k, s, p);
+      if (!k.allFinite()) break;
+      if (it > 0 && (k - k_prev).norm() <= options_.riccati_tolerance * k.norm()) {
+        converged = true;
+        break;
+      }
+    }
   }
-  if (it == options_.riccati_max_iterations)
-    throw Error("steady_state_gain: the Riccati recursion did not converge in " +
-                std::to_string(options_.riccati_max_iterations) + " iterations");
+  const double s = m(0, 0) + r_;
+  if (!converged || !m.allFinite() || !(s > 0.0)) {
+    std::ostringstream msg;
+    msg << "steady_state_gain: the Riccati equation did not converge in " << options_.riccati_max_iterations
+        << (r_ > 0.0 ? " doubling steps" : " iterations") << " (q = " << q_ << ", r = " << r_
+        << "; the AR model's unstable modes must be driven by q and seen in y)";
+    throw Error(msg.str());
+  }
   if (prior_covariance) *prior_covariance = m;
   if (iterations) *iterations = it + 1;
-  return k;
+  return m.col(0) / s;
 }
 
 KalmanResult ArKalman::filter(const SeriesRef& y) const {

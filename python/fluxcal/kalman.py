@@ -41,7 +41,8 @@ def _options(initial_variance: float, steady_state: bool):
 
 class ArKalman:
     """Double-precision Kalman filter on the AR(p) model a1 … ap with process variance q and measurement
-    variance r. initial_variance: P0 = initial_variance · I (0 = the AR process's stationary covariance).
+    variance r. initial_variance: P0 = initial_variance · I (0 = the AR process's stationary covariance, or
+    10 (q + r) · I when the model is not stationary or too close to it for that covariance to be determined).
     steady_state: filter with the constant steady-state gain."""
 
     def __init__(self, ar_coeffs, q: float, r: float, initial_variance: float = 0.0, steady_state: bool = False):
@@ -127,8 +128,10 @@ class FixedArKalman:
         self.r_int = int(_quantize(d.r, self.cov_frac_bits, "r"))
         p0 = d.initial_covariance
         self.p0_int = _quantize(p0, self.cov_frac_bits, "initial covariance")
-        if self.q_int <= 0:
-            raise ValueError(f"q: {d.q} rounds to 0 with {self.cov_frac_bits} covariance fraction bits")
+        if self.q_int <= 0 and not self.steady_state:  # the steady-state filter never uses Q, R or P
+            raise ValueError(f"q: {d.q} rounds to 0 with {self.cov_frac_bits} covariance fraction bits (the "
+                             f"format also holds P0 and the covariances up to {2.0 ** (30 - self.cov_frac_bits):.3g}"
+                             "; use steady_state=True, a smaller initial_variance or cov_frac_bits)")
         self.overflowed = False
         self.result: dict | None = None
 

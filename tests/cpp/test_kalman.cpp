@@ -36,6 +36,36 @@ TEST(Kalman, TimeVaryingConvergesToSteadyState) {
   EXPECT_NEAR((rhs - p).cwiseAbs().maxCoeff(), 0.0, 1e-12);
 }
 
+TEST(Kalman, StationaryCovarianceWithPolesNearOne) {
+  // Four poles at 0.99 (the coefficients of (1 − 0.99 z⁻¹)⁴ as NumPy rounds them): doubling gave NaN.
+  Eigen::VectorXd a(4);
+  a << 3.96, -5.8805999999999994, 3.8811959999999996, -0.96059600999999994;
+  const Eigen::MatrixXd p = fluxcal::ar_stationary_covariance(a, 1.0);
+  ASSERT_TRUE(p.allFinite());
+  // γ0 of these float coefficients, from exact rational arithmetic (fluxcal.oracle.kalman).
+  EXPECT_NEAR(p(0, 0) / 15703755854097.92 - 1.0, 0.0, 1e-13);
+  Eigen::MatrixXd A = Eigen::MatrixXd::Zero(4, 4);
+  A.row(0) = a.transpose();
+  for (int i = 1; i < 4; ++i) A(i, i - 1) = 1.0;
+  Eigen::MatrixXd rhs = A * p * A.transpose();
+  rhs(0, 0) += 1.0;
+  EXPECT_LT((rhs - p).cwiseAbs().maxCoeff(), 1e-9 * p(0, 0));
+  EXPECT_NO_THROW(fluxcal::ArKalman(a, 1.0, 1.0).steady_state_gain());
+}
+
+TEST(Kalman, SteadyGainOfASlowRandomWalk) {
+  // Local level with q/r = 1e-8: the recursion converges at the rate 1 − K ≈ 1 − 1e-4 and gave up
+  // after 10⁵ steps; doubling needs a few dozen.
+  const fluxcal::ArKalman k(Eigen::VectorXd::Constant(1, 1.0), 1e-8, 1.0);
+  Eigen::MatrixXd m;
+  int iterations = 0;
+  const Eigen::VectorXd gain = k.steady_state_gain(&m, &iterations);
+  const double exact = (1e-8 + std::sqrt(1e-16 + 4e-8)) / 2.0;  // m² = q (m + r)
+  EXPECT_NEAR(m(0, 0) / exact - 1.0, 0.0, 1e-10);
+  EXPECT_NEAR(gain[0] / (exact / (exact + 1.0)) - 1.0, 0.0, 1e-10);
+  EXPECT_LT(iterations, 60);
+}
+
 TEST(Kalman, FromArFit) {
   fluxcal::ArResult fit;
   fit.order = 2;

@@ -7,8 +7,9 @@
 // K = P e1 / S; update x += K e and the Joseph form P = (I − K C) P (I − K C)ᵀ + R K Kᵀ. With C = e1ᵀ
 // the Joseph form expands exactly to P − K pᵀ − p Kᵀ + S K Kᵀ (p = P e1), which is what is computed:
 // O(p²) per sample, symmetric by construction. The companion structure also makes A P Aᵀ O(p²).
-// The steady-state form iterates the Riccati recursion to its fixed point once and then filters
-// with that constant gain (no covariance per sample).
+// The steady-state form solves the discrete algebraic Riccati equation once (structure-preserving
+// doubling, quadratic convergence; the plain recursion when r = 0) and then filters with that constant
+// gain (no covariance per sample). The stationary covariance solves the AR autocovariance equations.
 #pragma once
 
 #include "fluxcal/timeseries.hpp"
@@ -19,11 +20,15 @@ namespace fluxcal {
 
 struct KalmanOptions {
   /// Initial state covariance P0 = initial_variance · I; 0 = the stationary covariance of the AR
-  /// process (discrete Lyapunov equation), or 10 (Q + R) · I when the AR model is not stationary.
+  /// process (discrete Lyapunov equation), or 10 (Q + R) · I when the AR model is not stationary or so
+  /// close to it that its stationary covariance is not determined in double precision.
   double initial_variance = 0.0;
   bool steady_state = false;          ///< filter with the steady-state gain
-  int riccati_max_iterations = 100000;  ///< for the steady-state gain
-  double riccati_tolerance = 1e-15;   ///< relative change of the gain that ends the iteration
+  /// Doubling steps for the steady-state gain (step k covers 2^k Riccati steps; the plain recursion
+  /// steps when r = 0).
+  int riccati_max_iterations = 100000;
+  /// Relative change of the covariance (the gain when r = 0) that ends the iteration.
+  double riccati_tolerance = 1e-15;
 };
 
 struct KalmanResult {
@@ -68,8 +73,9 @@ class ArKalman {
   Eigen::MatrixXd p0_;
 };
 
-/// Stationary covariance of the AR(p) state (solution of P = A P Aᵀ + Q e1 e1ᵀ); throws Error when
-/// the model is not stationary.
+/// Stationary covariance of the AR(p) state (solution of P = A P Aᵀ + Q e1 e1ᵀ: the Toeplitz matrix of
+/// the autocovariances γ0 … γ_{p−1}); throws Error when the model is not stationary, or so close to it
+/// that the covariance is not determined in double precision.
 Eigen::MatrixXd ar_stationary_covariance(const Eigen::VectorXd& ar_coefficients, double q);
 
 }  // namespace fluxcal

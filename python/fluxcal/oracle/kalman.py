@@ -48,6 +48,33 @@ def kalman_filter(a, q, r, p0, y, steady_gain=None):
     return out
 
 
+def stationary_covariance(a, q):
+    """Stationary covariance of the AR(p) state, exactly for the given float coefficients: the
+    autocovariance equations γ_k = Σ a_i γ_|k−i| + q δ_k0 (k = 0 … p) solved in rational arithmetic,
+    then the Toeplitz matrix of γ0 … γ_{p−1}. Exact where double-precision solvers lose digits (poles
+    near 1)."""
+    from fractions import Fraction
+
+    a = [Fraction(float(v)) for v in np.atleast_1d(a)]
+    p = len(a)
+    n = p + 1
+    m = [[Fraction(int(i == j)) for j in range(n)] for i in range(n)]
+    b = [Fraction(float(q)) if k == 0 else Fraction(0) for k in range(n)]
+    for k in range(n):
+        for i in range(1, p + 1):
+            m[k][abs(k - i)] -= a[i - 1]
+    for c in range(n):  # Gauss–Jordan, exact
+        piv = next(row for row in range(c, n) if m[row][c] != 0)
+        m[c], m[piv], b[c], b[piv] = m[piv], m[c], b[piv], b[c]
+        for row in range(n):
+            if row != c and m[row][c] != 0:
+                f = m[row][c] / m[c][c]
+                m[row] = [x - f * y for x, y in zip(m[row], m[c])]
+                b[row] -= f * b[c]
+    g = [float(b[k] / m[k][k]) for k in range(n)]
+    return np.array([[g[abs(i - j)] for j in range(p)] for i in range(p)])
+
+
 def steady_state_gain(a, q, r, iterations=20000):
     """Steady-state gain from the discrete algebraic Riccati equation (SciPy), for comparison."""
     from scipy.linalg import solve_discrete_are
