@@ -220,9 +220,10 @@ def save_kalman(f, path) -> Path:
 
 def load_kalman(path):
     """A FixedArKalman from a JSON of `save_kalman` or a drift model of `fluxcal drift fit` (its AR model and
-    Kalman q, r). Without stated signal fraction bits they follow FixedArKalman's own rule (2·max|y| fits)
-    with max|y| = 8 σ_y, σ_y² = the AR process's stationary variance + r."""
-    from .kalman import FixedArKalman, _int_bits
+    Kalman q, r). Without stated signal fraction bits they follow FixedArKalman's own rule
+    (`FixedArKalman.signal_frac_bits`: 2·G·max|y| fits, G the filter's signal gain) with max|y| = 8 σ_y,
+    σ_y² = the AR process's stationary variance + r."""
+    from .kalman import FixedArKalman
 
     path = Path(path)
     try:
@@ -254,7 +255,7 @@ def load_kalman(path):
         sigma = math.sqrt(float(f.double.initial_covariance[0, 0]) + f.double.r)
         if not math.isfinite(sigma):
             raise ValueError(f"{path}: the AR model is not stationary; give frac_bits explicitly")
-        f.frac_bits = min(31, 31 - _int_bits(2.0 * 8.0 * sigma))
+        f.frac_bits = f.signal_frac_bits(8.0 * sigma)
     return f
 
 
@@ -268,7 +269,9 @@ def _kalman_test_vector(f, n: int = 256, seed: int = 0):
         past = x[max(0, k - d.order):k][::-1]
         x[k] = float(np.dot(d.ar_coeffs[:past.size], past)) + math.sqrt(d.q) * rng.standard_normal()
     y = x[burn:] + math.sqrt(d.r) * rng.standard_normal(n)
-    limit = 0.45 * 2.0 ** (31 - f.frac_bits)  # keep the test inside the signal range: no saturation to test here
+    # Inside the signal range with the state, prediction and innovation (up to signal_gain·max|y|) and a
+    # guard bit for the time-varying transient: no saturation to test here.
+    limit = 0.45 * 2.0 ** (31 - f.frac_bits) / f.signal_gain
     if np.max(np.abs(y)) > limit:
         y *= limit / np.max(np.abs(y))
     y_int, _ = f.to_fixed(y)

@@ -84,6 +84,40 @@ def _int_bits(value: float) -> int:
     return max(0, math.ceil(math.log2(value))) if value > 0 else 0
 
 
+def signal_gain(ar_coeffs, gain) -> float:
+    """Largest ratio, over inputs |y| ≤ 1, of any signal-format value inside the steady-state filter to
+    max|y|: the state x (after the update), the prediction Σ a_i x_i and the innovation y − Σ a_i x_i.
+    The filter is linear, x_k = F x_{k−1} + K y_k with F = (I − K C) A, so each of them is bounded by
+    the ℓ1 norm of its impulse response from y: Σ_j |(F^j K)_i|, Σ_j |a·F^j K| and 1 + the latter.
+    (Σ|a_i| · max|y| is not a bound: the state itself can exceed max|y|.)"""
+    a, k = np.asarray(ar_coeffs, dtype=float), np.asarray(gain, dtype=float)
+    n = a.size
+    comp = np.zeros((n, n))
+    comp[0] = a
+    comp[np.arange(1, n), np.arange(n - 1)] = 1.0
+    f = comp - np.outer(k, comp[0])  # (I − K e1ᵀ) A
+    block = 256
+    h = np.empty((n, block))  # F^j K for j in the current block
+    v = k.copy()
+    for j in range(block):
+        h[:, j] = v
+        v = f @ v
+    f_block = np.linalg.matrix_power(f, block)
+    state, prediction = np.zeros(n), 0.0
+    for _ in range(1 << 14):  # up to 4·10⁶ terms: a closed loop slower than that is summed geometrically below
+        part_state, part_prediction = np.abs(h).sum(axis=1), float(np.abs(a @ h).sum())
+        state += part_state
+        prediction += part_prediction
+        if part_state.max() <= 1e-13 * state.max() and part_prediction <= 1e-13 * max(prediction, 1e-300):
+            break
+        h = f_block @ h
+    else:  # the tail at the closed loop's rate
+        rho = float(np.max(np.abs(np.linalg.eigvals(f)))) ** block
+        state += part_state * rho / (1.0 - rho)
+        prediction += part_prediction * rho / (1.0 - rho)
+    return float(max(1.0, state.max(), 1.0 + prediction))
+
+
 def _quantize(values, frac_bits: int, name: str) -> np.ndarray:
     scaled = np.rint(np.asarray(values, dtype=np.float64) * 2.0 ** frac_bits)
     if np.any(scaled > INT32_MAX) or np.any(scaled < INT32_MIN):
@@ -94,8 +128,10 @@ def _quantize(values, frac_bits: int, name: str) -> np.ndarray:
 class FixedArKalman:
     """The ArKalman filter in int32 fixed point with 64-bit accumulators (see fixed_kalman.hpp).
 
-    frac_bits: fraction bits of the signal format (y, state, innovation); None = derived from the first
-    series filtered so that 2·max|y| fits (one guard bit). coef_frac_bits (AR coefficients and gain) and
+    frac_bits: fraction bits of the signal format (y, state, prediction, innovation); None = derived from
+    the first series filtered so that 2·G·max|y| fits (one guard bit), G = `signal_gain` (≥ 1: the
+    worst-case ratio of the state, prediction and innovation to max|y| in the steady-state filter; for the
+    time-varying filter the double filter's own values on the series count too). coef_frac_bits (AR coefficients and gain) and
     cov_frac_bits (Q, R, P) default to values derived from the model: the largest of |a|, the
     steady-state |K| and 1, and the largest of P0, the steady-state prior covariance and q + r, each
     with one guard bit (two for the covariances: S = M00 + R). The filter takes and returns floats; inside everything is int32.
@@ -132,12 +168,17 @@ class FixedArKalman:
             raise ValueError(f"q: {d.q} rounds to 0 with {self.cov_frac_bits} covariance fraction bits (the "
                              f"format also holds P0 and the covariances up to {2.0 ** (30 - self.cov_frac_bits):.3g}"
                              "; use steady_state=True, a smaller initial_variance or cov_frac_bits)")
+        self.signal_gain = signal_gain(d.ar_coeffs, d.steady_gain)
         self.overflowed = False
         self.result: dict | None = None
 
     @property
     def order(self) -> int:
         return self.double.order
+
+    def signal_frac_bits(self, y_max: float) -> int:
+        """Signal fraction bits for inputs up to ±y_max: 2·signal_gain·y_max fits (one guard bit)."""
+        return min(31, 31 - _int_bits(2.0 * self.signal_gain * float(y_max)))
 
     def coefficients(self) -> dict:
         """The integer coefficient set (what the firmware and fluxcal.oracle.kalman.FixedModel take)."""
@@ -158,12 +199,15 @@ class FixedArKalman:
         """Filter a series already in the signal format (int32 in, int32 out). checkpoint_every > 0 also
         records the filter's whole state (x, K, P) before every checkpoint_every-th sample in
         self.result["checkpoint_state" / "checkpoint_gain" / "checkpoint_covariance"]."""
-        c = self.coefficients()
-        self.result = _core.fixed_kalman_filter(c["a"], c["gain"], c["q"], c["r"], c["p0"], c["signal_frac_bits"],
-                                                c["coef_frac_bits"], c["cov_frac_bits"], c["steady_state"],
-                                                np.ascontiguousarray(y_int, dtype=np.int32), int(checkpoint_every))
+        self.result = self._run_int(y_int, checkpoint_every)
         self.overflowed = bool(self.result["overflowed"])
         return np.asarray(self.result["output"])
+
+    def _run_int(self, y_int, checkpoint_every: int = 0) -> dict:
+        c = self.coefficients()
+        return _core.fixed_kalman_filter(c["a"], c["gain"], c["q"], c["r"], c["p0"], c["signal_frac_bits"],
+                                         c["coef_frac_bits"], c["cov_frac_bits"], c["steady_state"],
+                                         np.ascontiguousarray(y_int, dtype=np.int32), int(checkpoint_every))
 
     def filter(self, y) -> np.ndarray:
         """Filtered output of every sample, as floats (the int32 outputs times 2^−frac_bits)."""
@@ -171,7 +215,16 @@ class FixedArKalman:
         if not np.all(np.isfinite(y)):
             raise ValueError(f"y: sample {int(np.argmax(~np.isfinite(y)))} is NaN/Inf")
         if self.frac_bits is None:
-            self.frac_bits = min(31, 31 - _int_bits(2.0 * float(np.max(np.abs(y))) if y.size else 1.0))
+            y_max = float(np.max(np.abs(y))) if y.size else 0.0
+            bits = self.signal_frac_bits(y_max)
+            if not self.steady_state and y.size:  # the transient gains are not the steady ones: count the values
+                d = ArKalman(self.double.ar_coeffs, self.double.q, self.double.r,
+                             initial_variance=self.double.options.initial_variance)
+                filtered = d.filter(y)
+                e = d.result["innovations"]
+                seen = max(float(np.max(np.abs(filtered))), float(np.max(np.abs(e))), float(np.max(np.abs(y - e))))
+                bits = min(bits, 31 - _int_bits(2.0 * seen))
+            self.frac_bits = bits
         y_int, clipped = self.to_fixed(y)
         out = self.filter_int(y_int)
         self.overflowed = self.overflowed or clipped
@@ -185,10 +238,18 @@ class FixedArKalman:
         K_i e and y: at most h = 2^−(frac_bits+1) each, |ρ|∞ ≤ h (2 + |K̃|∞)). Its error e_k therefore obeys
         e_k = F e_{k−1} + d_k with |d_k|∞ ≤ ‖F̃ − F‖∞ X + |K̃|∞ h + |K̃ − K|∞ Y + h (2 + |K̃|∞), X = max‖x_k‖∞
         (from the double run), Y = max|y|, so |e|∞ ≤ G · max|d| with G = Σ_k ‖F^k‖∞ (summed until the
-        terms vanish; finite because F is stable). Second-order terms (‖F̃ − F‖ · |e|) are neglected."""
+        terms vanish; finite because F is stable). Second-order terms (‖F̃ − F‖ · |e|) are neglected.
+
+        Returns math.inf when the fixed-point filter saturates on y (or y does not fit the signal format):
+        a saturated filter can be off by any amount, so there is no finite bound."""
         if self.frac_bits is None:
             raise ValueError("frac_bits: not set yet")
         y = as_series(y, "y")
+        if not np.all(np.isfinite(y)):
+            raise ValueError(f"y: sample {int(np.argmax(~np.isfinite(y)))} is NaN/Inf")
+        y_int, clipped = self.to_fixed(y)
+        if clipped or self._run_int(y_int)["overflowed"]:
+            return math.inf
         d = self.double
         n = d.order
         a_q = self.a_int / 2.0 ** self.coef_frac_bits

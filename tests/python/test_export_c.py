@@ -216,7 +216,8 @@ def test_kalman_from_a_drift_model(tmp_path):
     np.testing.assert_allclose(f.double.ar_coeffs, data["ar"]["coefficients"])
     assert f.double.q == data["kalman"]["q"] and f.double.r == data["kalman"]["r"]
     sigma = np.sqrt(f.double.initial_covariance[0, 0] + f.double.r)
-    assert 2.0 ** (31 - f.frac_bits) >= 2 * 8 * sigma > 2.0 ** (30 - f.frac_bits)  # the stated rule
+    need = 2 * 8 * sigma * f.signal_gain  # the stated rule: 2·G·max|y| fits, max|y| = 8 σ
+    assert f.signal_gain >= 1 and 2.0 ** (31 - f.frac_bits) >= need > 2.0 ** (30 - f.frac_bits)
     header = tmp_path / "p.h"
     export_c(CALS["nT"], header, name="p", kalman=path)
     outputs, mismatches = run_kalman_driver(tmp_path, header)

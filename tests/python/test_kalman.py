@@ -125,7 +125,7 @@ def test_steady_gain_matches_scipy_dare(a, q, r):
 def fixed_case(steady_state, n=1_000_000, seed=3):
     a, q, r = (0.6, -0.3, 0.2), 0.5, 0.3
     y = ar_signal(a, q, r, n, seed)
-    y = 0.9 * y / np.max(np.abs(y))  # peak ±0.9: the derived format is Q1.30 (range ±2)
+    y = 0.9 * y / np.max(np.abs(y))  # peak ±0.9, signal gain 1.56: the derived format is Q2.29 (range ±4)
     return a, q, r, y
 
 
@@ -139,7 +139,7 @@ def test_fixed_point_bit_exact_on_a_million_samples(steady_state):
     a, q, r, y = fixed_case(steady_state)
     f = FixedArKalman(a, q, r, steady_state=steady_state)
     f.filter(y)
-    assert f.frac_bits == 30 and not f.overflowed
+    assert f.frac_bits == 29 and not f.overflowed
     y_int, _ = f.to_fixed(y)
     chunk = 1000
     out = f.filter_int(y_int, checkpoint_every=chunk)
@@ -183,12 +183,54 @@ def test_fixed_point_error_within_derived_bound(steady_state):
     double = ArKalman(a, q, r, steady_state=steady_state).filter(y)
     err = np.max(np.abs(fixed - double))
     bound = f.error_bound(y)
-    # Q1.30 signals: the bound is a few 1e-9 of the ±0.9 full scale, far inside the "Q31 ≈ 1e-7" budget.
+    # Q2.29 signals: the bound is a few 1e-9 of the ±0.9 full scale, far inside the "Q31 ≈ 1e-7" budget.
     assert bound < 1e-7
     # The bound is derived for the steady-state form; for the time-varying form (whose quantised gain
     # follows the double one after the transient) it is checked here, not proven.
     assert err <= bound
     assert err > 0  # it is genuinely fixed point
+
+
+def test_derived_signal_format_holds_prediction_and_innovation():
+    # AR (1.6, −0.8): the prediction Σ a_i x_i and the innovation reach ~2.4 max|y|. The old rule (2·max|y|
+    # fits: Q1.30) saturated on this ordinary input while error_bound said 9e-9 for an actual error of 0.6.
+    a, q, r = (1.6, -0.8), 1.0, 1e-4
+    y = np.array([0.0, -1.0, 1.0, 0.0, 0.0, 0.0])
+    f = FixedArKalman(a, q, r, steady_state=True)
+    out = f.filter(y)
+    assert not f.overflowed and f.signal_gain > 2.4 and f.frac_bits == 28
+    err = np.max(np.abs(out - ArKalman(a, q, r, steady_state=True).filter(y)))
+    assert err <= f.error_bound(y) < 1e-7
+    # The worst input of that amplitude (the signs of the innovation's impulse response) still fits.
+    d = ArKalman(a, q, r, steady_state=True)
+    impulse = np.zeros(400)
+    impulse[0] = 1.0
+    d.filter(impulse)
+    worst = np.sign(d.result["innovations"][::-1])
+    g = FixedArKalman(a, q, r, steady_state=True, frac_bits=f.frac_bits)
+    g.filter(worst)
+    assert not g.overflowed
+    # A saturating filter has no finite error bound.
+    h = FixedArKalman(a, q, r, steady_state=True, frac_bits=30)
+    h.filter(y)
+    assert h.overflowed and h.error_bound(y) == np.inf
+
+
+def test_derived_signal_format_never_saturates_on_its_series():
+    rng = np.random.default_rng(21)
+    for trial in range(30):
+        p = int(rng.integers(1, 7))
+        a = -np.real(np.poly(rng.uniform(0.0, 0.999, p) * np.sign(rng.standard_normal(p))))[1:]
+        q, r = 10 ** rng.uniform(-6, 3), 10 ** rng.uniform(-6, 3)
+        y = [rng.uniform(-1, 1, 2000), np.repeat(rng.choice([-1.0, 1.0], 20), 100),
+             np.cumsum(rng.standard_normal(2000))][trial % 3] * 10 ** rng.uniform(-3, 3)
+        for steady_state in (True, False):
+            f = FixedArKalman(a, q, r, steady_state=steady_state)
+            out = f.filter(y)
+            assert not f.overflowed, (trial, a, q, r, steady_state)
+            if steady_state:
+                err = np.max(np.abs(out - ArKalman(a, q, r, steady_state=True).filter(y)))
+                assert err <= f.error_bound(y), (trial, a, q, r)
 
 
 def test_overflow_is_flagged_and_saturates():
