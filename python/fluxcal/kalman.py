@@ -118,6 +118,30 @@ def signal_gain(ar_coeffs, gain) -> float:
     return float(max(1.0, state.max(), 1.0 + prediction))
 
 
+def _int32_series(values, name: str = "y_int") -> np.ndarray:
+    """`values` as a contiguous int32 series; ValueError naming the first sample that is not an integer or
+    does not fit int32 (a plain cast would wrap 2^31 + 5 to −2^31 + 5, or truncate 0.5)."""
+    arr = np.asarray(values)
+    if arr.ndim != 1:
+        raise ValueError(f"{name}: shape {arr.shape}, expected a 1-D series of int32 samples")
+    if arr.size and arr.dtype.kind not in "iu":
+        try:
+            as_float = arr.astype(np.float64)
+        except (TypeError, ValueError):
+            raise ValueError(f"{name}: not numeric (dtype {arr.dtype})") from None
+        bad = ~(np.isfinite(as_float) & (as_float == np.round(as_float)))
+        if bad.any():
+            i = int(np.argmax(bad))
+            raise ValueError(f"{name}: sample {i} is {arr[i]}, not an integer (use to_fixed() for values)")
+        arr = as_float
+    outside = (arr < INT32_MIN) | (arr > INT32_MAX)
+    if np.any(outside):
+        i = int(np.argmax(outside))
+        raise ValueError(f"{name}: sample {i} is {arr[i]}, outside int32 [{INT32_MIN}, {INT32_MAX}] (use to_fixed() "
+                         "to saturate values into the signal format)")
+    return np.ascontiguousarray(arr, dtype=np.int32)
+
+
 def _quantize(values, frac_bits: int, name: str) -> np.ndarray:
     scaled = np.rint(np.asarray(values, dtype=np.float64) * 2.0 ** frac_bits)
     if np.any(scaled > INT32_MAX) or np.any(scaled < INT32_MIN):
@@ -199,15 +223,15 @@ class FixedArKalman:
         """Filter a series already in the signal format (int32 in, int32 out). checkpoint_every > 0 also
         records the filter's whole state (x, K, P) before every checkpoint_every-th sample in
         self.result["checkpoint_state" / "checkpoint_gain" / "checkpoint_covariance"]."""
-        self.result = self._run_int(y_int, checkpoint_every)
+        self.result = self._run_int(_int32_series(y_int), checkpoint_every)
         self.overflowed = bool(self.result["overflowed"])
         return np.asarray(self.result["output"])
 
-    def _run_int(self, y_int, checkpoint_every: int = 0) -> dict:
+    def _run_int(self, y_int: np.ndarray, checkpoint_every: int = 0) -> dict:
         c = self.coefficients()
         return _core.fixed_kalman_filter(c["a"], c["gain"], c["q"], c["r"], c["p0"], c["signal_frac_bits"],
-                                         c["coef_frac_bits"], c["cov_frac_bits"], c["steady_state"],
-                                         np.ascontiguousarray(y_int, dtype=np.int32), int(checkpoint_every))
+                                         c["coef_frac_bits"], c["cov_frac_bits"], c["steady_state"], y_int,
+                                         int(checkpoint_every))
 
     def filter(self, y) -> np.ndarray:
         """Filtered output of every sample, as floats (the int32 outputs times 2^−frac_bits)."""

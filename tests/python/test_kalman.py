@@ -11,7 +11,7 @@ from scipy.signal import lfilter
 
 from conftest import REPO
 from fluxcal import _core
-from fluxcal.kalman import ArKalman, FixedArKalman
+from fluxcal.kalman import INT32_MAX, INT32_MIN, ArKalman, FixedArKalman
 from fluxcal.oracle import kalman as oracle
 
 MODELS = [((0.6, -0.3, 0.2), 0.5, 0.3), ((0.95,), 1.0, 4.0), ((1.2, -0.5, 0.1, 0.05), 0.02, 0.01)]
@@ -337,3 +337,17 @@ def test_bad_input():
         FixedArKalman((0.5,), 1.0, 1.0).filter([0.1, np.inf])
     k = ArKalman((1.01,), 1.0, 1.0)  # not stationary: still filters, from P0 = 10 (Q + R) I
     assert k.spectral_radius > 1 and np.isfinite(k.filter(np.ones(50))).all()
+
+
+def test_filter_int_rejects_samples_outside_int32():
+    # int64 input used to be cast to int32 silently: 2^31 + 5 wrapped to −2^31 + 5.
+    f = FixedArKalman([0.5], 1.0, 1.0, frac_bits=20)
+    with pytest.raises(ValueError, match=r"y_int: sample 1 is 2147483653, outside int32"):
+        f.filter_int(np.array([0, 2 ** 31 + 5], dtype=np.int64))
+    with pytest.raises(ValueError, match=r"y_int: sample 0 is -2147483649, outside int32"):
+        f.filter_int([-(2 ** 31) - 1])
+    with pytest.raises(ValueError, match=r"y_int: sample 2 is 0\.5, not an integer"):
+        f.filter_int([1.0, 2.0, 0.5])
+    edge = np.array([INT32_MAX, INT32_MIN, 7], dtype=np.int64)  # the int32 range itself is fine
+    np.testing.assert_array_equal(f.filter_int(edge), f.filter_int(edge.astype(np.int32)))
+    np.testing.assert_array_equal(f.filter_int([3.0, -4.0]), f.filter_int(np.array([3, -4], dtype=np.int32)))
