@@ -298,8 +298,8 @@ ArResult fit_ar(const SeriesRef& y, const ArOptions& options) {
   }
   result.sigma2 = result.residuals.squaredNorm() / static_cast<double>(rows);
 
-  int lags = options.whiteness_lags > 0 ? options.whiteness_lags : std::max(10, 2 * p);
-  lags = static_cast<int>(std::min<Eigen::Index>(lags, std::max<Eigen::Index>(1, rows / 2)));
+  const int wanted_lags = options.whiteness_lags > 0 ? options.whiteness_lags : std::max(10, 2 * p);
+  const int lags = static_cast<int>(std::min<Eigen::Index>(wanted_lags, std::max<Eigen::Index>(1, rows / 2)));
   if (result.sigma2 > 0.0) result.whiteness = ljung_box(result.residuals, lags, p, options.significance);
 
   Summary& s = result.summary;
@@ -309,13 +309,26 @@ ArResult fit_ar(const SeriesRef& y, const ArOptions& options) {
   s.residual_rms = std::sqrt(result.sigma2);
   s.converged = true;
   std::ostringstream msg;
-  msg << "AR(" << p << ")" << (fixed ? " (fixed order)" : " by AIC") << ", sigma2 " << result.sigma2
-      << ", Ljung-Box p " << result.whiteness.p_value;
+  // Ljung–Box needs more lags than the model's p degrees of freedom; the cap of (N − p)/2 lags can leave
+  // fewer, and then whiteness is untested (p-value NaN), not rejected.
+  const bool tested = result.sigma2 > 0.0 && result.whiteness.lags > p;
+  msg << "AR(" << p << ")" << (fixed ? " (fixed order)" : " by AIC") << ", sigma2 " << result.sigma2;
+  if (tested)
+    msg << ", Ljung-Box p " << result.whiteness.p_value;
+  else if (result.sigma2 > 0.0)
+    msg << ", whiteness not tested";
   s.message = msg.str();
   if (result.order_at_maximum)
     s.warnings.push_back("AIC chose the maximum order " + std::to_string(k) +
                          ": the noise may have longer memory than max_order allows");
-  if (result.sigma2 > 0.0 && !result.whiteness.white)
+  if (result.sigma2 > 0.0 && !tested)
+    s.warnings.push_back(
+        "residual whiteness could not be tested: " +
+        (lags < wanted_lags ? std::to_string(rows) + " residuals allow only " + std::to_string(lags) + " Ljung-Box lags"
+                            : "whiteness_lags = " + std::to_string(lags)) +
+        ", the test needs more than the AR order " + std::to_string(p) +
+        (lags < wanted_lags ? " (more samples or a lower order)" : ""));
+  else if (tested && !result.whiteness.white)
     s.warnings.push_back("residuals are not white (Ljung-Box p = " + std::to_string(result.whiteness.p_value) +
                          "): the AR model is rejected by seed 001's S3.3 check");
   return result;

@@ -269,7 +269,9 @@ def cmd_drift(args) -> int:
         print(f"  stationarity (reverse arrangement, differenced {pre['differences']}x): u = "
               f"{pre['stationarity']['u']:.3f} ({'stationary' if pre['stationarity']['stationary'] else 'NOT stationary'})")
         print(f"  normality: skewness {pre['normality']['skewness']:.3f}, kurtosis {pre['normality']['kurtosis']:.3f}")
-        print(f"  AR({ar['order']}) by AIC, sigma2 {ar['sigma2']:.4g}, Ljung-Box p {ar['whiteness']['p_value']:.3g}")
+        p_value = ar["whiteness"]["p_value"]
+        white = f"Ljung-Box p {p_value:.3g}" if p_value == p_value else "whiteness not tested (too few lags)"
+        print(f"  AR({ar['order']}) by AIC, sigma2 {ar['sigma2']:.4g}, {white}")
         for w in report["warnings"]:
             print(f"warning: {w}")
         for seg in model.segments:

@@ -212,3 +212,23 @@ def test_real_sensor_noise_hits_the_maximum_order(real_data):
         np.testing.assert_allclose(roomy.aic, oracle.ar_aic(z, 20), rtol=1e-9)
         ref = AutoReg(z, lags=roomy.order, trend="n").fit()
         np.testing.assert_allclose(roomy.coefficients, ref.params, rtol=0, atol=1e-6)
+
+
+def test_untestable_whiteness_is_not_a_rejection():
+    # 23 samples, AR(10): the (N − p)/2 cap leaves 6 Ljung–Box lags ≤ p, so the p-value is NaN. The
+    # warning used to read "residuals are not white (Ljung-Box p = nan): the AR model is rejected".
+    y = ar_series((0.5, -0.3, 0.2, -0.1), 23, 2)
+    model = ts.fit_ar(y - y.mean(), order=10)
+    assert model.whiteness["lags"] == 6 and np.isnan(model.whiteness["p_value"])
+    warnings = model.summary["warnings"]
+    assert any("whiteness could not be tested" in w and "only 6 Ljung-Box lags" in w and "order 10" in w
+               for w in warnings), warnings
+    assert not any("rejected" in w or "nan" in w for w in warnings), warnings
+    assert "whiteness not tested" in model.summary["message"]
+    # An explicit whiteness_lags ≤ p says so.
+    y = ar_series((0.5,), 500, 3)
+    model = ts.fit_ar(y, order=3, whiteness_lags=3)
+    assert any("whiteness_lags = 3" in w for w in model.summary["warnings"]), model.summary["warnings"]
+    # A testable fit still reports its p-value.
+    model = ts.fit_ar(y, order=1)
+    assert np.isfinite(model.whiteness["p_value"]) and "Ljung-Box p" in model.summary["message"]
