@@ -41,7 +41,7 @@ def _regressor(temp, temp_outside, regressor: str) -> np.ndarray:
         return temp
     if temp_outside is None:
         raise ValueError("temp_outside: needed for the inside/outside temperature difference regressor")
-    outside = ts.as_series(temp_outside, "temp_outside")
+    outside = _finite(ts.as_series(temp_outside, "temp_outside"), "temp_outside")  # named, not as "regressor"
     if outside.size != temp.size:
         raise ValueError(f"temp_outside: {outside.size} samples, temp has {temp.size}")
     return np.ascontiguousarray(temp - outside)

@@ -110,6 +110,14 @@ def test_bad_input(foct):
     t[9] = np.inf
     with pytest.raises(ValueError, match="temp: sample 9 is inf"):
         drift.fit_pipeline(c["zero_bias"], t)
+    # A NaN in temp_outside is named as such (it was reported as "regressor").
+    outside = c["temp_outside"].copy()
+    outside[3] = np.nan
+    with pytest.raises(ValueError, match="temp_outside: sample 3 is nan"):
+        drift.fit_pipeline(c["zero_bias"], c["temp"], outside, regressor="difference")
+    m_difference = drift.fit_drift(c["zero_bias"], c["temp"], c["temp_outside"], regressor="difference")
+    with pytest.raises(ValueError, match="temp_outside: sample 3 is nan"):
+        m_difference.evaluate(c["temp"], outside)
     with pytest.raises(ValueError, match="need at least"):  # too short for the stationarity test and AR fit
         drift.fit_pipeline(c["zero_bias"][:30], c["temp"][:30])
     # Samples outside every range: the fit leaves them out (with a warning), compensation refuses them.
