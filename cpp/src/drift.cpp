@@ -278,8 +278,21 @@ Eigen::VectorXd DriftModel::evaluate(const SeriesRef& select, const SeriesRef& x
   check_series(x, "regressor", 0, "");
   if (select.size() != x.size()) throw Error("drift: temperature and regressor lengths differ");
   if (segments.empty()) throw Error("drift: the model has no segments");
+  // Segments are found by the edges lo_0 < lo_1 < … < hi_last: a gap or an unsorted list (a hand-edited
+  // or merged model) would silently pick the wrong polynomial, so the ranges must tile one interval.
   std::vector<double> edges;
-  for (const auto& seg : segments) edges.push_back(seg.lo);
+  for (std::size_t k = 0; k < segments.size(); ++k) {
+    const DriftSegment& seg = segments[k];
+    std::ostringstream msg;
+    if (!(std::isfinite(seg.lo) && std::isfinite(seg.hi) && seg.lo < seg.hi))
+      msg << "drift model: segment " << k << " has the range [" << seg.lo << ", " << seg.hi
+          << "], not a finite range with lo < hi";
+    else if (k > 0 && seg.lo != segments[k - 1].hi)
+      msg << "drift model: segment " << k << " starts at " << seg.lo << " but segment " << k - 1 << " ends at "
+          << segments[k - 1].hi << "; the ranges must be ascending and contiguous (no gaps, no overlaps)";
+    if (!msg.str().empty()) throw Error(msg.str());
+    edges.push_back(seg.lo);
+  }
   edges.push_back(segments.back().hi);
   Eigen::VectorXd f(x.size());
   for (Eigen::Index i = 0; i < x.size(); ++i) {

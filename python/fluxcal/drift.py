@@ -83,11 +83,26 @@ class DriftModel:
     def from_dict(cls, data: dict, source: str = "drift model") -> "DriftModel":
         try:
             segments = data["segments"]
-            for s in segments:
-                lo, hi = s["range"]
+            previous_hi = None
+            for k, s in enumerate(segments):
+                if len(s["range"]) != 2:
+                    raise ValueError(f"{source}: segment {k} has the range {s['range']}, expected [lo, hi]")
+                lo, hi = (float(v) for v in s["range"])
                 if len(s["coefficients"]) != int(s["order"]) + 1:
-                    raise ValueError(f"{source}: segment [{lo}, {hi}] has order {s['order']} but "
+                    raise ValueError(f"{source}: segment [{lo:g}, {hi:g}] has order {s['order']} but "
                                      f"{len(s['coefficients'])} coefficients")
+                # Segments are looked up by ascending edges: a gap or an unsorted list would pick the wrong
+                # polynomial without a word.
+                if not (np.isfinite(lo) and np.isfinite(hi) and lo < hi):
+                    raise ValueError(f"{source}: segment {k} has the range [{lo:g}, {hi:g}], not a finite range "
+                                     "with lo < hi")
+                if previous_hi is not None and lo != previous_hi:
+                    raise ValueError(f"{source}: segment {k} [{lo:g}, {hi:g}] starts at {lo:g} but segment {k - 1} "
+                                     f"ends at {previous_hi:g}; the ranges must be ascending and contiguous (no gaps, "
+                                     "no overlaps)")
+                previous_hi = hi
+            if not segments:
+                raise ValueError(f"{source}: the drift model has no segments")
         except (KeyError, TypeError) as exc:
             raise ValueError(f"{source}: not a drift model (missing or malformed {exc})") from None
         settings = {k: v for k, v in data.items() if k not in ("kind", "regressor", "segments", "summary")}

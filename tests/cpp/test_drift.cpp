@@ -69,3 +69,21 @@ TEST(Drift, BadInput) {
 }
 
 }  // namespace
+
+TEST(Drift, EvaluateRefusesGapsAndUnsortedRanges) {
+  auto segment = [](double lo, double hi, double c) {
+    fluxcal::DriftSegment s;
+    s.lo = lo;
+    s.hi = hi;
+    s.coefficients = Eigen::VectorXd::Constant(1, c);
+    return s;
+  };
+  const Eigen::VectorXd t = Eigen::VectorXd::Constant(1, 5.0);
+  fluxcal::DriftModel gap, unsorted, good;
+  gap.segments = {segment(-20.0, 0.0, 1.0), segment(10.0, 30.0, 2.0)};  // T = 5 took the first polynomial
+  unsorted.segments = {segment(0.0, 30.0, 2.0), segment(-20.0, 0.0, 1.0)};
+  good.segments = {segment(-20.0, 0.0, 1.0), segment(0.0, 30.0, 2.0)};
+  EXPECT_THROW(gap.evaluate(t, t), fluxcal::Error);
+  EXPECT_THROW(unsorted.evaluate(t, t), fluxcal::Error);
+  EXPECT_EQ(good.evaluate(t, t)[0], 2.0);
+}

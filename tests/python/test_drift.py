@@ -132,6 +132,29 @@ def test_bad_input(foct):
         drift.DriftModel.from_dict({"segments": [{"order": 1}]})
 
 
+@pytest.mark.parametrize("ranges, message", [
+    ([[-20, 0], [10, 30]], r"segment 1 \[10, 30\] starts at 10 but segment 0 ends at 0; the ranges must be ascending "
+                           r"and contiguous"),
+    ([[0, 30], [-20, 0]], r"segment 1 \[-20, 0\] starts at -20 but segment 0 ends at 30"),
+    ([[-20, 10], [0, 30]], r"segment 1 \[0, 30\] starts at 0 but segment 0 ends at 10"),
+    ([[-20, 0], [0, 0]], r"segment 1 has the range \[0, 0\], not a finite range with lo < hi")])
+def test_models_with_gaps_or_unsorted_ranges_are_refused(tmp_path, ranges, message):
+    # A hand-edited or merged model evaluated silently wrong: with a gap T = 5 took the first polynomial,
+    # unsorted ranges refused T = 10 with "(0 … 0)".
+    data = {"kind": "fluxcal drift model",
+            "segments": [{"range": r, "order": 0, "coefficients": [float(k + 1)]} for k, r in enumerate(ranges)]}
+    path = tmp_path / "edited.json"
+    path.write_text(json.dumps(data))
+    with pytest.raises(ValueError, match="edited.json: " + message):
+        drift.DriftModel.load(path)
+    # The core refuses such segments too (a DriftModel built in code).
+    with pytest.raises(ValueError, match="drift model: segment 1"):
+        drift.DriftModel(segments=data["segments"]).evaluate([5.0])
+    good = drift.DriftModel.from_dict({"segments": [{"range": [-20, 0], "order": 0, "coefficients": [1.0]},
+                                                    {"range": [0, 30], "order": 0, "coefficients": [2.0]}]})
+    np.testing.assert_array_equal(good.evaluate([-5.0, 0.0, 10.0, 30.0]), [1.0, 2.0, 2.0, 2.0])
+
+
 def test_cli_fit_and_apply(tmp_path, foct):
     c = foct.columns
     src = write_csv(tmp_path / "foct.csv", {k: c[k] for k in ("t", "zero_bias", "temp", "temp_outside")},
