@@ -247,7 +247,10 @@ def cmd_drift(args) -> int:
     from . import drift
 
     if args.drift_command == "fit":
-        rec = read_csv(args.file)
+        rec = read_csv(args.file, bad_lines=args.bad_lines)
+        if "skipped_lines" in rec.metadata:  # the AR model and the Kalman filter assume evenly spaced samples
+            print(f"skipped {rec.metadata['skipped_lines'].replace(':', ' lines:', 1)} (the series is modelled as "
+                  "if they were not there: a time step is missing at each)")
         for name in (args.column, "temp"):
             if name not in rec.columns:
                 raise ValueError(f"{args.file}: no column {name!r} (columns: {', '.join(rec.columns)})")
@@ -291,7 +294,9 @@ def cmd_drift(args) -> int:
         print(f"wrote {model.save(args.output)}")
         return 0
     model = drift.DriftModel.load(args.model)
-    rec = read_csv(args.file)
+    rec = read_csv(args.file, bad_lines=args.bad_lines)
+    if "skipped_lines" in rec.metadata:
+        print(f"skipped {rec.metadata['skipped_lines'].replace(':', ' lines:', 1)} (not in the output)")
     column = args.column or model.settings.get("column", "zero_bias")  # the model remembers what it was fitted on
     for name in (column, "temp"):
         if name not in rec.columns:
@@ -476,11 +481,13 @@ def build_parser() -> argparse.ArgumentParser:
     df.add_argument("--steady-state", action="store_true", help="Kalman filter with the steady-state gain")
     df.add_argument("--rated", type=float, default=None, help="rated current (zero-bias units) for the class check")
     df.add_argument("--class", dest="accuracy_class", default="0.2S", choices=("0.2S", "0.5S"))
+    df.add_argument("--bad-lines", default="error", choices=["error", "skip"], help=bad_lines_help)
     da = drs.add_parser("apply", help="compensate a recording: writes its columns plus zero_bias_compensated")
     da.add_argument("model")
     da.add_argument("file")
     da.add_argument("-o", "--output", required=True)
     da.add_argument("--column", default=None, help="column to compensate (default: the one the model was fitted on)")
+    da.add_argument("--bad-lines", default="error", choices=["error", "skip"], help=bad_lines_help)
     dr.set_defaults(run=cmd_drift)
     from .batch import add_batch_parser
     from .io.serial import add_record_parser

@@ -189,3 +189,27 @@ def test_cli_fit_and_apply(tmp_path, foct):
     bad = write_csv(tmp_path / "bad.csv", {"t": [0.0, 1.0], "zero_bias": [0.1, 0.2], "temp": [20.0, 70.0]})
     run = run_cli("drift", "apply", model_path, bad, "-o", tmp_path / "x.csv")
     assert run.returncode == 2 and "outside every range" in run.stderr
+
+
+def test_cli_bad_lines(tmp_path, foct):
+    # A blank cell's error suggests --bad-lines skip; drift fit and apply now accept it.
+    c = foct.columns
+    src = write_csv(tmp_path / "foct.csv", {k: c[k] for k in ("t", "zero_bias", "temp")}, units=foct.units)
+    lines = src.read_text().splitlines()
+    header = next(i for i, line in enumerate(lines) if line.startswith("t,"))
+    cells = lines[header + 10].split(",")
+    lines[header + 10] = ",".join([cells[0], "", cells[2]])  # blank zero_bias
+    blank = tmp_path / "blank.csv"
+    blank.write_text("\n".join(lines) + "\n")
+    model_path = tmp_path / "m.json"
+    run = run_cli("drift", "fit", blank, "-o", model_path)
+    assert run.returncode == 2 and "--bad-lines skip" in run.stderr, run.stderr
+    run = run_cli("drift", "fit", blank, "-o", model_path, "--bad-lines", "skip")
+    assert run.returncode == 0, run.stderr
+    assert f"skipped 1 of {len(c['t'])} lines: {header + 11}" in run.stdout and "time step is missing" in run.stdout
+    run = run_cli("drift", "apply", model_path, blank, "-o", tmp_path / "x.csv")
+    assert run.returncode == 2 and "--bad-lines skip" in run.stderr, run.stderr
+    run = run_cli("drift", "apply", model_path, blank, "-o", tmp_path / "out.csv", "--bad-lines", "skip")
+    assert run.returncode == 0, run.stderr
+    assert "skipped 1 of" in run.stdout
+    assert len(read_csv(tmp_path / "out.csv")) == len(c["t"]) - 1
