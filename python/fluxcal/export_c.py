@@ -40,6 +40,7 @@ from pathlib import Path
 import numpy as np
 
 from .calibration import Calibration
+from .kalman import signal_format
 
 INT32_MIN, INT32_MAX = -(2 ** 31), 2 ** 31 - 1
 FLOAT_RELATIVE_TOLERANCE = 1e-6  # float32 result vs double: relative to max(|h|∞, field norm)
@@ -269,11 +270,11 @@ def _kalman_test_vector(f, n: int = 256, seed: int = 0):
         past = x[max(0, k - d.order):k][::-1]
         x[k] = float(np.dot(d.ar_coeffs[:past.size], past)) + math.sqrt(d.q) * rng.standard_normal()
     y = x[burn:] + math.sqrt(d.r) * rng.standard_normal(n)
-    # Inside the signal range with the state, prediction and innovation (up to signal_gain·max|y|) and a
-    # guard bit for the time-varying transient: no saturation to test here.
+    # Scaled to the signal range, so the vector exercises the format's bits whatever its scale, but inside it
+    # with the state, prediction and innovation (up to signal_gain·max|y|) and a guard bit for the
+    # time-varying transient: no saturation to test here.
     limit = 0.45 * 2.0 ** (31 - f.frac_bits) / f.signal_gain
-    if np.max(np.abs(y)) > limit:
-        y *= limit / np.max(np.abs(y))
+    y *= limit / np.max(np.abs(y))
     y_int, _ = f.to_fixed(y)
     out = f.filter_int(y_int)
     return np.asarray(y_int, dtype=np.int64), np.asarray(out, dtype=np.int64), f.overflowed
@@ -296,8 +297,8 @@ class ExportResult:
                 f"|m| ≤ {fx.input_range:.6g}{unit}; fixed-point error ≤ {fx.error_bound:.3g}{unit} "
                 f"({fx.error_bound_lsb:.2f} LSB); {len(self.inputs_q)} test vectors")
         if self.kalman is not None:
-            text += (f"; AR({self.kalman.order}) Kalman coefficients (signal Q{31 - self.kalman.frac_bits}."
-                     f"{self.kalman.frac_bits}) with a {len(self.kalman_test[0])}-sample bit-exact test vector")
+            text += (f"; AR({self.kalman.order}) Kalman coefficients (signal {signal_format(self.kalman.frac_bits)})"
+                     f" with a {len(self.kalman_test[0])}-sample bit-exact test vector")
         return text
 
 

@@ -84,6 +84,24 @@ def _int_bits(value: float) -> int:
     return max(0, math.ceil(math.log2(value))) if value > 0 else 0
 
 
+# The signal format is only a scale factor (no shift in the filter depends on it), so its fraction bits
+# may exceed 31 or go negative with the signal's units; these limits only keep 2^±frac_bits a double.
+SIGNAL_FRAC_BITS_RANGE = (-960, 1000)
+
+
+def _signal_frac_bits_holding(value: float) -> int:
+    """Fraction bits of the int32 format whose range ±2^(31 − f) just holds `value` (31 for 0)."""
+    if not value > 0:
+        return 31
+    lo, hi = SIGNAL_FRAC_BITS_RANGE
+    return int(min(hi, max(lo, 31 - math.ceil(math.log2(value)))))
+
+
+def signal_format(frac_bits: int) -> str:
+    """The signal format's name: Qm.n while it has 0 … 31 fraction bits, else int32 · 2^−f."""
+    return f"Q{31 - frac_bits}.{frac_bits}" if 0 <= frac_bits <= 31 else f"int32 x 2^{-frac_bits}"
+
+
 def signal_gain(ar_coeffs, gain) -> float:
     """Largest ratio, over inputs |y| ≤ 1, of any signal-format value inside the steady-state filter to
     max|y|: the state x (after the update), the prediction Σ a_i x_i and the innovation y − Σ a_i x_i.
@@ -142,6 +160,11 @@ def _int32_series(values, name: str = "y_int") -> np.ndarray:
     return np.ascontiguousarray(arr, dtype=np.int32)
 
 
+def _c_int(v: int) -> str:
+    """An integer for a C #define (parenthesised when negative, so the macro expands safely)."""
+    return f"({int(v)})" if v < 0 else str(int(v))
+
+
 def _quantize(values, frac_bits: int, name: str) -> np.ndarray:
     scaled = np.rint(np.asarray(values, dtype=np.float64) * 2.0 ** frac_bits)
     if np.any(scaled > INT32_MAX) or np.any(scaled < INT32_MIN):
@@ -155,7 +178,9 @@ class FixedArKalman:
     frac_bits: fraction bits of the signal format (y, state, prediction, innovation); None = derived from
     the first series filtered so that 2·G·max|y| fits (one guard bit), G = `signal_gain` (≥ 1: the
     worst-case ratio of the state, prediction and innovation to max|y| in the steady-state filter; for the
-    time-varying filter the double filter's own values on the series count too). coef_frac_bits (AR coefficients and gain) and
+    time-varying filter the double filter's own values on the series count too). The signal format is a
+    pure scale (value = int32 · 2^−frac_bits, no shift depends on it), so frac_bits may be above 31 or
+    negative: a 1e-6-scale signal gets the same relative precision as a 1-scale one. coef_frac_bits (AR coefficients and gain) and
     cov_frac_bits (Q, R, P) default to values derived from the model: the largest of |a|, the
     steady-state |K| and 1, and the largest of P0, the steady-state prior covariance and q + r, each
     with one guard bit (two for the covariances: S = M00 + R). The filter takes and returns floats; inside everything is int32.
@@ -201,8 +226,10 @@ class FixedArKalman:
         return self.double.order
 
     def signal_frac_bits(self, y_max: float) -> int:
-        """Signal fraction bits for inputs up to ±y_max: 2·signal_gain·y_max fits (one guard bit)."""
-        return min(31, 31 - _int_bits(2.0 * self.signal_gain * float(y_max)))
+        """Signal fraction bits for inputs up to ±y_max: 2·signal_gain·y_max fits (one guard bit). They follow
+        the signal's scale (beyond 31 for small signals, negative for large ones), so the relative precision
+        does not depend on the units."""
+        return _signal_frac_bits_holding(2.0 * self.signal_gain * float(y_max))
 
     def coefficients(self) -> dict:
         """The integer coefficient set (what the firmware and fluxcal.oracle.kalman.FixedModel take)."""
@@ -247,7 +274,7 @@ class FixedArKalman:
                 filtered = d.filter(y)
                 e = d.result["innovations"]
                 seen = max(float(np.max(np.abs(filtered))), float(np.max(np.abs(e))), float(np.max(np.abs(y - e))))
-                bits = min(bits, 31 - _int_bits(2.0 * seen))
+                bits = min(bits, _signal_frac_bits_holding(2.0 * seen))
             self.frac_bits = bits
         y_int, clipped = self.to_fixed(y)
         out = self.filter_int(y_int)
@@ -321,9 +348,10 @@ class FixedArKalman:
             " * Formats: value = integer * 2^-frac_bits; arithmetic as cpp/include/fluxcal/fixed_kalman.hpp. */",
             f"#ifndef {up}_H", f"#define {up}_H", "#include <stdint.h>",
             f"#define {up}_ORDER {n}",
-            f"#define {up}_SIGNAL_FRAC_BITS {c['signal_frac_bits']}",
+            # Signal and covariance formats are pure scales: their fraction bits may be > 31 or negative.
+            f"#define {up}_SIGNAL_FRAC_BITS {_c_int(c['signal_frac_bits'])} /* {signal_format(c['signal_frac_bits'])} */",
             f"#define {up}_COEF_FRAC_BITS {c['coef_frac_bits']}",
-            f"#define {up}_COV_FRAC_BITS {c['cov_frac_bits']}",
+            f"#define {up}_COV_FRAC_BITS {_c_int(c['cov_frac_bits'])}",
             f"#define {up}_STEADY_STATE {1 if c['steady_state'] else 0}",
             f"static const int32_t {name}_a[{n}] = {arr(c['a'])};",
             f"static const int32_t {name}_gain[{n}] = {arr(c['gain'])};",

@@ -51,7 +51,7 @@ def run_driver(tmp_path, header, c_plus_plus=False):
     source.write_text(DRIVER.replace("HEADER", header.name))
     exe = tmp_path / ("driver_cpp" if c_plus_plus else "driver_c")
     flags = ["-std=c++17"] if c_plus_plus else ["-std=c99"]
-    build = subprocess.run([compiler(c_plus_plus), *flags, "-Wall", "-Werror", "-O2", f"-I{header.parent}",
+    build = subprocess.run([compiler(c_plus_plus), *flags, "-Wall", "-Wextra", "-Werror", "-O2", f"-I{header.parent}",
                             str(source), "-o", str(exe)], capture_output=True, text=True)
     assert build.returncode == 0, build.stderr
     out = subprocess.run([str(exe)], capture_output=True, text=True, check=True).stdout.splitlines()
@@ -238,3 +238,32 @@ def test_cli_export_c_and_its_errors(tmp_path):
         assert r.returncode == 2 and message in r.stderr and "Traceback" not in r.stderr, r.stderr
     r = run_cli("export-c", tmp_path / "nocal.json", "-o", tmp_path / "x.h")
     assert r.returncode == 2 and "nocal.json" in r.stderr
+
+
+@pytest.mark.parametrize("scale, frac_bits", [(1e-6, None), (1e12, None), (1.0, -4), (1.0, 40)])
+def test_kalman_signal_format_beyond_q0_31(tmp_path, scale, frac_bits):
+    # The signal format follows the signal's scale: more than 31 fraction bits for a 1e-6-scale drift model,
+    # negative for a 1e12-scale one. The header stays consistent: the firmware filter reproduces the test
+    # vector bit for bit and the C99 part still compiles cleanly and passes its self-test.
+    a, q, r = (0.6, -0.3, 0.2), 0.5 * scale ** 2, 0.3 * scale ** 2
+    f = FixedArKalman(a, q, r, frac_bits=frac_bits)
+    saved = save_kalman(f, tmp_path / "kf.json")
+    loaded = load_kalman(saved)
+    if frac_bits is None:
+        sigma = np.sqrt(loaded.double.initial_covariance[0, 0] + r)
+        assert loaded.frac_bits == loaded.signal_frac_bits(8 * sigma)
+        assert (loaded.frac_bits > 31) if scale < 1 else (loaded.frac_bits < 0)
+    else:
+        assert loaded.frac_bits == frac_bits
+    header = tmp_path / "p.h"
+    result = export_c(CALS["nT"], header, name="p", kalman=saved)
+    assert f"signal int32 x 2^{-loaded.frac_bits}" in result.describe()
+    text = header.read_text()
+    bits = str(loaded.frac_bits) if loaded.frac_bits >= 0 else f"({loaded.frac_bits})"
+    assert f"#define P_KALMAN_SIGNAL_FRAC_BITS {bits} " in text
+    outputs, mismatches = run_kalman_driver(tmp_path, header)
+    assert mismatches == 0 and len(outputs) == 256
+    y_int = result.kalman_test[0]
+    assert np.abs(y_int).max() > 2 ** 24  # the test vector uses the format's range whatever its scale
+    _, self_test = run_driver(tmp_path, header)
+    assert self_test == 0

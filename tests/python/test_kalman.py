@@ -351,3 +351,31 @@ def test_filter_int_rejects_samples_outside_int32():
     edge = np.array([INT32_MAX, INT32_MIN, 7], dtype=np.int64)  # the int32 range itself is fine
     np.testing.assert_array_equal(f.filter_int(edge), f.filter_int(edge.astype(np.int32)))
     np.testing.assert_array_equal(f.filter_int([3.0, -4.0]), f.filter_int(np.array([3, -4], dtype=np.int32)))
+
+
+@pytest.mark.parametrize("steady_state", [True, False])
+def test_signal_format_follows_the_signal_scale(steady_state):
+    # The format is only a scale factor: frac_bits was capped at 31 (and the integer bits at ≥ 0), so a
+    # 1e-6-scale signal got 1.5e-4 relative error instead of the ~3e-9 of a unit-scale one.
+    rng = np.random.default_rng(0)
+    a = (0.5, -0.2)
+    base = lfilter([1.0], [1.0, -0.5, 0.2], rng.standard_normal(5000)) + rng.standard_normal(5000)
+    bits, errors = {}, {}
+    for scale in (1e-6, 1e-3, 1.0, 1e3, 1e9):
+        y, q = base * scale, scale ** 2
+        f = FixedArKalman(a, q, q, steady_state=steady_state)
+        out = f.filter(y)
+        d = ArKalman(a, q, q, steady_state=steady_state).filter(y)
+        assert not f.overflowed
+        bits[scale] = f.frac_bits
+        errors[scale] = np.max(np.abs(out - d)) / np.max(np.abs(d))
+        if steady_state:
+            assert np.max(np.abs(out - d)) <= f.error_bound(y)
+        # Bit-exact with the integer model whatever the format.
+        y_int, _ = f.to_fixed(y[:500])
+        model_out, _ = oracle.FixedModel(f.coefficients()).filter_batch(y_int[None, :])
+        np.testing.assert_array_equal(model_out[0], f.filter_int(y_int))
+    assert bits[1e-6] > 31 and bits[1e9] < 0
+    for scale in bits:  # the format moves with log2 of the scale, the relative error stays put
+        assert abs(bits[scale] - (bits[1.0] - np.log2(scale))) <= 1, bits
+        assert errors[scale] < 1e-8, errors

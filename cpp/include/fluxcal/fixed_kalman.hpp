@@ -5,6 +5,9 @@
 //   signal     y, the state x, the innovation e                           (FixedFormat::signal_frac_bits)
 //   coefficient  the AR coefficients a and the gain K                     (coef_frac_bits, 0 … 30)
 //   covariance   Q, R, P, S                                               (cov_frac_bits)
+// Only coef_frac_bits enters the arithmetic (every rescaling shifts by it). The signal and covariance
+// formats are pure scales, so their fraction bits may be anything (above 31 for small signals,
+// negative for large ones): they only say what the integers stand for.
 // Arithmetic (the bit-exact Python model is fluxcal.oracle.kalman.FixedModel; keep them in step):
 //   products     int32 × int32 exactly in int64; sums of products in int64 with saturating adds
 //   rescaling    shift_round(v, s) = (v + 2^(s−1)) >> s  (round half up, arithmetic shift), saturating
