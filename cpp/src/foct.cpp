@@ -187,14 +187,17 @@ FoctResult fit_foct(const SeriesRef& zero_bias, const SeriesRef& temp, const Ser
   res.r = kalman.r();
   res.steady_state = options.kalman.steady_state;
   // The filter estimates a zero-mean AR signal, so a slow drift passes with its DC gain g < 1;
-  // dividing by g keeps the drift fitted on L unbiased.
+  // dividing by g keeps the drift in L at its size.
   res.dc_gain = kalman_dc_gain(kalman);
   const KalmanResult run = kalman.filter(level);
   res.filtered = (run.filtered.array() / res.dc_gain + mean).matrix();
 
   // S5 and compensation.
   res.regressor = options.regressor;
-  res.drift = fit_drift(temp, x, res.filtered, options.drift);
+  res.drift_input = options.drift_input;
+  // The zero bias by default: L lags the drift on ramps, which the F-test reads as extra orders.
+  const SeriesRef fitted = options.drift_input == DriftInput::zero_bias ? zero_bias : SeriesRef(res.filtered);
+  res.drift = fit_drift(temp, x, fitted, options.drift);
   for (const auto& seg : res.drift.segments) res.orders.push_back(seg.order);
   const Eigen::VectorXd f = res.drift.evaluate(temp, x);
   res.compensated = zero_bias - f;

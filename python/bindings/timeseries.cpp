@@ -77,6 +77,7 @@ py::dict foct_dict(const fluxcal::FoctResult& r) {
   return py::dict(
       "segments"_a = segs, "noise_ar"_a = r.drift.noise_ar, "drift_summary"_a = summary_dict(r.drift.summary),
       "regressor"_a = r.regressor == fluxcal::DriftRegressor::temperature ? "temp" : "difference",
+      "drift_input"_a = r.drift_input == fluxcal::DriftInput::zero_bias ? "zero_bias" : "filtered",
       "orders"_a = r.orders,
       "preprocess"_a = py::dict("mean"_a = pre.mean, "differences"_a = pre.differences,
                                 "stationarity"_a = reverse_arrangement_dict(pre.stationarity),
@@ -109,6 +110,9 @@ void bind_foct(py::module_& m) {
   py::enum_<fluxcal::DriftRegressor>(m, "DriftRegressor")
       .value("temp", fluxcal::DriftRegressor::temperature)
       .value("difference", fluxcal::DriftRegressor::difference);
+  py::enum_<fluxcal::DriftInput>(m, "DriftInput")
+      .value("zero_bias", fluxcal::DriftInput::zero_bias)
+      .value("filtered", fluxcal::DriftInput::filtered);
   // Nested options are returned by reference: options.drift.max_order = 3 changes options.
   py::class_<fluxcal::FoctOptions>(m, "FoctOptions")
       .def(py::init<>())
@@ -118,6 +122,7 @@ void bind_foct(py::module_& m) {
       .def_readwrite("r", &fluxcal::FoctOptions::r)
       .def_readwrite("kalman", &fluxcal::FoctOptions::kalman)
       .def_readwrite("regressor", &fluxcal::FoctOptions::regressor)
+      .def_readwrite("drift_input", &fluxcal::FoctOptions::drift_input)
       .def_readwrite("drift", &fluxcal::FoctOptions::drift)
       .def_readwrite("level_step", &fluxcal::FoctOptions::level_step)
       .def_readwrite("rated", &fluxcal::FoctOptions::rated)

@@ -264,7 +264,7 @@ def cmd_drift(args) -> int:
                                            max_order=args.max_order, significance=args.significance,
                                            continuous=args.continuous, ar_max_order=args.ar_max_order,
                                            steady_state=args.steady_state, rated=args.rated,
-                                           accuracy_class=args.accuracy_class)
+                                           accuracy_class=args.accuracy_class, drift_input=args.drift_input)
         model.settings["source"] = str(args.file)
         model.settings["column"] = args.column
         pre, ar = report["preprocess"], report["ar"]
@@ -481,6 +481,9 @@ def build_parser() -> argparse.ArgumentParser:
     df.add_argument("--steady-state", action="store_true", help="Kalman filter with the steady-state gain")
     df.add_argument("--rated", type=float, default=None, help="rated current (zero-bias units) for the class check")
     df.add_argument("--class", dest="accuracy_class", default="0.2S", choices=("0.2S", "0.5S"))
+    df.add_argument("--drift-input", default="zero_bias", choices=("zero_bias", "filtered"),
+                    help="fit the drift to the zero bias (default; GLS with an AR noise model) or to the Kalman "
+                         "output L (seed 001 as written; L lags the drift on ramps and the F-test may add orders)")
     df.add_argument("--bad-lines", default="error", choices=["error", "skip"], help=bad_lines_help)
     da = drs.add_parser("apply", help="compensate a recording: writes its columns plus zero_bias_compensated")
     da.add_argument("model")

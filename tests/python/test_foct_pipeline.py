@@ -14,7 +14,7 @@ RTOL = 1e-9
 
 def fit_cpp(zero_bias, temp, temp_outside=None, regressor="temp", breakpoints=drift.DEFAULT_BREAKPOINTS,
             max_order=4, significance=0.05, continuous=False, ar_max_order=10, q=None, r=None, steady_state=False,
-            subseries=20, rated=None, accuracy_class="0.2S", whiten=True) -> dict:
+            subseries=20, rated=None, accuracy_class="0.2S", whiten=True, drift_input="zero_bias") -> dict:
     """fit_pipeline's signature on the C++ pipeline: knobs into FoctOptions, nothing else."""
     if regressor not in drift.REGRESSORS:
         raise ValueError(f"regressor: {regressor!r} is not one of {', '.join(drift.REGRESSORS)}")
@@ -32,6 +32,7 @@ def fit_cpp(zero_bias, temp, temp_outside=None, regressor="temp", breakpoints=dr
     o.preprocess.subseries = int(subseries)
     o.rated = None if rated is None else float(rated)
     o.accuracy_class = accuracy_class
+    o.drift_input = getattr(_core.DriftInput, drift_input)
     outside = None if temp_outside is None else ts.as_series(temp_outside, "temp_outside")
     return _core.fit_foct(ts.as_series(zero_bias, "zero_bias"), ts.as_series(temp, "temp"), outside, o)
 
@@ -55,6 +56,7 @@ def assert_agree(got, model, report, zero_bias):
     assert got["kalman"]["dc_gain"] == pytest.approx(kal["dc_gain"], rel=RTOL)
     assert got["kalman"]["steady_state"] == kal["steady_state"]
     assert got["regressor"] == model.regressor
+    assert got["drift_input"] == model.settings["drift_input"]
     np.testing.assert_allclose(got["noise_ar"], model.settings["noise_ar"], rtol=RTOL, atol=RTOL)
     assert len(got["segments"]) == len(model.segments)
     for g, p in zip(got["segments"], model.segments):
@@ -88,7 +90,7 @@ def test_defaults_match_fit_pipeline():
                     "significance": o.drift.significance, "continuous": o.drift.continuous,
                     "ar_max_order": o.ar.max_order, "q": o.q, "r": o.r, "steady_state": o.kalman.steady_state,
                     "subseries": o.preprocess.subseries, "rated": o.rated, "accuracy_class": o.accuracy_class,
-                    "whiten": o.drift.whiten}
+                    "whiten": o.drift.whiten, "drift_input": o.drift_input.name}
     # Every knob of fit_pipeline (beyond the three series) has a C++ counterpart with the same default.
     assert set(params) - {"zero_bias", "temp", "temp_outside"} == set(cpp_defaults)
     for name, value in cpp_defaults.items():
@@ -118,6 +120,7 @@ CONFIGS = {
     "steady_state_given_r": dict(steady_state=True, r=1e-3, ar_max_order=6),
     "given_q_r_unwhitened": dict(q=2e-3, r=1e-3, whiten=False, subseries=10),
     "phase_b_two_ranges": dict(breakpoints=(-20.0, 15.0, 50.0), accuracy_class="0.5S", rated=RATED),
+    "filtered_input": dict(drift_input="filtered", rated=RATED),
 }
 
 
