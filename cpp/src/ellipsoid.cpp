@@ -337,8 +337,9 @@ EllipsoidResult solve(const EllipsoidMoments& mom, const EllipsoidOptions& opt) 
 
   const double s = mom.scale();
   const Eigen::Vector3d lamB = meig.eigenvalues() / rho2;        // B = M/ρ² ⇒ (u−c)ᵀB(u−c) = 1
-  const Eigen::Vector3d semi_axes = s * lamB.cwiseSqrt().cwiseInverse();  // in reading units
-  const double fitted_radius = std::cbrt(semi_axes.prod());
+  // the geometric mean in normalised units, then scaled: the product of semi-axes in reading units
+  // overflows (or underflows to 0) for readings beyond ~1e100 (or below ~1e-100)
+  const double fitted_radius = s * std::cbrt(lamB.cwiseSqrt().cwiseInverse().prod());
   const double H = opt.field_norm > 0.0 ? opt.field_norm : fitted_radius;
 
   Calibration& cal = out.calibration;

@@ -19,8 +19,9 @@ def magnitude_jacobian(calibration: Calibration, clean_readings) -> np.ndarray:
     d = as_samples(clean_readings, "clean_readings") - calibration.offset
     h = d @ A.T
     hn = np.linalg.norm(h, axis=1)
-    u = h / hn[:, None]
-    scale = hn / np.linalg.norm(h @ A.T, axis=1)  # |h| / |A h|
+    with np.errstate(invalid="ignore", divide="ignore"):  # a reading at the offset: NaN rows, named by crlb
+        u = h / hn[:, None]
+        scale = hn / np.linalg.norm(h @ A.T, axis=1)  # |h| / |A h|
     J = np.empty((len(d), 9))
     J[:, :3] = -(u @ A) * scale[:, None]
     for col, (k, l) in enumerate(_SYM):

@@ -37,6 +37,18 @@ def _positions(positions_m) -> np.ndarray:
     return np.ascontiguousarray(arr)
 
 
+def _currents(currents_a, positions: np.ndarray, snapshots: bool) -> np.ndarray:
+    """Currents (n,) — or (snapshots, n) where `snapshots` — one per conductor of `positions`."""
+    cur = np.asarray(currents_a, dtype=float)
+    if cur.ndim == 0:
+        cur = cur.reshape(1)
+    if cur.ndim > (2 if snapshots else 1) or cur.shape[-1] != len(positions):
+        raise ValueError(f"currents_a: shape {cur.shape}, expected ({len(positions)},)"
+                         + (f" or (snapshots, {len(positions)})" if snapshots else "")
+                         + f" for {len(positions)} conductor(s)")
+    return cur
+
+
 @dataclass
 class CableSolution:
     """Conductor positions (n, 2) in metres, currents (n,) — or (snapshots, n) for several snapshots —
@@ -71,6 +83,8 @@ class Ring:
     def __init__(self, angles_deg=(0.0, 90.0, 180.0, 270.0), radius_m: float = 0.010, axis_angles_deg=None,
                  bore_radius_m: float | None = None):
         self.angles_deg = np.atleast_1d(np.asarray(angles_deg, dtype=float)).copy()
+        if self.angles_deg.ndim != 1:
+            raise ValueError(f"angles_deg: shape {self.angles_deg.shape}, expected one angle per sensor (n_sensors,)")
         self.radius_m = float(radius_m)
         self.axis_angles_deg = (np.zeros_like(self.angles_deg) if axis_angles_deg is None
                                 else np.atleast_1d(np.asarray(axis_angles_deg, dtype=float)).copy())
@@ -99,15 +113,15 @@ class Ring:
         """Field at every sensor in its axes (radial, tangential for the default axes), tesla: (n_sensors, 2)
         for currents (n,), or (snapshots, n_sensors, 2) for currents (snapshots, n)."""
         pos = _positions(positions_m)
-        cur = np.asarray(currents_a, dtype=float)
+        cur = _currents(currents_a, pos, snapshots=True)
         if cur.ndim == 2:
             return np.stack([self.field(pos, c) for c in cur])
-        return np.asarray(_core.cable_field(*self._args(), pos, np.atleast_1d(cur)))
+        return np.asarray(_core.cable_field(*self._args(), pos, cur))
 
     def jacobian(self, positions_m, currents_a) -> np.ndarray:
         """∂(readings, sensor-major x0, y0, x1, …)/∂(x0, y0, …, I0, …): (2·n_sensors, 3n)."""
-        return np.asarray(_core.cable_field_jacobian(*self._args(), _positions(positions_m),
-                                                     np.atleast_1d(np.asarray(currents_a, dtype=float))))
+        pos = _positions(positions_m)
+        return np.asarray(_core.cable_field_jacobian(*self._args(), pos, _currents(currents_a, pos, snapshots=False)))
 
     def solve(self, readings, n_conductors: int = 2, zero_sum_currents: bool = False, initial_positions=None,
               initial_currents=None, search_again: bool = True, **settings) -> CableSolution:
@@ -126,7 +140,7 @@ class Ring:
         single = arr.ndim == 2
         if single:
             arr = arr[None]
-        if arr.ndim != 3 or arr.shape[1:] != (self.n_sensors, 2):
+        if arr.ndim != 3 or arr.shape[1:] != (self.n_sensors, 2) or arr.shape[0] == 0:
             raise ValueError(f"readings: shape {np.shape(readings)}, expected ({self.n_sensors}, 2) or "
                              f"(snapshots, {self.n_sensors}, 2) for this ring of {self.n_sensors} biaxial sensors")
         options = _core.CableSolveOptions()
@@ -138,6 +152,8 @@ class Ring:
             options.initial_positions = _positions(initial_positions)
         if initial_currents is not None:
             options.initial_currents = np.atleast_2d(np.asarray(initial_currents, dtype=float))
+            if not np.all(np.isfinite(options.initial_currents)):
+                raise ValueError("initial_currents: not finite (NaN or Inf)")
         if isinstance(settings.get("refiner"), str):
             names = _core.CableRefiner.__members__
             if settings["refiner"] not in names:
@@ -225,6 +241,11 @@ def calibrate_ring(readings, true_fields, method: str = "twostep") -> RingCalibr
     norms = np.linalg.norm(h, axis=2)
     fits: list[TwoStep2D] = []
     for i in range(r.shape[1]):
+        u = h[:, i] / np.where(norms[:, i] > 0, norms[:, i], 1.0)[:, None]
+        if np.linalg.eigvalsh(u.T @ u / len(u))[0] < 1e-6:  # ±one direction: currents scale it, never turn it
+            raise ValueError(f"true_fields: the field at sensor {i} never changes direction (its readings lie on a "
+                             "line: one rotation of the ring?); turn the ring about the cable between readings "
+                             "(the paper uses 5 × 72°)")
         if method == "twostep":
             fits.append(twostep_2d(r[:, i], norms[:, i]))
         elif method == "least_squares":

@@ -193,6 +193,24 @@ def test_a_misfit_from_the_default_starts_searches_again():
         fluxcal.cable.RingCalibration.from_dict({"offsets": np.zeros((4, 2)).tolist(), "gains": [[1.0, 1.0]]})
 
 
+def test_cable_bad_input_names_the_input():
+    ring = Ring([0, 90, 180, 270], 0.010)
+    pos = np.array([[-2e-3, 0.0], [2e-3, 0.0]])
+    with pytest.raises(ValueError, match=r"currents_a: shape \(2, 2\), expected \(2,\) for 2 conductor"):
+        ring.jacobian(pos, np.ones((2, 2)))
+    with pytest.raises(ValueError, match="currents_a: shape"):
+        ring.field(pos, np.ones((2, 2, 2)))
+    with pytest.raises(ValueError, match="angles_deg: shape"):
+        Ring([[0, 90], [180, 270]], 0.010)
+    with pytest.raises(ValueError, match=r"readings: shape \(0, 4, 2\)"):
+        ring.solve(np.zeros((0, 4, 2)))
+    with pytest.raises(ValueError, match="initial_currents: not finite"):
+        ring.solve(ring.field(pos, [5.0, -5.0]), initial_currents=[np.nan, 1.0])
+    one_turn = np.stack([ring.field(pos, [i, -i]) for i in (1.0, 2.0, 3.0, 4.0)])  # never turned
+    with pytest.raises(ValueError, match="the field at sensor 0 never changes direction"):
+        calibrate_ring(one_turn * 1.01, one_turn)
+
+
 def test_a_ring_csv_keeps_the_sensor_axis_angles(tmp_path):
     """A ring whose sensors are turned on the board (axis_angles_deg) read back from its CSV: the angles were
     dropped, and the positions solved from the file were millimetres off while flagged well conditioned."""

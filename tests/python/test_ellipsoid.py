@@ -53,6 +53,16 @@ def test_without_field_norm_scale_is_volume_radius():
     assert cal.field_norm == pytest.approx(s.field_norm * abs(np.linalg.det(W)) ** (1 / 3), rel=1e-9)
 
 
+@pytest.mark.parametrize("scale", [1e-110, 1e110])
+def test_the_fitted_radius_does_not_overflow_at_extreme_scales(scale):
+    """The volume radius was the cube root of the semi-axes' product in reading units: inf (and a NaN
+    matrix) at 1e110, 0 at 1e-110, silently."""
+    m = simulated(9, n=500, field_norm=50.0).readings
+    base, far = fluxcal.fit_ellipsoid(m), fluxcal.fit_ellipsoid(m * scale)
+    np.testing.assert_allclose(far.field_norm / scale, base.field_norm, rtol=1e-10)
+    np.testing.assert_allclose(far.matrix, base.matrix, rtol=1e-8)
+
+
 def test_streaming_moments_match_batch_fit():
     s = simulated(4)
     acc = fluxcal.EllipsoidMoments.from_first(s.readings[:50])
