@@ -659,9 +659,10 @@ CableSolution solve_cable(const CableRing& ring, const Eigen::Ref<const Eigen::M
     if (d > apart) {
       std::ostringstream alt;
       alt.precision(3);
-      for (int j = 0; j < n; ++j) alt << (j ? ", " : "") << "(" << pos[2 * j] * R * 1e3 << ", " << pos[2 * j + 1] * R * 1e3 << ")";
-      out.summary.warnings.push_back("ambiguous: another solution fits the readings as well, conductors at " + alt.str() +
-                                     " mm; add sensors, or snapshots with other currents, to decide");
+      for (int j = 0; j < n; ++j)
+        alt << (j ? ", " : "") << "(" << pos[2 * j] * R * 1e3 << ", " << pos[2 * j + 1] * R * 1e3 << ")";
+      out.summary.warnings.push_back("ambiguous: another solution fits the readings as well, conductors at " +
+                                     alt.str() + " mm; add sensors, or snapshots with other currents, to decide");
       if (ok) why = "another solution fits as well";
       ok = false;
       break;

@@ -401,7 +401,8 @@ void finish_summary(RefineResult& out, const SamplesRef& samples, const SamplesR
     describe_coverage(s, *reference, Calibration{}, 16384);
     const Eigen::RowVector3d mean = reference->colwise().mean();
     const Eigen::Matrix3d cov = (reference->rowwise() - mean).transpose() * (reference->rowwise() - mean) / n;
-    const Eigen::Vector3d ev = Eigen::SelfAdjointEigenSolver<Eigen::Matrix3d>(cov, Eigen::EigenvaluesOnly).eigenvalues();
+    const Eigen::Vector3d ev =
+        Eigen::SelfAdjointEigenSolver<Eigen::Matrix3d>(cov, Eigen::EigenvaluesOnly).eigenvalues();
     s.coverage_ratio = ev(2) > 0.0 ? std::sqrt(std::max(ev(0), 0.0) / ev(2)) : 0.0;
   } else {
     describe_coverage(s, samples, cal, 16384);

@@ -65,7 +65,7 @@ def crlb(calibration: Calibration, clean_readings=None, sigma: float = 1.0, refe
 
 
 def _inverse(F: np.ndarray, names) -> np.ndarray:
-    """F⁻¹ (well conditioned: checked here), or an error naming the parameters of F's null directions (singular information: the readings
+    """F⁻¹, or an error naming the parameters of F's null directions (a singular information: the readings
     do not determine them and no unbiased estimator has a finite variance). Judged on the scaled F, as
     refine's identifiability, so units do not matter."""
     d = 1.0 / np.sqrt(np.maximum(np.diag(F), 1e-300))

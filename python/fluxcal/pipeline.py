@@ -21,8 +21,8 @@ def calibrate(samples, method: str = "auto", field_norm: float | None = None, re
     (fluxcal.fit_vector, a full 3×3 matrix); otherwise the consistent ellipsoid fit (ALS) refined by
     maximum likelihood (fluxcal.refine) — the estimate that reaches the Cramér–Rao bound. The result's
     summary says what ran ("method") and, after a refinement or a vector fit, whether the data determine
-    every parameter ("identifiable"); when they do not (yaw-only turns, small tilts), the summary warns and names the
-    remedy instead of passing a confident 3-D answer off as one. Other methods: "vector", "als",
+    every parameter ("identifiable"); when they do not (yaw-only turns, small tilts), the summary warns and
+    names the remedy instead of passing a confident 3-D answer off as one. Other methods: "vector", "als",
     "ls", "als+refine". `loss` ("none", "huber", "cauchy") applies to the refinement.
 
     outliers "drop": the readings are first screened for gross outliers (I²C glitches reading 0,0,0, ADC

@@ -67,7 +67,7 @@ def _rotations(rows, name: str = "rotations") -> np.ndarray:
         raise ValueError(f"{name}: matrix {int(np.flatnonzero(~np.isfinite(R).all(axis=(1, 2)))[0])} is not finite")
     off = np.abs(np.einsum("nji,njk->nik", R, R) - np.eye(3)).max(axis=(1, 2))
     det = np.linalg.det(R)
-    bad = np.flatnonzero((off > 1e-6) | (det < 0))
+    bad = np.flatnonzero((off > 1e-4) | (det < 0))  # 1e-4: matrices written with 5–6 decimals still pass
     if len(bad):
         k = int(bad[0])
         raise ValueError(f"{name}: matrix {k} is not a rotation (RᵀR − I up to {off[k]:.2g}, det {det[k]:.4g}); "

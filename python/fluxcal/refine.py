@@ -48,7 +48,7 @@ def _calibration(result: dict, method: str) -> Calibration:
     serial["standard_errors_independent"] = np.asarray(serial["standard_errors_independent"]).tolist()
     summary["serial_correlation"] = serial
     summary["method"] = method
-    _few_spare_readings(summary, 3 if method == "refine_vector" or method == "vector" else 1)
+    _few_spare_readings(summary, 3 if method in ("vector", "refine_vector") else 1)
     return Calibration(offset=result["offset"], matrix=result["matrix"], field_norm=result["field_norm"],
                        units=result["units"], model=result["model"], summary=summary)
 

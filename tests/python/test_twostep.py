@@ -173,7 +173,8 @@ def test_2d_field_norms_of_other_readings_are_warned_about():
     """Shuffled field_norms that still give a converged fit (12 of 20 permutations did, silently)."""
     rng = np.random.default_rng(0)
     ang, hn = rng.uniform(0, 2 * np.pi, 60), rng.uniform(5, 15, 60)
-    r2 = np.column_stack([np.cos(ang), np.sin(ang)]) * hn[:, None] * [1.3, 0.8] + [2.0, -1.0] + 0.01 * rng.normal(size=(60, 2))
+    r2 = (np.column_stack([np.cos(ang), np.sin(ang)]) * hn[:, None] * [1.3, 0.8] + [2.0, -1.0]
+          + 0.01 * rng.normal(size=(60, 2)))
     assert not fluxcal.twostep_2d(r2, hn).summary["warnings"]
     warned = 0
     for k in range(20):

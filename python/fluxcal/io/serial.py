@@ -65,7 +65,8 @@ REASONS = {
 FORMATS = ("csv", "kv", "binary-spec")
 MAX_LINE = 1024
 _NUMBER = re.compile(r"[+-]?(?:\d+\.?\d*|\.\d+)(?:[eE][+-]?\d+)?")  # strict: no "nan", "1_000", "0x10"
-_ENTRY = re.compile(r"(?:([A-Za-z_][\w. ]*?)\s*=)?([A-Za-z_][\w.]*)\s*(?:\[([^\]]*)\])?")  # "Mag1 X=mx": a key may hold spaces
+# KEY=NAME[unit]; a key may hold spaces ("Mag1 X=mx": two magnetometers on a line)
+_ENTRY = re.compile(r"(?:([A-Za-z_][\w. ]*?)\s*=)?([A-Za-z_][\w.]*)\s*(?:\[([^\]]*)\])?")
 _PAIR = re.compile(r"([A-Za-z_][\w.]*)\s*[=:]\s*([^\s,;=:]+)")
 _PAIR_SEPARATOR = re.compile(r"[\s,;]*")
 _LINE_END = re.compile(rb"\r\n|\r|\n")
