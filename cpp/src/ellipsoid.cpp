@@ -372,7 +372,10 @@ EllipsoidResult solve(const EllipsoidMoments& mom, const EllipsoidOptions& opt) 
     if (gain > 5.0 || gain < 0.2) {
       std::ostringstream msg;
       msg << "field_norm " << H << " is " << gain << " times the fitted radius " << fitted_radius
-          << " of the readings — check the units";
+          << " of the readings — check the units"
+          << (sum.coverage_ratio < opt.poor_coverage_ratio
+                  ? ", or the coverage: readings on a small cap of directions fit a far smaller or larger ellipsoid"
+                  : "");
       sum.warnings.push_back(msg.str());
     }
   }

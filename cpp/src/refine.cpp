@@ -642,8 +642,9 @@ RefineResult refine(const Calibration& start, const SamplesRef& samples, const R
   cal.units = opt.units.empty() ? start.units : opt.units;
   cal.model = "refine";
   if (!(Eigen::SelfAdjointEigenSolver<Eigen::Matrix3d>(cal.matrix).eigenvalues()(0) > 0.0))
-    throw Error("refine: the refined matrix is not positive definite; the start was too far off or the data "
-                "do not lie on an ellipsoid");
+    throw Error("refine: the refined matrix is not positive definite; the start was too far off, the data "
+                "do not lie on an ellipsoid, or they cover too few directions (a small cap of the sphere: turn "
+                "the sensor through more orientations)");
 
   double radius = 0.0;  // reading-space radius: the scale of the offsets
   for (Eigen::Index i = 0; i < samples.rows(); ++i) radius += (samples.row(i).transpose() - cal.offset).norm();

@@ -155,6 +155,19 @@ def test_wrong_shapes_and_types():
         fluxcal.fit_ellipsoid(x, field_norm=-1.0)
 
 
+def test_a_small_cap_is_not_blamed_on_the_units():
+    """Readings within 20° of one direction, in the right units: the fit's radius is far from field_norm
+    because of the coverage, and the warning says so beside 'check the units'."""
+    rng = np.random.default_rng(1)
+    v = rng.normal(size=(20000, 3))
+    v /= np.linalg.norm(v, axis=1)[:, None]
+    v = v[v[:, 2] > np.cos(np.deg2rad(20))][:1000]
+    m = 50 * v @ np.diag([1.1, 0.92, 1.02]).T + [12.0, -7.0, 20.0] + 0.2 * rng.standard_normal(v.shape)
+    warnings = fluxcal.fit_ellipsoid(m, field_norm=50.0).summary["warnings"]
+    units = next(w for w in warnings if "times the fitted radius" in w)
+    assert "check the units, or the coverage" in units
+
+
 def test_poor_coverage_warns():
     # half the azimuths, elevation within ±25°: about a fifth of the directions
     rng = np.random.default_rng(0)
