@@ -489,6 +489,13 @@ PositionsResult calibrate_positions(const SamplesRef& outputs, const SamplesRef&
                                     const PositionsOptions& options) {
   const Eigen::Index n = outputs.rows();
   check_field(field);
+  // NaN compares false: a NaN tolerance switched the |a| check off, a NaN σ the levelling prior
+  if (!(std::isfinite(options.gravity) && options.gravity >= 0.0))
+    throw Error("gravity: " + fmt(options.gravity) + ", need a finite value ≥ 0 (0 = the mean |acc|)");
+  if (!(std::isfinite(options.gravity_tolerance) && options.gravity_tolerance > 0.0))
+    throw Error("gravity_tolerance: " + fmt(options.gravity_tolerance) + ", need a finite fraction > 0");
+  if (!(std::isfinite(options.tilt_sigma_deg) && options.tilt_sigma_deg >= 0.0))
+    throw Error("tilt_sigma_deg: " + fmt(options.tilt_sigma_deg) + ", need ≥ 0 (0 = levelling taken as exact)");
   if (specific_force.rows() != n) {
     throw Error("specific_force: " + std::to_string(specific_force.rows()) + " rows for " + std::to_string(n) +
                 " positions of outputs");

@@ -160,13 +160,14 @@ class Ring:
                 raise ValueError(f"refiner: {settings['refiner']!r} is not one of {', '.join(names)}")
             settings = {**settings, "refiner": names[settings["refiner"]]}
         set_options(options, settings, "Ring.solve")
-        r = _core.solve_cable(*self._args(), arr.reshape(arr.shape[0], -1), options)
+        flat = arr.reshape(arr.shape[0], -1)
+        r = _core.solve_cable(*self._args(), flat, options)
         if (search_again and not r["fits_model"] and initial_positions is None
                 and not {"starts", "grid_points"} & set(settings)):
             # a misfit from the default starts may be a local minimum (3 of 150 random two-core cables
             # on the paper's ring): search again from a finer grid and more starts before blaming the model
             options.grid_points, options.starts = 15, 4 * options.starts
-            again = _core.solve_cable(*self._args(), arr.reshape(arr.shape[0], -1), options)
+            again = _core.solve_cable(*self._args(), flat, options)
             if again["summary"]["residual_rms"] < r["summary"]["residual_rms"]:
                 r = again
             r["summary"]["warnings"] = list(r["summary"]["warnings"]) + [

@@ -348,16 +348,10 @@ def calibrate(mag, acc, field_ned, frame: str = "ned", preset=None, attitudes=No
     options.frame = fr
     options.estimate_yaw = bool(len(nominal) == 0) if estimate_yaw is None else bool(estimate_yaw)
     options.estimate_inclination = bool(estimate_inclination)
-    if not (np.isfinite(gravity) and gravity >= 0.0):
-        raise ValueError(f"gravity: {gravity!r}, need a finite value ≥ 0 (0 = the mean |acc|)")
-    if not (np.isfinite(gravity_tolerance) and gravity_tolerance > 0.0):  # NaN switched the |a| check off
-        raise ValueError(f"gravity_tolerance: {gravity_tolerance!r}, need a finite fraction > 0")
     options.gravity = float(gravity)
     options.gravity_tolerance = float(gravity_tolerance)
     options.units = units or ""
     set_options(options, settings, "calibrate")
-    if options.tilt_sigma_deg < 0.0:
-        raise ValueError(f"tilt_sigma_deg: {options.tilt_sigma_deg!r}, need ≥ 0 (0 = levelling taken as exact)")
     d = _core.calibrate_positions(U, np.ascontiguousarray(sf), nominal, to_local(f, frame), options)
     return _result(d, frame)
 
