@@ -110,8 +110,14 @@ class Calibration:
         with np.printoptions(precision=6, suppress=True):
             rows = "\n".join("    " + line.strip() for line in np.array2string(self.matrix).splitlines())
             return (f"{self.model or 'calibration'}: h = A (m - b), |h| = {self.field_norm:.6g}{u}\n"
-                    f"  offset b = {self.offset}{u}\n"
+                    f"  offset b = {_significant(self.offset, 7)}{u}\n"
                     f"  matrix A =\n{rows}")
+
+
+def _significant(values, digits: int) -> str:
+    """A vector with `digits` significant digits per entry: fixed decimals would print an offset in
+    tesla (1e-6) or a standard error of 1e-4 as 0."""
+    return np.array2string(np.asarray(values, float), formatter={"float_kind": lambda v: f"{v:.{digits}g}"})
 
 
 def _jsonable(value):

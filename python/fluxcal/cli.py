@@ -8,7 +8,7 @@ from pathlib import Path
 import numpy as np
 
 from . import __version__, cmake_dir
-from .calibration import Calibration
+from .calibration import Calibration, _significant
 from .io import Recording, read_csv, read_recording, write_csv, write_recording
 from .pipeline import METHODS, calibrate
 
@@ -37,8 +37,7 @@ def _report(cal: Calibration, raw: np.ndarray, out=sys.stdout) -> None:
         print(f"  noise σ (estimated)   {s['noise_sigma']:.4g} {cal.units}".rstrip(), file=out)
     if "standard_errors" in s:
         se = np.array(s["standard_errors"])
-        with np.printoptions(precision=3):
-            print(f"  std error of b        {se[:3]} {cal.units}".rstrip(), file=out)
+        print(f"  std error of b        {_significant(se[:3], 3)} {cal.units}".rstrip(), file=out)
         print(f"  identifiable          {'yes' if s['identifiable'] else 'NO'}", file=out)
     for w in s["warnings"]:
         print(f"warning: {w}", file=out)

@@ -110,6 +110,14 @@ def test_save_and_load_round_trip(tmp_path):
     assert back.summary == cal.summary and back.units == "nT"
 
 
+def test_printed_offset_keeps_its_digits_in_tesla():
+    s = simulated(8)
+    cal = fluxcal.fit_ellipsoid(s.readings * 1e-9, units="T")   # nT readings written in tesla
+    line = next(row for row in str(cal).splitlines() if "offset b" in row)
+    printed = np.array(line.split("[")[1].split("]")[0].split(), float)
+    np.testing.assert_allclose(printed, cal.offset, rtol=1e-6)
+
+
 def test_load_errors_name_the_file(tmp_path):
     bad = tmp_path / "bad.json"
     bad.write_text("{not json")
