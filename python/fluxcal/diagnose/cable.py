@@ -53,7 +53,7 @@ from scipy.optimize import least_squares
 from ..cable import Ring, RingCalibration
 from ..sim.cable_effects import CABLE_CANDIDATES, sensor_points, straight_unit_fields, to_axes
 from .core import (ABSORBED, HELDOUT_ALPHA, HELDOUT_FRACTION, MIN_GAIN, Diagnosis, _binned, _collapsed, _gap,
-                   _improvement_pvalue, _quantile_bins, _rivals, _whitened_lr)
+                   _improvement_pvalue, _quantile_bins, _rivals, _whitened_lr, _whiteness)
 from .report import _num, confound_lines
 
 REGIMES = ("rotation", "current", "time")
@@ -550,12 +550,7 @@ def _where(data: _Data, r_w: np.ndarray, levels) -> dict:
         tests.append({"regime": "time", "test": "slope of z on time", "statistic": float(res.slope / res.stderr),
                       "pvalue": float(res.pvalue)})
     series = r_w.reshape(k, -1).mean(axis=1)[np.argsort(data.t, kind="stable")]
-    lags = int(min(20, max(1, k // 10)))
-    from statsmodels.stats.diagnostic import acorr_ljungbox
-
-    lb = acorr_ljungbox(series, lags=[lags])
-    tests.append({"regime": "time", "test": f"whiteness (Ljung-Box, {lags} lags)",
-                  "statistic": float(lb["lb_stat"].iloc[0]), "pvalue": float(lb["lb_pvalue"].iloc[0])})
+    tests += _whiteness(series)
     out["tables"], out["tests"] = tables, tests
     return out
 
