@@ -11,6 +11,7 @@
 #include <limits>
 #include <memory>
 #include <numeric>
+#include <utility>
 #include <sstream>
 
 namespace fluxcal {
@@ -225,7 +226,7 @@ RunInfo dense_lm(const std::vector<std::unique_ptr<SnapshotCost>>& costs, std::v
   return info;
 }
 
-void check_positions(const CableRing& ring, const Eigen::Ref<const ConductorPositions>& positions,
+void check_positions(const CableRing& ring, const ConductorPositionsRef& positions,
                      const char* name) {
   const double bore = ring.bore();
   for (Eigen::Index j = 0; j < positions.rows(); ++j) {
@@ -254,9 +255,9 @@ double seed_cost(const RingFrame& f, const std::vector<double>& pos, int n, bool
 }
 
 Eigen::Matrix<double, Eigen::Dynamic, 2, Eigen::RowMajor> field_kernel(const CableRing& ring,
-                                                                       const Eigen::Ref<const ConductorPositions>& positions,
+                                                                       const ConductorPositionsRef& positions,
                                                                        const Eigen::Ref<const Eigen::VectorXd>& currents);
-Eigen::MatrixXd jacobian_kernel(const CableRing& ring, const Eigen::Ref<const ConductorPositions>& positions,
+Eigen::MatrixXd jacobian_kernel(const CableRing& ring, const ConductorPositionsRef& positions,
                                 const Eigen::Ref<const Eigen::VectorXd>& currents);
 
 }  // namespace
@@ -272,8 +273,8 @@ void CableRing::validate() const {
   for (Eigen::Index i = 0; i < axis_angles.size(); ++i)
     if (!std::isfinite(axis_angles(i))) throw Error("ring: axis angle " + std::to_string(i) + " is not finite");
   if (bore_radius < 0.0 || !std::isfinite(bore_radius) || bore() >= radius)
-    throw Error("ring: bore radius " + num(bore()) + " m must be positive and smaller than the ring radius " +
-                num(radius) + " m");
+    throw Error("ring: bore radius " + num(std::isfinite(bore_radius) ? bore() : bore_radius) +
+                " m must be finite, positive and smaller than the ring radius " + num(radius) + " m");
   for (Eigen::Index i = 0; i < angles.size(); ++i)
     for (Eigen::Index k = 0; k < i; ++k)
       if (std::abs(std::remainder(angles(i) - angles(k), 2.0 * M_PI)) < 1e-9)
@@ -287,7 +288,7 @@ CableRing CableRing::rotated(double angle) const {
 }
 
 Eigen::Matrix<double, Eigen::Dynamic, 2, Eigen::RowMajor> cable_field(const CableRing& ring,
-                                                                      const Eigen::Ref<const ConductorPositions>& positions,
+                                                                      const ConductorPositionsRef& positions,
                                                                       const Eigen::Ref<const Eigen::VectorXd>& currents) {
   ring.validate();
   if (positions.rows() < 1) throw Error("positions: no conductors");
@@ -300,7 +301,7 @@ Eigen::Matrix<double, Eigen::Dynamic, 2, Eigen::RowMajor> cable_field(const Cabl
   return field_kernel(ring, positions, currents);
 }
 
-Eigen::MatrixXd cable_field_jacobian(const CableRing& ring, const Eigen::Ref<const ConductorPositions>& positions,
+Eigen::MatrixXd cable_field_jacobian(const CableRing& ring, const ConductorPositionsRef& positions,
                                      const Eigen::Ref<const Eigen::VectorXd>& currents) {
   cable_field(ring, positions, currents);  // the same checks
   return jacobian_kernel(ring, positions, currents);
@@ -309,7 +310,7 @@ Eigen::MatrixXd cable_field_jacobian(const CableRing& ring, const Eigen::Ref<con
 namespace {
 
 Eigen::Matrix<double, Eigen::Dynamic, 2, Eigen::RowMajor> field_kernel(const CableRing& ring,
-                                                                       const Eigen::Ref<const ConductorPositions>& positions,
+                                                                       const ConductorPositionsRef& positions,
                                                                        const Eigen::Ref<const Eigen::VectorXd>& currents) {
   const RingFrame f(ring);
   const double R = ring.radius, k = kMu0Over2Pi / R;
@@ -325,7 +326,7 @@ Eigen::Matrix<double, Eigen::Dynamic, 2, Eigen::RowMajor> field_kernel(const Cab
   return out;
 }
 
-Eigen::MatrixXd jacobian_kernel(const CableRing& ring, const Eigen::Ref<const ConductorPositions>& positions,
+Eigen::MatrixXd jacobian_kernel(const CableRing& ring, const ConductorPositionsRef& positions,
                                 const Eigen::Ref<const Eigen::VectorXd>& currents) {
   const RingFrame f(ring);
   const Eigen::Index n = positions.rows();
@@ -356,6 +357,13 @@ CableSolution solve_cable(const CableRing& ring, const Eigen::Ref<const Eigen::M
   if (opt.grid_points < 2) throw Error("options.grid_points: must be 2 or more");
   if (opt.starts < 1) throw Error("options.starts: must be 1 or more");
   if (opt.max_iterations < 1) throw Error("options.max_iterations: must be 1 or more");
+  for (const auto& [name, v] : {std::pair<const char*, double>{"function_tolerance", opt.function_tolerance},
+                                {"gradient_tolerance", opt.gradient_tolerance},
+                                {"parameter_tolerance", opt.parameter_tolerance}})
+    if (!(std::isfinite(v) && v > 0.0))
+      throw Error(std::string("options.") + name + ": " + num(v) + ", need a finite value > 0");
+  if (opt.initial_currents.size() > 0 && !opt.initial_currents.allFinite())
+    throw Error("options.initial_currents: contains NaN or Inf");
   const Eigen::Index m = ring.sensors(), S = readings.rows();
   if (readings.cols() != 2 * m)
     throw Error("readings: " + std::to_string(readings.cols()) + " columns, the ring has " + std::to_string(m) +

@@ -99,8 +99,12 @@ Eigen::VectorXd fit_rows(const Eigen::VectorXd& x, const Eigen::VectorXd& w, con
 }  // namespace
 
 Eigen::VectorXd fit_polynomial(const SeriesRef& x, const SeriesRef& w, int order, double* sse, double* condition) {
+  if (order < 0) throw Error("order: " + std::to_string(order) + ", a polynomial order must be ≥ 0");
   check_series(x, "regressor", order + 2, "for a polynomial of order " + std::to_string(order));
   check_series(w, "zero_bias", x.size(), "(one per regressor value)");
+  if (w.size() != x.size())
+    throw Error("zero_bias: " + std::to_string(w.size()) + " values for " + std::to_string(x.size()) +
+                " regressor values, need one each");
   std::vector<Eigen::Index> idx(static_cast<std::size_t>(x.size()));
   for (std::size_t i = 0; i < idx.size(); ++i) idx[i] = static_cast<Eigen::Index>(i);
   return fit_rows(x, w, idx, Eigen::VectorXd(), order, sse, condition);

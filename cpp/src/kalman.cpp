@@ -63,6 +63,10 @@ double autocovariance_residual(const Eigen::VectorXd& a, double q, const Eigen::
 }  // namespace
 
 Eigen::MatrixXd ar_stationary_covariance(const Eigen::VectorXd& a, double q) {
+  if (a.size() < 1) throw Error("ar_coefficients: empty, the AR order must be ≥ 1");
+  if (!a.allFinite()) throw Error("ar_coefficients: not finite");
+  if (!(q >= 0.0) || !std::isfinite(q))
+    throw Error("q: the innovation variance " + std::to_string(q) + " must be finite and ≥ 0");
   const Eigen::MatrixXd A = companion(a);
   const double rho = A.eigenvalues().cwiseAbs().maxCoeff();
   if (!(rho < 1.0)) {

@@ -384,7 +384,28 @@ Eigen::Matrix3d heading_rotation(double angle, Frame frame) {
                              : Eigen::AngleAxisd(-angle, Eigen::Vector3d::UnitY()).toRotationMatrix();
 }
 
+namespace {
+// A scaled matrix would scale K and a reflection flip an axis without a word; 1e-4 lets matrices
+// written with 5–6 decimals pass.
+void check_rotation(const Eigen::Matrix3d& r, const std::string& name) {
+  if (!r.allFinite()) throw Error(name + ": not finite");
+  const double off = (r.transpose() * r - Eigen::Matrix3d::Identity()).cwiseAbs().maxCoeff();
+  if (off > 1e-4 || r.determinant() < 0.0)
+    throw Error(name + ": not a rotation (RᵀR − I up to " + fmt(off) + ", det " + fmt(r.determinant()) +
+                "); give proper orthonormal matrices");
+}
+}  // namespace
+
+Eigen::Vector3d PositionsResult::field_of(const Eigen::Vector3d& output) const {
+  const Eigen::FullPivLU<Eigen::Matrix3d> lu(K);
+  if (!K.allFinite() || !lu.isInvertible()) throw Error("field_of: K is singular or not finite (no calibration?)");
+  return lu.solve(output - offset);
+}
+
 Eigen::Matrix3d level_rotation(const Eigen::Matrix3d& nominal, const Eigen::Vector3d& body_up, Frame frame) {
+  check_rotation(nominal, "nominal");
+  if (!body_up.allFinite() || !(body_up.norm() > 0.0))
+    throw Error("body_up: need a finite vector of length > 0 (the accelerometer's up in the body frame)");
   const Eigen::Vector3d v = nominal * body_up.normalized();
   const Eigen::Matrix3d correction = Eigen::Quaterniond::FromTwoVectors(v, local_up(frame)).toRotationMatrix();
   return correction * nominal;
@@ -496,6 +517,12 @@ PositionsResult calibrate_positions(const SamplesRef& outputs, const SamplesRef&
     throw Error("gravity_tolerance: " + fmt(options.gravity_tolerance) + ", need a finite fraction > 0");
   if (!(std::isfinite(options.tilt_sigma_deg) && options.tilt_sigma_deg >= 0.0))
     throw Error("tilt_sigma_deg: " + fmt(options.tilt_sigma_deg) + ", need ≥ 0 (0 = levelling taken as exact)");
+  if (!(std::isfinite(options.output_sigma) && options.output_sigma >= 0.0))
+    throw Error("output_sigma: " + fmt(options.output_sigma) + ", need a finite value ≥ 0 (0 = estimated)");
+  if (!(std::isfinite(options.determined_tolerance) && options.determined_tolerance > 0.0))
+    throw Error("determined_tolerance: " + fmt(options.determined_tolerance) + ", need a finite value > 0");
+  if (options.max_iterations < 1)
+    throw Error("max_iterations: " + std::to_string(options.max_iterations) + ", need ≥ 1");
   if (specific_force.rows() != n) {
     throw Error("specific_force: " + std::to_string(specific_force.rows()) + " rows for " + std::to_string(n) +
                 " positions of outputs");
@@ -503,6 +530,7 @@ PositionsResult calibrate_positions(const SamplesRef& outputs, const SamplesRef&
   if (!nominal.empty() && static_cast<Eigen::Index>(nominal.size()) != n) {
     throw Error("nominal: " + std::to_string(nominal.size()) + " attitudes for " + std::to_string(n) + " positions");
   }
+  for (std::size_t i = 0; i < nominal.size(); ++i) check_rotation(nominal[i], "nominal[" + std::to_string(i) + "]");
   const Eigen::Index min_n = options.estimate_yaw ? (options.estimate_inclination ? 7 : 6) : 4;
   if (n < min_n) {
     throw Error("outputs: " + std::to_string(n) + " positions, need at least " + std::to_string(min_n) +
@@ -897,7 +925,10 @@ AccelerometerResult calibrate_accelerometer(const SamplesRef& readings, const Ac
   check_samples(readings, "readings", 6,
                 "static positions for an accelerometer calibration (offset and scale: 6 unknowns; with "
                 "misalignment 9)");
-  if (!(options.gravity > 0.0)) throw Error("gravity: must be > 0");
+  if (!(std::isfinite(options.gravity) && options.gravity > 0.0))
+    throw Error("gravity: " + fmt(options.gravity) + ", need a finite value > 0");
+  if (options.max_iterations < 1)
+    throw Error("max_iterations: " + std::to_string(options.max_iterations) + ", need ≥ 1");
   const Eigen::Vector3d lo = readings.colwise().minCoeff(), hi = readings.colwise().maxCoeff();
   const Eigen::Vector3d mean_abs = readings.cwiseAbs().colwise().mean();
   for (int k = 0; k < 3; ++k) {

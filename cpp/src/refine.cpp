@@ -10,6 +10,7 @@
 #include <limits>
 #include <memory>
 #include <sstream>
+#include <utility>
 
 namespace fluxcal {
 namespace {
@@ -465,6 +466,41 @@ void information(ceres::Problem& problem, int p, RefineResult& out, Eigen::Matri
 }
 
 // The vector model's inputs: finite readings and one finite reference vector per reading.
+// Options and start are checked before Ceres, which would otherwise print a glog line to stderr and
+// fail with a message that names none of the caller's inputs (a NaN tolerance, a NaN start term).
+void check_options(const RefineOptions& o) {
+  const auto require = [](bool ok, const std::string& name, double v, const char* need) {
+    if (!ok) {
+      std::ostringstream msg;
+      msg << "options." << name << ": " << v << ", need " << need;
+      throw Error(msg.str());
+    }
+  };
+  require(o.max_iterations >= 1, "max_iterations", o.max_iterations, "≥ 1");
+  for (const auto& [name, v] : {std::pair<const char*, double>{"function_tolerance", o.function_tolerance},
+                                {"gradient_tolerance", o.gradient_tolerance},
+                                {"parameter_tolerance", o.parameter_tolerance},
+                                {"determined_tolerance", o.determined_tolerance}})
+    require(std::isfinite(v) && v > 0.0, name, v, "a finite value > 0");
+  require(std::isfinite(o.loss_scale) && o.loss_scale >= 0.0, "loss_scale", o.loss_scale,
+          "a finite value ≥ 0 (0 = 3 × a robust estimate of the noise)");
+  require(o.serial_correlation_alpha > 0.0 && o.serial_correlation_alpha < 1.0, "serial_correlation_alpha",
+          o.serial_correlation_alpha, "a value in (0, 1)");
+}
+
+// `matrix` is the start's A (magnitude model: its symmetric part) or W: a singular one leaves Ceres
+// nothing to evaluate ("Residual and Jacobian evaluation failed").
+void check_start(const Calibration& start, const Eigen::Matrix3d& matrix, bool need_norm) {
+  if (!start.offset.allFinite() || !start.matrix.allFinite()) throw Error("start: offset or matrix is not finite");
+  if (need_norm && !(std::isfinite(start.field_norm) && start.field_norm > 0.0))
+    throw Error("start: field_norm must be finite and positive (the known |h|)");
+  const Eigen::Vector3d sv = Eigen::JacobiSVD<Eigen::Matrix3d>(matrix).singularValues();
+  if (!(sv(2) > 1e-12 * sv(0)))
+    throw Error("start: the matrix is singular (singular values " + std::to_string(sv(0)) + ", " +
+                std::to_string(sv(1)) + ", " + std::to_string(sv(2)) +
+                "); start from a fit (fit_ellipsoid, fit_vector) or the identity");
+}
+
 void check_vector_inputs(const SamplesRef& samples, const SamplesRef& reference) {
   check_inputs(samples, 5, "a 12-parameter vector calibration");
   if (reference.rows() != samples.rows())
@@ -552,9 +588,10 @@ class TermsBatch : public ceres::CostFunction {
 
 RefineResult refine(const Calibration& start, const SamplesRef& samples, const RefineOptions& opt) {
   check_inputs(samples, 10, "a 9-parameter magnitude refinement");
-  if (!(start.field_norm > 0.0)) throw Error("start: field_norm must be positive (the known |h|)");
-  if (!start.offset.allFinite() || !start.matrix.allFinite()) throw Error("start: offset or matrix is not finite");
+  check_options(opt);
+  if (!start.matrix.allFinite()) throw Error("start: offset or matrix is not finite");
   const Eigen::Matrix3d A = symmetric_part(start.matrix);
+  check_start(start, A, true);
   RefineResult out;
   out.parameter_names.assign(std::begin(kMagnitudeNames), std::end(kMagnitudeNames));
   out.parameters.resize(9);
@@ -660,9 +697,9 @@ RefineResult refine(const Calibration& start, const SamplesRef& samples, const R
 RefineResult refine_vector(const Calibration& start, const SamplesRef& samples, const SamplesRef& reference,
                            const RefineOptions& opt) {
   check_vector_inputs(samples, reference);
-  Eigen::FullPivLU<Eigen::Matrix3d> lu(start.matrix);
-  if (!lu.isInvertible()) throw Error("start: matrix is singular");
-  const Eigen::Matrix<double, 3, 3, Eigen::RowMajor> W = lu.inverse();
+  check_options(opt);
+  check_start(start, start.matrix, false);
+  const Eigen::Matrix<double, 3, 3, Eigen::RowMajor> W = start.matrix.inverse();
   RefineResult out;
   out.parameter_names.assign(std::begin(kVectorNames), std::end(kVectorNames));
   out.parameters.resize(12);
@@ -702,6 +739,7 @@ RefineResult refine_vector(const Calibration& start, const SamplesRef& samples, 
 
 RefineResult fit_vector(const SamplesRef& samples, const SamplesRef& reference, const RefineOptions& opt) {
   check_vector_inputs(samples, reference);
+  check_options(opt);
   // One pass: XᵀX and XᵀM for X = [r 1] (N×4), M the readings (N×3).
   Eigen::Matrix4d XtX = Eigen::Matrix4d::Zero();
   Eigen::Matrix<double, 4, 3> XtM = Eigen::Matrix<double, 4, 3>::Zero();
@@ -766,15 +804,16 @@ RefineResult refine_terms(const Calibration& start, const SamplesRef& samples, c
   const int p = static_cast<int>(features.cols() / 3);
   if (start_terms.size() != p)
     throw Error("start_terms: " + std::to_string(start_terms.size()) + " values for " + std::to_string(p) + " terms");
-  if (!vector && !(start.field_norm > 0.0)) throw Error("start: field_norm must be positive (the known |h|)");
+  if (!start_terms.allFinite()) throw Error("start_terms: contains NaN or Inf");
+  check_options(opt);
+  if (!start.matrix.allFinite()) throw Error("start: offset or matrix is not finite");
+  check_start(start, vector ? start.matrix : symmetric_part(start.matrix), !vector);
   if (opt.loss != Loss::none) throw Error("refine_terms: only plain least squares (loss none)");
 
   RefineResult out;
   const int nb = vector ? 12 : 9;
   if (vector) {
-    Eigen::FullPivLU<Eigen::Matrix3d> lu(start.matrix);
-    if (!lu.isInvertible()) throw Error("start: matrix is singular");
-    const Eigen::Matrix<double, 3, 3, Eigen::RowMajor> W = lu.inverse();
+    const Eigen::Matrix<double, 3, 3, Eigen::RowMajor> W = start.matrix.inverse();
     out.parameter_names.assign(std::begin(kVectorNames), std::end(kVectorNames));
     out.parameters.resize(nb + p);
     out.parameters.head<3>() = start.offset;
@@ -836,11 +875,32 @@ RefineResult refine_terms(const Calibration& start, const SamplesRef& samples, c
   out.covariance = sigma2 * d.asDiagonal() * eig.eigenvectors() * inv.asDiagonal() * eig.eigenvectors().transpose() *
                    d.asDiagonal();
   out.standard_errors = out.covariance.diagonal().cwiseMax(0.0).cwiseSqrt();
-  double smallest = std::numeric_limits<double>::infinity();
-  for (Eigen::Index k = 0; k < lam.size(); ++k)
-    if (lam(k) > 1e-300) smallest = std::min(smallest, lam(k));
-  out.fisher_condition = top / smallest;
+  // A direction of (near) zero information moves the parameters on it without changing the residuals
+  // (a term that copies the offset, a reference with no z component): those are not determined, and
+  // the pseudo-inverse's finite errors for them mean nothing. Held parameters' zero columns are skipped.
   out.determined.assign(static_cast<std::size_t>(nb + p), true);
+  double smallest = std::numeric_limits<double>::infinity();
+  std::ostringstream undetermined;
+  for (Eigen::Index j = 0; j < lam.size(); ++j) {
+    const Eigen::VectorXd v = eig.eigenvectors().col(j);
+    double on_free = 0.0;
+    for (Eigen::Index k = 0; k < v.size(); ++k) on_free += d(k) > 0.0 ? v(k) * v(k) : 0.0;
+    if (on_free < 0.5) continue;  // the zero column of a held parameter
+    smallest = std::min(smallest, std::max(lam(j), 0.0));
+    if (lam(j) > 1e-10 * top) continue;
+    for (Eigen::Index k = 0; k < v.size(); ++k) {
+      const auto kk = static_cast<std::size_t>(k);
+      if (d(k) == 0.0 || std::abs(v(k)) < 0.1 || !out.determined[kk]) continue;
+      undetermined << (out.identifiable ? "" : ", ") << out.parameter_names[kk];
+      out.determined[kk] = false;
+      out.identifiable = false;
+    }
+  }
+  out.fisher_condition = smallest > 0.0 ? top / smallest : std::numeric_limits<double>::infinity();
+  if (!out.identifiable)
+    out.summary.warnings.push_back("not identifiable: the data do not determine " + undetermined.str() +
+                                   " (they move together without changing the residuals: a term that "
+                                   "repeats a base parameter, or readings that do not span it)");
 
   Calibration& cal = out.calibration;
   cal.offset = base.head<3>();

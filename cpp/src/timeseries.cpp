@@ -157,6 +157,7 @@ Eigen::VectorXd remove_trend(const SeriesRef& x, int degree) {
 
 ReverseArrangementResult reverse_arrangement(const SeriesRef& x, int subseries, double threshold) {
   if (subseries < 3) throw Error("reverse_arrangement: subseries = " + std::to_string(subseries) + ", need ≥ 3");
+  if (!std::isfinite(threshold)) throw Error("reverse_arrangement: threshold is not finite");
   check_series(x, "series", 2 * static_cast<Eigen::Index>(subseries),
                "for " + std::to_string(subseries) + " sub-series of ≥ 2 samples");
   ReverseArrangementResult r;
@@ -229,6 +230,8 @@ ArResult fit_ar(const SeriesRef& y, const ArOptions& options) {
   if (k < 0) throw Error("fit_ar: max_order = " + std::to_string(k) + " is negative");
   if (!(options.forgetting > 0.0 && options.forgetting <= 1.0))
     throw Error("fit_ar: forgetting factor " + std::to_string(options.forgetting) + " is not in (0, 1]");
+  if (!(options.significance > 0.0 && options.significance < 1.0))
+    throw Error("fit_ar: significance " + std::to_string(options.significance) + " is not in (0, 1)");
   check_series(y, "series", 2 * static_cast<Eigen::Index>(k) + 3,
                "for an AR model of order " + std::to_string(k) + (fixed ? "" : " (max_order)"));
   if (!((y.array() != y[0]).any())) throw Error("series: constant (every sample equals " + std::to_string(y[0]) +
@@ -288,6 +291,10 @@ ArResult fit_ar(const SeriesRef& y, const ArOptions& options) {
         for (int i = j; i < p; ++i) cov(i, j) = cov(j, i) = (cov(i, j) - g[i] * g[j] / denom) / lambda;
     }
   }
+  if (!theta.allFinite())  // 1/λ^t overflowed: a memory of 1/(1 − λ) readings is far too short
+    throw Error("fit_ar: forgetting factor " + std::to_string(options.forgetting) +
+                " forgets too fast (a memory of about " + std::to_string(1.0 / (1.0 - options.forgetting)) +
+                " readings): the recursive least squares overflowed; use a λ closer to 1");
   result.coefficients = theta;
   result.residuals.resize(rows);
   for (Eigen::Index i = 0; i < rows; ++i) {

@@ -37,7 +37,7 @@ void bind_ellipsoid(py::module_& m) {
   // samples arrive as a C-contiguous float64 (N, 3) array (the Python layer ensures it): no copy.
   m.def(
       "fit_ellipsoid",
-      [](const fluxcal::SamplesRef& samples, const EllipsoidOptions& options) {
+      [](const fluxcal::SamplesView& samples, const EllipsoidOptions& options) {
         fluxcal::EllipsoidResult r;
         {
           py::gil_scoped_release release;
@@ -59,10 +59,12 @@ void bind_ellipsoid(py::module_& m) {
         return result_dict(fluxcal::fit_ellipsoid(mom, options));
       }, "options"_a);
 
-  m.def("normalisation", [](const fluxcal::SamplesRef& s) { return fluxcal::normalisation(s); },
+  m.def("normalisation", [](const fluxcal::SamplesView& s) { return fluxcal::normalisation(s); },
         "samples"_a.noconvert());
   m.def("direction_coverage",
-        py::overload_cast<const fluxcal::SamplesRef&, Eigen::Index>(&fluxcal::direction_coverage),
+        [](const fluxcal::SamplesView& fields, Eigen::Index max_rows) {
+          return fluxcal::direction_coverage(fields, max_rows);
+        },
         "fields"_a.noconvert(), "max_rows"_a = 0);
   m.def("direction_bin", py::overload_cast<const Eigen::Vector3d&>(&fluxcal::direction_bin), "v"_a);
 }

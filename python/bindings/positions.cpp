@@ -64,7 +64,7 @@ void bind_positions(py::module_& m) {
   m.def("twelve_positions", [](fluxcal::Frame f) { return from_rotations(fluxcal::twelve_positions(f)); }, "frame"_a);
   m.def(
       "fit_positions",
-      [](const fluxcal::SamplesRef& outputs, const fluxcal::SamplesRef& reference, const PositionsOptions& o) {
+      [](const fluxcal::SamplesView& outputs, const fluxcal::SamplesView& reference, const PositionsOptions& o) {
         fluxcal::PositionsResult r;
         {
           py::gil_scoped_release release;
@@ -75,7 +75,7 @@ void bind_positions(py::module_& m) {
       "outputs"_a.noconvert(), "reference"_a.noconvert(), "options"_a);
   m.def(
       "calibrate_positions",
-      [](const fluxcal::SamplesRef& outputs, const fluxcal::SamplesRef& specific_force, const Rotations& nominal,
+      [](const fluxcal::SamplesView& outputs, const fluxcal::SamplesView& specific_force, const Rotations& nominal,
          const Eigen::Vector3d& field, const PositionsOptions& o) {
         const auto rots = to_rotations(nominal);
         fluxcal::PositionsResult r;
@@ -88,14 +88,14 @@ void bind_positions(py::module_& m) {
       "outputs"_a.noconvert(), "specific_force"_a.noconvert(), "nominal"_a, "field"_a, "options"_a);
   m.def(
       "twelve_position_closed_form",
-      [](const fluxcal::SamplesRef& outputs, double field_up) {
+      [](const fluxcal::SamplesView& outputs, double field_up) {
         const auto c = fluxcal::twelve_position_closed_form(outputs, field_up);
         return py::dict("offset"_a = c.offset, "K"_a = c.K);
       },
       "outputs"_a.noconvert(), "field_up"_a);
   m.def(
       "calibrate_accelerometer",
-      [](const fluxcal::SamplesRef& readings, double gravity, int max_iterations) {
+      [](const fluxcal::SamplesView& readings, double gravity, int max_iterations) {
         fluxcal::AccelerometerOptions o;
         o.gravity = gravity;
         o.max_iterations = max_iterations;

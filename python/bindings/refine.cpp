@@ -69,7 +69,7 @@ void bind_refine(py::module_& m) {
   m.def(
       "refine",
       [](const Eigen::Vector3d& offset, const Eigen::Matrix3d& matrix, double field_norm, const std::string& units,
-         const fluxcal::SamplesRef& samples, const RefineOptions& options) {
+         const fluxcal::SamplesView& samples, const RefineOptions& options) {
         fluxcal::RefineResult r;
         {
           py::gil_scoped_release release;
@@ -81,7 +81,7 @@ void bind_refine(py::module_& m) {
   m.def(
       "refine_vector",
       [](const Eigen::Vector3d& offset, const Eigen::Matrix3d& matrix, double field_norm, const std::string& units,
-         const fluxcal::SamplesRef& samples, const fluxcal::SamplesRef& reference, const RefineOptions& options) {
+         const fluxcal::SamplesView& samples, const fluxcal::SamplesView& reference, const RefineOptions& options) {
         fluxcal::RefineResult r;
         {
           py::gil_scoped_release release;
@@ -94,7 +94,7 @@ void bind_refine(py::module_& m) {
       "options"_a);
   m.def(
       "fit_vector",
-      [](const fluxcal::SamplesRef& samples, const fluxcal::SamplesRef& reference, const RefineOptions& options) {
+      [](const fluxcal::SamplesView& samples, const fluxcal::SamplesView& reference, const RefineOptions& options) {
         fluxcal::RefineResult r;
         {
           py::gil_scoped_release release;
@@ -106,14 +106,16 @@ void bind_refine(py::module_& m) {
   m.def(
       "refine_terms",
       [](const Eigen::Vector3d& offset, const Eigen::Matrix3d& matrix, double field_norm, const std::string& units,
-         const fluxcal::SamplesRef& samples, const Eigen::Ref<const Eigen::MatrixXd>& features,
+         const fluxcal::SamplesView& samples, const Eigen::Ref<const Eigen::MatrixXd>& features,
          const Eigen::VectorXd& start_terms, const std::vector<std::string>& fixed, const RefineOptions& options,
-         std::optional<fluxcal::SamplesRef> reference) {
+         std::optional<fluxcal::SamplesView> reference) {
         fluxcal::RefineResult r;
         {
           py::gil_scoped_release release;
+          const std::optional<fluxcal::SamplesRef> checked = reference ? std::optional<fluxcal::SamplesRef>(*reference)
+                                                                      : std::nullopt;
           r = fluxcal::refine_terms(make_calibration(offset, matrix, field_norm, units), samples, features,
-                                    start_terms, fixed, options, reference ? &*reference : nullptr);
+                                    start_terms, fixed, options, checked ? &*checked : nullptr);
         }
         return result_dict(r);
       },

@@ -34,7 +34,7 @@ void bind_twostep(py::module_& m) {
   // layer ensures it): no copy.
   m.def(
       "twostep_2d",
-      [](const fluxcal::Readings2DRef& readings, const Eigen::Ref<const Eigen::VectorXd>& field_norms,
+      [](const fluxcal::Readings2DRef::Base& readings, const Eigen::Ref<const Eigen::VectorXd>& field_norms,
          const TwoStep2DOptions& options) {
         fluxcal::TwoStep2DResult r;
         {
@@ -48,7 +48,7 @@ void bind_twostep(py::module_& m) {
 
   m.def(
       "twostep",
-      [](const fluxcal::SamplesRef& samples, const TwoStepOptions& options) {
+      [](const fluxcal::SamplesView& samples, const TwoStepOptions& options) {
         fluxcal::TwoStepResult r;
         {
           py::gil_scoped_release release;

@@ -190,3 +190,18 @@ TEST(Cable, BadInputIsAClearError) {
   bad.radius = -1.0;
   EXPECT_THROW(fluxcal::cable_field(bad, p, Eigen::Vector2d(1, 1)), fluxcal::Error);
 }
+
+TEST(Cable, WrongWidthPositionsAndNaNOptionsAreErrors) {
+  const CableRing ring = paper_ring();
+  const Eigen::MatrixXd three = Eigen::MatrixXd::Zero(2, 3);  // heap overrun in Release before
+  EXPECT_THROW(fluxcal::cable_field(ring, three, Eigen::VectorXd::Ones(2)), fluxcal::Error);
+  ConductorPositions p(2, 2);
+  p << 0.001, 0.0, -0.001, 0.0;
+  fluxcal::CableSolveOptions o;
+  o.function_tolerance = std::nan("");
+  EXPECT_THROW(fluxcal::solve_cable(ring, snapshot(ring, p, Eigen::Vector2d(1.0, -1.0)), o), fluxcal::Error);
+  o = {};
+  o.initial_positions = p;
+  o.initial_currents = Eigen::MatrixXd::Constant(1, 2, std::nan(""));
+  EXPECT_THROW(fluxcal::solve_cable(ring, snapshot(ring, p, Eigen::Vector2d(1.0, -1.0)), o), fluxcal::Error);
+}

@@ -87,3 +87,10 @@ TEST(Drift, EvaluateRefusesGapsAndUnsortedRanges) {
   EXPECT_THROW(unsorted.evaluate(t, t), fluxcal::Error);
   EXPECT_EQ(good.evaluate(t, t)[0], 2.0);
 }
+
+TEST(Drift, PolynomialRefusesNegativeOrderAndLengthMismatch) {
+  Eigen::VectorXd x = Eigen::VectorXd::LinSpaced(10, 0.0, 9.0), w = 2.0 * Eigen::VectorXd::LinSpaced(20, 0.0, 19.0);
+  EXPECT_THROW(fluxcal::fit_polynomial(x, w.head(10), -1), fluxcal::Error);  // segfault before
+  EXPECT_THROW(fluxcal::fit_polynomial(x, w, 1), fluxcal::Error);           // fitted 10 rows against 20
+  EXPECT_NEAR(fluxcal::fit_polynomial(x, w.head(10), 1)[1], 2.0, 1e-12);
+}

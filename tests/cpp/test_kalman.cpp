@@ -138,3 +138,8 @@ TEST(FixedKalman, SaturatesWithStickyFlag) {
 }
 
 }  // namespace
+
+TEST(Kalman, StationaryCovarianceRefusesEmptyOrNaNInput) {
+  EXPECT_THROW(fluxcal::ar_stationary_covariance(Eigen::VectorXd(), 1.0), fluxcal::Error);  // segfault before
+  EXPECT_THROW(fluxcal::ar_stationary_covariance(Eigen::VectorXd::Constant(1, 0.5), std::nan("")), fluxcal::Error);
+}

@@ -3,6 +3,7 @@
 #include <gtest/gtest.h>
 
 #include <cmath>
+#include <limits>
 #include <random>
 
 using fluxcal::Frame;
@@ -198,3 +199,21 @@ TEST(Positions, AccelerometerCalibration) {
 }
 
 }  // namespace
+
+// Review of the C++ API: checks the Python layer made are in the core, where C++ callers get them.
+TEST(Positions, CoreRefusesNonRotationsAndNonFiniteOptions) {
+  const Scene s = twelve(0.0, 0.0, 0.0, 1);
+  fluxcal::PositionsOptions o;
+  o.frame = Frame::nue;
+  auto scaled = s.nominal;
+  scaled[3] *= 2.0;  // scaled K silently before
+  EXPECT_THROW(fluxcal::calibrate_positions(s.U, s.acc, scaled, field_nue(), o), fluxcal::Error);
+  o.output_sigma = std::nan("");
+  EXPECT_THROW(fluxcal::calibrate_positions(s.U, s.acc, s.nominal, field_nue(), o), fluxcal::Error);
+  fluxcal::AccelerometerOptions a;
+  a.gravity = std::numeric_limits<double>::infinity();
+  EXPECT_THROW(fluxcal::calibrate_accelerometer(s.acc, a), fluxcal::Error);
+  EXPECT_THROW(fluxcal::PositionsResult().field_of(Eigen::Vector3d::Ones()), fluxcal::Error);
+  EXPECT_THROW(fluxcal::level_rotation(Eigen::Matrix3d::Identity(), Eigen::Vector3d::Zero(), Frame::nue),
+               fluxcal::Error);
+}

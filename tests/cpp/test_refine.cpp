@@ -72,3 +72,30 @@ TEST(RefineSerialCorrelation, CorrelatedNoiseWidensTheErrors) {
 }
 
 }  // namespace
+
+// Review of the C++ API: a matrix of the wrong width is an Error, not a heap overrun; Ceres is not
+// reached with options or a start it would fail on; aliased terms are reported as not determined.
+TEST(RefineInputs, WrongWidthNaNOptionsSingularStartAndAliasedTerms) {
+  const auto truth = fluxcal_test::make_truth(3, 50.0);
+  const fluxcal::Samples s = fluxcal_test::simulate(truth, 400, 0.01, 4);
+  const Eigen::MatrixXd two = s.leftCols(2);
+  EXPECT_THROW(fluxcal::fit_ellipsoid(two), fluxcal::Error);
+  EXPECT_THROW(fluxcal::fit_ellipsoid(Eigen::MatrixXd()), fluxcal::Error);
+  const fluxcal::Calibration start = fluxcal::fit_ellipsoid(s).calibration;
+  fluxcal::RefineOptions nan_tolerance;
+  nan_tolerance.function_tolerance = std::nan("");
+  EXPECT_THROW(fluxcal::refine(start, s, nan_tolerance), fluxcal::Error);
+  fluxcal::Calibration singular = start;
+  singular.matrix.setZero();
+  EXPECT_THROW(fluxcal::refine(singular, s), fluxcal::Error);
+  // A term that is a constant shift along x repeats b0.
+  Eigen::MatrixXd features = Eigen::MatrixXd::Zero(s.rows(), 3);
+  features.col(0).setOnes();
+  const auto r = fluxcal::refine_terms(start, s, features, Eigen::VectorXd::Zero(1));
+  EXPECT_FALSE(r.identifiable);
+  EXPECT_FALSE(r.determined[0]);  // b0
+  EXPECT_FALSE(r.determined[9]);  // c0
+  EXPECT_TRUE(r.determined[1]);
+  const auto plain = fluxcal::refine_terms(start, s, Eigen::MatrixXd::Zero(s.rows(), 0), Eigen::VectorXd());
+  EXPECT_TRUE(plain.identifiable);
+}

@@ -33,6 +33,7 @@ struct DriftOptions {
   /// rows whitened by that AR filter. Without it the F-test assumes white noise and, on AR noise
   /// (and on Kalman-smoothed data even more), keeps too many orders.
   bool whiten = true;
+  /// Cost O(N · whiten_max_order²) for N samples: keep it to tens (10 000 samples at 5 000 takes minutes).
   int whiten_max_order = 10;
 };
 

@@ -117,7 +117,8 @@ struct PositionsResult {
   Summary summary;
 
   /// Field in the body frame from an output: H = K⁻¹ (U − U0).
-  Eigen::Vector3d field_of(const Eigen::Vector3d& output) const { return K.lu().solve(output - offset); }
+  /// Throws Error when K is singular (e.g. a default-constructed result).
+  Eigen::Vector3d field_of(const Eigen::Vector3d& output) const;
 };
 
 /// Linear least squares of U_i = U0 + K H_i over N ≥ 4 positions whose body-frame fields H_i are

@@ -58,7 +58,7 @@ namespace fluxcal {
 
 /// N×2 readings (ĥx, ĥy), one row a reading, row-major (a C-contiguous NumPy array maps without a copy).
 using Readings2D = Eigen::Matrix<double, Eigen::Dynamic, 2, Eigen::RowMajor>;
-using Readings2DRef = Eigen::Ref<const Readings2D>;
+using Readings2DRef = RowsRef<2>;  // another width throws Error (types.hpp)
 
 struct TwoStep2DOptions {
   /// Refine (bx, by, γx, γy) by Gauss–Newton on the magnitude residual after the closed form.

@@ -17,16 +17,40 @@ namespace fluxcal {
 /// Library version, "MAJOR.MINOR.PATCH".
 const char* version();
 
-/// N×3 readings, one row a reading. Row-major so a C-contiguous NumPy array maps without a copy.
-using Samples = Eigen::Matrix<double, Eigen::Dynamic, 3, Eigen::RowMajor>;
-/// Read-only view of any N×3 row-major block (an Eigen matrix, a mapped NumPy array, ...).
-using SamplesRef = Eigen::Ref<const Samples>;
-
 /// Thrown on bad input (NaN, too few samples, degenerate coverage, ...). Never an abort.
 class Error : public std::runtime_error {
  public:
   using std::runtime_error::runtime_error;
 };
+
+/// Read-only view of an N×Cols block, one row a reading. A plain Eigen::Ref would copy a matrix with
+/// another number of columns (a MatrixXd of the wrong width) unchecked: heap corruption in Release, an
+/// assertion in Debug. This view checks the width first and throws Error naming it.
+template <int Cols>
+class RowsRef : public Eigen::Ref<const Eigen::Matrix<double, Eigen::Dynamic, Cols, Eigen::RowMajor>> {
+ public:
+  using Matrix = Eigen::Matrix<double, Eigen::Dynamic, Cols, Eigen::RowMajor>;
+  using Base = Eigen::Ref<const Matrix>;
+  RowsRef(const Base& view) : Base(view) {}  // NOLINT: implicit, as Eigen::Ref is
+  template <typename Derived>
+  RowsRef(const Eigen::DenseBase<Derived>& m) : Base(checked(m.derived())) {}  // NOLINT
+
+ private:
+  template <typename Derived>
+  static const Derived& checked(const Derived& m) {
+    if (m.cols() != Cols)
+      throw Error("readings: a matrix of " + std::to_string(m.rows()) + " rows × " + std::to_string(m.cols()) +
+                  " columns, need " + std::to_string(Cols) + " columns (one row a reading)");
+    return m;
+  }
+};
+
+/// N×3 readings, one row a reading. Row-major so a C-contiguous NumPy array maps without a copy.
+using Samples = Eigen::Matrix<double, Eigen::Dynamic, 3, Eigen::RowMajor>;
+/// Read-only view of any N×3 block (an Eigen matrix, a mapped NumPy array, ...); another width throws.
+using SamplesRef = RowsRef<3>;
+/// The plain Eigen view underneath (what the Python bindings map a NumPy array to).
+using SamplesView = SamplesRef::Base;
 
 /// What a solver reports. Fields that do not apply to a solver keep their defaults.
 struct Summary {
