@@ -220,6 +220,7 @@ def cmd_live(args) -> int:
     print(stats.report())
     print(coverage_map(state.seen))
     print(missing_text(state.seen) if state.calibration is not None else f"no live fit: {state.error}")
+    unit = unit or getattr(decoder, "units", {}).get("mx", "")  # kv: as the device printed it
     readings = session.fit.readings
     if len(readings) < 9:
         raise ValueError(f"{args.port}: {len(readings)} good readings, need at least 9 to calibrate"

@@ -76,6 +76,70 @@ def test_lines_as_sketches_print_them():
     assert parsed(TextDecoder(parse_columns(None, "kv"), "kv"), b"Mag1 X: 1 Y: 2 Z: 3 Mag2 X: 4 Y: 5 Z: 6") == "fields"
 
 
+def test_other_sensors_units_are_never_the_magnetometer():
+    """`X: .. Y: .. Z: .. m/s^2` (an accelerometer line without a sensor word) is not a magnetometer reading."""
+    decoder = TextDecoder(parse_columns(None, "kv"), "kv")
+    for line in (b"X: 0.12  Y: -0.03  Z: 9.81 m/s^2", b"X: 0.01  Y: -0.02  Z: 0.03 rad/s",
+                 b"X: 0.12 m/s^2 Y: -0.03 m/s^2 Z: 9.81 m/s^2"):
+        with pytest.raises(Reject, match="not a magnetic-field unit") as info:
+            decoder.parse(line)
+        assert info.value.reason == "unit"
+    assert decoder.parse(b"X: -13.62  Y: 27.37  Z: -17.02 uTesla") == (-13.62, 27.37, -17.02)
+    assert decoder.units == {"mx": "uT", "my": "uT", "mz": "uT"}
+
+
+def test_printed_units_are_recorded_and_checked():
+    """The unit a kv line prints is the recording's; a line in another unit (a range change, a second sensor,
+    mixed axes, or not what --units says) is rejected, never recorded under the first unit's label."""
+    decoder = TextDecoder(parse_columns(None, "kv"), "kv")
+    assert decoder.may_learn_units and decoder.units == {}
+    assert decoder.parse(b"Mag X: 1 Y: 2 Z: 3 uT") == (1.0, 2.0, 3.0)
+    assert decoder.units == {"mx": "uT", "my": "uT", "mz": "uT"} and not decoder.may_learn_units
+    assert decoder.parse("Mag X: 1 Y: 2 Z: 3 µT".encode()) == (1.0, 2.0, 3.0)
+    assert decoder.parse(b"Mag X: 1 Y: 2 Z: 3") == (1.0, 2.0, 3.0)  # a line without a unit states nothing
+    with pytest.raises(Reject, match="'mx' is in Gauss on this line, in uT on the first recorded line"):
+        decoder.parse(b"Mag X: 0.01 Y: 0.02 Z: 0.03 Gauss")
+    mixed = TextDecoder(parse_columns(None, "kv"), "kv")
+    assert parsed(mixed, b"X: 1 uT Y: 2 G Z: 3 uT") == "unit"
+    stated = TextDecoder(parse_columns(None, "kv", units="nT"), "kv")
+    with pytest.raises(Reject, match="'mx' is in uT on this line, but --units/--columns say nT"):
+        stated.parse(b"Mag X: 1 Y: 2 Z: 3 uT")
+    assert stated.parse(b"Mag X: 1 Y: 2 Z: 3 nT") == (1.0, 2.0, 3.0)
+    # a line rejected for its range does not set the unit
+    ranged = TextDecoder(parse_columns(None, "kv"), "kv", ranges={"mx": (-10, 10)})
+    assert parsed(ranged, b"Mag X: 100 Y: 2 Z: 3 G") == "out_of_range" and ranged.units == {}
+
+
+def test_record_writes_the_unit_the_device_prints(tmp_path):
+    """Through the Recorder: the header waits for the first good line and carries its unit."""
+    path = tmp_path / "rec.csv"
+    decoder = TextDecoder(parse_columns(None, "kv"), "kv")
+    lines = b"partial\nMag X: 1 Y: 2 Z: 3 uT\nMag X: 1 Y: 2 Z: 3 G\nMag X: 4 Y: 5 Z: 6 uT\n"
+    fed = iter([lines])
+    recorder = Recorder("loop://", decoder=decoder, output=path, should_stop=lambda: False,
+                        on_record=lambda t, v: v[0] == 4.0)
+    with _serial_sending(recorder, fed):
+        stats = recorder.run()
+    rec = fluxcal.read_csv(path)
+    assert rec.units["mx"] == "uT" and list(rec.columns["mx"]) == [1.0, 4.0]
+    assert stats.rejected["unit"] == 1 and "in G on this line" in stats.report()
+
+
+@contextlib.contextmanager
+def _serial_sending(recorder, chunks):
+    """Let `recorder` read `chunks` from a loop:// port (written once it is open)."""
+    opened = recorder._open
+
+    def open_and_send():
+        port = opened()
+        for chunk in chunks:
+            port.write(chunk)
+        return port
+
+    recorder._open = open_and_send
+    yield
+
+
 def test_column_spec_names_units_and_renames():
     columns = parse_columns("t,mx[nT],my[nT],mz[nT],temp[degC]")
     assert [c.name for c in columns] == ["t", "mx", "my", "mz", "temp"]

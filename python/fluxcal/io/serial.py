@@ -9,7 +9,10 @@ Formats a device may print, one record per line (`--format`):
                `x=mx,y=my,z=mz`, which also accepts the keys mx,my,mz). Every key must be in the spec.
                Lines as sketches print them are read too (fluxcal.io.labelled): `Mag X: 12.3 Y: -4 Z: 7 uT`
                (the magnetometer's words before the labels, units after the numbers); lines of another
-               sensor (`Accel X: …`) are rejected as `fields`, never recorded as the magnetometer.
+               sensor (`Accel X: …`) are rejected as `fields`, never recorded as the magnetometer. The
+               unit a line prints is checked: mx,my,mz must be in a magnetic-field unit (`X: .. m/s^2`
+               is rejected as `unit`), in the one --units/--columns state, or else in the one the first
+               recorded line printed, which goes into the recording's units header (no conversion).
   binary-spec  fixed-size binary frames: a sync word (`--sync A55A`, hex), then a `struct` layout
                (`--frame "<hhh"`, one field per column), then optionally a one-byte checksum of the
                payload (`--checksum sum8|xor8`). Bytes between frames are garbage and counted.
@@ -25,7 +28,8 @@ What is rejected, and counted by reason (never written as data): `binary` (bytes
 invalid UTF-8 or control characters, or garbage between binary frames), `partial` (the first line
 after the port opens, which may be the tail of a line already in flight; the line in flight at a
 disconnect or at the end), `fields` (wrong number of fields, unknown or missing keys), `non_numeric`
-(a field that is not a finite decimal number), `out_of_range` (outside `--range`), `too_long` (no line
+(a field that is not a finite decimal number), `unit` (kv: a unit that is not a magnetic-field unit on
+mx,my,mz, or differs from --units/--columns or from the first recorded line), `out_of_range` (outside `--range`), `too_long` (no line
 end within 1024 bytes), `checksum` (binary frame whose checksum does not match).
 
 The output is the CSV layout of fluxcal.io.write_csv (`# fluxcal recording`, `# units: ...`, metadata,
@@ -58,11 +62,13 @@ REASONS = {
     "partial": "partial line (first after opening the port, or in flight at a disconnect or the end)",
     "fields": "wrong number of fields or unknown/missing keys",
     "non_numeric": "a field that is not a finite number",
+    "unit": "a unit that is not a magnetic-field unit on mx,my,mz, or not the recording's unit",
     "out_of_range": "a value outside --range",
     "too_long": "no line end within 1024 bytes",
     "checksum": "binary frame checksum mismatch",
 }
 FORMATS = ("csv", "kv", "binary-spec")
+MAG = ("mx", "my", "mz")
 MAX_LINE = 1024
 _NUMBER = re.compile(r"[+-]?(?:\d+\.?\d*|\.\d+)(?:[eE][+-]?\d+)?")  # strict: no "nan", "1_000", "0x10"
 # KEY=NAME[unit]; a key may hold spaces ("Mag1 X=mx": two magnetometers on a line)
@@ -150,6 +156,14 @@ def parse_scale(text: str, columns) -> tuple:
     return tuple(factors)
 
 
+def _unit_name(word: str) -> str:
+    """A unit word as the recording writes it: uTesla, µT → uT; gauss, Ga → G (others as given)."""
+    from .columns import FIELD_UNITS
+
+    w = word.strip().strip("[]()").lower().replace("\u03bc", "\u00b5")
+    return "T" if w == "tesla" else FIELD_UNITS.get(w, word.strip())
+
+
 def _number(text: str, column: str) -> float:
     if not _NUMBER.fullmatch(text):
         raise Reject("non_numeric", f"column {column!r}: {text!r} is not a number" if text else
@@ -186,6 +200,19 @@ class TextDecoder:
         self._first = True
         self._rest_of_long_line = False
         self.blank_lines = 0
+        # units as --units/--columns state them, and as the first recorded line printed them (kv)
+        self._stated = {c.name: _unit_name(c.unit) for c in self.columns if c.unit}
+        self.printed_units, self._line_units = {}, {}
+
+    @property
+    def units(self) -> dict:
+        """The unit of each column known so far: stated, or printed by the device."""
+        return {**self.printed_units, **{c.name: c.unit for c in self.columns if c.unit}}
+
+    @property
+    def may_learn_units(self) -> bool:
+        """True while a kv line may still tell a column's unit (the recording's header waits for it)."""
+        return self.format == "kv" and any(n not in self.units for n in self.names)
 
     def reset(self) -> None:
         """The port was (re)opened: the next line may start mid-line."""
@@ -247,8 +274,11 @@ class TextDecoder:
             raise Reject("binary", f"control character 0x{ord(bad.group()):02x} at column {bad.start() + 1}: "
                                    f"{_show(raw)}")
         text = text.strip()
+        self._line_units = {}
         values = self._parse_kv(text) if self.format == "kv" else self._parse_csv(text)
         _check_ranges(values, self.names, self.ranges)
+        for name, unit in self._line_units.items():  # the first recorded line's units are the recording's
+            self.printed_units.setdefault(name, unit)
         return values
 
     def _parse_csv(self, text: str) -> tuple:
@@ -277,7 +307,7 @@ class TextDecoder:
         from .labelled import _parse_line
 
         _, pairs = _parse_line(text)
-        values = [None] * len(self.columns)
+        values, units = [None] * len(self.columns), {}
         for name, value, unit in pairs:
             *group, label = name.lower().split()
             j = self._keys.get(name.lower())
@@ -287,10 +317,36 @@ class TextDecoder:
                 return None
             if unit and not is_unit(unit):
                 raise Reject("non_numeric", f"column {self.names[j]!r}: {value + unit!r} is not a number")
+            if unit:
+                units[self.names[j]] = unit
             values[j] = value.replace(",", ".")
         if any(v is None for v in values):
             return None
+        self._line_units = self._check_units(units)
         return tuple(_number(v, n) for v, n in zip(values, self.names))
+
+    def _check_units(self, printed: dict) -> dict:
+        """The units a line prints ({column: unit word}) → their names; Reject("unit") when a magnetometer
+        column's is not a field unit, or a column's differs from the stated or first recorded one: values
+        in two units under one label would be silently wrong (a range change, another sensor's line)."""
+        from .columns import FIELD_UNITS
+
+        named = {}
+        for name, word in printed.items():
+            unit = named[name] = _unit_name(word)
+            if name in MAG and unit not in {*FIELD_UNITS.values(), "T"}:
+                raise Reject("unit", f"column {name!r}: {word!r} is not a magnetic-field unit (another sensor's "
+                                     "line?)")
+            if name in self._stated and unit != self._stated[name]:
+                raise Reject("unit", f"column {name!r} is in {word} on this line, but --units/--columns say "
+                                     f"{self._stated[name]}")
+            if name in self.printed_units and unit != self.printed_units[name]:
+                raise Reject("unit", f"column {name!r} is in {word} on this line, in {self.printed_units[name]} "
+                                     "on the first recorded line (a range change? another sensor?)")
+        mag = {named[n] for n in MAG if n in named}
+        if len(mag) > 1:
+            raise Reject("unit", f"the magnetometer's axes print different units ({', '.join(sorted(mag))})")
+        return named
 
     def _parse_pairs(self, text: str) -> tuple:
         values = [None] * len(self.columns)
@@ -440,33 +496,50 @@ def _show(raw) -> str:
 
 
 class RecordingWriter:
-    """Appends records to a CSV in the layout of fluxcal.io.write_csv, flushing after each."""
+    """Appends records to a CSV in the layout of fluxcal.io.write_csv, flushing after each.
 
-    def __init__(self, path, names, units: dict | None = None, metadata: dict | None = None):
+    `defer_head`: the header is written with the first row or note (or at close), so that `units` can
+    still take the units the device prints on its first good line."""
+
+    def __init__(self, path, names, units: dict | None = None, metadata: dict | None = None,
+                 defer_head: bool = False):
         self.path = Path(path)
         self.names = list(names)
+        self.units, self.metadata = dict(units or {}), dict(metadata or {})
         self.rows = 0
         self._file = self.path.open("w", encoding="utf-8", newline="\n")
+        self.head_written = False
+        if not defer_head:
+            self._write_head()
+
+    def _write_head(self) -> None:
+        self.head_written = True
         head = ["# fluxcal recording"]
-        units = {n: u for n, u in (units or {}).items() if n in self.names and u}
+        units = {n: u for n, u in self.units.items() if n in self.names and u}
         if units:
             head.append("# units: " + ", ".join(f"{n}={u}" for n, u in units.items()))
-        head += [f"# {k}: {_one_line(v)}" for k, v in (metadata or {}).items()]
+        head += [f"# {k}: {_one_line(v)}" for k, v in self.metadata.items()]
         self._file.write("\n".join(head) + "\n" + ",".join(self.names) + "\n")
         self._file.flush()
 
     def append(self, values) -> None:
+        if not self.head_written:
+            self._write_head()
         # repr of a float is the shortest text that reads back to the same double (as write_csv)
         self._file.write(",".join(map(repr, map(float, values))) + "\n")
         self._file.flush()
         self.rows += 1
 
     def note(self, text: str) -> None:
+        if not self.head_written:
+            self._write_head()
         self._file.write(f"# note: {_one_line(text)}\n")
         self._file.flush()
 
     def close(self) -> None:
         if not self._file.closed:
+            if not self.head_written:
+                self._write_head()
             self._file.flush()
             os.fsync(self._file.fileno())  # the file is complete on disk, not only in the OS cache
             self._file.close()
@@ -564,7 +637,8 @@ class Recorder:
                     "started": datetime.now(timezone.utc).isoformat(timespec="seconds"),
                     "recorder": f"fluxcal {__version__}", **getattr(self.decoder, "metadata", {}),
                     **self.metadata}
-            self.writer = RecordingWriter(self.output, self.names, {"t_host": "s", **self.units}, meta)
+            self.writer = RecordingWriter(self.output, self.names, {"t_host": "s", **self.units}, meta,
+                                          defer_head=getattr(self.decoder, "may_learn_units", False))
         self.decoder.reset()
         stats = self.stats
         with _ctrl_c_as_request() as self._interrupted:
@@ -631,6 +705,8 @@ class Recorder:
                 self.stats.reject(event, t_host)
                 continue
             if self.writer:
+                if not self.writer.head_written:  # the units the first good line printed
+                    self.writer.units.update(getattr(self.decoder, "units", {}))
                 self.writer.append((t_host, *event))
             self.stats.records += 1
             if self.on_record is not None and self.on_record(t_host, event):
@@ -769,6 +845,7 @@ def cmd_record(args) -> int:
     stats = recorder.run()
     print(stats.report())
     if not stats.records:
-        print(f"fluxcal record: no good record from {args.port}; check --baud, --format and --columns", flush=True)
+        print(f"fluxcal record: no good record from {args.port}; check --baud, --format, --columns and --units",
+              flush=True)
         return 1
     return 0
