@@ -18,6 +18,7 @@ from dataclasses import dataclass
 import numpy as np
 from tqdm import tqdm
 
+from . import _core
 from .coverage import N_DIRECTION_BINS
 from .ellipsoid import EllipsoidMoments
 from .io.serial import Recorder, add_stream_arguments, decoder_from_args, stream_units
@@ -74,14 +75,19 @@ class LiveState:
 
 
 class LiveFit:
-    """Readings in, current fit and coverage out. add() is O(1) (moments update); state() solves the fit
-    from the moments (constant time) and bins the corrected readings kept so far (one vectorised pass)."""
+    """Readings in, current fit and coverage out. add() is O(1) (moments update), except when the readings
+    have spread `regrow` times beyond the normalisation in use: then the moments are rebuilt from every
+    reading kept (a few times per session, as the spread only grows); state() solves the fit from the
+    moments (constant time) and bins the corrected readings kept so far (one vectorised pass)."""
 
-    def __init__(self, field_norm: float | None = None, units: str = "", warmup: int = 20):
+    def __init__(self, field_norm: float | None = None, units: str = "", warmup: int = 20, regrow: float = 4.0):
         self.field_norm, self.units, self.warmup = field_norm, units, warmup
+        self.regrow = regrow  # renormalise when the readings spread this many times the scale in use
         self._readings = np.empty((1024, 3))
         self.count = 0
         self._moments = None
+        self._scale = 0.0
+        self._lo, self._hi = np.full(3, np.inf), np.full(3, -np.inf)  # bounding box of the readings
 
     @property
     def readings(self) -> np.ndarray:
@@ -90,13 +96,24 @@ class LiveFit:
     def add(self, reading) -> None:
         if self.count == len(self._readings):
             self._readings = np.concatenate([self._readings, np.empty_like(self._readings)])
-        self._readings[self.count] = reading
+        row = self._readings[self.count]
+        row[:] = reading
         self.count += 1
-        if self._moments is not None:
+        self._lo, self._hi = np.minimum(self._lo, row), np.maximum(self._hi, row)
+        if self._moments is None:
+            if self.count >= self.warmup:  # the first readings set the normalisation of the sums
+                self._renormalise()
+        elif 0.5 * np.max(self._hi - self._lo) > self.regrow * self._scale:
+            # a sensor that lay still through the warm-up: its noise was the scale, far too small for a
+            # turning sensor's sums; re-derive it from every reading kept (a few times at most: it grows)
+            self._renormalise()
+        else:
             self._moments.add(self._readings[self.count - 1:self.count])
-        elif self.count >= self.warmup:  # the first readings set the normalisation of the sums
-            self._moments = EllipsoidMoments.from_first(self.readings)
-            self._moments.add(self.readings)
+
+    def _renormalise(self) -> None:
+        centre, self._scale = _core.normalisation(self.readings)
+        self._moments = EllipsoidMoments(centre, self._scale)
+        self._moments.add(self.readings)
 
     def state(self) -> LiveState:
         state = LiveState(records=self.count, seen=np.zeros(N_DIRECTION_BINS, dtype=bool))

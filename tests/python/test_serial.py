@@ -326,6 +326,24 @@ def test_live_fit_starts_on_a_sensor_lying_still(scale):
     state = live.state()
     assert not state.error, state.error
     np.testing.assert_allclose(state.calibration.offset, fluxcal.fit_ellipsoid(m).offset, rtol=1e-6)
+def test_live_fit_recovers_when_a_still_sensor_starts_turning():
+    """The first readings only noise around one point (the sensor on the desk): their spread was the
+    normalisation for good and no later fit converged. The fit re-derives it once the readings spread."""
+    from fluxcal import sim
+
+    rng = np.random.default_rng(7)
+    result = sim.simulate(sim.uniform(600, rng), sim.random_sensor(FIELD_NT, rng, noise=0.002), [2e4, 1e3, 4.5e4], rng)
+    still = result.readings[0] + rng.standard_normal((40, 3))  # 1 nT noise
+    m = np.vstack([still, result.readings])
+    live = LiveFit(units="nT")
+    for reading in m:
+        live.add(reading)
+    state = live.state()
+    assert not state.error, state.error
+    assert state.spread < 0.01 and state.coverage > 0.9
+    np.testing.assert_allclose(state.calibration.offset, fluxcal.fit_ellipsoid(m).offset, atol=1e-6 * FIELD_NT)
+
+
 # -- through pseudo-terminals --------------------------------------------------------------------------------
 
 @contextlib.contextmanager
