@@ -211,8 +211,8 @@ class TextDecoder:
 
     @property
     def may_learn_units(self) -> bool:
-        """True while a kv line may still tell a column's unit (the recording's header waits for it)."""
-        return self.format == "kv" and any(n not in self.units for n in self.names)
+        """True while a kv line may still tell the magnetometer's unit (the recording's header waits for it)."""
+        return self.format == "kv" and any(n in MAG and n not in self.units for n in self.names)
 
     def reset(self) -> None:
         """The port was (re)opened: the next line may start mid-line."""
