@@ -11,9 +11,11 @@ and the raw recording is written as it arrives when asked (the Recorder's writer
 """
 from __future__ import annotations
 
+import os
 import sys
 import time
 from dataclasses import dataclass
+from pathlib import Path
 
 import numpy as np
 from tqdm import tqdm
@@ -21,7 +23,7 @@ from tqdm import tqdm
 from . import _core
 from .coverage import N_DIRECTION_BINS
 from .ellipsoid import EllipsoidMoments
-from .io.serial import Recorder, add_stream_arguments, decoder_from_args, stream_units
+from .io.serial import Recorder, add_stream_arguments, check_output, decoder_from_args, stream_units
 
 FACES = ("+X", "-X", "+Y", "-Y", "+Z", "-Z")
 MAG = ("mx", "my", "mz")
@@ -191,7 +193,9 @@ def add_live_parser(subparsers):
                     "meeting them, 2 on a bad argument, a port that cannot be opened or too few readings.")
     add_stream_arguments(p)
     p.add_argument("-o", "--output", required=True, help="calibration JSON to write")
-    p.add_argument("--raw", default=None, help="also write every record to this recording CSV as it arrives")
+    p.add_argument("--raw", default=None, help="also write every record to this recording CSV as it arrives (an "
+                                               "existing non-empty file is refused unless --overwrite)")
+    p.add_argument("--overwrite", action="store_true", help="replace the --raw file when it exists (default: refuse)")
     p.add_argument("--min-coverage", type=float, default=0.9,
                    help="fraction of the 96 direction bins to reach (default 0.9; a hand-turned full recording "
                         "reaches 0.9-1.0)")
@@ -204,6 +208,13 @@ def add_live_parser(subparsers):
     return p
 
 
+def _same_file(a, b) -> bool:
+    a, b = Path(a), Path(b)
+    if a.exists() and b.exists():
+        return os.path.samefile(a, b)  # also through links
+    return a.resolve() == b.resolve()
+
+
 def cmd_live(args) -> int:
     from .pipeline import calibrate
 
@@ -213,6 +224,11 @@ def cmd_live(args) -> int:
         raise ValueError(f"--min-coverage: {args.min_coverage} is not a fraction in (0, 1]")
     if not args.max_spread > 0:
         raise ValueError(f"--max-spread: {args.max_spread} is not positive")
+    if args.raw and _same_file(args.raw, args.output):
+        raise ValueError(f"--raw {args.raw} and -o {args.output} are the same file: the calibration would replace "
+                         "the recording; name two files")
+    if args.raw:
+        check_output(args.raw, "--raw", args.overwrite)
     decoder = decoder_from_args(args)
     missing = [m for m in MAG if m not in decoder.names]
     if missing:

@@ -422,6 +422,27 @@ def test_record_command_bad_arguments(tmp_path):
     assert (tmp_path / "y.csv").read_text().splitlines()[-1].startswith("# note: summary: 0 records")
 
 
+def test_record_and_live_keep_an_earlier_recording(tmp_path):
+    """An existing non-empty output is refused unless --overwrite; `live -o X --raw X` is refused."""
+    earlier = tmp_path / "earlier.csv"
+    earlier.write_text("# precious\nmx,my,mz\n1,2,3\n")
+    result = run_fluxcal("record", "--port", "loop://", "-o", earlier, "--duration", 0.3)
+    assert result.returncode == 2 and f"-o {earlier}: the file exists" in result.stderr and "--overwrite" in result.stderr
+    result = run_fluxcal("live", "--port", "loop://", "-o", tmp_path / "cal.json", "--raw", earlier, "--duration", 0.3)
+    assert result.returncode == 2 and f"--raw {earlier}: the file exists" in result.stderr
+    assert earlier.read_text() == "# precious\nmx,my,mz\n1,2,3\n"
+    result = run_fluxcal("live", "--port", "loop://", "-o", earlier, "--raw", tmp_path / "." / "earlier.csv",
+                         "--overwrite", "--duration", 0.3)
+    assert result.returncode == 2 and "are the same file" in result.stderr
+    assert earlier.read_text() == "# precious\nmx,my,mz\n1,2,3\n"
+    empty = tmp_path / "empty.csv"
+    empty.touch()  # an empty file holds nothing to lose
+    assert run_fluxcal("record", "--port", "loop://", "-o", empty, "--duration", 0.3).returncode == 1
+    result = run_fluxcal("record", "--port", "loop://", "-o", earlier, "--duration", 0.3, "--overwrite")
+    assert result.returncode == 1 and "Kept 0 records" in result.stdout
+    assert earlier.read_text().startswith("# fluxcal recording")
+
+
 def live_truth(sent):
     truth = json.loads(sent.read_text())["truth"]
     return np.array(truth["offset"]), np.array(truth["matrix"])

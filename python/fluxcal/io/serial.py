@@ -817,6 +817,15 @@ def decoder_from_args(args):
     return TextDecoder(columns, args.format, ranges)
 
 
+def check_output(path, option: str, overwrite: bool = True) -> None:
+    """Before the port opens: refuse to replace an earlier recording (a non-empty file) unless `overwrite`.
+    ValueError names the option and the file."""
+    path = Path(path)
+    if not overwrite and path.is_file() and path.stat().st_size > 0:
+        raise ValueError(f"{option} {path}: the file exists and is not empty; give --overwrite to replace it, "
+                         "or another name")
+
+
 def stream_units(decoder) -> dict:
     return {c.name: c.unit for c in decoder.columns if c.unit}
 
@@ -831,7 +840,9 @@ def add_record_parser(subparsers):
         epilog="Rejected lines, by reason: " + "; ".join(f"{k}: {v}" for k, v in REASONS.items()) + ".")
     add_stream_arguments(p)
     p.add_argument("-o", "--output", required=True, metavar="FILE",
-                   help="recording CSV to write (read it with fluxcal.read_csv)")
+                   help="recording CSV to write (read it with fluxcal.read_csv); an existing non-empty FILE is "
+                        "refused unless --overwrite")
+    p.add_argument("--overwrite", action="store_true", help="replace FILE when it exists (default: refuse)")
     p.set_defaults(run=cmd_record)
     return p
 
@@ -840,6 +851,7 @@ def cmd_record(args) -> int:
     if args.duration is not None and not args.duration > 0:
         raise ValueError(f"--duration: {args.duration} is not a positive number of seconds")
     decoder = decoder_from_args(args)
+    check_output(args.output, "-o", args.overwrite)
     recorder = Recorder(args.port, args.baud, decoder, output=args.output, duration=args.duration,
                         units=stream_units(decoder), metadata={"format": args.format})
     stats = recorder.run()
