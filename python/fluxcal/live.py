@@ -190,7 +190,8 @@ def add_live_parser(subparsers):
                     "bar and the current |h| std/mean; stops when coverage and quality meet the thresholds, at "
                     "--duration or on Ctrl-C, and writes the calibration (fitted on every reading kept). "
                     "Exit status 0 when the thresholds were met, 1 when the calibration was written without "
-                    "meeting them, 2 on a bad argument, a port that cannot be opened or too few readings.")
+                    "meeting them, 2 on a bad argument, a port that cannot be opened, too few readings or a "
+                    "--raw file that could not be written (the calibration is written all the same).")
     add_stream_arguments(p)
     p.add_argument("-o", "--output", required=True, help="calibration JSON to write")
     p.add_argument("--raw", default=None, help="also write every record to this recording CSV as it arrives (an "
@@ -251,6 +252,8 @@ def cmd_live(args) -> int:
         session.close()
     state = session.state
     print(stats.report())
+    if stats.write_error:  # the readings received are still in memory: calibrate from them
+        print(f"fluxcal live: error: {stats.write_error}", file=sys.stderr, flush=True)
     print(coverage_map(state.seen))
     print(missing_text(state.seen) if state.calibration is not None else f"no live fit: {state.error}")
     unit = unit or getattr(decoder, "units", {}).get("mx", "")  # kv: as the device printed it
@@ -275,4 +278,6 @@ def cmd_live(args) -> int:
           f"{verdict}. Wrote {args.output}" + (f" and the recording {args.raw}." if args.raw else "."))
     for warning in s.get("warnings", []):
         print(f"warning: {warning}")
+    if stats.write_error:
+        return 2
     return 0 if session.met else 1

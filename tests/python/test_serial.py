@@ -6,6 +6,7 @@ simulates a replug through a stable symlink is explained there)."""
 from __future__ import annotations
 
 import contextlib
+import errno
 import json
 import signal
 import struct
@@ -123,6 +124,48 @@ def test_record_writes_the_unit_the_device_prints(tmp_path):
     rec = fluxcal.read_csv(path)
     assert rec.units["mx"] == "uT" and list(rec.columns["mx"]) == [1.0, 4.0]
     assert stats.rejected["unit"] == 1 and "in G on this line" in stats.report()
+
+
+class _FullDisk:
+    """A file with `room` bytes left: the write that fills it is cut short, later ones fail (ENOSPC)."""
+
+    def __init__(self, file, room: int):
+        self.file, self.room = file, room
+
+    def write(self, data) -> int:
+        if self.room <= 0:
+            raise OSError(errno.ENOSPC, "No space left on device")
+        n = min(len(data), self.room)
+        self.room -= n
+        return self.file.write(data[:n])
+
+    def __getattr__(self, name):
+        return getattr(self.file, name)
+
+
+def test_record_stops_cleanly_when_the_disk_is_full(tmp_path, monkeypatch):
+    """A full disk mid-recording: the rows written stay whole (the torn one is cut off), the recording stops
+    with a report naming the file, the records kept and the reason; no traceback."""
+    from fluxcal.io import serial as serial_module
+
+    class SmallDisk(RecordingWriter):
+        def __init__(self, *args, **kwargs):
+            super().__init__(*args, **kwargs)
+            self._file = _FullDisk(self._file, 100)  # room for the header and about three rows
+
+    monkeypatch.setattr(serial_module, "RecordingWriter", SmallDisk)
+    path = tmp_path / "rec.csv"
+    lines = b"partial\n" + b"".join(b"%d.123456,%d.654321,%d.111111\n" % (k, k, k) for k in range(50))
+    recorder = Recorder("loop://", decoder=TextDecoder(parse_columns("mx,my,mz", units="nT")), output=path,
+                        duration=5)
+    with _serial_sending(recorder, [lines]):
+        stats = recorder.run()
+    assert stats.stopped == "write error" and 0 < stats.records < 10
+    assert stats.write_error == f"could not write {path} after {stats.records} records: No space left on device"
+    assert stats.write_error[1:] in stats.report()
+    assert path.read_text().endswith("\n")  # no torn row
+    rec = fluxcal.read_csv(path)
+    assert list(rec.columns["mx"]) == [k + 0.123456 for k in range(stats.records)]
 
 
 @contextlib.contextmanager

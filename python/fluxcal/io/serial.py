@@ -48,6 +48,7 @@ import os
 import re
 import signal
 import struct
+import sys
 import threading
 import time
 from collections import Counter
@@ -507,7 +508,9 @@ class RecordingWriter:
         self.names = list(names)
         self.units, self.metadata = dict(units or {}), dict(metadata or {})
         self.rows = 0
-        self._file = self.path.open("w", encoding="utf-8", newline="\n")
+        # unbuffered: each row goes to the OS whole or, on a write error (disk full), is cut off again
+        self._file = self.path.open("wb", buffering=0)
+        self._size = 0  # bytes of whole rows and notes in the file
         self.head_written = False
         if not defer_head:
             self._write_head()
@@ -519,30 +522,41 @@ class RecordingWriter:
         if units:
             head.append("# units: " + ", ".join(f"{n}={u}" for n, u in units.items()))
         head += [f"# {k}: {_one_line(v)}" for k, v in self.metadata.items()]
-        self._file.write("\n".join(head) + "\n" + ",".join(self.names) + "\n")
-        self._file.flush()
+        self._write("\n".join(head) + "\n" + ",".join(self.names) + "\n")
+
+    def _write(self, text: str) -> None:
+        """Write `text` whole; on an OSError cut the file back to its last whole line and raise."""
+        data = text.encode("utf-8")
+        rest = memoryview(data)
+        try:
+            while rest:
+                rest = rest[self._file.write(rest):]
+        except OSError:
+            with contextlib.suppress(OSError):
+                os.ftruncate(self._file.fileno(), self._size)
+            raise
+        self._size += len(data)
 
     def append(self, values) -> None:
         if not self.head_written:
             self._write_head()
         # repr of a float is the shortest text that reads back to the same double (as write_csv)
-        self._file.write(",".join(map(repr, map(float, values))) + "\n")
-        self._file.flush()
+        self._write(",".join(map(repr, map(float, values))) + "\n")
         self.rows += 1
 
     def note(self, text: str) -> None:
         if not self.head_written:
             self._write_head()
-        self._file.write(f"# note: {_one_line(text)}\n")
-        self._file.flush()
+        self._write(f"# note: {_one_line(text)}\n")
 
     def close(self) -> None:
         if not self._file.closed:
-            if not self.head_written:
-                self._write_head()
-            self._file.flush()
-            os.fsync(self._file.fileno())  # the file is complete on disk, not only in the OS cache
-            self._file.close()
+            try:
+                if not self.head_written:
+                    self._write_head()
+                os.fsync(self._file.fileno())  # the file is complete on disk, not only in the OS cache
+            finally:
+                self._file.close()
 
 
 def _one_line(value) -> str:
@@ -560,9 +574,10 @@ class RecordStats:
     reconnects: int = 0
     disconnected_s: float = 0.0
     duration_s: float = 0.0
-    stopped: str = ""      # "duration", "interrupted" (Ctrl-C), "done" (a callback asked to stop)
+    stopped: str = ""      # "duration", "interrupted" (Ctrl-C), "done" (a callback asked to stop), "write error"
     blank_lines: int = 0
     output: str | None = None
+    write_error: str = ""  # why the output could not be written (disk full, ...): the recording stopped there
 
     def reject(self, reject: Reject, t_host: float) -> None:
         self.rejected[reject.reason] += 1
@@ -589,6 +604,8 @@ class RecordStats:
             text += f" The port was lost and not regained ({self.disconnected_s:.2f} s without it)."
         else:
             text += " No disconnects."
+        if self.write_error:
+            text += f" {self.write_error[0].upper()}{self.write_error[1:]}; the rows before are whole."
         return text + f" Stopped: {self.stopped or 'end'}."
 
     def summary_note(self) -> str:
@@ -637,8 +654,12 @@ class Recorder:
                     "started": datetime.now(timezone.utc).isoformat(timespec="seconds"),
                     "recorder": f"fluxcal {__version__}", **getattr(self.decoder, "metadata", {}),
                     **self.metadata}
-            self.writer = RecordingWriter(self.output, self.names, {"t_host": "s", **self.units}, meta,
-                                          defer_head=getattr(self.decoder, "may_learn_units", False))
+            try:
+                self.writer = RecordingWriter(self.output, self.names, {"t_host": "s", **self.units}, meta,
+                                              defer_head=getattr(self.decoder, "may_learn_units", False))
+            except OSError as exc:
+                port.close()
+                raise ValueError(f"{self.output}: cannot write the recording ({exc.strerror or exc})") from None
         self.decoder.reset()
         stats = self.stats
         with _ctrl_c_as_request() as self._interrupted:
@@ -657,7 +678,7 @@ class Recorder:
                             break
                         continue
                     if data and self._handle(self.decoder.feed(data), self.clock() - start):
-                        stats.stopped = "done"
+                        stats.stopped = "write error" if stats.write_error else "done"
                         break
             except KeyboardInterrupt:  # a second Ctrl-C, or Ctrl-C outside the main thread
                 stats.stopped = "interrupted"
@@ -671,9 +692,25 @@ class Recorder:
                 stats.duration_s = now - start
                 stats.blank_lines = self.decoder.blank_lines
                 if self.writer:
-                    self.writer.note(stats.summary_note())
-                    self.writer.close()
+                    if not stats.write_error:
+                        self._note(stats.summary_note())
+                    try:
+                        self.writer.close()
+                    except OSError as exc:
+                        self._write_failed(exc)
         return stats
+
+    def _write_failed(self, exc: OSError) -> None:
+        if not self.stats.write_error:
+            self.stats.write_error = (f"could not write {self.output} after {self.stats.records} records: "
+                                      f"{exc.strerror or exc}")
+
+    def _note(self, text: str) -> None:
+        if self.writer and not self.stats.write_error:
+            try:
+                self.writer.note(text)
+            except OSError as exc:
+                self._write_failed(exc)
 
     def _drain(self, port, start: float) -> None:
         """Handle what the port has already buffered (a slow reader can be behind the device by many
@@ -690,6 +727,8 @@ class Recorder:
                 return
 
     def _stop_reason(self, deadline) -> str:
+        if self.stats.write_error:
+            return "write error"
         if self._interrupted.is_set():
             return "interrupted"
         if self.should_stop():
@@ -699,6 +738,8 @@ class Recorder:
         return ""
 
     def _handle(self, events, t_host: float) -> bool:
+        if self.stats.write_error:  # the output is full: nothing more can be kept
+            return True
         stop = False
         for event in events:
             if isinstance(event, Reject):
@@ -707,7 +748,12 @@ class Recorder:
             if self.writer:
                 if not self.writer.head_written:  # the units the first good line printed
                     self.writer.units.update(getattr(self.decoder, "units", {}))
-                self.writer.append((t_host, *event))
+                try:
+                    self.writer.append((t_host, *event))
+                except OSError as exc:  # disk full: keep the whole rows written, stop, report
+                    self._write_failed(exc)
+                    self.stats.stopped = "write error"
+                    return True
             self.stats.records += 1
             if self.on_record is not None and self.on_record(t_host, event):
                 stop = True  # finish the chunk: its records are written, nothing read is dropped
@@ -723,8 +769,7 @@ class Recorder:
             port.close()
         except (serial.SerialException, OSError):
             pass  # already gone
-        if self.writer:
-            self.writer.note(f"disconnected at t_host={lost - start:.3f} s ({exc}), reconnecting")
+        self._note(f"disconnected at t_host={lost - start:.3f} s ({exc}), reconnecting")
         backoff, attempts = 0.02, 0
         while not (stop := self._stop_reason(deadline)):
             time.sleep(backoff if deadline is None else min(backoff, max(deadline - self.clock(), 0.0)))
@@ -738,14 +783,11 @@ class Recorder:
             self.decoder.reset()
             self.stats.reconnects += 1
             self.stats.disconnected_s += back - lost
-            if self.writer:
-                self.writer.note(f"reconnected at t_host={back - start:.3f} s after {back - lost:.3f} s "
-                                 f"({attempts} attempts)")
+            self._note(f"reconnected at t_host={back - start:.3f} s after {back - lost:.3f} s ({attempts} attempts)")
             return port
         self.stats.disconnected_s += self.clock() - lost
         self.stats.stopped = stop
-        if self.writer:
-            self.writer.note(f"still disconnected at the end, t_host={self.clock() - start:.3f} s")
+        self._note(f"still disconnected at the end, t_host={self.clock() - start:.3f} s")
         return None
 
 
@@ -835,8 +877,9 @@ def add_record_parser(subparsers):
         "record", help="record a serial device to a CSV, flushed per record, surviving disconnects",
         description="Read records from a serial port, timestamp them (t_host, s) and append every good one to "
                     "FILE as it arrives. Rejected lines are counted by reason and reported; a lost port is "
-                    "reopened. Exit status 0, 1 when no record was kept, 2 on a bad argument or a port that "
-                    "cannot be opened.",
+                    "reopened. Exit status 0, 1 when no record was kept, 2 on a bad argument, a port that "
+                    "cannot be opened or a FILE that cannot be written (disk full: the rows before are kept "
+                    "whole).",
         epilog="Rejected lines, by reason: " + "; ".join(f"{k}: {v}" for k, v in REASONS.items()) + ".")
     add_stream_arguments(p)
     p.add_argument("-o", "--output", required=True, metavar="FILE",
@@ -856,6 +899,9 @@ def cmd_record(args) -> int:
                         units=stream_units(decoder), metadata={"format": args.format})
     stats = recorder.run()
     print(stats.report())
+    if stats.write_error:
+        print(f"fluxcal record: error: {stats.write_error}", file=sys.stderr, flush=True)
+        return 2
     if not stats.records:
         print(f"fluxcal record: no good record from {args.port}; check --baud, --format, --columns and --units",
               flush=True)
