@@ -515,3 +515,7 @@ def main(argv=None) -> int:
     except (ValueError, FileNotFoundError) as exc:
         print(f"fluxcal {args.command}: error: {exc}", file=sys.stderr)
         return 2
+    except OSError as exc:  # a file that cannot be written (a folder, no permission, disk full): name it
+        where = f"{exc.filename}: " if exc.filename else ""
+        print(f"fluxcal {args.command}: error: {where}{exc.strerror or exc}", file=sys.stderr)
+        return 2

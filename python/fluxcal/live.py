@@ -228,6 +228,7 @@ def cmd_live(args) -> int:
     if args.raw and _same_file(args.raw, args.output):
         raise ValueError(f"--raw {args.raw} and -o {args.output} are the same file: the calibration would replace "
                          "the recording; name two files")
+    check_output(args.output, "-o")  # written at the end: a bad path must not cost the session
     if args.raw:
         check_output(args.raw, "--raw", args.overwrite)
     decoder = decoder_from_args(args)

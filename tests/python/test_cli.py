@@ -59,6 +59,9 @@ def test_errors_are_reported_not_raised(tmp_path):
     assert r.returncode == 2 and "5 rows, need at least 9" in r.stderr
     r = run_cli("calibrate", tmp_path / "absent.csv")
     assert r.returncode == 2 and "cannot read" in r.stderr
+    # an output that cannot be written (here a folder): an error naming it, not a traceback
+    r = run_cli("simulate", "-o", tmp_path, "--n", 20)
+    assert r.returncode == 2 and f"{tmp_path}: Is a directory" in r.stderr and "Traceback" not in r.stderr
 
 
 def test_poor_coverage_is_warned(tmp_path):

@@ -486,6 +486,20 @@ def test_record_and_live_keep_an_earlier_recording(tmp_path):
     assert earlier.read_text().startswith("# fluxcal recording")
 
 
+def test_record_outputs_that_cannot_be_written(tmp_path):
+    """A folder, a missing folder, a full device: an error naming the output, no traceback, no port left open."""
+    result = run_fluxcal("record", "--port", "loop://", "-o", tmp_path, "--duration", 0.3)
+    assert result.returncode == 2 and f"-o {tmp_path}: is a folder" in result.stderr
+    result = run_fluxcal("record", "--port", "loop://", "-o", tmp_path / "none" / "x.csv", "--duration", 0.3)
+    assert result.returncode == 2 and f"the folder {tmp_path / 'none'} does not exist" in result.stderr
+    result = run_fluxcal("live", "--port", "loop://", "-o", tmp_path / "none" / "cal.json", "--duration", 0.3)
+    assert result.returncode == 2 and f"-o {tmp_path / 'none' / 'cal.json'}: the folder" in result.stderr
+    if Path("/dev/full").exists():
+        result = run_fluxcal("record", "--port", "loop://", "-o", "/dev/full", "--duration", 0.3)
+        assert result.returncode == 2 and "/dev/full: cannot write the recording (No space left" in result.stderr
+        assert "Traceback" not in result.stderr
+
+
 def live_truth(sent):
     truth = json.loads(sent.read_text())["truth"]
     return np.array(truth["offset"]), np.array(truth["matrix"])

@@ -860,9 +860,13 @@ def decoder_from_args(args):
 
 
 def check_output(path, option: str, overwrite: bool = True) -> None:
-    """Before the port opens: refuse to replace an earlier recording (a non-empty file) unless `overwrite`.
-    ValueError names the option and the file."""
+    """Before the port opens: refuse an output that cannot be a file (a folder, a missing folder) and one that
+    would replace an earlier recording (a non-empty file) unless `overwrite`. ValueError names the option."""
     path = Path(path)
+    if path.is_dir():
+        raise ValueError(f"{option} {path}: is a folder; name a file in it")
+    if not path.parent.is_dir():
+        raise ValueError(f"{option} {path}: the folder {path.parent} does not exist")
     if not overwrite and path.is_file() and path.stat().st_size > 0:
         raise ValueError(f"{option} {path}: the file exists and is not empty; give --overwrite to replace it, "
                          "or another name")
