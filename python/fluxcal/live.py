@@ -74,6 +74,7 @@ class LiveState:
     seen: np.ndarray | None = None
     calibration: object = None
     error: str = ""                # why there is no fit yet (too few readings, planar so far, ...)
+    zeros: int = 0                 # readings of exactly 0,0,0 left out
 
 
 class LiveFit:
@@ -87,6 +88,7 @@ class LiveFit:
         self.regrow = regrow  # renormalise when the readings spread this many times the scale in use
         self._readings = np.empty((1024, 3))
         self.count = 0
+        self.zeros = 0  # readings of exactly 0,0,0 left out
         self._moments = None
         self._scale = 0.0
         self._lo, self._hi = np.full(3, np.inf), np.full(3, -np.inf)  # bounding box of the readings
@@ -96,6 +98,10 @@ class LiveFit:
         return self._readings[:self.count]
 
     def add(self, reading) -> None:
+        reading = np.asarray(reading, dtype=float)
+        if not reading.any():  # exactly 0,0,0: an I²C glitch, not a field (calibrate() leaves them out too)
+            self.zeros += 1
+            return
         if self.count == len(self._readings):
             self._readings = np.concatenate([self._readings, np.empty_like(self._readings)])
         row = self._readings[self.count]
@@ -118,7 +124,7 @@ class LiveFit:
         self._moments.add(self.readings)
 
     def state(self) -> LiveState:
-        state = LiveState(records=self.count, seen=np.zeros(N_DIRECTION_BINS, dtype=bool))
+        state = LiveState(records=self.count, seen=np.zeros(N_DIRECTION_BINS, dtype=bool), zeros=self.zeros)
         if self._moments is None:
             state.error = f"{self.count} readings, fitting from {self.warmup}"
             return state
@@ -166,7 +172,8 @@ class LiveSession:
                     and s.spread <= self.max_spread)
         self.bar.n = int(round(s.coverage * N_DIRECTION_BINS))
         quality = f"|h| std/mean {100 * s.spread:.2f} %" if s.calibration is not None else s.error[:50]
-        self.bar.set_postfix_str(f"{quality}, {s.records} records", refresh=False)
+        zeros = f", {s.zeros} of 0,0,0 left out" if s.zeros else ""
+        self.bar.set_postfix_str(f"{quality}, {s.records} records{zeros}", refresh=False)
         self.bar.refresh()
         missing = missing_text(s.seen) if s.calibration is not None else ""
         now = self.clock()
@@ -257,6 +264,9 @@ def cmd_live(args) -> int:
         print(f"fluxcal live: error: {stats.write_error}", file=sys.stderr, flush=True)
     print(coverage_map(state.seen))
     print(missing_text(state.seen) if state.calibration is not None else f"no live fit: {state.error}")
+    if session.fit.zeros:
+        print(f"left out {session.fit.zeros} readings of exactly 0,0,0 (sensor glitches; they stay in the raw "
+              "recording)")
     unit = unit or getattr(decoder, "units", {}).get("mx", "")  # kv: as the device printed it
     readings = session.fit.readings
     if len(readings) < 9:
@@ -266,7 +276,7 @@ def cmd_live(args) -> int:
     cal.metadata.update(source=f"serial port {args.port} at {args.baud} baud (fluxcal live)",
                         records=stats.records, rejected=stats.rejected_text(), reconnects=stats.reconnects,
                         stopped=stats.stopped, thresholds=session.thresholds_text(), thresholds_met=session.met,
-                        live_coverage=state.coverage, live_spread=state.spread)
+                        live_coverage=state.coverage, live_spread=state.spread, zeros_left_out=session.fit.zeros)
     if args.raw:
         cal.metadata["recording"] = str(args.raw)
     cal.save(args.output)

@@ -387,6 +387,25 @@ def test_live_fit_recovers_when_a_still_sensor_starts_turning():
     np.testing.assert_allclose(state.calibration.offset, fluxcal.fit_ellipsoid(m).offset, atol=1e-6 * FIELD_NT)
 
 
+def test_live_fit_leaves_out_zero_glitches():
+    """1 reading in 100 of exactly 0,0,0 (an I²C glitch) kept the live spread above any threshold while the
+    final (screened) fit was fine: the live fit leaves them out too, and counts them."""
+    from fluxcal import sim
+
+    rng = np.random.default_rng(8)
+    result = sim.simulate(sim.uniform(600, rng), sim.random_sensor(FIELD_NT, rng, noise=0.002), [2e4, 1e3, 4.5e4], rng)
+    m = result.readings.copy()
+    m[50::100] = 0.0
+    live = LiveFit(units="nT")
+    for reading in m:
+        live.add(reading)
+    state = live.state()
+    assert state.zeros == live.zeros == 6 and live.count == 594
+    clean = m[np.any(m != 0, axis=1)]
+    np.testing.assert_allclose(state.calibration.offset, fluxcal.fit_ellipsoid(clean).offset, atol=1e-6 * FIELD_NT)
+    assert state.spread < 0.01
+
+
 # -- through pseudo-terminals --------------------------------------------------------------------------------
 
 @contextlib.contextmanager
