@@ -8,6 +8,7 @@ from __future__ import annotations
 import contextlib
 import errno
 import json
+import os
 import signal
 import struct
 import subprocess
@@ -166,6 +167,40 @@ def test_record_stops_cleanly_when_the_disk_is_full(tmp_path, monkeypatch):
     assert path.read_text().endswith("\n")  # no torn row
     rec = fluxcal.read_csv(path)
     assert list(rec.columns["mx"]) == [k + 0.123456 for k in range(stats.records)]
+
+
+def test_recorder_finishes_its_file_through_a_second_ctrl_c(tmp_path, monkeypatch):
+    """Ctrl-C twice while the file is being closed (the summary, the fsync): no KeyboardInterrupt, the file
+    is complete."""
+    from fluxcal.io import serial as serial_module
+
+    class Impatient(RecordingWriter):
+        def close(self):
+            os.kill(os.getpid(), signal.SIGINT)
+            os.kill(os.getpid(), signal.SIGINT)
+            super().close()
+
+    monkeypatch.setattr(serial_module, "RecordingWriter", Impatient)
+    path = tmp_path / "rec.csv"
+    recorder = Recorder("loop://", decoder=TextDecoder(parse_columns(None)), output=path, duration=0.2)
+    stats = recorder.run()
+    assert stats.stopped == "duration"
+    assert path.read_text().splitlines()[-1].startswith("# note: summary: 0 records")
+
+
+def test_record_sigterm_and_sighup_stop_like_ctrl_c(tmp_path):
+    """A kill (SIGTERM) or a closed terminal (SIGHUP) ends the recording with its summary and report."""
+    for sig, said in ((signal.SIGTERM, "terminated (SIGTERM)"), (signal.SIGHUP, "hung up (SIGHUP)")):
+        path = tmp_path / f"{sig.name}.csv"
+        proc = subprocess.Popen([sys.executable, "-m", "fluxcal", "record", "--port", "loop://", "-o", str(path),
+                                 "--duration", "30"], stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+        end = time.monotonic() + 20
+        while time.monotonic() < end and not (path.exists() and "\nt_host," in path.read_text()):
+            time.sleep(0.05)
+        proc.send_signal(sig)
+        stdout, stderr = proc.communicate(timeout=20)
+        assert f"Stopped: {said}." in stdout, stdout + stderr
+        assert path.read_text().splitlines()[-1].endswith(f"stopped: {said}")
 
 
 @contextlib.contextmanager

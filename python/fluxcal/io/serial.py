@@ -574,7 +574,8 @@ class RecordStats:
     reconnects: int = 0
     disconnected_s: float = 0.0
     duration_s: float = 0.0
-    stopped: str = ""      # "duration", "interrupted" (Ctrl-C), "done" (a callback asked to stop), "write error"
+    stopped: str = ""      # "duration", "interrupted" (Ctrl-C), "terminated (SIGTERM)", "hung up (SIGHUP)",
+                           # "done" (a callback asked to stop), "write error"
     blank_lines: int = 0
     output: str | None = None
     write_error: str = ""  # why the output could not be written (disk full, ...): the recording stopped there
@@ -683,6 +684,7 @@ class Recorder:
             except KeyboardInterrupt:  # a second Ctrl-C, or Ctrl-C outside the main thread
                 stats.stopped = "interrupted"
             finally:
+                self._interrupted.closing = True  # a further Ctrl-C must not cut the summary or the fsync
                 now = self.clock()
                 if port is not None:
                     reject = self.decoder.flush("line in flight at the end")
@@ -730,7 +732,7 @@ class Recorder:
         if self.stats.write_error:
             return "write error"
         if self._interrupted.is_set():
-            return "interrupted"
+            return self._interrupted.stopped
         if self.should_stop():
             return "done"
         if deadline is not None and self.clock() >= deadline:
@@ -791,25 +793,39 @@ class Recorder:
         return None
 
 
+STOP_SIGNALS = {"SIGINT": "interrupted", "SIGTERM": "terminated (SIGTERM)", "SIGHUP": "hung up (SIGHUP)"}
+
+
 @contextlib.contextmanager
 def _ctrl_c_as_request():
-    """While recording, the first Ctrl-C asks the loop to stop between records (no row is cut in half and
-    the summary is written); a second one interrupts at once. Signals reach only the main thread."""
+    """While recording, the first Ctrl-C (or SIGTERM, SIGHUP: a kill, a closed terminal) asks the loop to
+    stop between records (no row is cut in half and the summary is written); a second Ctrl-C interrupts
+    at once, except once `closing` is set (the summary and fsync are under way: let them finish).
+    `stopped` says which signal came. Signals reach only the main thread."""
     requested = threading.Event()
+    requested.closing, requested.stopped = False, "interrupted"
     if threading.current_thread() is not threading.main_thread():
         yield requested
         return
 
     def handler(signum, frame):
         if requested.is_set():
-            raise KeyboardInterrupt
+            if signum == signal.SIGINT and not requested.closing:
+                raise KeyboardInterrupt
+            return
+        requested.stopped = STOP_SIGNALS.get(signal.Signals(signum).name, "interrupted")
         requested.set()
 
-    previous = signal.signal(signal.SIGINT, handler)
+    previous = {}
+    for name in STOP_SIGNALS:
+        if hasattr(signal, name):  # no SIGHUP on Windows
+            previous[name] = signal.signal(getattr(signal, name), handler)
     try:
         yield requested
     finally:
-        signal.signal(signal.SIGINT, previous if previous is not None else signal.default_int_handler)
+        for name, handler_before in previous.items():
+            default = signal.default_int_handler if name == "SIGINT" else signal.SIG_DFL
+            signal.signal(getattr(signal, name), handler_before if handler_before is not None else default)
 
 
 # -- command line ---------------------------------------------------------------------------------------
