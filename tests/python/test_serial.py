@@ -9,6 +9,7 @@ import contextlib
 import errno
 import json
 import os
+import re
 import signal
 import struct
 import subprocess
@@ -552,6 +553,21 @@ def test_record_outputs_that_cannot_be_written(tmp_path):
         result = run_fluxcal("record", "--port", "loop://", "-o", "/dev/full", "--duration", 0.3)
         assert result.returncode == 2 and "/dev/full: cannot write the recording (No space left" in result.stderr
         assert "Traceback" not in result.stderr
+
+
+def test_record_says_it_started_and_warns_when_nothing_good_comes(tmp_path):
+    result = run_fluxcal("record", "--port", "loop://", "-o", tmp_path / "x.csv", "--duration", 1, "--warn-after", 0.3)
+    assert f"recording loop:// at 115200 baud into {tmp_path / 'x.csv'} for 1 s or Ctrl-C" in result.stderr
+    assert re.search(r"warning: no good record from loop:// in the first [\d.]+ s \(nothing received\): a wrong --baud",
+                     result.stderr), result.stderr
+    assert result.stderr.count("warning:") == 1
+    # and only once, naming what was heard
+    warned = []
+    recorder = Recorder("loop://", decoder=TextDecoder(parse_columns(None)), duration=0.5, warn_after=0.1,
+                        warn=warned.append)
+    with _serial_sending(recorder, [b"partial\n1,2\n"]):
+        recorder.run()
+    assert len(warned) == 1 and "(2 rejected (1 fields, 1 partial))" in warned[0]
 
 
 def live_truth(sent):

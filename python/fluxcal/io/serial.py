@@ -621,11 +621,14 @@ class Recorder:
     `on_record(t_host, values)` is called for every good record after it is written; a true return stops
     the recording (stopped = "done"), as does `should_stop()` returning true (checked between reads).
     `duration` None records until Ctrl-C. `stats` is filled as it goes and returned by run().
+    `warn_after` (s): when no good record has come by then, `warn(text)` is called once with the likely
+    causes (default: print to stderr); None never warns.
     """
 
     def __init__(self, port: str, baudrate: int = 115200, decoder=None, output=None, duration: float | None = None,
                  units: dict | None = None, metadata: dict | None = None, on_record=None, should_stop=None,
-                 read_timeout: float = 0.05, max_backoff: float = 1.0, clock=time.monotonic):
+                 read_timeout: float = 0.05, max_backoff: float = 1.0, clock=time.monotonic,
+                 warn_after: float | None = None, warn=None):
         self.port, self.baudrate = port, int(baudrate)
         self.decoder = decoder or TextDecoder(parse_columns(None))
         self.output, self.duration = output, duration
@@ -635,6 +638,8 @@ class Recorder:
         self.names = ["t_host"] + list(self.decoder.names)
         self.stats = RecordStats(port=port, output=str(output) if output else None)
         self.writer = None
+        self.warn_after = warn_after
+        self.warn = warn or (lambda text: print(text, file=sys.stderr, flush=True))
 
     def _open(self):
         return serial.serial_for_url(self.port, baudrate=self.baudrate, timeout=self.read_timeout)
@@ -681,6 +686,7 @@ class Recorder:
                     if data and self._handle(self.decoder.feed(data), self.clock() - start):
                         stats.stopped = "write error" if stats.write_error else "done"
                         break
+                    self._warn_if_silent(start)
             except KeyboardInterrupt:  # a second Ctrl-C, or Ctrl-C outside the main thread
                 stats.stopped = "interrupted"
             finally:
@@ -701,6 +707,15 @@ class Recorder:
                     except OSError as exc:
                         self._write_failed(exc)
         return stats
+
+    def _warn_if_silent(self, start: float) -> None:
+        if self.warn_after is None or self.stats.records or self.clock() - start < self.warn_after:
+            return
+        self.warn_after = None  # once
+        heard = self.stats.rejected_text() if self.stats.rejected else "nothing received"
+        self.warn(f"no good record from {self.port} in the first {self.clock() - start:.1f} s ({heard}): a wrong "
+                  "--baud (garbled bytes), a wrong --format or --columns (lines rejected), or a silent device? "
+                  "Still recording.")
 
     def _write_failed(self, exc: OSError) -> None:
         if not self.stats.write_error:
@@ -906,6 +921,8 @@ def add_record_parser(subparsers):
                    help="recording CSV to write (read it with fluxcal.read_csv); an existing non-empty FILE is "
                         "refused unless --overwrite")
     p.add_argument("--overwrite", action="store_true", help="replace FILE when it exists (default: refuse)")
+    p.add_argument("--warn-after", type=float, default=5.0, metavar="S",
+                   help="warn on stderr when no good record has come after S seconds (default 5)")
     p.set_defaults(run=cmd_record)
     return p
 
@@ -916,7 +933,11 @@ def cmd_record(args) -> int:
     decoder = decoder_from_args(args)
     check_output(args.output, "-o", args.overwrite)
     recorder = Recorder(args.port, args.baud, decoder, output=args.output, duration=args.duration,
-                        units=stream_units(decoder), metadata={"format": args.format})
+                        units=stream_units(decoder), metadata={"format": args.format}, warn_after=args.warn_after,
+                        warn=lambda text: print(f"fluxcal record: warning: {text}", file=sys.stderr, flush=True))
+    until = f"for {args.duration:g} s or Ctrl-C" if args.duration else "until Ctrl-C"
+    print(f"fluxcal record: recording {args.port} at {args.baud} baud into {args.output} {until}",
+          file=sys.stderr, flush=True)
     stats = recorder.run()
     print(stats.report())
     if stats.write_error:
