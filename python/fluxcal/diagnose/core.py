@@ -2,6 +2,7 @@
 from __future__ import annotations
 
 import json
+import warnings
 from dataclasses import dataclass, field, replace
 from math import comb
 from pathlib import Path
@@ -888,6 +889,9 @@ def _prepare(samples, t, temp, reference, down, field_norm, units, source, curre
     t = np.arange(n, dtype=float) if t is None else np.asarray(t, dtype=float)
     if t.shape != (n,) or not np.all(np.isfinite(t)):
         raise ValueError(f"t: need {n} finite times, got shape {t.shape}")
+    if n > 1 and np.ptp(t) == 0:  # else every reading would be spread over a made-up tick of 1 s
+        raise ValueError(f"t: all {n} times are {t[0]:.6g} (a clock that did not run?); give the times in seconds, "
+                         "or leave t out to take the row number")
     temp, current = _side(temp, n, "temp", "temperatures"), _side(current, n, "current", "currents")
     if reference is not None:
         reference = as_samples(reference, "reference")
@@ -952,6 +956,32 @@ def quantization_step(samples) -> float:
     return float(np.sqrt(np.mean(np.square(steps)))) if all(steps) else 0.0
 
 
+def _check_options(noise_sigma, candidates, alpha, max_effects):
+    """The options checked before any fit, each error naming its option. Returns the candidate names as a
+    list (one name, or names separated by commas, may come as a string)."""
+    if noise_sigma is not None:
+        try:
+            value = float(noise_sigma)
+        except (TypeError, ValueError):
+            raise ValueError(f"noise_sigma: need a number (the readings' white-noise σ), got {noise_sigma!r}") from None
+        if not (np.isfinite(value) and value > 0):
+            raise ValueError(f"noise_sigma: need a positive finite σ (the readings' white noise, in their units), "
+                             f"got {noise_sigma!r}")
+    if not (isinstance(alpha, (int, float, np.integer, np.floating)) and 0 < alpha < 1):
+        raise ValueError(f"alpha: need a significance level between 0 and 1 (0.01 for 1 %), got {alpha!r}")
+    if isinstance(max_effects, (bool, np.bool_)) or not isinstance(max_effects, (int, np.integer)) or max_effects < 0:
+        raise ValueError(f"max_effects: need a whole number ≥ 0 (how many effects to add), got {max_effects!r}")
+    if candidates is None:
+        return None
+    if isinstance(candidates, str):  # list("temp_scale") would be its letters
+        candidates = [c.strip() for c in candidates.split(",") if c.strip()]
+    elif not isinstance(candidates, (list, tuple, set, frozenset, np.ndarray)) or \
+            not all(isinstance(c, str) for c in candidates):
+        raise ValueError(f"candidates: need effect names (a list of strings, or one string of names separated by "
+                         f"commas), got {candidates!r}")
+    return list(candidates)
+
+
 def diagnose(samples, t=None, temp=None, reference=None, gravity=None, field_norm=None, model: str | None = None,
              noise_sigma: float | None = None, candidates=None, alpha: float = 0.01, max_effects: int = 3,
              progress: bool = False, units: str = "", source: str = "samples", current=None) -> Diagnosis:
@@ -970,6 +1000,8 @@ def diagnose(samples, t=None, temp=None, reference=None, gravity=None, field_nor
     from ..io.recording import Recording
     from ..pipeline import calibrate
 
+    candidates = _check_options(noise_sigma, candidates, alpha, max_effects)
+    gravity_given = gravity is not None
     unusable = []
     if isinstance(samples, Recording):
         rec = samples
@@ -993,6 +1025,9 @@ def diagnose(samples, t=None, temp=None, reference=None, gravity=None, field_nor
     vector, fixed = MODELS[model]
     if vector and reference is None:
         raise ValueError(f"model {model!r} needs reference vectors (the true field per reading)")
+    if gravity_given and not vector:
+        warnings.warn(f"gravity: not used by the {model!r} model (the heading error and a magnet's north, east and "
+                      "down need reference vectors: give reference=)", stacklevel=2)
     timestamps = t is not None
     data = _prepare(samples, t, temp, reference if vector else None, gravity if vector else None, field_norm,
                     units, source, current)
@@ -1025,7 +1060,7 @@ def diagnose(samples, t=None, temp=None, reference=None, gravity=None, field_nor
         raise ValueError(f"{source}: the noise σ is zero (readings constant or repeated?); give noise_sigma")
 
     names = {c.name: c for c in CANDIDATES}
-    wanted = list(names) if candidates is None else list(candidates)
+    wanted = list(names) if candidates is None else candidates
     unknown = [w for w in wanted if w not in names]
     if unknown:
         raise ValueError(f"candidates: unknown effect(s) {', '.join(unknown)}; known: {', '.join(names)}")

@@ -1,0 +1,48 @@
+"""Bad inputs to fluxcal.diagnose: a clear error (or warning) naming the input, never a silent wrong answer."""
+import numpy as np
+import pytest
+
+from fluxcal.diagnose import diagnose
+from fluxcal.sim.withheld import withheld_trial
+
+
+@pytest.fixture(scope="module")
+def short():
+    result, kwargs = withheld_trial([], 0, duration_s=10)
+    return result.readings, kwargs
+
+
+@pytest.mark.parametrize("sigma", [-0.05, 0.0, float("nan"), float("inf"), "abc"])
+def test_bad_noise_sigma_is_named(short, sigma):
+    m, kw = short
+    with pytest.raises(ValueError, match="^noise_sigma: need"):
+        diagnose(m, noise_sigma=sigma, **kw)
+
+
+@pytest.mark.parametrize("option", [{"alpha": 5}, {"alpha": 0}, {"alpha": 1.0}, {"max_effects": -1},
+                                    {"max_effects": 1.5}, {"candidates": 3}, {"candidates": [1, 2]}])
+def test_out_of_range_options_are_named(short, option):
+    m, kw = short
+    with pytest.raises(ValueError, match=f"^{next(iter(option))}: need"):
+        diagnose(m, **option, **kw)
+
+
+def test_candidates_as_one_string(short):
+    m, kw = short
+    for given in ("offset_drift", "offset_drift, temp_offset"):
+        d = diagnose(m, candidates=given, max_effects=0, **kw)
+        assert {r["effect"] for r in d.ranking} == {c.strip() for c in given.split(",")}
+    with pytest.raises(ValueError, match="unknown effect.*tmp_scale"):
+        diagnose(m, candidates="tmp_scale", **kw)
+
+
+def test_constant_times_are_refused(short):
+    m, kw = short
+    with pytest.raises(ValueError, match="t: all"):
+        diagnose(m, **dict(kw, t=np.zeros(len(m))))
+
+
+def test_gravity_without_reference_warns(short):
+    m, kw = short
+    with pytest.warns(UserWarning, match="gravity: not used"):
+        diagnose(m, gravity=np.tile([0, 0, 1.0], (len(m), 1)), candidates=[], **kw)
