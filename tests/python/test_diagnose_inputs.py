@@ -46,3 +46,15 @@ def test_gravity_without_reference_warns(short):
     m, kw = short
     with pytest.warns(UserWarning, match="gravity: not used"):
         diagnose(m, gravity=np.tile([0, 0, 1.0], (len(m), 1)), candidates=[], **kw)
+
+
+def test_a_given_sigma_below_the_noise_is_not_called_explained(short):
+    # the trial's noise is 0.05: given 0.03, "explains the data to the noise" would be false
+    m, kw = short
+    low = diagnose(m, noise_sigma=0.03, **kw)
+    assert low.remaining["noise_check"]["exceeds"] and low.remaining["noise_check"]["rms_over_sigma"] > 1.4
+    assert "explains the data to the noise" not in low.text()
+    assert "residuals exceed the given noise σ" in low.text()
+    right = diagnose(m, noise_sigma=0.05, **kw)
+    assert not right.accepted and not right.remaining["noise_check"]["exceeds"]
+    assert "explains the data to the noise" in right.text()

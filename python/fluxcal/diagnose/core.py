@@ -66,7 +66,9 @@ class Diagnosis:
     or `peak_along_field` (signed);
     `significant_not_modelled` marks a candidate still significant when the `max_effects` limit stopped
     the search; an accepted row's `coefficients` and `standard_errors` are those of the final model (every
-    accepted effect fitted together), the others' those of their own round. `where`: residual tables per regime. `significant`: any effect found."""
+    accepted effect fitted together), the others' those of their own round. `where`: residual tables per regime;
+    `remaining` the same for the final model, and with a given noise σ `remaining["noise_check"]`: whether
+    the final residuals exceed it (`exceeds`, χ² `pvalue`, `rms_over_sigma`). `significant`: any effect found."""
 
     model: str
     noise_sigma: float
@@ -860,6 +862,16 @@ def _quantization(data, state, sigma, n_candidates, noise_given: bool) -> dict:
     return row
 
 
+def _noise_check(e: np.ndarray, sigma: float, n_params: int, alpha: float) -> dict:
+    """Do the residuals exceed a given σ? χ² of the residuals / σ on their degrees of freedom: without it,
+    a σ below the sensor's noise leaves every candidate's gain inside the gap and "no effect" reads as
+    "explained to the noise"."""
+    chi2 = float(e @ e) / sigma ** 2
+    pvalue = float(stats.chi2.sf(chi2, max(e.size - n_params, 1)))
+    rms = float(np.sqrt(np.mean(e ** 2)))
+    return {"residual_rms": rms, "rms_over_sigma": rms / sigma, "pvalue": pvalue, "exceeds": pvalue < alpha}
+
+
 def _side(values, n: int, name: str, what: str):
     """A side regressor (temperature, current) checked: None when absent or constant (a constant carries no
     information: the hard iron holds it)."""
@@ -1172,6 +1184,8 @@ def diagnose(samples, t=None, temp=None, reference=None, gravity=None, field_nor
     e_final = np.asarray(final["residuals"])
     final_dirs = _field_directions(data, final)
     remaining = _where(data, e_final, sigma, final_dirs, vector)
+    if noise_sigma is not None:  # an estimated σ comes from these readings; a given one may not fit them
+        remaining["noise_check"] = _noise_check(e_final, sigma, len(final["parameters"]) - len(fixed), alpha)
     remaining["skipped_candidates"] = skipped
     remaining["invisible_candidates"] = invisible
     base_cal = Calibration(offset=base["offset"], matrix=base["matrix"], field_norm=data.field_norm, units=units,

@@ -148,8 +148,16 @@ def text(d) -> str:
                            f"{100 * np.linalg.norm(k) * peak / d.base.field_norm:.1f} % of the field (compassmot's "
                            "'interference')")
         out += confound_lines(d)
-    else:
+    elif not rem.get("noise_check", {}).get("exceeds"):
         out.append("FOUND: no significant effect — the base model explains the data to the noise")
+    else:
+        out.append("FOUND: no significant effect among the candidates")
+    check = rem.get("noise_check", {})
+    if check.get("exceeds"):
+        out.append(f"BUT the {'remaining ' if d.accepted else ''}residuals exceed the given noise σ: RMS "
+                   f"{check['rms_over_sigma']:.2f} σ ({check['residual_rms']:.4g}{u} against σ {d.noise_sigma:.4g}{u}, "
+                   f"p {check['pvalue']:.2g}): the given noise_sigma may be too low (the datasheet's, not this "
+                   "sensor's?), or the cause is outside the candidates")
     extra = [r["effect"] for r in d.ranking if r.get("significant_not_modelled")]
     if extra:
         out.append(f"ALSO SIGNIFICANT, not modelled (the max_effects limit stopped the search): {', '.join(extra)}")
