@@ -58,3 +58,15 @@ def test_a_given_sigma_below_the_noise_is_not_called_explained(short):
     right = diagnose(m, noise_sigma=0.05, **kw)
     assert not right.accepted and not right.remaining["noise_check"]["exceeds"]
     assert "explains the data to the noise" in right.text()
+
+
+def test_times_in_ms_taken_for_seconds_are_flagged(short):
+    # 50 Hz logged in ms under a plain `t`: 20 "s" between readings that turn like a hand's 50 Hz log
+    m, kw = short
+    with pytest.warns(UserWarning, match="t: readings 20 s apart"):
+        d = diagnose(m, candidates=[], **dict(kw, t=kw["t"] * 1000))
+    assert any("in ms" in c and "t [ms]" in c for c in d.caveats)
+    assert "CAVEAT: t:" in d.text() and d.to_dict()["caveats"] == d.caveats
+    assert not diagnose(m, candidates=[], **kw).caveats
+    slow = dict(kw, t=kw["t"] * 50)  # a slow turntable logged at 1 Hz: turns too slow for a hand even in ms
+    assert not diagnose(m, candidates=[], **slow).caveats

@@ -81,6 +81,7 @@ class Diagnosis:
     remaining: dict
     base: Calibration
     series: dict = field(repr=False, default_factory=dict)  # per-reading arrays for the figures
+    caveats: list = field(default_factory=list)  # what may make the findings untrustworthy (inputs, coverage)
 
     @property
     def significant(self) -> bool:
@@ -100,7 +101,7 @@ class Diagnosis:
                 "noise_sigma": self.noise_sigma, "noise_source": self.noise_source,
                 "significant": self.significant, "accepted": self.accepted, "confounded": self.confounded,
                 "ranking": self.ranking,
-                "where": self.where, "remaining": self.remaining}
+                "where": self.where, "remaining": self.remaining, "caveats": self.caveats}
 
     def save_json(self, path) -> Path:
         path = Path(path)
@@ -872,6 +873,31 @@ def _noise_check(e: np.ndarray, sigma: float, n_params: int, alpha: float) -> di
     return {"residual_rms": rms, "rms_over_sigma": rms / sigma, "pvalue": pvalue, "exceeds": pvalue < alpha}
 
 
+HAND_TURN_DEG_S = (6.0, 720.0)  # a hand turning a sensor through its orientations: a full turn in a minute at the
+                               # slowest, two turns a second at the fastest
+
+
+def _time_unit_caveat(data: _Data, directions: np.ndarray) -> str | None:
+    """Times in ms (or µs) taken for seconds: a period of ≥ 1 s while the field direction turns only a little
+    from one reading to the next means a hand-turned sensor turning slower than a hand does; the same turns
+    per ms (µs) would be a hand's. Every time-scaled result (a delay, a drift rate, an event's time) is
+    then off by the factor."""
+    dt = np.diff(data.t)
+    moving = dt > 0
+    if not moving.any() or np.median(dt[moving]) < 1.0:
+        return None
+    turn = np.degrees(np.arccos(np.clip(np.sum(directions[1:] * directions[:-1], axis=1), -1, 1)))
+    rate = float(np.median(turn[moving] / dt[moving]))  # degrees per unit of t
+    lo, hi = HAND_TURN_DEG_S
+    for factor, unit, ways in ((1e-3, "ms", "`t [ms]` or `time_ms`"), (1e-6, "µs", "`t [us]` or `time_us`")):
+        if lo <= rate / factor <= hi:
+            return (f"t: readings {np.median(dt[moving]):.4g} s apart whose field direction turns {rate:.3g}°/s "
+                    f"(a full turn in {360 / rate / 60:.3g} min) — slower than a hand turns a sensor; in {unit} it "
+                    f"would be {rate / factor:.3g}°/s, a hand's. If t is in {unit}, every time here (delays, drift "
+                    f"rates, event times) is off by {1 / factor:.0f}×: name the column {ways} (or give t in seconds)")
+    return None
+
+
 def _side(values, n: int, name: str, what: str):
     """A side regressor (temperature, current) checked: None when absent or constant (a constant carries no
     information: the hard iron holds it)."""
@@ -1085,6 +1111,10 @@ def diagnose(samples, t=None, temp=None, reference=None, gravity=None, field_nor
     pool = [c for c in pool if c.name not in invisible]
 
     directions = _field_directions(data, base)
+    caveats = []
+    if timestamps and (unit := _time_unit_caveat(data, directions)):
+        caveats.append(unit)
+        warnings.warn(unit, stacklevel=2)
     e0 = np.asarray(base["residuals"])
     where = _where(data, e0, sigma, directions, vector)
     state = {"start": start, "result": base, "features": [], "validated": [], "terms": np.zeros(0), "train_fits": {},
@@ -1194,4 +1224,4 @@ def diagnose(samples, t=None, temp=None, reference=None, gravity=None, field_nor
               "residual_after": e_final, "vector": vector}
     return Diagnosis(model=model, noise_sigma=sigma, noise_source=noise_source, units=units, source=source,
                      ranking=ranking, accepted=accepted, where=where, remaining=remaining, base=base_cal,
-                     series=series)
+                     series=series, caveats=caveats)

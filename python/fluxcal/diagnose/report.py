@@ -111,6 +111,7 @@ def text(d) -> str:
     out = [f"fluxcal diagnose — {d.source}: model {d.model}, {w['overall']['n']} readings",
            f"noise σ {d.noise_sigma:.4g}{u} ({d.noise_source})",
            f"base model: residual RMS {w['overall']['rms_z']:.2f} σ, gap √(RMS² − σ²) {w['overall']['gap']:.4g}{u}",
+           *[f"CAVEAT: {c}" for c in getattr(d, "caveats", [])],
            "", "WHERE (base model residuals / σ; tests per regime):"]
     for t in w["tests"]:
         flag = "  <-- departs" if t["pvalue"] < 0.01 else ""
