@@ -70,3 +70,23 @@ def test_times_in_ms_taken_for_seconds_are_flagged(short):
     assert not diagnose(m, candidates=[], **kw).caveats
     slow = dict(kw, t=kw["t"] * 50)  # a slow turntable logged at 1 Hz: turns too slow for a hand even in ms
     assert not diagnose(m, candidates=[], **slow).caveats
+
+
+def test_a_log_appended_to_itself_is_left_out(short):
+    m, kw = short
+    twice = dict(kw, t=np.concatenate([kw["t"], kw["t"]]), temp=np.concatenate([kw["temp"], kw["temp"]]))
+    d = diagnose(np.vstack([m, m]), candidates=[], **twice)
+    assert d.where["overall"]["n"] == len(m)
+    assert f"{len(m)} of {2 * len(m)} rows (from row {len(m)}) repeat earlier rows exactly" in d.noise_source
+    assert "went backwards" not in d.noise_source
+
+
+def test_a_still_quantised_sensor_is_no_copy():
+    from fluxcal.diagnose.core import _repeated_blocks
+
+    rng = np.random.default_rng(0)  # three levels per axis: rows repeat all the time, but not as a block
+    still = np.round(np.array([10.0, -3.0, 40.0]) + rng.normal(0, 0.5, (20000, 3)))
+    assert not _repeated_blocks(still).any()
+    m = rng.normal(size=(500, 3))
+    copied = _repeated_blocks(np.vstack([m, m[100:300], m]))
+    assert copied.sum() == 700 and not copied[:500].any()
