@@ -3,6 +3,7 @@ from __future__ import annotations
 
 import argparse
 import sys
+import warnings
 from pathlib import Path
 
 import numpy as np
@@ -132,9 +133,11 @@ def cmd_diagnose(args) -> int:
             raise ValueError(f"--reference: need three columns of {args.file} (columns are: {', '.join(rec.columns)})")
         reference = np.column_stack([rec.columns[n] for n in names])
     candidates = args.candidates.split(",") if args.candidates else None
-    result = diagnose(rec, reference=reference, field_norm=args.field_norm, model=args.model,
-                      noise_sigma=args.noise_sigma, candidates=candidates, alpha=args.alpha,
-                      progress=not args.quiet)
+    with warnings.catch_warnings():  # the report prints its caveats (CAVEAT: …): not twice
+        warnings.filterwarnings("ignore", message="t: readings")
+        result = diagnose(rec, reference=reference, field_norm=args.field_norm, model=args.model,
+                          noise_sigma=args.noise_sigma, candidates=candidates, alpha=args.alpha,
+                          progress=not args.quiet)
     return _print_diagnosis(result, args)
 
 

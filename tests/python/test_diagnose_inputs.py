@@ -90,3 +90,14 @@ def test_a_still_quantised_sensor_is_no_copy():
     m = rng.normal(size=(500, 3))
     copied = _repeated_blocks(np.vstack([m, m[100:300], m]))
     assert copied.sum() == 700 and not copied[:500].any()
+
+
+def test_cli_prints_the_time_unit_caveat_once(short, tmp_path):
+    from conftest import run_cli
+    from fluxcal.io.csv import write_csv
+
+    m, kw = short
+    path = write_csv(tmp_path / "ms.csv", {"t": kw["t"] * 1000, "mx": m[:, 0], "my": m[:, 1], "mz": m[:, 2]})
+    out = run_cli("diagnose", path, "--candidates", "offset_drift", "--quiet")
+    assert out.returncode == 0, out.stderr
+    assert "CAVEAT: t: readings 20 s apart" in out.stdout and "UserWarning" not in out.stderr
