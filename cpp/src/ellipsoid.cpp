@@ -330,7 +330,8 @@ EllipsoidResult solve(const EllipsoidMoments& mom, const EllipsoidOptions& opt) 
   Eigen::Matrix3d M;
   M << p(0), p(3), p(4), p(3), p(1), p(5), p(4), p(5), p(2);
   const Eigen::Vector3d v = p.segment<3>(6);
-  const detail::EllipsoidShape shape = detail::ellipsoid_shape(M, v, p(9), "fitted");
+  const detail::EllipsoidShape shape = detail::ellipsoid_shape(M, v, p(9), "fitted", sum.coverage_ratio,
+                                                                    opt.poor_coverage_ratio);
   const auto& meig = shape.eig;
   const Eigen::Vector3d& c = shape.centre;
   const double rho2 = shape.rho2;

@@ -6,6 +6,7 @@
 
 #include <Eigen/Eigenvalues>
 
+#include <iomanip>
 #include <sstream>
 #include <string>
 
@@ -18,10 +19,22 @@ struct EllipsoidShape {
 };
 
 /// Throws Error when M is not positive definite or the ellipsoid has no real points. `which` names
-/// the fit in the messages ("fitted", "first step's").
+/// the fit in the messages ("fitted", "first step's"). `coverage_ratio` (the readings' thinnest/widest
+/// spread) below `thin` (the poor-coverage threshold) names the coverage as the cause.
 inline EllipsoidShape ellipsoid_shape(const Eigen::Matrix3d& M, const Eigen::Vector3d& v, double k,
-                                      const std::string& which) {
+                                      const std::string& which, double coverage_ratio = 1.0, double thin = 0.0) {
   EllipsoidShape s{Eigen::SelfAdjointEigenSolver<Eigen::Matrix3d>(M), Eigen::Vector3d::Zero(), 0.0};
+  if (!(s.eig.eigenvalues()(0) > 0.0) && coverage_ratio < thin) {
+    // Readings close to a plane (a sensor turned flat, with a little wobble) leave the thin direction's
+    // curvature to the noise: the quadric comes out a hyperboloid, not because recordings were mixed.
+    std::ostringstream msg;
+    msg.precision(3);
+    msg << "samples: the readings lie nearly in one plane (thinnest/widest spread " << 100.0 * coverage_ratio
+        << " %) and the " << which << " quadric is not an ellipsoid (eigenvalues " << std::setprecision(6)
+        << s.eig.eigenvalues().transpose()
+        << "); rotate the sensor about at least two axes, or use a 2-D calibration or reference vectors";
+    throw Error(msg.str());
+  }
   if (!(s.eig.eigenvalues()(0) > 0.0)) {
     std::ostringstream msg;
     msg << "samples: the readings do not lie on an ellipsoid (the " << which << " quadric has eigenvalues "

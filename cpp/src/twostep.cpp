@@ -462,7 +462,8 @@ TwoStepResult twostep(const SamplesRef& samples, const TwoStepOptions& options) 
   const double k = -a.dot(s9) / n;
   Eigen::Matrix3d Np;
   Np << a(0), a(3), a(4), a(3), a(1), a(5), a(4), a(5), a(2);
-  const detail::EllipsoidShape shape = detail::ellipsoid_shape(Np, a.segment<3>(6), k, "first step's");
+  const detail::EllipsoidShape shape = detail::ellipsoid_shape(Np, a.segment<3>(6), k, "first step's",
+                                                               sum.coverage_ratio, options.poor_coverage_ratio);
   Model3D m;
   m.q = shape.centre;
   const double rho2 = shape.rho2;

@@ -101,3 +101,15 @@ def test_cli_prints_the_time_unit_caveat_once(short, tmp_path):
     out = run_cli("diagnose", path, "--candidates", "offset_drift", "--quiet")
     assert out.returncode == 0, out.stderr
     assert "CAVEAT: t: readings 20 s apart" in out.stdout and "UserWarning" not in out.stderr
+
+
+def test_readings_nearly_in_a_plane_are_named_as_such():
+    # a sensor turned flat (z within ±5 % of the field) whose readings curve the wrong way across the thin
+    # direction (x² + y² − z² = H²: a drift or the noise can do it): the fitted quadric is a hyperboloid; the
+    # message must name the coverage, not "mixed recordings"
+    rng = np.random.default_rng(0)
+    phi, z = rng.uniform(0, 2 * np.pi, 3000), rng.uniform(-2.5, 2.5, 3000)
+    r = np.sqrt(50.0 ** 2 + z ** 2)
+    m = np.column_stack([r * np.cos(phi), r * np.sin(phi), z]) + rng.normal(0, 0.01, (3000, 3)) + [3.0, -2.0, 1.0]
+    with pytest.raises(Exception, match="nearly in one plane.*not an ellipsoid.*rotate the sensor about at least two"):
+        diagnose(m, field_norm=50.0)
