@@ -103,6 +103,18 @@ def test_cli_prints_the_time_unit_caveat_once(short, tmp_path):
     assert "CAVEAT: t: readings 20 s apart" in out.stdout and "UserWarning" not in out.stderr
 
 
+def test_a_recording_too_short_for_its_held_out_test_gets_a_caveat():
+    # 5 s of a drifting offset: a passing magnet fits the stretch as well, and the held-out fits extrapolate
+    result, kwargs = withheld_trial(["offset_drift"], 0, duration_s=5)
+    d = diagnose(result.readings, **kwargs)
+    flagged = [r for r in d.ranking if r.get("heldout_gain_unresolved")]
+    assert d.accepted and flagged and all(r["effect"] in d.accepted for r in flagged)
+    assert any("too short" in c for c in d.caveats) and "CAVEAT: " in d.text()
+    result, kwargs = withheld_trial(["temp_scale"], 0)  # a minute: no caveat
+    d = diagnose(result.readings, **kwargs)
+    assert d.accepted == ["temp_scale"] and d.ranking[0]["heldout_gain_unresolved"] is False and not d.caveats
+
+
 def test_readings_nearly_in_a_plane_are_named_as_such():
     # a sensor turned flat (z within ±5 % of the field) whose readings curve the wrong way across the thin
     # direction (x² + y² − z² = H²: a drift or the noise can do it): the fitted quadric is a hyperboloid; the

@@ -64,6 +64,11 @@ class Diagnosis:
     P0·E, P0·D, P1·N, … — else along the field); an accepted moving
     dipole's largest field in field units `peak_field` at `peak_s`, with `peak_ned` (north, east, down)
     or `peak_along_field` (signed);
+    `heldout_blocks` how many blocks of twice the held-out residuals' correlation length they hold
+    (< MIN_BLOCKS: the block test's p-value is too small); an accepted row's `heldout_leverage` is the
+    held-out readings' mean leverage for a fit on the rest (the variance, in noise variances, of its
+    prediction there) and `heldout_gain_unresolved` whether the held-out gap's fall is within 2√2 σ √leverage
+    (what the two fits' parameter noise alone can make); either is then said in `caveats`;
     `significant_not_modelled` marks a candidate still significant when the `max_effects` limit stopped
     the search; an accepted row's `coefficients` and `standard_errors` are those of the final model (every
     accepted effect fitted together), the others' those of their own round. `where`: residual tables per regime;
@@ -376,6 +381,37 @@ def _highest(x: np.ndarray) -> np.ndarray:
     return mask
 
 
+def _heldout_leverage(data: _Data, result: dict, held: np.ndarray) -> float:
+    """The mean leverage of the held-out readings for a fit on the rest: the variance, in units of the noise
+    variance, with which a model fitted without them predicts them (Jacobian of `result`, parameters
+    linearised). ≪ 1: the held-out part is predicted by what the fit learnt; ≳ 1: the fit extrapolates
+    (a short recording, or a regime the rest does not cover), and its held-out gaps judge that, not the effect."""
+    J = np.asarray(result["jacobian"])
+    J = J[:, np.any(J != 0, axis=0)]
+    rows = np.repeat(held, J.shape[0] // len(held))
+    try:
+        G = np.linalg.inv(J[~rows].T @ J[~rows])
+    except np.linalg.LinAlgError:
+        return float("inf")
+    return float(np.mean(np.sum((J[rows] @ G) * J[rows], axis=1)))
+
+
+MIN_BLOCKS = 5  # the fewest blocks the held-out test uses: with 5, all positive gives the one-sided p 1/32
+
+
+def _independent_blocks(residuals: np.ndarray) -> int:
+    """How many blocks of at least twice the residuals' correlation length (autocorrelation below 0.1) the
+    series holds: fewer than MIN_BLOCKS, and the held-out test's blocks are correlated, its p-value too small."""
+    n = len(residuals)
+    x = residuals - residuals.mean()
+    spectrum = np.abs(np.fft.rfft(x, 2 * n)) ** 2
+    acf = np.fft.irfft(spectrum)[:n]
+    acf = acf / acf[0] if acf[0] > 0 else np.zeros(n)
+    below = np.nonzero(acf < 0.1)[0]
+    length = int(below[0]) if len(below) else n
+    return n // max(2 * length, 1)
+
+
 def _improvement_pvalue(before: np.ndarray, after: np.ndarray) -> float:
     """One-sided test that held-out squared residuals fell: a Wilcoxon signed-rank test on the means of
     consecutive blocks of d = before² − after², each block at least twice the correlation length of the
@@ -387,13 +423,7 @@ def _improvement_pvalue(before: np.ndarray, after: np.ndarray) -> float:
     n = len(d)
     if n < 10:
         return 1.0
-    x = after - after.mean()
-    spectrum = np.abs(np.fft.rfft(x, 2 * n)) ** 2
-    acf = np.fft.irfft(spectrum)[:n]
-    acf = acf / acf[0] if acf[0] > 0 else np.zeros(n)
-    below = np.nonzero(acf < 0.1)[0]
-    length = int(below[0]) if len(below) else n
-    blocks = int(np.clip(n // max(2 * length, 1), 5, 30))
+    blocks = int(np.clip(_independent_blocks(after), MIN_BLOCKS, 30))
     means = np.array([c.mean() for c in np.array_split(d, blocks)])
     if np.allclose(means, means[0]):
         return 0.0 if means[0] > 0 else 1.0
@@ -738,7 +768,7 @@ def _validate(data, model, state, feats, regime, sigma) -> dict:
     return {"heldout": regime, "heldout_n": int(held.sum()),
             "heldout_gap_before": _gap(e0, sigma), "heldout_gap_after": _gap(e1, sigma),
             "heldout_rms_before": float(np.sqrt(np.mean(e0 ** 2))), "heldout_rms_after": float(np.sqrt(np.mean(e1 ** 2))),
-            "heldout_pvalue": _improvement_pvalue(e0, e1),
+            "heldout_pvalue": _improvement_pvalue(e0, e1), "heldout_blocks": _independent_blocks(e1),
             **{f"{k}_before": v for k, v in _downstream(before, data, base_feats, held).items()},
             **{f"{k}_after": v for k, v in _downstream(after, data, all_feats, held).items()}}
 
@@ -1176,6 +1206,7 @@ def diagnose(samples, t=None, temp=None, reference=None, gravity=None, field_nor
             data, applied, block = _exact_move(data, state, model, names[w["effect"]])
             moves.append((w, names[w["effect"]], applied, block))
         w["step"] = len(accepted)
+        w["heldout_leverage"] = _heldout_leverage(data, state["result"], _heldout(w["heldout"], data, directions))
         last_rows[w["effect"]] = w
 
     for _round in range(max_effects + 1):
@@ -1234,6 +1265,30 @@ def diagnose(samples, t=None, temp=None, reference=None, gravity=None, field_nor
         if name == "moving_dipole":
             last_rows[name].update(_disturbance(data, state["result"], feats, params[lo:lo + feats.shape[1]]))
         lo += feats.shape[1]
+    for name in accepted:  # a held-out test that cannot be trusted: said, not hidden
+        r = last_rows[name]
+        if r.get("heldout_leverage") is None or r.get("heldout_gap_before") is None:
+            continue
+        # The noise in a fit's parameters moves its prediction of every held-out reading alike, by σ √leverage:
+        # the two fits' held-out gaps differ by up to √2 of that from their parameters' noise alone.
+        floor = sigma * np.sqrt(r["heldout_leverage"])
+        gain = r["heldout_gap_before"] - r["heldout_gap_after"]
+        r["heldout_gain_unresolved"] = bool(gain < 2 * np.sqrt(2) * floor)
+        why = []
+        if r["heldout_gain_unresolved"]:
+            why.append(f"the fits on the rest predict them with an error of {floor:.3g} from the noise in their "
+                       f"parameters alone (leverage {r['heldout_leverage']:.2g}), and the gap's fall "
+                       f"{r['heldout_gap_before']:.3g} → {r['heldout_gap_after']:.3g} is within twice what two such "
+                       f"errors can make ({2 * np.sqrt(2) * floor:.3g})")
+        if r.get("heldout_blocks", MIN_BLOCKS) < MIN_BLOCKS:
+            why.append(f"their residuals are correlated over more than a {2 * MIN_BLOCKS}th of them, so the "
+                       f"{MIN_BLOCKS} blocks the test compares are not independent (its p-value is too small)")
+        if why:
+            caveats.append(f"{name}: its held-out test may not be trusted — held out ({r['heldout']}, "
+                           f"{r['heldout_n']} readings), {'; and '.join(why)}. The recording ({len(data.m)} readings"
+                           f"{f' over {np.ptp(data.t):.3g} s' if timestamps else ''}) may be too short or cover too "
+                           "little: effects of a similar shape over it (a drift, a step, a passing magnet) are not "
+                           "ruled out")
     # Significant in the last round but not modelled: the max_effects limit stopped the greedy search.
     for name, r in last_rows.items():
         r["significant_not_modelled"] = bool(r.get("significant")) and name not in accepted
