@@ -125,3 +125,25 @@ def test_readings_nearly_in_a_plane_are_named_as_such():
     m = np.column_stack([r * np.cos(phi), r * np.sin(phi), z]) + rng.normal(0, 0.01, (3000, 3)) + [3.0, -2.0, 1.0]
     with pytest.raises(Exception, match="nearly in one plane.*not an ellipsoid.*rotate the sensor about at least two"):
         diagnose(m, field_norm=50.0)
+
+
+def test_an_event_that_recurs_is_said():
+    # a device switched on and off twice: the offset is accepted once; its second episode must be named
+    from fluxcal import sim
+    from fluxcal.sim.scene import tumble
+    from fluxcal.sim.withheld import FIELD
+
+    rng = np.random.default_rng(1)  # a sensor as in withheld_trial
+    E3 = np.triu(rng.uniform(-0.03, 0.03, (3, 3)), 1)
+    W, b = np.diag(1 + rng.uniform(-0.05, 0.05, 3)) + E3 + E3.T, rng.uniform(-1, 1, 3) * 10.0 / np.sqrt(3)
+    steps = [sim.effects.OffsetStep(0.75 * np.array([0.6, -0.5, 0.62]), 10.0, 20.0),
+             sim.effects.OffsetStep(0.75 * np.array([-0.3, 0.8, 0.5]), 35.0, 48.0)]
+    effects = [sim.SoftIron(W), sim.HardIron(b), *steps, sim.WhiteNoise(0.05)]
+    res = sim.simulate(tumble(60.0, rate_hz=50.0, rng=rng), effects, FIELD, rng)
+    d = diagnose(res.readings, t=res.t, temp=res.temperature, field_norm=50.0)
+    assert "offset_step" in d.accepted
+    row = next(r for r in d.ranking if r["effect"] == "offset_step")
+    first = (row["on_s"], row["off_s"])
+    second = (row["another_episode"]["on_s"], row["another_episode"]["off_s"])
+    assert sorted([round(first[0]), round(second[0])]) == [10, 35] and sorted([round(first[1]), round(second[1])]) == [20, 48]
+    assert any("offset_step: a second episode" in c for c in d.caveats)

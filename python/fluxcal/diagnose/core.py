@@ -1289,6 +1289,20 @@ def diagnose(samples, t=None, temp=None, reference=None, gravity=None, field_nor
                            f"{f' over {np.ptp(data.t):.3g} s' if timestamps else ''}) may be too short or cover too "
                            "little: effects of a similar shape over it (a drift, a step, a passing magnet) are not "
                            "ruled out")
+    # An event is accepted once, yet events recur (a heater or a radio cycling): with every accepted effect
+    # modelled, is the same kind of event significant again elsewhere? Said, not modelled.
+    for name in [a for a in accepted if names[a].regime == "events"]:
+        again = _evaluate(names[name], data, model, state, sigma, n_candidates)
+        if again["significant"]:
+            episode = {k: again.get(k) for k in ("on_s", "off_s", "delta_bic", "lr_pvalue", "heldout_gap_before",
+                                                 "heldout_gap_after")}
+            last_rows[name]["another_episode"] = episode
+            when = " to ".join("the recording's " + edge if v is None else f"t = {v:.4g} s"
+                               for v, edge in ((episode["on_s"], "start"), (episode["off_s"], "end")))
+            caveats.append(f"{name}: a second episode, from {when}, is significant with the first modelled (ΔBIC "
+                           f"{episode['delta_bic']:.1f}, held-out gap {episode['heldout_gap_before']:.3g} → "
+                           f"{episode['heldout_gap_after']:.3g}); not modelled (each effect is added once), so the "
+                           "effects found after it may stand in for it")
     # Significant in the last round but not modelled: the max_effects limit stopped the greedy search.
     for name, r in last_rows.items():
         r["significant_not_modelled"] = bool(r.get("significant")) and name not in accepted
