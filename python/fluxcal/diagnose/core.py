@@ -64,11 +64,10 @@ class Diagnosis:
     P0·E, P0·D, P1·N, … — else along the field); an accepted moving
     dipole's largest field in field units `peak_field` at `peak_s`, with `peak_ned` (north, east, down)
     or `peak_along_field` (signed);
-    `heldout_blocks` how many blocks of twice the held-out residuals' correlation length they hold
-    (< MIN_BLOCKS: the block test's p-value is too small); an accepted row's `heldout_leverage` is the
+    an accepted row's `heldout_leverage` is the
     held-out readings' mean leverage for a fit on the rest (the variance, in noise variances, of its
     prediction there) and `heldout_gain_unresolved` whether the held-out gap's fall is within 2√2 σ √leverage
-    (what the two fits' parameter noise alone can make); either is then said in `caveats`;
+    (what the two fits' parameter noise alone can make), then said in `caveats`;
     `significant_not_modelled` marks a candidate still significant when the `max_effects` limit stopped
     the search; an accepted row's `coefficients` and `standard_errors` are those of the final model (every
     accepted effect fitted together), the others' those of their own round. `where`: residual tables per regime;
@@ -396,22 +395,6 @@ def _heldout_leverage(data: _Data, result: dict, held: np.ndarray) -> float:
     return float(np.mean(np.sum((J[rows] @ G) * J[rows], axis=1)))
 
 
-MIN_BLOCKS = 5  # the fewest blocks the held-out test uses: with 5, all positive gives the one-sided p 1/32
-
-
-def _independent_blocks(residuals: np.ndarray) -> int:
-    """How many blocks of at least twice the residuals' correlation length (autocorrelation below 0.1) the
-    series holds: fewer than MIN_BLOCKS, and the held-out test's blocks are correlated, its p-value too small."""
-    n = len(residuals)
-    x = residuals - residuals.mean()
-    spectrum = np.abs(np.fft.rfft(x, 2 * n)) ** 2
-    acf = np.fft.irfft(spectrum)[:n]
-    acf = acf / acf[0] if acf[0] > 0 else np.zeros(n)
-    below = np.nonzero(acf < 0.1)[0]
-    length = int(below[0]) if len(below) else n
-    return n // max(2 * length, 1)
-
-
 def _improvement_pvalue(before: np.ndarray, after: np.ndarray) -> float:
     """One-sided test that held-out squared residuals fell: a Wilcoxon signed-rank test on the means of
     consecutive blocks of d = before² − after², each block at least twice the correlation length of the
@@ -423,7 +406,13 @@ def _improvement_pvalue(before: np.ndarray, after: np.ndarray) -> float:
     n = len(d)
     if n < 10:
         return 1.0
-    blocks = int(np.clip(_independent_blocks(after), MIN_BLOCKS, 30))
+    x = after - after.mean()
+    spectrum = np.abs(np.fft.rfft(x, 2 * n)) ** 2
+    acf = np.fft.irfft(spectrum)[:n]
+    acf = acf / acf[0] if acf[0] > 0 else np.zeros(n)
+    below = np.nonzero(acf < 0.1)[0]
+    length = int(below[0]) if len(below) else n
+    blocks = int(np.clip(n // max(2 * length, 1), 5, 30))
     means = np.array([c.mean() for c in np.array_split(d, blocks)])
     if np.allclose(means, means[0]):
         return 0.0 if means[0] > 0 else 1.0
@@ -768,7 +757,7 @@ def _validate(data, model, state, feats, regime, sigma) -> dict:
     return {"heldout": regime, "heldout_n": int(held.sum()),
             "heldout_gap_before": _gap(e0, sigma), "heldout_gap_after": _gap(e1, sigma),
             "heldout_rms_before": float(np.sqrt(np.mean(e0 ** 2))), "heldout_rms_after": float(np.sqrt(np.mean(e1 ** 2))),
-            "heldout_pvalue": _improvement_pvalue(e0, e1), "heldout_blocks": _independent_blocks(e1),
+            "heldout_pvalue": _improvement_pvalue(e0, e1),
             **{f"{k}_before": v for k, v in _downstream(before, data, base_feats, held).items()},
             **{f"{k}_after": v for k, v in _downstream(after, data, all_feats, held).items()}}
 
@@ -1274,21 +1263,15 @@ def diagnose(samples, t=None, temp=None, reference=None, gravity=None, field_nor
         floor = sigma * np.sqrt(r["heldout_leverage"])
         gain = r["heldout_gap_before"] - r["heldout_gap_after"]
         r["heldout_gain_unresolved"] = bool(gain < 2 * np.sqrt(2) * floor)
-        why = []
         if r["heldout_gain_unresolved"]:
-            why.append(f"the fits on the rest predict them with an error of {floor:.3g} from the noise in their "
-                       f"parameters alone (leverage {r['heldout_leverage']:.2g}), and the gap's fall "
-                       f"{r['heldout_gap_before']:.3g} → {r['heldout_gap_after']:.3g} is within twice what two such "
-                       f"errors can make ({2 * np.sqrt(2) * floor:.3g})")
-        if r.get("heldout_blocks", MIN_BLOCKS) < MIN_BLOCKS:
-            why.append(f"their residuals are correlated over more than a {2 * MIN_BLOCKS}th of them, so the "
-                       f"{MIN_BLOCKS} blocks the test compares are not independent (its p-value is too small)")
-        if why:
             caveats.append(f"{name}: its held-out test may not be trusted — held out ({r['heldout']}, "
-                           f"{r['heldout_n']} readings), {'; and '.join(why)}. The recording ({len(data.m)} readings"
-                           f"{f' over {np.ptp(data.t):.3g} s' if timestamps else ''}) may be too short or cover too "
-                           "little: effects of a similar shape over it (a drift, a step, a passing magnet) are not "
-                           "ruled out")
+                           f"{r['heldout_n']} readings), the fits on the rest predict them with an error of {floor:.3g} "
+                           f"from the noise in their parameters alone (leverage {r['heldout_leverage']:.2g}), and the "
+                           f"gap's fall {r['heldout_gap_before']:.3g} → {r['heldout_gap_after']:.3g} is within twice "
+                           f"what two such errors can make ({2 * np.sqrt(2) * floor:.3g}). The recording "
+                           f"({len(data.m)} readings{f' over {np.ptp(data.t):.3g} s' if timestamps else ''}) may be "
+                           "too short or cover too little: effects of a similar shape over it (a drift, a step, a "
+                           "passing magnet) are not ruled out")
     # An event is accepted once, yet events recur (a heater or a radio cycling): with every accepted effect
     # modelled, is the same kind of event significant again elsewhere? Said, not modelled.
     for name in [a for a in accepted if names[a].regime == "events"]:
