@@ -147,3 +147,22 @@ def test_an_event_that_recurs_is_said():
     second = (row["another_episode"]["on_s"], row["another_episode"]["off_s"])
     assert sorted([round(first[0]), round(second[0])]) == [10, 35] and sorted([round(first[1]), round(second[1])]) == [20, 48]
     assert any("offset_step: a second episode" in c for c in d.caveats)
+
+
+def test_an_offset_step_reads_the_same_in_the_json_as_in_the_text():
+    # a step that stays may be fitted as the stretch before it (a box from the start, coefficients reversed):
+    # the JSON says the jump as the text does; the text's MAYBE TEMPERATURE is in the JSON too
+    from fluxcal import sim
+    from fluxcal.sim.scene import tumble
+    from fluxcal.sim.withheld import FIELD
+
+    rng = np.random.default_rng(3)
+    delta = np.array([0.5, -0.4, 0.45])
+    effects = [sim.HardIron([4.0, -3.0, 2.0]), sim.effects.OffsetStep(delta, 20.0), sim.WhiteNoise(0.05)]
+    res = sim.simulate(tumble(60.0, rate_hz=50.0, rng=rng), effects, FIELD, rng)
+    d = diagnose(res.readings, t=res.t, field_norm=50.0)
+    assert d.accepted[0] == "offset_step"
+    row = d.to_dict()["ranking"][0]
+    assert np.allclose(row["jump"], delta, atol=0.05) and abs(row["jump_s"] - 20.0) < 0.1 and row["back_s"] is None
+    assert f"jumped by {np.round(row['jump'], 4).tolist()}" in d.text()
+    assert any(line.startswith("MAYBE TEMPERATURE") for line in d.to_dict()["explanations"])

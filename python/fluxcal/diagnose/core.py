@@ -57,7 +57,8 @@ class Diagnosis:
     `confounded`) and, for a move of the reference, the whole fitted move: `rotation_deg` (misalignment's
     rotation vector, degrees) or `delay_ms` (time_offset: the readings this late);
     `on_s`/`off_s` give an event's box (moving_dipole, offset_step: first and last time within it, None at
-    the recording's ends); `found_with` names the effect a row was found together with (each passed its
+    the recording's ends); an accepted offset_step's `jump`, `jump_s`, `back_s` the step as a jump (a box
+    from the recording's start reverses the coefficients' sign); `found_with` names the effect a row was found together with (each passed its
     held-out test only with the other modelled); `shape_terms` the terms of an accepted dipole's refined
     time profile (its `coefficients`, in units of the field norm: Legendre P0… across the box, each times
     the world's north, east and down when reference vectors and the down direction are given — P0·N,
@@ -101,11 +102,15 @@ class Diagnosis:
         return {r["effect"]: r["confounded_with"] for r in self.ranking if r.get("confounded_with")}
 
     def to_dict(self) -> dict:
+        from .report import confound_lines, temperature_caveat
+
         return {"source": self.source, "model": self.model, "units": self.units,
                 "noise_sigma": self.noise_sigma, "noise_source": self.noise_source,
                 "significant": self.significant, "accepted": self.accepted, "confounded": self.confounded,
                 "ranking": self.ranking,
-                "where": self.where, "remaining": self.remaining, "caveats": self.caveats}
+                "where": self.where, "remaining": self.remaining, "caveats": self.caveats,
+                # the report's CANNOT TELL APART and MAYBE TEMPERATURE paragraphs, for readers of the JSON only
+                "explanations": confound_lines(self) + temperature_caveat(self)}
 
     def save_json(self, path) -> Path:
         path = Path(path)
@@ -293,6 +298,16 @@ def _context(data: _Data, result: dict) -> SimpleNamespace:
     return SimpleNamespace(signal=signal, readings=data.m, scale=float(np.median(np.linalg.norm(signal, axis=1))),
                            field=field, W=W, direction=direction, t=data.t, temp=data.temp,
                            current=data.current, world=_world_axes(data, W))
+
+
+def _jump(row: dict) -> dict:
+    """An accepted offset step as a jump: `jump` (the offset's change, sensor frame), `jump_s` (when) and
+    `back_s` (when it came back, None if it stayed). A box from the recording's start is the stretch before
+    a jump at its end: the same step the other way round, so its coefficients change sign."""
+    c = np.asarray(row["coefficients"], dtype=float)
+    if row.get("on_s") is None:
+        return {"jump": (-c).tolist(), "jump_s": row.get("off_s"), "back_s": None}
+    return {"jump": c.tolist(), "jump_s": row["on_s"], "back_s": row.get("off_s")}
 
 
 def _world_frame(data: _Data):
@@ -1253,6 +1268,8 @@ def diagnose(samples, t=None, temp=None, reference=None, gravity=None, field_nor
                                    standard_errors=errors[lo:lo + feats.shape[1]].tolist())
         if name == "moving_dipole":
             last_rows[name].update(_disturbance(data, state["result"], feats, params[lo:lo + feats.shape[1]]))
+        if name == "offset_step":
+            last_rows[name].update(_jump(last_rows[name]))
         lo += feats.shape[1]
     for name in accepted:  # a held-out test that cannot be trusted: said, not hidden
         r = last_rows[name]

@@ -77,8 +77,7 @@ def offset_step_line(d, r) -> str:
     """When the offset jumped, by how much (readings' units and % of the field) and whether it came back.
     A box from the recording's start is the stretch before a jump: the same step, the other way round."""
     u = f" {d.units}" if d.units else ""
-    c = np.asarray(r["coefficients"])
-    c, at, back = (-c, r["off_s"], None) if r.get("on_s") is None else (c, r["on_s"], r.get("off_s"))
+    c, at, back = np.asarray(r["jump"]), r["jump_s"], r["back_s"]  # core._jump
     percent = 100 * np.linalg.norm(d.base.matrix @ c) / d.base.field_norm
     when = (lambda x: f"t = {x:.4g} s") if d.series.get("timestamps", True) else (lambda x: f"row {x:.0f}")  # noqa: E731
     return (f"offset_step: the offset jumped by {np.round(c, 4).tolist()}{u} (x, y, z; {percent:.2g} % of the field) "
