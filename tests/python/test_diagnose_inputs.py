@@ -1,4 +1,6 @@
 """Bad inputs to fluxcal.diagnose: a clear error (or warning) naming the input, never a silent wrong answer."""
+import warnings
+
 import numpy as np
 import pytest
 
@@ -166,3 +168,21 @@ def test_an_offset_step_reads_the_same_in_the_json_as_in_the_text():
     assert np.allclose(row["jump"], delta, atol=0.05) and abs(row["jump_s"] - 20.0) < 0.1 and row["back_s"] is None
     assert f"jumped by {np.round(row['jump'], 4).tolist()}" in d.text()
     assert any(line.startswith("MAYBE TEMPERATURE") for line in d.to_dict()["explanations"])
+
+
+def test_positions_held_at_1_hz_are_no_times_in_ms():
+    # a multi-position log at 1 Hz: between held readings the direction turns by the noise only
+    from scipy.spatial.transform import Rotation
+
+    from fluxcal import sim
+    from fluxcal.sim.scene import Scene
+    from fluxcal.sim.withheld import FIELD
+
+    rng = np.random.default_rng(3)
+    at = Rotation.random(12, random_state=rng)[np.repeat(np.arange(12), 5)]
+    effects = [sim.SoftIron(np.diag([1.03, 0.97, 1.01])), sim.HardIron([4.0, -3.0, 2.0]), sim.WhiteNoise(0.05)]
+    result = sim.simulate(Scene(at, np.arange(60, dtype=float)), effects, FIELD, rng)
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        d = diagnose(result.readings, t=result.t, field_norm=50.0, candidates=[])
+    assert not d.caveats

@@ -911,16 +911,19 @@ HAND_TURN_DEG_S = (6.0, 720.0)  # a hand turning a sensor through its orientatio
                                # slowest, two turns a second at the fastest
 
 
-def _time_unit_caveat(data: _Data, directions: np.ndarray) -> str | None:
+def _time_unit_caveat(data: _Data, directions: np.ndarray, sigma: float) -> str | None:
     """Times in ms (or µs) taken for seconds: a period of ≥ 1 s while the field direction turns only a little
     from one reading to the next means a hand-turned sensor turning slower than a hand does; the same turns
     per ms (µs) would be a hand's. Every time-scaled result (a delay, a drift rate, an event's time) is
-    then off by the factor."""
+    then off by the factor. Only a turn well above the noise's counts: the noise alone turns the direction
+    of a still sensor (positions held at 1 Hz) by a median 1.18 √2 σ/H."""
     dt = np.diff(data.t)
     moving = dt > 0
     if not moving.any() or np.median(dt[moving]) < 1.0:
         return None
     turn = np.degrees(np.arccos(np.clip(np.sum(directions[1:] * directions[:-1], axis=1), -1, 1)))
+    if np.median(turn[moving]) < 3 * np.degrees(1.18 * np.sqrt(2) * sigma / data.field_norm):
+        return None
     rate = float(np.median(turn[moving] / dt[moving]))  # degrees per unit of t
     lo, hi = HAND_TURN_DEG_S
     for factor, unit, ways in ((1e-3, "ms", "`t [ms]` or `time_ms`"), (1e-6, "µs", "`t [us]` or `time_us`")):
@@ -1184,7 +1187,7 @@ def diagnose(samples, t=None, temp=None, reference=None, gravity=None, field_nor
 
     directions = _field_directions(data, base)
     caveats = []
-    if timestamps and (unit := _time_unit_caveat(data, directions)):
+    if timestamps and (unit := _time_unit_caveat(data, directions, sigma)):
         caveats.append(unit)
         warnings.warn(unit, stacklevel=2)
     e0 = np.asarray(base["residuals"])
