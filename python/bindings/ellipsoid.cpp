@@ -49,7 +49,9 @@ void bind_ellipsoid(py::module_& m) {
 
   py::class_<fluxcal::EllipsoidMoments>(m, "EllipsoidMoments")
       .def(py::init<const Eigen::Vector3d&, double>(), "centre"_a, "scale"_a)
-      .def("add_rows", &fluxcal::EllipsoidMoments::add_rows, "readings"_a.noconvert())
+      .def("add_rows", [](fluxcal::EllipsoidMoments& mom, const fluxcal::SamplesView& readings) {
+        mom.add_rows(readings);
+      }, "readings"_a.noconvert())
       .def("merge", &fluxcal::EllipsoidMoments::merge, "other"_a)
       .def_property_readonly("count", &fluxcal::EllipsoidMoments::count)
       .def_property_readonly("centre", &fluxcal::EllipsoidMoments::centre)
