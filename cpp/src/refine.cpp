@@ -465,7 +465,6 @@ void information(ceres::Problem& problem, int p, RefineResult& out, Eigen::Matri
   F = F.selfadjointView<Eigen::Lower>();
 }
 
-// The vector model's inputs: finite readings and one finite reference vector per reading.
 // Options and start are checked before Ceres, which would otherwise print a glog line to stderr and
 // fail with a message that names none of the caller's inputs (a NaN tolerance, a NaN start term).
 void check_options(const RefineOptions& o) {
@@ -501,6 +500,7 @@ void check_start(const Calibration& start, const Eigen::Matrix3d& matrix, bool n
                 "); start from a fit (fit_ellipsoid, fit_vector) or the identity");
 }
 
+// The vector model's inputs: finite readings and one finite reference vector per reading.
 void check_vector_inputs(const SamplesRef& samples, const SamplesRef& reference) {
   check_inputs(samples, 5, "a 12-parameter vector calibration");
   if (reference.rows() != samples.rows())
