@@ -484,7 +484,7 @@ void check_options(const RefineOptions& o) {
   require(std::isfinite(o.loss_scale) && o.loss_scale >= 0.0, "loss_scale", o.loss_scale,
           "a finite value ≥ 0 (0 = 3 × a robust estimate of the noise)");
   require(o.serial_correlation_alpha > 0.0 && o.serial_correlation_alpha < 1.0, "serial_correlation_alpha",
-          o.serial_correlation_alpha, "a value in (0, 1)");
+          o.serial_correlation_alpha, "a significance level in (0, 1)");
 }
 
 // `matrix` is the start's A (magnitude model: its symmetric part) or W: a singular one leaves Ceres
