@@ -1,5 +1,7 @@
 #include "fluxcal/cable.hpp"
 
+#include "checks.hpp"
+
 #include <ceres/ceres.h>
 
 #include <Eigen/Dense>
@@ -21,11 +23,7 @@ constexpr double kInf = std::numeric_limits<double>::infinity();
 // Column-scaled Fisher matrices above this condition number are singular to double precision.
 constexpr double kSingularFisher = 1e14;
 
-std::string num(double v) {
-  char buf[32];
-  std::snprintf(buf, sizeof buf, "%.6g", v);
-  return buf;
-}
+using detail::num;
 
 // Sensor positions and axes of a ring in normalised units (radius 1).
 struct RingFrame {
@@ -360,8 +358,7 @@ CableSolution solve_cable(const CableRing& ring, const Eigen::Ref<const Eigen::M
   for (const auto& [name, v] : {std::pair<const char*, double>{"function_tolerance", opt.function_tolerance},
                                 {"gradient_tolerance", opt.gradient_tolerance},
                                 {"parameter_tolerance", opt.parameter_tolerance}})
-    if (!(std::isfinite(v) && v > 0.0))
-      throw Error(std::string("options.") + name + ": " + num(v) + ", need a finite value > 0");
+    detail::require_positive(std::string("options.") + name, v);
   if (opt.initial_currents.size() > 0 && !opt.initial_currents.allFinite())
     throw Error("options.initial_currents: contains NaN or Inf");
   const Eigen::Index m = ring.sensors(), S = readings.rows();

@@ -1,6 +1,7 @@
 #include "fluxcal/positions.hpp"
 
 #include "fluxcal/ellipsoid.hpp"
+#include "checks.hpp"
 
 #include <Eigen/Sparse>
 #include <ceres/ceres.h>
@@ -511,16 +512,11 @@ PositionsResult calibrate_positions(const SamplesRef& outputs, const SamplesRef&
   const Eigen::Index n = outputs.rows();
   check_field(field);
   // NaN compares false: a NaN tolerance switched the |a| check off, a NaN σ the levelling prior
-  if (!(std::isfinite(options.gravity) && options.gravity >= 0.0))
-    throw Error("gravity: " + fmt(options.gravity) + ", need a finite value ≥ 0 (0 = the mean |acc|)");
-  if (!(std::isfinite(options.gravity_tolerance) && options.gravity_tolerance > 0.0))
-    throw Error("gravity_tolerance: " + fmt(options.gravity_tolerance) + ", need a finite fraction > 0");
-  if (!(std::isfinite(options.tilt_sigma_deg) && options.tilt_sigma_deg >= 0.0))
-    throw Error("tilt_sigma_deg: " + fmt(options.tilt_sigma_deg) + ", need ≥ 0 (0 = levelling taken as exact)");
-  if (!(std::isfinite(options.output_sigma) && options.output_sigma >= 0.0))
-    throw Error("output_sigma: " + fmt(options.output_sigma) + ", need a finite value ≥ 0 (0 = estimated)");
-  if (!(std::isfinite(options.determined_tolerance) && options.determined_tolerance > 0.0))
-    throw Error("determined_tolerance: " + fmt(options.determined_tolerance) + ", need a finite value > 0");
+  detail::require_nonnegative("gravity", options.gravity, "a finite value ≥ 0 (0 = the mean |acc|)");
+  detail::require_positive("gravity_tolerance", options.gravity_tolerance, "a finite fraction > 0");
+  detail::require_nonnegative("tilt_sigma_deg", options.tilt_sigma_deg, "≥ 0 (0 = levelling taken as exact)");
+  detail::require_nonnegative("output_sigma", options.output_sigma, "a finite value ≥ 0 (0 = estimated)");
+  detail::require_positive("determined_tolerance", options.determined_tolerance);
   if (options.max_iterations < 1)
     throw Error("max_iterations: " + std::to_string(options.max_iterations) + ", need ≥ 1");
   if (specific_force.rows() != n) {
@@ -925,8 +921,7 @@ AccelerometerResult calibrate_accelerometer(const SamplesRef& readings, const Ac
   check_samples(readings, "readings", 6,
                 "static positions for an accelerometer calibration (offset and scale: 6 unknowns; with "
                 "misalignment 9)");
-  if (!(std::isfinite(options.gravity) && options.gravity > 0.0))
-    throw Error("gravity: " + fmt(options.gravity) + ", need a finite value > 0");
+  detail::require_positive("gravity", options.gravity);
   if (options.max_iterations < 1)
     throw Error("max_iterations: " + std::to_string(options.max_iterations) + ", need ≥ 1");
   const Eigen::Vector3d lo = readings.colwise().minCoeff(), hi = readings.colwise().maxCoeff();

@@ -2,6 +2,7 @@
 
 #include "fluxcal/coverage.hpp"
 #include "fluxcal/timeseries.hpp"
+#include "checks.hpp"
 
 #include <ceres/ceres.h>
 
@@ -468,23 +469,16 @@ void information(ceres::Problem& problem, int p, RefineResult& out, Eigen::Matri
 // Options and start are checked before Ceres, which would otherwise print a glog line to stderr and
 // fail with a message that names none of the caller's inputs (a NaN tolerance, a NaN start term).
 void check_options(const RefineOptions& o) {
-  const auto require = [](bool ok, const std::string& name, double v, const char* need) {
-    if (!ok) {
-      std::ostringstream msg;
-      msg << "options." << name << ": " << v << ", need " << need;
-      throw Error(msg.str());
-    }
-  };
-  require(o.max_iterations >= 1, "max_iterations", o.max_iterations, "≥ 1");
+  detail::require(o.max_iterations >= 1, "options.max_iterations", o.max_iterations, "≥ 1");
   for (const auto& [name, v] : {std::pair<const char*, double>{"function_tolerance", o.function_tolerance},
                                 {"gradient_tolerance", o.gradient_tolerance},
                                 {"parameter_tolerance", o.parameter_tolerance},
                                 {"determined_tolerance", o.determined_tolerance}})
-    require(std::isfinite(v) && v > 0.0, name, v, "a finite value > 0");
-  require(std::isfinite(o.loss_scale) && o.loss_scale >= 0.0, "loss_scale", o.loss_scale,
-          "a finite value ≥ 0 (0 = 3 × a robust estimate of the noise)");
-  require(o.serial_correlation_alpha > 0.0 && o.serial_correlation_alpha < 1.0, "serial_correlation_alpha",
-          o.serial_correlation_alpha, "a significance level in (0, 1)");
+    detail::require_positive(std::string("options.") + name, v);
+  detail::require_nonnegative("options.loss_scale", o.loss_scale,
+                              "a finite value ≥ 0 (0 = 3 × a robust estimate of the noise)");
+  detail::require(o.serial_correlation_alpha > 0.0 && o.serial_correlation_alpha < 1.0,
+                  "options.serial_correlation_alpha", o.serial_correlation_alpha, "a significance level in (0, 1)");
 }
 
 // `matrix` is the start's A (magnitude model: its symmetric part) or W: a singular one leaves Ceres

@@ -120,6 +120,8 @@ TEST(Foct, TemperatureDifferenceRegressor) {
   EXPECT_EQ((fit.compensated - fit.drift.compensate(s.zero_bias, s.temp, diff)).cwiseAbs().maxCoeff(), 0.0);
   EXPECT_EQ((fit.compensate(s.zero_bias, s.temp, s.temp_outside) - fit.compensated).cwiseAbs().maxCoeff(), 0.0);
   EXPECT_NE(error_of([&] { fit.compensate(s.zero_bias, s.temp); }).find("temp_outside"), std::string::npos);
+  EXPECT_EQ((fluxcal::compensate_zero_bias(fit.drift, fit.regressor, s.zero_bias, s.temp, s.temp_outside) -
+             fit.compensated).cwiseAbs().maxCoeff(), 0.0);
   for (int m : fit.orders) EXPECT_LE(m, 2);
 }
 

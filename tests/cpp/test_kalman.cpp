@@ -5,6 +5,7 @@
 
 #include <gtest/gtest.h>
 
+#include <limits>
 #include <random>
 
 #include "fixed_kalman_golden.inc"
@@ -142,4 +143,24 @@ TEST(FixedKalman, SaturatesWithStickyFlag) {
 TEST(Kalman, StationaryCovarianceRefusesEmptyOrNaNInput) {
   EXPECT_THROW(fluxcal::ar_stationary_covariance(Eigen::VectorXd(), 1.0), fluxcal::Error);  // segfault before
   EXPECT_THROW(fluxcal::ar_stationary_covariance(Eigen::VectorXd::Constant(1, 0.5), std::nan("")), fluxcal::Error);
+}
+
+// The saturating add is portable C++ (no compiler builtin): exact inside int64, clamped and flagged
+// at either end.
+TEST(FixedPoint, SaturatingAddAtTheEdges) {
+  using fluxcal::fixed::add64;
+  constexpr std::int64_t hi = std::numeric_limits<std::int64_t>::max(), lo = std::numeric_limits<std::int64_t>::min();
+  bool of = false;
+  EXPECT_EQ(add64(hi - 1, 1, of), hi);
+  EXPECT_EQ(add64(lo + 1, -1, of), lo);
+  EXPECT_EQ(add64(-5, 3, of), -2);
+  EXPECT_FALSE(of);
+  EXPECT_EQ(add64(hi, 1, of), hi);
+  EXPECT_TRUE(of);
+  of = false;
+  EXPECT_EQ(add64(lo, -1, of), lo);
+  EXPECT_TRUE(of);
+  of = false;
+  EXPECT_EQ(add64(hi, lo, of), -1);  // opposite signs never overflow
+  EXPECT_FALSE(of);
 }

@@ -99,3 +99,20 @@ TEST(RefineInputs, WrongWidthNaNOptionsSingularStartAndAliasedTerms) {
   const auto plain = fluxcal::refine_terms(start, s, Eigen::MatrixXd::Zero(s.rows(), 0), Eigen::VectorXd());
   EXPECT_TRUE(plain.identifiable);
 }
+
+// The vector model of refine_terms takes its reference vectors by reference as well as by pointer.
+TEST(RefineInputs, VectorTermsTakeTheReferenceByReference) {
+  const auto truth = fluxcal_test::make_truth(5, 50.0);
+  const fluxcal::Samples s = fluxcal_test::simulate(truth, 300, 0.01, 6);
+  // The field each reading saw, h = W⁻¹ (m − b): the readings fit the vector model exactly.
+  const fluxcal::Samples reference = (s.rowwise() - truth.b.transpose()) * truth.W.inverse().transpose();
+  fluxcal::Calibration start;
+  start.field_norm = truth.field;
+  const Eigen::MatrixXd none = Eigen::MatrixXd::Zero(s.rows(), 0);
+  const auto by_reference = fluxcal::refine_terms(start, s, none, Eigen::VectorXd(), {}, {}, reference);
+  const fluxcal::SamplesRef view(reference);
+  const auto by_pointer = fluxcal::refine_terms(start, s, none, Eigen::VectorXd(), {}, {}, &view);
+  EXPECT_EQ(by_reference.parameters, by_pointer.parameters);
+  EXPECT_LT((by_reference.calibration.offset - truth.b).norm(), 1e-6 * truth.field);
+  EXPECT_LT((by_reference.calibration.matrix - truth.W.inverse()).norm(), 1e-6);
+}

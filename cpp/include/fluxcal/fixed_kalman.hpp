@@ -24,6 +24,7 @@
 // The steady-state step keeps only the state lines with the constant gain K.
 #pragma once
 
+#include <cstddef>
 #include <cstdint>
 #include <limits>
 
@@ -39,14 +40,15 @@ struct FixedFormat {
 template <int MaxOrder>
 struct FixedArKalmanCoefficients {
   static_assert(MaxOrder >= 1, "MaxOrder must be ≥ 1");
+  static constexpr std::size_t kSize = static_cast<std::size_t>(MaxOrder);  // array bounds are unsigned
   int order = 1;
   FixedFormat format;
   bool steady_state = false;
-  std::int32_t a[MaxOrder] = {};                ///< AR coefficients, coefficient format
-  std::int32_t gain[MaxOrder] = {};             ///< steady-state K, coefficient format
+  std::int32_t a[kSize] = {};                ///< AR coefficients, coefficient format
+  std::int32_t gain[kSize] = {};             ///< steady-state K, coefficient format
   std::int32_t q = 0;                           ///< process variance, covariance format
   std::int32_t r = 0;                           ///< measurement variance, covariance format
-  std::int32_t p0[MaxOrder * MaxOrder] = {};    ///< initial covariance (row-major), covariance format
+  std::int32_t p0[kSize * kSize] = {};    ///< initial covariance (row-major), covariance format
 };
 
 namespace fixed {
@@ -67,12 +69,12 @@ inline std::int32_t saturate32(std::int64_t v, bool& overflow) {
 }
 
 inline std::int64_t add64(std::int64_t a, std::int64_t b, bool& overflow) {
-  std::int64_t s;
-  if (__builtin_add_overflow(a, b, &s)) {
+  // Checked before adding (signed overflow is undefined); portable where no compiler builtin exists.
+  if ((b > 0 && a > kInt64Max - b) || (b < 0 && a < kInt64Min - b)) {
     overflow = true;
-    return a > 0 ? kInt64Max : kInt64Min;
+    return b > 0 ? kInt64Max : kInt64Min;
   }
-  return s;
+  return a + b;
 }
 
 inline std::int64_t mul(std::int32_t a, std::int32_t b) { return static_cast<std::int64_t>(a) * b; }
@@ -95,6 +97,7 @@ template <int MaxOrder>
 class FixedArKalman {
  public:
   using Coefficients = FixedArKalmanCoefficients<MaxOrder>;
+  static constexpr std::size_t kSize = Coefficients::kSize;
 
   /// Returns false (and leaves the filter unusable) when the coefficients are out of range:
   /// order outside 1 … MaxOrder or coef_frac_bits outside 0 … 30. No exceptions (firmware).
@@ -138,7 +141,7 @@ class FixedArKalman {
 
     if (!c_.steady_state) {
       // Predict the covariance: M = A P Aᵀ + Q e1 e1ᵀ (companion structure).
-      std::int32_t u[MaxOrder];
+      std::int32_t u[kSize];
       for (int j = 0; j < n; ++j) {
         std::int64_t s = 0;
         for (int i = 0; i < n; ++i) s = fixed::add64(s, fixed::mul(p_[j][i], c_.a[i]), of);
@@ -160,7 +163,7 @@ class FixedArKalman {
           k_[i] = fixed::saturate32(fixed::div_round(std::int64_t{m_[i][0]} * (std::int64_t{1} << cf), s), of);
       }
       // Joseph form for C = e1ᵀ, expanded: P = M − K m0ᵀ − m0 Kᵀ + S K Kᵀ.
-      std::int32_t t[MaxOrder];
+      std::int32_t t[kSize];
       for (int i = 0; i < n; ++i) t[i] = fixed::saturate32(fixed::shift_round(fixed::mul(s, k_[i]), cf, of), of);
       for (int j = 0; j < n; ++j) {
         for (int i = j; i < n; ++i) {
@@ -188,10 +191,10 @@ class FixedArKalman {
   Coefficients c_{};
   bool valid_ = false;
   bool overflow_ = false;
-  std::int32_t x_[MaxOrder] = {};
-  std::int32_t k_[MaxOrder] = {};
-  std::int32_t p_[MaxOrder][MaxOrder] = {};
-  std::int32_t m_[MaxOrder][MaxOrder] = {};
+  std::int32_t x_[kSize] = {};
+  std::int32_t k_[kSize] = {};
+  std::int32_t p_[kSize][kSize] = {};
+  std::int32_t m_[kSize][kSize] = {};
 };
 
 }  // namespace fluxcal

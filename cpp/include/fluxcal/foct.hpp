@@ -113,6 +113,11 @@ AccuracyResult zero_bias_accuracy(const SeriesRef& residual, double rated, const
 /// temperature outside every range of the model.
 Eigen::VectorXd compensate_zero_bias(const DriftModel& drift, DriftRegressor regressor, const SeriesRef& zero_bias,
                                      const SeriesRef& temp, const SeriesRef* temp_outside = nullptr);
+inline Eigen::VectorXd compensate_zero_bias(const DriftModel& drift, DriftRegressor regressor,
+                                            const SeriesRef& zero_bias, const SeriesRef& temp,
+                                            const SeriesRef& temp_outside) {
+  return compensate_zero_bias(drift, regressor, zero_bias, temp, &temp_outside);
+}
 
 struct FoctResult {
   PreprocessResult preprocess;  ///< S2 (diagnostics only; the AR model is fitted to zero_bias − mean)
@@ -145,7 +150,7 @@ struct FoctResult {
     return compensate_zero_bias(drift, regressor, zero_bias, temp, temp_outside);
   }
   Eigen::VectorXd compensate(const SeriesRef& zero_bias, const SeriesRef& temp, const SeriesRef& temp_outside) const {
-    return compensate_zero_bias(drift, regressor, zero_bias, temp, &temp_outside);
+    return compensate_zero_bias(drift, regressor, zero_bias, temp, temp_outside);
   }
 };
 

@@ -124,5 +124,12 @@ RefineResult fit_vector(const SamplesRef& samples, const SamplesRef& reference, 
 RefineResult refine_terms(const Calibration& start, const SamplesRef& samples, const Eigen::Ref<const Eigen::MatrixXd>& features,
                           const Eigen::VectorXd& start_terms, const std::vector<std::string>& fixed = {},
                           const RefineOptions& options = {}, const SamplesRef* reference = nullptr);
+/// The vector model of refine_terms: reference vectors given by reference, not by pointer.
+inline RefineResult refine_terms(const Calibration& start, const SamplesRef& samples,
+                                 const Eigen::Ref<const Eigen::MatrixXd>& features, const Eigen::VectorXd& start_terms,
+                                 const std::vector<std::string>& fixed, const RefineOptions& options,
+                                 const SamplesRef& reference) {
+  return refine_terms(start, samples, features, start_terms, fixed, options, &reference);
+}
 
 }  // namespace fluxcal
