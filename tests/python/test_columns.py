@@ -244,3 +244,12 @@ def test_sample_and_hold_below_twice_the_rate():
     logged = readings[np.floor(np.arange(3000) * 75 / 100).astype(int)]   # 75 Hz sensor, 100 Hz logger
     assert held_copies(logged).mean() == pytest.approx(0.25)
     assert held_copies(np.repeat(readings[:24], 100, axis=0)) is None      # a static device's long runs
+
+
+def test_unit_name_normalises_unit_words():
+    """One place names a unit word the recording's way (the serial recorder's stated and printed units)."""
+    from fluxcal.io.columns import unit_name
+
+    assert [unit_name(w) for w in ("uTesla", "µT", "\u03bcT", " [uT] ", "(nT)", "Gauss", "Ga", "tesla", "mgauss")] \
+        == ["uT", "uT", "uT", "uT", "nT", "G", "G", "T", "mG"]
+    assert unit_name(" counts ") == "counts" and unit_name("m/s^2") == "m/s^2"  # others as given

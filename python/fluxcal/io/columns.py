@@ -249,6 +249,13 @@ def find_current(names, units: dict):
     return name, CURRENT_UNITS.get(unit or "", 1.0)
 
 
+def unit_name(word: str) -> str:
+    """A unit word as a recording writes it: uTesla, µT, [uT] → uT; gauss, Ga → G; tesla → T (others as
+    given, stripped)."""
+    w = word.strip().strip("[]()").lower().replace("\u03bc", "\u00b5")
+    return "T" if w == "tesla" else FIELD_UNITS.get(w, word.strip())
+
+
 def field_unit_of(name: str) -> str:
     """The field unit a column's name carries (mag_x_uT -> "uT"), "" when none."""
     _, unit = _peel_unit(words(name), FIELD_UNITS)

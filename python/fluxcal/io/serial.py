@@ -58,6 +58,8 @@ from pathlib import Path
 
 import serial  # pyserial (absolute import: this module's own name does not shadow it)
 
+from .columns import FIELD_UNITS, MAG_WORDS, is_unit, unit_name
+
 REASONS = {
     "binary": "non-text bytes (invalid UTF-8, control characters, garbage between frames)",
     "partial": "partial line (first after opening the port, or in flight at a disconnect or the end)",
@@ -157,14 +159,6 @@ def parse_scale(text: str, columns) -> tuple:
     return tuple(factors)
 
 
-def _unit_name(word: str) -> str:
-    """A unit word as the recording writes it: uTesla, µT → uT; gauss, Ga → G (others as given)."""
-    from .columns import FIELD_UNITS
-
-    w = word.strip().strip("[]()").lower().replace("\u03bc", "\u00b5")
-    return "T" if w == "tesla" else FIELD_UNITS.get(w, word.strip())
-
-
 def _number(text: str, column: str) -> float:
     if not _NUMBER.fullmatch(text):
         raise Reject("non_numeric", f"column {column!r}: {text!r} is not a number" if text else
@@ -202,7 +196,7 @@ class TextDecoder:
         self._rest_of_long_line = False
         self.blank_lines = 0
         # units as --units/--columns state them, and as the first recorded line printed them (kv)
-        self._stated = {c.name: _unit_name(c.unit) for c in self.columns if c.unit}
+        self._stated = {c.name: unit_name(c.unit) for c in self.columns if c.unit}
         self.printed_units, self._line_units = {}, {}
 
     @property
@@ -304,7 +298,6 @@ class TextDecoder:
         """Values in column order from a line of fluxcal.io.labelled's form, or None when it does not fit the
         columns. A name matches a key whole ("mag x"), or by its label ("x") when the words before it are
         a magnetometer's (Mag, Compass) — an "Accel X:" line never fills the magnetometer."""
-        from .columns import MAG_WORDS, is_unit
         from .labelled import _parse_line
 
         _, pairs = _parse_line(text)
@@ -330,11 +323,9 @@ class TextDecoder:
         """The units a line prints ({column: unit word}) → their names; Reject("unit") when a magnetometer
         column's is not a field unit, or a column's differs from the stated or first recorded one: values
         in two units under one label would be silently wrong (a range change, another sensor's line)."""
-        from .columns import FIELD_UNITS
-
         named = {}
         for name, word in printed.items():
-            unit = named[name] = _unit_name(word)
+            unit = named[name] = unit_name(word)
             if name in MAG and unit not in {*FIELD_UNITS.values(), "T"}:
                 raise Reject("unit", f"column {name!r}: {word!r} is not a magnetic-field unit (another sensor's "
                                      "line?)")
