@@ -341,6 +341,32 @@ def test_writer_layout_reads_back_with_notes(tmp_path):
     assert "disconnected at t_host=0.15 s" in rec.metadata["notes"]
 
 
+def test_nanosecond_epoch_times_are_recorded_exactly(tmp_path):
+    """A device time in epoch nanoseconds (1732600000123456789) was parsed into a double: rounded to a multiple of
+    256 ns, so the recorded times, and the differences of consecutive ones, were wrong by up to 128 ns. It is kept
+    as an integer from the line (or the int64 field of a frame) to the recording file, digit for digit."""
+    t0, steps = 1732600000123456789, [0, 1001, 2003, 2999, 1_000_000_007]
+    lines = b"".join(b"%d,%d,2.5,-3\n" % (t0 + dt, k) for k, dt in enumerate(steps))
+    records, reasons = decode(TextDecoder(parse_columns("t[ns],mx,my,mz")), b"junk\n" + lines)
+    assert not reasons[1:] and [r[0] for r in records] == [t0 + dt for dt in steps]
+    assert all(isinstance(r[1], float) for r in records)  # the other values (and small times) stay floats
+    assert parsed(TextDecoder(parse_columns("t,mx,my,mz")), b"1e999,1,2,3") == "non_numeric"
+    assert parsed(TextDecoder(parse_columns("t,mx,my,mz")), b"9" * 400 + b",1,2,3") == "non_numeric"  # > a double
+    columns = parse_columns("t[ns],mx[counts],my[counts],mz[counts]")
+    frames = b"".join(bytes.fromhex("A55A") + struct.pack("<qhhh", t0 + dt, 1, 2, 3) for dt in steps)
+    binary, _ = decode(FrameDecoder("<qhhh", bytes.fromhex("A55A"), columns, scale=(1, 0.1, 0.1, 0.1)), frames)
+    assert [r[0] for r in binary] == [t0 + dt for dt in steps] and binary[0][1:] == (0.1, 0.2, 0.30000000000000004)
+    path = tmp_path / "rec.csv"
+    writer = RecordingWriter(path, ["t_host", "t", "mx", "my", "mz"], {"t": "ns"})
+    for k, r in enumerate(records):
+        writer.append((0.01 * k, *r))
+    writer.close()
+    rows = [line.split(",") for line in path.read_text().splitlines() if line[:1].isdigit()]
+    times = [int(row[1]) for row in rows]
+    assert times == [t0 + dt for dt in steps] and np.diff(times).tolist() == np.diff(steps).tolist()
+    assert rows[1][2:] == ["1.0", "2.5", "-3.0"]
+
+
 # -- live coverage -----------------------------------------------------------------------------------------
 
 def test_direction_bins_match_the_core():

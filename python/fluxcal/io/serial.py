@@ -21,7 +21,8 @@ Formats a device may print, one record per line (`--format`):
                (`--scale 0.1`). The units in --columns and the bounds of --range are those of the
                scaled values; the factors are written to the recording's metadata.
 
-A column `t` is the device's own time and is kept as it is; every record also gets `t_host`, the
+A column `t` is the device's own time and is kept as it is (a whole number beyond 2**53, such as an epoch
+time in ns, is kept and written digit for digit, not rounded to a double); every record also gets `t_host`, the
 host's monotonic time (s) since the recording started when the chunk holding it was read.
 
 What is rejected, and counted by reason (never written as data): `binary` (bytes that are not text:
@@ -73,6 +74,7 @@ REASONS = {
 FORMATS = ("csv", "kv", "binary-spec")
 MAG = ("mx", "my", "mz")
 MAX_LINE = 1024
+_INTEGER = re.compile(r"[+-]?\d+")
 _NUMBER = re.compile(r"[+-]?(?:\d+\.?\d*|\.\d+)(?:[eE][+-]?\d+)?")  # strict: no "nan", "1_000", "0x10"
 # KEY=NAME[unit]; a key may hold spaces ("Mag1 X=mx": two magnetometers on a line)
 _ENTRY = re.compile(r"(?:([A-Za-z_][\w. ]*?)\s*=)?([A-Za-z_][\w.]*)\s*(?:\[([^\]]*)\])?")
@@ -159,10 +161,21 @@ def parse_scale(text: str, columns) -> tuple:
     return tuple(factors)
 
 
+def _exact(value):
+    """A whole number beyond 2**53 (an epoch time in ns: 1732600000123456789) stays a Python int, which the
+    recording writes digit for digit: as a double it would be rounded to a multiple of 256 ns, and the
+    differences of consecutive times with it. Everything else (up to 64 bits: what a device can send) is a float."""
+    return value if isinstance(value, int) and 2 ** 53 < abs(value) < 2 ** 64 else float(value)
+
+
 def _number(text: str, column: str) -> float:
     if not _NUMBER.fullmatch(text):
         raise Reject("non_numeric", f"column {column!r}: {text!r} is not a number" if text else
                      f"column {column!r} is empty")
+    if _INTEGER.fullmatch(text) and len(text.lstrip("+-")) <= 20:  # a whole number of up to 64 bits
+        exact = _exact(int(text))
+        if isinstance(exact, int):
+            return exact
     value = float(text)
     if value in (float("inf"), float("-inf")):
         raise Reject("non_numeric", f"column {column!r}: {text!r} overflows a double")
@@ -464,9 +477,9 @@ class FrameDecoder:
                                              f"0x{self.checksum(payload):02x}")
                 continue
             self._drop(self.frame_size)
-            values = tuple(float(v) for v in self.struct.unpack(payload))
+            values = tuple(_exact(v) for v in self.struct.unpack(payload))  # an int64 ns time stays exact
             if self.scale is not None:
-                values = tuple(v * f for v, f in zip(values, self.scale))
+                values = tuple(v if f == 1 else v * f for v, f in zip(values, self.scale))
             try:
                 _check_ranges(values, self.names, self.ranges)
             except Reject as reject:
@@ -531,8 +544,9 @@ class RecordingWriter:
     def append(self, values) -> None:
         if not self.head_written:
             self._write_head()
-        # repr of a float is the shortest text that reads back to the same double (as write_csv)
-        self._write(",".join(map(repr, map(float, values))) + "\n")
+        # repr of a float is the shortest text that reads back to the same double (as write_csv); an int (a
+        # time in ns beyond 2**53, see _exact) is written exactly
+        self._write(",".join(str(v) if isinstance(v, int) else repr(float(v)) for v in values) + "\n")
         self.rows += 1
 
     def note(self, text: str) -> None:
