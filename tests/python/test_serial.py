@@ -79,6 +79,30 @@ def test_lines_as_sketches_print_them():
     assert parsed(TextDecoder(parse_columns(None, "kv"), "kv"), b"Mag1 X: 1 Y: 2 Z: 3 Mag2 X: 4 Y: 5 Z: 6") == "fields"
 
 
+def test_commas_in_numbers_are_read_or_rejected_never_guessed():
+    """`X: 1,234` was read as 1.234: a thousands separator taken for a decimal comma, 1000 times off. A comma that
+    may be either is rejected as `ambiguous` (as is one between digits on a line whose fields a comma separates),
+    until a decimal comma that cannot be a thousands separator settles it for the recording."""
+    decoder = TextDecoder(parse_columns(None, "kv"), "kv")
+    with pytest.raises(Reject, match=r"'mx': '1,234' is 1.234 with a decimal comma, 1234 with a thousands") as info:
+        decoder.parse(b"X: 1,234 Y: 2 Z: 3")
+    assert info.value.reason == "ambiguous"
+    assert parsed(decoder, b"Mag X: 12,345 Y: -4,567 Z: 7,000 uT") == "ambiguous"
+    assert parsed(decoder, b"X: 1,234,567 Y: 2 Z: 3") == "ambiguous"  # read as 1.234 before
+    assert parsed(decoder, b"X=1,234 Y=2 Z=3") == "ambiguous"
+    with pytest.raises(Reject, match="separates its fields with commas: a decimal comma, or two fields"):
+        decoder.parse(b"X: 1,5, Y: 2, Z: 3")
+    assert parsed(decoder, b"x: 12.3, y: -4, z: 7") == (12.3, -4.0, 7.0)  # commas between fields only: fine
+    # decimal commas that cannot be thousands separators: read, deliberately (a German-locale sketch)
+    assert decoder.parse(b"X: -13,62  Y: 27,37  Z: -17,02 uT") == (-13.62, 27.37, -17.02)
+    fresh = TextDecoder(parse_columns(None, "kv"), "kv")
+    assert fresh.parse(b"X: 1,234 Y: -0,456 Z: 1234,5") == (1.234, -0.456, 1234.5)  # the line settles it
+    assert decoder.decimal_comma and decoder.parse(b"X: 1,234 Y: 2 Z: 3") == (1.234, 2.0, 3.0)  # as did a line before
+    ranged = TextDecoder(parse_columns(None, "kv"), "kv", ranges={"mx": (-10, 10)})
+    assert parsed(ranged, b"X: 12,34 Y: 2 Z: 3") == "out_of_range" and not ranged.decimal_comma  # not recorded
+    assert parsed(TextDecoder(parse_columns(None)), b"1,234;5;6") == "fields"  # csv: commas separate, as before
+
+
 def test_other_sensors_units_are_never_the_magnetometer():
     """`X: .. Y: .. Z: .. m/s^2` (an accelerometer line without a sensor word) is not a magnetometer reading."""
     decoder = TextDecoder(parse_columns(None, "kv"), "kv")

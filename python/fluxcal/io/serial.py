@@ -29,7 +29,9 @@ What is rejected, and counted by reason (never written as data): `binary` (bytes
 invalid UTF-8 or control characters, or garbage between binary frames), `partial` (the first line
 after the port opens, which may be the tail of a line already in flight; the line in flight at a
 disconnect or at the end), `fields` (wrong number of fields, unknown or missing keys), `non_numeric`
-(a field that is not a finite decimal number), `unit` (kv: a unit that is not a magnetic-field unit on
+(a field that is not a finite decimal number), `ambiguous` (kv: a number whose comma may be a decimal comma
+or a thousands separator, 1,234, until a line shows a decimal comma that cannot be one, 12,34 or 0,123;
+or a comma between digits on a line whose fields are separated by commas), `unit` (kv: a unit that is not a magnetic-field unit on
 mx,my,mz, or differs from --units/--columns or from the first recorded line), `out_of_range` (outside `--range`), `too_long` (no line
 end within 1024 bytes), `checksum` (binary frame whose checksum does not match).
 
@@ -70,6 +72,7 @@ REASONS = {
     "out_of_range": "a value outside --range",
     "too_long": "no line end within 1024 bytes",
     "checksum": "binary frame checksum mismatch",
+    "ambiguous": "a number whose comma may be a decimal comma, a thousands separator or a field separator",
 }
 FORMATS = ("csv", "kv", "binary-spec")
 MAG = ("mx", "my", "mz")
@@ -81,6 +84,10 @@ _ENTRY = re.compile(r"(?:([A-Za-z_][\w. ]*?)\s*=)?([A-Za-z_][\w.]*)\s*(?:\[([^\]
 _PAIR = re.compile(r"([A-Za-z_][\w.]*)\s*[=:]\s*([^\s,;=:]+)")
 _PAIR_SEPARATOR = re.compile(r"[\s,;]*")
 _LINE_END = re.compile(rb"\r\n|\r|\n")
+# kv: 1,234 reads as 1.234 (decimal comma) or 1234 (thousands separator); 1,234,567; a comma between fields
+_GROUPED = re.compile(r"[+-]?[1-9]\d{0,2},\d{3}")
+_COMMAS = re.compile(r"\d+(?:,\d+){2,}")
+_FIELD_COMMA = re.compile(r"(?<!\d),|,(?!\d)")
 _CONTROL = re.compile(r"[\x00-\x08\x0b-\x1f\x7f]")
 
 
@@ -211,6 +218,7 @@ class TextDecoder:
         # units as --units/--columns state them, and as the first recorded line printed them (kv)
         self._stated = {c.name: unit_name(c.unit) for c in self.columns if c.unit}
         self.printed_units, self._line_units = {}, {}
+        self.decimal_comma, self._line_decimal_comma = False, False  # kv: the device writes decimal commas
 
     @property
     def units(self) -> dict:
@@ -282,11 +290,12 @@ class TextDecoder:
             raise Reject("binary", f"control character 0x{ord(bad.group()):02x} at column {bad.start() + 1}: "
                                    f"{_show(raw)}")
         text = text.strip()
-        self._line_units = {}
+        self._line_units, self._line_decimal_comma = {}, False
         values = self._parse_kv(text) if self.format == "kv" else self._parse_csv(text)
         _check_ranges(values, self.names, self.ranges)
         for name, unit in self._line_units.items():  # the first recorded line's units are the recording's
             self.printed_units.setdefault(name, unit)
+        self.decimal_comma = self.decimal_comma or self._line_decimal_comma  # a recorded line's decimal comma
         return values
 
     def _parse_csv(self, text: str) -> tuple:
@@ -326,11 +335,39 @@ class TextDecoder:
                 raise Reject("non_numeric", f"column {self.names[j]!r}: {value + unit!r} is not a number")
             if unit:
                 units[self.names[j]] = unit
-            values[j] = value.replace(",", ".")
+            values[j] = value
         if any(v is None for v in values):
             return None
+        values = self._decimal_commas(text, values)
         self._line_units = self._check_units(units)
         return tuple(_number(v, n) for v, n in zip(values, self.names))
+
+    def _decimal_commas(self, text: str, values: list) -> list:
+        """Values with a comma between digits read with a decimal comma (`X: -13,62`), or Reject("ambiguous")
+        when the comma may mean something else: on a line whose fields are separated by commas (`X: 1,5, Y: 2`),
+        in a number with several (1,234,567), or as a thousands separator (1,234 with three digits after it),
+        unless a decimal comma that cannot be one (12,34, 0,123, -0,5, 1234,5) was on this line or an earlier
+        recorded one: never a guess that is 1000 times off."""
+        with_comma = [(n, v) for n, v in zip(self.names, values) if "," in v]
+        if not with_comma:
+            return values
+        name, value = with_comma[0]
+        many = _COMMAS.search(text)
+        if many:
+            raise Reject("ambiguous", f"{many.group()!r} has several commas between digits (thousands separators?); "
+                                      f"not guessed: {text!r}")
+        if _FIELD_COMMA.search(text):
+            raise Reject("ambiguous", f"column {name!r}: {value!r} has a comma between digits on a line that separates "
+                                      f"its fields with commas: a decimal comma, or two fields? Not guessed: {text!r}")
+        grouped = [(n, v) for n, v in with_comma if _GROUPED.fullmatch(v)]
+        if grouped and len(grouped) == len(with_comma) and not self.decimal_comma:
+            name, value = grouped[0]
+            raise Reject("ambiguous", f"column {name!r}: {value!r} is {value.replace(',', '.')} with a decimal comma, "
+                                      f"{value.replace(',', '')} with a thousands separator; not guessed (a line with a "
+                                      "decimal comma that cannot be a thousands separator, such as 12,34 or -0,123, "
+                                      "settles it for the recording)")
+        self._line_decimal_comma = True
+        return [v.replace(",", ".") for v in values]
 
     def _check_units(self, printed: dict) -> dict:
         """The units a line prints ({column: unit word}) → their names; Reject("unit") when a magnetometer
