@@ -27,6 +27,37 @@ from .io.serial import Recorder, add_stream_arguments, check_output, decoder_fro
 
 FACES = ("+X", "-X", "+Y", "-Y", "+Z", "-Z")
 MAG = ("mx", "my", "mz")
+# An ADC rail (a saturated axis: ±32767 counts, ±4912 µT) without knowing the sensor's range: an axis' extreme
+# value, read at least RAIL_REPEATS times, by more readings than lie within RAIL_BAND of the span inside it (a
+# turning sensor's axis approaches its extreme gradually: the readings beyond a rail pile up on it), in varied
+# directions (the other axes of the pile spread over more than RAIL_SPREAD of their span: not one direction held
+# still), on an axis of at least RAIL_LEVELS distinct values (not a sensor lying still).
+RAIL_REPEATS, RAIL_BAND, RAIL_SPREAD, RAIL_LEVELS = 5, 0.05, 0.05, 20
+
+
+def find_rails(readings) -> np.ndarray:
+    """2×3 array: the low (row 0) and high (row 1) rail of each axis of `readings` (N×3), NaN where none."""
+    m = np.asarray(readings, dtype=float).reshape(-1, 3)
+    rails = np.full((2, 3), np.nan)
+    if len(m) < RAIL_REPEATS:
+        return rails
+    lo, hi = m.min(axis=0), m.max(axis=0)
+    span = hi - lo
+    for axis in range(3):
+        if not span[axis] > 0:
+            continue
+        v, others = m[:, axis], [k for k in range(3) if k != axis]
+        for side, extreme in enumerate((lo[axis], hi[axis])):
+            at = v == extreme
+            piled = int(at.sum())
+            if piled < RAIL_REPEATS or piled <= np.count_nonzero(np.abs(v - extreme) <= RAIL_BAND * span[axis]) - piled:
+                continue
+            if not np.any(np.ptp(m[at][:, others], axis=0) > RAIL_SPREAD * span[others]):
+                continue
+            if len(np.unique(v)) < RAIL_LEVELS:
+                continue
+            rails[side, axis] = extreme
+    return rails
 
 
 def direction_bins(fields) -> np.ndarray:
@@ -75,37 +106,61 @@ class LiveState:
     calibration: object = None
     error: str = ""                # why there is no fit yet (too few readings, planar so far, ...)
     zeros: int = 0                 # readings of exactly 0,0,0 left out
+    rails: int = 0                 # readings with an axis at an ADC rail left out (see find_rails)
 
 
 class LiveFit:
     """Readings in, current fit and coverage out. add() is O(1) (moments update), except when the readings
     have spread `regrow` times beyond the normalisation in use: then the moments are rebuilt from every
     reading kept (a few times per session, as the spread only grows); state() solves the fit from the
-    moments (constant time) and bins the corrected readings kept so far (one vectorised pass)."""
+    moments (constant time) and bins the corrected readings kept so far (one vectorised pass).
+
+    Left out of the fit (and counted; the recording keeps them): readings of exactly 0,0,0, and readings with
+    an axis at an ADC rail (find_rails). Rails are judged on all readings in state(): when they change (a rail
+    appears, or the axis later reads beyond a value taken for one) the moments are rebuilt from the readings
+    kept; add() leaves out a reading at a rail already known."""
 
     def __init__(self, field_norm: float | None = None, units: str = "", warmup: int = 20, regrow: float = 4.0):
         self.field_norm, self.units, self.warmup = field_norm, units, warmup
         self.regrow = regrow  # renormalise when the readings spread this many times the scale in use
-        self._readings = np.empty((1024, 3))
-        self.count = 0
+        self._readings = np.empty((1024, 3))  # every reading but 0,0,0, in order
+        self._railed = np.zeros(1024, dtype=bool)  # at a rail: left out of the fit
+        self._n = 0
+        self.count = 0  # readings in the fit
         self.zeros = 0  # readings of exactly 0,0,0 left out
+        self.rails = 0  # readings at a rail left out
+        self.rail_values = np.full((2, 3), np.nan)  # low and high rail of each axis (NaN: none)
         self._moments = None
         self._scale = 0.0
         self._lo, self._hi = np.full(3, np.inf), np.full(3, -np.inf)  # bounding box of the readings
 
     @property
     def readings(self) -> np.ndarray:
-        return self._readings[:self.count]
+        """The readings in the fit (not 0,0,0, not at a rail), in order."""
+        if not self.rails:
+            return self._readings[:self._n]
+        return self._readings[:self._n][~self._railed[:self._n]]
+
+    def rail_text(self) -> str:
+        """Which axes sit at which rail: "mx at 4912, mz at -4912"."""
+        return ", ".join(f"{MAG[axis]} at {self.rail_values[side, axis]:g}" for axis in range(3) for side in (0, 1)
+                         if np.isfinite(self.rail_values[side, axis]))
 
     def add(self, reading) -> None:
         reading = np.asarray(reading, dtype=float)
         if not reading.any():  # exactly 0,0,0: an I²C glitch, not a field (calibrate() leaves them out too)
             self.zeros += 1
             return
-        if self.count == len(self._readings):
+        if self._n == len(self._readings):
             self._readings = np.concatenate([self._readings, np.empty_like(self._readings)])
-        row = self._readings[self.count]
+            self._railed = np.concatenate([self._railed, np.zeros_like(self._railed)])
+        row = self._readings[self._n]
         row[:] = reading
+        self._n += 1
+        if np.any(self.rail_values == row):  # at a rail already known: left out
+            self._railed[self._n - 1] = True
+            self.rails += 1
+            return
         self.count += 1
         self._lo, self._hi = np.minimum(self._lo, row), np.maximum(self._hi, row)
         if self._moments is None:
@@ -116,7 +171,24 @@ class LiveFit:
             # turning sensor's sums; re-derive it from every reading kept (a few times at most: it grows)
             self._renormalise()
         else:
-            self._moments.add(self._readings[self.count - 1:self.count])
+            self._moments.add(row[None])
+
+    def _update_rails(self) -> None:
+        """Judge the rails on every reading; when they changed, mark the readings at them and rebuild the fit."""
+        rails = find_rails(self._readings[:self._n])
+        if np.array_equal(rails, self.rail_values, equal_nan=True):
+            return
+        self.rail_values = rails
+        railed = np.any(self._readings[:self._n, None, :] == rails[None], axis=(1, 2))
+        self._railed[:self._n] = railed
+        self.rails = int(railed.sum())
+        self.count = self._n - self.rails
+        kept = self.readings
+        self._lo, self._hi = (kept.min(axis=0), kept.max(axis=0)) if len(kept) else (np.full(3, np.inf),
+                                                                                     np.full(3, -np.inf))
+        self._moments = None
+        if self.count >= self.warmup:
+            self._renormalise()
 
     def _renormalise(self) -> None:
         centre, self._scale = _core.normalisation(self.readings)
@@ -124,7 +196,9 @@ class LiveFit:
         self._moments.add(self.readings)
 
     def state(self) -> LiveState:
-        state = LiveState(records=self.count, seen=np.zeros(N_DIRECTION_BINS, dtype=bool), zeros=self.zeros)
+        self._update_rails()
+        state = LiveState(records=self.count, seen=np.zeros(N_DIRECTION_BINS, dtype=bool), zeros=self.zeros,
+                          rails=self.rails)
         if self._moments is None:
             state.error = f"{self.count} readings, fitting from {self.warmup}"
             return state
@@ -173,6 +247,7 @@ class LiveSession:
         self.bar.n = int(round(s.coverage * N_DIRECTION_BINS))
         quality = f"|h| std/mean {100 * s.spread:.2f} %" if s.calibration is not None else s.error[:50]
         zeros = f", {s.zeros} of 0,0,0 left out" if s.zeros else ""
+        zeros += f", {s.rails} at a rail left out" if s.rails else ""
         self.bar.set_postfix_str(f"{quality}, {s.records} records{zeros}", refresh=False)
         self.bar.refresh()
         missing = missing_text(s.seen) if s.calibration is not None else ""
@@ -267,6 +342,9 @@ def cmd_live(args) -> int:
     if session.fit.zeros:
         print(f"left out {session.fit.zeros} readings of exactly 0,0,0 (sensor glitches; they stay in the raw "
               "recording)")
+    if session.fit.rails:
+        print(f"left out {session.fit.rails} readings with an axis at an ADC rail ({session.fit.rail_text()}: its "
+              "extreme value, repeated: the sensor saturated; they stay in the raw recording)")
     unit = unit or getattr(decoder, "units", {}).get("mx", "")  # kv: as the device printed it
     readings = session.fit.readings
     if len(readings) < 9:
@@ -276,7 +354,8 @@ def cmd_live(args) -> int:
     cal.metadata.update(source=f"serial port {args.port} at {args.baud} baud (fluxcal live)",
                         records=stats.records, rejected=stats.rejected_text(), reconnects=stats.reconnects,
                         stopped=stats.stopped, thresholds=session.thresholds_text(), thresholds_met=session.met,
-                        live_coverage=state.coverage, live_spread=state.spread, zeros_left_out=session.fit.zeros)
+                        live_coverage=state.coverage, live_spread=state.spread, zeros_left_out=session.fit.zeros,
+                        rails_left_out=session.fit.rails, rails=session.fit.rail_text())
     if args.raw:
         cal.metadata["recording"] = str(args.raw)
     cal.save(args.output)

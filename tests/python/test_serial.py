@@ -492,6 +492,49 @@ def test_live_fit_leaves_out_zero_glitches():
     assert state.spread < 0.01
 
 
+def test_live_fit_leaves_out_readings_at_an_adc_rail():
+    """A sensor saturating (mx stuck at its high rail, mz at its low one, as ±32767 counts or ±4912 µT) kept the
+    clipped readings in the live fit, which pulled the offset and kept the spread above any threshold; only 0,0,0
+    was left out. Readings with an axis at a rail (an extreme value piled up, see find_rails) are left out of the
+    fit too and counted; a turning sensor's own extremes, even quantised and repeated, are not rails."""
+    from fluxcal import sim
+    from fluxcal.live import LiveSession, find_rails
+
+    rng = np.random.default_rng(9)
+    result = sim.simulate(sim.uniform(1500, rng), sim.random_sensor(FIELD_NT, rng, noise=0.002), [2e4, 1e3, 4.5e4], rng)
+    m = np.round(result.readings / 10.0)  # counts of 10 nT: a quantised sensor repeats values, its extremes too
+    assert np.all(np.isnan(find_rails(m)))
+    hi, lo = np.quantile(m[:, 0], 0.9), np.quantile(m[:, 2], 0.12)
+    railed = (m[:, 0] >= hi) | (m[:, 2] <= lo)
+    m[:, 0], m[:, 2] = np.minimum(m[:, 0], hi), np.maximum(m[:, 2], lo)
+    m[700] = 0.0
+    railed[700] = False
+    live = LiveFit(units="counts")
+    session = LiveSession(live, [0, 1, 2], show=False)
+    for reading in m:
+        session.on_record(0.0, reading)
+    session.refresh()
+    state = session.state
+    assert state.rails == live.rails == railed.sum() and state.zeros == 1
+    assert live.count == len(live.readings) == len(m) - railed.sum() - 1
+    np.testing.assert_array_equal(live.readings, m[~railed & np.any(m != 0, axis=1)])
+    assert live.rail_text() == f"mx at {hi:g}, mz at {lo:g}"
+    np.testing.assert_allclose(state.calibration.offset, fluxcal.fit_ellipsoid(live.readings).offset,
+                               atol=1e-6 * FIELD_NT / 10)
+    assert state.spread < 0.01
+    assert f"{railed.sum()} at a rail left out" in str(session.bar.postfix)
+    # a value taken for a rail that the axis later reads beyond is no rail: its readings go back in
+    beyond = np.round(result.readings[:300] / 10.0 * np.array([1.3, 1, 1]))
+    beyond[:, 2] = np.maximum(beyond[:, 2], lo)  # mz still at its rail
+    for reading in beyond:
+        live.add(reading)
+    state = live.state()
+    assert np.isnan(live.rail_values[1, 0]) and live.rail_values[0, 2] == lo
+    assert live.rails == state.rails == (m[:, 2] == lo).sum() + (beyond[:, 2] == lo).sum()
+    # a still sensor: a few quantised values, no rail
+    assert np.all(np.isnan(find_rails(np.round(m[0] + rng.standard_normal((200, 3))))))
+
+
 # -- through pseudo-terminals --------------------------------------------------------------------------------
 
 @contextlib.contextmanager
