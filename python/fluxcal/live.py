@@ -28,11 +28,13 @@ from .io.serial import Recorder, add_stream_arguments, check_output, decoder_fro
 FACES = ("+X", "-X", "+Y", "-Y", "+Z", "-Z")
 MAG = ("mx", "my", "mz")
 # An ADC rail (a saturated axis: ±32767 counts, ±4912 µT) without knowing the sensor's range: an axis' extreme
-# value, read at least RAIL_REPEATS times, by more readings than lie within RAIL_BAND of the span inside it (a
-# turning sensor's axis approaches its extreme gradually: the readings beyond a rail pile up on it), in varied
-# directions (the other axes of the pile spread over more than RAIL_SPREAD of their span: not one direction held
-# still), on an axis of at least RAIL_LEVELS distinct values (not a sensor lying still).
-RAIL_REPEATS, RAIL_BAND, RAIL_SPREAD, RAIL_LEVELS = 5, 0.05, 0.05, 20
+# value, read at least RAIL_REPEATS times, by more readings than lie within RAIL_BAND of the span (at least
+# RAIL_STEPS of its quantisation steps) inside it (a turning sensor's axis approaches its extreme gradually: the
+# readings beyond a rail pile up on it), in varied directions (the other axes of the pile spread over more than
+# RAIL_SPREAD of their span: not one direction held still), on an axis of at least RAIL_LEVELS distinct values
+# (not a sensor lying still). On simulated quantised recordings this finds a rail that clips 2 % of the readings,
+# and none where there is none, also with the sensor held at an axis' extreme.
+RAIL_REPEATS, RAIL_BAND, RAIL_STEPS, RAIL_SPREAD, RAIL_LEVELS = 5, 0.01, 4, 0.05, 20
 
 
 def find_rails(readings) -> np.ndarray:
@@ -41,6 +43,28 @@ def find_rails(readings) -> np.ndarray:
     rails = np.full((2, 3), np.nan)
     if len(m) < RAIL_REPEATS:
         return rails
+    lo, hi = m.min(axis=0), m.max(axis=0)
+    span = hi - lo
+    for axis in range(3):
+        if not span[axis] > 0:
+            continue
+        v, others, levels = m[:, axis], [k for k in range(3) if k != axis], None
+        for side, extreme in enumerate((lo[axis], hi[axis])):
+            at = v == extreme
+            piled = int(at.sum())
+            if piled < RAIL_REPEATS:
+                continue
+            if levels is None:
+                levels = np.unique(v)
+                if len(levels) < RAIL_LEVELS:
+                    break
+            width = max(RAIL_BAND * span[axis], RAIL_STEPS * np.min(np.diff(levels)))
+            if piled <= np.count_nonzero(np.abs(v - extreme) <= width) - piled:
+                continue
+            if not np.any(np.ptp(m[at][:, others], axis=0) > RAIL_SPREAD * span[others]):
+                continue
+            rails[side, axis] = extreme
+    return rails
     lo, hi = m.min(axis=0), m.max(axis=0)
     span = hi - lo
     for axis in range(3):
