@@ -10,6 +10,8 @@ import numpy as np
 from ._arrays import as_samples
 
 CONVENTION = "h = A (m - b); rows of samples are readings; A = W^-1 for a sensor reading m = W h + b"
+# magnetic-field units fluxcal converts between (the unit names of fluxcal.io.columns.FIELD_UNITS)
+TESLA_PER_UNIT = {"T": 1.0, "mT": 1e-3, "uT": 1e-6, "nT": 1e-9, "G": 1e-4, "mG": 1e-7}
 
 
 @dataclass
@@ -27,6 +29,14 @@ class Calibration:
     model: str = ""
     summary: dict = field(default_factory=dict)
     metadata: dict = field(default_factory=dict)
+    # unit of the corrected field h and of field_norm: None = the readings' unit (`units`); "" = not stated
+    # (readings in counts calibrated to a field norm given without its unit)
+    field_units: str | None = None
+
+    @property
+    def h_units(self) -> str:
+        """The unit of the corrected field h (and of field_norm): `field_units`, else the readings' unit."""
+        return self.units if self.field_units is None else self.field_units
 
     def __post_init__(self):
         self.offset = np.asarray(self.offset, dtype=float).reshape(3)
@@ -35,10 +45,26 @@ class Calibration:
 
     # -- use ---------------------------------------------------------------------------------------
     def apply(self, samples) -> np.ndarray:
-        """Corrected field of each reading: one row (3,) or N×3 in, the same shape out."""
+        """Corrected field of each reading: one row (3,) or N×3 in, the same shape out. A Recording whose
+        magnetometer unit differs from the calibration's is converted to it first when both are field units
+        (µT readings through an nT calibration); a unit that cannot be converted (counts against nT) is a
+        ValueError naming both, never a silently wrong field."""
         if np.ndim(samples) == 1:
             return self.matrix @ (np.asarray(samples, dtype=float).reshape(3) - self.offset)
-        return (as_samples(samples) - self.offset) @ self.matrix.T
+        factor = self.unit_factor(samples.field_units(), getattr(samples, "source", "samples")) \
+            if hasattr(samples, "field_units") else 1.0
+        return (as_samples(samples) * factor - self.offset) @ self.matrix.T
+
+    def unit_factor(self, units: str, source: str = "samples") -> float:
+        """What readings in `units` are multiplied by to be in the calibration's unit (1 when either is not
+        stated or they agree); ValueError when they are different units and not both magnetic-field units."""
+        if not units or not self.units or units == self.units:
+            return 1.0
+        to, frm = TESLA_PER_UNIT.get(self.units), TESLA_PER_UNIT.get(units)
+        if to is None or frm is None:
+            raise ValueError(f"{source}: readings in {units}, the calibration was fitted to readings in {self.units}; "
+                             "apply it to readings in the unit it was fitted in")
+        return frm / to
 
     def reading(self, field_vectors) -> np.ndarray:
         """The readings true fields would produce (the forward model m = A⁻¹ h + b, no noise)."""
@@ -70,6 +96,7 @@ class Calibration:
             "convention": CONVENTION,
             "model": self.model,
             "units": self.units,
+            "field_units": self.h_units,
             "offset": self.offset.tolist(),
             "matrix": self.matrix.tolist(),
             "field_norm": self.field_norm,
@@ -85,7 +112,8 @@ class Calibration:
         try:
             return cls(offset=data["offset"], matrix=data["matrix"], field_norm=data["field_norm"],
                        units=data.get("units", ""), model=data.get("model", ""),
-                       summary=data.get("summary", {}), metadata=data.get("metadata", {}))
+                       summary=data.get("summary", {}), metadata=data.get("metadata", {}),
+                       field_units=data.get("field_units"))
         except (TypeError, ValueError) as exc:
             raise ValueError(f"{source}: offset must hold 3 numbers and matrix 3×3 ({exc})") from None
 
@@ -107,9 +135,12 @@ class Calibration:
 
     def __str__(self) -> str:
         u = f" {self.units}" if self.units else ""
+        hu = f" {self.h_units}" if self.h_units else " (the unit of the field norm given)"
         with np.printoptions(precision=6, suppress=True):
-            rows = "\n".join("    " + line.strip() for line in np.array2string(self.matrix).splitlines())
-            return (f"{self.model or 'calibration'}: h = A (m - b), |h| = {self.field_norm:.6g}{u}\n"
+            # each row of A on its own line, columns aligned (the nested-list form indents all but the first)
+            rows = np.array2string(self.matrix).replace("[[", "[").replace("]]", "]").splitlines()
+            rows = "\n".join("    " + line.strip() for line in rows)
+            return (f"{self.model or 'calibration'}: h = A (m - b), |h| = {self.field_norm:.6g}{hu}\n"
                     f"  offset b = {_significant(self.offset, 7)}{u}\n"
                     f"  matrix A =\n{rows}")
 

@@ -2,6 +2,7 @@
 from __future__ import annotations
 
 import argparse
+import os
 import sys
 import warnings
 from pathlib import Path
@@ -9,8 +10,9 @@ from pathlib import Path
 import numpy as np
 
 from . import __version__, cmake_dir
-from .calibration import Calibration, _significant
+from .calibration import TESLA_PER_UNIT, Calibration, _significant
 from .io import Recording, read_csv, read_recording, write_csv, write_recording
+from .io.columns import unit_name
 from .pipeline import METHODS, calibrate
 
 def _spread(values: np.ndarray) -> float:
@@ -24,7 +26,7 @@ def _report(cal: Calibration, raw: np.ndarray, out=sys.stdout) -> None:
     print(f"  samples used          {s['samples']}", file=out)
     print(f"  |h| std/mean before   {100 * _spread(raw):.3f} %   (raw |m|)", file=out)
     print(f"  |h| std/mean after    {100 * s['norm_std_over_mean']:.3f} %", file=out)
-    print(f"  residual RMS          {s['residual_rms']:.6g} {cal.units}".rstrip(), file=out)
+    print(f"  residual RMS          {s['residual_rms']:.6g} {cal.h_units}".rstrip(), file=out)
     print(f"  condition number      {s['condition_number']:.3g}", file=out)
     print(f"  coverage              {100 * s['direction_coverage']:.0f} % of directions, thinnest/widest "
           f"spread {s['coverage_ratio']:.2f}, direction scatter eigenvalues "
@@ -32,7 +34,7 @@ def _report(cal: Calibration, raw: np.ndarray, out=sys.stdout) -> None:
     if "method" in s:
         print(f"  method                {s['method']}", file=out)
     if "held_out_rms" in s:
-        print(f"  held-out vector RMS   {s['held_out_rms']:.6g} {cal.units}   (fit on the first half, "
+        print(f"  held-out vector RMS   {s['held_out_rms']:.6g} {cal.h_units}   (fit on the first half, "
               "|h - reference| on the second)", file=out)
     if s.get("noise_sigma"):
         print(f"  noise σ (estimated)   {s['noise_sigma']:.4g} {cal.units}".rstrip(), file=out)
@@ -40,8 +42,37 @@ def _report(cal: Calibration, raw: np.ndarray, out=sys.stdout) -> None:
         se = np.array(s["standard_errors"])
         print(f"  std error of b        {_significant(se[:3], 3)} {cal.units}".rstrip(), file=out)
         print(f"  identifiable          {'yes' if s['identifiable'] else 'NO'}", file=out)
-    for w in s["warnings"]:
+    for w in s["warnings"] + [w for w in [_plausible_field(cal)] if w]:
         print(f"warning: {w}", file=out)
+
+
+# the Earth's field at the surface (WMM/IGRF: about 22 µT at the equator's anomaly to 67 µT at the poles),
+# with room for a building's or a vehicle's disturbance
+EARTH_FIELD_UT = (15.0, 100.0)
+
+
+def _field_units(args, units: str, field_norm, reference) -> str | None:
+    """The unit of the corrected field h: --field-units; else the readings' unit when it is a field unit or no
+    norm was given (h is then in the readings' unit); "" (not stated) for counts fitted to a given norm."""
+    if args.field_units:
+        return unit_name(args.field_units)
+    if field_norm is None or reference is not None or units in TESLA_PER_UNIT:
+        return None
+    print(f"note: the readings are in {units or 'no stated unit'}; |h| = {field_norm:g} is in the unit of "
+          "--field-norm, which --field-units names (the calibration then says it)")
+    return ""
+
+
+def _plausible_field(cal: Calibration) -> str | None:
+    """A warning when |h|, in a field unit, is far from any field on the Earth's surface: a unit mix-up
+    (readings in µT labelled nT) more often than a lab coil."""
+    if cal.h_units not in TESLA_PER_UNIT:
+        return None
+    ut = cal.field_norm * TESLA_PER_UNIT[cal.h_units] / 1e-6
+    if EARTH_FIELD_UT[0] <= ut <= EARTH_FIELD_UT[1]:
+        return None
+    return (f"|h| = {cal.field_norm:.6g} {cal.h_units} = {ut:.4g} µT, far from the Earth's field (22–67 µT): are the "
+            "readings really in " + f"{cal.h_units}? (--units states the readings' unit; fine for a coil's field)")
 
 
 def _held_out_rms(raw, reference, units) -> float:
@@ -68,16 +99,26 @@ def cmd_calibrate(args) -> int:
     # attitude + local field in the recording (e.g. the airborne layout): the vector fit, unless a
     # magnitude-only method is asked for
     reference = rec.reference_field() if args.method in ("auto", "vector") else None
-    cal = calibrate(raw, method=args.method, field_norm=args.field_norm, reference=reference, units=rec.field_units(),
-                    outliers=args.outliers, serial_correlation=args.serial_correlation)
+    units, field_norm = rec.field_units(), args.field_norm
+    if field_norm is None and reference is None and "simulated" in rec.metadata and "field_norm" in rec.metadata:
+        field_norm = float(rec.metadata["field_norm"])  # `fluxcal simulate` states the field it simulated
+        print(f"field norm {field_norm:g} {units} from the simulation's metadata".rstrip())
+    try:
+        cal = calibrate(raw, method=args.method, field_norm=field_norm, reference=reference, units=units,
+                        outliers=args.outliers, serial_correlation=args.serial_correlation)
+    except ValueError as exc:  # the solvers name their argument ("samples: …"); the user knows the file
+        raise ValueError(f"{args.file}: {exc}") from None
+    cal.field_units = _field_units(args, units, field_norm, reference)
     cal.metadata.update(source=str(args.file), columns=",".join(rec.mag_names()))
     if reference is not None:
         cal.metadata["reference"] = "attitude pitch,roll,yaw and local field igrf_n,igrf_e,igrf_d of the recording"
         if len(raw) >= 40:
             cal.summary["held_out_rms"] = _held_out_rms(raw, reference, cal.units)
+    if args.output:  # before the report: a reader that stops early (| head) must not cost the calibration
+        path = cal.save(args.output)
     _report(cal, raw)
     if args.output:
-        print(f"wrote {cal.save(args.output)}")
+        print(f"wrote {path}")
     if args.plot:
         from .plots import before_after
 
@@ -88,9 +129,12 @@ def cmd_calibrate(args) -> int:
 def cmd_apply(args) -> int:
     cal = Calibration.load(args.calibration)
     rec = read_recording(args.file, columns=args.columns, bad_lines=args.bad_lines)
-    h = cal.apply(rec.samples())
+    factor = cal.unit_factor(rec.field_units(), f"{args.file}")
+    if factor != 1.0:
+        print(f"readings in {rec.field_units()} converted to the calibration's {cal.units} (× {factor:g})")
+    h = cal.apply(rec)
     columns = {**rec.columns, "hx": h[:, 0], "hy": h[:, 1], "hz": h[:, 2]}
-    units = {**rec.units, **({k: cal.units for k in ("hx", "hy", "hz")} if cal.units else {})}
+    units = {**rec.units, **({k: cal.h_units for k in ("hx", "hy", "hz")} if cal.h_units else {})}
     write_recording(args.output, Recording(columns=columns, units=units, source=str(args.output),
                                            metadata={**rec.metadata, "calibration": args.calibration}))
     print(f"wrote {args.output}: {len(rec)} rows, corrected columns hx,hy,hz "
@@ -353,7 +397,11 @@ def build_parser() -> argparse.ArgumentParser:
     c = sub.add_parser("calibrate", help="calibrate a magnetometer from a recording (CSV, TSV, .npz, .mat, Parquet, "
                                          "JSON)")
     c.add_argument("file")
-    c.add_argument("--field-norm", type=float, default=None, help="known |field| in the units of h")
+    c.add_argument("--field-norm", type=float, default=None,
+                   help="known |field|, in --field-units (default: fitted; a fluxcal simulation's own metadata)")
+    c.add_argument("--field-units", default=None,
+                   help="unit of --field-norm and of the corrected field h (default: the readings' unit; give it when "
+                        "the readings are counts, e.g. --field-norm 48.2 --field-units uT)")
     c.add_argument("--columns", default=None, help=columns_help)
     c.add_argument("--bad-lines", default="error", choices=["error", "skip"], help=bad_lines_help)
     c.add_argument("--units", default=None, help="units of the readings when the file does not say")
@@ -518,6 +566,9 @@ def main(argv=None) -> int:
     except (ValueError, FileNotFoundError) as exc:
         print(f"fluxcal {args.command}: error: {exc}", file=sys.stderr)
         return 2
+    except BrokenPipeError:  # the reader stopped early (| head): not an error of ours; quiet, as cat is
+        os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())  # Python's exit flush must not fail again
+        return 141
     except OSError as exc:  # a file that cannot be written (a folder, no permission, disk full): name it
         where = f"{exc.filename}: " if exc.filename else ""
         print(f"fluxcal {args.command}: error: {where}{exc.strerror or exc}", file=sys.stderr)

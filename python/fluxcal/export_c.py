@@ -291,10 +291,10 @@ class ExportResult:
     kalman_test: tuple | None = None
 
     def describe(self) -> str:
-        fx, u = self.fixed, self.fixed.calibration.units
-        unit = f" {u}" if u else ""
+        fx, u, hu = self.fixed, self.fixed.calibration.units, self.fixed.calibration.h_units
+        unit, h_unit = f" {u}" if u else "", f" {hu}" if hu else ""
         text = (f"wrote {self.path}: float and {fx.fmt} fixed point (matrix 2^-{fx.matrix_frac_bits}); inputs "
-                f"|m| ≤ {fx.input_range:.6g}{unit}; fixed-point error ≤ {fx.error_bound:.3g}{unit} "
+                f"|m| ≤ {fx.input_range:.6g}{unit}; fixed-point error ≤ {fx.error_bound:.3g}{h_unit} "
                 f"({fx.error_bound_lsb:.2f} LSB); {len(self.inputs_q)} test vectors")
         if self.kalman is not None:
             text += (f"; AR({self.kalman.order}) Kalman coefficients (signal {signal_format(self.kalman.frac_bits)})"
@@ -344,13 +344,14 @@ def export_c(cal: Calibration, path, q_format=None, name: str | None = None, kal
         raise AssertionError("export-c: a test input saturates inside the stated range")
     units = cal.units or "(units not stated)"
     u = f" {cal.units}" if cal.units else ""
+    hu = f" {cal.h_units}" if cal.h_units else ""  # h is in the field norm's unit (µT from counts, say)
     n, na, lsb = fx.fmt.frac_bits, fx.matrix_frac_bits, fx.fmt.lsb
     i32 = lambda v: str(int(v)) if v != INT32_MIN else "INT32_MIN"  # noqa: E731
     lines = [
         f"/* {path.name}: magnetometer calibration for firmware, written by fluxcal {__version__}"
         + (f" from {source}." if source else "."),
         " *",
-        f" * Model: h = A (m - b). m: a raw reading in {units}; h: the corrected field, |h| = {cal.field_norm:.9g}"
+        f" * Model: h = A (m - b). m: a raw reading in {units}; h: the corrected field, |h| = {cal.field_norm:.9g}{hu}"
         f" in the calibration field.",
         f" * Float: {name}_apply_float(m, h): A and b in float (single precision). On the test vector it",
         f" *   reproduces fluxcal's double result within {FLOAT_RELATIVE_TOLERANCE:g} x max(|h| (largest component), "
@@ -365,7 +366,7 @@ def export_c(cal: Calibration, path, q_format=None, name: str | None = None, kal
         f" *     h_i = acc_i / 2^{na} rounded to nearest, ties away from zero, saturated to int32. Constants are",
         " *     rounded to nearest. The function returns 1 when anything saturated (values never wrap), else 0.",
         f" *   Stated input range: |m_j| <= R = {fx.input_range:.9g}{u} ({up}_INPUT_RANGE_Q), {fx.range_note}.",
-        f" *     In it nothing saturates and every component of h is within E = {fx.error_bound:.6g}{u}",
+        f" *     In it nothing saturates and every component of h is within E = {fx.error_bound:.6g}{hu}",
         f" *     ({fx.error_bound_lsb:.3f} LSB) of the exact h = A (m - b):",
         f" *     E = max_i [2^-{n + 1} (1 + sum_j |a_ij|) + 2^-{na + 1} sum_j (R + |b_j|)]  (rounding of b, A, h).",
         f" * Self-check: {name}_self_test() runs the {len(inputs_q)} test vectors through both functions and",

@@ -97,3 +97,68 @@ def test_cpp_example_builds_against_the_installed_wheel(tmp_path):
     r = subprocess.run([str(build / "calibrate_example")], capture_output=True, text=True)
     assert r.returncode == 0, r.stdout + r.stderr
     assert "OK" in r.stdout
+
+
+def _scaled_copy(src: Path, dst: Path, unit: str, factor: float) -> Path:
+    """The recording `src` with its magnetometer columns × factor, stated in `unit`."""
+    rec = fluxcal.read_csv(src)
+    cols = {**rec.columns, **{c: rec.columns[c] * factor for c in ("mx", "my", "mz")}}
+    return fluxcal.write_csv(dst, cols, units={"t": "s", **{c: unit for c in ("mx", "my", "mz")}})
+
+
+def test_units_are_converted_or_refused_never_mixed(tmp_path):
+    """apply converts readings in another field unit to the calibration's, refuses counts against nT, and
+    --units never overrides the unit a file states; a calibration to a given norm from counts says h's unit."""
+    rec, cal = tmp_path / "sim.csv", tmp_path / "cal.json"
+    assert run_cli("simulate", "-o", rec, "--n", 1500, "--seed", 5).returncode == 0
+    r = run_cli("calibrate", rec, "-o", cal)
+    assert r.returncode == 0 and "field norm 50000 nT from the simulation's metadata" in r.stdout, r.stderr
+    assert fluxcal.Calibration.load(cal).field_norm == 50000.0
+    assert run_cli("apply", cal, rec, "-o", tmp_path / "a.csv").returncode == 0
+    ut = _scaled_copy(rec, tmp_path / "ut.csv", "uT", 1e-3)
+    r = run_cli("apply", cal, ut, "-o", tmp_path / "b.csv")
+    assert r.returncode == 0 and "converted to the calibration's nT (× 1000)" in r.stdout, r.stderr
+    h = [np.column_stack([fluxcal.read_csv(tmp_path / f).columns[c] for c in ("hx", "hy", "hz")]) for f in ("a.csv", "b.csv")]
+    np.testing.assert_allclose(h[1], h[0], rtol=1e-9, atol=1e-6)
+    counts = _scaled_copy(rec, tmp_path / "counts.csv", "counts", 1.5)
+    r = run_cli("apply", cal, counts, "-o", tmp_path / "c.csv")
+    assert r.returncode == 2 and "counts.csv: readings in counts, the calibration was fitted to readings in nT" in r.stderr
+    assert not (tmp_path / "c.csv").exists()
+    r = run_cli("calibrate", rec, "--units", "uT")
+    assert r.returncode == 2 and "units 'uT' given, but the file states the magnetometer in nT" in r.stderr
+    # counts to a norm in µT: h is in µT, and says so; without --field-units it is not called counts
+    r = run_cli("calibrate", counts, "--field-norm", 50, "--field-units", "µT", "-o", tmp_path / "q.json")
+    assert r.returncode == 0 and "|h| = 50 uT" in r.stdout, r.stderr
+    q = fluxcal.Calibration.load(tmp_path / "q.json")
+    assert (q.units, q.h_units) == ("counts", "uT")
+    assert run_cli("apply", tmp_path / "q.json", counts, "-o", tmp_path / "d.csv").returncode == 0
+    assert fluxcal.read_csv(tmp_path / "d.csv").units["hx"] == "uT"
+    r = run_cli("calibrate", counts, "--field-norm", 50)
+    assert r.returncode == 0 and "|h| = 50 (the unit of the field norm given)" in r.stdout and "|h| = 50 counts" not in r.stdout
+
+
+def test_field_far_from_the_earths_is_warned(tmp_path):
+    """Readings in µT labelled nT give |h| ≈ 50 nT: a warning naming the likely unit mix-up."""
+    rec = tmp_path / "sim.csv"
+    assert run_cli("simulate", "-o", rec, "--n", 800, "--seed", 2).returncode == 0
+    wrong = _scaled_copy(rec, tmp_path / "wrong.csv", "nT", 1e-3)
+    r = run_cli("calibrate", wrong)
+    assert r.returncode == 0, r.stderr
+    assert "far from the Earth's field (22–67 µT): are the readings really in nT?" in r.stdout
+    assert "far from the Earth's field" not in run_cli("calibrate", rec).stdout
+
+
+def test_old_calibration_files_keep_their_field_unit(tmp_path):
+    """A calibration saved before field_units existed: h is in the readings' unit, as it was."""
+    data = fluxcal.Calibration(offset=[1, 2, 3], matrix=np.eye(3), field_norm=48.0, units="uT").to_dict()
+    del data["field_units"]
+    assert fluxcal.Calibration.from_dict(data).h_units == "uT"
+
+
+def test_solver_errors_name_the_file(tmp_path):
+    rng = np.random.default_rng(1)
+    az = rng.uniform(0, 2 * np.pi, 400)
+    path = fluxcal.write_csv(tmp_path / "yaw_only.csv", {"mx": 30 * np.cos(az), "my": 30 * np.sin(az),
+                                                         "mz": 20 + 0.01 * rng.standard_normal(400)})
+    r = run_cli("calibrate", path)
+    assert r.returncode == 2 and r.stderr.startswith(f"fluxcal calibrate: error: {path}: "), r.stderr

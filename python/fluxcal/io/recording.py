@@ -6,7 +6,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from .._arrays import first_nonfinite
-from .columns import (field_unit_of, find_accelerometer, find_current, find_magnetometer, find_temperature, find_time,
+from .columns import (field_unit_of, unit_name, find_accelerometer, find_current, find_magnetometer, find_temperature, find_time,
                       sample_rate)
 
 MAG_COLUMNS = ("mx", "my", "mz")
@@ -138,8 +138,12 @@ class Recording:
         if columns is not None:
             self.select(columns.split(",") if isinstance(columns, str) else columns)
         if units:
+            stated = {self.units[n] for n in self.mag_names() if self.units.get(n)}
+            if stated and stated != {unit_name(units)}:  # the file's own statement wins over a default
+                raise ValueError(f"{self.source}: units {units!r} given, but the file states the magnetometer in "
+                                 f"{', '.join(sorted(stated))}; leave the units out, or correct the file's header")
             for n in self.mag_names():
-                self.units[n] = units
+                self.units[n] = unit_name(units)
         return self
 
     def reference_field(self):
