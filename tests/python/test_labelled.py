@@ -170,3 +170,36 @@ def test_a_unit_in_the_sensors_words(tmp_path):
     path.write_text("".join(f"Magnetometer (uT) X: {k}.5 Y: 2 Z: 3\n" for k in range(4)))
     rec = read_recording(path)
     assert rec.mag_names() == ("Magnetometer X", "Magnetometer Y", "Magnetometer Z") and rec.field_units() == "uT"
+
+
+def test_an_ambiguous_comma_is_settled_by_the_file_or_named_never_guessed(tmp_path):
+    """`X: 1,234` was read as 1.234 (1000 times off if the device wrote a thousands separator) and `1,234,567`
+    as 1.234 (its tail ignored). The file's own numbers decide: a decimal comma that cannot be a thousands
+    separator (0,5) or thousands groups beside a decimal point (1,234.5); only ambiguous ones are an error
+    naming the line, the value and both readings, settled by decimal=',' or thousands=','."""
+    path = tmp_path / "log.txt"
+    ambiguous = "".join(f"X: 1,{234 + k} Y: -2,{500 + k} Z: 40,{100 + k} uT\n" for k in range(20))
+    path.write_text(ambiguous)
+    with pytest.raises(ValueError, match=r"log.txt, line 1: X: '1,234' is 1.234 with a decimal comma or 1234 with "
+                                         r"a thousands separator.*decimal=','.*thousands=','"):
+        read_recording(path)
+    assert read_recording(path, decimal=",").samples()[0].tolist() == [1.234, -2.5, 40.1]
+    assert read_recording(path, thousands=",").samples()[0].tolist() == [1234, -2500, 40100]
+    path.write_text(ambiguous + "X: 0,5 Y: 2,25 Z: 40,1 uT\n")  # a decimal comma, even on the last line
+    rec = read_recording(path)
+    assert rec.samples()[[0, -1]].tolist() == [[1.234, -2.5, 40.1], [0.5, 2.25, 40.1]]
+    assert rec.metadata["decimal_separator"] == "comma"
+    path.write_text(ambiguous + "X: 1,234.5 Y: 2 Z: 3 uT\n")  # a thousands separator beside a decimal point
+    assert read_recording(path).samples()[[0, -1]].tolist() == [[1234, -2500, 40100], [1234.5, 2, 3]]
+    path.write_text("X: 1,234,567 Y: 2 Z: 3\n" * 20)  # several commas: never a truncated 1.234
+    with pytest.raises(ValueError, match=r"line 1: X: '1,234,567' is 1234567 with thousands separators"):
+        read_recording(path, bad_lines="skip")
+    assert read_recording(path, thousands=",").samples()[0].tolist() == [1234567, 2, 3]
+    path.write_text("X: 0,5 Y: 2 Z: 3\n" * 20 + "X: 1,234,567 Y: 2 Z: 3\nX: 1,234.5 Y: 2 Z: 3\n")
+    with pytest.raises(ValueError, match=r"'0,5' on line 1 has a decimal comma, X: '1,234.5' on line 22 a thousands"):
+        read_recording(path)
+    with pytest.raises(ValueError, match=r"line 21: X: '1,234,567' is not a decimal comma"):
+        read_recording(path, decimal=",")
+    path.write_text("mx,my,mz\n1,2,3\n")
+    with pytest.raises(ValueError, match="apply to labelled text logs"):
+        read_recording(path, decimal=",")

@@ -286,3 +286,24 @@ def sample_rate(metadata: dict):
         if rate > 0 and np.isfinite(rate):
             return key, rate
     return None
+
+
+# How a number's commas read (a text log's `X: 1,234`): one helper for the file readers and the serial recorder
+_THOUSANDS_GROUPS = r"[+-]?[1-9]\d{0,2}(?:,\d{3})+"
+_COMMA_FORMS = (("ambiguous", re.compile(r"[+-]?[1-9]\d{0,2},\d{3}(?:[eE][+-]?\d+)?")),
+                ("several", re.compile(_THOUSANDS_GROUPS + r"(?:[eE][+-]?\d+)?")),
+                ("thousands", re.compile(_THOUSANDS_GROUPS + r"\.\d*(?:[eE][+-]?\d+)?")),
+                ("decimal", re.compile(r"[+-]?\d*,\d+(?:[eE][+-]?\d+)?")))
+
+
+def comma_kind(number: str) -> str:
+    """What the commas of a number's text may be. "" (no comma); "decimal": a decimal comma that cannot be a
+    thousands separator (12,34  0,123  -0,5  1234,5  ,5); "ambiguous": one comma before three digits after
+    one to three (1,234: 1.234 with a decimal comma, 1234 with a thousands separator); "several": commas
+    between three-digit groups (1,234,567: thousands separators, never a decimal comma — or fields run
+    together); "thousands": thousands groups before a decimal point (1,234.5: cannot be a decimal comma);
+    "invalid": any other comma (1,2,3  1,23.4  12,345.6,7)."""
+    text = number.strip()
+    if "," not in text:
+        return ""
+    return next((kind for kind, form in _COMMA_FORMS if form.fullmatch(text)), "invalid")

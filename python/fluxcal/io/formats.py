@@ -108,13 +108,28 @@ def _zip_holds(path: Path, member: str) -> bool:
         return False
 
 
-def read_recording(path, columns=None, units: str | None = None, bad_lines: str = "error") -> Recording:
+def read_recording(path, columns=None, units: str | None = None, bad_lines: str = "error",
+                   decimal: str | None = None, thousands: str | None = None) -> Recording:
     """Read any recording format fluxcal knows (module docstring); errors name the file, and for text
     formats the line and column.
     `bad_lines` (text tables with a header): "error" stops at a line with the wrong number of fields or a
     non-number, naming line and column; "skip" leaves such lines out and lists them in
-    metadata["skipped_lines"]."""
+    metadata["skipped_lines"].
+    `decimal`/`thousands` (labelled text logs, `X: 1,234`): decimal=',' reads a comma between digits as a
+    decimal comma, thousands=',' as a thousands separator, when no number in the file settles it (see
+    fluxcal.io.labelled.read_labelled); an error for other formats."""
     path = Path(path)
+    if decimal is not None or thousands is not None:
+        from . import labelled, real, sentences
+
+        lines = read_text(path).splitlines() if sniff(path) == "text" else []
+        start = real._skip_comments(lines)
+        if start >= len(lines) or sentences.looks_like_sentences(lines, start) \
+                or not labelled.looks_labelled(lines, start):
+            raise ValueError(f"{path}: decimal= and thousands= apply to labelled text logs (X: 1,234), not to this "
+                             "file")
+        return labelled.read_labelled(path, columns=columns, units=units, bad_lines=bad_lines, decimal=decimal,
+                                      thousands=thousands)
     kind = sniff(path)
     if kind in ("dataflash", "dataflash_text"):
         from .drone import read_dataflash

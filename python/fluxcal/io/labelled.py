@@ -27,14 +27,16 @@ from pathlib import Path
 
 import numpy as np
 
-from .columns import FIELD_UNITS, TIME_WORDS, is_unit, words
+from .columns import FIELD_UNITS, TIME_WORDS, comma_kind, is_unit, words
 from .csv import NOT_TEXT, SKIP_HINT, _timestamps, check_bad_lines, data_lines, is_comment, listing, read_text
 from .recording import Recording
 
-# label (a word not glued to what precedes it), ':' or '=', then a number (a decimal comma is read as a point:
-# in `X: -13,62` the comma cannot separate fields, as no label follows it; a unit may be glued on)
+# label (a word not glued to what precedes it), ':' or '=', then a number with all its commas between digits
+# (`X: -13,62`, `X: 1,234,567`, `X: 1,234.5`: what they are is decided for the file, see _Commas; a unit may
+# be glued on)
 _PAIR = re.compile(r"(?<![\w.\-:])([A-Za-z_][\w.]*(?:\[\d+\])?)\s*[:=]\s*"
-                   r"([+-]?(?:\d+(?:\.\d*|,\d+)?|[.,]\d+)(?:[eE][+-]?\d+)?|[+-]?(?:nan|inf)\b)([^\s,;|]*)", re.IGNORECASE)
+                   r"([+-]?(?:\d+(?:,\d+)*(?:\.\d*)?|[.,]\d+)(?:[eE][+-]?\d+)?|[+-]?(?:nan|inf)\b)([^\s,;|]*)",
+                   re.IGNORECASE)
 CLOCK = re.compile(r"^\s*\[?((?:\d{4}-\d{1,2}-\d{1,2}[ T])?\d{1,2}:\d{2}:\d{2}(?:[.,]\d+)?)\]?\s*(?:->|>|\|)?\s*")
 _WORD = re.compile(r"[^\s,;|]+")
 SAMPLE_LINES = 50
@@ -93,9 +95,68 @@ def looks_labelled(lines, start: int) -> bool:
     return bool(sample) and sum(_is_labelled(line) for line in sample) >= 0.6 * len(sample)
 
 
-def read_labelled(path, columns=None, units: str | None = None, bad_lines: str = "error") -> Recording:
+SETTLE_HINT = "pass decimal=',' (a decimal comma) or thousands=',' (a thousands separator) to read_recording"
+
+
+def _comma_reading(path, parsed, names, decimal, thousands) -> str | None:
+    """What a comma between digits is in this file: "decimal", "thousands", or None (no number in the file
+    says). Stated by `decimal`/`thousands` (pandas' names: decimal=',' is a decimal comma; thousands=',', or
+    decimal='.', a thousands separator), else decided by the values of the columns: a decimal comma that
+    cannot be a thousands separator (12,34, 0,123, -0,5, 1234,5) against thousands groups beside a decimal
+    point (1,234.5). Numbers that show both are an error naming a line of each."""
+    if decimal not in (None, ".", ",") or thousands not in (None, ","):
+        raise ValueError(f"decimal={decimal!r}, thousands={thousands!r}: decimal is '.' or ',', thousands ','")
+    if decimal == "," and thousands == ",":
+        raise ValueError("decimal=',' and thousands=',': a comma cannot be both")
+    if decimal or thousands:
+        return "decimal" if decimal == "," else "thousands"
+    first = {}
+    for line_no, _, _, values in parsed:
+        for name, value, _ in values:
+            kind = comma_kind(value)
+            if name in names and kind in ("decimal", "thousands"):
+                first.setdefault(kind, (line_no, name, value))
+    if len(first) == 2:
+        (a, an, av), (b, bn, bv) = first["decimal"], first["thousands"]
+        raise ValueError(f"{path}: {an}: {av!r} on line {a} has a decimal comma, {bn}: {bv!r} on line {b} a thousands "
+                         f"separator; {SETTLE_HINT}")
+    return next(iter(first), None)
+
+
+def _number(text: str, reading: str | None):
+    """(value, None) or (None, what is wrong) of a number's text, its commas read as `reading` says."""
+    kind = comma_kind(text)
+    if kind == "invalid" or (reading == "decimal" and kind in ("several", "thousands")) \
+            or (reading == "thousands" and kind == "decimal"):
+        what = {"decimal": "a decimal comma", "thousands": "a thousands separator"}.get(reading, "a number")
+        return None, f"{text!r} is not {what}" + (" (the file's commas are read so)" if reading else "")
+    if kind in ("ambiguous", "several") and reading is None:
+        return None, "ambiguous"
+    text = text.replace(",", "") if reading == "thousands" else text.replace(",", ".")
+    value = float(text)
+    return (value, None) if np.isfinite(value) else (None, f"{text!r} is not a finite number")
+
+
+def _ambiguous(path, line_no: int, name: str, value: str) -> ValueError:
+    what = (f"{value.replace(',', '.', 1)} with a decimal comma or {value.replace(',', '')} with a thousands "
+            "separator" if comma_kind(value) == "ambiguous" else
+            f"{value.replace(',', '')} with thousands separators, or numbers run together")
+    return ValueError(f"{path}, line {line_no}: {name}: {value!r} is {what}, and no number in the file settles which "
+                      "(a decimal comma that cannot be a thousands separator, such as 12,34 or -0,5, or a thousands "
+                      f"separator beside a decimal point, such as 1,234.5); not guessed: {SETTLE_HINT}")
+
+
+def read_labelled(path, columns=None, units: str | None = None, bad_lines: str = "error",
+                  decimal: str | None = None, thousands: str | None = None) -> Recording:
     """Read a labelled text log (module docstring). `columns`/`units` as for every reader; `bad_lines`
-    "error" (default) or "skip"."""
+    "error" (default) or "skip".
+
+    A comma between digits is read as the file's numbers show it: a decimal comma when some value of the
+    columns has one that cannot be a thousands separator (12,34, 0,123, -0,5, 1234,5), a thousands separator
+    when some value has thousands groups beside a decimal point (1,234.5); both is an error. When only
+    ambiguous values hold commas (1,234: 1.234 or 1234? 1,234,567), the read is an error naming the first one
+    (whatever bad_lines says: never an answer 1000 times off): `decimal=","` or `thousands=","` (or
+    decimal=".") settles it. metadata["decimal_separator"] is "comma" when commas were read as decimal."""
     check_bad_lines(bad_lines)
     path = Path(path)
     parsed = [(k + 1, line.strip(), *_parse_line(line)) for k, line in enumerate(read_text(path).splitlines())
@@ -105,6 +166,8 @@ def read_labelled(path, columns=None, units: str | None = None, bad_lines: str =
         raise ValueError(f"{path}: no 'label: number' or 'label=number' values")
     top = max(counts.values())
     names = [n for n in counts if counts[n] >= 0.5 * top]  # in order of first appearance
+    reading = _comma_reading(path, parsed, names, decimal, thousands)
+    ambiguous = {}  # line -> (name, value)
     rows, trouble = [], {}
     row, lines_of_row, clock = {}, [], None
 
@@ -128,10 +191,14 @@ def read_labelled(path, columns=None, units: str | None = None, bad_lines: str =
         elif any(n not in names for n in seen):
             problem = f"{next(n for n in seen if n not in names)!r} is not one of the columns ({', '.join(names)})"
         else:
-            bad = next((v for v in values if not np.isfinite(float(v[1].replace(',', '.')))), None)
+            numbers = [_number(v, reading) for _, v, _ in values]
+            bad = next(((v, p) for v, (_, p) in zip(values, numbers) if p), None)
             glued = next((v for v in values if v[2] and not is_unit(v[2])), None)  # 1.2x5: not 1.2
-            if bad is not None:
-                problem = f"{bad[0]}: {bad[1]!r} is not a finite number"
+            if bad is not None and bad[1] == "ambiguous":
+                ambiguous[line_no] = bad[0][:2]
+                problem = f"{bad[0][0]}: {bad[0][1]!r} is ambiguous"
+            elif bad is not None:
+                problem = f"{bad[0][0]}: {bad[1]}"
             elif glued is not None:
                 problem = f"{glued[0]}: {glued[1] + glued[2]!r} is not a number"
         if problem:
@@ -140,16 +207,21 @@ def read_labelled(path, columns=None, units: str | None = None, bad_lines: str =
         if any(n in row for n in seen):
             close()
             row, lines_of_row, clock = {}, [], None
-        row.update({n: (float(v.replace(',', '.')), u, line_no) for n, v, u in values})
+        row.update({n: (x, u, line_no) for (n, _, u), (x, _) in zip(values, numbers)})
         clock = clock or stamp
         lines_of_row.append(line_no)
     close()
+    if ambiguous:  # a line of the columns' values, even before the first complete reading: never a preamble
+        n = min(ambiguous)
+        raise _ambiguous(path, n, *ambiguous[n])
     if not rows:
         raise ValueError(f"{path}: no complete reading (each needs {', '.join(names)})")
     first = rows[0][0]
     preamble = [(n, text) for n, text, *_ in parsed if n < first]
     problems = sorted((n, p) for n, p in trouble.items() if n > first)
     metadata = {"layout": f"labelled lines ({', '.join(names)})"}
+    if reading == "decimal":
+        metadata["decimal_separator"] = "comma"
     if preamble:
         metadata["preamble"] = listing([f"line {n}: {text}" for n, text in preamble])
     if problems and bad_lines == "error":

@@ -61,7 +61,7 @@ from pathlib import Path
 
 import serial  # pyserial (absolute import: this module's own name does not shadow it)
 
-from .columns import FIELD_UNITS, MAG_WORDS, is_unit, unit_name
+from .columns import FIELD_UNITS, MAG_WORDS, comma_kind, is_unit, unit_name
 
 REASONS = {
     "binary": "non-text bytes (invalid UTF-8, control characters, garbage between frames)",
@@ -84,8 +84,7 @@ _ENTRY = re.compile(r"(?:([A-Za-z_][\w. ]*?)\s*=)?([A-Za-z_][\w.]*)\s*(?:\[([^\]
 _PAIR = re.compile(r"([A-Za-z_][\w.]*)\s*[=:]\s*([^\s,;=:]+)")
 _PAIR_SEPARATOR = re.compile(r"[\s,;]*")
 _LINE_END = re.compile(rb"\r\n|\r|\n")
-# kv: 1,234 reads as 1.234 (decimal comma) or 1234 (thousands separator); 1,234,567; a comma between fields
-_GROUPED = re.compile(r"[+-]?[1-9]\d{0,2},\d{3}")
+# kv: 1,234,567 (or 1,2,3); a comma between fields (1,234 itself: fluxcal.io.columns.comma_kind)
 _COMMAS = re.compile(r"\d+(?:,\d+){2,}")
 _FIELD_COMMA = re.compile(r"(?<!\d),|,(?!\d)")
 _CONTROL = re.compile(r"[\x00-\x08\x0b-\x1f\x7f]")
@@ -359,7 +358,11 @@ class TextDecoder:
         if _FIELD_COMMA.search(text):
             raise Reject("ambiguous", f"column {name!r}: {value!r} has a comma between digits on a line that separates "
                                       f"its fields with commas: a decimal comma, or two fields? Not guessed: {text!r}")
-        grouped = [(n, v) for n, v in with_comma if _GROUPED.fullmatch(v)]
+        other = next(((n, v) for n, v in with_comma if comma_kind(v) not in ("decimal", "ambiguous")), None)
+        if other:  # 1,234.5: a thousands separator, which the recorder does not read
+            raise Reject("non_numeric", f"column {other[0]!r}: {other[1]!r} is not a number with a decimal comma: "
+                                        f"{text!r}")
+        grouped = [(n, v) for n, v in with_comma if comma_kind(v) == "ambiguous"]
         if grouped and len(grouped) == len(with_comma) and not self.decimal_comma:
             name, value = grouped[0]
             raise Reject("ambiguous", f"column {name!r}: {value!r} is {value.replace(',', '.')} with a decimal comma, "
