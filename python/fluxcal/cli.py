@@ -93,7 +93,8 @@ def _print_roles(rec: Recording):
 
 
 def cmd_calibrate(args) -> int:
-    rec = read_recording(args.file, columns=args.columns, units=args.units, bad_lines=args.bad_lines)
+    rec = read_recording(args.file, columns=args.columns, units=args.units, bad_lines=args.bad_lines,
+                         decimal=args.decimal)
     raw = rec.samples()
     _print_roles(rec)
     # attitude + local field in the recording (e.g. the airborne layout): the vector fit, unless a
@@ -128,7 +129,7 @@ def cmd_calibrate(args) -> int:
 
 def cmd_apply(args) -> int:
     cal = Calibration.load(args.calibration)
-    rec = read_recording(args.file, columns=args.columns, bad_lines=args.bad_lines)
+    rec = read_recording(args.file, columns=args.columns, bad_lines=args.bad_lines, decimal=args.decimal)
     factor = cal.unit_factor(rec.field_units(), f"{args.file}")
     if factor != 1.0:
         print(f"readings in {rec.field_units()} converted to the calibration's {cal.units} (× {factor:g})")
@@ -165,7 +166,8 @@ def cmd_diagnose(args) -> int:
 
     if args.model == "cable":
         return _diagnose_cable(args)
-    rec = read_recording(args.file, columns=args.columns, units=args.units, bad_lines=args.bad_lines)
+    rec = read_recording(args.file, columns=args.columns, units=args.units, bad_lines=args.bad_lines,
+                         decimal=args.decimal)
     rec.samples()  # the magnetometer columns exist and are finite before the diagnosis starts
     _print_roles(rec)
     # a recording with attitude + local field gives the vector model its reference, unless told otherwise
@@ -394,6 +396,8 @@ def build_parser() -> argparse.ArgumentParser:
                     "one name per column; for .mat/.npz the N×3 matrix variable")
     bad_lines_help = ("a text line with the wrong number of fields or a non-number: stop with its line and column "
                       "(error, default) or leave it out and list it (skip)")
+    decimal_help = ("labelled text logs (X: 1,234) whose commas nothing in the file settles: ',' reads them as "
+                    "decimal commas, '.' as thousands separators")
     c = sub.add_parser("calibrate", help="calibrate a magnetometer from a recording (CSV, TSV, .npz, .mat, Parquet, "
                                          "JSON)")
     c.add_argument("file")
@@ -404,6 +408,7 @@ def build_parser() -> argparse.ArgumentParser:
                         "the readings are counts, e.g. --field-norm 48.2 --field-units uT)")
     c.add_argument("--columns", default=None, help=columns_help)
     c.add_argument("--bad-lines", default="error", choices=["error", "skip"], help=bad_lines_help)
+    c.add_argument("--decimal", default=None, choices=[",", "."], help=decimal_help)
     c.add_argument("--units", default=None, help="units of the readings when the file does not say")
     c.add_argument("--method", default="auto", choices=METHODS,
                    help="auto = consistent ellipsoid fit (ALS) + maximum-likelihood refinement (default)")
@@ -424,6 +429,7 @@ def build_parser() -> argparse.ArgumentParser:
                                                          ".parquet .json)")
     a.add_argument("--columns", default=None, help=columns_help)
     a.add_argument("--bad-lines", default="error", choices=["error", "skip"], help=bad_lines_help)
+    a.add_argument("--decimal", default=None, choices=[",", "."], help=decimal_help)
     a.set_defaults(run=cmd_apply)
 
     s = sub.add_parser("simulate", help="write a simulated magnetometer recording (CSV)")
@@ -446,6 +452,7 @@ def build_parser() -> argparse.ArgumentParser:
     g.add_argument("--reference", default=None, help="three columns with the true field per reading (vector model)")
     g.add_argument("--columns", default=None, help=columns_help)
     g.add_argument("--bad-lines", default="error", choices=["error", "skip"], help=bad_lines_help)
+    g.add_argument("--decimal", default=None, choices=[",", "."], help=decimal_help)
     g.add_argument("--units", default=None, help="units of the readings when the file does not say")
     g.add_argument("--field-norm", type=float, default=None, help="known |field| (default: fitted)")
     g.add_argument("--noise-sigma", type=float, default=None,

@@ -162,3 +162,21 @@ def test_solver_errors_name_the_file(tmp_path):
                                                          "mz": 20 + 0.01 * rng.standard_normal(400)})
     r = run_cli("calibrate", path)
     assert r.returncode == 2 and r.stderr.startswith(f"fluxcal calibrate: error: {path}: "), r.stderr
+
+
+def test_ambiguous_commas_are_settled_on_the_command_line(tmp_path):
+    """A labelled log whose only commas are ambiguous (X: 1,234) is an error pointing at --decimal, which
+    settles it either way."""
+    rng = np.random.default_rng(3)
+    u = rng.standard_normal((300, 3))
+    m = 1500 * u / np.linalg.norm(u, axis=1, keepdims=True) + [2100, -300, 800]
+    text = "".join("Mag X: {} Y: {} Z: {} counts\n".format(*(f"{int(round(v)):,}" for v in row)) for row in m)
+    path = tmp_path / "log.txt"
+    path.write_text(text)
+    assert "," in text
+    r = run_cli("calibrate", path)
+    assert r.returncode == 2 and "--decimal" in r.stderr, r.stderr
+    r = run_cli("calibrate", path, "--decimal", ".", "-o", tmp_path / "c.json")
+    assert r.returncode == 0, r.stderr
+    cal = fluxcal.Calibration.load(tmp_path / "c.json")
+    np.testing.assert_allclose(cal.offset, [2100, -300, 800], atol=5)  # thousands separators: counts as printed

@@ -95,7 +95,8 @@ def looks_labelled(lines, start: int) -> bool:
     return bool(sample) and sum(_is_labelled(line) for line in sample) >= 0.6 * len(sample)
 
 
-SETTLE_HINT = "pass decimal=',' (a decimal comma) or thousands=',' (a thousands separator) to read_recording"
+SETTLE_HINT = ("pass decimal=',' (a decimal comma) or thousands=',' (a thousands separator) to read_recording "
+               "(the command line: --decimal , or --decimal .)")
 
 
 def _comma_reading(path, parsed, names, decimal, thousands) -> str | None:
