@@ -310,7 +310,9 @@ def add_live_parser(subparsers):
                    help="largest std/mean of |h| after the fit (default 0.03: cheap MEMS sensors reach 1.3-2.7 %%)")
     p.add_argument("--min-records", type=int, default=200, help="fewest records before stopping (default 200)")
     p.add_argument("--field-norm", type=float, default=None, help="known |field| in the units of h")
-    p.add_argument("--quiet", action="store_true", help="no live progress bar or coverage display while recording (the summary at the end still prints, its coverage map included)")
+    p.add_argument("--quiet", action="store_true",
+                   help="no live progress bar or coverage display while recording (the summary at the end still "
+                        "prints, its coverage map included)")
     p.set_defaults(run=cmd_live)
     return p
 
