@@ -203,6 +203,11 @@ class RingCalibration:
     gains: np.ndarray
     method: str = "twostep"
     sensors: list = field(default_factory=list)  # the TwoStep2D of each sensor
+    # What the calibration recording says about its own accuracy, per sensor and axis (None when not known,
+    # e.g. a calibration saved before they existed): the readings' scatter about γ h + b (noise and anything the
+    # model leaves, tesla) and the covariance of (γ, b) by linear least squares on the true fields.
+    residual_sigma: np.ndarray | None = None  # (n_sensors, 2)
+    covariance: np.ndarray | None = None      # (n_sensors, 2, 2, 2): [sensor, axis] → Cov(γ, b)
 
     def apply(self, readings) -> np.ndarray:
         """Compensated readings, same shape as `readings` (…, n_sensors, 2)."""
@@ -211,8 +216,23 @@ class RingCalibration:
             raise ValueError(f"readings: shape {r.shape}, expected (…, {self.offsets.shape[0]}, 2)")
         return (r - self.offsets) / self.gains
 
+    def field_sigma(self, readings) -> float | None:
+        """The σ (tesla) of a compensated reading of `readings` (…, n_sensors, 2, raw) as the solver should take
+        it: the calibration's scatter divided by the gain, and the error its own (γ, b) carry at these fields,
+        δh = −(δb + h δγ)/γ (which grows with the current: a calibration at 5 A read at 100 A). RMS over the
+        sensors and axes; None without the calibration's statistics."""
+        if self.residual_sigma is None or self.covariance is None:
+            return None
+        h = self.apply(readings).reshape(-1, *self.offsets.shape)
+        x = np.stack([h, np.ones_like(h)], axis=-1)  # [h, 1] per reading, sensor, axis
+        own = np.einsum("nsai,saij,nsaj->nsa", x, self.covariance, x) / self.gains ** 2
+        return float(np.sqrt(np.mean((self.residual_sigma / self.gains) ** 2 + own)))
+
     def to_dict(self) -> dict:
-        return {"method": self.method, "offsets": self.offsets.tolist(), "gains": self.gains.tolist()}
+        d = {"method": self.method, "offsets": self.offsets.tolist(), "gains": self.gains.tolist()}
+        if self.residual_sigma is not None and self.covariance is not None:
+            d.update(residual_sigma=self.residual_sigma.tolist(), covariance=self.covariance.tolist())
+        return d
 
     def __post_init__(self):
         self.offsets, self.gains = np.asarray(self.offsets, float), np.asarray(self.gains, float)
@@ -224,8 +244,9 @@ class RingCalibration:
 
     @classmethod
     def from_dict(cls, d: dict) -> "RingCalibration":
+        stats = {k: np.asarray(d[k], float) for k in ("residual_sigma", "covariance") if k in d}
         return cls(offsets=np.asarray(d["offsets"], float), gains=np.asarray(d["gains"], float),
-                   method=d.get("method", "twostep"))
+                   method=d.get("method", "twostep"), **stats)
 
 
 def calibrate_ring(readings, true_fields, method: str = "twostep") -> RingCalibration:
@@ -254,8 +275,22 @@ def calibrate_ring(readings, true_fields, method: str = "twostep") -> RingCalibr
             fits.append(twostep_2d(r[:, i], common, refine=False))
         else:
             raise ValueError(f"method: {method!r}, expected 'twostep' or 'least_squares'")
-    return RingCalibration(offsets=np.array([f.offset for f in fits]), gains=np.array([f.gain for f in fits]),
-                           method=method, sensors=fits)
+    offsets, gains = np.array([f.offset for f in fits]), np.array([f.gain for f in fits])
+    residual_sigma, covariance = _calibration_errors(r, h, offsets, gains)
+    return RingCalibration(offsets=offsets, gains=gains, method=method, sensors=fits, residual_sigma=residual_sigma,
+                           covariance=covariance)
+
+
+def _calibration_errors(readings, true_fields, offsets, gains):
+    """Per sensor and axis: the RMS of the readings about γ h + b (dof K − 2) and σ² (XᵀX)⁻¹ of (γ, b), X = [h, 1],
+    the linear model's covariance at the fitted values (the known true fields make each axis a straight line)."""
+    k = readings.shape[0]
+    e = readings - (true_fields * gains + offsets)
+    sigma = np.sqrt(np.sum(e ** 2, axis=0) / max(k - 2, 1))
+    x = np.stack([true_fields, np.ones_like(true_fields)], axis=-1)  # (K, sensors, axes, 2)
+    xtx = np.einsum("ksai,ksaj->saij", x, x)
+    covariance = sigma[..., None, None] ** 2 * np.linalg.pinv(xtx)
+    return sigma, covariance
 
 
 def calibration_fields(ring: Ring, positions_m, currents_a, rotations_deg) -> np.ndarray:

@@ -278,15 +278,21 @@ def cmd_cable(args) -> int:
             Path(args.output).write_text(json.dumps(cal.to_dict(), indent=2))
             print(f"wrote {args.output}")
         return 0
-    readings = data["readings"]
+    raw, ring_cal = data["readings"], None
     if args.calibration:
-        readings = cable.RingCalibration.from_dict(json.loads(Path(args.calibration).read_text())).apply(readings)
-    for k, (snap, rot) in enumerate(zip(readings, data["rotations_deg"])):
-        sol = ring.rotated(rot).solve(snap, n_conductors=args.conductors)
+        ring_cal = cable.RingCalibration.from_dict(json.loads(Path(args.calibration).read_text()))
+    for k, (snap, rot) in enumerate(zip(raw, data["rotations_deg"])):
+        settings = {}
+        if ring_cal is not None:
+            # the solver's σ: the calibration's scatter and what its own gains and offsets leave at these fields
+            sigma = ring_cal.field_sigma(snap)
+            settings = {} if sigma is None else {"noise_sigma": sigma}
+            snap = ring_cal.apply(snap)
+        sol = ring.rotated(rot).solve(snap, n_conductors=args.conductors, **settings)
         where = "; ".join(f"({x * 1e3:.4f}, {y * 1e3:.4f}) mm {i:.5g} A" for (x, y), i in zip(sol.positions, sol.currents))
         flag = ("well conditioned" if sol.well_conditioned else "ILL-CONDITIONED") + \
-            ("" if sol.fits_model else ", MISFIT (residual above 5 noise σ)")
-        print(f"snapshot {k}: {where}; residual {sol.summary['residual_rms']:.3g} T; {flag}")
+            ("" if sol.fits_model else f", MISFIT (residual above 5 × σ {sol.noise_sigma:.3g} T)")
+        print(f"snapshot {k}: {where}; residual {sol.summary['residual_rms']:.3g} T (σ {sol.noise_sigma:.3g} T); {flag}")
     return 0
 
 

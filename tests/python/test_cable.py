@@ -314,3 +314,28 @@ def test_cli_simulate_calibrate_solve(tmp_path):
     assert len(amps) == 4 and np.allclose(np.abs(amps), 5.0, rtol=0.01), amps
     r = run_cli("cable", "solve", tmp_path / "missing.csv")
     assert r.returncode == 2 and "error" in r.stderr
+
+
+def test_a_calibration_at_low_current_states_its_error_at_high_current():
+    """Calibrated at 5 A, read at 100 A: the gains' own error grows with the field. The solver's σ from the
+    calibration (field_sigma) grows with it, so a good measurement is not called a misfit, and the residual
+    is of the size that σ says; with the default σ (1e-8 T, the sensors' noise) it was flagged MISFIT."""
+    rig = simcable.paper_rig(np.random.default_rng(3))
+    rng = np.random.default_rng(4)
+    raw, truth = simcable.calibration_data(rig, simcable.reference_currents(5.0), rng, repeats=5)
+    cal = calibrate_ring(raw, truth)
+    assert cal.residual_sigma.shape == (4, 2) and cal.covariance.shape == (4, 2, 2, 2)
+    sigmas, ratios = {}, {}
+    for amps in (5.0, 100.0):
+        snap = rig.read(np.array([0.0]), [amps, -amps], rng)[0] - rig.earth_in_sensor_axes(np.array([0.0]))[0]
+        sigmas[amps] = cal.field_sigma(snap)
+        sol = rig.ring.solve(cal.apply(snap), n_conductors=2, noise_sigma=sigmas[amps])
+        assert sol.fits_model and np.allclose(np.abs(sol.currents), amps, rtol=0.005), (amps, sol.currents)
+        ratios[amps] = sol.summary["residual_rms"] / sigmas[amps]
+    assert sigmas[100.0] > 2 * sigmas[5.0]  # the default σ stays 1e-8 T whatever the current
+    assert 0.1 < ratios[100.0] < 3, ratios
+    # saved and loaded with its statistics; a calibration saved without them has none
+    again = fluxcal.cable.RingCalibration.from_dict(cal.to_dict())
+    assert again.field_sigma(snap) == pytest.approx(sigmas[100.0])
+    old = {k: v for k, v in cal.to_dict().items() if k not in ("residual_sigma", "covariance")}
+    assert fluxcal.cable.RingCalibration.from_dict(old).field_sigma(snap) is None
