@@ -49,6 +49,8 @@ def test_time_temperature_and_accelerometer_names():
     assert find_time(["micros", "mx"], {}) == ("micros", 1e-6)
     assert find_time(["ms", "magX"], {}) == ("ms", 1e-3)  # named only by its unit
     assert find_time(["s", "mx"], {}) is None  # a lone s is not guessed either
+    assert find_time(["ts", "mx"], {}) == ("ts", 1.0)  # a time stamp's usual short name
+    assert find_time(["ts_ms", "mx"], {}) == ("ts_ms", 1e-3)
     epoch = {"time": np.array([1.7e18, 1.70000000002e18])}  # Unix time too large for seconds: its size says
     assert find_time(["time"], {}, epoch) == ("time", 1e-9)  # ns (Android's Sensor Logger)
     assert find_time(["time"], {}, {"time": epoch["time"] / 1e6}) == ("time", 1e-3)

@@ -21,7 +21,7 @@ import numpy as np
 MAG_WORDS = {"m", "mag", "mags", "magn", "magnet", "magnetometer", "magnetic", "magneticfield", "compass",
              "b", "bfield", "h", "field", "flux", "fluxgate"}
 ACC_WORDS = {"a", "acc", "accel", "accelerometer", "acceleration", "accl"}
-TIME_WORDS = {"t", "time", "times", "timestamp", "elapsed", "sec", "secs", "seconds", "datetime",
+TIME_WORDS = {"t", "ts", "time", "times", "timestamp", "elapsed", "sec", "secs", "seconds", "datetime",
               "utc", "gps", "gpstime", "zeit", "tiempo"}
 TEMP_WORDS = {"temp", "temperature", "tmp", "temperatur", "celsius"}
 GYRO_WORDS = {"gyro", "gyr", "gyroscope", "gyros", "omega", "angular", "rad"}
