@@ -65,23 +65,6 @@ def find_rails(readings) -> np.ndarray:
                 continue
             rails[side, axis] = extreme
     return rails
-    lo, hi = m.min(axis=0), m.max(axis=0)
-    span = hi - lo
-    for axis in range(3):
-        if not span[axis] > 0:
-            continue
-        v, others = m[:, axis], [k for k in range(3) if k != axis]
-        for side, extreme in enumerate((lo[axis], hi[axis])):
-            at = v == extreme
-            piled = int(at.sum())
-            if piled < RAIL_REPEATS or piled <= np.count_nonzero(np.abs(v - extreme) <= RAIL_BAND * span[axis]) - piled:
-                continue
-            if not np.any(np.ptp(m[at][:, others], axis=0) > RAIL_SPREAD * span[others]):
-                continue
-            if len(np.unique(v)) < RAIL_LEVELS:
-                continue
-            rails[side, axis] = extreme
-    return rails
 
 
 def direction_bins(fields) -> np.ndarray:
