@@ -7,6 +7,7 @@
     .venv/bin/python bench/diagnose.py --warm-up 10                         # temperature following time
     .venv/bin/python bench/diagnose.py --trials 5 --noise 0.2 --rate 10     # other noise, rates, --duration
     .venv/bin/python bench/diagnose.py --nulls 30 --noise 0.5               # nothing withheld only
+    .venv/bin/python bench/diagnose.py --trials 3 --hard-iron 5 --soft-iron 0.15  # a real sensor's errors
 
 Prints Markdown tables for bench/RESULTS.md.
 """
@@ -23,7 +24,7 @@ from fluxcal import attitude
 from fluxcal.diagnose import diagnose
 from fluxcal.sim.effects import CANDIDATES
 from fluxcal.sim.inject import inject, injectable
-from fluxcal.sim.withheld import withheld_trial
+from fluxcal.sim.withheld import HARD_IRON, SOFT_IRON, withheld_trial
 
 
 def recordings(folder: Path):
@@ -174,15 +175,21 @@ if __name__ == "__main__":
     p.add_argument("--noise", type=float, default=0.05, help="white noise σ of the trials, µT (field 50 µT)")
     p.add_argument("--rate", type=float, default=50.0, help="sample rate of the trials, Hz")
     p.add_argument("--duration", type=float, default=60.0, help="length of the trials, s")
+    p.add_argument("--hard-iron", type=float, default=HARD_IRON,
+                   help="the trials' largest hard iron |b|, field norms (each axis within ±that·H/√3)")
+    p.add_argument("--soft-iron", type=float, default=SOFT_IRON,
+                   help="the trials' scale errors ±that (soft iron's off-diagonal ±0.6 of it)")
     args = p.parse_args()
+    sim = dict(noise=args.noise, rate_hz=args.rate, duration_s=args.duration, hard_iron=args.hard_iron,
+               soft_iron=args.soft_iron)
     if args.real:
         real(args.real)
     if args.nulls:
-        nulls(args.nulls, noise=args.noise, rate_hz=args.rate, duration_s=args.duration)
+        nulls(args.nulls, **sim)
     if args.inject:
         injected(args.inject, args.trials or 3, args.only, args.strength, args.recordings)
     elif args.trials:
-        trials(args.trials, args.only, noise=args.noise, rate_hz=args.rate, duration_s=args.duration)
+        trials(args.trials, args.only, **sim)
     if args.timing:
         timing()
     if args.warm_up:

@@ -7,7 +7,9 @@ blind (tests/python/test_diagnose.py, bench/diagnose.py).
 The sensor: a minute at 50 Hz turned smoothly through every orientation (`tumble`) while its
 temperature swings ±10 °C about 25 °C, in a 50 µT field; scale errors of ±5 %, soft iron (off-diagonal
 ±3 %, none for the scale-only models), hard iron up to 10 µT, white noise 0.05 µT (0.1 % of the
-field), and each named effect at a typical magnitude drawn from its class's `typical`.
+field), and each named effect at a typical magnitude drawn from its class's `typical`. Real sensors
+are often worse (hard iron of 1–7× the Earth's field on phones, drones and a QMC5883L board; scale
+and soft-iron errors of 10–20 %): `hard_iron` and `soft_iron` set those sizes.
 """
 from __future__ import annotations
 
@@ -20,6 +22,9 @@ from .simulate import simulate
 FIELD = np.array([20.0, 1.0, 45.8]) * 50.0 / np.linalg.norm([20.0, 1.0, 45.8])  # µT, world (N, E, D)
 NOISE = 0.05  # µT
 DURATION = 60.0
+HARD_IRON = 0.2  # largest |b|, field norms (10 µT)
+SOFT_IRON = 0.05  # scale errors ±5 %
+OFF_DIAGONAL = 0.03  # soft iron's off-diagonal terms ±3 % at the default SOFT_IRON
 CURRENT = (20.0, 4.0)  # A peak, s per throttle setting (scene.tumble), when motor_current is withheld
 # Effects that a full matrix absorbs are checked against a scale-only base model, and one that no
 # magnitude shows against reference vectors.
@@ -31,7 +36,8 @@ NOISE_EFFECTS = ("colored_noise", "quantization")
 
 
 def withheld_trial(names, seed: int, duration_s: float = DURATION, temperature=None, noise: float = NOISE,
-                   rate_hz: float = 50.0, model: str | None = None, current=None):
+                   rate_hz: float = 50.0, model: str | None = None, current=None, hard_iron: float = HARD_IRON,
+                   soft_iron: float = SOFT_IRON):
     """Simulate the effects `names` (candidate names, may be empty); returns the Simulation and the
     keyword arguments of `fluxcal.diagnose` for it (t, temp, field_norm, model, and the reference with the
     down direction, the current, or the given noise, where the effect needs them). `temperature`: the scene's
@@ -39,7 +45,9 @@ def withheld_trial(names, seed: int, duration_s: float = DURATION, temperature=N
     `rate_hz`: the sample rate (the hand turns at the same speed whatever the rate). `model`: the base
     model to check against instead of the effects' own (e.g. "vector" to see an effect against reference
     vectors). `current`: the scene's current (see `scene.tumble`; default `CURRENT` when motor_current is
-    withheld, else none)."""
+    withheld, else none). `hard_iron`: the largest hard iron |b| as a multiple of the field (each axis
+    uniform within ±hard_iron·H/√3); `soft_iron`: the axes' scale errors (uniform within ±soft_iron), the
+    soft iron's off-diagonal terms within ±0.6 of that."""
     by_name = {c.name: c for c in CANDIDATES}
     unknown = [n for n in names if n not in by_name]
     if unknown:
@@ -47,9 +55,10 @@ def withheld_trial(names, seed: int, duration_s: float = DURATION, temperature=N
     rng = np.random.default_rng(seed)
     model = model or next((MODEL_FOR[n] for n in names if n in MODEL_FOR), "ellipsoid")
     scale_only = model in ("scale", "vector_scale")
-    E = np.zeros((3, 3)) if scale_only else rng.uniform(-0.03, 0.03, (3, 3))
-    W = np.diag(1 + rng.uniform(-0.05, 0.05, 3)) + np.triu(E, 1) + np.triu(E, 1).T
-    b = rng.uniform(-1, 1, 3) * 10.0 / np.sqrt(3)
+    off = OFF_DIAGONAL * (soft_iron / SOFT_IRON)  # exactly the default's ±3 % at the default
+    E = np.zeros((3, 3)) if scale_only else rng.uniform(-off, off, (3, 3))
+    W = np.diag(1 + rng.uniform(-soft_iron, soft_iron, 3)) + np.triu(E, 1) + np.triu(E, 1).T
+    b = rng.uniform(-1, 1, 3) * (hard_iron * float(np.linalg.norm(FIELD))) / np.sqrt(3)
 
     def make(name):
         cls = by_name[name]
