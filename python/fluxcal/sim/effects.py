@@ -57,6 +57,9 @@ class Effect:
     # Its features are first order in a move of the reference vectors (θ × r for a rotation, −δ dm/dt for a
     # delay): once accepted, the diagnosis moves the reference exactly (`move_reference`, see diagnose.core).
     moves_reference = False
+    # Its features are non-linear in the signal (`ctx.signal`): the diagnosis recomputes them at the signal
+    # of the fit that models the effect (the base fit's own estimate absorbs part of the effect).
+    signal_features = False
 
     @staticmethod
     def compose(total: np.ndarray, step: np.ndarray) -> np.ndarray:  # pragma: no cover - interface
@@ -234,6 +237,7 @@ class CrossAxis(Effect):
     hk: np.ndarray
     name = "cross_axis"
     n_params = 3
+    signal_features = True
     EASY = (1, 0, 0)
 
     def apply(self, values, context):
@@ -261,6 +265,7 @@ class CubicNonlinearity(Effect):
     scale: float
     name = "nonlinearity_cubic"
     n_params = 3
+    signal_features = True
 
     def apply(self, values, context):
         return values * (1.0 + np.asarray(self.relative) * (values / self.scale) ** 2)
@@ -283,6 +288,7 @@ class Saturation(Effect):
     limit: float
     name = "saturation"
     n_params = 1
+    signal_features = True
 
     def apply(self, values, context):
         return self.limit * np.tanh(values / self.limit)
