@@ -72,7 +72,7 @@ def _plausible_field(cal: Calibration) -> str | None:
     if EARTH_FIELD_UT[0] <= ut <= EARTH_FIELD_UT[1]:
         return None
     return (f"|h| = {cal.field_norm:.6g} {cal.h_units} = {ut:.4g} µT, far from the Earth's field (22–67 µT): are the "
-            "readings really in " + f"{cal.h_units}? (--units states the readings' unit; fine for a coil's field)")
+            f"readings really in {cal.h_units}? (--units states the readings' unit; fine for a coil's field)")
 
 
 def _held_out_rms(raw, reference, units) -> float:
