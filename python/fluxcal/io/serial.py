@@ -698,22 +698,23 @@ class Recorder:
             raise ValueError(f"{self.port}: cannot open the serial port ({exc})") from None
         start = self.clock()
         deadline = None if self.duration is None else start + float(self.duration)
-        if self.output is not None:
-            from .. import __version__
-
-            meta = {"source": f"serial port {self.port} at {self.baudrate} baud",
-                    "started": datetime.now(timezone.utc).isoformat(timespec="seconds"),
-                    "recorder": f"fluxcal {__version__}", **getattr(self.decoder, "metadata", {}),
-                    **self.metadata}
-            try:
-                self.writer = RecordingWriter(self.output, self.names, {"t_host": "s", **self.units}, meta,
-                                              defer_head=getattr(self.decoder, "may_learn_units", False))
-            except OSError as exc:
-                port.close()
-                raise ValueError(f"{self.output}: cannot write the recording ({exc.strerror or exc})") from None
-        self.decoder.reset()
-        stats = self.stats
+        # the stop signals are ours before the file exists: a kill that comes once it does is a stop request
         with _ctrl_c_as_request() as self._interrupted:
+            if self.output is not None:
+                from .. import __version__
+
+                meta = {"source": f"serial port {self.port} at {self.baudrate} baud",
+                        "started": datetime.now(timezone.utc).isoformat(timespec="seconds"),
+                        "recorder": f"fluxcal {__version__}", **getattr(self.decoder, "metadata", {}),
+                        **self.metadata}
+                try:
+                    self.writer = RecordingWriter(self.output, self.names, {"t_host": "s", **self.units}, meta,
+                                                  defer_head=getattr(self.decoder, "may_learn_units", False))
+                except OSError as exc:
+                    port.close()
+                    raise ValueError(f"{self.output}: cannot write the recording ({exc.strerror or exc})") from None
+            self.decoder.reset()
+            stats = self.stats
             try:
                 while True:
                     stop = self._stop_reason(deadline)
