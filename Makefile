@@ -17,7 +17,7 @@ demo: install
 
 test: install cpp
 	ctest --test-dir $(BUILD) --output-on-failure
-	$(PY) -m pytest -q
+	$(PY) -m pytest -q -n 2   # two workers (pytest-xdist): the suite takes 11.6 min instead of 18 on 2 cores
 
 bench: install cpp
 	for b in ellipsoid twostep refine positions cable kalman; do \
