@@ -88,6 +88,65 @@ class MagnitudeOne : public ceres::SizedCostFunction<1, 9> {
   double H_;
 };
 
+// A magnitude-model shape as a linear map θ = P φ from its free parameters φ to the nine
+// θ = [b, a00 a01 a02 a11 a12 a22]: what the shape holds at zero (off-diagonals) or equal (a sphere's
+// diagonal) never moves.
+struct ShapeMap {
+  Eigen::MatrixXd P;               // 9 × k, orthogonal columns
+  Eigen::MatrixXd pinv;            // k × 9: φ = P⁺ θ
+  std::vector<std::string> names;  // of φ
+};
+
+ShapeMap shape_map(Shape shape) {
+  // each free parameter: its name and the θ entries it sets
+  std::vector<std::pair<const char*, std::vector<int>>> free = {{"b0", {0}}, {"b1", {1}}, {"b2", {2}}};
+  if (shape == Shape::sphere) {
+    free.push_back({"a", {3, 6, 8}});
+  } else if (shape == Shape::diagonal) {
+    free.insert(free.end(), {{"a00", {3}}, {"a11", {6}}, {"a22", {8}}});
+  } else {
+    for (int c = 0; c < 6; ++c) free.push_back({kMagnitudeNames[3 + c], {3 + c}});
+  }
+  ShapeMap map;
+  map.P = Eigen::MatrixXd::Zero(9, static_cast<Eigen::Index>(free.size()));
+  for (std::size_t j = 0; j < free.size(); ++j) {
+    map.names.emplace_back(free[j].first);
+    for (int row : free[j].second) map.P(row, static_cast<Eigen::Index>(j)) = 1.0;
+  }
+  map.pinv = (map.P.transpose() * map.P).inverse() * map.P.transpose();
+  return map;
+}
+
+// Ceres moves θ only along the shape's columns: θ ⊞ δ = θ + P δ.
+class ShapeManifold : public ceres::Manifold {
+ public:
+  explicit ShapeManifold(const ShapeMap& map) : P_(map.P), pinv_(map.pinv) {}
+  int AmbientSize() const override { return static_cast<int>(P_.rows()); }
+  int TangentSize() const override { return static_cast<int>(P_.cols()); }
+  bool Plus(const double* x, const double* delta, double* x_plus_delta) const override {
+    Eigen::Map<Eigen::VectorXd>(x_plus_delta, P_.rows()) =
+        Eigen::Map<const Eigen::VectorXd>(x, P_.rows()) + P_ * Eigen::Map<const Eigen::VectorXd>(delta, P_.cols());
+    return true;
+  }
+  bool PlusJacobian(const double*, double* jacobian) const override {
+    RowMajor(jacobian, P_.rows(), P_.cols()) = P_;
+    return true;
+  }
+  bool Minus(const double* y, const double* x, double* y_minus_x) const override {
+    Eigen::Map<Eigen::VectorXd>(y_minus_x, P_.cols()) =
+        pinv_ * (Eigen::Map<const Eigen::VectorXd>(y, P_.rows()) - Eigen::Map<const Eigen::VectorXd>(x, P_.rows()));
+    return true;
+  }
+  bool MinusJacobian(const double*, double* jacobian) const override {
+    RowMajor(jacobian, P_.cols(), P_.rows()) = pinv_;
+    return true;
+  }
+
+ private:
+  using RowMajor = Eigen::Map<Eigen::Matrix<double, Eigen::Dynamic, Eigen::Dynamic, Eigen::RowMajor>>;
+  Eigen::MatrixXd P_, pinv_;
+};
+
 // r = m − W ref − b.
 struct VectorResidual {
   double m[3];
@@ -466,6 +525,14 @@ void information(ceres::Problem& problem, int p, RefineResult& out, Eigen::Matri
   F = F.selfadjointView<Eigen::Lower>();
 }
 
+// The shape constrains the magnitude model's refine(); elsewhere it would be silently ignored.
+void require_symmetric_shape(const RefineOptions& o, const char* function) {
+  if (o.shape != Shape::symmetric)
+    throw Error(std::string("options.shape: ") + function +
+                " fits a full matrix (the vector model's W, or refine_terms' base with `fixed` names); "
+                "the shape applies to refine's magnitude model");
+}
+
 // Options and start are checked before Ceres, which would otherwise print a glog line to stderr and
 // fail with a message that names none of the caller's inputs (a NaN tolerance, a NaN start term).
 void check_options(const RefineOptions& o) {
@@ -581,16 +648,19 @@ class TermsBatch : public ceres::CostFunction {
 }  // namespace
 
 RefineResult refine(const Calibration& start, const SamplesRef& samples, const RefineOptions& opt) {
-  check_inputs(samples, 10, "a 9-parameter magnitude refinement");
+  const ShapeMap shape = shape_map(opt.shape);
+  const Eigen::Index k = shape.P.cols();
+  check_inputs(samples, k + 1, "a " + std::to_string(k) + "-parameter magnitude refinement");
   check_options(opt);
   if (!start.matrix.allFinite()) throw Error("start: offset or matrix is not finite");
   const Eigen::Matrix3d A = symmetric_part(start.matrix);
   check_start(start, A, true);
   RefineResult out;
-  out.parameter_names.assign(std::begin(kMagnitudeNames), std::end(kMagnitudeNames));
-  out.parameters.resize(9);
-  out.parameters << start.offset, A(0, 0), A(0, 1), A(0, 2), A(1, 1), A(1, 2), A(2, 2);
-  double* theta = out.parameters.data();
+  out.parameter_names = shape.names;
+  Eigen::Matrix<double, 9, 1> th;  // all nine; the shape's projection of the start, then the solution
+  th << start.offset, A(0, 0), A(0, 1), A(0, 2), A(1, 1), A(1, 2), A(2, 2);
+  th = shape.P * (shape.pinv * th);
+  double* theta = th.data();
 
   std::unique_ptr<ceres::LossFunction> loss;
   if (opt.loss != Loss::none) {
@@ -613,34 +683,38 @@ RefineResult refine(const Calibration& start, const SamplesRef& samples, const R
       for (Eigen::Index i = 0; i < samples.rows(); ++i)
         problem.AddResidualBlock(new MagnitudeOne(samples.row(i).transpose(), H), loss.get(), theta);
     }
+    if (k < 9) problem.SetManifold(theta, new ShapeManifold(shape));
     solve_problem(problem, out, opt);
   };
-  Eigen::Matrix<double, 9, 1> gradient;
-  Scores scores{Eigen::MatrixXd(samples.rows(), 1), Eigen::MatrixXd(samples.rows(), 9)};
-  auto plain_fit = [&](double H, Eigen::MatrixXd& info, double& sum_sq) {  // Σr², JᵀJ and Jᵀr at θ
+  Eigen::VectorXd gradient;  // of the shape's parameters
+  Scores scores{Eigen::MatrixXd(samples.rows(), 1), Eigen::MatrixXd(samples.rows(), k)};
+  auto plain_fit = [&](double H, Eigen::MatrixXd& info, double& sum_sq) {  // Σr², JᵀJ and Jᵀr at θ (shape's φ)
     Eigen::Matrix<double, 9, 9> f = Eigen::Matrix<double, 9, 9>::Zero();
     Eigen::Matrix<double, 9, 1> j;
-    gradient.setZero();
+    gradient.setZero(k);
     sum_sq = 0.0;
     for (Eigen::Index i = 0; i < samples.rows(); ++i) {
       const Eigen::Vector3d m = samples.row(i).transpose();
       const double r = sampson(m.data(), theta, H, j.data());
       sum_sq += r * r;
-      gradient += r * j;
+      const Eigen::VectorXd jp = shape.P.transpose() * j;
+      gradient += r * jp;
       scores.residuals(i, 0) = r;
-      scores.scores.row(i) = r * j.transpose();
+      scores.scores.row(i) = r * jp.transpose();
       f.selfadjointView<Eigen::Lower>().rankUpdate(j);
     }
-    info = f.selfadjointView<Eigen::Lower>();
+    const Eigen::Matrix<double, 9, 9> full = f.selfadjointView<Eigen::Lower>();
+    info = shape.P.transpose() * full * shape.P;
     out.summary.cost = sum_sq / static_cast<double>(samples.rows());
   };
+  const double spare = static_cast<double>(samples.rows() - k);
   const double H = start.field_norm;
   double H_fit = H;
   solve_for(H);
   if (opt.noise_bias_correction) {
     plain_fit(H, F, ssr);
-    const double s2 = ssr / static_cast<double>(samples.rows() - 9);
-    const Eigen::VectorXd& t = out.parameters;
+    const double s2 = ssr / spare;
+    const Eigen::Matrix<double, 9, 1>& t = th;
     const double a2 = t(3) * t(3) + t(6) * t(6) + t(8) * t(8) + 2 * (t(4) * t(4) + t(5) * t(5) + t(7) * t(7));
     // The target moves by O(σ²/H): Gauss–Newton steps from the solution converge at once (plain
     // least squares; with a robust loss the full solve again).
@@ -653,25 +727,27 @@ RefineResult refine(const Calibration& start, const SamplesRef& samples, const R
     } else {
       for (int step = 0; step < 3; ++step) {
         plain_fit(H_fit, F, ssr);
-        const Eigen::Matrix<double, 9, 1> delta = -F.ldlt().solve(gradient);
-        out.parameters += delta;
+        const Eigen::Matrix<double, 9, 1> delta = -shape.P * F.ldlt().solve(gradient);
+        th += delta;
         ++out.summary.iterations;
-        if (delta.norm() <= 1e-12 * out.parameters.norm()) break;
+        if (delta.norm() <= 1e-12 * th.norm()) break;
       }
     }
   }
   plain_fit(H_fit, F, ssr);
-  const double plain_sigma2 = ssr / static_cast<double>(samples.rows() - 9);
+  const double plain_sigma2 = ssr / spare;
   out.noise_sigma = std::sqrt(plain_sigma2);
-  const double sigma2 = loss ? robust_variance(*loss, scores, 9, plain_sigma2, out.summary.warnings) : plain_sigma2;
+  const double sigma2 =
+      loss ? robust_variance(*loss, scores, static_cast<int>(k), plain_sigma2, out.summary.warnings) : plain_sigma2;
 
   Calibration& cal = out.calibration;
-  cal.offset = out.parameters.head<3>();
-  const Eigen::VectorXd& t = out.parameters;
+  cal.offset = th.head<3>();
+  const Eigen::Matrix<double, 9, 1>& t = th;
   cal.matrix << t(3), t(4), t(5), t(4), t(6), t(7), t(5), t(7), t(8);
   cal.field_norm = start.field_norm;
   cal.units = opt.units.empty() ? start.units : opt.units;
   cal.model = "refine";
+  out.parameters = shape.pinv * th;
   if (!(Eigen::SelfAdjointEigenSolver<Eigen::Matrix3d>(cal.matrix).eigenvalues()(0) > 0.0))
     throw Error("refine: the refined matrix is not positive definite; the start was too far off, the data "
                 "do not lie on an ellipsoid, or they cover too few directions (a small cap of the sphere: turn "
@@ -680,9 +756,8 @@ RefineResult refine(const Calibration& start, const SamplesRef& samples, const R
   double radius = 0.0;  // reading-space radius: the scale of the offsets
   for (Eigen::Index i = 0; i < samples.rows(); ++i) radius += (samples.row(i).transpose() - cal.offset).norm();
   radius /= static_cast<double>(samples.rows());
-  Eigen::VectorXd scales(9);
-  const double entry = cal.matrix.norm() / std::sqrt(3.0);
-  scales << radius, radius, radius, entry, entry, entry, entry, entry, entry;
+  Eigen::VectorXd scales(k);  // offsets: the radius; matrix entries: the gain ‖A‖_F/√3
+  for (Eigen::Index j = 0; j < k; ++j) scales(j) = j < 3 ? radius : cal.matrix.norm() / std::sqrt(3.0);
   finish_statistics(out, F, sigma2, scales, opt, &scores);
   finish_summary(out, samples, nullptr);
   return out;
@@ -692,6 +767,7 @@ RefineResult refine_vector(const Calibration& start, const SamplesRef& samples, 
                            const RefineOptions& opt) {
   check_vector_inputs(samples, reference);
   check_options(opt);
+  require_symmetric_shape(opt, "refine_vector");
   check_start(start, start.matrix, false);
   const Eigen::Matrix<double, 3, 3, Eigen::RowMajor> W = start.matrix.inverse();
   RefineResult out;
@@ -734,6 +810,7 @@ RefineResult refine_vector(const Calibration& start, const SamplesRef& samples, 
 RefineResult fit_vector(const SamplesRef& samples, const SamplesRef& reference, const RefineOptions& opt) {
   check_vector_inputs(samples, reference);
   check_options(opt);
+  require_symmetric_shape(opt, "fit_vector");
   // One pass: XᵀX and XᵀM for X = [r 1] (N×4), M the readings (N×3).
   Eigen::Matrix4d XtX = Eigen::Matrix4d::Zero();
   Eigen::Matrix<double, 4, 3> XtM = Eigen::Matrix<double, 4, 3>::Zero();
@@ -800,6 +877,7 @@ RefineResult refine_terms(const Calibration& start, const SamplesRef& samples, c
     throw Error("start_terms: " + std::to_string(start_terms.size()) + " values for " + std::to_string(p) + " terms");
   if (!start_terms.allFinite()) throw Error("start_terms: contains NaN or Inf");
   check_options(opt);
+  require_symmetric_shape(opt, "refine_terms");
   if (!start.matrix.allFinite()) throw Error("start: offset or matrix is not finite");
   check_start(start, vector ? start.matrix : symmetric_part(start.matrix), !vector);
   if (opt.loss != Loss::none) throw Error("refine_terms: only plain least squares (loss none)");

@@ -52,9 +52,14 @@ void bind_refine(py::module_& m) {
       .value("automatic", fluxcal::SerialCorrelation::automatic)
       .value("independent", fluxcal::SerialCorrelation::independent)
       .value("newey_west", fluxcal::SerialCorrelation::newey_west);
+  py::enum_<fluxcal::Shape>(m, "Shape")
+      .value("sphere", fluxcal::Shape::sphere)
+      .value("diagonal", fluxcal::Shape::diagonal)
+      .value("symmetric", fluxcal::Shape::symmetric);
   py::class_<RefineOptions>(m, "RefineOptions")
       .def(py::init<>())
       .def_readwrite("loss", &RefineOptions::loss)
+      .def_readwrite("shape", &RefineOptions::shape)
       .def_readwrite("loss_scale", &RefineOptions::loss_scale)
       .def_readwrite("max_iterations", &RefineOptions::max_iterations)
       .def_readwrite("function_tolerance", &RefineOptions::function_tolerance)

@@ -116,3 +116,37 @@ TEST(RefineInputs, VectorTermsTakeTheReferenceByReference) {
   EXPECT_LT((by_reference.calibration.offset - truth.b).norm(), 1e-6 * truth.field);
   EXPECT_LT((by_reference.calibration.matrix - truth.W.inverse()).norm(), 1e-6);
 }
+
+// The shapes (magcal's 'eye' / 'diag' / 'sym'): a sensor without cross-axis coupling is fitted by the
+// diagonal shape with the off-diagonal terms exactly zero and fewer, better determined parameters; a
+// nested shape never fits better than the full one; the vector model refuses a shape.
+TEST(RefineShape, DiagonalAndSphereAreNestedInSymmetric) {
+  auto truth = fluxcal_test::make_truth(7, 50.0);
+  truth.W = Eigen::Vector3d(1.1, 0.9, 1.05).asDiagonal();
+  const fluxcal::Samples s = fluxcal_test::simulate(truth, 600, 0.01, 8);
+  fluxcal::RefineOptions o;
+  const auto sym = refined(s, truth.field, o);
+  o.shape = fluxcal::Shape::diagonal;
+  const auto diag = refined(s, truth.field, o);
+  o.shape = fluxcal::Shape::sphere;
+  const auto sphere = refined(s, truth.field, o);
+  ASSERT_EQ(diag.parameters.size(), 6);
+  ASSERT_EQ(sphere.parameters.size(), 4);
+  EXPECT_EQ(diag.parameter_names[4], "a11");
+  EXPECT_EQ(sphere.parameter_names[3], "a");
+  const Eigen::Matrix3d A = diag.calibration.matrix;
+  EXPECT_EQ(A(0, 1), 0.0);
+  EXPECT_EQ(A(0, 2), 0.0);
+  EXPECT_EQ(A(1, 2), 0.0);
+  EXPECT_LT((A - truth.W.inverse()).norm(), 0.01);
+  EXPECT_LT((diag.calibration.offset - truth.b).norm(), 0.01 * truth.field);
+  // nested: the full shape's residuals are no larger; the sphere's much larger (its axes differ by 20 %)
+  EXPECT_LE(sym.summary.cost, diag.summary.cost * (1 + 1e-9));
+  EXPECT_GT(sphere.summary.cost, 10 * diag.summary.cost);
+  EXPECT_DOUBLE_EQ(sphere.calibration.matrix(0, 0), sphere.calibration.matrix(2, 2));
+  EXPECT_EQ(diag.covariance.rows(), 6);
+  EXPECT_TRUE(diag.identifiable);
+  // fewer parameters, smaller errors for the ones both fit
+  for (int j = 0; j < 3; ++j) EXPECT_LT(diag.standard_errors(j), sym.standard_errors(j) * 1.001);
+  EXPECT_THROW(fluxcal::refine_vector(diag.calibration, s, s, o), fluxcal::Error);
+}

@@ -45,8 +45,20 @@ enum class SerialCorrelation {
   newey_west,   ///< always the Newey–West sandwich
 };
 
+/// The soft-iron matrix the magnitude model may fit (MATLAB magcal's 'eye' / 'diag' / 'sym'). Fewer
+/// parameters cost nothing when the sensor has no cross-axis coupling, and are better determined by few
+/// readings or a thin coverage.
+enum class Shape {
+  sphere,     ///< A = a I: offset and one scale (4 parameters: b0 b1 b2 a)
+  diagonal,   ///< A = diag(a00, a11, a22): offset and axis scales (6: b0 b1 b2 a00 a11 a22)
+  symmetric,  ///< A symmetric: offset, scales and soft-iron coupling (9: b0 b1 b2 a00 a01 a02 a11 a12 a22)
+};
+
 struct RefineOptions {
   Loss loss = Loss::none;
+  /// Magnitude model only (refine): the matrix's shape; the start is projected onto it (off-diagonal
+  /// terms dropped; for a sphere, a = the mean of A's eigenvalues). The vector model's W is always full.
+  Shape shape = Shape::symmetric;
   /// Residual size (reading units) where the robust loss bends; 0 = 3 × a robust estimate of the noise
   /// (1.4826 · median |r| at the start).
   double loss_scale = 0.0;
