@@ -33,6 +33,12 @@ def _report(cal: Calibration, raw: np.ndarray, out=sys.stdout) -> None:
           f"{', '.join(f'{v:.2f}' for v in s['direction_eigenvalues'])} (1/3 each = full sphere)", file=out)
     if "method" in s:
         print(f"  method                {s['method']}", file=out)
+    if "shapes" in s:  # shape auto: what each shape scored
+        scores = ", ".join(f"{k} {v['bic']:.1f}" + ("" if v["identifiable"] else " (undetermined)") if "bic" in v
+                           else f"{k} failed" for k, v in s["shapes"].items())
+        print(f"  shape                 {s['shape']} (BIC: {scores})", file=out)
+    elif s.get("shape", "sym") != "sym":
+        print(f"  shape                 {s['shape']}", file=out)
     if "held_out_rms" in s:
         print(f"  held-out vector RMS   {s['held_out_rms']:.6g} {cal.h_units}   (fit on the first half, "
               "|h - reference| on the second)", file=out)
@@ -106,7 +112,7 @@ def cmd_calibrate(args) -> int:
         print(f"field norm {field_norm:g} {units} from the simulation's metadata".rstrip())
     try:
         cal = calibrate(raw, method=args.method, field_norm=field_norm, reference=reference, units=units,
-                        outliers=args.outliers, serial_correlation=args.serial_correlation)
+                        outliers=args.outliers, serial_correlation=args.serial_correlation, shape=args.shape)
     except ValueError as exc:  # the solvers name their argument ("samples: …"); the user knows the file
         raise ValueError(f"{args.file}: {exc}") from None
     cal.field_units = _field_units(args, units, field_norm, reference)
@@ -418,6 +424,9 @@ def build_parser() -> argparse.ArgumentParser:
     c.add_argument("--units", default=None, help="units of the readings when the file does not say")
     c.add_argument("--method", default="auto", choices=METHODS,
                    help="auto = consistent ellipsoid fit (ALS) + maximum-likelihood refinement (default)")
+    c.add_argument("--shape", default="auto", choices=["auto", "sym", "diag", "sphere", "eye"],
+                   help="the refinement's matrix, as MATLAB magcal's fit types: auto (default: the "
+                        "lowest BIC), sym (symmetric soft iron), diag (axis scales), sphere or eye (one scale)")
     c.add_argument("--outliers", default="drop", choices=["drop", "keep"],
                    help="drop (default): leave gross outliers (0,0,0 glitches, ADC rails, spikes) out of the fit "
                         "and list them; keep: fit every reading")

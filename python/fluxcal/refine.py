@@ -17,16 +17,29 @@ from ._arrays import as_samples, set_options
 from .calibration import Calibration
 
 LOSSES = {"none": _core.Loss.none, "huber": _core.Loss.huber, "cauchy": _core.Loss.cauchy}
+# The magnitude model's matrix (MATLAB magcal's 'eye', 'diag', 'sym'; "eye" is accepted for "sphere": with a
+# known field norm the sphere still needs its one scale).
+SHAPES = {"sphere": _core.Shape.sphere, "diag": _core.Shape.diagonal, "sym": _core.Shape.symmetric}
+SHAPE_ALIASES = {"eye": "sphere", "diagonal": "diag", "symmetric": "sym"}
 SERIAL_CORRELATION = {"automatic": _core.SerialCorrelation.automatic,
                       "independent": _core.SerialCorrelation.independent,
                       "newey_west": _core.SerialCorrelation.newey_west}
 
 
-def _options(loss="none", loss_scale=0.0, units="", **settings):
+def shape_name(shape) -> str:
+    """The canonical name ("sphere", "diag", "sym") of a shape or its alias; ValueError otherwise."""
+    name = SHAPE_ALIASES.get(shape, shape) if isinstance(shape, str) else shape
+    if name not in SHAPES:
+        raise ValueError(f"shape: {shape!r} is not one of {', '.join(SHAPES)} (or magcal's 'eye' for 'sphere')")
+    return name
+
+
+def _options(loss="none", loss_scale=0.0, units="", shape="sym", **settings):
     options = _core.RefineOptions()
     if loss not in LOSSES:
         raise ValueError(f"loss: {loss!r} is not one of {', '.join(LOSSES)}")
     options.loss = LOSSES[loss]
+    options.shape = SHAPES[shape_name(shape)]
     options.loss_scale = float(loss_scale)
     options.units = units or ""
     if "serial_correlation" in settings and not isinstance(settings["serial_correlation"], _core.SerialCorrelation):
@@ -72,11 +85,14 @@ def _few_spare_readings(summary: dict, per_reading: int) -> None:
 
 
 def refine(calibration: Calibration, samples, reference=None, loss: str = "none", loss_scale: float = 0.0,
-           **settings) -> Calibration:
+           shape: str = "sym", **settings) -> Calibration:
     """Refine `calibration` on `samples` by maximum likelihood (Ceres).
 
     Without `reference` the magnitude model is used with |h| = calibration.field_norm (known); A is
-    made symmetric first. With `reference` (N×3 true field per reading, sensor frame) the vector model.
+    made symmetric first. `shape` restricts A: "sym" (symmetric, 9 parameters b0 b1 b2 a00 a01 a02 a11 a12
+    a22), "diag" (axis scales only, 6: b0 b1 b2 a00 a11 a22) or "sphere" (one scale, 4: b0 b1 b2 a; magcal's
+    'eye'); the summary's parameters, covariance and standard errors are the shape's free parameters.
+    With `reference` (N×3 true field per reading, sensor frame) the vector model, whose W is always full.
     loss: "none", "huber" or "cauchy"; loss_scale in reading units (0 = 3 × robust noise estimate).
     settings: max_iterations, function_tolerance, gradient_tolerance, parameter_tolerance,
     determined_tolerance (default 0.01 of each parameter's scale), serial_correlation ("automatic":
@@ -88,10 +104,15 @@ def refine(calibration: Calibration, samples, reference=None, loss: str = "none"
     independent-readings ones. Whether the data determine a parameter is judged on the latter.
     """
     m = as_samples(samples)
-    options = _options(loss, loss_scale, calibration.units, **settings)
+    if reference is not None and shape_name(shape) != "sym":
+        raise ValueError(f"shape: {shape!r} restricts the magnitude model's A; with a reference the vector model "
+                         "fits a full W (give shape='sym' or no reference)")
+    options = _options(loss, loss_scale, calibration.units, shape, **settings)
     args = (calibration.offset, calibration.matrix, calibration.field_norm, calibration.units, m)
     if reference is None:
-        return _calibration(_core.refine(*args, options), "refine")
+        cal = _calibration(_core.refine(*args, options), "refine")
+        cal.summary["shape"] = shape_name(shape)
+        return cal
     return _calibration(_core.refine_vector(*args, as_samples(reference, "reference"), options), "refine_vector")
 
 

@@ -234,6 +234,9 @@ def test_airborne_magnitude_only_fit_is_flagged(real_data):
     cal = fluxcal.calibrate(m[:half], field_norm=H, units="nT")
     assert cal.summary["identifiable"] is False
     assert any("poor coverage" in w for w in cal.summary["warnings"])
+    # shape auto: the sphere is determined here, but the data reject it; the symmetric shape is kept
+    assert cal.summary["shape"] == "sym"
+    assert any("shape sphere would be determined, but the data reject it" in w for w in cal.summary["warnings"])
     vector = fluxcal.calibrate(m[:half], reference=ref[:half])
     assert np.linalg.norm(cal.offset - vector.offset) > 3000  # measured ≈ 4500 nT off
     # it still fits |B| on the held-out half well — which is why only identifiability can catch it

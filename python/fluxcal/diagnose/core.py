@@ -1202,7 +1202,7 @@ def diagnose(samples, t=None, temp=None, reference=None, gravity=None, field_nor
         start = calibrate(data.m, reference=data.reference, units=units)
         data.field_norm = float(np.mean(np.linalg.norm(data.reference, axis=1)))
     else:
-        start = calibrate(data.m, field_norm=field_norm or None, units=units)
+        start = calibrate(data.m, field_norm=field_norm or None, units=units, shape="sym")  # the full base's start
         data.field_norm = start.field_norm
     if fixed:  # a scale-only model starts from the diagonal of the full fit's W = A⁻¹
         W = np.linalg.inv(start.matrix)

@@ -43,28 +43,48 @@ def _jacobian(theta, m, H, step=1e-6):
     return np.column_stack(cols)
 
 
-def refine(offset, matrix, field_norm, samples, loss: str = "linear", loss_scale: float = 1.0) -> dict:
+# θ (9) = P φ for each shape: the free parameters' columns (a sphere's one scale sets a00 = a11 = a22).
+SHAPE_COLUMNS = {"sym": [[j] for j in range(9)],
+                 "diag": [[0], [1], [2], [3], [6], [8]],
+                 "sphere": [[0], [1], [2], [3, 6, 8]]}
+
+
+def shape_matrix(shape: str) -> np.ndarray:
+    P = np.zeros((9, len(SHAPE_COLUMNS[shape])))
+    for j, rows in enumerate(SHAPE_COLUMNS[shape]):
+        P[rows, j] = 1.0
+    return P
+
+
+def refine(offset, matrix, field_norm, samples, loss: str = "linear", loss_scale: float = 1.0,
+           shape: str = "sym") -> dict:
+    """shape "diag" / "sphere": the free parameters φ (θ = P φ, the start projected by least squares), and
+    "parameters" and "covariance" are φ's."""
     m = np.asarray(samples, dtype=float)
     w, V = np.linalg.eigh(np.asarray(matrix).T @ np.asarray(matrix))
     A = (V * np.sqrt(w)) @ V.T  # symmetric start
-    theta0 = np.r_[offset, A[0, 0], A[0, 1], A[0, 2], A[1, 1], A[1, 2], A[2, 2]]
+    P = shape_matrix(shape)
+    phi0 = np.linalg.lstsq(P, np.r_[offset, A[0, 0], A[0, 1], A[0, 2], A[1, 1], A[1, 2], A[2, 2]], rcond=None)[0]
+
+    def fun(phi, m, H):
+        return residuals(P @ phi, m, H)
+
+    n, p = len(m), P.shape[1]
     if loss == "linear":
-        sol = least_squares(residuals, theta0, args=(m, field_norm), method="lm", xtol=1e-15, ftol=1e-15,
-                            gtol=1e-15)
+        sol = least_squares(fun, phi0, args=(m, field_norm), method="lm", xtol=1e-15, ftol=1e-15, gtol=1e-15)
         jac = sol.jac
-        sigma2 = np.sum(sol.fun**2) / (len(m) - 9)
+        sigma2 = np.sum(sol.fun**2) / (n - p)
         variance = sigma2
     else:
-        sol = least_squares(residuals, theta0, args=(m, field_norm), method="trf", loss=loss, f_scale=loss_scale,
+        sol = least_squares(fun, phi0, args=(m, field_norm), method="trf", loss=loss, f_scale=loss_scale,
                             xtol=1e-15, ftol=1e-15, gtol=1e-15, max_nfev=2000)
-        jac = _jacobian(sol.x, m, field_norm)
-        n, p = len(m), 9
+        jac = _jacobian(P @ sol.x, m, field_norm) @ P
         sigma2 = np.sum(sol.fun**2) / (n - p)
         psi, dpsi = _psi(sol.fun, loss, loss_scale)
         K = 1 + p / n * np.var(dpsi) / np.mean(dpsi) ** 2
         variance = K**2 * np.sum(psi**2) / (n - p) / np.mean(dpsi) ** 2
     cov = variance * np.linalg.inv(jac.T @ jac)
-    return {"parameters": sol.x, "offset": sol.x[:3], "matrix": _matrix(sol.x), "covariance": cov,
+    return {"parameters": sol.x, "offset": sol.x[:3], "matrix": _matrix(P @ sol.x), "covariance": cov,
             "noise_sigma": np.sqrt(sigma2), "jacobian": jac, "residuals": sol.fun}
 
 
