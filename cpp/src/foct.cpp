@@ -169,15 +169,25 @@ FoctResult fit_foct(const SeriesRef& zero_bias, const SeriesRef& temp, const Ser
 
   FoctResult res;
   Summary& sum = res.summary;
-  // S2 (diagnostics) and S3: the AR model of the zero-mean series.
+  // S2 (diagnostics of the zero bias).
   res.preprocess = naming_zero_bias([&] { return preprocess(zero_bias, options.preprocess); });
-  const double mean = res.preprocess.mean;
-  const Eigen::VectorXd level = zero_bias.array() - mean;
-  res.ar = naming_zero_bias([&] { return fit_ar(level, options.ar); });
+  // S2.3 removes the trend before the AR model; here the trend is the temperature drift, so S3 fits the
+  // zero bias minus a first drift model (S5 on the zero bias, GLS): the noise. Fitted to the zero bias
+  // itself the AR model also had to describe the drift (AIC went to max_order, Ljung–Box rejected it).
+  const DriftModel first = fit_drift(temp, x, zero_bias, options.drift);
+  const Eigen::VectorXd drift_first = first.evaluate(temp, x);
+  const Eigen::VectorXd about_drift = zero_bias - drift_first;
+  double noise_mean = 0.0;
+  const Eigen::VectorXd noise = zero_mean(about_drift, &noise_mean);
+  ArOptions ar_options = options.ar;
+  // Ljung–Box over twice the largest order AIC may take, so correlation beyond max_order is tested too.
+  if (ar_options.whiteness_lags <= 0) ar_options.whiteness_lags = std::max(10, 2 * ar_order);
+  res.ar = naming_zero_bias([&] { return fit_ar(noise, ar_options); });
   if (res.ar.order == 0)
     throw Error(std::string("zero_bias: ") +
-                (options.ar.order == 0 ? "the fixed AR order is 0" : "AIC chose AR order 0 (white series)") +
-                ", the Kalman filter needs p ≥ 1");
+                (options.ar.order == 0 ? "the fixed AR order is 0"
+                                       : "AIC chose AR order 0 for the noise about the drift (white noise)") +
+                ", the Kalman filter needs p ≥ 1 (fit_drift fits the drift alone)");
 
   // S4: Q (and R unless given) from the AR fit, or both as given.
   const ArKalman kalman = options.q ? ArKalman(res.ar.coefficients, *options.q, options.r.value_or(res.ar.sigma2),
@@ -186,18 +196,16 @@ FoctResult fit_foct(const SeriesRef& zero_bias, const SeriesRef& temp, const Ser
   res.q = kalman.q();
   res.r = kalman.r();
   res.steady_state = options.kalman.steady_state;
-  // The filter estimates a zero-mean AR signal, so a slow drift passes with its DC gain g < 1;
-  // dividing by g keeps the drift in L at its size.
-  res.dc_gain = kalman_dc_gain(kalman);
-  const KalmanResult run = kalman.filter(level);
-  res.filtered = (run.filtered.array() / res.dc_gain + mean).matrix();
+  // The drift is a known input of the state-space model: the filter runs on the noise only and L adds the
+  // drift back, so L follows the drift without lag or DC-gain loss on the temperature ramps.
+  const KalmanResult run = kalman.filter(noise);
+  res.filtered = (drift_first.array() + noise_mean + run.filtered.array()).matrix();
 
   // S5 and compensation.
   res.regressor = options.regressor;
   res.drift_input = options.drift_input;
-  // The zero bias by default: L lags the drift on ramps, which the F-test reads as extra orders.
-  const SeriesRef fitted = options.drift_input == DriftInput::zero_bias ? zero_bias : SeriesRef(res.filtered);
-  res.drift = fit_drift(temp, x, fitted, options.drift);
+  // DriftInput::filtered refits S5 on L (seed 001 as written); by default the first model is the model.
+  res.drift = options.drift_input == DriftInput::zero_bias ? first : fit_drift(temp, x, res.filtered, options.drift);
   for (const auto& seg : res.drift.segments) res.orders.push_back(seg.order);
   const Eigen::VectorXd f = res.drift.evaluate(temp, x);
   res.compensated = zero_bias - f;
@@ -223,8 +231,7 @@ FoctResult fit_foct(const SeriesRef& zero_bias, const SeriesRef& temp, const Ser
   for (const Summary* part : parts)
     sum.warnings.insert(sum.warnings.end(), part->warnings.begin(), part->warnings.end());
   std::ostringstream msg;
-  msg << "FOCT drift compensation: AR(" << res.ar.order << ") Kalman filter (DC gain " << res.dc_gain
-      << "), drift orders";
+  msg << "FOCT drift compensation: AR(" << res.ar.order << ") noise model and Kalman filter, drift orders";
   for (int m : res.orders) msg << " " << m;
   msg << " in " << (res.regressor == DriftRegressor::temperature ? "temp" : "temp - temp_outside") << ", drift span "
       << res.drift_span_before << " -> " << res.drift_span_after << " (reduced " << res.drift_reduction << "x)";

@@ -80,9 +80,18 @@ TEST(Foct, RecoversTheGeneratingOrdersAndRemovesTheDrift) {
     // Against the truth: the fitted drift follows the law to a few mA over the whole span.
     const Eigen::VectorXd f = s.zero_bias - fit.compensated;
     EXPECT_LT((f - s.truth).cwiseAbs().maxCoeff(), 0.02) << "seed " << seed;
-    EXPECT_GE(fit.ar.order, 1);
-    EXPECT_GT(fit.dc_gain, 0.0);
-    EXPECT_LT(fit.dc_gain, 1.0);  // the filter attenuates a slow drift; the pipeline undoes it
+    // The AR model is of the noise about the drift: the generating AR(0.5, −0.2) within 4 asymptotic
+    // standard errors, white residuals over 20 lags (it used to model the drift too: AR(10), rejected).
+    const double se = std::sqrt((1.0 - 0.2 * 0.2) / static_cast<double>(s.zero_bias.size()));
+    ASSERT_GE(fit.ar.order, 2) << "seed " << seed;
+    EXPECT_FALSE(fit.ar.order_at_maximum) << "seed " << seed;
+    EXPECT_NEAR(fit.ar.coefficients[0], 0.5, 4.0 * se) << "seed " << seed;
+    EXPECT_NEAR(fit.ar.coefficients[1], -0.2, 4.0 * se) << "seed " << seed;
+    EXPECT_EQ(fit.ar.whiteness.lags, 20);
+    EXPECT_TRUE(fit.ar.whiteness.white) << "seed " << seed;
+    EXPECT_NEAR(std::sqrt(fit.ar.sigma2), 0.05, 0.002) << "seed " << seed;
+    // L is the drift plus the filtered noise: it follows the truth closer than the raw zero bias does.
+    EXPECT_LT((fit.filtered - s.truth).norm(), (s.zero_bias - s.truth).norm()) << "seed " << seed;
     EXPECT_EQ(fit.q, fit.ar.sigma2);
     EXPECT_EQ(fit.r, fit.ar.sigma2);
     ASSERT_TRUE(fit.accuracy_drift.has_value());
@@ -94,6 +103,28 @@ TEST(Foct, RecoversTheGeneratingOrdersAndRemovesTheDrift) {
     EXPECT_TRUE(fit.summary.converged);
     EXPECT_EQ(fit.summary.samples, static_cast<std::size_t>(s.zero_bias.size()));
     EXPECT_NE(fit.summary.message.find("drift orders 2 1 3"), std::string::npos) << fit.summary.message;
+  }
+}
+
+TEST(Foct, NoiseThatIsNotWhiteAboutTheDriftIsStillFlagged) {
+  // An unmodelled 0.1 A step in the 0…30 °C range, or a correlation at lag 15 (beyond max_order 10):
+  // the AR model of the noise about the drift cannot whiten either and the S3.3 check must say so.
+  const Foct s = simulate(2016);
+  const Eigen::Index n = s.zero_bias.size();
+  Eigen::VectorXd step = s.zero_bias, seasonal = s.zero_bias;
+  for (Eigen::Index i = n / 2 + 300; i < n; ++i) step[i] += 0.1;
+  std::mt19937_64 rng(99);
+  std::normal_distribution<double> normal(0.0, 0.03);
+  Eigen::VectorXd e = Eigen::VectorXd::Zero(n);
+  for (Eigen::Index i = 0; i < n; ++i) e[i] = normal(rng) + (i >= 15 ? 0.3 * e[i - 15] : 0.0);
+  seasonal += e;
+  for (const Eigen::VectorXd* w : {&step, &seasonal}) {
+    const auto fit = fluxcal::fit_foct(*w, s.temp);
+    EXPECT_FALSE(fit.ar.whiteness.white) << fit.summary.message;
+    const auto& warnings = fit.summary.warnings;
+    EXPECT_TRUE(std::any_of(warnings.begin(), warnings.end(), [](const std::string& m) {
+      return m.find("residuals are not white") != std::string::npos;
+    }));
   }
 }
 

@@ -53,7 +53,10 @@ def assert_agree(got, model, report, zero_bias):
     kal = model.settings["kalman"]
     assert got["kalman"]["q"] == pytest.approx(kal["q"], rel=RTOL)
     assert got["kalman"]["r"] == pytest.approx(kal["r"], rel=RTOL)
-    assert got["kalman"]["dc_gain"] == pytest.approx(kal["dc_gain"], rel=RTOL)
+    # Both fit the AR model to the noise about the first drift model and test it over the same lags.
+    assert got["ar"]["whiteness"]["lags"] == report["ar"]["whiteness"]["lags"]
+    assert got["ar"]["whiteness"]["p_value"] == pytest.approx(report["ar"]["whiteness"]["p_value"], rel=1e-6)
+    assert set(got["kalman"]) == set(kal)
     assert got["kalman"]["steady_state"] == kal["steady_state"]
     assert got["regressor"] == model.regressor
     assert got["drift_input"] == model.settings["drift_input"]
