@@ -333,8 +333,9 @@ def cmd_drift(args) -> int:
               f"{pre['stationarity']['u']:.3f} ({'stationary' if pre['stationarity']['stationary'] else 'NOT stationary'})")
         print(f"  normality: skewness {pre['normality']['skewness']:.3f}, kurtosis {pre['normality']['kurtosis']:.3f}")
         p_value = ar["whiteness"]["p_value"]
-        white = f"Ljung-Box p {p_value:.3g}" if p_value == p_value else "whiteness not tested (too few lags)"
-        print(f"  AR({ar['order']}) by AIC, sigma2 {ar['sigma2']:.4g}, {white}")
+        white = (f"Ljung-Box p {p_value:.3g} over {ar['whiteness']['lags']} lags" if p_value == p_value
+                 else "whiteness not tested (too few lags)")
+        print(f"  AR({ar['order']}) by AIC of the noise (zero bias - drift model), sigma2 {ar['sigma2']:.4g}, {white}")
         for w in report["warnings"]:
             print(f"warning: {w}")
         for seg in model.segments:
@@ -554,8 +555,8 @@ def build_parser() -> argparse.ArgumentParser:
     df.add_argument("--rated", type=float, default=None, help="rated current (zero-bias units) for the class check")
     df.add_argument("--class", dest="accuracy_class", default="0.2S", choices=("0.2S", "0.5S"))
     df.add_argument("--drift-input", default="zero_bias", choices=("zero_bias", "filtered"),
-                    help="fit the drift to the zero bias (default; GLS with an AR noise model) or to the Kalman "
-                         "output L (seed 001 as written; L lags the drift on ramps and the F-test may add orders)")
+                    help="fit the drift to the zero bias (default; GLS with an AR noise model) or refit it to the "
+                         "Kalman output L (seed 001 as written; L = that drift + the filtered noise)")
     df.add_argument("--bad-lines", default="error", choices=["error", "skip"], help=bad_lines_help)
     da = drs.add_parser("apply", help="compensate a recording: writes its columns plus zero_bias_compensated")
     da.add_argument("model")

@@ -165,6 +165,8 @@ def test_cli_fit_and_apply(tmp_path, foct):
     run = run_cli("drift", "fit", src, "-o", model_path, "--rated", RATED)
     assert run.returncode == 0, run.stderr
     assert "class 0.2S" in run.stdout
+    assert "by AIC of the noise (zero bias - drift model)" in run.stdout and "over 20 lags" in run.stdout
+    assert "warning:" not in run.stdout  # the noise model of a clean recording is not rejected
     data = json.loads(model_path.read_text())
     assert [s["order"] for s in data["segments"]] == [2, 1, 3]
     assert all(set(s) >= {"range", "order", "coefficients"} for s in data["segments"])
