@@ -301,3 +301,32 @@ def test_pipeline_flags_noise_that_is_not_white_about_the_drift(defect, foct):
         assert report["ar"]["order"] < 10
         assert ts.fit_ar(noise - noise.mean()).whiteness["white"]
 
+
+def test_old_models_load_and_compensate_as_before(tmp_path):
+    # A model saved before the AR model was fitted to the noise: AR(10) of the zero bias with its drift, a
+    # Kalman DC gain, no "fitted_to" (abridged from `fluxcal drift fit` at commit f3ab0e1, seed 0).
+    # Compensation uses the segments alone, so it is what it was: W − f(T) with these polynomials.
+    segments = [{"range": [-20.0, 0.0], "order": 2,
+                 "coefficients": [0.8030687518004168, 0.05024439501634758, 0.004003006948481111]},
+                {"range": [0.0, 30.0], "order": 1, "coefficients": [0.800272999932734, -0.030006381954392085]},
+                {"range": [30.0, 50.0], "order": 3, "coefficients": [15.109319794662403, -1.3568148403923754,
+                                                                     0.04044291537398974, -0.0004038261837140769]}]
+    old = {"kind": "fluxcal drift model", "regressor": "temp", "segments": segments,
+           "breakpoints": [-20.0, 0.0, 30.0, 50.0], "max_order": 4, "significance": 0.05, "continuous": False,
+           "whiten": True, "noise_ar": [0.4953120697501565, -0.18975933302709924],
+           "ar": {"order": 10, "coefficients": [0.5952, -0.1403, 0.0653, 0.0613, 0.0543, 0.0793, 0.0674, 0.0728,
+                                                0.0384, 0.1062],
+                  "sigma2": 0.002729368890098363, "max_order": 10, "order_at_maximum": True},
+           "kalman": {"q": 0.002729368890098363, "r": 0.002729368890098363, "steady_state": False,
+                      "dc_gain": 0.9999609360150508},
+           "drift_input": "zero_bias", "column": "zero_bias", "summary": {}}
+    path = tmp_path / "old.json"
+    path.write_text(json.dumps(old))
+    model = drift.DriftModel.load(path)
+    temp = np.linspace(-20.0, 50.0, 701)
+    w = np.random.default_rng(0).normal(0.0, 0.05, temp.size)
+    expected = w - np.array([np.polynomial.polynomial.polyval(t, segments[_segment(t)]["coefficients"])
+                             for t in temp])
+    np.testing.assert_allclose(model.compensate(w, temp), expected, rtol=0, atol=1e-12)
+    assert model.settings["kalman"]["dc_gain"] == old["kalman"]["dc_gain"]  # kept, round-trips
+    assert json.loads(model.save(tmp_path / "again.json").read_text())["ar"] == old["ar"]
