@@ -223,7 +223,10 @@ def load_kalman(path):
     """A FixedArKalman from a JSON of `save_kalman` or a drift model of `fluxcal drift fit` (its AR model and
     Kalman q, r). Without stated signal fraction bits they follow FixedArKalman's own rule
     (`FixedArKalman.signal_frac_bits`: 2·G·max|y| fits, G the filter's signal gain) with max|y| = 8 σ_y,
-    σ_y² = the AR process's stationary variance + r."""
+    σ_y² = the AR process's stationary variance + r. A drift model's AR model is that of the noise about
+    the drift ("fitted_to": "zero_bias - drift"), so the firmware filter takes the compensated zero bias
+    W − f(T), and the format is sized for it (models saved before that have no "fitted_to": their AR
+    model is of the zero-mean zero bias, drift included)."""
     from .kalman import FixedArKalman
 
     path = Path(path)
