@@ -183,29 +183,37 @@ FoctResult fit_foct(const SeriesRef& zero_bias, const SeriesRef& temp, const Ser
   // Ljung–Box over twice the largest order AIC may take, so correlation beyond max_order is tested too.
   if (ar_options.whiteness_lags <= 0) ar_options.whiteness_lags = std::max(10, 2 * ar_order);
   res.ar = naming_zero_bias([&] { return fit_ar(noise, ar_options); });
-  if (res.ar.order == 0)
-    throw Error(std::string("zero_bias: ") +
-                (options.ar.order == 0 ? "the fixed AR order is 0"
-                                       : "AIC chose AR order 0 for the noise about the drift (white noise)") +
-                ", the Kalman filter needs p ≥ 1 (fit_drift fits the drift alone)");
 
-  // S4: Q (and R unless given) from the AR fit, or both as given.
-  const ArKalman kalman = options.q ? ArKalman(res.ar.coefficients, *options.q, options.r.value_or(res.ar.sigma2),
-                                               options.kalman)
-                                    : ArKalman::from_ar(res.ar, options.r.value_or(-1.0), options.kalman);
-  res.q = kalman.q();
-  res.r = kalman.r();
-  res.steady_state = options.kalman.steady_state;
-  // The drift is a known input of the state-space model: the filter runs on the noise only and L adds the
-  // drift back, so L follows the drift without lag or DC-gain loss on the temperature ramps.
-  const KalmanResult run = kalman.filter(noise);
-  res.filtered = (drift_first.array() + noise_mean + run.filtered.array()).matrix();
+  // S4. The drift is a known input of the state-space model: the filter runs on the noise only and L adds
+  // the drift back, so L follows the drift without lag or DC-gain loss on the temperature ramps.
+  res.drift_input = options.drift_input;
+  KalmanResult run;
+  res.kalman_filter = res.ar.order > 0;
+  if (res.kalman_filter) {
+    // Q (and R unless given) from the AR fit, or both as given.
+    const ArKalman kalman = options.q ? ArKalman(res.ar.coefficients, *options.q,
+                                                 options.r.value_or(res.ar.sigma2), options.kalman)
+                                      : ArKalman::from_ar(res.ar, options.r.value_or(-1.0), options.kalman);
+    res.q = kalman.q();
+    res.r = kalman.r();
+    res.steady_state = options.kalman.steady_state;
+    run = kalman.filter(noise);
+    res.filtered = (drift_first.array() + noise_mean + run.filtered.array()).matrix();
+  } else {
+    // White noise about the drift: nothing in it is predictable from its past, so there is no state to
+    // track and the best estimate of the noise is 0: L = f1 + mean, the drift model (q = r = 0, unused).
+    res.filtered = (drift_first.array() + noise_mean).matrix();
+    res.notes.push_back(options.ar.order == 0 ? kWhiteNoiseFixedNote : kWhiteNoiseNote);
+    if (res.drift_input == DriftInput::filtered) {  // a refit to a noiseless L is degenerate
+      res.notes.push_back(kWhiteNoiseNoRefit);
+      res.drift_input = DriftInput::zero_bias;
+    }
+  }
 
   // S5 and compensation.
   res.regressor = options.regressor;
-  res.drift_input = options.drift_input;
   // DriftInput::filtered refits S5 on L (seed 001 as written); by default the first model is the model.
-  res.drift = options.drift_input == DriftInput::zero_bias ? first : fit_drift(temp, x, res.filtered, options.drift);
+  res.drift = res.drift_input == DriftInput::zero_bias ? first : fit_drift(temp, x, res.filtered, options.drift);
   for (const auto& seg : res.drift.segments) res.orders.push_back(seg.order);
   const Eigen::VectorXd f = res.drift.evaluate(temp, x);
   res.compensated = zero_bias - f;
@@ -231,7 +239,12 @@ FoctResult fit_foct(const SeriesRef& zero_bias, const SeriesRef& temp, const Ser
   for (const Summary* part : parts)
     sum.warnings.insert(sum.warnings.end(), part->warnings.begin(), part->warnings.end());
   std::ostringstream msg;
-  msg << "FOCT drift compensation: AR(" << res.ar.order << ") noise model and Kalman filter, drift orders";
+  msg << "FOCT drift compensation: ";
+  if (res.kalman_filter)
+    msg << "AR(" << res.ar.order << ") noise model and Kalman filter";
+  else
+    for (std::size_t i = 0; i < res.notes.size(); ++i) msg << (i ? "; " : "") << res.notes[i];
+  msg << ", drift orders";
   for (int m : res.orders) msg << " " << m;
   msg << " in " << (res.regressor == DriftRegressor::temperature ? "temp" : "temp - temp_outside") << ", drift span "
       << res.drift_span_before << " -> " << res.drift_span_after << " (reduced " << res.drift_reduction << "x)";

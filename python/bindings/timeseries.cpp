@@ -91,7 +91,10 @@ py::dict foct_dict(const fluxcal::FoctResult& r) {
       "ar"_a = py::dict("order"_a = ar.order, "coefficients"_a = ar.coefficients, "sigma2"_a = ar.sigma2,
                         "aic"_a = ar.aic, "order_at_maximum"_a = ar.order_at_maximum,
                         "whiteness"_a = ljung_dict(ar.whiteness), "summary"_a = summary_dict(ar.summary)),
-      "kalman"_a = py::dict("q"_a = r.q, "r"_a = r.r, "steady_state"_a = r.steady_state),
+      // None without a filter (white noise about the drift), as fit_pipeline's settings["kalman"].
+      "kalman"_a = r.kalman_filter ? py::object(py::dict("q"_a = r.q, "r"_a = r.r, "steady_state"_a = r.steady_state))
+                                   : py::object(py::none()),
+      "notes"_a = r.notes,
       "filtered"_a = r.filtered, "compensated"_a = r.compensated, "residual"_a = r.residual,
       "drift_span_before"_a = r.drift_span_before, "drift_span_after"_a = r.drift_span_after,
       "drift_reduction"_a = r.drift_reduction, "accuracy"_a = accuracy_or_none(r.accuracy),

@@ -336,6 +336,8 @@ def cmd_drift(args) -> int:
         white = (f"Ljung-Box p {p_value:.3g} over {ar['whiteness']['lags']} lags" if p_value == p_value
                  else "whiteness not tested (too few lags)")
         print(f"  AR({ar['order']}) by AIC of the noise (zero bias - drift model), sigma2 {ar['sigma2']:.4g}, {white}")
+        for note in report["notes"]:  # white noise about the drift: no Kalman filter (and why)
+            print(f"  {note}")
         for w in report["warnings"]:
             print(f"warning: {w}")
         for seg in model.segments:

@@ -22,7 +22,9 @@ Steps of fit_pipeline:
   3. Kalman filter on that AR model (`ArKalman.from_ar`: Q = the AR residual variance, R given or Q) → L
      (S4). The drift is a known input of the state-space model, so the filter runs on the noise and
      L = f1 + mean + filter(noise): L follows the drift without the lag (and the DC gain below 1) that
-     filtering the zero bias itself gave on temperature ramps;
+     filtering the zero bias itself gave on temperature ramps. When AIC chooses order 0 (the noise about
+     the drift is white) nothing in the noise is predictable and there is no filter: L = f1 + mean,
+     settings["kalman"] is None and report["notes"] says so (WHITE_NOISE_NOTE);
   4. piecewise polynomial drift Y = T A of the zero bias in the device temperature or the inside/outside
      difference, balanced columns, F-test orders, AR-whitened (generalised) least squares (S5; see
      cpp/include/fluxcal/drift.hpp for why the whitening): by default the model is f1 itself.
@@ -50,6 +52,10 @@ IEC_LIMITS = {"0.2S": (0.75, 0.35, 0.2, 0.2, 0.2), "0.5S": (1.5, 0.75, 0.5, 0.5,
 REGRESSORS = ("temp", "difference")
 DRIFT_INPUTS = ("zero_bias", "filtered")  # what fit_pipeline fits the drift to (module doc, step 4)
 AR_FITTED_TO = "zero_bias - drift"  # what fit_pipeline's AR model describes: the noise about the drift (step 2)
+# fit_pipeline's report["notes"] (and fit_foct's) when AIC chooses AR order 0 (module doc, step 3).
+WHITE_NOISE_NOTE = "noise about the drift is white (AIC order 0): no Kalman filter; L = the drift model"
+WHITE_NOISE_NO_REFIT = ("drift_input 'filtered' has nothing to refit (L is the drift model): the model is the fit "
+                        "to the zero bias")
 
 
 def _regressor(temp, temp_outside, regressor: str) -> np.ndarray:
@@ -231,7 +237,8 @@ def fit_pipeline(zero_bias, temp, temp_outside=None, regressor: str = "temp", br
     """Seed 001 end to end (module doc). drift_input: "zero_bias" (default, GLS on the zero bias) or
     "filtered" (the Kalman output L, seed 001 as written; module doc step 4). The AR model (report["ar"],
     model.settings["ar"], "fitted_to": "zero_bias - drift") is of the noise about a first drift model,
-    and the Kalman filter runs on that noise. Returns (DriftModel, report)."""
+    and the Kalman filter runs on that noise; when that noise is white (AR order 0) there is no filter and
+    report["notes"] says so (drift_input="filtered" then has nothing to refit). Returns (DriftModel, report)."""
     if drift_input not in DRIFT_INPUTS:
         raise ValueError(f"drift_input: {drift_input!r} is not one of {', '.join(DRIFT_INPUTS)}")
     w = _finite(ts.as_series(zero_bias, "zero_bias"), "zero_bias")
@@ -250,22 +257,32 @@ def fit_pipeline(zero_bias, temp, temp_outside=None, regressor: str = "temp", br
     # Ljung–Box over twice the largest order AIC may take, so correlation beyond max_order is tested too.
     ar = ts.fit_ar(noise, max_order=ar_max_order, whiteness_lags=max(10, 2 * ar_max_order))
     if ar.order == 0:
-        raise ValueError("zero_bias: AIC chose AR order 0 for the noise about the drift (white noise), the Kalman "
-                         "filter needs p ≥ 1 (fit_drift fits the drift alone)")
-    if q is None:  # Q (and R unless given) estimated from the AR fit
-        kalman = ArKalman.from_ar(ar, r=r, steady_state=steady_state)
+        # White noise about the drift: nothing in it is predictable from its past, so there is no state for
+        # the Kalman filter to track and its best estimate of the noise is 0: L = f1 + mean, the drift model.
+        # q, r and steady_state have nothing to act on; settings["kalman"] is None (no filter to export).
+        kalman_settings = None
+        filtered = drift_first + noise_mean
+        notes = [WHITE_NOISE_NOTE]
+        if drift_input == "filtered":  # a refit to a noiseless L is degenerate (rank-deficient GLS, false orders)
+            notes.append(WHITE_NOISE_NO_REFIT)
+            drift_input = "zero_bias"
     else:
-        kalman = ArKalman(ar.coefficients, float(q), ar.sigma2 if r is None else float(r), steady_state=steady_state)
-    q, r = kalman.q, kalman.r
-    # The drift is a known input of the state-space model: the filter runs on the noise only and L adds the
-    # drift back, so L follows the drift without lag or DC-gain loss on the temperature ramps.
-    filtered = drift_first + noise_mean + kalman.filter(noise)
+        if q is None:  # Q (and R unless given) estimated from the AR fit
+            kalman = ArKalman.from_ar(ar, r=r, steady_state=steady_state)
+        else:
+            kalman = ArKalman(ar.coefficients, float(q), ar.sigma2 if r is None else float(r),
+                              steady_state=steady_state)
+        kalman_settings = {"q": kalman.q, "r": kalman.r, "steady_state": steady_state}
+        # The drift is a known input of the state-space model: the filter runs on the noise only and L adds
+        # the drift back, so L follows the drift without lag or DC-gain loss on the temperature ramps.
+        filtered = drift_first + noise_mean + kalman.filter(noise)
+        notes = []
     # drift_input="filtered" refits S5 on L (seed 001 as written); by default the first model is the model.
     model = first if drift_input == "zero_bias" else fit_drift(filtered, temp, temp_outside, **drift_options)
     model.settings.update({"ar": {"order": ar.order, "coefficients": ar.coefficients.tolist(), "sigma2": ar.sigma2,
                                   "max_order": ar_max_order, "order_at_maximum": ar.order_at_maximum,
                                   "fitted_to": AR_FITTED_TO},
-                           "kalman": {"q": q, "r": r, "steady_state": steady_state},
+                           "kalman": kalman_settings,
                            "drift_input": drift_input})
     compensated = model.compensate(w, temp, temp_outside)
     residual_filtered = filtered - model.evaluate(temp, temp_outside)
@@ -276,7 +293,7 @@ def fit_pipeline(zero_bias, temp, temp_outside=None, regressor: str = "temp", br
                      "warnings": ar.summary["warnings"], "fitted_to": AR_FITTED_TO},
               "orders": [s["order"] for s in model.segments],
               "drift_span_before": drift_span(w, temp), "drift_span_after": drift_span(compensated, temp),
-              "compensated": compensated, "filtered": filtered}
+              "compensated": compensated, "filtered": filtered, "notes": notes}
     report["drift_reduction"] = report["drift_span_before"] / max(report["drift_span_after"], 1e-300)
     if rated is not None:
         # Two views: the filtered output sample by sample (drift residual plus what noise the filter

@@ -226,7 +226,8 @@ def load_kalman(path):
     σ_y² = the AR process's stationary variance + r. A drift model's AR model is that of the noise about
     the drift ("fitted_to": "zero_bias - drift"), so the firmware filter takes the compensated zero bias
     W − f(T), and the format is sized for it (models saved before that have no "fitted_to": their AR
-    model is of the zero-mean zero bias, drift included)."""
+    model is of the zero-mean zero bias, drift included). A drift model whose noise about the drift is
+    white has no filter ("kalman": null): ValueError saying so."""
     from .kalman import FixedArKalman
 
     path = Path(path)
@@ -245,6 +246,13 @@ def load_kalman(path):
                             initial_variance=float(data.get("initial_variance", 0.0)),
                             coef_frac_bits=data.get("coef_frac_bits"), cov_frac_bits=data.get("cov_frac_bits"))
             frac_bits = data.get("frac_bits")
+        elif data.get("kind") == "fluxcal drift model" and data.get("kalman", 0) is None:
+            # fit_pipeline found the noise about the drift white (AR order 0): there is no filter. A pass-through
+            # would output W − f(T) unfiltered, not the pipeline's L (whose noise estimate is 0), and a filter
+            # that outputs 0 is not one: refuse, saying what the firmware does instead.
+            raise ValueError(f"{path}: this drift model has no Kalman filter to export: the noise about its drift is "
+                             "white (AR order 0), so the compensation is W - f(T) alone (fluxcal drift apply; "
+                             "export-c without --kalman)")
         elif data.get("kind") == "fluxcal drift model" and "ar" in data and "kalman" in data:
             settings = dict(ar_coeffs=data["ar"]["coefficients"], q=data["kalman"]["q"], r=data["kalman"]["r"],
                             steady_state=bool(data["kalman"].get("steady_state", False)))

@@ -18,8 +18,9 @@ struct Foct {
 };
 
 // Holds of 1200 s every 5 °C from −20 to 50 °C, 600 s linear ramps, 1 Hz; the device lags the chamber
-// by 60 s (first order); zero bias = foct_drift_law(device) + AR(0.5, −0.2) noise with σ = 0.05 (as fluxcal.sim.foct).
-Foct simulate(unsigned seed) {
+// by 60 s (first order); zero bias = foct_drift_law(device) + AR(a1, a2) noise with σ = 0.05 (as fluxcal.sim.foct;
+// a1 = a2 = 0: white noise, the same draws).
+Foct simulate(unsigned seed, double a1 = 0.5, double a2 = -0.2) {
   std::vector<double> chamber;
   for (int level = 0; level < 15; ++level) {
     const double t = -20.0 + 5.0 * level;
@@ -38,7 +39,7 @@ Foct simulate(unsigned seed) {
   std::normal_distribution<double> normal(0.0, 0.05);
   double device = chamber[0], y1 = 0.0, y2 = 0.0;
   for (int k = 0; k < 1000; ++k) {  // burn-in: stationary noise from the first sample
-    const double y = 0.5 * y1 - 0.2 * y2 + normal(rng);
+    const double y = a1 * y1 + a2 * y2 + normal(rng);
     y2 = y1;
     y1 = y;
   }
@@ -46,7 +47,7 @@ Foct simulate(unsigned seed) {
     device = alpha * chamber[static_cast<std::size_t>(i)] + (1.0 - alpha) * device;
     s.temp[i] = std::clamp(device, -20.0, 50.0);
     s.truth[i] = foct_drift_law(s.temp[i]);
-    const double y = 0.5 * y1 - 0.2 * y2 + normal(rng);
+    const double y = a1 * y1 + a2 * y2 + normal(rng);
     y2 = y1;
     y1 = y;
     s.zero_bias[i] = s.truth[i] + y;
@@ -126,6 +127,63 @@ TEST(Foct, NoiseThatIsNotWhiteAboutTheDriftIsStillFlagged) {
       return m.find("residuals are not white") != std::string::npos;
     }));
   }
+}
+
+TEST(Foct, WhiteNoiseAboutTheDriftGivesTheDriftModelWithoutAKalmanFilter) {
+  // White noise about the drift (seeds 2 and 3: AIC chooses order 0; it used to stop the pipeline, the
+  // filter needing p ≥ 1): nothing to predict, so no filter, L = the drift model + the noise mean, and a
+  // drift model as good as with coloured noise. drift_input filtered has no noisy L to refit.
+  for (unsigned seed : {2u, 3u}) {
+    const Foct s = simulate(seed, 0.0, 0.0);
+    fluxcal::FoctOptions options;
+    options.rated = 1000.0;
+    const auto fit = fluxcal::fit_foct(s.zero_bias, s.temp, options);
+    ASSERT_EQ(fit.ar.order, 0) << "seed " << seed;
+    EXPECT_TRUE(fit.ar.whiteness.white) << "seed " << seed;
+    EXPECT_FALSE(fit.kalman_filter);
+    EXPECT_EQ(fit.q, 0.0);
+    EXPECT_EQ(fit.r, 0.0);
+    EXPECT_EQ(fit.notes, (std::vector<std::string>{fluxcal::kWhiteNoiseNote}));
+    EXPECT_EQ(fit.summary.message.rfind(std::string("FOCT drift compensation: ") + fluxcal::kWhiteNoiseNote, 0), 0u)
+        << fit.summary.message;
+    EXPECT_TRUE(fit.summary.warnings.empty()) << fit.summary.warnings.front();
+    EXPECT_EQ(fit.orders, (std::vector<int>{2, 1, 3})) << "seed " << seed;
+    EXPECT_GE(fit.drift_reduction, 10.0) << "seed " << seed;
+    const Eigen::VectorXd f = s.zero_bias - fit.compensated;
+    EXPECT_LT((f - s.truth).cwiseAbs().maxCoeff(), 0.02) << "seed " << seed;
+    // L − f is the noise mean, the same at every sample (and ≈ 0: no whitening, least squares per range).
+    EXPECT_LT(fit.residual.maxCoeff() - fit.residual.minCoeff(), 1e-12);
+    EXPECT_LT(std::abs(fit.residual[0]), 1e-12);
+    ASSERT_TRUE(fit.accuracy_drift.has_value());
+    EXPECT_TRUE(fit.accuracy_drift->met);
+
+    fluxcal::FoctOptions filtered = options;
+    filtered.drift_input = fluxcal::DriftInput::filtered;
+    const auto refit = fluxcal::fit_foct(s.zero_bias, s.temp, filtered);
+    EXPECT_EQ(refit.drift_input, fluxcal::DriftInput::zero_bias);
+    EXPECT_EQ(refit.notes, (std::vector<std::string>{fluxcal::kWhiteNoiseNote, fluxcal::kWhiteNoiseNoRefit}));
+    EXPECT_EQ(refit.compensated, fit.compensated);
+    EXPECT_EQ(refit.filtered, fit.filtered);
+  }
+  // A white series with no drift at all (the old "AIC chose AR order 0" error case) is handled alike.
+  std::mt19937_64 rng(0);
+  std::normal_distribution<double> normal(0.0, 0.05);
+  Eigen::VectorXd white(3000);
+  for (Eigen::Index i = 0; i < white.size(); ++i) white[i] = normal(rng);
+  const auto flat = fluxcal::fit_foct(white, Eigen::VectorXd::LinSpaced(white.size(), -20.0, 50.0));
+  EXPECT_EQ(flat.ar.order, 0);
+  EXPECT_FALSE(flat.kalman_filter);
+  EXPECT_EQ(flat.notes, (std::vector<std::string>{fluxcal::kWhiteNoiseNote}));
+  EXPECT_EQ(flat.orders, (std::vector<int>{0, 0, 0}));
+  // An AR order fixed at 0 says the noise is white: no filter either, and Ljung–Box says when it is not.
+  fluxcal::FoctOptions fixed;
+  fixed.ar.order = 0;
+  const auto forced = fluxcal::fit_foct(simulate(2).zero_bias, simulate(2).temp, fixed);
+  EXPECT_FALSE(forced.kalman_filter);
+  EXPECT_EQ(forced.notes, (std::vector<std::string>{fluxcal::kWhiteNoiseFixedNote}));
+  EXPECT_FALSE(forced.ar.whiteness.white);
+  EXPECT_TRUE(std::any_of(forced.summary.warnings.begin(), forced.summary.warnings.end(),
+                          [](const std::string& m) { return m.find("residuals are not white") != std::string::npos; }));
 }
 
 TEST(Foct, CompensatesNewData) {
@@ -244,9 +302,6 @@ TEST(Foct, BadInput) {
                 "zero_bias: constant"),
             std::string::npos);
   fluxcal::FoctOptions o;
-  o.ar.order = 0;
-  EXPECT_NE(message(s.zero_bias, s.temp, o).find("zero_bias: the fixed AR order is 0"), std::string::npos);
-  o = {};
   o.regressor = fluxcal::DriftRegressor::difference;
   EXPECT_NE(message(s.zero_bias, s.temp, o).find("temp_outside: needed"), std::string::npos);
   Eigen::VectorXd outside = s.temp_outside.head(10);

@@ -7,6 +7,7 @@ from scipy.signal import lfilter
 
 from conftest import run_cli
 from fluxcal import drift, read_csv, sim, write_csv
+from fluxcal.export_c import load_kalman
 from fluxcal import timeseries as ts
 from fluxcal.oracle import drift as oracle
 
@@ -330,3 +331,49 @@ def test_old_models_load_and_compensate_as_before(tmp_path):
     np.testing.assert_allclose(model.compensate(w, temp), expected, rtol=0, atol=1e-12)
     assert model.settings["kalman"]["dc_gain"] == old["kalman"]["dc_gain"]  # kept, round-trips
     assert json.loads(model.save(tmp_path / "again.json").read_text())["ar"] == old["ar"]
+
+
+@pytest.mark.parametrize("seed", [2, 3])  # seeds whose noise about the drift AIC calls white (order 0)
+def test_pipeline_white_noise_about_the_drift_gives_the_drift_model_without_a_kalman_filter(seed, tmp_path):
+    # A FOCT whose noise about its drift is white used to stop with "AIC chose AR order 0 … the Kalman
+    # filter needs p ≥ 1". Nothing in white noise is predictable, so there is nothing to filter: the drift
+    # model and its compensation as usual, L = the drift model + the noise mean, and said so.
+    s = sim.foct_zero_bias(rng=np.random.default_rng(seed), ar=())
+    c, truth = s.columns, s.truth["drift"]["zero_bias"]
+    model, report = drift.fit_pipeline(c["zero_bias"], c["temp"], c["temp_outside"], rated=RATED)
+    assert report["ar"]["order"] == 0 and report["ar"]["whiteness"]["white"]
+    assert report["notes"] == [drift.WHITE_NOISE_NOTE] and report["warnings"] == []
+    assert model.settings["kalman"] is None and model.settings["ar"]["order"] == 0
+    assert report["orders"] == [2, 1, 3] and report["drift_reduction"] >= 10.0
+    assert np.max(np.abs(model.evaluate(c["temp"]) - truth)) < 0.02
+    assert report["accuracy_drift"]["met"]
+    residual = report["filtered"] - model.evaluate(c["temp"])  # the noise mean, the same at every sample
+    assert np.ptp(residual) < 1e-12 and abs(residual[0]) < 1e-12
+    # drift_input="filtered": L has no noise left to refit (a refit fails or takes false orders), so the
+    # model is the fit to the zero bias and the settings say so.
+    m2, r2 = drift.fit_pipeline(c["zero_bias"], c["temp"], drift_input="filtered")
+    assert r2["notes"] == [drift.WHITE_NOISE_NOTE, drift.WHITE_NOISE_NO_REFIT]
+    assert m2.settings["drift_input"] == "zero_bias" and m2.segments == model.segments
+    # The saved model: drift apply compensates with it; export-c --kalman refuses, naming the reason.
+    src = write_csv(tmp_path / "foct.csv", {k: c[k] for k in ("t", "zero_bias", "temp")}, units=s.units)
+    model_path = tmp_path / "model.json"
+    run = run_cli("drift", "fit", src, "-o", model_path)
+    assert run.returncode == 0, run.stderr
+    assert "AR(0) by AIC of the noise" in run.stdout and drift.WHITE_NOISE_NOTE in run.stdout, run.stdout
+    assert json.loads(model_path.read_text())["kalman"] is None
+    run = run_cli("drift", "apply", model_path, src, "-o", tmp_path / "out.csv")
+    assert run.returncode == 0, run.stderr
+    np.testing.assert_allclose(read_csv(tmp_path / "out.csv").columns["zero_bias_compensated"],
+                               drift.DriftModel.load(model_path).compensate(c["zero_bias"], c["temp"]),
+                               rtol=1e-9, atol=1e-9)
+    with pytest.raises(ValueError, match=r"no Kalman filter to export: the noise about its drift is white \(AR "
+                                         r"order 0\), so the compensation is W - f\(T\) alone"):
+        load_kalman(model_path)
+
+
+def test_pipeline_white_series_without_drift_runs_like_white_noise_about_a_drift():
+    # The old error case (a white series, no drift) takes the same path: no filter, the note, a flat model.
+    w = np.random.default_rng(0).normal(0.0, 0.05, 3000)
+    model, report = drift.fit_pipeline(w, np.linspace(-20, 50, w.size))
+    assert report["ar"]["order"] == 0 and report["notes"] == [drift.WHITE_NOISE_NOTE]
+    assert model.settings["kalman"] is None and report["orders"] == [0, 0, 0]

@@ -224,6 +224,19 @@ def test_kalman_from_a_drift_model(tmp_path):
     assert mismatches == 0 and len(outputs) == 256
 
 
+def test_kalman_from_a_drift_model_without_a_filter(tmp_path):
+    # White noise about the drift (AR order 0): the drift model has no Kalman filter ("kalman": null), and
+    # export-c --kalman says so rather than exporting a filter the pipeline did not use.
+    foct = sim.foct_zero_bias(rng=np.random.default_rng(2), ar=())
+    model, report = drift.fit_pipeline(foct.columns["zero_bias"], foct.columns["temp"])
+    assert report["ar"]["order"] == 0
+    path = model.save(tmp_path / "drift.json")
+    r = run_cli("export-c", CALS["nT"].save(tmp_path / "cal.json"), "-o", tmp_path / "p.h", "--kalman", path)
+    assert r.returncode == 2 and "Traceback" not in r.stderr, r.stderr
+    assert "no Kalman filter to export: the noise about its drift is white (AR order 0)" in r.stderr, r.stderr
+    assert not (tmp_path / "p.h").exists()
+
+
 def test_cli_export_c_and_its_errors(tmp_path):
     cal = CALS["nT"].save(tmp_path / "cal.json")
     r = run_cli("export-c", cal, "-o", tmp_path / "sensor-7.h")

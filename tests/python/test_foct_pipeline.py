@@ -50,14 +50,19 @@ def assert_agree(got, model, report, zero_bias):
     assert got["orders"] == report["orders"]
     assert got["ar"]["order"] == report["ar"]["order"]
     np.testing.assert_allclose(got["ar"]["coefficients"], report["ar"]["coefficients"], rtol=RTOL, atol=0)
-    kal = model.settings["kalman"]
-    assert got["kalman"]["q"] == pytest.approx(kal["q"], rel=RTOL)
-    assert got["kalman"]["r"] == pytest.approx(kal["r"], rel=RTOL)
     # Both fit the AR model to the noise about the first drift model and test it over the same lags.
     assert got["ar"]["whiteness"]["lags"] == report["ar"]["whiteness"]["lags"]
     assert got["ar"]["whiteness"]["p_value"] == pytest.approx(report["ar"]["whiteness"]["p_value"], rel=1e-6)
-    assert set(got["kalman"]) == set(kal)
-    assert got["kalman"]["steady_state"] == kal["steady_state"]
+    # Both say alike when (and why) there is no Kalman filter: white noise about the drift.
+    assert got["notes"] == report["notes"]
+    kal = model.settings["kalman"]
+    if kal is None:
+        assert got["kalman"] is None and report["ar"]["order"] == 0
+    else:
+        assert got["kalman"]["q"] == pytest.approx(kal["q"], rel=RTOL)
+        assert got["kalman"]["r"] == pytest.approx(kal["r"], rel=RTOL)
+        assert set(got["kalman"]) == set(kal)
+        assert got["kalman"]["steady_state"] == kal["steady_state"]
     assert got["regressor"] == model.regressor
     assert got["drift_input"] == model.settings["drift_input"]
     np.testing.assert_allclose(got["noise_ar"], model.settings["noise_ar"], rtol=RTOL, atol=RTOL)
@@ -172,15 +177,31 @@ def test_compensating_new_data_and_the_helpers():
     assert verdicts == {False, True}  # this residual fails 0.2S but meets 0.5S: both branches compared
 
 
-@pytest.fixture(scope="module")
-def white():
-    """A white series: AIC chooses AR order 0 (checked), which the Kalman step cannot use."""
-    w = np.random.default_rng(0).normal(0.0, 0.05, 3000)
-    assert ts.fit_ar(w - w.mean()).order == 0
-    return w
+WHITE_SEEDS = (2, 3)  # sim.foct_zero_bias(ar=()) seeds whose noise about the drift AIC calls white (order 0)
 
 
-def _bad_cases(white):
+@pytest.mark.parametrize("drift_input", ["zero_bias", "filtered"])
+@pytest.mark.parametrize("case", ["white_about_drift", "white_without_drift"])
+def test_white_noise_agrees_with_python(case, drift_input):
+    # No Kalman filter (AR order 0): L = the drift model + the noise mean in both, the same notes, and
+    # drift_input "filtered" falls back to the fit to the zero bias in both (L has no noise to refit).
+    if case == "white_about_drift":
+        c = sim.foct_zero_bias(rng=np.random.default_rng(WHITE_SEEDS[0]), ar=()).columns
+        w, t, kwargs = c["zero_bias"], c["temp"], dict(rated=RATED)
+    else:  # seed 001's white series without a drift: what used to fail with "AIC chose AR order 0"
+        w = np.random.default_rng(0).normal(0.0, 0.05, 3000)
+        t, kwargs = np.linspace(-20, 50, w.size), {}
+    model, report = drift.fit_pipeline(w, t, drift_input=drift_input, **kwargs)
+    got = fit_cpp(w, t, drift_input=drift_input, **kwargs)
+    assert report["ar"]["order"] == 0 and model.settings["kalman"] is None
+    assert_agree(got, model, report, w)
+    assert got["drift_input"] == "zero_bias"
+    assert got["notes"][0] == drift.WHITE_NOISE_NOTE
+    assert (drift.WHITE_NOISE_NO_REFIT in got["notes"]) == (drift_input == "filtered")
+    assert got["summary"]["message"].startswith("FOCT drift compensation: " + drift.WHITE_NOISE_NOTE)
+
+
+def _bad_cases():
     c = foct(2016)
     w, t = c["zero_bias"].copy(), c["temp"].copy()
     w[5] = np.nan
@@ -191,7 +212,6 @@ def _bad_cases(white):
         "length_mismatch": ((c["zero_bias"], c["temp"][:100]), {}, "temp: 100 samples, zero_bias has 26400"),
         "too_short": ((c["zero_bias"][:30], c["temp"][:30]), {}, "30 samples, need at least 42"),
         "constant": ((np.full(1000, 0.3), np.linspace(-20, 50, 1000)), {}, "constant"),
-        "ar_order_0": ((white, np.linspace(-20, 50, white.size)), {}, "zero_bias: AIC chose AR order 0"),
         "no_temp_outside": ((c["zero_bias"], c["temp"]), {"regressor": "difference"}, "temp_outside: needed"),
         "bad_class": ((c["zero_bias"], c["temp"]), {"rated": RATED, "accuracy_class": "0.1"},
                       "accuracy_class: '0.1' is not one of 0.2S, 0.5S"),
@@ -204,11 +224,11 @@ def _bad_cases(white):
 
 
 @pytest.mark.parametrize("case", ["nan_zero_bias", "inf_temp", "length_mismatch", "too_short", "constant",
-                                  "ar_order_0", "no_temp_outside", "bad_class", "bad_rated", "negative_r",
+                                  "no_temp_outside", "bad_class", "bad_rated", "negative_r",
                                   "outside_ranges", "empty_range"])
 @pytest.mark.parametrize("implementation", ["python", "cpp"])
-def test_bad_input_fails_alike(case, implementation, white):
-    args, kwargs, message = _bad_cases(white)[case]
+def test_bad_input_fails_alike(case, implementation):
+    args, kwargs, message = _bad_cases()[case]
     fit = drift.fit_pipeline if implementation == "python" else fit_cpp
     with pytest.raises(ValueError, match=message):
         fit(*args, **kwargs)

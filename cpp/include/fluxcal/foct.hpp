@@ -6,11 +6,13 @@
 //                                                      S5 on the zero bias: piecewise polynomial, F-test
 //                                                      orders, GLS with an AR noise model
 //      noise = zero_bias − f1 − mean; fit_ar(noise)    S3: AR(p) of the noise by AIC, RLS, Ljung–Box over
-//                                                      2 max_order lags; order 0 is an error (S2.3 removes
-//                                                      the trend first: here the trend is the drift)
+//                                                      2 max_order lags (S2.3 removes the trend first: here
+//                                                      the trend is the drift)
 //   3. ArKalman on that AR model                      S4: Q = σ², R = σ² (or given q / r)
 //      filtered = f1 + mean + filter(noise)           the drift is a known input: L follows it without lag
-//   4. the drift model is f1 (DriftInput::filtered: fit_drift of L, as seed 001 writes it; see DriftInput)
+//      p = 0 (white noise about the drift): no filter, filtered = f1 + mean (kWhiteNoiseNote)
+//   4. the drift model is f1 (DriftInput::filtered: fit_drift of L, as seed 001 writes it; see DriftInput;
+//      not with p = 0, where L is f1 + mean and has nothing to refit)
 //   5. compensated = zero_bias − f(T); drift span before / after (peak-to-peak of the per-level means)
 //      and, with a rated current, the IEC 61869 ratio-error verdicts of the residual.
 //
@@ -123,14 +125,30 @@ inline Eigen::VectorXd compensate_zero_bias(const DriftModel& drift, DriftRegres
   return compensate_zero_bias(drift, regressor, zero_bias, temp, &temp_outside);
 }
 
+/// FoctResult::notes when the noise about the drift is white (AR order 0; fluxcal.drift.WHITE_NOISE_NOTE and
+/// WHITE_NOISE_NO_REFIT, word for word): nothing in it is predictable from its past, so there is no state
+/// for a Kalman filter and its best estimate of the noise is 0.
+inline constexpr const char* kWhiteNoiseNote =
+    "noise about the drift is white (AIC order 0): no Kalman filter; L = the drift model";
+inline constexpr const char* kWhiteNoiseFixedNote =
+    "noise about the drift is white (AR order fixed at 0): no Kalman filter; L = the drift model";
+inline constexpr const char* kWhiteNoiseNoRefit =
+    "drift_input 'filtered' has nothing to refit (L is the drift model): the model is the fit to the zero bias";
+
 struct FoctResult {
   PreprocessResult preprocess;  ///< S2 (diagnostics of the zero bias)
   ArResult ar;                  ///< S3, of the noise: zero_bias − the first drift model − its mean
+  /// The Kalman filter ran: false when the AR order is 0 (white noise about the drift; q, r, steady_state
+  /// are then 0 / false and filtered = f1 + mean).
+  bool kalman_filter = false;
   double q = 0.0;               ///< Kalman process variance used
   double r = 0.0;               ///< Kalman measurement variance used
   bool steady_state = false;    ///< the filter ran with its steady-state gain
   DriftRegressor regressor = DriftRegressor::temperature;
-  DriftInput drift_input = DriftInput::zero_bias;  ///< what the drift model was fitted to
+  /// What the drift model was fitted to: options.drift_input, except zero_bias when the noise is white.
+  DriftInput drift_input = DriftInput::zero_bias;
+  /// What the pipeline did differently and why (kWhiteNoiseNote …); empty on the usual path.
+  std::vector<std::string> notes;
   DriftModel drift;             ///< S5
   std::vector<int> orders;      ///< drift polynomial order of each temperature range
   Eigen::VectorXd filtered;     ///< L = first drift model + noise mean + filter(noise)
@@ -159,7 +177,7 @@ struct FoctResult {
 
 /// Seed 001 end to end (file comment). Throws Error naming the input for NaN/Inf, mismatched lengths,
 /// too few samples (2 subseries + 2 for the stationarity test, 2 max_order + 3 for the AR fit), a
-/// constant series, AR order 0, a missing temp_outside for the difference regressor, bad q / r /
+/// constant series, a missing temp_outside for the difference regressor, bad q / r /
 /// rated / accuracy_class, or a temperature range with too few samples.
 FoctResult fit_foct(const SeriesRef& zero_bias, const SeriesRef& temp, const SeriesRef* temp_outside,
                     const FoctOptions& options = {});
