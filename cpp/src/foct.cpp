@@ -234,9 +234,13 @@ FoctResult fit_foct(const SeriesRef& zero_bias, const SeriesRef& temp, const Ser
   sum.cost = res.drift.summary.cost;
   sum.condition_number = res.drift.summary.condition_number;
   sum.converged = true;
-  const std::initializer_list<const Summary*> parts = {&res.preprocess.summary, &res.ar.summary, &run.summary,
-                                                       &res.drift.summary};
-  for (const Summary* part : parts)
+  // Warnings: S2's, S3's, the first drift fit's when the model is a refit to L (otherwise they are the model's,
+  // below), the filter's and the drift model's.
+  sum.warnings = res.preprocess.summary.warnings;
+  sum.warnings.insert(sum.warnings.end(), res.ar.summary.warnings.begin(), res.ar.summary.warnings.end());
+  if (res.drift_input == DriftInput::filtered)
+    for (const std::string& w : first.summary.warnings) sum.warnings.push_back("drift fit to the zero bias: " + w);
+  for (const Summary* part : {&run.summary, &res.drift.summary})
     sum.warnings.insert(sum.warnings.end(), part->warnings.begin(), part->warnings.end());
   std::ostringstream msg;
   msg << "FOCT drift compensation: ";

@@ -284,10 +284,13 @@ def fit_pipeline(zero_bias, temp, temp_outside=None, regressor: str = "temp", br
                                   "fitted_to": AR_FITTED_TO},
                            "kalman": kalman_settings,
                            "drift_input": drift_input})
+    # The data's warnings: S2's, S3's, and the first drift fit's when the model is a refit to L (the model's
+    # summary keeps the warnings of the fit it is, so by default the first fit's are there).
+    first_warnings = [] if model is first else [f"drift fit to the zero bias: {m}" for m in first.summary["warnings"]]
     compensated = model.compensate(w, temp, temp_outside)
     residual_filtered = filtered - model.evaluate(temp, temp_outside)
     report = {"preprocess": {k: v for k, v in pre.items() if k != "series"},
-              "warnings": list(pre["summary"]["warnings"]) + list(ar.summary["warnings"]),
+              "warnings": list(pre["summary"]["warnings"]) + list(ar.summary["warnings"]) + first_warnings,
               "ar": {"order": ar.order, "coefficients": ar.coefficients.tolist(), "sigma2": ar.sigma2,
                      "order_at_maximum": ar.order_at_maximum, "whiteness": ar.whiteness,
                      "warnings": ar.summary["warnings"], "fitted_to": AR_FITTED_TO},

@@ -377,3 +377,30 @@ def test_pipeline_white_series_without_drift_runs_like_white_noise_about_a_drift
     model, report = drift.fit_pipeline(w, np.linspace(-20, 50, w.size))
     assert report["ar"]["order"] == 0 and report["notes"] == [drift.WHITE_NOISE_NOTE]
     assert model.settings["kalman"] is None and report["orders"] == [0, 0, 0]
+
+
+@pytest.mark.parametrize("drift_input", ["zero_bias", "filtered"])
+def test_pipeline_reports_the_first_drift_fits_warnings(drift_input, foct, monkeypatch):
+    # The first drift fit (to the zero bias) is about the data: its warnings reach the report when the model
+    # is a refit to L (drift_input="filtered"), and stay in the model's summary when it is the model. (fit_drift's
+    # one warning today, samples outside every range, cannot get this far: evaluating f1 refuses them, so a
+    # warning is injected into the first fit.)
+    fit_drift, calls = drift.fit_drift, []
+
+    def first_fit_warns(zero_bias, *args, **kwargs):
+        model = fit_drift(zero_bias, *args, **kwargs)
+        calls.append(model)
+        if len(calls) == 1:
+            model.summary["warnings"] = model.summary["warnings"] + ["something about the data"]
+        return model
+
+    monkeypatch.setattr(drift, "fit_drift", first_fit_warns)
+    c = foct.columns
+    model, report = drift.fit_pipeline(c["zero_bias"], c["temp"], drift_input=drift_input)
+    if drift_input == "filtered":
+        assert len(calls) == 2 and model is calls[1]
+        assert report["warnings"] == ["drift fit to the zero bias: something about the data"]
+        assert model.summary["warnings"] == []
+    else:
+        assert len(calls) == 1 and model is calls[0]
+        assert report["warnings"] == [] and model.summary["warnings"] == ["something about the data"]

@@ -161,7 +161,8 @@ struct FoctResult {
   std::optional<AccuracyResult> accuracy;
   /// … and on the drift alone (the per-level means of `compensated`).
   std::optional<AccuracyResult> accuracy_drift;
-  /// warnings: preprocessing, AR fit (Python's report["warnings"] lists only these two), Kalman filter,
+  /// warnings: preprocessing, AR fit, with DriftInput::filtered the first drift fit's (to the zero bias,
+  /// prefixed "drift fit to the zero bias: "; Python's report["warnings"] lists only these), Kalman filter,
   /// drift model (Python keeps those in the model's summary), in that order.
   Summary summary;
 
