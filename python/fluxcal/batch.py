@@ -61,7 +61,7 @@ DEFINITIONS = {
     "residual_rms": "RMS of the fit residuals, field units",
     "direction_coverage": "fraction of the 96 direction bins the readings visit",
 }
-CSV_COLUMNS = ("unit", "status", "method", "units", "samples", "offset_x", "offset_y", "offset_z", "offset_norm",
+CSV_COLUMNS = ("unit", "status", "method", "shape", "units", "samples", "offset_x", "offset_y", "offset_z", "offset_norm",
                "scale_1", "scale_2", "scale_3", "field_norm", "norm_std_over_mean", "residual_rms",
                "direction_coverage", "coverage_ratio", "identifiable", "noise_sigma", "outlier", "source",
                "warnings", "error")
@@ -91,7 +91,8 @@ def unit_row(unit: str, source, cal) -> dict:
     s = cal.summary
     gains = np.linalg.svd(np.linalg.inv(cal.matrix), compute_uv=False)  # sorted largest first
     return {
-        "unit": unit, "status": _status(cal), "method": s.get("method", cal.model), "units": cal.units,
+        "unit": unit, "status": _status(cal), "method": s.get("method", cal.model),
+        "shape": s.get("shape", ""), "units": cal.units,
         "samples": s.get("samples"),
         "offset_x": float(cal.offset[0]), "offset_y": float(cal.offset[1]), "offset_z": float(cal.offset[2]),
         "offset_norm": float(np.linalg.norm(cal.offset)),

@@ -149,6 +149,7 @@ def test_summary_csv_has_one_row_per_unit(first_run):
     assert float(rows["big_offset"]["offset_x"]) == pytest.approx(2 * H, rel=0.1)
     assert rows["planar"]["status"] == "failed" and "one plane" in rows["planar"]["error"]
     assert rows["unit_000"]["status"] == "ok" and rows["unit_000"]["method"] == "als+refine"
+    assert rows["unit_000"]["shape"] in ("sphere", "diag", "sym") and rows["planar"]["shape"] == ""
     assert float(rows["unit_000"]["direction_coverage"]) > 0.8
 
 
