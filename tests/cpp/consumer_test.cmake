@@ -1,4 +1,7 @@
 # Run by ctest: install fluxcal into WORK_DIR/prefix, build the example against it, run the example.
+# Then build tests/cpp/abi_consumer against the same install with -march=native and with
+# -fsanitize=address (those the compiler accepts) and run them: a consumer whose flags change Eigen's
+# defaults must still free what the library allocated (the exported target pins Eigen's memory ABI).
 file(REMOVE_RECURSE ${WORK_DIR})
 function(run)
   execute_process(COMMAND ${ARGN} RESULT_VARIABLE rc OUTPUT_VARIABLE out ERROR_VARIABLE err)
@@ -12,3 +15,13 @@ run(${CMAKE_COMMAND} -S ${EXAMPLE_DIR} -B ${WORK_DIR}/build -G ${GENERATOR}
     -DCMAKE_PREFIX_PATH=${WORK_DIR}/prefix -DCMAKE_BUILD_TYPE=Release)
 run(${CMAKE_COMMAND} --build ${WORK_DIR}/build)
 run(${WORK_DIR}/build/calibrate_example)
+
+run(${CMAKE_COMMAND} -S ${ABI_CONSUMER_DIR} -B ${WORK_DIR}/abi -G ${GENERATOR}
+    -DCMAKE_PREFIX_PATH=${WORK_DIR}/prefix -DCMAKE_BUILD_TYPE=Release)
+run(${CMAKE_COMMAND} --build ${WORK_DIR}/abi)
+file(READ ${WORK_DIR}/abi/variants.txt variants)
+message(STATUS "ABI consumers built: ${variants}")
+set(ENV{ASAN_OPTIONS} "detect_leaks=0:abort_on_error=0")  # the point is the heap, not leaks at exit
+foreach(v IN LISTS variants)
+  run(${WORK_DIR}/abi/${v})
+endforeach()
