@@ -67,7 +67,7 @@ void BM_KalmanFixed(benchmark::State& state) {
     c.a[i] = static_cast<std::int32_t>(std::lround(std::ldexp(a[i], 30)));
     c.gain[i] = static_cast<std::int32_t>(std::lround(std::ldexp(gain[i], 30)));
     for (int j = 0; j < order; ++j)
-      c.p0[i * 8 + j] = static_cast<std::int32_t>(std::lround(std::ldexp(p0(i, j), c.format.cov_frac_bits)));
+      c.p0[i * order + j] = static_cast<std::int32_t>(std::lround(std::ldexp(p0(i, j), c.format.cov_frac_bits)));
   }
   std::vector<std::int32_t> in(kSamples), out(kSamples);
   const Eigen::VectorXd& y = series();

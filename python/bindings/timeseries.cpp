@@ -9,6 +9,7 @@
 
 #include <pybind11/numpy.h>
 
+#include <algorithm>
 #include <optional>
 
 using namespace pybind11::literals;
@@ -291,8 +292,8 @@ void bind_timeseries(py::module_& m) {
           for (int i = 0; i < n; ++i) {
             c.a[i] = a[i];
             c.gain[i] = gain[i];
-            for (int j = 0; j < n; ++j) c.p0[i * kFixedMaxOrder + j] = p0[i * n + j];
           }
+          std::copy(p0.begin(), p0.end(), c.p0);  // the struct takes the exported layout (stride n)
           Filter f;
           if (!f.configure(c)) throw fluxcal::Error("fixed_kalman_filter: coef_frac_bits must be within 0 … 30");
           py::array_t<std::int32_t> out(y.size());

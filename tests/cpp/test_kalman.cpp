@@ -5,6 +5,8 @@
 
 #include <gtest/gtest.h>
 
+#include <algorithm>
+#include <cstring>
 #include <limits>
 #include <random>
 
@@ -102,8 +104,8 @@ TEST(FixedKalman, GoldenVectorsOfTheIntegerModel) {
     for (int i = 0; i < g.order; ++i) {
       c.a[i] = g.a[i];
       c.gain[i] = g.gain[i];
-      for (int j = 0; j < g.order; ++j) c.p0[i * 8 + j] = g.p0[i * g.order + j];
     }
+    std::copy(g.p0.begin(), g.p0.end(), c.p0);  // the exported layout: row-major, stride order
     fluxcal::FixedArKalman<8> f;
     ASSERT_TRUE(f.configure(c));
     std::vector<std::int32_t> out(g.input.size());
@@ -111,6 +113,61 @@ TEST(FixedKalman, GoldenVectorsOfTheIntegerModel) {
     EXPECT_EQ(out, g.output);
     EXPECT_EQ(f.overflowed(), g.overflowed);
   }
+}
+
+// The coefficients as an exported C header holds them (name_a[n], name_gain[n], name_p0[n*n] row-major
+// with stride n), loaded by plain copies into a filter of MaxOrder M.
+template <int M>
+void run_exported(const GoldenCase& g, std::vector<std::int32_t>& out, std::vector<std::int32_t>& cov, bool& overflowed) {
+  fluxcal::FixedArKalmanCoefficients<M> c;
+  c.order = g.order;
+  c.format = {g.signal_frac_bits, g.coef_frac_bits, g.cov_frac_bits};
+  c.steady_state = g.steady_state;
+  c.q = g.q;
+  c.r = g.r;
+  ASSERT_LE(g.a.size() * sizeof(std::int32_t), sizeof c.a);
+  ASSERT_LE(g.p0.size() * sizeof(std::int32_t), sizeof c.p0);
+  std::memcpy(c.a, g.a.data(), g.a.size() * sizeof(std::int32_t));
+  std::memcpy(c.gain, g.gain.data(), g.gain.size() * sizeof(std::int32_t));
+  std::memcpy(c.p0, g.p0.data(), g.p0.size() * sizeof(std::int32_t));
+  fluxcal::FixedArKalman<M> f;
+  ASSERT_TRUE(f.configure(c));
+  for (int i = 0; i < g.order; ++i)
+    for (int j = 0; j < g.order; ++j) EXPECT_EQ(f.covariance(i, j), g.p0[static_cast<std::size_t>(i * g.order + j)]);
+  out.assign(g.input.size(), 0);
+  f.filter(g.input.data(), out.data(), static_cast<long>(out.size()));
+  cov.clear();
+  for (int i = 0; i < g.order; ++i)
+    for (int j = 0; j < g.order; ++j) cov.push_back(f.covariance(i, j));
+  overflowed = f.overflowed();
+}
+
+TEST(FixedKalman, ExportedLayoutLoadsIntoAnyMaxOrder) {
+  int checked = 0;
+  for (const auto& g : kGoldenCases) {
+    SCOPED_TRACE(g.name);
+    std::vector<std::int32_t> exact, exact_cov, out, cov;
+    bool exact_of = false, of = false;
+    if (g.order == 3) {
+      run_exported<3>(g, exact, exact_cov, exact_of);
+      run_exported<4>(g, out, cov, of);
+      EXPECT_EQ(out, exact);
+      EXPECT_EQ(cov, exact_cov);
+      EXPECT_EQ(of, exact_of);
+    } else if (g.order == 1) {
+      run_exported<1>(g, exact, exact_cov, exact_of);
+    } else {
+      continue;
+    }
+    run_exported<8>(g, out, cov, of);  // MaxOrder > order
+    EXPECT_EQ(out, exact);
+    EXPECT_EQ(cov, exact_cov);
+    EXPECT_EQ(of, exact_of);
+    EXPECT_EQ(exact, g.output);  // and both are the integer model's output
+    EXPECT_EQ(exact_of, g.overflowed);
+    ++checked;
+  }
+  EXPECT_EQ(checked, 3);
 }
 
 TEST(FixedKalman, SaturatesWithStickyFlag) {

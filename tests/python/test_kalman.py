@@ -275,6 +275,7 @@ def test_exported_header_compiles_and_reproduces_golden_vectors(tmp_path):
     (tmp_path / "input.txt").write_text("\n".join(map(str, golden["input"])))
     (tmp_path / "main.cpp").write_text(f"""
 #include <cstdio>
+#include <cstring>
 #include <fluxcal/fixed_kalman.hpp>
 #include "{header.name}"
 int main() {{
@@ -283,10 +284,10 @@ int main() {{
   c.format = {{DRIFT_KF_SIGNAL_FRAC_BITS, DRIFT_KF_COEF_FRAC_BITS, DRIFT_KF_COV_FRAC_BITS}};
   c.steady_state = DRIFT_KF_STEADY_STATE;
   c.q = drift_kf_q; c.r = drift_kf_r;
-  for (int i = 0; i < c.order; ++i) {{
-    c.a[i] = drift_kf_a[i]; c.gain[i] = drift_kf_gain[i];
-    for (int j = 0; j < c.order; ++j) c.p0[i * 8 + j] = drift_kf_p0[i * c.order + j];
-  }}
+  // The header's layout is the struct's (p0 row-major with stride order, whatever MaxOrder): plain copies.
+  std::memcpy(c.a, drift_kf_a, sizeof drift_kf_a);
+  std::memcpy(c.gain, drift_kf_gain, sizeof drift_kf_gain);
+  std::memcpy(c.p0, drift_kf_p0, sizeof drift_kf_p0);
   fluxcal::FixedArKalman<8> f;
   if (!f.configure(c)) return 2;
   long v;

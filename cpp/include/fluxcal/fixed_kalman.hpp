@@ -37,6 +37,12 @@ struct FixedFormat {
 };
 
 /// Everything the firmware filter needs (what fluxcal exports as a C header).
+/// Every array holds `order` meaningful entries from its start, in the layout the exported header
+/// (export-c --kalman, FixedArKalman.export_header) writes them, whatever MaxOrder is:
+///   a[0 … order−1], gain[0 … order−1], and p0[i · order + j] for i, j < order
+///   (row-major with stride `order`, NOT MaxOrder). So a header loads with plain copies:
+///     std::memcpy(c.a, name_a, sizeof name_a); std::memcpy(c.p0, name_p0, sizeof name_p0); …
+/// Entries past the first order (resp. order²) are ignored.
 template <int MaxOrder>
 struct FixedArKalmanCoefficients {
   static_assert(MaxOrder >= 1, "MaxOrder must be ≥ 1");
@@ -48,7 +54,7 @@ struct FixedArKalmanCoefficients {
   std::int32_t gain[kSize] = {};             ///< steady-state K, coefficient format
   std::int32_t q = 0;                           ///< process variance, covariance format
   std::int32_t r = 0;                           ///< measurement variance, covariance format
-  std::int32_t p0[kSize * kSize] = {};    ///< initial covariance (row-major), covariance format
+  std::int32_t p0[kSize * kSize] = {};    ///< initial covariance, p0[i·order + j] (row-major, stride order), covariance format
 };
 
 namespace fixed {
@@ -111,10 +117,11 @@ class FixedArKalman {
 
   /// State to zero, covariance to P0; the overflow flag is kept (clear_overflow() clears it).
   void reset() {
+    const int n = c_.order >= 1 && c_.order <= MaxOrder ? c_.order : 0;  // p0's stride is the order
     for (int i = 0; i < MaxOrder; ++i) {
       x_[i] = 0;
       k_[i] = c_.gain[i];
-      for (int j = 0; j < MaxOrder; ++j) p_[i][j] = c_.p0[i * MaxOrder + j];
+      for (int j = 0; j < MaxOrder; ++j) p_[i][j] = i < n && j < n ? c_.p0[i * n + j] : 0;
     }
   }
 
