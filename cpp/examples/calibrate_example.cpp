@@ -1,6 +1,7 @@
 // Calibrates a three-axis magnetometer with the installed fluxcal library.
 //   calibrate_example              fits a built-in simulated recording and checks the result
-//   calibrate_example FILE [NORM]  fits the first three numeric columns of FILE (CSV or whitespace)
+//   calibrate_example FILE [NORM]  fits the first three numeric columns of FILE (CSV or whitespace);
+//                                  NORM: the field magnitude (0: the fitted radius)
 #include <fluxcal/ellipsoid.hpp>
 
 #include <cmath>
@@ -59,7 +60,20 @@ int main(int argc, char** argv) {
       samples = simulate(W, b, options.field_norm, 2000);
     } else {
       samples = read_rows(argv[1]);
-      if (argc > 2) options.field_norm = std::stod(argv[2]);
+      if (argc > 2) {
+        const std::string arg = argv[2];
+        std::size_t used = 0;
+        try {
+          options.field_norm = std::stod(arg, &used);
+        } catch (const std::exception&) {  // std::invalid_argument, std::out_of_range
+          used = 0;
+        }
+        if (used == 0 || used != arg.size()) {  // the range (≥ 0, finite) is fit_ellipsoid's to check
+          std::cerr << "usage: calibrate_example [FILE [NORM]]\nerror: NORM must be a number, got '"
+                    << arg << "'\n";
+          return 2;
+        }
+      }
     }
     const fluxcal::EllipsoidResult r = fluxcal::fit_ellipsoid(samples, options);
     const Eigen::IOFormat fmt(6, 0, ", ", "\n", "  [", "]");

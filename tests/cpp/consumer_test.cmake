@@ -25,3 +25,12 @@ set(ENV{ASAN_OPTIONS} "detect_leaks=0:abort_on_error=0")  # the point is the hea
 foreach(v IN LISTS variants)
   run(${WORK_DIR}/abi/${v})
 endforeach()
+
+# The example's usage error: a NORM that is not a number is named, not an uncaught std::stod exception.
+file(WRITE ${WORK_DIR}/rows.txt "1 2 3\n4 5 6\n")
+execute_process(COMMAND ${WORK_DIR}/build/calibrate_example ${WORK_DIR}/rows.txt fifty
+                RESULT_VARIABLE rc OUTPUT_VARIABLE out ERROR_VARIABLE err)
+if(NOT rc EQUAL 2 OR NOT err MATCHES "NORM must be a number, got 'fifty'")
+  message(FATAL_ERROR "calibrate_example FILE fifty: expected exit 2 and a usage error, got ${rc}:\n${out}\n${err}")
+endif()
+message(STATUS "calibrate_example FILE fifty: ${err}")
