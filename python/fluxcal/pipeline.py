@@ -35,9 +35,9 @@ def calibrate(samples, method: str = "auto", field_norm: float | None = None, re
     parameters), "diag" (axis scales, 6), "sphere" (one scale, 4; magcal's "eye"), or "auto" (default, as
     magcal's): each is refined and the one with the lowest BIC = N ln(RSS/N) + k ln N is kept, determined
     or not (a smaller shape the data reject would be biased); summary["shapes"] holds every shape's BIC,
-    RSS and whether it was determined. A sensor
-    without soft-iron coupling then gets no noise in its off-diagonal terms; on the real recordings in
-    ../shared/data/real "sym" wins by thousands. The vector fit's W is always full.
+    RSS and whether it was determined. A sensor without soft-iron coupling then gets no noise in its
+    off-diagonal terms; on the real recordings in ../shared/data/real "sym" wins by thousands. The vector
+    fit's W is always full.
     """
     if method not in METHODS:
         raise ValueError(f"method: {method!r} is not one of {', '.join(METHODS)}")
@@ -46,10 +46,10 @@ def calibrate(samples, method: str = "auto", field_norm: float | None = None, re
     shape = shape if shape == "auto" else shape_name(shape)
     restricted = shape not in ("sym", "auto")
     if restricted and (method in ("vector", "ls", "als") or (method == "auto" and reference is not None)):
-        raise ValueError(f"shape: {shape!r} restricts the refinement's matrix; method {method!r}"
-                         f"{' with a reference' if method == 'auto' else ''} fits "
-                         f"{'a full W' if method != 'ls' and method != 'als' else 'the algebraic ellipsoid'} "
-                         "(use method 'als+refine', or shape 'sym')")
+        fits = "the algebraic ellipsoid" if method in ("ls", "als") else "a full W"
+        given = " with a reference" if method == "auto" else ""
+        raise ValueError(f"shape: {shape!r} restricts the refinement's matrix; method {method!r}{given} fits "
+                         f"{fits} (use method 'als+refine', or shape 'sym')")
     if units is None:
         units = getattr(samples, "field_units", lambda: "")()
     m = as_samples(samples)
@@ -95,7 +95,7 @@ def calibrate(samples, method: str = "auto", field_norm: float | None = None, re
 
 
 def _refine_shape(start: Calibration, m: np.ndarray, shape: str, **settings) -> Calibration:
-    """The refinement in `shape`, or with "auto" the determined shape of lowest BIC (see calibrate)."""
+    """The refinement in `shape`, or with "auto" the shape of lowest BIC, determined or not (see calibrate)."""
     if shape != "auto":
         return refine(start, m, shape=shape, **settings)
     fits, table = {}, {}

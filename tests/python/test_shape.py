@@ -85,6 +85,8 @@ def test_shape_is_refused_where_it_does_not_apply():
         fluxcal.calibrate(m, field_norm=H, shape="ellipse")
     with pytest.raises(ValueError, match="method 'als' fits the algebraic ellipsoid"):
         fluxcal.calibrate(m, field_norm=H, method="als", shape="diag")
+    with pytest.raises(ValueError, match="method 'auto' with a reference fits a full W"):
+        fluxcal.calibrate(m, reference=m, shape="sphere")
     with pytest.raises(ValueError, match="vector model fits a full W"):
         fluxcal.refine(fluxcal.fit_ellipsoid(m, field_norm=H), m, reference=m, shape="diag")
     assert fluxcal.calibrate(m, field_norm=H, shape="eye").summary["shape"] == "sphere"  # magcal's name
