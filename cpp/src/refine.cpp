@@ -756,8 +756,9 @@ RefineResult refine(const Calibration& start, const SamplesRef& samples, const R
   double radius = 0.0;  // reading-space radius: the scale of the offsets
   for (Eigen::Index i = 0; i < samples.rows(); ++i) radius += (samples.row(i).transpose() - cal.offset).norm();
   radius /= static_cast<double>(samples.rows());
+  const double gain = cal.matrix.norm() / std::sqrt(3.0);
   Eigen::VectorXd scales(k);  // offsets: the radius; matrix entries: the gain ‖A‖_F/√3
-  for (Eigen::Index j = 0; j < k; ++j) scales(j) = j < 3 ? radius : cal.matrix.norm() / std::sqrt(3.0);
+  for (Eigen::Index j = 0; j < k; ++j) scales(j) = j < 3 ? radius : gain;
   finish_statistics(out, F, sigma2, scales, opt, &scores);
   finish_summary(out, samples, nullptr);
   return out;
