@@ -3,6 +3,7 @@
 //   calibrate_example FILE [NORM]  fits the first three numeric columns of FILE (CSV or whitespace);
 //                                  NORM: the field magnitude (0: the fitted radius)
 #include <fluxcal/ellipsoid.hpp>
+#include <fluxcal/version.hpp>
 
 #include <cmath>
 #include <fstream>
@@ -48,7 +49,7 @@ fluxcal::Samples simulate(const Eigen::Matrix3d& W, const Eigen::Vector3d& b, do
 
 int main(int argc, char** argv) {
   try {
-    std::cout << "fluxcal " << fluxcal::version() << "\n";
+    std::cout << "fluxcal " << fluxcal::version() << " (headers " FLUXCAL_VERSION_STRING ")\n";
     fluxcal::EllipsoidOptions options;
     fluxcal::Samples samples;
     Eigen::Matrix3d W;

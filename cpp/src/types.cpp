@@ -1,4 +1,5 @@
 #include "fluxcal/types.hpp"
+#include "fluxcal/version.hpp"
 
 #include <Eigen/LU>
 
@@ -7,11 +8,7 @@
 
 namespace fluxcal {
 
-#ifndef FLUXCAL_VERSION
-#define FLUXCAL_VERSION "unknown"
-#endif
-
-const char* version() { return FLUXCAL_VERSION; }
+const char* version() { return FLUXCAL_VERSION_STRING; }
 
 Samples Calibration::apply_rows(const SamplesRef& readings) const {
   // Row form of h = A (m − b): H = (M − 1 bᵀ) Aᵀ.

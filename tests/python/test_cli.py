@@ -97,6 +97,8 @@ def test_cpp_example_builds_against_the_installed_wheel(tmp_path):
     r = subprocess.run([str(build / "calibrate_example")], capture_output=True, text=True)
     assert r.returncode == 0, r.stdout + r.stderr
     assert "OK" in r.stdout
+    # the wheel's generated fluxcal/version.hpp is that of its library
+    assert f"fluxcal {fluxcal.__version__} (headers {fluxcal.__version__})" in r.stdout
 
 
 def _scaled_copy(src: Path, dst: Path, unit: str, factor: float) -> Path:

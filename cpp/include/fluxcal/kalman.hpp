@@ -61,7 +61,7 @@ class ArKalman {
   double r() const { return r_; }
   /// P0 used by filter().
   const Eigen::MatrixXd& initial_covariance() const { return p0_; }
-  /// Steady-state gain and its a-priori covariance (computed on first use).
+  /// Steady-state gain and its a-priori covariance (computed on each call; nothing is cached).
   Eigen::VectorXd steady_state_gain(Eigen::MatrixXd* prior_covariance = nullptr, int* iterations = nullptr) const;
   /// Largest |eigenvalue| of the companion matrix (< 1: stationary AR model).
   double spectral_radius() const;

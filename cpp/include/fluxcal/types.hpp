@@ -14,7 +14,8 @@
 
 namespace fluxcal {
 
-/// Library version, "MAJOR.MINOR.PATCH".
+/// Version of the linked library, "MAJOR.MINOR.PATCH" (the headers' is FLUXCAL_VERSION_STRING in
+/// fluxcal/version.hpp).
 const char* version();
 
 /// Thrown on bad input (NaN, too few samples, degenerate coverage, ...). Never an abort.

@@ -2,12 +2,20 @@
 // -fsanitize=address): results allocated inside libfluxcal are destroyed here, in the consumer's code.
 #include <fluxcal/ellipsoid.hpp>
 #include <fluxcal/refine.hpp>
+#include <fluxcal/version.hpp>
 
 #include <cstdio>
+#include <cstring>
 #include <random>
 #include <vector>
 
 int main() {
+  // The installed headers are those of the installed library.
+  static_assert(FLUXCAL_VERSION_NUMBER >= 100, "fluxcal/version.hpp: expected at least 0.1.0");
+  if (std::strcmp(fluxcal::version(), FLUXCAL_VERSION_STRING) != 0) {
+    std::fprintf(stderr, "FAIL: headers say %s, the library %s\n", FLUXCAL_VERSION_STRING, fluxcal::version());
+    return 1;
+  }
   std::printf("consumer: EIGEN_MAX_ALIGN_BYTES=%d EIGEN_DEFAULT_ALIGN_BYTES=%d EIGEN_MALLOC_ALREADY_ALIGNED=%d\n",
               EIGEN_MAX_ALIGN_BYTES, EIGEN_DEFAULT_ALIGN_BYTES, EIGEN_MALLOC_ALREADY_ALIGNED);
   std::mt19937 rng(1);
