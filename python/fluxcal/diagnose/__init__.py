@@ -23,7 +23,10 @@ it, and how far the gap shrinks once that effect is modelled — proved on held-
    the best one is significant (whitened likelihood ratio after a Bonferroni correction over the
    candidates and their alternatives, ΔBIC < 0, and a held-out improvement that a block test finds
    significant: Wilcoxon signed ranks on block means). Features non-linear in the signal are computed
-   from the fitted model's noise-free reading, so the reading noise cannot fake them. Systematic effects
+   from the fitted model's noise-free reading, so the reading noise cannot fake them, then again at the
+   signal (and, for cross_axis' exact 1/(1 + s_e/H_k), the coefficients) of the fit that models them; their
+   absorption is judged on the part not affine in the signal (offset and matrix hold the rest). Saturation's
+   limit is profiled (a 1-D search, each step a linear refit) and counted as a parameter. Systematic effects
    are tried before
    noise models: a systematic effect predicts unseen regimes, correlated noise only the next sample.
    When none is significant but one passed every in-sample test, it is added on trial: two large

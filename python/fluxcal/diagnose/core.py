@@ -56,6 +56,7 @@ class Diagnosis:
     they were added), then the rest by ΔBIC; an accepted row may carry `confounded_with` (see
     `confounded`) and, for a move of the reference, the whole fitted move: `rotation_deg` (misalignment's
     rotation vector, degrees) or `delay_ms` (time_offset: the readings this late);
+    `limit` saturation's profiled limit (reading units; None: its cubic limit, L → ∞);
     `on_s`/`off_s` give an event's box (moving_dipole, offset_step: first and last time within it, None at
     the recording's ends); an accepted offset_step's `jump`, `jump_s`, `back_s` the step as a jump (a box
     from the recording's start reverses the coefficients' sign); `found_with` names the effect a row was found together with (each passed its
@@ -546,6 +547,12 @@ def _evaluate(cls, data, model, state, sigma, n_candidates) -> dict:
         an orthonormal basis of the new part — the candidate's signature in the residuals)."""
         Z = _project(base, feats, vector)
         norms = np.linalg.norm(Z, axis=0)
+        if cls.signal_features and not fixed:
+            # Measured against the part not affine in the signal: offset and full matrix hold any affine
+            # part, so about a hard iron of several fields most of s_k·s_e or s_k³ is affine and the new part
+            # looked < 5 % of the whole though it was all of what the base could not hold (cross_axis).
+            norms = np.maximum(np.linalg.norm(_project(base, _non_affine(feats, ctx.signal), vector), axis=0),
+                               1e-6 * norms)
         norms[norms == 0] = 1.0
         R = (Z - Q @ (Q.T @ Z)) / norms
         # singular values and left vectors from the p × p Gram matrix: an SVD of the N × p matrix costs
@@ -557,9 +564,14 @@ def _evaluate(cls, data, model, state, sigma, n_candidates) -> dict:
         U = (R @ V[:, new]) / s[new]
         return ((float(np.sum((U.T @ e) ** 2) / sigma2) if new.any() else 0.0), int(new.sum()), s, U)
 
+    profiled = {}
     if cls.linear and not fixed:  # exactly absorbed by the full matrix; its first-order features are not
         # (one of three directions looked new on a real recording with a 4 % temperature scale error)
         feats, tried, score, dims, singular, signature = cls.features(ctx), 1, 0.0, 0, np.zeros(0), None
+    elif cls.profile_name:  # its parameter is counted as a parameter (below), not as alternatives tried
+        value, feats = _profile(cls, ctx, base, J, e, vector)
+        tried, profiled = 1, {cls.profile_name: value}
+        score, dims, singular, signature = new_part(feats)
     else:
         feats, tried = cls.search(ctx, lambda f: new_part(f)[0])
         score, dims, singular, signature = new_part(feats)
@@ -567,6 +579,7 @@ def _evaluate(cls, data, model, state, sigma, n_candidates) -> dict:
            "absorbed": dims == 0, "alternatives": tried, "score": score,
            "score_pvalue": min(1.0, float(stats.chi2.sf(score, max(dims, 1))) * tried),
            "absorbed_fraction": float(1 - singular.min()) if len(singular) else 1.0, **cls.describe(ctx, feats)}
+    row.update(_profiled_row(profiled))
     if dims == 0:
         row.update(lr=0.0, lr_pvalue=1.0, delta_aic=0.0, delta_bic=0.0, significant=False,
                    heldout_gap_before=None, heldout_gap_after=None,
@@ -578,7 +591,9 @@ def _evaluate(cls, data, model, state, sigma, n_candidates) -> dict:
         fit = _fit(data, state["start"], fixed, all_feats,
                    start_terms=np.concatenate([state["terms"], np.zeros(feats.shape[1])]))
         if cls.signal_features:
-            feats, fit = _at_own_signal(cls, data, fixed, state, feats, fit, ctx.scale, sigma)
+            feats, fit, value = _at_own_signal(cls, data, fixed, state, feats, fit, ctx.scale, sigma,
+                                               profiled.get(cls.profile_name))
+            row.update(_profiled_row({cls.profile_name: value} if profiled else {}))
         validated = _validate(data, model, state, feats, cls.regime, sigma)
     except _core.Error as err:  # a candidate nearly inside the model can leave the solver no valid step
         row.update(lr=0.0, lr_pvalue=1.0, delta_aic=0.0, delta_bic=0.0, significant=False,
@@ -590,9 +605,10 @@ def _evaluate(cls, data, model, state, sigma, n_candidates) -> dict:
     e1 = np.asarray(fit["residuals"])
     lr = max(0.0, n * np.log(float(e @ e) / float(e1 @ e1)))
     lr_whitened = _whitened_lr(e, e1, data)
+    k = dims + len(profiled)  # a profiled parameter is fitted too: it pays like a coefficient
     row.update(lr=lr, lr_whitened=lr_whitened,
-               lr_pvalue=min(1.0, float(stats.chi2.sf(lr_whitened, dims)) * tried),
-               delta_aic=-lr + 2 * dims, delta_bic=-lr + dims * np.log(n),
+               lr_pvalue=min(1.0, float(stats.chi2.sf(lr_whitened, k)) * tried),
+               delta_aic=-lr + 2 * k, delta_bic=-lr + k * np.log(n),
                coefficients=np.asarray(fit["parameters"])[-feats.shape[1]:].tolist(),
                standard_errors=np.asarray(fit["standard_errors"])[-feats.shape[1]:].tolist())
     row.update(validated)
@@ -603,10 +619,56 @@ def _evaluate(cls, data, model, state, sigma, n_candidates) -> dict:
     return row
 
 
+def _non_affine(feats: np.ndarray, signal: np.ndarray) -> np.ndarray:
+    """Each feature column (N × p × 3) less its least-squares affine function of the signal."""
+    X = np.column_stack([np.ones(len(signal)), signal])
+    flat = feats.reshape(len(feats), -1)
+    coef, *_ = np.linalg.lstsq(X, flat, rcond=None)
+    return (flat - X @ coef).reshape(feats.shape)
+
+
+def _profiled_row(profiled: dict) -> dict:
+    """A profiled parameter for the ranking row (None for ∞: saturation's cubic limit)."""
+    return {k: (float(v) if np.isfinite(v) else None) for k, v in profiled.items()}
+
+
+def _profile(cls, ctx, result: dict, J: np.ndarray, e: np.ndarray, vector: bool):
+    """A profiled candidate's parameter: the value whose features, fitted together with the columns J (the
+    rest of the model, linearised at `result`), take most off the residuals e — its grid
+    (`cls.profile_grid`), then a bounded search in log between the best point's neighbours. Each step is a
+    linear refit, so the profile costs projections, not solver runs. Returns (value, features)."""
+    from scipy.optimize import minimize_scalar
+
+    Q, _ = np.linalg.qr(J)
+
+    def gain(value):
+        Z = _project(result, cls.features_at(ctx, value), vector)
+        R = Z - Q @ (Q.T @ Z)
+        coef, *_ = np.linalg.lstsq(R, e, rcond=None)
+        return float(np.sum((R @ coef) ** 2))
+
+    grid = np.asarray(cls.profile_grid(ctx), dtype=float)
+    gains = [gain(v) for v in grid]
+    i = int(np.argmax(gains))
+    value = grid[i]
+    if np.isfinite(value):
+        finite = grid[np.isfinite(grid)]
+        j = int(np.searchsorted(finite, value))
+        ratio = finite[1] / finite[0] if len(finite) > 1 else 2.0
+        lo = finite[j - 1] if j > 0 else value  # the grid's first value is a bound (saturation: the readings' reach)
+        hi = finite[j + 1] if j + 1 < len(finite) else value * ratio
+        best = minimize_scalar(lambda x: -gain(np.exp(x)), bounds=(np.log(lo), np.log(hi)), method="bounded",
+                               options={"xatol": 1e-3})
+        if -best.fun > gains[i]:
+            value = float(np.exp(best.x))
+    return value, cls.features_at(ctx, value)
+
+
 SIGNAL_ITERATIONS = 20  # at most (a 1.5 % cubic about a hard iron of 4.4 fields: 10 steps to one noise variance)
 
 
-def _at_own_signal(cls, data: _Data, fixed, state: dict, feats: np.ndarray, fit: dict, scale: float, sigma: float):
+def _at_own_signal(cls, data: _Data, fixed, state: dict, feats: np.ndarray, fit: dict, scale: float, sigma: float,
+                   value=None):
     """A candidate non-linear in the signal (s³, s·s_easy) has its features computed from the base fit's
     estimate of the signal, s = b + W h. The base fit, without the effect, absorbs the effect's constant and
     linear parts into b and W (a cubic per axis about a hard iron b adds c b³ to the offset and 3c b² to the
@@ -616,8 +678,11 @@ def _at_own_signal(cls, data: _Data, fixed, state: dict, feats: np.ndarray, fit:
     recomputed at its signal (its readings less the modelled effect, calibrated onto the sphere) and
     refitted, until the residual sum of squares falls by less than one noise variance — the true signal is
     a fixed point, reproducing itself. A step that does not lower it is not taken (the guard against
-    divergence). `scale` stays the first one, so the coefficients keep their units. Returns the features
-    and their fit."""
+    divergence). `scale` stays the first one, so the coefficients keep their units. Features exact only at
+    the fit's own coefficients (cross_axis' 1/(1 + s_e/H_k)) get them (`ctx.coefficients`); a profiled
+    parameter (saturation's limit, `value`) is profiled again at each fit, its features less the candidate's
+    modelled part (linearised) taken as the residuals to explain. Returns the features, their fit and the
+    profiled value."""
     everything = np.arange(len(data.m))
     field_error = lambda f, feats: _downstream(f, data, _features(state["features"] + [feats]), everything)[  # noqa: E731
         "field_error"]
@@ -625,7 +690,16 @@ def _at_own_signal(cls, data: _Data, fixed, state: dict, feats: np.ndarray, fit:
     for _ in range(SIGNAL_ITERATIONS):
         ctx = _context(data, fit, _features(state["features"] + [feats]))
         ctx.scale = scale
-        new = cls.features(ctx)
+        p = feats.shape[1]
+        ctx.coefficients = np.asarray(fit["parameters"])[-p:]
+        if cls.profile_name:
+            J = np.asarray(fit["jacobian"])
+            Z = J[:, -p:]  # ∂r/∂c: the candidate's part of the fit, linearised
+            rest = J[:, :-p][:, np.any(J[:, :-p] != 0, axis=0)]
+            candidate, new = _profile(cls, ctx, fit, rest, np.asarray(fit["residuals"]) - Z @ ctx.coefficients,
+                                      data.reference is not None)
+        else:
+            candidate, new = value, cls.features(ctx)
         # from this fit: its coefficients belong with its offset and matrix
         here = Calibration(offset=fit["offset"], matrix=fit["matrix"], field_norm=state["start"].field_norm,
                            units=state["start"].units, model=state["start"].model)
@@ -640,10 +714,10 @@ def _at_own_signal(cls, data: _Data, fixed, state: dict, feats: np.ndarray, fit:
         # field departs further from |h| = H (the QMC5883L recording: held-out gap → 0, field error 28 → 75).
         if not (r < rss and e <= error):
             break
-        feats, fit, gain, rss, error = new, trial, rss - r, r, e
+        feats, fit, gain, rss, error, value = new, trial, rss - r, r, e, candidate
         if gain < sigma ** 2:
             break
-    return feats, fit
+    return feats, fit, value
 
 
 def _exact_move(data: _Data, state: dict, model: str, cls, iterations: int = 3):

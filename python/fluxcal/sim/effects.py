@@ -58,8 +58,22 @@ class Effect:
     # delay): once accepted, the diagnosis moves the reference exactly (`move_reference`, see diagnose.core).
     moves_reference = False
     # Its features are non-linear in the signal (`ctx.signal`): the diagnosis recomputes them at the signal
-    # of the fit that models the effect (the base fit's own estimate absorbs part of the effect).
+    # of the fit that models the effect (the base fit's own estimate absorbs part of the effect), and at its
+    # coefficients (`ctx.coefficients`, None at first) for a candidate whose features are exact only there.
     signal_features = False
+    # A non-linear parameter profiled, not fitted (saturation's limit): `profile_grid(ctx)` gives the values
+    # searched and `features_at(ctx, value)` the features (linear in the coefficients) at one; the diagnosis
+    # refines the best between grid points, counts the parameter in ΔBIC and the likelihood ratio's degrees
+    # of freedom, and reports it (`profile_name`) with the row.
+    profile_name = ""
+
+    @classmethod
+    def profile_grid(cls, ctx) -> np.ndarray:  # pragma: no cover - interface
+        raise NotImplementedError
+
+    @classmethod
+    def features_at(cls, ctx, value) -> np.ndarray:  # pragma: no cover - interface
+        raise NotImplementedError
 
     @staticmethod
     def compose(total: np.ndarray, step: np.ndarray) -> np.ndarray:  # pragma: no cover - interface
@@ -247,8 +261,16 @@ class CrossAxis(Effect):
 
     @classmethod
     def features(cls, ctx):
+        # m_k − s_k = −s_k (c_k u)/(1 + c_k u), u = s_e/scale, c_k = scale/H_k: exactly c_k times the feature
+        # −s_k u/(1 + c_k u) at the fit's own c_k (first order, −s_k u, at c = 0). Its second order matters:
+        # ≈ 0.2 µT at s_e/H_k ≈ 0.08, with a hard iron of several fields.
         s = ctx.signal
-        return _per_axis(-s * s[:, list(cls.EASY)] / ctx.scale)
+        u = s[:, list(cls.EASY)] / ctx.scale
+        c = np.zeros(3) if getattr(ctx, "coefficients", None) is None else np.asarray(ctx.coefficients, float)
+        # keep 1 + c u ≥ 0.5 on every reading: a wild coefficient of a poor fit must not divide by ~0
+        reach = np.maximum(np.max(np.abs(u), axis=0), 1e-12)
+        c = np.clip(c, -0.5 / reach, 0.5 / reach)
+        return _per_axis(-s * u / (1.0 + c * u))
 
     @classmethod
     def typical(cls, field_norm, rng):
@@ -281,21 +303,47 @@ class CubicNonlinearity(Effect):
 
 @dataclass
 class Saturation(Effect):
-    """Soft saturation of every axis at `limit`: m = L tanh(s / L). First order: the same cubic on every
-    axis (one coefficient). Typical: L = 4× the field (a 2 G range sensor in 0.5 G) — 2 % compression
-    at the field's magnitude."""
+    """Soft saturation of every axis at `limit`: m = L tanh(s / L). Typical: L = 4× the field (a 2 G range
+    sensor in 0.5 G) — 2 % compression at the field's magnitude.
+
+    As a candidate: the limit is profiled (`profile_grid`, `features_at`), with one coefficient for the
+    size: L tanh(s/L) − s scaled to tend to the same cubic on every axis, −s³/scale², as L → ∞ (its first
+    order; the grid's last value). About a hard iron of several fields the signal reaches L and the tanh is
+    far from that cubic, which a per-axis cubic then fits better than the cubic with equal coefficients."""
 
     limit: float
     name = "saturation"
     n_params = 1
     signal_features = True
+    profile_name = "limit"
+    LIMITS = 16  # values of L searched (then refined between grid points), up to 16× the scale, and ∞
 
     def apply(self, values, context):
         return self.limit * np.tanh(values / self.limit)
 
     @classmethod
+    def profile_grid(cls, ctx):
+        # L tanh(s/L) never reaches L: a limit below what the readings reach is no saturation (free, a
+        # strongly bent tanh about a large hard iron fitted the QMC5883L recording's even-order residue with
+        # L at 0.4 of its readings). The 99.9th percentile: a spike must not raise the bound.
+        reach = float(np.max(np.quantile(np.abs(ctx.readings), 0.999, axis=0)))
+        return np.append(np.geomspace(reach, max(16.0 * ctx.scale, 2.0 * reach), cls.LIMITS), np.inf)
+
+    @classmethod
+    def features_at(cls, ctx, value):
+        s = ctx.signal
+        if not np.isfinite(value):
+            return (-(s ** 3) / ctx.scale ** 2)[:, None, :]
+        # L tanh(s/L) − s = −s³/(3L²) + …: times 3L²/scale² it is −s³/scale² to first order
+        return ((value * np.tanh(s / value) - s) * 3 * value ** 2 / ctx.scale ** 2)[:, None, :]
+
+    @classmethod
+    def alternatives(cls, ctx):
+        return [cls.features_at(ctx, v) for v in cls.profile_grid(ctx)]
+
+    @classmethod
     def features(cls, ctx):
-        return (-(ctx.signal ** 3) / ctx.scale ** 2)[:, None, :]
+        return cls.features_at(ctx, np.inf)
 
     @classmethod
     def typical(cls, field_norm, rng):
