@@ -603,6 +603,21 @@ def test_a_cubic_about_a_large_hard_iron_is_found_alone():
         assert not diagnose(result.readings, **kwargs).accepted
 
 
+def test_saturation_about_a_large_hard_iron_is_found_as_saturation():
+    # About a hard iron of several fields the signal reaches the limit L (4× the field here): L tanh(s/L) is far
+    # from its first-order cubic, and the per-axis cubic won (0/3 before the limit was profiled). Now the limit is
+    # profiled from the readings' reach up (counted as a parameter): found alone, L within 5 % of the truth.
+    from fluxcal.sim.effects import Saturation
+
+    for seed in range(3):
+        result, kwargs = withheld_trial(["saturation"], seed, hard_iron=6.0, soft_iron=0.15)
+        d = diagnose(result.readings, **kwargs)
+        assert d.accepted == ["saturation"], (seed, d.accepted)
+        truth = next(e for e in result.effects if isinstance(e, Saturation)).limit
+        assert d.ranking[0]["limit"] == pytest.approx(truth, rel=0.05), (seed, d.ranking[0]["limit"], truth)
+        assert d.remaining["overall"]["gap"] < 0.5 * 0.05, (seed, d.remaining["overall"]["gap"])
+
+
 def test_quantization_seen_in_a_short_fast_recording():
     # 600 readings at 10 Hz hit ~500 distinct levels of the ADC: most values do not repeat, yet every
     # one lies on the grid. Continuous readings, float32 ones included, are not taken for a grid.
