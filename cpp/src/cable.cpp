@@ -345,22 +345,38 @@ Eigen::MatrixXd jacobian_kernel(const CableRing& ring, const ConductorPositionsR
 
 }  // namespace
 
+namespace detail {
+
+void check(const CableSolveOptions& o) {
+  const std::string s = "CableSolveOptions::";
+  require_int(o.n_conductors >= 1, s + "n_conductors", o.n_conductors, "≥ 1");
+  if (o.zero_sum_currents && o.n_conductors < 2)
+    throw Error(s + "zero_sum_currents: needs at least 2 conductors (one conductor would carry 0 A)");
+  require_int(o.grid_points >= 2, s + "grid_points", o.grid_points, "≥ 2");
+  require_int(o.starts >= 1, s + "starts", o.starts, "≥ 1");
+  require_int(o.max_iterations >= 1, s + "max_iterations", o.max_iterations, "≥ 1");
+  for (const auto& [name, v] : {std::pair<const char*, double>{"function_tolerance", o.function_tolerance},
+                                {"gradient_tolerance", o.gradient_tolerance},
+                                {"parameter_tolerance", o.parameter_tolerance},
+                                {"max_position_sigma", o.max_position_sigma},
+                                {"max_current_relative_sigma", o.max_current_relative_sigma},
+                                {"misfit_ratio", o.misfit_ratio}})
+    require_positive(s + name, v);
+  // NaN compares false: it fell through `noise_sigma > 0` to the residual estimate silently.
+  require_finite(s + "noise_sigma", o.noise_sigma, "a finite value (≤ 0: estimate it from the residuals)");
+  require_enum(s + "refiner", o.refiner, 3, "automatic, ceres, dense (0 … 2)");
+  if (o.initial_currents.size() > 0 && !o.initial_currents.allFinite())
+    throw Error(s + "initial_currents: contains NaN or Inf");
+}
+
+}  // namespace detail
+
 CableSolution solve_cable(const CableRing& ring, const Eigen::Ref<const Eigen::MatrixXd>& readings,
                           const CableSolveOptions& opt) {
   ring.validate();
   const int n = opt.n_conductors;
   const bool zs = opt.zero_sum_currents;
-  if (n < 1) throw Error("options.n_conductors: must be 1 or more");
-  if (zs && n < 2) throw Error("options.zero_sum_currents: needs at least 2 conductors (one conductor would carry 0 A)");
-  if (opt.grid_points < 2) throw Error("options.grid_points: must be 2 or more");
-  if (opt.starts < 1) throw Error("options.starts: must be 1 or more");
-  if (opt.max_iterations < 1) throw Error("options.max_iterations: must be 1 or more");
-  for (const auto& [name, v] : {std::pair<const char*, double>{"function_tolerance", opt.function_tolerance},
-                                {"gradient_tolerance", opt.gradient_tolerance},
-                                {"parameter_tolerance", opt.parameter_tolerance}})
-    detail::require_positive(std::string("options.") + name, v);
-  if (opt.initial_currents.size() > 0 && !opt.initial_currents.allFinite())
-    throw Error("options.initial_currents: contains NaN or Inf");
+  detail::check(opt);
   const Eigen::Index m = ring.sensors(), S = readings.rows();
   if (readings.cols() != 2 * m)
     throw Error("readings: " + std::to_string(readings.cols()) + " columns, the ring has " + std::to_string(m) +
@@ -392,9 +408,9 @@ CableSolution solve_cable(const CableRing& ring, const Eigen::Ref<const Eigen::M
   std::vector<std::vector<double>> seeds;
   if (opt.initial_positions.rows() > 0) {
     if (opt.initial_positions.rows() != n)
-      throw Error("options.initial_positions: " + std::to_string(opt.initial_positions.rows()) + " rows for " +
+      throw Error("CableSolveOptions::initial_positions: " + std::to_string(opt.initial_positions.rows()) + " rows for " +
                   std::to_string(n) + " conductors");
-    check_positions(ring, opt.initial_positions, "options.initial_positions");
+    check_positions(ring, opt.initial_positions, "CableSolveOptions::initial_positions");
     std::vector<double> s(2 * n);
     for (int j = 0; j < n; ++j) {
       s[2 * j] = opt.initial_positions(j, 0) / R;
@@ -493,7 +509,7 @@ CableSolution solve_cable(const CableRing& ring, const Eigen::Ref<const Eigen::M
     Eigen::MatrixXd cur(nc, S);
     if (t == 0 && opt.initial_positions.rows() > 0 && opt.initial_currents.size() > 0) {
       if (opt.initial_currents.rows() != S || opt.initial_currents.cols() != n)
-        throw Error("options.initial_currents: shape " + std::to_string(opt.initial_currents.rows()) + "×" +
+        throw Error("CableSolveOptions::initial_currents: shape " + std::to_string(opt.initial_currents.rows()) + "×" +
                     std::to_string(opt.initial_currents.cols()) + ", expected " + std::to_string(S) + "×" +
                     std::to_string(n) + " (snapshots × conductors)");
       cur = opt.initial_currents.leftCols(nc).transpose();

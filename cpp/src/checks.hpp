@@ -9,7 +9,21 @@
 #include <cstdio>
 #include <string>
 
+namespace fluxcal {
+struct ArOptions;
+struct PreprocessOptions;
+struct KalmanOptions;
+struct DriftOptions;
+}  // namespace fluxcal
+
 namespace fluxcal::detail {
+
+/// Option checks, one per options struct, defined next to the solver that takes it; each throws Error
+/// "StructName::field: VALUE, need …". Declared here for the entry points that take them nested (fit_foct).
+void check(const ArOptions& options);
+void check(const PreprocessOptions& options);
+void check(const KalmanOptions& options);
+void check(const DriftOptions& options);
 
 /// A number for a message: six significant digits ("nan", "inf" as such).
 inline std::string num(double v) {
@@ -31,6 +45,36 @@ inline void require_positive(const std::string& name, double value,
 inline void require_nonnegative(const std::string& name, double value,
                                 const std::string& need = "a finite value ≥ 0") {
   require(std::isfinite(value) && value >= 0.0, name, value, need);
+}
+
+/// Whole-number options: Throws Error("NAME: VALUE, need NEED") unless `ok`.
+inline void require_int(bool ok, const std::string& name, long long value, const std::string& need) {
+  if (!ok) throw Error(name + ": " + std::to_string(value) + ", need " + need);
+}
+
+/// A finite value (any sign; e.g. ≤ 0 meaning "estimate it").
+inline void require_finite(const std::string& name, double value, const std::string& need = "a finite value") {
+  require(std::isfinite(value), name, value, need);
+}
+
+/// A probability strictly between 0 and 1 (a significance level, a fraction).
+inline void require_open_unit(const std::string& name, double value,
+                              const std::string& need = "a value in (0, 1)") {
+  require(value > 0.0 && value < 1.0, name, value, need);
+}
+
+/// A ratio of spreads or a fraction of bins: finite, within [0, 1].
+inline void require_unit(const std::string& name, double value,
+                         const std::string& need = "a value in [0, 1]") {
+  require(value >= 0.0 && value <= 1.0, name, value, need);
+}
+
+/// An enum holds one of its `count` enumerators 0 … count − 1: a static_cast from an out-of-range
+/// integer (a bad config value, a Python int) otherwise falls through every switch silently.
+template <typename Enum>
+void require_enum(const std::string& name, Enum value, int count, const std::string& names) {
+  const auto v = static_cast<long long>(value);
+  require_int(v >= 0 && v < count, name, v, "one of " + names);
 }
 
 }  // namespace fluxcal::detail

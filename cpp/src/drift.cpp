@@ -1,5 +1,7 @@
 #include "fluxcal/drift.hpp"
 
+#include "checks.hpp"
+
 #include <Eigen/SVD>
 
 #include <algorithm>
@@ -110,6 +112,23 @@ Eigen::VectorXd fit_polynomial(const SeriesRef& x, const SeriesRef& w, int order
   return fit_rows(x, w, idx, Eigen::VectorXd(), order, sse, condition);
 }
 
+namespace detail {
+
+void check(const DriftOptions& o) {
+  const std::string s = "DriftOptions::";
+  const auto& edges = o.breakpoints;
+  if (edges.size() < 2) throw Error(s + "breakpoints: need at least two edges (one range)");
+  for (std::size_t i = 1; i < edges.size(); ++i)
+    if (!(edges[i] > edges[i - 1])) throw Error(s + "breakpoints: not strictly ascending");
+  require_int(o.max_order >= 0 && o.max_order <= 12, s + "max_order", o.max_order, "0 … 12");
+  require_int(o.order >= -1 && o.order <= 12, s + "order", o.order, "0 … 12, or −1 to choose by F-test");
+  require_open_unit(s + "significance", o.significance);
+  require_int(o.min_samples >= 0, s + "min_samples", o.min_samples, "≥ 0");
+  require_int(o.whiten_max_order >= 0, s + "whiten_max_order", o.whiten_max_order, "≥ 0 (0: no whitening)");
+}
+
+}  // namespace detail
+
 DriftModel fit_drift(const SeriesRef& select, const SeriesRef& x, const SeriesRef& w, const DriftOptions& options) {
   check_series(select, "temperature", 1, "to fit a drift model");
   check_series(x, "regressor", 1, "to fit a drift model");
@@ -117,14 +136,8 @@ DriftModel fit_drift(const SeriesRef& select, const SeriesRef& x, const SeriesRe
   if (select.size() != w.size() || x.size() != w.size())
     throw Error("drift: temperature, regressor and zero_bias lengths differ (" + std::to_string(select.size()) +
                 ", " + std::to_string(x.size()) + ", " + std::to_string(w.size()) + ")");
+  detail::check(options);
   const auto& edges = options.breakpoints;
-  if (edges.size() < 2) throw Error("breakpoints: need at least two edges (one range)");
-  for (std::size_t i = 1; i < edges.size(); ++i)
-    if (!(edges[i] > edges[i - 1])) throw Error("breakpoints: not strictly ascending");
-  if (options.max_order < 0 || options.order > 12 || options.max_order > 12)
-    throw Error("drift: order must be within 0 … 12");
-  if (!(options.significance > 0.0 && options.significance < 1.0))
-    throw Error("significance: must be in (0, 1)");
   const int k = static_cast<int>(edges.size()) - 1;
   std::vector<std::vector<Eigen::Index>> members(k);
   std::size_t outside = 0;

@@ -1,6 +1,7 @@
 #include "fluxcal/ellipsoid.hpp"
 
 #include "fluxcal/coverage.hpp"
+#include "checks.hpp"
 #include "quadric.hpp"
 
 #include <Eigen/Eigenvalues>
@@ -290,8 +291,6 @@ EllipsoidResult solve(const EllipsoidMoments& mom, const EllipsoidOptions& opt) 
     msg << "samples: " << mom.count() << " rows, need at least 9 for a 9-parameter ellipsoid fit";
     throw Error(msg.str());
   }
-  if (!(opt.field_norm >= 0.0) || !std::isfinite(opt.field_norm))
-    throw Error("field_norm: must be a positive finite magnitude, or 0 to use the fitted radius");
 
   const Eigen::Matrix<double, 10, 10> S = mom.scatter();
   EllipsoidResult out;
@@ -396,7 +395,23 @@ void finish_message(EllipsoidResult& r) {
 
 }  // namespace
 
+namespace detail {
+
+void check(const EllipsoidOptions& o) {
+  const std::string s = "EllipsoidOptions::";
+  require_enum(s + "method", o.method, 2, "ordinary, adjusted (0 … 1)");
+  require_nonnegative(s + "field_norm", o.field_norm,
+                      "a positive finite magnitude, or 0 to use the fitted radius");
+  require_unit(s + "planar_ratio", o.planar_ratio);
+  require_unit(s + "poor_coverage_ratio", o.poor_coverage_ratio);
+  require_unit(s + "poor_direction_coverage", o.poor_direction_coverage);
+  require_int(o.coverage_rows >= 0, s + "coverage_rows", o.coverage_rows, "≥ 0 (0: all rows)");
+}
+
+}  // namespace detail
+
 EllipsoidResult fit_ellipsoid(const EllipsoidMoments& moments, const EllipsoidOptions& options) {
+  detail::check(options);
   if (!moments.finite()) throw Error("samples: the accumulated sums are not finite (a NaN or Inf reading was added)");
   EllipsoidResult r = solve(moments, options);
   finish_message(r);
@@ -404,6 +419,7 @@ EllipsoidResult fit_ellipsoid(const EllipsoidMoments& moments, const EllipsoidOp
 }
 
 EllipsoidResult fit_ellipsoid(const SamplesRef& samples, const EllipsoidOptions& options) {
+  detail::check(options);
   if (samples.rows() < 9) {
     std::ostringstream msg;
     msg << "samples: " << samples.rows() << " rows, need at least 9 for a 9-parameter ellipsoid fit";

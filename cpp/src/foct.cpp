@@ -1,5 +1,7 @@
 #include "fluxcal/foct.hpp"
 
+#include "checks.hpp"
+
 #include <Eigen/LU>
 
 #include <algorithm>
@@ -116,6 +118,8 @@ namespace {
 // The drift model's polynomial variable; `storage` keeps the difference alive while the view is used.
 SeriesRef regressor_values(DriftRegressor regressor, const SeriesRef& temp, const SeriesRef* temp_outside,
                            Eigen::VectorXd& storage) {
+  // an out-of-range value (a cast int) would otherwise be taken for `difference`
+  detail::require_enum("regressor", regressor, 2, "temperature, difference (0 … 1)");
   if (regressor == DriftRegressor::temperature) return temp;  // temp_outside is not used (as in Python)
   if (!temp_outside) throw Error("temp_outside: needed for the inside/outside temperature difference regressor");
   check_series(*temp_outside, "temp_outside", 0, "");
@@ -141,7 +145,14 @@ Eigen::VectorXd compensate_zero_bias(const DriftModel& drift, DriftRegressor reg
 
 FoctResult fit_foct(const SeriesRef& zero_bias, const SeriesRef& temp, const SeriesRef* temp_outside,
                     const FoctOptions& options) {
-  // Inputs and options first, so a bad call fails before any work.
+  // Inputs and options first, so a bad call fails before any work. (q, r, rated, level_step keep the
+  // words of fluxcal.drift.fit_pipeline, which tests/python/test_foct_pipeline.py holds them to.)
+  detail::check(options.preprocess);
+  detail::check(options.ar);
+  detail::check(options.kalman);
+  detail::check(options.drift);
+  detail::require_enum("FoctOptions::regressor", options.regressor, 2, "temperature, difference (0 … 1)");
+  detail::require_enum("FoctOptions::drift_input", options.drift_input, 2, "zero_bias, filtered (0 … 1)");
   const int ar_order = options.ar.order >= 0 ? options.ar.order : options.ar.max_order;
   const Eigen::Index need = std::max<Eigen::Index>(2 * static_cast<Eigen::Index>(options.preprocess.subseries) + 2,
                                                    2 * static_cast<Eigen::Index>(ar_order) + 3);

@@ -1,5 +1,7 @@
 #include "fluxcal/kalman.hpp"
 
+#include "checks.hpp"
+
 #include <Eigen/Eigenvalues>
 
 #include <cmath>
@@ -114,14 +116,24 @@ Eigen::MatrixXd ar_stationary_covariance(const Eigen::VectorXd& a, double q) {
   return cov;
 }
 
+namespace detail {
+
+void check(const KalmanOptions& o) {
+  const std::string s = "KalmanOptions::";
+  require_nonnegative(s + "initial_variance", o.initial_variance, "a finite value ≥ 0 (0: the stationary covariance)");
+  require_int(o.riccati_max_iterations >= 1, s + "riccati_max_iterations", o.riccati_max_iterations, "≥ 1");
+  require_nonnegative(s + "riccati_tolerance", o.riccati_tolerance);
+}
+
+}  // namespace detail
+
 ArKalman::ArKalman(const Eigen::VectorXd& ar_coefficients, double q, double r, const KalmanOptions& options)
     : a_(ar_coefficients), q_(q), r_(r), options_(options) {
   if (a_.size() < 1) throw Error("ar_coefficients: empty, the Kalman filter needs an AR order p ≥ 1");
   if (!a_.allFinite()) throw Error("ar_coefficients: NaN/Inf");
   if (!(std::isfinite(q) && q > 0.0)) throw Error("q: process variance " + std::to_string(q) + " must be > 0");
   if (!(std::isfinite(r) && r >= 0.0)) throw Error("r: measurement variance " + std::to_string(r) + " must be ≥ 0");
-  if (!(options.initial_variance >= 0.0 && std::isfinite(options.initial_variance)))
-    throw Error("initial_variance: must be finite and ≥ 0");
+  detail::check(options);
   const Eigen::Index n = a_.size();
   if (options.initial_variance > 0.0) {
     p0_ = options.initial_variance * Eigen::MatrixXd::Identity(n, n);

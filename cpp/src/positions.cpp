@@ -352,11 +352,42 @@ ceres::Solver::Options tight_solver_options(ceres::LinearSolverType linear_solve
 
 }  // namespace
 
+namespace {
+// A Frame cast from an out-of-range integer would be taken for nue (or ned) silently.
+void check_frame(Frame frame, const std::string& name = "frame") {
+  detail::require_enum(name, frame, 2, "ned, nue (0 … 1)");
+}
+}  // namespace
+
+namespace detail {
+
+void check(const PositionsOptions& o) {
+  const std::string s = "PositionsOptions::";
+  check_frame(o.frame, s + "frame");
+  // NaN compares false: a NaN tolerance switched the |a| check off, a NaN σ the levelling prior
+  require_nonnegative(s + "gravity", o.gravity, "a finite value ≥ 0 (0 = the median |acc|)");
+  require_positive(s + "gravity_tolerance", o.gravity_tolerance, "a finite fraction > 0");
+  require_nonnegative(s + "tilt_sigma_deg", o.tilt_sigma_deg, "a finite value ≥ 0 (0 = levelling taken as exact)");
+  require_nonnegative(s + "output_sigma", o.output_sigma, "a finite value ≥ 0 (0 = estimated)");
+  require_positive(s + "determined_tolerance", o.determined_tolerance);
+  require_int(o.max_iterations >= 1, s + "max_iterations", o.max_iterations, "≥ 1");
+}
+
+void check(const AccelerometerOptions& o) {
+  const std::string s = "AccelerometerOptions::";
+  require_positive(s + "gravity", o.gravity);
+  require_int(o.max_iterations >= 1, s + "max_iterations", o.max_iterations, "≥ 1");
+}
+
+}  // namespace detail
+
 Eigen::Vector3d local_up(Frame frame) {
+  check_frame(frame);
   return frame == Frame::ned ? Eigen::Vector3d(0, 0, -1) : Eigen::Vector3d(0, 1, 0);
 }
 
 Eigen::Vector2d pitch_roll(const Eigen::Vector3d& a, Frame frame) {
+  check_frame(frame);
   if (!a.allFinite() || a.norm() == 0.0) throw Error("specific_force: zero or not finite");
   if (frame == Frame::nue) {
     // Seed 002 eq. 4: θ = arcsin(Ax/|A|), γ = arctan(−Az/Ay), written with atan2 so that it is exact
@@ -367,6 +398,7 @@ Eigen::Vector2d pitch_roll(const Eigen::Vector3d& a, Frame frame) {
 }
 
 Eigen::Matrix3d body_to_local(double pitch, double roll, double yaw, Frame frame) {
+  check_frame(frame);
   using Eigen::AngleAxisd;
   using Eigen::Vector3d;
   if (frame == Frame::ned) {
@@ -381,6 +413,7 @@ Eigen::Matrix3d body_to_local(double pitch, double roll, double yaw, Frame frame
 }
 
 Eigen::Matrix3d heading_rotation(double angle, Frame frame) {
+  check_frame(frame);
   return frame == Frame::ned ? Eigen::AngleAxisd(angle, Eigen::Vector3d::UnitZ()).toRotationMatrix()
                              : Eigen::AngleAxisd(-angle, Eigen::Vector3d::UnitY()).toRotationMatrix();
 }
@@ -404,6 +437,7 @@ Eigen::Vector3d PositionsResult::field_of(const Eigen::Vector3d& output) const {
 }
 
 Eigen::Matrix3d level_rotation(const Eigen::Matrix3d& nominal, const Eigen::Vector3d& body_up, Frame frame) {
+  check_frame(frame);
   check_rotation(nominal, "nominal");
   if (!body_up.allFinite() || !(body_up.norm() > 0.0))
     throw Error("body_up: need a finite vector of length > 0 (the accelerometer's up in the body frame)");
@@ -413,6 +447,7 @@ Eigen::Matrix3d level_rotation(const Eigen::Matrix3d& nominal, const Eigen::Vect
 }
 
 std::vector<Eigen::Matrix3d> twelve_positions(Frame frame) {
+  check_frame(frame);
   // Pointing directions of the seed 002 body axes (x forward, y up, z right) in N-U-E letters.
   static const char* kPositions[12] = {"NUE", "SUW", "SDE", "NDW", "USE", "UNW",
                                        "DNE", "DSW", "NWU", "SEU", "NED", "SWD"};
@@ -443,6 +478,7 @@ std::vector<Eigen::Matrix3d> twelve_positions(Frame frame) {
 }
 
 PositionsResult fit_positions(const SamplesRef& outputs, const SamplesRef& reference, const PositionsOptions& options) {
+  detail::check(options);
   const Eigen::Index n = outputs.rows();
   if (n < 4) {
     throw Error("outputs: " + std::to_string(n) +
@@ -511,14 +547,7 @@ PositionsResult calibrate_positions(const SamplesRef& outputs, const SamplesRef&
                                     const PositionsOptions& options) {
   const Eigen::Index n = outputs.rows();
   check_field(field);
-  // NaN compares false: a NaN tolerance switched the |a| check off, a NaN σ the levelling prior
-  detail::require_nonnegative("gravity", options.gravity, "a finite value ≥ 0 (0 = the mean |acc|)");
-  detail::require_positive("gravity_tolerance", options.gravity_tolerance, "a finite fraction > 0");
-  detail::require_nonnegative("tilt_sigma_deg", options.tilt_sigma_deg, "≥ 0 (0 = levelling taken as exact)");
-  detail::require_nonnegative("output_sigma", options.output_sigma, "a finite value ≥ 0 (0 = estimated)");
-  detail::require_positive("determined_tolerance", options.determined_tolerance);
-  if (options.max_iterations < 1)
-    throw Error("max_iterations: " + std::to_string(options.max_iterations) + ", need ≥ 1");
+  detail::check(options);
   if (specific_force.rows() != n) {
     throw Error("specific_force: " + std::to_string(specific_force.rows()) + " rows for " + std::to_string(n) +
                 " positions of outputs");
@@ -921,9 +950,7 @@ AccelerometerResult calibrate_accelerometer(const SamplesRef& readings, const Ac
   check_samples(readings, "readings", 6,
                 "static positions for an accelerometer calibration (offset and scale: 6 unknowns; with "
                 "misalignment 9)");
-  detail::require_positive("gravity", options.gravity);
-  if (options.max_iterations < 1)
-    throw Error("max_iterations: " + std::to_string(options.max_iterations) + ", need ≥ 1");
+  detail::check(options);
   const Eigen::Vector3d lo = readings.colwise().minCoeff(), hi = readings.colwise().maxCoeff();
   const Eigen::Vector3d mean_abs = readings.cwiseAbs().colwise().mean();
   for (int k = 0; k < 3; ++k) {

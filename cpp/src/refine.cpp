@@ -528,7 +528,7 @@ void information(ceres::Problem& problem, int p, RefineResult& out, Eigen::Matri
 // The shape constrains the magnitude model's refine(); elsewhere it would be silently ignored.
 void require_symmetric_shape(const RefineOptions& o, const char* function) {
   if (o.shape != Shape::symmetric)
-    throw Error(std::string("options.shape: ") + function +
+    throw Error(std::string("RefineOptions::shape: ") + function +
                 " fits a full matrix (the vector model's W, or refine_terms' base with `fixed` names); "
                 "the shape applies to refine's magnitude model");
 }
@@ -536,16 +536,21 @@ void require_symmetric_shape(const RefineOptions& o, const char* function) {
 // Options and start are checked before Ceres, which would otherwise print a glog line to stderr and
 // fail with a message that names none of the caller's inputs (a NaN tolerance, a NaN start term).
 void check_options(const RefineOptions& o) {
-  detail::require(o.max_iterations >= 1, "options.max_iterations", o.max_iterations, "≥ 1");
+  const std::string s = "RefineOptions::";
+  // An enum cast from an out-of-range integer fell through every switch: Loss(7) fitted without a loss.
+  detail::require_enum(s + "loss", o.loss, 3, "none, huber, cauchy (0 … 2)");
+  detail::require_enum(s + "shape", o.shape, 3, "sphere, diagonal, symmetric (0 … 2)");
+  detail::require_enum(s + "serial_correlation", o.serial_correlation, 3, "automatic, independent, newey_west (0 … 2)");
+  detail::require_int(o.max_iterations >= 1, s + "max_iterations", o.max_iterations, "≥ 1");
   for (const auto& [name, v] : {std::pair<const char*, double>{"function_tolerance", o.function_tolerance},
                                 {"gradient_tolerance", o.gradient_tolerance},
                                 {"parameter_tolerance", o.parameter_tolerance},
                                 {"determined_tolerance", o.determined_tolerance}})
-    detail::require_positive(std::string("options.") + name, v);
-  detail::require_nonnegative("options.loss_scale", o.loss_scale,
+    detail::require_positive(s + name, v);
+  detail::require_nonnegative(s + "loss_scale", o.loss_scale,
                               "a finite value ≥ 0 (0 = 3 × a robust estimate of the noise)");
-  detail::require(o.serial_correlation_alpha > 0.0 && o.serial_correlation_alpha < 1.0,
-                  "options.serial_correlation_alpha", o.serial_correlation_alpha, "a significance level in (0, 1)");
+  detail::require_open_unit(s + "serial_correlation_alpha", o.serial_correlation_alpha,
+                            "a significance level in (0, 1)");
 }
 
 // `matrix` is the start's A (magnitude model: its symmetric part) or W: a singular one leaves Ceres
@@ -648,10 +653,10 @@ class TermsBatch : public ceres::CostFunction {
 }  // namespace
 
 RefineResult refine(const Calibration& start, const SamplesRef& samples, const RefineOptions& opt) {
+  check_options(opt);
   const ShapeMap shape = shape_map(opt.shape);
   const Eigen::Index k = shape.P.cols();
   check_inputs(samples, k + 1, "a " + std::to_string(k) + "-parameter magnitude refinement");
-  check_options(opt);
   if (!start.matrix.allFinite()) throw Error("start: offset or matrix is not finite");
   const Eigen::Matrix3d A = symmetric_part(start.matrix);
   check_start(start, A, true);

@@ -1,5 +1,7 @@
 #include "fluxcal/timeseries.hpp"
 
+#include "checks.hpp"
+
 #include <algorithm>
 #include <cmath>
 #include <limits>
@@ -102,12 +104,42 @@ Eigen::MatrixXd lagged_r(const SeriesRef& y, int k, Eigen::Index first) {
 
 }  // namespace
 
-double chi2_sf(double x, double df) { return gamma_q(0.5 * df, 0.5 * x); }
+// NaN and a negative df otherwise came back as a number (NaN, or 1 for df < 0) with no sign of the misuse.
+double chi2_sf(double x, double df) {
+  detail::require(!std::isnan(x), "chi2_sf: x", x, "a number (not NaN)");
+  detail::require_positive("chi2_sf: df", df);
+  if (std::isinf(x)) return x > 0.0 ? 0.0 : 1.0;
+  return gamma_q(0.5 * df, 0.5 * x);
+}
 
 double f1_sf(double x, double df) {
+  detail::require(!std::isnan(x), "f1_sf: x", x, "a number (not NaN)");
+  detail::require_positive("f1_sf: df", df);
   if (x <= 0.0) return 1.0;
   return beta_i(0.5 * df, 0.5, df / (df + x));
 }
+
+namespace detail {
+
+void check(const ArOptions& o) {
+  const std::string s = "ArOptions::";
+  require_int(o.max_order >= 0, s + "max_order", o.max_order, "≥ 0");
+  require_int(o.order >= -1, s + "order", o.order, "≥ 0, or −1 to choose by AIC");
+  require_int(o.init_samples >= 0, s + "init_samples", o.init_samples, "≥ 0 (raised to 2 p when smaller)");
+  require(o.forgetting > 0.0 && o.forgetting <= 1.0, s + "forgetting", o.forgetting, "a value in (0, 1]");
+  require_int(o.whiteness_lags >= 0, s + "whiteness_lags", o.whiteness_lags, "≥ 0 (0: max(10, 2 p))");
+  require_open_unit(s + "significance", o.significance);
+}
+
+void check(const PreprocessOptions& o) {
+  const std::string s = "PreprocessOptions::";
+  require_int(o.subseries >= 3, s + "subseries", o.subseries, "≥ 3");
+  require_positive(s + "threshold", o.threshold);
+  require_int(o.trend_degree >= 0, s + "trend_degree", o.trend_degree, "≥ 0");
+  require_open_unit(s + "significance", o.significance);
+}
+
+}  // namespace detail
 
 void check_series(const SeriesRef& series, const std::string& name, Eigen::Index min_length,
                   const std::string& purpose) {
@@ -179,6 +211,7 @@ ReverseArrangementResult reverse_arrangement(const SeriesRef& x, int subseries, 
 }
 
 NormalityResult normality(const SeriesRef& x, double significance) {
+  detail::require_open_unit("normality: significance", significance);
   check_series(x, "series", 3, "for skewness and kurtosis");
   const double mean = x.mean();
   double m2 = 0.0, m3 = 0.0, m4 = 0.0;
@@ -204,6 +237,8 @@ NormalityResult normality(const SeriesRef& x, double significance) {
 
 LjungBoxResult ljung_box(const SeriesRef& x, int lags, int model_df, double significance) {
   if (lags < 1) throw Error("ljung_box: lags = " + std::to_string(lags) + ", need ≥ 1");
+  detail::require_int(model_df >= 0, "ljung_box: model_df", model_df, "≥ 0");
+  detail::require_open_unit("ljung_box: significance", significance);
   check_series(x, "series", static_cast<Eigen::Index>(lags) + 1, "for " + std::to_string(lags) + " lags");
   const Eigen::VectorXd d = x.array() - x.mean();
   const double c0 = d.squaredNorm();
@@ -225,13 +260,9 @@ LjungBoxResult ljung_box(const SeriesRef& x, int lags, int model_df, double sign
 }
 
 ArResult fit_ar(const SeriesRef& y, const ArOptions& options) {
+  detail::check(options);
   const bool fixed = options.order >= 0;
   const int k = fixed ? options.order : options.max_order;
-  if (k < 0) throw Error("fit_ar: max_order = " + std::to_string(k) + " is negative");
-  if (!(options.forgetting > 0.0 && options.forgetting <= 1.0))
-    throw Error("fit_ar: forgetting factor " + std::to_string(options.forgetting) + " is not in (0, 1]");
-  if (!(options.significance > 0.0 && options.significance < 1.0))
-    throw Error("fit_ar: significance " + std::to_string(options.significance) + " is not in (0, 1)");
   check_series(y, "series", 2 * static_cast<Eigen::Index>(k) + 3,
                "for an AR model of order " + std::to_string(k) + (fixed ? "" : " (max_order)"));
   if (!((y.array() != y[0]).any())) throw Error("series: constant (every sample equals " + std::to_string(y[0]) +
@@ -342,9 +373,7 @@ ArResult fit_ar(const SeriesRef& y, const ArOptions& options) {
 }
 
 PreprocessResult preprocess(const SeriesRef& x, const PreprocessOptions& options) {
-  if (options.subseries < 3)
-    throw Error("preprocess: subseries = " + std::to_string(options.subseries) + ", need ≥ 3");
-  if (options.trend_degree < 0) throw Error("preprocess: trend_degree is negative");
+  detail::check(options);
   // Enough for the test on the twice-differenced series: N − 2 ≥ 2 l.
   check_series(x, "series", 2 * static_cast<Eigen::Index>(options.subseries) + 2,
                "for the stationarity test on " + std::to_string(options.subseries) + " sub-series");

@@ -2,6 +2,7 @@
 
 #include "fluxcal/coverage.hpp"
 #include "fluxcal/ellipsoid.hpp"
+#include "checks.hpp"
 #include "quadric.hpp"
 
 #include <Eigen/Eigenvalues>
@@ -57,10 +58,29 @@ double solve_scaled(const Eigen::Matrix<double, K, K>& N, const Eigen::Matrix<do
   return lam(K - 1) / lam(0);
 }
 
+void check(const TwoStep2DOptions& o) {
+  const std::string s = "TwoStep2DOptions::";
+  detail::require_int(o.max_iterations >= 0, s + "max_iterations", o.max_iterations, "≥ 0");
+  detail::require_positive(s + "tolerance", o.tolerance);
+  detail::require_nonnegative(s + "misfit_spread", o.misfit_spread);
+}
+
+void check(const TwoStepOptions& o) {
+  const std::string s = "TwoStepOptions::";
+  detail::require_int(o.max_iterations >= 0, s + "max_iterations", o.max_iterations, "≥ 0 (0: the first step only)");
+  detail::require_positive(s + "tolerance", o.tolerance);
+  detail::require_finite(s + "noise_sigma", o.noise_sigma, "a finite value (< 0: estimate it, 0: no correction)");
+  detail::require_unit(s + "planar_ratio", o.planar_ratio);
+  detail::require_unit(s + "poor_coverage_ratio", o.poor_coverage_ratio);
+  detail::require_unit(s + "poor_direction_coverage", o.poor_direction_coverage);
+  detail::require_int(o.coverage_rows >= 0, s + "coverage_rows", o.coverage_rows, "≥ 0 (0: all rows)");
+}
+
 // ---- 2-D ---------------------------------------------------------------------------------------------
 
 void check_2d(const Readings2DRef& readings, const Eigen::Ref<const Eigen::VectorXd>& h,
               const TwoStep2DOptions& opt) {
+  check(opt);
   if (readings.rows() < 5) {
     std::ostringstream msg;
     msg << "readings: " << readings.rows()
@@ -89,9 +109,6 @@ void check_2d(const Readings2DRef& readings, const Eigen::Ref<const Eigen::Vecto
           << "; every reading needs a positive finite true field magnitude (drop zero-field readings)";
       throw Error(msg.str());
     }
-  if (opt.max_iterations < 0) throw Error("options.max_iterations: must be 0 or more");
-  if (!(opt.tolerance > 0.0) || !std::isfinite(opt.tolerance))
-    throw Error("options.tolerance: must be a positive finite number");
 }
 
 // Normalised problem: u = (ĥ − centre)/scale, f = h/field_scale. The model keeps its form:
@@ -414,10 +431,7 @@ TwoStepResult twostep(const SamplesRef& samples, const TwoStepOptions& options) 
   const double H = options.field_norm;
   if (!(H > 0.0) || !std::isfinite(H))
     throw Error("field_norm: must be a positive finite magnitude (the known |H|, e.g. from IGRF), got " + num(H));
-  if (options.max_iterations < 0) throw Error("options.max_iterations: must be 0 or more");
-  if (!(options.tolerance > 0.0) || !std::isfinite(options.tolerance))
-    throw Error("options.tolerance: must be a positive finite number");
-  if (!std::isfinite(options.noise_sigma)) throw Error("options.noise_sigma: must be finite (< 0 to estimate it)");
+  check(options);
   if (samples.rows() < 9) check_samples(samples, "samples", 9, "the 9-parameter two-step calibration");
 
   // One pass: the 35 moments of the normalised readings (shared with the ellipsoid fit). A NaN or Inf

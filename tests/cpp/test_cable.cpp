@@ -2,6 +2,8 @@
 
 #include <gtest/gtest.h>
 
+#include "errors.hpp"
+
 #include <cmath>
 #include <limits>
 #include <random>
@@ -205,3 +207,4 @@ TEST(Cable, WrongWidthPositionsAndNaNOptionsAreErrors) {
   o.initial_currents = Eigen::MatrixXd::Constant(1, 2, std::nan(""));
   EXPECT_THROW(fluxcal::solve_cable(ring, snapshot(ring, p, Eigen::Vector2d(1.0, -1.0)), o), fluxcal::Error);
 }
+

@@ -3,8 +3,11 @@
 
 #include <gtest/gtest.h>
 
+#include "errors.hpp"
 #include "foct_law.hpp"
 
+#include <cmath>
+#include <limits>
 #include <random>
 
 namespace {
@@ -94,3 +97,30 @@ TEST(Drift, PolynomialRefusesNegativeOrderAndLengthMismatch) {
   EXPECT_THROW(fluxcal::fit_polynomial(x, w, 1), fluxcal::Error);           // fitted 10 rows against 20
   EXPECT_NEAR(fluxcal::fit_polynomial(x, w.head(10), 1)[1], 2.0, 1e-12);
 }
+
+// Options are checked on entry, each message naming the field (max_order used to be called "order").
+TEST(DriftOptions, BadValuesAreNamed) {
+  const Data d = make(3000, 0.01, 2);
+  fluxcal::DriftOptions o;
+  o.whiten_max_order = -1;
+  EXPECT_ERROR_SAYS(fluxcal::fit_drift(d.temp, d.temp, d.w, o), "DriftOptions::whiten_max_order: -1");
+  o = {};
+  o.max_order = 13;
+  EXPECT_ERROR_SAYS(fluxcal::fit_drift(d.temp, d.temp, d.w, o), "DriftOptions::max_order: 13, need 0 … 12");
+  o = {};
+  o.max_order = -1;
+  EXPECT_ERROR_SAYS(fluxcal::fit_drift(d.temp, d.temp, d.w, o), "DriftOptions::max_order: -1");
+  o = {};
+  o.order = -2;
+  EXPECT_ERROR_SAYS(fluxcal::fit_drift(d.temp, d.temp, d.w, o), "DriftOptions::order: -2");
+  o = {};
+  o.significance = std::nan("");
+  EXPECT_ERROR_SAYS(fluxcal::fit_drift(d.temp, d.temp, d.w, o), "DriftOptions::significance: nan");
+  o = {};
+  o.min_samples = -4;
+  EXPECT_ERROR_SAYS(fluxcal::fit_drift(d.temp, d.temp, d.w, o), "DriftOptions::min_samples: -4");
+  o = {};
+  o.breakpoints = {0.0, std::nan("")};
+  EXPECT_ERROR_SAYS(fluxcal::fit_drift(d.temp, d.temp, d.w, o), "DriftOptions::breakpoints: not strictly ascending");
+}
+

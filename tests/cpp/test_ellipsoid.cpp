@@ -4,6 +4,8 @@
 
 #include <gtest/gtest.h>
 
+#include "errors.hpp"
+
 #include <cmath>
 #include <limits>
 #include <random>
@@ -138,3 +140,30 @@ TEST(EllipsoidErrors, BadFieldNorm) {
   opt.field_norm = -1.0;
   EXPECT_THROW(fluxcal::fit_ellipsoid(simulate(make_truth(1, 1.0), 50, 0.0, 1), opt), fluxcal::Error);
 }
+
+TEST(EllipsoidOptions, BadValuesAreNamed) {
+  const Samples s = simulate(make_truth(1, 1.0), 200, 0.0, 1);
+  fluxcal::EllipsoidOptions o;
+  o.planar_ratio = std::nan("");  // switched the planar check off silently
+  EXPECT_ERROR_SAYS(fluxcal::fit_ellipsoid(s, o), "EllipsoidOptions::planar_ratio: nan, need a value in [0, 1]");
+  o = {};
+  o.coverage_rows = -1;
+  EXPECT_ERROR_SAYS(fluxcal::fit_ellipsoid(s, o), "EllipsoidOptions::coverage_rows: -1");
+  o = {};
+  o.method = static_cast<fluxcal::EllipsoidMethod>(5);
+  EXPECT_ERROR_SAYS(fluxcal::fit_ellipsoid(s, o), "EllipsoidOptions::method: 5");
+  o = {};
+  o.field_norm = -1.0;
+  EXPECT_ERROR_SAYS(fluxcal::fit_ellipsoid(s, o), "EllipsoidOptions::field_norm: -1");
+  o = {};
+  o.poor_direction_coverage = 2.0;
+  EXPECT_ERROR_SAYS(fluxcal::fit_ellipsoid(s, o), "EllipsoidOptions::poor_direction_coverage: 2");
+  // The streaming overload checks the same options.
+  const auto [centre, scale] = fluxcal::normalisation(s);
+  fluxcal::EllipsoidMoments m(centre, scale);
+  m.add_rows(s);
+  o = {};
+  o.poor_coverage_ratio = -0.5;
+  EXPECT_ERROR_SAYS(fluxcal::fit_ellipsoid(m, o), "EllipsoidOptions::poor_coverage_ratio: -0.5");
+}
+

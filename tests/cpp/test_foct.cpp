@@ -4,6 +4,7 @@
 
 #include <gtest/gtest.h>
 
+#include "errors.hpp"
 #include "foct_law.hpp"
 
 #include <algorithm>
@@ -325,3 +326,26 @@ TEST(Foct, BadInput) {
 }
 
 }  // namespace
+
+// fit_foct checks its nested options on entry, each message naming the struct and field.
+TEST(FoctOptions, BadNestedValuesAreNamed) {
+  const Foct s = simulate(2);
+  fluxcal::FoctOptions o;
+  o.ar.init_samples = -5;
+  EXPECT_ERROR_SAYS(fluxcal::fit_foct(s.zero_bias, s.temp, o), "ArOptions::init_samples: -5");
+  o = {};
+  o.kalman.riccati_tolerance = std::nan("");
+  EXPECT_ERROR_SAYS(fluxcal::fit_foct(s.zero_bias, s.temp, o), "KalmanOptions::riccati_tolerance: nan");
+  o = {};
+  o.preprocess.threshold = -1.0;
+  EXPECT_ERROR_SAYS(fluxcal::fit_foct(s.zero_bias, s.temp, o), "PreprocessOptions::threshold: -1");
+  o = {};
+  o.drift.whiten_max_order = -1;
+  EXPECT_ERROR_SAYS(fluxcal::fit_foct(s.zero_bias, s.temp, o), "DriftOptions::whiten_max_order: -1");
+  o = {};
+  o.regressor = static_cast<fluxcal::DriftRegressor>(9);  // was taken for `difference`
+  EXPECT_ERROR_SAYS(fluxcal::fit_foct(s.zero_bias, s.temp, o), "FoctOptions::regressor: 9");
+  o = {};
+  o.drift_input = static_cast<fluxcal::DriftInput>(2);
+  EXPECT_ERROR_SAYS(fluxcal::fit_foct(s.zero_bias, s.temp, o), "FoctOptions::drift_input: 2");
+}

@@ -5,7 +5,10 @@
 
 #include <gtest/gtest.h>
 
+#include "errors.hpp"
+
 #include <algorithm>
+#include <cmath>
 #include <cstring>
 #include <limits>
 #include <random>
@@ -220,4 +223,17 @@ TEST(FixedPoint, SaturatingAddAtTheEdges) {
   of = false;
   EXPECT_EQ(add64(hi, lo, of), -1);  // opposite signs never overflow
   EXPECT_FALSE(of);
+}
+
+TEST(KalmanOptions, BadValuesAreNamed) {
+  const Eigen::VectorXd a = Eigen::VectorXd::Constant(1, 0.5);
+  fluxcal::KalmanOptions o;
+  o.initial_variance = std::nan("");
+  EXPECT_ERROR_SAYS(fluxcal::ArKalman(a, 1.0, 1.0, o), "KalmanOptions::initial_variance: nan");
+  o = {};
+  o.riccati_max_iterations = 0;
+  EXPECT_ERROR_SAYS(fluxcal::ArKalman(a, 1.0, 1.0, o), "KalmanOptions::riccati_max_iterations: 0, need ≥ 1");
+  o = {};
+  o.riccati_tolerance = -1e-9;
+  EXPECT_ERROR_SAYS(fluxcal::ArKalman(a, 1.0, 1.0, o), "KalmanOptions::riccati_tolerance: -1e-09");
 }

@@ -2,6 +2,8 @@
 
 #include <gtest/gtest.h>
 
+#include "errors.hpp"
+
 #include <cmath>
 #include <limits>
 #include <random>
@@ -217,3 +219,35 @@ TEST(Positions, CoreRefusesNonRotationsAndNonFiniteOptions) {
   EXPECT_THROW(fluxcal::level_rotation(Eigen::Matrix3d::Identity(), Eigen::Vector3d::Zero(), Frame::nue),
                fluxcal::Error);
 }
+
+TEST(PositionsOptions, BadValuesAreNamed) {
+  const Scene s = twelve(0.0, 0.0, 0.0, 1);
+  fluxcal::PositionsOptions o;
+  o.frame = static_cast<Frame>(4);  // was taken for nue
+  EXPECT_ERROR_SAYS(fluxcal::calibrate_positions(s.U, s.acc, s.nominal, field_nue(), o), "PositionsOptions::frame: 4");
+  o = {};
+  o.frame = Frame::nue;
+  o.gravity_tolerance = std::nan("");
+  EXPECT_ERROR_SAYS(fluxcal::calibrate_positions(s.U, s.acc, s.nominal, field_nue(), o),
+                    "PositionsOptions::gravity_tolerance: nan");
+  o.gravity_tolerance = 0.05;
+  o.tilt_sigma_deg = -1.0;
+  EXPECT_ERROR_SAYS(fluxcal::calibrate_positions(s.U, s.acc, s.nominal, field_nue(), o),
+                    "PositionsOptions::tilt_sigma_deg: -1");
+  o.tilt_sigma_deg = 0.0;
+  o.determined_tolerance = std::nan("");
+  EXPECT_ERROR_SAYS(fluxcal::fit_positions(s.U, s.U, o), "PositionsOptions::determined_tolerance: nan");
+  o.determined_tolerance = 0.01;
+  o.max_iterations = 0;
+  EXPECT_ERROR_SAYS(fluxcal::calibrate_positions(s.U, s.acc, s.nominal, field_nue(), o),
+                    "PositionsOptions::max_iterations: 0, need ≥ 1");
+  fluxcal::AccelerometerOptions a;
+  a.gravity = -9.8;
+  EXPECT_ERROR_SAYS(fluxcal::calibrate_accelerometer(s.acc, a), "AccelerometerOptions::gravity: -9.8");
+  a = {};
+  a.max_iterations = -1;
+  EXPECT_ERROR_SAYS(fluxcal::calibrate_accelerometer(s.acc, a), "AccelerometerOptions::max_iterations: -1");
+  EXPECT_ERROR_SAYS(fluxcal::local_up(static_cast<Frame>(3)), "frame: 3");
+  EXPECT_ERROR_SAYS(fluxcal::twelve_positions(static_cast<Frame>(-1)), "frame: -1");
+}
+

@@ -6,6 +6,8 @@
 
 #include <gtest/gtest.h>
 
+#include "errors.hpp"
+
 #include <cmath>
 #include <random>
 
@@ -150,3 +152,29 @@ TEST(RefineShape, DiagonalAndSphereAreNestedInSymmetric) {
   for (int j = 0; j < 3; ++j) EXPECT_LT(diag.standard_errors(j), sym.standard_errors(j) * 1.001);
   EXPECT_THROW(fluxcal::refine_vector(diag.calibration, s, s, o), fluxcal::Error);
 }
+
+TEST(RefineOptions, BadValuesAreNamed) {
+  const auto truth = fluxcal_test::make_truth(3, 50.0);
+  const fluxcal::Samples s = fluxcal_test::simulate(truth, 400, 0.01, 4);
+  fluxcal::Calibration start = fluxcal::fit_ellipsoid(s).calibration;
+  start.field_norm = truth.field;
+  fluxcal::RefineOptions o;
+  o.loss = static_cast<fluxcal::Loss>(7);  // fitted without a loss before
+  EXPECT_ERROR_SAYS(fluxcal::refine(start, s, o), "RefineOptions::loss: 7, need one of none, huber, cauchy");
+  o = {};
+  o.shape = static_cast<fluxcal::Shape>(9);
+  EXPECT_ERROR_SAYS(fluxcal::refine(start, s, o), "RefineOptions::shape: 9");
+  o = {};
+  o.serial_correlation = static_cast<fluxcal::SerialCorrelation>(-1);
+  EXPECT_ERROR_SAYS(fluxcal::refine(start, s, o), "RefineOptions::serial_correlation: -1");
+  o = {};
+  o.serial_correlation_alpha = std::nan("");
+  EXPECT_ERROR_SAYS(fluxcal::refine(start, s, o), "RefineOptions::serial_correlation_alpha: nan");
+  o = {};
+  o.max_iterations = 0;
+  EXPECT_ERROR_SAYS(fluxcal::fit_vector(s, s, o), "RefineOptions::max_iterations: 0");
+  o = {};
+  o.loss_scale = -1.0;
+  EXPECT_ERROR_SAYS(fluxcal::refine_vector(start, s, s, o), "RefineOptions::loss_scale: -1");
+}
+

@@ -3,7 +3,10 @@
 
 #include <gtest/gtest.h>
 
+#include "errors.hpp"
+
 #include <cmath>
+#include <limits>
 #include <random>
 
 namespace {
@@ -139,3 +142,50 @@ TEST(TimeSeries, BadInput) {
 }
 
 }  // namespace
+
+TEST(TimeSeriesOptions, BadValuesAreNamed) {
+  const Eigen::VectorXd y = ar_series({0.5}, 500, 3);
+  fluxcal::ArOptions a;
+  a.init_samples = -5;
+  EXPECT_ERROR_SAYS(fluxcal::fit_ar(y, a), "ArOptions::init_samples: -5, need ≥ 0");
+  a = {};
+  a.forgetting = std::nan("");
+  EXPECT_ERROR_SAYS(fluxcal::fit_ar(y, a), "ArOptions::forgetting: nan");
+  a = {};
+  a.whiteness_lags = -1;
+  EXPECT_ERROR_SAYS(fluxcal::fit_ar(y, a), "ArOptions::whiteness_lags: -1");
+  a = {};
+  a.order = -3;  // was taken for "choose by AIC"
+  EXPECT_ERROR_SAYS(fluxcal::fit_ar(y, a), "ArOptions::order: -3");
+  a = {};
+  a.max_order = -1;
+  EXPECT_ERROR_SAYS(fluxcal::fit_ar(y, a), "ArOptions::max_order: -1");
+  a = {};
+  a.significance = 1.0;
+  EXPECT_ERROR_SAYS(fluxcal::fit_ar(y, a), "ArOptions::significance: 1");
+
+  fluxcal::PreprocessOptions p;
+  p.threshold = std::nan("");  // every series "not stationary"
+  EXPECT_ERROR_SAYS(fluxcal::preprocess(y, p), "PreprocessOptions::threshold: nan");
+  p = {};
+  p.subseries = 2;
+  EXPECT_ERROR_SAYS(fluxcal::preprocess(y, p), "PreprocessOptions::subseries: 2, need ≥ 3");
+  p = {};
+  p.trend_degree = -1;
+  EXPECT_ERROR_SAYS(fluxcal::preprocess(y, p), "PreprocessOptions::trend_degree: -1");
+  p = {};
+  p.significance = -0.1;
+  EXPECT_ERROR_SAYS(fluxcal::preprocess(y, p), "PreprocessOptions::significance: -0.1");
+}
+
+TEST(TimeSeries, DistributionsRefuseBadArguments) {
+  EXPECT_ERROR_SAYS(fluxcal::chi2_sf(3.0, -1.0), "chi2_sf: df: -1");
+  EXPECT_ERROR_SAYS(fluxcal::chi2_sf(std::nan(""), 2.0), "chi2_sf: x: nan");
+  EXPECT_ERROR_SAYS(fluxcal::f1_sf(1.0, std::nan("")), "f1_sf: df: nan");
+  EXPECT_ERROR_SAYS(fluxcal::f1_sf(std::nan(""), 5.0), "f1_sf: x: nan");
+  EXPECT_EQ(fluxcal::chi2_sf(std::numeric_limits<double>::infinity(), 2.0), 0.0);
+  EXPECT_NEAR(fluxcal::chi2_sf(2.0, 2.0), std::exp(-1.0), 1e-14);
+  EXPECT_ERROR_SAYS(fluxcal::ljung_box(ar_series({0.5}, 200, 1), 10, -1), "ljung_box: model_df: -1");
+  EXPECT_ERROR_SAYS(fluxcal::normality(ar_series({0.5}, 200, 1), std::nan("")), "normality: significance: nan");
+}
+

@@ -4,6 +4,8 @@
 
 #include <gtest/gtest.h>
 
+#include "errors.hpp"
+
 #include <cmath>
 #include <limits>
 #include <random>
@@ -235,3 +237,29 @@ TEST(TwoStep3D, IterationLimitIsReportedNotThrown) {
   ASSERT_FALSE(r.summary.warnings.empty());
   EXPECT_NE(r.summary.warnings[0].find("did not converge"), std::string::npos);
 }
+
+TEST(TwoStepOptions, BadValuesAreNamed) {
+  const Samples s = simulate(make_truth(7, 1.0), 200, 0.0, 8);
+  fluxcal::TwoStepOptions o;
+  o.field_norm = 1.0;
+  o.planar_ratio = std::nan("");
+  EXPECT_ERROR_SAYS(fluxcal::twostep(s, o), "TwoStepOptions::planar_ratio: nan");
+  o.planar_ratio = 0.02;
+  o.coverage_rows = -1;
+  EXPECT_ERROR_SAYS(fluxcal::twostep(s, o), "TwoStepOptions::coverage_rows: -1");
+  o.coverage_rows = 0;
+  o.noise_sigma = std::nan("");
+  EXPECT_ERROR_SAYS(fluxcal::twostep(s, o), "TwoStepOptions::noise_sigma: nan");
+  o.noise_sigma = -1.0;
+  o.max_iterations = -1;
+  EXPECT_ERROR_SAYS(fluxcal::twostep(s, o), "TwoStepOptions::max_iterations: -1, need ≥ 0");
+
+  const Data2D d = paper_like(Truth2D(), 0.0, 1);
+  fluxcal::TwoStep2DOptions o2;
+  o2.misfit_spread = std::nan("");
+  EXPECT_ERROR_SAYS(fluxcal::twostep_2d(d.readings, d.norms, o2), "TwoStep2DOptions::misfit_spread: nan");
+  o2 = {};
+  o2.tolerance = 0.0;
+  EXPECT_ERROR_SAYS(fluxcal::twostep_2d(d.readings, d.norms, o2), "TwoStep2DOptions::tolerance: 0");
+}
+

@@ -335,7 +335,7 @@ def test_3d_bad_input_errors():
         twostep(x, 50000.0)
     with pytest.raises(TypeError, match="unknown option 'refine'"):
         twostep(x, 50000.0, refine=False)
-    with pytest.raises(ValueError, match="options.max_iterations"):
+    with pytest.raises(ValueError, match="TwoStepOptions::max_iterations"):
         twostep(simulated(9).readings, 50000.0, max_iterations=-1)
 
 
