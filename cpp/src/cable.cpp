@@ -289,6 +289,7 @@ Eigen::Matrix<double, Eigen::Dynamic, 2, Eigen::RowMajor> cable_field(const Cabl
                                                                       const ConductorPositionsRef& positions,
                                                                       const Eigen::Ref<const Eigen::VectorXd>& currents) {
   ring.validate();
+  positions.require_width("positions");
   if (positions.rows() < 1) throw Error("positions: no conductors");
   if (currents.size() != positions.rows())
     throw Error("currents: " + std::to_string(currents.size()) + " values for " + std::to_string(positions.rows()) +

@@ -21,15 +21,18 @@ double coverage_of(Eigen::Index rows, Eigen::Index max_rows, Field&& field) {
 }  // namespace
 
 double direction_coverage(const SamplesRef& fields, Eigen::Index max_rows) {
+  fields.require_width("fields");
   return coverage_of(fields.rows(), max_rows, [&](Eigen::Index i) { return Eigen::Vector3d(fields.row(i)); });
 }
 
 double direction_coverage(const SamplesRef& readings, const Calibration& cal, Eigen::Index max_rows) {
+  readings.require_width("readings");
   return coverage_of(readings.rows(), max_rows,
                      [&](Eigen::Index i) { return cal.apply(readings.row(i).transpose()); });
 }
 
 void describe_coverage(Summary& summary, const SamplesRef& readings, const Calibration& cal, Eigen::Index max_rows) {
+  readings.require_width("readings");
   const Eigen::Index step = max_rows > 0 ? std::max<Eigen::Index>(1, readings.rows() / max_rows) : 1;
   std::bitset<kDirectionBins> seen;
   Eigen::Matrix3d scatter = Eigen::Matrix3d::Zero();

@@ -182,6 +182,7 @@ void EllipsoidMoments::add(const Eigen::Vector3d& reading) {
 }
 
 void EllipsoidMoments::add_rows(const SamplesRef& readings) {
+  readings.require_width("readings");
   sums_[0] += static_cast<double>(readings.rows());
   for_each_packed_block(readings, [&](const double* rows, std::size_t len) {
     accumulate_moments(rows, len, centre_.data(), inv_scale_, sums_.data() + 1);
@@ -230,6 +231,7 @@ Eigen::Matrix<double, 10, 10> EllipsoidMoments::scatter(double noise_variance) c
 }
 
 std::pair<Eigen::Vector3d, double> normalisation(const SamplesRef& samples, Eigen::Index max_rows) {
+  samples.require_width("samples");
   const Eigen::Index n = samples.rows();
   if (n == 0) throw Error("samples: no rows");
   const Eigen::Index step = std::max<Eigen::Index>(1, n / std::max<Eigen::Index>(1, max_rows));
@@ -420,6 +422,7 @@ EllipsoidResult fit_ellipsoid(const EllipsoidMoments& moments, const EllipsoidOp
 
 EllipsoidResult fit_ellipsoid(const SamplesRef& samples, const EllipsoidOptions& options) {
   detail::check(options);
+  samples.require_width("samples");
   if (samples.rows() < 9) {
     std::ostringstream msg;
     msg << "samples: " << samples.rows() << " rows, need at least 9 for a 9-parameter ellipsoid fit";

@@ -478,6 +478,8 @@ std::vector<Eigen::Matrix3d> twelve_positions(Frame frame) {
 }
 
 PositionsResult fit_positions(const SamplesRef& outputs, const SamplesRef& reference, const PositionsOptions& options) {
+  outputs.require_width("outputs");
+  reference.require_width("reference");
   detail::check(options);
   const Eigen::Index n = outputs.rows();
   if (n < 4) {
@@ -545,6 +547,8 @@ PositionsResult fit_positions(const SamplesRef& outputs, const SamplesRef& refer
 PositionsResult calibrate_positions(const SamplesRef& outputs, const SamplesRef& specific_force,
                                     const std::vector<Eigen::Matrix3d>& nominal, const Eigen::Vector3d& field,
                                     const PositionsOptions& options) {
+  outputs.require_width("outputs");
+  specific_force.require_width("specific_force");
   const Eigen::Index n = outputs.rows();
   check_field(field);
   detail::check(options);
@@ -879,6 +883,7 @@ PositionsResult calibrate_positions(const SamplesRef& outputs, const SamplesRef&
 }
 
 ClosedForm twelve_position_closed_form(const SamplesRef& U, double field_up) {
+  U.require_width("outputs");
   if (U.rows() != 12) {
     throw Error("outputs: " + std::to_string(U.rows()) + " rows, the closed form needs exactly the twelve positions");
   }
@@ -925,6 +930,7 @@ struct GravityResidual {
 }  // namespace
 
 Samples AccelerometerResult::apply_rows(const SamplesRef& raw) const {
+  raw.require_width("raw");
   return ((matrix * (raw.transpose().colwise() - offset))).transpose();
 }
 

@@ -568,6 +568,8 @@ void check_start(const Calibration& start, const Eigen::Matrix3d& matrix, bool n
 
 // The vector model's inputs: finite readings and one finite reference vector per reading.
 void check_vector_inputs(const SamplesRef& samples, const SamplesRef& reference) {
+  samples.require_width("samples");
+  reference.require_width("reference");
   check_inputs(samples, 5, "a 12-parameter vector calibration");
   if (reference.rows() != samples.rows())
     throw Error("reference: " + std::to_string(reference.rows()) + " rows, samples have " +

@@ -81,6 +81,7 @@ void check(const TwoStepOptions& o) {
 void check_2d(const Readings2DRef& readings, const Eigen::Ref<const Eigen::VectorXd>& h,
               const TwoStep2DOptions& opt) {
   check(opt);
+  readings.require_width("readings");
   if (readings.rows() < 5) {
     std::ostringstream msg;
     msg << "readings: " << readings.rows()
@@ -155,6 +156,7 @@ double magnitude_residuals(const Readings2DRef& readings, const Eigen::Ref<const
 }  // namespace
 
 Readings2D TwoStep2DResult::apply_rows(const Readings2DRef& readings) const {
+  readings.require_width("readings");
   return (readings.rowwise() - offset.transpose()) * gain.cwiseInverse().asDiagonal();
 }
 
@@ -428,6 +430,7 @@ double noise_mean(const Mat10& S, const Model3D& m, double noise_sigma, double s
 }  // namespace
 
 TwoStepResult twostep(const SamplesRef& samples, const TwoStepOptions& options) {
+  samples.require_width("samples");
   const double H = options.field_norm;
   if (!(H > 0.0) || !std::isfinite(H))
     throw Error("field_norm: must be a positive finite magnitude (the known |H|, e.g. from IGRF), got " + num(H));

@@ -12,6 +12,7 @@ const char* version() { return FLUXCAL_VERSION_STRING; }
 
 Samples Calibration::apply_rows(const SamplesRef& readings) const {
   // Row form of h = A (m − b): H = (M − 1 bᵀ) Aᵀ.
+  readings.require_width("readings");
   return (readings.rowwise() - offset.transpose()) * matrix.transpose();
 }
 
@@ -22,6 +23,7 @@ Eigen::Vector3d Calibration::reading(const Eigen::Vector3d& field) const {
 }
 
 void check_finite(const SamplesRef& samples, const std::string& name) {
+  samples.require_width(name);
   static const char* axis[] = {"x", "y", "z"};
   for (Eigen::Index i = 0; i < samples.rows(); ++i) {
     for (int j = 0; j < 3; ++j) {
@@ -38,6 +40,7 @@ void check_finite(const SamplesRef& samples, const std::string& name) {
 
 void check_samples(const SamplesRef& samples, const std::string& name, Eigen::Index min_rows,
                    const std::string& purpose) {
+  samples.require_width(name);
   if (samples.rows() < min_rows) {
     std::ostringstream msg;
     msg << name << ": " << samples.rows() << " rows, need at least " << min_rows << " for " << purpose;

@@ -208,3 +208,37 @@ TEST(Cable, WrongWidthPositionsAndNaNOptionsAreErrors) {
   EXPECT_THROW(fluxcal::solve_cable(ring, snapshot(ring, p, Eigen::Vector2d(1.0, -1.0)), o), fluxcal::Error);
 }
 
+// Every option is checked on entry and the message names it: a NaN noise_sigma fell through
+// `noise_sigma > 0` to the residual estimate, an out-of-range refiner to the dense solver.
+TEST(CableOptions, BadValuesAreNamed) {
+  const CableRing ring = paper_ring();
+  ConductorPositions p(2, 2);
+  p << 0.001, 0.0, -0.001, 0.0;
+  const Eigen::MatrixXd y = snapshot(ring, p, Eigen::Vector2d(1.0, -1.0));
+  fluxcal::CableSolveOptions o;
+  o.noise_sigma = std::nan("");
+  EXPECT_ERROR_SAYS(fluxcal::solve_cable(ring, y, o), "CableSolveOptions::noise_sigma: nan");
+  o = {};
+  o.max_position_sigma = -1.0;
+  EXPECT_ERROR_SAYS(fluxcal::solve_cable(ring, y, o), "CableSolveOptions::max_position_sigma: -1");
+  o = {};
+  o.misfit_ratio = std::numeric_limits<double>::infinity();
+  EXPECT_ERROR_SAYS(fluxcal::solve_cable(ring, y, o), "CableSolveOptions::misfit_ratio: inf");
+  o = {};
+  o.max_current_relative_sigma = std::nan("");
+  EXPECT_ERROR_SAYS(fluxcal::solve_cable(ring, y, o), "CableSolveOptions::max_current_relative_sigma: nan");
+  o = {};
+  o.refiner = static_cast<fluxcal::CableSolveOptions::Refiner>(7);
+  EXPECT_ERROR_SAYS(fluxcal::solve_cable(ring, y, o), "CableSolveOptions::refiner: 7");
+  o = {};
+  o.grid_points = -3;
+  EXPECT_ERROR_SAYS(fluxcal::solve_cable(ring, y, o), "CableSolveOptions::grid_points: -3, need ≥ 2");
+  // A wrong width names the argument, not "readings".
+  EXPECT_ERROR_SAYS(fluxcal::cable_field(ring, Eigen::MatrixXd::Zero(2, 3), Eigen::VectorXd::Ones(2)),
+                    "positions: a matrix of 2 rows × 3 columns, need 2 columns");
+  // Valid values still solve.
+  o = {};
+  o.noise_sigma = 0.0;  // ≤ 0: estimate it
+  EXPECT_NO_THROW(fluxcal::solve_cable(ring, y, o));
+}
+

@@ -2,6 +2,8 @@
 
 #include <gtest/gtest.h>
 
+#include "errors.hpp"
+
 #include <cmath>
 #include <random>
 #include <set>
@@ -33,4 +35,11 @@ TEST(Coverage, AHorizontalTurnSeesFewDirections) {
   const double c = fluxcal::direction_coverage(ring);
   EXPECT_GT(c, 0.05);
   EXPECT_LT(c, 0.2);
+}
+
+TEST(Coverage, WrongWidthNamesTheArgument) {
+  EXPECT_ERROR_SAYS(fluxcal::direction_coverage(Eigen::MatrixXd::Ones(10, 2)),
+                    "fields: a matrix of 10 rows × 2 columns, need 3 columns");
+  EXPECT_ERROR_SAYS(fluxcal::direction_coverage(Eigen::MatrixXd::Ones(10, 4), fluxcal::Calibration()),
+                    "readings: a matrix of 10 rows × 4 columns");
 }

@@ -167,3 +167,22 @@ TEST(EllipsoidOptions, BadValuesAreNamed) {
   EXPECT_ERROR_SAYS(fluxcal::fit_ellipsoid(m, o), "EllipsoidOptions::poor_coverage_ratio: -0.5");
 }
 
+// A matrix of the wrong width is named by its argument.
+TEST(EllipsoidErrors, WrongWidthNamesTheArgument) {
+  const Samples s = simulate(make_truth(1, 1.0), 200, 0.0, 1);
+  const Eigen::MatrixXd two = s.leftCols(2), four = Eigen::MatrixXd::Ones(200, 4);
+  EXPECT_ERROR_SAYS(fluxcal::fit_ellipsoid(two), "samples: a matrix of 200 rows × 2 columns, need 3 columns");
+  EXPECT_ERROR_SAYS(fluxcal::fit_ellipsoid(four), "samples: a matrix of 200 rows × 4 columns");
+  fluxcal::EllipsoidMoments m(Eigen::Vector3d::Zero(), 1.0);
+  EXPECT_ERROR_SAYS(m.add_rows(two), "readings: a matrix of 200 rows × 2 columns");
+  // Column-major input of the right width is still read correctly (copied, as Eigen::Ref did).
+  const Eigen::MatrixXd col_major = s;
+  const auto a = fluxcal::fit_ellipsoid(col_major), b = fluxcal::fit_ellipsoid(s);
+  EXPECT_TRUE(a.calibration.offset.isApprox(b.calibration.offset, 1e-12));
+  EXPECT_TRUE(a.calibration.matrix.isApprox(b.calibration.matrix, 1e-12));
+  // A copied view of converted rows still reads its own rows.
+  const fluxcal::SamplesRef view(col_major);
+  const fluxcal::SamplesRef copy(view);
+  EXPECT_EQ(Samples(copy), s);
+}
+

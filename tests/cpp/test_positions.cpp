@@ -251,3 +251,16 @@ TEST(PositionsOptions, BadValuesAreNamed) {
   EXPECT_ERROR_SAYS(fluxcal::twelve_positions(static_cast<Frame>(-1)), "frame: -1");
 }
 
+TEST(Positions, WrongWidthNamesTheArgument) {
+  const Scene s = twelve(0.0, 0.0, 0.0, 1);
+  const Eigen::MatrixXd two = Eigen::MatrixXd::Ones(12, 2), four = Eigen::MatrixXd::Ones(12, 4);
+  EXPECT_ERROR_SAYS(fluxcal::fit_positions(s.U, two), "reference: a matrix of 12 rows × 2 columns, need 3 columns");
+  EXPECT_ERROR_SAYS(fluxcal::fit_positions(four, s.U), "outputs: a matrix of 12 rows × 4 columns");
+  fluxcal::PositionsOptions o;
+  o.frame = Frame::nue;
+  EXPECT_ERROR_SAYS(fluxcal::calibrate_positions(s.U, four, s.nominal, field_nue(), o),
+                    "specific_force: a matrix of 12 rows × 4 columns");
+  EXPECT_ERROR_SAYS(fluxcal::calibrate_accelerometer(two), "readings: a matrix of 12 rows × 2 columns");
+  EXPECT_ERROR_SAYS(fluxcal::twelve_position_closed_form(two, 1.0), "outputs: a matrix of 12 rows × 2 columns");
+}
+

@@ -178,3 +178,14 @@ TEST(RefineOptions, BadValuesAreNamed) {
   EXPECT_ERROR_SAYS(fluxcal::refine_vector(start, s, s, o), "RefineOptions::loss_scale: -1");
 }
 
+TEST(RefineInputs, WrongWidthNamesTheArgument) {
+  const auto truth = fluxcal_test::make_truth(3, 50.0);
+  const fluxcal::Samples s = fluxcal_test::simulate(truth, 400, 0.01, 4);
+  const fluxcal::Calibration start = fluxcal::fit_ellipsoid(s).calibration;
+  const Eigen::MatrixXd two = s.leftCols(2);
+  EXPECT_ERROR_SAYS(fluxcal::fit_vector(s, two), "reference: a matrix of 400 rows × 2 columns, need 3 columns");
+  EXPECT_ERROR_SAYS(fluxcal::refine_vector(start, s, two), "reference: a matrix of 400 rows × 2 columns");
+  EXPECT_ERROR_SAYS(fluxcal::refine(start, two), "samples: a matrix of 400 rows × 2 columns");
+  EXPECT_ERROR_SAYS(start.apply_rows(two), "readings: a matrix of 400 rows × 2 columns");
+}
+

@@ -263,3 +263,12 @@ TEST(TwoStepOptions, BadValuesAreNamed) {
   EXPECT_ERROR_SAYS(fluxcal::twostep_2d(d.readings, d.norms, o2), "TwoStep2DOptions::tolerance: 0");
 }
 
+TEST(TwoStep, WrongWidthNamesTheArgument) {
+  const Data2D d = paper_like(Truth2D(), 0.0, 1);
+  const Eigen::MatrixXd three = Eigen::MatrixXd::Ones(d.readings.rows(), 3);
+  EXPECT_ERROR_SAYS(fluxcal::twostep_2d(three, d.norms), "readings: a matrix of 100 rows × 3 columns, need 2 columns");
+  fluxcal::TwoStepOptions o;
+  o.field_norm = 1.0;
+  EXPECT_ERROR_SAYS(fluxcal::twostep(Eigen::MatrixXd(d.readings), o), "samples: a matrix of 100 rows × 2 columns");
+}
+

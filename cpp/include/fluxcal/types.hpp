@@ -24,25 +24,63 @@ class Error : public std::runtime_error {
   using std::runtime_error::runtime_error;
 };
 
+namespace detail {
+/// What a RowsRef holds besides its view; a base listed first, so it exists before the view binds to it.
+template <int Cols>
+struct RowsRefStorage {
+  Eigen::Index given_rows = 0, given_cols = Cols;  ///< shape of the matrix the view was made from
+  /// The rows, when the matrix could not be viewed in place (column-major, an expression).
+  Eigen::Matrix<double, Eigen::Dynamic, Cols, Eigen::RowMajor> evaluated;
+};
+}  // namespace detail
+
 /// Read-only view of an N×Cols block, one row a reading. A plain Eigen::Ref would copy a matrix with
 /// another number of columns (a MatrixXd of the wrong width) unchecked: heap corruption in Release, an
-/// assertion in Debug. This view checks the width first and throws Error naming it.
+/// assertion in Debug. This view binds such a matrix as empty and remembers its shape; every function
+/// taking it calls require_width(name) first, so the Error names the argument ("reference: …").
 template <int Cols>
-class RowsRef : public Eigen::Ref<const Eigen::Matrix<double, Eigen::Dynamic, Cols, Eigen::RowMajor>> {
+class RowsRef : private detail::RowsRefStorage<Cols>,
+                public Eigen::Ref<const Eigen::Matrix<double, Eigen::Dynamic, Cols, Eigen::RowMajor>> {
+  using Storage = detail::RowsRefStorage<Cols>;
+
  public:
   using Matrix = Eigen::Matrix<double, Eigen::Dynamic, Cols, Eigen::RowMajor>;
   using Base = Eigen::Ref<const Matrix>;
-  RowsRef(const Base& view) : Base(view) {}  // NOLINT: implicit, as Eigen::Ref is
+  RowsRef(const Base& view) : Storage{view.rows(), Cols, {}}, Base(view) {}  // NOLINT: implicit, as Eigen::Ref is
   template <typename Derived>
-  RowsRef(const Eigen::DenseBase<Derived>& m) : Base(checked(m.derived())) {}  // NOLINT
+  RowsRef(const Eigen::DenseBase<Derived>& m)  // NOLINT
+      : Storage{m.rows(), m.cols(), {}}, Base(bind(m.derived(), *this)) {}
+  // A copy views its own copy of evaluated rows (Eigen::Ref's copy would point into the original's).
+  RowsRef(const RowsRef& other) : Storage(other), Base(rebind(other, *this)) {}
+  RowsRef& operator=(const RowsRef&) = delete;
+
+  /// False when the matrix this view was made from was not Cols wide (the view is then empty).
+  bool width_ok() const { return Storage::given_cols == Cols; }
+  /// Throws Error("NAME: a matrix of R rows × C columns, need Cols columns …") unless width_ok().
+  void require_width(const std::string& name) const {
+    if (!width_ok())
+      throw Error(name + ": a matrix of " + std::to_string(Storage::given_rows) + " rows × " +
+                  std::to_string(Storage::given_cols) + " columns, need " + std::to_string(Cols) +
+                  " columns (one row a reading)");
+  }
 
  private:
+  using Rows = Eigen::Map<const Matrix, 0, Eigen::OuterStride<>>;
+  // Static, given the storage base (already constructed): the view base is still being initialised.
   template <typename Derived>
-  static const Derived& checked(const Derived& m) {
-    if (m.cols() != Cols)
-      throw Error("readings: a matrix of " + std::to_string(m.rows()) + " rows × " + std::to_string(m.cols()) +
-                  " columns, need " + std::to_string(Cols) + " columns (one row a reading)");
-    return m;
+  static Rows bind(const Derived& m, Storage& storage) {
+    if (m.cols() != Cols) return Rows(nullptr, 0, Cols, Eigen::OuterStride<>(Cols));
+    if constexpr (bool(Derived::Flags & Eigen::DirectAccessBit)) {
+      if (m.colStride() == 1) return Rows(m.data(), m.rows(), Cols, Eigen::OuterStride<>(m.rowStride()));
+    }
+    storage.evaluated = m;  // what Eigen::Ref would have copied into itself
+    return Rows(storage.evaluated.data(), m.rows(), Cols, Eigen::OuterStride<>(Cols));
+  }
+  static Rows rebind(const RowsRef& other, Storage& storage) {
+    const Storage& theirs = other;
+    if (theirs.evaluated.size() > 0 && other.data() == theirs.evaluated.data())
+      return Rows(storage.evaluated.data(), storage.evaluated.rows(), Cols, Eigen::OuterStride<>(Cols));
+    return Rows(other.data(), other.rows(), Cols, Eigen::OuterStride<>(other.outerStride()));
   }
 };
 
