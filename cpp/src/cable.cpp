@@ -404,6 +404,7 @@ CableSolution solve_cable(const CableRing& ring, const Eigen::Ref<const Eigen::M
   // Normalised readings, one column per snapshot (2M × S).
   const Eigen::MatrixXd Rn = readings.transpose() / field_unit;
   const double total = Rn.squaredNorm();
+  detail::require_finite_fit(std::isfinite(total), "readings", readings, "the cable solver");
 
   // ---- seeds -------------------------------------------------------------------------------------
   std::vector<std::vector<double>> seeds;
@@ -709,6 +710,8 @@ CableSolution solve_cable(const CableRing& ring, const Eigen::Ref<const Eigen::M
   sum.residual_rms = std::sqrt(sum.cost);
   sum.condition_number = out.fisher_condition;
   sum.converged = best_run.converged;
+  detail::require_finite_fit(detail::finite_fit(sum) && out.positions.allFinite() && out.currents.allFinite(),
+                             "readings", readings, "the cable solver");
   if (!sum.converged) sum.warnings.push_back("the best start stopped before converging: " + best_run.message);
   std::ostringstream msg;
   msg << n << " conductor(s) from " << m << " sensors × " << S << " snapshot(s); residual RMS "

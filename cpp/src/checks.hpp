@@ -69,6 +69,29 @@ inline void require_unit(const std::string& name, double value,
   require(value >= 0.0 && value <= 1.0, name, value, need);
 }
 
+/// True when a solver's final figures are numbers. Readings so large that their squares overflow
+/// (|x| ≳ 1e154) otherwise came back "converged" with an infinite or NaN cost or residual.
+inline bool finite_fit(const Summary& s) {
+  return std::isfinite(s.cost) && std::isfinite(s.residual_rms) && std::isfinite(s.norm_mean);
+}
+
+/// Throws Error naming the input `name` and its largest |value| unless `finite`: the one message for
+/// input too large for a solver, whether found before it (a sum of squares of the input) or after.
+template <typename Values>
+void require_finite_fit(bool finite, const std::string& name, const Values& values, const std::string& solver) {
+  if (finite) return;
+  const double largest = values.size() > 0 ? values.cwiseAbs().maxCoeff() : 0.0;
+  throw Error(name + ": values up to " + num(largest) + " overflow " + solver +
+              " (a sum of their squares is not finite); rescale them, e.g. to other units");
+}
+
+/// Before a solver whose cost is a sum of squares of `values` (Ceres would fail on the first
+/// evaluation with a message naming none of the inputs, and log the NaN Jacobian to stderr).
+template <typename Values>
+void require_squares_finite(const Values& values, const std::string& name, const std::string& solver) {
+  require_finite_fit(std::isfinite(values.squaredNorm()), name, values, solver);
+}
+
 /// An enum holds one of its `count` enumerators 0 … count − 1: a static_cast from an out-of-range
 /// integer (a bad config value, a Python int) otherwise falls through every switch silently.
 template <typename Enum>

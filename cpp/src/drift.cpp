@@ -137,6 +137,8 @@ DriftModel fit_drift(const SeriesRef& select, const SeriesRef& x, const SeriesRe
     throw Error("drift: temperature, regressor and zero_bias lengths differ (" + std::to_string(select.size()) +
                 ", " + std::to_string(x.size()) + ", " + std::to_string(w.size()) + ")");
   detail::check(options);
+  // Every fit is a sum of squares of w: values whose squares overflow gave inf SSEs and a "converged" order 0.
+  detail::require_finite_fit(std::isfinite(w.squaredNorm()), "zero_bias", w, "the drift fit");
   const auto& edges = options.breakpoints;
   const int k = static_cast<int>(edges.size()) - 1;
   std::vector<std::vector<Eigen::Index>> members(k);
@@ -283,6 +285,9 @@ DriftModel fit_drift(const SeriesRef& select, const SeriesRef& x, const SeriesRe
   sum.samples = used;
   sum.residual_rms = std::sqrt(sse_total / static_cast<double>(used));
   sum.cost = sse_total / static_cast<double>(used);
+  bool finite = detail::finite_fit(sum);
+  for (const auto& seg : model.segments) finite = finite && seg.coefficients.allFinite();
+  detail::require_finite_fit(finite, "regressor", x, "the drift polynomials (powers of the regressor)");
   sum.converged = true;
   sum.message = msg.str();
   if (outside > 0)

@@ -416,6 +416,9 @@ EllipsoidResult fit_ellipsoid(const EllipsoidMoments& moments, const EllipsoidOp
   detail::check(options);
   if (!moments.finite()) throw Error("samples: the accumulated sums are not finite (a NaN or Inf reading was added)");
   EllipsoidResult r = solve(moments, options);
+  // the readings' size, as far as the sums know it: their centre and spread
+  const Eigen::Vector3d size = moments.centre().cwiseAbs().array() + moments.scale();
+  detail::require_finite_fit(detail::finite_fit(r.summary), "samples", size, "the ellipsoid fit");
   finish_message(r);
   return r;
 }
@@ -457,6 +460,7 @@ EllipsoidResult fit_ellipsoid(const SamplesRef& samples, const EllipsoidOptions&
     r.summary.residual_rms = std::sqrt(sd2 / n);
     r.summary.exact_statistics = true;
   }
+  detail::require_finite_fit(detail::finite_fit(r.summary), "samples", samples, "the ellipsoid fit");
   finish_message(r);
   return r;
 }

@@ -491,6 +491,8 @@ PositionsResult fit_positions(const SamplesRef& outputs, const SamplesRef& refer
   }
   check_finite(outputs, "outputs");
   check_finite(reference, "reference");
+  detail::require_squares_finite(outputs, "outputs", "the positions calibration");
+  detail::require_squares_finite(reference, "reference", "the positions calibration");
   // Design [1, H] (N×4), column-scaled; one solve for the three output axes.
   Eigen::MatrixXd X(n, 4);
   X.col(0).setOnes();
@@ -541,6 +543,12 @@ PositionsResult fit_positions(const SamplesRef& outputs, const SamplesRef& refer
   finish_statistics(r, J, scales, options.determined_tolerance);
   r.summary.condition_number = sv(0) / sv(3);
   fill_summary(r, "positions (linear least squares)");
+  {
+    const bool finite = detail::finite_fit(r.summary) && r.K.allFinite() && r.offset.allFinite();
+    if (reference.cwiseAbs().maxCoeff() > outputs.cwiseAbs().maxCoeff())
+      detail::require_finite_fit(finite, "reference", reference, "the positions calibration");
+    detail::require_finite_fit(finite, "outputs", outputs, "the positions calibration");
+  }
   return r;
 }
 
@@ -568,6 +576,7 @@ PositionsResult calibrate_positions(const SamplesRef& outputs, const SamplesRef&
   }
   check_finite(outputs, "outputs");
   check_finite(specific_force, "specific_force");
+  detail::require_squares_finite(outputs, "outputs", "the positions calibration");
   check_gravity(specific_force, options);
   if (nominal.empty() && !options.estimate_yaw) {
     throw Error("nominal: no attitudes given and estimate_yaw is off: give each position's nominal attitude (a "
@@ -872,6 +881,8 @@ PositionsResult calibrate_positions(const SamplesRef& outputs, const SamplesRef&
   }
   r.summary.iterations = static_cast<int>(summary.iterations.size());
   fill_summary(r, options.estimate_yaw ? "positions (joint, headings estimated)" : "positions (joint)");
+  detail::require_finite_fit(detail::finite_fit(r.summary) && r.K.allFinite() && r.offset.allFinite(), "outputs",
+                             outputs, "the positions calibration");
   r.summary.converged = summary.IsSolutionUsable();
   if (!r.summary.converged) r.summary.warnings.push_back("Ceres: " + summary.message);
   if (sigma_undetermined)
@@ -957,6 +968,7 @@ AccelerometerResult calibrate_accelerometer(const SamplesRef& readings, const Ac
                 "static positions for an accelerometer calibration (offset and scale: 6 unknowns; with "
                 "misalignment 9)");
   detail::check(options);
+  detail::require_squares_finite(readings, "readings", "the accelerometer calibration");
   const Eigen::Vector3d lo = readings.colwise().minCoeff(), hi = readings.colwise().maxCoeff();
   const Eigen::Vector3d mean_abs = readings.cwiseAbs().colwise().mean();
   for (int k = 0; k < 3; ++k) {
@@ -1012,6 +1024,8 @@ AccelerometerResult calibrate_accelerometer(const SamplesRef& readings, const Ac
   r.summary.residual_rms = rms;
   r.summary.converged = summary.IsSolutionUsable();
   r.summary.norm_mean = corrected.rowwise().norm().mean();
+  detail::require_finite_fit(detail::finite_fit(r.summary) && r.matrix.allFinite() && r.offset.allFinite(),
+                             "readings", readings, "the accelerometer calibration");
   r.summary.message = "accelerometer: " + std::to_string(n) + " positions, |a| − g RMS " + fmt(rms) + " (" +
                       fmt(r.tilt_error_deg, 3) + "° equivalent)" +
                       (misalignment ? "" : "; fewer than 9 gravity directions: misalignment not estimated");

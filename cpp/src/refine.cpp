@@ -189,6 +189,7 @@ ceres::LossFunction* make_loss(const RefineOptions& opt, double sigma_start) {
 
 void check_inputs(const SamplesRef& samples, Eigen::Index min_rows, const std::string& purpose) {
   check_samples(samples, "samples", min_rows, purpose);
+  detail::require_squares_finite(samples, "samples", "the refinement");
 }
 
 // Per reading, in time order: the plain residuals (N×1 magnitude, N×3 vector) and the scores
@@ -469,6 +470,13 @@ void finish_summary(RefineResult& out, const SamplesRef& samples, const SamplesR
     describe_coverage(s, samples, cal, 16384);
   }
   s.condition_number = out.fisher_condition;
+  {
+    const bool finite = detail::finite_fit(s) && std::isfinite(out.noise_sigma) && cal.matrix.allFinite() &&
+                        cal.offset.allFinite();
+    if (reference && reference->cwiseAbs().maxCoeff() > samples.cwiseAbs().maxCoeff())
+      detail::require_finite_fit(finite, "reference", *reference, cal.model);
+    detail::require_finite_fit(finite, "samples", samples, cal.model);
+  }
   std::ostringstream msg;
   msg << cal.model << ": " << s.samples << " samples, " << (s.converged ? "converged" : "NOT converged")
       << " in " << s.iterations << " iterations, noise σ " << out.noise_sigma << ", |h| std/mean "
@@ -575,6 +583,7 @@ void check_vector_inputs(const SamplesRef& samples, const SamplesRef& reference)
     throw Error("reference: " + std::to_string(reference.rows()) + " rows, samples have " +
                 std::to_string(samples.rows()));
   check_finite(reference, "reference");
+  detail::require_squares_finite(reference, "reference", "the vector calibration");
 }
 
 // Calibration (A = W⁻¹), statistics and summary of a vector-model result whose θ = [b, W] is set.
@@ -994,6 +1003,8 @@ RefineResult refine_terms(const Calibration& start, const SamplesRef& samples, c
   }
   cal.units = opt.units.empty() ? start.units : opt.units;
   cal.model = vector ? "vector+terms" : "magnitude+terms";
+  detail::require_finite_fit(detail::finite_fit(out.summary) && cal.matrix.allFinite() && cal.offset.allFinite(),
+                             "samples", samples, cal.model);
   std::ostringstream msg;
   msg << cal.model << ": " << samples.rows() << " samples, " << p << " extra terms, "
       << (out.summary.converged ? "converged" : "NOT converged") << " in " << out.summary.iterations

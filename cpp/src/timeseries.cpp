@@ -267,6 +267,8 @@ ArResult fit_ar(const SeriesRef& y, const ArOptions& options) {
                "for an AR model of order " + std::to_string(k) + (fixed ? "" : " (max_order)"));
   if (!((y.array() != y[0]).any())) throw Error("series: constant (every sample equals " + std::to_string(y[0]) +
                                                 "), an AR model needs a varying series");
+  // Every step is a sum of squares: values whose squares overflow gave σ² = inf, "converged" at order 0.
+  detail::require_finite_fit(std::isfinite(y.squaredNorm()), "series", y, "the AR fit");
   ArResult result;
   const Eigen::Index n_total = y.size();
 
@@ -335,6 +337,7 @@ ArResult fit_ar(const SeriesRef& y, const ArOptions& options) {
     result.residuals[i] = y[t] - pred;
   }
   result.sigma2 = result.residuals.squaredNorm() / static_cast<double>(rows);
+  detail::require_finite_fit(std::isfinite(result.sigma2), "series", y, "the AR fit");
 
   const int wanted_lags = options.whiteness_lags > 0 ? options.whiteness_lags : std::max(10, 2 * p);
   const int lags = static_cast<int>(std::min<Eigen::Index>(wanted_lags, std::max<Eigen::Index>(1, rows / 2)));

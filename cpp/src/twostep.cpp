@@ -333,6 +333,12 @@ TwoStep2DResult twostep_2d(const Readings2DRef& readings, const Eigen::Ref<const
   sum.norm_std_over_mean = std::sqrt(std::max(0.0, sq2 / nd - sum.norm_mean * sum.norm_mean)) / sum.norm_mean;
   sum.exact_statistics = true;
   if (options.refine && options.max_iterations > 0) sum.cost = sd2 / nd;
+  {
+    const bool finite = detail::finite_fit(sum) && out.offset.allFinite() && out.gain.allFinite();
+    if (field_norms.cwiseAbs().maxCoeff() > readings.cwiseAbs().maxCoeff())
+      detail::require_finite_fit(finite, "field_norms", field_norms, "the 2-D two-step calibration");
+    detail::require_finite_fit(finite, "readings", readings, "the 2-D two-step calibration");
+  }
   if (sum.norm_std_over_mean > options.misfit_spread)
     sum.warnings.push_back("the readings do not fit the model: |h|/h scatters by " + percent(sum.norm_std_over_mean) +
                            " after the fit (more than " + percent(options.misfit_spread) +
@@ -591,6 +597,8 @@ TwoStepResult twostep(const SamplesRef& samples, const TwoStepOptions& options) 
   sum.norm_std_over_mean = std::sqrt(std::max(0.0, sd2 / n - mean_d * mean_d)) / sum.norm_mean;
   sum.residual_rms = std::sqrt(sd2 / n);
   sum.exact_statistics = true;
+  detail::require_finite_fit(detail::finite_fit(sum) && cal.matrix.allFinite() && cal.offset.allFinite(), "samples",
+                             samples, "the two-step calibration");
   describe_coverage(sum, samples, cal, options.coverage_rows);
 
   if (sum.coverage_ratio < options.poor_coverage_ratio)

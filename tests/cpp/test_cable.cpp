@@ -242,3 +242,11 @@ TEST(CableOptions, BadValuesAreNamed) {
   EXPECT_NO_THROW(fluxcal::solve_cable(ring, y, o));
 }
 
+// Readings whose squares overflow: "no usable starting point on the grid" before.
+TEST(Cable, HugeReadingsAreNamed) {
+  const CableRing ring = paper_ring();
+  ConductorPositions p(2, 2);
+  p << 0.001, 0.0, -0.001, 0.0;
+  const Eigen::MatrixXd y = snapshot(ring, p, Eigen::Vector2d(1.0, -1.0)) * 1e304;
+  EXPECT_ERROR_SAYS(fluxcal::solve_cable(ring, y), "readings: values up to");
+}

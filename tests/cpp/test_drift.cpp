@@ -124,3 +124,8 @@ TEST(DriftOptions, BadValuesAreNamed) {
   EXPECT_ERROR_SAYS(fluxcal::fit_drift(d.temp, d.temp, d.w, o), "DriftOptions::breakpoints: not strictly ascending");
 }
 
+// A zero bias whose squares overflow: order 0 "converged" with an infinite SSE before.
+TEST(Drift, HugeZeroBiasIsNamed) {
+  const Data d = make(3000, 0.01, 2);
+  EXPECT_ERROR_SAYS(fluxcal::fit_drift(d.temp, d.temp, d.w * 1e300), "zero_bias: values up to");
+}

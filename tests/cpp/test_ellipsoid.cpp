@@ -186,3 +186,14 @@ TEST(EllipsoidErrors, WrongWidthNamesTheArgument) {
   EXPECT_EQ(Samples(copy), s);
 }
 
+// Readings whose squares overflow: the fit itself is normalised, but |h| of the residual statistics
+// was inf and the result said converged; now the Error names the input and its size.
+TEST(EllipsoidErrors, HugeReadingsAreNamedNotConverged) {
+  const Samples s = simulate(make_truth(1, 1.0), 200, 0.01, 1) * 1e300;
+  EXPECT_ERROR_SAYS(fluxcal::fit_ellipsoid(s), "samples: values up to 1.");
+  EXPECT_ERROR_SAYS(fluxcal::fit_ellipsoid(s), "e+300 overflow the ellipsoid fit");
+  const auto [centre, scale] = fluxcal::normalisation(s);
+  fluxcal::EllipsoidMoments m(centre, scale);
+  m.add_rows(s);
+  EXPECT_ERROR_SAYS(fluxcal::fit_ellipsoid(m), "samples: values up to");
+}

@@ -264,3 +264,14 @@ TEST(Positions, WrongWidthNamesTheArgument) {
   EXPECT_ERROR_SAYS(fluxcal::twelve_position_closed_form(two, 1.0), "outputs: a matrix of 12 rows × 2 columns");
 }
 
+// Outputs whose squares overflow used to give a converged fit with an infinite residual.
+TEST(Positions, HugeOutputsAreNamed) {
+  const Scene s = twelve(0.0, 0.0, 0.0, 1);
+  fluxcal::PositionsOptions o;
+  o.frame = Frame::nue;
+  const Samples big = s.U * 1e300;
+  EXPECT_ERROR_SAYS(fluxcal::calibrate_positions(big, s.acc, s.nominal, field_nue(), o), "outputs: values up to");
+  o.estimate_yaw = true;  // named "not observable" parameters before
+  EXPECT_ERROR_SAYS(fluxcal::calibrate_positions(big, s.acc, s.nominal, field_nue(), o), "outputs: values up to");
+  EXPECT_ERROR_SAYS(fluxcal::calibrate_accelerometer(s.acc * 1e300), "readings: values up to");
+}

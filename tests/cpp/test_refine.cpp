@@ -189,3 +189,19 @@ TEST(RefineInputs, WrongWidthNamesTheArgument) {
   EXPECT_ERROR_SAYS(start.apply_rows(two), "readings: a matrix of 400 rows × 2 columns");
 }
 
+// Readings whose squares overflow: refine failed inside Ceres ("Residual and Jacobian evaluation
+// failed", naming no input), fit_vector said converged with an infinite cost.
+TEST(RefineInputs, HugeReadingsAreNamed) {
+  const auto truth = fluxcal_test::make_truth(3, 50.0);
+  const fluxcal::Samples s = fluxcal_test::simulate(truth, 400, 0.01, 4);
+  const fluxcal::Samples big = s * 1e300;
+  fluxcal::Calibration start;
+  start.offset = truth.b * 1e300;
+  start.matrix = truth.W.inverse();
+  start.field_norm = truth.field * 1e300;
+  EXPECT_ERROR_SAYS(fluxcal::refine(start, big), "samples: values up to");
+  const fluxcal::Samples reference = (s.rowwise() - truth.b.transpose()) * truth.W.inverse().transpose();
+  EXPECT_ERROR_SAYS(fluxcal::fit_vector(big, reference), "samples: values up to");
+  EXPECT_ERROR_SAYS(fluxcal::fit_vector(s, reference * 1e300), "reference: values up to");
+  EXPECT_ERROR_SAYS(fluxcal::refine_vector(fluxcal::Calibration(), s, reference * 1e300), "reference: values up to");
+}

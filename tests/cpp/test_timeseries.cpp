@@ -189,3 +189,12 @@ TEST(TimeSeries, DistributionsRefuseBadArguments) {
   EXPECT_ERROR_SAYS(fluxcal::normality(ar_series({0.5}, 200, 1), std::nan("")), "normality: significance: nan");
 }
 
+// A series whose squares overflow: AR(0) "converged" with σ² = inf, or a fixed order refused as
+// "rank deficient".
+TEST(TimeSeries, HugeSeriesIsNamed) {
+  const Eigen::VectorXd y = ar_series({0.5}, 500, 3) * 1e300;
+  EXPECT_ERROR_SAYS(fluxcal::fit_ar(y), "series: values up to");
+  fluxcal::ArOptions o;
+  o.order = 2;
+  EXPECT_ERROR_SAYS(fluxcal::fit_ar(y, o), "overflow the AR fit");
+}

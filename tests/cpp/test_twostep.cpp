@@ -272,3 +272,14 @@ TEST(TwoStep, WrongWidthNamesTheArgument) {
   EXPECT_ERROR_SAYS(fluxcal::twostep(Eigen::MatrixXd(d.readings), o), "samples: a matrix of 100 rows × 2 columns");
 }
 
+// Readings whose squares overflow used to come back converged with an infinite residual.
+TEST(TwoStep, HugeReadingsAreNamedNotConverged) {
+  const Samples s = simulate(make_truth(7, 1.0), 200, 0.0, 8) * 1e300;
+  fluxcal::TwoStepOptions o;
+  o.field_norm = 1e300;
+  EXPECT_ERROR_SAYS(fluxcal::twostep(s, o), "samples: values up to");
+  EXPECT_ERROR_SAYS(fluxcal::twostep(s, o), "overflow the two-step calibration");
+  const Data2D d = paper_like(Truth2D(), 0.0, 1);
+  const Readings2D big = d.readings * 1e302;
+  EXPECT_ERROR_SAYS(fluxcal::twostep_2d(big, d.norms * 1e300), "readings: values up to");
+}
