@@ -56,16 +56,7 @@ Foct simulate(unsigned seed, double a1 = 0.5, double a2 = -0.2) {
   return s;
 }
 
-// The Error's message, or "" when `call` does not throw fluxcal::Error.
-template <class Call>
-std::string error_of(Call&& call) {
-  try {
-    call();
-  } catch (const fluxcal::Error& e) {
-    return e.what();
-  }
-  return "";
-}
+using fluxcal_test::error_message;  // errors.hpp
 
 TEST(Foct, RecoversTheGeneratingOrdersAndRemovesTheDrift) {
   for (unsigned seed : {2016u, 7u}) {
@@ -196,7 +187,7 @@ TEST(Foct, CompensatesNewData) {
   EXPECT_LT(fluxcal::drift_span(wc, fresh.temp), 0.1 * fluxcal::drift_span(fresh.zero_bias, fresh.temp));
   Eigen::VectorXd hot = fresh.temp;
   hot[3] = 61.0;
-  EXPECT_NE(error_of([&] { fit.compensate(fresh.zero_bias, hot); }).find("outside every range"), std::string::npos);
+  EXPECT_NE(error_message([&] { fit.compensate(fresh.zero_bias, hot); }).find("outside every range"), std::string::npos);
 }
 
 TEST(Foct, TemperatureDifferenceRegressor) {
@@ -209,7 +200,7 @@ TEST(Foct, TemperatureDifferenceRegressor) {
   const Eigen::VectorXd diff = s.temp - s.temp_outside;
   EXPECT_EQ((fit.compensated - fit.drift.compensate(s.zero_bias, s.temp, diff)).cwiseAbs().maxCoeff(), 0.0);
   EXPECT_EQ((fit.compensate(s.zero_bias, s.temp, s.temp_outside) - fit.compensated).cwiseAbs().maxCoeff(), 0.0);
-  EXPECT_NE(error_of([&] { fit.compensate(s.zero_bias, s.temp); }).find("temp_outside"), std::string::npos);
+  EXPECT_NE(error_message([&] { fit.compensate(s.zero_bias, s.temp); }).find("temp_outside"), std::string::npos);
   EXPECT_EQ((fluxcal::compensate_zero_bias(fit.drift, fit.regressor, s.zero_bias, s.temp, s.temp_outside) -
              fit.compensated).cwiseAbs().maxCoeff(), 0.0);
   for (int m : fit.orders) EXPECT_LE(m, 2);
@@ -261,8 +252,8 @@ TEST(Foct, LevelMeansAndDriftSpan) {
   EXPECT_EQ(levels[2].level, 10.0);
   EXPECT_DOUBLE_EQ(levels[2].mean, 5.0);
   EXPECT_DOUBLE_EQ(fluxcal::drift_span(values, temp), 8.5);
-  EXPECT_NE(error_of([&] { fluxcal::drift_span(values, temp, 0.0); }).find("level_step"), std::string::npos);
-  EXPECT_NE(error_of([&] { fluxcal::drift_span(values, temp.head(5)); }).find("temp: 5 samples"), std::string::npos);
+  EXPECT_NE(error_message([&] { fluxcal::drift_span(values, temp, 0.0); }).find("level_step"), std::string::npos);
+  EXPECT_NE(error_message([&] { fluxcal::drift_span(values, temp.head(5)); }).find("temp: 5 samples"), std::string::npos);
 }
 
 TEST(Foct, Accuracy) {
@@ -280,15 +271,15 @@ TEST(Foct, Accuracy) {
   EXPECT_FALSE(bad.points[0].met);
   EXPECT_TRUE(bad.points[4].met);  // 0.6 A of 1200 A: 0.05 %
   EXPECT_EQ(bad.points[4].limit_percent, 0.5);
-  EXPECT_NE(error_of([&] { fluxcal::zero_bias_accuracy(residual, 1000.0, "0.1"); }).find("accuracy_class"),
+  EXPECT_NE(error_message([&] { fluxcal::zero_bias_accuracy(residual, 1000.0, "0.1"); }).find("accuracy_class"),
             std::string::npos);
-  EXPECT_NE(error_of([&] { fluxcal::zero_bias_accuracy(residual, 0.0); }).find("rated"), std::string::npos);
+  EXPECT_NE(error_message([&] { fluxcal::zero_bias_accuracy(residual, 0.0); }).find("rated"), std::string::npos);
 }
 
 TEST(Foct, BadInput) {
   const Foct s = simulate(2);
   auto message = [&](const Eigen::VectorXd& w, const Eigen::VectorXd& t, const fluxcal::FoctOptions& o = {}) {
-    return error_of([&] { fluxcal::fit_foct(w, t, o); });
+    return error_message([&] { fluxcal::fit_foct(w, t, o); });
   };
   Eigen::VectorXd w = s.zero_bias, t = s.temp;
   w[5] = std::nan("");
@@ -306,7 +297,7 @@ TEST(Foct, BadInput) {
   o.regressor = fluxcal::DriftRegressor::difference;
   EXPECT_NE(message(s.zero_bias, s.temp, o).find("temp_outside: needed"), std::string::npos);
   Eigen::VectorXd outside = s.temp_outside.head(10);
-  EXPECT_NE(error_of([&] { fluxcal::fit_foct(s.zero_bias, s.temp, outside, o); }).find("temp_outside: 10 samples"),
+  EXPECT_NE(error_message([&] { fluxcal::fit_foct(s.zero_bias, s.temp, outside, o); }).find("temp_outside: 10 samples"),
             std::string::npos);
   o = {};
   o.r = -1.0;

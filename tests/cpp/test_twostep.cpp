@@ -52,15 +52,7 @@ using Truth3D = fluxcal_test::Truth;
 using fluxcal_test::make_truth;
 using fluxcal_test::simulate;
 
-template <class F>
-std::string error_of(F&& f) {
-  try {
-    f();
-  } catch (const fluxcal::Error& e) {
-    return e.what();
-  }
-  return "";
-}
+using fluxcal_test::error_message;  // errors.hpp
 
 }  // namespace
 
@@ -126,25 +118,25 @@ TEST(TwoStep2D, OneFieldMagnitudeUsesKnownRadiusForm) {
 TEST(TwoStep2D, BadInputThrowsNamedErrors) {
   const Truth2D t;
   Data2D d = paper_like(t, 0.0, 4);
-  EXPECT_NE(error_of([&] { fluxcal::twostep_2d(d.readings.topRows(4), d.norms.head(4)); })
+  EXPECT_NE(error_message([&] { fluxcal::twostep_2d(d.readings.topRows(4), d.norms.head(4)); })
                 .find("readings: 4 rows, need at least 5"), std::string::npos);
-  EXPECT_NE(error_of([&] { fluxcal::twostep_2d(d.readings, d.norms.head(99)); })
+  EXPECT_NE(error_message([&] { fluxcal::twostep_2d(d.readings, d.norms.head(99)); })
                 .find("field_norms: 99 values for 100 readings"), std::string::npos);
   Eigen::VectorXd bad = d.norms;
   bad(7) = 0.0;
-  EXPECT_NE(error_of([&] { fluxcal::twostep_2d(d.readings, bad); }).find("field_norms: value 7 is 0"),
+  EXPECT_NE(error_message([&] { fluxcal::twostep_2d(d.readings, bad); }).find("field_norms: value 7 is 0"),
             std::string::npos);
   Readings2D nan = d.readings;
   nan(11, 1) = std::numeric_limits<double>::quiet_NaN();
-  EXPECT_NE(error_of([&] { fluxcal::twostep_2d(nan, d.norms); }).find("readings: row 11, column 1 (y) is NaN"),
+  EXPECT_NE(error_message([&] { fluxcal::twostep_2d(nan, d.norms); }).find("readings: row 11, column 1 (y) is NaN"),
             std::string::npos);
   // The ring never turned: the field keeps one direction, readings on a line.
   const Data2D line = paper_like(t, 0.0, 5, 1);
-  EXPECT_NE(error_of([&] { fluxcal::twostep_2d(line.readings, line.norms); }).find("rank deficient"),
+  EXPECT_NE(error_message([&] { fluxcal::twostep_2d(line.readings, line.norms); }).find("rank deficient"),
             std::string::npos);
   // Magnitudes that do not belong to the readings.
   Eigen::VectorXd shuffled = d.norms.reverse();
-  EXPECT_NE(error_of([&] { fluxcal::twostep_2d(d.readings, shuffled); }).find("≤ 0"), std::string::npos);
+  EXPECT_NE(error_message([&] { fluxcal::twostep_2d(d.readings, shuffled); }).find("≤ 0"), std::string::npos);
   fluxcal::TwoStep2DOptions opt;
   opt.tolerance = 0.0;
   EXPECT_THROW(fluxcal::twostep_2d(d.readings, d.norms, opt), fluxcal::Error);
@@ -209,17 +201,17 @@ TEST(TwoStep3D, BadInputThrowsNamedErrors) {
   const Truth3D t = make_truth(7, 1.0);
   const Samples s = simulate(t, 200, 0.0, 8);
   fluxcal::TwoStepOptions opt;
-  EXPECT_NE(error_of([&] { fluxcal::twostep(s, opt); }).find("field_norm: must be a positive"), std::string::npos);
+  EXPECT_NE(error_message([&] { fluxcal::twostep(s, opt); }).find("field_norm: must be a positive"), std::string::npos);
   opt.field_norm = 1.0;
-  EXPECT_NE(error_of([&] { fluxcal::twostep(s.topRows(8), opt); }).find("samples: 8 rows, need at least 9"),
+  EXPECT_NE(error_message([&] { fluxcal::twostep(s.topRows(8), opt); }).find("samples: 8 rows, need at least 9"),
             std::string::npos);
   Samples nan = s;
   nan(5, 2) = std::numeric_limits<double>::infinity();
-  EXPECT_NE(error_of([&] { fluxcal::twostep(nan, opt); }).find("samples: row 5, column 2 (z) is infinite"),
+  EXPECT_NE(error_message([&] { fluxcal::twostep(nan, opt); }).find("samples: row 5, column 2 (z) is infinite"),
             std::string::npos);
   Samples planar = s;
   planar.col(2) = 0.3 * planar.col(0);
-  EXPECT_NE(error_of([&] { fluxcal::twostep(planar, opt); }).find("rotate the sensor about more axes"),
+  EXPECT_NE(error_message([&] { fluxcal::twostep(planar, opt); }).find("rotate the sensor about more axes"),
             std::string::npos);
   opt.max_iterations = -1;
   EXPECT_THROW(fluxcal::twostep(s, opt), fluxcal::Error);
