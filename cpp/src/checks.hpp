@@ -85,11 +85,30 @@ void require_finite_fit(bool finite, const std::string& name, const Values& valu
               " (a sum of their squares is not finite); rescale them, e.g. to other units");
 }
 
+/// As above for a solver of two inputs: names the one with the larger |value| (the one to rescale).
+template <typename First, typename Second>
+void require_finite_fit(bool finite, const std::string& first_name, const First& first, const std::string& second_name,
+                        const Second& second, const std::string& solver) {
+  if (finite) return;
+  const auto largest = [](const auto& v) { return v.size() > 0 ? v.cwiseAbs().maxCoeff() : 0.0; };
+  if (largest(second) > largest(first)) require_finite_fit(false, second_name, second, solver);
+  require_finite_fit(false, first_name, first, solver);
+}
+
 /// Before a solver whose cost is a sum of squares of `values` (Ceres would fail on the first
 /// evaluation with a message naming none of the inputs, and log the NaN Jacobian to stderr).
 template <typename Values>
 void require_squares_finite(const Values& values, const std::string& name, const std::string& solver) {
   require_finite_fit(std::isfinite(values.squaredNorm()), name, values, solver);
+}
+
+/// The coverage thresholds EllipsoidOptions and TwoStepOptions share; `s` is the struct's "Name::".
+template <typename Options>
+void require_coverage_options(const std::string& s, const Options& o) {
+  require_unit(s + "planar_ratio", o.planar_ratio);
+  require_unit(s + "poor_coverage_ratio", o.poor_coverage_ratio);
+  require_unit(s + "poor_direction_coverage", o.poor_direction_coverage);
+  require_int(o.coverage_rows >= 0, s + "coverage_rows", o.coverage_rows, "≥ 0 (0: all rows)");
 }
 
 /// An enum holds one of its `count` enumerators 0 … count − 1: a static_cast from an out-of-range

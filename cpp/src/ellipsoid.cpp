@@ -404,10 +404,7 @@ void check(const EllipsoidOptions& o) {
   require_enum(s + "method", o.method, 2, "ordinary, adjusted (0 … 1)");
   require_nonnegative(s + "field_norm", o.field_norm,
                       "a positive finite magnitude, or 0 to use the fitted radius");
-  require_unit(s + "planar_ratio", o.planar_ratio);
-  require_unit(s + "poor_coverage_ratio", o.poor_coverage_ratio);
-  require_unit(s + "poor_direction_coverage", o.poor_direction_coverage);
-  require_int(o.coverage_rows >= 0, s + "coverage_rows", o.coverage_rows, "≥ 0 (0: all rows)");
+  require_coverage_options(s, o);
 }
 
 }  // namespace detail

@@ -543,12 +543,8 @@ PositionsResult fit_positions(const SamplesRef& outputs, const SamplesRef& refer
   finish_statistics(r, J, scales, options.determined_tolerance);
   r.summary.condition_number = sv(0) / sv(3);
   fill_summary(r, "positions (linear least squares)");
-  {
-    const bool finite = detail::finite_fit(r.summary) && r.K.allFinite() && r.offset.allFinite();
-    if (reference.cwiseAbs().maxCoeff() > outputs.cwiseAbs().maxCoeff())
-      detail::require_finite_fit(finite, "reference", reference, "the positions calibration");
-    detail::require_finite_fit(finite, "outputs", outputs, "the positions calibration");
-  }
+  detail::require_finite_fit(detail::finite_fit(r.summary) && r.K.allFinite() && r.offset.allFinite(), "outputs",
+                             outputs, "reference", reference, "the positions calibration");
   return r;
 }
 

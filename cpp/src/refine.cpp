@@ -470,13 +470,12 @@ void finish_summary(RefineResult& out, const SamplesRef& samples, const SamplesR
     describe_coverage(s, samples, cal, 16384);
   }
   s.condition_number = out.fisher_condition;
-  {
-    const bool finite = detail::finite_fit(s) && std::isfinite(out.noise_sigma) && cal.matrix.allFinite() &&
-                        cal.offset.allFinite();
-    if (reference && reference->cwiseAbs().maxCoeff() > samples.cwiseAbs().maxCoeff())
-      detail::require_finite_fit(finite, "reference", *reference, cal.model);
+  const bool finite =
+      detail::finite_fit(s) && std::isfinite(out.noise_sigma) && cal.matrix.allFinite() && cal.offset.allFinite();
+  if (reference)
+    detail::require_finite_fit(finite, "samples", samples, "reference", *reference, cal.model);
+  else
     detail::require_finite_fit(finite, "samples", samples, cal.model);
-  }
   std::ostringstream msg;
   msg << cal.model << ": " << s.samples << " samples, " << (s.converged ? "converged" : "NOT converged")
       << " in " << s.iterations << " iterations, noise σ " << out.noise_sigma << ", |h| std/mean "

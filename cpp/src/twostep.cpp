@@ -70,10 +70,7 @@ void check(const TwoStepOptions& o) {
   detail::require_int(o.max_iterations >= 0, s + "max_iterations", o.max_iterations, "≥ 0 (0: the first step only)");
   detail::require_positive(s + "tolerance", o.tolerance);
   detail::require_finite(s + "noise_sigma", o.noise_sigma, "a finite value (< 0: estimate it, 0: no correction)");
-  detail::require_unit(s + "planar_ratio", o.planar_ratio);
-  detail::require_unit(s + "poor_coverage_ratio", o.poor_coverage_ratio);
-  detail::require_unit(s + "poor_direction_coverage", o.poor_direction_coverage);
-  detail::require_int(o.coverage_rows >= 0, s + "coverage_rows", o.coverage_rows, "≥ 0 (0: all rows)");
+  detail::require_coverage_options(s, o);
 }
 
 // ---- 2-D ---------------------------------------------------------------------------------------------
@@ -333,12 +330,8 @@ TwoStep2DResult twostep_2d(const Readings2DRef& readings, const Eigen::Ref<const
   sum.norm_std_over_mean = std::sqrt(std::max(0.0, sq2 / nd - sum.norm_mean * sum.norm_mean)) / sum.norm_mean;
   sum.exact_statistics = true;
   if (options.refine && options.max_iterations > 0) sum.cost = sd2 / nd;
-  {
-    const bool finite = detail::finite_fit(sum) && out.offset.allFinite() && out.gain.allFinite();
-    if (field_norms.cwiseAbs().maxCoeff() > readings.cwiseAbs().maxCoeff())
-      detail::require_finite_fit(finite, "field_norms", field_norms, "the 2-D two-step calibration");
-    detail::require_finite_fit(finite, "readings", readings, "the 2-D two-step calibration");
-  }
+  detail::require_finite_fit(detail::finite_fit(sum) && out.offset.allFinite() && out.gain.allFinite(), "readings",
+                             readings, "field_norms", field_norms, "the 2-D two-step calibration");
   if (sum.norm_std_over_mean > options.misfit_spread)
     sum.warnings.push_back("the readings do not fit the model: |h|/h scatters by " + percent(sum.norm_std_over_mean) +
                            " after the fit (more than " + percent(options.misfit_spread) +
