@@ -533,6 +533,35 @@ def test_a_clock_that_wraps_keeps_the_row_order():
     assert "t went backwards at row 1500 (a counter wrap" in d.noise_source
 
 
+@pytest.mark.parametrize("name,model", [("offset_step", None), ("moving_dipole", None), ("moving_dipole", "vector")])
+def test_a_box_is_scored_on_its_rows_as_on_all_readings(monkeypatch, name, model):
+    # The box search scores each box from the readings inside it (Gram matrices over those rows); the
+    # score must be the one over all readings with zeros outside the box, for the magnitude and the
+    # vector model, given the rows as a slice or as indices.
+    from fluxcal.sim.effects import _TimeBox, scatter_rows
+
+    compared, calls = [], []
+    search = _TimeBox.search.__func__
+
+    def checked(cls, ctx, score):
+        def both(feats, rows):
+            value = score(feats, rows)
+            calls.append(value)
+            if len(compared) < 60 and len(calls) % 10 == 0:  # boxes across the coarse scan and the refinement
+                indices = np.arange(len(ctx.t))[rows]
+                compared.append((value, score(scatter_rows(len(ctx.t), feats, rows)), score(feats, indices)))
+            return value
+        return search(cls, ctx, both)
+
+    monkeypatch.setattr(_TimeBox, "search", classmethod(checked))
+    result, kwargs = withheld_trial([name], 3, model=model)
+    diagnose(result.readings, **kwargs, candidates=[name])
+    compared = np.array(compared)
+    assert len(compared) == 60 and max(calls) > 100  # the effect's own box scores high
+    np.testing.assert_allclose(compared[:, 0], compared[:, 1], rtol=1e-7, atol=1e-7)
+    np.testing.assert_allclose(compared[:, 2], compared[:, 1], rtol=1e-7, atol=1e-7)
+
+
 def test_heldout_gain_confined_to_one_block_is_significant():
     # An event: the held-out gain sits in one block and is tiny elsewhere, but positive in every block.
     # Signed ranks see 30 positive blocks; a t-test on such skewed means gives p ≈ 0.16.

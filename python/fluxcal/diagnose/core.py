@@ -16,7 +16,7 @@ from .._arrays import as_samples, held_copies
 from ..attitude import magnetic_frame
 from ..calibration import Calibration
 from ..outliers import find_outliers
-from ..sim.effects import CANDIDATES
+from ..sim.effects import CANDIDATES, scatter_rows
 
 # Base models: (uses a reference vector, base parameters held at their start values).
 MODELS = {
@@ -360,12 +360,20 @@ def _field_directions(data: _Data, result: dict) -> np.ndarray:
     return h / np.linalg.norm(h, axis=1, keepdims=True)
 
 
-def _project(result: dict, feats: np.ndarray, vector: bool) -> np.ndarray:
-    """Candidate columns in residual space: ∂r/∂c at the current fit."""
+def _project(result: dict, feats: np.ndarray, vector: bool, rows=slice(None)) -> np.ndarray:
+    """Candidate columns in residual space: ∂r/∂c at the current fit (of the readings `rows` when feats
+    holds only those)."""
     if vector:
         return -feats.transpose(0, 2, 1).reshape(-1, feats.shape[1])
-    jb = np.asarray(result["jacobian"])[:, :3]  # ∂r/∂b; r depends on m − b, so ∂r/∂c = jb · f
+    jb = np.asarray(result["jacobian"])[rows, :3]  # ∂r/∂b; r depends on m − b, so ∂r/∂c = jb · f
     return np.einsum("nk,npk->np", jb, feats)
+
+
+def _residual_rows(rows, per_reading: int):
+    """The residuals of the readings `rows` (a slice or indices): per_reading consecutive ones each."""
+    if isinstance(rows, slice):
+        return slice(rows.start * per_reading, rows.stop * per_reading)
+    return (np.asarray(rows)[:, None] * per_reading + np.arange(per_reading)).ravel()
 
 
 # ---------------------------------------------------------------- held-out regimes
@@ -564,6 +572,25 @@ def _evaluate(cls, data, model, state, sigma, n_candidates) -> dict:
         U = (R @ V[:, new]) / s[new]
         return ((float(np.sum((U.T @ e) ** 2) / sigma2) if new.any() else 0.0), int(new.sum()), s, U)
 
+    Qe = Q.T @ e
+    per_reading = n // len(data.m)
+
+    def score_on(feats, rows=None):
+        """new_part's score; with `rows`, for features given on those readings only (zero elsewhere, a box in
+        time): the same Gram matrices from products over those rows, R'R = (Z'Z − W'W) and R'e = Z'e − W'Q'e
+        with W = Q'Z, without forming the N × p new part."""
+        if rows is None or (cls.signal_features and not fixed):  # (the latter's norms need every reading)
+            return new_part(feats if rows is None else scatter_rows(len(data.m), feats, rows))[0]
+        r = _residual_rows(rows, per_reading)
+        Z = _project(base, feats, vector, rows)
+        norms = np.linalg.norm(Z, axis=0)
+        norms[norms == 0] = 1.0
+        W = Q[r].T @ Z
+        s2, V = np.linalg.eigh((Z.T @ Z - W.T @ W) / np.outer(norms, norms))
+        s = np.sqrt(np.clip(s2, 0.0, None))
+        new = s >= ABSORBED
+        return float(np.sum((V[:, new].T @ ((Z.T @ e[r] - W.T @ Qe) / norms) / s[new]) ** 2) / sigma2)
+
     profiled = {}
     if cls.linear and not fixed:  # exactly absorbed by the full matrix; its first-order features are not
         # (one of three directions looked new on a real recording with a 4 % temperature scale error)
@@ -573,7 +600,7 @@ def _evaluate(cls, data, model, state, sigma, n_candidates) -> dict:
         tried, profiled = 1, {cls.profile_name: value}
         score, dims, singular, signature = new_part(feats)
     else:
-        feats, tried = cls.search(ctx, lambda f: new_part(f)[0])
+        feats, tried = cls.search(ctx, score_on)
         score, dims, singular, signature = new_part(feats)
     row = {"effect": cls.name, "regime": cls.regime, "n_params": int(feats.shape[1]), "new_dimensions": dims,
            "absorbed": dims == 0, "alternatives": tried, "score": score,

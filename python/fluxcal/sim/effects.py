@@ -500,10 +500,28 @@ class OffsetDrift(Effect):
 
 # ---------------------------------------------------------------- field effects
 
+def _rows_within(t: np.ndarray, t_on: float, t_off: float):
+    """The readings with t_on ≤ t ≤ t_off: a slice when they are consecutive rows (readings in time order),
+    else their indices."""
+    rows = np.flatnonzero((t >= t_on) & (t <= t_off))
+    if len(rows) == 0:
+        return slice(0, 0)
+    return slice(int(rows[0]), int(rows[-1]) + 1) if rows[-1] - rows[0] + 1 == len(rows) else rows
+
+
+def scatter_rows(n: int, feats: np.ndarray, rows) -> np.ndarray:
+    """Features given on `rows` only as an array over all n readings, zero elsewhere."""
+    full = np.zeros((n,) + feats.shape[1:])
+    full[rows] = feats
+    return full
+
+
 class _TimeBox(Effect):
     """A candidate on within one box of time, [t_on, t_off] (a box that reaches an end of the recording is
     one step): the edges are scanned on a grid of GRID + 1 times, then each refined to the sample. A
-    subclass gives the features within a box (`_box`)."""
+    subclass gives the features within a box on the readings in it (`_box_rows`); the search hands the
+    score those rows alone, `score(features, rows)` (some 600 boxes are scored: over all readings, most
+    of each score's cost was zeros)."""
 
     regime = "events"
     needs = ("t",)
@@ -511,8 +529,13 @@ class _TimeBox(Effect):
     FINE = 4   # refinement: 2·FINE + 1 positions of an edge per level, each level FINE times finer
 
     @classmethod
-    def _box(cls, ctx, t_on, t_off):  # pragma: no cover - interface
+    def _box_rows(cls, ctx, t_on, t_off):  # pragma: no cover - interface
+        """(features, rows): the features on the readings within the box, and those readings."""
         raise NotImplementedError
+
+    @classmethod
+    def _box(cls, ctx, t_on, t_off, *args):
+        return scatter_rows(len(ctx.t), *cls._box_rows(ctx, t_on, t_off, *args))
 
     @classmethod
     def _coarse_edges(cls, ctx):
@@ -529,7 +552,7 @@ class _TimeBox(Effect):
         """Coarse scan of the box edges, then each edge refined in turn on ever finer grids down to the
         sample spacing (a misplaced edge of a step leaves large residuals)."""
         coarse = cls._coarse_edges(ctx)
-        scores = [score(cls._box(ctx, a, b)) for a, b in coarse]
+        scores = [score(*cls._box_rows(ctx, a, b)) for a, b in coarse]
         edges, best, tried = list(coarse[int(np.argmax(scores))]), max(scores), len(coarse)
         steps = np.diff(np.sort(ctx.t))
         dt = float(np.median(steps[steps > 0])) if np.any(steps > 0) else 1.0
@@ -544,7 +567,7 @@ class _TimeBox(Effect):
                     trial[side] = x
                     if trial[1] - trial[0] < 4 * dt:
                         continue
-                    value = score(cls._box(ctx, *trial))
+                    value = score(*cls._box_rows(ctx, *trial))
                     tried += 1
                     at_end = edges[side] <= ctx.t.min() if side == 0 else edges[side] >= ctx.t.max()
                     if value > best + (price if at_end and ctx.t.min() < x < ctx.t.max() else 0.0):
@@ -604,16 +627,15 @@ class MovingDipole(_TimeBox):
         return values + context.rotations.inv().apply(world)
 
     @classmethod
-    def _box(cls, ctx, t_on, t_off, degree: int = 2):
-        on = (ctx.t >= t_on) & (ctx.t <= t_off)
-        u = np.where(on, 2 * (ctx.t - 0.5 * (t_on + t_off)) / (t_off - t_on), 0.0)  # −1…1 across the box
-        shape = np.polynomial.legendre.legvander(u, degree) * on[:, None]
+    def _box_rows(cls, ctx, t_on, t_off, degree: int = 2):
+        rows = _rows_within(ctx.t, t_on, t_off)
+        u = 2 * (ctx.t[rows] - 0.5 * (t_on + t_off)) / (t_off - t_on)  # −1…1 across the box
+        shape = np.polynomial.legendre.legvander(u, degree)
         if ctx.world is None:
-            return shape[:, :, None] * ctx.direction[:, None, :]
+            return shape[:, :, None] * ctx.direction[rows][:, None, :], rows
         # against reference vectors with the down direction known, each world component of the field
         # (a magnitude sees only the one along the field)
-        n = len(shape)
-        return (shape[:, :, None, None] * ctx.world[:, None, :, :]).reshape(n, -1, 3)
+        return (shape[:, :, None, None] * ctx.world[rows][:, None, :, :]).reshape(len(u), -1, 3), rows
 
     MAX_DEGREE = 5  # 8 left the fits on the training blocks ill-conditioned (a held-out block inside the box)
 
@@ -660,9 +682,9 @@ class OffsetStep(_TimeBox):
         return values + np.outer(on, self.delta)
 
     @classmethod
-    def _box(cls, ctx, t_on, t_off):
-        on = ((ctx.t >= t_on) & (ctx.t <= t_off)) * 1.0
-        return _per_axis(np.repeat(on[:, None], 3, axis=1))
+    def _box_rows(cls, ctx, t_on, t_off):
+        rows = _rows_within(ctx.t, t_on, t_off)
+        return _per_axis(np.ones((len(ctx.t[rows]), 3))), rows
 
     @classmethod
     def typical(cls, field_norm, rng, duration_s: float = 60.0):
