@@ -46,8 +46,9 @@ double solve_scaled(const Eigen::Matrix<double, K, K>& N, const Eigen::Matrix<do
                     Eigen::Matrix<double, K, 1>& x) {
   Eigen::Matrix<double, K, 1> d;
   for (int i = 0; i < K; ++i) d(i) = N(i, i) > 0.0 ? 1.0 / std::sqrt(N(i, i)) : 1.0;
-  const Eigen::Matrix<double, K, K> Ns = d.asDiagonal() * N * d.asDiagonal();
-  Eigen::SelfAdjointEigenSolver<Eigen::Matrix<double, K, K>> eig(Ns);
+  // One dynamic-size solver for every K: each fixed-size one instantiated cost ~10 s of compile time.
+  const Eigen::MatrixXd Ns = d.asDiagonal() * N * d.asDiagonal();
+  Eigen::SelfAdjointEigenSolver<Eigen::MatrixXd> eig(Ns);
   const auto& lam = eig.eigenvalues();
   if (!(lam(0) > 0.0) || !lam.allFinite()) {
     x.setConstant(std::numeric_limits<double>::quiet_NaN());
@@ -279,7 +280,10 @@ TwoStep2DResult twostep_2d(const Readings2DRef& readings, const Eigen::Ref<const
       }
       const double size = delta.cwiseAbs().maxCoeff();
       const double tol = options.tolerance * std::max(1.0, th.cwiseAbs().maxCoeff());
-      if (size <= tol) {  // below the tolerance the cost cannot tell the step apart from rounding
+      // Below the tolerance, or with a predicted decrease ½δᵀFδ below the rounding of the cost (a sum of n
+      // squares), the cost cannot tell the step apart from rounding: without the latter, 10^5 readings
+      // spent up to 40 line-search passes over them on steps of 1e-11.
+      if (size <= tol || 0.5 * delta.dot(F * delta) <= cost * nd * std::numeric_limits<double>::epsilon()) {
         th += delta;
         sum.iterations = it + 1;
         sum.converged = true;
