@@ -210,13 +210,27 @@ ReverseArrangementResult reverse_arrangement(const SeriesRef& x, int subseries, 
   return r;
 }
 
+namespace {
+
+// The series less its mean, in units of its largest |value|: skewness, kurtosis and autocorrelations do
+// not depend on the scale, and fourth powers of values ≤ 1 cannot overflow (readings of 1e80 gave NaN
+// statistics and "not normal" without a word).
+Eigen::VectorXd centred_unit(const SeriesRef& x) {
+  const double top = x.cwiseAbs().maxCoeff();
+  if (!(top > 0.0)) return Eigen::VectorXd::Zero(x.size());
+  const Eigen::VectorXd y = x / top;
+  return y.array() - y.mean();
+}
+
+}  // namespace
+
 NormalityResult normality(const SeriesRef& x, double significance) {
   detail::require_open_unit("normality: significance", significance);
   check_series(x, "series", 3, "for skewness and kurtosis");
-  const double mean = x.mean();
+  const Eigen::VectorXd centred = centred_unit(x);
   double m2 = 0.0, m3 = 0.0, m4 = 0.0;
   for (Eigen::Index i = 0; i < x.size(); ++i) {
-    const double d = x[i] - mean, d2 = d * d;
+    const double d = centred[i], d2 = d * d;
     m2 += d2;
     m3 += d2 * d;
     m4 += d2 * d2;
@@ -240,7 +254,7 @@ LjungBoxResult ljung_box(const SeriesRef& x, int lags, int model_df, double sign
   detail::require_int(model_df >= 0, "ljung_box: model_df", model_df, "≥ 0");
   detail::require_open_unit("ljung_box: significance", significance);
   check_series(x, "series", static_cast<Eigen::Index>(lags) + 1, "for " + std::to_string(lags) + " lags");
-  const Eigen::VectorXd d = x.array() - x.mean();
+  const Eigen::VectorXd d = centred_unit(x);
   const double c0 = d.squaredNorm();
   if (!(c0 > 0.0)) throw Error("series: constant (zero variance), autocorrelations are undefined");
   const Eigen::Index n = d.size();

@@ -189,6 +189,21 @@ TEST(TimeSeries, DistributionsRefuseBadArguments) {
   EXPECT_ERROR_SAYS(fluxcal::normality(ar_series({0.5}, 200, 1), std::nan("")), "normality: significance: nan");
 }
 
+// Skewness, kurtosis and autocorrelations do not depend on the scale: a series of 1e80 … 1e300 (whose
+// fourth powers overflow) gets the statistics of the same series in units, not NaN and "not normal".
+TEST(TimeSeries, NormalityAndLjungBoxOfHugeValues) {
+  const Eigen::VectorXd y = ar_series({0.5}, 500, 3);
+  const auto plain = fluxcal::normality(y);
+  const auto plain_lb = fluxcal::ljung_box(y, 10);
+  for (double scale : {1e80, 1e300}) {
+    const auto big = fluxcal::normality(y * scale);
+    EXPECT_NEAR(big.skewness, plain.skewness, 1e-12);
+    EXPECT_NEAR(big.kurtosis, plain.kurtosis, 1e-12);
+    EXPECT_NEAR(big.p_value, plain.p_value, 1e-12);
+    EXPECT_NEAR(fluxcal::ljung_box(y * scale, 10).statistic, plain_lb.statistic, 1e-9 * plain_lb.statistic);
+  }
+}
+
 // A series whose squares overflow: AR(0) "converged" with σ² = inf, or a fixed order refused as
 // "rank deficient".
 TEST(TimeSeries, HugeSeriesIsNamed) {
