@@ -189,7 +189,7 @@ ceres::LossFunction* make_loss(const RefineOptions& opt, double sigma_start) {
 
 void check_inputs(const SamplesRef& samples, Eigen::Index min_rows, const std::string& purpose) {
   check_samples(samples, "samples", min_rows, purpose);
-  detail::require_squares_finite(samples, "samples", "the refinement");
+  detail::require_squares_finite(samples, "samples", purpose);  // "… overflow a 12-parameter vector calibration"
 }
 
 // Per reading, in time order: the plain residuals (N×1 magnitude, N×3 vector) and the scores

@@ -200,8 +200,10 @@ TEST(RefineInputs, HugeReadingsAreNamed) {
   start.matrix = truth.W.inverse();
   start.field_norm = truth.field * 1e300;
   EXPECT_ERROR_SAYS(fluxcal::refine(start, big), "samples: values up to");
+  EXPECT_ERROR_SAYS(fluxcal::refine(start, big), "-parameter magnitude refinement");  // what overflowed
   const fluxcal::Samples reference = (s.rowwise() - truth.b.transpose()) * truth.W.inverse().transpose();
   EXPECT_ERROR_SAYS(fluxcal::fit_vector(big, reference), "samples: values up to");
+  EXPECT_ERROR_SAYS(fluxcal::fit_vector(big, reference), "overflow a 12-parameter vector calibration");
   EXPECT_ERROR_SAYS(fluxcal::fit_vector(s, reference * 1e300), "reference: values up to");
   EXPECT_ERROR_SAYS(fluxcal::refine_vector(fluxcal::Calibration(), s, reference * 1e300), "reference: values up to");
 }
