@@ -269,7 +269,11 @@ KalmanResult ArKalman::filter(const SeriesRef& y) const {
   res.state = x;
   Summary& s = res.summary;
   s.samples = static_cast<std::size_t>(len);
-  s.residual_rms = std::sqrt(res.innovations.squaredNorm() / static_cast<double>(len));
+  // The filter is linear and right for any finite y; the plain sum of squares of innovations ≳ 1e154 is not
+  // (the RMS came back inf), so only then the overflow-safe norm.
+  const double squares = res.innovations.squaredNorm();
+  s.residual_rms = std::isfinite(squares) ? std::sqrt(squares / static_cast<double>(len))
+                                          : res.innovations.stableNorm() / std::sqrt(static_cast<double>(len));
   s.converged = true;
   s.message = std::string(options_.steady_state ? "steady-state" : "time-varying") + " Kalman filter, AR(" +
               std::to_string(n) + ")";

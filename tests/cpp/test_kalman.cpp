@@ -42,6 +42,22 @@ TEST(Kalman, TimeVaryingConvergesToSteadyState) {
   EXPECT_NEAR((rhs - p).cwiseAbs().maxCoeff(), 0.0, 1e-12);
 }
 
+// The filter is linear: readings of 1e300 filter to 1e300 × the same outputs, and the innovations' RMS is
+// 1e300 × theirs too (it came back inf from the plain sum of squares).
+TEST(Kalman, HugeReadingsFilterAsSmallOnes) {
+  Eigen::VectorXd a(1);
+  a << 0.5;
+  const fluxcal::ArKalman f(a, 1.0, 0.5);
+  std::mt19937_64 rng(2);
+  std::normal_distribution<double> normal;
+  Eigen::VectorXd y(300);
+  for (auto& v : y) v = normal(rng);
+  const auto small = f.filter(y), big = f.filter(y * 1e300);
+  EXPECT_NEAR((big.filtered / 1e300 - small.filtered).cwiseAbs().maxCoeff(), 0.0, 1e-12);
+  ASSERT_TRUE(std::isfinite(big.summary.residual_rms));
+  EXPECT_NEAR(big.summary.residual_rms / 1e300, small.summary.residual_rms, 1e-12 * small.summary.residual_rms);
+}
+
 TEST(Kalman, StationaryCovarianceWithPolesNearOne) {
   // Four poles at 0.99 (the coefficients of (1 − 0.99 z⁻¹)⁴ as NumPy rounds them): doubling gave NaN.
   Eigen::VectorXd a(4);
