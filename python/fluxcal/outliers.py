@@ -28,9 +28,7 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 
 import numpy as np
-from scipy import special
-
-# scipy.stats is imported where it is used: it costs ~1.2 s, most of the command line's start-up
+from scipy import special, stats
 
 from .calibration import Calibration
 from .ellipsoid import fit_ellipsoid
@@ -166,8 +164,6 @@ def find_outliers(samples, reference=None, alpha: float = 0.01, seed: int = 0) -
     """Gross outliers of `samples` (N×3 readings of a turning magnetometer), judged against the ellipsoid,
     or with `reference` (the true field of each reading, sensor frame) against the vector model
     m = W r + b; see the module doc."""
-    from scipy import stats
-
     m = np.asarray(samples, dtype=float)
     n = len(m)
     if reference is not None:
@@ -219,8 +215,6 @@ def _verdicts(m: np.ndarray, z: np.ndarray, threshold: float, sigma: float, mode
 def _vector_outliers(m: np.ndarray, r: np.ndarray, alpha: float, seed: int) -> Outliers:
     """The vector model's screen (see the module doc). robust_sigma: the RMS over axes of the residual σ
     of the accepted readings, in the readings' units."""
-    from scipy import stats
-
     n = len(m)
     threshold = float(stats.norm.isf(alpha / (2 * n))) if n else 0.0
     none = Outliers(np.zeros(0, dtype=int), threshold, screened=False, model=VECTOR_MODEL)
@@ -257,8 +251,6 @@ def _normal_deviates(statistic: np.ndarray, dist, threshold: float) -> np.ndarra
     distribution), for the readings beyond half the deviate `threshold` — all `_verdicts` looks at; the
     rest get 0 (the tail function costs ~1 µs a reading). Where the tail underflows, √statistic: far
     beyond any threshold either way, and finite for the messages."""
-    from scipy import stats
-
     z = np.zeros(len(statistic))
     far = statistic > dist.isf(2 * stats.norm.sf(threshold / 2))
     z_far = -special.ndtri_exp(np.log(0.5) + dist.logsf(statistic[far]))
@@ -272,8 +264,6 @@ def _vector_z(m: np.ndarray, X: np.ndarray, keep: np.ndarray, threshold: float):
     (1 − h for a fitted reading, 1 + h for one left out), and turned into the normal deviate of the same
     tail probability under Hotelling's T² (3 dimensions): the ellipsoid's `threshold` then applies.
     Returns (z, RMS over axes of the residual σ)."""
-    from scipy import stats
-
     Xk = X[keep]
     nu = len(Xk) - 4
     G = np.linalg.inv(Xk.T @ Xk)
