@@ -26,11 +26,7 @@ constexpr double kRankDeficient3D = 1e14;  // the same threshold as the ellipsoi
 // Step halvings before a Gauss–Newton step counts as failed.
 constexpr int kLineSearchSteps = 40;
 
-std::string num(double v) {
-  char buf[32];
-  std::snprintf(buf, sizeof buf, "%.6g", v);
-  return buf;
-}
+using detail::num;  // "%.6g", as every message of the checks
 
 std::string percent(double ratio) {
   char buf[32];

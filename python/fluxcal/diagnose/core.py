@@ -596,7 +596,7 @@ def _evaluate(cls, data, model, state, sigma, n_candidates) -> dict:
         # (one of three directions looked new on a real recording with a 4 % temperature scale error)
         feats, tried, score, dims, singular, signature = cls.features(ctx), 1, 0.0, 0, np.zeros(0), None
     elif cls.profile_name:  # its parameter is counted as a parameter (below), not as alternatives tried
-        value, feats = _profile(cls, ctx, base, J, e, vector)
+        value, feats = _profile(cls, ctx, base, Q, e, vector)
         tried, profiled = 1, {cls.profile_name: value}
         score, dims, singular, signature = new_part(feats)
     else:
@@ -659,14 +659,12 @@ def _profiled_row(profiled: dict) -> dict:
     return {k: (float(v) if np.isfinite(v) else None) for k, v in profiled.items()}
 
 
-def _profile(cls, ctx, result: dict, J: np.ndarray, e: np.ndarray, vector: bool):
-    """A profiled candidate's parameter: the value whose features, fitted together with the columns J (the
-    rest of the model, linearised at `result`), take most off the residuals e — its grid
+def _profile(cls, ctx, result: dict, Q: np.ndarray, e: np.ndarray, vector: bool):
+    """A profiled candidate's parameter: the value whose features, fitted together with the columns of the
+    orthonormal basis Q (the rest of the model, linearised at `result`), take most off the residuals e — its grid
     (`cls.profile_grid`), then a bounded search in log between the best point's neighbours. Each step is a
     linear refit, so the profile costs projections, not solver runs. Returns (value, features)."""
     from scipy.optimize import minimize_scalar
-
-    Q, _ = np.linalg.qr(J)
 
     def gain(value):
         Z = _project(result, cls.features_at(ctx, value), vector)
@@ -723,8 +721,8 @@ def _at_own_signal(cls, data: _Data, fixed, state: dict, feats: np.ndarray, fit:
             J = np.asarray(fit["jacobian"])
             Z = J[:, -p:]  # ∂r/∂c: the candidate's part of the fit, linearised
             rest = J[:, :-p][:, np.any(J[:, :-p] != 0, axis=0)]
-            candidate, new = _profile(cls, ctx, fit, rest, np.asarray(fit["residuals"]) - Z @ ctx.coefficients,
-                                      data.reference is not None)
+            candidate, new = _profile(cls, ctx, fit, np.linalg.qr(rest)[0],
+                                      np.asarray(fit["residuals"]) - Z @ ctx.coefficients, data.reference is not None)
         else:
             candidate, new = value, cls.features(ctx)
         # from this fit: its coefficients belong with its offset and matrix
