@@ -488,8 +488,8 @@ def test_a_static_sensor_is_still_a_time_series():
     from fluxcal.diagnose.core import _Data, _noise
 
     data = _Data(m, np.arange(2000.0), None, ref, None, 0.0, "", "static", [])
-    sigma, source = _noise(data, {"residuals": m - m.mean(axis=0)})
-    assert "not a time series" not in source and sigma == pytest.approx(0.05, rel=0.1)
+    sigma, source, bound = _noise(data, {"residuals": m - m.mean(axis=0)})
+    assert "not a time series" not in source and not bound and sigma == pytest.approx(0.05, rel=0.1)
 
 
 @pytest.mark.parametrize("positions,held", [(12, 5), (24, 4)])
@@ -691,3 +691,69 @@ def test_a_candidate_whose_refit_fails_is_reported_not_fatal(monkeypatch):
     cubic = next(r for r in d.ranking if r["effect"] == "nonlinearity_cubic")
     assert not cubic["significant"] and cubic["note"].startswith("not judged") and "simulated" in cubic["note"]
     assert "not judged: its refit failed" in d.text()
+
+
+@pytest.mark.parametrize("model", ["ellipsoid", "vector"])
+def test_the_heldout_noise_floor_is_what_white_noise_leaves(model):
+    # With white noise alone, a held-out fit's field error is the noise carried through the calibration:
+    # the floor the degenerate-fit guard compares against (σ u'A for a magnitude, σ‖A‖ against a reference).
+    ratios = []
+    for seed in range(3):
+        result, kwargs = withheld_trial([], 300 + seed, model=model)
+        d = diagnose(result.readings, **kwargs, noise_sigma=0.05, candidates=["nonlinearity_cubic"])
+        row = d.ranking[0]
+        ratios.append(row["field_error_before"] / row["heldout_noise_floor"])
+    assert np.all(np.abs(np.array(ratios) - 1) < 0.1), ratios
+
+
+def test_a_candidate_that_rebuilds_the_readings_from_themselves_is_not_accepted(monkeypatch):
+    # Features taken from each reading itself (here its departure from the fitted sphere, exactly) let a fit
+    # predict held-out readings better than their noise: every test of evidence passes, yet it models nothing.
+    # The QMC5883L recording did this through coefficients of order one on signal-dependent candidates.
+    from fluxcal.diagnose import core
+    from fluxcal.sim.effects import Effect, _per_axis
+
+    class Echo(Effect):
+        name = "echo"
+
+        @classmethod
+        def features(cls, ctx):
+            return _per_axis(ctx.readings - ctx.signal)
+
+    monkeypatch.setattr(core, "CANDIDATES", [*CANDIDATES, Echo])
+    result, kwargs = withheld_trial(["offset_step"], 1)
+    d = diagnose(result.readings, **kwargs, candidates=["echo", "offset_step"])
+    echo = next(r for r in d.ranking if r["effect"] == "echo")
+    assert echo["delta_bic"] < -1000 and echo["heldout_gap_after"] < 0.5 * echo["heldout_gap_before"]
+    assert echo["field_error_after"] < core.NOISE_FLOOR_FRACTION * echo["heldout_noise_floor"]
+    assert echo["degenerate"] and not echo["significant"] and "degenerate" in echo["note"]
+    assert d.accepted == ["offset_step"]
+    assert "(degenerate: below the noise held out)" in d.text()
+
+
+def test_distortion_is_the_largest_signal_dependent_block():
+    from fluxcal.diagnose.core import _distortion
+
+    rng = np.random.default_rng(0)
+    signal = rng.normal(size=(200, 3))
+    blocks = [rng.normal(size=(200, 2, 3)), signal[:, None, :], signal[:, None, :]]
+    parameters = np.array([9.0] * 9 + [5.0, 5.0, 0.3, 2.0])  # nine base parameters, then the blocks' terms
+    assert _distortion(signal, blocks, [False, True, True], parameters, 9) == pytest.approx(2.0)
+    assert _distortion(signal, blocks, [False, True, False], parameters, 9) == pytest.approx(0.3)
+    assert _distortion(signal, blocks, [False, False, False], parameters, 9) == 0.0
+
+
+def test_why_a_fit_cannot_be_an_effect():
+    from fluxcal.diagnose.core import _implausible
+
+    row = {"heldout_noise_floor": 1.0, "field_error_before": 1.5, "field_error_after": 1.1, "distortion": 0.02,
+           "coefficients": [0.01, 0.02, 0.03], "significant": True}
+    assert _implausible(row, 0.05, False) is None
+    flag, note = _implausible(dict(row, field_error_after=0.3), 0.05, False)  # below the noise held out
+    assert flag == "degenerate" and "0.30 of what the readings' noise alone leaves" in note and "0.03" in note
+    assert _implausible(dict(row, field_error_after=0.3), 0.05, True) is None  # σ an upper bound: no floor
+    flag, note = _implausible(dict(row, distortion=1.4), 0.05, False)
+    assert flag == "degenerate" and "1.4× the signal" in note
+    flag, note = _implausible(dict(row, field_error_after=1.6), 0.05, False)
+    assert flag == "field_error_rises" and "1.5 → 1.6" in note
+    assert _implausible(dict(row, field_error_after=1.6, significant=False), 0.05, False) is None

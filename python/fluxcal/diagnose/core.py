@@ -30,6 +30,18 @@ ABSORBED = 0.05       # a candidate direction is absorbed when < 5 % of it is ne
 HELDOUT_FRACTION = 0.25
 HELDOUT_ALPHA = 0.05  # the held-out improvement confirms in-sample evidence that is already strong
 MIN_GAIN = 0.1        # an effect worth modelling removes at least 10 % of the held-out gap
+# No model predicts held-out readings better than their noise allows. An effect that lowers the sensor's
+# gain where it works (saturation about a large hard iron) brings the held-out field error below the
+# linear fit's noise floor by that gain — 0.77 of it at the strongest simulated; a fit whose features
+# rebuild each reading from its own direction (coefficients of order one) brought it to 0.06–0.26 on a
+# real recording.
+NOISE_FLOOR_FRACTION = 0.5
+# A sensor's non-linearity (a cubic, a quadratic, saturation, cross-field error) changes its readings by a
+# few per cent of the signal (simulated and found: at most 15 %, saturation about a hard iron of 4.4 fields). Coefficients that
+# change them by as much as the signal itself no longer describe a sensor: features taken from the fit's own
+# signal can then stand in for the signal (a quadratic's coefficient reached 15 at the field's scale on a
+# real recording, once a drift was fitted beside it).
+MAX_DISTORTION = 1.0
 NOISE_CANDIDATES = ("colored_noise", "quantization")
 CONFOUND_BIC = 10.0   # a rival within 10 of the winner's ΔBIC is not told apart (2 ln Bayes factor < 10 is short of
                       # "very strong" evidence, Kass & Raftery 1995)
@@ -70,6 +82,12 @@ class Diagnosis:
     held-out readings' mean leverage for a fit on the rest (the variance, in noise variances, of its
     prediction there) and `heldout_gain_unresolved` whether the held-out gap's fall is within 2√2 σ √leverage
     (what the two fits' parameter noise alone can make), then said in `caveats`;
+    every judged row's `heldout_noise_floor` is the held-out field error that white noise σ alone leaves
+    through the calibration without it, and `distortion` the largest change (RMS, in units of the signal)
+    that one signal-dependent effect makes to the readings in the fit with it; a row otherwise significant
+    is not accepted, with a `note`, when its held-out field error falls below half that floor or its
+    distortion exceeds the signal (`degenerate`: its features rebuild the readings from themselves), or
+    when its held-out field error rises (`field_error_rises`: its residuals fell only through its gain);
     `significant_not_modelled` marks a candidate still significant when the `max_effects` limit stopped
     the search; an accepted row's `coefficients` and `standard_errors` are those of the final model (every
     accepted effect fitted together), the others' those of their own round. `where`: residual tables per regime;
@@ -176,7 +194,8 @@ def _noise(data: _Data, base: dict) -> tuple:
     (rows shuffled or sorted with no times given: consecutive readings differ as much as any two); then
     third differences of the base model's residuals in time order, which no longer hold the field's
     rotation. A reference-vector model's residuals hold the attitude's errors, so the
-    smaller of the two is taken."""
+    smaller of the two is taken. Returns (σ, source, bound): `bound` when σ came from residuals out of time
+    order, which hold all the model misses (an upper bound on the noise, not the noise)."""
     sigma = estimate_noise(data.m)
     source = "estimated from third differences of the readings"
     fourth = _difference_noise(data.m, 4) if len(data.m) >= 40 else sigma
@@ -193,13 +212,13 @@ def _noise(data: _Data, base: dict) -> tuple:
                       "differences), so differences in time cannot tell noise from signal (readings far apart "
                       "in time, or rows out of time order with no times given): not a time series; give "
                       "noise_sigma (the datasheet's) to test the candidates against the sensor's own noise")
-            sigma = from_residuals
+            return from_residuals, source, True
         elif from_residuals < sigma:
             source = (f"estimated from third differences of the base model's residuals: the readings' own "
                       f"differences hold the motion — fast turns, or steps between held positions ({sigma:.4g} "
                       f"from 3rd, {fourth:.4g} from 4th order)")
             sigma = from_residuals
-    return sigma, source
+    return sigma, source, False
 
 
 # ---------------------------------------------------------------- the model and its residuals
@@ -250,13 +269,7 @@ def _downstream(result: dict, data: _Data, feats, rows) -> dict:
     model, |h − r| against reference vectors), and with reference vectors the RMS angle between h and
     r and, when the down direction is known (accelerometer), the RMS heading error (the angle between
     the horizontal projections of h and r)."""
-    cal = Calibration(offset=result["offset"], matrix=result["matrix"], field_norm=data.field_norm)
-    m = data.m[rows].copy()
-    theta = np.asarray(result["parameters"])
-    nb = 12 if data.reference is not None else 9
-    if feats is not None and feats.shape[1]:
-        m -= np.einsum("p,npk->nk", theta[nb:], feats[rows])
-    h = cal.apply(m)
+    h = _calibrated(result, data, feats, rows)
     if data.reference is None:
         return {"field_error": float(np.sqrt(np.mean((np.linalg.norm(h, axis=1) - data.field_norm) ** 2)))}
     r = data.reference[rows]
@@ -269,6 +282,27 @@ def _downstream(result: dict, data: _Data, feats, rows) -> dict:
         signed = np.arctan2(np.sum(np.cross(rh, hh) * d, axis=1), np.sum(rh * hh, axis=1))
         out["heading_error_deg"] = float(np.degrees(np.sqrt(np.mean(signed ** 2))))
     return out
+
+
+def _calibrated(result: dict, data: _Data, feats, rows) -> np.ndarray:
+    """The field of the readings `rows` as the fit `result` calibrates them (its modelled effects taken off)."""
+    m = data.m[rows].copy()
+    theta = np.asarray(result["parameters"])
+    nb = 12 if data.reference is not None else 9
+    if feats is not None and feats.shape[1]:
+        m -= np.einsum("p,npk->nk", theta[nb:], feats[rows])
+    return Calibration(offset=result["offset"], matrix=result["matrix"], field_norm=data.field_norm).apply(m)
+
+
+def _noise_floor(result: dict, data: _Data, feats, rows, sigma: float) -> float:
+    """The RMS field error (as `_downstream`) that the readings' white noise σ alone leaves on `rows` through
+    the fit's matrix A: |h| − H moves by u'A n along the field direction u, |h − r| by |A n|."""
+    A = np.asarray(result["matrix"])
+    if data.reference is not None:
+        return float(sigma * np.linalg.norm(A))
+    h = _calibrated(result, data, feats, rows)
+    u = h / np.linalg.norm(h, axis=1, keepdims=True)
+    return float(sigma * np.sqrt(np.mean(np.sum((u @ A) ** 2, axis=1))))
 
 
 def _rms_angle(a: np.ndarray, b: np.ndarray) -> float:
@@ -639,11 +673,55 @@ def _evaluate(cls, data, model, state, sigma, n_candidates) -> dict:
                coefficients=np.asarray(fit["parameters"])[-feats.shape[1]:].tolist(),
                standard_errors=np.asarray(fit["standard_errors"])[-feats.shape[1]:].tolist())
     row.update(validated)
+    row["distortion"] = _distortion(ctx.signal, state["features"] + [feats],
+                                    state["signal_blocks"] + [cls.signal_features], np.asarray(fit["parameters"]),
+                                    12 if vector else 9)
     row["significant"] = bool(row["lr_pvalue"] * n_candidates < state["alpha"] and row["delta_bic"] < 0
                               and row["heldout_pvalue"] < HELDOUT_ALPHA
                               and row["heldout_gap_after"] < (1 - MIN_GAIN) * row["heldout_gap_before"])
+    flag = _implausible(row, sigma, state["sigma_bound"])
+    if flag:
+        row[flag[0]], row["note"], row["significant"] = True, flag[1], False
     row["_fit"], row["_features"], row["_signature"] = fit, feats, signature
+    row["_signal_features"] = cls.signal_features
     return row
+
+
+def _implausible(row: dict, sigma: float, sigma_bound: bool):
+    """Why a candidate's fit cannot be an effect whatever its evidence, as (the row's flag, a note), or None."""
+    floor, before, after = row["heldout_noise_floor"], row["field_error_before"], row["field_error_after"]
+    # (a σ that holds the model's misses is no floor: a right model goes below it)
+    if not sigma_bound and after < NOISE_FLOOR_FRACTION * floor:
+        coefficients = row["coefficients"]
+        return "degenerate", (
+            f"not accepted: held out, its fit gives a field error of {after:.3g}, {after / floor:.2f} of what the "
+            f"readings' noise alone leaves there ({floor:.3g}, σ {sigma:.3g} through the calibration). No model "
+            "predicts better than the noise: its features rebuild each reading from itself (a degenerate fit"
+            + (", coefficients " + ", ".join(f"{c:.3g}" for c in coefficients) if len(coefficients) <= 6 else "")
+            + "), or the noise σ is overestimated")
+    if row["distortion"] > MAX_DISTORTION:
+        return "degenerate", (
+            f"not accepted: with it, the model's signal-dependent effects change the readings by "
+            f"{row['distortion']:.3g}× the signal (RMS) — no sensor's non-linearity; their features, taken from "
+            "the fit's own signal, stand in for the signal (a degenerate fit)")
+    # Its residuals fell only in reading units: a fit can lower them by changing its own gain (the residual
+    # is the field error over it) while the calibrated field departs further from the truth.
+    if row["significant"] and after > before:
+        return "field_error_rises", (f"not accepted: held out, it lowers the residuals but raises the calibrated "
+                                     f"field's error {before:.3g} → {after:.3g}")
+    return None
+
+
+def _distortion(signal: np.ndarray, blocks: list, signal_dependent: list, parameters: np.ndarray, lo: int) -> float:
+    """The largest change that one signal-dependent block of a fit makes to the readings, RMS over the
+    readings, in units of the signal's RMS (0 without such blocks)."""
+    out, size = 0.0, np.linalg.norm(signal)
+    for feats, dependent in zip(blocks, signal_dependent):
+        p = feats.shape[1]
+        if dependent:
+            out = max(out, float(np.linalg.norm(np.einsum("p,npk->nk", parameters[lo:lo + p], feats)) / size))
+        lo += p
+    return out
 
 
 def _non_affine(feats: np.ndarray, signal: np.ndarray) -> np.ndarray:
@@ -810,6 +888,7 @@ def _richer_shape(data: _Data, model: str, state: dict, cls, row: dict) -> None:
 def _with(state: dict, row: dict, vector: bool) -> dict:
     """A copy of `state` with the candidate of `row` added (its features and its fit)."""
     return dict(state, features=state["features"] + [row["_features"]], result=row["_fit"], train_fits={},
+                signal_blocks=state["signal_blocks"] + [row["_signal_features"]],
                 validated=state["validated"] + [row.get("_validated", row["_features"])],
                 terms=np.asarray(row["_fit"]["parameters"])[12 if vector else 9:])
 
@@ -924,6 +1003,7 @@ def _validate(data, model, state, feats, regime, sigma) -> dict:
     e0 = _residuals(before, data, base_feats, held)
     e1 = _residuals(after, data, all_feats, held)
     return {"heldout": regime, "heldout_n": int(held.sum()),
+            "heldout_noise_floor": _noise_floor(before, data, base_feats, held, sigma),
             "heldout_gap_before": _gap(e0, sigma), "heldout_gap_after": _gap(e1, sigma),
             "heldout_rms_before": float(np.sqrt(np.mean(e0 ** 2))), "heldout_rms_after": float(np.sqrt(np.mean(e1 ** 2))),
             "heldout_pvalue": _improvement_pvalue(e0, e1),
@@ -1314,13 +1394,13 @@ def diagnose(samples, t=None, temp=None, reference=None, gravity=None, field_nor
                             units=units, model=model)
     base = _fit(data, start, fixed, None)
     if noise_sigma is None:
-        sigma, noise_source = _noise(data, base)
+        sigma, noise_source, sigma_bound = _noise(data, base)
         step = quantization_step(data.m)
         if sigma < step / np.sqrt(12.0):  # rounding alone leaves LSB/√12 even when the noise is below 1 LSB
             sigma = step / np.sqrt(12.0)
             noise_source += f", raised to the quantization floor {step:.4g}/√12 (readings on a {step:.4g} grid)"
     else:
-        sigma, noise_source = float(noise_sigma), "given"
+        sigma, noise_source, sigma_bound = float(noise_sigma), "given", False
     if data.notes:
         noise_source += "; " + "; ".join(data.notes)
     if not sigma > 0:
@@ -1346,7 +1426,8 @@ def diagnose(samples, t=None, temp=None, reference=None, gravity=None, field_nor
         warnings.warn(unit, stacklevel=2)
     e0 = np.asarray(base["residuals"])
     where = _where(data, e0, sigma, directions, vector)
-    state = {"start": start, "result": base, "features": [], "validated": [], "terms": np.zeros(0), "train_fits": {},
+    state = {"start": start, "result": base, "features": [], "signal_blocks": [], "validated": [], "terms": np.zeros(0),
+             "train_fits": {}, "sigma_bound": sigma_bound,
              "directions": directions, "alpha": alpha}
     accepted, last_rows = [], {}
     n_candidates = max(len(pool), 1)
@@ -1469,7 +1550,7 @@ def diagnose(samples, t=None, temp=None, reference=None, gravity=None, field_nor
                   key=lambda r: (r.get("absorbed", False), r["effect"] in NOISE_CANDIDATES, r["delta_bic"]))
     ranking += rest
     for r in ranking:
-        for key in ("_fit", "_features", "_signature", "_rivals"):
+        for key in ("_fit", "_features", "_signature", "_rivals", "_signal_features"):
             r.pop(key, None)
         r.setdefault("significant", False)
         r["significant"] = r["effect"] in accepted
