@@ -632,17 +632,6 @@ def test_a_cubic_about_a_large_hard_iron_is_found_alone():
         assert not diagnose(result.readings, **kwargs).accepted
 
 
-def test_a_quadratic_about_a_large_hard_iron_is_found_alone():
-    # About a hard iron b a cubic is c (b³ + 3b² x + 3b x² + x³), x = s − b: the offset and the matrix hold the
-    # first two terms, so its evidence is mostly 3c b x², the quadratic's own shape; only x³ tells them apart.
-    # A quadratic withheld (seeds 0–2: hard iron 4.4, 2.7, 1.4 fields) must be found alone, no cubic beside it.
-    for seed in range(3):
-        result, kwargs = withheld_trial(["nonlinearity_quadratic"], seed, hard_iron=6.0, soft_iron=0.15)
-        d = diagnose(result.readings, **kwargs)
-        assert d.accepted == ["nonlinearity_quadratic"], (seed, d.accepted)
-        assert d.remaining["overall"]["gap"] < 0.5 * 0.05, (seed, d.remaining["overall"]["gap"])
-
-
 def test_saturation_about_a_large_hard_iron_is_found_as_saturation():
     # About a hard iron of several fields the signal reaches the limit L (4× the field here): L tanh(s/L) is far
     # from its first-order cubic, and the per-axis cubic won (0/3 before the limit was profiled). Now the limit is

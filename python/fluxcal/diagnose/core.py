@@ -815,12 +815,7 @@ def _at_own_signal(cls, data: _Data, fixed, state: dict, feats: np.ndarray, fit:
         # Both must fall: features taken from the fit's own signal can also subtract part of the signal and
         # shrink what is left, which lowers the residuals in reading units (Sampson) while the corrected
         # field departs further from |h| = H (the QMC5883L recording: held-out gap → 0, field error 28 → 75).
-        # Within the noise, though: the field error's sum of squares may rise by what refitting the parameters
-        # to noise makes (a noise variance each). A strict e ≤ error stopped a quadratic about a hard iron of
-        # 4.4 fields at its first features (its field error's squares up 1.7 σ², 0.03 %, its residuals' down
-        # 5 σ²), and the cubic was then accepted for what they left.
-        rise = len(data.m) * (e ** 2 - error ** 2)
-        if not (r < rss and rise <= len(trial["parameters"]) * sigma ** 2):
+        if not (r < rss and e <= error):
             break
         feats, fit, gain, rss, error, value = new, trial, rss - r, r, e, candidate
         if gain < sigma ** 2:
