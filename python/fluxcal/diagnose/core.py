@@ -772,7 +772,7 @@ SIGNAL_ITERATIONS = 20  # at most (a 1.5 % cubic about a hard iron of 4.4 fields
 
 def _at_own_signal(cls, data: _Data, fixed, state: dict, feats: np.ndarray, fit: dict, scale: float, sigma: float,
                    value=None):
-    """A candidate non-linear in the signal (s³, s², s·s_easy) has its features computed from the base fit's
+    """A candidate non-linear in the signal (s³, s·s_easy) has its features computed from the base fit's
     estimate of the signal, s = b + W h. The base fit, without the effect, absorbs the effect's constant and
     linear parts into b and W (a cubic per axis about a hard iron b adds c b³ to the offset and 3c b² to the
     scale): the features are then evaluated at a shifted and scaled signal, and a shifted cubic holds a

@@ -12,8 +12,7 @@ def _num(x, fmt=".3g") -> str:
 
 
 def ranking_lines(d) -> list:
-    width = max([20] + [len(r["effect"]) for r in d.ranking])  # nonlinearity_quadratic: 22 characters
-    head = (f"{'effect':{width}s} {'signif.':>7s} {'ΔBIC':>10s} {'LR p':>9s} {'dims':>4s} {'held out':>11s} "
+    head = (f"{'effect':20s} {'signif.':>7s} {'ΔBIC':>10s} {'LR p':>9s} {'dims':>4s} {'held out':>11s} "
             f"{'gap before':>10s} {'gap after':>10s} downstream (held out) before → after")
     lines = [head, "-" * len(head)]
     for r in d.ranking:
@@ -27,7 +26,7 @@ def ranking_lines(d) -> list:
                 else "  (not judged: its refit failed)" if r.get("note", "").startswith("not judged")
                 else "  (degenerate: below the noise held out)" if r.get("degenerate")
                 else "  (not accepted: the field error rises held out)" if r.get("field_error_rises") else "")
-        lines.append(f"{r['effect']:{width}s} {'YES' if r['significant'] else 'no':>7s} {r['delta_bic']:10.1f} "
+        lines.append(f"{r['effect']:20s} {'YES' if r['significant'] else 'no':>7s} {r['delta_bic']:10.1f} "
                      f"{r['lr_pvalue']:9.2g} {r.get('new_dimensions', 0):4d} {str(r.get('heldout', '')):>11s} "
                      f"{_num(r.get('heldout_gap_before')):>10s} {_num(r.get('heldout_gap_after')):>10s} "
                      f"{fe}{note}")

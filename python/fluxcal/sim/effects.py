@@ -302,35 +302,6 @@ class CubicNonlinearity(Effect):
 
 
 @dataclass
-class QuadraticNonlinearity(Effect):
-    """m_k = s_k + c_k s_k² / S: `relative[k]` is the error fraction at |s_k| = S (`scale`), of opposite sign
-    at +S and −S — an axis that reads a field and the same field reversed with different sensitivities. Even
-    order, which neither the cubic nor saturation (odd in s) can make. Typical ±0.5–1 % at S (the two readings
-    of ±S 1–2 % apart), within the ±0.5 % FS linearity class of the cubic's sensors: a Hall or AMR bridge whose
-    halves are not matched (elements of unequal sensitivity or bias), so that it responds unequally to the
-    two signs of the field."""
-
-    relative: np.ndarray
-    scale: float
-    name = "nonlinearity_quadratic"
-    n_params = 3
-    signal_features = True
-
-    def apply(self, values, context):
-        return values + np.asarray(self.relative) * values ** 2 / self.scale
-
-    @classmethod
-    def features(cls, ctx):
-        # About a hard iron b, s² = b² + 2bx + x²: the offset and the matrix hold the first two, so the
-        # evidence is x² alone (odd in the field's direction on a magnitude, which no ellipsoid makes)
-        return _per_axis(ctx.signal ** 2 / ctx.scale)
-
-    @classmethod
-    def typical(cls, field_norm, rng):
-        return cls(rng.choice([-1, 1], 3) * rng.uniform(0.005, 0.01, 3), field_norm)
-
-
-@dataclass
 class Saturation(Effect):
     """Soft saturation of every axis at `limit`: m = L tanh(s / L). Typical: L = 4× the field (a 2 G range
     sensor in 0.5 G) — 2 % compression at the field's magnitude.
@@ -858,9 +829,9 @@ class Quantization(Effect):
         return self.step * np.round(values / self.step)
 
 
-CANDIDATES = (TemperatureScale, TemperatureOffset, MotorCurrent, OffsetDrift, CubicNonlinearity, QuadraticNonlinearity,
-              Saturation, CrossAxis, NonOrthogonality, Misalignment, Hysteresis, MovingDipole, OffsetStep, EddyCurrent,
-              TimeOffset, ColoredNoise, Quantization)
+CANDIDATES = (TemperatureScale, TemperatureOffset, MotorCurrent, OffsetDrift, CubicNonlinearity, Saturation, CrossAxis,
+              NonOrthogonality, Misalignment, Hysteresis, MovingDipole, OffsetStep, EddyCurrent, TimeOffset,
+              ColoredNoise, Quantization)
 """Every effect the diagnosis can rank, by its candidate name (`fluxcal diagnose` documents them)."""
 
 
