@@ -715,7 +715,7 @@ def test_a_candidate_that_rebuilds_the_readings_from_themselves_is_not_accepted(
     echo = next(r for r in d.ranking if r["effect"] == "echo")
     assert echo["delta_bic"] < -1000 and echo["heldout_gap_after"] < 0.5 * echo["heldout_gap_before"]
     assert echo["field_error_after"] < core.NOISE_FLOOR_FRACTION * echo["heldout_noise_floor"]
-    assert echo["degenerate"] and not echo["significant"] and "degenerate" in echo["note"]
+    assert echo["degenerate"] == "below the noise held out" and not echo["significant"] and "degenerate" in echo["note"]
     assert d.accepted == ["offset_step"]
     assert "(degenerate: below the noise held out)" in d.text()
 
@@ -738,11 +738,11 @@ def test_why_a_fit_cannot_be_an_effect():
     row = {"heldout_noise_floor": 1.0, "field_error_before": 1.5, "field_error_after": 1.1, "distortion": 0.02,
            "coefficients": [0.01, 0.02, 0.03], "significant": True}
     assert _implausible(row, 0.05, False) is None
-    flag, note = _implausible(dict(row, field_error_after=0.3), 0.05, False)  # below the noise held out
-    assert flag == "degenerate" and "0.30 of what the readings' noise alone leaves" in note and "0.03" in note
+    flag, why, note = _implausible(dict(row, field_error_after=0.3), 0.05, False)  # below the noise held out
+    assert (flag, why) == ("degenerate", "below the noise held out") and "0.30 of what the readings' noise alone leaves" in note and "0.03" in note
     assert _implausible(dict(row, field_error_after=0.3), 0.05, True) is None  # σ an upper bound: no floor
-    flag, note = _implausible(dict(row, distortion=1.4), 0.05, False)
-    assert flag == "degenerate" and "1.4× the signal" in note
-    flag, note = _implausible(dict(row, field_error_after=1.6), 0.05, False)
-    assert flag == "field_error_rises" and "1.5 → 1.6" in note
+    flag, why, note = _implausible(dict(row, distortion=1.4), 0.05, False)
+    assert (flag, why) == ("degenerate", "changes the readings more than the signal") and "1.4× the signal" in note
+    flag, why, note = _implausible(dict(row, field_error_after=1.6), 0.05, False)
+    assert flag == "field_error_rises" and why and "1.5 → 1.6" in note
     assert _implausible(dict(row, field_error_after=1.6, significant=False), 0.05, False) is None

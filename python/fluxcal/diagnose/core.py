@@ -36,11 +36,11 @@ MIN_GAIN = 0.1        # an effect worth modelling removes at least 10 % of the h
 # rebuild each reading from its own direction (coefficients of order one) brought it to 0.06–0.26 on a
 # real recording.
 NOISE_FLOOR_FRACTION = 0.5
-# A sensor's non-linearity (a cubic, a quadratic, saturation, cross-field error) changes its readings by a
-# few per cent of the signal (simulated and found: at most 15 %, saturation about a hard iron of 4.4 fields). Coefficients that
-# change them by as much as the signal itself no longer describe a sensor: features taken from the fit's own
-# signal can then stand in for the signal (a quadratic's coefficient reached 15 at the field's scale on a
-# real recording, once a drift was fitted beside it).
+# A sensor's non-linearity (a cubic, saturation, cross-field error) changes its readings by a few per cent of
+# the signal (simulated and found: at most 15 %, saturation about a hard iron of 4.4 fields). Coefficients
+# that change them by as much as the signal itself no longer describe a sensor: features taken from the fit's
+# own signal can then stand in for the signal (an even-order candidate, tried on the QMC5883L recording,
+# reached a coefficient of 15 at the signal's scale once a drift was fitted beside it).
 MAX_DISTORTION = 1.0
 NOISE_CANDIDATES = ("colored_noise", "quantization")
 CONFOUND_BIC = 10.0   # a rival within 10 of the winner's ΔBIC is not told apart (2 ln Bayes factor < 10 is short of
@@ -86,7 +86,8 @@ class Diagnosis:
     through the calibration without it, and `distortion` the largest change (RMS, in units of the signal)
     that one signal-dependent effect makes to the readings in the fit with it; a row otherwise significant
     is not accepted, with a `note`, when its held-out field error falls below half that floor or its
-    distortion exceeds the signal (`degenerate`: its features rebuild the readings from themselves), or
+    distortion exceeds the signal (`degenerate`, which of the two: its features rebuild the readings from
+    themselves), or
     when its held-out field error rises (`field_error_rises`: its residuals fell only through its gain);
     `significant_not_modelled` marks a candidate still significant when the `max_effects` limit stopped
     the search; an accepted row's `coefficients` and `standard_errors` are those of the final model (every
@@ -681,33 +682,34 @@ def _evaluate(cls, data, model, state, sigma, n_candidates) -> dict:
                               and row["heldout_gap_after"] < (1 - MIN_GAIN) * row["heldout_gap_before"])
     flag = _implausible(row, sigma, state["sigma_bound"])
     if flag:
-        row[flag[0]], row["note"], row["significant"] = True, flag[1], False
+        row[flag[0]], row["note"], row["significant"] = flag[1], flag[2], False
     row["_fit"], row["_features"], row["_signature"] = fit, feats, signature
     row["_signal_features"] = cls.signal_features
     return row
 
 
 def _implausible(row: dict, sigma: float, sigma_bound: bool):
-    """Why a candidate's fit cannot be an effect whatever its evidence, as (the row's flag, a note), or None."""
+    """Why a candidate's fit cannot be an effect whatever its evidence, as (the row's flag, its value, a note),
+    or None."""
     floor, before, after = row["heldout_noise_floor"], row["field_error_before"], row["field_error_after"]
     # (a σ that holds the model's misses is no floor: a right model goes below it)
     if not sigma_bound and after < NOISE_FLOOR_FRACTION * floor:
         coefficients = row["coefficients"]
-        return "degenerate", (
+        return "degenerate", "below the noise held out", (
             f"not accepted: held out, its fit gives a field error of {after:.3g}, {after / floor:.2f} of what the "
             f"readings' noise alone leaves there ({floor:.3g}, σ {sigma:.3g} through the calibration). No model "
             "predicts better than the noise: its features rebuild each reading from itself (a degenerate fit"
             + (", coefficients " + ", ".join(f"{c:.3g}" for c in coefficients) if len(coefficients) <= 6 else "")
             + "), or the noise σ is overestimated")
     if row["distortion"] > MAX_DISTORTION:
-        return "degenerate", (
+        return "degenerate", "changes the readings more than the signal", (
             f"not accepted: with it, the model's signal-dependent effects change the readings by "
             f"{row['distortion']:.3g}× the signal (RMS) — no sensor's non-linearity; their features, taken from "
             "the fit's own signal, stand in for the signal (a degenerate fit)")
     # Its residuals fell only in reading units: a fit can lower them by changing its own gain (the residual
     # is the field error over it) while the calibrated field departs further from the truth.
     if row["significant"] and after > before:
-        return "field_error_rises", (f"not accepted: held out, it lowers the residuals but raises the calibrated "
+        return "field_error_rises", True, (f"not accepted: held out, it lowers the residuals but raises the calibrated "
                                      f"field's error {before:.3g} → {after:.3g}")
     return None
 

@@ -24,7 +24,7 @@ def ranking_lines(d) -> list:
             fe += f"; angle {r['direction_error_deg_before']:.3g}° → {r['direction_error_deg_after']:.3g}°"
         note = ("  (absorbed)" if r.get("absorbed")
                 else "  (not judged: its refit failed)" if r.get("note", "").startswith("not judged")
-                else "  (degenerate: below the noise held out)" if r.get("degenerate")
+                else f"  (degenerate: {r['degenerate']})" if r.get("degenerate")
                 else "  (not accepted: the field error rises held out)" if r.get("field_error_rises") else "")
         lines.append(f"{r['effect']:20s} {'YES' if r['significant'] else 'no':>7s} {r['delta_bic']:10.1f} "
                      f"{r['lr_pvalue']:9.2g} {r.get('new_dimensions', 0):4d} {str(r.get('heldout', '')):>11s} "
