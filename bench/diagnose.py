@@ -154,6 +154,25 @@ def warm_up(n: int):
                   f"{', '.join(f'{k} {v}/{n}' for k, v in flagged.items()) or '—'} | {wrong}/{n} |")
 
 
+def margins(n: int, only=None, **sim):
+    """How far the accepted effects of blind trials stay from the degenerate-fit guards (fluxcal.diagnose.core):
+    the held-out field error over the noise floor (refused below NOISE_FLOOR_FRACTION), the distortion (refused
+    above MAX_DISTORTION) and the held-out field error after over before (refused above 1)."""
+    print("| withheld effect | trials | accepted rows | field error / floor (min) | distortion (max) | "
+          "field error after / before (max) |")
+    print("|---|---:|---:|---:|---:|---:|")
+    for cls in [c for c in CANDIDATES if not only or c.name in only]:
+        rows = []
+        for seed in range(n):
+            r, kw = withheld_trial([cls.name], seed, **sim)
+            d = diagnose(r.readings, **kw)
+            rows += [x for x in d.ranking if x["significant"] and x.get("heldout_noise_floor")]
+        floor = min((x["field_error_after"] / x["heldout_noise_floor"] for x in rows), default=None)
+        distortion = max((x["distortion"] for x in rows), default=None)
+        rise = max((x["field_error_after"] / x["field_error_before"] for x in rows), default=None)
+        print(f"| {cls.name} | {n} | {len(rows)} | {_g(floor)} | {_g(distortion)} | {_g(rise)} |", flush=True)
+
+
 def timing():
     r, kw = withheld_trial(["temp_scale"], 1, duration_s=400.0)  # 20 000 readings
     t0 = time.perf_counter()
@@ -170,6 +189,7 @@ if __name__ == "__main__":
     p.add_argument("--trials", type=int)
     p.add_argument("--timing", action="store_true")
     p.add_argument("--nulls", type=int, help="only the trials with nothing withheld")
+    p.add_argument("--margins", type=int, help="trials per effect: the accepted rows' distance from the guards")
     p.add_argument("--warm-up", type=int)
     p.add_argument("--only", nargs="*", help="withheld effects to run (default all)")
     p.add_argument("--noise", type=float, default=0.05, help="white noise σ of the trials, µT (field 50 µT)")
@@ -190,6 +210,8 @@ if __name__ == "__main__":
         injected(args.inject, args.trials or 3, args.only, args.strength, args.recordings)
     elif args.trials:
         trials(args.trials, args.only, **sim)
+    if args.margins:
+        margins(args.margins, args.only, **sim)
     if args.timing:
         timing()
     if args.warm_up:
