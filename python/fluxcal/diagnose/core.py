@@ -33,7 +33,7 @@ MIN_GAIN = 0.1        # an effect worth modelling removes at least 10 % of the h
 # No model predicts held-out readings better than their noise allows. An effect that lowers the sensor's
 # gain where it works (saturation about a large hard iron) brings the held-out field error below the
 # linear fit's noise floor by that gain — 0.77 of it at the strongest simulated; a fit whose features
-# rebuild each reading from its own direction (coefficients of order one) brought it to 0.06–0.26 on a
+# rebuild each reading from its own direction (coefficients of order one) brought it to 0.06–0.32 on a
 # real recording.
 NOISE_FLOOR_FRACTION = 0.5
 # A sensor's non-linearity (a cubic, saturation, cross-field error) changes its readings by a few per cent of
@@ -87,8 +87,8 @@ class Diagnosis:
     that one signal-dependent effect makes to the readings in the fit with it; a row otherwise significant
     is not accepted, with a `note`, when its held-out field error falls below half that floor or its
     distortion exceeds the signal (`degenerate`, which of the two: its features rebuild the readings from
-    themselves), or
-    when its held-out field error rises (`field_error_rises`: its residuals fell only through its gain);
+    themselves), or when its held-out field error rises (`field_error_rises`: its residuals fell only
+    through its gain);
     `significant_not_modelled` marks a candidate still significant when the `max_effects` limit stopped
     the search; an accepted row's `coefficients` and `standard_errors` are those of the final model (every
     accepted effect fitted together), the others' those of their own round. `where`: residual tables per regime;
@@ -709,8 +709,8 @@ def _implausible(row: dict, sigma: float, sigma_bound: bool):
     # Its residuals fell only in reading units: a fit can lower them by changing its own gain (the residual
     # is the field error over it) while the calibrated field departs further from the truth.
     if row["significant"] and after > before:
-        return "field_error_rises", True, (f"not accepted: held out, it lowers the residuals but raises the calibrated "
-                                     f"field's error {before:.3g} → {after:.3g}")
+        return "field_error_rises", True, ("not accepted: held out, it lowers the residuals but raises the "
+                                           f"calibrated field's error {before:.3g} → {after:.3g}")
     return None
 
 
