@@ -171,14 +171,18 @@ def _lstsq_snapshots(A, target, X, known):
         coef = _lstsq(X.reshape(-1, p), r0.ravel()) if p else np.zeros(0)
         return r0 - (np.einsum("kip,p->ki", X, coef) if p else 0.0), known, coef
     Q, R = np.linalg.qr(A)
-    proj = lambda v: v - np.einsum("kij,kj->ki", Q, np.einsum("kij,ki->kj", Q, v))  # noqa: E731
+    proj = lambda v: _off_currents(Q, v[..., None])[..., 0]  # noqa: E731
     coef = np.zeros(0)
     if p:
-        Xp = X - np.einsum("kij,kjp->kip", Q, np.einsum("kji,kjp->kip", Q, X))
-        coef = _lstsq(Xp.reshape(-1, p), proj(target).ravel())
+        coef = _lstsq(_off_currents(Q, X).reshape(-1, p), proj(target).ravel())
         target = target - np.einsum("kip,p->ki", X, coef)
     cur = np.linalg.solve(R, np.einsum("kij,ki->kj", Q, target)[..., None])[..., 0]
     return proj(target), cur, coef
+
+
+def _off_currents(Q: np.ndarray, Z: np.ndarray) -> np.ndarray:
+    """Z (k, 2M, q) less its part in each snapshot's currents' columns (orthonormal Q (k, 2M, n))."""
+    return Z - np.einsum("kij,kjq->kiq", Q, np.einsum("kji,kjq->kiq", Q, Z))
 
 
 def _project_out(A, X, known, Z):
@@ -186,9 +190,9 @@ def _project_out(A, X, known, Z):
     A (k, 2M, n) per snapshot (unless `known`) and the shared columns X (k, 2M, p) or None."""
     if known is None:
         Q, _ = np.linalg.qr(A)
-        Z = Z - np.einsum("kij,kjq->kiq", Q, np.einsum("kji,kjq->kiq", Q, Z))
+        Z = _off_currents(Q, Z)
         if X is not None:
-            X = X - np.einsum("kij,kjp->kip", Q, np.einsum("kji,kjp->kip", Q, X))
+            X = _off_currents(Q, X)
     if X is None or not X.shape[-1]:
         return Z
     q = Z.shape[-1]
@@ -289,24 +293,6 @@ def _solve_linear(data: _Data, positions, feats, rows, coefficients=None, fit_cu
         warm["coefficients"], warm["currents"] = coef, (None if known is not None else cur)
         warm["system"] = system  # its last iteration's columns: the fit's Jacobian projects them out
     return r.reshape(k, m, 2), cur, coef
-
-
-def _weighted_model(data: _Data, positions, feats, rows, currents, coefficients) -> np.ndarray:
-    """Weighted model readings (k, M, 2) on `rows` at `positions` with `feats` (as `_solve_linear` takes
-    them) and the currents and coefficients held: (1 + δ) ⊙ ((G + F c) I or G I + F c) + β."""
-    m = data.shape[1]
-    ncal = 4 * m if data.refines else 0
-    coefficients = np.asarray(coefficients)
-    reading_per_amp = _unit(data, positions)[data.rot_index[rows]]
-    F, c = (None if feats is None else feats[rows]), coefficients[ncal:]
-    if F is not None and F.ndim == 5 and len(c):  # per ampere (also with known currents: `currents` are them)
-        reading_per_amp = reading_per_amp + np.einsum("kmapn,p->kman", F, c)
-    reading = np.einsum("kman,kn->kma", reading_per_amp, currents)
-    if F is not None and F.ndim == 4 and len(c):
-        reading = reading + F @ c
-    if ncal:
-        reading = (1 + coefficients[:2 * m].reshape(m, 2)) * reading + coefficients[2 * m:ncal].reshape(m, 2)
-    return reading * data.weights[rows][:, :, None]
 
 
 def _zero_sum_basis(size: int) -> np.ndarray:
@@ -417,7 +403,7 @@ class _Model:
                 residual(x)
             at_x = dict(last)
             held = at_x["currents"], at_x["coefficients"]
-            base = _weighted_model(self.data, unpack(x)[0], at_x["feats"], rows, *held)
+            base = self._readings(unpack(x)[0], at_x["feats"], rows, *held)
             J = np.empty((base.size, x.size))
             D = np.empty(base.shape[:1] + (base[0].size, npos))  # (k, 2M, positions)
             for j in range(x.size):
@@ -425,7 +411,7 @@ class _Model:
                 xs[j] += np.sqrt(np.finfo(float).eps) * max(1.0, abs(xs[j]))
                 if j < npos:
                     pos, trial = unpack(xs)
-                    model = _weighted_model(self.data, pos, self.solver_features(pos, trial), rows, *held)
+                    model = self._readings(pos, self.solver_features(pos, trial), rows, *held)
                     D[..., j] = ((model - base) / (xs[j] - x[j])).reshape(D.shape[:2])
                 else:  # a term's non-linear parameter: the residual re-solved
                     J[:, j] = (residual(xs) - at_x["r"]) / (xs[j] - x[j])
@@ -453,15 +439,23 @@ class _Model:
         return (np.asarray(coefficients[:2 * m]).reshape(m, 2), np.asarray(coefficients[2 * m:4 * m]).reshape(m, 2),
                 np.asarray(coefficients[4 * m:]))
 
-    def _predict(self, pos, fit, rows):
-        """Weighted model readings (k, M, 2) on `rows` (the fit's) at positions `pos` with the currents,
-        coefficients and terms of `fit`: (1 + δ) ⊙ (G I + F c) + β."""
-        delta, beta, c = self._split(fit["coefficients"])
-        reading = np.einsum("kman,kn->kma", _unit(self.data, pos)[self.data.rot_index[rows]], fit["currents"])
-        feats = self.features_at(fit, pos, rows)
-        if feats is not None and len(c):
-            reading = reading + feats @ c
+    def _readings(self, pos, feats, rows, currents, coefficients):
+        """Weighted model readings (k, M, 2) on `rows` at positions `pos` with `feats` (as `solver_features`
+        gives them: per ampere when the currents are fitted) and the currents and coefficients held:
+        (1 + δ) ⊙ ((G + F c) I or G I + F c) + β."""
+        delta, beta, c = self._split(coefficients)
+        per_amp = _unit(self.data, pos)[self.data.rot_index[rows]]
+        if feats is not None and feats.ndim == 5 and len(c):
+            per_amp = per_amp + np.einsum("kmapn,p->kman", feats[rows], c)
+        reading = np.einsum("kman,kn->kma", per_amp, currents)
+        if feats is not None and feats.ndim == 4 and len(c):
+            reading = reading + feats[rows] @ c
         return ((1 + delta) * reading + beta) * self.data.weights[rows][:, :, None]
+
+    def _predict(self, pos, fit, rows):
+        """`_readings` with the currents, coefficients and terms of `fit` (on its `rows`)."""
+        return self._readings(pos, self.solver_features(pos, fit["terms"]), rows, fit["currents"],
+                              fit["coefficients"])
 
     def basis(self, fit):
         """What the model's own parameters can do to the weighted residuals of `fit`: (project, U) with
@@ -498,8 +492,7 @@ class _Model:
             Q, _ = np.linalg.qr(A)
 
             def project(Z):
-                Zk = Z.reshape(k, -1, Z.shape[-1])
-                return (Zk - np.einsum("kij,kjp->kip", Q, np.einsum("kji,kjp->kip", Q, Zk))).reshape(Z.shape)
+                return _off_currents(Q, Z.reshape(k, -1, Z.shape[-1])).reshape(Z.shape)
         else:
             def project(Z):
                 return Z
