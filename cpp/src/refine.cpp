@@ -33,46 +33,25 @@ double sampson(const double* m, const double* th, double H, double* jac /* 9 or 
   const Eigen::Vector3d d(m[0] - th[0], m[1] - th[1], m[2] - th[2]);
   const Eigen::Vector3d h = A * d, g = A * h;
   const double sn = h.norm(), q = g.norm();
-  const double r = (sn - H) * sn / q;
+  const double inv_q = 1.0 / q;  // a refine evaluates this ~10 times a reading: two divisions, not six
+  const double r = (sn - H) * sn * inv_q;
   if (jac) {
-    const Eigen::Vector3d uh = h / sn, ug = g / q;
-    const double cs = (2.0 * sn - H) / q, cq = r / q;
+    const double inv_sn = 1.0 / sn;
+    const Eigen::Vector3d uh = h * inv_sn, ug = g * inv_q;
+    const double cs = (2.0 * sn - H) * inv_q, cq = r * inv_q;
     const Eigen::Vector3d Aug = A * ug;
-    // d/db: ds = −(A ĥ)ᵀ db, dq = −(A² ĝ)ᵀ db
-    const Eigen::Vector3d jb = -cs * (A * uh) + cq * (A * Aug);
-    for (int k = 0; k < 3; ++k) jac[k] = jb(k);
-    auto form = [](const Eigen::Vector3d& u, const Eigen::Vector3d& v, int k, int l) {
-      return k == l ? u(k) * v(k) : u(k) * v(l) + u(l) * v(k);
-    };
+    // d/db: ds = −(A ĥ)ᵀ db = −(g/|h|)ᵀ db, dq = −(A² ĝ)ᵀ db
+    const Eigen::Vector3d jb = -cs * inv_sn * g + cq * (A * Aug);
+    jac[0] = jb(0), jac[1] = jb(1), jac[2] = jb(2);
     for (int c = 0; c < 6; ++c) {
       const int k = kSym[c][0], l = kSym[c][1];
-      const double ds = form(uh, d, k, l);
-      const double dq = form(ug, h, k, l) + form(Aug, d, k, l);
+      const double ds = k == l ? uh(k) * d(k) : uh(k) * d(l) + uh(l) * d(k);
+      const double dq = k == l ? ug(k) * h(k) + Aug(k) * d(k) : ug(k) * h(l) + ug(l) * h(k) + Aug(k) * d(l) + Aug(l) * d(k);
       jac[3 + c] = cs * ds - cq * dq;
     }
   }
   return r;
 }
-
-// All N Sampson residuals in one block (plain least squares: Ceres then works on one dense N×9
-// Jacobian instead of N small blocks).
-class MagnitudeBatch : public ceres::CostFunction {
- public:
-  MagnitudeBatch(const SamplesRef& m, double H) : m_(m), H_(H) {
-    set_num_residuals(static_cast<int>(m.rows()));
-    mutable_parameter_block_sizes()->push_back(9);
-  }
-  bool Evaluate(double const* const* p, double* r, double** jac) const override {
-    const Samples& m = m_;
-    for (Eigen::Index i = 0; i < m.rows(); ++i)
-      r[i] = sampson(m.row(i).data(), p[0], H_, jac && jac[0] ? jac[0] + 9 * i : nullptr);
-    return true;
-  }
-
- private:
-  Samples m_;  // a packed copy: rows must be contiguous for sampson()
-  double H_;
-};
 
 // One Sampson residual (a robust loss acts per residual block).
 class MagnitudeOne : public ceres::SizedCostFunction<1, 9> {
@@ -147,16 +126,30 @@ class ShapeManifold : public ceres::Manifold {
   Eigen::MatrixXd P_, pinv_;
 };
 
-// r = m − W ref − b.
-struct VectorResidual {
-  double m[3];
-  double ref[3];
-  template <class T>
-  bool operator()(const T* th, T* r) const {
-    for (int j = 0; j < 3; ++j)
-      r[j] = T(m[j]) - th[j] - th[3 + 3 * j] * ref[0] - th[4 + 3 * j] * ref[1] - th[5 + 3 * j] * ref[2];
+// The vector model's residual r = m − W ref − b (θ = [b, W row-major]) and, when `jac` is given,
+// its 3×12 Jacobian (row-major), which does not depend on θ: the model is linear.
+void vector_residual(const double* m, const double* ref, const double* th, double* r, double* jac) {
+  for (int a = 0; a < 3; ++a) {
+    r[a] = m[a] - th[a] - th[3 + 3 * a] * ref[0] - th[4 + 3 * a] * ref[1] - th[5 + 3 * a] * ref[2];
+    if (!jac) continue;
+    double* row = jac + 12 * a;
+    std::fill(row, row + 12, 0.0);
+    row[a] = -1.0;
+    for (int k = 0; k < 3; ++k) row[3 + 3 * a + k] = -ref[k];
+  }
+}
+
+// One reading's vector residual (a robust loss acts per residual block).
+class VectorOne : public ceres::SizedCostFunction<3, 12> {
+ public:
+  VectorOne(const Eigen::Vector3d& m, const Eigen::Vector3d& ref) : m_(m), ref_(ref) {}
+  bool Evaluate(double const* const* p, double* r, double** jac) const override {
+    vector_residual(m_.data(), ref_.data(), p[0], r, jac ? jac[0] : nullptr);
     return true;
   }
+
+ private:
+  Eigen::Vector3d m_, ref_;
 };
 
 Eigen::Matrix3d symmetric_part(const Eigen::Matrix3d& A) {
@@ -484,8 +477,8 @@ void finish_summary(RefineResult& out, const SamplesRef& samples, const SamplesR
   s.message = msg.str();
 }
 
-// Solves, then evaluates the Jacobian for the statistics. Returns F = JᵀJ and Σr² (unweighted).
-void solve_problem(ceres::Problem& problem, RefineResult& out, const RefineOptions& opt) {
+// Solves; fills the solver report, iterations and convergence. Returns Ceres' final cost ½Σρ(r²).
+double solve_problem(ceres::Problem& problem, RefineResult& out, const RefineOptions& opt) {
   ceres::Solver::Options so;
   so.linear_solver_type = ceres::DENSE_NORMAL_CHOLESKY;  // tall and thin: N residuals, ≤ 12 parameters
   so.max_num_iterations = opt.max_iterations;
@@ -501,35 +494,7 @@ void solve_problem(ceres::Problem& problem, RefineResult& out, const RefineOptio
   if (!summary.IsSolutionUsable()) throw Error("refine: the solver failed: " + summary.message);
   if (!out.summary.converged)
     out.summary.warnings.push_back("refinement stopped before converging: " + summary.message);
-}
-
-// Plain (no loss) residuals and Jacobian of a solved problem: Σr², the information F = JᵀJ and, when
-// `sc` is given, the per-reading residuals and scores (`per_reading` consecutive residuals a reading).
-void information(ceres::Problem& problem, int p, RefineResult& out, Eigen::MatrixXd& F, double& ssr,
-                 Scores* sc = nullptr, int per_reading = 1) {
-  ceres::Problem::EvaluateOptions eo;
-  eo.apply_loss_function = false;
-  std::vector<double> residuals;
-  ceres::CRSMatrix jac;
-  problem.Evaluate(eo, nullptr, &residuals, nullptr, &jac);
-  ssr = 0.0;
-  for (double r : residuals) ssr += r * r;
-  out.summary.cost = ssr / static_cast<double>(residuals.size());
-  F = Eigen::MatrixXd::Zero(p, p);
-  if (sc) {
-    sc->residuals = Eigen::Map<const Eigen::MatrixXd>(residuals.data(), per_reading,
-                                                      jac.num_rows / per_reading).transpose();
-    sc->scores = Eigen::MatrixXd::Zero(jac.num_rows / per_reading, p);
-  }
-  Eigen::VectorXd row(p);
-  for (int i = 0; i < jac.num_rows; ++i) {
-    row.setZero();
-    for (int k = jac.rows[static_cast<std::size_t>(i)]; k < jac.rows[static_cast<std::size_t>(i) + 1]; ++k)
-      row(jac.cols[static_cast<std::size_t>(k)]) = jac.values[static_cast<std::size_t>(k)];
-    F.selfadjointView<Eigen::Lower>().rankUpdate(row);
-    if (sc) sc->scores.row(i / per_reading) += residuals[static_cast<std::size_t>(i)] * row.transpose();
-  }
-  F = F.selfadjointView<Eigen::Lower>();
+  return summary.final_cost;
 }
 
 // The shape constrains the magnitude model's refine(); elsewhere it would be silently ignored.
@@ -585,6 +550,49 @@ void check_vector_inputs(const SamplesRef& samples, const SamplesRef& reference)
   detail::require_squares_finite(reference, "reference", "the vector calibration");
 }
 
+// The vector model m = W r + b is linear in θ: with X = [r 1] (N×4), its information JᵀJ is XᵀX on each
+// output axis's block, whatever θ.
+Eigen::Matrix4d reference_gram(const SamplesRef& reference) {
+  Eigen::Matrix4d G;
+  const Eigen::Vector3d sum = reference.colwise().sum().transpose();
+  G.topLeftCorner<3, 3>() = reference.transpose() * reference;
+  G.topRightCorner<3, 1>() = sum;
+  G.bottomLeftCorner<1, 3>() = sum.transpose();
+  G(3, 3) = static_cast<double>(reference.rows());
+  return G;
+}
+
+// The information F = JᵀJ in θ order [b, W row-major] from XᵀX (constant column last): for output axis j
+// the block over (b_j, W_j·) is XᵀX with the constant column first.
+Eigen::MatrixXd vector_information(const Eigen::Matrix4d& XtX) {
+  Eigen::MatrixXd F = Eigen::MatrixXd::Zero(12, 12);
+  const int order[4] = {3, 0, 1, 2};  // X columns: constant, r0, r1, r2
+  for (int j = 0; j < 3; ++j) {
+    const int idx[4] = {j, 3 + 3 * j, 4 + 3 * j, 5 + 3 * j};
+    for (int a = 0; a < 4; ++a)
+      for (int c = 0; c < 4; ++c) F(idx[a], idx[c]) = XtX(order[a], order[c]);
+  }
+  return F;
+}
+
+// The vector model's residuals e = m − W r − b at θ and their scores (∂/∂b_j = −1, ∂/∂W_jk = −r_k):
+// fills `scores`, returns Σ|e|².
+double vector_scores(const SamplesRef& samples, const SamplesRef& reference, const Eigen::VectorXd& theta,
+                     Scores& scores) {
+  scores.residuals.resize(samples.rows(), 3);
+  scores.scores.resize(samples.rows(), 12);
+  double ssr = 0.0;
+  for (Eigen::Index i = 0; i < samples.rows(); ++i) {
+    Eigen::Vector3d e;
+    vector_residual(samples.row(i).data(), reference.row(i).data(), theta.data(), e.data(), nullptr);
+    ssr += e.squaredNorm();
+    scores.residuals.row(i) = e.transpose();
+    scores.scores.row(i).head<3>() = -e.transpose();
+    for (int j = 0; j < 3; ++j) scores.scores.row(i).segment<3>(3 + 3 * j) = -e(j) * reference.row(i);
+  }
+  return ssr;
+}
+
 // Calibration (A = W⁻¹), statistics and summary of a vector-model result whose θ = [b, W] is set.
 void finish_vector(RefineResult& out, const SamplesRef& samples, const SamplesRef& reference,
                    const Eigen::MatrixXd& F, double sigma2, const std::string& units, const char* model,
@@ -606,7 +614,9 @@ void finish_vector(RefineResult& out, const SamplesRef& samples, const SamplesRe
 }
 
 // The diagnosis' augmented model as one block of residuals: readings corrected by the terms,
-// m'_i = m_i − Σ_j c_j f_ij, then the magnitude (Sampson) or vector residual of m'_i.
+// m'_i = m_i − Σ_j c_j f_ij, then the magnitude (Sampson) or vector residual of m'_i. Without terms
+// (p = 0) it is refine's and refine_vector's plain least squares: Ceres then works on one dense
+// Jacobian instead of N small blocks.
 // Parameter blocks: base θ (9 or 12), then the term coefficients c (p, when p > 0).
 class TermsBatch : public ceres::CostFunction {
  public:
@@ -636,18 +646,10 @@ class TermsBatch : public ceres::CostFunction {
           for (int j = 0; j < p_; ++j) jac[1][p_ * i + j] = Eigen::Vector3d(ji[0], ji[1], ji[2]).dot(f_.row(i).segment<3>(3 * j));
         continue;
       }
-      for (int a = 0; a < 3; ++a) {
-        const Eigen::Index row = 3 * i + a;
-        r[row] = mi(a) - th[a] - th[3 + 3 * a] * ref_(i, 0) - th[4 + 3 * a] * ref_(i, 1) - th[5 + 3 * a] * ref_(i, 2);
-        if (want_base) {
-          double* jr = jac[0] + 12 * row;
-          std::fill(jr, jr + 12, 0.0);
-          jr[a] = -1.0;
-          for (int k = 0; k < 3; ++k) jr[3 + 3 * a + k] = -ref_(i, k);
-        }
-        if (want_terms)
-          for (int j = 0; j < p_; ++j) jac[1][p_ * row + j] = -f_(i, 3 * j + a);
-      }
+      vector_residual(mi.data(), ref_.row(i).data(), th, r + 3 * i, want_base ? jac[0] + 36 * i : nullptr);
+      if (want_terms)
+        for (int a = 0; a < 3; ++a)
+          for (int j = 0; j < p_; ++j) jac[1][p_ * (3 * i + a) + j] = -f_(i, 3 * j + a);
     }
     return true;
   }
@@ -688,36 +690,44 @@ RefineResult refine(const Calibration& start, const SamplesRef& samples, const R
   }
   Eigen::MatrixXd F;
   double ssr;
-  auto solve_for = [&](double H) {  // fits |h| to H
+  auto solve_for = [&](double H) {  // fits |h| to H; returns Ceres' final cost ½Σρ(r²)
     ceres::Problem::Options po;
     po.loss_function_ownership = ceres::DO_NOT_TAKE_OWNERSHIP;
     ceres::Problem problem(po);
     if (!loss) {
-      problem.AddResidualBlock(new MagnitudeBatch(samples, H), nullptr, theta);
+      problem.AddResidualBlock(new TermsBatch(samples, Eigen::MatrixXd(samples.rows(), 0), H, nullptr), nullptr, theta);
     } else {
       for (Eigen::Index i = 0; i < samples.rows(); ++i)
         problem.AddResidualBlock(new MagnitudeOne(samples.row(i).transpose(), H), loss.get(), theta);
     }
     if (k < 9) problem.SetManifold(theta, new ShapeManifold(shape));
-    solve_problem(problem, out, opt);
+    return solve_problem(problem, out, opt);
   };
   Eigen::VectorXd gradient;  // of the shape's parameters
   Scores scores{Eigen::MatrixXd(samples.rows(), 1), Eigen::MatrixXd(samples.rows(), k)};
   auto plain_fit = [&](double H, Eigen::MatrixXd& info, double& sum_sq) {  // Σr², JᵀJ and Jᵀr at θ (shape's φ)
+    // The Jacobian's rows a chunk at a time: one rank-k update of JᵀJ and one product onto the shape's
+    // parameters per chunk (a rank-1 update and a dynamic-size product per reading cost 3× more).
+    constexpr Eigen::Index kChunk = 512;
+    Eigen::Matrix<double, 9, Eigen::Dynamic> jac(9, kChunk);
     Eigen::Matrix<double, 9, 9> f = Eigen::Matrix<double, 9, 9>::Zero();
-    Eigen::Matrix<double, 9, 1> j;
-    gradient.setZero(k);
+    Eigen::Matrix<double, 9, 1> g = Eigen::Matrix<double, 9, 1>::Zero();
     sum_sq = 0.0;
-    for (Eigen::Index i = 0; i < samples.rows(); ++i) {
-      const Eigen::Vector3d m = samples.row(i).transpose();
-      const double r = sampson(m.data(), theta, H, j.data());
-      sum_sq += r * r;
-      const Eigen::VectorXd jp = shape.P.transpose() * j;
-      gradient += r * jp;
-      scores.residuals(i, 0) = r;
-      scores.scores.row(i) = r * jp.transpose();
-      f.selfadjointView<Eigen::Lower>().rankUpdate(j);
+    for (Eigen::Index i0 = 0; i0 < samples.rows(); i0 += kChunk) {
+      const Eigen::Index len = std::min(kChunk, samples.rows() - i0);
+      for (Eigen::Index c = 0; c < len; ++c) {
+        const Eigen::Vector3d m = samples.row(i0 + c).transpose();
+        const double r = sampson(m.data(), theta, H, jac.col(c).data());
+        sum_sq += r * r;
+        scores.residuals(i0 + c, 0) = r;
+      }
+      const auto J = jac.leftCols(len);
+      const auto r = scores.residuals.col(0).segment(i0, len);
+      f.selfadjointView<Eigen::Lower>().rankUpdate(J);
+      g.noalias() += J * r;
+      scores.scores.middleRows(i0, len).noalias() = r.asDiagonal() * (J.transpose() * shape.P);
     }
+    gradient = shape.P.transpose() * g;
     const Eigen::Matrix<double, 9, 9> full = f.selfadjointView<Eigen::Lower>();
     info = shape.P.transpose() * full * shape.P;
     out.summary.cost = sum_sq / static_cast<double>(samples.rows());
@@ -725,9 +735,12 @@ RefineResult refine(const Calibration& start, const SamplesRef& samples, const R
   const double spare = static_cast<double>(samples.rows() - k);
   const double H = start.field_norm;
   double H_fit = H;
-  solve_for(H);
+  const double solved_cost = solve_for(H);
+  bool current = false;  // F, ssr and the scores are those of θ as it stands
   if (opt.noise_bias_correction) {
-    plain_fit(H, F, ssr);
+    // σ̂² from the plain Σr²: Ceres' final cost without a loss, one more pass with one
+    if (loss) plain_fit(H, F, ssr);
+    else ssr = 2.0 * solved_cost;
     const double s2 = ssr / spare;
     const Eigen::Matrix<double, 9, 1>& t = th;
     const double a2 = t(3) * t(3) + t(6) * t(6) + t(8) * t(8) + 2 * (t(4) * t(4) + t(5) * t(5) + t(7) * t(7));
@@ -740,16 +753,19 @@ RefineResult refine(const Calibration& start, const SamplesRef& samples, const R
       solve_for(H_fit);
       out.summary.iterations += first_iterations;
     } else {
-      for (int step = 0; step < 3; ++step) {
+      // A step below 1e-5 of a standard error (δᵀFδ ≤ 1e-10 σ̂²) is not taken: θ has converged, and the
+      // pass that found the step has the statistics at θ.
+      for (int step = 0; step < 4; ++step) {
         plain_fit(H_fit, F, ssr);
-        const Eigen::Matrix<double, 9, 1> delta = -shape.P * F.ldlt().solve(gradient);
-        th += delta;
+        const Eigen::VectorXd delta = -F.ldlt().solve(gradient);
+        current = delta.dot(F * delta) <= 1e-10 * ssr / spare;
+        if (current) break;
+        th += shape.P * delta;
         ++out.summary.iterations;
-        if (delta.norm() <= 1e-12 * th.norm()) break;
       }
     }
   }
-  plain_fit(H_fit, F, ssr);
+  if (!current) plain_fit(H_fit, F, ssr);
   const double plain_sigma2 = ssr / spare;
   out.noise_sigma = std::sqrt(plain_sigma2);
   const double sigma2 =
@@ -793,27 +809,31 @@ RefineResult refine_vector(const Calibration& start, const SamplesRef& samples, 
   out.parameters.tail<9>() = Eigen::Map<const Eigen::Matrix<double, 9, 1>>(W.data());
   double* theta = out.parameters.data();
 
-  std::vector<VectorResidual> functors(static_cast<std::size_t>(samples.rows()));
-  std::vector<double> start_abs;
-  for (Eigen::Index i = 0; i < samples.rows(); ++i) {
-    auto& f = functors[static_cast<std::size_t>(i)];
-    f = {{samples(i, 0), samples(i, 1), samples(i, 2)}, {reference(i, 0), reference(i, 1), reference(i, 2)}};
-    double r[3];
-    f(theta, r);
-    for (double v : r) start_abs.push_back(std::abs(v));
+  std::vector<double> start_abs;  // the robust loss's default scale
+  if (opt.loss != Loss::none) {
+    for (Eigen::Index i = 0; i < samples.rows(); ++i) {
+      double r[3];
+      vector_residual(samples.row(i).data(), reference.row(i).data(), theta, r, nullptr);
+      for (double v : r) start_abs.push_back(std::abs(v));
+    }
   }
   ceres::Problem::Options po;
   po.loss_function_ownership = ceres::DO_NOT_TAKE_OWNERSHIP;
   ceres::Problem problem(po);
   std::unique_ptr<ceres::LossFunction> loss(make_loss(opt, robust_sigma(start_abs)));
-  for (auto& f : functors)
-    problem.AddResidualBlock(new ceres::AutoDiffCostFunction<VectorResidual, 3, 12>(new VectorResidual(f)),
-                             loss.get(), theta);
-  Eigen::MatrixXd F;
-  double ssr;
+  if (!loss) {  // plain least squares: all residuals in one block, one dense Jacobian
+    problem.AddResidualBlock(new TermsBatch(samples, Eigen::MatrixXd(samples.rows(), 0), 0.0, &reference), nullptr,
+                             theta);
+  } else {
+    for (Eigen::Index i = 0; i < samples.rows(); ++i)
+      problem.AddResidualBlock(new VectorOne(samples.row(i).transpose(), reference.row(i).transpose()), loss.get(),
+                               theta);
+  }
   solve_problem(problem, out, opt);
   Scores scores;
-  information(problem, 12, out, F, ssr, &scores, 3);
+  const double ssr = vector_scores(samples, reference, out.parameters, scores);
+  out.summary.cost = ssr / static_cast<double>(3 * samples.rows());
+  const Eigen::MatrixXd F = vector_information(reference_gram(reference));
   const double plain_sigma2 = ssr / static_cast<double>(3 * samples.rows() - 12);
   out.noise_sigma = std::sqrt(plain_sigma2);
   const double sigma2 = loss ? robust_variance(*loss, scores, 12, plain_sigma2, out.summary.warnings) : plain_sigma2;
@@ -827,15 +847,11 @@ RefineResult fit_vector(const SamplesRef& samples, const SamplesRef& reference, 
   check_vector_inputs(samples, reference);
   check_options(opt);
   require_symmetric_shape(opt, "fit_vector");
-  // One pass: XᵀX and XᵀM for X = [r 1] (N×4), M the readings (N×3).
-  Eigen::Matrix4d XtX = Eigen::Matrix4d::Zero();
-  Eigen::Matrix<double, 4, 3> XtM = Eigen::Matrix<double, 4, 3>::Zero();
-  for (Eigen::Index i = 0; i < samples.rows(); ++i) {
-    const Eigen::Vector4d x(reference(i, 0), reference(i, 1), reference(i, 2), 1.0);
-    XtX.selfadjointView<Eigen::Lower>().rankUpdate(x);
-    XtM += x * samples.row(i);
-  }
-  XtX = XtX.selfadjointView<Eigen::Lower>();
+  // XᵀX and XᵀM for X = [r 1] (N×4), M the readings (N×3).
+  const Eigen::Matrix4d XtX = reference_gram(reference);
+  Eigen::Matrix<double, 4, 3> XtM;
+  XtM.topRows<3>() = reference.transpose() * samples;
+  XtM.row(3) = samples.colwise().sum();
   const Eigen::Vector4d d = XtX.diagonal().cwiseSqrt().cwiseInverse();
   Eigen::SelfAdjointEigenSolver<Eigen::Matrix4d> eig(d.asDiagonal() * XtX * d.asDiagonal());
   if (!(eig.eigenvalues()(0) > 1e-12 * eig.eigenvalues()(3)))
@@ -849,31 +865,13 @@ RefineResult fit_vector(const SamplesRef& samples, const SamplesRef& reference, 
   out.parameters.head<3>() = beta.row(3).transpose();
   for (int j = 0; j < 3; ++j)
     for (int k = 0; k < 3; ++k) out.parameters(3 + 3 * j + k) = beta(k, j);  // W(j, k)
-  double ssr = 0.0;
-  Scores scores{Eigen::MatrixXd(samples.rows(), 3), Eigen::MatrixXd(samples.rows(), 12)};
-  for (Eigen::Index i = 0; i < samples.rows(); ++i) {
-    const Eigen::Vector4d x(reference(i, 0), reference(i, 1), reference(i, 2), 1.0);
-    const Eigen::RowVector3d e = samples.row(i) - x.transpose() * beta;
-    ssr += e.squaredNorm();
-    // Residual m − W r − b: ∂/∂b_j = −1, ∂/∂W_jk = −r_k (the sign does not matter to the sandwich).
-    scores.residuals.row(i) = e;
-    scores.scores.row(i).head<3>() = -e;
-    for (int j = 0; j < 3; ++j) scores.scores.row(i).segment<3>(3 + 3 * j) = -e(j) * x.head<3>().transpose();
-  }
+  Scores scores;
+  const double ssr = vector_scores(samples, reference, out.parameters, scores);
   const double sigma2 = ssr / static_cast<double>(3 * samples.rows() - 12);
   out.noise_sigma = std::sqrt(sigma2);
   out.summary.cost = ssr / static_cast<double>(3 * samples.rows());
   out.summary.converged = true;
-
-  // Information matrix in θ order [b, W row-major]: for output axis j the block over (b_j, W_j·)
-  // is XᵀX with the constant column first.
-  Eigen::MatrixXd F = Eigen::MatrixXd::Zero(12, 12);
-  const int order[4] = {3, 0, 1, 2};  // X columns: constant, r0, r1, r2
-  for (int j = 0; j < 3; ++j) {
-    const int idx[4] = {j, 3 + 3 * j, 4 + 3 * j, 5 + 3 * j};
-    for (int a = 0; a < 4; ++a)
-      for (int c = 0; c < 4; ++c) F(idx[a], idx[c]) = XtX(order[a], order[c]);
-  }
+  const Eigen::MatrixXd F = vector_information(XtX);
   finish_vector(out, samples, reference, F, sigma2, opt.units, "vector", opt, scores);
   return out;
 }
