@@ -1,6 +1,9 @@
 """fluxcal.calibrate: one call that picks the right solver for the data it is given."""
 from __future__ import annotations
 
+import os
+from concurrent.futures import ThreadPoolExecutor
+
 import numpy as np
 
 from ._arrays import as_samples, held_copies
@@ -11,6 +14,9 @@ from .refine import SHAPES, fit_vector, refine, shape_name
 
 METHODS = ("auto", "vector", "als", "ls", "als+refine")
 OUTLIERS = ("drop", "keep")
+# From this many readings shape="auto" refines its shapes in threads (the solver releases the GIL; each fit is
+# the same as alone). Below it the three fits take a few ms together, less than the threads would save.
+PARALLEL_SHAPES = 5000
 
 
 def calibrate(samples, method: str = "auto", field_norm: float | None = None, reference=None,
@@ -98,13 +104,24 @@ def _refine_shape(start: Calibration, m: np.ndarray, shape: str, **settings) -> 
     """The refinement in `shape`, or with "auto" the shape of lowest BIC, determined or not (see calibrate)."""
     if shape != "auto":
         return refine(start, m, shape=shape, **settings)
-    fits, table = {}, {}
-    for name in SHAPES:
+    def fit(name):
         try:
-            fits[name] = refine(start, m, shape=name, **settings)
+            return refine(start, m, shape=name, **settings)
         except (ValueError, RuntimeError) as error:  # a restricted shape far from the data may not converge
-            table[name] = {"error": str(error)}
+            return error
+
+    workers = min(len(SHAPES), os.cpu_count() or 1)
+    if len(m) >= PARALLEL_SHAPES and workers > 1:
+        with ThreadPoolExecutor(max_workers=workers) as pool:
+            results = dict(zip(SHAPES, pool.map(fit, SHAPES)))
+    else:
+        results = {name: fit(name) for name in SHAPES}
+    fits, table = {}, {}
+    for name, result in results.items():
+        if isinstance(result, Exception):
+            table[name] = {"error": str(result)}
             continue
+        fits[name] = result
         s, n = fits[name].summary, len(m)
         rss = float(s["cost"]) * n
         k = len(s["parameters"])

@@ -56,6 +56,44 @@ def test_auto_chooses_the_true_shape_by_bic(truth, expected):
     assert chosen.count(expected) >= 4, chosen
 
 
+def test_auto_refines_its_shapes_in_threads_with_the_same_answer(monkeypatch):
+    # From PARALLEL_SHAPES readings the three refinements run in threads: each must be what it is alone, and a
+    # shape that fails must still be reported, not lost in a worker.
+    import fluxcal.pipeline as pipeline
+
+    pools = []
+
+    class CountedPool(pipeline.ThreadPoolExecutor):
+        def __init__(self, *args, **kwargs):
+            pools.append(kwargs)
+            super().__init__(*args, **kwargs)
+
+    monkeypatch.setattr(pipeline, "ThreadPoolExecutor", CountedPool)
+    monkeypatch.setattr(pipeline.os, "cpu_count", lambda: 2)  # threads even on a one-core runner
+    m = readings(SYM, OFFSET, 2 * pipeline.PARALLEL_SHAPES, 0.01, 3)
+    threaded = fluxcal.calibrate(m, field_norm=H, shape="auto")
+    assert pools == [{"max_workers": 2}]
+    monkeypatch.setattr(pipeline, "PARALLEL_SHAPES", 10 ** 9)
+    alone = fluxcal.calibrate(m, field_norm=H, shape="auto")
+    assert threaded.summary["shapes"] == alone.summary["shapes"]
+    assert threaded.summary["shape"] == alone.summary["shape"] == "sym"
+    assert np.array_equal(threaded.matrix, alone.matrix) and np.array_equal(threaded.offset, alone.offset)
+    assert threaded.summary["standard_errors"] == alone.summary["standard_errors"]
+
+    real_refine = pipeline.refine
+
+    def sphere_fails(start, samples, shape, **settings):
+        if shape == "sphere":
+            raise ValueError("refine: made to fail")
+        return real_refine(start, samples, shape=shape, **settings)
+
+    monkeypatch.setattr(pipeline, "PARALLEL_SHAPES", 0)
+    monkeypatch.setattr(pipeline, "refine", sphere_fails)
+    cal = fluxcal.calibrate(m, field_norm=H, shape="auto")
+    assert cal.summary["shapes"]["sphere"] == {"error": "refine: made to fail"}
+    assert any("shape sphere could not be fitted (refine: made to fail)" in w for w in cal.summary["warnings"])
+
+
 def test_diagonal_shape_is_more_accurate_when_the_sensor_has_no_coupling():
     # Monte Carlo, N = 60 (a short turn): for a diagonal sensor the diagonal shape's matrix is closer to the
     # truth than the symmetric one's (no off-diagonal noise), its offset no worse, both unbiased, and its
