@@ -656,7 +656,7 @@ class TermsBatch : public ceres::CostFunction {
 
  private:
   Samples m_, ref_;
-  Eigen::MatrixXd f_;
+  Eigen::Matrix<double, Eigen::Dynamic, Eigen::Dynamic, Eigen::RowMajor> f_;  // a reading's terms side by side
   double H_;
   bool vector_;
   int p_;
