@@ -19,6 +19,14 @@ OUTLIERS = ("drop", "keep")
 PARALLEL_SHAPES = 5000
 
 
+def usable_cpus() -> int:
+    """The CPUs this process may run on (a container's or taskset's share, not the host's count)."""
+    try:
+        return len(os.sched_getaffinity(0))
+    except AttributeError:  # not on Linux
+        return os.cpu_count() or 1
+
+
 def calibrate(samples, method: str = "auto", field_norm: float | None = None, reference=None,
               units: str | None = None, loss: str = "none", outliers: str = "drop", shape: str = "auto",
               **settings) -> Calibration:
@@ -104,13 +112,14 @@ def _refine_shape(start: Calibration, m: np.ndarray, shape: str, **settings) -> 
     """The refinement in `shape`, or with "auto" the shape of lowest BIC, determined or not (see calibrate)."""
     if shape != "auto":
         return refine(start, m, shape=shape, **settings)
+
     def fit(name):
         try:
             return refine(start, m, shape=name, **settings)
         except (ValueError, RuntimeError) as error:  # a restricted shape far from the data may not converge
             return error
 
-    workers = min(len(SHAPES), os.cpu_count() or 1)
+    workers = min(len(SHAPES), usable_cpus())
     if len(m) >= PARALLEL_SHAPES and workers > 1:
         with ThreadPoolExecutor(max_workers=workers) as pool:
             results = dict(zip(SHAPES, pool.map(fit, SHAPES)))

@@ -69,7 +69,7 @@ def test_auto_refines_its_shapes_in_threads_with_the_same_answer(monkeypatch):
             super().__init__(*args, **kwargs)
 
     monkeypatch.setattr(pipeline, "ThreadPoolExecutor", CountedPool)
-    monkeypatch.setattr(pipeline.os, "cpu_count", lambda: 2)  # threads even on a one-core runner
+    monkeypatch.setattr(pipeline, "usable_cpus", lambda: 2)  # threads even on a one-core runner
     m = readings(SYM, OFFSET, 2 * pipeline.PARALLEL_SHAPES, 0.01, 3)
     threaded = fluxcal.calibrate(m, field_norm=H, shape="auto")
     assert pools == [{"max_workers": 2}]
