@@ -6,12 +6,15 @@
 //                        independent readings / forced to Newey–West: the cost of the correlation check
 //   BM_FitVector         closed-form vector calibration (one pass)
 //   BM_RefineVector      Ceres vector-model refinement with a Huber loss
+//   BM_RefineTerms       the diagnosis' refit: magnitude model with 12 extra terms (36 feature columns,
+//                        slow sinusoids in time times the reading), from the ALS fit and zero terms
 // Readings: m = W h + b + noise, |h| = 50, symmetric W, σ = 0.5 (1 % of the field).
 #include "fluxcal/ellipsoid.hpp"
 #include "fluxcal/refine.hpp"
 
 #include <benchmark/benchmark.h>
 
+#include <cmath>
 #include <cstdint>
 #include <map>
 #include <random>
@@ -87,6 +90,20 @@ void BM_RefineVector(benchmark::State& state) {
   state.SetItemsProcessed(state.iterations() * state.range(0));
 }
 
+void BM_RefineTerms(benchmark::State& state) {
+  const Data& d = data(state.range(0));
+  const fluxcal::Calibration start = fluxcal::fit_ellipsoid(d.readings, als_options()).calibration;
+  constexpr int kTerms = 12;
+  Eigen::MatrixXd features(d.readings.rows(), 3 * kTerms);
+  for (Eigen::Index i = 0; i < d.readings.rows(); ++i)
+    for (int j = 0; j < kTerms; ++j)
+      features.row(i).segment<3>(3 * j) = std::cos(1e-3 * (j + 1) * static_cast<double>(i)) * d.readings.row(i);
+  const Eigen::VectorXd zero = Eigen::VectorXd::Zero(kTerms);
+  for (auto _ : state)
+    benchmark::DoNotOptimize(fluxcal::refine_terms(start, d.readings, features, zero).calibration.offset);
+  state.SetItemsProcessed(state.iterations() * state.range(0));
+}
+
 #define FLUXCAL_SIZES ->Arg(1000)->Arg(100000)->Unit(benchmark::kMillisecond)
 BENCHMARK(BM_FitEllipsoidALS) FLUXCAL_SIZES;
 BENCHMARK(BM_Refine) FLUXCAL_SIZES;
@@ -94,6 +111,7 @@ BENCHMARK(BM_RefineIndependent) FLUXCAL_SIZES;
 BENCHMARK(BM_RefineNeweyWest) FLUXCAL_SIZES;
 BENCHMARK(BM_FitVector) FLUXCAL_SIZES;
 BENCHMARK(BM_RefineVector) FLUXCAL_SIZES;
+BENCHMARK(BM_RefineTerms) FLUXCAL_SIZES;
 #undef FLUXCAL_SIZES
 
 }  // namespace
