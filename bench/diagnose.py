@@ -55,11 +55,11 @@ def real(folder: Path):
 
 def injected(folder: Path, n: int, only=None, strength: float = 1.0, which=None):
     """Each candidate added to each real recording (`which`: names starting so; default all) at a typical
-    magnitude times `strength` (fluxcal.sim.inject), n seeds: found (accepted), found first, and what else
-    was accepted beyond the recording's own effects."""
+    magnitude times `strength` (fluxcal.sim.inject), n seeds: found (accepted), found first, what else
+    was accepted beyond the recording's own effects, and why the added effect was missed (_why_missed)."""
     print("| recording (own effects) | added effect | size (RMS % of the field) | found | found first | "
-          "also accepted, beyond the recording's own | s/trial |")
-    print("|---|---|---:|---:|---:|---|---:|")
+          "also accepted, beyond the recording's own | missed: why | s/trial |")
+    print("|---|---|---:|---:|---:|---|---|---:|")
     for name, rec, kw, inject_kw in recordings(folder):
         if which and not any(name.startswith(w) for w in which):
             continue
@@ -68,19 +68,37 @@ def injected(folder: Path, n: int, only=None, strength: float = 1.0, which=None)
         cal = fluxcal.calibrate(m, field_norm=kw.get("field_norm"), reference=kw.get("reference"))
         H = float(np.mean(np.linalg.norm(cal.apply(m), axis=1)))
         for effect in [x for x in injectable(kw.get("reference") is not None) if not only or x in only]:
-            found, first, extra, sizes, t0 = 0, 0, {}, [], time.perf_counter()
+            found, first, extra, missed, sizes, t0 = 0, 0, {}, {}, [], time.perf_counter()
             for seed in range(n):
                 inj = inject(m, [effect], seed, strength=strength, **inject_kw)
                 sizes.append(np.sqrt(np.mean(np.sum(((inj.readings - m) @ np.asarray(cal.matrix).T) ** 2, axis=1))) / H)
                 d = diagnose(inj.readings, **{**kw, **inj.kwargs})
                 found += effect in d.accepted
+                if effect not in d.accepted:
+                    why = _why_missed(next(r for r in d.ranking if r["effect"] == effect))
+                    missed[why] = missed.get(why, 0) + 1
                 first += bool(d.accepted) and d.accepted[0] == effect
                 for a in d.accepted:
                     if a != effect and a not in own:
                         extra[a] = extra.get(a, 0) + 1
             print(f"| {name} ({', '.join(own) or 'nothing'}) | {effect} | {100 * np.median(sizes):.2g} | {found}/{n} | "
                   f"{first}/{n} | {', '.join(f'{k} {v}' for k, v in extra.items()) or '—'} | "
+                  f"{', '.join(f'{k} {v}' for k, v in missed.items()) or '—'} | "
                   f"{(time.perf_counter() - t0) / n:.1f} |", flush=True)
+
+
+def _why_missed(row) -> str:
+    """Why a candidate's row was not accepted: absorbed or not judged, refused by a guard, evidence in the
+    recording that the held-out readings do not confirm ("held out"), too little in the recording ("in
+    sample"), or significant but another effect chosen (or the quantization step not given as the noise)."""
+    if row.get("heldout_gap_before") is None:
+        return "absorbed"
+    if row.get("degenerate") or row.get("field_error_rises"):
+        return "refused"
+    unmet = row.get("unmet", [])
+    if unmet and not {"in_sample", "bic"} & set(unmet):
+        return "held out"
+    return "in sample" if unmet else "not chosen"
 
 
 def _row(name, d, seconds):

@@ -734,6 +734,28 @@ def test_distortion_is_the_largest_signal_dependent_block():
     assert _distortion(signal, blocks, [False, False, False], parameters, 9) == 0.0
 
 
+def test_a_row_says_which_acceptance_tests_it_fails():
+    from types import SimpleNamespace
+
+    from fluxcal.diagnose.core import _unmet
+    from fluxcal.diagnose.report import ranking_lines
+
+    # 13 candidates at α 0.01: the whitened LR p must be below 0.01 / 13
+    row = {"effect": "temp_scale", "lr_pvalue": 1e-5, "delta_bic": -300.0, "heldout_pvalue": 0.01,
+           "heldout_gap_before": 0.01, "heldout_gap_after": 0.008, "new_dimensions": 3, "heldout": "temperature"}
+    assert _unmet(row, 13, 0.01) == []
+    assert _unmet(dict(row, lr_pvalue=1e-3), 13, 0.01) == ["in_sample"]
+    assert _unmet(dict(row, delta_bic=2.0), 13, 0.01) == ["bic"]
+    assert _unmet(dict(row, heldout_pvalue=0.074), 13, 0.01) == ["heldout_p"]
+    assert _unmet(dict(row, heldout_gap_after=0.0095), 13, 0.01) == ["heldout_gain"]
+    # the report names the case a real recording's slow disturbances most often leave, and only that one
+    held = dict(row, heldout_pvalue=0.074, significant=False, unmet=["heldout_p"])
+    weak = dict(row, lr_pvalue=1e-3, significant=False, unmet=["in_sample", "heldout_p"])
+    lines = ranking_lines(SimpleNamespace(ranking=[dict(row, significant=True, unmet=[]), held, weak]))
+    assert "not confirmed" not in lines[2] and "not confirmed" not in lines[4]
+    assert "strong in sample, not confirmed held out: p 0.074, gap 0.01 → 0.008" in lines[3]
+
+
 def test_why_a_fit_cannot_be_an_effect():
     from fluxcal.diagnose.core import _implausible
 

@@ -25,12 +25,22 @@ def ranking_lines(d) -> list:
         note = ("  (absorbed)" if r.get("absorbed")
                 else "  (not judged: its refit failed)" if r.get("note", "").startswith("not judged")
                 else f"  (degenerate: {r['degenerate']})" if r.get("degenerate")
-                else "  (not accepted: the field error rises held out)" if r.get("field_error_rises") else "")
+                else "  (not accepted: the field error rises held out)" if r.get("field_error_rises")
+                else _unconfirmed(r))
         lines.append(f"{r['effect']:20s} {'YES' if r['significant'] else 'no':>7s} {r['delta_bic']:10.1f} "
                      f"{r['lr_pvalue']:9.2g} {r.get('new_dimensions', 0):4d} {str(r.get('heldout', '')):>11s} "
                      f"{_num(r.get('heldout_gap_before')):>10s} {_num(r.get('heldout_gap_after')):>10s} "
                      f"{fe}{note}")
     return lines
+
+
+def _unconfirmed(r) -> str:
+    """The note of a row with strong in-sample evidence that its held-out readings do not confirm."""
+    unmet = r.get("unmet") or []
+    if not unmet or {"in_sample", "bic"} & set(unmet) or r.get("significant"):
+        return ""
+    return (f"  (strong in sample, not confirmed held out: p {r['heldout_pvalue']:.2g}, gap "
+            f"{r['heldout_gap_before']:.3g} → {r['heldout_gap_after']:.3g})")
 
 
 REGIME_WORDS = {"orientation": "the orientation", "temperature": "the temperature", "time": "the elapsed time",
