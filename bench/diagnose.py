@@ -22,6 +22,7 @@ import numpy as np
 import fluxcal
 from fluxcal import attitude
 from fluxcal.diagnose import diagnose
+from fluxcal.diagnose.report import unconfirmed
 from fluxcal.sim.effects import CANDIDATES
 from fluxcal.sim.inject import inject, injectable
 from fluxcal.sim.withheld import HARD_IRON, SOFT_IRON, withheld_trial
@@ -95,10 +96,9 @@ def _why_missed(row) -> str:
         return "absorbed"
     if row.get("degenerate") or row.get("field_error_rises"):
         return "refused"
-    unmet = row.get("unmet", [])
-    if unmet and not {"in_sample", "bic"} & set(unmet):
+    if unconfirmed(row):
         return "held out"
-    return "in sample" if unmet else "not chosen"
+    return "in sample" if row.get("unmet") else "not chosen"
 
 
 def _row(name, d, seconds):

@@ -34,10 +34,16 @@ def ranking_lines(d) -> list:
     return lines
 
 
+def unconfirmed(row) -> bool:
+    """Whether a ranking row has strong evidence in the recording that its held-out readings do not confirm
+    (it fails only held-out acceptance tests: see `unmet` in Diagnosis)."""
+    unmet = set(row.get("unmet") or [])
+    return bool(unmet) and not unmet & {"in_sample", "bic"}
+
+
 def _unconfirmed(r) -> str:
-    """The note of a row with strong in-sample evidence that its held-out readings do not confirm."""
-    unmet = r.get("unmet") or []
-    if not unmet or {"in_sample", "bic"} & set(unmet) or r.get("significant"):
+    """The note of such a row."""
+    if not unconfirmed(r):
         return ""
     return (f"  (strong in sample, not confirmed held out: p {r['heldout_pvalue']:.2g}, gap "
             f"{r['heldout_gap_before']:.3g} → {r['heldout_gap_after']:.3g})")
