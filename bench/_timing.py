@@ -6,6 +6,8 @@ import os
 import platform
 import time
 
+from fluxcal.pipeline import usable_cpus
+
 
 def best_time(fn, repeat: int) -> float:
     """Best (minimum) wall time of `repeat` calls of fn after one warm-up call, in seconds."""
@@ -26,7 +28,7 @@ def machine_facts(**versions) -> list[tuple[str, str]]:
             cpu = next(line.split(":", 1)[1].strip() for line in f if line.startswith("model name"))
     except (OSError, StopIteration):
         pass
-    facts = [("CPU", cpu), ("cores (os.cpu_count / usable)", f"{os.cpu_count()} / {len(os.sched_getaffinity(0))}"),
+    facts = [("CPU", cpu), ("cores (os.cpu_count / usable)", f"{os.cpu_count()} / {usable_cpus()}"),
              ("load average (1/5/15 min)", "%.2f %.2f %.2f" % os.getloadavg()),
              ("OS", f"{platform.system()} {platform.release()}"), ("Python", platform.python_version())]
     return facts + [(name, str(version)) for name, version in versions.items()]

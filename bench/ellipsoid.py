@@ -25,6 +25,7 @@ import numpy as np
 import fluxcal
 from _timing import best_time  # noqa: E402
 import fluxcal.oracle
+from fluxcal.pipeline import usable_cpus
 
 TARGET_RATIO = 4.0
 
@@ -53,10 +54,7 @@ def cpu_model() -> str:
 
 
 def machine_facts() -> list[tuple[str, str]]:
-    try:
-        usable = len(os.sched_getaffinity(0))
-    except AttributeError:
-        usable = os.cpu_count()
+    usable = usable_cpus()
     try:
         load = "%.2f %.2f %.2f" % os.getloadavg()
     except OSError:

@@ -23,7 +23,6 @@ from __future__ import annotations
 
 import argparse
 import datetime as _dt
-import os
 import platform
 import sys
 from pathlib import Path
@@ -35,6 +34,7 @@ from scipy.optimize import least_squares
 import fluxcal
 from _timing import best_time  # noqa: E402
 from fluxcal import sim
+from fluxcal.pipeline import usable_cpus
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 from _magyc_worker import MagycUnavailable, MagycWorker  # noqa: E402
@@ -136,10 +136,7 @@ def main(argv=None) -> int:
 
     H = float(np.linalg.norm(FIELD))
     print(f"# fluxcal solver speed against peers — {_dt.date.today().isoformat()}")
-    try:
-        ncpu = len(os.sched_getaffinity(0))
-    except AttributeError:
-        ncpu = os.cpu_count()
+    ncpu = usable_cpus()
     print(f"fluxcal {fluxcal.__version__}, NumPy {np.__version__}, SciPy {scipy.__version__}, "
           f"Python {platform.python_version()}, {ncpu} usable CPUs, best of {args.repeat} after a warm-up")
     worker = None

@@ -593,10 +593,18 @@ double vector_scores(const SamplesRef& samples, const SamplesRef& reference, con
   return ssr;
 }
 
-// Calibration (A = W⁻¹), statistics and summary of a vector-model result whose θ = [b, W] is set.
+// Calibration (A = W⁻¹), statistics and summary of a vector-model result whose θ = [b, W] is set: its
+// residuals and scores at θ, σ̂² (Huber's robust form with `loss`) and the information from XᵀX.
 void finish_vector(RefineResult& out, const SamplesRef& samples, const SamplesRef& reference,
-                   const Eigen::MatrixXd& F, double sigma2, const std::string& units, const char* model,
-                   const RefineOptions& opt, const Scores& scores) {
+                   const Eigen::Matrix4d& XtX, const ceres::LossFunction* loss, const std::string& units,
+                   const char* model, const RefineOptions& opt) {
+  Scores scores;
+  const double ssr = vector_scores(samples, reference, out.parameters, scores);
+  const double residuals = static_cast<double>(3 * samples.rows());
+  out.summary.cost = ssr / residuals;
+  const double plain_sigma2 = ssr / (residuals - 12.0);
+  out.noise_sigma = std::sqrt(plain_sigma2);
+  const double sigma2 = loss ? robust_variance(*loss, scores, 12, plain_sigma2, out.summary.warnings) : plain_sigma2;
   Calibration& cal = out.calibration;
   cal.offset = out.parameters.head<3>();
   const Eigen::Matrix<double, 3, 3, Eigen::RowMajor> W(out.parameters.tail<9>().data());
@@ -609,7 +617,7 @@ void finish_vector(RefineResult& out, const SamplesRef& samples, const SamplesRe
   Eigen::VectorXd scales(12);  // offsets: the reading-space radius; W entries: its gain ‖W‖/√3
   scales.head<3>().setConstant((samples.rowwise() - cal.offset.transpose()).rowwise().norm().mean());
   scales.tail<9>().setConstant(W.norm() / std::sqrt(3.0));
-  finish_statistics(out, F, sigma2, scales, opt, &scores);
+  finish_statistics(out, vector_information(XtX), sigma2, scales, opt, &scores);
   finish_summary(out, samples, &reference);
 }
 
@@ -830,16 +838,8 @@ RefineResult refine_vector(const Calibration& start, const SamplesRef& samples, 
                                theta);
   }
   solve_problem(problem, out, opt);
-  Scores scores;
-  const double ssr = vector_scores(samples, reference, out.parameters, scores);
-  out.summary.cost = ssr / static_cast<double>(3 * samples.rows());
-  const Eigen::MatrixXd F = vector_information(reference_gram(reference));
-  const double plain_sigma2 = ssr / static_cast<double>(3 * samples.rows() - 12);
-  out.noise_sigma = std::sqrt(plain_sigma2);
-  const double sigma2 = loss ? robust_variance(*loss, scores, 12, plain_sigma2, out.summary.warnings) : plain_sigma2;
-
-  finish_vector(out, samples, reference, F, sigma2, opt.units.empty() ? start.units : opt.units, "refine_vector",
-                opt, scores);
+  finish_vector(out, samples, reference, reference_gram(reference), loss.get(),
+                opt.units.empty() ? start.units : opt.units, "refine_vector", opt);
   return out;
 }
 
@@ -865,14 +865,8 @@ RefineResult fit_vector(const SamplesRef& samples, const SamplesRef& reference, 
   out.parameters.head<3>() = beta.row(3).transpose();
   for (int j = 0; j < 3; ++j)
     for (int k = 0; k < 3; ++k) out.parameters(3 + 3 * j + k) = beta(k, j);  // W(j, k)
-  Scores scores;
-  const double ssr = vector_scores(samples, reference, out.parameters, scores);
-  const double sigma2 = ssr / static_cast<double>(3 * samples.rows() - 12);
-  out.noise_sigma = std::sqrt(sigma2);
-  out.summary.cost = ssr / static_cast<double>(3 * samples.rows());
   out.summary.converged = true;
-  const Eigen::MatrixXd F = vector_information(XtX);
-  finish_vector(out, samples, reference, F, sigma2, opt.units, "vector", opt, scores);
+  finish_vector(out, samples, reference, XtX, nullptr, opt.units, "vector", opt);
   return out;
 }
 

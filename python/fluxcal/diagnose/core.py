@@ -691,9 +691,10 @@ def _evaluate(cls, data, model, state, sigma, n_candidates) -> dict:
 
 def _unmet(row: dict, n_candidates: int, alpha: float) -> list:
     """The acceptance tests a judged row fails ("in_sample", "bic", "heldout_p", "heldout_gain"; none: the
-    evidence accepts it): strong in-sample evidence (whitened LR, Bonferroni over the candidates, and BIC), confirmed on held-out readings
-    (the improvement's block test and at least MIN_GAIN of the gap). "Significant in sample, not confirmed
-    held out" is what a real recording's own slow disturbances most often leave (bench/RESULTS.md)."""
+    evidence accepts it): strong in-sample evidence (whitened LR, Bonferroni over the candidates, and BIC),
+    confirmed on held-out readings (the improvement's block test and at least MIN_GAIN of the gap).
+    "Significant in sample, not confirmed held out" is half of what a real recording's own slow disturbances
+    leave undetected (bench/RESULTS.md)."""
     unmet = []
     if not row["lr_pvalue"] * n_candidates < alpha:
         unmet.append("in_sample")
