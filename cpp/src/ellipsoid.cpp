@@ -2,6 +2,7 @@
 
 #include "fluxcal/coverage.hpp"
 #include "checks.hpp"
+#include "clones.hpp"
 #include "quadric.hpp"
 
 #include <Eigen/Eigenvalues>
@@ -50,17 +51,9 @@ constexpr double kDesignFactor[10] = {1, 1, 1, 2, 2, 2, 2, 2, 2, 1};
   } while (0)
 
 // Accumulation kernel: a block of kLanes readings is normalised into small arrays, then every lane
-// keeps its own partial sums so the compiler can vectorise across readings without reassociating.
-// On x86-64 GCC also builds an x86-64-v3 (AVX2/FMA) clone chosen at run time by CPU features (not
-// by CPU model, which "arch=haswell" would test); the rest of the library, and the Eigen ABI it shares
-// with Ceres, stays at the baseline instruction set.
-#if defined(__GNUC__) && !defined(__clang__) && defined(__x86_64__) && defined(__linux__)
-#define FLUXCAL_CLONES __attribute__((target_clones("arch=x86-64-v3", "default")))
-#else
-#define FLUXCAL_CLONES
-#endif
-
-constexpr int kLanes = 8;
+// keeps its own partial sums so the compiler can vectorise across readings without reassociating
+// (with an x86-64-v3 clone, clones.hpp).
+using detail::kLanes;
 
 FLUXCAL_CLONES
 void accumulate_moments(const double* p, std::size_t n, const double* centre, double inv_scale,
