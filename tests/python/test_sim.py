@@ -42,3 +42,20 @@ def test_white_noise_has_the_stated_sigma():
     rng = np.random.default_rng(2)
     s = sim.simulate(sim.uniform(20000, rng), [sim.WhiteNoise(0.3)], [0, 0, 1.0], rng)
     assert np.std(s.readings - s.truth) == pytest.approx(0.3, rel=0.02)
+
+
+def test_cross_axis_holds_only_where_its_exact_features_do():
+    # easy-axis signals reach 2 (x's easy axis is y; y's and z's are x): 1 + c u ≥ 0.5 needs |c| ≤ 0.25
+    from types import SimpleNamespace
+
+    signal = np.array([[2.0, -1.0, 0.5], [-1.0, 2.0, 0.3], [0.5, 0.5, 1.0]])
+    ctx = SimpleNamespace(signal=signal, scale=1.0, coefficients=None)
+    assert sim.CrossAxis.holds(ctx, [0.25, -0.25, 0.1])
+    assert not sim.CrossAxis.holds(ctx, [0.0, 0.0, 0.26])
+    assert not sim.CrossAxis.holds(ctx, [np.nan, 0.0, 0.0])
+    # beyond the range the features clip the coefficient: they no longer describe the fit's own model
+    ctx.coefficients = np.array([0.0, 0.0, 0.26])
+    clipped = sim.CrossAxis.features(ctx)
+    ctx.coefficients = np.array([0.0, 0.0, 0.25])
+    assert np.array_equal(clipped, sim.CrossAxis.features(ctx))
+    assert sim.Effect.holds(ctx, [1e9])  # other candidates' features hold everywhere

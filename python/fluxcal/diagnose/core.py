@@ -803,7 +803,8 @@ def _at_own_signal(cls, data: _Data, fixed, state: dict, feats: np.ndarray, fit:
     refitted, until the residual sum of squares falls by less than one noise variance — the true signal is
     a fixed point, reproducing itself. A step that does not lower it is not taken (the guard against
     divergence). `scale` stays the first one, so the coefficients keep their units. Features exact only at
-    the fit's own coefficients (cross_axis' 1/(1 + s_e/H_k)) get them (`ctx.coefficients`); a profiled
+    the fit's own coefficients (cross_axis' 1/(1 + s_e/H_k)) get them (`ctx.coefficients`), and the iteration
+    ends at a fit whose coefficients leave the range they describe (`holds`); a profiled
     parameter (saturation's limit, `value`) is profiled again at each fit, its features less the candidate's
     modelled part (linearised) taken as the residuals to explain. Returns the features, their fit and the
     profiled value."""
@@ -816,6 +817,8 @@ def _at_own_signal(cls, data: _Data, fixed, state: dict, feats: np.ndarray, fit:
         ctx.scale = scale
         p = feats.shape[1]
         ctx.coefficients = np.asarray(fit["parameters"])[-p:]
+        if not cls.holds(ctx, ctx.coefficients):
+            break  # beyond what its exact features describe (refits there chased a degenerate fit without converging)
         if cls.profile_name:
             J = np.asarray(fit["jacobian"])
             Z = J[:, -p:]  # ∂r/∂c: the candidate's part of the fit, linearised

@@ -97,6 +97,12 @@ class Effect:
         raise NotImplementedError
 
     @classmethod
+    def holds(cls, ctx, coefficients) -> bool:
+        """For features exact only at the fit's coefficients: whether these coefficients are in the range
+        the features describe (the diagnosis stops recomputing them at a fit that left it)."""
+        return True
+
+    @classmethod
     def describe(cls, ctx, feats) -> dict:
         """What the chosen alternative says beyond its coefficients (e.g. when an event began), as the
         ranking row's extra fields."""
@@ -260,17 +266,28 @@ class CrossAxis(Effect):
         return values / (1.0 + easy / hk)
 
     @classmethod
+    def _easy(cls, ctx):
+        """u = s_e/scale per axis, and the largest |c| that keeps 1 + c u ≥ 0.5 on every reading."""
+        u = ctx.signal[:, list(cls.EASY)] / ctx.scale
+        return u, 0.5 / np.maximum(np.max(np.abs(u), axis=0), 1e-12)
+
+    @classmethod
     def features(cls, ctx):
         # m_k − s_k = −s_k (c_k u)/(1 + c_k u), u = s_e/scale, c_k = scale/H_k: exactly c_k times the feature
         # −s_k u/(1 + c_k u) at the fit's own c_k (first order, −s_k u, at c = 0). Its second order matters:
         # ≈ 0.2 µT at s_e/H_k ≈ 0.08, with a hard iron of several fields.
-        s = ctx.signal
-        u = s[:, list(cls.EASY)] / ctx.scale
+        u, bound = cls._easy(ctx)
         c = np.zeros(3) if getattr(ctx, "coefficients", None) is None else np.asarray(ctx.coefficients, float)
-        # keep 1 + c u ≥ 0.5 on every reading: a wild coefficient of a poor fit must not divide by ~0
-        reach = np.maximum(np.max(np.abs(u), axis=0), 1e-12)
-        c = np.clip(c, -0.5 / reach, 0.5 / reach)
-        return _per_axis(-s * u / (1.0 + c * u))
+        # a wild coefficient of a poor fit must not divide by ~0
+        c = np.clip(c, -bound, bound)
+        return _per_axis(-ctx.signal * u / (1.0 + c * u))
+
+    @classmethod
+    def holds(cls, ctx, coefficients) -> bool:
+        # 1 + c u < 0.5 somewhere: a sensitivity halved by an anisotropy field the easy-axis signal nearly
+        # reaches, no cross-axis error of a working bridge (typical H_k ≈ 40 fields: |c u| ≈ 0.03 per field).
+        # The fit then models something else, and features clipped to the range fit yet another model.
+        return bool(np.all(np.abs(np.asarray(coefficients, float)) <= cls._easy(ctx)[1]))
 
     @classmethod
     def typical(cls, field_norm, rng):
