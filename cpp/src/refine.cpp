@@ -712,7 +712,7 @@ class TermsBatch : public ceres::CostFunction {
   // m'_i = m_i − Σ_j c_j f_ij, a chunk at a time.
   void magnitude(const double* th, const Eigen::Ref<const Eigen::VectorXd>& c, double* r, double* jb, double* jt) const {
     if (p_ == 0) return sampson_rows(m_.data(), 3, m_.rows(), th, H_, r, jb);
-    constexpr Eigen::Index kChunk = 256;
+    constexpr Eigen::Index kChunk = 32;  // a chunk's terms stay in L1 between the correction and ∂r/∂c
     Samples corrected(kChunk, 3);
     std::vector<double> scratch(jt && !jb ? 9 * kChunk : 0);
     for (Eigen::Index i0 = 0; i0 < m_.rows(); i0 += kChunk) {
