@@ -9,6 +9,8 @@ def as_samples(values, name: str = "samples", columns: int = 3) -> np.ndarray:
     """Return `values` as a C-contiguous float64 (N, columns) array; ValueError naming `name` otherwise."""
     if hasattr(values, "samples") and callable(values.samples):  # a Recording
         values = values.samples()
+    if np.iscomplexobj(values):  # float64 would drop the imaginary part with only a warning
+        raise ValueError(f"{name}: complex numbers; readings are real (pass .real or abs() explicitly)")
     try:
         arr = np.asarray(values, dtype=np.float64)
     except (TypeError, ValueError) as exc:
@@ -18,6 +20,24 @@ def as_samples(values, name: str = "samples", columns: int = 3) -> np.ndarray:
         hint = " (it looks transposed: pass one row per reading)" if transposed else ""
         raise ValueError(f"{name}: shape {arr.shape}, expected (N, {columns}) with one row per reading{hint}")
     return np.ascontiguousarray(arr)
+
+
+def require_calibration(value, name: str = "calibration"):
+    """TypeError naming `name` unless `value` is a fluxcal Calibration (not None, not a dict)."""
+    from .calibration import Calibration
+
+    if not isinstance(value, Calibration):
+        raise TypeError(f"{name}: expected a fluxcal.Calibration (from fit_ellipsoid, calibrate, Calibration.load, "
+                        f"…), got {type(value).__name__}")
+
+
+def require_finite(arr: np.ndarray, name: str) -> np.ndarray:
+    """`arr` (N × 3), or ValueError naming `name` and the first NaN/Inf."""
+    bad = first_nonfinite(arr)
+    if bad is not None:
+        row, col = bad
+        raise ValueError(f"{name}: row {row}, column {col} ({'xyz'[col]}) is {arr[row, col]}")
+    return arr
 
 
 def first_nonfinite(arr: np.ndarray):

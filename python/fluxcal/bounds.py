@@ -7,7 +7,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from ._arrays import as_samples
+from ._arrays import as_samples, require_calibration, require_finite
 from .calibration import Calibration
 
 _SYM = [(0, 0), (0, 1), (0, 2), (1, 1), (1, 2), (2, 2)]
@@ -48,12 +48,16 @@ def crlb(calibration: Calibration, clean_readings=None, sigma: float = 1.0, refe
     noise-free readings. Vector model: pass the reference vectors (the bound does not depend on the
     parameters, so `calibration` and `clean_readings` are not used).
     """
+    if not (np.isfinite(sigma) and sigma > 0):
+        raise ValueError(f"crlb: sigma {sigma}, need the noise's positive standard deviation")
     if reference is not None:
-        F = vector_information(reference)
+        F = vector_information(require_finite(as_samples(reference, "reference"), "reference"))
     else:
         if clean_readings is None:
             raise ValueError("crlb: the magnitude model needs the noise-free readings")
-        J = magnitude_jacobian(calibration, clean_readings)
+        require_calibration(calibration)
+        J = magnitude_jacobian(calibration, require_finite(as_samples(clean_readings, "clean_readings"),
+                                                           "clean_readings"))
         if not np.all(np.isfinite(J)):
             bad = int(np.flatnonzero(~np.all(np.isfinite(J), axis=1))[0])
             raise ValueError(f"crlb: clean_readings row {bad} sits at the offset (no field direction); "

@@ -69,12 +69,16 @@ class Calibration:
     def reading(self, field_vectors) -> np.ndarray:
         """The readings true fields would produce (the forward model m = A⁻¹ h + b, no noise)."""
         h = np.asarray(field_vectors, dtype=float)
-        return np.linalg.solve(self.matrix, h.T).T + self.offset
+        return (self.forward_matrix @ h.T).T + self.offset
 
     @property
     def forward_matrix(self) -> np.ndarray:
         """W = A⁻¹: how the sensor distorts the field."""
-        return np.linalg.inv(self.matrix)
+        try:
+            return np.linalg.inv(self.matrix)
+        except np.linalg.LinAlgError:
+            raise ValueError(f"calibration: the matrix A is singular ({self.matrix.tolist()}): it sends some field "
+                             "direction to zero, so no readings correspond to a field") from None
 
     # -- other conventions ----------------------------------------------------------------------------
     def to_magcal(self):
@@ -85,7 +89,15 @@ class Calibration:
     def from_magcal(cls, A, b, expmfs=1.0, units: str = "") -> "Calibration":
         """From MATLAB magcal's [A, b, expmfs] (C = (D − b)·A)."""
         return cls(offset=np.ravel(b), matrix=np.asarray(A, dtype=float).T, field_norm=expmfs, units=units,
-                   model="magcal")
+                   model="magcal")._finite("from_magcal")
+
+    def _finite(self, source: str) -> "Calibration":
+        """self, or ValueError naming `source` when the offset, matrix or field norm holds NaN/Inf (a
+        calibration read in, which every use would turn into NaN fields)."""
+        for name, value in (("offset", self.offset), ("matrix", self.matrix), ("field_norm", self.field_norm)):
+            if not np.all(np.isfinite(value)):
+                raise ValueError(f"{source}: {name} is not finite ({np.asarray(value).tolist()})")
+        return self
 
     # -- files ---------------------------------------------------------------------------------------
     def to_dict(self) -> dict:
@@ -110,12 +122,13 @@ class Calibration:
         if missing:
             raise ValueError(f"{source}: missing {', '.join(missing)}")
         try:
-            return cls(offset=data["offset"], matrix=data["matrix"], field_norm=data["field_norm"],
-                       units=data.get("units", ""), model=data.get("model", ""),
-                       summary=data.get("summary", {}), metadata=data.get("metadata", {}),
-                       field_units=data.get("field_units"))
+            cal = cls(offset=data["offset"], matrix=data["matrix"], field_norm=data["field_norm"],
+                      units=data.get("units", ""), model=data.get("model", ""),
+                      summary=data.get("summary", {}), metadata=data.get("metadata", {}),
+                      field_units=data.get("field_units"))
         except (TypeError, ValueError) as exc:
             raise ValueError(f"{source}: offset must hold 3 numbers and matrix 3×3 ({exc})") from None
+        return cal._finite(source)
 
     def save(self, path) -> Path:
         path = Path(path)

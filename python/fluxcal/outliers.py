@@ -30,6 +30,7 @@ from dataclasses import dataclass, field
 import numpy as np
 from scipy import special, stats
 
+from ._arrays import as_samples
 from .calibration import Calibration
 from .ellipsoid import fit_ellipsoid
 
@@ -178,10 +179,10 @@ def find_outliers(samples, reference=None, alpha: float = 0.01, seed: int = 0) -
     """Gross outliers of `samples` (N×3 readings of a turning magnetometer), judged against the ellipsoid,
     or with `reference` (the true field of each reading, sensor frame) against the vector model
     m = W r + b; see the module doc."""
-    m = np.asarray(samples, dtype=float)
+    m = as_samples(samples)  # NaN is let through: the screen stands down and the fit names the row
     n = len(m)
     if reference is not None:
-        return _vector_outliers(m, np.asarray(reference, dtype=float), alpha, seed)
+        return _vector_outliers(m, as_samples(reference, "reference"), alpha, seed)
     threshold = float(stats.norm.isf(alpha / (2 * n))) if n else 0.0
     none = Outliers(np.zeros(0, dtype=int), threshold, screened=False)
     if n < MIN_SAMPLES or not np.isfinite(m).all():

@@ -13,7 +13,7 @@ from __future__ import annotations
 import numpy as np
 
 from . import _core
-from ._arrays import as_samples, set_options
+from ._arrays import as_samples, require_calibration, set_options
 from .calibration import Calibration
 
 LOSSES = {"none": _core.Loss.none, "huber": _core.Loss.huber, "cauchy": _core.Loss.cauchy}
@@ -103,6 +103,7 @@ def refine(calibration: Calibration, samples, reference=None, loss: str = "none"
     Newey–West lags (0 = independent readings assumed), the inflation of the standard errors and the
     independent-readings ones. Whether the data determine a parameter is judged on the latter.
     """
+    require_calibration(calibration)
     m = as_samples(samples)
     if reference is not None and shape_name(shape) != "sym":
         raise ValueError(f"shape: {shape!r} restricts the magnitude model's A; with a reference the vector model "

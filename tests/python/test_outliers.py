@@ -235,3 +235,14 @@ def test_diagnose_leaves_vector_glitches_out():
     assert not d.significant, d.accepted
     assert "15 read exactly 0,0,0" in d.noise_source and "reference-vector model" in d.noise_source
     assert d.noise_sigma == pytest.approx(0.25, rel=0.1)
+
+
+def test_the_screen_names_a_wrong_shape_and_stands_down_on_nan():
+    rng = np.random.default_rng(5)
+    x = rng.normal(size=(200, 3))
+    with pytest.raises(ValueError, match=r"samples: shape \(200, 2\), expected \(N, 3\)"):
+        find_outliers(x[:, :2])  # was an IndexError from deep inside
+    with pytest.raises(ValueError, match=r"reference: shape \(200,\)"):
+        find_outliers(x, x[:, 0])
+    x[7, 1] = np.nan
+    assert not find_outliers(x).screened  # the fit that follows names the row

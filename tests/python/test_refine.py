@@ -287,3 +287,34 @@ def test_robust_loss_resists_outliers():
     robust = fluxcal.refine(start, x, loss="cauchy")
     err = lambda c: np.linalg.norm(c.offset - truth.offset) / s.field_norm  # noqa: E731
     assert err(robust) < 0.004 and err(plain) > 5 * err(robust)  # measured 0.0017 vs 0.0146
+
+
+def test_bad_inputs_to_crlb_refine_and_calibration_name_the_input(tmp_path):
+    s = simulated(41, n=300)
+    truth, ref = s.true_calibration(), s.truth.copy()
+    ref[3, 0] = np.nan
+    with pytest.raises(ValueError, match=r"reference: row 3, column 0 \(x\) is nan"):
+        fluxcal.crlb(truth, reference=ref)  # was numpy's "Eigenvalues did not converge"
+    for sigma in (np.nan, -1.0, 0.0):
+        with pytest.raises(ValueError, match="sigma"):
+            fluxcal.crlb(truth, s.clean, sigma=sigma)  # NaN gave an all-NaN bound, −1 the bound of +1
+    with pytest.raises(TypeError, match="calibration: expected a fluxcal.Calibration .* got NoneType"):
+        fluxcal.refine(None, s.readings)
+    with pytest.raises(TypeError, match="got dict"):
+        fluxcal.crlb({"offset": [0, 0, 0]}, s.clean)
+    with pytest.raises(ValueError, match="samples: complex numbers"):
+        fluxcal.fit_ellipsoid(s.readings + 1j)  # float64 dropped the imaginary part with a warning
+    singular = fluxcal.Calibration(offset=[0, 0, 0], matrix=np.diag([1.0, 1.0, 0.0]))
+    with pytest.raises(ValueError, match="matrix A is singular"):
+        singular.forward_matrix
+    with pytest.raises(ValueError, match="matrix A is singular"):
+        singular.reading(s.truth[:2])
+    np.testing.assert_allclose(truth.reading(s.truth[:5]), s.clean[:5], rtol=1e-12)
+    with pytest.raises(ValueError, match="from_magcal: matrix is not finite"):
+        fluxcal.Calibration.from_magcal(np.eye(3) * np.nan, [0, 0, 0])
+    d = truth.to_dict()
+    d["offset"] = [np.nan, 0.0, 0.0]
+    path = tmp_path / "nan.json"
+    path.write_text(__import__("json").dumps(d))  # json writes NaN, as a hand-edited file may hold it
+    with pytest.raises(ValueError, match=r"nan.json: offset is not finite"):
+        fluxcal.Calibration.load(path)
