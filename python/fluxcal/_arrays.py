@@ -36,7 +36,8 @@ def require_finite(arr: np.ndarray, name: str) -> np.ndarray:
     bad = first_nonfinite(arr)
     if bad is not None:
         row, col = bad
-        raise ValueError(f"{name}: row {row}, column {col} ({'xyz'[col]}) is {arr[row, col]}")
+        raise ValueError(f"{name}: row {row}, column {col} ({'xyz'[col]}) is "
+                         f"{'NaN' if np.isnan(arr[row, col]) else 'infinite'}")  # as the core's checks say
     return arr
 
 

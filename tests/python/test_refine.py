@@ -293,7 +293,7 @@ def test_bad_inputs_to_crlb_refine_and_calibration_name_the_input(tmp_path):
     s = simulated(41, n=300)
     truth, ref = s.true_calibration(), s.truth.copy()
     ref[3, 0] = np.nan
-    with pytest.raises(ValueError, match=r"reference: row 3, column 0 \(x\) is nan"):
+    with pytest.raises(ValueError, match=r"reference: row 3, column 0 \(x\) is NaN"):
         fluxcal.crlb(truth, reference=ref)  # was numpy's "Eigenvalues did not converge"
     for sigma in (np.nan, -1.0, 0.0):
         with pytest.raises(ValueError, match="sigma"):
