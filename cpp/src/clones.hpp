@@ -11,6 +11,13 @@
 #define FLUXCAL_CLONES
 #endif
 
+// A kernel's per-reading body, inlined into each clone so that it is vectorised there.
+#if defined(__GNUC__)
+#define FLUXCAL_ALWAYS_INLINE __attribute__((always_inline)) inline
+#else
+#define FLUXCAL_ALWAYS_INLINE inline
+#endif
+
 namespace fluxcal::detail {
 constexpr int kLanes = 8;
 }  // namespace fluxcal::detail

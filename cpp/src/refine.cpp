@@ -26,32 +26,45 @@ constexpr const char* kVectorNames[] = {"b0",  "b1",  "b2",  "w00", "w01", "w02"
 //   dr = ((2s − H)/q) ds − (r/q) dq,   ds = ĥᵀ dh,   dq = ĝᵀ dg,
 //   d/db: dh = −A db, dg = −A² db;   d/da_kl: dh = E_kl d, dg = E_kl h + A E_kl d,
 // with uᵀ E_kl v = u_k v_l + u_l v_k (k ≠ l) or u_k v_k, for the symmetric basis E_kl.
-constexpr int kSym[6][2] = {{0, 0}, {0, 1}, {0, 2}, {1, 1}, {1, 2}, {2, 2}};
+//
+// The residual (out[9 · stride]) and its derivatives over [b, a00 a01 a02 a11 a12 a22] (out[c · stride],
+// c = 0 … 8) at d = m − b, for A's six entries `a`. Written once for the single reading (stride 1) and for
+// sampson_rows' lanes (stride kLanes), where GCC vectorises it across readings once inlined.
+FLUXCAL_ALWAYS_INLINE void sampson_at(double dx, double dy, double dz, const double* a, double H, double* out,
+                                      int stride) {
+  const double a00 = a[0], a01 = a[1], a02 = a[2], a11 = a[3], a12 = a[4], a22 = a[5];
+  const double hx = a00 * dx + a01 * dy + a02 * dz, hy = a01 * dx + a11 * dy + a12 * dz,
+               hz = a02 * dx + a12 * dy + a22 * dz;  // h = A d
+  const double gx = a00 * hx + a01 * hy + a02 * hz, gy = a01 * hx + a11 * hy + a12 * hz,
+               gz = a02 * hx + a12 * hy + a22 * hz;  // g = A h
+  // two divisions, not six: a refine evaluates this ~10 times a reading
+  const double sn = std::sqrt(hx * hx + hy * hy + hz * hz), inv_q = 1.0 / std::sqrt(gx * gx + gy * gy + gz * gz);
+  const double res = (sn - H) * sn * inv_q, inv_sn = 1.0 / sn;
+  const double uhx = hx * inv_sn, uhy = hy * inv_sn, uhz = hz * inv_sn;  // ĥ
+  const double ugx = gx * inv_q, ugy = gy * inv_q, ugz = gz * inv_q;     // ĝ
+  const double cs = (2.0 * sn - H) * inv_q, cq = res * inv_q;
+  const double vx = a00 * ugx + a01 * ugy + a02 * ugz, vy = a01 * ugx + a11 * ugy + a12 * ugz,
+               vz = a02 * ugx + a12 * ugy + a22 * ugz;  // A ĝ
+  const double wx = a00 * vx + a01 * vy + a02 * vz, wy = a01 * vx + a11 * vy + a12 * vz,
+               wz = a02 * vx + a12 * vy + a22 * vz;  // A² ĝ
+  // d/db: ds = −(A ĥ)ᵀ db = −(g/|h|)ᵀ db, dq = −(A² ĝ)ᵀ db
+  const double cb = cs * inv_sn;
+  out[0] = -cb * gx + cq * wx, out[stride] = -cb * gy + cq * wy, out[2 * stride] = -cb * gz + cq * wz;
+  // d/da_kl = cs ds − cq dq with ds = ĥᵀ E_kl d, dq = ĝᵀ E_kl h + (A ĝ)ᵀ E_kl d
+  out[3 * stride] = cs * (uhx * dx) - cq * (ugx * hx + vx * dx);
+  out[4 * stride] = cs * (uhx * dy + uhy * dx) - cq * (ugx * hy + ugy * hx + vx * dy + vy * dx);
+  out[5 * stride] = cs * (uhx * dz + uhz * dx) - cq * (ugx * hz + ugz * hx + vx * dz + vz * dx);
+  out[6 * stride] = cs * (uhy * dy) - cq * (ugy * hy + vy * dy);
+  out[7 * stride] = cs * (uhy * dz + uhz * dy) - cq * (ugy * hz + ugz * hy + vy * dz + vz * dy);
+  out[8 * stride] = cs * (uhz * dz) - cq * (ugz * hz + vz * dz);
+  out[9 * stride] = res;
+}
 
 double sampson(const double* m, const double* th, double H, double* jac /* 9 or nullptr */) {
-  Eigen::Matrix3d A;
-  A << th[3], th[4], th[5], th[4], th[6], th[7], th[5], th[7], th[8];
-  const Eigen::Vector3d d(m[0] - th[0], m[1] - th[1], m[2] - th[2]);
-  const Eigen::Vector3d h = A * d, g = A * h;
-  const double sn = h.norm(), q = g.norm();
-  const double inv_q = 1.0 / q;  // a refine evaluates this ~10 times a reading: two divisions, not six
-  const double r = (sn - H) * sn * inv_q;
-  if (jac) {
-    const double inv_sn = 1.0 / sn;
-    const Eigen::Vector3d uh = h * inv_sn, ug = g * inv_q;
-    const double cs = (2.0 * sn - H) * inv_q, cq = r * inv_q;
-    const Eigen::Vector3d Aug = A * ug;
-    // d/db: ds = −(A ĥ)ᵀ db = −(g/|h|)ᵀ db, dq = −(A² ĝ)ᵀ db
-    const Eigen::Vector3d jb = -cs * inv_sn * g + cq * (A * Aug);
-    jac[0] = jb(0), jac[1] = jb(1), jac[2] = jb(2);
-    for (int c = 0; c < 6; ++c) {
-      const int k = kSym[c][0], l = kSym[c][1];
-      const double ds = k == l ? uh(k) * d(k) : uh(k) * d(l) + uh(l) * d(k);
-      const double dq = k == l ? ug(k) * h(k) + Aug(k) * d(k) : ug(k) * h(l) + ug(l) * h(k) + Aug(k) * d(l) + Aug(l) * d(k);
-      jac[3 + c] = cs * ds - cq * dq;
-    }
-  }
-  return r;
+  double out[10];
+  sampson_at(m[0] - th[0], m[1] - th[1], m[2] - th[2], th + 3, H, out, 1);
+  if (jac) std::copy(out, out + 9, jac);
+  return out[9];
 }
 
 // `sampson` for n readings (rows `stride` apart), the residuals into r and, when jac is not null, the
@@ -61,40 +74,14 @@ FLUXCAL_CLONES
 void sampson_rows(const double* m, Eigen::Index stride, Eigen::Index n, const double* th, double H, double* r,
                   double* jac) {
   using detail::kLanes;
-  const double b0 = th[0], b1 = th[1], b2 = th[2];
-  const double a00 = th[3], a01 = th[4], a02 = th[5], a11 = th[6], a12 = th[7], a22 = th[8];
   Eigen::Index i = 0;
   for (; i + kLanes <= n; i += kLanes) {
     double x[kLanes], y[kLanes], z[kLanes], out[10][kLanes];
     for (int l = 0; l < kLanes; ++l) {
       const double* mi = m + stride * (i + l);
-      x[l] = mi[0] - b0, y[l] = mi[1] - b1, z[l] = mi[2] - b2;
+      x[l] = mi[0] - th[0], y[l] = mi[1] - th[1], z[l] = mi[2] - th[2];
     }
-    for (int l = 0; l < kLanes; ++l) {
-      const double dx = x[l], dy = y[l], dz = z[l];
-      const double hx = a00 * dx + a01 * dy + a02 * dz, hy = a01 * dx + a11 * dy + a12 * dz,
-                   hz = a02 * dx + a12 * dy + a22 * dz;
-      const double gx = a00 * hx + a01 * hy + a02 * hz, gy = a01 * hx + a11 * hy + a12 * hz,
-                   gz = a02 * hx + a12 * hy + a22 * hz;
-      const double sn = std::sqrt(hx * hx + hy * hy + hz * hz), inv_q = 1.0 / std::sqrt(gx * gx + gy * gy + gz * gz);
-      const double res = (sn - H) * sn * inv_q, inv_sn = 1.0 / sn;
-      out[9][l] = res;
-      const double uhx = hx * inv_sn, uhy = hy * inv_sn, uhz = hz * inv_sn;
-      const double ugx = gx * inv_q, ugy = gy * inv_q, ugz = gz * inv_q;
-      const double cs = (2.0 * sn - H) * inv_q, cq = res * inv_q;
-      const double vx = a00 * ugx + a01 * ugy + a02 * ugz, vy = a01 * ugx + a11 * ugy + a12 * ugz,
-                   vz = a02 * ugx + a12 * ugy + a22 * ugz;  // A ĝ
-      const double wx = a00 * vx + a01 * vy + a02 * vz, wy = a01 * vx + a11 * vy + a12 * vz,
-                   wz = a02 * vx + a12 * vy + a22 * vz;  // A² ĝ
-      const double cb = cs * inv_sn;
-      out[0][l] = -cb * gx + cq * wx, out[1][l] = -cb * gy + cq * wy, out[2][l] = -cb * gz + cq * wz;
-      out[3][l] = cs * (uhx * dx) - cq * (ugx * hx + vx * dx);
-      out[4][l] = cs * (uhx * dy + uhy * dx) - cq * (ugx * hy + ugy * hx + vx * dy + vy * dx);
-      out[5][l] = cs * (uhx * dz + uhz * dx) - cq * (ugx * hz + ugz * hx + vx * dz + vz * dx);
-      out[6][l] = cs * (uhy * dy) - cq * (ugy * hy + vy * dy);
-      out[7][l] = cs * (uhy * dz + uhz * dy) - cq * (ugy * hz + ugz * hy + vy * dz + vz * dy);
-      out[8][l] = cs * (uhz * dz) - cq * (ugz * hz + vz * dz);
-    }
+    for (int l = 0; l < kLanes; ++l) sampson_at(x[l], y[l], z[l], th + 3, H, &out[0][l], kLanes);
     for (int l = 0; l < kLanes; ++l) r[i + l] = out[9][l];
     if (jac)
       for (int l = 0; l < kLanes; ++l)
