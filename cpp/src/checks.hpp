@@ -7,6 +7,7 @@
 
 #include <cmath>
 #include <cstdio>
+#include <limits>
 #include <string>
 
 namespace fluxcal {
@@ -97,9 +98,15 @@ void require_finite_fit(bool finite, const std::string& first_name, const First&
 
 /// Before a solver whose cost is a sum of squares of `values` (Ceres would fail on the first
 /// evaluation with a message naming none of the inputs, and log the NaN Jacobian to stderr).
+/// Also values so small that their squares are subnormal or 0 (|x| < 1.5e-154): the solvers that do
+/// not normalise their input then found a singular matrix or a NaN Jacobian, and said so instead.
 template <typename Values>
-void require_squares_finite(const Values& values, const std::string& name, const std::string& solver) {
+void require_squares_representable(const Values& values, const std::string& name, const std::string& solver) {
   require_finite_fit(std::isfinite(values.squaredNorm()), name, values, solver);
+  const double largest = values.size() > 0 ? values.cwiseAbs().maxCoeff() : 0.0;
+  if (largest > 0.0 && largest * largest < std::numeric_limits<double>::min())
+    throw Error(name + ": values no larger than " + num(largest) + " underflow " + solver +
+                " (their squares are below the smallest normal double); rescale them, e.g. to other units");
 }
 
 /// The coverage thresholds EllipsoidOptions and TwoStepOptions share; `s` is the struct's "Name::".

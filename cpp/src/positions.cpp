@@ -491,8 +491,8 @@ PositionsResult fit_positions(const SamplesRef& outputs, const SamplesRef& refer
   }
   check_finite(outputs, "outputs");
   check_finite(reference, "reference");
-  detail::require_squares_finite(outputs, "outputs", "the positions calibration");
-  detail::require_squares_finite(reference, "reference", "the positions calibration");
+  detail::require_squares_representable(outputs, "outputs", "the positions calibration");
+  detail::require_squares_representable(reference, "reference", "the positions calibration");
   // Design [1, H] (N×4), column-scaled; one solve for the three output axes.
   Eigen::MatrixXd X(n, 4);
   X.col(0).setOnes();
@@ -572,7 +572,7 @@ PositionsResult calibrate_positions(const SamplesRef& outputs, const SamplesRef&
   }
   check_finite(outputs, "outputs");
   check_finite(specific_force, "specific_force");
-  detail::require_squares_finite(outputs, "outputs", "the positions calibration");
+  detail::require_squares_representable(outputs, "outputs", "the positions calibration");
   check_gravity(specific_force, options);
   if (nominal.empty() && !options.estimate_yaw) {
     throw Error("nominal: no attitudes given and estimate_yaw is off: give each position's nominal attitude (a "
@@ -964,7 +964,7 @@ AccelerometerResult calibrate_accelerometer(const SamplesRef& readings, const Ac
                 "static positions for an accelerometer calibration (offset and scale: 6 unknowns; with "
                 "misalignment 9)");
   detail::check(options);
-  detail::require_squares_finite(readings, "readings", "the accelerometer calibration");
+  detail::require_squares_representable(readings, "readings", "the accelerometer calibration");
   const Eigen::Vector3d lo = readings.colwise().minCoeff(), hi = readings.colwise().maxCoeff();
   const Eigen::Vector3d mean_abs = readings.cwiseAbs().colwise().mean();
   for (int k = 0; k < 3; ++k) {

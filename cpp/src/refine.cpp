@@ -219,7 +219,7 @@ ceres::LossFunction* make_loss(const RefineOptions& opt, double sigma_start) {
 
 void check_inputs(const SamplesRef& samples, Eigen::Index min_rows, const std::string& purpose) {
   check_samples(samples, "samples", min_rows, purpose);
-  detail::require_squares_finite(samples, "samples", purpose);  // "… overflow a 12-parameter vector calibration"
+  detail::require_squares_representable(samples, "samples", purpose);  // "… overflow a 12-parameter vector calibration"
 }
 
 // Per reading, in time order: the plain residuals (N×1 magnitude, N×3 vector) and the scores
@@ -584,7 +584,7 @@ void check_vector_inputs(const SamplesRef& samples, const SamplesRef& reference)
     throw Error("reference: " + std::to_string(reference.rows()) + " rows, samples have " +
                 std::to_string(samples.rows()));
   check_finite(reference, "reference");
-  detail::require_squares_finite(reference, "reference", "the vector calibration");
+  detail::require_squares_representable(reference, "reference", "the vector calibration");
 }
 
 // The vector model m = W r + b is linear in θ: with X = [r 1] (N×4), its information JᵀJ is XᵀX on each

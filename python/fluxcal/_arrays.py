@@ -29,6 +29,8 @@ def require_calibration(value, name: str = "calibration"):
     if not isinstance(value, Calibration):
         raise TypeError(f"{name}: expected a fluxcal.Calibration (from fit_ellipsoid, calibrate, Calibration.load, "
                         f"…), got {type(value).__name__}")
+    # Its fields may have been assigned since it was made: checked, and put back in the types the core takes.
+    value.offset, value.matrix, value.field_norm = value.checked_fields(name)
 
 
 def require_finite(arr: np.ndarray, name: str) -> np.ndarray:

@@ -39,9 +39,29 @@ class Calibration:
         return self.units if self.field_units is None else self.field_units
 
     def __post_init__(self):
-        self.offset = np.asarray(self.offset, dtype=float).reshape(3)
-        self.matrix = np.asarray(self.matrix, dtype=float).reshape(3, 3)
-        self.field_norm = float(self.field_norm)
+        self.offset, self.matrix, self.field_norm = self.checked_fields("Calibration")
+
+    def checked_fields(self, source: str) -> tuple[np.ndarray, np.ndarray, float]:
+        """(offset as 3 floats, matrix as 3×3, field_norm as a float), or an error naming `source` and the
+        field: also for fields assigned after construction (cal.field_norm = "50"), which the solvers
+        would otherwise reject with pybind11's listing of their signatures."""
+        def numbers(name, value, shape, need):
+            try:
+                if np.asarray(value).dtype.kind in "US":  # NumPy would read "5e4" as a number
+                    raise TypeError
+                return np.asarray(value, dtype=float).reshape(shape)
+            except (TypeError, ValueError):
+                shown = " ".join(repr(value).split())
+                raise ValueError(f"{source}: {name} {shown[:80]}{'…' if len(shown) > 80 else ''} must be "
+                                 f"{need}") from None
+
+        for name in ("units", "model"):
+            if not isinstance(getattr(self, name), str):
+                raise TypeError(f"{source}: {name} {getattr(self, name)!r} must be a string")
+        if self.field_units is not None and not isinstance(self.field_units, str):
+            raise TypeError(f"{source}: field_units {self.field_units!r} must be a string or None")
+        return (numbers("offset", self.offset, (3,), "3 numbers"), numbers("matrix", self.matrix, (3, 3), "3 × 3 numbers"),
+                float(numbers("field_norm", self.field_norm, (), "a number")))
 
     # -- use ---------------------------------------------------------------------------------------
     def apply(self, samples) -> np.ndarray:
@@ -127,7 +147,7 @@ class Calibration:
                       summary=data.get("summary", {}), metadata=data.get("metadata", {}),
                       field_units=data.get("field_units"))
         except (TypeError, ValueError) as exc:
-            raise ValueError(f"{source}: offset must hold 3 numbers and matrix 3×3 ({exc})") from None
+            raise ValueError(f"{source}: {str(exc).removeprefix('Calibration: ')}") from None
         return cal._finite(source)
 
     def save(self, path) -> Path:

@@ -110,9 +110,11 @@ def cmd_calibrate(args) -> int:
     if field_norm is None and reference is None and "simulated" in rec.metadata and "field_norm" in rec.metadata:
         field_norm = float(rec.metadata["field_norm"])  # `fluxcal simulate` states the field it simulated
         print(f"field norm {field_norm:g} {units} from the simulation's metadata".rstrip())
+    # the refinement's setting only when asked for: methods ls and als refuse it, having no refinement
+    settings = {} if args.serial_correlation is None else {"serial_correlation": args.serial_correlation}
     try:
         cal = calibrate(raw, method=args.method, field_norm=field_norm, reference=reference, units=units,
-                        outliers=args.outliers, serial_correlation=args.serial_correlation, shape=args.shape)
+                        outliers=args.outliers, shape=args.shape, **settings)
     except ValueError as exc:  # the solvers name their argument ("samples: …"); the user knows the file
         raise ValueError(f"{args.file}: {exc}") from None
     cal.field_units = _field_units(args, units, field_norm, reference)
@@ -433,7 +435,7 @@ def build_parser() -> argparse.ArgumentParser:
     c.add_argument("--outliers", default="drop", choices=["drop", "keep"],
                    help="drop (default): leave gross outliers (0,0,0 glitches, ADC rails, spikes) out of the fit "
                         "and list them; keep: fit every reading")
-    c.add_argument("--serial-correlation", default="automatic", choices=["automatic", "independent", "newey_west"],
+    c.add_argument("--serial-correlation", default=None, choices=["automatic", "independent", "newey_west"],
                    help="standard errors: automatic (default) widens them (Newey-West) when the readings are "
                         "correlated in time; independent when the rows are not in time order")
     c.add_argument("-o", "--output", help="write the calibration (JSON)")

@@ -175,6 +175,15 @@ def _spans(gram: np.ndarray) -> bool:
     return bool(w[0] > 1e-12 * w[-1])
 
 
+def _squares_representable(a: np.ndarray) -> bool:
+    """Whether `a` is finite and a sum of its squares is a finite, normal double, as the fits require
+    (fluxcal's C++ checks): otherwise the screen's statistics would overflow or underflow, with NumPy
+    warnings before the fit's clear error."""
+    largest = float(np.max(np.abs(a))) if a.size else 0.0
+    square = largest * largest
+    return bool(np.isfinite(square * a.size) and (largest == 0.0 or square >= np.finfo(float).tiny))
+
+
 def find_outliers(samples, reference=None, alpha: float = 0.01, seed: int = 0) -> Outliers:
     """Gross outliers of `samples` (N×3 readings of a turning magnetometer), judged against the ellipsoid,
     or with `reference` (the true field of each reading, sensor frame) against the vector model
@@ -185,8 +194,8 @@ def find_outliers(samples, reference=None, alpha: float = 0.01, seed: int = 0) -
         return _vector_outliers(m, as_samples(reference, "reference"), alpha, seed)
     threshold = float(stats.norm.isf(alpha / (2 * n))) if n else 0.0
     none = Outliers(np.zeros(0, dtype=int), threshold, screened=False)
-    if n < MIN_SAMPLES or not np.isfinite(m).all():
-        return none  # too few to judge, or NaN: the fit itself names the problem
+    if n < MIN_SAMPLES or not _squares_representable(m):
+        return none  # too few to judge, NaN or out of scale: the fit itself names the problem
     start = _try_fit(m, "als")
     quick = _fits_to_the_noise(m, start, threshold)
     if quick is not None:
@@ -236,9 +245,9 @@ def _vector_outliers(m: np.ndarray, r: np.ndarray, alpha: float, seed: int) -> O
     threshold = float(stats.norm.isf(alpha / (2 * n))) if n else 0.0
     none = Outliers(np.zeros(0, dtype=int), threshold, screened=False, model=VECTOR_MODEL)
     X = np.column_stack([r, np.ones(n)]) if r.shape == m.shape and m.ndim == 2 else None
-    if n < MIN_SAMPLES or X is None or not (np.isfinite(m).all() and np.isfinite(r).all()) \
+    if n < MIN_SAMPLES or X is None or not (_squares_representable(m) and _squares_representable(r)) \
             or not _spans(X.T @ X):
-        return none  # too few, NaN, or a reference that does not turn: the fit itself names the problem
+        return none  # too few, NaN, out of scale, or a reference that does not turn: the fit names the problem
     rng = np.random.default_rng(seed)
     scored = rng.choice(n, min(n, SCORED), replace=False)
     subsets = rng.integers(0, n, (SUBSETS, SUBSET))

@@ -2,10 +2,12 @@
 from __future__ import annotations
 
 import os
+import re
 from concurrent.futures import ThreadPoolExecutor
 
 import numpy as np
 
+from . import _core
 from ._arrays import as_samples, held_copies
 from .calibration import Calibration
 from .ellipsoid import fit_ellipsoid
@@ -17,6 +19,9 @@ OUTLIERS = ("drop", "keep")
 # From this many readings shape="auto" refines its shapes in threads (the solver releases the GIL; each fit is
 # the same as alone). Below it the three fits take a few ms together, less than the threads would save.
 PARALLEL_SHAPES = 5000
+# Settings of the algebraic ellipsoid fit (EllipsoidOptions); calibrate's other settings are the refinement's.
+ELLIPSOID_SETTINGS = frozenset(name for name in dir(_core.EllipsoidOptions())
+                               if not name.startswith("_")) - {"field_norm", "method", "units"}
 
 
 def usable_cpus() -> int:
@@ -52,6 +57,10 @@ def calibrate(samples, method: str = "auto", field_norm: float | None = None, re
     RSS and whether it was determined. A sensor without soft-iron coupling then gets no noise in its
     off-diagonal terms; on the real recordings in ../shared/data/real "sym" wins by thousands. The vector
     fit's W is always full.
+
+    settings: the ellipsoid fit's (planar_ratio, poor_coverage_ratio, … as fluxcal.fit_ellipsoid) go to the
+    algebraic fit, the others (max_iterations, serial_correlation, … as fluxcal.refine) to the refinement
+    or the vector fit. A setting for a step the method does not run is an error, not silently dropped.
     """
     if method not in METHODS:
         raise ValueError(f"method: {method!r} is not one of {', '.join(METHODS)}")
@@ -68,6 +77,8 @@ def calibrate(samples, method: str = "auto", field_norm: float | None = None, re
         units = getattr(samples, "field_units", lambda: "")()
     m = as_samples(samples)
     vector = method == "vector" or (method == "auto" and reference is not None)
+    start_settings = {k: settings.pop(k) for k in list(settings) if k in ELLIPSOID_SETTINGS}
+    _check_steps(method, vector, start_settings, settings, loss)
     if vector:
         if reference is None:
             raise ValueError("reference: the vector method needs the true field of each reading")
@@ -81,10 +92,10 @@ def calibrate(samples, method: str = "auto", field_norm: float | None = None, re
     if vector:
         cal = fit_vector(m, reference, units=units, loss=loss, **settings)
     elif method in ("ls", "als"):
-        cal = fit_ellipsoid(m, field_norm=field_norm, units=units, method=method)
+        cal = fit_ellipsoid(m, field_norm=field_norm, units=units, method=method, **start_settings)
         cal.summary["method"] = method
     else:
-        start = fit_ellipsoid(m, field_norm=field_norm, units=units, method="als")
+        start = fit_ellipsoid(m, field_norm=field_norm, units=units, method="als", **start_settings)
         cal = _refine_shape(start, m, shape, loss=loss, **settings)
         cal.summary["method"] = "als+refine"
         cal.summary["coverage_ratio"] = start.summary["coverage_ratio"]
@@ -106,6 +117,23 @@ def calibrate(samples, method: str = "auto", field_norm: float | None = None, re
         cal.summary["outliers"] = left_out.to_dict()
         cal.summary["warnings"] = list(cal.summary["warnings"]) + left_out.messages(len(all_readings))
     return _note_copies(cal, all_readings)
+
+
+def _check_steps(method: str, vector: bool, start_settings: dict, refine_settings: dict, loss: str) -> None:
+    """Refuse settings meant for a step that `method` does not run (they would be silently ignored)."""
+    if vector and start_settings:
+        raise ValueError(f"{_settings_named(start_settings)} of the ellipsoid fit, which the vector fit "
+                         "(method 'vector', or 'auto' with a reference) does not run")
+    if method in ("ls", "als"):
+        unused = list(refine_settings) + (["loss"] if loss != "none" else [])
+        if unused:
+            raise ValueError(f"{_settings_named(unused)} of the refinement, which method {method!r} does not "
+                             "run (method 'auto' or 'als+refine' refines)")
+
+
+def _settings_named(names) -> str:
+    names = list(names)
+    return f"{', '.join(names)}: {'a setting' if len(names) == 1 else 'settings'}"
 
 
 def _refine_shape(start: Calibration, m: np.ndarray, shape: str, **settings) -> Calibration:
@@ -137,7 +165,10 @@ def _refine_shape(start: Calibration, m: np.ndarray, shape: str, **settings) -> 
         table[name] = {"parameters": k, "rss": rss, "bic": n * np.log(rss / n) + k * np.log(n),
                        "identifiable": bool(s["identifiable"])}
     if not fits:
-        raise ValueError("; ".join(f"shape {k}: {v['error']}" for k, v in table.items()))
+        errors = {k: v["error"] for k, v in table.items()}
+        if len({re.sub(r"\d+-parameter ", "", e) for e in errors.values()}) == 1:
+            raise ValueError(errors["sym"])  # the data's fault, not a shape's: said once
+        raise ValueError("; ".join(f"shape {k}: {e}" for k, e in errors.items()))
     # Chosen by fit alone: a smaller shape the data reject is biased however well determined (on the
     # airborne segment the sphere is "determined" and 1.1 µT off, 3.5 of its standard errors).
     best = min(fits, key=lambda k: table[k]["bic"])

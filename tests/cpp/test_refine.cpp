@@ -207,3 +207,19 @@ TEST(RefineInputs, HugeReadingsAreNamed) {
   EXPECT_ERROR_SAYS(fluxcal::fit_vector(s, reference * 1e300), "reference: values up to");
   EXPECT_ERROR_SAYS(fluxcal::refine_vector(fluxcal::Calibration(), s, reference * 1e300), "reference: values up to");
 }
+
+// Readings whose squares underflow (|x| < 1.5e-154): refine failed inside Ceres with a NaN Jacobian,
+// fit_vector called the fitted W singular or the reference planar.
+TEST(RefineInputs, TinyReadingsAreNamed) {
+  const auto truth = fluxcal_test::make_truth(3, 50.0);
+  const fluxcal::Samples s = fluxcal_test::simulate(truth, 400, 0.01, 4);
+  const fluxcal::Samples tiny = s * 1e-200;
+  fluxcal::Calibration start = fluxcal::fit_ellipsoid(tiny).calibration;  // normalised: fits at any scale
+  EXPECT_NEAR((start.offset * 1e200 - truth.b).norm() / truth.field, 0.0, 0.01);
+  EXPECT_ERROR_SAYS(fluxcal::refine(start, tiny), "samples: values no larger than");
+  EXPECT_ERROR_SAYS(fluxcal::refine(start, tiny), "underflow a 9-parameter magnitude refinement");
+  const fluxcal::Samples reference = (s.rowwise() - truth.b.transpose()) * truth.W.inverse().transpose();
+  EXPECT_ERROR_SAYS(fluxcal::fit_vector(tiny, reference * 1e-200), "samples: values no larger than");
+  EXPECT_ERROR_SAYS(fluxcal::fit_vector(s, reference * 1e-200), "reference: values no larger than");
+  EXPECT_NO_THROW(fluxcal::fit_vector(s * 1e-150, reference));  // squares still normal doubles
+}

@@ -1,5 +1,7 @@
 """Joint refinement, consistent (ALS) fit, vector calibration and identifiability, against oracles,
 simulation truth and the Cramér–Rao bound."""
+import warnings
+
 import numpy as np
 import pytest
 
@@ -318,3 +320,62 @@ def test_bad_inputs_to_crlb_refine_and_calibration_name_the_input(tmp_path):
     path.write_text(__import__("json").dumps(d))  # json writes NaN, as a hand-edited file may hold it
     with pytest.raises(ValueError, match=r"nan.json: offset is not finite"):
         fluxcal.Calibration.load(path)
+
+
+def test_fields_assigned_after_construction_and_readings_out_of_scale_are_named():
+    s = simulated(42, n=300)
+    for name, value, message in (("field_norm", "5e4", "field_norm '5e4' must be a number"),
+                                 ("offset", [1.0, 2.0], r"offset \[1.0, 2.0\] must be 3 numbers"),
+                                 ("units", 5, "units 5 must be a string")):
+        cal = s.true_calibration()
+        setattr(cal, name, value)  # pybind11 listed the core's signatures instead
+        with pytest.raises((TypeError, ValueError), match=f"calibration: {message}"):
+            fluxcal.refine(cal, s.readings)
+    cal = s.true_calibration()
+    cal.field_norm = [s.field_norm]  # a number in a list is still the number
+    assert fluxcal.refine(cal, s.readings).field_norm == pytest.approx(s.field_norm, rel=1e-3)
+    with pytest.raises(ValueError, match=r"x.json: units 5 must be a string"):
+        fluxcal.Calibration.from_dict({**s.true_calibration().to_dict(), "units": 5}, "x.json")
+    # Below |x| ~ 1.5e-154 the squares are not normal doubles: the refinement and the vector fit found a NaN
+    # Jacobian or "reference vectors do not span 3-D"; now the input and its scale are named.
+    tiny = s.readings * 1e-200
+    with pytest.raises(ValueError, match=r"samples: values no larger than .*e-19\d underflow a 9-parameter"):
+        fluxcal.calibrate(tiny)  # said once, not once per shape
+    with pytest.raises(ValueError, match=r"samples: values no larger than .* underflow a 12-parameter"):
+        fluxcal.fit_vector(tiny, s.truth * 1e-200)
+    assert np.allclose(fluxcal.fit_ellipsoid(tiny, method="als").offset * 1e200,
+                       fluxcal.fit_ellipsoid(s.readings, method="als").offset, rtol=1e-9)  # it normalises
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")  # the outlier screen stands down before NumPy overflows
+        with pytest.raises(ValueError, match="overflow the ellipsoid fit"):
+            fluxcal.calibrate(s.readings * 1e300)
+        with pytest.raises(ValueError, match="underflow"):
+            fluxcal.calibrate(tiny, reference=s.truth)
+
+
+def test_calibrate_refuses_settings_for_a_step_it_does_not_run():
+    s = simulated(43, n=300)
+    with pytest.raises(ValueError, match="max_iterations: a setting of the refinement, which method 'als' does not run"):
+        fluxcal.calibrate(s.readings, method="als", max_iterations=3)  # was silently ignored
+    with pytest.raises(ValueError, match="loss: a setting of the refinement, which method 'ls'"):
+        fluxcal.calibrate(s.readings, method="ls", loss="huber")
+    with pytest.raises(ValueError, match="planar_ratio: a setting of the ellipsoid fit, which the vector fit"):
+        fluxcal.calibrate(s.readings, reference=s.truth, planar_ratio=0.1)
+    # the ellipsoid fit's settings reach the ALS start of the default method: a planar_ratio above the data's
+    # thinnest/widest spread makes that fit refuse them
+    spread = np.sqrt(np.linalg.eigvalsh(np.cov(s.readings.T)))
+    with pytest.raises(ValueError, match="one plane"):
+        fluxcal.calibrate(s.readings, planar_ratio=min(1.0, 1.5 * spread[0] / spread[-1]))
+    assert fluxcal.calibrate(s.readings, method="als", planar_ratio=0.01).summary["method"] == "als"
+
+
+def test_direction_coverage_names_a_nan_row_and_a_bad_max_rows():
+    s = simulated(44, n=300)
+    fields = s.true_calibration().apply(s.readings)
+    assert fluxcal.direction_coverage(fields) > 0.8
+    fields[7, 1] = np.nan  # the fraction of the other rows passed for the recording's
+    with pytest.raises(ValueError, match=r"field_vectors: row 7, column 1 \(y\) is NaN"):
+        fluxcal.direction_coverage(fields)
+    for bad in (-1, 1.5, True):
+        with pytest.raises(ValueError, match="max_rows"):
+            fluxcal.direction_coverage(s.truth, bad)
