@@ -236,6 +236,24 @@ def test_decimal_commas_of_a_semicolon_or_tab_table_are_read(tmp_path):
         read_recording(mixed)
 
 
+def test_decimal_commas_are_read_per_column_beside_decimal_points(tmp_path):
+    # ISO times with a decimal point beside decimal-comma readings: every reading column was left out as text
+    iso = tmp_path / "iso.csv"
+    iso.write_text("time;Bx;By;Bz\n2024-01-01T12:00:00.1;12,5;-3,25;40\n2024-01-01T12:00:00.2;13,5;-3,5;41,0\n")
+    rec = read_recording(iso)
+    np.testing.assert_array_equal(rec.samples(), [[12.5, -3.25, 40], [13.5, -3.5, 41]])
+    np.testing.assert_allclose(rec.time(), [0.0, 0.1])
+    assert rec.metadata["decimal_separator"] == "comma"
+    mixed = tmp_path / "mixed.csv"  # one column written by another program, with a decimal point
+    mixed.write_text("t;Bx;By;Bz\n0;12,5;-3.25;40,0\n1;13,5;-3.5;41,0\n")
+    np.testing.assert_array_equal(read_recording(mixed).samples(), [[12.5, -3.25, 40], [13.5, -3.5, 41]])
+    # 1,234 beside 0.5 may be a thousands separator: not guessed; the error says which column was text
+    thousands = tmp_path / "thousands.csv"
+    thousands.write_text("n;Bx;By;Bz\n1;1,234;0.5;3.0\n2;2,345;0.6;3.1\n")
+    with pytest.raises(ValueError, match=r"columns are: n, By, Bz; left out as text: Bx \(e.g. 1,234, 2,345\)"):
+        read_recording(thousands).samples()
+
+
 def test_a_row_of_units_under_the_header_and_a_headerless_decimal_comma_table(tmp_path):
     path = tmp_path / "logger.csv"  # a data logger's export: names, then units, then numbers
     path.write_text("Time;Bx;By;Bz;Status\n(s);(µT);[µT];µT;\n0,0;-0,5;1,25;3;1\n0,1;4,5e1;-,5;6;1\n")

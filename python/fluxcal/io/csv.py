@@ -348,22 +348,45 @@ def _units_row(lines, start: int, names, delimiter, unit_map: dict):
 
 def decimal_points(lines, start: int, delimiter):
     """(lines, True) with the data lines' decimal commas from `start` on made points when the table writes
-    its numbers so (a European spreadsheet export, 1,25;0,5; see _decimal_comma; comment lines stay as
-    written), else (lines, False)."""
-    if not _decimal_comma(lines[start:start + 400], delimiter):
+    its numbers so (a European spreadsheet export, 1,25;0,5; see _decimal_comma_columns; comment lines stay
+    as written), else (lines, False). When some columns hold decimal points (an ISO time 12:00:01.5, a
+    column a program wrote in its own format), only the decimal-comma columns are converted."""
+    sample = lines[start:start + 400]
+    columns = _decimal_comma_columns(sample, delimiter)
+    if not columns:
         return lines, False
-    return lines[:start] + [line if is_comment(line) else line.replace(",", ".")
-                            for line in lines[start:]], True
+    if not any("." in line for line in sample if not is_comment(line)):  # every number in one form
+        return lines[:start] + [line if is_comment(line) else line.replace(",", ".") for line in lines[start:]], True
+
+    def convert(line):
+        cells = line.split(delimiter)
+        for j in columns:
+            if j < len(cells):
+                cells[j] = cells[j].replace(",", ".")
+        return delimiter.join(cells)
+
+    return lines[:start] + [line if is_comment(line) else convert(line) for line in lines[start:]], True
 
 
-def _decimal_comma(sample, delimiter) -> bool:
-    """True when a table delimited by ';' or tab writes its numbers with decimal commas: some cell of the
-    first data lines reads as one (-0,123) and no cell holds a decimal point."""
+def _decimal_comma_columns(sample, delimiter) -> list:
+    """The columns of a table delimited by ';' or tab that write their numbers with decimal commas: some
+    cell of the first data lines reads as one (-0,123) and none holds a decimal point. When other columns
+    do use decimal points, a column whose commas all have three digits after them (1,234) could be
+    thousands separators and is not taken: it is read as text and named as such."""
     if delimiter not in (";", "\t"):
-        return False
-    cells = [c for line in sample if line.strip() and not is_comment(line)
-             for c in line.split(delimiter)]
-    return any(_DECIMAL_COMMA.match(c) for c in cells) and not any("." in c for c in cells)
+        return []
+    rows = [line.split(delimiter) for line in sample if line.strip() and not is_comment(line)]
+    points = any("." in c for row in rows for c in row)
+    found = []
+    for j in range(max(map(len, rows), default=0)):
+        cells = [row[j] for row in rows if j < len(row)]
+        commas = [c.strip() for c in cells if _DECIMAL_COMMA.match(c)]
+        if not commas or any("." in c for c in cells):
+            continue
+        if points and all(len(c.split(",")[1].split("e")[0].split("E")[0]) == 3 for c in commas):
+            continue  # 1,234 beside 0.5: a thousands separator as likely as a decimal comma
+        found.append(j)
+    return found
 
 
 def _is_number(text: str) -> bool:

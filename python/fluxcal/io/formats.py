@@ -39,7 +39,7 @@ from __future__ import annotations
 import re
 from pathlib import Path
 
-from .csv import (_decimal_comma, _is_number, comment_text, data_lines, decimal_points, is_comment, parse_csv,
+from .csv import (_decimal_comma_columns, _is_number, comment_text, data_lines, decimal_points, is_comment, parse_csv,
                   read_csv, read_text, write_csv)
 from .recording import Recording
 
@@ -271,7 +271,7 @@ def _delimiter(lines, start: int):
     sample = [lines[start]] + data_lines(lines, start + 1, 20)
     counts = {c: sum(c in line for line in sample) for c in ("\t", ",", ";")}
     best = max(counts, key=lambda c: counts[c])
-    if best == "," and counts[";"] > len(sample) / 2 and _decimal_comma(sample[1:], ";"):
+    if best == "," and counts[";"] > len(sample) / 2 and _decimal_comma_columns(sample[1:], ";"):
         best = ";"  # both in most lines, and the ';' cells are decimal-comma numbers (1,25;0,5)
     return best if counts[best] > len(sample) / 2 else None
 

@@ -53,8 +53,10 @@ class Recording:
         if self.mag_columns is None:
             found = find_magnetometer(self.columns, self.source)
             if found is None:
+                text = self.metadata.get("text_columns")  # a column of numbers in a form the reader did not take
                 raise ValueError(f"{self.source}: no magnetometer columns (looked for mx,my,mz, MagX.., mag_x.., "
-                                 f"Bx.., x,y,z; columns are: {', '.join(self.columns)}); choose three with "
+                                 f"Bx.., x,y,z; columns are: {', '.join(self.columns)}"
+                                 f"{f'; left out as text: {text}' if text else ''}); choose three with "
                                  "--columns / select()")
             self.mag_columns = found
             for n in found:
