@@ -112,6 +112,15 @@ class DriftModel:
                 if len(s["range"]) != 2:
                     raise ValueError(f"{source}: segment {k} has the range {s['range']}, expected [lo, hi]")
                 lo, hi = (float(v) for v in s["range"])
+                try:
+                    coefficients = np.asarray(s["coefficients"], dtype=np.float64)
+                except ValueError:
+                    raise ValueError(f"{source}: segment {k} [{lo:g}, {hi:g}] has coefficients that are not numbers: "
+                                     f"{s['coefficients']!r}") from None
+                # A NaN coefficient made every temperature of the range compensate to NaN.
+                if not np.all(np.isfinite(coefficients)):
+                    raise ValueError(f"{source}: segment {k} [{lo:g}, {hi:g}] has a NaN/Inf coefficient: "
+                                     f"{list(map(float, np.atleast_1d(coefficients)))}")
                 if len(s["coefficients"]) != int(s["order"]) + 1:
                     raise ValueError(f"{source}: segment [{lo:g}, {hi:g}] has order {s['order']} but "
                                      f"{len(s['coefficients'])} coefficients")
@@ -135,14 +144,23 @@ class DriftModel:
 
     def save(self, path) -> Path:
         path = Path(path)
-        path.write_text(json.dumps(self.to_dict(), indent=2, default=_jsonable) + "\n")
+        data = self.to_dict()
+        try:  # refuse to write what load would refuse (a NaN coefficient, …)
+            self.from_dict(data, str(path))
+        except ValueError as exc:
+            raise ValueError(f"{exc} (not saved)") from None
+        path.write_text(json.dumps(data, indent=2, default=_jsonable) + "\n")
         return path
 
     @classmethod
     def load(cls, path) -> "DriftModel":
         path = Path(path)
         try:
-            data = json.loads(path.read_text())
+            raw = path.read_bytes()
+            data = json.loads(raw.decode("utf-8"))
+        except UnicodeDecodeError as exc:  # a binary or mis-encoded file: name the byte, not the codec
+            raise ValueError(f"{path}: byte 0x{exc.object[exc.start]:02x} at offset {exc.start} is not text "
+                             "(not a drift model JSON file?)") from None
         except (OSError, json.JSONDecodeError) as exc:
             raise ValueError(f"{path}: cannot read a drift model ({exc})") from None
         return cls.from_dict(data, str(path))
@@ -187,7 +205,10 @@ def accuracy(residual, rated: float, accuracy_class: str = "0.2S") -> dict:
         raise ValueError(f"accuracy_class: {accuracy_class!r} is not one of {', '.join(IEC_LIMITS)}")
     if not rated > 0:
         raise ValueError(f"rated: {rated} must be > 0")
-    worst = float(np.max(np.abs(ts.as_series(residual, "residual"))))
+    residual = _finite(ts.as_series(residual, "residual"), "residual")  # a NaN gave "met": False without a word
+    if residual.size == 0:
+        raise ValueError("residual: empty, no samples to assess")
+    worst = float(np.max(np.abs(residual)))
     points = []
     for pct, limit in zip(CURRENT_POINTS, IEC_LIMITS[accuracy_class]):
         err = 100.0 * worst / (pct / 100.0 * rated)
@@ -199,7 +220,14 @@ def accuracy(residual, rated: float, accuracy_class: str = "0.2S") -> dict:
 def level_means(values, temp, step: float = 5.0) -> dict:
     """Mean of `values` in each temperature bin of width `step` centred on multiples of `step`
     (the chamber's hold levels)."""
-    values, temp = ts.as_series(values, "values"), ts.as_series(temp, "temp")
+    values = _finite(ts.as_series(values, "values"), "values")
+    temp = _finite(ts.as_series(temp, "temp"), "temp")
+    if temp.size != values.size:
+        raise ValueError(f"temp: {temp.size} samples, values has {values.size}")
+    if values.size == 0:
+        raise ValueError("values: empty, no samples to average")
+    if not (np.isfinite(step) and step > 0):  # 0 divided by zero, a negative step was taken as given
+        raise ValueError(f"step: {step} must be a finite number > 0")
     bins = np.round(temp / step) * step
     return {float(b): float(values[bins == b].mean()) for b in np.unique(bins)}
 

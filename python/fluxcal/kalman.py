@@ -18,9 +18,12 @@ from pathlib import Path
 import numpy as np
 
 from . import _core
-from .timeseries import as_series
+from .timeseries import as_series, as_whole
 
 INT32_MIN, INT32_MAX = -(2 ** 31), 2 ** 31 - 1
+# Largest AR order ArKalman takes: each sample costs O(p³) (AR(2000) on 300 samples ran for minutes); AR(100)
+# filters 10⁶ samples in about half a minute, ten times fit_pipeline's default ar_max_order.
+MAX_ORDER = 100
 
 
 def _coefficients(ar_coeffs) -> np.ndarray:
@@ -29,6 +32,12 @@ def _coefficients(ar_coeffs) -> np.ndarray:
         raise ValueError(f"ar_coeffs: shape {a.shape}, expected a non-empty 1-D sequence a1 … ap")
     if not np.all(np.isfinite(a)):
         raise ValueError("ar_coeffs: NaN/Inf")
+    return a
+
+
+def _order_within(a: np.ndarray, maximum: int, what: str) -> np.ndarray:
+    if a.size > maximum:
+        raise ValueError(f"ar_coeffs: order {a.size} exceeds the {what} maximum {maximum}")
     return a
 
 
@@ -43,10 +52,11 @@ class ArKalman:
     """Double-precision Kalman filter on the AR(p) model a1 … ap with process variance q and measurement
     variance r. initial_variance: P0 = initial_variance · I (0 = the AR process's stationary covariance, or
     10 (q + r) · I when the model is not stationary or too close to it for that covariance to be determined).
-    steady_state: filter with the constant steady-state gain."""
+    steady_state: filter with the constant steady-state gain. Orders up to MAX_ORDER = 100 (the cost per
+    sample grows as p³); ValueError above."""
 
     def __init__(self, ar_coeffs, q: float, r: float, initial_variance: float = 0.0, steady_state: bool = False):
-        self.ar_coeffs = _coefficients(ar_coeffs)
+        self.ar_coeffs = _order_within(_coefficients(ar_coeffs), MAX_ORDER, "filter's")
         self.q, self.r = float(q), float(r)
         self.options = _options(initial_variance, steady_state)
         setup = _core.kalman_setup(self.ar_coeffs, self.q, self.r, self.options)
@@ -108,7 +118,12 @@ def signal_gain(ar_coeffs, gain) -> float:
     The filter is linear, x_k = F x_{k−1} + K y_k with F = (I − K C) A, so each of them is bounded by
     the ℓ1 norm of its impulse response from y: Σ_j |(F^j K)_i|, Σ_j |a·F^j K| and 1 + the latter.
     (Σ|a_i| · max|y| is not a bound: the state itself can exceed max|y|.)"""
-    a, k = np.asarray(ar_coeffs, dtype=float), np.asarray(gain, dtype=float)
+    a = _coefficients(ar_coeffs)
+    k = np.asarray(gain, dtype=float)
+    if k.shape != a.shape:
+        raise ValueError(f"gain: shape {k.shape}, expected {a.shape} (one entry per AR coefficient)")
+    if not np.all(np.isfinite(k)):  # NaN ended in a LinAlgError from the matrix power
+        raise ValueError("gain: NaN/Inf")
     n = a.size
     comp = np.zeros((n, n))
     comp[0] = a
@@ -190,10 +205,14 @@ class FixedArKalman:
     def __init__(self, ar_coeffs, q: float, r: float, frac_bits: int | None = None, steady_state: bool = False,
                  coef_frac_bits: int | None = None, cov_frac_bits: int | None = None,
                  initial_variance: float = 0.0):
+        # The order before the double filter is set up (which takes up to MAX_ORDER, slowly).
+        _order_within(_coefficients(ar_coeffs), _core.FIXED_MAX_ORDER, "fixed-point filter's")
+        if frac_bits is not None:  # 2^frac_bits must be a double: -2000 or 5000 ended in an OverflowError
+            lo, hi = SIGNAL_FRAC_BITS_RANGE
+            frac_bits = as_whole(frac_bits, "frac_bits", INT32_MIN)
+            if not lo <= frac_bits <= hi:
+                raise ValueError(f"frac_bits: {frac_bits} outside {lo} … {hi}")
         self.double = ArKalman(ar_coeffs, q, r, initial_variance=initial_variance, steady_state=steady_state)
-        if self.double.order > _core.FIXED_MAX_ORDER:
-            raise ValueError(f"ar_coeffs: order {self.double.order} exceeds the fixed-point filter's maximum "
-                             f"{_core.FIXED_MAX_ORDER}")
         self.steady_state = bool(steady_state)
         d = self.double
         if coef_frac_bits is None:

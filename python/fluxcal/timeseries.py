@@ -12,6 +12,7 @@ function streams: 10⁶ samples and more fit in memory. See cpp/include/fluxcal/
 """
 from __future__ import annotations
 
+import operator
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -20,8 +21,13 @@ from . import _core
 from ._arrays import set_options
 
 
+INT_MAX = 2 ** 31 - 1  # the core's int
+
+
 def as_series(values, name: str = "series") -> np.ndarray:
     """`values` as a contiguous float64 1-D array; ValueError naming `name` otherwise."""
+    if np.iscomplexobj(values):  # float64 would drop the imaginary part with only a ComplexWarning
+        raise ValueError(f"{name}: complex values; a series is real (pass .real or abs() explicitly)")
     try:
         arr = np.asarray(values, dtype=np.float64)
     except (TypeError, ValueError) as exc:
@@ -31,6 +37,24 @@ def as_series(values, name: str = "series") -> np.ndarray:
     return np.ascontiguousarray(arr)
 
 
+def as_whole(value, name: str, minimum: int) -> int:
+    """`value` as an int in minimum … 2³¹ − 1 (the core's int), or ValueError naming `name`: int() truncated
+    2.7 to 2 without a word, and 10¹² failed in the binding with a TypeError quoting the whole series."""
+    try:
+        whole = operator.index(value)  # int, numpy integers
+    except TypeError:
+        if not isinstance(value, (float, np.floating)):
+            raise TypeError(f"{name}: expected a whole number, got {type(value).__name__}") from None
+        if not float(value).is_integer():
+            raise ValueError(f"{name}: {value} is not a whole number") from None
+        whole = int(value)
+    if whole < minimum:
+        raise ValueError(f"{name}: {whole}, need ≥ {minimum}")
+    if whole > INT_MAX:
+        raise ValueError(f"{name}: {whole} is too large (at most {INT_MAX})")
+    return whole
+
+
 def zero_mean(x):
     """(x − mean(x), mean)."""
     z, mean = _core.ts_zero_mean(as_series(x))
@@ -38,18 +62,23 @@ def zero_mean(x):
 
 
 def difference(x, order: int = 1) -> np.ndarray:
-    return np.asarray(_core.ts_difference(as_series(x), int(order)))
+    return np.asarray(_core.ts_difference(as_series(x), as_whole(order, "order", 0)))
 
 
 def remove_trend(x, degree: int = 1) -> np.ndarray:
     """x minus its least-squares polynomial of `degree` in the sample index."""
-    return np.asarray(_core.ts_remove_trend(as_series(x), int(degree)))
+    return np.asarray(_core.ts_remove_trend(as_series(x), as_whole(degree, "degree", 0)))
 
 
 def reverse_arrangement(x, subseries: int = 20, threshold: float = 1.96) -> dict:
     """Reverse-arrangement stationarity test on the means of `subseries` consecutive sub-series.
     Returns arrangements A, expected, variance, u, stationary (|u| < threshold), means."""
-    return _core.ts_reverse_arrangement(as_series(x), int(subseries), float(threshold))
+    x = as_series(x)
+    r = _core.ts_reverse_arrangement(x, as_whole(subseries, "subseries", 3), float(threshold))
+    # Equal sub-series means give A = 0 and "not stationary": a constant series has no trend to test.
+    if not (x != x[0]).any():
+        raise ValueError(f"series: constant (every sample equals {x[0]:g}), the stationarity test needs variation")
+    return r
 
 
 def normality(x, significance: float = 0.05) -> dict:
@@ -59,7 +88,10 @@ def normality(x, significance: float = 0.05) -> dict:
 
 def ljung_box(x, lags: int, model_df: int = 0, significance: float = 0.05) -> dict:
     """Ljung–Box Q over `lags` lags against χ²(lags − model_df); keys statistic, p_value, white."""
-    return _core.ts_ljung_box(as_series(x), int(lags), int(model_df), float(significance))
+    lags, model_df = as_whole(lags, "lags", 1), as_whole(model_df, "model_df", 0)
+    if model_df >= lags:  # χ²(lags − model_df) has no degrees of freedom: p-value NaN, "not white"
+        raise ValueError(f"model_df: {model_df} is not below lags = {lags} (the test needs lags > model_df)")
+    return _core.ts_ljung_box(as_series(x), lags, model_df, float(significance))
 
 
 @dataclass
@@ -81,8 +113,11 @@ def fit_ar(y, max_order: int = 10, order: int | None = None, **settings) -> ArMo
     wins). settings: init_samples (20: rows of the batch least-squares start of the RLS), forgetting
     (1.0: RLS forgetting factor), whiteness_lags (0 = max(10, 2p)), significance (0.05)."""
     options = _core.ArOptions()
-    options.max_order = int(max_order)
-    options.order = -1 if order is None else int(order)
+    options.max_order = as_whole(max_order, "max_order", 0)
+    options.order = -1 if order is None else as_whole(order, "order", 0)
+    for name in ("init_samples", "whiteness_lags"):
+        if name in settings:
+            settings[name] = as_whole(settings[name], name, 0)
     set_options(options, settings, "fit_ar")
     r = _core.fit_ar(as_series(y), options)
     return ArModel(order=r["order"], coefficients=np.asarray(r["coefficients"]), sigma2=r["sigma2"],
@@ -97,6 +132,7 @@ def preprocess(x, subseries: int = 20, threshold: float = 1.96, trend_degree: in
     `series` (the stationary series), `differences` (1 or 2), `stationarity` (the test of the first
     difference), `stationarity_after` (the test of `series`), `normality` (of `series`) and `summary`
     (warnings when `series` is still not stationary or not normal)."""
-    r = _core.ts_preprocess(as_series(x), int(subseries), float(threshold), int(trend_degree), float(significance))
+    r = _core.ts_preprocess(as_series(x), as_whole(subseries, "subseries", 3), float(threshold),
+                            as_whole(trend_degree, "trend_degree", 0), float(significance))
     r["series"] = np.asarray(r["series"])
     return r

@@ -404,3 +404,41 @@ def test_pipeline_reports_the_first_drift_fits_warnings(drift_input, foct, monke
     else:
         assert len(calls) == 1 and model is calls[0]
         assert report["warnings"] == [] and model.summary["warnings"] == ["something about the data"]
+
+
+def test_bad_input_is_named(tmp_path):
+    # accuracy: a NaN gave met False, an empty residual numpy's "zero-size array".
+    with pytest.raises(ValueError, match="residual: sample 0 is nan"):
+        drift.accuracy([np.nan, 1.0], RATED)
+    with pytest.raises(ValueError, match="residual: empty"):
+        drift.accuracy([], RATED)
+    with pytest.raises(ValueError, match="values: empty"):
+        drift.drift_span([], [])
+    # level_means / drift_span: NaN temperature, step NaN / 0 / negative, mismatched lengths.
+    w, t = np.arange(20.0), np.linspace(-20, 50, 20)
+    bad_t = t.copy()
+    bad_t[4] = np.nan
+    with pytest.raises(ValueError, match="temp: sample 4 is nan"):
+        drift.level_means(w, bad_t)
+    for step in (np.nan, 0.0, -5.0):
+        with pytest.raises(ValueError, match="step: .* must be a finite number > 0"):
+            drift.drift_span(w, t, step=step)
+    with pytest.raises(ValueError, match="temp: 10 samples, values has 20"):
+        drift.level_means(w, t[:10])
+    # A NaN coefficient: load refuses it naming the segment, save refuses to write it.
+    segments = [{"range": [-20.0, 0.0], "order": 1, "coefficients": [1.0, 0.1]},
+                {"range": [0.0, 50.0], "order": 1, "coefficients": [1.0, np.nan]}]
+    with pytest.raises(ValueError, match=r"segment 1 \[0, 50\] has a NaN/Inf coefficient"):
+        drift.DriftModel.from_dict({"segments": segments})
+    with pytest.raises(ValueError, match=r"nan.json: segment 1 \[0, 50\] has a NaN/Inf coefficient.*not saved"):
+        drift.DriftModel(segments=segments).save(tmp_path / "nan.json")
+    assert not (tmp_path / "nan.json").exists()
+    # A file that is not text: UnicodeDecodeError before.
+    binary = tmp_path / "binary.json"
+    binary.write_bytes(b'{"segments": "\xff"}')
+    with pytest.raises(ValueError, match=r"binary.json: byte 0xff at offset 14 is not text"):
+        drift.DriftModel.load(binary)
+    # sim.foct_zero_bias takes an int seed as sim.simulate does (AttributeError before).
+    a, b = sim.foct_zero_bias(rng=1, hold_s=60, ramp_s=30), sim.foct_zero_bias(rng=np.random.default_rng(1),
+                                                                                 hold_s=60, ramp_s=30)
+    np.testing.assert_array_equal(a.columns["zero_bias"], b.columns["zero_bias"])

@@ -380,3 +380,28 @@ def test_signal_format_follows_the_signal_scale(steady_state):
     for scale in bits:  # the format moves with log2 of the scale, the relative error stays put
         assert abs(bits[scale] - (bits[1.0] - np.log2(scale))) <= 1, bits
         assert errors[scale] < 1e-8, errors
+
+
+def test_bad_input_is_named():
+    from fluxcal.kalman import MAX_ORDER, signal_gain
+
+    # AR(2000) ran for minutes (cost ~ p³ per sample): refused up front.
+    with pytest.raises(ValueError, match=f"ar_coeffs: order 2000 exceeds the filter's maximum {MAX_ORDER}"):
+        ArKalman(np.full(2000, 1e-4), 1.0, 1.0)
+    ArKalman(np.full(MAX_ORDER, 1e-4), 1.0, 1.0)  # the maximum itself is fine
+    with pytest.raises(ValueError, match="ar_coeffs: order 200 exceeds the fixed-point filter's maximum"):
+        FixedArKalman(np.full(200, 1e-4), 1.0, 1.0)
+    # frac_bits outside the range where 2^frac_bits is a double raised OverflowError.
+    y = ar_signal((0.6, -0.3), 0.5, 0.3, 200, 1)
+    for bits in (-2000, 5000):
+        with pytest.raises(ValueError, match=rf"frac_bits: {bits} outside -960 … 1000"):
+            FixedArKalman([0.6, -0.3], 0.5, 0.3, frac_bits=bits).filter(y)
+    with pytest.raises(ValueError, match=r"frac_bits: 2\.5 is not a whole number"):
+        FixedArKalman([0.6, -0.3], 0.5, 0.3, frac_bits=2.5)
+    # NaN in signal_gain's input ended in a LinAlgError.
+    with pytest.raises(ValueError, match="ar_coeffs: NaN/Inf"):
+        signal_gain([np.nan], [0.1])
+    with pytest.raises(ValueError, match="gain: NaN/Inf"):
+        signal_gain([0.5], [np.nan])
+    with pytest.raises(ValueError, match="gain: shape"):
+        signal_gain([0.5, 0.1], [0.1])

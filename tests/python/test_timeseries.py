@@ -232,3 +232,30 @@ def test_untestable_whiteness_is_not_a_rejection():
     # A testable fit still reports its p-value.
     model = ts.fit_ar(y, order=1)
     assert np.isfinite(model.whiteness["p_value"]) and "Ljung-Box p" in model.summary["message"]
+
+
+def test_bad_input_is_named():
+    y = ar_series((0.5,), 500, 4)
+    # model_df ≥ lags left no degrees of freedom: p-value NaN and "not white".
+    with pytest.raises(ValueError, match=r"model_df: 10 is not below lags = 5"):
+        ts.ljung_box(y, 5, 10)
+    # A constant series was "not stationary" (equal sub-series means, A = 0).
+    for value in (2.0, 0.0):
+        with pytest.raises(ValueError, match="series: constant"):
+            ts.reverse_arrangement(np.full(500, value))
+    # Integer arguments: 10¹² failed in the binding quoting the array, 2.7 was truncated to 2.
+    with pytest.raises(ValueError, match=r"order: 1000000000000 is too large"):
+        ts.difference(y, 10 ** 12)
+    with pytest.raises(ValueError, match=r"max_order: 2\.7 is not a whole number"):
+        ts.fit_ar(y, max_order=2.7)
+    with pytest.raises(ValueError, match=r"whiteness_lags: 2\.5 is not a whole number"):
+        ts.fit_ar(y, whiteness_lags=2.5)
+    with pytest.raises(ValueError, match="subseries: 2, need ≥ 3"):
+        ts.reverse_arrangement(y, 2.0)
+    with pytest.raises(TypeError, match="order: expected a whole number"):
+        ts.fit_ar(y, order="3")
+    assert ts.fit_ar(y, max_order=4.0).order == ts.fit_ar(y, max_order=4).order  # whole floats still fine
+    # Complex input was cast to float with a ComplexWarning, dropping the imaginary part.
+    for call in (ts.zero_mean, ts.fit_ar, ts.normality, ts.preprocess, lambda x: ts.difference(x, 1)):
+        with pytest.raises(ValueError, match="series: complex values"):
+            call(y + 1j)

@@ -75,7 +75,7 @@ def foct_zero_bias(rng=None, segments=None, ar=(0.5, -0.2), sigma: float = 0.05,
     The device temperature lags the chamber by `thermal_lag_s` (first order) and sits `self_heating` °C
     above it; each phase has the drift law times its gain plus its own AR noise (coefficients `ar`,
     innovation σ `sigma`)."""
-    rng = np.random.default_rng() if rng is None else rng
+    rng = np.random.default_rng(rng)  # None, a seed or a Generator, as sim.simulate takes
     segments = default_segments() if segments is None else segments
     t, chamber, holds = chamber_profile(hold_s=hold_s, ramp_s=ramp_s, rate_hz=rate_hz)
     alpha = 1.0 - np.exp(-1.0 / (thermal_lag_s * rate_hz)) if thermal_lag_s > 0 else 1.0
