@@ -11,6 +11,8 @@ and the raw recording is written as it arrives when asked (the Recorder's writer
 """
 from __future__ import annotations
 
+import math
+import numbers
 import os
 import sys
 import time
@@ -128,6 +130,13 @@ class LiveFit:
     kept; add() leaves out a reading at a rail already known."""
 
     def __init__(self, field_norm: float | None = None, units: str = "", warmup: int = 20, regrow: float = 4.0):
+        if field_norm is not None and not (isinstance(field_norm, numbers.Real) and math.isfinite(field_norm)
+                                           and field_norm > 0):
+            raise ValueError(f"field_norm: {field_norm!r} must be a positive field magnitude (None: the fitted radius)")
+        if not (isinstance(warmup, numbers.Integral) and warmup >= 1):
+            raise ValueError(f"warmup: {warmup!r} must be a whole number of readings ≥ 1")
+        if not (isinstance(regrow, numbers.Real) and regrow > 1):
+            raise ValueError(f"regrow: {regrow!r} must be a factor > 1")
         self.field_norm, self.units, self.warmup = field_norm, units, warmup
         self.regrow = regrow  # renormalise when the readings spread this many times the scale in use
         self._readings = np.empty((1024, 3))  # every reading but 0,0,0, in order
@@ -155,6 +164,10 @@ class LiveFit:
 
     def add(self, reading) -> None:
         reading = np.asarray(reading, dtype=float)
+        if reading.shape != (3,) or not np.all(np.isfinite(reading)):
+            # refused before it reaches the moments: one NaN made every later fit of the session fail
+            raise ValueError(f"reading: {reading.tolist()} is not three finite numbers; not added (the fit keeps "
+                             "its readings)")
         if not reading.any():  # exactly 0,0,0: an I²C glitch, not a field (calibrate() leaves them out too)
             self.zeros += 1
             return
@@ -267,6 +280,13 @@ class LiveSession:
     def close(self) -> None:
         self.bar.close()
 
+    def met_by(self, cal) -> bool:
+        """The thresholds judged on the calibration written: fitted without the outliers calibrate() screens
+        out (a garbled line that still parsed as numbers), which the live fit keeps."""
+        s = cal.summary
+        return (s["samples"] >= self.min_records and s["direction_coverage"] >= self.min_coverage
+                and s["norm_std_over_mean"] <= self.max_spread)
+
     def thresholds_text(self) -> str:
         return (f"coverage ≥ {100 * self.min_coverage:.0f} %, |h| std/mean ≤ {100 * self.max_spread:.2f} %, "
                 f"≥ {self.min_records} records")
@@ -360,16 +380,17 @@ def cmd_live(args) -> int:
         raise ValueError(f"{args.port}: {len(readings)} good readings, need at least 9 to calibrate"
                          + (f" (raw records in {args.raw})" if args.raw else ""))
     cal = calibrate(readings, field_norm=args.field_norm, units=unit)
+    met = session.met_by(cal)
     cal.metadata.update(source=f"serial port {args.port} at {args.baud} baud (fluxcal live)",
                         records=stats.records, rejected=stats.rejected_text(), reconnects=stats.reconnects,
-                        stopped=stats.stopped, thresholds=session.thresholds_text(), thresholds_met=session.met,
+                        stopped=stats.stopped, thresholds=session.thresholds_text(), thresholds_met=met,
                         live_coverage=state.coverage, live_spread=state.spread, zeros_left_out=session.fit.zeros,
                         rails_left_out=session.fit.rails, rails=session.fit.rail_text())
     if args.raw:
         cal.metadata["recording"] = str(args.raw)
     cal.save(args.output)
     s = cal.summary
-    verdict = "met" if session.met else "NOT met"
+    verdict = "met" if met else "NOT met"
     print(f"Calibration from {len(readings)} readings ({s.get('method', cal.model)}): offset "
           f"{np.array2string(cal.offset, precision=6)} {unit}".rstrip()
           + f", |h| std/mean {100 * s['norm_std_over_mean']:.3f} %, coverage "
@@ -379,4 +400,4 @@ def cmd_live(args) -> int:
         print(f"warning: {warning}")
     if stats.write_error:
         return 2
-    return 0 if session.met else 1
+    return 0 if met else 1

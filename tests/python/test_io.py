@@ -62,3 +62,45 @@ def test_nan_cell_is_reported_with_its_file_line(tmp_path):
     rec = read_csv(p)
     with pytest.raises(ValueError, match=r"n.csv: line 5, column 'my' is nan"):
         rec.samples()
+
+
+def test_readers_refuse_what_is_not_a_recording_file(tmp_path):
+    import os
+
+    import fluxcal
+    from fluxcal.io import read_npz, read_parquet
+
+    pipe = tmp_path / "pipe"
+    os.mkfifo(pipe)  # a named pipe with no writer: every reader blocked forever on it
+    for read in (fluxcal.read_recording, read_csv, read_npz):
+        with pytest.raises(ValueError, match="pipe: not a regular file"):
+            read(pipe)
+    with pytest.raises(ValueError, match="a folder, not a recording file"):
+        read_parquet(tmp_path)  # returned an empty recording
+    nested = tmp_path / "nested.json"
+    nested.write_text("[" * 100000 + "]" * 100000)  # RecursionError from the JSON parser
+    with pytest.raises(ValueError, match="nested.json: JSON nested too deeply"):
+        fluxcal.read_recording(nested)
+    path = tmp_path / "g.csv"
+    path.write_text("mx,my,mz\n1,2,3\n4,5,1e400\n")
+    with pytest.raises(TypeError, match="units: 5 is not a string"):
+        fluxcal.read_recording(path, units=5)  # AttributeError: 'int' object has no attribute 'strip'
+    with pytest.raises(ValueError, match="mx, mx, mx repeat a name"):
+        fluxcal.read_recording(path, columns="mx,mx,mx")  # calibrated one axis three times
+    with pytest.raises(ValueError, match=r"line 3, column 'mz' is infinite \(inf, or beyond ±1.8e308\)"):
+        fluxcal.read_recording(path).samples()  # the file says 1e400, not inf
+
+
+def test_writers_refuse_what_the_readers_could_not_take_back(tmp_path):
+    from fluxcal.io import Recording, write_recording
+
+    good = {"mx": np.ones(3), "my": np.ones(3), "mz": np.ones(3)}
+    cases = [(lambda: write_csv(tmp_path / "a.csv", good, metadata={"note": "a\nb,c"}), "metadata 'note' cannot be"),
+             (lambda: write_csv(tmp_path / "b.csv", {"m,x": np.ones(3)}), "column name 'm,x' cannot be"),
+             (lambda: Recording(columns={"mx": np.ones((2, 2))}), r"column 'mx' has shape \(2, 2\)"),
+             (lambda: write_csv(tmp_path / "c.csv", {"mx": ["a", "b"]}), "column 'mx' is not numbers"),
+             (lambda: write_recording(tmp_path / "d.npz", Recording(columns={})), "d.npz: no columns to write")]
+    for call, message in cases:  # each was written (or failed) without naming what could not be stored
+        with pytest.raises(ValueError, match=message):
+            call()
+    assert not any(tmp_path.iterdir())

@@ -440,6 +440,30 @@ def test_live_fit_follows_the_stream():
 
 
 
+def test_live_verdict_is_the_written_calibrations_and_bad_readings_are_refused():
+    from fluxcal import sim
+    from fluxcal.live import LiveSession
+
+    rng = np.random.default_rng(5)
+    result = sim.simulate(sim.uniform(400, rng), sim.random_sensor(FIELD_NT, rng, noise=0.0005), [2e4, 1e3, 4.5e4],
+                          rng)
+    session = LiveSession(LiveFit(), [0, 1, 2], min_coverage=0.8, max_spread=0.002, min_records=200, show=False)
+    for reading in result.readings[:200]:
+        session.fit.add(reading)
+    session.fit.add([1.0, 2.0, 3.0])  # garbled lines that still parsed as numbers: the live fit keeps them
+    session.fit.add([1.0, 2.0, 3.5])
+    for reading in result.readings[200:]:
+        session.fit.add(reading)
+    assert not session.refresh() and session.state.spread > 0.002
+    cal = fluxcal.calibrate(session.fit.readings)  # what `fluxcal live` writes: the two are screened out
+    assert cal.summary["outliers"]["rows"] == [200, 201] and session.met_by(cal)
+    with pytest.raises(ValueError, match=r"reading: \[nan, 0.0, 0.0\] is not three finite numbers; not added"):
+        session.fit.add([np.nan, 0.0, 0.0])  # one NaN made every later fit of the session fail
+    assert session.fit.state().calibration is not None
+    with pytest.raises(ValueError, match="field_norm"):
+        LiveFit(field_norm=-1.0)
+
+
 @pytest.mark.parametrize("scale", [1e-9, 1.0])  # tesla (as ROS gives it) and nT
 def test_live_fit_starts_on_a_sensor_lying_still(scale):
     """The first block of readings all equal (a quantised sensor lying still before it is turned): the

@@ -202,3 +202,12 @@ def test_float_frames_without_checksum_through_pty(tmp_path):
     assert rows[0, 0] != round(rows[0, 0])  # float fields: not counts
     assert dict(stats.rejected) == truth["injected"] == {"partial": 3, "binary": 2, "out_of_range": 1}
     assert stats.reconnects == 1
+
+
+def test_a_zero_or_nan_scale_and_a_nan_duration_are_refused():
+    for scale in ((0, 1, 1), (float("nan"), 1, 1)):  # 0: every record 0,0,0, silently dropped by the fits
+        with pytest.raises(ValueError, match="scale: .* must be finite, non-zero factors"):
+            FrameDecoder("<hhh", SYNC, parse_columns(None), scale=scale)
+    for duration in (float("nan"), 0, -1):  # NaN recorded forever, ≤ 0 nothing without a word
+        with pytest.raises(ValueError, match="duration: .* is not a positive number of seconds"):
+            Recorder("loop://", duration=duration)

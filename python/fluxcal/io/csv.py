@@ -71,7 +71,7 @@ def read_csv(path, columns=None, units: str | None = None, delimiter: str = ",",
              ) -> Recording:
     """Read a CSV recording. `columns`: the three magnetometer columns (default mx,my,mz, or x,y,z).
     `units`: the field unit, when the file does not state it. `bad_lines`: "error" or "skip"."""
-    path = Path(path)
+    path = readable_file(path)
     return parse_csv(path, read_text(path).splitlines(), delimiter, bad_lines=bad_lines).choose(columns, units)
 
 
@@ -257,13 +257,25 @@ _LEGACY_TEXT = re.compile("[^\x00-\x7fµ°²³±·×äöüÄÖÜßéèêëàâç
 NOT_TEXT = "\ufffd"  # stands for bytes that are not text
 
 
+def readable_file(path) -> Path:
+    """`path` as a Path; ValueError when it is a folder, or not a regular file: a named pipe or a device
+    would block the reader until something writes to it (a missing file is left to the reader's message)."""
+    path = Path(path)
+    if path.is_dir():
+        raise ValueError(f"{path}: a folder, not a recording file")
+    if path.exists() and not path.is_file():
+        raise ValueError(f"{path}: not a regular file (a named pipe, socket or device); record it to a file first "
+                         "(fluxcal record reads a serial port)")
+    return path
+
+
 def read_text(path) -> str:
     """The file's text: UTF-8 (a BOM dropped), UTF-16 with its BOM (a PowerShell redirect), or Windows-1252
     when that reads every byte that is not UTF-8 as ordinary text (µ, °, umlauts: a legacy Windows export).
     A few bytes that are none of these (garbage from a serial line) become U+FFFD, so that the parse names
     each line holding them (and bad_lines="skip" can leave it out); more than 5 % of lines with such
     bytes, or a NUL byte, is an error naming the first one's line and column (a binary file)."""
-    path = Path(path)
+    path = readable_file(path)
     try:
         raw = path.read_bytes()
     except OSError as exc:
@@ -413,22 +425,40 @@ def _raise_parse_error(path, rows, line_numbers, names, delimiter, expected="the
     raise ValueError(f"{path}: could not parse the data rows")
 
 
+def _writable(path, columns: dict, metadata: dict) -> None:
+    """ValueError naming what a CSV cannot hold so that read_csv gets it back: no columns, a column name with
+    the delimiter or a line break, a metadata key or value with a line break (the file was written, and
+    reading it failed on a line that did not say why)."""
+    if not columns:
+        raise ValueError(f"{path}: no columns to write")
+    for name in columns:
+        if not name or any(c in name for c in ",\r\n#") or name != name.strip():
+            raise ValueError(f"{path}: column name {name!r} cannot be a CSV header cell (empty, or holds a comma, "
+                             "'#', a line break or outer spaces)")
+    for key, value in metadata.items():
+        if any(c in f"{key}{value}" for c in "\r\n") or ":" in str(key):
+            raise ValueError(f"{path}: metadata {key!r} cannot be a '# key: value' comment line (a line break, or "
+                             "a ':' in the key)")
+
+
 def write_csv(path, recording_or_columns, units=None, metadata=None, fmt: str | None = None) -> Path:
     """Write a recording (or a dict of columns) with its units and metadata as comment lines.
     Numbers are written in the shortest form that reads back to the same double (nothing lost), unless
     `fmt` (a printf format such as "%.10g") asks for fewer digits."""
+    path = Path(path)
     if isinstance(recording_or_columns, Recording):
         rec = recording_or_columns
         columns, units, metadata = rec.columns, {**rec.units, **(units or {})}, {**rec.metadata, **(metadata or {})}
-    else:
-        columns, units, metadata = dict(recording_or_columns), dict(units or {}), dict(metadata or {})
+    else:  # through Recording: the same checks of each column
+        columns = Recording(columns=dict(recording_or_columns), source=str(path)).columns
+        units, metadata = dict(units or {}), dict(metadata or {})
+    _writable(path, columns, metadata)
     names = list(columns)
-    data = np.column_stack([np.asarray(columns[n], dtype=float) for n in names])
+    data = np.column_stack([columns[n] for n in names])
     head = ["# fluxcal recording"]
     if units:
         head.append("# units: " + ", ".join(f"{n}={u}" for n, u in units.items() if n in columns and u))
     head += [f"# {k}: {v}" for k, v in metadata.items()]
-    path = Path(path)
     with path.open("w") as f:
         f.write("\n".join(head) + "\n" + ",".join(names) + "\n")
         if fmt is not None:

@@ -67,6 +67,7 @@ from pathlib import Path
 
 import numpy as np
 
+from .csv import readable_file
 from .recording import Recording
 
 MAG_AXES = ("mx", "my", "mz")
@@ -222,7 +223,7 @@ def read_dataflash(path, columns=None, units: str | None = None, instance=None) 
     """Read the compass of an ArduPilot DataFlash log, binary (.bin) or text (.log), through pymavlink's
     DFReader. See the module docstring for the columns and for what ArduPilot has already applied
     (mx, my, mz are MagX..Z as logged, offset- and motor-corrected; raw_x..z undo that)."""
-    path = Path(path)
+    path = readable_file(path)
     source = str(path)
     DFReader = _pymavlink_dfreader()
     if DFReader is None:
@@ -596,7 +597,7 @@ class _ReadWatch(io.BufferedReader):
 def read_ulog(path, columns=None, units: str | None = None, instance=None) -> Recording:
     """Read the magnetometer of a PX4 ULog through pyulog: sensor_mag (raw) when logged, else
     vehicle_magnetometer (calibrated by PX4). See the module docstring."""
-    path = Path(path)
+    path = readable_file(path)
     source = str(path)
     try:
         from pyulog import ULog

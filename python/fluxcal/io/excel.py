@@ -12,7 +12,7 @@ from __future__ import annotations
 import datetime as _dt
 from pathlib import Path
 
-from .csv import _is_number
+from .csv import readable_file, _is_number
 from .recording import Recording
 
 
@@ -58,7 +58,7 @@ def _numeric_rows(lines) -> int:
 
 
 def read_xlsx(path, columns=None, units: str | None = None, bad_lines: str = "error") -> Recording:
-    path = Path(path)
+    path = readable_file(path)
     try:
         import openpyxl
     except ImportError:

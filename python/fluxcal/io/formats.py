@@ -39,7 +39,7 @@ from __future__ import annotations
 import re
 from pathlib import Path
 
-from .csv import (_decimal_comma_columns, _is_number, comment_text, data_lines, decimal_points, is_comment, parse_csv,
+from .csv import (_decimal_comma_columns, readable_file, _is_number, comment_text, data_lines, decimal_points, is_comment, parse_csv,
                   read_csv, read_text, write_csv)
 from .recording import Recording
 
@@ -56,6 +56,7 @@ def sniff(path) -> str:
         if bag_path(path) is not None:
             return "rosbag"
         raise ValueError(f"{path}: a folder, not a recording (a ROS 2 bag folder holds a metadata.yaml)")
+    readable_file(path)  # a named pipe would block the read below
     try:
         with path.open("rb") as f:
             head = f.read(128)
@@ -280,6 +281,8 @@ def write_recording(path, rec: Recording) -> Path:
     """Write `rec` in the format of the path's extension (.csv .npz .mat .parquet/.pq .json)."""
     path = Path(path)
     suffix = path.suffix.lower()
+    if not rec.columns:  # .npz, .mat and Parquet wrote it, and it read back as an empty recording
+        raise ValueError(f"{path}: no columns to write")
     if suffix == ".csv":
         return write_csv(path, rec)
     if suffix == ".npz":

@@ -13,6 +13,7 @@ from pathlib import Path
 
 import numpy as np
 
+from .csv import readable_file
 from .recording import Recording, recording_from_arrays
 
 _MATLAB_INTERNAL = ("#refs#", "#subsystem#")
@@ -49,7 +50,7 @@ def _variables(f, matlab: bool):
 
 
 def read_hdf5(path, columns=None, units: str | None = None, matrix: str | None = None) -> Recording:
-    path = Path(path)
+    path = readable_file(path)
     try:
         import h5py
     except ImportError:

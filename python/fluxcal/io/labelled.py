@@ -28,7 +28,7 @@ from pathlib import Path
 import numpy as np
 
 from .columns import FIELD_UNITS, TIME_WORDS, comma_kind, is_unit, words
-from .csv import NOT_TEXT, SKIP_HINT, _timestamps, check_bad_lines, data_lines, is_comment, listing, read_text
+from .csv import readable_file, NOT_TEXT, SKIP_HINT, _timestamps, check_bad_lines, data_lines, is_comment, listing, read_text
 from .recording import Recording
 
 # label (a word not glued to what precedes it), ':' or '=', then a number with all its commas between digits
@@ -159,7 +159,7 @@ def read_labelled(path, columns=None, units: str | None = None, bad_lines: str =
     (whatever bad_lines says: never an answer 1000 times off): `decimal=","` or `thousands=","` (or
     decimal=".") settles it. metadata["decimal_separator"] is "comma" when commas were read as decimal."""
     check_bad_lines(bad_lines)
-    path = Path(path)
+    path = readable_file(path)
     parsed = [(k + 1, line.strip(), *_parse_line(line)) for k, line in enumerate(read_text(path).splitlines())
               if line.strip() and not is_comment(line)]
     counts = Counter(name for *_, values in parsed for name in dict.fromkeys(v[0] for v in values))

@@ -18,6 +18,7 @@ from pathlib import Path
 
 import numpy as np
 
+from .csv import readable_file
 from .npz import header, parse_header
 from .recording import Recording, recording_from_arrays
 
@@ -60,7 +61,7 @@ def read_mat(path, columns=None, units: str | None = None, matrix: str | None = 
     A truncated or corrupt file is a ValueError naming it."""
     from scipy.io import loadmat
 
-    path = Path(path)
+    path = readable_file(path)
     try:
         with path.open("rb") as f:
             if f.read(512)[:128].find(b"MATLAB 7.3") >= 0:

@@ -16,6 +16,7 @@ from pathlib import Path
 
 import numpy as np
 
+from .csv import readable_file
 from .recording import Recording, recording_from_arrays
 
 META_KEY = "__fluxcal__"
@@ -55,7 +56,7 @@ def write_npz(path, rec: Recording) -> Path:
 def read_npz(path, columns=None, units: str | None = None, matrix: str | None = None) -> Recording:
     """Read an .npz (or .npy) recording. `matrix`: the N×3 magnetometer variable of a foreign file.
     A truncated or corrupt file is a ValueError naming it."""
-    path = Path(path)
+    path = readable_file(path)
     try:
         with path.open("rb") as f:
             npy = f.read(6) == b"\x93NUMPY"

@@ -15,6 +15,7 @@ from pathlib import Path
 
 import numpy as np
 
+from .csv import readable_file
 from .npz import header, parse_header
 from .recording import Recording
 
@@ -44,7 +45,7 @@ def write_parquet(path, rec: Recording) -> Path:
 def read_parquet(path, columns=None, units: str | None = None) -> Recording:
     """Read a Parquet recording; a truncated or corrupt file is a ValueError naming it."""
     pa, pq = _pyarrow()
-    path = Path(path)
+    path = readable_file(path)
     try:
         table = pq.read_table(path)
     except FileNotFoundError as exc:

@@ -23,7 +23,7 @@ from pathlib import Path
 
 import numpy as np
 
-from .csv import _is_number, decimal_points, is_comment, parse_csv, parse_rows, read_text
+from .csv import readable_file, _is_number, decimal_points, is_comment, parse_csv, parse_rows, read_text
 from .recording import ATTITUDE_COLUMNS, FIELD_NED_COLUMNS, Recording
 
 # -- key,value preamble (QMC5883L logger) -------------------------------------------------------------------
@@ -43,7 +43,7 @@ def preamble_length(lines, start: int, delimiter) -> int:
 def read_preamble_csv(path, columns=None, units: str | None = None, delimiter=",", bad_lines: str = "error"
                       ) -> Recording:
     """A CSV with `key,value` lines before its header (see the module docstring)."""
-    path = Path(path)
+    path = readable_file(path)
     lines = read_text(path).splitlines()
     start = _skip_comments(lines)
     n = preamble_length(lines, start, delimiter)
@@ -115,7 +115,7 @@ def _info_file(path: Path):
 def read_headerless(path, names=None, columns=None, units: str | None = None, delimiter=None) -> Recording:
     """A table of numbers without a header: `names` (one per column) name the columns; without names it
     must be the airborne layout (`airborne_layout`), else the error asks for them."""
-    path = Path(path)
+    path = readable_file(path)
     lines = read_text(path).splitlines()
     start = _skip_comments(lines)
     lines, converted = decimal_points(lines, start, delimiter)
@@ -205,10 +205,17 @@ def read_json_recording(path, columns=None, units: str | None = None, bad_lines:
     """A JSON recording: fluxcal's own layout, a shot file of [x, y, z] lists, or records — one object per
     reading as JSON Lines or a list, or a {"columns", "data"} table (fluxcal.io.jsonrecords; `bad_lines`
     applies to those)."""
+    path = readable_file(path)
+    text = read_text(path)
+    try:
+        return _json_recording(path, text, columns, units, bad_lines)
+    except RecursionError:  # Python's JSON parser recurses per level: [[[[…]]]] is garbage, not a recording
+        raise ValueError(f"{path}: JSON nested too deeply to be a recording") from None
+
+
+def _json_recording(path, text: str, columns, units, bad_lines) -> Recording:
     from . import jsonrecords
 
-    path = Path(path)
-    text = read_text(path)
     if text.lstrip().startswith("["):
         return jsonrecords.read_records(path, jsonrecords.list_items(text), bad_lines,
                                         what="record at line").choose(columns, units)
@@ -302,7 +309,7 @@ def read_mag_cal_cfg(path) -> dict:
     """The maker's calibration of a SAP6 / mag_cal `.cfg` (JSON) as flat metadata entries maker_*.
     The numbers are the maker's, in its own conventions (axes remapped by `axes`, then transform and
     centre); fluxcal stores them for comparison and does not apply them."""
-    path = Path(path)
+    path = readable_file(path)
     text = read_text(path)
     try:
         cfg = json.loads(text)

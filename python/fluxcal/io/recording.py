@@ -25,11 +25,21 @@ class Recording:
     line_numbers: np.ndarray | None = None  # file line of each row, for messages
 
     def __post_init__(self):
-        self.columns = {k: np.asarray(v, dtype=float) for k, v in self.columns.items()}
+        self.columns = {k: self._column(k, v) for k, v in self.columns.items()}
         lengths = {len(v) for v in self.columns.values()}
         if len(lengths) > 1:
             raise ValueError(f"{self.source}: columns have different lengths {sorted(lengths)}")
         self.mag_columns = MAG_COLUMNS if all(c in self.columns for c in MAG_COLUMNS) else None
+
+    def _column(self, name, values) -> np.ndarray:
+        """One column as floats, or ValueError naming it (a 2-D array wrote a file no reader takes back)."""
+        try:
+            column = np.asarray(values, dtype=float)
+        except (TypeError, ValueError) as exc:
+            raise ValueError(f"{self.source}: column {name!r} is not numbers ({exc})") from None
+        if column.ndim != 1:
+            raise ValueError(f"{self.source}: column {name!r} has shape {column.shape}, need one value per row")
+        return column
 
     def __len__(self) -> int:
         return len(next(iter(self.columns.values()))) if self.columns else 0
@@ -39,6 +49,9 @@ class Recording:
         names = tuple(names)
         if len(names) != 3:
             raise ValueError(f"{self.source}: need three magnetometer columns, got {', '.join(names) or 'none'}")
+        if len(set(names)) != 3:
+            raise ValueError(f"{self.source}: magnetometer columns {', '.join(names)} repeat a name; give three "
+                             "different columns")
         missing = [n for n in names if n not in self.columns]
         if missing:
             raise ValueError(f"{self.source}: no column {', '.join(repr(m) for m in missing)}; "
@@ -130,13 +143,17 @@ class Recording:
         if bad is not None:
             row, col = bad
             where = f"line {self.line_numbers[row]}" if self.line_numbers is not None else f"row {row}"
-            raise ValueError(f"{self.source}: {where}, column {names[col]!r} is {arr[row, col]} "
+            value = arr[row, col]  # an inf may have been written as a number beyond the double range (1e400)
+            what = "nan" if np.isnan(value) else f"{'-' if value < 0 else ''}infinite (inf, or beyond ±1.8e308)"
+            raise ValueError(f"{self.source}: {where}, column {names[col]!r} is {what} "
                              f"(non-finite readings cannot be calibrated; remove or repair them)")
         return arr
 
     def choose(self, columns=None, units: str | None = None) -> "Recording":
         """Apply the reader options every format shares: `columns` (three names, or "a,b,c") selects the
         magnetometer axes, `units` states their unit when the file does not."""
+        if units is not None and not isinstance(units, str):
+            raise TypeError(f"units: {units!r} is not a string (such as 'uT', 'nT', 'mG')")
         if columns is not None:
             self.select(columns.split(",") if isinstance(columns, str) else columns)
         if units:

@@ -27,7 +27,7 @@ from pathlib import Path
 
 import numpy as np
 
-from .csv import (NOT_TEXT, SKIP_HINT, _is_number, _timestamps, check_bad_lines, data_lines, is_comment, listing,
+from .csv import (readable_file, NOT_TEXT, SKIP_HINT, _is_number, _timestamps, check_bad_lines, data_lines, is_comment, listing,
                   read_text)
 from .labelled import CLOCK
 from .recording import Recording
@@ -72,7 +72,7 @@ def _checksum_problem(payload: str, given: str | None):
 
 def read_sentences(path, columns=None, units: str | None = None, bad_lines: str = "error") -> Recording:
     check_bad_lines(bad_lines)
-    path = Path(path)
+    path = readable_file(path)
     parsed, problems, types = [], [], Counter()
     for k, line in enumerate(read_text(path).splitlines()):
         if not line.strip() or is_comment(line):

@@ -46,6 +46,7 @@ from __future__ import annotations
 import contextlib
 import functools
 import math
+import numbers
 import operator
 import os
 import re
@@ -458,6 +459,9 @@ class FrameDecoder:
         if self.scale is not None and len(self.scale) != len(self.columns):
             raise ValueError(f"scale: {len(self.scale)} factors for {len(self.columns)} columns "
                              f"({','.join(self.names)})")
+        if self.scale is not None and not all(math.isfinite(f) and f != 0 for f in self.scale):
+            # as parse_scale (--scale): a zero factor made every record 0,0,0, which the fits then drop
+            raise ValueError(f"scale: {self.scale} must be finite, non-zero factors")
         # provenance for the recording's header: how raw bytes became the recorded values
         self.metadata = {"frame": frame, "sync": self.sync.hex().upper(), "checksum": checksum or "none"}
         if self.scale is not None:
@@ -676,6 +680,11 @@ class Recorder:
                  warn_after: float | None = None, warn=None):
         self.port, self.baudrate = port, int(baudrate)
         self.decoder = decoder or TextDecoder(parse_columns(None))
+        if duration is not None and not (isinstance(duration, numbers.Real) and math.isfinite(duration)
+                                         and duration > 0):
+            # NaN never reached the deadline (recorded forever); ≤ 0 recorded nothing without a word
+            raise ValueError(f"duration: {duration!r} is not a positive number of seconds (None records until "
+                             "stopped)")
         self.output, self.duration = output, duration
         self.units, self.metadata = dict(units or {}), dict(metadata or {})
         self.should_stop = should_stop or (lambda: False)

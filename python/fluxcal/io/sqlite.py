@@ -14,7 +14,7 @@ from __future__ import annotations
 import sqlite3
 from pathlib import Path
 
-from .csv import _is_number
+from .csv import readable_file, _is_number
 from .recording import Recording
 
 
@@ -44,7 +44,7 @@ def _numeric(db, table: str) -> bool:
 
 
 def read_sqlite(path, columns=None, units: str | None = None, bad_lines: str = "error") -> Recording:
-    path = Path(path)
+    path = readable_file(path)
     try:
         db = sqlite3.connect(f"file:{path.resolve()}?mode=ro", uri=True)
     except sqlite3.Error as exc:
