@@ -52,6 +52,16 @@ def first_nonfinite(arr: np.ndarray):
     return row, int(np.argmax(bad[row]))
 
 
+def units_text(units) -> str:
+    """The readings' unit for an options struct: "" for None, or TypeError naming `units` when it is not a
+    string (pybind11 would list the struct's setter signature instead)."""
+    if units is None:
+        return ""
+    if not isinstance(units, str):
+        raise TypeError(f"units: {units!r} is not a string (such as 'uT', 'nT', 'mG', or '' for unstated)")
+    return units
+
+
 def set_options(options, settings: dict, what: str):
     """Set each keyword of `settings` on a bound C++ options struct; unknown names and values of the wrong
     type are a TypeError naming the option, NaN a ValueError (a NaN tolerance or σ silently switched a

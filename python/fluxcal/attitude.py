@@ -54,6 +54,16 @@ def _check(convention: str) -> str:
     return convention
 
 
+def _finite(name: str, values: np.ndarray, direction: bool = False) -> np.ndarray:
+    """`values`, or ValueError naming `name` when it holds NaN/Inf or, for a `direction` (…×3), a zero vector:
+    the helpers otherwise returned NaN, or a made-up frame for a reading with no direction."""
+    if not np.all(np.isfinite(values)):
+        raise ValueError(f"{name}: holds NaN or infinite values")
+    if direction and np.any(~np.any(values != 0, axis=-1)):
+        raise ValueError(f"{name}: a zero vector has no direction")
+    return values
+
+
 def rotation_from_euler(pitch, roll, yaw, degrees: bool = True, convention: str = "aerospace") -> Rotation:
     """Body→local rotation(s) from pitch, roll, yaw (scalars or arrays, broadcast together).
 
@@ -84,6 +94,7 @@ def reference_vectors(field_ned, pitch, roll, yaw, degrees: bool = True, convent
     f = np.asarray(field_ned, dtype=float)
     if f.shape[-1:] != (3,) or f.ndim > 2:
         raise ValueError("field_ned must be a 3-vector or N×3")
+    _finite("field_ned", f)
     f_local = np.atleast_2d(f) @ _NED_TO_LOCAL[convention].T
     R = rotation_from_euler(pitch, roll, yaw, degrees=degrees, convention=convention)
     if not R.single and len(R) == 1:
@@ -103,6 +114,8 @@ def field_from_inclination(total, inclination, declination=0.0, degrees: bool = 
     Seed 002: F = 52200 nT, I = 52° → down = 41134 nT (its "up" component H_u, quoted unsigned).
     """
     F, inc, dec = np.broadcast_arrays(*(np.asarray(a, dtype=float) for a in (total, inclination, declination)))
+    for name, value in (("total", F), ("inclination", inc), ("declination", dec)):
+        _finite(name, value)
     if degrees:
         inc, dec = np.radians(inc), np.radians(dec)
     horizontal = F * np.cos(inc)
@@ -130,6 +143,7 @@ def pitch_roll_from_accelerometer(acc, convention: str = "aerospace", degrees: b
     a = np.asarray(acc, dtype=float)
     if a.shape[-1:] != (3,):
         raise ValueError("acc must be a 3-vector or N×3")
+    _finite("acc", a, direction=True)
     x, y, z = np.moveaxis(a, -1, 0)
     if convention == "aerospace":
         pitch, roll = np.arctan2(x, np.hypot(y, z)), np.arctan2(-y, -z)
@@ -154,6 +168,10 @@ def magnetic_frame(field, down) -> np.ndarray:
     Where the field is vertical, any horizontal axis serves as north."""
     f = np.atleast_2d(np.asarray(field, dtype=float))
     d = np.atleast_2d(np.asarray(down, dtype=float))
+    for name, value in (("field", f), ("down", d)):
+        if value.ndim != 2 or value.shape[1] != 3:
+            raise ValueError(f"{name}: shape {value.shape}, need a 3-vector or N×3")
+        _finite(name, value, direction=True)
     d = d / np.linalg.norm(d, axis=1, keepdims=True)
     north = f - np.sum(f * d, axis=1, keepdims=True) * d
     size = np.linalg.norm(north, axis=1, keepdims=True)

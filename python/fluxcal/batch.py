@@ -168,6 +168,8 @@ def robust_spread(values) -> tuple[float, float, float]:
     """(median, MAD, robust σ). Robust σ = 1.4826·MAD (the Gaussian σ); when over half the values are
     identical (MAD 0) it falls back to 1.2533·mean absolute deviation (also σ for a Gaussian)."""
     x = np.asarray(values, dtype=float)
+    if x.size == 0 or not np.all(np.isfinite(x)):  # NumPy gave NaN with a warning, or a NaN spread
+        raise ValueError(f"values: {'empty' if x.size == 0 else 'NaN or infinite values'}; a spread needs finite numbers")
     median = float(np.median(x))
     mad = float(np.median(np.abs(x - median)))
     sigma = 1.4826 * mad if mad > 0 else 1.2533 * float(np.mean(np.abs(x - median)))
@@ -333,6 +335,8 @@ def calibrate_fleet(directory, out_dir, workers: int | None = None, scheduler: s
                          f"(the vector fit needs reference fields a recording folder does not give)")
     if field_norm is not None and not (math.isfinite(field_norm) and field_norm > 0):
         raise ValueError(f"field_norm: {field_norm} must be a positive number")
+    if not (isinstance(outlier_k, (int, float)) and math.isfinite(outlier_k) and outlier_k > 0):
+        raise ValueError(f"outlier_k: {outlier_k!r} must be a positive number of robust σ")
     if workers is not None and workers < 1:
         raise ValueError(f"workers: {workers} must be at least 1")
     if scheduler and workers is not None:
@@ -432,7 +436,10 @@ def calibrate_fleet(directory, out_dir, workers: int | None = None, scheduler: s
 
 # -- command line ----------------------------------------------------------------------------------
 def _positive_int(text: str) -> int:
-    value = int(text)
+    try:
+        value = int(text)
+    except ValueError:  # else argparse names this function: "invalid _positive_int value"
+        raise argparse.ArgumentTypeError(f"{text!r} is not a whole number") from None
     if value < 1:
         raise argparse.ArgumentTypeError(f"{text} is not a positive number of workers")
     return value
@@ -440,6 +447,7 @@ def _positive_int(text: str) -> int:
 
 def add_batch_parser(subparsers):
     """`fluxcal batch DIR -o OUTDIR [--workers N] [--scheduler ADDRESS] ...` for cli.build_parser."""
+    from .cli import positive_number
     from .pipeline import METHODS
 
     b = subparsers.add_parser("batch", help="calibrate every recording in a folder on a Dask cluster (fleet)")
@@ -450,9 +458,9 @@ def add_batch_parser(subparsers):
     b.add_argument("--scheduler", default=None, help="address of an existing Dask scheduler (tcp://host:8786)")
     b.add_argument("--method", default="auto", choices=[m for m in METHODS if m != "vector"],
                    help="auto = consistent ellipsoid fit (ALS) + maximum-likelihood refinement (default)")
-    b.add_argument("--field-norm", type=float, default=None, help="known |field| in the units of h")
+    b.add_argument("--field-norm", type=positive_number, default=None, help="known |field| in the units of h")
     b.add_argument("--pattern", default=DEFAULT_PATTERN, help=f"recordings to take (glob, default {DEFAULT_PATTERN})")
-    b.add_argument("--outlier-k", type=float, default=OUTLIER_K,
+    b.add_argument("--outlier-k", type=positive_number, default=OUTLIER_K,
                    help=f"flag |x - median| > k·1.4826·MAD (default {OUTLIER_K:g})")
     b.add_argument("--dashboard", default=None, metavar="ADDRESS",
                    help="serve the Dask dashboard of the local cluster here (e.g. :8787); off by default")

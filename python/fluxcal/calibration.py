@@ -117,6 +117,10 @@ class Calibration:
         for name, value in (("offset", self.offset), ("matrix", self.matrix), ("field_norm", self.field_norm)):
             if not np.all(np.isfinite(value)):
                 raise ValueError(f"{source}: {name} is not finite ({np.asarray(value).tolist()})")
+        condition = np.linalg.cond(self.matrix)
+        if not condition < 1e12:  # maps every reading onto a plane or a line: no calibration does
+            raise ValueError(f"{source}: matrix is singular or nearly so (condition number {condition:.3g}; "
+                             f"{self.matrix.tolist()})")
         return self
 
     # -- files ---------------------------------------------------------------------------------------
@@ -160,6 +164,8 @@ class Calibration:
         path = Path(path)
         try:
             data = json.loads(path.read_text())
+        except UnicodeDecodeError:
+            raise ValueError(f"{path}: not a fluxcal calibration (not text)") from None
         except json.JSONDecodeError as exc:
             raise ValueError(f"{path}: not a fluxcal calibration (JSON error at line {exc.lineno}: {exc.msg})") from None
         if not isinstance(data, dict):

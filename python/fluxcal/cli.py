@@ -15,6 +15,18 @@ from .io import Recording, read_csv, read_recording, write_csv, write_recording
 from .io.columns import unit_name
 from .pipeline import METHODS, calibrate
 
+def positive_number(text: str) -> float:
+    """argparse type of a magnitude (--field-norm, --noise-sigma): a positive finite number, so that the error
+    names the option instead of the solver's option struct deep inside."""
+    try:
+        value = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"{text!r} is not a number") from None
+    if not (np.isfinite(value) and value > 0):
+        raise argparse.ArgumentTypeError(f"{text} is not a positive finite number")
+    return value
+
+
 def _spread(values: np.ndarray) -> float:
     norm = np.linalg.norm(values, axis=1)
     return float(norm.std() / norm.mean())
@@ -141,7 +153,12 @@ def cmd_apply(args) -> int:
     factor = cal.unit_factor(rec.field_units(), f"{args.file}")
     if factor != 1.0:
         print(f"readings in {rec.field_units()} converted to the calibration's {cal.units} (× {factor:g})")
-    h = cal.apply(rec)
+    with np.errstate(over="ignore", invalid="ignore"):  # said below, naming the files
+        h = cal.apply(rec)
+    bad = ~np.isfinite(h).all(axis=1) & np.isfinite(rec.samples(check_finite=False)).all(axis=1)
+    if bad.any():  # a finite reading corrected to inf: nothing is written
+        raise ValueError(f"{args.calibration}: correcting {args.file} overflows from row {int(np.argmax(bad))} on "
+                         "(offset or matrix out of range for these readings)")
     columns = {**rec.columns, "hx": h[:, 0], "hy": h[:, 1], "hz": h[:, 2]}
     units = {**rec.units, **({k: cal.h_units for k in ("hx", "hy", "hz")} if cal.h_units else {})}
     write_recording(args.output, Recording(columns=columns, units=units, source=str(args.output),
@@ -418,7 +435,7 @@ def build_parser() -> argparse.ArgumentParser:
     c = sub.add_parser("calibrate", help="calibrate a magnetometer from a recording (CSV, TSV, .npz, .mat, Parquet, "
                                          "JSON)")
     c.add_argument("file")
-    c.add_argument("--field-norm", type=float, default=None,
+    c.add_argument("--field-norm", type=positive_number, default=None,
                    help="known |field|, in --field-units (default: fitted; a fluxcal simulation's own metadata)")
     c.add_argument("--field-units", default=None,
                    help="unit of --field-norm and of the corrected field h (default: the readings' unit; give it when "
@@ -457,7 +474,7 @@ def build_parser() -> argparse.ArgumentParser:
     s.add_argument("--n", type=int, default=2000)
     s.add_argument("--noise", type=float, default=0.005, help="white noise, fraction of |field|")
     s.add_argument("--seed", type=int, default=0)
-    s.add_argument("--field-norm", type=float, default=50000.0)
+    s.add_argument("--field-norm", type=positive_number, default=50000.0)
     s.add_argument("--units", default="nT")
     s.set_defaults(run=cmd_simulate)
 
@@ -474,8 +491,8 @@ def build_parser() -> argparse.ArgumentParser:
     g.add_argument("--bad-lines", default="error", choices=["error", "skip"], help=bad_lines_help)
     g.add_argument("--decimal", default=None, choices=[",", "."], help=decimal_help)
     g.add_argument("--units", default=None, help="units of the readings when the file does not say")
-    g.add_argument("--field-norm", type=float, default=None, help="known |field| (default: fitted)")
-    g.add_argument("--noise-sigma", type=float, default=None,
+    g.add_argument("--field-norm", type=positive_number, default=None, help="known |field| (default: fitted)")
+    g.add_argument("--noise-sigma", type=positive_number, default=None,
                    help="white-noise σ of the readings (default: estimated from third differences)")
     g.add_argument("--candidates", default=None, help="comma-separated effect names (default: all)")
     g.add_argument("--alpha", type=float, default=0.01, help="significance level (default 0.01)")

@@ -235,6 +235,9 @@ def load_kalman(path):
         data = json.loads(path.read_text())
     except OSError as exc:
         raise ValueError(f"{path}: cannot read ({exc.strerror or exc})") from None
+    except UnicodeDecodeError as exc:
+        raise ValueError(f"{path}: byte 0x{exc.object[exc.start]:02x} at offset {exc.start} is not text (not a "
+                         "saved filter or drift model)") from None
     except json.JSONDecodeError as exc:
         raise ValueError(f"{path}, line {exc.lineno}, column {exc.colno}: not valid JSON ({exc.msg})") from None
     if not isinstance(data, dict):
@@ -338,7 +341,12 @@ def export_c(cal: Calibration, path, q_format=None, name: str | None = None, kal
     """Write the firmware header (module docstring). `kalman`: a FixedArKalman, or a JSON path for
     `load_kalman`. Returns what was written (ExportResult.describe() says it in one line)."""
     from . import __version__
+    from ._arrays import require_calibration
+    from .kalman import FixedArKalman
 
+    require_calibration(cal, "cal")
+    if kalman is not None and not isinstance(kalman, (str, Path, FixedArKalman)):
+        raise TypeError(f"kalman: expected a FixedArKalman or the path of its JSON, got {type(kalman).__name__}")
     path = Path(path)
     name = _c_name(name if name is not None else default_name(path))
     up = name.upper()

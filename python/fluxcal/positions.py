@@ -37,7 +37,7 @@ from dataclasses import dataclass, field as _field
 import numpy as np
 
 from . import _core
-from ._arrays import as_samples, set_options
+from ._arrays import as_samples, set_options, units_text
 
 FRAMES = ("ned", "nue")
 _FRAME = {"ned": _core.Frame.ned, "nue": _core.Frame.nue}
@@ -79,9 +79,11 @@ def _rotations(rows, name: str = "rotations") -> np.ndarray:
 
 def field_from_inclination(total, inclination, declination=0.0) -> np.ndarray:
     """(N, E, D) from total intensity F, inclination I (degrees, positive down) and declination D
-    (degrees east): N = F cos I cos D, E = F cos I sin D, D = F sin I."""
-    F, inc, dec = float(total), np.radians(float(inclination)), np.radians(float(declination))
-    return np.array([F * np.cos(inc) * np.cos(dec), F * np.cos(inc) * np.sin(dec), F * np.sin(inc)])
+    (degrees east): N = F cos I cos D, E = F cos I sin D, D = F sin I. One field: fluxcal.attitude's, which
+    broadcasts and refuses NaN."""
+    from .attitude import field_from_inclination as field_of
+
+    return field_of(float(total), float(inclination), float(declination))
 
 
 def up_component(total, inclination) -> float:
@@ -350,7 +352,7 @@ def calibrate(mag, acc, field_ned, frame: str = "ned", preset=None, attitudes=No
     options.estimate_inclination = bool(estimate_inclination)
     options.gravity = float(gravity)
     options.gravity_tolerance = float(gravity_tolerance)
-    options.units = units or ""
+    options.units = units_text(units)
     set_options(options, settings, "calibrate")
     d = _core.calibrate_positions(U, np.ascontiguousarray(sf), nominal, to_local(f, frame), options)
     return _result(d, frame)
@@ -360,7 +362,7 @@ def fit(mag, reference, units: str = "", frame: str = "ned") -> PositionsResult:
     """Linear least squares of U = U0 + K H when each position's body-frame field H is known (N×3)."""
     options = _core.PositionsOptions()
     options.frame = _frame(frame)
-    options.units = units or ""
+    options.units = units_text(units)
     d = _core.fit_positions(as_samples(mag, "mag"), as_samples(reference, "reference"), options)
     d = dict(d, field=np.full(3, np.nan))
     return _result(d, frame)

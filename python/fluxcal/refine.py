@@ -13,7 +13,7 @@ from __future__ import annotations
 import numpy as np
 
 from . import _core
-from ._arrays import as_samples, require_calibration, set_options
+from ._arrays import as_samples, require_calibration, set_options, units_text
 from .calibration import Calibration
 
 LOSSES = {"none": _core.Loss.none, "huber": _core.Loss.huber, "cauchy": _core.Loss.cauchy}
@@ -41,7 +41,7 @@ def _options(loss="none", loss_scale=0.0, units="", shape="sym", **settings):
     options.loss = LOSSES[loss]
     options.shape = SHAPES[shape_name(shape)]
     options.loss_scale = float(loss_scale)
-    options.units = units or ""
+    options.units = units_text(units)
     if "serial_correlation" in settings and not isinstance(settings["serial_correlation"], _core.SerialCorrelation):
         name = settings["serial_correlation"]
         if not isinstance(name, str) or name not in SERIAL_CORRELATION:

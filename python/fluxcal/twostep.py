@@ -17,7 +17,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from . import _core
-from ._arrays import as_samples, set_options
+from ._arrays import as_samples, set_options, units_text
 from .calibration import Calibration
 from .ellipsoid import _calibration
 
@@ -39,9 +39,14 @@ class TwoStep2D:
     def __post_init__(self):
         self.offset = np.asarray(self.offset, dtype=float).reshape(2)
         self.gain = np.asarray(self.gain, dtype=float).reshape(2)
+        if not (np.all(np.isfinite(self.offset)) and np.all(np.isfinite(self.gain)) and np.all(self.gain != 0)):
+            # a zero gain made apply() divide by zero
+            raise ValueError(f"TwoStep2D: offset {self.offset.tolist()} and gain {self.gain.tolist()} must be finite, "
+                             "the gains non-zero")
 
     def apply(self, readings) -> np.ndarray:
-        """Compensated field (eq. 19) of one reading (2,) or of N×2 readings, the same shape out."""
+        """Compensated field (eq. 19) of one reading (2,) or of N×2 readings, the same shape out. A NaN
+        reading gives a NaN field, row by row, as Calibration.apply."""
         if np.ndim(readings) == 1:
             return (np.asarray(readings, dtype=float).reshape(2) - self.offset) / self.gain
         return (as_samples(readings, "readings", columns=2) - self.offset) / self.gain
@@ -70,9 +75,11 @@ def twostep_2d(readings, field_norms, units: str | None = None, refine: bool = T
     norms = np.asarray(field_norms, dtype=np.float64)
     if norms.ndim != 1:
         raise ValueError(f"field_norms: shape {norms.shape}, expected one magnitude per reading (N,)")
+    if not isinstance(refine, (bool, np.bool_)):  # bool("no") is True
+        raise TypeError(f"refine: {refine!r} is not True or False")
     options = _core.TwoStep2DOptions()
     options.refine = bool(refine)
-    options.units = units or ""
+    options.units = units_text(units)
     set_options(options, settings, "twostep_2d")
     r = _core.twostep_2d(arr, np.ascontiguousarray(norms), options)
     return TwoStep2D(offset=r["offset"], gain=r["gain"], units=r["units"], constant_field=r["constant_field"],
@@ -102,6 +109,6 @@ def twostep(samples, field_norm: float, units: str | None = None, **settings) ->
         raise ValueError("field_norm: required (the known |H|, e.g. from IGRF)")
     options = _core.TwoStepOptions()
     options.field_norm = float(field_norm)
-    options.units = units or ""
+    options.units = units_text(units)
     set_options(options, settings, "twostep")
     return _calibration(_core.twostep(arr, options))

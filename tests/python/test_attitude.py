@@ -272,3 +272,21 @@ def test_magnetic_frame_recovers_the_attitude_about_magnetic_north():
     assert np.allclose(np.linalg.det(frame), 1.0)
     vertical = attitude.magnetic_frame([[0.0, 0.0, 1.0]], [[0.0, 0.0, 1.0]])  # at a magnetic pole
     assert np.allclose(vertical[0] @ vertical[0].T, np.eye(3))
+
+
+def test_bad_vectors_and_angles_are_named():
+    from fluxcal import attitude, positions
+
+    # these returned NaN, or a made-up frame for a vector with no direction
+    cases = [(lambda: attitude.magnetic_frame([np.nan, 0, 1], [0, 0, 1]), "field: holds NaN"),
+             (lambda: attitude.magnetic_frame([0, 0, 0], [0, 0, 1]), "field: a zero vector"),
+             (lambda: attitude.magnetic_frame([1, 0, 0], [0, 0, 0]), "down: a zero vector"),
+             (lambda: attitude.pitch_roll_from_accelerometer([0, 0, 0]), "acc: a zero vector"),
+             (lambda: attitude.pitch_roll_from_accelerometer([np.inf, 0, -9.8]), "acc: holds NaN or infinite"),
+             (lambda: attitude.reference_vectors([np.nan, 0, 1], 0, 0, 0), "field_ned: holds NaN"),
+             (lambda: attitude.field_from_inclination(5e4, np.inf), "inclination: holds NaN or infinite"),
+             (lambda: positions.reference_field(total=50000, inclination=np.nan), "inclination: holds NaN")]
+    for call, message in cases:
+        with pytest.raises(ValueError, match=message):
+            call()
+    np.testing.assert_allclose(positions.field_from_inclination(52200, 52), [32137.529012, 0, 41134.161338])

@@ -238,3 +238,13 @@ def test_cli_bad_arguments_exit_2(tmp_path, make, args, message):
     r = _batch_cli(folder, "-o", tmp_path / "out", *args)
     assert r.returncode == 2 and message in r.stderr, r.stderr
     assert not (tmp_path / "out").exists()
+
+
+def test_fleet_statistics_and_settings_refuse_nan_and_empty(tmp_path):
+    from fluxcal.batch import calibrate_fleet, robust_spread
+
+    for values, message in (([], "values: empty"), ([1.0, np.nan, 2.0], "values: NaN")):
+        with pytest.raises(ValueError, match=message):  # a RuntimeWarning and NaN, or a NaN spread
+            robust_spread(values)
+    with pytest.raises(ValueError, match="outlier_k: nan must be a positive number"):
+        calibrate_fleet(tmp_path, tmp_path / "out", outlier_k=float("nan"))  # flagged nothing

@@ -182,3 +182,24 @@ def test_ambiguous_commas_are_settled_on_the_command_line(tmp_path):
     assert r.returncode == 0, r.stderr
     cal = fluxcal.Calibration.load(tmp_path / "c.json")
     np.testing.assert_allclose(cal.offset, [2100, -300, 800], atol=5)  # thousands separators: counts as printed
+
+
+def test_cli_names_bad_magnitudes_and_a_calibration_that_overflows(tmp_path):
+    rec, out = tmp_path / "sim.csv", tmp_path / "out.csv"
+    assert run_cli("simulate", "-o", rec, "--n", 200, "--seed", 4).returncode == 0
+    for value in ("inf", "nan", "0", "-5"):  # named EllipsoidOptions::field_norm and blamed the file
+        r = run_cli("calibrate", rec, "--field-norm", value)
+        assert r.returncode == 2 and f"argument --field-norm: {value} is not a positive finite number" in r.stderr
+    huge = tmp_path / "huge.json"
+    huge.write_text(json.dumps({"offset": [1e308, 0, 0], "matrix": (1e300 * np.eye(3)).tolist(), "field_norm": 1e308}))
+    r = run_cli("apply", huge, rec, "-o", out)  # wrote inf fields and exited 0
+    assert r.returncode == 2 and "huge.json: correcting" in r.stderr and "overflows from row 0" in r.stderr
+    assert "RuntimeWarning" not in r.stderr and not out.exists()
+    zero = tmp_path / "zero.json"
+    zero.write_text(json.dumps({"offset": [0, 0, 0], "matrix": np.zeros((3, 3)).tolist(), "field_norm": 1}))
+    r = run_cli("apply", zero, rec, "-o", out)  # wrote all-zero fields
+    assert r.returncode == 2 and "zero.json: matrix is singular or nearly so" in r.stderr
+    binary = tmp_path / "binary.json"
+    binary.write_bytes(b"\x82\xff\x00abc")
+    r = run_cli("export-c", binary, "-o", tmp_path / "o.h")  # named the codec, not the file
+    assert r.returncode == 2 and "binary.json: not a fluxcal calibration (not text)" in r.stderr

@@ -280,3 +280,16 @@ def test_kalman_signal_format_beyond_q0_31(tmp_path, scale, frac_bits):
     assert np.abs(y_int).max() > 2 ** 24  # the test vector uses the format's range whatever its scale
     _, self_test = run_driver(tmp_path, header)
     assert self_test == 0
+
+
+def test_export_c_names_a_wrong_kalman(tmp_path):
+    import numpy as np
+
+    import fluxcal
+    from fluxcal.export_c import export_c
+
+    cal = fluxcal.Calibration(offset=[0, 0, 0], matrix=np.eye(3))
+    with pytest.raises(TypeError, match="kalman: expected a FixedArKalman or the path of its JSON, got int"):
+        export_c(cal, tmp_path / "o.h", kalman=5)  # AttributeError: 'int' object has no attribute 'frac_bits'
+    with pytest.raises(TypeError, match="cal: expected a fluxcal.Calibration"):
+        export_c({"offset": [0, 0, 0]}, tmp_path / "o.h")

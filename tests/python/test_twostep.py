@@ -357,3 +357,17 @@ def test_3d_wrong_units_warn():
     s = simulated(12)
     cal = twostep(s.readings, s.field_norm / 1000)  # µT field for nT readings
     assert any("check the units" in w for w in cal.summary["warnings"])
+
+
+def test_twostep_2d_names_a_wrong_type_and_a_zero_gain():
+    from fluxcal.twostep import TwoStep2D
+
+    readings, norms = np.ones((10, 2)), np.ones(10)
+    with pytest.raises(TypeError, match="refine: 'no' is not True or False"):
+        fluxcal.twostep_2d(readings, norms, refine="no")  # bool("no") is True
+    with pytest.raises(TypeError, match="units: 5 is not a string"):
+        fluxcal.twostep_2d(readings, norms, units=5)  # pybind11 listed the options' setter
+    with pytest.raises(TypeError, match="units: 5 is not a string"):
+        fluxcal.fit_ellipsoid(np.random.default_rng(0).normal(size=(50, 3)), units=5)
+    with pytest.raises(ValueError, match="the gains non-zero"):
+        TwoStep2D(offset=[0, 0], gain=[0, 1])  # apply() divided by zero
