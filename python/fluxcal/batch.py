@@ -28,6 +28,7 @@ import importlib
 import json
 import logging
 import math
+import numbers
 import os
 import sys
 import time
@@ -335,7 +336,7 @@ def calibrate_fleet(directory, out_dir, workers: int | None = None, scheduler: s
                          f"(the vector fit needs reference fields a recording folder does not give)")
     if field_norm is not None and not (math.isfinite(field_norm) and field_norm > 0):
         raise ValueError(f"field_norm: {field_norm} must be a positive number")
-    if not (isinstance(outlier_k, (int, float)) and math.isfinite(outlier_k) and outlier_k > 0):
+    if not (isinstance(outlier_k, numbers.Real) and math.isfinite(outlier_k) and outlier_k > 0):
         raise ValueError(f"outlier_k: {outlier_k!r} must be a positive number of robust σ")
     if workers is not None and workers < 1:
         raise ValueError(f"workers: {workers} must be at least 1")
@@ -435,25 +436,15 @@ def calibrate_fleet(directory, out_dir, workers: int | None = None, scheduler: s
 
 
 # -- command line ----------------------------------------------------------------------------------
-def _positive_int(text: str) -> int:
-    try:
-        value = int(text)
-    except ValueError:  # else argparse names this function: "invalid _positive_int value"
-        raise argparse.ArgumentTypeError(f"{text!r} is not a whole number") from None
-    if value < 1:
-        raise argparse.ArgumentTypeError(f"{text} is not a positive number of workers")
-    return value
-
-
 def add_batch_parser(subparsers):
     """`fluxcal batch DIR -o OUTDIR [--workers N] [--scheduler ADDRESS] ...` for cli.build_parser."""
-    from .cli import positive_number
+    from .cli import positive_int, positive_number
     from .pipeline import METHODS
 
     b = subparsers.add_parser("batch", help="calibrate every recording in a folder on a Dask cluster (fleet)")
     b.add_argument("directory", help="folder of recordings, one unit per file (unit name = file name stem)")
     b.add_argument("-o", "--output", required=True, help="folder for <unit>.json and the fleet summary")
-    b.add_argument("--workers", type=_positive_int, default=None,
+    b.add_argument("--workers", type=positive_int, default=None,
                    help="worker processes of the local Dask cluster (default: one per core)")
     b.add_argument("--scheduler", default=None, help="address of an existing Dask scheduler (tcp://host:8786)")
     b.add_argument("--method", default="auto", choices=[m for m in METHODS if m != "vector"],

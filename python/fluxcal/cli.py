@@ -27,6 +27,17 @@ def positive_number(text: str) -> float:
     return value
 
 
+def positive_int(text: str) -> int:
+    """argparse type of a count (--repeats, --workers): a whole number ≥ 1."""
+    try:
+        value = int(text)
+    except ValueError:  # else argparse names this function: "invalid positive_int value"
+        raise argparse.ArgumentTypeError(f"{text!r} is not a whole number") from None
+    if value < 1:
+        raise argparse.ArgumentTypeError(f"{text} is not a positive whole number")
+    return value
+
+
 def _spread(values: np.ndarray) -> float:
     norm = np.linalg.norm(values, axis=1)
     return float(norm.std() / norm.mean())
@@ -506,9 +517,10 @@ def build_parser() -> argparse.ArgumentParser:
     ks = ksub.add_parser("simulate", help="write a simulated ring recording (CSV, columns s<k>_x, s<k>_y in tesla)")
     ks.add_argument("-o", "--output", required=True)
     ks.add_argument("--calibration", action="store_true", help="the calibration procedure: 5 × 72°, both polarities")
-    ks.add_argument("--current", type=float, default=5.0, help="current of the two cores, equal and opposite (A)")
+    ks.add_argument("--current", type=positive_number, default=5.0,
+                    help="current of the two cores, equal and opposite (A)")
     ks.add_argument("--rotations", default="0", help="comma-separated ring rotations (degrees) of the snapshots")
-    ks.add_argument("--repeats", type=int, default=5, help="readings per calibration state")
+    ks.add_argument("--repeats", type=positive_int, default=5, help="readings per calibration state")
     ks.add_argument("--lab", action="store_true", help="add the unmodelled effects (ferro parts, z leakage, Earth)")
     ks.add_argument("--seed", type=int, default=0, help="the simulated instrument (sensor errors)")
     ks.add_argument("--noise-seed", type=int, default=None, help="the noise (default: --seed)")

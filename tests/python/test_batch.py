@@ -228,7 +228,7 @@ def test_cli_runs_a_local_cluster_and_exits_0_with_failed_units(tmp_path):
 @pytest.mark.parametrize("make, args, message", [
     (None, (), "no such directory"),
     ("empty", (), "no recordings matching '*.csv'"),
-    ("empty", ("--workers", 0), "not a positive number of workers"),
+    ("empty", ("--workers", 0), "--workers: 0 is not a positive whole number"),
     ("empty", ("--method", "vector"), "invalid choice"),
 ])
 def test_cli_bad_arguments_exit_2(tmp_path, make, args, message):

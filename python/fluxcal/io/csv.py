@@ -432,9 +432,9 @@ def _writable(path, columns: dict, metadata: dict) -> None:
     if not columns:
         raise ValueError(f"{path}: no columns to write")
     for name in columns:
-        if not name or any(c in name for c in ",\r\n#") or name != name.strip():
-            raise ValueError(f"{path}: column name {name!r} cannot be a CSV header cell (empty, or holds a comma, "
-                             "'#', a line break or outer spaces)")
+        if not name or any(c in name for c in ",\r\n") or name != name.strip() or name.startswith("#"):
+            raise ValueError(f"{path}: column name {name!r} cannot be a CSV header cell (empty, holds a comma or a "
+                             "line break, has outer spaces, or starts with '#', a comment)")
     for key, value in metadata.items():
         if any(c in f"{key}{value}" for c in "\r\n") or ":" in str(key):
             raise ValueError(f"{path}: metadata {key!r} cannot be a '# key: value' comment line (a line break, or "
