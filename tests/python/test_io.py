@@ -104,3 +104,13 @@ def test_writers_refuse_what_the_readers_could_not_take_back(tmp_path):
         with pytest.raises(ValueError, match=message):
             call()
     assert not any(tmp_path.iterdir())
+
+
+def test_skipping_most_lines_is_refused_as_a_wrong_header(tmp_path):
+    import fluxcal
+
+    path = tmp_path / "qmc.csv"  # a QMC5883L logger's preamble above the table
+    path.write_text("Fs,100\nGain,2\nt,mx,my,mz\n0,1,2,3\n1,2,3,4\n2,3,4,5\n")
+    with pytest.raises(ValueError, match=r"4 of 5 lines do not fit the header on line 1 \(Fs, 100\)"):
+        read_csv(path, bad_lines="skip")  # kept one row, a column named '100'
+    assert len(fluxcal.read_recording(path, bad_lines="skip")) == 3  # finds the header after the preamble

@@ -193,6 +193,10 @@ def parse_mixed_rows(path, lines, start: int, names, delimiter, bad_lines: str, 
             skipped.append(f"{line_no} ({problem})")
     if not good:
         raise ValueError(f"{path}: no readable data rows" + (f" (all {len(skipped)} lines bad)" if skipped else ""))
+    if len(skipped) > len(good):  # not a few garbled lines: the header is not the table's (a preamble line?)
+        raise ValueError(f"{path}: {len(skipped)} of {len(cells)} lines do not fit the header on line {start} "
+                         f"({', '.join(names)}); skipping them would keep {len(good)}. Is a preamble above the "
+                         "table? fluxcal.read_recording (and the command line) find the header after one")
     if skipped:
         metadata["skipped_lines"] = listing(skipped, len(cells))
     kept = [j for j in range(len(names)) if j in numeric or j in columns]
