@@ -17,6 +17,7 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 
 import re
+from pathlib import Path
 
 import numpy as np
 
@@ -243,10 +244,28 @@ class RingCalibration:
             raise ValueError("ring calibration: offsets and gains must be finite and the gains non-zero")
 
     @classmethod
-    def from_dict(cls, d: dict) -> "RingCalibration":
-        stats = {k: np.asarray(d[k], float) for k in ("residual_sigma", "covariance") if k in d}
-        return cls(offsets=np.asarray(d["offsets"], float), gains=np.asarray(d["gains"], float),
-                   method=d.get("method", "twostep"), **stats)
+    def from_dict(cls, d: dict, source: str = "ring calibration") -> "RingCalibration":
+        missing = [k for k in ("offsets", "gains") if not isinstance(d, dict) or k not in d]
+        if missing:  # a magnetometer calibration given instead raised KeyError: 'offsets'
+            raise ValueError(f"{source}: not a ring calibration (no {' or '.join(missing)}; `fluxcal cable "
+                             "calibrate -o` writes one)")
+        try:
+            stats = {k: np.asarray(d[k], float) for k in ("residual_sigma", "covariance") if k in d}
+            return cls(offsets=np.asarray(d["offsets"], float), gains=np.asarray(d["gains"], float),
+                       method=d.get("method", "twostep"), **stats)
+        except (TypeError, ValueError) as exc:
+            raise ValueError(f"{source}: {str(exc).removeprefix('ring calibration: ')}") from None
+
+    @classmethod
+    def load(cls, path) -> "RingCalibration":
+        import json
+
+        path = Path(path)
+        try:
+            data = json.loads(path.read_text())
+        except (OSError, UnicodeDecodeError, json.JSONDecodeError) as exc:
+            raise ValueError(f"{path}: cannot read a ring calibration ({exc})") from None
+        return cls.from_dict(data, str(path))
 
 
 def calibrate_ring(readings, true_fields, method: str = "twostep") -> RingCalibration:

@@ -15,16 +15,21 @@ from .io import Recording, read_csv, read_recording, write_csv, write_recording
 from .io.columns import unit_name
 from .pipeline import METHODS, calibrate
 
-def positive_number(text: str) -> float:
+def positive_number(text: str, zero: bool = False) -> float:
     """argparse type of a magnitude (--field-norm, --noise-sigma): a positive finite number, so that the error
-    names the option instead of the solver's option struct deep inside."""
+    names the option instead of the solver's option struct deep inside; with `zero`, 0 too."""
     try:
         value = float(text)
     except ValueError:
         raise argparse.ArgumentTypeError(f"{text!r} is not a number") from None
-    if not (np.isfinite(value) and value > 0):
-        raise argparse.ArgumentTypeError(f"{text} is not a positive finite number")
+    if not (np.isfinite(value) and (value > 0 or (zero and value == 0))):
+        raise argparse.ArgumentTypeError(f"{text} is not a {'non-negative' if zero else 'positive'} finite number")
     return value
+
+
+def non_negative_number(text: str) -> float:
+    """argparse type of a noise level (--noise): finite, ≥ 0 (NaN wrote a recording of NaN)."""
+    return positive_number(text, zero=True)
 
 
 def positive_int(text: str) -> int:
@@ -316,7 +321,7 @@ def cmd_cable(args) -> int:
         return 0
     raw, ring_cal = data["readings"], None
     if args.calibration:
-        ring_cal = cable.RingCalibration.from_dict(json.loads(Path(args.calibration).read_text()))
+        ring_cal = cable.RingCalibration.load(args.calibration)
     for k, (snap, rot) in enumerate(zip(raw, data["rotations_deg"])):
         settings = {}
         if ring_cal is not None:
@@ -483,7 +488,7 @@ def build_parser() -> argparse.ArgumentParser:
     s = sub.add_parser("simulate", help="write a simulated magnetometer recording (CSV)")
     s.add_argument("-o", "--output", required=True)
     s.add_argument("--n", type=int, default=2000)
-    s.add_argument("--noise", type=float, default=0.005, help="white noise, fraction of |field|")
+    s.add_argument("--noise", type=non_negative_number, default=0.005, help="white noise, fraction of |field|")
     s.add_argument("--seed", type=int, default=0)
     s.add_argument("--field-norm", type=positive_number, default=50000.0)
     s.add_argument("--units", default="nT")

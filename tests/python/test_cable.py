@@ -339,3 +339,14 @@ def test_a_calibration_at_low_current_states_its_error_at_high_current():
     assert again.field_sigma(snap) == pytest.approx(sigmas[100.0])
     old = {k: v for k, v in cal.to_dict().items() if k not in ("residual_sigma", "covariance")}
     assert fluxcal.cable.RingCalibration.from_dict(old).field_sigma(snap) is None
+
+
+def test_a_file_that_is_not_a_ring_calibration_is_named(tmp_path):
+    from fluxcal.cable import RingCalibration
+
+    path = tmp_path / "magnetometer.json"
+    fluxcal.Calibration(offset=[0, 0, 0], matrix=np.eye(3)).save(path)  # the wrong kind: KeyError 'offsets'
+    with pytest.raises(ValueError, match="magnetometer.json: not a ring calibration"):
+        RingCalibration.load(path)
+    with pytest.raises(ValueError, match="x.json: offsets and gains must be finite"):
+        RingCalibration.from_dict({"offsets": [[0.0, 0.0]], "gains": [[0.0, 1.0]]}, "x.json")

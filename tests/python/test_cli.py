@@ -199,6 +199,8 @@ def test_cli_names_bad_magnitudes_and_a_calibration_that_overflows(tmp_path):
     zero.write_text(json.dumps({"offset": [0, 0, 0], "matrix": np.zeros((3, 3)).tolist(), "field_norm": 1}))
     r = run_cli("apply", zero, rec, "-o", out)  # wrote all-zero fields
     assert r.returncode == 2 and "zero.json: matrix is singular or nearly so" in r.stderr
+    r = run_cli("simulate", "-o", tmp_path / "nan.csv", "--noise", "nan")  # wrote a recording of NaN
+    assert r.returncode == 2 and "argument --noise: nan is not a non-negative finite number" in r.stderr
     for option in ("--current", "--repeats"):  # wrote a recording with no field to calibrate on
         r = run_cli("cable", "simulate", "-o", tmp_path / "ring.csv", "--calibration", option, 0)
         assert r.returncode == 2 and f"argument {option}: 0 is not a positive" in r.stderr

@@ -781,9 +781,7 @@ def _prepare(readings, ring, currents, rotations_deg, positions, calibration, no
         raise ValueError(f"readings: snapshot {s}, sensor {i}, axis {'xy'[a]} is not finite ({len(bad)} such values)")
     if calibration is not None:
         if isinstance(calibration, (str, Path)):
-            import json
-
-            calibration = RingCalibration.from_dict(json.loads(Path(calibration).read_text()))
+            calibration = RingCalibration.load(calibration)
         elif isinstance(calibration, dict):
             calibration = RingCalibration.from_dict(calibration)
         y = calibration.apply(y)
