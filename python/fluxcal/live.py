@@ -332,8 +332,6 @@ def _same_file(a, b) -> bool:
 def cmd_live(args) -> int:
     from .pipeline import calibrate
 
-    if args.duration is not None and not args.duration > 0:
-        raise ValueError(f"--duration: {args.duration} is not a positive number of seconds")
     if not 0 < args.min_coverage <= 1:
         raise ValueError(f"--min-coverage: {args.min_coverage} is not a fraction in (0, 1]")
     if not args.max_spread > 0:

@@ -339,6 +339,7 @@ def parse_rows(path, lines, start: int, names, delimiter, expected: str = "the h
 
 
 _DECIMAL_COMMA = re.compile(r"^\s*[-+]?\d*,\d+([eE][-+]?\d+)?\s*$")
+_THOUSANDS = re.compile(r"^[-+]?\d+,\d{3}$")  # 1,234: a thousands separator, or a decimal comma
 
 
 def _units_row(lines, start: int, names, delimiter, unit_map: dict):
@@ -399,7 +400,7 @@ def _decimal_comma_columns(sample, delimiter) -> list:
         commas = [c.strip() for c in cells if _DECIMAL_COMMA.match(c)]
         if not commas or any("." in c for c in cells):
             continue
-        if points and all(len(c.split(",")[1].split("e")[0].split("E")[0]) == 3 for c in commas):
+        if points and all(_THOUSANDS.match(c) for c in commas):
             continue  # 1,234 beside 0.5: a thousands separator as likely as a decimal comma
         found.append(j)
     return found

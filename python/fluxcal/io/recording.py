@@ -5,7 +5,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from .._arrays import first_nonfinite
+from .._arrays import first_nonfinite, units_text
 from .columns import (field_unit_of, unit_name, find_accelerometer, find_current, find_magnetometer, find_temperature, find_time,
                       sample_rate)
 
@@ -152,8 +152,7 @@ class Recording:
     def choose(self, columns=None, units: str | None = None) -> "Recording":
         """Apply the reader options every format shares: `columns` (three names, or "a,b,c") selects the
         magnetometer axes, `units` states their unit when the file does not."""
-        if units is not None and not isinstance(units, str):
-            raise TypeError(f"units: {units!r} is not a string (such as 'uT', 'nT', 'mG')")
+        units = units_text(units)
         if columns is not None:
             self.select(columns.split(",") if isinstance(columns, str) else columns)
         if units:

@@ -902,10 +902,12 @@ def _ctrl_c_as_request():
 
 def add_stream_arguments(p) -> None:
     """Port and parsing options shared by `fluxcal record` and `fluxcal live`."""
+    from ..cli import positive_number
+
     p.add_argument("--port", required=True, help="serial port or pyserial URL (/dev/ttyUSB0, COM3, loop://, "
                                                  "rfc2217://host:port)")
     p.add_argument("--baud", type=int, default=115200, help="baud rate (default 115200)")
-    p.add_argument("--duration", type=float, default=None, help="stop after this many seconds (default: Ctrl-C)")
+    p.add_argument("--duration", type=positive_number, default=None, help="stop after this many seconds (default: Ctrl-C)")
     p.add_argument("--format", choices=FORMATS, default="csv",
                    help="csv: separated numbers; kv: key=value or key:value pairs; binary-spec: --frame/--sync")
     p.add_argument("--columns", default=None,
@@ -983,8 +985,6 @@ def add_record_parser(subparsers):
 
 
 def cmd_record(args) -> int:
-    if args.duration is not None and not args.duration > 0:
-        raise ValueError(f"--duration: {args.duration} is not a positive number of seconds")
     decoder = decoder_from_args(args)
     check_output(args.output, "-o", args.overwrite)
     recorder = Recorder(args.port, args.baud, decoder, output=args.output, duration=args.duration,
