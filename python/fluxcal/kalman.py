@@ -27,8 +27,8 @@ MAX_ORDER = 100
 
 
 def _coefficients(ar_coeffs) -> np.ndarray:
-    a = np.atleast_1d(np.asarray(ar_coeffs, dtype=np.float64))
-    if a.ndim != 1 or a.size < 1:
+    a = np.atleast_1d(as_series([ar_coeffs] if np.isscalar(ar_coeffs) else ar_coeffs, "ar_coeffs"))
+    if a.size < 1:
         raise ValueError(f"ar_coeffs: shape {a.shape}, expected a non-empty 1-D sequence a1 … ap")
     if not np.all(np.isfinite(a)):
         raise ValueError("ar_coeffs: NaN/Inf")
@@ -180,6 +180,15 @@ def _c_int(v: int) -> str:
     return f"({int(v)})" if v < 0 else str(int(v))
 
 
+def _whole_within(value, name: str, bounds: tuple[int, int]) -> int:
+    """`value` as a whole number within `bounds`, or an error naming `name`."""
+    lo, hi = bounds
+    whole = as_whole(value, name, INT32_MIN)
+    if not lo <= whole <= hi:
+        raise ValueError(f"{name}: {whole} outside {lo} … {hi}")
+    return whole
+
+
 def _quantize(values, frac_bits: int, name: str) -> np.ndarray:
     scaled = np.rint(np.asarray(values, dtype=np.float64) * 2.0 ** frac_bits)
     if np.any(scaled > INT32_MAX) or np.any(scaled < INT32_MIN):
@@ -208,22 +217,20 @@ class FixedArKalman:
         # The order before the double filter is set up (which takes up to MAX_ORDER, slowly).
         _order_within(_coefficients(ar_coeffs), _core.FIXED_MAX_ORDER, "fixed-point filter's")
         if frac_bits is not None:  # 2^frac_bits must be a double: -2000 or 5000 ended in an OverflowError
-            lo, hi = SIGNAL_FRAC_BITS_RANGE
-            frac_bits = as_whole(frac_bits, "frac_bits", INT32_MIN)
-            if not lo <= frac_bits <= hi:
-                raise ValueError(f"frac_bits: {frac_bits} outside {lo} … {hi}")
+            frac_bits = _whole_within(frac_bits, "frac_bits", SIGNAL_FRAC_BITS_RANGE)
         self.double = ArKalman(ar_coeffs, q, r, initial_variance=initial_variance, steady_state=steady_state)
         self.steady_state = bool(steady_state)
         d = self.double
         if coef_frac_bits is None:
             biggest = max(1.0, float(np.max(np.abs(d.ar_coeffs))), float(np.max(np.abs(d.steady_gain))))
             coef_frac_bits = 30 - _int_bits(biggest)
-        if not 0 <= coef_frac_bits <= 30:
-            raise ValueError(f"coef_frac_bits: {coef_frac_bits} outside 0 … 30")
+        coef_frac_bits = _whole_within(coef_frac_bits, "coef_frac_bits", (0, 30))
         if cov_frac_bits is None:
             biggest = max(float(np.max(np.abs(d.initial_covariance))), float(np.max(np.abs(d.steady_prior_covariance))),
                           d.q + d.r)
             cov_frac_bits = 29 - math.ceil(math.log2(biggest))  # S = M00 + R may reach twice the largest
+        # Like the signal's, the covariance format is a pure scale (no shift uses it); 2^bits must be a double.
+        cov_frac_bits = _whole_within(cov_frac_bits, "cov_frac_bits", SIGNAL_FRAC_BITS_RANGE)
         self.coef_frac_bits, self.cov_frac_bits = int(coef_frac_bits), int(cov_frac_bits)
         self.frac_bits = None if frac_bits is None else int(frac_bits)
         self.a_int = _quantize(d.ar_coeffs, self.coef_frac_bits, "ar_coeffs")

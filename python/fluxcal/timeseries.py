@@ -26,12 +26,13 @@ INT_MAX = 2 ** 31 - 1  # the core's int
 
 def as_series(values, name: str = "series") -> np.ndarray:
     """`values` as a contiguous float64 1-D array; ValueError naming `name` otherwise."""
-    if np.iscomplexobj(values):  # float64 would drop the imaginary part with only a ComplexWarning
-        raise ValueError(f"{name}: complex values; a series is real (pass .real or abs() explicitly)")
-    try:
-        arr = np.asarray(values, dtype=np.float64)
+    try:  # a ragged list fails in iscomplexobj already
+        is_complex = np.iscomplexobj(values)
+        arr = None if is_complex else np.asarray(values, dtype=np.float64)
     except (TypeError, ValueError) as exc:
         raise ValueError(f"{name}: not numeric ({exc})") from None
+    if is_complex:  # float64 would drop the imaginary part with only a ComplexWarning
+        raise ValueError(f"{name}: complex values; a series is real (pass .real or abs() explicitly)")
     if arr.ndim != 1:
         raise ValueError(f"{name}: shape {arr.shape}, expected a 1-D series")
     return np.ascontiguousarray(arr)

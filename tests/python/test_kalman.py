@@ -398,6 +398,21 @@ def test_bad_input_is_named():
             FixedArKalman([0.6, -0.3], 0.5, 0.3, frac_bits=bits).filter(y)
     with pytest.raises(ValueError, match=r"frac_bits: 2\.5 is not a whole number"):
         FixedArKalman([0.6, -0.3], 0.5, 0.3, frac_bits=2.5)
+    # The coefficient and covariance formats: cov_frac_bits ±2000 raised OverflowError, coef_frac_bits=2.5
+    # was truncated to 2 without a word.
+    for bits in (-2000, 5000):
+        with pytest.raises(ValueError, match=rf"cov_frac_bits: {bits} outside -960 … 1000"):
+            FixedArKalman([0.6, -0.3], 0.5, 0.3, cov_frac_bits=bits)
+    with pytest.raises(ValueError, match=r"coef_frac_bits: 2\.5 is not a whole number"):
+        FixedArKalman([0.6, -0.3], 0.5, 0.3, coef_frac_bits=2.5)
+    with pytest.raises(ValueError, match=r"coef_frac_bits: 31 outside 0 … 30"):
+        FixedArKalman([0.6, -0.3], 0.5, 0.3, coef_frac_bits=31)
+    assert FixedArKalman([0.6, -0.3], 0.5, 0.3, coef_frac_bits=28.0).coef_frac_bits == 28
+    # Complex coefficients lost their imaginary part with only a ComplexWarning.
+    with pytest.raises(ValueError, match="ar_coeffs: complex values"):
+        ArKalman([0.6 + 0.1j, -0.3], 0.5, 0.3)
+    with pytest.raises(ValueError, match="ar_coeffs: not numeric"):
+        ArKalman([[0.6], [0.1, -0.3]], 0.5, 0.3)
     # NaN in signal_gain's input ended in a LinAlgError.
     with pytest.raises(ValueError, match="ar_coeffs: NaN/Inf"):
         signal_gain([np.nan], [0.1])
