@@ -61,7 +61,7 @@ def _report(cal: Calibration, raw: np.ndarray, out=sys.stdout) -> None:
           f"{', '.join(f'{v:.2f}' for v in s['direction_eigenvalues'])} (1/3 each = full sphere)", file=out)
     if "method" in s:
         print(f"  method                {s['method']}", file=out)
-    if "shapes" in s:  # shape auto: what each shape scored
+    if "shapes" in s:  # what each shape refined scored (all three under auto; a forced one beside sym)
         scores = ", ".join(f"{k} {v['bic']:.1f}" + ("" if v["identifiable"] else " (undetermined)") if "bic" in v
                            else f"{k} failed" for k, v in s["shapes"].items())
         print(f"  shape                 {s['shape']} (BIC: {scores})", file=out)

@@ -138,8 +138,10 @@ def _settings_named(names) -> str:
 
 def _refine_shape(start: Calibration, m: np.ndarray, shape: str, **settings) -> Calibration:
     """The refinement in `shape`, or with "auto" the shape of lowest BIC, determined or not (see calibrate)."""
-    if shape != "auto":
+    if shape == "sym":
         return refine(start, m, shape=shape, **settings)
+    if shape != "auto":
+        return _forced_shape(start, m, shape, **settings)
 
     def fit(name):
         try:
@@ -159,11 +161,7 @@ def _refine_shape(start: Calibration, m: np.ndarray, shape: str, **settings) -> 
             table[name] = {"error": str(result)}
             continue
         fits[name] = result
-        s, n = fits[name].summary, len(m)
-        rss = float(s["cost"]) * n
-        k = len(s["parameters"])
-        table[name] = {"parameters": k, "rss": rss, "bic": n * np.log(rss / n) + k * np.log(n),
-                       "identifiable": bool(s["identifiable"])}
+        table[name] = _shape_row(result.summary, len(m))
     if not fits:
         errors = {k: v["error"] for k, v in table.items()}
         if len({re.sub(r"\d+-parameter ", "", e) for e in errors.values()}) == 1:
@@ -182,6 +180,39 @@ def _refine_shape(start: Calibration, m: np.ndarray, shape: str, **settings) -> 
                      f"{table[k]['bic'] - table[best]['bic']:.0f}): its answer would be biased, not a remedy"
                      for k in fits if table[k]["identifiable"]]
     cal.summary["warnings"] = list(cal.summary["warnings"]) + warnings
+    return cal
+
+
+def _shape_row(summary: dict, n: int) -> dict:
+    """A refinement's row of the shape table: parameters, RSS, BIC = N ln(RSS/N) + k ln N, determined."""
+    rss, k = float(summary["cost"]) * n, len(summary["parameters"])
+    return {"parameters": k, "rss": rss, "bic": n * np.log(rss / n) + k * np.log(n),
+            "identifiable": bool(summary["identifiable"])}
+
+
+# Kass & Raftery's "very strong" evidence: a BIC lower by more than this (a Bayes factor above ~150).
+REJECTED_BIC = 10.0
+
+
+def _forced_shape(start: Calibration, m: np.ndarray, shape: str, **settings) -> Calibration:
+    """The refinement in the restricted `shape` the user chose, with a warning when the full symmetric
+    matrix fits the data decisively better: the forced shape's answer is then biased (a sensor with
+    ±10 % axis scales fitted as a sphere keeps a 5 % spread of |B|), and nothing else would say so."""
+    cal = refine(start, m, shape=shape, **settings)
+    try:
+        full = refine(start, m, shape="sym", **settings)
+    except (ValueError, RuntimeError):  # the comparison is a courtesy: the user's fit stands without it
+        return cal
+    table = {shape: _shape_row(cal.summary, len(m)), "sym": _shape_row(full.summary, len(m))}
+    cal.summary["shapes"] = table
+    excess = table[shape]["bic"] - table["sym"]["bic"]
+    if excess > REJECTED_BIC:
+        rms = {name: np.sqrt(row["rss"] / len(m)) for name, row in table.items()}
+        cal.summary["warnings"] = list(cal.summary["warnings"]) + [
+            f"the data reject shape {shape!r}: the symmetric matrix fits with BIC lower by {excess:.0f} "
+            f"(residual RMS {rms['sym']:.3g} against {rms[shape]:.3g}); the corrected fields keep the soft iron "
+            "the shape leaves out, and unless the coverage is even the offset absorbs part of it (shape 'auto' "
+            "chooses by BIC)"]
     return cal
 
 

@@ -117,6 +117,25 @@ def test_diagonal_shape_is_more_accurate_when_the_sensor_has_no_coupling():
     assert np.all(np.abs(np.mean(est["diag"], axis=0) - OFFSET) < 0.25 * spread)
 
 
+def test_a_forced_shape_the_data_reject_is_warned_about():
+    # A sensor with ±8 % axis scales fitted as a sphere (magcal's 'eye') keeps its scale errors in the
+    # corrected field, and only the comparison with the symmetric matrix says so. A sensor that is a sphere
+    # (or diagonal, fitted as diagonal) gets no warning.
+    m = readings(DIAG, OFFSET, 300, 0.01, 5)
+    cal = fluxcal.calibrate(m, field_norm=H, shape="eye")
+    assert cal.summary["shape"] == "sphere"
+    assert set(cal.summary["shapes"]) == {"sphere", "sym"}
+    assert cal.summary["shapes"]["sphere"]["bic"] - cal.summary["shapes"]["sym"]["bic"] > 100
+    assert any("the data reject shape 'sphere'" in w and "keep the soft iron" in w for w in cal.summary["warnings"])
+    rss = {k: v["rss"] for k, v in cal.summary["shapes"].items()}
+    assert rss["sphere"] > 10 * rss["sym"], rss  # the axis scales left in: |B| spread ~5 %, noise 1 %
+    fair = fluxcal.calibrate(readings(1.05 * np.eye(3), OFFSET, 300, 0.01, 6), field_norm=H, shape="sphere")
+    assert not any("reject" in w for w in fair.summary["warnings"]), fair.summary["warnings"]
+    assert fair.summary["shapes"]["sphere"]["bic"] < fair.summary["shapes"]["sym"]["bic"]
+    diag = fluxcal.calibrate(readings(DIAG, OFFSET, 300, 0.01, 7), field_norm=H, shape="diag")
+    assert not any("reject" in w for w in diag.summary["warnings"]), diag.summary["warnings"]
+
+
 def test_shape_is_refused_where_it_does_not_apply():
     m = readings(SYM, OFFSET, 300, 0.01, 3)
     with pytest.raises(ValueError, match="shape: 'ellipse' is not one of sphere, diag, sym"):
