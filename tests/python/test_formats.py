@@ -72,6 +72,10 @@ def test_foreign_mat_files(tmp_path):
     savemat(tmp_path / "wide.mat", {"D": d.T})
     with pytest.raises(ValueError, match=r"wide.mat: no N×3 magnetometer matrix .* D \(3×40\).*transposed"):
         read_recording(tmp_path / "wide.mat")
+    # a complex or text N×3 matrix: the listing says its type is the problem, not only its shape
+    np.savez(tmp_path / "complex.npz", m=d.astype(complex))
+    with pytest.raises(ValueError, match=r"complex.npz: no N×3 .* m \(40×3 complex128, not real numbers\)"):
+        read_recording(tmp_path / "complex.npz")
 
 
 def test_foreign_npz_npy_and_parquet(tmp_path):

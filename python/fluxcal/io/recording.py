@@ -226,8 +226,12 @@ def recording_from_arrays(variables: dict, source: str, matrix: str | None = Non
         else:
             hint = ", transposed?" if arr.ndim == 2 and arr.shape[0] == 3 else ""
             ignored.append(f"{name} ({'×'.join(map(str, arr.shape))}{hint})")
-    listing = ", ".join(f"{n} ({'×'.join(map(str, np.shape(v)))})" for n, v in variables.items()
-                        if not isinstance(v, str)) or "none"
+    def described(value) -> str:  # shape, and the type when it is not real numbers (a string or complex N×3)
+        arr = np.asarray(value)
+        kind = "" if arr.dtype.kind in "biuf" else f" {arr.dtype}, not real numbers"
+        return f"{'×'.join(map(str, arr.shape))}{kind}"
+
+    listing = ", ".join(f"{n} ({described(v)})" for n, v in variables.items() if not isinstance(v, str)) or "none"
     if matrix is not None:
         if matrix not in matrices:
             raise ValueError(f"{source}: no N×3 variable {matrix!r}; numeric variables are: {listing}")
