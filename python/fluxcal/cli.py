@@ -12,6 +12,7 @@ import numpy as np
 from . import __version__, cmake_dir
 from .calibration import TESLA_PER_UNIT, Calibration, _significant
 from .io import Recording, read_csv, read_recording, write_csv, write_recording
+from .io.formats import WRITERS
 from .io.columns import unit_name
 from .pipeline import METHODS, calibrate
 
@@ -177,11 +178,19 @@ def cmd_apply(args) -> int:
                          "(offset or matrix out of range for these readings)")
     columns = {**rec.columns, "hx": h[:, 0], "hy": h[:, 1], "hz": h[:, 2]}
     units = {**rec.units, **({k: cal.h_units for k in ("hx", "hy", "hz")} if cal.h_units else {})}
-    write_recording(args.output, Recording(columns=columns, units=units, source=str(args.output),
-                                           metadata={**rec.metadata, "calibration": args.calibration}))
+    write_output(args.output, Recording(columns=columns, units=units, source=str(args.output),
+                                        metadata={**rec.metadata, "calibration": args.calibration}))
     print(f"wrote {args.output}: {len(rec)} rows, corrected columns hx,hy,hz "
           f"(|h| std/mean {100 * _spread(h):.3f} %)")
     return 0
+
+
+def write_output(path, rec: Recording) -> None:
+    """A command's output recording in the format of its extension (.npz .mat .parquet .json), CSV otherwise."""
+    if Path(path).suffix.lower() in WRITERS:
+        write_recording(path, rec)
+    else:
+        write_csv(path, rec)
 
 
 def cmd_simulate(args) -> int:
@@ -197,7 +206,8 @@ def cmd_simulate(args) -> int:
             "true_offset": " ".join(f"{v:.10g}" for v in truth.offset),
             "true_matrix": " ".join(f"{v:.10g}" for v in truth.matrix.ravel()),
             "field_norm": f"{args.field_norm:.10g}"}
-    write_csv(args.output, cols, units={"t": "s", **{c: args.units for c in ("mx", "my", "mz")}}, metadata=meta)
+    write_output(args.output, Recording(columns=cols, units={"t": "s", **{c: args.units for c in ("mx", "my", "mz")}},
+                                        metadata=meta, source=str(args.output)))
     print(f"wrote {args.output}: {args.n} readings, field {args.field_norm:g} {args.units}")
     return 0
 
@@ -403,7 +413,8 @@ def cmd_drift(args) -> int:
     out_name = f"{column}_compensated"
     columns = {**rec.columns, out_name: compensated}
     units = {**rec.units, **({out_name: rec.units[column]} if rec.units.get(column) else {})}
-    write_csv(args.output, columns, units=units, metadata={**rec.metadata, "drift_model": args.model})
+    write_output(args.output, Recording(columns=columns, units=units, source=str(args.output),
+                                        metadata={**rec.metadata, "drift_model": args.model}))
     print(f"wrote {args.output}: {len(rec)} rows, column {out_name} "
           f"(drift span {drift.drift_span(rec.columns[column], rec.columns['temp']):.4g} -> "
           f"{drift.drift_span(compensated, rec.columns['temp']):.4g})")
@@ -444,6 +455,7 @@ def build_parser() -> argparse.ArgumentParser:
 
     columns_help = ("the three magnetometer columns (default mx,my,mz or x,y,z); for a table without a header "
                     "one name per column; for .mat/.npz the N×3 matrix variable")
+    output_help = "the format follows the extension (.npz .mat .parquet .json), CSV text otherwise"
     bad_lines_help = ("a text line with the wrong number of fields or a non-number: stop with its line and column "
                       "(error, default) or leave it out and list it (skip)")
     decimal_help = ("labelled text logs (X: 1,234) whose commas nothing in the file settles: ',' reads them as "
@@ -478,15 +490,14 @@ def build_parser() -> argparse.ArgumentParser:
     a = sub.add_parser("apply", help="correct a recording with a saved calibration")
     a.add_argument("calibration")
     a.add_argument("file")
-    a.add_argument("-o", "--output", required=True, help="the format follows the extension (.csv .npz .mat "
-                                                         ".parquet .json)")
+    a.add_argument("-o", "--output", required=True, help=output_help)
     a.add_argument("--columns", default=None, help=columns_help)
     a.add_argument("--bad-lines", default="error", choices=["error", "skip"], help=bad_lines_help)
     a.add_argument("--decimal", default=None, choices=[",", "."], help=decimal_help)
     a.set_defaults(run=cmd_apply)
 
-    s = sub.add_parser("simulate", help="write a simulated magnetometer recording (CSV)")
-    s.add_argument("-o", "--output", required=True)
+    s = sub.add_parser("simulate", help="write a simulated magnetometer recording")
+    s.add_argument("-o", "--output", required=True, help=output_help)
     s.add_argument("--n", type=int, default=2000)
     s.add_argument("--noise", type=non_negative_number, default=0.005, help="white noise, fraction of |field|")
     s.add_argument("--seed", type=int, default=0)
@@ -599,7 +610,7 @@ def build_parser() -> argparse.ArgumentParser:
     da = drs.add_parser("apply", help="compensate a recording: writes its columns plus zero_bias_compensated")
     da.add_argument("model")
     da.add_argument("file")
-    da.add_argument("-o", "--output", required=True)
+    da.add_argument("-o", "--output", required=True, help=output_help)
     da.add_argument("--column", default=None, help="column to compensate (default: the one the model was fitted on)")
     da.add_argument("--bad-lines", default="error", choices=["error", "skip"], help=bad_lines_help)
     dr.set_defaults(run=cmd_drift)

@@ -64,6 +64,25 @@ def test_errors_are_reported_not_raised(tmp_path):
     assert r.returncode == 2 and f"{tmp_path}: Is a directory" in r.stderr and "Traceback" not in r.stderr
 
 
+def test_outputs_are_written_in_the_format_their_name_says(tmp_path):
+    # `simulate -o s.mat` wrote CSV text under a .mat name, which MATLAB cannot load.
+    from scipy.io import loadmat
+
+    assert run_cli("simulate", "-o", tmp_path / "s.mat", "--n", 60, "--seed", 1).returncode == 0
+    assert loadmat(tmp_path / "s.mat")["mx"].size == 60
+    rec = fluxcal.read_recording(tmp_path / "s.mat")
+    assert rec.metadata["field_norm"] == "50000" and len(rec) == 60
+    r = run_cli("apply", fluxcal.Calibration(np.zeros(3), np.eye(3), units="nT").save(tmp_path / "c.json"), tmp_path / "s.mat", "-o", tmp_path / "h.txt")
+    assert r.returncode == 0, r.stderr  # any other name: CSV text, read back by its content
+    np.testing.assert_array_equal(fluxcal.read_recording(tmp_path / "h.txt").columns["hx"], rec.columns["mx"])
+    # A writer of CSV only refuses another format's name instead of writing text under it.
+    r = run_cli("cable", "simulate", "-o", tmp_path / "ring.npz")
+    assert r.returncode == 2 and "ring.npz: CSV text under a .npz name; name it .csv" in r.stderr
+    assert not (tmp_path / "ring.npz").exists()
+    with pytest.raises(ValueError, match=r"x.json: CSV text under a .json name"):
+        fluxcal.write_csv(tmp_path / "x.json", {"a": [1.0]})
+
+
 def test_poor_coverage_is_warned(tmp_path):
     rng = np.random.default_rng(4)
     az, el = rng.uniform(0, 2 * np.pi, 800), np.deg2rad(rng.uniform(-8, 8, 800))

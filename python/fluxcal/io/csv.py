@@ -430,10 +430,19 @@ def _raise_parse_error(path, rows, line_numbers, names, delimiter, expected="the
     raise ValueError(f"{path}: could not parse the data rows")
 
 
+# The extensions of the other formats fluxcal writes (fluxcal.io.write_recording): CSV text under one of
+# these names would mislead whoever opens it in MATLAB or pandas.
+OTHER_WRITERS = (".npz", ".mat", ".parquet", ".pq", ".json")
+
+
 def _writable(path, columns: dict, metadata: dict) -> None:
     """ValueError naming what a CSV cannot hold so that read_csv gets it back: no columns, a column name with
     the delimiter or a line break, a metadata key or value with a line break (the file was written, and
-    reading it failed on a line that did not say why)."""
+    reading it failed on a line that did not say why); and a name of another format."""
+    suffix = Path(path).suffix.lower()
+    if suffix in OTHER_WRITERS:
+        raise ValueError(f"{path}: CSV text under a {suffix} name; name it .csv, or write {suffix} with "
+                         "write_recording")
     if not columns:
         raise ValueError(f"{path}: no columns to write")
     for name in columns:

@@ -40,10 +40,10 @@ import re
 from pathlib import Path
 
 from .csv import (_decimal_comma_columns, readable_file, _is_number, comment_text, data_lines, decimal_points, is_comment, parse_csv,
-                  read_csv, read_text, write_csv)
+                  read_csv, read_text, write_csv, OTHER_WRITERS)
 from .recording import Recording
 
-WRITERS = (".csv", ".npz", ".mat", ".parquet", ".pq", ".json")
+WRITERS = (".csv",) + OTHER_WRITERS
 
 
 def sniff(path) -> str:
