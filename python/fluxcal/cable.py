@@ -17,12 +17,12 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 
 import re
-from pathlib import Path
 
 import numpy as np
 
 from . import _core
 from ._arrays import set_options
+from ._saved import load_json_object
 from .twostep import TwoStep2D, twostep_2d
 
 #: μ0/(2π) in T·m/A (the core's constant).
@@ -258,14 +258,7 @@ class RingCalibration:
 
     @classmethod
     def load(cls, path) -> "RingCalibration":
-        import json
-
-        path = Path(path)
-        try:
-            data = json.loads(path.read_text())
-        except (OSError, UnicodeDecodeError, json.JSONDecodeError) as exc:
-            raise ValueError(f"{path}: cannot read a ring calibration ({exc})") from None
-        return cls.from_dict(data, str(path))
+        return cls.from_dict(load_json_object(path, "a ring calibration"), str(path))
 
 
 def calibrate_ring(readings, true_fields, method: str = "twostep") -> RingCalibration:

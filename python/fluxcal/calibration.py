@@ -8,6 +8,7 @@ from pathlib import Path
 import numpy as np
 
 from ._arrays import as_samples
+from ._saved import load_json_object
 
 CONVENTION = "h = A (m - b); rows of samples are readings; A = W^-1 for a sensor reading m = W h + b"
 # magnetic-field units fluxcal converts between (the unit names of fluxcal.io.columns.FIELD_UNITS)
@@ -161,16 +162,7 @@ class Calibration:
 
     @classmethod
     def load(cls, path) -> "Calibration":
-        path = Path(path)
-        try:
-            data = json.loads(path.read_text())
-        except UnicodeDecodeError:
-            raise ValueError(f"{path}: not a fluxcal calibration (not text)") from None
-        except json.JSONDecodeError as exc:
-            raise ValueError(f"{path}: not a fluxcal calibration (JSON error at line {exc.lineno}: {exc.msg})") from None
-        if not isinstance(data, dict):
-            raise ValueError(f"{path}: not a fluxcal calibration (expected a JSON object)")
-        return cls.from_dict(data, source=str(path))
+        return cls.from_dict(load_json_object(path, "a fluxcal calibration"), source=str(path))
 
     def __str__(self) -> str:
         u = f" {self.units}" if self.units else ""

@@ -43,6 +43,7 @@ import numpy as np
 
 from . import _core
 from . import timeseries as ts
+from ._saved import load_json_object
 from .kalman import ArKalman
 
 DEFAULT_BREAKPOINTS = (-20.0, 0.0, 30.0, 50.0)
@@ -154,16 +155,7 @@ class DriftModel:
 
     @classmethod
     def load(cls, path) -> "DriftModel":
-        path = Path(path)
-        try:
-            raw = path.read_bytes()
-            data = json.loads(raw.decode("utf-8"))
-        except UnicodeDecodeError as exc:  # a binary or mis-encoded file: name the byte, not the codec
-            raise ValueError(f"{path}: byte 0x{exc.object[exc.start]:02x} at offset {exc.start} is not text "
-                             "(not a drift model JSON file?)") from None
-        except (OSError, json.JSONDecodeError) as exc:
-            raise ValueError(f"{path}: cannot read a drift model ({exc})") from None
-        return cls.from_dict(data, str(path))
+        return cls.from_dict(load_json_object(path, "a fluxcal drift model"), str(path))
 
 
 def _jsonable(v):

@@ -39,6 +39,7 @@ from pathlib import Path
 
 import numpy as np
 
+from ._saved import load_json_object
 from .calibration import Calibration
 from .kalman import signal_format
 
@@ -231,17 +232,7 @@ def load_kalman(path):
     from .kalman import FixedArKalman
 
     path = Path(path)
-    try:
-        data = json.loads(path.read_text())
-    except OSError as exc:
-        raise ValueError(f"{path}: cannot read ({exc.strerror or exc})") from None
-    except UnicodeDecodeError as exc:
-        raise ValueError(f"{path}: byte 0x{exc.object[exc.start]:02x} at offset {exc.start} is not text (not a "
-                         "saved filter or drift model)") from None
-    except json.JSONDecodeError as exc:
-        raise ValueError(f"{path}, line {exc.lineno}, column {exc.colno}: not valid JSON ({exc.msg})") from None
-    if not isinstance(data, dict):
-        raise ValueError(f"{path}: expected a JSON object (a saved FixedArKalman or a drift model)")
+    data = load_json_object(path, "a saved FixedArKalman or drift model")
     try:
         if data.get("kind") == KALMAN_KIND:
             settings = dict(ar_coeffs=data["ar_coeffs"], q=data["q"], r=data["r"],

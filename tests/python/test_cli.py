@@ -226,4 +226,4 @@ def test_cli_names_bad_magnitudes_and_a_calibration_that_overflows(tmp_path):
     binary = tmp_path / "binary.json"
     binary.write_bytes(b"\x82\xff\x00abc")
     r = run_cli("export-c", binary, "-o", tmp_path / "o.h")  # named the codec, not the file
-    assert r.returncode == 2 and "binary.json: not a fluxcal calibration (not text)" in r.stderr
+    assert r.returncode == 2 and "binary.json: not a fluxcal calibration (byte 0x82 at offset 0 is not text)" in r.stderr

@@ -436,7 +436,7 @@ def test_bad_input_is_named(tmp_path):
     # A file that is not text: UnicodeDecodeError before.
     binary = tmp_path / "binary.json"
     binary.write_bytes(b'{"segments": "\xff"}')
-    with pytest.raises(ValueError, match=r"binary.json: byte 0xff at offset 14 is not text"):
+    with pytest.raises(ValueError, match=r"binary.json: not a fluxcal drift model \(byte 0xff at offset 14 is not text\)"):
         drift.DriftModel.load(binary)
     # sim.foct_zero_bias takes an int seed as sim.simulate does (AttributeError before).
     a, b = sim.foct_zero_bias(rng=1, hold_s=60, ramp_s=30), sim.foct_zero_bias(rng=np.random.default_rng(1),

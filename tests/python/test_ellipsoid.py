@@ -128,6 +128,35 @@ def test_load_errors_name_the_file(tmp_path):
         fluxcal.Calibration.load(bad)
 
 
+def test_every_saved_file_loader_says_what_is_wrong_the_same_way(tmp_path):
+    # Four loaders had four wordings, and a folder or a missing calibration raised IsADirectoryError or
+    # FileNotFoundError. Each names the file, what it should be and the problem.
+    import os
+
+    from fluxcal.cable import RingCalibration
+    from fluxcal.drift import DriftModel
+    from fluxcal.export_c import load_kalman
+
+    cases = {"binary.json": (b"\x82\xff\x00abc", r"\(byte 0x82 at offset 0 is not text\)"),
+             "cut.json": (b'{"offset": [1,', r"\(not valid JSON at line 1, column 15: .*truncated file\?\)"),
+             "list.json": (b"[1, 2]", r"\(a JSON list, expected an object\)")}
+    for name, (content, _) in cases.items():
+        (tmp_path / name).write_bytes(content)
+    os.mkfifo(tmp_path / "pipe.json")  # reading it would block forever
+    loaders = {fluxcal.Calibration.load: "a fluxcal calibration", RingCalibration.load: "a ring calibration",
+               DriftModel.load: "a fluxcal drift model", load_kalman: "a saved FixedArKalman or drift model"}
+    for load, what in loaders.items():
+        for name, (_, problem) in cases.items():
+            with pytest.raises(ValueError, match=rf"{name}: not {what} {problem}"):
+                load(tmp_path / name)
+        with pytest.raises(ValueError, match=rf"{tmp_path.name}: a folder, not {what}"):
+            load(tmp_path)
+        with pytest.raises(ValueError, match=rf"pipe.json: not a regular file .*, not {what}"):
+            load(tmp_path / "pipe.json")
+        with pytest.raises(ValueError, match=rf"absent.json: cannot read {what} \(No such file"):
+            load(tmp_path / "absent.json")
+
+
 # -- bad input: a clear ValueError naming the input, never a crash or a silent answer --------------------
 
 def test_nan_and_inf_rows_are_named():
