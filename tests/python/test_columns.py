@@ -23,6 +23,10 @@ from fluxcal.sim.withheld import withheld_trial
     # raw beside calibrated: the raw triple
     (["mag_x_uT", "mag_y_uT", "mag_z_uT", "mag_cal_x", "mag_cal_y", "mag_cal_z"], ("mag_x_uT", "mag_y_uT", "mag_z_uT")),
     (["mag_raw_x", "mag_raw_y", "mag_raw_z", "mag_x", "mag_y", "mag_z"], ("mag_raw_x", "mag_raw_y", "mag_raw_z")),
+    # iOS SensorLog: the raw magnetometer beside Core Motion's calibrated field
+    (["magnetometerX(µT)", "magnetometerY(µT)", "magnetometerZ(µT)", "motionMagneticFieldX(µT)",
+      "motionMagneticFieldY(µT)", "motionMagneticFieldZ(µT)"],
+     ("magnetometerX(µT)", "magnetometerY(µT)", "magnetometerZ(µT)")),
     # not a magnetometer
     (["ax", "ay", "az", "gx", "gy", "gz"], None),
     (["gyro_x", "gyro_y", "gyro_z"], None),
@@ -55,6 +59,14 @@ def test_time_temperature_and_accelerometer_names():
     assert find_time(["time"], {}, epoch) == ("time", 1e-9)  # ns (Android's Sensor Logger)
     assert find_time(["time"], {}, {"time": epoch["time"] / 1e6}) == ("time", 1e-3)
     assert find_time(["time"], {}, {"time": np.array([1.7e9, 1.7e9 + 0.02])}) == ("time", 1.0)  # seconds
+    # Sensor Logger writes epoch nanoseconds as "time" beside "seconds_elapsed": one clock, the first taken
+    # (no time at all before). Two clocks that step differently are not guessed.
+    steps = np.array([0.0, 0.01, 0.02, 0.0301])
+    logger = {"time": 1.7e18 + 1e9 * steps, "seconds_elapsed": 3.5 + steps}
+    assert find_time(["time", "seconds_elapsed"], {}, logger) == ("time", 1e-9)
+    assert find_time(["seconds_elapsed", "time"], {}, logger) == ("seconds_elapsed", 1.0)
+    assert find_time(["time", "seconds_elapsed"], {}, {**logger, "seconds_elapsed": 2 * steps}) is None
+    assert find_time(["time", "seconds_elapsed"], {}) is None  # without the values nothing says they agree
     assert find_temperature(["die_temp_C"], {}) == ("die_temp_C", "C")
     assert find_temperature(["Temperature"], {"Temperature": "°F"}) == ("Temperature", "F")
     assert find_temperature(["temp", "temp_outside"], {}) == ("temp", "C")

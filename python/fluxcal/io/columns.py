@@ -25,7 +25,9 @@ TIME_WORDS = {"t", "ts", "time", "times", "timestamp", "elapsed", "sec", "secs",
               "utc", "gps", "gpstime", "zeit", "tiempo"}
 TEMP_WORDS = {"temp", "temperature", "tmp", "temperatur", "celsius"}
 GYRO_WORDS = {"gyro", "gyr", "gyroscope", "gyros", "omega", "angular", "rad"}
-CALIBRATED_WORDS = {"cal", "calibrated", "corr", "corrected", "comp", "compensated", "filtered", "fused"}
+# "motion": iOS Core Motion's device-motion field (SensorLog's motionMagneticFieldX beside the raw
+# magnetometerX) is the calibrated, fused one
+CALIBRATED_WORDS = {"cal", "calibrated", "corr", "corrected", "comp", "compensated", "filtered", "fused", "motion"}
 RAW_WORDS = {"raw", "uncal", "uncalibrated", "uncorrected"}
 # unit words a logger appends to a name -> the unit string fluxcal records
 FIELD_UNITS = {"nt": "nT", "ut": "uT", "µt": "uT", "mt": "mT", "g": "G", "ga": "G", "gauss": "G", "mg": "mG",
@@ -171,6 +173,12 @@ def find_accelerometer(names):
 
 def _single(names, kind_words, unit_table):
     """(column name, unit word or None) of the only column whose words are kind_words (+ a unit)."""
+    hits = _named(names, kind_words, unit_table)
+    return hits[0] if len(hits) == 1 else None
+
+
+def _named(names, kind_words, unit_table) -> list:
+    """[(column name, unit word or None)] of every column whose words are kind_words (+ a unit)."""
     hits = []
     for name in names:
         if name == "T":  # time to some loggers, temperature to others: not guessed
@@ -184,7 +192,7 @@ def _single(names, kind_words, unit_table):
         elif kind_words is TIME_WORDS and words(name) in (["ms"], ["us"], ["µs"], ["millis"], ["micros"]):
             # a column named only by its unit: an Arduino sketch printing millis() or micros()
             hits.append((name, {"millis": "ms", "micros": "us"}.get(words(name)[0], words(name)[0])))
-    return hits[0] if len(hits) == 1 else None
+    return hits
 
 
 def _find_one(names, canonical: str, kind_words, unit_table):
@@ -198,11 +206,29 @@ def find_time(names, units: dict, values=None):
     """(column, factor to seconds) or None. The unit comes from the units map, else the name's unit
     word (TimeUS, time_ms), else seconds — except a unitless `timestamp` stepping by ≥ 1000 per row
     (`values`: the columns), which is PX4's microseconds, and Unix times too large for seconds (above
-    1e11: ms, 1e14: µs, 1e17: ns). A stated unit that is not a time unit ("ticks") is not guessed: None."""
-    hit = _find_one(names, "t", TIME_WORDS, TIME_UNITS)
-    if hit is None:
+    1e11: ms, 1e14: µs, 1e17: ns). A stated unit that is not a time unit ("ticks") is not guessed: None.
+    Several time columns are one clock when their steps agree in seconds (Sensor Logger's epoch `time` and
+    `seconds_elapsed`): the first is taken. Clocks that disagree are not guessed: None."""
+    hits = [("t", None)] if "t" in names else _named(names, TIME_WORDS, TIME_UNITS)
+    times = [_time_unit(name, word, units, values) for name, word in hits]
+    if not times or None in times:
         return None
-    name, word = hit
+    if len(times) > 1 and not (values is not None and _one_clock(times, values)):
+        return None
+    return times[0]
+
+
+def _one_clock(times, values) -> bool:
+    """Whether the time columns `times` [(name, factor)] step alike: each step within 0.1 % of a typical step."""
+    steps = [np.diff(np.asarray(values[name], float) * factor) for name, factor in times]
+    if len(steps[0]) == 0 or not all(np.all(np.isfinite(s)) for s in steps):
+        return False
+    tolerance = 1e-3 * float(np.median(np.abs(steps[0])))
+    return tolerance > 0 and all(np.max(np.abs(s - steps[0])) <= tolerance for s in steps[1:])
+
+
+def _time_unit(name: str, word, units: dict, values):
+    """(name, factor to seconds) of one time column (see find_time), or None for a stated non-time unit."""
     stated = (units.get(name) or "").strip().lower().replace("μ", "µ")
     if stated:
         return (name, TIME_UNITS[stated]) if stated in TIME_UNITS else None
