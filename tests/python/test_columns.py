@@ -27,6 +27,11 @@ from fluxcal.sim.withheld import withheld_trial
     (["magnetometerX(µT)", "magnetometerY(µT)", "magnetometerZ(µT)", "motionMagneticFieldX(µT)",
       "motionMagneticFieldY(µT)", "motionMagneticFieldZ(µT)"],
      ("magnetometerX(µT)", "magnetometerY(µT)", "magnetometerZ(µT)")),
+    # named only by an axis and a field unit: the unit says it is a field (no magnetometer found before)
+    (["x_uT", "y_uT", "z_uT"], ("x_uT", "y_uT", "z_uT")),
+    (["x", "y", "z", "X (uT)", "Y (uT)", "Z (uT)"], ("X (uT)", "Y (uT)", "Z (uT)")),
+    (["x_g", "y_g", "z_g"], None),  # g and mg are accelerations too: not guessed
+    (["x_mg", "y_mg", "z_mg"], None),
     # not a magnetometer
     (["ax", "ay", "az", "gx", "gy", "gz"], None),
     (["gyro_x", "gyro_y", "gyro_z"], None),

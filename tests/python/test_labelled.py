@@ -137,13 +137,29 @@ def test_calibrate_reads_a_serial_monitor_capture_as_it_reads_the_table(tmp_path
     assert "magnetometer Mag X,Mag Y,Mag Z" in out[1].stdout
 
 
-def test_two_sensors_under_the_same_names_are_an_error_not_a_mix(tmp_path):
+def test_two_sensors_under_the_same_names_are_kept_apart_never_mixed(tmp_path):
     path = tmp_path / "alternating.txt"  # accelerometer and magnetometer lines without the sensor's name
     path.write_text("".join(f"X: 0.1{k} Y: 0.0 Z: 9.81 m/s^2\nX: 12.{k} Y: -40.1 Z: 20.5 uT\n" for k in range(10)))
-    with pytest.raises(ValueError, match=r"'X' is in m/s\^2 on line 1 and in uT on line 2; readings of two sensors"):
-        read_recording(path)
+    rec = read_recording(path)  # a column per unit; the field unit says which is the magnetometer
+    assert list(rec.columns)[:3] == ["X (m/s^2)", "Y (m/s^2)", "Z (m/s^2)"]
+    np.testing.assert_array_equal(rec.samples()[:, 0], [12.0 + k / 10 for k in range(10)])
+    assert rec.field_units() == "uT"
+    # Adafruit's LIS3MDL demo prints each reading in counts, then in uTesla: both were one column labelled
+    # µT, and calibrate fitted the mix (offset 1486 µT, |h| 2494 µT) without a word.
+    rng = np.random.default_rng(1)
+    u = rng.normal(size=(300, 3))
+    m = 45.0 * u / np.linalg.norm(u, axis=1, keepdims=True) + [10.0, -5.0, 3.0]
+    path = tmp_path / "lis3mdl.txt"
+    path.write_text("Adafruit LIS3MDL test!\nLIS3MDL Found!\nRange set to: +-4 gauss\n\n" + "".join(
+        f"X:  {round(x * 68.42)}  \tY:  {round(y * 68.42)}  \tZ:  {round(z * 68.42)}\n"
+        f"\tX: {x:.2f} \tY: {y:.2f} \tZ: {z:.2f} uTesla \n" for x, y, z in m))
+    rec = read_recording(path)
+    assert rec.mag_names() == ("X (uT)", "Y (uT)", "Z (uT)") and rec.field_units() == "uT"
+    np.testing.assert_allclose(rec.samples(), m, atol=0.005)
+    assert np.all(np.abs(rec.columns["X"] - np.round(m[:, 0] * 68.42)) == 0)  # the counts kept beside them
+    # A lone line in another unit (a range change) is an error, not a third sensor.
     path.write_text("".join(f"Mag X: {k}.5 Y: 2 Z: 3 uT\n" for k in range(5)) + "Mag X: 150 Y: 20 Z: 30 mG\n")
-    with pytest.raises(ValueError, match=r"'Mag X' is in uT on line 1 and in mG on line 6"):
+    with pytest.raises(ValueError, match=r"'Mag X' is in uT on line 1 and in mG on line 6; a changed range"):
         read_recording(path)
 
 

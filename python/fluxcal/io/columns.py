@@ -33,6 +33,8 @@ RAW_WORDS = {"raw", "uncal", "uncalibrated", "uncorrected"}
 FIELD_UNITS = {"nt": "nT", "ut": "uT", "µt": "uT", "mt": "mT", "g": "G", "ga": "G", "gauss": "G", "mg": "mG",
                "mgauss": "mG", "milligauss": "mG", "counts": "counts", "lsb": "counts", "utesla": "uT",
                "µtesla": "uT", "microtesla": "uT", "nanotesla": "nT"}
+# the field units no other quantity writes the same way (g and mg are also accelerations; counts are anything's)
+FIELD_ONLY_UNITS = set(FIELD_UNITS) - {"g", "mg", "counts", "lsb"}
 TIME_UNITS = {"s": 1.0, "sec": 1.0, "secs": 1.0, "seconds": 1.0, "ms": 1e-3, "us": 1e-6, "µs": 1e-6,
               "ns": 1e-9, "min": 60.0, "mins": 60.0, "minutes": 60.0, "h": 3600.0, "hr": 3600.0, "hours": 3600.0}
 TEMP_UNITS = {"c": "C", "degc": "C", "celsius": "C", "°c": "C", "k": "K", "kelvin": "K", "f": "F",
@@ -112,17 +114,22 @@ def _triples(names, kind_words):
     for name in names:
         ws = words(name)
         ws = _drop_accel_unit(ws)
-        ws, _ = _peel_unit(ws, FIELD_UNITS if kind_words is MAG_WORDS else {"g": 1})
+        ws, unit = _peel_unit(ws, FIELD_UNITS if kind_words is MAG_WORDS else {"g": 1})
         qualifiers = []
         while len(ws) > 1 and ws[-1] in RAW_WORDS | CALIBRATED_WORDS:
             qualifiers.insert(0, ws.pop())
-        hit = _axis_of(ws)
+        field_unit = kind_words is MAG_WORDS and unit in FIELD_ONLY_UNITS
+        hit = ((), _AXES[ws[0]]) if field_unit and len(ws) == 1 and ws[0] in _AXES else _axis_of(ws)
         if hit is None:
             continue
         prefix, axis = hit
         prefix = prefix + tuple(qualifiers)
-        if set(prefix) & kind_words and not set(prefix) & other:
+        if set(prefix) & other:
+            continue
+        if set(prefix) & kind_words:
             groups.setdefault(prefix, {}).setdefault(axis, name)
+        elif field_unit:  # x_uT: the unit says it is a field
+            groups.setdefault(prefix + (unit,), {}).setdefault(axis, name)
     found = {p: _complete(p, g) for p, g in groups.items()}
     found = {p: t for p, t in found.items() if t is not None}
     lettered = {p: names for p, (names, numbered) in found.items() if not numbered}

@@ -147,6 +147,27 @@ def _ambiguous(path, line_no: int, name: str, value: str) -> ValueError:
                       f"separator beside a decimal point, such as 1,234.5); not guessed: {SETTLE_HINT}")
 
 
+def _units_apart(parsed: list) -> list:
+    """`parsed` with a name printed in several units (or with and without one) split into a column per unit,
+    "X" and "X (uT)": Adafruit's LIS3MDL demo prints each reading twice, `X: 3712` in counts and then
+    `X: 54.26 … uTesla`, and the two read as one column labelled µT (a calibration of both, 133 µT off).
+    Two sensors under the same names, or a range change, are kept apart the same way; which triple is the
+    magnetometer is then fluxcal.io.columns' choice (several: an error listing them, for --columns).
+    Only units that each come on at least half as many lines as the commonest: a lone line in another unit
+    (a range change) is an error in read_labelled, a lone line without one (truncated) a line that does not fit."""
+    seen = {}
+    for *_, values in parsed:
+        for name, _, unit in values:
+            seen.setdefault(name, Counter())[_field_unit(unit) if unit else ""] += 1
+    split = {name for name, units in seen.items()
+             if len(units) > 1 and min(units.values()) >= 0.5 * max(units.values())}
+    if not split:
+        return parsed
+    return [(line_no, text, stamp, [(f"{name} ({_field_unit(unit)})" if name in split and unit else name, value, unit)
+                                    for name, value, unit in values])
+            for line_no, text, stamp, values in parsed]
+
+
 def read_labelled(path, columns=None, units: str | None = None, bad_lines: str = "error",
                   decimal: str | None = None, thousands: str | None = None) -> Recording:
     """Read a labelled text log (module docstring). `columns`/`units` as for every reader; `bad_lines`
@@ -160,8 +181,8 @@ def read_labelled(path, columns=None, units: str | None = None, bad_lines: str =
     decimal=".") settles it. metadata["decimal_separator"] is "comma" when commas were read as decimal."""
     check_bad_lines(bad_lines)
     path = readable_file(path)
-    parsed = [(k + 1, line.strip(), *_parse_line(line)) for k, line in enumerate(read_text(path).splitlines())
-              if line.strip() and not is_comment(line)]
+    parsed = _units_apart([(k + 1, line.strip(), *_parse_line(line))
+                           for k, line in enumerate(read_text(path).splitlines()) if line.strip() and not is_comment(line)])
     counts = Counter(name for *_, values in parsed for name in dict.fromkeys(v[0] for v in values))
     if not counts:
         raise ValueError(f"{path}: no 'label: number' or 'label=number' values")
@@ -238,10 +259,10 @@ def read_labelled(path, columns=None, units: str | None = None, bad_lines: str =
         for _, r in good:
             if r[name][1]:
                 found.setdefault(_field_unit(r[name][1]), r[name][2])
-        if len(found) > 1:  # two sensors printing the same names, or a range change: never mix them
+        if len(found) > 1:  # a unit on a few lines only (a range change; see _units_apart): never mix them
             (u1, a), (u2, b) = list(found.items())[:2]
-            raise ValueError(f"{path}: {name!r} is in {u1} on line {a} and in {u2} on line {b}; readings of two "
-                             "sensors under the same names, or a changed range? Name the sensor in each line "
+            raise ValueError(f"{path}: {name!r} is in {u1} on line {a} and in {u2} on line {b}; a changed range, "
+                             "or readings of two sensors under the same names? Name the sensor in each line "
                              "(Mag X: …) or keep one unit per column")
         if found:
             unit_map[name] = next(iter(found))
