@@ -166,7 +166,8 @@ def cmd_calibrate(args) -> int:
 
 def cmd_apply(args) -> int:
     cal = Calibration.load(args.calibration)
-    rec = read_recording(args.file, columns=args.columns, bad_lines=args.bad_lines, decimal=args.decimal)
+    rec = read_recording(args.file, columns=args.columns, units=args.units, bad_lines=args.bad_lines,
+                         decimal=args.decimal)
     factor = cal.unit_factor(rec.field_units(), f"{args.file}")
     if factor != 1.0:
         print(f"readings in {rec.field_units()} converted to the calibration's {cal.units} (× {factor:g})")
@@ -182,7 +183,30 @@ def cmd_apply(args) -> int:
                                         metadata={**rec.metadata, "calibration": args.calibration}))
     print(f"wrote {args.output}: {len(rec)} rows, corrected columns hx,hy,hz "
           f"(|h| std/mean {100 * _spread(h):.3f} %)")
+    scale = _scale_warning(cal, h, rec.field_units())
+    if scale:
+        print(f"warning: {scale}")
     return 0
+
+
+# |h| this far from the calibration's field norm: readings in another unit, or another place (the Earth's field
+# is 25–65 µT, so a move alone stays well inside a factor 1.6)
+FIELD_NORM_RATIO = 1.6
+
+
+def _scale_warning(cal: Calibration, h: np.ndarray, units: str) -> str | None:
+    """Why the corrected field's size does not look like the calibration's field, or None."""
+    norms = np.linalg.norm(h[np.isfinite(h).all(axis=1)], axis=1)
+    if not (cal.field_norm and np.isfinite(cal.field_norm) and len(norms)):
+        return None
+    ratio = float(np.median(norms)) / cal.field_norm
+    if 1 / FIELD_NORM_RATIO <= ratio <= FIELD_NORM_RATIO:
+        return None
+    unit = f" {cal.units}" if cal.units else ""
+    why = (f"the readings state no unit: are they in {cal.units}? (--units)" if cal.units and not units else
+           "readings in another unit than the calibration's, of another sensor, or taken in another field?")
+    return (f"the corrected |h| is {np.median(norms):.6g}{unit} (median), {ratio:.3g}× the calibration's field "
+            f"norm {cal.field_norm:.6g}{unit}; {why}")
 
 
 def write_output(path, rec: Recording) -> None:
@@ -492,6 +516,8 @@ def build_parser() -> argparse.ArgumentParser:
     a.add_argument("file")
     a.add_argument("-o", "--output", required=True, help=output_help)
     a.add_argument("--columns", default=None, help=columns_help)
+    a.add_argument("--units", default=None, help="units of the readings when the file does not say (converted to "
+                                                  "the calibration's)")
     a.add_argument("--bad-lines", default="error", choices=["error", "skip"], help=bad_lines_help)
     a.add_argument("--decimal", default=None, choices=[",", "."], help=decimal_help)
     a.set_defaults(run=cmd_apply)

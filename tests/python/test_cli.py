@@ -83,6 +83,27 @@ def test_outputs_are_written_in_the_format_their_name_says(tmp_path):
         fluxcal.write_csv(tmp_path / "x.json", {"a": [1.0]})
 
 
+def test_apply_warns_when_the_corrected_field_is_not_the_calibrations(tmp_path):
+    # A calibration in nT applied to readings in gauss that state no unit: every row came out near −A·b,
+    # "|h| std/mean 0.001 %", and looked perfectly calibrated.
+    rec, cal = tmp_path / "sim.csv", tmp_path / "cal.json"
+    assert run_cli("simulate", "-o", rec, "--n", 300, "--seed", 2).returncode == 0
+    assert run_cli("calibrate", rec, "-o", cal).returncode == 0
+    m = fluxcal.read_recording(rec).samples()
+    gauss = fluxcal.write_csv(tmp_path / "gauss.csv", {"x": m[:, 0] / 1e5, "y": m[:, 1] / 1e5, "z": m[:, 2] / 1e5})
+    r = run_cli("apply", cal, gauss, "-o", tmp_path / "h.csv")
+    assert r.returncode == 0, r.stderr
+    assert "warning: the corrected |h| is" in r.stdout and "the readings state no unit: are they in nT? (--units)" \
+        in r.stdout
+    r = run_cli("apply", cal, gauss, "-o", tmp_path / "h.csv", "--units", "G")  # the remedy it names
+    assert r.returncode == 0 and "converted to the calibration's nT" in r.stdout and "warning" not in r.stdout
+    h = fluxcal.read_recording(tmp_path / "h.csv")
+    assert abs(np.median(np.linalg.norm(np.column_stack([h.columns[k] for k in ("hx", "hy", "hz")]), axis=1))
+               / 50000 - 1) < 0.01
+    r = run_cli("apply", cal, rec, "-o", tmp_path / "h.csv")  # its own readings: no warning
+    assert r.returncode == 0 and "warning" not in r.stdout
+
+
 def test_poor_coverage_is_warned(tmp_path):
     rng = np.random.default_rng(4)
     az, el = rng.uniform(0, 2 * np.pi, 800), np.deg2rad(rng.uniform(-8, 8, 800))
