@@ -592,7 +592,10 @@ def build_parser() -> argparse.ArgumentParser:
     d.set_defaults(run=cmd_demo)
 
     q = sub.add_parser("positions", help="multi-position calibration U = U0 + K H with accelerometer levelling")
-    q.add_argument("file", help="CSV with ax,ay,az,mx,my,mz and optionally position (rows averaged per position)")
+    q.add_argument("file", help="a recording with an accelerometer and a magnetometer (ax,ay,az, mx,my,mz, or "
+                                "as calibrate finds them) and optionally a column position (rows averaged per "
+                                "position)")
+    q.add_argument("--columns", default=None, help=columns_help)
     q.add_argument("--preset", choices=["twelve"], default=None, help="nominal attitudes (seed 002's twelve)")
     q.add_argument("--frame", choices=["ned", "nue"], default="ned",
                    help="ned: body forward-right-down; nue: seed 002 forward-up-right (default ned)")

@@ -481,16 +481,17 @@ def run_cli(args, out=None) -> int:
     import sys
     from pathlib import Path
 
-    from .io import read_csv
+    from .io import read_recording
 
     out = out or sys.stdout
-    rec = read_csv(args.file)
-    missing = [c for c in ("ax", "ay", "az", "mx", "my", "mz") if c not in rec.columns]
-    if missing:
-        raise ValueError(f"{args.file}: no column {', '.join(missing)} (need ax,ay,az,mx,my,mz; optional position)")
-    acc = np.column_stack([rec.columns[c] for c in ("ax", "ay", "az")])
-    mag = np.column_stack([rec.columns[c] for c in ("mx", "my", "mz")])
-    for name, arr in (("ax,ay,az", acc), ("mx,my,mz", mag)):
+    # every format calibrate reads (the SAP6 survey instrument's JSON shots, .mat, a logger's CSV)
+    rec = read_recording(args.file, columns=getattr(args, "columns", None))
+    acc = rec.acceleration()
+    if acc is None:
+        raise ValueError(f"{args.file}: no accelerometer columns (ax,ay,az, or a triple named AccX.., accel_x..; "
+                         f"columns are: {', '.join(rec.columns)}); the levelling needs one per reading")
+    mag = rec.samples(check_finite=False)
+    for name, arr in ((",".join(rec.acc_names()), acc), (",".join(rec.mag_names()), mag)):
         if not np.all(np.isfinite(arr)):
             row = int(np.argmax(~np.isfinite(arr).all(axis=1)))
             raise ValueError(f"{args.file}: row {row + 1} of {name} is not finite")

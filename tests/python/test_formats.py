@@ -402,6 +402,18 @@ def test_real_sap6_shots(real_data):
     assert rec.line_numbers.tolist() == [1] * 24  # the file is one line
 
 
+def test_positions_reads_what_calibrate_reads(real_data, tmp_path):
+    # `fluxcal positions` read CSV only: the SAP6 shots (JSON) failed with "header but no data rows".
+    out = tmp_path / "pos.json"
+    r = run_cli("positions", real_data / "sap6" / "BB.json", "--total", "43.38", "--inclination", "67.8", "-o", out)
+    assert r.returncode == 0, r.stderr
+    assert "24 positions" in r.stdout
+    d = json.loads(out.read_text())
+    assert d["units"] == "uT" and d["verification"]["magnitude_error_rms"] < 0.01 * 43.38
+    r = run_cli("positions", real_data / "handheld_set1.csv", "--total", "0.47", "--inclination", "50")
+    assert r.returncode == 2 and "handheld_set1.csv: no accelerometer columns" in r.stderr
+
+
 def _number(text, label):
     return float(re.search(re.escape(label) + r"\s+([-\d.e+]+)", text).group(1))
 

@@ -104,10 +104,11 @@ class Recording:
 
     def acceleration(self):
         """The accelerometer, N×3 (ax,ay,az, else a triple recognised by name such as AccX, accel_x), or None."""
-        names = self._acc_names()
+        names = self.acc_names()
         return None if names is None else np.column_stack([self.columns[n] for n in names])
 
-    def _acc_names(self):
+    def acc_names(self):
+        """The three accelerometer columns (ax,ay,az, else a triple recognised by name), or None."""
         if all(c in self.columns for c in ("ax", "ay", "az")):
             return ("ax", "ay", "az")
         return find_accelerometer(self.columns)
@@ -130,7 +131,7 @@ class Recording:
         hit = find_current(self.columns, self.units)
         if hit:
             out["current"] = hit[0] + (f" (×{hit[1]:g} → A)" if hit[1] != 1.0 else "")
-        acc = self._acc_names()
+        acc = self.acc_names()
         if acc:
             out["accelerometer"] = ",".join(acc)
         return out
