@@ -32,7 +32,10 @@ def cmake_dir() -> str:
     from importlib.resources import files
     from pathlib import Path
 
-    found = sorted(Path(str(files("fluxcal"))).glob("lib*/**/fluxcalConfig.cmake"))
+    here = Path(str(files("fluxcal")))
+    found = sorted(here.glob("lib*/**/fluxcalConfig.cmake"))
     if not found:
-        raise FileNotFoundError("this fluxcal installation carries no C++ library (built without install rules?)")
+        raise FileNotFoundError(f"the fluxcal at {here} carries no C++ library: a source checkout on PYTHONPATH, or "
+                                "a build without install rules? The installed wheel carries it (pip install ., make "
+                                "install); `make cpp` builds the C++ library alone")
     return str(found[0].parent)

@@ -657,7 +657,11 @@ def main(argv=None) -> int:
     parser = build_parser()
     args = parser.parse_args(argv)
     if args.cmake_dir:
-        print(cmake_dir())
+        try:
+            print(cmake_dir())
+        except FileNotFoundError as exc:  # a source checkout on PYTHONPATH: the wheel carries the C++ library
+            print(f"fluxcal --cmake-dir: error: {exc}", file=sys.stderr)
+            return 2
         return 0
     if not args.command:
         parser.print_help()

@@ -123,6 +123,20 @@ def test_demo_prints_and_plots(tmp_path):
     assert (tmp_path / "demo" / "demo_before_after.png").stat().st_size > 10_000
 
 
+def test_cmake_dir_without_the_cpp_library_is_an_error_not_a_traceback(monkeypatch, tmp_path, capsys):
+    # A source checkout on PYTHONPATH carries no C++ library: FileNotFoundError ended in a traceback.
+    import importlib.resources
+
+    from fluxcal import cli
+
+    (tmp_path / "fluxcal").mkdir()
+    monkeypatch.setattr(importlib.resources, "files", lambda package: tmp_path / "fluxcal")
+    assert cli.main(["--cmake-dir"]) == 2
+    err = capsys.readouterr().err
+    assert f"fluxcal --cmake-dir: error: the fluxcal at {tmp_path / 'fluxcal'} carries no C++ library" in err
+    assert "make install" in err
+
+
 @pytest.mark.skipif(shutil.which("cmake") is None, reason="cmake is installed by `make test`")
 def test_cpp_example_builds_against_the_installed_wheel(tmp_path):
     # The wheel carries the static library, headers and fluxcalConfig.cmake (fluxcal --cmake-dir).
