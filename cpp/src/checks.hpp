@@ -33,6 +33,19 @@ inline std::string num(double v) {
   return buf;
 }
 
+/// What every "the readings do not determine a 3-D ellipsoid" error asks for. Two flat turns are not enough:
+/// the quadrics through two conics in different planes form a family (the ellipsoid plus any multiple of the
+/// product of the two planes), so the fit is rank deficient along it.
+inline constexpr const char* kTurnAdvice =
+    "turn the sensor about all three axes or tumble it (two flat turns leave an ellipsoid undetermined)";
+
+/// A ratio as a percentage for a message: three significant digits ("12.3 %").
+inline std::string percent(double ratio) {
+  char buf[32];
+  std::snprintf(buf, sizeof buf, "%.3g %%", 100.0 * ratio);
+  return buf;
+}
+
 /// Throws Error("NAME: VALUE, need NEED") unless `ok`.
 inline void require(bool ok, const std::string& name, double value, const std::string& need) {
   if (!ok) throw Error(name + ": " + num(value) + ", need " + need);

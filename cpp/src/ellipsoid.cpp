@@ -138,11 +138,7 @@ void for_each_packed_block(const SamplesRef& readings, F&& f) {
   }
 }
 
-std::string percent(double ratio) {
-  char buf[32];
-  std::snprintf(buf, sizeof buf, "%.3g %%", 100.0 * ratio);
-  return buf;
-}
+using detail::percent;
 
 // Thinnest/widest standard deviation of the normalised readings, from the first two moments.
 double coverage_ratio(const EllipsoidMoments& mom, const Eigen::Matrix<double, 10, 10>& scatter) {
@@ -295,8 +291,7 @@ EllipsoidResult solve(const EllipsoidMoments& mom, const EllipsoidOptions& opt) 
   if (sum.coverage_ratio < opt.planar_ratio) {
     throw Error("samples: the readings lie nearly in one plane (thinnest/widest spread " +
                 percent(sum.coverage_ratio) +
-                "); a 3-D ellipsoid is not identifiable — rotate the sensor about at least two axes, "
-                "or use a 2-D calibration");
+                "); a 3-D ellipsoid is not identifiable — " + std::string(detail::kTurnAdvice) + ", or use a 2-D calibration");
   }
 
   // Eliminate M11 = 1 − M22 − M33 (trace constraint): p = e0 + E q, q the other 9 coefficients.
@@ -311,9 +306,8 @@ EllipsoidResult solve(const EllipsoidMoments& mom, const EllipsoidOptions& opt) 
   const auto& lam = eig.eigenvalues();
   sum.condition_number = lam(0) > 0.0 ? lam(8) / lam(0) : std::numeric_limits<double>::infinity();
   if (!(sum.condition_number < 1e14)) {
-    throw Error("samples: the ellipsoid fit is rank deficient (condition number " +
-                std::to_string(sum.condition_number) +
-                "); the readings do not determine a 3-D ellipsoid — cover more orientations");
+    throw Error("samples: the ellipsoid fit is rank deficient (condition number " + detail::num(sum.condition_number) +
+                "); the readings do not determine a 3-D ellipsoid — " + std::string(detail::kTurnAdvice));
   }
   const Eigen::Matrix<double, 9, 1> q =
       eig.eigenvectors() * (eig.eigenvectors().transpose() * rhs).cwiseQuotient(lam);

@@ -3,6 +3,7 @@
 #pragma once
 
 #include "fluxcal/types.hpp"
+#include "checks.hpp"
 
 #include <Eigen/Eigenvalues>
 
@@ -32,7 +33,7 @@ inline EllipsoidShape ellipsoid_shape(const Eigen::Matrix3d& M, const Eigen::Vec
     msg << "samples: the readings lie nearly in one plane (thinnest/widest spread " << 100.0 * coverage_ratio
         << " %) and the " << which << " quadric is not an ellipsoid (eigenvalues " << std::setprecision(6)
         << s.eig.eigenvalues().transpose()
-        << "); rotate the sensor about at least two axes, or use a 2-D calibration or reference vectors";
+        << "); " << kTurnAdvice << ", or use a 2-D calibration or reference vectors";
     throw Error(msg.str());
   }
   if (!(s.eig.eigenvalues()(0) > 0.0)) {

@@ -196,11 +196,7 @@ Eigen::Matrix3d symmetric_part(const Eigen::Matrix3d& A) {
          eig.eigenvectors().transpose();
 }
 
-std::string percent(double ratio) {
-  std::ostringstream s;
-  s << 100.0 * ratio << " %";
-  return s.str();
-}
+using detail::percent;
 
 double robust_sigma(std::vector<double> abs_residuals) {
   if (abs_residuals.empty()) return 0.0;

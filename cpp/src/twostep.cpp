@@ -27,12 +27,8 @@ constexpr double kRankDeficient3D = 1e14;  // the same threshold as the ellipsoi
 constexpr int kLineSearchSteps = 40;
 
 using detail::num;  // "%.6g", as every message of the checks
+using detail::percent;
 
-std::string percent(double ratio) {
-  char buf[32];
-  std::snprintf(buf, sizeof buf, "%.3g %%", 100.0 * ratio);
-  return buf;
-}
 
 // Solves N x = rhs for symmetric positive semi-definite N after scaling it to unit diagonal (so the
 // condition number measures the geometry, not the units of the columns). Returns that condition number
@@ -454,8 +450,8 @@ TwoStepResult twostep(const SamplesRef& samples, const TwoStepOptions& options) 
   sum.coverage_ratio = coverage_ratio(S);
   if (sum.coverage_ratio < options.planar_ratio)
     throw Error("samples: the readings lie nearly in one plane (thinnest/widest spread " + percent(sum.coverage_ratio) +
-                "), so the first step of the two-step calibration is rank deficient — rotate the sensor about "
-                "more axes (at least two), or use the 2-D calibration");
+                "), so the first step of the two-step calibration is rank deficient — " + std::string(detail::kTurnAdvice) +
+                ", or use the 2-D calibration");
 
   // First step (centred, tr E = 0): minimise Σ (aᵀ(d_k − d̄))² over the 9 non-constant quadric
   // coefficients a with a0 + a1 + a2 = 3 (tr N′ = tr(I + E) = 3); the constant absorbs |b|², H² and μ.
@@ -473,7 +469,7 @@ TwoStepResult twostep(const SamplesRef& samples, const TwoStepOptions& options) 
   if (!(first_condition < kRankDeficient3D))
     throw Error("samples: the first step of the two-step calibration is rank deficient (condition number " +
                 num(first_condition) +
-                "); the readings do not determine offset and soft iron — rotate the sensor about more axes");
+                "); the readings do not determine offset and soft iron — " + std::string(detail::kTurnAdvice));
   const Vec9 a = a0 + Emap * free;
   const double k = -a.dot(s9) / n;
   Eigen::Matrix3d Np;

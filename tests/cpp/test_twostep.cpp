@@ -211,7 +211,7 @@ TEST(TwoStep3D, BadInputThrowsNamedErrors) {
             std::string::npos);
   Samples planar = s;
   planar.col(2) = 0.3 * planar.col(0);
-  EXPECT_NE(error_message([&] { fluxcal::twostep(planar, opt); }).find("rotate the sensor about more axes"),
+  EXPECT_NE(error_message([&] { fluxcal::twostep(planar, opt); }).find("turn the sensor about all three axes"),
             std::string::npos);
   opt.max_iterations = -1;
   EXPECT_THROW(fluxcal::twostep(s, opt), fluxcal::Error);

@@ -182,6 +182,24 @@ def test_planar_samples_are_rejected():
         fluxcal.fit_ellipsoid(planar)
 
 
+def test_two_flat_turns_are_named_not_enough():
+    # The planar error said "rotate the sensor about at least two axes"; a user who did (a turn about z, then
+    # one about x) met "rank deficient": the quadrics through two conics in different planes are a family.
+    a = np.linspace(0, 2 * np.pi, 300, endpoint=False)
+    z_turn = np.column_stack([np.cos(a), np.sin(a), np.zeros_like(a)])
+    x_turn = np.column_stack([np.zeros_like(a), np.cos(a), np.sin(a)])
+    m = 50.0 * np.vstack([z_turn, x_turn]) @ np.diag([1.05, 0.97, 1.0]) + [10.0, -5.0, 3.0]
+    for method in ("ls", "als"):
+        with pytest.raises(ValueError, match="rank deficient .* turn the sensor about all three axes or tumble it "
+                                             r"\(two flat turns leave an ellipsoid undetermined\)"):
+            fluxcal.fit_ellipsoid(m, method=method)
+    with pytest.raises(ValueError, match="turn the sensor about all three axes"):
+        fluxcal.twostep(m, 50.0)
+    y_turn = np.column_stack([np.cos(a), np.zeros_like(a), np.sin(a)])  # a third turn settles it
+    m3 = 50.0 * np.vstack([z_turn, x_turn, y_turn]) @ np.diag([1.05, 0.97, 1.0]) + [10.0, -5.0, 3.0]
+    np.testing.assert_allclose(fluxcal.fit_ellipsoid(m3, method="ls").offset, [10.0, -5.0, 3.0], atol=1e-6)
+
+
 def test_wrong_shapes_and_types():
     x = simulated(2).readings
     with pytest.raises(ValueError, match=r"shape \(3, 2000\).*transposed"):

@@ -342,7 +342,7 @@ def test_3d_bad_input_errors():
 def test_3d_planar_readings_are_rejected():
     a = np.linspace(0, 2 * np.pi, 400)
     planar = np.column_stack([np.cos(a), np.sin(a), 0.1 * np.cos(a)]) + [0.3, -0.2, 0.5]
-    with pytest.raises(ValueError, match="lie nearly in one plane.*rotate the sensor about more axes"):
+    with pytest.raises(ValueError, match="lie nearly in one plane.*turn the sensor about all three axes"):
         twostep(planar, 1.0)
 
 
