@@ -166,7 +166,7 @@ class Calibration:
 
     def __str__(self) -> str:
         u = f" {self.units}" if self.units else ""
-        hu = f" {self.h_units}" if self.h_units else " (the unit of the field norm given)"
+        hu = f" {self.h_units}" if self.h_units else " (no unit stated)"
         with np.printoptions(precision=6, suppress=True):
             # each row of A on its own line, columns aligned (the nested-list form indents all but the first)
             rows = np.array2string(self.matrix).replace("[[", "[").replace("]]", "]").splitlines()

@@ -190,7 +190,7 @@ def test_units_are_converted_or_refused_never_mixed(tmp_path):
     assert run_cli("apply", tmp_path / "q.json", counts, "-o", tmp_path / "d.csv").returncode == 0
     assert fluxcal.read_csv(tmp_path / "d.csv").units["hx"] == "uT"
     r = run_cli("calibrate", counts, "--field-norm", 50)
-    assert r.returncode == 0 and "|h| = 50 (the unit of the field norm given)" in r.stdout and "|h| = 50 counts" not in r.stdout
+    assert r.returncode == 0 and "|h| = 50 (no unit stated)" in r.stdout and "|h| = 50 counts" not in r.stdout
 
 
 def test_field_far_from_the_earths_is_warned(tmp_path):

@@ -203,6 +203,7 @@ def _noise(data: _Data, base: dict) -> tuple:
     source = "estimated from third differences of the readings"
     fourth = _difference_noise(data.m, 4) if len(data.m) >= 40 else sigma
     spread = np.sqrt(np.mean(np.var(data.m, axis=0)))
+    unit = f" {data.units}" if data.units else ""
     if abs(fourth - sigma) > (1 - MOTION_DROP) * sigma or sigma > UNORDERED * spread:
         order = np.argsort(data.t, kind="stable")
         e = np.asarray(base["residuals"]).reshape(len(data.m), -1)[order]
@@ -211,15 +212,16 @@ def _noise(data: _Data, base: dict) -> tuple:
         unordered = sigma > UNORDERED * spread and spread > 1 / UNORDERED * from_residuals
         if from_residuals < sigma and unordered:
             source = (f"estimated from the base model's residuals, which also hold whatever the model misses: "
-                      f"consecutive readings differ about as much as any two ({sigma:.4g} from their third "
-                      "differences), so differences in time cannot tell noise from signal (readings far apart "
-                      "in time, or rows out of time order with no times given): not a time series; give "
-                      "noise_sigma (the datasheet's) to test the candidates against the sensor's own noise")
+                      f"consecutive readings differ about as much as any two ({sigma:.4g}{unit} from their "
+                      "third differences), so differences in time cannot tell noise from signal (readings far "
+                      "apart in time, or rows out of time order with no times given): not a time series; give "
+                      "noise_sigma (--noise-sigma; the datasheet's) to test the candidates against the sensor's "
+                      "own noise")
             return from_residuals, source, True
         elif from_residuals < sigma:
             source = (f"estimated from third differences of the base model's residuals: the readings' own "
-                      f"differences hold the motion — fast turns, or steps between held positions ({sigma:.4g} "
-                      f"from 3rd, {fourth:.4g} from 4th order)")
+                      f"differences hold the motion — fast turns, or steps between held positions ({sigma:.4g}"
+                      f"{unit} from 3rd, {fourth:.4g}{unit} from 4th order)")
             sigma = from_residuals
     return sigma, source, False
 
@@ -1422,7 +1424,7 @@ def diagnose(samples, t=None, temp=None, reference=None, gravity=None, field_nor
     if data.notes:
         noise_source += "; " + "; ".join(data.notes)
     if not sigma > 0:
-        raise ValueError(f"{source}: the noise σ is zero (readings constant or repeated?); give noise_sigma")
+        raise ValueError(f"{source}: the noise σ is zero (readings constant or repeated?); give noise_sigma (--noise-sigma)")
 
     names = {c.name: c for c in CANDIDATES}
     wanted = list(names) if candidates is None else candidates
