@@ -258,7 +258,7 @@ def cmd_diagnose(args) -> int:
         warnings.filterwarnings("ignore", message="t: readings")
         result = diagnose(rec, reference=reference, field_norm=args.field_norm, model=args.model,
                           noise_sigma=args.noise_sigma, candidates=candidates, alpha=args.alpha,
-                          progress=not args.quiet)
+                          max_effects=args.max_effects, progress=not args.quiet)
     return _print_diagnosis(result, args)
 
 
@@ -466,7 +466,7 @@ def _diagnose_cable(args) -> int:
                             rotations_deg=ring["rotations_deg"], positions=ring["positions_m"],
                             calibration=args.calibration, noise_sigma=args.noise_sigma, candidates=candidates,
                             fit_currents=args.fit_currents or None, alpha=args.alpha, progress=not args.quiet,
-                            source=str(args.file))
+                            max_effects=args.max_effects, source=str(args.file))
     return _print_diagnosis(result, args)
 
 
@@ -494,7 +494,7 @@ def build_parser() -> argparse.ArgumentParser:
                         "the readings are counts, e.g. --field-norm 48.2 --field-units uT)")
     c.add_argument("--columns", default=None, help=columns_help)
     c.add_argument("--bad-lines", default="error", choices=["error", "skip"], help=bad_lines_help)
-    c.add_argument("--decimal", default=None, choices=[",", "."], help=decimal_help)
+    c.add_argument("--decimal", default=None, choices=[",", "."], metavar="{',' or '.'}", help=decimal_help)
     c.add_argument("--units", default=None, help="units of the readings when the file does not say")
     c.add_argument("--method", default="auto", choices=METHODS,
                    help="auto = consistent ellipsoid fit (ALS) + maximum-likelihood refinement (default)")
@@ -519,16 +519,16 @@ def build_parser() -> argparse.ArgumentParser:
     a.add_argument("--units", default=None, help="units of the readings when the file does not say (converted to "
                                                   "the calibration's)")
     a.add_argument("--bad-lines", default="error", choices=["error", "skip"], help=bad_lines_help)
-    a.add_argument("--decimal", default=None, choices=[",", "."], help=decimal_help)
+    a.add_argument("--decimal", default=None, choices=[",", "."], metavar="{',' or '.'}", help=decimal_help)
     a.set_defaults(run=cmd_apply)
 
     s = sub.add_parser("simulate", help="write a simulated magnetometer recording")
     s.add_argument("-o", "--output", required=True, help=output_help)
-    s.add_argument("--n", type=int, default=2000)
+    s.add_argument("--n", type=positive_int, default=2000, help="readings (independent orientations; default 2000)")
     s.add_argument("--noise", type=non_negative_number, default=0.005, help="white noise, fraction of |field|")
-    s.add_argument("--seed", type=int, default=0)
-    s.add_argument("--field-norm", type=positive_number, default=50000.0)
-    s.add_argument("--units", default="nT")
+    s.add_argument("--seed", type=int, default=0, help="random seed of the sensor's errors and the noise")
+    s.add_argument("--field-norm", type=positive_number, default=50000.0, help="|field| (default 50000)")
+    s.add_argument("--units", default="nT", help="unit of the field and the readings (default nT)")
     s.set_defaults(run=cmd_simulate)
 
     g = sub.add_parser("diagnose", help="find which unmodelled effect makes a recording depart from its model")
@@ -542,13 +542,16 @@ def build_parser() -> argparse.ArgumentParser:
     g.add_argument("--reference", default=None, help="three columns with the true field per reading (vector model)")
     g.add_argument("--columns", default=None, help=columns_help)
     g.add_argument("--bad-lines", default="error", choices=["error", "skip"], help=bad_lines_help)
-    g.add_argument("--decimal", default=None, choices=[",", "."], help=decimal_help)
+    g.add_argument("--decimal", default=None, choices=[",", "."], metavar="{',' or '.'}", help=decimal_help)
     g.add_argument("--units", default=None, help="units of the readings when the file does not say")
     g.add_argument("--field-norm", type=positive_number, default=None, help="known |field| (default: fitted)")
     g.add_argument("--noise-sigma", type=positive_number, default=None,
                    help="white-noise σ of the readings (default: estimated from third differences)")
     g.add_argument("--candidates", default=None, help="comma-separated effect names (default: all)")
     g.add_argument("--alpha", type=float, default=0.01, help="significance level (default 0.01)")
+    g.add_argument("--max-effects", type=positive_int, default=3,
+                   help="stop after accepting this many effects (default 3; the report lists any further "
+                        "significant one)")
     g.add_argument("--json", default=None, help="write the ranking and tables (JSON)")
     g.add_argument("--report", default=None, help="folder for the report: summary, figures, index.html")
     g.add_argument("--quiet", action="store_true", help="no progress bar")
@@ -568,12 +571,15 @@ def build_parser() -> argparse.ArgumentParser:
     ks.add_argument("--noise-seed", type=int, default=None, help="the noise (default: --seed)")
     kc = ksub.add_parser("calibrate", help="per-sensor calibration from a calibration recording")
     kc.add_argument("file")
-    kc.add_argument("--method", default="twostep", choices=["twostep", "least_squares"])
+    kc.add_argument("--method", default="twostep", choices=["twostep", "least_squares"],
+                    help="twostep: TWOSTEP 2-D per sensor with the true magnitude of every reading (default); "
+                         "least_squares: the ordinary ellipse fit on one magnitude (the RMS), the paper's "
+                         "comparison")
     kc.add_argument("-o", "--output", help="write the calibration (JSON)")
     kv = ksub.add_parser("solve", help="conductor positions and currents of every snapshot")
     kv.add_argument("file")
     kv.add_argument("--calibration", help="a calibration JSON from `fluxcal cable calibrate`")
-    kv.add_argument("--conductors", type=int, default=2)
+    kv.add_argument("--conductors", type=positive_int, default=2, help="conductors in the cable (default 2)")
     k.set_defaults(run=cmd_cable)
 
     x = sub.add_parser("export-c", help="write a calibration as a C header for firmware (float and Q-format)")
@@ -625,7 +631,8 @@ def build_parser() -> argparse.ArgumentParser:
     df.add_argument("--regressor", default="temp", choices=("temp", "difference"),
                     help="polynomial variable: device temperature or temp - temp_outside")
     df.add_argument("--breakpoints", default="-20,0,30,50", help="temperature range edges (degC)")
-    df.add_argument("--max-order", type=int, default=4)
+    df.add_argument("--max-order", type=int, default=4, help="highest polynomial order the F-test may choose "
+                                                             "per range (default 4)")
     df.add_argument("--significance", type=float, default=0.05, help="of the F-test (0.05 or 0.01)")
     df.add_argument("--continuous", action="store_true", help="drift continuous at the breakpoints")
     df.add_argument("--ar-max-order", type=int, default=10)

@@ -414,6 +414,18 @@ def test_positions_reads_what_calibrate_reads(real_data, tmp_path):
     assert r.returncode == 2 and "handheld_set1.csv: no accelerometer columns" in r.stderr
 
 
+def test_diagnose_max_effects_from_the_command_line(real_data):
+    # The report said "the max_effects limit stopped the search" and the command line had no way to raise it.
+    r = run_cli("diagnose", real_data / "handheld_set1.csv", "--max-effects", "1", "--quiet")
+    assert r.returncode == 0, r.stderr
+    assert "FOUND: moving_dipole (added in this order)" in r.stdout
+    assert "ALSO SIGNIFICANT, not modelled (the max_effects limit stopped the search; --max-effects): " \
+           "colored_noise" in r.stdout
+    assert "(LR p: the likelihood ratio on residuals whitened" in r.stdout
+    r = run_cli("diagnose", real_data / "handheld_set1.csv", "--max-effects", "0")
+    assert r.returncode == 2 and "argument --max-effects: 0 is not a positive" in r.stderr
+
+
 def _number(text, label):
     return float(re.search(re.escape(label) + r"\s+([-\d.e+]+)", text).group(1))
 

@@ -141,7 +141,10 @@ def text(d) -> str:
                        f"RMS {worst['rms_z']:.2f} σ")
     out += ["", "WHICH and HOW FAR (candidates; held-out gap = √(RMS² − σ²) on the unseen regime):"]
     out += ["  " + line for line in ranking_lines(d)]
-    out.append("")
+    out += ["  (LR p: the likelihood ratio on residuals whitened for their correlation in time, × the alternatives "
+            "tried — slow correlated noise lowers ΔBIC, from the plain ratio, without being an effect; YES needs "
+            "both, then the held-out test. Downstream: the calibrated field's error held out"
+            + (f", {u.strip()}" if u.strip() else "") + "; --json gives each row's \"unmet\": the tests it fails.)", ""]
     if d.accepted:
         out.append(f"FOUND: {', '.join(d.accepted)} (added in this order)")
         for r in d.ranking:
@@ -178,7 +181,7 @@ def text(d) -> str:
                    "sensor's?), or the cause is outside the candidates")
     extra = [r["effect"] for r in d.ranking if r.get("significant_not_modelled")]
     if extra:
-        out.append(f"ALSO SIGNIFICANT, not modelled (the max_effects limit stopped the search): {', '.join(extra)}")
+        out.append(f"ALSO SIGNIFICANT, not modelled (the max_effects limit stopped the search; --max-effects): {', '.join(extra)}")
     out.append(f"remaining: residual RMS {rem['overall']['rms_z']:.2f} σ, gap {rem['overall']['gap']:.4g}{u}; "
                + "; ".join(f"{t['regime']} {t['test']} p {t['pvalue']:.2g}" for t in rem["tests"]))
     if rem.get("skipped_candidates"):
