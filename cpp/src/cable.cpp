@@ -397,7 +397,8 @@ CableSolution solve_cable(const CableRing& ring, const Eigen::Ref<const Eigen::M
                 std::to_string(equations) + " readings for " + std::to_string(unknowns) + " unknowns (" +
                 std::to_string(n) + " conductors: 2 coordinates each + " + std::to_string(nc) +
                 " currents per snapshot); too few sensors for the unknowns — add sensors, give more snapshots "
-                "sharing the positions (AC waveforms), or set zero_sum_currents");
+                "sharing the positions (AC waveforms), or set zero_sum_currents (--zero-sum-currents) when they sum to "
+                "zero");
 
   const double R = ring.radius, field_unit = kMu0Over2Pi / R, bore = ring.bore() / R;
   const RingFrame f(ring);

@@ -356,7 +356,9 @@ def read_ring_csv(path) -> dict:
     rec = read_csv(path)
     meta = rec.metadata
     if "ring_angles_deg" not in meta or "ring_radius_m" not in meta:
-        raise ValueError(f"{path}: no ring_angles_deg / ring_radius_m metadata lines")
+        raise ValueError(f"{path}: no ring_angles_deg / ring_radius_m metadata lines: not a ring recording? "
+                         "It needs comment lines such as '# ring_angles_deg: 0 90 180 270' and "
+                         "'# ring_radius_m: 0.01' before the header (`fluxcal cable simulate` writes them)")
     ring = Ring(_floats(meta["ring_angles_deg"]), float(meta["ring_radius_m"]),
                 axis_angles_deg=_floats(meta["ring_axis_angles_deg"]) if "ring_axis_angles_deg" in meta else None,
                 bore_radius_m=float(meta["ring_bore_radius_m"]) if "ring_bore_radius_m" in meta else None)

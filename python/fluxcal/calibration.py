@@ -144,6 +144,9 @@ class Calibration:
     @classmethod
     def from_dict(cls, data: dict, source: str = "calibration") -> "Calibration":
         missing = [k for k in ("offset", "matrix", "field_norm") if k not in data]
+        if missing and {"offsets", "gains"} <= set(data):
+            raise ValueError(f"{source}: a ring calibration (`fluxcal cable calibrate`), not a magnetometer "
+                             "calibration (`fluxcal calibrate -o`)")
         if missing:
             raise ValueError(f"{source}: missing {', '.join(missing)}")
         try:

@@ -363,7 +363,8 @@ def cmd_cable(args) -> int:
             sigma = ring_cal.field_sigma(snap)
             settings = {} if sigma is None else {"noise_sigma": sigma}
             snap = ring_cal.apply(snap)
-        sol = ring.rotated(rot).solve(snap, n_conductors=args.conductors, **settings)
+        sol = ring.rotated(rot).solve(snap, n_conductors=args.conductors, zero_sum_currents=args.zero_sum_currents,
+                                      **settings)
         where = "; ".join(f"({x * 1e3:.4f}, {y * 1e3:.4f}) mm {i:.5g} A" for (x, y), i in zip(sol.positions, sol.currents))
         flag = ("well conditioned" if sol.well_conditioned else "ILL-CONDITIONED") + \
             ("" if sol.fits_model else f", MISFIT (residual above 5 × σ {sol.noise_sigma:.3g} T)")
@@ -580,6 +581,9 @@ def build_parser() -> argparse.ArgumentParser:
     kv.add_argument("file")
     kv.add_argument("--calibration", help="a calibration JSON from `fluxcal cable calibrate`")
     kv.add_argument("--conductors", type=positive_int, default=2, help="conductors in the cable (default 2)")
+    kv.add_argument("--zero-sum-currents", action="store_true",
+                    help="the currents sum to zero (go and return, a balanced three-phase load): one unknown "
+                         "fewer per snapshot")
     k.set_defaults(run=cmd_cable)
 
     x = sub.add_parser("export-c", help="write a calibration as a C header for firmware (float and Q-format)")

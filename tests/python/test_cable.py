@@ -314,6 +314,20 @@ def test_cli_simulate_calibrate_solve(tmp_path):
     assert len(amps) == 4 and np.allclose(np.abs(amps), 5.0, rtol=0.01), amps
     r = run_cli("cable", "solve", tmp_path / "missing.csv")
     assert r.returncode == 2 and "error" in r.stderr
+    # go and return sum to zero: one current per snapshot fewer, the same ±5 A (the option the solver's
+    # "too few sensors" error names)
+    r = run_cli("cable", "solve", meas, "--calibration", cal_json, "--zero-sum-currents")
+    assert r.returncode == 0, r.stderr
+    zs = [float(w) for ln in r.stdout.splitlines() if ln.startswith("snapshot")
+          for w, unit in zip(ln.split(), ln.split()[1:]) if unit.startswith("A")]
+    assert len(zs) == 4 and np.allclose(np.abs(zs), 5.0, rtol=0.01) and np.allclose(zs[0], -zs[1]), zs
+    # the wrong files say what they are not
+    r = run_cli("export-c", cal_json, "-o", tmp_path / "x.h")
+    assert r.returncode == 2 and "cal.json: a ring calibration (`fluxcal cable calibrate`), not a magnetometer" \
+        in r.stderr
+    plain = fluxcal.write_csv(tmp_path / "plain.csv", {"mx": [1.0, 2.0], "my": [1.0, 2.0], "mz": [1.0, 2.0]})
+    r = run_cli("cable", "solve", plain)
+    assert r.returncode == 2 and "not a ring recording? It needs comment lines such as '# ring_angles_deg" in r.stderr
 
 
 def test_a_calibration_at_low_current_states_its_error_at_high_current():

@@ -1391,7 +1391,8 @@ def diagnose(samples, t=None, temp=None, reference=None, gravity=None, field_nor
         raise ValueError(f"model: {model!r} is not one of {', '.join(MODELS)}")
     vector, fixed = MODELS[model]
     if vector and reference is None:
-        raise ValueError(f"model {model!r} needs reference vectors (the true field per reading)")
+        raise ValueError(f"model {model!r} needs reference vectors (the true field per reading: reference=, "
+                         "--reference rx,ry,rz, or the attitude and local-field columns of an airborne log)")
     if gravity_given and not vector:
         warnings.warn(f"gravity: not used by the {model!r} model (the heading error and a magnet's north, east and "
                       "down need reference vectors: give reference=)", stacklevel=2)
