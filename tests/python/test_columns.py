@@ -27,6 +27,8 @@ from fluxcal.sim.withheld import withheld_trial
     (["magnetometerX(µT)", "magnetometerY(µT)", "magnetometerZ(µT)", "motionMagneticFieldX(µT)",
       "motionMagneticFieldY(µT)", "motionMagneticFieldZ(µT)"],
      ("magnetometerX(µT)", "magnetometerY(µT)", "magnetometerZ(µT)")),
+    # PX4 1.10's sensor_mag: x,y,z are the driver's calibrated field, x_raw.. the raw readings
+    (["timestamp", "device_id", "x", "y", "z", "temperature", "x_raw", "y_raw", "z_raw"], ("x_raw", "y_raw", "z_raw")),
     # named only by an axis and a field unit: the unit says it is a field (no magnetometer found before)
     (["x_uT", "y_uT", "z_uT"], ("x_uT", "y_uT", "z_uT")),
     (["x", "y", "z", "X (uT)", "Y (uT)", "Z (uT)"], ("X (uT)", "Y (uT)", "Z (uT)")),

@@ -414,6 +414,27 @@ def test_positions_reads_what_calibrate_reads(real_data, tmp_path):
     assert r.returncode == 2 and "handheld_set1.csv: no accelerometer columns" in r.stderr
 
 
+def test_ros_topic_echo_csv(tmp_path):
+    # `rostopic echo -p /imu/mag > mag.csv`: the header is a '%' comment and each row has a text frame_id,
+    # so the first data row was taken for a header ("empty or repeated column names").
+    rng = np.random.default_rng(3)
+    u = rng.normal(size=(200, 3))
+    m = 45e-6 * u / np.linalg.norm(u, axis=1, keepdims=True) + [1e-5, -5e-6, 3e-6]
+    names = ["field.magnetic_field_covariance" + str(k) for k in range(9)]
+    head = "%time,field.header.seq,field.header.stamp,field.header.frame_id,field.magnetic_field.x," \
+           "field.magnetic_field.y,field.magnetic_field.z," + ",".join(names)
+    t0 = 1609060336768429266
+    rows = [f"{t0 + k * 10_000_000},{k},{t0 + k * 10_000_000 - 1234},imu_link,{x!r},{y!r},{z!r}," + ",".join(["0.0"] * 9)
+            for k, (x, y, z) in enumerate(m.tolist())]
+    path = tmp_path / "mag.csv"
+    path.write_text(head + "\n" + "\n".join(rows) + "\n")
+    rec = read_recording(path)
+    assert rec.mag_names() == ("field.magnetic_field.x", "field.magnetic_field.y", "field.magnetic_field.z")
+    np.testing.assert_array_equal(rec.samples(), m)
+    np.testing.assert_allclose(np.diff(rec.time()), 0.01, rtol=1e-4)  # epoch ns (a double holds them to 256 ns)
+    assert rec.metadata["header"] == "the comment on line 1"
+
+
 def test_diagnose_max_effects_from_the_command_line(real_data):
     # The report said "the max_effects limit stopped the search" and the command line had no way to raise it.
     r = run_cli("diagnose", real_data / "handheld_set1.csv", "--max-effects", "1", "--quiet")

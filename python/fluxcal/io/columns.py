@@ -167,9 +167,18 @@ def find_magnetometer(names, source: str = "recording"):
         listed = "; ".join(",".join(t) for t in found.values())
         raise ValueError(f"{source}: several magnetometer column triples ({listed}); choose one with --columns "
                          "/ select()")
-    lower = {n.lower(): n for n in names}
-    if all(a in lower for a in "xyz"):
-        return tuple(lower[a] for a in "xyz")
+    # bare axes: x_raw,y_raw,z_raw beside x,y,z are the raw readings (PX4 1.10's sensor_mag: x,y,z are the
+    # driver's calibrated field), as a raw magnetometer triple wins over a plain one
+    bare = {}
+    for n in names:
+        ws = words(n)
+        for qualifier in ("raw", ""):
+            axes = [w for w in ws if w in _AXES]
+            if len(axes) == 1 and [w for w in ws if w not in _AXES] == ([qualifier] if qualifier else []):
+                bare.setdefault(qualifier, {}).setdefault(axes[0], n)
+    for qualifier in ("raw", ""):
+        if len(bare.get(qualifier, {})) == 3:
+            return tuple(bare[qualifier][a] for a in "xyz")
     return None
 
 

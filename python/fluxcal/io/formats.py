@@ -224,7 +224,12 @@ def _read_table(path: Path, columns, units, bad_lines: str = "error") -> Recordi
     if real.preamble_length(lines, start, delimiter) > 0:
         return real.read_preamble_csv(path, columns=columns, units=units, delimiter=delimiter, bad_lines=bad_lines)
     first = [c.strip() for c in decimal_points(lines[start:start + 400], 0, delimiter)[0][0].split(delimiter)]
-    if all(_is_number(c) for c in first):
+    numbers = sum(_is_number(c) for c in first)
+    # a row of mostly numbers with a text cell or two (ROS `rostopic echo -p`: frame_id) is data, not a header,
+    # when the comment above names every column (`%time,field.header.seq,…`)
+    named_above = numbers < len(first) and 2 * numbers >= len(first) and \
+        _commented_header(lines, start, delimiter, len(first)) is not None
+    if numbers == len(first) or named_above:
         header = _commented_header(lines, start, delimiter, len(first))
         given = columns.split(",") if isinstance(columns, str) else columns
         if header is not None and (given is None or set(given) <= set(header[1])):  # names picked from it
