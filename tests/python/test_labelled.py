@@ -219,3 +219,27 @@ def test_an_ambiguous_comma_is_settled_by_the_file_or_named_never_guessed(tmp_pa
     path.write_text("mx,my,mz\n1,2,3\n")
     with pytest.raises(ValueError, match="apply to labelled text logs"):
         read_recording(path, decimal=",")
+
+
+def test_arduino_sketch_captures_with_a_banner(tmp_path):
+    # Adafruit's HMC5883 Unified example: a sensor banner, then "X: … uT" and "Heading (degrees): …" lines;
+    # the heading's bracketed unit kept it from reading as labelled, and the file was taken for a table.
+    m = readings(n=80)
+    text = ("HMC5883 Magnetometer Test\n\n------------------------------------\nSensor:       HMC5883\n"
+            "Max Value:    800.00 uT\n------------------------------------\n\n"
+            + "".join(f"X: {x:.2f}  Y: {y:.2f}  Z: {z:.2f}  uT\nHeading (degrees): {k % 360}.5\n"
+                      for k, (x, y, z) in enumerate(m)))
+    (tmp_path / "hmc.txt").write_text(text)
+    rec = read_recording(tmp_path / "hmc.txt")
+    assert rec.mag_names() == ("X", "Y", "Z") and rec.field_units() == "uT" and rec.units["Heading"] == "degrees"
+    np.testing.assert_allclose(rec.samples(), m, atol=0.005)
+    assert "line 4: Sensor:       HMC5883" in rec.metadata["preamble"]
+    # Arduino's Nano 33 BLE SimpleMagnetometer: a title line above a tab-separated header ("line 5: 3 fields,
+    # the header has 1" before)
+    text = ("Started\nMagnetic field sample rate = 20.00 Hz\n\nMagnetic Field in uT\nX\tY\tZ\n"
+            + "".join(f"{x:.2f}\t{y:.2f}\t{z:.2f}\n" for x, y, z in m))
+    (tmp_path / "nano.txt").write_text(text)
+    rec = read_recording(tmp_path / "nano.txt")
+    np.testing.assert_allclose(rec.samples(), m, atol=0.005)
+    assert rec.metadata["preamble"] == ("line 1: Started; line 2: Magnetic field sample rate = 20.00 Hz; "
+                                        "line 4: Magnetic Field in uT")

@@ -37,10 +37,11 @@ Writing goes by extension: .csv .npz .mat .parquet/.pq .json.
 from __future__ import annotations
 
 import re
+from collections import Counter
 from pathlib import Path
 
 from .csv import (_decimal_comma_columns, readable_file, _is_number, comment_text, data_lines, decimal_points, is_comment, parse_csv,
-                  read_csv, read_text, write_csv, OTHER_WRITERS)
+                  listing, read_csv, read_text, write_csv, OTHER_WRITERS)
 from .recording import Recording
 
 WRITERS = (".csv",) + OTHER_WRITERS
@@ -223,6 +224,12 @@ def _read_table(path: Path, columns, units, bad_lines: str = "error") -> Recordi
     delimiter = _delimiter(lines, start)
     if real.preamble_length(lines, start, delimiter) > 0:
         return real.read_preamble_csv(path, columns=columns, units=units, delimiter=delimiter, bad_lines=bad_lines)
+    titled = _title_lines(lines, start, delimiter)
+    if titled:  # a sketch's banner above its header (Arduino's "Magnetic Field in uT", then "X Y Z")
+        rec = parse_csv(path, lines, delimiter, preamble_lines=titled, bad_lines=bad_lines)
+        rec.metadata["preamble"] = listing([f"line {k + 1}: {lines[k].strip()}" for k in range(start, start + titled)
+                                            if lines[k].strip()])
+        return rec.choose(columns, units)
     first = [c.strip() for c in decimal_points(lines[start:start + 400], 0, delimiter)[0][0].split(delimiter)]
     numbers = sum(_is_number(c) for c in first)
     # a row of mostly numbers with a text cell or two (ROS `rostopic echo -p`: frame_id) is data, not a header,
@@ -245,6 +252,26 @@ def _read_table(path: Path, columns, units, bad_lines: str = "error") -> Recordi
         # no names, or three: the magnetometer of a recognised layout
         return real.read_headerless(path, columns=columns, units=units, delimiter=delimiter)
     return read_csv(path, columns=columns, units=units, delimiter=delimiter, bad_lines=bad_lines)
+
+
+def _title_lines(lines, start: int, delimiter) -> int:
+    """How many lines of free text (a title, a start-up banner) come before a header that names the columns of
+    the data under it: 0 when the first line already has as many fields as the data. The header is the first
+    line of as many fields, all names, with a row of mostly numbers after it."""
+    def cells(line):
+        return [c.strip() for c in (line.split(delimiter) if delimiter else line.split())]
+
+    body = [k for k in range(start, min(len(lines), start + 200)) if lines[k].strip() and not is_comment(lines[k])]
+    if len(body) < 4:
+        return 0
+    width = Counter(len(cells(lines[k])) for k in body[len(body) // 2:]).most_common(1)[0][0]
+    if width < 2 or len(cells(lines[start])) == width:
+        return 0
+    for here, after in zip(body[:30], body[1:31]):
+        c, d = cells(lines[here]), cells(lines[after])
+        if len(c) == width and all(x and not _is_number(x) for x in c):
+            return here - start if len(d) == width and 2 * sum(_is_number(x) for x in d) >= width else 0
+    return 0
 
 
 def _commented_header(lines, start: int, delimiter, count: int):

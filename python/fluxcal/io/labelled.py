@@ -34,7 +34,7 @@ from .recording import Recording
 # label (a word not glued to what precedes it), ':' or '=', then a number with all its commas between digits
 # (`X: -13,62`, `X: 1,234,567`, `X: 1,234.5`: what they are is decided for the file, see _Commas; a unit may
 # be glued on)
-_PAIR = re.compile(r"(?<![\w.\-:])([A-Za-z_][\w.]*(?:\[\d+\])?)\s*[:=]\s*"
+_PAIR = re.compile(r"(?<![\w.\-:])([A-Za-z_][\w.]*(?:\[\d+\])?)(?:\s*\(([^()\d]{1,16})\))?\s*[:=]\s*"
                    r"([+-]?(?:\d+(?:,\d+)*(?:\.\d*)?|[.,]\d+)(?:[eE][+-]?\d+)?|[+-]?(?:nan|inf)\b)([^\s,;|]*)",
                    re.IGNORECASE)
 CLOCK = re.compile(r"^\s*\[?((?:\d{4}-\d{1,2}-\d{1,2}[ T])?\d{1,2}:\d{2}:\d{2}(?:[.,]\d+)?)\]?\s*(?:->|>|\|)?\s*")
@@ -61,7 +61,10 @@ def _parse_line(text: str):
             group = " ".join(named)
             groups.append([next((w.strip(":=-") for w in words if is_unit(w.strip(":=-"))), "")])  # "Mag (uT) X:"
         groups[-1].append(len(values))
-        values.append([f"{group} {m.group(1)}" if group else m.group(1), m.group(2), m.group(3)])
+        # a unit in brackets between the name and the colon ("Heading (degrees): 0.86") or glued after the number
+        bracketed = (m.group(2) or "").strip()
+        unit = m.group(4) or (bracketed if is_unit(bracketed) else "")
+        values.append([f"{group} {m.group(1)}" if group else m.group(1), m.group(3), unit])
         pos = m.end()
     if values and not values[-1][2]:
         tail = _WORD.findall(text[pos:])
