@@ -78,6 +78,11 @@ def test_time_temperature_and_accelerometer_names():
     assert find_temperature(["Temperature"], {"Temperature": "°F"}) == ("Temperature", "F")
     assert find_temperature(["temp", "temp_outside"], {}) == ("temp", "C")
     assert find_temperature(["temp_a", "temp_b"], {}) is None  # two candidates: none guessed
+    # named by a sensor word and degrees only (SparkFun OpenLog Artemis's imu_degC): not found before
+    assert find_temperature(["mX", "imu_degC"], {}) == ("imu_degC", "C")
+    assert find_temperature(["imu_degF"], {}) == ("imu_degF", "F")
+    assert find_temperature(["sensor_degC", "imu_degC"], {}) is None  # two: none guessed
+    assert find_temperature(["heading_deg"], {}) is None  # degrees of an angle
     assert find_accelerometer(["AccX", "AccY", "AccZ", "MagX", "MagY", "MagZ"]) == ("AccX", "AccY", "AccZ")
     assert find_current(["current", "curr"], {}) == ("current", 1.0)
     assert find_current(["t", "motor_current_mA"], {}) == ("motor_current_mA", 1e-3)

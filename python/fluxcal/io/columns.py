@@ -263,7 +263,7 @@ def _time_unit(name: str, word, units: dict, values):
 
 def find_temperature(names, units: dict):
     """(column, unit "C"/"K"/"F") or None."""
-    hit = _find_one(names, "temp", TEMP_WORDS, TEMP_UNITS)
+    hit = _find_one(names, "temp", TEMP_WORDS, TEMP_UNITS) or _named_by_degrees(names)
     if hit is None:
         return None
     name, word = hit
@@ -271,6 +271,20 @@ def find_temperature(names, units: dict):
     if stated:  # a stated unit that is not °C, K or °F (mdegC, raw) is not guessed
         return (name, TEMP_UNITS[stated]) if stated in TEMP_UNITS else None
     return name, TEMP_UNITS.get(word or "", "C")
+
+
+def _named_by_degrees(names):
+    """(column, unit word) of the only column named by a sensor word and degrees Celsius or Fahrenheit alone
+    (SparkFun OpenLog Artemis's imu_degC), else None: degC says temperature as a field unit says field."""
+    hits = []
+    for name in names:
+        ws = words(name)
+        unit = "".join(ws[-2:]) if ws[-2:-1] == ["deg"] else ws[-1] if ws else ""  # deg C, degC
+        rest = ws[:-2] if ws[-2:-1] == ["deg"] else ws[:-1]
+        if unit in ("degc", "degf") and rest and set(rest) <= {"imu", "sensor", "die", "chip", "board", "mag", "cpu",
+                                                               "mcu"}:
+            hits.append((name, unit))
+    return hits[0] if len(hits) == 1 else None
 
 
 def find_current(names, units: dict):
