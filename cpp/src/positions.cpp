@@ -266,8 +266,8 @@ void fill_summary(PositionsResult& r, const char* what) {
   r.summary.cost = n > 0 ? r.residuals.squaredNorm() / static_cast<double>(n) : 0.0;
   r.summary.converged = true;
   std::ostringstream msg;
-  msg << what << ": " << n << " positions, residual RMS " << fmt(r.summary.residual_rms) << " " << r.units
-      << ", condition number " << fmt(r.summary.condition_number, 3);
+  msg << what << ": " << n << " positions, residual RMS " << fmt(r.summary.residual_rms)
+      << (r.units.empty() ? "" : " " + r.units) << ", condition number " << fmt(r.summary.condition_number, 3);
   int undetermined = 0;
   for (bool d : r.determined) undetermined += d ? 0 : 1;
   if (undetermined > 0) {

@@ -511,7 +511,7 @@ def run_cli(args, out=None) -> int:
     if not field_args:
         raise ValueError("reference field missing: give --field N,E,D, --total/--inclination, or --lat/--lon/--date")
     f = reference_field(**field_args)
-    units = rec.field_units() if all(c in rec.units for c in ("mx", "my", "mz")) else ""
+    units = rec.field_units()
     acc_cal = None
     if args.calibrate_accelerometer:
         acc_cal = calibrate_accelerometer(acc, gravity=float(np.median(np.linalg.norm(acc, axis=1))))
@@ -533,7 +533,9 @@ def run_cli(args, out=None) -> int:
         print(f"  K  = {res.K.tolist()}", file=out)
         print(f"  field (N, E, D) = {res.field_ned}  inclination {inclination_of(res.field_ned):.3f}°", file=out)
         v = doc["verification"]
-        print(f"  in-sample: |H| error RMS {v['magnitude_error_rms']:.4g}, dip error RMS {v['dip_error_deg_rms']:.4g}°"
+        field_unit = " nT" if args.lat is not None else " (the reference field's unit)"  # IGRF gives nT
+        print(f"  in-sample: |H| error RMS {v['magnitude_error_rms']:.4g}{field_unit}, dip error RMS "
+              f"{v['dip_error_deg_rms']:.4g}°"
               + (f", heading error RMS {v['heading_error_rms_deg']:.4g}°" if "heading_error_rms_deg" in v else ""),
               file=out)
     for w in res.summary["warnings"]:

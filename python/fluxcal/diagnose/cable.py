@@ -1014,8 +1014,11 @@ def _ranking_lines(d) -> list:
 def _text(d) -> str:
     w, rem = d.where, d.remaining
     sig = ", ".join(f"{s:.3g}" for s in w["noise_sigma_per_sensor"])
-    out = [f"fluxcal diagnose — {d.source}: cable ring, {w['overall']['snapshots']} snapshots "
-           f"({w['overall']['n']} readings)",
+    o = w["overall"]
+    averaged = (f"{o['recorded_snapshots']} snapshots averaged into {o['snapshots']} (consecutive repeats of one "
+                f"rotation and currents)" if o.get("recorded_snapshots", o["snapshots"]) != o["snapshots"]
+                else f"{o['snapshots']} snapshots")
+    out = [f"fluxcal diagnose — {d.source}: cable ring, {averaged}, {o['n']} readings",
            f"noise σ per sensor {sig} T ({d.noise_source})",
            f"base model (straight infinite conductors, "
            f"{'currents fitted per snapshot' if d.base['fit_currents'] else 'reference currents'}): "
