@@ -398,14 +398,15 @@ def cmd_drift(args) -> int:
         model.settings["source"] = str(args.file)
         model.settings["column"] = args.column
         pre, ar = report["preprocess"], report["ar"]
-        print(f"{args.column}: {len(rec)} samples, mean {pre['mean']:.6g}")
+        u = f" {rec.units[args.column]}" if rec.units.get(args.column) else ""  # the file's unit of the column
+        print(f"{args.column}: {len(rec)} samples, mean {pre['mean']:.6g}{u}")
         print(f"  stationarity (reverse arrangement, differenced {pre['differences']}x): u = "
               f"{pre['stationarity']['u']:.3f} ({'stationary' if pre['stationarity']['stationary'] else 'NOT stationary'})")
         print(f"  normality: skewness {pre['normality']['skewness']:.3f}, kurtosis {pre['normality']['kurtosis']:.3f}")
         p_value = ar["whiteness"]["p_value"]
         white = (f"Ljung-Box p {p_value:.3g} over {ar['whiteness']['lags']} lags" if p_value == p_value
                  else "whiteness not tested (too few lags)")
-        print(f"  AR({ar['order']}) by AIC of the noise (zero bias - drift model), sigma2 {ar['sigma2']:.4g}, {white}")
+        print(f"  AR({ar['order']}) by AIC of the noise (zero bias - drift model), sigma2 {ar['sigma2']:.4g}{u}², {white}")
         for note in report["notes"]:  # white noise about the drift: no Kalman filter (and why)
             print(f"  {note}")
         for w in report["warnings"]:
@@ -413,9 +414,9 @@ def cmd_drift(args) -> int:
         for seg in model.segments:
             lo, hi = seg["range"]
             print(f"  range [{lo:g}, {hi:g}]: order {seg['order']}, {seg['samples']} samples, residual RMS "
-                  f"{seg['residual_rms']:.4g}")
+                  f"{seg['residual_rms']:.4g}{u}")
         print(f"  drift over the temperature span (per-level means, peak to peak): "
-              f"{report['drift_span_before']:.4g} -> {report['drift_span_after']:.4g} "
+              f"{report['drift_span_before']:.4g}{u} -> {report['drift_span_after']:.4g}{u} "
               f"({report['drift_reduction']:.1f}x smaller)")
         for key, what in (("accuracy", "filtered output, sample by sample"),
                           ("accuracy_drift", "drift alone, per-level means")):
