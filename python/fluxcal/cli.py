@@ -189,8 +189,9 @@ def cmd_apply(args) -> int:
     return 0
 
 
-# |h| this far from the calibration's field norm: readings in another unit, or another place (the Earth's field
-# is 25–65 µT, so a move alone stays well inside a factor 1.6)
+# |h| this far from the calibration's field norm: readings in another unit (a factor 10 or more between field
+# units), another sensor, or another field (the Earth's is 25–65 µT: a move across latitudes can reach 1.6×,
+# which the warning's text names too)
 FIELD_NORM_RATIO = 1.6
 
 
@@ -202,7 +203,7 @@ def _scale_warning(cal: Calibration, h: np.ndarray, units: str) -> str | None:
     ratio = float(np.median(norms)) / cal.field_norm
     if 1 / FIELD_NORM_RATIO <= ratio <= FIELD_NORM_RATIO:
         return None
-    unit = f" {cal.units}" if cal.units else ""
+    unit = f" {cal.h_units}" if cal.h_units else ""  # h and field_norm are in the field's unit
     why = (f"the readings state no unit: are they in {cal.units}? (--units)" if cal.units and not units else
            "readings in another unit than the calibration's, of another sensor, or taken in another field?")
     return (f"the corrected |h| is {np.median(norms):.6g}{unit} (median), {ratio:.3g}× the calibration's field "

@@ -27,7 +27,8 @@ MAX_ORDER = 100
 
 
 def _coefficients(ar_coeffs) -> np.ndarray:
-    a = np.atleast_1d(as_series([ar_coeffs] if np.isscalar(ar_coeffs) else ar_coeffs, "ar_coeffs"))
+    scalar = np.isscalar(ar_coeffs) or (isinstance(ar_coeffs, np.ndarray) and ar_coeffs.ndim == 0)
+    a = np.atleast_1d(as_series([ar_coeffs] if scalar else ar_coeffs, "ar_coeffs"))
     if a.size < 1:
         raise ValueError(f"ar_coeffs: shape {a.shape}, expected a non-empty 1-D sequence a1 … ap")
     if not np.all(np.isfinite(a)):

@@ -79,8 +79,16 @@ def test_outputs_are_written_in_the_format_their_name_says(tmp_path):
     r = run_cli("cable", "simulate", "-o", tmp_path / "ring.npz")
     assert r.returncode == 2 and "ring.npz: CSV text under a .npz name; name it .csv" in r.stderr
     assert not (tmp_path / "ring.npz").exists()
-    with pytest.raises(ValueError, match=r"x.json: CSV text under a .json name"):
+    with pytest.raises(ValueError, match=r"x.json: CSV text under a .json name; name it .csv, or write .json"):
         fluxcal.write_csv(tmp_path / "x.json", {"a": [1.0]})
+    r = run_cli("simulate", "-o", tmp_path / "s.xlsx")  # a format fluxcal reads only: text would not open in Excel
+    assert r.returncode == 2 and "s.xlsx: CSV text under a .xlsx name; name it .csv" in r.stderr
+    # the warning's unit is the field's, not the readings'
+    from fluxcal.cli import _scale_warning
+
+    counts = fluxcal.Calibration(np.zeros(3), np.eye(3), field_norm=48.2, units="counts", field_units="uT")
+    assert "is 150 uT (median), 3.11× the calibration's field norm 48.2 uT" in \
+        _scale_warning(counts, np.full((4, 3), 150 / np.sqrt(3)), "counts")
 
 
 def test_apply_warns_when_the_corrected_field_is_not_the_calibrations(tmp_path):

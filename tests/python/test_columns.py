@@ -32,6 +32,9 @@ from fluxcal.sim.withheld import withheld_trial
     # named only by an axis and a field unit: the unit says it is a field (no magnetometer found before)
     (["x_uT", "y_uT", "z_uT"], ("x_uT", "y_uT", "z_uT")),
     (["x", "y", "z", "X (uT)", "Y (uT)", "Z (uT)"], ("X (uT)", "Y (uT)", "Z (uT)")),
+    # ... only when no triple names a magnetometer: a reference beside the sensor is not a second sensor
+    (["mag_x_nT", "mag_y_nT", "mag_z_nT", "igrf_x_nT", "igrf_y_nT", "igrf_z_nT"], ("mag_x_nT", "mag_y_nT", "mag_z_nT")),
+    (["mx", "my", "mz", "ref_x_uT", "ref_y_uT", "ref_z_uT"], ("mx", "my", "mz")),
     (["x_g", "y_g", "z_g"], None),  # g and mg are accelerations too: not guessed
     (["x_mg", "y_mg", "z_mg"], None),
     # not a magnetometer

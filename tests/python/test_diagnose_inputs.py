@@ -125,7 +125,7 @@ def test_readings_nearly_in_a_plane_are_named_as_such():
     phi, z = rng.uniform(0, 2 * np.pi, 3000), rng.uniform(-2.5, 2.5, 3000)
     r = np.sqrt(50.0 ** 2 + z ** 2)
     m = np.column_stack([r * np.cos(phi), r * np.sin(phi), z]) + rng.normal(0, 0.01, (3000, 3)) + [3.0, -2.0, 1.0]
-    with pytest.raises(Exception, match="nearly in one plane.*not an ellipsoid.*rotate the sensor about at least two"):
+    with pytest.raises(Exception, match="nearly in one plane.*not an ellipsoid.*turn the sensor about all three axes"):
         diagnose(m, field_norm=50.0)
 
 

@@ -413,6 +413,7 @@ def test_bad_input_is_named():
         ArKalman([0.6 + 0.1j, -0.3], 0.5, 0.3)
     with pytest.raises(ValueError, match="ar_coeffs: not numeric"):
         ArKalman([[0.6], [0.1, -0.3]], 0.5, 0.3)
+    assert ArKalman(np.array(0.6), 0.5, 0.3).order == 1  # a 0-d array is a scalar
     # NaN in signal_gain's input ended in a LinAlgError.
     with pytest.raises(ValueError, match="ar_coeffs: NaN/Inf"):
         signal_gain([np.nan], [0.1])

@@ -157,10 +157,22 @@ def test_two_sensors_under_the_same_names_are_kept_apart_never_mixed(tmp_path):
     assert rec.mag_names() == ("X (uT)", "Y (uT)", "Z (uT)") and rec.field_units() == "uT"
     np.testing.assert_allclose(rec.samples(), m, atol=0.005)
     assert np.all(np.abs(rec.columns["X"] - np.round(m[:, 0] * 68.42)) == 0)  # the counts kept beside them
-    # A lone line in another unit (a range change) is an error, not a third sensor.
+    # A lone line in another unit, or a range change half-way (one switch, not alternating lines), is an
+    # error, not a second sensor.
     path.write_text("".join(f"Mag X: {k}.5 Y: 2 Z: 3 uT\n" for k in range(5)) + "Mag X: 150 Y: 20 Z: 30 mG\n")
     with pytest.raises(ValueError, match=r"'Mag X' is in uT on line 1 and in mG on line 6; a changed range"):
         read_recording(path)
+    path.write_text("".join(f"Mag X: {k}00 Y: 2 Z: 3 mG\n" for k in range(20))
+                    + "".join(f"Mag X: 0.{k} Y: 2 Z: 3 G\n" for k in range(20)))
+    with pytest.raises(ValueError, match=r"'Mag X' is in mG on line 1 and in G on line 21; a changed range"):
+        read_recording(path)
+    # Two sensors under one name, alternating: both triples kept and listed, neither picked silently.
+    path.write_text("".join(f"Mag X: {k}00 Y: 2 Z: 3 mG\nMag X: 0.{k} Y: 0.2 Z: 0.3 uT\n" for k in range(10)))
+    with pytest.raises(ValueError, match=r"several magnetometer column triples \(Mag X \(mG\),.*Mag X \(uT\)"):
+        read_recording(path).samples()
+    # A bracket that is not a unit stays in the name.
+    path.write_text("".join(f"X (raw): {k} Y (raw): 2 Z (raw): 3 X (cal): 4 Y (cal): 5 Z (cal): 6\n" for k in range(9)))
+    assert read_recording(path).mag_names() == ("X (raw)", "Y (raw)", "Z (raw)")
 
 
 def test_a_bracketed_clock_and_the_devices_own_time(tmp_path):

@@ -110,6 +110,7 @@ def _triples(names, kind_words):
     (a magnetometer's prefix must not also name an accelerometer or a gyro). Qualifiers after the axis
     (mag_x_raw, MagXCal) count as part of the prefix."""
     groups: dict[tuple, dict[int, str]] = {}
+    by_unit: dict[tuple, dict[int, str]] = {}  # named by an axis and a field unit only: when nothing else is
     other = (ACC_WORDS | GYRO_WORDS) if kind_words is MAG_WORDS else (MAG_WORDS - {"m"}) | GYRO_WORDS
     for name in names:
         ws = words(name)
@@ -126,11 +127,13 @@ def _triples(names, kind_words):
         prefix = prefix + tuple(qualifiers)
         if set(prefix) & other:
             continue
-        if set(prefix) & kind_words:
-            groups.setdefault(prefix, {}).setdefault(axis, name)
+        if set(prefix) & kind_words:  # the unit keeps two sensors' same names apart (Mag X in mG and in uT)
+            groups.setdefault(prefix + ((unit,) if unit else ()), {}).setdefault(axis, name)
         elif field_unit:  # x_uT: the unit says it is a field
-            groups.setdefault(prefix + (unit,), {}).setdefault(axis, name)
+            by_unit.setdefault(prefix + (unit,), {}).setdefault(axis, name)
     found = {p: _complete(p, g) for p, g in groups.items()}
+    if not any(t is not None for t in found.values()):  # an igrf_x_nT beside mag_x_nT is not a second sensor
+        found = {p: _complete(p, g) for p, g in by_unit.items()}
     found = {p: t for p, t in found.items() if t is not None}
     lettered = {p: names for p, (names, numbered) in found.items() if not numbered}
     return lettered or {p: names for p, (names, _) in found.items()}  # numbered channels rank below x/y/z

@@ -430,9 +430,11 @@ def _raise_parse_error(path, rows, line_numbers, names, delimiter, expected="the
     raise ValueError(f"{path}: could not parse the data rows")
 
 
-# The extensions of the other formats fluxcal writes (fluxcal.io.write_recording): CSV text under one of
-# these names would mislead whoever opens it in MATLAB or pandas.
+# The extensions of the other formats fluxcal writes (fluxcal.io.write_recording), and of binary formats it
+# reads only: CSV text under one of these names would mislead whoever opens it in MATLAB, Excel or h5py.
 OTHER_WRITERS = (".npz", ".mat", ".parquet", ".pq", ".json")
+BINARY_NAMES = OTHER_WRITERS + (".npy", ".xlsx", ".xlsm", ".xls", ".h5", ".hdf5", ".bin", ".ulg", ".bag", ".db3",
+                                ".mcap", ".db", ".sqlite", ".sqlite3")
 
 
 def _writable(path, columns: dict, metadata: dict) -> None:
@@ -440,9 +442,9 @@ def _writable(path, columns: dict, metadata: dict) -> None:
     the delimiter or a line break, a metadata key or value with a line break (the file was written, and
     reading it failed on a line that did not say why); and a name of another format."""
     suffix = Path(path).suffix.lower()
-    if suffix in OTHER_WRITERS:
-        raise ValueError(f"{path}: CSV text under a {suffix} name; name it .csv, or write {suffix} with "
-                         "write_recording")
+    if suffix in BINARY_NAMES:
+        also = f", or write {suffix} with fluxcal.write_recording" if suffix in OTHER_WRITERS else ""
+        raise ValueError(f"{path}: CSV text under a {suffix} name; name it .csv{also}")
     if not columns:
         raise ValueError(f"{path}: no columns to write")
     for name in columns:

@@ -64,7 +64,8 @@ def _parse_line(text: str):
         # a unit in brackets between the name and the colon ("Heading (degrees): 0.86") or glued after the number
         bracketed = (m.group(2) or "").strip()
         unit = m.group(4) or (bracketed if is_unit(bracketed) else "")
-        values.append([f"{group} {m.group(1)}" if group else m.group(1), m.group(3), unit])
+        label = m.group(1) if not bracketed or is_unit(bracketed) else f"{m.group(1)} ({bracketed})"  # X (raw)
+        values.append([f"{group} {label}" if group else label, m.group(3), unit])
         pos = m.end()
     if values and not values[-1][2]:
         tail = _WORD.findall(text[pos:])
@@ -156,14 +157,18 @@ def _units_apart(parsed: list) -> list:
     `X: 54.26 … uTesla`, and the two read as one column labelled µT (a calibration of both, 133 µT off).
     Two sensors under the same names, or a range change, are kept apart the same way; which triple is the
     magnetometer is then fluxcal.io.columns' choice (several: an error listing them, for --columns).
-    Only units that each come on at least half as many lines as the commonest: a lone line in another unit
-    (a range change) is an error in read_labelled, a lone line without one (truncated) a line that does not fit."""
-    seen = {}
+    Only units that alternate, each on at least half as many lines as the commonest: a range change (one
+    switch) is an error in read_labelled, a lone line without a unit (truncated) a line that does not fit."""
+    seen, switches, last = {}, Counter(), {}
     for *_, values in parsed:
         for name, _, unit in values:
-            seen.setdefault(name, Counter())[_field_unit(unit) if unit else ""] += 1
+            unit = _field_unit(unit) if unit else ""
+            seen.setdefault(name, Counter())[unit] += 1
+            switches[name] += name in last and last[name] != unit
+            last[name] = unit
     split = {name for name, units in seen.items()
-             if len(units) > 1 and min(units.values()) >= 0.5 * max(units.values())}
+             if len(units) > 1 and min(units.values()) >= 0.5 * max(units.values())
+             and switches[name] >= min(units.values())}
     if not split:
         return parsed
     return [(line_no, text, stamp, [(f"{name} ({_field_unit(unit)})" if name in split and unit else name, value, unit)
