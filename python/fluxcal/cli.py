@@ -622,7 +622,9 @@ def build_parser() -> argparse.ArgumentParser:
     q.add_argument("--estimate-yaw", action="store_true", help="estimate a heading correction per position")
     q.add_argument("--estimate-inclination", action="store_true", help="estimate the dip jointly")
     q.add_argument("--tilt-sigma", type=float, default=0.0, help="levelling uncertainty (deg); 0 = exact")
-    q.add_argument("--acc-measures", choices=["specific_force", "gravity"], default="specific_force")
+    q.add_argument("--acc-measures", choices=["specific_force", "gravity"], default="specific_force",
+                   help="what the accelerometer reads at rest: specific_force (up, as MEMS parts do; default) or "
+                        "gravity (down)")
     q.add_argument("--calibrate-accelerometer", action="store_true",
                    help="calibrate the accelerometer from the same positions first (>= 6 distinct gravity "
                         "directions; its misalignment needs 9, which the twelve positions alone do not give)")
@@ -641,7 +643,8 @@ def build_parser() -> argparse.ArgumentParser:
                                                              "per range (default 4)")
     df.add_argument("--significance", type=float, default=0.05, help="of the F-test (0.05 or 0.01)")
     df.add_argument("--continuous", action="store_true", help="drift continuous at the breakpoints")
-    df.add_argument("--ar-max-order", type=int, default=10)
+    df.add_argument("--ar-max-order", type=int, default=10,
+                    help="highest AR order AIC may choose for the noise about the drift (default 10)")
     df.add_argument("--steady-state", action="store_true", help="Kalman filter with the steady-state gain")
     df.add_argument("--rated", type=float, default=None, help="rated current (zero-bias units) for the class check")
     df.add_argument("--class", dest="accuracy_class", default="0.2S", choices=("0.2S", "0.5S"))

@@ -376,6 +376,8 @@ def test_real_qmc5883l_preamble(real_data):
     np.testing.assert_allclose(rec.columns["t"][:3], [0.0, 0.02, 0.04])
     assert rec.line_numbers[0] == 4  # after Fs, Initialization time and the header
     np.testing.assert_array_equal(rec.samples()[0], [6202, 682, 4812])
+    # the report says t was made, not read (the file has no t column)
+    assert rec.roles()["time"] == "t = row / Fs (Fs = 50 Hz from line 1)"
 
 
 def test_real_airborne_layout_and_reference(real_data, tmp_path):

@@ -122,7 +122,8 @@ class Recording:
             pass
         hit, rate = find_time(self.columns, self.units, self.columns), sample_rate(self.metadata)
         if hit:
-            out["time"] = hit[0] + (f" (×{hit[1]:g} → s)" if hit[1] != 1.0 else "")
+            made = self.metadata.get(hit[0])  # a reader that made the column says how ("row / Fs (Fs = 50 Hz …)")
+            out["time"] = hit[0] + (f" (×{hit[1]:g} → s)" if hit[1] != 1.0 else "") + (f" = {made}" if made else "")
         elif rate:
             out["time"] = f"row / {rate[1]:g} Hz (metadata {rate[0]})"
         hit = find_temperature(self.columns, self.units)
