@@ -3,18 +3,15 @@ wording for every way such a file can be wrong, naming the file and what it shou
 from __future__ import annotations
 
 import json
-from pathlib import Path
+
+from .io.csv import readable_file
 
 
 def load_json_object(path, what: str) -> dict:
     """The JSON object saved in `path`, or ValueError naming `path`, `what` it should be ("a fluxcal
     calibration") and the problem: a folder or a pipe (which would block), an unreadable file, bytes that
     are not UTF-8 text, invalid JSON (line and column), or a document that is not an object."""
-    path = Path(path)
-    if path.is_dir():
-        raise ValueError(f"{path}: a folder, not {what}")
-    if path.exists() and not path.is_file():
-        raise ValueError(f"{path}: not a regular file (a named pipe, socket or device), not {what}")
+    path = readable_file(path, what, remedy="")
     try:
         raw = path.read_bytes()
     except OSError as exc:

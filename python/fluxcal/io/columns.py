@@ -175,10 +175,9 @@ def find_magnetometer(names, source: str = "recording"):
     bare = {}
     for n in names:
         ws = words(n)
-        for qualifier in ("raw", ""):
-            axes = [w for w in ws if w in _AXES]
-            if len(axes) == 1 and [w for w in ws if w not in _AXES] == ([qualifier] if qualifier else []):
-                bare.setdefault(qualifier, {}).setdefault(axes[0], n)
+        axes, rest = [w for w in ws if w in _AXES], [w for w in ws if w not in _AXES]
+        if len(axes) == 1 and rest in ([], ["raw"]):
+            bare.setdefault("".join(rest), {}).setdefault(axes[0], n)
     for qualifier in ("raw", ""):
         if len(bare.get(qualifier, {})) == 3:
             return tuple(bare[qualifier][a] for a in "xyz")

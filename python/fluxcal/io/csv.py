@@ -261,15 +261,17 @@ _LEGACY_TEXT = re.compile("[^\x00-\x7fµ°²³±·×äöüÄÖÜßéèêëàâç
 NOT_TEXT = "\ufffd"  # stands for bytes that are not text
 
 
-def readable_file(path) -> Path:
-    """`path` as a Path; ValueError when it is a folder, or not a regular file: a named pipe or a device
-    would block the reader until something writes to it (a missing file is left to the reader's message)."""
+def readable_file(path, what: str = "a recording file",
+                  remedy: str = "record it to a file first (fluxcal record reads a serial port)") -> Path:
+    """`path` as a Path; ValueError naming `what` it should be when it is a folder, or not a regular file: a
+    named pipe or a device would block the reader until something writes to it (a missing file is left to
+    the reader's message)."""
     path = Path(path)
     if path.is_dir():
-        raise ValueError(f"{path}: a folder, not a recording file")
+        raise ValueError(f"{path}: a folder, not {what}")
     if path.exists() and not path.is_file():
-        raise ValueError(f"{path}: not a regular file (a named pipe, socket or device); record it to a file first "
-                         "(fluxcal record reads a serial port)")
+        raise ValueError(f"{path}: not a regular file (a named pipe, socket or device), not {what}"
+                         + (f"; {remedy}" if remedy else ""))
     return path
 
 

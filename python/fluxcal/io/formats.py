@@ -234,10 +234,8 @@ def _read_table(path: Path, columns, units, bad_lines: str = "error") -> Recordi
     numbers = sum(_is_number(c) for c in first)
     # a row of mostly numbers with a text cell or two (ROS `rostopic echo -p`: frame_id) is data, not a header,
     # when the comment above names every column (`%time,field.header.seq,…`)
-    named_above = numbers < len(first) and 2 * numbers >= len(first) and \
-        _commented_header(lines, start, delimiter, len(first)) is not None
-    if numbers == len(first) or named_above:
-        header = _commented_header(lines, start, delimiter, len(first))
+    header = _commented_header(lines, start, delimiter, len(first)) if 2 * numbers >= len(first) else None
+    if numbers == len(first) or header is not None:
         given = columns.split(",") if isinstance(columns, str) else columns
         if header is not None and (given is None or set(given) <= set(header[1])):  # names picked from it
             line_no, names, cells = header
