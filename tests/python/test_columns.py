@@ -4,7 +4,7 @@ import json
 
 import numpy as np
 import pytest
-from conftest import run_cli
+from conftest import run_cli, simulated
 
 import fluxcal
 from fluxcal.io.columns import find_accelerometer, find_current, find_magnetometer, find_temperature, find_time
@@ -282,3 +282,41 @@ def test_unit_name_normalises_unit_words():
     assert [unit_name(w) for w in ("uTesla", "µT", "\u03bcT", " [uT] ", "(nT)", "Gauss", "Ga", "tesla", "mgauss")] \
         == ["uT", "uT", "uT", "uT", "nT", "G", "G", "T", "mG"]
     assert unit_name(" counts ") == "counts" and unit_name("m/s^2") == "m/s^2"  # others as given
+
+
+def test_axes_named_only_as_axes_are_a_magnetometer_when_their_unit_is_a_fields(tmp_path):
+    """MbientLab's MetaBase export names the axes `x-axis (T)`; its accelerometer file says `x-axis (g)`."""
+    m = simulated(1, n=400, field_norm=50.0).readings * 1e-6  # µT → T
+    t = np.arange(len(m)) * 0.04
+    header = "epoch (ms),time (-05:00),elapsed (s),x-axis ({u}),y-axis ({u}),z-axis ({u})\n"
+    rows = "".join(f"{1709305200000 + int(round(s * 1000))},2024-03-01T10.00.{s:06.3f},{s:.3f},"
+                   f"{x:.9g},{y:.9g},{z:.9g}\n" for s, (x, y, z) in zip(t, m))
+    (tmp_path / "mag.csv").write_text(header.format(u="T") + rows)
+    rec = fluxcal.read_recording(tmp_path / "mag.csv")
+    assert rec.mag_names() == ("x-axis", "y-axis", "z-axis") and rec.field_units() == "T"
+    np.testing.assert_allclose(rec.time(), t, atol=1e-9)
+    (tmp_path / "acc.csv").write_text(header.format(u="g") + rows)
+    with pytest.raises(ValueError, match="no magnetometer columns"):
+        fluxcal.read_recording(tmp_path / "acc.csv").samples()
+
+
+def test_the_magnetometers_own_clock_and_an_rtc_time_of_day(tmp_path):
+    """iOS SensorLog writes a clock per sensor (…Timestamp_sinceReboot(s)) beside its logging time: the
+    magnetometer's own is the time. SparkFun's OpenLog Artemis writes rtcDate,rtcTime: the time of day."""
+    t = np.arange(50) * 0.01
+    m = np.random.default_rng(0).normal(size=(50, 3)) * 40
+    head = ("loggingTime(txt),accelerometerTimestamp_sinceReboot(s),accelerometerAccelerationX(G),"
+            "accelerometerAccelerationY(G),accelerometerAccelerationZ(G),magnetometerTimestamp_sinceReboot(s),"
+            "magnetometerX(µT),magnetometerY(µT),magnetometerZ(µT)\n")
+    rows = "".join(f"2025-12-29T13:13:{6 + s:06.3f}-06:00,{5000.1 + s:.4f},0.1,0.2,0.9,{5000.1037 + 1.001 * s:.4f},"
+                   f"{x:.4f},{y:.4f},{z:.4f}\n" for s, (x, y, z) in zip(t, m))
+    (tmp_path / "sensorlog.csv").write_text(head + rows, encoding="utf-8")
+    rec = fluxcal.read_recording(tmp_path / "sensorlog.csv")
+    assert rec.roles()["time"] == "magnetometerTimestamp_sinceReboot"
+    np.testing.assert_allclose(rec.time(), 5000.1037 + 1.001 * t, atol=1e-9)
+    rows = "".join(f"07/01/2000,12:34:{56 + s:05.2f},{x:.2f},{y:.2f},{z:.2f},24.00,25.000,\n"
+                   for s, (x, y, z) in zip(t, m))
+    (tmp_path / "openlog.txt").write_text("rtcDate,rtcTime,mX,mY,mZ,imu_degC,output_Hz,\n" + rows)
+    rec = fluxcal.read_recording(tmp_path / "openlog.txt")
+    assert rec.roles()["time"] == "rtcTime" and rec.roles()["temperature"] == "imu_degC"
+    np.testing.assert_allclose(rec.time(), t, atol=1e-9)

@@ -255,3 +255,30 @@ def test_arduino_sketch_captures_with_a_banner(tmp_path):
     np.testing.assert_allclose(rec.samples(), m, atol=0.005)
     assert rec.metadata["preamble"] == ("line 1: Started; line 2: Magnetic field sample rate = 20.00 Hz; "
                                         "line 4: Magnetic Field in uT")
+
+
+def test_hyphenated_labels_and_an_is_sentence_with_mg_beside_mG(tmp_path):
+    """kriswiner's MPU9250BasicAHRS sketch (SparkFun's MPU-9250 library example): a banner, then four lines
+    per cycle. Its `X-mag field: … mG` is milligauss, its `X-acceleration: … mg` milli-g, and
+    `Temperature is 24.0 degrees C` the die temperature."""
+    m = np.round(readings(n=300) * 10.0, 1)  # µT → mG, printed with 2 decimals
+    acc = np.round(np.random.default_rng(2).normal(scale=500.0, size=m.shape), 2)
+    lines = ["MPU9250 I AM 71 I should be 71", "MPU9250 is online...", "AK8963 I AM 48 I should be 48",
+             "AK8963 initialized for active data mode...."]
+    for k, (r, a) in enumerate(zip(m, acc)):
+        lines.append(f"X-acceleration: {a[0]:.2f} mg Y-acceleration: {a[1]:.2f} mg Z-acceleration: {a[2]:.2f} mg ")
+        lines.append("X-gyro rate: 0.123 degrees/sec Y-gyro rate: -0.456 degrees/sec Z-gyro rate: 0.789 degrees/sec ")
+        lines.append(f"X-mag field: {r[0]:.2f} mG Y-mag field: {r[1]:.2f} mG Z-mag field: {r[2]:.2f} mG")
+        lines.append(f"Temperature is {24 + k / 1000:.3f} degrees C")
+    path = tmp_path / "mpu9250.txt"
+    path.write_text("\n".join(lines) + "\n")
+    rec = read_recording(path)
+    np.testing.assert_array_equal(rec.samples(), m)
+    assert rec.mag_names() == ("X-mag field", "Y-mag field", "Z-mag field") and rec.field_units() == "mG"
+    assert rec.acc_names() == ("X-acceleration", "Y-acceleration", "Z-acceleration")
+    assert {rec.units[n] for n in rec.acc_names()} == {"mg"}  # milli-g, not milligauss
+    np.testing.assert_allclose(rec.temperature(), 24 + np.arange(300) / 1000)
+    assert rec.metadata["preamble"].startswith("line 1: MPU9250 I AM 71")
+    out = run_cli("calibrate", str(path), "-o", str(tmp_path / "cal.json"))
+    assert out.returncode == 0, out.stderr
+    assert "magnetometer X-mag field,Y-mag field,Z-mag field; temperature Temperature" in out.stdout

@@ -154,9 +154,10 @@ def _drop_accel_unit(ws: list[str]) -> list[str]:
     return out
 
 
-def find_magnetometer(names, source: str = "recording"):
+def find_magnetometer(names, source: str = "recording", units=None):
     """The three magnetometer columns among `names`, or None when there is no candidate. An ambiguous
-    choice is a ValueError that lists the candidates."""
+    choice is a ValueError that lists the candidates. `units` (column → stated unit) lets axes named only
+    as axes ("x-axis (T)", MbientLab's export) be a magnetometer when their unit is a field's."""
     names = list(names)
     found = _triples(names, MAG_WORDS)
     if len(found) > 1:
@@ -176,12 +177,18 @@ def find_magnetometer(names, source: str = "recording"):
     for n in names:
         ws = words(n)
         axes, rest = [w for w in ws if w in _AXES], [w for w in ws if w not in _AXES]
-        if len(axes) == 1 and rest in ([], ["raw"]):
+        if len(axes) == 1 and (rest in ([], ["raw"]) or rest == ["axis"] and _states_field((units or {}).get(n))):
             bare.setdefault("".join(rest), {}).setdefault(axes[0], n)
-    for qualifier in ("raw", ""):
+    for qualifier in ("raw", "", "axis"):
         if len(bare.get(qualifier, {})) == 3:
             return tuple(bare[qualifier][a] for a in "xyz")
     return None
+
+
+def _states_field(unit) -> bool:
+    """Whether a stated unit is a magnetic field's: T, µT, nT, G, mG… (not g or mg, accelerations)."""
+    unit = (unit or "").strip().strip("[]()").strip()
+    return unit not in ("g", "mg") and unit_name(unit) in ("T", "mT", "uT", "nT", "G", "mG")
 
 
 def find_accelerometer(names):
@@ -202,8 +209,8 @@ def _named(names, kind_words, unit_table) -> list:
         if name == "T":  # time to some loggers, temperature to others: not guessed
             continue
         ws, unit = _peel_unit(words(name), unit_table)
-        if ws and all(w in kind_words or w in ("sensor", "die", "chip", "imu", "mag", "board") for w in ws) \
-                and set(ws) & kind_words:
+        owners = ("sensor", "die", "chip", "imu", "mag", "board") + (tuple(CLOCK_WORDS) if kind_words is TIME_WORDS else ())
+        if ws and all(w in kind_words or w in owners for w in ws) and set(ws) & kind_words:
             hits.append((name, unit))
         elif len(ws) == 1 and ws[0] in ("timeus", "timems"):
             hits.append((name, ws[0][4:]))
@@ -220,20 +227,43 @@ def _find_one(names, canonical: str, kind_words, unit_table):
     return _single(names, kind_words, unit_table)
 
 
-def find_time(names, units: dict, values=None):
+def find_time(names, units: dict, values=None, sensor=None):
     """(column, factor to seconds) or None. The unit comes from the units map, else the name's unit
     word (TimeUS, time_ms), else seconds — except a unitless `timestamp` stepping by ≥ 1000 per row
     (`values`: the columns), which is PX4's microseconds, and Unix times too large for seconds (above
     1e11: ms, 1e14: µs, 1e17: ns). A stated unit that is not a time unit ("ticks") is not guessed: None.
     Several time columns are one clock when their steps agree in seconds (Sensor Logger's epoch `time` and
-    `seconds_elapsed`): the first is taken. Clocks that disagree are not guessed: None."""
-    hits = [("t", None)] if "t" in names else _named(names, TIME_WORDS, TIME_UNITS)
+    `seconds_elapsed`): the first is taken. Clocks that disagree are not guessed: None. `sensor` (the
+    magnetometer's column names) picks the magnetometer's own clock among one per sensor (SensorLog's
+    magnetometerTimestamp_sinceReboot beside accelerometerTimestamp_sinceReboot …)."""
+    hits = [("t", None)] if "t" in names else (_own_clock(names, sensor) or _named(names, TIME_WORDS, TIME_UNITS))
     times = [_time_unit(name, word, units, values) for name, word in hits]
     if not times or None in times:
         return None
     if len(times) > 1 and not (values is not None and _one_clock(times, values)):
         return None
     return times[0]
+
+
+# words that say whose or which clock a time column is (rtcTime, loggingTime, timestamp_sinceReboot)
+CLOCK_WORDS = {"rtc", "logging", "log", "system", "sys", "since", "reboot", "boot", "epoch", "unix", "1970"}
+
+
+def _own_clock(names, sensor) -> list:
+    """[(column, None)] for the one column named by the sensor's own words, a time word and clock words
+    (magnetometerTimestamp_sinceReboot for magnetometerX..Z), else []."""
+    if not sensor:
+        return []
+    prefix = [w for w in words(sensor[0]) if w not in _AXES]
+    if not prefix or prefix != [w for w in words(sensor[1]) if w not in _AXES]:
+        return []
+    hits = []
+    for name in names:
+        ws = words(name)
+        rest = ws[len(prefix):]
+        if ws[:len(prefix)] == prefix and set(rest) & TIME_WORDS and set(rest) <= TIME_WORDS | CLOCK_WORDS:
+            hits.append((name, None))
+    return hits if len(hits) == 1 else []
 
 
 def _one_clock(times, values) -> bool:

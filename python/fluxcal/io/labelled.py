@@ -31,10 +31,11 @@ from .columns import FIELD_UNITS, TIME_WORDS, comma_kind, is_unit, words
 from .csv import readable_file, NOT_TEXT, SKIP_HINT, _timestamps, check_bad_lines, data_lines, is_comment, listing, read_text
 from .recording import Recording
 
-# label (a word not glued to what precedes it), ':' or '=', then a number with all its commas between digits
-# (`X: -13,62`, `X: 1,234,567`, `X: 1,234.5`: what they are is decided for the file, see _Commas; a unit may
-# be glued on)
-_PAIR = re.compile(r"(?<![\w.\-:])([A-Za-z_][\w.]*(?:\[\d+\])?)(?:\s*\(([^()\d]{1,16})\))?\s*[:=]\s*"
+# label (a word not glued to what precedes it, hyphens inside allowed: X-acceleration), ':', '=' or ' is '
+# (`Temperature is 24.0 degrees C`), then a number with all its commas between digits (`X: -13,62`,
+# `X: 1,234,567`, `X: 1,234.5`: what they are is decided for the file, see _Commas; a unit may be glued on)
+_PAIR = re.compile(r"(?<![\w.\-:])([A-Za-z_][\w.]*(?:-[A-Za-z][\w.]*)*(?:\[\d+\])?)(?:\s*\(([^()\d]{1,16})\))?"
+                   r"(?:\s*[:=]\s*|\s+is\s+)"
                    r"([+-]?(?:\d+(?:,\d+)*(?:\.\d*)?|[.,]\d+)(?:[eE][+-]?\d+)?|[+-]?(?:nan|inf)\b)([^\s,;|]*)",
                    re.IGNORECASE)
 CLOCK = re.compile(r"^\s*\[?((?:\d{4}-\d{1,2}-\d{1,2}[ T])?\d{1,2}:\d{2}:\d{2}(?:[.,]\d+)?)\]?\s*(?:->|>|\|)?\s*")
@@ -43,7 +44,17 @@ SAMPLE_LINES = 50
 
 
 def _field_unit(word: str) -> str:
+    if word in ("g", "mg"):  # lower-case: gravities (MPU9250 sketches print mg beside mG, milligauss)
+        return word
     return FIELD_UNITS.get(word.lower().replace("\u03bc", "\u00b5"), word)
+
+
+def _degrees(words: list) -> str:
+    """Pop the unit that starts `words`: "degrees C" (two words) is °C, as a temperature column reads it."""
+    unit = words.pop(0)
+    if unit.lower() in ("deg", "degree", "degrees") and words and words[0] in ("C", "F"):
+        return "°" + words.pop(0)
+    return unit
 
 
 def _parse_line(text: str):
@@ -55,7 +66,7 @@ def _parse_line(text: str):
     for m in _PAIR.finditer(text, pos):
         words = _WORD.findall(text[pos:m.start()])
         if values and words and is_unit(words[0]) and not values[-1][2]:
-            values[-1][2] = words.pop(0)  # the previous value's unit
+            values[-1][2] = _degrees(words)  # the previous value's unit
         named = [w.strip(":=-") for w in words if re.search(r"[A-Za-z]", w) and not is_unit(w)]
         if named or not groups:
             group = " ".join(named)
@@ -70,7 +81,7 @@ def _parse_line(text: str):
     if values and not values[-1][2]:
         tail = _WORD.findall(text[pos:])
         if tail and is_unit(tail[0]):
-            values[-1][2] = tail[0]
+            values[-1][2] = _degrees(tail)
     for group_unit, *members in groups:  # "Mag X: 1 Y: 2 Z: 3 uT": a unit after the last value is the sensor's
         units = [values[k][2] for k in members]
         unit = units[-1] if units[-1] and is_unit(units[-1]) and not any(units[:-1]) else \

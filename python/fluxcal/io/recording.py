@@ -64,7 +64,7 @@ class Recording:
         name (MagX.., mag_x.., Bx.., x,y,z; see fluxcal.io.columns). A unit carried by the names
         (mag_x_uT) is recorded when the file states none."""
         if self.mag_columns is None:
-            found = find_magnetometer(self.columns, self.source)
+            found = find_magnetometer(self.columns, self.source, self.units)
             if found is None:
                 text = self.metadata.get("text_columns")  # a column of numbers in a form the reader did not take
                 raise ValueError(f"{self.source}: no magnetometer columns (looked for mx,my,mz, MagX.., mag_x.., "
@@ -81,11 +81,19 @@ class Recording:
         """Time of each reading in seconds (column t, else one recognised by name such as time, TimeUS,
         time_ms, timestamp, converted by its unit; else row / rate when the metadata states a sample rate
         such as `# sample_rate_hz: 50`), or None."""
-        hit = find_time(self.columns, self.units, self.columns)
+        hit = self._time_column()
         if hit is not None:
             return self.columns[hit[0]] * hit[1]
         rate = sample_rate(self.metadata)
         return None if rate is None else np.arange(len(self)) / rate[1]
+
+    def _time_column(self):
+        """(column, factor to seconds) of the time, or None (fluxcal.io.columns.find_time)."""
+        try:
+            sensor = self.mag_names()
+        except ValueError:  # no magnetometer (yet): no sensor's own clock to prefer
+            sensor = None
+        return find_time(self.columns, self.units, self.columns, sensor)
 
     def temperature(self):
         """Temperature of each reading in °C (column temp, else temperature, temp_C, die_temp, ... in °C, K
@@ -120,7 +128,7 @@ class Recording:
             out["magnetometer"] = ",".join(self.mag_names())
         except ValueError:
             pass
-        hit, rate = find_time(self.columns, self.units, self.columns), sample_rate(self.metadata)
+        hit, rate = self._time_column(), sample_rate(self.metadata)
         if hit:
             made = self.metadata.get(hit[0])  # a reader that made the column says how ("row / Fs (Fs = 50 Hz …)")
             out["time"] = hit[0] + (f" (×{hit[1]:g} → s)" if hit[1] != 1.0 else "") + (f" = {made}" if made else "")
