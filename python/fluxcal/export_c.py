@@ -24,9 +24,10 @@ and `<name>_self_test()`, so firmware can check itself. Fixed point:
   exact arithmetic otherwise, so E is a bound, not an estimate.
 
 With `kalman` (a JSON saved by `save_kalman`, or a drift model from `fluxcal drift fit`) the header also
-carries the fixed-point AR Kalman coefficients (`FixedArKalman.export_header`) and a test vector of
-int32 inputs and the outputs of `FixedArKalman.filter_int` that cpp/include/fluxcal/fixed_kalman.hpp
-must reproduce bit for bit.
+carries the fixed-point AR Kalman coefficients (`FixedArKalman.export_header`), the filter itself in C99
+(`<name>_kalman_reset`, `<name>_kalman_step`: the arithmetic of cpp/include/fluxcal/fixed_kalman.hpp, for
+firmware without C++), and a test vector of int32 inputs and the outputs of `FixedArKalman.filter_int`
+that both must reproduce bit for bit (`<name>_kalman_self_test()`).
 """
 from __future__ import annotations
 
@@ -265,6 +266,113 @@ def load_kalman(path):
     return f
 
 
+# The filter of cpp/include/fluxcal/fixed_kalman.hpp in C99 (also valid C++), for firmware without C++: the same
+# operations in the same order, so it reproduces FixedArKalman.filter_int bit for bit. KNAME/KUP are replaced by
+# the filter's name. A right shift of a negative int64 is arithmetic on every compiler fluxcal knows (GCC,
+# Clang, MSVC, IAR, Keil); C99 leaves it to the implementation, and the self-test would catch one that differs.
+_KALMAN_C = """
+/* The filter state: KNAME_reset() starts it, KNAME_step() filters one sample. overflow is sticky (set when
+ * anything saturated; outputs are clamped, never wrapped) until the caller clears it. */
+typedef struct {
+  int32_t x[KUP_ORDER];
+  int32_t k[KUP_ORDER];
+  int32_t p[KUP_ORDER][KUP_ORDER];
+  int overflow;
+} KNAME_t;
+
+static inline int32_t KNAME_sat32_(int64_t v, int *of) {
+  if (v > INT32_MAX) { *of = 1; return INT32_MAX; }
+  if (v < INT32_MIN) { *of = 1; return INT32_MIN; }
+  return (int32_t)v;
+}
+static inline int64_t KNAME_add64_(int64_t a, int64_t b, int *of) {
+  if ((b > 0 && a > INT64_MAX - b) || (b < 0 && a < INT64_MIN - b)) { *of = 1; return b > 0 ? INT64_MAX : INT64_MIN; }
+  return a + b;
+}
+static inline int64_t KNAME_mul_(int32_t a, int32_t b) { return (int64_t)a * (int64_t)b; }
+/* (v + 2^(s-1)) >> s: round half up (arithmetic shift) */
+static inline int64_t KNAME_shift_(int64_t v, int s, int *of) {
+  return s == 0 ? v : KNAME_add64_(v, (int64_t)1 << (s - 1), of) >> s;
+}
+/* num / den to nearest, ties away from zero; den > 0 */
+static inline int64_t KNAME_div_(int64_t num, int64_t den) {
+  const int64_t mag = (2 * (num < 0 ? -num : num) + den) / (2 * den);
+  return num < 0 ? -mag : mag;
+}
+
+/* State to zero, covariance to P0, gain to the steady-state gain; overflow cleared. */
+static inline void KNAME_reset(KNAME_t *f) {
+  int i, j;
+  for (i = 0; i < KUP_ORDER; ++i) {
+    f->x[i] = 0;
+    f->k[i] = KNAME_gain[i];
+    for (j = 0; j < KUP_ORDER; ++j) f->p[i][j] = KNAME_p0[i * KUP_ORDER + j];
+  }
+  f->overflow = 0;
+}
+
+/* One sample y (signal format) in, the filtered output (signal format) out. */
+static inline int32_t KNAME_step(KNAME_t *f, int32_t y) {
+  const int n = KUP_ORDER, cf = KUP_COEF_FRAC_BITS;
+  int *of = &f->overflow;
+  int64_t acc = 0;
+  int32_t x0, e;
+  int i, j;
+  for (i = 0; i < n; ++i) acc = KNAME_add64_(acc, KNAME_mul_(KNAME_a[i], f->x[i]), of);
+  x0 = KNAME_sat32_(KNAME_shift_(acc, cf, of), of);
+  for (i = n - 1; i > 0; --i) f->x[i] = f->x[i - 1];
+  f->x[0] = x0;
+  if (!KUP_STEADY_STATE) {
+    int32_t u[KUP_ORDER], t[KUP_ORDER], m[KUP_ORDER][KUP_ORDER], s;
+    int64_t s00 = 0;
+    /* predict the covariance: M = A P A' + Q e1 e1' (companion A, u = P a) */
+    for (j = 0; j < n; ++j) {
+      int64_t v = 0;
+      for (i = 0; i < n; ++i) v = KNAME_add64_(v, KNAME_mul_(f->p[j][i], KNAME_a[i]), of);
+      u[j] = KNAME_sat32_(KNAME_shift_(v, cf, of), of);
+    }
+    for (i = 0; i < n; ++i) s00 = KNAME_add64_(s00, KNAME_mul_(KNAME_a[i], u[i]), of);
+    for (i = n - 1; i > 0; --i)
+      for (j = n - 1; j > 0; --j) m[i][j] = f->p[i - 1][j - 1];
+    m[0][0] = KNAME_sat32_(KNAME_add64_(KNAME_shift_(s00, cf, of), KNAME_q, of), of);
+    for (j = 1; j < n; ++j) m[0][j] = m[j][0] = u[j - 1];
+    /* gain: one division per entry */
+    s = KNAME_sat32_((int64_t)m[0][0] + KNAME_r, of);
+    if (s <= 0) {
+      *of = 1;
+      for (i = 0; i < n; ++i) f->k[i] = 0;
+    } else {
+      for (i = 0; i < n; ++i) f->k[i] = KNAME_sat32_(KNAME_div_((int64_t)m[i][0] * ((int64_t)1 << cf), s), of);
+    }
+    /* Joseph form for C = e1': P = M - K m0' - m0 K' + S K K' */
+    for (i = 0; i < n; ++i) t[i] = KNAME_sat32_(KNAME_shift_(KNAME_mul_(s, f->k[i]), cf, of), of);
+    for (j = 0; j < n; ++j) {
+      for (i = j; i < n; ++i) {
+        int64_t v = (int64_t)m[i][j] * ((int64_t)1 << cf);
+        v = KNAME_add64_(v, -KNAME_mul_(f->k[i], m[j][0]), of);
+        v = KNAME_add64_(v, -KNAME_mul_(m[i][0], f->k[j]), of);
+        v = KNAME_add64_(v, KNAME_mul_(t[i], f->k[j]), of);
+        f->p[i][j] = f->p[j][i] = KNAME_sat32_(KNAME_shift_(v, cf, of), of);
+      }
+    }
+  }
+  e = KNAME_sat32_((int64_t)y - f->x[0], of);
+  for (i = 0; i < n; ++i)
+    f->x[i] = KNAME_sat32_(KNAME_add64_(f->x[i], KNAME_shift_(KNAME_mul_(f->k[i], e), cf, of), of), of);
+  return f->x[0];
+}
+
+/* Runs the test vector: the number of outputs that differ from fluxcal's (0 = pass; an overflow counts one). */
+static inline int KNAME_self_test(void) {
+  KNAME_t f;
+  int k, misses = 0;
+  KNAME_reset(&f);
+  for (k = 0; k < KUP_TEST_COUNT; ++k) misses += KNAME_step(&f, KNAME_test_input[k]) != KNAME_test_output[k];
+  return misses + f.overflow;
+}
+"""
+
+
 def _kalman_test_vector(f, n: int = 256, seed: int = 0):
     """An AR series of the filter's own model (seeded) in the signal format, and filter_int's outputs."""
     d = f.double
@@ -472,14 +580,17 @@ def export_c(cal: Calibration, path, q_format=None, name: str | None = None, kal
             coefficients = f.export_header(Path(tmp) / "kalman.h", name=kname).read_text()
         lines += [
             "", f"/* ---- Fixed-point AR({f.order}) Kalman filter (fluxcal.kalman.FixedArKalman) ----",
-            " * Run it with fluxcal::FixedArKalman<MaxOrder> of cpp/include/fluxcal/fixed_kalman.hpp (C++,",
-            " * header-only)",
-            f" * configured from these coefficients: fed {kname}_test_input, it must return {kname}_test_output",
-            " * bit for bit (fluxcal's FixedArKalman.filter_int computed them). */",
+            f" * C:   {kname}_t f; {kname}_reset(&f); then y_hat = {kname}_step(&f, y) per sample (int32, signal",
+            f" *      format 2^-{kname.upper()}_SIGNAL_FRAC_BITS); f.overflow says whether anything saturated.",
+            " * C++: fluxcal::FixedArKalman<MaxOrder> of cpp/include/fluxcal/fixed_kalman.hpp, configured from these",
+            " *      coefficients, runs the same arithmetic.",
+            f" * Either, fed {kname}_test_input, returns {kname}_test_output bit for bit (fluxcal's",
+            f" * FixedArKalman.filter_int computed them); {kname}_self_test() checks it (0 = pass). */",
             coefficients.rstrip("\n"),
             f"#define {kname.upper()}_TEST_COUNT {len(y_int)}",
             f"static const int32_t {kname}_test_input[{len(y_int)}] = {{{', '.join(i32(v) for v in y_int)}}};",
             f"static const int32_t {kname}_test_output[{len(out)}] = {{{', '.join(i32(v) for v in out)}}};",
+            _KALMAN_C.replace("KNAME", kname).replace("KUP", kname.upper()).strip("\n"),
         ]
         result.kalman, result.kalman_test = f, (y_int, out)
     lines += ["", f"#endif /* {up}_H */", ""]

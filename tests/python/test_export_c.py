@@ -187,6 +187,34 @@ def run_kalman_driver(tmp_path, header):
     return np.array([int(v) for v in lines[:-2]]), int(lines[-2].split()[1])
 
 
+KALMAN_C_DRIVER = r"""
+#include <stdio.h>
+#include "HEADER"
+int main(void) {
+  p_kalman_t f;
+  int k;
+  p_kalman_reset(&f);
+  for (k = 0; k < P_KALMAN_TEST_COUNT; ++k) printf("%ld\n", (long)p_kalman_step(&f, p_kalman_test_input[k]));
+  printf("overflow %d\n", f.overflow);
+  printf("self_test %d\n", p_kalman_self_test());
+  return 0;
+}
+"""
+
+
+def run_kalman_c_driver(tmp_path, header, c_plus_plus=False):
+    """The header's own C filter, compiled as C99 (pedantic) or C++: (outputs, overflow flag, self-test)."""
+    source = tmp_path / ("kalman_c.cpp" if c_plus_plus else "kalman_c.c")
+    source.write_text(KALMAN_C_DRIVER.replace("HEADER", header.name))
+    exe = tmp_path / ("kalman_c_cpp" if c_plus_plus else "kalman_c")
+    flags = ["-std=c++17"] if c_plus_plus else ["-std=c99", "-pedantic"]
+    build = subprocess.run([compiler(c_plus_plus), *flags, "-Wall", "-Wextra", "-Werror", "-O2", f"-I{header.parent}",
+                            str(source), "-o", str(exe)], capture_output=True, text=True)
+    assert build.returncode == 0, build.stderr
+    lines = subprocess.run([str(exe)], capture_output=True, text=True, check=True).stdout.split("\n")
+    return np.array([int(v) for v in lines[:-3]]), int(lines[-3].split()[1]), int(lines[-2].split()[1])
+
+
 @pytest.mark.parametrize("steady_state", [False, True])
 def test_kalman_coefficients_run_bit_exact_in_the_firmware_filter(tmp_path, steady_state):
     f = FixedArKalman((0.6, -0.3, 0.2), 0.5, 0.3, frac_bits=28, steady_state=steady_state)
@@ -205,6 +233,33 @@ def test_kalman_coefficients_run_bit_exact_in_the_firmware_filter(tmp_path, stea
     assert np.abs(y_int).max() > 2 ** 24  # the test signal uses the format's range, not a few LSB
     _, self_test = run_driver(tmp_path, header)  # the calibration part is still C99 with the Kalman part in
     assert self_test == 0
+    for c_plus_plus in (False, True):  # the header's own filter, for firmware in C: the same bits
+        c_outputs, overflow, kalman_self_test = run_kalman_c_driver(tmp_path, header, c_plus_plus)
+        np.testing.assert_array_equal(c_outputs, outputs)
+        assert overflow == 0 and kalman_self_test == 0
+
+
+def test_the_c_filter_reports_saturation_and_its_self_test_catches_a_damaged_constant(tmp_path):
+    f = FixedArKalman((0.6, -0.3, 0.2), 0.5, 0.3, frac_bits=28)
+    header = tmp_path / "p.h"
+    export_c(CALS["nT"], header, name="p", kalman=f)
+    text = header.read_text()
+    # inputs at the rails saturate the state: the flag is set and outputs clamp as FixedArKalman's do
+    driver = KALMAN_C_DRIVER.replace("p_kalman_test_input[k]", "(k % 2 ? INT32_MAX : INT32_MIN)")
+    (tmp_path / "rail.c").write_text(driver.replace("HEADER", header.name))
+    exe = tmp_path / "rail"
+    subprocess.run([compiler(), "-std=c99", "-Wall", "-Werror", f"-I{tmp_path}", str(tmp_path / "rail.c"), "-o",
+                    str(exe)], check=True)
+    lines = subprocess.run([str(exe)], capture_output=True, text=True, check=True).stdout.split("\n")
+    expected = FixedArKalman((0.6, -0.3, 0.2), 0.5, 0.3, frac_bits=28)
+    rails = np.where(np.arange(256) % 2 == 1, 2 ** 31 - 1, -(2 ** 31))
+    np.testing.assert_array_equal([int(v) for v in lines[:-3]], expected.filter_int(rails))
+    assert expected.overflowed and lines[-3] == "overflow 1"
+    # a damaged AR coefficient: the header's self-test fails
+    a = text.split("p_kalman_a[3] = {")[1].split(",")[0]
+    header.write_text(text.replace(f"p_kalman_a[3] = {{{a},", f"p_kalman_a[3] = {{{int(a) + 1000},", 1))
+    _, _, self_test = run_kalman_c_driver(tmp_path, header)
+    assert self_test > 0
 
 
 def test_kalman_from_a_drift_model(tmp_path):
