@@ -266,9 +266,10 @@ def cmd_diagnose(args) -> int:
 def cmd_export_c(args) -> int:
     from .export_c import export_c
 
-    cal = Calibration.load(args.calibration)
-    print(export_c(cal, args.output, q_format=args.q_format, name=args.name, kalman=args.kalman,
-                   source=Path(args.calibration).name).describe())
+    cal = Calibration.load(args.calibration) if args.calibration else None
+    sources = [Path(f).name for f in dict.fromkeys(filter(None, (args.calibration, args.kalman, args.drift)))]
+    print(export_c(cal, args.output, q_format=args.q_format, name=args.name, kalman=args.kalman, drift=args.drift,
+                   source=", ".join(sources)).describe())
     return 0
 
 
@@ -588,14 +589,18 @@ def build_parser() -> argparse.ArgumentParser:
                          "fewer per snapshot")
     k.set_defaults(run=cmd_cable)
 
-    x = sub.add_parser("export-c", help="write a calibration as a C header for firmware (float and Q-format)")
-    x.add_argument("calibration", help="a calibration JSON (fluxcal calibrate -o)")
+    x = sub.add_parser("export-c", help="write a calibration as a C header for firmware (float and Q-format), "
+                                        "with a drift model's f(T) and fixed-point Kalman filter if asked")
+    x.add_argument("calibration", nargs="?", default=None,
+                   help="a calibration JSON (fluxcal calibrate -o); leave it out for a header of --drift/--kalman only")
     x.add_argument("-o", "--output", required=True, help="the header to write (.h)")
     x.add_argument("--q-format", default=None, help="int32 fixed-point format Qm.n, m + n = 31 (default: the "
                                                     "smallest m that holds the calibration's range)")
     x.add_argument("--name", default=None, help="C prefix of every name (default: the header's file name)")
     x.add_argument("--kalman", default=None, help="also export a fixed-point AR Kalman filter: a JSON of "
                                                   "fluxcal.export_c.save_kalman or a drift model (fluxcal drift fit)")
+    x.add_argument("--drift", default=None, help="also export a drift model's f(T) per temperature range (a JSON of "
+                                                 "fluxcal drift fit), in double with a test vector")
     x.set_defaults(run=cmd_export_c)
 
     d = sub.add_parser("demo", help="simulate a magnetometer, calibrate it, print and plot the result")

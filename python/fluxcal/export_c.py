@@ -373,6 +373,72 @@ static inline int KNAME_self_test(void) {
 """
 
 
+def _drift_part(drift, name: str):
+    """The header lines of the drift f(T) of a DriftModel (or its JSON path) in double, with a test vector of
+    temperatures across every range and the model's own values there; and the model."""
+    from .drift import DriftModel
+
+    model = DriftModel.load(drift) if isinstance(drift, (str, Path)) else drift
+    if not isinstance(model, DriftModel):
+        raise TypeError(f"drift: expected a DriftModel or the path of its JSON, got {type(drift).__name__}")
+    dname, dup = f"{name}_drift", f"{name}_drift".upper()
+    segments = model.segments
+    edges = [float(segments[0]["range"][0])] + [float(seg["range"][1]) for seg in segments]
+    top = max(int(seg["order"]) for seg in segments)
+    coefficients = [list(map(float, seg["coefficients"])) + [0.0] * (top - int(seg["order"])) for seg in segments]
+    # each range at its edges, a quarter and three quarters in; the inside-outside difference varies with it
+    temps = np.concatenate([np.linspace(lo, hi, 5) for lo, hi in zip(edges[:-1], edges[1:])])
+    outside = temps - np.linspace(-5.0, 15.0, temps.size)
+    expected = model.evaluate(temps, outside if model.regressor == "difference" else None)
+    d = lambda v: f"{v:.17g}"  # noqa: E731  (round-trips a double)
+    x = "temp" if model.regressor == "temp" else "temp - temp_outside"
+    lines = [
+        "/* ---- Temperature drift of the zero bias (fluxcal drift fit) ----",
+        f" * f = sum_i c_i x^i with x = {x} (degrees C), the polynomial of the range that holds the device",
+        " * temperature temp: lo <= temp < hi (the last range includes its hi). Compensated: W_c = W - f.",
+        f" * {dname}(temp, temp_outside, &f) returns 0, or 1 when temp is outside every range (f = 0 then: a",
+        f" * polynomial is not extrapolated){'' if model.regressor == 'difference' else '; temp_outside is unused'}.",
+        f" * {dname}_self_test() compares the test temperatures with fluxcal's values (0 = pass). */",
+        f"#define {dup}_RANGES {len(segments)}",
+        f"#define {dup}_MAX_ORDER {top}",
+        f"static const double {dname}_edges[{len(edges)}] = {{{', '.join(map(d, edges))}}};",
+        f"static const double {dname}_coefficients[{len(segments)}][{top + 1}] = {{  /* c_0 ... c_m per range */",
+        _rows(coefficients, d) + "};",
+        f"static inline int {dname}(double temp, double temp_outside, double *f) {{",
+        f"  const double x = {x};",
+        "  int s, j;",
+        *(["  (void)temp_outside;"] if model.regressor == "temp" else []),
+        "  *f = 0.0;",
+        f"  for (s = 0; s < {dup}_RANGES; ++s) {{",
+        f"    if (temp >= {dname}_edges[s] && (temp < {dname}_edges[s + 1] || (s == {dup}_RANGES - 1 && "
+        f"temp <= {dname}_edges[s + 1]))) {{",
+        f"      for (j = {dup}_MAX_ORDER; j >= 0; --j) *f = *f * x + {dname}_coefficients[s][j];",
+        "      return 0;",
+        "    }",
+        "  }",
+        "  return 1;",
+        "}",
+        f"#define {dup}_TEST_COUNT {temps.size}",
+        f"static const double {dname}_test_temp[{temps.size}] = {{{', '.join(map(d, temps))}}};",
+        f"static const double {dname}_test_outside[{temps.size}] = {{{', '.join(map(d, outside))}}};",
+        f"static const double {dname}_test_expected[{temps.size}] = {{{', '.join(map(d, expected))}}};",
+        f"static inline int {dname}_self_test(void) {{",
+        "  int k, misses = 0;",
+        "  double scale = 1e-300, f;",
+        f"  for (k = 0; k < {dup}_TEST_COUNT; ++k)",
+        f"    if ({dname}_test_expected[k] > scale || -{dname}_test_expected[k] > scale) "
+        f"scale = {dname}_test_expected[k] > 0 ? {dname}_test_expected[k] : -{dname}_test_expected[k];",
+        f"  for (k = 0; k < {dup}_TEST_COUNT; ++k) {{",
+        f"    if ({dname}({dname}_test_temp[k], {dname}_test_outside[k], &f)) ++misses;",
+        f"    else if (f - {dname}_test_expected[k] > 1e-9 * scale || {dname}_test_expected[k] - f > 1e-9 * scale) "
+        "++misses;",
+        "  }",
+        "  return misses;",
+        "}",
+    ]
+    return lines, model
+
+
 def _kalman_test_vector(f, n: int = 256, seed: int = 0):
     """An AR series of the filter's own model (seeded) in the signal format, and filter_int's outputs."""
     d = f.double
@@ -398,21 +464,28 @@ def _kalman_test_vector(f, n: int = 256, seed: int = 0):
 @dataclass
 class ExportResult:
     path: Path
-    fixed: FixedCalibration
-    inputs_q: np.ndarray
+    fixed: FixedCalibration | None = None
+    inputs_q: np.ndarray | None = None
     kalman: object = None
     kalman_test: tuple | None = None
+    drift: object = None  # the DriftModel written as f(T)
 
     def describe(self) -> str:
-        fx, u, hu = self.fixed, self.fixed.calibration.units, self.fixed.calibration.h_units
-        unit, h_unit = f" {u}" if u else "", f" {hu}" if hu else ""
-        text = (f"wrote {self.path}: float and {fx.fmt} fixed point (matrix 2^-{fx.matrix_frac_bits}); inputs "
-                f"|m| ≤ {fx.input_range:.6g}{unit}; fixed-point error ≤ {fx.error_bound:.3g}{h_unit} "
-                f"({fx.error_bound_lsb:.2f} LSB); {len(self.inputs_q)} test vectors")
+        said = []
+        if self.fixed is not None:
+            fx, u, hu = self.fixed, self.fixed.calibration.units, self.fixed.calibration.h_units
+            unit, h_unit = f" {u}" if u else "", f" {hu}" if hu else ""
+            said.append(f"float and {fx.fmt} fixed point (matrix 2^-{fx.matrix_frac_bits}); inputs "
+                        f"|m| ≤ {fx.input_range:.6g}{unit}; fixed-point error ≤ {fx.error_bound:.3g}{h_unit} "
+                        f"({fx.error_bound_lsb:.2f} LSB); {len(self.inputs_q)} test vectors")
         if self.kalman is not None:
-            text += (f"; AR({self.kalman.order}) Kalman coefficients (signal {signal_format(self.kalman.frac_bits)})"
-                     f" with a {len(self.kalman_test[0])}-sample bit-exact test vector")
-        return text
+            said.append(f"AR({self.kalman.order}) Kalman filter in C99 (signal {signal_format(self.kalman.frac_bits)})"
+                        f" with a {len(self.kalman_test[0])}-sample bit-exact test vector")
+        if self.drift is not None:
+            orders = ", ".join(str(int(seg["order"])) for seg in self.drift.segments)
+            said.append(f"drift f({'T' if self.drift.regressor == 'temp' else 'T - T_outside'}) in "
+                        f"{len(self.drift.segments)} temperature range(s) (orders {orders}) with a test vector")
+        return f"wrote {self.path}: " + "; ".join(said)
 
 
 def _c_name(name: str) -> str:
@@ -435,19 +508,48 @@ def _rows(values, fmt, indent="  ") -> str:
     return ",\n".join(indent + "{" + ", ".join(fmt(v) for v in row) + "}" for row in values)
 
 
-def export_c(cal: Calibration, path, q_format=None, name: str | None = None, kalman=None,
+def export_c(cal: Calibration | None, path, q_format=None, name: str | None = None, kalman=None, drift=None,
              source: str = "") -> ExportResult:
-    """Write the firmware header (module docstring). `kalman`: a FixedArKalman, or a JSON path for
-    `load_kalman`. Returns what was written (ExportResult.describe() says it in one line)."""
+    """Write the firmware header (module docstring). `cal`: a Calibration, or None for a header of the drift
+    part alone; `kalman`: a FixedArKalman, or a JSON path for `load_kalman`; `drift`: a DriftModel or its JSON
+    path (f(T) in C). Returns what was written (ExportResult.describe() says it in one line)."""
     from . import __version__
     from ._arrays import require_calibration
     from .kalman import FixedArKalman
 
-    require_calibration(cal, "cal")
+    if cal is None and kalman is None and drift is None:
+        raise ValueError("export-c: nothing to export: give a calibration, a Kalman filter (--kalman) or a drift "
+                         "model (--drift)")
+    if cal is not None:
+        require_calibration(cal, "cal")
     if kalman is not None and not isinstance(kalman, (str, Path, FixedArKalman)):
         raise TypeError(f"kalman: expected a FixedArKalman or the path of its JSON, got {type(kalman).__name__}")
     path = Path(path)
     name = _c_name(name if name is not None else default_name(path))
+    up = name.upper()
+    i32 = lambda v: str(int(v)) if v != INT32_MIN else "INT32_MIN"  # noqa: E731
+    result = ExportResult(path)
+    parts = []
+    if cal is not None:
+        lines, result.fixed, result.inputs_q = _calibration_part(cal, name, q_format, i32)
+        parts.append(("magnetometer calibration", lines))
+    if kalman is not None:
+        lines, result.kalman, result.kalman_test = _kalman_part(kalman, name, i32)
+        parts.append(("fixed-point Kalman filter", lines))
+    if drift is not None:
+        lines, result.drift = _drift_part(drift, name)
+        parts.append(("temperature drift compensation", lines))
+    head = [f"/* {path.name}: {' and '.join(what for what, _ in parts)} for firmware, written by fluxcal "
+            f"{__version__}" + (f" from {source}." if source else "."),
+            " * C99, also valid C++; every function is static inline. */",
+            f"#ifndef {up}_H", f"#define {up}_H", "", "#include <stdint.h>"]
+    body = [line for _, lines in parts for line in ["", *lines]]
+    path.write_text("\n".join(head + body + ["", f"#endif /* {up}_H */", ""]))
+    return result
+
+
+def _calibration_part(cal: Calibration, name: str, q_format, i32):
+    """The header lines of the magnetometer correction, its FixedCalibration and test inputs."""
     up = name.upper()
     fx = fixed_point(cal, q_format)
     inputs_q = vector_inputs(fx)
@@ -464,11 +566,8 @@ def export_c(cal: Calibration, path, q_format=None, name: str | None = None, kal
     u = f" {cal.units}" if cal.units else ""
     hu = f" {cal.h_units}" if cal.h_units else ""  # h is in the field norm's unit (µT from counts, say)
     n, na, lsb = fx.fmt.frac_bits, fx.matrix_frac_bits, fx.fmt.lsb
-    i32 = lambda v: str(int(v)) if v != INT32_MIN else "INT32_MIN"  # noqa: E731
     lines = [
-        f"/* {path.name}: magnetometer calibration for firmware, written by fluxcal {__version__}"
-        + (f" from {source}." if source else "."),
-        " *",
+        "/* ---- Magnetometer calibration ----",
         f" * Model: h = A (m - b). m: a raw reading in {units}; h: the corrected field, |h| = {cal.field_norm:.9g}{hu}"
         f" in the calibration field.",
         f" * Float: {name}_apply_float(m, h): A and b in float (single precision). On the test vector it",
@@ -492,7 +591,6 @@ def export_c(cal: Calibration, path, q_format=None, name: str | None = None, kal
         f" *   float {up}_FLOAT_REL_TOL relative as above, fixed {up}_FIXED_TOL_LSB LSB (E plus the rounding of",
         " *   the expected value to the grid); a saturated test vector counts as a miss.",
         " */",
-        f"#ifndef {up}_H", f"#define {up}_H", "", "#include <stdint.h>", "",
         f"#define {up}_FIELD_NORM {_float_literal(cal.field_norm)}",
         f"#define {up}_Q_INT_BITS {fx.fmt.int_bits}",
         f"#define {up}_Q_FRAC_BITS {n}",
@@ -567,32 +665,33 @@ def export_c(cal: Calibration, path, q_format=None, name: str | None = None, kal
         "  return misses;",
         "}",
     ]
-    result = ExportResult(path, fx, inputs_q)
-    if kalman is not None:
-        f = load_kalman(kalman) if isinstance(kalman, (str, Path)) else kalman
-        if f.frac_bits is None:
-            raise ValueError("kalman: the filter's signal format (frac_bits) is not set")
-        y_int, out, overflowed = _kalman_test_vector(f)
-        if overflowed:
-            raise ValueError("kalman: the filter saturates on its own test signal; check its fraction bits")
-        kname = f"{name}_kalman"
-        with tempfile.TemporaryDirectory() as tmp:  # reuse FixedArKalman's own header writer
-            coefficients = f.export_header(Path(tmp) / "kalman.h", name=kname).read_text()
-        lines += [
-            "", f"/* ---- Fixed-point AR({f.order}) Kalman filter (fluxcal.kalman.FixedArKalman) ----",
-            f" * C:   {kname}_t f; {kname}_reset(&f); then y_hat = {kname}_step(&f, y) per sample (int32, signal",
-            f" *      format 2^-{kname.upper()}_SIGNAL_FRAC_BITS); f.overflow says whether anything saturated.",
-            " * C++: fluxcal::FixedArKalman<MaxOrder> of cpp/include/fluxcal/fixed_kalman.hpp, configured from these",
-            " *      coefficients, runs the same arithmetic.",
-            f" * Either, fed {kname}_test_input, returns {kname}_test_output bit for bit (fluxcal's",
-            f" * FixedArKalman.filter_int computed them); {kname}_self_test() checks it (0 = pass). */",
-            coefficients.rstrip("\n"),
-            f"#define {kname.upper()}_TEST_COUNT {len(y_int)}",
-            f"static const int32_t {kname}_test_input[{len(y_int)}] = {{{', '.join(i32(v) for v in y_int)}}};",
-            f"static const int32_t {kname}_test_output[{len(out)}] = {{{', '.join(i32(v) for v in out)}}};",
-            _KALMAN_C.replace("KNAME", kname).replace("KUP", kname.upper()).strip("\n"),
-        ]
-        result.kalman, result.kalman_test = f, (y_int, out)
-    lines += ["", f"#endif /* {up}_H */", ""]
-    path.write_text("\n".join(lines))
-    return result
+    return lines, fx, inputs_q
+
+
+def _kalman_part(kalman, name: str, i32):
+    """The header lines of the fixed-point AR Kalman filter (coefficients, C99 filter, test vector), the filter
+    and its test (input, output)."""
+    f = load_kalman(kalman) if isinstance(kalman, (str, Path)) else kalman
+    if f.frac_bits is None:
+        raise ValueError("kalman: the filter's signal format (frac_bits) is not set")
+    y_int, out, overflowed = _kalman_test_vector(f)
+    if overflowed:
+        raise ValueError("kalman: the filter saturates on its own test signal; check its fraction bits")
+    kname = f"{name}_kalman"
+    with tempfile.TemporaryDirectory() as tmp:  # reuse FixedArKalman's own header writer
+        coefficients = f.export_header(Path(tmp) / "kalman.h", name=kname).read_text()
+    lines = [
+        f"/* ---- Fixed-point AR({f.order}) Kalman filter (fluxcal.kalman.FixedArKalman) ----",
+        f" * C:   {kname}_t f; {kname}_reset(&f); then y_hat = {kname}_step(&f, y) per sample (int32, signal",
+        f" *      format 2^-{kname.upper()}_SIGNAL_FRAC_BITS); f.overflow says whether anything saturated.",
+        " * C++: fluxcal::FixedArKalman<MaxOrder> of cpp/include/fluxcal/fixed_kalman.hpp, configured from these",
+        " *      coefficients, runs the same arithmetic.",
+        f" * Either, fed {kname}_test_input, returns {kname}_test_output bit for bit (fluxcal's",
+        f" * FixedArKalman.filter_int computed them); {kname}_self_test() checks it (0 = pass). */",
+        coefficients.rstrip("\n"),
+        f"#define {kname.upper()}_TEST_COUNT {len(y_int)}",
+        f"static const int32_t {kname}_test_input[{len(y_int)}] = {{{', '.join(i32(v) for v in y_int)}}};",
+        f"static const int32_t {kname}_test_output[{len(out)}] = {{{', '.join(i32(v) for v in out)}}};",
+        _KALMAN_C.replace("KNAME", kname).replace("KUP", kname.upper()).strip("\n"),
+    ]
+    return lines, f, (y_int, out)

@@ -223,7 +223,7 @@ def test_kalman_coefficients_run_bit_exact_in_the_firmware_filter(tmp_path, stea
     header = tmp_path / "p.h"
     r = run_cli("export-c", CALS["nT"].save(tmp_path / "cal.json"), "-o", header, "--name", "p", "--kalman", saved)
     assert r.returncode == 0, r.stderr
-    assert "AR(3) Kalman coefficients" in r.stdout
+    assert "AR(3) Kalman filter in C99" in r.stdout
     outputs, mismatches = run_kalman_driver(tmp_path, header)
     assert mismatches == 0
     text = header.read_text()
@@ -348,3 +348,56 @@ def test_export_c_names_a_wrong_kalman(tmp_path):
         export_c(cal, tmp_path / "o.h", kalman=5)  # AttributeError: 'int' object has no attribute 'frac_bits'
     with pytest.raises(TypeError, match="cal: expected a fluxcal.Calibration"):
         export_c({"offset": [0, 0, 0]}, tmp_path / "o.h")
+
+
+DRIFT_DRIVER = r"""
+#include <stdio.h>
+#include "HEADER"
+int main(void) {
+  double temp, outside, f;
+  while (scanf("%lf %lf", &temp, &outside) == 2) {
+    const int outside_range = p_drift(temp, outside, &f);
+    printf("%d %.17g\n", outside_range, f);
+  }
+  printf("self_test %d\n", p_drift_self_test());
+  return 0;
+}
+"""
+
+
+@pytest.mark.parametrize("regressor", ["temp", "difference"])
+def test_drift_model_in_c_matches_the_model_and_needs_no_calibration(tmp_path, regressor):
+    """A FOCT's firmware gets f(T) per temperature range (and its Kalman filter) without a magnetometer."""
+    foct = sim.foct_zero_bias(rng=np.random.default_rng(1), hold_s=300, ramp_s=150, self_heating=3.0)
+    outside = foct.columns["temp_outside"] if regressor == "difference" else None
+    model, _ = drift.fit_pipeline(foct.columns["zero_bias"], foct.columns["temp"], outside, regressor=regressor)
+    saved = model.save(tmp_path / "drift.json")
+    header = tmp_path / "p.h"
+    r = run_cli("export-c", "-o", header, "--name", "p", "--drift", saved, "--kalman", saved)
+    assert r.returncode == 0, r.stderr
+    assert f"drift f({'T' if regressor == 'temp' else 'T - T_outside'}) in {len(model.segments)} temperature range" \
+        in r.stdout and "Kalman filter in C99" in r.stdout and "magnetometer" not in header.read_text()[:200]
+    source = tmp_path / "drift.c"
+    source.write_text(DRIFT_DRIVER.replace("HEADER", header.name))
+    exe = tmp_path / "drift"
+    subprocess.run([compiler(), "-std=c99", "-pedantic", "-Wall", "-Wextra", "-Werror", "-O2", f"-I{tmp_path}",
+                    str(source), "-o", str(exe)], check=True)
+    lo, hi = model.segments[0]["range"][0], model.segments[-1]["range"][1]
+    temps = np.concatenate([np.random.default_rng(5).uniform(lo, hi, 200), [lo, hi, lo - 0.01, hi + 0.01]])
+    outs = temps - np.random.default_rng(6).uniform(0.0, 10.0, temps.size)
+    run = subprocess.run([str(exe)], input="".join(f"{t:.17g} {o:.17g}\n" for t, o in zip(temps, outs)),
+                         capture_output=True, text=True, check=True)
+    lines = run.stdout.split("\n")
+    flags = np.array([int(line.split()[0]) for line in lines[:-2]])
+    values = np.array([float(line.split()[1]) for line in lines[:-2]])
+    assert lines[-2] == "self_test 0"
+    np.testing.assert_array_equal(flags, [0] * 202 + [1, 1])  # outside every range: said, not extrapolated
+    expected = model.evaluate(temps[:202], outs[:202] if regressor == "difference" else None)
+    np.testing.assert_allclose(values[:202], expected, rtol=1e-12, atol=1e-12 * np.abs(expected).max())
+    assert np.all(values[202:] == 0.0)
+
+
+def test_export_c_needs_something_to_export(tmp_path):
+    r = run_cli("export-c", "-o", tmp_path / "p.h")
+    assert r.returncode == 2 and "nothing to export" in r.stderr and "Traceback" not in r.stderr, r.stderr
+    assert not (tmp_path / "p.h").exists()
