@@ -396,6 +396,7 @@ def _drift_part(drift, name: str):
         "/* ---- Temperature drift of the zero bias (fluxcal drift fit) ----",
         f" * f = sum_i c_i x^i with x = {x} (degrees C), the polynomial of the range that holds the device",
         " * temperature temp: lo <= temp < hi (the last range includes its hi). Compensated: W_c = W - f.",
+        " * The same model's Kalman filter (--kalman) runs on W_c, the noise about the drift, in its signal format.",
         f" * {dname}(temp, temp_outside, &f) returns 0, or 1 when temp is outside every range (f = 0 then: a",
         f" * polynomial is not extrapolated){'' if model.regressor == 'difference' else '; temp_outside is unused'}.",
         f" * {dname}_self_test() compares the test temperatures with fluxcal's values (0 = pass). */",
