@@ -179,3 +179,24 @@ def magnetic_frame(field, down) -> np.ndarray:
     north = np.where(size > 1e-9 * np.linalg.norm(f, axis=1, keepdims=True), north, np.cross(d, other))
     north /= np.linalg.norm(north, axis=1, keepdims=True)
     return np.stack([north, np.cross(d, north), d], axis=1)
+
+
+def axis_remapping(matrix, tolerance: float = 0.25):
+    """(P, text, mirror) when `matrix` is a relabelling of axes: within `tolerance` (of its mean scale, every
+    entry) of a signed permutation P that is not the identity; else None. text names the mapping, row by row:
+    "+y, +x, +z" says row x takes the other frame's +y; mirror: det P = −1 (the frames differ in handedness).
+    The fits that determine the full matrix (vector fit, positions) find a mislabelled or differently mounted
+    axis this way; the model absorbs it, but the user should know it is there."""
+    m = np.asarray(matrix, dtype=float)
+    if m.shape != (3, 3) or not np.all(np.isfinite(m)):
+        return None
+    cols = np.abs(m).argmax(axis=1)
+    if len(set(cols.tolist())) != 3:
+        return None
+    P = np.zeros((3, 3))
+    P[np.arange(3), cols] = np.sign(m[np.arange(3), cols])
+    scale = float(np.mean(np.abs(m[np.arange(3), cols])))
+    if np.array_equal(P, np.eye(3)) or not scale > 0 or np.abs(m / scale - P).max() > tolerance:
+        return None
+    text = ", ".join(f"{'+' if P[i, c] > 0 else '-'}{'xyz'[c]}" for i, c in enumerate(cols))
+    return P, text, bool(np.linalg.det(P) < 0)

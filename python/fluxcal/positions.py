@@ -38,6 +38,7 @@ import numpy as np
 
 from . import _core
 from ._arrays import as_samples, set_options, units_text
+from .attitude import axis_remapping
 
 FRAMES = ("ned", "nue")
 _FRAME = {"ned": _core.Frame.ned, "nue": _core.Frame.nue}
@@ -371,6 +372,13 @@ def fit(mag, reference, units: str = "", frame: str = "ned") -> PositionsResult:
 def _result(d: dict, frame: str) -> PositionsResult:
     local = np.asarray(d["field"], dtype=float)
     field_ned = _NED_TO_LOCAL[frame].T @ local
+    remapped = axis_remapping(d["K"])
+    if remapped:  # K absorbs it, but differently labelled axes deserve a word (SAP6's mag +X+Y-Z, grav -Y-X+Z)
+        d = dict(d, summary=dict(d["summary"], warnings=list(d["summary"]["warnings"]) + [
+            f"K is an axis relabelling: the magnetometer's x, y, z read the field's {remapped[1]} in the "
+            "accelerometer's axes" + (" (a mirror: the two frames differ in handedness)" if remapped[2] else "")
+            + ". The two sensors' axes are labelled (or mounted) differently; K includes the remapping, so the "
+            "calibration holds, but check the chips' axis conventions if this is unexpected"]))
     return PositionsResult(offset=np.asarray(d["offset"]), K=np.asarray(d["K"]), frame=frame, field_ned=field_ned,
                            yaw_deg=np.degrees(np.asarray(d["yaw"])), rotations=_rotations(d["rotations"]),
                            reference=np.asarray(d["reference"]), residuals=np.asarray(d["residuals"]),

@@ -14,6 +14,7 @@ import numpy as np
 
 from . import _core
 from ._arrays import as_samples, require_calibration, set_options, units_text
+from .attitude import axis_remapping
 from .calibration import Calibration
 
 LOSSES = {"none": _core.Loss.none, "huber": _core.Loss.huber, "cauchy": _core.Loss.cauchy}
@@ -127,4 +128,11 @@ def fit_vector(samples, reference, units: str = "", loss: str = "none", loss_sca
     cal = _calibration(_core.fit_vector(m, r, _options(units=units, **settings)), "vector")
     if loss != "none":
         cal = refine(cal, m, reference=r, loss=loss, loss_scale=loss_scale, **settings)
+    remapped = axis_remapping(cal.matrix)
+    if remapped:  # the fit holds, but a sensor mounted rotated, or a reference in other axes, deserves a word
+        cal.summary["warnings"] = list(cal.summary["warnings"]) + [
+            f"the matrix is an axis relabelling: the reference's x, y, z are the sensor's {remapped[1]}"
+            + (" (a mirror: the two frames differ in handedness)" if remapped[2] else "")
+            + ". The sensor is mounted rotated, or the reference is written in other axes (check the attitude "
+            "convention); the matrix includes the remapping, so the calibration holds"]
     return cal

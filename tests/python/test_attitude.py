@@ -290,3 +290,30 @@ def test_bad_vectors_and_angles_are_named():
         with pytest.raises(ValueError, match=message):
             call()
     np.testing.assert_allclose(positions.field_from_inclination(52200, 52), [32137.529012, 0, 41134.161338])
+
+
+def test_an_axis_relabelling_is_named_and_soft_iron_or_a_small_rotation_is_not():
+    from fluxcal.attitude import axis_remapping
+
+    swap = np.array([[0.0, 1.02, 0.03], [0.98, -0.02, 0.0], [0.01, 0.0, -1.01]])
+    P, text, mirror = axis_remapping(swap)
+    assert text == "+y, +x, -z" and not mirror and np.array_equal(P, [[0, 1, 0], [1, 0, 0], [0, 0, -1]])
+    assert axis_remapping(np.diag([1.0, 1.0, -1.0]))[1:] == ("+x, +y, -z", True)
+    soft = np.eye(3) + 0.1 * np.random.default_rng(0).uniform(-1, 1, (3, 3))
+    assert axis_remapping(soft) is None
+    assert axis_remapping(Rotation.from_euler("z", 30, degrees=True).as_matrix()) is None
+    assert axis_remapping(Rotation.from_euler("z", 90, degrees=True).as_matrix())[1] == "-y, +x, +z"
+    assert axis_remapping(np.full((3, 3), np.nan)) is None
+
+
+def test_the_vector_fit_says_when_the_sensor_axes_are_the_references_relabelled():
+    rng = np.random.default_rng(4)
+    r = rng.standard_normal((400, 3))
+    r *= 50.0 / np.linalg.norm(r, axis=1, keepdims=True)
+    W = np.eye(3) + 0.03 * rng.uniform(-1, 1, (3, 3))
+    m = r @ W.T + [5.0, -3.0, 2.0] + 0.05 * rng.standard_normal(r.shape)
+    plain = fluxcal.fit_vector(m, r, units="uT")
+    assert not any("relabelling" in w for w in plain.summary["warnings"])
+    mounted = fluxcal.fit_vector(m[:, [1, 0, 2]] * [1, -1, 1], r, units="uT")  # x and −y swapped
+    assert any("the reference's x, y, z are the sensor's -y, +x, +z" in w for w in mounted.summary["warnings"])
+    np.testing.assert_allclose(mounted.apply(m[:, [1, 0, 2]] * [1, -1, 1]), plain.apply(m), atol=1e-9)

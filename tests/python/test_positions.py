@@ -384,3 +384,19 @@ def test_cli_positions_igrf_unknown_headings(tmp_path):
     assert bad_date.returncode == 2 and "outside the IGRF model" in bad_date.stderr
     with pytest.raises(ValueError, match="outside the IGRF model"):  # ppigrf would hold the 2030 field silently
         fp.reference_field(lat=48.1, lon=11.6, date="2031-06-01")
+
+
+def test_sap6_raw_axes_are_named_as_a_relabelling(real_data):
+    """SAP6's magnetometer and accelerometer axes are labelled differently (its .cfg: mag +X+Y-Z, grav -Y-X+Z).
+    Fed the raw shots, K absorbs the remapping and the result says so; with the maker's axes it does not."""
+    r = run_cli("positions", str(real_data / "sap6" / "BB.json"), "--total", "43.38", "--inclination", "67.8")
+    assert r.returncode == 0, r.stderr
+    assert "K is an axis relabelling: the magnetometer's x, y, z read the field's +y, +x, +z in the accelerometer's " \
+           "axes (a mirror: the two frames differ in handedness)" in r.stdout, r.stdout
+    shots = json.loads((real_data / "sap6" / "BB.json").read_text())
+    cfg = json.loads((real_data / "sap6" / "BB.cfg").read_text())["calib"]
+    mag = _fix_axes(np.array(shots["mag"], float), cfg["mag"]["axes"])
+    grav = _fix_axes(np.array(shots["grav"], float), cfg["grav"]["axes"])
+    res = fp.calibrate(mag, grav, fp.reference_field(total=43.38, inclination=67.8), acc_measures="gravity",
+                       gravity_tolerance=0.1, units="uT")
+    assert not any("relabelling" in w for w in res.summary["warnings"]), res.summary["warnings"]
