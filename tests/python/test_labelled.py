@@ -255,6 +255,15 @@ def test_arduino_sketch_captures_with_a_banner(tmp_path):
     np.testing.assert_allclose(rec.samples(), m, atol=0.005)
     assert rec.metadata["preamble"] == ("line 1: Started; line 2: Magnetic field sample rate = 20.00 Hz; "
                                         "line 4: Magnetic Field in uT")
+    # a title line above a header with a units row under it ("line 2: 4 fields, the header has 2" before)
+    for units_row in ("s,uT,uT,uT", "[s],[uT],[uT],[uT]"):
+        text = "Bench log, sensor 3\nt,mx,my,mz\n" + units_row + "\n" + "".join(
+            f"{k / 10:.1f},{x:.2f},{y:.2f},{z:.2f}\n" for k, (x, y, z) in enumerate(m))
+        (tmp_path / "titled.csv").write_text(text)
+        rec = read_recording(tmp_path / "titled.csv")
+        np.testing.assert_allclose(rec.samples(), m, atol=0.005)
+        assert rec.field_units() == "uT" and rec.units["t"] == "s" and len(rec) == len(m)
+        assert rec.metadata["preamble"] == "line 1: Bench log, sensor 3"
 
 
 def test_hyphenated_labels_and_an_is_sentence_with_mg_beside_mG(tmp_path):

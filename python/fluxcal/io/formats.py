@@ -42,6 +42,7 @@ from pathlib import Path
 
 from .csv import (_decimal_comma_columns, readable_file, _is_number, comment_text, data_lines, decimal_points, is_comment, parse_csv,
                   listing, read_csv, read_text, write_csv, OTHER_WRITERS)
+from .columns import is_unit
 from .recording import Recording
 
 WRITERS = (".csv",) + OTHER_WRITERS
@@ -255,7 +256,8 @@ def _read_table(path: Path, columns, units, bad_lines: str = "error") -> Recordi
 def _title_lines(lines, start: int, delimiter) -> int:
     """How many lines of free text (a title, a start-up banner) come before a header that names the columns of
     the data under it: 0 when the first line already has as many fields as the data. The header is the first
-    line of as many fields, all names, with a row of mostly numbers after it."""
+    line of as many fields, all names, with a row of mostly numbers after it (or after a row of units under
+    the names: `s,uT,uT,uT`)."""
     def cells(line):
         return [c.strip() for c in (line.split(delimiter) if delimiter else line.split())]
 
@@ -265,8 +267,10 @@ def _title_lines(lines, start: int, delimiter) -> int:
     width = Counter(len(cells(lines[k])) for k in body[len(body) // 2:]).most_common(1)[0][0]
     if width < 2 or len(cells(lines[start])) == width:
         return 0
-    for here, after in zip(body[:30], body[1:31]):
-        c, d = cells(lines[here]), cells(lines[after])
+    for k, here in enumerate(body[:min(30, len(body) - 1)]):
+        c, d = cells(lines[here]), cells(lines[body[k + 1]])
+        if len(d) == width and all(is_unit(x) for x in d if x) and k + 2 < len(body):  # a units row: the data after
+            d = cells(lines[body[k + 2]])
         if len(c) == width and all(x and not _is_number(x) for x in c):
             return here - start if len(d) == width and 2 * sum(_is_number(x) for x in d) >= width else 0
     return 0
