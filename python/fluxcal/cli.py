@@ -221,6 +221,8 @@ def write_output(path, rec: Recording) -> None:
 def cmd_simulate(args) -> int:
     from . import sim
 
+    if args.effects is not None:
+        return _simulate_effects(args)
     rng = np.random.default_rng(args.seed)
     field = args.field_norm * np.array([0.4, 0.05, 0.915]) / np.linalg.norm([0.4, 0.05, 0.915])
     effects = sim.random_sensor(args.field_norm, rng, noise=args.noise)
@@ -234,6 +236,39 @@ def cmd_simulate(args) -> int:
     write_output(args.output, Recording(columns=cols, units={"t": "s", **{c: args.units for c in ("mx", "my", "mz")}},
                                         metadata=meta, source=str(args.output)))
     print(f"wrote {args.output}: {args.n} readings, field {args.field_norm:g} {args.units}")
+    return 0
+
+
+def _simulate_effects(args) -> int:
+    """`simulate --effects`: a withheld-effect trial (fluxcal.sim.withheld) written with every column the
+    diagnosis reads — t, temp, and the current, reference vectors (rx, ry, rz) and accelerometer where the
+    effects need them."""
+    from .sim.withheld import withheld_trial
+
+    from .sim.effects import CANDIDATES
+
+    names = [] if args.effects.strip() == "none" else [n.strip() for n in args.effects.split(",") if n.strip()]
+    unknown = [n for n in names if n not in {c.name for c in CANDIDATES}]
+    if unknown:
+        raise ValueError(f"--effects: unknown effect(s) {', '.join(unknown)} (the candidates: "
+                         f"{', '.join(c.name for c in CANDIDATES)}; or none)")
+    simulation, kw = withheld_trial(names, seed=args.seed)
+    m = simulation.readings
+    cols = {"t": kw["t"], "mx": m[:, 0], "my": m[:, 1], "mz": m[:, 2], "temp": kw["temp"]}
+    units = {"t": "s", "mx": "uT", "my": "uT", "mz": "uT", "temp": "C"}
+    if "current" in kw:
+        cols["current"], units["current"] = kw["current"], "A"
+    for key, names_ in (("reference", ("rx", "ry", "rz")), ("gravity", ("ax", "ay", "az"))):
+        if key in kw:
+            cols.update(zip(names_, np.asarray(kw[key]).T))
+            units.update(dict.fromkeys(names_, "uT" if key == "reference" else "m/s^2"))
+    meta = {"simulated": f"fluxcal {__version__} withheld-effect trial, seed {args.seed}",
+            "effects": ", ".join(names) or "none", "field_norm": f"{kw['field_norm']:.10g}",
+            "model": kw["model"]}
+    write_output(args.output, Recording(columns=cols, units=units, metadata=meta, source=str(args.output)))
+    hint = f" --model {kw['model']} --reference rx,ry,rz" if "reference" in kw else ""
+    print(f"wrote {args.output}: {len(m)} readings ({cols['t'][-1] + cols['t'][1]:g} s), effects: "
+          f"{meta['effects']}; try: fluxcal diagnose {args.output}{hint}")
     return 0
 
 
@@ -533,6 +568,11 @@ def build_parser() -> argparse.ArgumentParser:
     s.add_argument("--seed", type=int, default=0, help="random seed of the sensor's errors and the noise")
     s.add_argument("--field-norm", type=positive_number, default=50000.0, help="|field| (default 50000)")
     s.add_argument("--units", default="nT", help="unit of the field and the readings (default nT)")
+    s.add_argument("--effects", default=None,
+                   help="instead: a minute of a hand-turned sensor at 50 Hz in uT, with temperature, carrying these "
+                        "unmodelled effects (comma-separated names of `fluxcal diagnose`'s candidates; 'none' for "
+                        "none), to try the diagnosis on (fluxcal.sim.withheld; the truth in the file's metadata, "
+                        "--n/--noise/--field-norm/--units do not apply)")
     s.set_defaults(run=cmd_simulate)
 
     g = sub.add_parser("diagnose", help="find which unmodelled effect makes a recording depart from its model")

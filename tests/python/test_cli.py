@@ -270,3 +270,22 @@ def test_cli_names_bad_magnitudes_and_a_calibration_that_overflows(tmp_path):
     binary.write_bytes(b"\x82\xff\x00abc")
     r = run_cli("export-c", binary, "-o", tmp_path / "o.h")  # named the codec, not the file
     assert r.returncode == 2 and "binary.json: not a fluxcal calibration (byte 0x82 at offset 0 is not text)" in r.stderr
+
+
+def test_simulate_effects_writes_a_trial_the_diagnosis_reads(tmp_path):
+    """`simulate --effects` gives a CLI user a recording with a known unmodelled effect to try diagnose on."""
+    path = tmp_path / "w.csv"
+    r = run_cli("simulate", "-o", path, "--effects", "temp_offset", "--seed", "3")
+    assert r.returncode == 0 and "effects: temp_offset; try: fluxcal diagnose" in r.stdout, r.stderr
+    rec = fluxcal.read_recording(path)
+    assert rec.roles()["time"] == "t" and rec.roles()["temperature"] == "temp" and len(rec) == 3000
+    assert rec.metadata["effects"] == "temp_offset" and rec.field_units() == "uT"
+    d = run_cli("diagnose", path, "--quiet")
+    assert d.returncode == 0 and "FOUND: temp_offset" in d.stdout, d.stdout
+    vector = tmp_path / "v.csv"
+    r = run_cli("simulate", "-o", vector, "--effects", "misalignment", "--seed", "2")
+    assert "--model vector_scale --reference rx,ry,rz" in r.stdout
+    assert {"rx", "ry", "rz", "ax", "ay", "az"} <= set(fluxcal.read_recording(vector).columns)
+    bad = run_cli("simulate", "-o", tmp_path / "x.csv", "--effects", "temp_ofset")
+    assert bad.returncode == 2 and "--effects: unknown effect(s) temp_ofset (the candidates: temp_scale" in bad.stderr
+    assert not (tmp_path / "x.csv").exists()
