@@ -243,9 +243,8 @@ def _simulate_effects(args) -> int:
     """`simulate --effects`: a withheld-effect trial (fluxcal.sim.withheld) written with every column the
     diagnosis reads — t, temp, and the current, reference vectors (rx, ry, rz) and accelerometer where the
     effects need them."""
-    from .sim.withheld import withheld_trial
-
     from .sim.effects import CANDIDATES
+    from .sim.withheld import withheld_trial
 
     names = [] if args.effects.strip() == "none" else [n.strip() for n in args.effects.split(",") if n.strip()]
     unknown = [n for n in names if n not in {c.name for c in CANDIDATES}]
@@ -267,7 +266,8 @@ def _simulate_effects(args) -> int:
             "model": kw["model"]}
     write_output(args.output, Recording(columns=cols, units=units, metadata=meta, source=str(args.output)))
     hint = f" --model {kw['model']} --reference rx,ry,rz" if "reference" in kw else ""
-    print(f"wrote {args.output}: {len(m)} readings ({cols['t'][-1] + cols['t'][1]:g} s), effects: "
+    duration = len(m) * float(np.median(np.diff(kw["t"])))
+    print(f"wrote {args.output}: {len(m)} readings ({duration:g} s), effects: "
           f"{meta['effects']}; try: fluxcal diagnose {args.output}{hint}")
     return 0
 

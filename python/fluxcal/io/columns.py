@@ -205,11 +205,11 @@ def _single(names, kind_words, unit_table):
 def _named(names, kind_words, unit_table) -> list:
     """[(column name, unit word or None)] of every column whose words are kind_words (+ a unit)."""
     hits = []
+    owners = {"sensor", "die", "chip", "imu", "mag", "board"} | (CLOCK_WORDS if kind_words is TIME_WORDS else set())
     for name in names:
         if name == "T":  # time to some loggers, temperature to others: not guessed
             continue
         ws, unit = _peel_unit(words(name), unit_table)
-        owners = ("sensor", "die", "chip", "imu", "mag", "board") + (tuple(CLOCK_WORDS) if kind_words is TIME_WORDS else ())
         if ws and all(w in kind_words or w in owners for w in ws) and set(ws) & kind_words:
             hits.append((name, unit))
         elif len(ws) == 1 and ws[0] in ("timeus", "timems"):
