@@ -186,3 +186,22 @@ def test_positions_held_at_1_hz_are_no_times_in_ms():
         warnings.simplefilter("error")
         d = diagnose(result.readings, t=result.t, field_norm=50.0, candidates=[])
     assert not d.caveats
+
+
+def test_hard_clipping_is_named_saturation_and_its_censored_edge_is_not_a_cubic():
+    """A range too small for the field plus hard iron clips an axis at the ADC rail (8 % of the readings
+    here). It is said as such, and the readings just inside the rail, biased inwards because the noise that
+    would have taken them past it was cut, are left out with them: no compression is left for a cubic."""
+    sim_, kw = withheld_trial([], seed=5, duration_s=180.0)
+    m = sim_.readings.copy()
+    rail = float(np.quantile(m[:, 2], 0.92))
+    m[:, 2] = np.minimum(m[:, 2], rail)
+    d = diagnose(m, t=kw["t"], temp=kw["temp"], field_norm=kw["field_norm"], progress=False)
+    assert [c["axis"] for c in d.clipping] == ["z"] and d.clipping[0]["rail"] == rail
+    assert 0.07 < d.clipping[0]["fraction"] < 0.09
+    assert not d.accepted, d.accepted
+    assert "SATURATES (hard clipping): the sensor's range cuts its readings at z = " in d.text()
+    # a coarse ADC's extreme code is as full as its neighbours: not a rail
+    coarse = np.round(sim_.readings / 0.6) * 0.6
+    assert diagnose(coarse, t=kw["t"], temp=kw["temp"], field_norm=kw["field_norm"], progress=False,
+                            candidates=["quantization"]).clipping == []

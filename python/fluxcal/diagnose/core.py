@@ -60,6 +60,30 @@ class _Data:
     source: str
     notes: list = field(default_factory=list)  # what _prepare changed in the data, for the report
     current: np.ndarray | None = None  # A drawn near the sensor (motors, a heater)
+    clipping: list = field(default_factory=list)  # [{axis, rail, readings, fraction}]: the sensor's range clips
+
+
+CLIPPED = 0.005     # an axis at one extreme value in at least this fraction of the readings (and CLIPPED_MIN of them):
+CLIPPED_MIN = 20    # the sensor's range clips it (hard saturation), not a glitch
+PILE_UP = 4         # the extreme value holds more than this many times the readings of its inward neighbours
+CLIP_MARGIN = 3.0   # readings within this many noise σ inside a clipping rail are left out with it: the noise that
+                    # would have taken them past it was cut, so those left below are biased inwards (a compression)
+
+
+def _clipping(m: np.ndarray) -> list:
+    """[{axis, rail, readings, fraction}] for each axis whose readings pile up at its minimum or maximum: more
+    than PILE_UP times as many as on either of the next two values inward (a coarse ADC's extreme code is as
+    full as its neighbours; a rail collects everything beyond the range)."""
+    out = []
+    for axis, column in enumerate(np.ascontiguousarray(m.T)):
+        values, counts = np.unique(column, return_counts=True)
+        for end in (slice(None, 3), slice(-1, -4, -1)):
+            count, inward = int(counts[end][0]), counts[end][1:]
+            rail = float(values[end][0])
+            if count >= max(CLIPPED_MIN, CLIPPED * len(column)) and count > PILE_UP * max(inward, default=0):
+                out.append({"axis": "xyz"[axis], "rail": float(rail), "readings": count,
+                            "fraction": count / len(column)})
+    return out
 
 
 @dataclass
@@ -68,7 +92,8 @@ class Diagnosis:
     they were added), then the rest by ΔBIC; an accepted row may carry `confounded_with` (see
     `confounded`) and, for a move of the reference, the whole fitted move: `rotation_deg` (misalignment's
     rotation vector, degrees) or `delay_ms` (time_offset: the readings this late);
-    `limit` saturation's profiled limit (reading units; None: its cubic limit, L → ∞);
+    `limit` saturation's profiled limit (reading units; None: its cubic limit, L → ∞); `lag_s` a temperature
+    candidate's profiled lag (the sensing element's temperature: the logged one through a first-order lag);
     `on_s`/`off_s` give an event's box (moving_dipole, offset_step: first and last time within it, None at
     the recording's ends); an accepted offset_step's `jump`, `jump_s`, `back_s` the step as a jump (a box
     from the recording's start reverses the coefficients' sign); `found_with` names the effect a row was found together with (each passed its
@@ -109,6 +134,7 @@ class Diagnosis:
     base: Calibration
     series: dict = field(repr=False, default_factory=dict)  # per-reading arrays for the figures
     caveats: list = field(default_factory=list)  # what may make the findings untrustworthy (inputs, coverage)
+    clipping: list = field(default_factory=list)  # hard saturation: axes whose readings pile up at the range's end
 
     @property
     def significant(self) -> bool:
@@ -129,7 +155,7 @@ class Diagnosis:
         return {"source": self.source, "model": self.model, "units": self.units,
                 "noise_sigma": self.noise_sigma, "noise_source": self.noise_source,
                 "significant": self.significant, "accepted": self.accepted, "confounded": self.confounded,
-                "ranking": self.ranking,
+                "ranking": self.ranking, "clipping": self.clipping,
                 "where": self.where, "remaining": self.remaining, "caveats": self.caveats,
                 # the report's CANNOT TELL APART and MAYBE TEMPERATURE paragraphs, for readers of the JSON only
                 "explanations": confound_lines(self) + temperature_caveat(self)}
@@ -777,7 +803,7 @@ def _profile(cls, ctx, result: dict, Q: np.ndarray, e: np.ndarray, vector: bool)
     gains = [gain(v) for v in grid]
     i = int(np.argmax(gains))
     value = grid[i]
-    if np.isfinite(value):
+    if np.isfinite(value) and value > 0 and len(grid) > 1:  # (a one-point grid: nothing to refine)
         finite = grid[np.isfinite(grid)]
         j = int(np.searchsorted(finite, value))
         ratio = finite[1] / finite[0] if len(finite) > 1 else 2.0
@@ -1299,6 +1325,20 @@ def _prepare(samples, t, temp, reference, down, field_norm, units, source, curre
         temp, reference, down, current = (None if a is None else a[keep] for a in (temp, reference, down, current))
         notes.append(f"{int(copies.sum())} of {n} readings ({100 * copies.mean():.0f} %) repeat the previous one "
                      "exactly (sample and hold: the logger ran faster than the sensor) and were left out")
+    clipping = _clipping(m) if np.isfinite(m).all() else []
+    if clipping:  # hard saturation: what the range cut, and what the cut biased, carry no field to model
+        sigma = estimate_noise(m) if len(m) >= 20 else 0.0
+        near = np.zeros(len(m), dtype=bool)
+        for c in clipping:
+            column = m[:, "xyz".index(c["axis"])]
+            near |= np.abs(column - c["rail"]) <= CLIP_MARGIN * sigma
+        keep = ~near
+        clipped = "; ".join(f"{c['axis']} at {c['rail']:.6g}{' ' + units if units else ''} ({c['readings']} readings, "
+                            f"{100 * c['fraction']:.1f} %)" for c in clipping)
+        notes.append(f"the sensor's range clips the readings ({clipped}): those and the {int(near.sum()) - sum(c['readings'] for c in clipping)} "
+                     f"within {CLIP_MARGIN:g} σ of the rail (the cut noise biases them inwards) were left out")
+        m, t, rows = m[keep], t[keep], rows[keep]
+        temp, reference, down, current = (None if a is None else a[keep] for a in (temp, reference, down, current))
     if np.isfinite(m).all():
         # Glitches (0,0,0, ADC rails, spikes of ≤ 3 readings) are bad readings, not sensor physics: left
         # out as calibrate leaves them out. Longer stretches off the model stay: they are what the
@@ -1313,7 +1353,7 @@ def _prepare(samples, t, temp, reference, down, field_norm, units, source, curre
             temp, reference, down, current = (None if a is None else a[keep]
                                               for a in (temp, reference, down, current))
     return _Data(m, t, temp, reference, down, float(field_norm) if field_norm else 0.0, units, source, notes,
-                 current)
+                 current, clipping)
 
 
 def quantization_step(samples) -> float:
@@ -1590,4 +1630,4 @@ def diagnose(samples, t=None, temp=None, reference=None, gravity=None, field_nor
               "residual_after": e_final, "vector": vector}
     return Diagnosis(model=model, noise_sigma=sigma, noise_source=noise_source, units=units, source=source,
                      ranking=ranking, accepted=accepted, where=where, remaining=remaining, base=base_cal,
-                     series=series, caveats=caveats)
+                     series=series, caveats=caveats, clipping=data.clipping)

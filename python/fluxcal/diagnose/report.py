@@ -145,6 +145,13 @@ def text(d) -> str:
             "tried — slow correlated noise lowers ΔBIC, from the plain ratio, without being an effect; YES needs "
             "both, then the held-out test. Downstream: the calibrated field's error held out"
             + (f", {u.strip()}" if u.strip() else "") + "; --json gives each row's \"unmet\": the tests it fails.)", ""]
+    if d.clipping:
+        unit = f" {d.units}" if d.units else ""
+        out.append("SATURATES (hard clipping): the sensor's range cuts its readings at "
+                   + "; ".join(f"{c['axis']} = {c['rail']:.6g}{unit} ({c['readings']} readings, {100 * c['fraction']:.1f} %)"
+                               for c in d.clipping)
+                   + ". The field plus the hard iron exceeds the range: choose a wider range, or move the sensor from "
+                     "the iron. Those readings, and those just inside the rail, are left out of the model below.")
     if d.accepted:
         out.append(f"FOUND: {', '.join(d.accepted)} (added in this order)")
         for r in d.ranking:
@@ -158,6 +165,11 @@ def text(d) -> str:
                 out.append(f"  {r['effect']}: the readings {abs(r['delay_ms']):.2f} ms "
                            f"{'behind' if r['delay_ms'] > 0 else 'ahead of'} the reference vectors"
                            + ("" if r["delay_ms"] > 0 else " (no eddy current or filter leads: look at the timestamps)"))
+            if r.get("lag_s") is not None and r.get("step") is not None:
+                grid_floor = 1.5 * float(np.median(np.diff(d.series["t"]))) if len(d.series.get("t", [])) > 1 else 0.0
+                out.append(f"  {r['effect']}: " + (f"the sensing element's temperature lags the logged one by "
+                                                    f"{r['lag_s']:.3g} s (a first-order thermal time constant)"
+                                                    if r["lag_s"] > grid_floor else "no lag behind the logged temperature"))
             if r["effect"] == "offset_step" and r.get("step") is not None:
                 out.append("  " + offset_step_line(d, r))
             if r["effect"] == "moving_dipole" and r.get("peak_field") is not None:

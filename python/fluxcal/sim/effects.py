@@ -411,24 +411,71 @@ def _play(values: np.ndarray, width: np.ndarray) -> np.ndarray:
     return out
 
 
+def lagged(temp, t, lag_s: float) -> np.ndarray:
+    """`temp` through a first-order lag of time constant `lag_s` (in t's unit, s): the sensing element's own
+    temperature when the logged one is measured beside it, behind some thermal mass (a board thermistor, the
+    chamber's air). In equilibrium at the start; irregular steps and gaps are followed exactly."""
+    temp = np.asarray(temp, dtype=float)
+    if not lag_s > 0 or len(temp) < 2:
+        return temp
+    steps = np.diff(np.asarray(t, dtype=float))
+    step = float(np.median(steps))
+    if step > 0 and np.all(np.abs(steps - step) <= 1e-3 * step):  # evenly sampled: one recursive filter
+        a = 1.0 - np.exp(-step / lag_s)
+        return lfilter([a], [1.0, a - 1.0], temp, zi=[(1.0 - a) * temp[0]])[0]
+    keep = np.exp(-np.clip(steps, 0.0, None) / lag_s)
+    out = np.empty_like(temp)
+    out[0] = temp[0]
+    for i, k in enumerate(keep, start=1):
+        out[i] = k * out[i - 1] + (1.0 - k) * temp[i]
+    return out
+
+
+class _TemperatureLag:
+    """A temperature candidate's lag, profiled (`profile_name`): the logged temperature is seldom the
+    sensing element's, which follows it with a thermal time constant. The grid runs from about one sample
+    interval (no lag) to a third of the recording; a lag the data cannot tell from none costs one
+    parameter and gains nothing."""
+
+    profile_name = "lag_s"
+    LAGS = 12  # grid values of the lag (then refined between grid points)
+
+    @classmethod
+    def profile_grid(cls, ctx):
+        t = np.asarray(ctx.t, dtype=float)
+        span = float(np.ptp(t)) if len(t) > 1 else 0.0
+        step = float(np.median(np.abs(np.diff(t)))) if len(t) > 1 else 0.0
+        if not (span > 0 and step > 0) or span / 3 <= step:
+            return np.array([0.0])
+        return np.geomspace(step, span / 3, cls.LAGS)
+
+    @classmethod
+    def features(cls, ctx):
+        return cls.features_at(ctx, 0.0)
+
+
 @dataclass
-class TemperatureScale(Effect):
-    """Sensitivity drift with temperature: s_k (1 + α_k (T − T0)), α in 1/°C. Typical: ±0.1 %/°C
+class TemperatureScale(_TemperatureLag, Effect):
+    """Sensitivity drift with temperature: s_k (1 + α_k (T − T0)), α in 1/°C, T the sensing element's
+    temperature: the logged one through a first-order lag `lag_s` (s; 0: the logged one). Typical: ±0.1 %/°C
     (QMC5883L/HMC5883L class without compensation; RM3100 ≈ 0.03 %/°C)."""
 
     alpha: np.ndarray
     t0: float = 25.0
+    lag_s: float = 0.0
     name = "temp_scale"
     n_params = 3
     regime = "temperature"
     needs = ("temp",)
 
     def apply(self, values, context):
-        return values * (1.0 + np.outer(context.temp - self.t0, self.alpha))
+        temp = lagged(context.temp, context.t, self.lag_s)
+        return values * (1.0 + np.outer(temp - self.t0, self.alpha))
 
     @classmethod
-    def features(cls, ctx):
-        return _per_axis(ctx.signal * (ctx.temp - ctx.temp.mean())[:, None])
+    def features_at(cls, ctx, value):
+        temp = lagged(ctx.temp, ctx.t, value)
+        return _per_axis(ctx.signal * (temp - temp.mean())[:, None])
 
     @classmethod
     def typical(cls, field_norm, rng):
@@ -436,23 +483,25 @@ class TemperatureScale(Effect):
 
 
 @dataclass
-class TemperatureOffset(Effect):
-    """Offset drift with temperature: m + β (T − T0), β in reading units per °C. Typical: ±0.02–0.04 %
-    of the Earth's field per °C (QMC5883L/HMC5883L class: ≈ 10–20 nT/°C)."""
+class TemperatureOffset(_TemperatureLag, Effect):
+    """Offset drift with temperature: m + β (T − T0), β in reading units per °C, T the sensing element's
+    temperature (the logged one through a first-order lag `lag_s`, s). Typical: ±0.02–0.04 % of the
+    Earth's field per °C (QMC5883L/HMC5883L class: ≈ 10–20 nT/°C)."""
 
     beta: np.ndarray
     t0: float = 25.0
+    lag_s: float = 0.0
     name = "temp_offset"
     n_params = 3
     regime = "temperature"
     needs = ("temp",)
 
     def apply(self, values, context):
-        return values + np.outer(context.temp - self.t0, self.beta)
+        return values + np.outer(lagged(context.temp, context.t, self.lag_s) - self.t0, self.beta)
 
     @classmethod
-    def features(cls, ctx):
-        return _offset_along(ctx.temp)
+    def features_at(cls, ctx, value):
+        return _offset_along(lagged(ctx.temp, ctx.t, value))
 
     @classmethod
     def typical(cls, field_norm, rng):
