@@ -13,6 +13,8 @@ namespace fluxcal {
 
 namespace {
 
+constexpr double kUnitRoot = 0.98;  // whitening AR coefficients summing above this: a near random walk
+
 // Vandermonde matrix [1 x … x^m] and the column scales s_i = max_j |x_j^i| that balance it.
 Eigen::MatrixXd vandermonde(const Eigen::VectorXd& x, int order) {
   Eigen::MatrixXd v(x.size(), order + 1);
@@ -39,6 +41,37 @@ int segment_of(const std::vector<double>& edges, double t) {
   for (int s = 0; s < k; ++s)
     if (t >= edges[s] && (t < edges[s + 1] || (s == k - 1 && t <= edges[s + 1]))) return s;
   return -1;
+}
+
+std::string edges_name(const std::vector<double>& edges) {
+  std::ostringstream o;
+  o << "[";
+  for (std::size_t i = 0; i < edges.size(); ++i) o << (i ? ", " : "") << edges[i];
+  o << "]";
+  return o.str();
+}
+
+// The range edges made to cover the temperatures: the outer edges at the coldest and hottest sample (the
+// polynomials hold where they were fitted and no further), the inner edges that fall inside the data kept,
+// and a range with fewer than min_samples samples joined to its thinner neighbour. The default edges
+// (−20, 0, 30, 50 °C: seed 001's chamber) then serve any chamber cycle or outdoor record.
+std::vector<double> covering_edges(const SeriesRef& select, const std::vector<double>& given, int min_samples) {
+  const double lo = select.minCoeff(), hi = select.maxCoeff();
+  if (!(hi > lo)) return given;  // one temperature: no range to cover (the fit says what is wrong)
+  std::vector<double> edges{lo};
+  for (std::size_t i = 1; i + 1 < given.size(); ++i)
+    if (given[i] > lo && given[i] < hi) edges.push_back(given[i]);
+  edges.push_back(hi);
+  while (edges.size() > 2) {
+    std::vector<int> counts(edges.size() - 1, 0);
+    for (Eigen::Index i = 0; i < select.size(); ++i) ++counts[static_cast<std::size_t>(segment_of(edges, select[i]))];
+    const auto thinnest = std::min_element(counts.begin(), counts.end());
+    if (*thinnest >= min_samples) break;
+    const std::size_t k = static_cast<std::size_t>(thinnest - counts.begin()), last = counts.size() - 1;
+    const std::size_t drop = k == 0 ? 1 : k == last ? last : (counts[k - 1] <= counts[k + 1] ? k : k + 1);
+    edges.erase(edges.begin() + static_cast<std::ptrdiff_t>(drop));
+  }
+  return edges;
 }
 
 // Rows of a range usable after AR(p) whitening: those whose p predecessors in time are in the range too.
@@ -139,7 +172,15 @@ DriftModel fit_drift(const SeriesRef& select, const SeriesRef& x, const SeriesRe
   detail::check(options);
   // Every fit is a sum of squares of w: values whose squares overflow gave inf SSEs and a "converged" order 0.
   detail::require_finite_fit(std::isfinite(w.squaredNorm()), "zero_bias", w, "the drift fit");
-  const auto& edges = options.breakpoints;
+  const std::vector<double> edges = covering_edges(select, options.breakpoints, options.min_samples);
+  std::vector<std::string> notes;
+  bool moved = edges.size() != options.breakpoints.size();  // an edge dropped, or one moved by > 0.1 % of the span
+  for (std::size_t i = 0; !moved && i < edges.size(); ++i)
+    moved = std::abs(edges[i] - options.breakpoints[i]) > 1e-3 * (edges.back() - edges.front());
+  if (moved)
+    notes.push_back("temperature ranges " + edges_name(options.breakpoints) + " adjusted to the data: " +
+                    edges_name(edges) + " (outer edges at the coldest and hottest sample; a range with fewer than " +
+                    std::to_string(options.min_samples) + " samples joined its neighbour); set them with --breakpoints");
   const int k = static_cast<int>(edges.size()) - 1;
   std::vector<std::vector<Eigen::Index>> members(k);
   std::size_t outside = 0;
@@ -192,6 +233,16 @@ DriftModel fit_drift(const SeriesRef& select, const SeriesRef& x, const SeriesRe
     ArOptions ar_options;
     ar_options.max_order = std::max(0, std::min<int>(options.whiten_max_order, (static_cast<int>(kept.size()) - 3) / 2));
     if (ar_options.max_order > 0 && (series.array() != series[0]).any()) ar = fit_ar(series, ar_options).coefficients;
+    // Whitening multiplies a range's constant by 1 − Σa: near a random walk each range's level would rest on
+    // the few rows at its edges, and the fitted levels landed further from the data than no model at all.
+    if (ar.size() > 0 && ar.sum() > kUnitRoot) {
+      std::ostringstream note;
+      note << "the noise about the drift is close to a random walk (its AR coefficients sum to " << ar.sum()
+           << "): weighted by it, each range's level is nearly undetermined, so the drift was fitted unweighted "
+              "(its F-tests then assume white noise and may keep too many orders)";
+      notes.push_back(note.str());
+      ar.resize(0);
+    }
   }
   model.noise_ar = ar;
 
@@ -290,6 +341,7 @@ DriftModel fit_drift(const SeriesRef& select, const SeriesRef& x, const SeriesRe
   detail::require_finite_fit(finite, "regressor", x, "the drift polynomials (powers of the regressor)");
   sum.converged = true;
   sum.message = msg.str();
+  sum.warnings.insert(sum.warnings.begin(), notes.begin(), notes.end());
   if (outside > 0)
     sum.warnings.push_back(std::to_string(outside) + " samples outside every temperature range were not used");
   return model;

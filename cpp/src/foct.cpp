@@ -228,7 +228,9 @@ FoctResult fit_foct(const SeriesRef& zero_bias, const SeriesRef& temp, const Ser
   for (const auto& seg : res.drift.segments) res.orders.push_back(seg.order);
   const Eigen::VectorXd f = res.drift.evaluate(temp, x);
   res.compensated = zero_bias - f;
-  res.residual = res.filtered - f;
+  // What the user gets, less the drift model: the Kalman output, or with no filter (white noise) the
+  // compensated zero bias itself (L − f would be a constant, and the class check could not fail)
+  res.residual = res.kalman_filter ? Eigen::VectorXd(res.filtered - f) : res.compensated;
   res.drift_span_before = drift_span(zero_bias, temp, options.level_step);
   res.drift_span_after = drift_span(res.compensated, temp, options.level_step);
   res.drift_reduction = res.drift_span_before / std::max(res.drift_span_after, 1e-300);

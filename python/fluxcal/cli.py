@@ -3,6 +3,7 @@ from __future__ import annotations
 
 import argparse
 import os
+import re
 import sys
 import warnings
 from pathlib import Path
@@ -446,7 +447,7 @@ def cmd_drift(args) -> int:
         print(f"  AR({ar['order']}) by AIC of the noise (zero bias - drift model), sigma2 {ar['sigma2']:.4g}{u}², {white}")
         for note in report["notes"]:  # white noise about the drift: no Kalman filter (and why)
             print(f"  {note}")
-        for w in report["warnings"]:
+        for w in list(report["warnings"]) + [w for w in model.summary["warnings"] if w not in report["warnings"]]:
             print(f"warning: {w}")
         for seg in model.segments:
             lo, hi = seg["range"]
@@ -455,7 +456,8 @@ def cmd_drift(args) -> int:
         print(f"  drift over the temperature span (per-level means, peak to peak): "
               f"{report['drift_span_before']:.4g}{u} -> {report['drift_span_after']:.4g}{u} "
               f"({report['drift_reduction']:.1f}x smaller)")
-        for key, what in (("accuracy", "filtered output, sample by sample"),
+        output = "filtered output" if model.settings.get("kalman") else "compensated output (no filter)"
+        for key, what in (("accuracy", f"{output}, sample by sample"),
                           ("accuracy_drift", "drift alone, per-level means")):
             if key in report:
                 acc = report[key]
@@ -714,9 +716,25 @@ def build_parser() -> argparse.ArgumentParser:
     return p
 
 
+# a list of numbers that starts with a minus (--breakpoints -20,0,30,50, --field -3.1,20,45): argparse would take
+# it for an option and stop with "expected one argument"
+_NUMBER_LIST = re.compile(r"-(?:\d+\.?\d*|\.\d+)(?:[eE][+-]?\d+)?(?:,\s*-?(?:\d+\.?\d*|\.\d+)(?:[eE][+-]?\d+)?)+")
+
+
+def _join_negative_lists(argv: list) -> list:
+    """`--option -20,0,30` → `--option=-20,0,30`, so a comma-separated list of numbers may start with a minus."""
+    out = []
+    for word in argv:
+        if out and out[-1].startswith("--") and "=" not in out[-1] and _NUMBER_LIST.fullmatch(word):
+            out[-1] = f"{out[-1]}={word}"
+        else:
+            out.append(word)
+    return out
+
+
 def main(argv=None) -> int:
     parser = build_parser()
-    args = parser.parse_args(argv)
+    args = parser.parse_args(_join_negative_lists(list(sys.argv[1:] if argv is None else argv)))
     if args.cmake_dir:
         try:
             print(cmake_dir())

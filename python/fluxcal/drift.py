@@ -86,7 +86,13 @@ class DriftModel:
         x = _regressor(temp, temp_outside, self.regressor)
         segs = [((float(s["range"][0]), float(s["range"][1])), [float(c) for c in s["coefficients"]])
                 for s in self.segments]
-        return np.asarray(_core.drift_evaluate(segs, temp, np.ascontiguousarray(x)))
+        try:
+            return np.asarray(_core.drift_evaluate(segs, temp, np.ascontiguousarray(x)))
+        except ValueError as err:
+            if "outside every range" not in str(err):
+                raise
+            raise ValueError(f"{err}: the polynomials are not extrapolated; fit the drift over the temperatures "
+                             "the device will meet (a chamber cycle that reaches them)") from None
 
     def compensate(self, zero_bias, temp, temp_outside=None) -> np.ndarray:
         """W_c = W − f(T). ValueError for a temperature outside every range."""
@@ -184,10 +190,13 @@ def fit_drift(zero_bias, temp, temp_outside=None, regressor: str = "temp", break
     options.whiten_max_order = int(whiten_max_order)
     options.min_samples = int(min_samples)
     r = _core.fit_drift(temp, np.ascontiguousarray(x), w, options)
-    settings = {"breakpoints": list(options.breakpoints), "max_order": options.max_order,
+    segments = list(r["segments"])
+    # the edges the fit used: the given ones made to cover the data (the core says so in the warnings)
+    used = [float(segments[0]["range"][0])] + [float(seg["range"][1]) for seg in segments]
+    settings = {"breakpoints": used, "max_order": options.max_order,
                 "significance": options.significance, "continuous": options.continuous, "whiten": options.whiten,
                 "noise_ar": np.asarray(r["noise_ar"]).tolist()}
-    return DriftModel(segments=list(r["segments"]), regressor=regressor, settings=settings, summary=r["summary"])
+    return DriftModel(segments=segments, regressor=regressor, settings=settings, summary=r["summary"])
 
 
 def accuracy(residual, rated: float, accuracy_class: str = "0.2S") -> dict:
@@ -308,7 +317,9 @@ def fit_pipeline(zero_bias, temp, temp_outside=None, regressor: str = "temp", br
     # summary keeps the warnings of the fit it is, so by default the first fit's are there).
     first_warnings = [] if model is first else [f"drift fit to the zero bias: {m}" for m in first.summary["warnings"]]
     compensated = model.compensate(w, temp, temp_outside)
-    residual_filtered = filtered - model.evaluate(temp, temp_outside)
+    # what the user gets, less the drift model: the Kalman output, or with no filter the compensated zero bias
+    # itself (L − f would be a constant, and the class check could not fail)
+    residual_filtered = filtered - model.evaluate(temp, temp_outside) if kalman_settings else compensated
     report = {"preprocess": {k: v for k, v in pre.items() if k != "series"},
               "warnings": list(pre["summary"]["warnings"]) + list(ar.summary["warnings"]) + first_warnings,
               "ar": {"order": ar.order, "coefficients": ar.coefficients.tolist(), "sigma2": ar.sigma2,
@@ -318,6 +329,12 @@ def fit_pipeline(zero_bias, temp, temp_outside=None, regressor: str = "temp", br
               "drift_span_before": drift_span(w, temp), "drift_span_after": drift_span(compensated, temp),
               "compensated": compensated, "filtered": filtered, "notes": notes}
     report["drift_reduction"] = report["drift_span_before"] / max(report["drift_span_after"], 1e-300)
+    if report["drift_reduction"] < 1.0:
+        report["warnings"].append(
+            f"the compensation widens the zero bias's spread over temperature ({report['drift_span_before']:.4g} → "
+            f"{report['drift_span_after']:.4g}, per-level means): the model does not describe this drift — a "
+            "dependence on the inside–outside difference (--regressor difference), on the rate of change, or "
+            "hysteresis? Do not apply it as it is")
     if rated is not None:
         # Two views: the filtered output sample by sample (drift residual plus what noise the filter
         # leaves), and the drift alone (the compensated zero bias averaged per temperature level).

@@ -65,8 +65,14 @@ TEST(Drift, BadInput) {
   const auto m = fluxcal::fit_drift(d.temp, d.temp, d.w);
   EXPECT_THROW(m.evaluate(outside, outside), fluxcal::Error);
   fluxcal::DriftOptions options;
-  options.breakpoints = {-20.0, 0.0, 30.0, 80.0, 90.0};  // the last range has no samples
-  EXPECT_THROW(fluxcal::fit_drift(d.temp, d.temp, d.w, options), fluxcal::Error);
+  // the last two ranges have no samples: the ranges are made to cover the data (outer edge at the hottest
+  // sample, the empty ranges dropped), and the summary says so
+  options.breakpoints = {-20.0, 0.0, 30.0, 80.0, 90.0};
+  const auto covered = fluxcal::fit_drift(d.temp, d.temp, d.w, options);
+  ASSERT_EQ(covered.segments.size(), 3u);
+  EXPECT_EQ(covered.segments.back().hi, d.temp.maxCoeff());
+  ASSERT_FALSE(covered.summary.warnings.empty());
+  EXPECT_NE(covered.summary.warnings.front().find("adjusted to the data"), std::string::npos);
   options.breakpoints = {0.0, -20.0};
   EXPECT_THROW(fluxcal::fit_drift(d.temp, d.temp, d.w, options), fluxcal::Error);
 }

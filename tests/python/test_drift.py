@@ -99,8 +99,11 @@ def test_bad_input(foct):
     m = drift.fit_drift(c["zero_bias"], c["temp"])
     with pytest.raises(ValueError, match="outside every range"):
         m.compensate([0.1, 0.2], [25.0, 61.0])
-    with pytest.raises(ValueError, match=r"range \[30, 50\]: 0 samples"):
-        drift.fit_drift(c["zero_bias"][c["temp"] < 30], c["temp"][c["temp"] < 30])
+    # no sample in [30, 50]: the ranges end at the hottest sample, and the fit says so (it used to stop)
+    cool = c["temp"] < 30
+    m_cool = drift.fit_drift(c["zero_bias"][cool], c["temp"][cool])
+    assert [s["range"][1] for s in m_cool.segments][-1] == c["temp"][cool].max() and len(m_cool.segments) == 2
+    assert any("adjusted to the data" in w and "--breakpoints" in w for w in m_cool.summary["warnings"])
     w = c["zero_bias"].copy()
     w[5] = np.nan
     with pytest.raises(ValueError, match="sample 5"):
@@ -123,12 +126,13 @@ def test_bad_input(foct):
         m_difference.evaluate(c["temp"], outside)
     with pytest.raises(ValueError, match="need at least"):  # too short for the stationarity test and AR fit
         drift.fit_pipeline(c["zero_bias"][:30], c["temp"][:30])
-    # Samples outside every range: the fit leaves them out (with a warning), compensation refuses them.
+    # Samples beyond the fitted ranges: the ranges reach the data's ends, and compensation refuses what lies
+    # beyond them (a polynomial is not extrapolated), naming the remedy.
     hot = c["temp"] + 5.0
     m_hot = drift.fit_drift(c["zero_bias"], hot)
-    assert any("outside every temperature range" in w for w in m_hot.summary["warnings"])
-    with pytest.raises(ValueError, match="outside every range"):
-        m_hot.compensate(c["zero_bias"], hot)
+    assert m_hot.segments[-1]["range"][1] == hot.max()
+    with pytest.raises(ValueError, match="outside every range.*fit the drift over the temperatures"):
+        m_hot.compensate(c["zero_bias"], hot + 1.0)
     with pytest.raises(ValueError, match="accuracy_class"):
         drift.accuracy([0.1], RATED, "0.1")
     with pytest.raises(ValueError, match="not a drift model"):
@@ -442,3 +446,49 @@ def test_bad_input_is_named(tmp_path):
     a, b = sim.foct_zero_bias(rng=1, hold_s=60, ramp_s=30), sim.foct_zero_bias(rng=np.random.default_rng(1),
                                                                                  hold_s=60, ramp_s=30)
     np.testing.assert_array_equal(a.columns["zero_bias"], b.columns["zero_bias"])
+
+
+def test_ranges_cover_the_data_as_the_oracle_says():
+    """The default edges (−20, 0, 30, 50 °C) fit seed 001's chamber only: an IEC cycle to −40 and 70 °C, an
+    outdoor record at 5–25 °C, or a range that holds a few samples used to stop the fit. The core makes them
+    cover the data as oracle.covering_edges does, and says so."""
+    rng = np.random.default_rng(3)
+    for temp, expected in [(np.linspace(-40.0, 70.0, 2000), [-40.0, 0.0, 30.0, 70.0]),
+                           (np.linspace(5.0, 25.0, 800), [5.0, 25.0]),
+                           (np.r_[np.linspace(-20.0, 29.9, 900), np.linspace(30.0, 31.0, 5)], [-20.0, 0.0, 31.0])]:
+        w = 0.01 * (temp - 10.0) + 0.002 * rng.standard_normal(temp.size)
+        m = drift.fit_drift(w, temp)
+        assert m.settings["breakpoints"] == pytest.approx(expected)
+        assert m.settings["breakpoints"] == pytest.approx(oracle.covering_edges(temp, drift.DEFAULT_BREAKPOINTS))
+        assert any("adjusted to the data" in s and "--breakpoints" in s for s in m.summary["warnings"])
+        np.testing.assert_allclose(m.evaluate(temp), 0.01 * (temp - 10.0), atol=5e-4)
+    inside = np.linspace(-20.0, 50.0, 1500)
+    assert drift.fit_drift(0.01 * inside, inside).settings["breakpoints"] == [-20.0, 0.0, 30.0, 50.0]
+
+
+def test_noise_near_a_random_walk_is_not_used_to_weight_the_fit():
+    """Whitening by an AR model whose coefficients sum to ≈ 1 leaves each range's level to its edge rows:
+    a self-heating FOCT's fit landed 4× the drift's own RMS off. The core fits unweighted then, and says so."""
+    rng = np.random.default_rng(7)
+    temp = np.r_[np.linspace(-20, 50, 3000), np.linspace(50, -20, 3000)]
+    walk = np.cumsum(0.002 * rng.standard_normal(temp.size))
+    w = 0.02 * temp + walk
+    m = drift.fit_drift(w, temp)
+    assert m.settings["noise_ar"] == [] and any("close to a random walk" in s for s in m.summary["warnings"])
+    ref, ar = oracle.fit_drift(temp, temp, w)
+    assert len(ar) == 0
+    for g, r in zip(m.segments, ref):
+        np.testing.assert_allclose(g["coefficients"], r["coefficients"], rtol=1e-6, atol=1e-9)
+    assert np.std(w - m.evaluate(temp)) < np.std(w - w.mean())  # better than no model
+
+
+def test_cli_breakpoints_may_start_with_a_minus(tmp_path, foct):
+    """`--breakpoints -20,0,30,50`, as the README writes it: argparse took the list for an option ("expected one
+    argument"); a cold chamber beyond the edges is covered, and the fit says so."""
+    c = foct.columns
+    src = write_csv(tmp_path / "foct.csv", {"zero_bias": c["zero_bias"], "temp": c["temp"] - 15.0})
+    run = run_cli("drift", "fit", src, "-o", tmp_path / "m.json", "--breakpoints", "-20,0,30,50")
+    assert run.returncode == 0, run.stderr
+    assert "warning: temperature ranges [-20, 0, 30, 50] adjusted to the data: [-35" in run.stdout, run.stdout
+    edges = drift.DriftModel.load(tmp_path / "m.json").settings["breakpoints"]
+    assert edges[0] == pytest.approx(float(np.min(c["temp"] - 15.0))) and 0.0 in edges and 30.0 in edges

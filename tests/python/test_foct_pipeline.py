@@ -217,18 +217,41 @@ def _bad_cases():
                       "accuracy_class: '0.1' is not one of 0.2S, 0.5S"),
         "bad_rated": ((c["zero_bias"], c["temp"]), {"rated": 0.0}, "rated: 0(.0)? must be > 0"),
         "negative_r": ((c["zero_bias"], c["temp"]), {"r": -1.0}, "r: measurement variance -1(.0)? must be ≥ 0"),
-        "outside_ranges": ((c["zero_bias"], c["temp"] + 5.0), {}, "outside every range"),
-        "empty_range": ((c["zero_bias"], c["temp"]), {"breakpoints": (-20.0, 0.0, 30.0, 60.0, 70.0)},
-                        r"range \[60, 70\]: 0 samples"),
     }
 
 
 @pytest.mark.parametrize("case", ["nan_zero_bias", "inf_temp", "length_mismatch", "too_short", "constant",
-                                  "no_temp_outside", "bad_class", "bad_rated", "negative_r",
-                                  "outside_ranges", "empty_range"])
+                                  "no_temp_outside", "bad_class", "bad_rated", "negative_r"])
 @pytest.mark.parametrize("implementation", ["python", "cpp"])
 def test_bad_input_fails_alike(case, implementation):
     args, kwargs, message = _bad_cases()[case]
     fit = drift.fit_pipeline if implementation == "python" else fit_cpp
     with pytest.raises(ValueError, match=message):
         fit(*args, **kwargs)
+
+
+@pytest.mark.parametrize("shift, breakpoints", [(5.0, drift.DEFAULT_BREAKPOINTS), (0.0, (-20.0, 0.0, 30.0, 60.0, 70.0))])
+def test_ranges_that_miss_the_data_are_adjusted_alike(shift, breakpoints):
+    """Samples beyond the edges, or a range without samples, used to stop both pipelines; both now make the
+    ranges cover the data, the same way, and say so."""
+    c = foct(2016)
+    temp = c["temp"] + shift
+    model, report = drift.fit_pipeline(c["zero_bias"], temp, breakpoints=breakpoints)
+    got = fit_cpp(c["zero_bias"], temp, breakpoints=breakpoints)
+    assert_agree(got, model, report, c["zero_bias"])
+    assert model.segments[-1]["range"][1] == temp.max() and len(model.segments) == 3
+    assert any("adjusted to the data" in w for w in model.summary["warnings"])
+
+
+def test_without_a_filter_the_class_check_judges_the_compensated_output():
+    """White noise about the drift: no Kalman filter, so the user's output is the compensated zero bias. The
+    sample-by-sample verdict judged L − f, a constant ≈ 0, and said MET at 1e-14 % whatever the noise."""
+    rng = np.random.default_rng(4)
+    temp = np.r_[np.linspace(-20, 50, 4000), np.linspace(50, -20, 4000)]
+    w = 0.01 * temp + 2.0 * rng.standard_normal(temp.size)  # 2 A of white noise on 1000 A: 1 % at 20 % rated
+    model, report = drift.fit_pipeline(w, temp, rated=RATED, ar_max_order=0)  # white: no filter, by construction
+    assert model.settings["kalman"] is None
+    np.testing.assert_array_equal(report["accuracy"]["max_abs_residual"], np.max(np.abs(report["compensated"])))
+    assert not report["accuracy"]["met"]
+    got = fit_cpp(w, temp, rated=RATED, ar_max_order=0)
+    assert got["accuracy"]["max_abs_residual"] == pytest.approx(report["accuracy"]["max_abs_residual"], rel=RTOL)

@@ -7,7 +7,9 @@
 //   F = (SSE_m − SSE_{m+1}) / (SSE_{m+1} / (N − m − 2))  >  F(1, N − m − 2; significance)
 // says the next power is significant, up to max_order. Optionally the segments are refitted jointly
 // with equality constraints so the drift is continuous at the breakpoints. A sample belongs to the
-// range [lo, hi) of its selecting temperature (the last range includes hi).
+// range [lo, hi) of its selecting temperature (the last range includes hi). A random-walk-like noise (its
+// AR coefficients summing above 0.98) is not used to weight the fit: it would leave each range's level
+// to the rows at its edges.
 #pragma once
 
 #include "fluxcal/timeseries.hpp"
@@ -19,7 +21,9 @@
 namespace fluxcal {
 
 struct DriftOptions {
-  /// Range edges of the selecting temperature, ascending: k + 1 edges make k ranges.
+  /// Range edges of the selecting temperature, ascending: k + 1 edges make k ranges. fit_drift makes them
+  /// cover the data: the outer edges move to the coldest and hottest sample, inner edges outside the data
+  /// go, and a range with fewer than min_samples samples joins its thinner neighbour (the summary says so).
   std::vector<double> breakpoints = {-20.0, 0.0, 30.0, 50.0};
   int max_order = 4;
   double significance = 0.05;  ///< of the F-test (seed 001: 0.05 or 0.01)

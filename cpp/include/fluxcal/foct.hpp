@@ -14,7 +14,8 @@
 //   4. the drift model is f1 (DriftInput::filtered: fit_drift of L, as seed 001 writes it; see DriftInput;
 //      not with p = 0, where L is f1 + mean and has nothing to refit)
 //   5. compensated = zero_bias − f(T); drift span before / after (peak-to-peak of the per-level means)
-//      and, with a rated current, the IEC 61869 ratio-error verdicts of the residual.
+//      and, with a rated current, the IEC 61869 ratio-error verdicts of the residual (L − f with a Kalman
+//      filter; without one, the compensated zero bias, which is then what the user gets).
 //
 //   fluxcal::FoctOptions options;                      // defaults = fit_pipeline's
 //   options.rated = 1000.0;                            // A: also check the 0.2S accuracy
@@ -153,7 +154,7 @@ struct FoctResult {
   std::vector<int> orders;      ///< drift polynomial order of each temperature range
   Eigen::VectorXd filtered;     ///< L = first drift model + noise mean + filter(noise)
   Eigen::VectorXd compensated;  ///< zero_bias − f
-  Eigen::VectorXd residual;     ///< filtered − f: what the sample-by-sample accuracy verdict checks
+  Eigen::VectorXd residual;     ///< filtered − f (no filter: compensated): what the sample-by-sample verdict checks
   double drift_span_before = 0.0;  ///< drift_span(zero_bias)
   double drift_span_after = 0.0;   ///< drift_span(compensated)
   double drift_reduction = 0.0;    ///< before / after

@@ -29,10 +29,32 @@ def _rows(x, w, idx, ar, order):
     return Vw, tw
 
 
+UNIT_ROOT = 0.98  # whitening AR coefficients summing above this: fitted unweighted
+
+
+def covering_edges(select, breakpoints, min_samples=10):
+    """The edges made to cover the data: outer edges at its ends, inner edges inside it kept, the thinnest
+    range (fewer than min_samples) joined to its thinner neighbour until none is."""
+    select = np.asarray(select, dtype=float)
+    lo, hi = float(select.min()), float(select.max())
+    if not hi > lo:
+        return list(breakpoints)
+    edges = [lo] + [float(e) for e in breakpoints[1:-1] if lo < e < hi] + [hi]
+    while len(edges) > 2:
+        counts = np.histogram(select, bins=edges)[0]  # [lo, hi) bins, the last one closed: as the core's ranges
+        k = int(np.argmin(counts))
+        if counts[k] >= min_samples:
+            break
+        last = len(counts) - 1
+        drop = 1 if k == 0 else last if k == last else (k if counts[k - 1] <= counts[k + 1] else k + 1)
+        del edges[drop]
+    return edges
+
+
 def fit_drift(select, x, w, breakpoints=(-20.0, 0.0, 30.0, 50.0), max_order=4, significance=0.05, whiten=True,
-              whiten_max_order=10):
+              whiten_max_order=10, min_samples=10):
     select, x, w = (np.asarray(v, dtype=float) for v in (select, x, w))
-    edges = list(breakpoints)
+    edges = covering_edges(select, breakpoints, min_samples)
     groups = [_members(select, edges, k) for k in range(len(edges) - 1)]
     tops = [min(max_order, np.unique(x[g]).size - 1, g.size - 3) for g in groups]
     ar = np.zeros(0)
@@ -44,6 +66,8 @@ def fit_drift(select, x, w, breakpoints=(-20.0, 0.0, 30.0, 50.0), max_order=4, s
         series = resid[~np.isnan(resid)]
         p = int(np.argmin(ar_aic(series, whiten_max_order)))
         ar = ar_fit(series, p)[0] if p else np.zeros(0)
+        if ar.size and ar.sum() > UNIT_ROOT:
+            ar = np.zeros(0)
     segments = []
     for g, top in zip(groups, tops):
         def sse(m):
