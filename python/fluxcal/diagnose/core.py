@@ -662,7 +662,8 @@ def _evaluate(cls, data, model, state, sigma, n_candidates) -> dict:
         feats, tried, score, dims, singular, signature = cls.features(ctx), 1, 0.0, 0, np.zeros(0), None
     elif cls.profile_name:  # its parameter is counted as a parameter (below), not as alternatives tried
         value, feats = _profile(cls, ctx, base, Q, e, vector)
-        tried, profiled = 1, {cls.profile_name: value}
+        # at its null value (a temperature's lag of 0) the candidate is its plain form: no parameter to count
+        tried, profiled = 1, ({} if value == cls.profile_null else {cls.profile_name: value})
         score, dims, singular, signature = new_part(feats)
     else:
         feats, tried = cls.search(ctx, score_on)
@@ -802,17 +803,21 @@ def _profile(cls, ctx, result: dict, Q: np.ndarray, e: np.ndarray, vector: bool)
     grid = np.asarray(cls.profile_grid(ctx), dtype=float)
     gains = [gain(v) for v in grid]
     i = int(np.argmax(gains))
-    value = grid[i]
+    value, best_gain = grid[i], gains[i]
     if np.isfinite(value) and value > 0 and len(grid) > 1:  # (a one-point grid: nothing to refine)
         finite = grid[np.isfinite(grid)]
         j = int(np.searchsorted(finite, value))
         ratio = finite[1] / finite[0] if len(finite) > 1 else 2.0
         lo = finite[j - 1] if j > 0 else value  # the grid's first value is a bound (saturation: the readings' reach)
-        hi = finite[j + 1] if j + 1 < len(finite) else value * ratio
+        hi = finite[j + 1] if j + 1 < len(finite) else (value * ratio if cls.profile_open_end else value)
         best = minimize_scalar(lambda x: -gain(np.exp(x)), bounds=(np.log(lo), np.log(hi)), method="bounded",
                                options={"xatol": 1e-3})
-        if -best.fun > gains[i]:
-            value = float(np.exp(best.x))
+        if -best.fun > best_gain:
+            value, best_gain = float(np.exp(best.x)), -best.fun
+    if cls.profile_null is not None:  # the parameter pays for itself (BIC's price, in the residual's variance) or stays null
+        price = np.log(len(e)) * float(e @ e) / len(e)
+        if best_gain - gain(cls.profile_null) < price:
+            value = cls.profile_null
     return value, cls.features_at(ctx, value)
 
 

@@ -66,6 +66,8 @@ class Effect:
     # refines the best between grid points, counts the parameter in ΔBIC and the likelihood ratio's degrees
     # of freedom, and reports it (`profile_name`) with the row.
     profile_name = ""
+    profile_null = None      # a value at which the candidate is its plain form (kept unless the profile pays for itself)
+    profile_open_end = True  # the refinement may go one grid step beyond the last finite grid value
 
     @classmethod
     def profile_grid(cls, ctx) -> np.ndarray:  # pragma: no cover - interface
@@ -434,20 +436,24 @@ def lagged(temp, t, lag_s: float) -> np.ndarray:
 class _TemperatureLag:
     """A temperature candidate's lag, profiled (`profile_name`): the logged temperature is seldom the
     sensing element's, which follows it with a thermal time constant. The grid runs from about one sample
-    interval (no lag) to a third of the recording; a lag the data cannot tell from none costs one
-    parameter and gains nothing."""
+    interval to a tenth of the recording; a lag that does not pay BIC's price for its parameter is none
+    (`profile_null`), and then costs nothing."""
 
     profile_name = "lag_s"
-    LAGS = 12  # grid values of the lag (then refined between grid points)
+    profile_null = 0.0        # no lag: the logged temperature is the element's
+    profile_open_end = False
+    LAGS = 12                 # grid values of the lag (then refined between grid points)
+    LONGEST = 0.1             # the longest lag tried, as a fraction of the recording: a lag of a large part of it
+                              # makes the temperature a smooth curve in time, which fits any slow change
 
     @classmethod
     def profile_grid(cls, ctx):
         t = np.asarray(ctx.t, dtype=float)
         span = float(np.ptp(t)) if len(t) > 1 else 0.0
         step = float(np.median(np.abs(np.diff(t)))) if len(t) > 1 else 0.0
-        if not (span > 0 and step > 0) or span / 3 <= step:
+        if not (span > 0 and step > 0) or cls.LONGEST * span <= step:
             return np.array([0.0])
-        return np.geomspace(step, span / 3, cls.LAGS)
+        return np.geomspace(step, cls.LONGEST * span, cls.LAGS)
 
     @classmethod
     def features(cls, ctx):
