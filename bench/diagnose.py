@@ -5,6 +5,7 @@
     .venv/bin/python bench/diagnose.py --inject ../shared/data/real --trials 3  # added to real recordings
     .venv/bin/python bench/diagnose.py --timing                             # 20 000 readings, all candidates
     .venv/bin/python bench/diagnose.py --warm-up 10                         # temperature following time
+    .venv/bin/python bench/diagnose.py --settling 10                        # an offset settling in time (a warm-up)
     .venv/bin/python bench/diagnose.py --trials 5 --noise 0.2 --rate 10     # other noise, rates, --duration
     .venv/bin/python bench/diagnose.py --nulls 30 --noise 0.5               # nothing withheld only
     .venv/bin/python bench/diagnose.py --trials 3 --hard-iron 5 --soft-iron 0.15  # a real sensor's errors
@@ -172,6 +173,39 @@ def warm_up(n: int):
                   f"{', '.join(f'{k} {v}/{n}' for k, v in flagged.items()) or '—'} | {wrong}/{n} |")
 
 
+def settling(n: int):
+    """An offset settling exponentially in time (a warm-up after power-on, no temperature logged): is it
+    called offset_drift with its time constant, or an offset step, or a drift plus a step?"""
+    from fluxcal.sim.effects import HardIron, OffsetDrift, SoftIron, WhiteNoise
+    from fluxcal.sim.scene import tumble
+    from fluxcal.sim.simulate import simulate
+    from fluxcal.sim.withheld import FIELD, NOISE
+
+    print("| time constant (60 s recording) | offset_drift alone | its time constant (median, worst error) | "
+          "what else was accepted |")
+    print("|---:|---:|---:|---|")
+    for tau in (1.0, 3.0, 12.0, 40.0, 120.0):
+        alone, errors, other = 0, [], {}
+        for seed in range(n):
+            rng = np.random.default_rng(seed)
+            settled = rng.choice([-1, 1], 3) * rng.uniform(0.005, 0.008, 3) * np.linalg.norm(FIELD)
+            W = np.diag(1 + rng.uniform(-0.05, 0.05, 3))
+            b = rng.uniform(-1, 1, 3) * 0.2 * np.linalg.norm(FIELD) / np.sqrt(3)
+            scene = tumble(60.0, rng=rng)
+            r = simulate(scene, [SoftIron(W), HardIron(b), OffsetDrift(settled / tau, warmup_s=tau), WhiteNoise(NOISE)],
+                         FIELD, rng)
+            d = diagnose(r.readings, t=r.t, field_norm=float(np.linalg.norm(FIELD)))
+            alone += d.accepted == ["offset_drift"]
+            row = next(x for x in d.ranking if x["effect"] == "offset_drift")
+            if "offset_drift" in d.accepted:
+                errors.append(abs((row.get("warmup_s") or np.inf) / tau - 1))
+            for a in d.accepted:
+                if a != "offset_drift":
+                    other[a] = other.get(a, 0) + 1
+        err = f"{100 * np.median(errors):.0f} %, {100 * np.max(errors):.0f} %" if errors else "—"
+        print(f"| {tau:g} s | {alone}/{n} | {err} | {', '.join(f'{k} {v}' for k, v in other.items()) or '—'} |")
+
+
 def margins(n: int, only=None, **sim):
     """How far the accepted effects of blind trials stay from the degenerate-fit guards (fluxcal.diagnose.core):
     the held-out field error over the noise floor (refused below NOISE_FLOOR_FRACTION), the distortion (refused
@@ -209,6 +243,7 @@ if __name__ == "__main__":
     p.add_argument("--nulls", type=int, help="only the trials with nothing withheld")
     p.add_argument("--margins", type=int, help="trials per effect: the accepted rows' distance from the guards")
     p.add_argument("--warm-up", type=int)
+    p.add_argument("--settling", type=int, help="trials per time constant of an offset settling in time")
     p.add_argument("--only", nargs="*", help="withheld effects to run (default all)")
     p.add_argument("--noise", type=float, default=0.05, help="white noise σ of the trials, µT (field 50 µT)")
     p.add_argument("--rate", type=float, default=50.0, help="sample rate of the trials, Hz")
@@ -234,3 +269,5 @@ if __name__ == "__main__":
         timing()
     if args.warm_up:
         warm_up(args.warm_up)
+    if args.settling:
+        settling(args.settling)

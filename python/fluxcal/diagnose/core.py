@@ -94,6 +94,7 @@ class Diagnosis:
     rotation vector, degrees) or `delay_ms` (time_offset: the readings this late);
     `limit` saturation's profiled limit (reading units; None: its cubic limit, L → ∞); `lag_s` a temperature
     candidate's profiled lag (the sensing element's temperature: the logged one through a first-order lag);
+    `warmup_s` offset_drift's profiled settling time constant (an exponential warm-up; absent: linear);
     `on_s`/`off_s` give an event's box (moving_dipole, offset_step: first and last time within it, None at
     the recording's ends); an accepted offset_step's `jump`, `jump_s`, `back_s` the step as a jump (a box
     from the recording's start reverses the coefficients' sign); `found_with` names the effect a row was found together with (each passed its
@@ -116,6 +117,8 @@ class Diagnosis:
     through its gain); a judged row's `unmet` lists the acceptance tests it fails ("in_sample", "bic",
     "heldout_p", "heldout_gain"; empty for an accepted one): a row that fails only the held-out ones has
     strong evidence in the recording that the held-out readings do not confirm;
+    an effect accepted in an early round that no longer pays BIC's price once the later ones are modelled
+    is left out (its row's `note` says so, `pruned_delta_bic` the ΔBIC for keeping it);
     `significant_not_modelled` marks a candidate still significant when the `max_effects` limit stopped
     the search; an accepted row's `coefficients` and `standard_errors` are those of the final model (every
     accepted effect fitted together), the others' those of their own round. `where`: residual tables per regime;
@@ -945,6 +948,50 @@ def _with(state: dict, row: dict, vector: bool) -> dict:
                 terms=np.asarray(row["_fit"]["parameters"])[12 if vector else 9:])
 
 
+def _prune(data: _Data, model: str, state: dict, accepted: list, last_rows: dict, names: dict, vector: bool) -> list:
+    """Effects accepted early that no longer pay BIC's price once the later ones are modelled (a settling offset
+    taken first for what an offset step and a passing magnet then explain): each is refitted out, the one
+    whose removal BIC favours most first, until every one left pays. `state` is updated to the model without
+    them; returns their names. A move of the reference stays (it has moved the reference itself)."""
+    fixed = MODELS[model][1]
+    lo = 12 if vector else 9
+    systematic = [a for a in accepted if a not in NOISE_CANDIDATES]
+    dropped = []
+    while len(systematic) > 1:
+        e1 = np.asarray(state["result"]["residuals"])
+        n, rss = len(e1), float(e1 @ e1)
+        sizes = [f.shape[1] for f in state["features"]]
+        starts = np.cumsum([0] + sizes)
+        worst = None
+        for i, name in enumerate(systematic):
+            cls = names[name]
+            if cls.moves_reference:
+                continue
+            rest = state["features"][:i] + state["features"][i + 1:]
+            terms = np.delete(state["terms"], np.arange(starts[i], starts[i + 1]))
+            try:
+                fit = _fit(data, state["start"], fixed, _features(rest), start_terms=terms)
+            except _core.Error:
+                continue
+            e0 = np.asarray(fit["residuals"])
+            lr = max(0.0, n * np.log(float(e0 @ e0) / rss))
+            k = sizes[i] + (1 if cls.profile_name and cls.profile_name in last_rows[name] else 0)
+            delta_bic = -lr + k * np.log(n)
+            if delta_bic > 0 and (worst is None or delta_bic > worst[1]):
+                worst = (i, delta_bic, fit)
+        if worst is None:
+            break
+        i, delta_bic, fit = worst
+        name = systematic.pop(i)
+        last_rows[name]["pruned_delta_bic"] = float(delta_bic)
+        dropped.append(name)
+        state.update(features=state["features"][:i] + state["features"][i + 1:],
+                     signal_blocks=state["signal_blocks"][:i] + state["signal_blocks"][i + 1:],
+                     validated=state["validated"][:i] + state["validated"][i + 1:], result=fit, train_fits={},
+                     terms=np.asarray(fit["parameters"])[lo:])
+    return dropped
+
+
 def _together(data: _Data, model: str, state: dict, rows: list, pool: list, accepted: list, sigma: float,
               n_candidates: int):
     """Two large effects at once (a magnet passing while an offset jumps): each one's held-out test can fail
@@ -1561,6 +1608,17 @@ def diagnose(samples, t=None, temp=None, reference=None, gravity=None, field_nor
     if bar:
         bar.close()
 
+    for name in _prune(data, model, state, accepted, last_rows, names, vector):
+        accepted.remove(name)
+        r = last_rows[name]
+        r["note"] = (f"accepted in round {r.pop('step')}, but with {', '.join(a for a in accepted if a not in NOISE_CANDIDATES)} "
+                     f"modelled it no longer pays BIC's price (ΔBIC {r['pruned_delta_bic']:+.1f} for keeping it): left out")
+        r.pop("confounded_with", None)
+        for other in last_rows.values():
+            if other.get("found_with") == name:
+                other.pop("found_with")
+    for step, name in enumerate(accepted, start=1):
+        last_rows[name]["step"] = step
     for w, cls, applied, block in moves:  # the whole move: the one applied, then the block's remainder
         w.update(cls.describe_move(cls.compose(applied, np.asarray(state["result"]["parameters"])[12:][block])))
     # Later rounds refit every accepted block: an accepted effect's coefficients are the final model's.
@@ -1609,7 +1667,7 @@ def diagnose(samples, t=None, temp=None, reference=None, gravity=None, field_nor
                            "effects found after it may stand in for it")
     # Significant in the last round but not modelled: the max_effects limit stopped the greedy search.
     for name, r in last_rows.items():
-        r["significant_not_modelled"] = bool(r.get("significant")) and name not in accepted
+        r["significant_not_modelled"] = bool(r.get("significant")) and name not in accepted and "pruned_delta_bic" not in r
     ranking = [last_rows[name] for name in accepted]
     # The rest: systematic effects before noise models (the order in which they are tried), each by ΔBIC.
     rest = sorted([r for name, r in last_rows.items() if name not in accepted],

@@ -104,6 +104,21 @@ def offset_step_line(d, r) -> str:
                                      " and stayed (a part magnetised by a shock or a strong field, a device switched on?)"))
 
 
+def offset_drift_line(d, r) -> str:
+    """How far the offset drifted: across the recording when linear, else how far and how fast it settles."""
+    u = f" {d.units}" if d.units else ""
+    c = np.asarray(r["coefficients"])
+    percent = 100 * np.linalg.norm(d.base.matrix @ c) / d.base.field_norm
+    size = f"{np.round(c, 4).tolist()}{u} (x, y, z; {percent:.2g} % of the field)"
+    tau = r.get("warmup_s")
+    if tau is None:
+        return f"offset_drift: the offset drifts linearly, by {size} across the recording"
+    span = f"{tau:.3g} s" if d.series.get("timestamps", True) else f"{tau:.3g} rows"
+    return (f"offset_drift: the offset settles exponentially with a time constant of {span}, by {size} from the "
+            f"first reading on, 95 % of it three time constants in (a warm-up after power-on? let the sensor warm "
+            f"up before calibrating, or log its temperature)")
+
+
 def moving_dipole_line(d, r) -> str:
     """How large the disturbance grew, when, and which way: north, east, down with a world frame (reference
     vectors and the down direction), else the change along the field."""
@@ -170,6 +185,8 @@ def text(d) -> str:
                 out.append(f"  {r['effect']}: " + (f"the sensing element's temperature lags the logged one by "
                                                     f"{r['lag_s']:.3g} s (a first-order thermal time constant)"
                                                     if r["lag_s"] > grid_floor else "no lag behind the logged temperature"))
+            if r["effect"] == "offset_drift" and r.get("step") is not None:
+                out.append("  " + offset_drift_line(d, r))
             if r["effect"] == "offset_step" and r.get("step") is not None:
                 out.append("  " + offset_step_line(d, r))
             if r["effect"] == "moving_dipole" and r.get("peak_field") is not None:
@@ -180,6 +197,7 @@ def text(d) -> str:
                            f"{peak:.3g} A {np.linalg.norm(k) * peak:.3g}{u}, "
                            f"{100 * np.linalg.norm(k) * peak / d.base.field_norm:.1f} % of the field (compassmot's "
                            "'interference')")
+        out += [f"  {r['effect']}: {r['note']}" for r in d.ranking if r.get("pruned_delta_bic") is not None]
         out += confound_lines(d)
     elif not rem.get("noise_check", {}).get("exceeds"):
         out.append("FOUND: no significant effect — the base model explains the data to the noise")

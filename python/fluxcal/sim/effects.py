@@ -541,19 +541,32 @@ class MotorCurrent(Effect):
 
 @dataclass
 class OffsetDrift(Effect):
-    """Offset that drifts in time: a linear rate (reading units per s) plus a random walk of
-    `random_walk` reading units per √s. Typical: 0.5 % of the field over a minute's recording (warm-up)."""
+    """Offset that drifts in time: a rate (reading units per s) plus a random walk of `random_walk` reading
+    units per √s. With `warmup_s` > 0 the drift settles exponentially with that time constant, as a sensor's
+    offset does while its electronics warm up after power-on: rate·τ·(1 − e^(−t/τ)), the given rate at the
+    start. Typical: 0.5 % of the field over a minute's recording, linear.
+
+    As a candidate the time constant is profiled (`profile_name`), from a few samples to twice the recording;
+    one that does not pay BIC's price for its parameter is none (linear, the `profile_null` ∞), and then costs
+    nothing. A settling offset was taken for an offset step near the start, or for a linear drift plus a
+    step (the linear one overshoots where the offset has settled)."""
 
     rate: np.ndarray
     random_walk: float = 0.0
+    warmup_s: float = 0.0
     name = "offset_drift"
     n_params = 3
     regime = "time"
     needs = ("t",)
+    profile_name = "warmup_s"
+    profile_null = np.inf
+    profile_open_end = False
+    WARMUPS = 12  # grid values of the time constant (then refined between grid points)
 
     def apply(self, values, context):
         t = context.t - context.t[0]
-        drift = np.outer(t, self.rate)
+        tau = float(self.warmup_s)
+        drift = np.outer(tau * -np.expm1(-t / tau) if tau > 0 else t, self.rate)
         if self.random_walk > 0:
             dt = np.diff(t, prepend=t[0])
             drift += np.cumsum(self.random_walk * np.sqrt(dt)[:, None] * context.rng.standard_normal(values.shape),
@@ -561,9 +574,29 @@ class OffsetDrift(Effect):
         return values + drift
 
     @classmethod
+    def profile_grid(cls, ctx):
+        t = np.asarray(ctx.t, dtype=float)
+        span = float(np.ptp(t)) if len(t) > 1 else 0.0
+        step = float(np.median(np.abs(np.diff(t)))) if len(t) > 1 else 0.0
+        if not (span > 0 and step > 0):
+            return np.array([np.inf])
+        # from a few samples (a transient at power-on) to twice the recording (beyond, it is nearly linear)
+        return np.append(np.geomspace(min(3.0 * step, 0.01 * span), 2.0 * span, cls.WARMUPS), np.inf)
+
+    @classmethod
+    def features_at(cls, ctx, value):
+        t = np.asarray(ctx.t, dtype=float)
+        span = max(float(np.ptp(t)), 1e-12)
+        if not np.isfinite(value):
+            # the coefficient is the drift across the recording
+            return _per_axis(np.repeat(((t - t.mean()) / span)[:, None], 3, axis=1))
+        # the coefficient is the offset's whole settling, from the first reading on
+        settle = -np.expm1(-(t - t.min()) / value)
+        return _per_axis(np.repeat(settle[:, None], 3, axis=1))
+
+    @classmethod
     def features(cls, ctx):
-        t = ctx.t - ctx.t.mean()
-        return _per_axis(np.repeat((t / max(np.ptp(ctx.t), 1e-12))[:, None], 3, axis=1))
+        return cls.features_at(ctx, np.inf)
 
     @classmethod
     def typical(cls, field_norm, rng, duration_s: float = 60.0):
