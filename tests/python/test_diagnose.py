@@ -50,11 +50,12 @@ def _warm_up(t):
     return 20.0 + 15.0 * t / t[-1]  # a linear warm-up: the temperature follows time exactly
 
 
-@pytest.mark.parametrize("name", ["offset_drift", "temp_offset"])
+@pytest.mark.parametrize("name", ["offset_drift", "temp_offset", "scale_drift", "temp_scale"])
 def test_temperature_that_follows_time_is_reported_as_a_confound(name):
-    # An offset drifting in time and one drifting with temperature leave the same signature when the
-    # temperature rises linearly: the diagnosis must say it cannot tell them apart, not pick one silently.
-    pair = {"offset_drift", "temp_offset"}
+    # An offset (a sensitivity) drifting in time and one drifting with temperature leave the same signature
+    # when the temperature rises linearly: the diagnosis must say it cannot tell them apart, not pick one
+    # silently.
+    pair = {"offset_drift", "temp_offset"} if "offset" in name else {"scale_drift", "temp_scale"}
     for seed in range(2):
         result, kwargs = withheld_trial([name], seed, temperature=_warm_up)
         d = diagnose(result.readings, **kwargs)
@@ -574,6 +575,23 @@ def test_an_offset_settling_after_power_on_is_a_warm_up_not_a_step(tau):
         assert row["warmup_s"] == pytest.approx(tau, rel=0.15)
         assert np.all(np.abs(np.subtract(row["coefficients"], settled)) < 4 * np.asarray(row["standard_errors"]))
         assert f"time constant of {row['warmup_s']:.3g} s" in text(d)
+
+
+def test_a_sensitivity_warming_up_unlogged_is_a_scale_drift_with_its_time_constant():
+    # A temperature scale error whose temperature rises exponentially (τ = 15 s) and is not logged: it was
+    # taken for colored noise, a moving magnet or an offset drift. Now a sensitivity settling in time, the
+    # settling α·ΔT per axis, and the report says the temperature may be the cause.
+    for seed in range(2):
+        result, kwargs = withheld_trial(["temp_scale"], seed, temperature=lambda t: 20.0 + 15.0 * (1 - np.exp(-t / 15.0)))
+        alpha = next(e for e in result.effects if e.name == "temp_scale").alpha
+        del kwargs["temp"]
+        d = diagnose(result.readings, **kwargs)
+        assert d.accepted == ["scale_drift"], d.accepted
+        row = d.ranking[0]
+        assert row["warmup_s"] == pytest.approx(15.0, rel=0.15)
+        settled = alpha * 15.0  # the scale's whole change, 1 + α (T − T0) with T settling by 15 °C
+        assert np.all(np.abs(np.subtract(row["coefficients"], settled)) < 0.1 * np.abs(settled))
+        assert "the sensitivity settles exponentially" in d.text() and "MAYBE TEMPERATURE" in d.text()
 
 
 def test_a_linear_drift_has_no_time_constant():

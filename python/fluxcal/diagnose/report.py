@@ -104,17 +104,23 @@ def offset_step_line(d, r) -> str:
                                      " and stayed (a part magnetised by a shock or a strong field, a device switched on?)"))
 
 
-def offset_drift_line(d, r) -> str:
-    """How far the offset drifted: across the recording when linear, else how far and how fast it settles."""
-    u = f" {d.units}" if d.units else ""
+def drift_line(d, r) -> str:
+    """How far the offset (offset_drift) or the sensitivity (scale_drift) drifted: across the recording when
+    linear, else how far and how fast it settles."""
     c = np.asarray(r["coefficients"])
-    percent = 100 * np.linalg.norm(d.base.matrix @ c) / d.base.field_norm
-    size = f"{np.round(c, 4).tolist()}{u} (x, y, z; {percent:.2g} % of the field)"
+    if r["effect"] == "offset_drift":
+        u = f" {d.units}" if d.units else ""
+        what = "offset"
+        size = (f"{np.round(c, 4).tolist()}{u} (x, y, z; "
+                f"{100 * np.linalg.norm(d.base.matrix @ c) / d.base.field_norm:.2g} % of the field)")
+    else:
+        what = "sensitivity"
+        size = f"{np.round(100 * c, 3).tolist()} % (x, y, z)"
     tau = r.get("warmup_s")
     if tau is None:
-        return f"offset_drift: the offset drifts linearly, by {size} across the recording"
+        return f"{r['effect']}: the {what} drifts linearly, by {size} across the recording"
     span = f"{tau:.3g} s" if d.series.get("timestamps", True) else f"{tau:.3g} rows"
-    return (f"offset_drift: the offset settles exponentially with a time constant of {span}, by {size} from the "
+    return (f"{r['effect']}: the {what} settles exponentially with a time constant of {span}, by {size} from the "
             f"first reading on, 95 % of it three time constants in (a warm-up after power-on? let the sensor warm "
             f"up before calibrating, or log its temperature)")
 
@@ -185,8 +191,8 @@ def text(d) -> str:
                 out.append(f"  {r['effect']}: " + (f"the sensing element's temperature lags the logged one by "
                                                     f"{r['lag_s']:.3g} s (a first-order thermal time constant)"
                                                     if r["lag_s"] > grid_floor else "no lag behind the logged temperature"))
-            if r["effect"] == "offset_drift" and r.get("step") is not None:
-                out.append("  " + offset_drift_line(d, r))
+            if r["effect"] in ("offset_drift", "scale_drift") and r.get("step") is not None:
+                out.append("  " + drift_line(d, r))
             if r["effect"] == "offset_step" and r.get("step") is not None:
                 out.append("  " + offset_step_line(d, r))
             if r["effect"] == "moving_dipole" and r.get("peak_field") is not None:

@@ -7,14 +7,14 @@
 A new effect is one small class (see effects.py)."""
 from .effects import (CANDIDATES, ColoredNoise, CrossAxis, CubicNonlinearity, EddyCurrent, Effect, HardIron,
                       Hysteresis, Misalignment, MotorCurrent, MovingDipole, NonOrthogonality, OffsetDrift,
-                      Quantization, Saturation, SoftIron, TemperatureOffset, TemperatureScale, TimeOffset,
+                      Quantization, Saturation, ScaleDrift, SoftIron, TemperatureOffset, TemperatureScale, TimeOffset,
                       WhiteNoise, ZLeakage, random_sensor)
 from .scene import Scene, sweeps, tumble, uniform
 from .simulate import Simulation, simulate
 
 __all__ = ["CANDIDATES", "ColoredNoise", "CrossAxis", "CubicNonlinearity", "EddyCurrent", "Effect", "HardIron",
            "Hysteresis", "Misalignment", "MotorCurrent", "MovingDipole", "NonOrthogonality", "OffsetDrift",
-           "Quantization", "Saturation", "SoftIron", "TemperatureOffset", "TemperatureScale", "TimeOffset",
+           "Quantization", "Saturation", "ScaleDrift", "SoftIron", "TemperatureOffset", "TemperatureScale", "TimeOffset",
            "WhiteNoise", "ZLeakage", "random_sensor", "Scene", "sweeps", "tumble", "uniform", "Simulation",
            "simulate"]
 from .positions import Accelerometer, PositionsScene, PositionsSimulation, paper_sensor, random_scene, simulate_positions, twelve_scene  # noqa: E402,F401

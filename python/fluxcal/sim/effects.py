@@ -539,23 +539,14 @@ class MotorCurrent(Effect):
         return cls(rng.choice([-1, 1], 3) * field_norm * rng.uniform(0.01, 0.04, 3) / 20.0)
 
 
-@dataclass
-class OffsetDrift(Effect):
-    """Offset that drifts in time: a rate (reading units per s) plus a random walk of `random_walk` reading
-    units per √s. With `warmup_s` > 0 the drift settles exponentially with that time constant, as a sensor's
-    offset does while its electronics warm up after power-on: rate·τ·(1 − e^(−t/τ)), the given rate at the
-    start. Typical: 0.5 % of the field over a minute's recording, linear.
+class _TimeCourse:
+    """A drift's course in time, profiled (`profile_name`): linear, or an exponential settling with time
+    constant τ — a sensor warming up after power-on settles so. τ runs from a few samples to twice the
+    recording; one that does not pay BIC's price for its parameter is none (linear, the `profile_null` ∞),
+    and then costs nothing. A settling drift was taken for a step near the start, or for a linear drift
+    plus a step (the linear one overshoots where the drift has settled). The sensor's course: the rate
+    (per s) at the start, settling at rate·τ."""
 
-    As a candidate the time constant is profiled (`profile_name`), from a few samples to twice the recording;
-    one that does not pay BIC's price for its parameter is none (linear, the `profile_null` ∞), and then costs
-    nothing. A settling offset was taken for an offset step near the start, or for a linear drift plus a
-    step (the linear one overshoots where the offset has settled)."""
-
-    rate: np.ndarray
-    random_walk: float = 0.0
-    warmup_s: float = 0.0
-    name = "offset_drift"
-    n_params = 3
     regime = "time"
     needs = ("t",)
     profile_name = "warmup_s"
@@ -563,15 +554,11 @@ class OffsetDrift(Effect):
     profile_open_end = False
     WARMUPS = 12  # grid values of the time constant (then refined between grid points)
 
-    def apply(self, values, context):
-        t = context.t - context.t[0]
-        tau = float(self.warmup_s)
-        drift = np.outer(tau * -np.expm1(-t / tau) if tau > 0 else t, self.rate)
-        if self.random_walk > 0:
-            dt = np.diff(t, prepend=t[0])
-            drift += np.cumsum(self.random_walk * np.sqrt(dt)[:, None] * context.rng.standard_normal(values.shape),
-                               axis=0)
-        return values + drift
+    @staticmethod
+    def course(t: np.ndarray, warmup_s: float) -> np.ndarray:
+        """The drift since the first reading per unit rate: t, or τ(1 − e^(−t/τ))."""
+        t = np.asarray(t, dtype=float) - t[0]
+        return warmup_s * -np.expm1(-t / warmup_s) if warmup_s > 0 else t
 
     @classmethod
     def profile_grid(cls, ctx):
@@ -580,27 +567,79 @@ class OffsetDrift(Effect):
         step = float(np.median(np.abs(np.diff(t)))) if len(t) > 1 else 0.0
         if not (span > 0 and step > 0):
             return np.array([np.inf])
-        # from a few samples (a transient at power-on) to twice the recording (beyond, it is nearly linear)
-        return np.append(np.geomspace(min(3.0 * step, 0.01 * span), 2.0 * span, cls.WARMUPS), np.inf)
+        # from ten samples or a hundredth of the recording (a faster settling is a glitch to it) to twice the
+        # recording (beyond, it is nearly linear)
+        return np.append(np.geomspace(max(10.0 * step, 0.01 * span), 2.0 * span, cls.WARMUPS), np.inf)
 
-    @classmethod
-    def features_at(cls, ctx, value):
+    @staticmethod
+    def shape(ctx, value) -> np.ndarray:
+        """The candidate's course: linear across the recording (its coefficient the drift across it), or the
+        settling from the first reading on (its coefficient the whole settling). Centred: a constant part
+        times the signal would be a scale the matrix holds, and the matrix's fit from the readings and this
+        from the signal's estimate differ by the noise — a large coefficient and the matrix cancelling each
+        other fitted that noise (a 3-sample "settling" of 50 % in the sensitivity)."""
         t = np.asarray(ctx.t, dtype=float)
-        span = max(float(np.ptp(t)), 1e-12)
         if not np.isfinite(value):
-            # the coefficient is the drift across the recording
-            return _per_axis(np.repeat(((t - t.mean()) / span)[:, None], 3, axis=1))
-        # the coefficient is the offset's whole settling, from the first reading on
+            return (t - t.mean()) / max(float(np.ptp(t)), 1e-12)
         settle = -np.expm1(-(t - t.min()) / value)
-        return _per_axis(np.repeat(settle[:, None], 3, axis=1))
+        return settle - settle.mean()
 
     @classmethod
     def features(cls, ctx):
         return cls.features_at(ctx, np.inf)
 
+
+@dataclass
+class OffsetDrift(_TimeCourse, Effect):
+    """Offset that drifts in time: a rate (reading units per s; with `warmup_s` > 0 settling with that time
+    constant, see `_TimeCourse`) plus a random walk of `random_walk` reading units per √s. Typical: 0.5 % of
+    the field over a minute's recording, linear."""
+
+    rate: np.ndarray
+    random_walk: float = 0.0
+    warmup_s: float = 0.0
+    name = "offset_drift"
+    n_params = 3
+
+    def apply(self, values, context):
+        t = context.t - context.t[0]
+        drift = np.outer(self.course(context.t, float(self.warmup_s)), self.rate)
+        if self.random_walk > 0:
+            dt = np.diff(t, prepend=t[0])
+            drift += np.cumsum(self.random_walk * np.sqrt(dt)[:, None] * context.rng.standard_normal(values.shape),
+                               axis=0)
+        return values + drift
+
+    @classmethod
+    def features_at(cls, ctx, value):
+        return _per_axis(np.repeat(cls.shape(ctx, value)[:, None], 3, axis=1))
+
     @classmethod
     def typical(cls, field_norm, rng, duration_s: float = 60.0):
         return cls(rng.choice([-1, 1], 3) * field_norm * rng.uniform(0.003, 0.006, 3) / duration_s)
+
+
+@dataclass
+class ScaleDrift(_TimeCourse, Effect):
+    """Sensitivity that drifts in time: s_k (1 + rate_k · course(t)), rate in 1/s (with `warmup_s` > 0 settling
+    with that time constant, see `_TimeCourse`) — a bridge's or a coil driver's gain warming up with no
+    temperature logged (with one, temp_scale). Typical: 0.5–1 % over a minute's recording, linear."""
+
+    rate: np.ndarray
+    warmup_s: float = 0.0
+    name = "scale_drift"
+    n_params = 3
+
+    def apply(self, values, context):
+        return values * (1.0 + np.outer(self.course(context.t, float(self.warmup_s)), self.rate))
+
+    @classmethod
+    def features_at(cls, ctx, value):
+        return _per_axis(ctx.signal * cls.shape(ctx, value)[:, None])
+
+    @classmethod
+    def typical(cls, field_norm, rng, duration_s: float = 60.0):
+        return cls(rng.choice([-1, 1], 3) * rng.uniform(0.005, 0.01, 3) / duration_s)
 
 
 # ---------------------------------------------------------------- field effects
@@ -934,7 +973,7 @@ class Quantization(Effect):
         return self.step * np.round(values / self.step)
 
 
-CANDIDATES = (TemperatureScale, TemperatureOffset, MotorCurrent, OffsetDrift, CubicNonlinearity, Saturation, CrossAxis,
+CANDIDATES = (TemperatureScale, TemperatureOffset, MotorCurrent, OffsetDrift, ScaleDrift, CubicNonlinearity, Saturation, CrossAxis,
               NonOrthogonality, Misalignment, Hysteresis, MovingDipole, OffsetStep, EddyCurrent, TimeOffset,
               ColoredNoise, Quantization)
 """Every effect the diagnosis can rank, by its candidate name (`fluxcal diagnose` documents them)."""

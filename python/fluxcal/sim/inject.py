@@ -10,7 +10,7 @@ The recording is first calibrated (readings m = b + W h); each effect is then ad
 typical magnitude, hard iron included, for the non-linearities) where it acts in a sensor:
 - on the field, before the soft iron (moving_dipole, eddy_current, misalignment): computed on the
   calibrated field h, smoothed in time, and mapped into readings through W;
-- on the transducer's output (temp_scale, cross_axis, nonlinearity_cubic, saturation, hysteresis):
+- on the transducer's output (temp_scale, scale_drift, cross_axis, nonlinearity_cubic, saturation, hysteresis):
   computed on the smoothed readings, so that the recording's noise is not fed through a non-linearity;
 - electronic offsets (temp_offset, offset_drift, offset_step, motor_current) simply added;
 - time_offset (the readings delayed against their reference) and the noise effects (colored_noise,
@@ -36,11 +36,11 @@ from .effects import CANDIDATES, _smooth
 from .scene import throttle, warming
 
 FIELD_STAGE = ("moving_dipole", "eddy_current", "misalignment")
-TRANSDUCER_STAGE = ("temp_scale", "cross_axis", "nonlinearity_cubic", "saturation", "hysteresis")
+TRANSDUCER_STAGE = ("temp_scale", "scale_drift", "cross_axis", "nonlinearity_cubic", "saturation", "hysteresis")
 ON_READINGS = ("time_offset", "colored_noise", "quantization")  # applied to the readings as they are
 NEEDS_REFERENCE = ("misalignment", "time_offset")
 NOT_OFFERED = ("non_orthogonality",)
-TIMED = ("offset_drift", "moving_dipole", "offset_step")  # typical() wants the recording's duration
+TIMED = ("offset_drift", "scale_drift", "moving_dipole", "offset_step")  # typical() wants the recording's duration
 SIGNAL_SCALED = ("nonlinearity_cubic", "saturation", "cross_axis")
 CURRENT = (20.0, 4.0)  # A peak, s per throttle setting
 

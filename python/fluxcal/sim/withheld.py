@@ -16,6 +16,7 @@ from __future__ import annotations
 import numpy as np
 
 from .effects import CANDIDATES, HardIron, SoftIron, WhiteNoise
+from .inject import TIMED
 from .scene import tumble
 from .simulate import simulate
 
@@ -62,7 +63,7 @@ def withheld_trial(names, seed: int, duration_s: float = DURATION, temperature=N
 
     def make(name):
         cls = by_name[name]
-        if name in ("offset_drift", "moving_dipole", "offset_step"):
+        if name in TIMED:
             return cls.typical(50.0, rng, duration_s)
         return cls.typical(50.0, rng)
 
