@@ -182,10 +182,10 @@ def settling(n: int):
     from fluxcal.sim.withheld import FIELD, NOISE
 
     print("| time constant (60 s recording) | offset_drift alone | its time constant (median, worst error) | "
-          "what else was accepted |")
-    print("|---:|---:|---:|---|")
+          "called linear | what else was accepted |")
+    print("|---:|---:|---:|---:|---|")
     for tau in (1.0, 3.0, 12.0, 40.0, 120.0):
-        alone, errors, other = 0, [], {}
+        alone, errors, linear, other = 0, [], 0, {}
         for seed in range(n):
             rng = np.random.default_rng(seed)
             settled = rng.choice([-1, 1], 3) * rng.uniform(0.005, 0.008, 3) * np.linalg.norm(FIELD)
@@ -197,13 +197,16 @@ def settling(n: int):
             d = diagnose(r.readings, t=r.t, field_norm=float(np.linalg.norm(FIELD)))
             alone += d.accepted == ["offset_drift"]
             row = next(x for x in d.ranking if x["effect"] == "offset_drift")
-            if "offset_drift" in d.accepted:
-                errors.append(abs((row.get("warmup_s") or np.inf) / tau - 1))
+            if "offset_drift" in d.accepted and row.get("warmup_s") is None:
+                linear += 1
+            elif "offset_drift" in d.accepted:
+                errors.append(abs(row["warmup_s"] / tau - 1))
             for a in d.accepted:
                 if a != "offset_drift":
                     other[a] = other.get(a, 0) + 1
         err = f"{100 * np.median(errors):.0f} %, {100 * np.max(errors):.0f} %" if errors else "—"
-        print(f"| {tau:g} s | {alone}/{n} | {err} | {', '.join(f'{k} {v}' for k, v in other.items()) or '—'} |")
+        print(f"| {tau:g} s | {alone}/{n} | {err} | {linear}/{n} | "
+              f"{', '.join(f'{k} {v}' for k, v in other.items()) or '—'} |")
 
 
 def margins(n: int, only=None, **sim):

@@ -891,10 +891,9 @@ def _exact_move(data: _Data, state: dict, model: str, cls, iterations: int = 3):
     few Gauss–Newton steps). Returns the data with the moved reference, the move applied to it and the
     block's slice of the terms (later rounds refit the block: its remainder is folded in at the end)."""
     fixed = MODELS[model][1]
-    sizes = [f.shape[1] for f in state["features"]]
-    lo = sum(sizes[:-1])
-    block = slice(lo, lo + sizes[-1])
-    original, total = data.reference, np.zeros(sizes[-1])
+    block = _block(state, len(state["features"]) - 1)
+    lo = block.start
+    original, total = data.reference, np.zeros(block.stop - block.start)
     for _ in range(iterations):
         total = cls.compose(total, state["terms"][block])
         data = replace(data, reference=cls.move_reference(original, data.t, total))
@@ -948,6 +947,12 @@ def _with(state: dict, row: dict, vector: bool) -> dict:
                 terms=np.asarray(row["_fit"]["parameters"])[12 if vector else 9:])
 
 
+def _block(state: dict, i: int) -> slice:
+    """The terms of the i-th modelled effect (its slice of `state["terms"]`)."""
+    lo = sum(f.shape[1] for f in state["features"][:i])
+    return slice(lo, lo + state["features"][i].shape[1])
+
+
 def _prune(data: _Data, model: str, state: dict, accepted: list, last_rows: dict, names: dict, vector: bool) -> list:
     """Effects accepted early that no longer pay BIC's price once the later ones are modelled (a settling offset
     taken first for what an offset step and a passing magnet then explain): each is refitted out, the one
@@ -960,22 +965,21 @@ def _prune(data: _Data, model: str, state: dict, accepted: list, last_rows: dict
     while len(systematic) > 1:
         e1 = np.asarray(state["result"]["residuals"])
         n, rss = len(e1), float(e1 @ e1)
-        sizes = [f.shape[1] for f in state["features"]]
-        starts = np.cumsum([0] + sizes)
         worst = None
         for i, name in enumerate(systematic):
             cls = names[name]
             if cls.moves_reference:
                 continue
             rest = state["features"][:i] + state["features"][i + 1:]
-            terms = np.delete(state["terms"], np.arange(starts[i], starts[i + 1]))
+            block = _block(state, i)
+            terms = np.delete(state["terms"], np.arange(block.start, block.stop))
             try:
                 fit = _fit(data, state["start"], fixed, _features(rest), start_terms=terms)
             except _core.Error:
                 continue
             e0 = np.asarray(fit["residuals"])
             lr = max(0.0, n * np.log(float(e0 @ e0) / rss))
-            k = sizes[i] + (1 if cls.profile_name and cls.profile_name in last_rows[name] else 0)
+            k = block.stop - block.start + (1 if cls.profile_name and cls.profile_name in last_rows[name] else 0)
             delta_bic = -lr + k * np.log(n)
             if delta_bic > 0 and (worst is None or delta_bic > worst[1]):
                 worst = (i, delta_bic, fit)
@@ -1619,6 +1623,8 @@ def diagnose(samples, t=None, temp=None, reference=None, gravity=None, field_nor
                 other.pop("found_with")
     for step, name in enumerate(accepted, start=1):
         last_rows[name]["step"] = step
+    modelled = [a for a in accepted if a not in NOISE_CANDIDATES]  # in the order of state["features"]
+    moves = [(w, cls, applied, _block(state, modelled.index(w["effect"]))) for w, cls, applied, _ in moves]
     for w, cls, applied, block in moves:  # the whole move: the one applied, then the block's remainder
         w.update(cls.describe_move(cls.compose(applied, np.asarray(state["result"]["parameters"])[12:][block])))
     # Later rounds refit every accepted block: an accepted effect's coefficients are the final model's.
