@@ -541,8 +541,8 @@ class MotorCurrent(Effect):
 
 class _TimeCourse:
     """A drift's course in time, profiled (`profile_name`): linear, or an exponential settling with time
-    constant τ — a sensor warming up after power-on settles so. τ runs from a few samples to twice the
-    recording; one that does not pay BIC's price for its parameter is none (linear, the `profile_null` ∞),
+    constant τ — a sensor warming up after power-on settles so. τ runs from ten samples or 1 % of the
+    recording to twice the recording; one that does not pay BIC's price for its parameter is none (linear, the `profile_null` ∞),
     and then costs nothing. A settling drift was taken for a step near the start, or for a linear drift
     plus a step (the linear one overshoots where the drift has settled). The sensor's course: the rate
     (per s) at the start, settling at rate·τ."""
