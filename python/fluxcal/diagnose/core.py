@@ -807,16 +807,17 @@ def _profile(cls, ctx, result: dict, Q: np.ndarray, e: np.ndarray, vector: bool)
     gains = [gain(v) for v in grid]
     i = int(np.argmax(gains))
     value, best_gain = grid[i], gains[i]
-    if np.isfinite(value) and value > 0 and len(grid) > 1:  # (a one-point grid: nothing to refine)
-        finite = grid[np.isfinite(grid)]
-        j = int(np.searchsorted(finite, value))
-        ratio = finite[1] / finite[0] if len(finite) > 1 else 2.0
-        lo = finite[j - 1] if j > 0 else value  # the grid's first value is a bound (saturation: the readings' reach)
-        hi = finite[j + 1] if j + 1 < len(finite) else (value * ratio if cls.profile_open_end else value)
-        best = minimize_scalar(lambda x: -gain(np.exp(x)), bounds=(np.log(lo), np.log(hi)), method="bounded",
+    if np.isfinite(value) and value != 0 and len(grid) > 1:  # (a one-point grid: nothing to refine)
+        sign = np.sign(value)  # a grid may run both ways (a temperature's lag or lead): refine on the value's side
+        side = np.sort(sign * grid[np.isfinite(grid) & (np.sign(grid) == sign)])
+        j = int(np.searchsorted(side, sign * value))
+        ratio = side[1] / side[0] if len(side) > 1 else 2.0
+        lo = side[j - 1] if j > 0 else sign * value  # the grid's first value is a bound (saturation: the readings' reach)
+        hi = side[j + 1] if j + 1 < len(side) else (sign * value * ratio if cls.profile_open_end else sign * value)
+        best = minimize_scalar(lambda x: -gain(sign * np.exp(x)), bounds=(np.log(lo), np.log(hi)), method="bounded",
                                options={"xatol": 1e-3})
         if -best.fun > best_gain:
-            value, best_gain = float(np.exp(best.x)), -best.fun
+            value, best_gain = float(sign * np.exp(best.x)), -best.fun
     if cls.profile_null is not None:  # the parameter pays for itself (BIC's price, in the residual's variance) or stays null
         price = np.log(len(e)) * float(e @ e) / len(e)
         if best_gain - gain(cls.profile_null) < price:

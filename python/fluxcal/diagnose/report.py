@@ -188,9 +188,14 @@ def text(d) -> str:
                            + ("" if r["delay_ms"] > 0 else " (no eddy current or filter leads: look at the timestamps)"))
             if r.get("lag_s") is not None and r.get("step") is not None:
                 grid_floor = 1.5 * float(np.median(np.diff(d.series["t"]))) if len(d.series.get("t", [])) > 1 else 0.0
+                lag = r["lag_s"]
                 out.append(f"  {r['effect']}: " + (f"the sensing element's temperature lags the logged one by "
-                                                    f"{r['lag_s']:.3g} s (a first-order thermal time constant)"
-                                                    if r["lag_s"] > grid_floor else "no lag behind the logged temperature"))
+                                                    f"{lag:.3g} s (a first-order thermal time constant)"
+                                                    if lag > grid_floor else
+                                                    f"the logged temperature lags the sensing element's by {-lag:.3g} s "
+                                                    "(the thermometer sits behind more thermal mass, or the element "
+                                                    "heats itself)" if lag < -grid_floor else
+                                                    "no lag behind the logged temperature"))
             if r["effect"] in ("offset_drift", "scale_drift") and r.get("step") is not None:
                 out.append("  " + drift_line(d, r))
             if r["effect"] == "offset_step" and r.get("step") is not None:

@@ -416,8 +416,23 @@ def _play(values: np.ndarray, width: np.ndarray) -> np.ndarray:
 def lagged(temp, t, lag_s: float) -> np.ndarray:
     """`temp` through a first-order lag of time constant `lag_s` (in t's unit, s): the sensing element's own
     temperature when the logged one is measured beside it, behind some thermal mass (a board thermistor, the
-    chamber's air). In equilibrium at the start; irregular steps and gaps are followed exactly."""
+    chamber's air). In equilibrium at the start; irregular steps and gaps are followed exactly.
+
+    A negative `lag_s`: the logged temperature lags the element's by |lag_s| (a thermometer behind more thermal
+    mass than the element, the element heated by its own current): the element's is the logged one undone of
+    that lag, T + |lag_s| dT/dt, the slope from a quadratic fitted over |lag_s| (a shorter window would feed
+    the thermometer's quantisation steps through the derivative)."""
     temp = np.asarray(temp, dtype=float)
+    if lag_s < 0 and len(temp) > 2:
+        t = np.asarray(t, dtype=float)
+        dt = float(np.median(np.diff(t)))
+        window = max(5, int(round(-lag_s / dt)) | 1) if dt > 0 else 0  # odd
+        window = min(window, len(temp) - (1 - len(temp) % 2))  # at most the series, odd
+        if window >= 3 and np.all(np.abs(np.diff(t) - dt) <= 1e-3 * dt):
+            slope = savgol_filter(temp, window, min(2, window - 1), deriv=1, delta=dt)
+        else:
+            slope = np.gradient(temp, t)
+        return temp - lag_s * slope
     if not lag_s > 0 or len(temp) < 2:
         return temp
     steps = np.diff(np.asarray(t, dtype=float))
@@ -435,9 +450,10 @@ def lagged(temp, t, lag_s: float) -> np.ndarray:
 
 class _TemperatureLag:
     """A temperature candidate's lag, profiled (`profile_name`): the logged temperature is seldom the
-    sensing element's, which follows it with a thermal time constant. The grid runs from about one sample
-    interval to a tenth of the recording; a lag that does not pay BIC's price for its parameter is none
-    (`profile_null`), and then costs nothing."""
+    sensing element's, which follows it with a thermal time constant — or leads it (a negative lag: the
+    logged one lags the element's). The grid runs from about one sample interval to a tenth of the recording,
+    either way; a lag that does not pay BIC's price for its parameter is none (`profile_null`), and then
+    costs nothing."""
 
     profile_name = "lag_s"
     profile_null = 0.0        # no lag: the logged temperature is the element's
@@ -453,7 +469,8 @@ class _TemperatureLag:
         step = float(np.median(np.abs(np.diff(t)))) if len(t) > 1 else 0.0
         if not (span > 0 and step > 0) or cls.LONGEST * span <= step:
             return np.array([0.0])
-        return np.geomspace(step, cls.LONGEST * span, cls.LAGS)
+        lags = np.geomspace(step, cls.LONGEST * span, cls.LAGS)
+        return np.concatenate([-lags[::-1], lags])
 
     @classmethod
     def features(cls, ctx):
