@@ -285,6 +285,7 @@ def test_two_concurrent_events_are_found_together():
     drift = next(r for r in d.ranking if r["effect"] == "offset_drift")
     assert "no longer pays BIC's price" in drift["note"] and drift["pruned_delta_bic"] > 0 and "step" not in drift
     assert "offset_drift: accepted in round 1" in d.text() and not drift["significant_not_modelled"]
+    assert drift["unmet"] == ["pruned"] and "(left out: with the later effects modelled" in d.text()
 
 
 def test_noise_estimate_from_third_differences():
@@ -594,6 +595,24 @@ def test_a_sensitivity_warming_up_unlogged_is_a_scale_drift_with_its_time_consta
         assert "the sensitivity settles exponentially" in d.text() and "MAYBE TEMPERATURE" in d.text()
 
 
+def test_a_settling_longer_than_the_recording_is_said_to_be_extrapolated():
+    # τ = 100 s in a minute: the fitted end value lies beyond the recording, and τ at the grid's end is a bound
+    from fluxcal.sim.effects import HardIron, OffsetDrift, SoftIron, WhiteNoise
+    from fluxcal.sim.simulate import simulate
+    from fluxcal.sim.withheld import FIELD
+
+    rng = np.random.default_rng(0)
+    scene = sim.tumble(60.0, rate_hz=50.0, rng=rng)
+    effects = [SoftIron(np.diag([1.03, 0.97, 1.01])), HardIron([4.0, -3.0, 2.0]),
+               OffsetDrift(np.array([1.0, -0.8, 0.9]) / 100.0, warmup_s=100.0), WhiteNoise(0.05)]
+    r = simulate(scene, effects, FIELD, rng)
+    d = diagnose(r.readings, t=r.t, field_norm=50.0)
+    line = next(x for x in d.text().splitlines() if "offset_drift: the offset settles" in x)
+    within = round(100 * -np.expm1(-np.ptp(r.t) / d.ranking[0]["warmup_s"]))
+    assert f"{within} % of the way within the recording" in line and "the end value extrapolated" in line
+    assert ("at least" in line) == (d.ranking[0]["warmup_s"] >= 0.99 * 2 * np.ptp(r.t))
+
+
 def test_a_linear_drift_has_no_time_constant():
     result, kwargs = withheld_trial(["offset_drift"], 0)
     d = diagnose(result.readings, **kwargs)
@@ -850,16 +869,21 @@ def test_why_a_fit_cannot_be_an_effect():
 def test_a_temperature_that_lags_the_logged_one_is_found_with_its_lag(cls, size, lag):
     """The logged temperature is seldom the sensing element's: with a 40 s thermal lag between them, the
     effect is found with that lag, not split into itself and an offset step or a passing magnet; and the
-    other way round (the thermometer 20 s behind the element: a false offset drift came with it)."""
+    other way round (the thermometer 20 s behind the element: a false offset drift came with it), from a
+    thermometer's 0.1 °C steps with a row lost (unsmoothed slopes over the uneven step wrecked it)."""
     rng = np.random.default_rng(11)
     scene = sim.tumble(480.0, temperature=(25.0, 10.0, 120.0), rng=rng)
     field = np.array([20.0, 1.0, 45.0])
     # µT per °C (15 nT/°C class) or per-axis scale per °C (0.08 %/°C class), after the hard iron: the transducer
     # scales every field it sees
     effects = [sim.effects.SoftIron(np.eye(3) + 0.02 * np.diag([1, -1, 0.5])), sim.effects.HardIron([8.0, -5.0, 3.0]),
-               cls(size, lag_s=lag), sim.effects.WhiteNoise(0.05)]
+               cls(size, lag_s=max(lag, 0.0)), sim.effects.WhiteNoise(0.05)]
     s = sim.simulate(scene, effects, field, rng)
-    d = diagnose(s.readings, t=s.t, temp=s.temperature, field_norm=float(np.linalg.norm(field)), progress=False)
+    m, t, logged = s.readings, s.t, s.temperature
+    if lag < 0:  # the thermometer |lag| behind the element, logged in 0.1 °C steps, one row lost
+        logged = np.round(sim.effects.lagged(s.temperature, s.t, -lag), 1)
+        m, t, logged = (np.delete(x, 5000, axis=0) for x in (m, t, logged))
+    d = diagnose(m, t=t, temp=logged, field_norm=float(np.linalg.norm(field)), progress=False)
     assert d.accepted == [cls.name], d.accepted
     row = next(r for r in d.ranking if r["effect"] == cls.name)
     assert row["lag_s"] == pytest.approx(lag, rel=0.25)

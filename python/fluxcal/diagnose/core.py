@@ -115,7 +115,7 @@ class Diagnosis:
     distortion exceeds the signal (`degenerate`, which of the two: its features rebuild the readings from
     themselves), or when its held-out field error rises (`field_error_rises`: its residuals fell only
     through its gain); a judged row's `unmet` lists the acceptance tests it fails ("in_sample", "bic",
-    "heldout_p", "heldout_gain"; empty for an accepted one): a row that fails only the held-out ones has
+    "heldout_p", "heldout_gain", "pruned"; empty for an accepted one): a row that fails only the held-out ones has
     strong evidence in the recording that the held-out readings do not confirm;
     an effect accepted in an early round that no longer pays BIC's price once the later ones are modelled
     is left out (its row's `note` says so, `pruned_delta_bic` the ΔBIC for keeping it);
@@ -1613,11 +1613,13 @@ def diagnose(samples, t=None, temp=None, reference=None, gravity=None, field_nor
     if bar:
         bar.close()
 
-    for name in _prune(data, model, state, accepted, last_rows, names, vector):
-        accepted.remove(name)
+    pruned = _prune(data, model, state, accepted, last_rows, names, vector)
+    accepted[:] = [a for a in accepted if a not in pruned]
+    for name in pruned:
         r = last_rows[name]
         r["note"] = (f"accepted in round {r.pop('step')}, but with {', '.join(a for a in accepted if a not in NOISE_CANDIDATES)} "
                      f"modelled it no longer pays BIC's price (ΔBIC {r['pruned_delta_bic']:+.1f} for keeping it): left out")
+        r["unmet"] = list(r.get("unmet", [])) + ["pruned"]
         r.pop("confounded_with", None)
         for other in last_rows.values():
             if other.get("found_with") == name:

@@ -22,7 +22,8 @@ def ranking_lines(d) -> list:
             fe += f"; heading {r['heading_error_deg_before']:.3g}° → {r['heading_error_deg_after']:.3g}°"
         elif r.get("direction_error_deg_before") is not None:
             fe += f"; angle {r['direction_error_deg_before']:.3g}° → {r['direction_error_deg_after']:.3g}°"
-        note = ("  (absorbed)" if r.get("absorbed")
+        note = ("  (left out: with the later effects modelled it no longer pays)" if r.get("pruned_delta_bic") is not None
+                else "  (absorbed)" if r.get("absorbed")
                 else "  (not judged: its refit failed)" if r.get("note", "").startswith("not judged")
                 else f"  (degenerate: {r['degenerate']})" if r.get("degenerate")
                 else "  (not accepted: the field error rises held out)" if r.get("field_error_rises")
@@ -119,10 +120,19 @@ def drift_line(d, r) -> str:
     tau = r.get("warmup_s")
     if tau is None:
         return f"{r['effect']}: the {what} drifts linearly, by {size} across the recording"
-    span = f"{tau:.3g} s" if d.series.get("timestamps", True) else f"{tau:.3g} rows"
-    return (f"{r['effect']}: the {what} settles exponentially with a time constant of {span}, by {size} from the "
-            f"first reading on, 95 % of it three time constants in (a warm-up after power-on? let the sensor warm "
-            f"up before calibrating, or log its temperature)")
+    unit = " s" if d.series.get("timestamps", True) else " rows"
+    t = np.asarray(d.series.get("t", []), dtype=float)
+    span = float(np.ptp(t)) if len(t) > 1 else np.inf
+    within = -np.expm1(-span / tau)  # the part of the settling inside the recording
+    if within > 0.95:
+        extent = f"by {size} from the first reading on, 95 % of it three time constants in"
+    else:  # the end value is an extrapolation of the curve: say how far it got in the recording first
+        extent = (f"{round(100 * within)} % of the way within the recording, towards {size} from the first "
+                  "reading (the end value extrapolated)")
+    # the grid ends at twice the recording: a time constant there is a lower bound
+    bound = "at least " if tau >= 0.99 * 2 * span else ""
+    return (f"{r['effect']}: the {what} settles exponentially with a time constant of {bound}{tau:.3g}{unit}, {extent} "
+            f"(a warm-up after power-on? let the sensor warm up before calibrating, or log its temperature)")
 
 
 def moving_dipole_line(d, r) -> str:
