@@ -462,6 +462,15 @@ def _slope(values: np.ndarray, t: np.ndarray, width: float) -> np.ndarray:
     return out
 
 
+def _span_and_step(t) -> tuple:
+    """The recording's span and its median sampling step (0, 0 for fewer than two readings): the bounds of a
+    profiled time constant's grid."""
+    t = np.asarray(t, dtype=float)
+    if len(t) < 2:
+        return 0.0, 0.0
+    return float(np.ptp(t)), float(np.median(np.abs(np.diff(t))))
+
+
 class _TemperatureLag:
     """A temperature candidate's lag, profiled (`profile_name`): the logged temperature is seldom the
     sensing element's, which follows it with a thermal time constant — or leads it (a negative lag: the
@@ -478,9 +487,7 @@ class _TemperatureLag:
 
     @classmethod
     def profile_grid(cls, ctx):
-        t = np.asarray(ctx.t, dtype=float)
-        span = float(np.ptp(t)) if len(t) > 1 else 0.0
-        step = float(np.median(np.abs(np.diff(t)))) if len(t) > 1 else 0.0
+        span, step = _span_and_step(ctx.t)
         if not (span > 0 and step > 0) or cls.LONGEST * span <= step:
             return np.array([0.0])
         lags = np.geomspace(step, cls.LONGEST * span, cls.LAGS)
@@ -573,8 +580,8 @@ class MotorCurrent(Effect):
 class _TimeCourse:
     """A drift's course in time, profiled (`profile_name`): linear, or an exponential settling with time
     constant τ — a sensor warming up after power-on settles so. τ runs from ten samples or 1 % of the
-    recording to twice the recording; one that does not pay BIC's price for its parameter is none (linear, the `profile_null` ∞),
-    and then costs nothing. A settling drift was taken for a step near the start, or for a linear drift
+    recording to twice the recording; one that does not pay BIC's price for its parameter is none (linear,
+    the `profile_null` ∞), and then costs nothing. A settling drift was taken for a step near the start, or for a linear drift
     plus a step (the linear one overshoots where the drift has settled). The sensor's course: the rate
     (per s) at the start, settling at rate·τ."""
 
@@ -593,9 +600,7 @@ class _TimeCourse:
 
     @classmethod
     def profile_grid(cls, ctx):
-        t = np.asarray(ctx.t, dtype=float)
-        span = float(np.ptp(t)) if len(t) > 1 else 0.0
-        step = float(np.median(np.abs(np.diff(t)))) if len(t) > 1 else 0.0
+        span, step = _span_and_step(ctx.t)
         if not (span > 0 and step > 0):
             return np.array([np.inf])
         # from ten samples or a hundredth of the recording (a faster settling is a glitch to it) to twice the
