@@ -95,7 +95,7 @@ def _why_missed(row) -> str:
     sample"), or significant but another effect chosen (or the quantization step not given as the noise)."""
     if row.get("heldout_gap_before") is None:
         return "absorbed"
-    if row.get("degenerate") or row.get("field_error_rises"):
+    if row.get("degenerate") or row.get("unphysical") or row.get("field_error_rises"):
         return "refused"
     if unconfirmed(row):
         return "held out"

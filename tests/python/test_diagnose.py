@@ -10,6 +10,7 @@ from conftest import run_cli
 import fluxcal
 from fluxcal import sim
 from fluxcal.diagnose import diagnose, estimate_noise
+from fluxcal.diagnose.report import text as report_text
 from fluxcal.oracle.refine import refine_terms as oracle_refine_terms
 from fluxcal.sim.effects import CANDIDATES
 from fluxcal.sim.withheld import withheld_trial
@@ -117,6 +118,33 @@ def test_an_exponential_warm_up_is_an_offset_settling_in_time():
     d = diagnose(result.readings, **kwargs)
     assert d.accepted == ["temp_offset"]
     assert [r["effect"] for r in d.confounded["temp_offset"]] == ["offset_drift"]
+
+
+@pytest.mark.parametrize("name", ["temp_scale", "scale_drift"])
+def test_a_gain_that_leaves_the_offset_alone_is_found_alone(monkeypatch, name):
+    # A sensor's own (electronic) offset is added after its gain; a platform's hard iron is a field the gain
+    # scales. Both forms are tried. Before, a field-only gain needed a companion offset term (temp_offset beside
+    # temp_scale), or with the same sign on every axis was taken for a passing magnet. Hard iron of two fields
+    # (a phone, a drone) makes the form visible: the row says which.
+    from fluxcal.sim.effects import ScaleDrift, TemperatureScale
+
+    cls, field = (TemperatureScale, "alpha") if name == "temp_scale" else (ScaleDrift, "rate")
+    typical = cls.typical.__func__
+
+    def same_sign(c, *args):
+        effect = typical(c, *args)
+        setattr(effect, field, np.abs(getattr(effect, field)))
+        return effect
+
+    monkeypatch.setattr(cls, "typical", classmethod(same_sign))
+    for electronic, form in ((True, "field"), (False, "reading")):
+        for seed in (0, 2):
+            result, kwargs = withheld_trial([name], seed, hard_iron=2.0, electronic_offset=electronic)
+            d = diagnose(result.readings, **kwargs)
+            assert d.accepted == [name], (electronic, seed, d.accepted)
+            assert d.ranking[0]["gain_on"] == form, (electronic, seed, d.ranking[0].get("gain_on"))
+            words = "leaves the offset as it is" if electronic else "scales the offset too"
+            assert words in report_text(d), (electronic, seed)
 
 
 def test_nothing_withheld_reports_nothing():
@@ -705,6 +733,30 @@ def test_a_special_case_is_not_a_rival():
     assert next(r for r in d.ranking if r["effect"] == "nonlinearity_cubic")["delta_bic"] > 0
 
 
+@pytest.mark.parametrize("sign, expected", [(1.0, "nonlinearity_cubic"), (-1.0, "saturation")])
+def test_an_expanding_cubic_is_not_saturation(monkeypatch, sign, expected):
+    # A cubic with equal coefficients on every axis is saturation's first order, but only when it compresses:
+    # an expanding one was reported as saturation (a negative size). Saturation's size must be positive; the
+    # expansion is then the per-axis cubic, and the compression is still saturation.
+    from fluxcal.sim.effects import CubicNonlinearity
+
+    monkeypatch.setattr(CubicNonlinearity, "typical",
+                        classmethod(lambda cls, field_norm, rng: cls(np.full(3, sign * 0.015), field_norm)))
+    for seed in range(2):
+        result, kwargs = withheld_trial(["nonlinearity_cubic"], seed)
+        d = diagnose(result.readings, **kwargs)
+        assert d.accepted == [expected], (seed, d.accepted)
+
+
+def test_unphysical_signs_are_named():
+    from fluxcal.sim.effects import CubicNonlinearity, Hysteresis, Saturation
+
+    assert "axis y" in Hysteresis.unphysical([0.1, -0.05, 0.1], [0.01] * 3)
+    assert Hysteresis.unphysical([0.1, -0.01, 0.1], [0.01] * 3) == ""  # within two standard errors of zero
+    assert "expanding" in Saturation.unphysical([-0.02], [0.001]) and Saturation.unphysical([0.02], [0.001]) == ""
+    assert CubicNonlinearity.unphysical([-0.02, 0.02, 0.0], [0.001] * 3) == ""  # either sign is a sensor's
+
+
 def test_a_cubic_about_a_large_hard_iron_is_found_alone():
     # Real sensors carry hard iron of several fields (a QMC5883L board 6.6×, phones and drones 1–5×) and scale
     # errors of 10–20 %. The base fit, without the cubic, absorbs its constant and linear parts about the hard
@@ -847,20 +899,24 @@ def test_a_row_says_which_acceptance_tests_it_fails():
 
 def test_why_a_fit_cannot_be_an_effect():
     from fluxcal.diagnose.core import _implausible
+    from fluxcal.sim.effects import Saturation, TemperatureScale
 
     row = {"heldout_noise_floor": 1.0, "field_error_before": 1.5, "field_error_after": 1.1, "distortion": 0.02,
-           "coefficients": [0.01, 0.02, 0.03], "significant": True}
-    assert _implausible(row, 0.05, False) is None
-    flag, why, note = _implausible(dict(row, field_error_after=0.3), 0.05, False)  # below the noise held out
+           "coefficients": [0.01, 0.02, 0.03], "standard_errors": [0.001] * 3, "significant": True}
+    assert _implausible(row, 0.05, False, TemperatureScale) is None
+    flag, why, note = _implausible(dict(row, field_error_after=0.3), 0.05, False, TemperatureScale)  # below the noise held out
     assert (flag, why) == ("degenerate", "below the noise held out")
     assert "0.30 of what the readings' noise alone leaves" in note and "0.03" in note
-    assert _implausible(dict(row, field_error_after=0.3), 0.05, True) is None  # σ an upper bound: no floor
-    flag, why, note = _implausible(dict(row, distortion=1.4), 0.05, False)
+    assert _implausible(dict(row, field_error_after=0.3), 0.05, True, TemperatureScale) is None  # σ an upper bound: no floor
+    flag, why, note = _implausible(dict(row, distortion=1.4), 0.05, False, TemperatureScale)
     assert (flag, why) == ("degenerate", "changes the readings more than the signal")
     assert "1.4× the signal" in note
-    flag, why, note = _implausible(dict(row, field_error_after=1.6), 0.05, False)
+    flag, why, note = _implausible(dict(row, field_error_after=1.6), 0.05, False, TemperatureScale)
     assert flag == "field_error_rises" and why and "1.5 → 1.6" in note
-    assert _implausible(dict(row, field_error_after=1.6, significant=False), 0.05, False) is None
+    assert _implausible(dict(row, field_error_after=1.6, significant=False), 0.05, False, TemperatureScale) is None
+    # a sign the effect's physics forbids: a saturation that expands
+    flag, why, note = _implausible(dict(row, coefficients=[-0.02], standard_errors=[0.001]), 0.05, False, Saturation)
+    assert flag == "unphysical" and "expanding" in why and note.startswith("not accepted as saturation")
 
 
 @pytest.mark.parametrize("lag", [40.0, -20.0])

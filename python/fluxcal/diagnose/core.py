@@ -95,6 +95,8 @@ class Diagnosis:
     `limit` saturation's profiled limit (reading units; None: its cubic limit, L → ∞); `lag_s` a temperature
     candidate's profiled lag (the sensing element's temperature: the logged one through a first-order lag);
     `warmup_s` offset_drift's profiled settling time constant (an exponential warm-up; absent: linear);
+    `gain_on` a gain's form (temp_scale, scale_drift), when the data decide it: "reading" (it scales the hard iron
+    too: a field at the sensor) or "field" (the offset is the sensor's own, not scaled); None when undecided;
     `on_s`/`off_s` give an event's box (moving_dipole, offset_step: first and last time within it, None at
     the recording's ends); an accepted offset_step's `jump`, `jump_s`, `back_s` the step as a jump (a box
     from the recording's start reverses the coefficients' sign); `found_with` names the effect a row was found together with (each passed its
@@ -659,14 +661,17 @@ def _evaluate(cls, data, model, state, sigma, n_candidates) -> dict:
         new = s >= ABSORBED
         return float(np.sum((V[:, new].T @ ((Z.T @ e[r] - W.T @ Qe) / norms) / s[new]) ** 2) / sigma2)
 
-    profiled = {}
+    profiled, row_variant = {}, {}
     if cls.linear and not fixed:  # exactly absorbed by the full matrix; its first-order features are not
         # (one of three directions looked new on a real recording with a 4 % temperature scale error)
         feats, tried, score, dims, singular, signature = cls.features(ctx), 1, 0.0, 0, np.zeros(0), None
     elif cls.profile_name:  # its parameter is counted as a parameter (below), not as alternatives tried
-        value, feats = _profile(cls, ctx, base, Q, e, vector)
+        value, variant, decided, feats = _profile(cls, ctx, base, Q, e, vector)
         # at its null value (a temperature's lag of 0) the candidate is its plain form: no parameter to count
         tried, profiled = 1, ({} if value == cls.profile_null else {cls.profile_name: value})
+        if cls.variant_name:  # its forms are alternatives tried; the row says which when the data decide
+            tried = len(cls.variants)
+            row_variant = {cls.variant_name: variant if decided else None}
         score, dims, singular, signature = new_part(feats)
     else:
         feats, tried = cls.search(ctx, score_on)
@@ -675,7 +680,7 @@ def _evaluate(cls, data, model, state, sigma, n_candidates) -> dict:
            "absorbed": dims == 0, "alternatives": tried, "score": score,
            "score_pvalue": min(1.0, float(stats.chi2.sf(score, max(dims, 1))) * tried),
            "absorbed_fraction": float(1 - singular.min()) if len(singular) else 1.0, **cls.describe(ctx, feats)}
-    row.update(_profiled_row(profiled))
+    row.update(_profiled_row(profiled), **row_variant)
     if dims == 0:
         row.update(lr=0.0, lr_pvalue=1.0, delta_aic=0.0, delta_bic=0.0, significant=False,
                    heldout_gap_before=None, heldout_gap_after=None,
@@ -713,7 +718,7 @@ def _evaluate(cls, data, model, state, sigma, n_candidates) -> dict:
                                     12 if vector else 9)
     row["unmet"] = _unmet(row, n_candidates, state["alpha"])
     row["significant"] = not row["unmet"]
-    flag = _implausible(row, sigma, state["sigma_bound"])
+    flag = _implausible(row, sigma, state["sigma_bound"], cls)
     if flag:
         row[flag[0]], row["note"], row["significant"] = flag[1], flag[2], False
     row["_fit"], row["_features"], row["_signature"] = fit, feats, signature
@@ -739,9 +744,9 @@ def _unmet(row: dict, n_candidates: int, alpha: float) -> list:
     return unmet
 
 
-def _implausible(row: dict, sigma: float, sigma_bound: bool):
-    """Why a candidate's fit cannot be an effect whatever its evidence, as (the row's flag, its value, a note),
-    or None."""
+def _implausible(row: dict, sigma: float, sigma_bound: bool, cls):
+    """Why a candidate's fit cannot be an effect (`cls`'s) whatever its evidence, as (the row's flag, its value,
+    a note), or None."""
     floor, before, after = row["heldout_noise_floor"], row["field_error_before"], row["field_error_after"]
     # (a σ that holds the model's misses is no floor: a right model goes below it)
     if not sigma_bound and after < NOISE_FLOOR_FRACTION * floor:
@@ -757,6 +762,9 @@ def _implausible(row: dict, sigma: float, sigma_bound: bool):
             f"not accepted: with it, the model's signal-dependent effects change the readings by "
             f"{row['distortion']:.3g}× the signal (RMS) — no sensor's non-linearity; their features, taken from "
             "the fit's own signal, stand in for the signal (a degenerate fit)")
+    reason = cls.unphysical(row["coefficients"], row["standard_errors"])
+    if reason:
+        return "unphysical", reason, f"not accepted as {cls.name}: {reason}"
     # Its residuals fell only in reading units: a fit can lower them by changing its own gain (the residual
     # is the field error over it) while the calibrated field departs further from the truth.
     if row["significant"] and after > before:
@@ -790,15 +798,33 @@ def _profiled_row(profiled: dict) -> dict:
     return {k: (float(v) if np.isfinite(v) else None) for k, v in profiled.items()}
 
 
+def _features_at(cls, ctx, value, variant):
+    return cls.features_at(ctx, value) if variant is None else cls.features_at(ctx, value, variant)
+
+
 def _profile(cls, ctx, result: dict, Q: np.ndarray, e: np.ndarray, vector: bool):
-    """A profiled candidate's parameter: the value whose features, fitted together with the columns of the
-    orthonormal basis Q (the rest of the model, linearised at `result`), take most off the residuals e — its grid
-    (`cls.profile_grid`), then a bounded search in log between the best point's neighbours. Each step is a
-    linear refit, so the profile costs projections, not solver runs. Returns (value, features)."""
+    """A profiled candidate's parameter and form: for each of its `variants`, the value whose features, fitted
+    together with the columns of the orthonormal basis Q (the rest of the model, linearised at `result`), take most
+    off the residuals e (`_profile_value`), and the variant that takes most (a choice among equals: its price is
+    in the alternatives tried), decided when it takes more than each other by BIC's price of a parameter.
+    Returns (value, variant, whether the data decided the variant, features)."""
+    price = np.log(len(e)) * float(e @ e) / len(e)
+    found = [_profile_value(cls, ctx, result, Q, e, vector, variant) for variant in cls.variants]
+    gains = [g for _, g in found]
+    i = int(np.argmax(gains))
+    decided = len(gains) > 1 and all(gains[i] - g >= price for j, g in enumerate(gains) if j != i)
+    value, variant = found[i][0], cls.variants[i]
+    return value, variant, decided, _features_at(cls, ctx, value, variant)
+
+
+def _profile_value(cls, ctx, result: dict, Q: np.ndarray, e: np.ndarray, vector: bool, variant):
+    """The profiled parameter of one variant: its grid (`cls.profile_grid`), then a bounded search in log between
+    the best point's neighbours. Each step is a linear refit, so the profile costs projections, not solver runs.
+    Returns (value, the part of e its features take)."""
     from scipy.optimize import minimize_scalar
 
     def gain(value):
-        Z = _project(result, cls.features_at(ctx, value), vector)
+        Z = _project(result, _features_at(cls, ctx, value, variant), vector)
         R = Z - Q @ (Q.T @ Z)
         coef, *_ = np.linalg.lstsq(R, e, rcond=None)
         return float(np.sum((R @ coef) ** 2))
@@ -820,9 +846,10 @@ def _profile(cls, ctx, result: dict, Q: np.ndarray, e: np.ndarray, vector: bool)
             value, best_gain = float(sign * np.exp(best.x)), -best.fun
     if cls.profile_null is not None:  # the parameter pays for itself (BIC's price, in the residual's variance) or stays null
         price = np.log(len(e)) * float(e @ e) / len(e)
-        if best_gain - gain(cls.profile_null) < price:
-            value = cls.profile_null
-    return value, cls.features_at(ctx, value)
+        null_gain = gain(cls.profile_null)
+        if best_gain - null_gain < price:
+            value, best_gain = cls.profile_null, null_gain
+    return value, best_gain
 
 
 SIGNAL_ITERATIONS = 20  # at most (a 1.5 % cubic about a hard iron of 4.4 fields: 10 steps to one noise variance)
@@ -860,8 +887,9 @@ def _at_own_signal(cls, data: _Data, fixed, state: dict, feats: np.ndarray, fit:
             J = np.asarray(fit["jacobian"])
             Z = J[:, -p:]  # ∂r/∂c: the candidate's part of the fit, linearised
             rest = J[:, :-p][:, np.any(J[:, :-p] != 0, axis=0)]
-            candidate, new = _profile(cls, ctx, fit, np.linalg.qr(rest)[0],
-                                      np.asarray(fit["residuals"]) - Z @ ctx.coefficients, data.reference is not None)
+            candidate, _, _, new = _profile(cls, ctx, fit, np.linalg.qr(rest)[0],
+                                            np.asarray(fit["residuals"]) - Z @ ctx.coefficients,
+                                            data.reference is not None)
         else:
             candidate, new = value, cls.features(ctx)
         # from this fit: its coefficients belong with its offset and matrix

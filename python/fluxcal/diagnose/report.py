@@ -26,6 +26,7 @@ def ranking_lines(d) -> list:
                 else "  (absorbed)" if r.get("absorbed")
                 else "  (not judged: its refit failed)" if r.get("note", "").startswith("not judged")
                 else f"  (degenerate: {r['degenerate']})" if r.get("degenerate")
+                else f"  (unphysical: {r['unphysical']})" if r.get("unphysical")
                 else "  (not accepted: the field error rises held out)" if r.get("field_error_rises")
                 else _unconfirmed(r))
         lines.append(f"{r['effect']:20s} {'YES' if r['significant'] else 'no':>7s} {r['delta_bic']:10.1f} "
@@ -103,6 +104,15 @@ def offset_step_line(d, r) -> str:
             f"at {when(at)}" + (f" and came back at {when(back)} (a device near the sensor switched on and off?)"
                                      if back is not None else
                                      " and stayed (a part magnetised by a shock or a strong field, a device switched on?)"))
+
+
+# What a gain's form (sim.effects._Gain) says about the offset, when the data decide it
+GAIN_ON_WORDS = {
+    "reading": "{effect}: the sensitivity change scales the offset too: the offset is a field at the sensor (the "
+               "platform's hard iron), not the sensor's own",
+    "field": "{effect}: the sensitivity change leaves the offset as it is: the offset is the sensor's own "
+             "(electronic, added after its gain), not a field at the sensor",
+}
 
 
 def drift_line(d, r) -> str:
@@ -208,6 +218,8 @@ def text(d) -> str:
                                                     "no lag behind the logged temperature"))
             if r["effect"] in ("offset_drift", "scale_drift") and r.get("step") is not None:
                 out.append("  " + drift_line(d, r))
+            if r.get("gain_on") and r.get("step") is not None:
+                out.append("  " + GAIN_ON_WORDS[r["gain_on"]].format(effect=r["effect"]))
             if r["effect"] == "offset_step" and r.get("step") is not None:
                 out.append("  " + offset_step_line(d, r))
             if r["effect"] == "moving_dipole" and r.get("peak_field") is not None:

@@ -68,6 +68,11 @@ class Effect:
     profile_name = ""
     profile_null = None      # a value at which the candidate is its plain form (kept unless the profile pays for itself)
     profile_open_end = True  # the refinement may go one grid step beyond the last finite grid value
+    # Forms of a profiled candidate that its physics leaves open (a gain that scales the hard iron or not):
+    # `features_at(ctx, value, variant)` for each; the diagnosis takes the one that fits best, counts them as
+    # alternatives tried, and the row reports the choice (`variant_name`) when the data decide it.
+    variant_name = ""
+    variants: tuple = (None,)
 
     @classmethod
     def profile_grid(cls, ctx) -> np.ndarray:  # pragma: no cover - interface
@@ -103,6 +108,12 @@ class Effect:
         """For features exact only at the fit's coefficients: whether these coefficients are in the range
         the features describe (the diagnosis stops recomputing them at a fit that left it)."""
         return True
+
+    @classmethod
+    def unphysical(cls, coefficients, standard_errors) -> str:
+        """Why fitted coefficients describe no such effect — a sign its physics forbids, beyond two standard
+        errors — or "" when they can. The diagnosis does not accept such a fit as this effect."""
+        return ""
 
     @classmethod
     def describe(cls, ctx, feats) -> dict:
@@ -365,6 +376,16 @@ class Saturation(Effect):
         return cls.features_at(ctx, np.inf)
 
     @classmethod
+    def unphysical(cls, coefficients, standard_errors):
+        # its features are a compression per unit size: a negative size makes the readings grow faster than
+        # the field, which no saturating core does (an expanding cubic with equal coefficients on every axis
+        # was reported as saturation)
+        if coefficients[0] + 2 * standard_errors[0] < 0:
+            return ("a negative size: the readings grow faster than the field (an expanding non-linearity), where "
+                    "a saturating core compresses them")
+        return ""
+
+    @classmethod
     def typical(cls, field_norm, rng):
         return cls(field_norm * rng.uniform(3.5, 5.0))
 
@@ -398,6 +419,15 @@ class Hysteresis(Effect):
     @classmethod
     def features(cls, ctx):
         return cls.alternatives(ctx)[2]
+
+    @classmethod
+    def unphysical(cls, coefficients, standard_errors):
+        # the coefficients are the widths: a negative one is a reading that runs ahead of its input
+        ahead = np.asarray(coefficients) + 2 * np.asarray(standard_errors) < 0
+        if ahead.any():
+            return (f"a negative width on axis {', '.join('xyz'[k] for k in np.flatnonzero(ahead))}: the reading "
+                    "runs ahead of its input, where a core's hysteresis holds it behind")
+        return ""
 
     @classmethod
     def typical(cls, field_norm, rng):
@@ -498,11 +528,28 @@ class _TemperatureLag:
         return cls.features_at(ctx, 0.0)
 
 
+class _Gain:
+    """A sensitivity that changes scales what the transducer sees. Whether that includes the offset is the
+    sensor's: a platform's hard iron is a field at the sensor, scaled with it ("reading": the signal b + W h);
+    a sensor's own electronic offset is added after its gain, and is not ("field": W h alone). Both are tried
+    (`variants`); the data decide when the hard iron is large enough to show it. Modelled the other way, a
+    field-only gain needed a companion offset term −g b, or with the same sign on every axis was taken for a
+    field change along the field (a passing magnet)."""
+
+    variant_name = "gain_on"
+    variants = ("reading", "field")
+
+    @staticmethod
+    def gained(ctx, variant) -> np.ndarray:
+        return ctx.direction if variant == "field" else ctx.signal
+
+
 @dataclass
-class TemperatureScale(_TemperatureLag, Effect):
+class TemperatureScale(_Gain, _TemperatureLag, Effect):
     """Sensitivity drift with temperature: s_k (1 + α_k (T − T0)), α in 1/°C, T the sensing element's
     temperature: the logged one through a first-order lag `lag_s` (s; 0: the logged one). Typical: ±0.1 %/°C
-    (QMC5883L/HMC5883L class without compensation; RM3100 ≈ 0.03 %/°C)."""
+    (QMC5883L/HMC5883L class without compensation; RM3100 ≈ 0.03 %/°C). It scales the whole reading, hard iron
+    included (simulated after the hard iron); as a candidate, the field alone too (`_Gain`)."""
 
     alpha: np.ndarray
     t0: float = 25.0
@@ -517,9 +564,9 @@ class TemperatureScale(_TemperatureLag, Effect):
         return values * (1.0 + np.outer(temp - self.t0, self.alpha))
 
     @classmethod
-    def features_at(cls, ctx, value):
+    def features_at(cls, ctx, value, variant="reading"):
         temp = lagged(ctx.temp, ctx.t, value)
-        return _per_axis(ctx.signal * (temp - temp.mean())[:, None])
+        return _per_axis(cls.gained(ctx, variant) * (temp - temp.mean())[:, None])
 
     @classmethod
     def typical(cls, field_norm, rng):
@@ -656,10 +703,11 @@ class OffsetDrift(_TimeCourse, Effect):
 
 
 @dataclass
-class ScaleDrift(_TimeCourse, Effect):
+class ScaleDrift(_Gain, _TimeCourse, Effect):
     """Sensitivity that drifts in time: s_k (1 + rate_k · course(t)), rate in 1/s (with `warmup_s` > 0 settling
     with that time constant, see `_TimeCourse`) — a bridge's or a coil driver's gain warming up with no
-    temperature logged (with one, temp_scale). Typical: 0.5–1 % over a minute's recording, linear."""
+    temperature logged (with one, temp_scale). Typical: 0.5–1 % over a minute's recording, linear. Like
+    temp_scale it scales the whole reading; as a candidate, the field alone too (`_Gain`)."""
 
     rate: np.ndarray
     warmup_s: float = 0.0
@@ -670,8 +718,8 @@ class ScaleDrift(_TimeCourse, Effect):
         return values * (1.0 + np.outer(self.course(context.t, float(self.warmup_s)), self.rate))
 
     @classmethod
-    def features_at(cls, ctx, value):
-        return _per_axis(ctx.signal * cls.shape(ctx, value)[:, None])
+    def features_at(cls, ctx, value, variant="reading"):
+        return _per_axis(cls.gained(ctx, variant) * cls.shape(ctx, value)[:, None])
 
     @classmethod
     def typical(cls, field_norm, rng, duration_s: float = 60.0):

@@ -31,14 +31,15 @@ CURRENT = (20.0, 4.0)  # A peak, s per throttle setting (scene.tumble), when mot
 # magnitude shows against reference vectors.
 MODEL_FOR = {"non_orthogonality": "scale", "misalignment": "vector_scale", "time_offset": "vector"}
 # Effects applied before soft iron and the axes' scale factors (they act on the field, or, for
-# misalignment, turn it into the sensor's axes before each axis scales it), the rest after the hard iron.
+# misalignment, turn it into the sensor's axes before each axis scales it), the rest after the hard iron
+# (before it when the offset is electronic: `withheld_trial(electronic_offset=True)`).
 FIELD_EFFECTS = ("moving_dipole", "eddy_current", "misalignment")
 NOISE_EFFECTS = ("colored_noise", "quantization")
 
 
 def withheld_trial(names, seed: int, duration_s: float = DURATION, temperature=None, noise: float = NOISE,
                    rate_hz: float = 50.0, model: str | None = None, current=None, hard_iron: float = HARD_IRON,
-                   soft_iron: float = SOFT_IRON):
+                   soft_iron: float = SOFT_IRON, electronic_offset: bool = False):
     """Simulate the effects `names` (candidate names, may be empty); returns the Simulation and the
     keyword arguments of `fluxcal.diagnose` for it (t, temp, field_norm, model, and the reference with the
     down direction, the current, or the given noise, where the effect needs them). `temperature`: the scene's
@@ -48,7 +49,8 @@ def withheld_trial(names, seed: int, duration_s: float = DURATION, temperature=N
     vectors). `current`: the scene's current (see `scene.tumble`; default `CURRENT` when motor_current is
     withheld, else none). `hard_iron`: the largest hard iron |b| as a multiple of the field (each axis
     uniform within ±hard_iron·H/√3); `soft_iron`: the axes' scale errors (uniform within ±soft_iron), the
-    soft iron's off-diagonal terms within ±0.6 of that."""
+    soft iron's off-diagonal terms within ±0.6 of that. `electronic_offset`: the offset is the sensor's own, added
+    after the transducer's effects (its gain and non-linearity do not act on it), not the platform's hard iron."""
     by_name = {c.name: c for c in CANDIDATES}
     unknown = [n for n in names if n not in by_name]
     if unknown:
@@ -69,8 +71,8 @@ def withheld_trial(names, seed: int, duration_s: float = DURATION, temperature=N
 
     # misalignment last among them: it turns the whole field, a dipole's included, into the sensor's axes
     effects = [make(n) for n in sorted((n for n in names if n in FIELD_EFFECTS), key=lambda n: n == "misalignment")]
-    effects += [SoftIron(W), HardIron(b)]
-    effects += [make(n) for n in names if n not in FIELD_EFFECTS and n not in NOISE_EFFECTS]
+    transducer = [make(n) for n in names if n not in FIELD_EFFECTS and n not in NOISE_EFFECTS]
+    effects += [SoftIron(W)] + (transducer + [HardIron(b)] if electronic_offset else [HardIron(b)] + transducer)
     effects.append(WhiteNoise(noise))
     effects += [make(n) for n in names if n in NOISE_EFFECTS]
     extra = {} if temperature is None else {"temperature": temperature}
