@@ -120,30 +120,31 @@ def test_an_exponential_warm_up_is_an_offset_settling_in_time():
     assert [r["effect"] for r in d.confounded["temp_offset"]] == ["offset_drift"]
 
 
-@pytest.mark.parametrize("name", ["temp_scale", "scale_drift"])
-def test_a_gain_that_leaves_the_offset_alone_is_found_alone(monkeypatch, name):
-    # A sensor's own (electronic) offset is added after its gain; a platform's hard iron is a field the gain
-    # scales. Both forms are tried. Before, a field-only gain needed a companion offset term (temp_offset beside
-    # temp_scale), or with the same sign on every axis was taken for a passing magnet. Hard iron of two fields
-    # (a phone, a drone) makes the form visible: the row says which.
+@pytest.mark.parametrize("name", ["temp_scale", "scale_drift", "nonlinearity_cubic"])
+def test_an_electronic_offset_is_told_from_a_hard_iron(monkeypatch, name):
+    # A sensor's own (electronic) offset is added after its transducer; a platform's hard iron is a field the
+    # transducer's gain and non-linearity act on. Both forms are tried. Before, about an electronic offset of two
+    # fields, a gain needed a companion offset term (temp_offset beside temp_scale) or with the same sign on every
+    # axis was taken for a passing magnet, and a cubic was missed (coloured noise). The row says which form.
     from fluxcal.sim.effects import ScaleDrift, TemperatureScale
 
-    cls, field = (TemperatureScale, "alpha") if name == "temp_scale" else (ScaleDrift, "rate")
-    typical = cls.typical.__func__
+    if name != "nonlinearity_cubic":
+        cls, field = (TemperatureScale, "alpha") if name == "temp_scale" else (ScaleDrift, "rate")
+        typical = cls.typical.__func__
 
-    def same_sign(c, *args):
-        effect = typical(c, *args)
-        setattr(effect, field, np.abs(getattr(effect, field)))
-        return effect
+        def same_sign(c, *args):
+            effect = typical(c, *args)
+            setattr(effect, field, np.abs(getattr(effect, field)))
+            return effect
 
-    monkeypatch.setattr(cls, "typical", classmethod(same_sign))
-    for electronic, form in ((True, "field"), (False, "reading")):
+        monkeypatch.setattr(cls, "typical", classmethod(same_sign))
+    for electronic, kind in ((True, "electronic"), (False, "hard_iron")):
         for seed in (0, 2):
             result, kwargs = withheld_trial([name], seed, hard_iron=2.0, electronic_offset=electronic)
             d = diagnose(result.readings, **kwargs)
             assert d.accepted == [name], (electronic, seed, d.accepted)
-            assert d.ranking[0]["gain_on"] == form, (electronic, seed, d.ranking[0].get("gain_on"))
-            words = "leaves the offset as it is" if electronic else "scales the offset too"
+            assert d.ranking[0]["offset_kind"] == kind, (electronic, seed, d.ranking[0].get("offset_kind"))
+            words = "leaves the offset as it is" if electronic else "acts on the offset too"
             assert words in report_text(d), (electronic, seed)
 
 

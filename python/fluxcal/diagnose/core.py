@@ -95,8 +95,9 @@ class Diagnosis:
     `limit` saturation's profiled limit (reading units; None: its cubic limit, L → ∞); `lag_s` a temperature
     candidate's profiled lag (the sensing element's temperature: the logged one through a first-order lag);
     `warmup_s` offset_drift's profiled settling time constant (an exponential warm-up; absent: linear);
-    `gain_on` a gain's form (temp_scale, scale_drift), when the data decide it: "reading" (it scales the hard iron
-    too: a field at the sensor) or "field" (the offset is the sensor's own, not scaled); None when undecided;
+    `offset_kind` for an effect in the transducer (a gain, a non-linearity), when the data decide it: "hard_iron"
+    (it acts on the offset too: a field at the sensor) or "electronic" (the offset is the sensor's own, added
+    after the transducer); None when undecided;
     `on_s`/`off_s` give an event's box (moving_dipole, offset_step: first and last time within it, None at
     the recording's ends); an accepted offset_step's `jump`, `jump_s`, `back_s` the step as a jump (a box
     from the recording's start reverses the coefficients' sign); `found_with` names the effect a row was found together with (each passed its
@@ -374,6 +375,26 @@ def _context(data: _Data, result: dict, feats=None) -> SimpleNamespace:
     return SimpleNamespace(signal=signal, readings=data.m, scale=float(np.median(np.linalg.norm(signal, axis=1))),
                            field=field, W=W, direction=direction, t=data.t, temp=data.temp,
                            current=data.current, world=_world_axes(data, W))
+
+
+def _forms(cls, ctx) -> dict:
+    """The contexts a candidate is tried in: one ("hard_iron") unless it acts in the transducer (`transducer`),
+    which sees the field and the platform's hard iron but not the sensor's own electronic offset, added after
+    it; then also "electronic": the whole fitted offset added after the transducer, which sees W h alone."""
+    if not cls.transducer:
+        return {"hard_iron": ctx}
+    return {"hard_iron": ctx, "electronic": SimpleNamespace(**{**vars(ctx), "signal": ctx.direction})}
+
+
+def _offset_kind(form: str, taken: dict, e: np.ndarray) -> dict:
+    """The ranking row's `offset_kind`: the form chosen when it takes more off the residuals than the other by
+    BIC's price of a parameter (the data decide it: a hard iron large enough to show), None when not; nothing
+    for a candidate with one form."""
+    if len(taken) < 2:
+        return {}
+    price = np.log(len(e)) * float(e @ e) / len(e)
+    decided = all(taken[form] - g >= price for f, g in taken.items() if f != form)
+    return {"offset_kind": form if decided else None}
 
 
 def _jump(row: dict) -> dict:
@@ -661,26 +682,26 @@ def _evaluate(cls, data, model, state, sigma, n_candidates) -> dict:
         new = s >= ABSORBED
         return float(np.sum((V[:, new].T @ ((Z.T @ e[r] - W.T @ Qe) / norms) / s[new]) ** 2) / sigma2)
 
-    profiled, row_variant = {}, {}
+    profiled, ctxs, form, taken = {}, _forms(cls, ctx), "hard_iron", {}
     if cls.linear and not fixed:  # exactly absorbed by the full matrix; its first-order features are not
         # (one of three directions looked new on a real recording with a 4 % temperature scale error)
         feats, tried, score, dims, singular, signature = cls.features(ctx), 1, 0.0, 0, np.zeros(0), None
     elif cls.profile_name:  # its parameter is counted as a parameter (below), not as alternatives tried
-        value, variant, decided, feats = _profile(cls, ctx, base, Q, e, vector)
+        value, form, feats, taken = _profile(cls, ctxs, base, Q, e, vector)
         # at its null value (a temperature's lag of 0) the candidate is its plain form: no parameter to count
-        tried, profiled = 1, ({} if value == cls.profile_null else {cls.profile_name: value})
-        if cls.variant_name:  # its forms are alternatives tried; the row says which when the data decide
-            tried = len(cls.variants)
-            row_variant = {cls.variant_name: variant if decided else None}
+        tried, profiled = len(ctxs), ({} if value == cls.profile_null else {cls.profile_name: value})
         score, dims, singular, signature = new_part(feats)
     else:
-        feats, tried = cls.search(ctx, score_on)
+        found = {form: cls.search(c, score_on) for form, c in ctxs.items()}
+        taken = {form: score_on(f) * sigma2 for form, (f, _) in found.items()}  # as the profile's: the part of e
+        form = max(taken, key=taken.get)
+        feats, tried = found[form][0], sum(n for _, n in found.values())
         score, dims, singular, signature = new_part(feats)
     row = {"effect": cls.name, "regime": cls.regime, "n_params": int(feats.shape[1]), "new_dimensions": dims,
            "absorbed": dims == 0, "alternatives": tried, "score": score,
            "score_pvalue": min(1.0, float(stats.chi2.sf(score, max(dims, 1))) * tried),
            "absorbed_fraction": float(1 - singular.min()) if len(singular) else 1.0, **cls.describe(ctx, feats)}
-    row.update(_profiled_row(profiled), **row_variant)
+    row.update(_profiled_row(profiled), **_offset_kind(form, taken, e))
     if dims == 0:
         row.update(lr=0.0, lr_pvalue=1.0, delta_aic=0.0, delta_bic=0.0, significant=False,
                    heldout_gap_before=None, heldout_gap_after=None,
@@ -693,7 +714,7 @@ def _evaluate(cls, data, model, state, sigma, n_candidates) -> dict:
                    start_terms=np.concatenate([state["terms"], np.zeros(feats.shape[1])]))
         if cls.signal_features:
             feats, fit, value = _at_own_signal(cls, data, fixed, state, feats, fit, ctx.scale, sigma,
-                                               profiled.get(cls.profile_name))
+                                               profiled.get(cls.profile_name), form)
             row.update(_profiled_row({cls.profile_name: value} if profiled else {}))
         validated = _validate(data, model, state, feats, cls.regime, sigma)
     except _core.Error as err:  # a candidate nearly inside the model can leave the solver no valid step
@@ -798,33 +819,25 @@ def _profiled_row(profiled: dict) -> dict:
     return {k: (float(v) if np.isfinite(v) else None) for k, v in profiled.items()}
 
 
-def _features_at(cls, ctx, value, variant):
-    return cls.features_at(ctx, value) if variant is None else cls.features_at(ctx, value, variant)
+def _profile(cls, ctxs: dict, result: dict, Q: np.ndarray, e: np.ndarray, vector: bool):
+    """A profiled candidate's parameter and form: for each form's context (`_forms`), the value whose features,
+    fitted together with the columns of the orthonormal basis Q (the rest of the model, linearised at `result`),
+    take most off the residuals e (`_profile_value`), and the form that takes most. Returns (value, form,
+    features, the part of e each form takes)."""
+    found = {form: _profile_value(cls, ctx, result, Q, e, vector) for form, ctx in ctxs.items()}
+    form = max(found, key=lambda f: found[f][1])
+    value = found[form][0]
+    return value, form, cls.features_at(ctxs[form], value), {f: g for f, (_, g) in found.items()}
 
 
-def _profile(cls, ctx, result: dict, Q: np.ndarray, e: np.ndarray, vector: bool):
-    """A profiled candidate's parameter and form: for each of its `variants`, the value whose features, fitted
-    together with the columns of the orthonormal basis Q (the rest of the model, linearised at `result`), take most
-    off the residuals e (`_profile_value`), and the variant that takes most (a choice among equals: its price is
-    in the alternatives tried), decided when it takes more than each other by BIC's price of a parameter.
-    Returns (value, variant, whether the data decided the variant, features)."""
-    price = np.log(len(e)) * float(e @ e) / len(e)
-    found = [_profile_value(cls, ctx, result, Q, e, vector, variant) for variant in cls.variants]
-    gains = [g for _, g in found]
-    i = int(np.argmax(gains))
-    decided = len(gains) > 1 and all(gains[i] - g >= price for j, g in enumerate(gains) if j != i)
-    value, variant = found[i][0], cls.variants[i]
-    return value, variant, decided, _features_at(cls, ctx, value, variant)
-
-
-def _profile_value(cls, ctx, result: dict, Q: np.ndarray, e: np.ndarray, vector: bool, variant):
-    """The profiled parameter of one variant: its grid (`cls.profile_grid`), then a bounded search in log between
+def _profile_value(cls, ctx, result: dict, Q: np.ndarray, e: np.ndarray, vector: bool):
+    """The profiled parameter: its grid (`cls.profile_grid`), then a bounded search in log between
     the best point's neighbours. Each step is a linear refit, so the profile costs projections, not solver runs.
     Returns (value, the part of e its features take)."""
     from scipy.optimize import minimize_scalar
 
     def gain(value):
-        Z = _project(result, _features_at(cls, ctx, value, variant), vector)
+        Z = _project(result, cls.features_at(ctx, value), vector)
         R = Z - Q @ (Q.T @ Z)
         coef, *_ = np.linalg.lstsq(R, e, rcond=None)
         return float(np.sum((R @ coef) ** 2))
@@ -856,7 +869,7 @@ SIGNAL_ITERATIONS = 20  # at most (a 1.5 % cubic about a hard iron of 4.4 fields
 
 
 def _at_own_signal(cls, data: _Data, fixed, state: dict, feats: np.ndarray, fit: dict, scale: float, sigma: float,
-                   value=None):
+                   value=None, form: str = "hard_iron"):
     """A candidate non-linear in the signal (s³, s·s_easy) has its features computed from the base fit's
     estimate of the signal, s = b + W h. The base fit, without the effect, absorbs the effect's constant and
     linear parts into b and W (a cubic per axis about a hard iron b adds c b³ to the offset and 3c b² to the
@@ -870,14 +883,14 @@ def _at_own_signal(cls, data: _Data, fixed, state: dict, feats: np.ndarray, fit:
     the fit's own coefficients (cross_axis' 1/(1 + s_e/H_k)) get them (`ctx.coefficients`), and the iteration
     ends at a fit whose coefficients leave the range they describe (`holds`); a profiled
     parameter (saturation's limit, `value`) is profiled again at each fit, its features less the candidate's
-    modelled part (linearised) taken as the residuals to explain. Returns the features, their fit and the
-    profiled value."""
+    modelled part (linearised) taken as the residuals to explain. `form`: what the transducer sees (`_forms`).
+    Returns the features, their fit and the profiled value."""
     everything = np.arange(len(data.m))
     field_error = lambda f, feats: _downstream(f, data, _features(state["features"] + [feats]), everything)[  # noqa: E731
         "field_error"]
     rss, error = float(np.sum(np.square(fit["residuals"]))), field_error(fit, feats)
     for _ in range(SIGNAL_ITERATIONS):
-        ctx = _context(data, fit, _features(state["features"] + [feats]))
+        ctx = _forms(cls, _context(data, fit, _features(state["features"] + [feats])))[form]
         ctx.scale = scale
         p = feats.shape[1]
         ctx.coefficients = np.asarray(fit["parameters"])[-p:]
@@ -887,7 +900,7 @@ def _at_own_signal(cls, data: _Data, fixed, state: dict, feats: np.ndarray, fit:
             J = np.asarray(fit["jacobian"])
             Z = J[:, -p:]  # ∂r/∂c: the candidate's part of the fit, linearised
             rest = J[:, :-p][:, np.any(J[:, :-p] != 0, axis=0)]
-            candidate, _, _, new = _profile(cls, ctx, fit, np.linalg.qr(rest)[0],
+            candidate, _, new, _ = _profile(cls, {form: ctx}, fit, np.linalg.qr(rest)[0],
                                             np.asarray(fit["residuals"]) - Z @ ctx.coefficients,
                                             data.reference is not None)
         else:

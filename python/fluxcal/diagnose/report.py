@@ -106,12 +106,12 @@ def offset_step_line(d, r) -> str:
                                      " and stayed (a part magnetised by a shock or a strong field, a device switched on?)"))
 
 
-# What a gain's form (sim.effects._Gain) says about the offset, when the data decide it
-GAIN_ON_WORDS = {
-    "reading": "{effect}: the sensitivity change scales the offset too: the offset is a field at the sensor (the "
-               "platform's hard iron), not the sensor's own",
-    "field": "{effect}: the sensitivity change leaves the offset as it is: the offset is the sensor's own "
-             "(electronic, added after its gain), not a field at the sensor",
+# What an effect in the transducer says about the offset, when the data decide its form (core._forms)
+OFFSET_KIND_WORDS = {
+    "hard_iron": "{effect} acts on the offset too: the offset is a field at the sensor (the platform's hard iron), "
+                 "not the sensor's own",
+    "electronic": "{effect} leaves the offset as it is: the offset is the sensor's own (electronic, added after "
+                  "the transducer), not a field at the sensor",
 }
 
 
@@ -218,8 +218,8 @@ def text(d) -> str:
                                                     "no lag behind the logged temperature"))
             if r["effect"] in ("offset_drift", "scale_drift") and r.get("step") is not None:
                 out.append("  " + drift_line(d, r))
-            if r.get("gain_on") and r.get("step") is not None:
-                out.append("  " + GAIN_ON_WORDS[r["gain_on"]].format(effect=r["effect"]))
+            if r.get("offset_kind") and r.get("step") is not None:
+                out.append("  " + OFFSET_KIND_WORDS[r["offset_kind"]].format(effect=r["effect"]))
             if r["effect"] == "offset_step" and r.get("step") is not None:
                 out.append("  " + offset_step_line(d, r))
             if r["effect"] == "moving_dipole" and r.get("peak_field") is not None:

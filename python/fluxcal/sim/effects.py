@@ -68,11 +68,11 @@ class Effect:
     profile_name = ""
     profile_null = None      # a value at which the candidate is its plain form (kept unless the profile pays for itself)
     profile_open_end = True  # the refinement may go one grid step beyond the last finite grid value
-    # Forms of a profiled candidate that its physics leaves open (a gain that scales the hard iron or not):
-    # `features_at(ctx, value, variant)` for each; the diagnosis takes the one that fits best, counts them as
-    # alternatives tried, and the row reports the choice (`variant_name`) when the data decide it.
-    variant_name = ""
-    variants: tuple = (None,)
+    # It acts in the transducer, on what the transducer sees (`ctx.signal`): a gain, a non-linearity. Whether
+    # that includes the offset is the sensor's: a platform's hard iron is a field at the sensor and passes
+    # through the transducer; a sensor's own electronic offset is added after it. The diagnosis tries both
+    # (`ctx.signal` the fitted b + W h, or W h alone) and says which when the data decide.
+    transducer = False
 
     @classmethod
     def profile_grid(cls, ctx) -> np.ndarray:  # pragma: no cover - interface
@@ -269,6 +269,7 @@ class CrossAxis(Effect):
 
     hk: np.ndarray
     name = "cross_axis"
+    transducer = True
     n_params = 3
     signal_features = True
     EASY = (1, 0, 0)
@@ -316,6 +317,7 @@ class CubicNonlinearity(Effect):
     relative: np.ndarray
     scale: float
     name = "nonlinearity_cubic"
+    transducer = True
     n_params = 3
     signal_features = True
 
@@ -343,6 +345,7 @@ class Saturation(Effect):
 
     limit: float
     name = "saturation"
+    transducer = True
     n_params = 1
     signal_features = True
     profile_name = "limit"
@@ -528,33 +531,17 @@ class _TemperatureLag:
         return cls.features_at(ctx, 0.0)
 
 
-class _Gain:
-    """A sensitivity that changes scales what the transducer sees. Whether that includes the offset is the
-    sensor's: a platform's hard iron is a field at the sensor, scaled with it ("reading": the signal b + W h);
-    a sensor's own electronic offset is added after its gain, and is not ("field": W h alone). Both are tried
-    (`variants`); the data decide when the hard iron is large enough to show it. Modelled the other way, a
-    field-only gain needed a companion offset term −g b, or with the same sign on every axis was taken for a
-    field change along the field (a passing magnet)."""
-
-    variant_name = "gain_on"
-    variants = ("reading", "field")
-
-    @staticmethod
-    def gained(ctx, variant) -> np.ndarray:
-        return ctx.direction if variant == "field" else ctx.signal
-
-
 @dataclass
-class TemperatureScale(_Gain, _TemperatureLag, Effect):
+class TemperatureScale(_TemperatureLag, Effect):
     """Sensitivity drift with temperature: s_k (1 + α_k (T − T0)), α in 1/°C, T the sensing element's
     temperature: the logged one through a first-order lag `lag_s` (s; 0: the logged one). Typical: ±0.1 %/°C
-    (QMC5883L/HMC5883L class without compensation; RM3100 ≈ 0.03 %/°C). It scales the whole reading, hard iron
-    included (simulated after the hard iron); as a candidate, the field alone too (`_Gain`)."""
+    (QMC5883L/HMC5883L class without compensation; RM3100 ≈ 0.03 %/°C)."""
 
     alpha: np.ndarray
     t0: float = 25.0
     lag_s: float = 0.0
     name = "temp_scale"
+    transducer = True
     n_params = 3
     regime = "temperature"
     needs = ("temp",)
@@ -564,9 +551,9 @@ class TemperatureScale(_Gain, _TemperatureLag, Effect):
         return values * (1.0 + np.outer(temp - self.t0, self.alpha))
 
     @classmethod
-    def features_at(cls, ctx, value, variant="reading"):
+    def features_at(cls, ctx, value):
         temp = lagged(ctx.temp, ctx.t, value)
-        return _per_axis(cls.gained(ctx, variant) * (temp - temp.mean())[:, None])
+        return _per_axis(ctx.signal * (temp - temp.mean())[:, None])
 
     @classmethod
     def typical(cls, field_norm, rng):
@@ -703,23 +690,23 @@ class OffsetDrift(_TimeCourse, Effect):
 
 
 @dataclass
-class ScaleDrift(_Gain, _TimeCourse, Effect):
+class ScaleDrift(_TimeCourse, Effect):
     """Sensitivity that drifts in time: s_k (1 + rate_k · course(t)), rate in 1/s (with `warmup_s` > 0 settling
     with that time constant, see `_TimeCourse`) — a bridge's or a coil driver's gain warming up with no
-    temperature logged (with one, temp_scale). Typical: 0.5–1 % over a minute's recording, linear. Like
-    temp_scale it scales the whole reading; as a candidate, the field alone too (`_Gain`)."""
+    temperature logged (with one, temp_scale). Typical: 0.5–1 % over a minute's recording, linear."""
 
     rate: np.ndarray
     warmup_s: float = 0.0
     name = "scale_drift"
+    transducer = True
     n_params = 3
 
     def apply(self, values, context):
         return values * (1.0 + np.outer(self.course(context.t, float(self.warmup_s)), self.rate))
 
     @classmethod
-    def features_at(cls, ctx, value, variant="reading"):
-        return _per_axis(cls.gained(ctx, variant) * cls.shape(ctx, value)[:, None])
+    def features_at(cls, ctx, value):
+        return _per_axis(ctx.signal * cls.shape(ctx, value)[:, None])
 
     @classmethod
     def typical(cls, field_norm, rng, duration_s: float = 60.0):
