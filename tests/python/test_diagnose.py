@@ -148,6 +148,20 @@ def test_an_electronic_offset_is_told_from_a_hard_iron(monkeypatch, name):
             assert words in report_text(d), (electronic, seed)
 
 
+def test_a_wide_hysteresis_loop_is_hysteresis(monkeypatch):
+    # A loop 5–10 µT wide (a tenth to a fifth of the field) of which 4–5 % is irreversible: the play widths tried
+    # stopped at 0.8 % of the field, and such a loop was taken for a cubic or saturation plus coloured noise.
+    from fluxcal.sim.effects import Hysteresis
+
+    monkeypatch.setattr(Hysteresis, "typical",
+                        classmethod(lambda cls, field_norm, rng: cls(field_norm * rng.uniform(0.1, 0.2, 3),
+                                                                     share=rng.uniform(0.04, 0.05))))
+    found = [diagnose(r.readings, **kw).accepted for r, kw in (withheld_trial(["hysteresis"], seed) for seed in range(4))]
+    assert all(a[:1] == ["hysteresis"] for a in found), found
+    # one width for every axis (each has its own here): what it leaves may still look like something else
+    assert sum(not {"nonlinearity_cubic", "saturation"} & set(a) for a in found) >= 3, found
+
+
 def test_nothing_withheld_reports_nothing():
     quiet = sum(not _run([], 200 + seed).significant for seed in range(20))
     assert quiet >= 19, f"no significant effect in only {quiet}/20"
