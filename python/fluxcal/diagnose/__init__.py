@@ -26,7 +26,11 @@ it, and how far the gap shrinks once that effect is modelled — proved on held-
    from the fitted model's noise-free reading, so the reading noise cannot fake them, then again at the
    signal (and, for cross_axis' exact 1/(1 + s_e/H_k), the coefficients) of the fit that models them; their
    absorption is judged on the part not affine in the signal (offset and matrix hold the rest). Saturation's
-   limit is profiled (a 1-D search, each step a linear refit) and counted as a parameter. Systematic effects
+   limit is profiled (a 1-D search, each step a linear refit) and counted as a parameter. An effect in the
+   transducer (a gain, a non-linearity) is tried acting on the field with the offset (the platform's hard
+   iron) and on the field alone (the sensor's own electronic offset, added after it), counted as alternatives;
+   the row's `offset_kind` says which when the data decide. A fit with a sign the effect's physics forbids
+   (an expanding saturation, a hysteresis ahead of its input) is not that effect. Systematic effects
    are tried before
    noise models: a systematic effect predicts unseen regimes, correlated noise only the next sample.
    When none is significant but one passed every in-sample test, it is added on trial: two large

@@ -734,7 +734,8 @@ def _evaluate(cls, data, model, state, sigma, n_candidates) -> dict:
                coefficients=np.asarray(fit["parameters"])[-feats.shape[1]:].tolist(),
                standard_errors=np.asarray(fit["standard_errors"])[-feats.shape[1]:].tolist())
     row.update(validated)
-    row["distortion"] = _distortion(ctx.signal, state["features"] + [feats],
+    # against what the transducer saw in the chosen form (with an electronic offset, the field alone)
+    row["distortion"] = _distortion(ctxs[form].signal, state["features"] + [feats],
                                     state["signal_blocks"] + [cls.signal_features], np.asarray(fit["parameters"]),
                                     12 if vector else 9)
     row["unmet"] = _unmet(row, n_candidates, state["alpha"])
