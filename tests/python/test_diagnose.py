@@ -162,6 +162,21 @@ def test_a_wide_hysteresis_loop_is_hysteresis(monkeypatch):
     assert sum(not {"nonlinearity_cubic", "saturation"} & set(a) for a in found) >= 3, found
 
 
+def test_hysteresis_is_no_temperature_lookalike():
+    # Held out in time like a drift, but it follows how the field moved: no warming sensor looks like it, and the
+    # MAYBE TEMPERATURE caveat named it (a helper's blind check), beside colored_noise, which a warming can be.
+    from types import SimpleNamespace
+
+    from fluxcal.diagnose.report import temperature_caveat
+
+    d = SimpleNamespace(remaining={"skipped_candidates": ["temp_scale", "temp_offset"]},
+                        ranking=[{"effect": "hysteresis", "regime": "time"}, {"effect": "colored_noise", "regime": "time"}],
+                        accepted=["hysteresis", "colored_noise"])
+    (line,) = temperature_caveat(d)
+    assert line.startswith("MAYBE TEMPERATURE: colored_noise follow(s) time"), line
+    assert temperature_caveat(SimpleNamespace(**{**vars(d), "accepted": ["hysteresis"]})) == []
+
+
 def test_nothing_withheld_reports_nothing():
     quiet = sum(not _run([], 200 + seed).significant for seed in range(20))
     assert quiet >= 19, f"no significant effect in only {quiet}/20"

@@ -79,13 +79,17 @@ def confound_lines(d) -> list:
     return lines
 
 
+FIELD_HISTORY = ("hysteresis", "eddy_current")  # effects of how the field moved, not of when
+
+
 def temperature_caveat(d) -> list:
     """Without a temperature column a temperature effect shows up as whatever varies in time: correlated
     noise, a drift, an event. Say so when that is what was found (the survey: temp_offset and temp_scale
     without temperature came out as colored_noise in 19 of 20 trials)."""
     skipped = [n for n in d.remaining.get("skipped_candidates", []) if n.startswith("temp_")]
     regime = {r["effect"]: r["regime"] for r in d.ranking}
-    timelike = [a for a in d.accepted if regime.get(a) in ("time", "events")]
+    # (hysteresis and eddy currents are held out in time too, but follow the field's history, which no warming does)
+    timelike = [a for a in d.accepted if regime.get(a) in ("time", "events") and a not in FIELD_HISTORY]
     if not skipped or not timelike:
         return []
     return [f"MAYBE TEMPERATURE: {', '.join(timelike)} follow(s) time, and without a temperature column "
