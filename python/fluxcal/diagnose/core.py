@@ -94,7 +94,8 @@ class Diagnosis:
     rotation vector, degrees) or `delay_ms` (time_offset: the readings this late);
     `limit` saturation's profiled limit (reading units; None: its cubic limit, L → ∞); `lag_s` a temperature
     candidate's profiled lag (the sensing element's temperature: the logged one through a first-order lag);
-    `warmup_s` offset_drift's profiled settling time constant (an exponential warm-up; absent: linear);
+    `warmup_s` offset_drift's profiled settling time constant (an exponential warm-up; absent: linear); `width`
+    hysteresis' profiled loop width (reading units, one for every axis);
     `offset_kind` for an effect in the transducer (a gain, a non-linearity), when the data decide it: "hard_iron"
     (it acts on the offset too: a field at the sensor) or "electronic" (the offset is the sensor's own, added
     after the transducer); None when undecided;
@@ -366,8 +367,8 @@ def _context(data: _Data, result: dict, feats=None) -> SimpleNamespace:
         field = (m - theta[:3]) @ np.asarray(result["matrix"]).T
         field *= data.field_norm / np.linalg.norm(field, axis=1, keepdims=True)
     direction = data.field_norm * (field / np.linalg.norm(field, axis=1, keepdims=True)) @ W.T
-    # The transducer sees the field including hard iron (a field too), taking electronic offsets as small
-    # next to it: the fitted model's reading b + W h, with h on the fitted sphere (or the reference).
+    # The transducer sees the field including hard iron (a field too): the fitted model's reading b + W h, with
+    # h on the fitted sphere (or the reference); `_forms` gives the other form, an electronic offset b added after.
     # Not the raw readings: a feature non-linear in them (s³, s·s_easy) carries the reading's own noise,
     # whose correlation with the residual's noise fakes a fit — saturation came first in 29 of 30 pure
     # white-noise trials at σ = 1 % of the field, and was accepted in 6.
@@ -383,7 +384,10 @@ def _forms(cls, ctx) -> dict:
     it; then also "electronic": the whole fitted offset added after the transducer, which sees W h alone."""
     if not cls.transducer:
         return {"hard_iron": ctx}
-    return {"hard_iron": ctx, "electronic": SimpleNamespace(**{**vars(ctx), "signal": ctx.direction})}
+    offset = ctx.signal - ctx.direction  # the fitted b, on every row
+    return {"hard_iron": ctx, "electronic": SimpleNamespace(**{
+        **vars(ctx), "signal": ctx.direction, "readings": ctx.readings - offset,  # what the transducer gave out
+        "scale": float(np.median(np.linalg.norm(ctx.direction, axis=1)))})}
 
 
 def _offset_kind(form: str, taken: dict, e: np.ndarray) -> dict:
@@ -713,7 +717,7 @@ def _evaluate(cls, data, model, state, sigma, n_candidates) -> dict:
         fit = _fit(data, state["start"], fixed, all_feats,
                    start_terms=np.concatenate([state["terms"], np.zeros(feats.shape[1])]))
         if cls.signal_features:
-            feats, fit, value = _at_own_signal(cls, data, fixed, state, feats, fit, ctx.scale, sigma,
+            feats, fit, value = _at_own_signal(cls, data, fixed, state, feats, fit, ctxs[form].scale, sigma,
                                                profiled.get(cls.profile_name), form)
             row.update(_profiled_row({cls.profile_name: value} if profiled else {}))
         validated = _validate(data, model, state, feats, cls.regime, sigma)
@@ -734,8 +738,7 @@ def _evaluate(cls, data, model, state, sigma, n_candidates) -> dict:
                coefficients=np.asarray(fit["parameters"])[-feats.shape[1]:].tolist(),
                standard_errors=np.asarray(fit["standard_errors"])[-feats.shape[1]:].tolist())
     row.update(validated)
-    # against what the transducer saw in the chosen form (with an electronic offset, the field alone)
-    row["distortion"] = _distortion(ctxs[form].signal, state["features"] + [feats],
+    row["distortion"] = _distortion(ctx.signal, state["features"] + [feats],
                                     state["signal_blocks"] + [cls.signal_features], np.asarray(fit["parameters"]),
                                     12 if vector else 9)
     row["unmet"] = _unmet(row, n_candidates, state["alpha"])
@@ -1050,7 +1053,8 @@ def _together(data: _Data, model: str, state: dict, rows: list, pool: list, acce
     vector, fixed = MODELS[model]
     names = {c.name: c for c in pool}
     hopeful = sorted([r for r in rows if "_fit" in r and not r["significant"] and r["delta_bic"] < 0
-                      and r["lr_pvalue"] * n_candidates < state["alpha"] and not names[r["effect"]].moves_reference],
+                      and r["lr_pvalue"] * n_candidates < state["alpha"] and not names[r["effect"]].moves_reference
+                      and not (r.get("degenerate") or r.get("unphysical") or r.get("field_error_rises"))],
                      key=lambda r: r["delta_bic"])
     if not hopeful:
         return None

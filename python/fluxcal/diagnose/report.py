@@ -112,10 +112,10 @@ def offset_step_line(d, r) -> str:
 
 # What an effect in the transducer says about the offset, when the data decide its form (core._forms)
 OFFSET_KIND_WORDS = {
-    "hard_iron": "{effect} acts on the offset too: the offset is a field at the sensor (the platform's hard iron), "
-                 "not the sensor's own",
-    "electronic": "{effect} leaves the offset as it is: the offset is the sensor's own (electronic, added after "
-                  "the transducer), not a field at the sensor",
+    "hard_iron": "{effect} acts on the offset too: the offset is mostly a field at the sensor (the platform's hard "
+                 "iron), not the sensor's own",
+    "electronic": "{effect} leaves the offset as it is: the offset is mostly the sensor's own (electronic, added "
+                  "after the transducer), not a field at the sensor",
 }
 
 
