@@ -23,6 +23,7 @@ import numpy as np
 import fluxcal
 from fluxcal import attitude
 from fluxcal.diagnose import diagnose
+from fluxcal.diagnose.core import refused
 from fluxcal.diagnose.report import unconfirmed
 from fluxcal.sim.effects import CANDIDATES
 from fluxcal.sim.inject import inject, injectable
@@ -95,7 +96,7 @@ def _why_missed(row) -> str:
     sample"), or significant but another effect chosen (or the quantization step not given as the noise)."""
     if row.get("heldout_gap_before") is None:
         return "absorbed"
-    if row.get("degenerate") or row.get("unphysical") or row.get("field_error_rises"):
+    if refused(row):
         return "refused"
     if unconfirmed(row):
         return "held out"

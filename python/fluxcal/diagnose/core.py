@@ -390,13 +390,18 @@ def _forms(cls, ctx) -> dict:
         "scale": float(np.median(np.linalg.norm(ctx.direction, axis=1)))})}
 
 
+def _bic_price(e: np.ndarray) -> float:
+    """BIC's price of one parameter in the residuals' sum of squares (ln N residual variances)."""
+    return np.log(len(e)) * float(e @ e) / len(e)
+
+
 def _offset_kind(form: str, taken: dict, e: np.ndarray) -> dict:
     """The ranking row's `offset_kind`: the form chosen when it takes more off the residuals than the other by
     BIC's price of a parameter (the data decide it: a hard iron large enough to show), None when not; nothing
     for a candidate with one form."""
     if len(taken) < 2:
         return {}
-    price = np.log(len(e)) * float(e @ e) / len(e)
+    price = _bic_price(e)
     decided = all(taken[form] - g >= price for f, g in taken.items() if f != form)
     return {"offset_kind": form if decided else None}
 
@@ -769,6 +774,11 @@ def _unmet(row: dict, n_candidates: int, alpha: float) -> list:
     return unmet
 
 
+def refused(row: dict) -> bool:
+    """Whether a ranking row was refused by `_implausible` (degenerate, unphysical, or its field error rises)."""
+    return bool(row.get("degenerate") or row.get("unphysical") or row.get("field_error_rises"))
+
+
 def _implausible(row: dict, sigma: float, sigma_bound: bool, cls):
     """Why a candidate's fit cannot be an effect (`cls`'s) whatever its evidence, as (the row's flag, its value,
     a note), or None."""
@@ -862,9 +872,8 @@ def _profile_value(cls, ctx, result: dict, Q: np.ndarray, e: np.ndarray, vector:
         if -best.fun > best_gain:
             value, best_gain = float(sign * np.exp(best.x)), -best.fun
     if cls.profile_null is not None:  # the parameter pays for itself (BIC's price, in the residual's variance) or stays null
-        price = np.log(len(e)) * float(e @ e) / len(e)
         null_gain = gain(cls.profile_null)
-        if best_gain - null_gain < price:
+        if best_gain - null_gain < _bic_price(e):
             value, best_gain = cls.profile_null, null_gain
     return value, best_gain
 
@@ -1054,7 +1063,7 @@ def _together(data: _Data, model: str, state: dict, rows: list, pool: list, acce
     names = {c.name: c for c in pool}
     hopeful = sorted([r for r in rows if "_fit" in r and not r["significant"] and r["delta_bic"] < 0
                       and r["lr_pvalue"] * n_candidates < state["alpha"] and not names[r["effect"]].moves_reference
-                      and not (r.get("degenerate") or r.get("unphysical") or r.get("field_error_rises"))],
+                      and not refused(r)],
                      key=lambda r: r["delta_bic"])
     if not hopeful:
         return None

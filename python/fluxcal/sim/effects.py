@@ -136,6 +136,11 @@ class Effect:
         return alternatives[int(np.argmax(scores))], len(alternatives)
 
 
+def _below_zero(coefficients, standard_errors) -> np.ndarray:
+    """Which coefficients are negative beyond two standard errors (for `unphysical`)."""
+    return np.asarray(coefficients, dtype=float) + 2 * np.asarray(standard_errors, dtype=float) < 0
+
+
 def _per_axis(columns: np.ndarray) -> np.ndarray:
     """N×3 columns → N × 3 × 3 features: term k moves axis k only."""
     return columns[:, :, None] * AXES[None, :, :]
@@ -384,7 +389,7 @@ class Saturation(Effect):
         # its features are a compression per unit size: a negative size makes the readings grow faster than
         # the field, which no saturating core does (an expanding cubic with equal coefficients on every axis
         # was reported as saturation)
-        if coefficients[0] + 2 * standard_errors[0] < 0:
+        if _below_zero(coefficients, standard_errors)[0]:
             return ("a negative size: the readings grow faster than the field (an expanding non-linearity), where "
                     "a saturating core compresses them")
         return ""
@@ -441,7 +446,7 @@ class Hysteresis(Effect):
     @classmethod
     def unphysical(cls, coefficients, standard_errors):
         # the coefficients are the loops' half-heights: a negative one is a reading that runs ahead of its input
-        ahead = np.asarray(coefficients) + 2 * np.asarray(standard_errors) < 0
+        ahead = _below_zero(coefficients, standard_errors)
         if ahead.any():
             return (f"a negative loop height on axis {', '.join('xyz'[k] for k in np.flatnonzero(ahead))}: the reading "
                     "runs ahead of its input, where a core's hysteresis holds it behind")
