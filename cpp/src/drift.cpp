@@ -74,22 +74,25 @@ std::vector<double> covering_edges(const SeriesRef& select, const std::vector<do
   return edges;
 }
 
-// Rows of a range usable after AR(p) whitening: those whose p predecessors in time are in the range too.
-bool whitenable(const std::vector<Eigen::Index>& idx, std::size_t j, Eigen::Index p) {
+// Rows of a range usable after AR(p) whitening: those whose p predecessors in time are in the range too,
+// and in the same stretch between gaps in time.
+bool whitenable(const std::vector<Eigen::Index>& idx, std::size_t j, Eigen::Index p, const Breaks& breaks) {
   if (static_cast<Eigen::Index>(j) < p) return false;
-  return idx[j - static_cast<std::size_t>(p)] == idx[j] - p;  // indices ascend, so p steps back = consecutive
+  // indices ascend, so p steps back = consecutive
+  return idx[j - static_cast<std::size_t>(p)] == idx[j] - p && stretch_start(breaks, idx[j]) <= idx[j] - p;
 }
 
-Eigen::Index whitened_rows(const std::vector<Eigen::Index>& idx, Eigen::Index p) {
+Eigen::Index whitened_rows(const std::vector<Eigen::Index>& idx, Eigen::Index p, const Breaks& breaks) {
   if (p == 0) return static_cast<Eigen::Index>(idx.size());
   Eigen::Index n = 0;
-  for (std::size_t j = 0; j < idx.size(); ++j) n += whitenable(idx, j, p);
+  for (std::size_t j = 0; j < idx.size(); ++j) n += whitenable(idx, j, p, breaks);
   return n;
 }
 
 // Balanced least squares on the (optionally AR-whitened) Vandermonde rows; SSE in the fitted space.
 Eigen::VectorXd fit_rows(const Eigen::VectorXd& x, const Eigen::VectorXd& w, const std::vector<Eigen::Index>& idx,
-                         const Eigen::VectorXd& ar, int order, double* sse, double* condition) {
+                         const Eigen::VectorXd& ar, int order, double* sse, double* condition,
+                         const Breaks& breaks = {}) {
   const Eigen::MatrixXd v = vandermonde(x, order);
   const Eigen::Index p = ar.size();
   Eigen::MatrixXd vw;
@@ -98,12 +101,12 @@ Eigen::VectorXd fit_rows(const Eigen::VectorXd& x, const Eigen::VectorXd& w, con
     vw = v;
     ww = w;
   } else {
-    const Eigen::Index rows = whitened_rows(idx, p);
+    const Eigen::Index rows = whitened_rows(idx, p, breaks);
     vw.resize(rows, order + 1);
     ww.resize(rows);
     Eigen::Index r = 0;
     for (std::size_t j = 0; j < idx.size(); ++j) {
-      if (!whitenable(idx, j, p)) continue;
+      if (!whitenable(idx, j, p, breaks)) continue;
       const Eigen::Index jj = static_cast<Eigen::Index>(j);
       vw.row(r) = v.row(jj);
       ww[r] = w[jj];
@@ -170,6 +173,7 @@ DriftModel fit_drift(const SeriesRef& select, const SeriesRef& x, const SeriesRe
     throw Error("drift: temperature, regressor and zero_bias lengths differ (" + std::to_string(select.size()) +
                 ", " + std::to_string(x.size()) + ", " + std::to_string(w.size()) + ")");
   detail::check(options);
+  check_breaks(options.breaks, w.size(), "DriftOptions::breaks");
   // Every fit is a sum of squares of w: values whose squares overflow gave inf SSEs and a "converged" order 0.
   detail::require_finite_fit(std::isfinite(w.squaredNorm()), "zero_bias", w, "the drift fit");
   const std::vector<double> edges = covering_edges(select, options.breakpoints, options.min_samples);
@@ -226,12 +230,20 @@ DriftModel fit_drift(const SeriesRef& select, const SeriesRef& x, const SeriesRe
       const Eigen::VectorXd r = ws[s] - vandermonde(xs[s], top[s]) * c;
       for (std::size_t j = 0; j < members[s].size(); ++j) residual[members[s][j]] = r[static_cast<Eigen::Index>(j)];
     }
+    // The samples inside a range, in time order; a stretch breaks where a sample was left out or time has a gap.
     std::vector<double> kept;
-    for (Eigen::Index i = 0; i < residual.size(); ++i)
-      if (!std::isnan(residual[i])) kept.push_back(residual[i]);
-    const Eigen::Map<const Eigen::VectorXd> series(kept.data(), static_cast<Eigen::Index>(kept.size()));
     ArOptions ar_options;
+    for (Eigen::Index i = 0; i < residual.size(); ++i) {
+      if (std::isnan(residual[i])) continue;
+      if (!kept.empty() && (std::isnan(residual[i - 1]) || stretch_start(options.breaks, i) == i))
+        ar_options.breaks.push_back(static_cast<Eigen::Index>(kept.size()));
+      kept.push_back(residual[i]);
+    }
+    const Eigen::Map<const Eigen::VectorXd> series(kept.data(), static_cast<Eigen::Index>(kept.size()));
     ar_options.max_order = std::max(0, std::min<int>(options.whiten_max_order, (static_cast<int>(kept.size()) - 3) / 2));
+    while (ar_options.max_order > 0 &&  // short stretches between gaps: no longer memory than they can show
+           regressed_rows(series.size(), ar_options.breaks, ar_options.max_order) < ar_options.max_order + 3)
+      --ar_options.max_order;
     if (ar_options.max_order > 0 && (series.array() != series[0]).any()) ar = fit_ar(series, ar_options).coefficients;
     // Whitening multiplies a range's constant by 1 − Σa: near a random walk each range's level would rest on
     // the few rows at its edges, and the fitted levels landed further from the data than no model at all.
@@ -253,12 +265,13 @@ DriftModel fit_drift(const SeriesRef& select, const SeriesRef& x, const SeriesRe
     const Eigen::Index n = xs[s].size();
     int m = options.order >= 0 ? options.order : 0;
     double sse = 0.0, cond = 0.0;
-    Eigen::VectorXd coef = fit_rows(xs[s], ws[s], members[s], ar, m, &sse, &cond);
-    const Eigen::Index rows = whitened_rows(members[s], ar.size());
+    Eigen::VectorXd coef = fit_rows(xs[s], ws[s], members[s], ar, m, &sse, &cond, options.breaks);
+    const Eigen::Index rows = whitened_rows(members[s], ar.size(), options.breaks);
     if (options.order < 0) {
       while (m < top[s] && rows - m - 2 > 0) {
         double sse_next = 0.0, cond_next = 0.0;
-        const Eigen::VectorXd next = fit_rows(xs[s], ws[s], members[s], ar, m + 1, &sse_next, &cond_next);
+        const Eigen::VectorXd next =
+            fit_rows(xs[s], ws[s], members[s], ar, m + 1, &sse_next, &cond_next, options.breaks);
         const double dof = static_cast<double>(rows - m - 2);
         const double f = sse_next > 0.0 ? (sse - sse_next) / (sse_next / dof)
                                         : std::numeric_limits<double>::infinity();

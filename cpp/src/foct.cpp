@@ -143,6 +143,12 @@ Eigen::VectorXd compensate_zero_bias(const DriftModel& drift, DriftRegressor reg
   return drift.compensate(zero_bias, temp, x);
 }
 
+std::string gaps_note(std::size_t gaps) {
+  return std::to_string(gaps) + (gaps == 1 ? " gap" : " gaps") +
+         " in time: the whitening, the AR model and the Kalman filter do not reach across them, the filter "
+         "starts again after each";
+}
+
 FoctResult fit_foct(const SeriesRef& zero_bias, const SeriesRef& temp, const SeriesRef* temp_outside,
                     const FoctOptions& options) {
   // Inputs and options first, so a bad call fails before any work. (q, r, rated, level_step keep the
@@ -153,6 +159,9 @@ FoctResult fit_foct(const SeriesRef& zero_bias, const SeriesRef& temp, const Ser
   detail::check(options.drift);
   detail::require_enum("FoctOptions::regressor", options.regressor, 2, "temperature, difference (0 … 1)");
   detail::require_enum("FoctOptions::drift_input", options.drift_input, 2, "zero_bias, filtered (0 … 1)");
+  if (!options.ar.breaks.empty() || !options.drift.breaks.empty())
+    throw Error("FoctOptions::" + std::string(options.ar.breaks.empty() ? "drift" : "ar") +
+                ".breaks: set FoctOptions::breaks instead (the drift, the AR model and the filter share the gaps)");
   const int ar_order = options.ar.order >= 0 ? options.ar.order : options.ar.max_order;
   const Eigen::Index need = std::max<Eigen::Index>(2 * static_cast<Eigen::Index>(options.preprocess.subseries) + 2,
                                                    2 * static_cast<Eigen::Index>(ar_order) + 3);
@@ -175,6 +184,7 @@ FoctResult fit_foct(const SeriesRef& zero_bias, const SeriesRef& temp, const Ser
   }
   if (!(std::isfinite(options.level_step) && options.level_step > 0.0))
     throw Error("level_step: " + number(options.level_step) + " must be > 0");
+  check_breaks(options.breaks, zero_bias.size(), "FoctOptions::breaks");
   Eigen::VectorXd difference_storage;
   const SeriesRef x = regressor_values(options.regressor, temp, temp_outside, difference_storage);
 
@@ -185,14 +195,18 @@ FoctResult fit_foct(const SeriesRef& zero_bias, const SeriesRef& temp, const Ser
   // S2.3 removes the trend before the AR model; here the trend is the temperature drift, so S3 fits the
   // zero bias minus a first drift model (S5 on the zero bias, GLS): the noise. Fitted to the zero bias
   // itself the AR model also had to describe the drift (AIC went to max_order, Ljung–Box rejected it).
-  const DriftModel first = fit_drift(temp, x, zero_bias, options.drift);
+  DriftOptions drift_options = options.drift;
+  drift_options.breaks = options.breaks;
+  const DriftModel first = fit_drift(temp, x, zero_bias, drift_options);
   const Eigen::VectorXd drift_first = first.evaluate(temp, x);
   const Eigen::VectorXd about_drift = zero_bias - drift_first;
   double noise_mean = 0.0;
   const Eigen::VectorXd noise = zero_mean(about_drift, &noise_mean);
+  if (!options.breaks.empty()) res.notes.push_back(gaps_note(options.breaks.size()));
   ArOptions ar_options = options.ar;
   // Ljung–Box over twice the largest order AIC may take, so correlation beyond max_order is tested too.
   if (ar_options.whiteness_lags <= 0) ar_options.whiteness_lags = std::max(10, 2 * ar_order);
+  ar_options.breaks = options.breaks;
   res.ar = naming_zero_bias([&] { return fit_ar(noise, ar_options); });
 
   // S4. The drift is a known input of the state-space model: the filter runs on the noise only and L adds
@@ -208,7 +222,7 @@ FoctResult fit_foct(const SeriesRef& zero_bias, const SeriesRef& temp, const Ser
     res.q = kalman.q();
     res.r = kalman.r();
     res.steady_state = options.kalman.steady_state;
-    run = kalman.filter(noise);
+    run = kalman.filter(noise, options.breaks);
     res.filtered = (drift_first.array() + noise_mean + run.filtered.array()).matrix();
   } else {
     // White noise about the drift: nothing in it is predictable from its past, so there is no state to
@@ -224,7 +238,7 @@ FoctResult fit_foct(const SeriesRef& zero_bias, const SeriesRef& temp, const Ser
   // S5 and compensation.
   res.regressor = options.regressor;
   // DriftInput::filtered refits S5 on L (seed 001 as written); by default the first model is the model.
-  res.drift = res.drift_input == DriftInput::zero_bias ? first : fit_drift(temp, x, res.filtered, options.drift);
+  res.drift = res.drift_input == DriftInput::zero_bias ? first : fit_drift(temp, x, res.filtered, drift_options);
   for (const auto& seg : res.drift.segments) res.orders.push_back(seg.order);
   const Eigen::VectorXd f = res.drift.evaluate(temp, x);
   res.compensated = zero_bias - f;

@@ -222,8 +222,9 @@ Eigen::VectorXd ArKalman::steady_state_gain(Eigen::MatrixXd* prior_covariance, i
   return m.col(0) / s;
 }
 
-KalmanResult ArKalman::filter(const SeriesRef& y) const {
+KalmanResult ArKalman::filter(const SeriesRef& y, const Breaks& breaks) const {
   check_series(y, "y", 1, "to filter");
+  check_breaks(breaks, y.size(), "breaks");
   const Eigen::Index n = a_.size(), len = y.size();
   KalmanResult res;
   res.filtered.resize(len);
@@ -233,7 +234,12 @@ KalmanResult ArKalman::filter(const SeriesRef& y) const {
     Eigen::MatrixXd m;
     int iterations = 0;
     const Eigen::VectorXd k = steady_state_gain(&m, &iterations);
+    std::size_t next = 0;
     for (Eigen::Index t = 0; t < len; ++t) {
+      if (next < breaks.size() && breaks[next] == t) {
+        x.setZero();
+        ++next;
+      }
       const double x0 = a_.dot(x);
       for (Eigen::Index i = n - 1; i > 0; --i) x[i] = x[i - 1];
       x[0] = x0;
@@ -248,7 +254,13 @@ KalmanResult ArKalman::filter(const SeriesRef& y) const {
   } else {
     Eigen::MatrixXd p = p0_, m(n, n);
     Eigen::VectorXd pa(n), k(n);
+    std::size_t next = 0;
     for (Eigen::Index t = 0; t < len; ++t) {
+      if (next < breaks.size() && breaks[next] == t) {
+        x.setZero();
+        p = p0_;
+        ++next;
+      }
       const double x0 = a_.dot(x);
       for (Eigen::Index i = n - 1; i > 0; --i) x[i] = x[i - 1];
       x[0] = x0;
@@ -276,7 +288,8 @@ KalmanResult ArKalman::filter(const SeriesRef& y) const {
                                           : res.innovations.stableNorm() / std::sqrt(static_cast<double>(len));
   s.converged = true;
   s.message = std::string(options_.steady_state ? "steady-state" : "time-varying") + " Kalman filter, AR(" +
-              std::to_string(n) + ")";
+              std::to_string(n) + ")" +
+              (breaks.empty() ? "" : ", restarted after " + std::to_string(breaks.size()) + " gaps in time");
   if (spectral_radius() >= 1.0) s.warnings.push_back("the AR model is not stationary (spectral radius ≥ 1)");
   return res;
 }

@@ -81,24 +81,39 @@ double beta_i(double a, double b, double x) {
   return 1.0 - front * beta_cf(b, a, 1.0 - x) / b;
 }
 
-// Upper-triangular R of the QR factorisation of the lagged matrix [y_{t−1} … y_{t−k}, y_t] over rows
-// t = first … N−1, accumulated block by block (TSQR) so memory stays O(k²) for any N.
-Eigen::MatrixXd lagged_r(const SeriesRef& y, int k, Eigen::Index first) {
+// Calls row(t) for every t ≥ `lags` whose lags t − 1 … t − lags lie in t's own stretch (see Breaks), in
+// ascending order: each stretch [s, e) gives t = s + lags … e − 1.
+template <class Row>
+void for_each_regressed(Eigen::Index n, const Breaks& breaks, int lags, Row&& row) {
+  Eigen::Index start = 0;
+  for (std::size_t b = 0; b <= breaks.size(); ++b) {
+    const Eigen::Index end = b < breaks.size() ? breaks[b] : n;
+    for (Eigen::Index t = start + lags; t < end; ++t) row(t);
+    start = end;
+  }
+}
+
+// Upper-triangular R of the QR factorisation of the lagged matrix [y_{t−1} … y_{t−k}, y_t] over the rows
+// for_each_regressed gives with k lags, accumulated block by block (TSQR) so memory stays O(k²) for any N.
+Eigen::MatrixXd lagged_r(const SeriesRef& y, int k, const Breaks& breaks) {
   const Eigen::Index block = 4096, cols = k + 1;
   Eigen::MatrixXd r = Eigen::MatrixXd::Zero(0, cols);
-  for (Eigen::Index start = first; start < y.size(); start += block) {
-    const Eigen::Index rows = std::min(block, y.size() - start);
-    Eigen::MatrixXd stack(r.rows() + rows, cols);
+  Eigen::MatrixXd stack(block + cols, cols);
+  Eigen::Index filled = 0;
+  const auto fold = [&] {
     stack.topRows(r.rows()) = r;
-    for (Eigen::Index i = 0; i < rows; ++i) {
-      const Eigen::Index t = start + i;
-      for (int j = 0; j < k; ++j) stack(r.rows() + i, j) = y[t - 1 - j];
-      stack(r.rows() + i, k) = y[t];
-    }
-    Eigen::HouseholderQR<Eigen::MatrixXd> qr(stack);
-    const Eigen::Index keep = std::min<Eigen::Index>(stack.rows(), cols);
+    Eigen::HouseholderQR<Eigen::MatrixXd> qr(stack.topRows(r.rows() + filled));
+    const Eigen::Index keep = std::min<Eigen::Index>(r.rows() + filled, cols);
     r = qr.matrixQR().topRows(keep).triangularView<Eigen::Upper>();
-  }
+    filled = 0;
+  };
+  for_each_regressed(y.size(), breaks, k, [&](Eigen::Index t) {
+    const Eigen::Index i = r.rows() + filled;
+    for (int j = 0; j < k; ++j) stack(i, j) = y[t - 1 - j];
+    stack(i, k) = y[t];
+    if (++filled == block) fold();
+  });
+  if (filled > 0) fold();
   return r;
 }
 
@@ -155,6 +170,30 @@ void check_series(const SeriesRef& series, const std::string& name, Eigen::Index
       throw Error(msg.str());
     }
   }
+}
+
+void check_breaks(const Breaks& breaks, Eigen::Index n, const std::string& name) {
+  for (std::size_t i = 0; i < breaks.size(); ++i) {
+    if (breaks[i] < 1 || breaks[i] >= n || (i > 0 && breaks[i] <= breaks[i - 1])) {
+      std::ostringstream msg;
+      msg << name << ": break " << i << " at sample " << breaks[i] << " is not a sample index in 1 … " << n - 1
+          << " after the previous break (gaps are the ascending indices of the first sample after each)";
+      throw Error(msg.str());
+    }
+  }
+}
+
+// Calls row(t) for every t ≥ `lags` whose lags t − 1 … t − lags lie in t's own stretch (see Breaks), in
+// ascending order: each stretch [s, e) gives t = s + lags … e − 1.
+Eigen::Index regressed_rows(Eigen::Index n, const Breaks& breaks, int lags) {
+  Eigen::Index count = 0;
+  for_each_regressed(n, breaks, lags, [&](Eigen::Index) { ++count; });
+  return count;
+}
+
+Eigen::Index stretch_start(const Breaks& breaks, Eigen::Index t) {
+  const auto after = std::upper_bound(breaks.begin(), breaks.end(), t);
+  return after == breaks.begin() ? 0 : *(after - 1);
 }
 
 Eigen::VectorXd zero_mean(const SeriesRef& x, double* mean) {
@@ -279,19 +318,27 @@ ArResult fit_ar(const SeriesRef& y, const ArOptions& options) {
   const int k = fixed ? options.order : options.max_order;
   check_series(y, "series", 2 * static_cast<Eigen::Index>(k) + 3,
                "for an AR model of order " + std::to_string(k) + (fixed ? "" : " (max_order)"));
+  check_breaks(options.breaks, y.size(), "ArOptions::breaks");
   if (!((y.array() != y[0]).any())) throw Error("series: constant (every sample equals " + std::to_string(y[0]) +
                                                 "), an AR model needs a varying series");
   // Every step is a sum of squares: values whose squares overflow gave σ² = inf, "converged" at order 0.
   detail::require_finite_fit(std::isfinite(y.squaredNorm()), "series", y, "the AR fit");
   ArResult result;
   const Eigen::Index n_total = y.size();
+  const Breaks& breaks = options.breaks;
+  const Eigen::Index common = regressed_rows(n_total, breaks, k);
+  if (common < k + 3)
+    throw Error("series: " + std::to_string(common) + " samples lie " + std::to_string(k) +
+                " or more samples after the start of their stretch between the " + std::to_string(breaks.size()) +
+                " gaps in time, need at least " + std::to_string(k + 3) + " for an AR model of order " +
+                std::to_string(k) + (fixed ? "" : " (max_order)") + ": the stretches are too short");
 
-  // Order: AIC on the common sample t = k … N−1. SSR of order p is the squared tail of the last
-  // column of R of [lags | y] (nested least squares from one QR).
+  // Order: AIC on the common sample (t = k … N−1; with breaks, each stretch's rows from its k-th on). SSR
+  // of order p is the squared tail of the last column of R of [lags | y] (nested least squares, one QR).
   int p = k;
   if (!fixed) {
-    const Eigen::MatrixXd r = lagged_r(y, k, k);
-    const double n = static_cast<double>(n_total - k);
+    const Eigen::MatrixXd r = lagged_r(y, k, breaks);
+    const double n = static_cast<double>(common);
     result.aic.resize(k + 1);
     for (int q = 0; q <= k; ++q) {
       const double ssr = r.col(k).segment(q, r.rows() - q).squaredNorm();
@@ -303,16 +350,18 @@ ArResult fit_ar(const SeriesRef& y, const ArOptions& options) {
   result.order = p;
 
   // Coefficients: batch least squares on the first rows, then recursive least squares on the rest.
-  const Eigen::Index rows = n_total - p;
+  const Eigen::Index rows = regressed_rows(n_total, breaks, p);
   Eigen::VectorXd theta = Eigen::VectorXd::Zero(p);
   if (p > 0) {
     const Eigen::Index n0 = std::min<Eigen::Index>(rows, std::max(options.init_samples, 2 * p));
     Eigen::MatrixXd x0(n0, p);
     Eigen::VectorXd y0(n0);
-    for (Eigen::Index i = 0; i < n0; ++i) {
-      for (int j = 0; j < p; ++j) x0(i, j) = y[p + i - 1 - j];
-      y0[i] = y[p + i];
-    }
+    Eigen::Index i = 0;
+    for_each_regressed(n_total, breaks, p, [&](Eigen::Index t) {
+      if (i >= n0) return;
+      for (int j = 0; j < p; ++j) x0(i, j) = y[t - 1 - j];
+      y0[i++] = y[t];
+    });
     Eigen::HouseholderQR<Eigen::MatrixXd> qr(x0);
     const Eigen::MatrixXd r0 = qr.matrixQR().topRows(p).triangularView<Eigen::Upper>();
     const double diag_min = r0.diagonal().cwiseAbs().minCoeff(), diag_max = r0.diagonal().cwiseAbs().maxCoeff();
@@ -325,7 +374,9 @@ ArResult fit_ar(const SeriesRef& y, const ArOptions& options) {
     cov = (0.5 * (cov + cov.transpose())).eval();     // exactly symmetric from the start (see below)
     const double lambda = options.forgetting;
     Eigen::VectorXd phi(p), g(p);
-    for (Eigen::Index t = p + n0; t < n_total; ++t) {
+    Eigen::Index seen = 0;
+    for_each_regressed(n_total, breaks, p, [&](Eigen::Index t) {
+      if (seen++ < n0) return;  // the batch start's rows
       for (int j = 0; j < p; ++j) phi[j] = y[t - 1 - j];
       g.noalias() = cov * phi;
       const double denom = lambda + phi.dot(g);
@@ -335,8 +386,8 @@ ArResult fit_ar(const SeriesRef& y, const ArOptions& options) {
       // g_i (g_j / denom) and g_j (g_i / denom) round differently, the downdate never shrinks the
       // antisymmetric part, and dividing by λ < 1 every step then grows it as λ^−t until it swamps cov.
       for (int j = 0; j < p; ++j)
-        for (int i = j; i < p; ++i) cov(i, j) = cov(j, i) = (cov(i, j) - g[i] * g[j] / denom) / lambda;
-    }
+        for (int i2 = j; i2 < p; ++i2) cov(i2, j) = cov(j, i2) = (cov(i2, j) - g[i2] * g[j] / denom) / lambda;
+    });
   }
   if (!theta.allFinite())  // 1/λ^t overflowed: a memory of 1/(1 − λ) readings is far too short
     throw Error("fit_ar: forgetting factor " + std::to_string(options.forgetting) +
@@ -344,12 +395,12 @@ ArResult fit_ar(const SeriesRef& y, const ArOptions& options) {
                 " readings): the recursive least squares overflowed; use a λ closer to 1");
   result.coefficients = theta;
   result.residuals.resize(rows);
-  for (Eigen::Index i = 0; i < rows; ++i) {
-    const Eigen::Index t = p + i;
+  Eigen::Index i = 0;
+  for_each_regressed(n_total, breaks, p, [&](Eigen::Index t) {
     double pred = 0.0;
     for (int j = 0; j < p; ++j) pred += theta[j] * y[t - 1 - j];
-    result.residuals[i] = y[t] - pred;
-  }
+    result.residuals[i++] = y[t] - pred;
+  });
   result.sigma2 = result.residuals.squaredNorm() / static_cast<double>(rows);
   detail::require_finite_fit(std::isfinite(result.sigma2), "series", y, "the AR fit");
 

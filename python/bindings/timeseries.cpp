@@ -130,7 +130,8 @@ void bind_foct(py::module_& m) {
       .def_readwrite("drift", &fluxcal::FoctOptions::drift)
       .def_readwrite("level_step", &fluxcal::FoctOptions::level_step)
       .def_readwrite("rated", &fluxcal::FoctOptions::rated)
-      .def_readwrite("accuracy_class", &fluxcal::FoctOptions::accuracy_class);
+      .def_readwrite("accuracy_class", &fluxcal::FoctOptions::accuracy_class)
+      .def_readwrite("breaks", &fluxcal::FoctOptions::breaks);
   // temp_outside is copied (optional of a Ref would dangle after a dtype conversion).
   m.def("fit_foct", [](const SeriesRef& zero_bias, const SeriesRef& temp,
                        const std::optional<Eigen::VectorXd>& temp_outside, const fluxcal::FoctOptions& options) {
@@ -223,7 +224,8 @@ void bind_timeseries(py::module_& m) {
       .def_readwrite("init_samples", &fluxcal::ArOptions::init_samples)
       .def_readwrite("forgetting", &fluxcal::ArOptions::forgetting)
       .def_readwrite("whiteness_lags", &fluxcal::ArOptions::whiteness_lags)
-      .def_readwrite("significance", &fluxcal::ArOptions::significance);
+      .def_readwrite("significance", &fluxcal::ArOptions::significance)
+      .def_readwrite("breaks", &fluxcal::ArOptions::breaks);
   m.def("fit_ar", [](const SeriesRef& y, const fluxcal::ArOptions& options) {
     fluxcal::ArResult r;
     {
@@ -251,15 +253,15 @@ void bind_timeseries(py::module_& m) {
                     "spectral_radius"_a = k.spectral_radius());
   }, "a"_a, "q"_a, "r"_a, "options"_a);
   m.def("kalman_filter", [](const Eigen::VectorXd& a, double q, double r, const fluxcal::KalmanOptions& options,
-                            const SeriesRef& y) {
+                            const SeriesRef& y, const fluxcal::Breaks& breaks) {
     fluxcal::KalmanResult res;
     {
       py::gil_scoped_release release;
-      res = fluxcal::ArKalman(a, q, r, options).filter(y);
+      res = fluxcal::ArKalman(a, q, r, options).filter(y, breaks);
     }
     return py::dict("filtered"_a = res.filtered, "innovations"_a = res.innovations, "state"_a = res.state,
                     "covariance"_a = res.covariance, "gain"_a = res.gain, "summary"_a = summary_dict(res.summary));
-  }, "a"_a, "q"_a, "r"_a, "options"_a, "y"_a.noconvert());
+  }, "a"_a, "q"_a, "r"_a, "options"_a, "y"_a.noconvert(), "breaks"_a = fluxcal::Breaks());
   m.def("kalman_noise_from_ar", [](int order, const Eigen::VectorXd& coefficients, double sigma2, double r) {
     fluxcal::ArResult fit;
     fit.order = order;
@@ -340,7 +342,8 @@ void bind_timeseries(py::module_& m) {
       .def_readwrite("continuous", &fluxcal::DriftOptions::continuous)
       .def_readwrite("min_samples", &fluxcal::DriftOptions::min_samples)
       .def_readwrite("whiten", &fluxcal::DriftOptions::whiten)
-      .def_readwrite("whiten_max_order", &fluxcal::DriftOptions::whiten_max_order);
+      .def_readwrite("whiten_max_order", &fluxcal::DriftOptions::whiten_max_order)
+      .def_readwrite("breaks", &fluxcal::DriftOptions::breaks);
   m.def("fit_drift", [](const SeriesRef& select, const SeriesRef& x, const SeriesRef& w,
                         const fluxcal::DriftOptions& options) {
     fluxcal::DriftModel model;

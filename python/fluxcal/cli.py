@@ -416,9 +416,11 @@ def cmd_drift(args) -> int:
 
     if args.drift_command == "fit":
         rec = read_csv(args.file, bad_lines=args.bad_lines)
+        times = rec.columns.get("t")
         if "skipped_lines" in rec.metadata:  # the AR model and the Kalman filter assume evenly spaced samples
-            print(f"skipped {rec.metadata['skipped_lines'].replace(':', ' lines:', 1)} (the series is modelled as "
-                  "if they were not there: a time step is missing at each)")
+            where = ("the gaps they leave in t are not reached across" if times is not None else
+                     "no column t: the series is modelled as if they were not there, a time step is missing at each")
+            print(f"skipped {rec.metadata['skipped_lines'].replace(':', ' lines:', 1)} ({where})")
         for name in (args.column, "temp"):
             if name not in rec.columns:
                 raise ValueError(f"{args.file}: no column {name!r} (columns: {', '.join(rec.columns)})")
@@ -432,12 +434,17 @@ def cmd_drift(args) -> int:
                                            max_order=args.max_order, significance=args.significance,
                                            continuous=args.continuous, ar_max_order=args.ar_max_order,
                                            steady_state=args.steady_state, rated=args.rated,
-                                           accuracy_class=args.accuracy_class, drift_input=args.drift_input)
+                                           accuracy_class=args.accuracy_class, drift_input=args.drift_input,
+                                           t=times)
         model.settings["source"] = str(args.file)
         model.settings["column"] = args.column
         pre, ar = report["preprocess"], report["ar"]
         u = f" {rec.units[args.column]}" if rec.units.get(args.column) else ""  # the file's unit of the column
         print(f"{args.column}: {len(rec)} samples, mean {pre['mean']:.6g}{u}")
+        gaps = report["gaps"]
+        if gaps and gaps["count"]:
+            tu = f" {rec.units['t']}" if rec.units.get("t") else ""
+            print(f"  time: step {gaps['step']:.4g}{tu}, {gaps['count']} gap{'s' if gaps['count'] > 1 else ''} (the longest {gaps['longest']:.4g}{tu})")
         print(f"  stationarity (reverse arrangement, differenced {pre['differences']}x): u = "
               f"{pre['stationarity']['u']:.3f} ({'stationary' if pre['stationarity']['stationary'] else 'NOT stationary'})")
         print(f"  normality: skewness {pre['normality']['skewness']:.3f}, kurtosis {pre['normality']['kurtosis']:.3f}")
@@ -679,7 +686,8 @@ def build_parser() -> argparse.ArgumentParser:
     q.set_defaults(run=cmd_positions)
     dr = sub.add_parser("drift", help="temperature-drift compensation of a current transformer's zero bias (seed 001)")
     drs = dr.add_subparsers(dest="drift_command", required=True)
-    df = drs.add_parser("fit", help="fit a drift model to a CSV with columns t, zero_bias, temp [, temp_outside]")
+    df = drs.add_parser("fit", help="fit a drift model to a CSV with columns t, zero_bias, temp [, temp_outside]; "
+                                    "gaps in t (holds logged alone, lost lines) are not reached across")
     df.add_argument("file")
     df.add_argument("-o", "--output", required=True, help="drift model (JSON)")
     df.add_argument("--column", default="zero_bias", help="the zero-bias column to model (e.g. one phase's)")

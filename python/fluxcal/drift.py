@@ -174,9 +174,10 @@ def _jsonable(v):
 
 def fit_drift(zero_bias, temp, temp_outside=None, regressor: str = "temp", breakpoints=DEFAULT_BREAKPOINTS,
               max_order: int = 4, significance: float = 0.05, order: int | None = None, continuous: bool = False,
-              whiten: bool = True, whiten_max_order: int = 10, min_samples: int = 10) -> DriftModel:
+              whiten: bool = True, whiten_max_order: int = 10, min_samples: int = 10, breaks=None) -> DriftModel:
     """S5 alone: the piecewise polynomial drift of `zero_bias` (fit_pipeline passes the zero bias itself, or
-    the Kalman-filtered L with drift_input="filtered")."""
+    the Kalman-filtered L with drift_input="filtered"). breaks: gaps in time (fluxcal.timeseries.find_breaks),
+    which the whitening filter does not reach across."""
     temp = ts.as_series(temp, "temp")
     w = ts.as_series(zero_bias, "zero_bias")
     x = _regressor(temp, temp_outside, regressor)
@@ -189,6 +190,7 @@ def fit_drift(zero_bias, temp, temp_outside=None, regressor: str = "temp", break
     options.whiten = bool(whiten)
     options.whiten_max_order = int(whiten_max_order)
     options.min_samples = int(min_samples)
+    options.breaks = ts.as_breaks(breaks, w.size)
     r = _core.fit_drift(temp, np.ascontiguousarray(x), w, options)
     segments = list(r["segments"])
     # the edges the fit used: the given ones made to cover the data (the core says so in the warnings)
@@ -258,25 +260,56 @@ def _finite(values: np.ndarray, name: str) -> np.ndarray:
     return values
 
 
+def _gaps(t, n: int) -> tuple:
+    """fit_pipeline's gaps in time: (breaks, report["gaps"], notes, warnings). A time column that cannot show
+    gaps (not increasing, or too coarse a clock) is not an error — the fit never needed it — but a warning."""
+    if t is None:
+        return [], None, [], []
+    t = ts.as_series(t, "t")
+    if t.size != n:
+        raise ValueError(f"t: {t.size} samples, zero_bias has {n}")
+    try:
+        breaks = ts.find_breaks(t)
+    except ValueError as exc:
+        return [], None, [], [f"{exc}: gaps in time were not looked for, the samples are modelled as evenly spaced"]
+    step = float(np.median(np.diff(t)))
+    gaps = {"count": int(breaks.size), "breaks": breaks.tolist(), "step": step,
+            "longest": float(np.max(t[breaks] - t[breaks - 1])) if breaks.size else 0.0}
+    if not breaks.size:
+        return [], gaps, [], []
+    return breaks.tolist(), gaps, [gaps_note(breaks.size)], []
+
+
+def gaps_note(count: int) -> str:
+    """fit_pipeline's note on the gaps in time (and fit_foct's, word for word)."""
+    return (f"{count} gap{'s' if count != 1 else ''} in time: the whitening, the AR model and the Kalman filter do "
+            "not reach across them, the filter starts again after each")
+
+
 def fit_pipeline(zero_bias, temp, temp_outside=None, regressor: str = "temp", breakpoints=DEFAULT_BREAKPOINTS,
                  max_order: int = 4, significance: float = 0.05, continuous: bool = False, ar_max_order: int = 10,
                  q: float | None = None, r: float | None = None, steady_state: bool = False, subseries: int = 20,
                  rated: float | None = None, accuracy_class: str = "0.2S", whiten: bool = True,
-                 drift_input: str = "zero_bias"):
+                 drift_input: str = "zero_bias", t=None):
     """Seed 001 end to end (module doc). drift_input: "zero_bias" (default, GLS on the zero bias) or
     "filtered" (the Kalman output L, seed 001 as written; module doc step 4). The AR model (report["ar"],
     model.settings["ar"], "fitted_to": "zero_bias - drift") is of the noise about a first drift model,
     and the Kalman filter runs on that noise; when that noise is white (AR order 0) there is no filter and
-    report["notes"] says so (drift_input="filtered" then has nothing to refit). Returns (DriftModel, report)."""
+    report["notes"] says so (drift_input="filtered" then has nothing to refit). t: the sample times; where
+    they have gaps (timeseries.find_breaks: a recorder paused between temperature holds, lost lines) the
+    whitening, the AR model and the Kalman filter do not reach across them and the filter starts again
+    after each (report["gaps"], a note). Without t the samples are taken as evenly spaced.
+    Returns (DriftModel, report)."""
     if drift_input not in DRIFT_INPUTS:
         raise ValueError(f"drift_input: {drift_input!r} is not one of {', '.join(DRIFT_INPUTS)}")
     w = _finite(ts.as_series(zero_bias, "zero_bias"), "zero_bias")
     temp = _finite(ts.as_series(temp, "temp"), "temp")
     if temp.size != w.size:
         raise ValueError(f"temp: {temp.size} samples, zero_bias has {w.size}")
+    breaks, gaps, gap_notes, gap_warnings = _gaps(t, w.size)
     pre = ts.preprocess(w, subseries=subseries)
     drift_options = dict(regressor=regressor, breakpoints=breakpoints, max_order=max_order,
-                         significance=significance, continuous=continuous, whiten=whiten)
+                         significance=significance, continuous=continuous, whiten=whiten, breaks=breaks)
     # S2.3 removes the trend before the AR model; here the trend is the temperature drift, so the AR model
     # is fitted to the zero bias minus a first drift model (S5 on the zero bias, GLS): the noise. Fitted to
     # the zero bias itself it also had to describe the drift (AIC went to max_order, Ljung–Box rejected it).
@@ -284,7 +317,7 @@ def fit_pipeline(zero_bias, temp, temp_outside=None, regressor: str = "temp", br
     drift_first = first.evaluate(temp, temp_outside)
     noise, noise_mean = ts.zero_mean(w - drift_first)
     # Ljung–Box over twice the largest order AIC may take, so correlation beyond max_order is tested too.
-    ar = ts.fit_ar(noise, max_order=ar_max_order, whiteness_lags=max(10, 2 * ar_max_order))
+    ar = ts.fit_ar(noise, max_order=ar_max_order, whiteness_lags=max(10, 2 * ar_max_order), breaks=breaks)
     if ar.order == 0:
         # White noise about the drift: nothing in it is predictable from its past, so there is no state for
         # the Kalman filter to track and its best estimate of the noise is 0: L = f1 + mean, the drift model.
@@ -304,7 +337,7 @@ def fit_pipeline(zero_bias, temp, temp_outside=None, regressor: str = "temp", br
         kalman_settings = {"q": kalman.q, "r": kalman.r, "steady_state": steady_state}
         # The drift is a known input of the state-space model: the filter runs on the noise only and L adds
         # the drift back, so L follows the drift without lag or DC-gain loss on the temperature ramps.
-        filtered = drift_first + noise_mean + kalman.filter(noise)
+        filtered = drift_first + noise_mean + kalman.filter(noise, breaks)
         notes = []
     # drift_input="filtered" refits S5 on L (seed 001 as written); by default the first model is the model.
     model = first if drift_input == "zero_bias" else fit_drift(filtered, temp, temp_outside, **drift_options)
@@ -312,7 +345,8 @@ def fit_pipeline(zero_bias, temp, temp_outside=None, regressor: str = "temp", br
                                   "max_order": ar_max_order, "order_at_maximum": ar.order_at_maximum,
                                   "fitted_to": AR_FITTED_TO},
                            "kalman": kalman_settings,
-                           "drift_input": drift_input})
+                           "drift_input": drift_input,
+                           "gaps": len(breaks)})
     # The data's warnings: S2's, S3's, and the first drift fit's when the model is a refit to L (the model's
     # summary keeps the warnings of the fit it is, so by default the first fit's are there).
     first_warnings = [] if model is first else [f"drift fit to the zero bias: {m}" for m in first.summary["warnings"]]
@@ -321,13 +355,14 @@ def fit_pipeline(zero_bias, temp, temp_outside=None, regressor: str = "temp", br
     # itself (L − f would be a constant, and the class check could not fail)
     residual_filtered = filtered - model.evaluate(temp, temp_outside) if kalman_settings else compensated
     report = {"preprocess": {k: v for k, v in pre.items() if k != "series"},
-              "warnings": list(pre["summary"]["warnings"]) + list(ar.summary["warnings"]) + first_warnings,
+              "warnings": gap_warnings + list(pre["summary"]["warnings"]) + list(ar.summary["warnings"]) +
+              first_warnings, "gaps": gaps,
               "ar": {"order": ar.order, "coefficients": ar.coefficients.tolist(), "sigma2": ar.sigma2,
                      "order_at_maximum": ar.order_at_maximum, "whiteness": ar.whiteness,
                      "warnings": ar.summary["warnings"], "fitted_to": AR_FITTED_TO},
               "orders": [s["order"] for s in model.segments],
               "drift_span_before": drift_span(w, temp), "drift_span_after": drift_span(compensated, temp),
-              "compensated": compensated, "filtered": filtered, "notes": notes}
+              "compensated": compensated, "filtered": filtered, "notes": gap_notes + notes}
     report["drift_reduction"] = report["drift_span_before"] / max(report["drift_span_after"], 1e-300)
     if report["drift_reduction"] < 0.5:  # twice as wide: no chance spread of level means with nothing to remove
         report["warnings"].append(

@@ -18,7 +18,7 @@ from pathlib import Path
 import numpy as np
 
 from . import _core
-from .timeseries import as_series, as_whole
+from .timeseries import as_breaks, as_series, as_whole
 
 INT32_MIN, INT32_MAX = -(2 ** 31), 2 ** 31 - 1
 # Largest AR order ArKalman takes: each sample costs O(p³) (AR(2000) on 300 samples ran for minutes); AR(100)
@@ -83,10 +83,13 @@ class ArKalman:
     def order(self) -> int:
         return self.ar_coeffs.size
 
-    def filter(self, y) -> np.ndarray:
+    def filter(self, y, breaks=None) -> np.ndarray:
         """Filtered output C x̂_{k|k} of every sample (starting from x = 0, P = P0). `self.result` then
-        holds innovations, final state, covariance and gain."""
-        self.result = _core.kalman_filter(self.ar_coeffs, self.q, self.r, self.options, as_series(y, "y"))
+        holds innovations, final state, covariance and gain. breaks: gaps in time
+        (fluxcal.timeseries.find_breaks); the filter starts again from x = 0, P = P0 after each."""
+        y = as_series(y, "y")
+        self.result = _core.kalman_filter(self.ar_coeffs, self.q, self.r, self.options, y,
+                                          as_breaks(breaks, y.size))
         return np.asarray(self.result["filtered"])
 
 

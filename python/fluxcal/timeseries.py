@@ -4,6 +4,8 @@
     timeseries.reverse_arrangement(np.diff(z), subseries=20)["stationary"]
     model = timeseries.fit_ar(z, max_order=10)          # order by AIC, coefficients by RLS
     model.order, model.coefficients, model.sigma2, model.whiteness["p_value"]
+    gaps = timeseries.find_breaks(t)                    # where the time column has gaps
+    timeseries.fit_ar(z, breaks=gaps)                   # no lag reaches across a gap
 
 Conventions follow statsmodels where users compare: AIC selection on the common sample N − max_order
 (`ar_select_order(..., ic='aic', trend='n')`), sigma2 = SSR/(N − p) (`AutoReg`), Ljung–Box on the
@@ -54,6 +56,48 @@ def as_whole(value, name: str, minimum: int) -> int:
     if whole > INT_MAX:
         raise ValueError(f"{name}: {whole} is too large (at most {INT_MAX})")
     return whole
+
+
+# A step in time this many times the median step or longer is a gap: at least one sample is missing (a
+# recorder paused between temperature holds, a lost line). A logger's jitter of up to ±a fifth of the step (steps
+# of 0.6 … 1.4) stays below it.
+GAP_STEPS = 1.5
+
+
+def find_breaks(t, name: str = "t") -> np.ndarray:
+    """The gaps in a time column: the indices of the samples that follow a step of at least GAP_STEPS times
+    the median step. An AR model's lags, a whitening filter and a Kalman filter must not reach across
+    them (fit_ar, ArKalman.filter, fit_drift and fluxcal.drift.fit_pipeline take them as `breaks`): the
+    jump between the stretches would be modelled as noise. ValueError naming `name` when t is not finite,
+    does not increase, or repeats its times so often that the median step is 0 (too coarse a clock)."""
+    t = as_series(t, name)
+    bad = ~np.isfinite(t)
+    if bad.any():
+        i = int(np.argmax(bad))
+        raise ValueError(f"{name}: sample {i} is {t[i]} (NaN/Inf not allowed)")
+    step = np.diff(t)
+    if (step <= 0).any():
+        i = int(np.argmax(step <= 0)) + 1
+        raise ValueError(f"{name}: sample {i} ({t[i]:g}) is not after sample {i - 1} ({t[i - 1]:g}); the gaps in "
+                         "time need increasing times (sort the recording, or drop repeated rows)")
+    if step.size == 0:
+        return np.zeros(0, dtype=np.int64)
+    median = float(np.median(step))
+    return np.flatnonzero(step >= GAP_STEPS * median).astype(np.int64) + 1
+
+
+def as_breaks(breaks, n: int, name: str = "breaks") -> list:
+    """`breaks` (None, or sample indices) as the core's list; ValueError naming `name` when they are not
+    ascending indices in 1 … n − 1."""
+    if breaks is None:
+        return []
+    b = np.asarray(breaks)
+    if b.ndim != 1 or (b.size and not np.issubdtype(b.dtype, np.integer)):
+        raise ValueError(f"{name}: expected a 1-D list of sample indices (fluxcal.timeseries.find_breaks)")
+    if b.size and (b[0] < 1 or b[-1] > n - 1 or (np.diff(b) <= 0).any()):
+        raise ValueError(f"{name}: {b.tolist()[:5]}{' …' if b.size > 5 else ''} are not ascending sample indices "
+                         f"in 1 … {n - 1}")
+    return b.astype(np.int64).tolist()
 
 
 def zero_mean(x):
@@ -112,15 +156,19 @@ def fit_ar(y, max_order: int = 10, order: int | None = None, **settings) -> ArMo
 
     order None: chosen by AIC among 0 … max_order (`order_at_maximum` and a warning when the maximum
     wins). settings: init_samples (20: rows of the batch least-squares start of the RLS), forgetting
-    (1.0: RLS forgetting factor), whiteness_lags (0 = max(10, 2p)), significance (0.05)."""
+    (1.0: RLS forgetting factor), whiteness_lags (0 = max(10, 2p)), significance (0.05), breaks (gaps in
+    time, `find_breaks`: no row's lags reach across one; each stretch's first p rows are not regressed
+    and have no residual)."""
     options = _core.ArOptions()
     options.max_order = as_whole(max_order, "max_order", 0)
     options.order = -1 if order is None else as_whole(order, "order", 0)
     for name in ("init_samples", "whiteness_lags"):
         if name in settings:
             settings[name] = as_whole(settings[name], name, 0)
+    y = as_series(y)
+    options.breaks = as_breaks(settings.pop("breaks", None), y.size)
     set_options(options, settings, "fit_ar")
-    r = _core.fit_ar(as_series(y), options)
+    r = _core.fit_ar(y, options)
     return ArModel(order=r["order"], coefficients=np.asarray(r["coefficients"]), sigma2=r["sigma2"],
                    aic=np.asarray(r["aic"]), order_at_maximum=r["order_at_maximum"],
                    residuals=np.asarray(r["residuals"]), whiteness=r["whiteness"], summary=r["summary"])

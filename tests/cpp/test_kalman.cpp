@@ -104,6 +104,25 @@ TEST(Kalman, FromArFit) {
   EXPECT_THROW(fluxcal::ArKalman::from_ar(fit), fluxcal::Error);
 }
 
+// A gap in time: the filter starts again from x = 0, P = P0, so the output after a break is the output of a
+// filter run on the stretch alone.
+TEST(Kalman, StartsAgainAfterEachBreak) {
+  std::mt19937_64 rng(5);
+  std::normal_distribution<double> normal(0.0, 1.0);
+  Eigen::VectorXd y(600);
+  for (Eigen::Index t = 0; t < y.size(); ++t) y[t] = normal(rng) + (t ? 0.8 * y[t - 1] : 0.0);
+  for (const bool steady : {false, true}) {
+    fluxcal::KalmanOptions options;
+    options.steady_state = steady;
+    const fluxcal::ArKalman k(Eigen::Vector2d(0.8, -0.1), 1.0, 0.5, options);
+    const auto whole = k.filter(y, {250, 400});
+    const auto alone = k.filter(y.segment(250, 150));
+    EXPECT_NEAR((whole.filtered.segment(250, 150) - alone.filtered).cwiseAbs().maxCoeff(), 0.0, 1e-12);
+    EXPECT_GT((whole.filtered.head(400) - k.filter(y).filtered.head(400)).cwiseAbs().maxCoeff(), 1e-3);
+  }
+  EXPECT_ERROR_SAYS(fluxcal::ArKalman(Eigen::Vector2d(0.8, -0.1), 1.0, 0.5).filter(y, {600}), "breaks: break 0");
+}
+
 TEST(Kalman, BadInput) {
   EXPECT_THROW(fluxcal::ArKalman(Eigen::VectorXd(), 1.0, 1.0), fluxcal::Error);
   EXPECT_THROW(fluxcal::ArKalman(Eigen::VectorXd::Constant(1, 0.5), -1.0, 1.0), fluxcal::Error);

@@ -49,6 +49,31 @@ TEST(TimeSeries, RlsWithoutForgettingIsBatchLeastSquares) {
   EXPECT_NEAR((r.coefficients - batch).cwiseAbs().maxCoeff(), 0.0, 1e-10);
 }
 
+// Gaps in time: the fit with breaks is the batch fit of the stacked rows of each stretch, and it is what a
+// series that was never spliced gives (the same stretches fitted by hand).
+TEST(TimeSeries, ArWithBreaksFitsEachStretchsRows) {
+  const Eigen::VectorXd y = ar_series({0.9, -0.3}, 3000, 11);
+  fluxcal::ArOptions options;
+  options.order = 2;
+  options.breaks = {700, 701, 1500};  // a one-sample stretch (700) gives no row
+  const auto r = fluxcal::fit_ar(y, options);
+  std::vector<Eigen::Index> starts = {0, 700, 701, 1500, 3000};
+  Eigen::MatrixXd x(698 + 0 + 797 + 1498, 2);  // stretches of 700, 1, 799 and 1500 samples
+  Eigen::VectorXd target(x.rows());
+  Eigen::Index row = 0;
+  for (std::size_t s = 0; s + 1 < starts.size(); ++s)
+    for (Eigen::Index t = starts[s] + 2; t < starts[s + 1]; ++t, ++row) {
+      x.row(row) << y[t - 1], y[t - 2];
+      target[row] = y[t];
+    }
+  ASSERT_EQ(row, x.rows());
+  const Eigen::VectorXd batch = x.colPivHouseholderQr().solve(target);
+  EXPECT_NEAR((r.coefficients - batch).cwiseAbs().maxCoeff(), 0.0, 1e-10);
+  EXPECT_EQ(r.residuals.size(), x.rows());
+  options.breaks = {5, 3};
+  EXPECT_ERROR_SAYS(fluxcal::fit_ar(y, options), "ArOptions::breaks: break 1 at sample 3");
+}
+
 TEST(TimeSeries, MaximumOrderIsReported) {
   const Eigen::VectorXd y = ar_series({0.3, 0.2, 0.1, 0.1, 0.1, 0.1, 0.05}, 20000, 4);
   fluxcal::ArOptions options;

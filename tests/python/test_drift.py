@@ -73,6 +73,47 @@ def test_matches_oracle(whiten, foct):
         np.testing.assert_allclose(g["coefficients"], r["coefficients"], rtol=1e-6, atol=1e-9)
 
 
+def test_whitening_does_not_reach_across_gaps_as_the_oracle_says():
+    """A log of the temperature holds only (a gap at each ramp): the whitening filter and its AR model stay
+    within the stretches, as the oracle's (which marks each sample's stretch)."""
+    c = sim.foct_zero_bias(rng=np.random.default_rng(5), logged="holds", hold_s=120.0, ar=(0.95,),
+                           sigma=0.01).columns
+    breaks = ts.find_breaks(c["t"])
+    assert breaks.size == 14
+    got = drift.fit_drift(c["zero_bias"], c["temp"], breaks=breaks)
+    ref, ar = oracle.fit_drift(c["temp"], c["temp"], c["zero_bias"], breaks=breaks)
+    np.testing.assert_allclose(got.settings["noise_ar"], ar, atol=1e-8)
+    for g, r in zip(got.segments, ref):
+        assert g["order"] == r["order"]
+        np.testing.assert_allclose(g["coefficients"], r["coefficients"], rtol=1e-6, atol=1e-9)
+
+
+def test_gaps_in_time_make_the_drift_more_accurate():
+    """Short holds and slow noise (a1 = 0.95), the ramps not logged: spliced, each whitened row at a gap joins
+    two temperatures and gets a large leverage. With t the drift is nearer the truth (mean RMS error over 8
+    seeds about 0.6 of the spliced fit's; measured 0.0143 against 0.0229 A on seeds 0–9)."""
+    errors = {"spliced": [], "gaps": []}
+    for seed in range(8):
+        sim_ = sim.foct_zero_bias(rng=np.random.default_rng(seed), logged="holds", hold_s=120.0, ar=(0.95,),
+                                  sigma=0.01)
+        c, truth = sim_.columns, sim_.truth["drift"]["zero_bias"]
+        for key, t in (("spliced", None), ("gaps", c["t"])):
+            model, report = drift.fit_pipeline(c["zero_bias"], c["temp"], t=t)
+            errors[key].append(np.sqrt(np.mean((model.evaluate(c["temp"]) - truth) ** 2)))
+            assert (report["gaps"] is None) == (t is None)
+    assert np.mean(errors["gaps"]) < 0.8 * np.mean(errors["spliced"])
+
+
+def test_a_time_column_that_cannot_show_gaps_is_a_warning(foct):
+    c = foct.columns
+    t = np.floor(c["t"] / 4.0)  # a clock in 4 s ticks at 1 Hz: times repeat
+    model, report = drift.fit_pipeline(c["zero_bias"], c["temp"], t=t)
+    assert report["gaps"] is None and model.settings["gaps"] == 0
+    assert any("is not after sample" in w and "gaps in time were not looked for" in w for w in report["warnings"])
+    with pytest.raises(ValueError, match="t: 10 samples, zero_bias has"):
+        drift.fit_pipeline(c["zero_bias"], c["temp"], t=c["t"][:10])
+
+
 def test_balancing_and_continuity(foct):
     c = foct.columns
     m = drift.fit_drift(c["zero_bias"], c["temp"], continuous=True)
@@ -200,6 +241,18 @@ def test_cli_fit_and_apply(tmp_path, foct):
     assert run.returncode == 2 and "outside every range" in run.stderr
 
 
+def test_cli_fit_on_holds_logged_alone(tmp_path):
+    """A recording of the temperature holds only: `drift fit` finds the 14 gaps in t and says so."""
+    s = sim.foct_zero_bias(rng=np.random.default_rng(3), logged="holds", hold_s=300.0)
+    src = write_csv(tmp_path / "holds.csv", {k: s.columns[k] for k in ("t", "zero_bias", "temp")}, units=s.units)
+    run = run_cli("drift", "fit", src, "-o", tmp_path / "m.json")
+    assert run.returncode == 0, run.stderr
+    assert "time: step 1 s, 14 gaps (the longest 601 s)" in run.stdout
+    assert drift.gaps_note(14) in run.stdout
+    data = json.loads((tmp_path / "m.json").read_text())
+    assert data["gaps"] == 14 and [seg["order"] for seg in data["segments"]] == [2, 1, 3]
+
+
 def test_cli_bad_lines(tmp_path, foct):
     # A blank cell's error suggests --bad-lines skip; drift fit and apply now accept it.
     c = foct.columns
@@ -215,7 +268,9 @@ def test_cli_bad_lines(tmp_path, foct):
     assert run.returncode == 2 and "--bad-lines skip" in run.stderr, run.stderr
     run = run_cli("drift", "fit", blank, "-o", model_path, "--bad-lines", "skip")
     assert run.returncode == 0, run.stderr
-    assert f"skipped 1 of {len(c['t'])} lines: {header + 11}" in run.stdout and "time step is missing" in run.stdout
+    assert f"skipped 1 of {len(c['t'])} lines: {header + 11}" in run.stdout
+    # the skipped line leaves a gap in t, which the AR model and the filter do not reach across
+    assert "the gaps they leave in t are not reached across" in run.stdout and drift.gaps_note(1) in run.stdout
     run = run_cli("drift", "apply", model_path, blank, "-o", tmp_path / "x.csv")
     assert run.returncode == 2 and "--bad-lines skip" in run.stderr, run.stderr
     run = run_cli("drift", "apply", model_path, blank, "-o", tmp_path / "out.csv", "--bad-lines", "skip")

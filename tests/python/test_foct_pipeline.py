@@ -14,7 +14,7 @@ RTOL = 1e-9
 
 def fit_cpp(zero_bias, temp, temp_outside=None, regressor="temp", breakpoints=drift.DEFAULT_BREAKPOINTS,
             max_order=4, significance=0.05, continuous=False, ar_max_order=10, q=None, r=None, steady_state=False,
-            subseries=20, rated=None, accuracy_class="0.2S", whiten=True, drift_input="zero_bias") -> dict:
+            subseries=20, rated=None, accuracy_class="0.2S", whiten=True, drift_input="zero_bias", t=None) -> dict:
     """fit_pipeline's signature on the C++ pipeline: knobs into FoctOptions, nothing else."""
     if regressor not in drift.REGRESSORS:
         raise ValueError(f"regressor: {regressor!r} is not one of {', '.join(drift.REGRESSORS)}")
@@ -33,6 +33,7 @@ def fit_cpp(zero_bias, temp, temp_outside=None, regressor="temp", breakpoints=dr
     o.rated = None if rated is None else float(rated)
     o.accuracy_class = accuracy_class
     o.drift_input = getattr(_core.DriftInput, drift_input)
+    o.breaks = [] if t is None else ts.find_breaks(t).tolist()
     outside = None if temp_outside is None else ts.as_series(temp_outside, "temp_outside")
     return _core.fit_foct(ts.as_series(zero_bias, "zero_bias"), ts.as_series(temp, "temp"), outside, o)
 
@@ -99,8 +100,10 @@ def test_defaults_match_fit_pipeline():
                     "ar_max_order": o.ar.max_order, "q": o.q, "r": o.r, "steady_state": o.kalman.steady_state,
                     "subseries": o.preprocess.subseries, "rated": o.rated, "accuracy_class": o.accuracy_class,
                     "whiten": o.drift.whiten, "drift_input": o.drift_input.name}
-    # Every knob of fit_pipeline (beyond the three series) has a C++ counterpart with the same default.
-    assert set(params) - {"zero_bias", "temp", "temp_outside"} == set(cpp_defaults)
+    # Every knob of fit_pipeline (beyond the three series) has a C++ counterpart with the same default; the
+    # times t are FoctOptions.breaks, the gaps in them (none by default).
+    assert set(params) - {"zero_bias", "temp", "temp_outside", "t"} == set(cpp_defaults)
+    assert params["t"].default is None and o.breaks == []
     for name, value in cpp_defaults.items():
         assert value == params[name].default, name
     # What fit_pipeline leaves at fit_drift's / fit_ar's defaults, FoctOptions does too.
@@ -175,6 +178,33 @@ def test_compensating_new_data_and_the_helpers():
             assert g == pytest.approx(r, rel=1e-15)
         verdicts.add(got["met"])
     assert verdicts == {False, True}  # this residual fails 0.2S but meets 0.5S: both branches compared
+
+
+@pytest.mark.parametrize("seed", [2016, 7])
+def test_gaps_in_time_agree_with_python(seed):
+    """A recorder that logs the temperature holds only (seed 001's S1): a gap in t at each of the 14 ramps.
+    Both pipelines whiten, fit the AR model and restart the filter within the stretches alike."""
+    c = sim.foct_zero_bias(rng=np.random.default_rng(seed), logged="holds", hold_s=300.0, ar=(0.9,)).columns
+    model, report = drift.fit_pipeline(c["zero_bias"], c["temp"], rated=RATED, t=c["t"])
+    got = fit_cpp(c["zero_bias"], c["temp"], rated=RATED, t=c["t"])
+    assert report["gaps"]["count"] == 14 and report["gaps"]["longest"] == pytest.approx(601.0)
+    assert_agree(got, model, report, c["zero_bias"])
+    assert got["notes"][0] == drift.gaps_note(14)
+    spliced = fit_cpp(c["zero_bias"], c["temp"], rated=RATED)  # not a trivial agreement: the gaps change the fit
+    assert not np.array_equal(spliced["ar"]["coefficients"], got["ar"]["coefficients"])
+    assert not np.allclose(spliced["filtered"], got["filtered"])
+
+
+def test_gaps_are_set_once():
+    o = _core.FoctOptions()
+    o.ar.breaks = [10]
+    c = foct(2016)
+    with pytest.raises(ValueError, match="FoctOptions::ar.breaks: set FoctOptions::breaks instead"):
+        _core.fit_foct(c["zero_bias"], c["temp"], None, o)
+    o = _core.FoctOptions()
+    o.breaks = [5, 5]
+    with pytest.raises(ValueError, match="FoctOptions::breaks: break 1 at sample 5"):
+        _core.fit_foct(c["zero_bias"], c["temp"], None, o)
 
 
 WHITE_SEEDS = (2, 3)  # sim.foct_zero_bias(ar=()) seeds whose noise about the drift AIC calls white (order 0)

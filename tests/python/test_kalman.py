@@ -44,6 +44,23 @@ def test_double_filter_matches_filterpy(a, q, r):
     np.testing.assert_allclose(filtered, oracle.kalman_filter(a, q, r, k.initial_covariance, y), atol=1e-10)
 
 
+@pytest.mark.parametrize("steady_state", [False, True])
+def test_filter_starts_again_after_each_gap(steady_state):
+    """breaks: each stretch between gaps in time filtered on its own from x = 0, P = P0 (the oracle filters
+    the np.split pieces one by one)."""
+    a, q, r = (0.9, -0.2), 0.01, 0.02
+    y = ar_signal(a, q, r, 2000, 3)
+    breaks = [150, 151, 700, 1999]
+    k = ArKalman(a, q, r, steady_state=steady_state)
+    got = k.filter(y, breaks)
+    gain = k.steady_gain if steady_state else None
+    np.testing.assert_allclose(got, oracle.kalman_filter(a, q, r, k.initial_covariance, y, gain, breaks), atol=1e-12)
+    assert "restarted after 4 gaps in time" in k.result["summary"]["message"]
+    assert not np.allclose(got, k.filter(y))  # the restarts change the output
+    with pytest.raises(ValueError, match="breaks: .* are not ascending sample indices in 1 … 1999"):
+        k.filter(y, [0, 5])
+
+
 @pytest.mark.parametrize("a,q,r", MODELS)
 def test_steady_state_gain_and_stationary_covariance(a, q, r):
     k = ArKalman(a, q, r, steady_state=True)

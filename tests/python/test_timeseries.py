@@ -53,6 +53,50 @@ def test_rls_matches_oracle(forgetting):
         np.testing.assert_allclose(model.coefficients, oracle.ar_fit(y, 2)[0], rtol=0, atol=1e-10)
 
 
+def stretches_with_gaps(seed):
+    """AR(1) noise near a unit root logged in 12 stretches of 40–300 samples, the noise running on unseen for
+    200 samples between them (a recorder paused between holds): the breaks and the spliced series."""
+    rng = np.random.default_rng(seed)
+    y = ar_series((0.95,), 12 * 500, seed)
+    lengths = rng.integers(40, 300, 12)
+    starts = np.arange(12) * 500
+    pieces = [y[s:s + n] for s, n in zip(starts, lengths)]
+    return np.concatenate(pieces), np.cumsum(lengths)[:-1]
+
+
+@pytest.mark.parametrize("seed", [0, 1])
+def test_gaps_in_time_match_the_oracle(seed):
+    """With breaks no lag reaches across a gap: the AIC curve, the RLS coefficients and the residual count are
+    the oracle's, which fits the stacked rows of each stretch (np.split at the breaks)."""
+    y, breaks = stretches_with_gaps(seed)
+    model = ts.fit_ar(y, max_order=6, breaks=breaks)
+    np.testing.assert_allclose(model.aic, oracle.ar_aic(y, 6, breaks), rtol=1e-10)
+    p = model.order
+    np.testing.assert_allclose(model.coefficients, oracle.ar_fit(y, p, breaks)[0], rtol=0, atol=1e-10)
+    assert model.residuals.size == y.size - p * (len(breaks) + 1)
+    fixed = ts.fit_ar(y, order=1, breaks=breaks, forgetting=0.999)
+    np.testing.assert_allclose(fixed.coefficients, oracle.rls(y, 1, 20, 0.999, breaks), rtol=0, atol=1e-9)
+    # Not a trivial agreement: spliced, the 11 jumps between stretches pull a1 from the truth (0.95).
+    spliced = ts.fit_ar(y, order=1)
+    assert abs(ts.fit_ar(y, order=1, breaks=breaks).coefficients[0] - 0.95) < abs(spliced.coefficients[0] - 0.95)
+
+
+def test_find_breaks():
+    t = np.arange(100.0) + np.random.default_rng(0).uniform(-0.2, 0.2, 100)  # a logger's jitter: no gap
+    assert ts.find_breaks(t).size == 0
+    t = np.r_[np.arange(10.0), np.arange(12.0, 20.0), np.arange(620.0, 700.0)]  # one lost sample, one pause
+    np.testing.assert_array_equal(ts.find_breaks(t), [10, 18])
+    with pytest.raises(ValueError, match=r"t: sample 3 \(2\) is not after sample 2 \(2\)"):
+        ts.find_breaks([0.0, 1.0, 2.0, 2.0, 3.0])
+    with pytest.raises(ValueError, match="t: sample 1 is nan"):
+        ts.find_breaks([0.0, np.nan, 2.0])
+    y, breaks = stretches_with_gaps(0)
+    with pytest.raises(ValueError, match="breaks: .* are not ascending sample indices"):
+        ts.fit_ar(y, breaks=[5, 3])
+    with pytest.raises(ValueError, match="stretches are too short"):  # every stretch shorter than the lags
+        ts.fit_ar(y[:400], max_order=10, breaks=np.arange(8, 400, 8))
+
+
 @pytest.mark.parametrize("forgetting", [0.97, 0.9, 0.8])
 def test_rls_forgetting_is_weighted_least_squares(forgetting):
     # RLS with λ < 1 is exponentially weighted least squares; it used to diverge (λ = 0.8: [22.8, −40.5]

@@ -39,6 +39,9 @@ struct DriftOptions {
   bool whiten = true;
   /// Cost O(N · whiten_max_order²) for N samples: keep it to tens (10 000 samples at 5 000 takes minutes).
   int whiten_max_order = 10;
+  /// Gaps in time (see Breaks): the whitening filter does not reach across them (a stretch's first p rows
+  /// are not whitened, as a range's first rows are not), and its AR model is fitted within the stretches.
+  Breaks breaks;
 };
 
 struct DriftSegment {

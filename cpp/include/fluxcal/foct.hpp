@@ -76,6 +76,11 @@ struct FoctOptions {
   /// Rated primary current; set it to get the accuracy verdicts (unset = no verdict).
   std::optional<double> rated;
   std::string accuracy_class = "0.2S";  ///< "0.2S" or "0.5S" (IEC 61869-2)
+  /// Gaps in time (see Breaks; fluxcal.timeseries.find_breaks finds them in a time column): the drift's
+  /// whitening, the AR model and the Kalman filter do not reach across them (the filter starts again after
+  /// each). Set here, not in ar or drift (an error there: the three must agree). S2's diagnostics difference
+  /// across them.
+  Breaks breaks;
 };
 
 /// Mean of `values` over the samples whose temperature rounds (half to even, as NumPy) to one multiple
@@ -135,6 +140,8 @@ inline constexpr const char* kWhiteNoiseFixedNote =
     "noise about the drift is white (AR order fixed at 0): no Kalman filter; L = the drift model";
 inline constexpr const char* kWhiteNoiseNoRefit =
     "drift_input 'filtered' has nothing to refit (L is the drift model): the model is the fit to the zero bias";
+/// FoctResult::notes' first note when FoctOptions::breaks is set (fluxcal.drift.gaps_note, word for word).
+std::string gaps_note(std::size_t gaps);
 
 struct FoctResult {
   PreprocessResult preprocess;  ///< S2 (diagnostics of the zero bias)

@@ -52,8 +52,11 @@ class ArKalman {
   /// order-0 fit (a white series has no dynamics to filter).
   static ArKalman from_ar(const ArResult& fit, double r = -1.0, const KalmanOptions& options = {});
 
-  /// Filter a whole series from the initial state x = 0, P = P0.
-  KalmanResult filter(const SeriesRef& y) const;
+  /// Filter a whole series from the initial state x = 0, P = P0. At each break (a gap in time, see
+  /// Breaks) the filter starts again from x = 0, P = P0: the state before a gap says nothing of the noise
+  /// after it once the gap is long against the AR model's memory (P0 is the stationary covariance, the
+  /// state's distribution after a long gap). A gap of a few samples loses the state's memory early.
+  KalmanResult filter(const SeriesRef& y, const Breaks& breaks = {}) const;
 
   int order() const { return static_cast<int>(a_.size()); }
   const Eigen::VectorXd& coefficients() const { return a_; }

@@ -10,7 +10,8 @@
 //   fit_ar               y_k = a1 y_{k−1} + … + ap y_{k−p} + r_k, no constant; order by AIC
 //                        n ln σ̂²_p + 2p on one common sample of n = N − max_order rows (what
 //                        statsmodels' ar_select_order(ic='aic', trend='n') does), coefficients by
-//                        recursive least squares started from batch least squares on the first rows
+//                        recursive least squares started from batch least squares on the first rows;
+//                        with `breaks` (gaps in time) no row's lags reach back across a gap
 //   ljung_box            Q = n(n+2) Σ_{k=1..h} ρ_k²/(n−k) against χ²(h − model_df)
 //   preprocess           seed 001 S2 in one call: zero-mean, reverse-arrangement test of the once-
 //                        differenced series, a second difference plus trend removal when it fails,
@@ -25,11 +26,28 @@
 #include <Eigen/Dense>
 
 #include <string>
+#include <vector>
 
 namespace fluxcal {
 
 /// Read-only view of a series (an Eigen vector or a mapped NumPy array).
 using SeriesRef = Eigen::Ref<const Eigen::VectorXd>;
+
+/// Gaps in time: the samples that each begin a new stretch of evenly spaced samples (the step before
+/// them is not the sampling interval: a recorder paused between temperature holds, a lost sample).
+/// Ascending, each in 1 … N − 1. An AR model's lags, a whitening filter and a Kalman filter's state do
+/// not reach across them: splicing two stretches would model the jump between them as noise.
+using Breaks = std::vector<Eigen::Index>;
+
+/// Throws Error unless `breaks` are strictly ascending sample indices in 1 … n − 1.
+void check_breaks(const Breaks& breaks, Eigen::Index n, const std::string& name);
+
+/// The first sample of the stretch that holds sample t.
+Eigen::Index stretch_start(const Breaks& breaks, Eigen::Index t);
+
+/// The rows an AR model with `lags` lags regresses on a series of n samples: every sample at least `lags`
+/// samples after the start of its stretch.
+Eigen::Index regressed_rows(Eigen::Index n, const Breaks& breaks, int lags);
 
 /// Throws Error unless `series` is finite and has at least `min_length` samples.
 void check_series(const SeriesRef& series, const std::string& name, Eigen::Index min_length,
@@ -94,6 +112,9 @@ struct ArOptions {
   /// Ljung–Box lags for the residual whiteness check (0 = max(10, 2p), at most (N − p)/2).
   int whiteness_lags = 0;
   double significance = 0.05;  ///< of the whiteness check
+  /// Gaps in time (see Breaks): a row is regressed only when its lags lie in its own stretch, so each
+  /// stretch loses its first p rows (AIC: its first max_order rows) instead of splicing across the gap.
+  Breaks breaks;
 };
 
 struct ArResult {
@@ -102,13 +123,14 @@ struct ArResult {
   double sigma2 = 0.0;           ///< residual variance SSR / (N − p) (statsmodels AutoReg's sigma2)
   Eigen::VectorXd aic;           ///< AIC(p) = n ln σ̂²_p + 2p for p = 0 … max_order (common sample)
   bool order_at_maximum = false; ///< AIC chose max_order: the noise may have longer memory
-  Eigen::VectorXd residuals;     ///< r_k for k = p … N−1
+  Eigen::VectorXd residuals;     ///< r_k for k = p … N−1 (with breaks: of each stretch's rows from its p-th on)
   LjungBoxResult whiteness;      ///< of the residuals, model_df = p
   Summary summary;
 };
 
 /// AR(p) fit of a (zero-mean) series. Needs N > 2 max_order + 2 (or 2 order + 2 for a fixed order)
-/// finite samples, not all equal.
+/// finite samples, not all equal, and with breaks more than max_order + 2 rows whose lags stay in their
+/// stretch.
 ArResult fit_ar(const SeriesRef& y, const ArOptions& options = {});
 
 struct PreprocessOptions {

@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 from scipy import stats
 
-from .timeseries import ar_aic, ar_fit
+from .timeseries import ar_aic, ar_fit, lagged
 
 
 def _members(temp, edges, k):
@@ -14,13 +14,14 @@ def _members(temp, edges, k):
     return np.flatnonzero((temp >= lo) & ((temp < hi) | (last & (temp <= hi))))
 
 
-def _rows(x, w, idx, ar, order):
+def _rows(x, w, idx, ar, order, stretch):
     V = np.vander(x[idx], order + 1, increasing=True)
     target = w[idx]
     p = len(ar)
     if p == 0:
         return V, target
-    keep = [j for j in range(p, idx.size) if idx[j - p] == idx[j] - p]
+    # p consecutive predecessors in the range and in the same stretch between gaps in time
+    keep = [j for j in range(p, idx.size) if idx[j - p] == idx[j] - p and stretch[idx[j - p]] == stretch[idx[j]]]
     keep = np.array(keep, dtype=int)
     Vw, tw = V[keep].copy(), target[keep].copy()
     for q in range(1, p + 1):
@@ -52,8 +53,11 @@ def covering_edges(select, breakpoints, min_samples=10):
 
 
 def fit_drift(select, x, w, breakpoints=(-20.0, 0.0, 30.0, 50.0), max_order=4, significance=0.05, whiten=True,
-              whiten_max_order=10, min_samples=10):
+              whiten_max_order=10, min_samples=10, breaks=()):
     select, x, w = (np.asarray(v, dtype=float) for v in (select, x, w))
+    stretch = np.zeros(w.size, int)
+    stretch[np.asarray(breaks, dtype=int)] = 1
+    stretch = np.cumsum(stretch)  # which stretch between the gaps in time each sample is in
     edges = covering_edges(select, breakpoints, min_samples)
     groups = [_members(select, edges, k) for k in range(len(edges) - 1)]
     tops = [min(max_order, np.unique(x[g]).size - 1, g.size - 3) for g in groups]
@@ -63,15 +67,21 @@ def fit_drift(select, x, w, breakpoints=(-20.0, 0.0, 30.0, 50.0), max_order=4, s
         for g, top in zip(groups, tops):
             V = np.vander(x[g], top + 1, increasing=True)
             resid[g] = w[g] - V @ np.linalg.lstsq(V, w[g], rcond=None)[0]
-        series = resid[~np.isnan(resid)]
-        p = int(np.argmin(ar_aic(series, whiten_max_order)))
-        ar = ar_fit(series, p)[0] if p else np.zeros(0)
+        inside = ~np.isnan(resid)
+        series = resid[inside]
+        # the stretches of the series: a new one where the stretch id changes
+        series_breaks = np.flatnonzero(np.diff(stretch[inside]) != 0) + 1
+        top = whiten_max_order
+        while top > 0 and lagged(series, top, top, series_breaks)[1].size < top + 3:
+            top -= 1
+        p = int(np.argmin(ar_aic(series, top, series_breaks)))
+        ar = ar_fit(series, p, series_breaks)[0] if p else np.zeros(0)
         if ar.size and ar.sum() > UNIT_ROOT:
             ar = np.zeros(0)
     segments = []
     for g, top in zip(groups, tops):
         def sse(m):
-            V, t = _rows(x, w, g, ar, m)
+            V, t = _rows(x, w, g, ar, m, stretch)
             c = np.linalg.lstsq(V, t, rcond=None)[0]
             return c, np.sum((t - V @ c) ** 2), t.size
 

@@ -24,8 +24,11 @@ def companion(a) -> np.ndarray:
     return m
 
 
-def kalman_filter(a, q, r, p0, y, steady_gain=None):
-    """Filtered outputs C x̂_{k|k} with full-matrix predict and Joseph update (or a constant gain)."""
+def kalman_filter(a, q, r, p0, y, steady_gain=None, breaks=()):
+    """Filtered outputs C x̂_{k|k} with full-matrix predict and Joseph update (or a constant gain); with breaks
+    (gaps in time) each stretch between them filtered on its own from x = 0, P = p0."""
+    if len(breaks):
+        return np.concatenate([kalman_filter(a, q, r, p0, s, steady_gain) for s in np.split(np.asarray(y), breaks)])
     A = companion(a)
     n = A.shape[0]
     H = np.eye(n)[:1]

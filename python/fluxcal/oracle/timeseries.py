@@ -36,33 +36,37 @@ def ljung_box(x, lags, model_df=0):
     return {"statistic": q, "p_value": stats.chi2.sf(q, df) if df > 0 else np.nan}
 
 
-def lagged(y, p, first):
-    """Rows t = first … N−1 of [y_{t−1} … y_{t−p}] and the targets y_t."""
+def lagged(y, p, first, breaks=()):
+    """Rows t = first … N−1 of [y_{t−1} … y_{t−p}] and the targets y_t; with breaks (gaps in time) the rows
+    of each stretch between them, stacked: np.split at the breaks, then the same per stretch."""
     y = np.asarray(y, dtype=float)
+    if len(breaks):
+        parts = [lagged(s, p, first) for s in np.split(y, breaks) if s.size > first]
+        return np.vstack([X for X, _ in parts]), np.concatenate([t for _, t in parts])
     X = np.column_stack([y[first - j:y.size - j] for j in range(1, p + 1)]) if p else np.empty((y.size - first, 0))
     return X, y[first:]
 
 
-def ar_aic(y, max_order):
+def ar_aic(y, max_order, breaks=()):
     """AIC(p) = n ln(SSR_p/n) + 2p on the common sample t = max_order … N−1 (lstsq per order)."""
     out = []
     for p in range(max_order + 1):
-        X, t = lagged(y, p, max_order)
+        X, t = lagged(y, p, max_order, breaks)
         ssr = np.sum((t - X @ np.linalg.lstsq(X, t, rcond=None)[0]) ** 2) if p else np.sum(t ** 2)
         out.append(t.size * np.log(ssr / t.size) + 2 * p)
     return np.array(out)
 
 
-def ar_fit(y, p):
+def ar_fit(y, p, breaks=()):
     """Batch least squares on every row t = p … N−1 (what AutoReg does); (coefficients, sigma2)."""
-    X, t = lagged(y, p, p)
+    X, t = lagged(y, p, p, breaks)
     a = np.linalg.lstsq(X, t, rcond=None)[0]
     return a, np.mean((t - X @ a) ** 2)
 
 
-def rls(y, p, init_samples=20, forgetting=1.0):
+def rls(y, p, init_samples=20, forgetting=1.0, breaks=()):
     """Recursive least squares with forgetting, started by batch least squares on the first rows."""
-    X, t = lagged(y, p, p)
+    X, t = lagged(y, p, p, breaks)
     n0 = min(t.size, max(init_samples, 2 * p))
     theta = np.linalg.lstsq(X[:n0], t[:n0], rcond=None)[0]
     P = np.linalg.inv(X[:n0].T @ X[:n0])

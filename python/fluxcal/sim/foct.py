@@ -70,11 +70,16 @@ class FoctSimulation:
 
 def foct_zero_bias(rng=None, segments=None, ar=(0.5, -0.2), sigma: float = 0.05, hold_s: float = 1200.0,
                    ramp_s: float = 600.0, rate_hz: float = 1.0, thermal_lag_s: float = 60.0,
-                   self_heating: float = 0.0, phase_gains=(1.0, 0.9, 1.1), rated: float = 1000.0) -> FoctSimulation:
+                   self_heating: float = 0.0, phase_gains=(1.0, 0.9, 1.1), rated: float = 1000.0,
+                   logged: str = "all") -> FoctSimulation:
     """Simulated zero bias of the three phases of a FOCT over the chamber cycle (see the module doc).
     The device temperature lags the chamber by `thermal_lag_s` (first order) and sits `self_heating` °C
     above it; each phase has the drift law times its gain plus its own AR noise (coefficients `ar`,
-    innovation σ `sigma`)."""
+    innovation σ `sigma`). logged: "all" (the recorder runs through the ramps) or "holds" (it records at
+    each temperature point only, as seed 001's S1 reads: the log has a gap in t at every ramp, and the
+    noise has run on unseen through it)."""
+    if logged not in ("all", "holds"):
+        raise ValueError(f"logged: {logged!r} is not one of all, holds")
     rng = np.random.default_rng(rng)  # None, a seed or a Generator, as sim.simulate takes
     segments = default_segments() if segments is None else segments
     t, chamber, holds = chamber_profile(hold_s=hold_s, ramp_s=ramp_s, rate_hz=rate_hz)
@@ -92,6 +97,11 @@ def foct_zero_bias(rng=None, segments=None, ar=(0.5, -0.2), sigma: float = 0.05,
         phases[name] = gain * drift
         columns[name] = gain * drift + ar_noise(t.size, ar, sigma, rng)
     units = {"t": "s", "temp": "degC", "temp_outside": "degC", **{k: "A" for k in phases}}
+    if logged == "holds":
+        kept = holds >= 0
+        columns = {k: v[kept] for k, v in columns.items()}
+        phases = {k: v[kept] for k, v in phases.items()}
+        holds = holds[kept]
     truth = {"segments": segments, "ar": list(ar), "sigma": sigma, "drift": phases, "holds": holds, "rated": rated,
              "phase_gains": list(phase_gains)}
     return FoctSimulation(columns=columns, units=units, truth=truth)
