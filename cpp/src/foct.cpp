@@ -159,8 +159,9 @@ FoctResult fit_foct(const SeriesRef& zero_bias, const SeriesRef& temp, const Ser
   detail::check(options.drift);
   detail::require_enum("FoctOptions::regressor", options.regressor, 2, "temperature, difference (0 … 1)");
   detail::require_enum("FoctOptions::drift_input", options.drift_input, 2, "zero_bias, filtered (0 … 1)");
-  if (!options.ar.breaks.empty() || !options.drift.breaks.empty())
-    throw Error("FoctOptions::" + std::string(options.ar.breaks.empty() ? "drift" : "ar") +
+  if (!options.ar.breaks.empty() || !options.drift.breaks.empty() || !options.preprocess.breaks.empty())
+    throw Error("FoctOptions::" +
+                std::string(!options.ar.breaks.empty() ? "ar" : !options.drift.breaks.empty() ? "drift" : "preprocess") +
                 ".breaks: set FoctOptions::breaks instead (the drift, the AR model and the filter share the gaps)");
   const int ar_order = options.ar.order >= 0 ? options.ar.order : options.ar.max_order;
   const Eigen::Index need = std::max<Eigen::Index>(2 * static_cast<Eigen::Index>(options.preprocess.subseries) + 2,
@@ -191,7 +192,9 @@ FoctResult fit_foct(const SeriesRef& zero_bias, const SeriesRef& temp, const Ser
   FoctResult res;
   Summary& sum = res.summary;
   // S2 (diagnostics of the zero bias).
-  res.preprocess = naming_zero_bias([&] { return preprocess(zero_bias, options.preprocess); });
+  PreprocessOptions preprocess_options = options.preprocess;
+  preprocess_options.breaks = options.breaks;
+  res.preprocess = naming_zero_bias([&] { return preprocess(zero_bias, preprocess_options); });
   // S2.3 removes the trend before the AR model; here the trend is the temperature drift, so S3 fits the
   // zero bias minus a first drift model (S5 on the zero bias, GLS): the noise. Fitted to the zero bias
   // itself the AR model also had to describe the drift (AIC went to max_order, Ljung–Box rejected it).

@@ -196,6 +196,20 @@ Eigen::Index stretch_start(const Breaks& breaks, Eigen::Index t) {
   return after == breaks.begin() ? 0 : *(after - 1);
 }
 
+Eigen::VectorXd difference_within(const SeriesRef& x, const Breaks& breaks, Breaks* shifted) {
+  check_breaks(breaks, x.size(), "breaks");
+  Eigen::VectorXd d(std::max<Eigen::Index>(0, x.size() - static_cast<Eigen::Index>(breaks.size()) - 1));
+  if (shifted) shifted->clear();
+  Eigen::Index out = 0, start = 0;
+  for (std::size_t b = 0; b <= breaks.size(); ++b) {
+    const Eigen::Index end = b < breaks.size() ? breaks[b] : x.size();
+    if (shifted && out > 0 && end - start > 1 && (shifted->empty() || shifted->back() < out)) shifted->push_back(out);
+    for (Eigen::Index t = start + 1; t < end; ++t) d[out++] = x[t] - x[t - 1];
+    start = end;
+  }
+  return d;
+}
+
 Eigen::VectorXd zero_mean(const SeriesRef& x, double* mean) {
   check_series(x, "series", 1, "to remove the mean");
   const double m = x.mean();
@@ -445,11 +459,18 @@ PreprocessResult preprocess(const SeriesRef& x, const PreprocessOptions& options
   // Enough for the test on the twice-differenced series: N − 2 ≥ 2 l.
   check_series(x, "series", 2 * static_cast<Eigen::Index>(options.subseries) + 2,
                "for the stationarity test on " + std::to_string(options.subseries) + " sub-series");
+  check_breaks(options.breaks, x.size(), "PreprocessOptions::breaks");
+  if (x.size() - 2 * static_cast<Eigen::Index>(options.breaks.size() + 1) < 2 * options.subseries)
+    throw Error("series: " + std::to_string(x.size()) + " samples in " + std::to_string(options.breaks.size() + 1) +
+                " stretches between gaps in time leave fewer than " + std::to_string(2 * options.subseries) +
+                " second differences for the stationarity test on " + std::to_string(options.subseries) +
+                " sub-series");
   if (!((x.array() != x[0]).any()))
     throw Error("series: constant (every sample equals " + std::to_string(x[0]) + "), nothing to model");
   PreprocessResult r;
   const Eigen::VectorXd z = zero_mean(x, &r.mean);
-  Eigen::VectorXd d1 = difference(z, 1);
+  Breaks breaks1;
+  Eigen::VectorXd d1 = difference_within(z, options.breaks, &breaks1);
   r.stationarity = reverse_arrangement(d1, options.subseries, options.threshold);
   Summary& s = r.summary;
   if (r.stationarity.stationary) {
@@ -457,7 +478,7 @@ PreprocessResult preprocess(const SeriesRef& x, const PreprocessOptions& options
     r.differences = 1;
     r.stationarity_after = r.stationarity;
   } else {
-    r.series = remove_trend(difference(d1, 1), options.trend_degree);
+    r.series = remove_trend(difference_within(d1, breaks1), options.trend_degree);
     r.differences = 2;
     r.stationarity_after = reverse_arrangement(r.series, options.subseries, options.threshold);
   }

@@ -110,7 +110,8 @@ void bind_foct(py::module_& m) {
       .def_readwrite("subseries", &fluxcal::PreprocessOptions::subseries)
       .def_readwrite("threshold", &fluxcal::PreprocessOptions::threshold)
       .def_readwrite("trend_degree", &fluxcal::PreprocessOptions::trend_degree)
-      .def_readwrite("significance", &fluxcal::PreprocessOptions::significance);
+      .def_readwrite("significance", &fluxcal::PreprocessOptions::significance)
+      .def_readwrite("breaks", &fluxcal::PreprocessOptions::breaks);
   py::enum_<fluxcal::DriftRegressor>(m, "DriftRegressor")
       .value("temp", fluxcal::DriftRegressor::temperature)
       .value("difference", fluxcal::DriftRegressor::difference);
@@ -196,12 +197,13 @@ void bind_timeseries(py::module_& m) {
     return ljung_dict(fluxcal::ljung_box(x, lags, model_df, significance));
   }, "x"_a.noconvert(), "lags"_a, "model_df"_a, "significance"_a);
   m.def("ts_preprocess", [](const SeriesRef& x, int subseries, double threshold, int trend_degree,
-                            double significance) {
+                            double significance, const fluxcal::Breaks& breaks) {
     fluxcal::PreprocessOptions options;
     options.subseries = subseries;
     options.threshold = threshold;
     options.trend_degree = trend_degree;
     options.significance = significance;
+    options.breaks = breaks;
     const auto r = fluxcal::preprocess(x, options);
     auto ra = [](const fluxcal::ReverseArrangementResult& t) {
       return py::dict("subseries"_a = t.subseries, "arrangements"_a = t.arrangements, "expected"_a = t.expected,
@@ -213,7 +215,8 @@ void bind_timeseries(py::module_& m) {
                                              "jarque_bera"_a = r.normality.jarque_bera,
                                              "p_value"_a = r.normality.p_value, "normal"_a = r.normality.normal),
                     "summary"_a = summary_dict(r.summary));
-  }, "x"_a.noconvert(), "subseries"_a, "threshold"_a, "trend_degree"_a, "significance"_a);
+  }, "x"_a.noconvert(), "subseries"_a, "threshold"_a, "trend_degree"_a, "significance"_a,
+     "breaks"_a = fluxcal::Breaks());
   m.def("ts_chi2_sf", &fluxcal::chi2_sf, "x"_a, "df"_a);
   m.def("ts_f1_sf", &fluxcal::f1_sf, "x"_a, "df"_a);
 

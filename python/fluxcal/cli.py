@@ -410,26 +410,72 @@ def cmd_cable(args) -> int:
     return 0
 
 
+# Temperature units a drift model's temperatures are converted from: the model is always in °C (its ranges are)
+_TO_CELSIUS = {"C": lambda v: v, "K": lambda v: v - 273.15, "F": lambda v: (v - 32.0) / 1.8}
+
+
+def _temperatures(rec, column: str | None, outside_column: str, file) -> tuple:
+    """(temperature °C, outside temperature °C or None, {"column", "unit"}) of a zero-bias recording: the
+    column `column`, else the one recognised as the temperature (temp, temperature, Temperature (°F), temp_K,
+    …), each converted from °F or K by its stated or named unit; a stated unit that is not a temperature is
+    an error, not a guess."""
+    from .io.columns import TEMP_UNITS, find_temperature, words
+
+    def unit_of(name):
+        stated = (rec.units.get(name) or "").strip().lower().replace("°", "").replace("deg", "")
+        if stated:
+            if stated not in TEMP_UNITS:
+                raise ValueError(f"{file}: column {name!r} is in {rec.units[name]!r}, not °C, K or °F")
+            return TEMP_UNITS[stated]
+        return TEMP_UNITS.get((words(name) or [""])[-1], "C")
+
+    if column is not None:
+        if column not in rec.columns:
+            raise ValueError(f"{file}: no column {column!r} (--temp-column; columns: {', '.join(rec.columns)})")
+        name, unit = column, unit_of(column)
+    else:
+        candidates = [c for c in rec.columns if c != outside_column]
+        hit = find_temperature(candidates, rec.units)
+        named = find_temperature(candidates, {})
+        if hit is None and named is not None:
+            unit_of(named[0])  # named a temperature, in a unit that is not one: say so
+        if hit is None:
+            raise ValueError(f"{file}: no temperature column (looked for temp, temperature, temp_C, Temperature (°F), "
+                             f"…; columns: {', '.join(rec.columns)}); name it with --temp-column")
+        name, unit = hit
+    outside = rec.columns.get(outside_column)
+    if outside is not None:
+        outside = _TO_CELSIUS[unit_of(outside_column)](outside)
+    return _TO_CELSIUS[unit](rec.columns[name]), outside, {"column": name, "unit": unit}
+
+
+def _zero_bias_recording(args, column: str):
+    """The recording of `drift fit`/`drift apply` (any format read_recording takes) and its zero-bias column."""
+    rec = read_recording(args.file, bad_lines=args.bad_lines)
+    if column not in rec.columns:
+        raise ValueError(f"{args.file}: no column {column!r} (columns: {', '.join(rec.columns)}); name the zero bias "
+                         "with --column")
+    return rec
+
+
 def cmd_drift(args) -> int:
     """`fluxcal drift fit FILE -o MODEL.json` and `fluxcal drift apply MODEL.json FILE -o OUT` (seed 001)."""
     from . import drift
 
     if args.drift_command == "fit":
-        rec = read_csv(args.file, bad_lines=args.bad_lines)
-        times = rec.columns.get("t")
+        rec = _zero_bias_recording(args, args.column)
+        times = rec.time()
         if "skipped_lines" in rec.metadata:  # the AR model and the Kalman filter assume evenly spaced samples
             where = ("the gaps they leave in t are not reached across" if times is not None else
-                     "no column t: the series is modelled as if they were not there, a time step is missing at each")
+                     "no time column: the series is modelled as if they were not there, a time step is missing at "
+                     "each")
             print(f"skipped {rec.metadata['skipped_lines'].replace(':', ' lines:', 1)} ({where})")
-        for name in (args.column, "temp"):
-            if name not in rec.columns:
-                raise ValueError(f"{args.file}: no column {name!r} (columns: {', '.join(rec.columns)})")
-        outside = rec.columns.get("temp_outside")
+        temp, outside, temperature = _temperatures(rec, args.temp_column, args.outside_column, args.file)
         try:
             breakpoints = [float(v) for v in args.breakpoints.split(",")]
         except ValueError:
             raise ValueError(f"--breakpoints: {args.breakpoints!r} is not a comma-separated list of numbers") from None
-        model, report = drift.fit_pipeline(rec.columns[args.column], rec.columns["temp"], outside,
+        model, report = drift.fit_pipeline(rec.columns[args.column], temp, outside,
                                            regressor=args.regressor, breakpoints=breakpoints,
                                            max_order=args.max_order, significance=args.significance,
                                            continuous=args.continuous, ar_max_order=args.ar_max_order,
@@ -438,13 +484,18 @@ def cmd_drift(args) -> int:
                                            t=times)
         model.settings["source"] = str(args.file)
         model.settings["column"] = args.column
+        # the model's temperatures are °C whatever the file's; apply converts its file's alike
+        model.settings["temperature"] = {**temperature, "outside": args.outside_column if outside is not None else None}
         pre, ar = report["preprocess"], report["ar"]
         u = f" {rec.units[args.column]}" if rec.units.get(args.column) else ""  # the file's unit of the column
         print(f"{args.column}: {len(rec)} samples, mean {pre['mean']:.6g}{u}")
+        if temperature["column"] != "temp" or temperature["unit"] != "C":
+            converted = {"C": "", "F": " in °F, converted to °C", "K": " in K, converted to °C"}[temperature["unit"]]
+            print(f"  temperature: column {temperature['column']!r}{converted}")
         gaps = report["gaps"]
         if gaps and gaps["count"]:
-            tu = f" {rec.units['t']}" if rec.units.get("t") else ""
-            print(f"  time: step {gaps['step']:.4g}{tu}, {gaps['count']} gap{'s' if gaps['count'] > 1 else ''} (the longest {gaps['longest']:.4g}{tu})")
+            many = "s" if gaps["count"] > 1 else ""
+            print(f"  time: step {gaps['step']:.4g} s, {gaps['count']} gap{many} (the longest {gaps['longest']:.4g} s)")
         print(f"  stationarity (reverse arrangement, differenced {pre['differences']}x): u = "
               f"{pre['stationarity']['u']:.3f} ({'stationary' if pre['stationarity']['stationary'] else 'NOT stationary'})")
         print(f"  normality: skewness {pre['normality']['skewness']:.3f}, kurtosis {pre['normality']['kurtosis']:.3f}")
@@ -474,22 +525,21 @@ def cmd_drift(args) -> int:
         print(f"wrote {model.save(args.output)}")
         return 0
     model = drift.DriftModel.load(args.model)
-    rec = read_csv(args.file, bad_lines=args.bad_lines)
+    column = args.column or model.settings.get("column", "zero_bias")  # the model remembers what it was fitted on
+    rec = _zero_bias_recording(args, column)
     if "skipped_lines" in rec.metadata:
         print(f"skipped {rec.metadata['skipped_lines'].replace(':', ' lines:', 1)} (not in the output)")
-    column = args.column or model.settings.get("column", "zero_bias")  # the model remembers what it was fitted on
-    for name in (column, "temp"):
-        if name not in rec.columns:
-            raise ValueError(f"{args.file}: no column {name!r} (columns: {', '.join(rec.columns)})")
-    compensated = model.compensate(rec.columns[column], rec.columns["temp"], rec.columns.get("temp_outside"))
+    fitted = model.settings.get("temperature") or {}
+    temp, outside, _ = _temperatures(rec, args.temp_column, args.outside_column or fitted.get("outside") or
+                                     "temp_outside", args.file)
+    compensated = model.compensate(rec.columns[column], temp, outside)
     out_name = f"{column}_compensated"
     columns = {**rec.columns, out_name: compensated}
     units = {**rec.units, **({out_name: rec.units[column]} if rec.units.get(column) else {})}
     write_output(args.output, Recording(columns=columns, units=units, source=str(args.output),
                                         metadata={**rec.metadata, "drift_model": args.model}))
     print(f"wrote {args.output}: {len(rec)} rows, column {out_name} "
-          f"(drift span {drift.drift_span(rec.columns[column], rec.columns['temp']):.4g} -> "
-          f"{drift.drift_span(compensated, rec.columns['temp']):.4g})")
+          f"(drift span {drift.drift_span(rec.columns[column], temp):.4g} -> {drift.drift_span(compensated, temp):.4g})")
     return 0
 
 
@@ -691,6 +741,11 @@ def build_parser() -> argparse.ArgumentParser:
     df.add_argument("file")
     df.add_argument("-o", "--output", required=True, help="drift model (JSON)")
     df.add_argument("--column", default="zero_bias", help="the zero-bias column to model (e.g. one phase's)")
+    temp_help = ("the device temperature's column (default: the one named temp, temperature, temp_C, "
+                 "Temperature (°F), …); °F and K are converted to °C by the column's unit")
+    outside_help = "the outside (chamber) temperature's column, for --regressor difference (default temp_outside)"
+    df.add_argument("--temp-column", default=None, help=temp_help)
+    df.add_argument("--outside-column", default="temp_outside", help=outside_help)
     df.add_argument("--regressor", default="temp", choices=("temp", "difference"),
                     help="polynomial variable: device temperature or temp - temp_outside")
     df.add_argument("--breakpoints", default="-20,0,30,50", help="temperature range edges (degC)")
@@ -712,6 +767,9 @@ def build_parser() -> argparse.ArgumentParser:
     da.add_argument("file")
     da.add_argument("-o", "--output", required=True, help=output_help)
     da.add_argument("--column", default=None, help="column to compensate (default: the one the model was fitted on)")
+    da.add_argument("--temp-column", default=None, help=temp_help)
+    da.add_argument("--outside-column", default=None,
+                    help="the outside temperature's column (default: the one the model was fitted with)")
     da.add_argument("--bad-lines", default="error", choices=["error", "skip"], help=bad_lines_help)
     dr.set_defaults(run=cmd_drift)
     from .batch import add_batch_parser

@@ -307,7 +307,7 @@ def fit_pipeline(zero_bias, temp, temp_outside=None, regressor: str = "temp", br
     if temp.size != w.size:
         raise ValueError(f"temp: {temp.size} samples, zero_bias has {w.size}")
     breaks, gaps, gap_notes, gap_warnings = _gaps(t, w.size)
-    pre = ts.preprocess(w, subseries=subseries)
+    pre = ts.preprocess(w, subseries=subseries, breaks=breaks)
     drift_options = dict(regressor=regressor, breakpoints=breakpoints, max_order=max_order,
                          significance=significance, continuous=continuous, whiten=whiten, breaks=breaks)
     # S2.3 removes the trend before the AR model; here the trend is the temperature drift, so the AR model

@@ -175,13 +175,15 @@ def fit_ar(y, max_order: int = 10, order: int | None = None, **settings) -> ArMo
 
 
 def preprocess(x, subseries: int = 20, threshold: float = 1.96, trend_degree: int = 1,
-               significance: float = 0.05) -> dict:
+               significance: float = 0.05, breaks=None) -> dict:
     """Seed 001 S2: zero-mean, reverse-arrangement test of the once-differenced series; if it is not
     stationary, difference once more and remove a polynomial trend of `trend_degree`. Returns `mean`,
     `series` (the stationary series), `differences` (1 or 2), `stationarity` (the test of the first
     difference), `stationarity_after` (the test of `series`), `normality` (of `series`) and `summary`
-    (warnings when `series` is still not stationary or not normal)."""
-    r = _core.ts_preprocess(as_series(x), as_whole(subseries, "subseries", 3), float(threshold),
-                            as_whole(trend_degree, "trend_degree", 0), float(significance))
+    (warnings when `series` is still not stationary or not normal). breaks: gaps in time (`find_breaks`);
+    the differences are taken within each stretch between them."""
+    x = as_series(x)
+    r = _core.ts_preprocess(x, as_whole(subseries, "subseries", 3), float(threshold),
+                            as_whole(trend_degree, "trend_degree", 0), float(significance), as_breaks(breaks, x.size))
     r["series"] = np.asarray(r["series"])
     return r

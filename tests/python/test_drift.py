@@ -253,6 +253,39 @@ def test_cli_fit_on_holds_logged_alone(tmp_path):
     assert data["gaps"] == 14 and [seg["order"] for seg in data["segments"]] == [2, 1, 3]
 
 
+def test_cli_temperature_column_named_and_converted(tmp_path, foct):
+    """A temperature logged in °F under another name: drift fit finds it and converts it to °C (the model's
+    ranges are °C), apply converts its file's alike; a stated unit that is not a temperature is refused."""
+    c = foct.columns
+    src = write_csv(tmp_path / "c.csv", {"t": c["t"], "zero_bias": c["zero_bias"], "temp": c["temp"]}, units=foct.units)
+    run = run_cli("drift", "fit", src, "-o", tmp_path / "c.json")
+    assert run.returncode == 0, run.stderr
+    f = write_csv(tmp_path / "f.csv", {"t": c["t"], "zero_bias": c["zero_bias"], "Temperature": 32 + 1.8 * c["temp"]},
+                  units={"Temperature": "°F"})
+    run = run_cli("drift", "fit", f, "-o", tmp_path / "f.json")
+    assert run.returncode == 0, run.stderr
+    assert "temperature: column 'Temperature' in °F, converted to °C" in run.stdout
+    fitted_c, fitted_f = (json.loads((tmp_path / n).read_text()) for n in ("c.json", "f.json"))
+    assert [s["order"] for s in fitted_f["segments"]] == [s["order"] for s in fitted_c["segments"]] == [2, 1, 3]
+    for a, b in zip(fitted_f["segments"], fitted_c["segments"]):
+        np.testing.assert_allclose(a["coefficients"], b["coefficients"], rtol=1e-6, atol=1e-9)
+    assert fitted_f["temperature"] == {"column": "Temperature", "unit": "F", "outside": None}
+    run = run_cli("drift", "apply", tmp_path / "c.json", f, "-o", tmp_path / "out.csv")
+    assert run.returncode == 0, run.stderr
+    np.testing.assert_allclose(read_csv(tmp_path / "out.csv").columns["zero_bias_compensated"],
+                               drift.DriftModel.load(tmp_path / "c.json").compensate(c["zero_bias"], c["temp"]),
+                               rtol=1e-9, atol=1e-9)
+    bad = write_csv(tmp_path / "b.csv", {"zero_bias": c["zero_bias"][:100], "temp": c["temp"][:100]},
+                    units={"temp": "mV"})
+    run = run_cli("drift", "fit", bad, "-o", tmp_path / "b.json")
+    assert run.returncode == 2 and "column 'temp' is in 'mV', not °C, K or °F" in run.stderr
+    none = write_csv(tmp_path / "n.csv", {"zero_bias": c["zero_bias"][::50], "chamber": c["temp"][::50]})
+    run = run_cli("drift", "fit", none, "-o", tmp_path / "n.json")
+    assert run.returncode == 2 and "no temperature column" in run.stderr and "--temp-column" in run.stderr
+    run = run_cli("drift", "fit", none, "-o", tmp_path / "n.json", "--temp-column", "chamber", "--ar-max-order", "2")
+    assert run.returncode == 0, run.stderr
+
+
 def test_cli_bad_lines(tmp_path, foct):
     # A blank cell's error suggests --bad-lines skip; drift fit and apply now accept it.
     c = foct.columns

@@ -81,6 +81,22 @@ def test_gaps_in_time_match_the_oracle(seed):
     assert abs(ts.fit_ar(y, order=1, breaks=breaks).coefficients[0] - 0.95) < abs(spliced.coefficients[0] - 0.95)
 
 
+def test_preprocess_differences_within_the_stretches():
+    """S2 with breaks: the differences of each stretch, as the oracle's np.diff of each np.split piece; the
+    jumps between stretches at different levels no longer make the differenced series heavy-tailed."""
+    rng = np.random.default_rng(3)
+    levels = np.repeat(rng.normal(0.0, 5.0, 8), 300)  # eight holds at their own levels, white noise about them
+    x = levels + rng.normal(0.0, 0.1, levels.size)
+    breaks = np.arange(300, levels.size, 300)
+    got, ref = ts.preprocess(x, breaks=breaks), oracle.preprocess(x, breaks=breaks)
+    np.testing.assert_allclose(got["series"], ref["series"], rtol=0, atol=1e-12)
+    assert got["normality"]["kurtosis"] == pytest.approx(ref["normality"]["kurtosis"], rel=1e-10)
+    assert got["series"].size == x.size - (2 if got["differences"] == 2 else 1) * 8
+    assert got["normality"]["normal"] and not ts.preprocess(x)["normality"]["normal"]
+    with pytest.raises(ValueError, match="stretches between gaps in time leave fewer than 40"):
+        ts.preprocess(x[:60], breaks=np.arange(3, 60, 3))
+
+
 def test_find_breaks():
     t = np.arange(100.0) + np.random.default_rng(0).uniform(-0.2, 0.2, 100)  # a logger's jitter: no gap
     assert ts.find_breaks(t).size == 0

@@ -76,10 +76,9 @@ struct FoctOptions {
   /// Rated primary current; set it to get the accuracy verdicts (unset = no verdict).
   std::optional<double> rated;
   std::string accuracy_class = "0.2S";  ///< "0.2S" or "0.5S" (IEC 61869-2)
-  /// Gaps in time (see Breaks; fluxcal.timeseries.find_breaks finds them in a time column): the drift's
-  /// whitening, the AR model and the Kalman filter do not reach across them (the filter starts again after
-  /// each). Set here, not in ar or drift (an error there: the three must agree). S2's diagnostics difference
-  /// across them.
+  /// Gaps in time (see Breaks; fluxcal.timeseries.find_breaks finds them in a time column): S2's differences,
+  /// the drift's whitening, the AR model and the Kalman filter do not reach across them (the filter starts
+  /// again after each). Set here, not in preprocess, ar or drift (an error there: they must agree).
   Breaks breaks;
 };
 

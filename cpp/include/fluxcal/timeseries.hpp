@@ -59,6 +59,10 @@ Eigen::VectorXd zero_mean(const SeriesRef& x, double* mean = nullptr);
 /// x[k] − x[k−1], applied `order` times (N − order samples remain).
 Eigen::VectorXd difference(const SeriesRef& x, int order = 1);
 
+/// The first differences of each stretch between `breaks`, one after the other (each stretch gives one
+/// fewer); `shifted` (optional) receives the breaks of the result.
+Eigen::VectorXd difference_within(const SeriesRef& x, const Breaks& breaks, Breaks* shifted = nullptr);
+
 /// x minus its least-squares polynomial of `degree` in the sample index (degree 1: a straight line).
 Eigen::VectorXd remove_trend(const SeriesRef& x, int degree = 1);
 
@@ -138,6 +142,9 @@ struct PreprocessOptions {
   double threshold = 1.96;   ///< |u| below it: stationary (1.96 = 5 % two-sided)
   int trend_degree = 1;      ///< polynomial removed after the second difference (S2.3)
   double significance = 0.05;  ///< of the normality check
+  /// Gaps in time (see Breaks): differences are taken within each stretch (a difference across a gap is
+  /// the jump between two stretches, not a step of the series).
+  Breaks breaks;
 };
 
 struct PreprocessResult {

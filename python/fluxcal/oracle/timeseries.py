@@ -100,13 +100,15 @@ def remove_trend(x, degree=1):
     return x - np.polynomial.polynomial.polyval(s, np.polynomial.polynomial.polyfit(s, x, degree))
 
 
-def preprocess(x, subseries=20, threshold=1.96, trend_degree=1):
-    """Seed 001 S2: zero-mean; reverse-arrangement test of np.diff; if it fails, np.diff again and detrend."""
+def preprocess(x, subseries=20, threshold=1.96, trend_degree=1, breaks=()):
+    """Seed 001 S2: zero-mean; reverse-arrangement test of np.diff; if it fails, np.diff again and detrend.
+    With breaks (gaps in time) np.diff of each np.split piece, concatenated."""
     x = np.asarray(x, dtype=float)
     z = x - x.mean()
-    d1 = np.diff(z)
+    pieces = [np.diff(s) for s in np.split(z, breaks)]
+    d1 = np.concatenate(pieces)
     test = reverse_arrangement(d1, subseries, threshold)
-    series = d1 if test["stationary"] else remove_trend(np.diff(d1), trend_degree)
+    series = d1 if test["stationary"] else remove_trend(np.concatenate([np.diff(p) for p in pieces]), trend_degree)
     return {"mean": x.mean(), "series": series, "differences": 1 if test["stationary"] else 2,
             "stationarity": test, "stationarity_after": reverse_arrangement(series, subseries, threshold),
             "normality": normality(series)}
