@@ -993,3 +993,40 @@ def test_a_temperature_that_lags_the_logged_one_is_found_with_its_lag(cls, size,
     assert row["lag_s"] == pytest.approx(lag, rel=0.25)
     assert ("element's temperature lags the logged one by" if lag > 0 else
             "the logged temperature lags the sensing element's by") in d.text()
+
+
+def test_a_cause_outside_the_candidates_is_said_to_be_unexplained():
+    """A soft iron that changes halfway (a steel part moved: no candidate describes it) leaves most of the
+    departure to colored_noise and a few guesses; the report says NOT EXPLAINED. A recording whose effect is
+    a candidate, or that has none, does not say it."""
+    result, kwargs = withheld_trial([], 11)
+    m = result.readings.copy()
+    half = len(m) // 2
+    centre = m.mean(axis=0)
+    change = np.array([[1.04, 0.03, 0.0], [0.03, 0.97, 0.02], [0.0, 0.02, 1.03]])  # ±4 % and couplings
+    m[half:] = centre + (m[half:] - centre) @ change.T
+    moved = diagnose(m, **kwargs)
+    assert moved.remaining["unexplained"]["left"] and moved.remaining["unexplained"]["share"] > 0.25
+    assert "NOT EXPLAINED" in moved.text()
+    for names, seed in (([], 12), (["temp_scale"], 13)):
+        result, kwargs = withheld_trial(names, seed)
+        d = diagnose(result.readings, **kwargs)
+        assert not d.remaining["unexplained"]["left"] and "NOT EXPLAINED" not in d.text()
+
+
+def test_uneven_sample_times_do_not_inflate_the_noise():
+    """Readings taken at jittered times (a logger's clock, ±35 % of the step): differences of the rows hold
+    the motion times the uneven step, 1.5× the noise on a hand-turned sensor; the estimate falls back to the
+    base model's residuals, which the timing does not touch."""
+    result, kwargs = withheld_trial([], 14)
+    noise = 0.05  # µT, withheld_trial's NOISE
+    t = kwargs["t"]
+    dt = float(np.median(np.diff(t)))
+    jittered = t + np.random.default_rng(0).uniform(-0.35, 0.35, t.size) * dt
+    # the same sensor read at the jittered instants: move each reading along its local slope
+    slope = np.gradient(result.readings, t, axis=0)
+    m = result.readings + slope * (jittered - t)[:, None]
+    assert estimate_noise(m) > 1.2 * noise  # what the rows' differences say
+    d = diagnose(m, **{**kwargs, "t": jittered})
+    assert d.noise_sigma == pytest.approx(noise, rel=0.1)
+    assert "uneven times" in d.noise_source and not d.significant

@@ -114,3 +114,21 @@ def test_skipping_most_lines_is_refused_as_a_wrong_header(tmp_path):
     with pytest.raises(ValueError, match=r"4 of 5 lines do not fit the header on line 1 \(Fs, 100\)"):
         read_csv(path, bad_lines="skip")  # kept one row, a column named '100'
     assert len(fluxcal.read_recording(path, bad_lines="skip")) == 3  # finds the header after the preamble
+
+
+def test_nan_and_inf_written_out_are_bad_lines_to_skip(tmp_path):
+    """An Arduino prints a failed float read as nan: with bad_lines="skip" such a line is left out as an empty
+    cell is (both the fast and the text-column parse); without it the error names the line and the remedy."""
+    path = tmp_path / "nan.csv"
+    path.write_text("mx,my,mz\n1,2,3\nnan,2,3\n4,5,6\n7,inf,9\n1,1,1\n")
+    rec = read_csv(path, bad_lines="skip")
+    np.testing.assert_array_equal(rec.samples(), [[1, 2, 3], [4, 5, 6], [1, 1, 1]])
+    assert rec.metadata["skipped_lines"] == ("2 of 5: 3 (column 'mx': 'nan' is not finite); "
+                                             "5 (column 'my': 'inf' is not finite)")
+    np.testing.assert_array_equal(rec.line_numbers, [2, 4, 6])
+    with pytest.raises(ValueError, match="line 3, column 'mx' is nan .* --bad-lines skip"):
+        read_csv(path).samples()
+    stamped = tmp_path / "stamped.csv"  # a text (timestamp) column: the slow parse skips them alike
+    stamped.write_text("time,mx,my,mz\n2026-01-01T00:00:00,1,2,3\n2026-01-01T00:00:01,NaN,2,3\n"
+                       "2026-01-01T00:00:02,4,5,6\n2026-01-01T00:00:03,1,1,1\n")
+    assert len(read_csv(stamped, bad_lines="skip")) == 3

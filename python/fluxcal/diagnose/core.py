@@ -127,7 +127,10 @@ class Diagnosis:
     the search; an accepted row's `coefficients` and `standard_errors` are those of the final model (every
     accepted effect fitted together), the others' those of their own round. `where`: residual tables per regime;
     `remaining` the same for the final model, and with a given noise σ `remaining["noise_check"]`: whether
-    the final residuals exceed it (`exceeds`, χ² `pvalue`, `rms_over_sigma`). `significant`: any effect found."""
+    the final residuals exceed it (`exceeds`, χ² `pvalue`, `rms_over_sigma`); `remaining["unexplained"]`: the
+    share of the base model's gap² the effects found leave (`share`; colored_noise takes none), and `left`
+    when that is most of it and the residuals are well above the noise (the text report says NOT EXPLAINED:
+    the cause is outside the candidates). `significant`: any effect found."""
 
     model: str
     noise_sigma: float
@@ -219,8 +222,21 @@ MOTION_DROP = 0.9  # 4th-order estimate off the 3rd by more than 10 %: the diffe
                    # at every order, within ~1 % at 3000 readings)
 CLOCK_JUMPS = 0.01  # t going backwards at up to this fraction of the rows: a log in time order whose clock wrapped
                    # (Arduino's micros() every 71.6 min) or was reset, kept in row order; more: rows out of order
+UNEVEN = 0.05  # time steps spread by more than this fraction of the median step (MAD): a turning sensor's readings
+              # then differ by the motion × the uneven step as well, which a difference of rows takes for noise
 UNORDERED = 0.25  # a 3rd-difference σ above this × the readings' own spread: consecutive readings differ about
                   # as much as any two (i.i.d. rows give ≈ 1, a turned sensor ≪ 0.01), so they are not a time series
+
+
+def _uneven_steps(t: np.ndarray) -> float:
+    """The spread of the time steps as a fraction of the median step (1.4826 MAD, so gaps do not count), when
+    it exceeds UNEVEN; else 0."""
+    steps = np.diff(np.sort(np.asarray(t, dtype=float)))
+    median = float(np.median(steps)) if steps.size else 0.0
+    if not median > 0:
+        return 0.0
+    spread = 1.4826 * float(np.median(np.abs(steps - median))) / median
+    return spread if spread > UNEVEN else 0.0
 
 
 def _noise(data: _Data, base: dict) -> tuple:
@@ -237,7 +253,8 @@ def _noise(data: _Data, base: dict) -> tuple:
     fourth = _difference_noise(data.m, 4) if len(data.m) >= 40 else sigma
     spread = np.sqrt(np.mean(np.var(data.m, axis=0)))
     unit = f" {data.units}" if data.units else ""
-    if abs(fourth - sigma) > (1 - MOTION_DROP) * sigma or sigma > UNORDERED * spread:
+    uneven = _uneven_steps(data.t)
+    if abs(fourth - sigma) > (1 - MOTION_DROP) * sigma or sigma > UNORDERED * spread or uneven:
         order = np.argsort(data.t, kind="stable")
         e = np.asarray(base["residuals"]).reshape(len(data.m), -1)[order]
         from_residuals = _difference_noise(e, 3)
@@ -252,9 +269,11 @@ def _noise(data: _Data, base: dict) -> tuple:
                       "own noise")
             return from_residuals, source, True
         elif from_residuals < sigma:
+            why = (f"readings taken at uneven times (steps spread by {100 * uneven:.0f} % of the median step)"
+                   if uneven else "fast turns, or steps between held positions")
             source = (f"estimated from third differences of the base model's residuals: the readings' own "
-                      f"differences hold the motion — fast turns, or steps between held positions ({sigma:.4g}"
-                      f"{unit} from 3rd, {fourth:.4g}{unit} from 4th order)")
+                      f"differences hold the motion — {why} ({sigma:.4g}{unit} from 3rd, {fourth:.4g}{unit} from "
+                      "4th order)")
             sigma = from_residuals
     return sigma, source, False
 
@@ -1289,6 +1308,21 @@ def _quantization(data, state, sigma, n_candidates, noise_given: bool) -> dict:
     return row
 
 
+UNEXPLAINED = 0.25        # the remaining gap² above this share of the base model's: most of the departure is left
+UNEXPLAINED_RMS = 1.5     # … and the remaining residuals above this many σ RMS (their variance 2.25 × the noise)
+
+
+def _unexplained(before: dict, after: dict, accepted: list) -> dict:
+    """How much of the base model's departure the effects found leave: the share of gap² (the residual
+    variance above the noise) that remains. colored_noise describes correlated residuals without taking them
+    off, so a recording it alone "explains" keeps all of its gap: what makes that noise is not among the
+    candidates' effects. `left`: share above UNEXPLAINED and residuals above UNEXPLAINED_RMS σ."""
+    share = after["gap"] ** 2 / before["gap"] ** 2 if before["gap"] > 0 else 0.0
+    return {"share": float(share), "rms_over_sigma": after["rms_z"],
+            "left": bool(share > UNEXPLAINED and after["rms_z"] > UNEXPLAINED_RMS),
+            "as_noise": "colored_noise" in accepted}
+
+
 def _noise_check(e: np.ndarray, sigma: float, n_params: int, alpha: float) -> dict:
     """Do the residuals exceed a given σ? χ² of the residuals / σ on their degrees of freedom: without it,
     a σ below the sensor's noise leaves every candidate's gain inside the gap and "no effect" reads as
@@ -1749,6 +1783,7 @@ def diagnose(samples, t=None, temp=None, reference=None, gravity=None, field_nor
     remaining = _where(data, e_final, sigma, final_dirs, vector)
     if noise_sigma is not None:  # an estimated σ comes from these readings; a given one may not fit them
         remaining["noise_check"] = _noise_check(e_final, sigma, len(final["parameters"]) - len(fixed), alpha)
+    remaining["unexplained"] = _unexplained(where["overall"], remaining["overall"], accepted)
     remaining["skipped_candidates"] = skipped
     remaining["invisible_candidates"] = invisible
     base_cal = Calibration(offset=base["offset"], matrix=base["matrix"], field_norm=data.field_norm, units=units,

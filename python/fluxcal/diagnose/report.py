@@ -246,6 +246,14 @@ def text(d) -> str:
                    f"{check['rms_over_sigma']:.2f} σ ({check['residual_rms']:.4g}{u} against σ {d.noise_sigma:.4g}{u}, "
                    f"p {check['pvalue']:.2g}): the given noise_sigma may be too low (the datasheet's, not this "
                    "sensor's?), or the cause is outside the candidates")
+    left = rem.get("unexplained", {})
+    if left.get("left"):
+        noise = " (colored_noise describes it as noise correlated in time, not its cause)" if left["as_noise"] else ""
+        out.append(f"NOT EXPLAINED: {100 * left['share']:.0f} % of the departure is left, residual RMS "
+                   f"{left['rms_over_sigma']:.2f} σ{noise}: its cause is not among the candidates' effects — the "
+                   "sensor's own slow (1/f) noise, a field that changes with the sensor's position (a gradient "
+                   "near steel), a soft iron that changed during the recording, or the surroundings; a further "
+                   "named effect would be a guess")
     extra = [r["effect"] for r in d.ranking if r.get("significant_not_modelled")]
     if extra:
         out.append(f"ALSO SIGNIFICANT, not modelled (the max_effects limit stopped the search; --max-effects): {', '.join(extra)}")

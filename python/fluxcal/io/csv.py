@@ -122,6 +122,8 @@ def parse_csv(path, lines, delimiter=",", preamble_lines: int = 0, bad_lines: st
         metadata["decimal_separator"] = "comma"
     try:
         data, line_numbers, notes = parse_rows(path, lines, i + 1, names, delimiter)
+        if bad_lines == "skip" and not np.isfinite(data).all():  # NaN/Inf written out (Arduino's "nan"): lines to
+            raise ValueError("non-finite values")                # skip, as an empty cell is
     except ValueError as exc:
         # text or timestamp columns, or lines to skip: the slow per-cell parse (the same errors otherwise)
         names, data, line_numbers, notes = parse_mixed_rows(path, lines, i + 1, names, delimiter, bad_lines,
@@ -171,12 +173,14 @@ def parse_mixed_rows(path, lines, start: int, names, delimiter, bad_lines: str, 
         metadata["text_columns"] = "; ".join(text_notes)
     numeric = [j for j in range(len(names)) if j not in text]
     good, skipped = [], []
+    # skipping, a number written as nan or inf is a bad line too (a sensor's failed read printed as a float)
+    usable = _is_finite_number if bad_lines == "skip" else _is_number
     for row, (c, line_no) in enumerate(zip(cells, line_numbers)):
         problem = None
         if len(c) != len(names):
             problem = (f"{len(c)} fields, the header has {len(names)} (truncated or garbled line?)")
         else:
-            bad = next((j for j in numeric if not _is_number(c[j])), None)
+            bad = next((j for j in numeric if not usable(c[j])), None)
             stamp = next((j for j in columns if not np.isfinite(columns[j][row])), None)
             if bad is not None:
                 problem = f"column {names[bad]!r}: {_not_a_number(c[bad])}"
@@ -315,6 +319,8 @@ def _not_a_number(cell: str) -> str:
     cell = cell.strip()
     if not cell:
         return "empty"
+    if _is_number(cell):
+        return f"{cell!r} is not finite"
     return f"{cell!r} is not a number" + (" (bytes that are not text: garbage from a serial line?)"
                                           if NOT_TEXT in cell else "")
 
@@ -412,6 +418,13 @@ def _is_number(text: str) -> bool:
     try:
         float(text)
         return True
+    except ValueError:
+        return False
+
+
+def _is_finite_number(text: str) -> bool:
+    try:
+        return bool(np.isfinite(float(text)))
     except ValueError:
         return False
 

@@ -156,7 +156,8 @@ class Recording:
             value = arr[row, col]  # an inf may have been written as a number beyond the double range (1e400)
             what = "nan" if np.isnan(value) else f"{'-' if value < 0 else ''}infinite (inf, or beyond ±1.8e308)"
             raise ValueError(f"{self.source}: {where}, column {names[col]!r} is {what} "
-                             f"(non-finite readings cannot be calibrated; remove or repair them)")
+                             f"(non-finite readings cannot be calibrated; remove or repair them — a text table "
+                             f"read with --bad-lines skip / bad_lines='skip' leaves such lines out)")
         return arr
 
     def choose(self, columns=None, units: str | None = None) -> "Recording":
