@@ -87,6 +87,21 @@ def _report(cal: Calibration, raw: np.ndarray, out=sys.stdout) -> None:
 EARTH_FIELD_UT = (15.0, 100.0)
 
 
+def _recheck_field_norm(cal: Calibration, units: str, field_units: str) -> None:
+    """The solver compares a given field norm with the readings' radius in one unit ("check the units" beyond
+    5×); with --field-units naming another unit than the readings' that comparison is void: it is redone
+    with both in tesla where the two units are field units, and dropped for counts."""
+    warnings = [w for w in cal.summary.get("warnings", []) if "times the fitted radius" not in w]
+    if units in TESLA_PER_UNIT and field_units in TESLA_PER_UNIT:
+        radius = cal.field_norm / abs(float(np.linalg.det(cal.matrix))) ** (1 / 3)  # the readings' |B|, their unit
+        gain = cal.field_norm * TESLA_PER_UNIT[field_units] / (radius * TESLA_PER_UNIT[units])
+        if gain > 5.0 or gain < 0.2:
+            warnings.append(f"field_norm {cal.field_norm:g} {field_units} is {gain:.3g} times the readings' field "
+                            f"({radius:.4g} {units} = {radius * TESLA_PER_UNIT[units] / TESLA_PER_UNIT[field_units]:.4g} "
+                            f"{field_units}): check the units")
+    cal.summary["warnings"] = warnings
+
+
 def _field_units(args, units: str, field_norm, reference) -> str | None:
     """The unit of the corrected field h: --field-units; else the readings' unit when it is a field unit or no
     norm was given (h is then in the readings' unit); "" (not stated) for counts fitted to a given norm."""
@@ -148,6 +163,8 @@ def cmd_calibrate(args) -> int:
     except ValueError as exc:  # the solvers name their argument ("samples: …"); the user knows the file
         raise ValueError(f"{args.file}: {exc}") from None
     cal.field_units = _field_units(args, units, field_norm, reference)
+    if args.field_units and field_norm is not None and unit_name(args.field_units) != units:
+        _recheck_field_norm(cal, units, unit_name(args.field_units))
     cal.metadata.update(source=str(args.file), columns=",".join(rec.mag_names()))
     if reference is not None:
         cal.metadata["reference"] = "attitude pitch,roll,yaw and local field igrf_n,igrf_e,igrf_d of the recording"
@@ -187,6 +204,9 @@ def cmd_apply(args) -> int:
     scale = _scale_warning(cal, h, rec.field_units())
     if scale:
         print(f"warning: {scale}")
+    if not cal.summary.get("identifiable", True):
+        print(f"warning: {args.calibration}: the calibration is not identifiable (its data did not determine every "
+              "parameter): |h| of the readings it was fitted on looks right, other orientations may not")
     return 0
 
 
@@ -305,7 +325,7 @@ def cmd_export_c(args) -> int:
     cal = Calibration.load(args.calibration) if args.calibration else None
     sources = [Path(f).name for f in dict.fromkeys(filter(None, (args.calibration, args.kalman, args.drift)))]
     print(export_c(cal, args.output, q_format=args.q_format, name=args.name, kalman=args.kalman, drift=args.drift,
-                   source=", ".join(sources)).describe())
+                   source=", ".join(sources), force=args.force).describe())
     return 0
 
 
@@ -700,6 +720,8 @@ def build_parser() -> argparse.ArgumentParser:
                                                   "fluxcal.export_c.save_kalman or a drift model (fluxcal drift fit)")
     x.add_argument("--drift", default=None, help="also export a drift model's f(T) per temperature range (a JSON of "
                                                  "fluxcal drift fit), in double with a test vector")
+    x.add_argument("--force", action="store_true", help="export a calibration whose data did not determine every "
+                                                        "parameter (identifiable NO), marked so in the header")
     x.set_defaults(run=cmd_export_c)
 
     d = sub.add_parser("demo", help="simulate a magnetometer, calibrate it, print and plot the result")

@@ -510,10 +510,13 @@ def _rows(values, fmt, indent="  ") -> str:
 
 
 def export_c(cal: Calibration | None, path, q_format=None, name: str | None = None, kalman=None, drift=None,
-             source: str = "") -> ExportResult:
+             source: str = "", force: bool = False) -> ExportResult:
     """Write the firmware header (module docstring). `cal`: a Calibration, or None for a header of the drift
     part alone; `kalman`: a FixedArKalman, or a JSON path for `load_kalman`; `drift`: a DriftModel or its JSON
-    path (f(T) in C). Returns what was written (ExportResult.describe() says it in one line)."""
+    path (f(T) in C). A calibration whose summary says its data did not determine every parameter
+    (identifiable false: a yaw-only turn, small tilts) is refused — firmware would apply a guess with
+    nothing to say so — unless `force`, and then the header says it. Returns what was written
+    (ExportResult.describe() says it in one line)."""
     from . import __version__
     from ._arrays import require_calibration
     from .kalman import FixedArKalman
@@ -521,8 +524,13 @@ def export_c(cal: Calibration | None, path, q_format=None, name: str | None = No
     if cal is None and kalman is None and drift is None:
         raise ValueError("export-c: nothing to export: give a calibration, a Kalman filter (--kalman) or a drift "
                          "model (--drift)")
+    undetermined = None
     if cal is not None:
         require_calibration(cal, "cal")
+        undetermined = _undetermined(cal)
+        if undetermined and not force:
+            raise ValueError(f"cal: {undetermined}; firmware would apply a guess — recalibrate, or export it anyway "
+                             "with force=True (--force), which the header then says")
     if kalman is not None and not isinstance(kalman, (str, Path, FixedArKalman)):
         raise TypeError(f"kalman: expected a FixedArKalman or the path of its JSON, got {type(kalman).__name__}")
     path = Path(path)
@@ -533,6 +541,8 @@ def export_c(cal: Calibration | None, path, q_format=None, name: str | None = No
     parts = []
     if cal is not None:
         lines, result.fixed, result.inputs_q = _calibration_part(cal, name, q_format, i32)
+        if undetermined:
+            lines = [f"/* WARNING (exported with --force): {undetermined.replace('*/', '* /')}. */"] + lines
         parts.append(("magnetometer calibration", lines))
     if kalman is not None:
         lines, result.kalman, result.kalman_test = _kalman_part(kalman, name, i32)
@@ -547,6 +557,15 @@ def export_c(cal: Calibration | None, path, q_format=None, name: str | None = No
     body = [line for _, lines in parts for line in ["", *lines]]
     path.write_text("\n".join(head + body + ["", f"#endif /* {up}_H */", ""]))
     return result
+
+
+def _undetermined(cal: Calibration) -> str | None:
+    """What a calibration's summary says about parameters its data did not determine, or None."""
+    if cal.summary.get("identifiable", True):
+        return None
+    why = next((w for w in cal.summary.get("warnings", []) if "identif" in w or "determin" in w), "")
+    return ("the calibration is not identifiable: its data did not determine every parameter"
+            + (f" ({why.rstrip('.')})" if why else ""))
 
 
 def _calibration_part(cal: Calibration, name: str, q_format, i32):

@@ -199,6 +199,16 @@ def test_units_are_converted_or_refused_never_mixed(tmp_path):
     assert fluxcal.read_csv(tmp_path / "d.csv").units["hx"] == "uT"
     r = run_cli("calibrate", counts, "--field-norm", 50)
     assert r.returncode == 0 and "|h| = 50 (no unit stated)" in r.stdout and "|h| = 50 counts" not in r.stdout
+    # a norm in another unit than the readings' is compared in tesla (it was compared number to number: nT
+    # readings with --field-norm 50 --field-units uT were "0.001 times the fitted radius — check the units")
+    for unit, warned in (("uT", False), ("G", True)):
+        norm = 50 if unit == "uT" else 5
+        r = run_cli("calibrate", rec, "--field-norm", norm, "--field-units", unit)
+        assert r.returncode == 0, r.stderr
+        assert ("times the fitted radius" in r.stdout) is False
+        assert (f"field_norm {norm} G is 11.1 times the readings' field" in r.stdout) is warned, r.stdout
+    assert "times the fitted radius" not in run_cli("calibrate", counts, "--field-norm", 50, "--field-units",
+                                                    "uT").stdout
 
 
 def test_field_far_from_the_earths_is_warned(tmp_path):

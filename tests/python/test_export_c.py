@@ -401,3 +401,25 @@ def test_export_c_needs_something_to_export(tmp_path):
     r = run_cli("export-c", "-o", tmp_path / "p.h")
     assert r.returncode == 2 and "nothing to export" in r.stderr and "Traceback" not in r.stderr, r.stderr
     assert not (tmp_path / "p.h").exists()
+
+
+def test_an_undetermined_calibration_is_refused_unless_forced(tmp_path):
+    """A sensor turned about one axis with a few degrees of wobble: calibrate flags it NOT identifiable, and
+    firmware must not get it silently (export-c refuses; --force writes it with a warning in the header;
+    apply warns)."""
+    rng = np.random.default_rng(5)
+    rot = sim.sweeps("z", per_turn=600, tilt_deg=4.0, rng=rng)
+    result = sim.simulate(rot, [sim.SoftIron(np.diag([1.05, 0.97, 1.02])), sim.HardIron([8.0, -5.0, 20.0]),
+                                sim.WhiteNoise(0.05)], np.array([19.6, 0.8, 45.2]), rng)
+    src = fluxcal.write_csv(tmp_path / "wobble.csv", {"mx": result.readings[:, 0], "my": result.readings[:, 1],
+                                                      "mz": result.readings[:, 2]}, units={k: "uT" for k in "mxyz"})
+    run = run_cli("calibrate", src, "-o", tmp_path / "cal.json")
+    assert run.returncode == 0 and "identifiable          NO" in run.stdout, run.stdout + run.stderr
+    run = run_cli("export-c", tmp_path / "cal.json", "-o", tmp_path / "cal.h")
+    assert run.returncode == 2 and "not identifiable" in run.stderr and "--force" in run.stderr
+    assert not (tmp_path / "cal.h").exists()
+    run = run_cli("export-c", tmp_path / "cal.json", "-o", tmp_path / "cal.h", "--force")
+    assert run.returncode == 0, run.stderr
+    assert "WARNING (exported with --force): the calibration is not identifiable" in (tmp_path / "cal.h").read_text()
+    run = run_cli("apply", tmp_path / "cal.json", src, "-o", tmp_path / "out.csv")
+    assert run.returncode == 0 and "warning:" in run.stdout and "not identifiable" in run.stdout
