@@ -291,3 +291,24 @@ def test_hyphenated_labels_and_an_is_sentence_with_mg_beside_mG(tmp_path):
     out = run_cli("calibrate", str(path), "-o", str(tmp_path / "cal.json"))
     assert out.returncode == 0, out.stderr
     assert "magnetometer X-mag field,Y-mag field,Z-mag field; temperature Temperature" in out.stdout
+
+
+@pytest.mark.parametrize("style", ["space", "comma", "comma_tight", "tab", "counts", "two_sensors", "clock"])
+def test_a_label_then_the_vector(tmp_path, style):
+    """Arduino sketches print `Mag: x y z` (Serial.print(x); Serial.print(" ") …): one label, then the vector,
+    after a start-up banner. Its components are the label's X, Y, Z."""
+    m = readings(n=200)
+    row = {"space": "Mag: {:.2f} {:.2f} {:.2f}", "comma": "Mag: {:.2f}, {:.2f}, {:.2f}",
+           "comma_tight": "Mag: {:.2f},{:.2f},{:.2f}", "tab": "Mag:\t{:.2f}\t{:.2f}\t{:.2f}",
+           "counts": "Mag: {:.0f},{:.0f},{:.0f}", "two_sensors": "Acc: 0.1, -0.2, 9.8 Mag: {:.2f}, {:.2f}, {:.2f} uT",
+           "clock": "12:30:01.123 -> Mag: {:.2f} {:.2f} {:.2f}"}[style]
+    scale = 100.0 if style == "counts" else 1.0
+    path = tmp_path / "log.txt"
+    path.write_text("QMC5883L init OK\nStarting mag log...\n" + "".join(row.format(*(r * scale)) + "\n" for r in m))
+    rec = read_recording(path)
+    assert rec.mag_names() == ("Mag X", "Mag Y", "Mag Z")
+    decimals = 0 if style == "counts" else 2
+    np.testing.assert_allclose(rec.samples(), np.round(m * scale, decimals), atol=1e-9)
+    assert "init OK" in rec.metadata["preamble"]
+    if style == "two_sensors":
+        assert rec.units["Mag X"] == "uT" and "Acc Z" in rec.columns

@@ -6,8 +6,11 @@
     12:30:01.123 -> Mag X: -13.62 Y: 27.37 Z: -17.02   (Arduino IDE serial monitor, timestamps on)
     Accel X: 0.12 Y: -0.03 Z: 9.81 m/s^2               (one line per sensor, repeated every cycle)
     Mag X: -13.62 Y: 27.37 Z: -17.02 uT
+    Mag: -13.62 27.37 -17.02                           (one label, then the vector: space, tab or comma apart)
+    Acc: 0.12, -0.03, 9.81 Mag: -13.62, 27.37, -17.02 uT
 
-Each `label: number` or `label=number` is a value. Words before a line's first label name its sensor
+Each `label: number` or `label=number` is a value; a label followed by several numbers is a vector whose
+components are named `label X`, `label Y`, `label Z` (three), else `label 1`, `label 2`, …. Words before a line's first label name its sensor
 ("Mag X: …" gives the column "Mag X"; fluxcal.io.columns then finds the magnetometer by name), a unit
 word after a number ("uT", "uTesla", "m/s^2") is its column's unit. A leading clock time (the IDE's
 `hh:mm:ss.mmm ->`, or `[date time]`) becomes the column `time` in seconds.
@@ -57,9 +60,53 @@ def _degrees(words: list) -> str:
     return unit
 
 
-def _parse_line(text: str):
-    """(clock text or None, [(name, value text, unit)]) of one line; names carry the sensor words."""
+_LABEL = re.compile(r"(?<![\w.\-])([A-Za-z_][\w.\-]*(?: [A-Za-z_][\w.\-]*)*)\s*[:=]")
+_NUMBER = re.compile(r"[+-]?(?:\d+\.?\d*|\.\d+)(?:[eE][+-]?\d+)?|[+-]?(?:nan|inf)", re.IGNORECASE)
+
+
+def _vector_tokens(segment: str, loose: bool = False) -> list:
+    """The words of a vector's values: apart by spaces, tabs, ';', '|', a comma before a space, or commas —
+    when one comes before a sign, every number has a decimal point (55.84,-5.84,44.54), there are three or
+    more numbers that are not thousands groups (120,45,30), or `loose` (the file's other lines are vectors:
+    120,456,789 is one too). Else a comma stays in its word ("12,34", "1,234"): a decimal comma or a
+    thousands group, which the pairs' parse decides on."""
+    words = [w for w in re.split(r"[\s;|]+|,(?=\s)", segment.strip()) if w]
+    parts = [p for w in words for p in w.split(",")]
+    if len(parts) == len(words):
+        return words
+    apart = (loose or re.search(r",(?=[+-])", segment) is not None or all("." in p for p in parts) or
+             (len(parts) > 2 and not all(len(p) == 3 and p.isdigit() for p in parts[1:])))
+    return parts if apart else words
+
+
+def _vectors(text: str, loose: bool = False):
+    """[(name, value text, unit)] of a line of `label: n1 n2 n3 [unit]` groups (numbers apart by spaces, tabs
+    or commas), at least one of them a vector of two or more numbers; None for any other line (the pairs'
+    parse then reads it)."""
+    labels = list(_LABEL.finditer(text))
+    if not labels or text[:labels[0].start()].strip():
+        return None
+    values, vector = [], False
+    for k, m in enumerate(labels):
+        tokens = _vector_tokens(text[m.end():labels[k + 1].start() if k + 1 < len(labels) else len(text)], loose)
+        unit = tokens.pop() if len(tokens) > 1 and is_unit(tokens[-1]) else ""
+        if not tokens or not all(_NUMBER.fullmatch(w) for w in tokens):
+            return None
+        vector |= len(tokens) > 1
+        axes = "XYZ" if len(tokens) == 3 else [str(i + 1) for i in range(len(tokens))]
+        label = m.group(1)
+        values += [(f"{label} {axis}" if len(tokens) > 1 else label, w, unit) for axis, w in zip(axes, tokens)]
+    return values if vector else None
+
+
+def _parse_line(text: str, loose: bool = False):
+    """(clock text or None, [(name, value text, unit)]) of one line; names carry the sensor words. `loose`:
+    the file's lines are mostly vectors (see _vector_tokens)."""
     clock = CLOCK.match(text)
+    after_clock = clock.end() if clock else 0
+    vectors = _vectors(text[after_clock:], loose)
+    if vectors is not None:
+        return (clock.group(1) if clock else None), vectors
     stamp = clock.group(1) if clock and _PAIR.search(text, clock.end()) else None
     pos = clock.end() if stamp else 0
     group, values, groups = "", [], []
@@ -100,6 +147,8 @@ def _is_labelled(line: str) -> bool:
     if not _parse_line(line)[1]:
         return False
     clock = CLOCK.match(line)
+    if _vectors(line[clock.end():] if clock else line) is not None:
+        return True
     rest = _PAIR.sub(" ", line[clock.end():] if clock else line)
     return len(_BARE_NUMBER.findall(rest)) < 2
 
@@ -200,8 +249,11 @@ def read_labelled(path, columns=None, units: str | None = None, bad_lines: str =
     decimal=".") settles it. metadata["decimal_separator"] is "comma" when commas were read as decimal."""
     check_bad_lines(bad_lines)
     path = readable_file(path)
-    parsed = _units_apart([(k + 1, line.strip(), *_parse_line(line))
-                           for k, line in enumerate(read_text(path).splitlines()) if line.strip() and not is_comment(line)])
+    lines = [(k + 1, line) for k, line in enumerate(read_text(path).splitlines()) if line.strip() and not is_comment(line)]
+    vector_lines = sum(_vectors(line[CLOCK.match(line).end():] if CLOCK.match(line) else line) is not None
+                       for _, line in lines)
+    loose = vector_lines >= 0.5 * len(lines)  # a log of vectors: 120,456,789 is one, not a thousands group
+    parsed = _units_apart([(k, line.strip(), *_parse_line(line, loose)) for k, line in lines])
     counts = Counter(name for *_, values in parsed for name in dict.fromkeys(v[0] for v in values))
     if not counts:
         raise ValueError(f"{path}: no 'label: number' or 'label=number' values")
