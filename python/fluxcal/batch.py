@@ -70,11 +70,11 @@ CSV_COLUMNS = ("unit", "status", "method", "shape", "units", "samples", "offset_
 log = logging.getLogger(__name__)
 
 
-def _read(path):
+def _read(path, bad_lines: str = "error"):
     """The one reader of the batch: any recording format fluxcal reads (by content)."""
     from .io import read_recording
 
-    return read_recording(path)
+    return read_recording(path, bad_lines=bad_lines)
 
 
 # -- one unit (runs on a worker) ---------------------------------------------------------------------
@@ -118,7 +118,8 @@ def _message(path, exc: BaseException) -> str:
     return text if str(path) in text else f"{path}: {text}"
 
 
-def calibrate_unit(path, out_path, method: str = "auto", field_norm: float | None = None) -> dict:
+def calibrate_unit(path, out_path, method: str = "auto", field_norm: float | None = None,
+                   bad_lines: str = "error") -> dict:
     """Read one recording, calibrate it and write its calibration atomically. Never raises for a bad
     unit: returns {"unit", "source", "status", "row" | "error", "seconds"}."""
     from .pipeline import calibrate
@@ -127,10 +128,10 @@ def calibrate_unit(path, out_path, method: str = "auto", field_norm: float | Non
     unit, start = path.stem, time.perf_counter()
     try:
         digest = _digest(path)
-        rec = _read(path)
+        rec = _read(path, bad_lines)
         cal = calibrate(rec.samples(), method=method, field_norm=field_norm, units=rec.field_units())
         cal.metadata.update(unit=unit, source=str(path), source_sha256=digest, columns=",".join(rec.mag_names()),
-                            batch_settings=_settings(method, field_norm))
+                            batch_settings=_settings(method, field_norm, bad_lines))
         tmp = out_path.with_name(f".{out_path.name}.{os.getpid()}.tmp")
         try:
             cal.save(tmp)
@@ -144,8 +145,8 @@ def calibrate_unit(path, out_path, method: str = "auto", field_norm: float | Non
                 "seconds": time.perf_counter() - start}
 
 
-def _settings(method, field_norm) -> dict:
-    return {"method": method, "field_norm": None if field_norm is None else float(field_norm)}
+def _settings(method, field_norm, bad_lines: str = "error") -> dict:
+    return {"method": method, "field_norm": None if field_norm is None else float(field_norm), "bad_lines": bad_lines}
 
 
 def _already_done(json_path: Path, source: Path, settings: dict):
@@ -159,7 +160,10 @@ def _already_done(json_path: Path, source: Path, settings: dict):
         cal = Calibration.load(json_path)
     except (ValueError, OSError):
         return None, "invalid"
-    if cal.metadata.get("source_sha256") != _digest(source) or cal.metadata.get("batch_settings") != settings:
+    made_with = cal.metadata.get("batch_settings")
+    if isinstance(made_with, dict):
+        made_with = {"bad_lines": "error", **made_with}  # calibrations from before the setting read strictly
+    if cal.metadata.get("source_sha256") != _digest(source) or made_with != settings:
         return None, "stale"
     return cal, "done"
 
@@ -317,12 +321,13 @@ def _connect(workers, scheduler, dashboard_address):
 def calibrate_fleet(directory, out_dir, workers: int | None = None, scheduler: str | None = None,
                     method: str = "auto", field_norm: float | None = None, pattern: str = DEFAULT_PATTERN,
                     progress: bool = True, outlier_k: float = OUTLIER_K,
-                    dashboard_address: str | None = None) -> FleetResult:
+                    dashboard_address: str | None = None, bad_lines: str = "error") -> FleetResult:
     """Calibrate every recording of `directory` matching `pattern`, one Dask task each, into `out_dir`.
 
     `scheduler` (an address such as "tcp://host:8786") uses an existing Dask cluster; otherwise a
     LocalCluster of `workers` single-threaded processes (default: one per core) is started and closed.
-    `method` and `field_norm` go to fluxcal.calibrate. Outliers: |x − median| > outlier_k·1.4826·MAD.
+    `method` and `field_norm` go to fluxcal.calibrate, `bad_lines` ("error", "skip") to the reader.
+    Outliers: |x − median| > outlier_k·1.4826·MAD.
     Raises ValueError for a missing or empty directory and bad settings; a unit's own failure is
     recorded, never raised.
     """
@@ -338,6 +343,8 @@ def calibrate_fleet(directory, out_dir, workers: int | None = None, scheduler: s
         raise ValueError(f"field_norm: {field_norm} must be a positive number")
     if not (isinstance(outlier_k, numbers.Real) and math.isfinite(outlier_k) and outlier_k > 0):
         raise ValueError(f"outlier_k: {outlier_k!r} must be a positive number of robust σ")
+    if bad_lines not in ("error", "skip"):
+        raise ValueError(f"bad_lines: {bad_lines!r} is not one of error, skip")
     if workers is not None and workers < 1:
         raise ValueError(f"workers: {workers} must be at least 1")
     if scheduler and workers is not None:
@@ -345,7 +352,7 @@ def calibrate_fleet(directory, out_dir, workers: int | None = None, scheduler: s
     paths = _recordings(directory, out_dir, pattern)
     out_dir.mkdir(parents=True, exist_ok=True)
 
-    settings = _settings(method, field_norm)
+    settings = _settings(method, field_norm, bad_lines)
     rows, todo, why = {}, [], Counter()
     for p in paths:
         cal, state = _already_done(out_dir / f"{p.stem}.json", p, settings)
@@ -376,7 +383,7 @@ def calibrate_fleet(directory, out_dir, workers: int | None = None, scheduler: s
             # hand back that run's result instead of writing this one.
             # client.map: one message to the scheduler for all tasks instead of one per task.
             submitted = client.map(task, [str(p) for p in todo], [str(out_dir / f"{p.stem}.json") for p in todo],
-                                   method=method, field_norm=field_norm,
+                                   method=method, field_norm=field_norm, bad_lines=bad_lines,
                                    key=[f"fluxcal-calibrate-{p.stem}-{uuid.uuid4().hex}" for p in todo])
             futures = dict(zip(submitted, todo))
             failed = 0
@@ -456,18 +463,24 @@ def add_batch_parser(subparsers):
     b.add_argument("--dashboard", default=None, metavar="ADDRESS",
                    help="serve the Dask dashboard of the local cluster here (e.g. :8787); off by default")
     b.add_argument("--no-progress", action="store_true", help="no progress bar")
+    b.add_argument("--bad-lines", default="error", choices=["error", "skip"],
+                   help="text recordings: a line that does not parse fails its unit (error) or is left out (skip)")
     b.set_defaults(run=cmd_batch)
     return b
 
 
 def cmd_batch(args) -> int:
-    """0 when the batch ran, even if some units failed (they are listed); bad arguments raise
-    ValueError, which the command line turns into exit status 2."""
+    """0 when the batch ran and calibrated a unit, even if some failed (they are listed); 1 when every unit
+    failed (nothing calibrated: a script must notice); bad arguments raise ValueError, which the command
+    line turns into exit status 2."""
     result = calibrate_fleet(args.directory, args.output, workers=args.workers, scheduler=args.scheduler,
                              method=args.method, field_norm=args.field_norm, pattern=args.pattern,
                              progress=not args.no_progress, outlier_k=args.outlier_k,
-                             dashboard_address=args.dashboard)
+                             dashboard_address=args.dashboard, bad_lines=args.bad_lines)
     print(result.report())
+    if result.failures and len(result.failures) == len(result.rows):
+        print(f"error: all {len(result.rows)} units failed; nothing was calibrated (exit 1)")
+        return 1
     if result.failures:
         print(f"note: {len(result.failures)} of {len(result.rows)} units failed; the batch itself ran (exit 0)")
     return 0

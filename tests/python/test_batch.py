@@ -223,6 +223,15 @@ def test_cli_runs_a_local_cluster_and_exits_0_with_failed_units(tmp_path):
         np.testing.assert_allclose(Calibration.load(tmp_path / "out" / f"{name}.json").offset,
                                    s.true_calibration().offset, atol=6 * NOISE * H * np.sqrt(3 / N))
     assert (tmp_path / "out" / "fleet_summary.csv").exists() and (tmp_path / "out" / "fleet_summary.json").exists()
+    # --bad-lines skip reaches the reader: the cut line is left out (3 rows cannot be calibrated, a new error);
+    # when every unit fails nothing was calibrated, and the exit status says so
+    only_cut = tmp_path / "cut_only"
+    only_cut.mkdir()
+    (only_cut / "cut.csv").write_text("mx,my,mz\n1,2,3\n4,5\n1,2,4\n")
+    r = _batch_cli(only_cut, "-o", tmp_path / "out2", "--workers", 1, "--no-progress")
+    assert r.returncode == 1 and "all 1 units failed; nothing was calibrated" in r.stdout, r.stdout + r.stderr
+    r = _batch_cli(only_cut, "-o", tmp_path / "out3", "--workers", 1, "--no-progress", "--bad-lines", "skip")
+    assert r.returncode == 1 and "2 fields" not in r.stdout, r.stdout
 
 
 @pytest.mark.parametrize("make, args, message", [
