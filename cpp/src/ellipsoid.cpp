@@ -291,7 +291,8 @@ EllipsoidResult solve(const EllipsoidMoments& mom, const EllipsoidOptions& opt) 
   if (sum.coverage_ratio < opt.planar_ratio) {
     throw Error("samples: the readings lie nearly in one plane (thinnest/widest spread " +
                 percent(sum.coverage_ratio) +
-                "); a 3-D ellipsoid is not identifiable — " + std::string(detail::kTurnAdvice) + ", or use a 2-D calibration");
+                "); a 3-D ellipsoid is not identifiable — " + std::string(detail::kTurnAdvice) +
+                ", or for a sensor that only turns about one axis (a vehicle's heading), the 2-D calibration of the two axes in its plane (twostep_2d, with the horizontal field as the known norm)");
   }
 
   // Eliminate M11 = 1 − M22 − M33 (trace constraint): p = e0 + E q, q the other 9 coefficients.
