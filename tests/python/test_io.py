@@ -132,3 +132,17 @@ def test_nan_and_inf_written_out_are_bad_lines_to_skip(tmp_path):
     stamped.write_text("time,mx,my,mz\n2026-01-01T00:00:00,1,2,3\n2026-01-01T00:00:01,NaN,2,3\n"
                        "2026-01-01T00:00:02,4,5,6\n2026-01-01T00:00:03,1,1,1\n")
     assert len(read_csv(stamped, bad_lines="skip")) == 3
+
+
+def test_arduino_csv_habits(tmp_path):
+    """A start-up banner whose line holds commas above the header, and data rows that each end with the
+    delimiter under a header that does not (Serial.print(x); Serial.print(",") …)."""
+    import fluxcal
+
+    rows = "".join(f"{x:.2f},{-x:.2f},{2 * x:.2f},\n" for x in np.linspace(1, 9, 20))
+    path = tmp_path / "arduino.csv"
+    path.write_text("Initializing I2C... done\nSensor: QMC5883L, range 8G, ODR 50 Hz\nmx,my,mz\n" + rows)
+    rec = fluxcal.read_recording(path)
+    assert list(rec.columns) == ["mx", "my", "mz"] and len(rec) == 20
+    np.testing.assert_allclose(rec.samples()[0], [1.0, -1.0, 2.0])
+    assert "range 8G" in rec.metadata["preamble"]

@@ -117,6 +117,7 @@ def parse_csv(path, lines, delimiter=",", preamble_lines: int = 0, bad_lines: st
         raise ValueError(f"{path}, line {header_line}: the first line holds numbers, not column names; "
                          "add a header such as mx,my,mz")
     lines = _units_row(lines, i + 1, names, delimiter, unit_map)
+    lines = _trailing_delimiters(lines, i + 1, names, delimiter)
     lines, converted = decimal_points(lines, i + 1, delimiter)
     if converted:
         metadata["decimal_separator"] = "comma"
@@ -323,6 +324,22 @@ def _not_a_number(cell: str) -> str:
         return f"{cell!r} is not finite"
     return f"{cell!r} is not a number" + (" (bytes that are not text: garbage from a serial line?)"
                                           if NOT_TEXT in cell else "")
+
+
+def _trailing_delimiters(lines, start: int, names, delimiter):
+    """The lines with the delimiter that ends every data row dropped, when the header has one name fewer
+    (Arduino sketches print `x,y,z,` after each value; the header line was written once, by hand)."""
+    if not delimiter or not delimiter.strip():
+        return lines
+    body = [k for k in range(start, len(lines)) if lines[k].strip() and not is_comment(lines[k])]
+    ending = [k for k in body if lines[k].rstrip().endswith(delimiter)]
+    if not body or len(ending) < 0.9 * len(body) or any(len(lines[k].split(delimiter)) != len(names) + 1
+                                                         for k in ending[:50]):
+        return lines
+    out = list(lines)
+    for k in ending:
+        out[k] = lines[k].rstrip()[:-len(delimiter)]
+    return out
 
 
 def parse_rows(path, lines, start: int, names, delimiter, expected: str = "the header"):

@@ -258,7 +258,10 @@ def _title_lines(lines, start: int, delimiter) -> int:
     the data under it: 0 when the first line already has as many fields as the data. The header is the first
     line of as many fields, all names, with a row of mostly numbers after it (or after a row of units under
     the names: `s,uT,uT,uT`)."""
-    def cells(line):
+    def cells(line):  # a delimiter ending the line (Arduino's `x,y,z,`) makes no field
+        line = line.rstrip()
+        if delimiter and delimiter.strip() and line.endswith(delimiter):
+            line = line[:-len(delimiter)]
         return [c.strip() for c in (line.split(delimiter) if delimiter else line.split())]
 
     body = [k for k in range(start, min(len(lines), start + 200)) if lines[k].strip() and not is_comment(lines[k])]
@@ -271,8 +274,11 @@ def _title_lines(lines, start: int, delimiter) -> int:
         c, d = cells(lines[here]), cells(lines[body[k + 1]])
         if len(d) == width and all(is_unit(x) for x in d if x) and k + 2 < len(body):  # a units row: the data after
             d = cells(lines[body[k + 2]])
-        if len(c) == width and all(x and not _is_number(x) for x in c):
-            return here - start if len(d) == width and 2 * sum(_is_number(x) for x in d) >= width else 0
+        # a banner line of as many fields, all words ("Sensor: QMC5883L, range 8G, ODR 50 Hz"), is not the
+        # header unless numbers follow it: look on
+        if len(c) == width and all(x and not _is_number(x) for x in c) and len(d) == width \
+                and 2 * sum(_is_number(x) for x in d) >= width:
+            return here - start
     return 0
 
 
