@@ -38,6 +38,10 @@ inline std::string num(double v) {
 /// product of the two planes), so the fit is rank deficient along it.
 inline constexpr const char* kTurnAdvice =
     "turn the sensor about all three axes or tumble it (two flat turns leave an ellipsoid undetermined)";
+/// The remedy for a sensor that only ever turns about one axis.
+inline constexpr const char* kTwoDAdvice =
+    "for a sensor that only turns about one axis (a vehicle's heading), the 2-D calibration of the two axes in its "
+    "plane (twostep_2d, with the horizontal field as the known norm)";
 
 /// A ratio as a percentage for a message: three significant digits ("12.3 %").
 inline std::string percent(double ratio) {

@@ -11,6 +11,7 @@
 #include <cmath>
 #include <cstdio>
 #include <limits>
+#include <utility>
 #include <sstream>
 
 namespace fluxcal {
@@ -141,7 +142,9 @@ void for_each_packed_block(const SamplesRef& readings, F&& f) {
 using detail::percent;
 
 // Thinnest/widest standard deviation of the normalised readings, from the first two moments.
-double coverage_ratio(const EllipsoidMoments& mom, const Eigen::Matrix<double, 10, 10>& scatter) {
+// Eigenvalues of the readings' covariance (ascending) and their mean, from the moments.
+std::pair<Eigen::Vector3d, Eigen::Vector3d> spread(const EllipsoidMoments& mom,
+                                                   const Eigen::Matrix<double, 10, 10>& scatter) {
   const double n = static_cast<double>(mom.count());
   // scatter(9, 6..8) = Σ 2u etc.; scatter(0..5, 9) = Σ u², Σ 2uv ...
   const Eigen::Vector3d mean = scatter.block<1, 3>(9, 6).transpose() / (2.0 * n);
@@ -150,7 +153,11 @@ double coverage_ratio(const EllipsoidMoments& mom, const Eigen::Matrix<double, 1
       scatter(3, 9) / 2, scatter(1, 9), scatter(5, 9) / 2,        //
       scatter(4, 9) / 2, scatter(5, 9) / 2, scatter(2, 9);
   const Eigen::Matrix3d cov = second / n - mean * mean.transpose();
-  const Eigen::Vector3d ev = Eigen::SelfAdjointEigenSolver<Eigen::Matrix3d>(cov, Eigen::EigenvaluesOnly).eigenvalues();
+  return {Eigen::SelfAdjointEigenSolver<Eigen::Matrix3d>(cov, Eigen::EigenvaluesOnly).eigenvalues(), mean};
+}
+
+double coverage_ratio(const EllipsoidMoments& mom, const Eigen::Matrix<double, 10, 10>& scatter) {
+  const Eigen::Vector3d ev = spread(mom, scatter).first;
   if (!(ev(2) > 0.0)) return 0.0;
   return std::sqrt(std::max(ev(0), 0.0) / ev(2));
 }
@@ -288,11 +295,15 @@ EllipsoidResult solve(const EllipsoidMoments& mom, const EllipsoidOptions& opt) 
   Summary& sum = out.summary;
   sum.samples = mom.count();
   sum.coverage_ratio = coverage_ratio(mom, S);
+  const auto [ev, mean] = spread(mom, S);
+  if (!(ev(2) > 1e-20 * (1.0 + mean.squaredNorm())))  // to rounding: every reading the same
+    throw Error("samples: all " + std::to_string(mom.count()) + " readings are the same (a sensor that is stuck, "
+                "not updating, or was never turned); " + std::string(detail::kTurnAdvice));
   if (sum.coverage_ratio < opt.planar_ratio) {
     throw Error("samples: the readings lie nearly in one plane (thinnest/widest spread " +
                 percent(sum.coverage_ratio) +
                 "); a 3-D ellipsoid is not identifiable — " + std::string(detail::kTurnAdvice) +
-                ", or for a sensor that only turns about one axis (a vehicle's heading), the 2-D calibration of the two axes in its plane (twostep_2d, with the horizontal field as the known norm)");
+                ", or " + std::string(detail::kTwoDAdvice));
   }
 
   // Eliminate M11 = 1 − M22 − M33 (trace constraint): p = e0 + E q, q the other 9 coefficients.
@@ -320,7 +331,7 @@ EllipsoidResult solve(const EllipsoidMoments& mom, const EllipsoidOptions& opt) 
   M << p(0), p(3), p(4), p(3), p(1), p(5), p(4), p(5), p(2);
   const Eigen::Vector3d v = p.segment<3>(6);
   const detail::EllipsoidShape shape = detail::ellipsoid_shape(M, v, p(9), "fitted", sum.coverage_ratio,
-                                                                    opt.poor_coverage_ratio);
+                                                                    opt.poor_coverage_ratio, static_cast<long>(mom.count()));
   const auto& meig = shape.eig;
   const Eigen::Vector3d& c = shape.centre;
   const double rho2 = shape.rho2;

@@ -22,8 +22,12 @@ struct EllipsoidShape {
 /// Throws Error when M is not positive definite or the ellipsoid has no real points. `which` names
 /// the fit in the messages ("fitted", "first step's"). `coverage_ratio` (the readings' thinnest/widest
 /// spread) below `thin` (the poor-coverage threshold) names the coverage as the cause.
+// Below this many readings a quadric that is not an ellipsoid says more about their number than about them.
+inline constexpr long kFewReadings = 30;
+
 inline EllipsoidShape ellipsoid_shape(const Eigen::Matrix3d& M, const Eigen::Vector3d& v, double k,
-                                      const std::string& which, double coverage_ratio = 1.0, double thin = 0.0) {
+                                      const std::string& which, double coverage_ratio = 1.0, double thin = 0.0,
+                                      long samples = 0) {
   EllipsoidShape s{Eigen::SelfAdjointEigenSolver<Eigen::Matrix3d>(M), Eigen::Vector3d::Zero(), 0.0};
   if (!(s.eig.eigenvalues()(0) > 0.0) && coverage_ratio < thin) {
     // Readings close to a plane (a sensor turned flat, with a little wobble) leave the thin direction's
@@ -33,14 +37,18 @@ inline EllipsoidShape ellipsoid_shape(const Eigen::Matrix3d& M, const Eigen::Vec
     msg << "samples: the readings lie nearly in one plane (thinnest/widest spread " << 100.0 * coverage_ratio
         << " %) and the " << which << " quadric is not an ellipsoid (eigenvalues " << std::setprecision(6)
         << s.eig.eigenvalues().transpose()
-        << "); " << kTurnAdvice << ", or use a 2-D calibration or reference vectors";
+        << "); " << kTurnAdvice << ", give reference vectors, or " << kTwoDAdvice;
     throw Error(msg.str());
   }
   if (!(s.eig.eigenvalues()(0) > 0.0)) {
     std::ostringstream msg;
     msg << "samples: the readings do not lie on an ellipsoid (the " << which << " quadric has eigenvalues "
         << s.eig.eigenvalues().transpose()
-        << "); check for mixed recordings, saturation or a field that changes during the recording";
+        << "); "
+        << (samples > 0 && samples < kFewReadings
+                ? "only " + std::to_string(samples) + " readings: with so few, the noise decides the quadric's shape "
+                  "— record a few hundred while turning the sensor"
+                : std::string("check for mixed recordings, saturation or a field that changes during the recording"));
     throw Error(msg.str());
   }
   s.centre = -s.eig.eigenvectors() * (s.eig.eigenvectors().transpose() * v).cwiseQuotient(s.eig.eigenvalues());

@@ -462,7 +462,7 @@ void finish_statistics(RefineResult& out, const Eigen::MatrixXd& F, double sigma
         "not identifiable: the data do not determine " + undetermined.str() +
         " (standard error above " + percent(opt.determined_tolerance) +
         " of its scale); rotate the sensor through more orientations, give a reference vector, "
-        "or for a sensor that only turns about one axis (a vehicle's heading), the 2-D calibration of the two axes in its plane (twostep_2d, with the horizontal field as the known norm)");
+        "or " + std::string(detail::kTwoDAdvice));
 }
 
 // Fills the Summary's residual statistics from the final calibration.

@@ -451,7 +451,7 @@ TwoStepResult twostep(const SamplesRef& samples, const TwoStepOptions& options) 
   if (sum.coverage_ratio < options.planar_ratio)
     throw Error("samples: the readings lie nearly in one plane (thinnest/widest spread " + percent(sum.coverage_ratio) +
                 "), so the first step of the two-step calibration is rank deficient — " + std::string(detail::kTurnAdvice) +
-                ", or for a sensor that only turns about one axis (a vehicle's heading), the 2-D calibration of the two axes in its plane (twostep_2d, with the horizontal field as the known norm)");
+                ", or " + std::string(detail::kTwoDAdvice));
 
   // First step (centred, tr E = 0): minimise Σ (aᵀ(d_k − d̄))² over the 9 non-constant quadric
   // coefficients a with a0 + a1 + a2 = 3 (tr N′ = tr(I + E) = 3); the constant absorbs |b|², H² and μ.

@@ -87,6 +87,15 @@ def _report(cal: Calibration, raw: np.ndarray, out=sys.stdout) -> None:
 EARTH_FIELD_UT = (15.0, 100.0)
 
 
+def reading_unit(text: str) -> str:
+    """--units: a field unit (T, mT, uT/µT, nT, G, mG, as loggers spell them) or counts; anything else is an
+    error here, not a label that only apply would stumble on."""
+    unit = unit_name(text)
+    if unit not in TESLA_PER_UNIT and unit != "counts":
+        raise argparse.ArgumentTypeError(f"{text!r} is not a field unit ({', '.join(TESLA_PER_UNIT)}) or counts")
+    return unit
+
+
 def _recheck_field_norm(cal: Calibration, units: str, field_units: str) -> None:
     """The solver compares a given field norm with the readings' radius in one unit ("check the units" beyond
     5×); with --field-units naming another unit than the readings' that comparison is void: it is redone
@@ -232,11 +241,13 @@ def _scale_warning(cal: Calibration, h: np.ndarray, units: str) -> str | None:
 
 
 def write_output(path, rec: Recording) -> None:
-    """A command's output recording in the format of its extension (.npz .mat .parquet .json), CSV otherwise."""
-    if Path(path).suffix.lower() in WRITERS:
+    """A command's output recording in the format of its extension (.npz .mat .parquet .json), tab-separated
+    for .tsv and .tab, CSV otherwise."""
+    suffix = Path(path).suffix.lower()
+    if suffix in WRITERS:
         write_recording(path, rec)
     else:
-        write_csv(path, rec)
+        write_csv(path, rec, delimiter="\t" if suffix in (".tsv", ".tab") else ",")
 
 
 def cmd_simulate(args) -> int:
@@ -522,7 +533,9 @@ def cmd_drift(args) -> int:
         p_value = ar["whiteness"]["p_value"]
         white = (f"Ljung-Box p {p_value:.3g} over {ar['whiteness']['lags']} lags" if p_value == p_value
                  else "whiteness not tested (too few lags)")
-        print(f"  AR({ar['order']}) by AIC of the noise (zero bias - drift model), sigma2 {ar['sigma2']:.4g}{u}², {white}")
+        squared = f" ({u.strip()})²" if u else ""  # the unit squared, not the number
+        print(f"  AR({ar['order']}) by AIC of the noise (zero bias - drift model), sigma2 {ar['sigma2']:.4g}{squared}, "
+              f"{white}")
         for note in report["notes"]:  # white noise about the drift: no Kalman filter (and why)
             print(f"  {note}")
         for w in list(report["warnings"]) + [w for w in model.summary["warnings"] if w not in report["warnings"]]:
@@ -613,7 +626,7 @@ def build_parser() -> argparse.ArgumentParser:
     c.add_argument("--columns", default=None, help=columns_help)
     c.add_argument("--bad-lines", default="error", choices=["error", "skip"], help=bad_lines_help)
     c.add_argument("--decimal", default=None, choices=[",", "."], metavar="{',' or '.'}", help=decimal_help)
-    c.add_argument("--units", default=None, help="units of the readings when the file does not say")
+    c.add_argument("--units", default=None, type=reading_unit, help="units of the readings when the file does not say")
     c.add_argument("--method", default="auto", choices=METHODS,
                    help="auto = consistent ellipsoid fit (ALS) + maximum-likelihood refinement (default)")
     c.add_argument("--shape", default="auto", choices=["auto", "sym", "diag", "sphere", "eye"],
@@ -634,7 +647,7 @@ def build_parser() -> argparse.ArgumentParser:
     a.add_argument("file")
     a.add_argument("-o", "--output", required=True, help=output_help)
     a.add_argument("--columns", default=None, help=columns_help)
-    a.add_argument("--units", default=None, help="units of the readings when the file does not say (converted to "
+    a.add_argument("--units", default=None, type=reading_unit, help="units of the readings when the file does not say (converted to "
                                                   "the calibration's)")
     a.add_argument("--bad-lines", default="error", choices=["error", "skip"], help=bad_lines_help)
     a.add_argument("--decimal", default=None, choices=[",", "."], metavar="{',' or '.'}", help=decimal_help)
@@ -666,7 +679,7 @@ def build_parser() -> argparse.ArgumentParser:
     g.add_argument("--columns", default=None, help=columns_help)
     g.add_argument("--bad-lines", default="error", choices=["error", "skip"], help=bad_lines_help)
     g.add_argument("--decimal", default=None, choices=[",", "."], metavar="{',' or '.'}", help=decimal_help)
-    g.add_argument("--units", default=None, help="units of the readings when the file does not say")
+    g.add_argument("--units", default=None, type=reading_unit, help="units of the readings when the file does not say")
     g.add_argument("--field-norm", type=positive_number, default=None, help="known |field| (default: fitted)")
     g.add_argument("--noise-sigma", type=positive_number, default=None,
                    help="white-noise σ of the readings (default: estimated from third differences)")

@@ -299,3 +299,21 @@ def test_simulate_effects_writes_a_trial_the_diagnosis_reads(tmp_path):
     bad = run_cli("simulate", "-o", tmp_path / "x.csv", "--effects", "temp_ofset")
     assert bad.returncode == 2 and "--effects: unknown effect(s) temp_ofset (the candidates: temp_scale" in bad.stderr
     assert not (tmp_path / "x.csv").exists()
+
+
+def test_first_day_mistakes_get_their_own_words(tmp_path):
+    """A stuck sensor, a unit nobody knows, a .tsv output: each said as it is."""
+    stuck = fluxcal.write_csv(tmp_path / "stuck.csv", {k: np.full(200, v) for k, v in (("mx", 1.0), ("my", 2.0),
+                                                                                        ("mz", 3.0))})
+    r = run_cli("calibrate", stuck)
+    assert r.returncode == 2 and "all 200 readings are the same" in r.stderr, r.stderr
+    rec = tmp_path / "sim.csv"
+    assert run_cli("simulate", "-o", rec, "--n", 800, "--seed", 4).returncode == 0
+    few = fluxcal.read_csv(rec)
+    r = run_cli("calibrate", rec, "--units", "bananas")
+    assert r.returncode == 2 and "'bananas' is not a field unit" in r.stderr
+    assert run_cli("calibrate", rec, "-o", tmp_path / "c.json").returncode == 0
+    r = run_cli("apply", tmp_path / "c.json", rec, "-o", tmp_path / "out.tsv")
+    assert r.returncode == 0, r.stderr
+    assert "\t" in (tmp_path / "out.tsv").read_text().splitlines()[-1]
+    np.testing.assert_array_equal(fluxcal.read_recording(tmp_path / "out.tsv").columns["mx"], few.columns["mx"])

@@ -489,10 +489,13 @@ def _writable(path, columns: dict, metadata: dict) -> None:
                              "a ':' in the key)")
 
 
-def write_csv(path, recording_or_columns, units=None, metadata=None, fmt: str | None = None) -> Path:
+def write_csv(path, recording_or_columns, units=None, metadata=None, fmt: str | None = None,
+              delimiter: str = ",") -> Path:
     """Write a recording (or a dict of columns) with its units and metadata as comment lines.
     Numbers are written in the shortest form that reads back to the same double (nothing lost), unless
-    `fmt` (a printf format such as "%.10g") asks for fewer digits."""
+    `fmt` (a printf format such as "%.10g") asks for fewer digits. `delimiter`: "," or "\t" (TSV)."""
+    if delimiter not in (",", "\t"):
+        raise ValueError(f"delimiter: {delimiter!r} is not ',' or a tab")
     path = Path(path)
     if isinstance(recording_or_columns, Recording):
         rec = recording_or_columns
@@ -508,9 +511,9 @@ def write_csv(path, recording_or_columns, units=None, metadata=None, fmt: str | 
         head.append("# units: " + ", ".join(f"{n}={u}" for n, u in units.items() if n in columns and u))
     head += [f"# {k}: {v}" for k, v in metadata.items()]
     with path.open("w") as f:
-        f.write("\n".join(head) + "\n" + ",".join(names) + "\n")
+        f.write("\n".join(head) + "\n" + delimiter.join(names) + "\n")
         if fmt is not None:
-            np.savetxt(f, data, delimiter=",", fmt=fmt)
+            np.savetxt(f, data, delimiter=delimiter, fmt=fmt)
         else:  # repr of a Python float is the shortest string that round-trips
-            f.writelines(",".join(map(repr, row)) + "\n" for row in data.tolist())
+            f.writelines(delimiter.join(map(repr, row)) + "\n" for row in data.tolist())
     return path

@@ -71,12 +71,13 @@ def _vector_tokens(segment: str, loose: bool = False) -> list:
     120,456,789 is one too). Else a comma stays in its word ("12,34", "1,234"): a decimal comma or a
     thousands group, which the pairs' parse decides on."""
     words = [w for w in re.split(r"[\s;|]+|,(?=\s)", segment.strip()) if w]
+    unit = [words.pop()] if len(words) > 1 and is_unit(words[-1]) else []  # "1,374 counts": one number
     parts = [p for w in words for p in w.split(",")]
     if len(parts) == len(words):
-        return words
+        return words + unit
     apart = (loose or re.search(r",(?=[+-])", segment) is not None or all("." in p for p in parts) or
              (len(parts) > 2 and not all(len(p) == 3 and p.isdigit() for p in parts[1:])))
-    return parts if apart else words
+    return (parts if apart else words) + unit
 
 
 def _vectors(text: str, loose: bool = False):
