@@ -1030,3 +1030,15 @@ def test_uneven_sample_times_do_not_inflate_the_noise():
     d = diagnose(m, **{**kwargs, "t": jittered})
     assert d.noise_sigma == pytest.approx(noise, rel=0.1)
     assert "uneven times" in d.noise_source and not d.significant
+
+
+def test_poor_coverage_of_the_base_calibration_is_a_caveat():
+    """A sensor turned about one axis with a little wobble: calibrate warns of poor coverage; the diagnosis,
+    which builds on that calibration, says so too (an effect can stand in for what the data do not fix)."""
+    rng = np.random.default_rng(8)
+    rot = sim.sweeps("z", per_turn=1500, tilt_deg=6.0, rng=rng)
+    result = sim.simulate(rot, [sim.SoftIron(np.diag([1.05, 0.97, 1.02])), sim.HardIron([8.0, -5.0, 20.0]),
+                                sim.WhiteNoise(0.05)], np.array([19.6, 0.8, 45.2]), rng)
+    d = diagnose(result.readings, t=result.t)
+    assert any("the base calibration: poor coverage" in c for c in d.caveats), d.caveats
+    assert "CAVEAT: the base calibration: poor coverage" in d.text()

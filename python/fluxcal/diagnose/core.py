@@ -1627,7 +1627,9 @@ def diagnose(samples, t=None, temp=None, reference=None, gravity=None, field_nor
     pool = [c for c in pool if c.name not in invisible]
 
     directions = _field_directions(data, base)
-    caveats = []
+    caveats = [f"the base calibration: {w} — what its data do not determine, an effect can stand in for (and "
+               "an effect can hide in it)" for w in start.summary.get("warnings", [])
+               if "poor coverage" in w or "not identifiable" in w]
     if timestamps and (unit := _time_unit_caveat(data, directions, sigma)):
         caveats.append(unit)
         warnings.warn(unit, stacklevel=2)
