@@ -69,9 +69,12 @@ def test_times_in_ms_taken_for_seconds_are_flagged(short):
         d = diagnose(m, candidates=[], **dict(kw, t=kw["t"] * 1000))
     assert any("in ms" in c and "t [ms]" in c for c in d.caveats)
     assert "CAVEAT: t:" in d.text() and d.to_dict()["caveats"] == d.caveats
-    assert not diagnose(m, candidates=[], **kw).caveats
+    def time_caveats(d):  # (a short recording's coverage is a caveat of its own)
+        return [c for c in d.caveats if c.startswith("t:")]
+
+    assert not time_caveats(diagnose(m, candidates=[], **kw))
     slow = dict(kw, t=kw["t"] * 50)  # a slow turntable logged at 1 Hz: turns too slow for a hand even in ms
-    assert not diagnose(m, candidates=[], **slow).caveats
+    assert not time_caveats(diagnose(m, candidates=[], **slow))
 
 
 def test_a_log_appended_to_itself_is_left_out(short):
@@ -185,7 +188,7 @@ def test_positions_held_at_1_hz_are_no_times_in_ms():
     with warnings.catch_warnings():
         warnings.simplefilter("error")
         d = diagnose(result.readings, t=result.t, field_norm=50.0, candidates=[])
-    assert not d.caveats
+    assert not [c for c in d.caveats if c.startswith("t:")]  # 12 positions: their coverage is a caveat of its own
 
 
 def test_hard_clipping_is_named_saturation_and_its_censored_edge_is_not_a_cubic():
