@@ -565,14 +565,21 @@ def cmd_drift(args) -> int:
     fitted = model.settings.get("temperature") or {}
     temp, outside, _ = _temperatures(rec, args.temp_column, args.outside_column or fitted.get("outside") or
                                      "temp_outside", args.file)
-    compensated = model.compensate(rec.columns[column], temp, outside)
+    compensated = model.compensate(rec.columns[column], temp, outside, outside=args.outside_range)
+    known = ~np.isnan(compensated)  # with --outside-range nan, the samples the model speaks for
+    unknown = int((~known).sum())
+    if unknown:
+        lo, hi = model.segments[0]["range"][0], model.segments[-1]["range"][1]
+        print(f"warning: {unknown} of {len(rec)} samples at temperatures outside the model's {lo:g} … {hi:g} °C are "
+              f"NaN in {column}_compensated (the polynomials are not extrapolated)")
     out_name = f"{column}_compensated"
     columns = {**rec.columns, out_name: compensated}
     units = {**rec.units, **({out_name: rec.units[column]} if rec.units.get(column) else {})}
     write_output(args.output, Recording(columns=columns, units=units, source=str(args.output),
                                         metadata={**rec.metadata, "drift_model": args.model}))
     print(f"wrote {args.output}: {len(rec)} rows, column {out_name} "
-          f"(drift span {drift.drift_span(rec.columns[column], temp):.4g} -> {drift.drift_span(compensated, temp):.4g})")
+          f"(drift span {drift.drift_span(rec.columns[column][known], temp[known]):.4g} -> "
+          f"{drift.drift_span(compensated[known], temp[known]):.4g})")
     return 0
 
 
@@ -803,6 +810,9 @@ def build_parser() -> argparse.ArgumentParser:
     da.add_argument("-o", "--output", required=True, help=output_help)
     da.add_argument("--column", default=None, help="column to compensate (default: the one the model was fitted on)")
     da.add_argument("--temp-column", default=None, help=temp_help)
+    da.add_argument("--outside-range", default="error", choices=["error", "nan"],
+                    help="a sample hotter or colder than the model's ranges: an error (default), or NaN in the "
+                         "output (the others compensated)")
     da.add_argument("--outside-column", default=None,
                     help="the outside temperature's column (default: the one the model was fitted with)")
     da.add_argument("--bad-lines", default="error", choices=["error", "skip"], help=bad_lines_help)

@@ -81,11 +81,23 @@ class DriftModel:
     settings: dict = field(default_factory=dict)   # AR / Kalman / fit settings (what fit_pipeline used)
     summary: dict = field(default_factory=dict)
 
-    def evaluate(self, temp, temp_outside=None) -> np.ndarray:
+    def evaluate(self, temp, temp_outside=None, outside: str = "error") -> np.ndarray:
+        """f(T) of each sample. A temperature outside every range is a ValueError (outside="error"; the
+        polynomials are not extrapolated) or gives NaN (outside="nan": the samples the model cannot speak for,
+        marked, the others compensated)."""
+        if outside not in ("error", "nan"):
+            raise ValueError(f"outside: {outside!r} is not one of error, nan")
         temp = ts.as_series(temp, "temp")
         x = _regressor(temp, temp_outside, self.regressor)
         segs = [((float(s["range"][0]), float(s["range"][1])), [float(c) for c in s["coefficients"]])
                 for s in self.segments]
+        if outside == "nan":
+            inside = (temp >= segs[0][0][0]) & (temp <= segs[-1][0][1])  # the ranges are contiguous (from_dict)
+            f = np.full(temp.size, np.nan)
+            if inside.any():
+                f[inside] = _core.drift_evaluate(segs, np.ascontiguousarray(temp[inside]),
+                                                 np.ascontiguousarray(x[inside]))
+            return f
         try:
             return np.asarray(_core.drift_evaluate(segs, temp, np.ascontiguousarray(x)))
         except ValueError as err:
@@ -94,10 +106,10 @@ class DriftModel:
             raise ValueError(f"{err}: the polynomials are not extrapolated; fit the drift over the temperatures "
                              "the device will meet (a chamber cycle that reaches them)") from None
 
-    def compensate(self, zero_bias, temp, temp_outside=None) -> np.ndarray:
-        """W_c = W − f(T). ValueError for a temperature outside every range."""
+    def compensate(self, zero_bias, temp, temp_outside=None, outside: str = "error") -> np.ndarray:
+        """W_c = W − f(T). A temperature outside every range: ValueError, or NaN with outside="nan"."""
         w = ts.as_series(zero_bias, "zero_bias")
-        f = self.evaluate(temp, temp_outside)
+        f = self.evaluate(temp, temp_outside, outside)
         if f.size != w.size:
             raise ValueError(f"zero_bias: {w.size} samples, temp has {f.size}")
         return w - f

@@ -286,6 +286,23 @@ def test_cli_temperature_column_named_and_converted(tmp_path, foct):
     assert run.returncode == 0, run.stderr
 
 
+def test_cli_apply_outside_the_ranges(tmp_path, foct):
+    """A recording hotter than the chamber cycle: an error by default; with --outside-range nan those samples
+    are NaN in the output and the rest compensated as usual."""
+    c = foct.columns
+    src = write_csv(tmp_path / "c.csv", {k: c[k] for k in ("t", "zero_bias", "temp")}, units=foct.units)
+    assert run_cli("drift", "fit", src, "-o", tmp_path / "m.json").returncode == 0
+    hot = write_csv(tmp_path / "hot.csv", {"zero_bias": c["zero_bias"][:5], "temp": [20.0, 30.0, 55.0, 40.0, 70.0]})
+    run = run_cli("drift", "apply", tmp_path / "m.json", hot, "-o", tmp_path / "x.csv")
+    assert run.returncode == 2 and "outside every range" in run.stderr
+    run = run_cli("drift", "apply", tmp_path / "m.json", hot, "-o", tmp_path / "out.csv", "--outside-range", "nan")
+    assert run.returncode == 0 and "warning: 2 of 5 samples" in run.stdout, run.stdout + run.stderr
+    out = read_csv(tmp_path / "out.csv").columns["zero_bias_compensated"]
+    model = drift.DriftModel.load(tmp_path / "m.json")
+    np.testing.assert_array_equal(np.isnan(out), [False, False, True, False, True])
+    np.testing.assert_allclose(out[[0, 1, 3]], model.compensate(c["zero_bias"][[0, 1, 3]], [20.0, 30.0, 40.0]))
+
+
 def test_cli_bad_lines(tmp_path, foct):
     # A blank cell's error suggests --bad-lines skip; drift fit and apply now accept it.
     c = foct.columns
