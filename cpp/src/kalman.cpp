@@ -289,7 +289,8 @@ KalmanResult ArKalman::filter(const SeriesRef& y, const Breaks& breaks) const {
   s.converged = true;
   s.message = std::string(options_.steady_state ? "steady-state" : "time-varying") + " Kalman filter, AR(" +
               std::to_string(n) + ")" +
-              (breaks.empty() ? "" : ", restarted after " + std::to_string(breaks.size()) + " gaps in time");
+              (breaks.empty() ? "" : ", restarted after " + std::to_string(breaks.size()) +
+                                         (breaks.size() == 1 ? " gap" : " gaps") + " in time");
   if (spectral_radius() >= 1.0) s.warnings.push_back("the AR model is not stationary (spectral radius ≥ 1)");
   return res;
 }

@@ -183,8 +183,6 @@ void check_breaks(const Breaks& breaks, Eigen::Index n, const std::string& name)
   }
 }
 
-// Calls row(t) for every t ≥ `lags` whose lags t − 1 … t − lags lie in t's own stretch (see Breaks), in
-// ascending order: each stretch [s, e) gives t = s + lags … e − 1.
 Eigen::Index regressed_rows(Eigen::Index n, const Breaks& breaks, int lags) {
   Eigen::Index count = 0;
   for_each_regressed(n, breaks, lags, [&](Eigen::Index) { ++count; });
@@ -460,7 +458,8 @@ PreprocessResult preprocess(const SeriesRef& x, const PreprocessOptions& options
   check_series(x, "series", 2 * static_cast<Eigen::Index>(options.subseries) + 2,
                "for the stationarity test on " + std::to_string(options.subseries) + " sub-series");
   check_breaks(options.breaks, x.size(), "PreprocessOptions::breaks");
-  if (x.size() - 2 * static_cast<Eigen::Index>(options.breaks.size() + 1) < 2 * options.subseries)
+  Breaks once;
+  if (difference_within(difference_within(x, options.breaks, &once), once).size() < 2 * options.subseries)
     throw Error("series: " + std::to_string(x.size()) + " samples in " + std::to_string(options.breaks.size() + 1) +
                 " stretches between gaps in time leave fewer than " + std::to_string(2 * options.subseries) +
                 " second differences for the stationarity test on " + std::to_string(options.subseries) +

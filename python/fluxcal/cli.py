@@ -495,7 +495,7 @@ def cmd_drift(args) -> int:
 
     if args.drift_command == "fit":
         rec = _zero_bias_recording(args, args.column)
-        times = rec.time()
+        times = rec.time() if rec._time_column() is not None else None  # a sample rate's times have no gaps
         if "skipped_lines" in rec.metadata:  # the AR model and the Kalman filter assume evenly spaced samples
             where = ("the gaps they leave in t are not reached across" if times is not None else
                      "no time column: the series is modelled as if they were not there, a time step is missing at "

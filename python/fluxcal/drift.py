@@ -272,9 +272,10 @@ def _finite(values: np.ndarray, name: str) -> np.ndarray:
     return values
 
 
-def _gaps(t, n: int) -> tuple:
+def _gaps(t, n: int, ar_max_order: int) -> tuple:
     """fit_pipeline's gaps in time: (breaks, report["gaps"], notes, warnings). A time column that cannot show
-    gaps (not increasing, or too coarse a clock) is not an error — the fit never needed it — but a warning."""
+    gaps (not increasing) is not an error — the fit never needed it — but a warning; so are gaps so many that
+    the stretches between them would leave the AR model fewer than half the samples."""
     if t is None:
         return [], None, [], []
     t = ts.as_series(t, "t")
@@ -289,6 +290,9 @@ def _gaps(t, n: int) -> tuple:
             "longest": float(np.max(t[breaks] - t[breaks - 1])) if breaks.size else 0.0}
     if not breaks.size:
         return [], gaps, [], []
+    if n - (breaks.size + 1) * ar_max_order < n / 2:
+        return [], gaps, [], [f"t: {breaks.size} gaps in {n} samples leave stretches too short for an AR model of "
+                              f"order up to {ar_max_order}; the samples are modelled as evenly spaced"]
     return breaks.tolist(), gaps, [gaps_note(breaks.size)], []
 
 
@@ -318,7 +322,7 @@ def fit_pipeline(zero_bias, temp, temp_outside=None, regressor: str = "temp", br
     temp = _finite(ts.as_series(temp, "temp"), "temp")
     if temp.size != w.size:
         raise ValueError(f"temp: {temp.size} samples, zero_bias has {w.size}")
-    breaks, gaps, gap_notes, gap_warnings = _gaps(t, w.size)
+    breaks, gaps, gap_notes, gap_warnings = _gaps(t, w.size, ar_max_order)
     pre = ts.preprocess(w, subseries=subseries, breaks=breaks)
     drift_options = dict(regressor=regressor, breakpoints=breakpoints, max_order=max_order,
                          significance=significance, continuous=continuous, whiten=whiten, breaks=breaks)

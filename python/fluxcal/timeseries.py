@@ -58,18 +58,21 @@ def as_whole(value, name: str, minimum: int) -> int:
     return whole
 
 
-# A step in time this many times the median step or longer is a gap: at least one sample is missing (a
+# A step in time this many times the nominal step or longer is a gap: at least one sample is missing (a
 # recorder paused between temperature holds, a lost line). A logger's jitter of up to ±a fifth of the step (steps
-# of 0.6 … 1.4) stays below it.
+# of 0.6 … 1.4) stays below it. The nominal step is the median over GAP_SPAN steps: a period that is not a whole
+# number of clock ticks steps unevenly (1.5 s on a whole-second clock: 1, 2, 1, 2 s), evenly over several; a step
+# may then be one tick longer than the threshold.
 GAP_STEPS = 1.5
+GAP_SPAN = 10
 
 
 def find_breaks(t, name: str = "t") -> np.ndarray:
     """The gaps in a time column: the indices of the samples that follow a step of at least GAP_STEPS times
     the median step. An AR model's lags, a whitening filter and a Kalman filter must not reach across
     them (fit_ar, ArKalman.filter, fit_drift and fluxcal.drift.fit_pipeline take them as `breaks`): the
-    jump between the stretches would be modelled as noise. ValueError naming `name` when t is not finite,
-    does not increase, or repeats its times so often that the median step is 0 (too coarse a clock)."""
+    jump between the stretches would be modelled as noise. ValueError naming `name` when t is not finite or
+    does not increase."""
     t = as_series(t, name)
     bad = ~np.isfinite(t)
     if bad.any():
@@ -82,8 +85,13 @@ def find_breaks(t, name: str = "t") -> np.ndarray:
                          "time need increasing times (sort the recording, or drop repeated rows)")
     if step.size == 0:
         return np.zeros(0, dtype=np.int64)
-    median = float(np.median(step))
-    return np.flatnonzero(step >= GAP_STEPS * median).astype(np.int64) + 1
+    span = min(GAP_SPAN, step.size)
+    nominal = float(np.median((t[span:] - t[:-span]) / span))
+    # the clock's tick: the spacing of the step values a whole-tick clock gives about the nominal step (1 s for
+    # 1, 1, 1, 1, 2 s); a step may be one tick longer than the threshold before it is a gap
+    usual = np.unique(step[step < 2 * nominal])
+    tick = float(np.min(np.diff(usual))) if usual.size > 1 else 0.0
+    return np.flatnonzero(step >= GAP_STEPS * nominal + tick).astype(np.int64) + 1
 
 
 def as_breaks(breaks, n: int, name: str = "breaks") -> list:

@@ -275,6 +275,11 @@ def test_cli_temperature_column_named_and_converted(tmp_path, foct):
     np.testing.assert_allclose(read_csv(tmp_path / "out.csv").columns["zero_bias_compensated"],
                                drift.DriftModel.load(tmp_path / "c.json").compensate(c["zero_bias"], c["temp"]),
                                rtol=1e-9, atol=1e-9)
+    deg = tmp_path / "deg.csv"  # "°F" written with the degree sign in the name
+    deg.write_text("t,zero_bias,Temperature °F\n" + "".join(f"{a},{b},{32 + 1.8 * d}\n" for a, b, d in
+                                                           zip(c["t"][::10], c["zero_bias"][::10], c["temp"][::10])))
+    run = run_cli("drift", "fit", deg, "-o", tmp_path / "deg.json", "--ar-max-order", "3")
+    assert run.returncode == 0 and "in °F, converted to °C" in run.stdout, run.stdout + run.stderr
     bad = write_csv(tmp_path / "b.csv", {"zero_bias": c["zero_bias"][:100], "temp": c["temp"][:100]},
                     units={"temp": "mV"})
     run = run_cli("drift", "fit", bad, "-o", tmp_path / "b.json")
@@ -597,3 +602,23 @@ def test_cli_breakpoints_may_start_with_a_minus(tmp_path, foct):
     assert "warning: temperature ranges [-20, 0, 30, 50] adjusted to the data: [-35" in run.stdout, run.stdout
     edges = drift.DriftModel.load(tmp_path / "m.json").settings["breakpoints"]
     assert edges[0] == pytest.approx(float(np.min(c["temp"] - 15.0))) and 0.0 in edges and 30.0 in edges
+
+
+def test_whitening_with_stretches_shorter_than_its_order_as_the_oracle_says():
+    """Stretches of 6 samples: the whitening's AR order comes down to what they can show (C++ and oracle)."""
+    c = sim.foct_zero_bias(rng=np.random.default_rng(2), ar=(0.9,), sigma=0.01).columns
+    w, temp = c["zero_bias"][::4], c["temp"][::4]
+    breaks = np.arange(6, w.size, 6)
+    got = drift.fit_drift(w, temp, breaks=breaks)
+    ref, ar = oracle.fit_drift(temp, temp, w, breaks=breaks)
+    np.testing.assert_allclose(got.settings["noise_ar"], ar, atol=1e-8)
+    assert [s["order"] for s in got.segments] == [r["order"] for r in ref]
+
+
+def test_too_many_gaps_are_not_used(foct):
+    """Gaps every 8 samples would leave an AR(10) nothing to fit: the samples are modelled as evenly spaced,
+    with a warning, not an error."""
+    c = foct.columns
+    t = c["t"] + 5.0 * (np.arange(c["t"].size) // 8)
+    model, report = drift.fit_pipeline(c["zero_bias"], c["temp"], t=t)
+    assert model.settings["gaps"] == 0 and any("stretches too short" in w for w in report["warnings"])

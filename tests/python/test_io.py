@@ -146,3 +146,21 @@ def test_arduino_csv_habits(tmp_path):
     assert list(rec.columns) == ["mx", "my", "mz"] and len(rec) == 20
     np.testing.assert_allclose(rec.samples()[0], [1.0, -1.0, 2.0])
     assert "range 8G" in rec.metadata["preamble"]
+
+
+
+def test_skipping_keeps_a_column_that_is_never_a_number(tmp_path):
+    path = tmp_path / "alt.csv"
+    path.write_text("mx,my,mz,alt\n" + "".join(f"{k},{2 * k},{3 * k},nan\n" for k in range(1, 30)) + "1,nan,3,nan\n")
+    rec = read_csv(path, bad_lines="skip")
+    assert len(rec) == 29 and "skipped_lines" in rec.metadata and np.isnan(rec.columns["alt"]).all()
+
+
+def test_a_banner_of_the_tables_width_on_the_first_line(tmp_path):
+    import fluxcal
+
+    rows = "".join(f"{x:.2f},{-x:.2f},{2 * x:.2f},\n" for x in np.linspace(1, 9, 20))
+    path = tmp_path / "banner.csv"
+    path.write_text("Sensor: QMC5883L, range 8G, ODR 50 Hz\nmx,my,mz\n" + rows)
+    rec = fluxcal.read_recording(path)
+    assert list(rec.columns) == ["mx", "my", "mz"] and len(rec) == 20

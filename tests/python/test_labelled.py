@@ -312,3 +312,15 @@ def test_a_label_then_the_vector(tmp_path, style):
     assert "init OK" in rec.metadata["preamble"]
     if style == "two_sensors":
         assert rec.units["Mag X"] == "uT" and "Acc Z" in rec.columns
+
+
+
+def test_a_trailing_number_or_a_decimal_comma_vector_is_no_vector(tmp_path):
+    """Lines with pairs and a trailing unlabelled number (a counter) keep the pairs' names; a vector written
+    with decimal commas is not split at them."""
+    m = readings(n=200)
+    path = tmp_path / "log.txt"
+    path.write_text("".join(f"Mag X: {x:.2f} Y: {y:.2f} Z: {z:.2f} {k}\n" for k, (x, y, z) in enumerate(m)))
+    assert read_recording(path).mag_names() == ("Mag X", "Mag Y", "Mag Z")
+    from fluxcal.io.labelled import _vectors
+    assert _vectors("Mag: 12,34 56,78 -9,10") is None

@@ -319,3 +319,13 @@ def test_bad_input_is_named():
     for call in (ts.zero_mean, ts.fit_ar, ts.normality, ts.preprocess, lambda x: ts.difference(x, 1)):
         with pytest.raises(ValueError, match="series: complex values"):
             call(y + 1j)
+
+
+def test_find_breaks_on_a_coarse_clock():
+    """A period that is not a whole number of clock ticks steps unevenly (1.5 s on a whole-second clock: 1, 2,
+    1, 2 s; millis() at 1.5 ms): no gap, while a lost sample still is one."""
+    assert ts.find_breaks(np.floor(np.arange(2000) * 1.5)).size == 0
+    assert ts.find_breaks(np.floor(np.arange(2000) * 1.2)).size == 0
+    assert ts.find_breaks(np.floor(np.arange(2000) * 1.5) / 1000).size == 0
+    t = np.delete(np.floor(np.arange(2000) * 1.5), [500, 501])
+    np.testing.assert_array_equal(ts.find_breaks(t), [500])

@@ -37,8 +37,8 @@ FIELD_UNITS = {"nt": "nT", "ut": "uT", "µt": "uT", "mt": "mT", "g": "G", "ga": 
 FIELD_ONLY_UNITS = set(FIELD_UNITS) - {"g", "mg", "counts", "lsb"}
 TIME_UNITS = {"s": 1.0, "sec": 1.0, "secs": 1.0, "seconds": 1.0, "ms": 1e-3, "us": 1e-6, "µs": 1e-6,
               "ns": 1e-9, "min": 60.0, "mins": 60.0, "minutes": 60.0, "h": 3600.0, "hr": 3600.0, "hours": 3600.0}
-TEMP_UNITS = {"c": "C", "degc": "C", "celsius": "C", "°c": "C", "k": "K", "kelvin": "K", "f": "F",
-              "degf": "F", "fahrenheit": "F"}
+TEMP_UNITS = {"c": "C", "degc": "C", "celsius": "C", "°c": "C", "k": "K", "kelvin": "K", "°k": "K", "f": "F",
+              "degf": "F", "fahrenheit": "F", "°f": "F"}
 CURRENT_WORDS = {"current", "curr", "amps", "amperes"}
 # what a current column's name may add: whose current it is (not "total": ArduPilot's CurrTot is mAh used)
 CURRENT_QUALIFIERS = {"motor", "motors", "bat", "batt", "battery", "load", "supply", "heater", "coil"}

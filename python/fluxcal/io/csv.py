@@ -123,8 +123,10 @@ def parse_csv(path, lines, delimiter=",", preamble_lines: int = 0, bad_lines: st
         metadata["decimal_separator"] = "comma"
     try:
         data, line_numbers, notes = parse_rows(path, lines, i + 1, names, delimiter)
-        if bad_lines == "skip" and not np.isfinite(data).all():  # NaN/Inf written out (Arduino's "nan"): lines to
-            raise ValueError("non-finite values")                # skip, as an empty cell is
+        # NaN/Inf written out (Arduino's "nan") in a column of numbers: lines to skip, as an empty cell is (a
+        # column that is never a number, say an altitude the logger did not have, is left as it is)
+        if bad_lines == "skip" and not np.isfinite(data[:, np.isfinite(data).any(axis=0)]).all():
+            raise ValueError("non-finite values")
     except ValueError as exc:
         # text or timestamp columns, or lines to skip: the slow per-cell parse (the same errors otherwise)
         names, data, line_numbers, notes = parse_mixed_rows(path, lines, i + 1, names, delimiter, bad_lines,
@@ -176,12 +178,13 @@ def parse_mixed_rows(path, lines, start: int, names, delimiter, bad_lines: str, 
     good, skipped = [], []
     # skipping, a number written as nan or inf is a bad line too (a sensor's failed read printed as a float)
     usable = _is_finite_number if bad_lines == "skip" else _is_number
+    never_finite = {j for j in range(len(names)) if whole and not any(_is_finite_number(c[j]) for c in whole)}
     for row, (c, line_no) in enumerate(zip(cells, line_numbers)):
         problem = None
         if len(c) != len(names):
             problem = (f"{len(c)} fields, the header has {len(names)} (truncated or garbled line?)")
         else:
-            bad = next((j for j in numeric if not usable(c[j])), None)
+            bad = next((j for j in numeric if not (usable(c[j]) or (j in never_finite and _is_number(c[j])))), None)
             stamp = next((j for j in columns if not np.isfinite(columns[j][row])), None)
             if bad is not None:
                 problem = f"column {names[bad]!r}: {_not_a_number(c[bad])}"

@@ -268,7 +268,7 @@ def _title_lines(lines, start: int, delimiter) -> int:
     if len(body) < 4:
         return 0
     width = Counter(len(cells(lines[k])) for k in body[len(body) // 2:]).most_common(1)[0][0]
-    if width < 2 or len(cells(lines[start])) == width:
+    if width < 2:
         return 0
     for k, here in enumerate(body[:min(30, len(body) - 1)]):
         c, d = cells(lines[here]), cells(lines[body[k + 1]])

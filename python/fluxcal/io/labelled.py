@@ -73,7 +73,7 @@ def _vector_tokens(segment: str, loose: bool = False) -> list:
     words = [w for w in re.split(r"[\s;|]+|,(?=\s)", segment.strip()) if w]
     unit = [words.pop()] if len(words) > 1 and is_unit(words[-1]) else []  # "1,374 counts": one number
     parts = [p for w in words for p in w.split(",")]
-    if len(parts) == len(words):
+    if len(parts) == len(words) or len(words) > 1:  # apart already: a comma inside a word is a decimal one
         return words + unit
     apart = (loose or re.search(r",(?=[+-])", segment) is not None or all("." in p for p in parts) or
              (len(parts) > 2 and not all(len(p) == 3 and p.isdigit() for p in parts[1:])))
@@ -87,17 +87,17 @@ def _vectors(text: str, loose: bool = False):
     labels = list(_LABEL.finditer(text))
     if not labels or text[:labels[0].start()].strip():
         return None
-    values, vector = [], False
+    values = []
     for k, m in enumerate(labels):
         tokens = _vector_tokens(text[m.end():labels[k + 1].start() if k + 1 < len(labels) else len(text)], loose)
         unit = tokens.pop() if len(tokens) > 1 and is_unit(tokens[-1]) else ""
-        if not tokens or not all(_NUMBER.fullmatch(w) for w in tokens):
+        # every label a vector: a line of `X: 1 Y: 2 Z: 3 1000` or `Mag X: … Acc: 1 2 3` keeps its pairs' parse
+        if len(tokens) < 2 or not all(_NUMBER.fullmatch(w) for w in tokens):
             return None
-        vector |= len(tokens) > 1
         axes = "XYZ" if len(tokens) == 3 else [str(i + 1) for i in range(len(tokens))]
         label = m.group(1)
         values += [(f"{label} {axis}" if len(tokens) > 1 else label, w, unit) for axis, w in zip(axes, tokens)]
-    return values if vector else None
+    return values
 
 
 def _parse_line(text: str, loose: bool = False):

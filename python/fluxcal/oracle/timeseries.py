@@ -42,6 +42,8 @@ def lagged(y, p, first, breaks=()):
     y = np.asarray(y, dtype=float)
     if len(breaks):
         parts = [lagged(s, p, first) for s in np.split(y, breaks) if s.size > first]
+        if not parts:
+            return np.empty((0, p)), np.empty(0)
         return np.vstack([X for X, _ in parts]), np.concatenate([t for _, t in parts])
     X = np.column_stack([y[first - j:y.size - j] for j in range(1, p + 1)]) if p else np.empty((y.size - first, 0))
     return X, y[first:]
