@@ -441,24 +441,18 @@ def cmd_cable(args) -> int:
     return 0
 
 
-# Temperature units a drift model's temperatures are converted from: the model is always in °C (its ranges are)
-_TO_CELSIUS = {"C": lambda v: v, "K": lambda v: v - 273.15, "F": lambda v: (v - 32.0) / 1.8}
-
-
 def _temperatures(rec, column: str | None, outside_column: str, file) -> tuple:
     """(temperature °C, outside temperature °C or None, {"column", "unit"}) of a zero-bias recording: the
     column `column`, else the one recognised as the temperature (temp, temperature, Temperature (°F), temp_K,
     …), each converted from °F or K by its stated or named unit; a stated unit that is not a temperature is
-    an error, not a guess."""
-    from .io.columns import TEMP_UNITS, find_temperature, words
+    an error, not a guess. The model is always in °C (its ranges are)."""
+    from .io.columns import TO_CELSIUS, find_temperature, temperature_unit
 
     def unit_of(name):
-        stated = (rec.units.get(name) or "").strip().lower().replace("°", "").replace("deg", "")
-        if stated:
-            if stated not in TEMP_UNITS:
-                raise ValueError(f"{file}: column {name!r} is in {rec.units[name]!r}, not °C, K or °F")
-            return TEMP_UNITS[stated]
-        return TEMP_UNITS.get((words(name) or [""])[-1], "C")
+        unit = temperature_unit(name, rec.units)
+        if unit is None:
+            raise ValueError(f"{file}: column {name!r} is in {rec.units[name]!r}, not °C, K or °F")
+        return unit
 
     if column is not None:
         if column not in rec.columns:
@@ -476,8 +470,8 @@ def _temperatures(rec, column: str | None, outside_column: str, file) -> tuple:
         name, unit = hit
     outside = rec.columns.get(outside_column)
     if outside is not None:
-        outside = _TO_CELSIUS[unit_of(outside_column)](outside)
-    return _TO_CELSIUS[unit](rec.columns[name]), outside, {"column": name, "unit": unit}
+        outside = TO_CELSIUS[unit_of(outside_column)](outside)
+    return TO_CELSIUS[unit](rec.columns[name]), outside, {"column": name, "unit": unit}
 
 
 def _zero_bias_recording(args, column: str):

@@ -299,10 +299,21 @@ def find_temperature(names, units: dict):
     if hit is None:
         return None
     name, word = hit
+    unit = temperature_unit(name, units, word)
+    return None if unit is None else (name, unit)
+
+
+def temperature_unit(name: str, units: dict, word=None):
+    """"C", "K" or "F" of a temperature column: its stated unit, else the unit word of its name (`word`, or
+    the name's last word), else "C"; None for a stated unit that is not °C, K or °F (mdegC, raw: not guessed)."""
     stated = (units.get(name) or "").strip().lower().replace("°", "").replace("deg", "")
-    if stated:  # a stated unit that is not °C, K or °F (mdegC, raw) is not guessed
-        return (name, TEMP_UNITS[stated]) if stated in TEMP_UNITS else None
-    return name, TEMP_UNITS.get(word or "", "C")
+    if stated:
+        return TEMP_UNITS.get(stated)
+    return TEMP_UNITS.get(word if word is not None else (words(name) or [""])[-1], "C")
+
+
+# a temperature in its unit → °C
+TO_CELSIUS = {"C": lambda v: v, "K": lambda v: v - 273.15, "F": lambda v: (v - 32.0) / 1.8}
 
 
 def _named_by_degrees(names):

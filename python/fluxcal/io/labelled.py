@@ -80,6 +80,12 @@ def _vector_tokens(segment: str, loose: bool = False) -> list:
     return (parts if apart else words) + unit
 
 
+def _vector_line(line: str):
+    """The values of a line of vectors after its clock (see _vectors), or None."""
+    clock = CLOCK.match(line)
+    return _vectors(line[clock.end():] if clock else line)
+
+
 def _vectors(text: str, loose: bool = False):
     """[(name, value text, unit)] of a line of `label: n1 n2 n3 [unit]` groups (numbers apart by spaces, tabs
     or commas), at least one of them a vector of two or more numbers; None for any other line (the pairs'
@@ -147,9 +153,9 @@ def _is_labelled(line: str) -> bool:
     table row with a `mode=1` text cell has its numbers outside the pair."""
     if not _parse_line(line)[1]:
         return False
-    clock = CLOCK.match(line)
-    if _vectors(line[clock.end():] if clock else line) is not None:
+    if _vector_line(line) is not None:
         return True
+    clock = CLOCK.match(line)
     rest = _PAIR.sub(" ", line[clock.end():] if clock else line)
     return len(_BARE_NUMBER.findall(rest)) < 2
 
@@ -251,8 +257,7 @@ def read_labelled(path, columns=None, units: str | None = None, bad_lines: str =
     check_bad_lines(bad_lines)
     path = readable_file(path)
     lines = [(k + 1, line) for k, line in enumerate(read_text(path).splitlines()) if line.strip() and not is_comment(line)]
-    vector_lines = sum(_vectors(line[CLOCK.match(line).end():] if CLOCK.match(line) else line) is not None
-                       for _, line in lines)
+    vector_lines = sum(_vector_line(line) is not None for _, line in lines)
     loose = vector_lines >= 0.5 * len(lines)  # a log of vectors: 120,456,789 is one, not a thousands group
     parsed = _units_apart([(k, line.strip(), *_parse_line(line, loose)) for k, line in lines])
     counts = Counter(name for *_, values in parsed for name in dict.fromkeys(v[0] for v in values))

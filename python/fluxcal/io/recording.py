@@ -6,7 +6,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from .._arrays import first_nonfinite, units_text
-from .columns import (field_unit_of, unit_name, find_accelerometer, find_current, find_magnetometer, find_temperature, find_time,
+from .columns import (TO_CELSIUS, field_unit_of, unit_name, find_accelerometer, find_current, find_magnetometer, find_temperature, find_time,
                       sample_rate)
 
 MAG_COLUMNS = ("mx", "my", "mz")
@@ -101,8 +101,7 @@ class Recording:
         hit = find_temperature(self.columns, self.units)
         if hit is None:
             return None
-        values = self.columns[hit[0]]
-        return {"C": values, "K": values - 273.15, "F": (values - 32.0) / 1.8}[hit[1]]
+        return TO_CELSIUS[hit[1]](self.columns[hit[0]])
 
     def current(self):
         """Current drawn near the sensor, in A (column current, else curr, motor_current_mA, BAT's Curr, ...
