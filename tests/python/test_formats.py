@@ -254,7 +254,7 @@ def test_decimal_commas_are_read_per_column_beside_decimal_points(tmp_path):
     # 1,234 beside 0.5 may be a thousands separator: not guessed; the error says which column was text
     thousands = tmp_path / "thousands.csv"
     thousands.write_text("n;Bx;By;Bz\n1;1,234;0.5;3.0\n2;2,345;0.6;3.1\n")
-    with pytest.raises(ValueError, match=r"columns are: n, By, Bz; left out as text: Bx \(e.g. 1,234, 2,345\)"):
+    with pytest.raises(ValueError, match=r"columns are: n, By, Bz; left out as text: Bx \(e.g. 1,234, 2,345: thousands separators or decimal commas\? no value says"):
         read_recording(thousands).samples()
 
 
@@ -364,6 +364,62 @@ def test_a_truncated_last_line_says_how_to_leave_it_out(tmp_path):
         read_recording(path)
     rec = read_recording(path, bad_lines="skip")
     assert len(rec) == 2 and rec.metadata["skipped_lines"].startswith("1 of 3: 4 (2 fields")
+
+
+def _rows(fmt, n=30, seed=3):
+    rng = np.random.default_rng(seed)
+    return [fmt % tuple(v) for v in rng.normal(0, 30, (n, 3))]
+
+
+@pytest.mark.parametrize("head, fmt, cut", [
+    ("mx,my,mz\n", "%.3f,%.3f,%.3f", lambda last: last[:-2]),                 # 26.345 -> 26.3
+    ("mx,my,mz\n", "%.3f,%.3f,%.3f", lambda last: last[:last.rfind(",") + 1] + "-"),  # a lone sign
+    ("mx,my,mz\n", "%.4e,%.4e,%.4e", lambda last: last[:-2]),                 # 1.2345e+01 -> 1.2345e+
+    ("mx my mz\n", "%9.2f %9.2f %9.2f", lambda last: last[:-1]),              # whitespace table
+    ("", "X: %.2f Y: %.2f Z: %.2f", lambda last: last[:-1]),                  # a serial monitor's labelled lines
+])
+def test_a_file_ending_in_the_middle_of_a_number_is_named_not_read_short(tmp_path, head, fmt, cut):
+    rows = _rows(fmt)
+    path = tmp_path / "cut.txt"
+    path.write_text(head + "\n".join(rows[:-1] + [cut(rows[-1])]))
+    with pytest.raises(ValueError, match=r"cut.txt, line \d+.*the file ends in the middle of this line"):
+        read_recording(path)
+    rec = read_recording(path, bad_lines="skip")
+    assert len(rec) == len(rows) - 1 and "the file ends in the middle" in rec.metadata["skipped_lines"]
+
+
+@pytest.mark.parametrize("text", [
+    "mx,my,mz\n" + "\n".join(_rows("%.3f,%.3f,%.3f")),          # whole, only the final newline missing
+    "mx,my,mz\n" + "\n".join(_rows("%g,%g,%g")),                # digits vary from line to line
+    "mx,my,mz\n" + "\n".join(_rows("%.0f,%.0f,%.0f")),          # integers: a cut cannot be seen
+    "mx,my,mz\n" + "\n".join(_rows("%.3f,%.3f,%.3f") + ["1.5,2.5,3.5\n"]),  # fewer decimals, then a newline
+])
+def test_a_last_line_without_a_newline_is_read_when_nothing_shows_it_cut(tmp_path, text):
+    path = tmp_path / "whole.csv"
+    path.write_text(text)
+    assert len(read_recording(path)) == 30 + text.count("1.5,2.5,3.5")
+
+
+@pytest.mark.parametrize("quote, delimiter", [('"', ","), ("", ";"), ("", "\t")])
+def test_thousands_separators_of_a_spreadsheet_export_are_read(tmp_path, quote, delimiter):
+    rng = np.random.default_rng(4)
+    field = rng.normal(0, 30_000, (50, 3))
+    def cell(x):
+        return quote + format(x, ",.1f") + quote
+    path = tmp_path / "export.csv"
+    path.write_text(delimiter.join(["t", "mx", "my", "mz"]) + "\n"
+                    + "".join(delimiter.join([str(k)] + [cell(x) for x in row]) + "\n" for k, row in enumerate(field)))
+    rec = read_recording(path)
+    np.testing.assert_allclose(rec.samples(), np.round(field, 1), atol=1e-9)
+    assert rec.metadata["thousands_separator"] == "comma (mx, my, mz)"
+
+
+def test_commas_no_value_settles_are_not_guessed(tmp_path):
+    path = tmp_path / "export.csv"
+    path.write_text("mx,my,mz\n" + "".join(f'"{a:,}","{b:,}","{c:,}"\n' for a, b, c in
+                                          np.random.default_rng(5).integers(-40_000, 40_000, (20, 3))))
+    with pytest.raises(ValueError, match="mx .*thousands separators or decimal commas\\? no value says, not guessed"):
+        read_recording(path)
 
 
 # -- the real recordings -----------------------------------------------------------------------------------------

@@ -72,7 +72,7 @@ def read_csv(path, columns=None, units: str | None = None, delimiter: str = ",",
     """Read a CSV recording. `columns`: the three magnetometer columns (default mx,my,mz, or x,y,z).
     `units`: the field unit, when the file does not state it. `bad_lines`: "error" or "skip"."""
     path = readable_file(path)
-    return parse_csv(path, read_text(path).splitlines(), delimiter, bad_lines=bad_lines).choose(columns, units)
+    return parse_csv(path, read_lines(path), delimiter, bad_lines=bad_lines).choose(columns, units)
 
 
 def parse_csv(path, lines, delimiter=",", preamble_lines: int = 0, bad_lines: str = "error") -> Recording:
@@ -158,6 +158,11 @@ def parse_mixed_rows(path, lines, start: int, names, delimiter, bad_lines: str, 
     else:
         cells = [body[k].split(delimiter) for k in keep]
     whole = [c for c in cells if len(c) == len(names)]
+    separated = _thousands_columns(whole, len(names))
+    if separated:
+        cells = [[c.replace(",", "") if j in separated else c for j, c in enumerate(row)] for row in cells]
+        whole = [c for c in cells if len(c) == len(names)]
+        metadata["thousands_separator"] = "comma (" + ", ".join(names[j] for j in separated) + ")"
     # A column is text when most of its cells are not numbers (a status field that is sometimes "1");
     # an all-empty column (from a trailing delimiter) is text too and is left out.
     text = [j for j in range(len(names)) if whole and sum(_is_number(c[j]) for c in whole) < 0.5 * len(whole)]
@@ -167,7 +172,8 @@ def parse_mixed_rows(path, lines, start: int, names, delimiter, bad_lines: str, 
         seconds, first = _timestamps(values)
         if seconds is None:
             shown = sorted({v for v in values if v})[:4]
-            text_notes.append(f"{names[j]} (e.g. {', '.join(shown)})" if shown else f"{names[j]} (empty)")
+            text_notes.append(f"{names[j]} (e.g. {', '.join(shown)}{_commas_unsettled(values)})" if shown
+                              else f"{names[j]} (empty)")
             continue
         columns[j] = seconds
         units[names[j]] = "s"
@@ -319,10 +325,66 @@ def read_text(path) -> str:
     return text
 
 
+def read_lines(path) -> list:
+    """The file's lines (read_text), its last line marked with CUT_SHORT when the file ends in the middle
+    of it: every line reader then names that line as bad instead of reading 26.3 for the 26.345 it was
+    (a log copied while the logger was still writing, or the power cut)."""
+    text = read_text(path)
+    lines = text.splitlines()
+    if lines and not text.endswith(("\n", "\r")) and _cut_short(lines):
+        lines[-1] += CUT_SHORT
+    return lines
+
+
+CUT_SHORT = "\u2026"  # marks a last line the file ends in the middle of (read_lines)
+CUT_PROBLEM = ("the file ends in the middle of this line (no newline after it, and less of it than of the lines "
+               "above: copied while the logger was still writing?)")
+_NUMBER = re.compile(r"[-+]?(?:\d+\.?\d*|\.\d+)(?:[eE][-+]?\d+)?")
+
+
+_PARTIAL_NUMBER_END = re.compile(r"(?:(?<=\d)\.|(?<=[\d.])[eE][-+]?|[-+])$")
+
+
+def _skeleton(line: str) -> str:
+    return " ".join(_NUMBER.sub("#", line).split())
+
+
+def _decimals(token: str) -> int:
+    mantissa = re.split("[eE]", token)[0]
+    return len(mantissa.split(".")[1]) if "." in mantissa else 0
+
+
+def _cut_short(lines) -> bool:
+    """Whether the last line (with no newline after it) stops short of the lines above: fewer values than
+    they all have (a prefix of their layout), its last number ending in a sign, point or exponent mark, or
+    with fewer decimals than that number has on every line above. Judged only when the 20 data lines above
+    share one layout; integers cut short (1234 -> 12) cannot be told from smaller ones."""
+    above = [line.rstrip() for line in lines[-21:-1] if line.strip() and not is_comment(line)]
+    last = lines[-1].rstrip()
+    if len(above) < 5 or not last.strip() or is_comment(last):
+        return False
+    layouts = {_skeleton(line) for line in above}
+    if len(layouts) != 1:
+        return False
+    layout = layouts.pop()
+    partial = _PARTIAL_NUMBER_END.search(last)  # 26. or 1.5e- or a lone sign: a number the line stops in
+    core = last[:partial.start()] if partial else last
+    if not _NUMBER.search(core):
+        return False
+    if _skeleton(core) != layout:
+        return layout.startswith(_skeleton(core))
+    if core != last and not any(line.endswith(last[len(core):]) for line in above):
+        return True
+    fewest = min(_decimals(_NUMBER.findall(line)[-1]) for line in above)
+    return _decimals(_NUMBER.findall(core)[-1]) < fewest
+
+
 def _not_a_number(cell: str) -> str:
     cell = cell.strip()
     if not cell:
         return "empty"
+    if CUT_SHORT in cell:
+        return f"{cell.replace(CUT_SHORT, '')!r} is cut short: {CUT_PROBLEM}"
     if _is_number(cell):
         return f"{cell!r} is not finite"
     return f"{cell!r} is not a number" + (" (bytes that are not text: garbage from a serial line?)"
@@ -432,6 +494,36 @@ def _decimal_comma_columns(sample, delimiter) -> list:
             continue  # 1,234 beside 0.5: a thousands separator as likely as a decimal comma
         found.append(j)
     return found
+
+
+def _thousands_columns(rows, width: int) -> list:
+    """The columns whose numbers group their thousands with commas (a spreadsheet's number format: "48,123.4"
+    quoted in a CSV, or 48,123.4 in a ';' or tab table), as the column's own values show it: some value
+    has thousands groups beside a decimal point, or several groups (1,234,567), or the column's other values
+    have decimal points; and none has a comma that only a decimal comma makes (12,34). A column whose only
+    commas are 1,234 among integers is left as text (1.234 or 1234: not guessed)."""
+    from .columns import comma_kind
+
+    found = []
+    for j in range(width):
+        kinds = {comma_kind(row[j]) for row in rows}
+        points = any("." in row[j] for row in rows if not comma_kind(row[j]))
+        if "invalid" in kinds or "decimal" in kinds or kinds <= {""}:
+            continue
+        if kinds & {"thousands", "several"} or ("ambiguous" in kinds and points):
+            found.append(j)
+    return found
+
+
+def _commas_unsettled(values) -> str:
+    """A note for a column left as text whose numbers all read with a comma that is a thousands separator or
+    a decimal comma (1,234), and no value says which."""
+    from .columns import comma_kind
+
+    kinds = {comma_kind(v) for v in values if v}
+    if "ambiguous" in kinds and kinds <= {"ambiguous", ""} and all(_is_number(v.replace(",", "")) for v in values if v):
+        return ": thousands separators or decimal commas? no value says, not guessed"
+    return ""
 
 
 def _is_number(text: str) -> bool:

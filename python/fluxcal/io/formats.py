@@ -41,7 +41,7 @@ from collections import Counter
 from pathlib import Path
 
 from .csv import (_decimal_comma_columns, readable_file, _is_number, comment_text, data_lines, decimal_points, is_comment, parse_csv,
-                  listing, read_csv, read_text, write_csv, OTHER_WRITERS)
+                  listing, read_csv, read_lines, read_text, write_csv, OTHER_WRITERS)
 from .columns import is_unit
 from .recording import Recording
 
@@ -212,7 +212,7 @@ def read_table_lines(lines, where: str, columns, units, bad_lines: str = "error"
 def _read_table(path: Path, columns, units, bad_lines: str = "error") -> Recording:
     from . import real
 
-    lines = read_text(path).splitlines()
+    lines = read_lines(path)
     start = real._skip_comments(lines)
     if start >= len(lines):
         raise ValueError(f"{path}: no header line and no data (only comments or blank lines)")

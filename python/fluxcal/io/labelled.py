@@ -31,7 +31,7 @@ from pathlib import Path
 import numpy as np
 
 from .columns import FIELD_UNITS, TIME_WORDS, comma_kind, is_unit, words
-from .csv import readable_file, NOT_TEXT, SKIP_HINT, _timestamps, check_bad_lines, data_lines, is_comment, listing, read_text
+from .csv import readable_file, CUT_PROBLEM, CUT_SHORT, NOT_TEXT, SKIP_HINT, _timestamps, check_bad_lines, data_lines, is_comment, listing, read_lines
 from .recording import Recording
 
 # label (a word not glued to what precedes it, hyphens inside allowed: X-acceleration), ':', '=' or ' is '
@@ -256,7 +256,7 @@ def read_labelled(path, columns=None, units: str | None = None, bad_lines: str =
     decimal=".") settles it. metadata["decimal_separator"] is "comma" when commas were read as decimal."""
     check_bad_lines(bad_lines)
     path = readable_file(path)
-    lines = [(k + 1, line) for k, line in enumerate(read_text(path).splitlines()) if line.strip() and not is_comment(line)]
+    lines = [(k + 1, line) for k, line in enumerate(read_lines(path)) if line.strip() and not is_comment(line)]
     vector_lines = sum(_vector_line(line) is not None for _, line in lines)
     loose = vector_lines >= 0.5 * len(lines)  # a log of vectors: 120,456,789 is one, not a thousands group
     parsed = _units_apart([(k, line.strip(), *_parse_line(line, loose)) for k, line in lines])
@@ -283,6 +283,8 @@ def read_labelled(path, columns=None, units: str | None = None, bad_lines: str =
         problem = None
         if NOT_TEXT in text:  # a number with a garbage byte in it would read as a shorter number
             problem = "bytes that are not text (garbage from a serial line?)"
+        elif CUT_SHORT in text:
+            problem = CUT_PROBLEM
         elif not values:
             problem = "no 'label: number' values (garbled line?)"
         elif len(set(seen)) != len(seen):

@@ -23,7 +23,7 @@ from pathlib import Path
 
 import numpy as np
 
-from .csv import readable_file, _is_number, decimal_points, is_comment, parse_csv, parse_rows, read_text
+from .csv import readable_file, _is_number, decimal_points, is_comment, parse_csv, parse_rows, read_lines, read_text
 from .recording import ATTITUDE_COLUMNS, FIELD_NED_COLUMNS, Recording
 
 # -- key,value preamble (QMC5883L logger) -------------------------------------------------------------------
@@ -44,7 +44,7 @@ def read_preamble_csv(path, columns=None, units: str | None = None, delimiter=",
                       ) -> Recording:
     """A CSV with `key,value` lines before its header (see the module docstring)."""
     path = readable_file(path)
-    lines = read_text(path).splitlines()
+    lines = read_lines(path)
     start = _skip_comments(lines)
     n = preamble_length(lines, start, delimiter)
     preamble, line_of = {}, {}
@@ -116,7 +116,7 @@ def read_headerless(path, names=None, columns=None, units: str | None = None, de
     """A table of numbers without a header: `names` (one per column) name the columns; without names it
     must be the airborne layout (`airborne_layout`), else the error asks for them."""
     path = readable_file(path)
-    lines = read_text(path).splitlines()
+    lines = read_lines(path)
     start = _skip_comments(lines)
     lines, converted = decimal_points(lines, start, delimiter)
     rec = _read_headerless(path, lines, start, names, columns, units, delimiter)

@@ -27,8 +27,8 @@ from pathlib import Path
 
 import numpy as np
 
-from .csv import (readable_file, NOT_TEXT, SKIP_HINT, _is_number, _timestamps, check_bad_lines, data_lines, is_comment, listing,
-                  read_text)
+from .csv import (readable_file, CUT_PROBLEM, CUT_SHORT, NOT_TEXT, SKIP_HINT, _is_number, _timestamps, check_bad_lines, data_lines, is_comment, listing,
+                  read_lines)
 from .labelled import CLOCK
 from .recording import Recording
 
@@ -74,13 +74,15 @@ def read_sentences(path, columns=None, units: str | None = None, bad_lines: str 
     check_bad_lines(bad_lines)
     path = readable_file(path)
     parsed, problems, types = [], [], Counter()
-    for k, line in enumerate(read_text(path).splitlines()):
+    for k, line in enumerate(read_lines(path)):
         if not line.strip() or is_comment(line):
             continue
         clock, body = _body(line)
         m = _SENTENCE.match(body)
         if NOT_TEXT in line:
             problems.append((k + 1, "bytes that are not text (garbage from a serial line?)"))
+        elif CUT_SHORT in line:
+            problems.append((k + 1, CUT_PROBLEM))
         elif m is None:
             problems.append((k + 1, "not a $TYPE,fields*checksum sentence (garbled or cut short?)"))
         else:
