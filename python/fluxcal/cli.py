@@ -188,6 +188,10 @@ def cmd_calibrate(args) -> int:
         from .plots import before_after
 
         print(f"wrote {before_after(raw, cal, args.plot, title=Path(args.file).name)}")
+    if not cal.summary.get("identifiable", True):  # a script must not take it for a calibration to ship
+        print(f"fluxcal calibrate: {args.file}: not identifiable (exit status 3): see 'identifiable' above",
+              file=sys.stderr)
+        return 3
     return 0
 
 
@@ -617,7 +621,9 @@ def build_parser() -> argparse.ArgumentParser:
     decimal_help = ("labelled text logs (X: 1,234) whose commas nothing in the file settles: ',' reads them as "
                     "decimal commas, '.' as thousands separators")
     c = sub.add_parser("calibrate", help="calibrate a magnetometer from a recording (CSV, TSV, .npz, .mat, Parquet, "
-                                         "JSON)")
+                                         "JSON)",
+                       epilog="exit status: 0 a calibration; 2 an error (nothing written); 3 written but not "
+                              "identifiable: the data did not determine every parameter (export-c refuses it)")
     c.add_argument("file")
     c.add_argument("--field-norm", type=positive_number, default=None,
                    help="known |field|, in --field-units (default: fitted; a fluxcal simulation's own metadata)")

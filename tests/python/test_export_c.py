@@ -414,7 +414,8 @@ def test_an_undetermined_calibration_is_refused_unless_forced(tmp_path):
     src = fluxcal.write_csv(tmp_path / "wobble.csv", {"mx": result.readings[:, 0], "my": result.readings[:, 1],
                                                       "mz": result.readings[:, 2]}, units={k: "uT" for k in "mxyz"})
     run = run_cli("calibrate", src, "-o", tmp_path / "cal.json")
-    assert run.returncode == 0 and "identifiable          NO" in run.stdout, run.stdout + run.stderr
+    assert run.returncode == 3 and "identifiable          NO" in run.stdout, run.stdout + run.stderr
+    assert "not identifiable (exit status 3)" in run.stderr and (tmp_path / "cal.json").is_file()
     run = run_cli("export-c", tmp_path / "cal.json", "-o", tmp_path / "cal.h")
     assert run.returncode == 2 and "not identifiable" in run.stderr and "--force" in run.stderr
     assert not (tmp_path / "cal.h").exists()
