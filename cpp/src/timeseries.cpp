@@ -300,25 +300,38 @@ NormalityResult normality(const SeriesRef& x, double significance) {
   return r;
 }
 
-LjungBoxResult ljung_box(const SeriesRef& x, int lags, int model_df, double significance) {
+LjungBoxResult ljung_box(const SeriesRef& x, int lags, int model_df, double significance, const Breaks& breaks) {
   if (lags < 1) throw Error("ljung_box: lags = " + std::to_string(lags) + ", need ≥ 1");
   detail::require_int(model_df >= 0, "ljung_box: model_df", model_df, "≥ 0");
   detail::require_open_unit("ljung_box: significance", significance);
   check_series(x, "series", static_cast<Eigen::Index>(lags) + 1, "for " + std::to_string(lags) + " lags");
+  check_breaks(breaks, x.size(), "ljung_box: breaks");
   const Eigen::VectorXd d = centred_unit(x);
   const double c0 = d.squaredNorm();
   if (!(c0 > 0.0)) throw Error("series: constant (zero variance), autocorrelations are undefined");
   const Eigen::Index n = d.size();
   LjungBoxResult r;
-  r.lags = lags;
+  r.lags = 0;
   r.model_df = model_df;
   double q = 0.0;
   for (int k = 1; k <= lags; ++k) {
-    const double rho = d.tail(n - k).dot(d.head(n - k)) / c0;
-    q += rho * rho / static_cast<double>(n - k);
+    double product = 0.0;
+    Eigen::Index pairs = 0, start = 0;
+    for (std::size_t b = 0; b <= breaks.size(); ++b) {  // lag-k pairs within each stretch [start, end)
+      const Eigen::Index end = b < breaks.size() ? breaks[b] : n;
+      if (end - start > k) {
+        product += d.segment(start + k, end - start - k).dot(d.segment(start, end - start - k));
+        pairs += end - start - k;
+      }
+      start = end;
+    }
+    if (pairs == 0) continue;
+    const double rho = product / c0;
+    q += rho * rho / static_cast<double>(pairs);
+    ++r.lags;
   }
   r.statistic = static_cast<double>(n) * (n + 2.0) * q;
-  const int df = lags - model_df;
+  const int df = r.lags - model_df;
   r.p_value = df > 0 ? chi2_sf(r.statistic, df) : std::numeric_limits<double>::quiet_NaN();
   r.white = df > 0 && r.p_value > significance;
   return r;
@@ -407,8 +420,11 @@ ArResult fit_ar(const SeriesRef& y, const ArOptions& options) {
                 " readings): the recursive least squares overflowed; use a λ closer to 1");
   result.coefficients = theta;
   result.residuals.resize(rows);
-  Eigen::Index i = 0;
+  Breaks residual_breaks;  // where the residuals jump a gap: the whiteness test must not pair across it
+  Eigen::Index i = 0, previous = -1;
   for_each_regressed(n_total, breaks, p, [&](Eigen::Index t) {
+    if (i > 0 && t != previous + 1) residual_breaks.push_back(i);
+    previous = t;
     double pred = 0.0;
     for (int j = 0; j < p; ++j) pred += theta[j] * y[t - 1 - j];
     result.residuals[i++] = y[t] - pred;
@@ -418,7 +434,8 @@ ArResult fit_ar(const SeriesRef& y, const ArOptions& options) {
 
   const int wanted_lags = options.whiteness_lags > 0 ? options.whiteness_lags : std::max(10, 2 * p);
   const int lags = static_cast<int>(std::min<Eigen::Index>(wanted_lags, std::max<Eigen::Index>(1, rows / 2)));
-  if (result.sigma2 > 0.0) result.whiteness = ljung_box(result.residuals, lags, p, options.significance);
+  if (result.sigma2 > 0.0)
+    result.whiteness = ljung_box(result.residuals, lags, p, options.significance, residual_breaks);
 
   Summary& s = result.summary;
   s.samples = static_cast<std::size_t>(n_total);

@@ -193,9 +193,10 @@ void bind_timeseries(py::module_& m) {
     return py::dict("skewness"_a = r.skewness, "kurtosis"_a = r.kurtosis, "jarque_bera"_a = r.jarque_bera,
                     "p_value"_a = r.p_value, "normal"_a = r.normal);
   }, "x"_a.noconvert(), "significance"_a);
-  m.def("ts_ljung_box", [](const SeriesRef& x, int lags, int model_df, double significance) {
-    return ljung_dict(fluxcal::ljung_box(x, lags, model_df, significance));
-  }, "x"_a.noconvert(), "lags"_a, "model_df"_a, "significance"_a);
+  m.def("ts_ljung_box", [](const SeriesRef& x, int lags, int model_df, double significance,
+                           const fluxcal::Breaks& breaks) {
+    return ljung_dict(fluxcal::ljung_box(x, lags, model_df, significance, breaks));
+  }, "x"_a.noconvert(), "lags"_a, "model_df"_a, "significance"_a, "breaks"_a = fluxcal::Breaks());
   m.def("ts_preprocess", [](const SeriesRef& x, int subseries, double threshold, int trend_degree,
                             double significance, const fluxcal::Breaks& breaks) {
     fluxcal::PreprocessOptions options;

@@ -139,12 +139,15 @@ def normality(x, significance: float = 0.05) -> dict:
     return _core.ts_normality(as_series(x), float(significance))
 
 
-def ljung_box(x, lags: int, model_df: int = 0, significance: float = 0.05) -> dict:
-    """Ljung–Box Q over `lags` lags against χ²(lags − model_df); keys statistic, p_value, white."""
+def ljung_box(x, lags: int, model_df: int = 0, significance: float = 0.05, breaks=None) -> dict:
+    """Ljung–Box Q over `lags` lags against χ²(lags − model_df); keys statistic, p_value, white, lags.
+    breaks: gaps in time (`find_breaks`); a lag pairs samples of one stretch only, and a lag no stretch is
+    long enough for is left out of `lags`."""
     lags, model_df = as_whole(lags, "lags", 1), as_whole(model_df, "model_df", 0)
     if model_df >= lags:  # χ²(lags − model_df) has no degrees of freedom: p-value NaN, "not white"
         raise ValueError(f"model_df: {model_df} is not below lags = {lags} (the test needs lags > model_df)")
-    return _core.ts_ljung_box(as_series(x), lags, model_df, float(significance))
+    x = as_series(x)
+    return _core.ts_ljung_box(x, lags, model_df, float(significance), as_breaks(breaks, x.size))
 
 
 @dataclass

@@ -113,6 +113,21 @@ TEST(TimeSeries, NormalityAndLjungBox) {
   EXPECT_FALSE(fluxcal::ljung_box(ar_series({0.3}, 20000, 10), 10).white);
 }
 
+TEST(TimeSeries, LjungBoxPairsSamplesOfOneStretchOnly) {
+  // White noise in 10-sample stretches, each starting with the previous one's last sample: joined, lag 1
+  // sees the repeats; within the stretches it is white, and lags of a whole stretch have no pair.
+  Eigen::VectorXd x = ar_series({}, 3000, 12);
+  fluxcal::Breaks breaks;
+  for (Eigen::Index b = 10; b < 3000; b += 10) {
+    breaks.push_back(b);
+    x[b] = x[b - 1];
+  }
+  EXPECT_FALSE(fluxcal::ljung_box(x, 8).white);
+  const auto within = fluxcal::ljung_box(x, 12, 0, 0.05, breaks);
+  EXPECT_TRUE(within.white);
+  EXPECT_EQ(within.lags, 9);
+}
+
 TEST(TimeSeries, PreprocessDifferencesOnceOrTwice) {
   std::mt19937_64 rng(3);
   std::normal_distribution<double> normal;

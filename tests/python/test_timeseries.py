@@ -179,6 +179,25 @@ def test_ljung_box_matches_oracle():
     assert not ts.ljung_box(x, 15)["white"]  # AR(1) with a = 0.3 is not white
 
 
+def test_ljung_box_pairs_samples_of_one_stretch_only():
+    """White noise in 10-sample stretches whose first sample repeats the previous stretch's last (a recorder
+    that logs the hold it resumes): joined, lag 1 sees the repeats; within the stretches it is white."""
+    rng = np.random.default_rng(12)
+    x = rng.standard_normal(3000)
+    breaks = np.arange(10, 3000, 10)
+    x[breaks] = x[breaks - 1]
+    assert not ts.ljung_box(x, 10)["white"]
+    got, ref = ts.ljung_box(x, 12, 1, breaks=breaks), oracle.ljung_box(x, 12, 1, breaks=breaks)
+    # lags 10 … 12 span a whole stretch: no pair, left out
+    assert got["statistic"] == pytest.approx(ref["statistic"], rel=1e-12) and got["lags"] == ref["lags"] == 9
+    assert got["p_value"] == pytest.approx(ref["p_value"], rel=1e-9) and got["white"]
+    short = [3, 6]  # stretches of 3, 3 and 4 samples: lags 4 … 6 have no pair and are left out
+    got, ref = ts.ljung_box(x[:10], 6, breaks=short), oracle.ljung_box(x[:10], 6, breaks=short)
+    assert got["lags"] == ref["lags"] == 3 and got["statistic"] == pytest.approx(ref["statistic"], rel=1e-12)
+    with pytest.raises(ValueError, match="breaks"):
+        ts.ljung_box(x, 10, breaks=[5, 3])
+
+
 def test_difference_and_trend():
     rng = np.random.default_rng(11)
     x = rng.standard_normal(500).cumsum()

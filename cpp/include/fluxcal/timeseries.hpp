@@ -99,8 +99,11 @@ struct LjungBoxResult {
 };
 
 /// Ljung–Box portmanteau test of `x` (autocorrelations of the demeaned series, as statsmodels'
-/// acorr_ljungbox). Needs 0 < lags < N.
-LjungBoxResult ljung_box(const SeriesRef& x, int lags, int model_df = 0, double significance = 0.05);
+/// acorr_ljungbox). Needs 0 < lags < N. With `breaks` (gaps in time, see Breaks) a lag-k product pairs
+/// two samples of one stretch only, and n − k becomes the number of such pairs; a lag no stretch is long
+/// enough for is left out (`lags` then counts the lags tested).
+LjungBoxResult ljung_box(const SeriesRef& x, int lags, int model_df = 0, double significance = 0.05,
+                         const Breaks& breaks = {});
 
 struct ArOptions {
   /// Largest order AIC may choose (orders 0 … max_order are scored on the common sample).

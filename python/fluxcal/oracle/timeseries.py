@@ -26,14 +26,19 @@ def normality(x):
     return {"skewness": s, "kurtosis": k, "jarque_bera": jb, "p_value": stats.chi2.sf(jb, 2)}
 
 
-def ljung_box(x, lags, model_df=0):
+def ljung_box(x, lags, model_df=0, breaks=()):
+    """With breaks: the lag-k sums and pair counts of each np.split piece, added; lags without a pair dropped."""
     x = np.asarray(x, dtype=float)
     d = x - x.mean()
     n = d.size
-    acf = np.array([np.dot(d[k:], d[:n - k]) for k in range(lags + 1)]) / np.dot(d, d)
-    q = n * (n + 2) * np.sum(acf[1:] ** 2 / (n - np.arange(1, lags + 1)))
-    df = lags - model_df
-    return {"statistic": q, "p_value": stats.chi2.sf(q, df) if df > 0 else np.nan}
+    pieces = np.split(d, breaks) if len(breaks) else [d]
+    sums = np.array([sum(np.dot(s[k:], s[:s.size - k]) for s in pieces if s.size > k) for k in range(1, lags + 1)])
+    pairs = np.array([sum(s.size - k for s in pieces if s.size > k) for k in range(1, lags + 1)])
+    used = pairs > 0
+    acf = sums[used] / np.dot(d, d)
+    q = n * (n + 2) * np.sum(acf ** 2 / pairs[used])
+    df = int(used.sum()) - model_df
+    return {"statistic": q, "p_value": stats.chi2.sf(q, df) if df > 0 else np.nan, "lags": int(used.sum())}
 
 
 def lagged(y, p, first, breaks=()):
