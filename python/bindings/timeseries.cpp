@@ -281,7 +281,7 @@ void bind_timeseries(py::module_& m) {
         [](const std::vector<std::int32_t>& a, const std::vector<std::int32_t>& gain, std::int32_t q, std::int32_t r,
            const std::vector<std::int32_t>& p0, int signal_frac_bits, int coef_frac_bits, int cov_frac_bits,
            bool steady_state, const py::array_t<std::int32_t, py::array::c_style | py::array::forcecast>& y,
-           long checkpoint_every) {
+           long checkpoint_every, const fluxcal::Breaks& breaks) {
           using Filter = fluxcal::FixedArKalman<kFixedMaxOrder>;
           const int n = static_cast<int>(a.size());
           if (n < 1 || n > kFixedMaxOrder)
@@ -302,6 +302,7 @@ void bind_timeseries(py::module_& m) {
           std::copy(p0.begin(), p0.end(), c.p0);  // the struct takes the exported layout (stride n)
           Filter f;
           if (!f.configure(c)) throw fluxcal::Error("fixed_kalman_filter: coef_frac_bits must be within 0 … 30");
+          fluxcal::check_breaks(breaks, static_cast<Eigen::Index>(y.size()), "breaks");
           py::array_t<std::int32_t> out(y.size());
           // Optional checkpoints: the filter's full state (x, K, P) before every checkpoint_every-th sample.
           const long len = static_cast<long>(y.size());
@@ -315,7 +316,12 @@ void bind_timeseries(py::module_& m) {
             auto pp = cp.mutable_unchecked<2>();
             std::int32_t* o = out.mutable_data();
             const std::int32_t* in = y.data();
+            std::size_t next_break = 0;
             for (long i = 0; i < len; ++i) {
+              if (next_break < breaks.size() && i == breaks[next_break]) {  // a gap in time: as firmware would
+                f.reset();
+                ++next_break;
+              }
               if (checkpoint_every > 0 && i % checkpoint_every == 0) {
                 const long c = i / checkpoint_every;
                 for (int a_i = 0; a_i < n; ++a_i) {
@@ -335,7 +341,7 @@ void bind_timeseries(py::module_& m) {
                           "checkpoint_covariance"_a = cp);
         },
         "a"_a, "gain"_a, "q"_a, "r"_a, "p0"_a, "signal_frac_bits"_a, "coef_frac_bits"_a, "cov_frac_bits"_a,
-        "steady_state"_a, "y"_a, "checkpoint_every"_a = 0);
+        "steady_state"_a, "y"_a, "checkpoint_every"_a = 0, "breaks"_a = fluxcal::Breaks());
 
   py::class_<fluxcal::DriftOptions>(m, "DriftOptions")
       .def(py::init<>())

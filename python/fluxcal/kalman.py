@@ -276,22 +276,26 @@ class FixedArKalman:
         clipped = np.clip(scaled, INT32_MIN, INT32_MAX)
         return clipped.astype(np.int32), bool(np.any(clipped != scaled))
 
-    def filter_int(self, y_int, checkpoint_every: int = 0) -> np.ndarray:
+    def filter_int(self, y_int, checkpoint_every: int = 0, breaks=None) -> np.ndarray:
         """Filter a series already in the signal format (int32 in, int32 out). checkpoint_every > 0 also
         records the filter's whole state (x, K, P) before every checkpoint_every-th sample in
-        self.result["checkpoint_state" / "checkpoint_gain" / "checkpoint_covariance"]."""
-        self.result = self._run_int(_int32_series(y_int), checkpoint_every)
+        self.result["checkpoint_state" / "checkpoint_gain" / "checkpoint_covariance"]. breaks: gaps in time
+        (fluxcal.timeseries.find_breaks); the filter is reset before each, as firmware calls
+        <name>_kalman_reset() after a gap."""
+        y_int = _int32_series(y_int)
+        self.result = self._run_int(y_int, checkpoint_every, as_breaks(breaks, y_int.size))
         self.overflowed = bool(self.result["overflowed"])
         return np.asarray(self.result["output"])
 
-    def _run_int(self, y_int: np.ndarray, checkpoint_every: int = 0) -> dict:
+    def _run_int(self, y_int: np.ndarray, checkpoint_every: int = 0, breaks=()) -> dict:
         c = self.coefficients()
         return _core.fixed_kalman_filter(c["a"], c["gain"], c["q"], c["r"], c["p0"], c["signal_frac_bits"],
                                          c["coef_frac_bits"], c["cov_frac_bits"], c["steady_state"], y_int,
-                                         int(checkpoint_every))
+                                         int(checkpoint_every), list(breaks))
 
-    def filter(self, y) -> np.ndarray:
-        """Filtered output of every sample, as floats (the int32 outputs times 2^−frac_bits)."""
+    def filter(self, y, breaks=None) -> np.ndarray:
+        """Filtered output of every sample, as floats (the int32 outputs times 2^−frac_bits). breaks: see
+        filter_int."""
         y = as_series(y, "y")
         if not np.all(np.isfinite(y)):
             raise ValueError(f"y: sample {int(np.argmax(~np.isfinite(y)))} is NaN/Inf")
@@ -307,7 +311,7 @@ class FixedArKalman:
                 bits = min(bits, _signal_frac_bits_holding(2.0 * seen))
             self.frac_bits = bits
         y_int, clipped = self.to_fixed(y)
-        out = self.filter_int(y_int)
+        out = self.filter_int(y_int, breaks=breaks)
         self.overflowed = self.overflowed or clipped
         return out.astype(np.float64) * 2.0 ** -self.frac_bits
 

@@ -140,8 +140,12 @@ class FixedModel:
         self.cf = int(c["coef_frac_bits"])
         self.steady_state = bool(c["steady_state"])
 
-    def filter(self, y):
-        """(outputs, overflowed) for the int32 inputs y, from the reset state."""
+    def filter(self, y, breaks=()):
+        """(outputs, overflowed) for the int32 inputs y, from the reset state; with breaks (gaps in time) each
+        np.split piece from the reset state, the outputs joined."""
+        if len(breaks):
+            runs = [self.filter(piece) for piece in np.split(np.asarray(y), breaks)]
+            return np.concatenate([out for out, _ in runs]), any(flag for _, flag in runs)
         a, cf, n, f = self.a, self.cf, len(self.a), _Flag()
         x = [0] * n
         k = list(self.gain)
