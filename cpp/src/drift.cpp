@@ -55,6 +55,24 @@ std::string edges_name(const std::vector<double>& edges) {
 // polynomials hold where they were fitted and no further), the inner edges that fall inside the data kept,
 // and a range with fewer than min_samples samples joined to its thinner neighbour. The default edges
 // (−20, 0, 30, 50 °C: seed 001's chamber) then serve any chamber cycle or outdoor record.
+// How many separate levels the regressor takes, for the highest order a range can determine: values within
+// 5 % of the range's spread of each other are one level (a chamber's hold, its ±0.3 °C wander), a stretch
+// wider than that counts one level per 5 % it spans (a ramp: 21). Two holds determine a line, not the
+// quadratic their wander let the F-test pick.
+int separate_levels(std::vector<double> v) {
+  std::sort(v.begin(), v.end());
+  const double resolution = 0.05 * (v.back() - v.front());
+  if (!(resolution > 0.0)) return 1;
+  int levels = 0;
+  std::size_t first = 0;
+  for (std::size_t i = 1; i <= v.size(); ++i) {
+    if (i < v.size() && v[i] - v[i - 1] <= resolution) continue;
+    levels += 1 + static_cast<int>(std::floor((v[i - 1] - v[first]) / resolution));
+    first = i;
+  }
+  return levels;
+}
+
 std::vector<double> covering_edges(const SeriesRef& select, const std::vector<double>& given, int min_samples) {
   const double lo = select.minCoeff(), hi = select.maxCoeff();
   if (!(hi > lo)) return given;  // one temperature: no range to cover (the fit says what is wrong)
@@ -214,7 +232,14 @@ DriftModel fit_drift(const SeriesRef& select, const SeriesRef& x, const SeriesRe
     std::vector<double> v(xs[s].data(), xs[s].data() + n);
     std::sort(v.begin(), v.end());
     const int distinct = static_cast<int>(std::unique(v.begin(), v.end()) - v.begin());
-    top[s] = options.order >= 0 ? options.order : std::min<int>(options.max_order, std::min<Eigen::Index>(distinct - 1, n - 3));
+    const int levels = separate_levels(std::vector<double>(xs[s].data(), xs[s].data() + n));
+    top[s] = options.order >= 0 ? options.order
+                                : std::min<int>(options.max_order, std::min<Eigen::Index>(levels - 1, n - 3));
+    if (options.order < 0 && levels <= 2 && levels - 1 < options.max_order && levels < distinct)
+      notes.push_back("temperature range " + range_name(edges[s], edges[s + 1]) + ": the regressor sits at " +
+                      std::to_string(levels) + " separate level(s) (holds), so orders above " +
+                      std::to_string(std::max(levels - 1, 0)) + " were not tried: a polynomial needs one level "
+                      "more than its order; record between the holds (a ramp) for a higher order");
     if (options.order >= 0 && distinct <= options.order)
       throw Error("temperature range " + range_name(edges[s], edges[s + 1]) + ": the regressor takes " +
                   std::to_string(distinct) + " distinct values, too few for order " + std::to_string(options.order));

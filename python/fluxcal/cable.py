@@ -281,7 +281,14 @@ def calibrate_ring(readings, true_fields, method: str = "twostep") -> RingCalibr
                              "line: one rotation of the ring?); turn the ring about the cable between readings "
                              "(the paper uses 5 × 72°)")
         if method == "twostep":
-            fits.append(twostep_2d(r[:, i], norms[:, i]))
+            try:
+                fits.append(twostep_2d(r[:, i], norms[:, i]))
+            except ValueError as exc:
+                raise ValueError(f"sensor {i}: {exc}. Here the magnitudes are the ring model's (straight conductors at "
+                                 "the given positions with the reference currents): a calibration run the model does "
+                                 "not describe (a cable's lay, its end or a bend near the ring, iron nearby, a wrong "
+                                 "ring_radius_m) gives this; `fluxcal diagnose RUN.csv --model cable` says which"
+                                 ) from None
         elif method == "least_squares":
             common = np.full(r.shape[0], np.sqrt(np.mean(norms[:, i] ** 2)))
             fits.append(twostep_2d(r[:, i], common, refine=False))
@@ -348,38 +355,89 @@ def write_ring_csv(path, ring: Ring, readings, rotations_deg=None, currents_a=No
     return write_csv(path, cols, units=units, metadata=meta, fmt="%.12g")
 
 
-def read_ring_csv(path) -> dict:
-    """Read a ring recording: dict with ring, readings (K, n_sensors, 2), rotations_deg (K,) (zeros when
-    absent), currents_a (K, n) or None, positions_m (n, 2) or None."""
-    from .io import read_csv
+CURRENT_UNITS = {"a": 1.0, "amp": 1.0, "amps": 1.0, "ma": 1e-3, "ka": 1e3}
+ANGLE_UNITS = {"deg": 1.0, "degree": 1.0, "degrees": 1.0, "°": 1.0, "rad": 180.0 / np.pi}
+RING_FORMAT = ("comment lines '# ring_angles_deg: 0 90 180 270' and '# ring_radius_m: 0.01' "
+               "(optionally ring_axis_angles_deg, ring_bore_radius_m, positions_m: x0 y0 x1 y1 … in metres) "
+               "above a header of s0_x, s0_y, s1_x, … (each sensor's radial and tangential reading, sensors "
+               "numbered from s0 in ring_angles_deg's order), optionally i0, i1, … (reference currents), "
+               "rotation_deg (the ring's turn) and t (s); units in the header (s0_x[uT]) or a '# units:' line "
+               "(fields default to T, currents to A)")
 
-    rec = read_csv(path)
+
+def _column_scale(path, name: str, unit: str, table: dict, default: str, what: str) -> float:
+    """The factor that takes column `name` from its stated `unit` to SI; ValueError naming it otherwise."""
+    if not unit:
+        return 1.0
+    key = unit.strip().strip("[]()").lower()
+    if key in table:
+        return table[key]
+    raise ValueError(f"{path}: column {name}: unit {unit!r} is not {what} ({', '.join(sorted(table))}; none: "
+                     f"{default})")
+
+
+def read_ring_csv(path) -> dict:
+    """Read a ring recording (any table format fluxcal reads; see RING_FORMAT): dict with ring, readings
+    (K, n_sensors, 2) in tesla, rotations_deg (K,) (zeros when absent), currents_a (K, n) or None,
+    positions_m (n, 2) or None, t_s (K,) or None. Columns in other units (uT, mA, rad) are converted by
+    the units the file states."""
+    from .calibration import TESLA_PER_UNIT
+    from .io import read_recording
+    from .io.columns import unit_name
+
+    rec = read_recording(path)
     meta = rec.metadata
     if "ring_angles_deg" not in meta or "ring_radius_m" not in meta:
         raise ValueError(f"{path}: no ring_angles_deg / ring_radius_m metadata lines: not a ring recording? "
-                         "It needs comment lines such as '# ring_angles_deg: 0 90 180 270' and "
-                         "'# ring_radius_m: 0.01' before the header (`fluxcal cable simulate` writes them)")
+                         f"A ring recording has {RING_FORMAT} (`fluxcal cable simulate` writes one)")
     ring = Ring(_floats(meta["ring_angles_deg"]), float(meta["ring_radius_m"]),
                 axis_angles_deg=_floats(meta["ring_axis_angles_deg"]) if "ring_axis_angles_deg" in meta else None,
                 bore_radius_m=float(meta["ring_bore_radius_m"]) if "ring_bore_radius_m" in meta else None)
-    extra = sorted({n.split("_")[0] for n in rec.columns if re.fullmatch(r"s\d+_[xy]", n)}
-                   - {f"s{k}" for k in range(ring.n_sensors)}, key=lambda n: int(n[1:]))
+    sensors = sorted({int(n[1:].split("_")[0]) for n in rec.columns if re.fullmatch(r"s\d+_[xy]", n)})
+    extra = [f"s{k}" for k in sensors if k >= ring.n_sensors]
     if extra:
+        numbering = " (sensors are numbered from s0)" if "s0_x" not in rec.columns else ""
         raise ValueError(f"{path}: columns of sensors {', '.join(extra)} beyond the ring's {ring.n_sensors} "
-                         "(ring_angles_deg)")
+                         f"(ring_angles_deg){numbering}")
     names = [(f"s{k}_x", f"s{k}_y") for k in range(ring.n_sensors)]
     missing = [n for pair in names for n in pair if n not in rec.columns]
     if missing:
         raise ValueError(f"{path}: no column {', '.join(missing)} for the ring's {ring.n_sensors} sensors")
-    readings = np.stack([np.column_stack([rec.columns[x], rec.columns[y]]) for x, y in names], axis=1)
+    tesla = {u.lower(): v for u, v in TESLA_PER_UNIT.items()}
+
+    def field(name):
+        unit = rec.units.get(name, "")
+        return rec.columns[name] * _column_scale(path, name, unit_name(unit) if unit else "", tesla, "T",
+                                                 "a field unit")
+
+    readings = np.stack([np.column_stack([field(x), field(y)]) for x, y in names], axis=1)
     k = readings.shape[0]
-    rotations = rec.columns.get("rotation_deg", np.zeros(k))
     cur_names = sorted((n for n in rec.columns if n[0] == "i" and n[1:].isdigit()), key=lambda n: int(n[1:]))
-    currents = np.column_stack([rec.columns[n] for n in cur_names]) if cur_names else None
+    stray = [n for n in rec.columns if n not in cur_names and rec.units.get(n, "").strip("[]()").lower() in CURRENT_UNITS]
+    if stray:  # a current column under another name would be silently unused: the currents then fitted
+        raise ValueError(f"{path}: column(s) {', '.join(stray)} hold currents ({rec.units[stray[0]]}), but reference "
+                         "currents are read from columns named i0, i1, … (one per conductor): rename them")
+    currents = (np.column_stack([rec.columns[n] * _column_scale(path, n, rec.units.get(n, ""), CURRENT_UNITS, "A",
+                                                                "a current unit") for n in cur_names])
+                if cur_names else None)
+    rotations = rec.columns.get("rotation_deg", np.zeros(k)) * _column_scale(
+        path, "rotation_deg", rec.units.get("rotation_deg", ""), ANGLE_UNITS, "deg", "an angle unit")
     positions = _floats(meta["positions_m"]) if "positions_m" in meta else None
     if positions is not None:
         if positions.size % 2:
             raise ValueError(f"{path}: positions_m holds {positions.size} numbers; it needs x y pairs")
         positions = positions.reshape(-1, 2)
+    t = rec.columns.get("t")
+    used = {n for pair in names for n in pair} | set(cur_names) | {"rotation_deg", "t"}
     return {"ring": ring, "readings": readings, "rotations_deg": np.asarray(rotations, float), "currents_a": currents,
-            "positions_m": positions}
+            "positions_m": positions, "t_s": None if t is None else np.asarray(t, float),
+            "unused_columns": [n for n in rec.columns if n not in used]}
+
+
+def ring_columns_note(data: dict) -> str | None:
+    """A line for the command line when a ring recording has columns it does not use (a current named IA is
+    not a reference current: the currents would be fitted without a word)."""
+    if not data["unused_columns"]:
+        return None
+    return (f"columns not used: {', '.join(data['unused_columns'])} (reference currents are read from i0, i1, …, "
+            "the ring's turn from rotation_deg, times from t)")

@@ -412,6 +412,8 @@ def cmd_cable(args) -> int:
         return 0
     data = cable.read_ring_csv(args.file)
     ring = data["ring"]
+    if cable.ring_columns_note(data):
+        print(cable.ring_columns_note(data))
     if args.cable_command == "calibrate":
         if data["currents_a"] is None or data["positions_m"] is None:
             raise ValueError(f"{args.file}: a calibration recording needs reference currents (i0, i1, …) and "
@@ -422,6 +424,10 @@ def cmd_cable(args) -> int:
         for k in range(ring.n_sensors):
             print(f"sensor {k}: offset {cal.offsets[k, 0]:.4g} {cal.offsets[k, 1]:.4g} T, "
                   f"gain {cal.gains[k, 0]:.6f} {cal.gains[k, 1]:.6f}")
+        far = float(np.max(np.abs(np.log(cal.gains))))
+        if far > np.log(1.2):  # readings in tesla: an AMR's gain error is a few %, not tens
+            print(f"warning: gains up to ×{np.exp(far):.3g} away from 1: the readings' scale is not the ring model's — "
+                  "check ring_radius_m (metres), the positions (positions_m), the currents' and readings' units")
         if args.output:
             Path(args.output).write_text(json.dumps(cal.to_dict(), indent=2))
             print(f"wrote {args.output}")
@@ -597,9 +603,11 @@ def _diagnose_cable(args) -> int:
     from .diagnose import diagnose_cable
 
     ring = cable.read_ring_csv(args.file)
+    if cable.ring_columns_note(ring):
+        print(cable.ring_columns_note(ring))
     candidates = args.candidates.split(",") if args.candidates else None
     result = diagnose_cable(ring["readings"], ring["ring"], currents=ring["currents_a"],
-                            rotations_deg=ring["rotations_deg"], positions=ring["positions_m"],
+                            rotations_deg=ring["rotations_deg"], positions=ring["positions_m"], t=ring["t_s"],
                             calibration=args.calibration, noise_sigma=args.noise_sigma, candidates=candidates,
                             fit_currents=args.fit_currents or None, alpha=args.alpha, progress=not args.quiet,
                             max_effects=args.max_effects, source=str(args.file))
@@ -675,7 +683,8 @@ def build_parser() -> argparse.ArgumentParser:
     s.set_defaults(run=cmd_simulate)
 
     g = sub.add_parser("diagnose", help="find which unmodelled effect makes a recording depart from its model")
-    g.add_argument("file", help="CSV with mx,my,mz and whatever of t, temp, current it has")
+    g.add_argument("file", help="a recording with mx,my,mz and whatever of t, temp, current it has; with --model "
+                                "cable a ring recording (s0_x, s0_y, …, i0, …: see fluxcal.cable.RING_FORMAT)")
     g.add_argument("--model", default=None, choices=["ellipsoid", "scale", "vector", "vector_scale", "cable"],
                    help="base model (default: ellipsoid, or vector with --reference; cable: a ring CSV)")
     g.add_argument("--calibration", default=None,

@@ -327,7 +327,7 @@ def test_cli_simulate_calibrate_solve(tmp_path):
         in r.stderr
     plain = fluxcal.write_csv(tmp_path / "plain.csv", {"mx": [1.0, 2.0], "my": [1.0, 2.0], "mz": [1.0, 2.0]})
     r = run_cli("cable", "solve", plain)
-    assert r.returncode == 2 and "not a ring recording? It needs comment lines such as '# ring_angles_deg" in r.stderr
+    assert r.returncode == 2 and "not a ring recording? A ring recording has comment lines '# ring_angles_deg" in r.stderr
 
 
 def test_a_calibration_at_low_current_states_its_error_at_high_current():
@@ -364,3 +364,25 @@ def test_a_file_that_is_not_a_ring_calibration_is_named(tmp_path):
         RingCalibration.load(path)
     with pytest.raises(ValueError, match="x.json: offsets and gains must be finite"):
         RingCalibration.from_dict({"offsets": [[0.0, 0.0]], "gains": [[0.0, 1.0]]}, "x.json")
+
+
+def test_a_calibration_run_the_model_does_not_describe_points_to_the_diagnosis(tmp_path):
+    """The readings of another run than the model's fields (here shuffled): TWOSTEP's first step fails, and
+    the message says where the magnitudes came from and how to find what the model misses."""
+    ring = Ring([0, 90, 180, 270], 0.01)
+    h = calibration_fields(ring, [[-2e-3, 0.0], [2e-3, 0.0]], np.array([[5.0, -5.0], [5.0, 0.0], [0.0, 5.0]]),
+                           72.0 * np.arange(5))
+    with pytest.raises(ValueError, match=r"sensor 0: readings: the first step gives .* the ring model's .*"
+                                         r"fluxcal diagnose RUN.csv --model cable"):
+        calibrate_ring(h[np.random.default_rng(0).permutation(len(h))], h)
+
+
+def test_cli_calibrate_warns_when_the_gains_take_up_a_wrong_radius(tmp_path):
+    """A ring radius of 11 mm written for a 10 mm ring: the gains absorbed 25 %, without a word (day-one check)."""
+    src = tmp_path / "ring.csv"
+    assert run_cli("cable", "simulate", "-o", src, "--calibration").returncode == 0
+    wrong = tmp_path / "wrong.csv"
+    wrong.write_text(src.read_text().replace("# ring_radius_m: 0.01\n", "# ring_radius_m: 0.011\n"))
+    good, bad = run_cli("cable", "calibrate", src), run_cli("cable", "calibrate", wrong)
+    assert good.returncode == 0 and "warning: gains" not in good.stdout, good.stdout
+    assert bad.returncode == 0 and "warning: gains up to ×1.2" in bad.stdout and "ring_radius_m" in bad.stdout, bad.stdout

@@ -264,3 +264,103 @@ def test_an_effect_that_raises_the_current_error_is_not_accepted(tmp_path):
     if not d["accepted"]:
         assert "explains the readings to the noise" not in r.stdout
         assert "the readings still depart from the ring's model" in r.stdout
+
+
+def test_ring_files_in_other_units_and_formats_are_read_as_stated(tmp_path):
+    """A blind check wrote µT readings, mA currents and a ';' table with decimal commas: the readings were
+    taken as tesla and the currents as amperes, silently (the sensors' gains absorbed the factor)."""
+    kwargs, _ = cable_trial([], 11)
+    ring, y, cur, rot = kwargs["ring"], kwargs["readings"], kwargs["currents"], kwargs["rotations_deg"]
+    path = write_ring_csv(tmp_path / "ring.csv", ring, y, rot, cur, kwargs["positions"])
+    plain = read_ring_csv(path)
+    head, body = path.read_text().split("rotation_deg,", 1)
+    scaled = tmp_path / "scaled.csv"  # the same recording in µT, mA and radians, stated in the units line
+    rows = [line.split(",") for line in ("rotation_deg," + body).splitlines()]
+    names = rows[0]
+    factor = {n: 1e6 if n.startswith("s") else 1e3 if n.startswith("i") else np.pi / 180 for n in names}
+    units = ", ".join(f"{n}={'uT' if n.startswith('s') else 'mA' if n.startswith('i') else 'rad'}" for n in names)
+    lines = [",".join(names)] + [",".join(repr(float(v) * factor[n]) for n, v in zip(names, r)) for r in rows[1:]]
+    scaled.write_text(head.replace(head.splitlines()[1], f"# units: {units}") + "\n".join(lines) + "\n")
+    got = read_ring_csv(scaled)
+    np.testing.assert_allclose(got["readings"], plain["readings"], rtol=1e-12)
+    np.testing.assert_allclose(got["currents_a"], plain["currents_a"], rtol=1e-12)
+    np.testing.assert_allclose(got["rotations_deg"], plain["rotations_deg"], rtol=1e-12, atol=1e-9)
+    semicolon = tmp_path / "semicolon.csv"  # a European spreadsheet's export of the same file
+    text = path.read_text().splitlines()
+    semicolon.write_text("\n".join(t if t.startswith("#") else t.replace(",", ";").replace(".", ",") for t in text))
+    np.testing.assert_allclose(read_ring_csv(semicolon)["readings"], plain["readings"], rtol=1e-12)
+    bad = tmp_path / "bad.csv"
+    bad.write_text(path.read_text().replace("s0_x=T", "s0_x=furlong"))
+    with pytest.raises(ValueError, match="column s0_x: unit 'furlong' is not a field unit"):
+        read_ring_csv(bad)
+    renamed = tmp_path / "renamed.csv"  # a current named after its phase: with its unit an error, else a note
+    renamed.write_text(path.read_text().replace("i0=A", "IA=A").replace("rotation_deg,i0,", "rotation_deg,IA,"))
+    with pytest.raises(ValueError, match=r"column\(s\) IA hold currents \(A\), but reference currents are read "
+                                         "from columns named i0, i1"):
+        read_ring_csv(renamed)
+    renamed.write_text(path.read_text().replace("rotation_deg,i0,", "rotation_deg,IA,"))
+    from fluxcal.cable import ring_columns_note
+    assert "columns not used: IA (reference currents are read from i0, i1" in ring_columns_note(read_ring_csv(renamed))
+    shifted = tmp_path / "shifted.csv"
+    body = path.read_text()
+    for k in range(3, -1, -1):
+        body = body.replace(f"s{k}_", f"s{k + 1}_")
+    shifted.write_text(body)
+    with pytest.raises(ValueError, match=r"sensors s4 beyond the ring's 4 \(ring_angles_deg\) \(sensors are numbered "
+                                         r"from s0\)"):
+        read_ring_csv(shifted)
+
+
+def test_one_conductor_is_diagnosed_without_the_lay():
+    """A single core (its own return far away): a lay twists cores about each other, so helical_lay is not
+    tried (it divided by the zero pitch diameter, a traceback on every one-core ring)."""
+    rng = np.random.default_rng(12)
+    rotations = np.repeat(np.arange(0.0, 360.0, 45.0), 6)
+    currents = np.tile(np.repeat([[2.0], [5.0], [10.0]], 2, axis=0), (8, 1))
+    core = np.array([[0.5e-3, -0.8e-3]])
+    y = np.stack([RING.rotated(a).field(core, c) for a, c in zip(rotations, currents)])
+    y += rng.normal(0, 2e-8, y.shape)
+    d = diagnose_cable(y, RING, currents=currents, rotations_deg=rotations, positions=core,
+                       candidates=["helical_lay", "sensor_position_error"])
+    row = next(r for r in d.ranking if r["effect"] == "helical_lay")
+    assert row["not_applicable"].startswith("one conductor") and not row["significant"]
+    assert "(not tried: one conductor" in d.text()
+
+
+def test_a_scale_the_gains_absorb_and_an_overestimated_noise_are_caveats():
+    """A ring radius in millimetres written as metres fitted with gains ×0.001 and was 'explained to the noise'
+    (blind check); repeats that differ for a reason (a neighbour's current) inflated σ without a word."""
+    kwargs, _ = cable_trial([], 13)
+    ten_m = Ring(kwargs["ring"].angles_deg, 10.0)
+    d = diagnose_cable(**{**kwargs, "ring": ten_m, "calibration": None,
+                          "readings": kwargs["calibration"].apply(kwargs["readings"])})
+    assert any("gains had to change by a factor" in c for c in d.caveats), d.caveats
+    assert any("from the positions the recording gives" in c for c in d.caveats)
+    assert "CAVEAT: the sensors' gains" in d.text()
+    # a disturbance of ±15 σ that reverses between the two repeats (a harmonic caught at opposite phases):
+    # the repeats' spread is σ's estimate, their mean does not see it
+    rng = np.random.default_rng(0)
+    k = len(kwargs["readings"])
+    swing = np.repeat(rng.normal(0, 3e-7, (k // 2, 1, 2)), 2, axis=0) * np.tile([1.0, -1.0], k // 2)[:, None, None]
+    d = diagnose_cable(**{**kwargs, "readings": kwargs["readings"] + swing})
+    assert any("the repeated snapshots differ more than the model misses" in c for c in d.caveats), d.caveats
+    assert not diagnose_cable(**kwargs).caveats
+
+
+def test_the_worst_bin_is_the_worst_when_p_values_underflow():
+    """One sensor's gain 3 % off: every bin's p is 0, and the first bin (sensor 0) was named the worst."""
+    kwargs, _ = cable_trial([], 14)
+    y = kwargs["readings"].copy()
+    y[:, 2] *= 1.0 + np.linspace(0.0, 0.03, len(y))[:, None]  # its gain drifts 3 % over the recording
+    d = diagnose_cable(**kwargs | {"readings": y}, candidates=["z_leakage"])
+    test = next(t for t in d.where["tests"] if t["regime"] == "sensor")
+    assert "sensor 2" in test["test"], test
+
+
+def test_a_lay_whose_twist_is_reversed_is_not_a_lay():
+    """A cable end or a tilt taken for a helix fitted a negative coefficient (−34, −504): no lay makes that."""
+    assert HelicalLay.unphysical([-33.7]).startswith("the twist's field change reversed")
+    assert HelicalLay.unphysical([0.99]) is None
+    d = diagnose_cable(**cable_trial(["helical_lay"], 0)[0])
+    assert d.accepted == ["helical_lay"]
+    assert "FOUND: helical_lay (lay " in d.text() and "pitch diameters, coefficient" in d.text()

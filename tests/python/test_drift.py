@@ -241,6 +241,25 @@ def test_cli_fit_and_apply(tmp_path, foct):
     assert run.returncode == 2 and "outside every range" in run.stderr
 
 
+def test_two_holds_in_a_range_determine_a_line_not_the_quadratic_their_wander_allows():
+    """Holds at −25, 0, 25, 50 and 60 °C logged alone, each wandering ±0.3 °C: the range [0, 30] holds two,
+    whose wander let the F-test take a quadratic that missed the law by 0.07 A between them (a day-one check).
+    Orders stop one below the separate levels, as the oracle's; between the holds the line stays within the
+    law's own curvature (0.002 A)."""
+    rng = np.random.default_rng(8)
+    law = lambda T: 0.02 + 0.004 * T - 5e-5 * T ** 2 + 1e-6 * T ** 3  # noqa: E731
+    temp = np.concatenate([h + rng.uniform(-0.3, 0.3, 900) for h in (-25.0, 0.0, 25.0, 50.0, 60.0)])
+    w = law(temp) + lfilter([1.0], [1.0, -0.5, -0.2], rng.normal(0, 0.01, temp.size))
+    model = drift.fit_drift(w, temp)
+    ref, _ = oracle.fit_drift(temp, temp, w)
+    assert [g["order"] for g in model.segments] == [r["order"] for r in ref]
+    middle = next(g for g in model.segments if g["range"][0] <= 10.0 <= g["range"][1])
+    assert middle["order"] <= 1
+    between = np.linspace(0.5, 24.5, 49)
+    assert np.max(np.abs(model.evaluate(between) - law(between))) < 0.01
+    assert any("2 separate level(s)" in w for w in model.summary["warnings"])
+
+
 def test_cli_fit_on_holds_logged_alone(tmp_path):
     """A recording of the temperature holds only: `drift fit` finds the 14 gaps in t and says so."""
     s = sim.foct_zero_bias(rng=np.random.default_rng(3), logged="holds", hold_s=300.0)

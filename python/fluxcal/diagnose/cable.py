@@ -53,7 +53,7 @@ from scipy.optimize import least_squares
 from ..cable import Ring, RingCalibration
 from ..sim.cable_effects import CABLE_CANDIDATES, sensor_points, straight_unit_fields, to_axes
 from .core import (ABSORBED, HELDOUT_ALPHA, HELDOUT_FRACTION, MIN_GAIN, Diagnosis, _binned, _collapsed, _gap,
-                   _improvement_pvalue, _quantile_bins, _rivals, _whitened_lr, _whiteness)
+                   _improvement_pvalue, _quantile_bins, _rivals, _unexplained, _whitened_lr, _whiteness)
 from .report import _num, confound_lines
 
 REGIMES = ("rotation", "current", "time")
@@ -600,7 +600,8 @@ def _where(data: _Data, r_w: np.ndarray, levels) -> dict:
     tables["time"] = _binned(z, per_value(_quantile_bins(data.t, min(10, k))), None, per_value(data.t))
     tests = []
     for name, rows in tables.items():
-        worst = min(rows, key=lambda r: r["pvalue"])
+        # by p, then (p underflows to 0 for strong departures) by the χ²'s excess over its n in its own σ
+        worst = min(rows, key=lambda r: (r["pvalue"], -(r["rms_z"] ** 2 - 1.0) * np.sqrt(r["n"] / 2.0)))
         tests.append({"regime": name, "test": f"worst bin χ² ({worst['bin']}, ×{len(rows)})",
                       "statistic": worst["rms_z"] ** 2, "pvalue": min(1.0, worst["pvalue"] * len(rows))})
     if len(lv) >= 2:
@@ -670,6 +671,12 @@ def _evaluate(cls, data: _Data, state: dict, n_candidates: int, levels) -> dict:
                 V[:, new])
 
     ctx = _context(data, current["positions"], state["feature_currents"], state["model"].extra(current["positions"]))
+    why_not = cls.not_applicable(ctx)
+    if why_not:
+        return {"effect": cls.name, "regime": _regime(cls.regime, data, levels), "n_params": cls.n_params,
+                "new_dimensions": 0, "absorbed": False, "not_applicable": why_not, "score": 0.0, "score_pvalue": 1.0,
+                "lr": 0.0, "lr_pvalue": 1.0, "delta_aic": 0.0, "delta_bic": 0.0, "significant": False,
+                "heldout_gap_before": None, "heldout_gap_after": None, "note": f"not tried: {why_not}"}
     accepted = current["features"]
     rss0 = float(e @ e)
 
@@ -717,11 +724,17 @@ def _evaluate(cls, data: _Data, state: dict, n_candidates: int, levels) -> dict:
                delta_aic=-lr + 2 * dof, delta_bic=-lr + dof * np.log(n),
                coefficients=fit["coefficients"][-feats.shape[-1]:].tolist(),
                calibration_correction=_calibration_summary(fit["coefficients"], model.n_calibration))
-    row["_in_sample"] = bool(row["lr_pvalue"] * n_candidates < state["alpha"] and row["delta_bic"] < 0)
+    if "reference_lay_over_pitch_diameter" in row and row["reference_lay_over_pitch_diameter"] is not None:
+        row["lay_length_m"] = row["reference_lay_over_pitch_diameter"] * cls.pitch_diameter(fit["positions"])
+    unphysical = cls.unphysical(row["coefficients"])
+    row["_in_sample"] = bool(row["lr_pvalue"] * n_candidates < state["alpha"] and row["delta_bic"] < 0
+                             and not unphysical)
     row["significant"] = False
     row.update(heldout=regime, heldout_gap_before=None, heldout_gap_after=None, heldout_pvalue=None,
                note="not validated on held-out data: " + ("not significant in sample" if not row["_in_sample"]
                                                           else "a candidate with a lower ΔBIC was accepted"))
+    if unphysical:
+        row.update(unphysical=unphysical, note=f"not accepted: {unphysical}")
     row["_fit"], row["_model"], row["_signature"] = fit, model, signature
     return row
 
@@ -983,11 +996,40 @@ def diagnose_cable(readings, ring: Ring, currents=None, rotations_deg=None, posi
                  "final_position_error_mm": _position_error(final["positions"], data.truth),
                  "fit_currents": data.fit_currents, "calibration": calibration is not None}
     remaining["base"] = base_info
+    remaining["unexplained"] = _unexplained(where["overall"], remaining["overall"], accepted)
+    # the gains after the effects found: a strong effect (a 100 mm lay) moves the base model's gains by 37 %
+    caveats = _caveats(data, _calibration_summary(final["coefficients"], state["model"].n_calibration), base_info,
+                       noise_source, where["overall"])
     series = {"t": data.t, "rotations": data.rotations, "levels": levels, "residual_before": base["residuals"],
               "residual_after": final["residuals"]}
     return CableDiagnosis(model="cable_ring", noise_sigma=float(np.sqrt(np.mean(data.sigma ** 2))),
                           noise_source=noise_source, units="T", source=source, ranking=ranking, accepted=accepted,
-                          where=where, remaining=remaining, base=base_info, series=series)
+                          where=where, remaining=remaining, base=base_info, series=series, caveats=caveats)
+
+
+GAIN_MISMATCH = 0.2  # the base model moved a sensor's gain by more than this: the readings' scale is not the model's
+
+
+def _caveats(data: _Data, correction: dict, base: dict, noise_source: str, overall: dict) -> list:
+    """What may make the findings untrustworthy: a scale the sensors' gains had to absorb (a unit or the ring's
+    geometry wrong: a radius in mm written as metres was "explained to the noise" with gains ×0.001), conductors
+    fitted far from the positions the recording gives, and a noise σ from repeats that differ for a reason."""
+    out = []
+    gain = correction.get("max_gain_correction", 0.0)
+    if gain > GAIN_MISMATCH:
+        size = f"up to {100 * gain:.3g} %" if gain < 1 else f"a factor up to {1 + gain:.4g}"
+        out.append(f"the sensors' gains had to change by {size} to fit the ring's model: the readings' "
+                   "scale is not the model's — a unit (readings in tesla? currents in amperes?), the ring's geometry "
+                   "(ring_radius_m in metres?) or a calibration of another ring")
+    error = base.get("position_error_mm")
+    if error is not None and error > 0.25 * data.ring.bore_radius_m * 1e3:
+        out.append(f"the conductors fit {error:.3g} mm from the positions the recording gives (positions_m): the "
+                   "ring's geometry or the positions' units disagree with the readings")
+    if noise_source.startswith("from repeated") and overall["rms_z"] < 0.7:
+        out.append(f"the repeated snapshots differ more than the model misses (residual RMS {overall['rms_z']:.2f} σ): "
+                   "something changed between repeats (a neighbouring current, a harmonic, the ring moved), σ is "
+                   "overestimated and every test too lenient; give the sensors' noise σ (--noise-sigma)")
+    return out
 
 
 # ---------------------------------------------------------------- text and report
@@ -1003,12 +1045,22 @@ def _ranking_lines(d) -> list:
                    f"{r['current_error_a_after']:.3g} A ({r['current_error_pct_after']:.3g} %)")
         if r.get("position_error_mm_before") is not None:
             cur += f"; position {r['position_error_mm_before']:.3g} → {r['position_error_mm_after']:.3g} mm"
-        note = ("  (absorbed)" if r.get("absorbed") else
+        note = ("  (absorbed)" if r.get("absorbed") else f"  (not tried: {r['not_applicable']})"
+                if r.get("not_applicable") else f"  (not accepted: {r['unphysical']})" if r.get("unphysical") else
                 "  (not accepted: the current error rises held out)" if r.get("current_error_rises") else "")
         lines.append(f"{r['effect']:22s} {'YES' if r['significant'] else 'no':>7s} {r['delta_bic']:10.1f} "
                      f"{r['lr_pvalue']:9.2g} {r.get('new_dimensions', 0):4d} {str(r.get('heldout', '')):>9s} "
                      f"{_num(r.get('heldout_gap_before')):>10s} {_num(r.get('heldout_gap_after')):>10s}  {cur}{note}")
     return lines
+
+
+def _accepted_text(row) -> str:
+    """An accepted effect's name with what it found (a lay's length and coefficient)."""
+    if row.get("lay_length_m") is not None:
+        c = row.get("coefficients") or [float("nan")]
+        return (f"{row['effect']} (lay {1e3 * row['lay_length_m']:.3g} mm, {row['reference_lay_over_pitch_diameter']:.3g} "
+                f"pitch diameters, coefficient {c[0]:.3g})")
+    return row["effect"]
 
 
 def _text(d) -> str:
@@ -1035,14 +1087,22 @@ def _text(d) -> str:
     out += ["  " + line for line in _ranking_lines(d)]
     out.append("")
     if d.accepted:
-        out.append(f"FOUND: {', '.join(d.accepted)} (added in this order)")
+        out.append(f"FOUND: {', '.join(_accepted_text(r) for r in d.ranking if r['significant'])} (added in this order)")
         out += confound_lines(d)
+        left = rem.get("unexplained", {})
+        if left.get("left"):
+            out.append(f"NOT EXPLAINED: {100 * left['share']:.0f} % of the departure is left, residual RMS "
+                       f"{left['rms_over_sigma']:.2f} σ: its cause is not among the candidates' effects — a field from "
+                       "a neighbouring cable, iron near the ring, a sensor whose gain changes, a harmonic in a current; "
+                       "the effects named above may stand in for it")
     elif not any(t["pvalue"] < DEPARTS for t in rem["tests"]):
         out.append("FOUND: no significant effect — the ring's model explains the readings to the noise")
     else:  # the departures stand: saying "explained to the noise" beside an 8 σ residual would mislead
         out.append(f"FOUND: no significant effect among the candidates — the readings still depart from the ring's "
                    f"model (residual RMS {rem['overall']['rms_z']:.2f} σ, below): the cause is outside the "
-                   "candidates, or the noise σ is underestimated")
+                   "candidates, or the noise σ is " + ("underestimated" if rem["overall"]["rms_z"] >= 1 else
+                                                      "wrong (an RMS under 1 σ beside departing tests: see CAVEAT)"))
+    out += [f"CAVEAT: {c}" for c in d.caveats]
     b = d.base
     if b.get("position_error_mm") is not None:
         out.append(f"conductor positions vs the truth: {b['position_error_mm']:.3g} mm (base) → "

@@ -133,6 +133,16 @@ class CableEffect(Effect):
         return [None]
 
     @classmethod
+    def not_applicable(cls, ctx) -> str | None:
+        """Why the candidate cannot act on this cable (the report's note), or None."""
+        return None
+
+    @classmethod
+    def unphysical(cls, coefficients) -> str | None:
+        """Why fitted coefficients cannot be this effect (its physics forbids them), or None."""
+        return None
+
+    @classmethod
     def search(cls, ctx, score):
         alts = cls.alternatives(ctx)
         scores = [score(cls.features(ctx, a)) for a in alts]
@@ -278,6 +288,19 @@ class HelicalLay(CableEffect):
     @classmethod
     def alternatives(cls, ctx):
         return list(cls.LAY_RATIOS)
+
+    @classmethod
+    def not_applicable(cls, ctx) -> str | None:
+        if cls.pitch_diameter(ctx.positions) <= 0:
+            return "one conductor: a lay twists cores about each other"
+        return None
+
+    @classmethod
+    def unphysical(cls, coefficients) -> str | None:
+        # c scales the twist's change of the field, ≈ 1 once the lay is fitted: a negative c is the change
+        # reversed, which no lay makes (a cable end or a tilt taken for a helix did it in the blind checks)
+        c = float(np.ravel(coefficients)[0])
+        return None if c > 0 else f"the twist's field change reversed (coefficient {c:.3g}): no lay makes it"
 
     @classmethod
     def search(cls, ctx, score):
