@@ -244,6 +244,10 @@ void finish_statistics(PositionsResult& r, const SparseRows& J, const Eigen::Vec
   }
 }
 
+// The size of K's gains for "determined": its RMS gain per axis, ‖K‖_F/√3. The mean of |diag K| was ~0 for
+// a K that relabels axes (SAP6: +y, +x, +z) and flagged parameters known to 0.5 % of the gain.
+double gain_scale(const Eigen::Matrix3d& k) { return k.norm() / std::sqrt(3.0); }
+
 std::vector<std::string> base_names() {
   std::vector<std::string> names;
   for (int j = 0; j < 3; ++j) names.push_back(std::string("U0_") + kAxis[j]);
@@ -302,7 +306,8 @@ void check_gravity(const SamplesRef& sf, const PositionsOptions& options) {
       throw Error("specific_force: position " + std::to_string(i) + " reads |a| = " + fmt(mags(i)) + ", " +
                   fmt(100.0 * dev, 3) + " % from g = " + fmt(g) + " (tolerance " +
                   fmt(100.0 * options.gravity_tolerance, 3) +
-                  " %): the device was moving, or the accelerometer is not calibrated");
+                  " %): the device was moving, or the accelerometer is not calibrated (calibrate it from the same "
+                  "positions: calibrate_accelerometer, --calibrate-accelerometer)");
     }
   }
 }
@@ -538,8 +543,7 @@ PositionsResult fit_positions(const SamplesRef& outputs, const SamplesRef& refer
     }
   Eigen::VectorXd scales(12);
   const double out_scale = std::sqrt(Eigen::MatrixXd(outputs).squaredNorm() / static_cast<double>(n));
-  const double k_scale = r.K.diagonal().cwiseAbs().mean();
-  scales << Eigen::Vector3d::Constant(out_scale), Eigen::VectorXd::Constant(9, k_scale);
+  scales << Eigen::Vector3d::Constant(out_scale), Eigen::VectorXd::Constant(9, gain_scale(r.K));
   finish_statistics(r, J, scales, options.determined_tolerance);
   r.summary.condition_number = sv(0) / sv(3);
   fill_summary(r, "positions (linear least squares)");
@@ -854,7 +858,7 @@ PositionsResult calibrate_positions(const SamplesRef& outputs, const SamplesRef&
                                                      crs.rows.data(), crs.cols.data(), crs.values.data());
   Eigen::VectorXd scales(p);
   const double out_scale = std::sqrt(Eigen::MatrixXd(outputs).squaredNorm() / static_cast<double>(n));
-  scales << Eigen::Vector3d::Constant(out_scale), Eigen::VectorXd::Constant(9, r.K.diagonal().cwiseAbs().mean()),
+  scales << Eigen::Vector3d::Constant(out_scale), Eigen::VectorXd::Constant(9, gain_scale(r.K)),
       Eigen::VectorXd::Constant(p - 12, kPi);
   std::vector<int> local(static_cast<std::size_t>(p), -1);
   for (Eigen::Index j = 12; j < p; ++j) {

@@ -144,6 +144,9 @@ class Calibration:
     @classmethod
     def from_dict(cls, data: dict, source: str = "calibration") -> "Calibration":
         missing = [k for k in ("offset", "matrix", "field_norm") if k not in data]
+        if missing and {"offset", "K", "field_ned"} <= set(data):
+            data = _from_positions(data, source)
+            missing = []
         if missing and {"offsets", "gains"} <= set(data):
             raise ValueError(f"{source}: a ring calibration (`fluxcal cable calibrate`), not a magnetometer "
                              "calibration (`fluxcal calibrate -o`)")
@@ -195,3 +198,22 @@ def _jsonable(value):
     if isinstance(value, np.generic):
         return value.item()
     return value
+
+
+def _from_positions(data: dict, source: str) -> dict:
+    """A multi-position result (`fluxcal positions -o`: U = U0 + K H) as a calibration h = A (m − b): b = U0,
+    A = K⁻¹, |h| the reference field's; the correction firmware needs (export-c) and apply uses."""
+    try:
+        k = np.asarray(data["K"], dtype=float)
+        matrix = np.linalg.inv(k)
+        norm = float(np.linalg.norm(np.asarray(data["field_ned"], dtype=float)))
+    except (TypeError, ValueError, np.linalg.LinAlgError) as exc:
+        raise ValueError(f"{source}: a multi-position result whose K cannot be inverted ({exc})") from None
+    field_unit = data.get("units_of", {}).get("field_ned", "")
+    return {"offset": data["offset"], "matrix": matrix.tolist(), "field_norm": norm, "units": data.get("units", ""),
+            "model": "positions: h = K⁻¹ (U − U0)", "field_units": field_unit if field_unit in TESLA_PER_UNIT else "",
+            "summary": {"identifiable": not data.get("warnings") or
+                        not any("poorly determined" in w for w in data["warnings"]),
+                        "message": data.get("message", "")},
+            "metadata": {"source": data.get("source", source), "frame": data.get("frame", "")}}
+

@@ -763,7 +763,10 @@ def build_parser() -> argparse.ArgumentParser:
                                 "as calibrate finds them) and optionally a column position (rows averaged per "
                                 "position)")
     q.add_argument("--columns", default=None, help=columns_help)
-    q.add_argument("--preset", choices=["twelve"], default=None, help="nominal attitudes (seed 002's twelve)")
+    q.add_argument("--preset", choices=["twelve"], default=None,
+                   help="nominal attitudes: twelve = where the body axes x, y, z point in positions 1–12 (frame nue: "
+                        "x forward, y up, z right; N/S/E/W/U/D): N-U-E, S-U-W, S-D-E, N-D-W, U-S-E, U-N-W, D-N-E, "
+                        "D-S-W, N-W-U, S-E-U, N-E-D, S-W-D (the recording's rows in this order, or a position column)")
     q.add_argument("--frame", choices=["ned", "nue"], default="ned",
                    help="ned: body forward-right-down; nue: seed 002 forward-up-right (default ned)")
     q.add_argument("--field", help="local field N,E,D (field units)")

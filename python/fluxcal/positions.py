@@ -530,18 +530,24 @@ def run_cli(args, out=None) -> int:
     report = res.verify(mag, acc, preset=args.preset, acc_measures=args.acc_measures) if args.preset else \
         res.verify(mag, acc, acc_measures=args.acc_measures)
     doc = res.to_dict()
+    field_name = "nT" if args.lat is not None else "the reference field's unit"  # IGRF gives nT
+    doc["units_of"] = {"offset": res.units or "the outputs' unit", "K": f"{res.units or 'output'} per {field_name}",
+                       "field_ned": field_name, "standard_errors": "each parameter's own (U0, K as above; yaw_* and "
+                       "inclination in radians)", "yaw_deg": "degrees"}
     doc.update(source=str(args.file), positions=int(len(mag)), preset=args.preset,
                verification={k: v for k, v in report.items() if not isinstance(v, list) or k == "field_error_rms"})
     if acc_cal is not None:
         doc["accelerometer"] = {"offset": acc_cal.offset.tolist(), "matrix": acc_cal.matrix.tolist(),
                                 "tilt_error_deg": acc_cal.tilt_error_deg}
+    if args.output:  # before the report: a reader that stops early (| head) must not cost the result
+        Path(args.output).write_text(json.dumps(doc, indent=2))
     with np.printoptions(precision=8, suppress=True):
         print(res.summary["message"], file=out)
         print(f"  U0 = {res.offset} {res.units}".rstrip(), file=out)
-        print(f"  K  = {res.K.tolist()}", file=out)
+        print(f"  K  = {res.K.tolist()} ({doc['units_of']['K']})", file=out)
         print(f"  field (N, E, D) = {res.field_ned}  inclination {inclination_of(res.field_ned):.3f}°", file=out)
         v = doc["verification"]
-        field_unit = " nT" if args.lat is not None else " (the reference field's unit)"  # IGRF gives nT
+        field_unit = f" {field_name}" if args.lat is not None else f" ({field_name})"
         print(f"  in-sample: |H| error RMS {v['magnitude_error_rms']:.4g}{field_unit}, dip error RMS "
               f"{v['dip_error_deg_rms']:.4g}°"
               + (f", heading error RMS {v['heading_error_rms_deg']:.4g}°" if "heading_error_rms_deg" in v else ""),
@@ -549,6 +555,5 @@ def run_cli(args, out=None) -> int:
     for w in res.summary["warnings"]:
         print(f"warning: {w}", file=out)
     if args.output:
-        Path(args.output).write_text(json.dumps(doc, indent=2))
         print(f"wrote {args.output}", file=out)
     return 0

@@ -6,6 +6,7 @@ import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
 
+import fluxcal
 import fluxcal.positions as fp
 from fluxcal import sim
 from fluxcal.oracle import positions as oracle
@@ -380,6 +381,17 @@ def test_cli_positions_igrf_unknown_headings(tmp_path):
     assert np.abs(np.array(d["offset"]) - U0).max() / 0.0895 < 10
     v = d["verification"]
     assert v["magnitude_error_rms"] < 15 and v["dip_error_deg_rms"] < 0.05
+    assert d["units_of"]["K"] == "output per nT" and d["units_of"]["field_ned"] == "nT"
+    # the result is a correction h = K⁻¹ (U − U0): export-c writes it for firmware, apply corrects a recording
+    header = tmp_path / "pos.h"
+    proc = run_cli("export-c", out, "-o", header)
+    assert proc.returncode == 0 and header.is_file(), proc.stderr
+    corrected = tmp_path / "corrected.csv"
+    proc = run_cli("apply", out, path, "-o", corrected)
+    assert proc.returncode == 0, proc.stderr
+    h = np.column_stack([fluxcal.read_csv(corrected).columns[k] for k in ("hx", "hy", "hz")])
+    np.testing.assert_allclose(h, np.linalg.solve(np.array(d["K"]), (s.outputs - d["offset"]).T).T, rtol=1e-6)
+    assert np.abs(np.linalg.norm(h, axis=1) / np.linalg.norm(field) - 1).max() < 2e-3
     bad_date = run_cli("positions", path, "--lat", "48.1", "--lon", "11.6", "--date", "1850-01-01", "-o", out)
     assert bad_date.returncode == 2 and "outside the IGRF model" in bad_date.stderr
     with pytest.raises(ValueError, match="outside the IGRF model"):  # ppigrf would hold the 2030 field silently
@@ -393,6 +405,10 @@ def test_sap6_raw_axes_are_named_as_a_relabelling(real_data):
     assert r.returncode == 0, r.stderr
     assert "K is an axis relabelling: the magnetometer's x, y, z read the field's +y, +x, +z in the accelerometer's " \
            "axes (a mirror: the two frames differ in handedness)" in r.stdout, r.stdout
+    # "determined" against K's RMS gain, not the mean of its diagonal (≈ 0 for a relabelling: 8 parameters,
+    # the relabelling's own K_xy and K_yx among them, known to 0.5 % of the gain were flagged poorly determined)
+    flagged = next((line for line in r.stdout.splitlines() if "poorly determined" in line), "")
+    assert not any(f"K_{a}" in flagged for a in ("xx", "xy", "yx", "yy", "zz")), flagged
     shots = json.loads((real_data / "sap6" / "BB.json").read_text())
     cfg = json.loads((real_data / "sap6" / "BB.cfg").read_text())["calib"]
     mag = _fix_axes(np.array(shots["mag"], float), cfg["mag"]["axes"])
