@@ -106,6 +106,11 @@ class Ring:
         return (f"Ring(angles_deg={self.angles_deg.tolist()}, radius_m={self.radius_m}, "
                 f"bore_radius_m={self.bore_radius_m})")
 
+    def subset(self, keep) -> "Ring":
+        """The ring of the sensors `keep` (a boolean mask or indices) only: a dead sensor left out."""
+        keep = np.arange(self.n_sensors)[keep]
+        return Ring(self.angles_deg[keep], self.radius_m, self.axis_angles_deg[keep], self.bore_radius_m)
+
     def rotated(self, angle_deg: float) -> "Ring":
         """The ring turned by `angle_deg` counter-clockwise about the cable (sensors and axes together)."""
         return Ring(self.angles_deg + angle_deg, self.radius_m, self.axis_angles_deg, self.bore_radius_m)
@@ -228,6 +233,14 @@ class RingCalibration:
         x = np.stack([h, np.ones_like(h)], axis=-1)  # [h, 1] per reading, sensor, axis
         own = np.einsum("nsai,saij,nsaj->nsa", x, self.covariance, x) / self.gains ** 2
         return float(np.sqrt(np.mean((self.residual_sigma / self.gains) ** 2 + own)))
+
+    def subset(self, keep) -> "RingCalibration":
+        """The calibration of the sensors `keep` (a boolean mask or indices) only."""
+        keep = np.arange(self.offsets.shape[0])[keep]
+        stats = {} if self.residual_sigma is None or self.covariance is None else {
+            "residual_sigma": self.residual_sigma[keep], "covariance": self.covariance[keep]}
+        return RingCalibration(self.offsets[keep], self.gains[keep], self.method,
+                               [self.sensors[k] for k in keep] if self.sensors else [], **stats)
 
     def to_dict(self) -> dict:
         d = {"method": self.method, "offsets": self.offsets.tolist(), "gains": self.gains.tolist()}

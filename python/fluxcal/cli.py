@@ -432,23 +432,77 @@ def cmd_cable(args) -> int:
             Path(args.output).write_text(json.dumps(cal.to_dict(), indent=2))
             print(f"wrote {args.output}")
         return 0
-    raw, ring_cal = data["readings"], None
-    if args.calibration:
-        ring_cal = cable.RingCalibration.load(args.calibration)
-    for k, (snap, rot) in enumerate(zip(raw, data["rotations_deg"])):
-        settings = {}
-        if ring_cal is not None:
-            # the solver's σ: the calibration's scatter and what its own gains and offsets leave at these fields
-            sigma = ring_cal.field_sigma(snap)
-            settings = {} if sigma is None else {"noise_sigma": sigma}
-            snap = ring_cal.apply(snap)
-        sol = ring.rotated(rot).solve(snap, n_conductors=args.conductors, zero_sum_currents=args.zero_sum_currents,
-                                      **settings)
-        where = "; ".join(f"({x * 1e3:.4f}, {y * 1e3:.4f}) mm {i:.5g} A" for (x, y), i in zip(sol.positions, sol.currents))
-        flag = ("well conditioned" if sol.well_conditioned else "ILL-CONDITIONED") + \
-            ("" if sol.fits_model else f", MISFIT (residual above 5 × σ {sol.noise_sigma:.3g} T)")
-        print(f"snapshot {k}: {where}; residual {sol.summary['residual_rms']:.3g} T (σ {sol.noise_sigma:.3g} T); {flag}")
+    raw, rotations = data["readings"], data["rotations_deg"]
+    ring_cal = cable.RingCalibration.load(args.calibration) if args.calibration else None
+    if ring_cal is not None and ring_cal.offsets.shape[0] != ring.n_sensors:
+        raise ValueError(f"{args.calibration}: a calibration of {ring_cal.offsets.shape[0]} sensors, the ring has "
+                         f"{ring.n_sensors}")
+    if args.joint:  # the conductors do not move: every snapshot at one rotation shares their positions
+        groups = [np.nonzero(rotations == r)[0] for r in dict.fromkeys(rotations.tolist())]
+    else:
+        groups = [np.array([k]) for k in range(len(raw))]
+    solutions = []
+    for rows in groups:
+        sol = _solve_ring_snapshots(ring, ring_cal, raw[rows], float(rotations[rows[0]]), rows, args)
+        solutions.append(sol)
+    if args.output:
+        Path(args.output).write_text(json.dumps({"source": str(args.file), "joint": bool(args.joint),
+                                                 "solutions": solutions}, indent=2))
+        print(f"wrote {args.output}")
     return 0
+
+
+def _solve_ring_snapshots(ring, ring_cal, snaps, rotation: float, rows, args) -> dict:
+    """`cable solve` of snapshots `rows` (one, or those sharing a rotation with --joint): sensors with a NaN
+    left out (a dead sensor: the ring of the others), the calibration's σ for the solver, and a line per
+    snapshot with positions, currents and their standard errors. Returns the solution as a JSON-ready dict."""
+    from . import cable
+
+    live = np.isfinite(snaps).all(axis=(0, 2))
+    where = f"snapshot{'s' if len(rows) > 1 else ''} {', '.join(map(str, rows)) if len(rows) <= 6 else f'{rows[0]}–{rows[-1]}'}"
+    if not live.all():
+        print(f"{where}: sensor(s) {', '.join(map(str, np.nonzero(~live)[0]))} not finite (dead?): solved with the "
+              f"other {int(live.sum())}")
+    sub = ring.subset(live)
+    snaps = snaps[:, live]
+    settings = {}
+    if ring_cal is not None:
+        cal = ring_cal.subset(live)
+        # the solver's σ: the calibration's scatter and what its own gains and offsets leave at these fields
+        sigma = cal.field_sigma(snaps)
+        settings = {} if sigma is None else {"noise_sigma": sigma}
+        snaps = cal.apply(snaps)
+    n = args.conductors
+    unknowns = 2 * n + len(rows) * (n - bool(args.zero_sum_currents))
+    if snaps.size == unknowns:
+        print(f"{where}: {snaps.size} readings for {unknowns} unknowns: the fit is exact and cannot show a misfit")
+    sol = sub.rotated(rotation).solve(snaps if len(rows) > 1 else snaps[0], n_conductors=n,
+                                      zero_sum_currents=args.zero_sum_currents, **settings)
+    currents = np.atleast_2d(sol.currents)
+    se = np.where(np.isfinite(sol.standard_errors), sol.standard_errors, np.nan)
+    pos_se = se[:2 * n].reshape(n, 2)
+    cur_se = se[2 * n:].reshape(len(rows), n)  # with zero-sum currents the last one's is derived, still there
+    flag = ("well conditioned" if sol.well_conditioned else "ILL-CONDITIONED") + \
+        ("" if sol.fits_model else f", MISFIT (residual above 5 × σ {sol.noise_sigma:.3g} T)")
+    at = "; ".join(f"({x * 1e3:.4f} ± {sx * 1e3:.2g}, {y * 1e3:.4f} ± {sy * 1e3:.2g}) mm"
+                   for (x, y), (sx, sy) in zip(sol.positions, pos_se))
+    tail = f"residual {sol.summary['residual_rms']:.3g} T (σ {sol.noise_sigma:.3g} T); {flag}"
+    if len(rows) > 1:
+        print(f"{where} (joint, rotation {rotation:g}°): conductors at {at}; {tail}")
+    for k, cur, err in zip(rows, currents, cur_se):
+        amps = ", ".join(f"{i:.5g} ± {e:.2g} A" for i, e in zip(cur, err))
+        print(f"snapshot {k}: " + (f"{amps}" if len(rows) > 1 else f"{at}; {amps}; {tail}"))
+    for w in sol.summary.get("warnings", []):
+        print(f"warning: {where}: {w}")
+    return {"snapshots": [int(k) for k in rows], "rotation_deg": rotation, "sensors_used": np.nonzero(live)[0].tolist(),
+            "positions_m": sol.positions.tolist(), "position_sigma_m": _jsonable(pos_se),
+            "currents_a": currents.tolist(), "current_sigma_a": _jsonable(cur_se),
+            "residual_rms_t": sol.summary["residual_rms"], "noise_sigma_t": sol.noise_sigma,
+            "well_conditioned": sol.well_conditioned, "fits_model": sol.fits_model}
+
+
+def _jsonable(a) -> list:
+    return [[None if not np.isfinite(v) else float(v) for v in row] for row in np.atleast_2d(a)]
 
 
 def _temperatures(rec, column: str | None, outside_column: str, file) -> tuple:
@@ -735,6 +789,11 @@ def build_parser() -> argparse.ArgumentParser:
     kv.add_argument("--zero-sum-currents", action="store_true",
                     help="the currents sum to zero (go and return, a balanced three-phase load): one unknown "
                          "fewer per snapshot")
+    kv.add_argument("--joint", action="store_true",
+                    help="solve the snapshots at each rotation together: the conductors' positions shared, the "
+                         "currents per snapshot (AC waveforms; three or more conductors need it)")
+    kv.add_argument("-o", "--output", default=None, help="write the solutions (positions, currents, standard "
+                                                        "errors, flags) as JSON")
     k.set_defaults(run=cmd_cable)
 
     x = sub.add_parser("export-c", help="write a calibration as a C header for firmware (float and Q-format), "

@@ -1,7 +1,9 @@
 """Cable current measurement (fluxcal.cable): forward model against magpylib and the NumPy oracle,
 inverse solver against simulation truth and the SciPy oracle, ill-conditioning, ring calibration and the
 paper's current sweep, bad input."""
+import json
 import itertools
+import re
 
 import numpy as np
 import pytest
@@ -310,7 +312,7 @@ def test_cli_simulate_calibrate_solve(tmp_path):
     lines = [ln for ln in r.stdout.splitlines() if ln.startswith("snapshot")]
     assert len(lines) == 2 and all("well conditioned" in ln for ln in lines), r.stdout
     # the calibrated instrument measures the simulated ±5 A to 1 %
-    amps = [float(w) for ln in lines for w, unit in zip(ln.split(), ln.split()[1:]) if unit.startswith("A")]
+    amps = [float(a) for ln in lines for a in re.findall(r"(-?[\d.]+) ± [\d.e+-]+ A", ln)]
     assert len(amps) == 4 and np.allclose(np.abs(amps), 5.0, rtol=0.01), amps
     r = run_cli("cable", "solve", tmp_path / "missing.csv")
     assert r.returncode == 2 and "error" in r.stderr
@@ -318,8 +320,8 @@ def test_cli_simulate_calibrate_solve(tmp_path):
     # "too few sensors" error names)
     r = run_cli("cable", "solve", meas, "--calibration", cal_json, "--zero-sum-currents")
     assert r.returncode == 0, r.stderr
-    zs = [float(w) for ln in r.stdout.splitlines() if ln.startswith("snapshot")
-          for w, unit in zip(ln.split(), ln.split()[1:]) if unit.startswith("A")]
+    zs = [float(a) for ln in r.stdout.splitlines() if ln.startswith("snapshot")
+          for a in re.findall(r"(-?[\d.]+) ± [\d.e+-]+ A", ln)]
     assert len(zs) == 4 and np.allclose(np.abs(zs), 5.0, rtol=0.01) and np.allclose(zs[0], -zs[1]), zs
     # the wrong files say what they are not
     r = run_cli("export-c", cal_json, "-o", tmp_path / "x.h")
@@ -386,3 +388,28 @@ def test_cli_calibrate_warns_when_the_gains_take_up_a_wrong_radius(tmp_path):
     good, bad = run_cli("cable", "calibrate", src), run_cli("cable", "calibrate", wrong)
     assert good.returncode == 0 and "warning: gains" not in good.stdout, good.stdout
     assert bad.returncode == 0 and "warning: gains up to ×1.2" in bad.stdout and "ring_radius_m" in bad.stdout, bad.stdout
+
+
+def test_cli_solve_joint_snapshots_and_a_dead_sensor(tmp_path):
+    """Three cores with AC currents on an 8-sensor ring: one snapshot cannot place them, the snapshots
+    together (--joint) can; a sensor reading NaN is left out and said so; -o writes the solutions."""
+    ring = Ring(np.arange(0.0, 360.0, 45.0), 0.01)
+    cores = np.array([[-1.7e-3, -1.0e-3], [0.0, 2.0e-3], [1.7e-3, -1.0e-3]])
+    phasors = 10.0 * np.exp(-2j * np.pi * np.arange(3) / 3) * np.array([1.0, 0.8, 1.1])
+    currents = ac_currents(phasors, np.linspace(0.0, 0.02, 20, endpoint=False))
+    y = ring.field(cores, currents) + np.random.default_rng(3).normal(0, 1e-8, (20, 8, 2))
+    path = fluxcal.cable.write_ring_csv(tmp_path / "ac.csv", ring, y)
+    out = tmp_path / "sol.json"
+    r = run_cli("cable", "solve", path, "--conductors", "3", "--joint", "-o", out)
+    assert r.returncode == 0 and "snapshots 0–19 (joint, rotation 0°)" in r.stdout, r.stdout + r.stderr
+    sol = json.loads(out.read_text())["solutions"]
+    assert len(sol) == 1 and sol[0]["fits_model"] and sol[0]["well_conditioned"]
+    np.testing.assert_allclose(np.array(sol[0]["currents_a"]), currents, atol=0.02)
+    assert np.all(np.array(sol[0]["current_sigma_a"]) < 0.01)
+    y[:, 5] = np.nan
+    dead = fluxcal.cable.write_ring_csv(tmp_path / "dead.csv", ring, y)
+    r = run_cli("cable", "solve", dead, "--conductors", "3", "--joint", "-o", out)
+    assert r.returncode == 0 and "sensor(s) 5 not finite (dead?): solved with the other 7" in r.stdout, r.stdout + r.stderr
+    sol = json.loads(out.read_text())["solutions"][0]
+    assert sol["sensors_used"] == [0, 1, 2, 3, 4, 6, 7]
+    np.testing.assert_allclose(np.array(sol["currents_a"]), currents, atol=0.03)
