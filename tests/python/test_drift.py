@@ -260,6 +260,22 @@ def test_two_holds_in_a_range_determine_a_line_not_the_quadratic_their_wander_al
     assert any("2 separate level(s)" in w for w in model.summary["warnings"])
 
 
+def test_a_later_log_a_little_beyond_the_outer_edges_is_compensated(foct):
+    """The outer edges are the fit's coldest and hottest samples; the same hold in a later log reads a little
+    beyond them half the time (a day-one check: 0.007 °C hotter was refused). Within 1 % of the span the edge
+    range's polynomial is evaluated; further out it is refused (or NaN) as before."""
+    c = foct.columns
+    model = drift.fit_drift(c["zero_bias"], c["temp"])
+    lo, hi = model.segments[0]["range"][0], model.segments[-1]["range"][1]
+    span = hi - lo
+    near = np.array([lo - 0.005 * span, hi + 0.005 * span])
+    seg = model.segments[-1]
+    np.testing.assert_allclose(model.evaluate(near)[1], np.polyval(seg["coefficients"][::-1], near[1]), rtol=1e-9)
+    with pytest.raises(ValueError, match="outside every range"):
+        model.evaluate([hi + 0.02 * span])
+    assert np.isnan(model.evaluate([hi + 0.02 * span], outside="nan")[0])
+
+
 def test_cli_fit_on_holds_logged_alone(tmp_path):
     """A recording of the temperature holds only: `drift fit` finds the 14 gaps in t and says so."""
     s = sim.foct_zero_bias(rng=np.random.default_rng(3), logged="holds", hold_s=300.0)
