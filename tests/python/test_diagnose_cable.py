@@ -238,6 +238,7 @@ def test_cable_rivals_are_reported():
     d.ranking[0]["confounded_with"] = [{"effect": "z_leakage", "regime": d.ranking[0]["regime"],
                                         "delta_bic_difference": 4.0, "signature_correlation": 0.9}]
     assert d.confounded and "CANNOT TELL APART: helical_lay and z_leakage" in d.text()
+    assert "the current drawn near the sensor" not in d.text()  # the magnetometer's words, not a ring's
 
 
 def test_an_effect_that_raises_the_current_error_is_not_accepted(tmp_path):

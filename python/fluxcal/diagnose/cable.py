@@ -57,6 +57,8 @@ from .core import (ABSORBED, HELDOUT_ALPHA, HELDOUT_FRACTION, MIN_GAIN, Diagnosi
 from .report import _num, confound_lines
 
 REGIMES = ("rotation", "current", "time")
+CABLE_REGIME_WORDS = {"rotation": "the ring's turn about the cable", "current": "the cable's current",
+                      "time": "the elapsed time"}
 PROFILE_GAIN = 1000.0  # χ² a candidate's best alternative removes at fixed positions above which it is profiled
 DEPARTS = 0.01  # a regime test of the residuals below this p is marked "departs" in the report
 
@@ -1088,7 +1090,9 @@ def _text(d) -> str:
     out.append("")
     if d.accepted:
         out.append(f"FOUND: {', '.join(_accepted_text(r) for r in d.ranking if r['significant'])} (added in this order)")
-        out += confound_lines(d)
+        out += confound_lines(d, CABLE_REGIME_WORDS)
+        if d.confounded and len(np.unique(np.mod(d.series["rotations"], 360.0))) == 1:
+            out.append("  The ring never turned: snapshots with the ring turned about the cable would separate them.")
         left = rem.get("unexplained", {})
         if left.get("left"):
             out.append(f"NOT EXPLAINED: {100 * left['share']:.0f} % of the departure is left, residual RMS "

@@ -56,9 +56,10 @@ REGIME_WORDS = {"orientation": "the orientation", "temperature": "the temperatur
 FOLLOWS = 0.9  # |r(T, t)| from which "the temperature follows time" is the explanation worth printing
 
 
-def confound_lines(d) -> list:
+def confound_lines(d, words=None) -> list:
     """One paragraph per accepted effect that the recording cannot tell apart from a rival, with what
-    would separate them."""
+    would separate them. words: what each regime is in this recording (default REGIME_WORDS)."""
+    words_of = words or REGIME_WORDS
     lines = []
     regime = {r["effect"]: r["regime"] for r in d.ranking}
     for name, rivals in d.confounded.items():
@@ -71,10 +72,10 @@ def confound_lines(d) -> list:
                 lines.append(f"  The temperature follows time here (r = {corr:.3f}): let it rise and fall, or hold "
                              "it steady, in a recording that separates them.")
             elif r["regime"] != regime[name]:
-                words = [REGIME_WORDS.get(x, x) for x in (regime[name], r["regime"])]
-                lines.append(f"  A recording in which {words[0]} and {words[1]} vary independently would separate them.")
+                both = [words_of.get(x, x) for x in (regime[name], r["regime"])]
+                lines.append(f"  A recording in which {both[0]} and {both[1]} vary independently would separate them.")
             else:
-                lines.append(f"  Both act through {REGIME_WORDS.get(r['regime'], r['regime'])}; this recording's "
+                lines.append(f"  Both act through {words_of.get(r['regime'], r['regime'])}; this recording's "
                              "range of it does not separate them.")
     return lines
 
