@@ -365,3 +365,28 @@ def test_a_lay_whose_twist_is_reversed_is_not_a_lay():
     d = diagnose_cable(**cable_trial(["helical_lay"], 0)[0])
     assert d.accepted == ["helical_lay"]
     assert "FOUND: helical_lay (lay " in d.text() and "pitch diameters, coefficient" in d.text()
+
+
+def test_a_tilted_cable_exact_field_and_its_second_order_candidate():
+    """A straight core tilted by τ: the exact in-plane field against a long straight segment sum along the tilted
+    direction, and the candidate's two columns (c₁, c₂) = τ²/2 (cos 2ψ, sin 2ψ) against the exact change."""
+    from fluxcal.sim.cable_effects import CableTilt
+    tilt = CableTilt(np.radians(4.0), 30.0)
+    pts, axes = sensor_points(RING, 20.0)
+    t = np.tan(tilt.tilt_rad) * np.array([np.cos(np.radians(30.0)), np.sin(np.radians(30.0)), 0.0])
+    exact = tilt.unit_fields(pts, POSITIONS)
+    xyz = np.column_stack([pts.real, pts.imag, np.zeros(pts.size)])
+    for j, p in enumerate(POSITIONS):  # a 20 km segment through the core's crossing point, along (t, 1)
+        d = (t + [0.0, 0.0, 1.0]) / np.linalg.norm(t + [0.0, 0.0, 1.0])
+        start, end = np.array([*p, 0.0]) - 1e4 * d, np.array([*p, 0.0]) + 1e4 * d
+        b = segment_field(xyz, start[None], end[None], np.ones(1))
+        np.testing.assert_allclose(b[:, 0] + 1j * b[:, 1], exact[:, j], rtol=1e-8)
+    ctx, rots = _context([[5.0, -5.0]])
+    change = np.stack([to_axes(tilt.unit_fields(sensor_points(RING, r)[0], POSITIONS) @ [5.0, -5.0],
+                               sensor_points(RING, r)[1]) for r in rots])
+    change -= np.stack([to_axes(straight_unit_fields(sensor_points(RING, r)[0], POSITIONS) @ [5.0, -5.0],
+                                sensor_points(RING, r)[1]) for r in rots])
+    c = np.tan(tilt.tilt_rad) ** 2 / 2.0 * np.array([np.cos(np.radians(60.0)), np.sin(np.radians(60.0))])
+    first = CableTilt.features(ctx) @ c
+    assert np.abs(first - change).max() < 0.02 * np.abs(change).max()
+    assert CableTilt.interpret(c)["tilt_deg"] == pytest.approx(np.degrees(np.tan(tilt.tilt_rad)), rel=1e-9)

@@ -24,7 +24,7 @@ from consecutive repeated snapshots, which are then averaged).
    time, with a χ² test per bin (worst bin, Bonferroni), a regression of z² on the current and of z on
    time, and a whiteness test over time.
 2. Which: every candidate of `fluxcal.sim.cable_effects.CABLE_CANDIDATES` — helical_lay, finite_length,
-   sensor_position_error, z_leakage — gets the statistics of `fluxcal.diagnose.core`: a score test at the
+   sensor_position_error, cable_tilt, z_leakage — gets the statistics of `fluxcal.diagnose.core`: a score test at the
    current fit, the check whether the model's own parameters absorb it (the part of its columns outside
    their span — positions, currents, the calibration's gains and offsets: `ABSORBED`), a refit with its
    coefficients (the features recomputed at every trial position; a non-linear parameter — the lay
@@ -728,6 +728,7 @@ def _evaluate(cls, data: _Data, state: dict, n_candidates: int, levels) -> dict:
                calibration_correction=_calibration_summary(fit["coefficients"], model.n_calibration))
     if "reference_lay_over_pitch_diameter" in row and row["reference_lay_over_pitch_diameter"] is not None:
         row["lay_length_m"] = row["reference_lay_over_pitch_diameter"] * cls.pitch_diameter(fit["positions"])
+    row.update(cls.interpret(row["coefficients"]))
     unphysical = cls.unphysical(row["coefficients"])
     row["_in_sample"] = bool(row["lr_pvalue"] * n_candidates < state["alpha"] and row["delta_bic"] < 0
                              and not unphysical)
@@ -1062,6 +1063,8 @@ def _accepted_text(row) -> str:
         c = row.get("coefficients") or [float("nan")]
         return (f"{row['effect']} (lay {1e3 * row['lay_length_m']:.3g} mm, {row['reference_lay_over_pitch_diameter']:.3g} "
                 f"pitch diameters, coefficient {c[0]:.3g})")
+    if row.get("tilt_deg") is not None:
+        return f"{row['effect']} ({row['tilt_deg']:.2g}° towards {row['tilt_direction_deg']:.0f}° in the cable frame)"
     return row["effect"]
 
 
