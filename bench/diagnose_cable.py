@@ -24,6 +24,7 @@ MAGNITUDES = {
     "helical_lay": "L = 10–40 × pitch diameter (40–160 mm)",
     "finite_length": "ℓ 0.1–0.25 m each side, return 0.15–0.3 m away",
     "sensor_position_error": "±0.3–0.7°, ±0.1–0.2 mm, axis ±0.5–1.5°",
+    "cable_tilt": "tilt 2–5°, any direction",
     "z_leakage": "k_z ±1–2 %, tilt 2–4°",
 }
 PAIRS = [("helical_lay", "z_leakage"), ("sensor_position_error", "finite_length"),

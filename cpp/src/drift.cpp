@@ -229,6 +229,15 @@ DriftModel fit_drift(const SeriesRef& select, const SeriesRef& x, const SeriesRe
       xs[s][j] = x[members[s][j]];
       ws[s][j] = w[members[s][j]];
     }
+    double coldest = select[members[s].front()], hottest = coldest;
+    for (const Eigen::Index i : members[s]) {
+      coldest = std::min(coldest, select[i]);
+      hottest = std::max(hottest, select[i]);
+    }
+    if (hottest - coldest < 0.5 * (edges[s + 1] - edges[s]))  // holds at one end of a range: the rest is a guess
+      notes.push_back("temperature range " + range_name(edges[s], edges[s + 1]) + ": its samples span only " +
+                      range_name(coldest, hottest) + ", so the polynomial is extrapolated over the rest of the "
+                      "range; record across it, or move the breakpoint (--breakpoints)");
     std::vector<double> v(xs[s].data(), xs[s].data() + n);
     std::sort(v.begin(), v.end());
     const int distinct = static_cast<int>(std::unique(v.begin(), v.end()) - v.begin());

@@ -258,6 +258,9 @@ def test_two_holds_in_a_range_determine_a_line_not_the_quadratic_their_wander_al
     between = np.linspace(0.5, 24.5, 49)
     assert np.max(np.abs(model.evaluate(between) - law(between))) < 0.01
     assert any("2 separate level(s)" in w for w in model.summary["warnings"])
+    # [30, 60] holds data at 50 and 60 only: the line from 50 down to 30 is a guess, and the fit says so
+    assert any(w.startswith("temperature range [30, ") and "samples span only [49." in w and "extrapolated" in w
+               for w in model.summary["warnings"]), model.summary["warnings"]
 
 
 def test_a_later_log_a_little_beyond_the_outer_edges_is_compensated(foct):
