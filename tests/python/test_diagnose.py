@@ -254,6 +254,27 @@ def test_an_eddy_current_is_not_taken_for_a_time_offset():
         assert d.accepted == ["eddy_current"], d.accepted
 
 
+def test_a_long_delay_in_a_real_flight_is_a_delay_not_eddy_currents(real_data):
+    """A blind check delayed the airborne readings by 150 ms against their IGRF/attitude reference: eddy_current
+    took it (τ 171–191 ms on all three axes) and time_offset was then absorbed. The same lag on every axis is a
+    delay; measured against the untouched slice's own."""
+    rec = fluxcal.read_recording(real_data / "airborne_flt1002_02.tsv")
+    rows = slice(2000, 6000)
+    m, ref, t = rec.samples()[rows], rec.reference_field()[rows], rec.time()[rows]
+    late = np.column_stack([np.interp(t - 0.15, t, m[:, k]) for k in range(3)])[20:]
+    candidates = ["time_offset", "eddy_current"]
+    own = diagnose(m[20:], reference=ref[20:], t=t[20:], model="vector", candidates=["time_offset"])  # its own lag
+    d = diagnose(late, reference=ref[20:], t=t[20:], model="vector", candidates=candidates)
+    assert d.accepted[:1] == ["time_offset"], d.text()
+    delay = {r["effect"]: r for r in d.ranking}["time_offset"]["delay_ms"]
+    base = own.ranking[0]["delay_ms"]
+    assert delay - base == pytest.approx(150.0, abs=5.0), (delay, base)
+    from fluxcal.sim.effects import EddyCurrent
+    assert "a delay between the readings" in EddyCurrent.unphysical([0.171, 0.178, 0.191], [1e-3] * 3, vector=True)
+    assert EddyCurrent.unphysical([0.001, 0.0012, 0.004], [1e-4] * 3, vector=True) == ""  # a housing's lags
+    assert EddyCurrent.unphysical([0.171, 0.178, 0.191], [1e-3] * 3) == ""  # magnitudes: a delay is invisible
+
+
 def test_an_offset_step_is_timed_and_sized():
     # A jump of the sensor-frame offset (perming, a device switched on, and off again): when and by how
     # much, either way the fitted box lies (after the jump, or before it with the opposite sign), against

@@ -768,7 +768,7 @@ def _evaluate(cls, data, model, state, sigma, n_candidates) -> dict:
                                     12 if vector else 9)
     row["unmet"] = _unmet(row, n_candidates, state["alpha"])
     row["significant"] = not row["unmet"]
-    flag = _implausible(row, sigma, state["sigma_bound"], cls)
+    flag = _implausible(row, sigma, state["sigma_bound"], cls, vector)
     if flag:
         row[flag[0]], row["note"], row["significant"] = flag[1], flag[2], False
     row["_fit"], row["_features"], row["_signature"] = fit, feats, signature
@@ -812,7 +812,7 @@ def refused(row: dict) -> bool:
     return bool(row.get("degenerate") or row.get("unphysical") or row.get("field_error_rises"))
 
 
-def _implausible(row: dict, sigma: float, sigma_bound: bool, cls):
+def _implausible(row: dict, sigma: float, sigma_bound: bool, cls, vector: bool = False):
     """Why a candidate's fit cannot be an effect (`cls`'s) whatever its evidence, as (the row's flag, its value,
     a note), or None."""
     floor, before, after = row["heldout_noise_floor"], row["field_error_before"], row["field_error_after"]
@@ -830,7 +830,7 @@ def _implausible(row: dict, sigma: float, sigma_bound: bool, cls):
             f"not accepted: with it, the model's signal-dependent effects change the readings by "
             f"{row['distortion']:.3g}× the signal (RMS) — no sensor's non-linearity; their features, taken from "
             "the fit's own signal, stand in for the signal (a degenerate fit)")
-    reason = cls.unphysical(row["coefficients"], row["standard_errors"])
+    reason = cls.unphysical(row["coefficients"], row["standard_errors"], vector=vector)
     if reason:
         return "unphysical", reason, f"not accepted as {cls.name}: {reason}"
     # Its residuals fell only in reading units: a fit can lower them by changing its own gain (the residual

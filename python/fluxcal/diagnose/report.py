@@ -80,7 +80,7 @@ def confound_lines(d, words=None) -> list:
     return lines
 
 
-FIELD_HISTORY = ("hysteresis", "eddy_current")  # effects of how the field moved, not of when
+FIELD_HISTORY = ("hysteresis", "eddy_current", "time_offset")  # effects of how the field moved, not of when
 
 
 def temperature_caveat(d) -> list:
@@ -89,7 +89,8 @@ def temperature_caveat(d) -> list:
     without temperature came out as colored_noise in 19 of 20 trials)."""
     skipped = [n for n in d.remaining.get("skipped_candidates", []) if n.startswith("temp_")]
     regime = {r["effect"]: r["regime"] for r in d.ranking}
-    # (hysteresis and eddy currents are held out in time too, but follow the field's history, which no warming does)
+    # (hysteresis, eddy currents and a delay are held out in time too, but follow the field's history, which no
+    # warming does)
     timelike = [a for a in d.accepted if regime.get(a) in ("time", "events") and a not in FIELD_HISTORY]
     if not skipped or not timelike:
         return []
@@ -237,7 +238,7 @@ def text(d) -> str:
                            "'interference')")
         out += [f"  {r['effect']}: {r['note']}" for r in d.ranking if r.get("pruned_delta_bic") is not None]
         out += confound_lines(d)
-    elif not rem.get("noise_check", {}).get("exceeds"):
+    elif not rem.get("noise_check", {}).get("exceeds") and not rem.get("unexplained", {}).get("left"):
         out.append("FOUND: no significant effect — the base model explains the data to the noise")
     else:
         out.append("FOUND: no significant effect among the candidates")

@@ -111,9 +111,10 @@ class Effect:
         return True
 
     @classmethod
-    def unphysical(cls, coefficients, standard_errors) -> str:
+    def unphysical(cls, coefficients, standard_errors, vector: bool = False) -> str:
         """Why fitted coefficients describe no such effect — a sign its physics forbids, beyond two standard
-        errors — or "" when they can. The diagnosis does not accept such a fit as this effect."""
+        errors — or "" when they can. The diagnosis does not accept such a fit as this effect. vector: the
+        readings are fitted to reference vectors (a delay between the two then shows)."""
         return ""
 
     @classmethod
@@ -134,6 +135,9 @@ class Effect:
         alternatives = cls.alternatives(ctx)
         scores = [score(f) for f in alternatives]
         return alternatives[int(np.argmax(scores))], len(alternatives)
+
+
+ISOTROPIC_LAG = 1.5  # eddy_current's largest lag under this many times its smallest, against reference vectors: a delay
 
 
 def _below_zero(coefficients, standard_errors) -> np.ndarray:
@@ -385,7 +389,7 @@ class Saturation(Effect):
         return cls.features_at(ctx, np.inf)
 
     @classmethod
-    def unphysical(cls, coefficients, standard_errors):
+    def unphysical(cls, coefficients, standard_errors, vector: bool = False):
         # its features are a compression per unit size: a negative size makes the readings grow faster than
         # the field, which no saturating core does (an expanding cubic with equal coefficients on every axis
         # was reported as saturation)
@@ -444,7 +448,7 @@ class Hysteresis(Effect):
         return cls.features_at(ctx, cls.profile_grid(ctx)[2])  # 0.2 % of the field
 
     @classmethod
-    def unphysical(cls, coefficients, standard_errors):
+    def unphysical(cls, coefficients, standard_errors, vector: bool = False):
         # the coefficients are the loops' half-heights: a negative one is a reading that runs ahead of its input
         ahead = _below_zero(coefficients, standard_errors)
         if ahead.any():
@@ -959,6 +963,17 @@ class EddyCurrent(Effect):
     @classmethod
     def features(cls, ctx):
         return _per_axis(-_smooth(ctx.readings, ctx.t, deriv=1))
+
+    @classmethod
+    def unphysical(cls, coefficients, standard_errors, vector: bool = False):
+        # Against reference vectors the same lag on every axis is a delay between readings and reference (m − δ
+        # dm/dt): a blind check's 150 ms delay came out as "eddy currents" of 171–191 ms on all three axes. A
+        # housing's eddy currents lag by 1–5 ms, and by different amounts along its faces.
+        tau = np.asarray(coefficients, dtype=float)
+        if vector and np.all(tau > 0) and tau.max() < ISOTROPIC_LAG * tau.min():
+            return (f"the same lag on every axis ({', '.join(f'{1e3 * v:.3g}' for v in tau)} ms) is a delay between the "
+                    "readings and the reference vectors (time_offset), not a housing's eddy currents")
+        return ""
 
     @classmethod
     def typical(cls, field_norm, rng):
