@@ -270,9 +270,11 @@ def test_a_long_delay_in_a_real_flight_is_a_delay_not_eddy_currents(real_data):
     base = own.ranking[0]["delay_ms"]
     assert delay - base == pytest.approx(150.0, abs=5.0), (delay, base)
     from fluxcal.sim.effects import EddyCurrent
-    assert "a delay between the readings" in EddyCurrent.unphysical([0.171, 0.178, 0.191], [1e-3] * 3, vector=True)
-    assert EddyCurrent.unphysical([0.001, 0.0012, 0.004], [1e-4] * 3, vector=True) == ""  # a housing's lags
-    assert EddyCurrent.unphysical([0.171, 0.178, 0.191], [1e-3] * 3) == ""  # magnitudes: a delay is invisible
+    assert "a delay between the readings" in EddyCurrent.unphysical([0.171, 0.178, 0.191], [1e-3] * 3, vector=True,
+                                                                    period=0.1)
+    assert EddyCurrent.unphysical([0.001, 0.0012, 0.004], [1e-4] * 3, vector=True, period=0.01) == ""  # a housing's
+    assert EddyCurrent.unphysical([0.0264, 0.0266, 0.0379], [5e-4] * 3, vector=True, period=0.1) == ""  # the flight's
+    assert EddyCurrent.unphysical([0.171, 0.178, 0.191], [1e-3] * 3, period=0.1) == ""  # magnitudes: no delay shows
 
 
 def test_an_offset_step_is_timed_and_sized():

@@ -768,7 +768,8 @@ def _evaluate(cls, data, model, state, sigma, n_candidates) -> dict:
                                     12 if vector else 9)
     row["unmet"] = _unmet(row, n_candidates, state["alpha"])
     row["significant"] = not row["unmet"]
-    flag = _implausible(row, sigma, state["sigma_bound"], cls, vector)
+    period = float(np.median(np.diff(np.sort(data.t)))) if data.t is not None and len(data.t) > 1 else 0.0
+    flag = _implausible(row, sigma, state["sigma_bound"], cls, vector, period)
     if flag:
         row[flag[0]], row["note"], row["significant"] = flag[1], flag[2], False
     row["_fit"], row["_features"], row["_signature"] = fit, feats, signature
@@ -812,7 +813,7 @@ def refused(row: dict) -> bool:
     return bool(row.get("degenerate") or row.get("unphysical") or row.get("field_error_rises"))
 
 
-def _implausible(row: dict, sigma: float, sigma_bound: bool, cls, vector: bool = False):
+def _implausible(row: dict, sigma: float, sigma_bound: bool, cls, vector: bool = False, period: float = 0.0):
     """Why a candidate's fit cannot be an effect (`cls`'s) whatever its evidence, as (the row's flag, its value,
     a note), or None."""
     floor, before, after = row["heldout_noise_floor"], row["field_error_before"], row["field_error_after"]
@@ -830,7 +831,7 @@ def _implausible(row: dict, sigma: float, sigma_bound: bool, cls, vector: bool =
             f"not accepted: with it, the model's signal-dependent effects change the readings by "
             f"{row['distortion']:.3g}× the signal (RMS) — no sensor's non-linearity; their features, taken from "
             "the fit's own signal, stand in for the signal (a degenerate fit)")
-    reason = cls.unphysical(row["coefficients"], row["standard_errors"], vector=vector)
+    reason = cls.unphysical(row["coefficients"], row["standard_errors"], vector=vector, period=period)
     if reason:
         return "unphysical", reason, f"not accepted as {cls.name}: {reason}"
     # Its residuals fell only in reading units: a fit can lower them by changing its own gain (the residual

@@ -111,10 +111,11 @@ class Effect:
         return True
 
     @classmethod
-    def unphysical(cls, coefficients, standard_errors, vector: bool = False) -> str:
+    def unphysical(cls, coefficients, standard_errors, vector: bool = False, period: float = 0.0) -> str:
         """Why fitted coefficients describe no such effect — a sign its physics forbids, beyond two standard
         errors — or "" when they can. The diagnosis does not accept such a fit as this effect. vector: the
-        readings are fitted to reference vectors (a delay between the two then shows)."""
+        readings are fitted to reference vectors (a delay between the two then shows); period: the readings'
+        median time step (s, 0 unknown)."""
         return ""
 
     @classmethod
@@ -389,7 +390,7 @@ class Saturation(Effect):
         return cls.features_at(ctx, np.inf)
 
     @classmethod
-    def unphysical(cls, coefficients, standard_errors, vector: bool = False):
+    def unphysical(cls, coefficients, standard_errors, vector: bool = False, period: float = 0.0):
         # its features are a compression per unit size: a negative size makes the readings grow faster than
         # the field, which no saturating core does (an expanding cubic with equal coefficients on every axis
         # was reported as saturation)
@@ -448,7 +449,7 @@ class Hysteresis(Effect):
         return cls.features_at(ctx, cls.profile_grid(ctx)[2])  # 0.2 % of the field
 
     @classmethod
-    def unphysical(cls, coefficients, standard_errors, vector: bool = False):
+    def unphysical(cls, coefficients, standard_errors, vector: bool = False, period: float = 0.0):
         # the coefficients are the loops' half-heights: a negative one is a reading that runs ahead of its input
         ahead = _below_zero(coefficients, standard_errors)
         if ahead.any():
@@ -965,14 +966,17 @@ class EddyCurrent(Effect):
         return _per_axis(-_smooth(ctx.readings, ctx.t, deriv=1))
 
     @classmethod
-    def unphysical(cls, coefficients, standard_errors, vector: bool = False):
-        # Against reference vectors the same lag on every axis is a delay between readings and reference (m − δ
-        # dm/dt): a blind check's 150 ms delay came out as "eddy currents" of 171–191 ms on all three axes. A
-        # housing's eddy currents lag by 1–5 ms, and by different amounts along its faces.
+    def unphysical(cls, coefficients, standard_errors, vector: bool = False, period: float = 0.0):
+        # Against reference vectors nearly the same lag on every axis, of half a sample or more, is a delay between
+        # readings and reference (m − δ dm/dt, which this first-order term fits ever worse as δ grows): a blind
+        # check's 150 ms delay at 10 Hz came out as "eddy currents" of 171–191 ms on all three axes. Eddy currents
+        # lag by milliseconds and by different amounts along a housing's faces (the airborne flight's own
+        # 26 / 27 / 38 ms at 10 Hz stay eddy currents).
         tau = np.asarray(coefficients, dtype=float)
-        if vector and np.all(tau > 0) and tau.max() < ISOTROPIC_LAG * tau.min():
-            return (f"the same lag on every axis ({', '.join(f'{1e3 * v:.3g}' for v in tau)} ms) is a delay between the "
-                    "readings and the reference vectors (time_offset), not a housing's eddy currents")
+        if vector and period > 0 and np.all(tau > 0.5 * period) and tau.max() < ISOTROPIC_LAG * tau.min():
+            return (f"nearly the same lag on every axis ({', '.join(f'{1e3 * v:.3g}' for v in tau)} ms, half a sample "
+                    "or more) is a delay between the readings and the reference vectors (time_offset), not eddy "
+                    "currents")
         return ""
 
     @classmethod
