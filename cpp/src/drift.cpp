@@ -51,18 +51,15 @@ std::string edges_name(const std::vector<double>& edges) {
   return o.str();
 }
 
-// The range edges made to cover the temperatures: the outer edges at the coldest and hottest sample (the
-// polynomials hold where they were fitted and no further), the inner edges that fall inside the data kept,
-// and a range with fewer than min_samples samples joined to its thinner neighbour. The default edges
-// (−20, 0, 30, 50 °C: seed 001's chamber) then serve any chamber cycle or outdoor record.
-// How many separate levels the regressor takes, for the highest order a range can determine: values within
-// 5 % of the range's spread of each other are one level (a chamber's hold, its ±0.3 °C wander), a stretch
-// wider than that counts one level per 5 % it spans (a ramp: 21). Two holds determine a line, not the
-// quadratic their wander let the F-test pick.
-int separate_levels(std::vector<double> v) {
+// How many separate levels the regressor takes in a range `width` wide, for the highest order the range can
+// determine: values within 5 % of the width of each other are one level (a chamber's hold, its ±0.3 °C wander),
+// a stretch wider than that counts one level per 5 % it spans (a ramp across the range: 21). Two holds
+// determine a line, not the quadratic their wander let the F-test pick. (The width, not the data's own spread:
+// holds 10 °C apart in a 30 °C range, each wandering 0.6 °C, counted 4 levels against their 10.6 °C spread.)
+int separate_levels(std::vector<double> v, double width) {
   std::sort(v.begin(), v.end());
-  const double resolution = 0.05 * (v.back() - v.front());
-  if (!(resolution > 0.0)) return 1;
+  const double resolution = 0.05 * width;
+  if (!(resolution > 0.0) || !(v.back() > v.front())) return 1;
   int levels = 0;
   std::size_t first = 0;
   for (std::size_t i = 1; i <= v.size(); ++i) {
@@ -73,6 +70,10 @@ int separate_levels(std::vector<double> v) {
   return levels;
 }
 
+// The range edges made to cover the temperatures: the outer edges at the coldest and hottest sample (the
+// polynomials hold where they were fitted and no further), the inner edges that fall inside the data kept,
+// and a range with fewer than min_samples samples joined to its thinner neighbour. The default edges
+// (−20, 0, 30, 50 °C: seed 001's chamber) then serve any chamber cycle or outdoor record.
 std::vector<double> covering_edges(const SeriesRef& select, const std::vector<double>& given, int min_samples) {
   const double lo = select.minCoeff(), hi = select.maxCoeff();
   if (!(hi > lo)) return given;  // one temperature: no range to cover (the fit says what is wrong)
@@ -215,6 +216,7 @@ DriftModel fit_drift(const SeriesRef& select, const SeriesRef& x, const SeriesRe
   }
 
   DriftModel model;
+  const bool x_is_select = (x.array() == select.array()).all();  // the device temperature is the regressor
   std::vector<Eigen::VectorXd> xs(k), ws(k);
   std::vector<int> top(k);
   for (int s = 0; s < k; ++s) {
@@ -241,7 +243,9 @@ DriftModel fit_drift(const SeriesRef& select, const SeriesRef& x, const SeriesRe
     std::vector<double> v(xs[s].data(), xs[s].data() + n);
     std::sort(v.begin(), v.end());
     const int distinct = static_cast<int>(std::unique(v.begin(), v.end()) - v.begin());
-    const int levels = separate_levels(std::vector<double>(xs[s].data(), xs[s].data() + n));
+    // (the regressor's own span when it is not the selecting temperature: the inside–outside difference)
+    const double width = x_is_select ? edges[s + 1] - edges[s] : xs[s].maxCoeff() - xs[s].minCoeff();
+    const int levels = separate_levels(std::vector<double>(xs[s].data(), xs[s].data() + n), width);
     top[s] = options.order >= 0 ? options.order
                                 : std::min<int>(options.max_order, std::min<Eigen::Index>(levels - 1, n - 3));
     if (options.order < 0 && levels <= 2 && levels - 1 < options.max_order && levels < distinct)

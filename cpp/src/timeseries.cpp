@@ -420,11 +420,12 @@ ArResult fit_ar(const SeriesRef& y, const ArOptions& options) {
                 " readings): the recursive least squares overflowed; use a λ closer to 1");
   result.coefficients = theta;
   result.residuals.resize(rows);
-  Breaks residual_breaks;  // where the residuals jump a gap: the whiteness test must not pair across it
-  Eigen::Index i = 0, previous = -1;
+  Breaks residual_breaks;  // where the residuals start a new stretch: the whiteness test must not pair across a gap
+  Eigen::Index i = 0, stretch = -1;
   for_each_regressed(n_total, breaks, p, [&](Eigen::Index t) {
-    if (i > 0 && t != previous + 1) residual_breaks.push_back(i);
-    previous = t;
+    const Eigen::Index start = stretch_start(breaks, t);
+    if (i > 0 && start != stretch) residual_breaks.push_back(i);
+    stretch = start;
     double pred = 0.0;
     for (int j = 0; j < p; ++j) pred += theta[j] * y[t - 1 - j];
     result.residuals[i++] = y[t] - pred;
@@ -456,13 +457,16 @@ ArResult fit_ar(const SeriesRef& y, const ArOptions& options) {
   if (result.order_at_maximum)
     s.warnings.push_back("AIC chose the maximum order " + std::to_string(k) +
                          ": the noise may have longer memory than max_order allows");
+  const int tested_lags = result.whiteness.lags;  // with breaks, lags no stretch is long enough for are left out
   if (result.sigma2 > 0.0 && !tested)
     s.warnings.push_back(
         "residual whiteness could not be tested: " +
-        (lags < wanted_lags ? std::to_string(rows) + " residuals allow only " + std::to_string(lags) + " Ljung-Box lags"
-                            : "whiteness_lags = " + std::to_string(lags)) +
+        (tested_lags < lags ? "the stretches between gaps in time allow only " + std::to_string(tested_lags) +
+                                  " Ljung-Box lags"
+         : lags < wanted_lags ? std::to_string(rows) + " residuals allow only " + std::to_string(lags) + " Ljung-Box lags"
+                              : "whiteness_lags = " + std::to_string(lags)) +
         ", the test needs more than the AR order " + std::to_string(p) +
-        (lags < wanted_lags ? " (more samples or a lower order)" : ""));
+        (tested_lags < wanted_lags ? " (more samples or a lower order)" : ""));
   else if (tested && !result.whiteness.white)
     s.warnings.push_back("residuals are not white (Ljung-Box p = " + std::to_string(result.whiteness.p_value) +
                          "): the AR model is rejected by seed 001's S3.3 check");

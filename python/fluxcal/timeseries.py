@@ -147,7 +147,11 @@ def ljung_box(x, lags: int, model_df: int = 0, significance: float = 0.05, break
     if model_df >= lags:  # χ²(lags − model_df) has no degrees of freedom: p-value NaN, "not white"
         raise ValueError(f"model_df: {model_df} is not below lags = {lags} (the test needs lags > model_df)")
     x = as_series(x)
-    return _core.ts_ljung_box(x, lags, model_df, float(significance), as_breaks(breaks, x.size))
+    r = _core.ts_ljung_box(x, lags, model_df, float(significance), as_breaks(breaks, x.size))
+    if r["lags"] <= model_df:  # the stretches between the breaks are shorter than the lags asked for
+        raise ValueError(f"breaks: the stretches between them allow only {r['lags']} of the {lags} lags, the test "
+                         f"needs more than model_df = {model_df}")
+    return r
 
 
 @dataclass

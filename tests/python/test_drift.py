@@ -253,8 +253,12 @@ def test_two_holds_in_a_range_determine_a_line_not_the_quadratic_their_wander_al
     model = drift.fit_drift(w, temp)
     ref, _ = oracle.fit_drift(temp, temp, w)
     assert [g["order"] for g in model.segments] == [r["order"] for r in ref]
-    middle = next(g for g in model.segments if g["range"][0] <= 10.0 <= g["range"][1])
-    assert middle["order"] <= 1
+    for inside in (10.0, 55.0):  # [0, 30]: holds at 0 and 25; [30, 60]: holds at 50 and 60, 10 °C apart
+        assert next(g for g in model.segments if g["range"][0] <= inside <= g["range"][1])["order"] <= 1
+    from fluxcal.oracle.drift import separate_levels
+    for apart in (25.0, 10.0, 5.0, 1.0):  # two holds wandering ±0.3 °C in a 30 °C range: two levels, or one
+        assert separate_levels(np.r_[rng.uniform(-0.3, 0.3, 50), apart + rng.uniform(-0.3, 0.3, 50)], 30.0) <= 2
+    assert separate_levels(np.linspace(0.0, 30.0, 300), 30.0) == 21  # a ramp across the range
     between = np.linspace(0.5, 24.5, 49)
     assert np.max(np.abs(model.evaluate(between) - law(between))) < 0.01
     assert any("2 separate level(s)" in w for w in model.summary["warnings"])
@@ -274,6 +278,8 @@ def test_a_later_log_a_little_beyond_the_outer_edges_is_compensated(foct):
     near = np.array([lo - 0.005 * span, hi + 0.005 * span])
     seg = model.segments[-1]
     np.testing.assert_allclose(model.evaluate(near)[1], np.polyval(seg["coefficients"][::-1], near[1]), rtol=1e-9)
+    first = model.segments[0]
+    np.testing.assert_allclose(model.evaluate(near)[0], np.polyval(first["coefficients"][::-1], near[0]), rtol=1e-9)
     with pytest.raises(ValueError, match="outside every range"):
         model.evaluate([hi + 0.02 * span])
     assert np.isnan(model.evaluate([hi + 0.02 * span], outside="nan")[0])

@@ -196,6 +196,11 @@ def test_ljung_box_pairs_samples_of_one_stretch_only():
     assert got["lags"] == ref["lags"] == 3 and got["statistic"] == pytest.approx(ref["statistic"], rel=1e-12)
     with pytest.raises(ValueError, match="breaks"):
         ts.ljung_box(x, 10, breaks=[5, 3])
+    with pytest.raises(ValueError, match="breaks: the stretches between them allow only 3 of the 6 lags"):
+        ts.ljung_box(x[:10], 6, model_df=3, breaks=short)
+    # fit_ar's whiteness test on its residuals: white within the stretches, not when joined across the gaps
+    assert ts.fit_ar(x, order=0, breaks=breaks).whiteness["white"]
+    assert not ts.fit_ar(x, order=0).whiteness["white"]
 
 
 def test_difference_and_trend():

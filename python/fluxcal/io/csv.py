@@ -195,7 +195,8 @@ def parse_mixed_rows(path, lines, start: int, names, delimiter, bad_lines: str, 
             if bad is not None:
                 problem = f"column {names[bad]!r}: {_not_a_number(c[bad])}"
             elif stamp is not None:
-                what = "empty" if not c[stamp].strip() else f"{c[stamp].strip()!r} is not a date/time"
+                what = ("empty" if not c[stamp].strip() else CUT_PROBLEM if CUT_SHORT in c[stamp]
+                        else f"{c[stamp].strip()!r} is not a date/time")
                 problem = f"column {names[stamp]!r}: {what}"
         if problem is None:
             good.append(row)
@@ -336,7 +337,7 @@ def read_lines(path) -> list:
     return lines
 
 
-CUT_SHORT = "\u2026"  # marks a last line the file ends in the middle of (read_lines)
+CUT_SHORT = "\ue000"  # marks a last line the file ends in the middle of (read_lines; a private-use character)
 CUT_PROBLEM = ("the file ends in the middle of this line (no newline after it, and less of it than of the lines "
                "above: copied while the logger was still writing?)")
 _NUMBER = re.compile(r"[-+]?(?:\d+\.?\d*|\.\d+)(?:[eE][-+]?\d+)?")
@@ -357,8 +358,10 @@ def _decimals(token: str) -> int:
 def _cut_short(lines) -> bool:
     """Whether the last line (with no newline after it) stops short of the lines above: fewer values than
     they all have (a prefix of their layout), its last number ending in a sign, point or exponent mark, or
-    with fewer decimals than that number has on every line above. Judged only when the 20 data lines above
-    share one layout; integers cut short (1234 -> 12) cannot be told from smaller ones."""
+    with fewer decimals than that number has on each of at least 100 lines of the layout (a fixed format:
+    %g and a spreadsheet's General drop trailing zeros, and 20 lines were not enough to tell). Judged only
+    when the 20 data lines above share one layout; integers cut short (1234 -> 12) cannot be told from
+    smaller ones."""
     above = [line.rstrip() for line in lines[-21:-1] if line.strip() and not is_comment(line)]
     last = lines[-1].rstrip()
     if len(above) < 5 or not last.strip() or is_comment(last):
@@ -375,8 +378,9 @@ def _cut_short(lines) -> bool:
         return layout.startswith(_skeleton(core))
     if core != last and not any(line.endswith(last[len(core):]) for line in above):
         return True
-    fewest = min(_decimals(_NUMBER.findall(line)[-1]) for line in above)
-    return _decimals(_NUMBER.findall(core)[-1]) < fewest
+    same = [line.rstrip() for line in lines[:-1] if line.strip() and _skeleton(line.rstrip()) == layout]
+    decimals = {_decimals(_NUMBER.findall(line)[-1]) for line in same}
+    return len(same) >= 100 and len(decimals) == 1 and _decimals(_NUMBER.findall(core)[-1]) < decimals.pop()
 
 
 def _not_a_number(cell: str) -> str:

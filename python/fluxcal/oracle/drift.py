@@ -33,12 +33,12 @@ def _rows(x, w, idx, ar, order, stretch):
 UNIT_ROOT = 0.98  # whitening AR coefficients summing above this: fitted unweighted
 
 
-def separate_levels(x):
-    """Levels of x: runs of sorted values whose steps stay within 5 % of the spread, each counting 1 + its
-    width in 5 % steps (np.diff, np.split)."""
+def separate_levels(x, width):
+    """Levels of x in a range `width` wide: runs of sorted values whose steps stay within 5 % of the width,
+    each counting 1 + its extent in 5 % steps (np.diff, np.split)."""
     v = np.sort(np.asarray(x, dtype=float))
-    resolution = 0.05 * (v[-1] - v[0])
-    if not resolution > 0:
+    resolution = 0.05 * width
+    if not resolution > 0 or not v[-1] > v[0]:
         return 1
     runs = np.split(v, np.nonzero(np.diff(v) > resolution)[0] + 1)
     return int(sum(1 + np.floor((r[-1] - r[0]) / resolution) for r in runs))
@@ -71,7 +71,9 @@ def fit_drift(select, x, w, breakpoints=(-20.0, 0.0, 30.0, 50.0), max_order=4, s
     stretch = np.cumsum(stretch)  # which stretch between the gaps in time each sample is in
     edges = covering_edges(select, breakpoints, min_samples)
     groups = [_members(select, edges, k) for k in range(len(edges) - 1)]
-    tops = [min(max_order, separate_levels(x[g]) - 1, g.size - 3) for g in groups]
+    same = np.array_equal(x, select)  # the device temperature as the regressor: the range's width, else x's span
+    widths = [edges[k + 1] - edges[k] if same else np.ptp(x[g]) for k, g in enumerate(groups)]
+    tops = [min(max_order, separate_levels(x[g], width) - 1, g.size - 3) for g, width in zip(groups, widths)]
     ar = np.zeros(0)
     if whiten:
         resid = np.full(w.size, np.nan)
