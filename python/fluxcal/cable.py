@@ -297,6 +297,8 @@ def calibrate_ring(readings, true_fields, method: str = "twostep") -> RingCalibr
             try:
                 fits.append(twostep_2d(r[:, i], norms[:, i]))
             except ValueError as exc:
+                if "first step" not in str(exc):  # bad input (a NaN): its own message says what
+                    raise ValueError(f"sensor {i}: {exc}") from None
                 raise ValueError(f"sensor {i}: {exc}. Here the magnitudes are the ring model's (straight conductors at "
                                  "the given positions with the reference currents): a calibration run the model does "
                                  "not describe (a cable's lay, its end or a bend near the ring, iron nearby, a wrong "
@@ -370,6 +372,7 @@ def write_ring_csv(path, ring: Ring, readings, rotations_deg=None, currents_a=No
 
 CURRENT_UNITS = {"a": 1.0, "amp": 1.0, "amps": 1.0, "ma": 1e-3, "ka": 1e3}
 ANGLE_UNITS = {"deg": 1.0, "degree": 1.0, "degrees": 1.0, "°": 1.0, "rad": 180.0 / np.pi}
+TIME_UNITS = {"s": 1.0, "ms": 1e-3, "us": 1e-6, "µs": 1e-6, "min": 60.0}
 RING_FORMAT = ("comment lines '# ring_angles_deg: 0 90 180 270' and '# ring_radius_m: 0.01' "
                "(optionally ring_axis_angles_deg, ring_bore_radius_m, positions_m: x0 y0 x1 y1 … in metres) "
                "above a header of s0_x, s0_y, s1_x, … (each sensor's radial and tangential reading, sensors "
@@ -435,12 +438,17 @@ def read_ring_csv(path) -> dict:
                 if cur_names else None)
     rotations = rec.columns.get("rotation_deg", np.zeros(k)) * _column_scale(
         path, "rotation_deg", rec.units.get("rotation_deg", ""), ANGLE_UNITS, "deg", "an angle unit")
+    if not np.all(np.isfinite(rotations)):
+        row = int(np.argmax(~np.isfinite(rotations)))
+        raise ValueError(f"{path}: rotation_deg of snapshot {row} (file line {rec.line_numbers[row]}) is not a number")
     positions = _floats(meta["positions_m"]) if "positions_m" in meta else None
     if positions is not None:
         if positions.size % 2:
             raise ValueError(f"{path}: positions_m holds {positions.size} numbers; it needs x y pairs")
         positions = positions.reshape(-1, 2)
     t = rec.columns.get("t")
+    if t is not None:
+        t = t * _column_scale(path, "t", rec.units.get("t", ""), TIME_UNITS, "s", "a time unit")
     used = {n for pair in names for n in pair} | set(cur_names) | {"rotation_deg", "t"}
     return {"ring": ring, "readings": readings, "rotations_deg": np.asarray(rotations, float), "currents_a": currents,
             "positions_m": positions, "t_s": None if t is None else np.asarray(t, float),

@@ -212,8 +212,14 @@ def _from_positions(data: dict, source: str) -> dict:
     field_unit = data.get("units_of", {}).get("field_ned", "")
     return {"offset": data["offset"], "matrix": matrix.tolist(), "field_norm": norm, "units": data.get("units", ""),
             "model": "positions: h = K⁻¹ (U − U0)", "field_units": field_unit if field_unit in TESLA_PER_UNIT else "",
-            "summary": {"identifiable": not data.get("warnings") or
-                        not any("poorly determined" in w for w in data["warnings"]),
-                        "message": data.get("message", "")},
+            "summary": {"identifiable": _positions_determined(data), "message": data.get("message", "")},
             "metadata": {"source": data.get("source", source), "frame": data.get("frame", "")}}
+
+
+def _positions_determined(data: dict) -> bool:
+    """Whether a multi-position result determined its correction: U0 and K (the headings and the dip, nuisance
+    parameters, do not enter h = K⁻¹ (U − U0)). Results saved before the flags were kept: their warnings."""
+    if "determined" in data and "parameter_names" in data:
+        return all(d for name, d in zip(data["parameter_names"], data["determined"]) if name.startswith(("U0", "K_")))
+    return not any("poorly determined" in w for w in data.get("warnings", []))
 

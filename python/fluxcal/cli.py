@@ -412,8 +412,9 @@ def cmd_cable(args) -> int:
         return 0
     data = cable.read_ring_csv(args.file)
     ring = data["ring"]
-    if cable.ring_columns_note(data):
-        print(cable.ring_columns_note(data))
+    note = cable.ring_columns_note(data)
+    if note:
+        print(note)
     if args.cable_command == "calibrate":
         if data["currents_a"] is None or data["positions_m"] is None:
             raise ValueError(f"{args.file}: a calibration recording needs reference currents (i0, i1, …) and "
@@ -459,7 +460,11 @@ def _solve_ring_snapshots(ring, ring_cal, snaps, rotation: float, rows, args) ->
     from . import cable
 
     live = np.isfinite(snaps).all(axis=(0, 2))
-    where = f"snapshot{'s' if len(rows) > 1 else ''} {', '.join(map(str, rows)) if len(rows) <= 6 else f'{rows[0]}–{rows[-1]}'}"
+    contiguous = np.all(np.diff(rows) == 1)
+    where = (f"snapshot {rows[0]}" if len(rows) == 1 else f"snapshots {', '.join(map(str, rows))}" if len(rows) <= 6
+             else f"snapshots {rows[0]}–{rows[-1]}" if contiguous else f"the {len(rows)} snapshots at {rotation:g}°")
+    if not live.any():
+        raise ValueError(f"{where}: no sensor has a finite reading (every sensor NaN)")
     if not live.all():
         print(f"{where}: sensor(s) {', '.join(map(str, np.nonzero(~live)[0]))} not finite (dead?): solved with the "
               f"other {int(live.sum())}")
@@ -495,13 +500,14 @@ def _solve_ring_snapshots(ring, ring_cal, snaps, rotation: float, rows, args) ->
     for w in sol.summary.get("warnings", []):
         print(f"warning: {where}: {w}")
     return {"snapshots": [int(k) for k in rows], "rotation_deg": rotation, "sensors_used": np.nonzero(live)[0].tolist(),
-            "positions_m": sol.positions.tolist(), "position_sigma_m": _jsonable(pos_se),
-            "currents_a": currents.tolist(), "current_sigma_a": _jsonable(cur_se),
+            "positions_m": sol.positions.tolist(), "position_sigma_m": _nan_to_none_rows(pos_se),
+            "currents_a": currents.tolist(), "current_sigma_a": _nan_to_none_rows(cur_se),
             "residual_rms_t": sol.summary["residual_rms"], "noise_sigma_t": sol.noise_sigma,
             "well_conditioned": sol.well_conditioned, "fits_model": sol.fits_model}
 
 
-def _jsonable(a) -> list:
+def _nan_to_none_rows(a) -> list:
+    """Rows of `a` as JSON lists, a non-finite value (an undetermined standard error) as null."""
     return [[None if not np.isfinite(v) else float(v) for v in row] for row in np.atleast_2d(a)]
 
 
@@ -657,8 +663,9 @@ def _diagnose_cable(args) -> int:
     from .diagnose import diagnose_cable
 
     ring = cable.read_ring_csv(args.file)
-    if cable.ring_columns_note(ring):
-        print(cable.ring_columns_note(ring))
+    note = cable.ring_columns_note(ring)
+    if note:
+        print(note)
     candidates = args.candidates.split(",") if args.candidates else None
     result = diagnose_cable(ring["readings"], ring["ring"], currents=ring["currents_a"],
                             rotations_deg=ring["rotations_deg"], positions=ring["positions_m"], t=ring["t_s"],
@@ -684,8 +691,9 @@ def build_parser() -> argparse.ArgumentParser:
                     "decimal commas, '.' as thousands separators")
     c = sub.add_parser("calibrate", help="calibrate a magnetometer from a recording (CSV, TSV, .npz, .mat, Parquet, "
                                          "JSON)",
-                       epilog="exit status: 0 a calibration; 2 an error (nothing written); 3 written but not "
-                              "identifiable: the data did not determine every parameter (export-c refuses it)")
+                       epilog="exit status: 0 a calibration; 2 an error (nothing written); 3 not identifiable: the "
+                              "data did not determine every parameter (with -o it is written for inspection; export-c "
+                              "refuses it)")
     c.add_argument("file")
     c.add_argument("--field-norm", type=positive_number, default=None,
                    help="known |field|, in --field-units (default: fitted; a fluxcal simulation's own metadata)")

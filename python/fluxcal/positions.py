@@ -294,7 +294,8 @@ class PositionsResult:
         return {"offset": self.offset.tolist(), "K": self.K.tolist(), "units": self.units, "frame": self.frame,
                 "field_ned": self.field_ned.tolist(), "inclination_deg": inclination_of(self.field_ned),
                 "yaw_deg": self.yaw_deg.tolist(), "noise_sigma": self.noise_sigma,
-                "parameter_names": list(self.parameter_names), "standard_errors": [
+                "parameter_names": list(self.parameter_names), "determined": [bool(d) for d in self.determined],
+                "standard_errors": [
                     (float(v) if np.isfinite(v) else None) for v in self.standard_errors],
                 "residual_rms": self.summary["residual_rms"], "condition_number": self.summary["condition_number"],
                 "message": self.summary["message"], "warnings": list(self.summary["warnings"]), **self.metadata}

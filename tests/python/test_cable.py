@@ -377,6 +377,11 @@ def test_a_calibration_run_the_model_does_not_describe_points_to_the_diagnosis(t
     with pytest.raises(ValueError, match=r"sensor 0: readings: the first step gives .* the ring model's .*"
                                          r"fluxcal diagnose RUN.csv --model cable"):
         calibrate_ring(h[np.random.default_rng(0).permutation(len(h))], h)
+    bad = h.copy()
+    bad[3, 2, 1] = np.nan  # bad input says what it is, without blaming the model
+    with pytest.raises(ValueError, match="sensor 2: readings: row 3") as err:
+        calibrate_ring(bad, h)
+    assert "diagnose" not in str(err.value)
 
 
 def test_cli_calibrate_warns_when_the_gains_take_up_a_wrong_radius(tmp_path):
@@ -412,4 +417,7 @@ def test_cli_solve_joint_snapshots_and_a_dead_sensor(tmp_path):
     assert r.returncode == 0 and "sensor(s) 5 not finite (dead?): solved with the other 7" in r.stdout, r.stdout + r.stderr
     sol = json.loads(out.read_text())["solutions"][0]
     assert sol["sensors_used"] == [0, 1, 2, 3, 4, 6, 7]
+    y[:] = np.nan
+    r = run_cli("cable", "solve", fluxcal.cable.write_ring_csv(tmp_path / "none.csv", ring, y), "--joint")
+    assert r.returncode == 2 and "no sensor has a finite reading" in r.stderr, r.stderr
     np.testing.assert_allclose(np.array(sol["currents_a"]), currents, atol=0.03)

@@ -275,6 +275,8 @@ def test_a_long_delay_in_a_real_flight_is_a_delay_not_eddy_currents(real_data):
     assert EddyCurrent.unphysical([0.001, 0.0012, 0.004], [1e-4] * 3, vector=True, period=0.01) == ""  # a housing's
     assert EddyCurrent.unphysical([0.0264, 0.0266, 0.0379], [5e-4] * 3, vector=True, period=0.1) == ""  # the flight's
     assert EddyCurrent.unphysical([0.171, 0.178, 0.191], [1e-3] * 3, period=0.1) == ""  # magnitudes: no delay shows
+    assert "delay" in EddyCurrent.unphysical([-0.15, -0.16, -0.17], [1e-3] * 3, vector=True, period=0.1)  # ahead
+    assert "only ever make it lag" in EddyCurrent.unphysical([-0.002, -0.003, -0.004], [1e-4] * 3)
 
 
 def test_an_offset_step_is_timed_and_sized():

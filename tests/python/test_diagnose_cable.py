@@ -302,6 +302,19 @@ def test_ring_files_in_other_units_and_formats_are_read_as_stated(tmp_path):
     renamed.write_text(path.read_text().replace("rotation_deg,i0,", "rotation_deg,IA,"))
     from fluxcal.cable import ring_columns_note
     assert "columns not used: IA (reference currents are read from i0, i1" in ring_columns_note(read_ring_csv(renamed))
+    timed = tmp_path / "timed.csv"  # t in ms, stated
+    lines = path.read_text().splitlines()
+    k = next(i for i, line in enumerate(lines) if line.startswith("rotation_deg,"))
+    lines[k] = "t[ms]," + lines[k]
+    lines[k + 1:] = [f"{1000 * j},{line}" for j, line in enumerate(lines[k + 1:])]
+    timed.write_text("\n".join(lines) + "\n")
+    np.testing.assert_allclose(read_ring_csv(timed)["t_s"][:3], [0.0, 1.0, 2.0])
+    lost = tmp_path / "lost.csv"  # a rotation that is not a number: named, not a crash in --joint
+    lines = path.read_text().splitlines()
+    lines[k + 4] = "nan," + lines[k + 4].split(",", 1)[1]
+    lost.write_text("\n".join(lines) + "\n")
+    with pytest.raises(ValueError, match=r"rotation_deg of snapshot 3 \(file line \d+\) is not a number"):
+        read_ring_csv(lost)
     shifted = tmp_path / "shifted.csv"
     body = path.read_text()
     for k in range(3, -1, -1):
@@ -325,6 +338,7 @@ def test_one_conductor_is_diagnosed_without_the_lay():
                        candidates=["helical_lay", "sensor_position_error"])
     row = next(r for r in d.ranking if r["effect"] == "helical_lay")
     assert row["not_applicable"].startswith("one conductor") and not row["significant"]
+    assert d.ranking[-1] is row  # a candidate not tried ranks last, not first on its ΔBIC of 0
     assert "(not tried: one conductor" in d.text()
 
 
@@ -361,7 +375,7 @@ def test_the_worst_bin_is_the_worst_when_p_values_underflow():
 def test_a_lay_whose_twist_is_reversed_is_not_a_lay():
     """A cable end or a tilt taken for a helix fitted a negative coefficient (−34, −504): no lay makes that."""
     assert HelicalLay.unphysical([-33.7]).startswith("the twist's field change reversed")
-    assert HelicalLay.unphysical([0.99]) is None
+    assert HelicalLay.unphysical([0.99]) == ""
     d = diagnose_cable(**cable_trial(["helical_lay"], 0)[0])
     assert d.accepted == ["helical_lay"]
     assert "FOUND: helical_lay (lay " in d.text() and "pitch diameters, coefficient" in d.text()
@@ -389,4 +403,4 @@ def test_a_tilted_cable_exact_field_and_its_second_order_candidate():
     c = np.tan(tilt.tilt_rad) ** 2 / 2.0 * np.array([np.cos(np.radians(60.0)), np.sin(np.radians(60.0))])
     first = CableTilt.features(ctx) @ c
     assert np.abs(first - change).max() < 0.02 * np.abs(change).max()
-    assert CableTilt.interpret(c)["tilt_deg"] == pytest.approx(np.degrees(np.tan(tilt.tilt_rad)), rel=1e-9)
+    assert CableTilt.interpret(c)["tilt_deg"] == pytest.approx(4.0, rel=1e-9)

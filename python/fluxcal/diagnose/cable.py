@@ -729,9 +729,9 @@ def _evaluate(cls, data: _Data, state: dict, n_candidates: int, levels) -> dict:
     if "reference_lay_over_pitch_diameter" in row and row["reference_lay_over_pitch_diameter"] is not None:
         row["lay_length_m"] = row["reference_lay_over_pitch_diameter"] * cls.pitch_diameter(fit["positions"])
     row.update(cls.interpret(row["coefficients"]))
-    unphysical = cls.unphysical(row["coefficients"])
-    row["_in_sample"] = bool(row["lr_pvalue"] * n_candidates < state["alpha"] and row["delta_bic"] < 0
-                             and not unphysical)
+    in_sample = bool(row["lr_pvalue"] * n_candidates < state["alpha"] and row["delta_bic"] < 0)
+    unphysical = cls.unphysical(row["coefficients"]) if in_sample else ""  # (a null fit's sign means nothing)
+    row["_in_sample"] = in_sample and not unphysical
     row["significant"] = False
     row.update(heldout=regime, heldout_gap_before=None, heldout_gap_after=None, heldout_pvalue=None,
                note="not validated on held-out data: " + ("not significant in sample" if not row["_in_sample"]
@@ -987,7 +987,7 @@ def diagnose_cable(readings, ring: Ring, currents=None, rotations_deg=None, posi
 
     ranking = [last_rows[name] for name in accepted]
     ranking += sorted([r for name, r in last_rows.items() if name not in accepted],
-                      key=lambda r: (r.get("absorbed", False), r["delta_bic"]))
+                      key=lambda r: (bool(r.get("not_applicable")), r.get("absorbed", False), r["delta_bic"]))
     for r in ranking:
         for key in ("_fit", "_model", "_in_sample", "_signature", "_rivals"):
             r.pop(key, None)

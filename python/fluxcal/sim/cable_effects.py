@@ -140,9 +140,9 @@ class CableEffect(Effect):
         return None
 
     @classmethod
-    def unphysical(cls, coefficients) -> str | None:
-        """Why fitted coefficients cannot be this effect (its physics forbids them), or None."""
-        return None
+    def unphysical(cls, coefficients) -> str:
+        """Why fitted coefficients cannot be this effect (its physics forbids them), or ""."""
+        return ""
 
     @classmethod
     def interpret(cls, coefficients) -> dict:
@@ -303,11 +303,11 @@ class HelicalLay(CableEffect):
         return None
 
     @classmethod
-    def unphysical(cls, coefficients) -> str | None:
+    def unphysical(cls, coefficients) -> str:
         # c scales the twist's change of the field, ≈ 1 once the lay is fitted: a negative c is the change
         # reversed, which no lay makes (a cable end or a tilt taken for a helix did it in the blind checks)
         c = float(np.ravel(coefficients)[0])
-        return None if c > 0 else f"the twist's field change reversed (coefficient {c:.3g}): no lay makes it"
+        return "" if c > 0 else f"the twist's field change reversed (coefficient {c:.3g}): no lay makes it"
 
     @classmethod
     def search(cls, ctx, score):
@@ -514,8 +514,8 @@ class CableTilt(CableEffect):
 
     @classmethod
     def interpret(cls, coefficients) -> dict:
-        c = complex(*np.ravel(coefficients)[:2])
-        return {"tilt_deg": float(np.degrees(np.sqrt(2.0 * abs(c)))),
+        c = complex(*np.ravel(coefficients)[:2])  # tan²τ / 2 · e^{2iψ}
+        return {"tilt_deg": float(np.degrees(np.arctan(np.sqrt(2.0 * abs(c))))),
                 "tilt_direction_deg": float(np.mod(np.degrees(np.angle(c)) / 2.0, 180.0))}
 
     @classmethod

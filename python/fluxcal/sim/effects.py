@@ -973,10 +973,14 @@ class EddyCurrent(Effect):
         # lag by milliseconds and by different amounts along a housing's faces (the airborne flight's own
         # 26 / 27 / 38 ms at 10 Hz stay eddy currents).
         tau = np.asarray(coefficients, dtype=float)
-        if vector and period > 0 and np.all(tau > 0.5 * period) and tau.max() < ISOTROPIC_LAG * tau.min():
+        lag = np.abs(tau)
+        same_sign = np.all(tau > 0) or np.all(tau < 0)  # a reference that lags the readings: the same, negative
+        if vector and period > 0 and same_sign and np.all(lag > 0.5 * period) and lag.max() < ISOTROPIC_LAG * lag.min():
             return (f"nearly the same lag on every axis ({', '.join(f'{1e3 * v:.3g}' for v in tau)} ms, half a sample "
                     "or more) is a delay between the readings and the reference vectors (time_offset), not eddy "
                     "currents")
+        if _below_zero(tau, standard_errors).all():
+            return "a reading ahead of its field on every axis: eddy currents only ever make it lag"
         return ""
 
     @classmethod
