@@ -6,7 +6,7 @@
 // condition number), A solved by a column-pivoted QR. The order m rises from 0 while the F-test
 //   F = (SSE_m − SSE_{m+1}) / (SSE_{m+1} / (N − m − 2))  >  F(1, N − m − 2; significance)
 // says the next power is significant, up to max_order and one below the regressor's separate levels
-// (values within 5 % of the range's spread are one level: two temperature holds determine a line). Optionally the segments are refitted jointly
+// (values within 5 % of the range's width are one level: two temperature holds determine a line). Optionally the segments are refitted jointly
 // with equality constraints so the drift is continuous at the breakpoints. A sample belongs to the
 // range [lo, hi) of its selecting temperature (the last range includes hi). A random-walk-like noise (its
 // AR coefficients summing above 0.98) is not used to weight the fit: it would leave each range's level
