@@ -252,6 +252,10 @@ def test_an_eddy_current_is_not_taken_for_a_time_offset():
         result, kwargs = withheld_trial(["eddy_current"], seed, model="vector")
         d = diagnose(result.readings, **kwargs)
         assert d.accepted == ["eddy_current"], d.accepted
+    # the report says what absorbed a candidate: the eddy term (a delay is its first order), or the base's matrix
+    lines = {line.split()[0]: line for line in d.text().splitlines() if "(absorbed" in line}
+    assert lines["time_offset"].endswith("(absorbed once eddy_current was modelled)")
+    assert lines["misalignment"].endswith("(absorbed)")
 
 
 def test_a_long_delay_in_a_real_flight_is_a_delay_not_eddy_currents(real_data):

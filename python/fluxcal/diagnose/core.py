@@ -1661,6 +1661,7 @@ def diagnose(samples, t=None, temp=None, reference=None, gravity=None, field_nor
 
         bar = tqdm(total=len(pool) * (max_effects + 1), desc="diagnose", unit="candidate", leave=False)
     previous_winner, moves = None, []
+    by_base = set()  # candidates the base model's own parameters absorb (before any effect is accepted)
 
     def accept(w):
         nonlocal data
@@ -1680,6 +1681,11 @@ def diagnose(samples, t=None, temp=None, reference=None, gravity=None, field_nor
         systematic = [c for c in pool if c.name not in NOISE_CANDIDATES and c.name not in accepted]
         for cls in systematic:
             rows.append(_evaluate(cls, data, model, state, sigma, n_candidates))
+            if rows[-1].get("absorbed"):
+                if not accepted:
+                    by_base.add(cls.name)
+                elif cls.name not in by_base:  # which effects found took it (a delay taken by an eddy term)
+                    rows[-1]["absorbed_after"] = list(accepted)
             if bar:
                 bar.update(1)
         if previous_winner is not None:

@@ -23,6 +23,7 @@ def ranking_lines(d) -> list:
         elif r.get("direction_error_deg_before") is not None:
             fe += f"; angle {r['direction_error_deg_before']:.3g}° → {r['direction_error_deg_after']:.3g}°"
         note = ("  (left out: with the later effects modelled it no longer pays)" if r.get("pruned_delta_bic") is not None
+                else f"  (absorbed once {', '.join(r['absorbed_after'])} was modelled)" if r.get("absorbed_after")
                 else "  (absorbed)" if r.get("absorbed")
                 else "  (not judged: its refit failed)" if r.get("note", "").startswith("not judged")
                 else f"  (degenerate: {r['degenerate']})" if r.get("degenerate")
