@@ -56,8 +56,7 @@ std::string edges_name(const std::vector<double>& edges) {
 // a stretch wider than that counts one level per 5 % it spans (a ramp across the range: 21). Two holds
 // determine a line, not the quadratic their wander let the F-test pick. (The width, not the data's own spread:
 // holds 10 °C apart in a 30 °C range, each wandering 0.6 °C, counted 4 levels against their 10.6 °C spread.)
-int separate_levels(std::vector<double> v, double width) {
-  std::sort(v.begin(), v.end());
+int separate_levels(const std::vector<double>& v, double width) {  // v sorted
   const double resolution = 0.05 * width;
   if (!(resolution > 0.0) || !(v.back() > v.front())) return 1;
   int levels = 0;
@@ -242,10 +241,10 @@ DriftModel fit_drift(const SeriesRef& select, const SeriesRef& x, const SeriesRe
                       "range; record across it, or move the breakpoint (--breakpoints)");
     std::vector<double> v(xs[s].data(), xs[s].data() + n);
     std::sort(v.begin(), v.end());
-    const int distinct = static_cast<int>(std::unique(v.begin(), v.end()) - v.begin());
     // (the regressor's own span when it is not the selecting temperature: the inside–outside difference)
-    const double width = x_is_select ? edges[s + 1] - edges[s] : xs[s].maxCoeff() - xs[s].minCoeff();
-    const int levels = separate_levels(std::vector<double>(xs[s].data(), xs[s].data() + n), width);
+    const double width = x_is_select ? edges[s + 1] - edges[s] : v.back() - v.front();
+    const int levels = separate_levels(v, width);
+    const int distinct = static_cast<int>(std::unique(v.begin(), v.end()) - v.begin());
     top[s] = options.order >= 0 ? options.order
                                 : std::min<int>(options.max_order, std::min<Eigen::Index>(levels - 1, n - 3));
     if (options.order < 0 && levels <= 2 && levels - 1 < options.max_order && levels < distinct)

@@ -23,6 +23,7 @@ import numpy as np
 from . import _core
 from ._arrays import set_options
 from ._saved import load_json_object
+from .io.columns import CURRENT_UNITS
 from .twostep import TwoStep2D, twostep_2d
 
 #: μ0/(2π) in T·m/A (the core's constant).
@@ -370,9 +371,8 @@ def write_ring_csv(path, ring: Ring, readings, rotations_deg=None, currents_a=No
     return write_csv(path, cols, units=units, metadata=meta, fmt="%.12g")
 
 
-CURRENT_UNITS = {"a": 1.0, "amp": 1.0, "amps": 1.0, "ma": 1e-3, "ka": 1e3}
+RING_CURRENT_UNITS = {**CURRENT_UNITS, "ka": 1e3}  # a cable's currents may be stated in kA
 ANGLE_UNITS = {"deg": 1.0, "degree": 1.0, "degrees": 1.0, "°": 1.0, "rad": 180.0 / np.pi}
-TIME_UNITS = {"s": 1.0, "ms": 1e-3, "us": 1e-6, "µs": 1e-6, "min": 60.0}
 RING_FORMAT = ("comment lines '# ring_angles_deg: 0 90 180 270' and '# ring_radius_m: 0.01' "
                "(optionally ring_axis_angles_deg, ring_bore_radius_m, positions_m: x0 y0 x1 y1 … in metres) "
                "above a header of s0_x, s0_y, s1_x, … (each sensor's radial and tangential reading, sensors "
@@ -381,11 +381,15 @@ RING_FORMAT = ("comment lines '# ring_angles_deg: 0 90 180 270' and '# ring_radi
                "(fields default to T, currents to A)")
 
 
+def _unit_key(unit: str) -> str:
+    return unit.strip().strip("[]()").lower()
+
+
 def _column_scale(path, name: str, unit: str, table: dict, default: str, what: str) -> float:
     """The factor that takes column `name` from its stated `unit` to SI; ValueError naming it otherwise."""
     if not unit:
         return 1.0
-    key = unit.strip().strip("[]()").lower()
+    key = _unit_key(unit)
     if key in table:
         return table[key]
     raise ValueError(f"{path}: column {name}: unit {unit!r} is not {what} ({', '.join(sorted(table))}; none: "
@@ -399,7 +403,7 @@ def read_ring_csv(path) -> dict:
     the units the file states."""
     from .calibration import TESLA_PER_UNIT
     from .io import read_recording
-    from .io.columns import unit_name
+    from .io.columns import TIME_UNITS, unit_name
 
     rec = read_recording(path)
     meta = rec.metadata
@@ -429,11 +433,11 @@ def read_ring_csv(path) -> dict:
     readings = np.stack([np.column_stack([field(x), field(y)]) for x, y in names], axis=1)
     k = readings.shape[0]
     cur_names = sorted((n for n in rec.columns if n[0] == "i" and n[1:].isdigit()), key=lambda n: int(n[1:]))
-    stray = [n for n in rec.columns if n not in cur_names and rec.units.get(n, "").strip("[]()").lower() in CURRENT_UNITS]
+    stray = [n for n in rec.columns if n not in cur_names and _unit_key(rec.units.get(n, "")) in RING_CURRENT_UNITS]
     if stray:  # a current column under another name would be silently unused: the currents then fitted
         raise ValueError(f"{path}: column(s) {', '.join(stray)} hold currents ({rec.units[stray[0]]}), but reference "
                          "currents are read from columns named i0, i1, … (one per conductor): rename them")
-    currents = (np.column_stack([rec.columns[n] * _column_scale(path, n, rec.units.get(n, ""), CURRENT_UNITS, "A",
+    currents = (np.column_stack([rec.columns[n] * _column_scale(path, n, rec.units.get(n, ""), RING_CURRENT_UNITS, "A",
                                                                 "a current unit") for n in cur_names])
                 if cur_names else None)
     rotations = rec.columns.get("rotation_deg", np.zeros(k)) * _column_scale(

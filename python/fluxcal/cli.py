@@ -457,8 +457,6 @@ def _solve_ring_snapshots(ring, ring_cal, snaps, rotation: float, rows, args) ->
     """`cable solve` of snapshots `rows` (one, or those sharing a rotation with --joint): sensors with a NaN
     left out (a dead sensor: the ring of the others), the calibration's σ for the solver, and a line per
     snapshot with positions, currents and their standard errors. Returns the solution as a JSON-ready dict."""
-    from . import cable
-
     live = np.isfinite(snaps).all(axis=(0, 2))
     contiguous = np.all(np.diff(rows) == 1)
     where = (f"snapshot {rows[0]}" if len(rows) == 1 else f"snapshots {', '.join(map(str, rows))}" if len(rows) <= 6

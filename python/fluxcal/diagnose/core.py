@@ -768,8 +768,7 @@ def _evaluate(cls, data, model, state, sigma, n_candidates) -> dict:
                                     12 if vector else 9)
     row["unmet"] = _unmet(row, n_candidates, state["alpha"])
     row["significant"] = not row["unmet"]
-    period = float(np.median(np.diff(np.sort(data.t)))) if data.t is not None and len(data.t) > 1 else 0.0
-    flag = _implausible(row, sigma, state["sigma_bound"], cls, vector, period)
+    flag = _implausible(row, sigma, state["sigma_bound"], cls, vector, state["period"])
     if flag:
         row[flag[0]], row["note"], row["significant"] = flag[1], flag[2], False
     row["_fit"], row["_features"], row["_signature"] = fit, feats, signature
@@ -1652,7 +1651,9 @@ def diagnose(samples, t=None, temp=None, reference=None, gravity=None, field_nor
     where = _where(data, e0, sigma, directions, vector)
     state = {"start": start, "result": base, "features": [], "signal_blocks": [], "validated": [], "terms": np.zeros(0),
              "train_fits": {}, "sigma_bound": sigma_bound,
-             "directions": directions, "alpha": alpha}
+             "directions": directions, "alpha": alpha,
+             # the readings' median time step (an eddy lag of half a sample or more on every axis is a delay)
+             "period": float(np.median(np.diff(np.sort(data.t)))) if data.t is not None and len(data.t) > 1 else 0.0}
     accepted, last_rows = [], {}
     n_candidates = max(len(pool), 1)
     bar = None
