@@ -8,7 +8,7 @@
 from . import _core
 from .calibration import Calibration
 from .coverage import direction_coverage
-from .diagnose import diagnose, diagnose_cable
+from .diagnose import detection_limits, diagnose, diagnose_cable
 from .bounds import crlb
 from .ellipsoid import EllipsoidMoments, fit_ellipsoid
 from .io import Recording, read_csv, read_recording, write_csv, write_recording
@@ -21,7 +21,7 @@ from . import drift, kalman, timeseries  # seed 001: drift compensation, AR Kalm
 
 __version__ = _core.__version__
 
-__all__ = ["Calibration", "EllipsoidMoments", "Recording", "TwoStep2D", "calibrate", "crlb", "diagnose", "diagnose_cable", "direction_coverage",
+__all__ = ["Calibration", "EllipsoidMoments", "Recording", "TwoStep2D", "calibrate", "crlb", "detection_limits", "diagnose", "diagnose_cable", "direction_coverage",
            "fit_ellipsoid", "fit_vector", "read_csv", "read_recording", "refine", "twostep", "twostep_2d", "write_csv", "write_recording",
            "__version__", "cmake_dir"]
 

@@ -2,6 +2,7 @@
 from __future__ import annotations
 
 import argparse
+import json
 import os
 import re
 import sys
@@ -312,6 +313,8 @@ def cmd_diagnose(args) -> int:
     from .diagnose import diagnose
 
     if args.model == "cable":
+        if args.detection_limits:
+            raise ValueError("--detection-limits: measured for magnetometer recordings, not for a cable ring (--model cable)")
         return _diagnose_cable(args)
     rec = read_recording(args.file, columns=args.columns, units=args.units, bad_lines=args.bad_lines,
                          decimal=args.decimal)
@@ -331,7 +334,14 @@ def cmd_diagnose(args) -> int:
         result = diagnose(rec, reference=reference, field_norm=args.field_norm, model=args.model,
                           noise_sigma=args.noise_sigma, candidates=candidates, alpha=args.alpha,
                           max_effects=args.max_effects, progress=not args.quiet)
-    return _print_diagnosis(result, args)
+        limits = None
+        if args.detection_limits:
+            from .diagnose import detection_limits
+
+            limits = detection_limits(rec, reference=reference, field_norm=args.field_norm, model=args.model,
+                                      noise_sigma=args.noise_sigma, alpha=args.alpha, seeds=args.seeds, names=candidates,
+                                      progress=not args.quiet, diagnosis=None if candidates else result)
+    return _print_diagnosis(result, args, limits)
 
 
 def cmd_export_c(args) -> int:
@@ -382,8 +392,6 @@ def cmd_positions(args) -> int:
 
 
 def cmd_cable(args) -> int:
-    import json
-
     from . import cable
     from .sim import cable as simcable
 
@@ -645,11 +653,19 @@ def cmd_drift(args) -> int:
     return 0
 
 
-def _print_diagnosis(result, args) -> int:
-    """The diagnosis as text, plus the JSON and the report folder when asked (both models)."""
+def _print_diagnosis(result, args, limits=None) -> int:
+    """The diagnosis as text (and its detection limits), plus the JSON and the report folder when asked (both
+    models)."""
     print(result.text())
+    if limits is not None:
+        print("\n" + limits.text())
     if args.json:
-        print(f"wrote {result.save_json(args.json)}")
+        path = result.save_json(args.json)
+        if limits is not None:  # one file: the diagnosis with its limits under "detection_limits"
+            content = json.loads(path.read_text())
+            content["detection_limits"] = json.loads(limits.to_json())
+            path.write_text(json.dumps(content, indent=2) + "\n")
+        print(f"wrote {path}")
     if args.report:
         print(f"wrote {result.report(args.report)}")
     return 0
@@ -764,6 +780,12 @@ def build_parser() -> argparse.ArgumentParser:
     g.add_argument("--max-effects", type=positive_int, default=3,
                    help="stop after accepting this many effects (default 3; the report lists any further "
                         "significant one)")
+    g.add_argument("--detection-limits", action="store_true",
+                   help="also measure how large each candidate must be before this recording's diagnosis confirms "
+                        "it (those of --candidates, default all): each added to the recording at doubling sizes "
+                        "(fluxcal.detection_limits; a minute or two)")
+    g.add_argument("--seeds", type=positive_int, default=3,
+                   help="--detection-limits: shapes of each effect per size (default 3)")
     g.add_argument("--json", default=None, help="write the ranking and tables (JSON)")
     g.add_argument("--report", default=None, help="folder for the report: summary, figures, index.html")
     g.add_argument("--quiet", action="store_true", help="no progress bar")

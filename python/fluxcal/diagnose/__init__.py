@@ -63,8 +63,10 @@ from threadpoolctl import threadpool_limits
 
 from . import cable as _cable
 from . import core as _core
+from . import limits as _limits
 from .cable import CableDiagnosis
 from .core import MODELS, Diagnosis, estimate_noise
+from .limits import DetectionLimits
 
 
 def _one_blas_thread(fn):
@@ -80,5 +82,7 @@ def _one_blas_thread(fn):
 
 diagnose = _one_blas_thread(_core.diagnose)
 diagnose_cable = _one_blas_thread(_cable.diagnose_cable)
+detection_limits = _one_blas_thread(_limits.detection_limits)
 
-__all__ = ["MODELS", "CableDiagnosis", "Diagnosis", "diagnose", "diagnose_cable", "estimate_noise"]
+__all__ = ["MODELS", "CableDiagnosis", "DetectionLimits", "Diagnosis", "detection_limits", "diagnose", "diagnose_cable",
+           "estimate_noise"]

@@ -15,8 +15,9 @@ typical magnitude, hard iron included, for the non-linearities) where it acts in
 - electronic offsets (temp_offset, offset_drift, offset_step, motor_current) simply added;
 - time_offset (the readings delayed against their reference) and the noise effects (colored_noise,
   quantization) applied to the readings themselves.
-The regressors an effect needs are made up as a simulation makes them: a temperature that rises and falls
-(`scene.warming`), a current that steps between throttle settings (`scene.throttle`). A moving magnet's
+The regressors an effect needs are the recording's own when given (`temp`, `current`), else made up as a
+simulation makes them: a temperature that rises and falls (`scene.warming`), a current that steps between
+throttle settings (`scene.throttle`). A moving magnet's
 field is fixed in the world: with the down direction (`gravity`, an accelerometer) the sensor's attitude
 follows from it and the field; without it only the disturbance's component along the field is added
 (all that a magnitude shows to first order; the rest needs the attitude). non_orthogonality is not
@@ -61,7 +62,7 @@ def injectable(reference: bool) -> list:
 
 
 def inject(readings, names, seed: int, t=None, rate_hz: float = 50.0, gravity=None, reference=None,
-           field_norm: float | None = None, strength: float = 1.0) -> Injection:
+           field_norm: float | None = None, strength: float = 1.0, temp=None, current=None) -> Injection:
     """Add the effects `names` (candidate names) to a real recording `readings` (N×3). `t` (s; default the
     row at `rate_hz`), `gravity` (N×3 down or up direction, sensor frame: the attitude for a world-fixed
     field), `reference` (N×3 true field, sensor frame: a vector fit, and needed for misalignment and
@@ -101,8 +102,9 @@ def inject(readings, names, seed: int, t=None, rate_hz: float = 50.0, gravity=No
     for effect in effects:  # typical() times events from 0: the recording's clock may start anywhere
         if hasattr(effect, "t_on"):
             effect.t_on, effect.t_off = effect.t_on + t[0], effect.t_off + t[0]
-    temp = warming(t, rng)
-    current = throttle(t, rng, *CURRENT) if "motor_current" in names else None
+    made_temp, made_current = warming(t, rng), throttle(t, rng, *CURRENT) if "motor_current" in names else None
+    temp = made_temp if temp is None else _regressor(temp, n, "temp")
+    current = made_current if current is None else _regressor(current, n, "current")
     h_smooth, m_smooth = _smooth(h, t), _smooth(m, t)
     along_field_only = gravity is None
     context = SimpleNamespace(t=t, temp=temp, current=current, rng=rng, truth=h_smooth,
@@ -120,6 +122,8 @@ def inject(readings, names, seed: int, t=None, rate_hz: float = 50.0, gravity=No
         elif effect.name not in ON_READINGS:  # electronic offsets: independent of the values
             out += strength * effect.apply(np.zeros_like(m), context)
     for effect in effects:
+        if effect.name == "time_offset":
+            effect.delta *= strength
         if effect.name in ON_READINGS:
             out = effect.apply(out, context)
     kwargs = {"t": t, "temp": temp, "field_norm": field_norm}
@@ -132,6 +136,14 @@ def inject(readings, names, seed: int, t=None, rate_hz: float = 50.0, gravity=No
 
         kwargs["noise_sigma"] = estimate_noise(m)  # the datasheet noise: what the sensor had before
     return Injection(out, effects, kwargs)
+
+
+def _regressor(values, n: int, name: str) -> np.ndarray:
+    values = np.asarray(values, dtype=float)
+    if values.shape != (n,) or not np.all(np.isfinite(values)):
+        raise ValueError(f"{name}: need {n} finite values, got shape {values.shape}"
+                         + ("" if values.shape != (n,) else " with missing or non-finite ones"))
+    return values
 
 
 def _units(name: str) -> str:
