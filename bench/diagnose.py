@@ -3,6 +3,7 @@
     .venv/bin/python bench/diagnose.py --real ../shared/data/real          # real recordings
     .venv/bin/python bench/diagnose.py --trials 10                          # withheld-effect table
     .venv/bin/python bench/diagnose.py --inject ../shared/data/real --trials 3  # added to real recordings
+    .venv/bin/python bench/diagnose.py --limits ../shared/data/real         # detection limits of each real recording
     .venv/bin/python bench/diagnose.py --timing                             # 20 000 readings, all candidates
     .venv/bin/python bench/diagnose.py --warm-up 10                         # temperature following time
     .venv/bin/python bench/diagnose.py --settling 10                        # an offset settling in time (a warm-up)
@@ -229,6 +230,43 @@ def margins(n: int, only=None, **sim):
         print(f"| {cls.name} | {n} | {len(rows)} | {_g(floor)} | {_g(distortion)} | {_g(rise)} |", flush=True)
 
 
+def limits(folder: Path, seeds: int, which=None):
+    """Each real recording's detection limits (`fluxcal.detection_limits`): a column per recording, the size
+    confirmed from (not at), % of the field, and what the full diagnosis named there."""
+    from fluxcal.diagnose import detection_limits
+
+    columns = {}
+    for name, rec, kw, inject_kw in recordings(folder):
+        if which and not any(name.startswith(w) for w in which):
+            continue
+        t0 = time.perf_counter()
+        columns[name] = detection_limits(rec, seeds=seeds, **{**kw, **{k: v for k, v in inject_kw.items()
+                                                                        if k == "gravity" and "reference" in kw}})
+        columns[name].seconds = time.perf_counter() - t0
+    names = list(dict.fromkeys(r["effect"] for d in columns.values() for r in d.rows))
+
+    def cell(d, effect):
+        r = next((r for r in d.rows if r["effect"] == effect), None)
+        if r is None or r["status"] == "not_tried":
+            return "—"
+        if r["status"] == "in_recording":
+            return "in the recording"
+        unit = " ms" if effect == "time_offset" else " %"
+        if r["status"] == "not_found":
+            return f"> {r['not_at']:.3g}{unit}"
+        below = f" (not {r['not_at']:.3g})" if r["not_at"] is not None else ""
+        full = r["full_run"]
+        named = "first" if full[:1] == [effect] else "found" if effect in full else \
+            "→ " + ", ".join(full) if full else "→ nothing"
+        return f"{r['found_at']:.3g}{unit}{below}; {named}"
+
+    print("| effect | " + " | ".join(columns) + " |")
+    print("|---|" + "---|" * len(columns))
+    for effect in names:
+        print(f"| {effect} | " + " | ".join(cell(d, effect) for d in columns.values()) + " |")
+    print("| seconds | " + " | ".join(f"{d.seconds:.0f}" for d in columns.values()) + " |")
+
+
 def timing():
     r, kw = withheld_trial(["temp_scale"], 1, duration_s=400.0)  # 20 000 readings
     t0 = time.perf_counter()
@@ -241,7 +279,9 @@ if __name__ == "__main__":
     p.add_argument("--real", type=Path)
     p.add_argument("--inject", type=Path, help="folder of the real recordings: each candidate added to each")
     p.add_argument("--strength", type=float, default=1.0, help="--inject: the added effects' size × this")
-    p.add_argument("--recordings", nargs="*", help="--inject: only the recordings whose names start so")
+    p.add_argument("--recordings", nargs="*", help="--inject, --limits: only the recordings whose names start so")
+    p.add_argument("--limits", type=Path, help="folder of the real recordings: each one's detection limits")
+    p.add_argument("--seeds", type=int, default=3, help="--limits: shapes per size")
     p.add_argument("--trials", type=int)
     p.add_argument("--timing", action="store_true")
     p.add_argument("--nulls", type=int, help="only the trials with nothing withheld")
@@ -263,6 +303,8 @@ if __name__ == "__main__":
         real(args.real)
     if args.nulls:
         nulls(args.nulls, **sim)
+    if args.limits:
+        limits(args.limits, args.seeds, args.recordings)
     if args.inject:
         injected(args.inject, args.trials or 3, args.only, args.strength, args.recordings)
     elif args.trials:

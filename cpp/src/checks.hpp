@@ -5,6 +5,7 @@
 
 #include "fluxcal/types.hpp"
 
+#include <algorithm>
 #include <cmath>
 #include <cstdio>
 #include <limits>
@@ -48,6 +49,19 @@ inline std::string percent(double ratio) {
   char buf[32];
   std::snprintf(buf, sizeof buf, "%.3g %%", 100.0 * ratio);
   return buf;
+}
+
+/// The poor-coverage warning on field directions, or "" when coverage is fine. Judged against what the rows
+/// looked at (`rows`, strided to at most `max_rows`) would fill if spread evenly over the sphere, 1 − (1 − 1/96)^n,
+/// times `poor`: 30 readings of a full tumble fill about 27 % of the bins, and were told to turn more.
+inline std::string direction_coverage_warning(double coverage, Eigen::Index rows, Eigen::Index max_rows, double poor) {
+  const Eigen::Index step = max_rows > 0 ? std::max<Eigen::Index>(1, rows / max_rows) : 1;
+  const double n = static_cast<double>((rows + step - 1) / step);
+  const double reachable = 1.0 - std::pow(1.0 - 1.0 / 96.0, n);
+  if (coverage >= poor * reachable) return "";
+  std::string text = "poor coverage: only " + percent(coverage) + " of field directions seen";
+  if (reachable < 0.9) text += " (" + num(n) + " readings spread evenly would fill about " + percent(reachable) + ")";
+  return text + "; turn the sensor through more orientations";
 }
 
 /// Throws Error("NAME: VALUE, need NEED") unless `ok`.

@@ -446,9 +446,9 @@ EllipsoidResult fit_ellipsoid(const SamplesRef& samples, const EllipsoidOptions&
     });
     const double sd = sums[0], sd2 = sums[1];
     describe_coverage(r.summary, samples, cal, options.coverage_rows);
-    if (r.summary.direction_coverage < options.poor_direction_coverage)
-      r.summary.warnings.push_back("poor coverage: only " + percent(r.summary.direction_coverage) +
-                                   " of field directions seen; turn the sensor through more orientations");
+    const std::string poor = detail::direction_coverage_warning(r.summary.direction_coverage, samples.rows(),
+                                                                options.coverage_rows, options.poor_direction_coverage);
+    if (!poor.empty()) r.summary.warnings.push_back(poor);
     const double n = static_cast<double>(samples.rows());
     const double mean_d = sd / n;
     r.summary.norm_mean = H + mean_d;

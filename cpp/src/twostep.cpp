@@ -593,9 +593,9 @@ TwoStepResult twostep(const SamplesRef& samples, const TwoStepOptions& options) 
   if (sum.coverage_ratio < options.poor_coverage_ratio)
     sum.warnings.push_back("poor coverage: thinnest/widest spread of the readings is " + percent(sum.coverage_ratio) +
                            "; the offset and matrix along the thin direction are poorly determined");
-  if (sum.direction_coverage < options.poor_direction_coverage)
-    sum.warnings.push_back("poor coverage: only " + percent(sum.direction_coverage) +
-                           " of field directions seen; turn the sensor through more orientations");
+  const std::string poor = detail::direction_coverage_warning(sum.direction_coverage, samples.rows(),
+                                                              options.coverage_rows, options.poor_direction_coverage);
+  if (!poor.empty()) sum.warnings.push_back(poor);
   {  // a field_norm far from the readings' own radius usually means mismatched units
     const double gain = std::cbrt(cal.matrix.determinant());
     if (gain > 5.0 || gain < 0.2)

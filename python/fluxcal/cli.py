@@ -77,7 +77,10 @@ def _report(cal: Calibration, raw: np.ndarray, out=sys.stdout) -> None:
         print(f"  noise σ (estimated)   {s['noise_sigma']:.4g} {cal.units}".rstrip(), file=out)
     if "standard_errors" in s:
         se = np.array(s["standard_errors"])
-        print(f"  std error of b        {_significant(se[:3], 3)} {cal.units}".rstrip(), file=out)
+        # Not identifiable: the errors are those of the directions the data do determine (or of a shape's
+        # assumption) and say nothing of the rest — a 30° cap printed 0.09 µT beside a 2–3 µT error.
+        caveat = "" if s["identifiable"] else "   (NOT the error: the data do not determine every parameter)"
+        print(f"  std error of b        {_significant(se[:3], 3)} {cal.units}{caveat}".rstrip(), file=out)
         print(f"  identifiable          {'yes' if s['identifiable'] else 'NO'}", file=out)
     for w in s["warnings"] + [w for w in [_plausible_field(cal)] if w]:
         print(f"warning: {w}", file=out)
@@ -136,11 +139,63 @@ def _plausible_field(cal: Calibration) -> str | None:
             f"readings really in {cal.h_units}? (--units states the readings' unit; fine for a coil's field)")
 
 
-def _held_out_rms(raw, reference, units) -> float:
-    """Vector-fit check on data the fit did not see: fit the first half, RMS of |h − r| on the second."""
+def _held_out_rms(raw, reference, units, outliers=()) -> float:
+    """Vector-fit check on data the fit did not see: fit the first half, RMS of |h − r| on the second, without
+    the rows the whole fit left out as outliers (4 spikes made 11.9 µT of a 0.66 µT check)."""
     half = len(raw) // 2
     first = calibrate(raw[:half], reference=reference[:half], units=units)
-    return float(np.sqrt(np.mean(np.sum((first.apply(raw[half:]) - reference[half:]) ** 2, axis=1))))
+    kept = np.setdiff1d(np.arange(half, len(raw)), np.asarray(outliers, dtype=int))
+    return float(np.sqrt(np.mean(np.sum((first.apply(raw[kept]) - reference[kept]) ** 2, axis=1))))
+
+
+def _outlier_lines(cal: Calibration, rec: Recording) -> None:
+    """The rows left out as outliers named by their lines in the file too (after skipped lines the row
+    numbers and the file's lines differ)."""
+    rows = cal.summary.get("outliers", {}).get("rows", [])
+    if not rows or rec.line_numbers is None:
+        return
+    lines = [int(rec.line_numbers[r]) for r in rows]
+    cal.summary["outliers"]["file_lines"] = lines
+    shown = ", ".join(map(str, lines[:8])) + (", …" if len(lines) > 8 else "")
+    cal.summary["warnings"] = [re.sub(r"\(rows ([^;)]*)", rf"(rows \1; file lines {shown}", w, count=1)
+                               if w.startswith("left out ") else w for w in cal.summary["warnings"]]
+
+
+def _reference(rec: Recording, names: str | None, file) -> tuple:
+    """The true field per reading and its unit: --reference's three columns, else the recording's attitude and
+    local field (Recording.reference_field), else None. Columns in another field unit than the readings' are
+    converted to it; against readings in counts they keep theirs (the corrected field is then in it)."""
+    if not names:
+        reference = rec.reference_field()
+        return reference, rec.reference_units() if reference is not None else rec.field_units()
+    names = names.split(",")
+    missing = [n for n in names if n not in rec.columns]
+    if len(names) != 3 or missing:
+        raise ValueError(f"--reference: need three columns of {file} (columns are: {', '.join(rec.columns)})")
+    units, mag = {rec.units.get(n, "") for n in names}, rec.field_units()
+    if len(units) > 1:
+        raise ValueError(f"--reference: the columns {', '.join(names)} have different units ({', '.join(sorted(units))})")
+    unit = units.pop()
+    scale = TESLA_PER_UNIT[unit] / TESLA_PER_UNIT[mag] if unit in TESLA_PER_UNIT and mag in TESLA_PER_UNIT else 1.0
+    reference = np.column_stack([rec.columns[n] for n in names]) * scale
+    bad = np.flatnonzero(~np.all(np.isfinite(reference), axis=1))
+    if bad.size:
+        row = int(bad[0])
+        where = f"line {rec.line_numbers[row]}" if rec.line_numbers is not None else f"row {row}"
+        raise ValueError(f"--reference: {file}, {where}: a reference column is not a finite number")
+    return reference, mag if scale != 1.0 or unit == mag or not unit else unit
+
+
+REFERENCE_NAMES = ("rx", "ry", "rz", "ref_x", "ref_y", "ref_z", "bx_ref", "by_ref", "bz_ref")
+
+
+def _note_reference_columns(rec: Recording, reference) -> None:
+    """Columns that look like reference vectors but are not used: said, not silently left (a magnitude fit
+    loses the misalignment a vector fit would find)."""
+    unused = [n for n in rec.columns if n.lower() in REFERENCE_NAMES]
+    if reference is None and len(unused) >= 3:
+        print(f"note: columns {', '.join(unused)} look like reference vectors (the true field per reading) but are not "
+              f"used: give --reference {','.join(unused[:3])} for the vector fit (the full matrix, misalignment included)")
 
 
 def _print_roles(rec: Recording):
@@ -160,8 +215,14 @@ def cmd_calibrate(args) -> int:
     _print_roles(rec)
     # attitude + local field in the recording (e.g. the airborne layout): the vector fit, unless a
     # magnitude-only method is asked for
-    reference = rec.reference_field() if args.method in ("auto", "vector") else None
     units, field_norm = rec.field_units(), args.field_norm
+    reference, reference_units = (_reference(rec, args.reference, args.file) if args.method in ("auto", "vector")
+                                  else (None, units))
+    if args.method == "vector" and reference is None:
+        raise ValueError(f"{args.file}: --method vector needs the true field of each reading: --reference with three "
+                         "columns (e.g. --reference rx,ry,rz), or attitude columns pitch, roll, yaw with the local "
+                         "field igrf_n, igrf_e, igrf_d")
+    _note_reference_columns(rec, reference)
     if field_norm is None and reference is None and "simulated" in rec.metadata and "field_norm" in rec.metadata:
         field_norm = float(rec.metadata["field_norm"])  # `fluxcal simulate` states the field it simulated
         print(f"field norm {field_norm:g} {units} from the simulation's metadata".rstrip())
@@ -173,13 +234,18 @@ def cmd_calibrate(args) -> int:
     except ValueError as exc:  # the solvers name their argument ("samples: …"); the user knows the file
         raise ValueError(f"{args.file}: {exc}") from None
     cal.field_units = _field_units(args, units, field_norm, reference)
+    if reference is not None and reference_units != units:  # counts fitted to a field model in nT: h is in nT
+        cal.field_units = reference_units
     if args.field_units and field_norm is not None and unit_name(args.field_units) != units:
         _recheck_field_norm(cal, units, unit_name(args.field_units))
     cal.metadata.update(source=str(args.file), columns=",".join(rec.mag_names()))
+    _outlier_lines(cal, rec)
     if reference is not None:
-        cal.metadata["reference"] = "attitude pitch,roll,yaw and local field igrf_n,igrf_e,igrf_d of the recording"
+        cal.metadata["reference"] = (f"columns {args.reference} of the recording" if args.reference else
+                                     "attitude pitch,roll,yaw and local field igrf_n,igrf_e,igrf_d of the recording")
         if len(raw) >= 40:
-            cal.summary["held_out_rms"] = _held_out_rms(raw, reference, cal.units)
+            cal.summary["held_out_rms"] = _held_out_rms(raw, reference, cal.units,
+                                                        cal.summary.get("outliers", {}).get("rows", []))
     if args.output:  # before the report: a reader that stops early (| head) must not cost the calibration
         path = cal.save(args.output)
     _report(cal, raw)
@@ -321,13 +387,8 @@ def cmd_diagnose(args) -> int:
     rec.samples()  # the magnetometer columns exist and are finite before the diagnosis starts
     _print_roles(rec)
     # a recording with attitude + local field gives the vector model its reference, unless told otherwise
-    reference = None if args.reference or args.model in ("ellipsoid", "scale") else rec.reference_field()
-    if args.reference:
-        names = args.reference.split(",")
-        missing = [n for n in names if n not in rec.columns]
-        if len(names) != 3 or missing:
-            raise ValueError(f"--reference: need three columns of {args.file} (columns are: {', '.join(rec.columns)})")
-        reference = np.column_stack([rec.columns[n] for n in names])
+    reference = (None if not args.reference and args.model in ("ellipsoid", "scale")
+                 else _reference(rec, args.reference, args.file)[0])
     candidates = args.candidates.split(",") if args.candidates else None
     with warnings.catch_warnings():  # the report prints its caveats (CAVEAT: …): not twice
         warnings.filterwarnings("ignore", message="t: readings")
@@ -718,6 +779,9 @@ def build_parser() -> argparse.ArgumentParser:
     c.add_argument("--bad-lines", default="error", choices=["error", "skip"], help=bad_lines_help)
     c.add_argument("--decimal", default=None, choices=[",", "."], metavar="{',' or '.'}", help=decimal_help)
     c.add_argument("--units", default=None, type=reading_unit, help="units of the readings when the file does not say")
+    c.add_argument("--reference", default=None,
+                   help="three columns with the true field per reading, sensor frame (e.g. rx,ry,rz): the vector "
+                        "fit (default: attitude pitch,roll,yaw with local field igrf_n,igrf_e,igrf_d when present)")
     c.add_argument("--method", default="auto", choices=METHODS,
                    help="auto = consistent ellipsoid fit (ALS) + maximum-likelihood refinement (default)")
     c.add_argument("--shape", default="auto", choices=["auto", "sym", "diag", "sphere", "eye"],

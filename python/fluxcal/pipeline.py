@@ -179,6 +179,19 @@ def _refine_shape(start: Calibration, m: np.ndarray, shape: str, **settings) -> 
         warnings += [f"shape {k} would be determined, but the data reject it (BIC higher by "
                      f"{table[k]['bic'] - table[best]['bic']:.0f}): its answer would be biased, not a remedy"
                      for k in fits if table[k]["identifiable"]]
+    # A smaller shape wins without evidence against the larger one when the data cannot determine the larger
+    # one (a cap of orientations: the cross-axis terms trade off against the offset). Its determined answer then
+    # holds only if the left-out terms are zero, which these data cannot test: a 60° cap chose "diag" and put
+    # the offset 14–28 of its standard errors off (blind check, bench/RESULTS.md).
+    undetermined = [k for k in fits if table[k]["parameters"] > table[best]["parameters"] and not table[k]["identifiable"]]
+    if table[best]["identifiable"] and undetermined:
+        cal.summary["identifiable"] = False
+        cal.summary["identifiable_if"] = best
+        warnings.append(f"not identifiable without an assumption: the data do not determine shape "
+                        f"{' or '.join(undetermined)} (its cross-axis or scale terms), so shape {best!r} won by "
+                        f"fit alone, and its answer and standard errors hold only if the sensor has none of the "
+                        f"terms {best!r} leaves out — which these data cannot test; turn the sensor through more "
+                        "orientations (or give reference vectors)")
     cal.summary["warnings"] = list(cal.summary["warnings"]) + warnings
     return cal
 

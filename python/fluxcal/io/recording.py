@@ -186,12 +186,7 @@ class Recording:
         if not angle_units <= {"deg", "rad"} or len(angle_units) > 1:
             raise ValueError(f"{self.source}: attitude columns pitch, roll, yaw must all be in deg or all in rad "
                              f"(units are {', '.join(sorted(angle_units))})")
-        field_units = {self.units.get(c, "") for c in FIELD_NED_COLUMNS}
-        if field_units != {self.field_units()}:
-            raise ValueError(f"{self.source}: the field columns {', '.join(FIELD_NED_COLUMNS)} are in "
-                             f"{', '.join(sorted(field_units)) or 'no stated unit'}, the magnetometer in "
-                             f"{self.field_units() or 'no stated unit'}; they must agree")
-        ned = np.column_stack([self.columns[c] for c in FIELD_NED_COLUMNS])
+        ned = np.column_stack([self.columns[c] for c in FIELD_NED_COLUMNS]) * self._reference_scale()
         pitch, roll, yaw = (self.columns[c] for c in ATTITUDE_COLUMNS)
         for name, values in zip(ATTITUDE_COLUMNS + FIELD_NED_COLUMNS, (pitch, roll, yaw, *ned.T)):
             bad = np.flatnonzero(~np.isfinite(values))
@@ -201,6 +196,35 @@ class Recording:
                 raise ValueError(f"{self.source}: {where}, column {name!r} is {values[row]} (non-finite)")
         return reference_vectors(ned, pitch, roll, yaw, degrees=angle_units == {"deg"},
                                  convention=str(self.metadata.get("attitude_convention", "aerospace")))
+
+    def reference_units(self) -> str:
+        """The unit of `reference_field()`: the magnetometer's when both are field units (the local field is
+        converted to it), else the local field's own (readings in counts fitted to a field model in nT: the
+        vector fit's matrix carries counts per nT, and the corrected field is in nT)."""
+        from ..calibration import TESLA_PER_UNIT
+
+        ned, mag = self._reference_unit(), self.field_units()
+        return mag if mag in TESLA_PER_UNIT and ned in TESLA_PER_UNIT else ned
+
+    def _reference_unit(self) -> str:
+        from ..calibration import TESLA_PER_UNIT
+
+        units = {self.units.get(c, "") for c in FIELD_NED_COLUMNS}
+        mag = self.field_units()
+        if len(units) > 1 or (mag in TESLA_PER_UNIT and units.pop() not in set(TESLA_PER_UNIT) | {mag}):
+            raise ValueError(f"{self.source}: the field columns {', '.join(FIELD_NED_COLUMNS)} are in "
+                             f"{', '.join(sorted({self.units.get(c, '') or 'no stated unit' for c in FIELD_NED_COLUMNS}))}, "
+                             f"the magnetometer in {mag}: state one field unit for all three (e.g. igrf_n [nT])")
+        return self.units.get(FIELD_NED_COLUMNS[0], "")
+
+    def _reference_scale(self) -> float:
+        """The factor that takes the local field columns into `reference_units()`."""
+        from ..calibration import TESLA_PER_UNIT
+
+        ned, mag = self._reference_unit(), self.field_units()
+        if ned in TESLA_PER_UNIT and mag in TESLA_PER_UNIT:
+            return TESLA_PER_UNIT[ned] / TESLA_PER_UNIT[mag]
+        return 1.0
 
     def field_units(self) -> str:
         """The unit of the magnetometer columns ("" when the recording does not state it)."""
