@@ -429,6 +429,23 @@ def test_thousands_separators_of_a_spreadsheet_export_are_read(tmp_path, quote, 
     assert rec.metadata["thousands_separator"] == "comma (mx, my, mz)"
 
 
+def test_thousands_grouped_with_points_before_a_decimal_comma_are_read(tmp_path):
+    # A European spreadsheet export: 45.199,6 nT (a blind check's file was refused, naming --columns)
+    field = np.random.default_rng(6).normal(0, 60_000, (50, 3))
+
+    def cell(x):
+        return format(x, ",.1f").replace(",", "_").replace(".", ",").replace("_", ".")
+
+    path = tmp_path / "export.csv"
+    path.write_text("t;mx;my;mz\ns;nT;nT;nT\n" + "".join(";".join([f"{k / 50:.2f}".replace(".", ",")]
+                                                                 + [cell(x) for x in row]) + "\n"
+                                                        for k, row in enumerate(field)))
+    rec = read_recording(path)
+    np.testing.assert_allclose(rec.samples(), np.round(field, 1), atol=1e-9)
+    assert rec.metadata["thousands_separator"] == "point (mx, my, mz)" and rec.field_units() == "nT"
+    np.testing.assert_allclose(rec.columns["t"][:3], [0.0, 0.02, 0.04])
+
+
 def test_commas_no_value_settles_are_not_guessed(tmp_path):
     path = tmp_path / "export.csv"
     path.write_text("mx,my,mz\n" + "".join(f'"{a:,}","{b:,}","{c:,}"\n' for a, b, c in

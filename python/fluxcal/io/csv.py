@@ -117,10 +117,13 @@ def parse_csv(path, lines, delimiter=",", preamble_lines: int = 0, bad_lines: st
         raise ValueError(f"{path}, line {header_line}: the first line holds numbers, not column names; "
                          "add a header such as mx,my,mz")
     lines = _units_row(lines, i + 1, names, delimiter, unit_map)
-    lines = _trailing_delimiters(lines, i + 1, names, delimiter)
+    lines = lines_before = _trailing_delimiters(lines, i + 1, names, delimiter)
     lines, converted = decimal_points(lines, i + 1, delimiter)
     if converted:
         metadata["decimal_separator"] = "comma"
+        grouped = _point_thousands_columns(lines_before[i + 1:i + 401], delimiter)
+        if grouped:
+            metadata["thousands_separator"] = "point (" + ", ".join(names[j] for j in grouped if j < len(names)) + ")"
     try:
         data, line_numbers, notes = parse_rows(path, lines, i + 1, names, delimiter)
         # NaN/Inf written out (Arduino's "nan") in a column of numbers: lines to skip, as an empty cell is (a
@@ -464,7 +467,8 @@ def decimal_points(lines, start: int, delimiter):
     column a program wrote in its own format), only the decimal-comma columns are converted."""
     sample = lines[start:start + 400]
     columns = _decimal_comma_columns(sample, delimiter)
-    if not columns:
+    grouped = _point_thousands_columns(sample, delimiter)
+    if not columns and not grouped:
         return lines, False
     if not any("." in line for line in sample if not is_comment(line)):  # every number in one form
         return lines[:start] + [line if is_comment(line) else line.replace(",", ".") for line in lines[start:]], True
@@ -474,6 +478,9 @@ def decimal_points(lines, start: int, delimiter):
         for j in columns:
             if j < len(cells):
                 cells[j] = cells[j].replace(",", ".")
+        for j in grouped:  # 45.199,6: the points group thousands, the comma is the decimal one
+            if j < len(cells):
+                cells[j] = cells[j].replace(".", "").replace(",", ".")
         return delimiter.join(cells)
 
     return lines[:start] + [line if is_comment(line) else convert(line) for line in lines[start:]], True
@@ -497,6 +504,27 @@ def _decimal_comma_columns(sample, delimiter) -> list:
         if points and all(_THOUSANDS.match(c) for c in commas):
             continue  # 1,234 beside 0.5: a thousands separator as likely as a decimal comma
         found.append(j)
+    return found
+
+
+_POINT_GROUPS = re.compile(r"^\s*[-+]?\d{1,3}(?:\.\d{3})+(?:,\d+)?\s*$")  # 45.199,6 or 45.199 (European grouping)
+_PLAIN_OR_COMMA = re.compile(r"^\s*[-+]?\d+(?:,\d+)?\s*$")
+
+
+def _point_thousands_columns(sample, delimiter) -> list:
+    """The columns of a ';' or tab table that group thousands with points before a decimal comma (a European
+    spreadsheet's number format: 45.199,6): some cell has both, and every cell is such a number, a plain
+    decimal-comma number or an integer. A point alone (45.199) is not taken for a group without a comma beside
+    it in the column."""
+    if delimiter not in (";", "\t"):
+        return []
+    rows = [line.split(delimiter) for line in sample if line.strip() and not is_comment(line)]
+    found = []
+    for j in range(max(map(len, rows), default=0)):
+        cells = [row[j] for row in rows if j < len(row) and row[j].strip()]
+        if any(_POINT_GROUPS.match(c) and "," in c for c in cells) and \
+                all(_POINT_GROUPS.match(c) or _PLAIN_OR_COMMA.match(c) for c in cells):
+            found.append(j)
     return found
 
 
