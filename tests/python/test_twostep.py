@@ -188,6 +188,18 @@ def test_2d_field_norms_of_other_readings_are_warned_about():
     assert warned > 0
 
 
+def test_2d_a_coupling_between_the_axes_is_named():
+    """A yaw-only log whose axes are coupled (a sheared soft iron, W_xy 5 %): the 2-D model's offsets and gains
+    cannot fit it and |h| spreads by ±5 % with twice the heading; plain per-axis gains leave no such pattern."""
+    rng = np.random.default_rng(1)
+    ang = rng.uniform(0, 2 * np.pi, 400)
+    h = 20.0 * np.column_stack([np.cos(ang), np.sin(ang)])
+    for W, named in ((np.array([[1.1, 0.05], [0.05, 0.9]]), True), (np.diag([1.1, 0.9]), False)):
+        readings = h @ W.T + [3.0, -2.0] + 0.2 * rng.normal(size=h.shape)
+        warnings = fluxcal.twostep_2d(readings, np.full(400, 20.0)).summary["warnings"]
+        assert any("follows twice the heading" in w for w in warnings) is named, warnings
+
+
 def test_2d_rank_deficient_first_step_says_what_to_do():
     # The ring never turned: one field direction, readings on a line.
     readings, h, _ = paper_like(np.random.default_rng(8), noise=0.0, positions=1)
