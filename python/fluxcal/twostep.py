@@ -68,7 +68,9 @@ def twostep_2d(readings, field_norms, units: str | None = None, refine: bool = T
     (turn the sensor) and, unless all magnitudes are equal, its magnitude between readings too.
 
     settings: max_iterations=50, tolerance=1e-12 (refinement), misfit_spread=0.05 (a warning when |h|/h
-    scatters more after the fit: field_norms that do not belong to the readings). Raises ValueError on NaN/Inf, too few
+    scatters more after the fit: field_norms that do not belong to the readings). A misfit that follows twice the
+    heading is warned about too: a coupling between the axes that offsets and gains cannot fit (`_axis_coupling`).
+    Raises ValueError on NaN/Inf, too few
     readings, a length mismatch, non-positive magnitudes, a rank-deficient first step, or γ² ≤ 0.
     """
     arr = as_samples(readings, "readings", columns=2)
