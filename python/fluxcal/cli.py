@@ -847,7 +847,7 @@ def build_parser() -> argparse.ArgumentParser:
     g.add_argument("--detection-limits", action="store_true",
                    help="also measure how large each candidate must be before this recording's diagnosis confirms "
                         "it (those of --candidates, default all): each added to the recording at doubling sizes "
-                        "(fluxcal.detection_limits; a minute or two)")
+                        "(fluxcal.detection_limits; minutes on a long recording)")
     g.add_argument("--seeds", type=positive_int, default=3,
                    help="--detection-limits: shapes of each effect per size (default 3)")
     g.add_argument("--json", default=None, help="write the ranking and tables (JSON)")

@@ -86,3 +86,12 @@ def test_the_command_line_prints_and_saves_the_limits(clean, tmp_path, capsys):
     assert saved["detection_limits"]["units"] == "uT"
     assert main(["diagnose", str(path), "--model", "cable", "--detection-limits"]) == 2
     assert "--detection-limits: measured for magnetometer recordings" in capsys.readouterr().err
+
+
+def test_what_the_base_model_absorbs_gets_no_size():
+    # Against reference vectors the full matrix takes a rotation of the axes whole: no misalignment shows.
+    result, kw = withheld_trial([], 3, model="vector")
+    limits = detection_limits(result.readings, names=["misalignment"], seeds=1,
+                              **{k: kw[k] for k in ("t", "temp", "reference", "gravity")})
+    assert limits.row("misalignment")["status"] == "absorbed"
+    assert "absorbed by the base model's own parameters" in limits.text()

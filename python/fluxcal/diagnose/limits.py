@@ -39,7 +39,8 @@ class DetectionLimits:
     """Per candidate (`rows`, in the full diagnosis' order of names): `effect`; `status` "limit" (confirmed from
     `found_at` on, not at `not_at`: sizes in % of the field, `found_at_units`/`not_at_units` in the readings'
     units, or ms for a delay; `not_at` None when confirmed at the smallest size tried), "in_recording" (the
-    candidate alone is confirmed on the untouched recording: no limit to give), "not_found" (not confirmed up to
+    candidate alone is confirmed on the untouched recording, with a made-up regressor for most of the shapes: no
+    limit to give), "absorbed" (the base model's parameters take it whole), "not_found" (not confirmed up to
     `not_at`, the largest size tried), or "not_tried" (`reason`); `strength` the effect's size at the limit
     against its typical one; `seeds_found` how many shapes were confirmed there; `full_run` what the full
     diagnosis accepted at that size (the first shape confirmed alone); `made_up` the regressors that the recording lacks and the
@@ -92,7 +93,11 @@ class DetectionLimits:
                 why = "the largest tried" if "refused" not in r else f"where {_first_clause(r['refused'])}"
                 lines.append(f"  {r['effect']:<20} not confirmed up to {size(r, 'not_at')}, {why}")
             elif status == "in_recording":
-                lines.append(f"  {r['effect']:<20} confirmed in the untouched recording itself: no limit to give")
+                lines.append(f"  {r['effect']:<20} confirmed in the untouched recording itself"
+                             + (f" (with the made-up {' and '.join(MADE_UP[k] for k in r['made_up'])}: its own "
+                                "departure passes for this effect)" if r["made_up"] else "") + ": no limit to give")
+            elif status == "absorbed":
+                lines.append(f"  {r['effect']:<20} absorbed by the base model's own parameters: no size shows it")
             else:
                 lines.append(f"  {r['effect']:<20} not tried: {r['reason']}")
         made = sorted({MADE_UP[k] for r in self.rows for k in r.get("made_up", [])})
@@ -163,6 +168,8 @@ def detection_limits(samples, t=None, temp=None, current=None, reference=None, g
     cal = calibrate(m, field_norm=field_norm, reference=reference)
     field_size = float(np.median(np.linalg.norm(m - np.asarray(cal.offset), axis=1)))
     tried = {r["effect"] for r in full.ranking}
+    # what the base model's own parameters take whole (a rotation against a full matrix): no size shows it
+    absorbed = {r["effect"] for r in full.ranking if r.get("absorbed") and not r.get("absorbed_after")}
     inject_t = np.arange(len(m), dtype=float) if t is None else np.asarray(t, dtype=float)
     inject_kw = {"t": inject_t, "reference": reference, "gravity": options["gravity"], "field_norm": field_norm,
                  "temp": own["temp"], "current": own["current"]}
@@ -189,9 +196,15 @@ def detection_limits(samples, t=None, temp=None, current=None, reference=None, g
         elif name not in tried and not row["made_up"]:
             row.update(status="not_tried", reason="the full diagnosis does not try it on this recording "
                                                    "(its regressor is missing)")
+        elif name in absorbed:
+            row.update(status="absorbed")
         else:
-            untouched = inject(m, [name], 0, strength=0.0, **inject_kw)  # (its regressors, made up or own)
-            if name in run(m, untouched.kwargs, [name]).accepted:
+            # The untouched recording with the effect's regressors (its own, or made up as for each shape: a
+            # made-up temperature that happens to follow the recording's own departure is one shape in many)
+            shapes = range(seeds if row["made_up"] else 1)
+            confirmed = sum(name in run(m, inject(m, [name], seed, strength=0.0, **inject_kw).kwargs, [name]).accepted
+                            for seed in shapes)
+            if confirmed >= len(shapes) // 2 + 1:
                 row.update(status="in_recording")
             else:
                 row.update(_bisect(name, m, inject_kw, run, seeds, field_size))
