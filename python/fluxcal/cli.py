@@ -70,6 +70,10 @@ def _report(cal: Calibration, raw: np.ndarray, out=sys.stdout) -> None:
         print(f"  shape                 {s['shape']} (BIC: {scores})", file=out)
     elif s.get("shape", "sym") != "sym":
         print(f"  shape                 {s['shape']}", file=out)
+    if "held_out_spread" in s:
+        spread = s["held_out_spread"]
+        print("  held-out |h| std/mean " + (f"{100 * spread:.3f} %   (fit on the first half, judged on the second)"
+                                            if isinstance(spread, float) else f"—   ({spread})"), file=out)
     if "held_out_rms" in s:
         print(f"  held-out vector RMS   {s['held_out_rms']:.6g} {cal.h_units}   (fit on the first half, "
               "|h - reference| on the second)", file=out)
@@ -146,6 +150,20 @@ def _held_out_rms(raw, reference, units, outliers=()) -> float:
     first = calibrate(raw[:half], reference=reference[:half], units=units)
     kept = np.setdiff1d(np.arange(half, len(raw)), np.asarray(outliers, dtype=int))
     return float(np.sqrt(np.mean(np.sum((first.apply(raw[kept]) - reference[kept]) ** 2, axis=1))))
+
+
+def _held_out_spread(raw, cal: Calibration, field_norm, settings: dict):
+    """Magnitude-fit check on data the fit did not see: the same method and shape fitted on the first half, the
+    spread std/mean of |h| on the second without the whole fit's outliers (the spread a peer's fit is judged
+    by); or why the first half alone cannot be fitted."""
+    half = len(raw) // 2
+    try:
+        first = calibrate(raw[:half], field_norm=field_norm, shape=cal.summary.get("shape", "auto"), **settings)
+    except ValueError as exc:
+        return f"the first half alone cannot be fitted: {str(exc).split(';')[0]}"
+    kept = np.setdiff1d(np.arange(half, len(raw)), np.asarray(cal.summary.get("outliers", {}).get("rows", []), int))
+    norms = np.linalg.norm(first.apply(raw[kept]), axis=1)
+    return float(norms.std() / norms.mean())
 
 
 def _outlier_lines(cal: Calibration, rec: Recording) -> None:
@@ -240,6 +258,8 @@ def cmd_calibrate(args) -> int:
         _recheck_field_norm(cal, units, unit_name(args.field_units))
     cal.metadata.update(source=str(args.file), columns=",".join(rec.mag_names()))
     _outlier_lines(cal, rec)
+    if reference is None and len(raw) >= 80 and args.method in ("auto", "als+refine"):
+        cal.summary["held_out_spread"] = _held_out_spread(raw, cal, field_norm, settings)
     if reference is not None:
         cal.metadata["reference"] = (f"columns {args.reference} of the recording" if args.reference else
                                      "attitude pitch,roll,yaw and local field igrf_n,igrf_e,igrf_d of the recording")
