@@ -100,8 +100,10 @@ def refine(calibration: Calibration, samples, reference=None, loss: str = "none"
     Newey–West standard errors when the residuals, rows in time order, fail a Ljung–Box test at
     serial_correlation_alpha = 0.01 and the sandwich widens an error, or when it widens one ≥ 1.5×;
     never to a sandwich that widens nothing. "independent"; "newey_west": whatever it gives).
+    The Newey–West long-run covariance is prewhitened (Andrews & Monahan 1992: a lag-1 autoregression
+    per score column, clipped at ±0.97, Bartlett over the whitened scores, recoloured).
     summary["serial_correlation"] holds the residuals' lag-1 autocorrelation, the test's p-value, the
-    Newey–West lags (0 = independent readings assumed), the inflation of the standard errors and the
+    Newey–West lags of the whitened scores (0 = independent readings assumed), the inflation of the standard errors and the
     independent-readings ones. Whether the data determine a parameter is judged on the latter.
     """
     require_calibration(calibration)

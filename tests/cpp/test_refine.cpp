@@ -59,7 +59,7 @@ TEST(RefineSerialCorrelation, CorrelatedNoiseWidensTheErrors) {
   const auto r = refined(s, t.field);
   EXPECT_GT(r.serial_correlation.lag1, 0.5);
   EXPECT_LT(r.serial_correlation.ljung_box_p, 1e-6);
-  EXPECT_GT(r.serial_correlation.lags, 10);
+  EXPECT_GE(r.serial_correlation.lags, 1);  // of the prewhitened scores: AR(1) noise leaves them nearly white
   EXPECT_GT(r.serial_correlation.inflation, 2.0);
   EXPECT_TRUE(warns(r));
   for (Eigen::Index k = 0; k < 9; ++k)

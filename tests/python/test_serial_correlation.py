@@ -46,7 +46,7 @@ def test_refine_newey_west_agrees_with_oracle(seed):
     ref = oracle.refine(start.offset, start.matrix, start.field_norm, s.readings)
     cov, lags = oracle.serial.newey_west_covariance(ref["jacobian"], ref["residuals"])
     serial = cal.summary["serial_correlation"]
-    assert serial["lags"] == lags > 10  # AR(1) with φ = 0.9 on a smooth path: a long bandwidth
+    assert serial["lags"] == lags >= 1  # the bandwidth of the prewhitened scores: short for AR(1) noise
     np.testing.assert_allclose(cal.summary["standard_errors"], np.sqrt(np.diag(cov)), rtol=1e-3)
     np.testing.assert_allclose(serial["standard_errors_independent"], np.sqrt(np.diag(ref["covariance"])), rtol=1e-3)
     test = oracle.serial.residual_test(ref["residuals"])

@@ -3,9 +3,12 @@ fluxcal's refine/fit_vector report when their residuals fail a Ljung–Box test)
 
 For least squares θ̂ with Jacobian J and residuals r, the scores of reading t are g_t = Σ_a J_ta r_ta
 (one row of J per residual, `per_reading` consecutive rows a reading). The sandwich covariance is
-F⁻¹ S F⁻¹ with F = JᵀJ and S the Bartlett-weighted long-run covariance of the scores (statsmodels'
-S_hac_simple), the bandwidth the cube root of the mean cubed Politis–White block length of the score
-columns (arch's optimal_block_length, circular)."""
+F⁻¹ S F⁻¹ with F = JᵀJ and S the long-run covariance of the scores, prewhitened as Andrews & Monahan
+(1992) with a diagonal first-order autoregression: per column a_j = Σ g_t g_{t−1} / Σ g_{t−1}² clipped
+to ±0.97, the Bartlett-weighted long-run covariance (statsmodels' S_hac_simple) of the whitened
+e_t = g_t − a ∘ g_{t−1} (t ≥ 1), recoloured S = D S* D with D = diag(1/(1 − a)). The bandwidth is the cube
+root of the mean cubed Politis–White block length of the whitened columns (arch's optimal_block_length,
+circular)."""
 from __future__ import annotations
 
 import numpy as np
@@ -29,15 +32,32 @@ def bandwidth(g) -> int:
     return int(np.clip(np.ceil(np.cbrt(np.mean(b**3))), 1, len(g) - 1))
 
 
+PREWHITENING_CLIP = 0.97  # Andrews & Monahan's bound on the autoregressive coefficients
+
+
+def prewhitened_long_run(g, lags: int | None = None):
+    """(S, lags, a): the prewhitened long-run covariance of the scores (see the module's docstring),
+    S* over `lags` (`bandwidth` of the whitened scores when None), and the coefficients a."""
+    g = np.asarray(g, dtype=float)
+    x, y = g[:-1], g[1:]
+    den = np.sum(x * x, axis=0)
+    a = np.where(den > 0, np.sum(x * y, axis=0) / np.where(den > 0, den, 1.0), 0.0)
+    a = np.clip(a, -PREWHITENING_CLIP, PREWHITENING_CLIP)
+    e = y - x * a
+    lags = bandwidth(e) if lags is None else int(lags)
+    d = 1.0 / (1.0 - a)
+    return d[:, None] * S_hac_simple(e, nlags=lags) * d[None, :], lags, a
+
+
 def newey_west_covariance(jacobian, residuals, per_reading: int = 1, lags: int | None = None):
     """(covariance, lags): the sandwich F⁻¹ S F⁻¹ × N/(N − p) (N readings, p parameters: the usual
-    small-sample correction), S over `lags` (`bandwidth` when None)."""
+    small-sample correction), S prewhitened and over `lags` of the whitened scores (`bandwidth` when None)."""
     J = np.asarray(jacobian, dtype=float)
     g = scores(J, residuals, per_reading)
-    lags = bandwidth(g) if lags is None else int(lags)
+    S, lags, _ = prewhitened_long_run(g, lags)
     Finv = np.linalg.inv(J.T @ J)
     n, p = g.shape
-    return Finv @ S_hac_simple(g, nlags=lags) @ Finv * n / (n - p), lags
+    return Finv @ S @ Finv * n / (n - p), lags
 
 
 def residual_test(residuals, per_reading: int = 1) -> dict:
