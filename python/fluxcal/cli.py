@@ -207,11 +207,11 @@ def _reference(rec: Recording, names: str | None, file) -> tuple:
 REFERENCE_NAMES = ("rx", "ry", "rz", "ref_x", "ref_y", "ref_z", "bx_ref", "by_ref", "bz_ref")
 
 
-def _note_reference_columns(rec: Recording, reference) -> None:
+def _note_reference_columns(rec: Recording, reference, method: str) -> None:
     """Columns that look like reference vectors but are not used: said, not silently left (a magnitude fit
     loses the misalignment a vector fit would find)."""
     unused = [n for n in rec.columns if n.lower() in REFERENCE_NAMES]
-    if reference is None and len(unused) >= 3:
+    if reference is None and len(unused) >= 3 and method in ("auto", "vector"):
         print(f"note: columns {', '.join(unused)} look like reference vectors (the true field per reading) but are not "
               f"used: give --reference {','.join(unused[:3])} for the vector fit (the full matrix, misalignment included)")
 
@@ -234,13 +234,19 @@ def cmd_calibrate(args) -> int:
     # attitude + local field in the recording (e.g. the airborne layout): the vector fit, unless a
     # magnitude-only method is asked for
     units, field_norm = rec.field_units(), args.field_norm
+    if args.reference and args.method not in ("auto", "vector"):
+        raise ValueError(f"--reference: the vector fit's; --method {args.method} fits field magnitudes only (leave "
+                         "--method out, or give vector)")
     reference, reference_units = (_reference(rec, args.reference, args.file) if args.method in ("auto", "vector")
                                   else (None, units))
+    if reference is not None and not reference_units and units == "counts":
+        print("note: the reference field states no unit: the corrected field is in its unit (state it, e.g. "
+              "igrf_n [nT], for the calibration to say so)")
     if args.method == "vector" and reference is None:
         raise ValueError(f"{args.file}: --method vector needs the true field of each reading: --reference with three "
                          "columns (e.g. --reference rx,ry,rz), or attitude columns pitch, roll, yaw with the local "
                          "field igrf_n, igrf_e, igrf_d")
-    _note_reference_columns(rec, reference)
+    _note_reference_columns(rec, reference, args.method)
     if field_norm is None and reference is None and "simulated" in rec.metadata and "field_norm" in rec.metadata:
         field_norm = float(rec.metadata["field_norm"])  # `fluxcal simulate` states the field it simulated
         print(f"field norm {field_norm:g} {units} from the simulation's metadata".rstrip())
@@ -407,8 +413,13 @@ def cmd_diagnose(args) -> int:
     rec.samples()  # the magnetometer columns exist and are finite before the diagnosis starts
     _print_roles(rec)
     # a recording with attitude + local field gives the vector model its reference, unless told otherwise
-    reference = (None if not args.reference and args.model in ("ellipsoid", "scale")
-                 else _reference(rec, args.reference, args.file)[0])
+    reference, reference_units = ((None, "") if not args.reference and args.model in ("ellipsoid", "scale")
+                                  else _reference(rec, args.reference, args.file))
+    if reference is not None and reference_units != rec.field_units():
+        raise ValueError(f"{args.file}: the readings are in {rec.field_units() or 'no stated unit'} and the reference "
+                         f"vectors in {reference_units or 'no stated unit'}: the vector model's errors would mix the "
+                         "two; calibrate first (fluxcal calibrate … -o cal.json, then fluxcal apply) and diagnose the "
+                         "corrected field against the reference")
     candidates = args.candidates.split(",") if args.candidates else None
     with warnings.catch_warnings():  # the report prints its caveats (CAVEAT: …): not twice
         warnings.filterwarnings("ignore", message="t: readings")
@@ -866,7 +877,8 @@ def build_parser() -> argparse.ArgumentParser:
                         "significant one)")
     g.add_argument("--detection-limits", action="store_true",
                    help="also measure how large each candidate must be before this recording's diagnosis confirms "
-                        "it (those of --candidates, default all): each added to the recording at doubling sizes "
+                        "it (those of --candidates, default all, each judged as in the full diagnosis): each added to the recording "
+                        "at doubling sizes "
                         "(fluxcal.detection_limits; minutes on a long recording)")
     g.add_argument("--seeds", type=positive_int, default=3,
                    help="--detection-limits: shapes of each effect per size (default 3)")

@@ -43,7 +43,8 @@ def fit_ellipsoid(samples, field_norm: float | None = None, units: str | None = 
     planar readings, or readings that do not lie on an ellipsoid.
 
     settings (defaults in cpp/include/fluxcal/ellipsoid.hpp): planar_ratio=0.02 (reject below this
-    thinnest/widest spread), poor_coverage_ratio=0.3 and poor_direction_coverage=0.5 (warn below),
+    thinnest/widest spread), poor_coverage_ratio=0.3 and poor_direction_coverage=0.5 (warn below; the bins judged against what
+    N readings spread evenly would fill, 1 − (1 − 1/96)^N),
     exact_statistics=True (residual statistics and coverage from a pass over the samples).
     """
     if units is None:

@@ -183,7 +183,8 @@ def _refine_shape(start: Calibration, m: np.ndarray, shape: str, **settings) -> 
     # one (a cap of orientations: the cross-axis terms trade off against the offset). Its determined answer then
     # holds only if the left-out terms are zero, which these data cannot test: a 60° cap chose "diag" and put
     # the offset 14–28 of its standard errors off (blind check, bench/RESULTS.md).
-    undetermined = [k for k in fits if table[k]["parameters"] > table[best]["parameters"] and not table[k]["identifiable"]]
+    larger = list(SHAPES)[list(SHAPES).index(best) + 1:]  # SHAPES runs from the sphere to the full matrix
+    undetermined = [k for k in larger if "error" in table[k] or not table[k]["identifiable"]]  # a failed fit says no more
     if table[best]["identifiable"] and undetermined:
         cal.summary["identifiable"] = False
         cal.summary["identifiable_if"] = best

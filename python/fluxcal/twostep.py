@@ -137,7 +137,8 @@ def twostep(samples, field_norm: float, units: str | None = None, **settings) ->
 
     settings (defaults in cpp/include/fluxcal/twostep.hpp): max_iterations=50 (0 = first step only),
     tolerance=1e-10, noise_sigma=-1 (estimate; 0 = no noise-mean correction), planar_ratio=0.02,
-    poor_coverage_ratio=0.3, poor_direction_coverage=0.5, coverage_rows=16384. Raises ValueError on a
+    poor_coverage_ratio=0.3, poor_direction_coverage=0.5 (of what N readings spread evenly would fill),
+    coverage_rows=16384. Raises ValueError on a
     missing field_norm, NaN/Inf, too few rows, planar readings, or a non-positive-definite result; a
     second step that does not converge is reported in summary["converged"] and summary["warnings"].
     """

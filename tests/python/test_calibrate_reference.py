@@ -38,6 +38,9 @@ def test_counts_against_a_field_model_in_nt_are_calibrated_in_nt(tmp_path):
     A = np.array(saved["matrix"])
     assert np.max(np.abs(A @ W - np.eye(3))) < 0.01  # A inverts counts per nT
     assert np.allclose(saved["offset"], b, atol=1.0)
+    # the diagnosis' vector model would mix counts and nT in its errors: refused, with the way round it
+    out = run_cli("diagnose", path, "--quiet")
+    assert out.returncode == 2 and "calibrate first" in out.stderr
 
 
 def test_reference_columns_are_used_when_named_and_noticed_when_not(tmp_path):
@@ -64,6 +67,8 @@ def test_reference_columns_are_used_when_named_and_noticed_when_not(tmp_path):
     assert np.allclose(json.loads((tmp_path / "cal_nt.json").read_text())["matrix"], saved["matrix"], atol=1e-9)
     missing = run_cli("calibrate", path, "--method", "vector")
     assert missing.returncode == 2 and "--reference with three columns" in missing.stderr
+    magnitudes = run_cli("calibrate", path, "--reference", "rx,ry,rz", "--method", "als")
+    assert magnitudes.returncode == 2 and "fits field magnitudes only" in magnitudes.stderr
 
 
 def test_outliers_are_named_by_their_file_lines_and_left_out_of_the_held_out_check(tmp_path):

@@ -182,6 +182,15 @@ def test_a_smaller_shape_chosen_because_the_larger_is_undetermined_is_not_identi
     assert not cal.summary["identifiable"] and cal.summary["identifiable_if"] == "diag"
     assert any("not identifiable without an assumption: the data do not determine shape sym" in w
                for w in cal.summary["warnings"])
+
+    def sym_fails(start, m, shape="sym", **settings):  # a larger shape that fails to fit says no more
+        if shape == "sym":
+            raise ValueError("samples: did not converge")
+        return real_refine(start, m, shape=shape, **settings)
+
+    monkeypatch.setattr(pipeline, "refine", sym_fails)
+    cal = fluxcal.calibrate(readings(DIAG, OFFSET, 1000, 0.004, 0), field_norm=H)
+    assert cal.summary["shape"] == "diag" and not cal.summary["identifiable"]
     monkeypatch.setattr(pipeline, "refine", real_refine)
     # Every shape determined (the whole sphere): the same sensor is identifiable in "diag".
     cal = fluxcal.calibrate(readings(DIAG, OFFSET, 1000, 0.004, 0), field_norm=H)

@@ -45,7 +45,8 @@ struct EllipsoidOptions {
   double planar_ratio = 0.02;
   /// Warn about poor coverage when the thinnest/widest spread is below this ...
   double poor_coverage_ratio = 0.3;
-  /// ... or when fewer than this fraction of direction bins hold a corrected reading (coverage.hpp).
+  /// ... or when fewer than this fraction of direction bins hold a corrected reading (coverage.hpp), of the
+  /// fraction N readings spread evenly would fill, 1 − (1 − 1/96)^N (30 readings: about 27 %).
   double poor_direction_coverage = 0.5;
   /// Residual statistics and direction coverage from a second pass over the samples (exact) rather
   /// than from the moments (first order in the residual, no direction coverage; free).

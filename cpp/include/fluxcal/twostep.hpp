@@ -121,7 +121,8 @@ struct TwoStepOptions {
   double planar_ratio = 0.02;
   /// Warn about poor coverage below this thinnest/widest spread ...
   double poor_coverage_ratio = 0.3;
-  /// ... or when fewer than this fraction of direction bins hold a corrected reading (coverage.hpp).
+  /// ... or when fewer than this fraction of direction bins hold a corrected reading (coverage.hpp), of the
+  /// fraction N readings spread evenly would fill, 1 − (1 − 1/96)^N (30 readings: about 27 %).
   double poor_direction_coverage = 0.5;
   /// Direction coverage looks at an evenly strided subsample of at most this many readings (0 = all).
   Eigen::Index coverage_rows = 16384;

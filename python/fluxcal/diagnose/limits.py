@@ -41,11 +41,13 @@ class DetectionLimits:
     units, or ms for a delay; `not_at` None when confirmed at the smallest size tried), "in_recording" (the
     candidate alone is confirmed on the untouched recording, with a made-up regressor for most of the shapes: no
     limit to give), "absorbed" (the base model's parameters take it whole), "not_found" (not confirmed up to
-    `not_at`, the largest size tried), or "not_tried" (`reason`); `strength` the effect's size at the limit
-    against its typical one; `seeds_found` how many shapes were confirmed there; `full_run` what the full
-    diagnosis accepted at that size (the first shape confirmed alone); `made_up` the regressors that the recording lacks and the
-    injection made up. `field`: the field's size in the readings' units; `bonferroni`: the full run's number of
-    candidates."""
+    `not_at`, the largest size tried below one that makes the calibration fail — `refused` then says why), or
+    "not_tried" (`reason`); `strength` the effect's size at the limit against its typical one; `seeds_found` how
+    many shapes were confirmed there; `full_run` what the full diagnosis (the recording's own regressors, and the
+    made-up one this candidate needs) accepted at that size, on the first shape confirmed alone; `made_up` the
+    regressors the recording lacks (or whose column has `missing` values) and the injection made up; `bonferroni`
+    the count its tests were corrected for. `field`: the field's size in the readings' units; `bonferroni`: the
+    full run's number of candidates."""
 
     source: str
     units: str
@@ -73,8 +75,8 @@ class DetectionLimits:
     def text(self) -> str:
         unit = f" {self.units}" if self.units else ""
         lines = [f"DETECTION LIMITS — {self.source}: each candidate added to the recording at doubling sizes, "
-                 f"{self.seeds} shape(s) each, diagnosed alone (Bonferroni over the full run's {self.bonferroni} "
-                 f"candidates); confirmed when most shapes are. Sizes: the largest change the effect makes to a "
+                 f"{self.seeds} shape(s) each, diagnosed alone (Bonferroni over the {self.bonferroni} candidates the full "
+                 f"run tries, and those a made-up regressor adds); confirmed when most shapes are. Sizes: the largest change the effect makes to a "
                  f"reading, % of the field ({self.field:.4g}{unit})",
                  f"  {'effect':<20} {'confirmed from':<26} {'not at':<22} in the full diagnosis at that size"]
 
@@ -100,11 +102,16 @@ class DetectionLimits:
                 lines.append(f"  {r['effect']:<20} absorbed by the base model's own parameters: no size shows it")
             else:
                 lines.append(f"  {r['effect']:<20} not tried: {r['reason']}")
-        made = sorted({MADE_UP[k] for r in self.rows for k in r.get("made_up", [])})
+        made = sorted({k for r in self.rows for k in r.get("made_up", [])})
         if made:
-            lines.append(f"  (the recording has no {' or '.join(made)} column: made up for the candidates that need it "
-                         "— a temperature rising and falling ±10 °C, a current stepping between throttle settings "
-                         "up to 20 A — so their limits say what logging one would show)")
+            why = [f"its {MADE_UP[k]} column has {n} missing values" for k, n in sorted(
+                {k: n for r in self.rows for k, n in r.get("missing", {}).items()}.items())]
+            absent = [MADE_UP[k] for k in made if not any(k in r.get("missing", {}) for r in self.rows)]
+            if absent:
+                why.insert(0, f"the recording has no {' or '.join(absent)} column")
+            lines.append(f"  ({'; '.join(why)}: made up for the candidates that need it — a temperature rising and "
+                         "falling ±10 °C, a current stepping between throttle settings up to 20 A — so their limits "
+                         "say what logging one would show)")
         lines.append("  A candidate alone has no rival for the departure: the full diagnosis may name another effect "
                      "at the same size (last column), so these are lower bounds.")
         return "\n".join(lines)
@@ -152,13 +159,11 @@ def detection_limits(samples, t=None, temp=None, current=None, reference=None, g
         raise ValueError(f"seeds: need a whole number ≥ 1 (shapes per size), got {seeds!r}")
     options = {"reference": reference, "gravity": gravity if reference is not None else None,
                "field_norm": field_norm, "model": model, "noise_sigma": noise_sigma, "units": units}
-    own = {"temp": temp, "current": current}
-    own = {k: (None if v is None or not np.all(np.isfinite(np.asarray(v, dtype=float))) else v) for k, v in own.items()}
-    # The untouched recording, every candidate: its count (with those whose temperature or current is made up
-    # here) is the Bonferroni count of the limits.
+    # A regressor column with a blank cell is not used (as by the diagnosis): said, and made up in its place.
+    given = {"temp": temp, "current": current}
+    missing = {k: int(np.sum(~np.isfinite(np.asarray(v, dtype=float)))) for k, v in given.items() if v is not None}
+    own = {k: (None if v is None or missing[k] else v) for k, v in given.items()}
     full = diagnosis or diagnose(m, t=t, **own, alpha=alpha, source=source, **options)
-    can_make = {"t", "temp", "current"} | ({"timestamps"} if t is not None else set())
-    k = max(len(full.ranking) + sum(set(_needs(s)) <= can_make for s in full.remaining["skipped_candidates"]), 1)
     possible = injectable(reference is not None)
     wanted = possible if names is None else list(names)
     known = [c.name for c in CANDIDATES]
@@ -168,16 +173,27 @@ def detection_limits(samples, t=None, temp=None, current=None, reference=None, g
     cal = calibrate(m, field_norm=field_norm, reference=reference)
     field_size = float(np.median(np.linalg.norm(m - np.asarray(cal.offset), axis=1)))
     tried = {r["effect"] for r in full.ranking}
+    skipped = set(full.remaining["skipped_candidates"])
     # what the base model's own parameters take whole (a rotation against a full matrix): no size shows it
     absorbed = {r["effect"] for r in full.ranking if r.get("absorbed") and not r.get("absorbed_after")}
     inject_t = np.arange(len(m), dtype=float) if t is None else np.asarray(t, dtype=float)
-    inject_kw = {"t": inject_t, "reference": reference, "gravity": options["gravity"], "field_norm": field_norm,
+    # gravity always: a magnet's field is fixed in the world, its attitude from the down direction
+    inject_kw = {"t": inject_t, "reference": reference, "gravity": gravity, "field_norm": field_norm,
                  "temp": own["temp"], "current": own["current"]}
 
-    def run(readings, kwargs, candidates, bonferroni=True):
-        kw = {**kwargs, "t": t}  # the recording's own clock (None: row numbers), not inject's
-        return diagnose(readings, candidates=candidates, alpha=alpha / k if bonferroni else alpha, source=source,
-                        **{**options, **{key: kw.get(key) for key in ("t", "temp", "current")}})
+    available = {"t"} | ({"timestamps"} if t is not None else set()) | {key for key in own if own[key] is not None}
+
+    def bonferroni(made_up) -> int:
+        """The full run's count of candidates, with those the made-up regressors let it try."""
+        extra = [c for c in skipped if made_up and set(_needs(c)) & set(made_up)
+                 and set(_needs(c)) <= available | set(made_up)]
+        return max(len(full.ranking) + len(extra), 1)
+
+    def run(readings, kwargs, candidates, k=1, made_up=()):
+        """A diagnosis of `readings` as the user's: the recording's clock (None: row numbers), its own
+        regressors, and those made up only for the candidate that needs them."""
+        side = {key: kwargs.get(key) if own[key] is not None or key in made_up else None for key in ("temp", "current")}
+        return diagnose(readings, candidates=candidates, alpha=alpha / k, source=source, t=t, **side, **options)
 
     bar = None
     if progress:
@@ -186,34 +202,39 @@ def detection_limits(samples, t=None, temp=None, current=None, reference=None, g
         bar = tqdm(total=len(wanted), desc="detection limits", unit="candidate", leave=False)
     rows = []
     for name in wanted:
-        row = {"effect": name, "made_up": [key for key in ("temp", "current")
-                                           if own[key] is None and key in _needs(name)]}
+        made_up = [key for key in ("temp", "current") if own[key] is None and key in _needs(name)]
+        row = {"effect": name, "made_up": made_up, "missing": {k: missing[k] for k in made_up if missing.get(k)}}
         if name in NOISE_CANDIDATES:
             row.update(status="not_tried", reason="a noise, not an effect with a size")
         elif name not in possible:
-            row.update(status="not_tried", reason="not one inject can add here (a rotation or a delay of the field "
-                                                   "needs reference vectors)" if name in known else "unknown")
-        elif name not in tried and not row["made_up"]:
-            row.update(status="not_tried", reason="the full diagnosis does not try it on this recording "
-                                                   "(its regressor is missing)")
+            row.update(status="not_tried", reason=(
+                "a rotation or a delay of the field: it needs reference vectors" if name in ("misalignment", "time_offset")
+                else "not added to recordings (a full soft-iron matrix absorbs it)"))
+        elif name not in tried and not made_up:
+            row.update(status="not_tried", reason="the full diagnosis does not try it on this recording (see its "
+                                                   "'not tried' lines)")
         elif name in absorbed:
             row.update(status="absorbed")
         else:
+            k = bonferroni(made_up)
+            row["bonferroni"] = k
             # The untouched recording with the effect's regressors (its own, or made up as for each shape: a
             # made-up temperature that happens to follow the recording's own departure is one shape in many)
-            shapes = range(seeds if row["made_up"] else 1)
-            confirmed = sum(name in run(m, inject(m, [name], seed, strength=0.0, **inject_kw).kwargs, [name]).accepted
-                            for seed in shapes)
+            shapes = range(seeds if made_up else 1)
+            confirmed = sum(name in run(m, inject(m, [name], seed, strength=0.0, **inject_kw).kwargs, [name], k,
+                                        made_up).accepted for seed in shapes)
             if confirmed >= len(shapes) // 2 + 1:
                 row.update(status="in_recording")
             else:
-                row.update(_bisect(name, m, inject_kw, run, seeds, field_size))
+                row.update(_bisect(name, m, inject_kw, lambda x, kw, c, full_run=False: run(
+                    x, kw, c, 1 if full_run else k, made_up), seeds, field_size))
         rows.append(row)
         if bar:
             bar.update(1)
     if bar:
         bar.close()
-    return DetectionLimits(source=source, units=units, field=field_size, seeds=seeds, bonferroni=k, rows=rows)
+    return DetectionLimits(source=source, units=units, field=field_size, seeds=seeds, bonferroni=bonferroni(()),
+                           rows=rows)
 
 
 def _needs(name: str) -> tuple:
@@ -221,10 +242,11 @@ def _needs(name: str) -> tuple:
 
 
 def _bisect(name, m, inject_kw, run, seeds: int, field_size: float) -> dict:
-    """Walk the strengths from the typical size down while most shapes are confirmed, or up until they are."""
+    """Walk the strengths from the typical size down while most shapes are confirmed, or up until they are. A
+    size at which most shapes make the calibration itself fail is too large: the walk goes down from it, or stops
+    going up there."""
     majority = seeds // 2 + 1
-
-    refused = {}
+    refused = {}  # strength index → (how many shapes failed, the first message)
 
     def trial(i):
         found, sizes, first = 0, [], None
@@ -234,19 +256,23 @@ def _bisect(name, m, inject_kw, run, seeds: int, field_size: float) -> dict:
                 if name in run(inj.readings, inj.kwargs, [name]).accepted:
                     found, first = found + 1, first or inj
             except ValueError as error:  # so large an effect that the calibration itself fails: not confirmed
-                refused[i] = str(error)
+                refused[i] = (refused.get(i, (0, str(error)))[0] + 1, refused.get(i, (0, str(error)))[1])
             sizes.append(abs(inj.effects[0].delta) * 1e3 if name == "time_offset"
                          else float(np.max(np.linalg.norm(inj.readings - m, axis=1))))
         return found, float(np.median(sizes)), first
 
+    def too_large(i):
+        return refused.get(i, (0, ""))[0] >= majority
+
     results = {}
     i = START
     results[i] = trial(i)
-    step = -1 if results[i][0] >= majority else 1
-    while 0 <= i + step < len(STRENGTHS) and not (step == 1 and i in refused):
+    step = -1 if results[i][0] >= majority or too_large(i) else 1
+    while 0 <= i + step < len(STRENGTHS) and not (step == 1 and too_large(i)):
         i += step
         results[i] = trial(i)
-        if (results[i][0] >= majority) != (step == -1):
+        confirmed_here = results[i][0] >= majority
+        if (step == 1 and confirmed_here) or (step == -1 and not confirmed_here and not too_large(i)):
             break
     confirmed = sorted(j for j, r in results.items() if r[0] >= majority)
     missed = sorted(j for j, r in results.items() if r[0] < majority)
@@ -258,13 +284,14 @@ def _bisect(name, m, inject_kw, run, seeds: int, field_size: float) -> dict:
         return {prefix: results[j][1] * scale, prefix + "_units": results[j][1]}
 
     if not confirmed:
-        row = {"status": "not_found", "strength": float(STRENGTHS[missed[-1]]), **sized("not_at", missed[-1])}
-        if missed[-1] in refused:
-            row["refused"] = refused[missed[-1]]
+        largest = max(j for j in missed if not too_large(j)) if any(not too_large(j) for j in missed) else missed[0]
+        row = {"status": "not_found", "strength": float(STRENGTHS[largest]), **sized("not_at", largest)}
+        if largest + 1 in refused or largest in refused:
+            row["refused"] = refused.get(largest + 1, refused.get(largest))[1]
         return row
     at = confirmed[0]
     below = max([j for j in missed if j < at], default=None)
     inj = results[at][2]  # the first shape confirmed alone
     return {"status": "limit", "strength": float(STRENGTHS[at]), "seeds_found": results[at][0],
             **sized("found_at", at), **sized("not_at", below),
-            "full_run": list(run(inj.readings, inj.kwargs, None, bonferroni=False).accepted)}
+            "full_run": list(run(inj.readings, inj.kwargs, None, full_run=True).accepted)}

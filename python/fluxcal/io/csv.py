@@ -117,13 +117,13 @@ def parse_csv(path, lines, delimiter=",", preamble_lines: int = 0, bad_lines: st
         raise ValueError(f"{path}, line {header_line}: the first line holds numbers, not column names; "
                          "add a header such as mx,my,mz")
     lines = _units_row(lines, i + 1, names, delimiter, unit_map)
-    lines = lines_before = _trailing_delimiters(lines, i + 1, names, delimiter)
+    lines = _trailing_delimiters(lines, i + 1, names, delimiter)
     lines, converted = decimal_points(lines, i + 1, delimiter)
     if converted:
         metadata["decimal_separator"] = "comma"
-        grouped = _point_thousands_columns(lines_before[i + 1:i + 401], delimiter)
+        grouped = [j for j in converted if 0 <= j < len(names)]
         if grouped:
-            metadata["thousands_separator"] = "point (" + ", ".join(names[j] for j in grouped if j < len(names)) + ")"
+            metadata["thousands_separator"] = "point (" + ", ".join(names[j] for j in grouped) + ")"
     try:
         data, line_numbers, notes = parse_rows(path, lines, i + 1, names, delimiter)
         # NaN/Inf written out (Arduino's "nan") in a column of numbers: lines to skip, as an empty cell is (a
@@ -461,29 +461,27 @@ def _units_row(lines, start: int, names, delimiter, unit_map: dict):
 
 
 def decimal_points(lines, start: int, delimiter):
-    """(lines, True) with the data lines' decimal commas from `start` on made points when the table writes
+    """(lines, converted) with the data lines' decimal commas from `start` on made points when the table writes
     its numbers so (a European spreadsheet export, 1,25;0,5; see _decimal_comma_columns; comment lines stay
-    as written), else (lines, False). When some columns hold decimal points (an ISO time 12:00:01.5, a
+    as written) and thousands grouped with points before them dropped (45.199,6), else (lines, []); `converted`
+    lists the columns whose thousands are grouped so, or is [-1] when none is. When some columns hold decimal points (an ISO time 12:00:01.5, a
     column a program wrote in its own format), only the decimal-comma columns are converted."""
     sample = lines[start:start + 400]
     columns = _decimal_comma_columns(sample, delimiter)
     grouped = _point_thousands_columns(sample, delimiter)
     if not columns and not grouped:
-        return lines, False
-    if not any("." in line for line in sample if not is_comment(line)):  # every number in one form
-        return lines[:start] + [line if is_comment(line) else line.replace(",", ".") for line in lines[start:]], True
+        return lines, []
+    if not any("." in line for line in sample if not is_comment(line)):  # every number in one form, so far
+        columns = sorted(set(columns) | set(range(max(len(line.split(delimiter)) for line in sample))))
 
     def convert(line):
         cells = line.split(delimiter)
-        for j in columns:
-            if j < len(cells):
-                cells[j] = cells[j].replace(",", ".")
-        for j in grouped:  # 45.199,6: the points group thousands, the comma is the decimal one
-            if j < len(cells):
-                cells[j] = cells[j].replace(".", "").replace(",", ".")
+        for j in sorted(set(columns) | set(grouped)):
+            if j < len(cells):  # 45.199,6 (also past the lines judged): the points group thousands
+                cells[j] = (cells[j].replace(".", "") if _POINT_GROUPS.match(cells[j]) else cells[j]).replace(",", ".")
         return delimiter.join(cells)
 
-    return lines[:start] + [line if is_comment(line) else convert(line) for line in lines[start:]], True
+    return lines[:start] + [line if is_comment(line) else convert(line) for line in lines[start:]], grouped or [-1]
 
 
 def _decimal_comma_columns(sample, delimiter) -> list:
@@ -507,8 +505,9 @@ def _decimal_comma_columns(sample, delimiter) -> list:
     return found
 
 
-_POINT_GROUPS = re.compile(r"^\s*[-+]?\d{1,3}(?:\.\d{3})+(?:,\d+)?\s*$")  # 45.199,6 or 45.199 (European grouping)
-_PLAIN_OR_COMMA = re.compile(r"^\s*[-+]?\d+(?:,\d+)?\s*$")
+# 45.199,6 or 45.199 (European grouping; a first group of 0 is no group: 0.123), quoted or not
+_POINT_GROUPS = re.compile(r'^\s*"?[-+]?[1-9]\d{0,2}(?:\.\d{3})+(?:,\d+)?"?\s*$')
+_PLAIN_OR_COMMA = re.compile(r'^\s*"?[-+]?\d+(?:,\d+)?"?\s*$')
 
 
 def _point_thousands_columns(sample, delimiter) -> list:

@@ -67,8 +67,9 @@ def inject(readings, names, seed: int, t=None, rate_hz: float = 50.0, gravity=No
     row at `rate_hz`), `gravity` (N×3 down or up direction, sensor frame: the attitude for a world-fixed
     field), `reference` (N×3 true field, sensor frame: a vector fit, and needed for misalignment and
     time_offset), `field_norm` (the field's magnitude, when known), `strength` (each effect's change to
-    the readings times this, to find what a recording's own disturbances hide: not for time_offset or the
-    noise effects). Seeded: the same seed adds the same effects."""
+    the readings times this, to find what a recording's own disturbances hide; time_offset's delay times this;
+    not for the noise effects), `temp` (°C) and `current` (A): the recording's own regressors (default: made
+    up). Seeded: the same seed adds the same effects."""
     m = as_samples(readings)
     n = len(m)
     allowed = injectable(reference is not None)
