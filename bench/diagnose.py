@@ -240,8 +240,7 @@ def limits(folder: Path, seeds: int, which=None):
         if which and not any(name.startswith(w) for w in which):
             continue
         t0 = time.perf_counter()
-        columns[name] = detection_limits(rec, seeds=seeds, **{**kw, **{k: v for k, v in inject_kw.items()
-                                                                        if k == "gravity" and "reference" in kw}})
+        columns[name] = detection_limits(rec, seeds=seeds, **{**kw, "gravity": inject_kw.get("gravity")})
         columns[name].seconds = time.perf_counter() - t0
     names = list(dict.fromkeys(r["effect"] for d in columns.values() for r in d.rows))
 
