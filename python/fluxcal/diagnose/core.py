@@ -1549,6 +1549,13 @@ def _check_options(noise_sigma, candidates, alpha, max_effects):
     return list(candidates)
 
 
+def recording_inputs(rec, t, temp, current, gravity, units: str) -> tuple:
+    """(readings, t, temp, current, gravity, units, source) of a Recording, each one given explicitly first."""
+    return (rec.samples(), rec.time() if t is None else t, rec.temperature() if temp is None else temp,
+            rec.current() if current is None else current, rec.acceleration() if gravity is None else gravity,
+            units or rec.field_units(), rec.source)
+
+
 def diagnose(samples, t=None, temp=None, reference=None, gravity=None, field_norm=None, model: str | None = None,
              noise_sigma: float | None = None, candidates=None, alpha: float = 0.01, max_effects: int = 3,
              progress: bool = False, units: str = "", source: str = "samples", current=None) -> Diagnosis:
@@ -1571,11 +1578,7 @@ def diagnose(samples, t=None, temp=None, reference=None, gravity=None, field_nor
     gravity_given = gravity is not None
     unusable = []
     if isinstance(samples, Recording):
-        rec = samples
-        samples = rec.samples()
-        t = rec.time() if t is None else t
-        temp = rec.temperature() if temp is None else temp
-        current = rec.current() if current is None else current
+        samples, t, temp, current, gravity, units, source = recording_inputs(samples, t, temp, current, gravity, units)
         side = {"temp": temp, "current": current}
         for name, values in side.items():  # a blank cell in a side column costs that column, not the diagnosis
             if values is not None and not np.all(np.isfinite(values)):
@@ -1583,9 +1586,6 @@ def diagnose(samples, t=None, temp=None, reference=None, gravity=None, field_nor
                                 f"values and was not used (fill them in to try the {name} candidates)")
                 side[name] = None
         temp, current = side["temp"], side["current"]
-        gravity = rec.acceleration() if gravity is None else gravity
-        units = units or rec.field_units()
-        source = rec.source
     model = model or ("vector" if reference is not None else "ellipsoid")
     if model not in MODELS:
         raise ValueError(f"model: {model!r} is not one of {', '.join(MODELS)}")

@@ -27,7 +27,7 @@ import numpy as np
 from .._arrays import as_samples
 from ..sim.effects import CANDIDATES
 from ..sim.inject import inject, injectable
-from .core import NOISE_CANDIDATES, _jsonable, diagnose
+from .core import NOISE_CANDIDATES, _jsonable, diagnose, recording_inputs
 
 STRENGTHS = 2.0 ** np.arange(-7, 6)  # times each effect's typical size: 1/128 … 32
 START = 7                            # STRENGTHS[START] = 1: the typical size first
@@ -146,14 +146,7 @@ def detection_limits(samples, t=None, temp=None, current=None, reference=None, g
     from ..pipeline import calibrate
 
     if isinstance(samples, Recording):
-        rec = samples
-        samples = rec.samples()
-        t = rec.time() if t is None else t
-        temp = rec.temperature() if temp is None else temp
-        current = rec.current() if current is None else current
-        gravity = rec.acceleration() if gravity is None else gravity
-        units = units or rec.field_units()
-        source = rec.source
+        samples, t, temp, current, gravity, units, source = recording_inputs(samples, t, temp, current, gravity, units)
     m = as_samples(samples)
     if isinstance(seeds, (bool, np.bool_)) or not isinstance(seeds, (int, np.integer)) or seeds < 1:
         raise ValueError(f"seeds: need a whole number ≥ 1 (shapes per size), got {seeds!r}")
