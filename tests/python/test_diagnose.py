@@ -1071,3 +1071,18 @@ def test_poor_coverage_of_the_base_calibration_is_a_caveat():
     d = diagnose(result.readings, t=result.t)
     assert any("the base calibration: poor coverage" in c for c in d.caveats), d.caveats
     assert "CAVEAT: the base calibration: poor coverage" in d.text()
+
+
+def test_a_small_departure_nothing_explains_is_said_not_passed_over():
+    """A slow wander of 0.7 σ: colored_noise describes it, none of the effects explains it, and the residuals are
+    within 1.5 σ RMS — not NOT EXPLAINED, but said (an injected temperature offset on the QMC5883L was reported as
+    colored_noise alone, with 100 % of the departure left unsaid)."""
+    from scipy.ndimage import gaussian_filter1d
+
+    result, kw = withheld_trial([], 4)
+    slow = gaussian_filter1d(np.random.default_rng(9).standard_normal((len(result.readings), 3)), 50, axis=0)
+    d = diagnose(result.readings + slow * 0.035 / slow.std(), **kw)
+    left = d.remaining["unexplained"]
+    assert not left["left"] and left["share"] > 0.9 and left["rms_over_sigma"] < 1.5
+    text = d.text()
+    assert "LEFT: 100 % of a small departure" in text and "explains the data to the noise" not in text
