@@ -248,8 +248,8 @@ def limits(folder: Path, seeds: int, which=None):
         r = next((r for r in d.rows if r["effect"] == effect), None)
         if r is None or r["status"] == "not_tried":
             return "—"
-        if r["status"] == "in_recording":
-            return "in the recording"
+        if r["status"] in ("in_recording", "absorbed"):
+            return "in the recording" if r["status"] == "in_recording" else "absorbed by the base"
         unit = " ms" if effect == "time_offset" else " %"
         if r["status"] == "not_found":
             return f"> {r['not_at']:.3g}{unit}"
