@@ -1086,3 +1086,16 @@ def test_a_small_departure_nothing_explains_is_said_not_passed_over():
     assert not left["left"] and left["share"] > 0.9 and left["rms_over_sigma"] < 1.5
     text = d.text()
     assert "LEFT: 100 % of a small departure" in text and "explains the data to the noise" not in text
+
+
+def test_a_dipole_over_most_of_the_recording_is_not_called_a_passing_magnet():
+    from types import SimpleNamespace
+
+    from fluxcal.diagnose.report import moving_dipole_line
+
+    d = SimpleNamespace(units="uT", series={"t": np.arange(0.0, 300.0, 0.1), "timestamps": True},
+                        base=SimpleNamespace(field_norm=50.0))
+    row = {"on_s": None, "off_s": 192.3, "peak_s": 2.2, "peak_field": 2.0, "peak_along_field": -2.0}
+    assert "more likely the surroundings or a soft iron changing slowly" in moving_dipole_line(d, row)
+    row.update(on_s=100.0, off_s=130.0)
+    assert "a magnet, a tool or a vehicle moving near the sensor?" in moving_dipole_line(d, row)

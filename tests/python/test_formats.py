@@ -446,6 +446,13 @@ def test_thousands_grouped_with_points_before_a_decimal_comma_are_read(tmp_path)
     np.testing.assert_allclose(rec.columns["t"][:3], [0.0, 0.02, 0.04])
 
 
+def test_quoted_decimal_commas_are_read(tmp_path):
+    path = tmp_path / "quoted.csv"
+    rows = np.random.default_rng(7).normal(0, 30, (40, 3)).round(3)
+    path.write_text("mx;my;mz\n" + "".join(";".join(f'"{v:.3f}"'.replace(".", ",") for v in row) + "\n" for row in rows))
+    np.testing.assert_allclose(read_recording(path).samples(), rows, atol=1e-9)
+
+
 def test_commas_no_value_settles_are_not_guessed(tmp_path):
     path = tmp_path / "export.csv"
     path.write_text("mx,my,mz\n" + "".join(f'"{a:,}","{b:,}","{c:,}"\n' for a, b, c in

@@ -168,8 +168,13 @@ def moving_dipole_line(d, r) -> str:
     else:
         size = (f"{r['peak_along_field']:+.4g}{u} along the field ({percent}; a magnitude shows only the part along "
                 "the field)")
-    return (f"moving_dipole: an extra field from {on} to {off}, largest at {when(r['peak_s'])}: {size} (a magnet, a "
-            "tool or a vehicle moving near the sensor?)")
+    t = np.asarray(d.series.get("t") if d.series.get("t") is not None else [0.0, 1.0], dtype=float)
+    box = ((r["off_s"] if r.get("off_s") is not None else t.max()) - (r["on_s"] if r.get("on_s") is not None else t.min()))
+    # a "passing" magnet over most of the recording is more likely a slow change than a pass (a blind check's
+    # untouched handheld log: from the start to 192 s of 300)
+    hint = ("over most of the recording: more likely the surroundings or a soft iron changing slowly than a magnet "
+            "passing" if np.ptp(t) > 0 and box > 0.5 * np.ptp(t) else "a magnet, a tool or a vehicle moving near the sensor?")
+    return f"moving_dipole: an extra field from {on} to {off}, largest at {when(r['peak_s'])}: {size} ({hint})"
 
 
 def text(d) -> str:

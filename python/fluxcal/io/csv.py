@@ -435,7 +435,7 @@ def parse_rows(path, lines, start: int, names, delimiter, expected: str = "the h
     return data, line_numbers, notes
 
 
-_DECIMAL_COMMA = re.compile(r"^\s*[-+]?\d*,\d+([eE][-+]?\d+)?\s*$")
+_DECIMAL_COMMA = re.compile(r'^\s*"?[-+]?\d*,\d+([eE][-+]?\d+)?"?\s*$')  # quoted too ("100,25")
 _THOUSANDS = re.compile(r"^[-+]?\d+,\d{3}$")  # 1,234: a thousands separator, or a decimal comma
 
 
@@ -496,7 +496,7 @@ def _decimal_comma_columns(sample, delimiter) -> list:
     found = []
     for j in range(max(map(len, rows), default=0)):
         cells = [row[j] for row in rows if j < len(row)]
-        commas = [c.strip() for c in cells if _DECIMAL_COMMA.match(c)]
+        commas = [c.strip().strip('"') for c in cells if _DECIMAL_COMMA.match(c)]
         if not commas or any("." in c for c in cells):
             continue
         if points and all(_THOUSANDS.match(c) for c in commas):
