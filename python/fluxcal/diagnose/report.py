@@ -31,6 +31,8 @@ def ranking_lines(d) -> list:
                 else f"  (degenerate: {r['degenerate']})" if r.get("degenerate")
                 else f"  (unphysical: {r['unphysical']})" if r.get("unphysical")
                 else "  (not accepted: the field error rises held out)" if r.get("field_error_rises")
+                else "  (a noise model: its gap after counts the correlated noise as noise, not as a fit)"
+                if r["effect"] == "colored_noise" and r.get("significant")
                 else _unconfirmed(r))
         lines.append(f"{r['effect']:20s} {'YES' if r['significant'] else 'no':>7s} {r['delta_bic']:10.1f} "
                      f"{r['lr_pvalue']:9.2g} {r.get('new_dimensions', 0):4d} {str(r.get('heldout', '')):>11s} "
