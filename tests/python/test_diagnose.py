@@ -1088,6 +1088,7 @@ def test_a_small_departure_nothing_explains_is_said_not_passed_over():
     assert "LEFT: 100 % of a small departure" in text and "explains the data to the noise" not in text
     # its held-out gap after is 0 by construction (the correlated noise joins the noise model): said so
     assert "colored_noise" in d.accepted and "(a noise model: its gap after counts the correlated noise" in text
+    assert "no unit stated" in text.splitlines()[0]  # sizes printed bare are the readings' own
 
 
 def test_a_dipole_over_most_of_the_recording_is_not_called_a_passing_magnet():

@@ -182,7 +182,8 @@ def moving_dipole_line(d, r) -> str:
 def text(d) -> str:
     u = f" {d.units}" if d.units else ""
     w, rem = d.where, d.remaining
-    out = [f"fluxcal diagnose — {d.source}: model {d.model}, {w['overall']['n']} readings",
+    out = [f"fluxcal diagnose — {d.source}: model {d.model}, {w['overall']['n']} readings"
+           + ("" if d.units else " (no unit stated: sizes below are in the readings' own)"),
            f"noise σ {d.noise_sigma:.4g}{u} ({d.noise_source})",
            f"base model: residual RMS {w['overall']['rms_z']:.2f} σ, gap √(RMS² − σ²) {w['overall']['gap']:.4g}{u}",
            *[f"CAVEAT: {c}" for c in getattr(d, "caveats", [])],
