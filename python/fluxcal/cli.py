@@ -199,8 +199,7 @@ def _reference(rec: Recording, names: str | None, file) -> tuple:
     bad = np.flatnonzero(~np.all(np.isfinite(reference), axis=1))
     if bad.size:
         row = int(bad[0])
-        where = f"line {rec.line_numbers[row]}" if rec.line_numbers is not None else f"row {row}"
-        raise ValueError(f"--reference: {file}, {where}: a reference column is not a finite number")
+        raise ValueError(f"--reference: {file}, {rec.place(row)}: a reference column is not a finite number")
     return reference, mag if scale != 1.0 or unit == mag or not unit else unit
 
 

@@ -1549,6 +1549,17 @@ def _check_options(noise_sigma, candidates, alpha, max_effects):
     return list(candidates)
 
 
+def usable_regressors(temp, current) -> tuple:
+    """({"temp": …, "current": …} with a column that holds a missing or non-finite value left out (None), and
+    {name: how many such values}): a blank cell in a side column costs that column, not the diagnosis."""
+    side, missing = {"temp": temp, "current": current}, {}
+    for name, values in side.items():
+        if values is not None and not np.all(np.isfinite(np.asarray(values, dtype=float))):
+            missing[name] = int(np.sum(~np.isfinite(np.asarray(values, dtype=float))))
+            side[name] = None
+    return side, missing
+
+
 def recording_inputs(rec, t, temp, current, gravity, units: str) -> tuple:
     """(readings, t, temp, current, gravity, units, source) of a Recording, each one given explicitly first."""
     return (rec.samples(), rec.time() if t is None else t, rec.temperature() if temp is None else temp,
@@ -1579,12 +1590,9 @@ def diagnose(samples, t=None, temp=None, reference=None, gravity=None, field_nor
     unusable = []
     if isinstance(samples, Recording):
         samples, t, temp, current, gravity, units, source = recording_inputs(samples, t, temp, current, gravity, units)
-        side = {"temp": temp, "current": current}
-        for name, values in side.items():  # a blank cell in a side column costs that column, not the diagnosis
-            if values is not None and not np.all(np.isfinite(values)):
-                unusable.append(f"its {name} column has {int(np.sum(~np.isfinite(values)))} missing or non-finite "
-                                f"values and was not used (fill them in to try the {name} candidates)")
-                side[name] = None
+        side, missing = usable_regressors(temp, current)
+        unusable = [f"its {name} column has {n} missing or non-finite values and was not used (fill them in to try "
+                    f"the {name} candidates)" for name, n in missing.items()]
         temp, current = side["temp"], side["current"]
     model = model or ("vector" if reference is not None else "ellipsoid")
     if model not in MODELS:

@@ -27,11 +27,12 @@ import numpy as np
 from .._arrays import as_samples
 from ..sim.effects import CANDIDATES
 from ..sim.inject import inject, injectable
-from .core import NOISE_CANDIDATES, _jsonable, diagnose, recording_inputs
+from .core import NOISE_CANDIDATES, _jsonable, diagnose, recording_inputs, usable_regressors
 
 STRENGTHS = 2.0 ** np.arange(-7, 6)  # times each effect's typical size: 1/128 … 32
 START = 7                            # STRENGTHS[START] = 1: the typical size first
 MADE_UP = {"temp": "temperature", "current": "current"}
+NEEDS = {c.name: set(c.needs) for c in CANDIDATES}  # each candidate's regressors
 
 
 @dataclass
@@ -153,13 +154,11 @@ def detection_limits(samples, t=None, temp=None, current=None, reference=None, g
     options = {"reference": reference, "gravity": gravity if reference is not None else None,
                "field_norm": field_norm, "model": model, "noise_sigma": noise_sigma, "units": units}
     # A regressor column with a blank cell is not used (as by the diagnosis): said, and made up in its place.
-    given = {"temp": temp, "current": current}
-    missing = {k: int(np.sum(~np.isfinite(np.asarray(v, dtype=float)))) for k, v in given.items() if v is not None}
-    own = {k: (None if v is None or missing[k] else v) for k, v in given.items()}
+    own, missing = usable_regressors(temp, current)
     full = diagnosis or diagnose(m, t=t, **own, alpha=alpha, source=source, **options)
     possible = injectable(reference is not None)
     wanted = possible if names is None else list(names)
-    known = [c.name for c in CANDIDATES]
+    known = list(NEEDS)
     unknown = [w for w in wanted if w not in known]
     if unknown:
         raise ValueError(f"names: unknown effect(s) {', '.join(unknown)}; known: {', '.join(known)}")
@@ -172,14 +171,14 @@ def detection_limits(samples, t=None, temp=None, current=None, reference=None, g
     inject_t = np.arange(len(m), dtype=float) if t is None else np.asarray(t, dtype=float)
     # gravity always: a magnet's field is fixed in the world, its attitude from the down direction
     inject_kw = {"t": inject_t, "reference": reference, "gravity": gravity, "field_norm": field_norm,
-                 "temp": own["temp"], "current": own["current"]}
+                 "temp": own["temp"], "current": own["current"], "calibration": cal}  # calibrated once, not per shape
 
     available = {"t"} | ({"timestamps"} if t is not None else set()) | {key for key in own if own[key] is not None}
 
     def bonferroni(made_up) -> int:
         """The full run's count of candidates, with those the made-up regressors let it try."""
-        extra = [c for c in skipped if made_up and set(_needs(c)) & set(made_up)
-                 and set(_needs(c)) <= available | set(made_up)]
+        extra = [c for c in skipped if made_up and NEEDS[c] & set(made_up)
+                 and NEEDS[c] <= available | set(made_up)]
         return max(len(full.ranking) + len(extra), 1)
 
     def run(readings, kwargs, candidates, k=1, made_up=()):
@@ -195,7 +194,7 @@ def detection_limits(samples, t=None, temp=None, current=None, reference=None, g
         bar = tqdm(total=len(wanted), desc="detection limits", unit="candidate", leave=False)
     rows = []
     for name in wanted:
-        made_up = [key for key in ("temp", "current") if own[key] is None and key in _needs(name)]
+        made_up = [key for key in ("temp", "current") if own[key] is None and key in NEEDS[name]]
         row = {"effect": name, "made_up": made_up, "missing": {k: missing[k] for k in made_up if missing.get(k)}}
         if name in NOISE_CANDIDATES:
             row.update(status="not_tried", reason="a noise, not an effect with a size")
@@ -230,8 +229,6 @@ def detection_limits(samples, t=None, temp=None, current=None, reference=None, g
                            rows=rows)
 
 
-def _needs(name: str) -> tuple:
-    return next(c.needs for c in CANDIDATES if c.name == name)
 
 
 def _bisect(name, m, inject_kw, run, seeds: int, field_size: float) -> dict:
@@ -249,7 +246,8 @@ def _bisect(name, m, inject_kw, run, seeds: int, field_size: float) -> dict:
                 if name in run(inj.readings, inj.kwargs, [name]).accepted:
                     found, first = found + 1, first or inj
             except ValueError as error:  # so large an effect that the calibration itself fails: not confirmed
-                refused[i] = (refused.get(i, (0, str(error)))[0] + 1, refused.get(i, (0, str(error)))[1])
+                count, message = refused.get(i, (0, str(error)))
+                refused[i] = (count + 1, message)
             sizes.append(abs(inj.effects[0].delta) * 1e3 if name == "time_offset"
                          else float(np.max(np.linalg.norm(inj.readings - m, axis=1))))
         return found, float(np.median(sizes)), first
@@ -277,7 +275,7 @@ def _bisect(name, m, inject_kw, run, seeds: int, field_size: float) -> dict:
         return {prefix: results[j][1] * scale, prefix + "_units": results[j][1]}
 
     if not confirmed:
-        largest = max(j for j in missed if not too_large(j)) if any(not too_large(j) for j in missed) else missed[0]
+        largest = max((j for j in missed if not too_large(j)), default=missed[0])
         row = {"status": "not_found", "strength": float(STRENGTHS[largest]), **sized("not_at", largest)}
         if largest + 1 in refused or largest in refused:
             row["refused"] = refused.get(largest + 1, refused.get(largest))[1]

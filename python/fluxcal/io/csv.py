@@ -464,15 +464,17 @@ def decimal_points(lines, start: int, delimiter):
     """(lines, converted) with the data lines' decimal commas from `start` on made points when the table writes
     its numbers so (a European spreadsheet export, 1,25;0,5; see _decimal_comma_columns; comment lines stay
     as written) and thousands grouped with points before them dropped (45.199,6), else (lines, []); `converted`
-    lists the columns whose thousands are grouped so, or is [-1] when none is. When some columns hold decimal points (an ISO time 12:00:01.5, a
-    column a program wrote in its own format), only the decimal-comma columns are converted."""
-    sample = lines[start:start + 400]
-    columns = _decimal_comma_columns(sample, delimiter)
-    grouped = _point_thousands_columns(sample, delimiter)
+    lists the columns whose thousands are grouped so, or is [-1] when none is. When some columns hold decimal
+    points (an ISO time 12:00:01.5, a column a program wrote in its own format), only the decimal-comma columns
+    are converted."""
+    if delimiter not in (";", "\t"):
+        return lines, []
+    rows = data_cells(lines[start:start + 400], delimiter)
+    columns, grouped = _decimal_comma_columns(rows), _point_thousands_columns(rows)
     if not columns and not grouped:
         return lines, []
-    if not any("." in line for line in sample if not is_comment(line)):  # every number in one form, so far
-        columns = sorted(set(columns) | set(range(max(len(line.split(delimiter)) for line in sample))))
+    if not any("." in cell for row in rows for cell in row):  # every number in one form, so far
+        columns = sorted(set(columns) | set(range(max(map(len, rows)))))
 
     def convert(line):
         cells = line.split(delimiter)
@@ -484,14 +486,16 @@ def decimal_points(lines, start: int, delimiter):
     return lines[:start] + [line if is_comment(line) else convert(line) for line in lines[start:]], grouped or [-1]
 
 
-def _decimal_comma_columns(sample, delimiter) -> list:
-    """The columns of a table delimited by ';' or tab that write their numbers with decimal commas: some
-    cell of the first data lines reads as one (-0,123) and none holds a decimal point. When other columns
-    do use decimal points, a column whose commas all have three digits after them (1,234) could be
+def data_cells(lines, delimiter) -> list:
+    """The cells of the data lines among `lines` (blank and comment lines left out)."""
+    return [line.split(delimiter) for line in lines if line.strip() and not is_comment(line)]
+
+
+def _decimal_comma_columns(rows) -> list:
+    """The columns of a table delimited by ';' or tab (`rows`: the first data lines' cells) that write their
+    numbers with decimal commas: some cell reads as one (-0,123) and none holds a decimal point. When other
+    columns do use decimal points, a column whose commas all have three digits after them (1,234) could be
     thousands separators and is not taken: it is read as text and named as such."""
-    if delimiter not in (";", "\t"):
-        return []
-    rows = [line.split(delimiter) for line in sample if line.strip() and not is_comment(line)]
     points = any("." in c for row in rows for c in row)
     found = []
     for j in range(max(map(len, rows), default=0)):
@@ -510,14 +514,11 @@ _POINT_GROUPS = re.compile(r'^\s*"?[-+]?[1-9]\d{0,2}(?:\.\d{3})+(?:,\d+)?"?\s*$'
 _PLAIN_OR_COMMA = re.compile(r'^\s*"?[-+]?\d+(?:,\d+)?"?\s*$')
 
 
-def _point_thousands_columns(sample, delimiter) -> list:
-    """The columns of a ';' or tab table that group thousands with points before a decimal comma (a European
-    spreadsheet's number format: 45.199,6): some cell has both, and every cell is such a number, a plain
-    decimal-comma number or an integer. A point alone (45.199) is not taken for a group without a comma beside
-    it in the column."""
-    if delimiter not in (";", "\t"):
-        return []
-    rows = [line.split(delimiter) for line in sample if line.strip() and not is_comment(line)]
+def _point_thousands_columns(rows) -> list:
+    """The columns of a ';' or tab table (`rows`: the first data lines' cells) that group thousands with points
+    before a decimal comma (a European spreadsheet's number format: 45.199,6): some cell has both, and every cell
+    is such a number, a plain decimal-comma number or an integer. A point alone (45.199) is not taken for a group
+    without a comma beside it in the column."""
     found = []
     for j in range(max(map(len, rows), default=0)):
         cells = [row[j] for row in rows if j < len(row) and row[j].strip()]

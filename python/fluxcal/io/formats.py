@@ -40,7 +40,7 @@ import re
 from collections import Counter
 from pathlib import Path
 
-from .csv import (_decimal_comma_columns, readable_file, _is_number, comment_text, data_lines, decimal_points, is_comment, parse_csv,
+from .csv import (_decimal_comma_columns, readable_file, _is_number, comment_text, data_cells, data_lines, decimal_points, is_comment, parse_csv,
                   listing, read_csv, read_lines, read_text, write_csv, OTHER_WRITERS)
 from .columns import is_unit
 from .recording import Recording
@@ -312,7 +312,7 @@ def _delimiter(lines, start: int):
     sample = [lines[start]] + data_lines(lines, start + 1, 20)
     counts = {c: sum(c in line for line in sample) for c in ("\t", ",", ";")}
     best = max(counts, key=lambda c: counts[c])
-    if best == "," and counts[";"] > len(sample) / 2 and _decimal_comma_columns(sample[1:], ";"):
+    if best == "," and counts[";"] > len(sample) / 2 and _decimal_comma_columns(data_cells(sample[1:], ";")):
         best = ";"  # both in most lines, and the ';' cells are decimal-comma numbers (1,25;0,5)
     return best if counts[best] > len(sample) / 2 else None
 

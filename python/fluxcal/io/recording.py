@@ -151,7 +151,7 @@ class Recording:
         bad = first_nonfinite(arr) if check_finite else None
         if bad is not None:
             row, col = bad
-            where = f"line {self.line_numbers[row]}" if self.line_numbers is not None else f"row {row}"
+            where = self.place(row)
             value = arr[row, col]  # an inf may have been written as a number beyond the double range (1e400)
             what = "nan" if np.isnan(value) else f"{'-' if value < 0 else ''}infinite (inf, or beyond ±1.8e308)"
             raise ValueError(f"{self.source}: {where}, column {names[col]!r} is {what} "
@@ -192,7 +192,7 @@ class Recording:
             bad = np.flatnonzero(~np.isfinite(values))
             if bad.size:
                 row = int(bad[0])
-                where = f"line {self.line_numbers[row]}" if self.line_numbers is not None else f"row {row}"
+                where = self.place(row)
                 raise ValueError(f"{self.source}: {where}, column {name!r} is {values[row]} (non-finite)")
         return reference_vectors(ned, pitch, roll, yaw, degrees=angle_units == {"deg"},
                                  convention=str(self.metadata.get("attitude_convention", "aerospace")))
@@ -225,6 +225,10 @@ class Recording:
         if ned in TESLA_PER_UNIT and mag in TESLA_PER_UNIT:
             return TESLA_PER_UNIT[ned] / TESLA_PER_UNIT[mag]
         return 1.0
+
+    def place(self, row: int) -> str:
+        """Where a row is, for a message: its line in the file ("line 14"), else its index ("row 11")."""
+        return f"line {self.line_numbers[row]}" if self.line_numbers is not None else f"row {row}"
 
     def field_units(self) -> str:
         """The unit of the magnetometer columns ("" when the recording does not state it)."""

@@ -62,14 +62,16 @@ def injectable(reference: bool) -> list:
 
 
 def inject(readings, names, seed: int, t=None, rate_hz: float = 50.0, gravity=None, reference=None,
-           field_norm: float | None = None, strength: float = 1.0, temp=None, current=None) -> Injection:
+           field_norm: float | None = None, strength: float = 1.0, temp=None, current=None,
+           calibration=None) -> Injection:
     """Add the effects `names` (candidate names) to a real recording `readings` (N×3). `t` (s; default the
     row at `rate_hz`), `gravity` (N×3 down or up direction, sensor frame: the attitude for a world-fixed
     field), `reference` (N×3 true field, sensor frame: a vector fit, and needed for misalignment and
     time_offset), `field_norm` (the field's magnitude, when known), `strength` (each effect's change to
     the readings times this, to find what a recording's own disturbances hide; time_offset's delay times this;
     not for the noise effects), `temp` (°C) and `current` (A): the recording's own regressors (default: made
-    up). Seeded: the same seed adds the same effects."""
+    up), `calibration`: the recording's own (`calibrate(readings, field_norm=…, reference=…)`), when already made.
+    Seeded: the same seed adds the same effects."""
     m = as_samples(readings)
     n = len(m)
     allowed = injectable(reference is not None)
@@ -85,7 +87,7 @@ def inject(readings, names, seed: int, t=None, rate_hz: float = 50.0, gravity=No
         gravity = as_samples(gravity, "gravity")
         if len(gravity) != n:
             raise ValueError(f"gravity: {len(gravity)} rows, readings have {n}")
-    cal = calibrate(m, field_norm=field_norm, reference=reference)
+    cal = calibration if calibration is not None else calibrate(m, field_norm=field_norm, reference=reference)
     W = np.linalg.inv(np.asarray(cal.matrix))
     h = cal.apply(m)
     H = float(np.mean(np.linalg.norm(h, axis=1)))
@@ -103,6 +105,7 @@ def inject(readings, names, seed: int, t=None, rate_hz: float = 50.0, gravity=No
     for effect in effects:  # typical() times events from 0: the recording's clock may start anywhere
         if hasattr(effect, "t_on"):
             effect.t_on, effect.t_off = effect.t_on + t[0], effect.t_off + t[0]
+    # drawn even when given, so that a seed adds the same effects either way
     made_temp, made_current = warming(t, rng), throttle(t, rng, *CURRENT) if "motor_current" in names else None
     temp = made_temp if temp is None else _regressor(temp, n, "temp")
     current = made_current if current is None else _regressor(current, n, "current")
