@@ -56,6 +56,9 @@ void check(const TwoStep2DOptions& o) {
   detail::require_int(o.max_iterations >= 0, s + "max_iterations", o.max_iterations, "≥ 0");
   detail::require_positive(s + "tolerance", o.tolerance);
   detail::require_nonnegative(s + "misfit_spread", o.misfit_spread);
+  detail::require_nonnegative(s + "poorly_determined", o.poorly_determined);
+  detail::require(std::isfinite(o.runaway_factor) && o.runaway_factor > 1.0, s + "runaway_factor", o.runaway_factor,
+                  "a finite value > 1");
 }
 
 void check(const TwoStepOptions& o) {
@@ -257,6 +260,7 @@ TwoStep2DResult twostep_2d(const Readings2DRef& readings, const Eigen::Ref<const
                 "that field_norms belong to the readings (same order, same field units)");
 
   Eigen::Vector4d th(beta(0), beta(1), std::sqrt(kx2), std::sqrt(kx2 / r));
+  const Eigen::Vector4d first = th;
   sum.converged = true;
   if (options.refine && options.max_iterations > 0) {
     sum.converged = false;
@@ -300,15 +304,39 @@ TwoStep2DResult twostep_2d(const Readings2DRef& readings, const Eigen::Ref<const
       g = gn;
       sum.iterations = it + 1;
     }
+    const double growth = th.tail<2>().cwiseAbs().cwiseQuotient(first.tail<2>().cwiseAbs()).maxCoeff();
+    if (!sum.converged && !(growth <= options.runaway_factor))
+      throw Error("readings: the 2-D two-step refinement ran away (gains " + num(growth) +
+                  " times the first step's, not converged): the readings do not determine offset and gains. "
+                  "Turn the sensor through more of its plane (a full turn), or give readings at different field "
+                  "magnitudes");
     if (!sum.converged)
       sum.warnings.push_back(std::string("refinement did not converge ") +
                              (failed ? "(no descent step found" : "(iteration limit") + " after " +
                              std::to_string(sum.iterations) +
-                             " iterations); the result is the last iterate — check the readings for outliers");
+                             " iterations); the result is the last iterate — check the readings for outliers and "
+                             "that they cover enough of the sensor's plane");
   }
 
   out.offset = nz.centre + nz.scale * th.head<2>();
   out.gain = (nz.scale / nz.field_scale) * th.tail<2>().cwiseAbs();
+  {  // standard errors: σ̂²(JᵀJ)⁻¹ at the result, in the normalised parameters, then in b and γ
+    Eigen::Matrix4d F;
+    Eigen::Vector4d g;
+    const double cost = magnitude_residuals(readings, field_norms, nz, th, F, g);
+    Eigen::Matrix4d cov = Eigen::Matrix4d::Constant(kInf);
+    const Eigen::LDLT<Eigen::Matrix4d> ldlt(F);
+    if (n > 4 && ldlt.info() == Eigen::Success && ldlt.isPositive() && F.diagonal().minCoeff() > 0.0) {
+      const Eigen::Matrix4d c = (cost / (nd - 4.0)) * ldlt.solve(Eigen::Matrix4d::Identity());
+      if (c.allFinite() && c.diagonal().minCoeff() >= 0.0) cov = c;
+    }
+    // back to b and γ: b = centre + scale·β, γ = (scale / field_scale)·|κ|
+    const double k = nz.scale / nz.field_scale;
+    const Eigen::Vector4d d(nz.scale, nz.scale, th(2) < 0.0 ? -k : k, th(3) < 0.0 ? -k : k);
+    out.covariance = cov.allFinite() ? Eigen::Matrix4d(d.asDiagonal() * cov * d.asDiagonal()) : cov;
+    out.offset_se = out.covariance.diagonal().head<2>().cwiseSqrt();
+    out.gain_se = out.covariance.diagonal().tail<2>().cwiseSqrt();
+  }
 
   // Statistics of the compensated magnitudes.
   double sd2 = 0.0, sq = 0.0, sq2 = 0.0;
@@ -328,6 +356,12 @@ TwoStep2DResult twostep_2d(const Readings2DRef& readings, const Eigen::Ref<const
   if (options.refine && options.max_iterations > 0) sum.cost = sd2 / nd;
   detail::require_finite_fit(detail::finite_fit(sum) && out.offset.allFinite() && out.gain.allFinite(), "readings",
                              readings, "field_norms", field_norms, "the 2-D two-step calibration");
+  const Eigen::Vector2d relative = out.gain_se.cwiseQuotient(out.gain);
+  if (!(relative.maxCoeff() <= options.poorly_determined))
+    sum.warnings.push_back("poorly determined: standard errors of the gains ±" + percent(relative(0)) + ", ±" +
+                           percent(relative(1)) + " and of the offset ±" + num(out.offset_se(0)) + ", ±" +
+                           num(out.offset_se(1)) + " — the field did not turn through enough of the sensor's "
+                           "plane, or never had a component along one axis; turn it through a full circle");
   if (sum.norm_std_over_mean > options.misfit_spread)
     sum.warnings.push_back("the readings do not fit the model: |h|/h scatters by " + percent(sum.norm_std_over_mean) +
                            " after the fit (more than " + percent(options.misfit_spread) +

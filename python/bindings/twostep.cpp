@@ -16,7 +16,9 @@ void bind_twostep(py::module_& m) {
       .def_readwrite("max_iterations", &TwoStep2DOptions::max_iterations)
       .def_readwrite("tolerance", &TwoStep2DOptions::tolerance)
       .def_readwrite("units", &TwoStep2DOptions::units)
-      .def_readwrite("misfit_spread", &TwoStep2DOptions::misfit_spread);
+      .def_readwrite("misfit_spread", &TwoStep2DOptions::misfit_spread)
+      .def_readwrite("poorly_determined", &TwoStep2DOptions::poorly_determined)
+      .def_readwrite("runaway_factor", &TwoStep2DOptions::runaway_factor);
 
   py::class_<TwoStepOptions>(m, "TwoStepOptions")
       .def(py::init<>())
@@ -42,7 +44,9 @@ void bind_twostep(py::module_& m) {
           r = fluxcal::twostep_2d(readings, field_norms, options);
         }
         return py::dict("offset"_a = r.offset, "gain"_a = r.gain, "constant_field"_a = r.constant_field,
-                        "units"_a = r.units, "summary"_a = summary_dict(r.summary));
+                        "offset_se"_a = r.offset_se, "gain_se"_a = r.gain_se, "covariance"_a = r.covariance,
+                        "units"_a = r.units,
+                        "summary"_a = summary_dict(r.summary));
       },
       "readings"_a.noconvert(), "field_norms"_a.noconvert(), "options"_a);
 

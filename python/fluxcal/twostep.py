@@ -27,7 +27,9 @@ class TwoStep2D:
     """Offset and gains of a biaxial sensor: reading ĥ = γ ⊙ h + b + noise, so h = (ĥ − b) ⊘ γ.
 
     `constant_field` is True when every field magnitude was the same (the first step then used the
-    known-radius ellipse form); `summary` holds the fit statistics (see twostep.hpp).
+    known-radius ellipse form); `covariance` that of (bx, by, γx, γy) (σ̂²(JᵀJ)⁻¹ of the magnitude residuals at
+    the result; inf when the data do not determine them) and `offset_se`, `gain_se` its standard errors; `summary` holds the fit statistics
+    (see twostep.hpp).
     """
 
     offset: np.ndarray
@@ -35,6 +37,9 @@ class TwoStep2D:
     units: str = ""
     constant_field: bool = False
     summary: dict = field(default_factory=dict)
+    offset_se: np.ndarray = field(default_factory=lambda: np.full(2, np.nan))
+    gain_se: np.ndarray = field(default_factory=lambda: np.full(2, np.nan))
+    covariance: np.ndarray = field(default_factory=lambda: np.full((4, 4), np.nan))  # (bx, by, γx, γy)
 
     def __post_init__(self):
         self.offset = np.asarray(self.offset, dtype=float).reshape(2)
@@ -68,7 +73,10 @@ def twostep_2d(readings, field_norms, units: str | None = None, refine: bool = T
     (turn the sensor) and, unless all magnitudes are equal, its magnitude between readings too.
 
     settings: max_iterations=50, tolerance=1e-12 (refinement), misfit_spread=0.05 (a warning when |h|/h
-    scatters more after the fit: field_norms that do not belong to the readings). A misfit that follows twice the
+    scatters more after the fit: field_norms that do not belong to the readings), poorly_determined=0.02 (a
+    warning when a gain's standard error is a larger fraction of it: too short an arc), runaway_factor=10 (a
+    refinement that did not converge with a gain grown more than this over the first step's raises: one field
+    magnitude and a short arc let offsets and gains run to infinity). A misfit that follows twice the
     heading is warned about too: a coupling between the axes that offsets and gains cannot fit (`_axis_coupling`).
     Raises ValueError on NaN/Inf, too few
     readings, a length mismatch, non-positive magnitudes, a rank-deficient first step, or γ² ≤ 0.
@@ -85,7 +93,8 @@ def twostep_2d(readings, field_norms, units: str | None = None, refine: bool = T
     set_options(options, settings, "twostep_2d")
     r = _core.twostep_2d(arr, np.ascontiguousarray(norms), options)
     result = TwoStep2D(offset=r["offset"], gain=r["gain"], units=r["units"], constant_field=r["constant_field"],
-                       summary=r["summary"])
+                       summary=r["summary"], offset_se=np.asarray(r["offset_se"]), gain_se=np.asarray(r["gain_se"]),
+                       covariance=np.asarray(r["covariance"]))
     coupling = _axis_coupling(result, arr, norms)
     if coupling:
         result.summary["warnings"] = list(result.summary["warnings"]) + [coupling]

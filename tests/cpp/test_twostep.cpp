@@ -101,6 +101,38 @@ TEST(TwoStep2D, RefinementLowersTheResidualOfNoisyData) {
   EXPECT_LT((r1.gain - t.gamma).cwiseAbs().maxCoeff(), 2e-3);
 }
 
+TEST(TwoStep2D, StandardErrorsFollowTheNoiseAndNameAnUndeterminedGain) {
+  const Truth2D t;
+  const auto exact = fluxcal::twostep_2d(paper_like(t, 0.0, 3).readings, paper_like(t, 0.0, 3).norms);
+  EXPECT_LT(exact.gain_se.maxCoeff(), 1e-10);  // no noise: nothing left to be uncertain about
+  const auto noisy = fluxcal::twostep_2d(paper_like(t, 1.5e-4, 3).readings, paper_like(t, 1.5e-4, 3).norms);
+  EXPECT_GT(noisy.gain_se.minCoeff(), 1e-5);  // the paper's Monte-Carlo spread is ~3e-4
+  EXPECT_LT(noisy.gain_se.maxCoeff(), 1e-3);
+  EXPECT_NEAR(noisy.offset_se(0), std::sqrt(noisy.covariance(0, 0)), 1e-15);
+  EXPECT_TRUE(noisy.summary.warnings.empty());
+  // The field only ever along ±x: γy is not determined, and the summary says so.
+  std::mt19937 rng(5);
+  std::normal_distribution<double> g(0.0, 0.005);
+  std::uniform_real_distribution<double> h(0.5, 1.5);
+  Readings2D x(60, 2);
+  Eigen::VectorXd norms(60);
+  for (int k = 0; k < 60; ++k) {
+    norms(k) = h(rng);
+    const double sign = k % 2 ? 1.0 : -1.0;
+    x.row(k) = (t.gamma.cwiseProduct(Eigen::Vector2d(sign * norms(k), 0.0)) + t.b + Eigen::Vector2d(g(rng), g(rng)))
+                   .transpose();
+  }
+  // (the first step's (γx/γy)² then comes out of noise: ≤ 0 is refused, else the gain is flagged — never silent)
+  try {
+    const auto line = fluxcal::twostep_2d(x, norms);
+    EXPECT_GT(line.gain_se(1), 0.2 * line.gain(1));
+    ASSERT_FALSE(line.summary.warnings.empty());
+    EXPECT_EQ(line.summary.warnings.front().rfind("poorly determined", 0), 0u) << line.summary.warnings.front();
+  } catch (const fluxcal::Error& e) {
+    EXPECT_NE(std::string(e.what()).find("γy² < 0"), std::string::npos) << e.what();
+  }
+}
+
 TEST(TwoStep2D, OneFieldMagnitudeUsesKnownRadiusForm) {
   // A full turn in a constant field (Earth's field in the sensor plane): h² column ∝ constant column.
   const Truth2D t;
@@ -253,6 +285,9 @@ TEST(TwoStepOptions, BadValuesAreNamed) {
   o2 = {};
   o2.tolerance = 0.0;
   EXPECT_ERROR_SAYS(fluxcal::twostep_2d(d.readings, d.norms, o2), "TwoStep2DOptions::tolerance: 0");
+  o2 = {};
+  o2.runaway_factor = 1.0;
+  EXPECT_ERROR_SAYS(fluxcal::twostep_2d(d.readings, d.norms, o2), "TwoStep2DOptions::runaway_factor: 1");
 }
 
 TEST(TwoStep, WrongWidthNamesTheArgument) {

@@ -68,6 +68,10 @@ def test_2d_refinement_agrees_with_oracle(seed, generator):
     assert cal.summary["converged"] and 1 <= cal.summary["iterations"] <= 10
     assert rel(cal.offset, ref["offset"]) < 1e-7  # measured ≤ 2e-9
     assert rel(cal.gain, ref["gain"]) < 1e-7
+    # the covariance of (b, γ): C++ analytic Jacobian against SciPy's finite-difference one
+    np.testing.assert_allclose(cal.covariance, ref["covariance"], rtol=1e-4,
+                               atol=1e-6 * np.abs(ref["covariance"]).max())
+    np.testing.assert_allclose(np.r_[cal.offset_se, cal.gain_se], np.sqrt(np.diag(ref["covariance"])), rtol=1e-4)
 
 
 @pytest.mark.parametrize("seed", range(5))
@@ -102,13 +106,14 @@ def test_2d_noise_free_recovery_and_compensation():
 def test_2d_refinement_reaches_the_cramer_rao_bound():
     # Seed 000's Monte Carlo: 300 runs of the paper's scheme, σ = 1.5e-4.
     rng = np.random.default_rng(2017)
-    first, refined, bound = [], [], []
+    first, refined, bound, reported = [], [], [], []
     for _ in range(300):
         readings, h, field = paper_like(rng)
         c0, c1 = twostep_2d(readings, h, refine=False), twostep_2d(readings, h)
         first.append(np.r_[c0.offset, c0.gain])
         refined.append(np.r_[c1.offset, c1.gain])
         bound.append(crb_2d(field, PAPER_OFFSET, PAPER_GAIN, 1.5e-4) ** 2)
+        reported.append(np.r_[c1.offset_se, c1.gain_se] ** 2)
     truth = np.r_[PAPER_OFFSET, PAPER_GAIN]
     e0, e1 = np.array(first) - truth, np.array(refined) - truth
     crb = np.sqrt(np.mean(bound, axis=0))
@@ -118,6 +123,43 @@ def test_2d_refinement_reaches_the_cramer_rao_bound():
     assert np.all(np.abs(e1.mean(axis=0)) < 0.25 * e1.std(axis=0))  # no gross bias
     # the paper's largest deviations of the non-linear factor: 7e-4 (x), 1.1e-3 (y)
     assert np.abs(e1[:, 2:]).max() < 1.5e-3
+    # the reported standard errors match the Monte-Carlo spread (and the bound) within 15 %
+    se = np.sqrt(np.mean(reported, axis=0))
+    assert np.all(np.abs(se / e1.std(axis=0) - 1) < 0.15) and np.all(np.abs(se / crb - 1) < 0.15)
+
+
+def test_2d_short_arcs_are_refused_or_flagged_never_silent():
+    """One field magnitude and a 90° arc: the magnitude objective falls towards infinite offsets and gains (every
+    corrected reading the same vector of length h). A blind check got offsets of 1e5–1e6 for a true 0.2, said
+    "not converged … check for outliers". Now a run-away refinement raises naming the coverage, and a fit that
+    converged says its gains are poorly determined, with standard errors that hold its error."""
+    b, g = np.array([0.2, -0.1]), np.array([1.05, 0.95])
+    refused, z = 0, []
+    for seed in range(12):
+        rng = np.random.default_rng(seed)
+        angle = rng.uniform(0, np.pi / 2, 50)
+        readings = np.column_stack([np.cos(angle), np.sin(angle)]) * g + b + 0.01 * rng.standard_normal((50, 2))
+        try:
+            cal = twostep_2d(readings, np.ones(50))
+        except ValueError as err:
+            assert "ran away" in str(err) and "full turn" in str(err)
+            refused += 1
+            continue
+        assert any(w.startswith("poorly determined") for w in cal.summary["warnings"])
+        z.append(np.r_[(cal.offset - b) / cal.offset_se, (cal.gain - g) / cal.gain_se])
+    assert refused >= 1 and len(z) >= 6  # measured: 1 of 12 ran away
+    assert np.abs(z).max() < 4 and 0.5 < np.sqrt(np.mean(np.square(z))) < 1.6  # measured 2.3, 1.05
+
+
+def test_2d_a_field_along_one_axis_only_leaves_that_gain_undetermined_and_says_so():
+    """The field only ever along ±x (a blind check: γy = 0.29 against 0.95, converged, no warning)."""
+    rng = np.random.default_rng(1)
+    angle, h = rng.choice([0, np.pi], 60), rng.uniform(0.5, 1.5, 60)
+    readings = (np.column_stack([h * np.cos(angle), h * np.sin(angle)]) * [1.05, 0.95] + [0.1, 0.2]
+                + 0.005 * rng.standard_normal((60, 2)))
+    cal = twostep_2d(readings, h)
+    assert cal.gain_se[1] > 0.2 * cal.gain[1] and cal.gain_se[0] < 0.01 * cal.gain[0]
+    assert any(w.startswith("poorly determined") and "component along one axis" in w for w in cal.summary["warnings"])
 
 
 def test_2d_summary_is_that_of_the_compensated_readings():

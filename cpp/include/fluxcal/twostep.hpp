@@ -72,6 +72,13 @@ struct TwoStep2DOptions {
   /// Warn when |h|/h_k scatters by more than this (std/mean) after the fit: readings and field_norms that
   /// do not belong together (shuffled, another run's) can still give a converged fit.
   double misfit_spread = 0.05;
+  /// Warn when a gain's standard error exceeds this fraction of the gain: an arc too short, or a field that
+  /// never had a component along one axis, leaves the data unable to fix it.
+  double poorly_determined = 0.02;
+  /// With one field magnitude and a short arc the magnitude objective falls towards infinite offsets and gains
+  /// (every corrected reading then the same vector of length h): a refinement that has not converged and has
+  /// grown a gain by more than this factor over the first step's throws Error instead of returning the iterate.
+  double runaway_factor = 10.0;
 };
 
 /// Offset and gains of a biaxial sensor, and how the fit went.
@@ -84,6 +91,12 @@ struct TwoStep2DResult {
   Eigen::Vector2d offset = Eigen::Vector2d::Zero();  ///< b, reading units
   Eigen::Vector2d gain = Eigen::Vector2d::Ones();    ///< γ, reading units per field unit
   bool constant_field = false;  ///< every h_k equal: the first step used the known-radius form
+  /// Covariance of (bx, by, γx, γy): σ̂²(JᵀJ)⁻¹ of the magnitude residuals |(ĥ − b) ⊘ γ| − h_k at the result
+  /// (σ̂² their mean square over N − 4); for white reading noise about the Cramér–Rao bound. Infinite when
+  /// the data do not determine it. offset_se and gain_se are the square roots of its diagonal.
+  Eigen::Matrix4d covariance = Eigen::Matrix4d::Zero();
+  Eigen::Vector2d offset_se = Eigen::Vector2d::Zero();
+  Eigen::Vector2d gain_se = Eigen::Vector2d::Zero();
   std::string units;            ///< units of the readings
   Summary summary;
 
@@ -99,7 +112,8 @@ struct TwoStep2DResult {
 /// (`field_norms`, N values > 0, field units). Throws Error on NaN/Inf, too few readings, a length
 /// mismatch, non-positive magnitudes, a rank-deficient first step (the field never changed direction,
 /// or readings on a line) or a first step that gives γ² ≤ 0 (readings and magnitudes inconsistent).
-/// A refinement that does not converge is reported in the Summary (converged = false, a warning).
+/// A refinement that does not converge is reported in the Summary (converged = false, a warning), unless it
+/// ran away (options.runaway_factor): then Error, naming the coverage.
 TwoStep2DResult twostep_2d(const Readings2DRef& readings, const Eigen::Ref<const Eigen::VectorXd>& field_norms,
                            const TwoStep2DOptions& options = {});
 

@@ -58,8 +58,12 @@ def twostep_2d(readings, field_norms, refine: bool = True) -> dict:
 
     p0 = np.concatenate([first["offset"], first["gain"]])
     sol = least_squares(residual, p0, method="lm", x_scale="jac", xtol=1e-15, ftol=1e-15, gtol=1e-15)
+    # covariance of (bx, by, γx, γy): s²(JᵀJ)⁻¹ with SciPy's Jacobian at the solution (γ's sign made positive)
+    flip = np.concatenate([np.ones(2), np.sign(sol.x[2:])])
+    J = sol.jac * flip
+    covariance = (sol.fun @ sol.fun / (len(h) - 4)) * np.linalg.inv(J.T @ J)
     return {"offset": sol.x[:2], "gain": np.abs(sol.x[2:]), "constant_field": first["constant_field"],
-            "first_step": first}
+            "first_step": first, "covariance": covariance}
 
 
 # ---- 3-D (Alonso & Shuster 2002) ----------------------------------------------------------------------
