@@ -356,6 +356,7 @@ static inline int32_t KNAME_step(KNAME_t *f, int32_t y) {
       }
     }
   }
+  if (y == INT32_MAX || y == INT32_MIN) *of = 1;  /* a saturated conversion of the input */
   e = KNAME_sat32_((int64_t)y - f->x[0], of);
   for (i = 0; i < n; ++i)
     f->x[i] = KNAME_sat32_(KNAME_add64_(f->x[i], KNAME_shift_(KNAME_mul_(f->k[i], e), cf, of), of), of);
@@ -376,7 +377,7 @@ static inline int KNAME_self_test(void) {
 def _drift_part(drift, name: str):
     """The header lines of the drift f(T) of a DriftModel (or its JSON path) in double, with a test vector of
     temperatures across every range and the model's own values there; and the model."""
-    from .drift import DriftModel
+    from .drift import EDGE_MARGIN, DriftModel
 
     model = DriftModel.load(drift) if isinstance(drift, (str, Path)) else drift
     if not isinstance(model, DriftModel):
@@ -402,6 +403,7 @@ def _drift_part(drift, name: str):
         f" * {dname}_self_test() compares the test temperatures with fluxcal's values (0 = pass). */",
         f"#define {dup}_RANGES {len(segments)}",
         f"#define {dup}_MAX_ORDER {top}",
+        f"#define {dup}_EDGE_MARGIN {d(EDGE_MARGIN * (edges[-1] - edges[0]))} /* degC: DriftModel.evaluate's margin */",
         f"static const double {dname}_edges[{len(edges)}] = {{{', '.join(map(d, edges))}}};",
         f"static const double {dname}_coefficients[{len(segments)}][{top + 1}] = {{  /* c_0 ... c_m per range */",
         _rows(coefficients, d) + "};",
@@ -411,8 +413,9 @@ def _drift_part(drift, name: str):
         *(["  (void)temp_outside;"] if model.regressor == "temp" else []),
         "  *f = 0.0;",
         f"  for (s = 0; s < {dup}_RANGES; ++s) {{",
-        f"    if (temp >= {dname}_edges[s] && (temp < {dname}_edges[s + 1] || (s == {dup}_RANGES - 1 && "
-        f"temp <= {dname}_edges[s + 1]))) {{",
+        f"    const double lo = {dname}_edges[s] - (s == 0 ? {dup}_EDGE_MARGIN : 0.0);",
+        f"    const double hi = {dname}_edges[s + 1] + (s == {dup}_RANGES - 1 ? {dup}_EDGE_MARGIN : 0.0);",
+        f"    if (temp >= lo && (temp < hi || (s == {dup}_RANGES - 1 && temp <= hi))) {{",
         f"      for (j = {dup}_MAX_ORDER; j >= 0; --j) *f = *f * x + {dname}_coefficients[s][j];",
         "      return 0;",
         "    }",
@@ -561,6 +564,10 @@ def export_c(cal: Calibration | None, path, q_format=None, name: str | None = No
 
 def _undetermined(cal: Calibration) -> str | None:
     """What a calibration's summary says about parameters its data did not determine, or None."""
+    if cal.summary.get("converged", True) is False:
+        why = next((w for w in cal.summary.get("warnings", []) if "converge" in w), "")
+        return ("the calibration's fit did not converge: the result is an intermediate iterate"
+                + (f" ({why.rstrip('.')})" if why else ""))
     if cal.summary.get("identifiable", True):
         return None
     why = next((w for w in cal.summary.get("warnings", []) if "identif" in w or "determin" in w), "")
@@ -645,6 +652,8 @@ def _calibration_part(cal: Calibration, name: str, q_format, i32):
         f"  const int64_t half = (int64_t)1 << ({up}_MATRIX_FRAC_BITS - 1);",
         "  int saturated = 0, i, j;",
         "  int32_t d[3];",
+        "  /* a reading at INT32_MIN/INT32_MAX is what a saturated conversion round(r * 2^n) leaves: flagged */",
+        "  for (j = 0; j < 3; ++j) if (m[j] == INT32_MAX || m[j] == INT32_MIN) saturated = 1;",
         f"  for (j = 0; j < 3; ++j) d[j] = {name}_saturate_((int64_t)m[j] - {name}_offset_q[j], &saturated);",
         "  for (i = 0; i < 3; ++i) {",
         "    int64_t acc = 0;",

@@ -383,7 +383,9 @@ def test_drift_model_in_c_matches_the_model_and_needs_no_calibration(tmp_path, r
     subprocess.run([compiler(), "-std=c99", "-pedantic", "-Wall", "-Wextra", "-Werror", "-O2", f"-I{tmp_path}",
                     str(source), "-o", str(exe)], check=True)
     lo, hi = model.segments[0]["range"][0], model.segments[-1]["range"][1]
-    temps = np.concatenate([np.random.default_rng(5).uniform(lo, hi, 200), [lo, hi, lo - 0.01, hi + 0.01]])
+    margin = drift.EDGE_MARGIN * (hi - lo)  # a later log reads a little beyond the fit's coldest and hottest samples
+    temps = np.concatenate([np.random.default_rng(5).uniform(lo, hi, 200), [lo, hi, lo - 0.5 * margin,
+                            hi + 0.5 * margin, lo - 2 * margin, hi + 2 * margin]])
     outs = temps - np.random.default_rng(6).uniform(0.0, 10.0, temps.size)
     run = subprocess.run([str(exe)], input="".join(f"{t:.17g} {o:.17g}\n" for t, o in zip(temps, outs)),
                          capture_output=True, text=True, check=True)
@@ -391,10 +393,11 @@ def test_drift_model_in_c_matches_the_model_and_needs_no_calibration(tmp_path, r
     flags = np.array([int(line.split()[0]) for line in lines[:-2]])
     values = np.array([float(line.split()[1]) for line in lines[:-2]])
     assert lines[-2] == "self_test 0"
-    np.testing.assert_array_equal(flags, [0] * 202 + [1, 1])  # outside every range: said, not extrapolated
-    expected = model.evaluate(temps[:202], outs[:202] if regressor == "difference" else None)
-    np.testing.assert_allclose(values[:202], expected, rtol=1e-12, atol=1e-12 * np.abs(expected).max())
-    assert np.all(values[202:] == 0.0)
+    # within the margin as DriftModel.evaluate; beyond it outside every range: said, not extrapolated
+    np.testing.assert_array_equal(flags, [0] * 204 + [1, 1])
+    expected = model.evaluate(temps[:204], outs[:204] if regressor == "difference" else None)
+    np.testing.assert_allclose(values[:204], expected, rtol=1e-12, atol=1e-12 * np.abs(expected).max())
+    assert np.all(values[204:] == 0.0)
 
 
 def test_export_c_needs_something_to_export(tmp_path):
@@ -424,3 +427,43 @@ def test_an_undetermined_calibration_is_refused_unless_forced(tmp_path):
     assert "WARNING (exported with --force): the calibration is not identifiable" in (tmp_path / "cal.h").read_text()
     run = run_cli("apply", tmp_path / "cal.json", src, "-o", tmp_path / "out.csv")
     assert run.returncode == 0 and "warning:" in run.stdout and "not identifiable" in run.stdout
+
+
+RAIL_DRIVER = r"""
+#include <stdio.h>
+#include "HEADER"
+int main(void) {
+  const int32_t inputs[4][3] = {{INT32_MAX, 0, 0}, {0, INT32_MIN, 0}, {0, 0, INT32_MAX}, {1000, -1000, 500}};
+  int32_t h[3];
+  int k;
+  for (k = 0; k < 4; ++k) printf("%d\n", p_apply_fixed(inputs[k], h));
+  return 0;
+}
+"""
+
+
+def test_fixed_point_flags_a_reading_clamped_in_its_conversion(tmp_path):
+    """The header tells firmware to saturate readings converting them to Q-format: a reading at INT32_MIN or
+    INT32_MAX is such a clamped one, and apply_fixed says so (a blind check's full-scale 16-bit readings came out
+    wrong with the flag at 0)."""
+    header = tmp_path / "p.h"
+    export_c(CALS["nT"], header, name="p")
+    (tmp_path / "rail.c").write_text(RAIL_DRIVER.replace("HEADER", header.name))
+    exe = tmp_path / "rail"
+    subprocess.run([compiler(), "-std=c99", "-Wall", "-Wextra", "-Werror", f"-I{tmp_path}", str(tmp_path / "rail.c"),
+                    "-o", str(exe)], check=True)
+    flags = subprocess.run([str(exe)], capture_output=True, text=True, check=True).stdout.split()
+    assert flags == ["1", "1", "1", "0"]
+
+
+def test_a_calibration_that_did_not_converge_is_refused_unless_forced(tmp_path):
+    """Firmware must not get a solver's intermediate iterate silently (a blind check exported a TWOSTEP whose
+    second step had not converged, 23 µT off, with exit status 0)."""
+    cal = fluxcal.Calibration(offset=CALS["nT"].offset, matrix=CALS["nT"].matrix, field_norm=CALS["nT"].field_norm,
+                              units="nT", summary={**CALS["nT"].summary, "converged": False, "warnings": [
+                                  "second step not converged after 50 iterations"]})
+    with pytest.raises(ValueError, match="did not converge: the result is an intermediate iterate"):
+        export_c(cal, tmp_path / "p.h", name="p")
+    assert not (tmp_path / "p.h").exists()
+    export_c(cal, tmp_path / "p.h", name="p", force=True)
+    assert "WARNING (exported with --force): the calibration's fit did not converge" in (tmp_path / "p.h").read_text()
