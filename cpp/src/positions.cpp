@@ -303,7 +303,7 @@ void check_gravity(const SamplesRef& sf, const PositionsOptions& options) {
   for (Eigen::Index i = 0; i < mags.size(); ++i) {
     const double dev = mags(i) / g - 1.0;
     if (std::abs(dev) > options.gravity_tolerance) {
-      throw Error("specific_force: position " + std::to_string(i) + " reads |a| = " + fmt(mags(i)) + ", " +
+      throw Error("specific_force: position " + std::to_string(i + 1) + " reads |a| = " + fmt(mags(i)) + ", " +
                   fmt(100.0 * dev, 3) + " % from g = " + fmt(g) + " (tolerance " +
                   fmt(100.0 * options.gravity_tolerance, 3) +
                   " %): the device was moving, or the accelerometer is not calibrated (calibrate it from the same "
@@ -597,7 +597,7 @@ PositionsResult calibrate_positions(const SamplesRef& outputs, const SamplesRef&
     if (!nominal.empty()) {
       const double angle = std::acos(std::clamp((R0 * u).dot(up), -1.0, 1.0)) * 180.0 / kPi;
       if (angle > 30.0) {
-        throw Error("specific_force: position " + std::to_string(i) + ": the accelerometer's up is " + fmt(angle, 3) +
+        throw Error("specific_force: position " + std::to_string(i + 1) + ": the accelerometer's up is " + fmt(angle, 3) +
                     "° from the nominal attitude's (more than 30°): wrong order of positions, wrong frame, or an "
                     "accelerometer that reports gravity (down) instead of specific force (up)?");
       }
@@ -668,6 +668,7 @@ PositionsResult calibrate_positions(const SamplesRef& outputs, const SamplesRef&
   std::vector<double> tp(static_cast<std::size_t>(2 * n), 0.0);
   const bool with_tilt = options.tilt_sigma_deg > 0.0;
   bool sigma_undetermined = false;  // see the tilt-prior weighting below
+  bool dip_mirrored = false;
   double sigma_fallback = 0.0;
   const Eigen::Vector3d east = options.frame == Frame::ned ? Eigen::Vector3d::UnitY() : Eigen::Vector3d::UnitZ();
   double prior_weight = 0.0;
@@ -798,6 +799,13 @@ PositionsResult calibrate_positions(const SamplesRef& outputs, const SamplesRef&
     solve();
   }
 
+  if (options.estimate_inclination && std::cos(inclination) < 0.0) {
+    // The dip left (−90°, 90°): F(cos I ĥ + sin I d̂) with cos I < 0 is the field reversed, and K came out
+    // negated (K' = −K with the field reversed fits the outputs equally). Return the physical branch and say why.
+    inclination = std::remainder(inclination + kPi, 2.0 * kPi);
+    for (double& k : kp) k = -k;
+    dip_mirrored = true;
+  }
   PositionsResult r;
   r.units = options.units;
   r.offset = Eigen::Vector3d(u0p[0], u0p[1], u0p[2]);
@@ -885,6 +893,10 @@ PositionsResult calibrate_positions(const SamplesRef& outputs, const SamplesRef&
                              outputs, "the positions calibration");
   r.summary.converged = summary.IsSolutionUsable();
   if (!r.summary.converged) r.summary.warnings.push_back("Ceres: " + summary.message);
+  if (dip_mirrored)
+    r.summary.warnings.push_back(
+        "the dip estimate went past ±90° (the field reversed, K negated); returned the physical branch, dip " +
+        fmt(inclination * 180.0 / kPi) + "°: the given inclination's sign (or the field's north) is probably wrong");
   if (sigma_undetermined)
     r.summary.warnings.push_back(
         "output noise σ is not determined by these positions (headings and levelling corrections absorb it): "

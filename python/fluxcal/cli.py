@@ -945,6 +945,8 @@ def build_parser() -> argparse.ArgumentParser:
                                 "as calibrate finds them) and optionally a column position (rows averaged per "
                                 "position)")
     q.add_argument("--columns", default=None, help=columns_help)
+    q.add_argument("--bad-lines", default="error", choices=["error", "skip"], help=bad_lines_help)
+    q.add_argument("--noise-sigma", type=float, default=0.0, help="the outputs' noise per position (after averaging); default: from the scatter within positions when the rows repeat")
     q.add_argument("--preset", choices=["twelve"], default=None,
                    help="nominal attitudes: twelve = where the body axes x, y, z point in positions 1–12 (frame nue: "
                         "x forward, y up, z right; N/S/E/W/U/D): N-U-E, S-U-W, S-D-E, N-D-W, U-S-E, U-N-W, D-N-E, "

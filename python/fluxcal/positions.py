@@ -482,6 +482,83 @@ __all__ = ["FRAMES", "PRESETS", "TWELVE", "STANDARD_GRAVITY", "AccelerometerCali
            "preset_rotations", "reference_field", "to_local", "up_component", "verification_report"]
 
 
+def _replicate_scatter(ids, uniq, acc, mag, acc_av, mag_av) -> dict:
+    """Pooled scatter of the rows within each position (outputs, and the accelerometer's direction)."""
+    ids = np.asarray(ids)
+    dm, da, counts, worst = [], [], [], []
+    for k, u in enumerate(uniq):
+        m = ids == u
+        counts.append(int(m.sum()))
+        if m.sum() > 1:
+            dm.append(mag[m] - mag_av[k])
+            a = acc[m] / np.linalg.norm(acc[m], axis=1, keepdims=True)
+            ang = np.degrees(np.arccos(np.clip(a @ (acc_av[k] / np.linalg.norm(acc_av[k])), -1, 1)))
+            da.append(np.radians(ang))
+            worst.append((float(ang.max()), _label(u)))
+    if not dm:
+        return None
+    dm, da = np.vstack(dm), np.concatenate(da)
+    dof = max(len(dm) - len(uniq), 1)
+    n_mean = float(np.mean(counts))
+    mag_sigma = float(np.sqrt((dm ** 2).sum() / (3 * dof)))
+    tilt_sigma = float(np.sqrt((da ** 2).sum() / (2 * dof)))  # radians per axis, one reading
+    return {"mag_sigma": mag_sigma, "mag_sigma_per_position": mag_sigma / np.sqrt(n_mean),
+            "tilt_sigma_per_position": tilt_sigma / np.sqrt(n_mean), "worst_tilt": max(worst),
+            "labels": [_label(u) for u in uniq]}
+
+
+def _label(position):
+    """A position's id as the file writes it (3, not 3.0; a text id as it is)."""
+    try:
+        return int(position) if float(position).is_integer() else position
+    except (TypeError, ValueError):
+        return position
+
+
+# Residuals this many times what the repeats within positions allow: the model does not fit (the blind check's
+# wrong-physics cases gave 200× to 200 000×; clean ones about 1×).
+MISFIT_RATIO = 5.0
+
+
+def _misfit_warnings(res, field_ned, scatter) -> list:
+    """Compare the fit's residuals with what the repeats within positions allow (mag noise + levelling)."""
+    out = []
+    gain = np.linalg.norm(res.K) / np.sqrt(3.0)
+    expected = np.hypot(scatter["mag_sigma_per_position"],
+                        gain * np.linalg.norm(field_ned) * scatter["tilt_sigma_per_position"])
+    n = len(res.residuals)
+    dof_factor = np.sqrt(max(3 * n - len(res.parameters), 1) / (3 * n))
+    rms = float(np.sqrt((res.residuals ** 2).mean()))
+    # repeats that read the same (a quantised sensor below one step of noise) say nothing of the noise
+    ratio = rms / (expected * dof_factor) if scatter["mag_sigma"] > 0 else 0.0
+    if ratio > MISFIT_RATIO:
+        worst = scatter["labels"][int(np.argmax(np.linalg.norm(res.residuals, axis=1)))]
+        out.append(f"the model does not fit: residual RMS {rms:.4g} is {ratio:.0f}x what the scatter within "
+                   f"positions allows ({expected * dof_factor:.3g}); largest at position {worst}. Check the "
+                   "reference field (inclination sign, declination, --field order N,E,D), the position order or "
+                   "labels, heading placement (--estimate-yaw), the accelerometer (--calibrate-accelerometer) and "
+                   "magnetic objects near the bench; U0 and K are biased by it")
+    if scatter["worst_tilt"][0] > 1.0:
+        out.append(f"position {scatter['worst_tilt'][1]}: a reading's accelerometer direction is "
+                   f"{scatter['worst_tilt'][0]:.2g}° from the position's mean (the device moved while logging?)")
+    return out
+
+
+def _unit_warnings(res, field_ned, units, igrf) -> list:
+    """Readings in a field unit should give |K| near the unit conversion: flag µT labelled nT and the like."""
+    to_nT = {"nT": 1.0, "uT": 1e3, "µT": 1e3, "mG": 100.0, "G": 1e5, "gauss": 1e5, "T": 1e9}
+    F = float(np.linalg.norm(field_ned))
+    field_unit = "nT" if (igrf or 15000 < F < 80000) else ("uT" if 15 < F < 80 else None)
+    if units not in to_nT or field_unit is None:
+        return []
+    expected = to_nT[field_unit] / to_nT[units]  # readings per field unit for a unit-gain sensor
+    gain = np.linalg.norm(res.K) / np.sqrt(3.0)
+    if not 0.2 < gain / expected < 5.0:
+        return [f"K's gain is {gain:.3g} {units} per {field_unit}, {gain / expected:.3g}x a unit-gain sensor's: "
+                f"the readings are probably not in {units} (or the field not in {field_unit}); check the unit labels"]
+    return []
+
+
 # --- command line (fluxcal positions) ---------------------------------------------------------------
 
 def run_cli(args, out=None) -> int:
@@ -494,7 +571,8 @@ def run_cli(args, out=None) -> int:
 
     out = out or sys.stdout
     # every format calibrate reads (the SAP6 survey instrument's JSON shots, .mat, a logger's CSV)
-    rec = read_recording(args.file, columns=getattr(args, "columns", None))
+    rec = read_recording(args.file, columns=getattr(args, "columns", None),
+                         bad_lines=getattr(args, "bad_lines", "error"))
     acc = rec.acceleration()
     if acc is None:
         raise ValueError(f"{args.file}: no accelerometer columns (ax,ay,az, or a triple named AccX.., accel_x..; "
@@ -505,8 +583,11 @@ def run_cli(args, out=None) -> int:
             row = int(np.argmax(~np.isfinite(arr).all(axis=1)))
             raise ValueError(f"{args.file}: row {row + 1} of {name} is not finite")
     ids = rec.columns.get("position")
+    scatter = None
     if ids is not None:
-        _, acc, mag = average_positions(ids, acc, mag)
+        uniq, acc_av, mag_av = average_positions(ids, acc, mag)
+        scatter = _replicate_scatter(ids, uniq, acc, mag, acc_av, mag_av)
+        acc, mag = acc_av, mag_av
     field_args = {}
     if args.field:
         try:
@@ -522,12 +603,21 @@ def run_cli(args, out=None) -> int:
     f = reference_field(**field_args)
     units = rec.field_units()
     acc_cal = None
+    extra_warnings = []
     if args.calibrate_accelerometer:
         acc_cal = calibrate_accelerometer(acc, gravity=float(np.median(np.linalg.norm(acc, axis=1))))
         acc = acc_cal.apply(acc)
+        extra_warnings += [f"accelerometer calibration: {w}" for w in acc_cal.summary.get("warnings", [])]
+    sigma_out = getattr(args, "noise_sigma", 0.0) or 0.0
+    if not sigma_out and scatter is not None and args.tilt_sigma > 0:
+        sigma_out = scatter["mag_sigma_per_position"]  # σ̂ from 12 positions with 24 tilts is not identified
     res = calibrate(mag, acc, f, frame=args.frame, preset=args.preset, estimate_yaw=args.estimate_yaw or None,
                     estimate_inclination=args.estimate_inclination, units=units, acc_measures=args.acc_measures,
-                    tilt_sigma_deg=args.tilt_sigma)
+                    tilt_sigma_deg=args.tilt_sigma, **({"output_sigma": sigma_out} if sigma_out else {}))
+    if scatter is not None:
+        extra_warnings += _misfit_warnings(res, f, scatter)
+    extra_warnings += _unit_warnings(res, f, units, args.lat is not None)
+    res.summary["warnings"] = list(res.summary["warnings"]) + extra_warnings
     report = res.verify(mag, acc, preset=args.preset, acc_measures=args.acc_measures) if args.preset else \
         res.verify(mag, acc, acc_measures=args.acc_measures)
     doc = res.to_dict()

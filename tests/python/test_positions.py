@@ -243,8 +243,8 @@ def test_bad_input_messages():
     with pytest.raises(ValueError, match="cannot be separated|not observable"):
         fp.fit(s.outputs[idx], H)
     moving = s.acc_raw.copy()
-    moving[3] *= 1.3
-    with pytest.raises(ValueError, match="position 3.*moving"):
+    moving[3] *= 1.3  # the fourth position: numbered from 1, as the preset's
+    with pytest.raises(ValueError, match="position 4 .*moving"):
         fp.calibrate(s.outputs, moving, PAPER_FIELD, frame="nue", preset="twelve")
     with pytest.raises(ValueError, match="reference field is missing"):
         fp.calibrate(s.outputs, s.acc_raw, None, frame="nue", preset="twelve")
@@ -417,3 +417,62 @@ def test_sap6_raw_axes_are_named_as_a_relabelling(real_data):
     res = fp.calibrate(mag, grav, fp.reference_field(total=43.38, inclination=67.8), acc_measures="gravity",
                        gravity_tolerance=0.1, units="uT")
     assert not any("relabelling" in w for w in res.summary["warnings"]), res.summary["warnings"]
+
+
+def _repeated_twelve_csv(path, rng, per_position=5, noise=0.3, disturb=None, inclination_sign=1.0):
+    """Twelve positions logged `per_position` times each (reading noise `noise` mV, accelerometer good to
+    0.005°); `disturb` = (position, nT): a field disturbance at that position (steel near the bench)."""
+    scene = sim.twelve_scene("nue", tilt_deg=1.0, rng=rng)
+    s = sim.simulate_positions(scene, PAPER_FIELD, noise=0.0, rng=rng)
+    outputs = np.array(s.outputs)
+    if disturb is not None:
+        outputs[disturb[0] - 1] += K_TRUE @ np.array([disturb[1], 0.0, 0.0])
+    acc_sigma = G * np.radians(0.005)
+    rows = [[i + 1, *(s.acc_raw[i] + acc_sigma * rng.standard_normal(3)),
+             *(outputs[i] + noise * rng.standard_normal(3))] for i in range(12) for _ in range(per_position)]
+    path.write_text("# units: mx=mV, my=mV, mz=mV\nposition,ax,ay,az,mx,my,mz\n"
+                    + "\n".join(",".join(f"{v:.10g}" for v in r) for r in rows) + "\n")
+    return path
+
+
+def test_cli_positions_says_when_the_model_does_not_fit(tmp_path):
+    """The repeats within each position show what the fit's residuals should be: a position disturbed by 400 nT
+    (a blind check: exit 0, K 0.09 % off, no word) is named; the clean recording gets no such warning."""
+    f = ",".join(f"{v:.6f}" for v in PAPER_FIELD)
+    args = ["--field", f, "--frame", "nue", "--preset", "twelve"]
+    clean = run_cli("positions", _repeated_twelve_csv(tmp_path / "clean.csv", np.random.default_rng(3)), *args,
+                    "-o", tmp_path / "clean.json")
+    assert clean.returncode == 0, clean.stderr
+    assert "does not fit" not in clean.stdout + clean.stderr
+    bad = run_cli("positions", _repeated_twelve_csv(tmp_path / "steel.csv", np.random.default_rng(3), disturb=(8, 400.0)),
+                  *args, "-o", tmp_path / "steel.json")
+    assert bad.returncode == 0, bad.stderr
+    text = bad.stdout + bad.stderr
+    assert "the model does not fit" in text and "largest at position 8" in text, text
+
+
+def test_cli_positions_wrong_inclination_sign_comes_back_on_the_physical_branch(tmp_path):
+    """--inclination with the wrong sign and --estimate-inclination: the fit can end with the field reversed and
+    K negated (a blind check: K = −K_true with the dip reported as −52°). The physical branch is returned, said."""
+    path = _repeated_twelve_csv(tmp_path / "twelve.csv", np.random.default_rng(4))
+    out = tmp_path / "out.json"
+    r = run_cli("positions", path, "--total", "52200", "--inclination", "-52", "--estimate-inclination",
+                "--frame", "nue", "--preset", "twelve", "-o", out)
+    assert r.returncode == 0, r.stderr
+    d = json.loads(out.read_text())
+    assert np.abs(np.array(d["K"]) - K_TRUE).max() / K_SCALE < 3e-3
+    assert fp.inclination_of(np.array(d["field_ned"])) == pytest.approx(52.0, abs=0.5)
+    assert "the dip estimate went past ±90°" in r.stdout + r.stderr
+
+
+def test_cli_positions_skips_a_garbled_line_when_asked(tmp_path):
+    path = _repeated_twelve_csv(tmp_path / "twelve.csv", np.random.default_rng(5))
+    lines = path.read_text().splitlines()
+    lines[10] = "3,0.1,9.8,#!x,1,2,3"
+    path.write_text("\n".join(lines) + "\n")
+    f = ",".join(f"{v:.6f}" for v in PAPER_FIELD)
+    args = ["--field", f, "--frame", "nue", "--preset", "twelve", "-o", tmp_path / "out.json"]
+    stop = run_cli("positions", path, *args)
+    assert stop.returncode == 2 and "line 11" in stop.stderr and "--bad-lines skip" in stop.stderr, stop.stderr
+    skip = run_cli("positions", path, *args, "--bad-lines", "skip")
+    assert skip.returncode == 0, skip.stderr
