@@ -299,8 +299,13 @@ def calibrate_ring(readings, true_fields, method: str = "twostep") -> RingCalibr
             try:
                 fits.append(twostep_2d(r[:, i], norms[:, i]))
             except ValueError as exc:
-                if "first step" not in str(exc):  # bad input (a NaN): its own message says what
+                if "first step" not in str(exc):  # bad input (a NaN), a run-away: its own message says what
                     raise ValueError(f"sensor {i}: {exc}") from None
+                arc = _turned_deg(u)
+                if arc < 180.0:  # too short an arc leaves the first step to the noise, whatever the model
+                    raise ValueError(f"sensor {i}: {exc}. The field at this sensor turned through only {arc:.0f}° "
+                                     "in the calibration run: turn the ring about the cable through a full circle "
+                                     "(the paper uses 5 × 72°), or calibrate at several currents") from None
                 raise ValueError(f"sensor {i}: {exc}. Here the magnitudes are the ring model's (straight conductors at "
                                  "the given positions with the reference currents): a calibration run the model does "
                                  "not describe (a cable's lay, its end or a bend near the ring, iron nearby, a wrong "
@@ -317,6 +322,13 @@ def calibrate_ring(readings, true_fields, method: str = "twostep") -> RingCalibr
         covariance = np.array([_axis_blocks(f.covariance) for f in fits])
     return RingCalibration(offsets=offsets, gains=gains, method=method, sensors=fits, residual_sigma=residual_sigma,
                            covariance=covariance)
+
+
+def _turned_deg(directions: np.ndarray) -> float:
+    """The arc (degrees) the unit field directions (K, 2) cover: 360° less the widest gap between them."""
+    angles = np.sort(np.degrees(np.arctan2(directions[:, 1], directions[:, 0])))
+    gaps = np.diff(np.concatenate([angles, angles[:1] + 360.0]))
+    return float(360.0 - gaps.max())
 
 
 def _axis_blocks(covariance: np.ndarray) -> np.ndarray:

@@ -98,7 +98,23 @@ def twostep_2d(readings, field_norms, units: str | None = None, refine: bool = T
     coupling = _axis_coupling(result, arr, norms)
     if coupling:
         result.summary["warnings"] = list(result.summary["warnings"]) + [coupling]
+    mismatch = _unit_mismatch(result)
+    if mismatch:
+        result.summary["warnings"] = list(result.summary["warnings"]) + [mismatch]
     return result
+
+
+def _unit_mismatch(result: TwoStep2D) -> str | None:
+    """Readings stated in a field unit whose gains are far from 1: field_norms in another unit (nT magnitudes for
+    µT readings gave gains of 1e-3 without a word). As the 3-D form's check; readings in volts or counts are not
+    judged."""
+    from .io.columns import FIELD_UNITS
+
+    gain = float(np.sqrt(np.prod(result.gain)))
+    if result.units not in set(FIELD_UNITS.values()) - {"counts"} or 0.2 <= gain <= 5.0:
+        return None
+    return (f"the gains {np.round(result.gain, 6).tolist()} are {gain:.3g} readings ({result.units}) per unit of "
+            "field_norms: field_norms are probably in another unit than the readings — check the units")
 
 
 # The share of the relative misfit's variance that twice the heading must explain before it is named: noise and

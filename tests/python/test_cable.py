@@ -438,3 +438,13 @@ def test_ring_calibration_covariance_matches_the_monte_carlo_spread():
     se = np.sqrt(np.mean(reported, axis=0))
     ratio = se / spread
     assert np.all(np.abs(ratio - 1) < 0.2), ratio  # measured 0.92–1.12 (the linear covariance: 0.72–0.97)
+
+
+def test_a_ring_turned_through_a_quarter_circle_is_refused_naming_the_arc():
+    """One current, the ring turned through 90°: the first step is left to the noise (γ² ≤ 0). The message had
+    blamed the model (a lay, iron, a wrong radius); it now names the arc the field turned through."""
+    rig = simcable.paper_rig(np.random.default_rng(0))
+    raw, truth = simcable.calibration_data(rig, [[1.0, -1.0]], np.random.default_rng(10),
+                                           rotations_deg=np.linspace(0, 90, 10), repeats=3)
+    with pytest.raises(ValueError, match=r"turned through only \d+° in the calibration run: turn the ring"):
+        calibrate_ring(raw, truth)

@@ -425,3 +425,15 @@ def test_twostep_2d_names_a_wrong_type_and_a_zero_gain():
         fluxcal.fit_ellipsoid(np.random.default_rng(0).normal(size=(50, 3)), units=5)
     with pytest.raises(ValueError, match="the gains non-zero"):
         TwoStep2D(offset=[0, 0], gain=[0, 1])  # apply() divided by zero
+
+
+def test_2d_field_norms_in_another_unit_are_named():
+    """Readings in µT, magnitudes in nT: gains of 1e-3 came back without a word. Readings in volts are not judged."""
+    rng = np.random.default_rng(0)
+    angle, h = rng.uniform(0, 2 * np.pi, 100), rng.uniform(40, 60, 100)
+    readings = np.column_stack([h * np.cos(angle), h * np.sin(angle)]) * [1.02, 0.98] + [3, -2]
+    readings += 0.05 * rng.standard_normal(readings.shape)
+    assert not twostep_2d(readings, h, units="uT").summary["warnings"]
+    warned = twostep_2d(readings, 1000 * h, units="uT").summary["warnings"]
+    assert any("field_norms are probably in another unit" in w for w in warned)
+    assert not twostep_2d(readings, 1000 * h, units="V").summary["warnings"]
