@@ -84,6 +84,8 @@ def field_from_inclination(total, inclination, declination=0.0) -> np.ndarray:
     broadcasts and refuses NaN."""
     from .attitude import field_from_inclination as field_of
 
+    if not -90.0 <= float(inclination) <= 90.0:  # 128° was taken as a field pointing back up, north reversed
+        raise ValueError(f"inclination: {float(inclination):g}° is outside −90…90° (the dip, positive down)")
     return field_of(float(total), float(inclination), float(declination))
 
 
@@ -507,6 +509,21 @@ def _replicate_scatter(ids, uniq, acc, mag, acc_av, mag_av) -> dict:
             "labels": [_label(u) for u in uniq]}
 
 
+def _require_preset_ids(source, ids, count: int) -> None:
+    """A preset's positions are numbered 1…count: name the numbers missing or extra in the position column
+    ("11 readings but the nominal attitudes describe 12 positions" did not say which)."""
+    try:
+        numbers = {float(u) for u in ids}
+    except (TypeError, ValueError):
+        return  # text ids: matched in order of appearance
+    missing = [k for k in range(1, count + 1) if float(k) not in numbers]
+    extra = sorted(_label(u) for u in numbers if not (u.is_integer() and 1 <= u <= count))
+    if missing or extra:
+        raise ValueError(f"{source}: the preset numbers its positions 1–{count}; the position column "
+                         + "; ".join(([f"lacks {', '.join(map(str, missing))}"] if missing else [])
+                                     + ([f"has {', '.join(map(str, extra))} besides"] if extra else [])))
+
+
 def _label(position):
     """A position's id as the file writes it (3, not 3.0; a text id as it is)."""
     try:
@@ -586,6 +603,8 @@ def run_cli(args, out=None) -> int:
     scatter = None
     if ids is not None:
         uniq, acc_av, mag_av = average_positions(ids, acc, mag)
+        if args.preset:
+            _require_preset_ids(args.file, uniq, len(preset_rotations(args.preset, args.frame)))
         scatter = _replicate_scatter(ids, uniq, acc, mag, acc_av, mag_av)
         acc, mag = acc_av, mag_av
     field_args = {}
