@@ -14,7 +14,7 @@ from .ellipsoid import fit_ellipsoid
 from .outliers import find_outliers
 from .refine import SHAPES, fit_vector, refine, shape_name
 
-METHODS = ("auto", "vector", "als", "ls", "als+refine")
+METHODS = ("auto", "vector", "als", "ls", "als+refine", "twostep")
 OUTLIERS = ("drop", "keep")
 # From this many readings shape="auto" refines its shapes in threads (the solver releases the GIL; each fit is
 # the same as alone). Below it the three fits take a few ms together, less than the threads would save.
@@ -43,7 +43,8 @@ def calibrate(samples, method: str = "auto", field_norm: float | None = None, re
     summary says what ran ("method") and, after a refinement or a vector fit, whether the data determine
     every parameter ("identifiable"); when they do not (yaw-only turns, small tilts), the summary warns and
     names the remedy instead of passing a confident 3-D answer off as one. Other methods: "vector", "als",
-    "ls", "als+refine". `loss` ("none", "huber", "cauchy") applies to the refinement.
+    "ls", "als+refine", "twostep" (Alonso & Shuster's TWOSTEP, fluxcal.twostep: needs the known `field_norm`;
+    settings as fluxcal.twostep's). `loss` ("none", "huber", "cauchy") applies to the refinement.
 
     outliers "drop": the readings are first screened for gross outliers (I²C glitches reading 0,0,0, ADC
     rails, spikes; fluxcal.outliers) — off the ellipsoid, or with `reference` off the vector model — and
@@ -68,8 +69,9 @@ def calibrate(samples, method: str = "auto", field_norm: float | None = None, re
         raise ValueError(f"outliers: {outliers!r} is not one of {', '.join(OUTLIERS)}")
     shape = shape if shape == "auto" else shape_name(shape)
     restricted = shape not in ("sym", "auto")
-    if restricted and (method in ("vector", "ls", "als") or (method == "auto" and reference is not None)):
-        fits = "the algebraic ellipsoid" if method in ("ls", "als") else "a full W"
+    if restricted and (method in ("vector", "ls", "als", "twostep") or (method == "auto" and reference is not None)):
+        fits = {"ls": "the algebraic ellipsoid", "als": "the algebraic ellipsoid",
+                "twostep": "a symmetric matrix"}.get(method, "a full W")
         given = " with a reference" if method == "auto" else ""
         raise ValueError(f"shape: {shape!r} restricts the refinement's matrix; method {method!r}{given} fits "
                          f"{fits} (use method 'als+refine', or shape 'sym')")
@@ -77,7 +79,14 @@ def calibrate(samples, method: str = "auto", field_norm: float | None = None, re
         units = getattr(samples, "field_units", lambda: "")()
     m = as_samples(samples)
     vector = method == "vector" or (method == "auto" and reference is not None)
-    start_settings = {k: settings.pop(k) for k in list(settings) if k in ELLIPSOID_SETTINGS}
+    if method == "twostep":
+        if field_norm is None:
+            raise ValueError("field_norm: method 'twostep' needs the known field magnitude (--field-norm; e.g. from IGRF, in the "
+                             "unit h should come out in)")
+        if loss != "none":
+            raise ValueError(f"loss: {loss!r} is the refinement's; method 'twostep' has no robust loss")
+    start_settings = ({} if method == "twostep" else
+                      {k: settings.pop(k) for k in list(settings) if k in ELLIPSOID_SETTINGS})
     _check_steps(method, vector, start_settings, settings, loss)
     if vector:
         if reference is None:
@@ -94,6 +103,11 @@ def calibrate(samples, method: str = "auto", field_norm: float | None = None, re
     elif method in ("ls", "als"):
         cal = fit_ellipsoid(m, field_norm=field_norm, units=units, method=method, **start_settings)
         cal.summary["method"] = method
+    elif method == "twostep":
+        from .twostep import twostep
+
+        cal = twostep(m, field_norm, units=units, **settings)
+        cal.summary["method"] = "twostep"
     else:
         start = fit_ellipsoid(m, field_norm=field_norm, units=units, method="als", **start_settings)
         cal = _refine_shape(start, m, shape, loss=loss, **settings)

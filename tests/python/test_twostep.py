@@ -2,7 +2,7 @@ import numpy as np
 import pytest
 
 import fluxcal
-from conftest import simulated
+from conftest import run_cli, simulated
 from fluxcal import sim
 from fluxcal.oracle import twostep as oracle
 from fluxcal.twostep import TwoStep2D, twostep, twostep_2d
@@ -437,3 +437,25 @@ def test_2d_field_norms_in_another_unit_are_named():
     warned = twostep_2d(readings, 1000 * h, units="uT").summary["warnings"]
     assert any("field_norms are probably in another unit" in w for w in warned)
     assert not twostep_2d(readings, 1000 * h, units="V").summary["warnings"]
+
+
+def test_3d_from_calibrate_and_the_command_line(tmp_path):
+    """calibrate(method="twostep") and `fluxcal calibrate --method twostep --field-norm H`: the same fit as
+    fluxcal.twostep, after the outlier screen; without the field magnitude it is refused, naming it."""
+    s = simulated(31, n=1500, noise=0.01)
+    direct = twostep(s.readings, s.field_norm)
+    cal = fluxcal.calibrate(s.readings, method="twostep", field_norm=s.field_norm)
+    assert cal.summary["method"] == "twostep" and cal.summary["converged"]
+    np.testing.assert_allclose(cal.offset, direct.offset, rtol=1e-12)
+    np.testing.assert_allclose(cal.matrix, direct.matrix, rtol=1e-12)
+    with pytest.raises(ValueError, match="method 'twostep' needs the known field magnitude"):
+        fluxcal.calibrate(s.readings, method="twostep")
+    with pytest.raises(ValueError, match="shape: 'diag'"):
+        fluxcal.calibrate(s.readings, method="twostep", field_norm=s.field_norm, shape="diag")
+    src = fluxcal.write_csv(tmp_path / "r.csv", {"mx": s.readings[:, 0], "my": s.readings[:, 1],
+                                                 "mz": s.readings[:, 2]})
+    run = run_cli("calibrate", src, "--method", "twostep", "--field-norm", f"{s.field_norm!r}", "-o", tmp_path / "c.json")
+    assert run.returncode == 0, run.stderr
+    np.testing.assert_allclose(fluxcal.Calibration.load(tmp_path / "c.json").offset, direct.offset, rtol=1e-9)
+    run = run_cli("calibrate", src, "--method", "twostep")
+    assert run.returncode == 2 and "--field-norm" in run.stderr and "Traceback" not in run.stderr, run.stderr
