@@ -341,6 +341,8 @@ def calibrate_fleet(directory, out_dir, workers: int | None = None, scheduler: s
                          f"(the vector fit needs reference fields a recording folder does not give)")
     if field_norm is not None and not (math.isfinite(field_norm) and field_norm > 0):
         raise ValueError(f"field_norm: {field_norm} must be a positive number")
+    if method == "twostep" and field_norm is None:  # else every unit would fail alike
+        raise ValueError("field_norm: method 'twostep' needs the known field magnitude (--field-norm)")
     if not (isinstance(outlier_k, numbers.Real) and math.isfinite(outlier_k) and outlier_k > 0):
         raise ValueError(f"outlier_k: {outlier_k!r} must be a positive number of robust σ")
     if bad_lines not in ("error", "skip"):

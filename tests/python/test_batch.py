@@ -239,6 +239,7 @@ def test_cli_runs_a_local_cluster_and_exits_0_with_failed_units(tmp_path):
     ("empty", (), "no recordings matching '*.csv'"),
     ("empty", ("--workers", 0), "--workers: 0 is not a positive whole number"),
     ("empty", ("--method", "vector"), "invalid choice"),
+    ("empty", ("--method", "twostep"), "method 'twostep' needs the known field magnitude"),
 ])
 def test_cli_bad_arguments_exit_2(tmp_path, make, args, message):
     folder = tmp_path / "recordings"
