@@ -217,11 +217,14 @@ TEST(FixedKalman, SaturatesWithStickyFlag) {
   c.gain[0] = 1 << 29;      // K = 0.5
   fluxcal::FixedArKalman<2> f;
   ASSERT_TRUE(f.configure(c));
-  const std::int32_t big = std::numeric_limits<std::int32_t>::max();
+  const std::int32_t big = std::numeric_limits<std::int32_t>::max() - 1;  // one below the rail
   std::int32_t last = 0;
   for (int i = 0; i < 100; ++i) last = f.step(big);
   EXPECT_FALSE(f.overflowed());  // tracking +full scale from below stays in range
   EXPECT_GT(last, big - 100);
+  f.step(big + 1);  // a sample at the rail: what a saturated conversion leaves, flagged though nothing saturates here
+  EXPECT_TRUE(f.overflowed());
+  f.clear_overflow();
   last = f.step(std::numeric_limits<std::int32_t>::min());  // innovation ≈ −2 full scales
   EXPECT_TRUE(f.overflowed());
   EXPECT_GT(last, 0);  // clamped innovation: the output moved down by half the range, no wrap

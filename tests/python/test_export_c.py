@@ -467,3 +467,24 @@ def test_a_calibration_that_did_not_converge_is_refused_unless_forced(tmp_path):
     assert not (tmp_path / "p.h").exists()
     export_c(cal, tmp_path / "p.h", name="p", force=True)
     assert "WARNING (exported with --force): the calibration's fit did not converge" in (tmp_path / "p.h").read_text()
+
+
+def test_one_clamped_sample_sets_the_overflow_flag_in_c_cplusplus_and_python(tmp_path):
+    """A single sample at INT32_MAX among small ones (a clamped conversion): the filter's state does not saturate,
+    but the sample was not what the sensor read — the C header, the C++ filter and Python all say so."""
+    f = FixedArKalman((0.6, -0.3, 0.2), 0.5, 0.3, frac_bits=28)
+    header = tmp_path / "p.h"
+    export_c(CALS["nT"], header, name="p", kalman=f)
+    series = np.zeros(256, dtype=np.int64)
+    series[100] = 2 ** 31 - 1
+    driver = KALMAN_C_DRIVER.replace("p_kalman_test_input[k]", "(k == 100 ? INT32_MAX : 0)")
+    (tmp_path / "one.c").write_text(driver.replace("HEADER", header.name))
+    subprocess.run([compiler(), "-std=c99", "-Wall", "-Werror", f"-I{tmp_path}", str(tmp_path / "one.c"), "-o",
+                    str(tmp_path / "one")], check=True)
+    lines = subprocess.run([str(tmp_path / "one")], capture_output=True, text=True, check=True).stdout.split("\n")
+    expected = FixedArKalman((0.6, -0.3, 0.2), 0.5, 0.3, frac_bits=28)
+    np.testing.assert_array_equal([int(v) for v in lines[:-3]], expected.filter_int(series))
+    assert lines[-3] == "overflow 1" and expected.overflowed
+    clean = FixedArKalman((0.6, -0.3, 0.2), 0.5, 0.3, frac_bits=28)
+    clean.filter_int(np.where(series > 0, 2 ** 30, 0))
+    assert not clean.overflowed

@@ -13,7 +13,7 @@
 //   rescaling    shift_round(v, s) = (v + 2^(s−1)) >> s  (round half up, arithmetic shift), saturating
 //   narrowing    int64 → int32 saturates
 //   division     K_i = div_round(M_i0 · 2^cf, S): nearest, ties away from zero (one per gain entry)
-// Any saturation (or S ≤ 0) sets a sticky overflow flag: the output is clamped, never wrapped, and
+// Any saturation (an input at the int32 rails, or S ≤ 0) sets a sticky overflow flag: the output is clamped, never wrapped, and
 // overflowed() stays true until clear_overflow().
 //
 // One time-varying step (companion A, u = P a):
@@ -183,6 +183,8 @@ class FixedArKalman {
       }
     }
     // Update the state with the innovation.
+    // A sample at the int32 rails is what a saturated conversion to the signal format leaves: flagged.
+    if (y == std::numeric_limits<std::int32_t>::max() || y == std::numeric_limits<std::int32_t>::min()) of = true;
     const std::int32_t e = fixed::saturate32(std::int64_t{y} - x_[0], of);
     for (int i = 0; i < n; ++i)
       x_[i] = fixed::saturate32(fixed::add64(x_[i], fixed::shift_round(fixed::mul(k_[i], e), cf, of), of), of);
