@@ -476,6 +476,7 @@ def test_cli_positions_skips_a_garbled_line_when_asked(tmp_path):
     assert stop.returncode == 2 and "line 11" in stop.stderr and "--bad-lines skip" in stop.stderr, stop.stderr
     skip = run_cli("positions", path, *args, "--bad-lines", "skip")
     assert skip.returncode == 0, skip.stderr
+    assert "skipped 1 of 60 lines: 11" in skip.stdout, skip.stdout  # listed, as calibrate lists them
 
 
 def test_cli_positions_names_missing_positions_and_an_impossible_dip(tmp_path):
@@ -489,3 +490,62 @@ def test_cli_positions_names_missing_positions_and_an_impossible_dip(tmp_path):
     r = run_cli("positions", whole, "--total", "52200", "--inclination", "128", "--frame", "nue", "--preset",
                 "twelve", "-o", tmp_path / "o.json")
     assert r.returncode == 2 and "inclination: 128° is outside −90…90°" in r.stderr, r.stderr
+
+
+def test_cli_positions_misfit_without_repeats_uses_the_noise_given_and_quantised_repeats(tmp_path):
+    """One averaged row per position: --noise-sigma is the yardstick. Repeats that read alike (a quantised
+    sensor): the lattice step's rounding is. Either way a wrong inclination sign is said, not passed."""
+    rng = np.random.default_rng(7)
+    scene = sim.twelve_scene("nue", tilt_deg=1.0, rng=rng)
+    s = sim.simulate_positions(scene, PAPER_FIELD, noise=0.0, rng=rng)
+    args = ["--total", "52200", "--inclination", "-52", "--frame", "nue", "--preset", "twelve",
+            "-o", tmp_path / "o.json"]
+    rows = [[i + 1, *s.acc_raw[i], *(s.outputs[i] + 0.05 * rng.standard_normal(3))] for i in range(12)]
+    single = tmp_path / "single.csv"
+    single.write_text("position,ax,ay,az,mx,my,mz\n" + "\n".join(",".join(f"{v:.10g}" for v in r) for r in rows) + "\n")
+    quiet = run_cli("positions", single, *args)
+    assert quiet.returncode == 0 and "does not fit" not in quiet.stdout + quiet.stderr  # nothing to judge it by
+    said = run_cli("positions", single, *args, "--noise-sigma", "0.05")
+    assert said.returncode == 0 and "the model does not fit" in said.stdout + said.stderr, said.stdout + said.stderr
+    # the same positions read by a 1 mV-step ADC five times each, alike
+    quantised = tmp_path / "quantised.csv"
+    quantised.write_text("position,ax,ay,az,mx,my,mz\n" + "\n".join(
+        ",".join(f"{v:.10g}" for v in [i + 1, *s.acc_raw[i], *np.round(s.outputs[i])]) for i in range(12) for _ in range(5))
+        + "\n")
+    q = run_cli("positions", quantised, *args)
+    assert q.returncode == 0 and "the model does not fit" in q.stdout + q.stderr, q.stdout + q.stderr
+
+
+def test_cli_positions_moved_reading_against_the_accelerometer_noise(tmp_path):
+    """A noisy accelerometer (10 mg per reading) is not a device that moved; a reading 9° off is."""
+    rng = np.random.default_rng(8)
+    scene = sim.twelve_scene("nue", tilt_deg=1.0, rng=rng)
+    s = sim.simulate_positions(scene, PAPER_FIELD, noise=0.0, rng=rng)
+    rows = [[i + 1, *(s.acc_raw[i] + 0.01 * G * rng.standard_normal(3)), *(s.outputs[i] + 0.3 * rng.standard_normal(3))]
+            for i in range(12) for _ in range(10)]
+    f = ",".join(f"{v:.6f}" for v in PAPER_FIELD)
+    args = ["--field", f, "--frame", "nue", "--preset", "twelve", "-o", tmp_path / "o.json"]
+
+    def run(name, rows):
+        path = tmp_path / name
+        path.write_text("position,ax,ay,az,mx,my,mz\n" + "\n".join(",".join(f"{v:.10g}" for v in r) for r in rows) + "\n")
+        return run_cli("positions", path, *args)
+
+    noisy = run("noisy.csv", rows)
+    assert noisy.returncode == 0 and "the device moved" not in noisy.stdout + noisy.stderr, noisy.stdout + noisy.stderr
+    a = np.array(rows[45][1:4])
+    axis = np.cross(a, [1.0, 0.0, 0.0]) if abs(a[0]) < 0.9 * np.linalg.norm(a) else np.cross(a, [0.0, 1.0, 0.0])
+    turned = Rotation.from_rotvec(np.radians(9.0) * axis / np.linalg.norm(axis)).apply(a)  # tilted 9°
+    rows[45] = [rows[45][0], *turned, *rows[45][4:]]
+    moved = run("moved.csv", rows)
+    assert moved.returncode == 0 and "position 5: a reading's accelerometer direction is" in moved.stdout + moved.stderr
+
+
+def test_tilt_prior_without_the_output_noise_says_its_errors_are_loose():
+    rng = np.random.default_rng(9)
+    s = _twelve(rng, tilt=1.0, noise=0.45, acc_sigma_deg=0.05)
+    res = fp.calibrate(s.outputs, s.acc_raw, PAPER_FIELD, frame="nue", preset="twelve", tilt_sigma_deg=0.05)
+    assert any("was estimated from the 12 positions themselves" in w for w in res.summary["warnings"])
+    given = fp.calibrate(s.outputs, s.acc_raw, PAPER_FIELD, frame="nue", preset="twelve", tilt_sigma_deg=0.05,
+                         output_sigma=0.45)
+    assert not any("estimated from the" in w for w in given.summary["warnings"])
