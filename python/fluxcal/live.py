@@ -141,6 +141,8 @@ class LiveFit:
         self.regrow = regrow  # renormalise when the readings spread this many times the scale in use
         self._readings = np.empty((1024, 3))  # every reading but 0,0,0, in order
         self._railed = np.zeros(1024, dtype=bool)  # at a rail: left out of the fit
+        self._far = np.zeros(1024, dtype=bool)  # a glitch far off every other reading: left out of the live fit only
+        self.far = 0
         self._n = 0
         self.count = 0  # readings in the fit
         self.zeros = 0  # readings of exactly 0,0,0 left out
@@ -156,6 +158,14 @@ class LiveFit:
         if not self.rails:
             return self._readings[:self._n]
         return self._readings[:self._n][~self._railed[:self._n]]
+
+    @property
+    def _fit_readings(self) -> np.ndarray:
+        """The readings the live fit uses: `readings` without the glitches _update_far found (one bit flip, an
+        overflow code, made every live fit of the session fail). The calibration written is fitted on `readings`,
+        whose outliers calibrate() screens itself, as `fluxcal calibrate` does on the raw recording."""
+        keep = ~(self._railed[:self._n] | self._far[:self._n])
+        return self._readings[:self._n][keep]
 
     def rail_text(self) -> str:
         """Which axes sit at which rail: "mx at 4912, mz at -4912"."""
@@ -174,6 +184,7 @@ class LiveFit:
         if self._n == len(self._readings):
             self._readings = np.concatenate([self._readings, np.empty_like(self._readings)])
             self._railed = np.concatenate([self._railed, np.zeros_like(self._railed)])
+            self._far = np.concatenate([self._far, np.zeros_like(self._far)])
         row = self._readings[self._n]
         row[:] = reading
         self._n += 1
@@ -203,7 +214,7 @@ class LiveFit:
         self._railed[:self._n] = railed
         self.rails = int(railed.sum())
         self.count = self._n - self.rails
-        kept = self.readings
+        kept = self._fit_readings
         self._lo, self._hi = (kept.min(axis=0), kept.max(axis=0)) if len(kept) else (np.full(3, np.inf),
                                                                                      np.full(3, -np.inf))
         self._moments = None
@@ -211,12 +222,43 @@ class LiveFit:
             self._renormalise()
 
     def _renormalise(self) -> None:
-        centre, self._scale = _core.normalisation(self.readings)
+        kept = self._fit_readings
+        centre, self._scale = _core.normalisation(kept)
         self._moments = EllipsoidMoments(centre, self._scale)
-        self._moments.add(self.readings)
+        self._moments.add(kept)
+
+    FAR = 4.0  # a reading farther than FAR × the spread of the bulk from its median is a glitch, not a direction
+
+    def _update_far(self) -> None:
+        """Mark readings far outside the bulk of all others (a bit flip: 4000.5 among readings of radius 50; an
+        overflow code -4096); when the marks change, rebuild the moments without them. The bulk's size is the
+        larger of the median distance from the median and the 1-99 % range: a sensor turned through few
+        directions so far (a small cap) still keeps the readings of a new direction it turns to."""
+        n = self._n
+        if n < self.warmup:
+            return
+        ok = ~self._railed[:n]
+        m = self._readings[:n]
+        centre = np.median(m[ok], axis=0)
+        r = np.linalg.norm(m - centre, axis=1)
+        lo, hi = np.percentile(m[ok], [1, 99], axis=0)
+        size = max(float(np.median(r[ok])), 0.5 * float(np.max(hi - lo)))
+        far = ok & (r > self.FAR * size) if size > 0 else np.zeros(n, dtype=bool)
+        if np.array_equal(far, self._far[:n]):
+            return
+        self._far[:n] = far
+        self.far = int(far.sum())
+        self.count = int((ok & ~far).sum())
+        kept = self._fit_readings
+        self._lo, self._hi = (kept.min(axis=0), kept.max(axis=0)) if len(kept) else (np.full(3, np.inf),
+                                                                                     np.full(3, -np.inf))
+        self._moments = None
+        if self.count >= self.warmup:
+            self._renormalise()
 
     def state(self) -> LiveState:
         self._update_rails()
+        self._update_far()
         state = LiveState(records=self.count, seen=np.zeros(N_DIRECTION_BINS, dtype=bool), zeros=self.zeros,
                           rails=self.rails)
         if self._moments is None:
@@ -227,7 +269,7 @@ class LiveFit:
         except ValueError as exc:  # e.g. all readings so far in one plane
             state.error = str(exc)
             return state
-        bins = direction_bins(cal.apply(self.readings))
+        bins = direction_bins(cal.apply(self._fit_readings))
         state.seen[bins[bins >= 0]] = True
         state.coverage = float(state.seen.mean())
         state.spread = float(cal.summary["norm_std_over_mean"])
@@ -272,7 +314,7 @@ class LiveSession:
         self.bar.refresh()
         missing = missing_text(s.seen) if s.calibration is not None else ""
         now = self.clock()
-        if missing and missing != self._last_missing and now - self._last_map >= 2.0:
+        if missing and not self.bar.disable and missing != self._last_missing and now - self._last_map >= 2.0:
             self.bar.write(missing)  # which way to turn the sensor next
             self._last_map, self._last_missing = now, missing
         return self.met

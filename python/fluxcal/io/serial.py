@@ -215,6 +215,7 @@ class TextDecoder:
         self._first = True
         self._rest_of_long_line = False
         self.blank_lines = 0
+        self._order = None  # csv: positions of the columns after the device printed its header in another order
         # units as --units/--columns state them, and as the first recorded line printed them (kv)
         self._stated = {c.name: unit_name(c.unit) for c in self.columns if c.unit}
         self.printed_units, self._line_units = {}, {}
@@ -300,6 +301,17 @@ class TextDecoder:
 
     def _parse_csv(self, text: str) -> tuple:
         fields = [f.strip() for f in re.split(r"[,;]", text)] if ("," in text or ";" in text) else text.split()
+        if len(fields) == len(self.columns) + 1 and fields[-1] == "":
+            fields.pop()  # a separator after the last field, as a sketch's print loop writes: 12.3,-4.5,40.1,
+        header = [f.lower() for f in fields]
+        if sorted(header) == sorted(n.lower() for n in self.names):
+            # the device (re)printed its header: follow its order, never record mz under mx
+            order = [header.index(n.lower()) for n in self.names]
+            self._order = None if order == list(range(len(order))) else order
+            raise Reject("fields", f"the device's header line {text!r}" + (
+                ": columns now in its order" if self._order else ""))
+        if self._order is not None and len(fields) == len(self.columns):
+            fields = [fields[j] for j in self._order]
         if len(fields) != len(self.columns):
             raise Reject("fields", f"{len(fields)} fields, expected {len(self.columns)} ({','.join(self.names)}): "
                                    f"{text!r}")
@@ -902,11 +914,11 @@ def _ctrl_c_as_request():
 
 def add_stream_arguments(p) -> None:
     """Port and parsing options shared by `fluxcal record` and `fluxcal live`."""
-    from ..cli import positive_number
+    from ..cli import positive_int, positive_number
 
     p.add_argument("--port", required=True, help="serial port or pyserial URL (/dev/ttyUSB0, COM3, loop://, "
                                                  "rfc2217://host:port)")
-    p.add_argument("--baud", type=int, default=115200, help="baud rate (default 115200)")
+    p.add_argument("--baud", type=positive_int, default=115200, help="baud rate (default 115200)")
     p.add_argument("--duration", type=positive_number, default=None, help="stop after this many seconds (default: Ctrl-C)")
     p.add_argument("--format", choices=FORMATS, default="csv",
                    help="csv: separated numbers; kv: key=value or key:value pairs; binary-spec: --frame/--sync")
