@@ -152,6 +152,20 @@ def test_record_writes_the_unit_the_device_prints(tmp_path):
     assert stats.rejected["unit"] == 1 and "in G on this line" in stats.report()
 
 
+def test_record_notes_a_unit_first_printed_after_the_header(tmp_path):
+    """Lines without a unit first, then `uT`: the header went out without it, and the file never said (blind11)."""
+    path = tmp_path / "rec.csv"
+    decoder = TextDecoder(parse_columns(None, "kv"), "kv")
+    lines = b"partial\nMag X: 1 Y: 2 Z: 3\nMag X: 4 Y: 5 Z: 6 uT\nMag X: 7 Y: 8 Z: 9 uT\n"
+    recorder = Recorder("loop://", decoder=decoder, output=path, should_stop=lambda: False,
+                        on_record=lambda t, v: v[0] == 7.0)
+    with _serial_sending(recorder, iter([lines])):
+        recorder.run()
+    text = path.read_text()
+    assert text.count("# note: units printed by the device from here on: mx=uT, my=uT, mz=uT") == 1, text
+    assert list(fluxcal.read_csv(path).columns["mx"]) == [1.0, 4.0, 7.0]
+
+
 class _FullDisk:
     """A file with `room` bytes left: the write that fills it is cut short, later ones fail (ENOSPC)."""
 
