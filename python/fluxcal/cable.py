@@ -212,8 +212,9 @@ class RingCalibration:
     sensors: list = field(default_factory=list)  # the TwoStep2D of each sensor
     # What the calibration recording says about its own accuracy, per sensor and axis (None when not known,
     # e.g. a calibration saved before they existed): the readings' scatter about γ h + b (noise and anything the
-    # model leaves, tesla) and the covariance of (γ, b): TWOSTEP's own (from the magnitudes it fits, not the
-    # true field vectors, which would make it 1.3–2.6× too small), or the linear one on the true fields.
+    # model leaves, tesla) and the covariance of (γ, b): TWOSTEP's own (from the magnitudes it fits; the linear
+    # one on the true field vectors was 0.66–0.87 of a blind check's Monte-Carlo spread), or for least squares the
+    # linear one on the true fields.
     residual_sigma: np.ndarray | None = None  # (n_sensors, 2)
     covariance: np.ndarray | None = None      # (n_sensors, 2, 2, 2): [sensor, axis] → Cov(γ, b)
 

@@ -118,6 +118,17 @@ class LiveState:
     rails: int = 0                 # readings with an axis at an ADC rail left out (see find_rails)
 
 
+def _short_runs(mask: np.ndarray, longest: int) -> np.ndarray:
+    """The True runs of `mask` of at most `longest` elements (a run still open at the end counts as short)."""
+    edges = np.diff(np.concatenate([[0], mask.astype(np.int8), [0]]))
+    starts, ends = np.flatnonzero(edges == 1), np.flatnonzero(edges == -1)
+    out = np.zeros_like(mask, dtype=bool)
+    for a, b in zip(starts, ends):
+        if b - a <= longest:
+            out[a:b] = True
+    return out
+
+
 class LiveFit:
     """Readings in, current fit and coverage out. add() is O(1) (moments update), except when the readings
     have spread `regrow` times beyond the normalisation in use: then the moments are rebuilt from every
@@ -212,8 +223,10 @@ class LiveFit:
         self.rail_values = rails
         railed = np.any(self._readings[:self._n, None, :] == rails[None], axis=(1, 2))
         self._railed[:self._n] = railed
+        self._far[:self._n] &= ~railed
         self.rails = int(railed.sum())
-        self.count = self._n - self.rails
+        self.far = int(self._far[:self._n].sum())
+        self.count = self._n - self.rails - self.far
         kept = self._fit_readings
         self._lo, self._hi = (kept.min(axis=0), kept.max(axis=0)) if len(kept) else (np.full(3, np.inf),
                                                                                      np.full(3, -np.inf))
@@ -228,12 +241,14 @@ class LiveFit:
         self._moments.add(kept)
 
     FAR = 4.0  # a reading farther than FAR × the spread of the bulk from its median is a glitch, not a direction
+    GLITCH_RUN = 3  # … when it comes in a run of at most this many: a sensor turned into a new direction stays there
 
     def _update_far(self) -> None:
-        """Mark readings far outside the bulk of all others (a bit flip: 4000.5 among readings of radius 50; an
-        overflow code -4096); when the marks change, rebuild the moments without them. The bulk's size is the
-        larger of the median distance from the median and the 1-99 % range: a sensor turned through few
-        directions so far (a small cap) still keeps the readings of a new direction it turns to."""
+        """Mark readings far outside the bulk of all others in runs of at most GLITCH_RUN (a bit flip: 4000.5 among
+        readings of radius 50; an overflow code -4096), as calibrate's outlier screen does; when the marks change,
+        rebuild the moments without them. The bulk's size is the larger of the median distance from the median
+        and the 1-99 % range. A sensor held in a small cap and then turned keeps the readings of the turn: they
+        come in a longer run (a review: 24 readings of a quick turn after 3000 at rest had been dropped for good)."""
         n = self._n
         if n < self.warmup:
             return
@@ -243,7 +258,7 @@ class LiveFit:
         r = np.linalg.norm(m - centre, axis=1)
         lo, hi = np.percentile(m[ok], [1, 99], axis=0)
         size = max(float(np.median(r[ok])), 0.5 * float(np.max(hi - lo)))
-        far = ok & (r > self.FAR * size) if size > 0 else np.zeros(n, dtype=bool)
+        far = _short_runs(ok & (r > self.FAR * size), self.GLITCH_RUN) if size > 0 else np.zeros(n, dtype=bool)
         if np.array_equal(far, self._far[:n]):
             return
         self._far[:n] = far

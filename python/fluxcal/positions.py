@@ -500,8 +500,9 @@ def _replicate_scatter(ids, uniq, acc, mag, acc_av, mag_av) -> dict:
                 worst.append((float(np.nan_to_num(ang).max()), _label(u)))
     if not dm:
         return None
+    repeated = len(dm)  # positions read more than once: each spends one degree of freedom on its mean
     dm, da = np.vstack(dm), np.concatenate(da)
-    dof = max(len(dm) - len(uniq), 1)
+    dof = max(len(dm) - repeated, 1)
     n_mean = float(np.mean(counts))
     # repeats that read alike (a quantised sensor quieter than its step) still carry the step's rounding
     mag_sigma = max(float(np.sqrt((dm ** 2).sum() / (3 * dof))), _lattice_step(mag) / np.sqrt(12.0))
@@ -561,11 +562,16 @@ def _misfit_warnings(res, field_ned, scatter) -> list:
     ratio = rms / (expected * dof_factor) if expected > 0 else 0.0
     if ratio > MISFIT_RATIO:
         worst = scatter["labels"][int(np.argmax(np.linalg.norm(res.residuals, axis=1)))]
+        # its size as the angle by which the field would be misplaced at each position: K's relative error is of
+        # that order in radians (a review: headings set to ±0.1° on a long log, 6×, 4e-4; an uncalibrated MEMS
+        # accelerometer, 6×, 4e-3) — the ratio says it is there, this says whether it matters
+        angle = float(np.sqrt(np.mean(np.sum(res.residuals ** 2, axis=1))) / (gain * np.linalg.norm(field_ned)))
         out.append(f"the model does not fit: residual RMS {rms:.4g} is {ratio:.0f}x what the scatter within "
-                   f"positions allows ({expected * dof_factor:.3g}); largest at position {worst}. Check the "
-                   "reference field (inclination sign, declination, --field order N,E,D), the position order or "
-                   "labels, heading placement (--estimate-yaw), the accelerometer (--calibrate-accelerometer) and "
-                   "magnetic objects near the bench; U0 and K are biased by it")
+                   f"positions allows ({expected * dof_factor:.3g}); largest at position {worst}. It is a misplacement "
+                   f"of the field by {np.degrees(angle):.2g}° per position, and U0 and K are biased by about that "
+                   f"({angle:.1g} of K). Check the reference field (inclination sign, declination, --field order "
+                   "N,E,D), the position order or labels, heading placement (--estimate-yaw), the accelerometer "
+                   "(--calibrate-accelerometer) and magnetic objects near the bench")
     if scatter["worst_tilt"] is not None and scatter["worst_tilt"][0] > scatter["moved_limit_deg"]:
         out.append(f"position {scatter['worst_tilt'][1]}: a reading's accelerometer direction is "
                    f"{scatter['worst_tilt'][0]:.2g}° from the position's mean (the device moved while logging?)")

@@ -830,12 +830,12 @@ class Recorder:
                 self.stats.reject(event, t_host)
                 continue
             if self.writer:
-                units = getattr(self.decoder, "units", {})
                 if not self.writer.head_written:  # the units the first good line printed
-                    self.writer.units.update(units)
-                elif any(self.writer.units.get(k) != u for k, u in units.items() if u):
-                    # a unit first printed after the header (lines without one came first): said in the file
-                    learned = {k: u for k, u in units.items() if u and self.writer.units.get(k) != u}
+                    self.writer.units.update(getattr(self.decoder, "units", {}))
+                # a unit the device first prints after the header (lines without one came first): said in the file
+                learned = {k: u for k, u in getattr(self.decoder, "printed_units", {}).items()
+                           if u and self.writer.units.get(k) != u}
+                if learned and self.writer.head_written:
                     self.writer.units.update(learned)
                     self.writer.note("units printed by the device from here on: "
                                      + ", ".join(f"{k}={u}" for k, u in learned.items()))
