@@ -225,6 +225,10 @@ class LiveFit:
         self._railed[:self._n] = railed
         self._far[:self._n] &= ~railed
         self.rails = int(railed.sum())
+        self._rebuild()
+
+    def _rebuild(self) -> None:
+        """After the marks (rails, glitches) changed: the counts, the range and the moments of the readings kept."""
         self.far = int(self._far[:self._n].sum())
         self.count = self._n - self.rails - self.far
         kept = self._fit_readings
@@ -262,14 +266,7 @@ class LiveFit:
         if np.array_equal(far, self._far[:n]):
             return
         self._far[:n] = far
-        self.far = int(far.sum())
-        self.count = int((ok & ~far).sum())
-        kept = self._fit_readings
-        self._lo, self._hi = (kept.min(axis=0), kept.max(axis=0)) if len(kept) else (np.full(3, np.inf),
-                                                                                     np.full(3, -np.inf))
-        self._moments = None
-        if self.count >= self.warmup:
-            self._renormalise()
+        self._rebuild()
 
     def state(self) -> LiveState:
         self._update_rails()
