@@ -549,3 +549,23 @@ def test_tilt_prior_without_the_output_noise_says_its_errors_are_loose():
     given = fp.calibrate(s.outputs, s.acc_raw, PAPER_FIELD, frame="nue", preset="twelve", tilt_sigma_deg=0.05,
                          output_sigma=0.45)
     assert not any("estimated from the" in w for w in given.summary["warnings"])
+
+
+def test_cli_positions_takes_named_positions(tmp_path):
+    """Positions named P01…P12 (a blind check: the column was dropped as text, and the error said "120 readings but
+    … 12 positions"): read by their number, logged in any order; names without numbers by first appearance."""
+    path = _repeated_twelve_csv(tmp_path / "numbers.csv", np.random.default_rng(12))
+    f = ",".join(f"{v:.6f}" for v in PAPER_FIELD)
+    args = ["--field", f, "--frame", "nue", "--preset", "twelve"]
+    assert run_cli("positions", path, *args, "-o", tmp_path / "n.json").returncode == 0
+    head, *rows = path.read_text().splitlines()[1:]
+    named = [f"P{int(r.split(',')[0]):02d}," + r.split(",", 1)[1] for r in rows]
+    order = np.random.default_rng(0).permutation(len(named))
+    (tmp_path / "named.csv").write_text("# units: mx=mV, my=mV, mz=mV\n" + head + "\n"
+                                        + "\n".join(named[k] for k in order) + "\n")
+    r = run_cli("positions", tmp_path / "named.csv", *args, "-o", tmp_path / "p.json")
+    assert r.returncode == 0, r.stderr
+    np.testing.assert_allclose(json.loads((tmp_path / "p.json").read_text())["K"],
+                               json.loads((tmp_path / "n.json").read_text())["K"], rtol=1e-9)
+    rec = fluxcal.read_recording(tmp_path / "named.csv")
+    assert rec.metadata["position_labels"].startswith("P") and "P01=1" in rec.metadata["position_labels"]

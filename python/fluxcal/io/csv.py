@@ -172,6 +172,9 @@ def parse_mixed_rows(path, lines, start: int, names, delimiter, bad_lines: str, 
     columns, text_notes = {}, []
     for j in text:
         values = [c[j].strip() if len(c) == len(names) else "" for c in cells]
+        if names[j].strip().lower() == "position":  # positions named, not numbered (P01, "north up")
+            columns[j], metadata["position_labels"] = _position_numbers(values)
+            continue
         seconds, first = _timestamps(values)
         if seconds is None:
             shown = sorted({v for v in values if v})[:4]
@@ -225,6 +228,23 @@ def parse_mixed_rows(path, lines, start: int, names, delimiter, bad_lines: str, 
     for out, j in enumerate(kept):
         data[:, out] = columns[j][good] if j in columns else [float(cells[r][j]) for r in good]
     return [names[j] for j in kept], data, line_numbers[good], notes
+
+
+_LABEL_NUMBER = re.compile(r"^(\D*?)(\d+)(\D*)$")
+
+
+def _position_numbers(values) -> tuple:
+    """A text position column as numbers (fluxcal positions averages and matches positions by number): the
+    number in each name (P01 → 1) when every name has one, with the same text around it, none twice; else
+    1, 2, … in order of first appearance. Returns (numbers, NaN for an empty cell; "name=number, …")."""
+    labels = list(dict.fromkeys(v for v in values if v))
+    parts = [_LABEL_NUMBER.match(v) for v in labels]
+    if (parts and all(parts) and len({(p.group(1), p.group(3)) for p in parts}) == 1
+            and len({int(p.group(2)) for p in parts}) == len(labels)):
+        number = {v: float(int(p.group(2))) for v, p in zip(labels, parts)}
+    else:
+        number = {v: float(k + 1) for k, v in enumerate(labels)}
+    return np.array([number.get(v, np.nan) for v in values]), ", ".join(f"{v}={number[v]:g}" for v in labels)
 
 
 _STAMP = re.compile(r"\d{1,2}:\d{2}|\d{4}-\d{1,2}-\d{1,2}|\d{1,2}[/.]\d{1,2}[/.]\d{2,4}")
