@@ -23,7 +23,7 @@ import pytest
 import fluxcal
 from fluxcal import _core
 from fluxcal.io.serial import (FrameDecoder, RecordingWriter, Recorder, Reject, TextDecoder, decoder_from_args,
-                               parse_columns, parse_range)
+                               parse_columns, parse_range, stream_units)
 from fluxcal.live import LiveFit, coverage_map, direction_bins, missing_text
 from fake_device import running  # noqa: E402  (tests/python is on sys.path)
 
@@ -805,3 +805,38 @@ def test_live_fit_keeps_a_quick_turn_after_a_long_rest():
             live.state()
     live.state()
     assert live.far == 0 and live.count == len(readings)
+
+
+def _sentence(body: str) -> bytes:
+    """`$BODY*XX` with its XOR checksum."""
+    checksum = 0
+    for byte in body.encode():
+        checksum ^= byte
+    return f"${body}*{checksum:02X}".encode()
+
+
+VNYMR = "VNYMR,+010.071,-002.267,-001.100,+01.0968,-00.2342,+00.4151,-00.120,+00.470,-09.732,-00.0013,+00.0004,-00.0012"
+
+
+def test_record_vectornav_sentences(tmp_path):
+    """--format nmea: $VNYMR sentences recorded with their checksums verified, the magnetometer in gauss and the
+    accelerometer in m/s² as VectorNav sends them; a bad checksum, a register reply, a sentence without the
+    columns asked for and garbage are rejected by reason (a blind check: record had no sentence format)."""
+    decoder = TextDecoder(parse_columns("mx,my,mz,ax,ay,az", "nmea"), "nmea")
+    good = _sentence(VNYMR)
+    stream = b"\r\n".join([b"boot banner", good, good[:-2] + b"00", _sentence("VNERR,03"),
+                           _sentence("VNMAG,+01.0000,-00.2000,+00.4000"), b"$VNYMR,+010.0", good, b""])
+    records, reasons = decode(decoder, stream, chunk=7)
+    assert records == [(1.0968, -0.2342, 0.4151, -0.12, 0.47, -9.732)] * 2
+    assert sorted(reasons) == ["checksum", "fields", "fields", "partial", "sentence"]
+    assert stream_units(decoder) == {"mx": "G", "my": "G", "mz": "G", "ax": "m/s^2", "ay": "m/s^2", "az": "m/s^2"}
+    with pytest.raises(ValueError, match="--format nmea takes"):
+        TextDecoder(parse_columns("X=mx", "kv"), "nmea")
+    path = tmp_path / "vn.csv"
+    recorder = Recorder("loop://", decoder=TextDecoder(parse_columns(None, "nmea"), "nmea"), output=path,
+                        should_stop=lambda: False, on_record=lambda t, v: True,
+                        units=stream_units(TextDecoder(parse_columns(None, "nmea"), "nmea")))
+    with _serial_sending(recorder, iter([b"x\r\n" + good + b"\r\n"])):
+        recorder.run()
+    rec = fluxcal.read_csv(path)
+    assert rec.units["mx"] == "G" and list(rec.columns["mz"]) == [0.4151]

@@ -72,11 +72,15 @@ REASONS = {
     "unit": "a unit that is not a magnetic-field unit on mx,my,mz, or not the recording's unit",
     "out_of_range": "a value outside --range",
     "too_long": "no line end within 1024 bytes",
-    "checksum": "binary frame checksum mismatch",
+    "checksum": "checksum mismatch (a binary frame's, or a $…*XX sentence's)",
+    "sentence": "a $TYPE sentence without the magnetometer's layout (a register reply, $VNERR)",
     "ambiguous": "a number whose comma may be a decimal comma, a thousands separator or a field separator",
 }
-FORMATS = ("csv", "kv", "binary-spec")
+FORMATS = ("csv", "kv", "nmea", "binary-spec")
 MAG = ("mx", "my", "mz")
+# nmea: the recording's names for the fields of fluxcal.io.sentences' layouts (VectorNav $VNYMR, $VNMAR, …)
+_XYZ_FIELDS = {f"{p}{a}": f"{field}_{a}" for p, field in (("m", "mag"), ("a", "accel"), ("g", "gyro")) for a in "xyz"}
+NMEA_FIELDS = {**_XYZ_FIELDS, **{n: n for n in ("yaw", "pitch", "roll", "temp", "pressure")}}
 MAX_LINE = 1024
 _INTEGER = re.compile(r"[+-]?\d+")
 _NUMBER = re.compile(r"[+-]?(?:\d+\.?\d*|\.\d+)(?:[eE][+-]?\d+)?")  # strict: no "nan", "1_000", "0x10"
@@ -175,6 +179,17 @@ def _exact(value):
     return value if isinstance(value, int) and 2 ** 53 < abs(value) < 2 ** 64 else float(value)
 
 
+def _sentence_columns(columns) -> list:
+    """--format nmea's columns: names it knows, in the sentence's own units unless stated (gauss, m/s², rad/s)."""
+    from .sentences import UNITS
+
+    unknown = [c.name for c in columns if c.name not in NMEA_FIELDS]
+    if unknown or any(c.key for c in columns):
+        raise ValueError(f"--columns: --format nmea takes {', '.join(NMEA_FIELDS)} (no KEY=NAME); got "
+                         + ", ".join(c.name for c in columns))
+    return [c if c.unit else Column(c.name, "", UNITS.get(NMEA_FIELDS[c.name], "")) for c in columns]
+
+
 def _number(text: str, column: str) -> float:
     if not _NUMBER.fullmatch(text):
         raise Reject("non_numeric", f"column {column!r}: {text!r} is not a number" if text else
@@ -203,8 +218,10 @@ class TextDecoder:
     """Bytes from the port → records (tuples of floats, in column order) and Rejects, for csv and kv."""
 
     def __init__(self, columns, fmt: str = "csv", ranges: dict | None = None):
-        if fmt not in ("csv", "kv"):
-            raise ValueError(f"--format: {fmt!r} is not a text format (csv, kv)")
+        if fmt not in ("csv", "kv", "nmea"):
+            raise ValueError(f"--format: {fmt!r} is not a text format (csv, kv, nmea)")
+        if fmt == "nmea":
+            columns = _sentence_columns(columns)
         self.columns, self.format, self.ranges = list(columns), fmt, dict(ranges or {})
         self.names = [c.name for c in self.columns]
         self._keys = {}
@@ -292,12 +309,35 @@ class TextDecoder:
                                    f"{_show(raw)}")
         text = text.strip()
         self._line_units, self._line_decimal_comma = {}, False
-        values = self._parse_kv(text) if self.format == "kv" else self._parse_csv(text)
+        values = (self._parse_kv(text) if self.format == "kv" else self._parse_sentence(text) if self.format == "nmea"
+                  else self._parse_csv(text))
         _check_ranges(values, self.names, self.ranges)
         for name, unit in self._line_units.items():  # the first recorded line's units are the recording's
             self.printed_units.setdefault(name, unit)
         self.decimal_comma = self.decimal_comma or self._line_decimal_comma  # a recorded line's decimal comma
         return values
+
+    def _parse_sentence(self, text: str) -> tuple:
+        """`$VNYMR,…*64` (fluxcal.io.sentences' layouts): its checksum, then the columns' fields."""
+        from .sentences import LAYOUTS, _SENTENCE, _COUNTER, _body, _checksum_problem
+
+        m = _SENTENCE.match(_body(text)[1])
+        if m is None:
+            raise Reject("fields", f"not a $TYPE,fields*checksum sentence: {text[:60]!r}")
+        kind, fields, given = m.groups()
+        problem = _checksum_problem(f"{kind},{fields}", given)
+        if problem:
+            raise Reject("checksum", f"${kind}: {problem}")
+        layout = LAYOUTS.get(kind)
+        if layout is None or "mag_x" not in layout:
+            raise Reject("sentence", f"${kind} (no magnetometer in it)")
+        cells = fields.split(",")
+        if len(cells) < len(layout) or any(not _COUNTER.match(c) for c in cells[len(layout):]):
+            raise Reject("fields", f"{len(cells)} fields, a {kind} sentence has {len(layout)}")
+        missing = [n for n in self.names if NMEA_FIELDS[n] not in layout]
+        if missing:
+            raise Reject("fields", f"a {kind} sentence has no {', '.join(missing)}")
+        return tuple(_number(cells[layout.index(NMEA_FIELDS[n])].strip(), n) for n in self.names)
 
     def _parse_csv(self, text: str) -> tuple:
         fields = [f.strip() for f in re.split(r"[,;]", text)] if ("," in text or ";" in text) else text.split()
@@ -928,7 +968,9 @@ def add_stream_arguments(p) -> None:
     p.add_argument("--baud", type=positive_int, default=115200, help="baud rate (default 115200)")
     p.add_argument("--duration", type=positive_number, default=None, help="stop after this many seconds (default: Ctrl-C)")
     p.add_argument("--format", choices=FORMATS, default="csv",
-                   help="csv: separated numbers; kv: key=value or key:value pairs; binary-spec: --frame/--sync")
+                   help="csv: separated numbers; kv: key=value or key:value pairs; nmea: $VNYMR,…*XX sentences "
+                        "(checksums verified; --columns from mx,my,mz, ax,ay,az, gx,gy,gz, yaw,pitch,roll, temp); "
+                        "binary-spec: --frame/--sync")
     p.add_argument("--columns", default=None,
                    help="names of the fields in order, optional unit in brackets: t,mx[nT],my[nT],mz[nT] "
                         "(default mx,my,mz; kv: KEY=NAME renames, default x=mx,y=my,z=mz); t = device time")
