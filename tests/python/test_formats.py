@@ -265,6 +265,14 @@ def test_a_row_of_units_under_the_header_and_a_headerless_decimal_comma_table(tm
     np.testing.assert_array_equal(rec.samples(), [[-0.5, 1.25, 3], [45, -0.5, 6]])
     assert rec.units == {"Time": "s", "Bx": "µT", "By": "µT", "Bz": "µT"} and rec.line_numbers.tolist() == [3, 4]
     assert rec.time().tolist() == [0.0, 0.1] and rec.metadata["decimal_separator"] == "comma"
+    # a placeholder under a column without a unit (a position number): still a row of units (a blind check: the
+    # units row had been taken for the header, "empty or repeated column names")
+    for placeholder in ("-", "n"):
+        marked = tmp_path / "marked.csv"
+        marked.write_text(f"position;ax;ay;az;mx;my;mz\n{placeholder};g;g;g;µT;µT;µT\n1;0;0;1;20;1;45\n2;0;1;0;21;2;44\n")
+        rec = read_recording(marked)
+        assert rec.units == {"ax": "g", "ay": "g", "az": "g", "mx": "µT", "my": "µT", "mz": "µT"}
+        assert rec.columns["position"].tolist() == [1.0, 2.0] and rec.line_numbers.tolist() == [3, 4]
     # a first data row that merely lacks numbers is not a row of units: it stays an error
     garbled = tmp_path / "garbled.csv"
     garbled.write_text("mx,my,mz\nabc,de,f\n1,2,3\n")

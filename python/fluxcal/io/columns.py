@@ -56,6 +56,15 @@ def is_unit(text: str) -> bool:
     return bool(w) and (w in _UNIT_WORDS or w in _OTHER_UNITS or w in ("°", "°c", "°f", "°k")
                         or bool(re.fullmatch(r"[a-zµ°]+/[a-zµ°]+(?:\^?[23²³])?|(?:[cmk]?m|s|ft|in)\^?[23²³]", w)))
     # a power only of a length or a time (m², s^2): "Mag2", "Acc2" are the second sensor's name
+# what a row of units writes under a column that has none (a position number, a count, a flag)
+NO_UNIT = frozenset({"-", "–", "—", "n", "#", "none", "n/a", "na", "no."})
+
+
+def is_unit_cell(text: str) -> bool:
+    """A cell of a row of units: a unit, or a placeholder for a column without one ("-", "n")."""
+    return is_unit(text) or text.strip().strip("[]()").strip().lower() in NO_UNIT
+
+
 _CAMEL = re.compile(r"(?<=[a-z0-9])(?=[A-Z])|(?<=[A-Z])(?=[A-Z][a-z])|(?<=[A-Za-z])(?=[0-9])|(?<=[0-9])(?=[A-Za-z])")
 
 

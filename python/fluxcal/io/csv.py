@@ -462,7 +462,7 @@ _THOUSANDS = re.compile(r"^[-+]?\d+,\d{3}$")  # 1,234: a thousands separator, or
 def _units_row(lines, start: int, names, delimiter, unit_map: dict):
     """The lines with a row of units under the header (`s,uT,uT,uT` or `(s);(µT);…`, as data-logger and
     LabVIEW exports write) blanked, its units recorded for columns that have none; else the lines."""
-    from .columns import is_unit
+    from .columns import NO_UNIT, is_unit
 
     j = start
     while j < len(lines) and (not lines[j].strip() or is_comment(lines[j])):
@@ -470,12 +470,12 @@ def _units_row(lines, start: int, names, delimiter, unit_map: dict):
     if j == len(lines):
         return lines
     cells = [c.strip().strip('"') for c in lines[j].split(delimiter)]
-    filled = [c for c in cells if c]
+    filled = [c for c in cells if c and c.strip("[]()").strip().lower() not in NO_UNIT]  # "-": a column without one
     if len(cells) != len(names) or not filled or any(_is_number(c) for c in filled) \
             or sum(is_unit(c) for c in filled) < 0.5 * len(filled):
         return lines
     for name, cell in zip(names, cells):
-        if cell:
+        if cell in filled:
             unit_map.setdefault(name, cell.strip("[]()").strip())
     return lines[:j] + [""] + lines[j + 1:]  # blank: later lines keep their numbers
 

@@ -42,7 +42,7 @@ from pathlib import Path
 
 from .csv import (_decimal_comma_columns, readable_file, _is_number, comment_text, data_cells, data_lines, decimal_points, is_comment, parse_csv,
                   listing, read_csv, read_lines, read_text, write_csv, OTHER_WRITERS)
-from .columns import is_unit
+from .columns import is_unit, is_unit_cell
 from .recording import Recording
 
 WRITERS = (".csv",) + OTHER_WRITERS
@@ -272,7 +272,8 @@ def _title_lines(lines, start: int, delimiter) -> int:
         return 0
     for k, here in enumerate(body[:min(30, len(body) - 1)]):
         c, d = cells(lines[here]), cells(lines[body[k + 1]])
-        if len(d) == width and all(is_unit(x) for x in d if x) and k + 2 < len(body):  # a units row: the data after
+        if len(d) == width and all(is_unit_cell(x) for x in d if x) and any(is_unit(x) for x in d) \
+                and k + 2 < len(body):  # a units row: the data after
             d = cells(lines[body[k + 2]])
         # a banner line of as many fields, all words ("Sensor: QMC5883L, range 8G, ODR 50 Hz"), is not the
         # header unless numbers follow it: look on
