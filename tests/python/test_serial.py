@@ -25,6 +25,7 @@ from fluxcal import _core
 from fluxcal.io.serial import (FrameDecoder, RecordingWriter, Recorder, Reject, TextDecoder, decoder_from_args,
                                parse_columns, parse_range, stream_units)
 from fluxcal.live import LiveFit, coverage_map, direction_bins, missing_text
+from conftest import run_cli  # noqa: E402
 from fake_device import running  # noqa: E402  (tests/python is on sys.path)
 
 HERE = Path(__file__).resolve().parent
@@ -779,10 +780,10 @@ def test_csv_device_that_reprints_its_header_in_another_order_and_a_trailing_sep
     assert reasons == ["partial", "fields", "fields"]
 
 
-def test_baud_zero_is_refused():
-    r = subprocess.run([sys.executable, "-m", "fluxcal", "record", "--port", "loop://", "--baud", "0", "-o", "x.csv"],
-                       capture_output=True, text=True, env={**os.environ, "PYTHONPATH": str(HERE.parents[1] / "python")})
+def test_baud_zero_is_refused(tmp_path):
+    r = run_cli("record", "--port", "loop://", "--baud", "0", "-o", tmp_path / "x.csv")
     assert r.returncode == 2 and "--baud" in r.stderr and "Traceback" not in r.stderr, r.stderr
+    assert not (tmp_path / "x.csv").exists()
 
 
 def test_live_fit_keeps_a_quick_turn_after_a_long_rest():
