@@ -318,7 +318,7 @@ def calibrate_ring(readings, true_fields, method: str = "twostep") -> RingCalibr
         else:
             raise ValueError(f"method: {method!r}, expected 'twostep' or 'least_squares'")
     offsets, gains = np.array([f.offset for f in fits]), np.array([f.gain for f in fits])
-    residual_sigma, covariance = _calibration_errors(r, h, offsets, gains)
+    residual_sigma, covariance = _calibration_errors(r, h, offsets, gains, linear=method != "twostep")
     if method == "twostep":
         covariance = np.array([_axis_blocks(f.covariance) for f in fits])
     return RingCalibration(offsets=offsets, gains=gains, method=method, sensors=fits, residual_sigma=residual_sigma,
@@ -338,12 +338,15 @@ def _axis_blocks(covariance: np.ndarray) -> np.ndarray:
     return np.array([[[c[2 + a, 2 + a], c[2 + a, a]], [c[a, 2 + a], c[a, a]]] for a in (0, 1)])
 
 
-def _calibration_errors(readings, true_fields, offsets, gains):
+def _calibration_errors(readings, true_fields, offsets, gains, linear: bool = True):
     """Per sensor and axis: the RMS of the readings about γ h + b (dof K − 2) and σ² (XᵀX)⁻¹ of (γ, b), X = [h, 1],
-    the linear model's covariance at the fitted values (the known true fields make each axis a straight line)."""
+    the linear model's covariance at the fitted values (the known true fields make each axis a straight line; None
+    without `linear`: a fit that brings its own)."""
     k = readings.shape[0]
     e = readings - (true_fields * gains + offsets)
     sigma = np.sqrt(np.sum(e ** 2, axis=0) / max(k - 2, 1))
+    if not linear:
+        return sigma, None
     x = np.stack([true_fields, np.ones_like(true_fields)], axis=-1)  # (K, sensors, axes, 2)
     xtx = np.einsum("ksai,ksaj->saij", x, x)
     covariance = sigma[..., None, None] ** 2 * np.linalg.pinv(xtx)

@@ -13,6 +13,7 @@ from .calibration import Calibration
 from .ellipsoid import fit_ellipsoid
 from .outliers import find_outliers
 from .refine import SHAPES, fit_vector, refine, shape_name
+from .twostep import twostep
 
 METHODS = ("auto", "vector", "als", "ls", "als+refine", "twostep")
 OUTLIERS = ("drop", "keep")
@@ -104,8 +105,6 @@ def calibrate(samples, method: str = "auto", field_norm: float | None = None, re
         cal = fit_ellipsoid(m, field_norm=field_norm, units=units, method=method, **start_settings)
         cal.summary["method"] = method
     elif method == "twostep":
-        from .twostep import twostep
-
         cal = twostep(m, field_norm, units=units, **settings)
         cal.summary["method"] = "twostep"
     else:

@@ -550,10 +550,15 @@ def _label(position):
 MISFIT_RATIO = 5.0
 
 
+def _gain(res) -> float:
+    """K's size as one gain (output units per field unit): its Frobenius norm over √3."""
+    return float(np.linalg.norm(res.K) / np.sqrt(3.0))
+
+
 def _misfit_warnings(res, field_ned, scatter) -> list:
     """Compare the fit's residuals with what the repeats within positions allow (mag noise + levelling)."""
     out = []
-    gain = np.linalg.norm(res.K) / np.sqrt(3.0)
+    gain = _gain(res)
     expected = np.hypot(scatter["mag_sigma_per_position"],
                         gain * np.linalg.norm(field_ned) * scatter["tilt_sigma_per_position"])
     n = len(res.residuals)
@@ -580,13 +585,15 @@ def _misfit_warnings(res, field_ned, scatter) -> list:
 
 def _unit_warnings(res, field_ned, units, igrf) -> list:
     """Readings in a field unit should give |K| near the unit conversion: flag µT labelled nT and the like."""
-    to_nT = {"nT": 1.0, "uT": 1e3, "µT": 1e3, "mG": 100.0, "G": 1e5, "gauss": 1e5, "T": 1e9}
+    from .calibration import TESLA_PER_UNIT
+    from .io.columns import unit_name
+
     F = float(np.linalg.norm(field_ned))
     field_unit = "nT" if (igrf or 15000 < F < 80000) else ("uT" if 15 < F < 80 else None)
-    if units not in to_nT or field_unit is None:
+    if unit_name(units) not in TESLA_PER_UNIT or field_unit is None:
         return []
-    expected = to_nT[field_unit] / to_nT[units]  # readings per field unit for a unit-gain sensor
-    gain = np.linalg.norm(res.K) / np.sqrt(3.0)
+    expected = TESLA_PER_UNIT[field_unit] / TESLA_PER_UNIT[unit_name(units)]  # readings per field unit, unit gain
+    gain = _gain(res)
     if not 0.2 < gain / expected < 5.0:
         return [f"K's gain is {gain:.3g} {units} per {field_unit}, {gain / expected:.3g}x a unit-gain sensor's: "
                 f"the readings are probably not in {units} (or the field not in {field_unit}); check the unit labels"]

@@ -95,12 +95,8 @@ def twostep_2d(readings, field_norms, units: str | None = None, refine: bool = T
     result = TwoStep2D(offset=r["offset"], gain=r["gain"], units=r["units"], constant_field=r["constant_field"],
                        summary=r["summary"], offset_se=np.asarray(r["offset_se"]), gain_se=np.asarray(r["gain_se"]),
                        covariance=np.asarray(r["covariance"]))
-    coupling = _axis_coupling(result, arr, norms)
-    if coupling:
-        result.summary["warnings"] = list(result.summary["warnings"]) + [coupling]
-    mismatch = _unit_mismatch(result)
-    if mismatch:
-        result.summary["warnings"] = list(result.summary["warnings"]) + [mismatch]
+    said = [w for w in (_axis_coupling(result, arr, norms), _unit_mismatch(result)) if w]
+    result.summary["warnings"] = list(result.summary["warnings"]) + said
     return result
 
 

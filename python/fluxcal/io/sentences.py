@@ -70,6 +70,19 @@ def _checksum_problem(payload: str, given: str | None):
     return None if given.upper() == expected else f"checksum {given} does not match the sentence ({expected})"
 
 
+def sentence_problem(kind: str, fields: str, given, width: int):
+    """What is wrong with one `$KIND,fields*given` sentence of `width` fields, as (reason, text) with reason
+    "checksum" or "fields" (VectorNav's appended T…/S… counters allowed), or None."""
+    problem = _checksum_problem(f"{kind},{fields}", given)
+    if problem:
+        return "checksum", problem
+    cells = fields.split(",")
+    if len(cells) < width or any(not _COUNTER.match(c) for c in cells[width:]):
+        return "fields", f"{len(cells)} fields, a {kind} sentence has {width}" + (
+            " (cut short?)" if len(cells) < width else " (two sentences run together?)")
+    return None
+
+
 def read_sentences(path, columns=None, units: str | None = None, bad_lines: str = "error") -> Recording:
     check_bad_lines(bad_lines)
     path = readable_file(path)
@@ -100,11 +113,7 @@ def read_sentences(path, columns=None, units: str | None = None, bad_lines: str 
         if t != kind:
             continue
         cells = fields.split(",")
-        problem = _checksum_problem(f"{t},{fields}", given)
-        extra = [c for c in cells[width:] if not _COUNTER.match(c)]
-        if problem is None and (len(cells) < width or extra):
-            problem = f"{len(cells)} fields, a {kind} sentence has {width}" + (" (cut short?)" if len(cells) < width
-                                                                             else " (two sentences run together?)")
+        problem = (sentence_problem(t, fields, given, width) or (None, None))[1]
         if problem is None:
             bad = next((j for j in range(width) if not _is_number(cells[j])), None)
             if bad is not None:

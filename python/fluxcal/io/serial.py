@@ -319,21 +319,19 @@ class TextDecoder:
 
     def _parse_sentence(self, text: str) -> tuple:
         """`$VNYMR,…*64` (fluxcal.io.sentences' layouts): its checksum, then the columns' fields."""
-        from .sentences import LAYOUTS, _SENTENCE, _COUNTER, _body, _checksum_problem
+        from .sentences import LAYOUTS, _SENTENCE, _body, sentence_problem
 
         m = _SENTENCE.match(_body(text)[1])
         if m is None:
             raise Reject("fields", f"not a $TYPE,fields*checksum sentence: {text[:60]!r}")
         kind, fields, given = m.groups()
-        problem = _checksum_problem(f"{kind},{fields}", given)
-        if problem:
-            raise Reject("checksum", f"${kind}: {problem}")
         layout = LAYOUTS.get(kind)
+        problem = sentence_problem(kind, fields, given, len(layout) if layout else 0)
+        if problem and (problem[0] == "checksum" or layout):
+            raise Reject(problem[0], f"${kind}: {problem[1]}")
         if layout is None or "mag_x" not in layout:
             raise Reject("sentence", f"${kind} (no magnetometer in it)")
         cells = fields.split(",")
-        if len(cells) < len(layout) or any(not _COUNTER.match(c) for c in cells[len(layout):]):
-            raise Reject("fields", f"{len(cells)} fields, a {kind} sentence has {len(layout)}")
         missing = [n for n in self.names if NMEA_FIELDS[n] not in layout]
         if missing:
             raise Reject("fields", f"a {kind} sentence has no {', '.join(missing)}")
