@@ -25,6 +25,7 @@ from tqdm import tqdm
 from . import _core
 from .coverage import N_DIRECTION_BINS
 from .ellipsoid import EllipsoidMoments
+from .outliers import GLITCH_RUN, _runs
 from .io.serial import Recorder, add_stream_arguments, check_output, decoder_from_args, stream_units
 
 FACES = ("+X", "-X", "+Y", "-Y", "+Z", "-Z")
@@ -118,14 +119,13 @@ class LiveState:
     rails: int = 0                 # readings with an axis at an ADC rail left out (see find_rails)
 
 
-def _short_runs(mask: np.ndarray, longest: int) -> np.ndarray:
-    """The True runs of `mask` of at most `longest` elements (a run still open at the end counts as short)."""
-    edges = np.diff(np.concatenate([[0], mask.astype(np.int8), [0]]))
-    starts, ends = np.flatnonzero(edges == 1), np.flatnonzero(edges == -1)
+def _short_runs(mask: np.ndarray) -> np.ndarray:
+    """The True runs of `mask` no longer than calibrate's glitches (outliers.GLITCH_RUN; a run still open at the
+    end counts as short)."""
     out = np.zeros_like(mask, dtype=bool)
-    for a, b in zip(starts, ends):
-        if b - a <= longest:
-            out[a:b] = True
+    for first, last in _runs(mask):
+        if last - first < GLITCH_RUN:
+            out[first:last + 1] = True
     return out
 
 
@@ -245,11 +245,10 @@ class LiveFit:
         self._moments.add(kept)
 
     FAR = 4.0  # a reading farther than FAR × the spread of the bulk from its median is a glitch, not a direction
-    GLITCH_RUN = 3  # … when it comes in a run of at most this many: a sensor turned into a new direction stays there
 
     def _update_far(self) -> None:
-        """Mark readings far outside the bulk of all others in runs of at most GLITCH_RUN (a bit flip: 4000.5 among
-        readings of radius 50; an overflow code -4096), as calibrate's outlier screen does; when the marks change,
+        """Mark readings far outside the bulk of all others in runs of at most outliers.GLITCH_RUN (a bit flip:
+        4000.5 among readings of radius 50; an overflow code -4096), as calibrate's outlier screen does; when the marks change,
         rebuild the moments without them. The bulk's size is the larger of the median distance from the median
         and the 1-99 % range. A sensor held in a small cap and then turned keeps the readings of the turn: they
         come in a longer run (a review: 24 readings of a quick turn after 3000 at rest had been dropped for good)."""
@@ -262,7 +261,7 @@ class LiveFit:
         r = np.linalg.norm(m - centre, axis=1)
         lo, hi = np.percentile(m[ok], [1, 99], axis=0)
         size = max(float(np.median(r[ok])), 0.5 * float(np.max(hi - lo)))
-        far = _short_runs(ok & (r > self.FAR * size), self.GLITCH_RUN) if size > 0 else np.zeros(n, dtype=bool)
+        far = _short_runs(ok & (r > self.FAR * size)) if size > 0 else np.zeros(n, dtype=bool)
         if np.array_equal(far, self._far[:n]):
             return
         self._far[:n] = far
