@@ -441,7 +441,7 @@ def cmd_export_c(args) -> int:
     cal = Calibration.load(args.calibration) if args.calibration else None
     sources = [Path(f).name for f in dict.fromkeys(filter(None, (args.calibration, args.kalman, args.drift)))]
     print(export_c(cal, args.output, q_format=args.q_format, name=args.name, kalman=args.kalman, drift=args.drift,
-                   source=", ".join(sources), force=args.force).describe())
+                   source=", ".join(sources), force=args.force, input_range=args.input_range).describe())
     return 0
 
 
@@ -926,6 +926,10 @@ def build_parser() -> argparse.ArgumentParser:
     x.add_argument("-o", "--output", required=True, help="the header to write (.h)")
     x.add_argument("--q-format", default=None, help="int32 fixed-point format Qm.n, m + n = 31 (default: the "
                                                     "smallest m that holds the calibration's range)")
+    x.add_argument("--input-range", type=positive_number, default=None,
+                   help="the sensor's full scale in the calibration's units (e.g. 32768 for int16 counts): the "
+                        "Q format must correct every reading up to it without saturating (default: 2 x the "
+                        "calibration readings' extent)")
     x.add_argument("--name", default=None, help="C prefix of every name (default: the header's file name)")
     x.add_argument("--kalman", default=None, help="also export a fixed-point AR Kalman filter: a JSON of "
                                                   "fluxcal.export_c.save_kalman or a drift model (fluxcal drift fit)")

@@ -16,7 +16,9 @@ and `<name>_self_test()`, so firmware can check itself. Fixed point:
   saturated (values never wrap). Constants are rounded to nearest.
 * Stated input range |m_j| ≤ R: R = 2 × the readings' extent (max_i |b_i| + F ‖row i of A⁻¹‖, the largest
   component of a reading of the calibration's field magnitude F), so that fields up to twice the
-  calibration field still fit, reduced if needed so that neither d nor h can saturate in the format.
+  calibration field still fit, reduced if needed so that neither d nor h can saturate in the format. With
+  `input_range` (`--input-range`, the sensor's full scale, e.g. 32768 counts) R is that, and a format that
+  cannot hold it is refused: the readings that reach the rails are the ones a fixed-point overflow hurts.
 * Default format: the smallest m for which inputs of ±R, the differences d and every output for such
   inputs (max_i Σ_j |a_ij| (R + |b_j|)) fit — all remaining bits are fraction bits.
 * Error bound, for every input in the range: |h_fixed − A (m − b)| ≤ E per component,
@@ -157,23 +159,51 @@ def _fits(a, b, fmt: QFormat, na: int, r: float) -> bool:
     return r + float(np.max(np.abs(b))) <= fmt.max_value and _output_range(a, b, r) + slack <= fmt.max_value
 
 
-def fixed_point(cal: Calibration, q_format: str | QFormat | None = None) -> FixedCalibration:
-    """Quantise `cal` (module docstring: format choice, range and bound)."""
+def _smallest_format(a, b, na: int, r: float) -> QFormat | None:
+    """The int32 Q format with the fewest integer bits that holds inputs |m| ≤ r (None: none does)."""
+    return next((QFormat(m, 31 - m) for m in range(32) if _fits(a, b, QFormat(m, 31 - m), na, r)), None)
+
+
+def fixed_point(cal: Calibration, q_format: str | QFormat | None = None,
+                input_range: float | None = None) -> FixedCalibration:
+    """Quantise `cal` (module docstring: format choice, range and bound). `input_range`: the sensor's full
+    scale in the calibration's units (e.g. 32768 counts, 8 G); every reading up to it must then be corrected
+    without saturating, instead of the default 2 × the calibration readings' extent."""
     a, b = cal.matrix, cal.offset
     if not (np.all(np.isfinite(a)) and np.all(np.isfinite(b)) and np.isfinite(cal.field_norm)):
         raise ValueError("calibration: offset, matrix and field norm must be finite")
     na = _matrix_frac_bits(a)
     extent = reading_extent(cal)
-    wanted = RANGE_MARGIN * extent
-    if q_format is None:
-        fmt = next((QFormat(m, 31 - m) for m in range(32) if _fits(a, b, QFormat(m, 31 - m), na, wanted)), None)
+    units = f" {cal.units}".rstrip()
+    if input_range is not None:
+        r = float(input_range)
+        if not (math.isfinite(r) and r > 0):
+            raise ValueError(f"--input-range {input_range}: must be a positive number (the sensor's full scale)")
+        if r < extent:  # a reading of the calibration field itself would be out of range
+            raise ValueError(f"--input-range {r:.6g}{units}: smaller than the calibration readings' extent "
+                             f"{extent:.6g}{units} (a reading of the calibration field reaches it); give the "
+                             "sensor's full scale in the calibration's units")
+        fmt = (_smallest_format(a, b, na, r) if q_format is None else
+               q_format if isinstance(q_format, QFormat) else QFormat.parse(q_format))
+        if fmt is None or not _fits(a, b, fmt, na, r):
+            smallest = _smallest_format(a, b, na, r)
+            raise ValueError((f"--q-format {fmt}: " if fmt is not None else "") +
+                             f"readings up to the input range ±{r:.6g}{units} and their corrections "
+                             f"±{_output_range(a, b, r):.6g} do not fit " +
+                             (f"the format's ±{fmt.max_value:.6g}; use at least {smallest}" if smallest else
+                              "any int32 Q format"))
+        note = f"the sensor's full scale (--input-range), {r / extent:.3g} x the readings' extent {extent:.6g}{units}"
+    elif q_format is None:
+        wanted = RANGE_MARGIN * extent
+        fmt = _smallest_format(a, b, na, wanted)
         if fmt is None:
             raise ValueError(f"calibration: readings up to {wanted:.6g} {cal.units} do not fit any int32 Q format")
         r, note = wanted, f"{RANGE_MARGIN:g} x the readings' extent {extent:.6g} {cal.units}".rstrip()
     else:
+        wanted = RANGE_MARGIN * extent
         fmt = q_format if isinstance(q_format, QFormat) else QFormat.parse(q_format)
         if not _fits(a, b, fmt, na, extent):
-            smallest = next((f"Q{m}.{31 - m}" for m in range(32) if _fits(a, b, QFormat(m, 31 - m), na, extent)), None)
+            smallest = _smallest_format(a, b, na, extent)
             raise ValueError(f"--q-format {fmt}: readings of the calibration field reach ±{extent:.6g} {cal.units} "
                              f"and their corrections ±{_output_range(a, b, extent):.6g}, beyond the format's "
                              f"±{fmt.max_value:.6g}; use at least {smallest}")
@@ -513,10 +543,11 @@ def _rows(values, fmt, indent="  ") -> str:
 
 
 def export_c(cal: Calibration | None, path, q_format=None, name: str | None = None, kalman=None, drift=None,
-             source: str = "", force: bool = False) -> ExportResult:
+             source: str = "", force: bool = False, input_range: float | None = None) -> ExportResult:
     """Write the firmware header (module docstring). `cal`: a Calibration, or None for a header of the drift
     part alone; `kalman`: a FixedArKalman, or a JSON path for `load_kalman`; `drift`: a DriftModel or its JSON
-    path (f(T) in C). A calibration whose summary says its data did not determine every parameter
+    path (f(T) in C); `input_range`: the sensor's full scale in the calibration's units (`fixed_point`). A
+    calibration whose summary says its data did not determine every parameter
     (identifiable false: a yaw-only turn, small tilts) is refused — firmware would apply a guess with
     nothing to say so — unless `force`, and then the header says it. Returns what was written
     (ExportResult.describe() says it in one line)."""
@@ -527,6 +558,8 @@ def export_c(cal: Calibration | None, path, q_format=None, name: str | None = No
     if cal is None and kalman is None and drift is None:
         raise ValueError("export-c: nothing to export: give a calibration, a Kalman filter (--kalman) or a drift "
                          "model (--drift)")
+    if input_range is not None and cal is None:
+        raise ValueError("--input-range: the sensor's full scale sizes a calibration's Q format; give a calibration")
     undetermined = None
     if cal is not None:
         require_calibration(cal, "cal")
@@ -543,7 +576,7 @@ def export_c(cal: Calibration | None, path, q_format=None, name: str | None = No
     result = ExportResult(path)
     parts = []
     if cal is not None:
-        lines, result.fixed, result.inputs_q = _calibration_part(cal, name, q_format, i32)
+        lines, result.fixed, result.inputs_q = _calibration_part(cal, name, q_format, input_range, i32)
         if undetermined:
             lines = [f"/* WARNING (exported with --force): {undetermined.replace('*/', '* /')}. */"] + lines
         parts.append(("magnetometer calibration", lines))
@@ -575,10 +608,10 @@ def _undetermined(cal: Calibration) -> str | None:
             + (f" ({why.rstrip('.')})" if why else ""))
 
 
-def _calibration_part(cal: Calibration, name: str, q_format, i32):
+def _calibration_part(cal: Calibration, name: str, q_format, input_range, i32):
     """The header lines of the magnetometer correction, its FixedCalibration and test inputs."""
     up = name.upper()
-    fx = fixed_point(cal, q_format)
+    fx = fixed_point(cal, q_format, input_range)
     inputs_q = vector_inputs(fx)
     inputs = inputs_q * fx.fmt.lsb                      # the exact values the fixed inputs stand for
     inputs_f = inputs.astype(np.float32).astype(float)  # what the float function is given

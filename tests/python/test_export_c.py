@@ -488,3 +488,37 @@ def test_one_clamped_sample_sets_the_overflow_flag_in_c_cplusplus_and_python(tmp
     clean = FixedArKalman((0.6, -0.3, 0.2), 0.5, 0.3, frac_bits=28)
     clean.filter_int(np.where(series > 0, 2 ** 30, 0))
     assert not clean.overflowed
+
+
+def test_input_range_sizes_the_format_for_the_sensors_full_scale(tmp_path):
+    """An int16 sensor in counts: by default the format holds 2 × the calibration readings' extent, so a
+    reading near full scale (a magnet, a motor) saturates; with the sensor's full scale as the input range
+    every reading up to it is corrected within the stated bound, in C too."""
+    s = simulated(13, n=1500, field_norm=450.0)  # about 0.45 G at 1000 counts per gauss
+    cal = fluxcal.calibrate(np.rint(s.readings), units="counts")
+    default = fixed_point(cal)
+    full_scale = fixed_point(cal, input_range=32768)
+    assert default.input_range < 32768 <= full_scale.input_range and "--input-range" in full_scale.range_note
+    rails = np.array([[32767.0, -32768.0, 32767.0], [-32768.0, -32768.0, -32768.0], [32767.0, 32767.0, -1.0]])
+    assert default.apply_int(default.to_fixed(rails))[1]  # the default range saturates there
+    h_q, saturated = full_scale.apply_int(full_scale.to_fixed(rails))
+    assert not saturated
+    np.testing.assert_array_less(np.abs(h_q * full_scale.fmt.lsb - cal.apply(rails)), full_scale.error_bound)
+    # the header's test vector holds the corners of ±32768, and the C code reproduces Python there
+    header = tmp_path / "p.h"
+    export_c(cal, header, name="p", input_range=32768)
+    rows, self_test = run_driver(tmp_path, header)
+    assert self_test == 0 and np.max(np.abs(rows[:, :3])) >= 32767 and not rows[:, 9].any()
+    # what cannot be: a range below the calibration's own readings, a format too small for it, no calibration
+    with pytest.raises(ValueError, match=r"--input-range 100 counts: smaller than the calibration readings' extent"):
+        fixed_point(cal, input_range=100)
+    with pytest.raises(ValueError, match=r"--q-format Q12.19: readings up to the input range ±32768 counts .* "
+                                         r"use at least Q1[5-7]\.1[4-6]"):
+        fixed_point(cal, "Q12.19", input_range=32768)
+    with pytest.raises(ValueError, match="give a calibration"):
+        export_c(None, tmp_path / "x.h", kalman=FixedArKalman((0.5,), 0.5, 0.3, frac_bits=28), input_range=10)
+    saved = cal.save(tmp_path / "cal.json")
+    r = run_cli("export-c", saved, "-o", tmp_path / "cli.h", "--input-range", "32768")
+    assert r.returncode == 0 and "inputs |m| ≤ 32768" in r.stdout, r.stdout + r.stderr
+    r = run_cli("export-c", saved, "-o", tmp_path / "cli.h", "--input-range", "-5")
+    assert r.returncode == 2 and "--input-range" in r.stderr and "Traceback" not in r.stderr
