@@ -409,7 +409,7 @@ def cmd_live(args) -> int:
                           args.min_coverage, args.max_spread, args.min_records, show=not args.quiet)
     recorder = Recorder(args.port, args.baud, decoder, output=args.raw, duration=args.duration, units=units,
                         metadata={"format": args.format, "purpose": "fluxcal live calibration"},
-                        on_record=session.on_record)
+                        on_record=session.on_record, hold_ctrl_c=True)  # Ctrl-C twice must not cost the calibration
     try:
         stats = recorder.run()
         session.refresh()  # the last records, and the state after a stop by duration or Ctrl-C

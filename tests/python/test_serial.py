@@ -243,6 +243,23 @@ def test_record_sigterm_and_sighup_stop_like_ctrl_c(tmp_path):
         assert path.read_text().splitlines()[-1].endswith(f"stopped: {said}")
 
 
+def test_record_ctrl_c_twice_ends_with_its_report_not_killed(tmp_path):
+    """A second Ctrl-C 50–100 ms after the first came after the recording had put the default handler back,
+    while the report was printed: the process died by SIGINT (exit −2). The command line keeps it ignored."""
+    for gap in (0.05, 0.1):
+        path = tmp_path / f"twice_{gap}.csv"
+        proc = subprocess.Popen([sys.executable, "-m", "fluxcal", "record", "--port", "loop://", "-o", str(path),
+                                 "--duration", "30"], stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+        end = time.monotonic() + 20
+        while time.monotonic() < end and not (path.exists() and "\nt_host," in path.read_text()):
+            time.sleep(0.02)
+        proc.send_signal(signal.SIGINT)
+        time.sleep(gap)
+        proc.send_signal(signal.SIGINT)
+        stdout, stderr = proc.communicate(timeout=20)
+        assert proc.returncode == 1 and "Stopped: interrupted." in stdout, (gap, proc.returncode, stdout + stderr)
+
+
 @contextlib.contextmanager
 def _serial_sending(recorder, chunks):
     """Let `recorder` read `chunks` from a loop:// port (written once it is open)."""

@@ -721,14 +721,17 @@ class Recorder:
     the recording (stopped = "done"), as does `should_stop()` returning true (checked between reads).
     `duration` None records until Ctrl-C. `stats` is filled as it goes and returned by run().
     `warn_after` (s): when no good record has come by then, `warn(text)` is called once with the likely
-    causes (default: print to stderr); None never warns.
+    causes (default: print to stderr); None never warns. `hold_ctrl_c`: once a stop was asked, further
+    Ctrl-C stays ignored after run() returns (a command line whose report and exit follow: a Ctrl-C pressed
+    twice must not kill it while it prints, and the restored default handler would); False restores the
+    caller's handler.
     """
 
     def __init__(self, port: str, baudrate: int = 115200, decoder=None, output=None, duration: float | None = None,
                  units: dict | None = None, metadata: dict | None = None, on_record=None, should_stop=None,
                  read_timeout: float = 0.05, max_backoff: float = 1.0, clock=time.monotonic,
-                 warn_after: float | None = None, warn=None):
-        self.port, self.baudrate = port, int(baudrate)
+                 warn_after: float | None = None, warn=None, hold_ctrl_c: bool = False):
+        self.port, self.baudrate, self.hold_ctrl_c = port, int(baudrate), hold_ctrl_c
         self.decoder = decoder or TextDecoder(parse_columns(None))
         if duration is not None and not (isinstance(duration, numbers.Real) and math.isfinite(duration)
                                          and duration > 0):
@@ -758,7 +761,7 @@ class Recorder:
         start = self.clock()
         deadline = None if self.duration is None else start + float(self.duration)
         # the stop signals are ours before the file exists: a kill that comes once it does is a stop request
-        with _ctrl_c_as_request() as self._interrupted:
+        with _ctrl_c_as_request(self.hold_ctrl_c) as self._interrupted:
             if self.output is not None:
                 from .. import __version__
 
@@ -924,11 +927,12 @@ STOP_SIGNALS = {"SIGINT": "interrupted", "SIGTERM": "terminated (SIGTERM)", "SIG
 
 
 @contextlib.contextmanager
-def _ctrl_c_as_request():
+def _ctrl_c_as_request(hold: bool = False):
     """While recording, the first Ctrl-C (or SIGTERM, SIGHUP: a kill, a closed terminal) asks the loop to
     stop between records (no row is cut in half and the summary is written); a second Ctrl-C interrupts
     at once, except once `closing` is set (the summary and fsync are under way: let them finish).
-    `stopped` says which signal came. Signals reach only the main thread."""
+    `stopped` says which signal came. Signals reach only the main thread. `hold`: after a stop request,
+    Ctrl-C stays ignored on leaving (Recorder's hold_ctrl_c)."""
     requested = threading.Event()
     requested.closing, requested.stopped = False, "interrupted"
     if threading.current_thread() is not threading.main_thread():
@@ -952,6 +956,8 @@ def _ctrl_c_as_request():
     finally:
         for name, handler_before in previous.items():
             default = signal.default_int_handler if name == "SIGINT" else signal.SIG_DFL
+            if hold and name == "SIGINT" and requested.is_set():
+                handler_before = signal.SIG_IGN
             signal.signal(getattr(signal, name), handler_before if handler_before is not None else default)
 
 
@@ -1048,7 +1054,8 @@ def cmd_record(args) -> int:
     check_output(args.output, "-o", args.overwrite)
     recorder = Recorder(args.port, args.baud, decoder, output=args.output, duration=args.duration,
                         units=stream_units(decoder), metadata={"format": args.format}, warn_after=args.warn_after,
-                        warn=lambda text: print(f"fluxcal record: warning: {text}", file=sys.stderr, flush=True))
+                        warn=lambda text: print(f"fluxcal record: warning: {text}", file=sys.stderr, flush=True),
+                        hold_ctrl_c=True)
     until = f"for {args.duration:g} s or Ctrl-C" if args.duration else "until Ctrl-C"
     print(f"fluxcal record: recording {args.port} at {args.baud} baud into {args.output} {until}",
           file=sys.stderr, flush=True)
