@@ -378,21 +378,31 @@ ArResult fit_ar(const SeriesRef& y, const ArOptions& options) {
   const Eigen::Index rows = regressed_rows(n_total, breaks, p);
   Eigen::VectorXd theta = Eigen::VectorXd::Zero(p);
   if (p > 0) {
-    const Eigen::Index n0 = std::min<Eigen::Index>(rows, std::max(options.init_samples, 2 * p));
-    Eigen::MatrixXd x0(n0, p);
-    Eigen::VectorXd y0(n0);
-    Eigen::Index i = 0;
-    for_each_regressed(n_total, breaks, p, [&](Eigen::Index t) {
-      if (i >= n0) return;
-      for (int j = 0; j < p; ++j) x0(i, j) = y[t - 1 - j];
-      y0[i++] = y[t];
-    });
-    Eigen::HouseholderQR<Eigen::MatrixXd> qr(x0);
-    const Eigen::MatrixXd r0 = qr.matrixQR().topRows(p).triangularView<Eigen::Upper>();
-    const double diag_min = r0.diagonal().cwiseAbs().minCoeff(), diag_max = r0.diagonal().cwiseAbs().maxCoeff();
-    if (!(diag_min > 1e-12 * diag_max))
-      throw Error("series: the first " + std::to_string(n0) +
-                  " regression rows are rank deficient, cannot start the recursive least squares (raise init_samples)");
+    // The batch start grows (doubling) until its rows have full rank: a recording that starts with a held or
+    // zero stretch longer than init_samples made the whole fit fail although the full regression is well posed.
+    Eigen::Index n0 = std::min<Eigen::Index>(rows, std::max(options.init_samples, 2 * p));
+    Eigen::MatrixXd x0;
+    Eigen::VectorXd y0;
+    Eigen::HouseholderQR<Eigen::MatrixXd> qr;
+    Eigen::MatrixXd r0;
+    for (;;) {
+      x0.resize(n0, p);
+      y0.resize(n0);
+      Eigen::Index i = 0;
+      for_each_regressed(n_total, breaks, p, [&](Eigen::Index t) {
+        if (i >= n0) return;
+        for (int j = 0; j < p; ++j) x0(i, j) = y[t - 1 - j];
+        y0[i++] = y[t];
+      });
+      qr.compute(x0);
+      r0 = qr.matrixQR().topRows(p).triangularView<Eigen::Upper>();
+      const double diag_min = r0.diagonal().cwiseAbs().minCoeff(), diag_max = r0.diagonal().cwiseAbs().maxCoeff();
+      if (diag_min > 1e-12 * diag_max) break;
+      if (n0 >= rows)
+        throw Error("series: the " + std::to_string(rows) + " regression rows of an AR(" + std::to_string(p) +
+                    ") model are rank deficient (the series repeats itself exactly), no least-squares fit");
+      n0 = std::min<Eigen::Index>(rows, 2 * n0);
+    }
     theta = qr.solve(y0);
     const Eigen::MatrixXd r_inv = r0.triangularView<Eigen::Upper>().solve(Eigen::MatrixXd::Identity(p, p));
     Eigen::MatrixXd cov = r_inv * r_inv.transpose();  // (X0ᵀX0)⁻¹

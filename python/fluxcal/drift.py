@@ -386,8 +386,11 @@ def fit_pipeline(zero_bias, temp, temp_outside=None, regressor: str = "temp", br
               "orders": [s["order"] for s in model.segments],
               "drift_span_before": drift_span(w, temp), "drift_span_after": drift_span(compensated, temp),
               "compensated": compensated, "filtered": filtered, "notes": gap_notes + notes}
-    report["drift_reduction"] = report["drift_span_before"] / max(report["drift_span_after"], 1e-300)
-    if report["drift_reduction"] < 0.5:  # twice as wide: no chance spread of level means with nothing to remove
+    # One temperature level (every sample in one 5 °C bin): both spans are 0 and say nothing about the model.
+    one_level = len(level_means(w, temp)) < 2
+    report["drift_reduction"] = (float("nan") if one_level else
+                                 report["drift_span_before"] / max(report["drift_span_after"], 1e-300))
+    if not one_level and report["drift_reduction"] < 0.5:  # twice as wide: no chance spread of level means with nothing to remove
         report["warnings"].append(
             f"the compensation widens the zero bias's spread over temperature ({report['drift_span_before']:.4g} → "
             f"{report['drift_span_after']:.4g}, per-level means): the model does not describe this drift — a "

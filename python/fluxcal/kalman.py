@@ -329,6 +329,9 @@ class FixedArKalman:
         a saturated filter can be off by any amount, so there is no finite bound."""
         if self.frac_bits is None:
             raise ValueError("frac_bits: not set yet")
+        if not self.steady_state:  # the bound models the constant gain K; the time-varying filter's gains differ
+            raise ValueError("error_bound: holds for the steady-state filter only (steady_state=True); the "
+                             "time-varying filter's fixed-point gains and covariances are not covered by it")
         y = as_series(y, "y")
         if not np.all(np.isfinite(y)):
             raise ValueError(f"y: sample {int(np.argmax(~np.isfinite(y)))} is NaN/Inf")

@@ -27,6 +27,8 @@ TEST(Coverage, AxesLandOnTheirFacesAndDegenerateVectorsHaveNoBin) {
   EXPECT_EQ(fluxcal::direction_bin({0, 0, -2}) / 16, 5);
   EXPECT_EQ(fluxcal::direction_bin({0, 0, 0}), -1);
   EXPECT_EQ(fluxcal::direction_bin({NAN, 0, 0}), -1);
+  EXPECT_EQ(fluxcal::direction_bin({NAN, 1, 1}), -1);  // not the largest component: it had picked a face
+  EXPECT_EQ(fluxcal::direction_bin({1, INFINITY, 0}), -1);
 }
 
 TEST(Coverage, AHorizontalTurnSeesFewDirections) {

@@ -173,6 +173,9 @@ TEST(EllipsoidErrors, WrongWidthNamesTheArgument) {
   const Eigen::MatrixXd two = s.leftCols(2), four = Eigen::MatrixXd::Ones(200, 4);
   EXPECT_ERROR_SAYS(fluxcal::fit_ellipsoid(two), "samples: a matrix of 200 rows × 2 columns, need 3 columns");
   EXPECT_ERROR_SAYS(fluxcal::fit_ellipsoid(four), "samples: a matrix of 200 rows × 4 columns");
+  // a width fixed at compile time to another value is the same Error, not a compile failure
+  const Eigen::Matrix<double, Eigen::Dynamic, 2> fixed_two = s.leftCols(2);
+  EXPECT_ERROR_SAYS(fluxcal::fit_ellipsoid(fixed_two), "samples: a matrix of 200 rows × 2 columns");
   fluxcal::EllipsoidMoments m(Eigen::Vector3d::Zero(), 1.0);
   EXPECT_ERROR_SAYS(m.add_rows(two), "readings: a matrix of 200 rows × 2 columns");
   // Column-major input of the right width is still read correctly (copied, as Eigen::Ref did).

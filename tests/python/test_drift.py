@@ -666,3 +666,28 @@ def test_too_many_gaps_are_not_used(foct):
     t = c["t"] + 5.0 * (np.arange(c["t"].size) // 8)
     model, report = drift.fit_pipeline(c["zero_bias"], c["temp"], t=t)
     assert model.settings["gaps"] == 0 and any("stretches too short" in w for w in report["warnings"])
+
+
+def test_one_temperature_level_gives_no_false_widening_warning():
+    """A lab log at 23–26 °C (one 5 °C level): both per-level spans are 0, and the compensation was called
+    "widening" ("0 -> 0, 0.0x smaller") although it cut the spread threefold (a blind check)."""
+    rng = np.random.default_rng(1)
+    t = np.arange(5000) * 10.0
+    temp = 24.5 + 1.4 * np.sin(2 * np.pi * t / 86400) + rng.normal(0, 0.02, t.size)
+    w = 0.02 + 0.01 * (temp - 25) + rng.normal(0, 0.002, t.size)
+    model, report = drift.fit_pipeline(w, temp, t=t)
+    assert not any("widens" in text for text in report["warnings"]) and np.isnan(report["drift_reduction"])
+    assert model.compensate(w, temp).std() < 0.5 * w.std()
+
+
+def test_a_recording_that_starts_held_is_fitted():
+    """25 identical samples first (a logger holding a slower sensor's value): the recursive least squares'
+    batch start was rank deficient and the whole fit refused, though the regression is well posed."""
+    y = lfilter([1], [1, -0.7, 0.2], np.random.default_rng(1).normal(size=4000))[2000:]
+    z = np.r_[np.zeros(25), y]
+    z -= z.mean()
+    fit = ts.fit_ar(z, max_order=10)
+    x = np.column_stack([z[1:-1], z[:-2]])
+    ols = np.linalg.lstsq(x, z[2:], rcond=None)[0]
+    assert fit.order == 2
+    np.testing.assert_allclose(fit.coefficients, ols, atol=1e-9)

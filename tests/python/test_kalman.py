@@ -220,13 +220,16 @@ def test_fixed_point_error_within_derived_bound(steady_state):
     fixed = f.filter(y)
     double = ArKalman(a, q, r, steady_state=steady_state).filter(y)
     err = np.max(np.abs(fixed - double))
+    assert 0 < err < 1e-7  # genuinely fixed point, inside the "Q31 ≈ 1e-7" budget of the ±0.9 full scale
+    if not steady_state:
+        # The bound is derived for the constant gain; the time-varying filter's quantised P and K recursion
+        # exceeded it (1.28× in a blind check: AR (1.9, −0.9025), q 1, r 100), so it is refused, not guessed.
+        with pytest.raises(ValueError, match="steady-state filter only"):
+            f.error_bound(y)
+        return
     bound = f.error_bound(y)
-    # Q2.29 signals: the bound is a few 1e-9 of the ±0.9 full scale, far inside the "Q31 ≈ 1e-7" budget.
-    assert bound < 1e-7
-    # The bound is derived for the steady-state form; for the time-varying form (whose quantised gain
-    # follows the double one after the transient) it is checked here, not proven.
+    assert bound < 1e-7  # Q2.29 signals: a few 1e-9
     assert err <= bound
-    assert err > 0  # it is genuinely fixed point
 
 
 def test_derived_signal_format_holds_prediction_and_innovation():

@@ -18,6 +18,8 @@ constexpr int kDirectionBins = 96;
 /// for the axis a of largest |v_a| (the first on ties); then 4 × 4 cells of equal angle over the
 /// face.
 inline int direction_bin(double x, double y, double z) {
+  // Every component, not only the largest: a NaN compares false and would otherwise pick a face.
+  if (!std::isfinite(x) || !std::isfinite(y) || !std::isfinite(z)) return -1;
   const double ax = std::abs(x), ay = std::abs(y), az = std::abs(z);
   const int a = (ax >= ay && ax >= az) ? 0 : (ay >= az ? 1 : 2);  // face axis, the first on ties
   const double v[3] = {x, y, z};

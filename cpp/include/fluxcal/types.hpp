@@ -70,11 +70,18 @@ class RowsRef : private detail::RowsRefStorage<Cols>,
   template <typename Derived>
   static Rows bind(const Derived& m, Storage& storage) {
     if (m.cols() != Cols) return Rows(nullptr, 0, Cols, Eigen::OuterStride<>(Cols));
-    if constexpr (bool(Derived::Flags & Eigen::DirectAccessBit)) {
-      if (m.colStride() == 1) return Rows(m.data(), m.rows(), Cols, Eigen::OuterStride<>(m.rowStride()));
+    // A matrix whose width is fixed at compile time to another value never gets here, but the copy below
+    // would still be instantiated and fail with Eigen's YOU_MIXED_MATRICES_OF_DIFFERENT_SIZES: keep it out
+    // of the instantiation, so such a matrix reaches require_width() and its Error like a MatrixXd does.
+    if constexpr (Derived::ColsAtCompileTime == Eigen::Dynamic || Derived::ColsAtCompileTime == Cols) {
+      if constexpr (bool(Derived::Flags & Eigen::DirectAccessBit)) {
+        if (m.colStride() == 1) return Rows(m.data(), m.rows(), Cols, Eigen::OuterStride<>(m.rowStride()));
+      }
+      storage.evaluated = m;  // what Eigen::Ref would have copied into itself
+      return Rows(storage.evaluated.data(), m.rows(), Cols, Eigen::OuterStride<>(Cols));
+    } else {
+      return Rows(nullptr, 0, Cols, Eigen::OuterStride<>(Cols));
     }
-    storage.evaluated = m;  // what Eigen::Ref would have copied into itself
-    return Rows(storage.evaluated.data(), m.rows(), Cols, Eigen::OuterStride<>(Cols));
   }
   static Rows rebind(const RowsRef& other, Storage& storage) {
     const Storage& theirs = other;
