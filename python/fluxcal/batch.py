@@ -40,6 +40,8 @@ from pathlib import Path
 
 import numpy as np
 
+from .calibration import TESLA_PER_UNIT
+
 DEFAULT_PATTERN = "*.csv"
 OUTLIER_K = 5.0
 """Default outlier threshold in robust standard deviations (1.4826·MAD). 5 rather than the usual 3.5:
@@ -84,6 +86,8 @@ def _digest(path: Path) -> str:
 
 def _status(cal) -> str:
     # Fits without a refinement ("als", "ls") carry no identifiability verdict: taken as identifiable.
+    if cal.summary.get("converged", True) is False:  # an intermediate iterate (export-c refuses it)
+        return "not_converged"
     return "ok" if cal.summary.get("identifiable", True) else "not_identifiable"
 
 
@@ -129,7 +133,20 @@ def calibrate_unit(path, out_path, method: str = "auto", field_norm: float | Non
     try:
         digest = _digest(path)
         rec = _read(path, bad_lines)
-        cal = calibrate(rec.samples(), method=method, field_norm=field_norm, units=rec.field_units())
+        units = rec.field_units()
+        # as `fluxcal calibrate FILE` does: a simulation's stated field norm, the vector fit when the recording
+        # carries attitude and the local field (the airborne layout)
+        given = field_norm if field_norm is not None else rec.stated_field_norm()
+        reference = rec.reference_field() if method == "auto" else None
+        cal = calibrate(rec.samples(), method=method, field_norm=None if reference is not None else given,
+                        reference=reference, units=units)
+        if reference is not None and rec.reference_units() != units:
+            cal.field_units = rec.reference_units()
+        elif given is not None and reference is None and units not in TESLA_PER_UNIT:
+            cal.field_units = ""  # counts fitted to a norm given without its unit (as calibrate: not stated)
+        if "skipped_lines" in rec.metadata:  # --bad-lines skip: what was left out, kept with the calibration
+            cal.metadata["skipped_lines"] = rec.metadata["skipped_lines"]
+            cal.summary.setdefault("warnings", []).append(f"skipped {rec.metadata['skipped_lines']}")
         cal.metadata.update(unit=unit, source=str(path), source_sha256=digest, columns=",".join(rec.mag_names()),
                             batch_settings=_settings(method, field_norm, bad_lines))
         tmp = out_path.with_name(f".{out_path.name}.{os.getpid()}.tmp")
@@ -141,7 +158,12 @@ def calibrate_unit(path, out_path, method: str = "auto", field_norm: float | Non
         return {"unit": unit, "source": str(path), "status": _status(cal), "row": unit_row(unit, path, cal),
                 "seconds": time.perf_counter() - start}
     except Exception as exc:  # one bad unit must not stop the fleet
-        return {"unit": unit, "source": str(path), "status": "failed", "error": _message(path, exc),
+        message = _message(path, exc)
+        if out_path.exists():  # an earlier calibration of other bytes/settings must not pass for this unit's
+            stale = out_path.with_name(f"{out_path.name}.stale")
+            os.replace(out_path, stale)
+            message += f" (the previous {out_path.name}, of another recording or settings, moved to {stale.name})"
+        return {"unit": unit, "source": str(path), "status": "failed", "error": message,
                 "seconds": time.perf_counter() - start}
 
 
@@ -260,8 +282,8 @@ class FleetResult:
         lines.append(f"outliers (|x - median| > {k:g}·1.4826·MAD): {len({o['unit'] for o in outliers}) or 'none'}")
         lines += [f"  {o['unit']}: {o['reason']}" for o in outliers]
         for r in self.rows:
-            if r["status"] == "not_identifiable":
-                lines.append(f"not identifiable: {r['unit']}: {r['warnings'] or 'the data do not determine every parameter'}")
+            if r["status"] in ("not_identifiable", "not_converged"):
+                lines.append(f"{r['status'].replace('_', ' ')}: {r['unit']}: {r['warnings'] or 'the data do not determine every parameter'}")
         if self.failures:
             lines.append(f"failed: {len(self.failures)} (listed in {self.out_dir / 'failures.json'})")
             lines += [f"  {r['unit']}: {r['error']}" for r in self.failures]
@@ -269,11 +291,27 @@ class FleetResult:
         return "\n".join(lines)
 
 
+def _is_ours(path: Path) -> bool:
+    """Whether `path` is a summary file this module wrote (not a recording that happens to share its name)."""
+    try:
+        if path.suffix == ".csv":
+            with path.open() as f:
+                return f.readline().rstrip("\n") == ",".join(CSV_COLUMNS)
+        data = json.loads(path.read_text())
+        return isinstance(data, list) or (isinstance(data, dict) and "counts" in data)
+    except (OSError, ValueError):
+        return False
+
+
 def _recordings(directory: Path, out_dir: Path, pattern: str) -> list:
-    ours = {out_dir / name for name in SUMMARY_FILES}  # never read our own summary back as a recording
+    ours = {p for p in (out_dir / name for name in SUMMARY_FILES) if _is_ours(p)}  # never read back as recordings
     paths = sorted(p for p in directory.glob(pattern) if p.is_file() and p not in ours)
     if not paths:
         raise ValueError(f"{directory}: no recordings matching {pattern!r}")
+    reserved = [p.name for p in paths if p.stem in {Path(n).stem for n in SUMMARY_FILES}]
+    if reserved:  # <unit>.json would be overwritten by the summary (or the summary would overwrite the recording)
+        raise ValueError(f"{directory}: {', '.join(reserved)}: unit names fleet_summary and failures are the batch's "
+                         "own summary files; rename the recording(s)")
     seen = {}
     for p in paths:
         if p.stem in seen:
@@ -425,6 +463,7 @@ def calibrate_fleet(directory, out_dir, workers: int | None = None, scheduler: s
         "directory": str(directory), "out_dir": str(out_dir),
         "settings": {**settings, "pattern": pattern, "outlier_k": outlier_k},
         "counts": {"units": len(ordered), "ok": status["ok"], "not_identifiable": status["not_identifiable"],
+                   "not_converged": status["not_converged"],
                    "failed": status["failed"], "calibrated_now": len(todo), "skipped": why["done"],
                    "recalibrated_stale": why["stale"], "recalibrated_invalid": why["invalid"]},
         "fleet_units": Counter(r["units"] for r in ordered if r["status"] == "ok").most_common(1)[0][0]

@@ -79,9 +79,11 @@ class Calibration:
     def unit_factor(self, units: str, source: str = "samples") -> float:
         """What readings in `units` are multiplied by to be in the calibration's unit (1 when either is not
         stated or they agree); ValueError when they are different units and not both magnetic-field units."""
-        if not units or not self.units or units == self.units:
+        from .io.columns import unit_name
+
+        if not units or not self.units or unit_name(units) == unit_name(self.units):
             return 1.0
-        to, frm = TESLA_PER_UNIT.get(self.units), TESLA_PER_UNIT.get(units)
+        to, frm = TESLA_PER_UNIT.get(unit_name(self.units)), TESLA_PER_UNIT.get(unit_name(units))
         if to is None or frm is None:
             raise ValueError(f"{source}: readings in {units}, the calibration was fitted to readings in {self.units}; "
                              "apply it to readings in the unit it was fitted in")
@@ -152,6 +154,11 @@ class Calibration:
                              "calibration (`fluxcal calibrate -o`)")
         if missing:
             raise ValueError(f"{source}: missing {', '.join(missing)}")
+        for name in ("summary", "metadata"):
+            if not isinstance(data.get(name, {}), dict):
+                raise ValueError(f"{source}: {name} {data[name]!r:.60} must be a JSON object")
+        if not (isinstance(data["field_norm"], (int, float)) and data["field_norm"] > 0):
+            raise ValueError(f"{source}: field_norm {data['field_norm']!r} must be a positive number")
         try:
             cal = cls(offset=data["offset"], matrix=data["matrix"], field_norm=data["field_norm"],
                       units=data.get("units", ""), model=data.get("model", ""),

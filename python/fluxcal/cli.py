@@ -246,8 +246,8 @@ def cmd_calibrate(args) -> int:
                          "columns (e.g. --reference rx,ry,rz), or attitude columns pitch, roll, yaw with the local "
                          "field igrf_n, igrf_e, igrf_d")
     _note_reference_columns(rec, reference, args.method)
-    if field_norm is None and reference is None and "simulated" in rec.metadata and "field_norm" in rec.metadata:
-        field_norm = float(rec.metadata["field_norm"])  # `fluxcal simulate` states the field it simulated
+    if field_norm is None and reference is None and rec.stated_field_norm() is not None:
+        field_norm = rec.stated_field_norm()  # `fluxcal simulate` states the field it simulated
         print(f"field norm {field_norm:g} {units} from the simulation's metadata".rstrip())
     # the refinement's setting only when asked for: methods ls and als refuse it, having no refinement
     settings = {} if args.serial_correlation is None else {"serial_correlation": args.serial_correlation}
@@ -287,10 +287,28 @@ def cmd_calibrate(args) -> int:
     return 0
 
 
+def _same_file(a, b) -> bool:
+    try:
+        return Path(a).resolve() == Path(b).resolve() or (Path(b).exists() and Path(a).samefile(b))
+    except OSError:
+        return False
+
+
 def cmd_apply(args) -> int:
+    for what, path in (("the recording", args.file), ("the calibration", args.calibration)):
+        if _same_file(args.output, path):  # the output would replace it: the calibration, text columns lost
+            raise ValueError(f"-o {args.output} is {what} it reads; write the corrected recording to another file")
     cal = Calibration.load(args.calibration)
     rec = read_recording(args.file, columns=args.columns, units=args.units, bad_lines=args.bad_lines,
                          decimal=args.decimal)
+    taken = [k for k in ("hx", "hy", "hz") if k in rec.columns]
+    if taken:  # the corrected columns would replace them (raw readings named hx,hy,hz, an earlier correction)
+        raise ValueError(f"{args.file}: already has column(s) {', '.join(taken)}, which the corrected field would "
+                         "overwrite; rename them (or apply to the recording the correction was made from)")
+    if "skipped_lines" in rec.metadata:
+        print(f"skipped {rec.metadata['skipped_lines'].replace(':', ' lines:', 1)}")
+    if "text_columns" in rec.metadata:
+        print(f"note: text columns are not written to {args.output}: {rec.metadata['text_columns']}")
     factor = cal.unit_factor(rec.field_units(), f"{args.file}")
     if factor != 1.0:
         print(f"readings in {rec.field_units()} converted to the calibration's {cal.units} (× {factor:g})")
@@ -309,6 +327,9 @@ def cmd_apply(args) -> int:
     scale = _scale_warning(cal, h, rec.field_units())
     if scale:
         print(f"warning: {scale}")
+    if cal.summary.get("converged", True) is False:  # export-c refuses such a calibration without --force
+        print(f"warning: {args.calibration}: the calibration's fit did not converge (an intermediate iterate): "
+              "recalibrate before relying on the corrected field")
     if not cal.summary.get("identifiable", True):
         print(f"warning: {args.calibration}: the calibration is not identifiable (its data did not determine every "
               "parameter): |h| of the readings it was fitted on looks right, other orientations may not")

@@ -258,3 +258,34 @@ def test_fleet_statistics_and_settings_refuse_nan_and_empty(tmp_path):
             robust_spread(values)
     with pytest.raises(ValueError, match="outlier_k: nan must be a positive number"):
         calibrate_fleet(tmp_path, tmp_path / "out", outlier_k=float("nan"))  # flagged nothing
+
+
+def test_units_named_like_the_summary_files_are_refused_and_a_failed_unit_loses_its_old_calibration(cluster, tmp_path):
+    """A blind check: recordings named fleet_summary/failures were overwritten by the summary (with -o the input
+    folder, the recording itself); a unit that now fails kept its old <unit>.json, which passed for current."""
+    folder = tmp_path / "recordings"
+    folder.mkdir()
+    for name in ("u0", "fleet_summary"):
+        s = _unit(4000)
+        _write(folder / f"{name}.csv", s.readings, s.t)
+    with pytest.raises(ValueError, match="fleet_summary.csv: unit names fleet_summary and failures are the batch's"):
+        calibrate_fleet(folder, folder, scheduler=cluster.scheduler_address, progress=False)
+    (folder / "fleet_summary.csv").unlink()
+    out = tmp_path / "out"
+    calibrate_fleet(folder, out, scheduler=cluster.scheduler_address, field_norm=H, progress=False)
+    with open(folder / "u0.csv", "a") as f:
+        f.write("garbage,line\n")
+    result = calibrate_fleet(folder, out, scheduler=cluster.scheduler_address, field_norm=H, progress=False)
+    assert result.rows[0]["status"] == "failed" and "moved to u0.json.stale" in result.rows[0]["error"]
+    assert not (out / "u0.json").exists() and (out / "u0.json.stale").exists()
+
+
+def test_a_simulated_recording_is_calibrated_as_calibrate_does(cluster, tmp_path):
+    """batch took a `fluxcal simulate` recording's field norm from nowhere (45 238 against the stated 50 000)."""
+    folder = tmp_path / "recordings"
+    folder.mkdir()
+    r = subprocess.run([sys.executable, "-m", "fluxcal", "simulate", "-o", str(folder / "sim.csv"), "--n", "800",
+                        "--seed", "5"], capture_output=True, text=True)
+    assert r.returncode == 0, r.stderr
+    calibrate_fleet(folder, tmp_path / "out", scheduler=cluster.scheduler_address, progress=False)
+    assert Calibration.load(tmp_path / "out" / "sim.json").field_norm == pytest.approx(50000.0)

@@ -317,3 +317,36 @@ def test_first_day_mistakes_get_their_own_words(tmp_path):
     assert r.returncode == 0, r.stderr
     assert "\t" in (tmp_path / "out.tsv").read_text().splitlines()[-1]
     np.testing.assert_array_equal(fluxcal.read_recording(tmp_path / "out.tsv").columns["mx"], few.columns["mx"])
+
+
+def test_apply_keeps_what_it_reads_and_says_what_it_cannot(tmp_path):
+    """From a blind check: -o onto the calibration or the recording replaced it; input columns hx,hy,hz were
+    overwritten; a calibration that did not converge was applied without a word; µT and uT were two units."""
+    rec, cal = tmp_path / "sim.csv", tmp_path / "cal.json"
+    assert run_cli("simulate", "-o", rec, "--n", 600, "--seed", 4).returncode == 0
+    assert run_cli("calibrate", rec, "-o", cal).returncode == 0
+    before = cal.read_bytes()
+    for target, what in ((cal, "the calibration"), (rec, "the recording")):
+        r = run_cli("apply", cal, rec, "-o", target)
+        assert r.returncode == 2 and f"is {what} it reads" in r.stderr
+    assert cal.read_bytes() == before
+    r = run_cli("apply", cal, rec, "-o", tmp_path / "h.csv")
+    assert r.returncode == 0, r.stderr
+    r = run_cli("apply", cal, tmp_path / "h.csv", "-o", tmp_path / "hh.csv")
+    assert r.returncode == 2 and "already has column(s) hx, hy, hz" in r.stderr
+    data = json.loads(before)
+    data["summary"]["converged"] = False
+    (tmp_path / "nc.json").write_text(json.dumps(data))
+    r = run_cli("apply", tmp_path / "nc.json", rec, "-o", tmp_path / "nc.csv")
+    assert r.returncode == 0 and "did not converge" in r.stdout
+    data["summary"] = None
+    (tmp_path / "bad.json").write_text(json.dumps(data))
+    r = run_cli("apply", tmp_path / "bad.json", rec, "-o", tmp_path / "bad.csv")
+    assert r.returncode == 2 and "summary None must be a JSON object" in r.stderr and "Traceback" not in r.stderr
+    # the same unit spelled µT and uT: read as one
+    m = fluxcal.read_csv(rec)
+    micro = tmp_path / "micro.csv"
+    micro.write_text("mx [µT],my [µT],mz [µT]\n" + "\n".join(
+        f"{x / 1000},{y / 1000},{z / 1000}" for x, y, z in m.samples()[:50]) + "\n")
+    r = run_cli("apply", cal, micro, "-o", tmp_path / "micro_h.csv")
+    assert r.returncode == 0 and "converted to the calibration's nT" in r.stdout, r.stdout + r.stderr

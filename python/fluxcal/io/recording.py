@@ -166,7 +166,7 @@ class Recording:
         if columns is not None:
             self.select(columns.split(",") if isinstance(columns, str) else columns)
         if units:
-            stated = {self.units[n] for n in self.mag_names() if self.units.get(n)}
+            stated = {unit_name(self.units[n]) for n in self.mag_names() if self.units.get(n)}
             if stated and stated != {unit_name(units)}:  # the file's own statement wins over a default
                 raise ValueError(f"{self.source}: units {units!r} given, but the file states the magnetometer in "
                                  f"{', '.join(sorted(stated))}; leave the units out, or correct the file's header")
@@ -230,9 +230,16 @@ class Recording:
         """Where a row is, for a message: its line in the file ("line 14"), else its index ("row 11")."""
         return f"line {self.line_numbers[row]}" if self.line_numbers is not None else f"row {row}"
 
+    def stated_field_norm(self):
+        """The field norm a `fluxcal simulate` recording states in its metadata, or None."""
+        if "simulated" in self.metadata and "field_norm" in self.metadata:
+            return float(self.metadata["field_norm"])
+        return None
+
     def field_units(self) -> str:
         """The unit of the magnetometer columns ("" when the recording does not state it)."""
-        units = {self.units.get(n, "") for n in self.mag_names()}
+        # one spelling per unit (µT, uTesla, nanotesla, gauss → uT, nT, G): a calibration compares them by name
+        units = {unit_name(self.units[n]) if self.units.get(n) else "" for n in self.mag_names()}
         if len(units) > 1:
             raise ValueError(f"{self.source}: magnetometer columns have different units {sorted(units)}")
         return units.pop()
