@@ -10,7 +10,10 @@
 //                    turned by up to 2°.
 //   BM_ClosedForm    seed 002's sums (N = 12 only).
 //   BM_Accelerometer calibrate_accelerometer on N static readings (Ceres, 9 parameters).
+//   BM_AlignToGravity align_to_gravity (alignment.hpp) on the true field in the body axes with 5 nT noise and
+//                    the accelerometer's readings (N = 1000, 100000: uniformly random attitudes).
 // Items processed = positions.
+#include "fluxcal/alignment.hpp"
 #include "fluxcal/positions.hpp"
 
 #include <benchmark/benchmark.h>
@@ -25,7 +28,7 @@ namespace {
 constexpr double kDeg = M_PI / 180.0;
 
 struct Scene {
-  fluxcal::Samples U, acc;
+  fluxcal::Samples U, acc, body_field;
   std::vector<Eigen::Matrix3d> nominal;
   Eigen::Vector3d field;  // ned
 };
@@ -45,6 +48,7 @@ const Scene& scene(std::int64_t n) {
   s.field = Eigen::Vector3d(52200.0 * std::cos(52 * kDeg), 0.0, 52200.0 * std::sin(52 * kDeg));
   s.U.resize(n, 3);
   s.acc.resize(n, 3);
+  s.body_field.resize(n, 3);
   const auto twelve = fluxcal::twelve_positions(fluxcal::Frame::ned);
   for (std::int64_t i = 0; i < n; ++i) {
     Eigen::Matrix3d nominal, truth;
@@ -59,6 +63,7 @@ const Scene& scene(std::int64_t n) {
     s.nominal.push_back(nominal);
     s.U.row(i) = (U0 + K * truth.transpose() * s.field + 0.45 * Eigen::Vector3d(g(rng), g(rng), g(rng))).transpose();
     s.acc.row(i) = (9.80665 * truth.transpose() * fluxcal::local_up(fluxcal::Frame::ned)).transpose();
+    s.body_field.row(i) = (truth.transpose() * s.field + 5.0 * Eigen::Vector3d(g(rng), g(rng), g(rng))).transpose();
   }
   return cache.emplace(n, std::move(s)).first->second;
 }
@@ -89,10 +94,17 @@ void BM_Accelerometer(benchmark::State& state) {
   state.SetItemsProcessed(state.iterations() * state.range(0));
 }
 
+void BM_AlignToGravity(benchmark::State& state) {
+  const Scene& s = scene(state.range(0));
+  for (auto _ : state) benchmark::DoNotOptimize(fluxcal::align_to_gravity(s.body_field, s.acc));
+  state.SetItemsProcessed(state.iterations() * state.range(0));
+}
+
 BENCHMARK(BM_Linear)->Arg(12)->Arg(1000)->Unit(benchmark::kMicrosecond);
 BENCHMARK(BM_JointYaw)->Arg(12)->Arg(1000)->Unit(benchmark::kMicrosecond);
 BENCHMARK(BM_ClosedForm)->Unit(benchmark::kMicrosecond);
 BENCHMARK(BM_Accelerometer)->Arg(12)->Arg(1000)->Unit(benchmark::kMicrosecond);
+BENCHMARK(BM_AlignToGravity)->Arg(1000)->Arg(100000)->Unit(benchmark::kMicrosecond);
 
 }  // namespace
 

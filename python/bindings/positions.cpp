@@ -1,6 +1,8 @@
-// Bindings of positions.hpp (multi-position calibration, accelerometer calibration).
+// Bindings of positions.hpp (multi-position calibration, accelerometer calibration) and alignment.hpp (the
+// magnetometer turned onto the accelerometer).
 #include "bindings.hpp"
 
+#include <fluxcal/alignment.hpp>
 #include <fluxcal/positions.hpp>
 
 using namespace pybind11::literals;
@@ -110,6 +112,30 @@ void bind_positions(py::module_& m) {
                         "summary"_a = summary_dict(r.summary));
       },
       "readings"_a.noconvert(), "gravity"_a, "max_iterations"_a);
+
+  py::class_<fluxcal::AlignmentOptions>(m, "AlignmentOptions")
+      .def(py::init<>())
+      .def_readwrite("max_dynamic", &fluxcal::AlignmentOptions::max_dynamic)
+      .def_readwrite("max_iterations", &fluxcal::AlignmentOptions::max_iterations)
+      .def_readwrite("tolerance", &fluxcal::AlignmentOptions::tolerance)
+      .def_readwrite("max_se_deg", &fluxcal::AlignmentOptions::max_se_deg)
+      .def_readwrite("noise_bias_correction", &fluxcal::AlignmentOptions::noise_bias_correction);
+  m.def(
+      "align_to_gravity",
+      [](const fluxcal::SamplesView& field, const fluxcal::SamplesView& specific_force,
+         const fluxcal::AlignmentOptions& options) {
+        fluxcal::AlignmentResult r;
+        {
+          py::gil_scoped_release release;
+          r = fluxcal::align_to_gravity(field, specific_force, options);
+        }
+        return py::dict("rotation"_a = r.rotation, "rotation_vector"_a = r.rotation_vector, "dip"_a = r.dip,
+                        "covariance"_a = r.covariance, "standard_errors"_a = r.standard_errors,
+                        "residual_rms"_a = r.residual_rms, "readings_used"_a = r.readings_used,
+                        "residuals"_a = r.residuals,
+                        "identifiable"_a = r.identifiable, "summary"_a = summary_dict(r.summary));
+      },
+      "field"_a.noconvert(), "specific_force"_a.noconvert(), "options"_a);
 }
 
 }  // namespace fluxcal_py

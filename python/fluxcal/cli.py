@@ -271,9 +271,13 @@ def cmd_calibrate(args) -> int:
         if len(raw) >= 40:
             cal.summary["held_out_rms"] = _held_out_rms(raw, reference, cal.units,
                                                         cal.summary.get("outliers", {}).get("rows", []))
+    if args.align_accelerometer:
+        cal = _aligned(cal, rec, raw, args.file)
     if args.output:  # before the report: a reader that stops early (| head) must not cost the calibration
         path = cal.save(args.output)
     _report(cal, raw)
+    if args.align_accelerometer:
+        print(_alignment_line(cal.summary["alignment"]))
     if args.output:
         print(f"wrote {path}")
     if args.plot:
@@ -285,6 +289,32 @@ def cmd_calibrate(args) -> int:
               file=sys.stderr)
         return 3
     return 0
+
+
+def _aligned(cal: Calibration, rec, raw: np.ndarray, file) -> Calibration:
+    """`cal` turned into the accelerometer's axes (--align-accelerometer); the fit's outliers left out."""
+    from .alignment import align_to_gravity
+
+    if "reference" in cal.metadata:
+        raise ValueError(f"{file}: --align-accelerometer: the vector fit already corrects into the reference's axes")
+    acc = rec.acceleration()
+    if acc is None:
+        raise ValueError(f"{file}: --align-accelerometer needs accelerometer columns (ax,ay,az, AccX…); the "
+                         f"recording has {', '.join(rec.columns)}")
+    keep = np.ones(len(raw), dtype=bool)
+    keep[list(cal.summary.get("outliers", {}).get("rows", []))] = False
+    keep &= np.isfinite(acc).all(axis=1)
+    try:
+        return align_to_gravity(cal.apply(raw[keep]), acc[keep]).calibration(cal)
+    except ValueError as exc:
+        raise ValueError(f"{file}: --align-accelerometer: {exc}") from None
+
+
+def _alignment_line(a: dict) -> str:
+    se = ", ".join(f"{axis} ±{v:.2g}°" for axis, v in zip("xyz", a["rotation_se_deg"]))
+    line = (f"aligned to the accelerometer: turned {a['rotation_deg']:.3g}° ({se}), dip {a['dip_deg']:.4g}° "
+            f"± {a['dip_se_deg']:.2g}°, from {a['readings_used']} readings at rest")
+    return "\n".join([line] + [f"  warning: {w}" for w in a["warnings"]])
 
 
 def _same_file(a, b) -> bool:
@@ -844,6 +874,10 @@ def build_parser() -> argparse.ArgumentParser:
     c.add_argument("--serial-correlation", default=None, choices=["automatic", "independent", "newey_west"],
                    help="standard errors: automatic (default) widens them (Newey-West) when the readings are "
                         "correlated in time; independent when the rows are not in time order")
+    c.add_argument("--align-accelerometer", action="store_true",
+                   help="also turn the magnetometer's axes onto the accelerometer's (its columns ax,ay,az or "
+                        "AccX…), from the dip that stays the same at rest in every attitude; the calibration "
+                        "then corrects into the accelerometer's axes (fluxcal.alignment)")
     c.add_argument("-o", "--output", help="write the calibration (JSON)")
     c.add_argument("--plot", help="write a before/after plot (PNG)")
     c.set_defaults(run=cmd_calibrate)

@@ -1,0 +1,235 @@
+// Magnetometer-to-accelerometer alignment from the dip (alignment.hpp for the model).
+#include "fluxcal/alignment.hpp"
+
+#include "checks.hpp"
+
+#include <Eigen/SVD>
+
+#include <algorithm>
+#include <cmath>
+#include <limits>
+
+namespace fluxcal {
+namespace {
+
+constexpr double kDeg = 180.0 / 3.14159265358979323846;
+
+Eigen::Matrix3d exp_rotation(const Eigen::Vector3d& theta) {
+  const double angle = theta.norm();
+  if (angle < 1e-300) return Eigen::Matrix3d::Identity();
+  return Eigen::AngleAxisd(angle, theta / angle).toRotationMatrix();
+}
+
+/// The nearest rotation to M (Frobenius), through its SVD.
+Eigen::Matrix3d nearest_rotation(const Eigen::Matrix3d& m) {
+  Eigen::JacobiSVD<Eigen::Matrix3d> svd(m, Eigen::ComputeFullU | Eigen::ComputeFullV);
+  Eigen::Matrix3d d = Eigen::Matrix3d::Identity();
+  d(2, 2) = (svd.matrixU() * svd.matrixV().transpose()).determinant() < 0 ? -1.0 : 1.0;
+  return svd.matrixU() * d * svd.matrixV().transpose();
+}
+
+double cost(const Samples& down, const Samples& dir, const Eigen::Matrix3d& r, double dip) {
+  return ((down * r).cwiseProduct(dir).rowwise().sum().array() - std::sin(dip)).square().sum();
+}
+
+struct Fit {
+  Eigen::Matrix3d rotation;
+  double dip = 0.0, cost = 0.0, sigma2 = 0.0;
+  int iterations = 0;
+  bool converged = false, identifiable = false;
+  Eigen::Matrix4d covariance = Eigen::Matrix4d::Zero();
+};
+
+/// Levenberg's damped Gauss–Newton on R = exp([θ]×) R and δ. The damping (μ × the largest curvature) keeps steps
+/// along a direction the data barely see (a rotation about the vertical, for level turns) from wandering.
+Fit gauss_newton(const Samples& down, const Samples& dir, Eigen::Matrix3d r, double dip,
+                 const AlignmentOptions& options) {
+  Fit fit;
+  double current = cost(down, dir, r, dip), mu = 1e-6;
+  while (fit.iterations < options.max_iterations) {
+    Eigen::Matrix4d jtj = Eigen::Matrix4d::Zero();
+    Eigen::Vector4d jte = Eigen::Vector4d::Zero();
+    for (Eigen::Index k = 0; k < down.rows(); ++k) {
+      const Eigen::Vector3d v = r * dir.row(k).transpose(), d = down.row(k).transpose();
+      Eigen::Vector4d j;
+      j << v.cross(d), -std::cos(dip);
+      jtj += j * j.transpose();
+      jte += j * (d.dot(v) - std::sin(dip));
+    }
+    ++fit.iterations;
+    const double scale = jtj.diagonal().maxCoeff();
+    bool accepted = false;
+    for (; mu <= 1e6 && !accepted; ) {
+      const Eigen::Matrix4d damped = jtj + mu * scale * Eigen::Matrix4d::Identity();
+      const Eigen::Vector4d step = -damped.ldlt().solve(jte);
+      const Eigen::Matrix3d r_try = exp_rotation(step.head<3>()) * r;
+      const double dip_try = dip + step(3), c = cost(down, dir, r_try, dip_try);
+      if (c < current) {
+        // a gain below 1e-10 of the cost moves the parameters by ~1e-5·√N of their standard errors: the minimum —
+        // when the step was nearly undamped (a heavily damped one gains little anywhere)
+        const bool done = mu <= 1e-3 && (current - c <= 1e-10 * current || step.norm() < options.tolerance);
+        r = r_try, dip = dip_try, current = c, mu = std::max(mu / 10, 1e-12), accepted = true;
+        if (done) fit.converged = true;
+      } else {
+        mu *= 10;
+      }
+    }
+    if (!accepted) fit.converged = true;  // no step lowers the cost: the minimum
+    if (fit.converged) break;
+  }
+  fit.rotation = r, fit.dip = dip, fit.cost = current;
+  return fit;
+}
+
+/// σ̂²(JᵀJ)⁻¹ at the fit (δ folded to |δ| ≤ 90° first: the same sin δ), and whether every standard error is
+/// within options.max_se_deg. A direction the data do not see (an eigenvalue near 0) gets a huge but finite
+/// variance.
+void covariance(const Samples& down, const Samples& dir, Fit& fit, const AlignmentOptions& options) {
+  if (std::cos(fit.dip) < 0) fit.dip = std::atan2(std::sin(fit.dip), std::abs(std::cos(fit.dip)));
+  Eigen::Matrix4d jtj = Eigen::Matrix4d::Zero();
+  for (Eigen::Index k = 0; k < down.rows(); ++k) {
+    const Eigen::Vector3d v = fit.rotation * dir.row(k).transpose(), d = down.row(k).transpose();
+    Eigen::Vector4d j;
+    j << v.cross(d), -std::cos(fit.dip);
+    jtj += j * j.transpose();
+  }
+  fit.sigma2 = fit.cost / static_cast<double>(std::max<Eigen::Index>(down.rows() - 4, 1));
+  Eigen::SelfAdjointEigenSolver<Eigen::Matrix4d> eig(jtj);
+  const Eigen::Vector4d lambda = eig.eigenvalues();
+  const Eigen::Vector4d inverse = lambda.cwiseMax(1e-12 * std::max(lambda(3), 1e-300)).cwiseInverse();
+  fit.covariance = fit.sigma2 * eig.eigenvectors() * inverse.asDiagonal() * eig.eigenvectors().transpose();
+  fit.identifiable = (fit.covariance.diagonal().cwiseMax(0.0).cwiseSqrt() * kDeg).maxCoeff() <= options.max_se_deg;
+}
+
+}  // namespace
+
+AlignmentResult align_to_gravity(const SamplesRef& field, const SamplesRef& specific_force,
+                                 const AlignmentOptions& options) {
+  field.require_width("field");
+  specific_force.require_width("specific_force");
+  if (!(options.max_iterations >= 1))
+    throw Error("AlignmentOptions::max_iterations: " + std::to_string(options.max_iterations) + ", need ≥ 1");
+  if (!(options.tolerance > 0) || !(options.max_se_deg > 0) || std::isnan(options.max_dynamic))
+    throw Error("AlignmentOptions: tolerance " + detail::num(options.tolerance) + " and max_se_deg " +
+                detail::num(options.max_se_deg) + " must be positive, max_dynamic a number");
+  check_samples(field, "field", 8, "to fix a rotation and the dip");
+  check_samples(specific_force, "specific_force", 8, "to fix a rotation and the dip");
+  if (field.rows() != specific_force.rows())
+    throw Error("specific_force: " + std::to_string(specific_force.rows()) + " rows, field has " +
+                std::to_string(field.rows()) + " (one accelerometer reading per field reading)");
+  const Eigen::VectorXd field_norm = field.rowwise().norm(), force_norm = specific_force.rowwise().norm();
+  for (Eigen::Index k = 0; k < field.rows(); ++k) {
+    if (!(field_norm(k) > 0)) throw Error("field: row " + std::to_string(k) + " is zero (no direction)");
+    if (!(force_norm(k) > 0)) throw Error("specific_force: row " + std::to_string(k) + " is zero (no direction)");
+  }
+
+  // Static readings only: |f| near its median (the device was not accelerating).
+  Eigen::VectorXd sorted = force_norm;
+  std::sort(sorted.data(), sorted.data() + sorted.size());
+  const double median = sorted(sorted.size() / 2);
+  std::vector<Eigen::Index> keep;
+  for (Eigen::Index k = 0; k < field.rows(); ++k)
+    if (options.max_dynamic <= 0 || std::abs(force_norm(k) - median) <= options.max_dynamic * median) keep.push_back(k);
+  const auto n = static_cast<Eigen::Index>(keep.size());
+  if (n < 8)
+    throw Error("specific_force: " + std::to_string(n) + " of " + std::to_string(field.rows()) +
+                " readings have |f| within " + detail::percent(options.max_dynamic) +
+                " of the median: the device was moving; need at least 8 at rest (or raise max_dynamic)");
+  Samples down(n, 3), dir(n, 3);
+  for (Eigen::Index i = 0; i < n; ++i) {
+    down.row(i) = -specific_force.row(keep[i]) / force_norm(keep[i]);
+    dir.row(i) = field.row(keep[i]) / field_norm(keep[i]);
+  }
+
+  AlignmentResult result;
+  result.readings_used = static_cast<std::size_t>(n);
+  Summary& s = result.summary;
+  s.samples = result.readings_used;
+  if (n < field.rows())
+    s.warnings.push_back(std::to_string(field.rows() - n) + " of " + std::to_string(field.rows()) +
+                         " readings left out: |f| more than " + detail::percent(options.max_dynamic) +
+                         " from its median (the device was accelerating)");
+
+  // Start: d_kᵀ M ĥ_k − s = 0 for all k, the unit vector (vec M, s) of least residual.
+  Eigen::Matrix<double, Eigen::Dynamic, 10> a(n, 10);
+  for (Eigen::Index k = 0; k < n; ++k) {
+    for (int i = 0; i < 3; ++i)
+      for (int j = 0; j < 3; ++j) a(k, 3 * i + j) = down(k, i) * dir(k, j);
+    a(k, 9) = -1.0;
+  }
+  const Eigen::Matrix<double, 10, 10> ata = a.transpose() * a;
+  Eigen::SelfAdjointEigenSolver<Eigen::Matrix<double, 10, 10>> smallest(ata);
+  Eigen::Matrix<double, 10, 1> x = smallest.eigenvectors().col(0);
+  Eigen::Matrix3d m;
+  m << x(0), x(1), x(2), x(3), x(4), x(5), x(6), x(7), x(8);
+  if (m.determinant() < 0) {
+    m = -m;
+    x = -x;
+  }
+  const double scale = Eigen::JacobiSVD<Eigen::Matrix3d>(m).singularValues().mean();
+  double dip = std::asin(std::clamp(scale > 0 ? x(9) / scale : 0.0, -1.0, 1.0));
+
+  // Damped Gauss–Newton from there and from R = I (a mounting is usually nearly aligned). Where the data leave a
+  // direction undetermined (turns about one axis), both land somewhere along it — the linear start anywhere,
+  // even on the mirror family (R flipped 180° about a horizontal axis, the dip negated) — and the answer nearest
+  // the axes as mounted is kept: the R = I one. Otherwise the linear start wins when it ends clearly lower
+  // (another minimum: axes relabelled or turned far).
+  Eigen::VectorXd cosines = (down.cwiseProduct(dir)).rowwise().sum();
+  std::sort(cosines.data(), cosines.data() + cosines.size());
+  Fit linear = gauss_newton(down, dir, nearest_rotation(m), dip, options);
+  Fit aligned = gauss_newton(down, dir, Eigen::Matrix3d::Identity(),
+                             std::asin(std::clamp(cosines(cosines.size() / 2), -1.0, 1.0)), options);
+  for (Fit* f : {&linear, &aligned}) covariance(down, dir, *f, options);
+  const Fit& best = linear.identifiable != aligned.identifiable ? (linear.identifiable ? linear : aligned)
+                    : aligned.identifiable && linear.cost < 0.99 * aligned.cost ? linear : aligned;
+  s.iterations = best.iterations;
+  s.converged = best.converged;
+  const Eigen::Matrix3d r = best.rotation;
+  dip = best.dip;
+  const double current = best.cost, sigma2 = best.sigma2;
+  result.covariance = best.covariance;
+  result.standard_errors = result.covariance.diagonal().cwiseMax(0.0).cwiseSqrt();
+
+  // Noisy unit vectors are shorter along their true direction on average (E[ũ]·u ≈ 1 − σ², σ per axis), so
+  // d̃·R ĥ̃ averages sin δ (1 − σ_h² − σ_f²): the dip comes out low by ≈ σ² tan δ. σ_h² + σ_f² is the residual
+  // variance over cos²δ; dividing it out removes the bias (the rotation has none).
+  const double sigma2_total = sigma2 / std::max(std::pow(std::cos(dip), 2), 1e-12);
+  if (options.noise_bias_correction && sigma2_total < 0.5)
+    dip = std::asin(std::clamp(std::sin(dip) / (1.0 - sigma2_total), -1.0, 1.0));
+
+  result.residuals = Eigen::VectorXd::Constant(field.rows(), std::numeric_limits<double>::quiet_NaN());
+  for (Eigen::Index i = 0; i < n; ++i)
+    result.residuals(keep[i]) = down.row(i).dot(r * dir.row(i).transpose()) - std::sin(best.dip);
+  result.rotation = r;
+  const Eigen::AngleAxisd aa(r);
+  result.rotation_vector = aa.angle() * aa.axis();
+  result.dip = dip;
+  result.residual_rms = std::sqrt(current / static_cast<double>(n));
+  static const char* const kNames[] = {"x", "y", "z", "dip"};
+  std::vector<std::string> undetermined;
+  for (int i = 0; i < 4; ++i)
+    if (!(result.standard_errors(i) * kDeg <= options.max_se_deg))
+      undetermined.push_back(i < 3 ? std::string("the rotation about ") + kNames[i] : "the dip");
+  result.identifiable = undetermined.empty();
+  if (!result.identifiable) {
+    std::string list;
+    for (std::size_t i = 0; i < undetermined.size(); ++i) list += (i ? ", " : "") + undetermined[i];
+    s.warnings.push_back("not identifiable: " + list + " not determined to " + detail::num(options.max_se_deg) +
+                         "° (the attitudes did not move about every axis: tilt the device, not only turn it "
+                         "level; a rotation about the vertical needs tilts about two horizontal axes)");
+  }
+  if (dip < 0)
+    s.warnings.push_back("the dip is negative (the field points up): right in the southern hemisphere; in the "
+                         "northern one the magnetometer's axes are a mirror image of the accelerometer's (one axis "
+                         "reversed), which a rotation cannot undo — fix the axis signs, and the dip turns positive");
+  if (!s.converged)
+    s.warnings.push_back("not converged after " + std::to_string(s.iterations) + " iterations");
+  s.residual_rms = result.residual_rms;
+  s.cost = current / static_cast<double>(n);
+  s.message = "magnetometer to accelerometer: " + detail::num(aa.angle() * kDeg) + "° rotation, dip " +
+              detail::num(dip * kDeg) + "° (±" + detail::num(result.standard_errors(3) * kDeg) + "°), " +
+              std::to_string(n) + " static readings";
+  return result;
+}
+
+}  // namespace fluxcal

@@ -1,0 +1,199 @@
+"""fluxcal.alignment: the magnetometer's axes turned onto the accelerometer's from the dip — against the SciPy
+oracle, the simulation truth and the Cramér–Rao bound (Monte Carlo), what the data cannot determine, bad input,
+and the real phone recording (held out)."""
+import numpy as np
+import pytest
+from scipy.spatial.transform import Rotation
+
+import fluxcal
+from fluxcal import oracle
+from conftest import run_cli
+from fluxcal.alignment import align_to_gravity
+
+DIP = np.radians(62.0)
+
+
+def scene(rng, n=300, sigma_h=0.01, sigma_f=0.01, turn_deg=3.0, attitudes=None, dip=DIP):
+    """Static attitudes (uniform unless given), the Earth field at `dip` in NED, a magnetometer whose axes are
+    turned by `turn_deg` about a random axis from the accelerometer's; relative noise σ per axis on each."""
+    true_r = Rotation.from_rotvec(np.radians(turn_deg) * Rotation.random(random_state=rng).apply([1, 0, 0]))
+    body_to_ned = attitudes if attitudes is not None else Rotation.random(n, random_state=rng)
+    field_ned = np.array([np.cos(dip), 0.0, np.sin(dip)]) * 50.0
+    up_ned = np.array([0.0, 0.0, -9.81])                  # specific force at rest: up
+    field_acc = body_to_ned.inv().apply(field_ned)         # the field in the accelerometer's axes
+    field_mag = true_r.inv().apply(field_acc)              # ... and in the magnetometer's: h_acc = R h_mag
+    force = body_to_ned.inv().apply(up_ned)
+    field_mag = field_mag + 50.0 * sigma_h * rng.standard_normal(field_mag.shape)
+    force = force + 9.81 * sigma_f * rng.standard_normal(force.shape)
+    return field_mag, force, true_r.as_matrix(), body_to_ned
+
+
+def rotation_error(estimate, truth) -> np.ndarray:
+    """The small rotation (radians, accelerometer axes) taking the truth to the estimate."""
+    return Rotation.from_matrix(estimate @ truth.T).as_rotvec()
+
+
+def test_matches_the_scipy_oracle():
+    rng = np.random.default_rng(1)
+    h, f, _, _ = scene(rng)
+    a = align_to_gravity(h, f)
+    o = oracle.align_to_gravity(h, f)
+    assert np.linalg.norm(rotation_error(a.rotation, o["rotation"])) < 1e-8
+    assert np.radians(a.dip_deg) == pytest.approx(o["dip"], abs=1e-9)
+    np.testing.assert_allclose(a.covariance, o["covariance"], rtol=1e-5, atol=1e-14)
+    assert a.identifiable and a.summary["converged"] and a.readings_used == 300 and not a.summary["warnings"]
+
+
+def test_monte_carlo_within_the_bound_unbiased_and_honest_standard_errors():
+    """300 runs, N = 300, 1 % direction noise on each sensor: RMS error of each rotation axis and of the dip
+    within 1.15 √CRLB, mean within 0.2 √CRLB, reported SE against the spread within 15 %."""
+    rng = np.random.default_rng(7)
+    attitudes = Rotation.random(300, random_state=rng)  # one set of attitudes: the bound is for them
+    errors, ses = [], []
+    for _ in range(300):
+        h, f, truth, _ = scene(rng, attitudes=attitudes)
+        a = align_to_gravity(h, f)
+        errors.append(np.r_[rotation_error(a.rotation, truth), np.radians(a.dip_deg) - DIP])
+        ses.append(np.sqrt(np.diag(a.covariance)))
+    errors, ses = np.array(errors), np.array(ses)
+    field_dirs = attitudes.inv().apply(np.array([np.cos(DIP), 0.0, np.sin(DIP)]))
+    down = attitudes.inv().apply([0.0, 0.0, 1.0])
+    bound = np.sqrt(np.diag(oracle.alignment.crlb(field_dirs, down, np.eye(3), DIP, np.hypot(0.01, 0.01))))
+    rms = np.sqrt(np.mean(errors ** 2, axis=0))
+    assert np.all(rms <= 1.15 * bound), (rms, bound)
+    assert np.all(np.abs(errors.mean(axis=0)) <= 0.2 * bound), (errors.mean(axis=0), bound)
+    ratio = ses.mean(axis=0) / errors.std(axis=0)
+    assert np.all(np.abs(ratio - 1) <= 0.15), ratio
+
+
+def test_a_level_turn_leaves_the_rotation_about_the_vertical_undetermined():
+    """Turned about the vertical only (a compass swung level): the heading offset cannot be seen."""
+    rng = np.random.default_rng(3)
+    yaws = Rotation.from_euler("z", rng.uniform(0, 360, (200, 1)), degrees=True)
+    h, f, _, _ = scene(rng, n=200, attitudes=yaws)
+    a = align_to_gravity(h, f)
+    assert not a.identifiable
+    assert "not identifiable: the rotation about z" in a.summary["warnings"][0]
+    assert a.rotation_se_deg[2] > 1.0 and "tilt the device" in a.summary["warnings"][0]
+    assert a.dip_deg > 0  # the answer nearest the axes as mounted, not its mirror (R flipped, the dip negated)
+
+
+@pytest.mark.parametrize("turn_deg", [40.0, 120.0, 179.0])
+def test_axes_turned_far_are_found(turn_deg):
+    """A sensor mounted turned (a board on its side, axes relabelled): the linear start finds the minimum that
+    a start at R = I would miss."""
+    rng = np.random.default_rng(int(turn_deg))
+    h, f, truth, _ = scene(rng, turn_deg=turn_deg)
+    a = align_to_gravity(h, f)
+    error = np.degrees(rotation_error(a.rotation, truth))
+    assert np.all(np.abs(error) < 4.5 * a.rotation_se_deg), (error, a.rotation_se_deg)
+    assert abs(a.rotation_deg - turn_deg) < 0.5 and a.identifiable
+
+
+def test_mirrored_axes_are_named():
+    """A magnetometer z axis wired reversed: no rotation undoes a mirror; the fit lands on the negative dip."""
+    rng = np.random.default_rng(4)
+    h, f, _, _ = scene(rng)
+    a = align_to_gravity(h * [1, 1, -1], f)
+    assert a.dip_deg < 0 and any("mirror image" in w for w in a.summary["warnings"])
+
+
+def test_moving_readings_are_left_out_and_said():
+    rng = np.random.default_rng(5)
+    h, f, truth, _ = scene(rng)
+    f[:40] *= 1.3  # 40 readings while the device was being moved: |f| 30 % off
+    a = align_to_gravity(h, f)
+    assert a.readings_used == 260 and "40 of 300 readings left out" in a.summary["warnings"][0]
+    assert np.degrees(np.linalg.norm(rotation_error(a.rotation, truth))) < 5 * a.rotation_se_deg.max()
+
+
+def test_folds_into_a_calibration():
+    rng = np.random.default_rng(6)
+    h, f, _, _ = scene(rng)
+    cal = fluxcal.Calibration(offset=[1.0, -2.0, 0.5], matrix=np.diag([1.1, 0.9, 1.0]), field_norm=50.0, units="uT")
+    m = cal.reading(h) if hasattr(cal, "reading") else h @ np.linalg.inv(cal.matrix).T + cal.offset
+    a = align_to_gravity(cal.apply(m), f)
+    aligned = a.calibration(cal)
+    np.testing.assert_allclose(aligned.apply(m), a.apply(cal.apply(m)), atol=1e-12)
+    assert aligned.summary["alignment"]["dip_deg"] == a.dip_deg and aligned.units == "uT"
+
+
+@pytest.mark.parametrize("change, message", [
+    (lambda h, f: (np.where(np.arange(len(h))[:, None] == 5, np.nan, h), f), "field: row 5"),
+    (lambda h, f: (h, f[:-1]), "specific_force: 299 rows, field has 300"),
+    (lambda h, f: (h[:7], f[:7]), "at least 8"),
+    (lambda h, f: (h[:60], f[:60] * np.linspace(0.5, 1.5, 60)[:, None]), "the device was moving"),
+    (lambda h, f: (h * np.r_[0.0, np.ones(len(h) - 1)][:, None], f), "field: row 0 is zero"),
+    (lambda h, f: (h[:, :2], f), "field: shape"),
+])
+def test_bad_input_is_named(change, message):
+    h, f, _, _ = scene(np.random.default_rng(8))
+    with pytest.raises(ValueError, match=message):
+        align_to_gravity(*change(h, f))
+    with pytest.raises(TypeError, match="unknown option"):
+        align_to_gravity(h, f, max_dynamics=0.1)
+
+
+def test_real_phone_recording_held_out(real_data):
+    """The phone recording (accelerometer + magnetometer, turned by hand): aligned on the static readings of
+    the first half, the dip of the second half's static readings scatters less than with the axes as they are.
+    A magnitude calibration cannot do this: the dip is what the axes' rotation changes."""
+    rec = fluxcal.read_recording(real_data / "phone_acc_mag.csv")
+    m = np.c_[rec.columns["mx"], rec.columns["my"], rec.columns["mz"]]
+    acc = np.c_[rec.columns["ax"], rec.columns["ay"], rec.columns["az"]]
+    half = len(m) // 2
+    cal = fluxcal.calibrate(m[:half])
+    a = align_to_gravity(cal.apply(m[:half]), acc[:half])
+    assert a.identifiable and a.summary["converged"]
+
+    def dip_spread(rotation):
+        h, f = cal.apply(m[half:]), acc[half:]
+        static = np.abs(np.linalg.norm(f, axis=1) / np.median(np.linalg.norm(f, axis=1)) - 1) <= 0.05
+        down = -f[static] / np.linalg.norm(f[static], axis=1, keepdims=True)
+        u = h[static] @ rotation.T
+        return np.degrees(np.std(np.arcsin(np.sum(down * u, axis=1) / np.linalg.norm(u, axis=1))))
+
+    before, after = dip_spread(np.eye(3)), dip_spread(a.rotation)
+    assert after < before, (before, after)
+
+
+def test_command_line_aligns_a_calibration_to_the_accelerometer(real_data, tmp_path):
+    out = tmp_path / "phone.json"
+    r = run_cli("calibrate", real_data / "phone_acc_mag.csv", "--align-accelerometer", "-o", out)
+    assert r.returncode == 0, r.stderr
+    assert "aligned to the accelerometer: turned" in r.stdout and "readings at rest" in r.stdout
+    cal = fluxcal.Calibration.load(out)
+    assert cal.summary["alignment"]["identifiable"] and "accelerometer axes" in cal.metadata["frame"]
+    assert not np.allclose(cal.matrix, cal.matrix.T)  # a rotation folded in: no longer symmetric
+    r = run_cli("calibrate", real_data / "handheld_set1.csv", "--align-accelerometer")
+    assert r.returncode == 2 and "needs accelerometer columns" in r.stderr and "Traceback" not in r.stderr
+
+
+def test_readings_correlated_in_time_widen_the_standard_errors():
+    """A slow continuous tumble (1.5° steps) with AR(1) noise φ 0.9 on both sensors: σ̂²(JᵀJ)⁻¹ alone would be
+    about 4× too small; widened by (1 + ρ)/(1 − ρ) the reported SEs match the Monte-Carlo spread (100 runs)."""
+    from scipy.signal import lfilter
+
+    rng = np.random.default_rng(11)
+    n = 2000
+    steps = Rotation.from_rotvec(np.radians(1.5) * rng.standard_normal((n, 3)))
+    attitudes = [Rotation.identity()]
+    for step in steps[1:]:
+        attitudes.append(attitudes[-1] * step)
+    attitudes = Rotation.concatenate(attitudes)
+    field_acc = attitudes.inv().apply(50 * np.array([np.cos(DIP), 0, np.sin(DIP)]))
+    force = attitudes.inv().apply([0, 0, -9.81])
+    errors, ses = [], []
+    for _ in range(100):
+        truth = Rotation.from_rotvec(np.radians(3) * Rotation.random(random_state=rng).apply([1, 0, 0]))
+        noise = [lfilter([1], [1, -0.9], rng.standard_normal((n, 3)), axis=0) * np.sqrt(1 - 0.81) * s
+                 for s in (0.5, 0.098)]
+        a = align_to_gravity(truth.inv().apply(field_acc) + noise[0], force + noise[1])
+        assert any("correlated in time" in w for w in a.summary["warnings"])
+        errors.append(np.r_[rotation_error(a.rotation, truth.as_matrix()), np.radians(a.dip_deg) - DIP])
+        ses.append(np.sqrt(np.diag(a.covariance)))
+    ratio = np.mean(ses, axis=0) / np.std(errors, axis=0)
+    assert np.all((ratio > 0.85) & (ratio < 1.3)), ratio
+    plain = align_to_gravity(truth.inv().apply(field_acc) + noise[0], force + noise[1],
+                             serial_correlation="independent")
+    assert np.all(plain.rotation_se_deg < 0.6 * a.rotation_se_deg)
