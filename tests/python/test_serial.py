@@ -228,15 +228,21 @@ def test_recorder_finishes_its_file_through_a_second_ctrl_c(tmp_path, monkeypatc
     assert path.read_text().splitlines()[-1].startswith("# note: summary: 0 records")
 
 
+def _recording_started(path):
+    """`fluxcal record` of a loop:// port into `path`, once its header is written (its signal handlers are set)."""
+    proc = subprocess.Popen([sys.executable, "-m", "fluxcal", "record", "--port", "loop://", "-o", str(path),
+                             "--duration", "30"], stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    end = time.monotonic() + 20
+    while time.monotonic() < end and not (path.exists() and "\nt_host," in path.read_text()):
+        time.sleep(0.02)
+    return proc
+
+
 def test_record_sigterm_and_sighup_stop_like_ctrl_c(tmp_path):
     """A kill (SIGTERM) or a closed terminal (SIGHUP) ends the recording with its summary and report."""
     for sig, said in ((signal.SIGTERM, "terminated (SIGTERM)"), (signal.SIGHUP, "hung up (SIGHUP)")):
         path = tmp_path / f"{sig.name}.csv"
-        proc = subprocess.Popen([sys.executable, "-m", "fluxcal", "record", "--port", "loop://", "-o", str(path),
-                                 "--duration", "30"], stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
-        end = time.monotonic() + 20
-        while time.monotonic() < end and not (path.exists() and "\nt_host," in path.read_text()):
-            time.sleep(0.05)
+        proc = _recording_started(path)
         proc.send_signal(sig)
         stdout, stderr = proc.communicate(timeout=20)
         assert f"Stopped: {said}." in stdout, stdout + stderr
@@ -248,11 +254,7 @@ def test_record_ctrl_c_twice_ends_with_its_report_not_killed(tmp_path):
     while the report was printed: the process died by SIGINT (exit −2). The command line keeps it ignored."""
     for gap in (0.05, 0.1):
         path = tmp_path / f"twice_{gap}.csv"
-        proc = subprocess.Popen([sys.executable, "-m", "fluxcal", "record", "--port", "loop://", "-o", str(path),
-                                 "--duration", "30"], stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
-        end = time.monotonic() + 20
-        while time.monotonic() < end and not (path.exists() and "\nt_host," in path.read_text()):
-            time.sleep(0.02)
+        proc = _recording_started(path)
         proc.send_signal(signal.SIGINT)
         time.sleep(gap)
         proc.send_signal(signal.SIGINT)
