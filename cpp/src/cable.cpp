@@ -287,7 +287,7 @@ CableRing CableRing::rotated(double angle) const {
 
 Eigen::Matrix<double, Eigen::Dynamic, 2, Eigen::RowMajor> cable_field(const CableRing& ring,
                                                                       const ConductorPositionsRef& positions,
-                                                                      const Eigen::Ref<const Eigen::VectorXd>& currents) {
+                                                                      const SeriesRef& currents) {
   ring.validate();
   positions.require_width("positions");
   if (positions.rows() < 1) throw Error("positions: no conductors");
@@ -301,7 +301,7 @@ Eigen::Matrix<double, Eigen::Dynamic, 2, Eigen::RowMajor> cable_field(const Cabl
 }
 
 Eigen::MatrixXd cable_field_jacobian(const CableRing& ring, const ConductorPositionsRef& positions,
-                                     const Eigen::Ref<const Eigen::VectorXd>& currents) {
+                                     const SeriesRef& currents) {
   cable_field(ring, positions, currents);  // the same checks
   return jacobian_kernel(ring, positions, currents);
 }

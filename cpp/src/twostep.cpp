@@ -153,7 +153,7 @@ Readings2D TwoStep2DResult::apply_rows(const Readings2DRef& readings) const {
   return (readings.rowwise() - offset.transpose()) * gain.cwiseInverse().asDiagonal();
 }
 
-TwoStep2DResult twostep_2d(const Readings2DRef& readings, const Eigen::Ref<const Eigen::VectorXd>& field_norms,
+TwoStep2DResult twostep_2d(const Readings2DRef& readings, const SeriesRef& field_norms,
                            const TwoStep2DOptions& options) {
   check_2d(readings, field_norms, options);
   const Eigen::Index n = readings.rows();

@@ -104,7 +104,7 @@ py::dict foct_dict(const fluxcal::FoctResult& r) {
 }
 
 void bind_foct(py::module_& m) {
-  using fluxcal::SeriesRef;
+  using SeriesRef = fluxcal::SeriesRef::Base;  // what NumPy maps to; the core's checked SeriesRef wraps it
   py::class_<fluxcal::PreprocessOptions>(m, "PreprocessOptions")
       .def(py::init<>())
       .def_readwrite("subseries", &fluxcal::PreprocessOptions::subseries)
@@ -140,7 +140,7 @@ void bind_foct(py::module_& m) {
     {
       py::gil_scoped_release release;
       if (temp_outside) {
-        const SeriesRef outside(*temp_outside);
+        const fluxcal::SeriesRef outside(*temp_outside);
         r = fluxcal::fit_foct(zero_bias, temp, &outside, options);
       } else {
         r = fluxcal::fit_foct(zero_bias, temp, nullptr, options);
@@ -154,7 +154,7 @@ void bind_foct(py::module_& m) {
                               const std::optional<Eigen::VectorXd>& temp_outside) {
     const fluxcal::DriftModel model = model_from(segments);
     if (!temp_outside) return fluxcal::compensate_zero_bias(model, regressor, zero_bias, temp);
-    const SeriesRef outside(*temp_outside);
+    const fluxcal::SeriesRef outside(*temp_outside);
     return fluxcal::compensate_zero_bias(model, regressor, zero_bias, temp, &outside);
   }, "segments"_a, "regressor"_a, "zero_bias"_a.noconvert(), "temp"_a.noconvert(), "temp_outside"_a = py::none());
   m.def("foct_level_means", [](const SeriesRef& values, const SeriesRef& temp, double step) {
@@ -162,7 +162,9 @@ void bind_foct(py::module_& m) {
     for (const auto& l : fluxcal::level_means(values, temp, step)) out[py::float_(l.level)] = l.mean;
     return out;
   }, "values"_a.noconvert(), "temp"_a.noconvert(), "step"_a = 5.0);
-  m.def("foct_drift_span", &fluxcal::drift_span, "values"_a.noconvert(), "temp"_a.noconvert(), "step"_a = 5.0);
+  m.def("foct_drift_span", [](const SeriesRef& values, const SeriesRef& temp, double step) {
+    return fluxcal::drift_span(values, temp, step);
+  }, "values"_a.noconvert(), "temp"_a.noconvert(), "step"_a = 5.0);
   m.def("kalman_dc_gain", [](const Eigen::VectorXd& a, double q, double r, const fluxcal::KalmanOptions& options) {
     return fluxcal::kalman_dc_gain(fluxcal::ArKalman(a, q, r, options));
   }, "a"_a, "q"_a, "r"_a, "options"_a);
@@ -175,14 +177,16 @@ void bind_foct(py::module_& m) {
 // ==== end of the foct.hpp section ====================================================================
 
 void bind_timeseries(py::module_& m) {
-  using fluxcal::SeriesRef;
+  using SeriesRef = fluxcal::SeriesRef::Base;  // what NumPy maps to; the core's checked SeriesRef wraps it
   m.def("ts_zero_mean", [](const SeriesRef& x) {
     double mean = 0.0;
     Eigen::VectorXd z = fluxcal::zero_mean(x, &mean);
     return py::make_tuple(z, mean);
   }, "x"_a.noconvert());
-  m.def("ts_difference", &fluxcal::difference, "x"_a.noconvert(), "order"_a);
-  m.def("ts_remove_trend", &fluxcal::remove_trend, "x"_a.noconvert(), "degree"_a);
+  m.def("ts_difference", [](const SeriesRef& x, int order) { return fluxcal::difference(x, order); },
+        "x"_a.noconvert(), "order"_a);
+  m.def("ts_remove_trend", [](const SeriesRef& x, int degree) { return fluxcal::remove_trend(x, degree); },
+        "x"_a.noconvert(), "degree"_a);
   m.def("ts_reverse_arrangement", [](const SeriesRef& x, int subseries, double threshold) {
     const auto r = fluxcal::reverse_arrangement(x, subseries, threshold);
     return py::dict("subseries"_a = r.subseries, "arrangements"_a = r.arrangements, "expected"_a = r.expected,

@@ -253,3 +253,16 @@ TEST(TimeSeries, HugeSeriesIsNamed) {
   o.order = 2;
   EXPECT_ERROR_SAYS(fluxcal::fit_ar(y, o), "overflow the AR fit");
 }
+
+// A series input given a matrix of two columns: read as its first column in Release and an Eigen assertion
+// (abort) in Debug with a plain Eigen::Ref; now an Error. Rows, columns and strided views still work.
+TEST(TimeSeries, SeriesRefRefusesAMatrixAndViewsVectors) {
+  const Eigen::MatrixXd two = Eigen::MatrixXd::Random(50, 2);
+  EXPECT_ERROR_SAYS(fluxcal::zero_mean(two), "a series (N values) was given a matrix of 50 rows × 2 columns");
+  const Eigen::Matrix<double, Eigen::Dynamic, 3, Eigen::RowMajor> rows = Eigen::MatrixXd::Random(50, 3);
+  const Eigen::VectorXd column = rows.col(1);  // strided in the row-major matrix: copied
+  EXPECT_EQ(fluxcal::zero_mean(rows.col(1)), fluxcal::zero_mean(column));
+  EXPECT_EQ(fluxcal::zero_mean(column.transpose()), fluxcal::zero_mean(column));  // a row vector
+  const fluxcal::SeriesRef view(rows.col(2)), copy(view);
+  EXPECT_EQ(Eigen::VectorXd(copy), Eigen::VectorXd(rows.col(2)));
+}

@@ -70,12 +70,12 @@ using ConductorPositionsRef = RowsRef<2>;
 /// Throws Error on a bad ring, non-finite inputs, a size mismatch or a conductor outside the bore.
 Eigen::Matrix<double, Eigen::Dynamic, 2, Eigen::RowMajor> cable_field(const CableRing& ring,
                                                                       const ConductorPositionsRef& positions,
-                                                                      const Eigen::Ref<const Eigen::VectorXd>& currents);
+                                                                      const SeriesRef& currents);
 
 /// Jacobian of the 2M readings (sensor-major: x_0, y_0, x_1, …) over [x_0, y_0, …, I_0, …] (3N
 /// columns), tesla per metre and tesla per ampere.
 Eigen::MatrixXd cable_field_jacobian(const CableRing& ring, const ConductorPositionsRef& positions,
-                                     const Eigen::Ref<const Eigen::VectorXd>& currents);
+                                     const SeriesRef& currents);
 
 struct CableSolveOptions {
   int n_conductors = 2;

@@ -30,8 +30,7 @@
 
 namespace fluxcal {
 
-/// Read-only view of a series (an Eigen vector or a mapped NumPy array).
-using SeriesRef = Eigen::Ref<const Eigen::VectorXd>;
+// SeriesRef (types.hpp): read-only view of a series; a matrix of more than one column is an Error.
 
 /// Gaps in time: the samples that each begin a new stretch of evenly spaced samples (the step before
 /// them is not the sampling interval: a recorder paused between temperature holds, a lost sample).

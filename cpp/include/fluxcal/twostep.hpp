@@ -114,7 +114,7 @@ struct TwoStep2DResult {
 /// or readings on a line) or a first step that gives γ² ≤ 0 (readings and magnitudes inconsistent).
 /// A refinement that does not converge is reported in the Summary (converged = false, a warning), unless it
 /// ran away (options.runaway_factor): then Error, naming the coverage.
-TwoStep2DResult twostep_2d(const Readings2DRef& readings, const Eigen::Ref<const Eigen::VectorXd>& field_norms,
+TwoStep2DResult twostep_2d(const Readings2DRef& readings, const SeriesRef& field_norms,
                            const TwoStep2DOptions& options = {});
 
 // ---- 3-D ---------------------------------------------------------------------------------------------

@@ -91,6 +91,49 @@ class RowsRef : private detail::RowsRefStorage<Cols>,
   }
 };
 
+namespace detail {
+/// A SeriesRef's values when they could not be viewed in place (strided, an expression); a base listed first.
+struct SeriesRefStorage {
+  Eigen::VectorXd evaluated;
+};
+}  // namespace detail
+
+/// Read-only view of a series (N values: an Eigen vector, a row or column of a matrix, a mapped NumPy array).
+/// A plain Eigen::Ref<const VectorXd> made from an N×2 matrix reads its first column in Release and asserts
+/// (aborts) in Debug; this view throws Error naming the shape instead, when it is made — before the function
+/// it is passed to runs, so the message cannot name the argument.
+class SeriesRef : private detail::SeriesRefStorage, public Eigen::Ref<const Eigen::VectorXd> {
+ public:
+  using Base = Eigen::Ref<const Eigen::VectorXd>;
+  SeriesRef(const Base& view) : Base(view) {}  // NOLINT: implicit, as Eigen::Ref is
+  template <typename Derived>
+  SeriesRef(const Eigen::DenseBase<Derived>& m) : Base(bind(m.derived(), *this)) {}  // NOLINT
+  // A copy views its own copy of evaluated values (Eigen::Ref's copy would point into the original's).
+  SeriesRef(const SeriesRef& other) : detail::SeriesRefStorage(other), Base(rebind(other, *this)) {}
+  SeriesRef& operator=(const SeriesRef&) = delete;
+
+ private:
+  using Values = Eigen::Map<const Eigen::VectorXd>;
+  template <typename Derived>
+  static Values bind(const Derived& m, detail::SeriesRefStorage& storage) {
+    if (m.rows() != 1 && m.cols() != 1)
+      throw Error("a series (N values) was given a matrix of " + std::to_string(m.rows()) + " rows × " +
+                  std::to_string(m.cols()) + " columns: pass one column (or one row)");
+    if constexpr (Derived::ColsAtCompileTime == 1 && bool(Derived::Flags & Eigen::DirectAccessBit)) {
+      if (m.innerStride() == 1) return Values(m.data(), m.rows());
+    }
+    storage.evaluated.resize(m.size());  // element by element: compiles for any shape, runs for vectors only
+    for (Eigen::Index i = 0; i < m.size(); ++i) storage.evaluated(i) = m.cols() == 1 ? m(i, 0) : m(0, i);
+    return Values(storage.evaluated.data(), storage.evaluated.size());
+  }
+  static Values rebind(const SeriesRef& other, detail::SeriesRefStorage& storage) {
+    const detail::SeriesRefStorage& theirs = other;
+    if (theirs.evaluated.size() > 0 && other.data() == theirs.evaluated.data())
+      return Values(storage.evaluated.data(), storage.evaluated.size());
+    return Values(other.data(), other.size());
+  }
+};
+
 /// N×3 readings, one row a reading. Row-major so a C-contiguous NumPy array maps without a copy.
 using Samples = Eigen::Matrix<double, Eigen::Dynamic, 3, Eigen::RowMajor>;
 /// Read-only view of any N×3 block (an Eigen matrix, a mapped NumPy array, ...); another width throws.
