@@ -84,7 +84,7 @@ def direction_bins(fields) -> np.ndarray:
     cu = (u >= -tm).astype(int) + (u >= 0) + (u >= tm)
     cw = (w >= -tm).astype(int) + (w >= 0) + (w >= tm)
     bins = (2 * axis + (big < 0)) * 16 + cu * 4 + cw
-    bins[~((mag > 0) & np.isfinite(mag))] = -1
+    bins[~((mag > 0) & np.all(np.isfinite(v), axis=1))] = -1  # any non-finite component, as the core
     return bins
 
 

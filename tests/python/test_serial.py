@@ -431,7 +431,7 @@ def test_direction_bins_match_the_core():
     rng = np.random.default_rng(0)
     vectors = np.vstack([rng.standard_normal((3000, 3)) * [1, 50, 0.01],
                          rng.integers(-2, 3, (300, 3)).astype(float),    # ties between axes, zeros
-                         [[0, 0, 0], [np.nan, 1, 0], [np.inf, 0, 0]]])
+                         [[0, 0, 0], [np.nan, 1, 0], [np.inf, 0, 0], [np.nan, 1, 1], [1, np.inf, 0]]])
     expected = [_core.direction_bin(v) for v in vectors]
     assert direction_bins(vectors).tolist() == expected
     fields = rng.standard_normal((500, 3))
