@@ -113,7 +113,7 @@ def test_logger_names_read_converted_and_calibrated(tmp_path):
     temp_f = 68.0 + np.linspace(0, 18, 800)
     path = _write_logger_csv(tmp_path / "log.csv", t_us, m, temp_f)
     rec = fluxcal.read_recording(path)
-    assert rec.mag_names() == ("MagX", "MagY", "MagZ") and rec.field_units() == "mGauss"
+    assert rec.mag_names() == ("MagX", "MagY", "MagZ") and rec.field_units() == "mG"  # one spelling per unit
     assert rec.time()[1] == pytest.approx(0.02)
     assert rec.temperature()[[0, -1]] == pytest.approx([20.0, 30.0])
     assert rec.acceleration().shape == (800, 3)
