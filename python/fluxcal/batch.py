@@ -511,9 +511,10 @@ def add_batch_parser(subparsers):
 
 
 def cmd_batch(args) -> int:
-    """0 when the batch ran and calibrated a unit, even if some failed (they are listed); 1 when every unit
-    failed (nothing calibrated: a script must notice); bad arguments raise ValueError, which the command
-    line turns into exit status 2."""
+    """0 when the batch ran and gave at least one usable ("ok") calibration, even if some units failed (they are
+    listed); 1 when none did — every unit failed, or what was calibrated is not identifiable or did not converge
+    (a script must notice, as `calibrate` exits 3 for one such file); bad arguments raise ValueError, which the
+    command line turns into exit status 2."""
     result = calibrate_fleet(args.directory, args.output, workers=args.workers, scheduler=args.scheduler,
                              method=args.method, field_norm=args.field_norm, pattern=args.pattern,
                              progress=not args.no_progress, outlier_k=args.outlier_k,
@@ -521,6 +522,11 @@ def cmd_batch(args) -> int:
     print(result.report())
     if result.failures and len(result.failures) == len(result.rows):
         print(f"error: all {len(result.rows)} units failed; nothing was calibrated (exit 1)")
+        return 1
+    if not any(r["status"] == "ok" for r in result.rows):
+        counts = Counter(r["status"].replace("_", " ") for r in result.rows)
+        print(f"error: no unit gave a usable calibration ({', '.join(f'{n} {s}' for s, n in counts.items())}) "
+              "(exit 1)")
         return 1
     if result.failures:
         print(f"note: {len(result.failures)} of {len(result.rows)} units failed; the batch itself ran (exit 0)")

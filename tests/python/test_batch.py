@@ -232,6 +232,12 @@ def test_cli_runs_a_local_cluster_and_exits_0_with_failed_units(tmp_path):
     assert r.returncode == 1 and "all 1 units failed; nothing was calibrated" in r.stdout, r.stdout + r.stderr
     r = _batch_cli(only_cut, "-o", tmp_path / "out3", "--workers", 1, "--no-progress", "--bad-lines", "skip")
     assert r.returncode == 1 and "2 fields" not in r.stdout, r.stdout
+    # a fleet whose only unit was turned about one axis: calibrated, but nothing usable (calibrate exits 3)
+    yaw = tmp_path / "yaw_only"
+    yaw.mkdir()
+    _write(yaw / "y.csv", _unit(1004, scene="yaw").readings, np.arange(N) / 50.0)
+    r = _batch_cli(yaw, "-o", tmp_path / "out4", "--workers", 1, "--field-norm", H, "--no-progress")
+    assert r.returncode == 1 and "no unit gave a usable calibration (1 not identifiable)" in r.stdout, r.stdout
 
 
 @pytest.mark.parametrize("make, args, message", [
