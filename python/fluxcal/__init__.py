@@ -6,6 +6,7 @@
     cal.save("cal.json"); fluxcal.Calibration.load("cal.json")
 """
 from . import _core
+from .alignment import Alignment, align_to_gravity
 from .calibration import Calibration
 from .coverage import direction_coverage
 from .diagnose import detection_limits, diagnose, diagnose_cable
@@ -21,7 +22,7 @@ from . import drift, kalman, timeseries  # seed 001: drift compensation, AR Kalm
 
 __version__ = _core.__version__
 
-__all__ = ["Calibration", "EllipsoidMoments", "Recording", "TwoStep2D", "calibrate", "crlb", "detection_limits", "diagnose", "diagnose_cable", "direction_coverage",
+__all__ = ["Alignment", "Calibration", "EllipsoidMoments", "Recording", "TwoStep2D", "align_to_gravity", "calibrate", "crlb", "detection_limits", "diagnose", "diagnose_cable", "direction_coverage",
            "fit_ellipsoid", "fit_vector", "read_csv", "read_recording", "refine", "twostep", "twostep_2d", "write_csv", "write_recording",
            "__version__", "cmake_dir"]
 

@@ -22,6 +22,18 @@ def as_samples(values, name: str = "samples", columns: int = 3) -> np.ndarray:
     return np.ascontiguousarray(arr)
 
 
+def as_specific_force(acc, acc_measures: str = "specific_force", name: str = "acc") -> np.ndarray:
+    """Accelerometer rows as the specific force (at rest it points up): `acc_measures` says what the device
+    reads — "specific_force" (MEMS parts) or "gravity" (down, as some instruments report it: negated)."""
+    a = as_samples(np.atleast_2d(acc), name)
+    if acc_measures == "specific_force":
+        return a
+    if acc_measures == "gravity":
+        return -a
+    raise ValueError(f"acc_measures: {acc_measures!r} is not 'specific_force' (a level device reads up) or "
+                     f"'gravity' (it reads down)")
+
+
 def require_calibration(value, name: str = "calibration"):
     """TypeError naming `name` unless `value` is a fluxcal Calibration (not None, not a dict)."""
     from .calibration import Calibration

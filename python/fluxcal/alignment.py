@@ -11,7 +11,8 @@ invariance):
     print(a.rotation_deg, a.dip_deg, a.dip_se_deg, a.identifiable)
     aligned = a.calibration(cal)                   # h = R A (m − b): the field in the accelerometer's axes
 
-The accelerometer reads the specific force (at rest +1 g up), so down = −f/|f|; readings whose |f| departs
+The accelerometer reads the specific force (at rest +1 g up; `acc_measures="gravity"` for one that reports the
+down direction), so down = −f/|f|; readings whose |f| departs
 from the median by more than `max_dynamic` (5 %) are left out as moving. Least squares on the dip residual
 d·Rĥ − sin δ is the maximum-likelihood estimate for direction noise (its variance is the same for every
 reading); `covariance` is σ̂²(JᵀJ)⁻¹ of (small rotations about the accelerometer's x, y, z; δ), radians².
@@ -27,7 +28,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from . import _core
-from ._arrays import as_samples, require_calibration, set_options
+from ._arrays import as_samples, as_specific_force, require_calibration, set_options
 from .calibration import Calibration
 
 
@@ -97,16 +98,18 @@ def _lag1(residuals: np.ndarray) -> float:
     return float(np.sum(e[1:][pairs] * e[:-1][pairs]) / np.nansum(e ** 2))
 
 
-def align_to_gravity(field, specific_force, serial_correlation: str = "automatic", **settings) -> Alignment:
+def align_to_gravity(field, specific_force, serial_correlation: str = "automatic",
+                     acc_measures: str = "specific_force", **settings) -> Alignment:
     """R and the dip from calibrated fields `field` (N×3, e.g. `cal.apply(m)`) and the accelerometer's rows
-    `specific_force` (N×3, the same instants, in time order; any unit). `serial_correlation`: "automatic" widens
+    `specific_force` (N×3, the same instants, in time order; any unit; `acc_measures="gravity"` for an instrument
+    that reports the down direction, as the SAP6 survey units do). `serial_correlation`: "automatic" widens
     the covariance when consecutive rows' residuals correlate (module docstring), "independent" never. settings (defaults in alignment.hpp): max_dynamic=0.05,
     max_iterations=50, tolerance=1e-12, noise_bias_correction=True (the dip's ≈ −σ² tan δ), max_se_deg=1.0 (an axis known worse is "not determined": identifiable
     False, with a warning naming it). ValueError on NaN, rows that differ, fewer than 8 readings at rest."""
     if serial_correlation not in ("automatic", "independent"):
         raise ValueError(f"serial_correlation: {serial_correlation!r}, need 'automatic' or 'independent'")
     h = as_samples(field, "field")
-    f = as_samples(specific_force, "specific_force")
+    f = as_specific_force(specific_force, acc_measures, "specific_force")
     options = set_options(_core.AlignmentOptions(), settings, "align_to_gravity")
     r = _core.align_to_gravity(h, f, options)
     dip, covariance, summary = float(r["dip"]), np.asarray(r["covariance"]), dict(r["summary"])

@@ -272,7 +272,7 @@ def cmd_calibrate(args) -> int:
             cal.summary["held_out_rms"] = _held_out_rms(raw, reference, cal.units,
                                                         cal.summary.get("outliers", {}).get("rows", []))
     if args.align_accelerometer:
-        cal = _aligned(cal, rec, raw, args.file)
+        cal = _aligned(cal, rec, raw, args.file, args.acc_measures)
     if args.output:  # before the report: a reader that stops early (| head) must not cost the calibration
         path = cal.save(args.output)
     _report(cal, raw)
@@ -291,7 +291,7 @@ def cmd_calibrate(args) -> int:
     return 0
 
 
-def _aligned(cal: Calibration, rec, raw: np.ndarray, file) -> Calibration:
+def _aligned(cal: Calibration, rec, raw: np.ndarray, file, acc_measures: str) -> Calibration:
     """`cal` turned into the accelerometer's axes (--align-accelerometer); the fit's outliers left out."""
     from .alignment import align_to_gravity
 
@@ -305,7 +305,7 @@ def _aligned(cal: Calibration, rec, raw: np.ndarray, file) -> Calibration:
     keep[list(cal.summary.get("outliers", {}).get("rows", []))] = False
     keep &= np.isfinite(acc).all(axis=1)
     try:
-        return align_to_gravity(cal.apply(raw[keep]), acc[keep]).calibration(cal)
+        return align_to_gravity(cal.apply(raw[keep]), acc[keep], acc_measures=acc_measures).calibration(cal)
     except ValueError as exc:
         raise ValueError(f"{file}: --align-accelerometer: {exc}") from None
 
@@ -878,6 +878,9 @@ def build_parser() -> argparse.ArgumentParser:
                    help="also turn the magnetometer's axes onto the accelerometer's (its columns ax,ay,az or "
                         "AccX…), from the dip that stays the same at rest in every attitude; the calibration "
                         "then corrects into the accelerometer's axes (fluxcal.alignment)")
+    c.add_argument("--acc-measures", choices=["specific_force", "gravity"], default="specific_force",
+                   help="with --align-accelerometer: what the accelerometer reads at rest: specific_force (up, as "
+                        "MEMS parts do; default) or gravity (down)")
     c.add_argument("-o", "--output", help="write the calibration (JSON)")
     c.add_argument("--plot", help="write a before/after plot (PNG)")
     c.set_defaults(run=cmd_calibrate)

@@ -37,7 +37,7 @@ from dataclasses import dataclass, field as _field
 import numpy as np
 
 from . import _core
-from ._arrays import as_samples, set_options, units_text
+from ._arrays import as_samples, as_specific_force, set_options, units_text
 from .attitude import axis_remapping
 
 FRAMES = ("ned", "nue")
@@ -304,13 +304,7 @@ class PositionsResult:
 
 
 def _specific_force(acc, acc_measures: str) -> np.ndarray:
-    a = as_samples(np.atleast_2d(acc), "acc")
-    if acc_measures == "specific_force":
-        return a
-    if acc_measures == "gravity":
-        return -a
-    raise ValueError(f"acc_measures: {acc_measures!r} is not 'specific_force' (a level device reads up) or "
-                     f"'gravity' (it reads down)")
+    return as_specific_force(acc, acc_measures, "acc")
 
 
 def _nominal(n: int, frame: str, preset, attitudes, rotations) -> np.ndarray:
