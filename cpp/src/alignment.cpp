@@ -57,11 +57,19 @@ Fit gauss_newton(const Samples& down, const Samples& dir, Eigen::Matrix3d r, dou
       jte += j * (d.dot(v) - std::sin(dip));
     }
     ++fit.iterations;
-    const double scale = jtj.diagonal().maxCoeff();
+    // Step only along the directions the data determine (standard error at this iterate's residual variance
+    // within max_se_deg): the others keep the start's value. For level turns that is the rotation about the
+    // vertical, along which a free step wanders to an arbitrary heading (every heading fits nearly as well).
+    const Eigen::SelfAdjointEigenSolver<Eigen::Matrix4d> eig(jtj);
+    const Eigen::Vector4d lambda = eig.eigenvalues(), g = eig.eigenvectors().transpose() * jte;
+    const double sigma2 = current / static_cast<double>(std::max<Eigen::Index>(down.rows() - 4, 1));
+    const double se_limit2 = std::pow(options.max_se_deg / kDeg, 2), scale = std::max(lambda(3), 1e-300);
     bool accepted = false;
     for (; mu <= 1e6 && !accepted; ) {
-      const Eigen::Matrix4d damped = jtj + mu * scale * Eigen::Matrix4d::Identity();
-      const Eigen::Vector4d step = -damped.ldlt().solve(jte);
+      Eigen::Vector4d in_eigen = Eigen::Vector4d::Zero();
+      for (int i = 0; i < 4; ++i)
+        if (lambda(i) > 0 && sigma2 / lambda(i) <= se_limit2) in_eigen(i) = -g(i) / (lambda(i) + mu * scale);
+      const Eigen::Vector4d step = eig.eigenvectors() * in_eigen;
       const Eigen::Matrix3d r_try = exp_rotation(step.head<3>()) * r;
       const double dip_try = dip + step(3), c = cost(down, dir, r_try, dip_try);
       if (c < current) {
@@ -169,19 +177,21 @@ AlignmentResult align_to_gravity(const SamplesRef& field, const SamplesRef& spec
   const double scale = Eigen::JacobiSVD<Eigen::Matrix3d>(m).singularValues().mean();
   double dip = std::asin(std::clamp(scale > 0 ? x(9) / scale : 0.0, -1.0, 1.0));
 
-  // Damped Gauss–Newton from there and from R = I (a mounting is usually nearly aligned). Where the data leave a
-  // direction undetermined (turns about one axis), both land somewhere along it — the linear start anywhere,
-  // even on the mirror family (R flipped 180° about a horizontal axis, the dip negated) — and the answer nearest
-  // the axes as mounted is kept: the R = I one. Otherwise the linear start wins when it ends clearly lower
-  // (another minimum: axes relabelled or turned far).
+  // Damped Gauss–Newton from there and from R = I (a mounting is usually nearly aligned). Neither moves along a
+  // direction the data leave undetermined (turns about one axis), so the R = I fit keeps the mounted heading
+  // there, while the linear start's place along it is arbitrary — even the mirror family (R flipped 180° about
+  // a horizontal axis, the dip negated). The linear start wins when it ends at half the cost or less (R = I sat
+  // in another basin: axes relabelled or turned far), or when it alone is identifiable, or both are and it is
+  // lower; otherwise the R = I fit is kept.
   Eigen::VectorXd cosines = (down.cwiseProduct(dir)).rowwise().sum();
   std::sort(cosines.data(), cosines.data() + cosines.size());
   Fit linear = gauss_newton(down, dir, nearest_rotation(m), dip, options);
   Fit aligned = gauss_newton(down, dir, Eigen::Matrix3d::Identity(),
                              std::asin(std::clamp(cosines(cosines.size() / 2), -1.0, 1.0)), options);
   for (Fit* f : {&linear, &aligned}) covariance(down, dir, *f, options);
-  const Fit& best = linear.identifiable != aligned.identifiable ? (linear.identifiable ? linear : aligned)
-                    : aligned.identifiable && linear.cost < 0.99 * aligned.cost ? linear : aligned;
+  const bool clearly_lower = linear.cost < 0.5 * aligned.cost;  // half the cost: R = I sits in another basin
+  const Fit& best = clearly_lower || (linear.identifiable && (!aligned.identifiable || linear.cost < 0.99 * aligned.cost))
+                        ? linear : aligned;
   s.iterations = best.iterations;
   s.converged = best.converged;
   const Eigen::Matrix3d r = best.rotation;
@@ -220,8 +230,10 @@ AlignmentResult align_to_gravity(const SamplesRef& field, const SamplesRef& spec
   }
   if (dip < 0)
     s.warnings.push_back("the dip is negative (the field points up): right in the southern hemisphere; in the "
-                         "northern one the magnetometer's axes are a mirror image of the accelerometer's (one axis "
-                         "reversed), which a rotation cannot undo — fix the axis signs, and the dip turns positive");
+                         "northern one either the accelerometer reports gravity (down) rather than the specific force "
+                         "(up) — say so (acc_measures gravity) and the dip turns positive with the same rotation — or "
+                         "the magnetometer's axes are a mirror image of the accelerometer's (one axis reversed), which "
+                         "a rotation cannot undo: fix that axis's sign");
   if (!s.converged)
     s.warnings.push_back("not converged after " + std::to_string(s.iterations) + " iterations");
   s.residual_rms = result.residual_rms;

@@ -70,9 +70,17 @@ class Alignment:
         return as_samples(field, "field") @ self.rotation.T
 
     def calibration(self, cal: Calibration) -> Calibration:
-        """`cal` with R folded into its matrix, h = R A (m − b): its output in the accelerometer's axes."""
+        """`cal` with R folded into its matrix, h = R A (m − b): its output in the accelerometer's axes. An
+        alignment the data did not determine, or that did not converge, makes the result so too (its summary's
+        identifiable / converged, with the reason among the warnings): export-c refuses it, calibrate exits 3."""
         require_calibration(cal, "cal")
         summary = {**cal.summary, "alignment": self.to_dict()}
+        if not self.identifiable or not self.summary.get("converged", True):
+            summary["warnings"] = list(cal.summary.get("warnings", [])) + [
+                f"alignment to the accelerometer: {w}" for w in self.summary.get("warnings", [])
+                if "identif" in w or "converge" in w]
+            summary["identifiable"] = bool(cal.summary.get("identifiable", True)) and self.identifiable
+            summary["converged"] = bool(cal.summary.get("converged", True)) and bool(self.summary.get("converged"))
         return Calibration(offset=cal.offset.copy(), matrix=self.rotation @ cal.matrix, field_norm=cal.field_norm,
                            units=cal.units, model=cal.model, summary=summary, field_units=cal.field_units,
                            metadata={**cal.metadata, "frame": "accelerometer axes (fluxcal.alignment)"})
@@ -86,16 +94,17 @@ class Alignment:
                 "warnings": list(self.summary.get("warnings", []))}
 
 
-SERIAL_LIMIT = 0.2  # lag-1 autocorrelation of the dip residuals above which the covariance is widened
+SERIAL_LIMIT = 0.2  # lag-1 autocorrelation of the dip residuals above which the covariance is widened, when it is
+# also significant (above 2/√pairs: independent readings pass it 2.5 % of the time; 24 shots reach 0.2 by chance)
 
 
-def _lag1(residuals: np.ndarray) -> float:
-    """Lag-1 autocorrelation over consecutive rows both kept (NaN: left out as moving)."""
+def _lag1(residuals: np.ndarray) -> tuple[float, int]:
+    """Lag-1 autocorrelation over consecutive rows both kept (NaN: left out as moving), and how many pairs."""
     e = residuals - np.nanmean(residuals)
     pairs = np.isfinite(e[1:]) & np.isfinite(e[:-1])
     if pairs.sum() < 10:
-        return 0.0
-    return float(np.sum(e[1:][pairs] * e[:-1][pairs]) / np.nansum(e ** 2))
+        return 0.0, int(pairs.sum())
+    return float(np.sum(e[1:][pairs] * e[:-1][pairs]) / np.nansum(e ** 2)), int(pairs.sum())
 
 
 def align_to_gravity(field, specific_force, serial_correlation: str = "automatic",
@@ -114,8 +123,8 @@ def align_to_gravity(field, specific_force, serial_correlation: str = "automatic
     r = _core.align_to_gravity(h, f, options)
     dip, covariance, summary = float(r["dip"]), np.asarray(r["covariance"]), dict(r["summary"])
     identifiable = bool(r["identifiable"])
-    rho = _lag1(np.asarray(r["residuals"])) if serial_correlation == "automatic" else 0.0
-    if rho > SERIAL_LIMIT:
+    rho, pairs = _lag1(np.asarray(r["residuals"])) if serial_correlation == "automatic" else (0.0, 0)
+    if rho > max(SERIAL_LIMIT, 2 / np.sqrt(max(pairs, 1))):
         factor = (1 + rho) / (1 - rho) if rho < 1 else np.inf
         covariance = covariance * factor
         summary["warnings"] = list(summary["warnings"]) + [
@@ -123,7 +132,17 @@ def align_to_gravity(field, specific_force, serial_correlation: str = "automatic
             f"errors widened {np.sqrt(factor):.3g}x (AR(1)); rows must be in time order "
             "(serial_correlation='independent' when they are not)"]
         se_deg = np.degrees(np.sqrt(np.maximum(np.diag(covariance), 0.0)))
-        identifiable = identifiable and bool(np.all(se_deg <= options.max_se_deg))
+        widened_out = [name for name, se in zip(("the rotation about x", "the rotation about y",
+                                                 "the rotation about z", "the dip"), se_deg)
+                       if se > options.max_se_deg] if identifiable else []
+        if widened_out:
+            identifiable = False
+            summary["warnings"].append(f"not identifiable: {', '.join(widened_out)} not determined to "
+                                       f"{options.max_se_deg:g}° once the standard errors are widened for the "
+                                       "correlation in time (more readings, or turns about more axes)")
+        rotation_deg = float(np.degrees(np.linalg.norm(np.asarray(r["rotation_vector"]))))
+        summary["message"] = (f"magnetometer to accelerometer: {rotation_deg:.6g}° rotation, dip "
+                              f"{np.degrees(dip):.6g}° (±{se_deg[3]:.6g}°), {int(r['readings_used'])} static readings")
     summary["serial_correlation"] = {"lag1": rho, "mode": serial_correlation}
     return Alignment(rotation=np.asarray(r["rotation"]), dip_deg=float(np.degrees(dip)), covariance=covariance,
                      identifiable=identifiable, readings_used=int(r["readings_used"]),

@@ -304,7 +304,8 @@ def _is_ours(path: Path) -> bool:
 
 
 def _recordings(directory: Path, out_dir: Path, pattern: str) -> list:
-    ours = {p for p in (out_dir / name for name in SUMMARY_FILES) if _is_ours(p)}  # never read back as recordings
+    # never read a summary back as a recording: this run's, or an earlier run's left in the recordings' folder
+    ours = {p for d in (out_dir, directory) for p in (d / name for name in SUMMARY_FILES) if _is_ours(p)}
     paths = sorted(p for p in directory.glob(pattern) if p.is_file() and p not in ours)
     if not paths:
         raise ValueError(f"{directory}: no recordings matching {pattern!r}")

@@ -190,7 +190,7 @@ def _reference(rec: Recording, names: str | None, file) -> tuple:
     missing = [n for n in names if n not in rec.columns]
     if len(names) != 3 or missing:
         raise ValueError(f"--reference: need three columns of {file} (columns are: {', '.join(rec.columns)})")
-    units, mag = {rec.units.get(n, "") for n in names}, rec.field_units()
+    units, mag = {unit_name(rec.units[n]) if rec.units.get(n) else "" for n in names}, rec.field_units()
     if len(units) > 1:
         raise ValueError(f"--reference: the columns {', '.join(names)} have different units ({', '.join(sorted(units))})")
     unit = units.pop()
@@ -272,7 +272,7 @@ def cmd_calibrate(args) -> int:
             cal.summary["held_out_rms"] = _held_out_rms(raw, reference, cal.units,
                                                         cal.summary.get("outliers", {}).get("rows", []))
     if args.align_accelerometer:
-        cal = _aligned(cal, rec, raw, args.file, args.acc_measures)
+        cal = _aligned(cal, rec, raw, args.file, args.acc_measures, args.serial_correlation)
     if args.output:  # before the report: a reader that stops early (| head) must not cost the calibration
         path = cal.save(args.output)
     _report(cal, raw)
@@ -291,8 +291,10 @@ def cmd_calibrate(args) -> int:
     return 0
 
 
-def _aligned(cal: Calibration, rec, raw: np.ndarray, file, acc_measures: str) -> Calibration:
-    """`cal` turned into the accelerometer's axes (--align-accelerometer); the fit's outliers left out."""
+def _aligned(cal: Calibration, rec, raw: np.ndarray, file, acc_measures: str, serial: str | None) -> Calibration:
+    """`cal` turned into the accelerometer's axes (--align-accelerometer); the fit's outliers left out;
+    --serial-correlation independent reaches it (its other values widen when the residuals correlate)."""
+    serial = "independent" if serial == "independent" else "automatic"
     from .alignment import align_to_gravity
 
     if "reference" in cal.metadata:
@@ -305,7 +307,8 @@ def _aligned(cal: Calibration, rec, raw: np.ndarray, file, acc_measures: str) ->
     keep[list(cal.summary.get("outliers", {}).get("rows", []))] = False
     keep &= np.isfinite(acc).all(axis=1)
     try:
-        return align_to_gravity(cal.apply(raw[keep]), acc[keep], acc_measures=acc_measures).calibration(cal)
+        return align_to_gravity(cal.apply(raw[keep]), acc[keep], acc_measures=acc_measures,
+                                serial_correlation=serial).calibration(cal)
     except ValueError as exc:
         raise ValueError(f"{file}: --align-accelerometer: {exc}") from None
 
@@ -758,7 +761,8 @@ def cmd_drift(args) -> int:
                   f"{seg['residual_rms']:.4g}{u}")
         print(f"  drift over the temperature span (per-level means, peak to peak): "
               f"{report['drift_span_before']:.4g}{u} -> {report['drift_span_after']:.4g}{u} "
-              f"({report['drift_reduction']:.1f}x smaller)")
+              + (f"({report['drift_reduction']:.1f}x smaller)" if np.isfinite(report["drift_reduction"]) else
+                 "(one temperature level: no span to compare)"))
         output = "filtered output" if model.settings.get("kalman") else "compensated output (no filter)"
         for key, what in (("accuracy", f"{output}, sample by sample"),
                           ("accuracy_drift", "drift alone, per-level means")):

@@ -76,6 +76,26 @@ def test_a_level_turn_leaves_the_rotation_about_the_vertical_undetermined():
     assert "not identifiable: the rotation about z" in a.summary["warnings"][0]
     assert a.rotation_se_deg[2] > 1.0 and "tilt the device" in a.summary["warnings"][0]
     assert a.dip_deg > 0  # the answer nearest the axes as mounted, not its mirror (R flipped, the dip negated)
+    # the heading it cannot see is left as mounted: the rotation found is the true 3° less its part about the
+    # vertical, not an arbitrary heading (a review found 6–102° across seeds when steps could wander along it)
+    for seed in range(6):
+        rng = np.random.default_rng(seed)
+        yaws = Rotation.from_euler("z", rng.uniform(0, 360, (200, 1)), degrees=True)
+        h, f, _, _ = scene(rng, n=200, attitudes=yaws)
+        a = align_to_gravity(h, f)
+        assert a.rotation_deg <= 3.2 and abs(a.dip_deg - 62.0) < 0.3 and a.summary["converged"], seed
+
+
+def test_small_tilts_and_a_mount_turned_far_take_the_start_that_fits():
+    """Turns with ±2° tilts only and a mount turned 150°: the R = I start ends in another basin (the mirror, dip
+    negated, at many times the cost); the linear start's fit is kept."""
+    for seed in range(4):
+        rng = np.random.default_rng(100 + seed)
+        attitudes = Rotation.from_euler("zyx", np.c_[rng.uniform(0, 360, 300), rng.uniform(-2, 2, (300, 2))],
+                                        degrees=True)
+        h, f, _, _ = scene(rng, attitudes=attitudes, turn_deg=150.0)
+        a = align_to_gravity(h, f)
+        assert abs(a.dip_deg - 62.0) < 0.3 and abs(a.rotation_deg - 150.0) < 5.0, (seed, a.dip_deg, a.rotation_deg)
 
 
 @pytest.mark.parametrize("turn_deg", [40.0, 120.0, 179.0])
@@ -109,13 +129,23 @@ def test_moving_readings_are_left_out_and_said():
 
 def test_folds_into_a_calibration():
     rng = np.random.default_rng(6)
-    h, f, _, _ = scene(rng)
+    h, f, truth, _ = scene(rng)
     cal = fluxcal.Calibration(offset=[1.0, -2.0, 0.5], matrix=np.diag([1.1, 0.9, 1.0]), field_norm=50.0, units="uT")
-    m = cal.reading(h) if hasattr(cal, "reading") else h @ np.linalg.inv(cal.matrix).T + cal.offset
-    a = align_to_gravity(cal.apply(m), f)
-    aligned = a.calibration(cal)
-    np.testing.assert_allclose(aligned.apply(m), a.apply(cal.apply(m)), atol=1e-12)
-    assert aligned.summary["alignment"]["dip_deg"] == a.dip_deg and aligned.units == "uT"
+    m = h @ np.linalg.inv(cal.matrix).T + cal.offset  # the readings whose correction is h
+    aligned = align_to_gravity(cal.apply(m), f).calibration(cal)
+    # the folded calibration corrects the readings into the accelerometer's axes: R_true h
+    np.testing.assert_allclose(aligned.apply(m), h @ truth.T, atol=0.3)
+    assert aligned.units == "uT" and aligned.summary["alignment"]["identifiable"]
+    assert aligned.summary.get("identifiable", True)
+    # an alignment the data did not determine makes the calibration so: export-c refuses it, calibrate exits 3
+    yaws = Rotation.from_euler("z", rng.uniform(0, 360, (200, 1)), degrees=True)
+    h2, f2, _, _ = scene(rng, n=200, attitudes=yaws)
+    loose = align_to_gravity(h2, f2).calibration(cal)
+    assert loose.summary["identifiable"] is False
+    assert any(w.startswith("alignment to the accelerometer: not identifiable") for w in loose.summary["warnings"])
+    from fluxcal.export_c import export_c
+    with pytest.raises(ValueError, match="not identifiable"):
+        export_c(loose, "/dev/null", name="p")
 
 
 @pytest.mark.parametrize("change, message", [
@@ -208,7 +238,7 @@ def _axes(v, axes: str) -> np.ndarray:
 def test_sap6_dip_agrees_with_the_makers(real_data, unit):
     """Six SAP6 cave-survey units, 24 static shots each (magnetometer in µT, the down direction in m/s²): the dip
     from fluxcal's magnitude calibration plus alignment agrees with the maker's own `dip_avg` within 3 SE (measured
-    −0.22…+0.39°, under 1.3 SE)."""
+    −0.22…+0.39°, under 1.7 SE)."""
     import json
 
     shots = json.loads((real_data / "sap6" / f"{unit}.json").read_text())
@@ -218,3 +248,4 @@ def test_sap6_dip_agrees_with_the_makers(real_data, unit):
     a = align_to_gravity(fluxcal.calibrate(mag).apply(mag), down, acc_measures="gravity")
     assert a.identifiable and a.dip_deg > 0
     assert abs(a.dip_deg - cfg["dip_avg"]) < min(3 * a.dip_se_deg, 1.0), (a.dip_deg, a.dip_se_deg, cfg["dip_avg"])
+

@@ -320,3 +320,13 @@ def test_the_magnetometers_own_clock_and_an_rtc_time_of_day(tmp_path):
     rec = fluxcal.read_recording(tmp_path / "openlog.txt")
     assert rec.roles()["time"] == "rtcTime" and rec.roles()["temperature"] == "imu_degC"
     np.testing.assert_allclose(rec.time(), t, atol=1e-9)
+
+
+def test_a_reference_field_spelled_like_the_magnetometer_is_one_unit():
+    """µT on both: once the magnetometer's unit is named uT, the IGRF columns' µT must be read as the same unit
+    (a review found "the field columns are in µT, the magnetometer in uT")."""
+    n = 5
+    columns = {**{c: np.ones(n) for c in ("mx", "my", "mz", "igrf_n", "igrf_e", "igrf_d")},
+               **{c: np.zeros(n) for c in ("pitch", "roll", "yaw")}}
+    rec = fluxcal.Recording(columns=columns, units={c: "µT" for c in ("mx", "my", "mz", "igrf_n", "igrf_e", "igrf_d")})
+    assert rec.field_units() == rec.reference_units() == "uT"

@@ -680,6 +680,17 @@ def test_one_temperature_level_gives_no_false_widening_warning():
     assert model.compensate(w, temp).std() < 0.5 * w.std()
 
 
+def test_cli_one_temperature_level_says_so(tmp_path):
+    rng = np.random.default_rng(2)
+    t = np.arange(3000) * 10.0
+    temp = 24.5 + 1.4 * np.sin(2 * np.pi * t / 86400) + rng.normal(0, 0.02, t.size)
+    write_csv(tmp_path / "lab.csv", {"t": t, "zero_bias": 0.02 + 0.01 * (temp - 25) + rng.normal(0, 0.002, t.size),
+                                     "temp": temp})
+    r = run_cli("drift", "fit", tmp_path / "lab.csv", "-o", tmp_path / "m.json")
+    assert r.returncode == 0 and "(one temperature level: no span to compare)" in r.stdout, r.stdout + r.stderr
+    assert "nanx" not in r.stdout
+
+
 def test_a_recording_that_starts_held_is_fitted():
     """25 identical samples first (a logger holding a slower sensor's value): the recursive least squares'
     batch start was rank deficient and the whole fit refused, though the regression is well posed."""

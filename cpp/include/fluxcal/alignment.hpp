@@ -12,11 +12,12 @@
 // variance (σ_h² + σ_f²) cos²δ (the noise across the two directions, whose angle is fixed), so least squares
 // on e is the maximum-likelihood estimate and σ̂²(JᵀJ)⁻¹ its covariance (Cramér–Rao at the solution).
 // Start: the homogeneous linear fit d_kᵀ M ĥ_k = s (10 unknowns, the smallest singular vector), M projected on
-// the nearest rotation, and R = I; then damped Gauss–Newton on R = exp([θ]×) R₀ and δ from each, the lower
-// cost kept; and the dip's noise bias removed.
+// the nearest rotation, and R = I; then damped Gauss–Newton on R = exp([θ]×) R₀ and δ from each, stepping only
+// along directions the data determine; R = I's fit is kept unless the linear start's is clearly better (half
+// the cost, or identifiable where R = I's is not); and the dip's noise bias removed.
 // What it cannot see: a rotation about the vertical when the device was only turned about the vertical (the
 // heading offset of a compass turned level), or any axis the attitudes never moved about — its standard
-// error then says so and the result is flagged not identifiable.
+// error then says so, the result is flagged not identifiable, and that rotation is left as mounted (R = I).
 #pragma once
 
 #include <fluxcal/types.hpp>
