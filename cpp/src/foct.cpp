@@ -6,6 +6,7 @@
 
 #include <algorithm>
 #include <cmath>
+#include <limits>
 #include <initializer_list>
 #include <map>
 #include <sstream>
@@ -250,7 +251,10 @@ FoctResult fit_foct(const SeriesRef& zero_bias, const SeriesRef& temp, const Ser
   res.residual = res.kalman_filter ? Eigen::VectorXd(res.filtered - f) : res.compensated;
   res.drift_span_before = drift_span(zero_bias, temp, options.level_step);
   res.drift_span_after = drift_span(res.compensated, temp, options.level_step);
-  res.drift_reduction = res.drift_span_before / std::max(res.drift_span_after, 1e-300);
+  // One temperature level (every sample in one level_step bin): both spans are 0 and say nothing: NaN.
+  res.drift_reduction = level_means(zero_bias, temp, options.level_step).size() < 2
+                            ? std::numeric_limits<double>::quiet_NaN()
+                            : res.drift_span_before / std::max(res.drift_span_after, 1e-300);
   if (options.rated) {
     res.accuracy = zero_bias_accuracy(res.residual, *options.rated, options.accuracy_class);
     const auto levels = level_means(res.compensated, temp, options.level_step);
@@ -281,7 +285,11 @@ FoctResult fit_foct(const SeriesRef& zero_bias, const SeriesRef& temp, const Ser
   msg << ", drift orders";
   for (int m : res.orders) msg << " " << m;
   msg << " in " << (res.regressor == DriftRegressor::temperature ? "temp" : "temp - temp_outside") << ", drift span "
-      << res.drift_span_before << " -> " << res.drift_span_after << " (reduced " << res.drift_reduction << "x)";
+      << res.drift_span_before << " -> " << res.drift_span_after;
+  if (std::isnan(res.drift_reduction))
+    msg << " (one temperature level: no span to compare)";
+  else
+    msg << " (reduced " << res.drift_reduction << "x)";
   if (res.accuracy_drift)
     msg << ", class " << options.accuracy_class << (res.accuracy_drift->met ? " met" : " NOT met") << " by the drift";
   sum.message = msg.str();

@@ -338,3 +338,19 @@ TEST(FoctOptions, BadNestedValuesAreNamed) {
   o.drift_input = static_cast<fluxcal::DriftInput>(2);
   EXPECT_ERROR_SAYS(fluxcal::fit_foct(s.zero_bias, s.temp, o), "FoctOptions::drift_input: 2");
 }
+
+// Every temperature in one level (a lab log at 23–26 °C): both spans are 0, so the reduction is NaN and the
+// message says why, rather than "reduced 0x" (a blind check).
+TEST(Foct, OneTemperatureLevelHasNoReduction) {
+  const int n = 3000;
+  Eigen::VectorXd temp(n), zero_bias(n);
+  std::mt19937 rng(3);
+  std::normal_distribution<double> g(0.0, 1.0);
+  for (int k = 0; k < n; ++k) {
+    temp[k] = 24.5 + 1.4 * std::sin(2 * 3.14159265358979 * k / 8640.0) + 0.02 * g(rng);
+    zero_bias[k] = 0.02 + 0.01 * (temp[k] - 25.0) + 0.002 * g(rng);
+  }
+  const auto fit = fluxcal::fit_foct(zero_bias, temp);
+  EXPECT_TRUE(std::isnan(fit.drift_reduction));
+  EXPECT_NE(fit.summary.message.find("one temperature level"), std::string::npos) << fit.summary.message;
+}

@@ -163,7 +163,7 @@ struct FoctResult {
   Eigen::VectorXd residual;     ///< filtered − f (no filter: compensated): what the sample-by-sample verdict checks
   double drift_span_before = 0.0;  ///< drift_span(zero_bias)
   double drift_span_after = 0.0;   ///< drift_span(compensated)
-  double drift_reduction = 0.0;    ///< before / after
+  double drift_reduction = 0.0;    ///< before / after; NaN with one temperature level (both spans 0)
   /// With options.rated: the verdict on `residual` (drift residual plus what noise the filter leaves) …
   std::optional<AccuracyResult> accuracy;
   /// … and on the drift alone (the per-level means of `compensated`).
