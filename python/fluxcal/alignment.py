@@ -111,10 +111,13 @@ def align_to_gravity(field, specific_force, serial_correlation: str = "automatic
                      acc_measures: str = "specific_force", **settings) -> Alignment:
     """R and the dip from calibrated fields `field` (N×3, e.g. `cal.apply(m)`) and the accelerometer's rows
     `specific_force` (N×3, the same instants, in time order; any unit; `acc_measures="gravity"` for an instrument
-    that reports the down direction, as the SAP6 survey units do). `serial_correlation`: "automatic" widens
-    the covariance when consecutive rows' residuals correlate (module docstring), "independent" never. settings (defaults in alignment.hpp): max_dynamic=0.05,
-    max_iterations=50, tolerance=1e-12, noise_bias_correction=True (the dip's ≈ −σ² tan δ), max_se_deg=1.0 (an axis known worse is "not determined": identifiable
-    False, with a warning naming it). ValueError on NaN, rows that differ, fewer than 8 readings at rest."""
+    that reports the down direction, as the SAP6 survey units do). `serial_correlation`: "automatic" widens the
+    covariance when consecutive rows' residuals correlate (module docstring), "independent" never.
+
+    settings (defaults in alignment.hpp): max_dynamic=0.05, max_iterations=50, tolerance=1e-12,
+    noise_bias_correction=True (the dip's ≈ −σ² tan δ), max_se_deg=1.0 (an axis known worse is "not determined":
+    identifiable False, with a warning naming it). ValueError on NaN, rows that differ, fewer than 8 readings at
+    rest."""
     if serial_correlation not in ("automatic", "independent"):
         raise ValueError(f"serial_correlation: {serial_correlation!r}, need 'automatic' or 'independent'")
     h = as_samples(field, "field")
