@@ -609,3 +609,16 @@ def test_cli_reports_reader_errors_with_exit_2(tmp_path):
     table.write_text("1 2 3 4\n" * 20)
     r = run_cli("calibrate", table)
     assert r.returncode == 2 and "--columns" in r.stderr
+
+
+def test_a_json_recording_writes_nan_as_null_and_reads_it_back(tmp_path):
+    """Standard JSON has no NaN: a bare NaN (as json.dumps writes by default) makes strict parsers refuse the file
+    (a blind check). A NaN temperature is written null and read back as NaN."""
+    rec = Recording(columns={"mx": np.array([1.0, 2.0]), "my": np.array([3.0, 4.0]), "mz": np.array([5.0, 6.0]),
+                             "temp": np.array([21.5, np.nan])}, units={"mx": "uT", "my": "uT", "mz": "uT"})
+    path = write_recording(tmp_path / "r.json", rec)
+    text = path.read_text()
+    assert "NaN" not in text and json.loads(text, parse_constant=lambda c: pytest.fail(f"non-standard {c}"))
+    back = read_recording(path)
+    assert back.columns["temp"][0] == 21.5 and np.isnan(back.columns["temp"][1])
+    np.testing.assert_array_equal(back.samples(), rec.samples())

@@ -191,12 +191,20 @@ _TRIPLES = {"mag": ("mx", "my", "mz"), "grav": ("ax", "ay", "az"), "acc": ("ax",
 _CIRCUITPYTHON_UNITS = {"mx": "uT", "my": "uT", "mz": "uT", "ax": "m/s^2", "ay": "m/s^2", "az": "m/s^2"}
 
 
+def _json_numbers(values) -> list:
+    """A column as JSON numbers, a NaN or ±inf as null: standard JSON has no NaN (strict parsers refuse it)."""
+    v = np.asarray(values, dtype=float)
+    out = v.astype(object)
+    out[~np.isfinite(v)] = None
+    return out.tolist()
+
+
 def write_json_recording(path, rec: Recording) -> Path:
     from ..calibration import _jsonable
 
     path = Path(path)
     data = {"kind": JSON_KIND, "units": dict(rec.units), "metadata": _jsonable(dict(rec.metadata)),
-            "columns": {name: np.asarray(v, dtype=float).tolist() for name, v in rec.columns.items()}}
+            "columns": {name: _json_numbers(v) for name, v in rec.columns.items()}}
     path.write_text(json.dumps(data) + "\n")
     return path
 
@@ -261,9 +269,9 @@ def _numbers(path, text, where, values, name) -> np.ndarray:
     if not isinstance(values, list):
         raise ValueError(_at(path, text, where, f"{name!r} is not a list of numbers"))
     for k, v in enumerate(values):
-        if isinstance(v, bool) or not isinstance(v, (int, float)):
+        if v is not None and (isinstance(v, bool) or not isinstance(v, (int, float))):
             raise ValueError(_at(path, text, where + (k,), f"{name}[{k}] = {json.dumps(v)} is not a number"))
-    return np.array(values, dtype=float)
+    return np.array(values, dtype=float)  # null, as written for a NaN, is NaN again
 
 
 def _shots_json(path, text, data) -> Recording:
