@@ -72,7 +72,9 @@ TEST(Alignment, LevelTurnsLeaveTheVerticalAxisUndetermined) {
   EXPECT_FALSE(r.identifiable);
   EXPECT_GT(r.standard_errors(2), 1.0 * kDeg);
   ASSERT_FALSE(r.summary.warnings.empty());
-  EXPECT_NE(r.summary.warnings.front().find("not identifiable: the rotation about z"), std::string::npos) << r.summary.warnings.front();
+  bool named = false;
+  for (const auto& w : r.summary.warnings) named |= w.find("not identifiable: the rotation about z") != std::string::npos;
+  EXPECT_TRUE(named);
   EXPECT_GT(r.dip, 0.0);  // the answer nearest the axes as mounted, not its mirror (R flipped, the dip negated)
 }
 

@@ -73,8 +73,8 @@ def test_a_level_turn_leaves_the_rotation_about_the_vertical_undetermined():
     h, f, _, _ = scene(rng, n=200, attitudes=yaws)
     a = align_to_gravity(h, f)
     assert not a.identifiable
-    assert "not identifiable: the rotation about z" in a.summary["warnings"][0]
-    assert a.rotation_se_deg[2] > 1.0 and "tilt the device" in a.summary["warnings"][0]
+    said = next(w for w in a.summary["warnings"] if "not identifiable: the rotation about z" in w)
+    assert a.rotation_se_deg[2] > 1.0 and "tilt the device" in said
     assert a.dip_deg > 0  # the answer nearest the axes as mounted, not its mirror (R flipped, the dip negated)
     # the heading it cannot see is left as mounted: the rotation found is the true 3° less its part about the
     # vertical, not an arbitrary heading (a review found 6–102° across seeds when steps could wander along it)
@@ -238,7 +238,7 @@ def _axes(v, axes: str) -> np.ndarray:
 def test_sap6_dip_agrees_with_the_makers(real_data, unit):
     """Six SAP6 cave-survey units, 24 static shots each (magnetometer in µT, the down direction in m/s²): the dip
     from fluxcal's magnitude calibration plus alignment agrees with the maker's own `dip_avg` within 3 SE (measured
-    −0.22…+0.39°, under 1.7 SE)."""
+    −0.22…+0.39°, under 2.3 SE)."""
     import json
 
     shots = json.loads((real_data / "sap6" / f"{unit}.json").read_text())
@@ -249,3 +249,35 @@ def test_sap6_dip_agrees_with_the_makers(real_data, unit):
     assert a.identifiable and a.dip_deg > 0
     assert abs(a.dip_deg - cfg["dip_avg"]) < min(3 * a.dip_se_deg, 1.0), (a.dip_deg, a.dip_se_deg, cfg["dip_avg"])
 
+
+
+@pytest.mark.parametrize("dip", [60.0, -60.0])
+def test_tilts_about_one_axis_leave_two_answers_and_say_so(dip):
+    """Heading turns with roll 0° or 90° only: R and R turned 180° about the roll axis with the dip negated fit
+    equally, and noise picked the wrong one, flagged identifiable (a blind check: 4–9 of 100 seeds). Now flagged
+    not identifiable, naming the axis, and the answer nearer the axes as mounted is returned."""
+    wrong = 0
+    for seed in range(20):
+        rng = np.random.default_rng(seed)
+        angles = np.c_[rng.uniform(0, 360, 300), np.zeros(300), np.where(rng.random(300) < 0.5, 0.0, 90.0)]
+        h, f, truth, _ = scene(rng, attitudes=Rotation.from_euler("ZYX", angles, degrees=True),
+                               dip=np.radians(dip))
+        a = align_to_gravity(h, f)
+        assert not a.identifiable and any("two answers fit equally" in w for w in a.summary["warnings"]), seed
+        wrong += np.degrees(np.linalg.norm(rotation_error(a.rotation, truth))) > 90
+    assert wrong == 0
+
+
+def test_outliers_are_left_out():
+    """15 readings of 300 with the magnetometer's direction knocked off by tens of degrees: the fit had stopped at
+    R = I with the dip at 90° ("converged"); they are now left out and the result is as without them."""
+    rng = np.random.default_rng(21)
+    h, f, truth, _ = scene(rng)
+    clean = align_to_gravity(h, f)
+    knocked = h.copy()
+    knocked[::20] = Rotation.from_rotvec(rng.normal(0, 0.7, (15, 3))).apply(knocked[::20])
+    a = align_to_gravity(knocked, f)
+    left_out = int(next(w for w in a.summary["warnings"] if "left out as outliers" in w).split()[0])
+    assert 12 <= left_out <= 15  # a knock along the field's own direction moves nothing
+    assert np.degrees(np.linalg.norm(rotation_error(a.rotation, clean.rotation))) < 3 * clean.rotation_se_deg.max()
+    assert abs(a.dip_deg - clean.dip_deg) < 3 * clean.dip_se_deg

@@ -15,9 +15,12 @@
 // the nearest rotation, and R = I; then damped Gauss–Newton on R = exp([θ]×) R₀ and δ from each, stepping only
 // along directions the data determine; R = I's fit is kept unless the linear start's is clearly better (half
 // the cost, or identifiable where R = I's is not); and the dip's noise bias removed.
+// Readings whose dip residual is more than 5 robust SDs off (a spike, a knock) are left out and the fit run again.
 // What it cannot see: a rotation about the vertical when the device was only turned about the vertical (the
 // heading offset of a compass turned level), or any axis the attitudes never moved about — its standard
 // error then says so, the result is flagged not identifiable, and that rotation is left as mounted (R = I).
+// Nor, when every tilt was about one body axis n, which of two answers is right: R or R turned 180° about n,
+// with the dip negated, fit equally; the one nearer the axes as mounted is returned, flagged not identifiable.
 #pragma once
 
 #include <fluxcal/types.hpp>
