@@ -31,8 +31,32 @@ Eigen::Matrix3d nearest_rotation(const Eigen::Matrix3d& m) {
   return svd.matrixU() * d * svd.matrixV().transpose();
 }
 
+/// d_k·R ĥ_k − sin δ of every reading.
+Eigen::VectorXd residuals(const Samples& down, const Samples& dir, const Eigen::Matrix3d& r, double dip) {
+  return (down * r).cwiseProduct(dir).rowwise().sum().array() - std::sin(dip);
+}
+
 double cost(const Samples& down, const Samples& dir, const Eigen::Matrix3d& r, double dip) {
-  return ((down * r).cwiseProduct(dir).rowwise().sum().array() - std::sin(dip)).square().sum();
+  return residuals(down, dir, r, dip).squaredNorm();
+}
+
+/// σ̂²: the cost over the degrees of freedom (four parameters).
+double residual_variance(double cost, Eigen::Index rows) {
+  return cost / static_cast<double>(std::max<Eigen::Index>(rows - 4, 1));
+}
+
+/// JᵀJ and Jᵀe of the residuals at (R, δ); J's rows are (R ĥ_k × d_k, −cos δ) over (a small rotation, δ).
+void normal_equations(const Samples& down, const Samples& dir, const Eigen::Matrix3d& r, double dip,
+                      Eigen::Matrix4d& jtj, Eigen::Vector4d& jte) {
+  jtj.setZero();
+  jte.setZero();
+  for (Eigen::Index k = 0; k < down.rows(); ++k) {
+    const Eigen::Vector3d v = r * dir.row(k).transpose(), d = down.row(k).transpose();
+    Eigen::Vector4d j;
+    j << v.cross(d), -std::cos(dip);
+    jtj += j * j.transpose();
+    jte += j * (d.dot(v) - std::sin(dip));
+  }
 }
 
 struct Fit {
@@ -50,22 +74,16 @@ Fit gauss_newton(const Samples& down, const Samples& dir, Eigen::Matrix3d r, dou
   Fit fit;
   double current = cost(down, dir, r, dip), mu = 1e-6;
   while (fit.iterations < options.max_iterations) {
-    Eigen::Matrix4d jtj = Eigen::Matrix4d::Zero();
-    Eigen::Vector4d jte = Eigen::Vector4d::Zero();
-    for (Eigen::Index k = 0; k < down.rows(); ++k) {
-      const Eigen::Vector3d v = r * dir.row(k).transpose(), d = down.row(k).transpose();
-      Eigen::Vector4d j;
-      j << v.cross(d), -std::cos(dip);
-      jtj += j * j.transpose();
-      jte += j * (d.dot(v) - std::sin(dip));
-    }
+    Eigen::Matrix4d jtj;
+    Eigen::Vector4d jte;
+    normal_equations(down, dir, r, dip, jtj, jte);
     ++fit.iterations;
     // Step only along the directions the data determine (standard error at this iterate's residual variance
     // within max_se_deg): the others keep the start's value. For level turns that is the rotation about the
     // vertical, along which a free step wanders to an arbitrary heading (every heading fits nearly as well).
     const Eigen::SelfAdjointEigenSolver<Eigen::Matrix4d> eig(jtj);
     const Eigen::Vector4d lambda = eig.eigenvalues(), g = eig.eigenvectors().transpose() * jte;
-    const double sigma2 = current / static_cast<double>(std::max<Eigen::Index>(down.rows() - 4, 1));
+    const double sigma2 = residual_variance(current, down.rows());
     const double se_limit2 = std::pow(options.max_se_deg / kDeg, 2), scale = std::max(lambda(3), 1e-300);
     bool accepted = false;
     for (; mu <= 1e6 && !accepted; ) {
@@ -97,14 +115,10 @@ Fit gauss_newton(const Samples& down, const Samples& dir, Eigen::Matrix3d r, dou
 /// variance.
 void covariance(const Samples& down, const Samples& dir, Fit& fit, const AlignmentOptions& options) {
   if (std::cos(fit.dip) < 0) fit.dip = std::atan2(std::sin(fit.dip), std::abs(std::cos(fit.dip)));
-  Eigen::Matrix4d jtj = Eigen::Matrix4d::Zero();
-  for (Eigen::Index k = 0; k < down.rows(); ++k) {
-    const Eigen::Vector3d v = fit.rotation * dir.row(k).transpose(), d = down.row(k).transpose();
-    Eigen::Vector4d j;
-    j << v.cross(d), -std::cos(fit.dip);
-    jtj += j * j.transpose();
-  }
-  fit.sigma2 = fit.cost / static_cast<double>(std::max<Eigen::Index>(down.rows() - 4, 1));
+  Eigen::Matrix4d jtj;
+  Eigen::Vector4d jte;
+  normal_equations(down, dir, fit.rotation, fit.dip, jtj, jte);
+  fit.sigma2 = residual_variance(fit.cost, down.rows());
   Eigen::SelfAdjointEigenSolver<Eigen::Matrix4d> eig(jtj);
   const Eigen::Vector4d lambda = eig.eigenvalues();
   const Eigen::Vector4d inverse = lambda.cwiseMax(1e-12 * std::max(lambda(3), 1e-300)).cwiseInverse();
@@ -211,8 +225,7 @@ AlignmentResult align_to_gravity(const SamplesRef& field, const SamplesRef& spec
   // one such reading had turned R by 1.8° and 5 % of them had stopped the fit.
   Eigen::Index outliers = 0;
   for (int round = 0; round < 5; ++round) {
-    const Eigen::VectorXd residual =
-        (down * best.rotation).cwiseProduct(dir).rowwise().sum().array() - std::sin(best.dip);
+    const Eigen::VectorXd residual = residuals(down, dir, best.rotation, best.dip);
     const double centre = median_of(residual), spread = 1.4826 * median_of((residual.array() - centre).abs());
     std::vector<Eigen::Index> inliers;
     for (Eigen::Index i = 0; i < n; ++i)
@@ -273,8 +286,8 @@ AlignmentResult align_to_gravity(const SamplesRef& field, const SamplesRef& spec
     dip = std::asin(std::clamp(std::sin(dip) / (1.0 - sigma2_total), -1.0, 1.0));
 
   result.residuals = Eigen::VectorXd::Constant(field.rows(), std::numeric_limits<double>::quiet_NaN());
-  for (Eigen::Index i = 0; i < n; ++i)
-    result.residuals(keep[i]) = down.row(i).dot(r * dir.row(i).transpose()) - std::sin(best.dip);
+  const Eigen::VectorXd kept_residuals = residuals(down, dir, r, best.dip);
+  for (Eigen::Index i = 0; i < n; ++i) result.residuals(keep[i]) = kept_residuals(i);
   result.rotation = r;
   const Eigen::AngleAxisd aa(r);
   result.rotation_vector = aa.angle() * aa.axis();

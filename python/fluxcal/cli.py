@@ -190,7 +190,7 @@ def _reference(rec: Recording, names: str | None, file) -> tuple:
     missing = [n for n in names if n not in rec.columns]
     if len(names) != 3 or missing:
         raise ValueError(f"--reference: need three columns of {file} (columns are: {', '.join(rec.columns)})")
-    units, mag = {unit_name(rec.units[n]) if rec.units.get(n) else "" for n in names}, rec.field_units()
+    units, mag = {unit_name(rec.units.get(n, "")) for n in names}, rec.field_units()
     if len(units) > 1:
         raise ValueError(f"--reference: the columns {', '.join(names)} have different units ({', '.join(sorted(units))})")
     unit = units.pop()

@@ -209,13 +209,13 @@ class Recording:
     def _reference_unit(self) -> str:
         from ..calibration import TESLA_PER_UNIT
 
-        units = {unit_name(self.units[c]) if self.units.get(c) else "" for c in FIELD_NED_COLUMNS}  # one spelling
+        units = {unit_name(self.units.get(c, "")) for c in FIELD_NED_COLUMNS}  # one spelling
         mag = self.field_units()
         if len(units) > 1 or (mag in TESLA_PER_UNIT and units.pop() not in set(TESLA_PER_UNIT) | {mag}):
             raise ValueError(f"{self.source}: the field columns {', '.join(FIELD_NED_COLUMNS)} are in "
                              f"{', '.join(sorted({self.units.get(c, '') or 'no stated unit' for c in FIELD_NED_COLUMNS}))}, "
                              f"the magnetometer in {mag}: state one field unit for all three (e.g. igrf_n [nT])")
-        return unit_name(self.units[FIELD_NED_COLUMNS[0]]) if self.units.get(FIELD_NED_COLUMNS[0]) else ""
+        return unit_name(self.units.get(FIELD_NED_COLUMNS[0], ""))
 
     def _reference_scale(self) -> float:
         """The factor that takes the local field columns into `reference_units()`."""
@@ -239,7 +239,7 @@ class Recording:
     def field_units(self) -> str:
         """The unit of the magnetometer columns ("" when the recording does not state it)."""
         # one spelling per unit (µT, uTesla, nanotesla, gauss → uT, nT, G): a calibration compares them by name
-        units = {unit_name(self.units[n]) if self.units.get(n) else "" for n in self.mag_names()}
+        units = {unit_name(self.units.get(n, "")) for n in self.mag_names()}
         if len(units) > 1:
             raise ValueError(f"{self.source}: magnetometer columns have different units {sorted(units)}")
         return units.pop()
