@@ -175,6 +175,8 @@ def fixed_point(cal: Calibration, q_format: str | QFormat | None = None,
     na = _matrix_frac_bits(a)
     extent = reading_extent(cal)
     units = f" {cal.units}".rstrip()
+    if q_format is not None and not isinstance(q_format, QFormat):
+        q_format = QFormat.parse(q_format)
     if input_range is not None:
         r = float(input_range)
         if not (math.isfinite(r) and r > 0):
@@ -183,8 +185,7 @@ def fixed_point(cal: Calibration, q_format: str | QFormat | None = None,
             raise ValueError(f"--input-range {r:.6g}{units}: smaller than the calibration readings' extent "
                              f"{extent:.6g}{units} (a reading of the calibration field reaches it); give the "
                              "sensor's full scale in the calibration's units")
-        fmt = (_smallest_format(a, b, na, r) if q_format is None else
-               q_format if isinstance(q_format, QFormat) else QFormat.parse(q_format))
+        fmt = _smallest_format(a, b, na, r) if q_format is None else q_format
         if fmt is None or not _fits(a, b, fmt, na, r):
             smallest = _smallest_format(a, b, na, r)
             raise ValueError((f"--q-format {fmt}: " if fmt is not None else "") +
@@ -201,7 +202,7 @@ def fixed_point(cal: Calibration, q_format: str | QFormat | None = None,
         r, note = wanted, f"{RANGE_MARGIN:g} x the readings' extent {extent:.6g} {cal.units}".rstrip()
     else:
         wanted = RANGE_MARGIN * extent
-        fmt = q_format if isinstance(q_format, QFormat) else QFormat.parse(q_format)
+        fmt = q_format
         if not _fits(a, b, fmt, na, extent):
             smallest = _smallest_format(a, b, na, extent)
             raise ValueError(f"--q-format {fmt}: readings of the calibration field reach ±{extent:.6g} {cal.units} "
