@@ -13,6 +13,8 @@ namespace py = pybind11;
 
 /// A Summary as a plain dict (what Calibration.summary holds and JSON stores).
 py::dict summary_dict(const fluxcal::Summary& s);
+/// What a fit's residuals said about correlation in time (SerialCorrelationReport) as a plain dict.
+py::dict serial_correlation_dict(const fluxcal::SerialCorrelationReport& r);
 /// A Calibration plus its Summary as the dict fluxcal's Python layer turns into a Calibration.
 py::dict calibration_dict(const fluxcal::Calibration& c, const fluxcal::Summary& s);
 

@@ -16,6 +16,12 @@ py::dict summary_dict(const fluxcal::Summary& s) {
                   "message"_a = s.message, "warnings"_a = s.warnings);
 }
 
+py::dict serial_correlation_dict(const fluxcal::SerialCorrelationReport& r) {
+  const Eigen::VectorXd& se = r.standard_errors_independent;
+  return py::dict("lag1"_a = r.lag1, "ljung_box_p"_a = r.ljung_box_p, "lags"_a = r.lags, "inflation"_a = r.inflation,
+                  "standard_errors_independent"_a = std::vector<double>(se.data(), se.data() + se.size()));
+}
+
 py::dict calibration_dict(const fluxcal::Calibration& c, const fluxcal::Summary& s) {
   return py::dict("offset"_a = c.offset, "matrix"_a = c.matrix, "field_norm"_a = c.field_norm,
                   "units"_a = c.units, "model"_a = c.model, "summary"_a = summary_dict(s));

@@ -119,7 +119,9 @@ void bind_positions(py::module_& m) {
       .def_readwrite("max_iterations", &fluxcal::AlignmentOptions::max_iterations)
       .def_readwrite("tolerance", &fluxcal::AlignmentOptions::tolerance)
       .def_readwrite("max_se_deg", &fluxcal::AlignmentOptions::max_se_deg)
-      .def_readwrite("noise_bias_correction", &fluxcal::AlignmentOptions::noise_bias_correction);
+      .def_readwrite("noise_bias_correction", &fluxcal::AlignmentOptions::noise_bias_correction)
+      .def_readwrite("serial_correlation", &fluxcal::AlignmentOptions::serial_correlation)
+      .def_readwrite("serial_correlation_alpha", &fluxcal::AlignmentOptions::serial_correlation_alpha);
   m.def(
       "align_to_gravity",
       [](const fluxcal::SamplesView& field, const fluxcal::SamplesView& specific_force,
@@ -132,7 +134,7 @@ void bind_positions(py::module_& m) {
         return py::dict("rotation"_a = r.rotation, "rotation_vector"_a = r.rotation_vector, "dip"_a = r.dip,
                         "covariance"_a = r.covariance, "standard_errors"_a = r.standard_errors,
                         "residual_rms"_a = r.residual_rms, "readings_used"_a = r.readings_used,
-                        "residuals"_a = r.residuals,
+                        "residuals"_a = r.residuals, "serial_correlation"_a = serial_correlation_dict(r.serial_correlation),
                         "identifiable"_a = r.identifiable, "summary"_a = summary_dict(r.summary));
       },
       "field"_a.noconvert(), "specific_force"_a.noconvert(), "options"_a);

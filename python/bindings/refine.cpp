@@ -21,10 +21,7 @@ py::dict result_dict(const fluxcal::RefineResult& r) {
   d["noise_sigma"] = r.noise_sigma;
   d["fisher_condition"] = r.fisher_condition;
   d["solver_report"] = r.solver_report;
-  const fluxcal::SerialCorrelationReport& sc = r.serial_correlation;
-  d["serial_correlation"] = py::dict("lag1"_a = sc.lag1, "ljung_box_p"_a = sc.ljung_box_p, "lags"_a = sc.lags,
-                                     "inflation"_a = sc.inflation,
-                                     "standard_errors_independent"_a = sc.standard_errors_independent);
+  d["serial_correlation"] = serial_correlation_dict(r.serial_correlation);
   d["residuals"] = r.residuals;
   d["jacobian"] = r.jacobian;
   return d;

@@ -17,9 +17,10 @@ from the median by more than `max_dynamic` (5 %) are left out as moving. Least s
 d·Rĥ − sin δ is the maximum-likelihood estimate for direction noise (its variance is the same for every
 reading); `covariance` is σ̂²(JᵀJ)⁻¹ of (small rotations about the accelerometer's x, y, z; δ), radians².
 Readings correlated in time (a slow hand turn logged at 100 Hz) make that too small, as for any least-squares
-fit that counts them as independent: when the dip residuals of consecutive rows correlate (lag-1 ρ > 0.2) the
-covariance is widened by the AR(1) factor (1 + ρ)/(1 − ρ) — what it is for regressors that change slowly
-against the noise — and a warning says so (serial_correlation="independent" when the rows are not in time order).
+fit that counts them as independent: as `fluxcal.refine`, when the dip residuals fail a Ljung–Box test and the
+Newey–West sandwich (AR(1)-prewhitened, over the scores J_kᵀe_k) widens an error, or when it widens one ≥ 1.5×,
+the covariance is the sandwich and a warning says so (serial_correlation="independent" when the rows are not in
+time order; then nothing can see the correlation).
 """
 from __future__ import annotations
 
@@ -30,6 +31,7 @@ import numpy as np
 from . import _core
 from ._arrays import as_samples, as_specific_force, require_calibration, set_options
 from .calibration import Calibration
+from .refine import serial_correlation_mode
 
 
 @dataclass
@@ -94,60 +96,28 @@ class Alignment:
                 "warnings": list(self.summary.get("warnings", []))}
 
 
-SERIAL_LIMIT = 0.2  # lag-1 autocorrelation of the dip residuals above which the covariance is widened, when it is
-# also significant (above 2/√pairs: independent readings pass it 2.5 % of the time; 24 shots reach 0.2 by chance)
-
-
-def _lag1(residuals: np.ndarray) -> tuple[float, int]:
-    """Lag-1 autocorrelation over consecutive rows both kept (NaN: left out as moving), and how many pairs."""
-    e = residuals - np.nanmean(residuals)
-    pairs = np.isfinite(e[1:]) & np.isfinite(e[:-1])
-    if pairs.sum() < 10:
-        return 0.0, int(pairs.sum())
-    return float(np.sum(e[1:][pairs] * e[:-1][pairs]) / np.nansum(e ** 2)), int(pairs.sum())
-
-
 def align_to_gravity(field, specific_force, serial_correlation: str = "automatic",
                      acc_measures: str = "specific_force", **settings) -> Alignment:
     """R and the dip from calibrated fields `field` (N×3, e.g. `cal.apply(m)`) and the accelerometer's rows
     `specific_force` (N×3, the same instants, in time order; any unit; `acc_measures="gravity"` for an instrument
-    that reports the down direction, as the SAP6 survey units do). `serial_correlation`: "automatic" widens the
-    covariance when consecutive rows' residuals correlate (module docstring), "independent" never.
+    that reports the down direction, as the SAP6 survey units do). `serial_correlation`: "automatic" takes the
+    Newey–West covariance when the readings are correlated in time (module docstring), "independent" never,
+    "newey_west" always; summary["serial_correlation"] says what the residuals showed (lag-1, Ljung–Box p,
+    Newey–West lags, 0 = independent readings assumed, and the widening).
 
     settings (defaults in alignment.hpp): max_dynamic=0.05, max_iterations=50, tolerance=1e-12,
     noise_bias_correction=True (the dip's ≈ −σ² tan δ), max_se_deg=1.0 (an axis known worse is "not determined":
     identifiable False, with a warning naming it). ValueError on NaN, rows that differ, fewer than 8 readings at
     rest."""
-    if serial_correlation not in ("automatic", "independent"):
-        raise ValueError(f"serial_correlation: {serial_correlation!r}, need 'automatic' or 'independent'")
     h = as_samples(field, "field")
     f = as_specific_force(specific_force, acc_measures, "specific_force")
-    options = set_options(_core.AlignmentOptions(), settings, "align_to_gravity")
+    options = set_options(_core.AlignmentOptions(), {**settings, "serial_correlation":
+                                                     serial_correlation_mode(serial_correlation)}, "align_to_gravity")
     r = _core.align_to_gravity(h, f, options)
-    dip, covariance, summary = float(r["dip"]), np.asarray(r["covariance"]), dict(r["summary"])
-    identifiable = bool(r["identifiable"])
-    rho, pairs = _lag1(np.asarray(r["residuals"])) if serial_correlation == "automatic" else (0.0, 0)
-    if rho > max(SERIAL_LIMIT, 2 / np.sqrt(max(pairs, 1))):
-        factor = (1 + rho) / (1 - rho) if rho < 1 else np.inf
-        covariance = covariance * factor
-        summary["warnings"] = list(summary["warnings"]) + [
-            f"readings are correlated in time (lag-1 autocorrelation {rho:.2f} of the dip residuals): standard "
-            f"errors widened {np.sqrt(factor):.3g}x (AR(1)); rows must be in time order "
-            "(serial_correlation='independent' when they are not)"]
-        se_deg = np.degrees(np.sqrt(np.maximum(np.diag(covariance), 0.0)))
-        widened_out = [name for name, se in zip(("the rotation about x", "the rotation about y",
-                                                 "the rotation about z", "the dip"), se_deg)
-                       if se > options.max_se_deg] if identifiable else []
-        if widened_out:
-            identifiable = False
-            summary["warnings"].append(f"not identifiable: {', '.join(widened_out)} not determined to "
-                                       f"{options.max_se_deg:g}° once the standard errors are widened for the "
-                                       "correlation in time (more readings, or turns about more axes)")
-        rotation_deg = float(np.degrees(np.linalg.norm(np.asarray(r["rotation_vector"]))))
-        summary["message"] = (f"magnetometer to accelerometer: {rotation_deg:.6g}° rotation, dip "
-                              f"{np.degrees(dip):.6g}° (±{se_deg[3]:.6g}°), {int(r['readings_used'])} static readings")
-    summary["serial_correlation"] = {"lag1": rho, "mode": serial_correlation}
-    return Alignment(rotation=np.asarray(r["rotation"]), dip_deg=float(np.degrees(dip)), covariance=covariance,
-                     identifiable=identifiable, readings_used=int(r["readings_used"]),
+    dip, summary = float(r["dip"]), dict(r["summary"])
+    summary["serial_correlation"] = {**r["serial_correlation"], "mode": serial_correlation}
+    return Alignment(rotation=np.asarray(r["rotation"]), dip_deg=float(np.degrees(dip)),
+                     covariance=np.asarray(r["covariance"]), identifiable=bool(r["identifiable"]),
+                     readings_used=int(r["readings_used"]),
                      residual_rms_deg=float(np.degrees(r["residual_rms"] / max(np.cos(dip), 1e-12))),
                      summary=summary)

@@ -293,8 +293,7 @@ def cmd_calibrate(args) -> int:
 
 def _aligned(cal: Calibration, rec, raw: np.ndarray, file, acc_measures: str, serial: str | None) -> Calibration:
     """`cal` turned into the accelerometer's axes (--align-accelerometer); the fit's outliers left out;
-    --serial-correlation independent reaches it (its other values widen when the residuals correlate)."""
-    serial = "independent" if serial == "independent" else "automatic"
+    --serial-correlation reaches it."""
     from .alignment import align_to_gravity
 
     if "reference" in cal.metadata:
@@ -308,7 +307,7 @@ def _aligned(cal: Calibration, rec, raw: np.ndarray, file, acc_measures: str, se
     keep &= np.isfinite(acc).all(axis=1)
     try:
         return align_to_gravity(cal.apply(raw[keep]), acc[keep], acc_measures=acc_measures,
-                                serial_correlation=serial).calibration(cal)
+                                serial_correlation=serial or "automatic").calibration(cal)
     except ValueError as exc:
         raise ValueError(f"{file}: --align-accelerometer: {exc}") from None
 

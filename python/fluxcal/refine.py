@@ -43,12 +43,18 @@ def _options(loss="none", loss_scale=0.0, units="", shape="sym", **settings):
     options.shape = SHAPES[shape_name(shape)]
     options.loss_scale = float(loss_scale)
     options.units = units_text(units)
-    if "serial_correlation" in settings and not isinstance(settings["serial_correlation"], _core.SerialCorrelation):
-        name = settings["serial_correlation"]
-        if not isinstance(name, str) or name not in SERIAL_CORRELATION:
-            raise ValueError(f"serial_correlation: {name!r} is not one of {', '.join(SERIAL_CORRELATION)}")
-        settings = {**settings, "serial_correlation": SERIAL_CORRELATION[name]}
+    if "serial_correlation" in settings:
+        settings = {**settings, "serial_correlation": serial_correlation_mode(settings["serial_correlation"])}
     return set_options(options, settings, "refine")
+
+
+def serial_correlation_mode(name):
+    """The C++ SerialCorrelation for "automatic", "independent" or "newey_west"; ValueError otherwise."""
+    if isinstance(name, _core.SerialCorrelation):
+        return name
+    if not isinstance(name, str) or name not in SERIAL_CORRELATION:
+        raise ValueError(f"serial_correlation: {name!r} is not one of {', '.join(SERIAL_CORRELATION)}")
+    return SERIAL_CORRELATION[name]
 
 
 def _calibration(result: dict, method: str) -> Calibration:
@@ -58,9 +64,7 @@ def _calibration(result: dict, method: str) -> Calibration:
     for key in ("parameters", "standard_errors", "covariance"):
         summary[key] = np.asarray(result[key]).tolist()
     summary["determined"] = list(result["determined"])
-    serial = dict(result["serial_correlation"])
-    serial["standard_errors_independent"] = np.asarray(serial["standard_errors_independent"]).tolist()
-    summary["serial_correlation"] = serial
+    summary["serial_correlation"] = dict(result["serial_correlation"])
     summary["method"] = method
     _few_spare_readings(summary, 3 if method in ("vector", "refine_vector") else 1)
     return Calibration(offset=result["offset"], matrix=result["matrix"], field_norm=result["field_norm"],

@@ -14,7 +14,10 @@
 // Start: the homogeneous linear fit d_kᵀ M ĥ_k = s (10 unknowns, the smallest singular vector), M projected on
 // the nearest rotation, and R = I; then damped Gauss–Newton on R = exp([θ]×) R₀ and δ from each, stepping only
 // along directions the data determine; R = I's fit is kept unless the linear start's is clearly better (half
-// the cost, or identifiable where R = I's is not); and the dip's noise bias removed.
+// the cost, or identifiable where R = I's is not). Both vectors are noisy, so least squares is biased where the
+// attitudes are uneven (a hand turn: 1–2° at 1 % noise): the fit then solves the bias-corrected normal equations
+// Jᵀe + σ̂² sin δ Σ_k (R ĥ_k × d_k, 0) = 0, and the dip's own noise bias is divided out. Readings correlated in
+// time get the Newey–West covariance (as refine.hpp).
 // Readings whose dip residual is more than 5 robust SDs off (a spike, a knock) are left out and the fit run again.
 // What it cannot see: a rotation about the vertical when the device was only turned about the vertical (the
 // heading offset of a compass turned level), or any axis the attitudes never moved about — its standard
@@ -41,9 +44,15 @@ struct AlignmentOptions {
   /// A rotation axis or the dip whose standard error (degrees) exceeds this is "not determined": the
   /// attitudes did not move about that axis.
   double max_se_deg = 1.0;
-  /// Remove the dip's noise bias (≈ −σ² tan δ, σ² the two vectors' direction variance per axis, taken from the
-  /// residuals): noisy unit vectors are shorter along their true direction on average.
+  /// Remove the noise biases: the rotation's (noise in both vectors correlates J with e; it cancels only over
+  /// evenly spread attitudes) and the dip's (≈ −σ² tan δ: noisy unit vectors are shorter along their true
+  /// direction on average), σ² the two vectors' direction variance per axis, from the residuals.
   bool noise_bias_correction = true;
+  /// Readings correlated in time (a slow hand turn logged fast) make σ̂²(JᵀJ)⁻¹ too small. `automatic`: the
+  /// prewhitened Newey–West sandwich when the dip residuals fail a Ljung–Box test at serial_correlation_alpha
+  /// and it widens an error, or when it widens one ≥ 1.5× (as RefineOptions; rows in time order).
+  SerialCorrelation serial_correlation = SerialCorrelation::automatic;
+  double serial_correlation_alpha = 0.01;
 };
 
 struct AlignmentResult {
@@ -60,9 +69,10 @@ struct AlignmentResult {
   /// RMS of the dip residuals (radians) and how many readings were kept as static.
   double residual_rms = 0.0;
   std::size_t readings_used = 0;
-  /// Per input row: d·R ĥ − sin δ at the fit (radians × cos δ), NaN for a row left out as moving. Readings
-  /// correlated in time (a slow hand turn) make `covariance` too small; these let the caller see it.
+  /// Per input row: d·R ĥ − sin δ at the fit (radians × cos δ), NaN for a row left out (moving, an outlier).
   Eigen::VectorXd residuals;
+  /// The residuals' test for correlation in time and what the covariance did about it.
+  SerialCorrelationReport serial_correlation;
   /// False when some axis or the dip is not determined (standard error above max_se_deg).
   bool identifiable = false;
   /// Summary: samples (used), iterations, converged, message, warnings.

@@ -37,14 +37,6 @@ enum class Loss {
   cauchy,  ///< log(1 + (r/loss_scale)²): strong down-weighting of outliers
 };
 
-/// How the covariance treats correlation between readings (rows taken in time order).
-enum class SerialCorrelation {
-  automatic,    ///< Newey–West when the residuals fail the Ljung–Box test and it widens an error, or when
-                ///< it widens one ≥ 1.5×; never to a sandwich that widens nothing
-  independent,  ///< σ̂² (JᵀJ)⁻¹ whatever the residuals (rows not in time order, or for comparison)
-  newey_west,   ///< always the Newey–West sandwich
-};
-
 /// The soft-iron matrix the magnitude model may fit (MATLAB magcal's 'eye' / 'diag' / 'sym'). Fewer
 /// parameters cost nothing when the sensor has no cross-axis coupling, and are better determined by few
 /// readings or a thin coverage.
@@ -81,15 +73,6 @@ struct RefineOptions {
   /// Significance of the Ljung–Box test (20 lags, or N/5 when fewer) that switches `automatic` to
   /// Newey–West. Strict, so that white noise keeps the exact independent-readings covariance. In (0, 1).
   double serial_correlation_alpha = 0.01;
-};
-
-/// What the residuals say about correlation between readings, and what the covariance did about it.
-struct SerialCorrelationReport {
-  double lag1 = 0.0;                 ///< lag-1 autocorrelation of the residuals (mean over axes for vectors)
-  double ljung_box_p = 1.0;          ///< Ljung–Box p-value (smallest axis × 3 for vectors)
-  int lags = 0;                      ///< Newey–West bandwidth; 0 = independent readings assumed
-  double inflation = 1.0;            ///< largest ratio of the reported to the independent-readings standard error
-  Eigen::VectorXd standard_errors_independent;  ///< sqrt diag σ̂² (JᵀJ)⁻¹, for comparison
 };
 
 struct RefineResult {

@@ -141,6 +141,23 @@ using SamplesRef = RowsRef<3>;
 /// The plain Eigen view underneath (what the Python bindings map a NumPy array to).
 using SamplesView = SamplesRef::Base;
 
+/// How the covariance treats correlation between readings (rows taken in time order).
+enum class SerialCorrelation {
+  automatic,    ///< Newey–West when the residuals fail the Ljung–Box test and it widens an error, or when
+                ///< it widens one ≥ 1.5×; never to a sandwich that widens nothing
+  independent,  ///< σ̂² (JᵀJ)⁻¹ whatever the residuals (rows not in time order, or for comparison)
+  newey_west,   ///< always the Newey–West sandwich
+};
+
+/// What the residuals say about correlation between readings, and what the covariance did about it.
+struct SerialCorrelationReport {
+  double lag1 = 0.0;                 ///< lag-1 autocorrelation of the residuals (mean over axes for vectors)
+  double ljung_box_p = 1.0;          ///< Ljung–Box p-value (smallest axis × 3 for vectors)
+  int lags = 0;                      ///< Newey–West bandwidth; 0 = independent readings assumed
+  double inflation = 1.0;            ///< largest ratio of the reported to the independent-readings standard error
+  Eigen::VectorXd standard_errors_independent;  ///< sqrt diag σ̂² (JᵀJ)⁻¹, for comparison
+};
+
 /// What a solver reports. Fields that do not apply to a solver keep their defaults.
 struct Summary {
   std::size_t samples = 0;         ///< readings used by the fit
