@@ -65,6 +65,19 @@ void normal_equations(const Samples& down, const Samples& dir, const Eigen::Matr
   jte = j.transpose() * residuals(down, dir, r, dip);
 }
 
+/// The step −(JᵀJ + μ λ_max)⁻¹ g taken only along the directions the data determine (standard error at the residual
+/// variance sigma2 within max_se_deg); the others keep their value. For level turns that is the rotation about the
+/// vertical, along which a free step wanders to an arbitrary heading (every heading fits nearly as well).
+Eigen::Vector4d determined_step(const Eigen::SelfAdjointEigenSolver<Eigen::Matrix4d>& eig, const Eigen::Vector4d& g,
+                                double sigma2, double mu, const AlignmentOptions& options) {
+  const Eigen::Vector4d lambda = eig.eigenvalues(), in_eigen = eig.eigenvectors().transpose() * g;
+  const double se_limit2 = std::pow(options.max_se_deg / kDeg, 2), scale = std::max(lambda(3), 1e-300);
+  Eigen::Vector4d step = Eigen::Vector4d::Zero();
+  for (int i = 0; i < 4; ++i)
+    if (lambda(i) > 0 && sigma2 / lambda(i) <= se_limit2) step(i) = -in_eigen(i) / (lambda(i) + mu * scale);
+  return eig.eigenvectors() * step;
+}
+
 struct Fit {
   Eigen::Matrix3d rotation;
   double dip = 0.0, cost = 0.0, sigma2 = 0.0;
@@ -85,19 +98,11 @@ Fit gauss_newton(const Samples& down, const Samples& dir, Eigen::Matrix3d r, dou
     Eigen::Vector4d jte;
     normal_equations(down, dir, r, dip, jtj, jte);
     ++fit.iterations;
-    // Step only along the directions the data determine (standard error at this iterate's residual variance
-    // within max_se_deg): the others keep the start's value. For level turns that is the rotation about the
-    // vertical, along which a free step wanders to an arbitrary heading (every heading fits nearly as well).
     const Eigen::SelfAdjointEigenSolver<Eigen::Matrix4d> eig(jtj);
-    const Eigen::Vector4d lambda = eig.eigenvalues(), g = eig.eigenvectors().transpose() * jte;
     const double sigma2 = residual_variance(current, down.rows());
-    const double se_limit2 = std::pow(options.max_se_deg / kDeg, 2), scale = std::max(lambda(3), 1e-300);
     bool accepted = false;
     for (; mu <= 1e6 && !accepted; ) {
-      Eigen::Vector4d in_eigen = Eigen::Vector4d::Zero();
-      for (int i = 0; i < 4; ++i)
-        if (lambda(i) > 0 && sigma2 / lambda(i) <= se_limit2) in_eigen(i) = -g(i) / (lambda(i) + mu * scale);
-      const Eigen::Vector4d step = eig.eigenvectors() * in_eigen;
+      const Eigen::Vector4d step = determined_step(eig, jte, sigma2, mu, options);
       const Eigen::Matrix3d r_try = exp_rotation(step.head<3>()) * r;
       const double dip_try = dip + step(3), c = cost(down, dir, r_try, dip_try);
       if (c < current) {
@@ -150,12 +155,7 @@ void remove_rotation_bias(const Samples& down, const Samples& dir, Fit& fit, con
     Eigen::Vector4d g = j.transpose() * e;
     g.head<3>() += sigma2 * std::sin(fit.dip) * j.leftCols<3>().colwise().sum().transpose();
     const Eigen::SelfAdjointEigenSolver<Eigen::Matrix4d> eig(j.transpose() * j);
-    const Eigen::Vector4d lambda = eig.eigenvalues(), in_eigen = eig.eigenvectors().transpose() * g;
-    const double se_limit2 = std::pow(options.max_se_deg / kDeg, 2), noise = residual_variance(e.squaredNorm(), n);
-    Eigen::Vector4d step_eigen = Eigen::Vector4d::Zero();
-    for (int i = 0; i < 4; ++i)
-      if (lambda(i) > 0 && noise / lambda(i) <= se_limit2) step_eigen(i) = -in_eigen(i) / lambda(i);
-    const Eigen::Vector4d step = eig.eigenvectors() * step_eigen;
+    const Eigen::Vector4d step = determined_step(eig, g, residual_variance(e.squaredNorm(), n), 0.0, options);
     fit.rotation = exp_rotation(step.head<3>()) * fit.rotation;
     fit.dip += step(3);
     if (step.norm() < 1e-10) break;
