@@ -158,13 +158,18 @@ def calibrate_unit(path, out_path, method: str = "auto", field_norm: float | Non
         return {"unit": unit, "source": str(path), "status": _status(cal), "row": unit_row(unit, path, cal),
                 "seconds": time.perf_counter() - start}
     except Exception as exc:  # one bad unit must not stop the fleet
-        message = _message(path, exc)
-        if out_path.exists():  # an earlier calibration of other bytes/settings must not pass for this unit's
-            stale = out_path.with_name(f"{out_path.name}.stale")
-            os.replace(out_path, stale)
-            message += f" (the previous {out_path.name}, of another recording or settings, moved to {stale.name})"
-        return {"unit": unit, "source": str(path), "status": "failed", "error": message,
-                "seconds": time.perf_counter() - start}
+        return {"unit": unit, "source": str(path), "status": "failed", "error": _message(path, exc)
+                + _set_aside(out_path), "seconds": time.perf_counter() - start}
+
+
+def _set_aside(out_path: Path) -> str:
+    """Moves a failed unit's earlier calibration (of other bytes or settings) to .stale, so that it cannot pass
+    for this run's; returns what to add to the unit's error ("" when there was none)."""
+    if not out_path.exists():
+        return ""
+    stale = out_path.with_name(f"{out_path.name}.stale")
+    os.replace(out_path, stale)
+    return f" (the previous {out_path.name}, of another recording or settings, moved to {stale.name})"
 
 
 def _settings(method, field_norm, bad_lines: str = "error") -> dict:
@@ -436,7 +441,8 @@ def calibrate_fleet(directory, out_dir, workers: int | None = None, scheduler: s
                         record = future.result()
                     except Exception as exc:  # the task itself died (worker killed, lost): still one unit
                         record = {"unit": p.stem, "source": str(p), "status": "failed",
-                                  "error": _message(p, exc) + " (the worker running it failed)"}
+                                  "error": _message(p, exc) + " (the worker running it failed)"
+                                  + _set_aside(out_dir / f"{p.stem}.json")}
                     if record["status"] == "failed":
                         failed += 1
                         rows[p.stem] = failure_row(p.stem, p, record["error"])
