@@ -15,7 +15,7 @@ namespace {
 
 constexpr double kPi = 3.14159265358979323846, kDeg = 180.0 / kPi;
 
-/// A start value of the dip kept off ±90°, where its derivative (cos δ) vanishes and the fit could not move it.
+/// A start value of the dip kept off ±90° (a start from noisy cosines can reach ±1).
 double start_dip(double dip) { return std::clamp(dip, -89.0 / kDeg, 89.0 / kDeg); }
 
 Eigen::Matrix3d exp_rotation(const Eigen::Vector3d& theta) {
@@ -32,9 +32,18 @@ Eigen::Matrix3d nearest_rotation(const Eigen::Matrix3d& m) {
   return svd.matrixU() * d * svd.matrixV().transpose();
 }
 
-/// d_k·R ĥ_k − sin δ of every reading.
+/// The dip each reading shows less δ: atan2(d_k·v_k, |d_k × v_k|) − δ, v_k = R ĥ_k (radians). Its noise is the
+/// direction noise across the two vectors, the same for every reading at any dip — unlike the cosine d_k·v_k − sin δ,
+/// whose first-order noise fades as cos δ towards the poles while its second-order noise does not, and whose
+/// Jacobian's noise correlates with its own (least squares on it was biased by 1–2° on a hand turn's uneven
+/// attitudes at 1 % noise, and by 3.7° at a dip of 85°). On the angle that correlation cancels to first order.
 Eigen::VectorXd residuals(const Samples& down, const Samples& dir, const Eigen::Matrix3d& r, double dip) {
-  return (down * r).cwiseProduct(dir).rowwise().sum().array() - std::sin(dip);
+  Eigen::VectorXd out(down.rows());
+  for (Eigen::Index k = 0; k < down.rows(); ++k) {
+    const Eigen::Vector3d v = r * dir.row(k).transpose(), d = down.row(k).transpose();
+    out(k) = std::atan2(d.dot(v), d.cross(v).norm()) - dip;
+  }
+  return out;
 }
 
 double cost(const Samples& down, const Samples& dir, const Eigen::Matrix3d& r, double dip) {
@@ -46,13 +55,13 @@ double residual_variance(double cost, Eigen::Index rows) {
   return cost / static_cast<double>(std::max<Eigen::Index>(rows - 4, 1));
 }
 
-/// J of the residuals at (R, δ): rows (R ĥ_k × d_k, −cos δ) over (a small rotation, δ).
-Eigen::Matrix<double, Eigen::Dynamic, 4> jacobian(const Samples& down, const Samples& dir, const Eigen::Matrix3d& r,
-                                                  double dip) {
+/// J of the residuals at (R, δ): rows (the unit vector along R ĥ_k × d_k, −1) over (a small rotation, δ).
+Eigen::Matrix<double, Eigen::Dynamic, 4> jacobian(const Samples& down, const Samples& dir, const Eigen::Matrix3d& r) {
   Eigen::Matrix<double, Eigen::Dynamic, 4> j(down.rows(), 4);
   for (Eigen::Index k = 0; k < down.rows(); ++k) {
-    const Eigen::Vector3d v = r * dir.row(k).transpose();
-    j.row(k) << v.cross(down.row(k).transpose()).transpose(), -std::cos(dip);
+    const Eigen::Vector3d v = r * dir.row(k).transpose(), across = v.cross(down.row(k).transpose());
+    const double norm = across.norm();  // 0 only for a field exactly along gravity: no rotation seen
+    j.row(k) << (norm > 0 ? (across / norm).eval() : Eigen::Vector3d::Zero()).transpose(), -1.0;
   }
   return j;
 }
@@ -60,18 +69,21 @@ Eigen::Matrix<double, Eigen::Dynamic, 4> jacobian(const Samples& down, const Sam
 /// JᵀJ and Jᵀe of the residuals at (R, δ).
 void normal_equations(const Samples& down, const Samples& dir, const Eigen::Matrix3d& r, double dip,
                       Eigen::Matrix4d& jtj, Eigen::Vector4d& jte) {
-  const Eigen::Matrix<double, Eigen::Dynamic, 4> j = jacobian(down, dir, r, dip);
+  const Eigen::Matrix<double, Eigen::Dynamic, 4> j = jacobian(down, dir, r);
   jtj = j.transpose() * j;
   jte = j.transpose() * residuals(down, dir, r, dip);
 }
 
-/// The step −(JᵀJ + μ λ_max)⁻¹ g taken only along the directions the data determine (standard error at the residual
-/// variance sigma2 within max_se_deg); the others keep their value. For level turns that is the rotation about the
-/// vertical, along which a free step wanders to an arbitrary heading (every heading fits nearly as well).
+/// The step −(JᵀJ + μ λ_max)⁻¹ g taken only along the directions the data see (standard error along the eigen-
+/// direction, at the residual variance sigma2, within 3 max_se_deg); the others keep their value. For level turns
+/// that is the rotation about the vertical (its SE 5° and more), along which a free step wanders to an arbitrary
+/// heading (every heading fits nearly as well). Not max_se_deg itself: an eigen-direction mixing two parameters
+/// has a larger SE than either, and the iterates' variance is inflated far from the minimum; weakly determined
+/// directions frozen so stopped hand-turn fits 5–10° off at 10–30 % more cost (a blind check).
 Eigen::Vector4d determined_step(const Eigen::SelfAdjointEigenSolver<Eigen::Matrix4d>& eig, const Eigen::Vector4d& g,
                                 double sigma2, double mu, const AlignmentOptions& options) {
   const Eigen::Vector4d lambda = eig.eigenvalues(), in_eigen = eig.eigenvectors().transpose() * g;
-  const double se_limit2 = std::pow(options.max_se_deg / kDeg, 2), scale = std::max(lambda(3), 1e-300);
+  const double se_limit2 = std::pow(3.0 * options.max_se_deg / kDeg, 2), scale = std::max(lambda(3), 1e-300);
   Eigen::Vector4d step = Eigen::Vector4d::Zero();
   for (int i = 0; i < 4; ++i)
     if (lambda(i) > 0 && sigma2 / lambda(i) <= se_limit2) step(i) = -in_eigen(i) / (lambda(i) + mu * scale);
@@ -122,11 +134,9 @@ Fit gauss_newton(const Samples& down, const Samples& dir, Eigen::Matrix3d r, dou
   return fit;
 }
 
-/// σ̂²(JᵀJ)⁻¹ at the fit (δ folded to |δ| ≤ 90° first: the same sin δ), and whether every standard error is
-/// within options.max_se_deg. A direction the data do not see (an eigenvalue near 0) gets a huge but finite
-/// variance.
+/// σ̂²(JᵀJ)⁻¹ at the fit, and whether every standard error is within options.max_se_deg. A direction the data do
+/// not see (an eigenvalue near 0) gets a huge but finite variance.
 void covariance(const Samples& down, const Samples& dir, Fit& fit, const AlignmentOptions& options) {
-  if (std::cos(fit.dip) < 0) fit.dip = std::atan2(std::sin(fit.dip), std::abs(std::cos(fit.dip)));
   Eigen::Matrix4d jtj;
   Eigen::Vector4d jte;
   normal_equations(down, dir, fit.rotation, fit.dip, jtj, jte);
@@ -137,30 +147,6 @@ void covariance(const Samples& down, const Samples& dir, Fit& fit, const Alignme
   fit.inverse = eig.eigenvectors() * inverse.asDiagonal() * eig.eigenvectors().transpose();
   fit.covariance = fit.sigma2 * fit.inverse;
   fit.identifiable = (fit.covariance.diagonal().cwiseMax(0.0).cwiseSqrt() * kDeg).maxCoeff() <= options.max_se_deg;
-}
-
-/// Both vectors are noisy, and least squares is biased for it: at the truth the noise in J_k correlates with the
-/// noise in e_k, E[J_k e_k] = −σ² sin δ (R ĥ_k × d_k, 0) (σ² = σ_h² + σ_f² per axis, e_k taken about its mean), which
-/// sums to zero over attitudes spread evenly but not over a hand turn's cluster: at 1 % noise a random-walk turn of
-/// 1000 readings gave rotation and dip errors of 1–2°, 2–8 standard errors. The fit instead solves
-/// Σ J_k e_k + σ̂² sin δ Σ (R ĥ_k × d_k, 0) = 0 by Newton steps from the least-squares fit, along the determined
-/// directions only (σ̂² from the residuals, as for the dip's bias below).
-void remove_rotation_bias(const Samples& down, const Samples& dir, Fit& fit, const AlignmentOptions& options) {
-  const Eigen::Index n = down.rows();
-  for (int iteration = 0; iteration < 10; ++iteration) {
-    const Eigen::Matrix<double, Eigen::Dynamic, 4> j = jacobian(down, dir, fit.rotation, fit.dip);
-    const Eigen::VectorXd e = residuals(down, dir, fit.rotation, fit.dip);
-    const double sigma2 = residual_variance(e.squaredNorm(), n) / std::max(std::pow(std::cos(fit.dip), 2), 1e-12);
-    if (!(sigma2 < 0.5)) return;  // no first-order noise: leave the fit as it is
-    Eigen::Vector4d g = j.transpose() * e;
-    g.head<3>() += sigma2 * std::sin(fit.dip) * j.leftCols<3>().colwise().sum().transpose();
-    const Eigen::SelfAdjointEigenSolver<Eigen::Matrix4d> eig(j.transpose() * j);
-    const Eigen::Vector4d step = determined_step(eig, g, residual_variance(e.squaredNorm(), n), 0.0, options);
-    fit.rotation = exp_rotation(step.head<3>()) * fit.rotation;
-    fit.dip += step(3);
-    if (step.norm() < 1e-10) break;
-  }
-  fit.cost = cost(down, dir, fit.rotation, fit.dip);
 }
 
 /// The fit from the two starts (the linear one and R = I), the one kept as described below.
@@ -293,12 +279,11 @@ AlignmentResult align_to_gravity(const SamplesRef& field, const SamplesRef& spec
   covariance(down, dir, mirror, options);
   const bool other_branch = Eigen::AngleAxisd(mirror.rotation * best.rotation.transpose()).angle() > kPi / 2;
   // The plane's thickness (mean square of the down directions across it) against the direction noise σ_h² + σ_f²
-  // (the residual variance over cos²δ): within twice that, the tilts were about one axis and only noise breaks
+  // (the residual variance): within twice that, the tilts were about one axis and only noise breaks
   // the tie — it picked the wrong answer at 34 σ̂² lower cost in a blind check, so the cost cannot decide.
   const double thickness = plane.eigenvalues()(0) / static_cast<double>(n);
-  const double noise = best.sigma2 / std::max(std::pow(std::cos(best.dip), 2), 1e-12);
   bool ambiguous = false;
-  if (other_branch && (thickness <= 2.0 * noise || mirror.cost < best.cost + 25.0 * best.sigma2)) {
+  if (other_branch && (thickness <= 2.0 * best.sigma2 || mirror.cost < best.cost + 25.0 * best.sigma2)) {
     ambiguous = true;
     if (Eigen::AngleAxisd(mirror.rotation).angle() < Eigen::AngleAxisd(best.rotation).angle()) best = mirror;
     const Eigen::Vector3d axis = plane.eigenvectors().col(0);
@@ -306,10 +291,6 @@ AlignmentResult align_to_gravity(const SamplesRef& field, const SamplesRef& spec
                          detail::num(axis.x()) + ", " + detail::num(axis.y()) + ", " + detail::num(axis.z()) +
                          ") with the dip negated: every tilt was about that one axis; tilt the device about a second "
                          "axis (the one nearer the axes as mounted is returned)");
-  }
-  if (options.noise_bias_correction) {
-    remove_rotation_bias(down, dir, best, options);
-    covariance(down, dir, best, options);
   }
   s.iterations = best.iterations;
   s.converged = best.converged;
@@ -320,7 +301,7 @@ AlignmentResult align_to_gravity(const SamplesRef& field, const SamplesRef& spec
   // out are skipped over), taken as refine takes it. Not where some direction is undetermined (flagged already).
   Eigen::MatrixXd cov = best.covariance;
   const Eigen::VectorXd e = residuals(down, dir, best.rotation, best.dip);
-  const Eigen::MatrixXd scores = jacobian(down, dir, best.rotation, best.dip).array().colwise() * e.array();
+  const Eigen::MatrixXd scores = jacobian(down, dir, best.rotation).array().colwise() * e.array();
   const std::string correlated = detail::correct_for_serial_correlation(
       cov, result.serial_correlation, e, scores, best.inverse, !best.identifiable || ambiguous,
       options.serial_correlation, options.serial_correlation_alpha);
@@ -328,12 +309,11 @@ AlignmentResult align_to_gravity(const SamplesRef& field, const SamplesRef& spec
   result.covariance = cov;
   result.standard_errors = result.covariance.diagonal().cwiseMax(0.0).cwiseSqrt();
 
-  // Noisy unit vectors are shorter along their true direction on average (E[ũ]·u ≈ 1 − σ², σ per axis), so
-  // d̃·R ĥ̃ averages sin δ (1 − σ_h² − σ_f²): the dip comes out low by ≈ σ² tan δ. σ_h² + σ_f² is the residual
-  // variance over cos²δ; dividing it out removes the bias (the rotation has none).
-  const double sigma2_total = sigma2 / std::max(std::pow(std::cos(dip), 2), 1e-12);
-  if (options.noise_bias_correction && sigma2_total < 0.5)
-    dip = std::asin(std::clamp(std::sin(dip) / (1.0 - sigma2_total), -1.0, 1.0));
+  // Noise across the plane of the two directions only widens the angle between them (by ≈ s²/2 · cot α for an
+  // offset s, α = 90° − δ their angle), so the dip comes out nearer 0 by ≈ (σ_h² + σ_f²)/2 · tan δ; σ_h² + σ_f² is
+  // the residual variance. Adding it back removes the bias (the rotation has none to first order).
+  if (options.noise_bias_correction && sigma2 < 0.5)
+    dip = std::clamp(dip + 0.5 * sigma2 * std::tan(dip), -kPi / 2, kPi / 2);
 
   result.residuals = Eigen::VectorXd::Constant(field.rows(), std::numeric_limits<double>::quiet_NaN());
   for (Eigen::Index i = 0; i < n; ++i) result.residuals(keep[i]) = e(i);
@@ -351,7 +331,17 @@ AlignmentResult align_to_gravity(const SamplesRef& field, const SamplesRef& spec
                             ? unmoved : widened;
     if (!(result.standard_errors(i) * kDeg <= options.max_se_deg)) list += (list.empty() ? "" : ", ") + name;
   }
-  result.identifiable = unmoved.empty() && widened.empty() && !ambiguous;
+  // Within 3 noise SDs of vertical the field's horizontal part, which fixes the rotation about the vertical, is lost
+  // in the noise (at the magnetic pole a compass has no north), and the angle between the two directions is of the
+  // order of the noise: least squares slides towards the pole, where that angle's spread is smaller (a blind check:
+  // a true 85° read 88.7°, every axis off by 3–4° against SEs of 0.2°). Flagged, not trusted.
+  const bool near_vertical = kPi / 2 - std::abs(dip) < 3.0 * std::sqrt(sigma2);
+  if (near_vertical)
+    s.warnings.push_back("not identifiable: the field is within 3 noise SDs (" +
+                         detail::num(3.0 * std::sqrt(sigma2) * kDeg) + "°) of vertical, so its horizontal part, which "
+                         "fixes the rotation about the vertical, is lost in the noise, and the dip is biased there "
+                         "(quieter readings, or averaging each attitude at rest, help)");
+  result.identifiable = unmoved.empty() && widened.empty() && !ambiguous && !near_vertical;
   if (!unmoved.empty())
     s.warnings.push_back("not identifiable: " + unmoved + " not determined to " + detail::num(options.max_se_deg) +
                          "° (the attitudes did not move about every axis: tilt the device, not only turn it "
@@ -360,12 +350,6 @@ AlignmentResult align_to_gravity(const SamplesRef& field, const SamplesRef& spec
     s.warnings.push_back("not identifiable: " + widened + " not determined to " + detail::num(options.max_se_deg) +
                          "° once the standard errors are widened for the correlation in time (more readings, or "
                          "turns about more axes)");
-  // Within 3σ of vertical the residual is no longer linear in the noise (sin δ peaks), and the first-order
-  // correction above does not hold: at 89° with 3 % noise the dip came out 1.6° low.
-  if (kPi / 2 - std::abs(dip) < 3.0 * std::sqrt(sigma2_total))
-    s.warnings.push_back("the dip is within 3 noise SDs (" + detail::num(3.0 * std::sqrt(sigma2_total) * kDeg) +
-                         "°) of vertical: its noise-bias correction is first order, so it may read low there by up "
-                         "to about that much (quieter readings, or averaging at rest, shrink it)");
   if (dip < -2.0 * result.standard_errors(3))  // not on noise around a dip of 0
     s.warnings.push_back("the dip is negative (the field points up): right in the southern hemisphere; in the "
                          "northern one either the accelerometer reports gravity (down) rather than the specific force "

@@ -13,9 +13,11 @@ invariance):
 
 The accelerometer reads the specific force (at rest +1 g up; `acc_measures="gravity"` for one that reports the
 down direction), so down = −f/|f|; readings whose |f| departs
-from the median by more than `max_dynamic` (5 %) are left out as moving. Least squares on the dip residual
-d·Rĥ − sin δ is the maximum-likelihood estimate for direction noise (its variance is the same for every
-reading); `covariance` is σ̂²(JᵀJ)⁻¹ of (small rotations about the accelerometer's x, y, z; δ), radians².
+from the median by more than `max_dynamic` (5 %) are left out as moving. Least squares on the dip each reading
+shows, atan2(d·Rĥ, |d × Rĥ|) − δ, is the maximum-likelihood estimate for direction noise (its variance is the same
+for every reading at any dip, and unlike the cosine d·Rĥ − sin δ its fit is not biased by attitudes spread
+unevenly, as a hand turn's are); `covariance` is σ̂²(JᵀJ)⁻¹ of (small rotations about the accelerometer's x, y, z;
+δ), radians².
 Readings correlated in time (a slow hand turn logged at 100 Hz) make that too small, as for any least-squares
 fit that counts them as independent: as `fluxcal.refine`, when the dip residuals fail a Ljung–Box test and the
 Newey–West sandwich (AR(1)-prewhitened, over the scores J_kᵀe_k) widens an error, or when it widens one ≥ 1.5×,
@@ -43,7 +45,7 @@ class Alignment:
     covariance: np.ndarray            # (rotation about x, y, z; dip), radians²
     identifiable: bool
     readings_used: int
-    residual_rms_deg: float           # RMS of d·Rĥ − sin δ, as an angle (divided by cos δ)
+    residual_rms_deg: float           # RMS of the dip each reading shows less δ: the direction noise
     summary: dict = field(default_factory=dict)
 
     @property
@@ -106,7 +108,7 @@ def align_to_gravity(field, specific_force, serial_correlation: str = "automatic
     Newey–West lags, 0 = independent readings assumed, and the widening).
 
     settings (defaults in alignment.hpp): max_dynamic=0.05, max_iterations=50, tolerance=1e-12,
-    noise_bias_correction=True (the dip's ≈ −σ² tan δ), max_se_deg=1.0 (an axis known worse is "not determined":
+    noise_bias_correction=True (the dip's ≈ −σ²/2 · tan δ), max_se_deg=1.0 (an axis known worse is "not determined":
     identifiable False, with a warning naming it). ValueError on NaN, rows that differ, fewer than 8 readings at
     rest."""
     h = as_samples(field, "field")
@@ -119,5 +121,5 @@ def align_to_gravity(field, specific_force, serial_correlation: str = "automatic
     return Alignment(rotation=np.asarray(r["rotation"]), dip_deg=float(np.degrees(dip)),
                      covariance=np.asarray(r["covariance"]), identifiable=bool(r["identifiable"]),
                      readings_used=int(r["readings_used"]),
-                     residual_rms_deg=float(np.degrees(r["residual_rms"] / max(np.cos(dip), 1e-12))),
+                     residual_rms_deg=float(np.degrees(r["residual_rms"])),
                      summary=summary)

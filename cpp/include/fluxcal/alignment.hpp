@@ -5,19 +5,19 @@
 // rotation. At rest the angle between gravity and the Earth field — 90° + the dip — is the same in every
 // attitude (dot-product invariance: Li & Li 2012, IEEE Trans. Instrum. Meas. 61(4); Wu & Shi 2015), so the
 // readings of a turned device fix the rotation R from the magnetometer's frame to the accelerometer's and the
-// dip δ together:
-//   e_k = d_kᵀ R ĥ_k − sin δ,   d_k = −f_k/|f_k| (down: an accelerometer at rest reads the specific force, up),
-//   ĥ_k = h_k/|h_k| (the calibrated field's direction).
-// With direction noise of σ_h (magnetometer) and σ_f (accelerometer) radians per axis, every e_k has the same
-// variance (σ_h² + σ_f²) cos²δ (the noise across the two directions, whose angle is fixed), so least squares
-// on e is the maximum-likelihood estimate and σ̂²(JᵀJ)⁻¹ its covariance (Cramér–Rao at the solution).
+// dip δ together. Least squares on the dip each reading shows,
+//   e_k = atan2(d_kᵀ v_k, |d_k × v_k|) − δ,   v_k = R ĥ_k,   d_k = −f_k/|f_k|,   ĥ_k = h_k/|h_k|
+// (down: an accelerometer at rest reads the specific force, up; ĥ_k the calibrated field's direction). With direction
+// noise σ_h (magnetometer) and σ_f (accelerometer) radians per axis every e_k has the variance σ_h² + σ_f² at any
+// dip, so this is the maximum-likelihood estimate and σ̂²(JᵀJ)⁻¹ its covariance (Cramér–Rao at the solution). (The
+// cosine d_kᵀv_k − sin δ loses its first-order noise towards the poles, and its Jacobian's noise correlates with
+// its own: least squares on it was biased by 1–2° on a hand turn's uneven attitudes, 3.7° at a dip of 85°. On the
+// angle that correlation cancels to first order.)
 // Start: the homogeneous linear fit d_kᵀ M ĥ_k = s (10 unknowns, the smallest singular vector), M projected on
 // the nearest rotation, and R = I; then damped Gauss–Newton on R = exp([θ]×) R₀ and δ from each, stepping only
 // along directions the data determine; R = I's fit is kept unless the linear start's is clearly better (half
-// the cost, or identifiable where R = I's is not). Both vectors are noisy, so least squares is biased where the
-// attitudes are uneven (a hand turn: 1–2° at 1 % noise): the fit then solves the bias-corrected normal equations
-// Jᵀe + σ̂² sin δ Σ_k (R ĥ_k × d_k, 0) = 0, and the dip's own noise bias is divided out. Readings correlated in
-// time get the Newey–West covariance (as refine.hpp).
+// the cost, or identifiable where R = I's is not); the dip's noise bias (≈ −(σ_h² + σ_f²)/2 · tan δ) removed.
+// Readings correlated in time get the Newey–West covariance (as refine.hpp).
 // Readings whose dip residual is more than 5 robust SDs off (a spike, a knock) are left out and the fit run again.
 // What it cannot see: a rotation about the vertical when the device was only turned about the vertical (the
 // heading offset of a compass turned level), or any axis the attitudes never moved about — its standard
@@ -44,9 +44,8 @@ struct AlignmentOptions {
   /// A rotation axis or the dip whose standard error (degrees) exceeds this is "not determined": the
   /// attitudes did not move about that axis.
   double max_se_deg = 1.0;
-  /// Remove the noise biases: the rotation's (noise in both vectors correlates J with e; it cancels only over
-  /// evenly spread attitudes) and the dip's (≈ −σ² tan δ: noisy unit vectors are shorter along their true
-  /// direction on average), σ² the two vectors' direction variance per axis, from the residuals.
+  /// Remove the dip's noise bias, ≈ −(σ_h² + σ_f²)/2 · tan δ (noise across the plane of the two directions only
+  /// widens the angle between them), σ_h² + σ_f² from the residuals.
   bool noise_bias_correction = true;
   /// Readings correlated in time (a slow hand turn logged fast) make σ̂²(JᵀJ)⁻¹ too small. `automatic`: the
   /// prewhitened Newey–West sandwich when the dip residuals fail a Ljung–Box test at serial_correlation_alpha
@@ -66,10 +65,11 @@ struct AlignmentResult {
   Eigen::Matrix4d covariance = Eigen::Matrix4d::Zero();
   /// Standard errors: about x, y, z and of the dip (radians).
   Eigen::Vector4d standard_errors = Eigen::Vector4d::Zero();
-  /// RMS of the dip residuals (radians) and how many readings were kept as static.
+  /// RMS of the residuals (radians: the direction noise σ_h² + σ_f², square-rooted) and how many readings were
+  /// kept as static.
   double residual_rms = 0.0;
   std::size_t readings_used = 0;
-  /// Per input row: d·R ĥ − sin δ at the fit (radians × cos δ), NaN for a row left out (moving, an outlier).
+  /// Per input row: the dip it shows less δ at the fit (radians), NaN for a row left out (moving, an outlier).
   Eigen::VectorXd residuals;
   /// The residuals' test for correlation in time and what the covariance did about it.
   SerialCorrelationReport serial_correlation;
