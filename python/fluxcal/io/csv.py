@@ -60,11 +60,23 @@ _UNIT_IN_HEADER = re.compile(r"^\s*([^\[\(]+?)\s*[\[\(]\s*([^\]\)]*)\s*[\]\)]\s*
 def _split_header(cell: str):
     """'mx [nT]' -> ('mx', 'nT'); an index in brackets is part of the name: 'mag[0]' -> ('mag[0]', '');
     quotes around a name are dropped."""
+    from .columns import is_unit
+
     cell = cell.strip().strip('"').strip("'")
     m = _UNIT_IN_HEADER.match(cell)
     if m is None or m.group(2).strip().isdigit():
         return cell, ""
+    unit, _, note = (s.strip() for s in m.group(2).partition(","))
+    if note and is_unit(unit):  # 'Bx (uT, raw)': the unit, and a note kept in the name ('Bx raw': reads back)
+        return f"{m.group(1).strip()} {note}", unit
     return m.group(1).strip(), m.group(2).strip()
+
+
+def _header_cells(line: str, delimiter) -> list:
+    """The header's cells; quotes are honoured as in the data rows ("Bx (uT, raw)" is one name)."""
+    if delimiter and '"' in line:
+        return next(_csv.reader([line], delimiter=delimiter), [])
+    return line.split(delimiter)
 
 
 def read_csv(path, columns=None, units: str | None = None, delimiter: str = ",", bad_lines: str = "error"
@@ -79,6 +91,8 @@ def parse_csv(path, lines, delimiter=",", preamble_lines: int = 0, bad_lines: st
     """The CSV layout above from the file's lines; `preamble_lines` lines between the comments and the
     header are left to the caller (fluxcal.io.real reads `key,value` preambles). `bad_lines`: "error"
     (default) or "skip" (see parse_mixed_rows)."""
+    from .columns import unit_name
+
     check_bad_lines(bad_lines)
     metadata, unit_map, comments = {}, {}, []
     i = 0
@@ -104,11 +118,16 @@ def parse_csv(path, lines, delimiter=",", preamble_lines: int = 0, bad_lines: st
         raise ValueError(f"{path}: no header line (expected column names such as t,mx,my,mz)")
     header_line = i + 1
     names = []
-    for cell in lines[i].split(delimiter):
+    for cell in _header_cells(lines[i], delimiter):
         name, unit = _split_header(cell)
         names.append(name)
         if unit:
+            if unit_map.get(name, unit) != unit and unit_name(unit_map[name]) != unit_name(unit):
+                raise ValueError(f"{path}, line {header_line}: column {name!r} is in {unit} by the header but in "
+                                 f"{unit_map[name]} by the '# units:' comment; correct one of them")
             unit_map.setdefault(name, unit)
+    if len(names) > 1 and not names[0] and "index" not in names:  # pandas to_csv(): its unnamed index column
+        names[0] = "index"
     if names and not names[-1]:  # a header ending in the delimiter (mx,my,mz,): an unnamed column,
         names[-1] = f"column{len(names)}"  # kept under this name (left out later if it is empty)
     if any(not n for n in names) or len(set(names)) != len(names):
@@ -118,12 +137,14 @@ def parse_csv(path, lines, delimiter=",", preamble_lines: int = 0, bad_lines: st
                          "add a header such as mx,my,mz")
     lines = _units_row(lines, i + 1, names, delimiter, unit_map)
     lines = _trailing_delimiters(lines, i + 1, names, delimiter)
-    lines, converted = decimal_points(lines, i + 1, delimiter)
+    separated = []
+    lines, converted = decimal_points(lines, i + 1, delimiter, separated)
     if converted:
         metadata["decimal_separator"] = "comma"
         grouped = [j for j in converted if 0 <= j < len(names)]
         if grouped:
             metadata["thousands_separator"] = "point (" + ", ".join(names[j] for j in grouped) + ")"
+    comma_thousands(path, metadata, [names[j] for j in separated if j < len(names)])
     try:
         data, line_numbers, notes = parse_rows(path, lines, i + 1, names, delimiter)
         # NaN/Inf written out (Arduino's "nan") in a column of numbers: lines to skip, as an empty cell is (a
@@ -138,6 +159,20 @@ def parse_csv(path, lines, delimiter=",", preamble_lines: int = 0, bad_lines: st
         metadata["notes"] = "; ".join(f"line {n}: {text}" for n, text in notes)
     return Recording(columns={n: data[:, j] for j, n in enumerate(names)}, units=unit_map, metadata=metadata,
                      source=str(path), line_numbers=line_numbers)
+
+
+def comma_thousands(path, metadata: dict, names) -> None:
+    """Record in metadata, and warn, that the columns `names` were read with thousands separators (48,123 as
+    48123; see _comma_thousands_columns): a guess from the values, so it is said."""
+    import warnings
+
+    if not names:
+        return
+    metadata["thousands_separator"] = "comma (" + ", ".join(names) + ")"
+    warnings.warn(f"{path}: column{'s' if len(names) > 1 else ''} {', '.join(names)}: 1,234 read as 1234 (a "
+                  "thousands separator, not a decimal comma): every comma has three digits after it and the whole "
+                  "numbers beside them have at most three; if they are decimal commas, save the table with "
+                  "decimals written out", stacklevel=4)
 
 
 def parse_mixed_rows(path, lines, start: int, names, delimiter, bad_lines: str, units: dict, metadata: dict,
@@ -316,9 +351,10 @@ def readable_file(path, what: str = "a recording file",
 def read_text(path) -> str:
     """The file's text: UTF-8 (a BOM dropped), UTF-16 with its BOM (a PowerShell redirect), or Windows-1252
     when that reads every byte that is not UTF-8 as ordinary text (µ, °, umlauts: a legacy Windows export).
-    A few bytes that are none of these (garbage from a serial line) become U+FFFD, so that the parse names
-    each line holding them (and bad_lines="skip" can leave it out); more than 5 % of lines with such
-    bytes, or a NUL byte, is an error naming the first one's line and column (a binary file)."""
+    A few bytes that are none of these (garbage from a serial line, NULs of a board's reset) become U+FFFD, so
+    that the parse names each line holding them (and bad_lines="skip" can leave it out); more than 5 % of
+    lines with such bytes, or NULs among more than 5 % of bytes not text, is an error naming the first one's
+    line and column (a binary file)."""
     path = readable_file(path)
     try:
         raw = path.read_bytes()
@@ -339,9 +375,11 @@ def read_text(path) -> str:
             return legacy
     except UnicodeDecodeError:
         pass
-    text = raw.decode("utf-8-sig", errors="replace")
+    text = raw.decode("utf-8-sig", errors="replace").replace("\x00", NOT_TEXT)
     lines = text.splitlines()
-    if b"\x00" in raw or sum(NOT_TEXT in line for line in lines) > max(1.0, 0.05 * len(lines)):
+    # NULs are a binary file's, unless they are a few bytes among text (a board's reset on a serial line)
+    nuls = b"\x00" in raw and text.count(NOT_TEXT) > 0.05 * len(raw)
+    if nuls or sum(NOT_TEXT in line for line in lines) > max(1.0, 0.05 * len(lines)):
         line = raw.count(b"\n", 0, first) + 1
         column = first - (raw.rfind(b"\n", 0, first) + 1) + 1
         raise ValueError(f"{path}, line {line}, column {column} (character): byte 0x{raw[first]:02x} is not "
@@ -480,19 +518,35 @@ def _units_row(lines, start: int, names, delimiter, unit_map: dict):
     return lines[:j] + [""] + lines[j + 1:]  # blank: later lines keep their numbers
 
 
-def decimal_points(lines, start: int, delimiter):
+def decimal_points(lines, start: int, delimiter, separated: list | None = None):
     """(lines, converted) with the data lines' decimal commas from `start` on made points when the table writes
     its numbers so (a European spreadsheet export, 1,25;0,5; see _decimal_comma_columns; comment lines stay
     as written) and thousands grouped with points before them dropped (45.199,6), else (lines, []); `converted`
     lists the columns whose thousands are grouped so, or is [-1] when none is. When some columns hold decimal
     points (an ISO time 12:00:01.5, a column a program wrote in its own format), only the decimal-comma columns
-    are converted."""
+    are converted. When the commas group thousands instead (48,123 beside 523, see _comma_thousands_columns)
+    they are dropped, converted is [] and those columns are added to `separated` (when given)."""
+    from .columns import comma_kind
+
     if delimiter not in (";", "\t"):
         return lines, []
     rows = data_cells(lines[start:start + 400], delimiter)
     columns, grouped = _decimal_comma_columns(rows), _point_thousands_columns(rows)
     if not columns and not grouped:
         return lines, []
+    thousands = _comma_thousands_columns(rows, columns)
+    if thousands:
+        if separated is not None:
+            separated.extend(thousands)
+
+        def ungroup(line):  # only 1,234 and 1,234,567: another comma (1,2) is left for the parse to name
+            cells = line.split(delimiter)
+            for j in thousands:
+                if j < len(cells) and comma_kind(cells[j].strip().strip('"')) in ("ambiguous", "several"):
+                    cells[j] = cells[j].replace(",", "")
+            return delimiter.join(cells)
+
+        return lines[:start] + [line if is_comment(line) else ungroup(line) for line in lines[start:]], []
     if not any("." in cell for row in rows for cell in row):  # every number in one form, so far
         columns = sorted(set(columns) | set(range(max(map(len, rows)))))
 
@@ -527,6 +581,25 @@ def _decimal_comma_columns(rows) -> list:
             continue  # 1,234 beside 0.5: a thousands separator as likely as a decimal comma
         found.append(j)
     return found
+
+
+def _comma_thousands_columns(rows, columns) -> list:
+    """The decimal-comma `columns` of a ';' or tab table (`rows`: the first data lines' cells) when their commas
+    are thousands separators instead (a spreadsheet's #,##0 saved as text: 48,123 beside 523), else []. Taken so
+    when no cell holds a point, every comma in them has three digits after one to three (1,234) and some cell
+    beside them is a whole number of at most three digits: numbers of 1000 and more have the comma, smaller
+    ones not. Decimal commas would have written other numbers of decimals too (48,12), and a whole number of
+    four digits (1234) has no thousands separator: those read as decimal commas."""
+    from .columns import comma_kind
+
+    if not columns or any("." in c for row in rows for c in row):
+        return []
+    cells = [row[j].strip().strip('"') for row in rows for j in columns if j < len(row) and row[j].strip()]
+    whole = [c for c in cells if "," not in c and _is_number(c)]
+    if whole and all(re.fullmatch(r"[-+]?\d{1,3}", c) for c in whole) \
+            and all(comma_kind(c) == "ambiguous" for c in cells if "," in c):
+        return list(columns)
+    return []
 
 
 # 45.199,6 or 45.199 (European grouping; a first group of 0 is no group: 0.123), quoted or not

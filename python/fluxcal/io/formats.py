@@ -15,18 +15,22 @@ Reading looks at the bytes, not the name (a file's extension is only a hint in m
     metadata.yaml (.db3/.mcap)     → ROS 1 / ROS 2 bag      (fluxcal.io.rosbag; needs fluxcal[ros])
     SQLite format 3 (not a bag)    → a database table       (fluxcal.io.sqlite; --columns TABLE picks one)
     text starting with { or [      → JSON readings         (fluxcal.io.real: fluxcal's layout or shot triples;
-                                     fluxcal.io.jsonrecords: JSON Lines, a list of records, a columns/data table)
+    (not a log tag, `[MAG] X: …`)    fluxcal.io.jsonrecords: JSON Lines, a list of records, a columns/data table)
     text of `$TYPE,…*hh` lines     → NMEA-style IMU sentences ($VNYMR…, fluxcal.io.sentences)
     text of `label: number` pairs  → a serial monitor's capture, `Mag X: 1.2 Y: 3.4 Z: 5.6 uT` or
                                      `mx=1.2,my=3.4,mz=5.6` (fluxcal.io.labelled)
-    other text                     → a table. Its delimiter is that of the first data line: tab, else
-                                     comma, else semicolon, else whitespace. Then:
+    other text                     → a table. A serial monitor's clock before each line (`15:02:11.143 -> `,
+                                     `[2026-11-29 15:02:11.123] `) becomes the column `time`. Its delimiter is
+                                     that of the first data line: tab, else comma, else semicolon, else
+                                     whitespace. Then:
         `name,number` lines before the header → key,value preamble (QMC5883L logger; Fs gives t)
         a header of names                     → fluxcal CSV (fluxcal.io.csv), any of those delimiters
         numbers on the first line             → header-less: a comment line just above that names every
                                                  column (`# t mx my mz`) is the header; else `columns` names every column, else the
                                                  airborne 10-column layout if it fits, else an error
-                                                 asking for --columns (one name per column)
+                                                 asking for --columns (one name per column); text lines
+                                                 above the rows --columns names are a banner (the preamble),
+                                                 a partial line of numbers is a bad line
 
 `columns` is also how to pick the magnetometer: three names (or "a,b,c") select columns; a single name
 picks the N×3 matrix variable of a .mat/.npz; for a flight log it may name the compass instance
@@ -37,10 +41,13 @@ Writing goes by extension: .csv .npz .mat .parquet/.pq .json.
 from __future__ import annotations
 
 import re
+import warnings
 from collections import Counter
 from pathlib import Path
 
-from .csv import (_decimal_comma_columns, readable_file, _is_number, comment_text, data_cells, data_lines, decimal_points, is_comment, parse_csv,
+import numpy as np
+
+from .csv import (SKIP_HINT, _DECIMAL_COMMA, _decimal_comma_columns, readable_file, _is_number, comment_text, data_cells, data_lines, decimal_points, is_comment, parse_csv,
                   listing, read_csv, read_lines, read_text, write_csv, OTHER_WRITERS)
 from .columns import is_unit, is_unit_cell
 from .recording import Recording
@@ -94,7 +101,9 @@ def sniff(path) -> str:
         return "dataflash_text"
     text = head.decode("utf-16", errors="ignore").encode() if head.startswith((b"\xff\xfe", b"\xfe\xff")) else head
     text = text.lstrip(b"\xef\xbb\xbf \t\r\n")
-    if text[:1] == b"{" or (text[:1] == b"[" and not re.match(rb"\[\s*\d{1,4}[-:/]\d", text)):  # not "[12:30:01] …"
+    # not "[12:30:01] …", nor a log line's tag ("[MAG] X: 1 …", "[1] mx=…"): text after the ']' that JSON cannot have
+    if text[:1] == b"{" or (text[:1] == b"[" and not re.match(rb"\[\s*\d{1,4}[-:/]\d", text)
+                            and not re.match(rb"\[[^\[\]{}\"\r\n]*\][ \t]*[^\s,\]}]", text)):
         return "json"
     if not head:
         raise ValueError(f"{path}: empty file")
@@ -198,9 +207,13 @@ def read_table_lines(lines, where: str, columns, units, bad_lines: str = "error"
             return message.replace(str(text), where)
 
         try:
-            rec = _read_table(text, columns, units, bad_lines)
+            with warnings.catch_warnings(record=True) as caught:
+                warnings.simplefilter("always")
+                rec = _read_table(text, columns, units, bad_lines)
         except ValueError as exc:
             raise ValueError(renamed(str(exc))) from None
+    for w in caught:  # said of `where`, not of the temporary file
+        warnings.warn(renamed(str(w.message)), w.category, stacklevel=2)
     skipped = rec.metadata.get("skipped_lines")
     if skipped:
         rec.metadata["skipped_lines"] = re.sub(r"(?:(?<=: )|(?<=; ))(\d+) \(",
@@ -222,6 +235,8 @@ def _read_table(path: Path, columns, units, bad_lines: str = "error") -> Recordi
         return sentences.read_sentences(path, columns=columns, units=units, bad_lines=bad_lines)
     if labelled.looks_labelled(lines, start):
         return labelled.read_labelled(path, columns=columns, units=units, bad_lines=bad_lines)
+    if _clock_lines(lines, start):  # the Arduino IDE's `hh:mm:ss.mmm -> ` (or `[date time] `) before each table line
+        return _read_clocked_table(path, lines, columns, units, bad_lines)
     delimiter = _delimiter(lines, start)
     if real.preamble_length(lines, start, delimiter) > 0:
         return real.read_preamble_csv(path, columns=columns, units=units, delimiter=delimiter, bad_lines=bad_lines)
@@ -231,13 +246,16 @@ def _read_table(path: Path, columns, units, bad_lines: str = "error") -> Recordi
         rec.metadata["preamble"] = listing([f"line {k + 1}: {lines[k].strip()}" for k in range(start, start + titled)
                                             if lines[k].strip()])
         return rec.choose(columns, units)
+    given = columns.split(",") if isinstance(columns, str) else columns
+    lead = _lead_lines(lines, start, delimiter, len(given)) if given is not None and len(given) > 1 else 0
+    if lead:  # a banner or a partial line above a header-less table whose columns --columns names
+        return _read_after_lead(path, lines, start, lead, columns, units, bad_lines, delimiter)
     first = [c.strip() for c in decimal_points(lines[start:start + 400], 0, delimiter)[0][0].split(delimiter)]
     numbers = sum(_is_number(c) for c in first)
     # a row of mostly numbers with a text cell or two (ROS `rostopic echo -p`: frame_id) is data, not a header,
     # when the comment above names every column (`%time,field.header.seq,…`)
     header = _commented_header(lines, start, delimiter, len(first)) if 2 * numbers >= len(first) else None
     if numbers == len(first) or header is not None:
-        given = columns.split(",") if isinstance(columns, str) else columns
         if header is not None and (given is None or set(given) <= set(header[1])):  # names picked from it
             line_no, names, cells = header
             # read as if the comment were the header line: units, '# key: value' lines above, bad lines as there
@@ -253,16 +271,107 @@ def _read_table(path: Path, columns, units, bad_lines: str = "error") -> Recordi
     return read_csv(path, columns=columns, units=units, delimiter=delimiter, bad_lines=bad_lines)
 
 
+# a serial monitor's clock before a line: the Arduino IDE's `15:02:11.143 -> `, a terminal's `[2026-11-29 15:02:11.123] `
+_CLOCK_TIME = r"(?:\d{4}-\d{1,2}-\d{1,2}[ T])?\d{1,2}:\d{2}:\d{2}(?:[.,]\d+)?"
+_CLOCK_PREFIX = re.compile(rf"^\s*(?:\[({_CLOCK_TIME})\]|({_CLOCK_TIME})\s*->)\s*")
+
+
+def _clock_lines(lines, start: int) -> bool:
+    """Whether (nearly) every one of the first data lines starts with a serial monitor's clock (_CLOCK_PREFIX)."""
+    sample = data_lines(lines, start, 50)
+    return len(sample) >= 2 and sum(bool(_CLOCK_PREFIX.match(line)) for line in sample) >= 0.9 * len(sample)
+
+
+def _read_clocked_table(path: Path, lines, columns, units, bad_lines: str) -> Recording:
+    """A table printed through a serial monitor with its clock on each line: the table read without the clocks
+    (lines keep their numbers), the clock added as the column `time` in seconds (`clock` when the table has its
+    own time), as fluxcal.io.labelled does for labelled lines."""
+    from .columns import TIME_WORDS, words
+    from .csv import _timestamps
+
+    stamps, bare = {}, []
+    for n, line in enumerate(lines, 1):
+        m = _CLOCK_PREFIX.match(line)
+        if m:
+            stamps[n] = m.group(1) or m.group(2)
+        bare.append(line[m.end():] if m else line)
+    rec = read_table_lines(bare, str(path), columns, units, bad_lines)
+    rows = rec.line_numbers if rec.line_numbers is not None else []
+    seconds, first = _timestamps([stamps.get(int(n), "") for n in rows])
+    name = "clock" if any(set(words(c)) & TIME_WORDS for c in rec.columns) else "time"  # the table's own wins
+    if seconds is not None and np.isfinite(seconds).all() and name not in rec.columns:
+        rec.columns[name], rec.units[name] = seconds, "s"
+        rec.metadata[f"{name}_start"] = first
+    return rec
+
+
+def _cells(line: str, delimiter) -> list:
+    """A table line's cells; a delimiter ending the line (Arduino's `x,y,z,`) makes no field."""
+    line = line.rstrip()
+    if delimiter and delimiter.strip() and line.endswith(delimiter):
+        line = line[:-len(delimiter)]
+    return [c.strip() for c in (line.split(delimiter) if delimiter else line.split())]
+
+
+def _numberish(cell: str, delimiter) -> bool:
+    """A number; a decimal comma (59,5) is one too in a ';' or tab table."""
+    return _is_number(cell) or (delimiter in (";", "\t") and bool(_DECIMAL_COMMA.match(cell)))
+
+
+def _lead_lines(lines, start: int, delimiter, count: int) -> int:
+    """How many lines before the first row of `count` numbers (a header-less table, `count` the names --columns
+    gives) do not fit it: a start-up banner ("MPU9250 init OK"), the partial line a capture starts with
+    ("3.45 -12"). 0 when the first line fits, when a line of `count` names (a header) comes first, or when no
+    two rows that fit follow within 30 lines."""
+    body = [k for k in range(start, min(len(lines), start + 30)) if lines[k].strip() and not is_comment(lines[k])]
+
+    def fits(k):
+        c = _cells(lines[k], delimiter)
+        return len(c) == count and all(_numberish(x, delimiter) for x in c)
+
+    for n, k in enumerate(body[:-1]):
+        if len(_cells(lines[k], delimiter)) == count and not fits(k):
+            return 0  # a header (or a garbled row): not this case
+        if fits(k) and fits(body[n + 1]):
+            return k - start
+    return 0
+
+
+def _read_after_lead(path: Path, lines, start: int, lead: int, columns, units, bad_lines: str, delimiter):
+    """The header-less table under `lead` lines that do not fit it (_lead_lines): lines of text are the preamble,
+    kept in metadata["preamble"] (as fluxcal.io.labelled keeps a banner); lines of numbers (a partial first
+    line) are bad lines: an error naming the first, or left out and listed with bad_lines="skip"."""
+    text, cut = [], []
+    for k in range(start, start + lead):
+        c = _cells(lines[k], delimiter) if lines[k].strip() and not is_comment(lines[k]) else []
+        if c:
+            (cut if all(_numberish(x, delimiter) for x in c) else text).append(k)
+    count = len(columns.split(",")) if isinstance(columns, str) else len(columns)
+    if cut and bad_lines != "skip":
+        k = cut[0]
+        raise ValueError(f"{path}, line {k + 1}: {len(_cells(lines[k], delimiter))} fields where the rows under it "
+                         f"have {count}, as --columns names (the partial line a capture starts with?); {SKIP_HINT}")
+    rec = read_table_lines(["" if k in text or k in cut else line for k, line in enumerate(lines)], str(path),
+                           columns, units, bad_lines)
+    if text:
+        rec.metadata["preamble"] = listing([f"line {k + 1}: {lines[k].strip()}" for k in text])
+    if cut:
+        mine = [f"{k + 1} ({len(_cells(lines[k], delimiter))} fields, --columns names {count})" for k in cut]
+        known = rec.metadata.get("skipped_lines")
+        rec.metadata["skipped_lines"] = f"{known}; {'; '.join(mine)}" if known else listing(mine, len(rec) + len(cut))
+    return rec
+
+
 def _title_lines(lines, start: int, delimiter) -> int:
     """How many lines of free text (a title, a start-up banner) come before a header that names the columns of
     the data under it: 0 when the first line already has as many fields as the data. The header is the first
     line of as many fields, all names, with a row of mostly numbers after it (or after a row of units under
     the names: `s,uT,uT,uT`)."""
-    def cells(line):  # a delimiter ending the line (Arduino's `x,y,z,`) makes no field
-        line = line.rstrip()
-        if delimiter and delimiter.strip() and line.endswith(delimiter):
-            line = line[:-len(delimiter)]
-        return [c.strip() for c in (line.split(delimiter) if delimiter else line.split())]
+    def cells(line):
+        return _cells(line, delimiter)
+
+    def number(x):
+        return _numberish(x, delimiter)
 
     body = [k for k in range(start, min(len(lines), start + 200)) if lines[k].strip() and not is_comment(lines[k])]
     if len(body) < 4:
@@ -277,8 +386,8 @@ def _title_lines(lines, start: int, delimiter) -> int:
             d = cells(lines[body[k + 2]])
         # a banner line of as many fields, all words ("Sensor: QMC5883L, range 8G, ODR 50 Hz"), is not the
         # header unless numbers follow it: look on
-        if len(c) == width and all(x and not _is_number(x) for x in c) and len(d) == width \
-                and 2 * sum(_is_number(x) for x in d) >= width:
+        if len(c) == width and all(x and not number(x) for x in c) and len(d) == width \
+                and 2 * sum(number(x) for x in d) >= width:
             return here - start
     return 0
 

@@ -121,7 +121,8 @@ def _parse_line(text: str, loose: bool = False):
         words = _WORD.findall(text[pos:m.start()])
         if values and words and is_unit(words[0]) and not values[-1][2]:
             values[-1][2] = _degrees(words)  # the previous value's unit
-        named = [w.strip(":=-") for w in words if re.search(r"[A-Za-z]", w) and not is_unit(w)]
+        # a word, or a log tag in brackets ("[2] X: …": the second sensor), names the sensor
+        named = [w.strip(":=-") for w in words if re.search(r"[A-Za-z]|^\[\w+\]$", w) and not is_unit(w)]
         if named or not groups:
             group = " ".join(named)
             groups.append([next((w.strip(":=-") for w in words if is_unit(w.strip(":=-"))), "")])  # "Mag (uT) X:"

@@ -23,7 +23,8 @@ from pathlib import Path
 
 import numpy as np
 
-from .csv import readable_file, _is_number, decimal_points, is_comment, parse_csv, parse_rows, read_lines, read_text
+from .csv import (readable_file, _is_number, comma_thousands, decimal_points, is_comment, parse_csv, parse_rows,
+                  read_lines, read_text)
 from .recording import ATTITUDE_COLUMNS, FIELD_NED_COLUMNS, Recording
 
 # -- key,value preamble (QMC5883L logger) -------------------------------------------------------------------
@@ -118,10 +119,12 @@ def read_headerless(path, names=None, columns=None, units: str | None = None, de
     path = readable_file(path)
     lines = read_lines(path)
     start = _skip_comments(lines)
-    lines, converted = decimal_points(lines, start, delimiter)
+    separated = []
+    lines, converted = decimal_points(lines, start, delimiter, separated)
     rec = _read_headerless(path, lines, start, names, columns, units, delimiter)
     if converted:
         rec.metadata["decimal_separator"] = "comma"
+    comma_thousands(path, rec.metadata, [n for j, n in enumerate(rec.columns) if j in separated])
     return rec
 
 
