@@ -58,7 +58,7 @@ def test_monte_carlo_within_the_bound_unbiased_and_honest_standard_errors():
     errors, ses = np.array(errors), np.array(ses)
     field_dirs = attitudes.inv().apply(np.array([np.cos(DIP), 0.0, np.sin(DIP)]))
     down = attitudes.inv().apply([0.0, 0.0, 1.0])
-    bound = np.sqrt(np.diag(oracle.alignment.crlb(field_dirs, down, np.eye(3), DIP, np.hypot(0.01, 0.01))))
+    bound = np.sqrt(np.diag(oracle.alignment.crlb(field_dirs, down, np.eye(3), np.hypot(0.01, 0.01))))
     rms = np.sqrt(np.mean(errors ** 2, axis=0))
     assert np.all(rms <= 1.15 * bound), (rms, bound)
     assert np.all(np.abs(errors.mean(axis=0)) <= 0.2 * bound), (errors.mean(axis=0), bound)

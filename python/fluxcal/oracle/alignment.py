@@ -39,7 +39,7 @@ def align_to_gravity(field, specific_force) -> dict:
             "residual_rms": float(np.sqrt(np.mean(fit.fun ** 2)))}
 
 
-def crlb(field_directions, down, rotation, dip: float, sigma: float) -> np.ndarray:
+def crlb(field_directions, down, rotation, sigma: float) -> np.ndarray:
     """Cramér–Rao bound (4×4) of (small rotation about x, y, z; dip) for direction noise σ (the two vectors'
     together, per axis): the dip each reading shows has variance σ²."""
     v = _unit(field_directions) @ np.asarray(rotation).T
