@@ -275,13 +275,20 @@ AlignmentResult align_to_gravity(const SamplesRef& field, const SamplesRef& spec
   // mounted is kept and the result is flagged: the data cannot tell them apart.
   const Eigen::SelfAdjointEigenSolver<Eigen::Matrix3d> plane(down.transpose() * down);
   const Eigen::Matrix3d half_turn = Eigen::AngleAxisd(kPi, plane.eigenvectors().col(0)).toRotationMatrix();
-  Fit mirror = gauss_newton(down, dir, half_turn * best.rotation, start_dip(-best.dip), options);
-  covariance(down, dir, mirror, options);
-  const bool other_branch = Eigen::AngleAxisd(mirror.rotation * best.rotation.transpose()).angle() > kPi / 2;
   // The plane's thickness (mean square of the down directions across it) against the direction noise σ_h² + σ_f²
   // (the residual variance): within twice that, the tilts were about one axis and only noise breaks
   // the tie — it picked the wrong answer at 34 σ̂² lower cost in a blind check, so the cost cannot decide.
   const double thickness = plane.eigenvalues()(0) / static_cast<double>(n);
+  // The mirror start costs as much as the fit when the tilts were about one axis, and more by about N × thickness
+  // otherwise; 1000 σ̂² above it the other branch is out of reach, and the fit from there (crawling through a cost
+  // hundreds of times the best one's) would take most of the alignment's time: it is skipped.
+  const Eigen::Matrix3d mirror_start = half_turn * best.rotation;
+  Fit mirror = best;
+  if (thickness <= 2.0 * best.sigma2 || cost(down, dir, mirror_start, -best.dip) < best.cost + 1000.0 * best.sigma2) {
+    mirror = gauss_newton(down, dir, mirror_start, start_dip(-best.dip), options);
+    covariance(down, dir, mirror, options);
+  }
+  const bool other_branch = Eigen::AngleAxisd(mirror.rotation * best.rotation.transpose()).angle() > kPi / 2;
   bool ambiguous = false;
   if (other_branch && (thickness <= 2.0 * best.sigma2 || mirror.cost < best.cost + 25.0 * best.sigma2)) {
     ambiguous = true;
