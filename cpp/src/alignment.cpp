@@ -94,7 +94,7 @@ struct Fit {
   Eigen::Matrix3d rotation;
   double dip = 0.0, cost = 0.0, sigma2 = 0.0;
   int iterations = 0;
-  bool converged = false, identifiable = false;
+  bool converged = false, identifiable = false, singular = false;  // singular: JᵀJ's floor reached
   Eigen::Matrix4d inverse = Eigen::Matrix4d::Zero();     // (JᵀJ)⁻¹, huge along an undetermined direction
   Eigen::Matrix4d covariance = Eigen::Matrix4d::Zero();  // σ̂²(JᵀJ)⁻¹
 };
@@ -143,7 +143,9 @@ void covariance(const Samples& down, const Samples& dir, Fit& fit, const Alignme
   fit.sigma2 = residual_variance(fit.cost, down.rows());
   Eigen::SelfAdjointEigenSolver<Eigen::Matrix4d> eig(jtj);
   const Eigen::Vector4d lambda = eig.eigenvalues();
-  const Eigen::Vector4d inverse = lambda.cwiseMax(1e-12 * std::max(lambda(3), 1e-300)).cwiseInverse();
+  const double floor = 1e-12 * std::max(lambda(3), 1e-300);
+  fit.singular = !(lambda(0) > floor);
+  const Eigen::Vector4d inverse = lambda.cwiseMax(floor).cwiseInverse();
   fit.inverse = eig.eigenvectors() * inverse.asDiagonal() * eig.eigenvectors().transpose();
   fit.covariance = fit.sigma2 * fit.inverse;
   fit.identifiable = (fit.covariance.diagonal().cwiseMax(0.0).cwiseSqrt() * kDeg).maxCoeff() <= options.max_se_deg;
@@ -202,6 +204,9 @@ AlignmentResult align_to_gravity(const SamplesRef& field, const SamplesRef& spec
   specific_force.require_width("specific_force");
   if (!(options.max_iterations >= 1))
     throw Error("AlignmentOptions::max_iterations: " + std::to_string(options.max_iterations) + ", need ≥ 1");
+  if (!(options.serial_correlation_alpha > 0.0 && options.serial_correlation_alpha < 1.0))
+    throw Error("AlignmentOptions::serial_correlation_alpha: " + detail::num(options.serial_correlation_alpha) +
+                ", need a significance level in (0, 1)");
   if (!(options.tolerance > 0) || !(options.max_se_deg > 0) || std::isnan(options.max_dynamic))
     throw Error("AlignmentOptions: tolerance " + detail::num(options.tolerance) + " and max_se_deg " +
                 detail::num(options.max_se_deg) + " must be positive, max_dynamic a number");
@@ -305,12 +310,13 @@ AlignmentResult align_to_gravity(const SamplesRef& field, const SamplesRef& spec
   double dip = best.dip;
   const double current = best.cost, sigma2 = best.sigma2;
   // Readings correlated in time: the Newey–West sandwich over the scores J_kᵀe_k (rows in time order; those left
-  // out are skipped over), taken as refine takes it. Not where some direction is undetermined (flagged already).
+  // out are skipped over), taken as refine takes it — also when some direction is poorly determined (a level turn:
+  // the dip's SE must still widen), not where JᵀJ is singular.
   Eigen::MatrixXd cov = best.covariance;
   const Eigen::VectorXd e = residuals(down, dir, best.rotation, best.dip);
   const Eigen::MatrixXd scores = jacobian(down, dir, best.rotation).array().colwise() * e.array();
   const std::string correlated = detail::correct_for_serial_correlation(
-      cov, result.serial_correlation, e, scores, best.inverse, !best.identifiable || ambiguous,
+      cov, result.serial_correlation, e, scores, best.inverse, best.singular,
       options.serial_correlation, options.serial_correlation_alpha);
   if (!correlated.empty()) s.warnings.push_back(correlated);
   result.covariance = cov;
@@ -338,17 +344,18 @@ AlignmentResult align_to_gravity(const SamplesRef& field, const SamplesRef& spec
                             ? unmoved : widened;
     if (!(result.standard_errors(i) * kDeg <= options.max_se_deg)) list += (list.empty() ? "" : ", ") + name;
   }
-  // Within 3 noise SDs of vertical the field's horizontal part, which fixes the rotation about the vertical, is lost
-  // in the noise (at the magnetic pole a compass has no north), and the angle between the two directions is of the
-  // order of the noise: least squares slides towards the pole, where that angle's spread is smaller (a blind check:
-  // a true 85° read 88.7°, every axis off by 3–4° against SEs of 0.2°). Flagged, not trusted.
-  const bool near_vertical = kPi / 2 - std::abs(dip) < 3.0 * std::sqrt(sigma2);
-  if (near_vertical)
-    s.warnings.push_back("not identifiable: the field is within 3 noise SDs (" +
-                         detail::num(3.0 * std::sqrt(sigma2) * kDeg) + "°) of vertical, so its horizontal part, which "
-                         "fixes the rotation about the vertical, is lost in the noise, and the dip is biased there "
-                         "(quieter readings, or averaging each attitude at rest, help)");
-  result.identifiable = unmoved.empty() && widened.empty() && !ambiguous && !near_vertical;
+  // Within 3 noise SDs of vertical the field's horizontal part, which fixes the rotation about the vertical, is near
+  // the noise (at the magnetic pole a compass has no north), and the angle between the two directions is of the
+  // order of the noise: on a poorly spread turn least squares slides towards the pole, where that angle's spread is
+  // smaller (a blind check: a true 85° on a 3° hand turn read 88.7°, 3–4° off against SEs of 0.2°). With attitudes
+  // spread well it is right (86° at 1.6° noise: 0.1° off), so this is said, not flagged.
+  if (kPi / 2 - std::abs(dip) < 3.0 * std::sqrt(sigma2))
+    s.warnings.push_back("the field is within 3 noise SDs (" + detail::num(3.0 * std::sqrt(sigma2) * kDeg) +
+                         "°) of vertical: its horizontal part, which fixes the rotation about the vertical, is near "
+                         "the noise, and unless the attitudes were spread widely the fit may lie several degrees "
+                         "towards vertical beyond its standard errors (quieter readings, or averaging each attitude at "
+                         "rest, help)");
+  result.identifiable = unmoved.empty() && widened.empty() && !ambiguous;
   if (!unmoved.empty())
     s.warnings.push_back("not identifiable: " + unmoved + " not determined to " + detail::num(options.max_se_deg) +
                          "° (the attitudes did not move about every axis: tilt the device, not only turn it "

@@ -132,8 +132,9 @@ Eigen::MatrixXd prewhitened_long_run(const Eigen::MatrixXd& g, int& lags) {
 // Newey–West sandwich F⁻¹ S F⁻¹ (F⁻¹ the pseudo-inverse the independent covariance was built from,
 // S the prewhitened long-run covariance of the scores).
 // `automatic` switches when the residuals fail the Ljung–Box test and the sandwich widens an error, or
-// when it widens one by ≥ 1.5× whatever the test says: with orientations that change fast the
-// residuals r_i ≈ ĥ_iᵀe_i lose the noise's correlation that the scores ĥ_iĥ_iᵀe_i keep. It does not
+// when it widens one by ≥ 1.5× whatever the test says: with orientations that change fast a residual (the noise
+// projected on a direction that turns) loses the noise's correlation that the scores (the residual times that
+// direction) keep. It does not
 // switch to a sandwich that widens nothing (negative correlation is rare, and a small sample's
 // sandwich is noisy); `newey_west` reports the sandwich whatever it gives.
 std::string correct_for_serial_correlation(Eigen::MatrixXd& covariance, SerialCorrelationReport& rep,

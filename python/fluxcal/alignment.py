@@ -117,7 +117,7 @@ def align_to_gravity(field, specific_force, serial_correlation: str = "automatic
                                                      serial_correlation_mode(serial_correlation)}, "align_to_gravity")
     r = _core.align_to_gravity(h, f, options)
     dip, summary = float(r["dip"]), dict(r["summary"])
-    summary["serial_correlation"] = {**r["serial_correlation"], "mode": serial_correlation}
+    summary["serial_correlation"] = {**r["serial_correlation"], "mode": options.serial_correlation.name}
     return Alignment(rotation=np.asarray(r["rotation"]), dip_deg=float(np.degrees(dip)),
                      covariance=np.asarray(r["covariance"]), identifiable=bool(r["identifiable"]),
                      readings_used=int(r["readings_used"]),

@@ -168,7 +168,10 @@ def _set_aside(out_path: Path) -> str:
     if not out_path.exists():
         return ""
     stale = out_path.with_name(f"{out_path.name}.stale")
-    os.replace(out_path, stale)
+    try:
+        os.replace(out_path, stale)
+    except OSError as exc:  # one unit's file must not stop the fleet: said instead
+        return f" (the previous {out_path.name}, of another recording or settings, could not be moved aside: {exc})"
     return f" (the previous {out_path.name}, of another recording or settings, moved to {stale.name})"
 
 

@@ -169,3 +169,16 @@ def test_partial_first_line_of_a_headerless_capture(tmp_path):
     assert rec.samples().tolist() == [[59.26, -17.65, 6.54], [59.66, -17.72, 7.41], [59.85, -19.90, 10.52]]
     assert rec.line_numbers.tolist() == [2, 3, 4]
     assert rec.metadata["skipped_lines"] == "1 of 4: 1 (2 fields, --columns names 3)"
+
+
+def test_three_decimals_with_a_few_whole_cells_stay_decimal_commas(tmp_path):
+    # a decimal-comma table to three decimals with a 0 or a 45 among its cells is not a thousands-separated one (a
+    # review: both had been read ×1000); only whole numbers of three digits beside the commas make it so
+    for name, cell in (("zero.tsv", "0"), ("whole.tsv", "45")):
+        path = write(tmp_path, name, f"mx\tmy\tmz\n21,456\t-4,312\t44,187\n-19,874\t{cell}\t-46,233\n"
+                                     "47,215\t3,718\t-18,904\n")
+        with warnings.catch_warnings():
+            warnings.simplefilter("error")
+            rec = read_recording(path)
+        assert rec.samples()[:, 0].tolist() == [21.456, -19.874, 47.215]
+        assert rec.samples()[1, 1] == float(cell)

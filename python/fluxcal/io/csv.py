@@ -586,17 +586,17 @@ def _decimal_comma_columns(rows) -> list:
 def _comma_thousands_columns(rows, columns) -> list:
     """The decimal-comma `columns` of a ';' or tab table (`rows`: the first data lines' cells) when their commas
     are thousands separators instead (a spreadsheet's #,##0 saved as text: 48,123 beside 523), else []. Taken so
-    when no cell holds a point, every comma in them has three digits after one to three (1,234) and some cell
-    beside them is a whole number of at most three digits: numbers of 1000 and more have the comma, smaller
-    ones not. Decimal commas would have written other numbers of decimals too (48,12), and a whole number of
-    four digits (1234) has no thousands separator: those read as decimal commas."""
+    when no cell holds a point, every comma in them has three digits after one to three (1,234), and the whole
+    numbers among them all have three digits (100–999: the columns run on across 1000), and there is one: a 0, a
+    45 or a 9,807 beside 0 (a decimal-comma table with a few whole cells) read as decimal commas, and so does a
+    whole number of four digits (1234 has no thousands separator)."""
     from .columns import comma_kind
 
     if not columns or any("." in c for row in rows for c in row):
         return []
     cells = [row[j].strip().strip('"') for row in rows for j in columns if j < len(row) and row[j].strip()]
     whole = [c for c in cells if "," not in c and _is_number(c)]
-    if whole and all(re.fullmatch(r"[-+]?\d{1,3}", c) for c in whole) \
+    if whole and all(re.fullmatch(r"[-+]?[1-9]\d{2}", c) for c in whole) \
             and all(comma_kind(c) == "ambiguous" for c in cells if "," in c):
         return list(columns)
     return []

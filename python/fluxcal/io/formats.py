@@ -286,7 +286,6 @@ def _read_clocked_table(path: Path, lines, columns, units, bad_lines: str) -> Re
     """A table printed through a serial monitor with its clock on each line: the table read without the clocks
     (lines keep their numbers), the clock added as the column `time` in seconds (`clock` when the table has its
     own time), as fluxcal.io.labelled does for labelled lines."""
-    from .columns import TIME_WORDS, words
     from .csv import _timestamps
 
     stamps, bare = {}, []
@@ -298,7 +297,7 @@ def _read_clocked_table(path: Path, lines, columns, units, bad_lines: str) -> Re
     rec = read_table_lines(bare, str(path), columns, units, bad_lines)
     rows = rec.line_numbers if rec.line_numbers is not None else []
     seconds, first = _timestamps([stamps.get(int(n), "") for n in rows])
-    name = "clock" if any(set(words(c)) & TIME_WORDS for c in rec.columns) else "time"  # the table's own wins
+    name = "clock" if rec._time_column() is not None else "time"  # the table's own (millis, t, …) wins
     if seconds is not None and np.isfinite(seconds).all() and name not in rec.columns:
         rec.columns[name], rec.units[name] = seconds, "s"
         rec.metadata[f"{name}_start"] = first
