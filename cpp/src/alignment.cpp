@@ -55,23 +55,28 @@ double residual_variance(double cost, Eigen::Index rows) {
   return cost / static_cast<double>(std::max<Eigen::Index>(rows - 4, 1));
 }
 
-/// J of the residuals at (R, δ): rows (the unit vector along R ĥ_k × d_k, −1) over (a small rotation, δ).
-Eigen::Matrix<double, Eigen::Dynamic, 4> jacobian(const Samples& down, const Samples& dir, const Eigen::Matrix3d& r) {
-  Eigen::Matrix<double, Eigen::Dynamic, 4> j(down.rows(), 4);
+/// The residuals e and their Jacobian J at (R, δ) in one pass: J's rows are (the unit vector along R ĥ_k × d_k, −1)
+/// over (a small rotation, δ).
+void linearise(const Samples& down, const Samples& dir, const Eigen::Matrix3d& r, double dip,
+               Eigen::Matrix<double, Eigen::Dynamic, 4>& j, Eigen::VectorXd& e) {
+  j.resize(down.rows(), 4);
+  e.resize(down.rows());
   for (Eigen::Index k = 0; k < down.rows(); ++k) {
-    const Eigen::Vector3d v = r * dir.row(k).transpose(), across = v.cross(down.row(k).transpose());
+    const Eigen::Vector3d v = r * dir.row(k).transpose(), d = down.row(k).transpose(), across = v.cross(d);
     const double norm = across.norm();  // 0 only for a field exactly along gravity: no rotation seen
+    e(k) = std::atan2(d.dot(v), norm) - dip;
     j.row(k) << (norm > 0 ? (across / norm).eval() : Eigen::Vector3d::Zero()).transpose(), -1.0;
   }
-  return j;
 }
 
 /// JᵀJ and Jᵀe of the residuals at (R, δ).
 void normal_equations(const Samples& down, const Samples& dir, const Eigen::Matrix3d& r, double dip,
                       Eigen::Matrix4d& jtj, Eigen::Vector4d& jte) {
-  const Eigen::Matrix<double, Eigen::Dynamic, 4> j = jacobian(down, dir, r);
+  Eigen::Matrix<double, Eigen::Dynamic, 4> j;
+  Eigen::VectorXd e;
+  linearise(down, dir, r, dip, j, e);
   jtj = j.transpose() * j;
-  jte = j.transpose() * residuals(down, dir, r, dip);
+  jte = j.transpose() * e;
 }
 
 /// The step −(JᵀJ + μ λ_max)⁻¹ g taken only along the directions the data see (standard error along the eigen-
@@ -313,8 +318,10 @@ AlignmentResult align_to_gravity(const SamplesRef& field, const SamplesRef& spec
   // out are skipped over), taken as refine takes it — also when some direction is poorly determined (a level turn:
   // the dip's SE must still widen), not where JᵀJ is singular.
   Eigen::MatrixXd cov = best.covariance;
-  const Eigen::VectorXd e = residuals(down, dir, best.rotation, best.dip);
-  const Eigen::MatrixXd scores = jacobian(down, dir, best.rotation).array().colwise() * e.array();
+  Eigen::Matrix<double, Eigen::Dynamic, 4> j;
+  Eigen::VectorXd e;
+  linearise(down, dir, best.rotation, best.dip, j, e);
+  const Eigen::MatrixXd scores = j.array().colwise() * e.array();
   const std::string correlated = detail::correct_for_serial_correlation(
       cov, result.serial_correlation, e, scores, best.inverse, best.singular,
       options.serial_correlation, options.serial_correlation_alpha);

@@ -249,7 +249,7 @@ def _read_table(path: Path, columns, units, bad_lines: str = "error") -> Recordi
     given = columns.split(",") if isinstance(columns, str) else columns
     lead = _lead_lines(lines, start, delimiter, len(given)) if given is not None and len(given) > 1 else 0
     if lead:  # a banner or a partial line above a header-less table whose columns --columns names
-        return _read_after_lead(path, lines, start, lead, columns, units, bad_lines, delimiter)
+        return _read_after_lead(path, lines, start, lead, columns, len(given), units, bad_lines, delimiter)
     first = [c.strip() for c in decimal_points(lines[start:start + 400], 0, delimiter)[0][0].split(delimiter)]
     numbers = sum(_is_number(c) for c in first)
     # a row of mostly numbers with a text cell or two (ROS `rostopic echo -p`: frame_id) is data, not a header,
@@ -336,7 +336,8 @@ def _lead_lines(lines, start: int, delimiter, count: int) -> int:
     return 0
 
 
-def _read_after_lead(path: Path, lines, start: int, lead: int, columns, units, bad_lines: str, delimiter):
+def _read_after_lead(path: Path, lines, start: int, lead: int, columns, count: int, units, bad_lines: str,
+                     delimiter):
     """The header-less table under `lead` lines that do not fit it (_lead_lines): lines of text are the preamble,
     kept in metadata["preamble"] (as fluxcal.io.labelled keeps a banner); lines of numbers (a partial first
     line) are bad lines: an error naming the first, or left out and listed with bad_lines="skip"."""
@@ -345,7 +346,6 @@ def _read_after_lead(path: Path, lines, start: int, lead: int, columns, units, b
         c = _cells(lines[k], delimiter) if lines[k].strip() and not is_comment(lines[k]) else []
         if c:
             (cut if all(_numberish(x, delimiter) for x in c) else text).append(k)
-    count = len(columns.split(",")) if isinstance(columns, str) else len(columns)
     if cut and bad_lines != "skip":
         k = cut[0]
         raise ValueError(f"{path}, line {k + 1}: {len(_cells(lines[k], delimiter))} fields where the rows under it "
