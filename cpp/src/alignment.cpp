@@ -281,13 +281,13 @@ AlignmentResult align_to_gravity(const SamplesRef& field, const SamplesRef& spec
 
   // Tilts all about one body axis n (the down directions in one plane) leave a second answer that fits as well:
   // R turned 180° about n with the dip negated (n's half turn reverses every down direction in the plane). Found
-  // by fitting from there; when it is as good (within 25 σ̂², a 5σ likelihood ratio), the one nearer the axes as
+  // by fitting from there; when it is as good (within what noise alone makes, below), the one nearer the axes as
   // mounted is kept and the result is flagged: the data cannot tell them apart.
   const Eigen::SelfAdjointEigenSolver<Eigen::Matrix3d> plane(down.transpose() * down);
   const Eigen::Matrix3d half_turn = Eigen::AngleAxisd(kPi, plane.eigenvectors().col(0)).toRotationMatrix();
   // The plane's thickness (mean square of the down directions across it) against the direction noise σ_h² + σ_f²
-  // (the residual variance): within twice that, the tilts were about one axis and only noise breaks
-  // the tie — it picked the wrong answer at 34 σ̂² lower cost in a blind check, so the cost cannot decide.
+  // (the residual variance): within twice that, the tilts may have been about one axis, and noise alone moves the two
+  // costs apart by tens of σ̂² (it picked the wrong answer at 34 σ̂² lower cost in a blind check).
   const double thickness = plane.eigenvalues()(0) / static_cast<double>(n);
   // The mirror start costs as much as the fit when the tilts were about one axis, and more by about N × thickness
   // otherwise; 1000 σ̂² above it the other branch is out of reach, and the fit from there (crawling through a cost
@@ -299,8 +299,16 @@ AlignmentResult align_to_gravity(const SamplesRef& field, const SamplesRef& spec
     covariance(down, dir, mirror, options);
   }
   const bool other_branch = Eigen::AngleAxisd(mirror.rotation * best.rotation.transpose()).angle() > kPi / 2;
+  // How far apart the two branches' costs may lie on noise alone. Tilts exactly about n: the mirror's residuals are
+  // −e_k + 2a_k, a_k the part of e_k that the down direction's noise across the plane makes, so the costs differ by
+  // −4 Σ (e_k − a_k) a_k, of SD at most 2√N σ̂² (measured: 0.4–1.6 √N σ̂² at N 100 and 1000). 5 of those SDs; a plane
+  // only as thick as the noise can still be tilted out of by a little at every reading (a 0.6° wobble at 1 % noise
+  // and N 1000 made the mirror 500 σ̂² dearer: the data decide). Otherwise a 5σ likelihood ratio, 25 σ̂².
+  const double tie = (thickness <= 2.0 * best.sigma2 ? 10.0 * std::sqrt(static_cast<double>(n)) : 25.0) * best.sigma2;
   bool ambiguous = false;
-  if (other_branch && (thickness <= 2.0 * best.sigma2 || mirror.cost < best.cost + 25.0 * best.sigma2)) {
+  if (other_branch && mirror.cost < best.cost - tie) {
+    best = mirror;  // the other branch fits clearly better
+  } else if (other_branch && mirror.cost < best.cost + tie) {
     ambiguous = true;
     if (Eigen::AngleAxisd(mirror.rotation).angle() < Eigen::AngleAxisd(best.rotation).angle()) best = mirror;
     const Eigen::Vector3d axis = plane.eigenvectors().col(0);
