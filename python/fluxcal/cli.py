@@ -1104,6 +1104,11 @@ def _join_negative_lists(argv: list) -> list:
     return out
 
 
+def _show_warning(message, category, filename, lineno, file=None, line=None):
+    """A library's warning on the command line as `warning: …`, without Python's source line."""
+    print(f"warning: {message}", file=sys.stderr if file is None else file)
+
+
 def main(argv=None) -> int:
     parser = build_parser()
     args = parser.parse_args(_join_negative_lists(list(sys.argv[1:] if argv is None else argv)))
@@ -1118,7 +1123,9 @@ def main(argv=None) -> int:
         parser.print_help()
         return 1
     try:
-        return args.run(args)
+        with warnings.catch_warnings():
+            warnings.showwarning = _show_warning
+            return args.run(args)
     except (ValueError, FileNotFoundError) as exc:
         print(f"fluxcal {args.command}: error: {exc}", file=sys.stderr)
         return 2

@@ -182,3 +182,136 @@ def test_three_decimals_with_a_few_whole_cells_stay_decimal_commas(tmp_path):
             rec = read_recording(path)
         assert rec.samples()[:, 0].tolist() == [21.456, -19.874, 47.215]
         assert rec.samples()[1, 1] == float(cell)
+
+
+def test_sparkfun_icm20948_bracketed_vectors(tmp_path):
+    # SparkFun ICM-20948 Example1: `Label (unit) [ x, y, z ]` groups, zero-padded, after a word
+    line = ("Scaled. Acc (mg) [  00000.00,  00020.00,  01000.00 ], Gyr (DPS) [  00000.31, -00000.20,  00000.05 ], "
+            "Mag (uT) [  {:09.2f},  {:08.2f}, -00020.00 ], Tmp (C) [  00025.41 ]\n")
+    path = write(tmp_path, "icm.txt", "".join(line.format(50 - k, k) for k in range(3)))
+    rec = read_recording(path)
+    assert rec.roles()["magnetometer"] == "Mag X,Mag Y,Mag Z"
+    assert rec.samples().tolist() == [[50, 0, -20], [49, 1, -20], [48, 2, -20]]
+    assert {rec.units[n] for n in rec.mag_names()} == {"uT"}
+    assert rec.acc_names() == ("Acc X", "Acc Y", "Acc Z") and rec.units["Acc Z"] == "mg"
+    assert rec.acceleration()[0].tolist() == [0, 20, 1000]
+    assert rec.units["Gyr X"] == "DPS" and rec.columns["Gyr Y"][0] == -0.2
+    assert rec.temperature().tolist() == [25.41] * 3
+    # the raw form prints no units
+    raw = write(tmp_path, "raw.txt", "".join(f"RAW. Acc [ 00012, -00003, 16384 ], Gyr [ 00001, 00000, -00002 ], "
+                                             f"Mag [ {150 - k}, -00040, 00210 ], Tmp [ 00123 ]\n" for k in range(3)))
+    assert read_recording(raw).samples()[:, 0].tolist() == [150, 149, 148]
+
+
+@pytest.mark.parametrize("tags", [("Sensor 1:", "Sensor 2:"), ("Sensor A", "Sensor B")])
+def test_two_sensors_a_line_each_are_named_apart(tmp_path, tags):
+    # "Sensor 1: X: …" / "Sensor 2: X: …": were one interleaved triple; "Sensor A" / "Sensor B": A (read as
+    # amperes) was dropped and B taken for a field B
+    path = write(tmp_path, "two.txt", "".join(f"{tags[0]} X: {50 - k}.00 Y: 0.00 Z: 20.00 uT\n"
+                                              f"{tags[1]} X: {30 - k}.00 Y: 0.00 Z: -20.00 uT\n" for k in range(4)))
+    a, b = (t.rstrip(":") for t in tags)
+    rec = read_recording(path)
+    assert list(rec.columns) == [f"{s} {axis}" for s in (a, b) for axis in "XYZ"]
+    listed = ", ".join(f"{s} {axis}" for s in (a, b) for axis in "XYZ")
+    with pytest.raises(ValueError, match=f"no magnetometer columns .*columns are: {listed}\\); choose three"):
+        rec.samples()
+    assert "accelerometer" not in rec.roles()
+    picked = read_recording(path, columns=f"{b} X,{b} Y,{b} Z")
+    assert picked.samples().tolist() == [[30 - k, 0, -20] for k in range(4)]
+
+
+def test_a_reading_counter_is_not_a_sensor_number(tmp_path):
+    path = write(tmp_path, "count.txt", "".join(f"Sample {k}: X: {50 - k}.0 Y: 1.0 Z: 2.0 uT\n" for k in range(1, 20)))
+    rec = read_recording(path, columns="Sample X,Sample Y,Sample Z")
+    assert rec.samples()[:, 0].tolist() == [50 - k for k in range(1, 20)]
+
+
+def test_two_magnetometers_tagged_by_letter_are_both_listed(tmp_path):
+    path = write(tmp_path, "mag.txt", "".join(f"Mag A X: {50 - k}.00 Y: 0.00 Z: 20.00 uT\nMag B X: {30 - k}.00 "
+                                              "Y: 0.00 Z: -20.00 uT\n" for k in range(4)))
+    with pytest.raises(ValueError, match=r"several magnetometer column triples \(Mag A X,Mag A Y,Mag A Z; Mag B X,"):
+        read_recording(path).samples()
+
+
+def _gradiometer_rows(n=60):
+    """t, B1 (nT), an accelerometer (m/s²), B2 (nT): a header-less table that is not the airborne layout."""
+    rng = np.random.default_rng(3)
+    angle = np.linspace(0, 2 * np.pi, n)
+    b1 = np.column_stack([48000 * np.cos(angle), 48000 * np.sin(angle), 20000 + 100 * angle])
+    acc = np.column_stack([rng.normal(0, 0.1, n), rng.normal(0, 0.1, n), 9.8 + rng.normal(0, 0.1, n)])
+    return np.column_stack([0.1 * np.arange(n), b1, acc, b1 * 1.01 + 50])
+
+
+def test_headerless_gradiometer_table_is_not_the_airborne_layout(tmp_path, real_data):
+    path = tmp_path / "grad.txt"
+    np.savetxt(path, _gradiometer_rows(), fmt="%.3f", delimiter="\t")
+    with pytest.raises(ValueError, match=r"grad.txt, line 1: 10 tab-separated numbers and no header; name the "
+                                         r"columns with --columns"):
+        read_recording(path)
+    # the published segment without its _info.txt still reads as the layout, and says it was guessed
+    lines = (real_data / "airborne_flt1002_02.tsv").read_text().splitlines(keepends=True)
+    for first in (0, 5000, 12000):
+        (tmp_path / "segment.tsv").write_text("".join(lines[first:first + 300]))
+        with pytest.warns(UserWarning, match=r"segment.tsv: read as airborne MagNav segment: .*the numbers fit it"):
+            rec = read_recording(tmp_path / "segment.tsv")
+        assert rec.roles()["magnetometer"] == "mx,my,mz" and "igrf_n" in rec.columns
+
+
+def test_trailing_delimiter_on_some_lines_only(tmp_path):
+    path = write(tmp_path, "tc.csv", "mx,my,mz\n50.00,0.00,-20.00\n49.41,4.60,-18.49,\n47.65,9.09,-17.11\n"
+                                     "44.77,13.36,-16.01,\n")
+    rec = read_recording(path)
+    assert rec.samples().tolist() == [[50, 0, -20], [49.41, 4.6, -18.49], [47.65, 9.09, -17.11],
+                                      [44.77, 13.36, -16.01]]
+    # a field after the delimiter is still one too many
+    extra = write(tmp_path, "x.csv", "mx,my,mz\n50.00,0.00,-20.00\n49.41,4.60,-18.49,7\n")
+    with pytest.raises(ValueError, match=r"x.csv, line 3: 4 fields, the header has 3: field 4 \('7'\) has no column"):
+        read_recording(extra)
+
+
+def test_point_thousands_in_whole_numbers_are_read_and_said(tmp_path):
+    # German Excel's #.##0 saved as ';' text: 48.123 is 48123 nT beside 523 nT
+    path = write(tmp_path, "de.csv", "Bx [nT];By [nT];Bz [nT]\n48.123;-1.204;523\n47.998;-987;1.002\n"
+                                     "48.310;-1.511;612\n")
+    with pytest.warns(UserWarning, match=r"columns Bx, By, Bz: 1\.234 read as 1234 \(a thousands separator, not a "
+                                         r"decimal point\)"):
+        rec = read_recording(path)
+    assert rec.samples().tolist() == [[48123, -1204, 523], [47998, -987, 1002], [48310, -1511, 612]]
+    assert rec.metadata["thousands_separator"] == "point (Bx, By, Bz)"
+
+    # µT to three decimals stays decimal: beside 48.5, a 45, or with no whole number at all
+    for name, body in (("half.csv", "48.123;-1.204;20.5\n47.998;-0.987;21.002\n48.5;-1.511;20.612\n"),
+                       ("whole.tsv", "48.123\t-1.204\t45\n47.998\t-0.987\t21.002\n"),
+                       ("plain.csv", "48.123;-1.204;20.512\n47.998;-0.987;21.002\n")):
+        path = write(tmp_path, name, "mx;my;mz\n".replace(";", "\t" if name.endswith("tsv") else ";") + body)
+        with warnings.catch_warnings():
+            warnings.simplefilter("error")
+            rec = read_recording(path)
+        assert rec.samples()[0, :2].tolist() == [48.123, -1.204]
+        assert "thousands_separator" not in rec.metadata
+    # seconds to three decimals across a whole second (100.980, then 101 from a General format): not thousands
+    path = write(tmp_path, "t.csv", "t;mx;my;mz\n100.960;48.123;-1.204;20.500\n100.980;47.998;-0.987;21.002\n"
+                                    "101;48.500;-1.511;20.612\n101.020;48.510;-1.521;20.622\n")
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        rec = read_recording(path)
+    assert rec.columns["t"].tolist() == [100.96, 100.98, 101, 101.02]
+
+
+def test_date_and_time_column_is_the_time_when_there_is_no_other(tmp_path):
+    # German Excel: `Datum/Zeit` stamps with a decimal comma in the seconds, read into seconds, were left unused
+    path = write(tmp_path, "de.csv", "Datum/Zeit;Bx [µT];By [µT];Bz [µT]\n"
+                                     "29.11.2026 10:00:00,000;59,64;-17,78;7,87\n"
+                                     "29.11.2026 10:00:00,020;59,99;-20,19;10,25\n"
+                                     "29.11.2026 10:00:00,040;60,04;-22,19;13,88\n")
+    rec = read_recording(path)
+    assert rec.roles()["time"] == "Datum/Zeit" and np.allclose(rec.time(), [0, 0.02, 0.04])
+    iso = write(tmp_path, "iso.csv", "DateTime,Bx,By,Bz\n2026-11-29T10:00:00Z,1,2,3\n2026-11-29T10:00:00.5Z,1,2,3\n")
+    assert np.allclose(read_recording(iso).time(), [0, 0.5])
+    # another clock wins; a number under a date name (Excel serial days) is not taken for seconds
+    both = write(tmp_path, "both.csv", "DateTime,time_ms,Bx,By,Bz\n2026-11-29T10:00:00Z,1000,1,2,3\n"
+                                       "2026-11-29T10:00:01Z,1020,1,2,3\n")
+    assert read_recording(both).roles()["time"].startswith("time_ms") and np.allclose(read_recording(both).time(),
+                                                                                       [1, 1.02])
+    serial = write(tmp_path, "serial.csv", "Date Time,Bx,By,Bz\n46355.41667,1,2,3\n46355.41668,1,2,3\n")
+    assert read_recording(serial).time() is None

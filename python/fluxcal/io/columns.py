@@ -134,9 +134,10 @@ def _triples(names, kind_words):
             continue
         prefix, axis = hit
         prefix = prefix + tuple(qualifiers)
-        if set(prefix) & other:
+        kinds = _kind_words(prefix)
+        if kinds & other:
             continue
-        if set(prefix) & kind_words:  # the unit keeps two sensors' same names apart (Mag X in mG and in uT)
+        if kinds & kind_words:  # the unit keeps two sensors' same names apart (Mag X in mG and in uT)
             groups.setdefault(prefix + ((unit,) if unit else ()), {}).setdefault(axis, name)
         elif field_unit:  # x_uT: the unit says it is a field
             by_unit.setdefault(prefix + (unit,), {}).setdefault(axis, name)
@@ -146,6 +147,21 @@ def _triples(names, kind_words):
     found = {p: t for p, t in found.items() if t is not None}
     lettered = {p: names for p, (names, numbered) in found.items() if not numbered}
     return lettered or {p: names for p, (names, _) in found.items()}  # numbered channels rank below x/y/z
+
+
+# words of a device that a letter after them tags ("Sensor A", "IMU B", "Mag A": which of two, not an
+# accelerometer or a field B)
+SENSOR_OWNERS = {"sensor", "imu", "chip", "board", "device", "probe", "module", "node", "unit"}
+
+
+def _kind_words(prefix: tuple) -> set:
+    """The prefix's words that may say what it measures: all but a letter tagging a sensor (after a word of
+    SENSOR_OWNERS or a sensor kind's word of two or more letters)."""
+    def tagged(k):
+        before = prefix[k - 1] if k > 0 else ""
+        return before in SENSOR_OWNERS or (len(before) > 1 and before in MAG_WORDS | ACC_WORDS | GYRO_WORDS)
+
+    return {w for k, w in enumerate(prefix) if not (len(w) == 1 and tagged(k))}
 
 
 def _drop_accel_unit(ws: list[str]) -> list[str]:
@@ -214,7 +230,8 @@ def _single(names, kind_words, unit_table):
 def _named(names, kind_words, unit_table) -> list:
     """[(column name, unit word or None)] of every column whose words are kind_words (+ a unit)."""
     hits = []
-    owners = {"sensor", "die", "chip", "imu", "mag", "board"} | (CLOCK_WORDS if kind_words is TIME_WORDS else set())
+    owners = {"sensor", "die", "chip", "imu", "mag", "board"} | (CLOCK_WORDS | DATE_WORDS if kind_words is TIME_WORDS
+                                                               else set())
     for name in names:
         if name == "T":  # time to some loggers, temperature to others: not guessed
             continue
@@ -246,6 +263,7 @@ def find_time(names, units: dict, values=None, sensor=None):
     magnetometer's column names) picks the magnetometer's own clock among one per sensor (SensorLog's
     magnetometerTimestamp_sinceReboot beside accelerometerTimestamp_sinceReboot …)."""
     hits = [("t", None)] if "t" in names else (_own_clock(names, sensor) or _named(names, TIME_WORDS, TIME_UNITS))
+    hits = _dated_last(hits, units)
     times = [_time_unit(name, word, units, values) for name, word in hits]
     if not times or None in times:
         return None
@@ -256,6 +274,16 @@ def find_time(names, units: dict, values=None, sensor=None):
 
 # words that say whose or which clock a time column is (rtcTime, loggingTime, timestamp_sinceReboot)
 CLOCK_WORDS = {"rtc", "logging", "log", "system", "sys", "since", "reboot", "boot", "epoch", "unix", "1970"}
+# a date beside the time in one column: DateTime, Date Time, German Datum/Zeit
+DATE_WORDS = {"date", "datum", "fecha"}
+
+
+def _dated_last(hits, units: dict) -> list:
+    """The time columns `hits` [(name, word)] with those named by a date (DateTime, Datum/Zeit) taken only when
+    no other is there, and only when their stamps were read as text into seconds (a stated unit): a number
+    under such a name (Excel's serial days, 20261129) is not guessed to be seconds."""
+    plain = [hit for hit in hits if not set(words(hit[0])) & DATE_WORDS]
+    return plain or [hit for hit in hits if units.get(hit[0])]
 
 
 def _own_clock(names, sensor) -> list:

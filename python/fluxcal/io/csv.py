@@ -137,14 +137,14 @@ def parse_csv(path, lines, delimiter=",", preamble_lines: int = 0, bad_lines: st
                          "add a header such as mx,my,mz")
     lines = _units_row(lines, i + 1, names, delimiter, unit_map)
     lines = _trailing_delimiters(lines, i + 1, names, delimiter)
-    separated = []
+    separated = {}
     lines, converted = decimal_points(lines, i + 1, delimiter, separated)
     if converted:
         metadata["decimal_separator"] = "comma"
         grouped = [j for j in converted if 0 <= j < len(names)]
         if grouped:
             metadata["thousands_separator"] = "point (" + ", ".join(names[j] for j in grouped) + ")"
-    comma_thousands(path, metadata, [names[j] for j in separated if j < len(names)])
+    thousands_read(path, metadata, {names[j]: mark for j, mark in separated.items() if j < len(names)})
     try:
         data, line_numbers, notes = parse_rows(path, lines, i + 1, names, delimiter)
         # NaN/Inf written out (Arduino's "nan") in a column of numbers: lines to skip, as an empty cell is (a
@@ -161,18 +161,21 @@ def parse_csv(path, lines, delimiter=",", preamble_lines: int = 0, bad_lines: st
                      source=str(path), line_numbers=line_numbers)
 
 
-def comma_thousands(path, metadata: dict, names) -> None:
-    """Record in metadata, and warn, that the columns `names` were read with thousands separators (48,123 as
-    48123; see _comma_thousands_columns): a guess from the values, so it is said."""
+def thousands_read(path, metadata: dict, marks: dict) -> None:
+    """Record in metadata, and warn, that the columns of `marks` (name -> ',' or '.') were read with thousands
+    separators (48,123 or 48.123 as 48123; see _comma_thousands_columns, _point_thousands_whole_columns): a
+    guess from the values, so it is said."""
     import warnings
 
-    if not names:
+    if not marks:
         return
-    metadata["thousands_separator"] = "comma (" + ", ".join(names) + ")"
-    warnings.warn(f"{path}: column{'s' if len(names) > 1 else ''} {', '.join(names)}: 1,234 read as 1234 (a "
-                  "thousands separator, not a decimal comma): every comma has three digits after it and the whole "
-                  "numbers beside them have at most three; if they are decimal commas, save the table with "
-                  "decimals written out", stacklevel=4)
+    names, mark = list(marks), next(iter(marks.values()))
+    word = "comma" if mark == "," else "point"
+    metadata["thousands_separator"] = f"{word} (" + ", ".join(names) + ")"
+    warnings.warn(f"{path}: column{'s' if len(names) > 1 else ''} {', '.join(names)}: 1{mark}234 read as 1234 (a "
+                  f"thousands separator, not a decimal {word}): every {word} has three digits after it and the "
+                  f"whole numbers beside them have three; if they are decimal {word}s, save the table with decimals "
+                  "written out", stacklevel=4)
 
 
 def parse_mixed_rows(path, lines, start: int, names, delimiter, bad_lines: str, units: dict, metadata: dict,
@@ -457,19 +460,20 @@ def _not_a_number(cell: str) -> str:
 
 
 def _trailing_delimiters(lines, start: int, names, delimiter):
-    """The lines with the delimiter that ends every data row dropped, when the header has one name fewer
-    (Arduino sketches print `x,y,z,` after each value; the header line was written once, by hand)."""
+    """The lines with a delimiter that ends a data row dropped when the header has no name for the empty field
+    after it: Arduino sketches print `x,y,z,` after each value (on every line, or on some when one branch
+    prints it), and the header line was written once, by hand."""
     if not delimiter or not delimiter.strip():
         return lines
-    body = [k for k in range(start, len(lines)) if lines[k].strip() and not is_comment(lines[k])]
-    ending = [k for k in body if lines[k].rstrip().endswith(delimiter)]
-    if not body or len(ending) < 0.9 * len(body) or any(len(lines[k].split(delimiter)) != len(names) + 1
-                                                         for k in ending[:50]):
-        return lines
-    out = list(lines)
-    for k in ending:
-        out[k] = lines[k].rstrip()[:-len(delimiter)]
-    return out
+    return lines[:start] + [_without_trailing_delimiter(line, len(names), delimiter) for line in lines[start:]]
+
+
+def _without_trailing_delimiter(line: str, width: int, delimiter: str) -> str:
+    """`line` without its last delimiter when that leaves `width` fields and only an empty one after it."""
+    cells = line.split(delimiter)
+    if len(cells) != width + 1 or cells[-1].strip() or is_comment(line):
+        return line
+    return line.rstrip()[:-len(delimiter)]
 
 
 def parse_rows(path, lines, start: int, names, delimiter, expected: str = "the header"):
@@ -518,35 +522,35 @@ def _units_row(lines, start: int, names, delimiter, unit_map: dict):
     return lines[:j] + [""] + lines[j + 1:]  # blank: later lines keep their numbers
 
 
-def decimal_points(lines, start: int, delimiter, separated: list | None = None):
+def decimal_points(lines, start: int, delimiter, separated: dict | None = None):
     """(lines, converted) with the data lines' decimal commas from `start` on made points when the table writes
     its numbers so (a European spreadsheet export, 1,25;0,5; see _decimal_comma_columns; comment lines stay
     as written) and thousands grouped with points before them dropped (45.199,6), else (lines, []); `converted`
     lists the columns whose thousands are grouped so, or is [-1] when none is. When some columns hold decimal
     points (an ISO time 12:00:01.5, a column a program wrote in its own format), only the decimal-comma columns
-    are converted. When the commas group thousands instead (48,123 beside 523, see _comma_thousands_columns)
-    they are dropped, converted is [] and those columns are added to `separated` (when given)."""
+    are converted. When the commas group thousands instead (48,123 beside 523, see _comma_thousands_columns),
+    or points do in a table without commas (48.123 beside 523, see _point_thousands_whole_columns), they are
+    dropped, converted is [] and those columns are added to `separated` (when given) with their mark."""
     from .columns import comma_kind
 
     if delimiter not in (";", "\t"):
         return lines, []
     rows = data_cells(lines[start:start + 400], delimiter)
+    points = _point_thousands_whole_columns(rows)
+    if points:
+        if separated is not None:
+            separated.update(dict.fromkeys(points, "."))
+        return _ungrouped(lines, start, delimiter, points, ".", lambda cell: bool(_POINT_THOUSAND.match(cell))), []
     columns, grouped = _decimal_comma_columns(rows), _point_thousands_columns(rows)
     if not columns and not grouped:
         return lines, []
     thousands = _comma_thousands_columns(rows, columns)
     if thousands:
         if separated is not None:
-            separated.extend(thousands)
-
-        def ungroup(line):  # only 1,234 and 1,234,567: another comma (1,2) is left for the parse to name
-            cells = line.split(delimiter)
-            for j in thousands:
-                if j < len(cells) and comma_kind(cells[j].strip().strip('"')) in ("ambiguous", "several"):
-                    cells[j] = cells[j].replace(",", "")
-            return delimiter.join(cells)
-
-        return lines[:start] + [line if is_comment(line) else ungroup(line) for line in lines[start:]], []
+            separated.update(dict.fromkeys(thousands, ","))
+        # only 1,234 and 1,234,567: another comma (1,2) is left for the parse to name
+        return _ungrouped(lines, start, delimiter, thousands, ",",
+                          lambda cell: comma_kind(cell.strip().strip('"')) in ("ambiguous", "several")), []
     if not any("." in cell for row in rows for cell in row):  # every number in one form, so far
         columns = sorted(set(columns) | set(range(max(map(len, rows)))))
 
@@ -558,6 +562,19 @@ def decimal_points(lines, start: int, delimiter, separated: list | None = None):
         return delimiter.join(cells)
 
     return lines[:start] + [line if is_comment(line) else convert(line) for line in lines[start:]], grouped or [-1]
+
+
+def _ungrouped(lines, start: int, delimiter, columns, mark: str, grouped) -> list:
+    """The lines with the thousands separator `mark` dropped from the cells of `columns` that `grouped` says
+    are grouped numbers, from `start` on (comment lines stay as written)."""
+    def ungroup(line):
+        cells = line.split(delimiter)
+        for j in columns:
+            if j < len(cells) and grouped(cells[j]):
+                cells[j] = cells[j].replace(mark, "")
+        return delimiter.join(cells)
+
+    return lines[:start] + [line if is_comment(line) else ungroup(line) for line in lines[start:]]
 
 
 def data_cells(lines, delimiter) -> list:
@@ -600,6 +617,41 @@ def _comma_thousands_columns(rows, columns) -> list:
             and all(comma_kind(c) == "ambiguous" for c in cells if "," in c):
         return list(columns)
     return []
+
+
+_POINT_THOUSAND = re.compile(r'^\s*"?[-+]?[1-9]\d{0,2}\.\d{3}"?\s*$')  # 48.123: 48123 (German #.##0) or 48.123
+_WHOLE = re.compile(r'^\s*"?([-+]?\d+)"?\s*$')
+
+
+def _point_thousands_whole_columns(rows) -> list:
+    """The columns of a ';' or tab table (`rows`: the first data lines' cells) whose points group the thousands
+    of whole numbers (a German spreadsheet's #.##0 saved as text: 48.123 beside 523), else []; as
+    _comma_thousands_columns does for commas. Taken so when no cell holds a comma, the columns' cells are whole
+    numbers or one to three digits, a point and three digits (1.234), the whole numbers among them all have
+    three digits (100–999: the columns run on across 1000) and there is one, and each column holding one runs
+    more smoothly read so (-1.204 then -987: -1204, -987). µT to three decimals (48.123, 47.998) stays decimal
+    beside 48.5, a 0 or a 45; so do seconds 100.980 then 101."""
+    if any("," in c for row in rows for c in row):
+        return []
+    columns = []
+    for j in range(max(map(len, rows), default=0)):
+        cells = [row[j] for row in rows if j < len(row) and row[j].strip()]
+        if any("." in c for c in cells) and all(_POINT_THOUSAND.match(c) or _WHOLE.match(c) for c in cells):
+            columns.append(j)
+    by_column = {j: [row[j] for row in rows if j < len(row) and row[j].strip()] for j in columns}
+    whole = {j: [_WHOLE.match(c).group(1) for c in cells if _WHOLE.match(c)] for j, cells in by_column.items()}
+    if not any(whole.values()) or not all(re.fullmatch(r"[-+]?[1-9]\d{2}", w) for ws in whole.values() for w in ws):
+        return []
+    if not all(_smoother_as_thousands(by_column[j]) for j in columns if whole[j]):
+        return []
+    return columns
+
+
+def _smoother_as_thousands(cells) -> bool:
+    """Whether a column of 1.234-like and whole cells varies less from row to row with its points dropped."""
+    as_decimal = np.array([float(c.strip().strip('"')) for c in cells])
+    as_whole = np.array([float(c.strip().strip('"').replace(".", "")) for c in cells])
+    return bool(np.abs(np.diff(as_whole)).sum() < np.abs(np.diff(as_decimal)).sum())
 
 
 # 45.199,6 or 45.199 (European grouping; a first group of 0 is no group: 0.123), quoted or not

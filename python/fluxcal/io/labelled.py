@@ -8,6 +8,8 @@
     Mag X: -13.62 Y: 27.37 Z: -17.02 uT
     Mag: -13.62 27.37 -17.02                           (one label, then the vector: space, tab or comma apart)
     Acc: 0.12, -0.03, 9.81 Mag: -13.62, 27.37, -17.02 uT
+    Scaled. Acc (mg) [ 00000.00, 00020.00, 01000.00 ], Mag (uT) [ 00049.74, 00003.05, -00018.99 ]   (SparkFun ICM-20948)
+    Sensor 1: X: 50.00 Y: 0.00 Z: 20.00 uT             (two sensors, a line each: "Sensor 1 X", "Sensor 2 X" …)
 
 Each `label: number` or `label=number` is a value; a label followed by several numbers is a vector whose
 components are named `label X`, `label Y`, `label Z` (three), else `label 1`, `label 2`, …. Words before a line's first label name its sensor
@@ -86,10 +88,40 @@ def _vector_line(line: str):
     return _vectors(line[clock.end():] if clock else line)
 
 
+# `Label (unit) [ n1, n2, n3 ]`: SparkFun's ICM-20948 examples
+_BRACKETED = re.compile(r"([A-Za-z_][\w.]*)\s*(?:\(([^()\d]{1,16})\))?\s*\[([^\[\]]*)\]")
+
+
+def _bracketed_vectors(text: str):
+    """[(name, value text, unit)] of a line of `Label (unit) [ n1, n2, n3 ]` groups, comma apart, after at
+    most one word (SparkFun's ICM-20948 Example1: `Scaled. Acc (mg) [ 00000.00, 00020.00, 01000.00 ], Gyr (DPS)
+    [ … ], Mag (uT) [ … ], Tmp (C) [ 00025.41 ]`); None for any other line."""
+    groups = list(_BRACKETED.finditer(text))
+    if not groups or len(_WORD.findall(text[:groups[0].start()])) > 1:
+        return None
+    gaps = [text[a.end():b.start()] for a, b in zip(groups, groups[1:])] + [text[groups[-1].end():]]
+    if any(gap.strip(" \t,;") for gap in gaps):
+        return None
+    values = []
+    for m in groups:
+        numbers = [w for w in re.split(r"[\s,;]+", m.group(3)) if w]
+        if not numbers or not all(_NUMBER.fullmatch(w) for w in numbers):
+            return None  # a log tag ("[1] X: …"), an index (mag[0]: …): the pairs' parse reads it
+        axes = "XYZ" if len(numbers) == 3 else [str(i + 1) for i in range(len(numbers))]
+        unit = (m.group(2) or "").strip()
+        unit = unit if is_unit(unit) else ""
+        values += [(f"{m.group(1)} {axis}" if len(numbers) > 1 else m.group(1), w, unit)
+                   for axis, w in zip(axes, numbers)]
+    return values
+
+
 def _vectors(text: str, loose: bool = False):
     """[(name, value text, unit)] of a line of `label: n1 n2 n3 [unit]` groups (numbers apart by spaces, tabs
-    or commas), at least one of them a vector of two or more numbers; None for any other line (the pairs'
-    parse then reads it)."""
+    or commas), at least one of them a vector of two or more numbers, or of `Label (unit) [ n1, n2, n3 ]`
+    groups (_bracketed_vectors); None for any other line (the pairs' parse then reads it)."""
+    bracketed = _bracketed_vectors(text)
+    if bracketed is not None:
+        return bracketed
     labels = list(_LABEL.finditer(text))
     if not labels or text[:labels[0].start()].strip():
         return None
@@ -106,9 +138,22 @@ def _vectors(text: str, loose: bool = False):
     return values
 
 
-def _parse_line(text: str, loose: bool = False):
-    """(clock text or None, [(name, value text, unit)]) of one line; names carry the sensor words. `loose`:
-    the file's lines are mostly vectors (see _vector_tokens)."""
+def _sensor_words(words: list, tags: bool = True) -> list:
+    """The words before a label that name its sensor: words (not units), a log tag in brackets ("[2] X: …"),
+    and (`tags`) a number or letter right after a name ("Sensor 1: X: …", "Sensor A X: …": which of two
+    sensors; the A is not amperes)."""
+    named = []
+    for k, w in enumerate(words):
+        tag = tags and k > 0 and named and named[-1] == words[k - 1].strip(":=-") and \
+            re.fullmatch(r"\d{1,2}|[A-Za-z]", w.strip(":=-"))
+        if tag or (re.search(r"[A-Za-z]|^\[\w+\]$", w) and not is_unit(w)):
+            named.append(w.strip(":=-"))
+    return named
+
+
+def _parse_line(text: str, loose: bool = False, tags: bool = True):
+    """(clock text or None, [(name, value text, unit)]) of one line; names carry the sensor words (`tags`: see
+    _sensor_words). `loose`: the file's lines are mostly vectors (see _vector_tokens)."""
     clock = CLOCK.match(text)
     after_clock = clock.end() if clock else 0
     vectors = _vectors(text[after_clock:], loose)
@@ -121,8 +166,7 @@ def _parse_line(text: str, loose: bool = False):
         words = _WORD.findall(text[pos:m.start()])
         if values and words and is_unit(words[0]) and not values[-1][2]:
             values[-1][2] = _degrees(words)  # the previous value's unit
-        # a word, or a log tag in brackets ("[2] X: …": the second sensor), names the sensor
-        named = [w.strip(":=-") for w in words if re.search(r"[A-Za-z]|^\[\w+\]$", w) and not is_unit(w)]
+        named = _sensor_words(words, tags)
         if named or not groups:
             group = " ".join(named)
             groups.append([next((w.strip(":=-") for w in words if is_unit(w.strip(":=-"))), "")])  # "Mag (uT) X:"
@@ -244,6 +288,20 @@ def _units_apart(parsed: list) -> list:
             for line_no, text, stamp, values in parsed]
 
 
+MAX_SENSORS = 8
+
+
+def _parse_lines(lines, loose: bool) -> list:
+    """[(line number, text, clock text, values)] of the (line number, line) pairs. A number or letter after a
+    sensor's word names which of a few sensors it is (Sensor 1: X: …); when the commonest name is then on
+    fewer than one line in MAX_SENSORS, the numbers count the readings (Sample 17: X: …) and are left out."""
+    parsed = [(k, line.strip(), *_parse_line(line, loose)) for k, line in lines]
+    counts = Counter(name for *_, values in parsed for name in {v[0] for v in values})
+    if counts and max(counts.values()) * MAX_SENSORS < len(parsed):
+        parsed = [(k, line.strip(), *_parse_line(line, loose, tags=False)) for k, line in lines]
+    return parsed
+
+
 def read_labelled(path, columns=None, units: str | None = None, bad_lines: str = "error",
                   decimal: str | None = None, thousands: str | None = None) -> Recording:
     """Read a labelled text log (module docstring). `columns`/`units` as for every reader; `bad_lines`
@@ -260,7 +318,7 @@ def read_labelled(path, columns=None, units: str | None = None, bad_lines: str =
     lines = [(k + 1, line) for k, line in enumerate(read_lines(path)) if line.strip() and not is_comment(line)]
     vector_lines = sum(_vector_line(line) is not None for _, line in lines)
     loose = vector_lines >= 0.5 * len(lines)  # a log of vectors: 120,456,789 is one, not a thousands group
-    parsed = _units_apart([(k, line.strip(), *_parse_line(line, loose)) for k, line in lines])
+    parsed = _units_apart(_parse_lines(lines, loose))
     counts = Counter(name for *_, values in parsed for name in dict.fromkeys(v[0] for v in values))
     if not counts:
         raise ValueError(f"{path}: no 'label: number' or 'label=number' values")

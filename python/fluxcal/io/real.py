@@ -19,12 +19,13 @@ from __future__ import annotations
 
 import json
 import re
+import warnings
 from pathlib import Path
 
 import numpy as np
 
-from .csv import (readable_file, _is_number, comma_thousands, decimal_points, is_comment, parse_csv, parse_rows,
-                  read_lines, read_text)
+from .csv import (readable_file, _is_number, decimal_points, is_comment, parse_csv, parse_rows,
+                  read_lines, read_text, thousands_read)
 from .recording import ATTITUDE_COLUMNS, FIELD_NED_COLUMNS, Recording
 
 # -- key,value preamble (QMC5883L logger) -------------------------------------------------------------------
@@ -92,20 +93,39 @@ def airborne_layout(path, rows: np.ndarray):
     """Why `rows` (the first rows of a header-less 10-column table) are the airborne layout, or None.
 
     Recognised when the sibling `<stem>_info.txt` declares the fields `time, flux_xyz, ins_pry, igrf_ned`
-    (as the published segment does), or when the numbers fit that layout: time non-decreasing,
-    |pitch| ≤ 90° and |roll| ≤ 180°, yaw within ±360°, the IGRF vector's norm 20 000 … 70 000 nT (the
-    Earth's field) and the flux vector's norm within a factor of 3 of it."""
+    (as the published segment does), or when the numbers fit that layout: time non-decreasing, attitude
+    angles in degrees (_attitude_like), an IGRF vector that is the Earth's field along a flight track
+    (_igrf_like), and the flux vector's norm within a factor of 3 of the IGRF's."""
     info = _info_file(path)
     if info is not None and _INFO_FIELDS.search(info.read_text(errors="replace")):
         return f"declared by {info.name}"
-    if rows.ndim != 2 or rows.shape[1] != 10:
+    if rows.ndim != 2 or rows.shape[1] != 10 or len(rows) < 2:
         return None
-    t, flux, (pitch, roll, yaw), igrf = rows[:, 0], rows[:, 1:4], rows[:, 4:7].T, rows[:, 7:10]
+    t, flux, attitude, igrf = rows[:, 0], rows[:, 1:4], rows[:, 4:7], rows[:, 7:10]
     igrf_norm, flux_norm = np.linalg.norm(igrf, axis=1), np.linalg.norm(flux, axis=1)
-    fits = (np.all(np.diff(t) >= 0) and np.all(np.abs(pitch) <= 90) and np.all(np.abs(roll) <= 180)
-            and np.all(np.abs(yaw) <= 360) and np.all((igrf_norm > 20000) & (igrf_norm < 70000))
+    fits = (np.all(np.diff(t) >= 0) and _attitude_like(attitude) and _igrf_like(igrf)
             and np.all((flux_norm > igrf_norm / 3) & (flux_norm < 3 * igrf_norm)))
-    return "the numbers fit it (time, nT field vectors, attitude angles in degrees)" if fits else None
+    return ("the numbers fit it: time, nT field vectors, attitude angles in degrees, a smooth IGRF model; name "
+            "the columns with --columns if it is another table") if fits else None
+
+
+def _attitude_like(attitude: np.ndarray) -> bool:
+    """Pitch, roll, yaw columns as degrees: |pitch| ≤ 90, |roll| ≤ 180, yaw in -180 … 360 (a heading either
+    way), and pitch and roll turning by at most 30° from one row to the next (an aircraft's attitude turns
+    smoothly). An accelerometer's m/s² can pass this: _igrf_like is what tells a second sensor apart."""
+    pitch, roll, yaw = attitude.T
+    steps = np.abs(np.diff(attitude[:, :2], axis=0))
+    return bool(np.all(np.abs(pitch) <= 90) and np.all(np.abs(roll) <= 180)
+                and np.all((yaw >= -180) & (yaw <= 360)) and np.all(steps <= 30))
+
+
+def _igrf_like(igrf: np.ndarray) -> bool:
+    """IGRF north, east, down columns as a model of the Earth's field along a track: norm 20 000 … 70 000 nT,
+    each column stepping at most 2 nT from one row to the next (the model changes a few nT per km; a second
+    sensor's readings turn with it by hundreds) and the norm varying by less than 1 % over the rows."""
+    norm = np.linalg.norm(igrf, axis=1)
+    return bool(np.all((norm > 20000) & (norm < 70000)) and np.all(np.abs(np.diff(igrf, axis=0)) <= 2)
+                and np.ptp(norm) < 0.01 * np.median(norm))
 
 
 def _info_file(path: Path):
@@ -119,12 +139,12 @@ def read_headerless(path, names=None, columns=None, units: str | None = None, de
     path = readable_file(path)
     lines = read_lines(path)
     start = _skip_comments(lines)
-    separated = []
+    separated = {}
     lines, converted = decimal_points(lines, start, delimiter, separated)
     rec = _read_headerless(path, lines, start, names, columns, units, delimiter)
     if converted:
         rec.metadata["decimal_separator"] = "comma"
-    comma_thousands(path, rec.metadata, [n for j, n in enumerate(rec.columns) if j in separated])
+    thousands_read(path, rec.metadata, {n: separated[j] for j, n in enumerate(rec.columns) if j in separated})
     return rec
 
 
@@ -157,6 +177,8 @@ def _read_headerless(path, lines, start, names, columns, units, delimiter) -> Re
                                            expected="the airborne layout")
     metadata = {"layout": f"airborne MagNav segment: time, flux x,y,z, INS pitch,roll,yaw, IGRF N,E,D ({why})",
                 "attitude_convention": "aerospace"}
+    if not why.startswith("declared"):  # a guess from the numbers: said, as the columns become a reference field
+        warnings.warn(f"{path}: read as {metadata['layout']}", stacklevel=5)
     info = _info_file(path)
     if info is not None:
         for line in info.read_text(errors="replace").splitlines():
