@@ -45,6 +45,13 @@ MAX_DISTORTION = 1.0
 NOISE_CANDIDATES = ("colored_noise", "quantization")
 CONFOUND_BIC = 10.0   # a rival within 10 of the winner's ΔBIC is not told apart (2 ln Bayes factor < 10 is short of
                       # "very strong" evidence, Kass & Raftery 1995)
+# ... nor an event (a free course in time: a magnet passing, a step) and a candidate driven by a logged quantity
+# (temperature, current) whose signature lies almost inside the event's and that explains at least half as much:
+# the free course fits whatever the logged quantity drives, and noise besides (a blind check: a gain equal on all
+# axes following the temperature, named moving_dipole at ΔBIC −3934 against temp_scale's −3766, no rival said);
+# the logged one is named (`_logged_first`). Between two of fixed shape (temp_offset, offset_drift) ΔBIC decides.
+CONFOUND_CORRELATION, CONFOUND_SHARE = 0.9, 0.5
+LOGGED_REGIMES = ("temperature", "current")
 NESTED = 0.999        # signatures this close span one inside the other (saturation = equal cubics on every axis)
 
 
@@ -154,7 +161,9 @@ class Diagnosis:
     @property
     def confounded(self) -> dict:
         """{accepted effect: [rivals]} for the effects this recording cannot tell apart from a rival
-        candidate: the rival was significant in the same round with ΔBIC within CONFOUND_BIC, and once
+        candidate: the rival was significant in the same round with ΔBIC within CONFOUND_BIC (or, beside an
+        event, a temperature or current effect with at least CONFOUND_SHARE of its ΔBIC and signatures
+        correlating ≥ CONFOUND_CORRELATION), and once
         the accepted effect was modelled its evidence collapsed (absorbed, or ΔBIC ≥ 0). Each rival:
         effect, regime, delta_bic_difference, signature_correlation (largest canonical correlation of
         the two signatures in the residuals), and for a temperature/time pair temperature_time_correlation."""
@@ -225,6 +234,7 @@ CLOCK_JUMPS = 0.01  # t going backwards at up to this fraction of the rows: a lo
                    # (Arduino's micros() every 71.6 min) or was reset, kept in row order; more: rows out of order
 UNEVEN = 0.05  # time steps spread by more than this fraction of the median step (MAD): a turning sensor's readings
               # then differ by the motion × the uneven step as well, which a difference of rows takes for noise
+BELOW_NOISE = 0.8  # base residual RMS under this × σ: σ is not the noise (a right model leaves σ √(1 − p/N))
 UNORDERED = 0.25  # a 3rd-difference σ above this × the readings' own spread: consecutive readings differ about
                   # as much as any two (i.i.d. rows give ≈ 1, a turned sensor ≪ 0.01), so they are not a time series
 
@@ -255,9 +265,13 @@ def _noise(data: _Data, base: dict) -> tuple:
     spread = np.sqrt(np.mean(np.var(data.m, axis=0)))
     unit = f" {data.units}" if data.units else ""
     uneven = _uneven_steps(data.t)
-    if abs(fourth - sigma) > (1 - MOTION_DROP) * sigma or sigma > UNORDERED * spread or uneven:
-        order = np.argsort(data.t, kind="stable")
-        e = np.asarray(base["residuals"]).reshape(len(data.m), -1)[order]
+    e = np.asarray(base["residuals"]).reshape(len(data.m), -1)
+    # the base model leaving less than the noise: the differences held motion that is white in them too (a random
+    # walk of the attitude; a blind check: σ 2.8× the truth, every effect then "below the noise")
+    orders_differ = abs(fourth - sigma) > (1 - MOTION_DROP) * sigma
+    below = np.sqrt(np.mean(e ** 2)) < BELOW_NOISE * sigma
+    if orders_differ or sigma > UNORDERED * spread or uneven or below:
+        e = e[np.argsort(data.t, kind="stable")]
         from_residuals = _difference_noise(e, 3)
         # the readings do vary (not a static sensor, whose spread is its noise), yet jump between rows
         unordered = sigma > UNORDERED * spread and spread > 1 / UNORDERED * from_residuals
@@ -271,7 +285,8 @@ def _noise(data: _Data, base: dict) -> tuple:
             return from_residuals, source, True
         elif from_residuals < sigma:
             why = (f"readings taken at uneven times (steps spread by {100 * uneven:.0f} % of the median step)"
-                   if uneven else "fast turns, or steps between held positions")
+                   if uneven else "fast turns, or steps between held positions" if orders_differ
+                   else "the base model leaves less than that")
             source = (f"estimated from third differences of the base model's residuals: the readings' own "
                       f"differences hold the motion — {why} ({sigma:.4g}{unit} from 3rd, {fourth:.4g}{unit} from "
                       "4th order)")
@@ -1127,13 +1142,46 @@ def _together(data: _Data, model: str, state: dict, rows: list, pool: list, acce
     return second, again
 
 
+def _event_and_logged(a: dict, b: dict) -> bool:
+    """Whether rows a and b are an event (a free course in time) and a candidate driven by a logged quantity
+    whose signature lies inside each other's (canonical correlation ≥ CONFOUND_CORRELATION): the course fits
+    whatever the logged quantity drives, and noise besides."""
+    if {a["regime"], b["regime"]} not in ({"events", r} for r in LOGGED_REGIMES):
+        return False
+    overlap = np.linalg.svd(a["_signature"].T @ b["_signature"], compute_uv=False)
+    return bool(overlap.size and overlap[0] >= CONFOUND_CORRELATION)
+
+
+def _logged_first(winner: dict, winners: list) -> dict:
+    """The winner of a round, but for an event beside a significant candidate driven by a logged quantity that
+    explains at least CONFOUND_SHARE as much with the same signature (`_event_and_logged`): that candidate,
+    the one the recording's own log predicts; the event is tested beside it in the next round. (A blind check: a
+    gain equal on all axes that followed the temperature was named moving_dipole, ΔBIC −18006 against temp_scale's
+    −17720: the course had also fitted the recording's own slow disturbances.)"""
+    if winner["regime"] != "events":
+        return winner
+    for r in winners:
+        if r["delta_bic"] <= CONFOUND_SHARE * winner["delta_bic"] and _event_and_logged(winner, r):
+            return r
+    return winner
+
+
 def _rivals(winner: dict, rows: list, key: str = "significant") -> list:
-    """Candidates of the same round that explain the data about as well as the winner (significant
-    themselves — `key` of the row, True — ΔBIC within CONFOUND_BIC). Whether they are the same
-    explanation is settled in the next round (`_collapsed`)."""
+    """Candidates of the same round that explain the data about as well as the winner: significant themselves
+    (`key` of the row, True) with ΔBIC within CONFOUND_BIC; or an event and a candidate driven by a logged quantity
+    (`_event_and_logged`) where the event fitted better — the winner taken over it (`_logged_first`), or a logged
+    one strong in sample (its own held-out quarter, the hottest, is harder to predict than an event's interleaved
+    blocks) with at least CONFOUND_SHARE of the event's ΔBIC. (Where the logged one fits better, the data decide.)
+    Whether they are the same explanation is settled in the next round (`_collapsed`)."""
     out = []
     for r in rows:
-        if r is winner or not r.get(key) or r["delta_bic"] - winner["delta_bic"] >= CONFOUND_BIC:
+        if r is winner or not r["delta_bic"] < 0 or refused(r):
+            continue
+        close = r.get(key) and r["delta_bic"] - winner["delta_bic"] < CONFOUND_BIC
+        event_better = min((winner, r), key=lambda x: x["delta_bic"])["regime"] == "events"
+        inside = (event_better and not {"in_sample", "bic"} & set(r.get("unmet", []))
+                  and r["delta_bic"] <= CONFOUND_SHARE * winner["delta_bic"] and _event_and_logged(winner, r))
+        if not (close or inside):
             continue
         overlap = np.linalg.svd(winner["_signature"].T @ r["_signature"], compute_uv=False)
         if overlap.size and overlap.min() >= NESTED and winner["_signature"].shape[1] != r["_signature"].shape[1]:
@@ -1717,7 +1765,7 @@ def diagnose(samples, t=None, temp=None, reference=None, gravity=None, field_nor
         for r in rows:
             last_rows[r["effect"]] = r
         if winners and len(accepted) < max_effects:
-            w = previous_winner = winners[0]
+            w = previous_winner = _logged_first(winners[0], winners)
             w["_rivals"] = _rivals(w, rows)
             accept(w)
             continue

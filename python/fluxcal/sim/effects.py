@@ -541,7 +541,7 @@ def _span_and_step(t) -> tuple:
 class _TemperatureLag:
     """A temperature candidate's lag, profiled (`profile_name`): the logged temperature is seldom the
     sensing element's, which follows it with a thermal time constant — or leads it (a negative lag: the
-    logged one lags the element's). The grid runs from about one sample interval to a tenth of the recording,
+    logged one lags the element's). The grid runs from about one sample interval to a fifth of the recording,
     either way; a lag that does not pay BIC's price for its parameter is none (`profile_null`), and then
     costs nothing."""
 
@@ -549,8 +549,11 @@ class _TemperatureLag:
     profile_null = 0.0        # no lag: the logged temperature is the element's
     profile_open_end = False
     LAGS = 12                 # grid values of the lag (then refined between grid points)
-    LONGEST = 0.1             # the longest lag tried, as a fraction of the recording: a lag of a large part of it
-                              # makes the temperature a smooth curve in time, which fits any slow change
+    LONGEST = 0.2             # the longest lag tried, as a fraction of the recording: a lag of a large part of it
+                              # makes the temperature a smooth curve in time, which fits any slow change (at 0.3 a
+                              # gain drifting in time took a made-up temperature); at 0.1 a sensor 20 s behind its
+                              # thermometer in a 2-minute recording was missed (a blind check: an offset step or a
+                              # magnet named instead)
 
     @classmethod
     def profile_grid(cls, ctx):
