@@ -301,9 +301,11 @@ AlignmentResult align_to_gravity(const SamplesRef& field, const SamplesRef& spec
   const bool other_branch = Eigen::AngleAxisd(mirror.rotation * best.rotation.transpose()).angle() > kPi / 2;
   // How far apart the two branches' costs may lie on noise alone. Tilts exactly about n: the mirror's residuals are
   // −e_k + 2a_k, a_k the part of e_k that the down direction's noise across the plane makes, so the costs differ by
-  // −4 Σ (e_k − a_k) a_k, of SD at most 2√N σ̂² (measured: 0.4–1.6 √N σ̂² at N 100 and 1000). 5 of those SDs; a plane
-  // only as thick as the noise can still be tilted out of by a little at every reading (a 0.6° wobble at 1 % noise
-  // and N 1000 made the mirror 500 σ̂² dearer: the data decide). Otherwise a 5σ likelihood ratio, 25 σ̂².
+  // −4 Σ (e_k − a_k) a_k, of SD at most 2√N σ̂² (measured: 1.4–1.9 √N σ̂² with the noise split evenly, 0.2–0.4 when
+  // the magnetometer's dominates; skewed: 0.1–0.3 % of exact planes go past +10√N σ̂² and are called decided, none
+  // below −4√N). 5 of those SDs; a plane only as thick as the noise can still be tilted out of by a little at every
+  // reading (a 0.6° wobble at 1 % noise and N 1000 made the mirror 500 σ̂² dearer: the data decide). Otherwise a 5σ
+  // likelihood ratio, 25 σ̂².
   const double tie = (thickness <= 2.0 * best.sigma2 ? 10.0 * std::sqrt(static_cast<double>(n)) : 25.0) * best.sigma2;
   bool ambiguous = false;
   if (other_branch && mirror.cost < best.cost - tie) {
@@ -336,14 +338,17 @@ AlignmentResult align_to_gravity(const SamplesRef& field, const SamplesRef& spec
   // Residuals that drift with the attitude are also what a sensor error this model leaves out makes (a blind check:
   // a 0.02 g accelerometer offset on a slow turn gave mean errors of 3–7 SDs, this correlation its only sign). A test
   // of the residuals against attitude regressors had little power once the regressors' own noise, which correlates
-  // with the residuals', was kept out of it (36 % at that size), so the cause is named here instead.
+  // with the residuals', was kept out of it (36 % at that size), so the cause is named here instead — whether or not
+  // the covariance was widened (the bias is not in the standard errors).
+  const std::string follows = "or the residuals follow the attitude: a sensor error this fit does not model (an "
+                              "accelerometer offset or scale error — fluxcal.positions.calibrate_accelerometer —, the "
+                              "magnetometer's calibration off) biases R and the dip beyond any standard error";
+  const bool drifting = result.serial_correlation.ljung_box_p < options.serial_correlation_alpha;
   if (!correlated.empty())
-    s.warnings.push_back(correlated + (result.serial_correlation.ljung_box_p < options.serial_correlation_alpha
-                                           ? "; or the residuals follow the attitude: a sensor error this fit does not "
-                                             "model (an accelerometer offset or scale error — "
-                                             "fluxcal.positions.calibrate_accelerometer —, the magnetometer's "
-                                             "calibration off) biases R and the dip beyond any standard error"
-                                           : ""));
+    s.warnings.push_back(correlated + (drifting ? "; " + follows : ""));
+  else if (drifting)
+    s.warnings.push_back("the dip residuals are correlated in time (Ljung-Box p = " +
+                         detail::num(result.serial_correlation.ljung_box_p) + "): slowly varying noise, " + follows);
   result.covariance = cov;
   result.standard_errors = result.covariance.diagonal().cwiseMax(0.0).cwiseSqrt();
 

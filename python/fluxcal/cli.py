@@ -1105,8 +1105,10 @@ def _join_negative_lists(argv: list) -> list:
 
 
 def _show_warning(message, category, filename, lineno, file=None, line=None):
-    """A library's warning on the command line as `warning: …`, without Python's source line."""
-    print(f"warning: {message}", file=sys.stderr if file is None else file)
+    """A library's warning on the command line as `warning: …` (with its kind unless a UserWarning), without
+    Python's source line."""
+    kind = "" if category is UserWarning else f"{category.__name__}: "
+    print(f"warning: {kind}{message}", file=sys.stderr if file is None else file)
 
 
 def main(argv=None) -> int:

@@ -306,7 +306,6 @@ def test_sap6_dip_agrees_with_the_makers(real_data, unit):
     assert abs(a.dip_deg - cfg["dip_avg"]) < min(3 * a.dip_se_deg, 1.0), (a.dip_deg, a.dip_se_deg, cfg["dip_avg"])
 
 
-
 @pytest.mark.parametrize("dip", [60.0, -60.0])
 def test_tilts_about_one_axis_leave_two_answers_and_say_so(dip):
     """Heading turns with roll 0° or 90° only: R and R turned 180° about the roll axis with the dip negated fit

@@ -315,3 +315,26 @@ def test_date_and_time_column_is_the_time_when_there_is_no_other(tmp_path):
                                                                                        [1, 1.02])
     serial = write(tmp_path, "serial.csv", "Date Time,Bx,By,Bz\n46355.41667,1,2,3\n46355.41668,1,2,3\n")
     assert read_recording(serial).time() is None
+
+
+@pytest.mark.parametrize("owner", ["imu", "board", "sensor"])
+def test_an_owner_word_before_fused_axis_names_keeps_their_sensors(tmp_path, owner):
+    """imu_mx, imu_ax: the m and a say magnetometer and accelerometer, not which of two sensors (a review: the tag
+    rule for `Sensor A X` had taken them for tags, and no magnetometer was found)."""
+    rows = "".join(f"{k},0.1,0.2,9.8,{50 - k:.1f},{3 + k:.1f},-20\n" for k in range(12))
+    path = tmp_path / "imu.csv"
+    path.write_text(f"t,{owner}_ax,{owner}_ay,{owner}_az,{owner}_mx,{owner}_my,{owner}_mz\n" + rows)
+    rec = read_recording(path)
+    assert rec.roles()["magnetometer"] == f"{owner}_mx,{owner}_my,{owner}_mz"
+    assert rec.roles()["accelerometer"] == f"{owner}_ax,{owner}_ay,{owner}_az"
+
+
+def test_a_reading_counter_beside_other_labels_is_not_a_sensor_number(tmp_path):
+    """`Sample 17: Heading: 17.5 Mag X: …`: the counter takes a new number on every line (a review: it had been kept
+    as a sensor's tag, and every line had its own heading column, no complete reading)."""
+    path = tmp_path / "count.txt"
+    path.write_text("".join(f"Sample {k}: Heading: {k}.5 Mag X: {50 - k:.2f} Y: {3 + k:.2f} Z: -20.00\n"
+                            for k in range(12)))
+    rec = read_recording(path)
+    assert list(rec.columns) == ["Sample Heading", "Mag X", "Mag Y", "Mag Z"]
+    assert rec.samples()[1].tolist() == [49.0, 4.0, -20.0]

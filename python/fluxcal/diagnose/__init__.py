@@ -39,13 +39,14 @@ it, and how far the gap shrinks once that effect is modelled — proved on held-
    An accepted event's time profile is refined (moving_dipole: Legendre degree by BIC), so that what a
    low-order shape leaves is not taken for a second event.
 4. What the recording cannot decide: a candidate that explained it as well as an accepted effect (ΔBIC
-   within CONFOUND_BIC = 10; beside an event, whose course in time is free, also a temperature or current
-   effect that explained at least half as much with a signature inside the event's, canonical correlation
-   ≥ 0.9 — the free course fits whatever the logged quantity drives, and noise besides) and adds nothing once
-   that effect is modelled is its rival, reported in
+   within CONFOUND_BIC = 10) and adds nothing once that effect is modelled is its rival, reported in
    `Diagnosis.confounded` and as CANNOT TELL APART with what would separate them (a temperature that
    follows time makes temp_offset and offset_drift one effect). A special case of a rival (saturation is
-   the cubic with equal coefficients) is not one: the next round tests the extra terms.
+   the cubic with equal coefficients) is not one: the next round tests the extra terms. Beside an event (a
+   free course in time), a temperature or current effect that takes out the same departure (their fits change
+   the residuals alike, cosine ≥ 0.95) and explains at least half as much is a rival too, whatever the ΔBIC
+   gap — the free course fits whatever the logged quantity drives, and noise besides —, reported when it is no
+   longer significant once the event is modelled.
 
 The cable-current ring (seed 000) has its own base model and candidates, with the same statistics:
 

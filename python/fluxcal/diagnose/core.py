@@ -46,11 +46,12 @@ NOISE_CANDIDATES = ("colored_noise", "quantization")
 CONFOUND_BIC = 10.0   # a rival within 10 of the winner's ΔBIC is not told apart (2 ln Bayes factor < 10 is short of
                       # "very strong" evidence, Kass & Raftery 1995)
 # ... nor an event (a free course in time: a magnet passing, a step) and a candidate driven by a logged quantity
-# (temperature, current) whose signature lies almost inside the event's and that explains at least half as much:
-# the free course fits whatever the logged quantity drives, and noise besides (a blind check: a gain equal on all
-# axes following the temperature, named moving_dipole at ΔBIC −3934 against temp_scale's −3766, no rival said);
-# the logged one is named (`_logged_first`). Between two of fixed shape (temp_offset, offset_drift) ΔBIC decides.
-CONFOUND_CORRELATION, CONFOUND_SHARE = 0.9, 0.5
+# (temperature, current) that take out the same departure (the changes their fits make to the residuals agree to
+# a cosine of 0.95) when the logged one explains at least half as much: the free course fits whatever the logged
+# quantity drives, and noise besides (a blind check: a gain equal on all axes following the temperature, named
+# moving_dipole with no rival said). The event is still named: preferring the logged one took a temperature bump
+# 0.1 of the recording after a magnet's pass for an effect. Between two of fixed shape ΔBIC decides.
+SAME_DEPARTURE, CONFOUND_SHARE = 0.95, 0.5
 LOGGED_REGIMES = ("temperature", "current")
 NESTED = 0.999        # signatures this close span one inside the other (saturation = equal cubics on every axis)
 
@@ -161,12 +162,12 @@ class Diagnosis:
     @property
     def confounded(self) -> dict:
         """{accepted effect: [rivals]} for the effects this recording cannot tell apart from a rival
-        candidate: the rival was significant in the same round with ΔBIC within CONFOUND_BIC (or, beside an
-        event, a temperature or current effect with at least CONFOUND_SHARE of its ΔBIC and signatures
-        correlating ≥ CONFOUND_CORRELATION), and once
-        the accepted effect was modelled its evidence collapsed (absorbed, or ΔBIC ≥ 0). Each rival:
+        candidate: the rival was significant in the same round with ΔBIC within CONFOUND_BIC (or an event and
+        a temperature or current effect took out the same departure, `_logged_inside_event`: same_departure),
+        and once the accepted effect was modelled its evidence collapsed (absorbed, or ΔBIC ≥ 0). Each rival:
         effect, regime, delta_bic_difference, signature_correlation (largest canonical correlation of
-        the two signatures in the residuals), and for a temperature/time pair temperature_time_correlation."""
+        the two signatures in the residuals), same_departure, and for a temperature/time pair
+        temperature_time_correlation."""
         return {r["effect"]: r["confounded_with"] for r in self.ranking if r.get("confounded_with")}
 
     def to_dict(self) -> dict:
@@ -256,8 +257,9 @@ def _noise(data: _Data, base: dict) -> tuple:
     order; steps between positions held a few readings each: it rises) or are not a time series at all
     (rows shuffled or sorted with no times given: consecutive readings differ as much as any two); then
     third differences of the base model's residuals in time order, which no longer hold the field's
-    rotation. A reference-vector model's residuals hold the attitude's errors, so the
-    smaller of the two is taken. Returns (σ, source, bound): `bound` when σ came from residuals out of time
+    rotation — also when the base model leaves less than BELOW_NOISE σ (a random walk of the attitude makes white
+    steps in the readings, which differences of any order take for noise). A reference-vector model's residuals
+    hold the attitude's errors, so the smaller of the two is taken. Returns (σ, source, bound): `bound` when σ came from residuals out of time
     order, which hold all the model misses (an upper bound on the noise, not the noise)."""
     sigma = estimate_noise(data.m)
     source = "estimated from third differences of the readings"
@@ -787,6 +789,7 @@ def _evaluate(cls, data, model, state, sigma, n_candidates) -> dict:
     if flag:
         row[flag[0]], row["note"], row["significant"] = flag[1], flag[2], False
     row["_fit"], row["_features"], row["_signature"] = fit, feats, signature
+    row["_explained"] = e - e1  # what it takes out of the round's residuals
     row["_signal_features"] = cls.signal_features
     return row
 
@@ -1142,53 +1145,40 @@ def _together(data: _Data, model: str, state: dict, rows: list, pool: list, acce
     return second, again
 
 
-def _event_and_logged(a: dict, b: dict) -> bool:
-    """Whether rows a and b are an event (a free course in time) and a candidate driven by a logged quantity
-    whose signature lies inside each other's (canonical correlation ≥ CONFOUND_CORRELATION): the course fits
+def _logged_inside_event(event: dict, logged: dict) -> bool:
+    """Whether `event` (a free course in time: a magnet passing, a step) and `logged` (driven by a logged
+    temperature or current) take out the same departure — the changes their fits make to the residuals agree to
+    a cosine of SAME_DEPARTURE — and `logged` at least CONFOUND_SHARE of the event's ΔBIC: the course fits
     whatever the logged quantity drives, and noise besides."""
-    if {a["regime"], b["regime"]} not in ({"events", r} for r in LOGGED_REGIMES):
+    if event["regime"] != "events" or logged["regime"] not in LOGGED_REGIMES or "_explained" not in event \
+            or "_explained" not in logged or not logged["delta_bic"] <= CONFOUND_SHARE * event["delta_bic"]:
         return False
-    overlap = np.linalg.svd(a["_signature"].T @ b["_signature"], compute_uv=False)
-    return bool(overlap.size and overlap[0] >= CONFOUND_CORRELATION)
-
-
-def _logged_first(winner: dict, winners: list) -> dict:
-    """The winner of a round, but for an event beside a significant candidate driven by a logged quantity that
-    explains at least CONFOUND_SHARE as much with the same signature (`_event_and_logged`): that candidate,
-    the one the recording's own log predicts; the event is tested beside it in the next round. (A blind check: a
-    gain equal on all axes that followed the temperature was named moving_dipole, ΔBIC −18006 against temp_scale's
-    −17720: the course had also fitted the recording's own slow disturbances.)"""
-    if winner["regime"] != "events":
-        return winner
-    for r in winners:
-        if r["delta_bic"] <= CONFOUND_SHARE * winner["delta_bic"] and _event_and_logged(winner, r):
-            return r
-    return winner
+    a, b = event["_explained"], logged["_explained"]
+    norms = float(np.linalg.norm(a) * np.linalg.norm(b))
+    return norms > 0 and float(a @ b) / norms >= SAME_DEPARTURE
 
 
 def _rivals(winner: dict, rows: list, key: str = "significant") -> list:
     """Candidates of the same round that explain the data about as well as the winner: significant themselves
-    (`key` of the row, True) with ΔBIC within CONFOUND_BIC; or an event and a candidate driven by a logged quantity
-    (`_event_and_logged`) where the event fitted better — the winner taken over it (`_logged_first`), or a logged
-    one strong in sample (its own held-out quarter, the hottest, is harder to predict than an event's interleaved
-    blocks) with at least CONFOUND_SHARE of the event's ΔBIC. (Where the logged one fits better, the data decide.)
-    Whether they are the same explanation is settled in the next round (`_collapsed`)."""
+    (`key` of the row, True) with ΔBIC within CONFOUND_BIC of it either way; or, beside an event, a candidate
+    driven by a logged quantity that takes out the same departure (`_logged_inside_event`), strong in sample (its
+    own held-out quarter, the hottest, is harder to predict than an event's interleaved blocks). Whether they are
+    the same explanation is settled in the next round (`_collapsed`)."""
     out = []
     for r in rows:
         if r is winner or not r["delta_bic"] < 0 or refused(r):
             continue
-        close = r.get(key) and r["delta_bic"] - winner["delta_bic"] < CONFOUND_BIC
-        event_better = min((winner, r), key=lambda x: x["delta_bic"])["regime"] == "events"
-        inside = (event_better and not {"in_sample", "bic"} & set(r.get("unmet", []))
-                  and r["delta_bic"] <= CONFOUND_SHARE * winner["delta_bic"] and _event_and_logged(winner, r))
-        if not (close or inside):
+        close = r.get(key) and abs(r["delta_bic"] - winner["delta_bic"]) < CONFOUND_BIC
+        same = not {"in_sample", "bic"} & set(r.get("unmet", [])) and _logged_inside_event(winner, r)
+        if not (close or same):
             continue
         overlap = np.linalg.svd(winner["_signature"].T @ r["_signature"], compute_uv=False)
         if overlap.size and overlap.min() >= NESTED and winner["_signature"].shape[1] != r["_signature"].shape[1]:
             continue  # one is a special case of the other: the next round tests the extra terms themselves
         out.append({"effect": r["effect"], "regime": r["regime"],
                     "delta_bic_difference": float(r["delta_bic"] - winner["delta_bic"]),
-                    "signature_correlation": float(overlap[0]) if overlap.size else 0.0})
+                    "signature_correlation": float(overlap[0]) if overlap.size else 0.0,
+                    "same_departure": bool(same)})
     return out
 
 
@@ -1200,7 +1190,11 @@ def _collapsed(data: _Data, winner: dict, rows: list) -> list:
     out = []
     for rival in winner.get("_rivals", []):
         row = now.get(rival["effect"])
-        if row is None or not (row.get("absorbed") or row["delta_bic"] >= 0):
+        # (one that took out the same departure as an event has collapsed when it is no longer significant: what it
+        # still takes is the course's noise it would fit too)
+        gone = row is not None and (row.get("absorbed") or row["delta_bic"] >= 0
+                                    or (rival.get("same_departure") and not row.get("significant")))
+        if not gone:
             continue
         rival = dict(rival)
         if {winner["regime"], rival["regime"]} == {"temperature", "time"} and getattr(data, "temp", None) is not None \
@@ -1765,7 +1759,7 @@ def diagnose(samples, t=None, temp=None, reference=None, gravity=None, field_nor
         for r in rows:
             last_rows[r["effect"]] = r
         if winners and len(accepted) < max_effects:
-            w = previous_winner = _logged_first(winners[0], winners)
+            w = previous_winner = winners[0]
             w["_rivals"] = _rivals(w, rows)
             accept(w)
             continue
@@ -1860,7 +1854,7 @@ def diagnose(samples, t=None, temp=None, reference=None, gravity=None, field_nor
                   key=lambda r: (r.get("absorbed", False), r["effect"] in NOISE_CANDIDATES, r["delta_bic"]))
     ranking += rest
     for r in ranking:
-        for key in ("_fit", "_features", "_signature", "_rivals", "_signal_features"):
+        for key in ("_fit", "_features", "_signature", "_explained", "_rivals", "_signal_features"):
             r.pop(key, None)
         r.setdefault("significant", False)
         r["significant"] = r["effect"] in accepted

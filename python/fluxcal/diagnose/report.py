@@ -6,7 +6,7 @@ from pathlib import Path
 
 import numpy as np
 
-from .core import CONFOUND_BIC, UNEXPLAINED
+from .core import UNEXPLAINED
 
 
 def _num(x, fmt=".3g") -> str:
@@ -69,16 +69,15 @@ def confound_lines(d, words=None) -> list:
     regime = {r["effect"]: r["regime"] for r in d.ranking}
     for name, rivals in d.confounded.items():
         for r in rivals:
-            if abs(r["delta_bic_difference"]) < CONFOUND_BIC:
+            if r.get("same_departure"):
+                lines.append(f"CANNOT TELL APART: {name} and {r['effect']} take out the same departure (ΔBIC "
+                             f"{r['delta_bic_difference']:+.1f} for {r['effect']} against {name}, and it is not "
+                             f"significant once {name} is modelled): a free course in time fits whatever a logged "
+                             "quantity drives, and noise besides; the choice between them is not the data's.")
+            else:
                 lines.append(f"CANNOT TELL APART: {name} and {r['effect']} explain this recording equally well "
                              f"(ΔBIC {r['delta_bic_difference']:.1f} apart, signatures correlate "
                              f"{r['signature_correlation']:.3f}); the choice between them is not the data's.")
-            else:
-                lines.append(f"CANNOT TELL APART: {name} and {r['effect']} explain the same departure (ΔBIC "
-                             f"{r['delta_bic_difference']:+.1f} for {r['effect']} against {name}, signatures correlate "
-                             f"{r['signature_correlation']:.3f}, and nothing is left for the other once either is "
-                             "modelled): a free course in time fits whatever a logged quantity drives, and noise "
-                             "besides; the choice between them is not the data's.")
             corr = r.get("temperature_time_correlation")
             if corr is not None and abs(corr) >= FOLLOWS:
                 lines.append(f"  The temperature follows time here (r = {corr:.3f}): let it rise and fall, or hold "

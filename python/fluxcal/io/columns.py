@@ -134,7 +134,7 @@ def _triples(names, kind_words):
             continue
         prefix, axis = hit
         prefix = prefix + tuple(qualifiers)
-        kinds = _kind_words(prefix)
+        kinds = _kind_words(prefix, name)
         if kinds & other:
             continue
         if kinds & kind_words:  # the unit keeps two sensors' same names apart (Mag X in mG and in uT)
@@ -154,12 +154,14 @@ def _triples(names, kind_words):
 SENSOR_OWNERS = {"sensor", "imu", "chip", "board", "device", "probe", "module", "node", "unit"}
 
 
-def _kind_words(prefix: tuple) -> set:
-    """The prefix's words that may say what it measures: all but a letter tagging a sensor (after a word of
-    SENSOR_OWNERS or a sensor kind's word of two or more letters)."""
+def _kind_words(prefix: tuple, name: str) -> set:
+    """The prefix's words that may say what it measures: all but a letter tagging a sensor — written apart by
+    spaces in `name` ("Sensor A X", as labelled lines name it; in imu_mx or imu_m_x the m is the magnetometer)
+    after a word of SENSOR_OWNERS or a sensor kind's word of two or more letters."""
     def tagged(k):
         before = prefix[k - 1] if k > 0 else ""
-        return before in SENSOR_OWNERS or (len(before) > 1 and before in MAG_WORDS | ACC_WORDS | GYRO_WORDS)
+        apart = re.search(rf"(?:^|\s){re.escape(prefix[k])}(?:\s|$)", name, re.IGNORECASE)
+        return apart and (before in SENSOR_OWNERS or (len(before) > 1 and before in MAG_WORDS | ACC_WORDS | GYRO_WORDS))
 
     return {w for k, w in enumerate(prefix) if not (len(w) == 1 and tagged(k))}
 

@@ -293,13 +293,18 @@ MAX_SENSORS = 8
 
 def _parse_lines(lines, loose: bool) -> list:
     """[(line number, text, clock text, values)] of the (line number, line) pairs. A number or letter after a
-    sensor's word names which of a few sensors it is (Sensor 1: X: …); when the commonest name is then on
-    fewer than one line in MAX_SENSORS, the numbers count the readings (Sample 17: X: …) and are left out."""
-    parsed = [(k, line.strip(), *_parse_line(line, loose)) for k, line in lines]
-    counts = Counter(name for *_, values in parsed for name in {v[0] for v in values})
-    if counts and max(counts.values()) * MAX_SENSORS < len(parsed):
-        parsed = [(k, line.strip(), *_parse_line(line, loose, tags=False)) for k, line in lines]
-    return parsed
+    sensor's word names which of a few sensors it is (Sensor 1: X: …); where one name takes more than
+    MAX_SENSORS such tags, or three or more that each come once, they count the readings (Sample 17: X: …) and
+    are left out."""
+    tagged = [(k, line.strip(), *_parse_line(line, loose)) for k, line in lines]
+    plain = [(k, line.strip(), *_parse_line(line, loose, tags=False)) for k, line in lines]
+    variants: dict = {}  # untagged name -> {tagged name: lines}
+    for (*_, values), (*_, bare) in zip(tagged, plain):
+        if len(values) == len(bare):
+            for (name, *_), (base, *_) in zip(values, bare):
+                variants.setdefault(base, Counter())[name] += 1
+    counted = any(len(v) > MAX_SENSORS or (len(v) >= 3 and max(v.values()) == 1) for v in variants.values())
+    return plain if counted else tagged
 
 
 def read_labelled(path, columns=None, units: str | None = None, bad_lines: str = "error",
