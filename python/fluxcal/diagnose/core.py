@@ -50,7 +50,7 @@ CONFOUND_BIC = 10.0   # a rival within 10 of the winner's ΔBIC is not told apar
 # a cosine of 0.95) when the logged one explains at least half as much: the free course fits whatever the logged
 # quantity drives, and noise besides (a blind check: a gain equal on all axes following the temperature, named
 # moving_dipole with no rival said). The event is still named: preferring the logged one took a temperature bump
-# 0.1 of the recording after a magnet's pass for an effect. Between two of fixed shape ΔBIC decides.
+# 0.08 of the recording after a magnet's pass for an effect. Between two of fixed shape ΔBIC decides.
 SAME_DEPARTURE, CONFOUND_SHARE = 0.95, 0.5
 LOGGED_REGIMES = ("temperature", "current")
 NESTED = 0.999        # signatures this close span one inside the other (saturation = equal cubics on every axis)
@@ -164,7 +164,8 @@ class Diagnosis:
         """{accepted effect: [rivals]} for the effects this recording cannot tell apart from a rival
         candidate: the rival was significant in the same round with ΔBIC within CONFOUND_BIC (or an event and
         a temperature or current effect took out the same departure, `_logged_inside_event`: same_departure),
-        and once the accepted effect was modelled its evidence collapsed (absorbed, or ΔBIC ≥ 0). Each rival:
+        and once the accepted effect was modelled its evidence collapsed (absorbed, or ΔBIC ≥ 0; a same_departure
+        rival: no longer significant). Each rival:
         effect, regime, delta_bic_difference, signature_correlation (largest canonical correlation of
         the two signatures in the residuals), same_departure, and for a temperature/time pair
         temperature_time_correlation."""
@@ -259,8 +260,9 @@ def _noise(data: _Data, base: dict) -> tuple:
     third differences of the base model's residuals in time order, which no longer hold the field's
     rotation — also when the base model leaves less than BELOW_NOISE σ (a random walk of the attitude makes white
     steps in the readings, which differences of any order take for noise). A reference-vector model's residuals
-    hold the attitude's errors, so the smaller of the two is taken. Returns (σ, source, bound): `bound` when σ came from residuals out of time
-    order, which hold all the model misses (an upper bound on the noise, not the noise)."""
+    hold the attitude's errors, so the smaller of the two is taken. Returns (σ, source, bound): `bound` when σ
+    came from residuals out of time order, which hold all the model misses (an upper bound on the noise, not the
+    noise)."""
     sigma = estimate_noise(data.m)
     source = "estimated from third differences of the readings"
     fourth = _difference_noise(data.m, 4) if len(data.m) >= 40 else sigma
