@@ -1,10 +1,9 @@
 """Gross outliers (I²C glitches reading 0,0,0, ADC rails, spikes) are found, left out of calibrate's fit and
 listed; clean recordings are left alone."""
-from pathlib import Path
 
 import numpy as np
 import pytest
-from conftest import run_cli
+from conftest import REAL_DATA, run_cli
 
 import fluxcal
 from fluxcal import attitude, sim
@@ -13,7 +12,7 @@ from fluxcal.sim.effects import random_sensor
 
 FIELD = np.array([20.0, 0.0, 45.0])  # µT
 H = float(np.linalg.norm(FIELD))
-REAL = Path(__file__).resolve().parents[3] / "shared" / "data" / "real"
+REAL = REAL_DATA  # FLUXCAL_REAL_DATA, else beside the repository
 LSB = 0.092  # µT per count of an HMC5883L-class part at its ±1.3 G range
 
 
