@@ -338,3 +338,21 @@ def test_a_reading_counter_beside_other_labels_is_not_a_sensor_number(tmp_path):
     rec = read_recording(path)
     assert list(rec.columns) == ["Sample Heading", "Mag X", "Mag Y", "Mag Z"]
     assert rec.samples()[1].tolist() == [49.0, 4.0, -20.0]
+
+
+@pytest.mark.parametrize("line, names", [
+    ("mag: [{x}, {y}, {z}]", ["mag X", "mag Y", "mag Z"]),                        # a colon before the bracket
+    ("Acc (m/s^2) [ 0.10, 0.20, 9.80 ], Mag (uT) [ {x}, {y}, {z} ]", ["Acc X", "Acc Y", "Acc Z", "Mag X", "Mag Y",
+                                                                        "Mag Z"]),  # a digit in a unit
+    ("[{ms}] Mag X: {x} Y: {y} Z: {z}", ["Mag X", "Mag Y", "Mag Z"]),              # millis() in brackets
+])
+def test_more_bracketed_forms(tmp_path, line, names):
+    """A review's forms: a colon before a bracketed vector, a unit with a digit, and a millis() count in brackets
+    before each line (a new number every line: a counter, not a sensor's tag) — each had given columns named by
+    numbers, or one per line."""
+    path = tmp_path / "log.txt"
+    path.write_text("".join(line.format(x=f"{50 - k:.2f}", y=f"{3 + k:.2f}", z="-20.00", ms=1000 + 20 * k) + "\n"
+                            for k in range(12)))
+    rec = read_recording(path)
+    assert list(rec.columns) == names
+    assert rec.samples()[1].tolist() == [49.0, 4.0, -20.0]

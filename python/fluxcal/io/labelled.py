@@ -89,7 +89,7 @@ def _vector_line(line: str):
 
 
 # `Label (unit) [ n1, n2, n3 ]`: SparkFun's ICM-20948 examples
-_BRACKETED = re.compile(r"([A-Za-z_][\w.]*)\s*(?:\(([^()\d]{1,16})\))?\s*\[([^\[\]]*)\]")
+_BRACKETED = re.compile(r"([A-Za-z_][\w.]*)\s*(?:\(([^()]{1,16})\))?\s*:?\s*\[([^\[\]]*)\]")  # mag: [..], (m/s^2)
 
 
 def _bracketed_vectors(text: str):
@@ -139,14 +139,14 @@ def _vectors(text: str, loose: bool = False):
 
 
 def _sensor_words(words: list, tags: bool = True) -> list:
-    """The words before a label that name its sensor: words (not units), a log tag in brackets ("[2] X: …"),
-    and (`tags`) a number or letter right after a name ("Sensor 1: X: …", "Sensor A X: …": which of two
-    sensors; the A is not amperes)."""
+    """The words before a label that name its sensor: words (not units), a log tag in brackets ("[MAG] X: …"),
+    and (`tags`) a number in brackets ("[2] X: …") or a number or letter right after a name ("Sensor 1: X: …",
+    "Sensor A X: …"): which of two sensors; the A is not amperes."""
     named = []
     for k, w in enumerate(words):
-        tag = tags and k > 0 and named and named[-1] == words[k - 1].strip(":=-") and \
-            re.fullmatch(r"\d{1,2}|[A-Za-z]", w.strip(":=-"))
-        if tag or (re.search(r"[A-Za-z]|^\[\w+\]$", w) and not is_unit(w)):
+        tag = tags and (re.fullmatch(r"\[\d+\]", w) or k > 0 and named and named[-1] == words[k - 1].strip(":=-")
+                        and re.fullmatch(r"\d{1,2}|[A-Za-z]", w.strip(":=-")))
+        if tag or (re.search(r"[A-Za-z]", w) and not is_unit(w)):
             named.append(w.strip(":=-"))
     return named
 
