@@ -633,13 +633,13 @@ def _point_thousands_whole_columns(rows) -> list:
     beside 48.5, a 0 or a 45; so do seconds 100.980 then 101."""
     if any("," in c for row in rows for c in row):
         return []
-    columns = []
+    by_column = {}
     for j in range(max(map(len, rows), default=0)):
         cells = [row[j] for row in rows if j < len(row) and row[j].strip()]
         if any("." in c for c in cells) and all(_POINT_THOUSAND.match(c) or _WHOLE.match(c) for c in cells):
-            columns.append(j)
-    by_column = {j: [row[j] for row in rows if j < len(row) and row[j].strip()] for j in columns}
-    whole = {j: [_WHOLE.match(c).group(1) for c in cells if _WHOLE.match(c)] for j, cells in by_column.items()}
+            by_column[j] = cells
+    columns = list(by_column)
+    whole = {j: [m.group(1) for m in map(_WHOLE.match, cells) if m] for j, cells in by_column.items()}
     if not any(whole.values()) or not all(re.fullmatch(r"[-+]?[1-9]\d{2}", w) for ws in whole.values() for w in ws):
         return []
     if not all(_smoother_as_thousands(by_column[j]) for j in columns if whole[j]):

@@ -96,7 +96,7 @@ def _bracketed_vectors(text: str):
     """[(name, value text, unit)] of a line of `Label (unit) [ n1, n2, n3 ]` groups, comma apart, after at
     most one word (SparkFun's ICM-20948 Example1: `Scaled. Acc (mg) [ 00000.00, 00020.00, 01000.00 ], Gyr (DPS)
     [ … ], Mag (uT) [ … ], Tmp (C) [ 00025.41 ]`); None for any other line."""
-    groups = list(_BRACKETED.finditer(text))
+    groups = list(_BRACKETED.finditer(text)) if "[" in text else []
     if not groups or len(_WORD.findall(text[:groups[0].start()])) > 1:
         return None
     gaps = [text[a.end():b.start()] for a, b in zip(groups, groups[1:])] + [text[groups[-1].end():]]
@@ -138,22 +138,24 @@ def _vectors(text: str, loose: bool = False):
     return values
 
 
-def _sensor_words(words: list, tags: bool = True) -> list:
+def _sensor_words(words: list, tags: bool = True, taken: list | None = None) -> list:
     """The words before a label that name its sensor: words (not units), a log tag in brackets ("[MAG] X: …"),
     and (`tags`) a number in brackets ("[2] X: …") or a number or letter right after a name ("Sensor 1: X: …",
-    "Sensor A X: …"): which of two sensors; the A is not amperes."""
+    "Sensor A X: …"): which of two sensors; the A is not amperes. A tag taken is appended to `taken`."""
     named = []
     for k, w in enumerate(words):
         tag = tags and (re.fullmatch(r"\[\d+\]", w) or k > 0 and named and named[-1] == words[k - 1].strip(":=-")
                         and re.fullmatch(r"\d{1,2}|[A-Za-z]", w.strip(":=-")))
+        if tag and taken is not None:
+            taken.append(w)
         if tag or (re.search(r"[A-Za-z]", w) and not is_unit(w)):
             named.append(w.strip(":=-"))
     return named
 
 
-def _parse_line(text: str, loose: bool = False, tags: bool = True):
-    """(clock text or None, [(name, value text, unit)]) of one line; names carry the sensor words (`tags`: see
-    _sensor_words). `loose`: the file's lines are mostly vectors (see _vector_tokens)."""
+def _parse_line(text: str, loose: bool = False, tags: bool = True, taken: list | None = None):
+    """(clock text or None, [(name, value text, unit)]) of one line; names carry the sensor words (`tags`,
+    `taken`: see _sensor_words). `loose`: the file's lines are mostly vectors (see _vector_tokens)."""
     clock = CLOCK.match(text)
     after_clock = clock.end() if clock else 0
     vectors = _vectors(text[after_clock:], loose)
@@ -166,7 +168,7 @@ def _parse_line(text: str, loose: bool = False, tags: bool = True):
         words = _WORD.findall(text[pos:m.start()])
         if values and words and is_unit(words[0]) and not values[-1][2]:
             values[-1][2] = _degrees(words)  # the previous value's unit
-        named = _sensor_words(words, tags)
+        named = _sensor_words(words, tags, taken)
         if named or not groups:
             group = " ".join(named)
             groups.append([next((w.strip(":=-") for w in words if is_unit(w.strip(":=-"))), "")])  # "Mag (uT) X:"
@@ -296,8 +298,14 @@ def _parse_lines(lines, loose: bool) -> list:
     sensor's word names which of a few sensors it is (Sensor 1: X: …); where one name takes more than
     MAX_SENSORS such tags, or three or more that each come once, they count the readings (Sample 17: X: …) and
     are left out."""
-    tagged = [(k, line.strip(), *_parse_line(line, loose)) for k, line in lines]
-    plain = [(k, line.strip(), *_parse_line(line, loose, tags=False)) for k, line in lines]
+    tagged, plain = [], []
+    for k, line in lines:
+        taken = []
+        tagged.append((k, line.strip(), *_parse_line(line, loose, taken=taken)))
+        # parsed again without tags only where it took one (most logs: no line)
+        plain.append((k, line.strip(), *_parse_line(line, loose, tags=False)) if taken else tagged[-1])
+    if all(a is b for a, b in zip(tagged, plain)):
+        return tagged
     variants: dict = {}  # untagged name -> {tagged name: lines}
     for (*_, values), (*_, bare) in zip(tagged, plain):
         if len(values) == len(bare):
