@@ -67,6 +67,8 @@ void check(const TwoStepOptions& o) {
   detail::require_positive(s + "tolerance", o.tolerance);
   detail::require_finite(s + "noise_sigma", o.noise_sigma, "a finite value (< 0: estimate it, 0: no correction)");
   detail::require_coverage_options(s, o);
+  detail::require(std::isfinite(o.runaway_misfit) && o.runaway_misfit > 1.0, s + "runaway_misfit", o.runaway_misfit,
+                  "a finite value > 1");
 }
 
 // ---- 2-D ---------------------------------------------------------------------------------------------
@@ -456,6 +458,24 @@ double noise_mean(const Mat10& S, const Model3D& m, double noise_sigma, double s
   return 0.75 * var;
 }
 
+// RMS of |h| − H in the readings' own units, (|h| − H)/|Aᵀĥ| (a first-order distance from the ellipsoid): the
+// misfit maximum likelihood minimises, which a shrinking A cannot lower.
+double reading_misfit(const SamplesRef& samples, const Model3D& model, const Eigen::Vector3d& centre, double scale,
+                      double H) {
+  Eigen::SelfAdjointEigenSolver<Eigen::Matrix3d> eig(model.N);
+  const Eigen::Matrix3d A = (H / scale) * eig.eigenvectors() *
+                            eig.eigenvalues().cwiseMax(0.0).cwiseSqrt().asDiagonal() * eig.eigenvectors().transpose();
+  const Eigen::Vector3d offset = centre + scale * model.q;
+  double sum2 = 0.0;
+  for (Eigen::Index i = 0; i < samples.rows(); ++i) {
+    const Eigen::Vector3d h = A * (Eigen::Vector3d(samples(i, 0), samples(i, 1), samples(i, 2)) - offset);
+    const double norm = h.norm(), slope = norm > 0.0 ? (A.transpose() * h).norm() / norm : 0.0;
+    const double d = slope > 0.0 ? (norm - H) / slope : kInf;
+    sum2 += d * d;
+  }
+  return std::sqrt(sum2 / static_cast<double>(samples.rows()));
+}
+
 }  // namespace
 
 TwoStepResult twostep(const SamplesRef& samples, const TwoStepOptions& options) {
@@ -514,6 +534,7 @@ TwoStepResult twostep(const SamplesRef& samples, const TwoStepOptions& options) 
   m.q = shape.centre;
   const double rho2 = shape.rho2;
   m.N = Np / rho2;  // the scale from H: (u − q)ᵀ N (u − q) = 1 ⇔ |h| = H
+  const Model3D first = m;
 
   // Second step: Fisher scoring (Gauss–Newton) on Σ R_k², all sums from the scatter.
   double mu = 0.0;
@@ -623,6 +644,20 @@ TwoStepResult twostep(const SamplesRef& samples, const TwoStepOptions& options) 
   detail::require_finite_fit(detail::finite_fit(sum) && cal.matrix.allFinite() && cal.offset.allFinite(), "samples",
                              samples, "the two-step calibration");
   describe_coverage(sum, samples, cal, options.coverage_rows);
+  if (!sum.converged) {
+    // On a cap the squared-magnitude objective keeps falling towards an infinite offset and a vanishing A (the
+    // noise shrinks with A), so the iterate leaves the readings: its misfit in the readings' own units grows.
+    const double first_misfit = reading_misfit(samples, first, centre, scale, H),
+                 last_misfit = reading_misfit(samples, m, centre, scale, H);
+    if (!(last_misfit <= options.runaway_misfit * first_misfit))
+      throw Error("samples: the second step of the two-step calibration ran away from the readings (not converged "
+                  "after " + std::to_string(sum.iterations) + " iterations; its misfit in the readings' units grew "
+                  "from " + num(first_misfit) + " to " + num(last_misfit) + "): on " +
+                  percent(std::max(sum.direction_coverage, 0.0)) + " of the field directions the squared-magnitude "
+                  "objective falls towards an infinite offset. Turn the sensor through more orientations (tumble it), or "
+                  "use calibrate's maximum likelihood, which says what the readings determine; max_iterations = 0 "
+                  "gives the first step alone");
+  }
 
   if (sum.coverage_ratio < options.poor_coverage_ratio)
     sum.warnings.push_back("poor coverage: thinnest/widest spread of the readings is " + percent(sum.coverage_ratio) +

@@ -30,7 +30,8 @@ void bind_twostep(py::module_& m) {
       .def_readwrite("planar_ratio", &TwoStepOptions::planar_ratio)
       .def_readwrite("poor_coverage_ratio", &TwoStepOptions::poor_coverage_ratio)
       .def_readwrite("poor_direction_coverage", &TwoStepOptions::poor_direction_coverage)
-      .def_readwrite("coverage_rows", &TwoStepOptions::coverage_rows);
+      .def_readwrite("coverage_rows", &TwoStepOptions::coverage_rows)
+      .def_readwrite("runaway_misfit", &TwoStepOptions::runaway_misfit);
 
   // readings arrive as a C-contiguous float64 (N, 2) array and field_norms as float64 (N,) (the Python
   // layer ensures it): no copy.

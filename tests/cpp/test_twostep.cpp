@@ -262,6 +262,25 @@ TEST(TwoStep3D, IterationLimitIsReportedNotThrown) {
   EXPECT_NE(r.summary.warnings[0].find("did not converge"), std::string::npos);
 }
 
+TEST(TwoStep3D, SecondStepRunningAwayOnACapThrowsNamingTheCoverage) {
+  // Directions within 60° of +z: the squared-magnitude objective falls towards an infinite offset (A vanishing),
+  // and the iterate had been returned 29 units off with "did not converge".
+  std::mt19937 gen(3);
+  std::uniform_real_distribution<double> cosine(0.5, 1.0), angle(0.0, 2.0 * M_PI);
+  std::normal_distribution<double> noise(0.0, 0.5);
+  Samples s(1000, 3);
+  for (Eigen::Index i = 0; i < s.rows(); ++i) {
+    const double z = cosine(gen), phi = angle(gen), r = std::sqrt(1.0 - z * z);
+    s.row(i) << 50.0 * r * std::cos(phi) + 10.0 + noise(gen), 50.0 * r * std::sin(phi) - 5.0 + noise(gen),
+        50.0 * z + 20.0 + noise(gen);
+  }
+  fluxcal::TwoStepOptions opt;
+  opt.field_norm = 50.0;
+  EXPECT_ERROR_SAYS(fluxcal::twostep(s, opt), "ran away from the readings (not converged after 50 iterations");
+  opt.max_iterations = 0;  // the first step alone
+  EXPECT_TRUE(fluxcal::twostep(s, opt).summary.converged);
+}
+
 TEST(TwoStepOptions, BadValuesAreNamed) {
   const Samples s = simulate(make_truth(7, 1.0), 200, 0.0, 8);
   fluxcal::TwoStepOptions o;
@@ -277,6 +296,9 @@ TEST(TwoStepOptions, BadValuesAreNamed) {
   o.noise_sigma = -1.0;
   o.max_iterations = -1;
   EXPECT_ERROR_SAYS(fluxcal::twostep(s, o), "TwoStepOptions::max_iterations: -1, need ≥ 0");
+  o.max_iterations = 50;
+  o.runaway_misfit = 1.0;
+  EXPECT_ERROR_SAYS(fluxcal::twostep(s, o), "TwoStepOptions::runaway_misfit: 1");
 
   const Data2D d = paper_like(Truth2D(), 0.0, 1);
   fluxcal::TwoStep2DOptions o2;

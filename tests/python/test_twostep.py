@@ -407,6 +407,27 @@ def test_3d_non_convergence_is_reported_not_raised():
     assert any("did not converge" in w for w in cal.summary["warnings"])
 
 
+def test_3d_a_second_step_running_away_on_a_cap_is_an_error_naming_the_coverage(tmp_path):
+    """Readings within 60° of one direction: the squared-magnitude objective falls towards an infinite offset and a
+    vanishing A, so the second step had ended 29 units off (the first step 10, maximum likelihood 1) with only
+    "did not converge … check the readings for outliers"."""
+    rng = np.random.default_rng(3)
+    z, phi = rng.uniform(np.cos(np.radians(60)), 1, 1000), rng.uniform(0, 2 * np.pi, 1000)
+    directions = np.column_stack([np.sqrt(1 - z**2) * np.cos(phi), np.sqrt(1 - z**2) * np.sin(phi), z])
+    offset = np.array([10.0, -5.0, 20.0])
+    readings = 50.0 * directions + offset + 0.5 * rng.standard_normal((1000, 3))
+    with pytest.raises(ValueError, match=r"ran away from the readings \(not converged after 50 iterations; its "
+                                         r"misfit in the readings' units grew from 0\.5.* of the field directions.*"
+                                         r"Turn the sensor through more orientations"):
+        twostep(readings, 50.0)
+    first = twostep(readings, 50.0, max_iterations=0)  # the first step alone is still there to have
+    assert first.summary["converged"] and first.summary["iterations"] == 0
+    path = tmp_path / "cap.csv"
+    np.savetxt(path, readings, delimiter=",", header="mx,my,mz", comments="", fmt="%.4f")
+    r = run_cli("calibrate", path, "--field-norm", "50", "--method", "twostep")
+    assert r.returncode != 0 and "ran away from the readings" in r.stderr and "Traceback" not in r.stderr
+
+
 def test_3d_wrong_units_warn():
     s = simulated(12)
     cal = twostep(s.readings, s.field_norm / 1000)  # µT field for nT readings

@@ -140,6 +140,10 @@ struct TwoStepOptions {
   double poor_direction_coverage = 0.5;
   /// Direction coverage looks at an evenly strided subsample of at most this many readings (0 = all).
   Eigen::Index coverage_rows = 16384;
+  /// On a cap of directions the second step's objective falls towards an infinite offset and a vanishing A: a
+  /// second step that has not converged and whose misfit in the readings' units, (|h| − H)/|Aᵀĥ| RMS, grew by
+  /// more than this factor over the first step's throws Error instead of returning the iterate.
+  double runaway_misfit = 1.05;
 };
 
 /// Calibration (model "twostep", A symmetric) and Summary: iterations and converged of the second
@@ -154,7 +158,8 @@ struct TwoStepResult {
 /// TWOSTEP for a three-axis sensor in a field of known constant magnitude (N ≥ 9 readings).
 /// Throws Error on a missing field_norm, NaN/Inf, too few rows, planar readings (rank-deficient first
 /// step), readings that do not lie on an ellipsoid, or a result that is not positive definite.
-/// A second step that does not converge is reported (converged = false, a warning), not thrown.
+/// A second step that does not converge is reported (converged = false, a warning), not thrown, unless it ran
+/// away from the readings (options.runaway_misfit): then Error, naming the coverage.
 TwoStepResult twostep(const SamplesRef& samples, const TwoStepOptions& options);
 
 }  // namespace fluxcal
