@@ -383,14 +383,12 @@ def test_two_concurrent_events_are_found_together():
     rows = {r["effect"]: r for r in d.ranking}
     assert rows["moving_dipole"]["found_with"] == "offset_step" and rows["offset_step"]["found_with"] == "moving_dipole"
     assert "were found together" in d.text()
-    # Every candidate: a settling offset is accepted first for what the two then explain, then left out, and
-    # the report says so
+    # Every candidate: a settling offset had been accepted first for what the two then explain (then pruned), its
+    # warm-up time chosen with the held-out quarter in view. Chosen without it, it is not accepted at all.
     d = diagnose(result.readings, **kwargs)
-    assert d.accepted == ["moving_dipole", "offset_step"], d.accepted
+    assert set(d.accepted) == {"moving_dipole", "offset_step"}, d.accepted
     drift = next(r for r in d.ranking if r["effect"] == "offset_drift")
-    assert "no longer pays BIC's price" in drift["note"] and drift["pruned_delta_bic"] > 0 and "step" not in drift
-    assert "offset_drift: accepted in round 1" in d.text() and not drift["significant_not_modelled"]
-    assert drift["unmet"] == ["pruned"] and "(left out: with the later effects modelled" in d.text()
+    assert not drift["significant"] and "offset_drift: accepted" not in d.text()
 
 
 def test_noise_estimate_from_third_differences():

@@ -129,7 +129,8 @@ class Diagnosis:
     through its gain); a judged row's `unmet` lists the acceptance tests it fails ("in_sample", "bic",
     "heldout_p", "heldout_gain", "heldout_resolved" — beside an effect already found, a held-out fall within what
     the fits' parameter noise makes —, "pruned"; empty for an accepted one): a row that fails only the held-out ones has
-    strong evidence in the recording that the held-out readings do not confirm;
+    strong evidence in the recording that the held-out readings do not confirm (a profiled lag or warm-up time is
+    chosen again without them for that test: `lag_s_without_heldout`, `warmup_s_without_heldout`);
     an effect accepted in an early round that no longer pays BIC's price once the later ones are modelled
     is left out (its row's `note` says so, `pruned_delta_bic` the ΔBIC for keeping it);
     `significant_not_modelled` marks a candidate still significant when the `max_effects` limit stopped
@@ -760,11 +761,20 @@ def _evaluate(cls, data, model, state, sigma, n_candidates) -> dict:
     try:
         fit = _fit(data, state["start"], fixed, all_feats,
                    start_terms=np.concatenate([state["terms"], np.zeros(feats.shape[1])]))
+        held_feats = feats
         if cls.signal_features:
             feats, fit, value = _at_own_signal(cls, data, fixed, state, feats, fit, ctxs[form].scale, sigma,
                                                profiled.get(cls.profile_name), form)
             row.update(_profiled_row({cls.profile_name: value} if profiled else {}))
-        validated = _validate(data, model, state, feats, cls.regime, sigma)
+            held_feats = feats
+        elif cls.profile_name:
+            # The held-out readings choose nothing: a lag or time constant picked on all the readings had let a
+            # made-up temperature's lag fit the recording's own slow wander in the held-out quarter too.
+            keep = np.repeat(~_held_regime(data, state, cls.regime)[1], per_reading)
+            value = _profile_value(cls, ctxs[form], base, Q, e, vector, keep)[0]
+            row[f"{cls.profile_name}_without_heldout"] = _profiled_row({"v": value})["v"]
+            held_feats = cls.features_at(ctxs[form], value)
+        validated = _validate(data, model, state, held_feats, cls.regime, sigma)
     except _core.Error as err:  # a candidate nearly inside the model can leave the solver no valid step
         row.update(lr=0.0, lr_pvalue=1.0, delta_aic=0.0, delta_bic=0.0, significant=False,
                    heldout_gap_before=None, heldout_gap_after=None,
@@ -897,14 +907,18 @@ def _profile(cls, ctxs: dict, result: dict, Q: np.ndarray, e: np.ndarray, vector
     return value, form, cls.features_at(ctxs[form], value), {f: g for f, (_, g) in found.items()}
 
 
-def _profile_value(cls, ctx, result: dict, Q: np.ndarray, e: np.ndarray, vector: bool):
+def _profile_value(cls, ctx, result: dict, Q: np.ndarray, e: np.ndarray, vector: bool, keep=None):
     """The profiled parameter: its grid (`cls.profile_grid`), then a bounded search in log between
     the best point's neighbours. Each step is a linear refit, so the profile costs projections, not solver runs.
-    Returns (value, the part of e its features take)."""
+    `keep` (a mask of the residuals): chosen on those alone. Returns (value, the part of e its features take)."""
     from scipy.optimize import minimize_scalar
+
+    if keep is not None:
+        Q, e = np.linalg.qr(Q[keep])[0], e[keep]
 
     def gain(value):
         Z = _project(result, cls.features_at(ctx, value), vector)
+        Z = Z if keep is None else Z[keep]
         R = Z - Q @ (Q.T @ Z)
         coef, *_ = np.linalg.lstsq(R, e, rcond=None)
         return float(np.sum((R @ coef) ** 2))
@@ -1216,9 +1230,8 @@ def _validated_terms(state: dict) -> np.ndarray:
     return np.concatenate(out) if out else np.zeros(0)
 
 
-def _validate(data, model, state, feats, regime, sigma) -> dict:
-    """Fit with and without the candidate on all but a held-out regime; judge on the held-out part."""
-    vector, fixed = MODELS[model]
+def _held_regime(data, state, regime):
+    """The held-out regime and readings of a candidate of `regime` (`_heldout`)."""
     held = _heldout(regime, data, state["directions"])
     side = {"temperature": data.temp, "current": data.current}.get(regime)
     if side is not None and np.ptp(side[~held]) < 0.5 * np.ptp(side):
@@ -1226,6 +1239,13 @@ def _validate(data, model, state, feats, regime, sigma) -> dict:
         # learn the effect from. Interleaved blocks of time hold out some of every level instead.
         regime = "events"
         held = _heldout(regime, data, state["directions"])
+    return regime, held
+
+
+def _validate(data, model, state, feats, regime, sigma) -> dict:
+    """Fit with and without the candidate on all but a held-out regime; judge on the held-out part."""
+    vector, fixed = MODELS[model]
+    regime, held = _held_regime(data, state, regime)
     key = regime
     terms = _validated_terms(state)
     if key not in state["train_fits"]:
