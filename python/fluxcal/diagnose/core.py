@@ -46,11 +46,12 @@ NOISE_CANDIDATES = ("colored_noise", "quantization")
 CONFOUND_BIC = 10.0   # a rival within 10 of the winner's ΔBIC is not told apart (2 ln Bayes factor < 10 is short of
                       # "very strong" evidence, Kass & Raftery 1995)
 # ... nor an event (a free course in time: a magnet passing, a step) and a candidate driven by a logged quantity
-# (temperature, current) that take out the same departure (the changes their fits make to the residuals agree to
-# a cosine of 0.95) when the logged one explains at least half as much: the free course fits whatever the logged
-# quantity drives, and noise besides (a blind check: a gain equal on all axes following the temperature, named
-# moving_dipole with no rival said). The event is still named: preferring the logged one took a temperature bump
-# 0.08 of the recording after a magnet's pass for an effect. Between two of fixed shape ΔBIC decides.
+# (temperature, current) or following a law in time (a drift settling after power-on) that take out the same
+# departure (the changes their fits make to the residuals agree to a cosine of 0.95) when the other explains at
+# least half as much: the free course fits whatever the logged quantity drives, or the law, and noise besides
+# (blind checks: a gain equal on all axes following the temperature, or warming up, named moving_dipole with no
+# rival said). The event is still named: preferring the logged one took a temperature bump 0.08 of the recording
+# after a magnet's pass for an effect. Between two of fixed shape ΔBIC decides.
 SAME_DEPARTURE, CONFOUND_SHARE = 0.95, 0.5
 LOGGED_REGIMES = ("temperature", "current")
 NESTED = 0.999        # signatures this close span one inside the other (saturation = equal cubics on every axis)
@@ -164,7 +165,7 @@ class Diagnosis:
     def confounded(self) -> dict:
         """{accepted effect: [rivals]} for the effects this recording cannot tell apart from a rival
         candidate: the rival was significant in the same round with ΔBIC within CONFOUND_BIC (or an event and
-        a temperature or current effect took out the same departure, `_logged_inside_event`: same_departure),
+        a temperature or current effect or a drift took out the same departure, `_law_inside_event`: same_departure),
         and once the accepted effect was modelled its evidence collapsed (absorbed, or ΔBIC ≥ 0; a same_departure
         rival: no longer significant). Each rival:
         effect, regime, delta_bic_difference, signature_correlation (largest canonical correlation of
@@ -556,12 +557,16 @@ def _heldout_leverage(data: _Data, result: dict, held: np.ndarray) -> float:
     (a short recording, or a regime the rest does not cover), and its held-out gaps judge that, not the effect."""
     J = np.asarray(result["jacobian"])
     J = J[:, np.any(J != 0, axis=0)]
+    J = J / np.linalg.norm(J, axis=0)  # (the columns scaled alike: a dipole's and an offset's differ by decades)
     rows = np.repeat(held, J.shape[0] // len(held))
-    try:
-        G = np.linalg.inv(J[~rows].T @ J[~rows])
-    except np.linalg.LinAlgError:
+    w, V = np.linalg.eigh(J[~rows].T @ J[~rows])
+    determined = w > w.max() * 1e-12
+    # Combinations of the parameters the rest does not determine (an event and a temperature term that the rest
+    # cannot tell apart, 1e17 conditioned) leave the held-out readings unpredicted: an inverse there had given a
+    # leverage of −8e13.
+    if not w.max() > 0 or np.sum((J[rows] @ V[:, ~determined]) ** 2) > 1e-6 * np.sum(J[rows] ** 2):
         return float("inf")
-    return float(np.mean(np.sum((J[rows] @ G) * J[rows], axis=1)))
+    return float(np.mean(np.sum((J[rows] @ V[:, determined] / np.sqrt(w[determined])) ** 2, axis=1)))
 
 
 def _improvement_pvalue(before: np.ndarray, after: np.ndarray) -> float:
@@ -803,6 +808,7 @@ def _evaluate(cls, data, model, state, sigma, n_candidates) -> dict:
     row["_fit"], row["_features"], row["_signature"] = fit, feats, signature
     row["_explained"] = e - e1  # what it takes out of the round's residuals
     row["_signal_features"] = cls.signal_features
+    row["_law_in_time"] = bool(getattr(cls, "law_in_time", False))
     return row
 
 
@@ -1161,15 +1167,16 @@ def _together(data: _Data, model: str, state: dict, rows: list, pool: list, acce
     return second, again
 
 
-def _logged_inside_event(event: dict, logged: dict) -> bool:
-    """Whether `event` (a free course in time: a magnet passing, a step) and `logged` (driven by a logged
-    temperature or current) take out the same departure — the changes their fits make to the residuals agree to
-    a cosine of SAME_DEPARTURE — and `logged` at least CONFOUND_SHARE of the event's ΔBIC: the course fits
-    whatever the logged quantity drives, and noise besides."""
-    if event["regime"] != "events" or logged["regime"] not in LOGGED_REGIMES or "_explained" not in event \
-            or "_explained" not in logged or not logged["delta_bic"] <= CONFOUND_SHARE * event["delta_bic"]:
+def _law_inside_event(event: dict, other: dict) -> bool:
+    """Whether `event` (a free course in time: a magnet passing, a step) and `other` (driven by a logged
+    temperature or current, or a drift's law in time) take out the same departure — the changes their fits make
+    to the residuals agree to a cosine of SAME_DEPARTURE — and `other` at least CONFOUND_SHARE of the event's
+    ΔBIC: the course fits whatever the logged quantity drives, or the law, and noise besides."""
+    if event["regime"] != "events" or not (other["regime"] in LOGGED_REGIMES or other.get("_law_in_time")) \
+            or "_explained" not in event or "_explained" not in other \
+            or not other["delta_bic"] <= CONFOUND_SHARE * event["delta_bic"]:
         return False
-    a, b = event["_explained"], logged["_explained"]
+    a, b = event["_explained"], other["_explained"]
     norms = float(np.linalg.norm(a) * np.linalg.norm(b))
     return norms > 0 and float(a @ b) / norms >= SAME_DEPARTURE
 
@@ -1177,15 +1184,15 @@ def _logged_inside_event(event: dict, logged: dict) -> bool:
 def _rivals(winner: dict, rows: list, key: str = "significant") -> list:
     """Candidates of the same round that explain the data about as well as the winner: significant themselves
     (`key` of the row, True) with ΔBIC within CONFOUND_BIC of it either way; or, beside an event, a candidate
-    driven by a logged quantity that takes out the same departure (`_logged_inside_event`), strong in sample (its
-    own held-out quarter, the hottest, is harder to predict than an event's interleaved blocks). Whether they are
-    the same explanation is settled in the next round (`_collapsed`)."""
+    driven by a logged quantity or a drift's law that takes out the same departure (`_law_inside_event`), strong
+    in sample (its own held-out quarter, the hottest or the last, is harder to predict than an event's interleaved
+    blocks). Whether they are the same explanation is settled in the next round (`_collapsed`)."""
     out = []
     for r in rows:
         if r is winner or not r["delta_bic"] < 0 or refused(r):
             continue
         close = r.get(key) and abs(r["delta_bic"] - winner["delta_bic"]) < CONFOUND_BIC
-        same = not {"in_sample", "bic"} & set(r.get("unmet", [])) and _logged_inside_event(winner, r)
+        same = not {"in_sample", "bic"} & set(r.get("unmet", [])) and _law_inside_event(winner, r)
         if not (close or same):
             continue
         overlap = np.linalg.svd(winner["_signature"].T @ r["_signature"], compute_uv=False)
@@ -1845,11 +1852,15 @@ def diagnose(samples, t=None, temp=None, reference=None, gravity=None, field_nor
         floor = sigma * np.sqrt(r["heldout_leverage"])
         r["heldout_gain_unresolved"] = _gain_unresolved(r, r["heldout_leverage"], sigma)
         if r["heldout_gain_unresolved"]:
+            why = (f"the fits on the rest predict them with an error of {floor:.3g} from the noise in their "
+                   f"parameters alone (leverage {r['heldout_leverage']:.2g}), and the gap's fall "
+                   f"{r['heldout_gap_before']:.3g} → {r['heldout_gap_after']:.3g} is within twice what two such "
+                   f"errors can make ({2 * np.sqrt(2) * floor:.3g})") if np.isfinite(floor) else \
+                  ("the rest does not determine every parameter they depend on (it cannot tell some of the "
+                   f"effects' terms apart), so the gap's fall {r['heldout_gap_before']:.3g} → "
+                   f"{r['heldout_gap_after']:.3g} judges the fit on all the readings")
             caveats.append(f"{name}: its held-out test may not be trusted — held out ({r['heldout']}, "
-                           f"{r['heldout_n']} readings), the fits on the rest predict them with an error of {floor:.3g} "
-                           f"from the noise in their parameters alone (leverage {r['heldout_leverage']:.2g}), and the "
-                           f"gap's fall {r['heldout_gap_before']:.3g} → {r['heldout_gap_after']:.3g} is within twice "
-                           f"what two such errors can make ({2 * np.sqrt(2) * floor:.3g}). The recording "
+                           f"{r['heldout_n']} readings), {why}. The recording "
                            f"({len(data.m)} readings{f' over {np.ptp(data.t):.3g} s' if timestamps else ''}) may be "
                            "too short or cover too little: effects of a similar shape over it (a drift, a step, a "
                            "passing magnet) are not ruled out")
@@ -1876,7 +1887,8 @@ def diagnose(samples, t=None, temp=None, reference=None, gravity=None, field_nor
                   key=lambda r: (r.get("absorbed", False), r["effect"] in NOISE_CANDIDATES, r["delta_bic"]))
     ranking += rest
     for r in ranking:
-        for key in ("_fit", "_features", "_signature", "_explained", "_rivals", "_signal_features"):
+        for key in ("_fit", "_features", "_signature", "_explained", "_rivals", "_signal_features",
+                    "_law_in_time"):
             r.pop(key, None)
         r.setdefault("significant", False)
         r["significant"] = r["effect"] in accepted

@@ -72,8 +72,9 @@ def confound_lines(d, words=None) -> list:
             if r.get("same_departure"):
                 lines.append(f"CANNOT TELL APART: {name} and {r['effect']} take out the same departure (ΔBIC "
                              f"{r['delta_bic_difference']:+.1f} for {r['effect']} against {name}, and it is not "
-                             f"significant once {name} is modelled): a free course in time fits whatever a logged "
-                             "quantity drives, and noise besides; the choice between them is not the data's.")
+                             f"significant once {name} is modelled): a free course in time fits "
+                             f"{'a drift' if r['regime'] == 'time' else 'whatever a logged quantity drives'}, and "
+                             "noise besides; the choice between them is not the data's.")
             else:
                 lines.append(f"CANNOT TELL APART: {name} and {r['effect']} explain this recording equally well "
                              f"(ΔBIC {r['delta_bic_difference']:.1f} apart, signatures correlate "
@@ -82,6 +83,9 @@ def confound_lines(d, words=None) -> list:
             if corr is not None and abs(corr) >= FOLLOWS:
                 lines.append(f"  The temperature follows time here (r = {corr:.3f}): let it rise and fall, or hold "
                              "it steady, in a recording that separates them.")
+            elif r.get("same_departure") and r["regime"] == "time":
+                lines.append("  A drift comes back after every power-on and a disturbance need not: a second recording "
+                             "from power-on would separate them.")
             elif r["regime"] != regime[name]:
                 both = [words_of.get(x, x) for x in (regime[name], r["regime"])]
                 lines.append(f"  A recording in which {both[0]} and {both[1]} vary independently would separate them.")

@@ -658,6 +658,7 @@ class _TimeCourse:
 
     regime = "time"
     needs = ("t",)
+    law_in_time = True   # a law's course (diagnose: an event's free course fits it too)
     profile_name = "warmup_s"
     profile_null = np.inf
     profile_open_end = False
