@@ -67,8 +67,7 @@ void check(const TwoStepOptions& o) {
   detail::require_positive(s + "tolerance", o.tolerance);
   detail::require_finite(s + "noise_sigma", o.noise_sigma, "a finite value (< 0: estimate it, 0: no correction)");
   detail::require_coverage_options(s, o);
-  detail::require(std::isfinite(o.runaway_misfit) && o.runaway_misfit > 1.0, s + "runaway_misfit", o.runaway_misfit,
-                  "a finite value > 1");
+  detail::require(o.runaway_misfit > 1.0, s + "runaway_misfit", o.runaway_misfit, "a value > 1 (inf: never)");
 }
 
 // ---- 2-D ---------------------------------------------------------------------------------------------
@@ -458,22 +457,41 @@ double noise_mean(const Mat10& S, const Model3D& m, double noise_sigma, double s
   return 0.75 * var;
 }
 
-// RMS of |h| − H in the readings' own units, (|h| − H)/|Aᵀĥ| (a first-order distance from the ellipsoid): the
-// misfit maximum likelihood minimises, which a shrinking A cannot lower.
-double reading_misfit(const SamplesRef& samples, const Model3D& model, const Eigen::Vector3d& centre, double scale,
-                      double H) {
+// The calibration (offset, A) of a model: A = (H/scale) N^½ (N's negative eigenvalues, of a model run off, as 0).
+Calibration calibration_of(const Model3D& model, const Eigen::Vector3d& centre, double scale, double H) {
   Eigen::SelfAdjointEigenSolver<Eigen::Matrix3d> eig(model.N);
-  const Eigen::Matrix3d A = (H / scale) * eig.eigenvectors() *
-                            eig.eigenvalues().cwiseMax(0.0).cwiseSqrt().asDiagonal() * eig.eigenvectors().transpose();
-  const Eigen::Vector3d offset = centre + scale * model.q;
+  Calibration cal;
+  cal.offset = centre + scale * model.q;
+  cal.matrix = (H / scale) * eig.eigenvectors() * eig.eigenvalues().cwiseMax(0.0).cwiseSqrt().asDiagonal() *
+               eig.eigenvectors().transpose();
+  cal.field_norm = H;
+  return cal;
+}
+
+// How far the readings lie from a model's ellipsoid |h| = radius in their own units, d = (|h| − radius)/|Aᵀĥ|
+// (first order): the RMS of d — the misfit maximum likelihood minimises, which a shrinking A cannot lower — and
+// the row farthest off.
+struct Misfit {
+  double rms = 0.0;
+  Eigen::Index worst_row = 0;
+  double worst = 0.0;
+};
+
+Misfit reading_misfit(const SamplesRef& samples, const Calibration& cal, double radius) {
+  Misfit out;
   double sum2 = 0.0;
   for (Eigen::Index i = 0; i < samples.rows(); ++i) {
-    const Eigen::Vector3d h = A * (Eigen::Vector3d(samples(i, 0), samples(i, 1), samples(i, 2)) - offset);
-    const double norm = h.norm(), slope = norm > 0.0 ? (A.transpose() * h).norm() / norm : 0.0;
-    const double d = slope > 0.0 ? (norm - H) / slope : kInf;
+    const Eigen::Vector3d h = cal.matrix * (Eigen::Vector3d(samples(i, 0), samples(i, 1), samples(i, 2)) - cal.offset);
+    const double norm = h.norm(), slope = norm > 0.0 ? (cal.matrix.transpose() * h).norm() / norm : 0.0;
+    const double d = slope > 0.0 ? (norm - radius) / slope : kInf;
     sum2 += d * d;
+    if (!(std::abs(d) <= out.worst)) {
+      out.worst = std::abs(d);
+      out.worst_row = i;
+    }
   }
-  return std::sqrt(sum2 / static_cast<double>(samples.rows()));
+  out.rms = std::sqrt(sum2 / static_cast<double>(samples.rows()));
+  return out;
 }
 
 }  // namespace
@@ -646,19 +664,29 @@ TwoStepResult twostep(const SamplesRef& samples, const TwoStepOptions& options) 
   describe_coverage(sum, samples, cal, options.coverage_rows);
   if (!sum.converged) {
     // On a cap the squared-magnitude objective keeps falling towards an infinite offset and a vanishing A (the
-    // noise shrinks with A), so the iterate leaves the readings: its misfit in the readings' own units grows.
-    const double first_misfit = reading_misfit(samples, first, centre, scale, H),
-                 last_misfit = reading_misfit(samples, m, centre, scale, H);
-    if (!(last_misfit <= options.runaway_misfit * first_misfit))
+    // noise shrinks with A), so the iterate leaves the readings: their misfit to its ellipsoid grows. So it does
+    // when a few readings lie far off (an outlier at twice the field's distance ran a full sphere away).
+    const Calibration start = calibration_of(first, centre, scale, H);
+    // (the iterate's own radius: the noise mean μ it fitted puts |h|² at H² + μ, which is no runaway)
+    const Misfit before = reading_misfit(samples, start, H), after = reading_misfit(samples, cal, H * std::sqrt(1.0 + mu));
+    if (!(after.rms <= options.runaway_misfit * before.rms)) {
+      const Eigen::Index rows = samples.rows(), step = options.coverage_rows > 0
+                                                           ? std::max<Eigen::Index>(1, rows / options.coverage_rows)
+                                                           : 1;
+      const double reachable = 1.0 - std::pow(1.0 - 1.0 / kDirectionBins, static_cast<double>((rows + step - 1) / step));
       throw Error("samples: the second step of the two-step calibration ran away from the readings (not converged "
-                  "after " + std::to_string(sum.iterations) + " iterations; its misfit in the readings' units grew "
-                  "from " + num(first_misfit) + " to " + num(last_misfit) + "): on " +
-                  percent(std::max(sum.direction_coverage, 0.0)) + " of the field directions the squared-magnitude "
-                  "objective falls towards an infinite offset. Turn the sensor through more orientations (tumble it), or "
-                  "use calibrate's maximum likelihood, which says what the readings determine; max_iterations = 0 "
-                  "gives the first step alone");
+                  "after " + std::to_string(sum.iterations) + " iterations; their misfit to its ellipsoid, in the "
+                  "readings' units, grew from " + num(before.rms) + " to " + num(after.rms) + "). Either the "
+                  "readings cover too little of the sphere — the first step sees " +
+                  percent(direction_coverage(samples, start, options.coverage_rows)) + " of the field directions, "
+                  "where " + num(static_cast<double>(rows)) + " readings spread evenly would fill " +
+                  percent(reachable) + "; on a cap the objective falls towards an infinite offset: turn the sensor "
+                  "through more orientations (tumble it) — or a few readings lie far off the ellipsoid (row " +
+                  std::to_string(before.worst_row) + " is " + num(before.worst) + " from the first step's, " +
+                  num(before.worst / before.rms) + " times the misfit): drop such outliers. Calibrate's maximum "
+                  "likelihood says what the readings determine; max_iterations = 0 gives the first step alone");
+    }
   }
-
   if (sum.coverage_ratio < options.poor_coverage_ratio)
     sum.warnings.push_back("poor coverage: thinnest/widest spread of the readings is " + percent(sum.coverage_ratio) +
                            "; the offset and matrix along the thin direction are poorly determined");

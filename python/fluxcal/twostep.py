@@ -159,11 +159,13 @@ def twostep(samples, field_norm: float, units: str | None = None, **settings) ->
     settings (defaults in cpp/include/fluxcal/twostep.hpp): max_iterations=50 (0 = first step only),
     tolerance=1e-10, noise_sigma=-1 (estimate; 0 = no noise-mean correction), planar_ratio=0.02,
     poor_coverage_ratio=0.3, poor_direction_coverage=0.5 (of what N readings spread evenly would fill),
-    coverage_rows=16384, runaway_misfit=1.05. Raises ValueError on a missing field_norm, NaN/Inf, too few
-    rows, planar readings, a non-positive-definite result, or a second step that ran away from the readings
-    (on a cap of directions its objective falls towards an infinite offset: not converged, and the misfit in
-    the readings' units grew by more than runaway_misfit over the first step's); a second step that does not
-    converge otherwise is reported in summary["converged"] and summary["warnings"].
+    coverage_rows=16384, runaway_misfit=1.1 (inf: never). Raises ValueError on a missing field_norm, NaN/Inf,
+    too few rows, planar readings, a non-positive-definite result, or a second step that ran away from the
+    readings (on a cap of directions its objective falls towards an infinite offset, and a few far outliers can
+    run it away too: not converged, and the readings' misfit to its ellipsoid, in their own units, grew by
+    more than runaway_misfit over the first step's; the message names the first step's coverage and its farthest
+    reading); a second step that does not converge otherwise is reported in summary["converged"] and
+    summary["warnings"].
     """
     if units is None:
         units = getattr(samples, "field_units", lambda: "")()

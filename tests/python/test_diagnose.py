@@ -402,6 +402,24 @@ def test_an_effect_accepted_early_that_later_ones_explain_is_left_out_and_said()
     assert "offset_step: accepted in round 1" in d.text() and "(left out: with the later effects modelled" in d.text()
 
 
+def test_a_held_out_test_the_rest_cannot_determine_is_said_and_the_json_stays_strict(tmp_path):
+    # seed 106: beside the magnet, the readings outside the hottest quarter cannot tell the magnet's terms from the
+    # temperature offset's (JᵀJ conditioned 2e17): the leverage had come out −8e13 (a sqrt warning, "nan" printed)
+    result, kwargs = withheld_trial(["moving_dipole", "temp_offset"], 106)
+    d = diagnose(result.readings, **kwargs)
+    assert set(d.accepted) == {"moving_dipole", "temp_offset"}, d.accepted
+    assert any(c.startswith("temp_offset: its held-out test may not be trusted") and "does not test the effect" in c
+               for c in d.caveats), d.caveats
+    assert not re.search(r"\b(nan|inf)\b", d.text())
+
+    def refuse(word):
+        raise ValueError(f"not JSON: {word}")
+
+    saved = json.loads(d.save_json(tmp_path / "d.json").read_text(), parse_constant=refuse)
+    row = next(r for r in saved["ranking"] if r["effect"] == "temp_offset")
+    assert row["heldout_leverage"] is None and row["heldout_leverage_undetermined"] is True
+
+
 def test_noise_estimate_from_third_differences():
     result, _ = withheld_trial([], 7)
     assert estimate_noise(result.readings) == pytest.approx(0.05, rel=0.05)

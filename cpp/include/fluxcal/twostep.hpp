@@ -140,10 +140,12 @@ struct TwoStepOptions {
   double poor_direction_coverage = 0.5;
   /// Direction coverage looks at an evenly strided subsample of at most this many readings (0 = all).
   Eigen::Index coverage_rows = 16384;
-  /// On a cap of directions the second step's objective falls towards an infinite offset and a vanishing A: a
-  /// second step that has not converged and whose misfit in the readings' units, (|h| − H)/|Aᵀĥ| RMS, grew by
-  /// more than this factor over the first step's throws Error instead of returning the iterate.
-  double runaway_misfit = 1.05;
+  /// On a cap of directions the second step's objective falls towards an infinite offset and a vanishing A (and
+  /// a few far outliers can run it away on a full sphere): a second step that has not converged and whose misfit
+  /// in the readings' units, the RMS of (|h| − H′)/|Aᵀĥ| (H′² = H² + μ, its own radius), grew by more than this
+  /// factor over the first step's throws Error, naming the first step's coverage and its farthest reading,
+  /// instead of returning the iterate. inf: never.
+  double runaway_misfit = 1.1;
 };
 
 /// Calibration (model "twostep", A symmetric) and Summary: iterations and converged of the second

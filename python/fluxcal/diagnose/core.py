@@ -120,7 +120,8 @@ class Diagnosis:
     an accepted row's `heldout_leverage` is the
     held-out readings' mean leverage for a fit on the rest (the variance, in noise variances, of its
     prediction there) and `heldout_gain_unresolved` whether the held-out gap's fall is within 2√2 σ √leverage
-    (what the two fits' parameter noise alone can make), then said in `caveats`;
+    (what the two fits' parameter noise alone can make), then said in `caveats` (infinite, None in the JSON with
+    `heldout_leverage_undetermined`, when the rest does not determine every parameter they depend on);
     every judged row's `heldout_noise_floor` is the held-out field error that white noise σ alone leaves
     through the calibration without it, and `distortion` the largest change (RMS, in units of the signal)
     that one signal-dependent effect makes to the readings in the fit with it; a row otherwise significant
@@ -187,7 +188,7 @@ class Diagnosis:
     def save_json(self, path) -> Path:
         path = Path(path)
         path.parent.mkdir(parents=True, exist_ok=True)
-        path.write_text(json.dumps(self.to_dict(), indent=2, default=_jsonable) + "\n")
+        path.write_text(json.dumps(_finite(self.to_dict()), indent=2, default=_jsonable, allow_nan=False) + "\n")
         return path
 
     def text(self) -> str:
@@ -199,6 +200,18 @@ class Diagnosis:
         from .report import write_report
 
         return write_report(self, folder)
+
+
+def _finite(value):
+    """`value` with every non-finite float as None (JSON has no Infinity or NaN: strict readers reject them; an
+    undetermined held-out leverage is infinite, and its row says `heldout_leverage_undetermined`)."""
+    if isinstance(value, dict):
+        return {k: _finite(v) for k, v in value.items()}
+    if isinstance(value, (list, tuple, np.ndarray)):
+        return [_finite(v) for v in value]
+    if isinstance(value, (float, np.floating)) and not np.isfinite(value):
+        return None
+    return value
 
 
 def _jsonable(value):
@@ -919,8 +932,9 @@ def _profile_value(cls, ctx, result: dict, Q: np.ndarray, e: np.ndarray, vector:
     `keep` (a mask of the residuals): chosen on those alone. Returns (value, the part of e its features take)."""
     from scipy.optimize import minimize_scalar
 
-    if keep is not None:
-        Q, e = np.linalg.qr(Q[keep])[0], e[keep]
+    if keep is not None:  # (an SVD: an accepted event's columns can vanish on the kept rows, leaving Q[keep] short of rank)
+        U, singular, _ = np.linalg.svd(Q[keep], full_matrices=False)
+        Q, e = U[:, singular > 1e-10 * singular.max()], e[keep]
 
     def gain(value):
         Z = _project(result, cls.features_at(ctx, value), vector)
@@ -1783,7 +1797,10 @@ def diagnose(samples, t=None, temp=None, reference=None, gravity=None, field_nor
                              unmet=list(r["unmet"]) + ["heldout_resolved"],
                              note=f"not confirmed beside {', '.join(accepted)}: its held-out gap's fall "
                                   f"{r['heldout_gap_before']:.3g} → {r['heldout_gap_after']:.3g} is within what the "
-                                  "two fits' parameter noise alone can make")
+                                  "two fits' parameter noise alone can make" if np.isfinite(leverage) else
+                                  f"not confirmed beside {', '.join(accepted)}: the other readings do not determine "
+                                  "every parameter its held-out readings depend on, so its held-out test tests "
+                                  "nothing")
             winners = [r for r in winners if r["significant"]]
         for r in rows:
             last_rows[r["effect"]] = r
@@ -1857,8 +1874,9 @@ def diagnose(samples, t=None, temp=None, reference=None, gravity=None, field_nor
                    f"{r['heldout_gap_before']:.3g} → {r['heldout_gap_after']:.3g} is within twice what two such "
                    f"errors can make ({2 * np.sqrt(2) * floor:.3g})") if np.isfinite(floor) else \
                   ("the rest does not determine every parameter they depend on (it cannot tell some of the "
-                   f"effects' terms apart), so the gap's fall {r['heldout_gap_before']:.3g} → "
-                   f"{r['heldout_gap_after']:.3g} judges the fit on all the readings")
+                   "effects' terms apart), so the held-out fits leave part of their prediction at their starting "
+                   f"values: the gap's fall {r['heldout_gap_before']:.3g} → {r['heldout_gap_after']:.3g} does not "
+                   "test the effect")
             caveats.append(f"{name}: its held-out test may not be trusted — held out ({r['heldout']}, "
                            f"{r['heldout_n']} readings), {why}. The recording "
                            f"({len(data.m)} readings{f' over {np.ptp(data.t):.3g} s' if timestamps else ''}) may be "
@@ -1892,6 +1910,8 @@ def diagnose(samples, t=None, temp=None, reference=None, gravity=None, field_nor
             r.pop(key, None)
         r.setdefault("significant", False)
         r["significant"] = r["effect"] in accepted
+        if r.get("heldout_leverage") is not None and not np.isfinite(r["heldout_leverage"]):
+            r["heldout_leverage_undetermined"] = True
 
     final = state["result"]
     e_final = np.asarray(final["residuals"])
