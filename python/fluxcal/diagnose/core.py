@@ -251,7 +251,8 @@ CLOCK_JUMPS = 0.01  # t going backwards at up to this fraction of the rows: a lo
                    # (Arduino's micros() every 71.6 min) or was reset, kept in row order; more: rows out of order
 UNEVEN = 0.05  # time steps spread by more than this fraction of the median step (MAD): a turning sensor's readings
               # then differ by the motion × the uneven step as well, which a difference of rows takes for noise
-BELOW_NOISE = 0.8  # base residual RMS under this × σ: σ is not the noise (a right model leaves σ √(1 − p/N))
+BELOW_NOISE = 0.8  # the base residuals' own 3rd-difference σ under this × σ: σ is not the noise (a right model's
+                   # residuals hold the noise, σ √(1 − p/N); the real recordings' ratio is 0.88–1.02)
 UNORDERED = 0.25  # a 3rd-difference σ above this × the readings' own spread: consecutive readings differ about
                   # as much as any two (i.i.d. rows give ≈ 1, a turned sensor ≪ 0.01), so they are not a time series
 
@@ -273,7 +274,7 @@ def _noise(data: _Data, base: dict) -> tuple:
     order; steps between positions held a few readings each: it rises) or are not a time series at all
     (rows shuffled or sorted with no times given: consecutive readings differ as much as any two); then
     third differences of the base model's residuals in time order, which no longer hold the field's
-    rotation — also when the base model leaves less than BELOW_NOISE σ (a random walk of the attitude makes white
+    rotation — also when those differ by less than BELOW_NOISE σ (a random walk of the attitude makes white
     steps in the readings, which differences of any order take for noise). A reference-vector model's residuals
     hold the attitude's errors, so the smaller of the two is taken. Returns (σ, source, bound): `bound` when σ
     came from residuals out of time order, which hold all the model misses (an upper bound on the noise, not the
@@ -284,14 +285,14 @@ def _noise(data: _Data, base: dict) -> tuple:
     spread = np.sqrt(np.mean(np.var(data.m, axis=0)))
     unit = f" {data.units}" if data.units else ""
     uneven = _uneven_steps(data.t)
-    e = np.asarray(base["residuals"]).reshape(len(data.m), -1)
-    # the base model leaving less than the noise: the differences held motion that is white in them too (a random
-    # walk of the attitude; a blind check: σ 2.8× the truth, every effect then "below the noise")
+    e = np.asarray(base["residuals"]).reshape(len(data.m), -1)[np.argsort(data.t, kind="stable")]
+    from_residuals = _difference_noise(e, 3)
+    # the base model's residuals differing less than the noise: the readings' differences held motion that is white
+    # in them too (a random walk of the attitude: σ 2.8× the truth, every effect then "below the noise"; a brisk
+    # random tumble: 1.8–2× with the 4th order only 4 % below the 3rd — two blind checks)
     orders_differ = abs(fourth - sigma) > (1 - MOTION_DROP) * sigma
-    below = np.sqrt(np.mean(e ** 2)) < BELOW_NOISE * sigma
+    below = from_residuals < BELOW_NOISE * sigma
     if orders_differ or sigma > UNORDERED * spread or uneven or below:
-        e = e[np.argsort(data.t, kind="stable")]
-        from_residuals = _difference_noise(e, 3)
         # the readings do vary (not a static sensor, whose spread is its noise), yet jump between rows
         unordered = sigma > UNORDERED * spread and spread > 1 / UNORDERED * from_residuals
         if from_residuals < sigma and unordered:
@@ -305,7 +306,7 @@ def _noise(data: _Data, base: dict) -> tuple:
         elif from_residuals < sigma:
             why = (f"readings taken at uneven times (steps spread by {100 * uneven:.0f} % of the median step)"
                    if uneven else "fast turns, or steps between held positions" if orders_differ
-                   else "the base model leaves less than that")
+                   else "the base model's residuals differ by less than that")
             source = (f"estimated from third differences of the base model's residuals: the readings' own "
                       f"differences hold the motion — {why} ({sigma:.4g}{unit} from 3rd, {fourth:.4g}{unit} from "
                       "4th order)")
