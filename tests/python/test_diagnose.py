@@ -1172,6 +1172,30 @@ def test_a_gain_equal_on_every_axis_warming_up_is_named_beside_a_free_course(rea
         assert "a free course in time fits a drift" in d.text() and "a second recording from power-on" in d.text()
 
 
+def test_a_brisk_random_tumble_is_not_taken_for_noise():
+    """A tumble whose angular velocity wanders (1.3 rad/s RMS, 1 s correlation) at 50 Hz: third differences of the
+    readings hold the motion (σ 0.0815 against 0.05, the 4th order only a few per cent under the 3rd), while an
+    offset step keeps the base residuals' RMS above 0.8 σ (a blind check: a step with a temperature scale missed).
+    The residuals' own third differences show the noise: σ comes from them when they show less than 0.8 σ."""
+    from scipy.spatial.transform import Rotation
+
+    rng = np.random.default_rng(5)
+    n, dt = 6000, 0.02
+    w = np.zeros((n, 3))
+    for k in range(1, n):  # Ornstein–Uhlenbeck angular velocity
+        w[k] = w[k - 1] * (1 - dt) + 1.3 * np.sqrt(2 * dt) * rng.standard_normal(3)
+    attitudes = Rotation.from_quat(np.array([q.as_quat() for q in
+                                             np.cumprod([Rotation.identity()] + [Rotation.from_rotvec(v * dt)
+                                                                                 for v in w[1:]])]))
+    t = np.arange(n) * dt
+    m = attitudes.inv().apply(50 * np.array([np.cos(1.05), 0, np.sin(1.05)])) + [12.0, -5.0, 8.0]
+    m += 0.05 * rng.standard_normal((n, 3))
+    m[(t >= 40) & (t < 80)] += 0.2 * np.array([0.7, 0.1, -0.7])
+    d = diagnose(m, t=t)
+    assert abs(d.noise_sigma / 0.05 - 1) < 0.1, d.noise_sigma
+    assert "third differences of the base model's residuals" in d.noise_source and d.accepted == ["offset_step"]
+
+
 def test_a_random_walk_of_the_attitude_is_not_taken_for_noise():
     """A tumble with a random walk on top (1.1° per reading about each axis) changes the readings by white steps,
     which differences of any order take for noise: σ came out 3.8× the truth, the base model left less than it,
