@@ -632,10 +632,7 @@ TwoStepResult twostep(const SamplesRef& samples, const TwoStepOptions& options) 
     throw Error(msg.str());
   }
   Calibration& cal = out.calibration;
-  cal.offset = centre + scale * m.q;
-  cal.matrix = (H / scale) * eig.eigenvectors() * eig.eigenvalues().cwiseSqrt().asDiagonal() *
-               eig.eigenvectors().transpose();
-  cal.field_norm = H;
+  cal = calibration_of(m, centre, scale, H);
   cal.units = options.units;
   cal.model = "twostep";
 
@@ -670,17 +667,13 @@ TwoStepResult twostep(const SamplesRef& samples, const TwoStepOptions& options) 
     // (the iterate's own radius: the noise mean μ it fitted puts |h|² at H² + μ, which is no runaway)
     const Misfit before = reading_misfit(samples, start, H), after = reading_misfit(samples, cal, H * std::sqrt(1.0 + mu));
     if (!(after.rms <= options.runaway_misfit * before.rms)) {
-      const Eigen::Index rows = samples.rows(), step = options.coverage_rows > 0
-                                                           ? std::max<Eigen::Index>(1, rows / options.coverage_rows)
-                                                           : 1;
-      const double reachable = 1.0 - std::pow(1.0 - 1.0 / kDirectionBins, static_cast<double>((rows + step - 1) / step));
       throw Error("samples: the second step of the two-step calibration ran away from the readings (not converged "
                   "after " + std::to_string(sum.iterations) + " iterations; their misfit to its ellipsoid, in the "
                   "readings' units, grew from " + num(before.rms) + " to " + num(after.rms) + "). Either the "
                   "readings cover too little of the sphere — the first step sees " +
                   percent(direction_coverage(samples, start, options.coverage_rows)) + " of the field directions, "
-                  "where " + num(static_cast<double>(rows)) + " readings spread evenly would fill " +
-                  percent(reachable) + "; on a cap the objective falls towards an infinite offset: turn the sensor "
+                  "where " + num(static_cast<double>(samples.rows())) + " readings spread evenly would fill " +
+                  percent(detail::reachable_coverage(samples.rows(), options.coverage_rows)) + "; on a cap the objective falls towards an infinite offset: turn the sensor "
                   "through more orientations (tumble it) — or a few readings lie far off the ellipsoid (row " +
                   std::to_string(before.worst_row) + " is " + num(before.worst) + " from the first step's, " +
                   num(before.worst / before.rms) + " times the misfit): drop such outliers. Calibrate's maximum "
