@@ -1214,3 +1214,47 @@ def test_a_random_walk_of_the_attitude_is_not_taken_for_noise():
     m[(t >= 40) & (t < 80)] += 0.6 * np.array([0.7, 0.1, -0.7])
     d = diagnose(m, t=t)
     assert abs(d.noise_sigma / 0.1 - 1) < 0.1 and d.accepted == ["offset_step"], (d.noise_sigma, d.accepted)
+
+
+def _with_flicker(readings: np.ndarray, sigma: float, seed: int) -> np.ndarray:
+    """Readings with flicker (1/f) noise of standard deviation sigma added to each axis: a wandering offset."""
+    n = len(readings)
+    white = np.random.default_rng(seed).standard_normal((n, 3))
+    f = np.fft.rfftfreq(n)
+    shaping = np.where(f > 0, 1.0 / np.sqrt(np.maximum(f, 1.0 / n)), 0.0)
+    noise = np.fft.irfft(np.fft.rfft(white, axis=0) * shaping[:, None], n, axis=0)
+    return readings + sigma * noise / noise.std()
+
+
+@pytest.mark.parametrize("seed", [1, 3, 6])
+def test_a_wandering_offset_is_not_taken_for_a_step(seed):
+    """Flicker (1/f) noise as large as the white noise on each axis is an offset wandering in time. The AR model of
+    the magnitude's series, in which the turning sensor mixes the axes, left an offset step's whitened LR at 49 for
+    3 terms: a step was named in these seeds (5 of 8). Under the wandering-offset noise model it is not."""
+    result, kwargs = withheld_trial([], seed=seed)
+    d = diagnose(_with_flicker(result.readings, 0.05, 1000 + seed), **kwargs)
+    assert not {"offset_step", "moving_dipole", "offset_drift", "temp_offset"} & set(d.accepted), d.accepted
+    assert "colored_noise" in d.accepted
+
+
+@pytest.mark.parametrize("names", [["offset_step"], ["moving_dipole"], ["offset_drift"], ["temp_offset"]])
+def test_an_effect_in_a_wandering_offset_is_still_found(names):
+    """The same flicker noise with a typical effect added: the wandering-offset model costs them nothing."""
+    result, kwargs = withheld_trial(names, seed=2)
+    d = diagnose(_with_flicker(result.readings, 0.05, 1002), **kwargs)
+    assert names[0] in d.accepted, d.accepted
+
+
+def test_a_large_step_is_confirmed_where_it_acts(real_data):
+    """The phone recording's first two minutes with the offset stepping by 12 % of the field for 26 s (a blind check:
+    ΔBIC −9298, box found within 3 s, held-out gap 0.0078 → 0.0044, yet missed). The held-out block test had used
+    every held-out reading, 4 of its 5 blocks outside the step, where the fits differ only by their shared
+    parameters' noise: p 0.12. It now tests where the candidate acts."""
+    m = np.loadtxt(real_data / "phone_acc_mag.csv", delimiter=",", skiprows=1, usecols=(3, 4, 5))[:6000]
+    t = np.arange(len(m)) / 50.0
+    H = float(np.mean(np.linalg.norm(fluxcal.calibrate(m).apply(m), axis=1)))
+    step = np.outer((t >= 24.2) & (t < 50.5), 0.12 * H * np.array([0.6, -0.48, 0.64]))
+    d = diagnose(m + step @ np.linalg.inv(np.asarray(fluxcal.calibrate(m).matrix)).T, t=t)
+    assert d.accepted[:1] == ["offset_step"], d.accepted
+    row = d.ranking[0]
+    assert abs(row["on_s"] - 24.2) < 4 and abs(row["off_s"] - 50.5) < 4, (row["on_s"], row["off_s"])

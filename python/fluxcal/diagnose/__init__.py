@@ -14,8 +14,11 @@ it, and how far the gap shrinks once that effect is modelled — proved on held-
 2. Which: every candidate effect of `fluxcal.sim.effects.CANDIDATES` (whose regressors the recording
    has) gets a score test at the base fit, a check that existing parameters do not absorb it, then a
    refit of the augmented model (Ceres, `refine_terms`): likelihood-ratio statistic, ΔAIC, ΔBIC. The
-   p-value comes from the likelihood ratio under the augmented fit's own noise model (an AR(p) of its
-   residuals whitens both fits), so slow correlated noise is not taken for a drift or a disturbance.
+   p-value comes from the likelihood ratio under the augmented fit's own noise model, so slow correlated
+   noise is not taken for a drift or a disturbance: an AR(p) of its residuals whitens both fits, and a
+   wandering offset (each axis's offset a random walk through 32 times of the recording, its strength by
+   maximum likelihood; the turning sensor mixes the axes' wander in the magnitude's series, where the AR
+   model cannot see it) — the smaller of the two ratios.
 3. How far: each candidate is fitted again without a held-out regime — the last quarter in time, the
    hottest quarter, the highest-current quarter, a cap of unseen orientations, or interleaved blocks of time for events — and judged
    there: the gap √(RMS² − σ²) before and after, and the downstream errors (field; with reference
