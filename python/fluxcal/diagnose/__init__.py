@@ -19,28 +19,27 @@ it, and how far the gap shrinks once that effect is modelled — proved on held-
    wandering offset (each axis's offset a random walk through 32 times of the recording, its strength by
    maximum likelihood; the turning sensor mixes the axes' wander in the magnitude's series, where the AR
    model cannot see it) — the smaller of the two ratios.
-3. How far: each candidate is fitted again without a held-out regime — the last quarter in time, the
-   hottest quarter, the highest-current quarter, a cap of unseen orientations, or interleaved blocks of time for events — and judged
-   there: the gap √(RMS² − σ²) before and after, and the downstream errors (field; with reference
-   vectors the direction and, given the down direction, the heading). Effects are added greedily while
-   the best one is significant (whitened likelihood ratio after a Bonferroni correction over the
+3. How far: each candidate is fitted again without a held-out regime — the last quarter in time, the hottest
+   quarter, the highest-current quarter, a cap of unseen orientations, or interleaved blocks of time for
+   events — and judged there: the gap √(RMS² − σ²) before and after, and the downstream errors (field; with
+   reference vectors the direction and, given the down direction, the heading). Effects are added greedily
+   while the best one is significant (whitened likelihood ratio after a Bonferroni correction over the
    candidates and their alternatives, ΔBIC < 0, and a held-out improvement that a block test finds
-   significant: Wilcoxon signed ranks on block means). Features non-linear in the signal are computed
-   from the fitted model's noise-free reading, so the reading noise cannot fake them, then again at the
-   signal (and, for cross_axis' exact 1/(1 + s_e/H_k), the coefficients) of the fit that models them; their
-   absorption is judged on the part not affine in the signal (offset and matrix hold the rest). Saturation's
-   limit is profiled (a 1-D search, each step a linear refit) and counted as a parameter. An effect in the
-   transducer (a gain, a non-linearity) is tried acting on the field with the offset (the platform's hard
-   iron) and on the field alone (the sensor's own electronic offset, added after it), counted as alternatives;
-   the row's `offset_kind` says which when the data decide. A fit with a sign the effect's physics forbids
-   (an expanding saturation, a hysteresis ahead of its input) is not that effect. Systematic effects
-   are tried before
-   noise models: a systematic effect predicts unseen regimes, correlated noise only the next sample.
-   When none is significant but one passed every in-sample test, it is added on trial: two large
-   effects at once (a magnet passing while the offset jumps) each fail the held-out test while the
-   other is unmodelled, and are kept together when each passes with the other modelled (`found_with`).
-   An accepted event's time profile is refined (moving_dipole: Legendre degree by BIC), so that what a
-   low-order shape leaves is not taken for a second event.
+   significant: a sign-flip test of block means, each block twice the noise's correlation length in sample).
+   Features non-linear in the signal are computed from the fitted model's noise-free reading, so the reading
+   noise cannot fake them, then again at the signal (and, for cross_axis' exact 1/(1 + s_e/H_k), the
+   coefficients) of the fit that models them; their absorption is judged on the part not affine in the
+   signal (offset and matrix hold the rest). Saturation's limit is profiled (a 1-D search, each step a
+   linear refit) and counted as a parameter. An effect in the transducer (a gain, a non-linearity) is tried
+   acting on the field with the offset (the platform's hard iron) and on the field alone (the sensor's own
+   electronic offset, added after it), counted as alternatives; the row's `offset_kind` says which when the
+   data decide. A fit with a sign the effect's physics forbids (an expanding saturation, a hysteresis ahead
+   of its input) is not that effect. Systematic effects are tried before noise models: a systematic effect
+   predicts unseen regimes, correlated noise only the next sample. When none is significant but one passed
+   every in-sample test, it is added on trial: two large effects at once (a magnet passing while the offset
+   jumps) each fail the held-out test while the other is unmodelled, and are kept together when each passes
+   with the other modelled (`found_with`). An accepted event's time profile is refined (moving_dipole:
+   Legendre degree by BIC), so that what a low-order shape leaves is not taken for a second event.
 4. What the recording cannot decide: a candidate that explained it as well as an accepted effect (ΔBIC
    within CONFOUND_BIC = 10) and adds nothing once that effect is modelled is its rival, reported in
    `Diagnosis.confounded` and as CANNOT TELL APART with what would separate them (a temperature that

@@ -583,28 +583,49 @@ def _heldout_leverage(data: _Data, result: dict, held: np.ndarray) -> float:
     return float(np.mean(np.sum((J[rows] @ V[:, determined] / np.sqrt(w[determined])) ** 2, axis=1)))
 
 
-def _improvement_pvalue(before: np.ndarray, after: np.ndarray) -> float:
-    """One-sided test that held-out squared residuals fell: a Wilcoxon signed-rank test on the means of
-    consecutive blocks of d = before² − after², each block at least twice the correlation length of the
-    residuals left (`after`: the noise as the augmented model sees it; correlated noise then gives few,
-    long blocks and cannot fake significance), 5 to 30 blocks. Signed ranks, not a t-test: an event's
-    gain sits in the two or three blocks that overlap it, and a t-test on such skewed means missed
-    8 blocks out of 8 positive (p 0.077)."""
+def _correlation_length(series: np.ndarray) -> int:
+    """The first lag at which the series' autocorrelation falls below 0.1 (its length when it never does)."""
+    n = len(series)
+    x = series - series.mean()
+    acf = np.fft.irfft(np.abs(np.fft.rfft(x, 2 * n)) ** 2)[:n]
+    acf = acf / acf[0] if acf[0] > 0 else np.zeros(n)
+    below = np.nonzero(acf < 0.1)[0]
+    return int(below[0]) if len(below) else n
+
+
+def _improvement_pvalue(before: np.ndarray, after: np.ndarray, length: int | None = None) -> float:
+    """One-sided test that held-out squared residuals fell: a sign-flip test of the means of consecutive blocks of
+    d = before² − after² (their sum against the sums with the blocks' signs flipped, exactly over every pattern),
+    each block at least twice the noise's correlation length — `length`, from the augmented fit's own residuals in
+    sample, else from `after`'s — so that correlated noise gives few, long blocks and cannot fake significance,
+    5 to 30 blocks.
+    The block means' sizes count, not only their signs or ranks: an event's gain sits in the few blocks that
+    overlap it (a t-test on such skewed means had missed 8 blocks out of 8 positive, p 0.077; the signed ranks that
+    followed, a magnet's 4 % pass simulated with white noise: 0.67 → 0.17 of held-out gap, p 0.0625). The held-out
+    misprediction of an imperfect shape is no noise: measured on `after` it had given that pass 5 blocks (a
+    correlation length of 101 readings, 28 in sample)."""
     d = before ** 2 - after ** 2
     n = len(d)
     if n < 10:
         return 1.0
-    x = after - after.mean()
-    spectrum = np.abs(np.fft.rfft(x, 2 * n)) ** 2
-    acf = np.fft.irfft(spectrum)[:n]
-    acf = acf / acf[0] if acf[0] > 0 else np.zeros(n)
-    below = np.nonzero(acf < 0.1)[0]
-    length = int(below[0]) if len(below) else n
+    length = _correlation_length(after) if length is None else length
     blocks = int(np.clip(n // max(2 * length, 1), 5, 30))
     means = np.array([c.mean() for c in np.array_split(d, blocks)])
     if np.allclose(means, means[0]):
         return 0.0 if means[0] > 0 else 1.0
-    return float(stats.wilcoxon(means, alternative="greater").pvalue)
+    # exact over all 2^blocks sign patterns: the sums of each half's 2^15 at most, then pairs by sorting
+    size = np.abs(means)
+    half = blocks // 2
+    first, second = _signed_sums(size[:half]), np.sort(_signed_sums(size[half:]))
+    at_least = means.sum() - 1e-12 * size.sum()
+    count = len(second) * len(first) - np.searchsorted(second, at_least - first, side="left").sum()
+    return float(count / 2.0 ** blocks)
+
+
+def _signed_sums(values: np.ndarray) -> np.ndarray:
+    """Σ ±values over every pattern of signs (2^len of them)."""
+    signs = 1.0 - 2.0 * ((np.arange(2 ** len(values))[:, None] >> np.arange(len(values))) & 1)
+    return signs @ values
 
 
 def _gap(residuals: np.ndarray, sigma: float) -> float:
@@ -1266,6 +1287,14 @@ def _held_regime(data, state, regime):
     return regime, held
 
 
+def _in_sample_length(fit: dict, data: _Data, rows: np.ndarray) -> int:
+    """The correlation length of a fit's residuals on the readings `rows` (mask), in time order (per reading: the
+    mean of its residuals)."""
+    e = np.asarray(fit["residuals"])
+    e = e.reshape(int(rows.sum()), -1).mean(axis=1)
+    return _correlation_length(e[np.argsort(data.t[rows], kind="stable")])
+
+
 def _validate(data, model, state, feats, regime, sigma) -> dict:
     """Fit with and without the candidate on all but a held-out regime; judge on the held-out part."""
     vector, fixed = MODELS[model]
@@ -1286,7 +1315,7 @@ def _validate(data, model, state, feats, regime, sigma) -> dict:
             "heldout_noise_floor": _noise_floor(before, data, base_feats, held, sigma),
             "heldout_gap_before": _gap(e0, sigma), "heldout_gap_after": _gap(e1, sigma),
             "heldout_rms_before": float(np.sqrt(np.mean(e0 ** 2))), "heldout_rms_after": float(np.sqrt(np.mean(e1 ** 2))),
-            "heldout_pvalue": _improvement_pvalue(e0, e1),
+            "heldout_pvalue": _improvement_pvalue(e0, e1, _in_sample_length(after, data, ~held)),
             **{f"{k}_before": v for k, v in _downstream(before, data, base_feats, held).items()},
             **{f"{k}_after": v for k, v in _downstream(after, data, all_feats, held).items()}}
 
