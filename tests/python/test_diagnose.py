@@ -1228,15 +1228,18 @@ def _with_flicker(readings: np.ndarray, sigma: float, seed: int) -> np.ndarray:
     return readings + sigma * noise / noise.std()
 
 
-@pytest.mark.parametrize("seed", [1, 3, 6])
-def test_a_wandering_offset_is_not_taken_for_a_step(seed):
+def test_a_wandering_offset_is_seldom_taken_for_a_step():
     """Flicker (1/f) noise as large as the white noise on each axis is an offset wandering in time. The AR model of
-    the magnitude's series, in which the turning sensor mixes the axes, left an offset step's whitened LR at 49 for
-    3 terms: a step was named in these seeds (5 of 8). Under the wandering-offset noise model it is not."""
-    result, kwargs = withheld_trial([], seed=seed)
-    d = diagnose(_with_flicker(result.readings, 0.05, 1000 + seed), **kwargs)
-    assert not {"offset_step", "moving_dipole", "offset_drift", "temp_offset"} & set(d.accepted), d.accepted
-    assert "colored_noise" in d.accepted
+    the magnitude's series, in which the turning sensor mixes the axes, had left an offset step's whitened LR at 49
+    for 3 terms: a step, magnet or temperature offset was named in 5 of these 12 seeds. Under the wandering-offset
+    noise model (a random walk through 32 times) in 2."""
+    named = 0
+    for seed in range(12):
+        result, kwargs = withheld_trial([], seed=seed)
+        d = diagnose(_with_flicker(result.readings, 0.05, 1000 + seed), **kwargs)
+        assert "colored_noise" in d.accepted, (seed, d.accepted)
+        named += bool({"offset_step", "moving_dipole", "offset_drift", "temp_offset"} & set(d.accepted))
+    assert named <= 3, named
 
 
 @pytest.mark.parametrize("names", [["offset_step"], ["moving_dipole"], ["offset_drift"], ["temp_offset"]])
@@ -1276,3 +1279,35 @@ def test_heldout_block_test_takes_the_blocks_length_from_the_noise_in_sample():
         _improvement_pvalue(before + misfit, after + misfit)
     draws = np.array([_improvement_pvalue(rng.normal(size=600), rng.normal(size=600), length=1) for _ in range(200)])
     assert np.mean(draws < 0.05) <= 0.09 and np.mean(draws < 0.5) > 0.35
+
+
+def test_heldout_block_test_is_free_of_units_and_refuses_non_finite():
+    """A review: an absolute tolerance had made every block mean alike for readings in tesla (p 0 or 1 from the first
+    block's sign), and a non-finite residual had given p 0, a pass, to the sign flips: it gives 1."""
+    from fluxcal.diagnose.core import _improvement_pvalue
+
+    rng = np.random.default_rng(4)
+    after = rng.normal(size=900)
+    before = after + 0.3 * rng.normal(size=900)
+    before[:200] += 1.0
+    p = _improvement_pvalue(before, after, length=1)
+    assert _improvement_pvalue(before * 1e-6, after * 1e-6, length=1) == pytest.approx(p, rel=1e-9)
+    before[5] = np.nan
+    assert _improvement_pvalue(before, after, length=1) == 1.0
+
+
+def test_in_sample_length_counts_residuals_not_readings():
+    """Against reference vectors each reading has three residuals: the blocks' length is in residuals (a review: in
+    readings, the vector model's blocks were a third as long as its noise's correlation)."""
+    from types import SimpleNamespace
+
+    from fluxcal.diagnose.core import _correlation_length, _in_sample_length
+
+    rng = np.random.default_rng(5)
+    walk = np.zeros(600)
+    for k in range(1, 600):
+        walk[k] = 0.95 * walk[k - 1] + rng.normal()
+    residuals = np.repeat(walk, 3) + 0.01 * rng.normal(size=1800)
+    rows = np.ones(600, bool)
+    length = _in_sample_length({"residuals": residuals}, SimpleNamespace(t=np.arange(600.0)), rows)
+    assert length == 3 * _correlation_length(residuals.reshape(-1, 3).mean(axis=1)) and length > 30
