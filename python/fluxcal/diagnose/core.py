@@ -1363,29 +1363,36 @@ def _whitened_lr(e0: np.ndarray, e1: np.ndarray, data: _Data, max_order: int = 3
 # walk through WANDER_KNOTS times (piecewise linear between them, the event search's own grid), its step variance
 # chosen by maximum likelihood. The AR noise model sees only the magnitude's series, in which the turning sensor
 # mixes the three axes' wander: an offset step fitted its slow excursions in 5 of 8 simulations with 1/f noise as
-# large as the white noise (whitened LR 49 for 3 terms, 599 boxes tried).
+# large as the white noise (whitened LR 49 for 3 terms, 599 boxes tried). (A knot per 100 readings protected
+# 20 000 readings better, a step in 1 of 6 such simulations against 3, but changed the QMC5883L recording's
+# diagnosis, a cubic added: not taken without knowing why.)
 WANDER_KNOTS = 32
 
 
 def _wander_basis(data: _Data, result: dict):
-    """The wandering offset's design in the residuals of `result`: (Z, s, V), Z the residuals' change for unit
-    random-walk steps of each axis's offset between consecutive knots (each residual's offset Jacobian times the
-    hat functions of its time), Z'Z = V diag(s) V'."""
+    """The wandering offset's design in the residuals of `result`: (H, S, s, V). H (sparse) is each residual's offset
+    Jacobian times the hat functions of its time, S the knots' values from the walk's steps (the offset at knot j
+    the sum of the steps before it; its level at the first knot is the base's offset): Z = H S is the residuals'
+    change for unit steps, Z'Z = V diag(s) V'. Z itself is dense (every later knot depends on a step), H has six
+    entries per reading."""
+    from scipy import sparse
+
     J = np.asarray(result["jacobian"])[:, :3]  # θ = [b, …]: the offset's columns
     t = np.asarray(data.t, dtype=float)
-    k = WANDER_KNOTS
+    per_reading, k = len(J) // len(t), WANDER_KNOTS
     knots = np.quantile(t, np.linspace(0, 1, k))
     knots = knots + np.arange(k) * 1e-9 * max(float(np.ptp(t)), 1.0)  # (distinct knots where times repeat)
     i = np.clip(np.searchsorted(knots, t, side="right") - 1, 0, k - 2)
     w = np.clip((t - knots[i]) / (knots[i + 1] - knots[i]), 0.0, 1.0)
-    hats = np.zeros((len(t), k))
-    hats[np.arange(len(t)), i], hats[np.arange(len(t)), i + 1] = 1.0 - w, w
-    # the offset at knot j is the sum of the steps before it; its level at the first knot is the base's offset
+    rows = np.repeat(np.arange(len(J)), 6)
+    reading = np.arange(len(J)) // per_reading
+    cols = (np.arange(3)[None, :, None] * k + np.stack([i, i + 1], axis=1)[reading][:, None, :]).reshape(-1)
+    vals = (J[:, :, None] * np.stack([1.0 - w, w], axis=1)[reading][:, None, :]).reshape(-1)
+    H = sparse.csr_matrix((vals, (rows, cols)), shape=(len(J), 3 * k))
     steps = np.tril(np.ones((k, k)), -1)[:, :k - 1]
-    course = np.repeat(hats @ steps, len(J) // len(t), axis=0)
-    Z = np.concatenate([J[:, [axis]] * course for axis in range(3)], axis=1)
-    s, V = np.linalg.eigh(Z.T @ Z)
-    return Z, np.clip(s, 0.0, None), V
+    S = np.kron(np.eye(3), steps)
+    s, V = np.linalg.eigh(S.T @ (H.T @ H).toarray() @ S)
+    return H, S, np.clip(s, 0.0, None), V
 
 
 def _wander_lr(e0: np.ndarray, e1: np.ndarray, basis) -> float:
@@ -1396,9 +1403,9 @@ def _wander_lr(e0: np.ndarray, e1: np.ndarray, basis) -> float:
     likelihood ratio). Re-estimated (generalised least squares, τ profiled), the random walk took in a linear offset
     drift in 1/f noise (found in 0 of 3 simulations, 3 of 3 so) and confirmed less (a step named in 3 of 12
     simulations with 1/f noise, 2 of 12 so)."""
-    Z, s, V = basis
+    H, S, s, V = basis
     n = len(e1)
-    c0, c1 = V.T @ (Z.T @ e0), V.T @ (Z.T @ e1)
+    c0, c1 = V.T @ (S.T @ (H.T @ e0)), V.T @ (S.T @ (H.T @ e1))
 
     def quad(c, e, tau):
         return max(float(e @ e) - float(np.sum(tau * c ** 2 / (1.0 + tau * s))), 1e-300)
