@@ -51,9 +51,6 @@ inline std::string percent(double ratio) {
   return buf;
 }
 
-/// The poor-coverage warning on field directions, or "" when coverage is fine. Judged against what the rows
-/// looked at (`rows`, strided to at most `max_rows`) would fill if spread evenly over the sphere, 1 − (1 − 1/96)^n,
-/// times `poor`: 30 readings of a full tumble fill about 27 % of the bins, and were told to turn more.
 /// The readings looked at for direction coverage (an even stride of at most max_rows; 0 = all).
 inline double coverage_readings(Eigen::Index rows, Eigen::Index max_rows) {
   const Eigen::Index step = max_rows > 0 ? std::max<Eigen::Index>(1, rows / max_rows) : 1;
@@ -65,6 +62,9 @@ inline double reachable_coverage(Eigen::Index rows, Eigen::Index max_rows) {
   return 1.0 - std::pow(1.0 - 1.0 / 96.0, coverage_readings(rows, max_rows));
 }
 
+/// The poor-coverage warning on field directions, or "" when coverage is fine. Judged against what the rows
+/// looked at (`rows`, strided to at most `max_rows`) would fill if spread evenly over the sphere, 1 − (1 − 1/96)^n,
+/// times `poor`: 30 readings of a full tumble fill about 27 % of the bins, and were told to turn more.
 inline std::string direction_coverage_warning(double coverage, Eigen::Index rows, Eigen::Index max_rows, double poor) {
   const double n = coverage_readings(rows, max_rows), reachable = reachable_coverage(rows, max_rows);
   if (coverage >= poor * reachable) return "";

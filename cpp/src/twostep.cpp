@@ -665,7 +665,8 @@ TwoStepResult twostep(const SamplesRef& samples, const TwoStepOptions& options) 
     // when a few readings lie far off (an outlier at twice the field's distance ran a full sphere away).
     const Calibration start = calibration_of(first, centre, scale, H);
     // (the iterate's own radius: the noise mean μ it fitted puts |h|² at H² + μ, which is no runaway)
-    const Misfit before = reading_misfit(samples, start, H), after = reading_misfit(samples, cal, H * std::sqrt(1.0 + mu));
+    const Misfit before = reading_misfit(samples, start, H),
+                 after = reading_misfit(samples, cal, H * std::sqrt(1.0 + mu));
     if (!(after.rms <= options.runaway_misfit * before.rms)) {
       throw Error("samples: the second step of the two-step calibration ran away from the readings (not converged "
                   "after " + std::to_string(sum.iterations) + " iterations; their misfit to its ellipsoid, in the "
@@ -673,8 +674,9 @@ TwoStepResult twostep(const SamplesRef& samples, const TwoStepOptions& options) 
                   "readings cover too little of the sphere — the first step sees " +
                   percent(direction_coverage(samples, start, options.coverage_rows)) + " of the field directions, "
                   "where " + num(static_cast<double>(samples.rows())) + " readings spread evenly would fill " +
-                  percent(detail::reachable_coverage(samples.rows(), options.coverage_rows)) + "; on a cap the objective falls towards an infinite offset: turn the sensor "
-                  "through more orientations (tumble it) — or a few readings lie far off the ellipsoid (row " +
+                  percent(detail::reachable_coverage(samples.rows(), options.coverage_rows)) +
+                  "; on a cap the objective falls towards an infinite offset: turn the sensor through more "
+                  "orientations (tumble it) — or a few readings lie far off the ellipsoid (row " +
                   std::to_string(before.worst_row) + " is " + num(before.worst) + " from the first step's, " +
                   num(before.worst / before.rms) + " times the misfit): drop such outliers. Calibrate's maximum "
                   "likelihood says what the readings determine; max_iterations = 0 gives the first step alone");

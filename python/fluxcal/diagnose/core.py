@@ -1411,10 +1411,10 @@ def _wander_lr(e0: np.ndarray, e1: np.ndarray, basis) -> float:
         return max(float(e @ e) - float(np.sum(tau * c ** 2 / (1.0 + tau * s))), 1e-300)
 
     positive = s[s > s.max() * 1e-12]
-    if not positive.size:  # no offset to wander (held at its start)
-        return max(0.0, n * np.log(max(float(e0 @ e0), 1e-300) / max(float(e1 @ e1), 1e-300)))
-    # from a wander far under the noise to one far over it, whatever the recording's length (Z'Z grows with N)
-    taus = np.concatenate([[0.0], np.geomspace(1e-4 / positive.max(), 1e4 / positive.min(), 61)])
+    # from a wander far under the noise to one far over it, whatever the recording's length (Z'Z grows with N); none
+    # when there is no offset to wander (held at its start): τ 0, the plain ratio
+    taus = np.concatenate([[0.0], np.geomspace(1e-4 / positive.max(), 1e4 / positive.min(), 61)
+                           if positive.size else []])
     nll = [n * np.log(quad(c1, e1, tau)) + float(np.sum(np.log1p(tau * s))) for tau in taus]
     tau = taus[int(np.argmin(nll))]
     return max(0.0, n * np.log(quad(c0, e0, tau) / quad(c1, e1, tau)))
