@@ -211,7 +211,8 @@ def text(d) -> str:
     out += ["  " + line for line in ranking_lines(d)]
     out += ["  (LR p: the likelihood ratio on residuals whitened for their correlation in time (the smaller of an AR "
             "model's and a wandering offset's), × the alternatives tried — slow correlated noise lowers ΔBIC, from "
-            "the plain ratio, without being an effect; YES needs both, then the held-out test. Downstream: the calibrated field's error held out"
+            "the plain ratio, without being an effect; YES needs both, then the held-out test. Downstream: the "
+            "calibrated field's error held out"
             + (f", {u.strip()}" if u.strip() else "") + "; --json gives each row's \"unmet\": the tests it fails.)", ""]
     if d.clipping:
         unit = f" {d.units}" if d.units else ""
