@@ -38,8 +38,11 @@ it, and how far the gap shrinks once that effect is modelled — proved on held-
    predicts unseen regimes, correlated noise only the next sample. When none is significant but one passed
    every in-sample test, it is added on trial: two large effects at once (a magnet passing while the offset
    jumps) each fail the held-out test while the other is unmodelled, and are kept together when each passes
-   with the other modelled (`found_with`). An accepted event's time profile is refined (moving_dipole:
-   Legendre degree by BIC), so that what a low-order shape leaves is not taken for a second event.
+   with the other modelled (`found_with`). A moving_dipole is a box in time (a magnet switched on or moved
+   within it) or a pass on a straight line at a steady speed (Anderson's functions: closest approach
+   `closest_s`, passage time `passage_s`), whichever fits better. An accepted event's time profile is refined
+   (a box: Legendre degree by BIC; a pass: the magnitude's second-order term), so that what a low-order shape
+   leaves is not taken for a second event.
 4. What the recording cannot decide: a candidate that explained it as well as an accepted effect (ΔBIC
    within CONFOUND_BIC = 10) and adds nothing once that effect is modelled is its rival, reported in
    `Diagnosis.confounded` and as CANNOT TELL APART with what would separate them (a temperature that

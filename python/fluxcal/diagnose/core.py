@@ -109,10 +109,12 @@ class Diagnosis:
     (it acts on the offset too: a field at the sensor) or "electronic" (the offset is the sensor's own, added
     after the transducer); None when undecided;
     `on_s`/`off_s` give an event's box (moving_dipole, offset_step: first and last time within it, None at
-    the recording's ends); an accepted offset_step's `jump`, `jump_s`, `back_s` the step as a jump (a box
+    the recording's ends; for a moving_dipole's pass, the times it reaches), a pass's `closest_s` and
+    `passage_s` its closest approach and the time it takes to travel its closest distance; an accepted offset_step's `jump`, `jump_s`, `back_s` the step as a jump (a box
     from the recording's start reverses the coefficients' sign); `found_with` names the effect a row was found together with (each passed its
     held-out test only with the other modelled); `shape_terms` the terms of an accepted dipole's refined
-    time profile (its `coefficients`, in units of the field norm: Legendre P0… across the box, each times
+    time profile (its `coefficients`, in units of the field norm: Legendre P0… across the box — for a pass
+    Anderson's τⁿ/(1 + τ²)^(5/2), n = 0, 1, 2, then τⁿ/(1 + τ²)⁵, n = 0…4 —, each times
     the world's north, east and down when reference vectors and the down direction are given — P0·N,
     P0·E, P0·D, P1·N, … — else along the field); an accepted moving
     dipole's largest field in field units `peak_field` at `peak_s`, with `peak_ned` (north, east, down)

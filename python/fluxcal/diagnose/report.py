@@ -186,6 +186,10 @@ def moving_dipole_line(d, r) -> str:
     # untouched handheld log: from the start to 192 s of 300)
     hint = ("over most of the recording: more likely the surroundings or a soft iron changing slowly than a magnet "
             "passing" if np.ptp(t) > 0 and box > 0.5 * np.ptp(t) else "a magnet, a tool or a vehicle moving near the sensor?")
+    if r.get("closest_s") is not None:  # a pass (Anderson's functions): its closest approach, not a box
+        unit = " s" if d.series.get("timestamps", True) else " rows"
+        return (f"moving_dipole: a magnet or a vehicle passing, closest at {when(r['closest_s'])} (it travels its "
+                f"closest distance in {r['passage_s']:.3g}{unit}), largest at {when(r['peak_s'])}: {size}")
     return f"moving_dipole: an extra field from {on} to {off}, largest at {when(r['peak_s'])}: {size} ({hint})"
 
 
