@@ -110,8 +110,9 @@ class Diagnosis:
     after the transducer); None when undecided;
     `on_s`/`off_s` give an event's box (moving_dipole, offset_step: first and last time within it, None at
     the recording's ends; for a moving_dipole's pass, the times it reaches), a pass's `closest_s` and
-    `passage_s` its closest approach and the time it takes to travel its closest distance; an accepted offset_step's `jump`, `jump_s`, `back_s` the step as a jump (a box
-    from the recording's start reverses the coefficients' sign); `found_with` names the effect a row was found together with (each passed its
+    `passage_s` its closest approach and the time it takes to travel its closest distance; an accepted
+    offset_step's `jump`, `jump_s`, `back_s` the step as a jump (a box from the recording's start reverses the
+    coefficients' sign); `found_with` names the effect a row was found together with (each passed its
     held-out test only with the other modelled); `shape_terms` the terms of an accepted dipole's refined
     time profile (its `coefficients`, in units of the field norm: Legendre P0… across the box — for a pass
     Anderson's τⁿ/(1 + τ²)^(5/2), n = 0, 1, 2, then τⁿ/(1 + τ²)⁵, n = 0…4 —, each times

@@ -934,9 +934,9 @@ class MovingDipole(_TimeBox):
 
     @classmethod
     def _search_pass(cls, ctx, score):
-        """The pass search: coarse closest times (every passage time: the refinement's first level reaches half of
-        one either side) for each passage time, then the two refined in turn down to the sample spacing. (closest time and passage time or None, best score,
-        alternatives tried)."""
+        """The pass search: coarse closest times (every passage time: the refinement's first level reaches half
+        of one either side) for each passage time, then the two refined in turn down to the sample spacing.
+        (closest time and passage time or None, best score, alternatives tried)."""
         span, dt = float(np.ptp(ctx.t)), _sample_step(ctx.t)
         times = np.geomspace(max(2.0 * dt, span / 200), span / 16, cls.PASS_TIMES)
         if not span / 16 > 2.0 * dt:
