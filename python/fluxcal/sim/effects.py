@@ -883,13 +883,35 @@ class MovingDipole(_TimeBox):
     def apply(self, values, context):
         t = context.t
         on = (t >= self.t_on) & (t <= self.t_off)
-        frac = np.clip((t - self.t_on) / max(self.t_off - self.t_on, 1e-12), 0, 1)[:, None]
-        r = -(np.asarray(self.start) + frac * (np.asarray(self.end) - np.asarray(self.start)))  # dipole → sensor
+        frac = np.clip((t - self.t_on) / max(self.t_off - self.t_on, 1e-12), 0, 1)
+        return values + context.rotations.inv().apply(self._field(frac) * on[:, None])
+
+    def _field(self, frac: np.ndarray) -> np.ndarray:
+        """The dipole's field at the sensor (world frame) at fractions `frac` of its way from start to end."""
+        r = -(np.asarray(self.start) + frac[:, None] * (np.asarray(self.end) - np.asarray(self.start)))  # → sensor
         d = np.linalg.norm(r, axis=1, keepdims=True)
         rhat = r / d
         mvec = np.asarray(self.moment, dtype=float)
-        world = (3 * rhat * (rhat @ mvec)[:, None] - mvec) / d ** 3 * on[:, None]
-        return values + context.rotations.inv().apply(world)
+        return (3 * rhat * (rhat @ mvec)[:, None] - mvec) / d ** 3
+
+    @classmethod
+    def straight_pass(cls, field_norm, rng, t_close: float, t_pass: float, size: float = 0.03):
+        """A magnet carried past on a straight line at a steady speed: closest (0.25 m away) at `t_close`, travelling
+        that distance in `t_pass` s, its field at most `size` × `field_norm`; on from PASS_REACH passage times
+        before to as many after (beyond, under 0.2 % of its peak). The line's direction and the moment's are
+        random."""
+        distance = 0.25
+        along = rng.standard_normal(3)
+        along /= np.linalg.norm(along)
+        closest = rng.standard_normal(3)
+        closest -= (closest @ along) * along
+        closest *= distance / np.linalg.norm(closest)
+        reach = cls.PASS_REACH * distance * along
+        passing = cls(rng.standard_normal(3), closest - reach, closest + reach, t_close - cls.PASS_REACH * t_pass,
+                      t_close + cls.PASS_REACH * t_pass)
+        largest = np.max(np.linalg.norm(passing._field(np.linspace(0.0, 1.0, 1601)), axis=1))
+        passing.moment = passing.moment * size * field_norm / largest
+        return passing
 
     @classmethod
     def _box_rows(cls, ctx, t_on, t_off, degree: int = 2):

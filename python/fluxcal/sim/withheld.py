@@ -39,7 +39,7 @@ NOISE_EFFECTS = ("colored_noise", "quantization")
 
 def withheld_trial(names, seed: int, duration_s: float = DURATION, temperature=None, noise: float = NOISE,
                    rate_hz: float = 50.0, model: str | None = None, current=None, hard_iron: float = HARD_IRON,
-                   soft_iron: float = SOFT_IRON, electronic_offset: bool = False):
+                   soft_iron: float = SOFT_IRON, electronic_offset: bool = False, dipole=None):
     """Simulate the effects `names` (candidate names, may be empty); returns the Simulation and the
     keyword arguments of `fluxcal.diagnose` for it (t, temp, field_norm, model, and the reference with the
     down direction, the current, or the given noise, where the effect needs them). `temperature`: the scene's
@@ -50,7 +50,9 @@ def withheld_trial(names, seed: int, duration_s: float = DURATION, temperature=N
     withheld, else none). `hard_iron`: the largest hard iron |b| as a multiple of the field (each axis
     uniform within ±hard_iron·H/√3); `soft_iron`: the axes' scale errors (uniform within ±soft_iron), the
     soft iron's off-diagonal terms within ±0.6 of that. `electronic_offset`: the offset is the sensor's own, added
-    after the transducer's effects (its gain and non-linearity do not act on it), not the platform's hard iron."""
+    after the transducer's effects (its gain and non-linearity do not act on it), not the platform's hard iron.
+    `dipole`: the moving_dipole to simulate when it is withheld, instead of a typical one (e.g.
+    `MovingDipole.straight_pass`)."""
     by_name = {c.name: c for c in CANDIDATES}
     unknown = [n for n in names if n not in by_name]
     if unknown:
@@ -64,6 +66,8 @@ def withheld_trial(names, seed: int, duration_s: float = DURATION, temperature=N
     b = rng.uniform(-1, 1, 3) * (hard_iron * float(np.linalg.norm(FIELD))) / np.sqrt(3)
 
     def make(name):
+        if name == "moving_dipole" and dipole is not None:
+            return dipole
         cls = by_name[name]
         if name in TIMED:
             return cls.typical(50.0, rng, duration_s)
