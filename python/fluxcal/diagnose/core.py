@@ -115,7 +115,7 @@ class Diagnosis:
     coefficients' sign); `found_with` names the effect a row was found together with (each passed its
     held-out test only with the other modelled); `shape_terms` the terms of an accepted dipole's refined
     time profile (its `coefficients`, in units of the field norm: Legendre P0… across the box — for a pass
-    Anderson's τⁿ/(1 + τ²)^(5/2), n = 0, 1, 2, then τⁿ/(1 + τ²)⁵, n = 0…4 —, each times
+    against magnitudes Anderson's τⁿ/(1 + τ²)^(5/2), n = 0, 1, 2, then τⁿ/(1 + τ²)⁵, n = 0…4 —, each times
     the world's north, east and down when reference vectors and the down direction are given — P0·N,
     P0·E, P0·D, P1·N, … — else along the field); an accepted moving
     dipole's largest field in field units `peak_field` at `peak_s`, with `peak_ned` (north, east, down)
@@ -432,6 +432,7 @@ def _context(data: _Data, result: dict, feats=None) -> SimpleNamespace:
     # white-noise trials at σ = 1 % of the field, and was accepted in 6.
     signal = theta[:3] + direction
     return SimpleNamespace(signal=signal, readings=data.m, scale=float(np.median(np.linalg.norm(signal, axis=1))),
+                           vector=data.reference is not None,
                            field=field, W=W, direction=direction, t=data.t, temp=data.temp,
                            current=data.current, world=_world_axes(data, W))
 
@@ -1269,7 +1270,8 @@ def _collapsed(data: _Data, winner: dict, rows: list) -> list:
 
 def _validated_terms(state: dict) -> np.ndarray:
     """Start values for the held-out fits' terms: each accepted block's own, its leading ones where the
-    block was fitted in a richer form (the low-order terms lead: Legendre P0–P2 of the same box)."""
+    block was fitted in a richer form (the low-order terms lead: Legendre P0–P2 of the same box, a pass's
+    first-order profiles)."""
     out, lo = [], 0
     for full, low in zip(state["features"], state["validated"]):
         out.append(state["terms"][lo:lo + low.shape[1]])
@@ -1986,12 +1988,15 @@ def diagnose(samples, t=None, temp=None, reference=None, gravity=None, field_nor
     for name in [a for a in accepted if names[a].regime == "events"]:
         again = _evaluate(names[name], data, model, state, sigma, n_candidates)
         if again["significant"]:
-            episode = {k: again.get(k) for k in ("on_s", "off_s", "delta_bic", "lr_pvalue", "heldout_gap_before",
-                                                 "heldout_gap_after")}
+            episode = {k: again.get(k) for k in ("on_s", "off_s", "closest_s", "passage_s", "delta_bic", "lr_pvalue",
+                                                 "heldout_gap_before", "heldout_gap_after")}
             last_rows[name]["another_episode"] = episode
-            when = " to ".join("the recording's " + edge if v is None else f"t = {v:.4g} s"
-                               for v, edge in ((episode["on_s"], "start"), (episode["off_s"], "end")))
-            caveats.append(f"{name}: a second episode, from {when}, is significant with the first modelled (ΔBIC "
+            when = "from " + " to ".join("the recording's " + edge if v is None else f"t = {v:.4g} s"
+                                         for v, edge in ((episode["on_s"], "start"), (episode["off_s"], "end")))
+            if episode["closest_s"] is not None:  # a pass: its closest approach, not the times its features reach
+                when = (f"a pass closest at t = {episode['closest_s']:.4g} s (passage time "
+                        f"{episode['passage_s']:.3g} s)")
+            caveats.append(f"{name}: a second episode, {when}, is significant with the first modelled (ΔBIC "
                            f"{episode['delta_bic']:.1f}, held-out gap {episode['heldout_gap_before']:.3g} → "
                            f"{episode['heldout_gap_after']:.3g}); not modelled (each effect is added once), so the "
                            "effects found after it may stand in for it")
