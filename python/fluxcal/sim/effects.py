@@ -945,16 +945,16 @@ class MovingDipole(_TimeBox):
     @classmethod
     def _pass_rows(cls, ctx, t_close, t_pass, order: int = 1):
         """A pass's features on the readings it reaches, and those readings. order 2 (magnitudes only): also
-        the magnitude's second-order change |B⊥|²/2H, a quartic in τ over (1 + τ²)⁵ — 3 % of a pass at 20 %
-        of the field."""
+        the magnitude's second-order change |B⊥|²/2H, a quartic in τ over (1 + τ²)⁵ — up to a tenth of a pass at
+        20 % of the field."""
         rows = _rows_within(ctx.t, t_close - cls.PASS_REACH * t_pass, t_close + cls.PASS_REACH * t_pass)
         tau = (ctx.t[rows] - t_close) / t_pass
         near = 1.0 / (1.0 + tau * tau)
         envelope = near * near * np.sqrt(near)  # (1 + τ²)^(−5/2) (a fractional power costs 3× this)
-        powers = [np.ones_like(tau), tau, tau * tau] + ([tau ** 3, tau ** 4] if order == 2 else [])
-        shape = np.stack([envelope * p for p in powers[:3]]
-                         + [envelope * envelope * p for p in powers] * (order == 2), axis=1)
-        return cls._along_field(ctx, rows, shape), rows
+        profiles = [envelope, envelope * tau, envelope * tau * tau]
+        if order == 2:
+            profiles += [envelope * envelope * tau ** n for n in range(5)]
+        return cls._along_field(ctx, rows, np.stack(profiles, axis=1)), rows
 
     @classmethod
     def _search_pass(cls, ctx, score):
@@ -1045,7 +1045,7 @@ class MovingDipole(_TimeBox):
         field components a pass changes linearly, with or without the down direction)."""
         passing = cls.describe(ctx, feats)
         if "closest_s" in passing:
-            return [] if getattr(ctx, "vector", False) else \
+            return [] if ctx.vector else \
                 [scatter_rows(len(ctx.t), *cls._pass_rows(ctx, passing["closest_s"], passing["passage_s"], order=2))]
         first, last = cls.span(ctx, feats)
         return [cls._box(ctx, first, last, degree) for degree in range(3, cls.MAX_DEGREE + 1)]
@@ -1265,4 +1265,3 @@ def random_sensor(field_norm: float, rng=None, soft_iron: float = 0.2, offset: f
     direction = rng.standard_normal(3)
     b = direction / np.linalg.norm(direction) * rng.uniform(0, offset) * field_norm
     return [SoftIron(W), HardIron(b), WhiteNoise(noise * field_norm)]
-
