@@ -171,8 +171,6 @@ def moving_dipole_line(d, r) -> str:
     vectors and the down direction), else the change along the field."""
     u = f" {d.units}" if d.units else ""
     when = (lambda x: f"t = {x:.4g} s") if d.series.get("timestamps", True) else (lambda x: f"row {x:.0f}")  # noqa: E731
-    on, off = (when(x) if x is not None else end for x, end in zip((r.get("on_s"), r.get("off_s")),
-                                                                   ("the start", "the end")))
     percent = f"{100 * r['peak_field'] / d.base.field_norm:.2g} % of the field"
     if r.get("peak_ned") is not None:
         size = (f"{r['peak_field']:.4g}{u} ({percent}), {np.round(r['peak_ned'], 4).tolist()}{u} (north, east, down; "
@@ -180,16 +178,18 @@ def moving_dipole_line(d, r) -> str:
     else:
         size = (f"{r['peak_along_field']:+.4g}{u} along the field ({percent}; a magnitude shows only the part along "
                 "the field)")
+    if r.get("closest_s") is not None:  # a pass (Anderson's functions): its closest approach, not a box
+        unit = " s" if d.series.get("timestamps", True) else " rows"
+        return (f"moving_dipole: a magnet or a vehicle passing, closest at {when(r['closest_s'])} (it travels its "
+                f"closest distance in {r['passage_s']:.3g}{unit}), largest at {when(r['peak_s'])}: {size}")
     t = np.asarray(d.series.get("t") if d.series.get("t") is not None else [0.0, 1.0], dtype=float)
     box = ((r["off_s"] if r.get("off_s") is not None else t.max()) - (r["on_s"] if r.get("on_s") is not None else t.min()))
     # a "passing" magnet over most of the recording is more likely a slow change than a pass (a blind check's
     # untouched handheld log: from the start to 192 s of 300)
     hint = ("over most of the recording: more likely the surroundings or a soft iron changing slowly than a magnet "
             "passing" if np.ptp(t) > 0 and box > 0.5 * np.ptp(t) else "a magnet, a tool or a vehicle moving near the sensor?")
-    if r.get("closest_s") is not None:  # a pass (Anderson's functions): its closest approach, not a box
-        unit = " s" if d.series.get("timestamps", True) else " rows"
-        return (f"moving_dipole: a magnet or a vehicle passing, closest at {when(r['closest_s'])} (it travels its "
-                f"closest distance in {r['passage_s']:.3g}{unit}), largest at {when(r['peak_s'])}: {size}")
+    on, off = (when(x) if x is not None else end for x, end in zip((r.get("on_s"), r.get("off_s")),
+                                                                   ("the start", "the end")))
     return f"moving_dipole: an extra field from {on} to {off}, largest at {when(r['peak_s'])}: {size} ({hint})"
 
 

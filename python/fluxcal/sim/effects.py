@@ -514,8 +514,7 @@ def _slope(values: np.ndarray, t: np.ndarray, width: float) -> np.ndarray:
     a window of the lag was 3 % short on a slow sine and left a residual taken for coloured noise."""
     order = np.argsort(t, kind="stable")
     ts, vs = t[order], values[order]
-    steps = np.diff(ts)
-    dt = float(np.median(steps[steps > 0])) if np.any(steps > 0) else 0.0
+    dt = _sample_step(ts, none=0.0)
     if not dt > 0:
         return np.zeros_like(values)
     grid = ts[0] + dt * np.arange(int(np.floor((ts[-1] - ts[0]) / dt)) + 1)
@@ -762,10 +761,10 @@ def _rows_within(t: np.ndarray, t_on: float, t_off: float):
     return slice(int(rows[0]), int(rows[-1]) + 1) if rows[-1] - rows[0] + 1 == len(rows) else rows
 
 
-def _sample_step(t: np.ndarray) -> float:
-    """The readings' median time step (1 when they share one time)."""
+def _sample_step(t: np.ndarray, none: float = 1.0) -> float:
+    """The readings' median time step between distinct times (`none` when they share one time)."""
     steps = np.diff(np.sort(t))
-    return float(np.median(steps[steps > 0])) if np.any(steps > 0) else 1.0
+    return float(np.median(steps[steps > 0])) if np.any(steps > 0) else none
 
 
 def scatter_rows(n: int, feats: np.ndarray, rows) -> np.ndarray:
