@@ -54,7 +54,8 @@ from scipy.optimize import least_squares
 from ..cable import Ring, RingCalibration
 from ..sim.cable_effects import CABLE_CANDIDATES, sensor_points, straight_unit_fields, to_axes
 from .core import (ABSORBED, HELDOUT_ALPHA, HELDOUT_FRACTION, MIN_GAIN, Diagnosis, _binned, _collapsed, _gap,
-                   _improvement_pvalue, _quantile_bins, _rivals, _unexplained, _whitened_lr, _whiteness)
+                   _improvement_pvalue, _quantile_bins, _rivals, _unexplained, _whitened_lr, _whiteness,
+                   time_number)
 from .report import _num, confound_lines
 
 REGIMES = ("rotation", "current", "time")
@@ -602,7 +603,8 @@ def _where(data: _Data, r_w: np.ndarray, levels) -> dict:
         tables["rotation"] = _binned(z, per_value(np.searchsorted(ur, rot)), [f"{v:g}°" for v in ur])
     else:
         tables["rotation"] = _binned(z, per_value(_quantile_bins(rot, 12)), None, per_value(rot))
-    tables["time"] = _binned(z, per_value(_quantile_bins(data.t, min(10, k))), None, per_value(data.t))
+    tables["time"] = _binned(z, per_value(_quantile_bins(data.t, min(10, k))), None, per_value(data.t),
+                             time_number(data.t))
     tests = []
     for name, rows in tables.items():
         # by p, then (p underflows to 0 for strong departures) by the χ²'s excess over its n in its own σ

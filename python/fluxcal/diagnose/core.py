@@ -3,6 +3,7 @@ from __future__ import annotations
 
 import json
 import warnings
+from datetime import datetime, timezone
 from dataclasses import dataclass, field, replace
 from math import comb
 from pathlib import Path
@@ -660,7 +661,7 @@ def _where(data: _Data, e: np.ndarray, sigma: float, directions: np.ndarray, vec
         tables["temperature"] = _binned(signed, _quantile_bins(data.temp, 8), None, data.temp)
     if data.current is not None:
         tables["current"] = _binned(signed, _quantile_bins(data.current, 8), None, data.current)
-    tables["time"] = _binned(signed, _quantile_bins(data.t, 10), None, data.t)
+    tables["time"] = _binned(signed, _quantile_bins(data.t, 10), None, data.t, time_number(data.t))
     # Per axis: the vector model's own axes; for a magnitude model, the residual's regression on the
     # field direction cosines (a scale or non-linearity error of one axis leans on its cosine²).
     if vector:
@@ -689,6 +690,37 @@ def _where(data: _Data, e: np.ndarray, sigma: float, directions: np.ndarray, vec
     return out
 
 
+UNIX_SECONDS = (1e8, 1e10)  # times in this range are clock times (Unix seconds, 1973 to 2286), not seconds from a start
+
+
+def time_number(t):
+    """A time's digits: four significant ones while they resolve the recording (33.61), else fixed point to a
+    ten-thousandth of its span. ".4g" printed a Unix time as 1.733e+09, every event of a log at the same time."""
+    t = np.asarray([] if t is None else t, dtype=float).ravel()
+    if t.size == 0 or np.max(np.abs(t)) < 1e4:
+        return lambda x: f"{x:.4g}"
+    span = float(np.ptp(t))
+    decimals = int(np.clip(np.ceil(-np.log10(span / 1e4)), 0, 6)) if span > 0 else 0
+    return lambda x: f"{x:.{decimals}f}"
+
+
+def time_words(t, timestamps: bool = True):
+    """How a report says when: "row 12" without timestamps, else "t = 33.61 s"; for Unix seconds also the UTC
+    clock time and the seconds since the first reading, which a log's own clock can be read against."""
+    if not timestamps:
+        return lambda x: f"row {x:.0f}"
+    number = time_number(t)
+    t = np.asarray([] if t is None else t, dtype=float).ravel()
+    if not (t.size and UNIX_SECONDS[0] <= t.min() and t.max() <= UNIX_SECONDS[1]):
+        return lambda x: f"t = {number(x)} s"
+    decimals = len(number(t.min()).partition(".")[2])
+
+    def clock(x):
+        at = datetime.fromtimestamp(round(x, decimals), timezone.utc)
+        return f"{at:%Y-%m-%d %H:%M:%S.%f}"[:20 + decimals if decimals else 19]
+    return lambda x: f"t = {number(x)} s ({clock(x)} UTC, {x - t.min():.4g} s in)"
+
+
 def _whiteness(series: np.ndarray) -> list:
     """The Ljung–Box test of a residual series in time order (up to 20 lags), as a one-item list of
     tests, or none when the series is constant. The core's O(N·lags) sum: statsmodels' acorr_ljungbox
@@ -707,12 +739,13 @@ def _quantile_bins(x: np.ndarray, k: int) -> np.ndarray:
     return np.searchsorted(edges, x, side="right")
 
 
-def _binned(z: np.ndarray, bins: np.ndarray, labels, x=None) -> list:
+def _binned(z: np.ndarray, bins: np.ndarray, labels, x=None, number=None) -> list:
+    number = number or (lambda v: f"{v:.4g}")
     rows = []
     for b in np.unique(bins):
         sel = bins == b
         zb = z[sel]
-        row = {"bin": labels[b] if labels else (f"{x[sel].min():.4g}…{x[sel].max():.4g}"), "n": int(sel.sum()),
+        row = {"bin": labels[b] if labels else f"{number(x[sel].min())}…{number(x[sel].max())}", "n": int(sel.sum()),
                "mean_z": float(zb.mean()), "rms_z": float(np.sqrt(np.mean(zb ** 2))),
                "pvalue": float(stats.chi2.sf(np.sum(zb ** 2), sel.sum()))}
         rows.append(row)
@@ -1991,11 +2024,12 @@ def diagnose(samples, t=None, temp=None, reference=None, gravity=None, field_nor
             episode = {k: again.get(k) for k in ("on_s", "off_s", "closest_s", "passage_s", "delta_bic", "lr_pvalue",
                                                  "heldout_gap_before", "heldout_gap_after")}
             last_rows[name]["another_episode"] = episode
-            when = "from " + " to ".join("the recording's " + edge if v is None else f"t = {v:.4g} s"
+            at = time_words(data.t, timestamps)
+            when = "from " + " to ".join("the recording's " + edge if v is None else at(v)
                                          for v, edge in ((episode["on_s"], "start"), (episode["off_s"], "end")))
             if episode["closest_s"] is not None:  # a pass: its closest approach, not the times its features reach
-                when = (f"a pass closest at t = {episode['closest_s']:.4g} s (passage time "
-                        f"{episode['passage_s']:.3g} s)")
+                when = (f"a pass closest at {at(episode['closest_s'])} (passage time "
+                        f"{episode['passage_s']:.3g}{' s' if timestamps else ' rows'})")
             caveats.append(f"{name}: a second episode, {when}, is significant with the first modelled (ΔBIC "
                            f"{episode['delta_bic']:.1f}, held-out gap {episode['heldout_gap_before']:.3g} → "
                            f"{episode['heldout_gap_after']:.3g}); not modelled (each effect is added once), so the "

@@ -6,7 +6,7 @@ from pathlib import Path
 
 import numpy as np
 
-from .core import UNEXPLAINED
+from .core import UNEXPLAINED, time_words
 
 
 def _num(x, fmt=".3g") -> str:
@@ -120,7 +120,7 @@ def offset_step_line(d, r) -> str:
     u = f" {d.units}" if d.units else ""
     c, at, back = np.asarray(r["jump"]), r["jump_s"], r["back_s"]  # core._jump
     percent = 100 * np.linalg.norm(d.base.matrix @ c) / d.base.field_norm
-    when = (lambda x: f"t = {x:.4g} s") if d.series.get("timestamps", True) else (lambda x: f"row {x:.0f}")  # noqa: E731
+    when = time_words(d.series.get("t"), d.series.get("timestamps", True))
     return (f"offset_step: the offset jumped by {np.round(c, 4).tolist()}{u} (x, y, z; {percent:.2g} % of the field) "
             f"at {when(at)}" + (f" and came back at {when(back)} (a device near the sensor switched on and off?)"
                                      if back is not None else
@@ -170,7 +170,7 @@ def moving_dipole_line(d, r) -> str:
     """How large the disturbance grew, when, and which way: north, east, down with a world frame (reference
     vectors and the down direction), else the change along the field."""
     u = f" {d.units}" if d.units else ""
-    when = (lambda x: f"t = {x:.4g} s") if d.series.get("timestamps", True) else (lambda x: f"row {x:.0f}")  # noqa: E731
+    when = time_words(d.series.get("t"), d.series.get("timestamps", True))
     percent = f"{100 * r['peak_field'] / d.base.field_norm:.2g} % of the field"
     if r.get("peak_ned") is not None:
         size = (f"{r['peak_field']:.4g}{u} ({percent}), {np.round(r['peak_ned'], 4).tolist()}{u} (north, east, down; "
