@@ -132,8 +132,9 @@ def test_readings_nearly_in_a_plane_are_named_as_such():
         diagnose(m, field_norm=50.0)
 
 
-def test_an_event_that_recurs_is_said():
-    # a device switched on and off twice: the offset is accepted once; its second episode must be named
+def test_an_event_that_recurs_is_modelled_as_episodes():
+    # a device switched on and off twice: the offset step has two episodes, each its own times and jump (it had
+    # been accepted once and the second said in a caveat, not modelled)
     from fluxcal import sim
     from fluxcal.sim.scene import tumble
     from fluxcal.sim.withheld import FIELD
@@ -146,12 +147,18 @@ def test_an_event_that_recurs_is_said():
     effects = [sim.SoftIron(W), sim.HardIron(b), *steps, sim.WhiteNoise(0.05)]
     res = sim.simulate(tumble(60.0, rate_hz=50.0, rng=rng), effects, FIELD, rng)
     d = diagnose(res.readings, t=res.t, temp=res.temperature, field_norm=50.0)
-    assert "offset_step" in d.accepted
+    assert d.accepted == ["offset_step"], d.accepted
     row = next(r for r in d.ranking if r["effect"] == "offset_step")
-    first = (row["on_s"], row["off_s"])
-    second = (row["another_episode"]["on_s"], row["another_episode"]["off_s"])
-    assert sorted([round(first[0]), round(second[0])]) == [10, 35] and sorted([round(first[1]), round(second[1])]) == [20, 48]
-    assert any("offset_step: a second episode" in c for c in d.caveats)
+    episodes = sorted(row["episodes"], key=lambda e: e["on_s"])
+    assert [(round(e["on_s"]), round(e["off_s"])) for e in episodes] == [(10, 20), (35, 48)], episodes
+    for e, step in zip(episodes, steps):  # each its own jump, in the readings' axes
+        assert np.linalg.norm(np.asarray(e["jump"]) - step.delta) < 0.05 * np.linalg.norm(step.delta), (e, step.delta)
+        assert e["jump_s"] == e["on_s"] and e["back_s"] == e["off_s"]
+    assert (row["on_s"], row["off_s"], row["jump"]) == (row["episodes"][0]["on_s"], row["episodes"][0]["off_s"],
+                                                        row["episodes"][0]["jump"])
+    text = d.text()
+    assert "FOUND: offset_step (2 episodes)" in text and text.count("offset_step: the offset jumped by") == 2
+    assert not any("episode" in c for c in d.caveats), d.caveats
 
 
 def test_an_offset_step_reads_the_same_in_the_json_as_in_the_text():

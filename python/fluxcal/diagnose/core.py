@@ -114,7 +114,12 @@ class Diagnosis:
     `passage_s` its closest approach and the time it takes to travel its closest distance; an accepted
     offset_step's `jump`, `jump_s`, `back_s` the step as a jump (a box from the recording's start reverses the
     coefficients' sign); `found_with` names the effect a row was found together with (each passed its
-    held-out test only with the other modelled); `shape_terms` the terms of an accepted dipole's refined
+    held-out test only with the other modelled); an accepted event that recurred (a magnet carried past twice, a
+    device switched on twice) has `episodes`, one dict per episode in the order found, each with its own times,
+    evidence when added (`delta_bic`, `lr_pvalue`, held-out gaps and p) and size (`peak_field`… or `jump`…); the
+    row's own fields are its first episode's, its `coefficients` the whole block's (the first episode's validated
+    terms, each further one's, then the first's refined terms), and `episodes_together` says two were found
+    together; `shape_terms` the terms of an accepted dipole's refined
     time profile (its `coefficients`, in units of the field norm: Legendre P0… across the box — for a pass
     against magnitudes Anderson's τⁿ/(1 + τ²)^(5/2), n = 0, 1, 2, then τⁿ/(1 + τ²)⁵, n = 0…4 —, each times
     the world's north, east and down when reference vectors and the down direction are given — P0·N,
@@ -1149,6 +1154,29 @@ def _with(state: dict, row: dict, vector: bool) -> dict:
                 terms=np.asarray(row["_fit"]["parameters"])[12 if vector else 9:])
 
 
+def _with_episode(data: _Data, model: str, state: dict, row: dict, columns: list) -> dict:
+    """A copy of `state` with a further episode of the event whose block is last (a magnet carried past again, a
+    heater switching on again), refitted: the episode's columns join that block after its validated ones, so the
+    leading columns stay the validated form (`_validated_terms`; an episode is kept in its first-order form) and
+    every block stays one effect's. `columns` (each episode's columns in the block) gets the new one's."""
+    fixed = MODELS[model][1]
+    full, low, new = state["features"][-1], state["validated"][-1], row["_features"]
+    k, w = low.shape[1], new.shape[1]
+    columns[:] = [np.where(c >= k, c + w, c) for c in columns] + [k + np.arange(w)]
+    lo = len(state["terms"]) - full.shape[1]
+    terms = np.asarray(row["_fit"]["parameters"])[-(len(state["terms"]) + w):]  # the row's: [others, block, episode]
+    terms = np.concatenate([terms[:lo + k], terms[-w:], terms[lo + k:-w]])
+    feats = state["features"][:-1] + [np.concatenate([full[:, :k], new, full[:, k:]], axis=1)]
+    fit = _fit(data, state["start"], fixed, _features(feats), start_terms=terms)
+    return dict(state, features=feats, validated=state["validated"][:-1] + [np.concatenate([low, new], axis=1)],
+                result=fit, train_fits={}, terms=np.asarray(fit["parameters"])[-len(terms):])
+
+
+# An accepted event's episodes: what each says of itself (its times, its evidence when it was added)
+EPISODE_KEYS = ("on_s", "off_s", "closest_s", "passage_s", "delta_bic", "lr_pvalue", "heldout_pvalue",
+                "heldout_gap_before", "heldout_gap_after")
+
+
 def _block(state: dict, i: int) -> slice:
     """The terms of the i-th modelled effect (its slice of `state["terms"]`)."""
     lo = sum(f.shape[1] for f in state["features"][:i])
@@ -1204,9 +1232,10 @@ def _together(data: _Data, model: str, state: dict, rows: list, pool: list, acce
     while the other is unmodelled (its residuals are long and correlated, leaving few blocks to test on).
     When no candidate is significant, the strongest one that passed every in-sample test is added on
     trial; if a second candidate is then significant, the first is searched and judged again with only
-    the second modelled. Both are kept when both pass; returns their rows in the order to add them
-    (each `found_with` the other), else None."""
-    vector, fixed = MODELS[model]
+    the second modelled. The second is the strongest other effect or, for an event, another episode of it (a
+    magnet carried past twice), tried in order of ΔBIC. Both are kept when both pass; returns their rows in the
+    order to add them (each `found_with` the other, or both `episodes_together`), else None."""
+    vector = MODELS[model][0]
     names = {c.name: c for c in pool}
     hopeful = sorted([r for r in rows if "_fit" in r and not r["significant"] and r["delta_bic"] < 0
                       and r["lr_pvalue"] * n_candidates < state["alpha"] and not names[r["effect"]].moves_reference
@@ -1221,10 +1250,22 @@ def _together(data: _Data, model: str, state: dict, rows: list, pool: list, acce
     others = [c for c in pool if c.name not in NOISE_CANDIDATES and c.name not in accepted
               and c.name != first["effect"] and not c.moves_reference]
     winners = sorted([r for r in (_evaluate(c, data, model, trial, sigma, n_candidates) for c in others)
-                      if r["significant"]], key=lambda r: r["delta_bic"])
-    if not winners:
-        return None
-    second = dict(winners[0], _rivals=[])
+                      if r["significant"]], key=lambda r: r["delta_bic"])[:1]
+    if names[first["effect"]].regime == "events":  # or the same event twice (a magnet carried past and back)
+        episode = _evaluate(names[first["effect"]], data, model, trial, sigma, n_candidates)
+        winners = sorted(winners + [episode] * episode["significant"], key=lambda r: r["delta_bic"])
+    for second in winners:  # the strongest other effect, or another episode: the first pair that holds
+        pair = _pair(data, model, state, names, first, dict(second, _rivals=[]), sigma, n_candidates)
+        if pair:
+            return pair
+    return None
+
+
+def _pair(data: _Data, model: str, state: dict, names: dict, first: dict, second: dict, sigma: float,
+          n_candidates: int):
+    """`_together`'s second candidate, found with the first modelled, refitted alone; the first searched again
+    beside it. Both rows when the first is then significant, else None."""
+    vector, fixed = MODELS[model]
     feats = second["_features"]
     try:
         second["_fit"] = _fit(data, state["start"], fixed, _features(state["features"] + [feats]),
@@ -1237,7 +1278,11 @@ def _together(data: _Data, model: str, state: dict, rows: list, pool: list, acce
     again = _evaluate(names[first["effect"]], data, model, given, sigma, n_candidates)
     if not again["significant"]:
         return None
-    second["found_with"], again["found_with"], again["_rivals"] = again["effect"], second["effect"], []
+    again["_rivals"] = []
+    if again["effect"] == second["effect"]:  # two episodes of one event: `accept` makes them one block
+        second["episodes_together"] = again["episodes_together"] = True
+    else:
+        second["found_with"], again["found_with"] = again["effect"], second["effect"]
     return second, again
 
 
@@ -1893,6 +1938,13 @@ def diagnose(samples, t=None, temp=None, reference=None, gravity=None, field_nor
 
     def accept(w):
         nonlocal data
+        if w["effect"] in accepted:  # a further episode of the event last added: its block grows
+            first = last_rows[w["effect"]]
+            columns = first.setdefault("_columns", [np.arange(state["features"][-1].shape[1])])
+            first.setdefault("episodes", [{k: first.get(k) for k in EPISODE_KEYS}]).append(
+                {k: w.get(k) for k in EPISODE_KEYS})
+            state.update(_with_episode(data, model, state, w, columns))
+            return
         accepted.append(w["effect"])
         state.update(_with(state, w, vector))
         if hasattr(names[w["effect"]], "shapes") and "shape_terms" not in w:
@@ -1916,8 +1968,13 @@ def diagnose(samples, t=None, temp=None, reference=None, gravity=None, field_nor
                     rows[-1]["absorbed_after"] = list(accepted)
             if bar:
                 bar.update(1)
+        # The event last added may recur (a magnet carried past again): another episode competes with the rest.
+        # (Only while its block is last: the block grows in place. Each episode counts against max_effects.)
+        if accepted and names[accepted[-1]].regime == "events" and not names[accepted[-1]].moves_reference:
+            rows.append(dict(_evaluate(names[accepted[-1]], data, model, state, sigma, n_candidates), episode=True))
+        candidates = [r for r in rows if not r.get("episode")]
         if previous_winner is not None:
-            rivals = _collapsed(data, previous_winner, rows)
+            rivals = _collapsed(data, previous_winner, candidates)
             if rivals:
                 previous_winner["confounded_with"] = rivals
             previous_winner = None
@@ -1936,15 +1993,16 @@ def diagnose(samples, t=None, temp=None, reference=None, gravity=None, field_nor
                                   "every parameter its held-out readings depend on, so its held-out test tests "
                                   "nothing")
             winners = [r for r in winners if r["significant"]]
-        for r in rows:
+        for r in candidates:
             last_rows[r["effect"]] = r
-        if winners and len(accepted) < max_effects:
+        added = len(accepted) + sum(len(last_rows[a].get("episodes", [0])) - 1 for a in accepted)
+        if winners and added < max_effects:
             w = previous_winner = winners[0]
-            w["_rivals"] = _rivals(w, rows)
+            w["_rivals"] = [] if w.get("episode") else _rivals(w, candidates)
             accept(w)
             continue
-        pair = (_together(data, model, state, rows, pool, accepted, sigma, n_candidates)
-                if len(accepted) + 2 <= max_effects else None)
+        pair = (_together(data, model, state, candidates, pool, accepted, sigma, n_candidates)
+                if added + 2 <= max_effects else None)
         if pair:
             for w in pair:
                 accept(w)
@@ -1991,10 +2049,15 @@ def diagnose(samples, t=None, temp=None, reference=None, gravity=None, field_nor
         if not (vector and names[name].moves_reference):  # a move's block is a remainder, folded in above
             last_rows[name].update(coefficients=params[lo:lo + feats.shape[1]].tolist(),
                                    standard_errors=errors[lo:lo + feats.shape[1]].tolist())
-        if name == "moving_dipole":
-            last_rows[name].update(_disturbance(data, state["result"], feats, params[lo:lo + feats.shape[1]]))
-        if name == "offset_step":
-            last_rows[name].update(_jump(last_rows[name]))
+        row = last_rows[name]
+        for i, columns in enumerate(row.get("_columns", [np.arange(feats.shape[1])])):  # each episode's own
+            episode = row["episodes"][i] if "episodes" in row else row
+            if name == "moving_dipole":
+                episode.update(_disturbance(data, state["result"], feats[:, columns], params[lo + columns]))
+            if name == "offset_step":
+                episode.update(_jump({**episode, "coefficients": params[lo + columns]}))
+            if i == 0 and episode is not row:  # the row's own fields: its first episode's
+                row.update({k: v for k, v in episode.items() if k not in EPISODE_KEYS})
         lo += feats.shape[1]
     for name in accepted:  # a held-out test that cannot be trusted: said, not hidden
         r = last_rows[name]
@@ -2021,8 +2084,7 @@ def diagnose(samples, t=None, temp=None, reference=None, gravity=None, field_nor
     for name in [a for a in accepted if names[a].regime == "events"]:
         again = _evaluate(names[name], data, model, state, sigma, n_candidates)
         if again["significant"]:
-            episode = {k: again.get(k) for k in ("on_s", "off_s", "closest_s", "passage_s", "delta_bic", "lr_pvalue",
-                                                 "heldout_gap_before", "heldout_gap_after")}
+            episode = {k: again.get(k) for k in EPISODE_KEYS}
             last_rows[name]["another_episode"] = episode
             at = time_words(data.t, timestamps)
             when = "from " + " to ".join("the recording's " + edge if v is None else at(v)
@@ -2030,10 +2092,13 @@ def diagnose(samples, t=None, temp=None, reference=None, gravity=None, field_nor
             if episode["closest_s"] is not None:  # a pass: its closest approach, not the times its features reach
                 when = (f"a pass closest at {at(episode['closest_s'])} (passage time "
                         f"{episode['passage_s']:.3g}{' s' if timestamps else ' rows'})")
-            caveats.append(f"{name}: a second episode, {when}, is significant with the first modelled (ΔBIC "
+            found = len(last_rows[name].get("episodes", [0]))
+            caveats.append(f"{name}: {'a second' if found == 1 else 'a further'} episode, {when}, is significant with "
+                           f"{'the first' if found == 1 else f'the {found} found'} modelled (ΔBIC "
                            f"{episode['delta_bic']:.1f}, held-out gap {episode['heldout_gap_before']:.3g} → "
-                           f"{episode['heldout_gap_after']:.3g}); not modelled (each effect is added once), so the "
-                           "effects found after it may stand in for it")
+                           f"{episode['heldout_gap_after']:.3g}); not modelled (an event's episodes are added while it "
+                           "is the last effect found, within max_effects), so the effects found after it may stand in "
+                           "for it")
     # Significant in the last round but not modelled: the max_effects limit stopped the greedy search.
     for name, r in last_rows.items():
         r["significant_not_modelled"] = bool(r.get("significant")) and name not in accepted and "pruned_delta_bic" not in r
@@ -2044,7 +2109,7 @@ def diagnose(samples, t=None, temp=None, reference=None, gravity=None, field_nor
     ranking += rest
     for r in ranking:
         for key in ("_fit", "_features", "_signature", "_explained", "_rivals", "_signal_features",
-                    "_law_in_time"):
+                    "_law_in_time", "_columns"):
             r.pop(key, None)
         r.setdefault("significant", False)
         r["significant"] = r["effect"] in accepted

@@ -226,7 +226,9 @@ def text(d) -> str:
                    + ". The field plus the hard iron exceeds the range: choose a wider range, or move the sensor from "
                      "the iron. Those readings, and those just inside the rail, are left out of the model below.")
     if d.accepted:
-        out.append(f"FOUND: {', '.join(d.accepted)} (added in this order)")
+        episodes = {r["effect"]: len(r["episodes"]) for r in d.ranking if r.get("episodes")}
+        out.append(f"FOUND: {', '.join(a + (f' ({episodes[a]} episodes)' if a in episodes else '') for a in d.accepted)} "
+                   "(added in this order)")
         for r in d.ranking:
             if r.get("found_with") and r.get("step", 0) > next(x.get("step", 0) for x in d.ranking
                                                                  if x["effect"] == r["found_with"]):
@@ -252,10 +254,13 @@ def text(d) -> str:
                 out.append("  " + drift_line(d, r))
             if r.get("offset_kind") and r.get("step") is not None:
                 out.append("  " + OFFSET_KIND_WORDS[r["offset_kind"]].format(effect=r["effect"]))
+            if r.get("episodes_together") and r.get("step") is not None:
+                out.append(f"  {r['effect']}: two of its episodes were found together: while either is unmodelled the "
+                           "other's held-out test fails; each passes with the other modelled")
             if r["effect"] == "offset_step" and r.get("step") is not None:
-                out.append("  " + offset_step_line(d, r))
+                out += ["  " + offset_step_line(d, {**r, **e}) for e in r.get("episodes") or [r]]
             if r["effect"] == "moving_dipole" and r.get("peak_field") is not None:
-                out.append("  " + moving_dipole_line(d, r))
+                out += ["  " + moving_dipole_line(d, {**r, **e}) for e in r.get("episodes") or [r]]
             if r["effect"] == "motor_current" and r.get("step") is not None and d.series.get("current") is not None:
                 k, peak = np.asarray(r["coefficients"]), float(np.max(np.abs(d.series["current"])))
                 out.append(f"  motor_current: {np.round(k, 4).tolist()}{u} per A (x, y, z); at the recording's peak "
