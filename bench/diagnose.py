@@ -10,6 +10,7 @@
     .venv/bin/python bench/diagnose.py --trials 5 --noise 0.2 --rate 10     # other noise, rates, --duration
     .venv/bin/python bench/diagnose.py --nulls 30 --noise 0.5               # nothing withheld only
     .venv/bin/python bench/diagnose.py --passes 12                          # a magnet carried past (straight line)
+    .venv/bin/python bench/diagnose.py --twice 12                           # a magnet carried past twice
     .venv/bin/python bench/diagnose.py --trials 3 --hard-iron 5 --soft-iron 0.15  # a real sensor's errors
 
 Prints Markdown tables for bench/RESULTS.md.
@@ -185,6 +186,43 @@ def passes(n: int, sizes=(0.015, 0.04)):
             print(f"| {model or 'magnitude'} | {100 * size:.1f} % | {found}/{n} | {error} | {boxed}/{n} |")
 
 
+def twice(n: int, size: float = 0.03):
+    """A magnet carried past twice (two `MovingDipole.straight_pass`, closest at 15–40 % and 60–85 % of the trial,
+    passage times 0.5–3 s, each `size` of the field at most) against magnitudes and against reference vectors:
+    how often both passes are found as episodes of moving_dipole (each closest approach within a quarter of its
+    passage time), one, neither, and any other effect named."""
+    from fluxcal.sim.effects import MovingDipole
+    from fluxcal.sim.withheld import DURATION
+
+    print("| model | size (of the field) | both | one | neither | other effects named "
+          "| median \\|closest − truth\\| / T |")
+    print("|---|---:|---:|---:|---:|---|---:|")
+    for model in (None, "vector"):
+        counts, others, errors = {2: 0, 1: 0, 0: 0}, {}, []
+        for seed in range(n):
+            rng = np.random.default_rng(300 + seed)
+            timing = sorted((rng.uniform(*span) * DURATION, rng.uniform(0.5, 3.0))
+                            for span in ((0.15, 0.4), (0.6, 0.85)))
+            dipoles = [MovingDipole.straight_pass(50.0, rng, t_close, t_pass, size) for t_close, t_pass in timing]
+            r, kw = withheld_trial(["moving_dipole"], seed, model=model, dipole=dipoles)
+            d = diagnose(r.readings, **kw)
+            for name in set(d.accepted) - {"moving_dipole", "colored_noise"}:
+                others[name] = others.get(name, 0) + 1
+            row = next(x for x in d.ranking if x["effect"] == "moving_dipole")
+            episodes = (row.get("episodes") or [row]) if "moving_dipole" in d.accepted else []
+            found = 0
+            for t_close, t_pass in timing:  # a pass is found when an episode's closest approach is near its own
+                near = [abs(e["closest_s"] - t_close) / t_pass for e in episodes if e.get("closest_s") is not None]
+                if near and min(near) < 0.25:
+                    found += 1
+                    errors.append(min(near))
+            counts[found] += 1
+        named = ", ".join(f"{k} {v}" for k, v in sorted(others.items())) or "—"
+        error = f"{np.median(errors):.3f}" if errors else "—"
+        print(f"| {model or 'magnitude'} | {100 * size:.1f} % | {counts[2]}/{n} | {counts[1]}/{n} | {counts[0]}/{n} | "
+              f"{named} | {error} |")
+
+
 def warm_up(n: int):
     """Temperature-driven and time-driven effects when the temperature follows time (a warm-up)."""
     ramps = {"linear 20 → 35 °C": lambda t: 20.0 + 15.0 * t / t[-1],
@@ -318,6 +356,7 @@ if __name__ == "__main__":
     p.add_argument("--timing", action="store_true")
     p.add_argument("--nulls", type=int, help="only the trials with nothing withheld")
     p.add_argument("--passes", type=int, help="trials per model and size: a magnet carried past on a straight line")
+    p.add_argument("--twice", type=int, help="trials per model: a magnet carried past twice")
     p.add_argument("--margins", type=int, help="trials per effect: the accepted rows' distance from the guards")
     p.add_argument("--warm-up", type=int)
     p.add_argument("--settling", type=int, help="trials per time constant of an offset settling in time")
@@ -338,6 +377,8 @@ if __name__ == "__main__":
         nulls(args.nulls, **sim)
     if args.passes:
         passes(args.passes)
+    if args.twice:
+        twice(args.twice)
     if args.limits:
         limits(args.limits, args.seeds, args.recordings)
     if args.inject:

@@ -474,6 +474,21 @@ def test_a_magnet_carried_past_is_found_as_a_pass_against_reference_vectors():
             (seed, row["peak_ned"], expected)
 
 
+def test_withheld_trial_simulates_a_magnet_carried_past_twice():
+    # `withheld_trial(dipole=[…])`: the second pass adds its field within its own reach only; the rest of the trial
+    # (sensor, motion, noise) is the same as with the first alone
+    from fluxcal.sim.effects import MovingDipole
+
+    rng = np.random.default_rng(7)
+    first, second = (MovingDipole.straight_pass(50.0, rng, t_close, 1.0, 0.03) for t_close in (15.0, 45.0))
+    alone, kwargs = withheld_trial(["moving_dipole"], 0, dipole=first)
+    both, _ = withheld_trial(["moving_dipole"], 0, dipole=[first, second])
+    change, t = np.linalg.norm(both.readings - alone.readings, axis=1), kwargs["t"]
+    outside = (t < second.t_on) | (t > second.t_off)
+    assert np.all(change[outside] == 0)
+    assert 0.85 < change.max() / (0.03 * 50.0) < 1.15, change.max()  # (the sensor's soft iron)
+
+
 def test_a_magnet_carried_past_twice_is_found_as_two_episodes():
     # Two passes, 3 % of the field each: each one's held-out test fails on what the other leaves. Before an event
     # could have episodes, seeds 0–3 gave colored_noise alone, one pass, one pass, colored_noise alone. Now the
@@ -501,7 +516,8 @@ def test_a_magnet_carried_past_twice_is_found_as_two_episodes():
         for (closest, passage), (t_close, t_pass) in zip(found, sorted(passes)):
             assert abs(closest - t_close) < 0.25 * t_pass and abs(passage / t_pass - 1) < 0.1, (seed, found, passes)
         text = d.text()
-        assert "FOUND: moving_dipole (2 episodes)" in text and text.count("moving_dipole: a magnet or a vehicle passing") == 2
+        assert "FOUND: moving_dipole (2 episodes)" in text
+        assert text.count("moving_dipole: a magnet or a vehicle passing") == 2
         # each episode's own size: at most its pass's (a magnitude sees the part along the field)
         assert all(0 < e["peak_field"] < 0.035 * np.linalg.norm(FIELD) for e in row["episodes"]), row["episodes"]
     assert both >= 3, both

@@ -1,4 +1,5 @@
 """Bad inputs to fluxcal.diagnose: a clear error (or warning) naming the input, never a silent wrong answer."""
+import json
 import warnings
 
 import numpy as np
@@ -132,7 +133,7 @@ def test_readings_nearly_in_a_plane_are_named_as_such():
         diagnose(m, field_norm=50.0)
 
 
-def test_an_event_that_recurs_is_modelled_as_episodes():
+def test_an_event_that_recurs_is_modelled_as_episodes(tmp_path):
     # a device switched on and off twice: the offset step has two episodes, each its own times and jump (it had
     # been accepted once and the second said in a caveat, not modelled)
     from fluxcal import sim
@@ -159,6 +160,9 @@ def test_an_event_that_recurs_is_modelled_as_episodes():
     text = d.text()
     assert "FOUND: offset_step (2 episodes)" in text and text.count("offset_step: the offset jumped by") == 2
     assert not any("episode" in c for c in d.caveats), d.caveats
+    saved = json.loads(d.save_json(tmp_path / "d.json").read_text())  # the JSON keeps each episode
+    row = next(r for r in saved["ranking"] if r["effect"] == "offset_step")
+    assert [e["jump_s"] for e in row["episodes"]] == [e["on_s"] for e in d.ranking[0]["episodes"]]
 
 
 def test_an_offset_step_reads_the_same_in_the_json_as_in_the_text():

@@ -43,7 +43,7 @@ it, and how far the gap shrinks once that effect is modelled — proved on held-
    `closest_s`, passage time `passage_s`), whichever fits better. An accepted event's time profile is refined
    (a box: Legendre degree by BIC; a pass: the magnitude's second-order term), so that what a low-order shape
    leaves is not taken for a second event. An event recurs (a magnet carried past twice, a device switched on
-   twice): while it is the last effect added, another episode of it competes with the other candidates, and on
+   twice): once it is found, another episode of it competes with the other candidates in every round, and on
    trial the first and a second episode are kept together when each passes with the other modelled; the
    episodes share the effect's block (`episodes` in its row), each counted against `max_effects`.
 4. What the recording cannot decide: a candidate that explained it as well as an accepted effect (ΔBIC

@@ -1154,22 +1154,25 @@ def _with(state: dict, row: dict, vector: bool) -> dict:
                 terms=np.asarray(row["_fit"]["parameters"])[12 if vector else 9:])
 
 
-def _with_episode(data: _Data, model: str, state: dict, row: dict, columns: list) -> dict:
-    """A copy of `state` with a further episode of the event whose block is last (a magnet carried past again, a
-    heater switching on again), refitted: the episode's columns join that block after its validated ones, so the
+def _with_episode(data: _Data, model: str, state: dict, row: dict, i: int, columns: list) -> dict:
+    """A copy of `state` with a further episode of the event whose block is the i-th (a magnet carried past again, a
+    device switched on again), refitted: the episode's columns join that block after its validated ones, so the
     leading columns stay the validated form (`_validated_terms`; an episode is kept in its first-order form) and
     every block stays one effect's. `columns` (each episode's columns in the block) gets the new one's."""
     fixed = MODELS[model][1]
-    full, low, new = state["features"][-1], state["validated"][-1], row["_features"]
+    full, low, new = state["features"][i], state["validated"][i], row["_features"]
     k, w = low.shape[1], new.shape[1]
     columns[:] = [np.where(c >= k, c + w, c) for c in columns] + [k + np.arange(w)]
-    lo = len(state["terms"]) - full.shape[1]
-    terms = np.asarray(row["_fit"]["parameters"])[-(len(state["terms"]) + w):]  # the row's: [others, block, episode]
-    terms = np.concatenate([terms[:lo + k], terms[-w:], terms[lo + k:-w]])
-    feats = state["features"][:-1] + [np.concatenate([full[:, :k], new, full[:, k:]], axis=1)]
+    at = _block(state, i).start + k  # where the episode's terms go
+    terms = np.asarray(row["_fit"]["parameters"])[-(len(state["terms"]) + w):]  # the row's: [blocks…, episode]
+    terms = np.concatenate([terms[:at], terms[-w:], terms[at:-w]])
+    feats = list(state["features"])
+    feats[i] = np.concatenate([full[:, :k], new, full[:, k:]], axis=1)
+    validated = list(state["validated"])
+    validated[i] = np.concatenate([low, new], axis=1)
     fit = _fit(data, state["start"], fixed, _features(feats), start_terms=terms)
-    return dict(state, features=feats, validated=state["validated"][:-1] + [np.concatenate([low, new], axis=1)],
-                result=fit, train_fits={}, terms=np.asarray(fit["parameters"])[-len(terms):])
+    return dict(state, features=feats, validated=validated, result=fit, train_fits={},
+                terms=np.asarray(fit["parameters"])[-len(terms):])
 
 
 # An accepted event's episodes: what each says of itself (its times, its evidence when it was added)
@@ -1938,12 +1941,12 @@ def diagnose(samples, t=None, temp=None, reference=None, gravity=None, field_nor
 
     def accept(w):
         nonlocal data
-        if w["effect"] in accepted:  # a further episode of the event last added: its block grows
-            first = last_rows[w["effect"]]
-            columns = first.setdefault("_columns", [np.arange(state["features"][-1].shape[1])])
+        if w["effect"] in accepted:  # a further episode of an event found: its block grows
+            first, i = last_rows[w["effect"]], accepted.index(w["effect"])  # (noise models come after the search)
+            columns = first.setdefault("_columns", [np.arange(state["features"][i].shape[1])])
             first.setdefault("episodes", [{k: first.get(k) for k in EPISODE_KEYS}]).append(
                 {k: w.get(k) for k in EPISODE_KEYS})
-            state.update(_with_episode(data, model, state, w, columns))
+            state.update(_with_episode(data, model, state, w, i, columns))
             return
         accepted.append(w["effect"])
         state.update(_with(state, w, vector))
@@ -1968,10 +1971,10 @@ def diagnose(samples, t=None, temp=None, reference=None, gravity=None, field_nor
                     rows[-1]["absorbed_after"] = list(accepted)
             if bar:
                 bar.update(1)
-        # The event last added may recur (a magnet carried past again): another episode competes with the rest.
-        # (Only while its block is last: the block grows in place. Each episode counts against max_effects.)
-        if accepted and names[accepted[-1]].regime == "events" and not names[accepted[-1]].moves_reference:
-            rows.append(dict(_evaluate(names[accepted[-1]], data, model, state, sigma, n_candidates), episode=True))
+        # An event found may recur (a magnet carried past again): another episode of it competes with the rest,
+        # and joins its block (each episode counts against max_effects).
+        rows += [dict(_evaluate(names[a], data, model, state, sigma, n_candidates), episode=True) for a in accepted
+                 if names[a].regime == "events" and not names[a].moves_reference]
         candidates = [r for r in rows if not r.get("episode")]
         if previous_winner is not None:
             rivals = _collapsed(data, previous_winner, candidates)
@@ -2096,8 +2099,8 @@ def diagnose(samples, t=None, temp=None, reference=None, gravity=None, field_nor
             caveats.append(f"{name}: {'a second' if found == 1 else 'a further'} episode, {when}, is significant with "
                            f"{'the first' if found == 1 else f'the {found} found'} modelled (ΔBIC "
                            f"{episode['delta_bic']:.1f}, held-out gap {episode['heldout_gap_before']:.3g} → "
-                           f"{episode['heldout_gap_after']:.3g}); not modelled (an event's episodes are added while it "
-                           "is the last effect found, within max_effects), so the effects found after it may stand in "
+                           f"{episode['heldout_gap_after']:.3g}); not modelled (the search stopped before it: "
+                           "max_effects, or an effect left out since), so the effects found after it may stand in "
                            "for it")
     # Significant in the last round but not modelled: the max_effects limit stopped the greedy search.
     for name, r in last_rows.items():

@@ -183,11 +183,16 @@ def moving_dipole_line(d, r) -> str:
         return (f"moving_dipole: a magnet or a vehicle passing, closest at {when(r['closest_s'])} (it travels its "
                 f"closest distance in {r['passage_s']:.3g}{unit}), largest at {when(r['peak_s'])}: {size}")
     t = np.asarray(d.series.get("t") if d.series.get("t") is not None else [0.0, 1.0], dtype=float)
-    box = ((r["off_s"] if r.get("off_s") is not None else t.max()) - (r["on_s"] if r.get("on_s") is not None else t.min()))
-    # a "passing" magnet over most of the recording is more likely a slow change than a pass (a blind check's
-    # untouched handheld log: from the start to 192 s of 300)
-    hint = ("over most of the recording: more likely the surroundings or a soft iron changing slowly than a magnet "
-            "passing" if np.ptp(t) > 0 and box > 0.5 * np.ptp(t) else "a magnet, a tool or a vehicle moving near the sensor?")
+    # a "passing" magnet over most of the recording, in one box or in its episodes' boxes together, is more likely
+    # a slow change than a pass (a blind check's untouched handheld log: from the start to 192 s of 300; a slice
+    # of it: two episodes, from the start to 33 s and from 40 s to 72 s of 75)
+    box = sum((e["off_s"] if e.get("off_s") is not None else t.max())
+              - (e["on_s"] if e.get("on_s") is not None else t.min())
+              for e in r.get("episodes") or [r] if e.get("closest_s") is None)
+    slow = np.ptp(t) > 0 and box > 0.5 * np.ptp(t)
+    hint = (f"over most of the recording{' with its other episodes' if r.get('episodes') else ''}: more likely the "
+            "surroundings or a soft iron changing slowly than a magnet passing" if slow
+            else "a magnet, a tool or a vehicle moving near the sensor?")
     on, off = (when(x) if x is not None else end for x, end in zip((r.get("on_s"), r.get("off_s")),
                                                                    ("the start", "the end")))
     return f"moving_dipole: an extra field from {on} to {off}, largest at {when(r['peak_s'])}: {size} ({hint})"
@@ -227,8 +232,8 @@ def text(d) -> str:
                      "the iron. Those readings, and those just inside the rail, are left out of the model below.")
     if d.accepted:
         episodes = {r["effect"]: len(r["episodes"]) for r in d.ranking if r.get("episodes")}
-        out.append(f"FOUND: {', '.join(a + (f' ({episodes[a]} episodes)' if a in episodes else '') for a in d.accepted)} "
-                   "(added in this order)")
+        found = ", ".join(a + (f" ({episodes[a]} episodes)" if a in episodes else "") for a in d.accepted)
+        out.append(f"FOUND: {found} (added in this order)")
         for r in d.ranking:
             if r.get("found_with") and r.get("step", 0) > next(x.get("step", 0) for x in d.ranking
                                                                  if x["effect"] == r["found_with"]):

@@ -52,7 +52,7 @@ def withheld_trial(names, seed: int, duration_s: float = DURATION, temperature=N
     soft iron's off-diagonal terms within ±0.6 of that. `electronic_offset`: the offset is the sensor's own, added
     after the transducer's effects (its gain and non-linearity do not act on it), not the platform's hard iron.
     `dipole`: the moving_dipole to simulate when it is withheld, instead of a typical one (e.g.
-    `MovingDipole.straight_pass`)."""
+    `MovingDipole.straight_pass`), or a list of them (a magnet carried past more than once)."""
     by_name = {c.name: c for c in CANDIDATES}
     unknown = [n for n in names if n not in by_name]
     if unknown:
@@ -65,16 +65,17 @@ def withheld_trial(names, seed: int, duration_s: float = DURATION, temperature=N
     W = np.diag(1 + rng.uniform(-soft_iron, soft_iron, 3)) + np.triu(E, 1) + np.triu(E, 1).T
     b = rng.uniform(-1, 1, 3) * (hard_iron * float(np.linalg.norm(FIELD))) / np.sqrt(3)
 
+    dipoles = [] if dipole is None else list(dipole) if isinstance(dipole, (list, tuple)) else [dipole]
+
     def make(name):
-        if name == "moving_dipole" and dipole is not None:
-            return dipole
         cls = by_name[name]
         if name in TIMED:
             return cls.typical(50.0, rng, duration_s)
         return cls.typical(50.0, rng)
 
     # misalignment last among them: it turns the whole field, a dipole's included, into the sensor's axes
-    effects = [make(n) for n in sorted((n for n in names if n in FIELD_EFFECTS), key=lambda n: n == "misalignment")]
+    effects = [e for n in sorted((n for n in names if n in FIELD_EFFECTS), key=lambda n: n == "misalignment")
+               for e in (dipoles if n == "moving_dipole" and dipoles else [make(n)])]
     transducer = [make(n) for n in names if n not in FIELD_EFFECTS and n not in NOISE_EFFECTS]
     effects += [SoftIron(W)] + (transducer + [HardIron(b)] if electronic_offset else [HardIron(b)] + transducer)
     effects.append(WhiteNoise(noise))
