@@ -523,6 +523,42 @@ def test_a_magnet_carried_past_twice_is_found_as_two_episodes():
     assert both >= 3, both
 
 
+def test_an_episode_joins_its_event_block_where_it_stands(monkeypatch):
+    # Two passes at 5 % and a temperature offset (seed 4): the first pass is found, then the temperature offset,
+    # then the second pass as an episode of the first block, which is then not the last. Its columns go in after
+    # the block's validated ones and every later term moves along: the refitted model is the same model as the
+    # episode's own fit (its columns appended at the end), to rounding.
+    import sys
+
+    from fluxcal.sim.effects import MovingDipole
+    from fluxcal.sim.withheld import DURATION
+
+    core = sys.modules["fluxcal.diagnose.core"]
+    merges, merge = [], core._with_episode
+
+    def checked(data, model, state, row, i, columns):
+        out = merge(data, model, state, row, i, columns)
+        merges.append((i, len(state["features"]), float(np.sum(np.square(row["_fit"]["residuals"]))),
+                       float(np.sum(np.square(out["result"]["residuals"])))))
+        return out
+
+    monkeypatch.setattr(core, "_with_episode", checked)
+    rng = np.random.default_rng(304)
+    timing = sorted((rng.uniform(*span) * DURATION, rng.uniform(0.5, 3.0)) for span in ((0.15, 0.4), (0.6, 0.85)))
+    dipoles = [MovingDipole.straight_pass(50.0, rng, t_close, t_pass, 0.05) for t_close, t_pass in timing]
+    result, kwargs = withheld_trial(["moving_dipole", "temp_offset"], 4, dipole=dipoles)
+    d = diagnose(result.readings, **kwargs)
+    assert d.accepted == ["moving_dipole", "temp_offset"], d.accepted
+    assert [(i, blocks) for i, blocks, _, _ in merges] == [(0, 2)], merges
+    assert merges[0][3] == pytest.approx(merges[0][2], rel=1e-9)
+    row = d.ranking[0]
+    found = sorted(e["closest_s"] for e in row["episodes"])
+    for closest, (t_close, t_pass) in zip(found, timing):
+        assert abs(closest - t_close) < 0.25 * t_pass, (found, timing)
+    for e in row["episodes"]:  # each episode's size from its own columns: largest near its own closest approach
+        assert abs(e["peak_s"] - e["closest_s"]) < 2 * e["passage_s"], row["episodes"]
+
+
 def test_two_concurrent_events_are_found_together():
     # A magnet passing while the offset jumps: with either unmodelled, the other's held-out test fails
     # (seed 104: colored_noise alone was reported). Added on trial, each passes with the other modelled.
