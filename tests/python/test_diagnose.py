@@ -445,7 +445,7 @@ def test_a_magnet_carried_past_is_found_as_a_pass():
         else:
             clock = datetime.fromtimestamp(round(row["closest_s"], 3), timezone.utc).strftime("%Y-%m-%d %H:%M:%S")
             assert (f"closest at t = {row['closest_s']:.3f} s ({clock}." in d.text()
-                    and f"UTC, {row['closest_s'] - t[0]:.4g} s in)" in d.text()), d.text()
+                    and f"UTC, {row['closest_s'] - t[0]:.3f} s in)" in d.text()), d.text()
             assert "e+09" not in d.text()
 
 

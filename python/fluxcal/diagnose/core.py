@@ -723,7 +723,7 @@ def time_words(t, timestamps: bool = True):
     def clock(x):
         at = datetime.fromtimestamp(round(x, decimals), timezone.utc)
         return f"{at:%Y-%m-%d %H:%M:%S.%f}"[:20 + decimals if decimals else 19]
-    return lambda x: f"t = {number(x)} s ({clock(x)} UTC, {x - t.min():.4g} s in)"
+    return lambda x: f"t = {number(x)} s ({clock(x)} UTC, {x - t.min():.{decimals}f} s in)"
 
 
 def _whiteness(series: np.ndarray) -> list:
@@ -894,6 +894,22 @@ def _evaluate(cls, data, model, state, sigma, n_candidates) -> dict:
 # a candidate only when it takes at least this share of the gap: in the blind checks the 8 false effects accepted
 # so took 10–43 % of it; a true temperature offset beside a magnet, extrapolated to the hottest quarter, took 93 %.
 UNRESOLVED_GAIN = 0.5
+
+
+def _beside(row: dict, data, directions: np.ndarray, sigma: float, accepted: list) -> None:
+    """A significant row beside the effects `accepted`: not significant when its held-out gap's fall is within what
+    the two fits' parameter noise alone can make (`_gain_unresolved`) and under UNRESOLVED_GAIN of the gap."""
+    leverage = _heldout_leverage(data, row["_fit"], _heldout(row["heldout"], data, directions))
+    if not (_gain_unresolved(row, leverage, sigma)
+            and row["heldout_gap_after"] > (1 - UNRESOLVED_GAIN) * row["heldout_gap_before"]):
+        return
+    row.update(significant=False, heldout_leverage=leverage, heldout_gain_unresolved=True,
+               unmet=list(row["unmet"]) + ["heldout_resolved"],
+               note=f"not confirmed beside {', '.join(accepted)}: its held-out gap's fall "
+                    f"{row['heldout_gap_before']:.3g} → {row['heldout_gap_after']:.3g} is within what the "
+                    "two fits' parameter noise alone can make" if np.isfinite(leverage) else
+                    f"not confirmed beside {', '.join(accepted)}: the other readings do not determine "
+                    "every parameter its held-out readings depend on, so its held-out test tests nothing")
 
 
 def _gain_unresolved(row: dict, leverage: float, sigma: float) -> bool:
@@ -1180,6 +1196,22 @@ EPISODE_KEYS = ("on_s", "off_s", "closest_s", "passage_s", "delta_bic", "lr_pval
                 "heldout_gap_before", "heldout_gap_after")
 
 
+def _span(row: dict) -> tuple:
+    """An event's time span: a box's edges (the recording's ends where None), a pass's closest approach ± 2 passage
+    times (its main lobes)."""
+    if row.get("closest_s") is not None:
+        return row["closest_s"] - 2 * row["passage_s"], row["closest_s"] + 2 * row["passage_s"]
+    return (-np.inf if row.get("on_s") is None else row["on_s"], np.inf if row.get("off_s") is None else row["off_s"])
+
+
+def _overlaps(row: dict, event: dict) -> bool:
+    """Whether a candidate episode overlaps in time an episode of the accepted event's row: it is then what the
+    found episode's shape leaves (a magnet's course inside its own box, a pass's tail), not another occurrence —
+    three magnets had come out as three nested boxes, each sized only in the sum."""
+    a, b = _span(row)
+    return any(a < d and c < b for c, d in map(_span, event.get("episodes") or [event]))
+
+
 def _block(state: dict, i: int) -> slice:
     """The terms of the i-th modelled effect (its slice of `state["terms"]`)."""
     lo = sum(f.shape[1] for f in state["features"][:i])
@@ -1256,7 +1288,8 @@ def _together(data: _Data, model: str, state: dict, rows: list, pool: list, acce
                       if r["significant"]], key=lambda r: r["delta_bic"])[:1]
     if names[first["effect"]].regime == "events":  # or the same event twice (a magnet carried past and back)
         episode = _evaluate(names[first["effect"]], data, model, trial, sigma, n_candidates)
-        winners = sorted(winners + [episode] * episode["significant"], key=lambda r: r["delta_bic"])
+        winners = sorted(winners + [episode] * (episode["significant"] and not _overlaps(episode, first)),
+                         key=lambda r: r["delta_bic"])
     for second in winners:  # the strongest other effect, or another episode: the first pair that holds
         pair = _pair(data, model, state, names, first, dict(second, _rivals=[]), sigma, n_candidates)
         if pair:
@@ -1973,8 +2006,9 @@ def diagnose(samples, t=None, temp=None, reference=None, gravity=None, field_nor
                 bar.update(1)
         # An event found may recur (a magnet carried past again): another episode of it competes with the rest,
         # and joins its block (each episode counts against max_effects).
-        rows += [dict(_evaluate(names[a], data, model, state, sigma, n_candidates), episode=True) for a in accepted
-                 if names[a].regime == "events" and not names[a].moves_reference]
+        episodes = [dict(_evaluate(names[a], data, model, state, sigma, n_candidates), episode=True) for a in accepted
+                    if names[a].regime == "events" and not names[a].moves_reference]
+        rows += [r for r in episodes if not _overlaps(r, last_rows[r["effect"]])]
         candidates = [r for r in rows if not r.get("episode")]
         if previous_winner is not None:
             rivals = _collapsed(data, previous_winner, candidates)
@@ -1984,17 +2018,7 @@ def diagnose(samples, t=None, temp=None, reference=None, gravity=None, field_nor
         winners = sorted([r for r in rows if r["significant"]], key=lambda r: r["delta_bic"])
         if accepted:  # beside an effect found, a small held-out fall the fits' own parameter noise can make
             for r in winners:   # confirms nothing
-                leverage = _heldout_leverage(data, r["_fit"], _heldout(r["heldout"], data, directions))
-                if _gain_unresolved(r, leverage, sigma) and \
-                        r["heldout_gap_after"] > (1 - UNRESOLVED_GAIN) * r["heldout_gap_before"]:
-                    r.update(significant=False, heldout_leverage=leverage, heldout_gain_unresolved=True,
-                             unmet=list(r["unmet"]) + ["heldout_resolved"],
-                             note=f"not confirmed beside {', '.join(accepted)}: its held-out gap's fall "
-                                  f"{r['heldout_gap_before']:.3g} → {r['heldout_gap_after']:.3g} is within what the "
-                                  "two fits' parameter noise alone can make" if np.isfinite(leverage) else
-                                  f"not confirmed beside {', '.join(accepted)}: the other readings do not determine "
-                                  "every parameter its held-out readings depend on, so its held-out test tests "
-                                  "nothing")
+                _beside(r, data, directions, sigma, accepted)
             winners = [r for r in winners if r["significant"]]
         for r in candidates:
             last_rows[r["effect"]] = r
@@ -2021,9 +2045,10 @@ def diagnose(samples, t=None, temp=None, reference=None, gravity=None, field_nor
         noise_winners = sorted([last_rows[n] for n in NOISE_CANDIDATES if n in last_rows and last_rows[n]["significant"]],
                                key=lambda r: r["delta_bic"])
         for w in noise_winners:
-            if len(accepted) < max_effects:
+            if added < max_effects:
                 accepted.append(w["effect"])
                 w["step"] = len(accepted)
+                added += 1
         break
     if bar:
         bar.close()
@@ -2082,10 +2107,13 @@ def diagnose(samples, t=None, temp=None, reference=None, gravity=None, field_nor
                            f"({len(data.m)} readings{f' over {np.ptp(data.t):.3g} s' if timestamps else ''}) may be "
                            "too short or cover too little: effects of a similar shape over it (a drift, a step, a "
                            "passing magnet) are not ruled out")
-    # An event is accepted once, yet events recur (a heater or a radio cycling): with every accepted effect
-    # modelled, is the same kind of event significant again elsewhere? Said, not modelled.
+    # Events recur (a heater or a radio cycling) and the search models their episodes, but it stops (max_effects),
+    # leaves effects out after it (pruning) and keeps episodes apart in time: with every accepted effect modelled, is
+    # the same kind of event significant again? Said, not modelled.
     for name in [a for a in accepted if names[a].regime == "events"]:
         again = _evaluate(names[name], data, model, state, sigma, n_candidates)
+        if again["significant"]:
+            _beside(again, data, directions, sigma, accepted)  # as the search judged its episodes
         if again["significant"]:
             episode = {k: again.get(k) for k in EPISODE_KEYS}
             last_rows[name]["another_episode"] = episode
@@ -2099,9 +2127,11 @@ def diagnose(samples, t=None, temp=None, reference=None, gravity=None, field_nor
             caveats.append(f"{name}: {'a second' if found == 1 else 'a further'} episode, {when}, is significant with "
                            f"{'the first' if found == 1 else f'the {found} found'} modelled (ΔBIC "
                            f"{episode['delta_bic']:.1f}, held-out gap {episode['heldout_gap_before']:.3g} → "
-                           f"{episode['heldout_gap_after']:.3g}); not modelled (the search stopped before it: "
-                           "max_effects, or an effect left out since), so the effects found after it may stand in "
-                           "for it")
+                           f"{episode['heldout_gap_after']:.3g}); not modelled ("
+                           + ("it overlaps the episodes found in time: what their shapes leave, or a second jump "
+                              "inside a box" if _overlaps(again, last_rows[name]) else
+                              "the search stopped before it: max_effects, or an effect left out since")
+                           + "), so the effects found after it may stand in for it")
     # Significant in the last round but not modelled: the max_effects limit stopped the greedy search.
     for name, r in last_rows.items():
         r["significant_not_modelled"] = bool(r.get("significant")) and name not in accepted and "pruned_delta_bic" not in r
