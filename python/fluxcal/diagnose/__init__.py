@@ -43,9 +43,10 @@ it, and how far the gap shrinks once that effect is modelled — proved on held-
    `closest_s`, passage time `passage_s`), whichever fits better. An accepted event's time profile is refined
    (a box: Legendre degree by BIC; a pass: the magnitude's second-order term), so that what a low-order shape
    leaves is not taken for a second event. An event recurs (a magnet carried past twice, a device switched on
-   twice): once it is found, another episode of it competes with the other candidates in every round, and on
-   trial the first and a second episode are kept together when each passes with the other modelled; the
-   episodes share the effect's block (`episodes` in its row), each counted against `max_effects`.
+   twice): once it is found, another episode of it, apart in time from those found (one inside them is what
+   their shape leaves), competes with the other candidates in every round, and on trial the first and a second
+   episode are kept together when each passes with the other modelled; the episodes share the effect's block
+   (`episodes` in its row), each counted against `max_effects`.
 4. What the recording cannot decide: a candidate that explained it as well as an accepted effect (ΔBIC
    within CONFOUND_BIC = 10) and adds nothing once that effect is modelled is its rival, reported in
    `Diagnosis.confounded` and as CANNOT TELL APART with what would separate them (a temperature that
