@@ -520,6 +520,9 @@ def test_a_magnet_carried_past_twice_is_found_as_two_episodes():
         assert text.count("moving_dipole: a magnet or a vehicle passing") == 2
         # each episode's own size: at most its pass's (a magnitude sees the part along the field)
         assert all(0 < e["peak_field"] < 0.035 * np.linalg.norm(FIELD) for e in row["episodes"]), row["episodes"]
+        if row.get("episodes_together"):  # (seeds 0 and 3) the line names the two
+            a, b = (f"closest at t = {e['closest_s']:.4g} s" for e in row["episodes"])
+            assert f"two of its episodes ({a} and {b}) were found together" in text, text
     assert both >= 3, both
 
 

@@ -260,8 +260,13 @@ def text(d) -> str:
             if r.get("offset_kind") and r.get("step") is not None:
                 out.append("  " + OFFSET_KIND_WORDS[r["offset_kind"]].format(effect=r["effect"]))
             if r.get("episodes_together") and r.get("step") is not None:
-                out.append(f"  {r['effect']}: two of its episodes were found together: while either is unmodelled the "
-                           "other's held-out test fails; each passes with the other modelled")
+                at = time_words(d.series.get("t"), d.series.get("timestamps", True))
+                which = " and ".join(f"closest at {at(e['closest_s'])}" if e.get("closest_s") is not None else
+                                     f"from {'the start' if e.get('on_s') is None else at(e['on_s'])} to "
+                                     f"{'the end' if e.get('off_s') is None else at(e['off_s'])}"
+                                     for e in r["episodes"][:2])  # (the pair `_together` found: the first two)
+                out.append(f"  {r['effect']}: two of its episodes ({which}) were found together: while either is "
+                           "unmodelled the other's held-out test fails; each passes with the other modelled")
             if r["effect"] == "offset_step" and r.get("step") is not None:
                 out += ["  " + offset_step_line(d, {**r, **e}) for e in r.get("episodes") or [r]]
             if r["effect"] == "moving_dipole" and r.get("peak_field") is not None:
