@@ -389,6 +389,15 @@ def _straight_pass(t, t_close, t_pass, peak, rng):
     return field * peak / np.max(np.linalg.norm(field, axis=1))
 
 
+def _with_field_change(result, field):
+    """The trial's readings with an extra world-frame `field` as a magnitude sees it: the field at the sensor,
+    m − b = W h, scaled by |F + field| / |F|."""
+    from fluxcal.sim.withheld import FIELD
+
+    scale = np.linalg.norm(FIELD + field, axis=1) / np.linalg.norm(FIELD)
+    return result.readings + (scale[:, None] - 1) * (result.clean - np.asarray(result.true_calibration().offset))
+
+
 def test_anderson_functions_span_a_straight_pass():
     # Every component of a straight pass's field is a combination of the candidate's three profiles: the
     # component along the field (what a magnitude sees) fitted by them leaves only rounding within ±4 T, and
@@ -431,11 +440,8 @@ def test_a_magnet_carried_past_is_found_as_a_pass():
         t = kwargs["t"]
         rng = np.random.default_rng(100 + seed)
         t_close, t_pass = t[0] + rng.uniform(0.3, 0.7) * np.ptp(t), rng.uniform(0.5, 3.0)
-        field = _straight_pass(t, t_close, t_pass, 0.015 * np.linalg.norm(FIELD), rng)
-        scale = np.linalg.norm(FIELD + field, axis=1) / np.linalg.norm(FIELD)  # what a magnitude sees of it
-        offset = np.asarray(result.true_calibration().offset)
-        m = result.readings + (scale[:, None] - 1) * (result.clean - offset)  # the field at the sensor: m − b = W h
-        d = diagnose(m, **kwargs)
+        d = diagnose(_with_field_change(result, _straight_pass(t, t_close, t_pass, 0.015 * np.linalg.norm(FIELD), rng)),
+                     **kwargs)
         assert d.accepted == ["moving_dipole"], (seed, d.accepted)
         row = d.ranking[0]
         assert abs(row["closest_s"] - t_close) < 0.25 * t_pass and abs(row["passage_s"] / t_pass - 1) < 0.1, \
@@ -504,9 +510,7 @@ def test_a_magnet_carried_past_twice_is_found_as_two_episodes():
         passes = [(t[0] + rng.uniform(0.15, 0.4) * np.ptp(t), rng.uniform(0.5, 3.0)),
                   (t[0] + rng.uniform(0.6, 0.85) * np.ptp(t), rng.uniform(0.5, 3.0))]
         field = sum(_straight_pass(t, t_close, t_pass, 0.03 * np.linalg.norm(FIELD), rng) for t_close, t_pass in passes)
-        scale = np.linalg.norm(FIELD + field, axis=1) / np.linalg.norm(FIELD)
-        offset = np.asarray(result.true_calibration().offset)
-        d = diagnose(result.readings + (scale[:, None] - 1) * (result.clean - offset), **kwargs)
+        d = diagnose(_with_field_change(result, field), **kwargs)
         assert set(d.accepted) <= {"moving_dipole", "colored_noise"}, (seed, d.accepted)
         row = next(r for r in d.ranking if r["effect"] == "moving_dipole")
         found = sorted((e["closest_s"], e["passage_s"]) for e in row.get("episodes", []))

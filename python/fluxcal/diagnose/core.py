@@ -1196,6 +1196,10 @@ EPISODE_KEYS = ("on_s", "off_s", "closest_s", "passage_s", "delta_bic", "lr_pval
                 "heldout_gap_before", "heldout_gap_after")
 
 
+def _episode(row: dict) -> dict:
+    return {k: row.get(k) for k in EPISODE_KEYS}
+
+
 def _span(row: dict) -> tuple:
     """An event's time span: a box's edges (the recording's ends where None), a pass's closest approach ± 2 passage
     times (its main lobes)."""
@@ -1288,8 +1292,8 @@ def _together(data: _Data, model: str, state: dict, rows: list, pool: list, acce
                       if r["significant"]], key=lambda r: r["delta_bic"])[:1]
     if names[first["effect"]].regime == "events":  # or the same event twice (a magnet carried past and back)
         episode = _evaluate(names[first["effect"]], data, model, trial, sigma, n_candidates)
-        winners = sorted(winners + [episode] * (episode["significant"] and not _overlaps(episode, first)),
-                         key=lambda r: r["delta_bic"])
+        if episode["significant"] and not _overlaps(episode, first):
+            winners = sorted(winners + [episode], key=lambda r: r["delta_bic"])
     for second in winners:  # the strongest other effect, or another episode: the first pair that holds
         pair = _pair(data, model, state, names, first, dict(second, _rivals=[]), sigma, n_candidates)
         if pair:
@@ -1977,8 +1981,7 @@ def diagnose(samples, t=None, temp=None, reference=None, gravity=None, field_nor
         if w["effect"] in accepted:  # a further episode of an event found: its block grows
             first, i = last_rows[w["effect"]], accepted.index(w["effect"])  # (noise models come after the search)
             columns = first.setdefault("_columns", [np.arange(state["features"][i].shape[1])])
-            first.setdefault("episodes", [{k: first.get(k) for k in EPISODE_KEYS}]).append(
-                {k: w.get(k) for k in EPISODE_KEYS})
+            first.setdefault("episodes", [_episode(first)]).append(_episode(w))
             state.update(_with_episode(data, model, state, w, i, columns))
             return
         accepted.append(w["effect"])
@@ -2115,7 +2118,7 @@ def diagnose(samples, t=None, temp=None, reference=None, gravity=None, field_nor
         if again["significant"]:
             _beside(again, data, directions, sigma, accepted)  # as the search judged its episodes
         if again["significant"]:
-            episode = {k: again.get(k) for k in EPISODE_KEYS}
+            episode = _episode(again)
             last_rows[name]["another_episode"] = episode
             at = time_words(data.t, timestamps)
             when = "from " + " to ".join("the recording's " + edge if v is None else at(v)
