@@ -979,6 +979,30 @@ def test_a_box_is_scored_on_its_rows_as_on_all_readings(monkeypatch, name, model
     np.testing.assert_allclose(compared[:, 2], compared[:, 1], rtol=1e-7, atol=1e-7)
 
 
+@pytest.mark.parametrize("name,seed,edges", [("offset_step", 0, 1), ("offset_step", 1, 2), ("moving_dipole", 0, 2),
+                                             ("pass", 0, 2)])
+def test_the_times_an_events_search_placed_pay_in_bic(name, seed, edges):
+    # A time the search placed is a parameter the data chose, as a drift's profiled time constant is: a box's edges
+    # inside the recording (an edge at an end makes it a step), a pass's closest approach and passage time. Each
+    # pays ln N in ΔBIC (2 in ΔAIC); the p-value pays for them through the alternatives tried, not its degrees.
+    from fluxcal.sim.effects import MovingDipole, OffsetStep, ScaleDrift
+
+    assert OffsetStep.searched_times({"on_s": 3.0, "off_s": None}) == 1
+    assert OffsetStep.searched_times({"on_s": 3.0, "off_s": 9.0}) == 2
+    assert MovingDipole.searched_times({"on_s": None, "off_s": 9.0}) == 1
+    assert MovingDipole.searched_times({"on_s": 3.0, "off_s": 9.0, "closest_s": 6.0, "passage_s": 0.5}) == 2
+    assert ScaleDrift.searched_times({"on_s": 3.0}) == 0
+    pass_ = MovingDipole.straight_pass(50.0, np.random.default_rng(seed), 30.0, 1.0, 0.03) if name == "pass" else None
+    result, kwargs = withheld_trial(["moving_dipole" if pass_ else name], seed, dipole=pass_)
+    d = diagnose(result.readings, **kwargs)
+    row = next(r for r in d.ranking if r["effect"] in (name, "moving_dipole"))
+    # (the simulated step at seed 0 stays on to the end: one edge; a pass: its closest approach is read back)
+    assert (row.get("closest_s") is not None) == (name == "pass") and row["searched_times"] == edges
+    assert row["delta_aic"] == pytest.approx(-row["lr"] + 2 * (row["new_dimensions"] + edges), abs=1e-9)
+    ln_n = (row["delta_bic"] + row["lr"]) / (row["new_dimensions"] + edges)
+    assert ln_n == pytest.approx(np.log(len(result.readings)), abs=0.01)
+
+
 def test_heldout_gain_confined_to_one_block_is_significant():
     # An event: the held-out gain sits in one block and is tiny elsewhere, but positive in every block.
     # The sign-flip test sees 30 positive blocks (p 2^-30); a t-test on such skewed means gives p ≈ 0.16.

@@ -13,7 +13,9 @@ it, and how far the gap shrinks once that effect is modelled — proved on held-
    temperature, current (when logged), time and per axis, with a test per regime and a whiteness test over time.
 2. Which: every candidate effect of `fluxcal.sim.effects.CANDIDATES` (whose regressors the recording
    has) gets a score test at the base fit, a check that existing parameters do not absorb it, then a
-   refit of the augmented model (Ceres, `refine_terms`): likelihood-ratio statistic, ΔAIC, ΔBIC. The
+   refit of the augmented model (Ceres, `refine_terms`): likelihood-ratio statistic, ΔAIC, ΔBIC (a time the
+   search placed — an event's edge inside the recording, a pass's closest approach and passage time — counts
+   as a parameter there, as a drift's profiled time constant does). The
    p-value comes from the likelihood ratio under the augmented fit's own noise model, so slow correlated
    noise is not taken for a drift or a disturbance: an AR(p) of its residuals whitens both fits, and a
    wandering offset (each axis's offset a random walk through 32 times of the recording, its strength by

@@ -111,7 +111,9 @@ class Diagnosis:
     after the transducer); None when undecided;
     `on_s`/`off_s` give an event's box (moving_dipole, offset_step: first and last time within it, None at
     the recording's ends; for a moving_dipole's pass, the times it reaches), a pass's `closest_s` and
-    `passage_s` its closest approach and the time it takes to travel its closest distance; an accepted
+    `passage_s` its closest approach and the time it takes to travel its closest distance, `searched_times`
+    how many times the search placed (the box's edges inside the recording, or a pass's two), each counted as
+    a parameter in ΔAIC and ΔBIC; an accepted
     offset_step's `jump`, `jump_s`, `back_s` the step as a jump (a box from the recording's start reverses the
     coefficients' sign); `found_with` names the effect a row was found together with (each passed its
     held-out test only with the other modelled); an accepted event that recurred (a magnet carried past twice, a
@@ -869,9 +871,13 @@ def _evaluate(cls, data, model, state, sigma, n_candidates) -> dict:
         state["_wander"] = (base, _wander_basis(data, base))
     lr_whitened = _whitened_lr(e, e1, data, wander=state["_wander"][1])
     k = dims + len(profiled)  # a profiled parameter is fitted too: it pays like a coefficient
-    row.update(lr=lr, lr_whitened=lr_whitened,
+    # So does a time the search placed (an event's edges): in the p-value the alternatives tried pay for it
+    # (Bonferroni); left out of ΔBIC, a box's free edges had won ties against a drift's law, whose time constant
+    # pays (a gain drifting over the whole recording named a magnet).
+    searched = cls.searched_times(row)
+    row.update(lr=lr, lr_whitened=lr_whitened, searched_times=searched,
                lr_pvalue=min(1.0, float(stats.chi2.sf(lr_whitened, k)) * tried),
-               delta_aic=-lr + 2 * k, delta_bic=-lr + k * np.log(n),
+               delta_aic=-lr + 2 * (k + searched), delta_bic=-lr + (k + searched) * np.log(n),
                coefficients=np.asarray(fit["parameters"])[-feats.shape[1]:].tolist(),
                standard_errors=np.asarray(fit["standard_errors"])[-feats.shape[1]:].tolist())
     row.update(validated)
@@ -1192,8 +1198,8 @@ def _with_episode(data: _Data, model: str, state: dict, row: dict, i: int, colum
 
 
 # An accepted event's episodes: what each says of itself (its times, its evidence when it was added)
-EPISODE_KEYS = ("on_s", "off_s", "closest_s", "passage_s", "delta_bic", "lr_pvalue", "heldout_pvalue",
-                "heldout_gap_before", "heldout_gap_after")
+EPISODE_KEYS = ("on_s", "off_s", "closest_s", "passage_s", "searched_times", "delta_bic", "lr_pvalue",
+                "heldout_pvalue", "heldout_gap_before", "heldout_gap_after")
 
 
 def _episode(row: dict) -> dict:
@@ -1248,7 +1254,9 @@ def _prune(data: _Data, model: str, state: dict, accepted: list, last_rows: dict
                 continue
             e0 = np.asarray(fit["residuals"])
             lr = max(0.0, n * np.log(float(e0 @ e0) / rss))
-            k = block.stop - block.start + (1 if cls.profile_name and cls.profile_name in last_rows[name] else 0)
+            row = last_rows[name]
+            k = (block.stop - block.start + (1 if cls.profile_name and cls.profile_name in row else 0)
+                 + sum(cls.searched_times(e) for e in row.get("episodes") or [row]))
             delta_bic = -lr + k * np.log(n)
             if delta_bic > 0 and (worst is None or delta_bic > worst[1]):
                 worst = (i, delta_bic, fit)

@@ -76,6 +76,13 @@ class Effect:
     transducer = False
 
     @classmethod
+    def searched_times(cls, described: dict) -> int:
+        """How many times in the recording the search placed (`describe`'s output in): a box's edges, a pass's
+        closest approach and passage time. Each is a parameter the data chose: it pays in ΔBIC as a
+        coefficient does."""
+        return 0
+
+    @classmethod
     def profile_grid(cls, ctx) -> np.ndarray:  # pragma: no cover - interface
         raise NotImplementedError
 
@@ -858,6 +865,11 @@ class _TimeBox(Effect):
         return {"on_s": None if span[0] <= ctx.t.min() else span[0],
                 "off_s": None if span[1] >= ctx.t.max() else span[1]}
 
+    @classmethod
+    def searched_times(cls, described: dict) -> int:
+        """The box's edges inside the recording (one at an end makes it a step: one time fewer)."""
+        return sum(described.get(k) is not None for k in ("on_s", "off_s"))
+
 
 @dataclass
 class MovingDipole(_TimeBox):
@@ -1032,6 +1044,11 @@ class MovingDipole(_TimeBox):
             slope, intercept = np.polyfit(ctx.t[on], tau, 1)
             out.update(closest_s=float(-intercept / slope), passage_s=float(1.0 / slope))
         return out
+
+    @classmethod
+    def searched_times(cls, described: dict) -> int:
+        """A pass: its closest approach and its passage time; a box: its edges inside the recording."""
+        return 2 if described.get("closest_s") is not None else super().searched_times(described)
 
     MAX_DEGREE = 5  # 8 left the fits on the training blocks ill-conditioned (a held-out block inside the box)
 
