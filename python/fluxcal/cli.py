@@ -326,10 +326,31 @@ def _same_file(a, b) -> bool:
         return False
 
 
+# What a command writes, by option (the argparse dest): a file, except the folders below, which it makes.
+WRITES = {"output": "-o", "json": "--json", "plot": "--plot", "report": "--report", "raw": "--raw"}
+FOLDERS_WRITTEN = {("demo", "output"), ("batch", "output"), ("diagnose", "report")}
+READ_AS = {"file": "the recording", "calibration": "the calibration", "model": "the model"}
+
+
+def check_writes(args) -> None:
+    """Before a command reads anything: refuse an output that is a file it reads (a recording replaced by its
+    calibration, a calibration by its C header: every command but apply had done it) and a file in a folder that
+    does not exist (found only after the other outputs were written, with exit status 2)."""
+    reads = [(name, v) for name, value in vars(args).items() if name not in WRITES
+             for v in (value if isinstance(value, list) else [value]) if isinstance(v, (str, Path)) and os.path.isfile(v)]
+    for name, option in WRITES.items():
+        path = getattr(args, name, None)
+        if not isinstance(path, (str, Path)):
+            continue
+        for read, read_path in reads:
+            if _same_file(path, read_path):
+                raise ValueError(f"{option} {path} is {READ_AS.get(read, f'the {read}')} it reads: writing it would "
+                                 "replace that file; name another")
+        if (args.command, name) not in FOLDERS_WRITTEN and not Path(path).parent.is_dir():
+            raise ValueError(f"{option} {path}: the folder {Path(path).parent} does not exist")
+
+
 def cmd_apply(args) -> int:
-    for what, path in (("the recording", args.file), ("the calibration", args.calibration)):
-        if _same_file(args.output, path):  # the output would replace it: the calibration, text columns lost
-            raise ValueError(f"-o {args.output} is {what} it reads; write the corrected recording to another file")
     cal = Calibration.load(args.calibration)
     rec = read_recording(args.file, columns=args.columns, units=args.units, bad_lines=args.bad_lines,
                          decimal=args.decimal)
@@ -1127,6 +1148,7 @@ def main(argv=None) -> int:
     try:
         with warnings.catch_warnings():
             warnings.showwarning = _show_warning
+            check_writes(args)
             return args.run(args)
     except (ValueError, FileNotFoundError) as exc:
         print(f"fluxcal {args.command}: error: {exc}", file=sys.stderr)

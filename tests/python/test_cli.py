@@ -319,6 +319,24 @@ def test_first_day_mistakes_get_their_own_words(tmp_path):
     np.testing.assert_array_equal(fluxcal.read_recording(tmp_path / "out.tsv").columns["mx"], few.columns["mx"])
 
 
+def test_no_command_writes_over_a_file_it_reads(tmp_path):
+    """From a bad-input audit: calibrate, diagnose --json, drift fit and export-c with -o onto their own input
+    replaced it (apply alone refused); --plot into a missing folder failed after -o was written, exit status 2."""
+    rec, cal = tmp_path / "sim.csv", tmp_path / "cal.json"
+    assert run_cli("simulate", "-o", rec, "--n", 600, "--seed", 4).returncode == 0
+    assert run_cli("calibrate", rec, "-o", cal).returncode == 0
+    before = {path: path.read_bytes() for path in (rec, cal)}
+    for args, what in ((("calibrate", rec, "-o", rec), "-o"), (("diagnose", rec, "--json", rec), "--json"),
+                       (("drift", "fit", rec, "-o", rec), "-o"), (("export-c", cal, "-o", cal), "-o"),
+                       (("calibrate", rec, "-o", tmp_path / "c2.json", "--plot", rec), "--plot")):
+        r = run_cli(*args)
+        assert r.returncode == 2 and f"{what} {args[-1]} is the " in r.stderr and "it reads" in r.stderr, (args, r.stderr)
+    assert all(path.read_bytes() == data for path, data in before.items())
+    new = tmp_path / "new.json"
+    r = run_cli("calibrate", rec, "-o", new, "--plot", tmp_path / "missing" / "p.png")
+    assert r.returncode == 2 and "the folder" in r.stderr and "does not exist" in r.stderr and not new.exists()
+
+
 def test_apply_keeps_what_it_reads_and_says_what_it_cannot(tmp_path):
     """From a blind check: -o onto the calibration or the recording replaced it; input columns hx,hy,hz were
     overwritten; a calibration that did not converge was applied without a word; µT and uT were two units."""

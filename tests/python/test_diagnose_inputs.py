@@ -45,6 +45,18 @@ def test_constant_times_are_refused(short):
         diagnose(m, **dict(kw, t=np.zeros(len(m))))
 
 
+def test_a_stuck_sensor_and_a_time_that_is_not_finite_are_named(short):
+    # From a bad-input audit: 300 equal readings said "0 readings, the diagnosis needs at least 50" (every axis
+    # piled up at one value, taken for a clipping rail), and a NaN time "need 300 finite times, got shape (300,)".
+    m, kw = short
+    with pytest.raises(ValueError, match=f"all {len(m)} readings are the same"):
+        diagnose(np.tile(m[:1], (len(m), 1)), **kw)
+    t = kw["t"].copy()
+    t[17] = np.nan
+    with pytest.raises(ValueError, match=r"t: 1 of \d+ times are not finite \(row 17: nan\)"):
+        diagnose(m, **dict(kw, t=t))
+
+
 def test_gravity_without_reference_warns(short):
     m, kw = short
     with pytest.warns(UserWarning, match="gravity: not used"):

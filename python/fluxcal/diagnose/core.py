@@ -1743,8 +1743,14 @@ def _prepare(samples, t, temp, reference, down, field_norm, units, source, curre
     m = as_samples(samples)
     n = len(m)
     t = np.arange(n, dtype=float) if t is None else np.asarray(t, dtype=float)
-    if t.shape != (n,) or not np.all(np.isfinite(t)):
+    if t.shape != (n,):
         raise ValueError(f"t: need {n} finite times, got shape {t.shape}")
+    if not np.all(np.isfinite(t)):
+        bad = np.flatnonzero(~np.isfinite(t))
+        raise ValueError(f"t: {len(bad)} of {n} times are not finite (row {bad[0]}: {t[bad[0]]})")
+    if n and np.all(m == m[0]):  # (every axis would pile up at one value: taken for a clipping rail, 0 left)
+        raise ValueError(f"{source}: all {n} readings are the same (a sensor that is stuck, not updating, or was "
+                         "never turned)")
     if n > 1 and np.ptp(t) == 0:  # else every reading would be spread over a made-up tick of 1 s
         raise ValueError(f"t: all {n} times are {t[0]:.6g} (a clock that did not run?); give the times in seconds, "
                          "or leave t out to take the row number")
@@ -1975,6 +1981,8 @@ def diagnose(samples, t=None, temp=None, reference=None, gravity=None, field_nor
              # the readings' median time step (an eddy lag of half a sample or more on every axis is a delay)
              "period": float(np.median(np.diff(np.sort(data.t)))) if data.t is not None and len(data.t) > 1 else 0.0}
     accepted, last_rows = [], {}
+    # (each round tries at most this many: an accepted event leaves the pool's systematic candidates and adds one
+    # episode candidate; the noise models are counted though tried last)
     n_candidates = max(len(pool), 1)
     bar = None
     if progress:
