@@ -803,7 +803,15 @@ def cmd_drift(args) -> int:
                                      "temp_outside", args.file)
     compensated = model.compensate(rec.columns[column], temp, outside, outside=args.outside_range)
     known = ~np.isnan(compensated)  # with --outside-range nan, the samples the model speaks for
-    unknown = int((~known).sum())
+    missing = ~np.isfinite(rec.columns[column])  # (NaN in, NaN out: not the temperature's doing)
+    if missing.any():
+        rows = np.flatnonzero(missing)
+        lines = rec.line_numbers[rows] if rec.line_numbers is not None else rows
+        shown = ", ".join(str(x) for x in lines[:5]) + (", …" if len(rows) > 5 else "")
+        print(f"warning: {args.file}: {len(rows)} of {len(rec)} samples of {column} are not numbers "
+              f"({'file line' if rec.line_numbers is not None else 'row'}{'s' if len(rows) > 1 else ''} {shown}): "
+              f"NaN in {column}_compensated")
+    unknown = int((~known & ~missing).sum())
     if unknown:
         lo, hi = model.segments[0]["range"][0], model.segments[-1]["range"][1]
         print(f"warning: {unknown} of {len(rec)} samples at temperatures outside the model's {lo:g} … {hi:g} °C are "

@@ -95,7 +95,9 @@ def _subset_quadrics(m: np.ndarray, rng):
     at once (a batched SVD; the readings centred and scaled first for conditioning). Returns the
     centres (k×3) and shape matrices (k×3×3, |S^½ (x − c)| = 1 on the quadric) of those that are
     ellipsoids, in the readings' units."""
-    mu, scale = m.mean(axis=0), m.std() or 1.0
+    # (robustly: a mean and a std had taken the scale of one reading of 1e16, and no subset was an ellipsoid)
+    mu = np.median(m, axis=0)
+    scale = float(np.median(np.linalg.norm(m - mu, axis=1))) or 1.0
     x = (m[rng.integers(0, len(m), (SUBSETS, SUBSET))] - mu) / scale  # a repeated reading only weakens a subset
     X, Y, Z = x[..., 0], x[..., 1], x[..., 2]
     design = np.stack([X * X, Y * Y, Z * Z, 2 * X * Y, 2 * X * Z, 2 * Y * Z, 2 * X, 2 * Y, 2 * Z, np.ones_like(X)], axis=-1)

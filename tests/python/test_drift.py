@@ -350,6 +350,13 @@ def test_cli_apply_outside_the_ranges(tmp_path, foct):
     model = drift.DriftModel.load(tmp_path / "m.json")
     np.testing.assert_array_equal(np.isnan(out), [False, False, True, False, True])
     np.testing.assert_allclose(out[[0, 1, 3]], model.compensate(c["zero_bias"][[0, 1, 3]], [20.0, 30.0, 40.0]))
+    # A reading that is no number is NaN out, said as such (it had been counted among the hot ones)
+    nan = write_csv(tmp_path / "nan.csv", {"zero_bias": [c["zero_bias"][0], np.nan, c["zero_bias"][2]],
+                                           "temp": [20.0, 30.0, 40.0]})
+    run = run_cli("drift", "apply", tmp_path / "m.json", nan, "-o", tmp_path / "nan_out.csv")
+    assert run.returncode == 0 and "1 of 3 samples of zero_bias are not numbers (file line" in run.stdout, run.stdout
+    assert "outside the model" not in run.stdout
+    assert np.isnan(read_csv(tmp_path / "nan_out.csv").columns["zero_bias_compensated"][1])
 
 
 def test_cli_bad_lines(tmp_path, foct):
