@@ -350,6 +350,16 @@ def check_writes(args) -> None:
             raise ValueError(f"{option} {path}: the folder {Path(path).parent} does not exist")
 
 
+def _naming_the_input(message: str, args) -> str:
+    """An error about what a command read, prefixed with the file when it reads one file and the message does not
+    name it (a check deep in a solver knows its array, "zero_bias: sample 100 is nan", not the file); an option's
+    error ("--plot …") as it is."""
+    inputs = [str(v) for v in (getattr(args, k, None) for k in READ_AS) if isinstance(v, (str, Path))]
+    if len(inputs) != 1 or inputs[0] in message or message.startswith("-"):
+        return message
+    return f"{inputs[0]}: {message}"
+
+
 def cmd_apply(args) -> int:
     cal = Calibration.load(args.calibration)
     rec = read_recording(args.file, columns=args.columns, units=args.units, bad_lines=args.bad_lines,
@@ -1159,7 +1169,7 @@ def main(argv=None) -> int:
             check_writes(args)
             return args.run(args)
     except (ValueError, FileNotFoundError) as exc:
-        print(f"fluxcal {args.command}: error: {exc}", file=sys.stderr)
+        print(f"fluxcal {args.command}: error: {_naming_the_input(str(exc), args)}", file=sys.stderr)
         return 2
     except BrokenPipeError:  # the reader stopped early (| head): not an error of ours; quiet, as cat is
         os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())  # Python's exit flush must not fail again

@@ -357,6 +357,10 @@ def test_cli_apply_outside_the_ranges(tmp_path, foct):
     assert run.returncode == 0 and "1 of 3 samples of zero_bias are not numbers (file line" in run.stdout, run.stdout
     assert "outside the model" not in run.stdout
     assert np.isnan(read_csv(tmp_path / "nan_out.csv").columns["zero_bias_compensated"][1])
+    # an error from deep in the fit names the file it came from (it had said only "series: 3 samples, …")
+    few = write_csv(tmp_path / "few.csv", {"zero_bias": c["zero_bias"][:3], "temp": [20.0, 30.0, 40.0]})
+    run = run_cli("drift", "fit", few, "-o", tmp_path / "few.json")
+    assert run.returncode == 2 and f"error: {few}: series: 3 samples" in run.stderr, run.stderr
 
 
 def test_cli_bad_lines(tmp_path, foct):
