@@ -17,7 +17,7 @@ def load_json_object(path, what: str) -> dict:
     except OSError as exc:
         raise ValueError(f"{path}: cannot read {what} ({exc.strerror or exc})") from None
     try:
-        data = json.loads(raw.decode("utf-8"))
+        data = json.loads(raw.decode("utf-8-sig"))  # (a byte-order mark, as a Windows editor saves one, is no error)
     except UnicodeDecodeError as exc:  # a binary or mis-encoded file: name the byte, not the codec
         raise ValueError(f"{path}: not {what} (byte 0x{exc.object[exc.start]:02x} at offset {exc.start} is not "
                          "text)") from None

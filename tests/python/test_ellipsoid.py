@@ -155,6 +155,11 @@ def test_every_saved_file_loader_says_what_is_wrong_the_same_way(tmp_path):
             load(tmp_path / "pipe.json")
         with pytest.raises(ValueError, match=rf"absent.json: cannot read {what} \(No such file"):
             load(tmp_path / "absent.json")
+    # a byte-order mark (a Windows editor's) before a valid calibration is read, not called invalid JSON
+    cal = fluxcal.calibrate(simulated(3).readings)
+    cal.save(tmp_path / "plain.json")
+    (tmp_path / "bom.json").write_bytes(b"\xef\xbb\xbf" + (tmp_path / "plain.json").read_bytes())
+    np.testing.assert_array_equal(fluxcal.Calibration.load(tmp_path / "bom.json").offset, cal.offset)
 
 
 # -- bad input: a clear ValueError naming the input, never a crash or a silent answer --------------------
