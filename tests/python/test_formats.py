@@ -622,3 +622,12 @@ def test_a_json_recording_writes_nan_as_null_and_reads_it_back(tmp_path):
     back = read_recording(path)
     assert back.columns["temp"][0] == 21.5 and np.isnan(back.columns["temp"][1])
     np.testing.assert_array_equal(back.samples(), rec.samples())
+
+
+def test_a_column_a_binary_reader_left_out_is_named_where_the_magnetometer_is_missing(tmp_path):
+    # From a bad-input audit: an .npz whose my held 200 readings and mx, mz 300 said "no column 'my'; columns are:
+    # mx, mz", as if my were absent; the reader had left it out, and said so only in the metadata.
+    m = simulated(2).readings[:300]
+    np.savez(tmp_path / "short_my.npz", mx=m[:, 0], my=m[:200, 1], mz=m[:, 2])
+    with pytest.raises(ValueError, match=r"columns are: mx, mz; left out: my \(length 200, not 300\)"):
+        read_recording(tmp_path / "short_my.npz").mag_names()

@@ -67,9 +67,12 @@ class Recording:
             found = find_magnetometer(self.columns, self.source, self.units)
             if found is None:
                 text = self.metadata.get("text_columns")  # a column of numbers in a form the reader did not take
+                # (and what a binary format's reader left out: a vector of another length, strings)
+                ignored = "; ".join(filter(None, (self.metadata.get(k) for k in ("ignored_variables", "ignored_columns"))))
                 raise ValueError(f"{self.source}: no magnetometer columns (looked for mx,my,mz, MagX.., mag_x.., "
                                  f"Bx.., x,y,z; columns are: {', '.join(self.columns)}"
-                                 f"{f'; left out as text: {text}' if text else ''}); choose three with "
+                                 f"{f'; left out as text: {text}' if text else ''}"
+                                 f"{f'; left out: {ignored}' if ignored else ''}); choose three with "
                                  "--columns / select()")
             self.mag_columns = found
             for n in found:
