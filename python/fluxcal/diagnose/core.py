@@ -133,6 +133,8 @@ class Diagnosis:
     prediction there) and `heldout_gain_unresolved` whether the held-out gap's fall is within 2√2 σ √leverage
     (what the two fits' parameter noise alone can make), then said in `caveats` (infinite, None in the JSON with
     `heldout_leverage_undetermined`, when the rest does not determine every parameter they depend on);
+    a short event's `heldout_block` the readings per held-out block of its own span (None: the recording's 16
+    blocks), its gaps measured on the `heldout_n_judged` held-out readings it acts on;
     every judged row's `heldout_noise_floor` is the held-out field error that white noise σ alone leaves
     through the calibration without it, and `distortion` the largest change (RMS, in units of the signal)
     that one signal-dependent effect makes to the readings in the fit with it; a row otherwise significant
@@ -545,15 +547,16 @@ def _residual_rows(rows, per_reading: int):
 
 # ---------------------------------------------------------------- held-out regimes
 
-def _heldout(regime: str, data: _Data, directions: np.ndarray) -> np.ndarray:
+def _heldout(regime: str, data: _Data, directions: np.ndarray, block: int | None = None) -> np.ndarray:
     """Boolean mask of the held-out readings: the last quarter in time, the hottest quarter, the
     quarter of the readings nearest one octant's diagonal (orientations the fit never sees), or for
-    events every fourth of 16 blocks of time (an event is interpolated from the blocks around it)."""
+    events every fourth of 16 blocks of time (an event is interpolated from the blocks around it), or of blocks of
+    `block` readings (a short event's, `_event_block`)."""
     n = len(data.m)
     if regime == "events":
         rank = np.empty(n, int)
         rank[np.argsort(data.t, kind="stable")] = np.arange(n)
-        return (rank * 16 // n) % 4 == 2
+        return (rank * 16 // n if block is None else rank // block) % 4 == 2
     if regime == "temperature" and data.temp is not None:
         return _highest(data.temp)
     if regime == "current" and data.current is not None:
@@ -567,6 +570,28 @@ def _heldout(regime: str, data: _Data, directions: np.ndarray) -> np.ndarray:
     return _highest(data.t)
 
 
+EVENT_CORE = 0.01           # a short event acts where its features exceed this share of their largest value;
+EVENT_BLOCKS = 16          # it is held out as a recording is: every fourth of 16 blocks of its span,
+EVENT_BLOCK_CORRELATION = 2  # each at least this many correlation lengths of the base model's residuals
+
+
+def _event_block(feats: np.ndarray, data: _Data, correlation: int) -> int | None:
+    """The readings per held-out block for a short event: one that acts (its features above EVENT_CORE of their
+    largest: a box's readings, a pass's ±2.4 passage times) on fewer readings than two of the recording's 16
+    blocks, so that it can lie inside one, or across two of which neither is held out. It is held out
+    as the recording is, in EVENT_BLOCKS blocks of its own span, each at least EVENT_BLOCK_CORRELATION times the
+    base residuals' correlation length (`correlation`, readings: a held-out block's noise is its own, not its
+    neighbours'), and judged where it acts (`_where_it_acts`). None for a longer event (the recording's 16
+    blocks: finer ones, or its gaps where it acts, had let a box of a fifth of the recording confirm a 1/f noise's
+    wander, in 3 of 24 seeds), or when the correlation allows no finer blocks. A magnet's second-long pass in ten minutes
+    lay inside one of 16 blocks (38 s): held out, the training readings held none of it; trained on, no held-out
+    reading saw it."""
+    n = len(data.m)
+    span = int(np.count_nonzero(_acts(feats)))
+    block = max(span // EVENT_BLOCKS, EVENT_BLOCK_CORRELATION * correlation, 1)
+    return block if span < n // 8 and block < n // 16 else None
+
+
 def _highest(x: np.ndarray) -> np.ndarray:
     """The quarter of the readings with the highest x, by rank (ties in row order): a threshold at the
     quantile would hold out every reading of a value most of them share (motors off at 0 A, a
@@ -576,16 +601,19 @@ def _highest(x: np.ndarray) -> np.ndarray:
     return mask
 
 
-def _heldout_leverage(data: _Data, result: dict, held: np.ndarray) -> float:
-    """The mean leverage of the held-out readings for a fit on the rest: the variance, in units of the noise
-    variance, with which a model fitted without them predicts them (Jacobian of `result`, parameters
-    linearised). ≪ 1: the held-out part is predicted by what the fit learnt; ≳ 1: the fit extrapolates
-    (a short recording, or a regime the rest does not cover), and its held-out gaps judge that, not the effect."""
+def _heldout_leverage(data: _Data, result: dict, held: np.ndarray, judged: np.ndarray | None = None) -> float:
+    """The mean leverage of the held-out readings (those of them `judged`, default all) for a fit on the rest: the
+    variance, in units of the noise variance, with which a model fitted without them predicts them (Jacobian of
+    `result`, parameters linearised). ≪ 1: the held-out part is predicted by what the fit learnt; ≳ 1: the fit
+    extrapolates (a short recording, or a regime the rest does not cover), and its held-out gaps judge that, not
+    the effect."""
     J = np.asarray(result["jacobian"])
     J = J[:, np.any(J != 0, axis=0)]
     J = J / np.linalg.norm(J, axis=0)  # (the columns scaled alike: a dipole's and an offset's differ by decades)
-    rows = np.repeat(held, J.shape[0] // len(held))
-    w, V = np.linalg.eigh(J[~rows].T @ J[~rows])
+    per_reading = J.shape[0] // len(held)
+    train = ~np.repeat(held, per_reading)
+    rows = np.repeat(held if judged is None else judged, per_reading)
+    w, V = np.linalg.eigh(J[train].T @ J[train])
     determined = w > w.max() * 1e-12
     # Combinations of the parameters the rest does not determine (an event and a temperature term that the rest
     # cannot tell apart, 1e17 conditioned) leave the held-out readings unpredicted: an inverse there had given a
@@ -593,6 +621,19 @@ def _heldout_leverage(data: _Data, result: dict, held: np.ndarray) -> float:
     if not w.max() > 0 or np.sum((J[rows] @ V[:, ~determined]) ** 2) > 1e-6 * np.sum(J[rows] ** 2):
         return float("inf")
     return float(np.mean(np.sum((J[rows] @ V[:, determined] / np.sqrt(w[determined])) ** 2, axis=1)))
+
+
+def _acts(feats: np.ndarray) -> np.ndarray:
+    """The readings a candidate acts on: its features above EVENT_CORE of their largest (a box's readings, a
+    pass's ±2.4 passage times; every reading for most candidates)."""
+    size = np.max(np.abs(feats.reshape(len(feats), -1)), axis=1)
+    return size > EVENT_CORE * size.max() if size.max() > 0 else np.ones(len(feats), bool)
+
+
+def _where_it_acts(feats: np.ndarray, held: np.ndarray) -> np.ndarray:
+    """The held-out readings an event acts on (`_acts`); all held-out readings when it acts on none of them."""
+    acts = held & _acts(feats)
+    return acts if acts.any() else held
 
 
 def _correlation_length(series: np.ndarray) -> int:
@@ -905,7 +946,8 @@ UNRESOLVED_GAIN = 0.5
 def _beside(row: dict, data, directions: np.ndarray, sigma: float, accepted: list) -> None:
     """A significant row beside the effects `accepted`: not significant when its held-out gap's fall is within what
     the two fits' parameter noise alone can make (`_gain_unresolved`) and under UNRESOLVED_GAIN of the gap."""
-    leverage = _heldout_leverage(data, row["_fit"], _heldout(row["heldout"], data, directions))
+    held = _heldout(row["heldout"], data, directions, row.get("heldout_block"))
+    leverage = _heldout_leverage(data, row["_fit"], held, _judged(row, held))
     if not (_gain_unresolved(row, leverage, sigma)
             and row["heldout_gap_after"] > (1 - UNRESOLVED_GAIN) * row["heldout_gap_before"]):
         return
@@ -916,6 +958,11 @@ def _beside(row: dict, data, directions: np.ndarray, sigma: float, accepted: lis
                     "two fits' parameter noise alone can make" if np.isfinite(leverage) else
                     f"not confirmed beside {', '.join(accepted)}: the other readings do not determine "
                     "every parameter its held-out readings depend on, so its held-out test tests nothing")
+
+
+def _judged(row: dict, held: np.ndarray) -> np.ndarray:
+    """The held-out readings a row's gaps were measured on (`_validate`)."""
+    return _where_it_acts(row["_features"], held) if row.get("heldout_block") is not None else held
 
 
 def _gain_unresolved(row: dict, leverage: float, sigma: float) -> bool:
@@ -1405,9 +1452,9 @@ def _validated_terms(state: dict) -> np.ndarray:
     return np.concatenate(out) if out else np.zeros(0)
 
 
-def _held_regime(data, state, regime):
+def _held_regime(data, state, regime, block=None):
     """The held-out regime and readings of a candidate of `regime` (`_heldout`)."""
-    held = _heldout(regime, data, state["directions"])
+    held = _heldout(regime, data, state["directions"], block)
     side = {"temperature": data.temp, "current": data.current}.get(regime)
     if side is not None and np.ptp(side[~held]) < 0.5 * np.ptp(side):
         # A regressor with few values (motors off or at one throttle): its top quarter is all the fit would
@@ -1429,8 +1476,9 @@ def _in_sample_length(fit: dict, data: _Data, rows: np.ndarray) -> int:
 def _validate(data, model, state, feats, regime, sigma) -> dict:
     """Fit with and without the candidate on all but a held-out regime; judge on the held-out part."""
     vector, fixed = MODELS[model]
-    regime, held = _held_regime(data, state, regime)
-    key = regime
+    block = _event_block(feats, data, state["correlation"]) if regime == "events" else None
+    regime, held = _held_regime(data, state, regime, block)
+    key = (regime, block)
     terms = _validated_terms(state)
     if key not in state["train_fits"]:
         state["train_fits"][key] = _fit(data, state["start"], fixed, _features(state["validated"]), ~held,
@@ -1442,10 +1490,16 @@ def _validate(data, model, state, feats, regime, sigma) -> dict:
                  start_terms=np.concatenate([terms, np.zeros(feats.shape[1])]))
     e0 = _residuals(before, data, base_feats, held)
     e1 = _residuals(after, data, all_feats, held)
-    return {"heldout": regime, "heldout_n": int(held.sum()),
+    # A short event's gaps where it acts: a magnet's second-long pass in ten minutes takes most of the departure
+    # within its reach, and next to nothing of the whole held-out part's, where the noise alone had left a gap of 0
+    # before and after. (The block test keeps every held-out reading: its blocks span the recording.)
+    within = _where_it_acts(feats, held) if block is not None else held
+    g0, g1 = (_residuals(fit, data, f, within) for fit, f in ((before, base_feats), (after, all_feats)))
+    return {"heldout": regime, "heldout_n": int(held.sum()), "heldout_block": block,
+            "heldout_n_judged": int(within.sum()),
             "heldout_noise_floor": _noise_floor(before, data, base_feats, held, sigma),
-            "heldout_gap_before": _gap(e0, sigma), "heldout_gap_after": _gap(e1, sigma),
-            "heldout_rms_before": float(np.sqrt(np.mean(e0 ** 2))), "heldout_rms_after": float(np.sqrt(np.mean(e1 ** 2))),
+            "heldout_gap_before": _gap(g0, sigma), "heldout_gap_after": _gap(g1, sigma),
+            "heldout_rms_before": float(np.sqrt(np.mean(g0 ** 2))), "heldout_rms_after": float(np.sqrt(np.mean(g1 ** 2))),
             "heldout_pvalue": _improvement_pvalue(e0, e1, _in_sample_length(after, data, ~held)),
             **{f"{k}_before": v for k, v in _downstream(before, data, base_feats, held).items()},
             **{f"{k}_after": v for k, v in _downstream(after, data, all_feats, held).items()}}
@@ -1977,6 +2031,8 @@ def diagnose(samples, t=None, temp=None, reference=None, gravity=None, field_nor
     where = _where(data, e0, sigma, directions, vector)
     state = {"start": start, "result": base, "features": [], "signal_blocks": [], "validated": [], "terms": np.zeros(0),
              "train_fits": {}, "sigma_bound": sigma_bound,
+             # the base residuals' correlation length in readings (`_event_block`)
+             "correlation": _in_sample_length(base, data, np.ones(len(data.m), bool)) // (len(e0) // len(data.m)),
              "directions": directions, "alpha": alpha,
              # the readings' median time step (an eddy lag of half a sample or more on every axis is a delay)
              "period": float(np.median(np.diff(np.sort(data.t)))) if data.t is not None and len(data.t) > 1 else 0.0}
@@ -2008,7 +2064,8 @@ def diagnose(samples, t=None, temp=None, reference=None, gravity=None, field_nor
             data, applied, block = _exact_move(data, state, model, names[w["effect"]])
             moves.append((w, names[w["effect"]], applied, block))
         w["step"] = len(accepted)
-        w["heldout_leverage"] = _heldout_leverage(data, state["result"], _heldout(w["heldout"], data, directions))
+        held = _heldout(w["heldout"], data, directions, w.get("heldout_block"))
+        w["heldout_leverage"] = _heldout_leverage(data, state["result"], held, _judged(w, held))
         last_rows[w["effect"]] = w
 
     for _round in range(max_effects + 1):

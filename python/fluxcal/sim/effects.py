@@ -950,7 +950,11 @@ class MovingDipole(_TimeBox):
     # own slow wander in sample, not held out.
     PASS_REACH = 8.0
     PASS_SIDES = 2.0
-    PASS_TIMES = 8  # passage times T tried, geometric from a 200th to a 16th of the recording
+    PASS_TIMES = 8  # passage times T tried, geometric from a 200th to a 16th of the recording (at least: below)
+    # … and down to PASS_SHORTEST (in the time's units; four samples at least) in a long recording, at the same ratio:
+    # a magnet carried past at walking pace a metre away takes about 0.7 s (T = distance / speed), 1/900 of ten
+    # minutes, where a 200th had left it to a box or a step
+    PASS_SHORTEST = 0.5
     PASS_STARTS = 3  # the best passage times on the coarse grid refined
 
     @classmethod
@@ -973,7 +977,10 @@ class MovingDipole(_TimeBox):
         of one either side) for each passage time, then the two refined in turn down to the sample spacing.
         (closest time and passage time or None, best score, alternatives tried)."""
         span, dt = float(np.ptp(ctx.t)), _sample_step(ctx.t)
-        times = np.geomspace(max(2.0 * dt, span / 200), span / 16, cls.PASS_TIMES)
+        shortest = max(2.0 * dt, min(span / 200, max(4.0 * dt, cls.PASS_SHORTEST)))
+        ratio = (200 / 16) ** (1 / (cls.PASS_TIMES - 1))
+        count = max(cls.PASS_TIMES, int(np.ceil(np.log(span / 16 / shortest) / np.log(ratio) - 1e-9)) + 1)
+        times = np.geomspace(shortest, span / 16, count)
         if not span / 16 > 2.0 * dt:
             return None, -np.inf, 0
 
