@@ -337,7 +337,8 @@ def check_writes(args) -> None:
     calibration, a calibration by its C header: every command but apply had done it) and a file in a folder that
     does not exist (found only after the other outputs were written, with exit status 2)."""
     reads = [(name, v) for name, value in vars(args).items() if name not in WRITES
-             for v in (value if isinstance(value, list) else [value]) if isinstance(v, (str, Path)) and os.path.isfile(v)]
+             for v in (value if isinstance(value, list) else [value])
+             if isinstance(v, (str, Path)) and os.path.isfile(v)]
     for name, option in WRITES.items():
         path = getattr(args, name, None)
         if not isinstance(path, (str, Path)):

@@ -23,7 +23,8 @@ it, and how far the gap shrinks once that effect is modelled — proved on held-
    model cannot see it) — the smaller of the two ratios.
 3. How far: each candidate is fitted again without a held-out regime — the last quarter in time, the hottest
    quarter, the highest-current quarter, a cap of unseen orientations, or interleaved blocks of time for
-   events (for a short event, of its own span, and judged where it acts: `_event_block`) — and judged there: the gap √(RMS² − σ²) before and after, and the downstream errors (field; with
+   events (for a short event, of its own span, and judged where it acts: `_event_block`) — and judged there:
+   the gap √(RMS² − σ²) before and after, and the downstream errors (field; with
    reference vectors the direction and, given the down direction, the heading). Effects are added greedily
    while the best one is significant (whitened likelihood ratio after a Bonferroni correction over the
    candidates and their alternatives, ΔBIC < 0, and a held-out improvement that a block test finds

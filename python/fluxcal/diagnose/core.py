@@ -582,10 +582,10 @@ def _event_block(feats: np.ndarray, data: _Data, correlation: int) -> int | None
     as the recording is, in EVENT_BLOCKS blocks of its own span, each at least EVENT_BLOCK_CORRELATION times the
     base residuals' correlation length (`correlation`, readings: a held-out block's noise is its own, not its
     neighbours'), and judged where it acts (`_where_it_acts`). None for a longer event (the recording's 16
-    blocks: finer ones, or its gaps where it acts, had let a box of a fifth of the recording confirm a 1/f noise's
-    wander, in 3 of 24 seeds), or when the correlation allows no finer blocks. A magnet's second-long pass in ten minutes
-    lay inside one of 16 blocks (38 s): held out, the training readings held none of it; trained on, no held-out
-    reading saw it."""
+    blocks: finer ones, or its gaps where it acts, had let a box of a fifth of the recording confirm a 1/f
+    noise's wander, in 3 of 24 seeds), or when the correlation allows no finer blocks. A magnet's second-long
+    pass in ten minutes lay inside one of 16 blocks (38 s): held out, the training readings held none of it;
+    trained on, no held-out reading saw it."""
     n = len(data.m)
     span = int(np.count_nonzero(_acts(feats)))
     block = max(span // EVENT_BLOCKS, EVENT_BLOCK_CORRELATION * correlation, 1)
@@ -1499,7 +1499,8 @@ def _validate(data, model, state, feats, regime, sigma) -> dict:
             "heldout_n_judged": int(within.sum()),
             "heldout_noise_floor": _noise_floor(before, data, base_feats, held, sigma),
             "heldout_gap_before": _gap(g0, sigma), "heldout_gap_after": _gap(g1, sigma),
-            "heldout_rms_before": float(np.sqrt(np.mean(g0 ** 2))), "heldout_rms_after": float(np.sqrt(np.mean(g1 ** 2))),
+            "heldout_rms_before": float(np.sqrt(np.mean(g0 ** 2))),
+            "heldout_rms_after": float(np.sqrt(np.mean(g1 ** 2))),
             "heldout_pvalue": _improvement_pvalue(e0, e1, _in_sample_length(after, data, ~held)),
             **{f"{k}_before": v for k, v in _downstream(before, data, base_feats, held).items()},
             **{f"{k}_after": v for k, v in _downstream(after, data, all_feats, held).items()}}

@@ -68,7 +68,8 @@ class Recording:
             if found is None:
                 text = self.metadata.get("text_columns")  # a column of numbers in a form the reader did not take
                 # (and what a binary format's reader left out: a vector of another length, strings)
-                ignored = "; ".join(filter(None, (self.metadata.get(k) for k in ("ignored_variables", "ignored_columns"))))
+                ignored = "; ".join(filter(None, (self.metadata.get(k)
+                                                  for k in ("ignored_variables", "ignored_columns"))))
                 raise ValueError(f"{self.source}: no magnetometer columns (looked for mx,my,mz, MagX.., mag_x.., "
                                  f"Bx.., x,y,z; columns are: {', '.join(self.columns)}"
                                  f"{f'; left out as text: {text}' if text else ''}"
