@@ -157,6 +157,10 @@ class Calibration:
         for name in ("summary", "metadata"):
             if not isinstance(data.get(name, {}), dict):
                 raise ValueError(f"{source}: {name} {data[name]!r:.60} must be a JSON object")
+        for flag in ("identifiable", "converged"):  # export-c refuses on them: a string "false" had been true
+            value = data.get("summary", {}).get(flag, True)
+            if not isinstance(value, bool):
+                raise ValueError(f"{source}: summary.{flag} {value!r:.40} must be true or false (JSON, unquoted)")
         if not (isinstance(data["field_norm"], (int, float)) and data["field_norm"] > 0):
             raise ValueError(f"{source}: field_norm {data['field_norm']!r} must be a positive number")
         try:

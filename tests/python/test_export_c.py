@@ -427,6 +427,13 @@ def test_an_undetermined_calibration_is_refused_unless_forced(tmp_path):
     assert "WARNING (exported with --force): the calibration is not identifiable" in (tmp_path / "cal.h").read_text()
     run = run_cli("apply", tmp_path / "cal.json", src, "-o", tmp_path / "out.csv")
     assert run.returncode == 0 and "warning:" in run.stdout and "not identifiable" in run.stdout
+    # a hand-edited flag as a string ("false" is a true string) is refused, not taken for identifiable
+    edited = json.loads((tmp_path / "cal.json").read_text())
+    edited["summary"]["identifiable"] = "false"
+    (tmp_path / "edited.json").write_text(json.dumps(edited))
+    run = run_cli("export-c", tmp_path / "edited.json", "-o", tmp_path / "edited.h")
+    assert run.returncode == 2 and "summary.identifiable 'false' must be true or false" in run.stderr, run.stderr
+    assert not (tmp_path / "edited.h").exists()
 
 
 RAIL_DRIVER = r"""
