@@ -93,6 +93,9 @@ def calibrate(samples, method: str = "auto", field_norm: float | None = None, re
         if reference is None:
             raise ValueError("reference: the vector method needs the true field of each reading")
         reference = as_samples(reference, "reference")
+        if reference.shape == m.shape and np.array_equal(reference, m):  # a perfect fit of nothing, 1e-29 errors
+            raise ValueError("reference: it is the readings themselves (the same columns given twice?); give the "
+                             "true field of each reading (e.g. IGRF rotated by the attitude)")
     left_out = find_outliers(m, reference if vector else None) if outliers == "drop" else None
     all_readings = m
     if left_out:

@@ -69,6 +69,9 @@ def test_reference_columns_are_used_when_named_and_noticed_when_not(tmp_path):
     assert missing.returncode == 2 and "--reference with three columns" in missing.stderr
     magnitudes = run_cli("calibrate", path, "--reference", "rx,ry,rz", "--method", "als")
     assert magnitudes.returncode == 2 and "fits field magnitudes only" in magnitudes.stderr
+    # the readings named as their own reference: a perfect fit of nothing ("identifiable yes", errors of 1e-29)
+    itself = run_cli("calibrate", path, "--reference", "mx,my,mz")
+    assert itself.returncode == 2 and "reference: it is the readings themselves" in itself.stderr, itself.stderr
 
 
 def test_outliers_are_named_by_their_file_lines_and_left_out_of_the_held_out_check(tmp_path):
