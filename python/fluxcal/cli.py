@@ -647,6 +647,13 @@ def _solve_ring_snapshots(ring, ring_cal, snaps, rotation: float, rows, args) ->
              else f"snapshots {rows[0]}–{rows[-1]}" if contiguous else f"the {len(rows)} snapshots at {rotation:g}°")
     if not live.any():
         raise ValueError(f"{where}: no sensor has a finite reading (every sensor NaN)")
+    with np.errstate(over="ignore"):
+        huge = np.isfinite(snaps) & ~np.isfinite(snaps ** 2)  # (a garbled line: its square overflows the fit's sums)
+    if huge.any():
+        k, sensor, axis = np.argwhere(huge)[0]
+        raise ValueError(f"{args.file}, {where}: sensor {sensor} reads {snaps[k, sensor, axis]:.3g} on its "
+                         f"{'xy'[axis]} axis, "
+                         "past any sensor's range (a garbled line?)")
     if not live.all():
         print(f"{where}: sensor(s) {', '.join(map(str, np.nonzero(~live)[0]))} not finite (dead?): solved with the "
               f"other {int(live.sum())}")

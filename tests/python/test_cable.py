@@ -421,6 +421,11 @@ def test_cli_solve_joint_snapshots_and_a_dead_sensor(tmp_path):
     r = run_cli("cable", "solve", fluxcal.cable.write_ring_csv(tmp_path / "none.csv", ring, y), "--joint")
     assert r.returncode == 2 and "no sensor has a finite reading" in r.stderr, r.stderr
     np.testing.assert_allclose(np.array(sol["currents_a"]), currents, atol=0.03)
+    # a garbled reading of 1e300 (its square overflows) is named, not "CableSolveOptions::noise_sigma: inf"
+    y = ring.field(cores, currents) + np.random.default_rng(3).normal(0, 1e-8, (20, 8, 2))
+    y[4, 2, 1] = 1e300
+    r = run_cli("cable", "solve", fluxcal.cable.write_ring_csv(tmp_path / "huge.csv", ring, y), "--conductors", "3")
+    assert r.returncode == 2 and "huge.csv, snapshot 4: sensor 2 reads 1e+300 on its y axis" in r.stderr, r.stderr
 
 
 def test_ring_calibration_covariance_matches_the_monte_carlo_spread():
