@@ -755,6 +755,11 @@ def cmd_drift(args) -> int:
                      "each")
             print(f"skipped {rec.metadata['skipped_lines'].replace(':', ' lines:', 1)} ({where})")
         temp, outside, temperature = _temperatures(rec, args.temp_column, args.outside_column, args.file)
+        glitches = drift.temperature_glitches(temp)
+        if len(glitches):  # (said with their file lines, before the fit says them by row)
+            lines = rec.line_numbers[glitches] if rec.line_numbers is not None else None
+            raise ValueError(f"{args.file}: {temperature['column']}: "
+                             + drift.glitch_words(temp, glitches, "line" if lines is not None else "row", lines))
         try:
             breakpoints = [float(v) for v in args.breakpoints.split(",")]
         except ValueError:

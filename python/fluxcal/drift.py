@@ -272,6 +272,38 @@ def dc_gain(kalman: ArKalman) -> float:
     return float(np.linalg.solve(np.eye(n) - F, K)[0])
 
 
+def temperature_glitches(temp, run: int = 3) -> np.ndarray:
+    """Rows where a logged temperature leaves its neighbours for at most `run` samples by more than the whole
+    range of the rest: a thermometer's error code (85 °C at a DS18B20's power-on, −127, 327.67 = 32767/100) or
+    a garbled line, no temperature a sensing element reaches and leaves so fast. Only such gross glitches: the
+    rule has no scale of its own to tune (a 327.67 in a −20…50 °C log had stretched the last range to 327.67 °C
+    and cut the drift reduction from 937× to 2.8×)."""
+    from scipy.ndimage import median_filter
+
+    t = np.asarray(temp, dtype=float)
+    if len(t) < 2 * run + 2 or not np.all(np.isfinite(t)):
+        return np.zeros(0, dtype=int)
+    off = np.abs(t - median_filter(t, size=2 * run + 1, mode="nearest"))
+    rows = []
+    for i in np.argsort(off)[::-1][:max(1, len(t) // 100)]:  # the largest departures, a hundredth at most
+        rest = t[off < off[i]]  # (without it and the glitches beyond it)
+        if len(rest) < len(t) // 2 or not off[i] > np.ptp(rest):
+            break
+        rows.append(int(i))
+    return np.sort(np.array(rows, dtype=int))
+
+
+def glitch_words(temp, rows, word: str = "row", labels=None) -> str:
+    """`temperature_glitches`' rows said: where (`labels`, e.g. file lines, else the rows), what they read, and
+    the remedy."""
+    labels = rows if labels is None else labels
+    shown = ", ".join(f"{word} {k}: {temp[i]:g} °C" for i, k in zip(rows[:5], labels[:5]))
+    return (f"{len(rows)} reading(s) leave the temperature's course and come back within 3 samples by more than the "
+            f"whole range of the rest ({shown}{', …' if len(rows) > 5 else ''}): a thermometer's error code or a "
+            "garbled line, which would stretch the model's ranges; remove them, or leave their temperature empty "
+            "and pass --bad-lines skip")
+
+
 def _finite(values: np.ndarray, name: str) -> np.ndarray:
     bad = ~np.isfinite(values)
     if bad.any():
@@ -327,6 +359,9 @@ def fit_pipeline(zero_bias, temp, temp_outside=None, regressor: str = "temp", br
         raise ValueError(f"drift_input: {drift_input!r} is not one of {', '.join(DRIFT_INPUTS)}")
     w = _finite(ts.as_series(zero_bias, "zero_bias"), "zero_bias")
     temp = _finite(ts.as_series(temp, "temp"), "temp")
+    glitches = temperature_glitches(temp)
+    if len(glitches):
+        raise ValueError(f"temp: {glitch_words(temp, glitches)}")
     if temp.size != w.size:
         raise ValueError(f"temp: {temp.size} samples, zero_bias has {w.size}")
     breaks, gaps, gap_notes, gap_warnings = _gaps(t, w.size, ar_max_order)

@@ -363,6 +363,28 @@ def test_cli_apply_outside_the_ranges(tmp_path, foct):
     assert run.returncode == 2 and f"error: {few}: series: 3 samples" in run.stderr, run.stderr
 
 
+def test_a_thermometer_error_code_is_named_not_fitted(tmp_path, foct):
+    """From a bad-input audit: one temperature of 327.67 (an int16 error code / 100) in a chamber log was taken as a
+    reading: the last range stretched to 327.67 °C and the drift reduction fell from 937× to 2.8×, exit 0. A
+    reading that leaves the course and comes back within 3 samples by more than the whole range of the rest is
+    named with its file line; a smooth course, a thermometer's own noise and its 1/16 °C steps are not."""
+    c = foct.columns
+    assert len(drift.temperature_glitches(c["temp"])) == 0
+    rng = np.random.default_rng(0)
+    noisy = 25 + np.round(rng.normal(0, 0.1, 5000) / 0.0625) * 0.0625
+    assert len(drift.temperature_glitches(noisy)) == 0
+    noisy[[100, 2000, 2001]] = [85.0, -127.0, -127.0]  # a DS18B20's power-on code, a two-sample dropout
+    assert drift.temperature_glitches(noisy).tolist() == [100, 2000, 2001]
+    temp = np.array(c["temp"], dtype=float)
+    temp[500] = 327.67
+    src = write_csv(tmp_path / "glitch.csv", {"zero_bias": c["zero_bias"], "temp": temp})
+    run = run_cli("drift", "fit", src, "-o", tmp_path / "m.json")
+    assert run.returncode == 2 and "(line " in run.stderr and ": 327.67 °C)" in run.stderr, run.stderr
+    assert not (tmp_path / "m.json").exists()
+    with pytest.raises(ValueError, match=r"temp: 1 reading\(s\) .* \(row 500: 327.67 °C\)"):
+        drift.fit_pipeline(c["zero_bias"], temp)
+
+
 def test_cli_bad_lines(tmp_path, foct):
     # A blank cell's error suggests --bad-lines skip; drift fit and apply now accept it.
     c = foct.columns
