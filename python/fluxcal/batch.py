@@ -382,7 +382,8 @@ def calibrate_fleet(directory, out_dir, workers: int | None = None, scheduler: s
 
     directory, out_dir = Path(directory).resolve(), Path(out_dir).resolve()
     if not directory.is_dir():
-        raise ValueError(f"{directory}: no such directory")
+        what = "a file, not a folder of recordings" if directory.exists() else "no such directory"
+        raise ValueError(f"{directory}: {what}")
     if method not in METHODS or method == "vector":
         raise ValueError(f"method: {method!r} is not one of {', '.join(m for m in METHODS if m != 'vector')} "
                          f"(the vector fit needs reference fields a recording folder does not give)")

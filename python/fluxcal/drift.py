@@ -362,6 +362,9 @@ def fit_pipeline(zero_bias, temp, temp_outside=None, regressor: str = "temp", br
     glitches = temperature_glitches(temp)
     if len(glitches):
         raise ValueError(f"temp: {glitch_words(temp, glitches)}")
+    if temp.size and np.ptp(temp) == 0:  # (else "range [-20, 0]: 0 samples", as if the ranges were wrong)
+        raise ValueError(f"temp: every sample is {temp[0]:g} °C; a drift with temperature needs the temperature to "
+                         "change (a chamber cycle, a warm-up)")
     if temp.size != w.size:
         raise ValueError(f"temp: {temp.size} samples, zero_bias has {w.size}")
     breaks, gaps, gap_notes, gap_warnings = _gaps(t, w.size, ar_max_order)

@@ -242,6 +242,7 @@ def test_cli_runs_a_local_cluster_and_exits_0_with_failed_units(tmp_path):
 
 @pytest.mark.parametrize("make, args, message", [
     (None, (), "no such directory"),
+    ("file", (), "a file, not a folder of recordings"),
     ("empty", (), "no recordings matching '*.csv'"),
     ("empty", ("--workers", 0), "--workers: 0 is not a positive whole number"),
     ("empty", ("--method", "vector"), "invalid choice"),
@@ -249,7 +250,9 @@ def test_cli_runs_a_local_cluster_and_exits_0_with_failed_units(tmp_path):
 ])
 def test_cli_bad_arguments_exit_2(tmp_path, make, args, message):
     folder = tmp_path / "recordings"
-    if make:
+    if make == "file":
+        folder.write_text("t,mx,my,mz\n")
+    elif make:
         folder.mkdir()
     r = _batch_cli(folder, "-o", tmp_path / "out", *args)
     assert r.returncode == 2 and message in r.stderr, r.stderr

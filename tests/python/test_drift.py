@@ -383,6 +383,9 @@ def test_a_thermometer_error_code_is_named_not_fitted(tmp_path, foct):
     assert not (tmp_path / "m.json").exists()
     with pytest.raises(ValueError, match=r"temp: 1 reading\(s\) .* \(row 500: 327.67 °C\)"):
         drift.fit_pipeline(c["zero_bias"], temp)
+    # a temperature that never changes is said as such ("range [-20, 0]: 0 samples" had blamed the ranges)
+    with pytest.raises(ValueError, match=r"temp: every sample is 25 °C; a drift with temperature needs"):
+        drift.fit_pipeline(c["zero_bias"], np.full(len(c["zero_bias"]), 25.0))
 
 
 def test_cli_bad_lines(tmp_path, foct):

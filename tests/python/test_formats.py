@@ -631,3 +631,11 @@ def test_a_column_a_binary_reader_left_out_is_named_where_the_magnetometer_is_mi
     np.savez(tmp_path / "short_my.npz", mx=m[:, 0], my=m[:200, 1], mz=m[:, 2])
     with pytest.raises(ValueError, match=r"columns are: mx, mz; left out: my \(length 200, not 300\)"):
         read_recording(tmp_path / "short_my.npz").mag_names()
+
+
+def test_select_takes_the_columns_as_one_string_as_columns_does():
+    # From a bad-input audit: select("foo,bar,baz") iterated the string's characters ("got f, o, o, ,, b, …").
+    rec = Recording(columns={"a": np.zeros(3), "b": np.ones(3), "c": np.arange(3.0)}, source="r")
+    assert rec.select("c, a,b").mag_names() == ("c", "a", "b")
+    with pytest.raises(ValueError, match="no column 'foo', 'bar', 'baz'"):
+        rec.select("foo,bar,baz")

@@ -45,8 +45,8 @@ class Recording:
         return len(next(iter(self.columns.values()))) if self.columns else 0
 
     def select(self, names) -> "Recording":
-        """Use `names` (three columns) as the magnetometer axes."""
-        names = tuple(names)
+        """Use `names` (three columns, or one string "mx,my,mz" as --columns takes them) as the magnetometer axes."""
+        names = tuple(n.strip() for n in names.split(",")) if isinstance(names, str) else tuple(names)
         if len(names) != 3:
             raise ValueError(f"{self.source}: need three magnetometer columns, got {', '.join(names) or 'none'}")
         if len(set(names)) != 3:
