@@ -386,9 +386,18 @@ def cmd_apply(args) -> int:
     units = {**rec.units, **({k: cal.h_units for k in ("hx", "hy", "hz")} if cal.h_units else {})}
     write_output(args.output, Recording(columns=columns, units=units, source=str(args.output),
                                         metadata={**rec.metadata, "calibration": args.calibration}))
+    with np.errstate(over="ignore"):
+        far = ~np.isfinite(np.linalg.norm(h, axis=1)) & np.isfinite(h).all(axis=1)  # |h| overflows: 1e300
+    if far.any():  # written as read; left out of the statistics below, which they would make inf or NaN
+        rows = np.flatnonzero(far)
+        where = rec.line_numbers[rows] if rec.line_numbers is not None else rows
+        word = "file line" if rec.line_numbers is not None else "row"
+        print(f"warning: {args.file}: {len(rows)} reading(s) past any sensor's range ({word} "
+              f"{', '.join(map(str, where[:5]))}{', …' if len(rows) > 5 else ''}: a garbled line?), left out of "
+              "|h| std/mean")
     print(f"wrote {args.output}: {len(rec)} rows, corrected columns hx,hy,hz "
-          f"(|h| std/mean {100 * _spread(h):.3f} %)")
-    scale = _scale_warning(cal, h, rec.field_units())
+          f"(|h| std/mean {100 * _spread(h[~far]):.3f} %)")
+    scale = _scale_warning(cal, h[~far], rec.field_units())
     if scale:
         print(f"warning: {scale}")
     if cal.summary.get("converged", True) is False:  # export-c refuses such a calibration without --force

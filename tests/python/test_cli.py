@@ -337,6 +337,25 @@ def test_no_command_writes_over_a_file_it_reads(tmp_path):
     assert r.returncode == 2 and "the folder" in r.stderr and "does not exist" in r.stderr and not new.exists()
 
 
+def test_apply_names_a_reading_past_any_range_and_keeps_its_statistics_finite(tmp_path):
+    """From a bad-input audit: one reading of 1e300 printed NumPy's overflow warnings and "|h| std/mean nan %"."""
+    rec, cal = tmp_path / "sim.csv", tmp_path / "cal.json"
+    assert run_cli("simulate", "-o", rec, "--n", 600, "--seed", 4).returncode == 0
+    assert run_cli("calibrate", rec, "-o", cal).returncode == 0
+    lines = rec.read_text().splitlines()
+    row = next(i for i, line in enumerate(lines) if line and not line.startswith("#") and line[0].isdigit()) + 10
+    cells = lines[row].split(",")
+    cells[1] = "1e300"
+    lines[row] = ",".join(cells)
+    huge = tmp_path / "huge.csv"
+    huge.write_text("\n".join(lines) + "\n")
+    r = run_cli("apply", cal, huge, "-o", tmp_path / "h.csv")
+    assert r.returncode == 0, r.stderr
+    assert f"1 reading(s) past any sensor's range (file line {row + 1}" in r.stdout, r.stdout
+    assert "nan %" not in r.stdout and "RuntimeWarning" not in r.stdout + r.stderr
+    assert len(fluxcal.read_recording(tmp_path / "h.csv")) == 600  # written as read
+
+
 def test_apply_keeps_what_it_reads_and_says_what_it_cannot(tmp_path):
     """From a blind check: -o onto the calibration or the recording replaced it; input columns hx,hy,hz were
     overwritten; a calibration that did not converge was applied without a word; µT and uT were two units."""
