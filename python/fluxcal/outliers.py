@@ -25,7 +25,7 @@ normal deviate of the same tail probability, so thresholds and messages read as 
 """
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 from scipy import special, stats
@@ -73,9 +73,11 @@ class Outliers:
             shown = ", ".join(str(r) for r in self.rows[:8]) + (", …" if len(self.rows) > 8 else "")
             kinds = "".join(f"; {k} {what}" for what, k in (
                 ("read exactly 0,0,0 (glitches)", self.kinds.get("zero", 0)),
-                ("sit at a column's extreme value, repeated (ADC rail)", self.kinds.get("rail", 0))) if k)
-            out.append(f"left out {len(self.rows)} of {n} readings that lie more than {self.threshold:.1f} robust σ "
-                       f"(up to {self.largest:.0f}) off {self.model} (rows {shown}{kinds}); outliers='keep' "
+                ("sit at a column's extreme value, repeated (ADC rail)", self.kinds.get("rail", 0)),
+                ("lie past any sensor's range (their squares overflow)", self.kinds.get("overflow", 0))) if k)
+            largest = f" (up to {self.largest:.0f})" if self.largest > 0 else ""  # (none but readings past range)
+            out.append(f"left out {len(self.rows)} of {n} readings that lie more than {self.threshold:.1f} robust σ"
+                       f"{largest} off {self.model} (rows {shown}{kinds}); outliers='keep' "
                        "(--outliers keep) keeps them")
         if self.stretches:
             shown = ", ".join(f"{a}–{b} (up to {z:.0f} σ)" for a, b, z in self.stretches[:4])
@@ -196,6 +198,14 @@ def find_outliers(samples, reference=None, alpha: float = 0.01, seed: int = 0) -
         return _vector_outliers(m, as_samples(reference, "reference"), alpha, seed)
     threshold = float(stats.norm.isf(alpha / (2 * n))) if n else 0.0
     none = Outliers(np.zeros(0, dtype=int), threshold, screened=False)
+    with np.errstate(over="ignore", invalid="ignore"):
+        huge = np.isfinite(m).all(axis=1) & ~np.isfinite(np.einsum("ij,ij->i", m, m))
+    if huge.any() and n - huge.sum() >= MIN_SAMPLES:  # readings past any sensor's range (1e300): left out first
+        kept = np.flatnonzero(~huge)
+        inner = find_outliers(m[kept], None, alpha, seed)
+        return replace(inner, rows=np.sort(np.concatenate([np.flatnonzero(huge), kept[inner.rows]])), screened=True,
+                       kinds={**inner.kinds, "overflow": int(huge.sum())},
+                       stretches=[(int(kept[a]), int(kept[b]), z) for a, b, z in inner.stretches])
     if n < MIN_SAMPLES or not _squares_representable(m):
         return none  # too few to judge, NaN or out of scale: the fit itself names the problem
     start = _try_fit(m, "als")

@@ -45,17 +45,20 @@ def test_a_bus_hang_of_zero_rows_is_left_out_and_not_also_listed_as_kept():
     assert not any(a <= 409 and b >= 400 for a, b, _ in out["stretches_kept"])
 
 
-@pytest.mark.parametrize("value", [1e16, -3.4e38])
+@pytest.mark.parametrize("value", [1e16, -3.4e38, 1e300])
 def test_one_reading_far_out_of_scale_is_a_glitch_not_a_plane(value):
     """From a bad-input audit: one garbled value of 1e16 (or a float32's −FLT_MAX) took the screen's scale (a
     mean and a std of all readings): no subset was an ellipsoid, the screen stood down, and calibrate said the
-    readings lie in a plane. The screen centres and scales robustly."""
+    readings lie in a plane. The screen centres and scales robustly; a reading whose square overflows (1e300) is
+    left out before it."""
     s, _ = turned(5)
     m = s.readings.copy()
     m[123, 0] = value
     assert list(find_outliers(m).rows) == [123]
     cal = fluxcal.calibrate(m, field_norm=H)
     assert cal.summary["outliers"]["rows"] == [123]
+    if value == 1e300:  # its square overflows: left out before the screen, and said so
+        assert "1 lie past any sensor's range (their squares overflow)" in " ".join(cal.summary["warnings"])
     assert np.linalg.norm(cal.offset - s.true_calibration().offset) < 0.05 * H
 
 
