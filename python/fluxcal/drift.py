@@ -359,16 +359,16 @@ def fit_pipeline(zero_bias, temp, temp_outside=None, regressor: str = "temp", br
         raise ValueError(f"drift_input: {drift_input!r} is not one of {', '.join(DRIFT_INPUTS)}")
     w = _finite(ts.as_series(zero_bias, "zero_bias"), "zero_bias")
     temp = _finite(ts.as_series(temp, "temp"), "temp")
-    glitches = temperature_glitches(temp)
-    if len(glitches):
-        raise ValueError(f"temp: {glitch_words(temp, glitches)}")
-    if temp.size and np.ptp(temp) == 0:  # (else "range [-20, 0]: 0 samples", as if the ranges were wrong)
-        raise ValueError(f"temp: every sample is {temp[0]:g} °C; a drift with temperature needs the temperature to "
-                         "change (a chamber cycle, a warm-up)")
     if temp.size != w.size:
         raise ValueError(f"temp: {temp.size} samples, zero_bias has {w.size}")
     breaks, gaps, gap_notes, gap_warnings = _gaps(t, w.size, ar_max_order)
     pre = ts.preprocess(w, subseries=subseries, breaks=breaks)
+    glitches = temperature_glitches(temp)  # (after the sizes and the length are judged)
+    if len(glitches):
+        raise ValueError(f"temp: {glitch_words(temp, glitches)}")
+    if np.ptp(temp) == 0:  # (else "range [-20, 0]: 0 samples", as if the ranges were wrong)
+        raise ValueError(f"temp: every sample is {temp[0]:g} °C; a drift with temperature needs the temperature to "
+                         "change (a chamber cycle, a warm-up)")
     drift_options = dict(regressor=regressor, breakpoints=breakpoints, max_order=max_order,
                          significance=significance, continuous=continuous, whiten=whiten, breaks=breaks)
     # S2.3 removes the trend before the AR model; here the trend is the temperature drift, so the AR model
