@@ -55,6 +55,13 @@ def require_finite(arr: np.ndarray, name: str) -> np.ndarray:
     return arr
 
 
+def past_range(rows: np.ndarray) -> np.ndarray:
+    """Mask of the finite rows of `rows` (N×k) whose sum of squares overflows (a garbled reading of 1e300): past
+    any sensor's range, and inf or NaN in every norm and fit they enter."""
+    with np.errstate(over="ignore", invalid="ignore"):
+        return np.isfinite(rows).all(axis=1) & ~np.isfinite(np.einsum("ij,ij->i", rows, rows))
+
+
 def first_nonfinite(arr: np.ndarray):
     """(row, column) of the first NaN/Inf in `arr`, or None."""
     bad = ~np.isfinite(arr)

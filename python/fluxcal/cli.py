@@ -12,6 +12,7 @@ from pathlib import Path
 import numpy as np
 
 from . import __version__, cmake_dir
+from ._arrays import past_range
 from .calibration import TESLA_PER_UNIT, Calibration, _significant
 from .io import Recording, read_csv, read_recording, write_csv, write_recording
 from .io.formats import WRITERS
@@ -386,8 +387,7 @@ def cmd_apply(args) -> int:
     units = {**rec.units, **({k: cal.h_units for k in ("hx", "hy", "hz")} if cal.h_units else {})}
     write_output(args.output, Recording(columns=columns, units=units, source=str(args.output),
                                         metadata={**rec.metadata, "calibration": args.calibration}))
-    with np.errstate(over="ignore"):
-        far = ~np.isfinite(np.linalg.norm(h, axis=1)) & np.isfinite(h).all(axis=1)  # |h| overflows: 1e300
+    far = past_range(h)  # |h| overflows: 1e300
     if far.any():  # written as read; left out of the statistics below, which they would make inf or NaN
         rows = np.flatnonzero(far)
         where = rec.line_numbers[rows] if rec.line_numbers is not None else rows
@@ -656,8 +656,7 @@ def _solve_ring_snapshots(ring, ring_cal, snaps, rotation: float, rows, args) ->
              else f"snapshots {rows[0]}–{rows[-1]}" if contiguous else f"the {len(rows)} snapshots at {rotation:g}°")
     if not live.any():
         raise ValueError(f"{where}: no sensor has a finite reading (every sensor NaN)")
-    with np.errstate(over="ignore"):
-        huge = np.isfinite(snaps) & ~np.isfinite(snaps ** 2)  # (a garbled line: its square overflows the fit's sums)
+    huge = past_range(snaps.reshape(-1, 1)).reshape(snaps.shape)  # (a garbled line: it overflows the fit's sums)
     if huge.any():
         k, sensor, axis = np.argwhere(huge)[0]
         raise ValueError(f"{args.file}, {where}: sensor {sensor} reads {snaps[k, sensor, axis]:.3g} on its "

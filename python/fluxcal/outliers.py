@@ -30,7 +30,7 @@ from dataclasses import dataclass, field, replace
 import numpy as np
 from scipy import special, stats
 
-from ._arrays import as_samples
+from ._arrays import as_samples, past_range
 from .calibration import Calibration
 from .ellipsoid import fit_ellipsoid
 
@@ -198,8 +198,7 @@ def find_outliers(samples, reference=None, alpha: float = 0.01, seed: int = 0) -
         return _vector_outliers(m, as_samples(reference, "reference"), alpha, seed)
     threshold = float(stats.norm.isf(alpha / (2 * n))) if n else 0.0
     none = Outliers(np.zeros(0, dtype=int), threshold, screened=False)
-    with np.errstate(over="ignore", invalid="ignore"):
-        huge = np.isfinite(m).all(axis=1) & ~np.isfinite(np.einsum("ij,ij->i", m, m))
+    huge = past_range(m)
     if huge.any() and n - huge.sum() >= MIN_SAMPLES:  # readings past any sensor's range (1e300): left out first
         kept = np.flatnonzero(~huge)
         inner = find_outliers(m[kept], None, alpha, seed)

@@ -947,7 +947,7 @@ def _beside(row: dict, data, directions: np.ndarray, sigma: float, accepted: lis
     """A significant row beside the effects `accepted`: not significant when its held-out gap's fall is within what
     the two fits' parameter noise alone can make (`_gain_unresolved`) and under UNRESOLVED_GAIN of the gap."""
     held = _heldout(row["heldout"], data, directions, row.get("heldout_block"))
-    leverage = _heldout_leverage(data, row["_fit"], held, _judged(row, held))
+    leverage = _heldout_leverage(data, row["_fit"], held, _judged(row["_features"], held, row.get("heldout_block")))
     if not (_gain_unresolved(row, leverage, sigma)
             and row["heldout_gap_after"] > (1 - UNRESOLVED_GAIN) * row["heldout_gap_before"]):
         return
@@ -960,9 +960,10 @@ def _beside(row: dict, data, directions: np.ndarray, sigma: float, accepted: lis
                     "every parameter its held-out readings depend on, so its held-out test tests nothing")
 
 
-def _judged(row: dict, held: np.ndarray) -> np.ndarray:
-    """The held-out readings a row's gaps were measured on (`_validate`)."""
-    return _where_it_acts(row["_features"], held) if row.get("heldout_block") is not None else held
+def _judged(feats: np.ndarray, held: np.ndarray, block: int | None) -> np.ndarray:
+    """The held-out readings a candidate's gaps are measured on: where it acts for a short event (its own
+    `block`s), every held-out reading otherwise."""
+    return _where_it_acts(feats, held) if block is not None else held
 
 
 def _gain_unresolved(row: dict, leverage: float, sigma: float) -> bool:
@@ -1493,7 +1494,7 @@ def _validate(data, model, state, feats, regime, sigma) -> dict:
     # A short event's gaps where it acts: a magnet's second-long pass in ten minutes takes most of the departure
     # within its reach, and next to nothing of the whole held-out part's, where the noise alone had left a gap of 0
     # before and after. (The block test keeps every held-out reading: its blocks span the recording.)
-    within = _where_it_acts(feats, held) if block is not None else held
+    within = _judged(feats, held, block)
     g0, g1 = (_residuals(fit, data, f, within) for fit, f in ((before, base_feats), (after, all_feats)))
     return {"heldout": regime, "heldout_n": int(held.sum()), "heldout_block": block,
             "heldout_n_judged": int(within.sum()),
@@ -2066,7 +2067,7 @@ def diagnose(samples, t=None, temp=None, reference=None, gravity=None, field_nor
             moves.append((w, names[w["effect"]], applied, block))
         w["step"] = len(accepted)
         held = _heldout(w["heldout"], data, directions, w.get("heldout_block"))
-        w["heldout_leverage"] = _heldout_leverage(data, state["result"], held, _judged(w, held))
+        w["heldout_leverage"] = _heldout_leverage(data, state["result"], held, _judged(w["_features"], held, w.get("heldout_block")))
         last_rows[w["effect"]] = w
 
     for _round in range(max_effects + 1):
