@@ -91,8 +91,16 @@ def test_appended_lists_nan_one_record_and_utf16(tmp_path):
     path.write_text(json.dumps([{"mx": 1, "my": 2, "mz": 3}]) + "\n" + json.dumps([{"mx": 4, "my": 5, "mz": 6}]))
     np.testing.assert_array_equal(read_recording(path).samples(), [[1, 2, 3], [4, 5, 6]])
     path.write_text(json.dumps([{"mx": 1, "my": 2, "mz": 3}]) + " trailing")
-    with pytest.raises(ValueError, match=r"record at line 1: text after the list's end: 'trailing'"):
+    with pytest.raises(ValueError, match=r"two_sessions.json, line 1: text after the list's end: 'trailing'"):
         read_recording(path)
+    # a list written on one line: its records are named by their place in it, not all as "line 1"
+    records = [{"mx": 1.0 * k, "my": 2.0, "mz": 3.0} for k in range(8)]
+    records[5]["mz"] = None
+    path.write_text(json.dumps(records))
+    with pytest.raises(ValueError, match=r"two_sessions.json, record 6 \(line 1\): 'mz' is null, not a number"):
+        read_recording(path)
+    assert read_recording(path, bad_lines="skip").metadata["skipped_lines"] == \
+        "1 of 8: record 6 (line 1) ('mz' is null, not a number)"
     nan = tmp_path / "nan.jsonl"
     nan.write_text('{"mx": NaN, "my": 2, "mz": 3}\n{"mx": 1, "my": 2, "mz": 3}\n')
     with pytest.raises(ValueError, match=r"nan.jsonl, line 1: 'mx' is NaN, not a number"):

@@ -49,28 +49,33 @@ def json_lines(text: str):
 
 
 def list_items(text: str):
-    """[(line, record or the reason it is not one)] of top-level JSON lists, item by item, so that a list
+    """[(line, record or the reason it is not one, where)] of top-level JSON lists, item by item, so that a list
     cut off by a logger that stopped keeps its complete records; lists written one after another (two
-    sessions appended) are read in turn, anything else after a list is a bad line."""
-    out, pos = [], 0
-    while True:
+    sessions appended) are read in turn, anything else after a list is a bad line. `where` names an item in an
+    error: "record at line 12" where a line holds one record, "record 17 (line 1)" in a list written on one line."""
+    out, pos, cut = [], 0, False
+    while not cut:
         pos = _SPACE.match(text, pos).end()
         if pos >= len(text):
-            return out
+            break
         if text[pos] != "[":
-            out.append((_line_of(text, pos), f"text after the list's end: {text[pos:pos + 20]!r}"))
-            return out
+            out.append((_line_of(text, pos), f"text after the list's end: {text[pos:pos + 20]!r}", None))
+            break
         pos = _SPACE.match(text, pos + 1).end()
         while pos < len(text) and text[pos] != "]":
             try:
                 value, end = _DECODER.raw_decode(text, pos)
             except json.JSONDecodeError as exc:
                 out.append((_line_of(text, pos), f"not valid JSON ({exc.msg}; the list is cut off here: "
-                                                 "truncated file?)"))
-                return out
-            out.append((_line_of(text, pos), value))
+                                                 "truncated file?)", len(out) + 1))
+                cut = True
+                break
+            out.append((_line_of(text, pos), value, len(out) + 1))
             pos = _SPACE.match(text, end).end()
         pos += 1
+    shared = Counter(line for line, _, k in out if k is not None)
+    return [(line, value, f"line {line}" if k is None else
+             f"record {k} (line {line})" if shared[line] > 1 else f"record at line {line}") for line, value, k in out]
 
 
 def _flatten(record: dict, prefix: str = "", out: dict | None = None) -> dict:
@@ -104,24 +109,26 @@ def _magnetometer_records(flat):
     them under the same names would be a wrong answer."""
     from .columns import MAG_WORDS, words
 
-    records = [f for _, f in flat if isinstance(f, dict)]
+    records = [f for _, f, _ in flat if isinstance(f, dict)]
     for key in dict.fromkeys(k for f in records for k, v in f.items() if isinstance(v, str)):
         values = Counter(f[key] for f in records if isinstance(f.get(key), str))
         mag = [v for v in values if set(words(v)) & (MAG_WORDS - {"b", "h", "m"})]
         if 1 <= len(mag) < len(values) <= 8:
             others = ", ".join(f"{v} {c}" for v, c in values.items() if v not in mag)
-            kept = [(n, f) for n, f in flat if not isinstance(f, dict) or f.get(key) in mag]
+            kept = [item for item in flat if not isinstance(item[1], dict) or item[1].get(key) in mag]
             return kept, f"{key} = {others} (the magnetometer's records are {key} = {', '.join(mag)})"
     return flat, None
 
 
 def read_records(path, items, bad_lines: str = "error", what: str = "line") -> Recording:
-    """A Recording from [(line, record or reason)] (json_lines, list_items, or a table's rows)."""
+    """A Recording from [(line, record or reason)] (json_lines or a table's rows; an error names an item as
+    `what` and its line) or [(line, record or reason, where)] (list_items)."""
     check_bad_lines(bad_lines)
     flat = [(n, _flatten(r) if isinstance(r, dict) else
-             (r if isinstance(r, str) else f"a JSON {type(r).__name__}, not an object of named values")) for n, r in items]
+             (r if isinstance(r, str) else f"a JSON {type(r).__name__}, not an object of named values"),
+             place[0] if place else f"{what} {n}") for n, r, *place in items]
     flat, kind_note = _magnetometer_records(flat)
-    records = [f for _, f in flat if isinstance(f, dict)]
+    records = [f for _, f, _ in flat if isinstance(f, dict)]
     numeric = Counter(k for f in records for k, v in f.items() if _numeric(v))
     if not numeric:
         raise ValueError(f"{path}: no numbers in the JSON records"
@@ -131,21 +138,22 @@ def read_records(path, items, bad_lines: str = "error", what: str = "line") -> R
     text_keys = [k for k in dict.fromkeys(k for f in records for k in f)
                  if k not in names and Counter(isinstance(f.get(k), str) for f in records)[True] >= 0.5 * len(records)]
     good, problems = [], []
-    for n, f in flat:
+    for n, f, place in flat:
+        where = place.removeprefix(f"{what} ")  # for skipped_lines: the line's number, or the record's place
         if isinstance(f, str):
-            problems.append((n, f))
+            problems.append((place, where, f))
             continue
         missing = [k for k in names if k not in f]
         bad = next((k for k in names if k in f and not _finite(f[k])), None)
         if missing:
-            problems.append((n, f"no {', '.join(repr(k) for k in missing)}"))
+            problems.append((place, where, f"no {', '.join(repr(k) for k in missing)}"))
         elif bad is not None:
-            problems.append((n, f"{bad!r} is {json.dumps(f[bad])}, not a number"))
+            problems.append((place, where, f"{bad!r} is {json.dumps(f[bad])}, not a number"))
         else:
             good.append((n, f))
     if problems and bad_lines == "error":
-        n, p = problems[0]
-        raise ValueError(f"{path}, {what} {n}: {p}; {SKIP_HINT}")
+        place, _, p = problems[0]
+        raise ValueError(f"{path}, {place}: {p}; {SKIP_HINT}")
     if not good:
         raise ValueError(f"{path}: no readable records" + (f" (all {len(problems)} bad)" if problems else ""))
     columns = {k: np.array([f[k] for _, f in good], dtype=float) for k in names}
@@ -164,7 +172,7 @@ def read_records(path, items, bad_lines: str = "error", what: str = "line") -> R
     if kind_note:
         metadata["records_left_out"] = kind_note
     if problems:
-        metadata["skipped_lines"] = listing([f"{n} ({p})" for n, p in problems], len(flat))
+        metadata["skipped_lines"] = listing([f"{where} ({p})" for _, where, p in problems], len(flat))
     return Recording(columns=columns, units=units, metadata=metadata, source=str(path),
                      line_numbers=np.array([n for n, _ in good], dtype=int))
 
