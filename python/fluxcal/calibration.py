@@ -154,6 +154,12 @@ class Calibration:
                              "calibration (`fluxcal calibrate -o`)")
         if missing:
             raise ValueError(f"{source}: missing {', '.join(missing)}")
+        convention = data.get("convention", CONVENTION)
+        if not (isinstance(convention, str) and _model_part(convention) == _model_part(CONVENTION)):
+            # the offset and matrix mean something else under another convention: applied as h = A (m - b),
+            # a magcal (m - b) A or an h = A m + b file would give a wrong field, silently
+            raise ValueError(f"{source}: convention {convention!r:.80} is not fluxcal's {CONVENTION.split(';')[0]!r}; "
+                             "convert the offset and matrix (Calibration.from_magcal for MATLAB magcal's (m - b) A)")
         for name in ("summary", "metadata"):
             if not isinstance(data.get(name, {}), dict):
                 raise ValueError(f"{source}: {name} {data[name]!r:.60} must be a JSON object")
@@ -191,6 +197,11 @@ class Calibration:
             return (f"{self.model or 'calibration'}: h = A (m - b), |h| = {self.field_norm:.6g}{hu}\n"
                     f"  offset b = {_significant(self.offset, 7)}{u}\n"
                     f"  matrix A =\n{rows}")
+
+
+def _model_part(convention: str) -> str:
+    """The equation of a convention string ("h = A (m - b)"), spaces and case left out."""
+    return "".join(convention.split(";")[0].split()).lower()
 
 
 def _significant(values, digits: int) -> str:

@@ -108,6 +108,14 @@ def test_save_and_load_round_trip(tmp_path):
     np.testing.assert_array_equal(back.matrix, cal.matrix)
     np.testing.assert_array_equal(back.offset, cal.offset)
     assert back.summary == cal.summary and back.units == "nT"
+    # another convention's offset and matrix would give a wrong field: refused; the same equation spaced
+    # otherwise is the same convention
+    for other in ("h = A m + b", "C = (D - b) A", None):
+        path.write_text(json.dumps(dict(data, convention=other)))
+        with pytest.raises(ValueError, match=rf"cal.json: convention .* is not fluxcal's 'h = A \(m - b\)'"):
+            fluxcal.Calibration.load(path)
+    path.write_text(json.dumps(dict(data, convention="H = A(m-b)")))
+    np.testing.assert_array_equal(fluxcal.Calibration.load(path).matrix, cal.matrix)
 
 
 def test_printed_offset_keeps_its_digits_in_tesla():
