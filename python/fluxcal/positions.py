@@ -32,6 +32,7 @@ ellipsoid-fit start (≥ 10 positions).
 from __future__ import annotations
 
 import datetime as _dt
+import re
 from dataclasses import dataclass, field as _field
 
 import numpy as np
@@ -596,6 +597,27 @@ def _unit_warnings(res, field_ned, units, igrf) -> list:
 
 # --- command line (fluxcal positions) ---------------------------------------------------------------
 
+_API_ARRAY = re.compile(r"^(specific_force|readings|outputs|samples|nominal|positions): (?:(row|position) (\d+):? )?")
+
+
+def _in_file_terms(message: str, source, rec, positions) -> str:
+    """An error of calibrate() or calibrate_accelerometer() in the recording's terms: the accelerometer's and
+    magnetometer's columns for the arrays they name, a row ("row 0", "position 2") as its file line, or as its
+    position when the rows were averaged per position (`positions`, their labels)."""
+    found = _API_ARRAY.match(message)
+    if not found:
+        return message
+    array, kind, number = found.groups()
+    acc = f"accelerometer {','.join(rec.acc_names())}"
+    mag = f"magnetometer {','.join(rec.mag_names())}"
+    what = {"specific_force": acc, "readings": acc, "outputs": mag, "samples": mag, "nominal": "nominal attitudes", "positions": "positions"}[array]
+    where = ""
+    if kind is not None:
+        row = int(number) - (kind == "position")  # the core counts rows from 0, positions from 1
+        where = f", position {_label(positions[row])}" if positions is not None else f", {rec.place(row)}"
+    return f"{source}{where}: {what}{' ' if kind else ': '}{message[found.end():]}"
+
+
 def run_cli(args, out=None) -> int:
     """`fluxcal positions FILE ...`: CSV with ax,ay,az,mx,my,mz (+ optional position) → OUT.json."""
     import json
@@ -615,10 +637,11 @@ def run_cli(args, out=None) -> int:
         raise ValueError(f"{args.file}: no accelerometer columns (ax,ay,az, or a triple named AccX.., accel_x..; "
                          f"columns are: {', '.join(rec.columns)}); the levelling needs one per reading")
     mag = rec.samples(check_finite=False)
-    for name, arr in ((",".join(rec.acc_names()), acc), (",".join(rec.mag_names()), mag)):
+    for name, arr in ((f"accelerometer {','.join(rec.acc_names())}", acc),
+                      (f"magnetometer {','.join(rec.mag_names())}", mag)):
         if not np.all(np.isfinite(arr)):
             row = int(np.argmax(~np.isfinite(arr).all(axis=1)))
-            raise ValueError(f"{args.file}: row {row + 1} of {name} is not finite")
+            raise ValueError(f"{args.file}, {rec.place(row)}: {name} is not finite")
     ids = rec.columns.get("position")
     scatter = None
     if ids is not None:
@@ -643,16 +666,19 @@ def run_cli(args, out=None) -> int:
     units = rec.field_units()
     acc_cal = None
     extra_warnings = []
-    if args.calibrate_accelerometer:
-        acc_cal = calibrate_accelerometer(acc, gravity=float(np.median(np.linalg.norm(acc, axis=1))))
-        acc = acc_cal.apply(acc)
-        extra_warnings += [f"accelerometer calibration: {w}" for w in acc_cal.summary.get("warnings", [])]
     sigma_out = getattr(args, "noise_sigma", 0.0) or 0.0
     if not sigma_out and scatter is not None and args.tilt_sigma > 0:
         sigma_out = scatter["mag_sigma_per_position"]  # σ̂ from 12 positions with 24 tilts is not identified
-    res = calibrate(mag, acc, f, frame=args.frame, preset=args.preset, estimate_yaw=args.estimate_yaw or None,
-                    estimate_inclination=args.estimate_inclination, units=units, acc_measures=args.acc_measures,
-                    tilt_sigma_deg=args.tilt_sigma, **({"output_sigma": sigma_out} if sigma_out else {}))
+    try:
+        if args.calibrate_accelerometer:
+            acc_cal = calibrate_accelerometer(acc, gravity=float(np.median(np.linalg.norm(acc, axis=1))))
+            acc = acc_cal.apply(acc)
+            extra_warnings += [f"accelerometer calibration: {w}" for w in acc_cal.summary.get("warnings", [])]
+        res = calibrate(mag, acc, f, frame=args.frame, preset=args.preset, estimate_yaw=args.estimate_yaw or None,
+                        estimate_inclination=args.estimate_inclination, units=units, acc_measures=args.acc_measures,
+                        tilt_sigma_deg=args.tilt_sigma, **({"output_sigma": sigma_out} if sigma_out else {}))
+    except ValueError as exc:
+        raise ValueError(_in_file_terms(str(exc), args.file, rec, uniq if ids is not None else None)) from None
     if scatter is None and getattr(args, "noise_sigma", 0.0):  # one row per position: the σ given is the yardstick
         scatter = {"mag_sigma": args.noise_sigma, "mag_sigma_per_position": args.noise_sigma,
                    "tilt_sigma_per_position": 0.0, "worst_tilt": None, "moved_limit_deg": None,

@@ -492,6 +492,36 @@ def test_cli_positions_names_missing_positions_and_an_impossible_dip(tmp_path):
     assert r.returncode == 2 and "inclination: 128° is outside −90…90°" in r.stderr, r.stderr
 
 
+def test_cli_positions_errors_name_the_files_columns_lines_and_positions(tmp_path):
+    """The solver's arrays (specific_force, outputs) and rows counted from 0 are the API's words: the command names
+    the recording's columns, and a row's file line, or its position when the rows are averaged per position."""
+    f = ",".join(f"{v:.6f}" for v in PAPER_FIELD)
+    args = ["--field", f, "--frame", "nue", "--estimate-yaw"]
+    path = _repeated_twelve_csv(tmp_path / "twelve.csv", np.random.default_rng(7))
+    head, *rows = path.read_text().splitlines()[1:]
+    flat = [r.split(",")[1:] for r in rows]
+    (tmp_path / "rows.csv").write_text("\n".join(["ax,ay,az,mx,my,mz"] + [",".join(r) for r in flat]) + "\n")
+    lines = (tmp_path / "rows.csv").read_text().splitlines()
+    lines[4] = "0,0,0," + ",".join(lines[4].split(",")[3:])  # the accelerometer reads nothing on file line 5
+    (tmp_path / "zero.csv").write_text("\n".join(lines) + "\n")
+    r = run_cli("positions", tmp_path / "zero.csv", *args)
+    assert r.returncode == 2 and "zero.csv, line 5: accelerometer ax,ay,az reads |a| = 0, -100 %" in r.stderr, r.stderr
+    lines[4] = lines[4].replace("0,0,0,", "0.1,9.8,0.2,").rsplit(",", 1)[0] + ",nan"
+    (tmp_path / "nan.csv").write_text("\n".join(lines) + "\n")
+    r = run_cli("positions", tmp_path / "nan.csv", *args)
+    assert r.returncode == 2 and "nan.csv, line 5: magnetometer mx,my,mz is not finite" in r.stderr, r.stderr
+    (tmp_path / "three.csv").write_text("\n".join(lines[:4]) + "\n")
+    r = run_cli("positions", tmp_path / "three.csv", *args)
+    assert r.returncode == 2 and "three.csv: magnetometer mx,my,mz: 3 positions, need at least" in r.stderr, r.stderr
+    # averaged per position: position 4's accelerometer reads half of g (the device moved)
+    text = path.read_text().splitlines()
+    text = text[:2] + [",".join([c if k not in (1, 2, 3) else str(float(c) / 2) for k, c in enumerate(line.split(","))])
+                       if line.startswith("4,") else line for line in text[2:]]
+    (tmp_path / "moved.csv").write_text("\n".join(text) + "\n")
+    r = run_cli("positions", tmp_path / "moved.csv", *args)
+    assert r.returncode == 2 and "moved.csv, position 4: accelerometer ax,ay,az reads |a| = " in r.stderr, r.stderr
+
+
 def test_cli_positions_misfit_without_repeats_uses_the_noise_given_and_quantised_repeats(tmp_path):
     """One averaged row per position: --noise-sigma is the yardstick. Repeats that read alike (a quantised
     sensor): the lattice step's rounding is. Either way a wrong inclination sign is said, not passed."""
