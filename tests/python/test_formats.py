@@ -178,6 +178,8 @@ AIRBORNE_ROW = "46370.0\t-45289.2\t-16300.6\t-23482.6\t4.52\t16.79\t219.76\t1775
                                                       r"\(bytes that are not text: garbage from a serial line\?\)"),
     ("binary.bin", "mx,my,mz\n1,2,3\n\udcff\udcfe\x00\udc80\n", r"binary.bin, line 3, column 1 \(character\): byte 0xff "
                                                               r"is not text"),
+    ("renamed.mat", "\udcb8\udc9f\x00\udc81\x00\udc90" * 20,  # not a .mat from its first byte: no line to name
+     r"renamed.mat: named as a MATLAB .mat file, but it does not start as one \(nor is it text\)"),
     ("short.csv", "mx,my,mz\n1,2,3\n4,5\n", r"short.csv, line 3: 2 fields, the header has 3: column 'mz' \(field 3\) is missing"),
     ("long.csv", "mx,my,mz\n1,2,3\n4,5,6,7\n", r"long.csv, line 3: 4 fields, the header has 3: field 4 \('7'\) has no column"),
     ("qmc.csv", "Fs,50.00\nInitialization time,60\nmx,my,mz\n1,2,3\n4,5\n",

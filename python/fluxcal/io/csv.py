@@ -335,6 +335,11 @@ def _timestamps(values):
 # what a legacy 8-bit export (Windows-1252: "Bx [µT]", "T [°C]", a German "Zeit") holds besides ASCII
 _LEGACY_TEXT = re.compile("[^\x00-\x7fµ°²³±·×äöüÄÖÜßéèêëàâçîïôùûñÑøØåÅæÆ€£§–—‘’“”«»]")
 NOT_TEXT = "\ufffd"  # stands for bytes that are not text
+# binary formats fluxcal reads, by file name: a file so named that is not one is not a text table either
+BINARY_SUFFIXES = {".mat": "a MATLAB .mat", ".npz": "a NumPy .npz", ".npy": "a NumPy .npy", ".parquet": "a Parquet",
+                   ".h5": "an HDF5", ".hdf5": "an HDF5", ".xlsx": "an Excel .xlsx", ".ulg": "a PX4 ULog",
+                   ".bin": "an ArduPilot DataFlash .bin", ".bag": "a ROS bag", ".db3": "a ROS 2 bag",
+                   ".mcap": "a ROS 2 bag", ".sqlite": "an SQLite", ".db": "an SQLite"}
 
 
 def readable_file(path, what: str = "a recording file",
@@ -383,6 +388,11 @@ def read_text(path) -> str:
     # NULs are a binary file's, unless they are a few bytes among text (a board's reset on a serial line)
     nuls = b"\x00" in raw and text.count(NOT_TEXT) > 0.05 * len(raw)
     if nuls or sum(NOT_TEXT in line for line in lines) > max(1.0, 0.05 * len(lines)):
+        named = BINARY_SUFFIXES.get(path.suffix.lower())
+        if named and b"\n" not in raw[:first]:  # named as a format whose header sniff() did not find, and not
+            # text from its first line: no table's line and column would help
+            raise ValueError(f"{path}: named as {named} file, but it does not start as one (nor is it text): "
+                             "damaged, or another file renamed?")
         line = raw.count(b"\n", 0, first) + 1
         column = first - (raw.rfind(b"\n", 0, first) + 1) + 1
         raise ValueError(f"{path}, line {line}, column {column} (character): byte 0x{raw[first]:02x} is not "
