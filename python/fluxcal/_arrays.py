@@ -81,6 +81,15 @@ def units_text(units) -> str:
     return units
 
 
+def as_number(value, name: str) -> float:
+    """A scalar argument as a float; anything that is not one a ValueError naming it (float's own message,
+    "could not convert string to float: 'abc'", names no argument)."""
+    try:
+        return float(value)
+    except (TypeError, ValueError):
+        raise ValueError(f"{name}: {value!r:.60} is not a number") from None
+
+
 def set_options(options, settings: dict, what: str):
     """Set each keyword of `settings` on a bound C++ options struct; unknown names and values of the wrong
     type are a TypeError naming the option, NaN a ValueError (a NaN tolerance or σ silently switched a

@@ -21,7 +21,7 @@ import re
 import numpy as np
 
 from . import _core
-from ._arrays import set_options
+from ._arrays import as_number, set_options
 from ._saved import load_json_object
 from .io.columns import CURRENT_UNITS
 from .twostep import TwoStep2D, twostep_2d
@@ -87,7 +87,7 @@ class Ring:
         self.angles_deg = np.atleast_1d(np.asarray(angles_deg, dtype=float)).copy()
         if self.angles_deg.ndim != 1:
             raise ValueError(f"angles_deg: shape {self.angles_deg.shape}, expected one angle per sensor (n_sensors,)")
-        self.radius_m = float(radius_m)
+        self.radius_m = as_number(radius_m, "radius_m")
         self.axis_angles_deg = (np.zeros_like(self.angles_deg) if axis_angles_deg is None
                                 else np.atleast_1d(np.asarray(axis_angles_deg, dtype=float)).copy())
         self.bore_radius_m = 0.4 * self.radius_m if bore_radius_m is None else float(bore_radius_m)

@@ -43,6 +43,7 @@ import numpy as np
 
 from . import _core
 from . import timeseries as ts
+from ._arrays import as_number
 from ._saved import load_json_object
 from .kalman import ArKalman
 
@@ -203,7 +204,7 @@ def fit_drift(zero_bias, temp, temp_outside=None, regressor: str = "temp", break
     options = _core.DriftOptions()
     options.breakpoints = [float(b) for b in breakpoints]
     options.max_order = int(max_order)
-    options.significance = float(significance)
+    options.significance = as_number(significance, "significance")
     options.order = -1 if order is None else int(order)
     options.continuous = bool(continuous)
     options.whiten = bool(whiten)

@@ -4,7 +4,7 @@ from __future__ import annotations
 import numpy as np
 
 from . import _core
-from ._arrays import as_samples, set_options, units_text
+from ._arrays import as_number, as_samples, set_options, units_text
 from .calibration import Calibration
 
 
@@ -25,7 +25,7 @@ def _options(field_norm, units, method="ls", **settings):
     if method not in METHODS:
         raise ValueError(f"method: {method!r} is not one of {', '.join(METHODS)}")
     options.method = METHODS[method]
-    options.field_norm = 0.0 if field_norm is None else float(field_norm)
+    options.field_norm = 0.0 if field_norm is None else as_number(field_norm, "field_norm")
     options.units = units_text(units)
     return set_options(options, settings, "fit_ellipsoid")
 

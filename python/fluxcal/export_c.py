@@ -42,6 +42,7 @@ from pathlib import Path
 
 import numpy as np
 
+from ._arrays import as_number
 from ._saved import load_json_object
 from .calibration import Calibration
 from .kalman import signal_format
@@ -178,7 +179,7 @@ def fixed_point(cal: Calibration, q_format: str | QFormat | None = None,
     if q_format is not None and not isinstance(q_format, QFormat):
         q_format = QFormat.parse(q_format)
     if input_range is not None:
-        r = float(input_range)
+        r = as_number(input_range, "input_range")
         if not (math.isfinite(r) and r > 0):
             raise ValueError(f"--input-range {input_range}: must be a positive number (the sensor's full scale)")
         if r < extent:  # a reading of the calibration field itself would be out of range

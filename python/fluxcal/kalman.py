@@ -18,6 +18,7 @@ from pathlib import Path
 import numpy as np
 
 from . import _core
+from ._arrays import as_number
 from .timeseries import as_breaks, as_series, as_whole
 
 INT32_MIN, INT32_MAX = -(2 ** 31), 2 ** 31 - 1
@@ -44,7 +45,7 @@ def _order_within(a: np.ndarray, maximum: int, what: str) -> np.ndarray:
 
 def _options(initial_variance: float, steady_state: bool):
     o = _core.KalmanOptions()
-    o.initial_variance = float(initial_variance)
+    o.initial_variance = as_number(initial_variance, "initial_variance")
     o.steady_state = bool(steady_state)
     return o
 

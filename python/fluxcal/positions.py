@@ -38,7 +38,7 @@ from dataclasses import dataclass, field as _field
 import numpy as np
 
 from . import _core
-from ._arrays import as_samples, as_specific_force, set_options, units_text
+from ._arrays import as_number, as_samples, as_specific_force, set_options, units_text
 from .attitude import axis_remapping
 
 FRAMES = ("ned", "nue")
@@ -349,8 +349,8 @@ def calibrate(mag, acc, field_ned, frame: str = "ned", preset=None, attitudes=No
     options.frame = fr
     options.estimate_yaw = bool(len(nominal) == 0) if estimate_yaw is None else bool(estimate_yaw)
     options.estimate_inclination = bool(estimate_inclination)
-    options.gravity = float(gravity)
-    options.gravity_tolerance = float(gravity_tolerance)
+    options.gravity = as_number(gravity, "gravity")
+    options.gravity_tolerance = as_number(gravity_tolerance, "gravity_tolerance")
     options.units = units_text(units)
     set_options(options, settings, "calibrate")
     d = _core.calibrate_positions(U, np.ascontiguousarray(sf), nominal, to_local(f, frame), options)

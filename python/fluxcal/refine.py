@@ -13,7 +13,7 @@ from __future__ import annotations
 import numpy as np
 
 from . import _core
-from ._arrays import as_samples, require_calibration, set_options, units_text
+from ._arrays import as_number, as_samples, require_calibration, set_options, units_text
 from .attitude import axis_remapping
 from .calibration import Calibration
 
@@ -41,7 +41,7 @@ def _options(loss="none", loss_scale=0.0, units="", shape="sym", **settings):
         raise ValueError(f"loss: {loss!r} is not one of {', '.join(LOSSES)}")
     options.loss = LOSSES[loss]
     options.shape = SHAPES[shape_name(shape)]
-    options.loss_scale = float(loss_scale)
+    options.loss_scale = as_number(loss_scale, "loss_scale")
     options.units = units_text(units)
     if "serial_correlation" in settings:
         settings = {**settings, "serial_correlation": serial_correlation_mode(settings["serial_correlation"])}

@@ -17,7 +17,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from . import _core
-from ._arrays import as_samples, set_options, units_text
+from ._arrays import as_number, as_samples, set_options, units_text
 from .calibration import Calibration
 from .ellipsoid import _calibration
 
@@ -64,7 +64,7 @@ class TwoStep2D:
 def twostep_2d(readings, field_norms, units: str | None = None, refine: bool = True,
                **settings) -> TwoStep2D:
     """Two-step calibration of a biaxial sensor from N ≥ 5 readings (N×2) and the true field
-    magnitude of each (`field_norms`, N values > 0, field units).
+    magnitude of each (`field_norms`, N values > 0, field units; one value: the same for every reading).
 
     First step: least squares on z = ĥx² = [2ĥx, 2ĥy, −ĥy², −1, h²]·x with
     x = (bx, r·by, r, bx² + r·by², γx²), r = (γx/γy)² (the paper's eqs. 8–17 with corrected signs);
@@ -82,9 +82,14 @@ def twostep_2d(readings, field_norms, units: str | None = None, refine: bool = T
     readings, a length mismatch, non-positive magnitudes, a rank-deficient first step, or γ² ≤ 0.
     """
     arr = as_samples(readings, "readings", columns=2)
-    norms = np.asarray(field_norms, dtype=np.float64)
+    try:
+        norms = np.asarray(field_norms, dtype=np.float64)
+    except (TypeError, ValueError):
+        raise ValueError(f"field_norms: {field_norms!r:.60} is not numbers") from None
+    if norms.ndim == 0:  # one magnitude for every reading: a field that does not change (the horizontal field)
+        norms = np.full(len(arr), float(norms))
     if norms.ndim != 1:
-        raise ValueError(f"field_norms: shape {norms.shape}, expected one magnitude per reading (N,)")
+        raise ValueError(f"field_norms: shape {norms.shape}, expected one magnitude per reading (N,) or one for all")
     if not isinstance(refine, (bool, np.bool_)):  # bool("no") is True
         raise TypeError(f"refine: {refine!r} is not True or False")
     options = _core.TwoStep2DOptions()
@@ -173,7 +178,7 @@ def twostep(samples, field_norm: float, units: str | None = None, **settings) ->
     if field_norm is None:
         raise ValueError("field_norm: required (the known |H|, e.g. from IGRF)")
     options = _core.TwoStepOptions()
-    options.field_norm = float(field_norm)
+    options.field_norm = as_number(field_norm, "field_norm")
     options.units = units_text(units)
     set_options(options, settings, "twostep")
     return _calibration(_core.twostep(arr, options))

@@ -188,6 +188,15 @@ def test_too_few_samples():
         fluxcal.fit_ellipsoid(simulated(1).readings[:8])
 
 
+def test_a_scalar_argument_that_is_not_a_number_is_named():
+    s = simulated(1)
+    for solve in (fluxcal.fit_ellipsoid, fluxcal.calibrate, fluxcal.twostep):
+        with pytest.raises(ValueError, match="field_norm: 'abc' is not a number"):  # float() had named nothing
+            solve(s.readings, field_norm="abc")
+    with pytest.raises(ValueError, match=r"loss_scale: \[1, 2\] is not a number"):
+        fluxcal.refine(fluxcal.fit_ellipsoid(s.readings), s.readings, loss="huber", loss_scale=[1, 2])
+
+
 def test_planar_samples_are_rejected():
     a = np.linspace(0, 2 * np.pi, 400)
     planar = np.column_stack([np.cos(a), np.sin(a), 0.1 * np.cos(a)]) + [0.3, -0.2, 0.5]

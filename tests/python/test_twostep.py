@@ -87,6 +87,10 @@ def test_2d_one_field_magnitude_agrees_with_oracle(seed):
         assert cal.constant_field and ref["constant_field"]
         assert rel(cal.offset, ref["offset"]) < 1e-8 and rel(cal.gain, ref["gain"]) < 1e-8
         assert rel(cal.offset, b) < 0.01 and rel(cal.gain, g) < 0.01
+        # one magnitude for every reading, given once
+        once = twostep_2d(readings, 0.5, refine=refine)
+        np.testing.assert_array_equal(once.offset, cal.offset)
+        np.testing.assert_array_equal(once.gain, cal.gain)
 
 
 # -- 2-D: accuracy against the simulation's truth --------------------------------------------------------
@@ -207,6 +211,8 @@ def test_2d_bad_input_errors():
         twostep_2d(readings.T, h)
     with pytest.raises(ValueError, match="field_norms: shape"):
         twostep_2d(readings, h[:, None])
+    with pytest.raises(ValueError, match="field_norms: 'abc' is not numbers"):
+        twostep_2d(readings, "abc")
     with pytest.raises(TypeError, match="unknown option 'iterations'"):
         twostep_2d(readings, h, iterations=3)
 
