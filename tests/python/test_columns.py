@@ -35,6 +35,14 @@ from fluxcal.sim.withheld import withheld_trial
     # ... only when no triple names a magnetometer: a reference beside the sensor is not a second sensor
     (["mag_x_nT", "mag_y_nT", "mag_z_nT", "igrf_x_nT", "igrf_y_nT", "igrf_z_nT"], ("mag_x_nT", "mag_y_nT", "mag_z_nT")),
     (["mx", "my", "mz", "ref_x_uT", "ref_y_uT", "ref_z_uT"], ("mx", "my", "mz")),
+    # a phone app's export in the app's language (phyphox: "Magnetfeld x (µT)"); an accent splits "magnético"
+    (["Zeit", "Magnetfeld x", "Magnetfeld y", "Magnetfeld z"], ("Magnetfeld x", "Magnetfeld y", "Magnetfeld z")),
+    (["Tempo", "Campo magnético x", "Campo magnético y", "Campo magnético z"],
+     ("Campo magnético x", "Campo magnético y", "Campo magnético z")),
+    (["Tijd", "Magnetisch veld x", "Magnetisch veld y", "Magnetisch veld z"],
+     ("Magnetisch veld x", "Magnetisch veld y", "Magnetisch veld z")),
+    (["Czas", "Pole magnetyczne x", "Pole magnetyczne y", "Pole magnetyczne z"],
+     ("Pole magnetyczne x", "Pole magnetyczne y", "Pole magnetyczne z")),
     (["x_g", "y_g", "z_g"], None),  # g and mg are accelerations too: not guessed
     (["x_mg", "y_mg", "z_mg"], None),
     # not a magnetometer
@@ -54,6 +62,8 @@ def test_two_compasses_is_an_error_listing_both():
 
 def test_time_temperature_and_accelerometer_names():
     assert find_time(["TimeUS", "MagX"], {}) == ("TimeUS", 1e-6)
+    for word in ("Zeit", "Tiempo", "Tempo", "Tijd", "Czas"):  # phyphox's time column in five languages
+        assert find_time([word, "Magnetfeld x"], {word: "s"}) == (word, 1.0)
     assert find_time(["time_ms"], {}) == ("time_ms", 1e-3)
     assert find_time(["timeus"], {}) == ("timeus", 1e-6)  # lower case, one word
     assert find_time(["timestamp"], {"timestamp": "us"}) == ("timestamp", 1e-6)

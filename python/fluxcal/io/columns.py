@@ -19,10 +19,13 @@ import re
 import numpy as np
 
 MAG_WORDS = {"m", "mag", "mags", "magn", "magnet", "magnetometer", "magnetic", "magneticfield", "compass",
+             # the magnetic field in the languages of a phone app's export (phyphox: "Magnetfeld x (µT)")
+             # (accented ones split at the accent into "magn": "Campo magnético x" is found by that)
+             "magnetfeld", "magnetisch", "magnetico", "magnetique", "magnetyczne",
              "b", "bfield", "h", "field", "flux", "fluxgate"}
 ACC_WORDS = {"a", "acc", "accel", "accelerometer", "acceleration", "accl"}
 TIME_WORDS = {"t", "ts", "time", "times", "timestamp", "elapsed", "sec", "secs", "seconds", "datetime",
-              "utc", "gps", "gpstime", "zeit", "tiempo"}
+              "utc", "gps", "gpstime", "zeit", "tiempo", "tempo", "tijd", "czas"}  # ("temps" is also temperatures)
 TEMP_WORDS = {"temp", "temperature", "tmp", "temperatur", "celsius"}
 GYRO_WORDS = {"gyro", "gyr", "gyroscope", "gyros", "omega", "angular", "rad"}
 # "motion": iOS Core Motion's device-motion field (SensorLog's motionMagneticFieldX beside the raw
