@@ -299,6 +299,15 @@ EllipsoidResult solve(const EllipsoidMoments& mom, const EllipsoidOptions& opt) 
   if (!(ev(2) > 1e-20 * (1.0 + mean.squaredNorm())))  // to rounding: every reading the same
     throw Error("samples: all " + std::to_string(mom.count()) + " readings are the same (a sensor that is stuck, "
                 "not updating, or was never turned); " + std::string(detail::kTurnAdvice));
+  // A sensor that was hardly turned (a static log) leaves noise about one point, which the failures below would
+  // blame on the quadric's shape: they say so. Turned through the field's directions, readings spread over a
+  // sphere of the field's radius, more than 1 % of their mean magnitude unless the offset is fifty fields.
+  const double widest = mom.scale() * std::sqrt(std::max(ev(2), 0.0));
+  const double level = (mom.centre() + mom.scale() * mean).norm();
+  const std::string hardly_turned =
+      widest < 0.01 * level ? "; the readings hardly change (their widest spread is " + percent(widest / level) +
+                                  " of their mean magnitude): was the sensor turned at all?"
+                            : "";
   if (sum.coverage_ratio < opt.planar_ratio) {
     throw Error("samples: the readings lie nearly in one plane (thinnest/widest spread " +
                 percent(sum.coverage_ratio) +
@@ -319,7 +328,8 @@ EllipsoidResult solve(const EllipsoidMoments& mom, const EllipsoidOptions& opt) 
   sum.condition_number = lam(0) > 0.0 ? lam(8) / lam(0) : std::numeric_limits<double>::infinity();
   if (!(sum.condition_number < 1e14)) {
     throw Error("samples: the ellipsoid fit is rank deficient (condition number " + detail::num(sum.condition_number) +
-                "); the readings do not determine a 3-D ellipsoid — " + std::string(detail::kTurnAdvice));
+                "); the readings do not determine a 3-D ellipsoid — " + std::string(detail::kTurnAdvice) +
+                hardly_turned);
   }
   const Eigen::Matrix<double, 9, 1> q =
       eig.eigenvectors() * (eig.eigenvectors().transpose() * rhs).cwiseQuotient(lam);
@@ -330,8 +340,14 @@ EllipsoidResult solve(const EllipsoidMoments& mom, const EllipsoidOptions& opt) 
   Eigen::Matrix3d M;
   M << p(0), p(3), p(4), p(3), p(1), p(5), p(4), p(5), p(2);
   const Eigen::Vector3d v = p.segment<3>(6);
-  const detail::EllipsoidShape shape = detail::ellipsoid_shape(M, v, p(9), "fitted", sum.coverage_ratio,
-                                                                    opt.poor_coverage_ratio, static_cast<long>(mom.count()));
+  const detail::EllipsoidShape shape = [&] {
+    try {
+      return detail::ellipsoid_shape(M, v, p(9), "fitted", sum.coverage_ratio, opt.poor_coverage_ratio,
+                                     static_cast<long>(mom.count()));
+    } catch (const Error& e) {
+      throw Error(e.what() + hardly_turned);
+    }
+  }();
   const auto& meig = shape.eig;
   const Eigen::Vector3d& c = shape.centre;
   const double rho2 = shape.rho2;
@@ -363,6 +379,9 @@ EllipsoidResult solve(const EllipsoidMoments& mom, const EllipsoidOptions& opt) 
   sum.exact_statistics = false;
   sum.converged = true;
 
+  if (!hardly_turned.empty())  // an ellipsoid through noise about one point: no calibration of the sensor
+    sum.warnings.push_back("not turned:" + hardly_turned.substr(1) +
+                           " An ellipsoid fitted to such readings is the noise's shape, not the sensor's");
   if (sum.coverage_ratio < opt.poor_coverage_ratio)
     sum.warnings.push_back("poor coverage: thinnest/widest spread of the readings is " +
                            percent(sum.coverage_ratio) +

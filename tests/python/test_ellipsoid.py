@@ -188,6 +188,19 @@ def test_too_few_samples():
         fluxcal.fit_ellipsoid(simulated(1).readings[:8])
 
 
+def test_a_sensor_never_turned_is_told_so():
+    """A static log is noise about one point: the fit's failure says the readings hardly change, whatever shape the
+    noise gave the quadric."""
+    rng = np.random.default_rng(4)
+    static = np.array([120.0, -340.0, 410.0]) + rng.normal(0.0, 0.4, (500, 3))
+    with pytest.raises(ValueError, match=r"hardly change \(their widest spread is 0\.0\d+ % of their mean magnitude\)"):
+        fluxcal.calibrate(static)
+    # the plain algebraic fit can put a quadric through the noise: its warnings say what it is
+    fitted = fluxcal.fit_ellipsoid(static)
+    assert any(w.startswith("not turned: the readings hardly change") and "the noise's shape" in w
+               for w in fitted.summary["warnings"]), fitted.summary["warnings"]
+
+
 def test_a_scalar_argument_that_is_not_a_number_is_named():
     s = simulated(1)
     for solve in (fluxcal.fit_ellipsoid, fluxcal.calibrate, fluxcal.twostep):
