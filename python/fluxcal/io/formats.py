@@ -14,6 +14,8 @@ Reading looks at the bytes, not the name (a file's extension is only a hint in m
     #ROSBAG V2.0, or a folder with
     metadata.yaml (.db3/.mcap)     → ROS 1 / ROS 2 bag      (fluxcal.io.rosbag; needs fluxcal[ros])
     SQLite format 3 (not a bag)    → a database table       (fluxcal.io.sqlite; --columns TABLE picks one)
+    " Format  IAGA-2002  |" first  → geomagnetic observatory data (fluxcal.io.iaga: X, Y, Z in nT from XYZ, HDZ,
+                                     DHI or HEZ)
     text starting with { or [      → JSON readings         (fluxcal.io.real: fluxcal's layout or shot triples;
     (not a log tag, `[MAG] X: …`)    fluxcal.io.jsonrecords: JSON Lines, a list of records, a columns/data table)
     text of `$TYPE,…*hh` lines     → NMEA-style IMU sentences ($VNYMR…, fluxcal.io.sentences)
@@ -57,7 +59,7 @@ WRITERS = (".csv",) + OTHER_WRITERS
 
 def sniff(path) -> str:
     """The format of a file by its content: "npz", "npy", "xlsx", "xls", "mat", "hdf5", "parquet", "dataflash",
-    "dataflash_text", "ulog", "rosbag" (also a ROS 2 bag folder), "json" or "text"."""
+    "dataflash_text", "ulog", "rosbag" (also a ROS 2 bag folder), "iaga2002", "json" or "text"."""
     path = Path(path)
     from .rosbag import bag_path
 
@@ -99,6 +101,10 @@ def sniff(path) -> str:
         return "ulog"
     if re.search(rb"(?:^|\n)\s*FMT, ?\d", head.lstrip(b"\xef\xbb\xbf")):  # a text log's FMT lines come first
         return "dataflash_text"
+    from .iaga import looks_like_iaga
+
+    if looks_like_iaga(head):
+        return "iaga2002"
     text = head.decode("utf-16", errors="ignore").encode() if head.startswith((b"\xff\xfe", b"\xfe\xff")) else head
     text = text.lstrip(b"\xef\xbb\xbf \t\r\n")
     # not "[12:30:01] …", nor a log line's tag ("[MAG] X: 1 …", "[1] mx=…"): text after the ']' that JSON cannot have
@@ -184,6 +190,10 @@ def read_recording(path, columns=None, units: str | None = None, bad_lines: str 
         from .parquet import read_parquet
 
         return read_parquet(path, columns=columns, units=units)
+    if kind == "iaga2002":
+        from .iaga import read_iaga2002
+
+        return read_iaga2002(path, columns=columns, units=units, bad_lines=bad_lines)
     if kind == "json":
         from .real import read_json_recording
 

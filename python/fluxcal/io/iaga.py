@@ -1,0 +1,161 @@
+"""IAGA-2002: the exchange format of geomagnetic observatories and variometer stations (INTERMAGNET, USGS, BGS, and
+the loggers of many observatory-grade magnetometers).
+
+    Format                 IAGA-2002                                    |   header: a label in columns 2–24,
+    IAGA CODE              ESK                                          |   its value from column 25 to the
+    Reported               XYZF                                         |   bar in column 70
+    # a comment                                                         |
+   DATE       TIME         DOY     ESKX      ESKY      ESKZ      ESKF   |   the data header
+   2024-03-01 00:00:00.000 061     17301.22   -251.03  46499.70  49614.69   data: UT date and time, day of year,
+                                                                            four elements
+
+Elements (the header's "Reported", else the data header's last letters): X north, Y east, Z down, H horizontal, E
+east in the magnetic meridian's frame, F total and G its difference (not a component) in nT; D declination and I
+inclination in minutes of arc. The vector becomes the columns X, Y, Z in nT: XYZ as they are, HDZ as X = H cos D,
+Y = H sin D, DHI with Z = H tan I, HEZ as (H, E, Z) in the magnetic meridian's frame (a variometer's: its axes, not
+geographic ones). F or G is kept when every record has it.
+
+99999.00 marks a missing value and 88888.00 an element not recorded: a record missing a component of the vector is
+a bad line (`bad_lines`: an error naming it, or left out and listed in metadata "skipped_lines"), as is a record
+with the wrong number of fields or a non-number. Files appended one after another (a header before each day) are
+read in turn; their elements must agree.
+
+Written by hand, not through geomagpy (MagPy), which reads it among many formats: its requirements (an MQTT
+client, a MySQL driver, cdflib pinned below 1.4) are not a calibration library's.
+"""
+from __future__ import annotations
+
+import numpy as np
+
+from .csv import CUT_PROBLEM, CUT_SHORT, SKIP_HINT, _timestamps, check_bad_lines, listing, read_lines
+from .recording import Recording
+
+MISSING = 88888.0  # 88888.00 (not recorded) and 99999.00 (missing) both at or above it
+SCALARS = ("F", "G")
+
+
+def looks_like_iaga(head: bytes) -> bool:
+    """Whether the first bytes of a file are an IAGA-2002 header (its "Format" record first)."""
+    first = head.lstrip(b"\xef\xbb\xbf").split(b"\n", 1)[0].upper()
+    return first.startswith(b" FORMAT") and (b"IAGA-2002" in first or b"IAGA2002" in first)
+
+
+def _header(line: str) -> tuple[str, str]:
+    """A header record's label and value (columns 2–24, then up to the closing bar)."""
+    body = line.rstrip()
+    body = body[:-1] if body.endswith("|") else body
+    return body[:24].strip(), body[24:].strip()
+
+
+def read_iaga2002(path, columns=None, units: str | None = None, bad_lines: str = "error") -> Recording:
+    """A Recording of an IAGA-2002 file (module docstring): X, Y, Z in nT, t in seconds from the first record
+    (metadata t_start, UT), F or G, and the header in the metadata."""
+    check_bad_lines(bad_lines)
+    lines = read_lines(path)
+    metadata, elements, names = {}, None, None
+    stamps, values, line_numbers, problems = [], [], [], []
+    for number, line in enumerate(lines, start=1):
+        if not line.strip():
+            continue
+        is_data_header = line.lstrip().upper().startswith("DATE ")
+        if is_data_header or (line.rstrip().endswith("|") and not line[:1].isdigit()):
+            label, value = _header(line)
+            if is_data_header:
+                found = line.rstrip(" |").split()[3:]
+                letters = [n[-1].upper() for n in found]
+                if len(found) != 4:
+                    raise ValueError(f"{path}, line {number}: the data header names {len(found)} elements "
+                                     f"({', '.join(found)}); IAGA-2002 records hold four")
+                if elements is not None and letters != elements:
+                    raise ValueError(f"{path}, line {number}: elements {''.join(letters)} after "
+                                     f"{''.join(elements)}; files appended must report the same elements")
+                elements, names = letters, found
+            elif label.startswith("#"):
+                metadata["comments"] = "; ".join(filter(None, [metadata.get("comments"), line.strip(" #|")]))
+            elif label and elements is None:
+                metadata.setdefault(label.lower().replace(" ", "_"), value)
+            continue
+        if elements is None:
+            raise ValueError(f"{path}, line {number}: a record before the data header (DATE TIME DOY …); "
+                             "not an IAGA-2002 file, or its header is damaged")
+        cells = line.split()
+        problem = None
+        if CUT_SHORT in line:
+            problem = CUT_PROBLEM
+        elif len(cells) != 7:
+            problem = f"{len(cells)} fields, an IAGA-2002 record has 7 (date, time, day of year, four elements)"
+        else:
+            try:
+                row = [float(c) for c in cells[3:]]
+            except ValueError:
+                bad = next(c for c in cells[3:] if not _is_float(c))
+                problem = f"{bad!r} is not a number"
+        if problem is None:  # a component of the vector missing (F or G may be: they are not needed)
+            absent = [k for k, letter in enumerate(elements) if letter not in SCALARS and not row[k] < MISSING]
+            if absent:
+                problem = "; ".join(f"{names[k]} is {_missing_word(row[k])}" for k in absent)
+        if problem is not None:
+            problems.append((number, problem))
+            continue
+        stamps.append(f"{cells[0]} {cells[1]}")
+        values.append(row)
+        line_numbers.append(number)
+    if elements is None:
+        raise ValueError(f"{path}: no data header (DATE TIME DOY and four elements); not an IAGA-2002 file")
+    if problems and bad_lines == "error":
+        number, problem = problems[0]
+        raise ValueError(f"{path}, line {number}: {problem}; {SKIP_HINT}")
+    if not values:
+        raise ValueError(f"{path}: no records" + (f" (all {len(problems)} bad)" if problems else ""))
+    data = np.array(values)
+    seconds, first = _timestamps(stamps)
+    if seconds is None or not np.all(np.isfinite(seconds)):
+        bad = int(np.argmax(~np.isfinite(seconds))) if seconds is not None else 0
+        raise ValueError(f"{path}, line {line_numbers[bad]}: {stamps[bad]!r} is not a date and time (YYYY-MM-DD "
+                         "hh:mm:ss.sss)")
+    out, note = _vector(path, elements, data)
+    out["t"] = seconds
+    units_of = {"X": "nT", "Y": "nT", "Z": "nT", "t": "s"}
+    for k, letter in enumerate(elements):
+        if letter in SCALARS and np.all(data[:, k] < MISSING):
+            out[letter], units_of[letter] = data[:, k], "nT"
+    metadata.update(t_start=first, iaga_elements="".join(elements), iaga_columns=", ".join(names), vector=note)
+    if problems:
+        metadata["skipped_lines"] = listing([f"{n} ({p})" for n, p in problems], len(problems) + len(values))
+    return Recording(columns=out, units=units_of, metadata=metadata, source=str(path),
+                     line_numbers=np.array(line_numbers)).choose(columns, units)
+
+
+def _missing_word(value: float) -> str:
+    return ("99999.00 (missing)" if value >= 99999.0 else "88888.00 (not recorded)" if value >= MISSING
+            else f"{value}, not a number")
+
+
+def _is_float(text: str) -> bool:
+    try:
+        float(text)
+        return True
+    except ValueError:
+        return False
+
+
+def _vector(path, elements: list, data: np.ndarray) -> tuple[dict, str]:
+    """The columns X, Y, Z (nT) from the elements reported, and how they were formed."""
+    at = {letter: k for k, letter in enumerate(elements)}
+    have = set(elements) - set(SCALARS)
+    if have == {"X", "Y", "Z"}:
+        return {c: data[:, at[c]] for c in "XYZ"}, "X, Y, Z as reported"
+    if have == {"H", "D", "Z"}:
+        d = np.radians(data[:, at["D"]] / 60.0)
+        return ({"X": data[:, at["H"]] * np.cos(d), "Y": data[:, at["H"]] * np.sin(d), "Z": data[:, at["Z"]]},
+                "X = H cos D, Y = H sin D (D in minutes of arc)")
+    if have == {"D", "H", "I"}:
+        d, i = np.radians(data[:, at["D"]] / 60.0), np.radians(data[:, at["I"]] / 60.0)
+        h = data[:, at["H"]]
+        return ({"X": h * np.cos(d), "Y": h * np.sin(d), "Z": h * np.tan(i)},
+                "X = H cos D, Y = H sin D, Z = H tan I (D, I in minutes of arc)")
+    if have == {"H", "E", "Z"}:
+        return ({"X": data[:, at["H"]], "Y": data[:, at["E"]], "Z": data[:, at["Z"]]},
+                "X = H, Y = E: the magnetic meridian's frame, not geographic north and east")
+    raise ValueError(f"{path}: elements {''.join(elements)} do not give a field vector (IAGA-2002 vectors: XYZ, HDZ, "
+                     "DHI, HEZ, with F or G)")
