@@ -34,6 +34,18 @@ inline std::string num(double v) {
   return buf;
 }
 
+/// The true field magnitude of each of `rows` readings (twostep_2d, refine's per-reading norms): one positive
+/// finite value per reading, or Error "field_norms: …".
+inline void check_field_norms(const Eigen::Ref<const Eigen::VectorXd>& h, Eigen::Index rows) {
+  if (h.size() != rows)
+    throw Error("field_norms: " + std::to_string(h.size()) + " values for " + std::to_string(rows) +
+                " readings; give the true field magnitude of every reading");
+  for (Eigen::Index i = 0; i < h.size(); ++i)
+    if (!(h(i) > 0.0) || !std::isfinite(h(i)))
+      throw Error("field_norms: value " + std::to_string(i) + " is " + num(h(i)) +
+                  "; every reading needs a positive finite true field magnitude (drop zero-field readings)");
+}
+
 /// What every "the readings do not determine a 3-D ellipsoid" error asks for. Two flat turns are not enough:
 /// the quadrics through two conics in different planes form a family (the ellipsoid plus any multiple of the
 /// product of the two planes), so the fit is rank deficient along it.

@@ -69,12 +69,15 @@ double sampson(const double* m, const double* th, double H, double* jac /* 9 or 
 }
 
 // `sampson` for n readings (rows `stride` apart), the residuals into r and, when jac is not null, the
-// Jacobian rows into jac (9 a reading, contiguous). A block of kLanes readings goes through small arrays
-// so that the compiler vectorises across readings (clones.hpp): the scalar loop was a third of refine.
+// Jacobian rows into jac (9 a reading, contiguous); each reading's |h| = H, or Hs[i] when Hs is not null (a
+// field that changes while the sensor turns). A block of kLanes readings goes through small arrays so that
+// the compiler vectorises across readings (clones.hpp): the scalar loop was a third of refine.
 FLUXCAL_CLONES
 void sampson_rows(const double* m, Eigen::Index stride, Eigen::Index n, const double* th, double H, double* r,
-                  double* jac) {
+                  double* jac, const double* Hs = nullptr) {
   using detail::kLanes;
+  double target[kLanes];
+  std::fill(target, target + kLanes, H);
   Eigen::Index i = 0;
   for (; i + kLanes <= n; i += kLanes) {
     double x[kLanes], y[kLanes], z[kLanes], out[10][kLanes];
@@ -82,13 +85,14 @@ void sampson_rows(const double* m, Eigen::Index stride, Eigen::Index n, const do
       const double* mi = m + stride * (i + l);
       x[l] = mi[0] - th[0], y[l] = mi[1] - th[1], z[l] = mi[2] - th[2];
     }
-    for (int l = 0; l < kLanes; ++l) sampson_at(x[l], y[l], z[l], th + 3, H, &out[0][l], kLanes);
+    if (Hs) std::copy(Hs + i, Hs + i + kLanes, target);
+    for (int l = 0; l < kLanes; ++l) sampson_at(x[l], y[l], z[l], th + 3, target[l], &out[0][l], kLanes);
     for (int l = 0; l < kLanes; ++l) r[i + l] = out[9][l];
     if (jac)
       for (int l = 0; l < kLanes; ++l)
         for (int c = 0; c < 9; ++c) jac[9 * (i + l) + c] = out[c][l];
   }
-  for (; i < n; ++i) r[i] = sampson(m + stride * i, th, H, jac ? jac + 9 * i : nullptr);
+  for (; i < n; ++i) r[i] = sampson(m + stride * i, th, Hs ? Hs[i] : H, jac ? jac + 9 * i : nullptr);
 }
 
 // One Sampson residual (a robust loss acts per residual block).
@@ -319,12 +323,13 @@ void finish_statistics(RefineResult& out, const Eigen::MatrixXd& F, double sigma
 }
 
 // Fills the Summary's residual statistics from the final calibration.
-void finish_summary(RefineResult& out, const SamplesRef& samples, const SamplesRef* reference) {
+void finish_summary(RefineResult& out, const SamplesRef& samples, const SamplesRef* reference,
+                    const Eigen::VectorXd* norms = nullptr) {
   const Calibration& cal = out.calibration;
   double sd = 0.0, sd2 = 0.0, sv2 = 0.0;
   for (Eigen::Index i = 0; i < samples.rows(); ++i) {
     const Eigen::Vector3d h = cal.apply(samples.row(i).transpose());
-    const double dev = h.norm() - cal.field_norm;
+    const double dev = h.norm() - (norms ? (*norms)(i) : cal.field_norm);  // each reading's own |h| when given
     sd += dev;
     sd2 += dev * dev;
     if (reference) sv2 += (h - reference->row(i).transpose()).squaredNorm();
@@ -514,8 +519,9 @@ void finish_vector(RefineResult& out, const SamplesRef& samples, const SamplesRe
 // Parameter blocks: base θ (9 or 12), then the term coefficients c (p, when p > 0).
 class TermsBatch : public ceres::CostFunction {
  public:
-  TermsBatch(const SamplesRef& m, const Eigen::Ref<const Eigen::MatrixXd>& f, double H, const SamplesRef* ref)
-      : m_(m), f_(f), H_(H), vector_(ref != nullptr), p_(static_cast<int>(f.cols() / 3)) {
+  TermsBatch(const SamplesRef& m, const Eigen::Ref<const Eigen::MatrixXd>& f, double H, const SamplesRef* ref,
+             const double* Hs = nullptr)
+      : m_(m), f_(f), H_(H), Hs_(Hs), vector_(ref != nullptr), p_(static_cast<int>(f.cols() / 3)) {
     if (ref) ref_ = *ref;
     set_num_residuals(static_cast<int>(m.rows()) * (vector_ ? 3 : 1));
     mutable_parameter_block_sizes()->push_back(vector_ ? 12 : 9);
@@ -547,7 +553,7 @@ class TermsBatch : public ceres::CostFunction {
   // Sampson residuals (Jacobian rows into jb and jt when not null) of the corrected readings
   // m'_i = m_i − Σ_j c_j f_ij, a chunk at a time.
   void magnitude(const double* th, const Eigen::Ref<const Eigen::VectorXd>& c, double* r, double* jb, double* jt) const {
-    if (p_ == 0) return sampson_rows(m_.data(), 3, m_.rows(), th, H_, r, jb);
+    if (p_ == 0) return sampson_rows(m_.data(), 3, m_.rows(), th, H_, r, jb, Hs_);
     constexpr Eigen::Index kChunk = 32;  // a chunk's terms stay in L1 between the correction and ∂r/∂c
     Samples corrected(kChunk, 3);
     std::vector<double> scratch(jt && !jb ? 9 * kChunk : 0);
@@ -560,7 +566,7 @@ class TermsBatch : public ceres::CostFunction {
         corrected(i, 0) = x, corrected(i, 1) = y, corrected(i, 2) = z;
       }
       double* jrows = jb ? jb + 9 * i0 : (jt ? scratch.data() : nullptr);
-      sampson_rows(corrected.data(), 3, len, th, H_, r + i0, jrows);
+      sampson_rows(corrected.data(), 3, len, th, H_, r + i0, jrows, Hs_ ? Hs_ + i0 : nullptr);
       if (!jt) continue;
       // r depends on m' − b, so ∂r/∂c_j = (∂r/∂b) · f_ij.
       for (Eigen::Index i = 0; i < len; ++i)
@@ -573,13 +579,18 @@ class TermsBatch : public ceres::CostFunction {
   Samples m_, ref_;
   Eigen::Matrix<double, Eigen::Dynamic, Eigen::Dynamic, Eigen::RowMajor> f_;  // a reading's terms side by side
   double H_;
+  const double* Hs_;  // each reading's H, when not null (the caller keeps them)
   bool vector_;
   int p_;
 };
 
 }  // namespace
 
-RefineResult refine(const Calibration& start, const SamplesRef& samples, const RefineOptions& opt) {
+namespace {
+
+// refine's magnitude model; each reading's |h| is start.field_norm, or (*norms)(i) when norms is not null.
+RefineResult refine_magnitude(const Calibration& start, const SamplesRef& samples, const Eigen::VectorXd* norms,
+                              const RefineOptions& opt) {
   check_options(opt);
   const ShapeMap shape = shape_map(opt.shape);
   const Eigen::Index k = shape.P.cols();
@@ -599,28 +610,31 @@ RefineResult refine(const Calibration& start, const SamplesRef& samples, const R
     std::vector<double> start_abs;
     for (Eigen::Index i = 0; i < samples.rows(); ++i) {
       const Eigen::Vector3d m = samples.row(i).transpose();
-      start_abs.push_back(std::abs(sampson(m.data(), theta, start.field_norm, nullptr)));
+      start_abs.push_back(std::abs(sampson(m.data(), theta, norms ? (*norms)(i) : start.field_norm, nullptr)));
     }
     loss.reset(make_loss(opt, robust_sigma(start_abs)));
   }
   Eigen::MatrixXd F;
   double ssr;
-  auto solve_for = [&](double H) {  // fits |h| to H; returns Ceres' final cost ½Σρ(r²)
+  // fits |h| to H, or reading i's to Hs[i]; returns Ceres' final cost ½Σρ(r²)
+  auto solve_for = [&](double H, const double* Hs) {
     ceres::Problem::Options po;
     po.loss_function_ownership = ceres::DO_NOT_TAKE_OWNERSHIP;
     ceres::Problem problem(po);
     if (!loss) {
-      problem.AddResidualBlock(new TermsBatch(samples, Eigen::MatrixXd(samples.rows(), 0), H, nullptr), nullptr, theta);
+      problem.AddResidualBlock(new TermsBatch(samples, Eigen::MatrixXd(samples.rows(), 0), H, nullptr, Hs), nullptr,
+                               theta);
     } else {
       for (Eigen::Index i = 0; i < samples.rows(); ++i)
-        problem.AddResidualBlock(new MagnitudeOne(samples.row(i).transpose(), H), loss.get(), theta);
+        problem.AddResidualBlock(new MagnitudeOne(samples.row(i).transpose(), Hs ? Hs[i] : H), loss.get(), theta);
     }
     if (k < 9) problem.SetManifold(theta, new ShapeManifold(shape));
     return solve_problem(problem, out, opt);
   };
   Eigen::VectorXd gradient;  // of the shape's parameters
   Scores scores{Eigen::MatrixXd(samples.rows(), 1), Eigen::MatrixXd(samples.rows(), k)};
-  auto plain_fit = [&](double H, Eigen::MatrixXd& info, double& sum_sq) {  // Σr², JᵀJ and Jᵀr at θ (shape's φ)
+  // Σr², JᵀJ and Jᵀr at θ (shape's φ), |h| fitted to H or Hs[i]
+  auto plain_fit = [&](double H, const double* Hs, Eigen::MatrixXd& info, double& sum_sq) {
     // The Jacobian's rows a chunk at a time: one rank-k update of JᵀJ and one product onto the shape's
     // parameters per chunk (a rank-1 update and a dynamic-size product per reading cost 3× more).
     constexpr Eigen::Index kChunk = 512;
@@ -631,7 +645,7 @@ RefineResult refine(const Calibration& start, const SamplesRef& samples, const R
     for (Eigen::Index i0 = 0; i0 < samples.rows(); i0 += kChunk) {
       const Eigen::Index len = std::min(kChunk, samples.rows() - i0);
       sampson_rows(samples.data() + samples.outerStride() * i0, samples.outerStride(), len, theta, H,
-                   scores.residuals.data() + i0, jac.data());
+                   scores.residuals.data() + i0, jac.data(), Hs ? Hs + i0 : nullptr);
       const auto J = jac.leftCols(len);
       const auto r = scores.residuals.col(0).segment(i0, len);
       sum_sq += r.squaredNorm();
@@ -647,11 +661,14 @@ RefineResult refine(const Calibration& start, const SamplesRef& samples, const R
   const double spare = static_cast<double>(samples.rows() - k);
   const double H = start.field_norm;
   double H_fit = H;
-  const double solved_cost = solve_for(H);
+  Eigen::VectorXd fit_norms;  // each reading's target, when the field changes
+  if (norms) fit_norms = *norms;
+  const double* Hs = norms ? fit_norms.data() : nullptr;
+  const double solved_cost = solve_for(H, Hs);
   bool current = false;  // F, ssr and the scores are those of θ as it stands
   if (opt.noise_bias_correction) {
     // σ̂² from the plain Σr²: Ceres' final cost without a loss, one more pass with one
-    if (loss) plain_fit(H, F, ssr);
+    if (loss) plain_fit(H, Hs, F, ssr);
     else ssr = 2.0 * solved_cost;
     const double s2 = ssr / spare;
     const Eigen::Matrix<double, 9, 1>& t = th;
@@ -659,16 +676,17 @@ RefineResult refine(const Calibration& start, const SamplesRef& samples, const R
     // The target moves by O(σ²/H): Gauss–Newton steps from the solution converge at once (plain
     // least squares; with a robust loss the full solve again).
     H_fit = H + s2 * a2 / (3.0 * H);
+    if (norms) fit_norms = norms->array() + s2 * a2 / (3.0 * norms->array());
     if (loss) {
       const int first_iterations = out.summary.iterations;
       out.summary.warnings.clear();
-      solve_for(H_fit);
+      solve_for(H_fit, Hs);
       out.summary.iterations += first_iterations;
     } else {
       // A step below 1e-5 of a standard error (δᵀFδ ≤ 1e-10 σ̂²) is not taken: θ has converged, and the
       // pass that found the step has the statistics at θ.
       for (int step = 0; step < 4; ++step) {
-        plain_fit(H_fit, F, ssr);
+        plain_fit(H_fit, Hs, F, ssr);
         const Eigen::VectorXd delta = -F.ldlt().solve(gradient);
         current = delta.dot(F * delta) <= 1e-10 * ssr / spare;
         if (current) break;
@@ -677,7 +695,7 @@ RefineResult refine(const Calibration& start, const SamplesRef& samples, const R
       }
     }
   }
-  if (!current) plain_fit(H_fit, F, ssr);
+  if (!current) plain_fit(H_fit, Hs, F, ssr);
   const double plain_sigma2 = ssr / spare;
   out.noise_sigma = std::sqrt(plain_sigma2);
   const double sigma2 =
@@ -703,8 +721,23 @@ RefineResult refine(const Calibration& start, const SamplesRef& samples, const R
   Eigen::VectorXd scales(k);  // offsets: the radius; matrix entries: the gain ‖A‖_F/√3
   for (Eigen::Index j = 0; j < k; ++j) scales(j) = j < 3 ? radius : gain;
   finish_statistics(out, F, sigma2, scales, opt, &scores);
-  finish_summary(out, samples, nullptr);
+  finish_summary(out, samples, nullptr, norms);
   return out;
+}
+
+}  // namespace
+
+RefineResult refine(const Calibration& start, const SamplesRef& samples, const RefineOptions& opt) {
+  return refine_magnitude(start, samples, nullptr, opt);
+}
+
+RefineResult refine(const Calibration& start, const SamplesRef& samples, const SeriesRef& field_norms,
+                    const RefineOptions& opt) {
+  detail::check_field_norms(field_norms, samples.rows());
+  const Eigen::VectorXd norms = field_norms;
+  Calibration mean_start = start;
+  mean_start.field_norm = norms.mean();
+  return refine_magnitude(mean_start, samples, &norms, opt);
 }
 
 RefineResult refine_vector(const Calibration& start, const SamplesRef& samples, const SamplesRef& reference,

@@ -91,19 +91,7 @@ void check_2d(const Readings2DRef& readings, const Eigen::Ref<const Eigen::Vecto
             << (std::isnan(readings(i, j)) ? "NaN" : "infinite") << "; remove or repair non-finite readings first";
         throw Error(msg.str());
       }
-  if (h.size() != readings.rows()) {
-    std::ostringstream msg;
-    msg << "field_norms: " << h.size() << " values for " << readings.rows()
-        << " readings; give the true field magnitude of every reading";
-    throw Error(msg.str());
-  }
-  for (Eigen::Index i = 0; i < h.size(); ++i)
-    if (!(h(i) > 0.0) || !std::isfinite(h(i))) {
-      std::ostringstream msg;
-      msg << "field_norms: value " << i << " is " << h(i)
-          << "; every reading needs a positive finite true field magnitude (drop zero-field readings)";
-      throw Error(msg.str());
-    }
+  detail::check_field_norms(h, readings.rows());
 }
 
 // Normalised problem: u = (ĥ − centre)/scale, f = h/field_scale. The model keeps its form:

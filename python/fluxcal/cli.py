@@ -31,6 +31,16 @@ def positive_number(text: str, zero: bool = False) -> float:
     return value
 
 
+def norm_or_column(text: str):
+    """argparse type of calibrate's --field-norm: a positive finite number, or the name of a column holding each
+    reading's |field| (not a number: a scalar magnetometer's log, an observatory's F)."""
+    try:
+        float(text)
+    except ValueError:
+        return text.strip()
+    return positive_number(text)
+
+
 def non_negative_number(text: str) -> float:
     """argparse type of a noise level (--noise): finite, ≥ 0 (NaN wrote a recording of NaN)."""
     return positive_number(text, zero=True)
@@ -57,7 +67,8 @@ def _report(cal: Calibration, raw: np.ndarray, out=sys.stdout) -> None:
     print(cal, file=out)
     print(f"  samples used          {s['samples']}", file=out)
     print(f"  |h| std/mean before   {100 * _spread(raw):.3f} %   (raw |m|)", file=out)
-    print(f"  |h| std/mean after    {100 * s['norm_std_over_mean']:.3f} %", file=out)
+    own = "   (|h| against each reading's own |field|)" if "field_norms" in s else ""
+    print(f"  |h| std/mean after    {100 * s['norm_std_over_mean']:.3f} %{own}", file=out)
     print(f"  residual RMS          {s['residual_rms']:.6g} {cal.h_units}".rstrip(), file=out)
     print(f"  condition number      {s['condition_number']:.3g}", file=out)
     print(f"  coverage              {100 * s['direction_coverage']:.0f} % of directions, thinnest/widest "
@@ -127,7 +138,7 @@ def _field_units(args, units: str, field_norm, reference) -> str | None:
         return unit_name(args.field_units)
     if field_norm is None or reference is not None or units in TESLA_PER_UNIT:
         return None
-    print(f"note: the readings are in {units or 'no stated unit'}; |h| = {field_norm:g} is in the unit of "
+    print(f"note: the readings are in {units or 'no stated unit'}; |h| = {np.mean(field_norm):g} is in the unit of "
           "--field-norm, which --field-units names (the calibration then says it)")
     return ""
 
@@ -158,12 +169,14 @@ def _held_out_spread(raw, cal: Calibration, field_norm, settings: dict):
     spread std/mean of |h| on the second without the whole fit's outliers (the spread a peer's fit is judged
     by); or why the first half alone cannot be fitted."""
     half = len(raw) // 2
+    per_reading = np.ndim(field_norm) > 0  # each reading's own |field|: the spread of |h| over it
     try:
-        first = calibrate(raw[:half], field_norm=field_norm, shape=cal.summary.get("shape", "auto"), **settings)
+        first = calibrate(raw[:half], field_norm=field_norm[:half] if per_reading else field_norm,
+                          shape=cal.summary.get("shape", "auto"), **settings)
     except ValueError as exc:
         return f"the first half alone cannot be fitted: {str(exc).split(';')[0]}"
     kept = np.setdiff1d(np.arange(half, len(raw)), np.asarray(cal.summary.get("outliers", {}).get("rows", []), int))
-    norms = np.linalg.norm(first.apply(raw[kept]), axis=1)
+    norms = np.linalg.norm(first.apply(raw[kept]), axis=1) / (field_norm[kept] if per_reading else 1.0)
     return float(norms.std() / norms.mean())
 
 
@@ -226,6 +239,23 @@ def _print_roles(rec: Recording):
         print(f"text columns not used: {rec.metadata['text_columns']}")
 
 
+def _field_norm_column(rec: Recording, name: str, args) -> np.ndarray:
+    """--field-norm COLUMN: each reading's |field|; its unit, when the file states one, is --field-units'."""
+    if name not in rec.columns:
+        raise ValueError(f"--field-norm {name}: not a number, nor a column of {args.file} (columns: "
+                         f"{', '.join(rec.columns)})")
+    if name in rec.mag_names():
+        raise ValueError(f"--field-norm {name}: a magnetometer column; give the column of the true |field|")
+    stated = rec.units.get(name, "")
+    if stated and args.field_units and unit_name(stated) != unit_name(args.field_units):
+        raise ValueError(f"--field-norm {name}: the file states it in {stated}, --field-units says "
+                         f"{args.field_units}")
+    if stated and not args.field_units:
+        args.field_units = stated
+    print(f"field norm of each reading from column {name}" + (f" ({stated})" if stated else ""))
+    return rec.columns[name]
+
+
 def cmd_calibrate(args) -> int:
     rec = read_recording(args.file, columns=args.columns, units=args.units, bad_lines=args.bad_lines,
                          decimal=args.decimal)
@@ -234,6 +264,8 @@ def cmd_calibrate(args) -> int:
     # attitude + local field in the recording (e.g. the airborne layout): the vector fit, unless a
     # magnitude-only method is asked for
     units, field_norm = rec.field_units(), args.field_norm
+    if isinstance(field_norm, str):
+        field_norm = _field_norm_column(rec, field_norm, args)
     if args.reference and args.method not in ("auto", "vector"):
         raise ValueError(f"--reference: the vector fit's; --method {args.method} fits field magnitudes only (leave "
                          "--method out, or give vector)")
@@ -914,8 +946,10 @@ def build_parser() -> argparse.ArgumentParser:
                               "data did not determine every parameter (with -o it is written for inspection; export-c "
                               "refuses it)")
     c.add_argument("file")
-    c.add_argument("--field-norm", type=positive_number, default=None,
-                   help="known |field|, in --field-units (default: fitted; a fluxcal simulation's own metadata)")
+    c.add_argument("--field-norm", type=norm_or_column, default=None,
+                   help="known |field|, in --field-units (default: fitted; a fluxcal simulation's own metadata); or "
+                        "the name of a column holding each reading's |field| (a scalar magnetometer logged beside "
+                        "it, an observatory's F): the refinement fits each reading to its own")
     c.add_argument("--field-units", default=None,
                    help="unit of --field-norm and of the corrected field h (default: the readings' unit; give it when "
                         "the readings are counts, e.g. --field-norm 48.2 --field-units uT)")

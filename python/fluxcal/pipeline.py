@@ -12,7 +12,7 @@ from ._arrays import as_samples, held_copies
 from .calibration import Calibration
 from .ellipsoid import fit_ellipsoid
 from .outliers import find_outliers
-from .refine import SHAPES, fit_vector, refine, shape_name
+from .refine import SHAPES, as_field_norms, fit_vector, refine, shape_name
 from .twostep import twostep
 
 METHODS = ("auto", "vector", "als", "ls", "als+refine", "twostep")
@@ -46,6 +46,9 @@ def calibrate(samples, method: str = "auto", field_norm: float | None = None, re
     names the remedy instead of passing a confident 3-D answer off as one. Other methods: "vector", "als",
     "ls", "als+refine", "twostep" (Alonso & Shuster's TWOSTEP, fluxcal.twostep: needs the known `field_norm`;
     settings as fluxcal.twostep's). `loss` ("none", "huber", "cauchy") applies to the refinement.
+    `field_norm` may be one value per reading (a field that changes while the sensor turns: a scalar
+    magnetometer's log beside it, an observatory's F): the refinement then fits each |h_i| to its own
+    (fluxcal.refine's field_norms), the ellipsoid start to their mean.
 
     outliers "drop": the readings are first screened for gross outliers (I²C glitches reading 0,0,0, ADC
     rails, spikes; fluxcal.outliers) — off the ellipsoid, or with `reference` off the vector model — and
@@ -80,6 +83,14 @@ def calibrate(samples, method: str = "auto", field_norm: float | None = None, re
         units = getattr(samples, "field_units", lambda: "")()
     m = as_samples(samples)
     vector = method == "vector" or (method == "auto" and reference is not None)
+    field_norms = None
+    if field_norm is not None and np.ndim(field_norm) > 0:  # each reading's own |h| (a field that changes)
+        field_norms = as_field_norms(field_norm, len(m))
+        if vector or method in ("ls", "als", "twostep"):
+            raise ValueError(f"field_norm: one magnitude per reading is the refinement's (method 'auto' or "
+                             f"'als+refine' without a reference); method {method!r}"
+                             f"{' with a reference' if vector and method == 'auto' else ''} takes one value")
+        field_norm = float(np.mean(field_norms))
     if method == "twostep":
         if field_norm is None:
             raise ValueError("field_norm: method 'twostep' needs the known field magnitude (--field-norm; e.g. from IGRF, in the "
@@ -102,6 +113,10 @@ def calibrate(samples, method: str = "auto", field_norm: float | None = None, re
         m = np.delete(m, left_out.rows, axis=0)
         if vector:
             reference = np.delete(reference, left_out.rows, axis=0)
+        if field_norms is not None:
+            field_norms = np.delete(field_norms, left_out.rows)
+    if field_norms is not None:
+        settings["field_norms"] = field_norms
     if vector:
         cal = fit_vector(m, reference, units=units, loss=loss, **settings)
     elif method in ("ls", "als"):

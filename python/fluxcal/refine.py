@@ -90,11 +90,13 @@ def _few_spare_readings(summary: dict, per_reading: int) -> None:
 
 
 def refine(calibration: Calibration, samples, reference=None, loss: str = "none", loss_scale: float = 0.0,
-           shape: str = "sym", **settings) -> Calibration:
+           shape: str = "sym", field_norms=None, **settings) -> Calibration:
     """Refine `calibration` on `samples` by maximum likelihood (Ceres).
 
-    Without `reference` the magnitude model is used with |h| = calibration.field_norm (known); A is
-    made symmetric first. `shape` restricts A: "sym" (symmetric, 9 parameters b0 b1 b2 a00 a01 a02 a11 a12
+    Without `reference` the magnitude model is used with |h| = calibration.field_norm (known), or with
+    `field_norms` (N values > 0) each reading's own |h|: a field that changes while the sensor turns, logged by
+    a scalar magnetometer beside it or an observatory's F (the result's field_norm is then their mean, and its
+    |h| statistics are of |h_i| − field_norms[i]); A is made symmetric first. `shape` restricts A: "sym" (symmetric, 9 parameters b0 b1 b2 a00 a01 a02 a11 a12
     a22), "diag" (axis scales only, 6: b0 b1 b2 a00 a11 a22) or "sphere" (one scale, 4: b0 b1 b2 a; magcal's
     'eye'); the summary's parameters, covariance and standard errors are the shape's free parameters.
     With `reference` (N×3 true field per reading, sensor frame) the vector model, whose W is always full.
@@ -115,13 +117,37 @@ def refine(calibration: Calibration, samples, reference=None, loss: str = "none"
     if reference is not None and shape_name(shape) != "sym":
         raise ValueError(f"shape: {shape!r} restricts the magnitude model's A; with a reference the vector model "
                          "fits a full W (give shape='sym' or no reference)")
+    if reference is not None and field_norms is not None:
+        raise ValueError("field_norms: the vector model's reference vectors already give every reading's field; "
+                         "give one or the other")
     options = _options(loss, loss_scale, calibration.units, shape, **settings)
     args = (calibration.offset, calibration.matrix, calibration.field_norm, calibration.units, m)
     if reference is None:
-        cal = _calibration(_core.refine(*args, options), "refine")
+        if field_norms is None:
+            cal = _calibration(_core.refine(*args, options), "refine")
+        else:
+            norms = as_field_norms(field_norms, len(m))
+            cal = _calibration(_core.refine_norms(calibration.offset, calibration.matrix, calibration.units, m, norms,
+                                                  options), "refine")
+            cal.summary["field_norms"] = {"count": len(norms), "min": float(norms.min()), "max": float(norms.max())}
         cal.summary["shape"] = shape_name(shape)
         return cal
     return _calibration(_core.refine_vector(*args, as_samples(reference, "reference"), options), "refine_vector")
+
+
+def as_field_norms(values, n: int) -> np.ndarray:
+    """Per-reading field magnitudes as N positive finite floats; ValueError naming the problem."""
+    try:
+        norms = np.ascontiguousarray(values, dtype=float)
+    except (TypeError, ValueError):
+        raise ValueError(f"field_norms: {values!r:.60} is not numbers") from None
+    if norms.ndim != 1 or len(norms) != n:
+        raise ValueError(f"field_norms: shape {norms.shape}, expected one magnitude per reading ({n},)")
+    bad = np.flatnonzero(~(np.isfinite(norms) & (norms > 0)))
+    if bad.size:  # (as the solver's own check says it, before a mean of them is taken)
+        raise ValueError(f"field_norms: value {bad[0]} is {norms[bad[0]]:g}; every reading needs a positive finite "
+                         "true field magnitude (drop zero-field readings)")
+    return norms
 
 
 def fit_vector(samples, reference, units: str = "", loss: str = "none", loss_scale: float = 0.0,

@@ -223,3 +223,31 @@ TEST(RefineInputs, TinyReadingsAreNamed) {
   EXPECT_ERROR_SAYS(fluxcal::fit_vector(s, reference * 1e-200), "reference: values no larger than");
   EXPECT_NO_THROW(fluxcal::fit_vector(s * 1e-150, reference));  // squares still normal doubles
 }
+
+TEST(RefineFieldNorms, EachReadingsOwnFieldAndTheSameOneEverywhere) {
+  // The same field everywhere given per reading is the scalar model; a field changing by ±2 % is recovered
+  // with each reading's own |h|, and put into the offset without it.
+  const auto t = fluxcal_test::make_truth(11, 50.0);
+  const fluxcal::Samples base = fluxcal_test::simulate(t, 800, 0.002, 12);
+  fluxcal::Calibration start = fluxcal::fit_ellipsoid(base).calibration;
+  start.field_norm = t.field;
+  const Eigen::VectorXd same = Eigen::VectorXd::Constant(base.rows(), t.field);
+  const auto scalar = fluxcal::refine(start, base);
+  const auto per = fluxcal::refine(start, base, same);
+  EXPECT_LT((scalar.parameters - per.parameters).norm(), 1e-9 * t.field);
+
+  Eigen::VectorXd k(base.rows());
+  for (Eigen::Index i = 0; i < k.size(); ++i) k(i) = 1.0 + 0.02 * std::sin(5.0 * i / k.size());
+  const fluxcal::Samples changed = (base.rowwise() - t.b.transpose()).array().colwise() * k.array();
+  const fluxcal::Samples readings = changed.rowwise() + t.b.transpose();
+  const auto own = fluxcal::refine(start, readings, Eigen::VectorXd(k * t.field));
+  const auto one = fluxcal::refine(start, readings);
+  EXPECT_NEAR(own.calibration.field_norm, k.mean() * t.field, 1e-9 * t.field);
+  EXPECT_LT((own.calibration.offset - t.b).norm(), 0.2 * (one.calibration.offset - t.b).norm());
+  EXPECT_LT(own.summary.norm_std_over_mean, 0.2 * one.summary.norm_std_over_mean);
+
+  Eigen::VectorXd bad = same;
+  bad(3) = std::nan("");
+  EXPECT_ERROR_SAYS(fluxcal::refine(start, base, bad), "field_norms: value 3 is nan");
+  EXPECT_ERROR_SAYS(fluxcal::refine(start, base, Eigen::VectorXd(same.head(10))), "field_norms: 10 values for 800 readings");
+}

@@ -8,7 +8,7 @@ import pytest
 import fluxcal
 import fluxcal.oracle as oracle
 from fluxcal import attitude, sim
-from conftest import simulated
+from conftest import run_cli, simulated
 
 SYM = np.triu_indices(3)
 
@@ -163,6 +163,85 @@ def test_refinement_reaches_the_cramer_rao_bound(sensor_seed):
     assert np.abs(z.mean(axis=0)).max() <= 0.2  # no bias
     # reported standard errors match the Monte-Carlo spread within 15 %
     assert np.all(np.abs(se_ratio.mean(axis=0) / z.std(axis=0) - 1) <= 0.15)
+
+
+def changing_field(s, k):
+    """The simulation `s` in a field whose magnitude is k_i × |field| at reading i (a diurnal change, a storm):
+    its clean readings b + k_i (m_i − b), the same noise, and each reading's |field|."""
+    b = s.true_calibration().offset
+    clean = b + k[:, None] * (s.clean - b)
+    return clean, clean + (s.readings - s.clean), k * s.field_norm
+
+
+@pytest.mark.parametrize("seed", range(3))
+def test_per_reading_field_norms_agree_with_the_oracle(seed):
+    s = simulated(30 + seed, n=300, noise=0.01)
+    _, readings, norms = changing_field(s, 1 + 0.02 * np.sin(np.linspace(0, 5, 300) + seed))
+    start = fluxcal.fit_ellipsoid(readings, field_norm=norms.mean())
+    cal = fluxcal.refine(start, readings, field_norms=norms, noise_bias_correction=False)
+    ref = oracle.refine(start.offset, start.matrix, norms, readings)  # its residuals broadcast over the norms
+    assert np.abs(cal.offset - ref["offset"]).max() < 1e-8 * s.field_norm
+    assert np.abs(cal.matrix - ref["matrix"]).max() < 1e-8
+    assert cal.summary["noise_sigma"] == pytest.approx(ref["noise_sigma"], rel=1e-6)
+    assert cal.field_norm == pytest.approx(norms.mean()) and cal.summary["field_norms"]["count"] == 300
+
+
+def test_a_field_that_changes_is_calibrated_at_the_bound_with_its_norms_and_biased_without():
+    """200 seeded runs, N = 300, σ = 1 % of |field|, the field's magnitude changing by ±2 % while the sensor turns
+    (a magnetic storm, or a vehicle's own field): with each reading's |field| the refinement reaches the bound;
+    one |field| for all puts the change into the offset and matrix."""
+    rng = np.random.default_rng(7)
+    H, noise = 50000.0, 0.01
+    effects = sim.random_sensor(H, rng, soft_iron=0.1, offset=0.5, noise=noise)
+    field = H * np.array([0.3, -0.2, 0.93]) / np.linalg.norm([0.3, -0.2, 0.93])
+    z_own, z_one = [], []
+    for run in range(200):
+        s = sim.simulate(sim.uniform(300, rng), effects, field, rng)
+        clean, readings, norms = changing_field(s, 1 + 0.02 * np.sin(np.linspace(0, 3, 300) + run))
+        truth = s.true_calibration()
+        bound = np.sqrt(np.diag(fluxcal.crlb(truth, clean, noise * H)))
+        own = fluxcal.calibrate(readings, field_norm=norms, shape="sym")
+        one = fluxcal.calibrate(readings, field_norm=H, shape="sym")
+        z_own.append((np.array(own.summary["parameters"]) - theta_magnitude(truth)) / bound)
+        z_one.append((np.array(one.summary["parameters"]) - theta_magnitude(truth)) / bound)
+    z_own, z_one = np.array(z_own), np.array(z_one)
+    rms = {name: [np.sqrt(np.mean(z[:, g] ** 2)) for g in (slice(0, 3), slice(3, 9))]
+           for name, z in (("own", z_own), ("one", z_one))}
+    assert max(rms["own"]) <= 1.15 and np.abs(z_own.mean(axis=0)).max() <= 0.2  # measured 0.99, 1.00
+    assert rms["one"][0] > 1.25 and rms["one"][1] > 3.0  # measured 1.45 (offset), 4.8 (matrix) × the bound
+
+
+def test_calibrate_command_takes_each_readings_field_from_a_column(tmp_path):
+    s = simulated(41, n=600, noise=0.005)
+    _, readings, norms = changing_field(s, 1 + 0.01 * np.sin(np.linspace(0, 4, 600)))
+    columns = {"t": np.arange(600) * 0.1, "mx": readings[:, 0], "my": readings[:, 1], "mz": readings[:, 2],
+               "F": norms}
+    path = fluxcal.write_csv(tmp_path / "with_f.csv", columns, units={"mx": "nT", "my": "nT", "mz": "nT", "F": "nT"})
+    run = run_cli("calibrate", path, "--field-norm", "F", "-o", tmp_path / "cal.json")
+    assert run.returncode == 0, run.stderr
+    assert "field norm of each reading from column F (nT)" in run.stdout
+    assert "(|h| against each reading's own |field|)" in run.stdout and "held-out |h| std/mean" in run.stdout
+    api = fluxcal.calibrate(readings, field_norm=norms)
+    np.testing.assert_allclose(fluxcal.Calibration.load(tmp_path / "cal.json").offset, api.offset, rtol=1e-9)
+    run = run_cli("calibrate", path, "--field-norm", "G")
+    assert run.returncode == 2 and "--field-norm G: not a number, nor a column of" in run.stderr, run.stderr
+
+
+def test_per_reading_field_norms_bad_input_is_named():
+    s = simulated(40, n=200, noise=0.01)
+    start = fluxcal.fit_ellipsoid(s.readings, field_norm=s.field_norm)
+    norms = np.full(200, s.field_norm)
+    with pytest.raises(ValueError, match=r"field_norms: shape \(199,\), expected one magnitude per reading \(200,\)"):
+        fluxcal.refine(start, s.readings, field_norms=norms[:-1])
+    for bad in (np.nan, 0.0, -5.0):
+        broken = norms.copy()
+        broken[17] = bad
+        with pytest.raises(ValueError, match=r"field_norms: value 17 is"):
+            fluxcal.calibrate(s.readings, field_norm=broken)
+    with pytest.raises(ValueError, match="field_norms: the vector model's reference vectors already give"):
+        fluxcal.refine(start, s.readings, reference=s.readings, field_norms=norms)
+    with pytest.raises(ValueError, match="field_norm: one magnitude per reading is the refinement's"):
+        fluxcal.calibrate(s.readings, field_norm=norms, method="twostep")
 
 
 def test_ordinary_fit_is_biased_at_5_percent_noise_and_als_and_refine_are_not():

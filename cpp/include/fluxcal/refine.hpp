@@ -98,6 +98,13 @@ struct RefineResult {
 /// the known field norm start.field_norm). Needs ≥ 10 finite readings.
 RefineResult refine(const Calibration& start, const SamplesRef& samples, const RefineOptions& options = {});
 
+/// Magnitude model with the true field magnitude of each reading (`field_norms`, N values > 0): a field that
+/// changes while the sensor turns, logged by a scalar magnetometer beside it or by an observatory (its F).
+/// Fitting every |h_i| to one H would put that change into the offset and matrix. The Calibration's
+/// field_norm is the mean of field_norms; the summary's |h| statistics are of |h_i| − field_norms(i).
+RefineResult refine(const Calibration& start, const SamplesRef& samples, const SeriesRef& field_norms,
+                    const RefineOptions& options = {});
+
 /// Vector model: `reference` holds the true field of each reading in the sensor frame (N×3, the
 /// same units as the corrected field h). Starts from `start` (A⁻¹ and b). Needs ≥ 5 readings whose
 /// reference directions span 3-D.

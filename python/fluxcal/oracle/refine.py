@@ -59,7 +59,8 @@ def shape_matrix(shape: str) -> np.ndarray:
 def refine(offset, matrix, field_norm, samples, loss: str = "linear", loss_scale: float = 1.0,
            shape: str = "sym") -> dict:
     """shape "diag" / "sphere": the free parameters φ (θ = P φ, the start projected by least squares), and
-    "parameters" and "covariance" are φ's."""
+    "parameters" and "covariance" are φ's. `field_norm` is one |h| or one per reading (the residuals
+    broadcast over it: fluxcal.refine's field_norms)."""
     m = np.asarray(samples, dtype=float)
     w, V = np.linalg.eigh(np.asarray(matrix).T @ np.asarray(matrix))
     A = (V * np.sqrt(w)) @ V.T  # symmetric start
