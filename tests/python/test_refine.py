@@ -141,13 +141,19 @@ def test_few_spare_readings_are_warned_about():
 
 # -- accuracy against the Cramér–Rao bound -------------------------------------------------------------
 
+def bound_sensor(seed):
+    """The Monte-Carlo tests' sensor: |field| 50 000, σ = 1 % of it, soft iron within ±10 %, offset up to 50 %;
+    (rng, |field|, σ as a share of it, its effects, the field vector)."""
+    rng = np.random.default_rng(seed)
+    H, noise = 50000.0, 0.01
+    effects = sim.random_sensor(H, rng, soft_iron=0.1, offset=0.5, noise=noise)
+    return rng, H, noise, effects, H * np.array([0.3, -0.2, 0.93]) / np.linalg.norm([0.3, -0.2, 0.93])
+
+
 @pytest.mark.parametrize("sensor_seed", [1, 2])
 def test_refinement_reaches_the_cramer_rao_bound(sensor_seed):
     """300 seeded runs, N = 300, σ = 1 % of |field|, soft iron within ±10 %, offset up to 50 %."""
-    rng = np.random.default_rng(sensor_seed)
-    H, noise = 50000.0, 0.01
-    effects = sim.random_sensor(H, rng, soft_iron=0.1, offset=0.5, noise=noise)
-    field = H * np.array([0.3, -0.2, 0.93]) / np.linalg.norm([0.3, -0.2, 0.93])
+    rng, H, noise, effects, field = bound_sensor(sensor_seed)
     z, se_ratio = [], []
     for _ in range(300):
         s = sim.simulate(sim.uniform(300, rng), effects, field, rng)
@@ -190,10 +196,7 @@ def test_a_field_that_changes_is_calibrated_at_the_bound_with_its_norms_and_bias
     """200 seeded runs, N = 300, σ = 1 % of |field|, the field's magnitude changing by ±2 % while the sensor turns
     (a magnetic storm, or a vehicle's own field): with each reading's |field| the refinement reaches the bound;
     one |field| for all puts the change into the offset and matrix."""
-    rng = np.random.default_rng(7)
-    H, noise = 50000.0, 0.01
-    effects = sim.random_sensor(H, rng, soft_iron=0.1, offset=0.5, noise=noise)
-    field = H * np.array([0.3, -0.2, 0.93]) / np.linalg.norm([0.3, -0.2, 0.93])
+    rng, H, noise, effects, field = bound_sensor(7)
     z_own, z_one = [], []
     for run in range(200):
         s = sim.simulate(sim.uniform(300, rng), effects, field, rng)

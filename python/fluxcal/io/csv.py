@@ -49,6 +49,13 @@ def check_bad_lines(bad_lines: str) -> None:
         raise ValueError(f"bad_lines: {bad_lines!r} is not one of {', '.join(BAD_LINES)}")
 
 
+def stop_at_first(path, problems, bad_lines: str) -> None:
+    """With bad_lines "error", a line reader's first [(line, problem)] as an error naming the file and the line."""
+    if problems and bad_lines == "error":
+        line, problem = problems[0]
+        raise ValueError(f"{path}, line {line}: {problem}; {SKIP_HINT}")
+
+
 def listing(entries, total: int | None = None, shown: int = 10) -> str:
     """'k of total: e1; e2; … n more' (the first `shown` entries), for metadata such as skipped_lines."""
     head = f"{len(entries)} of {total}: " if total is not None else ""

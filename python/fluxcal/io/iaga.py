@@ -27,7 +27,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from .csv import CUT_PROBLEM, CUT_SHORT, SKIP_HINT, _timestamps, check_bad_lines, listing, read_lines
+from .csv import CUT_PROBLEM, CUT_SHORT, _is_number, _timestamps, check_bad_lines, listing, read_lines, stop_at_first
 from .recording import Recording
 
 MISSING = 88888.0  # 88888.00 (not recorded) and 99999.00 (missing) both at or above it
@@ -88,7 +88,7 @@ def read_iaga2002(path, columns=None, units: str | None = None, bad_lines: str =
             try:
                 row = [float(c) for c in cells[3:]]
             except ValueError:
-                bad = next(c for c in cells[3:] if not _is_float(c))
+                bad = next(c for c in cells[3:] if not _is_number(c))
                 problem = f"{bad!r} is not a number"
         if problem is None:  # a component of the vector missing (F or G may be: they are not needed)
             absent = [k for k, letter in enumerate(elements) if letter not in SCALARS and not row[k] < MISSING]
@@ -102,9 +102,7 @@ def read_iaga2002(path, columns=None, units: str | None = None, bad_lines: str =
         line_numbers.append(number)
     if elements is None:
         raise ValueError(f"{path}: no data header (DATE TIME DOY and four elements); not an IAGA-2002 file")
-    if problems and bad_lines == "error":
-        number, problem = problems[0]
-        raise ValueError(f"{path}, line {number}: {problem}; {SKIP_HINT}")
+    stop_at_first(path, problems, bad_lines)
     if not values:
         raise ValueError(f"{path}: no records" + (f" (all {len(problems)} bad)" if problems else ""))
     data = np.array(values)
@@ -129,14 +127,6 @@ def read_iaga2002(path, columns=None, units: str | None = None, bad_lines: str =
 def _missing_word(value: float) -> str:
     return ("99999.00 (missing)" if value >= 99999.0 else "88888.00 (not recorded)" if value >= MISSING
             else f"{value}, not a number")
-
-
-def _is_float(text: str) -> bool:
-    try:
-        float(text)
-        return True
-    except ValueError:
-        return False
 
 
 def _vector(path, elements: list, data: np.ndarray) -> tuple[dict, str]:

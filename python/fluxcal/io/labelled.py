@@ -33,7 +33,8 @@ from pathlib import Path
 import numpy as np
 
 from .columns import FIELD_UNITS, TIME_WORDS, comma_kind, is_unit, words
-from .csv import readable_file, CUT_PROBLEM, CUT_SHORT, NOT_TEXT, SKIP_HINT, _timestamps, check_bad_lines, data_lines, is_comment, listing, read_lines
+from .csv import (readable_file, CUT_PROBLEM, CUT_SHORT, NOT_TEXT, SKIP_HINT, _timestamps, check_bad_lines, data_lines,
+                  is_comment, listing, read_lines, stop_at_first)
 from .recording import Recording
 
 # label (a word not glued to what precedes it, hyphens inside allowed: X-acceleration), ':', '=' or ' is '
@@ -397,9 +398,7 @@ def read_labelled(path, columns=None, units: str | None = None, bad_lines: str =
         metadata["decimal_separator"] = "comma"
     if preamble:
         metadata["preamble"] = listing([f"line {n}: {text}" for n, text in preamble])
-    if problems and bad_lines == "error":
-        n, p = problems[0]
-        raise ValueError(f"{path}, line {n}: {p}; {SKIP_HINT}")
+    stop_at_first(path, problems, bad_lines)
     if problems:
         metadata["skipped_lines"] = listing([f"{n} ({p})" for n, p in problems], len(parsed) - len(preamble))
     good = [(n, r) for n, r, _ in rows]

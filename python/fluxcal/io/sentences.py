@@ -27,7 +27,7 @@ from pathlib import Path
 
 import numpy as np
 
-from .csv import (readable_file, CUT_PROBLEM, CUT_SHORT, NOT_TEXT, SKIP_HINT, _is_number, _timestamps, check_bad_lines, data_lines, is_comment, listing,
+from .csv import (readable_file, CUT_PROBLEM, CUT_SHORT, NOT_TEXT, _is_number, _timestamps, check_bad_lines, data_lines, is_comment, listing, stop_at_first,
                   read_lines)
 from .labelled import CLOCK
 from .recording import Recording
@@ -125,9 +125,7 @@ def read_sentences(path, columns=None, units: str | None = None, bad_lines: str 
         lines_of.append(line_no)
         stamps.append(clock or "")
     problems.sort()
-    if problems and bad_lines == "error":
-        n, p = problems[0]
-        raise ValueError(f"{path}, line {n}: {p}; {SKIP_HINT}")
+    stop_at_first(path, problems, bad_lines)
     if not rows:
         raise ValueError(f"{path}: no readable {kind} sentence" + (f" (all {len(problems)} bad)" if problems else ""))
     data = np.array(rows)
