@@ -7,6 +7,7 @@ import os
 import re
 import sys
 import warnings
+from datetime import datetime, timezone
 from pathlib import Path
 
 import numpy as np
@@ -240,20 +241,53 @@ def _print_roles(rec: Recording):
 
 
 def _field_norm_column(rec: Recording, name: str, args) -> np.ndarray:
-    """--field-norm COLUMN: each reading's |field|; its unit, when the file states one, is --field-units'."""
+    """--field-norm COLUMN (each reading's |field|; its unit, when the file states one, is --field-units') or
+    --field-norm FILE (another recording's F, or its vector's magnitude, at this one's clock times)."""
+    if name not in rec.columns and Path(name).is_file():
+        return _field_norm_from(rec, name, args)
     if name not in rec.columns:
         raise ValueError(f"--field-norm {name}: not a number, nor a column of {args.file} (columns: "
-                         f"{', '.join(rec.columns)})")
+                         f"{', '.join(rec.columns)}), nor a file")
     if name in rec.mag_names():
         raise ValueError(f"--field-norm {name}: a magnetometer column; give the column of the true |field|")
-    stated = rec.units.get(name, "")
+    _take_field_units(args, rec.units.get(name, ""), f"--field-norm {name}")
+    print(f"field norm of each reading from column {name}" + (f" ({rec.units[name]})" if rec.units.get(name) else ""))
+    return rec.columns[name]
+
+
+def _take_field_units(args, stated: str, what: str) -> None:
+    """The unit a field norm's source states becomes --field-units (an error when that says another)."""
     if stated and args.field_units and unit_name(stated) != unit_name(args.field_units):
-        raise ValueError(f"--field-norm {name}: the file states it in {stated}, --field-units says "
-                         f"{args.field_units}")
+        raise ValueError(f"{what}: stated in {stated}, --field-units says {args.field_units}")
     if stated and not args.field_units:
         args.field_units = stated
-    print(f"field norm of each reading from column {name}" + (f" ({stated})" if stated else ""))
-    return rec.columns[name]
+
+
+def _field_norm_from(rec: Recording, path: str, args) -> np.ndarray:
+    """--field-norm FILE: the |field| another recording logged (a scalar magnetometer's or an observatory's F, else
+    the magnitude of its vector), interpolated at this recording's clock times; both need clock times (dates),
+    and this one's must lie within the other's."""
+    other = read_recording(path)
+    mine, theirs = rec.utc_seconds(), other.utc_seconds()
+    for t, name in ((mine, args.file), (theirs, path)):
+        if t is None:
+            raise ValueError(f"--field-norm {path}: {name} has no clock time (a time column of dates and times, or "
+                             "Unix seconds) to match the two recordings' readings by")
+    scalar = next((c for c in ("F", "f", "total", "field_norm") if c in other.columns), None)
+    values = other.columns[scalar] if scalar else np.linalg.norm(other.samples(), axis=1)
+    unit = other.units.get(scalar, "") if scalar else other.field_units()
+    order = np.argsort(theirs, kind="stable")
+    theirs, values = theirs[order], values[order]
+    outside = (mine < theirs[0]) | (mine > theirs[-1])
+    if outside.any():
+        utc = lambda x: datetime.fromtimestamp(x, timezone.utc).strftime("%Y-%m-%d %H:%M:%S UTC")  # noqa: E731
+        raise ValueError(f"--field-norm {path}: it covers {utc(theirs[0])} to {utc(theirs[-1])}; {args.file}, "
+                         f"{rec.place(int(np.argmax(outside)))}, reads at {utc(mine[outside][0])}, outside it")
+    _take_field_units(args, unit, f"--field-norm {path}")
+    what = f"column {scalar}" if scalar else f"|{','.join(other.mag_names())}|"
+    print(f"field norm of each reading from {path}: its {what}{f' ({unit})' if unit else ''} at this recording's "
+          "clock times (interpolated)")
+    return np.interp(mine, theirs, values)
 
 
 def cmd_calibrate(args) -> int:
@@ -949,7 +983,8 @@ def build_parser() -> argparse.ArgumentParser:
     c.add_argument("--field-norm", type=norm_or_column, default=None,
                    help="known |field|, in --field-units (default: fitted; a fluxcal simulation's own metadata); or "
                         "the name of a column holding each reading's |field| (a scalar magnetometer logged beside "
-                        "it, an observatory's F): the refinement fits each reading to its own")
+                        "it): the refinement fits each reading to its own; or a file whose F (or vector's "
+                        "magnitude) is taken at this recording's clock times (an observatory's IAGA-2002 file)")
     c.add_argument("--field-units", default=None,
                    help="unit of --field-norm and of the corrected field h (default: the readings' unit; give it when "
                         "the readings are counts, e.g. --field-norm 48.2 --field-units uT)")

@@ -118,3 +118,35 @@ def test_calibrate_reads_an_observatory_file(tmp_path):
     r = run_cli("calibrate", path)
     assert r.returncode == 2 and "tst.min" in r.stderr and "the readings hardly change" in r.stderr, r.stderr
     assert "magnetometer X,Y,Z" in r.stdout, r.stdout
+
+
+def test_an_observatorys_f_gives_each_readings_field_at_its_clock_time(tmp_path):
+    """`calibrate --field-norm obs.min`: the observatory's F, logged a minute apart, interpolated at the clock
+    times of a sensor turned during a storm's ±1 % change; refused where the times do not meet."""
+    from conftest import simulated
+
+    n = 900
+    s = simulated(8, n=n, noise=0.002)
+    seconds = 600.0 + 0.5 * np.arange(n)  # 00:10:00 to 00:17:29.5 UT, two readings a second
+    minutes = np.arange(0, 30)
+    f_obs = 50000.0 * (1 + 0.01 * np.sin(minutes / 4.0))
+    k = np.interp(seconds, 60.0 * minutes, f_obs) / 50000.0
+    b = s.true_calibration().offset
+    readings = b + k[:, None] * (s.clean - b) + (s.readings - s.clean)
+    stamps = [f"2024-03-01T00:{int(x // 60):02d}:{x % 60:04.1f}Z" for x in seconds]
+    sensor = tmp_path / "sensor.csv"
+    sensor.write_text("time,mx,my,mz\n" + "".join(f"{t},{x:.10g},{y:.10g},{z:.10g}\n"
+                                               for t, (x, y, z) in zip(stamps, readings)))
+    xyz = np.column_stack([np.zeros(30), np.zeros(30), f_obs])
+    obs = write(tmp_path / "obs.min", "XYZF", np.column_stack([xyz, f_obs]))
+    run = run_cli("calibrate", sensor, "--field-norm", obs, "-o", tmp_path / "cal.json")
+    assert run.returncode == 0, run.stderr
+    assert "field norm of each reading from" in run.stdout and "its column F (nT)" in run.stdout, run.stdout
+    import fluxcal
+
+    api = fluxcal.calibrate(readings, field_norm=50000.0 * k)
+    np.testing.assert_allclose(fluxcal.Calibration.load(tmp_path / "cal.json").offset, api.offset, rtol=1e-6)
+    late = write(tmp_path / "late.min", "XYZF", np.column_stack([xyz, f_obs]), start=60)  # 01:00 onwards
+    run = run_cli("calibrate", sensor, "--field-norm", late)
+    assert run.returncode == 2 and "it covers 2024-03-01 01:00:00 UTC to 2024-03-01 01:29:00 UTC" in run.stderr
+    assert "sensor.csv, line 2, reads at 2024-03-01 00:10:00 UTC, outside it" in run.stderr, run.stderr

@@ -16,6 +16,7 @@ from .. import _core
 from .._arrays import as_samples, held_copies
 from ..attitude import magnetic_frame
 from ..calibration import Calibration
+from ..io.recording import UNIX_SECONDS
 from ..outliers import find_outliers
 from ..sim.effects import CANDIDATES, scatter_rows
 
@@ -738,7 +739,6 @@ def _where(data: _Data, e: np.ndarray, sigma: float, directions: np.ndarray, vec
     return out
 
 
-UNIX_SECONDS = (1e8, 1e10)  # times in this range are clock times (Unix seconds, 1973 to 2286), not seconds from a start
 
 
 def time_number(t):

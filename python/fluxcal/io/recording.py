@@ -6,6 +6,8 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from .._arrays import first_nonfinite, units_text
+
+UNIX_SECONDS = (1e8, 1e10)  # times in this range are clock times (Unix seconds, 1973 to 2286), not seconds from a start
 from .columns import (TO_CELSIUS, field_unit_of, unit_name, find_accelerometer, find_current, find_magnetometer, find_temperature, find_time,
                       sample_rate)
 
@@ -90,6 +92,21 @@ class Recording:
             return self.columns[hit[0]] * hit[1]
         rate = sample_rate(self.metadata)
         return None if rate is None else np.arange(len(self)) / rate[1]
+
+    def utc_seconds(self):
+        """Each reading's clock time as Unix seconds (UTC), or None when the recording's time is not anchored to a
+        date: a time column of dates and times (its start in metadata "<column>_start"), or one already in Unix
+        seconds (1973 to 2286)."""
+        hit = self._time_column()
+        if hit is None:
+            return None
+        t = self.columns[hit[0]] * hit[1]
+        start = self.metadata.get(f"{hit[0]}_start")
+        if start:
+            import pandas as pd
+
+            return pd.Timestamp(start).timestamp() + t
+        return t if t.size and UNIX_SECONDS[0] <= np.min(t) and np.max(t) <= UNIX_SECONDS[1] else None
 
     def _time_column(self):
         """(column, factor to seconds) of the time, or None (fluxcal.io.columns.find_time)."""
