@@ -306,7 +306,8 @@ EllipsoidResult solve(const EllipsoidMoments& mom, const EllipsoidOptions& opt) 
   const double level = (mom.centre() + mom.scale() * mean).norm();
   const std::string hardly_turned =
       widest < 0.01 * level ? "; the readings hardly change (their widest spread is " + percent(widest / level) +
-                                  " of their mean magnitude): was the sensor turned at all?"
+                                  " of their mean magnitude): was the sensor turned at all? (or are they counts "
+                                  "about a large constant, an unsigned ADC's mid-scale?)"
                             : "";
   if (sum.coverage_ratio < opt.planar_ratio) {
     throw Error("samples: the readings lie nearly in one plane (thinnest/widest spread " +
@@ -379,7 +380,9 @@ EllipsoidResult solve(const EllipsoidMoments& mom, const EllipsoidOptions& opt) 
   sum.exact_statistics = false;
   sum.converged = true;
 
-  if (!hardly_turned.empty())  // an ellipsoid through noise about one point: no calibration of the sensor
+  // An ellipsoid through noise about one point (|h| scattering by tens of %), not a turned sensor's readings about a
+  // large constant (an unsigned ADC's mid-scale), which fit well
+  if (!hardly_turned.empty() && sum.norm_std_over_mean > 0.1)
     sum.warnings.push_back("not turned:" + hardly_turned.substr(1) +
                            " An ellipsoid fitted to such readings is the noise's shape, not the sensor's");
   if (sum.coverage_ratio < opt.poor_coverage_ratio)

@@ -735,8 +735,9 @@ RefineResult refine(const Calibration& start, const SamplesRef& samples, const S
                     const RefineOptions& opt) {
   detail::check_field_norms(field_norms, samples.rows());
   const Eigen::VectorXd norms = field_norms;
-  Calibration mean_start = start;
-  mean_start.field_norm = norms.mean();
+  Calibration mean_start = start;  // its matrix scaled to their mean (a start fitted to another |h|, or to the
+  mean_start.field_norm = norms.mean();  // readings' own radius, had left the solver far from it)
+  if (std::isfinite(start.field_norm) && start.field_norm > 0.0) mean_start.matrix *= norms.mean() / start.field_norm;
   return refine_magnitude(mean_start, samples, &norms, opt);
 }
 

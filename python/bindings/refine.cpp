@@ -82,17 +82,16 @@ void bind_refine(py::module_& m) {
       "offset"_a, "matrix"_a, "field_norm"_a, "units"_a, "samples"_a.noconvert(), "options"_a);
   m.def(
       "refine_norms",
-      [](const Eigen::Vector3d& offset, const Eigen::Matrix3d& matrix, const std::string& units,
+      [](const Eigen::Vector3d& offset, const Eigen::Matrix3d& matrix, double field_norm, const std::string& units,
          const fluxcal::SamplesView& samples, const Eigen::VectorXd& field_norms, const RefineOptions& options) {
         fluxcal::RefineResult r;
         {
           py::gil_scoped_release release;
-          r = fluxcal::refine(make_calibration(offset, matrix, field_norms.size() ? field_norms.mean() : 1.0, units),
-                              samples, field_norms, options);
+          r = fluxcal::refine(make_calibration(offset, matrix, field_norm, units), samples, field_norms, options);
         }
         return result_dict(r);
       },
-      "offset"_a, "matrix"_a, "units"_a, "samples"_a.noconvert(), "field_norms"_a, "options"_a);
+      "offset"_a, "matrix"_a, "field_norm"_a, "units"_a, "samples"_a.noconvert(), "field_norms"_a, "options"_a);
   m.def(
       "refine_vector",
       [](const Eigen::Vector3d& offset, const Eigen::Matrix3d& matrix, double field_norm, const std::string& units,

@@ -251,8 +251,14 @@ def _field_norm_column(rec: Recording, name: str, args) -> np.ndarray:
     if name in rec.mag_names():
         raise ValueError(f"--field-norm {name}: a magnetometer column; give the column of the true |field|")
     _take_field_units(args, rec.units.get(name, ""), f"--field-norm {name}")
+    values = rec.columns[name]
+    bad = np.flatnonzero(~(np.isfinite(values) & (values > 0)))
+    if bad.size:
+        raise ValueError(f"{args.file}, {rec.place(int(bad[0]))}: column {name} reads {values[bad[0]]:g}; every "
+                         "reading needs its positive |field| (a line with a non-number is left out by --bad-lines "
+                         "skip)")
     print(f"field norm of each reading from column {name}" + (f" ({rec.units[name]})" if rec.units.get(name) else ""))
-    return rec.columns[name]
+    return values
 
 
 def _take_field_units(args, stated: str, what: str) -> None:
@@ -274,7 +280,14 @@ def _field_norm_from(rec: Recording, path: str, args) -> np.ndarray:
             raise ValueError(f"--field-norm {path}: {name} has no clock time (a time column of dates and times, or "
                              "Unix seconds) to match the two recordings' readings by")
     scalar = next((c for c in ("F", "f", "total", "field_norm") if c in other.columns), None)
+    if scalar is None and other.metadata.get("data_type", "").lower().startswith("variation"):
+        raise ValueError(f"--field-norm {path}: no F, and its vector is variation data (no baselines): its "
+                         "magnitude is not the field's; give a file with F, or definitive or quasi-definitive data")
     values = other.columns[scalar] if scalar else np.linalg.norm(other.samples(), axis=1)
+    known = np.isfinite(values)  # an F not recorded at some minutes: the others bridge them
+    if not known.any():
+        raise ValueError(f"--field-norm {path}: its {scalar or 'field'} has no value")
+    theirs, values = theirs[known], values[known]
     unit = other.units.get(scalar, "") if scalar else other.field_units()
     order = np.argsort(theirs, kind="stable")
     theirs, values = theirs[order], values[order]

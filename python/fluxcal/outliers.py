@@ -87,8 +87,9 @@ class Outliers:
         return out
 
 
-def _distances(cal, m: np.ndarray) -> np.ndarray:
-    radius = np.linalg.norm(cal.apply(m), axis=1)
+def _distances(cal, m: np.ndarray, norms=None) -> np.ndarray:
+    """|h|/median|h| − 1; with each reading's |field| (`norms`), of |h|/|field|: a spike in either stands out."""
+    radius = np.linalg.norm(cal.apply(m), axis=1) / (1.0 if norms is None else norms)
     return radius / np.median(radius) - 1.0
 
 
@@ -188,10 +189,11 @@ def _squares_representable(a: np.ndarray) -> bool:
     return bool(np.isfinite(square * a.size) and (largest == 0.0 or square >= np.finfo(float).tiny))
 
 
-def find_outliers(samples, reference=None, alpha: float = 0.01, seed: int = 0) -> Outliers:
+def find_outliers(samples, reference=None, alpha: float = 0.01, seed: int = 0, field_norms=None) -> Outliers:
     """Gross outliers of `samples` (N×3 readings of a turning magnetometer), judged against the ellipsoid,
     or with `reference` (the true field of each reading, sensor frame) against the vector model
-    m = W r + b; see the module doc."""
+    m = W r + b; see the module doc. With `field_norms` (each reading's |field|, logged beside it) a reading's
+    distance is of |h|/|field|: a glitch in that log is left out with its reading."""
     m = as_samples(samples)  # NaN is let through: the screen stands down and the fit names the row
     n = len(m)
     if reference is not None:
@@ -201,25 +203,25 @@ def find_outliers(samples, reference=None, alpha: float = 0.01, seed: int = 0) -
     huge = past_range(m)
     if huge.any() and n - huge.sum() >= MIN_SAMPLES:  # readings past any sensor's range (1e300): left out first
         kept = np.flatnonzero(~huge)
-        inner = find_outliers(m[kept], None, alpha, seed)
+        inner = find_outliers(m[kept], None, alpha, seed, None if field_norms is None else field_norms[kept])
         return replace(inner, rows=np.sort(np.concatenate([np.flatnonzero(huge), kept[inner.rows]])), screened=True,
                        kinds={**inner.kinds, "overflow": int(huge.sum())},
                        stretches=[(int(kept[a]), int(kept[b]), z) for a, b, z in inner.stretches])
     if n < MIN_SAMPLES or not _squares_representable(m):
         return none  # too few to judge, NaN or out of scale: the fit itself names the problem
     start = _try_fit(m, "als")
-    quick = _fits_to_the_noise(m, start, threshold)
+    quick = _fits_to_the_noise(m, start, threshold, field_norms)
     if quick is not None:
         return Outliers(np.zeros(0, dtype=int), threshold, quick)
     cal = _lmeds_start(m, np.random.default_rng(seed), start)
     if cal is None:
         return none  # no subset fits an ellipsoid: the fit itself will say why
-    z, sigma = _robust_z(_distances(cal, m))
+    z, sigma = _robust_z(_distances(cal, m, field_norms))
     for _ in range(3):  # refit on the accepted readings and judge everything again, until nothing changes
         refit = _try_fit(m[z <= threshold], "als")
         if refit is None:
             break
-        z_new, sigma = _robust_z(_distances(refit, m))
+        z_new, sigma = _robust_z(_distances(refit, m, field_norms))
         changed = np.any((z_new > threshold) != (z > threshold))
         z = z_new
         if not changed:
@@ -313,7 +315,7 @@ def _vector_z(m: np.ndarray, X: np.ndarray, keep: np.ndarray, threshold: float):
     return _normal_deviates(f, stats.f, (3, nu - 2), threshold), float(np.sqrt(np.mean(np.diag(S))))
 
 
-def _fits_to_the_noise(m: np.ndarray, cal, threshold: float):
+def _fits_to_the_noise(m: np.ndarray, cal, threshold: float, norms=None):
     """The robust σ of the ALS fit `cal`'s distances when that fit explains the readings to their noise (σ within
     NOISE_FACTOR of the white noise that third differences show) and no reading stands out: outliers
     would have distorted it, so the least-median search is not needed. Else None. Only saves time: the
@@ -322,7 +324,7 @@ def _fits_to_the_noise(m: np.ndarray, cal, threshold: float):
 
     if cal is None:
         return None
-    z, sigma = _robust_z(_distances(cal, m))
+    z, sigma = _robust_z(_distances(cal, m, norms))
     radius = np.median(np.linalg.norm(m - cal.offset, axis=1))
     if np.any(z > threshold) or not sigma <= NOISE_FACTOR * estimate_noise(m) / radius:
         return None

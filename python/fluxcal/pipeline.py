@@ -107,7 +107,7 @@ def calibrate(samples, method: str = "auto", field_norm: float | None = None, re
         if reference.shape == m.shape and np.array_equal(reference, m):  # a perfect fit of nothing, 1e-29 errors
             raise ValueError("reference: it is the readings themselves (the same columns given twice?); give the "
                              "true field of each reading (e.g. IGRF rotated by the attitude)")
-    left_out = find_outliers(m, reference if vector else None) if outliers == "drop" else None
+    left_out = find_outliers(m, reference if vector else None, field_norms=field_norms) if outliers == "drop" else None
     all_readings = m
     if left_out:
         m = np.delete(m, left_out.rows, axis=0)

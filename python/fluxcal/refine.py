@@ -127,8 +127,7 @@ def refine(calibration: Calibration, samples, reference=None, loss: str = "none"
             cal = _calibration(_core.refine(*args, options), "refine")
         else:
             norms = as_field_norms(field_norms, len(m))
-            cal = _calibration(_core.refine_norms(calibration.offset, calibration.matrix, calibration.units, m, norms,
-                                                  options), "refine")
+            cal = _calibration(_core.refine_norms(*args, norms, options), "refine")
             cal.summary["field_norms"] = {"count": len(norms), "min": float(norms.min()), "max": float(norms.max())}
         cal.summary["shape"] = shape_name(shape)
         return cal
@@ -136,11 +135,14 @@ def refine(calibration: Calibration, samples, reference=None, loss: str = "none"
 
 
 def as_field_norms(values, n: int) -> np.ndarray:
-    """Per-reading field magnitudes as N positive finite floats; ValueError naming the problem."""
+    """Per-reading field magnitudes (or one for all) as N positive finite floats; ValueError naming the problem."""
     try:
-        norms = np.ascontiguousarray(values, dtype=float)
+        norms = np.asarray(values, dtype=float)
     except (TypeError, ValueError):
         raise ValueError(f"field_norms: {values!r:.60} is not numbers") from None
+    if norms.ndim == 0:  # one for all: the same field throughout
+        norms = np.full(n, float(norms))
+    norms = np.ascontiguousarray(norms)
     if norms.ndim != 1 or len(norms) != n:
         raise ValueError(f"field_norms: shape {norms.shape}, expected one magnitude per reading ({n},)")
     bad = np.flatnonzero(~(np.isfinite(norms) & (norms > 0)))

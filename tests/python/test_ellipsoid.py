@@ -199,6 +199,11 @@ def test_a_sensor_never_turned_is_told_so():
     fitted = fluxcal.fit_ellipsoid(static)
     assert any(w.startswith("not turned: the readings hardly change") and "the noise's shape" in w
                for w in fitted.summary["warnings"]), fitted.summary["warnings"]
+    # a turned sensor's counts about an unsigned ADC's mid-scale (spread under 1 % of their magnitude) fit well:
+    # no such warning
+    s = simulated(5)
+    counts = 32768.0 + (s.readings - s.readings.mean(axis=0)) * (200.0 / s.field_norm)
+    assert not any("not turned" in w for w in fluxcal.fit_ellipsoid(counts).summary["warnings"])
 
 
 def test_a_scalar_argument_that_is_not_a_number_is_named():

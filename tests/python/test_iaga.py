@@ -93,6 +93,19 @@ def test_gaps_and_bad_records_are_named_or_left_out_and_listed(tmp_path):
     path.write_text("\n".join(lines[:-1] + [lines[-1][:35]]))  # the file ends inside its last record
     rec = read_recording(path, bad_lines="skip")
     assert "the file ends in the middle of this line" in rec.metadata["skipped_lines"]
+    # a garbled date is that record's problem, not the file's (nor a reason to read the others day first)
+    rows[:, 3] = np.linalg.norm(xyz, axis=1)
+    rows[40, 3] = 88888.0  # one F not recorded: F kept, NaN there
+    lines = write(path, "XYZF", rows).read_text().splitlines()
+    lines[20] = "2024-13-45" + lines[20][10:]
+    lines.insert(3, " Date of file           2024-03-02                                   |")
+    path.write_text("\n".join(lines) + "\n")
+    with pytest.raises(ValueError, match=r"gap.min, line 22: 2024-13-45 '00:06:00.000' is not a date and time"):
+        read_recording(path)
+    rec = read_recording(path, bad_lines="skip")
+    assert len(rec) == 59 and rec.metadata["t_start"].startswith("2024-03-01T00:00:00")
+    assert rec.time()[6] == 420.0 and rec.metadata["date_of_file"] == "2024-03-02"
+    assert np.isnan(rec.columns["F"][39]) and np.isfinite(rec.columns["F"]).sum() == 58
 
 
 def test_appended_days_are_read_in_turn_and_must_agree(tmp_path):

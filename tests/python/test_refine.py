@@ -228,6 +228,29 @@ def test_calibrate_command_takes_each_readings_field_from_a_column(tmp_path):
     np.testing.assert_allclose(fluxcal.Calibration.load(tmp_path / "cal.json").offset, api.offset, rtol=1e-9)
     run = run_cli("calibrate", path, "--field-norm", "G")
     assert run.returncode == 2 and "--field-norm G: not a number, nor a column of" in run.stderr, run.stderr
+    columns["F"][9] = 0.0  # a dropout logged as 0
+    fluxcal.write_csv(path, columns, units={"mx": "nT", "my": "nT", "mz": "nT", "F": "nT"})
+    run = run_cli("calibrate", path, "--field-norm", "F")
+    assert run.returncode == 2 and "with_f.csv, line 13: column F reads 0; every reading needs" in run.stderr, \
+        run.stderr
+
+
+def test_per_reading_field_norms_glitches_and_a_start_of_another_scale():
+    """A log of |field| with glitches (a scalar magnetometer's dropouts) loses those readings to the outlier screen;
+    a start fitted to the readings' own radius (another unit than the norms') is rescaled to them."""
+    s = simulated(42, n=600, noise=0.005)
+    _, readings, norms = changing_field(s, 1 + 0.01 * np.sin(np.linspace(0, 4, 600)))
+    clean = fluxcal.calibrate(readings, field_norm=norms)
+    glitched = norms.copy()
+    glitched[[100, 300, 301]] *= 1.5
+    screened = fluxcal.calibrate(readings, field_norm=glitched)
+    assert list(screened.summary["outliers"]["rows"]) == [100, 300, 301]
+    assert np.abs(screened.offset - clean.offset).max() < 0.2 * np.abs(clean.offset - s.true_calibration().offset).max() + 1e-9 * s.field_norm
+    start = fluxcal.fit_ellipsoid(readings)  # |h| = the readings' radius, not the norms' (here 1e-3 of them)
+    scaled = fluxcal.refine(start, readings, field_norms=norms * 1e-3)
+    assert scaled.summary["converged"] and scaled.summary["identifiable"]
+    np.testing.assert_allclose(scaled.offset, clean.offset, rtol=1e-6)
+    np.testing.assert_allclose(fluxcal.refine(start, readings, field_norms=50.0).field_norm, 50.0)  # one for all
 
 
 def test_per_reading_field_norms_bad_input_is_named():

@@ -9,15 +9,15 @@ the loggers of many observatory-grade magnetometers).
    2024-03-01 00:00:00.000 061     17301.22   -251.03  46499.70  49614.69   data: UT date and time, day of year,
                                                                             four elements
 
-Elements (the header's "Reported", else the data header's last letters): X north, Y east, Z down, H horizontal, E
-east in the magnetic meridian's frame, F total and G its difference (not a component) in nT; D declination and I
-inclination in minutes of arc. The vector becomes the columns X, Y, Z in nT: XYZ as they are, HDZ as X = H cos D,
+Elements (the last letter of each name in the data header; the first three form the vector, the fourth is a scalar):
+X north, Y east, Z down, H horizontal, E east in the magnetic meridian's frame, F total and G its difference in nT;
+D declination and I inclination in minutes of arc (the format's unit: a file in degrees is not told apart). The vector becomes the columns X, Y, Z in nT: XYZ as they are, HDZ as X = H cos D,
 Y = H sin D, DHI with Z = H tan I, HEZ as (H, E, Z) in the magnetic meridian's frame (a variometer's: its axes, not
-geographic ones). F or G is kept when every record has it.
+geographic ones). The fourth element (F, G) is kept as a column, NaN where a record lacks it.
 
 99999.00 marks a missing value and 88888.00 an element not recorded: a record missing a component of the vector is
 a bad line (`bad_lines`: an error naming it, or left out and listed in metadata "skipped_lines"), as is a record
-with the wrong number of fields or a non-number. Files appended one after another (a header before each day) are
+with the wrong number of fields, a non-number, or a date and time not YYYY-MM-DD hh:mm:ss.sss. Files appended one after another (a header before each day) are
 read in turn; their elements must agree.
 
 Written by hand, not through geomagpy (MagPy), which reads it among many formats: its requirements (an MQTT
@@ -27,11 +27,10 @@ from __future__ import annotations
 
 import numpy as np
 
-from .csv import CUT_PROBLEM, CUT_SHORT, _is_number, _timestamps, check_bad_lines, listing, read_lines, stop_at_first
+from .csv import CUT_PROBLEM, CUT_SHORT, _is_number, check_bad_lines, listing, read_lines, stop_at_first
 from .recording import Recording
 
 MISSING = 88888.0  # 88888.00 (not recorded) and 99999.00 (missing) both at or above it
-SCALARS = ("F", "G")
 
 
 def looks_like_iaga(head: bytes) -> bool:
@@ -57,7 +56,8 @@ def read_iaga2002(path, columns=None, units: str | None = None, bad_lines: str =
     for number, line in enumerate(lines, start=1):
         if not line.strip():
             continue
-        is_data_header = line.lstrip().upper().startswith("DATE ")
+        # the data header starts in column 1 (header records with a space): " Date of file …" is a header record
+        is_data_header = line.upper().startswith("DATE ") and "TIME" in line.upper()
         if is_data_header or (line.rstrip().endswith("|") and not line[:1].isdigit()):
             label, value = _header(line)
             if is_data_header:
@@ -90,14 +90,19 @@ def read_iaga2002(path, columns=None, units: str | None = None, bad_lines: str =
             except ValueError:
                 bad = next(c for c in cells[3:] if not _is_number(c))
                 problem = f"{bad!r} is not a number"
-        if problem is None:  # a component of the vector missing (F or G may be: they are not needed)
-            absent = [k for k, letter in enumerate(elements) if letter not in SCALARS and not row[k] < MISSING]
+        if problem is None:  # a component of the vector missing (the fourth element may be: it is not needed)
+            absent = [k for k in range(3) if not row[k] < MISSING]
             if absent:
                 problem = "; ".join(f"{names[k]} is {_missing_word(row[k])}" for k in absent)
+        if problem is None:
+            try:
+                stamp = np.datetime64(f"{cells[0]}T{cells[1]}", "ns")
+            except ValueError:
+                problem = f"{cells[0]} {cells[1]!r} is not a date and time (YYYY-MM-DD hh:mm:ss.sss)"
         if problem is not None:
             problems.append((number, problem))
             continue
-        stamps.append(f"{cells[0]} {cells[1]}")
+        stamps.append(stamp)
         values.append(row)
         line_numbers.append(number)
     if elements is None:
@@ -106,18 +111,16 @@ def read_iaga2002(path, columns=None, units: str | None = None, bad_lines: str =
     if not values:
         raise ValueError(f"{path}: no records" + (f" (all {len(problems)} bad)" if problems else ""))
     data = np.array(values)
-    seconds, first = _timestamps(stamps)
-    if seconds is None or not np.all(np.isfinite(seconds)):
-        bad = int(np.argmax(~np.isfinite(seconds))) if seconds is not None else 0
-        raise ValueError(f"{path}, line {line_numbers[bad]}: {stamps[bad]!r} is not a date and time (YYYY-MM-DD "
-                         "hh:mm:ss.sss)")
+    stamps = np.array(stamps)  # UT, as the format's times are
+    seconds = (stamps - stamps[0]) / np.timedelta64(1, "s")
     out, note = _vector(path, elements, data)
     out["t"] = seconds
     units_of = {"X": "nT", "Y": "nT", "Z": "nT", "t": "s"}
-    for k, letter in enumerate(elements):
-        if letter in SCALARS and np.all(data[:, k] < MISSING):
-            out[letter], units_of[letter] = data[:, k], "nT"
-    metadata.update(t_start=first, iaga_elements="".join(elements), iaga_columns=", ".join(names), vector=note)
+    scalar = data[:, 3]
+    if np.any(scalar < MISSING):  # F or G where recorded (88888: not recorded; 99999: missing)
+        name = elements[3] if elements[3] not in out else names[3]
+        out[name], units_of[name] = np.where(scalar < MISSING, scalar, np.nan), "nT"
+    metadata.update(t_start=f"{np.datetime_as_string(stamps[0], unit='ms')}+00:00", iaga_elements="".join(elements), iaga_columns=", ".join(names), vector=note)
     if problems:
         metadata["skipped_lines"] = listing([f"{n} ({p})" for n, p in problems], len(problems) + len(values))
     return Recording(columns=out, units=units_of, metadata=metadata, source=str(path),
@@ -131,8 +134,8 @@ def _missing_word(value: float) -> str:
 
 def _vector(path, elements: list, data: np.ndarray) -> tuple[dict, str]:
     """The columns X, Y, Z (nT) from the elements reported, and how they were formed."""
-    at = {letter: k for k, letter in enumerate(elements)}
-    have = set(elements) - set(SCALARS)
+    at = {letter: k for k, letter in enumerate(elements[:3])}
+    have = set(at)
     if have == {"X", "Y", "Z"}:
         return {c: data[:, at[c]] for c in "XYZ"}, "X, Y, Z as reported"
     if have == {"H", "D", "Z"}:
@@ -148,4 +151,4 @@ def _vector(path, elements: list, data: np.ndarray) -> tuple[dict, str]:
         return ({"X": data[:, at["H"]], "Y": data[:, at["E"]], "Z": data[:, at["Z"]]},
                 "X = H, Y = E: the magnetic meridian's frame, not geographic north and east")
     raise ValueError(f"{path}: elements {''.join(elements)} do not give a field vector (IAGA-2002 vectors: XYZ, HDZ, "
-                     "DHI, HEZ, with F or G)")
+                     "DHI, HEZ, then F or G)")
