@@ -177,7 +177,8 @@ def _set_aside(out_path: Path) -> str:
 
 
 def _settings(method, field_norm, bad_lines: str = "error") -> dict:
-    return {"method": method, "field_norm": None if field_norm is None else as_number(field_norm, "field_norm"), "bad_lines": bad_lines}
+    return {"method": method, "field_norm": None if field_norm is None else as_number(field_norm, "field_norm"),
+            "bad_lines": bad_lines}
 
 
 def _already_done(json_path: Path, source: Path, settings: dict):

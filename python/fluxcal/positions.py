@@ -610,7 +610,8 @@ def _in_file_terms(message: str, source, rec, positions) -> str:
     array, kind, number = found.groups()
     acc = f"accelerometer {','.join(rec.acc_names())}"
     mag = f"magnetometer {','.join(rec.mag_names())}"
-    what = {"specific_force": acc, "readings": acc, "outputs": mag, "samples": mag, "nominal": "nominal attitudes", "positions": "positions"}[array]
+    what = {"specific_force": acc, "readings": acc, "outputs": mag, "samples": mag, "nominal": "nominal attitudes",
+            "positions": "positions"}[array]
     where = ""
     if kind is not None:
         row = int(number) - (kind == "position")  # the core counts rows from 0, positions from 1

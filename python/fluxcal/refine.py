@@ -96,9 +96,10 @@ def refine(calibration: Calibration, samples, reference=None, loss: str = "none"
     Without `reference` the magnitude model is used with |h| = calibration.field_norm (known), or with
     `field_norms` (N values > 0) each reading's own |h|: a field that changes while the sensor turns, logged by
     a scalar magnetometer beside it or an observatory's F (the result's field_norm is then their mean, and its
-    |h| statistics are of |h_i| − field_norms[i]); A is made symmetric first. `shape` restricts A: "sym" (symmetric, 9 parameters b0 b1 b2 a00 a01 a02 a11 a12
-    a22), "diag" (axis scales only, 6: b0 b1 b2 a00 a11 a22) or "sphere" (one scale, 4: b0 b1 b2 a; magcal's
-    'eye'); the summary's parameters, covariance and standard errors are the shape's free parameters.
+    |h| statistics are of |h_i| − field_norms[i]); A is made symmetric first. `shape` restricts A: "sym"
+    (symmetric, 9 parameters b0 b1 b2 a00 a01 a02 a11 a12 a22), "diag" (axis scales only, 6: b0 b1 b2 a00 a11 a22)
+    or "sphere" (one scale, 4: b0 b1 b2 a; magcal's 'eye'); the summary's parameters, covariance and standard
+    errors are the shape's free parameters.
     With `reference` (N×3 true field per reading, sensor frame) the vector model, whose W is always full.
     loss: "none", "huber" or "cauchy"; loss_scale in reading units (0 = 3 × robust noise estimate).
     settings: max_iterations, function_tolerance, gradient_tolerance, parameter_tolerance,

@@ -11,14 +11,15 @@ the loggers of many observatory-grade magnetometers).
 
 Elements (the last letter of each name in the data header; the first three form the vector, the fourth is a scalar):
 X north, Y east, Z down, H horizontal, E east in the magnetic meridian's frame, F total and G its difference in nT;
-D declination and I inclination in minutes of arc (the format's unit: a file in degrees is not told apart). The vector becomes the columns X, Y, Z in nT: XYZ as they are, HDZ as X = H cos D,
-Y = H sin D, DHI with Z = H tan I, HEZ as (H, E, Z) in the magnetic meridian's frame (a variometer's: its axes, not
-geographic ones). The fourth element (F, G) is kept as a column, NaN where a record lacks it.
+D declination and I inclination in minutes of arc (the format's unit: a file in degrees is not told apart). The
+vector becomes the columns X, Y, Z in nT: XYZ as they are, HDZ as X = H cos D, Y = H sin D, DHI with Z = H tan I,
+HEZ as (H, E, Z) in the magnetic meridian's frame (a variometer's: its axes, not geographic ones). The fourth
+element (F, G) is kept as a column, NaN where a record lacks it.
 
 99999.00 marks a missing value and 88888.00 an element not recorded: a record missing a component of the vector is
 a bad line (`bad_lines`: an error naming it, or left out and listed in metadata "skipped_lines"), as is a record
-with the wrong number of fields, a non-number, or a date and time not YYYY-MM-DD hh:mm:ss.sss. Files appended one after another (a header before each day) are
-read in turn; their elements must agree.
+with the wrong number of fields, a non-number, or a date and time not YYYY-MM-DD hh:mm:ss.sss. Files appended one
+after another (a header before each day) are read in turn; their elements must agree.
 
 Written by hand, not through geomagpy (MagPy), which reads it among many formats: its requirements (an MQTT
 client, a MySQL driver, cdflib pinned below 1.4) are not a calibration library's.
@@ -120,7 +121,8 @@ def read_iaga2002(path, columns=None, units: str | None = None, bad_lines: str =
     if np.any(scalar < MISSING):  # F or G where recorded (88888: not recorded; 99999: missing)
         name = elements[3] if elements[3] not in out else names[3]
         out[name], units_of[name] = np.where(scalar < MISSING, scalar, np.nan), "nT"
-    metadata.update(t_start=f"{np.datetime_as_string(stamps[0], unit='ms')}+00:00", iaga_elements="".join(elements), iaga_columns=", ".join(names), vector=note)
+    metadata.update(t_start=f"{np.datetime_as_string(stamps[0], unit='ms')}+00:00", iaga_elements="".join(elements),
+                    iaga_columns=", ".join(names), vector=note)
     if problems:
         metadata["skipped_lines"] = listing([f"{n} ({p})" for n, p in problems], len(problems) + len(values))
     return Recording(columns=out, units=units_of, metadata=metadata, source=str(path),

@@ -27,8 +27,8 @@ from pathlib import Path
 
 import numpy as np
 
-from .csv import (readable_file, CUT_PROBLEM, CUT_SHORT, NOT_TEXT, _is_number, _timestamps, check_bad_lines, data_lines, is_comment, listing, stop_at_first,
-                  read_lines)
+from .csv import (readable_file, CUT_PROBLEM, CUT_SHORT, NOT_TEXT, _is_number, _timestamps, check_bad_lines, data_lines,
+                  is_comment, listing, read_lines, stop_at_first)
 from .labelled import CLOCK
 from .recording import Recording
 
