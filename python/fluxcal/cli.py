@@ -299,7 +299,7 @@ def _field_norm_from(rec: Recording, path: str, args) -> np.ndarray:
     _take_field_units(args, unit, f"--field-norm {path}")
     what = f"column {scalar}" if scalar else f"|{','.join(other.mag_names())}|"
     print(f"field norm of each reading from {path}: its {what}{f' ({unit})' if unit else ''} at this recording's "
-          "clock times (interpolated)")
+          "clock times (interpolated; times that state no zone are taken as UTC)")
     return np.interp(mine, theirs, values)
 
 

@@ -163,3 +163,9 @@ def test_an_observatorys_f_gives_each_readings_field_at_its_clock_time(tmp_path)
     run = run_cli("calibrate", sensor, "--field-norm", late)
     assert run.returncode == 2 and "it covers 2024-03-01 01:00:00 UTC to 2024-03-01 01:29:00 UTC" in run.stderr
     assert "sensor.csv, line 2, reads at 2024-03-01 00:10:00 UTC, outside it" in run.stderr, run.stderr
+    # times of day without a date are no clock times to match an observatory's by
+    sensor.write_text("time,mx,my,mz\n" + "".join(f"{t[11:]},{x:.10g},{y:.10g},{z:.10g}\n"
+                                               for t, (x, y, z) in zip(stamps, readings)))
+    run = run_cli("calibrate", sensor, "--field-norm", obs)
+    assert run.returncode == 2 and "sensor.csv has no clock time (a time column of dates and times" in run.stderr, \
+        run.stderr

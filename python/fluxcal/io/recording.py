@@ -101,11 +101,12 @@ class Recording:
         if hit is None:
             return None
         t = self.columns[hit[0]] * hit[1]
-        start = self.metadata.get(f"{hit[0]}_start")
-        if start:
+        start = str(self.metadata.get(f"{hit[0]}_start", ""))
+        if start[:4].isdigit() and start[4:5] == "-":  # a date (a time of day alone is no clock time to match)
             import pandas as pd
 
-            return pd.Timestamp(start).timestamp() + t
+            stamp = pd.Timestamp(start)  # a time without a stated zone is taken as UTC, as the readers take it
+            return (stamp if stamp.tzinfo else stamp.tz_localize("UTC")).timestamp() + t
         return t if t.size and UNIX_SECONDS[0] <= np.min(t) and np.max(t) <= UNIX_SECONDS[1] else None
 
     def _time_column(self):
