@@ -240,7 +240,7 @@ def _print_roles(rec: Recording):
         print(f"text columns not used: {rec.metadata['text_columns']}")
 
 
-def _field_norm_column(rec: Recording, name: str, args) -> np.ndarray:
+def _field_norms_given(rec: Recording, name: str, args) -> np.ndarray:
     """--field-norm COLUMN (each reading's |field|; its unit, when the file states one, is --field-units') or
     --field-norm FILE (another recording's F, or its vector's magnitude, at this one's clock times)."""
     if name not in rec.columns and Path(name).is_file():
@@ -312,7 +312,7 @@ def cmd_calibrate(args) -> int:
     # magnitude-only method is asked for
     units, field_norm = rec.field_units(), args.field_norm
     if isinstance(field_norm, str):
-        field_norm = _field_norm_column(rec, field_norm, args)
+        field_norm = _field_norms_given(rec, field_norm, args)
     if args.reference and args.method not in ("auto", "vector"):
         raise ValueError(f"--reference: the vector fit's; --method {args.method} fits field magnitudes only (leave "
                          "--method out, or give vector)")

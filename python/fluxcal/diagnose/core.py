@@ -946,8 +946,7 @@ UNRESOLVED_GAIN = 0.5
 def _beside(row: dict, data, directions: np.ndarray, sigma: float, accepted: list) -> None:
     """A significant row beside the effects `accepted`: not significant when its held-out gap's fall is within what
     the two fits' parameter noise alone can make (`_gain_unresolved`) and under UNRESOLVED_GAIN of the gap."""
-    held = _heldout(row["heldout"], data, directions, row.get("heldout_block"))
-    leverage = _heldout_leverage(data, row["_fit"], held, _judged(row["_features"], held, row.get("heldout_block")))
+    leverage = _row_leverage(data, row["_fit"], row, directions)
     if not (_gain_unresolved(row, leverage, sigma)
             and row["heldout_gap_after"] > (1 - UNRESOLVED_GAIN) * row["heldout_gap_before"]):
         return
@@ -964,6 +963,13 @@ def _judged(feats: np.ndarray, held: np.ndarray, block: int | None) -> np.ndarra
     """The held-out readings a candidate's gaps are measured on: where it acts for a short event (its own
     `block`s), every held-out reading otherwise."""
     return _where_it_acts(feats, held) if block is not None else held
+
+
+def _row_leverage(data, result: dict, row: dict, directions: np.ndarray) -> float:
+    """`_heldout_leverage` of a judged row's held-out readings (its regime, its own blocks for a short event), on
+    those it was judged on, for the fit `result`."""
+    held = _heldout(row["heldout"], data, directions, row.get("heldout_block"))
+    return _heldout_leverage(data, result, held, _judged(row["_features"], held, row.get("heldout_block")))
 
 
 def _gain_unresolved(row: dict, leverage: float, sigma: float) -> bool:
@@ -2066,8 +2072,7 @@ def diagnose(samples, t=None, temp=None, reference=None, gravity=None, field_nor
             data, applied, block = _exact_move(data, state, model, names[w["effect"]])
             moves.append((w, names[w["effect"]], applied, block))
         w["step"] = len(accepted)
-        held = _heldout(w["heldout"], data, directions, w.get("heldout_block"))
-        w["heldout_leverage"] = _heldout_leverage(data, state["result"], held, _judged(w["_features"], held, w.get("heldout_block")))
+        w["heldout_leverage"] = _row_leverage(data, state["result"], w, directions)
         last_rows[w["effect"]] = w
 
     for _round in range(max_effects + 1):

@@ -60,7 +60,6 @@ def read_iaga2002(path, columns=None, units: str | None = None, bad_lines: str =
         # the data header starts in column 1 (header records with a space): " Date of file …" is a header record
         is_data_header = line.upper().startswith("DATE ") and "TIME" in line.upper()
         if is_data_header or (line.rstrip().endswith("|") and not line[:1].isdigit()):
-            label, value = _header(line)
             if is_data_header:
                 found = line.rstrip(" |").split()[3:]
                 letters = [n[-1].upper() for n in found]
@@ -71,7 +70,9 @@ def read_iaga2002(path, columns=None, units: str | None = None, bad_lines: str =
                     raise ValueError(f"{path}, line {number}: elements {''.join(letters)} after "
                                      f"{''.join(elements)}; files appended must report the same elements")
                 elements, names = letters, found
-            elif label.startswith("#"):
+                continue
+            label, value = _header(line)
+            if label.startswith("#"):
                 metadata["comments"] = "; ".join(filter(None, [metadata.get("comments"), line.strip(" #|")]))
             elif label and elements is None:
                 metadata.setdefault(label.lower().replace(" ", "_"), value)
