@@ -588,6 +588,15 @@ class TermsBatch : public ceres::CostFunction {
 
 namespace {
 
+// `start` with field_norm the mean of `norms` and its matrix scaled to it: a start fitted to another |h|, or to
+// the readings' own radius, had left the solver far from it.
+Calibration at_mean_norm(const Calibration& start, const Eigen::VectorXd& norms) {
+  Calibration out = start;
+  out.field_norm = norms.mean();
+  if (std::isfinite(start.field_norm) && start.field_norm > 0.0) out.matrix *= norms.mean() / start.field_norm;
+  return out;
+}
+
 // refine's magnitude model; each reading's |h| is start.field_norm, or (*norms)(i) when norms is not null.
 RefineResult refine_magnitude(const Calibration& start, const SamplesRef& samples, const Eigen::VectorXd* norms,
                               const RefineOptions& opt) {
@@ -735,10 +744,7 @@ RefineResult refine(const Calibration& start, const SamplesRef& samples, const S
                     const RefineOptions& opt) {
   detail::check_field_norms(field_norms, samples.rows());
   const Eigen::VectorXd norms = field_norms;
-  Calibration mean_start = start;  // its matrix scaled to their mean (a start fitted to another |h|, or to the
-  mean_start.field_norm = norms.mean();  // readings' own radius, had left the solver far from it)
-  if (std::isfinite(start.field_norm) && start.field_norm > 0.0) mean_start.matrix *= norms.mean() / start.field_norm;
-  return refine_magnitude(mean_start, samples, &norms, opt);
+  return refine_magnitude(at_mean_norm(start, norms), samples, &norms, opt);
 }
 
 RefineResult refine_vector(const Calibration& start, const SamplesRef& samples, const SamplesRef& reference,
@@ -808,9 +814,12 @@ RefineResult fit_vector(const SamplesRef& samples, const SamplesRef& reference, 
   return out;
 }
 
-RefineResult refine_terms(const Calibration& start, const SamplesRef& samples, const Eigen::Ref<const Eigen::MatrixXd>& features,
-                          const Eigen::VectorXd& start_terms, const std::vector<std::string>& fixed,
-                          const RefineOptions& opt, const SamplesRef* reference) {
+namespace {
+
+// refine_terms; each reading's |h| is start.field_norm, or (*norms)(i) when norms is not null (magnitude model).
+RefineResult terms_fit(const Calibration& start, const SamplesRef& samples, const Eigen::Ref<const Eigen::MatrixXd>& features,
+                       const Eigen::VectorXd& start_terms, const std::vector<std::string>& fixed,
+                       const RefineOptions& opt, const SamplesRef* reference, const Eigen::VectorXd* norms) {
   const bool vector = reference != nullptr;
   if (vector) check_vector_inputs(samples, *reference);
   else check_inputs(samples, 10, "a magnitude model with extra terms");
@@ -855,7 +864,7 @@ RefineResult refine_terms(const Calibration& start, const SamplesRef& samples, c
 
   // Ceres works on separate arrays for the two blocks.
   Eigen::VectorXd base = out.parameters.head(nb), terms = out.parameters.tail(p);
-  auto* cost = new TermsBatch(samples, features, start.field_norm, reference);
+  auto* cost = new TermsBatch(samples, features, start.field_norm, reference, norms ? norms->data() : nullptr);
   ceres::Problem problem;
   std::vector<double*> blocks{base.data()};
   if (p > 0) blocks.push_back(terms.data());
@@ -940,6 +949,22 @@ RefineResult refine_terms(const Calibration& start, const SamplesRef& samples, c
       << " iterations, residual RMS " << out.summary.residual_rms;
   out.summary.message = msg.str();
   return out;
+}
+
+}  // namespace
+
+RefineResult refine_terms(const Calibration& start, const SamplesRef& samples, const Eigen::Ref<const Eigen::MatrixXd>& features,
+                          const Eigen::VectorXd& start_terms, const std::vector<std::string>& fixed,
+                          const RefineOptions& opt, const SamplesRef* reference) {
+  return terms_fit(start, samples, features, start_terms, fixed, opt, reference, nullptr);
+}
+
+RefineResult refine_terms(const Calibration& start, const SamplesRef& samples, const SeriesRef& field_norms,
+                          const Eigen::Ref<const Eigen::MatrixXd>& features, const Eigen::VectorXd& start_terms,
+                          const std::vector<std::string>& fixed, const RefineOptions& opt) {
+  detail::check_field_norms(field_norms, samples.rows());
+  const Eigen::VectorXd norms = field_norms;
+  return terms_fit(at_mean_norm(start, norms), samples, features, start_terms, fixed, opt, nullptr, &norms);
 }
 
 }  // namespace fluxcal

@@ -122,19 +122,24 @@ void bind_refine(py::module_& m) {
       [](const Eigen::Vector3d& offset, const Eigen::Matrix3d& matrix, double field_norm, const std::string& units,
          const fluxcal::SamplesView& samples, const Eigen::Ref<const Eigen::MatrixXd>& features,
          const Eigen::VectorXd& start_terms, const std::vector<std::string>& fixed, const RefineOptions& options,
-         std::optional<fluxcal::SamplesView> reference) {
+         std::optional<fluxcal::SamplesView> reference, std::optional<Eigen::VectorXd> field_norms) {
+        if (reference && field_norms)
+          throw fluxcal::Error("field_norms: the vector model takes its field from the reference vectors; give one "
+                               "or the other");
         fluxcal::RefineResult r;
         {
           py::gil_scoped_release release;
+          const auto start = make_calibration(offset, matrix, field_norm, units);
           const std::optional<fluxcal::SamplesRef> checked = reference ? std::optional<fluxcal::SamplesRef>(*reference)
                                                                       : std::nullopt;
-          r = fluxcal::refine_terms(make_calibration(offset, matrix, field_norm, units), samples, features,
-                                    start_terms, fixed, options, checked ? &*checked : nullptr);
+          r = field_norms ? fluxcal::refine_terms(start, samples, *field_norms, features, start_terms, fixed, options)
+                          : fluxcal::refine_terms(start, samples, features, start_terms, fixed, options,
+                                                  checked ? &*checked : nullptr);
         }
         return result_dict(r);
       },
       "offset"_a, "matrix"_a, "field_norm"_a, "units"_a, "samples"_a.noconvert(), "features"_a, "start_terms"_a,
-      "fixed"_a, "options"_a, "reference"_a = py::none());
+      "fixed"_a, "options"_a, "reference"_a = py::none(), "field_norms"_a = py::none());
 }
 
 }  // namespace fluxcal_py

@@ -251,3 +251,28 @@ TEST(RefineFieldNorms, EachReadingsOwnFieldAndTheSameOneEverywhere) {
   EXPECT_ERROR_SAYS(fluxcal::refine(start, base, bad), "field_norms: value 3 is nan");
   EXPECT_ERROR_SAYS(fluxcal::refine(start, base, Eigen::VectorXd(same.head(10))), "field_norms: 10 values for 800 readings");
 }
+
+TEST(RefineFieldNorms, TermsTakeEachReadingsOwnField) {
+  // refine_terms as refine: one field given per reading is the scalar model; a changing one is recovered by the base
+  // model with each reading's |h|, and with one |h| for all it is left in the residuals.
+  const auto t = fluxcal_test::make_truth(13, 50.0);
+  const fluxcal::Samples base = fluxcal_test::simulate(t, 800, 0.002, 14);
+  fluxcal::Calibration start = fluxcal::fit_ellipsoid(base).calibration;
+  start.field_norm = t.field;
+  const Eigen::MatrixXd none = Eigen::MatrixXd::Zero(base.rows(), 0);
+  const Eigen::VectorXd same = Eigen::VectorXd::Constant(base.rows(), t.field);
+  const auto scalar = fluxcal::refine_terms(start, base, none, Eigen::VectorXd());
+  const auto per = fluxcal::refine_terms(start, base, same, none, Eigen::VectorXd());
+  EXPECT_LT((scalar.parameters - per.parameters).norm(), 1e-9 * t.field);
+
+  Eigen::VectorXd k(base.rows());
+  for (Eigen::Index i = 0; i < k.size(); ++i) k(i) = 1.0 + 0.01 * std::sin(7.0 * i / k.size());
+  const fluxcal::Samples readings =
+      ((base.rowwise() - t.b.transpose()).array().colwise() * k.array()).matrix().rowwise() + t.b.transpose();
+  const auto own = fluxcal::refine_terms(start, readings, Eigen::VectorXd(k * t.field), none, Eigen::VectorXd());
+  const auto one = fluxcal::refine_terms(start, readings, none, Eigen::VectorXd());
+  EXPECT_NEAR(own.calibration.field_norm, k.mean() * t.field, 1e-9 * t.field);
+  EXPECT_LT(own.summary.residual_rms, 0.3 * one.summary.residual_rms);
+  EXPECT_ERROR_SAYS(fluxcal::refine_terms(start, base, Eigen::VectorXd(same.head(5)), none, Eigen::VectorXd()),
+                    "field_norms: 5 values for 800 readings");
+}

@@ -126,6 +126,11 @@ RefineResult fit_vector(const SamplesRef& samples, const SamplesRef& reference, 
 RefineResult refine_terms(const Calibration& start, const SamplesRef& samples, const Eigen::Ref<const Eigen::MatrixXd>& features,
                           const Eigen::VectorXd& start_terms, const std::vector<std::string>& fixed = {},
                           const RefineOptions& options = {}, const SamplesRef* reference = nullptr);
+/// The magnitude model of refine_terms with the true field magnitude of each reading (`field_norms`, N values
+/// > 0), as refine takes them: the diagnosis of a recording whose field changed while the sensor turned.
+RefineResult refine_terms(const Calibration& start, const SamplesRef& samples, const SeriesRef& field_norms,
+                          const Eigen::Ref<const Eigen::MatrixXd>& features, const Eigen::VectorXd& start_terms,
+                          const std::vector<std::string>& fixed = {}, const RefineOptions& options = {});
 /// The vector model of refine_terms: reference vectors given by reference, not by pointer.
 inline RefineResult refine_terms(const Calibration& start, const SamplesRef& samples,
                                  const Eigen::Ref<const Eigen::MatrixXd>& features, const Eigen::VectorXd& start_terms,
