@@ -33,7 +33,7 @@ def positive_number(text: str, zero: bool = False) -> float:
 
 
 def norm_or_column(text: str):
-    """argparse type of calibrate's --field-norm: a positive finite number, or the name of a column holding each
+    """argparse type of calibrate's and diagnose's --field-norm: a positive finite number, or a column holding each
     reading's |field| (not a number: a scalar magnetometer's log, an observatory's F)."""
     try:
         float(text)
@@ -593,16 +593,20 @@ def cmd_diagnose(args) -> int:
                          "two; calibrate first (fluxcal calibrate … -o cal.json, then fluxcal apply) and diagnose the "
                          "corrected field against the reference")
     candidates = args.candidates.split(",") if args.candidates else None
+    field_norm = args.field_norm
+    if isinstance(field_norm, str):  # (no --field-units here: |h| is fitted in the unit of the |field| given)
+        args.field_units = ""
+        field_norm = _field_norms_given(rec, field_norm, args)
     with warnings.catch_warnings():  # the report prints its caveats (CAVEAT: …): not twice
         warnings.filterwarnings("ignore", message="t: readings")
-        result = diagnose(rec, reference=reference, field_norm=args.field_norm, model=args.model,
+        result = diagnose(rec, reference=reference, field_norm=field_norm, model=args.model,
                           noise_sigma=args.noise_sigma, candidates=candidates, alpha=args.alpha,
                           max_effects=args.max_effects, progress=not args.quiet)
         limits = None
         if args.detection_limits:
             from .diagnose import detection_limits
 
-            limits = detection_limits(rec, reference=reference, field_norm=args.field_norm, model=args.model,
+            limits = detection_limits(rec, reference=reference, field_norm=field_norm, model=args.model,
                                       noise_sigma=args.noise_sigma, alpha=args.alpha, seeds=args.seeds, names=candidates,
                                       progress=not args.quiet, diagnosis=None if candidates else result)
     return _print_diagnosis(result, args, limits)
@@ -1069,7 +1073,10 @@ def build_parser() -> argparse.ArgumentParser:
     g.add_argument("--bad-lines", default="error", choices=["error", "skip"], help=bad_lines_help)
     g.add_argument("--decimal", default=None, choices=[",", "."], metavar="{',' or '.'}", help=decimal_help)
     g.add_argument("--units", default=None, type=reading_unit, help="units of the readings when the file does not say")
-    g.add_argument("--field-norm", type=positive_number, default=None, help="known |field| (default: fitted)")
+    g.add_argument("--field-norm", type=norm_or_column, default=None,
+                   help="known |field| (default: fitted), or each reading's: a column (a scalar magnetometer logged "
+                        "beside the sensor) or another recording with clock times (an observatory's IAGA-2002 F), "
+                        "for a field that changes while the sensor turns (the magnitude models)")
     g.add_argument("--noise-sigma", type=positive_number, default=None,
                    help="white-noise σ of the readings (default: estimated from third differences)")
     g.add_argument("--candidates", default=None, help="comma-separated effect names (default: all)")

@@ -18,6 +18,7 @@ from ..attitude import magnetic_frame
 from ..calibration import Calibration
 from ..io.recording import UNIX_SECONDS
 from ..outliers import find_outliers
+from ..refine import as_field_norms
 from ..sim.effects import CANDIDATES, scatter_rows
 
 # Base models: (uses a reference vector, base parameters held at their start values).
@@ -66,12 +67,18 @@ class _Data:
     temp: np.ndarray | None
     reference: np.ndarray | None
     down: np.ndarray | None  # the down (or up) direction per reading, sensor frame: heading errors
-    field_norm: float
+    field_norm: float  # |h| of the magnitude model: the mean of field_norms when those are given
     units: str
     source: str
     notes: list = field(default_factory=list)  # what _prepare changed in the data, for the report
     current: np.ndarray | None = None  # A drawn near the sensor (motors, a heater)
     clipping: list = field(default_factory=list)  # [{axis, rail, readings, fraction}]: the sensor's range clips
+    field_norms: np.ndarray | None = None  # each reading's |field| (logged beside it: a field that changes)
+
+
+def _field_at(data: _Data, rows=slice(None)):
+    """The |h| the magnitude model fits the readings `rows` to: each one's own |field| when logged, else the one."""
+    return data.field_norm if data.field_norms is None else data.field_norms[rows]
 
 
 CLIPPED = 0.005     # an axis at one extreme value in at least this fraction of the readings (and CLIPPED_MIN of them):
@@ -348,8 +355,9 @@ def _fit(data: _Data, start: Calibration, fixed, feats, rows=None, start_terms=N
     options = _core.RefineOptions()
     options.max_iterations = 100
     ref = None if data.reference is None else np.ascontiguousarray(data.reference[sel])
+    norms = None if data.field_norms is None else np.ascontiguousarray(data.field_norms[sel])
     return _core.refine_terms(start.offset, start.matrix, start.field_norm, start.units, m, f, terms,
-                              list(fixed), options, ref)
+                              list(fixed), options, ref, norms)
 
 
 def _residuals(result: dict, data: _Data, feats, rows) -> np.ndarray:
@@ -368,7 +376,7 @@ def _residuals(result: dict, data: _Data, feats, rows) -> np.ndarray:
     h = (m - b) @ A
     g = h @ A
     s = np.linalg.norm(h, axis=1)
-    return (s - data.field_norm) * s / np.linalg.norm(g, axis=1)
+    return (s - _field_at(data, rows)) * s / np.linalg.norm(g, axis=1)
 
 
 def _downstream(result: dict, data: _Data, feats, rows) -> dict:
@@ -378,7 +386,7 @@ def _downstream(result: dict, data: _Data, feats, rows) -> dict:
     the horizontal projections of h and r)."""
     h = _calibrated(result, data, feats, rows)
     if data.reference is None:
-        return {"field_error": float(np.sqrt(np.mean((np.linalg.norm(h, axis=1) - data.field_norm) ** 2)))}
+        return {"field_error": float(np.sqrt(np.mean((np.linalg.norm(h, axis=1) - _field_at(data, rows)) ** 2)))}
     r = data.reference[rows]
     out = {"field_error": float(np.sqrt(np.mean(np.sum((h - r) ** 2, axis=1)))),
            "direction_error_deg": _rms_angle(h, r)}
@@ -434,8 +442,8 @@ def _context(data: _Data, result: dict, feats=None) -> SimpleNamespace:
         # combination of features reproduce them (a degenerate fit to zero residuals: non_orthogonality at
         # coefficients ±1 after a temperature scale error of 4 % was added to a real recording)
         field = (m - theta[:3]) @ np.asarray(result["matrix"]).T
-        field *= data.field_norm / np.linalg.norm(field, axis=1, keepdims=True)
-    direction = data.field_norm * (field / np.linalg.norm(field, axis=1, keepdims=True)) @ W.T
+        field *= np.reshape(_field_at(data), (-1, 1)) / np.linalg.norm(field, axis=1, keepdims=True)
+    direction = np.reshape(_field_at(data), (-1, 1)) * (field / np.linalg.norm(field, axis=1, keepdims=True)) @ W.T
     # The transducer sees the field including hard iron (a field too): the fitted model's reading b + W h, with
     # h on the fitted sphere (or the reference); `_forms` gives the other form, an electronic offset b added after.
     # Not the raw readings: a feature non-linear in them (s³, s·s_easy) carries the reading's own noise,
@@ -1825,22 +1833,30 @@ def _prepare(samples, t, temp, reference, down, field_norm, units, source, curre
         down = as_samples(down, "gravity")
         if len(down) != n or np.any(np.linalg.norm(down, axis=1) == 0):
             raise ValueError(f"gravity: need {n} non-zero vectors (the accelerometer), got {len(down)}")
+    norms = None
+    if field_norm is not None and np.ndim(field_norm) > 0:  # each reading's own |field| (a field that changes)
+        if reference is not None:
+            raise ValueError("field_norm: the vector models take each reading's field from the reference vectors; "
+                             "give one |field| per reading only to the magnitude models (ellipsoid, scale)")
+        norms = as_field_norms(field_norm, n)
     notes = []
     rows = np.arange(n)  # each reading's row in the input, for the notes
+
+    def take(keep):  # every per-reading array keeps the same readings
+        nonlocal m, t, rows, temp, reference, down, current, norms
+        m, t, rows, temp, reference, down, current, norms = (
+            None if a is None else a[keep] for a in (m, t, rows, temp, reference, down, current, norms))
     copied = _repeated_blocks(m if temp is None else np.column_stack([m, temp]))
     if copied.any():  # the copies add no information, yet would double the evidence and fake a jump where they join
         starts = np.flatnonzero(np.diff(np.concatenate([[0], copied.astype(int)])) == 1)
         keep = ~copied
-        m, t, rows = m[keep], t[keep], rows[keep]
-        temp, reference, down, current = (None if a is None else a[keep] for a in (temp, reference, down, current))
+        take(keep)
         notes.append(f"{int(copied.sum())} of {n} rows (from row{'s' if len(starts) > 1 else ''} "
                      f"{', '.join(str(i) for i in starts[:5])}{', …' if len(starts) > 5 else ''}) repeat earlier rows "
                      "exactly, in the same order (a log appended to itself, a buffer written twice?) and were left out")
     back = np.flatnonzero(np.diff(t) < 0)  # differences, runs and time blocks all need time order
     if len(back) > CLOCK_JUMPS * n:
-        rows = np.argsort(t, kind="stable")
-        m, t = m[rows], t[rows]
-        temp, reference, down, current = (None if a is None else a[rows] for a in (temp, reference, down, current))
+        take(np.argsort(t, kind="stable"))
         notes.append(f"t went backwards at {len(back)} of {n} rows: the rows were not in time order and were "
                      "sorted by t")
     elif len(back):
@@ -1861,8 +1877,7 @@ def _prepare(samples, t, temp, reference, down, field_norm, units, source, curre
     copies = held_copies(m)  # sample and hold: the copies carry no new information, make the noise look
     if copies is not None:    # correlated and shrink the third differences the noise σ comes from
         keep = ~copies
-        m, t, rows = m[keep], t[keep], rows[keep]
-        temp, reference, down, current = (None if a is None else a[keep] for a in (temp, reference, down, current))
+        take(keep)
         notes.append(f"{int(copies.sum())} of {n} readings ({100 * copies.mean():.0f} %) repeat the previous one "
                      "exactly (sample and hold: the logger ran faster than the sensor) and were left out")
     clipping = _clipping(m) if np.isfinite(m).all() else []
@@ -1877,23 +1892,20 @@ def _prepare(samples, t, temp, reference, down, field_norm, units, source, curre
                             f"{100 * c['fraction']:.1f} %)" for c in clipping)
         notes.append(f"the sensor's range clips the readings ({clipped}): those and the {int(near.sum()) - sum(c['readings'] for c in clipping)} "
                      f"within {CLIP_MARGIN:g} σ of the rail (the cut noise biases them inwards) were left out")
-        m, t, rows = m[keep], t[keep], rows[keep]
-        temp, reference, down, current = (None if a is None else a[keep] for a in (temp, reference, down, current))
+        take(keep)
     if np.isfinite(m).all():
         # Glitches (0,0,0, ADC rails, spikes of ≤ 3 readings) are bad readings, not sensor physics: left
         # out as calibrate leaves them out. Longer stretches off the model stay: they are what the
         # candidates (a moving dipole, a drift, saturation) explain.
-        glitches = find_outliers(m, reference)
+        glitches = find_outliers(m, reference, field_norms=norms)
         if len(glitches):
             keep = np.ones(len(m), dtype=bool)
             keep[glitches.rows] = False
             notes.append(replace(glitches, rows=np.sort(rows[glitches.rows])).messages(len(keep))[0].replace(
                 "; outliers='keep' (--outliers keep) keeps them", " (glitches, not sensor physics)"))
-            m, t, rows = m[keep], t[keep], rows[keep]
-            temp, reference, down, current = (None if a is None else a[keep]
-                                              for a in (temp, reference, down, current))
-    return _Data(m, t, temp, reference, down, float(field_norm) if field_norm else 0.0, units, source, notes,
-                 current, clipping)
+            take(keep)
+    one = float(np.mean(norms)) if norms is not None else float(field_norm) if field_norm else 0.0
+    return _Data(m, t, temp, reference, down, one, units, source, notes, current, clipping, norms)
 
 
 def quantization_step(samples) -> float:
@@ -1956,7 +1968,9 @@ def diagnose(samples, t=None, temp=None, reference=None, gravity=None, field_nor
     reference (N×3 true field per reading, sensor frame: the vector models): the regressors. gravity (N×3
     accelerometer or any down/up vector, sensor frame; with reference vectors it adds the heading error to
     the downstream errors, and lets a moving magnet be fitted in the world's north, east and down — down
-    as `gravity` points: a vector pointing up turns east and down round). field_norm: the known |h| (default: the fitted ellipsoid's own scale).
+    as `gravity` points: a vector pointing up turns east and down round). field_norm: the known |h| (default: the
+    fitted ellipsoid's own scale), or each reading's (N values: a field that changes while the sensor turns, logged
+    by a scalar magnetometer or an observatory; the magnitude models then fit each |h| to its own).
     model: "ellipsoid" (default without reference), "scale", "vector" (default with one), "vector_scale".
     noise_sigma: white-noise σ of the readings (default: estimated, see estimate_noise). candidates:
     effect names to try (default all whose regressors are present). alpha: significance level
@@ -1995,7 +2009,8 @@ def diagnose(samples, t=None, temp=None, reference=None, gravity=None, field_nor
         start = calibrate(data.m, reference=data.reference, units=units)
         data.field_norm = float(np.mean(np.linalg.norm(data.reference, axis=1)))
     else:
-        start = calibrate(data.m, field_norm=field_norm or None, units=units, shape="sym")  # the full base's start
+        given = data.field_norms if data.field_norms is not None else data.field_norm or None
+        start = calibrate(data.m, field_norm=given, units=units, shape="sym")  # the full base's start
         data.field_norm = start.field_norm
     if fixed:  # a scale-only model starts from the diagonal of the full fit's W = A⁻¹
         W = np.linalg.inv(start.matrix)
@@ -2244,7 +2259,7 @@ def diagnose(samples, t=None, temp=None, reference=None, gravity=None, field_nor
     base_cal = Calibration(offset=base["offset"], matrix=base["matrix"], field_norm=data.field_norm, units=units,
                            model=model)
     series = {"t": data.t, "timestamps": timestamps, "temp": data.temp, "current": data.current, "directions": directions, "residual_before": e0,
-              "residual_after": e_final, "vector": vector}
+              "residual_after": e_final, "vector": vector, "field_norms": data.field_norms}
     return Diagnosis(model=model, noise_sigma=sigma, noise_source=noise_source, units=units, source=source,
                      ranking=ranking, accepted=accepted, where=where, remaining=remaining, base=base_cal,
                      series=series, caveats=caveats, clipping=data.clipping)

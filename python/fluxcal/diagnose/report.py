@@ -190,8 +190,11 @@ def moving_dipole_line(d, r) -> str:
               - (e["on_s"] if e.get("on_s") is not None else t.min())
               for e in r.get("episodes") or [r] if e.get("closest_s") is None)
     slow = np.ptp(t) > 0 and box > 0.5 * np.ptp(t)
+    # (a magnitude model fitted to one |field|: the field's own slow change is in it too)
+    field = ("" if d.series.get("vector") or d.series.get("field_norms") is not None
+             else ", or the field itself changing (give each reading's |field|: field_norm=, --field-norm COLUMN|FILE)")
     hint = (f"over most of the recording{' with its other episodes' if r.get('episodes') else ''}: more likely the "
-            "surroundings or a soft iron changing slowly than a magnet passing" if slow
+            f"surroundings or a soft iron changing slowly{field} than a magnet passing" if slow
             else "a magnet, a tool or a vehicle moving near the sensor?")
     on, off = (when(x) if x is not None else end for x, end in zip((r.get("on_s"), r.get("off_s")),
                                                                    ("the start", "the end")))
@@ -204,7 +207,9 @@ def text(d) -> str:
     out = [f"fluxcal diagnose — {d.source}: model {d.model}, {w['overall']['n']} readings"
            + ("" if d.units else " (no unit stated: sizes below are in the readings' own)"),
            f"noise σ {d.noise_sigma:.4g}{u} ({d.noise_source})",
-           f"base model: residual RMS {w['overall']['rms_z']:.2f} σ, gap √(RMS² − σ²) {w['overall']['gap']:.4g}{u}",
+           f"base model: residual RMS {w['overall']['rms_z']:.2f} σ, gap √(RMS² − σ²) {w['overall']['gap']:.4g}{u}"
+           + ("" if d.series.get("field_norms") is None else
+              f" (|h| fitted to each reading's own |field|, mean {d.base.field_norm:.6g})"),
            *[f"CAVEAT: {c}" for c in getattr(d, "caveats", [])],
            "", "WHERE (base model residuals / σ; tests per regime):"]
     for t in w["tests"]:

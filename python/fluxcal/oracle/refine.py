@@ -89,9 +89,11 @@ def refine(offset, matrix, field_norm, samples, loss: str = "linear", loss_scale
             "noise_sigma": np.sqrt(sigma2), "jacobian": jac, "residuals": sol.fun}
 
 
-def refine_terms(start, samples, features) -> np.ndarray:
+def refine_terms(start, samples, features, field_norms=None) -> np.ndarray:
     """The magnitude model with extra terms (fluxcal._core.refine_terms): readings corrected by
-    m − Σ_j c_j f_j (features N × p × 3), then the Sampson residual; θ = [b, A (6), c]."""
+    m − Σ_j c_j f_j (features N × p × 3), then the Sampson residual against start.field_norm, or against each
+    reading's own |field| (`field_norms`, N values); θ = [b, A (6), c]."""
+    H = start.field_norm if field_norms is None else np.asarray(field_norms, dtype=float)
     m = np.asarray(samples, dtype=float)
     f = np.asarray(features, dtype=float)
     w, V = np.linalg.eigh(np.asarray(start.matrix).T @ np.asarray(start.matrix))
@@ -99,7 +101,7 @@ def refine_terms(start, samples, features) -> np.ndarray:
     theta0 = np.r_[start.offset, A[0, 0], A[0, 1], A[0, 2], A[1, 1], A[1, 2], A[2, 2], np.zeros(f.shape[1])]
 
     def fun(theta):
-        return residuals(theta[:9], m - np.einsum("p,npk->nk", theta[9:], f), start.field_norm)
+        return residuals(theta[:9], m - np.einsum("p,npk->nk", theta[9:], f), H)
 
     sol = least_squares(fun, theta0, method="lm", xtol=1e-15, ftol=1e-15, gtol=1e-15)
     return sol.x

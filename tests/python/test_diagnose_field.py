@@ -1,0 +1,105 @@
+"""The diagnosis of a recording whose field changes while the sensor turns (a storm, a diurnal change, a vehicle's
+own field), given each reading's |field| (a scalar magnetometer beside the sensor, an observatory's F)."""
+import numpy as np
+import pytest
+from conftest import run_cli
+
+import fluxcal
+from fluxcal.diagnose import diagnose
+from fluxcal.oracle.refine import refine_terms as oracle_refine_terms
+from fluxcal.sim.withheld import FIELD, withheld_trial
+
+H = float(np.linalg.norm(FIELD))
+
+
+def changing(names, seed, amplitude=0.01):
+    """A withheld trial of `names` in a field whose magnitude changes by ±`amplitude` (1.3 slow periods over the
+    recording): its readings, the diagnosis' keyword arguments (without field_norm) and each reading's |field|."""
+    result, kwargs = withheld_trial(names, seed)
+    kwargs.pop("field_norm", None)
+    n = len(result.readings)
+    k = 1 + amplitude * np.sin(2 * np.pi * 1.3 * np.arange(n) / n + seed)
+    b = result.true_calibration().offset
+    readings = b + k[:, None] * (result.clean - b) + (result.readings - result.clean)
+    return readings, kwargs, k * H
+
+
+def test_refine_terms_with_each_readings_field_matches_the_oracle():
+    readings, kwargs, norms = changing(["temp_offset"], 3)
+    m, temp, norms = readings[:800], kwargs["temp"][:800], norms[:800]
+    feats = np.zeros((len(m), 3, 3))
+    for k in range(3):
+        feats[:, k, k] = temp - temp.mean()
+    start = fluxcal.calibrate(m, field_norm=norms)
+    got = fluxcal._core.refine_terms(start.offset, start.matrix, start.field_norm, "", np.ascontiguousarray(m),
+                                     feats.reshape(len(m), 9), np.zeros(3), [], fluxcal._core.RefineOptions(), None,
+                                     norms)
+    want = oracle_refine_terms(start, m, feats, field_norms=norms)
+    np.testing.assert_allclose(got["parameters"], want, rtol=0, atol=1e-7 * np.abs(want).max())
+    one = oracle_refine_terms(start, m, feats)  # (the oracle's own check: one |field| gives another answer)
+    assert np.abs(one[:3] - want[:3]).max() > 1e3 * 1e-7 * np.abs(want).max()
+
+
+def test_a_changing_field_is_no_effect_with_each_readings_field_and_effects_without_it():
+    """±1 % of the field, no effect simulated (seed 8, 3000 readings): fitted to one |field| the change is taken
+    for effects (measured: temp_scale and a moving_dipole over most of the recording, ΔBIC −3406 and −4014);
+    fitted to each reading's own, nothing is found."""
+    readings, kwargs, norms = changing([], 8)
+    one = diagnose(readings, **kwargs)
+    own = diagnose(readings, field_norm=norms, **kwargs)
+    assert one.accepted and own.accepted == []
+    assert own.base.field_norm == pytest.approx(norms.mean(), rel=1e-12)
+    assert own.where["overall"]["rms_z"] < 1.1 < one.where["overall"]["rms_z"]
+
+
+@pytest.mark.parametrize("effect", ["temp_offset", "saturation"])
+def test_an_effect_in_a_changing_field_is_named_with_each_readings_field(effect):
+    """Measured (seed 8): temp_offset alone with the norms (without: colored_noise), saturation alone (without:
+    moving_dipole, temp_scale, nonlinearity_cubic)."""
+    readings, kwargs, norms = changing([effect], 8)
+    assert diagnose(readings, field_norm=norms, **kwargs).accepted == [effect]
+
+
+def test_each_readings_field_follows_the_readings_left_out():
+    """Readings left out before the fit (sample and hold, a glitch) take their |field| with them; a glitch in the
+    |field| log is left out with its reading."""
+    readings, kwargs, norms = changing([], 5)
+    held = np.repeat(readings[:1500], 2, axis=0)  # a logger twice as fast as the sensor
+    t = np.arange(len(held)) * 0.01
+    temp = np.repeat(kwargs["temp"][:1500], 2)
+    glitched = np.repeat(norms[:1500], 2)
+    glitched[1000] *= 1.5  # a spike in the scalar magnetometer's log, on a reading kept after the copies go
+    d = diagnose(held, t=t, temp=temp, field_norm=glitched)
+    assert d.accepted == [] and len(d.series["field_norms"]) == len(d.series["t"]) < 1500
+    assert "sample and hold" in d.noise_source and "glitches" in d.noise_source  # (where the data's notes are said)
+
+
+def test_each_readings_field_is_checked_and_is_not_the_vector_models():
+    readings, kwargs, norms = changing([], 2)
+    with pytest.raises(ValueError, match=r"field_norms: shape \(10,\), expected one magnitude per reading"):
+        diagnose(readings, field_norm=norms[:10], **kwargs)
+    bad = norms.copy()
+    bad[7] = np.nan
+    with pytest.raises(ValueError, match="field_norms: value 7 is nan"):
+        diagnose(readings, field_norm=bad, **kwargs)
+    reference = np.tile(FIELD, (len(readings), 1))
+    with pytest.raises(ValueError, match="field_norm: the vector models take each reading's field from the reference"):
+        diagnose(readings, reference=reference, field_norm=norms, **{**kwargs, "model": "vector"})
+
+
+def test_diagnose_command_takes_each_readings_field_from_a_column(tmp_path):
+    readings, kwargs, norms = changing([], 8)
+    columns = {"t": kwargs["t"], "temp": kwargs["temp"], "mx": readings[:, 0], "my": readings[:, 1],
+               "mz": readings[:, 2], "F": norms}
+    path = fluxcal.write_csv(tmp_path / "changing.csv", columns,
+                             units={"t": "s", "temp": "degC", "mx": "uT", "my": "uT", "mz": "uT", "F": "uT"})
+    run = run_cli("diagnose", path, "--field-norm", "F", "--quiet")
+    assert run.returncode == 0, run.stderr
+    assert "field norm of each reading from column F (uT)" in run.stdout
+    assert "(|h| fitted to each reading's own |field|, mean 50.0" in run.stdout
+    assert "FOUND: no significant effect" in run.stdout
+    run = run_cli("diagnose", path, "--quiet")  # one |field|: the change is named, and the report says what else
+    assert run.returncode == 0, run.stderr
+    assert "or the field itself changing (give each reading's |field|" in run.stdout
+    run = run_cli("diagnose", path, "--field-norm", "G")
+    assert run.returncode == 2 and "--field-norm G: not a number, nor a column of" in run.stderr, run.stderr
