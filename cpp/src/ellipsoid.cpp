@@ -313,7 +313,7 @@ EllipsoidResult solve(const EllipsoidMoments& mom, const EllipsoidOptions& opt) 
     throw Error("samples: the readings lie nearly in one plane (thinnest/widest spread " +
                 percent(sum.coverage_ratio) +
                 "); a 3-D ellipsoid is not identifiable — " + std::string(detail::kTurnAdvice) +
-                ", or " + std::string(detail::kTwoDAdvice));
+                ", or " + std::string(detail::kTwoDAdvice) + hardly_turned);
   }
 
   // Eliminate M11 = 1 − M22 − M33 (trace constraint): p = e0 + E q, q the other 9 coefficients.

@@ -204,6 +204,11 @@ def test_a_sensor_never_turned_is_told_so():
     s = simulated(5)
     counts = 32768.0 + (s.readings - s.readings.mean(axis=0)) * (200.0 / s.field_norm)
     assert not any("not turned" in w for w in fluxcal.fit_ellipsoid(counts).summary["warnings"])
+    # a static log whose z never leaves one count is taken for readings in a plane: that error says it too
+    flat = static.copy()
+    flat[:, 2] = 410.0
+    with pytest.raises(ValueError, match=r"nearly in one plane .*; the readings hardly change"):
+        fluxcal.fit_ellipsoid(flat)
 
 
 def test_a_scalar_argument_that_is_not_a_number_is_named():
