@@ -1,5 +1,7 @@
 """The diagnosis of a recording whose field changes while the sensor turns (a storm, a diurnal change, a vehicle's
 own field), given each reading's |field| (a scalar magnetometer beside the sensor, an observatory's F)."""
+import json
+
 import numpy as np
 import pytest
 from conftest import run_cli
@@ -93,8 +95,10 @@ def test_diagnose_command_takes_each_readings_field_from_a_column(tmp_path):
                "mz": readings[:, 2], "F": norms}
     path = fluxcal.write_csv(tmp_path / "changing.csv", columns,
                              units={"t": "s", "temp": "degC", "mx": "uT", "my": "uT", "mz": "uT", "F": "uT"})
-    run = run_cli("diagnose", path, "--field-norm", "F", "--quiet")
+    run = run_cli("diagnose", path, "--field-norm", "F", "--quiet", "--json", tmp_path / "d.json")
     assert run.returncode == 0, run.stderr
+    saved = json.loads((tmp_path / "d.json").read_text())
+    assert saved["field_norm_per_reading"] is True and saved["field_norm"] == pytest.approx(norms.mean(), rel=1e-9)
     assert "field norm of each reading from column F (uT)" in run.stdout
     assert "(|h| fitted to each reading's own |field|, mean 50.0" in run.stdout
     assert "FOUND: no significant effect" in run.stdout

@@ -200,6 +200,8 @@ class Diagnosis:
 
         return {"source": self.source, "model": self.model, "units": self.units,
                 "noise_sigma": self.noise_sigma, "noise_source": self.noise_source,
+                # |h| of the magnitude models: the mean of each reading's own when those were given
+                "field_norm": self.base.field_norm, "field_norm_per_reading": self.series.get("field_norms") is not None,
                 "significant": self.significant, "accepted": self.accepted, "confounded": self.confounded,
                 "ranking": self.ranking, "clipping": self.clipping,
                 "where": self.where, "remaining": self.remaining, "caveats": self.caveats,
