@@ -12,6 +12,7 @@
 #include <cstdio>
 #include <limits>
 #include <sstream>
+#include <utility>
 
 namespace fluxcal {
 namespace {
@@ -379,23 +380,49 @@ namespace {
 
 using Vec9 = Eigen::Matrix<double, 9, 1>;
 using Vec10 = Eigen::Matrix<double, 10, 1>;
+using Vec11 = Eigen::Matrix<double, 11, 1>;
 using Mat9 = Eigen::Matrix<double, 9, 9>;
 using Mat10 = Eigen::Matrix<double, 10, 10>;
+using Mat11 = Eigen::Matrix<double, 11, 11>;
 
 // Normalised coordinates u = (m − centre)/scale (EllipsoidMoments), unit field: the residual of
-// reading k is R_k = (u_k − q)ᵀ N (u_k − q) − 1 − μ′ = (|h_k|² − H² − μ)/H², with o = centre + scale·q
-// and A² = (H/scale)² N. R_k = pᵀd_k for the moment design row d = [u², v², w², 2uv, 2uw, 2vw, 2u, 2v,
-// 2w, 1] and the quadric p below, so every sum over the readings comes from the 10×10 scatter.
-Vec10 quadric(const Eigen::Vector3d& q, const Eigen::Matrix3d& N, double mu) {
+// reading k is R_k = (u_k − q)ᵀ N (u_k − q) − 1 − ε_k − μ′ = (|h_k|² − H_k² − μ)/H², with o = centre + scale·q,
+// A² = (H/scale)² N, H the (mean) field magnitude and ε_k = (H_k/H)² − 1 (0 when every reading has H).
+// R_k = pᵀd_k for the design row d = [u², v², w², 2uv, 2uw, 2vw, 2u, 2v, 2w, 1, ε_k] and the p below, so
+// every sum over the readings comes from the 11×11 scatter of those rows. (ε, not (H_k/H)²: a column of
+// nearly 1 beside the constant one cancels it, and the rounding left the scoring steps of 1e-8 forever.)
+Vec11 quadric(const Eigen::Vector3d& q, const Eigen::Matrix3d& N, double mu) {
   const Eigen::Vector3d Nq = N * q;
-  Vec10 p;
-  p << N(0, 0), N(1, 1), N(2, 2), N(0, 1), N(0, 2), N(1, 2), -Nq, q.dot(Nq) - 1.0 - mu;
+  Vec11 p;
+  p << N(0, 0), N(1, 1), N(2, 2), N(0, 1), N(0, 2), N(1, 2), -Nq, q.dot(Nq) - 1.0 - mu, -1.0;
   return p;
 }
 
-// ∂R_k/∂θ = T d_k for θ = [q0 q1 q2 N00 N11 N22 N01 N02 N12] (the Jacobian is quadratic in u too).
-Eigen::Matrix<double, 9, 10> jacobian_map(const Eigen::Vector3d& q, const Eigen::Matrix3d& N) {
-  Eigen::Matrix<double, 9, 10> T = Eigen::Matrix<double, 9, 10>::Zero();
+// The scatter of the design rows [d_k, ε_k] from the ellipsoid moments' 10×10 scatter of d_k and, with each
+// reading's field magnitude (`relative`: H_k/H), one more pass for the sums of ε_k d_k and ε_k².
+Mat11 design_scatter(const Mat10& S, const SamplesRef& samples, const Eigen::Vector3d& centre, double scale,
+                     const Eigen::VectorXd* relative) {
+  Mat11 out;
+  out.topLeftCorner<10, 10>() = S;
+  Vec11 ed = Vec11::Zero();  // ε_k = 0 for one field magnitude
+  if (relative) {
+    for (Eigen::Index i = 0; i < samples.rows(); ++i) {
+      const double u = (samples(i, 0) - centre(0)) / scale, v = (samples(i, 1) - centre(1)) / scale,
+                   w = (samples(i, 2) - centre(2)) / scale, e = (*relative)(i) * (*relative)(i) - 1.0;
+      Vec11 d;
+      d << u * u, v * v, w * w, 2 * u * v, 2 * u * w, 2 * v * w, 2 * u, 2 * v, 2 * w, 1.0, e;
+      ed += e * d;
+    }
+  }
+  out.col(10) = ed;
+  out.row(10) = ed.transpose();
+  return out;
+}
+
+// ∂R_k/∂θ = T d_k for θ = [q0 q1 q2 N00 N11 N22 N01 N02 N12] (the Jacobian is quadratic in u too; e_k's
+// column is zero).
+Eigen::Matrix<double, 9, 11> jacobian_map(const Eigen::Vector3d& q, const Eigen::Matrix3d& N) {
+  Eigen::Matrix<double, 9, 11> T = Eigen::Matrix<double, 9, 11>::Zero();
   const Eigen::Vector3d Nq = N * q;
   for (int j = 0; j < 3; ++j) {  // ∂R/∂q_j = −2 [N (u − q)]_j
     for (int i = 0; i < 3; ++i) T(j, 6 + i) = -N(j, i);
@@ -435,11 +462,11 @@ struct Model3D {
 };
 
 // Noise mean μ′ = μ/H² at the current estimate (header: A&S's E[v_k]).
-double noise_mean(const Mat10& S, const Model3D& m, double noise_sigma, double scale) {
+double noise_mean(const Mat11& S, const Model3D& m, double noise_sigma, double scale) {
   if (noise_sigma == 0.0) return 0.0;
   if (noise_sigma > 0.0) return noise_sigma * noise_sigma * m.N.trace() / (scale * scale);
   const double n = S(9, 9);
-  const Vec10 p = quadric(m.q, m.N, 0.0);
+  const Vec11 p = quadric(m.q, m.N, 0.0);
   const double mean = p.dot(S.col(9)) / n;
   const double var = std::max(0.0, p.dot(S * p) / n - mean * mean);
   return 0.75 * var;
@@ -456,22 +483,23 @@ Calibration calibration_of(const Model3D& model, const Eigen::Vector3d& centre, 
   return cal;
 }
 
-// How far the readings lie from a model's ellipsoid |h| = radius in their own units, d = (|h| − radius)/|Aᵀĥ|
-// (first order): the RMS of d — the misfit maximum likelihood minimises, which a shrinking A cannot lower — and
-// the row farthest off.
+// How far the readings lie from a model's ellipsoid |h| = radius (times reading i's `relative` field magnitude, when
+// given) in their own units, d = (|h| − radius)/|Aᵀĥ| (first order): the RMS of d — the misfit maximum likelihood
+// minimises, which a shrinking A cannot lower — and the row farthest off.
 struct Misfit {
   double rms = 0.0;
   Eigen::Index worst_row = 0;
   double worst = 0.0;
 };
 
-Misfit reading_misfit(const SamplesRef& samples, const Calibration& cal, double radius) {
+Misfit reading_misfit(const SamplesRef& samples, const Calibration& cal, double radius,
+                      const Eigen::VectorXd* relative) {
   Misfit out;
   double sum2 = 0.0;
   for (Eigen::Index i = 0; i < samples.rows(); ++i) {
     const Eigen::Vector3d h = cal.matrix * (Eigen::Vector3d(samples(i, 0), samples(i, 1), samples(i, 2)) - cal.offset);
     const double norm = h.norm(), slope = norm > 0.0 ? (cal.matrix.transpose() * h).norm() / norm : 0.0;
-    const double d = slope > 0.0 ? (norm - radius) / slope : kInf;
+    const double d = slope > 0.0 ? (norm - radius * (relative ? (*relative)(i) : 1.0)) / slope : kInf;
     sum2 += d * d;
     if (!(std::abs(d) <= out.worst)) {
       out.worst = std::abs(d);
@@ -482,15 +510,29 @@ Misfit reading_misfit(const SamplesRef& samples, const Calibration& cal, double 
   return out;
 }
 
-}  // namespace
+// Σd and Σd² of d_i = |h_i| − target(i) over the calibrated readings. A template, one loop per form of target: a
+// test per reading had cost 9 % of the fit at 1e5 readings.
+template <class Target>
+std::pair<double, double> deviations(const SamplesRef& samples, const Calibration& cal, Target target) {
+  const Eigen::Matrix3d& A = cal.matrix;
+  const Eigen::Vector3d& o = cal.offset;
+  double sd = 0.0, sd2 = 0.0;
+  for (Eigen::Index i = 0; i < samples.rows(); ++i) {
+    const double x = samples(i, 0) - o(0), y = samples(i, 1) - o(1), z = samples(i, 2) - o(2);
+    const double hx = A(0, 0) * x + A(0, 1) * y + A(0, 2) * z;
+    const double hy = A(1, 0) * x + A(1, 1) * y + A(1, 2) * z;
+    const double hz = A(2, 0) * x + A(2, 1) * y + A(2, 2) * z;
+    const double d = std::sqrt(hx * hx + hy * hy + hz * hz) - target(i);
+    sd += d;
+    sd2 += d * d;
+  }
+  return {sd, sd2};
+}
 
-TwoStepResult twostep(const SamplesRef& samples, const TwoStepOptions& options) {
-  samples.require_width("samples");
-  const double H = options.field_norm;
-  if (!(H > 0.0) || !std::isfinite(H))
-    throw Error("field_norm: must be a positive finite magnitude (the known |H|, e.g. from IGRF), got " + num(H));
-  check(options);
-  if (samples.rows() < 9) check_samples(samples, "samples", 9, "the 9-parameter two-step calibration");
+// twostep with one field magnitude H for every reading, or reading i's H·(*relative)(i) when relative is not null
+// (H then their mean).
+TwoStepResult twostep_fit(const SamplesRef& samples, const TwoStepOptions& options, double H,
+                          const Eigen::VectorXd* relative) {
 
   // One pass: the 35 moments of the normalised readings (shared with the ellipsoid fit). A NaN or Inf
   // poisons them; only then is the data searched for the row to name.
@@ -501,36 +543,57 @@ TwoStepResult twostep(const SamplesRef& samples, const TwoStepOptions& options) 
     check_finite(samples, "samples");
     throw Error("samples: values too large, their fourth powers overflow");
   }
-  const Mat10 S = mom.scatter();
+  const Mat10 S10 = mom.scatter();
+  const Mat11 S = design_scatter(S10, samples, centre, scale, relative);
   const double n = S(9, 9);
 
   TwoStepResult out;
   Summary& sum = out.summary;
   sum.samples = mom.count();
-  sum.coverage_ratio = coverage_ratio(S);
+  sum.coverage_ratio = coverage_ratio(S10);
   if (sum.coverage_ratio < options.planar_ratio)
     throw Error("samples: the readings lie nearly in one plane (thinnest/widest spread " + percent(sum.coverage_ratio) +
                 "), so the first step of the two-step calibration is rank deficient — " + std::string(detail::kTurnAdvice) +
                 ", or " + std::string(detail::kTwoDAdvice));
 
-  // First step (centred, tr E = 0): minimise Σ (aᵀ(d_k − d̄))² over the 9 non-constant quadric
-  // coefficients a with a0 + a1 + a2 = 3 (tr N′ = tr(I + E) = 3); the constant absorbs |b|², H² and μ.
+  // First step (centred, tr E = 0): minimise Σ (aᵀ(d_k − d̄) − λ(ε_k − ε̄))² over the 9 non-constant quadric
+  // coefficients a with a0 + a1 + a2 = 3 (tr N′ = tr(I + E) = 3) and, when the field's magnitude changes, its
+  // coefficient λ (A&S's z_k = |B_k|² − |H_k|²: the change is not the quadric's shape); the constant absorbs
+  // |b|², H² and μ. Its scale is then that of the mean (H_k/H)² = 1 + ε̄: N = N′ (1 + ε̄)/ρ², ρ² the quadric's
+  // radius there.
   const Vec9 s9 = S.block<9, 1>(0, 9);
-  const Mat9 C = S.topLeftCorner<9, 9>() - s9 * s9.transpose() / n;
-  Eigen::Matrix<double, 9, 8> Emap = Eigen::Matrix<double, 9, 8>::Zero();
-  Emap.bottomRows<8>().setIdentity();
-  Emap(0, 0) = Emap(0, 1) = -1.0;
-  Vec9 a0 = Vec9::Zero();
-  a0(0) = 3.0;
-  const Eigen::Matrix<double, 8, 8> normal = Emap.transpose() * C * Emap;
-  const Eigen::Matrix<double, 8, 1> rhs = -Emap.transpose() * C * a0;
-  Eigen::Matrix<double, 8, 1> free;
-  const double first_condition = solve_scaled<8>(normal, rhs, free);
+  const double e_mean = 1.0 + S(9, 10) / n;  // the mean (H_k/H)²
+  const bool changing = S(10, 10) / n - (S(9, 10) / n) * (S(9, 10) / n) > kConstantField * kConstantField;
+  Eigen::Matrix<double, 10, 1> sums;
+  sums << s9, S(10, 9);
+  Eigen::Matrix<double, 10, 10> second;  // the scatter of [d_0 … d_8, ε]
+  second.topLeftCorner<9, 9>() = S.topLeftCorner<9, 9>();
+  second.topRightCorner<9, 1>() = S.block<9, 1>(0, 10);
+  second.bottomLeftCorner<1, 9>() = S.block<1, 9>(10, 0);
+  second(9, 9) = S(10, 10);
+  const Eigen::Matrix<double, 10, 10> C = second - sums * sums.transpose() / n;
+  Eigen::Matrix<double, 10, 9> G = Eigen::Matrix<double, 10, 9>::Zero();  // [a; −λ] = g0 + G [free (8), λ]
+  G.block<8, 8>(1, 0).setIdentity();
+  G(0, 0) = G(0, 1) = -1.0;
+  G(9, 8) = -1.0;
+  Eigen::Matrix<double, 10, 1> g0 = Eigen::Matrix<double, 10, 1>::Zero();
+  g0(0) = 3.0;
+  Vec9 free = Vec9::Zero();
+  double first_condition = kInf;
+  if (changing) {
+    first_condition = solve_scaled<9>(Mat9(G.transpose() * C * G), Vec9(-G.transpose() * C * g0), free);
+  } else {
+    const Eigen::Matrix<double, 10, 8> Gs = G.leftCols<8>();
+    Eigen::Matrix<double, 8, 1> shape_only;
+    first_condition = solve_scaled<8>(Eigen::Matrix<double, 8, 8>(Gs.transpose() * C * Gs),
+                                      Eigen::Matrix<double, 8, 1>(-Gs.transpose() * C * g0), shape_only);
+    free.head<8>() = shape_only;
+  }
   if (!(first_condition < kRankDeficient3D))
     throw Error("samples: the first step of the two-step calibration is rank deficient (condition number " +
                 num(first_condition) +
                 "); the readings do not determine offset and soft iron — " + std::string(detail::kTurnAdvice));
-  const Vec9 a = a0 + Emap * free;
+  const Vec9 a = (g0 + G * free).head<9>();
   const double k = -a.dot(s9) / n;
   Eigen::Matrix3d Np;
   Np << a(0), a(3), a(4), a(3), a(1), a(5), a(4), a(5), a(2);
@@ -539,7 +602,7 @@ TwoStepResult twostep(const SamplesRef& samples, const TwoStepOptions& options) 
   Model3D m;
   m.q = shape.centre;
   const double rho2 = shape.rho2;
-  m.N = Np / rho2;  // the scale from H: (u − q)ᵀ N (u − q) = 1 ⇔ |h| = H
+  m.N = Np * (e_mean / rho2);  // the scale from H: (u − q)ᵀ N (u − q) = 1 + ε_k ⇔ |h| = H_k
   const Model3D first = m;
 
   // Second step: Fisher scoring (Gauss–Newton) on Σ R_k², all sums from the scatter.
@@ -552,8 +615,8 @@ TwoStepResult twostep(const SamplesRef& samples, const TwoStepOptions& options) 
     double last_step = kInf;
     for (int it = 0; it < options.max_iterations; ++it) {
       mu = noise_mean(S, m, options.noise_sigma, scale);  // held fixed within the iteration
-      const Vec10 p = quadric(m.q, m.N, mu);
-      const Eigen::Matrix<double, 9, 10> T = jacobian_map(m.q, m.N);
+      const Vec11 p = quadric(m.q, m.N, mu);
+      const Eigen::Matrix<double, 9, 11> T = jacobian_map(m.q, m.N);
       const Mat9 F = T * S * T.transpose();
       const Vec9 g = T * (S * p);
       Vec9 delta;
@@ -581,7 +644,7 @@ TwoStepResult twostep(const SamplesRef& samples, const TwoStepOptions& options) 
       Model3D next;
       for (int ls = 0; ls < kLineSearchSteps; ++ls, t *= 0.5) {
         next = step(t);
-        const Vec10 pn = quadric(next.q, next.N, mu);
+        const Vec11 pn = quadric(next.q, next.N, mu);
         trial = pn.dot(S * pn);
         if (trial < cost) break;
       }
@@ -595,7 +658,7 @@ TwoStepResult twostep(const SamplesRef& samples, const TwoStepOptions& options) 
     }
     mu = noise_mean(S, m, options.noise_sigma, scale);
     const Mat9 F = [&] {
-      const Eigen::Matrix<double, 9, 10> T = jacobian_map(m.q, m.N);
+      const Eigen::Matrix<double, 9, 11> T = jacobian_map(m.q, m.N);
       return Mat9(T * S * T.transpose());
     }();
     Vec9 unused;
@@ -607,7 +670,7 @@ TwoStepResult twostep(const SamplesRef& samples, const TwoStepOptions& options) 
                              "); the result is the last iterate — check the readings for outliers");
   }
   {
-    const Vec10 p = quadric(m.q, m.N, mu);
+    const Vec11 p = quadric(m.q, m.N, mu);
     sum.cost = p.dot(S * p) / n;
   }
 
@@ -625,20 +688,8 @@ TwoStepResult twostep(const SamplesRef& samples, const TwoStepOptions& options) 
   cal.model = "twostep";
 
   // Statistics of |h| from a pass over the samples, and direction coverage.
-  double sd = 0.0, sd2 = 0.0;
-  {
-    const Eigen::Matrix3d& A = cal.matrix;
-    const Eigen::Vector3d& o = cal.offset;
-    for (Eigen::Index i = 0; i < samples.rows(); ++i) {
-      const double x = samples(i, 0) - o(0), y = samples(i, 1) - o(1), z = samples(i, 2) - o(2);
-      const double hx = A(0, 0) * x + A(0, 1) * y + A(0, 2) * z;
-      const double hy = A(1, 0) * x + A(1, 1) * y + A(1, 2) * z;
-      const double hz = A(2, 0) * x + A(2, 1) * y + A(2, 2) * z;
-      const double d = std::sqrt(hx * hx + hy * hy + hz * hz) - H;
-      sd += d;
-      sd2 += d * d;
-    }
-  }
+  const auto [sd, sd2] = relative ? deviations(samples, cal, [&](Eigen::Index i) { return H * (*relative)(i); })
+                                  : deviations(samples, cal, [H](Eigen::Index) { return H; });
   const double mean_d = sd / n;
   sum.norm_mean = H + mean_d;
   sum.norm_std_over_mean = std::sqrt(std::max(0.0, sd2 / n - mean_d * mean_d)) / sum.norm_mean;
@@ -653,8 +704,8 @@ TwoStepResult twostep(const SamplesRef& samples, const TwoStepOptions& options) 
     // when a few readings lie far off (an outlier at twice the field's distance ran a full sphere away).
     const Calibration start = calibration_of(first, centre, scale, H);
     // (the iterate's own radius: the noise mean μ it fitted puts |h|² at H² + μ, which is no runaway)
-    const Misfit before = reading_misfit(samples, start, H),
-                 after = reading_misfit(samples, cal, H * std::sqrt(1.0 + mu));
+    const Misfit before = reading_misfit(samples, start, H, relative),
+                 after = reading_misfit(samples, cal, H * std::sqrt(1.0 + mu), relative);
     if (!(after.rms <= options.runaway_misfit * before.rms)) {
       throw Error("samples: the second step of the two-step calibration ran away from the readings (not converged "
                   "after " + std::to_string(sum.iterations) + " iterations; their misfit to its ellipsoid, in the "
@@ -695,6 +746,28 @@ TwoStepResult twostep(const SamplesRef& samples, const TwoStepOptions& options) 
   if (!sum.warnings.empty()) msg << " (" << sum.warnings.size() << " warning(s))";
   sum.message = msg.str();
   return out;
+}
+
+}  // namespace
+
+TwoStepResult twostep(const SamplesRef& samples, const TwoStepOptions& options) {
+  samples.require_width("samples");
+  const double H = options.field_norm;
+  if (!(H > 0.0) || !std::isfinite(H))
+    throw Error("field_norm: must be a positive finite magnitude (the known |H|, e.g. from IGRF), got " + num(H));
+  check(options);
+  if (samples.rows() < 9) check_samples(samples, "samples", 9, "the 9-parameter two-step calibration");
+  return twostep_fit(samples, options, H, nullptr);
+}
+
+TwoStepResult twostep(const SamplesRef& samples, const SeriesRef& field_norms, const TwoStepOptions& options) {
+  samples.require_width("samples");
+  check(options);
+  if (samples.rows() < 9) check_samples(samples, "samples", 9, "the 9-parameter two-step calibration");
+  detail::check_field_norms(field_norms, samples.rows());
+  const double H = field_norms.mean();
+  const Eigen::VectorXd relative = field_norms / H;
+  return twostep_fit(samples, options, H, &relative);
 }
 
 }  // namespace fluxcal

@@ -62,6 +62,17 @@ void bind_twostep(py::module_& m) {
         return calibration_dict(r.calibration, r.summary);
       },
       "samples"_a.noconvert(), "options"_a);
+  m.def(
+      "twostep_norms",
+      [](const fluxcal::SamplesView& samples, const Eigen::VectorXd& field_norms, const TwoStepOptions& options) {
+        fluxcal::TwoStepResult r;
+        {
+          py::gil_scoped_release release;
+          r = fluxcal::twostep(samples, field_norms, options);
+        }
+        return calibration_dict(r.calibration, r.summary);
+      },
+      "samples"_a.noconvert(), "field_norms"_a, "options"_a);
 }
 
 }  // namespace fluxcal_py

@@ -48,7 +48,7 @@ def calibrate(samples, method: str = "auto", field_norm: float | None = None, re
     settings as fluxcal.twostep's). `loss` ("none", "huber", "cauchy") applies to the refinement.
     `field_norm` may be one value per reading (a field that changes while the sensor turns: a scalar
     magnetometer's log beside it, an observatory's F): the refinement then fits each |h_i| to its own
-    (fluxcal.refine's field_norms), the ellipsoid start to their mean.
+    (fluxcal.refine's field_norms), the ellipsoid start to their mean; "twostep" takes them too.
 
     outliers "drop": the readings are first screened for gross outliers (I²C glitches reading 0,0,0, ADC
     rails, spikes; fluxcal.outliers) — off the ellipsoid, or with `reference` off the vector model — and
@@ -86,9 +86,9 @@ def calibrate(samples, method: str = "auto", field_norm: float | None = None, re
     field_norms = None
     if field_norm is not None and np.ndim(field_norm) > 0:  # each reading's own |h| (a field that changes)
         field_norms = as_field_norms(field_norm, len(m))
-        if vector or method in ("ls", "als", "twostep"):
-            raise ValueError(f"field_norm: one magnitude per reading is the refinement's (method 'auto' or "
-                             f"'als+refine' without a reference); method {method!r}"
+        if vector or method in ("ls", "als"):
+            raise ValueError(f"field_norm: one magnitude per reading is the refinement's and TWOSTEP's (method "
+                             f"'auto', 'als+refine' or 'twostep', without a reference); method {method!r}"
                              f"{' with a reference' if vector and method == 'auto' else ''} takes one value")
         field_norm = float(np.mean(field_norms))
     if method == "twostep":
@@ -123,7 +123,7 @@ def calibrate(samples, method: str = "auto", field_norm: float | None = None, re
         cal = fit_ellipsoid(m, field_norm=field_norm, units=units, method=method, **start_settings)
         cal.summary["method"] = method
     elif method == "twostep":
-        cal = twostep(m, field_norm, units=units, **settings)
+        cal = twostep(m, settings.pop("field_norms", field_norm), units=units, **settings)
         cal.summary["method"] = "twostep"
     else:
         start = fit_ellipsoid(m, field_norm=field_norm, units=units, method="als", **start_settings)

@@ -129,10 +129,15 @@ def refine(calibration: Calibration, samples, reference=None, loss: str = "none"
         else:
             norms = as_field_norms(field_norms, len(m))
             cal = _calibration(_core.refine_norms(*args, norms, options), "refine")
-            cal.summary["field_norms"] = {"count": len(norms), "min": float(norms.min()), "max": float(norms.max())}
+            cal.summary["field_norms"] = field_norms_summary(norms)
         cal.summary["shape"] = shape_name(shape)
         return cal
     return _calibration(_core.refine_vector(*args, as_samples(reference, "reference"), options), "refine_vector")
+
+
+def field_norms_summary(norms: np.ndarray) -> dict:
+    """What a fit to each reading's own |field| says of them in its summary."""
+    return {"count": len(norms), "min": float(norms.min()), "max": float(norms.max())}
 
 
 def as_field_norms(values, n: int) -> np.ndarray:

@@ -20,6 +20,7 @@ from . import _core
 from ._arrays import as_number, as_samples, set_options, units_text
 from .calibration import Calibration
 from .ellipsoid import _calibration
+from .refine import as_field_norms, field_norms_summary
 
 
 @dataclass
@@ -151,9 +152,12 @@ def _axis_coupling(result: TwoStep2D, readings: np.ndarray, norms: np.ndarray) -
             "(tumble the sensor) or a vector fit against reference vectors models it")
 
 
-def twostep(samples, field_norm: float, units: str | None = None, **settings) -> Calibration:
+def twostep(samples, field_norm, units: str | None = None, **settings) -> Calibration:
     """Two-step (Alonso–Shuster) calibration h = A (m − b) of N×3 readings (N ≥ 9) taken in a field
-    of known constant magnitude `field_norm` (e.g. from IGRF, in the units h should come out in).
+    of known constant magnitude `field_norm` (e.g. from IGRF, in the units h should come out in), or of known
+    magnitude at each reading (N values: a spacecraft along its orbit, as Alonso & Shuster wrote it; a field
+    logged by a scalar magnetometer beside the sensor). With N values the first step fits their change with its
+    own coefficient and the second step each |h_k| to its own; the calibration's field_norm is their mean.
 
     First step: the centred linear estimate of z_k = |m_k|² − H² = −m_kᵀ E m_k + 2cᵀm_k + const with
     tr E = 0 (a constant |H| leaves the scale to the second step); second step: Fisher scoring of
@@ -178,7 +182,12 @@ def twostep(samples, field_norm: float, units: str | None = None, **settings) ->
     if field_norm is None:
         raise ValueError("field_norm: required (the known |H|, e.g. from IGRF)")
     options = _core.TwoStepOptions()
-    options.field_norm = as_number(field_norm, "field_norm")
     options.units = units_text(units)
     set_options(options, settings, "twostep")
+    if np.ndim(field_norm) > 0:  # each reading's own |H|
+        norms = as_field_norms(field_norm, len(arr))
+        cal = _calibration(_core.twostep_norms(arr, norms, options))
+        cal.summary["field_norms"] = field_norms_summary(norms)
+        return cal
+    options.field_norm = as_number(field_norm, "field_norm")
     return _calibration(_core.twostep(arr, options))

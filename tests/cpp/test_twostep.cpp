@@ -196,6 +196,38 @@ TEST(TwoStep3D, RecoversNoiseFreeSensorExactly) {
   }
 }
 
+// Each reading's own field magnitude (A&S's spacecraft along an orbit: ±30 % here): the sensor to rounding from
+// either step; the same magnitude everywhere is the one-magnitude form.
+TEST(TwoStep3D, EachReadingsFieldRecoversNoiseFreeSensorExactly) {
+  const Truth3D t = make_truth(5, 48.0);
+  const Samples base = simulate(t, 500, 0.0, 6);
+  Eigen::VectorXd k(base.rows());
+  for (Eigen::Index i = 0; i < k.size(); ++i) k(i) = 1.0 + 0.3 * std::sin(6.0 * i / k.size());
+  const Samples s = ((base.rowwise() - t.b.transpose()).array().colwise() * k.array()).matrix().rowwise() +
+                    t.b.transpose();
+  const Eigen::VectorXd norms = k * t.field;
+  fluxcal::TwoStepOptions opt;
+  for (int iterations : {0, 50}) {
+    opt.max_iterations = iterations;
+    const auto r = fluxcal::twostep(s, norms, opt);
+    EXPECT_LT((r.calibration.offset - t.b).norm() / t.field, 1e-9);
+    EXPECT_LT((r.calibration.matrix - t.W.inverse()).norm(), 1e-9);
+    EXPECT_LT(r.summary.residual_rms / t.field, 1e-10);  // |h_k| against each H_k
+    EXPECT_NEAR(r.calibration.field_norm, norms.mean(), 1e-12 * t.field);
+    EXPECT_TRUE(r.summary.converged);
+  }
+  opt.max_iterations = 50;
+  opt.field_norm = t.field;
+  const Samples noisy = simulate(t, 500, 0.01, 7);
+  const auto one = fluxcal::twostep(noisy, opt);
+  const auto same = fluxcal::twostep(noisy, Eigen::VectorXd::Constant(noisy.rows(), t.field), opt);
+  EXPECT_LT((one.calibration.offset - same.calibration.offset).norm(), 1e-12 * t.field);
+  EXPECT_EQ(one.summary.iterations, same.summary.iterations);
+  EXPECT_NE(error_message([&] { fluxcal::twostep(s, Eigen::VectorXd(norms.head(9)), opt); })
+                .find("field_norms: 9 values for 500 readings"),
+            std::string::npos);
+}
+
 TEST(TwoStep3D, NoisyFitConvergesWithinOnePercent) {
   const Truth3D t = make_truth(3, 50000.0);
   const Samples s = simulate(t, 2000, 0.01, 4);

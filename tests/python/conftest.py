@@ -32,3 +32,11 @@ def simulated(seed, n=2000, noise=0.005, field_norm=50000.0):
     direction = rng.standard_normal(3)
     field = field_norm * direction / np.linalg.norm(direction)
     return sim.simulate(sim.uniform(n, rng), sim.random_sensor(field_norm, rng, noise=noise), field, rng)
+
+
+def changing_field(s, k):
+    """The simulation `s` in a field whose magnitude is k_i × |field| at reading i (a diurnal change, a storm):
+    its clean readings b + k_i (m_i − b), the same noise, and each reading's |field|."""
+    b = s.true_calibration().offset
+    clean = b + k[:, None] * (s.clean - b)
+    return clean, clean + (s.readings - s.clean), k * s.field_norm

@@ -8,7 +8,7 @@ import pytest
 import fluxcal
 import fluxcal.oracle as oracle
 from fluxcal import attitude, sim
-from conftest import run_cli, simulated
+from conftest import changing_field, run_cli, simulated
 
 SYM = np.triu_indices(3)
 
@@ -171,14 +171,6 @@ def test_refinement_reaches_the_cramer_rao_bound(sensor_seed):
     assert np.all(np.abs(se_ratio.mean(axis=0) / z.std(axis=0) - 1) <= 0.15)
 
 
-def changing_field(s, k):
-    """The simulation `s` in a field whose magnitude is k_i × |field| at reading i (a diurnal change, a storm):
-    its clean readings b + k_i (m_i − b), the same noise, and each reading's |field|."""
-    b = s.true_calibration().offset
-    clean = b + k[:, None] * (s.clean - b)
-    return clean, clean + (s.readings - s.clean), k * s.field_norm
-
-
 @pytest.mark.parametrize("seed", range(3))
 def test_per_reading_field_norms_agree_with_the_oracle(seed):
     s = simulated(30 + seed, n=300, noise=0.01)
@@ -266,8 +258,8 @@ def test_per_reading_field_norms_bad_input_is_named():
             fluxcal.calibrate(s.readings, field_norm=broken)
     with pytest.raises(ValueError, match="field_norms: the vector model's reference vectors already give"):
         fluxcal.refine(start, s.readings, reference=s.readings, field_norms=norms)
-    with pytest.raises(ValueError, match="field_norm: one magnitude per reading is the refinement's"):
-        fluxcal.calibrate(s.readings, field_norm=norms, method="twostep")
+    with pytest.raises(ValueError, match="field_norm: one magnitude per reading is the refinement's and TWOSTEP's"):
+        fluxcal.calibrate(s.readings, field_norm=norms, method="ls")
 
 
 def test_ordinary_fit_is_biased_at_5_percent_noise_and_als_and_refine_are_not():

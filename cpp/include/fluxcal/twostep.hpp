@@ -26,7 +26,7 @@
 // radial/tangential) belongs to the application.
 //
 // ---- 3-D (Alonso & Shuster 2002) ---------------------------------------------------------------------
-// Model: B_k = (I + D)⁻¹ (O_k H_k + b + ε_k), D symmetric, |H_k| = H known and constant, ε_k white with
+// Model: B_k = (I + D)⁻¹ (O_k H_k + b + ε_k), D symmetric, |H_k| = H known (constant, or per reading), ε_k white with
 // covariance Σ_ε. With E = 2D + D², c = (I + D) b and
 //   z_k = |B_k|² − H² = −B_kᵀ E B_k + 2 cᵀ B_k − |b|² + v_k,   v_k = 2(O_k H_k)ᵀε_k + |ε_k|²,  E[v_k] = μ = tr Σ_ε
 // the first step is A&S's centred estimate: subtracting the means removes the |b|² term (and μ) and
@@ -42,6 +42,11 @@
 // the noise-mean part of the O(σ²/H²) shrinkage of the scale that a plain Σ (|h|² − H²)² fit has
 // (about half of it in simulation; the rest is the errors-in-variables bias of any fit that uses the
 // noisy readings as regressors). The offset is unbiased to that order on a well-covered sphere.
+// With each reading's own |H_k| (A&S's general case) the centring leaves H_k² − mean H² in z_k: the first step
+// fits it with a free coefficient beside the trace-normalised quadric, and the second step's objective is
+// Σ (|A(m_k − o)|² − H_k² − μ)², its sums from the moments and one more pass (Σ H_k² d_k, Σ H_k⁴). Its readings
+// are not weighted by 1/H_k² (their v_k's variance): for fields within a few per cent of each other that costs
+// nothing measurable; the maximum-likelihood refinement (refine with field_norms) weighs them exactly.
 // Result in fluxcal's convention h = A (m − o): A = I + D (symmetric positive definite),
 // o = (I + D)⁻¹ b.
 #pragma once
@@ -163,5 +168,14 @@ struct TwoStepResult {
 /// A second step that does not converge is reported (converged = false, a warning), not thrown, unless it ran
 /// away from the readings (options.runaway_misfit): then Error, naming the coverage.
 TwoStepResult twostep(const SamplesRef& samples, const TwoStepOptions& options);
+
+/// TWOSTEP with the true field magnitude of each reading (`field_norms`, N values > 0), as Alonso & Shuster wrote it
+/// for a spacecraft along its orbit (z_k = |B_k|² − |H_k|², the reference field's magnitude at each position), or
+/// for a field logged by a scalar magnetometer beside the sensor. The first step fits the change with its own
+/// coefficient (when the magnitudes differ by more than 1e-6), the second step each |h_k| to its H_k.
+/// options.field_norm is not used: the Calibration's field_norm is the mean of field_norms, and the Summary's |h|
+/// statistics are of |h_k| − H_k. Throws Error as the one-magnitude form, and on field_norms of another length or
+/// with a value that is not positive and finite.
+TwoStepResult twostep(const SamplesRef& samples, const SeriesRef& field_norms, const TwoStepOptions& options = {});
 
 }  // namespace fluxcal

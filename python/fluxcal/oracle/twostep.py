@@ -80,48 +80,54 @@ def _sqrtm_spd(M):
 
 
 def twostep(samples, field_norm, iterate: bool = True, noise_sigma: float = -1.0) -> dict:
-    """A&S TWOSTEP with a constant field magnitude H, in coordinates u = (m − mean)/std.
+    """A&S TWOSTEP with a constant field magnitude H, or each reading's H_k (`field_norm` N values), in
+    coordinates u = (m − mean)/std.
 
-    First step: centred least squares of z_k = |u_k|² − H² on L_k = [−(v² − u²), −(w² − u²), −2uv,
-    −2uw, −2vw, 2u, 2v, 2w] (E with tr E = 0 eliminated through E11; c), then M = I + E, o = M⁻¹c and
-    the scale from H. Second step (iterate): least_squares on |A(u − o)|² − H² − μ over (o, M = A²),
-    μ = ¾ var(|A(u − o)|² − H²)/H² (or σ² tr A² for a known noise σ, 0 for none), repeated with μ
-    updated until it stops changing — the fixed point the core's scoring reaches."""
+    First step: centred least squares of z_k = |u_k|² on L_k = [−(v² − u²), −(w² − u²), −2uv, −2uw, −2vw, 2u,
+    2v, 2w] (E with tr E = 0 eliminated through E11; c) and, when the H_k differ, H_k² with a free coefficient;
+    then M = I + E, o = M⁻¹c and the scale from the mean H_k². Second step (iterate): least_squares on
+    |A(u − o)|² − H_k² − μ over (o, M = A²), μ = ¾ var(|A(u − o)|² − H_k²)/H̄² (H̄ the mean H_k; or σ² tr A²
+    for a known noise σ, 0 for none), repeated with μ updated until it stops changing — the fixed point the
+    core's scoring reaches."""
     B = np.asarray(samples, dtype=float)
     mean, std = B.mean(axis=0), B.std()
     u = (B - mean) / std
-    Hs = float(field_norm) / std
+    Hs = np.broadcast_to(np.asarray(field_norm, dtype=float), len(u)) / std
+    H2 = Hs**2
+    changing = np.ptp(H2) > 1e-6 * H2.mean()
     x, y, w = u.T
-    z = (u * u).sum(axis=1) - Hs**2
-    L = np.column_stack([-(y * y - x * x), -(w * w - x * x), -2 * x * y, -2 * x * w, -2 * y * w, 2 * x, 2 * y, 2 * w])
+    z = (u * u).sum(axis=1)
+    L = np.column_stack([-(y * y - x * x), -(w * w - x * x), -2 * x * y, -2 * x * w, -2 * y * w, 2 * x, 2 * y, 2 * w]
+                        + ([H2] if changing else []))
     th = _lstsq_scaled(L - L.mean(axis=0), z - z.mean())
     E = _sym([-th[0] - th[1], th[0], th[1], th[2], th[3], th[4]])
     c = th[5:8]
     kappa = z.mean() - L.mean(axis=0) @ th
     M = np.eye(3) + E
     o = np.linalg.solve(M, c)
-    rho2 = Hs**2 + kappa + o @ M @ o
-    M = M * Hs**2 / rho2
+    rho2 = kappa + (th[8] * H2.mean() if changing else 0.0) + o @ M @ o  # the quadric's radius² at the mean H_k²
+    M = M * H2.mean() / rho2
+    Hbar = Hs.mean()
 
     if iterate:
         def raw(p):
             d = u - p[:3]
-            return np.einsum("ij,jk,ik->i", d, _sym(p[3:]), d) - Hs**2
+            return np.einsum("ij,jk,ik->i", d, _sym(p[3:]), d) - H2
 
         def noise_mean(p):
             if noise_sigma == 0:
                 return 0.0
             if noise_sigma > 0:
                 return (noise_sigma / std) ** 2 * np.trace(_sym(p[3:]))
-            return 0.75 * raw(p).var() / Hs**2
+            return 0.75 * raw(p).var() / Hbar**2
 
         p = np.concatenate([o, M[[0, 1, 2, 0, 0, 1], [0, 1, 2, 1, 2, 2]]])
         for _ in range(100):
             mu = noise_mean(p)
             p = least_squares(lambda q: raw(q) - mu, p, method="lm", xtol=1e-15, ftol=1e-15, gtol=1e-15).x
-            if abs(noise_mean(p) - mu) <= 1e-14 * Hs**2:
+            if abs(noise_mean(p) - mu) <= 1e-14 * Hbar**2:
                 break
         o, M = p[:3], _sym(p[3:])
 
     A = _sqrtm_spd(M)  # h = std·A_u(u − o) = A_u (m − offset): the std cancels
-    return {"offset": mean + std * o, "matrix": A, "field_norm": float(field_norm)}
+    return {"offset": mean + std * o, "matrix": A, "field_norm": float(np.mean(field_norm))}
