@@ -159,6 +159,9 @@ def test_an_observatorys_f_gives_each_readings_field_at_its_clock_time(tmp_path)
 
     api = fluxcal.calibrate(readings, field_norm=50000.0 * k)
     np.testing.assert_allclose(fluxcal.Calibration.load(tmp_path / "cal.json").offset, api.offset, rtol=1e-6)
+    run = run_cli("diagnose", sensor, "--field-norm", obs, "--quiet")  # the diagnosis takes it the same way
+    assert run.returncode == 0, run.stderr
+    assert "its column F (nT)" in run.stdout and "(|h| fitted to each reading's own |field|" in run.stdout, run.stdout
     late = write(tmp_path / "late.min", "XYZF", np.column_stack([xyz, f_obs]), start=60)  # 01:00 onwards
     run = run_cli("calibrate", sensor, "--field-norm", late)
     assert run.returncode == 2 and "it covers 2024-03-01 01:00:00 UTC to 2024-03-01 01:29:00 UTC" in run.stderr
