@@ -964,7 +964,9 @@ RefineResult refine_terms(const Calibration& start, const SamplesRef& samples, c
                           const std::vector<std::string>& fixed, const RefineOptions& opt) {
   detail::check_field_norms(field_norms, samples.rows());
   const Eigen::VectorXd norms = field_norms;
-  return terms_fit(at_mean_norm(start, norms), samples, features, start_terms, fixed, opt, nullptr, &norms);
+  Calibration mean_start = start;  // its matrix as given: `fixed` holds base parameters at their start values
+  mean_start.field_norm = norms.mean();
+  return terms_fit(mean_start, samples, features, start_terms, fixed, opt, nullptr, &norms);
 }
 
 }  // namespace fluxcal

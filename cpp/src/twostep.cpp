@@ -461,15 +461,16 @@ struct Model3D {
   Eigen::Matrix3d N;
 };
 
-// Noise mean μ′ = μ/H² at the current estimate (header: A&S's E[v_k]).
-double noise_mean(const Mat11& S, const Model3D& m, double noise_sigma, double scale) {
+// Noise mean μ′ = μ/H² at the current estimate (header: A&S's E[v_k]); var v_k ≈ (4/3) H_k² tr Σ_ε, so from the
+// residuals μ′ = ¾ var R / mean (H_k/H)² (`mean_ratio2`, 1 for one field magnitude).
+double noise_mean(const Mat11& S, const Model3D& m, double noise_sigma, double scale, double mean_ratio2) {
   if (noise_sigma == 0.0) return 0.0;
   if (noise_sigma > 0.0) return noise_sigma * noise_sigma * m.N.trace() / (scale * scale);
   const double n = S(9, 9);
   const Vec11 p = quadric(m.q, m.N, 0.0);
   const double mean = p.dot(S.col(9)) / n;
   const double var = std::max(0.0, p.dot(S * p) / n - mean * mean);
-  return 0.75 * var;
+  return 0.75 * var / mean_ratio2;
 }
 
 // The calibration (offset, A) of a model: A = (H/scale) N^½ (N's negative eigenvalues, of a model run off, as 0).
@@ -562,7 +563,7 @@ TwoStepResult twostep_fit(const SamplesRef& samples, const TwoStepOptions& optio
   // |b|², H² and μ. Its scale is then that of the mean (H_k/H)² = 1 + ε̄: N = N′ (1 + ε̄)/ρ², ρ² the quadric's
   // radius there.
   const Vec9 s9 = S.block<9, 1>(0, 9);
-  const double e_mean = 1.0 + S(9, 10) / n;  // the mean (H_k/H)²
+  const double mean_ratio2 = 1.0 + S(9, 10) / n;  // the mean (H_k/H)²
   const bool changing = S(10, 10) / n - (S(9, 10) / n) * (S(9, 10) / n) > kConstantField * kConstantField;
   Eigen::Matrix<double, 10, 1> sums;
   sums << s9, S(10, 9);
@@ -592,7 +593,10 @@ TwoStepResult twostep_fit(const SamplesRef& samples, const TwoStepOptions& optio
   if (!(first_condition < kRankDeficient3D))
     throw Error("samples: the first step of the two-step calibration is rank deficient (condition number " +
                 num(first_condition) +
-                "); the readings do not determine offset and soft iron — " + std::string(detail::kTurnAdvice));
+                "); the readings do not determine offset and soft iron — " + std::string(detail::kTurnAdvice) +
+                (changing ? "; or the field magnitudes follow the readings' directions (check that field_norms "
+                            "belong to the readings: same order, same field units)"
+                          : ""));
   const Vec9 a = (g0 + G * free).head<9>();
   const double k = -a.dot(s9) / n;
   Eigen::Matrix3d Np;
@@ -602,7 +606,7 @@ TwoStepResult twostep_fit(const SamplesRef& samples, const TwoStepOptions& optio
   Model3D m;
   m.q = shape.centre;
   const double rho2 = shape.rho2;
-  m.N = Np * (e_mean / rho2);  // the scale from H: (u − q)ᵀ N (u − q) = 1 + ε_k ⇔ |h| = H_k
+  m.N = Np * (mean_ratio2 / rho2);  // the scale from H: (u − q)ᵀ N (u − q) = 1 + ε_k ⇔ |h| = H_k
   const Model3D first = m;
 
   // Second step: Fisher scoring (Gauss–Newton) on Σ R_k², all sums from the scatter.
@@ -614,7 +618,7 @@ TwoStepResult twostep_fit(const SamplesRef& samples, const TwoStepOptions& optio
     bool failed = false;
     double last_step = kInf;
     for (int it = 0; it < options.max_iterations; ++it) {
-      mu = noise_mean(S, m, options.noise_sigma, scale);  // held fixed within the iteration
+      mu = noise_mean(S, m, options.noise_sigma, scale, mean_ratio2);  // held fixed within the iteration
       const Vec11 p = quadric(m.q, m.N, mu);
       const Eigen::Matrix<double, 9, 11> T = jacobian_map(m.q, m.N);
       const Mat9 F = T * S * T.transpose();
@@ -656,7 +660,7 @@ TwoStepResult twostep_fit(const SamplesRef& samples, const TwoStepOptions& optio
       m = next;
       sum.iterations = it + 1;
     }
-    mu = noise_mean(S, m, options.noise_sigma, scale);
+    mu = noise_mean(S, m, options.noise_sigma, scale, mean_ratio2);
     const Mat9 F = [&] {
       const Eigen::Matrix<double, 9, 11> T = jacobian_map(m.q, m.N);
       return Mat9(T * S * T.transpose());

@@ -128,3 +128,27 @@ def held_copies(m: np.ndarray):
     spacing = np.diff(np.flatnonzero(repeat))
     regular = typical(runs, 2, 10) or (np.all(runs <= 2) and len(spacing) > 2 and typical(spacing, 2, 10 ** 6))
     return repeat if regular else None
+
+
+def field_norms_summary(norms: np.ndarray) -> dict:
+    """What a fit to each reading's own |field| says of them in its summary."""
+    return {"count": len(norms), "min": float(norms.min()), "max": float(norms.max())}
+
+
+def as_field_norms(values, n: int, name: str = "field_norms") -> np.ndarray:
+    """Per-reading field magnitudes (or one for all) as N positive finite floats; ValueError naming the problem
+    and the argument (`name`: field_norm where a function takes one value or one per reading)."""
+    try:
+        norms = np.asarray(values, dtype=float)
+    except (TypeError, ValueError):
+        raise ValueError(f"{name}: {values!r:.60} is not numbers") from None
+    if norms.ndim == 0:  # one for all: the same field throughout
+        norms = np.full(n, float(norms))
+    norms = np.ascontiguousarray(norms)
+    if norms.ndim != 1 or len(norms) != n:
+        raise ValueError(f"{name}: shape {norms.shape}, expected one magnitude per reading ({n},)")
+    bad = np.flatnonzero(~(np.isfinite(norms) & (norms > 0)))
+    if bad.size:  # (as the solver's own check says it, before a mean of them is taken)
+        raise ValueError(f"{name}: value {bad[0]} is {norms[bad[0]]:g}; every reading needs a positive finite "
+                         "true field magnitude (drop zero-field readings)")
+    return norms

@@ -12,7 +12,8 @@ from ._arrays import as_samples, held_copies
 from .calibration import Calibration
 from .ellipsoid import fit_ellipsoid
 from .outliers import find_outliers
-from .refine import SHAPES, as_field_norms, fit_vector, refine, shape_name
+from ._arrays import as_field_norms
+from .refine import SHAPES, fit_vector, refine, shape_name
 from .twostep import twostep
 
 METHODS = ("auto", "vector", "als", "ls", "als+refine", "twostep")
@@ -83,9 +84,12 @@ def calibrate(samples, method: str = "auto", field_norm: float | None = None, re
         units = getattr(samples, "field_units", lambda: "")()
     m = as_samples(samples)
     vector = method == "vector" or (method == "auto" and reference is not None)
+    if "field_norms" in settings:  # (refine's keyword: here it would pass the outlier screen and its dropped rows)
+        raise ValueError("field_norms: give each reading's |field| to calibrate as field_norm= (one value, or one "
+                         "per reading)")
     field_norms = None
     if field_norm is not None and np.ndim(field_norm) > 0:  # each reading's own |h| (a field that changes)
-        field_norms = as_field_norms(field_norm, len(m))
+        field_norms = as_field_norms(field_norm, len(m), "field_norm")
         if vector or method in ("ls", "als"):
             raise ValueError(f"field_norm: one magnitude per reading is the refinement's and TWOSTEP's (method "
                              f"'auto', 'als+refine' or 'twostep', without a reference); method {method!r}"
@@ -115,19 +119,17 @@ def calibrate(samples, method: str = "auto", field_norm: float | None = None, re
             reference = np.delete(reference, left_out.rows, axis=0)
         if field_norms is not None:
             field_norms = np.delete(field_norms, left_out.rows)
-    if field_norms is not None:
-        settings["field_norms"] = field_norms
     if vector:
         cal = fit_vector(m, reference, units=units, loss=loss, **settings)
     elif method in ("ls", "als"):
         cal = fit_ellipsoid(m, field_norm=field_norm, units=units, method=method, **start_settings)
         cal.summary["method"] = method
     elif method == "twostep":
-        cal = twostep(m, settings.pop("field_norms", field_norm), units=units, **settings)
+        cal = twostep(m, field_norm if field_norms is None else field_norms, units=units, **settings)
         cal.summary["method"] = "twostep"
     else:
         start = fit_ellipsoid(m, field_norm=field_norm, units=units, method="als", **start_settings)
-        cal = _refine_shape(start, m, shape, loss=loss, **settings)
+        cal = _refine_shape(start, m, shape, loss=loss, field_norms=field_norms, **settings)
         cal.summary["method"] = "als+refine"
         cal.summary["coverage_ratio"] = start.summary["coverage_ratio"]
         cal.summary["warnings"] = list(start.summary["warnings"]) + [

@@ -13,7 +13,7 @@ from __future__ import annotations
 import numpy as np
 
 from . import _core
-from ._arrays import as_number, as_samples, require_calibration, set_options, units_text
+from ._arrays import as_field_norms, as_number, as_samples, field_norms_summary, require_calibration, set_options, units_text
 from .attitude import axis_remapping
 from .calibration import Calibration
 
@@ -133,29 +133,6 @@ def refine(calibration: Calibration, samples, reference=None, loss: str = "none"
         cal.summary["shape"] = shape_name(shape)
         return cal
     return _calibration(_core.refine_vector(*args, as_samples(reference, "reference"), options), "refine_vector")
-
-
-def field_norms_summary(norms: np.ndarray) -> dict:
-    """What a fit to each reading's own |field| says of them in its summary."""
-    return {"count": len(norms), "min": float(norms.min()), "max": float(norms.max())}
-
-
-def as_field_norms(values, n: int) -> np.ndarray:
-    """Per-reading field magnitudes (or one for all) as N positive finite floats; ValueError naming the problem."""
-    try:
-        norms = np.asarray(values, dtype=float)
-    except (TypeError, ValueError):
-        raise ValueError(f"field_norms: {values!r:.60} is not numbers") from None
-    if norms.ndim == 0:  # one for all: the same field throughout
-        norms = np.full(n, float(norms))
-    norms = np.ascontiguousarray(norms)
-    if norms.ndim != 1 or len(norms) != n:
-        raise ValueError(f"field_norms: shape {norms.shape}, expected one magnitude per reading ({n},)")
-    bad = np.flatnonzero(~(np.isfinite(norms) & (norms > 0)))
-    if bad.size:  # (as the solver's own check says it, before a mean of them is taken)
-        raise ValueError(f"field_norms: value {bad[0]} is {norms[bad[0]]:g}; every reading needs a positive finite "
-                         "true field magnitude (drop zero-field readings)")
-    return norms
 
 
 def fit_vector(samples, reference, units: str = "", loss: str = "none", loss_scale: float = 0.0,

@@ -17,10 +17,9 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from . import _core
-from ._arrays import as_number, as_samples, set_options, units_text
+from ._arrays import as_field_norms, as_number, as_samples, field_norms_summary, set_options, units_text
 from .calibration import Calibration
 from .ellipsoid import _calibration
-from .refine import as_field_norms, field_norms_summary
 
 
 @dataclass
@@ -185,7 +184,7 @@ def twostep(samples, field_norm, units: str | None = None, **settings) -> Calibr
     options.units = units_text(units)
     set_options(options, settings, "twostep")
     if np.ndim(field_norm) > 0:  # each reading's own |H|
-        norms = as_field_norms(field_norm, len(arr))
+        norms = as_field_norms(field_norm, len(arr), "field_norm")
         cal = _calibration(_core.twostep_norms(arr, norms, options))
         cal.summary["field_norms"] = field_norms_summary(norms)
         return cal

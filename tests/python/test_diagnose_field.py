@@ -72,21 +72,35 @@ def test_each_readings_field_follows_the_readings_left_out():
     glitched = np.repeat(norms[:1500], 2)
     glitched[1000] *= 1.5  # a spike in the scalar magnetometer's log, on a reading kept after the copies go
     d = diagnose(held, t=t, temp=temp, field_norm=glitched)
-    assert d.accepted == [] and len(d.series["field_norms"]) == len(d.series["t"]) < 1500
-    assert "sample and hold" in d.noise_source and "glitches" in d.noise_source  # (where the data's notes are said)
+    assert d.accepted == [] and "sample and hold" in d.noise_source and "glitches" in d.noise_source
+    # the |field| of each reading kept, in step with it: every second copy gone, then the glitch (reading 500)
+    np.testing.assert_array_equal(d.series["field_norms"], np.delete(norms[:1500], 500))
+    np.testing.assert_array_equal(d.series["t"], np.delete(t[::2], 500))
+
+
+def test_each_readings_field_follows_the_readings_into_time_order():
+    readings, kwargs, norms = changing([], 6)
+    order = np.random.default_rng(1).permutation(len(readings))
+    d = diagnose(readings[order], t=kwargs["t"][order], temp=kwargs["temp"][order], field_norm=norms[order])
+    assert "were sorted by t" in d.noise_source and d.accepted == []
+    np.testing.assert_array_equal(d.series["field_norms"], norms)
 
 
 def test_each_readings_field_is_checked_and_is_not_the_vector_models():
     readings, kwargs, norms = changing([], 2)
-    with pytest.raises(ValueError, match=r"field_norms: shape \(10,\), expected one magnitude per reading"):
+    with pytest.raises(ValueError, match=r"field_norm: shape \(10,\), expected one magnitude per reading"):
         diagnose(readings, field_norm=norms[:10], **kwargs)
     bad = norms.copy()
     bad[7] = np.nan
-    with pytest.raises(ValueError, match="field_norms: value 7 is nan"):
+    with pytest.raises(ValueError, match="field_norm: value 7 is nan"):
         diagnose(readings, field_norm=bad, **kwargs)
     reference = np.tile(FIELD, (len(readings), 1))
     with pytest.raises(ValueError, match="field_norm: the vector models take each reading's field from the reference"):
         diagnose(readings, reference=reference, field_norm=norms, **{**kwargs, "model": "vector"})
+    m, none = np.ascontiguousarray(readings[:100]), np.zeros((100, 0))
+    with pytest.raises(ValueError, match="field_norms: the vector model takes its field from the reference vectors"):
+        fluxcal._core.refine_terms(np.zeros(3), np.eye(3), H, "", m, none, np.zeros(0), [],
+                                   fluxcal._core.RefineOptions(), np.ascontiguousarray(reference[:100]), norms[:100])
 
 
 def test_diagnose_command_takes_each_readings_field_from_a_column(tmp_path):
@@ -104,7 +118,8 @@ def test_diagnose_command_takes_each_readings_field_from_a_column(tmp_path):
     assert "FOUND: no significant effect" in run.stdout
     run = run_cli("diagnose", path, "--quiet")  # one |field|: the change is named, and the report says what else
     assert run.returncode == 0, run.stderr
-    assert "or the field itself changing (give each reading's |field|" in run.stdout
+    assert "a soft iron or the field itself changing slowly than a magnet passing (give each reading's |field|" in \
+        run.stdout
     run = run_cli("diagnose", path, "--field-norm", "G")
     assert run.returncode == 2 and "--field-norm G: not a number, nor a column of" in run.stderr, run.stderr
 

@@ -254,12 +254,15 @@ def test_per_reading_field_norms_bad_input_is_named():
     for bad in (np.nan, 0.0, -5.0):
         broken = norms.copy()
         broken[17] = bad
-        with pytest.raises(ValueError, match=r"field_norms: value 17 is"):
+        with pytest.raises(ValueError, match=r"field_norm: value 17 is"):  # (calibrate's argument)
             fluxcal.calibrate(s.readings, field_norm=broken)
     with pytest.raises(ValueError, match="field_norms: the vector model's reference vectors already give"):
         fluxcal.refine(start, s.readings, reference=s.readings, field_norms=norms)
     with pytest.raises(ValueError, match="field_norm: one magnitude per reading is the refinement's and TWOSTEP's"):
         fluxcal.calibrate(s.readings, field_norm=norms, method="ls")
+    # refine's keyword given to calibrate would pass its outlier screen and the rows it drops: refused
+    with pytest.raises(ValueError, match="field_norms: give each reading's |field| to calibrate as field_norm="):
+        fluxcal.calibrate(s.readings, field_norms=norms)
 
 
 def test_ordinary_fit_is_biased_at_5_percent_noise_and_als_and_refine_are_not():

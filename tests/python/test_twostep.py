@@ -304,8 +304,9 @@ def test_3d_each_readings_field_agrees_with_oracle(seed, change):
 
 def test_3d_each_readings_field_same_everywhere_is_the_one_field():
     s = simulated(3, n=600, noise=0.01)
-    one = twostep(s.readings, s.field_norm)
-    per = twostep(s.readings, np.full(len(s.readings), s.field_norm))
+    H = s.field_norm * 1.0000000123  # (a value whose mean over 600 is not itself to the last bit)
+    one = twostep(s.readings, H)
+    per = twostep(s.readings, np.full(len(s.readings), H))
     assert rel(per.offset, one.offset) < 1e-12 and rel(per.matrix, one.matrix) < 1e-12
     assert per.summary["iterations"] == one.summary["iterations"]  # (a column of 1s beside the constant one had
     # left the scoring at steps of 1e-8 to the iteration limit: the extra column holds (H_k/H)² − 1)
@@ -328,15 +329,21 @@ def test_3d_each_readings_field_recovers_the_sensor_and_one_field_does_not():
 def test_3d_each_readings_field_is_checked_and_taken_by_calibrate():
     s = simulated(4, n=400, noise=0.01)
     _, readings, norms = changing_field(s, 1 + 0.02 * np.sin(np.linspace(0, 4, 400)))
-    with pytest.raises(ValueError, match=r"field_norms: shape \(399,\), expected one magnitude per reading"):
+    with pytest.raises(ValueError, match=r"field_norm: shape \(399,\), expected one magnitude per reading"):
         twostep(readings, norms[:399])
     bad = norms.copy()
     bad[5] = -1.0
-    with pytest.raises(ValueError, match="field_norms: value 5 is -1"):
+    with pytest.raises(ValueError, match="field_norm: value 5 is -1"):
         twostep(readings, bad)
     cal = fluxcal.calibrate(readings, method="twostep", field_norm=norms, outliers="keep")
     np.testing.assert_allclose(cal.offset, twostep(readings, norms).offset, rtol=1e-12)
     assert cal.summary["method"] == "twostep"
+    glitched = norms.copy()
+    glitched[123] *= 1.5  # a spike in the |field| log: left out with its reading by the outlier screen
+    cal = fluxcal.calibrate(readings, method="twostep", field_norm=glitched)
+    assert 123 in cal.summary["outliers"]["rows"]
+    kept = np.setdiff1d(np.arange(400), cal.summary["outliers"]["rows"])
+    np.testing.assert_allclose(cal.offset, twostep(readings[kept], norms[kept]).offset, rtol=1e-12)
     with pytest.raises(ValueError, match="one magnitude per reading is the refinement's and TWOSTEP's"):
         fluxcal.calibrate(readings, method="als", field_norm=norms)
 

@@ -127,7 +127,8 @@ RefineResult refine_terms(const Calibration& start, const SamplesRef& samples, c
                           const Eigen::VectorXd& start_terms, const std::vector<std::string>& fixed = {},
                           const RefineOptions& options = {}, const SamplesRef* reference = nullptr);
 /// The magnitude model of refine_terms with the true field magnitude of each reading (`field_norms`, N values
-/// > 0), as refine takes them: the diagnosis of a recording whose field changed while the sensor turned.
+/// > 0), as refine takes them: the diagnosis of a recording whose field changed while the sensor turned. The start's
+/// offset and matrix are taken as given (fixed parameters keep them), its field_norm is not used (their mean is).
 RefineResult refine_terms(const Calibration& start, const SamplesRef& samples, const SeriesRef& field_norms,
                           const Eigen::Ref<const Eigen::MatrixXd>& features, const Eigen::VectorXd& start_terms,
                           const std::vector<std::string>& fixed = {}, const RefineOptions& options = {});

@@ -172,7 +172,7 @@ TwoStepResult twostep(const SamplesRef& samples, const TwoStepOptions& options);
 /// TWOSTEP with the true field magnitude of each reading (`field_norms`, N values > 0), as Alonso & Shuster wrote it
 /// for a spacecraft along its orbit (z_k = |B_k|² − |H_k|², the reference field's magnitude at each position), or
 /// for a field logged by a scalar magnetometer beside the sensor. The first step fits the change with its own
-/// coefficient (when the magnitudes differ by more than 1e-6), the second step each |h_k| to its H_k.
+/// coefficient (when (H_k/H̄)² has a standard deviation above 1e-6), the second step each |h_k| to its H_k.
 /// options.field_norm is not used: the Calibration's field_norm is the mean of field_norms, and the Summary's |h|
 /// statistics are of |h_k| − H_k. Throws Error as the one-magnitude form, and on field_norms of another length or
 /// with a value that is not positive and finite.

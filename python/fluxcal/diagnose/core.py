@@ -13,12 +13,11 @@ import numpy as np
 from scipy import stats
 
 from .. import _core
-from .._arrays import as_samples, held_copies
+from .._arrays import as_field_norms, as_samples, held_copies
 from ..attitude import magnetic_frame
 from ..calibration import Calibration
 from ..io.recording import UNIX_SECONDS
 from ..outliers import find_outliers
-from ..refine import as_field_norms
 from ..sim.effects import CANDIDATES, scatter_rows
 
 # Base models: (uses a reference vector, base parameters held at their start values).
@@ -200,8 +199,10 @@ class Diagnosis:
 
         return {"source": self.source, "model": self.model, "units": self.units,
                 "noise_sigma": self.noise_sigma, "noise_source": self.noise_source,
-                # |h| of the magnitude models: the mean of each reading's own when those were given
-                "field_norm": self.base.field_norm, "field_norm_per_reading": self.series.get("field_norms") is not None,
+                **({} if not isinstance(self.base, Calibration) else {  # (a cable diagnosis has no field norm)
+                    # |h| of the magnitude models: the mean of each reading's own when those were given
+                    "field_norm": self.base.field_norm,
+                    "field_norm_per_reading": self.series.get("field_norms") is not None}),
                 "significant": self.significant, "accepted": self.accepted, "confounded": self.confounded,
                 "ranking": self.ranking, "clipping": self.clipping,
                 "where": self.where, "remaining": self.remaining, "caveats": self.caveats,
@@ -432,6 +433,7 @@ def _context(data: _Data, result: dict, feats=None) -> SimpleNamespace:
     the fit's features (N × p × 3), whose modelled part is taken off the readings before they are
     calibrated into field directions (else the directions carry the effects already modelled)."""
     theta = np.asarray(result["parameters"])
+    radius = np.reshape(_field_at(data), (-1, 1))  # |h| of each reading on the model (one for all, or its own)
     if data.reference is not None:
         W = theta[3:12].reshape(3, 3)
         field = data.reference
@@ -444,8 +446,8 @@ def _context(data: _Data, result: dict, feats=None) -> SimpleNamespace:
         # combination of features reproduce them (a degenerate fit to zero residuals: non_orthogonality at
         # coefficients ±1 after a temperature scale error of 4 % was added to a real recording)
         field = (m - theta[:3]) @ np.asarray(result["matrix"]).T
-        field *= np.reshape(_field_at(data), (-1, 1)) / np.linalg.norm(field, axis=1, keepdims=True)
-    direction = np.reshape(_field_at(data), (-1, 1)) * (field / np.linalg.norm(field, axis=1, keepdims=True)) @ W.T
+        field *= radius / np.linalg.norm(field, axis=1, keepdims=True)
+    direction = radius * (field / np.linalg.norm(field, axis=1, keepdims=True)) @ W.T
     # The transducer sees the field including hard iron (a field too): the fitted model's reading b + W h, with
     # h on the fitted sphere (or the reference); `_forms` gives the other form, an electronic offset b added after.
     # Not the raw readings: a feature non-linear in them (s³, s·s_easy) carries the reading's own noise,
@@ -1840,7 +1842,7 @@ def _prepare(samples, t, temp, reference, down, field_norm, units, source, curre
         if reference is not None:
             raise ValueError("field_norm: the vector models take each reading's field from the reference vectors; "
                              "give one |field| per reading only to the magnitude models (ellipsoid, scale)")
-        norms = as_field_norms(field_norm, n)
+        norms = as_field_norms(field_norm, n, "field_norm")
     notes = []
     rows = np.arange(n)  # each reading's row in the input, for the notes
 
@@ -2013,7 +2015,8 @@ def diagnose(samples, t=None, temp=None, reference=None, gravity=None, field_nor
     else:
         given = data.field_norms if data.field_norms is not None else data.field_norm or None
         start = calibrate(data.m, field_norm=given, units=units, shape="sym")  # the full base's start
-        data.field_norm = start.field_norm
+        # (each reading's own: their mean over every reading diagnosed, not over those the start's screen kept)
+        data.field_norm = start.field_norm if data.field_norms is None else float(np.mean(data.field_norms))
     if fixed:  # a scale-only model starts from the diagonal of the full fit's W = A⁻¹
         W = np.linalg.inv(start.matrix)
         start = Calibration(offset=start.offset, matrix=np.diag(1.0 / np.diag(W)), field_norm=start.field_norm,

@@ -162,7 +162,9 @@ def detection_limits(samples, t=None, temp=None, current=None, reference=None, g
     unknown = [w for w in wanted if w not in known]
     if unknown:
         raise ValueError(f"names: unknown effect(s) {', '.join(unknown)}; known: {', '.join(known)}")
-    cal = calibrate(m, field_norm=field_norm, reference=reference)
+    # (each reading's |field| is the magnitude models' (the vector models refuse it): a reference beside it is left
+    # to the injections)
+    cal = calibrate(m, field_norm=field_norm, reference=None if np.ndim(field_norm) > 0 else reference)
     field_size = float(np.median(np.linalg.norm(m - np.asarray(cal.offset), axis=1)))
     tried = {r["effect"] for r in full.ranking}
     skipped = set(full.remaining["skipped_candidates"])

@@ -191,10 +191,11 @@ def moving_dipole_line(d, r) -> str:
               for e in r.get("episodes") or [r] if e.get("closest_s") is None)
     slow = np.ptp(t) > 0 and box > 0.5 * np.ptp(t)
     # (a magnitude model fitted to one |field|: the field's own slow change is in it too)
-    field = ("" if d.series.get("vector") or d.series.get("field_norms") is not None
-             else ", or the field itself changing (give each reading's |field|: field_norm=, --field-norm COLUMN|FILE)")
+    one_field = not d.series.get("vector") and d.series.get("field_norms") is None
     hint = (f"over most of the recording{' with its other episodes' if r.get('episodes') else ''}: more likely the "
-            f"surroundings or a soft iron changing slowly{field} than a magnet passing" if slow
+            f"surroundings{', a soft iron or the field itself' if one_field else ' or a soft iron'} changing slowly "
+            "than a magnet passing" + (" (give each reading's |field|: field_norm=, --field-norm COLUMN|FILE|igrf)"
+                                       if one_field else "") if slow
             else "a magnet, a tool or a vehicle moving near the sensor?")
     on, off = (when(x) if x is not None else end for x, end in zip((r.get("on_s"), r.get("off_s")),
                                                                    ("the start", "the end")))

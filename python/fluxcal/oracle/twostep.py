@@ -86,7 +86,7 @@ def twostep(samples, field_norm, iterate: bool = True, noise_sigma: float = -1.0
     First step: centred least squares of z_k = |u_k|² on L_k = [−(v² − u²), −(w² − u²), −2uv, −2uw, −2vw, 2u,
     2v, 2w] (E with tr E = 0 eliminated through E11; c) and, when the H_k differ, H_k² with a free coefficient;
     then M = I + E, o = M⁻¹c and the scale from the mean H_k². Second step (iterate): least_squares on
-    |A(u − o)|² − H_k² − μ over (o, M = A²), μ = ¾ var(|A(u − o)|² − H_k²)/H̄² (H̄ the mean H_k; or σ² tr A²
+    |A(u − o)|² − H_k² − μ over (o, M = A²), μ = ¾ var(|A(u − o)|² − H_k²)/mean H_k² (or σ² tr A²
     for a known noise σ, 0 for none), repeated with μ updated until it stops changing — the fixed point the
     core's scoring reaches."""
     B = np.asarray(samples, dtype=float)
@@ -94,7 +94,7 @@ def twostep(samples, field_norm, iterate: bool = True, noise_sigma: float = -1.0
     u = (B - mean) / std
     Hs = np.broadcast_to(np.asarray(field_norm, dtype=float), len(u)) / std
     H2 = Hs**2
-    changing = np.ptp(H2) > 1e-6 * H2.mean()
+    changing = np.std((Hs / Hs.mean()) ** 2 - 1.0) > 1e-6  # (the core's test)
     x, y, w = u.T
     z = (u * u).sum(axis=1)
     L = np.column_stack([-(y * y - x * x), -(w * w - x * x), -2 * x * y, -2 * x * w, -2 * y * w, 2 * x, 2 * y, 2 * w]
@@ -119,7 +119,7 @@ def twostep(samples, field_norm, iterate: bool = True, noise_sigma: float = -1.0
                 return 0.0
             if noise_sigma > 0:
                 return (noise_sigma / std) ** 2 * np.trace(_sym(p[3:]))
-            return 0.75 * raw(p).var() / Hbar**2
+            return 0.75 * raw(p).var() / H2.mean()  # var v_k ≈ (4/3) H_k² tr Σ
 
         p = np.concatenate([o, M[[0, 1, 2, 0, 0, 1], [0, 1, 2, 1, 2, 2]]])
         for _ in range(100):
