@@ -245,9 +245,11 @@ def _field_norms_given(rec: Recording, name: str, args) -> np.ndarray:
     --field-norm FILE (another recording's F, or its vector's magnitude, at this one's clock times)."""
     if name not in rec.columns and Path(name).is_file():
         return _field_norm_from(rec, name, args)
+    if name not in rec.columns and name.lower() == "igrf":
+        return _field_norm_igrf(rec, args)
     if name not in rec.columns:
         raise ValueError(f"--field-norm {name}: not a number, nor a column of {args.file} (columns: "
-                         f"{', '.join(rec.columns)}), nor a file")
+                         f"{', '.join(rec.columns)}), nor a file, nor igrf")
     if name in rec.mag_names():
         raise ValueError(f"--field-norm {name}: a magnetometer column; give the column of the true |field|")
     _take_field_units(args, rec.units.get(name, ""), f"--field-norm {name}")
@@ -259,6 +261,30 @@ def _field_norms_given(rec: Recording, name: str, args) -> np.ndarray:
                          "skip)")
     print(f"field norm of each reading from column {name}" + (f" ({rec.units[name]})" if rec.units.get(name) else ""))
     return values
+
+
+def _field_norm_igrf(rec: Recording, args) -> np.ndarray:
+    """--field-norm igrf: the IGRF's |F| at each reading's position (its latitude, longitude and altitude columns)
+    and clock time: a satellite along its orbit, a survey flight."""
+    from .positions import igrf_magnitudes
+
+    place, t = rec.position(), rec.utc_seconds()
+    if place is None:
+        raise ValueError(f"--field-norm igrf: {args.file} has no latitude and longitude columns in degrees (lat, lon "
+                         "and alt in m, or alt_km; GPS_Lat, Longitude, …) to evaluate the IGRF at")
+    if t is None:
+        raise ValueError(f"--field-norm igrf: {args.file} has no clock time (a time column of dates and times, or "
+                         "Unix seconds) to date the IGRF by")
+    lat, lon, alt, names = place
+    try:
+        norms = igrf_magnitudes(lat, lon, alt, t)
+    except ValueError as exc:
+        raise ValueError(f"--field-norm igrf: {exc}") from None
+    _take_field_units(args, "nT", "--field-norm igrf")
+    where = ", ".join(c for c in names.values() if c) + ("" if names["alt"] else "; no altitude column: 0 km")
+    print(f"field norm of each reading from the IGRF (ppigrf) at its position ({where}) and date: "
+          f"{norms.min():.1f} to {norms.max():.1f} nT")
+    return norms
 
 
 def _take_field_units(args, stated: str, what: str) -> None:
@@ -1000,8 +1026,10 @@ def build_parser() -> argparse.ArgumentParser:
     c.add_argument("--field-norm", type=norm_or_column, default=None,
                    help="known |field|, in --field-units (default: fitted; a fluxcal simulation's own metadata); or "
                         "the name of a column holding each reading's |field| (a scalar magnetometer logged beside "
-                        "it): the refinement fits each reading to its own; or a file whose F (or vector's "
-                        "magnitude) is taken at this recording's clock times (an observatory's IAGA-2002 file)")
+                        "it): the refinement and twostep fit each reading to its own; or a file whose F (or vector's "
+                        "magnitude) is taken at this recording's clock times (an observatory's IAGA-2002 file); or "
+                        "igrf: the IGRF's |F| at each reading's lat, lon, alt columns and clock time (an orbit, a "
+                        "survey flight)")
     c.add_argument("--field-units", default=None,
                    help="unit of --field-norm and of the corrected field h (default: the readings' unit; give it when "
                         "the readings are counts, e.g. --field-norm 48.2 --field-units uT)")
@@ -1075,8 +1103,9 @@ def build_parser() -> argparse.ArgumentParser:
     g.add_argument("--units", default=None, type=reading_unit, help="units of the readings when the file does not say")
     g.add_argument("--field-norm", type=norm_or_column, default=None,
                    help="known |field| (default: fitted), or each reading's: a column (a scalar magnetometer logged "
-                        "beside the sensor) or another recording with clock times (an observatory's IAGA-2002 F), "
-                        "for a field that changes while the sensor turns (the magnitude models)")
+                        "beside the sensor), another recording with clock times (an observatory's IAGA-2002 F) or "
+                        "igrf (at each reading's lat, lon, alt), for a field that changes while the sensor turns "
+                        "(the magnitude models)")
     g.add_argument("--noise-sigma", type=positive_number, default=None,
                    help="white-noise σ of the readings (default: estimated from third differences)")
     g.add_argument("--candidates", default=None, help="comma-separated effect names (default: all)")

@@ -100,8 +100,6 @@ def up_component(total, inclination) -> float:
 def igrf_field(lat: float, lon: float, alt_km: float = 0.0, date=None) -> np.ndarray:
     """IGRF field (N, E, D) in nT at geodetic latitude/longitude (degrees), altitude (km above the
     ellipsoid) and date (datetime.date/datetime or 'YYYY-MM-DD'; default today), from `ppigrf`."""
-    import ppigrf
-
     if date is None:
         date = _dt.date.today()
     if isinstance(date, str):
@@ -113,8 +111,19 @@ def igrf_field(lat: float, lon: float, alt_km: float = 0.0, date=None) -> np.nda
         date = _dt.datetime(date.year, date.month, date.day)
     if not (-90.0 <= lat <= 90.0) or not np.isfinite(lon):
         raise ValueError(f"lat/lon: ({lat}, {lon}) is not a place on Earth")
-    # ppigrf returns NaN before its first epoch and silently holds the last secular variation after the
-    # model's end (printing a warning): refuse both rather than return a wrong field.
+    be, bn, bu = _igrf(lon, lat, alt_km, date, "give the field directly (--field N,E,D or total/inclination)")
+    f = np.array([float(np.squeeze(bn)), float(np.squeeze(be)), -float(np.squeeze(bu))])
+    if not np.all(np.isfinite(f)):
+        raise ValueError(f"IGRF (ppigrf) gave no finite field at ({lat}, {lon}), {date:%Y-%m-%d}")
+    return f
+
+
+def _igrf(lon, lat, alt_km, date: _dt.datetime, otherwise: str):
+    """ppigrf's (east, north, up) at one date, or ValueError for a date outside its model (`otherwise`: what to
+    do instead). ppigrf returns NaN before its first epoch and silently holds the last secular variation after
+    the model's end (printing a warning): both are refused rather than a wrong field returned."""
+    import ppigrf
+
     try:
         from ppigrf.ppigrf import read_shc
 
@@ -124,15 +133,40 @@ def igrf_field(lat: float, lon: float, alt_km: float = 0.0, date=None) -> np.nda
         first, last = _dt.datetime(1900, 1, 1), _dt.datetime(2030, 1, 1)
     if not (first <= date <= last):
         raise ValueError(f"date: {date:%Y-%m-%d} is outside the IGRF model of ppigrf ({first:%Y-%m-%d} to "
-                         f"{last:%Y-%m-%d}); give the field directly (--field N,E,D or total/inclination)")
+                         f"{last:%Y-%m-%d}); {otherwise}")
     try:
-        be, bn, bu = ppigrf.igrf(lon, lat, alt_km, date)
+        return ppigrf.igrf(lon, lat, alt_km, date)
     except Exception as exc:  # ppigrf raises plain exceptions for dates outside its model
         raise ValueError(f"IGRF (ppigrf) cannot evaluate {date:%Y-%m-%d}: {exc}") from None
-    f = np.array([float(np.squeeze(bn)), float(np.squeeze(be)), -float(np.squeeze(bu))])
-    if not np.all(np.isfinite(f)):
-        raise ValueError(f"IGRF (ppigrf) gave no finite field at ({lat}, {lon}), {date:%Y-%m-%d}")
-    return f
+
+
+def igrf_magnitudes(lat, lon, alt_km, utc_seconds) -> np.ndarray:
+    """|F| in nT of the IGRF at each reading: geodetic latitude and longitude (degrees), altitude above the
+    ellipsoid (km) and UTC time (seconds since 1970), from ppigrf — the known field magnitude of each reading
+    along a track (a satellite's orbit, a survey flight) for TWOSTEP or the refinement. Evaluated once per UTC
+    day, at the mean time of that day's readings: the main field changes by well under 1 nT a day."""
+    lat, lon, alt, t = (np.asarray(a, dtype=float).ravel() for a in (lat, lon, alt_km, utc_seconds))
+    if not len(lat) == len(lon) == len(alt) == len(t):
+        raise ValueError(f"igrf_magnitudes: {len(lat)} latitudes, {len(lon)} longitudes, {len(alt)} altitudes and "
+                         f"{len(t)} times; give one of each per reading")
+    for name, values, ok in (("latitude", lat, np.abs(lat) <= 90.0), ("longitude", lon, np.isfinite(lon)),
+                             ("altitude", alt, np.isfinite(alt) & (alt > -20.0)), ("time", t, np.isfinite(t))):
+        bad = np.flatnonzero(~ok)
+        if bad.size:
+            raise ValueError(f"{name}: reading {bad[0]} is {values[bad[0]]:g}, not a place (latitude within ±90°, "
+                             "altitude in km above the ellipsoid) at a finite time")
+    out = np.empty(len(lat))
+    days = np.floor(t / 86400.0)
+    for day in np.unique(days):
+        on = days == day
+        when = _dt.datetime.fromtimestamp(float(t[on].mean()), _dt.timezone.utc).replace(tzinfo=None)
+        be, bn, bu = _igrf(lon[on], lat[on], alt[on], when, "give each reading's |field| as a column or a file")
+        out[on] = np.sqrt(np.square(be) + np.square(bn) + np.square(bu)).ravel()
+    if not np.all(np.isfinite(out)):
+        bad = int(np.flatnonzero(~np.isfinite(out))[0])
+        raise ValueError(f"IGRF (ppigrf) gave no finite field at reading {bad} ({lat[bad]}, {lon[bad]}, "
+                         f"{alt[bad]} km)")
+    return out
 
 
 def reference_field(field=None, *, total=None, inclination=None, declination=0.0, lat=None, lon=None,
@@ -475,7 +509,7 @@ def average_positions(ids, *arrays):
 
 __all__ = ["FRAMES", "PRESETS", "TWELVE", "STANDARD_GRAVITY", "AccelerometerCalibration", "PositionsResult",
            "attitude_rotations", "average_positions", "calibrate", "calibrate_accelerometer", "closed_form_twelve",
-           "field_from_inclination", "fit", "igrf_field", "inclination_of", "pitch_roll", "pitch_sensitivity",
+           "field_from_inclination", "fit", "igrf_field", "igrf_magnitudes", "inclination_of", "pitch_roll", "pitch_sensitivity",
            "preset_rotations", "reference_field", "to_local", "up_component", "verification_report"]
 
 

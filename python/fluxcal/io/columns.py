@@ -372,6 +372,43 @@ def _named_by_degrees(names):
     return hits[0] if len(hits) == 1 else None
 
 
+# a reading's place on Earth (GPS/GNSS logs, a satellite's orbit): the IGRF's field there
+LATITUDE_WORDS, LONGITUDE_WORDS = {"lat", "latitude"}, {"lon", "lng", "long", "longitude"}
+ALTITUDE_WORDS = {"alt", "altitude", "height"}
+POSITION_OWNERS = {"gps", "gnss", "pos", "position", "geodetic", "wgs84"}
+ANGLE_UNITS = {"deg", "degree", "degrees", "°"}
+ALTITUDE_UNITS = {"m": 1e-3, "km": 1.0, "ft": 0.3048e-3}  # → km
+
+
+def find_position(names, units: dict):
+    """{"lat": column, "lon": column, "alt": column or None, "alt_km": factor to km} of the only latitude and
+    longitude columns (lat, Latitude, GPS_Lat, lat [deg]; in degrees: another stated unit is not guessed), with
+    the only altitude column (alt, Altitude, height; m unless its stated unit or name says km or ft), else None."""
+    def only(kind_words, unit_words):
+        hits = []
+        for name in names:
+            ws = words(name)
+            unit = ws[-1] if len(ws) > 1 and ws[-1] in unit_words else None
+            ws = ws[:-1] if unit else ws
+            if ws and set(ws) & kind_words and set(ws) <= kind_words | POSITION_OWNERS:
+                hits.append(name)
+        return hits[0] if len(hits) == 1 else None
+
+    lat, lon = only(LATITUDE_WORDS, ANGLE_UNITS), only(LONGITUDE_WORDS, ANGLE_UNITS)
+    if lat is None or lon is None or any((units.get(c) or "").strip().lower() not in ANGLE_UNITS | {""}
+                                         for c in (lat, lon)):
+        return None
+    alt = only(ALTITUDE_WORDS, set(ALTITUDE_UNITS))
+    factor = 1e-3
+    if alt is not None:
+        stated = (units.get(alt) or "").strip().lower()
+        word = words(alt)[-1]
+        factor = ALTITUDE_UNITS.get(stated) if stated else ALTITUDE_UNITS.get(word, 1e-3)
+        if factor is None:  # a stated unit that is no length
+            alt, factor = None, 1e-3
+    return {"lat": lat, "lon": lon, "alt": alt, "alt_km": factor}
+
+
 def find_current(names, units: dict):
     """(column, factor to amperes) or None: the column current, else the only one named by a current word
     (current, curr, amps) with at most whose current it is (motor, battery, heater, ...) and a unit (A,

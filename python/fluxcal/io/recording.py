@@ -8,7 +8,7 @@ import numpy as np
 from .._arrays import first_nonfinite, units_text
 
 UNIX_SECONDS = (1e8, 1e10)  # times in this range are clock times (Unix seconds, 1973 to 2286), not seconds from a start
-from .columns import (TO_CELSIUS, field_unit_of, unit_name, find_accelerometer, find_current, find_magnetometer, find_temperature, find_time,
+from .columns import (TO_CELSIUS, field_unit_of, unit_name, find_accelerometer, find_current, find_magnetometer, find_position, find_temperature, find_time,
                       sample_rate)
 
 MAG_COLUMNS = ("mx", "my", "mz")
@@ -130,6 +130,16 @@ class Recording:
         in A or mA by its unit), or None."""
         hit = find_current(self.columns, self.units)
         return None if hit is None else self.columns[hit[0]] * hit[1]
+
+    def position(self):
+        """(latitude °, longitude °, altitude km, {"lat", "lon", "alt": column names}) of each reading, from the
+        columns `find_position` names (altitude 0 without one), or None."""
+        hit = find_position(self.columns, self.units)
+        if hit is None:
+            return None
+        alt = self.columns[hit["alt"]] * hit["alt_km"] if hit["alt"] else np.zeros(len(self.columns[hit["lat"]]))
+        return (self.columns[hit["lat"]], self.columns[hit["lon"]], alt,
+                {k: hit[k] for k in ("lat", "lon", "alt")})
 
     def acceleration(self):
         """The accelerometer, N×3 (ax,ay,az, else a triple recognised by name such as AccX, accel_x), or None."""
