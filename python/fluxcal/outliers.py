@@ -226,7 +226,8 @@ def find_outliers(samples, reference=None, alpha: float = 0.01, seed: int = 0, f
         z = z_new
         if not changed:
             break
-    return _verdicts(m, z, threshold, float(sigma))
+    return _verdicts(m, z, threshold, float(sigma),
+                     "the ellipsoid" if field_norms is None else "the ellipsoid (each against its own |field|)")
 
 
 def _verdicts(m: np.ndarray, z: np.ndarray, threshold: float, sigma: float, model: str = "the ellipsoid") -> Outliers:
