@@ -141,27 +141,6 @@ void for_each_packed_block(const SamplesRef& readings, F&& f) {
 
 using detail::percent;
 
-// Thinnest/widest standard deviation of the normalised readings, from the first two moments.
-// Eigenvalues of the readings' covariance (ascending) and their mean, from the moments.
-std::pair<Eigen::Vector3d, Eigen::Vector3d> spread(const EllipsoidMoments& mom,
-                                                   const Eigen::Matrix<double, 10, 10>& scatter) {
-  const double n = static_cast<double>(mom.count());
-  // scatter(9, 6..8) = Σ 2u etc.; scatter(0..5, 9) = Σ u², Σ 2uv ...
-  const Eigen::Vector3d mean = scatter.block<1, 3>(9, 6).transpose() / (2.0 * n);
-  Eigen::Matrix3d second;
-  second << scatter(0, 9), scatter(3, 9) / 2, scatter(4, 9) / 2,  //
-      scatter(3, 9) / 2, scatter(1, 9), scatter(5, 9) / 2,        //
-      scatter(4, 9) / 2, scatter(5, 9) / 2, scatter(2, 9);
-  const Eigen::Matrix3d cov = second / n - mean * mean.transpose();
-  return {Eigen::SelfAdjointEigenSolver<Eigen::Matrix3d>(cov, Eigen::EigenvaluesOnly).eigenvalues(), mean};
-}
-
-double coverage_ratio(const EllipsoidMoments& mom, const Eigen::Matrix<double, 10, 10>& scatter) {
-  const Eigen::Vector3d ev = spread(mom, scatter).first;
-  if (!(ev(2) > 0.0)) return 0.0;
-  return std::sqrt(std::max(ev(0), 0.0) / ev(2));
-}
-
 }  // namespace
 
 // ---- EllipsoidMoments ----------------------------------------------------------------------------
@@ -294,21 +273,12 @@ EllipsoidResult solve(const EllipsoidMoments& mom, const EllipsoidOptions& opt) 
   EllipsoidResult out;
   Summary& sum = out.summary;
   sum.samples = mom.count();
-  sum.coverage_ratio = coverage_ratio(mom, S);
-  const auto [ev, mean] = spread(mom, S);
+  sum.coverage_ratio = detail::coverage_ratio(S);
+  const auto [ev, mean] = detail::spread(S);
   if (!(ev(2) > 1e-20 * (1.0 + mean.squaredNorm())))  // to rounding: every reading the same
     throw Error("samples: all " + std::to_string(mom.count()) + " readings are the same (a sensor that is stuck, "
                 "not updating, or was never turned); " + std::string(detail::kTurnAdvice));
-  // A sensor that was hardly turned (a static log) leaves noise about one point, which the failures below would
-  // blame on the quadric's shape: they say so. Turned through the field's directions, readings spread over a
-  // sphere of the field's radius, more than 1 % of their mean magnitude unless the offset is fifty fields.
-  const double widest = mom.scale() * std::sqrt(std::max(ev(2), 0.0));
-  const double level = (mom.centre() + mom.scale() * mean).norm();
-  const std::string hardly_turned =
-      widest < 0.01 * level ? "; the readings hardly change (their widest spread is " + percent(widest / level) +
-                                  " of their mean magnitude): was the sensor turned at all? (or are they counts "
-                                  "about a large constant, an unsigned ADC's mid-scale?)"
-                            : "";
+  const std::string hardly_turned = detail::hardly_turned(S, mom.centre(), mom.scale());  // (for the failures below)
   if (sum.coverage_ratio < opt.planar_ratio) {
     throw Error("samples: the readings lie nearly in one plane (thinnest/widest spread " +
                 percent(sum.coverage_ratio) +

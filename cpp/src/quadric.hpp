@@ -1,5 +1,5 @@
 // Internal (not installed): the centre and shape of a fitted quadric uᵀMu + 2vᵀu + k = 0 that must
-// be a real ellipsoid — shared by the ellipsoid fit and the TWOSTEP first step.
+// be a real ellipsoid, and the spread of the readings it is fitted to — shared by the ellipsoid fit and TWOSTEP.
 #pragma once
 
 #include "fluxcal/types.hpp"
@@ -12,6 +12,42 @@
 #include <string>
 
 namespace fluxcal::detail {
+
+/// The spread of the normalised readings u from the moments' 10×10 scatter of the design rows
+/// [u², v², w², 2uv, 2uw, 2vw, 2u, 2v, 2w, 1]: the eigenvalues (ascending) of their covariance, and their mean.
+inline std::pair<Eigen::Vector3d, Eigen::Vector3d> spread(const Eigen::Matrix<double, 10, 10>& scatter) {
+  const double n = scatter(9, 9);
+  const Eigen::Vector3d mean = scatter.block<1, 3>(9, 6).transpose() / (2.0 * n);
+  Eigen::Matrix3d second;
+  second << scatter(0, 9), scatter(3, 9) / 2, scatter(4, 9) / 2,  //
+      scatter(3, 9) / 2, scatter(1, 9), scatter(5, 9) / 2,        //
+      scatter(4, 9) / 2, scatter(5, 9) / 2, scatter(2, 9);
+  const Eigen::Matrix3d cov = second / n - mean * mean.transpose();
+  return {Eigen::SelfAdjointEigenSolver<Eigen::Matrix3d>(cov, Eigen::EigenvaluesOnly).eigenvalues(), mean};
+}
+
+/// Thinnest/widest standard deviation of the normalised readings (0: on a plane or a line).
+inline double coverage_ratio(const Eigen::Matrix<double, 10, 10>& scatter) {
+  const Eigen::Vector3d ev = spread(scatter).first;
+  if (!(ev(2) > 0.0)) return 0.0;
+  return std::sqrt(std::max(ev(0), 0.0) / ev(2));
+}
+
+/// A sensor that was hardly turned (a static log) leaves noise about one point, which a fit's failures would blame
+/// on the quadric's shape or on a plane: "; the readings hardly change (…)" for their messages when the widest
+/// spread is under 1 % of the readings' mean magnitude, else "". Turned through the field's directions, readings
+/// spread over a sphere of the field's radius, more than that unless the offset is fifty fields. `centre` and
+/// `scale`: the normalisation u = (m − centre)/scale.
+inline std::string hardly_turned(const Eigen::Matrix<double, 10, 10>& scatter, const Eigen::Vector3d& centre,
+                                 double scale) {
+  const auto [ev, mean] = spread(scatter);
+  const double widest = scale * std::sqrt(std::max(ev(2), 0.0));
+  const double level = (centre + scale * mean).norm();
+  if (!(widest < 0.01 * level)) return "";
+  return "; the readings hardly change (their widest spread is " + percent(widest / level) +
+         " of their mean magnitude): was the sensor turned at all? (or are they counts about a large constant, an "
+         "unsigned ADC's mid-scale?)";
+}
 
 struct EllipsoidShape {
   Eigen::SelfAdjointEigenSolver<Eigen::Matrix3d> eig;  ///< of M

@@ -444,18 +444,6 @@ Eigen::Matrix<double, 9, 11> jacobian_map(const Eigen::Vector3d& q, const Eigen:
   return T;
 }
 
-// Thinnest/widest standard deviation of the normalised readings, from the scatter's first two moments.
-double coverage_ratio(const Mat10& S) {
-  const double n = S(9, 9);
-  const Eigen::Vector3d mean = S.block<1, 3>(9, 6).transpose() / (2.0 * n);
-  Eigen::Matrix3d second;
-  second << S(0, 9), S(3, 9) / 2, S(4, 9) / 2, S(3, 9) / 2, S(1, 9), S(5, 9) / 2, S(4, 9) / 2, S(5, 9) / 2, S(2, 9);
-  const Eigen::Matrix3d cov = second / n - mean * mean.transpose();
-  const Eigen::Vector3d ev = Eigen::SelfAdjointEigenSolver<Eigen::Matrix3d>(cov, Eigen::EigenvaluesOnly).eigenvalues();
-  if (!(ev(2) > 0.0)) return 0.0;
-  return std::sqrt(std::max(ev(0), 0.0) / ev(2));
-}
-
 struct Model3D {
   Eigen::Vector3d q;
   Eigen::Matrix3d N;
@@ -551,11 +539,11 @@ TwoStepResult twostep_fit(const SamplesRef& samples, const TwoStepOptions& optio
   TwoStepResult out;
   Summary& sum = out.summary;
   sum.samples = mom.count();
-  sum.coverage_ratio = coverage_ratio(S10);
+  sum.coverage_ratio = detail::coverage_ratio(S10);
   if (sum.coverage_ratio < options.planar_ratio)
     throw Error("samples: the readings lie nearly in one plane (thinnest/widest spread " + percent(sum.coverage_ratio) +
                 "), so the first step of the two-step calibration is rank deficient — " + std::string(detail::kTurnAdvice) +
-                ", or " + std::string(detail::kTwoDAdvice));
+                ", or " + std::string(detail::kTwoDAdvice) + detail::hardly_turned(S10, centre, scale));
 
   // First step (centred, tr E = 0): minimise Σ (aᵀ(d_k − d̄) − λ(ε_k − ε̄))² over the 9 non-constant quadric
   // coefficients a with a0 + a1 + a2 = 3 (tr N′ = tr(I + E) = 3) and, when the field's magnitude changes, its

@@ -209,6 +209,8 @@ def test_a_sensor_never_turned_is_told_so():
     flat[:, 2] = 410.0
     with pytest.raises(ValueError, match=r"nearly in one plane .*; the readings hardly change"):
         fluxcal.fit_ellipsoid(flat)
+    with pytest.raises(ValueError, match=r"nearly in one plane .*; the readings hardly change"):
+        fluxcal.twostep(flat, 540.0)  # TWOSTEP's own check says it too
 
 
 def test_a_scalar_argument_that_is_not_a_number_is_named():
