@@ -620,8 +620,7 @@ def cmd_diagnose(args) -> int:
                          "corrected field against the reference")
     candidates = args.candidates.split(",") if args.candidates else None
     field_norm = args.field_norm
-    if isinstance(field_norm, str):  # (no --field-units here: |h| is fitted in the unit of the |field| given)
-        args.field_units = ""
+    if isinstance(field_norm, str):
         field_norm = _field_norms_given(rec, field_norm, args)
     with warnings.catch_warnings():  # the report prints its caveats (CAVEAT: …): not twice
         warnings.filterwarnings("ignore", message="t: readings")
@@ -1123,7 +1122,9 @@ def build_parser() -> argparse.ArgumentParser:
     g.add_argument("--json", default=None, help="write the ranking and tables (JSON)")
     g.add_argument("--report", default=None, help="folder for the report: summary, figures, index.html")
     g.add_argument("--quiet", action="store_true", help="no progress bar")
-    g.set_defaults(run=cmd_diagnose)
+    # (no --field-units: the base model's |h| is in the unit of the |field| given, which --field-norm's readers
+    # note here as calibrate's do)
+    g.set_defaults(run=cmd_diagnose, field_units="")
 
     k = sub.add_parser("cable", help="multicore-cable current ring: simulate, calibrate (TWOSTEP per sensor), solve")
     ksub = k.add_subparsers(dest="cable_command", required=True)
