@@ -84,6 +84,10 @@ def units_text(units) -> str:
 def as_number(value, name: str) -> float:
     """A scalar argument as a float; anything that is not one a ValueError naming it (float's own message,
     "could not convert string to float: 'abc'", names no argument)."""
+    if np.ndim(value) > 0:  # float() of an array is a deprecation warning, then an error that names no size
+        if np.size(value) != 1:
+            raise ValueError(f"{name}: {np.size(value)} values where one number is taken")
+        value = np.ravel(value)[0]
     try:
         return float(value)
     except (TypeError, ValueError):

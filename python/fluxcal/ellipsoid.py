@@ -25,6 +25,9 @@ def _options(field_norm, units, method="ls", **settings):
     if method not in METHODS:
         raise ValueError(f"method: {method!r} is not one of {', '.join(METHODS)}")
     options.method = METHODS[method]
+    if np.size(field_norm) > 1:
+        raise ValueError(f"field_norm: {np.size(field_norm)} values; the ellipsoid fit takes one |field| (each "
+                         "reading's own: fluxcal.calibrate, refine or twostep)")
     options.field_norm = 0.0 if field_norm is None else as_number(field_norm, "field_norm")
     options.units = units_text(units)
     return set_options(options, settings, "fit_ellipsoid")
