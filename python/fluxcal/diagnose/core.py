@@ -1850,6 +1850,7 @@ def _prepare(samples, t, temp, reference, down, field_norm, units, source, curre
         nonlocal m, t, rows, temp, reference, down, current, norms
         m, t, rows, temp, reference, down, current, norms = (
             None if a is None else a[keep] for a in (m, t, rows, temp, reference, down, current, norms))
+
     copied = _repeated_blocks(m if temp is None else np.column_stack([m, temp]))
     if copied.any():  # the copies add no information, yet would double the evidence and fake a jump where they join
         starts = np.flatnonzero(np.diff(np.concatenate([[0], copied.astype(int)])) == 1)
