@@ -419,7 +419,7 @@ Mat11 design_scatter(const Mat10& S, const SamplesRef& samples, const Eigen::Vec
   return out;
 }
 
-// ∂R_k/∂θ = T d_k for θ = [q0 q1 q2 N00 N11 N22 N01 N02 N12] (the Jacobian is quadratic in u too; e_k's
+// ∂R_k/∂θ = T d_k for θ = [q0 q1 q2 N00 N11 N22 N01 N02 N12] (the Jacobian is quadratic in u too; ε_k's
 // column is zero).
 Eigen::Matrix<double, 9, 11> jacobian_map(const Eigen::Vector3d& q, const Eigen::Matrix3d& N) {
   Eigen::Matrix<double, 9, 11> T = Eigen::Matrix<double, 9, 11>::Zero();
