@@ -398,24 +398,37 @@ Vec11 quadric(const Eigen::Vector3d& q, const Eigen::Matrix3d& N, double mu) {
   return p;
 }
 
-// The scatter of the design rows [d_k, ε_k] from the ellipsoid moments' 10×10 scatter of d_k and, with each
-// reading's field magnitude (`relative`: H_k/H), one more pass for the sums of ε_k d_k and ε_k².
-Mat11 design_scatter(const Mat10& S, const SamplesRef& samples, const Eigen::Vector3d& centre, double scale,
-                     const Eigen::VectorXd* relative) {
-  Mat11 out;
-  out.topLeftCorner<10, 10>() = S;
-  Vec11 ed = Vec11::Zero();  // ε_k = 0 for one field magnitude
-  if (relative) {
-    for (Eigen::Index i = 0; i < samples.rows(); ++i) {
-      const double u = (samples(i, 0) - centre(0)) / scale, v = (samples(i, 1) - centre(1)) / scale,
-                   w = (samples(i, 2) - centre(2)) / scale, e = (*relative)(i) * (*relative)(i) - 1.0;
-      Vec11 d;
-      d << u * u, v * v, w * w, 2 * u * v, 2 * u * w, 2 * v * w, 2 * u, 2 * v, 2 * w, 1.0, e;
-      ed += e * d;
-    }
+// The scatters of the design rows [d_k, ε_k]: `plain` Σ d dᵀ (the first step's), and `weighted` Σ w_k d dᵀ with
+// w_k = (H/H_k)² (the second step's: R_k's variance grows as H_k², A&S weigh by its inverse). For one field
+// magnitude both are the ellipsoid moments' 10×10 scatter with a zero ε column; with each reading's (`relative`:
+// H_k/H) one more pass gives the ε column and the weighted scatter.
+struct DesignScatter {
+  Mat11 plain, weighted;
+};
+
+DesignScatter design_scatter(const Mat10& S, const SamplesRef& samples, const Eigen::Vector3d& centre, double scale,
+                             const Eigen::VectorXd* relative) {
+  DesignScatter out;
+  out.plain.setZero();
+  out.plain.topLeftCorner<10, 10>() = S;
+  if (!relative) {
+    out.weighted = out.plain;
+    return out;
   }
-  out.col(10) = ed;
-  out.row(10) = ed.transpose();
+  Vec11 ed = Vec11::Zero();
+  out.weighted.setZero();
+  for (Eigen::Index i = 0; i < samples.rows(); ++i) {
+    const double u = (samples(i, 0) - centre(0)) / scale, v = (samples(i, 1) - centre(1)) / scale,
+                 w = (samples(i, 2) - centre(2)) / scale, r2 = (*relative)(i) * (*relative)(i), e = r2 - 1.0;
+    Vec11 d;
+    d << u * u, v * v, w * w, 2 * u * v, 2 * u * w, 2 * v * w, 2 * u, 2 * v, 2 * w, 1.0, e;
+    ed += e * d;
+    out.weighted.selfadjointView<Eigen::Lower>().rankUpdate(d, 1.0 / r2);
+  }
+  const Mat11 full = out.weighted.selfadjointView<Eigen::Lower>();  // (not assigned onto itself: aliasing)
+  out.weighted = full;
+  out.plain.col(10) = ed;
+  out.plain.row(10) = ed.transpose();
   return out;
 }
 
@@ -449,16 +462,15 @@ struct Model3D {
   Eigen::Matrix3d N;
 };
 
-// Noise mean μ′ = μ/H² at the current estimate (header: A&S's E[v_k]); var v_k ≈ (4/3) H_k² tr Σ_ε, so from the
-// residuals μ′ = ¾ var R / mean (H_k/H)² (`mean_ratio2`, 1 for one field magnitude).
-double noise_mean(const Mat11& S, const Model3D& m, double noise_sigma, double scale, double mean_ratio2) {
+// Noise mean μ′ = μ/H² at the current estimate (header: A&S's E[v_k]) from the weighted scatter `Sw` of n
+// readings: var v_k ≈ (4/3) H_k² tr Σ_ε, so μ′ = ¾ Σ w_k (R_k − R̄)²/n with the weights w_k = (H/H_k)² and R̄ their
+// weighted mean (for one field magnitude, every w_k = 1: ¾ of the residuals' variance).
+double noise_mean(const Mat11& Sw, double n, const Model3D& m, double noise_sigma, double scale) {
   if (noise_sigma == 0.0) return 0.0;
   if (noise_sigma > 0.0) return noise_sigma * noise_sigma * m.N.trace() / (scale * scale);
-  const double n = S(9, 9);
   const Vec11 p = quadric(m.q, m.N, 0.0);
-  const double mean = p.dot(S.col(9)) / n;
-  const double var = std::max(0.0, p.dot(S * p) / n - mean * mean);
-  return 0.75 * var / mean_ratio2;
+  const double total = p.dot(Sw.col(9));  // Σ w_k R_k
+  return 0.75 * std::max(0.0, p.dot(Sw * p) - total * total / Sw(9, 9)) / n;
 }
 
 // The calibration (offset, A) of a model: A = (H/scale) N^½ (N's negative eigenvalues, of a model run off, as 0).
@@ -533,7 +545,9 @@ TwoStepResult twostep_fit(const SamplesRef& samples, const TwoStepOptions& optio
     throw Error("samples: values too large, their fourth powers overflow");
   }
   const Mat10 S10 = mom.scatter();
-  const Mat11 S = design_scatter(S10, samples, centre, scale, relative);
+  const DesignScatter scatters = design_scatter(S10, samples, centre, scale, relative);
+  const Mat11& S = scatters.plain;
+  const Mat11& Sw = scatters.weighted;
   const double n = S(9, 9);
 
   TwoStepResult out;
@@ -597,7 +611,7 @@ TwoStepResult twostep_fit(const SamplesRef& samples, const TwoStepOptions& optio
   m.N = Np * (mean_ratio2 / rho2);  // the scale from H: (u − q)ᵀ N (u − q) = 1 + ε_k ⇔ |h| = H_k
   const Model3D first = m;
 
-  // Second step: Fisher scoring (Gauss–Newton) on Σ R_k², all sums from the scatter.
+  // Second step: Fisher scoring (Gauss–Newton) on Σ w_k R_k², all sums from the weighted scatter.
   double mu = 0.0;
   sum.condition_number = first_condition;
   sum.converged = true;
@@ -606,11 +620,11 @@ TwoStepResult twostep_fit(const SamplesRef& samples, const TwoStepOptions& optio
     bool failed = false;
     double last_step = kInf;
     for (int it = 0; it < options.max_iterations; ++it) {
-      mu = noise_mean(S, m, options.noise_sigma, scale, mean_ratio2);  // held fixed within the iteration
+      mu = noise_mean(Sw, n, m, options.noise_sigma, scale);  // held fixed within the iteration
       const Vec11 p = quadric(m.q, m.N, mu);
       const Eigen::Matrix<double, 9, 11> T = jacobian_map(m.q, m.N);
-      const Mat9 F = T * S * T.transpose();
-      const Vec9 g = T * (S * p);
+      const Mat9 F = T * Sw * T.transpose();
+      const Vec9 g = T * (Sw * p);
       Vec9 delta;
       if (!(solve_scaled<9>(F, Vec9(-g), delta) < kInf)) {
         failed = true;
@@ -631,13 +645,13 @@ TwoStepResult twostep_fit(const SamplesRef& samples, const TwoStepOptions& optio
         sum.converged = true;
         break;
       }
-      const double cost = p.dot(S * p);
+      const double cost = p.dot(Sw * p);
       double t = 1.0, trial = kInf;
       Model3D next;
       for (int ls = 0; ls < kLineSearchSteps; ++ls, t *= 0.5) {
         next = step(t);
         const Vec11 pn = quadric(next.q, next.N, mu);
-        trial = pn.dot(S * pn);
+        trial = pn.dot(Sw * pn);
         if (trial < cost) break;
       }
       if (!(trial < cost)) {  // no decrease along a descent direction: at the minimum to rounding
@@ -648,10 +662,10 @@ TwoStepResult twostep_fit(const SamplesRef& samples, const TwoStepOptions& optio
       m = next;
       sum.iterations = it + 1;
     }
-    mu = noise_mean(S, m, options.noise_sigma, scale, mean_ratio2);
+    mu = noise_mean(Sw, n, m, options.noise_sigma, scale);
     const Mat9 F = [&] {
       const Eigen::Matrix<double, 9, 11> T = jacobian_map(m.q, m.N);
-      return Mat9(T * S * T.transpose());
+      return Mat9(T * Sw * T.transpose());
     }();
     Vec9 unused;
     sum.condition_number = solve_scaled<9>(F, Vec9::Zero(), unused);
@@ -663,7 +677,7 @@ TwoStepResult twostep_fit(const SamplesRef& samples, const TwoStepOptions& optio
   }
   {
     const Vec11 p = quadric(m.q, m.N, mu);
-    sum.cost = p.dot(S * p) / n;
+    sum.cost = p.dot(Sw * p) / n;
   }
 
   Eigen::SelfAdjointEigenSolver<Eigen::Matrix3d> eig(m.N);

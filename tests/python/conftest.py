@@ -42,8 +42,8 @@ def changing_field(s, k):
     return clean, clean + (s.readings - s.clean), k * s.field_norm
 
 
-def changing_field_errors(fit, runs: int = 200, seed: int = 7) -> dict:
-    """The Monte-Carlo of a field whose magnitude changes by ±2 % while the sensor turns (N = 300, σ = 1 % of
+def changing_field_errors(fit, runs: int = 200, seed: int = 7, change: float = 0.02) -> dict:
+    """The Monte-Carlo of a field whose magnitude changes by ±`change` while the sensor turns (N = 300, σ = 1 % of
     |field|, soft iron ±10 %, offset ≤ 50 %; test_refine's bound_sensor): each run's errors of θ = [b, A's upper
     triangle] over √CRLB for `fit(readings, field_norm)` → θ, given each reading's |field| ("own") and one |field|
     for all ("one"); with "rms" the RMS of each group (offset, matrix) and "mean" the largest |mean error|."""
@@ -54,7 +54,7 @@ def changing_field_errors(fit, runs: int = 200, seed: int = 7) -> dict:
     z = {"own": [], "one": []}
     for run in range(runs):
         s = sim.simulate(sim.uniform(300, rng), effects, field, rng)
-        clean, readings, norms = changing_field(s, 1 + 0.02 * np.sin(np.linspace(0, 3, 300) + run))
+        clean, readings, norms = changing_field(s, 1 + change * np.sin(np.linspace(0, 3, 300) + run))
         truth = s.true_calibration()
         bound = np.sqrt(np.diag(crlb(truth, clean, noise * H)))
         for name, given in (("own", norms), ("one", H)):

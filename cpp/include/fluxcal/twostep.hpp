@@ -44,9 +44,8 @@
 // noisy readings as regressors). The offset is unbiased to that order on a well-covered sphere.
 // With each reading's own |H_k| (A&S's general case) the centring leaves H_k² − mean H² in z_k: the first step
 // fits it with a free coefficient beside the trace-normalised quadric, and the second step's objective is
-// Σ (|A(m_k − o)|² − H_k² − μ)², its sums from the moments and one more pass (Σ H_k² d_k, Σ H_k⁴). Its readings
-// are not weighted by 1/H_k² (their v_k's variance): for fields within a few per cent of each other that costs
-// nothing measurable; the maximum-likelihood refinement (refine with field_norms) weighs them exactly.
+// Σ (|A(m_k − o)|² − H_k² − μ)²/H_k², each reading weighted by the inverse of its v_k's variance (∝ H_k², as A&S
+// weigh), its sums from the moments and one more pass over the readings.
 // Result in fluxcal's convention h = A (m − o): A = I + D (symmetric positive definite),
 // o = (I + D)⁻¹ b.
 #pragma once

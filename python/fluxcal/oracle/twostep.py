@@ -86,9 +86,9 @@ def twostep(samples, field_norm, iterate: bool = True, noise_sigma: float = -1.0
     First step: centred least squares of z_k = |u_k|² on L_k = [−(v² − u²), −(w² − u²), −2uv, −2uw, −2vw, 2u,
     2v, 2w] (E with tr E = 0 eliminated through E11; c) and, when the H_k differ, H_k² with a free coefficient;
     then M = I + E, o = M⁻¹c and the scale from the mean H_k². Second step (iterate): least_squares on
-    |A(u − o)|² − H_k² − μ over (o, M = A²), μ = ¾ var(|A(u − o)|² − H_k²)/mean H_k² (or σ² tr A²
-    for a known noise σ, 0 for none), repeated with μ updated until it stops changing — the fixed point the
-    core's scoring reaches."""
+    (|A(u − o)|² − H_k² − μ)/H_k over (o, M = A²) (a residual's variance grows as H_k²), with r_k = |A(u − o)|² −
+    H_k² and r̄ their mean weighted by 1/H_k², μ = ¾ mean((r_k − r̄)²/H_k²) (or σ² tr A² for a known noise σ, 0
+    for none), repeated with μ updated until it stops changing — the fixed point the core's scoring reaches."""
     B = np.asarray(samples, dtype=float)
     mean, std = B.mean(axis=0), B.std()
     u = (B - mean) / std
@@ -119,12 +119,13 @@ def twostep(samples, field_norm, iterate: bool = True, noise_sigma: float = -1.0
                 return 0.0
             if noise_sigma > 0:
                 return (noise_sigma / std) ** 2 * np.trace(_sym(p[3:]))
-            return 0.75 * raw(p).var() / H2.mean()  # var v_k ≈ (4/3) H_k² tr Σ
+            r = raw(p)  # var v_k ≈ (4/3) H_k² tr Σ: each weighted by 1/H_k², about their weighted mean
+            return 0.75 * np.mean((r - np.sum(r / H2) / np.sum(1 / H2)) ** 2 / H2)
 
         p = np.concatenate([o, M[[0, 1, 2, 0, 0, 1], [0, 1, 2, 1, 2, 2]]])
         for _ in range(100):
             mu = noise_mean(p)
-            p = least_squares(lambda q: raw(q) - mu, p, method="lm", xtol=1e-15, ftol=1e-15, gtol=1e-15).x
+            p = least_squares(lambda q: (raw(q) - mu) / Hs, p, method="lm", xtol=1e-15, ftol=1e-15, gtol=1e-15).x
             if abs(noise_mean(p) - mu) <= 1e-14 * Hbar**2:
                 break
         o, M = p[:3], _sym(p[3:])
