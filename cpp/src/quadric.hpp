@@ -7,9 +7,12 @@
 
 #include <Eigen/Eigenvalues>
 
+#include <algorithm>
+#include <cmath>
 #include <iomanip>
 #include <sstream>
 #include <string>
+#include <utility>
 
 namespace fluxcal::detail {
 

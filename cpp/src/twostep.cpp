@@ -417,18 +417,24 @@ DesignScatter design_scatter(const Mat10& S, const SamplesRef& samples, const Ei
   }
   Vec11 ed = Vec11::Zero();
   out.weighted.setZero();
+  const double inv_scale = 1.0 / scale;
   for (Eigen::Index i = 0; i < samples.rows(); ++i) {
-    const double u = (samples(i, 0) - centre(0)) / scale, v = (samples(i, 1) - centre(1)) / scale,
-                 w = (samples(i, 2) - centre(2)) / scale, r2 = (*relative)(i) * (*relative)(i), e = r2 - 1.0;
+    const double u = (samples(i, 0) - centre(0)) * inv_scale, v = (samples(i, 1) - centre(1)) * inv_scale,
+                 w = (samples(i, 2) - centre(2)) * inv_scale, r2 = (*relative)(i) * (*relative)(i), e = r2 - 1.0;
     Vec11 d;
     d << u * u, v * v, w * w, 2 * u * v, 2 * u * w, 2 * v * w, 2 * u, 2 * v, 2 * w, 1.0, e;
     ed += e * d;
     out.weighted.selfadjointView<Eigen::Lower>().rankUpdate(d, 1.0 / r2);
   }
-  const Mat11 full = out.weighted.selfadjointView<Eigen::Lower>();  // (not assigned onto itself: aliasing)
-  out.weighted = full;
   out.plain.col(10) = ed;
   out.plain.row(10) = ed.transpose();
+  const double n = S(9, 9);
+  if (!(ed(10) / n - (ed(9) / n) * (ed(9) / n) > kConstantField * kConstantField)) {
+    out.weighted = out.plain;  // the same magnitude throughout: every weight is 1 to 1e-6, the one-H form exactly
+    return out;
+  }
+  const Mat11 full = out.weighted.selfadjointView<Eigen::Lower>();  // (not assigned onto itself: aliasing)
+  out.weighted = full;
   return out;
 }
 
@@ -566,7 +572,8 @@ TwoStepResult twostep_fit(const SamplesRef& samples, const TwoStepOptions& optio
   // radius there.
   const Vec9 s9 = S.block<9, 1>(0, 9);
   const double mean_ratio2 = 1.0 + S(9, 10) / n;  // the mean (H_k/H)²
-  const bool changing = S(10, 10) / n - (S(9, 10) / n) * (S(9, 10) / n) > kConstantField * kConstantField;
+  const bool changing = S(10, 10) / n - (S(9, 10) / n) * (S(9, 10) / n) > kConstantField * kConstantField;  // (as
+  // design_scatter's test, which then weighs the second step)
   Eigen::Matrix<double, 10, 1> sums;
   sums << s9, S(10, 9);
   Eigen::Matrix<double, 10, 10> second;  // the scatter of [d_0 … d_8, ε]
@@ -704,6 +711,15 @@ TwoStepResult twostep_fit(const SamplesRef& samples, const TwoStepOptions& optio
   detail::require_finite_fit(detail::finite_fit(sum) && cal.matrix.allFinite() && cal.offset.allFinite(), "samples",
                              samples, "the two-step calibration");
   describe_coverage(sum, samples, cal, options.coverage_rows);
+  if (relative) {  // weighted by 1/H_k², one reading far off a low H_k pulls the fit its way: the first step's
+    // (unweighted) ellipsoid shows it, the pulled fit's misfit no longer does
+    const Misfit fit = reading_misfit(samples, calibration_of(first, centre, scale, H), H, relative);
+    if (fit.worst > 10.0 * fit.rms)
+      sum.warnings.push_back("reading " + std::to_string(fit.worst_row) + " lies " + num(fit.worst) +
+                             " off its field magnitude's ellipsoid (" + num(fit.worst / fit.rms) +
+                             " times the RMS, in the readings' units): a glitch in field_norms or an outlier, which "
+                             "the weights 1/H_k² let weigh on the fit; fluxcal.calibrate leaves such readings out");
+  }
   if (!sum.converged) {
     // On a cap the squared-magnitude objective keeps falling towards an infinite offset and a vanishing A (the
     // noise shrinks with A), so the iterate leaves the readings: their misfit to its ellipsoid grows. So it does

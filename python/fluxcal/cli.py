@@ -268,7 +268,11 @@ def _field_norm_igrf(rec: Recording, args) -> np.ndarray:
     and clock time: a satellite along its orbit, a survey flight."""
     from .positions import igrf_magnitudes
 
-    place, t = rec.position(), rec.utc_seconds()
+    try:
+        place = rec.position()
+    except ValueError as exc:
+        raise ValueError(f"--field-norm igrf: {args.file}: {exc}") from None
+    t = rec.utc_seconds()
     if place is None:
         raise ValueError(f"--field-norm igrf: {args.file} has no latitude and longitude columns in degrees (lat, lon "
                          "and alt in m, or alt_km; GPS_Lat, Longitude, …) to evaluate the IGRF at")
@@ -276,14 +280,23 @@ def _field_norm_igrf(rec: Recording, args) -> np.ndarray:
         raise ValueError(f"--field-norm igrf: {args.file} has no clock time (a time column of dates and times, or "
                          "Unix seconds) to date the IGRF by")
     lat, lon, alt, names = place
-    try:
-        norms = igrf_magnitudes(lat, lon, alt, t)
-    except ValueError as exc:
-        raise ValueError(f"--field-norm igrf: {exc}") from None
+    for column, values, ok in ((names["lat"], lat, np.abs(lat) <= 90.0), (names["lon"], lon, np.isfinite(lon)),
+                               (names["alt"], alt, np.isfinite(alt) & (alt > -20.0))):
+        if column and not ok.all():
+            i = int(np.argmin(ok))
+            raise ValueError(f"--field-norm igrf: {args.file}, {rec.place(i)}: column {column} reads "
+                             f"{rec.columns[column][i]:g}, not a place on Earth")
+    no_fix = (lat == 0.0) & (lon == 0.0)
+    if no_fix.any():
+        raise ValueError(f"--field-norm igrf: {args.file}, {rec.place(int(np.argmax(no_fix)))}: latitude and longitude "
+                         "read 0, 0 (a GPS without a fix?); leave such lines out")
+    norms = igrf_magnitudes(lat, lon, alt, t)
     _take_field_units(args, "nT", "--field-norm igrf")
-    where = ", ".join(c for c in names.values() if c) + ("" if names["alt"] else "; no altitude column: 0 km")
-    print(f"field norm of each reading from the IGRF (ppigrf) at its position ({where}) and date: "
-          f"{norms.min():.1f} to {norms.max():.1f} nT")
+    days = sorted({datetime.fromtimestamp(x, timezone.utc).strftime("%Y-%m-%d") for x in (t.min(), t.max())})
+    height = (f"{names['alt']} in {names['alt_unit']}{' (no unit stated: assumed)' if names['alt_unit_assumed'] else ''}"
+              f", {alt.min():.4g} to {alt.max():.4g} km" if names["alt"] else "no altitude column: 0 km")
+    print(f"field norm of each reading from the IGRF (ppigrf) at its position ({names['lat']}, {names['lon']}; "
+          f"{height}) and UTC date ({' to '.join(days)}): {norms.min():.1f} to {norms.max():.1f} nT")
     return norms
 
 

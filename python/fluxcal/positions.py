@@ -140,6 +140,9 @@ def _igrf(lon, lat, alt_km, date: _dt.datetime, otherwise: str):
         raise ValueError(f"IGRF (ppigrf) cannot evaluate {date:%Y-%m-%d}: {exc}") from None
 
 
+IGRF_CHUNK = 5000  # points per ppigrf call (200 000 in one call took 1.5 GB)
+
+
 def igrf_magnitudes(lat, lon, alt_km, utc_seconds) -> np.ndarray:
     """|F| in nT of the IGRF at each reading: geodetic latitude and longitude (degrees), altitude above the
     ellipsoid (km) and UTC time (seconds since 1970), from ppigrf — the known field magnitude of each reading
@@ -160,8 +163,10 @@ def igrf_magnitudes(lat, lon, alt_km, utc_seconds) -> np.ndarray:
     for day in np.unique(days):
         on = days == day
         when = _dt.datetime.fromtimestamp(float(t[on].mean()), _dt.timezone.utc).replace(tzinfo=None)
-        be, bn, bu = _igrf(lon[on], lat[on], alt[on], when, "give each reading's |field| as a column or a file")
-        out[on] = np.sqrt(np.square(be) + np.square(bn) + np.square(bu)).ravel()
+        rows = np.flatnonzero(on)
+        for chunk in np.array_split(rows, -(-len(rows) // IGRF_CHUNK)):  # ppigrf's memory grows with the points
+            be, bn, bu = _igrf(lon[chunk], lat[chunk], alt[chunk], when, "give each reading's |field| directly")
+            out[chunk] = np.sqrt(np.square(be) + np.square(bn) + np.square(bu)).ravel()
     if not np.all(np.isfinite(out)):
         bad = int(np.flatnonzero(~np.isfinite(out))[0])
         raise ValueError(f"IGRF (ppigrf) gave no finite field at reading {bad} ({lat[bad]}, {lon[bad]}, "

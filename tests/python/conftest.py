@@ -42,13 +42,31 @@ def changing_field(s, k):
     return clean, clean + (s.readings - s.clean), k * s.field_norm
 
 
+SYM = np.triu_indices(3)
+
+
+def theta_magnitude(cal):
+    """θ of the magnitude model: the offset, then the matrix's upper triangle."""
+    return np.r_[cal.offset, cal.matrix[SYM]]
+
+
+def bound_sensor(seed):
+    """The Monte-Carlo tests' sensor: |field| 50 000, σ = 1 % of it, soft iron within ±10 %, offset up to 50 %;
+    (rng, |field|, σ as a share of it, its effects, the field vector)."""
+    from fluxcal import sim
+
+    rng = np.random.default_rng(seed)
+    H, noise = 50000.0, 0.01
+    effects = sim.random_sensor(H, rng, soft_iron=0.1, offset=0.5, noise=noise)
+    return rng, H, noise, effects, H * np.array([0.3, -0.2, 0.93]) / np.linalg.norm([0.3, -0.2, 0.93])
+
+
 def changing_field_errors(fit, runs: int = 200, seed: int = 7, change: float = 0.02) -> dict:
     """The Monte-Carlo of a field whose magnitude changes by ±`change` while the sensor turns (N = 300, σ = 1 % of
-    |field|, soft iron ±10 %, offset ≤ 50 %; test_refine's bound_sensor): each run's errors of θ = [b, A's upper
+    |field|, soft iron ±10 %, offset ≤ 50 %: bound_sensor): each run's errors of θ = [b, A's upper
     triangle] over √CRLB for `fit(readings, field_norm)` → θ, given each reading's |field| ("own") and one |field|
     for all ("one"); with "rms" the RMS of each group (offset, matrix) and "mean" the largest |mean error|."""
     from fluxcal import crlb, sim
-    from test_refine import bound_sensor, theta_magnitude
 
     rng, H, noise, effects, field = bound_sensor(seed)
     z = {"own": [], "one": []}
@@ -61,4 +79,3 @@ def changing_field_errors(fit, runs: int = 200, seed: int = 7, change: float = 0
             z[name].append((fit(readings, given) - theta_magnitude(truth)) / bound)
     return {name: {"rms": [float(np.sqrt(np.mean(np.array(e)[:, g] ** 2))) for g in (slice(0, 3), slice(3, 9))],
                    "mean": float(np.abs(np.mean(e, axis=0)).max())} for name, e in z.items()}
-

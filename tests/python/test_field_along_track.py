@@ -32,12 +32,25 @@ def orbit(n=600, seed=3):
     return t, lat, lon, alt, readings, (np.linalg.inv(W), b, norms)
 
 
-def test_igrf_magnitudes_are_the_igrf_field_at_each_place():
+def test_igrf_magnitudes_are_the_igrf_field_at_each_place_and_day(monkeypatch):
+    """Each reading's |F| is ppigrf's at its place, evaluated once per UTC day (the orbit crosses midnight: two
+    calls) at the day's mean time: within 0.3 nT of the field at the reading's own time (the main field's secular
+    change is well under 0.3 nT in half a day)."""
+    import ppigrf
+
+    from fluxcal import positions
+
     t, lat, lon, alt, _, (_, _, norms) = orbit()
     for i in (0, 170, 599):
-        when = dt.datetime.fromtimestamp(t[i], dt.timezone.utc).date()
-        assert norms[i] == pytest.approx(np.linalg.norm(igrf_field(lat[i], lon[i], alt[i], when)), abs=5.0)
+        when = dt.datetime.fromtimestamp(t[i], dt.timezone.utc).replace(tzinfo=None)
+        assert norms[i] == pytest.approx(np.linalg.norm(ppigrf.igrf(lon[i], lat[i], alt[i], when)), abs=0.3)
+        assert norms[i] == pytest.approx(np.linalg.norm(igrf_field(lat[i], lon[i], alt[i], when.date())), abs=5.0)
     assert norms.max() / norms.min() > 1.5  # (a polar orbit: the field doubles from the equator to the poles)
+    dates = []
+    real = positions._igrf
+    monkeypatch.setattr(positions, "_igrf", lambda *a: dates.append(a[3]) or real(*a))
+    igrf_magnitudes(lat, lon, alt, t)
+    assert [d.date() for d in dates] == [dt.date(2024, 3, 1), dt.date(2024, 3, 2)]
     with pytest.raises(ValueError, match="latitude: reading 2 is 91, not a place"):
         igrf_magnitudes([0, 10, 91], [0, 0, 0], [0, 0, 0], t[:3])
     with pytest.raises(ValueError, match="date: 1850-01-01 is outside the IGRF model"):
@@ -45,15 +58,24 @@ def test_igrf_magnitudes_are_the_igrf_field_at_each_place():
 
 
 def test_position_columns_are_found_by_name_and_unit():
-    rec = fluxcal.io.Recording(columns={"mx": np.zeros(3), "my": np.zeros(3), "mz": np.zeros(3),
-                                        "GPS_Lat": np.array([1.0, 2, 3]), "GPS_Lng": np.array([4.0, 5, 6]),
-                                        "Alt": np.array([100.0, 200, 300])}, units={}, source="x")
+    columns = {"mx": np.zeros(3), "my": np.zeros(3), "mz": np.zeros(3), "GPS_Lat": np.array([1.0, 2, 3]),
+               "GPS_Lng": np.array([4.0, 5, 6]), "Alt": np.array([100.0, 200, 300])}
+    rec = fluxcal.io.Recording(columns=dict(columns), units={"GPS_Lat": "degrees_north"}, source="x")
     lat, lon, alt, names = rec.position()
-    assert names == {"lat": "GPS_Lat", "lon": "GPS_Lng", "alt": "Alt"} and alt.tolist() == [0.1, 0.2, 0.3]
-    rec.units["Alt"] = "km"
-    assert rec.position()[2].tolist() == [100.0, 200.0, 300.0]
-    rec.units["GPS_Lat"] = "rad"  # not degrees: not guessed
-    assert rec.position() is None
+    assert (names["lat"], names["lon"], names["alt"]) == ("GPS_Lat", "GPS_Lng", "Alt") and alt.tolist() == [0.1, 0.2, 0.3]
+    assert names["alt_unit_assumed"]  # metres, said so
+    for unit, km in (("km", [100.0, 200.0, 300.0]), ("metres", [0.1, 0.2, 0.3])):
+        rec.units["Alt"] = unit
+        assert rec.position()[2].tolist() == km and not rec.position()[3]["alt_unit_assumed"]
+    rec.units["Alt"] = "furlong"
+    with pytest.raises(ValueError, match="column Alt: stated in furlong, not a length"):
+        rec.position()
+    rec.units = {"GPS_Lat": "rad"}  # not degrees: not guessed
+    with pytest.raises(ValueError, match="column GPS_Lat: stated in rad, not degrees"):
+        rec.position()
+    both = fluxcal.io.Recording(columns={**columns, "POS_Lat": np.zeros(3)}, units={}, source="x")  # ArduPilot
+    with pytest.raises(ValueError, match="latitude: columns GPS_Lat, POS_Lat could each be it"):
+        both.position()
 
 
 def test_calibrate_command_takes_the_igrf_along_an_orbit(tmp_path):
@@ -70,7 +92,8 @@ def test_calibrate_command_takes_the_igrf_along_an_orbit(tmp_path):
         run = run_cli("calibrate", path, "--method", method, "--field-norm", "igrf", "--units", "nT",
                       "-o", tmp_path / f"{method}.json")
         assert run.returncode == 0, run.stderr
-        assert "field norm of each reading from the IGRF (ppigrf) at its position (lat, lon, alt_km)" in run.stdout
+        assert ("field norm of each reading from the IGRF (ppigrf) at its position (lat, lon; alt_km in km, 500 to 500 "
+                "km) and UTC date (2024-03-01 to 2024-03-02): 21794.4 to 47247.2 nT") in run.stdout, run.stdout
         cal = fluxcal.Calibration.load(tmp_path / f"{method}.json")
         assert np.linalg.norm(cal.offset - b) < 10.0, (method, cal.offset - b)
         np.testing.assert_allclose(cal.matrix, A, atol=2e-3)
@@ -83,6 +106,29 @@ def test_calibrate_command_takes_the_igrf_along_an_orbit(tmp_path):
     run = run_cli("diagnose", path, "--field-norm", "igrf", "--units", "nT", "--quiet")
     assert run.returncode == 0, run.stderr
     assert "FOUND: no significant effect" in run.stdout and "(|h| fitted to each reading's own |field|" in run.stdout
+
+
+def test_igrf_names_a_bad_place_by_its_line(tmp_path):
+    t, lat, lon, alt, readings, _ = orbit(n=100)
+    stamps = [dt.datetime.fromtimestamp(x, dt.timezone.utc).strftime("%Y-%m-%dT%H:%M:%SZ") for x in t]
+    lat[7], lon[40], lat[40] = 95.0, 0.0, 0.0
+
+    def write(lat, lon):
+        path = tmp_path / "places.csv"
+        path.write_text("time,mx,my,mz,lat,lon,alt\n" + "".join(
+            f"{s},{x},{y},{z},{la},{lo},{1000 * h}\n" for s, (x, y, z), la, lo, h in zip(stamps, readings, lat, lon, alt)))
+        return run_cli("calibrate", path, "--field-norm", "igrf")
+
+    run = write(lat, lon)
+    assert run.returncode == 2 and "places.csv, line 9: column lat reads 95, not a place on Earth" in run.stderr, \
+        run.stderr
+    lat[7] = 10.0
+    run = write(lat, lon)
+    assert run.returncode == 2 and "line 42: latitude and longitude read 0, 0 (a GPS without a fix?)" in run.stderr
+    lat[40] = lon[40] = 10.0
+    run = write(lat, lon)
+    assert run.returncode == 0, run.stderr
+    assert "(lat, lon; alt in m (no unit stated: assumed), 500 to 500 km) and UTC date (2024-03-01)" in run.stdout
 
 
 def test_igrf_needs_a_place_and_a_clock(tmp_path):

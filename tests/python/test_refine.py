@@ -8,13 +8,8 @@ import pytest
 import fluxcal
 import fluxcal.oracle as oracle
 from fluxcal import attitude, sim
-from conftest import changing_field, changing_field_errors, run_cli, simulated
+from conftest import bound_sensor, changing_field, changing_field_errors, run_cli, simulated, theta_magnitude
 
-SYM = np.triu_indices(3)
-
-
-def theta_magnitude(cal):
-    return np.r_[cal.offset, cal.matrix[SYM]]
 
 
 # -- oracles ----------------------------------------------------------------------------------------------
@@ -140,15 +135,6 @@ def test_few_spare_readings_are_warned_about():
 
 
 # -- accuracy against the Cramér–Rao bound -------------------------------------------------------------
-
-def bound_sensor(seed):
-    """The Monte-Carlo tests' sensor: |field| 50 000, σ = 1 % of it, soft iron within ±10 %, offset up to 50 %;
-    (rng, |field|, σ as a share of it, its effects, the field vector)."""
-    rng = np.random.default_rng(seed)
-    H, noise = 50000.0, 0.01
-    effects = sim.random_sensor(H, rng, soft_iron=0.1, offset=0.5, noise=noise)
-    return rng, H, noise, effects, H * np.array([0.3, -0.2, 0.93]) / np.linalg.norm([0.3, -0.2, 0.93])
-
 
 @pytest.mark.parametrize("sensor_seed", [1, 2])
 def test_refinement_reaches_the_cramer_rao_bound(sensor_seed):

@@ -45,7 +45,9 @@
 // With each reading's own |H_k| (A&S's general case) the centring leaves H_k² − mean H² in z_k: the first step
 // fits it with a free coefficient beside the trace-normalised quadric, and the second step's objective is
 // Σ (|A(m_k − o)|² − H_k² − μ)²/H_k², each reading weighted by the inverse of its v_k's variance (∝ H_k², as A&S
-// weigh), its sums from the moments and one more pass over the readings.
+// weigh; the first step is not weighted), its sums from one more pass over the readings. One reading far off its
+// H_k (a glitch in field_norms) weighs heavily when its H_k is low: the Summary warns of a reading more than 10
+// times the RMS off (fluxcal.calibrate's outlier screen leaves such readings out).
 // Result in fluxcal's convention h = A (m − o): A = I + D (symmetric positive definite),
 // o = (I + D)⁻¹ b.
 #pragma once
@@ -153,7 +155,8 @@ struct TwoStepOptions {
 };
 
 /// Calibration (model "twostep", A symmetric) and Summary: iterations and converged of the second
-/// step; cost = mean ((|h|² − H² − μ)/H²)², its objective; residual_rms, norm_mean and
+/// step; cost = its objective over N: mean ((|h|² − H² − μ)/H²)², with each reading's H_k mean of
+/// ((|h_k|² − H_k² − μ)/H²)² (H/H_k)²; residual_rms, norm_mean and
 /// norm_std_over_mean of |h| from a pass over the samples (exact_statistics); condition_number of the
 /// (column-scaled) Fisher matrix, or of the first step's normal matrix when max_iterations = 0.
 struct TwoStepResult {

@@ -376,15 +376,19 @@ def _named_by_degrees(names):
 LATITUDE_WORDS, LONGITUDE_WORDS = {"lat", "latitude"}, {"lon", "lng", "long", "longitude"}
 ALTITUDE_WORDS = {"alt", "altitude", "height"}
 POSITION_OWNERS = {"gps", "gnss", "pos", "position", "geodetic", "wgs84"}
-ANGLE_UNITS = {"deg", "degree", "degrees", "°"}
-ALTITUDE_UNITS = {"m": 1e-3, "km": 1.0, "ft": 0.3048e-3}  # → km
+ANGLE_UNITS = {"deg", "degree", "degrees", "°", "degrees_north", "degrees_east", "degree_north", "degree_east"}
+ALTITUDE_UNITS = {"m": 1e-3, "meter": 1e-3, "meters": 1e-3, "metre": 1e-3, "metres": 1e-3, "km": 1.0,
+                  "kilometers": 1.0, "kilometres": 1.0, "ft": 0.3048e-3, "feet": 0.3048e-3, "foot": 0.3048e-3}  # → km
 
 
 def find_position(names, units: dict):
-    """{"lat": column, "lon": column, "alt": column or None, "alt_km": factor to km} of the only latitude and
-    longitude columns (lat, Latitude, GPS_Lat, lat [deg]; in degrees: another stated unit is not guessed), with
-    the only altitude column (alt, Altitude, height; m unless its stated unit or name says km or ft), else None."""
-    def only(kind_words, unit_words):
+    """The columns of each reading's place: {"lat": column, "lon": column, "alt": column or None, "alt_km": factor to
+    km, "alt_unit": the unit taken, "alt_unit_assumed": True when nothing said it (m)} from latitude and longitude columns (lat, Latitude,
+    GPS_Lat, lat [deg], in degrees) and an altitude column (alt, Altitude, height, alt_km; m unless its stated unit
+    or name says another length); None without latitude or longitude. ValueError naming the columns when more
+    than one could be a coordinate (GPS_Lat and POS_Lat), or when a coordinate's stated unit is not degrees or a
+    length: not guessed."""
+    def only(kind_words, unit_words, what):
         hits = []
         for name in names:
             ws = words(name)
@@ -392,21 +396,27 @@ def find_position(names, units: dict):
             ws = ws[:-1] if unit else ws
             if ws and set(ws) & kind_words and set(ws) <= kind_words | POSITION_OWNERS:
                 hits.append(name)
-        return hits[0] if len(hits) == 1 else None
+        if len(hits) > 1:
+            raise ValueError(f"{what}: columns {', '.join(hits)} could each be it; keep one (or rename the others)")
+        return hits[0] if hits else None
 
-    lat, lon = only(LATITUDE_WORDS, ANGLE_UNITS), only(LONGITUDE_WORDS, ANGLE_UNITS)
-    if lat is None or lon is None or any((units.get(c) or "").strip().lower() not in ANGLE_UNITS | {""}
-                                         for c in (lat, lon)):
+    lat, lon = only(LATITUDE_WORDS, ANGLE_UNITS, "latitude"), only(LONGITUDE_WORDS, ANGLE_UNITS, "longitude")
+    if lat is None or lon is None:
         return None
-    alt = only(ALTITUDE_WORDS, set(ALTITUDE_UNITS))
-    factor = 1e-3
+    for column in (lat, lon):
+        stated = (units.get(column) or "").strip().lower()
+        if stated and stated not in ANGLE_UNITS:
+            raise ValueError(f"column {column}: stated in {units[column]}, not degrees")
+    alt = only(ALTITUDE_WORDS, set(ALTITUDE_UNITS), "altitude")
+    unit = None
     if alt is not None:
         stated = (units.get(alt) or "").strip().lower()
+        if stated and stated not in ALTITUDE_UNITS:
+            raise ValueError(f"column {alt}: stated in {units[alt]}, not a length (m, km, ft)")
         word = words(alt)[-1]
-        factor = ALTITUDE_UNITS.get(stated) if stated else ALTITUDE_UNITS.get(word, 1e-3)
-        if factor is None:  # a stated unit that is no length
-            alt, factor = None, 1e-3
-    return {"lat": lat, "lon": lon, "alt": alt, "alt_km": factor}
+        unit = stated or (word if word in ALTITUDE_UNITS else None)
+    return {"lat": lat, "lon": lon, "alt": alt, "alt_km": ALTITUDE_UNITS[unit or "m"], "alt_unit": unit or "m",
+            "alt_unit_assumed": alt is not None and unit is None}
 
 
 def find_current(names, units: dict):

@@ -132,14 +132,13 @@ class Recording:
         return None if hit is None else self.columns[hit[0]] * hit[1]
 
     def position(self):
-        """(latitude °, longitude °, altitude km, {"lat", "lon", "alt": column names}) of each reading, from the
-        columns `find_position` names (altitude 0 without one), or None."""
+        """(latitude °, longitude °, altitude km, the columns as `find_position` names them) of each reading
+        (altitude 0 without an altitude column), or None; ValueError when columns are ambiguous or in other units."""
         hit = find_position(self.columns, self.units)
         if hit is None:
             return None
         alt = self.columns[hit["alt"]] * hit["alt_km"] if hit["alt"] else np.zeros(len(self.columns[hit["lat"]]))
-        return (self.columns[hit["lat"]], self.columns[hit["lon"]], alt,
-                {k: hit[k] for k in ("lat", "lon", "alt")})
+        return self.columns[hit["lat"]], self.columns[hit["lon"]], alt, hit
 
     def acceleration(self):
         """The accelerometer, N×3 (ax,ay,az, else a triple recognised by name such as AccX, accel_x), or None."""
