@@ -290,7 +290,10 @@ def _field_norm_igrf(rec: Recording, args) -> np.ndarray:
     if no_fix.any():
         raise ValueError(f"--field-norm igrf: {args.file}, {rec.place(int(np.argmax(no_fix)))}: latitude and longitude "
                          "read 0, 0 (a GPS without a fix?); leave such lines out")
-    norms = igrf_magnitudes(lat, lon, alt, t)
+    try:
+        norms = igrf_magnitudes(lat, lon, alt, t)
+    except ValueError as exc:  # a date outside the model
+        raise ValueError(f"--field-norm igrf: {args.file}: {exc}") from None
     _take_field_units(args, "nT", "--field-norm igrf")
     days = sorted({datetime.fromtimestamp(x, timezone.utc).strftime("%Y-%m-%d") for x in (t.min(), t.max())})
     height = (f"{names['alt']} in {names['alt_unit']}{' (no unit stated: assumed)' if names['alt_unit_assumed'] else ''}"
