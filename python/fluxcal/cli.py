@@ -252,7 +252,7 @@ def _field_norms_given(rec: Recording, name: str, args) -> np.ndarray:
                          f"{', '.join(rec.columns)}), nor a file, nor igrf")
     if name in rec.mag_names():
         raise ValueError(f"--field-norm {name}: a magnetometer column; give the column of the true |field|")
-    _take_field_units(args, rec.units.get(name, ""), f"--field-norm {name}")
+    factor = _take_field_units(args, rec.units.get(name, ""), f"--field-norm {name}")
     values = rec.columns[name]
     bad = np.flatnonzero(~(np.isfinite(values) & (values > 0)))
     if bad.size:
@@ -260,7 +260,7 @@ def _field_norms_given(rec: Recording, name: str, args) -> np.ndarray:
                          "reading needs its positive |field| (a line with a non-number is left out by --bad-lines "
                          "skip)")
     print(f"field norm of each reading from column {name}" + (f" ({rec.units[name]})" if rec.units.get(name) else ""))
-    return values
+    return values * factor
 
 
 def _field_norm_igrf(rec: Recording, args) -> np.ndarray:
@@ -294,21 +294,27 @@ def _field_norm_igrf(rec: Recording, args) -> np.ndarray:
         norms = igrf_magnitudes(lat, lon, alt, t)
     except ValueError as exc:  # a date outside the model
         raise ValueError(f"--field-norm igrf: {args.file}: {exc}") from None
-    _take_field_units(args, "nT", "--field-norm igrf")
+    factor = _take_field_units(args, "nT", "--field-norm igrf")
     days = sorted({datetime.fromtimestamp(x, timezone.utc).strftime("%Y-%m-%d") for x in (t.min(), t.max())})
     height = (f"{names['alt']} in {names['alt_unit']}{' (no unit stated: assumed)' if names['alt_unit_assumed'] else ''}"
               f", {alt.min():.4g} to {alt.max():.4g} km" if names["alt"] else "no altitude column: 0 km")
     print(f"field norm of each reading from the IGRF (ppigrf) at its position ({names['lat']}, {names['lon']}; "
           f"{height}) and UTC date ({' to '.join(days)}): {norms.min():.1f} to {norms.max():.1f} nT")
-    return norms
+    return norms * factor
 
 
-def _take_field_units(args, stated: str, what: str) -> None:
-    """The unit a field norm's source states becomes --field-units (an error when that says another)."""
+def _take_field_units(args, stated: str, what: str) -> float:
+    """The unit a field norm's source states becomes --field-units. When --field-units says another field unit:
+    the factor that converts the source's values to it (an error for a unit that does not convert); else 1."""
     if stated and args.field_units and unit_name(stated) != unit_name(args.field_units):
-        raise ValueError(f"{what}: stated in {stated}, --field-units says {args.field_units}")
+        frm, to = TESLA_PER_UNIT.get(unit_name(stated)), TESLA_PER_UNIT.get(unit_name(args.field_units))
+        if frm is None or to is None:
+            raise ValueError(f"{what}: stated in {stated}, --field-units says {args.field_units}")
+        print(f"{what}: in {stated}, converted to {args.field_units} (--field-units)")
+        return frm / to
     if stated and not args.field_units:
         args.field_units = stated
+    return 1.0
 
 
 def _field_norm_from(rec: Recording, path: str, args) -> np.ndarray:
@@ -338,11 +344,11 @@ def _field_norm_from(rec: Recording, path: str, args) -> np.ndarray:
         utc = lambda x: datetime.fromtimestamp(x, timezone.utc).strftime("%Y-%m-%d %H:%M:%S UTC")  # noqa: E731
         raise ValueError(f"--field-norm {path}: it covers {utc(theirs[0])} to {utc(theirs[-1])}; {args.file}, "
                          f"{rec.place(int(np.argmax(outside)))}, reads at {utc(mine[outside][0])}, outside it")
-    _take_field_units(args, unit, f"--field-norm {path}")
+    factor = _take_field_units(args, unit, f"--field-norm {path}")
     what = f"column {scalar}" if scalar else f"|{','.join(other.mag_names())}|"
     print(f"field norm of each reading from {path}: its {what}{f' ({unit})' if unit else ''} at this recording's "
           "clock times (interpolated; times that state no zone are taken as UTC)")
-    return np.interp(mine, theirs, values)
+    return np.interp(mine, theirs, values) * factor
 
 
 def cmd_calibrate(args) -> int:

@@ -97,6 +97,11 @@ def test_calibrate_command_takes_the_igrf_along_an_orbit(tmp_path):
         cal = fluxcal.Calibration.load(tmp_path / f"{method}.json")
         assert np.linalg.norm(cal.offset - b) < 10.0, (method, cal.offset - b)
         np.testing.assert_allclose(cal.matrix, A, atol=2e-3)
+    # the model's nT in the unit asked for
+    run = run_cli("calibrate", path, "--method", "twostep", "--field-norm", "igrf", "--units", "nT", "--field-units",
+                  "uT", "-o", tmp_path / "uT.json")
+    assert run.returncode == 0 and "--field-norm igrf: in nT, converted to uT (--field-units)" in run.stdout, run.stderr
+    assert fluxcal.Calibration.load(tmp_path / "uT.json").field_norm == pytest.approx(norms.mean() / 1000, rel=1e-9)
     api = fluxcal.twostep(readings, norms)
     np.testing.assert_allclose(fluxcal.Calibration.load(tmp_path / "twostep.json").offset, api.offset, atol=1e-6)
     one = fluxcal.twostep(readings, norms.mean())
