@@ -404,6 +404,7 @@ Vec11 quadric(const Eigen::Vector3d& q, const Eigen::Matrix3d& N, double mu) {
 // H_k/H) one more pass gives the ε column and the weighted scatter.
 struct DesignScatter {
   Mat11 plain, weighted;
+  bool changing = false;  // (H_k/H)² has a standard deviation above kConstantField: else weighted = plain
 };
 
 DesignScatter design_scatter(const Mat10& S, const SamplesRef& samples, const Eigen::Vector3d& centre, double scale,
@@ -429,7 +430,8 @@ DesignScatter design_scatter(const Mat10& S, const SamplesRef& samples, const Ei
   out.plain.col(10) = ed;
   out.plain.row(10) = ed.transpose();
   const double n = S(9, 9);
-  if (!(ed(10) / n - (ed(9) / n) * (ed(9) / n) > kConstantField * kConstantField)) {
+  out.changing = ed(10) / n - (ed(9) / n) * (ed(9) / n) > kConstantField * kConstantField;
+  if (!out.changing) {
     out.weighted = out.plain;  // the same magnitude throughout: every weight is 1 to 1e-6, the one-H form exactly
     return out;
   }
@@ -572,8 +574,7 @@ TwoStepResult twostep_fit(const SamplesRef& samples, const TwoStepOptions& optio
   // radius there.
   const Vec9 s9 = S.block<9, 1>(0, 9);
   const double mean_ratio2 = 1.0 + S(9, 10) / n;  // the mean (H_k/H)²
-  const bool changing = S(10, 10) / n - (S(9, 10) / n) * (S(9, 10) / n) > kConstantField * kConstantField;  // (as
-  // design_scatter's test, which then weighs the second step)
+  const bool changing = scatters.changing;
   Eigen::Matrix<double, 10, 1> sums;
   sums << s9, S(10, 9);
   Eigen::Matrix<double, 10, 10> second;  // the scatter of [d_0 … d_8, ε]
@@ -711,23 +712,21 @@ TwoStepResult twostep_fit(const SamplesRef& samples, const TwoStepOptions& optio
   detail::require_finite_fit(detail::finite_fit(sum) && cal.matrix.allFinite() && cal.offset.allFinite(), "samples",
                              samples, "the two-step calibration");
   describe_coverage(sum, samples, cal, options.coverage_rows);
-  if (relative) {  // weighted by 1/H_k², one reading far off a low H_k pulls the fit its way: the first step's
-    // (unweighted) ellipsoid shows it, the pulled fit's misfit no longer does
-    const Misfit fit = reading_misfit(samples, calibration_of(first, centre, scale, H), H, relative);
-    if (fit.worst > 10.0 * fit.rms)
-      sum.warnings.push_back("reading " + std::to_string(fit.worst_row) + " lies " + num(fit.worst) +
-                             " off its field magnitude's ellipsoid (" + num(fit.worst / fit.rms) +
-                             " times the RMS, in the readings' units): a glitch in field_norms or an outlier, which "
-                             "the weights 1/H_k² let weigh on the fit; fluxcal.calibrate leaves such readings out");
-  }
+  // The readings' misfit to the first step's (unweighted) ellipsoid: where a reading lies that pulls the weighted
+  // fit its way, and the yardstick of a second step that ran away.
+  const Calibration start = calibration_of(first, centre, scale, H);
+  const Misfit before = relative || !sum.converged ? reading_misfit(samples, start, H, relative) : Misfit{};
+  if (relative && before.worst > 10.0 * before.rms)  // weighted by 1/H_k², one far off a low H_k weighs heavily
+    sum.warnings.push_back("reading " + std::to_string(before.worst_row) + " lies " + num(before.worst) +
+                           " off its field magnitude's ellipsoid (" + num(before.worst / before.rms) +
+                           " times the RMS, in the readings' units): a glitch in field_norms or an outlier, which "
+                           "the weights 1/H_k² let weigh on the fit; fluxcal.calibrate leaves such readings out");
   if (!sum.converged) {
     // On a cap the squared-magnitude objective keeps falling towards an infinite offset and a vanishing A (the
     // noise shrinks with A), so the iterate leaves the readings: their misfit to its ellipsoid grows. So it does
     // when a few readings lie far off (an outlier at twice the field's distance ran a full sphere away).
-    const Calibration start = calibration_of(first, centre, scale, H);
     // (the iterate's own radius: the noise mean μ it fitted puts |h|² at H² + μ, which is no runaway)
-    const Misfit before = reading_misfit(samples, start, H, relative),
-                 after = reading_misfit(samples, cal, H * std::sqrt(1.0 + mu), relative);
+    const Misfit after = reading_misfit(samples, cal, H * std::sqrt(1.0 + mu), relative);
     if (!(after.rms <= options.runaway_misfit * before.rms)) {
       throw Error("samples: the second step of the two-step calibration ran away from the readings (not converged "
                   "after " + std::to_string(sum.iterations) + " iterations; their misfit to its ellipsoid, in the "

@@ -266,7 +266,7 @@ def _field_norms_given(rec: Recording, name: str, args) -> np.ndarray:
 def _field_norm_igrf(rec: Recording, args) -> np.ndarray:
     """--field-norm igrf: the IGRF's |F| at each reading's position (its latitude, longitude and altitude columns)
     and clock time: a satellite along its orbit, a survey flight."""
-    from .positions import igrf_magnitudes
+    from .positions import first_bad_place, igrf_magnitudes
 
     try:
         place = rec.position()
@@ -280,12 +280,11 @@ def _field_norm_igrf(rec: Recording, args) -> np.ndarray:
         raise ValueError(f"--field-norm igrf: {args.file} has no clock time (a time column of dates and times, or "
                          "Unix seconds) to date the IGRF by")
     lat, lon, alt, names = place
-    for column, values, ok in ((names["lat"], lat, np.abs(lat) <= 90.0), (names["lon"], lon, np.isfinite(lon)),
-                               (names["alt"], alt, np.isfinite(alt) & (alt > -20.0))):
-        if column and not ok.all():
-            i = int(np.argmin(ok))
-            raise ValueError(f"--field-norm igrf: {args.file}, {rec.place(i)}: column {column} reads "
-                             f"{rec.columns[column][i]:g}, not a place on Earth")
+    bad = first_bad_place(lat, lon, alt)
+    if bad is not None:
+        column = names[{"latitude": "lat", "longitude": "lon", "altitude": "alt"}[bad[0]]]
+        raise ValueError(f"--field-norm igrf: {args.file}, {rec.place(bad[1])}: column {column} reads "
+                         f"{rec.columns[column][bad[1]]:g}, not a place on Earth")
     no_fix = (lat == 0.0) & (lon == 0.0)
     if no_fix.any():
         raise ValueError(f"--field-norm igrf: {args.file}, {rec.place(int(np.argmax(no_fix)))}: latitude and longitude "

@@ -140,6 +140,20 @@ def _igrf(lon, lat, alt_km, date: _dt.datetime, otherwise: str):
         raise ValueError(f"IGRF (ppigrf) cannot evaluate {date:%Y-%m-%d}: {exc}") from None
 
 
+def first_bad_place(lat, lon, alt_km, utc_seconds=None):
+    """("latitude"/"longitude"/"altitude"/"time", reading, value) of the first value that is no place on Earth (a
+    latitude beyond ±90°, a longitude or time not finite, an altitude below −20 km), or None."""
+    checks = [("latitude", lat, np.abs(lat) <= 90.0), ("longitude", lon, np.isfinite(lon)),
+              ("altitude", alt_km, np.isfinite(alt_km) & (alt_km > -20.0))]
+    if utc_seconds is not None:
+        checks.append(("time", utc_seconds, np.isfinite(utc_seconds)))
+    for name, values, ok in checks:
+        if not ok.all():
+            i = int(np.argmin(ok))
+            return name, i, float(values[i])
+    return None
+
+
 IGRF_CHUNK = 5000  # points per ppigrf call (200 000 in one call took 1.5 GB)
 
 
@@ -152,12 +166,11 @@ def igrf_magnitudes(lat, lon, alt_km, utc_seconds) -> np.ndarray:
     if not len(lat) == len(lon) == len(alt) == len(t):
         raise ValueError(f"igrf_magnitudes: {len(lat)} latitudes, {len(lon)} longitudes, {len(alt)} altitudes and "
                          f"{len(t)} times; give one of each per reading")
-    for name, values, ok in (("latitude", lat, np.abs(lat) <= 90.0), ("longitude", lon, np.isfinite(lon)),
-                             ("altitude", alt, np.isfinite(alt) & (alt > -20.0)), ("time", t, np.isfinite(t))):
-        bad = np.flatnonzero(~ok)
-        if bad.size:
-            raise ValueError(f"{name}: reading {bad[0]} is {values[bad[0]]:g}, not a place (latitude within ±90°, "
-                             "altitude in km above the ellipsoid) at a finite time")
+    bad = first_bad_place(lat, lon, alt, t)
+    if bad is not None:
+        name, i, value = bad
+        raise ValueError(f"{name}: reading {i} is {value:g}, not a place (latitude within ±90°, altitude in km above "
+                         "the ellipsoid) at a finite time")
     out = np.empty(len(lat))
     days = np.floor(t / 86400.0)
     for day in np.unique(days):
