@@ -8,6 +8,7 @@
 #include <Eigen/Eigenvalues>
 
 #include <algorithm>
+#include <array>
 #include <cmath>
 #include <cstdio>
 #include <limits>
@@ -87,6 +88,60 @@ void accumulate_moments(const double* p, std::size_t n, const double* centre, do
   }
 }
 
+// The same with a weight per reading: Σ w_k·monomial_k into sums[0] (Σ w) and sums[1..34]; `full` false stops at
+// degree 2 (sums[1..9]), all a design row's weighted sum needs.
+FLUXCAL_CLONES
+void accumulate_weighted_moments(const double* p, const double* weights, std::size_t n, const double* centre,
+                                 double inv_scale, bool full, double* sums /* 35 */) {
+  alignas(64) double acc[35][kLanes] = {};
+  const int count = full ? 35 : 10;
+  std::size_t i = 0;
+  for (; i + kLanes <= n; i += kLanes) {
+    double xs[kLanes], ys[kLanes], zs[kLanes];
+    for (int l = 0; l < kLanes; ++l) {
+      xs[l] = (p[3 * (i + l)] - centre[0]) * inv_scale;
+      ys[l] = (p[3 * (i + l) + 1] - centre[1]) * inv_scale;
+      zs[l] = (p[3 * (i + l) + 2] - centre[2]) * inv_scale;
+    }
+    if (full) {
+      for (int l = 0; l < kLanes; ++l) {
+        const double x = xs[l], y = ys[l], z = zs[l], w = weights[i + l];
+        acc[0][l] += w;
+#define FLUXCAL_ACC(m, value) acc[(m) + 1][l] += w * (value)
+        FLUXCAL_MONOMIALS(x, y, z, FLUXCAL_ACC);
+#undef FLUXCAL_ACC
+      }
+    } else {
+      for (int l = 0; l < kLanes; ++l) {
+        const double x = xs[l], y = ys[l], z = zs[l], w = weights[i + l];
+        const double wx = w * x, wy = w * y, wz = w * z;
+        acc[0][l] += w;
+        acc[1][l] += wx;
+        acc[2][l] += wy;
+        acc[3][l] += wz;
+        acc[4][l] += wx * x;
+        acc[5][l] += wx * y;
+        acc[6][l] += wx * z;
+        acc[7][l] += wy * y;
+        acc[8][l] += wy * z;
+        acc[9][l] += wz * z;
+      }
+    }
+  }
+  for (int m = 0; m < count; ++m)
+    for (int l = 0; l < kLanes; ++l) sums[m] += acc[m][l];
+  for (; i < n; ++i) {  // the last few readings one by one, every monomial (the sums past `count` are not read)
+    const double x = (p[3 * i] - centre[0]) * inv_scale;
+    const double y = (p[3 * i + 1] - centre[1]) * inv_scale;
+    const double z = (p[3 * i + 2] - centre[2]) * inv_scale;
+    const double w = weights[i];
+    sums[0] += w;
+#define FLUXCAL_ADD(m, value) sums[(m) + 1] += w * (value)
+    FLUXCAL_MONOMIALS(x, y, z, FLUXCAL_ADD);
+#undef FLUXCAL_ADD
+  }
+}
+
 // Statistics pass: Σ(|h| − H), Σ(|h| − H)² over h = A (m − b), lane-blocked like the moments.
 FLUXCAL_CLONES
 void accumulate_residuals(const double* p, std::size_t n, const double* A /* 3×3 row-major */,
@@ -141,6 +196,39 @@ void for_each_packed_block(const SamplesRef& readings, F&& f) {
 
 using detail::percent;
 
+// Σ d dᵀ of the design rows from the 35 moment sums (EllipsoidMoments' order); with `noise_variance` > 0 every
+// moment replaced by its unbiased estimate for noise-free readings.
+Eigen::Matrix<double, 10, 10> scatter_of_moments(const double* sums, double noise_variance) {
+  // E[t_n(x + e)] = xⁿ for e ~ N(0, v) with t_0..t_4 = 1, x, x² − v, x³ − 3vx, x⁴ − 6vx² + 3v²
+  // (Hermite); axes are independent, so Π t gives the unbiased moment of a monomial. herm[n][a] is
+  // the coefficient of xᵃ in t_n.
+  const double v = noise_variance;
+  const double herm[5][5] = {{1, 0, 0, 0, 0},
+                             {0, 1, 0, 0, 0},
+                             {-v, 0, 1, 0, 0},
+                             {0, -3 * v, 0, 1, 0},
+                             {3 * v * v, 0, -6 * v, 0, 1}};
+  auto moment = [&](int i, int j, int k) {
+    if (v == 0.0) return sums[kIndex.index[i][j][k]];
+    double total = 0.0;
+    for (int a = 0; a <= i; ++a)
+      for (int b = 0; b <= j; ++b)
+        for (int c = 0; c <= k; ++c) {
+          const double coef = herm[i][a] * herm[j][b] * herm[k][c];
+          if (coef != 0.0) total += coef * sums[kIndex.index[a][b][c]];
+        }
+    return total;
+  };
+  Eigen::Matrix<double, 10, 10> s;
+  for (int a = 0; a < 10; ++a)
+    for (int b = 0; b <= a; ++b) {
+      s(a, b) = s(b, a) = kDesignFactor[a] * kDesignFactor[b] *
+                          moment(kDesignExp[a][0] + kDesignExp[b][0], kDesignExp[a][1] + kDesignExp[b][1],
+                                 kDesignExp[a][2] + kDesignExp[b][2]);
+    }
+  return s;
+}
+
 }  // namespace
 
 // ---- EllipsoidMoments ----------------------------------------------------------------------------
@@ -175,35 +263,40 @@ bool EllipsoidMoments::finite() const {
 }
 
 Eigen::Matrix<double, 10, 10> EllipsoidMoments::scatter(double noise_variance) const {
-  // E[t_n(x + e)] = xⁿ for e ~ N(0, v) with t_0..t_4 = 1, x, x² − v, x³ − 3vx, x⁴ − 6vx² + 3v²
-  // (Hermite); axes are independent, so Π t gives the unbiased moment of a monomial. herm[n][a] is
-  // the coefficient of xᵃ in t_n.
-  const double v = noise_variance;
-  const double herm[5][5] = {{1, 0, 0, 0, 0},
-                             {0, 1, 0, 0, 0},
-                             {-v, 0, 1, 0, 0},
-                             {0, -3 * v, 0, 1, 0},
-                             {3 * v * v, 0, -6 * v, 0, 1}};
-  auto moment = [&](int i, int j, int k) {
-    if (v == 0.0) return sums_[kIndex.index[i][j][k]];
-    double total = 0.0;
-    for (int a = 0; a <= i; ++a)
-      for (int b = 0; b <= j; ++b)
-        for (int c = 0; c <= k; ++c) {
-          const double coef = herm[i][a] * herm[j][b] * herm[k][c];
-          if (coef != 0.0) total += coef * sums_[kIndex.index[a][b][c]];
-        }
-    return total;
-  };
-  Eigen::Matrix<double, 10, 10> s;
-  for (int a = 0; a < 10; ++a)
-    for (int b = 0; b <= a; ++b) {
-      s(a, b) = s(b, a) = kDesignFactor[a] * kDesignFactor[b] *
-                          moment(kDesignExp[a][0] + kDesignExp[b][0], kDesignExp[a][1] + kDesignExp[b][1],
-                                 kDesignExp[a][2] + kDesignExp[b][2]);
-    }
-  return s;
+  return scatter_of_moments(sums_.data(), noise_variance);
 }
+
+namespace detail {
+
+namespace {
+// Σ w_k·monomial_k of the readings normalised by (centre, scale): a lane-blocked pass (degree ≤ 2 unless `full`).
+std::array<double, EllipsoidMoments::kMoments> weighted_moments(const SamplesRef& samples, const SeriesRef& weights,
+                                                                const Eigen::Vector3d& centre, double scale, bool full) {
+  std::array<double, EllipsoidMoments::kMoments> sums{};
+  std::size_t done = 0;
+  for_each_packed_block(samples, [&](const double* rows, std::size_t len) {
+    accumulate_weighted_moments(rows, weights.data() + done, len, centre.data(), 1.0 / scale, full, sums.data());
+    done += len;
+  });
+  return sums;
+}
+}  // namespace
+
+Eigen::Matrix<double, 10, 10> weighted_scatter(const SamplesRef& samples, const SeriesRef& weights,
+                                               const Eigen::Vector3d& centre, double scale) {
+  return scatter_of_moments(weighted_moments(samples, weights, centre, scale, true).data(), 0.0);
+}
+
+Eigen::Matrix<double, 10, 1> weighted_design_sum(const SamplesRef& samples, const SeriesRef& weights,
+                                                 const Eigen::Vector3d& centre, double scale) {
+  const auto sums = weighted_moments(samples, weights, centre, scale, false);
+  Eigen::Matrix<double, 10, 1> out;
+  for (int a = 0; a < 10; ++a)
+    out(a) = kDesignFactor[a] * sums[kIndex.index[kDesignExp[a][0]][kDesignExp[a][1]][kDesignExp[a][2]]];
+  return out;
+}
+
+}  // namespace detail
 
 std::pair<Eigen::Vector3d, double> normalisation(const SamplesRef& samples, Eigen::Index max_rows) {
   samples.require_width("samples");

@@ -52,6 +52,15 @@ inline std::string hardly_turned(const Eigen::Matrix<double, 10, 10>& scatter, c
          "unsigned ADC's mid-scale?)";
 }
 
+/// Σ w_k d_k d_kᵀ over the design rows d = [u², v², w², 2uv, 2uw, 2vw, 2u, 2v, 2w, 1] of the readings normalised
+/// by u = (m − centre)/scale, with a weight w_k per reading: the ellipsoid moments' scatter, weighted, from one
+/// lane-blocked pass (ellipsoid.cpp). `weights` has one entry per row of `samples`.
+Eigen::Matrix<double, 10, 10> weighted_scatter(const SamplesRef& samples, const SeriesRef& weights,
+                                               const Eigen::Vector3d& centre, double scale);
+/// Σ w_k d_k, the design rows' weighted sum (one pass over degree ≤ 2).
+Eigen::Matrix<double, 10, 1> weighted_design_sum(const SamplesRef& samples, const SeriesRef& weights,
+                                                 const Eigen::Vector3d& centre, double scale);
+
 struct EllipsoidShape {
   Eigen::SelfAdjointEigenSolver<Eigen::Matrix3d> eig;  ///< of M
   Eigen::Vector3d centre;                              ///< c = −M⁻¹v

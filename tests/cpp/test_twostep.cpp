@@ -228,6 +228,30 @@ TEST(TwoStep3D, EachReadingsFieldRecoversNoiseFreeSensorExactly) {
             std::string::npos);
 }
 
+// The per-reading sums are taken in lane blocks over chunks of weights: readings viewed in place with rows 5 apart
+// (copied a block at a time) give the fit of the packed readings; 9001 rows cross the chunks and end mid-block.
+// (A wrong weight's row or a lost block moves the offset by far more than 1e-8 of the field.)
+TEST(TwoStep3D, EachReadingsFieldOnRowsApartInMemoryIsThePackedFit) {
+  const Truth3D t = make_truth(8, 50.0);
+  const Samples base = simulate(t, 9001, 0.01, 9);
+  Eigen::VectorXd k(base.rows());
+  for (Eigen::Index i = 0; i < k.size(); ++i) k(i) = 1.0 + 0.2 * std::sin(9.0 * i / k.size());
+  const Samples s = ((base.rowwise() - t.b.transpose()).array().colwise() * k.array()).matrix().rowwise() +
+                    t.b.transpose();
+  Eigen::Matrix<double, Eigen::Dynamic, 5, Eigen::RowMajor> wide = decltype(wide)::Zero(s.rows(), 5);
+  wide.middleCols<3>(1) = s;
+  const fluxcal::SamplesRef view = wide.middleCols<3>(1);
+  ASSERT_EQ(view.outerStride(), 5);  // viewed in place, not copied packed
+  const auto packed = fluxcal::twostep(s, k * t.field);
+  const auto strided = fluxcal::twostep(view, k * t.field);
+  // The sums agree to rounding (measured 1e-16 relative); the scoring's last steps, at the rounding floor of its
+  // cost, take them to 1e-10 apart (measured 1.3e-10).
+  EXPECT_LT((packed.calibration.offset - strided.calibration.offset).norm() / t.field, 1e-8);
+  EXPECT_LT((packed.calibration.matrix - strided.calibration.matrix).norm(), 1e-8);
+  EXPECT_TRUE(packed.summary.converged && strided.summary.converged);
+  EXPECT_LT((packed.calibration.offset - t.b).norm() / t.field, 0.01);
+}
+
 TEST(TwoStep3D, NoisyFitConvergesWithinOnePercent) {
   const Truth3D t = make_truth(3, 50000.0);
   const Samples s = simulate(t, 2000, 0.01, 4);

@@ -303,6 +303,15 @@ def test_3d_each_readings_field_agrees_with_oracle(seed, change):
         assert cal.field_norm == pytest.approx(norms.mean(), rel=1e-12) and cal.summary["converged"]
 
 
+def test_3d_each_readings_field_agrees_with_oracle_past_the_weights_chunk():
+    """9001 readings: the weights are made 4096 at a time, and the last chunk is not a whole block of lanes."""
+    s = simulated(31, n=9001, noise=0.01)
+    _, readings, norms = changing_field(s, 1 + 0.3 * np.sin(np.linspace(0, 9, len(s.readings))))
+    cal = twostep(readings, norms)
+    ref = oracle.twostep(readings, norms)
+    assert rel(cal.offset, ref["offset"]) < 1e-8 and rel(cal.matrix, ref["matrix"]) < 1e-8
+
+
 def test_3d_each_readings_field_same_everywhere_is_the_one_field():
     s = simulated(3, n=600, noise=0.01)
     H = s.field_norm * 1.0000000123  # (a value whose mean over 600 is not itself to the last bit)
