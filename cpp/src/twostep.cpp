@@ -703,7 +703,12 @@ TwoStepResult twostep_fit(const SamplesRef& samples, const TwoStepOptions& optio
         return next;
       };
       last_step = delta.cwiseAbs().maxCoeff();
-      if (last_step <= options.tolerance) {  // below the tolerance the cost cannot tell the step from rounding
+      // Below the tolerance, or with a predicted decrease ½δᵀFδ below the rounding of the cost pᵀS p (the size of
+      // the terms it cancels), the cost cannot tell the step from rounding: without the latter, the same readings
+      // in another memory layout (sums rounded otherwise) ran 19 iterations instead of 5 on steps of 1e-10.
+      const double cost_rounding =
+          p.cwiseAbs().dot(Sw.cwiseAbs() * p.cwiseAbs()) * std::numeric_limits<double>::epsilon();
+      if (last_step <= options.tolerance || 0.5 * delta.dot(F * delta) <= cost_rounding) {
         m = step(1.0);
         sum.iterations = it + 1;
         sum.converged = true;
