@@ -731,6 +731,15 @@ RefineResult refine_magnitude(const Calibration& start, const SamplesRef& sample
   for (Eigen::Index j = 0; j < k; ++j) scales(j) = j < 3 ? radius : gain;
   finish_statistics(out, F, sigma2, scales, opt, &scores);
   finish_summary(out, samples, nullptr, norms);
+  // A fit that left the readings: |h| as far from the field as the field is large (on a cap, the offset and A ran to
+  // 1e75 and 1e69 in 100 iterations, its cost underflowed to 0 and won a comparison of shapes by BIC).
+  if (!(out.summary.residual_rms < cal.field_norm))
+    throw Error("refine: the refinement ran away from the readings (" +
+                std::string(out.summary.converged ? "converged" : "not converged") + " after " +
+                std::to_string(out.summary.iterations) + " iterations, |h| − field RMS " +
+                detail::num(out.summary.residual_rms) + " against a field of " + detail::num(cal.field_norm) +
+                "); the start was too far off, or the readings cover too few directions (a small cap of the sphere: "
+                "turn the sensor through more orientations)");
   return out;
 }
 

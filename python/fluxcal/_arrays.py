@@ -139,6 +139,12 @@ def field_norms_summary(norms: np.ndarray) -> dict:
     return {"count": len(norms), "min": float(norms.min()), "max": float(norms.max())}
 
 
+def changing_field(norms: np.ndarray) -> bool:
+    """Whether per-reading field magnitudes change: (H_k/H̄)² has a standard deviation above 1e-6 (TWOSTEP's test;
+    below it the per-reading fits are the one-|field| ones)."""
+    return bool(np.std((norms / np.mean(norms)) ** 2) > 1e-6)
+
+
 def as_field_norms(values, n: int, name: str = "field_norms") -> np.ndarray:
     """Per-reading field magnitudes (or one for all) as N positive finite floats; ValueError naming the problem
     and the argument (`name`: field_norm where a function takes one value or one per reading)."""

@@ -454,3 +454,19 @@ def test_direction_coverage_names_a_nan_row_and_a_bad_max_rows():
     for bad in (-1, 1.5, True):
         with pytest.raises(ValueError, match="max_rows"):
             fluxcal.direction_coverage(s.truth, bad)
+
+
+def test_a_refinement_that_runs_away_from_the_readings_is_an_error():
+    """On a 23° cap from a start 30 off, the diagonal shape's offset and A ran to 1e75 and 1e69 and came back as a
+    calibration (its cost underflowed to 0, so calibrate's choice of shape by BIC took it, at −∞). |h| − field RMS
+    above the field itself is no calibration: an error naming the iterations and the misfit."""
+    rng = np.random.default_rng(1)
+    n, cap = 300, rng.uniform(5, 40)
+    th, ph = np.radians(cap) * np.sqrt(rng.uniform(0, 1, n)), rng.uniform(0, 2 * np.pi, n)
+    u = np.c_[np.sin(th) * np.cos(ph), np.sin(th) * np.sin(ph), np.cos(th)]
+    m = 50.0 * u + np.array([5.0, -3, 2]) + rng.normal(0, rng.uniform(0.1, 2), (n, 3))
+    start = fluxcal.Calibration(offset=np.array([5.0, -3, 2]) + rng.normal(0, 30, 3),
+                                matrix=np.eye(3) * rng.uniform(0.5, 2), field_norm=50.0)
+    with pytest.raises(ValueError, match=r"refine: the refinement ran away from the readings \(not converged after "
+                                         r"\d+ iterations, \|h\| − field RMS .* against a field of 50\)"):
+        fluxcal.refine(start, m, shape="diag")
