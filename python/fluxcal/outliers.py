@@ -30,9 +30,10 @@ from dataclasses import dataclass, field, replace
 import numpy as np
 from scipy import special, stats
 
-from ._arrays import as_samples, past_range
+from ._arrays import as_samples, changing_field, past_range
 from .calibration import Calibration
 from .ellipsoid import fit_ellipsoid
+from .twostep import twostep
 
 SUBSET = 20      # readings per LMedS subset: 10 % contamination leaves a clean subset 12 % of the time
 SUBSETS = 64     # so 64 subsets miss a clean one with probability 3e-4
@@ -88,22 +89,30 @@ class Outliers:
 
 
 def _distances(cal, m: np.ndarray, norms=None) -> np.ndarray:
-    """|h|/median|h| − 1; with each reading's |field| (`norms`), of |h|/|field|: a spike in either stands out."""
-    radius = np.linalg.norm(cal.apply(m), axis=1) / (1.0 if norms is None else norms)
-    return radius / np.median(radius) - 1.0
+    """|h|/median|h| − 1; with each reading's |field| (`norms`), (|h| − s·|field|)/(s·mean |field|) with s the median
+    |h|/|field|: a spike in either stands out. (Not |h|/|field| − 1: the noise adds to the readings, so its share of
+    a low |field| is larger, and along an orbit, |F| 22–47 µT, the equator's noise was taken for a disturbance.)"""
+    radius = np.linalg.norm(cal.apply(m), axis=1)
+    if norms is None:
+        return radius / np.median(radius) - 1.0
+    s = np.median(radius / norms)
+    return (radius - s * norms) / (s * np.mean(norms))
 
 
-def _subset_quadrics(m: np.ndarray, rng):
+def _subset_quadrics(m: np.ndarray, rng, change=None):
     """Least-squares quadrics x'Mx + 2v'x + d = 0 through SUBSETS random subsets of SUBSET readings, all
     at once (a batched SVD; the readings centred and scaled first for conditioning). Returns the
     centres (k×3) and shape matrices (k×3×3, |S^½ (x − c)| = 1 on the quadric) of those that are
-    ellipsoids, in the readings' units."""
+    ellipsoids, in the readings' units. With `change` (each reading's (H_k/H̄)² − 1, a field that changes) the
+    quadric has a term in it, x'Mx + 2v'x + d + e·change = 0, and |S^½ (x − c)| = H_k/H̄ instead."""
     # (robustly: a mean and a std had taken the scale of one reading of 1e16, and no subset was an ellipsoid)
     mu = np.median(m, axis=0)
     scale = float(np.median(np.linalg.norm(m - mu, axis=1))) or 1.0
-    x = (m[rng.integers(0, len(m), (SUBSETS, SUBSET))] - mu) / scale  # a repeated reading only weakens a subset
+    rows = rng.integers(0, len(m), (SUBSETS, SUBSET))  # a repeated reading only weakens a subset
+    x = (m[rows] - mu) / scale
     X, Y, Z = x[..., 0], x[..., 1], x[..., 2]
-    design = np.stack([X * X, Y * Y, Z * Z, 2 * X * Y, 2 * X * Z, 2 * Y * Z, 2 * X, 2 * Y, 2 * Z, np.ones_like(X)], axis=-1)
+    columns = [X * X, Y * Y, Z * Z, 2 * X * Y, 2 * X * Z, 2 * Y * Z, 2 * X, 2 * Y, 2 * Z, np.ones_like(X)]
+    design = np.stack(columns + ([] if change is None else [change[rows]]), axis=-1)
     p = np.linalg.svd(design, full_matrices=False)[2][:, -1, :]  # the null direction of each subset's design
     M = np.stack([p[:, [0, 3, 4]], p[:, [3, 1, 5]], p[:, [4, 5, 2]]], axis=1)
     v, d = p[:, 6:9], p[:, 9]
@@ -122,26 +131,36 @@ def _robust_z(e: np.ndarray):
     return np.abs(e - centre) / max(sigma, 1e-300), sigma
 
 
-def _try_fit(m: np.ndarray, method: str):
+def _try_fit(m: np.ndarray, method: str, norms=None):
+    """The ALS (`method`) ellipsoid of the readings, or with each reading's |field| changing, TWOSTEP with them (the
+    ellipsoid's quadric takes the change for the shape: on a slow tumble along an orbit it was none); None when the
+    fit fails or is no ellipsoid."""
     try:
-        cal = fit_ellipsoid(m, method=method)
+        if norms is not None and changing_field(norms):
+            cal = twostep(m, norms)
+        else:
+            cal = fit_ellipsoid(m, method=method)
     except (ValueError, RuntimeError):
         return None
     w = np.linalg.eigvalsh(0.5 * (cal.matrix + cal.matrix.T))
     return cal if np.all(np.isfinite(cal.matrix)) and w.min() > 0 else None
 
 
-def _lmeds_start(m: np.ndarray, rng, best=None):
+def _lmeds_start(m: np.ndarray, rng, best=None, norms=None):
     """The fit with the least median absolute distance: `best` (the ALS fit of all readings), or the quadric
-    through one of the random subsets (scored on at most SCORED readings: the median needs no more).
-    Returns a Calibration or None."""
-    scored = m if len(m) <= SCORED else m[rng.choice(len(m), SCORED, replace=False)]
+    through one of the random subsets (scored on at most SCORED readings: the median needs no more). With each
+    reading's |field| (`norms`, changing) the distances are of |h|/|field|. Returns a Calibration or None."""
+    chosen = np.arange(len(m)) if len(m) <= SCORED else rng.choice(len(m), SCORED, replace=False)
+    scored = m[chosen]
+    changing = norms is not None and changing_field(norms)
+    relative = norms[chosen] / np.mean(norms) if changing else 1.0
 
-    def score(radii):  # k × n radii → k scores: the median absolute relative distance (its median is 0)
-        return np.median(np.abs(radii / np.median(radii, axis=1, keepdims=True) - 1.0), axis=1)
+    def score(radii):  # k × n radii → k scores: the median absolute distance (as _distances; its median is 0)
+        s = np.median(radii / relative, axis=1, keepdims=True)
+        return np.median(np.abs(radii - s * relative) / s, axis=1)
 
     best_score = score(np.linalg.norm(best.apply(scored), axis=1)[None])[0] if best is not None else np.inf
-    centres, shapes = _subset_quadrics(m, rng)
+    centres, shapes = _subset_quadrics(m, rng, (norms / np.mean(norms)) ** 2 - 1.0 if changing else None)
     if len(centres):
         d = scored[None, :, :] - centres[:, None, :]
         scores = score(np.sqrt(np.sum((d @ shapes) * d, axis=2)))
@@ -209,16 +228,16 @@ def find_outliers(samples, reference=None, alpha: float = 0.01, seed: int = 0, f
                        stretches=[(int(kept[a]), int(kept[b]), z) for a, b, z in inner.stretches])
     if n < MIN_SAMPLES or not _squares_representable(m):
         return none  # too few to judge, NaN or out of scale: the fit itself names the problem
-    start = _try_fit(m, "als")
+    start = _try_fit(m, "als", field_norms)
     quick = _fits_to_the_noise(m, start, threshold, field_norms)
     if quick is not None:
         return Outliers(np.zeros(0, dtype=int), threshold, quick)
-    cal = _lmeds_start(m, np.random.default_rng(seed), start)
+    cal = _lmeds_start(m, np.random.default_rng(seed), start, field_norms)
     if cal is None:
         return none  # no subset fits an ellipsoid: the fit itself will say why
     z, sigma = _robust_z(_distances(cal, m, field_norms))
     for _ in range(3):  # refit on the accepted readings and judge everything again, until nothing changes
-        refit = _try_fit(m[z <= threshold], "als")
+        refit = _try_fit(m[z <= threshold], "als", None if field_norms is None else field_norms[z <= threshold])
         if refit is None:
             break
         z_new, sigma = _robust_z(_distances(refit, m, field_norms))

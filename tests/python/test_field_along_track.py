@@ -184,3 +184,19 @@ def test_igrf_needs_a_place_and_a_clock(tmp_path):
                                                      zip(np.arange(100.0), readings, lat, lon)))
     run = run_cli("calibrate", path, "--field-norm", "igrf")
     assert run.returncode == 2 and "has no clock time" in run.stderr and "to date the IGRF by" in run.stderr, run.stderr
+
+
+def test_the_outlier_screen_judges_each_reading_against_its_own_field():
+    """The screen before the fit judged the slow-tumble orbit against the ALS ellipsoid, which takes the field's
+    change for a shape, and by |h|/|F| − 1, whose noise is 2.2× larger at the equator's 22 µT than at 47 µT: on
+    seed 27 it reported rows 1028–1144 (up to 5 σ) as a disturbance in clean data (1 of 40 seeds; a blind check,
+    7 of 150). Now its fits take each |F| (TWOSTEP, and quadrics with the change's term) and a reading's distance
+    is |h| − s·|F| in units of the mean field: none of 40. A real disturbance still stands out."""
+    m, norms, b = slow_tumble_orbit(27)
+    cal = fluxcal.calibrate(m, field_norm=norms)
+    assert not [w for w in cal.summary["warnings"] if "lie off" in w], cal.summary["warnings"]
+    disturbed = m.copy()
+    disturbed[500:560] += [400.0, -300.0, 200.0]  # a magnet nearby for 10 minutes: 540 nT, 27 times the noise
+    cal = fluxcal.calibrate(disturbed, field_norm=norms)
+    assert [w for w in cal.summary["warnings"] if "rows 5" in w and "lie off the ellipsoid (each against its own "
+            "|field|) for a stretch" in w], cal.summary["warnings"]
