@@ -293,13 +293,44 @@ def _field_norm_igrf(rec: Recording, args) -> np.ndarray:
         norms = igrf_magnitudes(lat, lon, alt, t)
     except ValueError as exc:  # a date outside the model
         raise ValueError(f"--field-norm igrf: {args.file}: {exc}") from None
+    checked = _altitude_unit_checked(rec, args, names, lat, lon, alt, t, norms) if names["alt_unit_assumed"] else ""
     factor = _take_field_units(args, "nT", "--field-norm igrf")
     days = sorted({datetime.fromtimestamp(x, timezone.utc).strftime("%Y-%m-%d") for x in (t.min(), t.max())})
-    height = (f"{names['alt']} in {names['alt_unit']}{' (no unit stated: assumed)' if names['alt_unit_assumed'] else ''}"
+    height = (f"{names['alt']} in {names['alt_unit']}{' (no unit stated: assumed' + checked + ')' if checked else ''}"
               f", {alt.min():.4g} to {alt.max():.4g} km" if names["alt"] else "no altitude column: 0 km")
     print(f"field norm of each reading from the IGRF (ppigrf) at its position ({names['lat']}, {names['lon']}; "
           f"{height}) and UTC date ({' to '.join(days)}): {norms.min():.1f} to {norms.max():.1f} nT")
     return norms * factor
+
+
+def _altitude_unit_checked(rec: Recording, args, names, lat, lon, alt, t, norms) -> str:
+    """An altitude column that states no unit is taken in metres. A satellite's 500 (km) read so put it on the
+    ground, 20 % off in |F|, and the fit went on without a word (a blind check). So the readings judge: TWOSTEP
+    fitted to the |F| of either unit, an error when they fit km's by more than twice better; else the text that says
+    the metres were checked."""
+    from .positions import IGRF_TOP_KM, igrf_magnitudes
+    from .twostep import twostep
+
+    if not np.any(alt > 0.0):
+        return ""
+    if np.max(alt) * 1000.0 >= IGRF_TOP_KM:
+        return f"; in km it would reach {np.max(alt) * 1000.0:.4g} km, past the magnetopause"
+    in_km = igrf_magnitudes(lat, lon, alt * 1000.0, t)
+    if np.max(np.abs(in_km - norms) / norms) < 1e-4:  # (a few metres or km alike: nothing to tell apart)
+        return ""
+    try:
+        m = rec.samples()
+        # (relative to each |F|: 500 000 m read as km puts the sensor far out, where the field and all misfits vanish)
+        misfit = {unit: twostep(m, values).summary["residual_rms"] / np.mean(values)
+                  for unit, values in (("m", norms), ("km", in_km))}
+    except ValueError:  # readings TWOSTEP cannot fit: the calibration itself says why
+        return ""
+    if misfit["km"] < 0.5 * misfit["m"]:
+        raise ValueError(f"--field-norm igrf: {args.file}: column {names['alt']} states no unit, so it was taken in m, "
+                         f"but the readings fit the IGRF far better in km (TWOSTEP's residual RMS {misfit['km']:.2%} "
+                         f"of |F| against {misfit['m']:.2%} in m): state its unit (a header {names['alt']} [km], or "
+                         "name it alt_km)")
+    return f"; in km the readings would fit the IGRF worse: residual {misfit['km']:.2%} of |F| against {misfit['m']:.2%}"
 
 
 def _take_field_units(args, stated: str, what: str) -> float:
@@ -576,14 +607,16 @@ def cmd_simulate(args) -> int:
     effects = sim.random_sensor(args.field_norm, rng, noise=args.noise)
     result = sim.simulate(sim.uniform(args.n, rng), effects, field, rng)
     truth = result.true_calibration(units=args.units)
-    cols = {"t": result.t, "mx": result.readings[:, 0], "my": result.readings[:, 1], "mz": result.readings[:, 2]}
+    # independent orientations, no time series: no t column (a 50 Hz clock made diagnose take them for one)
+    cols = {"mx": result.readings[:, 0], "my": result.readings[:, 1], "mz": result.readings[:, 2]}
     meta = {"simulated": f"fluxcal {__version__}, seed {args.seed}, noise {args.noise} of |field|",
             "true_offset": " ".join(f"{v:.10g}" for v in truth.offset),
             "true_matrix": " ".join(f"{v:.10g}" for v in truth.matrix.ravel()),
             "field_norm": f"{args.field_norm:.10g}"}
-    write_output(args.output, Recording(columns=cols, units={"t": "s", **{c: args.units for c in ("mx", "my", "mz")}},
+    write_output(args.output, Recording(columns=cols, units={c: args.units for c in ("mx", "my", "mz")},
                                         metadata=meta, source=str(args.output)))
-    print(f"wrote {args.output}: {args.n} readings, field {args.field_norm:g} {args.units}")
+    print(f"wrote {args.output}: {args.n} readings in independent orientations (no time column), field "
+          f"{args.field_norm:g} {args.units}")
     return 0
 
 
@@ -592,7 +625,7 @@ def _simulate_effects(args) -> int:
     diagnosis reads — t, temp, and the current, reference vectors (rx, ry, rz) and accelerometer where the
     effects need them."""
     from .sim.effects import CANDIDATES
-    from .sim.withheld import withheld_trial
+    from .sim.withheld import truth, withheld_trial
 
     names = [] if args.effects.strip() == "none" else [n.strip() for n in args.effects.split(",") if n.strip()]
     unknown = [n for n in names if n not in {c.name for c in CANDIDATES}]
@@ -609,9 +642,10 @@ def _simulate_effects(args) -> int:
         if key in kw:
             cols.update(zip(names_, np.asarray(kw[key]).T))
             units.update(dict.fromkeys(names_, "uT" if key == "reference" else "m/s^2"))
+    # the truth the diagnosis is to be compared with: each effect's size, not its name alone
     meta = {"simulated": f"fluxcal {__version__} withheld-effect trial, seed {args.seed}",
-            "effects": ", ".join(names) or "none", "field_norm": f"{kw['field_norm']:.10g}",
-            "model": kw["model"]}
+            "effects": ", ".join(names) or "none", **truth(simulation, "uT"),
+            "field_norm": f"{kw['field_norm']:.10g}", "model": kw["model"]}
     write_output(args.output, Recording(columns=cols, units=units, metadata=meta, source=str(args.output)))
     hint = f" --model {kw['model']} --reference rx,ry,rz" if "reference" in kw else ""
     duration = len(m) * float(np.median(np.diff(kw["t"])))
@@ -959,8 +993,8 @@ def cmd_drift(args) -> int:
     if "skipped_lines" in rec.metadata:
         print(f"skipped {rec.metadata['skipped_lines'].replace(':', ' lines:', 1)} (not in the output)")
     fitted = model.settings.get("temperature") or {}
-    temp, outside, _ = _temperatures(rec, args.temp_column, args.outside_column or fitted.get("outside") or
-                                     "temp_outside", args.file)
+    temp, outside, temperature = _temperatures(rec, args.temp_column, args.outside_column or fitted.get("outside")
+                                               or "temp_outside", args.file)
     compensated = model.compensate(rec.columns[column], temp, outside, outside=args.outside_range)
     known = ~np.isnan(compensated)  # with --outside-range nan, the samples the model speaks for
     missing = ~np.isfinite(rec.columns[column])  # (NaN in, NaN out: not the temperature's doing)
@@ -972,8 +1006,19 @@ def cmd_drift(args) -> int:
               f"({'file line' if rec.line_numbers is not None else 'row'}{'s' if len(rows) > 1 else ''} {shown}): "
               f"NaN in {column}_compensated")
     unknown = int((~known & ~missing).sum())
-    if unknown:
-        lo, hi = model.segments[0]["range"][0], model.segments[-1]["range"][1]
+    lo, hi = model.segments[0]["range"][0], model.segments[-1]["range"][1]
+    if unknown and not known.any():
+        # NaN for every sample is what --outside-range nan asks for, but a file of nothing but NaN is seldom what
+        # was meant (another chamber, a temperature in another unit, the wrong model): written, and said loudly
+        hot = temp[~missing & np.isfinite(temp)]
+        seen = ("" if not hot.size else f" (this file's {hot.min():g} °C)" if hot.min() == hot.max() else
+                f" (this file's {hot.min():g} … {hot.max():g} °C)")
+        every = f"every sample with a {column} reading" if missing.any() else "every sample"
+        print(f"warning: {args.file}: {every} ({unknown} of {len(rec)}) is outside the model's range "
+              f"[{lo:g}, {hi:g}] °C of its temperature {temperature['column']!r}{seen}: {column}_compensated is NaN "
+              "throughout (--outside-range nan; without it this is an error). Is it the right model, and the "
+              "temperature's column and unit?", file=sys.stderr)
+    elif unknown:
         print(f"warning: {unknown} of {len(rec)} samples at temperatures outside the model's {lo:g} … {hi:g} °C are "
               f"NaN in {column}_compensated (the polynomials are not extrapolated)")
     out_name = f"{column}_compensated"
@@ -981,9 +1026,11 @@ def cmd_drift(args) -> int:
     units = {**rec.units, **({out_name: rec.units[column]} if rec.units.get(column) else {})}
     write_output(args.output, Recording(columns=columns, units=units, source=str(args.output),
                                         metadata={**rec.metadata, "drift_model": args.model}))
-    print(f"wrote {args.output}: {len(rec)} rows, column {out_name} "
-          f"(drift span {drift.drift_span(rec.columns[column][known], temp[known]):.4g} -> "
-          f"{drift.drift_span(compensated[known], temp[known]):.4g})")
+    # the span is of the samples compensated: with none there is none to give
+    span = (f"drift span {drift.drift_span(rec.columns[column][known], temp[known]):.4g} -> "
+            f"{drift.drift_span(compensated[known], temp[known]):.4g}" if known.any() else
+            "every value NaN: no sample compensated")
+    print(f"wrote {args.output}: {len(rec)} rows, column {out_name} ({span})")
     return 0
 
 
@@ -1093,7 +1140,8 @@ def build_parser() -> argparse.ArgumentParser:
     a.add_argument("--decimal", default=None, choices=[",", "."], metavar="{',' or '.'}", help=decimal_help)
     a.set_defaults(run=cmd_apply)
 
-    s = sub.add_parser("simulate", help="write a simulated magnetometer recording")
+    s = sub.add_parser("simulate", help="write a simulated magnetometer recording: readings in independent "
+                                        "orientations, no time column (--effects: a time series)")
     s.add_argument("-o", "--output", required=True, help=output_help)
     s.add_argument("--n", type=positive_int, default=2000, help="readings (independent orientations; default 2000)")
     s.add_argument("--noise", type=non_negative_number, default=0.005, help="white noise, fraction of |field|")
@@ -1103,7 +1151,8 @@ def build_parser() -> argparse.ArgumentParser:
     s.add_argument("--effects", default=None,
                    help="instead: a minute of a hand-turned sensor at 50 Hz in uT, with temperature, carrying these "
                         "unmodelled effects (comma-separated names of `fluxcal diagnose`'s candidates; 'none' for "
-                        "none), to try the diagnosis on (fluxcal.sim.withheld; the truth in the file's metadata, "
+                        "none), to try the diagnosis on (fluxcal.sim.withheld; the truth in the file's metadata: "
+                        "each effect's parameters with units as true_<effect>, the noise, the base correction; "
                         "--n/--noise/--field-norm/--units do not apply)")
     s.set_defaults(run=cmd_simulate)
 
@@ -1273,7 +1322,7 @@ def build_parser() -> argparse.ArgumentParser:
     da.add_argument("--temp-column", default=None, help=temp_help)
     da.add_argument("--outside-range", default="error", choices=["error", "nan"],
                     help="a sample hotter or colder than the model's ranges: an error (default), or NaN in the "
-                         "output (the others compensated)")
+                         "output (the others compensated; every sample outside: all NaN, with a warning)")
     da.add_argument("--outside-column", default=None,
                     help="the outside temperature's column (default: the one the model was fitted with)")
     da.add_argument("--bad-lines", default="error", choices=["error", "skip"], help=bad_lines_help)

@@ -33,6 +33,7 @@ from __future__ import annotations
 
 import datetime as _dt
 import re
+import warnings
 from dataclasses import dataclass, field as _field
 
 import numpy as np
@@ -140,11 +141,17 @@ def _igrf(lon, lat, alt_km, date: _dt.datetime, otherwise: str):
         raise ValueError(f"IGRF (ppigrf) cannot evaluate {date:%Y-%m-%d}: {exc}") from None
 
 
+# Beyond about ten Earth radii (the magnetopause) the field is the solar wind's, not the IGRF's: an altitude past it
+# is metres given as km (a satellite's 500 000 m read as km had |F| 0.1 nT, returned without a word).
+IGRF_TOP_KM = 64000.0
+
+
 def first_bad_place(lat, lon, alt_km, utc_seconds=None):
     """("latitude"/"longitude"/"altitude"/"time", reading, value) of the first value that is no place on Earth (a
-    latitude beyond ±90°, a longitude or time not finite, an altitude below −20 km), or None."""
-    checks = [("latitude", lat, np.abs(lat) <= 90.0), ("longitude", lon, np.isfinite(lon)),
-              ("altitude", alt_km, np.isfinite(alt_km) & (alt_km > -20.0))]
+    latitude beyond ±90°, a longitude beyond ±360° or a time not finite, an altitude below −20 km or past the
+    magnetopause, IGRF_TOP_KM), or None."""
+    checks = [("latitude", lat, np.abs(lat) <= 90.0), ("longitude", lon, np.abs(lon) <= 360.0),
+              ("altitude", alt_km, (alt_km > -20.0) & (alt_km < IGRF_TOP_KM))]
     if utc_seconds is not None:
         checks.append(("time", utc_seconds, np.isfinite(utc_seconds)))
     for name, values, ok in checks:
@@ -170,7 +177,19 @@ def igrf_magnitudes(lat, lon, alt_km, utc_seconds) -> np.ndarray:
     if bad is not None:
         name, i, value = bad
         raise ValueError(f"{name}: reading {i} is {value:g}, not a place (latitude within ±90°, altitude in km above "
-                         "the ellipsoid) at a finite time")
+                         f"the ellipsoid, below {IGRF_TOP_KM:.0f} km: metres given as km?) at a finite time")
+    years = 1970.0 + t / (365.25 * 86400.0)
+    late = np.flatnonzero((years < 1800.0) | (years > 2200.0))  # (a date the model refuses by name is left to it)
+    if late.size:
+        raise ValueError(f"time: reading {late[0]} is {t[late[0]]:.6g} s since 1970, the year {years[late[0]]:.0f}: "
+                         "not a date of the IGRF (utc_seconds in milliseconds, or not since 1970?)")
+    if t.min() >= 0.0 and t.max() < 1e8:  # (from 0 up: a clock started with the log)
+        warnings.warn(f"utc_seconds: every time is before 1973 ({t.min():g} to {t.max():g} s since 1970): seconds "
+                      "from the log's start rather than since 1970? The IGRF of 1970 differs from today's by "
+                      "about 3 % of |F|", stacklevel=2)
+    if len(lat) > 1 and np.all(np.abs(lat) <= np.pi / 2) and np.all(np.abs(lon) <= 2 * np.pi):
+        warnings.warn("lat, lon: every latitude within ±π/2 and longitude within ±2π: in radians? "
+                      "igrf_magnitudes takes degrees", stacklevel=2)
     out = np.empty(len(lat))
     days = np.floor(t / 86400.0)
     for day in np.unique(days):

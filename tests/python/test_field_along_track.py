@@ -1,6 +1,7 @@
 """Each reading's known |field| from the IGRF at its place and time (a satellite's orbit, a survey flight):
 `fluxcal.positions.igrf_magnitudes`, `Recording.position`, `fluxcal calibrate --field-norm igrf`."""
 import datetime as dt
+import warnings
 
 import numpy as np
 import pytest
@@ -170,7 +171,8 @@ def test_igrf_names_a_bad_place_by_its_line(tmp_path):
     lat[40] = lon[40] = 10.0
     run = write(lat, lon)
     assert run.returncode == 0, run.stderr
-    assert "(lat, lon; alt in m (no unit stated: assumed), 500 to 500 km) and UTC date (2024-03-01)" in run.stdout
+    assert ("(lat, lon; alt in m (no unit stated: assumed; in km it would reach 5e+05 km, past the magnetopause), "
+            "500 to 500 km) and UTC date (2024-03-01)") in run.stdout, run.stdout
 
 
 def test_igrf_needs_a_place_and_a_clock(tmp_path):
@@ -200,3 +202,50 @@ def test_the_outlier_screen_judges_each_reading_against_its_own_field():
     cal = fluxcal.calibrate(disturbed, field_norm=norms)
     assert [w for w in cal.summary["warnings"] if "rows 5" in w and "lie off the ellipsoid (each against its own "
             "|field|) for a stretch" in w], cal.summary["warnings"]
+
+
+@pytest.mark.parametrize("unit", ["km", "m"])
+def test_an_altitude_without_a_unit_is_checked_against_the_readings(tmp_path, unit):
+    """An `alt` column that states no unit is taken in metres. The orbit's 500 (km) so read put the satellite on
+    the ground, |F| 20 % off, and the calibration went on without a word (A 1.26× too large; a blind check). The
+    readings now judge: they fit the km's |F| to 0.06 % and the metres' to 2 % (TWOSTEP), an error naming the
+    column; an aircraft's 3000 m are taken, and the report says the km were worse."""
+    t, lat, lon, alt, readings, _ = orbit()
+    if unit == "m":  # an aircraft at 3000 m: its own |F| (the orbit's readings scaled to it)
+        alt = np.full(len(t), 3.0)
+        norms = igrf_magnitudes(lat, lon, alt, t)
+        b = np.array([1500.0, -800.0, 300.0])
+        _, _, _, _, orbit_readings, (_, _, orbit_norms) = orbit()
+        readings = b + (orbit_readings - b) * (norms / orbit_norms)[:, None]
+    path = tmp_path / "orbit.csv"
+    path.write_text("t,mx,my,mz,lat,lon,alt\n" + "".join(
+        f"{s:.0f},{x:.3f},{y:.3f},{z:.3f},{la:.6f},{lo:.6f},{h * (1 if unit == 'km' else 1000):.3f}\n"
+        for s, (x, y, z), la, lo, h in zip(t, readings, lat, lon, alt)))
+    run = run_cli("calibrate", path, "--field-norm", "igrf", "--units", "nT", "-o", tmp_path / "cal.json")
+    if unit == "km":
+        assert run.returncode == 2 and ("column alt states no unit, so it was taken in m, but the readings fit the "
+                                        "IGRF far better in km") in run.stderr, run.stderr
+    else:
+        assert run.returncode == 0, run.stderr
+        assert "alt in m (no unit stated: assumed; in km the readings would fit the IGRF worse" in run.stdout
+
+
+def test_igrf_magnitudes_names_units_it_cannot_be_given():
+    """A blind check gave igrf_magnitudes metres as km (|F| 0.1 nT, returned), milliseconds (Python's "year 56136 is
+    out of range", naming nothing), seconds from the log's start (the 1970 field, 3 % off) and radians (another
+    place): errors naming the input for the impossible, warnings for the unlikely."""
+    t, lat, lon, alt, _, _ = orbit(n=50)
+    with pytest.raises(ValueError, match="altitude: reading 0 is 500000, not a place .* below 64000 km: metres given as km"):
+        igrf_magnitudes(lat, lon, alt * 1000, t)
+    with pytest.raises(ValueError, match=r"time: reading 0 is 1.70934e\+12 s since 1970, the year 56136: not a date "
+                                         r"of the IGRF \(utc_seconds in milliseconds"):
+        igrf_magnitudes(lat, lon, alt, t * 1000)
+    with pytest.warns(UserWarning, match="every time is before 1973 .* seconds from the log's start"):
+        igrf_magnitudes(lat, lon, alt, t - t[0])
+    with pytest.warns(UserWarning, match="every latitude within ±π/2 and longitude within ±2π: in radians"):
+        igrf_magnitudes(np.radians(lat), np.radians(lon), alt, t)
+    with pytest.raises(ValueError, match="longitude: reading 3 is 400"):
+        igrf_magnitudes(lat[:5], [0, 1, 2, 400, 4], alt[:5], t[:5])
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")  # the orbit itself: nothing to say
+        igrf_magnitudes(lat, lon, alt, t)

@@ -170,7 +170,9 @@ def _read_headerless(path, lines, start, names, columns, units, delimiter) -> Re
         raise ValueError(f"{path}, line {start + 1}: {len(first)} {sep}-separated numbers and no header; "
                          f"--columns gives {given} names, need one per column")
     if why is None:
-        example = ",".join(["t", "mx", "my", "mz"][:len(first)] + [f"c{k}" for k in range(5, len(first) + 1)])
+        # three columns or fewer hold no time: "t,mx,my" made the x readings the times as well
+        example = ",".join(["mx", "my", "mz"][:len(first)] if len(first) <= 3 else
+                           ["t", "mx", "my", "mz"] + [f"c{k}" for k in range(5, len(first) + 1)])
         raise ValueError(f"{path}, line {start + 1}: {len(first)} {sep}-separated numbers and no header; name the "
                          f"columns with --columns (one name per column, e.g. {example}) or add a header line")
     data, line_numbers, notes = parse_rows(path, lines, start, AIRBORNE_COLUMNS, delimiter,

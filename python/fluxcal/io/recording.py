@@ -58,6 +58,15 @@ class Recording:
         if missing:
             raise ValueError(f"{self.source}: no column {', '.join(repr(m) for m in missing)}; "
                              f"columns are: {', '.join(self.columns)}")
+        # One column is not an axis and the clock: `--columns t,mx,my` on three columns made the x readings the
+        # times as well, and diagnose sorted the rows by them.
+        clock = find_time(self.columns, self.units, None, names)
+        if clock is not None and clock[0] in names:
+            fix = ("the file has three columns, all of them the magnetometer: name them e.g. mx,my,mz"
+                   if len(self.columns) == 3 else "choose three other columns, or rename the time column")
+            raise ValueError(f"{self.source}: column {clock[0]!r} is chosen as a magnetometer axis "
+                             f"({', '.join(names)}) and its name makes it the time as well; one column cannot be both: "
+                             f"{fix}")
         self.mag_columns = names
         return self
 

@@ -1277,6 +1277,47 @@ CANDIDATES = (TemperatureScale, TemperatureOffset, MotorCurrent, OffsetDrift, Sc
               ColoredNoise, Quantization)
 """Every effect the diagnosis can rank, by its candidate name (`fluxcal diagnose` documents them)."""
 
+# The unit of each candidate's parameters ("{u}": the readings' unit), for stating a simulation's truth
+# (`describe_parameters`). ASCII only: the text goes into every output format's metadata. Angles are given in
+# degrees, as the diagnosis reports them (the classes hold radians).
+PARAMETER_UNITS = {
+    "temp_scale": {"alpha": "1/degC", "t0": "degC", "lag_s": "s"},
+    "temp_offset": {"beta": "{u}/degC", "t0": "degC", "lag_s": "s"},
+    "motor_current": {"k": "{u}/A"},
+    "offset_drift": {"rate": "{u}/s", "random_walk": "{u}/sqrt(s)", "warmup_s": "s"},
+    "scale_drift": {"rate": "1/s", "warmup_s": "s"},
+    "nonlinearity_cubic": {"relative": "(fraction at |s| = scale)", "scale": "{u}"},
+    "saturation": {"limit": "{u}"},
+    "cross_axis": {"hk": "{u}"},
+    "non_orthogonality": {"angles": "deg"},
+    "misalignment": {"rotvec": "deg"},
+    "hysteresis": {"width": "{u}", "share": "(of the output)"},
+    "moving_dipole": {"moment": "{u}*m^3", "start": "m", "end": "m", "t_on": "s", "t_off": "s"},
+    "offset_step": {"delta": "{u}", "t_on": "s", "t_off": "s"},
+    "eddy_current": {"tau": "s"},
+    "time_offset": {"delta": "s"},
+    "colored_noise": {"sigma": "{u}", "phi": "", "kind": ""},
+    "quantization": {"step": "{u}"},
+}
+
+
+def describe_parameters(effect: Effect, unit: str) -> str:
+    """A candidate effect's parameters with their units, `unit` the readings': "beta [0.0153 -0.0131 -0.0139]
+    uT/degC, t0 25 degC, lag_s 0 s" — the truth a diagnosis of the simulation is compared with."""
+    from dataclasses import fields
+
+    units = PARAMETER_UNITS[effect.name]
+    parts = []
+    for f in fields(effect):
+        value, u = getattr(effect, f.name), units[f.name].format(u=unit)
+        if isinstance(value, str):
+            text = value
+        else:
+            v = np.degrees(np.asarray(value, float)) if u == "deg" else np.asarray(value, float)
+            text = f"{float(v):.6g}" if v.ndim == 0 else "[" + " ".join(f"{x:.6g}" for x in v.ravel()) + "]"
+        parts.append(f"{f.name} {text}" + (f" {u}" if u else ""))
+    return ", ".join(parts)
+
 
 def random_sensor(field_norm: float, rng=None, soft_iron: float = 0.2, offset: float = 0.5,
                   noise: float = 0.005) -> list:

@@ -15,7 +15,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from .effects import CANDIDATES, HardIron, SoftIron, WhiteNoise
+from .effects import CANDIDATES, HardIron, SoftIron, WhiteNoise, describe_parameters
 from .inject import TIMED
 from .scene import tumble
 from .simulate import simulate
@@ -94,3 +94,22 @@ def withheld_trial(names, seed: int, duration_s: float = DURATION, temperature=N
     if "quantization" in names:
         kwargs["noise_sigma"] = noise  # the datasheet noise: only a given σ can reveal quantisation
     return result, kwargs
+
+
+def truth(simulation, unit: str = "uT") -> dict:
+    """What a withheld-effect trial simulated, as metadata lines (`unit`: the readings'): each withheld effect's
+    parameters with units ("true_<name>"; an effect simulated twice, both, joined by " + "), the white noise,
+    and the base sensor's correction (true_offset, true_matrix: what a field-magnitude calibration can
+    identify, as `fluxcal simulate` states it)."""
+    out = {}
+    for e in simulation.effects:
+        if e.name:
+            key = f"true_{e.name}"
+            out[key] = " + ".join(filter(None, (out.get(key), describe_parameters(e, unit))))
+    noise = [e.sigma for e in simulation.effects if isinstance(e, WhiteNoise)]
+    if noise:
+        out["true_noise"] = f"white, sigma {noise[0]:.6g} {unit} per axis"
+    correction = simulation.true_calibration(units=unit)
+    out["true_offset"] = " ".join(f"{v:.10g}" for v in correction.offset)
+    out["true_matrix"] = " ".join(f"{v:.10g}" for v in correction.matrix.ravel())
+    return out
