@@ -753,7 +753,15 @@ RefineResult refine(const Calibration& start, const SamplesRef& samples, const S
                     const RefineOptions& opt) {
   detail::check_field_norms(field_norms, samples.rows());
   const Eigen::VectorXd norms = field_norms;
-  return refine_magnitude(at_mean_norm(start, norms), samples, &norms, opt);
+  RefineResult out = refine_magnitude(at_mean_norm(start, norms), samples, &norms, opt);
+  // Norms far from the readings' own radius usually mean another unit (nT magnitudes for µT readings), as the
+  // ellipsoid fit and TWOSTEP say of a field_norm; the start's matrix, rescaled to them, hid it here.
+  const double gain = std::cbrt(out.calibration.matrix.determinant());
+  if (gain > 5.0 || gain < 0.2)
+    out.summary.warnings.push_back("field_norms: their mean " + detail::num(norms.mean()) + " is " + detail::num(gain) +
+                                   " times the radius " + detail::num(norms.mean() / gain) +
+                                   " of the readings — check the units");
+  return out;
 }
 
 RefineResult refine_vector(const Calibration& start, const SamplesRef& samples, const SamplesRef& reference,

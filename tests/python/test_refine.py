@@ -470,3 +470,14 @@ def test_a_refinement_that_runs_away_from_the_readings_is_an_error():
     with pytest.raises(ValueError, match=r"refine: the refinement ran away from the readings \(not converged after "
                                          r"\d+ iterations, \|h\| − field RMS .* against a field of 50\)"):
         fluxcal.refine(start, m, shape="diag")
+
+
+def test_field_norms_in_another_unit_are_named():
+    """calibrate and twostep say when a field norm is 1000× the readings' radius; refine(field_norms=…) rescaled
+    its start to them and said nothing (a blind check gave it nT beside µT readings)."""
+    s = simulated(3, n=600, noise=0.005)
+    _, m, norms = changing_field(s, 1 + 0.02 * np.sin(np.linspace(0, 3, 600)))
+    cal = fluxcal.calibrate(m, field_norm=norms)
+    said = [w for w in fluxcal.refine(cal, m, field_norms=norms * 1000).summary["warnings"] if "check the units" in w]
+    assert len(said) == 1 and said[0].startswith("field_norms: their mean 5.06") and "1005.21 times the radius" in said[0]
+    assert not [w for w in fluxcal.refine(cal, m, field_norms=norms).summary["warnings"] if "check the units" in w]
