@@ -139,6 +139,17 @@ def field_norms_summary(norms: np.ndarray) -> dict:
     return {"count": len(norms), "min": float(norms.min()), "max": float(norms.max())}
 
 
+def field_norm_given(samples, field_norm):
+    """`field_norm` as a calibration takes it: a column's name when `samples` is a Recording (its values in the
+    readings' unit, Recording.field_norms); else as given."""
+    if not isinstance(field_norm, str):
+        return field_norm
+    if not hasattr(samples, "field_norms"):
+        raise ValueError(f"field_norm: {field_norm!r} names a column, but the samples are an array, not a Recording "
+                         "(fluxcal.read_recording); give the values")
+    return samples.field_norms(field_norm)
+
+
 def changing_field(norms: np.ndarray) -> bool:
     """Whether per-reading field magnitudes change: (H_k/H̄)² has a standard deviation above 1e-6 (TWOSTEP's test;
     below it the per-reading fits are the one-|field| ones)."""

@@ -12,7 +12,7 @@ from ._arrays import as_samples, held_copies
 from .calibration import Calibration
 from .ellipsoid import fit_ellipsoid
 from .outliers import find_outliers
-from ._arrays import as_field_norms, changing_field
+from ._arrays import as_field_norms, changing_field, field_norm_given
 from .refine import SHAPES, fit_vector, refine, shape_name
 from .twostep import twostep
 
@@ -49,7 +49,8 @@ def calibrate(samples, method: str = "auto", field_norm: float | None = None, re
     settings as fluxcal.twostep's). `loss` ("none", "huber", "cauchy") applies to the refinement.
     `field_norm` may be one value per reading (a field that changes while the sensor turns: a scalar
     magnetometer's log beside it, an observatory's F): the refinement then fits each |h_i| to its own
-    (fluxcal.refine's field_norms), the ellipsoid start to their mean; "twostep" takes them too.
+    (fluxcal.refine's field_norms), starting from TWOSTEP with them; "twostep" takes them too. With a Recording,
+    `field_norm="F"` names its column (converted to the readings' unit when both state a field unit).
 
     outliers "drop": the readings are first screened for gross outliers (I²C glitches reading 0,0,0, ADC
     rails, spikes; fluxcal.outliers) — off the ellipsoid, or with `reference` off the vector model — and
@@ -82,6 +83,7 @@ def calibrate(samples, method: str = "auto", field_norm: float | None = None, re
                          f"{fits} (use method 'als+refine', or shape 'sym')")
     if units is None:
         units = getattr(samples, "field_units", lambda: "")()
+    field_norm = field_norm_given(samples, field_norm)
     m = as_samples(samples)
     vector = method == "vector" or (method == "auto" and reference is not None)
     if "field_norms" in settings:  # (refine's keyword: here it would pass the outlier screen and its dropped rows)

@@ -17,7 +17,8 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from . import _core
-from ._arrays import as_field_norms, as_number, as_samples, field_norms_summary, set_options, units_text
+from ._arrays import (as_field_norms, as_number, as_samples, field_norm_given, field_norms_summary, set_options,
+                      units_text)
 from .calibration import Calibration
 from .ellipsoid import _calibration
 
@@ -177,6 +178,7 @@ def twostep(samples, field_norm, units: str | None = None, **settings) -> Calibr
     """
     if units is None:
         units = getattr(samples, "field_units", lambda: "")()
+    field_norm = field_norm_given(samples, field_norm)
     arr = as_samples(samples)
     if field_norm is None:
         raise ValueError("field_norm: required (the known |H|, e.g. from IGRF)")

@@ -4,7 +4,7 @@ import json
 
 import numpy as np
 import pytest
-from conftest import run_cli
+from conftest import changing_field, run_cli, simulated
 
 import fluxcal
 from fluxcal.diagnose import detection_limits, diagnose
@@ -135,3 +135,26 @@ def test_detection_limits_take_each_readings_field():
     assert own["status"] == one["status"] == "limit", (own, one)
     assert own["found_at"] < 0.2 and own["full_run"] == ["temp_offset"], own
     assert one["found_at"] > 10 * own["found_at"], one
+
+
+def test_a_recordings_field_column_is_named_and_converted():
+    """calibrate(rec, field_norm=rec.columns["F"]) took an observatory's nT beside readings in µT as µT (A 1000×
+    too large, a blind check); field_norm="F" takes the column in the readings' unit, as do twostep and diagnose."""
+    s = simulated(5, n=600, noise=0.002, field_norm=50.0)
+    _, m, norms = changing_field(s, 1 + 0.02 * np.sin(np.linspace(0, 3, 600)))
+    columns = {"mx": m[:, 0], "my": m[:, 1], "mz": m[:, 2], "F": norms * 1000.0, "T_C": np.full(600, 20.0)}
+    rec = fluxcal.io.Recording(columns=columns, units={"mx": "uT", "my": "uT", "mz": "uT", "F": "nT", "T_C": "degC"},
+                               source="storm.csv")
+    np.testing.assert_allclose(rec.field_norms("F"), norms, rtol=1e-12)
+    direct = fluxcal.calibrate(m, field_norm=norms)
+    for cal in (fluxcal.calibrate(rec, field_norm="F"), fluxcal.twostep(rec, "F")):
+        assert cal.field_norm == pytest.approx(norms.mean(), rel=1e-12)
+        np.testing.assert_allclose(cal.offset, direct.offset, atol=0.05)
+    text = fluxcal.diagnose(rec, field_norm="F", candidates=["temp_offset"]).text()
+    assert "(|h| fitted to each reading's own |field|, mean 50" in text, text
+    for bad, said in (("G", "has no column 'G'"), ("mx", "column 'mx' of storm.csv is a magnetometer axis"),
+                      ("T_C", "column 'T_C' of storm.csv is stated in degC, not a field unit")):
+        with pytest.raises(ValueError, match=f"field_norm: .*{said}"):
+            fluxcal.calibrate(rec, field_norm=bad)
+    with pytest.raises(ValueError, match="field_norm: 'F' names a column, but the samples are an array"):
+        fluxcal.calibrate(m, field_norm="F")

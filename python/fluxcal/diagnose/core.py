@@ -13,7 +13,7 @@ import numpy as np
 from scipy import stats
 
 from .. import _core
-from .._arrays import as_field_norms, as_samples, held_copies
+from .._arrays import as_field_norms, as_samples, field_norm_given, held_copies
 from ..attitude import magnetic_frame
 from ..calibration import Calibration
 from ..io.recording import UNIX_SECONDS
@@ -1975,7 +1975,8 @@ def diagnose(samples, t=None, temp=None, reference=None, gravity=None, field_nor
     the downstream errors, and lets a moving magnet be fitted in the world's north, east and down — down
     as `gravity` points: a vector pointing up turns east and down round). field_norm: the known |h| (default: the
     fitted ellipsoid's own scale), or each reading's (N values: a field that changes while the sensor turns, logged
-    by a scalar magnetometer or an observatory; the magnitude models then fit each |h| to its own).
+    by a scalar magnetometer or an observatory; the magnitude models then fit each |h| to its own); with a Recording,
+    a column's name ("F", in the readings' unit when both state a field unit).
     model: "ellipsoid" (default without reference), "scale", "vector" (default with one), "vector_scale".
     noise_sigma: white-noise σ of the readings (default: estimated, see estimate_noise). candidates:
     effect names to try (default all whose regressors are present). alpha: significance level
@@ -1987,6 +1988,7 @@ def diagnose(samples, t=None, temp=None, reference=None, gravity=None, field_nor
     candidates = _check_options(noise_sigma, candidates, alpha, max_effects)
     gravity_given = gravity is not None
     unusable = []
+    field_norm = field_norm_given(samples, field_norm)  # (a Recording's column: before it is taken apart)
     if isinstance(samples, Recording):
         samples, t, temp, current, gravity, units, source = recording_inputs(samples, t, temp, current, gravity, units)
         side, missing = usable_regressors(temp, current)

@@ -276,6 +276,28 @@ class Recording:
             return float(self.metadata["field_norm"])
         return None
 
+    def field_norms(self, column: str) -> np.ndarray:
+        """Each reading's |field| from `column` (a scalar magnetometer's or an observatory's F logged beside the
+        readings), in the magnetometer's unit when both state a field unit (F in nT beside readings in µT: divided
+        by 1000; calibrate(rec, field_norm=rec.columns["F"]) takes nT as µT, A 1000× too large); as logged when
+        either states none. ValueError for a column that is not there, is a magnetometer axis, or states a unit
+        that is not a field's. calibrate, twostep and diagnose take `field_norm="F"` for this."""
+        from ..calibration import TESLA_PER_UNIT
+
+        if column not in self.columns:
+            raise ValueError(f"field_norm: {self.source} has no column {column!r} (columns: {', '.join(self.columns)})")
+        if column in self.mag_names():
+            raise ValueError(f"field_norm: column {column!r} of {self.source} is a magnetometer axis; name the column "
+                             "of each reading's true |field|")
+        values = np.asarray(self.columns[column], dtype=float)
+        stated, mine = unit_name(self.units.get(column, "")), self.field_units()
+        if stated and stated not in TESLA_PER_UNIT and stated != "counts":
+            raise ValueError(f"field_norm: column {column!r} of {self.source} is stated in {self.units[column]}, not "
+                             "a field unit")
+        if stated in TESLA_PER_UNIT and mine in TESLA_PER_UNIT:
+            return values * (TESLA_PER_UNIT[stated] / TESLA_PER_UNIT[mine])
+        return values
+
     def field_units(self) -> str:
         """The unit of the magnetometer columns ("" when the recording does not state it)."""
         # one spelling per unit (µT, uTesla, nanotesla, gauss → uT, nT, G): a calibration compares them by name
