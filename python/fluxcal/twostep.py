@@ -17,8 +17,8 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from . import _core
-from ._arrays import (as_field_norms, as_number, as_samples, field_norm_given, field_norms_summary, set_options,
-                      units_text)
+from ._arrays import (as_field_norms, as_number, as_samples, changing_field, field_norm_given, field_norms_summary,
+                      set_options, units_text)
 from .calibration import Calibration
 from .ellipsoid import _calibration
 
@@ -152,6 +152,40 @@ def _axis_coupling(result: TwoStep2D, readings: np.ndarray, norms: np.ndarray) -
             "(tumble the sensor) or a vector fit against reference vectors models it")
 
 
+# Residual RMS over the noise of the readings' own successive values above which a |field| log is said not to fit:
+# white noise alone leaves about 1 (its radial share), and the noise estimate only grows with a sensor's motion.
+FIELD_LOG_MISFIT = 3.0
+FIELD_LOG_STEP = 0.5  # |correlation| of the misfit with the log's change per reading that says "out of step"
+
+
+def field_log_misfit(m: np.ndarray, cal: Calibration, norms: np.ndarray) -> str | None:
+    """A warning when readings calibrated with each one's |field| (`norms`, changing) miss them by more than
+    FIELD_LOG_MISFIT times the noise their successive values show: the log out of step with them (said with its
+    shift, when the misfit follows the log's change per reading), rounded, in another unit — or the sensor departs
+    from the model. A blind check's log lagged by 2 h or rounded to 1 µT was 10–15× the noise, and said nothing."""
+    from .diagnose.core import estimate_noise
+
+    if len(m) < 20 or not changing_field(norms):
+        return None
+    d = np.linalg.norm(cal.apply(m), axis=1) - norms * (cal.field_norm / np.mean(norms))
+    rms = float(np.sqrt(np.mean(d * d)))
+    noise = float(np.cbrt(abs(np.linalg.det(cal.matrix)))) * estimate_noise(m)  # in |h|'s unit
+    if not rms > FIELD_LOG_MISFIT * noise:
+        return None
+    text = (f"the readings miss each reading's |field| by {rms:.4g} RMS, {rms / noise:.3g} times the noise of their "
+            f"successive values ({noise:.3g}): ")
+    rate = np.gradient(norms * (cal.field_norm / np.mean(norms)))
+    dc, rc = d - d.mean(), rate - rate.mean()
+    scale = float(np.sqrt(np.dot(dc, dc) * np.dot(rc, rc)))
+    corr = float(np.dot(dc, rc)) / scale if scale > 0 else 0.0
+    if abs(corr) > FIELD_LOG_STEP:  # d ≈ −L·rate for a log whose value k is the field at reading k + L
+        shift = -float(np.dot(dc, rc)) / float(np.dot(rc, rc))
+        text += (f"the misfit follows the |field| log's change from reading to reading (correlation {corr:.2f}): it "
+                 f"looks out of step with the readings, its value k the field at about reading k {shift:+.3g}; ")
+    return text + ("check the |field| log's alignment in time, its resolution and its unit — or ask fluxcal diagnose "
+                   "what else departs")
+
+
 def twostep(samples, field_norm, units: str | None = None, **settings) -> Calibration:
     """Two-step (Alonso–Shuster) calibration h = A (m − b) of N×3 readings (N ≥ 9) taken in a field
     of known constant magnitude `field_norm` (e.g. from IGRF, in the units h should come out in), or of known
@@ -189,6 +223,9 @@ def twostep(samples, field_norm, units: str | None = None, **settings) -> Calibr
         norms = as_field_norms(field_norm, len(arr), "field_norm")
         cal = _calibration(_core.twostep_norms(arr, norms, options))
         cal.summary["field_norms"] = field_norms_summary(norms)
+        said = field_log_misfit(arr, cal, norms)
+        if said:
+            cal.summary["warnings"] = list(cal.summary["warnings"]) + [said]
         return cal
     options.field_norm = as_number(field_norm, "field_norm")
     return _calibration(_core.twostep(arr, options))

@@ -158,3 +158,24 @@ def test_a_recordings_field_column_is_named_and_converted():
             fluxcal.calibrate(rec, field_norm=bad)
     with pytest.raises(ValueError, match="field_norm: 'F' names a column, but the samples are an array"):
         fluxcal.calibrate(m, field_norm="F")
+
+
+@pytest.mark.parametrize("seed", range(3))
+def test_a_field_log_that_does_not_fit_the_readings_is_said(seed):
+    """A |field| log 3 s (150 readings) out of step with a hand-turned minute at 50 Hz, or rounded to 1 µT in a
+    field changing ±1 µT, left TWOSTEP 5× the noise of the readings' successive values off and it said nothing (a
+    blind check: 10–15× with a 2 h lag). Now a warning; with the shift when the misfit follows the log's change
+    (measured +114 to +135 readings for +150); the log in step says nothing."""
+    m, _, norms = changing([], seed, amplitude=0.02)
+
+    def said(F):
+        return [w for w in fluxcal.twostep(m, F).summary["warnings"] if "the readings miss each reading's |field|" in w]
+
+    assert said(norms) == []
+    lagged = said(np.r_[norms[150:], np.full(150, norms[-1])])
+    assert len(lagged) == 1 and "looks out of step with the readings, its value k the field at about reading k +1" \
+        in lagged[0], lagged
+    shift = float(lagged[0].split("about reading k ")[1].split(";")[0])
+    assert 100 <= shift <= 170
+    rounded = said(np.round(norms))
+    assert len(rounded) == 1 and "out of step" not in rounded[0] and "its resolution and its unit" in rounded[0]
