@@ -57,6 +57,16 @@ constexpr double kDesignFactor[10] = {1, 1, 1, 2, 2, 2, 2, 2, 2, 1};
 // (with an x86-64-v3 clone, clones.hpp).
 using detail::kLanes;
 
+// kLanes packed readings from p normalised into xs, ys, zs (inlined into each kernel's clones).
+FLUXCAL_ALWAYS_INLINE void normalise_lanes(const double* p, const double* centre, double inv_scale, double* xs,
+                                           double* ys, double* zs) {
+  for (int l = 0; l < kLanes; ++l) {
+    xs[l] = (p[3 * l] - centre[0]) * inv_scale;
+    ys[l] = (p[3 * l + 1] - centre[1]) * inv_scale;
+    zs[l] = (p[3 * l + 2] - centre[2]) * inv_scale;
+  }
+}
+
 FLUXCAL_CLONES
 void accumulate_moments(const double* p, std::size_t n, const double* centre, double inv_scale,
                         double* sums /* 34 */) {
@@ -64,11 +74,7 @@ void accumulate_moments(const double* p, std::size_t n, const double* centre, do
   std::size_t i = 0;
   for (; i + kLanes <= n; i += kLanes) {
     double xs[kLanes], ys[kLanes], zs[kLanes];
-    for (int l = 0; l < kLanes; ++l) {
-      xs[l] = (p[3 * (i + l)] - centre[0]) * inv_scale;
-      ys[l] = (p[3 * (i + l) + 1] - centre[1]) * inv_scale;
-      zs[l] = (p[3 * (i + l) + 2] - centre[2]) * inv_scale;
-    }
+    normalise_lanes(p + 3 * i, centre, inv_scale, xs, ys, zs);
     for (int l = 0; l < kLanes; ++l) {
       const double x = xs[l], y = ys[l], z = zs[l];
 #define FLUXCAL_ACC(m, value) acc[m][l] += (value)
@@ -98,11 +104,7 @@ void accumulate_weighted_moments(const double* p, const double* weights, std::si
   std::size_t i = 0;
   for (; i + kLanes <= n; i += kLanes) {
     double xs[kLanes], ys[kLanes], zs[kLanes];
-    for (int l = 0; l < kLanes; ++l) {
-      xs[l] = (p[3 * (i + l)] - centre[0]) * inv_scale;
-      ys[l] = (p[3 * (i + l) + 1] - centre[1]) * inv_scale;
-      zs[l] = (p[3 * (i + l) + 2] - centre[2]) * inv_scale;
-    }
+    normalise_lanes(p + 3 * i, centre, inv_scale, xs, ys, zs);
     if (full) {
       for (int l = 0; l < kLanes; ++l) {
         const double x = xs[l], y = ys[l], z = zs[l], w = weights[i + l];
