@@ -278,8 +278,9 @@ void serial_correlation(RefineResult& out, const Eigen::MatrixXd& Finv, bool sin
 // Covariance, standard errors and identifiability from the information matrix F = JᵀJ (and, with
 // `scores`, corrected for correlation between readings). Whether the data determine a parameter is a
 // property of F (the coverage): judged on the independent-readings errors, before any correction.
+// `vector_model`: the misfit's advice names the reference vectors (a magnitude fit has none to check).
 void finish_statistics(RefineResult& out, const Eigen::MatrixXd& F, double sigma2, const Eigen::VectorXd& scales,
-                       const RefineOptions& opt, const Scores* scores = nullptr) {
+                       const RefineOptions& opt, bool vector_model, const Scores* scores = nullptr) {
   const Eigen::Index p = F.rows();
   const Eigen::VectorXd d = F.diagonal().cwiseMax(1e-300).cwiseSqrt().cwiseInverse();
   const Eigen::MatrixXd scaled = d.asDiagonal() * F * d.asDiagonal();
@@ -311,9 +312,11 @@ void finish_statistics(RefineResult& out, const Eigen::MatrixXd& F, double sigma
     out.summary.warnings.push_back(
         "not identifiable: the data do not determine " + undetermined.str() + " (standard error above " +
         percent(opt.determined_tolerance) + " of its scale) because the residuals are " + percent(misfit) +
-        " of the field, far above a sensor's noise: the readings do not fit the model — check the reference "
-        "vectors' attitude convention and time alignment, outliers or a disturbance, and that the start is in "
-        "the readings' units");
+        " of the field, far above a sensor's noise: the readings do not fit the model — check " +
+        (vector_model ? "the reference vectors' attitude convention and time alignment, outliers or a disturbance"
+                      : "for outliers or a disturbance (a magnet, a motor or a current near the sensor while it "
+                        "turned: fluxcal diagnose looks for the cause)") +
+        ", and that the start is in the readings' units");
   else if (!out.identifiable)
     out.summary.warnings.push_back(
         "not identifiable: the data do not determine " + undetermined.str() +
@@ -508,7 +511,7 @@ void finish_vector(RefineResult& out, const SamplesRef& samples, const SamplesRe
   Eigen::VectorXd scales(12);  // offsets: the reading-space radius; W entries: its gain ‖W‖/√3
   scales.head<3>().setConstant((samples.rowwise() - cal.offset.transpose()).rowwise().norm().mean());
   scales.tail<9>().setConstant(W.norm() / std::sqrt(3.0));
-  finish_statistics(out, vector_information(XtX), sigma2, scales, opt, &scores);
+  finish_statistics(out, vector_information(XtX), sigma2, scales, opt, true, &scores);
   finish_summary(out, samples, &reference);
 }
 
@@ -729,7 +732,7 @@ RefineResult refine_magnitude(const Calibration& start, const SamplesRef& sample
   const double gain = cal.matrix.norm() / std::sqrt(3.0);
   Eigen::VectorXd scales(k);  // offsets: the radius; matrix entries: the gain ‖A‖_F/√3
   for (Eigen::Index j = 0; j < k; ++j) scales(j) = j < 3 ? radius : gain;
-  finish_statistics(out, F, sigma2, scales, opt, &scores);
+  finish_statistics(out, F, sigma2, scales, opt, false, &scores);
   finish_summary(out, samples, nullptr, norms);
   // A fit that left the readings: |h| as far from the field as the field is large (on a cap, the offset and A ran to
   // 1e75 and 1e69 in 100 iterations, its cost underflowed to 0 and won a comparison of shapes by BIC).

@@ -268,6 +268,7 @@ class FleetResult:
     startup_seconds: float = 0.0    # starting the local cluster / connecting to the scheduler
     workers: int = 0
     files: list = field(default_factory=list)
+    left_out: dict = field(default_factory=dict)  # files the pattern did not take: {".tsv": 1, …} (_left_out)
 
     @property
     def failures(self) -> list:
@@ -278,9 +279,11 @@ class FleetResult:
         rate = f", {self.calibrated / self.seconds:.1f} units/s" if self.calibrated and self.seconds > 0 else ""
         lines = [f"fleet calibration of {self.directory} -> {self.out_dir}",
                  f"  units {c['units']}: {c['ok']} ok, {c['not_identifiable']} not identifiable, {c['failed']} failed; "
-                 f"{self.calibrated} calibrated now, {self.skipped} skipped (already done)",
-                 f"  {self.seconds:.2f} s on {self.workers} worker{'s' * (self.workers != 1)}{rate} "
-                 f"(+ {self.startup_seconds:.2f} s to start or reach the cluster)"]
+                 f"{self.calibrated} calibrated now, {self.skipped} skipped (already done)"]
+        if self.left_out:  # not silently: a .tsv beside the .csv files looked calibrated and was not
+            lines.append(f"  note: {_left_out_words(self.left_out, self.summary['settings']['pattern'])}")
+        lines.append(f"  {self.seconds:.2f} s on {self.workers} worker{'s' * (self.workers != 1)}{rate} "
+                     f"(+ {self.startup_seconds:.2f} s to start or reach the cluster)")
         dist = self.summary["distribution"]
         if dist:
             units = self.summary["fleet_units"]
@@ -313,12 +316,41 @@ def _is_ours(path: Path) -> bool:
         return False
 
 
+def _left_out(directory: Path, out_dir: Path, pattern: str, taken) -> dict:
+    """The files of `directory` that `pattern` did not take, counted by extension ({".tsv": 1, ".txt": 1}): not
+    hidden ones, the batch's own summaries, nor (when the output folder is the recordings' own) the calibrations it
+    writes beside them."""
+    taken = {p.name for p in taken}
+    units = {Path(name).stem for name in taken}
+    own = set(SUMMARY_FILES) | ({f"{u}.json" for u in units} | {f"{u}.json.stale" for u in units}
+                                if out_dir == directory else set())
+    counts = Counter(p.suffix.lower() or "(no extension)" for p in directory.iterdir()
+                     if p.is_file() and not p.name.startswith(".") and p.name not in taken | own)
+    return dict(sorted(counts.items(), key=lambda kv: (-kv[1], kv[0])))
+
+
+def _left_out_words(left_out: dict, pattern: str, none_taken: bool = False) -> str:
+    """What the pattern left out, and the --pattern that takes it."""
+    n = sum(left_out.values())
+    kinds = ", ".join(f"{count} {ext}" for ext, count in left_out.items())
+    named = [ext for ext in left_out if ext.startswith(".")][:3]
+    only = f"--pattern {' or '.join(repr('*' + ext) for ext in named)} for those alone, or " if named else ""
+    take = f"{only}--pattern '*' for every file (one that is no recording fails alone, listed)"
+    if none_taken:
+        return f"the folder holds {kinds} file{'s' * (n != 1)}; to calibrate {'them' if n != 1 else 'it'}: {take}"
+    return (f"{n} file{'s' * (n != 1)} of the folder {'do' if n != 1 else 'does'} not match --pattern {pattern!r} "
+            f"and {'were' if n != 1 else 'was'} left out ({kinds}); to calibrate {'them' if n != 1 else 'it'}: {take}")
+
+
 def _recordings(directory: Path, out_dir: Path, pattern: str) -> list:
     # never read a summary back as a recording: this run's, or an earlier run's left in the recordings' folder
     ours = {p for d in (out_dir, directory) for p in (d / name for name in SUMMARY_FILES) if _is_ours(p)}
     paths = sorted(p for p in directory.glob(pattern) if p.is_file() and p not in ours)
     if not paths:
-        raise ValueError(f"{directory}: no recordings matching {pattern!r}")
+        left_out = _left_out(directory, out_dir, pattern, [])
+        raise ValueError(f"{directory}: no recordings matching {pattern!r}"
+                         + (f"; {_left_out_words(left_out, pattern, none_taken=True)}" if left_out else
+                            " (the folder holds no files)"))
     reserved = [p.name for p in paths if p.stem in {Path(n).stem for n in SUMMARY_FILES}]
     if reserved:  # <unit>.json would be overwritten by the summary (or the summary would overwrite the recording)
         raise ValueError(f"{directory}: {', '.join(reserved)}: unit names fleet_summary and failures are the batch's "
@@ -493,7 +525,8 @@ def calibrate_fleet(directory, out_dir, workers: int | None = None, scheduler: s
              _write_atomic(out_dir / "fleet_summary.json", json.dumps(summary, indent=2) + "\n"),
              _write_atomic(out_dir / "failures.json", json.dumps(failures, indent=2) + "\n")]
     return FleetResult(directory=directory, out_dir=out_dir, rows=ordered, summary=summary, skipped=why["done"],
-                       calibrated=len(todo), seconds=seconds, startup_seconds=startup, workers=n_workers, files=files)
+                       calibrated=len(todo), seconds=seconds, startup_seconds=startup, workers=n_workers, files=files,
+                       left_out=_left_out(directory, out_dir, pattern, paths))
 
 
 # -- command line ----------------------------------------------------------------------------------

@@ -230,12 +230,21 @@ class RingCalibration:
         it: the calibration's scatter divided by the gain, and the error its own (γ, b) carry at these fields,
         δh = −(δb + h δγ)/γ (which grows with the current: a calibration at 5 A read at 100 A). RMS over the
         sensors and axes; None without the calibration's statistics."""
+        per_sensor = self.sensor_sigma(readings)
+        return None if per_sensor is None else float(np.sqrt(np.mean(per_sensor ** 2)))
+
+    def sensor_sigma(self, readings=None) -> np.ndarray | None:
+        """`field_sigma` per sensor (n_sensors,), RMS over its two axes: the calibration's scatter divided by the
+        gain, plus — with `readings` (…, n_sensors, 2, raw) — what its own (γ, b) errors leave at those fields
+        (without: the scatter alone, for a fit that refines γ and b itself). None without the statistics."""
         if self.residual_sigma is None or self.covariance is None:
             return None
-        h = self.apply(readings).reshape(-1, *self.offsets.shape)
-        x = np.stack([h, np.ones_like(h)], axis=-1)  # [h, 1] per reading, sensor, axis
-        own = np.einsum("nsai,saij,nsaj->nsa", x, self.covariance, x) / self.gains ** 2
-        return float(np.sqrt(np.mean((self.residual_sigma / self.gains) ** 2 + own)))
+        var = (self.residual_sigma / self.gains) ** 2
+        if readings is not None:
+            h = self.apply(readings).reshape(-1, *self.offsets.shape)
+            x = np.stack([h, np.ones_like(h)], axis=-1)  # [h, 1] per reading, sensor, axis
+            var = var + np.mean(np.einsum("nsai,saij,nsaj->nsa", x, self.covariance, x), axis=0) / self.gains ** 2
+        return np.sqrt(np.mean(var, axis=-1))
 
     def subset(self, keep) -> "RingCalibration":
         """The calibration of the sensors `keep` (a boolean mask or indices) only."""

@@ -63,7 +63,9 @@ def _spread(values: np.ndarray) -> float:
     return float(norm.std() / norm.mean())
 
 
-def _report(cal: Calibration, raw: np.ndarray, out=sys.stdout) -> None:
+def _report(cal: Calibration, raw: np.ndarray, out=sys.stdout, t=None) -> None:
+    """The calibration's printout; `t` (the readings' times, or None for row order) orders them for the noise
+    estimate from differences."""
     s = cal.summary
     print(cal, file=out)
     print(f"  samples used          {s['samples']}", file=out)
@@ -78,20 +80,28 @@ def _report(cal: Calibration, raw: np.ndarray, out=sys.stdout) -> None:
     if "method" in s:
         print(f"  method                {s['method']}", file=out)
     if "shapes" in s:  # what each shape refined scored (all three under auto; a forced one beside sym)
-        scores = ", ".join(f"{k} {v['bic']:.1f}" + ("" if v["identifiable"] else " (undetermined)") if "bic" in v
-                           else f"{k} failed" for k, v in s["shapes"].items())
-        print(f"  shape                 {s['shape']} (BIC: {scores})", file=out)
+        print(f"  shape                 {s['shape']} (BIC: {_shape_scores(s['shapes'])})", file=out)
     elif s.get("shape", "sym") != "sym":
         print(f"  shape                 {s['shape']}", file=out)
+    note = f"; {s['held_out_note']}" if s.get("held_out_note") else ""  # why a check of the first half says little
     if "held_out_spread" in s:
         spread = s["held_out_spread"]
-        print("  held-out |h| std/mean " + (f"{100 * spread:.3f} %   (fit on the first half, judged on the second)"
+        print("  held-out |h| std/mean " + (f"{100 * spread:.3f} %   (fit on the first half, judged on the second{note})"
                                             if isinstance(spread, float) else f"—   ({spread})"), file=out)
     if "held_out_rms" in s:
-        print(f"  held-out vector RMS   {s['held_out_rms']:.6g} {cal.h_units}   (fit on the first half, "
-              "|h - reference| on the second)", file=out)
+        rms = s["held_out_rms"]
+        print("  held-out vector RMS   " + (f"{rms:.6g} {cal.h_units}   (fit on the first half, |h - reference| on "
+                                            f"the second{note})" if isinstance(rms, float) else f"—   ({rms})"),
+              file=out)
     if s.get("noise_sigma"):
-        print(f"  noise σ (estimated)   {s['noise_sigma']:.4g} {cal.units}".rstrip(), file=out)
+        # the σ the residuals imply: the sensor's noise only when the model fits (the airborne segment's magnitude
+        # fit gave 68 nT, its readings' differences 0.42 nT), so named for what it is, with the readings' own beside it
+        unit = f" {cal.units}" if cal.units else ""
+        print(f"  residual σ            {s['noise_sigma']:.4g}{unit}   (from the fit's residuals: the noise plus "
+              "whatever the model misses)", file=out)
+        line = _noise_from_differences(raw, t, s["noise_sigma"], unit)
+        if line:
+            print(line, file=out)
     if "standard_errors" in s:
         se = np.array(s["standard_errors"])
         # Not identifiable: the errors are those of the directions the data do determine (or of a shape's
@@ -101,6 +111,55 @@ def _report(cal: Calibration, raw: np.ndarray, out=sys.stdout) -> None:
         print(f"  identifiable          {'yes' if s['identifiable'] else 'NO'}", file=out)
     for w in s["warnings"] + [w for w in [_plausible_field(cal)] if w]:
         print(f"warning: {w}", file=out)
+
+
+def _shape_scores(table: dict) -> str:
+    """Each refined shape's BIC and, for one not kept, why: the data reject it (its BIC above the lowest by more
+    than REJECTED_BIC: it misfits, however well its parameters are determined) or they do not determine it
+    (its terms trade off, as on a cap of orientations)."""
+    from .pipeline import REJECTED_BIC
+
+    lowest = min((v["bic"] for v in table.values() if "bic" in v), default=0.0)
+    scores = []
+    for name, row in table.items():
+        if "bic" not in row:
+            scores.append(f"{name} failed")
+            continue
+        excess = row["bic"] - lowest
+        why = (f"rejected by BIC: +{excess:.0f}" if excess > REJECTED_BIC else
+               "" if row["identifiable"] else "not determined by the data")
+        scores.append(f"{name} {row['bic']:.1f}" + (f" ({why})" if why else ""))
+    return ", ".join(scores)
+
+
+# The fit's residual σ this many times the readings' own noise (or less than its inverse): said what it means.
+# Right models leave the noise (the real recordings' QMC5883L: 1.3×, simulations ≈ 1); the airborne magnitude fit
+# left 160×, the handheld's 3.6×, a simulated temperature offset 2×.
+NOISE_RATIO = 1.5
+
+
+def _noise_from_differences(raw: np.ndarray, t, residual: float, unit: str) -> str | None:
+    """The readings' own noise σ from third differences in time order (as `diagnose` estimates it), beside the
+    fit's residual σ: the two differ by what the model misses. None for rows that are not a time series
+    (consecutive readings differ about as much as any two, e.g. `fluxcal simulate`'s independent orientations):
+    their differences measure the turning, not the noise."""
+    from .diagnose.core import UNORDERED, estimate_noise
+
+    m = raw if t is None else raw[np.argsort(t, kind="stable")]
+    if len(m) < 20:
+        return None
+    sigma = estimate_noise(m)
+    if not (sigma > 0 and sigma <= UNORDERED * np.sqrt(np.mean(np.var(m, axis=0)))):
+        return None
+    ratio = residual / sigma
+    times = f"{ratio:.2f}×" if ratio < 10 else f"{ratio:.0f}×"
+    what = (f"the residual σ is {times} it: the model misses more than the noise (fluxcal diagnose names what)"
+            if ratio > NOISE_RATIO else
+            f"above the residual σ ({times} it): the readings change between rows faster than their differences "
+            "can tell from noise, and the residual σ bounds it" if ratio < 1 / NOISE_RATIO else
+            f"the residual σ is {times} it")
+    return (f"  noise σ, differences  {sigma:.4g}{unit}   (third differences of the readings in time order, as "
+            f"diagnose estimates it; {what})")
 
 
 # the Earth's field at the surface (WMM/IGRF: about 22 µT at the equator's anomaly to 67 µT at the poles),
@@ -156,29 +215,86 @@ def _plausible_field(cal: Calibration) -> str | None:
             f"readings really in {cal.h_units}? (--units states the readings' unit; fine for a coil's field)")
 
 
-def _held_out_rms(raw, reference, units, outliers=()) -> float:
+def _held_out_rms(raw, reference, units, cal: Calibration, outliers=()) -> tuple:
     """Vector-fit check on data the fit did not see: fit the first half, RMS of |h − r| on the second, without
-    the rows the whole fit left out as outliers (4 spikes made 11.9 µT of a 0.66 µT check)."""
+    the rows the whole fit left out as outliers (4 spikes made 11.9 µT of a 0.66 µT check). Returns (RMS, note) as
+    _held_out_spread does."""
     half = len(raw) // 2
-    first = calibrate(raw[:half], reference=reference[:half], units=units)
+    try:
+        first = calibrate(raw[:half], reference=reference[:half], units=units)
+    except ValueError as exc:
+        return _first_half_unfit(raw, cal, exc), ""
     kept = np.setdiff1d(np.arange(half, len(raw)), np.asarray(outliers, dtype=int))
-    return float(np.sqrt(np.mean(np.sum((first.apply(raw[kept]) - reference[kept]) ** 2, axis=1))))
+    rms = float(np.sqrt(np.mean(np.sum((first.apply(raw[kept]) - reference[kept]) ** 2, axis=1))))
+    # (no "worse than the whole fit" to compare with: the whole fit's own RMS is of the readings it was fitted on)
+    return rms, _first_half_note(raw, cal, first, worse=True, coverage=False)
 
 
-def _held_out_spread(raw, cal: Calibration, field_norm, settings: dict):
+def _held_out_spread(raw, cal: Calibration, field_norm, settings: dict) -> tuple:
     """Magnitude-fit check on data the fit did not see: the same method and shape fitted on the first half, the
     spread std/mean of |h| on the second without the whole fit's outliers (the spread a peer's fit is judged
-    by); or why the first half alone cannot be fitted."""
+    by). Returns (spread, note): the note says why the spread says little of the whole fit when it is far above
+    the whole fit's and the first half turned through far fewer directions; or (why the first half alone
+    cannot be fitted, "")."""
     half = len(raw) // 2
     per_reading = np.ndim(field_norm) > 0  # each reading's own |field|: the spread of |h| over it
     try:
         first = calibrate(raw[:half], field_norm=field_norm[:half] if per_reading else field_norm,
                           shape=cal.summary.get("shape", "auto"), **settings)
     except ValueError as exc:
-        return f"the first half alone cannot be fitted: {str(exc).split(';')[0]}"
+        return _first_half_unfit(raw, cal, exc), ""
     kept = np.setdiff1d(np.arange(half, len(raw)), np.asarray(cal.summary.get("outliers", {}).get("rows", []), int))
     norms = np.linalg.norm(first.apply(raw[kept]), axis=1) / (field_norm[kept] if per_reading else 1.0)
-    return float(norms.std() / norms.mean())
+    spread = float(norms.std() / norms.mean())
+    worse = spread > HELD_OUT_WORSE * cal.summary["norm_std_over_mean"]
+    return spread, _first_half_note(raw, cal, first, worse)
+
+
+# The held-out check said to say little of the whole fit when it is this many times the whole fit's spread and its
+# first half covers under FIRST_HALF_COVERAGE of the directions the whole recording does (a recording that starts
+# still: 10 turning readings in a first half of 2990 gave 5.3 % against 0.49 %; the report's 156 %).
+HELD_OUT_WORSE = 2.0
+FIRST_HALF_COVERAGE = 0.5
+
+
+def _coverages(raw, cal: Calibration) -> tuple:
+    """The share of the field directions the first half of the readings and all of them visit, as the whole fit
+    corrects them."""
+    from .coverage import direction_coverage
+
+    h = cal.apply(raw)
+    return direction_coverage(h[:len(raw) // 2]), direction_coverage(h)
+
+
+def _first_half_unfit(raw, cal: Calibration, exc: ValueError) -> str:
+    """Why the held-out check has no number: the first half alone cannot be fitted; when it turned through far
+    fewer directions than the whole recording (a still start), said as the reason."""
+    error = str(exc).split(";")[0]
+    first, whole = _coverages(raw, cal)
+    if first < FIRST_HALF_COVERAGE * whole:
+        return (f"the first half alone does not determine the fit: its readings cover {100 * first:.0f} % of the "
+                f"field directions, the whole recording's {100 * whole:.0f} % (still, or turned little, at the "
+                f"start?), and its own fit fails ({error}); the whole fit is judged by the lines above")
+    return f"the first half alone cannot be fitted: {error}"
+
+
+def _first_half_note(raw, cal: Calibration, first: Calibration, worse: bool, coverage: bool = True) -> str:
+    """Why a held-out number far above the whole fit's says little of it: the first half's fit, which made it,
+    is not determined by its readings or (with `coverage`: a magnitude fit, which needs the directions; a vector
+    fit's reference vectors do not) saw far fewer directions (a still start); "" otherwise."""
+    if not worse:
+        return ""
+    if not first.summary.get("identifiable", True):
+        return ("the first half alone does not determine the fit (identifiable NO on its own), so this is of that "
+                "poorer fit, not of the whole one")
+    if not coverage:
+        return ""
+    mine, whole = _coverages(raw, cal)
+    if mine < FIRST_HALF_COVERAGE * whole:
+        return (f"the first half alone does not determine the fit well: its readings cover {100 * mine:.0f} % of the "
+                f"field directions, the whole recording's {100 * whole:.0f} % (still, or turned little, at the "
+                "start?), so this is of that poorer fit, not of the whole one")
+    return ""
 
 
 def _outlier_lines(cal: Calibration, rec: Recording) -> None:
@@ -421,19 +537,22 @@ def cmd_calibrate(args) -> int:
         _recheck_field_norm(cal, units, unit_name(args.field_units))
     cal.metadata.update(source=str(args.file), columns=",".join(rec.mag_names()))
     _outlier_lines(cal, rec)
+    held_out = None
     if reference is None and len(raw) >= 80 and args.method in ("auto", "als+refine"):
-        cal.summary["held_out_spread"] = _held_out_spread(raw, cal, field_norm, settings)
+        cal.summary["held_out_spread"], held_out = _held_out_spread(raw, cal, field_norm, settings)
     if reference is not None:
         cal.metadata["reference"] = (f"columns {args.reference} of the recording" if args.reference else
                                      "attitude pitch,roll,yaw and local field igrf_n,igrf_e,igrf_d of the recording")
         if len(raw) >= 40:
-            cal.summary["held_out_rms"] = _held_out_rms(raw, reference, cal.units,
-                                                        cal.summary.get("outliers", {}).get("rows", []))
+            cal.summary["held_out_rms"], held_out = _held_out_rms(raw, reference, cal.units, cal,
+                                                                  cal.summary.get("outliers", {}).get("rows", []))
+    if held_out:
+        cal.summary["held_out_note"] = held_out
     if args.align_accelerometer:
         cal = _aligned(cal, rec, raw, args.file, args.acc_measures, args.serial_correlation)
     if args.output:  # before the report: a reader that stops early (| head) must not cost the calibration
         path = cal.save(args.output)
-    _report(cal, raw)
+    _report(cal, raw, t=rec.time())
     if args.align_accelerometer:
         print(_alignment_line(cal.summary["alignment"]))
     if args.output:

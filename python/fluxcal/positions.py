@@ -407,6 +407,11 @@ def calibrate(mag, acc, field_ned, frame: str = "ned", preset=None, attitudes=No
     the paper's order), `attitudes` (N×3 pitch, roll, heading in degrees) or `rotations` (N×3×3
     body→local); none = headings unknown. estimate_yaw: None = only when no nominal attitudes are
     given. settings: max_iterations, determined_tolerance.
+
+    No noise σ is needed to see a wrong reference field: when the residual misplaces the field by more than
+    MISPLACED_DEG per position, or the same fit against a plausible mistake in it (a component's sign, N and E
+    swapped, ENU or the frame's local axes given for N,E,D) leaves MISFIT_RATIO× less, the first warning says so
+    and names that mistake.
     """
     if field_ned is None:
         raise ValueError("field_ned: the reference field is missing; give (N, E, D), or use reference_field() "
@@ -424,8 +429,18 @@ def calibrate(mag, acc, field_ned, frame: str = "ned", preset=None, attitudes=No
     options.gravity_tolerance = as_number(gravity_tolerance, "gravity_tolerance")
     options.units = units_text(units)
     set_options(options, settings, "calibrate")
-    d = _core.calibrate_positions(U, np.ascontiguousarray(sf), nominal, to_local(f, frame), options)
-    return _result(d, frame)
+    sf = np.ascontiguousarray(sf)
+    d = _core.calibrate_positions(U, sf, nominal, to_local(f, frame), options)
+    res = _result(d, frame)
+
+    def refit(g):  # the same fit against another reference field (None when it cannot be made)
+        try:
+            return _result(_core.calibrate_positions(U, sf, nominal, to_local(g, frame), options), frame)
+        except ValueError:
+            return None
+
+    _check_field_fit(res, f, frame, U, sf, nominal, refit if len(nominal) else None)
+    return res
 
 
 def fit(mag, reference, units: str = "", frame: str = "ned") -> PositionsResult:
@@ -454,6 +469,123 @@ def _result(d: dict, frame: str) -> PositionsResult:
                            parameter_names=list(d["parameter_names"]), parameters=np.asarray(d["parameters"]),
                            standard_errors=np.asarray(d["standard_errors"]), determined=list(d["determined"]),
                            noise_sigma=float(d["noise_sigma"]), units=d["units"], summary=dict(d["summary"]))
+
+
+# --- does the reference field fit? -----------------------------------------------------------------
+
+# A field misplaced by more than this per position (the residual over K's reading of the field, as an angle) is
+# more than noise or placement makes: a magnetometer's noise is well under 1 % of the Earth's field (a MEMS chip
+# unaveraged ~0.5 %, a fluxgate ppm, i.e. < 0.6°) and a twelve-position bench sets and levels its positions to a
+# degree or two; a wrong reference field misplaces it by tens of degrees (a north sign flipped: 43°).
+MISPLACED_DEG = 5.0
+# Below this misplacement a field mistake matters little (under 1° of heading, 2 % of K) and the refits against
+# mistaken fields are not tried: with headings estimated they cost ~70 ms a calibration (10× the fit itself).
+LOOK_DEG = 1.0
+HEADING_REVERSED_DEG = 135.0  # in-sample heading error RMS nearer 180° than 90°: the field's horizontal part reversed
+
+# Mistakes in the reference field (N, E, D) that a fit against the field as given cannot absorb: how each maps the
+# field given (and the frame) to the one meant — None where it does not apply — and what it says. A field that
+# equals ± the one given changes nothing (K takes the sign).
+_FIELD_MISTAKES = (
+    ("the north component negated", lambda f, frame: f * [-1.0, 1.0, 1.0], "its north component has the wrong sign"),
+    ("the east component negated", lambda f, frame: f * [1.0, -1.0, 1.0],
+     "its east component has the wrong sign (the declination's)"),
+    ("the down component negated", lambda f, frame: f * [1.0, 1.0, -1.0],
+     "its down component has the wrong sign (the inclination's: up taken for down)"),
+    ("north and east swapped", lambda f, frame: f[[1, 0, 2]], "its north and east are swapped"),
+    ("the field read as east, north, up", lambda f, frame: np.array([f[1], f[0], -f[2]]),
+     "it was given as E,N,U (the ENU convention), not N,E,D"),
+    ("the field read in the frame's local axes",
+     lambda f, frame: None if frame == "ned" else _NED_TO_LOCAL[frame].T @ f,
+     "it was given in the frame's local axes (N,U,E for --frame nue), not N,E,D"),
+)
+
+
+def _misplacement(res, field_ned) -> float:
+    """The fit's residual as the angle (radians) by which it misplaces the field at each position: the RMS residual
+    vector over K's reading of the field (|K| / √3 · |f|)."""
+    return float(np.sqrt(np.mean(np.sum(res.residuals ** 2, axis=1))) / (_gain(res) * np.linalg.norm(field_ned)))
+
+
+def _heading_rms(res, U, sf, nominal) -> float | None:
+    """In-sample heading error RMS (degrees) against the nominal attitudes, or None without them."""
+    if not len(nominal):
+        return None
+    try:
+        return verification_report(res, U, sf, rotations=nominal)["heading_error_rms_deg"]
+    except (ValueError, np.linalg.LinAlgError):  # a K that cannot be inverted: no heading to speak of
+        return None
+
+
+def _check_field_fit(res, field_ned, frame, U, sf, nominal, refit) -> None:
+    """Warn, without any noise σ, when the fit does not fit the reference field: its residual misplaces the field by
+    more than MISPLACED_DEG per position, or (above LOOK_DEG) the same fit against a plausibly mistaken field
+    (_FIELD_MISTAKES) leaves MISFIT_RATIO× less — an upper bound on the noise found in the data themselves, as the
+    repeats within positions give one when there are any. Names that mistake when one fits;
+    puts the warning first (a misfit inflates the standard errors: "12 parameters poorly determined" was the only
+    word for a north sign flipped) and keeps its parts in `res.summary["field_misfit"]` for run_cli."""
+    rms = float(res.summary["residual_rms"])
+    if not (rms > 0 and np.all(np.isfinite(res.K)) and _gain(res) > 0):
+        return
+    angle = _misplacement(res, field_ned)
+    unit = f" {res.units}" if res.units else ""
+    tried = []
+    f = np.asarray(field_ned, float)
+    if refit is not None and np.degrees(angle) > LOOK_DEG:
+        for what, mistake, cause in _FIELD_MISTAKES:
+            g = mistake(f, frame)
+            if g is None or min(np.abs(g - f).max(), np.abs(g + f).max()) <= 1e-9 * np.linalg.norm(f):
+                continue  # the same field (a zero component, or K's sign): nothing to tell apart
+            alt = refit(g)
+            if alt is not None and np.isfinite(alt.summary["residual_rms"]):
+                tried.append((float(alt.summary["residual_rms"]), what, cause, g, alt))
+    tried.sort(key=lambda t: t[0])
+    named = [t for t in tried if t[0] * MISFIT_RATIO <= rms and t[0] <= 1.1 * tried[0][0]]
+    gross = np.degrees(angle) > MISPLACED_DEG
+    if not (gross or named):
+        return
+    heading = _heading_rms(res, U, sf, nominal)
+    text = (f"the model does not fit the reference field N,E,D = {_vector(field_ned)}: residual RMS {rms:.4g}{unit} "
+            f"misplaces the field by {_deg(np.degrees(angle))}° per position")
+    if heading is not None and heading > HEADING_REVERSED_DEG:
+        text += f", and the in-sample heading error RMS is {heading:.0f}° (the field's horizontal part reversed)"
+    if gross:
+        text += (f"; noise would have to be {100 * angle / np.sqrt(3):.2g} % of the sensor's reading of the field to "
+                 "make that, so no noise σ is needed to see it")
+    if named:
+        best = named[0]
+        alt_heading = _heading_rms(best[4], U, sf, nominal)
+        turn = (f", heading error RMS {_deg(heading)}° → {_deg(alt_heading)}°" if heading is not None and
+                alt_heading is not None else "")
+        which = " or, equally, ".join(t[1] for t in named)
+        said = ", or ".join(t[2] for t in named)
+        cause = (f"With {which}, {_vector(best[3])}, the residual falls to {best[0]:.4g}{unit} "
+                 f"({rms / best[0]:.0f}× less{turn}): the reference field is wrong — {said}? (--field is N,E,D: "
+                 "north, east, down; the inclination is positive down)")
+    else:
+        cause = ("Check the reference field (inclination sign, declination, --field order N,E,D), the frame "
+                 "(--frame), the position order or labels and magnetic objects near the bench")
+    text += f". U0 and K are biased by about {angle:.1g} of K. {cause}"
+    res.summary["warnings"] = _misfit_first(res, text, res.summary["warnings"])
+    res.summary["field_misfit"] = {"warning": text, "cause": cause if named else None,
+                                   "misplacement_deg": float(np.degrees(angle)), "gross": bool(gross)}
+
+
+def _misfit_first(res, misfit: str, others) -> list:
+    """`misfit` first, then the other warnings, "poorly determined" told why: a misfit's residuals set the
+    standard errors (a north sign flipped left "12 parameter(s) poorly determined" as the only word)."""
+    unit = f" {res.units}" if res.units else ""
+    why = (f" (their standard errors scale with the residual RMS {res.summary['residual_rms']:.4g}{unit}, which the "
+           "misfit above inflates)")
+    return [misfit] + [w + why if "poorly determined" in w and why not in w else w for w in others if w != misfit]
+
+
+def _vector(v) -> str:
+    return "(" + ", ".join(f"{x:.6g}" for x in np.asarray(v, float)) + ")"
+
+
+def _deg(angle: float) -> str:
+    return f"{angle:.2g}" if abs(angle) < 10 else f"{angle:.0f}"
 
 
 def closed_form_twelve(mag, field_up: float):
@@ -622,8 +754,11 @@ def _gain(res) -> float:
 
 
 def _misfit_warnings(res, field_ned, scatter) -> list:
-    """Compare the fit's residuals with what the repeats within positions allow (mag noise + levelling)."""
+    """Compare the fit's residuals with what the repeats within positions allow (mag noise + levelling). When
+    `calibrate` found the misfit from the field alone (res.summary["field_misfit"]), its warning — with the
+    mistake the data point to, if any — is kept and the repeats' ratio added to it: one warning, not two."""
     out = []
+    field = res.summary.get("field_misfit")
     gain = _gain(res)
     expected = np.hypot(scatter["mag_sigma_per_position"],
                         gain * np.linalg.norm(field_ned) * scatter["tilt_sigma_per_position"])
@@ -636,17 +771,27 @@ def _misfit_warnings(res, field_ned, scatter) -> list:
         # its size as the angle by which the field would be misplaced at each position: K's relative error is of
         # that order in radians (a review: headings set to ±0.1° on a long log, 6×, 4e-4; an uncalibrated MEMS
         # accelerometer, 6×, 4e-3) — the ratio says it is there, this says whether it matters
-        angle = float(np.sqrt(np.mean(np.sum(res.residuals ** 2, axis=1))) / (gain * np.linalg.norm(field_ned)))
+        if field is not None:
+            res.summary["warnings"] = [w for w in res.summary["warnings"] if w != field["warning"]]
+            against = "the noise σ given" if scatter.get("given") else "the scatter within positions"
+            out.append(f"{field['warning']} Against {against} as well: the residual is {ratio:.0f}x what it allows "
+                       f"({expected * dof_factor:.3g}); largest at position {worst}")
+            return out + _moved_warnings(scatter)
+        angle = _misplacement(res, field_ned)
         out.append(f"the model does not fit: residual RMS {rms:.4g} is {ratio:.0f}x what the scatter within "
                    f"positions allows ({expected * dof_factor:.3g}); largest at position {worst}. It is a misplacement "
                    f"of the field by {np.degrees(angle):.2g}° per position, and U0 and K are biased by about that "
                    f"({angle:.1g} of K). Check the reference field (inclination sign, declination, --field order "
                    "N,E,D), the position order or labels, heading placement (--estimate-yaw), the accelerometer "
                    "(--calibrate-accelerometer) and magnetic objects near the bench")
+    return out + _moved_warnings(scatter)
+
+
+def _moved_warnings(scatter) -> list:
     if scatter["worst_tilt"] is not None and scatter["worst_tilt"][0] > scatter["moved_limit_deg"]:
-        out.append(f"position {scatter['worst_tilt'][1]}: a reading's accelerometer direction is "
-                   f"{scatter['worst_tilt'][0]:.2g}° from the position's mean (the device moved while logging?)")
-    return out
+        return [f"position {scatter['worst_tilt'][1]}: a reading's accelerometer direction is "
+                f"{scatter['worst_tilt'][0]:.2g}° from the position's mean (the device moved while logging?)"]
+    return []
 
 
 def _unit_warnings(res, field_ned, units, igrf) -> list:
@@ -753,12 +898,14 @@ def run_cli(args, out=None) -> int:
         raise ValueError(_in_file_terms(str(exc), args.file, rec, uniq if ids is not None else None)) from None
     if scatter is None and getattr(args, "noise_sigma", 0.0):  # one row per position: the σ given is the yardstick
         scatter = {"mag_sigma": args.noise_sigma, "mag_sigma_per_position": args.noise_sigma,
-                   "tilt_sigma_per_position": 0.0, "worst_tilt": None, "moved_limit_deg": None,
+                   "tilt_sigma_per_position": 0.0, "worst_tilt": None, "moved_limit_deg": None, "given": True,
                    "labels": [_label(u) for u in (uniq if ids is not None else range(1, len(mag) + 1))]}
     if scatter is not None:
         extra_warnings += _misfit_warnings(res, f, scatter)
     extra_warnings += _unit_warnings(res, f, units, args.lat is not None)
-    res.summary["warnings"] = list(res.summary["warnings"]) + extra_warnings
+    misfit = [w for w in extra_warnings if w.startswith("the model does not fit")]
+    warnings_ = list(res.summary["warnings"]) + [w for w in extra_warnings if w not in misfit]
+    res.summary["warnings"] = _misfit_first(res, misfit[0], warnings_) if misfit else warnings_
     report = res.verify(mag, acc, preset=args.preset, acc_measures=args.acc_measures) if args.preset else \
         res.verify(mag, acc, acc_measures=args.acc_measures)
     doc = res.to_dict()

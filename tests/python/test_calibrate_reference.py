@@ -126,4 +126,6 @@ def test_a_magnitude_fit_is_judged_on_the_half_it_did_not_see(tmp_path):
     m = 50.0 * np.vstack([flat, u[:200]]) + rng.normal(0, 0.2, (400, 3))
     path = write_csv(tmp_path / "flat_first.csv", dict(zip(("mx", "my", "mz"), m.T)), units={k: "uT" for k in ("mx", "my", "mz")})
     out = run_cli("calibrate", path, "--field-norm", "50")
-    assert out.returncode in (0, 3) and "held-out |h| std/mean —   (the first half alone cannot be fitted" in out.stdout
+    # (said as a half that turned through fewer directions than the whole recording, the fit's error beside it)
+    assert out.returncode in (0, 3) and ("held-out |h| std/mean —   (the first half alone does not determine the fit: "
+                                         "its readings cover") in out.stdout and "lie nearly in one plane" in out.stdout

@@ -217,8 +217,10 @@ def test_a_scalar_argument_that_is_not_a_number_is_named():
     s = simulated(1)
     with pytest.raises(ValueError, match="field_norm: 2000 values; the ellipsoid fit takes one"):
         fluxcal.fit_ellipsoid(s.readings, field_norm=np.full(2000, s.field_norm))
-    for solve in (fluxcal.fit_ellipsoid, fluxcal.calibrate, fluxcal.twostep):
-        with pytest.raises(ValueError, match="field_norm: 'abc' is not a number"):  # float() had named nothing
+    with pytest.raises(ValueError, match="field_norm: 'abc' is not a number"):  # float() had named nothing
+        fluxcal.fit_ellipsoid(s.readings, field_norm="abc")
+    for solve in (fluxcal.calibrate, fluxcal.twostep):  # (these take a Recording's column by its name)
+        with pytest.raises(ValueError, match="field_norm: 'abc' names a column, but the samples are an array"):
             solve(s.readings, field_norm="abc")
     with pytest.raises(ValueError, match=r"loss_scale: 2 values where one number is taken"):
         fluxcal.refine(fluxcal.fit_ellipsoid(s.readings), s.readings, loss="huber", loss_scale=[1, 2])

@@ -17,8 +17,10 @@ and current; refined here, what a per-sensor calibration can absorb is not blame
 calibration's own noise is not taken for one). The gain multiplies the whole reading, the candidates'
 terms included — a bilinear model, solved by Gauss–Newton inside a variable projection: Levenberg–Marquardt
 (SciPy) over the conductor positions and the candidates' non-linear parameters, the currents and the
-linear coefficients solved at every step. Residuals are weighted by each sensor's noise σ (given, or
-from consecutive repeated snapshots, which are then averaged).
+linear coefficients solved at every step. Residuals are weighted by each sensor's noise σ: given, or from
+consecutive repeated snapshots (which are then averaged), or the calibration's own scatter (the σ the ring's
+solver takes), and only failing all three from the base fit's residuals — which hold any misfit of the model
+as a whole, so the verdict then says it cannot judge whether the model fits.
 
 1. Where: residual / σ per sensor, per axis (radial, tangential), per current level, per rotation and in
    time, with a χ² test per bin (worst bin, Bonferroni), a regression of z² on the current and of z on
@@ -65,6 +67,10 @@ ABSORBED_FLOOR = 1e-3  # below this share new, a direction is numerically the ba
 DETECTABLE = 5.0       # σ of residual along a small new part that makes it new all the same
 PROFILE_GAIN = 1000.0  # χ² a candidate's best alternative removes at fixed positions above which it is profiled
 DEPARTS = 0.01  # a regime test of the residuals below this p is marked "departs" in the report
+# Where σ came from (the start of `noise_source`): the text and caveats judge the verdict by it
+FROM_REPEATS = "from repeated snapshots"
+FROM_CALIBRATION = "from the calibration's scatter"
+FROM_RESIDUALS = "from the base fit's residuals"
 
 
 @dataclass
@@ -106,7 +112,7 @@ class _Data:
         return self.y.shape
 
 
-@dataclass
+@dataclass(repr=False)  # Diagnosis's one-line repr (the fields ran to thousands of characters)
 class CableDiagnosis(Diagnosis):
     """What `diagnose_cable` found: a `Diagnosis` (ranking, accepted, where, remaining, significant,
     save_json) whose text and report speak of sensors, rotations and currents."""
@@ -832,6 +838,7 @@ def _prepare(readings, ring, currents, rotations_deg, positions, calibration, no
     if len(bad):
         s, i, a = bad[0]
         raise ValueError(f"readings: snapshot {s}, sensor {i}, axis {'xy'[a]} is not finite ({len(bad)} such values)")
+    raw = y
     if calibration is not None:
         if isinstance(calibration, (str, Path)):
             calibration = RingCalibration.load(calibration)
@@ -870,7 +877,15 @@ def _prepare(readings, ring, currents, rotations_deg, positions, calibration, no
         source_noise = "given"
     else:
         sigma = _noise_from_repeats(y, rot, reference)
-        source_noise = "from repeated snapshots (same rotation and currents)"
+        source_noise = f"{FROM_REPEATS} (same rotation and currents)"
+        if sigma is None and calibration is not None:
+            # No repeats: the calibration run's scatter, measured apart from this recording, is the σ the ring's
+            # solver flags a misfit against; σ from this fit's own residuals would absorb that misfit (a lab ring
+            # the solver called MISFIT at 6–16 σ came out "explained to the noise" at 0.83 σ). Refined gains and
+            # offsets absorb the calibration's own parameter errors, so only its scatter counts then.
+            sigma = calibration.sensor_sigma(None if refine_calibration else raw)
+            source_noise = (f"{FROM_CALIBRATION} about its own fit (residual_sigma ÷ gain per sensor, the σ "
+                            "`fluxcal cable solve` takes; no repeated snapshots here)")
     counts = np.ones(k)
     if average_repeats and reference is not None:
         # consecutive repeats of one rotation and currents are averaged: the same information (their spread
@@ -923,7 +938,9 @@ def diagnose_cable(readings, ring: Ring, currents=None, rotations_deg=None, posi
     downstream current error needs them. rotations_deg: (K,) the ring's turn about the cable per snapshot
     (default 0). positions: (n, 2) the conductors' known positions (metres): the fit's start and the truth
     for the position error (default: the ring's solver finds them). noise_sigma: σ per sensor (scalar or
-    (M,), tesla; default from consecutive repeated snapshots, else the base fit's residuals). candidates:
+    (M,), tesla; default from consecutive repeated snapshots, else the calibration's scatter (its
+    residual_sigma, the σ the ring's solver takes), else the base fit's residuals — which then cannot show a
+    misfit of the model as a whole, and the verdict says so). candidates:
     effect names (default all four). t: (K,) times (default the snapshot order). fit_currents: fit the
     currents per snapshot even when the reference is given (default: only without one; the gains' mean is
     then held at the calibration's, a common gain being a common current scale). refine_calibration:
@@ -952,7 +969,8 @@ def diagnose_cable(readings, ring: Ring, currents=None, rotations_deg=None, posi
     if not noise_known:  # σ per sensor from the base fit's residuals: an effect present inflates it
         dof = 2 * k - (2 * data.n + (k * data.n if data.fit_currents else 0) + base_model.n_calibration) / m
         data.sigma = np.sqrt(np.sum(base["residuals"] ** 2, axis=(0, 2)) / max(dof, 1.0))
-        noise_source = "from the base fit's residuals (no repeated snapshots: an effect present inflates it)"
+        noise_source = (f"{FROM_RESIDUALS} (no repeated snapshots, no calibration scatter, no --noise-sigma: "
+                        "whatever the model misses is taken for noise)")
         base = base_model.fit(base["positions"], all_rows)
     feature_currents = data.reference if not data.fit_currents else base["currents"]
     levels = _levels(data, data.reference if data.reference is not None else base["currents"])
@@ -1044,7 +1062,8 @@ GAIN_MISMATCH = 0.2  # the base model moved a sensor's gain by more than this: t
 def _caveats(data: _Data, correction: dict, base: dict, noise_source: str, overall: dict) -> list:
     """What may make the findings untrustworthy: a scale the sensors' gains had to absorb (a unit or the ring's
     geometry wrong: a radius in mm written as metres was "explained to the noise" with gains ×0.001), conductors
-    fitted far from the positions the recording gives, and a noise σ from repeats that differ for a reason."""
+    fitted far from the positions the recording gives, a noise σ from repeats that differ for a reason, or from
+    a calibration run noisier than this recording, and a σ from the base fit's own residuals (circular)."""
     out = []
     gain = correction.get("max_gain_correction", 0.0)
     if gain > GAIN_MISMATCH:
@@ -1056,10 +1075,22 @@ def _caveats(data: _Data, correction: dict, base: dict, noise_source: str, overa
     if error is not None and error > 0.25 * data.ring.bore_radius_m * 1e3:
         out.append(f"the conductors fit {error:.3g} mm from the positions the recording gives (positions_m): the "
                    "ring's geometry or the positions' units disagree with the readings")
-    if noise_source.startswith("from repeated") and overall["rms_z"] < 0.7:
+    if noise_source.startswith(FROM_REPEATS) and overall["rms_z"] < 0.7:
         out.append(f"the repeated snapshots differ more than the model misses (residual RMS {overall['rms_z']:.2f} σ): "
                    "something changed between repeats (a neighbouring current, a harmonic, the ring moved), σ is "
                    "overestimated and every test too lenient; give the sensors' noise σ (--noise-sigma)")
+    if noise_source.startswith(FROM_CALIBRATION) and overall["rms_z"] < 0.7:
+        out.append(f"this recording misses the model by less than the calibration run scattered (residual RMS "
+                   f"{overall['rms_z']:.2f} σ): that run was noisier or held what its own model missed, σ is "
+                   "overestimated and every test too lenient; give the sensors' noise σ (--noise-sigma) or record "
+                   "repeated snapshots")
+    if noise_source.startswith(FROM_RESIDUALS):
+        out.append(f"σ was estimated from the base fit's own residuals (no repeated snapshots, no calibration with its "
+                   f"scatter, no --noise-sigma), so their RMS ({overall['rms_z']:.2f} σ) is about 1 σ by construction: "
+                   "a misfit of the model as a whole is taken for noise and cannot show — only an effect uneven across "
+                   "sensors, rotations or currents can. Give the sensors' noise σ (--noise-sigma, e.g. the "
+                   "datasheet's), record repeated snapshots, or give the ring's calibration with its scatter "
+                   "(--calibration: `fluxcal cable calibrate` writes its residual_sigma)")
     return out
 
 
@@ -1133,6 +1164,9 @@ def _text(d) -> str:
                        f"{left['rms_over_sigma']:.2f} σ: its cause is not among the candidates' effects — a field from "
                        "a neighbouring cable, iron near the ring, a sensor whose gain changes, a harmonic in a current; "
                        "the effects named above may stand in for it")
+    elif d.noise_source.startswith(FROM_RESIDUALS):  # σ fitted to these residuals: "to the noise" is circular
+        out.append("FOUND: no significant effect among the candidates — whether the ring's model fits cannot be "
+                   "judged: σ came from the base fit's own residuals (see CAVEAT)")
     elif not any(t["pvalue"] < DEPARTS for t in rem["tests"]):
         out.append("FOUND: no significant effect — the ring's model explains the readings to the noise")
     else:  # the departures stand: saying "explained to the noise" beside an 8 σ residual would mislead

@@ -225,6 +225,15 @@ class Diagnosis:
 
         return write_report(self, folder)
 
+    def __str__(self) -> str:  # print(d): the report, not the fields (the dataclass repr ran to 28 000 characters)
+        return self.text()
+
+    def __repr__(self) -> str:
+        found = ", ".join(map(str, self.accepted)) if self.accepted else "no significant effect"
+        unit = f" {self.units}" if self.units else ""
+        return (f"<{type(self).__name__} of {self.source!r}, model {self.model}: {found}; noise σ "
+                f"{np.mean(self.noise_sigma):.4g}{unit} — print(d) or d.text() for the report>")
+
 
 def _finite(value):
     """`value` with every non-finite float as None (JSON has no Infinity or NaN: strict readers reject them; an
