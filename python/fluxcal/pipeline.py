@@ -14,7 +14,7 @@ from .ellipsoid import fit_ellipsoid
 from .outliers import find_outliers
 from ._arrays import as_field_norms, changing_field, field_norm_given
 from .refine import SHAPES, fit_vector, refine, shape_name
-from .twostep import twostep
+from .twostep import FIELD_LOG_WORDS, field_log_misfit, twostep
 
 METHODS = ("auto", "vector", "als", "ls", "als+refine", "twostep")
 OUTLIERS = ("drop", "keep")
@@ -139,6 +139,10 @@ def calibrate(samples, method: str = "auto", field_norm: float | None = None, re
             w for w in cal.summary["warnings"] if w not in start.summary["warnings"]]
         if start.summary.get("noise_sigma"):
             cal.summary["als_noise_sigma"] = start.summary["noise_sigma"]
+        if field_norms is not None:  # said of the refined fit, not of its TWOSTEP start
+            said = field_log_misfit(m, cal, field_norms)
+            cal.summary["warnings"] = [w for w in cal.summary["warnings"] if not w.startswith(FIELD_LOG_WORDS)] + (
+                [said] if said else [])
     ignored = []
     if vector and field_norm is not None:
         scale = float(np.mean(np.linalg.norm(reference, axis=1)))

@@ -156,6 +156,7 @@ def _axis_coupling(result: TwoStep2D, readings: np.ndarray, norms: np.ndarray) -
 # white noise alone leaves about 1 (its radial share), and the noise estimate only grows with a sensor's motion.
 FIELD_LOG_MISFIT = 3.0
 FIELD_LOG_STEP = 0.5  # |correlation| of the misfit with the log's change per reading that says "out of step"
+FIELD_LOG_WORDS = "the readings miss each reading's |field|"  # how the warning starts (calibrate replaces its start's)
 
 
 def field_log_misfit(m: np.ndarray, cal: Calibration, norms: np.ndarray) -> str | None:
@@ -172,8 +173,8 @@ def field_log_misfit(m: np.ndarray, cal: Calibration, norms: np.ndarray) -> str 
     noise = float(np.cbrt(abs(np.linalg.det(cal.matrix)))) * estimate_noise(m)  # in |h|'s unit
     if not rms > FIELD_LOG_MISFIT * noise:
         return None
-    text = (f"the readings miss each reading's |field| by {rms:.4g} RMS, {rms / noise:.3g} times the noise of their "
-            f"successive values ({noise:.3g}): ")
+    text = (f"{FIELD_LOG_WORDS} by {rms:.4g} RMS, {rms / noise:.3g} times the noise of their successive values "
+            f"({noise:.3g}): ")
     rate = np.gradient(norms * (cal.field_norm / np.mean(norms)))
     dc, rc = d - d.mean(), rate - rate.mean()
     scale = float(np.sqrt(np.dot(dc, dc) * np.dot(rc, rc)))

@@ -164,12 +164,12 @@ def test_a_recordings_field_column_is_named_and_converted():
 def test_a_field_log_that_does_not_fit_the_readings_is_said(seed):
     """A |field| log 3 s (150 readings) out of step with a hand-turned minute at 50 Hz, or rounded to 1 µT in a
     field changing ±1 µT, left TWOSTEP 5× the noise of the readings' successive values off and it said nothing (a
-    blind check: 10–15× with a 2 h lag). Now a warning; with the shift when the misfit follows the log's change
-    (measured +114 to +135 readings for +150); the log in step says nothing."""
+    blind check: 10–15× with a 2 h lag). Now a warning, from twostep and calibrate; with the shift when the misfit
+    follows the log's change (measured +114 to +135 readings for +150); the log in step says nothing."""
     m, _, norms = changing([], seed, amplitude=0.02)
 
-    def said(F):
-        return [w for w in fluxcal.twostep(m, F).summary["warnings"] if "the readings miss each reading's |field|" in w]
+    def said(F, fit=fluxcal.twostep):
+        return [w for w in fit(m, F).summary["warnings"] if "the readings miss each reading's |field|" in w]
 
     assert said(norms) == []
     lagged = said(np.r_[norms[150:], np.full(150, norms[-1])])
@@ -179,3 +179,6 @@ def test_a_field_log_that_does_not_fit_the_readings_is_said(seed):
     assert 100 <= shift <= 170
     rounded = said(np.round(norms))
     assert len(rounded) == 1 and "out of step" not in rounded[0] and "its resolution and its unit" in rounded[0]
+    calibrated = said(np.r_[norms[150:], np.full(150, norms[-1])], lambda m, F: fluxcal.calibrate(m, field_norm=F))
+    assert len(calibrated) == 1 and "looks out of step" in calibrated[0]  # calibrate says it of its own fit
+    assert said(norms, lambda m, F: fluxcal.calibrate(m, field_norm=F)) == []
