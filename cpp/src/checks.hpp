@@ -34,6 +34,16 @@ inline std::string num(double v) {
   return buf;
 }
 
+/// A known field norm whose calibration scales the readings by `gain` beyond 5× either way usually means another
+/// unit than the readings' (nT magnitudes beside µT readings): "WHAT is GAIN times the RADIUS_NAME R of the readings
+/// — check the units", else "". The ellipsoid fit, TWOSTEP and the refinement with per-reading norms say it alike.
+inline std::string units_mismatch(const std::string& what, double gain, double radius,
+                                  const std::string& radius_name = "radius") {
+  if (!(gain > 5.0 || gain < 0.2)) return "";
+  return what + " is " + num(gain) + " times the " + radius_name + " " + num(radius) +
+         " of the readings — check the units";
+}
+
 /// The true field magnitude of each of `rows` readings (twostep_2d, refine's per-reading norms): one positive
 /// finite value per reading, or Error "field_norms: …".
 inline void check_field_norms(const Eigen::Ref<const Eigen::VectorXd>& h, Eigen::Index rows) {

@@ -456,16 +456,13 @@ EllipsoidResult solve(const EllipsoidMoments& mom, const EllipsoidOptions& opt) 
                            "; the offset and matrix along the thin direction are poorly determined");
   if (opt.field_norm > 0.0) {
     // A known field norm far from the fitted volume radius usually means mismatched units.
-    const double gain = H / fitted_radius;
-    if (gain > 5.0 || gain < 0.2) {
-      std::ostringstream msg;
-      msg << "field_norm " << H << " is " << gain << " times the fitted radius " << fitted_radius
-          << " of the readings — check the units"
-          << (sum.coverage_ratio < opt.poor_coverage_ratio
-                  ? ", or the coverage: readings on a small cap of directions fit a far smaller or larger ellipsoid"
-                  : "");
-      sum.warnings.push_back(msg.str());
-    }
+    const std::string said = detail::units_mismatch("field_norm " + detail::num(H), H / fitted_radius, fitted_radius,
+                                                    "fitted radius");
+    if (!said.empty())
+      sum.warnings.push_back(said + (sum.coverage_ratio < opt.poor_coverage_ratio
+                                         ? ", or the coverage: readings on a small cap of directions fit a far "
+                                           "smaller or larger ellipsoid"
+                                         : ""));
   }
   return out;
 }

@@ -9,6 +9,7 @@
 #include <ceres/ceres.h>
 
 #include <algorithm>
+#include <vector>
 #include <cmath>
 #include <limits>
 #include <memory>
@@ -600,6 +601,17 @@ Calibration at_mean_norm(const Calibration& start, const Eigen::VectorXd& norms)
   return out;
 }
 
+// The median over the readings of | |h_i| − field | (cal.field_norm, or (*norms)(i)).
+double median_misfit(const SamplesRef& samples, const Calibration& cal, const Eigen::VectorXd* norms) {
+  std::vector<double> d(static_cast<std::size_t>(samples.rows()));
+  for (Eigen::Index i = 0; i < samples.rows(); ++i)
+    d[static_cast<std::size_t>(i)] = std::abs((cal.matrix * (samples.row(i).transpose() - cal.offset)).norm() -
+                                              (norms ? (*norms)(i) : cal.field_norm));
+  const auto mid = d.begin() + static_cast<std::ptrdiff_t>(d.size() / 2);
+  std::nth_element(d.begin(), mid, d.end());
+  return *mid;
+}
+
 // refine's magnitude model; each reading's |h| is start.field_norm, or (*norms)(i) when norms is not null.
 RefineResult refine_magnitude(const Calibration& start, const SamplesRef& samples, const Eigen::VectorXd* norms,
                               const RefineOptions& opt) {
@@ -679,11 +691,17 @@ RefineResult refine_magnitude(const Calibration& start, const SamplesRef& sample
   const double solved_cost = solve_for(H, Hs);
   bool current = false;  // F, ssr and the scores are those of θ as it stands
   if (opt.noise_bias_correction) {
-    // σ̂² from the plain Σr²: Ceres' final cost without a loss, one more pass with one
-    if (loss) plain_fit(H, Hs, F, ssr);
-    else ssr = 2.0 * solved_cost;
-    const double s2 = ssr / spare;
+    // σ̂² from the plain Σr² (Ceres' final cost) without a loss; with one, from the median residual: the plain Σr²
+    // holds the outliers the loss ignores (one spike at 170× the field made the target 31× the field, and A with it).
     const Eigen::Matrix<double, 9, 1>& t = th;
+    double s2 = 2.0 * solved_cost / spare;
+    if (loss) {
+      Calibration at;
+      at.offset = t.head<3>();
+      at.matrix << t(3), t(4), t(5), t(4), t(6), t(7), t(5), t(7), t(8);
+      at.field_norm = H;
+      s2 = std::pow(1.4826 * median_misfit(samples, at, norms), 2);
+    }
     const double a2 = t(3) * t(3) + t(6) * t(6) + t(8) * t(8) + 2 * (t(4) * t(4) + t(5) * t(5) + t(7) * t(7));
     // The target moves by O(σ²/H): Gauss–Newton steps from the solution converge at once (plain
     // least squares; with a robust loss the full solve again).
@@ -735,12 +753,14 @@ RefineResult refine_magnitude(const Calibration& start, const SamplesRef& sample
   finish_statistics(out, F, sigma2, scales, opt, false, &scores);
   finish_summary(out, samples, nullptr, norms);
   // A fit that left the readings: |h| as far from the field as the field is large (on a cap, the offset and A ran to
-  // 1e75 and 1e69 in 100 iterations, its cost underflowed to 0 and won a comparison of shapes by BIC).
-  if (!(out.summary.residual_rms < cal.field_norm))
+  // 1e75 and 1e69 in 100 iterations, its cost underflowed to 0 and won a comparison of shapes by BIC). Judged on the
+  // median reading: one spike left far off by a robust loss is no runaway.
+  const double typical = median_misfit(samples, cal, norms);
+  if (!(typical < cal.field_norm))
     throw Error("refine: the refinement ran away from the readings (" +
                 std::string(out.summary.converged ? "converged" : "not converged") + " after " +
-                std::to_string(out.summary.iterations) + " iterations, |h| − field RMS " +
-                detail::num(out.summary.residual_rms) + " against a field of " + detail::num(cal.field_norm) +
+                std::to_string(out.summary.iterations) + " iterations, the median | |h| − field | " +
+                detail::num(typical) + " against a field of " + detail::num(cal.field_norm) +
                 "); the start was too far off, or the readings cover too few directions (a small cap of the sphere: "
                 "turn the sensor through more orientations)");
   return out;
@@ -760,10 +780,9 @@ RefineResult refine(const Calibration& start, const SamplesRef& samples, const S
   // Norms far from the readings' own radius usually mean another unit (nT magnitudes for µT readings), as the
   // ellipsoid fit and TWOSTEP say of a field_norm; the start's matrix, rescaled to them, hid it here.
   const double gain = std::cbrt(out.calibration.matrix.determinant());
-  if (gain > 5.0 || gain < 0.2)
-    out.summary.warnings.push_back("field_norms: their mean " + detail::num(norms.mean()) + " is " + detail::num(gain) +
-                                   " times the radius " + detail::num(norms.mean() / gain) +
-                                   " of the readings — check the units");
+  const std::string said = detail::units_mismatch("field_norms: their mean " + detail::num(norms.mean()), gain,
+                                                  norms.mean() / gain);
+  if (!said.empty()) out.summary.warnings.push_back(said);
   return out;
 }
 

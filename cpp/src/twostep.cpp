@@ -703,12 +703,13 @@ TwoStepResult twostep_fit(const SamplesRef& samples, const TwoStepOptions& optio
         return next;
       };
       last_step = delta.cwiseAbs().maxCoeff();
-      // Below the tolerance, or with a predicted decrease ½δᵀFδ below the rounding of the cost pᵀS p (the size of
-      // the terms it cancels), the cost cannot tell the step from rounding: without the latter, the same readings
-      // in another memory layout (sums rounded otherwise) ran 19 iterations instead of 5 on steps of 1e-10.
+      // Below the tolerance, or with a predicted decrease δᵀFδ (of the cost pᵀS p, a sum of squares without ½)
+      // below the rounding of that cost (the size of the terms it cancels), the cost cannot tell the step from
+      // rounding: without the latter, the same readings in another memory layout (sums rounded otherwise) ran 19
+      // iterations instead of 5 on steps of 1e-10.
       const double cost_rounding =
           p.cwiseAbs().dot(Sw.cwiseAbs() * p.cwiseAbs()) * std::numeric_limits<double>::epsilon();
-      if (last_step <= options.tolerance || 0.5 * delta.dot(F * delta) <= cost_rounding) {
+      if (last_step <= options.tolerance || delta.dot(F * delta) <= cost_rounding) {
         m = step(1.0);
         sum.iterations = it + 1;
         sum.converged = true;
@@ -811,10 +812,10 @@ TwoStepResult twostep_fit(const SamplesRef& samples, const TwoStepOptions& optio
   if (!poor.empty()) sum.warnings.push_back(poor);
   {  // a field_norm far from the readings' own radius usually means mismatched units
     const double gain = std::cbrt(cal.matrix.determinant());
-    if (gain > 5.0 || gain < 0.2)
-      sum.warnings.push_back("field_norm " + num(H) + " is " + num(gain) + " times the radius " + num(H / gain) +
-                             " of the readings — check the units");
+    const std::string said = detail::units_mismatch("field_norm " + num(H), gain, H / gain);
+    if (!said.empty()) sum.warnings.push_back(said);
   }
+
 
   std::ostringstream msg;
   const std::string u = cal.units.empty() ? "" : " " + cal.units;

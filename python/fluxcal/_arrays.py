@@ -141,9 +141,14 @@ def field_norms_summary(norms: np.ndarray) -> dict:
 
 def field_norm_given(samples, field_norm):
     """`field_norm` as a calibration takes it: a column's name when `samples` is a Recording (its values in the
-    readings' unit, Recording.field_norms); else as given."""
+    readings' unit, Recording.field_norms), a number written as text as that number; else as given."""
     if not isinstance(field_norm, str):
         return field_norm
+    if not (hasattr(samples, "columns") and field_norm in samples.columns):
+        try:
+            return float(field_norm)  # "50" (as fit_ellipsoid takes it)
+        except ValueError:
+            pass
     if not hasattr(samples, "field_norms"):
         raise ValueError(f"field_norm: {field_norm!r} names a column, but the samples are an array, not a Recording "
                          "(fluxcal.read_recording); give the values")

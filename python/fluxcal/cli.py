@@ -18,7 +18,7 @@ from .calibration import TESLA_PER_UNIT, Calibration, _significant
 from .io import Recording, read_csv, read_recording, write_csv, write_recording
 from .io.formats import WRITERS
 from .io.columns import unit_name
-from .pipeline import METHODS, calibrate
+from .pipeline import METHODS, UNITS_WORDS, calibrate
 
 def positive_number(text: str, zero: bool = False) -> float:
     """argparse type of a magnitude (--field-norm, --noise-sigma): a positive finite number, so that the error
@@ -180,7 +180,7 @@ def _recheck_field_norm(cal: Calibration, units: str, field_units: str) -> None:
     """The solver compares a given field norm with the readings' radius in one unit ("check the units" beyond
     5×); with --field-units naming another unit than the readings' that comparison is void: it is redone
     with both in tesla where the two units are field units, and dropped for counts."""
-    warnings = [w for w in cal.summary.get("warnings", []) if "times the fitted radius" not in w]
+    warnings = [w for w in cal.summary.get("warnings", []) if UNITS_WORDS not in w]  # (every solver's words)
     if units in TESLA_PER_UNIT and field_units in TESLA_PER_UNIT:
         radius = cal.field_norm / abs(float(np.linalg.det(cal.matrix))) ** (1 / 3)  # the readings' |B|, their unit
         gain = cal.field_norm * TESLA_PER_UNIT[field_units] / (radius * TESLA_PER_UNIT[units])
@@ -266,15 +266,19 @@ def _coverages(raw, cal: Calibration) -> tuple:
     return direction_coverage(h[:len(raw) // 2]), direction_coverage(h)
 
 
+def _still_start(first: float, whole: float) -> str:
+    return (f"its readings cover {100 * first:.0f} % of the field directions, the whole recording's {100 * whole:.0f} % "
+            "(still, or turned little, at the start?)")
+
+
 def _first_half_unfit(raw, cal: Calibration, exc: ValueError) -> str:
     """Why the held-out check has no number: the first half alone cannot be fitted; when it turned through far
     fewer directions than the whole recording (a still start), said as the reason."""
     error = str(exc).split(";")[0]
     first, whole = _coverages(raw, cal)
     if first < FIRST_HALF_COVERAGE * whole:
-        return (f"the first half alone does not determine the fit: its readings cover {100 * first:.0f} % of the "
-                f"field directions, the whole recording's {100 * whole:.0f} % (still, or turned little, at the "
-                f"start?), and its own fit fails ({error}); the whole fit is judged by the lines above")
+        return (f"the first half alone does not determine the fit: {_still_start(first, whole)}, and its own fit "
+                f"fails ({error}); the whole fit is judged by the lines above")
     return f"the first half alone cannot be fitted: {error}"
 
 
@@ -291,9 +295,8 @@ def _first_half_note(raw, cal: Calibration, first: Calibration, worse: bool, cov
         return ""
     mine, whole = _coverages(raw, cal)
     if mine < FIRST_HALF_COVERAGE * whole:
-        return (f"the first half alone does not determine the fit well: its readings cover {100 * mine:.0f} % of the "
-                f"field directions, the whole recording's {100 * whole:.0f} % (still, or turned little, at the "
-                "start?), so this is of that poorer fit, not of the whole one")
+        return (f"the first half alone does not determine the fit well: {_still_start(mine, whole)}, so this is of "
+                "that poorer fit, not of the whole one")
     return ""
 
 
@@ -412,7 +415,8 @@ def _field_norm_igrf(rec: Recording, args) -> np.ndarray:
     checked = _altitude_unit_checked(rec, args, names, lat, lon, alt, t, norms) if names["alt_unit_assumed"] else ""
     factor = _take_field_units(args, "nT", "--field-norm igrf")
     days = sorted({datetime.fromtimestamp(x, timezone.utc).strftime("%Y-%m-%d") for x in (t.min(), t.max())})
-    height = (f"{names['alt']} in {names['alt_unit']}{' (no unit stated: assumed' + checked + ')' if checked else ''}"
+    height = (f"{names['alt']} in {names['alt_unit']}"
+              f"{' (no unit stated: assumed' + checked + ')' if names['alt_unit_assumed'] else ''}"
               f", {alt.min():.4g} to {alt.max():.4g} km" if names["alt"] else "no altitude column: 0 km")
     print(f"field norm of each reading from the IGRF (ppigrf) at its position ({names['lat']}, {names['lon']}; "
           f"{height}) and UTC date ({' to '.join(days)}): {norms.min():.1f} to {norms.max():.1f} nT")
@@ -431,7 +435,11 @@ def _altitude_unit_checked(rec: Recording, args, names, lat, lon, alt, t, norms)
         return ""
     if np.max(alt) * 1000.0 >= IGRF_TOP_KM:
         return f"; in km it would reach {np.max(alt) * 1000.0:.4g} km, past the magnetopause"
-    in_km = igrf_magnitudes(lat, lon, alt * 1000.0, t)
+    if np.min(alt) * 1000.0 <= -20.0:  # (GPS heights a little below sea level: in km, deep in the Earth)
+        return f"; in km it would reach {np.min(alt) * 1000.0:.4g} km, below the Earth's crust"
+    with warnings.catch_warnings():  # (what the IGRF's inputs look like was said of the first call)
+        warnings.simplefilter("ignore")
+        in_km = igrf_magnitudes(lat, lon, alt * 1000.0, t)
     if np.max(np.abs(in_km - norms) / norms) < 1e-4:  # (a few metres or km alike: nothing to tell apart)
         return ""
     try:
@@ -446,7 +454,8 @@ def _altitude_unit_checked(rec: Recording, args, names, lat, lon, alt, t, norms)
                          f"but the readings fit the IGRF far better in km (TWOSTEP's residual RMS {misfit['km']:.2%} "
                          f"of |F| against {misfit['m']:.2%} in m): state its unit (a header {names['alt']} [km], or "
                          "name it alt_km)")
-    return f"; in km the readings would fit the IGRF worse: residual {misfit['km']:.2%} of |F| against {misfit['m']:.2%}"
+    worse = "worse" if misfit["km"] > 1.1 * misfit["m"] else "no better"
+    return f"; in km the readings would fit the IGRF {worse}: residual {misfit['km']:.2%} of |F| against {misfit['m']:.2%}"
 
 
 def _take_field_units(args, stated: str, what: str) -> float:

@@ -2,7 +2,8 @@
 spikes. A few of them wreck an ellipsoid fit (0.5 % zero rows make the least-squares matrix indefinite),
 so `fluxcal.calibrate` screens for them before fitting, leaves them out, and says which rows and why.
 
-A reading is off the ellipsoid when its distance from it, |h|/median|h| − 1, lies further
+A reading is off the ellipsoid when its distance from it, |h|/median|h| − 1 (with each reading's |field|,
+(|h| − s·|field|)/(s·mean |field|), s the median |h|/|field|), lies further
 from the median than the two-sided normal quantile at α/N (Bonferroni: with Gaussian noise a whole
 recording is flagged wrongly with probability α) times the robust σ, 1.4826 · MAD. Outliers distort a
 fit of all readings and can hide each other (0.5 % zero rows and a few spikes raised the robust σ of
@@ -50,7 +51,7 @@ class Outliers:
     """Rows left out (indices into the readings given), and how they were judged."""
     rows: np.ndarray
     threshold: float = 0.0           # in robust σ
-    robust_sigma: float = 0.0        # of the relative radial distance |h|/median|h| − 1 (the vector
+    robust_sigma: float = 0.0        # of the relative radial distance (_distances) (the vector
                                      # model: the RMS residual σ over axes, in the readings' units)
     largest: float = 0.0             # the largest flagged distance, in robust σ
     kinds: dict = field(default_factory=dict)  # "zero" / "rail": how many of the rows look like that
@@ -149,7 +150,8 @@ def _try_fit(m: np.ndarray, method: str, norms=None):
 def _lmeds_start(m: np.ndarray, rng, best=None, norms=None):
     """The fit with the least median absolute distance: `best` (the ALS fit of all readings), or the quadric
     through one of the random subsets (scored on at most SCORED readings: the median needs no more). With each
-    reading's |field| (`norms`, changing) the distances are of |h|/|field|. Returns a Calibration or None."""
+    reading's |field| (`norms`, changing) the distances are as _distances takes them. Returns a Calibration or
+    None."""
     chosen = np.arange(len(m)) if len(m) <= SCORED else rng.choice(len(m), SCORED, replace=False)
     scored = m[chosen]
     changing = norms is not None and changing_field(norms)
@@ -211,8 +213,9 @@ def _squares_representable(a: np.ndarray) -> bool:
 def find_outliers(samples, reference=None, alpha: float = 0.01, seed: int = 0, field_norms=None) -> Outliers:
     """Gross outliers of `samples` (N×3 readings of a turning magnetometer), judged against the ellipsoid,
     or with `reference` (the true field of each reading, sensor frame) against the vector model
-    m = W r + b; see the module doc. With `field_norms` (each reading's |field|, logged beside it) a reading's
-    distance is of |h|/|field|: a glitch in that log is left out with its reading."""
+    m = W r + b; see the module doc. With `field_norms` (each reading's |field|, logged beside it) the fits take
+    them (TWOSTEP when they change) and a reading's distance is (|h| − s·|field|)/(s·mean |field|): a glitch in that
+    log is left out with its reading."""
     m = as_samples(samples)  # NaN is let through: the screen stands down and the fit names the row
     n = len(m)
     if reference is not None:

@@ -26,6 +26,10 @@ ELLIPSOID_SETTINGS = frozenset(name for name in dir(_core.EllipsoidOptions())
                                if not name.startswith("_")) - {"field_norm", "method", "units"}
 
 
+# How every solver's "the field norm is in another unit" warning ends (cpp/src/checks.hpp units_mismatch).
+UNITS_WORDS = " of the readings — check the units"
+
+
 def usable_cpus() -> int:
     """The CPUs this process may run on (a container's or taskset's share, not the host's count)."""
     try:
@@ -135,8 +139,10 @@ def calibrate(samples, method: str = "auto", field_norm: float | None = None, re
         cal.summary["method"] = "als+refine"
         cal.summary["start"] = start.model  # "ellipsoid_als", or "twostep" in a field that changes (_magnitude_start)
         cal.summary["coverage_ratio"] = start.summary["coverage_ratio"]
+        said_units = any(UNITS_WORDS in w for w in start.summary["warnings"])  # (the refinement would say it again)
         cal.summary["warnings"] = list(start.summary["warnings"]) + [
-            w for w in cal.summary["warnings"] if w not in start.summary["warnings"]]
+            w for w in cal.summary["warnings"] if w not in start.summary["warnings"]
+            and not (said_units and UNITS_WORDS in w)]
         if start.summary.get("noise_sigma"):
             cal.summary["als_noise_sigma"] = start.summary["noise_sigma"]
         if field_norms is not None:  # said of the refined fit, not of its TWOSTEP start
@@ -168,8 +174,11 @@ def _magnitude_start(m: np.ndarray, field_norm, field_norms, units, start_settin
         try:
             return twostep(m, field_norms, units=units,
                            **{k: v for k, v in start_settings.items() if k != "exact_statistics"})
-        except ValueError:
-            pass
+        except ValueError as exc:
+            start = fit_ellipsoid(m, field_norm=field_norm, units=units, method="als", **start_settings)
+            start.summary["warnings"] = list(start.summary["warnings"]) + [
+                f"started from the ellipsoid of the |field|'s mean, not TWOSTEP with each one: {str(exc)[:300]}"]
+            return start
     return fit_ellipsoid(m, field_norm=field_norm, units=units, method="als", **start_settings)
 
 

@@ -173,6 +173,8 @@ def igrf_magnitudes(lat, lon, alt_km, utc_seconds) -> np.ndarray:
     if not len(lat) == len(lon) == len(alt) == len(t):
         raise ValueError(f"igrf_magnitudes: {len(lat)} latitudes, {len(lon)} longitudes, {len(alt)} altitudes and "
                          f"{len(t)} times; give one of each per reading")
+    if not len(lat):
+        return np.zeros(0)
     bad = first_bad_place(lat, lon, alt, t)
     if bad is not None:
         name, i, value = bad

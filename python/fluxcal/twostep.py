@@ -171,8 +171,8 @@ def field_log_misfit(m: np.ndarray, cal: Calibration, norms: np.ndarray) -> str 
     d = np.linalg.norm(cal.apply(m), axis=1) - norms * (cal.field_norm / np.mean(norms))
     rms = float(np.sqrt(np.mean(d * d)))
     noise = float(np.cbrt(abs(np.linalg.det(cal.matrix)))) * estimate_noise(m)  # in |h|'s unit
-    if not rms > FIELD_LOG_MISFIT * noise:
-        return None
+    if not (noise > 0.0 and rms > FIELD_LOG_MISFIT * noise):  # (0: readings coarser than their noise, an ADC's
+        return None                                           # steps: no yardstick here)
     text = (f"{FIELD_LOG_WORDS} by {rms:.4g} RMS, {rms / noise:.3g} times the noise of their successive values "
             f"({noise:.3g}): ")
     rate = np.gradient(norms * (cal.field_norm / np.mean(norms)))

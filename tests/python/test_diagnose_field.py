@@ -182,3 +182,21 @@ def test_a_field_log_that_does_not_fit_the_readings_is_said(seed):
     calibrated = said(np.r_[norms[150:], np.full(150, norms[-1])], lambda m, F: fluxcal.calibrate(m, field_norm=F))
     assert len(calibrated) == 1 and "looks out of step" in calibrated[0]  # calibrate says it of its own fit
     assert said(norms, lambda m, F: fluxcal.calibrate(m, field_norm=F)) == []
+
+
+def test_a_field_log_check_on_readings_coarser_than_their_noise_stands_down():
+    """A slow turn read through a 0.3 µT ADC step (noise 0.05 µT): successive readings mostly repeat, their third
+    differences' noise estimate is 0, and the log check divided by it (a ZeroDivisionError out of calibrate, a
+    review found). With no yardstick it now says nothing."""
+    from scipy.spatial.transform import Rotation
+
+    rng = np.random.default_rng(0)
+    t = np.arange(60000) / 50.0
+    turn = Rotation.from_rotvec(np.outer(t, [0.03, 0.05, 0.02])) * Rotation.from_rotvec(np.outer(t, [0, 0, 0.037]))
+    F = 50 * (1 + 0.02 * np.sin(2 * np.pi * t / 120))
+    h = F[:, None] * turn.apply(np.tile([0.6, 0.0, 0.8], (len(t), 1)))
+    m = np.round((h + [10, -5, 3] + rng.normal(scale=0.05, size=h.shape)) / 0.3) * 0.3
+    for cal in (fluxcal.calibrate(m, field_norm=F), fluxcal.twostep(m, F)):
+        assert not [w for w in cal.summary["warnings"] if "the readings miss each reading's |field|" in w]
+        np.testing.assert_allclose(cal.offset, [10, -5, 3], atol=0.05)
+    assert fluxcal.calibrate(m, field_norm="50").field_norm == 50.0  # a number as text, as fit_ellipsoid takes it

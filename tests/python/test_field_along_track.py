@@ -249,3 +249,19 @@ def test_igrf_magnitudes_names_units_it_cannot_be_given():
     with warnings.catch_warnings():
         warnings.simplefilter("error")  # the orbit itself: nothing to say
         igrf_magnitudes(lat, lon, alt, t)
+
+
+def test_a_gps_height_a_little_below_sea_level_is_no_error(tmp_path):
+    """An altitude column without a unit holding −50 m (a GPS near the sea): the check of the other unit asked the
+    IGRF at −50 km, which refused it ("metres given as km?", a review found). It is said and passed by; an empty
+    track gives no field."""
+    t, lat, lon, alt, readings, _ = orbit(n=200)
+    height = np.where(np.arange(200) % 2, -50.0, 20.0)  # metres
+    path = tmp_path / "coast.csv"
+    path.write_text("t,mx,my,mz,lat,lon,alt\n" + "".join(
+        f"{s:.0f},{x:.3f},{y:.3f},{z:.3f},{la:.6f},{lo:.6f},{h:.1f}\n"
+        for s, (x, y, z), la, lo, h in zip(t, readings, lat, lon, height)))
+    run = run_cli("calibrate", path, "--field-norm", "igrf", "--units", "nT")
+    assert run.returncode == 0, run.stderr
+    assert "alt in m (no unit stated: assumed; in km it would reach -50 km, below the Earth's crust)" in run.stdout
+    assert igrf_magnitudes([], [], [], []).shape == (0,)

@@ -468,8 +468,25 @@ def test_a_refinement_that_runs_away_from_the_readings_is_an_error():
     start = fluxcal.Calibration(offset=np.array([5.0, -3, 2]) + rng.normal(0, 30, 3),
                                 matrix=np.eye(3) * rng.uniform(0.5, 2), field_norm=50.0)
     with pytest.raises(ValueError, match=r"refine: the refinement ran away from the readings \(not converged after "
-                                         r"\d+ iterations, \|h\| − field RMS .* against a field of 50\)"):
+                                         r"\d+ iterations, the median \| \|h\| − field \| .* against a field of 50\)"):
         fluxcal.refine(start, m, shape="diag")
+
+
+@pytest.mark.parametrize("loss", ["huber", "cauchy"])
+def test_a_robust_fit_past_one_spike_keeps_the_scale(loss):
+    """One spike at 170× the field, fitted with a robust loss: the noise-bias correction took σ̂² from the plain
+    Σr², which the spike fills, and moved the target |h| to 31× the field — A 31× too large beside a right offset
+    (a review found it when the run-away check, then on the RMS, called the fit run away). σ̂ now comes from the
+    median residual: A within 1 % of the truth, no error."""
+    rng = np.random.default_rng(2)
+    v = rng.normal(size=(1000, 3))
+    v /= np.linalg.norm(v, axis=1)[:, None]
+    m = v * 50 + [3, -2, 1] + rng.normal(scale=0.05, size=(1000, 3))
+    m[500] = [5000.0, 5000.0, 5000.0]
+    start = fluxcal.fit_ellipsoid(np.delete(m, 500, axis=0), field_norm=50.0)
+    cal = fluxcal.refine(start, m, loss=loss)
+    np.testing.assert_allclose(cal.offset, [3, -2, 1], atol=0.01)
+    np.testing.assert_allclose(cal.matrix, np.eye(3), atol=0.01)
 
 
 def test_field_norms_in_another_unit_are_named():
@@ -479,5 +496,6 @@ def test_field_norms_in_another_unit_are_named():
     _, m, norms = changing_field(s, 1 + 0.02 * np.sin(np.linspace(0, 3, 600)))
     cal = fluxcal.calibrate(m, field_norm=norms)
     said = [w for w in fluxcal.refine(cal, m, field_norms=norms * 1000).summary["warnings"] if "check the units" in w]
-    assert len(said) == 1 and said[0].startswith("field_norms: their mean 5.06") and "1005.21 times the radius" in said[0]
+    gain = float(said[0].split(" is ")[1].split(" times")[0]) if len(said) == 1 else 0.0
+    assert said[0].startswith("field_norms: their mean") and "times the radius" in said[0] and 950 < gain < 1050
     assert not [w for w in fluxcal.refine(cal, m, field_norms=norms).summary["warnings"] if "check the units" in w]
