@@ -601,6 +601,15 @@ Calibration at_mean_norm(const Calibration& start, const Eigen::VectorXd& norms)
   return out;
 }
 
+// The calibration of the magnitude model's θ = [offset (3), A's upper triangle row by row (6)] at field norm H.
+Calibration magnitude_calibration(const Eigen::Matrix<double, 9, 1>& t, double H) {
+  Calibration cal;
+  cal.offset = t.head<3>();
+  cal.matrix << t(3), t(4), t(5), t(4), t(6), t(7), t(5), t(7), t(8);
+  cal.field_norm = H;
+  return cal;
+}
+
 // The median over the readings of | |h_i| − field | (cal.field_norm, or (*norms)(i)).
 double median_misfit(const SamplesRef& samples, const Calibration& cal, const Eigen::VectorXd* norms) {
   std::vector<double> d(static_cast<std::size_t>(samples.rows()));
@@ -695,13 +704,7 @@ RefineResult refine_magnitude(const Calibration& start, const SamplesRef& sample
     // holds the outliers the loss ignores (one spike at 170× the field made the target 31× the field, and A with it).
     const Eigen::Matrix<double, 9, 1>& t = th;
     double s2 = 2.0 * solved_cost / spare;
-    if (loss) {
-      Calibration at;
-      at.offset = t.head<3>();
-      at.matrix << t(3), t(4), t(5), t(4), t(6), t(7), t(5), t(7), t(8);
-      at.field_norm = H;
-      s2 = std::pow(1.4826 * median_misfit(samples, at, norms), 2);
-    }
+    if (loss) s2 = std::pow(1.4826 * median_misfit(samples, magnitude_calibration(th, H), norms), 2);
     const double a2 = t(3) * t(3) + t(6) * t(6) + t(8) * t(8) + 2 * (t(4) * t(4) + t(5) * t(5) + t(7) * t(7));
     // The target moves by O(σ²/H): Gauss–Newton steps from the solution converge at once (plain
     // least squares; with a robust loss the full solve again).
@@ -732,10 +735,7 @@ RefineResult refine_magnitude(const Calibration& start, const SamplesRef& sample
       loss ? robust_variance(*loss, scores, static_cast<int>(k), plain_sigma2, out.summary.warnings) : plain_sigma2;
 
   Calibration& cal = out.calibration;
-  cal.offset = th.head<3>();
-  const Eigen::Matrix<double, 9, 1>& t = th;
-  cal.matrix << t(3), t(4), t(5), t(4), t(6), t(7), t(5), t(7), t(8);
-  cal.field_norm = start.field_norm;
+  cal = magnitude_calibration(th, start.field_norm);
   cal.units = opt.units.empty() ? start.units : opt.units;
   cal.model = "refine";
   out.parameters = shape.pinv * th;

@@ -196,15 +196,20 @@ TEST(TwoStep3D, RecoversNoiseFreeSensorExactly) {
   }
 }
 
+// The readings `base` of sensor `t` in a field whose magnitude is k_i = 1 + amplitude·sin(phase·i/N) times t.field at
+// reading i: b + k_i (m_i − b) (the noise scaled too); k is returned for the norms.
+static Samples in_changing_field(const Truth3D& t, const Samples& base, double amplitude, double phase, Eigen::VectorXd& k) {
+  k.resize(base.rows());
+  for (Eigen::Index i = 0; i < k.size(); ++i) k(i) = 1.0 + amplitude * std::sin(phase * i / k.size());
+  return ((base.rowwise() - t.b.transpose()).array().colwise() * k.array()).matrix().rowwise() + t.b.transpose();
+}
+
 // Each reading's own field magnitude (A&S's spacecraft along an orbit: ±30 % here): the sensor to rounding from
 // either step; the same magnitude everywhere is the one-magnitude form.
 TEST(TwoStep3D, EachReadingsFieldRecoversNoiseFreeSensorExactly) {
   const Truth3D t = make_truth(5, 48.0);
-  const Samples base = simulate(t, 500, 0.0, 6);
-  Eigen::VectorXd k(base.rows());
-  for (Eigen::Index i = 0; i < k.size(); ++i) k(i) = 1.0 + 0.3 * std::sin(6.0 * i / k.size());
-  const Samples s = ((base.rowwise() - t.b.transpose()).array().colwise() * k.array()).matrix().rowwise() +
-                    t.b.transpose();
+  Eigen::VectorXd k;
+  const Samples s = in_changing_field(t, simulate(t, 500, 0.0, 6), 0.3, 6.0, k);
   const Eigen::VectorXd norms = k * t.field;
   fluxcal::TwoStepOptions opt;
   for (int iterations : {0, 50}) {
@@ -233,11 +238,8 @@ TEST(TwoStep3D, EachReadingsFieldRecoversNoiseFreeSensorExactly) {
 // (A wrong weight's row or a lost block moves the offset by far more than 1e-8 of the field.)
 TEST(TwoStep3D, EachReadingsFieldOnRowsApartInMemoryIsThePackedFit) {
   const Truth3D t = make_truth(8, 50.0);
-  const Samples base = simulate(t, 9001, 0.01, 9);
-  Eigen::VectorXd k(base.rows());
-  for (Eigen::Index i = 0; i < k.size(); ++i) k(i) = 1.0 + 0.2 * std::sin(9.0 * i / k.size());
-  const Samples s = ((base.rowwise() - t.b.transpose()).array().colwise() * k.array()).matrix().rowwise() +
-                    t.b.transpose();
+  Eigen::VectorXd k;
+  const Samples s = in_changing_field(t, simulate(t, 9001, 0.01, 9), 0.2, 9.0, k);
   Eigen::Matrix<double, Eigen::Dynamic, 5, Eigen::RowMajor> wide = decltype(wide)::Zero(s.rows(), 5);
   wide.middleCols<3>(1) = s;
   const fluxcal::SamplesRef view = wide.middleCols<3>(1);
