@@ -305,6 +305,80 @@ def glitch_words(temp, rows, word: str = "row", labels=None) -> str:
             "and pass --bad-lines skip")
 
 
+# The temperatures an FOCT's own thermometer reads in service: an outdoor substation's ambient to the rating of its
+# electronics, about −40…+85 °C (temperature_unit_hint).
+DEVICE_TEMPERATURES = (-40.0, 85.0)
+# How far beyond that (or the fit's ranges, if wider) a genuine °C log still reaches: a cold start below the rating, a
+# sun-loaded enclosure, a sensing head near a hot conductor. 15 °C keeps a −45 °C cold start and a 95 °C hot log
+# quiet, while a −20…50 °C chamber cycle logged in °F (−4…122) is beyond it, and anything in K (≥ 218 for −55 °C).
+UNIT_OVERSHOOT = 15.0
+# temperature_unit_hint's tolerance on the ranges' edges, a fraction of their span: a chamber's hold temperature as the
+# device reads it (control, the device's lag and self-heating, its thermometer's error), a few °C on −20…50 °C.
+UNIT_EDGE_TOLERANCE = 0.05
+# the units temperature_unit_hint tries (io.columns.TO_CELSIUS converts them), and how to state each in a file
+_OTHER_UNITS = (("F", "°F", "degF", "_F"), ("K", "K", "K", "_K"))
+
+
+def temperature_unit_hint(temp, breakpoints=DEFAULT_BREAKPOINTS, name: str = "temp") -> str | None:
+    """A warning when temperatures taken as °C look like °F or K logged with no unit, else None.
+
+    fluxcal converts a column whose unit is stated (a '# units:' line, temp_F, 'Temperature (°F)'); an unstated
+    unit is °C, and a log in °F or K then fits without an error: the ranges are adjusted to the numbers and the
+    model is in °F or K numbers taken for °C (seed 001's breakpoints 0 and 30 fall at −18 and −1 °C, a °C file
+    applied to it later is compensated wrongly or refused; the newcomer's −20…50 °C cycle in °F: drift 22.9× smaller
+    and the AR model rejected, against 938× and white residuals with the unit stated). Said when the readings leave
+    the ranges (by more than UNIT_EDGE_TOLERANCE of their span) and either
+      - as °C they are beyond what the device meets — DEVICE_TEMPERATURES widened to the ranges, plus
+        UNIT_OVERSHOOT — and in °F or K they are within it, or
+      - in °F or K they span the ranges edge to edge (within the tolerance): a chamber cycle over the ranges,
+        which a °C log leaving them cannot do (its span would have to be 1.8 times theirs, from 1.8 lo + 32).
+    A °C log reaching a little beyond the ranges is neither: −45…50 °C is −43…10 °C as °F, 20…95 °C is within
+    the overshoot. Readings beyond the device's temperatures that no unit explains (raw counts, another
+    quantity) are said too. A warning, not an error: the fit is not void (it compensates this file in its own
+    numbers), and a device really that hot or cold must still be fittable."""
+    from .io.columns import TO_CELSIUS  # the readers' conversion of a stated unit, the same here
+
+    t = np.asarray(temp, dtype=float)
+    t = t[np.isfinite(t)]
+    try:
+        edges = np.asarray([float(b) for b in breakpoints])
+    except (TypeError, ValueError):
+        return None  # (fit_drift says what is wrong with them)
+    if t.size == 0 or edges.size < 2 or not np.all(np.isfinite(edges)) or not np.ptp(edges) > 0:
+        return None
+    lo, hi = float(edges.min()), float(edges.max())
+    a, b = float(t.min()), float(t.max())
+    tol = UNIT_EDGE_TOLERANCE * (hi - lo)
+    if a >= lo - tol and b <= hi + tol:
+        return None  # within the ranges: nothing to explain
+    cold, hot = min(lo, DEVICE_TEMPERATURES[0]) - UNIT_OVERSHOOT, max(hi, DEVICE_TEMPERATURES[1]) + UNIT_OVERSHOOT
+    implausible = a < cold or b > hot
+
+    def beyond(x, y):  # how far [x, y] reaches beyond the ranges, °C
+        return max(0.0, lo - x) + max(0.0, y - hi)
+
+    hits = []
+    for unit, sign, stated, suffix in _OTHER_UNITS:
+        ca, cb = TO_CELSIUS[unit](a), TO_CELSIUS[unit](b)
+        spans = abs(ca - lo) <= tol and abs(cb - hi) <= tol
+        if spans or (implausible and ca >= cold and cb <= hot):
+            hits.append((beyond(ca, cb), sign, ca, cb, stated, suffix, spans))
+    seen = f"{name}: {a:.4g} … {b:.4g} read as °C"
+    if not hits:
+        if not implausible:
+            return None
+        return (f"{seen} is beyond the {cold:g} … {hot:g} °C an FOCT's temperature reaches (about "
+                f"{DEVICE_TEMPERATURES[0]:g} … {DEVICE_TEMPERATURES[1]:g} °C in service), and as °F or K too: is "
+                f"{name} the device temperature, in °C? Name the right column (--temp-column) or state its unit")
+    _, sign, ca, cb, stated, suffix, spans = min(hits, key=lambda h: h[0])  # the unit nearest the ranges
+    why = (f"beyond the {cold:g} … {hot:g} °C an FOCT's temperature reaches" if implausible else
+           f"{beyond(a, b):.3g} °C beyond the ranges [{lo:g}, {hi:g}]")
+    fits = ", the ranges edge to edge" if spans else (", within the ranges" if beyond(ca, cb) <= tol else "")
+    return (f"{seen} is {why}; in {sign} it would be {ca:.3g} … {cb:.3g} °C{fits}. Is {name} in {sign}? State "
+            f"its unit ('# units: {name}={stated}' in a CSV, or name the column {name}{suffix}) and fit again: as it "
+            f"is, the model's ranges are {sign} numbers taken for °C")
+
+
 def _finite(values: np.ndarray, name: str) -> np.ndarray:
     bad = ~np.isfinite(values)
     if bad.any():
@@ -370,6 +444,8 @@ def fit_pipeline(zero_bias, temp, temp_outside=None, regressor: str = "temp", br
     if np.ptp(temp) == 0:  # (else "range [-20, 0]: 0 samples", as if the ranges were wrong)
         raise ValueError(f"temp: every sample is {temp[0]:g} °C; a drift with temperature needs the temperature to "
                          "change (a chamber cycle, a warm-up)")
+    # °F or K logged with no unit (taken as °C) fit without an error, on ranges adjusted to the wrong numbers
+    unit_warnings = [w for w in [temperature_unit_hint(temp, breakpoints)] if w]
     drift_options = dict(regressor=regressor, breakpoints=breakpoints, max_order=max_order,
                          significance=significance, continuous=continuous, whiten=whiten, breaks=breaks)
     # S2.3 removes the trend before the AR model; here the trend is the temperature drift, so the AR model
@@ -417,8 +493,8 @@ def fit_pipeline(zero_bias, temp, temp_outside=None, regressor: str = "temp", br
     # itself (L − f would be a constant, and the class check could not fail)
     residual_filtered = filtered - model.evaluate(temp, temp_outside) if kalman_settings else compensated
     report = {"preprocess": {k: v for k, v in pre.items() if k != "series"},
-              "warnings": gap_warnings + list(pre["summary"]["warnings"]) + list(ar.summary["warnings"]) +
-              first_warnings, "gaps": gaps,
+              "warnings": unit_warnings + gap_warnings + list(pre["summary"]["warnings"]) +
+              list(ar.summary["warnings"]) + first_warnings, "gaps": gaps,
               "ar": {"order": ar.order, "coefficients": ar.coefficients.tolist(), "sigma2": ar.sigma2,
                      "order_at_maximum": ar.order_at_maximum, "whiteness": ar.whiteness,
                      "warnings": ar.summary["warnings"], "fitted_to": AR_FITTED_TO},

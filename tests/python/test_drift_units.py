@@ -1,0 +1,109 @@
+"""Temperatures in °F or K logged with no unit are read as °C: drift.temperature_unit_hint says so (newcomer C7:
+`drift fit` only warned "ranges … adjusted to the data: [-4, 0, 30, 122]"), and does not say it of °C logs that
+merely reach a little beyond the ranges."""
+import json
+
+import numpy as np
+import pytest
+
+from fluxcal import cli, drift, sim, write_csv
+
+
+@pytest.fixture(scope="module")
+def foct():
+    # a short chamber cycle over seed 001's ranges −20…50 °C (4400 samples: each fit well under a second)
+    return sim.foct_zero_bias(rng=np.random.default_rng(11), hold_s=200.0, ramp_s=100.0).columns
+
+
+def _hints(report):
+    return [w for w in report["warnings"] if "read as °C" in w]
+
+
+def test_unlabelled_fahrenheit_is_hinted_with_the_range_the_celsius_and_the_remedy(foct):
+    temp_f = foct["temp"] * 1.8 + 32.0
+    model, report = drift.fit_pipeline(foct["zero_bias"], temp_f)
+    hints = _hints(report)
+    assert len(hints) == 1
+    hint = hints[0]
+    lo, hi = temp_f.min(), temp_f.max()  # −4 … ≈122
+    assert hint.startswith(f"temp: {lo:.4g} … {hi:.4g} read as °C is beyond the -55 … 100 °C")
+    assert f"in °F it would be {foct['temp'].min():.3g} … {foct['temp'].max():.3g} °C" in hint
+    assert "Is temp in °F?" in hint and "'# units: temp=degF'" in hint and "temp_F" in hint
+    # what it was before: the ranges stretched to the °F numbers, said only as an adjustment
+    assert model.segments[-1]["range"][1] == pytest.approx(hi)
+    # the same data in °C: no hint
+    _, report_c = drift.fit_pipeline(foct["zero_bias"], foct["temp"])
+    assert _hints(report_c) == []
+
+
+def test_unlabelled_kelvin_is_hinted(foct):
+    temp_k = foct["temp"] + 273.15
+    _, report = drift.fit_pipeline(foct["zero_bias"], temp_k)
+    hints = _hints(report)
+    assert len(hints) == 1
+    assert hints[0].startswith(f"temp: {temp_k.min():.4g} … {temp_k.max():.4g} read as °C")
+    assert "in K it would be -20 … 49.9 °C, the ranges edge to edge" in hints[0]
+    assert "'# units: temp=K'" in hints[0] and "°F" not in hints[0]
+
+
+def test_a_fahrenheit_chamber_cycle_over_narrow_ranges_is_hinted_by_its_edges():
+    """0…30 °C logged in °F is 32…86: as °C not beyond what a device meets, but it spans the stated ranges [0, 30]
+    edge to edge in °F — which a °C log leaving them cannot (its span would have to be 1.8 times theirs)."""
+    cycle = np.r_[np.linspace(0, 30, 300), np.linspace(30, 0, 300)]
+    hint = drift.temperature_unit_hint(cycle * 1.8 + 32, breakpoints=(0, 10, 30))
+    assert hint is not None and "in °F it would be 0 … 30 °C, the ranges edge to edge" in hint
+    assert "56 °C beyond the ranges [0, 30]" in hint
+    assert drift.temperature_unit_hint(cycle, breakpoints=(0, 10, 30)) is None
+    # the same °F numbers with the default ranges: 86 °C is a hot device, not evidence of °F (no hint)
+    assert drift.temperature_unit_hint(cycle * 1.8 + 32) is None
+
+
+@pytest.mark.parametrize("lo, hi", [(-45.0, 50.0),   # a cold start below the rating
+                                    (-20.0, 95.0),   # a chamber cycle with a hot end
+                                    (20.0, 95.0),    # a warm-up to 95 °C (°F would put it at −7 … 35, inside)
+                                    (-25.0, 55.0),   # a little beyond both ends
+                                    (-55.0, 60.0)])
+def test_celsius_logs_reaching_beyond_the_ranges_are_not_taken_for_fahrenheit(lo, hi):
+    temp = np.r_[np.linspace(lo, hi, 500), np.linspace(hi, lo, 500)]
+    assert drift.temperature_unit_hint(temp) is None
+
+
+def test_a_cold_start_fit_warns_of_the_ranges_but_not_of_the_unit(foct):
+    """The newcomer's situation (the ranges adjusted to the data) from a genuine °C log: no °F hint."""
+    n = 400
+    temp = np.r_[np.linspace(-45.0, -20.0, n), foct["temp"]]
+    w = np.r_[foct["zero_bias"][0] + 0.01 * np.random.default_rng(1).standard_normal(n), foct["zero_bias"]]
+    model, report = drift.fit_pipeline(w, temp)
+    assert any("adjusted to the data" in m for m in model.summary["warnings"])
+    assert _hints(report) == []
+
+
+def test_readings_no_unit_explains_and_ranges_that_mean_them():
+    counts = np.linspace(0, 4095, 1000)  # a raw ADC temperature column
+    hint = drift.temperature_unit_hint(counts)
+    assert hint.startswith("temp: 0 … 4095 read as °C is beyond the -55 … 100 °C")
+    assert "as °F or K too" in hint and "--temp-column" in hint
+    # ranges that cover the numbers: the user means them (a hot process), nothing to hint
+    assert drift.temperature_unit_hint(np.linspace(253, 323, 100), breakpoints=(250, 290, 330)) is None
+
+
+def _write(path, c, temp, temp_unit):
+    units = {"t": "s", "zero_bias": "A", **({"temp": temp_unit} if temp_unit else {})}
+    return write_csv(path, {"t": c["t"], "zero_bias": c["zero_bias"], "temp": temp}, units=units)
+
+
+def test_cli_hints_unlabelled_fahrenheit_and_converts_labelled(tmp_path, capsys, foct):
+    temp_f = foct["temp"] * 1.8 + 32.0
+    src = _write(tmp_path / "foct_F.csv", foct, temp_f, None)
+    assert cli.main(["drift", "fit", str(src), "-o", str(tmp_path / "m.json")]) == 0
+    out = capsys.readouterr().out
+    assert "warning: temp: -4 … 121.8 read as °C" in out and "Is temp in °F?" in out
+    # stated in the file: converted by the reader (cli._temperatures), a model in °C, no hint
+    src = _write(tmp_path / "foct_F_labelled.csv", foct, temp_f, "degF")
+    assert cli.main(["drift", "fit", str(src), "-o", str(tmp_path / "m2.json")]) == 0
+    out = capsys.readouterr().out
+    assert "in °F, converted to °C" in out and "read as °C" not in out
+    model = json.loads((tmp_path / "m2.json").read_text())
+    assert model["segments"][0]["range"][0] == pytest.approx(-20.0)
+    assert model["segments"][-1]["range"][1] == pytest.approx(foct["temp"].max())
+    assert model["temperature"]["unit"] == "F"
