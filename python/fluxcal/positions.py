@@ -412,8 +412,12 @@ def calibrate(mag, acc, field_ned, frame: str = "ned", preset=None, attitudes=No
 
     No noise σ is needed to see a wrong reference field: when the residual misplaces the field by more than
     MISPLACED_DEG per position, or the same fit against a plausible mistake in it (a component's sign, N and E
-    swapped, ENU or the frame's local axes given for N,E,D) leaves MISFIT_RATIO× less, the first warning says so
-    and names that mistake.
+    swapped, ENU or N,U,E given for N,E,D) leaves MISFIT_RATIO× less, the first warning says so and names that
+    mistake. With the headings unknown (no nominal attitudes) only the mistakes that change the field's dip can be
+    seen (the headings absorb any turn or mirror of its horizontal part, and K's sign a reversed down component,
+    which is said when K comes out a mirror); a fit that fails against the field given but succeeds against a
+    corrected one is an error naming the mistake. A field in another unit than the readings' is seen only by K's
+    gain (`units` a field unit: nT, uT, ...), and said.
     """
     if field_ned is None:
         raise ValueError("field_ned: the reference field is missing; give (N, E, D), or use reference_field() "
@@ -432,8 +436,6 @@ def calibrate(mag, acc, field_ned, frame: str = "ned", preset=None, attitudes=No
     options.units = units_text(units)
     set_options(options, settings, "calibrate")
     sf = np.ascontiguousarray(sf)
-    d = _core.calibrate_positions(U, sf, nominal, to_local(f, frame), options)
-    res = _result(d, frame)
 
     def refit(g):  # the same fit against another reference field (None when it cannot be made)
         try:
@@ -441,18 +443,41 @@ def calibrate(mag, acc, field_ned, frame: str = "ned", preset=None, attitudes=No
         except ValueError:
             return None
 
-    _check_field_fit(res, f, frame, U, sf, nominal, refit if len(nominal) else None)
+    # with no nominal attitudes the headings are free (the core estimates them whatever estimate_yaw says)
+    sameness = {"headings_free": not len(nominal), "dip_free": options.estimate_inclination}
+    try:
+        d = _core.calibrate_positions(U, sf, nominal, to_local(f, frame), options)
+    except ValueError as exc:
+        # a field that fits no attitude can leave the solver a flat, inflated K ("not observable"): when a
+        # corrected field fits, the field is the error to give, not the positions' spread
+        said = _refused_field(str(exc), f, frame, refit, **sameness)
+        if said is None:
+            raise
+        raise ValueError(said) from None
+    res = _result(d, frame)
+    _check_field_fit(res, f, frame, U, sf, nominal, refit, **sameness)
+    res.summary["warnings"] = list(res.summary["warnings"]) + _unit_warnings(res, f, units, False)
     return res
 
 
 def fit(mag, reference, units: str = "", frame: str = "ned") -> PositionsResult:
-    """Linear least squares of U = U0 + K H when each position's body-frame field H is known (N×3)."""
+    """Linear least squares of U = U0 + K H when each position's body-frame field H is known (N×3).
+
+    A reference that does not fit (its residual misplaces the field by more than MISPLACED_DEG per position) is
+    said first, as by `calibrate`; which mistake it holds cannot be named here (see _check_field_fit). With
+    `units` a field unit, a reference in another unit than the readings' is said by K's gain."""
     options = _core.PositionsOptions()
     options.frame = _frame(frame)
     options.units = units_text(units)
-    d = _core.fit_positions(as_samples(mag, "mag"), as_samples(reference, "reference"), options)
+    H = as_samples(reference, "reference")
+    d = _core.fit_positions(as_samples(mag, "mag"), H, options)
     d = dict(d, field=np.full(3, np.nan))
-    return _result(d, frame)
+    res = _result(d, frame)
+    _check_field_fit(res, None, frame, None, None, np.zeros((0, 9)), None)
+    # the reference's own size stands for |f| (a coil's varying fields: their RMS)
+    res.summary["warnings"] = list(res.summary["warnings"]) + _unit_warnings(
+        res, float(np.sqrt(np.mean(np.sum(H ** 2, axis=1)))), units, False)
+    return res
 
 
 def _result(d: dict, frame: str) -> PositionsResult:
@@ -486,8 +511,9 @@ LOOK_DEG = 1.0
 HEADING_REVERSED_DEG = 135.0  # in-sample heading error RMS nearer 180° than 90°: the field's horizontal part reversed
 
 # Mistakes in the reference field (N, E, D) that a fit against the field as given cannot absorb: how each maps the
-# field given (and the frame) to the one meant — None where it does not apply — and what it says. A field that
-# equals ± the one given changes nothing (K takes the sign).
+# field given (and the frame) to the one meant — None where it does not apply — and what it says. Which of them a
+# fit can tell from the field given: _same_to_the_fit. A field in another unit is no entry: K's scale absorbs it in
+# every fit (it is seen by K's gain against the readings' unit, _unit_warnings).
 _FIELD_MISTAKES = (
     ("the north component negated", lambda f, frame: f * [-1.0, 1.0, 1.0], "its north component has the wrong sign"),
     ("the east component negated", lambda f, frame: f * [1.0, -1.0, 1.0],
@@ -500,13 +526,63 @@ _FIELD_MISTAKES = (
     ("the field read in the frame's local axes",
      lambda f, frame: None if frame == "ned" else _NED_TO_LOCAL[frame].T @ f,
      "it was given in the frame's local axes (N,U,E for --frame nue), not N,E,D"),
+    # seed 002 writes the field N,U,E: with --frame ned, that order given for N,E,D is the same mix-up
+    ("the field read as north, up, east", lambda f, frame: _NED_TO_LOCAL["nue"].T @ f if frame == "ned" else None,
+     "it was given as N,U,E (seed 002's local axes, those of --frame nue), not N,E,D"),
 )
 
 
-def _misplacement(res, field_ned) -> float:
+def _same_to_the_fit(g, f, headings_free: bool = False, dip_free: bool = False) -> bool:
+    """Whether a fit cannot tell the field g from f at all, so that refitting against g is pointless. K takes a sign
+    (±f fit alike). Headings estimated without nominal attitudes turn the field's horizontal part at will (a north
+    or east sign, N and E swapped: the same fit, only the headings differ, U0 and K untouched) and, with K's sign,
+    reverse its down component too (−(N, E, −D) is (N, E, D) turned 180°): only |horizontal| and |down| remain, and
+    with the dip estimated as well only |f|. A down component reversed there leaves one trace, K's handedness
+    (_mirror_said)."""
+    tol = 1e-9 * float(np.linalg.norm(f))
+    if headings_free:
+        def seen(v):
+            return np.array([np.linalg.norm(v)]) if dip_free else np.array([np.hypot(v[0], v[1]), abs(v[2])])
+        return float(np.abs(seen(g) - seen(f)).max()) <= tol
+    return min(float(np.abs(g - f).max()), float(np.abs(g + f).max())) <= tol
+
+
+def _mistake_refits(f, frame, refit, headings_free: bool = False, dip_free: bool = False) -> list:
+    """(residual RMS, what, cause, field, fit) of the same fit against each mistake of _FIELD_MISTAKES that the fit
+    can tell from the field given, best first (refits that fail are left out)."""
+    tried = []
+    for what, mistake, cause in _FIELD_MISTAKES:
+        g = mistake(f, frame)
+        if g is None or _same_to_the_fit(g, f, headings_free, dip_free):
+            continue
+        alt = refit(g)
+        if alt is not None and np.isfinite(alt.summary["residual_rms"]):
+            tried.append((float(alt.summary["residual_rms"]), what, cause, g, alt))
+    return sorted(tried, key=lambda t: t[0])
+
+
+def _named(tried, rms: float) -> list:
+    """The mistakes whose refits leave MISFIT_RATIO× less than the fit's residual `rms` (inf: the fit failed), all
+    within 10 % of the best: equally good ones are said together."""
+    return [t for t in tried if t[0] * MISFIT_RATIO <= rms and t[0] <= 1.1 * tried[0][0]] if tried else []
+
+
+def _mistake_named(named, outcome: str) -> str:
+    """What the best refits say: the mistakes, the field they point to, `outcome` (how the refit fares)."""
+    which = " or, equally, ".join(t[1] for t in named)
+    said = ", or ".join(t[2] for t in named)
+    return (f"With {which}, {_vector(named[0][3])}, {outcome}: the reference field is wrong — {said}? (--field is "
+            "N,E,D: north, east, down; the inclination is positive down)")
+
+
+def _misplacement(res) -> float:
     """The fit's residual as the angle (radians) by which it misplaces the field at each position: the RMS residual
-    vector over K's reading of the field (|K| / √3 · |f|)."""
-    return float(np.sqrt(np.mean(np.sum(res.residuals ** 2, axis=1))) / (_gain(res) * np.linalg.norm(field_ned)))
+    vector over the RMS of K's reading of the reference field, |K H|. Not |K|·|f|: a wrong field with the headings
+    estimated can leave K inflated along a direction the field hardly takes (|K| 190× the sensor's gain), and the
+    angle with it (0.07° for a field misplaced by 4.5°); K H stays what the sensor read."""
+    reading = float(np.sqrt(np.mean(np.sum((res.reference @ res.K.T) ** 2, axis=1))))
+    rms = float(np.sqrt(np.mean(np.sum(res.residuals ** 2, axis=1))))
+    return rms / reading if reading > 0 else float("inf")
 
 
 def _heading_rms(res, U, sf, nominal) -> float | None:
@@ -519,36 +595,45 @@ def _heading_rms(res, U, sf, nominal) -> float | None:
         return None
 
 
-def _check_field_fit(res, field_ned, frame, U, sf, nominal, refit) -> None:
+# What fit() can say about a body-frame reference that does not fit: it holds no north, east or down of its own (any
+# fixed relabelling, sign or order of its body axes K absorbs), and the local field and the attitudes it was rotated
+# with are not given, so no mistake can be tried — only the size of the misfit against K's reading of it.
+_BODY_FRAME_CAUSE = ("Which mistake a body-frame reference holds cannot be told from it (K absorbs any relabelling or "
+                     "sign of its body axes; the local field and the attitudes it was rotated with are not given): "
+                     "check the field (N,E,D order, inclination sign, declination), the rotations (H = Rᵀ f with R "
+                     "body→local: the transpose used?), the position order and magnetic objects near the bench — or "
+                     "give the field and the accelerometer readings to calibrate(), which names a field's mistake")
+
+
+def _check_field_fit(res, field_ned, frame, U, sf, nominal, refit, headings_free: bool = False,
+                     dip_free: bool = False) -> None:
     """Warn, without any noise σ, when the fit does not fit the reference field: its residual misplaces the field by
     more than MISPLACED_DEG per position, or (above LOOK_DEG) the same fit against a plausibly mistaken field
-    (_FIELD_MISTAKES) leaves MISFIT_RATIO× less — an upper bound on the noise found in the data themselves, as the
-    repeats within positions give one when there are any. Names that mistake when one fits;
-    puts the warning first (a misfit inflates the standard errors: "12 parameters poorly determined" was the only
-    word for a north sign flipped) and keeps its parts in `res.summary["field_misfit"]` for run_cli."""
+    (_FIELD_MISTAKES, those the fit can tell apart: _same_to_the_fit) leaves MISFIT_RATIO× less — an upper bound on
+    the noise found in the data themselves, as the repeats within positions give one when there are any. Names that
+    mistake when one fits; puts the warning first (a misfit inflates the standard errors: "12 parameters poorly
+    determined" was the only word for a north sign flipped) and keeps its parts in `res.summary["field_misfit"]` for
+    run_cli. `field_ned` None: a body-frame reference (fit()), only the misfit's size is judged. `headings_free`: no
+    nominal attitudes; a K that comes out a mirror without a misfit is said too (_mirror_said)."""
     rms = float(res.summary["residual_rms"])
-    if not (rms > 0 and np.all(np.isfinite(res.K)) and _gain(res) > 0):
+    if not (rms > 0 and np.all(np.isfinite(res.K)) and np.all(np.isfinite(res.reference)) and _gain(res) > 0):
         return
-    angle = _misplacement(res, field_ned)
+    f = None if field_ned is None else np.asarray(field_ned, float)
+    angle = _misplacement(res)
     unit = f" {res.units}" if res.units else ""
     tried = []
-    f = np.asarray(field_ned, float)
-    if refit is not None and np.degrees(angle) > LOOK_DEG:
-        for what, mistake, cause in _FIELD_MISTAKES:
-            g = mistake(f, frame)
-            if g is None or min(np.abs(g - f).max(), np.abs(g + f).max()) <= 1e-9 * np.linalg.norm(f):
-                continue  # the same field (a zero component, or K's sign): nothing to tell apart
-            alt = refit(g)
-            if alt is not None and np.isfinite(alt.summary["residual_rms"]):
-                tried.append((float(alt.summary["residual_rms"]), what, cause, g, alt))
-    tried.sort(key=lambda t: t[0])
-    named = [t for t in tried if t[0] * MISFIT_RATIO <= rms and t[0] <= 1.1 * tried[0][0]]
+    if refit is not None and f is not None and np.degrees(angle) > LOOK_DEG:
+        tried = _mistake_refits(f, frame, refit, headings_free, dip_free)
+    named = _named(tried, rms)
     gross = np.degrees(angle) > MISPLACED_DEG
     if not (gross or named):
+        if headings_free and f is not None:  # (a misfit's K, mirror or not, is no evidence of either)
+            _mirror_said(res, f)
         return
     heading = _heading_rms(res, U, sf, nominal)
-    text = (f"the model does not fit the reference field N,E,D = {_vector(field_ned)}: residual RMS {rms:.4g}{unit} "
-            f"misplaces the field by {_deg(np.degrees(angle))}° per position")
+    against = "the body-frame reference" if f is None else f"the reference field N,E,D = {_vector(f)}"
+    text = (f"the model does not fit {against}: residual RMS {rms:.4g}{unit} misplaces the field by "
+            f"{_deg(np.degrees(angle))}° per position")
     if heading is not None and heading > HEADING_REVERSED_DEG:
         text += f", and the in-sample heading error RMS is {heading:.0f}° (the field's horizontal part reversed)"
     if gross:
@@ -559,11 +644,9 @@ def _check_field_fit(res, field_ned, frame, U, sf, nominal, refit) -> None:
         alt_heading = _heading_rms(best[4], U, sf, nominal)
         turn = (f", heading error RMS {_deg(heading)}° → {_deg(alt_heading)}°" if heading is not None and
                 alt_heading is not None else "")
-        which = " or, equally, ".join(t[1] for t in named)
-        said = ", or ".join(t[2] for t in named)
-        cause = (f"With {which}, {_vector(best[3])}, the residual falls to {best[0]:.4g}{unit} "
-                 f"({rms / best[0]:.0f}× less{turn}): the reference field is wrong — {said}? (--field is N,E,D: "
-                 "north, east, down; the inclination is positive down)")
+        cause = _mistake_named(named, f"the residual falls to {best[0]:.4g}{unit} ({rms / best[0]:.0f}× less{turn})")
+    elif f is None:
+        cause = _BODY_FRAME_CAUSE
     else:
         cause = ("Check the reference field (inclination sign, declination, --field order N,E,D), the frame "
                  "(--frame), the position order or labels and magnetic objects near the bench")
@@ -571,6 +654,45 @@ def _check_field_fit(res, field_ned, frame, U, sf, nominal, refit) -> None:
     res.summary["warnings"] = _misfit_first(res, text, res.summary["warnings"])
     res.summary["field_misfit"] = {"warning": text, "cause": cause if named else None,
                                    "misplacement_deg": float(np.degrees(angle)), "gross": bool(gross)}
+
+
+def _mirror_said(res, field_ned) -> None:
+    """With the headings unknown a down component of the wrong sign fits exactly as well as the right one, with K
+    negated (_same_to_the_fit): its one trace is K's handedness (det K < 0), which two sensors whose axes differ in
+    handedness leave too. When K is a mirror, both are said — added to the axis-relabelling warning if there is one."""
+    if not np.linalg.det(res.K) < 0 or abs(field_ned[2]) <= 1e-9 * np.linalg.norm(field_ned):
+        return  # (no down component: reversing it changes nothing)
+    wrong = (f"the reference field N,E,D = {_vector(field_ned)} has the wrong sign of its down component (the "
+             "inclination's: up taken for down; or it was given as E,N,U)")
+    tail = (f"With the headings unknown the data cannot tell the two apart: {_vector(field_ned * [1.0, 1.0, -1.0])} "
+            "fits exactly as well, with K negated. Check the inclination's sign (positive down) and the chips' axis "
+            "conventions, or give nominal attitudes (a preset), which tell them apart")
+    warnings_ = list(res.summary["warnings"])
+    for i, w in enumerate(warnings_):
+        if w.startswith("K is an axis relabelling") and "(a mirror" in w:
+            warnings_[i] = f"{w}. Or {wrong}. {tail}"
+            break
+    else:
+        warnings_.append(f"K is a mirror (det K < 0): the magnetometer's and accelerometer's axes differ in "
+                         f"handedness, or {wrong}. {tail}")
+    res.summary["warnings"] = warnings_
+
+
+def _refused_field(message: str, f, frame, refit, headings_free: bool = False, dip_free: bool = False) -> str | None:
+    """The error to give when the fit against the field given failed (`message`) but the fit against a corrected
+    field (_FIELD_MISTAKES) succeeds without misplacing the field by more than MISPLACED_DEG — the line past which
+    _check_field_fit says a misfit; None when none does (the failure is not the field's)."""
+    fits = [t for t in _mistake_refits(np.asarray(f, float), frame, refit, headings_free, dip_free)
+            if np.degrees(_misplacement(t[4])) <= MISPLACED_DEG]
+    named = _named(fits, float("inf"))
+    if not named:
+        return None
+    best = named[0][4]
+    unit = f" {best.units}" if best.units else ""
+    outcome = (f"the positions fit: residual RMS {named[0][0]:.4g}{unit}, the field misplaced by "
+               f"{_deg(np.degrees(_misplacement(best)))}° per position")
+    return (f"the positions cannot be fitted against the reference field N,E,D = {_vector(f)} (the fit failed: "
+            f"{message.rstrip('.')}). {_mistake_named(named, outcome)}")
 
 
 def _misfit_first(res, misfit: str, others) -> list:
@@ -779,7 +901,7 @@ def _misfit_warnings(res, field_ned, scatter) -> list:
             out.append(f"{field['warning']} Against {against} as well: the residual is {ratio:.0f}x what it allows "
                        f"({expected * dof_factor:.3g}); largest at position {worst}")
             return out + _moved_warnings(scatter)
-        angle = _misplacement(res, field_ned)
+        angle = _misplacement(res)
         out.append(f"the model does not fit: residual RMS {rms:.4g} is {ratio:.0f}x what the scatter within "
                    f"positions allows ({expected * dof_factor:.3g}); largest at position {worst}. It is a misplacement "
                    f"of the field by {np.degrees(angle):.2g}° per position, and U0 and K are biased by about that "
@@ -797,7 +919,9 @@ def _moved_warnings(scatter) -> list:
 
 
 def _unit_warnings(res, field_ned, units, igrf) -> list:
-    """Readings in a field unit should give |K| near the unit conversion: flag µT labelled nT and the like."""
+    """Readings in a field unit should give |K| near the unit conversion: flag µT labelled nT and the like (or the
+    field in another unit than the readings': no residual shows it, K's scale absorbs it). `field_ned`: the field,
+    or its magnitude."""
     from .calibration import TESLA_PER_UNIT
     from .io.columns import unit_name
 
@@ -904,7 +1028,8 @@ def run_cli(args, out=None) -> int:
                    "labels": [_label(u) for u in (uniq if ids is not None else range(1, len(mag) + 1))]}
     if scatter is not None:
         extra_warnings += _misfit_warnings(res, f, scatter)
-    extra_warnings += _unit_warnings(res, f, units, args.lat is not None)
+    extra_warnings += [w for w in _unit_warnings(res, f, units, args.lat is not None)  # calibrate's own: once
+                       if w not in res.summary["warnings"]]
     misfit = [w for w in extra_warnings if w.startswith("the model does not fit")]
     warnings_ = list(res.summary["warnings"]) + [w for w in extra_warnings if w not in misfit]
     res.summary["warnings"] = _misfit_first(res, misfit[0], warnings_) if misfit else warnings_
