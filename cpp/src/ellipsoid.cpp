@@ -14,6 +14,8 @@
 #include <limits>
 #include <utility>
 #include <sstream>
+#include <string>
+#include <vector>
 
 namespace fluxcal {
 namespace {
@@ -298,6 +300,76 @@ Eigen::Matrix<double, 10, 1> weighted_design_sum(const SamplesRef& samples, cons
   return out;
 }
 
+std::string dominated_spread(const SamplesRef& samples, double ratio, double thin, const std::string& failed) {
+  const Eigen::Index n = samples.rows();
+  if (n < kFewReadings) return "";
+  std::vector<double> values(static_cast<std::size_t>(n));
+  const auto median_of = [&values]() {
+    const auto mid = values.begin() + static_cast<std::ptrdiff_t>(values.size() / 2);
+    std::nth_element(values.begin(), mid, values.end());
+    return *mid;
+  };
+  Eigen::Vector3d median;
+  for (int a = 0; a < 3; ++a) {
+    for (Eigen::Index i = 0; i < n; ++i) values[static_cast<std::size_t>(i)] = samples(i, a);
+    median(a) = median_of();
+  }
+  std::vector<double> distance(static_cast<std::size_t>(n));
+  for (Eigen::Index i = 0; i < n; ++i)
+    distance[static_cast<std::size_t>(i)] = (samples.row(i).transpose() - median).norm();
+  values = distance;
+  const double typical = median_of();
+  if (!(typical > 0.0) || !std::isfinite(typical)) return "";
+  // the far readings, and the spread of the others (about the median: no digits lost to a large offset)
+  std::vector<Eigen::Index> far;
+  Eigen::Vector3d sum = Eigen::Vector3d::Zero();
+  Eigen::Matrix3d second = Eigen::Matrix3d::Zero();
+  for (Eigen::Index i = 0; i < n; ++i) {
+    if (distance[static_cast<std::size_t>(i)] > kDominating * typical) {
+      far.push_back(i);
+      continue;
+    }
+    const Eigen::Vector3d d = samples.row(i).transpose() - median;
+    sum += d;
+    second += d * d.transpose();
+  }
+  const auto few = std::max<std::size_t>(1, static_cast<std::size_t>(kDominatingShare * static_cast<double>(n)));
+  if (far.empty() || far.size() > few) return "";
+  const double kept = static_cast<double>(n - static_cast<Eigen::Index>(far.size()));
+  const Eigen::Vector3d mean = sum / kept;
+  const Eigen::Vector3d ev = Eigen::SelfAdjointEigenSolver<Eigen::Matrix3d>(
+                                 second / kept - mean * mean.transpose(), Eigen::EigenvaluesOnly)
+                                 .eigenvalues();
+  const double widest = std::sqrt(std::max(ev(2), 0.0));
+  const double without = ev(2) > 0.0 ? std::sqrt(std::max(ev(0), 0.0) / ev(2)) : 0.0;
+  if (!(widest >= 0.01 * (median + mean).norm()) || without < thin) return "";  // flat or unturned without them too
+
+  const Eigen::Index farthest = far[static_cast<std::size_t>(std::distance(
+      far.begin(), std::max_element(far.begin(), far.end(), [&](Eigen::Index a, Eigen::Index b) {
+        return distance[static_cast<std::size_t>(a)] < distance[static_cast<std::size_t>(b)];
+      })))];
+  char times[32];
+  const double factor = distance[static_cast<std::size_t>(farthest)] / typical;
+  if (factor < 100.0)
+    std::snprintf(times, sizeof times, "%.3g", factor);
+  else
+    std::snprintf(times, sizeof times, "%.0f", factor);
+  const bool one = far.size() == 1;
+  std::string rows;
+  for (std::size_t k = 0; k < far.size() && k < 5; ++k) rows += (k ? ", " : "") + std::to_string(far[k]);
+  if (far.size() > 5) rows += ", …";
+  return "samples: row " + std::to_string(farthest) + " lies " + times +
+         "× farther from the readings' median than the median reading" +
+         (one ? ": an outlier dominates their spread"
+              : " (" + std::to_string(far.size()) + " readings lie beyond " + num(kDominating) + "×: rows " + rows +
+                    "): outliers dominate their spread") +
+         " (thinnest/widest " + percent(ratio) + " with " + (one ? "it" : "them") + ", " + percent(without) +
+         " without)" + (ratio < thin ? ", not a flat turn," : "") + " and " + failed + "; remove " +
+         (one ? "it" : "them") +
+         ", or let calibrate leave outliers out (its default, outliers='drop'; not --outliers keep) or weigh them down "
+         "(loss='cauchy')";
+}
+
 }  // namespace detail
 
 std::pair<Eigen::Vector3d, double> normalisation(const SamplesRef& samples, Eigen::Index max_rows) {
@@ -356,7 +428,8 @@ Eigen::Matrix<double, 10, 1> adjusted_quadric(const EllipsoidMoments& mom, doubl
   return p / trace;
 }
 
-EllipsoidResult solve(const EllipsoidMoments& mom, const EllipsoidOptions& opt) {
+// `samples` (null when only their moments are known): the readings, for naming a few far ones that spoil the fit.
+EllipsoidResult solve(const EllipsoidMoments& mom, const EllipsoidOptions& opt, const SamplesRef* samples = nullptr) {
   const double n = static_cast<double>(mom.count());
   if (mom.count() < 9) {
     std::ostringstream msg;
@@ -375,6 +448,11 @@ EllipsoidResult solve(const EllipsoidMoments& mom, const EllipsoidOptions& opt) 
                 "not updating, or was never turned); " + std::string(detail::kTurnAdvice));
   const std::string hardly_turned = detail::hardly_turned(S, mom.centre(), mom.scale());  // (for the failures below)
   if (sum.coverage_ratio < opt.planar_ratio) {
+    const std::string dominated =
+        samples ? detail::dominated_spread(*samples, sum.coverage_ratio, opt.planar_ratio,
+                                           "a 3-D ellipsoid is not identifiable from such a spread")
+                : "";
+    if (!dominated.empty()) throw Error(dominated);
     throw Error("samples: the readings lie nearly in one plane (thinnest/widest spread " +
                 percent(sum.coverage_ratio) +
                 "); a 3-D ellipsoid is not identifiable — " + std::string(detail::kTurnAdvice) +
@@ -411,6 +489,11 @@ EllipsoidResult solve(const EllipsoidMoments& mom, const EllipsoidOptions& opt) 
       return detail::ellipsoid_shape(M, v, p(9), "fitted", sum.coverage_ratio, opt.poor_coverage_ratio,
                                      static_cast<long>(mom.count()));
     } catch (const Error& e) {
+      const double thin = sum.coverage_ratio < opt.poor_coverage_ratio ? opt.poor_coverage_ratio : 0.0;
+      const std::string dominated =
+          samples ? detail::dominated_spread(*samples, sum.coverage_ratio, thin, "the fitted quadric is not an ellipsoid")
+                  : "";
+      if (!dominated.empty()) throw Error(dominated);
       throw Error(e.what() + hardly_turned);
     }
   }();
@@ -518,7 +601,7 @@ EllipsoidResult fit_ellipsoid(const SamplesRef& samples, const EllipsoidOptions&
     check_finite(samples, "samples");  // names the first bad row
     throw Error("samples: values too large, their fourth powers overflow");
   }
-  EllipsoidResult r = solve(mom, options);
+  EllipsoidResult r = solve(mom, options, &samples);
 
   if (options.exact_statistics) {  // one more pass: |h| of every corrected reading
     const Calibration& cal = r.calibration;

@@ -52,6 +52,23 @@ inline std::string hardly_turned(const Eigen::Matrix<double, 10, 10>& scatter, c
          "unsigned ADC's mid-scale?)";
 }
 
+/// A reading this many times farther from the readings' median (per axis) than the median reading is out of any
+/// sensor's ellipsoid: turned through the field, readings lie on one whose longest axis is at most a few times its
+/// shortest, around the median (a cap's readings: within about twice the median distance of it).
+inline constexpr double kDominating = 10.0;
+/// At most this share of the readings (and at least one) may lie that far for them to be called a few outliers;
+/// more is a second group of readings (mixed recordings, a sensor at rest that was turned briefly).
+inline constexpr double kDominatingShare = 0.01;
+
+/// When a few readings far out (kDominating, kDominatingShare) alone make the readings' spread look flat or
+/// their quadric no ellipsoid (a spike at 170× the field: its share of the scatter made a full-sphere log
+/// "nearly in one plane"): the message that names the farthest and the remedy, else "". Without them the others
+/// must be turned (their widest spread at least 1 % of their mean magnitude, as hardly_turned) and, when `thin`
+/// > 0 (the coverage ratio below which the caller called the readings flat; `ratio` is theirs), no flatter than
+/// `thin`. `failed` says what went wrong with them ("the fitted quadric is not an ellipsoid"). On the error
+/// paths only: a median of N values, two passes.
+std::string dominated_spread(const SamplesRef& samples, double ratio, double thin, const std::string& failed);
+
 /// Σ w_k d_k d_kᵀ over the design rows d = [u², v², w², 2uv, 2uw, 2vw, 2u, 2v, 2w, 1] of the readings normalised
 /// by u = (m − centre)/scale, with a weight w_k per reading: the ellipsoid moments' scatter, weighted, from one
 /// lane-blocked pass (ellipsoid.cpp). `weights` has one entry per row of `samples`.

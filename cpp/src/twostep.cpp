@@ -618,10 +618,14 @@ TwoStepResult twostep_fit(const SamplesRef& samples, const TwoStepOptions& optio
   Summary& sum = out.summary;
   sum.samples = mom.count();
   sum.coverage_ratio = detail::coverage_ratio(S10);
-  if (sum.coverage_ratio < options.planar_ratio)
+  if (sum.coverage_ratio < options.planar_ratio) {
+    const std::string dominated = detail::dominated_spread(
+        samples, sum.coverage_ratio, options.planar_ratio, "the first step of the two-step calibration is rank deficient");
+    if (!dominated.empty()) throw Error(dominated);  // (a spike far out, not a flat turn: quadric.hpp)
     throw Error("samples: the readings lie nearly in one plane (thinnest/widest spread " + percent(sum.coverage_ratio) +
                 "), so the first step of the two-step calibration is rank deficient — " + std::string(detail::kTurnAdvice) +
                 ", or " + std::string(detail::kTwoDAdvice) + detail::hardly_turned(S10, centre, scale));
+  }
 
   // First step (centred, tr E = 0): minimise Σ (aᵀ(d_k − d̄) − λ(ε_k − ε̄))² over the 9 non-constant quadric
   // coefficients a with a0 + a1 + a2 = 3 (tr N′ = tr(I + E) = 3) and, when the field's magnitude changes, its
@@ -667,8 +671,19 @@ TwoStepResult twostep_fit(const SamplesRef& samples, const TwoStepOptions& optio
   const double k = -a.dot(s9) / n;
   Eigen::Matrix3d Np;
   Np << a(0), a(3), a(4), a(3), a(1), a(5), a(4), a(5), a(2);
-  const detail::EllipsoidShape shape = detail::ellipsoid_shape(Np, a.segment<3>(6), k, "first step's",
-                                                               sum.coverage_ratio, options.poor_coverage_ratio);
+  const detail::EllipsoidShape shape = [&] {
+    try {
+      return detail::ellipsoid_shape(Np, a.segment<3>(6), k, "first step's", sum.coverage_ratio,
+                                     options.poor_coverage_ratio);
+    } catch (const Error&) {  // a spike far out makes the quadric no ellipsoid too: name it (quadric.hpp)
+      const std::string dominated = detail::dominated_spread(
+          samples, sum.coverage_ratio,
+          sum.coverage_ratio < options.poor_coverage_ratio ? options.poor_coverage_ratio : 0.0,
+          "the first step's quadric is not an ellipsoid");
+      if (!dominated.empty()) throw Error(dominated);
+      throw;
+    }
+  }();
   Model3D m;
   m.q = shape.centre;
   const double rho2 = shape.rho2;

@@ -156,14 +156,26 @@ def _axis_coupling(result: TwoStep2D, readings: np.ndarray, norms: np.ndarray) -
 # white noise alone leaves about 1 (its radial share), and the noise estimate only grows with a sensor's motion.
 FIELD_LOG_MISFIT = 3.0
 FIELD_LOG_STEP = 0.5  # |correlation| of the misfit with the log's change per reading that says "out of step"
+# The misfit RMS with the log shifted by the lag found, at most this share of the unshifted one, says "out of step"
+# too: a lag longer than the field's changes last leaves a misfit that the change per reading no longer predicts
+# (a storm's log 600 readings late: correlation 0.1–0.4), which the shift still removes; no shift helps a log that
+# is rounded, in another unit or of another place.
+FIELD_LOG_REALIGNED = 0.5
+FIELD_LOG_REFITS = 3  # most TWOSTEP refits at the lag found (_log_lag); 1–3 were needed, each a few ms at N = 1e5
 FIELD_LOG_WORDS = "the readings miss each reading's |field|"  # how the warning starts (calibrate replaces its start's)
 
 
-def field_log_misfit(m: np.ndarray, cal: Calibration, norms: np.ndarray) -> str | None:
+def field_log_misfit(m: np.ndarray, cal: Calibration, norms: np.ndarray, interval: float | None = None) -> str | None:
     """A warning when readings calibrated with each one's |field| (`norms`, changing) miss them by more than
     FIELD_LOG_MISFIT times the noise their successive values show: the log out of step with them (said with its
-    shift, when the misfit follows the log's change per reading), rounded, in another unit — or the sensor departs
-    from the model. A blind check's log lagged by 2 h or rounded to 1 µT was 10–15× the noise, and said nothing."""
+    shift, in readings, and in seconds with `interval`, the readings' time step), rounded, in another unit — or
+    the sensor departs from the model. A blind check's log lagged by 2 h or rounded to 1 µT was 10–15× the noise,
+    and said nothing.
+
+    The shift is the lag that minimises the misfit (_log_lag). Its first guess, d ≈ −L·rate (the misfit's
+    regression on the log's change per reading), holds only while the field's rate stays the same over the lag:
+    a 50 Hz minute with its log 150 readings late said +114 to +135, a storm's ±56 to ±84 for ±150 (or no shift:
+    the correlation then falls under FIELD_LOG_STEP)."""
     from .diagnose.core import estimate_noise
 
     if len(m) < 20 or not changing_field(norms):
@@ -179,12 +191,89 @@ def field_log_misfit(m: np.ndarray, cal: Calibration, norms: np.ndarray) -> str 
     dc, rc = d - d.mean(), rate - rate.mean()
     scale = float(np.sqrt(np.dot(dc, dc) * np.dot(rc, rc)))
     corr = float(np.dot(dc, rc)) / scale if scale > 0 else 0.0
-    if abs(corr) > FIELD_LOG_STEP:  # d ≈ −L·rate for a log whose value k is the field at reading k + L
-        shift = -float(np.dot(dc, rc)) / float(np.dot(rc, rc))
-        text += (f"the misfit follows the |field| log's change from reading to reading (correlation {corr:.2f}): it "
-                 f"looks out of step with the readings, its value k the field at about reading k {shift:+.3g}; ")
+    lag, realigned = _log_lag(m, cal, norms)
+    if lag != 0 and (abs(corr) > FIELD_LOG_STEP or realigned <= FIELD_LOG_REALIGNED * rms):
+        seconds = f" ({lag * interval:+.3g} s)" if interval else ""
+        text += (f"the misfit follows the |field| log's change (correlation {corr:.2f} with its change from reading "
+                 f"to reading; shifted by {lag:+d} readings it falls to {realigned:.4g} RMS, "
+                 f"{realigned / noise:.3g} times the noise): it looks out of step with the readings, its value k the "
+                 f"field at about reading k {lag:+d}{seconds}; ")
     return text + ("check the |field| log's alignment in time, its resolution and its unit — or ask fluxcal diagnose "
                    "what else departs")
+
+
+def _log_lag(m: np.ndarray, cal: Calibration, norms: np.ndarray) -> tuple[int, float]:
+    """(L, RMS): the shift L in readings (|L| ≤ N/4, so that most readings overlap) at which the log's value k taken
+    as the field at reading k + L fits the calibrated readings best, and the misfit's RMS there.
+
+    The misfit d_j = |h_j| − s·norms_(j−L) is computed at every lag at once (_lag_misfits), and L taken at the
+    nearest minimum (_nearest_minimum). The calibration was fitted to the log as given, which took up part of
+    the lag (a storm's log 150 readings late was put 131–148 late with it), so TWOSTEP is refitted on the readings
+    the shifted log covers and the lag sought again until it stays (at most FIELD_LOG_REFITS refits; they ran
+    only when the misfit is said, and a TWOSTEP of 1e5 readings takes a few ms, as the search). A refit that fails
+    keeps the last lag."""
+    n, longest = len(m), len(m) // 4
+    fit, lag, said = cal, 0, None
+    for refit in range(FIELD_LOG_REFITS + 1):
+        x = np.linalg.norm(fit.apply(m), axis=1)
+        lags, ms = _lag_misfits(x, norms * (fit.field_norm / np.mean(norms)), longest)
+        lag = _nearest_minimum(lags, ms)
+        realigned = float(np.sqrt(ms[lag + longest]))
+        if lag == 0 or lag == said or refit == FIELD_LOG_REFITS:
+            break
+        said = lag
+        rows, values = (m[lag:], norms[:n - lag]) if lag > 0 else (m[:n + lag], norms[-lag:])
+        try:
+            fit = _calibration(_core.twostep_norms(np.ascontiguousarray(rows), np.ascontiguousarray(values),
+                                                   _core.TwoStepOptions()))
+        except ValueError:
+            break
+    return lag, realigned
+
+
+def _lag_misfits(x: np.ndarray, y: np.ndarray, longest: int) -> tuple[np.ndarray, np.ndarray]:
+    """The lags L = −longest … longest and the mean square about its mean of d_j = x_j − y_(j−L) over the readings
+    j that have a y_(j−L), from one FFT cross-correlation and running sums: O(N log N)."""
+    from scipy import fft
+
+    n = len(x)
+    x, y = x - x.mean(), y - y.mean()  # (d about its mean is the same; the sums lose no digits to the level)
+    size = fft.next_fast_len(n + longest, real=True)  # (the circular correlation wraps only beyond ±longest)
+    cross = fft.irfft(fft.rfft(x, size) * np.conj(fft.rfft(y, size)), size)  # [L mod size]: Σ_j x_j y_(j−L)
+    lags = np.arange(-longest, longest + 1)
+    sx, sx2 = np.r_[0.0, np.cumsum(x)], np.r_[0.0, np.cumsum(x * x)]
+    sy, sy2 = np.r_[0.0, np.cumsum(y)], np.r_[0.0, np.cumsum(y * y)]
+    x0, x1 = np.maximum(lags, 0), n + np.minimum(lags, 0)  # the readings j covered: x0 ≤ j < x1
+    y0, y1 = x0 - lags, x1 - lags
+    count = n - np.abs(lags)
+    mean = (sx[x1] - sx[x0] - sy[y1] + sy[y0]) / count
+    square = (sx2[x1] - sx2[x0] + sy2[y1] - sy2[y0] - 2.0 * cross[lags % size]) / count
+    return lags, np.maximum(square - mean * mean, 0.0)
+
+
+def _nearest_minimum(lags: np.ndarray, ms: np.ndarray) -> int:
+    """The lag of the least misfit `ms` among those either side of 0 up to where it first exceeds its value at
+    0: the nearest minimum, not a later one where a field that repeats (an orbit's |F|, every half orbit) matches
+    the log again; 0 when neither side falls."""
+    zero = int(np.searchsorted(lags, 0))
+    best = zero
+    for step in (1, -1):
+        side = ms[zero::step]
+        above = np.flatnonzero(side > side[0])
+        k = int(np.argmin(side[:above[0]] if above.size else side))
+        if side[k] < ms[best]:
+            best = zero + step * k
+    return int(lags[best])
+
+
+def reading_interval(samples) -> float | None:
+    """The readings' time step in seconds (the median), when `samples` is a Recording with times; else None."""
+    time = getattr(samples, "time", None)  # (a DataFrame's column "time" is no method)
+    t = time() if callable(time) else None
+    if t is None or len(t) < 2:
+        return None
+    step = float(np.median(np.diff(np.asarray(t, dtype=float))))
+    return step if np.isfinite(step) and step > 0 else None
 
 
 def twostep(samples, field_norm, units: str | None = None, **settings) -> Calibration:
@@ -224,7 +313,7 @@ def twostep(samples, field_norm, units: str | None = None, **settings) -> Calibr
         norms = as_field_norms(field_norm, len(arr), "field_norm")
         cal = _calibration(_core.twostep_norms(arr, norms, options))
         cal.summary["field_norms"] = field_norms_summary(norms)
-        said = field_log_misfit(arr, cal, norms)
+        said = field_log_misfit(arr, cal, norms, reading_interval(samples))
         if said:
             cal.summary["warnings"] = list(cal.summary["warnings"]) + [said]
         return cal
