@@ -3,6 +3,7 @@ from __future__ import annotations
 
 import html
 from pathlib import Path
+from types import SimpleNamespace
 
 import numpy as np
 
@@ -202,6 +203,268 @@ def moving_dipole_line(d, r) -> str:
     return f"moving_dipole: an extra field from {on} to {off}, largest at {when(r['peak_s'])}: {size} ({hint})"
 
 
+# ---------------------------------------------------------------- each effect found, with its size
+# Every candidate that can be FOUND gets a line saying how large it is, in the readings' unit and as a share of the
+# field (offset_step, moving_dipole and the drifts have their own functions above; misalignment's and time_offset's
+# rotation and delay lines are in `text`, their sizes added by `move_size`).
+
+
+def _g(x: float, digits: int = 3) -> str:
+    """A number to `digits` significant digits, without an exponent below a million: 12300 nT/s, not 1.23e+04."""
+    return format(float(format(float(x), f".{digits}g")), "g")
+
+
+def _vec(c, scale: float = 1.0, digits: int = 3) -> str:
+    """A per-axis vector in significant digits ("[0.0153, -0.0131, -0.0139]"): np.round to 4 decimals printed
+    readings in tesla as zeros."""
+    return "[" + ", ".join(_g(scale * float(x), digits) for x in np.ravel(c)) + "]"
+
+
+def _share(d, size: float) -> str:
+    """A size in the readings' unit and as a share of the field: "0.49 uT, 0.98 % of the field"."""
+    u = f" {d.units}" if d.units else ""
+    return f"{_g(size)}{u}, {_g(100 * size / d.base.field_norm, 2)} % of the field"
+
+
+def _span(d, lag_s=None) -> float:
+    """The recording's temperature span (°C): the sensing element's (the logged one through its fitted lag)."""
+    from ..sim.effects import lagged
+
+    temp = np.asarray(d.series["temp"], dtype=float)
+    if lag_s:
+        temp = lagged(temp, np.asarray(d.series["t"], dtype=float), lag_s)
+    return float(np.ptp(temp))
+
+
+def _context(d, row, form: str | None = None) -> SimpleNamespace:
+    """What a candidate computes its features from (core._context), rebuilt from the base fit: the transducer's
+    signal b + W h (W h alone for an electronic offset: `form`, default the one the row's coefficients were
+    fitted in, `_form`), h on the fitted sphere (or the reference) along each reading's field direction. The base
+    fit's, not the final model's: close enough to say how large an effect is."""
+    W = np.linalg.inv(np.asarray(d.base.matrix, dtype=float))
+    norms = d.series.get("field_norms")
+    radius = d.base.field_norm if norms is None else np.reshape(np.asarray(norms, dtype=float), (-1, 1))
+    field = radius * np.asarray(d.series["directions"], dtype=float)
+    direction = field @ W.T
+    form = form or _form(d, row)
+    signal = direction if form == "electronic" else np.asarray(d.base.offset) + direction
+    return SimpleNamespace(signal=signal, readings=signal, scale=float(np.median(np.linalg.norm(signal, axis=1))),
+                           field=field, W=W, direction=direction, t=d.series.get("t"), temp=d.series.get("temp"),
+                           current=d.series.get("current"),
+                           coefficients=np.asarray(row.get("coefficients", []), dtype=float))
+
+
+def _form(d, row) -> str:
+    """What the transducer saw in the fit of a transducer effect's coefficients (core._forms): "electronic" (W h)
+    or "hard_iron" (b + W h). Their scales differ by |b + W h| / |W h| — 4.5× about a hard iron of several fields
+    —, and so do the coefficients' units (a cubic's error at that scale, an anisotropy field's). The row names
+    the form when the data decided it (`offset_kind`); undecided, the search took the one explaining more, which
+    the row does not say: then the one whose change to the readings matches the row's `distortion` (that
+    change's RMS over the RMS of b + W h, in the fit with it)."""
+    from ..sim.effects import CANDIDATES
+
+    cls = next((c for c in CANDIDATES if c.name == row.get("effect")), None)
+    if cls is None or not cls.transducer or row.get("offset_kind") or not row.get("distortion"):
+        return row.get("offset_kind") or "hard_iron"
+    size = row["distortion"] * np.linalg.norm(_context(d, row, "hard_iron").signal)
+    rms = {form: np.linalg.norm(_change(d, row, _context(d, row, form))) for form in ("hard_iron", "electronic")}
+    return min(rms, key=lambda form: abs(np.log(max(rms[form], 1e-300) / size)))
+
+
+def _change(d, row, ctx) -> np.ndarray:
+    """The change (N×3, readings' unit) the effect makes to the readings: its features (sim.effects) at `ctx`
+    times its coefficients."""
+    from ..sim.effects import CANDIDATES
+
+    cls = next(c for c in CANDIDATES if c.name == row["effect"])
+    value = row.get(cls.profile_name) if cls.profile_name else None
+    if cls.profile_name == "limit" and value is None:  # saturation's cubic form: L → ∞
+        value = np.inf
+    feats = cls.features(ctx) if value is None else cls.features_at(ctx, value)
+    return np.einsum("p,npk->nk", ctx.coefficients, feats)
+
+
+def _largest_change(d, row, ctx=None) -> str:
+    """The largest change (vector length) the effect makes to any reading in this recording, in the readings'
+    unit and % of the field; with a full matrix in the base model, also the part of it that an offset and a
+    matrix cannot take up, when that is less than half (a non-linearity about a hard iron of several fields is
+    mostly a shift and a gain there, which the calibration absorbs)."""
+    ctx = ctx or _context(d, row)
+    change = _change(d, row, ctx)
+    out = f"up to {_share(d, float(np.max(np.linalg.norm(change, axis=1))))}"
+    if d.model in ("ellipsoid", "vector"):
+        X = np.column_stack([np.ones(len(change)), ctx.signal])
+        rest = change - X @ np.linalg.lstsq(X, change, rcond=None)[0]
+        beyond = float(np.max(np.linalg.norm(rest, axis=1)))
+        if beyond < 0.5 * float(np.max(np.linalg.norm(change, axis=1))):
+            out += f" ({_g(beyond)}{' ' + d.units if d.units else ''} of it beyond what an offset and a matrix take up)"
+    return out
+
+
+def _rate(d) -> np.ndarray:
+    """The readings' rate of change (readings' unit per s, or per row without timestamps), smoothed as the
+    eddy-current and delay candidates smooth it: per reading, N×3."""
+    from ..sim.effects import _smooth
+
+    ctx = _context(d, {}, "hard_iron")
+    return _smooth(ctx.signal, np.asarray(d.series["t"], dtype=float), deriv=1)
+
+
+def _time_unit(d) -> str:
+    return "s" if d.series.get("timestamps", True) else "row"
+
+
+def temp_offset_line(d, r) -> str:
+    """The offset per °C and over the recording's temperature span."""
+    u = f" {d.units}" if d.units else ""
+    beta, span = np.asarray(r["coefficients"], dtype=float), _span(d, r.get("lag_s"))
+    lagged_ = " (the sensing element's, through its lag)" if r.get("lag_s") else ""
+    return (f"temp_offset: {_vec(beta)}{u} per °C (x, y, z); over the recording's {_g(span)} °C{lagged_} "
+            f"{_share(d, np.linalg.norm(beta) * span)}")
+
+
+def temp_scale_line(d, r) -> str:
+    """The sensitivity's change per °C and over the recording's span, also as a field at the field's magnitude."""
+    alpha, span = np.asarray(r["coefficients"], dtype=float), _span(d, r.get("lag_s"))
+    lagged_ = " (the sensing element's, through its lag)" if r.get("lag_s") else ""
+    return (f"temp_scale: the sensitivity changes by {_vec(alpha, 100)} % per °C (x, y, z); over the recording's "
+            f"{_g(span)} °C{lagged_} by {_vec(alpha * span, 100)} %, at the field's magnitude "
+            f"{_share(d, np.max(np.abs(alpha)) * span * d.base.field_norm)}")
+
+
+def cubic_line(d, r) -> str:
+    u = f" {d.units}" if d.units else ""
+    ctx = _context(d, r)
+    return (f"nonlinearity_cubic: the readings depart from a straight line by {_vec(r['coefficients'], 100)} % "
+            f"(x, y, z) at a reading of {_g(ctx.scale)}{u} (m = s (1 + c (s/{_g(ctx.scale)})²), s what the "
+            f"transducer sees); in this recording {_largest_change(d, r, ctx)}")
+
+
+def saturation_line(d, r) -> str:
+    """The limit (or, for the cubic form, the limit of a tanh that compresses as much at the typical reading)
+    and how much it takes off the readings."""
+    u = f" {d.units}" if d.units else ""
+    ctx, a, limit = _context(d, r), float(r["coefficients"][0]), r.get("limit")
+    S, H = ctx.scale, d.base.field_norm
+    if limit is None:  # its features −s³/S², times a: L tanh(s/L) with L = S/√(3a), to first order
+        compression = a
+        where, like = "its cubic form (no limit within the readings' reach)", (
+            f" as a core saturating at {_g(S / np.sqrt(3 * a))}{u} ({_g(S / np.sqrt(3 * a) / H, 2)} × the field) would"
+            if a > 0 else "")
+    else:
+        compression = -a * (limit * np.tanh(S / limit) - S) * 3 * limit ** 2 / S ** 3
+        where, like = f"limit {_g(limit)}{u} ({_g(limit / H, 2)} × the field)", ""
+    return (f"saturation: {where}: it compresses a reading of {_g(S)}{u} by {_g(100 * compression, 2)} %{like}; in "
+            f"this recording the readings by {_largest_change(d, r, ctx)}")
+
+
+def cross_axis_line(d, r) -> str:
+    u = f" {d.units}" if d.units else ""
+    ctx = _context(d, r)
+    c = np.asarray(r["coefficients"], dtype=float)
+    hk = np.where(c != 0, ctx.scale / np.where(c != 0, c, 1.0), np.inf)  # the features' c_k = scale / H_k
+    return (f"cross_axis: anisotropy fields {_vec(hk)}{u} (x, y, z: each axis' sensitivity falls by its easy-axis "
+            f"field over that — x's easy axis is y, y's and z's x — AMR's cross-field error); in this recording "
+            f"{_largest_change(d, r, ctx)}")
+
+
+def non_orthogonality_line(d, r) -> str:
+    # The features lean axes j and k towards each other by S_jk each (m = W (I + S) h): their angle is 90° − 2 S_jk
+    angles = 2 * np.degrees(np.asarray(r["coefficients"], dtype=float))
+    return (f"non_orthogonality: the axes x–y, x–z, y–z are {_vec(90 - angles, digits=4)}° apart (90° − "
+            f"{_vec(angles)}°); in this recording {_largest_change(d, r)}")
+
+
+def hysteresis_line(d, r) -> str:
+    u = f" {d.units}" if d.units else ""
+    c = np.asarray(r["coefficients"], dtype=float)
+    width = f"a loop {_g(r['width'])}{u} wide (one width for every axis), " if r.get("width") is not None else ""
+    return (f"hysteresis: {width}the readings lag their input by up to {_vec(c)}{u} (x, y, z; the loop's "
+            f"half-height) once the field turns back: {_share(d, float(np.max(np.abs(c))))}")
+
+
+def eddy_current_line(d, r) -> str:
+    """The time constants (field per field/s) and the field they make at this recording's fastest change."""
+    u, unit = (f" {d.units}" if d.units else ""), _time_unit(d)
+    tau = np.asarray(r["coefficients"], dtype=float)
+    rate = _rate(d)
+    taus = f"{_vec(tau, 1e3)} ms" if unit == "s" else f"{_vec(tau)} rows"
+    blind = ("" if d.series.get("vector") else
+             f"; a magnitude shows only the differences between the axes' time constants (standard errors "
+             f"{_vec(r['standard_errors'], 1e3 if unit == 's' else 1)}{' ms' if unit == 's' else ' rows'})")
+    return (f"eddy_current: the readings lag the field by time constants {taus} (x, y, z; m = s − τ ds/dt, in field "
+            f"per field/{unit}){blind}; with the readings changing by up to "
+            f"{_g(np.max(np.linalg.norm(rate, axis=1)))}{u}/{unit} in this recording, up to "
+            f"{_share(d, float(np.max(np.linalg.norm(rate * tau, axis=1))))} (a conductive housing or plate near "
+            "the sensor?)")
+
+
+def motor_current_line(d, r) -> str:
+    u = f" {d.units}" if d.units else ""
+    k, peak = np.asarray(r["coefficients"]), float(np.max(np.abs(d.series["current"])))
+    return (f"motor_current: {_vec(k)}{u} per A (x, y, z); at the recording's peak "
+            f"{peak:.3g} A {np.linalg.norm(k) * peak:.3g}{u}, "
+            f"{100 * np.linalg.norm(k) * peak / d.base.field_norm:.1f} % of the field (compassmot's 'interference')")
+
+
+def colored_noise_line(d, r) -> str:
+    """The correlated part's RMS (held out: the residuals' RMS above the white σ) and, roughly, over how long it
+    is correlated (the AR model's integrated correlation time of that part)."""
+    a = np.asarray(r.get("coefficients") or [], dtype=float)
+    size = r.get("heldout_gap_before")
+    if size is None:
+        return "colored_noise: noise correlated in time (too few held-out readings to size it)"
+    # In the residual series' units (the mean of three axes against reference vectors: σ/√3 white): the AR
+    # model's spectrum at zero frequency, innovations²/(1 − Σa)², less the white part's, over the correlated
+    # part's variance is its correlation time in readings (Σ of its autocorrelation over every lag).
+    white = d.noise_sigma ** 2 / (3.0 if d.series.get("vector") else 1.0)
+    correlated = r["heldout_rms_before"] ** 2 - white if r.get("heldout_rms_before") is not None else 0.0
+    when = ""
+    if len(a) and a.sum() < 1 and correlated > 0 and r.get("heldout_rms_after") is not None:
+        readings = (r["heldout_rms_after"] ** 2 / (1 - a.sum()) ** 2 - white) / correlated
+        t = np.asarray(d.series.get("t") if d.series.get("t") is not None else [], dtype=float)
+        step = float(np.median(np.diff(np.sort(t)))) if len(t) > 1 else 1.0
+        if readings > 1:
+            unit = "s" if _time_unit(d) == "s" else "rows"
+            when = (f", correlated over roughly {_g(readings * step, 2)} {unit} (the "
+                    f"AR({len(a)}) model's correlation time: averaging over less does not lower it)")
+    elif len(a) and a.sum() >= 1:
+        when = ", a random walk (the AR model does not settle): it does not average out"
+    return (f"colored_noise: noise correlated in time beside the white σ, RMS {_share(d, size)} (held out: the "
+            f"last quarter's residuals above σ){when}")
+
+
+def quantization_line(d, r) -> str:
+    u = f" {d.units}" if d.units else ""
+    steps = np.asarray(r["steps"], dtype=float)
+    q = float(np.sqrt(np.mean(steps ** 2) / 12.0))
+    return (f"quantization: readings on a grid of {_vec(steps)}{u} (x, y, z; the ADC's step), whose rounding adds "
+            f"step/√12 RMS to the noise (σ given {_g(d.noise_sigma)}{u}): {_share(d, q)}")
+
+
+def move_size(d, r) -> str:
+    """How large an accepted move of the reference is in the field: a rotation by |θ| moves it by up to H |θ|,
+    a delay δ by δ |dm/dt|."""
+    if r.get("rotation_deg") is not None:
+        theta = np.radians(np.linalg.norm(r["rotation_deg"]))
+        return f" (|θ| {_g(np.degrees(theta))}°: up to {_share(d, d.base.field_norm * theta)})"
+    if r.get("delay_ms") is not None and d.series.get("t") is not None:
+        u = f" {d.units}" if d.units else ""
+        rate = np.linalg.norm(_rate(d), axis=1)
+        return (f"; with the readings changing by up to {_g(np.max(rate))}{u}/s in this recording, up to "
+                f"{_share(d, abs(r['delay_ms']) * 1e-3 * float(np.max(rate)))}")
+    return ""
+
+
+SIZE_LINES = {"temp_offset": temp_offset_line, "temp_scale": temp_scale_line, "nonlinearity_cubic": cubic_line,
+              "saturation": saturation_line, "cross_axis": cross_axis_line,
+              "non_orthogonality": non_orthogonality_line, "hysteresis": hysteresis_line,
+              "eddy_current": eddy_current_line, "motor_current": motor_current_line,
+              "colored_noise": colored_noise_line, "quantization": quantization_line}
+"""The size line of each effect found that has no line of its own in `text` (offset_drift, scale_drift,
+offset_step, moving_dipole: their functions above; misalignment, time_offset: their move)."""
+
+
 def text(d) -> str:
     u = f" {d.units}" if d.units else ""
     w, rem = d.where, d.remaining
@@ -246,11 +509,13 @@ def text(d) -> str:
                 out.append(f"  {r['found_with']} and {r['effect']} were found together: while either is unmodelled "
                            "the other's held-out test fails; each passes with the other modelled")
             if r.get("rotation_deg") is not None:
-                out.append(f"  {r['effect']}: rotation vector {np.round(r['rotation_deg'], 3).tolist()}°")
+                out.append(f"  {r['effect']}: rotation vector {np.round(r['rotation_deg'], 3).tolist()}°"
+                           + move_size(d, r))
             if r.get("delay_ms") is not None:
                 out.append(f"  {r['effect']}: the readings {abs(r['delay_ms']):.2f} ms "
                            f"{'behind' if r['delay_ms'] > 0 else 'ahead of'} the reference vectors"
-                           + ("" if r["delay_ms"] > 0 else " (no eddy current or filter leads: look at the timestamps)"))
+                           + ("" if r["delay_ms"] > 0 else " (no eddy current or filter leads: look at the timestamps)")
+                           + move_size(d, r))
             if r.get("lag_s") is not None and r.get("step") is not None:
                 grid_floor = 1.5 * float(np.median(np.diff(d.series["t"]))) if len(d.series.get("t", [])) > 1 else 0.0
                 lag = r["lag_s"]
@@ -277,12 +542,8 @@ def text(d) -> str:
                 out += ["  " + offset_step_line(d, {**r, **e}) for e in r.get("episodes") or [r]]
             if r["effect"] == "moving_dipole" and r.get("peak_field") is not None:
                 out += ["  " + moving_dipole_line(d, {**r, **e}) for e in r.get("episodes") or [r]]
-            if r["effect"] == "motor_current" and r.get("step") is not None and d.series.get("current") is not None:
-                k, peak = np.asarray(r["coefficients"]), float(np.max(np.abs(d.series["current"])))
-                out.append(f"  motor_current: {np.round(k, 4).tolist()}{u} per A (x, y, z); at the recording's peak "
-                           f"{peak:.3g} A {np.linalg.norm(k) * peak:.3g}{u}, "
-                           f"{100 * np.linalg.norm(k) * peak / d.base.field_norm:.1f} % of the field (compassmot's "
-                           "'interference')")
+            if r["effect"] in SIZE_LINES and r.get("step") is not None:
+                out.append("  " + SIZE_LINES[r["effect"]](d, r))
         out += [f"  {r['effect']}: {r['note']}" for r in d.ranking if r.get("pruned_delta_bic") is not None]
         out += confound_lines(d)
     elif not rem.get("noise_check", {}).get("exceeds") and not rem.get("unexplained", {}).get("left") \
