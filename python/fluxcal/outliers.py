@@ -77,7 +77,7 @@ class Outliers:
                 ("read exactly 0,0,0 (glitches)", self.kinds.get("zero", 0)),
                 ("sit at a column's extreme value, repeated (ADC rail)", self.kinds.get("rail", 0)),
                 ("lie past any sensor's range (their squares overflow)", self.kinds.get("overflow", 0))) if k)
-            largest = f" (up to {self.largest:.0f})" if self.largest > 0 else ""  # (none but readings past range)
+            largest = f" (up to {self.largest:.3g})" if self.largest > 0 else ""  # (none but readings past range)
             out.append(f"left out {len(self.rows)} of {n} readings that lie more than {self.threshold:.1f} robust σ"
                        f"{largest} off {self.model} (rows {shown}{kinds}); outliers='keep' "
                        "(--outliers keep) keeps them")
