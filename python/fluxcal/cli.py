@@ -63,9 +63,10 @@ def _spread(values: np.ndarray) -> float:
     return float(norm.std() / norm.mean())
 
 
-def _report(cal: Calibration, raw: np.ndarray, out=sys.stdout, t=None) -> None:
-    """The calibration's printout; `t` (the readings' times, or None for row order) orders them for the noise
-    estimate from differences."""
+def _report(cal: Calibration, raw: np.ndarray, out=None, t=None) -> None:
+    """The calibration's printout (to `out`, default the sys.stdout of the call, not of the import); `t` (the
+    readings' times, or None for row order) orders them for the noise estimate from differences."""
+    out = sys.stdout if out is None else out
     s = cal.summary
     print(cal, file=out)
     print(f"  samples used          {s['samples']}", file=out)
@@ -108,7 +109,12 @@ def _report(cal: Calibration, raw: np.ndarray, out=sys.stdout, t=None) -> None:
         # assumption) and say nothing of the rest — a 30° cap printed 0.09 µT beside a 2–3 µT error.
         caveat = "" if s["identifiable"] else "   (NOT the error: the data do not determine every parameter)"
         print(f"  std error of b        {_significant(se[:3], 3)} {cal.units}{caveat}".rstrip(), file=out)
-        print(f"  identifiable          {'yes' if s['identifiable'] else 'NO'}", file=out)
+        # judged on the independent-readings errors (refine): beside Newey–West-widened ones (the airborne segment's
+        # 4.25 µT of 54 µT) a bare "yes" read as a contradiction
+        widened = s.get("serial_correlation", {}).get("lags", 0) > 0
+        why = ("   (judged on the Fisher information of independent readings; the std errors above are widened for "
+               "readings correlated in time)" if widened else "")
+        print(f"  identifiable          {'yes' if s['identifiable'] else 'NO'}{why}", file=out)
     for w in s["warnings"] + [w for w in [_plausible_field(cal)] if w]:
         print(f"warning: {w}", file=out)
 
@@ -300,17 +306,40 @@ def _first_half_note(raw, cal: Calibration, first: Calibration, worse: bool, cov
     return ""
 
 
-def _outlier_lines(cal: Calibration, rec: Recording) -> None:
-    """The rows left out as outliers named by their lines in the file too (after skipped lines the row
-    numbers and the file's lines differ)."""
-    rows = cal.summary.get("outliers", {}).get("rows", [])
-    if not rows or rec.line_numbers is None:
+# A list of row numbers in a message: "rows 600, 700, 900", "row 12", "rows 2953–2999 (up to 7 σ), 9653–9660 (up to
+# 5 σ), …" (each number or range with an optional note in parentheses)
+_ROW_ITEM = r"\d+(?:–\d+)?(?: \([^()]*\))?"
+_ROW_LIST = re.compile(rf"\brows? ({_ROW_ITEM}(?:, {_ROW_ITEM})*(?:, …)?)")
+
+
+def _with_file_lines(message: str, line_numbers) -> str:
+    """`message` with every list of (0-based) row numbers followed by the file lines they were read from (after a
+    header, comments or skipped lines the two differ): "; file lines …" inside parentheses, " (file lines …)"
+    elsewhere. The one place calibrate's warnings that name rows (outliers left out, stretches kept) get them."""
+    def lines(match):
+        items = re.findall(r"(\d+)(?:–(\d+))?(?: \([^()]*\))?", match.group(1))
+        if any(int(x) >= len(line_numbers) for first, last in items for x in (first, last) if x):
+            return match.group(0)  # (not rows of this recording)
+        shown = ", ".join(str(line_numbers[int(first)]) + (f"–{line_numbers[int(last)]}" if last else "")
+                          for first, last in items) + (", …" if match.group(1).endswith("…") else "")
+        word = "file lines" if len(items) > 1 or items[0][1] or match.group(1).endswith("…") else "file line"
+        inside = message[:match.start()].count("(") > message[:match.start()].count(")")
+        return match.group(0) + (f"; {word} {shown}" if inside else f" ({word} {shown})")
+
+    if line_numbers is None or "file line" in message:
+        return message
+    return _ROW_LIST.sub(lines, message)
+
+
+def _name_file_lines(cal: Calibration, rec: Recording) -> None:
+    """The calibration's warnings that name rows also name their file lines; the outliers' file lines kept in
+    the summary beside their rows."""
+    if rec.line_numbers is None:
         return
-    lines = [int(rec.line_numbers[r]) for r in rows]
-    cal.summary["outliers"]["file_lines"] = lines
-    shown = ", ".join(map(str, lines[:8])) + (", …" if len(lines) > 8 else "")
-    cal.summary["warnings"] = [re.sub(r"\(rows ([^;)]*)", rf"(rows \1; file lines {shown}", w, count=1)
-                               if w.startswith("left out ") else w for w in cal.summary["warnings"]]
+    rows = cal.summary.get("outliers", {}).get("rows", [])
+    if rows:
+        cal.summary["outliers"]["file_lines"] = [int(rec.line_numbers[r]) for r in rows]
+    cal.summary["warnings"] = [_with_file_lines(w, rec.line_numbers) for w in cal.summary["warnings"]]
 
 
 def _reference(rec: Recording, names: str | None, file) -> tuple:
@@ -349,10 +378,27 @@ def _note_reference_columns(rec: Recording, reference, method: str) -> None:
               f"used: give --reference {','.join(unused[:3])} for the vector fit (the full matrix, misalignment included)")
 
 
-def _print_roles(rec: Recording):
-    """Say which columns were taken for what (so a name-guessed choice is visible), and which lines and
-    text columns the reader left out."""
-    print("columns: " + "; ".join(f"{role} {names}" for role, names in rec.roles().items()))
+def _reference_role(rec: Recording, names: str | None) -> str:
+    """The columns a vector fit takes its reference from, for the columns line: --reference's, else the attitude
+    and local field (Recording.reference_field), with their units and the attitude convention."""
+    from .io.recording import ATTITUDE_COLUMNS, FIELD_NED_COLUMNS
+
+    def with_unit(columns):
+        units = {rec.units.get(c, "") for c in columns}
+        return ",".join(columns) + (f" ({units.pop()})" if len(units) == 1 and "" not in units else "")
+
+    if names:
+        return f"reference {with_unit(names.split(','))} (--reference)"
+    convention = rec.metadata.get("attitude_convention", "aerospace")
+    return (f"reference attitude {with_unit(ATTITUDE_COLUMNS)}, {convention} convention, with local field "
+            f"{with_unit(FIELD_NED_COLUMNS)}")
+
+
+def _print_roles(rec: Recording, reference: str | None = None):
+    """Say which columns were taken for what (so a name-guessed choice is visible), the reference's (`reference`,
+    from _reference_role) among them, and which lines and text columns the reader left out."""
+    print("columns: " + "; ".join([f"{role} {names}" for role, names in rec.roles().items()]
+                                  + ([reference] if reference else [])))
     if "skipped_lines" in rec.metadata:
         print(f"skipped {rec.metadata['skipped_lines'].replace(':', ' lines:', 1)}")
     if "text_columns" in rec.metadata:
@@ -510,17 +556,17 @@ def cmd_calibrate(args) -> int:
     rec = read_recording(args.file, columns=args.columns, units=args.units, bad_lines=args.bad_lines,
                          decimal=args.decimal)
     raw = rec.samples()
-    _print_roles(rec)
     # attitude + local field in the recording (e.g. the airborne layout): the vector fit, unless a
     # magnitude-only method is asked for
     units, field_norm = rec.field_units(), args.field_norm
-    if isinstance(field_norm, str):
-        field_norm = _field_norms_given(rec, field_norm, args)
     if args.reference and args.method not in ("auto", "vector"):
         raise ValueError(f"--reference: the vector fit's; --method {args.method} fits field magnitudes only (leave "
                          "--method out, or give vector)")
     reference, reference_units = (_reference(rec, args.reference, args.file) if args.method in ("auto", "vector")
                                   else (None, units))
+    _print_roles(rec, _reference_role(rec, args.reference) if reference is not None else None)
+    if isinstance(field_norm, str):
+        field_norm = _field_norms_given(rec, field_norm, args)
     if reference is not None and not reference_units and units == "counts":
         print("note: the reference field states no unit: the corrected field is in its unit (state it, e.g. "
               "igrf_n [nT], for the calibration to say so)")
@@ -545,7 +591,7 @@ def cmd_calibrate(args) -> int:
     if args.field_units and field_norm is not None and unit_name(args.field_units) != units:
         _recheck_field_norm(cal, units, unit_name(args.field_units))
     cal.metadata.update(source=str(args.file), columns=",".join(rec.mag_names()))
-    _outlier_lines(cal, rec)
+    _name_file_lines(cal, rec)
     held_out = None
     if reference is None and len(raw) >= 80 and args.method in ("auto", "als+refine"):
         cal.summary["held_out_spread"], held_out = _held_out_spread(raw, cal, field_norm, settings)
@@ -685,6 +731,11 @@ def cmd_apply(args) -> int:
     scale = _scale_warning(cal, h[~far], rec.field_units())
     if scale:
         print(f"warning: {scale}")
+    t = rec.time()
+    misfit = _misfit_warning(cal, rec.samples(check_finite=False)[~far], h[~far], None if t is None else t[~far],
+                             args.calibration, args.file)
+    if misfit:
+        print(f"warning: {misfit}")
     if cal.summary.get("converged", True) is False:  # export-c refuses such a calibration without --force
         print(f"warning: {args.calibration}: the calibration's fit did not converge (an intermediate iterate): "
               "recalibrate before relying on the corrected field")
@@ -713,6 +764,75 @@ def _scale_warning(cal: Calibration, h: np.ndarray, units: str) -> str | None:
            "readings in another unit than the calibration's, of another sensor, or taken in another field?")
     return (f"the corrected |h| is {np.median(norms):.6g}{unit} (median), {ratio:.3g}× the calibration's field "
             f"norm {cal.field_norm:.6g}{unit}; {why}")
+
+
+# Whether a calibration fits the readings it is applied to, judged on the spread std/mean of the corrected |h|
+# against two figures: the spread the calibration left on its own readings (its summary's norm_std_over_mean),
+# widened in quadrature by these readings' own noise when it is larger (noisier readings of the same sensor spread
+# more by that much), and these readings' raw spread |m|. The same sensor's other recording spreads somewhat more
+# than the fit's own, having other directions and noise (the real recordings fitted on one half and applied to the
+# other: 0.8–2.6×, 3× for the airborne segment's magnitude fit that its poor coverage leaves unsound) and far less
+# than raw (a right calibration removes the distortion: 2–33 % raw to 0.1–3 %). Another sensor's calibration leaves
+# the spread of the two offsets' and matrices' difference, about the raw spread (the real recordings with each
+# other's calibrations: 6–400× the fit's own). So: more than MISFIT_FAR × the fit's own is another sensor, and so
+# is no better than raw while above MISFIT_NEAR × the fit's own (a sensor that hardly needs correcting, whose raw
+# spread is near the fit's own, corrects to about its raw spread: not a mismatch).
+MISFIT_FAR = 5.0
+MISFIT_NEAR = 2.0
+
+
+def _spread_kept(norms: np.ndarray) -> tuple:
+    """(std/mean of `norms`, rows left out): without the values further from the median than the two-sided normal
+    quantile at 0.01/N × the robust σ (1.4826 MAD), the outlier screen's rule, so that a few glitches (0,0,0
+    readings) do not make a right calibration look wrong, while the broad spread of a wrong one stays."""
+    from scipy import stats
+
+    median = np.median(norms)
+    sigma = 1.4826 * np.median(np.abs(norms - median))
+    keep = (np.abs(norms - median) <= stats.norm.isf(0.005 / len(norms)) * sigma if sigma > 0
+            else np.ones(len(norms), dtype=bool))
+    kept = norms[keep]
+    return float(kept.std() / kept.mean()), int((~keep).sum())
+
+
+def _misfit_warning(cal: Calibration, raw: np.ndarray, h: np.ndarray, t, cal_file, file) -> str | None:
+    """Why the calibration does not look like this sensor's (see MISFIT_FAR), or None; None too when the calibration
+    carries no spread of its own (a multi-position result) or was fitted to each reading's own |field| (the |h| of
+    these readings then follows their field, which apply does not know)."""
+    from .diagnose.core import UNORDERED, _difference_noise, estimate_noise
+
+    own = cal.summary.get("norm_std_over_mean")
+    finite = np.isfinite(raw).all(axis=1) & np.isfinite(h).all(axis=1)
+    raw, h = raw[finite], h[finite]
+    if not isinstance(own, (int, float)) or not own >= 0 or "field_norms" in cal.summary or len(h) < 20:
+        return None
+    after, dropped = _spread_kept(np.linalg.norm(h, axis=1))
+    before, _ = _spread_kept(np.linalg.norm(raw, axis=1))
+    # these readings' noise, as a share of |h|, from third differences in time order (as diagnose estimates it); not
+    # for rows that are not a time series (their differences measure the turning). The readings' differences hold
+    # the turn between rows too, across the field, and those of |h| what a wrong calibration leaves as the sensor
+    # turns; each bounds the noise along the field, which is what spreads |h|: the smaller is taken
+    order = slice(None) if t is None else np.argsort(np.asarray(t)[finite], kind="stable")
+    m, norms = raw[order], np.linalg.norm(h[order], axis=1)
+    sigma = estimate_noise(m)
+    noise = 0.0
+    if sigma <= UNORDERED * np.sqrt(np.mean(np.var(m, axis=0))):
+        gain = abs(float(np.linalg.det(cal.matrix))) ** (1 / 3)  # (reading units to h's)
+        noise = min(sigma * gain, _difference_noise(norms, 3)) / float(np.median(norms))
+    expected = float(np.hypot(own, noise))
+    if not (after > MISFIT_FAR * expected or (after >= before and after > MISFIT_NEAR * expected)):
+        return None
+    times = after / own if own > 0 else np.inf
+    times = f"{times:.2g}× " if times < 10 else f"{times:.0f}× " if np.isfinite(times) else ""
+    noisier = (f" ({100 * expected:.3g} % allowing for these readings' noise, {100 * noise:.3g} % of |h|)"
+               if expected > 1.05 * own else "")
+    left = f", {dropped} reading(s) far off the rest left out" if dropped else ""
+    raw_words = (f"no better than the raw readings' {100 * before:.3g} %" if after >= before else
+                 f"the raw readings spread {100 * before:.3g} %")
+    return (f"{cal_file} does not fit {file}: the corrected |h| spreads {100 * after:.3g} % (std/mean{left}), "
+            f"{times}the {100 * own:.3g} % the calibration left on the readings it was fitted on{noisier}; "
+            f"{raw_words}. Is it another sensor's calibration, has the mounting changed or iron come near the "
+            "sensor (recalibrate), or is it the wrong file?")
 
 
 def write_output(path, rec: Recording) -> None:
@@ -792,10 +912,10 @@ def cmd_diagnose(args) -> int:
     rec = read_recording(args.file, columns=args.columns, units=args.units, bad_lines=args.bad_lines,
                          decimal=args.decimal)
     rec.samples()  # the magnetometer columns exist and are finite before the diagnosis starts
-    _print_roles(rec)
     # a recording with attitude + local field gives the vector model its reference, unless told otherwise
     reference, reference_units = ((None, "") if not args.reference and args.model in ("ellipsoid", "scale")
                                   else _reference(rec, args.reference, args.file))
+    _print_roles(rec, _reference_role(rec, args.reference) if reference is not None else None)
     if reference is not None and reference_units != rec.field_units():
         raise ValueError(f"{args.file}: the readings are in {rec.field_units() or 'no stated unit'} and the reference "
                          f"vectors in {reference_units or 'no stated unit'}: the vector model's errors would mix the "
@@ -906,9 +1026,11 @@ def cmd_cable(args) -> int:
         truth = np.stack([ring.rotated(a).field(data["positions_m"], c)
                           for a, c in zip(data["rotations_deg"], data["currents_a"])])
         cal = cable.calibrate_ring(data["readings"], truth, method=args.method)
+        # offsets of a ring's sensors are tenths of µT to tens (5.183e-07 T read poorly): one unit for all
+        unit, per_tesla = ("nT", 1e9) if np.max(np.abs(cal.offsets)) < 1e-6 else ("µT", 1e6)
         for k in range(ring.n_sensors):
-            print(f"sensor {k}: offset {cal.offsets[k, 0]:.4g} {cal.offsets[k, 1]:.4g} T, "
-                  f"gain {cal.gains[k, 0]:.6f} {cal.gains[k, 1]:.6f}")
+            print(f"sensor {k}: offset {cal.offsets[k, 0] * per_tesla:.4g} {cal.offsets[k, 1] * per_tesla:.4g} "
+                  f"{unit}, gain {cal.gains[k, 0]:.6f} {cal.gains[k, 1]:.6f}")
         far = float(np.max(np.abs(np.log(cal.gains))))
         if far > np.log(1.2):  # readings in tesla: an AMR's gain error is a few %, not tens
             print(f"warning: gains up to ×{np.exp(far):.3g} away from 1: the readings' scale is not the ring model's — "
@@ -1304,7 +1426,13 @@ def build_parser() -> argparse.ArgumentParser:
                         "igrf (at each reading's lat, lon, alt), for a field that changes while the sensor turns "
                         "(the magnitude models)")
     g.add_argument("--noise-sigma", type=positive_number, default=None,
-                   help="white-noise σ of the readings (default: estimated from third differences)")
+                   help="white-noise σ of the readings, in their unit (tesla for --model cable). Default, in this "
+                        "order: --model cable: the scatter of repeated snapshots (same rotation and currents), else "
+                        "the --calibration's scatter, else the base fit's residuals (a misfit then counts as noise); "
+                        "the other models: third differences of the readings in time order, or of the base model's "
+                        "residuals when those are smaller and the readings' differences hold the motion (fast turns, "
+                        "held positions, uneven times) or the rows are not a time series (then an upper bound: the "
+                        "residuals hold the model's misses too); at least the quantization floor LSB/√12")
     g.add_argument("--candidates", default=None, help="comma-separated effect names (default: all)")
     g.add_argument("--alpha", type=float, default=0.01, help="significance level (default 0.01)")
     g.add_argument("--max-effects", type=positive_int, default=3,
@@ -1332,7 +1460,11 @@ def build_parser() -> argparse.ArgumentParser:
     ks.add_argument("--current", type=positive_number, default=5.0,
                     help="current of the two cores, equal and opposite (A)")
     ks.add_argument("--rotations", default="0", help="comma-separated ring rotations (degrees) of the snapshots")
-    ks.add_argument("--repeats", type=positive_int, default=5, help="readings per calibration state")
+    ks.add_argument("--repeats", type=positive_int, default=5,
+                    help="readings per calibration state; with --calibration only (a measurement's snapshots are one "
+                         "per --rotations entry: repeat an entry for repeated snapshots, e.g. 0,0,0,0,90,90,90,90,…, "
+                         "which diagnose --model cable takes the noise from when they hold at least 10 beyond the "
+                         "first of each run)")
     ks.add_argument("--lab", action="store_true", help="add the unmodelled effects (ferro parts, z leakage, Earth)")
     ks.add_argument("--seed", type=int, default=0, help="the simulated instrument (sensor errors)")
     ks.add_argument("--noise-seed", type=int, default=None, help="the noise (default: --seed)")
