@@ -64,7 +64,8 @@ inline constexpr const char* kTurnAdvice =
 /// The remedy for a sensor that only ever turns about one axis.
 inline constexpr const char* kTwoDAdvice =
     "for a sensor that only turns about one axis (a vehicle's heading), the 2-D calibration of the two axes in its "
-    "plane (twostep_2d, with the horizontal field as the known norm)";
+    "plane (fluxcal calibrate --planar; in Python fluxcal.calibrate_planar, with the horizontal field as the known "
+    "norm)";
 
 /// A ratio as a percentage for a message: three significant digits ("12.3 %").
 inline std::string percent(double ratio) {

@@ -14,6 +14,7 @@ from .bounds import crlb
 from .ellipsoid import EllipsoidMoments, fit_ellipsoid
 from .io import Recording, read_csv, read_recording, write_csv, write_recording
 from .pipeline import calibrate
+from .planar import calibrate_planar  # yaw-only / biaxial: the two axes of the turning plane
 from .refine import fit_vector, refine
 from .twostep import TwoStep2D, twostep, twostep_2d
 from . import positions  # noqa: E402  (fluxcal.positions: multi-position calibration, seed 002)
@@ -22,7 +23,7 @@ from . import drift, kalman, timeseries  # seed 001: drift compensation, AR Kalm
 
 __version__ = _core.__version__
 
-__all__ = ["Alignment", "Calibration", "EllipsoidMoments", "Recording", "TwoStep2D", "align_to_gravity", "calibrate", "crlb", "detection_limits", "diagnose", "diagnose_cable", "direction_coverage",
+__all__ = ["Alignment", "Calibration", "EllipsoidMoments", "Recording", "TwoStep2D", "align_to_gravity", "calibrate", "calibrate_planar", "crlb", "detection_limits", "diagnose", "diagnose_cable", "direction_coverage",
            "fit_ellipsoid", "fit_vector", "read_csv", "read_recording", "refine", "twostep", "twostep_2d", "write_csv", "write_recording",
            "__version__", "cmake_dir"]
 

@@ -19,6 +19,7 @@ from .io import Recording, read_csv, read_recording, write_csv, write_recording
 from .io.formats import WRITERS
 from .io.columns import unit_name
 from .pipeline import METHODS, UNITS_WORDS, calibrate
+from .planar import plane_axes
 
 def positive_number(text: str, zero: bool = False) -> float:
     """argparse type of a magnitude (--field-norm, --noise-sigma): a positive finite number, so that the error
@@ -556,6 +557,8 @@ def cmd_calibrate(args) -> int:
     rec = read_recording(args.file, columns=args.columns, units=args.units, bad_lines=args.bad_lines,
                          decimal=args.decimal)
     raw = rec.samples()
+    if args.planar:
+        return _calibrate_planar(args, rec)
     # attitude + local field in the recording (e.g. the airborne layout): the vector fit, unless a
     # magnitude-only method is asked for
     units, field_norm = rec.field_units(), args.field_norm
@@ -617,6 +620,49 @@ def cmd_calibrate(args) -> int:
 
         print(f"wrote {before_after(raw, cal, args.plot, title=Path(args.file).name)}")
     if not cal.summary.get("identifiable", True):  # a script must not take it for a calibration to ship
+        print(f"fluxcal calibrate: {args.file}: not identifiable (exit status 3): see 'identifiable' above",
+              file=sys.stderr)
+        return 3
+    return 0
+
+
+def _calibrate_planar(args, rec: Recording) -> int:
+    """calibrate --planar: the two axes of the plane a yaw-only vehicle's sensor turns in (fluxcal.planar), the
+    third passed through; the options of the 3-D fits that have no planar meaning are refused, not ignored."""
+    from .planar import calibrate_planar, summary_lines
+
+    refused = [name for name, given in (("--reference", args.reference), ("--method", args.method != "auto"),
+                                        ("--align-accelerometer", args.align_accelerometer),
+                                        ("--outliers keep", args.outliers == "keep"), ("--plot", args.plot),
+                                        ("--serial-correlation", args.serial_correlation)) if given]
+    if refused:
+        raise ValueError(f"--planar: {', '.join(refused)} belong to the 3-D fits (the planar fit has one method, no "
+                         "reference, outlier screen, alignment or plot); leave them out")
+    field_norm = args.field_norm
+    if isinstance(field_norm, str) and field_norm not in rec.columns:
+        raise ValueError(f"--field-norm {field_norm}: with --planar, the HORIZONTAL field H (a number, or a column "
+                         "of each reading's H); the total |F| of a file or of igrf is not the field in the turning "
+                         f"plane (H = F cos(inclination)); the recording's columns: {', '.join(rec.columns)}")
+    axes = None if args.planar == "auto" else args.planar
+    try:
+        cal = calibrate_planar(rec, field_norm=field_norm, axes=axes, shape=args.shape)
+    except ValueError as exc:
+        raise ValueError(f"{args.file}: {exc}") from None
+    if args.field_units:
+        cal.field_units = unit_name(args.field_units)
+    cal.metadata.update(source=str(args.file), columns=",".join(rec.mag_names()))
+    _name_file_lines(cal, rec)
+    _print_roles(rec)
+    if args.output:
+        path = cal.save(args.output)
+    print(cal)
+    for line in summary_lines(cal):
+        print(line)
+    for w in cal.summary["warnings"]:
+        print(f"warning: {w}")
+    if args.output:
+        print(f"wrote {path}")
+    if not cal.summary.get("identifiable", True):
         print(f"fluxcal calibrate: {args.file}: not identifiable (exit status 3): see 'identifiable' above",
               file=sys.stderr)
         return 3
@@ -718,6 +764,9 @@ def cmd_apply(args) -> int:
     units = {**rec.units, **({k: cal.h_units for k in ("hx", "hy", "hz")} if cal.h_units else {})}
     write_output(args.output, Recording(columns=columns, units=units, source=str(args.output),
                                         metadata={**rec.metadata, "calibration": args.calibration}))
+    # a planar calibration's field norm is the horizontal field's: |h| and its spread are judged in its plane
+    plane = plane_axes(cal)
+    to_plane = np.eye(3) if plane is None else plane.T
     far = past_range(h)  # |h| overflows: 1e300
     if far.any():  # written as read; left out of the statistics below, which they would make inf or NaN
         rows = np.flatnonzero(far)
@@ -727,12 +776,13 @@ def cmd_apply(args) -> int:
               f"{', '.join(map(str, where[:5]))}{', …' if len(rows) > 5 else ''}: a garbled line?), left out of "
               "|h| std/mean")
     print(f"wrote {args.output}: {len(rec)} rows, corrected columns hx,hy,hz "
-          f"(|h| std/mean {100 * _spread(h[~far]):.3f} %)")
-    scale = _scale_warning(cal, h[~far], rec.field_units())
+          f"({'horizontal ' if plane is not None else ''}|h| std/mean {100 * _spread(h[~far] @ to_plane):.3f} %)")
+    scale = _scale_warning(cal, h[~far] @ to_plane, rec.field_units())
     if scale:
         print(f"warning: {scale}")
     t = rec.time()
-    misfit = _misfit_warning(cal, rec.samples(check_finite=False)[~far], h[~far], None if t is None else t[~far],
+    misfit = _misfit_warning(cal, rec.samples(check_finite=False)[~far] @ to_plane, h[~far] @ to_plane,
+                             None if t is None else t[~far],
                              args.calibration, args.file)
     if misfit:
         print(f"warning: {misfit}")
@@ -799,7 +849,7 @@ def _misfit_warning(cal: Calibration, raw: np.ndarray, h: np.ndarray, t, cal_fil
     """Why the calibration does not look like this sensor's (see MISFIT_FAR), or None; None too when the calibration
     carries no spread of its own (a multi-position result) or was fitted to each reading's own |field| (the |h| of
     these readings then follows their field, which apply does not know)."""
-    from .diagnose.core import UNORDERED, _difference_noise, estimate_noise
+    from .diagnose.core import UNORDERED, _difference_noise
 
     own = cal.summary.get("norm_std_over_mean")
     finite = np.isfinite(raw).all(axis=1) & np.isfinite(h).all(axis=1)
@@ -814,7 +864,7 @@ def _misfit_warning(cal: Calibration, raw: np.ndarray, h: np.ndarray, t, cal_fil
     # turns; each bounds the noise along the field, which is what spreads |h|: the smaller is taken
     order = slice(None) if t is None else np.argsort(np.asarray(t)[finite], kind="stable")
     m, norms = raw[order], np.linalg.norm(h[order], axis=1)
-    sigma = estimate_noise(m)
+    sigma = _difference_noise(m, 3)  # (estimate_noise's, on the plane's two columns too)
     noise = 0.0
     if sigma <= UNORDERED * np.sqrt(np.mean(np.var(m, axis=0))):
         gain = abs(float(np.linalg.det(cal.matrix))) ** (1 / 3)  # (reading units to h's)
@@ -1375,6 +1425,11 @@ def build_parser() -> argparse.ArgumentParser:
     c.add_argument("--acc-measures", choices=["specific_force", "gravity"], default="specific_force",
                    help="with --align-accelerometer: what the accelerometer reads at rest: specific_force (up, as "
                         "MEMS parts do; default) or gravity (down)")
+    c.add_argument("--planar", nargs="?", const="auto", default=None, choices=["auto", "xy", "xz", "yz"],
+                   help="a sensor that only turns about one axis (a vehicle's heading): calibrate the two axes of "
+                        "its turning plane (offset and 2×2 soft iron; found from the readings, or the sensor axes "
+                        "given, e.g. --planar xy) and pass the third through, whose offset and gain such data "
+                        "cannot show; --field-norm is then the HORIZONTAL field H (fluxcal.calibrate_planar)")
     c.add_argument("-o", "--output", help="write the calibration (JSON)")
     c.add_argument("--plot", help="write a before/after plot (PNG)")
     c.set_defaults(run=cmd_calibrate)

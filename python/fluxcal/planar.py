@@ -1,0 +1,810 @@
+"""Planar (2-D) calibration of a magnetometer that only turns about one axis: a vehicle's heading, a biaxial
+compass. `fluxcal.calibrate` refuses such readings (a 3-D ellipsoid is not identifiable from one plane of
+directions); `calibrate_planar` calibrates the two axes of the turning plane and returns a `Calibration` that
+apply, save and export-c use, with the third axis passed through.
+
+Model, in the plane's two coordinates u (the readings' components along the plane axes):
+
+    h = A (u − b),   |h_k| = H_k (the horizontal field: one value, one per reading, or unknown)
+
+A symmetric positive definite (2×2: a_xx, a_xy, a_yy) and b the hard-iron offset: five parameters, as many as an
+ellipse has, so a full turn determines them all. A symmetric A is fluxcal's convention (as the 3-D fits'): a field
+magnitude cannot see a rotation of h, so the rotation part of the soft iron stays a constant heading offset
+(the mounting's alignment), as with any compass swing.
+
+Why the full symmetric matrix and not TWOSTEP 2-D's diagonal gains (seed 000, `fluxcal.twostep_2d`): a vehicle's
+soft iron is in general rotated against the sensor axes, which couples x and y; the ellipse the readings trace is
+then rotated, and per-axis gains cannot map it to a circle — they leave |h| following twice the heading and a
+heading error of the coupling's size. On a 30°-rotated soft iron of gains 1.12/0.90 (σ 0.5 % of H, N = 2000,
+tests/python/test_planar.py) the diagonal fit leaves out a cross term of 600 of the symmetric fit's standard
+errors, keeps a 6.7 % |h| spread and 3.8° RMS heading error; the symmetric fit lands within a few standard errors
+of the truth, 0.5 % spread (the noise) and 0.29° (the noise floor σ/a_min = 0.32°). Like `fluxcal.calibrate`,
+shape "auto" (default) refines the circle (one gain), the diagonal and the symmetric matrix and keeps the lowest
+BIC, so a sensor without coupling gets no noise in a_xy.
+
+The fit: two starts — the direct ellipse fit (Halir & Flusser 1998, an ellipse whatever the noise) and the C++
+core's TWOSTEP 2-D (`twostep_2d`, which takes a field that changes from reading to reading); from the one that fits
+better (the other too when that one does not converge) Levenberg–Marquardt on the Sampson residual
+(|h| − H)·|h|/|A h| (the reading-space distance to the ellipse to first order: maximum likelihood for isotropic
+Gaussian noise, as fluxcal.refine's magnitude model); then one more solve with the targets raised by the noise's
+bias of |h| (≈ σ²‖A‖²_F/(4H): the tangential noise lengthens |h|), which fitting |h| to H would otherwise put
+into A.
+
+Which plane (N×3 readings): the readings' scatter's thinnest direction is the plane's normal. Within
+`axis_tolerance` degrees of a sensor axis (a level mounting; a soft iron coupling of a few % between the normal
+axis and the others tips the plane by as many hundredths of a radian, 5 % ≈ 3°) the other two sensor axes are
+calibrated as they are: for a rigid mounting their readings trace an exact ellipse (an affine image of the turning
+field's circle), and atan2(h_y, h_x) is the heading up to a constant. Farther from every axis (a tilted mounting)
+the calibration is made in the fitted plane, its axes e1, e2 given in the summary, with a warning: the sensor's
+own x and y then trace no circle; the heading is the angle of h in (e1, e2). `axes="xy"` forces the sensor axes.
+
+The axis along the normal is not calibrated: turning about it never changes the field's component along it, so
+its offset and gain leave no trace in the readings (the offset and the vertical field add into one constant, the
+gain scales a constant). The Calibration passes it through (its matrix row and column the unit vector, its offset
+0): h along the normal is the raw reading. summary["not_calibrated"] says so, with a warning.
+"""
+from __future__ import annotations
+
+import numpy as np
+
+from ._arrays import as_field_norms, field_norm_given, first_nonfinite, units_text
+from .calibration import Calibration
+
+AXES = "xyz"
+SHAPES = ("circle", "diag", "sym")  # as calibrate's sphere, diag, sym: one gain, per-axis gains, symmetric matrix
+SHAPE_ALIASES = {"sphere": "circle", "eye": "circle", "diagonal": "diag", "symmetric": "sym"}
+PARAMETERS = 5  # b (2) and the symmetric A (3): an ellipse's five
+# Readings needed: twice the parameters, so that the noise σ and the standard errors rest on as many spare
+# readings as parameters (fewer, and the identifiability check judges nothing).
+MIN_READINGS = 2 * PARAMETERS
+# Below half a turn the ellipse's parameters are poorly determined by any noise: on a 180° arc the worst standard
+# error is 10× a full turn's, on 120° 50×, on 90° 130×, on 60° 800× (the Fisher information of the five
+# parameters on an arc, `_arc_inflation`), and the headings outside the arc are extrapolated from the fitted
+# ellipse, not measured. A vehicle can always drive one circle: calibration needs the whole compass rose.
+MIN_ARC_DEG = 180.0
+# A parameter counts as determined when its standard error is below this fraction of its scale (the mean radius
+# for the offset, ‖A‖_F/√2 for matrix entries) — fluxcal.refine's determined_tolerance.
+DETERMINED = 0.01
+# The fit's residual σ must be small against the ellipse's radius: scatter about a point (a vehicle that did not turn,
+# a sensor noisier than 1 % of its readings) gives about 2 (2-D Gaussian scatter's distances from its centre: mean
+# 1.25σ, spread 0.65σ), while a sensor that turned gives 50 (a QMC5883L, ~2 % noise) and far more.
+MIN_RADIUS_OVER_NOISE = 3.0
+# The horizontal |h| spread after the fit above which the readings are said not to fit the planar model (twostep_2d's
+# misfit_spread): noise gives σ/H, a sensor's below 2 %.
+MISFIT_SPREAD = 0.05
+# Tilt while turning: a small tilt α about a horizontal axis moves a reading out of the plane by H·α and along its
+# radius in the plane by Z·α with the same sign pattern (δr = −(Z/H)·δn, Z the field along the normal): the radial
+# misfit follows the out-of-plane deviation. Said when that line explains at least this share of the misfit's
+# variance (and p < 1e-3); noise leaves the two uncorrelated (as twostep.COUPLING_SHARE for twice the heading).
+TILT_SHARE = 0.25
+# A horizontal field given in a field unit off the readings' radius by more than these factors: the total field
+# |F| = H / cos(inclination) instead of its horizontal H (≥ 1.3× for inclinations above 40°, i.e. most of the
+# inhabited world), while a sensor's gain and a vehicle's soft iron in a field unit stay within ~±20 %.
+TOTAL_FIELD_RATIO = 1.25
+UNITS_RATIO = 5.0  # beyond this, another unit (as every fluxcal solver's "check the units")
+NOT_CALIBRATED_WORDS = "is not calibrated"
+
+
+def calibrate_planar(samples, field_norm=None, axes=None, units: str | None = None, shape: str = "auto",
+                     min_arc: float = MIN_ARC_DEG, axis_tolerance: float = 5.0, planar_ratio: float = 0.02,
+                     max_iterations: int = 100, tolerance: float = 1e-10) -> Calibration:
+    """Calibrate the two axes of the plane a magnetometer turns in (yaw-only vehicle, biaxial compass).
+
+    samples: N×3 readings (or a fluxcal Recording, whose unit is carried), or N×2 of a biaxial sensor.
+    field_norm: the HORIZONTAL field magnitude (its component in the turning plane, e.g. IGRF's H — not the total
+    F), one value or one per reading, in the unit h should come out in; with a Recording a column name. None: the
+    scale is the fitted mean radius (geometric mean of the semi-axes, det of the plane's A = 1), as
+    fluxcal.calibrate without a field norm: the gains are then relative and h is in the readings' unit.
+    axes: which sensor axes the plane's are — "xy", "xz", "yz" (or two indices). N×3: None finds them (module
+    docstring: the thinnest direction of the readings' scatter); given, those two axes are calibrated whatever the
+    plane's tilt. N×2: which axes the two columns are (default "xy"), so that the 3×3 Calibration puts them there.
+    shape: "auto" (default: the lowest BIC of "circle", "diag", "sym", as calibrate's shape), "sym", "diag"
+    (TWOSTEP 2-D's per-axis gains) or "circle".
+    min_arc: degrees of heading the readings must cover (MIN_ARC_DEG; a ValueError below it).
+    axis_tolerance: degrees between the fitted normal and a sensor axis within which that axis is the normal.
+    planar_ratio: thinnest/widest spread above which N×3 readings are checked for 3-D coverage (calibrate's).
+
+    Returns a Calibration h = A (m − b): the plane's 2×2 A and offset embedded in 3×3, the normal axis passed through
+    (A's row and column for it the unit vector, its offset 0). For N×2 readings apply it to N×3 rows with the
+    missing axis' column zero. summary: method "planar", plane_axes, normal_axis, plane_normal, plane_tilt_deg,
+    thinnest_over_widest, arc_deg, norm_std_over_mean (of the horizontal |h|, against each reading's own H when
+    given per reading), norm_std_over_mean_raw (|u| of the raw plane readings), residual_rms (|h| − H, h's unit),
+    noise_sigma (Sampson residuals, reading units), parameter_names/parameters/standard_errors/determined (the
+    plane's, in the sensor axes' names), identifiable (all of them determined), not_calibrated, scale ("given" or
+    "relative"), shape and shapes (BIC), converged, iterations, warnings.
+
+    Raises ValueError naming the input on: too few readings, NaN/Inf, readings that hardly change, readings
+    that span three dimensions well enough for fluxcal.calibrate to determine every axis, an arc under `min_arc`,
+    and readings that trace no ellipse.
+    """
+    if units is None:
+        units = getattr(samples, "field_units", lambda: "")()
+    units = units_text(units)
+    field_norm = field_norm_given(samples, field_norm)
+    m = _readings(samples)
+    shapes = _shapes(shape)
+    for name, value, low in (("min_arc", min_arc, 0.0), ("axis_tolerance", axis_tolerance, 0.0),
+                             ("planar_ratio", planar_ratio, 0.0), ("tolerance", tolerance, 0.0)):
+        if not (isinstance(value, (int, float, np.integer, np.floating)) and np.isfinite(value) and value > low):
+            raise ValueError(f"{name}: {value!r} must be a positive number")
+    if not (isinstance(max_iterations, (int, np.integer)) and max_iterations >= 1):
+        raise ValueError(f"max_iterations: {max_iterations!r} must be a whole number ≥ 1")
+    n = len(m)
+    if n < MIN_READINGS:
+        raise ValueError(f"samples: {n} readings; a planar calibration fits {PARAMETERS} parameters (offset and a "
+                         f"2×2 matrix) and needs at least {MIN_READINGS} — log more readings while the vehicle turns "
+                         "a full circle")
+    norms = None if field_norm is None else as_field_norms(field_norm, n, "field_norm")
+    warnings: list[str] = []
+    plane = _plane(m, axes, axis_tolerance, planar_ratio, warnings)
+    u = m @ plane["basis"].T  # N×2: the readings' components along the plane's axes
+    fit = _fit(u, norms, shapes, max_iterations, tolerance)
+    names = plane["names"]
+    h = fit["h"]
+    targets = fit["targets"]
+    heading = np.arctan2(h[:, 1], h[:, 0])
+    arc, gap = _arc(heading)
+    radius = fit["radius"]
+    if arc < min_arc:
+        raise ValueError(f"samples: the readings turn through only {arc:.0f}° of the plane {names[0]}{names[1]} "
+                         f"(their largest gap in heading is {gap:.0f}°); on less than {min_arc:g}° the ellipse's "
+                         "offset and soft iron trade off against each other and the headings outside the arc are "
+                         "extrapolated — turn the vehicle (or the sensor) through at least one full circle")
+    if not radius > MIN_RADIUS_OVER_NOISE * fit["sigma"]:
+        raise ValueError(f"samples: the readings scatter about their fitted ellipse by {fit['sigma']:.3g} RMS, "
+                         f"{100 * fit['sigma'] / radius:.0f} % of its mean radius {radius:.3g}: they trace no "
+                         "ellipse — "
+                         "a vehicle that barely turned (turn a full circle), or readings disturbed far beyond a "
+                         "sensor's noise (a magnet or motor near the sensor, a tumbled or shaken sensor)")
+    q = np.linalg.norm(h, axis=1) / targets
+    raw = np.linalg.norm(u, axis=1)
+    summary = {
+        "method": "planar",
+        "samples": n,
+        "plane_axes": list(names),
+        "biaxial": plane["biaxial"],
+        "normal_axis": plane["normal_name"],
+        "plane_basis": plane["embed"].tolist(),
+        "plane_normal": plane["normal"].tolist(),
+        "plane_tilt_deg": plane["tilt"],
+        "thinnest_over_widest": plane["ratio"],
+        "arc_deg": arc,
+        "largest_heading_gap_deg": gap,
+        "norm_std_over_mean": float(q.std() / q.mean()),
+        "norm_std_over_mean_raw": float(raw.std() / raw.mean()),
+        "residual_rms": float(np.sqrt(np.mean((np.linalg.norm(h, axis=1) - targets) ** 2))),
+        "noise_sigma": fit["sigma"],
+        "shape": fit["shape"],
+        "shapes": fit["table"],
+        "start": fit["start"],
+        "parameter_names": _parameter_names(fit["shape"], names),
+        "parameters": fit["parameters"].tolist(),
+        "standard_errors": fit["standard_errors"].tolist(),
+        "determined": [bool(d) for d in fit["determined"]],
+        "identifiable": bool(all(fit["determined"])) and not fit["undetermined_larger"],
+        "fisher_condition": fit["fisher_condition"],
+        "degrees_of_freedom": n - fit["k"],
+        "converged": fit["converged"],
+        "iterations": fit["iterations"],
+        "scale": "given" if norms is not None else "relative",
+    }
+    if norms is not None and np.ptp(norms) > 0:
+        summary["field_norms"] = {"count": n, "min": float(norms.min()), "max": float(norms.max())}
+    if plane["normal_name"] is not None:
+        summary["not_calibrated"] = {
+            "axis": plane["normal_name"],
+            "reason": "the vehicle turns about it: the field's component along it never changes, so its offset and "
+                      "gain leave no trace in the readings; it passes through (h = m on it)"}
+    warnings += _notes(m, summary, plane, fit, norms, units, planar_ratio)
+    summary["warnings"] = warnings
+    summary["message"] = (f"planar: {n} readings in the plane {'/'.join(names)}, shape {fit['shape']}, "
+                          f"{'converged' if fit['converged'] else 'NOT converged'} in {fit['iterations']} iterations, "
+                          f"horizontal |h| std/mean {100 * summary['norm_std_over_mean']:.3g} %, arc {arc:.0f}°")
+    offset, matrix = _embed(plane, fit["b"], fit["A"])
+    what = (f"axis {plane['normal_name']} not calibrated" if plane["normal_name"] in tuple(AXES)
+            else "its normal not calibrated")
+    return Calibration(offset=offset, matrix=matrix, field_norm=fit["field_norm"], units=units,
+                       model=f"planar {''.join(names) if len(''.join(names)) == 2 else '(fitted plane)'}, {what}",
+                       summary=summary)
+
+
+def summary_lines(cal: Calibration) -> list[str]:
+    """What `fluxcal calibrate --planar` prints after the Calibration itself (str(cal)) and before its warnings:
+    the plane, the arc, the horizontal |h| spread before/after, the noise, the standard errors and whether the
+    data determine the plane's parameters."""
+    s = cal.summary
+    u = f" {cal.units}" if cal.units else ""
+    hu = f" {cal.h_units}" if cal.h_units else ""
+    names = s["plane_axes"]
+    normal = s.get("normal_axis")
+    normal_text = ("a biaxial sensor" if s.get("biaxial") else
+                   f"normal {normal}, the readings' normal {s['plane_tilt_deg']:.1f}° from it" if normal in tuple(AXES)
+                   else f"a fitted plane tilted {s['plane_tilt_deg']:.1f}° from the nearest sensor axis")
+    lines = [f"  plane                 {', '.join(names)} ({normal_text}"
+             + (f"; thinnest/widest spread {100 * s['thinnest_over_widest']:.2f} %)" if s.get("thinnest_over_widest")
+                is not None else ")"),
+             f"  samples used          {s['samples']}",
+             f"  turned through        {s['arc_deg']:.0f}° of heading "
+             f"(largest gap {s['largest_heading_gap_deg']:.0f}°)",
+             f"  horizontal |h| std/mean before   {100 * s['norm_std_over_mean_raw']:.3f} %   "
+             f"(raw |({', '.join(names)})|)",
+             f"  horizontal |h| std/mean after    {100 * s['norm_std_over_mean']:.3f} %"
+             + ("   (against each reading's own H)" if "field_norms" in s else ""),
+             f"  residual RMS          {s['residual_rms']:.6g}{hu}",
+             f"  noise σ               {s['noise_sigma']:.4g}{u}   (from the fit's residuals)",
+             f"  scale                 " + ("the horizontal field given" if s["scale"] == "given" else
+                                           f"relative: |h| = the fitted mean radius {cal.field_norm:.6g}{hu} "
+                                           "(no horizontal field given)"),
+             f"  shape                 {s['shape']}"
+             + (f" (BIC: {_bic_text(s['shapes'])})" if len(s.get("shapes", {})) > 1 else ""),
+             f"  method                planar (2-D), {'converged' if s['converged'] else 'NOT converged'} in "
+             f"{s['iterations']} iterations"]
+    offsets = [se for name, se in zip(s["parameter_names"], s["standard_errors"]) if name.startswith("b_")]
+    caveat = "" if s["identifiable"] else "   (NOT the error: the data do not determine every parameter)"
+    lines.append(f"  std error of b        {', '.join(f'{v:.3g}' for v in offsets)}{u}{caveat}")
+    lines.append(f"  identifiable          {'yes' if s['identifiable'] else 'NO'} (the plane's {len(s['parameters'])} "
+                 "parameters)")
+    if "not_calibrated" in s:
+        lines.append(f"  not calibrated        {s['not_calibrated']['axis']} (passes through: h = m on it)")
+    return lines
+
+
+def _bic_text(table: dict) -> str:
+    return ", ".join(f"{name} {row['bic']:.1f}" if "bic" in row else f"{name} failed" for name, row in table.items())
+
+
+# ---- input ------------------------------------------------------------------------------------------------------
+
+def _readings(samples) -> np.ndarray:
+    """N×2 or N×3 finite float rows; ValueError naming `samples` otherwise."""
+    if hasattr(samples, "samples") and callable(samples.samples):  # a Recording (its own NaN check names the line)
+        samples = samples.samples()
+    if np.iscomplexobj(samples):
+        raise ValueError("samples: complex numbers; readings are real (pass .real or abs() explicitly)")
+    try:
+        m = np.asarray(samples, dtype=np.float64)
+    except (TypeError, ValueError) as exc:
+        raise ValueError(f"samples: not numeric ({exc})") from None
+    if m.ndim != 2 or m.shape[1] not in (2, 3):
+        transposed = m.ndim == 2 and m.shape[0] in (2, 3) and m.shape[1] > 3
+        raise ValueError(f"samples: shape {m.shape}, expected (N, 3) readings of a three-axis sensor or (N, 2) of a "
+                         f"biaxial one, one row per reading{' (it looks transposed)' if transposed else ''}")
+    bad = first_nonfinite(m)
+    if bad is not None:
+        row, col = bad
+        raise ValueError(f"samples: row {row}, column {col} ({AXES[col]}) is "
+                         f"{'NaN' if np.isnan(m[row, col]) else 'infinite'}; remove or repair non-finite readings")
+    return np.ascontiguousarray(m)
+
+
+def _shapes(shape) -> tuple:
+    name = SHAPE_ALIASES.get(shape, shape) if isinstance(shape, str) else shape
+    if name == "auto":
+        return SHAPES
+    if name not in SHAPES:
+        raise ValueError(f"shape: {shape!r} is not one of auto, {', '.join(SHAPES)}")
+    return (name,)
+
+
+def _axes(axes) -> tuple[int, int]:
+    """Two distinct sensor-axis indices from "xy", ("x", "y"), (0, 1)…; ValueError naming `axes`."""
+    if isinstance(axes, str):
+        letters = axes.replace(",", "").replace(" ", "").lower()
+        picked = [AXES.find(c) for c in letters]
+    else:
+        try:
+            picked = [AXES.find(a.lower()) if isinstance(a, str) else int(a) for a in axes]
+        except (TypeError, ValueError):
+            picked = [-1]
+    if len(picked) != 2 or any(not 0 <= a < 3 for a in picked) or picked[0] == picked[1]:
+        raise ValueError(f"axes: {axes!r} is not two different sensor axes (\"xy\", \"xz\", \"yz\", or two indices "
+                         "0–2)")
+    return picked[0], picked[1]
+
+
+# ---- the plane ----------------------------------------------------------------------------------------------------
+
+def _plane(m: np.ndarray, axes, axis_tolerance: float, planar_ratio: float, warnings: list) -> dict:
+    """The plane to calibrate in: its 2×3 basis (rows), names, normal and tilt; for N×3 readings checked to be
+    planar (and, when they are not, that the 3-D calibration cannot do better)."""
+    if m.shape[1] == 2:  # a biaxial sensor: its two columns are the plane's axes, as they are
+        i, j = _axes("xy" if axes is None else axes)
+        embed = np.zeros((2, 3))
+        embed[0, i] = embed[1, j] = 1.0
+        return {"basis": np.eye(2), "embed": embed, "names": (AXES[i], AXES[j]), "normal": np.cross(*embed),
+                "normal_name": AXES[3 - i - j], "tilt": 0.0, "ratio": None, "biaxial": True}
+    centre = m.mean(axis=0)
+    lam, vec = np.linalg.eigh(np.cov((m - centre).T))
+    lam = np.maximum(lam, 0.0)
+    widest = float(np.sqrt(lam[2]))
+    level = float(np.linalg.norm(centre))
+    if not widest > 0.01 * level:  # as the 3-D fits' "hardly change" (quadric.hpp hardly_turned)
+        raise ValueError(f"samples: the readings hardly change (their widest spread is {100 * widest / level:.2g} % "
+                         "of their mean magnitude): the sensor did not turn — log while the vehicle turns a full "
+                         "circle")
+    ratio = float(np.sqrt(lam[0] / lam[2]))
+    normal = vec[:, 0]
+    k = int(np.argmax(np.abs(normal)))
+    normal = normal * np.sign(normal[k])
+    tilt = float(np.degrees(np.arccos(min(1.0, abs(normal[k])))))
+    if ratio > planar_ratio:
+        _refuse_if_3d(m, ratio, planar_ratio)
+    if axes is not None:
+        i, j = _axes(axes)
+        basis = np.zeros((2, 3))
+        basis[0, i] = basis[1, j] = 1.0
+        k_given = 3 - i - j
+        tilt_given = float(np.degrees(np.arccos(min(1.0, abs(normal[k_given])))))
+        if tilt_given > axis_tolerance:
+            warnings.append(f"the readings' plane is tilted {tilt_given:.1f}° from axis {AXES[k_given]} (axes "
+                            f"{AXES[i]}{AXES[j]} were asked for): axes {AXES[i]}, {AXES[j]} are calibrated as they "
+                            f"are — atan2(h_{AXES[j]}, h_{AXES[i]}) is the heading up to a constant for a rigid "
+                            f"mounting — and the horizontal field also moves axis {AXES[k_given]}, which passes "
+                            "through uncalibrated")
+        names, normal_name, tilt = (AXES[i], AXES[j]), AXES[k_given], tilt_given
+    elif tilt <= axis_tolerance:
+        i, j = [a for a in range(3) if a != k]
+        basis = np.zeros((2, 3))
+        basis[0, i] = basis[1, j] = 1.0
+        names, normal_name = (AXES[i], AXES[j]), AXES[k]
+    else:
+        # A tilted mounting: the fitted plane, e1 the in-plane direction nearest a sensor axis (the one least along
+        # the normal), e2 = n × e1, so that (e1, e2, n) is right-handed.
+        a = int(np.argmin(np.abs(normal)))
+        e1 = np.eye(3)[a] - normal * normal[a]
+        e1 /= np.linalg.norm(e1)
+        e2 = np.cross(normal, e1)
+        basis = np.vstack([e1, e2])
+        names, normal_name = ("e1", "e2"), "n"
+        warnings.append(f"the readings' plane is tilted {tilt:.1f}° from the nearest sensor axis "
+                        f"({AXES[k]}; normal {np.round(normal, 4).tolist()}): a tilted mounting. Calibrated in the "
+                        f"fitted plane, axes e1 = {np.round(e1, 4).tolist()}, e2 = {np.round(e2, 4).tolist()} "
+                        "(summary plane_basis): the heading is the angle of h in (e1, e2), not atan2(h_y, h_x); "
+                        "h along the normal passes through uncalibrated. axes='xy' (or the two axes nearest the "
+                        "plane) calibrates two sensor axes as they are instead")
+    return {"basis": basis, "names": names, "normal": normal, "normal_name": normal_name, "tilt": tilt,
+            "ratio": ratio, "embed": basis, "biaxial": False}
+
+
+def _refuse_if_3d(m: np.ndarray, ratio: float, planar_ratio: float) -> None:
+    """Readings thicker than a plane (thinnest/widest above planar_ratio, calibrate's own limit): when the 3-D
+    calibration determines every parameter from them, that is the calibration to make — a ValueError says so.
+    When it cannot (a yaw with a few degrees of roll and pitch), the planar one goes on, and a warning about the
+    readings leaving the plane follows from the fit (_notes)."""
+    from .pipeline import calibrate
+
+    try:
+        full = calibrate(m)
+    except (ValueError, RuntimeError):
+        return
+    if full.summary.get("identifiable", False) and full.summary.get("converged", True):
+        raise ValueError(f"samples: the readings are not planar (thinnest/widest spread {100 * ratio:.3g} %; a "
+                         f"yaw-only turn gives under {100 * planar_ratio:.3g} %) and the 3-D calibration determines "
+                         f"every axis from them (|h| std/mean {100 * full.summary['norm_std_over_mean']:.3g} %): use "
+                         "fluxcal.calibrate (`fluxcal calibrate FILE` without the planar option)")
+
+
+def plane_axes(cal: Calibration) -> np.ndarray | None:
+    """The 2×3 unit vectors of a planar calibration's plane in the sensor axes (h @ plane_axes(cal).T: h's plane
+    components, whose magnitude is the horizontal field the calibration is scaled to), or None for a 3-D one."""
+    if cal.summary.get("method") != "planar" or "plane_basis" not in cal.summary:
+        return None
+    return np.asarray(cal.summary["plane_basis"], dtype=float)
+
+
+def _embed(plane: dict, b: np.ndarray, A: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """The plane's offset and 2×2 matrix as the 3×3 Calibration's: A3 = P diag(A, 1) Pᵀ with P = [e1 e2 n], the
+    offset in the plane (none along the normal), so h along the normal is the raw reading's component."""
+    e = plane["embed"]
+    normal = np.cross(e[0], e[1])
+    P = np.column_stack([e[0], e[1], normal])
+    block = np.eye(3)
+    block[:2, :2] = A
+    matrix = P @ block @ P.T
+    offset = e.T @ b
+    return offset, matrix
+
+
+def _arc(heading: np.ndarray) -> tuple[float, float]:
+    """(degrees of heading covered, largest gap): 360° less the largest gap between the sorted headings."""
+    s = np.sort(np.mod(heading, 2 * np.pi))
+    gaps = np.diff(np.concatenate([s, [s[0] + 2 * np.pi]]))
+    gap = float(np.degrees(gaps.max()))
+    return 360.0 - gap, gap
+
+
+def _arc_inflation(arc_deg: float, n: int = 4000) -> np.ndarray:
+    """How much larger each of the five parameters' standard errors is on an arc than on a full turn (a circle,
+    evenly spread readings): the ratio behind MIN_ARC_DEG."""
+    def information(arc):
+        p = np.linspace(0.0, arc, n)
+        c, s = np.cos(p), np.sin(p)
+        J = np.column_stack([-c, -s, c * c, 2 * s * c, s * s])
+        return J.T @ J / n
+    return np.sqrt(np.diag(np.linalg.inv(information(np.radians(arc_deg)))) /
+                   np.diag(np.linalg.inv(information(2 * np.pi))))
+
+
+# ---- the fit ------------------------------------------------------------------------------------------------------
+
+def _basis(shape: str) -> list[np.ndarray]:
+    """The matrices A is a combination of, for each shape (A = Σ c_j B_j)."""
+    if shape == "circle":
+        return [np.eye(2)]
+    if shape == "diag":
+        return [np.diag([1.0, 0.0]), np.diag([0.0, 1.0])]
+    return [np.diag([1.0, 0.0]), np.array([[0.0, 1.0], [1.0, 0.0]]), np.diag([0.0, 1.0])]
+
+
+def _coefficients(A: np.ndarray, shape: str) -> np.ndarray:
+    """A start's matrix projected onto a shape's coefficients."""
+    if shape == "circle":
+        return np.array([np.sqrt(abs(np.linalg.det(A)))])
+    if shape == "diag":
+        return np.array([A[0, 0], A[1, 1]])
+    return np.array([A[0, 0], 0.5 * (A[0, 1] + A[1, 0]), A[1, 1]])
+
+
+def _parameter_names(shape: str, names) -> list[str]:
+    x, y = names
+    return [f"b_{x}", f"b_{y}"] + {"circle": ["a"], "diag": [f"a_{x}{x}", f"a_{y}{y}"],
+                                   "sym": [f"a_{x}{x}", f"a_{x}{y}", f"a_{y}{y}"]}[shape]
+
+
+def _direct_ellipse(x: np.ndarray):
+    """Halir & Flusser's direct least-squares ellipse fit of normalised 2-D points: (centre, E) with
+    (x − centre)ᵀ E (x − centre) = 1, or None when the points determine no ellipse (a line, a point)."""
+    D1 = np.column_stack([x[:, 0] ** 2, x[:, 0] * x[:, 1], x[:, 1] ** 2])
+    D2 = np.column_stack([x[:, 0], x[:, 1], np.ones(len(x))])
+    S1, S2, S3 = D1.T @ D1, D1.T @ D2, D2.T @ D2
+    try:
+        T = -np.linalg.solve(S3, S2.T)
+        M = S1 + S2 @ T
+        M = np.array([M[2] / 2, -M[1], M[0] / 2])  # C1⁻¹ M, C1 = [[0, 0, 2], [0, −1, 0], [2, 0, 0]]
+        values, vectors = np.linalg.eig(M)
+    except np.linalg.LinAlgError:
+        return None
+    vectors = np.real(vectors)
+    cond = 4 * vectors[0] * vectors[2] - vectors[1] ** 2
+    ok = np.flatnonzero(cond > 0)
+    if ok.size == 0:
+        return None
+    a1 = vectors[:, ok[0]]
+    a, bxy, c = a1
+    d, e, f = T @ a1
+    Q = np.array([[a, bxy / 2], [bxy / 2, c]])
+    if np.trace(Q) < 0:
+        Q, d, e, f = -Q, -d, -e, -f
+    try:
+        centre = -0.5 * np.linalg.solve(Q, [d, e])
+    except np.linalg.LinAlgError:
+        return None
+    k = centre @ Q @ centre - f
+    if not (k > 0 and np.all(np.linalg.eigvalsh(Q) > 0)):
+        return None
+    return centre, Q / k
+
+
+def _sqrtm(E: np.ndarray) -> np.ndarray:
+    w, V = np.linalg.eigh(E)
+    return (V * np.sqrt(np.maximum(w, 0.0))) @ V.T
+
+
+def _starts(u: np.ndarray, targets) -> tuple[list, float]:
+    """Start values (name, b, A) in u's units, and the reference radius R0 (the direct fit's geometric-mean
+    radius, or the readings' RMS distance from their mean)."""
+    centre = u.mean(axis=0)
+    scale = float(np.sqrt(np.mean(np.sum((u - centre) ** 2, axis=1))))
+    starts = []
+    direct = _direct_ellipse((u - centre) / scale)
+    if direct is not None:
+        c, E = direct
+        b = centre + scale * c
+        E = E / scale ** 2                                   # (u − b)ᵀ E (u − b) = 1
+        radius = float(np.linalg.det(E) ** -0.25)            # √(semi-axes' product)
+        starts.append(("direct ellipse fit", b, _sqrtm(E)))  # |A (u − b)| = 1: scaled to the targets below
+    else:
+        radius = scale
+    T = np.full(len(u), radius) if targets is None else targets
+    try:
+        from .twostep import twostep_2d
+
+        ts = twostep_2d(u, T)  # the C++ core; reading = γ ⊙ h + b
+        starts.append(("twostep_2d", ts.offset, np.diag(1.0 / ts.gain)))
+    except (ValueError, RuntimeError):
+        pass
+    return starts, radius
+
+
+def _cost(U: np.ndarray, T: np.ndarray, p: np.ndarray, basis: list) -> float:
+    """The sum of squared Sampson residuals at p (inf where A is not positive definite)."""
+    A = sum(c * B for c, B in zip(p[2:], basis))
+    if not np.all(np.linalg.eigvalsh(A) > 0):
+        return float("inf")
+    h = (U - p[:2]) @ A
+    rho = np.linalg.norm(h, axis=1)
+    r = (rho - T) * rho / np.maximum(np.linalg.norm(h @ A, axis=1), 1e-300)
+    return float(r @ r)
+
+
+def _solve(U: np.ndarray, T: np.ndarray, p: np.ndarray, basis: list, max_iterations: int, tolerance: float):
+    """Levenberg–Marquardt on the Sampson residuals of normalised readings U (targets T): (p, cost, J, r,
+    iterations, converged)."""
+    k = len(basis)
+
+    ux, uy = np.ascontiguousarray(U[:, 0]), np.ascontiguousarray(U[:, 1])
+
+    def residuals(p, jacobian=True):
+        # In components (an N×2 @ 2×2 product costs more than these few vector operations): h = A d, g = A h.
+        (a, c), (_, e) = sum(ci * B for ci, B in zip(p[2:], basis))
+        dx, dy = ux - p[0], uy - p[1]
+        hx, hy = a * dx + c * dy, c * dx + e * dy
+        gx, gy = a * hx + c * hy, c * hx + e * hy
+        rho = np.maximum(np.hypot(hx, hy), 1e-300)
+        gam = np.maximum(np.hypot(gx, gy), 1e-300)
+        r = (rho - T) * rho / gam
+        if not jacobian:
+            return r, None
+        # r = (ρ² − Tρ)/γ: ∂r = (2ρ − T)/γ · ∂ρ − (ρ² − Tρ)/γ² · ∂γ, ∂ρ = h·∂h/ρ, ∂γ = g·∂g/γ
+        w1, w2 = (2 * rho - T) / (gam * rho), (rho - T) * rho / (gam ** 3)
+
+        def column(dhx, dhy, dgx, dgy):
+            return w1 * (hx * dhx + hy * dhy) - w2 * (gx * dgx + gy * dgy)
+
+        cols = [column(-a, -c, -(a * a + c * c), -(a * c + c * e)),    # ∂h/∂b_x = −A e_x, ∂g = A ∂h
+                column(-c, -e, -(a * c + c * e), -(c * c + e * e))]
+        for (p_, q_), (_, s_) in basis:                                 # ∂h = B d, ∂g = B h + A ∂h
+            dhx, dhy = p_ * dx + q_ * dy, q_ * dx + s_ * dy
+            cols.append(column(dhx, dhy, p_ * hx + q_ * hy + a * dhx + c * dhy, q_ * hx + s_ * hy + c * dhx + e * dhy))
+        return r, np.column_stack(cols)
+
+    def positive(p):
+        return np.all(np.linalg.eigvalsh(sum(c * B for c, B in zip(p[2:], basis))) > 0)
+
+    r, J = residuals(p)
+    cost = float(r @ r)
+    lam, converged, iterations = 1e-3, False, 0
+    for iterations in range(1, max_iterations + 1):
+        F, g = J.T @ J, J.T @ r
+        D = np.diag(np.maximum(np.diag(F), 1e-300))
+        step = None
+        while lam < 1e16:
+            try:
+                delta = np.linalg.solve(F + lam * D, -g)
+            except np.linalg.LinAlgError:
+                lam *= 10
+                continue
+            trial = p + delta
+            if positive(trial):
+                rt, _ = residuals(trial, jacobian=False)
+                ct = float(rt @ rt)
+                if ct <= cost:
+                    step = delta
+                    break
+            lam *= 4
+        if step is None:
+            # No step lowers the cost: at its minimum to rounding when the Gauss–Newton step's predicted decrease
+            # ½ gᵀF⁻¹g is below the cost's rounding (a sum of N squares).
+            try:
+                predicted = 0.5 * float(-g @ np.linalg.lstsq(F, -g, rcond=None)[0])
+            except np.linalg.LinAlgError:
+                predicted = np.inf
+            converged = predicted <= max(cost, 1e-300) * len(U) * np.finfo(float).eps
+            break
+        small = np.max(np.abs(step)) <= tolerance * max(1.0, np.max(np.abs(p)))
+        settled = cost - ct <= 1e-15 * cost
+        p, cost = trial, ct
+        r, J = residuals(p)
+        lam = max(lam / 3, 1e-12)
+        if small or settled:
+            converged = True
+            break
+    return p, cost, J, r, iterations, converged
+
+
+def _fit(u: np.ndarray, norms, shapes: tuple, max_iterations: int, tolerance: float) -> dict:
+    """The planar fit in each shape (from each start), the BIC choice, and its statistics in u's units."""
+    n = len(u)
+    starts, radius = _starts(u, norms)
+    if not starts:
+        raise ValueError("samples: the readings in the plane trace no ellipse (the direct ellipse fit and TWOSTEP 2-D "
+                         "both fail: points on a line, or at a few places): turn the vehicle through a full circle")
+    targets = np.full(n, radius) if norms is None else norms
+    centre = u.mean(axis=0)
+    scale = float(np.sqrt(np.mean(np.sum((u - centre) ** 2, axis=1))))
+    tscale = float(np.mean(targets))
+    U, Tn = (u - centre) / scale, targets / tscale
+    fits, table = {}, {}
+    for shape in shapes:
+        basis = _basis(shape)
+        # Each start scaled to the targets (its mean |A (u − b)| to their mean), then refined from the one that fits
+        # best to begin with; the other only when that refinement does not converge (each solve passes over all
+        # readings a few dozen times: at 10⁵ readings the second start doubled the time for the same answer).
+        candidates = []
+        for name, b0, A0 in starts:
+            h = ((u - b0) / scale) @ A0
+            An = A0 * np.mean(Tn) / np.mean(np.linalg.norm(h, axis=1))
+            p0 = np.concatenate([(b0 - centre) / scale, _coefficients(An, shape)])
+            candidates.append((_cost(U, Tn, p0, basis), name, p0))
+        best = None
+        for _, name, p0 in sorted(candidates, key=lambda c: c[0] if np.isfinite(c[0]) else np.inf):
+            try:
+                result = _solve(U, Tn, p0, basis, max_iterations, tolerance)
+            except np.linalg.LinAlgError:
+                continue
+            if np.all(np.isfinite(result[0])) and (best is None or result[1] < best[1][1]):
+                best = (name, result)
+            if best is not None and best[1][5]:
+                break
+        if best is None:
+            table[shape] = {"error": "did not converge from any start"}
+            continue
+        name, (p, cost, J, r, iterations, converged) = best
+        k = len(basis) + 2
+        # Noise bias: the tangential noise lengthens |h| by ≈ σ_t²/(2H), σ_t² = σ²‖A‖_F²/2; fitting |h| to H would
+        # shrink A by it. One more solve with the targets raised by that much.
+        sigma2 = cost / max(n - k, 1)
+        A = sum(c * B for c, B in zip(p[2:], basis))
+        raised = Tn + sigma2 * float(np.sum(A * A)) / (4 * Tn)
+        p, cost2, J, r, more, converged = _solve(U, raised, p, basis, max_iterations, tolerance)
+        fits[shape] = dict(p=p, cost=cost2, J=J, iterations=iterations + more, converged=converged, start=name, k=k,
+                           basis=basis)
+        rss = cost2 * scale ** 2
+        table[shape] = {"parameters": k, "rss": float(rss), "bic": float(n * np.log(max(rss, 1e-300) / n) +
+                                                                          k * np.log(n))}
+    if not fits:
+        raise ValueError("samples: the planar fit did not converge in any shape ("
+                         + "; ".join(f"{k}: {v['error']}" for k, v in table.items())
+                         + "): check the readings for outliers, and that the vehicle turned a full circle")
+    stats = {shape: _statistics(f, u, norms, targets, radius, centre, scale, tscale) for shape, f in fits.items()}
+    for shape, st in stats.items():
+        table[shape]["identifiable"] = bool(all(st["determined"]))
+    chosen = min(fits, key=lambda s: table[s]["bic"])
+    result = stats[chosen]
+    result.update(shape=chosen, table=table, start=fits[chosen]["start"], converged=bool(fits[chosen]["converged"]),
+                  iterations=int(fits[chosen]["iterations"]), k=fits[chosen]["k"])
+    # As calibrate's shape "auto": a smaller shape that wins while the data cannot determine the larger one holds
+    # only if the terms it leaves out are zero, which these data cannot test.
+    larger = SHAPES[SHAPES.index(chosen) + 1:]
+    result["undetermined_larger"] = [s for s in larger if s in table and not table[s].get("identifiable", False)]
+    return result
+
+
+def _statistics(f: dict, u: np.ndarray, norms, targets: np.ndarray, radius: float, centre: np.ndarray, scale: float,
+                tscale: float) -> dict:
+    """One shape's result in u's units: b, A, |h| scale, the covariance σ̂²(JᵀJ)⁻¹ and which parameters it
+    determines."""
+    n = len(u)
+    basis, p, k = f["basis"], f["p"], f["k"]
+    sigma2 = f["cost"] / max(n - k, 1)
+    # Covariance through the scaled eigen-decomposition (near-null directions: huge, not a failed factorisation).
+    F = f["J"].T @ f["J"]
+    dscale = 1.0 / np.sqrt(np.maximum(np.diag(F), 1e-300))
+    lam, vec = np.linalg.eigh(dscale[:, None] * F * dscale[None, :])
+    fisher_condition = float(lam[-1] / lam[0]) if lam[0] > 0 else float("inf")
+    inv = 1.0 / np.maximum(lam, lam[-1] * 1e-300)
+    cov_n = sigma2 * (dscale[:, None] * (vec * inv) @ vec.T * dscale[None, :])
+    # back to u's units: b = centre + scale·b_n, A = A_n·tscale/scale
+    to = np.concatenate([[scale, scale], np.full(k - 2, tscale / scale)])
+    values = np.concatenate([centre + scale * p[:2], p[2:] * tscale / scale])
+    cov = cov_n * np.outer(to, to)
+    b = values[:2]
+    A = sum(c * B for c, B in zip(values[2:], basis))
+    field_norm = float(np.mean(targets))
+    if norms is None:
+        # Relative scale (calibrate's convention without a field norm): det A = 1, |h| = the fitted mean radius.
+        # The map c → c/√det A(c) carries the covariance by its Jacobian (the delta method).
+        def normalised(c):
+            return c / np.sqrt(np.linalg.det(sum(ci * B for ci, B in zip(c, basis))))
+        c = values[2:]
+        G = np.eye(k)
+        eps = 1e-7 * max(1.0, float(np.max(np.abs(c))))
+        for j in range(k - 2):
+            step = np.zeros(k - 2)
+            step[j] = eps
+            G[2:, 2 + j] = (normalised(c + step) - normalised(c - step)) / (2 * eps)
+        s = float(np.sqrt(np.linalg.det(A)))
+        values = np.concatenate([b, normalised(c)])
+        cov = G @ cov @ G.T
+        A = A / s
+        field_norm = radius / s
+        targets = np.full(n, field_norm)
+    se = np.sqrt(np.maximum(np.diag(cov), 0.0))
+    h = (u - b) @ A
+    mean_radius = float(np.mean(np.linalg.norm(u - b, axis=1)))
+    rho = np.linalg.norm(h, axis=1)
+    residuals = (rho - targets) * rho / np.maximum(np.linalg.norm(h @ A, axis=1), 1e-300)  # Sampson, reading units
+    scales = np.concatenate([[mean_radius, mean_radius], np.full(k - 2, np.linalg.norm(A) / np.sqrt(2))])
+    return {"b": b, "A": A, "h": h, "targets": targets, "field_norm": field_norm, "radius": mean_radius,
+            "sigma": float(np.sqrt(sigma2) * scale), "parameters": values, "standard_errors": se,
+            "determined": se < DETERMINED * scales, "fisher_condition": fisher_condition, "covariance": cov,
+            "residuals": residuals}
+
+
+# ---- what the summary says ---------------------------------------------------------------------------------------
+
+def _notes(m: np.ndarray, summary: dict, plane: dict, fit: dict, norms, units: str, planar_ratio: float) -> list[str]:
+    from .io.columns import FIELD_UNITS
+
+    notes = []
+    if plane["normal_name"] is not None:
+        axis = plane["normal_name"]
+        what = f"axis {axis}" if axis in tuple(AXES) else "the plane's normal"
+        notes.append(f"{what} {NOT_CALIBRATED_WORDS}: the vehicle turns about it, so the field's component along it "
+                     "never changes and its offset and gain leave no trace in the readings; it passes through "
+                     "(h = m along it). Tumble the sensor (fluxcal calibrate without the planar option) for a 3-D "
+                     "calibration")
+    if not summary["converged"]:
+        notes.append(f"the planar fit did not converge in {summary['iterations']} iterations: the result is the last "
+                     "iterate — check the readings for outliers and that the vehicle turned a full circle")
+    if fit["undetermined_larger"] and all(fit["determined"]):
+        summary["identifiable_if"] = fit["shape"]
+        notes.append(f"not identifiable without an assumption: the data do not determine shape "
+                     f"{' or '.join(fit['undetermined_larger'])}, so shape {fit['shape']!r} won by fit alone, and its "
+                     f"answer holds only if the sensor has none of the terms it leaves out — which these data cannot "
+                     "test; turn through a full circle, evenly")
+    elif not summary["identifiable"]:
+        bad = [nm for nm, d in zip(summary["parameter_names"], summary["determined"]) if not d]
+        notes.append(f"not identifiable: the data do not determine {', '.join(bad)} (standard error above "
+                     f"{100 * DETERMINED:g} % of its scale); turn through more of the circle, more evenly, or log "
+                     "more readings")
+    if plane.get("ratio") is not None:
+        thickness = _out_of_plane(m, plane, fit, planar_ratio)
+        if thickness:
+            notes.append(thickness)
+    if summary["norm_std_over_mean"] > MISFIT_SPREAD:
+        notes.append(f"the readings do not fit the planar model: the horizontal |h| scatters by "
+                     f"{100 * summary['norm_std_over_mean']:.3g} % after the fit (more than {100 * MISFIT_SPREAD:g} %, "
+                     "far beyond a sensor's noise): a tilt while turning, a disturbance (a magnet, a motor, a current "
+                     "near the sensor), or a horizontal field that changes — fluxcal diagnose looks for the cause")
+    if norms is not None and units in set(FIELD_UNITS.values()) - {"counts"}:
+        ratio = float(np.mean(norms)) / _semi_axes_mean(fit)
+        if ratio > UNITS_RATIO or ratio < 1 / UNITS_RATIO:
+            notes.append(f"field_norm {np.mean(norms):.4g} is {ratio:.3g} times the radius of the readings' ellipse "
+                         f"({_semi_axes_mean(fit):.4g} {units}): field_norm is probably in another unit than the "
+                         "readings — check the units")
+        elif ratio > TOTAL_FIELD_RATIO:
+            notes.append(f"field_norm {np.mean(norms):.4g} is {ratio:.3g} times the radius of the readings' ellipse "
+                         f"({_semi_axes_mean(fit):.4g} {units}): is it the total field? The planar calibration needs "
+                         "the horizontal component H = F·cos(inclination) (IGRF/WMM give H)")
+    return notes
+
+
+def _semi_axes_mean(fit: dict) -> float:
+    """The readings' ellipse's geometric-mean radius, reading units: |h| / det(A)^(1/2) for the fitted A."""
+    return float(np.mean(fit["targets"]) / np.sqrt(abs(np.linalg.det(fit["A"]))))
+
+
+def _out_of_plane(m: np.ndarray, plane: dict, fit: dict, planar_ratio: float) -> str | None:
+    """A warning when N×3 readings leave the turning plane: thicker than calibrate's planar limit (and the 3-D fit
+    could not determine them, or _refuse_if_3d would have refused), or a radial misfit that follows the
+    out-of-plane deviation (TILT_SHARE): the sensor tilts while it turns."""
+    from scipy import stats
+
+    n = len(m)
+    normal = plane["normal"]
+    dn = (m - m.mean(axis=0)) @ normal                       # out of the plane, reading units
+    e = fit["residuals"]                                     # radial misfit in the plane, reading units
+    X = np.column_stack([np.ones(n), dn])
+    beta, *_ = np.linalg.lstsq(X, e, rcond=None)
+    rss1, rss0 = float(np.sum((e - X @ beta) ** 2)), float(np.sum((e - e.mean()) ** 2))
+    share = 1.0 - rss1 / rss0 if rss0 > 0 else 0.0
+    p = float(stats.f.sf((rss0 - rss1) / (rss1 / (n - 2)), 1, n - 2)) if rss1 > 0 else 0.0
+    tilted = p < 1e-3 and share >= TILT_SHARE
+    thick = plane["ratio"] > planar_ratio
+    if not (tilted or thick):
+        return None
+    spread = float(dn.std())
+    tilt = float(np.degrees(spread / fit["radius"]))         # δn = H·α: about the tilt's RMS about one axis
+    why = []
+    if thick:
+        why.append(f"thinnest/widest spread {100 * plane['ratio']:.3g} %, above the {100 * planar_ratio:g} % of a "
+                   "turn about one axis, and too little for a 3-D calibration to determine every axis")
+    if tilted:
+        why.append(f"the radial misfit follows the deviation from the plane ({100 * share:.0f} % of its variance, "
+                   f"slope {beta[1]:.2g}: the field along the normal over the horizontal one, as a tilt makes it)")
+    return (f"the readings leave the turning plane by {spread:.3g} RMS ({'; '.join(why)}): the sensor tilts while "
+            f"it turns (roll, pitch: about {tilt:.2g}° RMS) — through a tilt the field along the normal moves the "
+            "plane's axes, which the planar calibration cannot remove, and the headings carry it. Level the sensor "
+            "(a gimbal; an accelerometer's tilt compensation), calibrate from the level stretches, or tumble it for a "
+            "3-D calibration")
