@@ -318,6 +318,13 @@ void finish_statistics(RefineResult& out, const Eigen::MatrixXd& F, double sigma
                       : "for outliers or a disturbance (a magnet, a motor or a current near the sensor while it "
                         "turned: fluxcal diagnose looks for the cause)") +
         ", and that the start is in the readings' units");
+  else if (misfit > kMisfitFraction)  // determined, yet not by a model that fits: the answer may be biased
+    out.summary.warnings.push_back(
+        "the residuals are " + percent(misfit) + " of the field, far above a sensor's noise: the readings do not "
+        "fit the model, and the calibration may be biased by what it misses beyond its standard errors — check " +
+        (vector_model ? "the reference vectors' attitude convention and time alignment, outliers or a disturbance"
+                      : "for outliers, a disturbance or an offset that moved within the log (a magnet, a motor or "
+                        "a current near the sensor; two sessions in one file: fluxcal diagnose looks for the cause)"));
   else if (!out.identifiable)
     out.summary.warnings.push_back(
         "not identifiable: the data do not determine " + undetermined.str() +

@@ -18,7 +18,7 @@ from .calibration import TESLA_PER_UNIT, Calibration, _significant
 from .io import Recording, read_csv, read_recording, write_csv, write_recording
 from .io.formats import WRITERS
 from .io.columns import unit_name
-from .pipeline import METHODS, UNITS_WORDS, calibrate
+from .pipeline import METHODS, PLAUSIBLE_WORDS, UNITS_WORDS, calibrate, plausible_field
 from .planar import plane_axes
 
 def positive_number(text: str, zero: bool = False) -> float:
@@ -116,7 +116,7 @@ def _report(cal: Calibration, raw: np.ndarray, out=None, t=None) -> None:
         why = ("   (judged on the Fisher information of independent readings; the std errors above are widened for "
                "readings correlated in time)" if widened else "")
         print(f"  identifiable          {'yes' if s['identifiable'] else 'NO'}{why}", file=out)
-    for w in s["warnings"] + [w for w in [_plausible_field(cal)] if w]:
+    for w in s["warnings"]:
         print(f"warning: {w}", file=out)
 
 
@@ -150,13 +150,10 @@ def _noise_from_differences(raw: np.ndarray, t, residual: float, unit: str) -> s
     fit's residual σ: the two differ by what the model misses. None for rows that are not a time series
     (consecutive readings differ about as much as any two, e.g. `fluxcal simulate`'s independent orientations):
     their differences measure the turning, not the noise."""
-    from .diagnose.core import UNORDERED, estimate_noise
+    from .diagnose.core import time_series_noise
 
-    m = raw if t is None else raw[np.argsort(t, kind="stable")]
-    if len(m) < 20:
-        return None
-    sigma = estimate_noise(m)
-    if not (sigma > 0 and sigma <= UNORDERED * np.sqrt(np.mean(np.var(m, axis=0)))):
+    sigma = time_series_noise(raw if t is None else raw[np.argsort(t, kind="stable")])
+    if sigma is None:
         return None
     ratio = residual / sigma
     times = f"{ratio:.2f}×" if ratio < 10 else f"{ratio:.0f}×"
@@ -167,11 +164,6 @@ def _noise_from_differences(raw: np.ndarray, t, residual: float, unit: str) -> s
             f"the residual σ is {times} it")
     return (f"  noise σ, differences  {sigma:.4g}{unit}   (third differences of the readings in time order, as "
             f"diagnose estimates it; {what})")
-
-
-# the Earth's field at the surface (WMM/IGRF: about 22 µT at the equator's anomaly to 67 µT at the poles),
-# with room for a building's or a vehicle's disturbance
-EARTH_FIELD_UT = (15.0, 100.0)
 
 
 def reading_unit(text: str) -> str:
@@ -208,18 +200,6 @@ def _field_units(args, units: str, field_norm, reference) -> str | None:
     print(f"note: the readings are in {units or 'no stated unit'}; |h| = {np.mean(field_norm):g} is in the unit of "
           "--field-norm, which --field-units names (the calibration then says it)")
     return ""
-
-
-def _plausible_field(cal: Calibration) -> str | None:
-    """A warning when |h|, in a field unit, is far from any field on the Earth's surface: a unit mix-up
-    (readings in µT labelled nT) more often than a lab coil."""
-    if cal.h_units not in TESLA_PER_UNIT:
-        return None
-    ut = cal.field_norm * TESLA_PER_UNIT[cal.h_units] / 1e-6
-    if EARTH_FIELD_UT[0] <= ut <= EARTH_FIELD_UT[1]:
-        return None
-    return (f"|h| = {cal.field_norm:.6g} {cal.h_units} = {ut:.4g} µT, far from the Earth's field (22–67 µT): are the "
-            f"readings really in {cal.h_units}? (--units states the readings' unit; fine for a coil's field)")
 
 
 def _held_out_rms(raw, reference, units, cal: Calibration, outliers=()) -> tuple:
@@ -593,6 +573,9 @@ def cmd_calibrate(args) -> int:
         cal.field_units = reference_units
     if args.field_units and field_norm is not None and unit_name(args.field_units) != units:
         _recheck_field_norm(cal, units, unit_name(args.field_units))
+    said = plausible_field(cal)  # judged again in h's unit as the options set it (--field-units, a reference's)
+    cal.summary["warnings"] = [w for w in cal.summary["warnings"] if not w.startswith(PLAUSIBLE_WORDS)] + (
+        [said] if said else [])
     cal.metadata.update(source=str(args.file), columns=",".join(rec.mag_names()))
     _name_file_lines(cal, rec)
     held_out = None
@@ -849,7 +832,7 @@ def _misfit_warning(cal: Calibration, raw: np.ndarray, h: np.ndarray, t, cal_fil
     """Why the calibration does not look like this sensor's (see MISFIT_FAR), or None; None too when the calibration
     carries no spread of its own (a multi-position result) or was fitted to each reading's own |field| (the |h| of
     these readings then follows their field, which apply does not know)."""
-    from .diagnose.core import UNORDERED, _difference_noise
+    from .diagnose.core import _difference_noise, time_series_noise
 
     own = cal.summary.get("norm_std_over_mean")
     finite = np.isfinite(raw).all(axis=1) & np.isfinite(h).all(axis=1)
@@ -864,9 +847,9 @@ def _misfit_warning(cal: Calibration, raw: np.ndarray, h: np.ndarray, t, cal_fil
     # turns; each bounds the noise along the field, which is what spreads |h|: the smaller is taken
     order = slice(None) if t is None else np.argsort(np.asarray(t)[finite], kind="stable")
     m, norms = raw[order], np.linalg.norm(h[order], axis=1)
-    sigma = _difference_noise(m, 3)  # (estimate_noise's, on the plane's two columns too)
+    sigma = time_series_noise(m)  # (on the plane's two columns too)
     noise = 0.0
-    if sigma <= UNORDERED * np.sqrt(np.mean(np.var(m, axis=0))):
+    if sigma is not None:
         gain = abs(float(np.linalg.det(cal.matrix))) ** (1 / 3)  # (reading units to h's)
         noise = min(sigma * gain, _difference_noise(norms, 3)) / float(np.median(norms))
     expected = float(np.hypot(own, noise))

@@ -9,7 +9,7 @@ import numpy as np
 
 from . import _core
 from ._arrays import as_samples, held_copies
-from .calibration import Calibration
+from .calibration import TESLA_PER_UNIT, Calibration
 from .ellipsoid import fit_ellipsoid
 from .outliers import find_outliers
 from ._arrays import as_field_norms, changing_field, field_norm_given
@@ -164,7 +164,59 @@ def calibrate(samples, method: str = "auto", field_norm: float | None = None, re
     if left_out is not None:
         cal.summary["outliers"] = left_out.to_dict()
         cal.summary["warnings"] = list(cal.summary["warnings"]) + left_out.messages(len(all_readings))
+    said = [plausible_field(cal)] + ([] if vector else [misses_the_noise(cal, all_readings, getattr(samples, "time",
+                                                                                                    None))])
+    cal.summary["warnings"] = list(cal.summary["warnings"]) + [w for w in said if w]
     return _note_copies(cal, all_readings)
+
+
+# the Earth's field at the surface (WMM/IGRF: about 22 µT at the equator's anomaly to 67 µT at the poles),
+# with room for a building's or a vehicle's disturbance
+EARTH_FIELD_UT = (15.0, 100.0)
+PLAUSIBLE_WORDS = "|h| = "  # how plausible_field's warning starts (the CLI judges it again in its final unit)
+
+
+def plausible_field(cal: Calibration) -> str | None:
+    """A warning when |h|, in a field unit, is far from any field on the Earth's surface: a unit mix-up
+    (readings in mG labelled µT: |h| 500 "µT", offsets 10× too large) more often than a lab coil."""
+    if cal.h_units not in TESLA_PER_UNIT:
+        return None
+    ut = cal.field_norm * TESLA_PER_UNIT[cal.h_units] / 1e-6
+    if EARTH_FIELD_UT[0] <= ut <= EARTH_FIELD_UT[1]:
+        return None
+    return (f"{PLAUSIBLE_WORDS}{cal.field_norm:.6g} {cal.h_units} = {ut:.4g} µT, far from the Earth's field (22–67 µT): "
+            f"are the readings really in {cal.h_units}? (state their unit: a header 'mx [mG]', units=, --units; fine "
+            "for a coil's field)")
+
+
+# The fit's residual σ over the readings' own noise (third differences in time order) above which the fit is said
+# to miss something: a right model leaves about 1 (simulations; the QMC5883L recording 1.3×, the phone's 1.8× with
+# its small unmodelled nonlinearity), while a log of two sessions whose offset moved by 5–20 % of the field between
+# them left 5–19× and a calibration 2–10 % of the field off, with only the serial correlation said (a blind check),
+# and the handheld recording's closing disturbance leaves 3.6×.
+MISSES_NOISE = 3.0
+
+
+def misses_the_noise(cal: Calibration, m: np.ndarray, time=None) -> str | None:
+    """A warning when the magnitude fit's residual σ (summary["noise_sigma"], the readings' unit) is more than
+    MISSES_NOISE times the readings' own white noise: what the model misses can bias the calibration beyond its
+    standard errors. `time`: the Recording's time() (rows ordered by it), else row order; None for rows that are
+    no time series (diagnose.core.time_series_noise)."""
+    from .diagnose.core import time_series_noise
+
+    residual = cal.summary.get("noise_sigma")
+    t = time() if callable(time) else None
+    order = slice(None) if t is None or len(t) != len(m) else np.argsort(np.asarray(t, dtype=float), kind="stable")
+    sigma = time_series_noise(m[order])
+    if not residual or sigma is None or not residual > MISSES_NOISE * sigma:
+        return None
+    unit = f" {cal.units}" if cal.units else ""
+    cal.summary["readings_noise_sigma"] = sigma
+    return (f"the fit's residual σ {residual:.4g}{unit} is {residual / sigma:.3g}× the readings' own noise "
+            f"{sigma:.4g}{unit} (third differences in time order): the model misses something larger than the noise, "
+            "which can bias the calibration beyond its standard errors — a disturbance (a magnet, a motor, a "
+            "current near the sensor), an offset that moved within the log (two sessions in one file, a battery or "
+            "board moved: calibrate each apart), or a |field| that changed; fluxcal diagnose names what")
 
 
 def _magnitude_start(m: np.ndarray, field_norm, field_norms, units, start_settings: dict) -> Calibration:

@@ -268,6 +268,23 @@ def estimate_noise(samples) -> float:
     return _difference_noise(m, 3)
 
 
+def time_series_noise(values, steady: bool = False) -> float | None:
+    """The white-noise σ of readings (rows in time order, any number of columns) from third differences when that
+    is a yardstick, else None: not when consecutive readings differ about as much as any two (UNORDERED: rows in
+    independent orientations or out of time order, whose differences measure the turning), nor with fewer than 20
+    rows or a σ of 0 (readings coarser than their noise). `steady`: also not when the 4th-order estimate departs
+    from the 3rd (MOTION_DROP: the differences hold motion, and over-estimate the noise)."""
+    x = np.asarray(values, dtype=float).reshape(len(values), -1)
+    if len(x) < 20:
+        return None
+    sigma = _difference_noise(x, 3)
+    if not (sigma > 0 and sigma <= UNORDERED * np.sqrt(np.mean(np.var(x, axis=0)))):
+        return None
+    if steady and abs(_difference_noise(x, 4) - sigma) > (1 - MOTION_DROP) * sigma:
+        return None
+    return sigma
+
+
 def _difference_noise(values: np.ndarray, order: int) -> float:
     """σ from the MAD of `order`-th differences along the rows (variance C(2k, k)σ² for white noise),
     per column, then RMS over the columns."""
