@@ -44,6 +44,11 @@ GLITCH_RUN = 3   # a glitch lasts a sample or a short burst; a longer stretch of
 NOISE_FACTOR = 2.0  # a fit whose distances scatter less than this × the white noise explains the readings
 SCORED = 400     # readings the subset fits are scored on (the median needs no more to rank them)
 VECTOR_MODEL = "the reference-vector model"
+# A reading whose |h| is off the ellipsoid's by more than this share of the field is no disturbance a calibration
+# absorbs, in a stretch or alone: left out. A burst of 20 garbage readings at 2–5× the field (an I²C hiccup of
+# 0.4 s) was kept as a "stretch" and the fit then failed; a slow drift or a passing magnet keeps its readings
+# within it, and a calibration's residuals are a few % of the field.
+GROSS = 0.5
 # Readings off the model, not 0,0,0 or at a rail, beyond this share are said to be more than glitches: a bus's
 # glitches are rare (the real recordings: 0 to 2 in 22745), while a log of two sessions whose offset moved by 20 % of
 # the field, in no time order, had 9 % "left out" and the rest fitted 4 % of the field off the truth.
@@ -80,9 +85,11 @@ class Outliers:
             kinds = "".join(f"; {k} {what}" for what, k in (
                 ("read exactly 0,0,0 (glitches)", self.kinds.get("zero", 0)),
                 ("sit at a column's extreme value, repeated (ADC rail)", self.kinds.get("rail", 0)),
-                ("lie past any sensor's range (their squares overflow)", self.kinds.get("overflow", 0))) if k)
+                ("lie past any sensor's range (their squares overflow)", self.kinds.get("overflow", 0)),
+                (f"are off |h| by more than {GROSS:.0%} of the field (garbage, or a magnet at the sensor: no "
+                 "calibration absorbs them, in a stretch or alone)", self.kinds.get("gross", 0))) if k)
             largest = f" (up to {self.largest:.3g})" if self.largest > 0 else ""  # (none but readings past range)
-            plain = len(self.rows) - sum(self.kinds.get(k, 0) for k in ("zero", "rail", "overflow"))
+            plain = len(self.rows) - sum(self.kinds.get(k, 0) for k in ("zero", "rail", "overflow", "gross"))
             many = (f"; {100 * plain / n:.1f} % of the readings are rarely glitches: a second group of readings (an "
                     "offset that moved within the log, two sessions in one file) or a disturbance would look so, "
                     "and the fit of the rest may be biased by it — fluxcal diagnose looks for the cause"
@@ -269,12 +276,17 @@ def find_outliers(samples, reference=None, alpha: float = 0.01, seed: int = 0, f
                      "the ellipsoid" if field_norms is None else "the ellipsoid (each against its own |field|)")
 
 
-def _verdicts(m: np.ndarray, z: np.ndarray, threshold: float, sigma: float, model: str = "the ellipsoid") -> Outliers:
+def _verdicts(m: np.ndarray, z: np.ndarray, threshold: float, sigma: float, model: str = "the ellipsoid",
+              gross: float | None = GROSS) -> Outliers:
     """From each reading's distance off the model (`z`, robust σ) to the rows left out: flagged readings that
-    cannot be real (0,0,0, at a rail) or lie in a run of at most GLITCH_RUN; longer runs are kept as stretches."""
+    cannot be real (0,0,0, at a rail, or off by more than `gross` of the field: GROSS) or lie in a run of at most
+    GLITCH_RUN; longer runs are kept as stretches. `gross` None: not judged (the vector model's σ is not a share
+    of the field)."""
     flagged = z > threshold
     zero, rail = ~m.any(axis=1), _at_rail(m)
     impossible = zero | rail
+    if gross is not None:
+        impossible |= flagged & (z * sigma > gross)
     drop, stretches = flagged & impossible, []
     # A run's extent is where the distance stays above half the threshold (hysteresis): a glitch's
     # neighbours are ordinary readings, a disturbance's rise and fall above the noise too.
@@ -286,7 +298,10 @@ def _verdicts(m: np.ndarray, z: np.ndarray, threshold: float, sigma: float, mode
         elif (flagged & ~drop)[first:last + 1].any():  # not a run of 0,0,0 or rail readings, all left out
             stretches.append((int(first), int(last), float(z[first:last + 1].max())))
     rows = np.flatnonzero(drop)
+    far = impossible & ~zero & ~rail
     kinds = {"zero": int(zero[rows].sum()), "rail": int(np.sum(rail[rows] & ~zero[rows]))} if len(rows) else {}
+    if far[rows].any():
+        kinds["gross"] = int(far[rows].sum())
     return Outliers(rows, threshold, sigma, float(z[rows].max()) if len(rows) else 0.0, kinds,
                     stretches=stretches, model=model)
 
@@ -322,7 +337,7 @@ def _vector_outliers(m: np.ndarray, r: np.ndarray, alpha: float, seed: int) -> O
         z = z_new
         if not changed:
             break
-    return _verdicts(m, z, threshold, sigma, VECTOR_MODEL)
+    return _verdicts(m, z, threshold, sigma, VECTOR_MODEL, gross=None)
 
 
 def _normal_deviates(statistic: np.ndarray, dist, shapes: tuple, threshold: float) -> np.ndarray:
