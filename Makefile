@@ -23,7 +23,7 @@ test: install
 	$(PY) -m pytest -q -n 2   # two workers (pytest-xdist) on 2 cores: 9.5 min in CI (2026-11-27)
 
 bench: install
-	for b in ellipsoid twostep refine positions cable kalman; do \
+	for b in ellipsoid twostep refine positions cable kalman planar; do \
 	  $(DEV)/bench/bench_$$b --benchmark_min_time=0.5 || exit 1; done
 	$(PY) bench/ellipsoid.py
 	$(PY) bench/solvers.py

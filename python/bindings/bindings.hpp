@@ -24,5 +24,6 @@ void bind_refine(py::module_& m);     // refine.cpp (also fit_vector)
 void bind_positions(py::module_& m);  // positions.cpp (multi-position, accelerometer)
 void bind_cable(py::module_& m);      // cable.cpp
 void bind_timeseries(py::module_& m); // timeseries.cpp (also kalman, fixed_kalman, drift, foct)
+void bind_planar(py::module_& m);     // planar.cpp
 
 }  // namespace fluxcal_py

@@ -39,4 +39,5 @@ PYBIND11_MODULE(_core, m) {
   fluxcal_py::bind_positions(m);
   fluxcal_py::bind_cable(m);
   fluxcal_py::bind_timeseries(m);
+  fluxcal_py::bind_planar(m);
 }

@@ -22,13 +22,15 @@ of the truth, 0.5 % spread (the noise) and 0.29° (the noise floor σ/a_min = 0.
 shape "auto" (default) refines the circle (one gain), the diagonal and the symmetric matrix and keeps the lowest
 BIC, so a sensor without coupling gets no noise in a_xy.
 
-The fit: two starts — the direct ellipse fit (Halir & Flusser 1998, an ellipse whatever the noise) and the C++
-core's TWOSTEP 2-D (`twostep_2d`, which takes a field that changes from reading to reading); from the one that fits
-better (the other too when that one does not converge) Levenberg–Marquardt on the Sampson residual
-(|h| − H)·|h|/|A h| (the reading-space distance to the ellipse to first order: maximum likelihood for isotropic
-Gaussian noise, as fluxcal.refine's magnitude model); then one more solve with the targets raised by the noise's
-bias of |h| (≈ σ²‖A‖²_F/(4H): the tangential noise lengthens |h|), which fitting |h| to H would otherwise put
-into A.
+The fit of each shape is the C++ core's `fluxcal::fit_planar` (cpp/include/fluxcal/planar.hpp; its independent
+NumPy/SciPy reference is fluxcal.oracle.planar): two starts — the direct ellipse fit (Halir & Flusser 1998, an
+ellipse whatever the noise) and TWOSTEP 2-D (`twostep_2d`, which takes a field that changes from reading to
+reading); from the one that fits better (the other too when that one does not converge) Levenberg–Marquardt on the
+Sampson residual (|h| − H)·|h|/|A h| (the reading-space distance to the ellipse to first order: maximum likelihood
+for isotropic Gaussian noise, as fluxcal.refine's magnitude model); then one more solve with the targets raised by
+the noise's bias of |h| (≈ σ²‖A‖²_F/(4H): the tangential noise lengthens |h|), which fitting |h| to H would
+otherwise put into A; the covariance σ̂²(JᵀJ)⁻¹. This module finds the plane, chooses the shape by BIC, checks the
+arc and the ellipse, and words the warnings: they judge a vehicle's log rather than solve for a calibration.
 
 Which plane (N×3 readings): the readings' scatter's thinnest direction is the plane's normal. Within
 `axis_tolerance` degrees of a sensor axis (a level mounting; a soft iron coupling of a few % between the normal
@@ -47,6 +49,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from . import _core
 from ._arrays import as_field_norms, field_norm_given, first_nonfinite, units_text
 from .calibration import Calibration
 
@@ -427,22 +430,8 @@ def _arc_inflation(arc_deg: float, n: int = 4000) -> np.ndarray:
 
 # ---- the fit ------------------------------------------------------------------------------------------------------
 
-def _basis(shape: str) -> list[np.ndarray]:
-    """The matrices A is a combination of, for each shape (A = Σ c_j B_j)."""
-    if shape == "circle":
-        return [np.eye(2)]
-    if shape == "diag":
-        return [np.diag([1.0, 0.0]), np.diag([0.0, 1.0])]
-    return [np.diag([1.0, 0.0]), np.array([[0.0, 1.0], [1.0, 0.0]]), np.diag([0.0, 1.0])]
-
-
-def _coefficients(A: np.ndarray, shape: str) -> np.ndarray:
-    """A start's matrix projected onto a shape's coefficients."""
-    if shape == "circle":
-        return np.array([np.sqrt(abs(np.linalg.det(A)))])
-    if shape == "diag":
-        return np.array([A[0, 0], A[1, 1]])
-    return np.array([A[0, 0], 0.5 * (A[0, 1] + A[1, 0]), A[1, 1]])
+# calibrate_planar's shape names → the core's PlanarShape
+_CORE_SHAPES = {"circle": "circle", "diag": "diagonal", "sym": "symmetric"}
 
 
 def _parameter_names(shape: str, names) -> list[str]:
@@ -451,274 +440,58 @@ def _parameter_names(shape: str, names) -> list[str]:
                                    "sym": [f"a_{x}{x}", f"a_{x}{y}", f"a_{y}{y}"]}[shape]
 
 
-def _direct_ellipse(x: np.ndarray):
-    """Halir & Flusser's direct least-squares ellipse fit of normalised 2-D points: (centre, E) with
-    (x − centre)ᵀ E (x − centre) = 1, or None when the points determine no ellipse (a line, a point)."""
-    D1 = np.column_stack([x[:, 0] ** 2, x[:, 0] * x[:, 1], x[:, 1] ** 2])
-    D2 = np.column_stack([x[:, 0], x[:, 1], np.ones(len(x))])
-    S1, S2, S3 = D1.T @ D1, D1.T @ D2, D2.T @ D2
-    try:
-        T = -np.linalg.solve(S3, S2.T)
-        M = S1 + S2 @ T
-        M = np.array([M[2] / 2, -M[1], M[0] / 2])  # C1⁻¹ M, C1 = [[0, 0, 2], [0, −1, 0], [2, 0, 0]]
-        values, vectors = np.linalg.eig(M)
-    except np.linalg.LinAlgError:
-        return None
-    vectors = np.real(vectors)
-    cond = 4 * vectors[0] * vectors[2] - vectors[1] ** 2
-    ok = np.flatnonzero(cond > 0)
-    if ok.size == 0:
-        return None
-    a1 = vectors[:, ok[0]]
-    a, bxy, c = a1
-    d, e, f = T @ a1
-    Q = np.array([[a, bxy / 2], [bxy / 2, c]])
-    if np.trace(Q) < 0:
-        Q, d, e, f = -Q, -d, -e, -f
-    try:
-        centre = -0.5 * np.linalg.solve(Q, [d, e])
-    except np.linalg.LinAlgError:
-        return None
-    k = centre @ Q @ centre - f
-    if not (k > 0 and np.all(np.linalg.eigvalsh(Q) > 0)):
-        return None
-    return centre, Q / k
-
-
-def _sqrtm(E: np.ndarray) -> np.ndarray:
-    w, V = np.linalg.eigh(E)
-    return (V * np.sqrt(np.maximum(w, 0.0))) @ V.T
-
-
-def _starts(u: np.ndarray, targets) -> tuple[list, float]:
-    """Start values (name, b, A) in u's units, and the reference radius R0 (the direct fit's geometric-mean
-    radius, or the readings' RMS distance from their mean)."""
-    centre = u.mean(axis=0)
-    scale = float(np.sqrt(np.mean(np.sum((u - centre) ** 2, axis=1))))
-    starts = []
-    direct = _direct_ellipse((u - centre) / scale)
-    if direct is not None:
-        c, E = direct
-        b = centre + scale * c
-        E = E / scale ** 2                                   # (u − b)ᵀ E (u − b) = 1
-        radius = float(np.linalg.det(E) ** -0.25)            # √(semi-axes' product)
-        starts.append(("direct ellipse fit", b, _sqrtm(E)))  # |A (u − b)| = 1: scaled to the targets below
-    else:
-        radius = scale
-    T = np.full(len(u), radius) if targets is None else targets
-    try:
-        from .twostep import twostep_2d
-
-        ts = twostep_2d(u, T)  # the C++ core; reading = γ ⊙ h + b
-        starts.append(("twostep_2d", ts.offset, np.diag(1.0 / ts.gain)))
-    except (ValueError, RuntimeError):
-        pass
-    return starts, radius
-
-
-def _cost(U: np.ndarray, T: np.ndarray, p: np.ndarray, basis: list) -> float:
-    """The sum of squared Sampson residuals at p (inf where A is not positive definite)."""
-    A = sum(c * B for c, B in zip(p[2:], basis))
-    if not np.all(np.linalg.eigvalsh(A) > 0):
-        return float("inf")
-    h = (U - p[:2]) @ A
-    rho = np.linalg.norm(h, axis=1)
-    r = (rho - T) * rho / np.maximum(np.linalg.norm(h @ A, axis=1), 1e-300)
-    return float(r @ r)
-
-
-def _solve(U: np.ndarray, T: np.ndarray, p: np.ndarray, basis: list, max_iterations: int, tolerance: float):
-    """Levenberg–Marquardt on the Sampson residuals of normalised readings U (targets T): (p, cost, J, r,
-    iterations, converged)."""
-    k = len(basis)
-
-    ux, uy = np.ascontiguousarray(U[:, 0]), np.ascontiguousarray(U[:, 1])
-
-    def residuals(p, jacobian=True):
-        # In components (an N×2 @ 2×2 product costs more than these few vector operations): h = A d, g = A h.
-        (a, c), (_, e) = sum(ci * B for ci, B in zip(p[2:], basis))
-        dx, dy = ux - p[0], uy - p[1]
-        hx, hy = a * dx + c * dy, c * dx + e * dy
-        gx, gy = a * hx + c * hy, c * hx + e * hy
-        rho = np.maximum(np.hypot(hx, hy), 1e-300)
-        gam = np.maximum(np.hypot(gx, gy), 1e-300)
-        r = (rho - T) * rho / gam
-        if not jacobian:
-            return r, None
-        # r = (ρ² − Tρ)/γ: ∂r = (2ρ − T)/γ · ∂ρ − (ρ² − Tρ)/γ² · ∂γ, ∂ρ = h·∂h/ρ, ∂γ = g·∂g/γ
-        w1, w2 = (2 * rho - T) / (gam * rho), (rho - T) * rho / (gam ** 3)
-
-        def column(dhx, dhy, dgx, dgy):
-            return w1 * (hx * dhx + hy * dhy) - w2 * (gx * dgx + gy * dgy)
-
-        cols = [column(-a, -c, -(a * a + c * c), -(a * c + c * e)),    # ∂h/∂b_x = −A e_x, ∂g = A ∂h
-                column(-c, -e, -(a * c + c * e), -(c * c + e * e))]
-        for (p_, q_), (_, s_) in basis:                                 # ∂h = B d, ∂g = B h + A ∂h
-            dhx, dhy = p_ * dx + q_ * dy, q_ * dx + s_ * dy
-            cols.append(column(dhx, dhy, p_ * hx + q_ * hy + a * dhx + c * dhy, q_ * hx + s_ * hy + c * dhx + e * dhy))
-        return r, np.column_stack(cols)
-
-    def positive(p):
-        return np.all(np.linalg.eigvalsh(sum(c * B for c, B in zip(p[2:], basis))) > 0)
-
-    r, J = residuals(p)
-    cost = float(r @ r)
-    lam, converged, iterations = 1e-3, False, 0
-    for iterations in range(1, max_iterations + 1):
-        F, g = J.T @ J, J.T @ r
-        D = np.diag(np.maximum(np.diag(F), 1e-300))
-        step = None
-        while lam < 1e16:
-            try:
-                delta = np.linalg.solve(F + lam * D, -g)
-            except np.linalg.LinAlgError:
-                lam *= 10
-                continue
-            trial = p + delta
-            if positive(trial):
-                rt, _ = residuals(trial, jacobian=False)
-                ct = float(rt @ rt)
-                if ct <= cost:
-                    step = delta
-                    break
-            lam *= 4
-        if step is None:
-            # No step lowers the cost: at its minimum to rounding when the Gauss–Newton step's predicted decrease
-            # ½ gᵀF⁻¹g is below the cost's rounding (a sum of N squares).
-            try:
-                predicted = 0.5 * float(-g @ np.linalg.lstsq(F, -g, rcond=None)[0])
-            except np.linalg.LinAlgError:
-                predicted = np.inf
-            converged = predicted <= max(cost, 1e-300) * len(U) * np.finfo(float).eps
-            break
-        small = np.max(np.abs(step)) <= tolerance * max(1.0, np.max(np.abs(p)))
-        settled = cost - ct <= 1e-15 * cost
-        p, cost = trial, ct
-        r, J = residuals(p)
-        lam = max(lam / 3, 1e-12)
-        if small or settled:
-            converged = True
-            break
-    return p, cost, J, r, iterations, converged
-
-
 def _fit(u: np.ndarray, norms, shapes: tuple, max_iterations: int, tolerance: float) -> dict:
-    """The planar fit in each shape (from each start), the BIC choice, and its statistics in u's units."""
+    """Each shape's fit by the C++ core (`fluxcal::fit_planar`, cpp/include/fluxcal/planar.hpp: both starts,
+    Levenberg–Marquardt on the Sampson residual, the noise-bias solve, the covariance; its reference is
+    fluxcal.oracle.planar), then the BIC choice across shapes and what the summary reads, in u's units."""
     n = len(u)
-    starts, radius = _starts(u, norms)
-    if not starts:
-        raise ValueError("samples: the readings in the plane trace no ellipse (the direct ellipse fit and TWOSTEP 2-D "
-                         "both fail: points on a line, or at a few places): turn the vehicle through a full circle")
-    targets = np.full(n, radius) if norms is None else norms
-    centre = u.mean(axis=0)
-    scale = float(np.sqrt(np.mean(np.sum((u - centre) ** 2, axis=1))))
-    tscale = float(np.mean(targets))
-    U, Tn = (u - centre) / scale, targets / tscale
-    fits, table = {}, {}
+    u = np.ascontiguousarray(u, dtype=np.float64)
+    field_norms = None if norms is None else np.ascontiguousarray(norms, dtype=np.float64)
+    fits, table, errors = {}, {}, {}
     for shape in shapes:
-        basis = _basis(shape)
-        # Each start scaled to the targets (its mean |A (u − b)| to their mean), then refined from the one that fits
-        # best to begin with; the other only when that refinement does not converge (each solve passes over all
-        # readings a few dozen times: at 10⁵ readings the second start doubled the time for the same answer).
-        candidates = []
-        for name, b0, A0 in starts:
-            h = ((u - b0) / scale) @ A0
-            An = A0 * np.mean(Tn) / np.mean(np.linalg.norm(h, axis=1))
-            p0 = np.concatenate([(b0 - centre) / scale, _coefficients(An, shape)])
-            candidates.append((_cost(U, Tn, p0, basis), name, p0))
-        best = None
-        for _, name, p0 in sorted(candidates, key=lambda c: c[0] if np.isfinite(c[0]) else np.inf):
-            try:
-                result = _solve(U, Tn, p0, basis, max_iterations, tolerance)
-            except np.linalg.LinAlgError:
-                continue
-            if np.all(np.isfinite(result[0])) and (best is None or result[1] < best[1][1]):
-                best = (name, result)
-            if best is not None and best[1][5]:
-                break
-        if best is None:
-            table[shape] = {"error": "did not converge from any start"}
+        options = _core.PlanarOptions()
+        options.shape = getattr(_core.PlanarShape, _CORE_SHAPES[shape])
+        options.max_iterations = int(max_iterations)
+        options.tolerance = float(tolerance)
+        # "traces no ellipse" is judged once, on the chosen shape (calibrate_planar): a circle that misfits an
+        # elongated ellipse should lose on BIC, not fail the calibration
+        options.min_radius_over_noise = 0.0
+        try:
+            r = _core.fit_planar(u, field_norms, options)
+        except ValueError as exc:  # the core names its argument "readings": here they are calibrate_planar's samples
+            message = str(exc)
+            errors[shape] = "samples: " + message[len("readings: "):] if message.startswith("readings: ") else message
+            table[shape] = {"error": errors[shape]}
             continue
-        name, (p, cost, J, r, iterations, converged) = best
-        k = len(basis) + 2
-        # Noise bias: the tangential noise lengthens |h| by ≈ σ_t²/(2H), σ_t² = σ²‖A‖_F²/2; fitting |h| to H would
-        # shrink A by it. One more solve with the targets raised by that much.
-        sigma2 = cost / max(n - k, 1)
-        A = sum(c * B for c, B in zip(p[2:], basis))
-        raised = Tn + sigma2 * float(np.sum(A * A)) / (4 * Tn)
-        p, cost2, J, r, more, converged = _solve(U, raised, p, basis, max_iterations, tolerance)
-        fits[shape] = dict(p=p, cost=cost2, J=J, iterations=iterations + more, converged=converged, start=name, k=k,
-                           basis=basis)
-        rss = cost2 * scale ** 2
-        table[shape] = {"parameters": k, "rss": float(rss), "bic": float(n * np.log(max(rss, 1e-300) / n) +
-                                                                          k * np.log(n))}
+        k = len(r["parameters"])
+        fits[shape] = r
+        table[shape] = {"parameters": k, "rss": float(r["rss"]),
+                        "bic": float(n * np.log(max(r["rss"], 1e-300) / n) + k * np.log(n)),
+                        "identifiable": bool(r["identifiable"])}
     if not fits:
-        raise ValueError("samples: the planar fit did not converge in any shape ("
-                         + "; ".join(f"{k}: {v['error']}" for k, v in table.items())
+        if len(set(errors.values())) == 1:  # the same in every shape: the readings, not a shape
+            raise ValueError(next(iter(errors.values())))
+        raise ValueError("samples: the planar fit failed in every shape ("
+                         + "; ".join(f"{k}: {v}" for k, v in errors.items())
                          + "): check the readings for outliers, and that the vehicle turned a full circle")
-    stats = {shape: _statistics(f, u, norms, targets, radius, centre, scale, tscale) for shape, f in fits.items()}
-    for shape, st in stats.items():
-        table[shape]["identifiable"] = bool(all(st["determined"]))
     chosen = min(fits, key=lambda s: table[s]["bic"])
-    result = stats[chosen]
-    result.update(shape=chosen, table=table, start=fits[chosen]["start"], converged=bool(fits[chosen]["converged"]),
-                  iterations=int(fits[chosen]["iterations"]), k=fits[chosen]["k"])
+    r = fits[chosen]
+    b, A = np.asarray(r["offset"], dtype=float), np.asarray(r["matrix"], dtype=float)
+    targets = np.full(n, float(r["field_norm"])) if norms is None else norms
+    result = {"b": b, "A": A, "h": (u - b) @ A.T, "targets": targets, "field_norm": float(r["field_norm"]),
+              "radius": float(r["mean_radius"]), "sigma": float(r["sigma"]),
+              "parameters": np.asarray(r["parameters"], dtype=float),
+              "standard_errors": np.asarray(r["standard_errors"], dtype=float),
+              "determined": np.asarray(r["determined"], dtype=bool), "fisher_condition": float(r["fisher_condition"]),
+              "covariance": np.asarray(r["covariance"], dtype=float),
+              "residuals": np.asarray(r["residuals"], dtype=float), "shape": chosen, "table": table,
+              "start": r["start"], "converged": bool(r["summary"]["converged"]),
+              "iterations": int(r["summary"]["iterations"]), "k": len(r["parameters"])}
     # As calibrate's shape "auto": a smaller shape that wins while the data cannot determine the larger one holds
     # only if the terms it leaves out are zero, which these data cannot test.
     larger = SHAPES[SHAPES.index(chosen) + 1:]
     result["undetermined_larger"] = [s for s in larger if s in table and not table[s].get("identifiable", False)]
     return result
-
-
-def _statistics(f: dict, u: np.ndarray, norms, targets: np.ndarray, radius: float, centre: np.ndarray, scale: float,
-                tscale: float) -> dict:
-    """One shape's result in u's units: b, A, |h| scale, the covariance σ̂²(JᵀJ)⁻¹ and which parameters it
-    determines."""
-    n = len(u)
-    basis, p, k = f["basis"], f["p"], f["k"]
-    sigma2 = f["cost"] / max(n - k, 1)
-    # Covariance through the scaled eigen-decomposition (near-null directions: huge, not a failed factorisation).
-    F = f["J"].T @ f["J"]
-    dscale = 1.0 / np.sqrt(np.maximum(np.diag(F), 1e-300))
-    lam, vec = np.linalg.eigh(dscale[:, None] * F * dscale[None, :])
-    fisher_condition = float(lam[-1] / lam[0]) if lam[0] > 0 else float("inf")
-    inv = 1.0 / np.maximum(lam, lam[-1] * 1e-300)
-    cov_n = sigma2 * (dscale[:, None] * (vec * inv) @ vec.T * dscale[None, :])
-    # back to u's units: b = centre + scale·b_n, A = A_n·tscale/scale
-    to = np.concatenate([[scale, scale], np.full(k - 2, tscale / scale)])
-    values = np.concatenate([centre + scale * p[:2], p[2:] * tscale / scale])
-    cov = cov_n * np.outer(to, to)
-    b = values[:2]
-    A = sum(c * B for c, B in zip(values[2:], basis))
-    field_norm = float(np.mean(targets))
-    if norms is None:
-        # Relative scale (calibrate's convention without a field norm): det A = 1, |h| = the fitted mean radius.
-        # The map c → c/√det A(c) carries the covariance by its Jacobian (the delta method).
-        def normalised(c):
-            return c / np.sqrt(np.linalg.det(sum(ci * B for ci, B in zip(c, basis))))
-        c = values[2:]
-        G = np.eye(k)
-        eps = 1e-7 * max(1.0, float(np.max(np.abs(c))))
-        for j in range(k - 2):
-            step = np.zeros(k - 2)
-            step[j] = eps
-            G[2:, 2 + j] = (normalised(c + step) - normalised(c - step)) / (2 * eps)
-        s = float(np.sqrt(np.linalg.det(A)))
-        values = np.concatenate([b, normalised(c)])
-        cov = G @ cov @ G.T
-        A = A / s
-        field_norm = radius / s
-        targets = np.full(n, field_norm)
-    se = np.sqrt(np.maximum(np.diag(cov), 0.0))
-    h = (u - b) @ A
-    mean_radius = float(np.mean(np.linalg.norm(u - b, axis=1)))
-    rho = np.linalg.norm(h, axis=1)
-    residuals = (rho - targets) * rho / np.maximum(np.linalg.norm(h @ A, axis=1), 1e-300)  # Sampson, reading units
-    scales = np.concatenate([[mean_radius, mean_radius], np.full(k - 2, np.linalg.norm(A) / np.sqrt(2))])
-    return {"b": b, "A": A, "h": h, "targets": targets, "field_norm": field_norm, "radius": mean_radius,
-            "sigma": float(np.sqrt(sigma2) * scale), "parameters": values, "standard_errors": se,
-            "determined": se < DETERMINED * scales, "fisher_condition": fisher_condition, "covariance": cov,
-            "residuals": residuals}
 
 
 # ---- what the summary says ---------------------------------------------------------------------------------------

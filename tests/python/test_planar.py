@@ -11,8 +11,6 @@ information is N/2 per axis: SE(b) ≈ σ·√(2/N). With A = (H/R)(I + δ), r �
 circle) gives SE(a_xx) = SE(a_yy) ≈ √3·σH/(R²√N), SE(a_xy) ≈ √2·σH/(R²√N). The heading's noise per reading is the
 tangential noise of h over |h|: at most σ/a_min rad (a_min the ellipse's smallest semi-axis).
 """
-import time
-
 import numpy as np
 import pytest
 from scipy.optimize import least_squares
@@ -180,6 +178,53 @@ def test_matches_an_independent_numpy_oracle():
     assert np.all(np.abs(np.array([ours[0, 0] - A[0, 0], ours[0, 1] - A[0, 1], ours[1, 1] - A[1, 1]])) < se[2:])
     # and both at the truth
     assert np.all(np.abs(b - truth["b"]) < Z_LIMIT * se[:2])
+
+
+# The C++ core's fit (fluxcal::fit_planar, through calibrate_planar) against its NumPy/SciPy reference
+# (fluxcal.oracle.planar: MINPACK's Levenberg–Marquardt on the N×k Jacobian, a pseudo-inverse covariance, a numerical
+# delta method). Both minimise the same cost, so they differ only by where each optimiser stops: the core stops when
+# a step lowers the cost by ≤ 1e-15 of it, which leaves the parameters within about √(1e-15·N) ≈ 1e-6 standard
+# errors of the minimum at N = 2000 (10 seeds × 9 cases: at most 1.5e-6 SE, the SEs within 6e-10). ORACLE_SE is 100×
+# that, and 10⁴× below the 1 SE two different estimators needed (test_matches_an_independent_numpy_oracle): an error
+# in the residual, its derivatives, the noise-bias targets or the covariance shows by far more (leaving out only the
+# noise-bias solve moves the matrix by several hundredths of an SE, asserted below).
+ORACLE_SE = 1e-4
+ORACLE_SE_RELATIVE = 1e-6  # the standard errors themselves, relative (the same Jacobian at the same point)
+
+
+@pytest.mark.parametrize("field", ["given", "per reading", "relative"])
+@pytest.mark.parametrize("shape", ["circle", "diag", "sym"])
+def test_core_fit_matches_its_scipy_oracle(shape, field):
+    from fluxcal.oracle import planar as oracle_planar
+
+    varying = H * (1 + 0.1 * np.sin(np.linspace(0, 3, 2000)))
+    m, _ = yaw_only(18, field=varying if field == "per reading" else None)
+    norms = {"given": H, "per reading": varying, "relative": None}[field]
+    cal = calibrate_planar(m[:, :2], field_norm=norms, shape=shape)
+    ref = oracle_planar.fit_planar(m[:, :2], norms, shape)
+    s = cal.summary
+    assert s["shape"] == shape and s["converged"] and ref["converged"]
+    se, se_ref = np.array(s["standard_errors"]), ref["standard_errors"]
+    # a relative circle has det A = 1 exactly: its gain is 1 with no error
+    free = se_ref > 1e-12 * np.abs(ref["parameters"])
+    assert np.array_equal(se > 1e-12 * np.abs(np.array(s["parameters"])), free)
+    assert np.all(np.abs(np.array(s["parameters"]) - ref["parameters"])[free] < ORACLE_SE * se_ref[free])
+    assert np.allclose(cal.offset[:2], ref["offset"], rtol=0, atol=ORACLE_SE * se_ref[:2].max())
+    assert np.allclose(cal.matrix[:2, :2], ref["matrix"], rtol=0, atol=ORACLE_SE * se_ref[free][2:].min(initial=1.0))
+    assert np.allclose(se[free], se_ref[free], rtol=ORACLE_SE_RELATIVE, atol=0)
+    assert s["noise_sigma"] == pytest.approx(ref["sigma"], rel=1e-9)
+    assert cal.field_norm == pytest.approx(ref["field_norm"], rel=1e-9)
+    assert s["shapes"][shape]["rss"] == pytest.approx(ref["rss"], rel=1e-9)
+    assert s["determined"] == ref["determined"].tolist()
+    if shape == "sym" and field == "given":
+        # calibrate_planar's fit is the core's, to the last bit (the plane of N×2 readings is their own axes)
+        options = fluxcal._core.PlanarOptions()
+        options.field_norm, options.min_radius_over_noise = H, 0.0
+        core = fluxcal._core.fit_planar(np.ascontiguousarray(m[:, :2]), None, options)
+        assert np.array_equal(core["parameters"], s["parameters"]) and core["start"] == s["start"]
+        # the tolerance sees the noise-bias solve (its shift of A is σ²‖A‖²/(4H²) ≈ 1e-5 relative: a fraction of an SE)
+        plain = oracle_planar.fit_planar(m[:, :2], norms, shape, noise_bias_correction=False)
+        assert np.max(np.abs(plain["parameters"] - ref["parameters"])[2:] / se_ref[2:]) > 100 * ORACLE_SE
 
 
 def test_without_field_norm_the_scale_is_relative():
@@ -374,12 +419,13 @@ def test_bad_arguments():
         calibrate_planar(m, field_norm=np.ones(7))
 
 
-def test_fast_on_a_long_log():
-    """10⁵ readings in well under a second or two (three shapes, two starts each)."""
-    m, _ = yaw_only(17, n=100_000, turns=20)
-    t = time.perf_counter()
+def test_a_long_log_converges_to_the_truth():
+    """10⁵ readings over 20 turns (its speed is bench/bench_planar.cpp's, not a test's): converged, and the offset
+    within its standard errors of the truth."""
+    m, truth = yaw_only(17, n=100_000, turns=20)
     cal = calibrate_planar(m, field_norm=H)
-    assert time.perf_counter() - t < 4.0 and cal.summary["converged"]
+    se = np.asarray(cal.summary["standard_errors"][:2])
+    assert cal.summary["converged"] and np.all(np.abs(cal.offset[:2] - truth["b"]) < Z_LIMIT * se)
 
 
 def _yaw_only_csv(path, seed=0, **kw):

@@ -5,7 +5,7 @@ from .coverage import direction_bins, direction_coverage
 from .ellipsoid import fit_ellipsoid, fit_ellipsoid_als
 from .refine import refine
 from .vector import crlb_vector, fit_vector
-from . import serial, twostep
+from . import planar, serial, twostep
 
 __all__ = ["align_to_gravity", "crlb_vector", "direction_bins", "direction_coverage", "fit_ellipsoid", "fit_ellipsoid_als",
-           "fit_vector", "refine", "serial", "twostep"]
+           "fit_vector", "planar", "refine", "serial", "twostep"]
