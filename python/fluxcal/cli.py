@@ -628,11 +628,10 @@ def _calibrate_planar(args, rec: Recording) -> int:
                          f"plane (H = F cos(inclination)); the recording's columns: {', '.join(rec.columns)}")
     axes = None if args.planar == "auto" else args.planar
     try:
-        cal = calibrate_planar(rec, field_norm=field_norm, axes=axes, shape=args.shape)
+        cal = calibrate_planar(rec, field_norm=field_norm, axes=axes, shape=args.shape,
+                               field_units=unit_name(args.field_units) if args.field_units else None)
     except ValueError as exc:
         raise ValueError(f"{args.file}: {exc}") from None
-    if args.field_units:
-        cal.field_units = unit_name(args.field_units)
     cal.metadata.update(source=str(args.file), columns=",".join(rec.mag_names()))
     _name_file_lines(cal, rec)
     _print_roles(rec)

@@ -42,8 +42,9 @@ own x and y then trace no circle; the heading is the angle of h in (e1, e2). `ax
 
 The axis along the normal is not calibrated: turning about it never changes the field's component along it, so
 its offset and gain leave no trace in the readings (the offset and the vertical field add into one constant, the
-gain scales a constant). The Calibration passes it through (its matrix row and column the unit vector, its offset
-0): h along the normal is the raw reading. summary["not_calibrated"] says so, with a warning.
+gain scales a constant). The Calibration passes it through scaled by the plane's mean gain √det A (its offset 0):
+h along the normal is the raw reading in h's unit, not calibrated. summary["not_calibrated"] says so, with a
+warning.
 """
 from __future__ import annotations
 
@@ -80,6 +81,9 @@ MISFIT_SPREAD = 0.05
 # misfit follows the out-of-plane deviation. Said when that line explains at least this share of the misfit's
 # variance (and p < 1e-3); noise leaves the two uncorrelated (as twostep.COUPLING_SHARE for twice the heading).
 TILT_SHARE = 0.25
+# The readings' spread out of the plane over the fit's noise σ above which they are "thick": noise alone gives about
+# 1 (the std of N ≥ 10 readings' noise within ±0.25 of it), a tilt while turning more.
+THICK_OVER_NOISE = 2.0
 # A horizontal field given in a field unit off the readings' radius by more than these factors: the total field
 # |F| = H / cos(inclination) instead of its horizontal H (≥ 1.3× for inclinations above 40°, i.e. most of the
 # inhabited world), while a sensor's gain and a vehicle's soft iron in a field unit stay within ~±20 %.
@@ -90,7 +94,7 @@ NOT_CALIBRATED_WORDS = "is not calibrated"
 
 def calibrate_planar(samples, field_norm=None, axes=None, units: str | None = None, shape: str = "auto",
                      min_arc: float = MIN_ARC_DEG, axis_tolerance: float = 5.0, planar_ratio: float = 0.02,
-                     max_iterations: int = 100, tolerance: float = 1e-10) -> Calibration:
+                     max_iterations: int = 100, tolerance: float = 1e-10, field_units: str | None = None) -> Calibration:
     """Calibrate the two axes of the plane a magnetometer turns in (yaw-only vehicle, biaxial compass).
 
     samples: N×3 readings (or a fluxcal Recording, whose unit is carried), or N×2 of a biaxial sensor.
@@ -106,9 +110,11 @@ def calibrate_planar(samples, field_norm=None, axes=None, units: str | None = No
     min_arc: degrees of heading the readings must cover (MIN_ARC_DEG; a ValueError below it).
     axis_tolerance: degrees between the fitted normal and a sensor axis within which that axis is the normal.
     planar_ratio: thinnest/widest spread above which N×3 readings are checked for 3-D coverage (calibrate's).
+    field_units: the unit of field_norm and of h when it is not the readings' (readings in counts, H in µT): h is
+    labelled in it, and field_norm is not judged against the readings' radius as if in their unit.
 
     Returns a Calibration h = A (m − b): the plane's 2×2 A and offset embedded in 3×3, the normal axis passed through
-    (A's row and column for it the unit vector, its offset 0). For N×2 readings apply it to N×3 rows with the
+    (A's row and column for it √det A on the diagonal, its offset 0). For N×2 readings apply it to N×3 rows with the
     missing axis' column zero. summary: method "planar", plane_axes, normal_axis, plane_normal, plane_tilt_deg,
     thinnest_over_widest, arc_deg, norm_std_over_mean (of the horizontal |h|, against each reading's own H when
     given per reading), norm_std_over_mean_raw (|u| of the raw plane readings), residual_rms (|h| − H, h's unit),
@@ -197,8 +203,10 @@ def calibrate_planar(samples, field_norm=None, axes=None, units: str | None = No
         summary["not_calibrated"] = {
             "axis": plane["normal_name"],
             "reason": "the vehicle turns about it: the field's component along it never changes, so its offset and "
-                      "gain leave no trace in the readings; it passes through (h = m on it)"}
-    warnings += _notes(m, summary, plane, fit, norms, units, planar_ratio)
+                      "gain leave no trace in the readings; it passes through, scaled by the plane's mean gain √det A "
+                      "into h's unit (its offset not removed)"}
+    stated = units_text(field_units) if field_units else ""
+    warnings += _notes(m, summary, plane, fit, norms, units if not stated or stated == units else "", planar_ratio)
     summary["warnings"] = warnings
     summary["message"] = (f"planar: {n} readings in the plane {'/'.join(names)}, shape {fit['shape']}, "
                           f"{'converged' if fit['converged'] else 'NOT converged'} in {fit['iterations']} iterations, "
@@ -206,9 +214,12 @@ def calibrate_planar(samples, field_norm=None, axes=None, units: str | None = No
     offset, matrix = _embed(plane, fit["b"], fit["A"])
     what = (f"axis {plane['normal_name']} not calibrated" if plane["normal_name"] in tuple(AXES)
             else "its normal not calibrated")
-    return Calibration(offset=offset, matrix=matrix, field_norm=fit["field_norm"], units=units,
-                       model=f"planar {''.join(names) if len(''.join(names)) == 2 else '(fitted plane)'}, {what}",
-                       summary=summary)
+    cal = Calibration(offset=offset, matrix=matrix, field_norm=fit["field_norm"], units=units,
+                      model=f"planar {''.join(names) if len(''.join(names)) == 2 else '(fitted plane)'}, {what}",
+                      summary=summary)
+    if stated:
+        cal.field_units = stated
+    return cal
 
 
 def summary_lines(cal: Calibration) -> list[str]:
@@ -248,7 +259,7 @@ def summary_lines(cal: Calibration) -> list[str]:
     lines.append(f"  identifiable          {'yes' if s['identifiable'] else 'NO'} (the plane's {len(s['parameters'])} "
                  "parameters)")
     if "not_calibrated" in s:
-        lines.append(f"  not calibrated        {s['not_calibrated']['axis']} (passes through: h = m on it)")
+        lines.append(f"  not calibrated        {s['not_calibrated']['axis']} (passes through, × the plane's mean gain)")
     return lines
 
 
@@ -396,13 +407,16 @@ def plane_axes(cal: Calibration) -> np.ndarray | None:
 
 
 def _embed(plane: dict, b: np.ndarray, A: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """The plane's offset and 2×2 matrix as the 3×3 Calibration's: A3 = P diag(A, 1) Pᵀ with P = [e1 e2 n], the
-    offset in the plane (none along the normal), so h along the normal is the raw reading's component."""
+    """The plane's offset and 2×2 matrix as the 3×3 Calibration's: A3 = P diag(A, g) Pᵀ with P = [e1 e2 n], the
+    offset in the plane (none along the normal), so h along the normal is the raw reading's component times the
+    plane's mean gain g = √det A: not calibrated, but in h's unit (with the field in µT and readings in counts or
+    nT, a pass-through axis in the readings' unit had been labelled in h's)."""
     e = plane["embed"]
     normal = np.cross(e[0], e[1])
     P = np.column_stack([e[0], e[1], normal])
     block = np.eye(3)
     block[:2, :2] = A
+    block[2, 2] = np.sqrt(abs(np.linalg.det(A)))
     matrix = P @ block @ P.T
     offset = e.T @ b
     return offset, matrix
@@ -504,8 +518,8 @@ def _notes(m: np.ndarray, summary: dict, plane: dict, fit: dict, norms, units: s
         axis = plane["normal_name"]
         what = f"axis {axis}" if axis in tuple(AXES) else "the plane's normal"
         notes.append(f"{what} {NOT_CALIBRATED_WORDS}: the vehicle turns about it, so the field's component along it "
-                     "never changes and its offset and gain leave no trace in the readings; it passes through "
-                     "(h = m along it). Tumble the sensor (fluxcal calibrate without the planar option) for a 3-D "
+                     "never changes and its offset and gain leave no trace in the readings; it passes through, "
+                     "only scaled by the plane's mean gain into h's unit (its offset not removed). Tumble the sensor (fluxcal calibrate without the planar option) for a 3-D "
                      "calibration")
     if not summary["converged"]:
         notes.append(f"the planar fit did not converge in {summary['iterations']} iterations: the result is the last "
@@ -564,7 +578,9 @@ def _out_of_plane(m: np.ndarray, plane: dict, fit: dict, planar_ratio: float) ->
     share = 1.0 - rss1 / rss0 if rss0 > 0 else 0.0
     p = float(stats.f.sf((rss0 - rss1) / (rss1 / (n - 2)), 1, n - 2)) if rss1 > 0 else 0.0
     tilted = p < 1e-3 and share >= TILT_SHARE
-    thick = plane["ratio"] > planar_ratio
+    # thick only when the spread out of the plane clearly exceeds the noise, which alone gives about σ: a flat log
+    # of a noisy chip in a weak horizontal field (σ 0.4 µT, H 15 µT) is thicker than planar_ratio by noise alone
+    thick = plane["ratio"] > planar_ratio and float(dn.std()) > THICK_OVER_NOISE * fit["sigma"]
     if not (tilted or thick):
         return None
     spread = float(dn.std())

@@ -98,11 +98,12 @@ def test_rotated_soft_iron_reaches_truth_and_corrects_heading():
     assert np.all(np.abs(cal.offset[:2] - truth["b"]) < Z_LIMIT * se[:2])
     assert np.all(np.abs([A[0, 0] - truth["A"][0, 0], A[0, 1] - truth["A"][0, 1], A[1, 1] - truth["A"][1, 1]])
                   < Z_LIMIT * se[2:])
-    # the axis along the normal passes through; the matrix is symmetric
-    assert np.array_equal(cal.matrix[2], [0, 0, 1]) and np.array_equal(cal.matrix[:, 2], [0, 0, 1])
+    # the axis along the normal passes through, scaled into h's unit by the plane's mean gain; the matrix is symmetric
+    gain = np.sqrt(np.linalg.det(cal.matrix[:2, :2]))
+    assert np.allclose(cal.matrix[2], [0, 0, gain], rtol=1e-12) and np.allclose(cal.matrix[:, 2], [0, 0, gain])
     assert cal.offset[2] == 0.0 and np.allclose(cal.matrix, cal.matrix.T)
     h = cal.apply(m)
-    assert np.array_equal(h[:, 2], m[:, 2])
+    np.testing.assert_allclose(h[:, 2], gain * m[:, 2], rtol=1e-12)
     # heading: from tens of degrees raw to the noise floor σ/a_min (plus the O(1/√N) of the estimates)
     floor = SIGMA / semi_axes(soft_iron()).min()
     after, before = heading_rms(h[:, :2], truth["psi"]), heading_rms(m[:, :2], truth["psi"])
@@ -309,7 +310,8 @@ def test_biaxial_readings():
     assert two.summary["biaxial"] and two.summary["plane_axes"] == ["x", "y"]
     assert "thinnest_over_widest" in two.summary and two.summary["thinnest_over_widest"] is None
     xz = calibrate_planar(m[:, :2], field_norm=H, shape="sym", axes="xz")
-    assert np.allclose(xz.matrix[np.ix_([0, 2], [0, 2])], three.matrix[:2, :2]) and xz.matrix[1, 1] == 1.0
+    assert np.allclose(xz.matrix[np.ix_([0, 2], [0, 2])], three.matrix[:2, :2]) and xz.matrix[1, 1] == pytest.approx(
+        np.sqrt(np.linalg.det(three.matrix[:2, :2])), rel=1e-12)
     assert np.allclose(xz.offset[[0, 2]], three.offset[:2]) and xz.offset[1] == 0.0
     assert xz.summary["not_calibrated"]["axis"] == "y"
     padded = np.column_stack([m[:, 0], np.zeros(len(m)), m[:, 1]])
@@ -332,7 +334,8 @@ def test_tilted_mounting_is_calibrated_in_the_fitted_plane():
     assert s["norm_std_over_mean"] < 2 * SIGMA / H
     assert heading_rms(h2, truth["psi"]) < 1.2 * floor
     normal = np.array(s["plane_normal"])
-    assert np.allclose(h @ normal, m @ normal)  # along the normal: passed through
+    gain = np.sqrt(np.linalg.det(np.array(s["plane_basis"]) @ cal.matrix @ np.array(s["plane_basis"]).T))
+    assert np.allclose(h @ normal, gain * (m @ normal))  # along the normal: passed through, in h's unit
     xy = calibrate_planar(m, field_norm=H, axes="xy")
     assert xy.summary["plane_axes"] == ["x", "y"]
     assert any("tilted" in w and "axes xy were asked for" in w for w in xy.summary["warnings"])
@@ -460,3 +463,37 @@ def test_cli_planar_calibrates_saves_and_applies_in_the_plane(tmp_path):
     # and the 3-D fit's planar error now names the route
     r = run_cli("calibrate", log)
     assert r.returncode == 2 and "fluxcal calibrate --planar" in r.stderr
+
+
+def test_h_is_in_one_unit_when_the_field_is_given_in_another(tmp_path):
+    """Readings in µT, H given in nT (--field-units nT): the plane's axes come out in nT, and the axis passed
+    through is scaled into nT too (it had stayed in µT under an nT label), with no 'another unit' warning (the
+    unit is stated)."""
+    from conftest import run_cli
+
+    log = tmp_path / "yaw.csv"
+    _yaw_only_csv(log)
+    r = run_cli("calibrate", log, "--planar", "--field-norm", str(1000 * H), "--field-units", "nT",
+                "-o", tmp_path / "cal.json")
+    assert r.returncode == 0, r.stderr
+    assert "another unit" not in r.stdout
+    a = run_cli("apply", tmp_path / "cal.json", log, "-o", tmp_path / "out.csv")
+    assert a.returncode == 0, a.stderr
+    out = fluxcal.read_recording(tmp_path / "out.csv")
+    h = np.column_stack([out.columns[k] for k in ("hx", "hy", "hz")])
+    assert np.median(np.hypot(h[:, 0], h[:, 1])) == pytest.approx(1000 * H, rel=0.01)
+    # the vertical: Z = 45 µT read through a gain near 1 (1.05 and a small coupling), now in nT
+    assert 0.9 * 1000 * Z < np.median(h[:, 2]) < 1.2 * 1000 * Z
+
+
+def test_a_flat_log_of_a_noisy_chip_in_a_weak_field_is_not_said_to_tilt():
+    """Noise alone makes a flat log 'thicker' than the planar limit when σ/H is large (σ 0.4 µT, H 15 µT:
+    thinnest/widest ≈ √2·σ/H ≈ 3.8 %); it is said to tilt only when the spread out of the plane exceeds the noise."""
+    rng = np.random.default_rng(3)
+    n = 3000
+    psi = np.linspace(0, 4 * np.pi, n)
+    m = np.column_stack([15 * np.cos(psi), 15 * np.sin(psi), np.full(n, 50.0)]) + [3.0, -2.0, 1.0]
+    m += rng.normal(0, 0.4, m.shape)
+    cal = calibrate_planar(m, field_norm=15.0)
+    assert cal.summary["thinnest_over_widest"] > 0.02
+    assert not [w for w in cal.summary["warnings"] if "tilts while" in w]
