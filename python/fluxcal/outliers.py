@@ -44,6 +44,10 @@ GLITCH_RUN = 3   # a glitch lasts a sample or a short burst; a longer stretch of
 NOISE_FACTOR = 2.0  # a fit whose distances scatter less than this × the white noise explains the readings
 SCORED = 400     # readings the subset fits are scored on (the median needs no more to rank them)
 VECTOR_MODEL = "the reference-vector model"
+# As the C++ fits' check (cpp/src/quadric.hpp kDominating, kDominatingShare): a reading this many times farther from
+# the readings' median than the median reading is off any sensor's ellipsoid, when at most this share lie so far.
+DOMINATING = 10.0
+DOMINATING_SHARE = 0.01
 # A reading whose |h| is off the ellipsoid's by more than this share of the field is no disturbance a calibration
 # absorbs, in a stretch or alone: left out. A burst of 20 garbage readings at 2–5× the field (an I²C hiccup of
 # 0.4 s) was kept as a "stretch" and the fit then failed; a slow drift or a passing magnet keeps its readings
@@ -90,13 +94,16 @@ class Outliers:
                  "calibration absorbs them, in a stretch or alone)", self.kinds.get("gross", 0))) if k)
             largest = f" (up to {self.largest:.3g})" if self.largest > 0 else ""  # (none but readings past range)
             plain = len(self.rows) - sum(self.kinds.get(k, 0) for k in ("zero", "rail", "overflow", "gross"))
-            many = (f"; {100 * plain / n:.1f} % of the readings are rarely glitches: a second group of readings (an "
-                    "offset that moved within the log, two sessions in one file) or a disturbance would look so, "
-                    "and the fit of the rest may be biased by it — fluxcal diagnose looks for the cause"
+            many = (f"; glitches are rarely so many ({100 * plain / n:.1f} % of the readings): a second group of "
+                    "readings (an offset that moved within the log, two sessions in one file) or a disturbance would "
+                    "look so, and the fit of the rest may be biased by it — fluxcal diagnose looks for the cause"
                     if plain > MANY_OUTLIERS * n else "")
-            out.append(f"left out {len(self.rows)} of {n} readings that lie more than {self.threshold:.1f} robust σ"
-                       f"{largest} off {self.model} (rows {shown}{kinds}); outliers='keep' "
-                       f"(--outliers keep) keeps them{many}")
+            judged = (f"that lie more than {self.threshold:.1f} robust σ{largest} off {self.model} (rows {shown}{kinds})"
+                      if self.threshold > 0 else  # (too few readings for the robust fits: the far-reading rule only)
+                      f"more than {DOMINATING:g}× farther from the readings' median than the median reading (rows "
+                      f"{shown}; under {MIN_SAMPLES} readings, too few for the robust screen, only such are judged)")
+            out.append(f"left out {len(self.rows)} of {n} readings {judged}; outliers='keep' (--outliers keep) keeps "
+                       f"them{many}")
         if self.stretches:
             shown = ", ".join(f"{a}–{b} (up to {z:.0f} σ)" for a, b, z in self.stretches[:4])
             out.append(f"rows {shown}{', …' if len(self.stretches) > 4 else ''} lie off {self.model} for a stretch "
@@ -253,6 +260,11 @@ def find_outliers(samples, reference=None, alpha: float = 0.01, seed: int = 0, f
         return replace(inner, rows=np.sort(np.concatenate([np.flatnonzero(huge), kept[inner.rows]])), screened=True,
                        kinds={**inner.kinds, "overflow": int(huge.sum())},
                        stretches=[(int(kept[a]), int(kept[b]), z) for a, b, z in inner.stretches])
+    if n < MIN_SAMPLES and n >= 10 and np.isfinite(m).all():
+        # too few for the robust fits; a reading 10× farther out than the median one is still no reading of a
+        # turned sensor (one spike in 35 readings left the fit 'dominated', with remedies that could not work)
+        far = far_readings(m)
+        return replace(none, rows=far, screened=bool(len(far)), threshold=0.0)
     if n < MIN_SAMPLES or not _squares_representable(m):
         return none  # too few to judge, NaN or out of scale: the fit itself names the problem
     start = _try_fit(m, "als", field_norms)
@@ -274,6 +286,16 @@ def find_outliers(samples, reference=None, alpha: float = 0.01, seed: int = 0, f
             break
     return _verdicts(m, z, threshold, float(sigma),
                      "the ellipsoid" if field_norms is None else "the ellipsoid (each against its own |field|)")
+
+
+def far_readings(m: np.ndarray) -> np.ndarray:
+    """The rows of the few readings (at most DOMINATING_SHARE, at least one) more than DOMINATING times the median
+    reading's distance from the readings' median (per axis); none when more lie that far (a second group of
+    readings, not outliers)."""
+    distance = np.linalg.norm(m - np.median(m, axis=0), axis=1)
+    typical = float(np.median(distance))
+    far = np.flatnonzero(distance > DOMINATING * typical) if typical > 0 else np.zeros(0, dtype=int)
+    return far if len(far) <= max(1, int(DOMINATING_SHARE * len(m))) else np.zeros(0, dtype=int)
 
 
 def _verdicts(m: np.ndarray, z: np.ndarray, threshold: float, sigma: float, model: str = "the ellipsoid",

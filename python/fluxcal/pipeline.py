@@ -11,7 +11,7 @@ from . import _core
 from ._arrays import as_samples, held_copies
 from .calibration import TESLA_PER_UNIT, Calibration
 from .ellipsoid import fit_ellipsoid
-from .outliers import find_outliers
+from .outliers import DOMINATING, far_readings, find_outliers
 from ._arrays import as_field_norms, changing_field, field_norm_given
 from .refine import SHAPES, fit_vector, refine, shape_name
 from .twostep import FIELD_LOG_WORDS, field_log_misfit, reading_interval, twostep
@@ -216,7 +216,9 @@ def misses_the_noise(cal: Calibration, m: np.ndarray, time=None) -> str | None:
             f"{sigma:.4g}{unit} (third differences in time order): the model misses something larger than the noise, "
             "which can bias the calibration beyond its standard errors — a disturbance (a magnet, a motor, a "
             "current near the sensor), an offset that moved within the log (two sessions in one file, a battery or "
-            "board moved: calibrate each apart), or a |field| that changed; fluxcal diagnose names what")
+            "board moved: calibrate each apart), or a |field| that changed; fluxcal diagnose names what. (Noise "
+            "correlated in time, a sensor's internal low-pass filter, also raises the ratio: third differences see "
+            "less of it)")
 
 
 def _magnitude_start(m: np.ndarray, field_norm, field_norms, units, start_settings: dict) -> Calibration:
@@ -236,16 +238,12 @@ def _magnitude_start(m: np.ndarray, field_norm, field_norms, units, start_settin
     return fit_ellipsoid(m, field_norm=field_norm, units=units, method="als", **start_settings)
 
 
-# As the C++ fits' check (cpp/src/quadric.hpp kDominating, kDominatingShare): a reading this many times farther from
-# the readings' median than the median reading is off any sensor's ellipsoid, when at most this share lie so far.
-DOMINATING = 10.0
-DOMINATING_SHARE = 0.01
 
 
 def _screened_start(m: np.ndarray, field_norm, field_norms, units, start_settings: dict,
                     loss: str) -> tuple[Calibration, np.ndarray | None]:
     """The robust refinement's start when the outliers are kept (outliers='keep', loss 'huber' or 'cauchy'): fitted
-    without the readings the outlier screen flags or that lie far out (_far_readings), so that the loss, which
+    without the readings the outlier screen flags or that lie far out (outliers.far_readings), so that the loss, which
     then weighs every reading, starts near the readings' own ellipsoid; and which readings are not flagged (None:
     all), for choosing the shape (_refine_shape). The algebraic start weighs a reading by its distance to the
     fourth power: one spike at 20× the field in 2000 good readings moved it by 2–5 fields and the Cauchy
@@ -257,7 +255,7 @@ def _screened_start(m: np.ndarray, field_norm, field_norms, units, start_setting
         screened = find_outliers(m, field_norms=field_norms)
     except ValueError:
         screened = None
-    rows = np.union1d(screened.rows if screened else np.zeros(0, dtype=int), _far_readings(m)).astype(int)
+    rows = np.union1d(screened.rows if screened else np.zeros(0, dtype=int), far_readings(m)).astype(int)
     if not len(rows):
         return _magnitude_start(m, field_norm, field_norms, units, start_settings), None
     kept = np.ones(len(m), dtype=bool)
@@ -274,14 +272,6 @@ def _screened_start(m: np.ndarray, field_norm, field_norms, units, start_setting
     return start, kept
 
 
-def _far_readings(m: np.ndarray) -> np.ndarray:
-    """The rows of the few readings (at most DOMINATING_SHARE, at least one) more than DOMINATING times the median
-    reading's distance from the readings' median (per axis); none when more lie that far (a second group of
-    readings, not outliers)."""
-    distance = np.linalg.norm(m - np.median(m, axis=0), axis=1)
-    typical = float(np.median(distance))
-    far = np.flatnonzero(distance > DOMINATING * typical) if typical > 0 else np.zeros(0, dtype=int)
-    return far if len(far) <= max(1, int(DOMINATING_SHARE * len(m))) else np.zeros(0, dtype=int)
 
 
 def _check_steps(method: str, vector: bool, start_settings: dict, refine_settings: dict, loss: str) -> None:

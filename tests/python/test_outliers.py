@@ -299,3 +299,18 @@ def test_a_burst_of_garbage_is_left_out_not_kept_as_a_disturbance():
     assert "20 are off |h| by more than 50% of the field" in " ".join(cal.summary["warnings"])
     clean = fluxcal.calibrate(np.delete(s.readings, np.arange(900, 920), axis=0))
     np.testing.assert_allclose(cal.offset, clean.offset, atol=1e-9 * H)
+
+
+def test_one_spike_in_few_readings_is_left_out():
+    """Under MIN_SAMPLES (40) readings the robust screen stands down; one spike at 200× the field then 'dominated'
+    the fit, whose error advised remedies that could not work (the default screen, already running). A reading
+    10× farther from the median than the median reading is still left out, and said."""
+    s, rng = turned(7)
+    m = s.readings[::40][:35].copy()  # a reading every 0.8 s: the tumble's directions
+    b = s.true_calibration().offset
+    m[12] = b + 200 * (m[12] - b)
+    cal = fluxcal.calibrate(m, field_norm=H)
+    assert cal.summary["outliers"]["rows"] == [12]
+    said = [w for w in cal.summary["warnings"] if w.startswith("left out 1 of 35")]
+    assert said and "too few for the robust screen" in said[0]
+    np.testing.assert_allclose(cal.offset, fluxcal.calibrate(np.delete(m, 12, axis=0), field_norm=H).offset)
