@@ -1224,6 +1224,10 @@ def cmd_drift(args) -> int:
                                            steady_state=args.steady_state, rated=args.rated,
                                            accuracy_class=args.accuracy_class, drift_input=args.drift_input,
                                            t=times)
+        if temperature["column"] != "temp":  # the °F/K hint names the file's column, and the remedy its unit line
+            said = drift.temperature_unit_hint(temp, breakpoints)
+            report["warnings"] = [drift.temperature_unit_hint(temp, breakpoints, name=temperature["column"])
+                                  if w == said else w for w in report["warnings"]]
         model.settings["source"] = str(args.file)
         model.settings["column"] = args.column
         # the model's temperatures are °C whatever the file's; apply converts its file's alike

@@ -33,16 +33,17 @@ def before_after_figure(raw, calibration, title: str = ""):
     raw = np.asarray(raw, dtype=float)
     h = calibration.apply(raw)
     H = calibration.field_norm
-    unit = calibration.units or ""
+    unit, h_unit = calibration.units or "", calibration.h_units or ""  # (h's unit differs from counts' readings)
     u = f" [{unit}]" if unit else ""
+    hu = f" [{h_unit}]" if h_unit else ""
     fig, ax = plt.subplots(1, 3, figsize=(15, 4.8))
     pairs = ((0, 1, "x–y"), (0, 2, "x–z"), (1, 2, "y–z"))
     for (i, j, label), colour in zip(pairs, ("C0", "C1", "C2")):
         ax[0].plot(raw[:, i], raw[:, j], ".", ms=1.5, color=colour, label=label)
         ax[1].plot(h[:, i], h[:, j], ".", ms=1.5, color=colour, label=label)
     circle = np.linspace(0, 2 * np.pi, 361)
-    ax[1].plot(H * np.cos(circle), H * np.sin(circle), "k--", lw=0.8, label=f"|h| = {_number(H)} {unit}".rstrip())
-    for a, name in ((ax[0], "raw readings" + u), (ax[1], "corrected" + u)):
+    ax[1].plot(H * np.cos(circle), H * np.sin(circle), "k--", lw=0.8, label=f"|h| = {_number(H)} {h_unit}".rstrip())
+    for a, name in ((ax[0], "raw readings" + u), (ax[1], "corrected" + hu)):
         a.set_title(name)
         a.set_aspect("equal", adjustable="datalim")
         a.legend(markerscale=6, fontsize=8)

@@ -107,3 +107,14 @@ def test_cli_hints_unlabelled_fahrenheit_and_converts_labelled(tmp_path, capsys,
     assert model["segments"][0]["range"][0] == pytest.approx(-20.0)
     assert model["segments"][-1]["range"][1] == pytest.approx(foct["temp"].max())
     assert model["temperature"]["unit"] == "F"
+
+
+def test_cli_hint_names_the_files_temperature_column(tmp_path, capsys, foct):
+    """A column named otherwise (--temp-column T_dev): the hint and its remedy name it, not 'temp'."""
+    path = write_csv(tmp_path / "foct_T_dev.csv", {"t": foct["t"], "zero_bias": foct["zero_bias"],
+                                                    "T_dev": foct["temp"] * 1.8 + 32.0},
+                     units={"t": "s", "zero_bias": "A"})
+    assert cli.main(["drift", "fit", str(path), "--temp-column", "T_dev", "-o", str(tmp_path / "m.json")]) == 0
+    out = capsys.readouterr().out
+    assert "warning: T_dev: -4 … 121.8 read as °C" in out and "'# units: T_dev=degF'" in out
+    assert "warning: temp:" not in out

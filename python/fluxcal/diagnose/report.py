@@ -448,7 +448,8 @@ def move_size(d, r) -> str:
     if r.get("rotation_deg") is not None:
         theta = np.radians(np.linalg.norm(r["rotation_deg"]))
         return f" (|θ| {_g(np.degrees(theta))}°: up to {_share(d, d.base.field_norm * theta)})"
-    if r.get("delay_ms") is not None and d.series.get("t") is not None:
+    if r.get("delay_ms") is not None and d.series.get("t") is not None and d.series.get("timestamps", True):
+        # (without timestamps the rate is per row, and a delay in ms has no size in the field)
         u = f" {d.units}" if d.units else ""
         rate = np.linalg.norm(_rate(d), axis=1)
         return (f"; with the readings changing by up to {_g(np.max(rate))}{u}/s in this recording, up to "
