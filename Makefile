@@ -27,6 +27,7 @@ bench: install
 	  $(DEV)/bench/bench_$$b --benchmark_min_time=0.5 || exit 1; done
 	$(PY) bench/ellipsoid.py
 	$(PY) bench/solvers.py
+	$(PY) bench/planar.py
 	$(PY) bench/positions.py
 	$(PY) bench/kalman.py
 	$(PY) bench/cable_paper.py build/cable_figs
