@@ -314,3 +314,18 @@ def test_one_spike_in_few_readings_is_left_out():
     said = [w for w in cal.summary["warnings"] if w.startswith("left out 1 of 35")]
     assert said and "too few for the robust screen" in said[0]
     np.testing.assert_allclose(cal.offset, fluxcal.calibrate(np.delete(m, 12, axis=0), field_norm=H).offset)
+
+
+def test_the_least_median_start_scores_in_the_readings_units():
+    """A quadric centred 45 000 µT away is nearly equally far from every reading: relative to its radius the readings
+    lie within 0.1 % of it, better than a right fit's noise, and such a subset quadric (through a burst of readings
+    at 100× the field in a blind check's hand turn) won the least-median start, and the fit failed. Scored in the
+    readings' units (Sampson distances), it loses to the readings' own shell."""
+    from fluxcal.calibration import Calibration
+    from fluxcal.outliers import _lmeds_start
+
+    s, rng = turned(4)
+    centre = np.median(s.readings, axis=0)
+    far = Calibration(offset=centre + [45000.0, 0.0, 0.0], matrix=np.eye(3) / 45000.0, field_norm=1.0)
+    start = _lmeds_start(s.readings, np.random.default_rng(0), far)
+    assert np.linalg.norm(start.offset - s.true_calibration().offset) < 0.05 * H
