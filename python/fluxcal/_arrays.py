@@ -178,3 +178,11 @@ def as_field_norms(values, n: int, name: str = "field_norms") -> np.ndarray:
         raise ValueError(f"{name}: value {bad[0]} is {norms[bad[0]]:g}; every reading needs a positive finite "
                          "true field magnitude (drop zero-field readings)")
     return norms
+
+
+def recording_times(samples) -> np.ndarray | None:
+    """The times of a Recording's rows (its time()), else None: arrays carry none, and a DataFrame's "time" column
+    is no method."""
+    time = getattr(samples, "time", None)
+    t = time() if callable(time) else None
+    return None if t is None else np.asarray(t, dtype=float)

@@ -819,10 +819,10 @@ def _spread_kept(norms: np.ndarray) -> tuple:
     readings) do not make a right calibration look wrong, while the broad spread of a wrong one stays."""
     from scipy import stats
 
-    median = np.median(norms)
-    sigma = 1.4826 * np.median(np.abs(norms - median))
-    keep = (np.abs(norms - median) <= stats.norm.isf(0.005 / len(norms)) * sigma if sigma > 0
-            else np.ones(len(norms), dtype=bool))
+    from .outliers import _robust_z
+
+    z, sigma = _robust_z(norms)
+    keep = z <= stats.norm.isf(0.005 / len(norms)) if sigma > 0 else np.ones(len(norms), dtype=bool)
     kept = norms[keep]
     return float(kept.std() / kept.mean()), int((~keep).sum())
 

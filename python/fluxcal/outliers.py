@@ -409,9 +409,14 @@ def _fits_to_the_noise(m: np.ndarray, cal, threshold: float, norms=None):
     NOISE_FACTOR of the white noise that third differences show) and no reading stands out: outliers
     would have distorted it, so the least-median search is not needed. Else None. Only saves time: the
     search would return this fit."""
+    from .diagnose.core import time_series_noise  # here: diagnose imports this module
+
     if cal is None:
         return None
-    noise = _white_noise(m)
+    # no yardstick when consecutive readings differ about as much as any two (rows in random orientations or out of
+    # time order: an ALS fit that one spike at 10× the field had distorted by 20 % of the field passed as
+    # "explained to the noise"), or when motion is in the differences (steady)
+    noise = time_series_noise(m, steady=True)
     if noise is None:
         return None
     z, sigma = _robust_z(_distances(cal, m, norms))
@@ -419,16 +424,6 @@ def _fits_to_the_noise(m: np.ndarray, cal, threshold: float, norms=None):
     if np.any(z > threshold) or not sigma <= NOISE_FACTOR * noise / radius:
         return None
     return float(sigma)
-
-
-def _white_noise(m: np.ndarray) -> float | None:
-    """The readings' white-noise σ from third differences when that is a yardstick: None when consecutive readings
-    differ about as much as any two (rows in random orientations or out of time order: the differences then hold
-    the turns, and an ALS fit that one spike at 10× the field had distorted by 20 % of the field passed as
-    "explained to the noise") or when the 4th-order estimate departs from the 3rd (motion in the differences)."""
-    from .diagnose.core import time_series_noise  # here: diagnose imports this module
-
-    return time_series_noise(m, steady=True)
 
 
 def _runs(mask: np.ndarray) -> list:

@@ -8,7 +8,7 @@ from concurrent.futures import ThreadPoolExecutor
 import numpy as np
 
 from . import _core
-from ._arrays import as_samples, held_copies
+from ._arrays import as_samples, held_copies, recording_times
 from .calibration import TESLA_PER_UNIT, Calibration
 from .ellipsoid import fit_ellipsoid
 from .outliers import DOMINATING, far_readings, find_outliers
@@ -164,8 +164,7 @@ def calibrate(samples, method: str = "auto", field_norm: float | None = None, re
     if left_out is not None:
         cal.summary["outliers"] = left_out.to_dict()
         cal.summary["warnings"] = list(cal.summary["warnings"]) + left_out.messages(len(all_readings))
-    said = [plausible_field(cal)] + ([] if vector else [misses_the_noise(cal, all_readings, getattr(samples, "time",
-                                                                                                    None))])
+    said = [plausible_field(cal)] + ([] if vector else [misses_the_noise(cal, all_readings, recording_times(samples))])
     cal.summary["warnings"] = list(cal.summary["warnings"]) + [w for w in said if w]
     return _note_copies(cal, all_readings)
 
@@ -197,16 +196,15 @@ def plausible_field(cal: Calibration) -> str | None:
 MISSES_NOISE = 3.0
 
 
-def misses_the_noise(cal: Calibration, m: np.ndarray, time=None) -> str | None:
+def misses_the_noise(cal: Calibration, m: np.ndarray, t=None) -> str | None:
     """A warning when the magnitude fit's residual σ (summary["noise_sigma"], the readings' unit) is more than
     MISSES_NOISE times the readings' own white noise: what the model misses can bias the calibration beyond its
-    standard errors. `time`: the Recording's time() (rows ordered by it), else row order; None for rows that are
-    no time series (diagnose.core.time_series_noise)."""
+    standard errors. `t`: the rows' times (ordered by them), else row order; None for rows that are no time
+    series (diagnose.core.time_series_noise)."""
     from .diagnose.core import time_series_noise
 
     residual = cal.summary.get("noise_sigma")
-    t = time() if callable(time) else None
-    order = slice(None) if t is None or len(t) != len(m) else np.argsort(np.asarray(t, dtype=float), kind="stable")
+    order = slice(None) if t is None or len(t) != len(m) else np.argsort(t, kind="stable")
     sigma = time_series_noise(m[order])
     if not residual or sigma is None or not residual > MISSES_NOISE * sigma:
         return None

@@ -18,7 +18,7 @@ import numpy as np
 
 from . import _core
 from ._arrays import (as_field_norms, as_number, as_samples, changing_field, field_norm_given, field_norms_summary,
-                      set_options, units_text)
+                      recording_times, set_options, units_text)
 from .calibration import Calibration
 from .ellipsoid import _calibration
 
@@ -268,11 +268,10 @@ def _nearest_minimum(lags: np.ndarray, ms: np.ndarray) -> int:
 
 def reading_interval(samples) -> float | None:
     """The readings' time step in seconds (the median), when `samples` is a Recording with times; else None."""
-    time = getattr(samples, "time", None)  # (a DataFrame's column "time" is no method)
-    t = time() if callable(time) else None
+    t = recording_times(samples)
     if t is None or len(t) < 2:
         return None
-    step = float(np.median(np.diff(np.asarray(t, dtype=float))))
+    step = float(np.median(np.diff(t)))
     return step if np.isfinite(step) and step > 0 else None
 
 
