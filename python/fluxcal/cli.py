@@ -101,7 +101,7 @@ def _report(cal: Calibration, raw: np.ndarray, out=None, t=None) -> None:
         unit = f" {cal.units}" if cal.units else ""
         print(f"  residual σ            {s['noise_sigma']:.4g}{unit}   (from the fit's residuals: the noise plus "
               "whatever the model misses)", file=out)
-        line = _noise_from_differences(raw, t, s["noise_sigma"], unit)
+        line = _noise_from_differences(raw, t, s["noise_sigma"], unit, s)
         if line:
             print(line, file=out)
     if "standard_errors" in s:
@@ -145,14 +145,20 @@ def _shape_scores(table: dict) -> str:
 NOISE_RATIO = 1.5
 
 
-def _noise_from_differences(raw: np.ndarray, t, residual: float, unit: str) -> str | None:
-    """The readings' own noise σ from third differences in time order (as `diagnose` estimates it), beside the
-    fit's residual σ: the two differ by what the model misses. None for rows that are not a time series
-    (consecutive readings differ about as much as any two, e.g. `fluxcal simulate`'s independent orientations):
-    their differences measure the turning, not the noise."""
+def _noise_from_differences(raw: np.ndarray, t, residual: float, unit: str, summary: dict) -> str | None:
+    """The readings' own noise σ from third differences in time order, beside the fit's residual σ: the two differ
+    by what the model misses. A magnitude fit's (summary["readings_noise_sigma"], pipeline.readings_noise: of its
+    residuals, so that noise correlated in time counts whole), else the readings' (as `diagnose` estimates it).
+    None for rows that are not a time series (consecutive readings differ about as much as any two, e.g.
+    `fluxcal simulate`'s independent orientations): their differences measure the turning, not the noise."""
     from .diagnose.core import time_series_noise
+    from .pipeline import NOISE_METHOD
 
-    sigma = time_series_noise(raw if t is None else raw[np.argsort(t, kind="stable")])
+    if "readings_noise_sigma" in summary:
+        sigma, how = summary["readings_noise_sigma"], NOISE_METHOD.format(stride=summary["readings_noise_stride"])
+    else:
+        sigma = time_series_noise(raw if t is None else raw[np.argsort(t, kind="stable")])
+        how = "third differences of the readings in time order, as diagnose estimates it"
     if sigma is None:
         return None
     ratio = residual / sigma
@@ -162,8 +168,7 @@ def _noise_from_differences(raw: np.ndarray, t, residual: float, unit: str) -> s
             f"above the residual σ ({times} it): the readings change between rows faster than their differences "
             "can tell from noise, and the residual σ bounds it" if ratio < 1 / NOISE_RATIO else
             f"the residual σ is {times} it")
-    return (f"  noise σ, differences  {sigma:.4g}{unit}   (third differences of the readings in time order, as "
-            f"diagnose estimates it; {what})")
+    return f"  noise σ, differences  {sigma:.4g}{unit}   ({how}; {what})"
 
 
 def reading_unit(text: str) -> str:

@@ -118,7 +118,7 @@ def calibrate(samples, method: str = "auto", field_norm: float | None = None, re
             raise ValueError("reference: it is the readings themselves (the same columns given twice?); give the "
                              "true field of each reading (e.g. IGRF rotated by the attitude)")
     left_out = find_outliers(m, reference if vector else None, field_norms=field_norms) if outliers == "drop" else None
-    all_readings = m
+    all_readings, all_norms = m, field_norms
     if left_out:
         m = np.delete(m, left_out.rows, axis=0)
         if vector:
@@ -164,7 +164,7 @@ def calibrate(samples, method: str = "auto", field_norm: float | None = None, re
     if left_out is not None:
         cal.summary["outliers"] = left_out.to_dict()
         cal.summary["warnings"] = list(cal.summary["warnings"]) + left_out.messages(len(all_readings))
-    said = [plausible_field(cal)] + ([] if vector else [misses_the_noise(cal, all_readings, recording_times(samples))])
+    said = [plausible_field(cal)] + ([] if vector else [misses_the_noise(cal, all_readings, recording_times(samples), all_norms)])
     cal.summary["warnings"] = list(cal.summary["warnings"]) + [w for w in said if w]
     return _note_copies(cal, all_readings)
 
@@ -196,27 +196,52 @@ def plausible_field(cal: Calibration) -> str | None:
 MISSES_NOISE = 3.0
 
 
-def misses_the_noise(cal: Calibration, m: np.ndarray, t=None) -> str | None:
-    """A warning when the magnitude fit's residual σ (summary["noise_sigma"], the readings' unit) is more than
-    MISSES_NOISE times the readings' own white noise: what the model misses can bias the calibration beyond its
-    standard errors. `t`: the rows' times (ordered by them), else row order; None for rows that are no time
+def readings_noise(cal: Calibration, m: np.ndarray, t=None, field_norms=None) -> tuple[float, int] | None:
+    """The readings' own noise σ (their unit) and the stride, in readings, it was measured at: third differences of
+    the magnitude fit's residuals in time order at the longest stride over which the sensor turns less than ~40°
+    (diagnose.core.noise_within_turns), so that noise correlated in time counts whole while what the model misses,
+    which varies with the direction, does not; never below the readings' own third differences. `t`: the rows'
+    times (ordered by them), else row order; `field_norms`: each row's |field|. None for rows that are no time
     series (diagnose.core.time_series_noise)."""
-    from .diagnose.core import time_series_noise
+    from .diagnose.core import changed_rows, noise_within_turns, time_series_noise
 
-    residual = cal.summary.get("noise_sigma")
     order = slice(None) if t is None or len(t) != len(m) else np.argsort(t, kind="stable")
-    sigma = time_series_noise(m[order])
-    if not residual or sigma is None or not residual > MISSES_NOISE * sigma:
+    white = time_series_noise(m[order])
+    if white is None:
+        return None
+    changed = changed_rows(m[order])  # (as the readings' own σ leaves a logger's repeats out)
+    norms = None if field_norms is None else np.asarray(field_norms, dtype=float)[order][changed]
+    with np.errstate(all="ignore"):  # a glitch of 1e300 left out of the fit overflows; the MAD ignores it
+        h = cal.apply(m[order][changed])
+        sigma, stride = noise_within_turns(sampson_residuals(cal, m[order][changed], norms),
+                                           h / np.linalg.norm(h, axis=1, keepdims=True))
+    return (sigma, stride) if sigma > white else (white, 1)
+
+
+def misses_the_noise(cal: Calibration, m: np.ndarray, t=None, field_norms=None) -> str | None:
+    """A warning when the magnitude fit's residual σ (summary["noise_sigma"], the readings' unit) is more than
+    MISSES_NOISE times the readings' own noise (readings_noise, also put in summary["readings_noise_sigma"] and
+    ["readings_noise_stride"]): what the model misses can bias the calibration beyond its standard errors."""
+    residual = cal.summary.get("noise_sigma")
+    own = readings_noise(cal, m, t, field_norms) if residual else None
+    if own is None:
+        return None
+    sigma, stride = own
+    cal.summary["readings_noise_sigma"], cal.summary["readings_noise_stride"] = sigma, stride
+    if not residual > MISSES_NOISE * sigma:
         return None
     unit = f" {cal.units}" if cal.units else ""
-    cal.summary["readings_noise_sigma"] = sigma
     return (f"the fit's residual σ {residual:.4g}{unit} is {residual / sigma:.3g}× the readings' own noise "
-            f"{sigma:.4g}{unit} (third differences in time order): the model misses something larger than the noise, "
-            "which can bias the calibration beyond its standard errors — a disturbance (a magnet, a motor, a "
+            f"{sigma:.4g}{unit} ({NOISE_METHOD.format(stride=stride)}): the model misses something larger than the "
+            "noise, which can bias the calibration beyond its standard errors — a disturbance (a magnet, a motor, a "
             "current near the sensor), an offset that moved within the log (two sessions in one file, a battery or "
             "board moved: calibrate each apart), or a |field| that changed; fluxcal diagnose names what. (Noise "
-            "correlated in time, a sensor's internal low-pass filter, also raises the ratio: third differences see "
-            "less of it)")
+            "correlated over longer than the sensor takes to turn ~40° also raises the ratio: turn faster or "
+            "average fewer readings)")
+
+
+# How readings_noise's σ was measured, for a printout (stride: readings_noise's)
+NOISE_METHOD = "third differences in time order of the fit's residuals, {stride} readings apart"
 
 
 def _magnitude_start(m: np.ndarray, field_norm, field_norms, units, start_settings: dict) -> Calibration:
@@ -371,11 +396,17 @@ def _judged_rss(cal: Calibration, m: np.ndarray, judged: np.ndarray | None, fiel
     readings, or None when all are judged."""
     if judged is None:
         return None
-    h = cal.apply(m[judged])
-    size = np.linalg.norm(h, axis=1)
-    target = cal.field_norm if field_norms is None else np.asarray(field_norms)[judged]
-    r = (size - target) * size / np.linalg.norm(h @ cal.matrix.T, axis=1)
+    r = sampson_residuals(cal, m[judged], None if field_norms is None else np.asarray(field_norms)[judged])
     return float(r @ r), int(np.count_nonzero(judged))
+
+
+def sampson_residuals(cal: Calibration, m: np.ndarray, field_norms=None) -> np.ndarray:
+    """Each reading's magnitude residual in the readings' unit, as refine's: Sampson's (|h| − H)|h|/|A h|, with H
+    the calibration's field norm or each reading's own `field_norms`."""
+    h = cal.apply(m)
+    size = np.linalg.norm(h, axis=1)
+    target = cal.field_norm if field_norms is None else np.asarray(field_norms, dtype=float)
+    return (size - target) * size / np.linalg.norm(h @ cal.matrix.T, axis=1)
 
 
 # Kass & Raftery's "very strong" evidence: a BIC lower by more than this (a Bayes factor above ~150).

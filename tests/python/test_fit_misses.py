@@ -12,14 +12,17 @@ FIELD = np.array([20.0, 2.0, 44.0])  # µT, |F| ≈ 48.4
 H = float(np.linalg.norm(FIELD))
 
 
-def hand_turned(seed):
+def hand_turned(seed, noise=(sim.WhiteNoise(0.1),)):
     """A hand-turned sensor's log in time order (a minute at 50 Hz, smooth at the sample rate): soft iron ±5 %, hard
-    iron ~20 µT, noise 0.1 µT (0.2 % of |F|)."""
+    iron ~20 µT, noise 0.1 µT (0.2 % of |F|) or the `noise` effects given."""
     rng = np.random.default_rng(seed)
     W = np.eye(3) + np.diag(rng.uniform(-0.05, 0.05, 3)) + 0.01 * rng.standard_normal((3, 3))
     W = (W + W.T) / 2
-    effects = [sim.SoftIron(W), sim.HardIron(rng.uniform(-20, 20, 3)), sim.WhiteNoise(0.1)]
+    effects = [sim.SoftIron(W), sim.HardIron(rng.uniform(-20, 20, 3)), *noise]
     return sim.simulate(sim.tumble(60.0, rng=rng), effects, FIELD, rng)
+
+
+LOW_PASS = (sim.ColoredNoise(0.1, phi=0.9),)  # a sensor's internal first-order filter: AR(1), σ 0.1 µT
 
 
 def misses(cal):
@@ -43,6 +46,38 @@ def test_a_right_model_is_not_said_to_miss(seed):
     cal = fluxcal.calibrate(hand_turned(seed).readings)
     assert not misses(cal)
     assert not [w for w in cal.summary["warnings"] if "far above a sensor's noise" in w]
+
+
+@pytest.mark.parametrize("noise", [LOW_PASS, (sim.WhiteNoise(0.05), sim.ColoredNoise(0.2, phi=0.97))],
+                         ids=["ar1", "white+ar1"])
+@pytest.mark.parametrize("seed", [0, 1, 2])
+def test_noise_correlated_in_time_is_not_said_to_be_missed(seed, noise):
+    """A right model of a sensor whose noise is low-pass filtered: consecutive readings' third differences see a
+    quarter of an AR(1)'s σ (φ 0.9), and the residual σ had been 3.9–4.0× 'the readings' own noise' (φ 0.97 with
+    white: ~5×). The noise is now measured on the residuals at strides over which the sensor turns < ~40°."""
+    cal = fluxcal.calibrate(hand_turned(seed, noise).readings)
+    assert not misses(cal)
+    assert cal.summary["readings_noise_stride"] > 1
+    assert cal.summary["noise_sigma"] < 2.5 * cal.summary["readings_noise_sigma"]
+
+
+@pytest.mark.parametrize("seed", [0, 1, 2])
+def test_two_sessions_are_said_through_correlated_noise(seed):
+    """The same low-pass noise, and the offset moved by 2 % of the field halfway: the strides that count the
+    correlated noise whole do not count the miss, which varies with the direction (residual σ 3.8–4.4× the noise)."""
+    m = hand_turned(seed, LOW_PASS).readings.copy()
+    m[len(m) // 2:] += 0.02 * H * np.array([0.6, -0.64, 0.48])
+    said = misses(fluxcal.calibrate(m))
+    assert said and "readings apart" in said[0]
+
+
+def test_a_field_that_changes_along_a_flight_is_still_said(real_data):
+    """The airborne segment fitted on magnitudes alone (no attitude): the |field| changes along the track, smoothly
+    in time while the aircraft hardly turns, so that long strides would take the miss for correlated noise. It grows
+    faster than noise can (6.5× per doubled stride), and the residual σ stays ~110× the readings' own noise."""
+    cal = fluxcal.calibrate(fluxcal.read_recording(real_data / "airborne_flt1002_02.tsv"), method="als+refine")
+    said = misses(cal)
+    assert said and cal.summary["noise_sigma"] > 50 * cal.summary["readings_noise_sigma"]
 
 
 @pytest.mark.parametrize("seed", [0, 1, 2])

@@ -199,7 +199,7 @@ def test_calibrate_names_the_residual_sigma_and_gives_the_readings_own_noise_bes
     assert float(residual.split()[2]) > 1.0  # the drift, not the 0.05 µT noise
     noise = _line(run.stdout, "noise σ, differences")
     assert 0.045 < float(noise.split()[3]) < 0.055, noise  # the simulated σ
-    assert "third differences of the readings in time order" in noise
+    assert "third differences in time order of the fit's residuals" in noise
     assert "the model misses more than the noise (fluxcal diagnose names what)" in noise
     # without the drift the two agree, and nothing is said to be missing
     run = run_cli("calibrate", _smooth_turn(tmp_path, 0.0, "clean.csv"))

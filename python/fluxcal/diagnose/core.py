@@ -275,9 +275,7 @@ def time_series_noise(values, steady: bool = False) -> float | None:
     rows (once repeated readings are left out) or a σ of 0 (readings coarser than their noise). `steady`: also not when the 4th-order estimate departs
     from the 3rd (MOTION_DROP: the differences hold motion, and over-estimate the noise)."""
     x = np.asarray(values, dtype=float).reshape(len(values), -1)
-    # a logger that reads faster than the sensor updates repeats each value: its zero differences would shrink the
-    # MAD (5.5× too small at 5 reads per update), so repeats are left out
-    x = x[np.r_[True, np.any(np.diff(x, axis=0) != 0, axis=1)]] if len(x) else x
+    x = x[changed_rows(x)]
     if len(x) < 20:
         return None
     sigma = _difference_noise(x, 3)
@@ -286,6 +284,54 @@ def time_series_noise(values, steady: bool = False) -> float | None:
     if steady and abs(_difference_noise(x, 4) - sigma) > (1 - MOTION_DROP) * sigma:
         return None
     return sigma
+
+
+def changed_rows(values) -> np.ndarray:
+    """Which rows (in time order) differ from the one before (the first does). A logger that reads faster than the
+    sensor updates repeats each value: its zero differences would shrink the MAD of any difference (5.5× too small
+    at 5 reads per update), so a noise estimate leaves the repeats out."""
+    x = np.asarray(values, dtype=float).reshape(len(values), -1)
+    return np.r_[True, np.any(np.diff(x, axis=0) != 0, axis=1)] if len(x) else np.zeros(0, dtype=bool)
+
+
+def noise_within_turns(residuals, directions) -> tuple[float, int]:
+    """The noise σ of a fit's residuals (rows in time order) and the stride k it was taken at: third differences of
+    residuals k apart, k = 1, 2, 4, … (at most N/24) while the sensor turns less than TURN_SPAN over the 3k readings
+    a difference spans (`directions`: the corrected field's unit vectors, the same rows; on average) and while each
+    doubling of k raises the σ by no more than GROWTH; k = 1 unless that raised it by more than LEVEL. Noise correlated over fewer readings than that (a sensor's
+    internal low-pass filter: AR(1) with φ = 0.9 leaves a quarter of its σ in consecutive readings' third
+    differences) is then all counted; what the model misses is not: a miss that varies with the direction varies
+    little over such a span, and one that varies smoothly in time (a |field| that changes along a flight) grows
+    faster than noise does."""
+    r = np.asarray(residuals, dtype=float).ravel()
+    u = np.asarray(directions, dtype=float)
+    # mean angle turned per reading (2 arcsin of half the chord: exact at any angle)
+    turn = float(np.mean(2 * np.arcsin(np.clip(np.linalg.norm(np.diff(u, axis=0), axis=1) / 2, 0, 1)))) \
+        if len(u) > 1 else np.inf
+
+    def sigma(k):
+        d = r[3 * k:] - 3 * r[2 * k:-k] + 3 * r[k:-2 * k] - r[:-3 * k] if len(r) > 3 * k else np.zeros(0)
+        return float(1.4826 * np.median(np.abs(d - np.median(d))) / np.sqrt(comb(6, 3))) if len(d) else 0.0
+
+    first = sigma(1)
+    k, at_k = 1, first
+    while 3 * 2 * k <= len(r) / 8 and 3 * 2 * k * turn <= TURN_SPAN:
+        wider = sigma(2 * k)
+        if not wider <= GROWTH * at_k:
+            break
+        k, at_k = 2 * k, wider
+    return (at_k, k) if at_k > LEVEL * first else (first, 1)
+
+
+TURN_SPAN = 0.75  # rad (≈ 43°) turned over a third difference's span. What the model misses leaks into the stride's
+                  # σ by a share of the residual σ that grows with the span: ≤ 0.06 up to 0.76 rad, 0.06–0.2 at
+                  # 1–1.5 rad (simulated hand turns at 10, 50 and 100 Hz whose offset moved by 5 or 20 % of the field
+                  # halfway), so a miss many times the noise still shows as ≥ 15× it
+LEVEL = 1.15  # the longest stride's σ under this × the first's: the noise is white, and the first's σ is kept
+              # (estimates at longer strides scatter more: 6 % at stride 16 in 3000 readings)
+GROWTH = 1.6  # a doubled stride's σ over the stride's: noise grows by at most √2 (white: 1; AR(1) or a moving
+              # average, like a random walk at lags within its correlation: √2), a smooth miss by up to 8 (the
+              # airborne recording's magnitude fit, a |field| changing along the track: 6.5, then 4.7)
 
 
 def _difference_noise(values: np.ndarray, order: int) -> float:
