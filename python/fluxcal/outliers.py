@@ -32,7 +32,6 @@ import numpy as np
 from scipy import special, stats
 
 from ._arrays import as_samples, changing_field, past_range
-from .calibration import Calibration
 from .ellipsoid import fit_ellipsoid
 from .twostep import twostep
 
@@ -91,9 +90,11 @@ class Outliers:
                 ("sit at a column's extreme value, repeated (ADC rail)", self.kinds.get("rail", 0)),
                 ("lie past any sensor's range (their squares overflow)", self.kinds.get("overflow", 0)),
                 (f"are off |h| by more than {GROSS:.0%} of the field (garbage, or a magnet at the sensor: no "
-                 "calibration absorbs them, in a stretch or alone)", self.kinds.get("gross", 0))) if k)
+                 "calibration absorbs them, in a stretch or alone)", self.kinds.get("gross", 0)),
+                (f"lie more than {DOMINATING:g}× farther from the readings' median than the median reading (off the "
+                 "plane: spikes)", self.kinds.get("far", 0))) if k)
             largest = f" (up to {self.largest:.3g})" if self.largest > 0 else ""  # (none but readings past range)
-            plain = len(self.rows) - sum(self.kinds.get(k, 0) for k in ("zero", "rail", "overflow", "gross"))
+            plain = len(self.rows) - sum(self.kinds.get(k, 0) for k in ("zero", "rail", "overflow", "gross", "far"))
             many = (f"; glitches are rarely so many ({100 * plain / n:.1f} % of the readings): a second group of "
                     "readings (an offset that moved within the log, two sessions in one file) or a disturbance would "
                     "look so, and the fit of the rest may be biased by it — fluxcal diagnose looks for the cause"
@@ -134,20 +135,25 @@ def _distances(cal, m: np.ndarray, norms=None) -> np.ndarray:
 def _subset_quadrics(m: np.ndarray, rng, change=None):
     """Least-squares quadrics x'Mx + 2v'x + d = 0 through SUBSETS random subsets of SUBSET readings, all
     at once (a batched SVD; the readings centred and scaled first for conditioning). Returns the
-    centres (k×3) and shape matrices (k×3×3, |S^½ (x − c)| = 1 on the quadric) of those that are
-    ellipsoids, in the readings' units. With `change` (each reading's (H_k/H̄)² − 1, a field that changes) the
-    quadric has a term in it, x'Mx + 2v'x + d + e·change = 0, and |S^½ (x − c)| = H_k/H̄ instead."""
+    centres (k×D) and shape matrices (k×D×D, |S^½ (x − c)| = 1 on the quadric) of those that are
+    ellipsoids (ellipses for D = 2 columns), in the readings' units. With `change` (each reading's (H_k/H̄)² − 1, a
+    field that changes) the quadric has a term in it, x'Mx + 2v'x + d + e·change = 0, and |S^½ (x − c)| = H_k/H̄
+    instead."""
     # (robustly: a mean and a std had taken the scale of one reading of 1e16, and no subset was an ellipsoid)
     mu = np.median(m, axis=0)
     scale = float(np.median(np.linalg.norm(m - mu, axis=1))) or 1.0
     rows = rng.integers(0, len(m), (SUBSETS, SUBSET))  # a repeated reading only weakens a subset
     x = (m[rows] - mu) / scale
-    X, Y, Z = x[..., 0], x[..., 1], x[..., 2]
-    columns = [X * X, Y * Y, Z * Z, 2 * X * Y, 2 * X * Z, 2 * Y * Z, 2 * X, 2 * Y, 2 * Z, np.ones_like(X)]
+    dim = m.shape[1]
+    pairs = [(i, i) for i in range(dim)] + [(i, j) for i in range(dim) for j in range(i + 1, dim)]
+    columns = ([x[..., i] * x[..., j] * (1 if i == j else 2) for i, j in pairs] + [2 * x[..., i] for i in range(dim)]
+               + [np.ones_like(x[..., 0])])
     design = np.stack(columns + ([] if change is None else [change[rows]]), axis=-1)
     p = np.linalg.svd(design, full_matrices=False)[2][:, -1, :]  # the null direction of each subset's design
-    M = np.stack([p[:, [0, 3, 4]], p[:, [3, 1, 5]], p[:, [4, 5, 2]]], axis=1)
-    v, d = p[:, 6:9], p[:, 9]
+    M = np.zeros((len(p), dim, dim))
+    for c, (i, j) in enumerate(pairs):
+        M[:, i, j] = M[:, j, i] = p[:, c]
+    v, d = p[:, len(pairs):len(pairs) + dim], p[:, len(pairs) + dim]
     ok = np.abs(np.linalg.det(M)) > 1e-12
     M, v, d = M[ok], v[ok], d[ok]
     centre = -np.linalg.solve(M, v[..., None])[..., 0]
@@ -155,6 +161,16 @@ def _subset_quadrics(m: np.ndarray, rng, change=None):
     S = M / k[:, None, None]
     ellipsoid = np.all(np.linalg.eigvalsh(S) > 0, axis=1)
     return centre[ellipsoid] * scale + mu, S[ellipsoid] / scale ** 2
+
+
+@dataclass
+class Quadric:
+    """An ellipsoid (or an ellipse, 2 columns) as the screen judges readings against it: h = A (m − b)."""
+    offset: np.ndarray
+    matrix: np.ndarray
+
+    def apply(self, m: np.ndarray) -> np.ndarray:
+        return (np.asarray(m, dtype=float) - self.offset) @ self.matrix.T
 
 
 def _robust_z(e: np.ndarray):
@@ -181,7 +197,7 @@ def _try_fit(m: np.ndarray, method: str, norms=None):
 def _lmeds_start(m: np.ndarray, rng, best=None, norms=None):
     """The fit with the least median absolute distance: `best` (the ALS fit of all readings), or the quadric
     through one of the random subsets (scored on at most SCORED readings: the median needs no more). With each
-    reading's |field| (`norms`, changing) the distances are as _distances takes them. Returns a Calibration or
+    reading's |field| (`norms`, changing) the distances are as _distances takes them. Returns `best`, a Quadric or
     None."""
     chosen = np.arange(len(m)) if len(m) <= SCORED else rng.choice(len(m), SCORED, replace=False)
     scored = m[chosen]
@@ -212,7 +228,7 @@ def _lmeds_start(m: np.ndarray, rng, best=None, norms=None):
         j = int(np.argmin(scores))
         if scores[j] < best_score:
             w, V = np.linalg.eigh(shapes[j])
-            best = Calibration(offset=centres[j], matrix=(V * np.sqrt(w)) @ V.T, field_norm=1.0)
+            best = Quadric(offset=centres[j], matrix=(V * np.sqrt(w)) @ V.T)
     return best
 
 
@@ -253,22 +269,27 @@ def _squares_representable(a: np.ndarray) -> bool:
     return bool(np.isfinite(square * a.size) and (largest == 0.0 or square >= np.finfo(float).tiny))
 
 
-def find_outliers(samples, reference=None, alpha: float = 0.01, seed: int = 0, field_norms=None) -> Outliers:
+def find_outliers(samples, reference=None, alpha: float = 0.01, seed: int = 0, field_norms=None,
+                  ellipse=None) -> Outliers:
     """Gross outliers of `samples` (N×3 readings of a turning magnetometer), judged against the ellipsoid,
     or with `reference` (the true field of each reading, sensor frame) against the vector model
     m = W r + b; see the module doc. With `field_norms` (each reading's |field|, logged beside it) the fits take
     them (TWOSTEP when they change) and a reading's distance is (|h| − s·|field|)/(s·mean |field|): a glitch in that
-    log is left out with its reading."""
-    m = as_samples(samples)  # NaN is let through: the screen stands down and the fit names the row
+    log is left out with its reading. `ellipse`: samples are N×2 (a planar calibration's plane coordinates), judged
+    against the ellipse that `ellipse(readings, field_norms)` fits (an object with offset, matrix and apply, or None
+    when it fails), in place of the ALS ellipsoid."""
+    m = as_samples(samples, columns=3 if ellipse is None else 2)  # NaN is let through: the fit names the row
     n = len(m)
     if reference is not None:
         return _vector_outliers(m, as_samples(reference, "reference"), alpha, seed)
+    fit = (lambda x, norms: _try_fit(x, "als", norms)) if ellipse is None else ellipse
+    model = "the ellipsoid" if ellipse is None else "the ellipse"
     threshold = float(stats.norm.isf(alpha / (2 * n))) if n else 0.0
-    none = Outliers(np.zeros(0, dtype=int), threshold, screened=False)
+    none = Outliers(np.zeros(0, dtype=int), threshold, screened=False, model=model)
     huge = past_range(m)
     if huge.any() and n - huge.sum() >= MIN_SAMPLES:  # readings past any sensor's range (1e300): left out first
         kept = np.flatnonzero(~huge)
-        inner = find_outliers(m[kept], None, alpha, seed, None if field_norms is None else field_norms[kept])
+        inner = find_outliers(m[kept], None, alpha, seed, None if field_norms is None else field_norms[kept], ellipse)
         return replace(inner, rows=np.sort(np.concatenate([np.flatnonzero(huge), kept[inner.rows]])), screened=True,
                        kinds={**inner.kinds, "overflow": int(huge.sum())},
                        stretches=[(int(kept[a]), int(kept[b]), z) for a, b, z in inner.stretches])
@@ -279,16 +300,16 @@ def find_outliers(samples, reference=None, alpha: float = 0.01, seed: int = 0, f
         return replace(none, rows=far, screened=bool(len(far)), threshold=0.0)
     if n < MIN_SAMPLES or not _squares_representable(m):
         return none  # too few to judge, NaN or out of scale: the fit itself names the problem
-    start = _try_fit(m, "als", field_norms)
+    start = fit(m, field_norms)
     quick = _fits_to_the_noise(m, start, threshold, field_norms)
     if quick is not None:
-        return Outliers(np.zeros(0, dtype=int), threshold, quick)
+        return Outliers(np.zeros(0, dtype=int), threshold, quick, model=model)
     cal = _lmeds_start(m, np.random.default_rng(seed), start, field_norms)
     if cal is None:
         return none  # no subset fits an ellipsoid: the fit itself will say why
     z, sigma = _robust_z(_distances(cal, m, field_norms))
     for _ in range(3):  # refit on the accepted readings and judge everything again, until nothing changes
-        refit = _try_fit(m[z <= threshold], "als", None if field_norms is None else field_norms[z <= threshold])
+        refit = fit(m[z <= threshold], None if field_norms is None else field_norms[z <= threshold])
         if refit is None:
             break
         z_new, sigma = _robust_z(_distances(refit, m, field_norms))
@@ -296,8 +317,8 @@ def find_outliers(samples, reference=None, alpha: float = 0.01, seed: int = 0, f
         z = z_new
         if not changed:
             break
-    return _verdicts(m, z, threshold, float(sigma),
-                     "the ellipsoid" if field_norms is None else "the ellipsoid (each against its own |field|)")
+    return _verdicts(m, z, threshold, float(sigma), model if field_norms is None else f"{model} (each against its own "
+                     "|field|)")
 
 
 def far_readings(m: np.ndarray) -> np.ndarray:

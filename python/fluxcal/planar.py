@@ -53,6 +53,7 @@ import numpy as np
 from . import _core
 from ._arrays import as_field_norms, field_norm_given, first_nonfinite, units_text
 from .calibration import Calibration
+from .outliers import Quadric, far_readings, find_outliers
 
 AXES = "xyz"
 SHAPES = ("circle", "diag", "sym")  # as calibrate's sphere, diag, sym: one gain, per-axis gains, symmetric matrix
@@ -94,7 +95,8 @@ NOT_CALIBRATED_WORDS = "is not calibrated"
 
 def calibrate_planar(samples, field_norm=None, axes=None, units: str | None = None, shape: str = "auto",
                      min_arc: float = MIN_ARC_DEG, axis_tolerance: float = 5.0, planar_ratio: float = 0.02,
-                     max_iterations: int = 100, tolerance: float = 1e-10, field_units: str | None = None) -> Calibration:
+                     max_iterations: int = 100, tolerance: float = 1e-10, field_units: str | None = None,
+                     outliers: str = "drop") -> Calibration:
     """Calibrate the two axes of the plane a magnetometer turns in (yaw-only vehicle, biaxial compass).
 
     samples: N×3 readings (or a fluxcal Recording, whose unit is carried), or N×2 of a biaxial sensor.
@@ -112,6 +114,11 @@ def calibrate_planar(samples, field_norm=None, axes=None, units: str | None = No
     planar_ratio: thinnest/widest spread above which N×3 readings are checked for 3-D coverage (calibrate's).
     field_units: the unit of field_norm and of h when it is not the readings' (readings in counts, H in µT): h is
     labelled in it, and field_norm is not judged against the readings' radius as if in their unit.
+    outliers: "drop" (default, as fluxcal.calibrate's): gross outliers (I²C glitches reading 0,0,0, ADC rails,
+    spikes, bursts of garbage) are screened against the robustly fitted ellipse (fluxcal.outliers: least median of
+    squares, then the Bonferroni line at α = 1 %), and readings 10× farther from the readings' median than the median
+    reading are left out before the plane is found; summary["outliers"] lists the rows, a warning says how many.
+    "keep": every reading is fitted.
 
     Returns a Calibration h = A (m − b): the plane's 2×2 A and offset embedded in 3×3, the normal axis passed through
     (A's row and column for it √det A on the diagonal, its offset 0). For N×2 readings apply it to N×3 rows with the
@@ -144,9 +151,18 @@ def calibrate_planar(samples, field_norm=None, axes=None, units: str | None = No
                          f"2×2 matrix) and needs at least {MIN_READINGS} — log more readings while the vehicle turns "
                          "a full circle")
     norms = None if field_norm is None else as_field_norms(field_norm, n, "field_norm")
+    if outliers not in ("drop", "keep"):
+        raise ValueError(f"outliers: {outliers!r} is not 'drop' (screen the readings, the default) or 'keep'")
     warnings: list[str] = []
-    plane = _plane(m, axes, axis_tolerance, planar_ratio, warnings)
+    # a spike far off along the normal would tip the plane's scatter, and one in the plane the ellipse: left out first
+    far = far_readings(m) if outliers == "drop" else np.zeros(0, dtype=int)
+    plane = _plane(np.delete(m, far, axis=0), axes, axis_tolerance, planar_ratio, warnings)
     u = m @ plane["basis"].T  # N×2: the readings' components along the plane's axes
+    left_out = _screen(u, norms, far, max_iterations, tolerance) if outliers == "drop" else None
+    if left_out is not None and len(left_out.rows):
+        m, u = np.delete(m, left_out.rows, axis=0), np.delete(u, left_out.rows, axis=0)
+        norms = None if norms is None else np.delete(norms, left_out.rows)
+        n = len(m)
     fit = _fit(u, norms, shapes, max_iterations, tolerance)
     names = plane["names"]
     h = fit["h"]
@@ -205,6 +221,9 @@ def calibrate_planar(samples, field_norm=None, axes=None, units: str | None = No
             "reason": "the vehicle turns about it: the field's component along it never changes, so its offset and "
                       "gain leave no trace in the readings; it passes through, scaled by the plane's mean gain √det A "
                       "into h's unit (its offset not removed)"}
+    if left_out is not None:
+        summary["outliers"] = left_out.to_dict()
+        warnings += left_out.messages(n + len(left_out.rows))
     stated = units_text(field_units) if field_units else ""
     warnings += _notes(m, summary, plane, fit, norms, units if not stated or stated == units else "", planar_ratio)
     summary["warnings"] = warnings
@@ -506,6 +525,30 @@ def _fit(u: np.ndarray, norms, shapes: tuple, max_iterations: int, tolerance: fl
     larger = SHAPES[SHAPES.index(chosen) + 1:]
     result["undetermined_larger"] = [s for s in larger if s in table and not table[s].get("identifiable", False)]
     return result
+
+
+def _screen(u: np.ndarray, norms, far: np.ndarray, max_iterations: int, tolerance: float):
+    """The rows to leave out (fluxcal.outliers.Outliers): those the outlier screen flags off the ellipse of the plane
+    coordinates `u` (its fits are this module's symmetric one), and the `far` ones found before the plane (a spike
+    along the normal leaves no trace in u)."""
+    from dataclasses import replace
+
+    def ellipse(x, x_norms):
+        try:
+            r = _fit(x, x_norms, ("sym",), max_iterations, tolerance)
+        except (ValueError, RuntimeError):
+            return None
+        return Quadric(offset=r["b"], matrix=r["A"])
+
+    changing = norms is not None and np.ptp(norms) > 0  # (one H given is every reading's: no log of |field| to judge)
+    screen = find_outliers(u, field_norms=norms if changing else None, ellipse=ellipse)
+    if not screen.robust_sigma * MIN_RADIUS_OVER_NOISE < 1:  # scatter about a point: no ellipse to judge by, and
+        screen = replace(screen, rows=np.zeros(0, dtype=int), kinds={}, stretches=[])  # the fit says so
+    extra = np.setdiff1d(far, screen.rows)
+    if len(extra):
+        screen = replace(screen, rows=np.union1d(screen.rows, extra), screened=True,
+                         kinds={**screen.kinds, "far": len(extra)})
+    return screen
 
 
 # ---- what the summary says ---------------------------------------------------------------------------------------

@@ -1,0 +1,70 @@
+"""calibrate_planar's outlier screen: glitches in a yaw-only log (I²C reads of 0,0,0, a burst of garbage, spikes in
+the plane or along the normal) had gone into the ellipse fit. A burst of 10 readings 100 µT off moved the offset by
+19 µT in a 20 µT horizontal field, with nothing said; one spike at 10× the field by 30 of the clean fit's standard
+errors. The screen is fluxcal.outliers' (least median of squares, Bonferroni line) judged against the ellipse."""
+import numpy as np
+import pytest
+
+from fluxcal.planar import calibrate_planar
+
+from test_planar import H, Z_LIMIT, yaw_only
+
+
+def glitched(kind, m):
+    m = m.copy()
+    if kind == "zeros":
+        m[[100, 900, 1500]] = 0.0
+    elif kind == "burst":
+        m[700:710, :2] += 100.0
+    elif kind == "spike":
+        m[700, :2] = [200.0, 150.0]
+    elif kind == "normal":  # along the vehicle's vertical: leaves the plane's coordinates alone, but not its scatter
+        m[700, 2] = 2000.0
+    return m
+
+
+def offset_z(cal, truth):
+    """The offset's worst error in the clean fit's standard errors."""
+    return float(np.max(np.abs(cal.offset[:2] - truth["b"]) / np.array(cal.summary["standard_errors"][:2])))
+
+
+@pytest.mark.parametrize("kind", ["zeros", "burst", "spike", "normal"])
+@pytest.mark.parametrize("seed", [0, 1])
+def test_glitches_are_left_out_and_said(seed, kind):
+    m, truth = yaw_only(seed)
+    cal = calibrate_planar(glitched(kind, m), field_norm=H)
+    assert offset_z(cal, truth) < Z_LIMIT
+    said = [w for w in cal.summary["warnings"] if w.startswith("left out")]
+    assert len(said) == 1 and cal.summary["outliers"]["count"] >= 1
+    assert cal.summary["samples"] == len(m) - cal.summary["outliers"]["count"]
+    if kind == "zeros":
+        assert "read exactly 0,0,0" in said[0]
+    if kind == "normal":
+        assert "off the plane" in said[0]
+
+
+@pytest.mark.parametrize("kind", ["burst", "spike"])
+def test_keep_fits_every_reading(kind):
+    """outliers='keep' is the fit as it was: the glitches' bias is there (what the screen removes)."""
+    m, truth = yaw_only(3)
+    kept = calibrate_planar(glitched(kind, m), field_norm=H, outliers="keep")
+    assert "outliers" not in kept.summary and kept.summary["samples"] == len(m)
+    assert np.max(np.abs(kept.offset[:2] - truth["b"])) > 0.1
+
+
+def test_a_biaxial_sensors_glitches_too():
+    m, truth = yaw_only(4)
+    cal = calibrate_planar(glitched("burst", m)[:, :2], field_norm=H)
+    assert offset_z(cal, truth) < Z_LIMIT and cal.summary["outliers"]["count"] == 10
+
+
+def test_clean_logs_lose_few_readings():
+    """The Bonferroni line at α = 1 %: a clean recording loses any reading with probability ~1 %."""
+    lost = sum(calibrate_planar(yaw_only(seed, n=1000)[0], field_norm=H).summary.get("outliers", {}).get("count", 0) > 0
+               for seed in range(40))
+    assert lost <= 3
+
+
+def test_outliers_must_be_drop_or_keep():
+    with pytest.raises(ValueError, match="outliers: 'none'"):
+        calibrate_planar(yaw_only(5, n=100)[0], outliers="none")
