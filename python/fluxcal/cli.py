@@ -538,10 +538,19 @@ def _field_norm_from(rec: Recording, path: str, args) -> np.ndarray:
     return np.interp(mine, theirs, values) * factor
 
 
+def _two_columns_given(rec: Recording, columns) -> Recording:
+    """--columns with two names: a biaxial sensor's columns, also in a table without a header (whose reader takes
+    them as the columns' names and picks no magnetometer from two)."""
+    names = columns.split(",") if isinstance(columns, str) else None
+    if names is not None and len(names) == 2:
+        rec.select(names)
+    return rec
+
+
 def cmd_calibrate(args) -> int:
-    rec = read_recording(args.file, columns=args.columns, units=args.units, bad_lines=args.bad_lines,
-                         decimal=args.decimal)
-    raw = rec.samples()
+    rec = _two_columns_given(read_recording(args.file, columns=args.columns, units=args.units,
+                                            bad_lines=args.bad_lines, decimal=args.decimal), args.columns)
+    raw = rec.samples(biaxial=bool(args.planar))  # two field columns: only the planar fit takes them
     if args.planar:
         return _calibrate_planar(args, rec)
     # attitude + local field in the recording (e.g. the airborne layout): the vector fit, unless a
@@ -632,8 +641,16 @@ def _calibrate_planar(args, rec: Recording) -> int:
                          "of each reading's H); the total |F| of a file or of igrf is not the field in the turning "
                          f"plane (H = F cos(inclination)); the recording's columns: {', '.join(rec.columns)}")
     axes = None if args.planar == "auto" else args.planar
+    readings, units = rec, None
+    if rec.biaxial():  # a biaxial sensor's two columns: N×2, in the sensor axes they are (names, --planar, else x,y)
+        from ._arrays import field_norm_given
+
+        if axes is not None:
+            rec.take_axes(axes, f"--planar {axes}")
+        readings, axes, units = rec.samples(biaxial=True), rec.biaxial_axes, rec.field_units()
+        field_norm = field_norm_given(rec, field_norm)  # a column of each reading's H: its values
     try:
-        cal = calibrate_planar(rec, field_norm=field_norm, axes=axes, shape=args.shape,
+        cal = calibrate_planar(readings, field_norm=field_norm, axes=axes, units=units, shape=args.shape,
                                field_units=unit_name(args.field_units) if args.field_units else None)
     except ValueError as exc:
         raise ValueError(f"{args.file}: {exc}") from None
@@ -726,10 +743,41 @@ def _naming_the_input(message: str, args) -> str:
     return f"{inputs[0]}: {message}"
 
 
+def _biaxial_apply_axes(cal: Calibration, rec: Recording, args) -> str:
+    """The sensor axes of a biaxial recording's two columns for `cal`: a planar calibration's plane must be two sensor
+    axes, the columns' by their names or, when their names do not say, taken as the columns' (said)."""
+    names = ", ".join(rec.mag_names())
+    plane = plane_axes(cal)
+    if plane is None:
+        raise ValueError(f"{args.file}: 2 field columns ({names}: a biaxial magnetometer's), and {args.calibration} "
+                         "is a 3-D calibration, which needs three axes' readings; apply this sensor's planar "
+                         "calibration (`fluxcal calibrate --planar`)")
+    rows = np.abs(plane)
+    if not (np.allclose(rows.max(axis=1), 1.0) and np.allclose(np.sort(rows, axis=1)[:, :2], 0.0)):
+        raise ValueError(f"{args.calibration}: calibrated in a fitted plane tilted from the sensor axes (summary "
+                         f"plane_basis), which needs all three axes' readings; {args.file} has 2 field columns "
+                         f"({names})")
+    axes = "".join("xyz"[int(k)] for k in np.argmax(rows, axis=1))
+    named = rec.biaxial_axes_from
+    rec.take_axes(axes, f"the calibration {args.calibration}")
+    if not named:
+        print(f"note: {args.file}: columns {names} taken as the calibration's axes {', '.join(rec.biaxial_axes)} "
+              "(their names do not say which)")
+    return rec.biaxial_axes
+
+
+def _in_sensor_axes(readings: np.ndarray, axes: str) -> np.ndarray:
+    """A biaxial sensor's N×2 readings as N×3 rows in the sensor axes `axes`, the third 0 (a planar calibration
+    passes the third through, with no offset: its h is then 0, and is not written)."""
+    out = np.zeros((len(readings), 3))
+    out[:, ["xyz".index(a) for a in axes]] = readings
+    return out
+
+
 def cmd_apply(args) -> int:
     cal = Calibration.load(args.calibration)
-    rec = read_recording(args.file, columns=args.columns, units=args.units, bad_lines=args.bad_lines,
-                         decimal=args.decimal)
+    rec = _two_columns_given(read_recording(args.file, columns=args.columns, units=args.units,
+                                            bad_lines=args.bad_lines, decimal=args.decimal), args.columns)
     taken = [k for k in ("hx", "hy", "hz") if k in rec.columns]
     if taken:  # the corrected columns would replace them (raw readings named hx,hy,hz, an earlier correction)
         raise ValueError(f"{args.file}: already has column(s) {', '.join(taken)}, which the corrected field would "
@@ -741,14 +789,19 @@ def cmd_apply(args) -> int:
     factor = cal.unit_factor(rec.field_units(), f"{args.file}")
     if factor != 1.0:
         print(f"readings in {rec.field_units()} converted to the calibration's {cal.units} (× {factor:g})")
+    # a biaxial sensor's two columns (a planar calibration's axes): corrected in its axes, those two written
+    axes = _biaxial_apply_axes(cal, rec, args) if rec.biaxial() else None
     with np.errstate(over="ignore", invalid="ignore"):  # said below, naming the files
-        h = cal.apply(rec)
-    bad = ~np.isfinite(h).all(axis=1) & np.isfinite(rec.samples(check_finite=False)).all(axis=1)
+        h = cal.apply(rec) if axes is None else cal.apply(_in_sensor_axes(rec.samples(biaxial=True), axes) * factor)
+    raw = (rec.samples(check_finite=False) if axes is None
+           else _in_sensor_axes(rec.samples(check_finite=False, biaxial=True), axes))
+    bad = ~np.isfinite(h).all(axis=1) & np.isfinite(raw).all(axis=1)
     if bad.any():  # a finite reading corrected to inf: nothing is written
         raise ValueError(f"{args.calibration}: correcting {args.file} overflows from row {int(np.argmax(bad))} on "
                          "(offset or matrix out of range for these readings)")
-    columns = {**rec.columns, "hx": h[:, 0], "hy": h[:, 1], "hz": h[:, 2]}
-    units = {**rec.units, **({k: cal.h_units for k in ("hx", "hy", "hz")} if cal.h_units else {})}
+    written = [f"h{a}" for a in (axes or "xyz")]
+    columns = {**rec.columns, **{k: h[:, "xyz".index(k[1])] for k in written}}
+    units = {**rec.units, **({k: cal.h_units for k in written} if cal.h_units else {})}
     write_output(args.output, Recording(columns=columns, units=units, source=str(args.output),
                                         metadata={**rec.metadata, "calibration": args.calibration}))
     # a planar calibration's field norm is the horizontal field's: |h| and its spread are judged in its plane
@@ -762,13 +815,13 @@ def cmd_apply(args) -> int:
         print(f"warning: {args.file}: {len(rows)} reading(s) past any sensor's range ({word} "
               f"{', '.join(map(str, where[:5]))}{', …' if len(rows) > 5 else ''}: a garbled line?), left out of "
               "|h| std/mean")
-    print(f"wrote {args.output}: {len(rec)} rows, corrected columns hx,hy,hz "
+    print(f"wrote {args.output}: {len(rec)} rows, corrected columns {','.join(written)} "
           f"({'horizontal ' if plane is not None else ''}|h| std/mean {100 * _spread(h[~far] @ to_plane):.3f} %)")
     scale = _scale_warning(cal, h[~far] @ to_plane, rec.field_units())
     if scale:
         print(f"warning: {scale}")
     t = rec.time()
-    misfit = _misfit_warning(cal, rec.samples(check_finite=False)[~far] @ to_plane, h[~far] @ to_plane,
+    misfit = _misfit_warning(cal, raw[~far] @ to_plane, h[~far] @ to_plane,
                              None if t is None else t[~far],
                              args.calibration, args.file)
     if misfit:
@@ -1368,8 +1421,9 @@ def build_parser() -> argparse.ArgumentParser:
                    help="print the folder of fluxcalConfig.cmake (for C++: find_package(fluxcal))")
     sub = p.add_subparsers(dest="command")
 
-    columns_help = ("the three magnetometer columns (default mx,my,mz or x,y,z); for a table without a header "
-                    "one name per column; for .mat/.npz the N×3 matrix variable")
+    columns_help = ("the three magnetometer columns (default mx,my,mz or x,y,z; two of a biaxial sensor, for "
+                    "calibrate --planar and apply); for a table without a header one name per column; for .mat/.npz "
+                    "the N×3 matrix variable")
     output_help = "the format follows the extension (.npz .mat .parquet .json), CSV text otherwise"
     bad_lines_help = ("a text line with the wrong number of fields or a non-number: stop with its line and column "
                       "(error, default) or leave it out and list it (skip)")

@@ -121,6 +121,19 @@ def _triples(names, kind_words):
     """{prefix words: (name_x, name_y, name_z)} for complete triples whose prefix has a word of kind_words
     (a magnetometer's prefix must not also name an accelerometer or a gyro). Qualifiers after the axis
     (mag_x_raw, MagXCal) count as part of the prefix."""
+    groups, by_unit = _axis_groups(names, kind_words)
+    found = {p: _complete(p, g) for p, g in groups.items()}
+    if not any(t is not None for t in found.values()):  # an igrf_x_nT beside mag_x_nT is not a second sensor
+        found = {p: _complete(p, g) for p, g in by_unit.items()}
+    found = {p: t for p, t in found.items() if t is not None}
+    lettered = {p: names for p, (names, numbered) in found.items() if not numbered}
+    return lettered or {p: names for p, (names, _) in found.items()}  # numbered channels rank below x/y/z
+
+
+def _axis_groups(names, kind_words) -> tuple:
+    """({prefix words: {axis: name}} of the columns named by an axis under a prefix with a word of kind_words,
+    the same of those named only by an axis and a field unit (x_uT)) — what _triples completes into triples and
+    find_magnetometer_pair into pairs."""
     groups: dict[tuple, dict[int, str]] = {}
     by_unit: dict[tuple, dict[int, str]] = {}  # named by an axis and a field unit only: when nothing else is
     other = (ACC_WORDS | GYRO_WORDS) if kind_words is MAG_WORDS else (MAG_WORDS - {"m"}) | GYRO_WORDS
@@ -144,12 +157,7 @@ def _triples(names, kind_words):
             groups.setdefault(prefix + ((unit,) if unit else ()), {}).setdefault(axis, name)
         elif field_unit:  # x_uT: the unit says it is a field
             by_unit.setdefault(prefix + (unit,), {}).setdefault(axis, name)
-    found = {p: _complete(p, g) for p, g in groups.items()}
-    if not any(t is not None for t in found.values()):  # an igrf_x_nT beside mag_x_nT is not a second sensor
-        found = {p: _complete(p, g) for p, g in by_unit.items()}
-    found = {p: t for p, t in found.items() if t is not None}
-    lettered = {p: names for p, (names, numbered) in found.items() if not numbered}
-    return lettered or {p: names for p, (names, _) in found.items()}  # numbered channels rank below x/y/z
+    return groups, by_unit
 
 
 # words of a device that a letter after them tags ("Sensor A", "IMU B", "Mag A": which of two, not an
@@ -203,16 +211,80 @@ def find_magnetometer(names, source: str = "recording", units=None):
                          "/ select()")
     # bare axes: x_raw,y_raw,z_raw beside x,y,z are the raw readings (PX4 1.10's sensor_mag: x,y,z are the
     # driver's calibrated field), as a raw magnetometer triple wins over a plain one
+    bare = _bare_axes(names, units)
+    for qualifier in ("raw", "", "axis"):
+        if len(bare.get(qualifier, {})) == 3:
+            return tuple(bare[qualifier][a] for a in "xyz")
+    return None
+
+
+def _bare_axes(names, units) -> dict:
+    """{qualifier: {axis letter: name}} of the columns named by an axis alone: x, Y, x_raw, "x-axis" (with a
+    field unit stated)."""
     bare = {}
     for n in names:
         ws = words(n)
         axes, rest = [w for w in ws if w in _AXES], [w for w in ws if w not in _AXES]
         if len(axes) == 1 and (rest in ([], ["raw"]) or rest == ["axis"] and _states_field((units or {}).get(n))):
             bare.setdefault("".join(rest), {}).setdefault(axes[0], n)
+    return bare
+
+
+def find_magnetometer_pair(names, source: str = "recording", units=None):
+    """A biaxial magnetometer's two columns among `names` (a HMC1052, a car compass: no third axis), for when
+    find_magnetometer finds no triple: ((name, name), axes) with axes "xy", "xz" or "yz" when the names say which
+    sensor axes they are (mx,my; Bx,Bz; mag_y,mag_z; x,y; x_uT,y_uT — ordered by axis), None when they do not
+    (mag_1,mag_2: numbered channels); None when there is no pair. The names are judged by the triples' rules (a
+    magnetometer word with the axis; plain x,y only when nothing else is; the raw pair before a calibrated one);
+    an ambiguous choice is a ValueError listing the pairs."""
+    names = list(names)
+    groups, by_unit = _axis_groups(names, MAG_WORDS)
+
+    def pairs(grouped) -> dict:
+        found = {}
+        for prefix, axes in grouped.items():
+            lettered = sorted(a for a in axes if a in (0, 1, 2))
+            numbered = sorted(a[1] for a in axes if isinstance(a, tuple))
+            if len(lettered) == 2:
+                found[prefix] = (tuple(axes[a] for a in lettered), "".join("xyz"[a] for a in lettered))
+            elif not lettered and len(numbered) == 2 and any(len(w) > 2 and not w.isdigit() for w in prefix):
+                # (mag_1, mag_2; not h1, h2: single letters numbered are as often separate sensors)
+                found[prefix] = (tuple(axes[("index", k)] for k in numbered), None)
+        return found
+
+    found = pairs(groups) or pairs(by_unit)
+    lettered = {p: f for p, f in found.items() if f[1] is not None}
+    found = lettered or found
+    if len(found) > 1:
+        plain = {p: f for p, f in found.items() if not set(p) & CALIBRATED_WORDS}
+        if len(plain) > 1:
+            plain = {p: f for p, f in plain.items() if set(p) & RAW_WORDS} or plain
+        found = plain or found
+    if len(found) > 1:
+        listed = "; ".join(",".join(f[0]) for f in found.values())
+        raise ValueError(f"{source}: several magnetometer column pairs ({listed}); choose one with --columns / "
+                         "select()")
+    if found:
+        return next(iter(found.values()))
+    bare = _bare_axes(names, units)
     for qualifier in ("raw", "", "axis"):
-        if len(bare.get(qualifier, {})) == 3:
-            return tuple(bare[qualifier][a] for a in "xyz")
+        if len(bare.get(qualifier, {})) == 2:
+            axes = "".join(a for a in "xyz" if a in bare[qualifier])
+            return tuple(bare[qualifier][a] for a in axes), axes
     return None
+
+
+def axis_of_name(name: str):
+    """The sensor axis (0, 1, 2 for x, y, z) a column's name says it is (mx, Bz, mag_y_uT, Y, x_raw), or None."""
+    ws = _drop_accel_unit(words(name))
+    ws, _ = _peel_unit(ws, FIELD_UNITS)
+    while len(ws) > 1 and ws[-1] in RAW_WORDS | CALIBRATED_WORDS:
+        ws = ws[:-1]
+    hit = _axis_of(ws)
+    if hit is not None and hit[1] in (0, 1, 2):
+        return hit[1]
+    axes = [w for w in ws if w in _AXES]
+    return _AXES[axes[0]] if len(axes) == 1 else None
 
 
 def _states_field(unit) -> bool:

@@ -8,7 +8,8 @@ import numpy as np
 from .._arrays import first_nonfinite, units_text
 
 UNIX_SECONDS = (1e8, 1e10)  # times in this range are clock times (Unix seconds, 1973 to 2286), not seconds from a start
-from .columns import (TO_CELSIUS, field_unit_of, unit_name, find_accelerometer, find_current, find_magnetometer, find_position, find_temperature, find_time,
+from .columns import (TO_CELSIUS, axis_of_name, field_unit_of, unit_name, find_accelerometer, find_current,
+                      find_magnetometer, find_magnetometer_pair, find_position, find_temperature, find_time,
                       sample_rate)
 
 MAG_COLUMNS = ("mx", "my", "mz")
@@ -32,6 +33,9 @@ class Recording:
         if len(lengths) > 1:
             raise ValueError(f"{self.source}: columns have different lengths {sorted(lengths)}")
         self.mag_columns = MAG_COLUMNS if all(c in self.columns for c in MAG_COLUMNS) else None
+        # A biaxial sensor's recording (two field columns, see mag_names): which sensor axes they are ("xy", "xz",
+        # "yz"), and what said so ("their names", or "" when nothing did and x,y is taken)
+        self._biaxial_axes, self._biaxial_axes_from = None, None
 
     def _column(self, name, values) -> np.ndarray:
         """One column as floats, or ValueError naming it (a 2-D array wrote a file no reader takes back)."""
@@ -47,13 +51,15 @@ class Recording:
         return len(next(iter(self.columns.values()))) if self.columns else 0
 
     def select(self, names) -> "Recording":
-        """Use `names` (three columns, or one string "mx,my,mz" as --columns takes them) as the magnetometer axes."""
+        """Use `names` (three columns, or one string "mx,my,mz" as --columns takes them) as the magnetometer axes;
+        two columns are a biaxial sensor's (which axes: by their names, else x,y — see `take_axes`)."""
         names = tuple(n.strip() for n in names.split(",")) if isinstance(names, str) else tuple(names)
-        if len(names) != 3:
-            raise ValueError(f"{self.source}: need three magnetometer columns, got {', '.join(names) or 'none'}")
-        if len(set(names)) != 3:
-            raise ValueError(f"{self.source}: magnetometer columns {', '.join(names)} repeat a name; give three "
-                             "different columns")
+        if len(names) not in (2, 3):
+            raise ValueError(f"{self.source}: need three magnetometer columns (or two of a biaxial sensor), got "
+                             f"{', '.join(names) or 'none'}")
+        if len(set(names)) != len(names):
+            raise ValueError(f"{self.source}: magnetometer columns {', '.join(names)} repeat a name; give "
+                             f"{'three' if len(names) == 3 else 'two'} different columns")
         missing = [n for n in names if n not in self.columns]
         if missing:
             raise ValueError(f"{self.source}: no column {', '.join(repr(m) for m in missing)}; "
@@ -62,35 +68,125 @@ class Recording:
         # times as well, and diagnose sorted the rows by them.
         clock = find_time(self.columns, self.units, None, names)
         if clock is not None and clock[0] in names:
-            fix = ("the file has three columns, all of them the magnetometer: name them e.g. mx,my,mz"
-                   if len(self.columns) == 3 else "choose three other columns, or rename the time column")
+            count = "three" if len(names) == 3 else "two"
+            fix = (f"the file has {count} columns, all of them the magnetometer: name them e.g. "
+                   f"{'mx,my,mz' if len(names) == 3 else 'mx,my'}" if len(self.columns) == len(names)
+                   else f"choose {count} other columns, or rename the time column")
             raise ValueError(f"{self.source}: column {clock[0]!r} is chosen as a magnetometer axis "
                              f"({', '.join(names)}) and its name makes it the time as well; one column cannot be both: "
                              f"{fix}")
+        self._biaxial_axes, self._biaxial_axes_from = None, None
+        if len(names) == 2:
+            names = self._biaxial(names)
         self.mag_columns = names
         return self
 
+    def _biaxial(self, names: tuple, axes: str | None = None) -> tuple:
+        """Record that the magnetometer is the two columns `names`, the sensor axes `axes` by their names (None:
+        judged here from the names, fluxcal.io.columns.axis_of_name; x,y taken when they do not say, until
+        `take_axes` says otherwise). Returns the names in axis order when their names say the axes."""
+        if axes is None:
+            found = tuple(axis_of_name(n) for n in names)
+            if None not in found and found[0] != found[1]:
+                names = tuple(n for _, n in sorted(zip(found, names)))
+                axes = "".join("xyz"[a] for a in sorted(found))
+        self._biaxial_axes, self._biaxial_axes_from = (axes, "their names") if axes else ("xy", "")
+        return tuple(names)
+
+    @property
+    def biaxial_axes(self):
+        """"xy", "xz" or "yz": the sensor axes of a biaxial sensor's two columns (see `biaxial`); None for three
+        axes (or no magnetometer found)."""
+        self._found()
+        return self._biaxial_axes
+
+    @property
+    def biaxial_axes_from(self):
+        """What said `biaxial_axes`: "their names", what `take_axes` was told ("--planar xz"), or "" when nothing
+        did (x,y taken); None for three axes."""
+        self._found()
+        return self._biaxial_axes_from
+
+    def _found(self) -> None:
+        if self.mag_columns is None:
+            try:
+                self.mag_names()
+            except ValueError:
+                pass
+        if self.mag_columns is not None and len(self.mag_columns) == 2 and self._biaxial_axes is None:
+            self.mag_columns = self._biaxial(self.mag_columns)  # two columns set directly, not by select()
+
+    def biaxial(self) -> bool:
+        """Whether the magnetometer is a biaxial sensor's two columns (see mag_names): `biaxial_axes` says which
+        sensor axes, and `samples(biaxial=True)` gives them N×2; everything that needs three axes refuses it."""
+        return len(self.mag_names()) == 2
+
+    def take_axes(self, axes: str, said_by: str) -> None:
+        """A biaxial recording's columns are the sensor axes `axes` ("xy", "xz", "yz"), as `said_by` states
+        (e.g. "--planar xz", a calibration's file): taken when the column names do not say, checked when they do
+        (ValueError naming both)."""
+        names = self.mag_names()
+        axes = axes.lower()
+        if len(names) != 2:
+            raise ValueError(f"{self.source}: {said_by} states a biaxial sensor's axes {axes}, but the magnetometer is "
+                             f"three columns ({', '.join(names)})")
+        if self.biaxial_axes_from == "their names":
+            if set(axes) != set(self.biaxial_axes):
+                raise ValueError(f"{self.source}: columns {names[0]}, {names[1]} are the sensor's "
+                                 f"{' and '.join(self.biaxial_axes)} axes by their names, and {said_by} says "
+                                 f"{' and '.join(axes)}: one of them is wrong — correct the column names (or choose "
+                                 "others with --columns), or give what matches them")
+            return
+        self._biaxial_axes, self._biaxial_axes_from = axes, said_by
+
     def mag_names(self) -> tuple:
         """The three magnetometer columns: those selected, else mx,my,mz, else the triple recognised by
-        name (MagX.., mag_x.., Bx.., x,y,z; see fluxcal.io.columns). A unit carried by the names
-        (mag_x_uT) is recorded when the file states none."""
+        name (MagX.., mag_x.., Bx.., x,y,z; see fluxcal.io.columns); else two such columns of a biaxial sensor
+        (mx,my; Bx,Bz; mag_1,mag_2 — see `biaxial`). A unit carried by the names (mag_x_uT) is recorded when the
+        file states none."""
         if self.mag_columns is None:
             found = find_magnetometer(self.columns, self.source, self.units)
+            pair = None if found is not None else self._pair()
+            if pair is not None:
+                found = self._biaxial(*pair)
             if found is None:
                 text = self.metadata.get("text_columns")  # a column of numbers in a form the reader did not take
                 # (and what a binary format's reader left out: a vector of another length, strings)
                 ignored = "; ".join(filter(None, (self.metadata.get(k)
                                                   for k in ("ignored_variables", "ignored_columns"))))
+                if len(self.columns) == 1 and not text and not ignored:
+                    raise ValueError(f"{self.source}: one column ({next(iter(self.columns))}): a magnetometer's "
+                                     "readings are three field columns (mx,my,mz), or two of a biaxial sensor (mx,my, "
+                                     "for calibrate --planar); a single field value per reading (a total-field |F|) "
+                                     "cannot be calibrated as a vector")
                 raise ValueError(f"{self.source}: no magnetometer columns (looked for mx,my,mz, MagX.., mag_x.., "
                                  f"Bx.., x,y,z; columns are: {', '.join(self.columns)}"
                                  f"{f'; left out as text: {text}' if text else ''}"
                                  f"{f'; left out: {ignored}' if ignored else ''}); choose three with "
-                                 "--columns / select()")
+                                 "--columns / select() (two of a biaxial sensor, for calibrate --planar)")
             self.mag_columns = found
             for n in found:
                 if not self.units.get(n) and field_unit_of(n):
                     self.units[n] = field_unit_of(n)
         return self.mag_columns
+
+    def _pair(self):
+        """(names, axes) of a biaxial sensor's two columns (fluxcal.io.columns.find_magnetometer_pair), or None;
+        None too when a column the reader left out (text, a variable of another shape) completes them to a triple:
+        mx,my read with mz left out as text are not a biaxial sensor (the "no magnetometer columns" error names it)."""
+        pair = find_magnetometer_pair(self.columns, self.source, self.units)
+        if pair is None:
+            return None
+        left_out = [entry.split(" (")[0].strip() for key in ("text_columns", "ignored_variables", "ignored_columns")
+                    for entry in str(self.metadata.get(key) or "").split("; ") if entry.strip()]
+        if left_out:
+            try:
+                whole = find_magnetometer(list(self.columns) + left_out, self.source, self.units)
+            except ValueError:
+                whole = None
+            if whole is not None and set(pair[0]) < set(whole):
+                return None
+        return pair
 
     def time(self):
         """Time of each reading in seconds (column t, else one recognised by name such as time, TimeUS,
@@ -167,6 +263,12 @@ class Recording:
             out["magnetometer"] = ",".join(self.mag_names())
         except ValueError:
             pass
+        else:
+            if self.biaxial_axes:  # which axes the two are, and what said so (a guess is said as one)
+                axes = ", ".join(self.biaxial_axes)
+                out["magnetometer"] += (f" (biaxial: axes {axes} by {self.biaxial_axes_from})" if self.biaxial_axes_from
+                                        else f" (biaxial: taken as axes {axes}, the names do not say which; "
+                                             "--planar xz or yz states others)")
         hit, rate = self._time_column(), sample_rate(self.metadata)
         if hit:
             made = self.metadata.get(hit[0])  # a reader that made the column says how ("row / Fs (Fs = 50 Hz …)")
@@ -184,9 +286,19 @@ class Recording:
             out["accelerometer"] = ",".join(acc)
         return out
 
-    def samples(self, check_finite: bool = True) -> np.ndarray:
-        """The magnetometer readings, N×3. NaN/Inf is an error naming the file line and column."""
+    def samples(self, check_finite: bool = True, biaxial: bool = False) -> np.ndarray:
+        """The magnetometer readings, N×3. NaN/Inf is an error naming the file line and column. A biaxial
+        sensor's recording (two field columns) is a ValueError saying so — everything but the planar calibration
+        needs three axes — unless `biaxial` (the caller takes N×2, in the axes `biaxial_axes`)."""
         names = self.mag_names()
+        if len(names) == 2 and not biaxial:
+            axes = " and ".join(self.biaxial_axes)
+            how = f"the sensor's {axes} axes by {self.biaxial_axes_from}" if self.biaxial_axes_from else \
+                f"taken as its {axes} axes"
+            raise ValueError(f"{self.source}: 2 field columns ({names[0]}, {names[1]}: a biaxial magnetometer's, "
+                             f"{how}), and this needs three axes' readings; `fluxcal calibrate --planar` "
+                             f"calibrates two (Python: fluxcal.calibrate_planar(rec.samples(biaxial=True), "
+                             f"axes=rec.biaxial_axes))")
         arr = np.column_stack([self.columns[n] for n in names])
         bad = first_nonfinite(arr) if check_finite else None
         if bad is not None:
@@ -311,7 +423,9 @@ def recording_from_arrays(variables: dict, source: str, matrix: str | None = Non
     """A Recording from named arrays of a file that fluxcal did not write (.mat, .npz, Parquet).
 
     Rule: the magnetometer is the N×3 variable named `matrix`; else columns mx,my,mz (or x,y,z) when
-    vectors of those names exist; else the only N×3 variable (MATLAB magcal users keep one such matrix).
+    vectors of those names exist; else the only N×3 variable (MATLAB magcal users keep one such matrix); else,
+    without any N×3 variable, two vectors a biaxial sensor's columns are named as (mx,my; Bx,Bz: see
+    Recording.mag_names).
     The chosen matrix becomes mx,my,mz; any other N×3 variable V becomes V_x, V_y, V_z; vectors of length N
     are columns under their own names; scalars and strings go to the metadata; anything else is listed in
     metadata["ignored_variables"] so that nothing disappears unmentioned.
@@ -345,6 +459,8 @@ def recording_from_arrays(variables: dict, source: str, matrix: str | None = Non
         chosen = matrix
     elif any(all(c in vectors for c in names) for names in (MAG_COLUMNS, ("x", "y", "z"))):
         chosen = None
+    elif not matrices and find_magnetometer_pair(vectors, source) is not None:  # a biaxial sensor's two vectors
+        chosen = None
     elif len(matrices) == 1:
         chosen = next(iter(matrices))
     elif matrices:
@@ -353,7 +469,11 @@ def recording_from_arrays(variables: dict, source: str, matrix: str | None = Non
     else:
         raise ValueError(f"{source}: no N×3 magnetometer matrix and no mx,my,mz vectors; variables are: {listing}"
                          " (readings go one per row: a 3×N matrix must be transposed)")
-    n_rows = len(matrices[chosen]) if chosen else len(vectors["mx" if "mx" in vectors else "x"])
+    if chosen:
+        n_rows = len(matrices[chosen])
+    else:  # mx,my,mz or x,y,z, else the biaxial pair
+        n_rows = len(vectors[next((n for n in ("mx", "x") if n in vectors), None)
+                             or find_magnetometer_pair(vectors, source)[0][0]])
     columns = {}
     for name, arr in matrices.items():
         if len(arr) != n_rows:
