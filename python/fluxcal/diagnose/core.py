@@ -296,7 +296,7 @@ def changed_rows(values) -> np.ndarray:
 
 def noise_within_turns(residuals, directions) -> tuple[float, int]:
     """The noise σ of a fit's residuals (rows in time order) and the stride k it was taken at: third differences of
-    residuals k apart, k = 1, 2, 4, … (at most N/24) while the sensor turns less than TURN_SPAN over the 3k readings
+    residuals k apart, k = 1, 2, 4, … (at most MAX_STRIDE and N/24) while the sensor turns less than TURN_SPAN over the 3k readings
     a difference spans (`directions`: the corrected field's unit vectors, the same rows; on average) and while each
     doubling of k raises the σ by no more than GROWTH; k = 1 unless that raised it by more than LEVEL. Noise correlated over fewer readings than that (a sensor's
     internal low-pass filter: AR(1) with φ = 0.9 leaves a quarter of its σ in consecutive readings' third
@@ -315,7 +315,7 @@ def noise_within_turns(residuals, directions) -> tuple[float, int]:
 
     first = sigma(1)
     k, at_k = 1, first
-    while 3 * 2 * k <= len(r) / 8 and 3 * 2 * k * turn <= TURN_SPAN:
+    while 2 * k <= MAX_STRIDE and 3 * 2 * k <= len(r) / 8 and 3 * 2 * k * turn <= TURN_SPAN:
         wider = sigma(2 * k)
         if not wider <= GROWTH * at_k:
             break
@@ -329,9 +329,15 @@ TURN_SPAN = 0.75  # rad (≈ 43°) turned over a third difference's span. What t
                   # halfway), so a miss many times the noise still shows as ≥ 15× it
 LEVEL = 1.15  # the longest stride's σ under this × the first's: the noise is white, and the first's σ is kept
               # (estimates at longer strides scatter more: 6 % at stride 16 in 3000 readings)
-GROWTH = 1.6  # a doubled stride's σ over the stride's: noise grows by at most √2 (white: 1; AR(1) or a moving
-              # average, like a random walk at lags within its correlation: √2), a smooth miss by up to 8 (the
-              # airborne recording's magnitude fit, a |field| changing along the track: 6.5, then 4.7)
+GROWTH = 3.0  # a doubled stride's σ over the stride's: noise grows by at most 2^1.5 = 2.8 (white: 1; a first-order
+              # filter's, AR(1), like a random walk within its correlation: √2; a second-order low-pass's: 2.8; an
+              # average of 2 readings: 2 at the first doubling), a miss smooth in time by up to 2³ = 8 (the airborne
+              # recording's magnitude fit, a |field| changing along the track: 6.5, then 4.7). A smooth miss under
+              # white noise inflates the σ by at most 7 % before its growth passes this.
+MAX_STRIDE = 8  # readings: a sensor's own filter (an average of ≤ 16 readings, a first-order one of φ ≤ 0.9)
+                # correlates its noise over about this many; a slower wander is no noise to ignore but a miss that
+                # biases the calibration (a blind check: a |field| wandering as a random walk, 2–5 % of the field, on a
+                # slowly turning drone was taken for noise at stride 32, the ratio 2.7 for a miss 13× the noise)
 
 
 def _difference_noise(values: np.ndarray, order: int) -> float:
