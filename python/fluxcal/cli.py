@@ -630,11 +630,11 @@ def _calibrate_planar(args, rec: Recording) -> int:
 
     refused = [name for name, given in (("--reference", args.reference), ("--method", args.method != "auto"),
                                         ("--align-accelerometer", args.align_accelerometer),
-                                        ("--outliers keep", args.outliers == "keep"), ("--plot", args.plot),
+                                        ("--plot", args.plot),
                                         ("--serial-correlation", args.serial_correlation)) if given]
     if refused:
         raise ValueError(f"--planar: {', '.join(refused)} belong to the 3-D fits (the planar fit has one method, no "
-                         "reference, outlier screen, alignment or plot); leave them out")
+                         "reference, alignment or plot); leave them out")
     field_norm = args.field_norm
     if isinstance(field_norm, str) and field_norm not in rec.columns:
         raise ValueError(f"--field-norm {field_norm}: with --planar, the HORIZONTAL field H (a number, or a column "
@@ -651,7 +651,8 @@ def _calibrate_planar(args, rec: Recording) -> int:
         field_norm = field_norm_given(rec, field_norm)  # a column of each reading's H: its values
     try:
         cal = calibrate_planar(readings, field_norm=field_norm, axes=axes, units=units, shape=args.shape,
-                               field_units=unit_name(args.field_units) if args.field_units else None)
+                               field_units=unit_name(args.field_units) if args.field_units else None,
+                               outliers=args.outliers)
     except ValueError as exc:
         raise ValueError(f"{args.file}: {exc}") from None
     cal.metadata.update(source=str(args.file), columns=",".join(rec.mag_names()))

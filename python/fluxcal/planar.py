@@ -137,6 +137,10 @@ def calibrate_planar(samples, field_norm=None, axes=None, units: str | None = No
         units = getattr(samples, "field_units", lambda: "")()
     units = units_text(units)
     field_norm = field_norm_given(samples, field_norm)
+    if callable(getattr(samples, "biaxial", None)) and samples.biaxial():  # a Recording of two field columns
+        if axes is not None:
+            samples.take_axes("".join(AXES[a] for a in _axes(axes)), f"axes={axes!r}")
+        axes, samples = samples.biaxial_axes, samples.samples(biaxial=True)
     m = _readings(samples)
     shapes = _shapes(shape)
     for name, value, low in (("min_arc", min_arc, 0.0), ("axis_tolerance", axis_tolerance, 0.0),
@@ -215,7 +219,12 @@ def calibrate_planar(samples, field_norm=None, axes=None, units: str | None = No
     }
     if norms is not None and np.ptp(norms) > 0:
         summary["field_norms"] = {"count": n, "min": float(norms.min()), "max": float(norms.max())}
-    if plane["normal_name"] is not None:
+    if plane["biaxial"]:
+        summary["not_calibrated"] = {
+            "axis": plane["normal_name"],
+            "reason": "a biaxial sensor has no such axis: the Calibration passes a third column through (0 for N×2 "
+                      "readings), scaled by the plane's mean gain √det A"}
+    elif plane["normal_name"] is not None:
         summary["not_calibrated"] = {
             "axis": plane["normal_name"],
             "reason": "the vehicle turns about it: the field's component along it never changes, so its offset and "
@@ -277,7 +286,9 @@ def summary_lines(cal: Calibration) -> list[str]:
     lines.append(f"  std error of b        {', '.join(f'{v:.3g}' for v in offsets)}{u}{caveat}")
     lines.append(f"  identifiable          {'yes' if s['identifiable'] else 'NO'} (the plane's {len(s['parameters'])} "
                  "parameters)")
-    if "not_calibrated" in s:
+    if s.get("biaxial"):
+        lines.append(f"  third axis            {s['not_calibrated']['axis']}: none (a biaxial sensor)")
+    elif "not_calibrated" in s:
         lines.append(f"  not calibrated        {s['not_calibrated']['axis']} (passes through, × the plane's mean gain)")
     return lines
 
@@ -557,13 +568,13 @@ def _notes(m: np.ndarray, summary: dict, plane: dict, fit: dict, norms, units: s
     from .io.columns import FIELD_UNITS
 
     notes = []
-    if plane["normal_name"] is not None:
+    if plane["normal_name"] is not None and not plane["biaxial"]:  # (a biaxial sensor has no third axis to say of)
         axis = plane["normal_name"]
         what = f"axis {axis}" if axis in tuple(AXES) else "the plane's normal"
         notes.append(f"{what} {NOT_CALIBRATED_WORDS}: the vehicle turns about it, so the field's component along it "
                      "never changes and its offset and gain leave no trace in the readings; it passes through, "
-                     "only scaled by the plane's mean gain into h's unit (its offset not removed). Tumble the sensor (fluxcal calibrate without the planar option) for a 3-D "
-                     "calibration")
+                     "only scaled by the plane's mean gain into h's unit (its offset not removed). Tumble the sensor "
+                     "(fluxcal calibrate without the planar option) for a 3-D calibration")
     if not summary["converged"]:
         notes.append(f"the planar fit did not converge in {summary['iterations']} iterations: the result is the last "
                      "iterate — check the readings for outliers and that the vehicle turned a full circle")

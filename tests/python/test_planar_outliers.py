@@ -65,6 +65,37 @@ def test_clean_logs_lose_few_readings():
     assert lost <= 3
 
 
+def test_the_command_line_leaves_glitches_out_and_names_their_lines(tmp_path, capsys):
+    """`fluxcal calibrate --planar` screens by default and names the file lines; --outliers keep fits them all."""
+    from fluxcal.cli import main
+
+    m, truth = yaw_only(6, n=600)
+    m[[100, 101]] = 0.0  # two I²C glitches: file lines 102, 103 (after the header)
+    log = tmp_path / "yaw.csv"
+    log.write_text("mx [uT],my [uT],mz [uT]\n" + "".join(f"{x:.5f},{y:.5f},{z:.5f}\n" for x, y, z in m))
+    assert main(["calibrate", str(log), "--planar", "--field-norm", str(H), "-o", str(tmp_path / "cal.json")]) == 0
+    out = capsys.readouterr().out
+    said = [line for line in out.splitlines() if line.startswith("warning: left out 2 of 600")]
+    assert len(said) == 1 and "102" in said[0] and "read exactly 0,0,0" in said[0], out
+    assert main(["calibrate", str(log), "--planar", "--field-norm", str(H), "--outliers", "keep"]) == 0
+    assert "left out" not in capsys.readouterr().out
+
+
+def test_a_biaxial_recording_is_calibrated_in_python_too(tmp_path):
+    """fluxcal.calibrate_planar(recording) of a two-column file: its two columns, in the axes their names say; no
+    'axis is not calibrated' warning for an axis the sensor does not have."""
+    import fluxcal
+
+    m, truth = yaw_only(7, n=600)
+    log = tmp_path / "car.csv"
+    log.write_text("Bx [uT],By [uT]\n" + "".join(f"{x:.5f},{y:.5f}\n" for x, y in m[:, :2]))
+    cal = calibrate_planar(fluxcal.read_recording(log), field_norm=H)
+    assert cal.summary["biaxial"] and cal.units == "uT" and offset_z(cal, truth) < Z_LIMIT
+    assert not [w for w in cal.summary["warnings"] if "is not calibrated" in w]
+    with pytest.raises(ValueError, match="axes='xz'"):
+        calibrate_planar(fluxcal.read_recording(log), field_norm=H, axes="xz")
+
+
 def test_outliers_must_be_drop_or_keep():
     with pytest.raises(ValueError, match="outliers: 'none'"):
         calibrate_planar(yaw_only(5, n=100)[0], outliers="none")
