@@ -298,7 +298,7 @@ def noise_within_turns(residuals, directions) -> tuple[float, int]:
     """The noise σ of a fit's residuals (rows in time order) and the stride k it was taken at: third differences of
     residuals k apart, k = 1, 2, 4, … (at most MAX_STRIDE and N/24) while the sensor turns less than TURN_SPAN over the 3k readings
     a difference spans (`directions`: the corrected field's unit vectors, the same rows; on average) and while each
-    doubling of k raises the σ by no more than GROWTH; k = 1 unless that raised it by more than LEVEL. Noise correlated over fewer readings than that (a sensor's
+    doubling of k after the first raises the σ by no more than GROWTH; k = 1 unless that raised it by more than LEVEL. Noise correlated over fewer readings than that (a sensor's
     internal low-pass filter: AR(1) with φ = 0.9 leaves a quarter of its σ in consecutive readings' third
     differences) is then all counted; what the model misses is not: a miss that varies with the direction varies
     little over such a span, and one that varies smoothly in time (a |field| that changes along a flight) grows
@@ -317,7 +317,7 @@ def noise_within_turns(residuals, directions) -> tuple[float, int]:
     k, at_k = 1, first
     while 2 * k <= MAX_STRIDE and 3 * 2 * k <= len(r) / 8 and 3 * 2 * k * turn <= TURN_SPAN:
         wider = sigma(2 * k)
-        if not wider <= GROWTH * at_k:
+        if k > 1 and not wider <= GROWTH * at_k:  # (the first doubling: FIRST_DOUBLING)
             break
         k, at_k = 2 * k, wider
     return (at_k, k) if at_k > LEVEL * first else (first, 1)
@@ -329,11 +329,15 @@ TURN_SPAN = 0.75  # rad (≈ 43°) turned over a third difference's span. What t
                   # halfway), so a miss many times the noise still shows as ≥ 15× it
 LEVEL = 1.15  # the longest stride's σ under this × the first's: the noise is white, and the first's σ is kept
               # (estimates at longer strides scatter more: 6 % at stride 16 in 3000 readings)
-GROWTH = 3.0  # a doubled stride's σ over the stride's: noise grows by at most 2^1.5 = 2.8 (white: 1; a first-order
-              # filter's, AR(1), like a random walk within its correlation: √2; a second-order low-pass's: 2.8; an
-              # average of 2 readings: 2 at the first doubling), a miss smooth in time by up to 2³ = 8 (the airborne
-              # recording's magnitude fit, a |field| changing along the track: 6.5, then 4.7). A smooth miss under
-              # white noise inflates the σ by at most 7 % before its growth passes this.
+GROWTH = 3.5  # a doubled stride's σ over the stride's: noise grows by at most ~2^1.5 = 2.8 (white: 1; a first-order
+              # filter's, AR(1), like a random walk within its correlation: √2; a second-order low-pass's: 2.8, above 3 in
+              # one of four simulated 3000-reading logs), a miss smooth in time by up to 2³ = 8 (the airborne recording's magnitude fit, a
+              # |field| changing along the track: 6.5, then 4.7). A smooth miss under white noise inflates the σ by at
+              # most 9 % before its growth passes this.
+# FIRST_DOUBLING: stride 2 is taken whatever it adds. A low-pass filter's zero at the Nyquist frequency (a
+# second-order Butterworth's) hides its noise from consecutive readings' third differences (a quarter of its σ at a
+# cutoff of 0.4× Nyquist, growing > 3× at the first doubling), while a miss smooth in time has a negligible share at
+# stride 1, and 8× that at stride 2 stays negligible (the airborne magnitude fit: 0.05 → 0.32 nT of a 46 nT residual).
 MAX_STRIDE = 8  # readings: a sensor's own filter (an average of ≤ 16 readings, a first-order one of φ ≤ 0.9)
                 # correlates its noise over about this many; a slower wander is no noise to ignore but a miss that
                 # biases the calibration (a blind check: a |field| wandering as a random walk, 2–5 % of the field, on a
