@@ -171,6 +171,17 @@ def _noise_from_differences(raw: np.ndarray, t, residual: float, unit: str, summ
     return f"  noise σ, differences  {sigma:.4g}{unit}   ({how}; {what})"
 
 
+PLANES = ("auto", "xy", "xz", "yz")  # calibrate --planar's values
+
+
+def _plane_option(text: str) -> str:
+    """--planar's value; a file name there (`--planar log.csv`: the option takes the word after it) is said so."""
+    if text.lower() in PLANES:
+        return text.lower()
+    raise argparse.ArgumentTypeError(f"{text!r} is not a plane ({', '.join(PLANES)}): the file goes before the option "
+                                     "(fluxcal calibrate FILE --planar), or name the plane first (--planar xy FILE)")
+
+
 def reading_unit(text: str) -> str:
     """--units: a field unit (T, mT, uT/µT, nT, G, mG, as loggers spell them) or counts; anything else is an
     error here, not a label that only apply would stumble on."""
@@ -1471,7 +1482,7 @@ def build_parser() -> argparse.ArgumentParser:
     c.add_argument("--acc-measures", choices=["specific_force", "gravity"], default="specific_force",
                    help="with --align-accelerometer: what the accelerometer reads at rest: specific_force (up, as "
                         "MEMS parts do; default) or gravity (down)")
-    c.add_argument("--planar", nargs="?", const="auto", default=None, choices=["auto", "xy", "xz", "yz"],
+    c.add_argument("--planar", nargs="?", const="auto", default=None, type=_plane_option, metavar="{" + ",".join(PLANES) + "}",
                    help="a sensor that only turns about one axis (a vehicle's heading): calibrate the two axes of "
                         "its turning plane (offset and 2×2 soft iron; found from the readings, or the sensor axes "
                         "given, e.g. --planar xy) and pass the third through, whose offset and gain such data "

@@ -84,9 +84,13 @@ class QFormat:
 
 
 def reading_extent(cal: Calibration) -> float:
-    """The largest |component| of a reading of a field of the calibration's magnitude: max_i |b_i| + F ‖W_i‖."""
+    """The largest |component| of a reading of a field of the calibration's magnitude: max_i |b_i| + F ‖W_i‖; for a
+    planar calibration at least its readings' own (summary["readings_extent"]): F is the horizontal field there, and
+    the axis passed through reads the vertical one (44–60 µT beside H 14–20 at high latitudes), which the model
+    does not know."""
     w = cal.forward_matrix
-    return float(np.max(np.abs(cal.offset) + cal.field_norm * np.linalg.norm(w, axis=1)))
+    extent = float(np.max(np.abs(cal.offset) + cal.field_norm * np.linalg.norm(w, axis=1)))
+    return max(extent, float(cal.summary.get("readings_extent", 0.0) or 0.0))
 
 
 def _output_range(a: np.ndarray, b: np.ndarray, r: float) -> float:

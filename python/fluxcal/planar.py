@@ -216,6 +216,9 @@ def calibrate_planar(samples, field_norm=None, axes=None, units: str | None = No
         "converged": fit["converged"],
         "iterations": fit["iterations"],
         "scale": "given" if norms is not None else "relative",
+        # the readings' largest |component|, the axis passed through included (its field, unknown to the plane's
+        # model, is often the largest: export-c states an input range that holds it)
+        "readings_extent": float(np.max(np.abs(m))),
     }
     if norms is not None and np.ptp(norms) > 0:
         summary["field_norms"] = {"count": n, "min": float(norms.min()), "max": float(norms.max())}

@@ -497,3 +497,14 @@ def test_a_flat_log_of_a_noisy_chip_in_a_weak_field_is_not_said_to_tilt():
     cal = calibrate_planar(m, field_norm=15.0)
     assert cal.summary["thinnest_over_widest"] > 0.02
     assert not [w for w in cal.summary["warnings"] if "tilts while" in w]
+
+
+def test_a_file_named_after_planar_is_said_so(capsys):
+    """`fluxcal calibrate --planar log.csv` (the option takes the word after it): the error says where the file goes,
+    not only that 'log.csv' is no choice."""
+    from fluxcal.cli import main
+
+    with pytest.raises(SystemExit) as exit_:
+        main(["calibrate", "--planar", "log.csv"])
+    assert exit_.value.code == 2
+    assert "the file goes before the option (fluxcal calibrate FILE --planar)" in capsys.readouterr().err

@@ -1,0 +1,27 @@
+"""export-c of a planar calibration: the axis passed through reads the vertical field, which the plane's model does not
+know. The stated input range came from the horizontal field alone (2 × 42 µT at H 14 µT) while that axis read 69 µT at
+a high latitude, so the firmware's fixed-point correction saturated on every reading (a newcomer's walk-through)."""
+import numpy as np
+
+from fluxcal.export_c import fixed_point
+from fluxcal.planar import calibrate_planar
+
+
+def high_latitude_log(n=1500, seed=0):
+    """A yaw-only vehicle where H = 14 µT and Z = 60 µT, hard iron 6.5, -4.2, +8 µT."""
+    rng = np.random.default_rng(seed)
+    psi = np.cumsum(rng.uniform(0.2, 1.8, n))
+    psi = psi / psi[-1] * 4 * np.pi
+    h = np.column_stack([14.0 * np.cos(psi), 14.0 * np.sin(psi), np.full(n, 60.0)])
+    W = np.array([[1.04, 0.03, 0.0], [0.03, 0.97, 0.0], [0.0, 0.0, 1.0]])
+    return h @ W.T + [6.5, -4.2, 8.0] + rng.normal(0, 0.1, (n, 3))
+
+
+def test_the_fixed_point_range_holds_the_axis_passed_through():
+    m = high_latitude_log()
+    cal = calibrate_planar(m, field_norm=14.0)
+    fixed = fixed_point(cal)
+    assert fixed.input_range >= np.max(np.abs(m))
+    h_q, saturated = fixed.apply_int(fixed.to_fixed(m[:50]))
+    assert not saturated
+    assert np.allclose(h_q * fixed.fmt.lsb, cal.apply(m[:50]), atol=fixed.error_bound)
