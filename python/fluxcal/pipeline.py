@@ -175,14 +175,25 @@ EARTH_FIELD_UT = (15.0, 100.0)
 PLAUSIBLE_WORDS = "|h| = "  # how plausible_field's warning starts (the CLI judges it again in its final unit)
 
 
-def plausible_field(cal: Calibration) -> str | None:
-    """A warning when |h|, in a field unit, is far from any field on the Earth's surface: a unit mix-up
-    (readings in mG labelled µT: |h| 500 "µT", offsets 10× too large) more often than a lab coil."""
+# its horizontal component, a planar calibration's |h|: 0 at the magnetic poles to 41 µT; under 1 µT only within a
+# few degrees of a pole, where no compass is calibrated
+HORIZONTAL_FIELD_UT = (1.0, 100.0)
+
+
+def plausible_field(cal: Calibration, horizontal: bool = False) -> str | None:
+    """A warning when |h|, in a field unit, is far from any field on the Earth's surface (`horizontal`: from any
+    horizontal field, a planar calibration's): a unit mix-up (readings in mG labelled µT: |h| 500 "µT", offsets 10×
+    too large; H given in µT and labelled nT) more often than a lab coil."""
     if cal.h_units not in TESLA_PER_UNIT:
         return None
     ut = cal.field_norm * TESLA_PER_UNIT[cal.h_units] / 1e-6
-    if EARTH_FIELD_UT[0] <= ut <= EARTH_FIELD_UT[1]:
+    low, high = HORIZONTAL_FIELD_UT if horizontal else EARTH_FIELD_UT
+    if low <= ut <= high:
         return None
+    if horizontal:
+        return (f"{PLAUSIBLE_WORDS}{cal.field_norm:.6g} {cal.h_units} = {ut:.4g} µT, far from the Earth's horizontal "
+                f"field (0–41 µT): is it really in {cal.h_units}? (state the readings' unit: a header 'mx [mG]', "
+                "units=, --units; and the horizontal field's: field_units=, --field-units; fine for a coil's field)")
     return (f"{PLAUSIBLE_WORDS}{cal.field_norm:.6g} {cal.h_units} = {ut:.4g} µT, far from the Earth's field (22–67 µT): "
             f"are the readings really in {cal.h_units}? (state their unit: a header 'mx [mG]', units=, --units; fine "
             "for a coil's field)")
@@ -197,25 +208,17 @@ MISSES_NOISE = 3.0
 
 
 def readings_noise(cal: Calibration, m: np.ndarray, t=None, field_norms=None) -> tuple[float, int] | None:
-    """The readings' own noise σ (their unit) and the stride, in readings, it was measured at: third differences of
-    the magnitude fit's residuals in time order at the longest stride over which the sensor turns less than ~40°
-    (diagnose.core.noise_within_turns), so that noise correlated in time counts whole while what the model misses,
-    which varies with the direction, does not; never below the readings' own third differences. `t`: the rows'
-    times (ordered by them), else row order; `field_norms`: each row's |field|. None for rows that are no time
-    series (diagnose.core.time_series_noise)."""
-    from .diagnose.core import changed_rows, noise_within_turns, time_series_noise
+    """The readings' own noise σ (their unit) and the stride it was measured at, for the magnitude fit `cal`
+    (diagnose.core.residual_noise: third differences of its residuals in time order at strides over which the sensor
+    turns less than ~40°, so that noise correlated in time counts whole while what the model misses, which varies
+    with the direction, does not). `t`: the rows' times, else row order; `field_norms`: each row's |field|. None for
+    rows that are no time series."""
+    from .diagnose.core import residual_noise
 
-    order = slice(None) if t is None or len(t) != len(m) else np.argsort(t, kind="stable")
-    white = time_series_noise(m[order])
-    if white is None:
-        return None
-    changed = changed_rows(m[order])  # (as the readings' own σ leaves a logger's repeats out)
-    norms = None if field_norms is None else np.asarray(field_norms, dtype=float)[order][changed]
     with np.errstate(all="ignore"):  # a glitch of 1e300 left out of the fit overflows; the MAD ignores it
-        h = cal.apply(m[order][changed])
-        sigma, stride = noise_within_turns(sampson_residuals(cal, m[order][changed], norms),
-                                           h / np.linalg.norm(h, axis=1, keepdims=True))
-    return (sigma, stride) if sigma > white else (white, 1)
+        h = cal.apply(m)
+        residuals = sampson_residuals(cal, m, field_norms)
+    return residual_noise(m, residuals, h / np.linalg.norm(h, axis=1, keepdims=True), t)
 
 
 def misses_the_noise(cal: Calibration, m: np.ndarray, t=None, field_norms=None) -> str | None:
@@ -224,7 +227,14 @@ def misses_the_noise(cal: Calibration, m: np.ndarray, t=None, field_norms=None) 
     ["readings_noise_stride"]): what the model misses can bias the calibration beyond its standard errors."""
     residual = cal.summary.get("noise_sigma")
     own = readings_noise(cal, m, t, field_norms) if residual else None
-    if own is None:
+    return misfit_said(cal, own)
+
+
+def misfit_said(cal: Calibration, own: tuple[float, int] | None, planar: bool = False) -> str | None:
+    """misses_the_noise's verdict on the readings' own noise `own` ((σ, stride) or None), put in the summary; the
+    planar fit's too (`planar`: its words)."""
+    residual = cal.summary.get("noise_sigma")
+    if not residual or own is None:
         return None
     sigma, stride = own
     cal.summary["readings_noise_sigma"], cal.summary["readings_noise_stride"] = sigma, stride
@@ -233,11 +243,12 @@ def misses_the_noise(cal: Calibration, m: np.ndarray, t=None, field_norms=None) 
     unit = f" {cal.units}" if cal.units else ""
     return (f"the fit's residual σ {residual:.4g}{unit} is {residual / sigma:.3g}× the readings' own noise "
             f"{sigma:.4g}{unit} ({NOISE_METHOD.format(stride=stride)}): the model misses something larger than the "
-            "noise, which can bias the calibration beyond its standard errors — a disturbance (a magnet, a motor, a "
+            "noise, which can bias the calibration beyond its standard errors"
+            + (" (and the headings by as much)" if planar else "") + " — a disturbance (a magnet, a motor, a "
             "current near the sensor), an offset that moved within the log (two sessions in one file, a battery or "
-            "board moved: calibrate each apart), or a |field| that changed; fluxcal diagnose names what. (Noise "
-            "correlated over longer than the sensor takes to turn ~40° also raises the ratio: turn faster or "
-            "average fewer readings)")
+            "board moved, a load on the seat: calibrate each apart), or a |field| that changed"
+            + ("" if planar else "; fluxcal diagnose names what") + ". (Noise correlated over longer than the "
+            "sensor takes to turn ~40° also raises the ratio: turn faster or average fewer readings)")
 
 
 # How readings_noise's σ was measured, for a printout (stride: readings_noise's)

@@ -51,7 +51,7 @@ from __future__ import annotations
 import numpy as np
 
 from . import _core
-from ._arrays import as_field_norms, field_norm_given, first_nonfinite, units_text
+from ._arrays import as_field_norms, field_norm_given, first_nonfinite, recording_times, units_text
 from .calibration import Calibration
 from .outliers import Quadric, far_readings, find_outliers
 
@@ -137,6 +137,7 @@ def calibrate_planar(samples, field_norm=None, axes=None, units: str | None = No
         units = getattr(samples, "field_units", lambda: "")()
     units = units_text(units)
     field_norm = field_norm_given(samples, field_norm)
+    times = recording_times(samples)
     if callable(getattr(samples, "biaxial", None)) and samples.biaxial():  # a Recording of two field columns
         if axes is not None:
             samples.take_axes("".join(AXES[a] for a in _axes(axes)), f"axes={axes!r}")
@@ -166,6 +167,7 @@ def calibrate_planar(samples, field_norm=None, axes=None, units: str | None = No
     if left_out is not None and len(left_out.rows):
         m, u = np.delete(m, left_out.rows, axis=0), np.delete(u, left_out.rows, axis=0)
         norms = None if norms is None else np.delete(norms, left_out.rows)
+        times = None if times is None or len(times) != n else np.delete(times, left_out.rows)
         n = len(m)
     fit = _fit(u, norms, shapes, max_iterations, tolerance)
     names = plane["names"]
@@ -250,6 +252,14 @@ def calibrate_planar(samples, field_norm=None, axes=None, units: str | None = No
                       summary=summary)
     if stated:
         cal.field_units = stated
+    # the residual σ against the readings' own noise (as calibrate's): a hard iron that moved within the log (a
+    # load on the seat) had left a 4.7° heading error with a residual σ 6× the noise, unsaid
+    from .diagnose.core import residual_noise  # (here: diagnose imports fluxcal, and fluxcal this module)
+    from .pipeline import misfit_said, plausible_field
+
+    said = [misfit_said(cal, residual_noise(u, fit["residuals"], h / np.linalg.norm(h, axis=1, keepdims=True),
+                                            times), planar=True), plausible_field(cal, horizontal=True)]
+    cal.summary["warnings"] += [w for w in said if w]
     return cal
 
 
@@ -257,6 +267,8 @@ def summary_lines(cal: Calibration) -> list[str]:
     """What `fluxcal calibrate --planar` prints after the Calibration itself (str(cal)) and before its warnings:
     the plane, the arc, the horizontal |h| spread before/after, the noise, the standard errors and whether the
     data determine the plane's parameters."""
+    from .pipeline import NOISE_METHOD
+
     s = cal.summary
     u = f" {cal.units}" if cal.units else ""
     hu = f" {cal.h_units}" if cal.h_units else ""
@@ -276,7 +288,11 @@ def summary_lines(cal: Calibration) -> list[str]:
              f"  horizontal |h| std/mean after    {100 * s['norm_std_over_mean']:.3f} %"
              + ("   (against each reading's own H)" if "field_norms" in s else ""),
              f"  residual RMS          {s['residual_rms']:.6g}{hu}",
-             f"  noise σ               {s['noise_sigma']:.4g}{u}   (from the fit's residuals)",
+             f"  residual σ            {s['noise_sigma']:.4g}{u}   (from the fit's residuals: the noise plus whatever "
+             "the model misses)",
+             *([f"  noise σ, differences  {s['readings_noise_sigma']:.4g}{u}   "
+                f"({NOISE_METHOD.format(stride=s['readings_noise_stride'])}; the residual σ is "
+                f"{s['noise_sigma'] / s['readings_noise_sigma']:.2f}× it)"] if s.get("readings_noise_sigma") else []),
              f"  scale                 " + ("the horizontal field given" if s["scale"] == "given" else
                                            f"relative: |h| = the fitted mean radius {cal.field_norm:.6g}{hu} "
                                            "(no horizontal field given)"),

@@ -294,6 +294,24 @@ def changed_rows(values) -> np.ndarray:
     return np.r_[True, np.any(np.diff(x, axis=0) != 0, axis=1)] if len(x) else np.zeros(0, dtype=bool)
 
 
+def residual_noise(readings, residuals, directions, t=None) -> tuple[float, int] | None:
+    """The readings' own noise σ (their unit) and the stride, in readings, it was measured at, for judging a fit's
+    residuals (one per reading, the readings' unit) against: noise_within_turns of the residuals in time order
+    (`directions`: the corrected field's unit vectors), never below the readings' own third differences
+    (time_series_noise), whose test of being a time series it takes. `t`: the rows' times (ordered by them), else row
+    order. None for rows that are no time series."""
+    x, r, u = (np.asarray(a, dtype=float) for a in (readings, residuals, directions))
+    order = slice(None) if t is None or len(t) != len(x) else np.argsort(t, kind="stable")
+    x, r, u = x[order], r[order], u[order]
+    white = time_series_noise(x)
+    if white is None:
+        return None
+    changed = changed_rows(x)  # (as the readings' own σ leaves a logger's repeats out)
+    with np.errstate(all="ignore"):  # a glitch of 1e300 left out of the fit overflows; the MAD ignores it
+        sigma, stride = noise_within_turns(r[changed], u[changed])
+    return (sigma, stride) if sigma > white else (white, 1)
+
+
 def noise_within_turns(residuals, directions) -> tuple[float, int]:
     """The noise σ of a fit's residuals (rows in time order) and the stride k it was taken at: third differences of
     residuals k apart, k = 1, 2, 4, … (at most MAX_STRIDE and N/24) while the sensor turns less than TURN_SPAN over the 3k readings
