@@ -832,6 +832,11 @@ def cmd_apply(args) -> int:
     scale = _scale_warning(cal, h[~far] @ to_plane, rec.field_units())
     if scale:
         print(f"warning: {scale}")
+    else:  # (a whole file in another unit is that warning's, not a few readings')
+        gross = _gross_readings(cal, raw, h @ to_plane, far)
+        if gross:
+            gross = gross.format(file=args.file)
+            print(f"warning: {gross if rec.line_numbers is None else _with_file_lines(gross, rec.line_numbers)}")
     t = rec.time()
     misfit = _misfit_warning(cal, raw[~far] @ to_plane, h[~far] @ to_plane,
                              None if t is None else t[~far],
@@ -845,6 +850,25 @@ def cmd_apply(args) -> int:
         print(f"warning: {args.calibration}: the calibration is not identifiable (its data did not determine every "
               "parameter): |h| of the readings it was fitted on looks right, other orientations may not")
     return 0
+
+
+def _gross_readings(cal: Calibration, raw: np.ndarray, h: np.ndarray, far: np.ndarray) -> str | None:
+    """A warning (with "{file}" to fill) naming the readings that read exactly 0 in every axis or whose corrected
+    |h| is off the calibration's field by more than outliers.GROSS of it, as calibrate leaves them out: I²C glitches,
+    a burst of garbage, a magnet at the sensor. Corrected and written like the rest; said so that no one takes
+    them for the field."""
+    from .outliers import GROSS
+
+    with np.errstate(over="ignore", invalid="ignore"):  # (the readings past range are `far`, said apart)
+        off = np.abs(np.linalg.norm(h, axis=1) - cal.field_norm) > GROSS * cal.field_norm
+    rows = np.flatnonzero((off | ~raw.any(axis=1)) & ~far & np.isfinite(raw).all(axis=1))
+    if not len(rows):
+        return None
+    shown = ", ".join(str(r) for r in rows[:8]) + (", …" if len(rows) > 8 else "")
+    return (f"{{file}}: {len(rows)} reading(s) read 0 in every axis or are off |h| by more than {GROSS:.0%} of the "
+            f"calibration's field (rows {shown}): glitches (0,0,0, a burst of garbage) or a magnet at the sensor, "
+            "corrected like the rest and written — drop them before using the field (fluxcal calibrate leaves such "
+            "readings out)")
 
 
 # |h| this far from the calibration's field norm: readings in another unit (a factor 10 or more between field
