@@ -69,12 +69,44 @@ class Calibration:
         """Corrected field of each reading: one row (3,) or N×3 in, the same shape out. A Recording whose
         magnetometer unit differs from the calibration's is converted to it first when both are field units
         (µT readings through an nT calibration); a unit that cannot be converted (counts against nT) is a
-        ValueError naming both, never a silently wrong field."""
-        if np.ndim(samples) == 1:
-            return self.matrix @ (np.asarray(samples, dtype=float).reshape(3) - self.offset)
+        ValueError naming both, never a silently wrong field.
+
+        A biaxial sensor's readings (two values a row, or a Recording of two field columns) go through a planar
+        calibration of the same two sensor axes (fluxcal.calibrate_planar): the plane's two corrected components
+        come out, one row (2,) or N×2."""
         factor = self.unit_factor(samples.field_units(), getattr(samples, "source", "samples")) \
             if hasattr(samples, "field_units") else 1.0
+        biaxial = callable(getattr(samples, "biaxial", None)) and samples.biaxial()
+        if biaxial or np.shape(samples)[-1:] == (2,):
+            return self._apply_biaxial(samples.samples(biaxial=True) * factor if biaxial else samples,
+                                       samples.biaxial_axes if biaxial else None,
+                                       getattr(samples, "source", "samples"))
+        if np.ndim(samples) == 1:
+            return self.matrix @ (np.asarray(samples, dtype=float).reshape(3) - self.offset)
         return (as_samples(samples) * factor - self.offset) @ self.matrix.T
+
+    def _apply_biaxial(self, readings, axes: str | None, source: str) -> np.ndarray:
+        """apply() of a biaxial sensor's readings (N×2 or one row of 2) in the sensor axes `axes` ("xz"; None: the
+        calibration's plane's): embedded with the missing axis 0, corrected, the plane's components returned."""
+        plane = self.summary.get("plane_axes") if self.summary.get("method") == "planar" else None
+        if plane is None:
+            raise ValueError(f"{source}: two values a reading (a biaxial sensor's), and this is a 3-D calibration, "
+                             "which needs three axes' readings; a biaxial sensor takes a planar calibration "
+                             "(fluxcal.calibrate_planar of its readings)")
+        if not set(plane) <= set("xyz"):
+            raise ValueError(f"{source}: two values a reading, and the calibration was made in a fitted plane tilted "
+                             "from the sensor axes (summary plane_basis), which needs all three axes' readings")
+        if axes is not None and set(axes) != set(plane):
+            raise ValueError(f"{source}: the sensor's {' and '.join(axes)} axes, and the calibration is of axes "
+                             f"{' and '.join(plane)}: apply a calibration of these axes")
+        columns = ["xyz".index(a) for a in plane]
+        rows = np.atleast_2d(np.asarray(readings, dtype=float))
+        if rows.ndim != 2 or rows.shape[1] != 2:
+            raise ValueError(f"{source}: shape {np.shape(readings)}, expected (N, 2) readings of a biaxial sensor")
+        m = np.zeros((len(rows), 3))
+        m[:, columns] = rows
+        h = ((m - self.offset) @ self.matrix.T)[:, columns]
+        return h[0] if np.ndim(readings) == 1 else h
 
     def unit_factor(self, units: str, source: str = "samples") -> float:
         """What readings in `units` are multiplied by to be in the calibration's unit (1 when either is not

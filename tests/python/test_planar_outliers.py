@@ -99,3 +99,23 @@ def test_a_biaxial_recording_is_calibrated_in_python_too(tmp_path):
 def test_outliers_must_be_drop_or_keep():
     with pytest.raises(ValueError, match="outliers: 'none'"):
         calibrate_planar(yaw_only(5, n=100)[0], outliers="none")
+
+
+def test_a_biaxial_calibration_applies_to_two_columns_in_python(tmp_path):
+    """cal.apply of a biaxial sensor's N×2 readings, one row of 2, or its Recording: the plane's two components (it
+    had raised 'expected (N, 3)', or NumPy's reshape error for one row); a 3-D calibration says why not."""
+    import fluxcal
+    from conftest import simulated
+
+    m, truth = yaw_only(8, n=600)
+    log = tmp_path / "car.csv"
+    log.write_text("Bx [uT],By [uT]\n" + "".join(f"{x:.5f},{y:.5f}\n" for x, y in m[:, :2]))
+    rec = fluxcal.read_recording(log)
+    cal = calibrate_planar(rec, field_norm=H)
+    h = cal.apply(rec)
+    assert h.shape == (600, 2) and np.allclose(h, (m[:, :2] - truth["b"]) @ truth["A"].T, atol=0.2)
+    assert np.allclose(cal.apply(m[:, :2]), h, atol=1e-4) and np.allclose(cal.apply(m[5, :2]), h[5], atol=1e-4)
+    with pytest.raises(ValueError, match="3-D calibration"):
+        fluxcal.calibrate(simulated(1).readings).apply(m[:, :2])
+    with pytest.raises(ValueError, match="x and y axes, and the calibration is of axes x and z"):
+        calibrate_planar(m[:, :2], field_norm=H, axes="xz").apply(rec)

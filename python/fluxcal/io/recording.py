@@ -297,8 +297,8 @@ class Recording:
                 f"taken as its {axes} axes"
             raise ValueError(f"{self.source}: 2 field columns ({names[0]}, {names[1]}: a biaxial magnetometer's, "
                              f"{how}), and this needs three axes' readings; `fluxcal calibrate --planar` "
-                             f"calibrates two (Python: fluxcal.calibrate_planar(rec.samples(biaxial=True), "
-                             f"axes=rec.biaxial_axes))")
+                             "calibrates two (Python: fluxcal.calibrate_planar(rec), whose calibration's apply "
+                             "takes the recording)")
         arr = np.column_stack([self.columns[n] for n in names])
         bad = first_nonfinite(arr) if check_finite else None
         if bad is not None:
