@@ -790,7 +790,7 @@ def cmd_apply(args) -> int:
     cal = Calibration.load(args.calibration)
     rec = _two_columns_given(read_recording(args.file, columns=args.columns, units=args.units,
                                             bad_lines=args.bad_lines, decimal=args.decimal), args.columns)
-    taken = [k for k in ("hx", "hy", "hz") if k in rec.columns]
+    taken = [k for k in ("hx", "hy", "hz") + (("heading",) if args.heading else ()) if k in rec.columns]
     if taken:  # the corrected columns would replace them (raw readings named hx,hy,hz, an earlier correction)
         raise ValueError(f"{args.file}: already has column(s) {', '.join(taken)}, which the corrected field would "
                          "overwrite; rename them (or apply to the recording the correction was made from)")
@@ -814,6 +814,9 @@ def cmd_apply(args) -> int:
     written = [f"h{a}" for a in (axes or "xyz")]
     columns = {**rec.columns, **{k: h[:, "xyz".index(k[1])] for k in written}}
     units = {**rec.units, **({k: cal.h_units for k in written} if cal.h_units else {})}
+    if args.heading:
+        columns["heading"], units["heading"] = _heading_column(cal, h, args), "deg"
+        written.append("heading")
     write_output(args.output, Recording(columns=columns, units=units, source=str(args.output),
                                         metadata={**rec.metadata, "calibration": args.calibration}))
     # a planar calibration's field norm is the horizontal field's: |h| and its spread are judged in its plane
@@ -850,6 +853,20 @@ def cmd_apply(args) -> int:
         print(f"warning: {args.calibration}: the calibration is not identifiable (its data did not determine every "
               "parameter): |h| of the readings it was fitted on looks right, other orientations may not")
     return 0
+
+
+def _heading_column(cal: Calibration, h: np.ndarray, args) -> np.ndarray:
+    """apply --heading: each reading's heading (planar.heading) from a planar calibration of the sensor's x, y
+    axes; any other calibration is an error naming it and the remedy."""
+    from .planar import heading
+
+    if cal.summary.get("method") != "planar" or cal.summary.get("plane_axes") != ["x", "y"]:
+        what = ("a 3-D calibration: a heading needs the sensor's attitude as well (tilt compensation), which apply "
+                "does not have" if cal.summary.get("method") != "planar" else
+                f"a planar calibration of axes {', '.join(cal.summary.get('plane_axes', []))}, not x, y")
+        raise ValueError(f"--heading: {args.calibration} is {what}; --heading takes a planar calibration of the "
+                         "axes x, y of a level sensor (fluxcal calibrate FILE --planar xy)")
+    return heading(h, args.heading, args.declination)
 
 
 def _gross_readings(cal: Calibration, raw: np.ndarray, h: np.ndarray, far: np.ndarray) -> str | None:
@@ -1524,6 +1541,14 @@ def build_parser() -> argparse.ArgumentParser:
                                                   "the calibration's)")
     a.add_argument("--bad-lines", default="error", choices=["error", "skip"], help=bad_lines_help)
     a.add_argument("--decimal", default=None, choices=[",", "."], metavar="{',' or '.'}", help=decimal_help)
+    a.add_argument("--heading", nargs="?", const="frd", default=None, choices=["frd", "flu"],
+                   help="also write each reading's heading in degrees [0, 360), clockwise from north, for a planar "
+                        "calibration of a level sensor's x, y: frd (default: x forward, y right, z down, as "
+                        "ArduPilot and PX4) or flu (x forward, y left, z up, as ROS); the sensor's mounting "
+                        "alignment is not removed")
+    a.add_argument("--declination", type=float, default=0.0,
+                   help="with --heading: the magnetic declination in degrees, east positive, added for the true "
+                        "heading (default 0: magnetic)")
     a.set_defaults(run=cmd_apply)
 
     s = sub.add_parser("simulate", help="write a simulated magnetometer recording: readings in independent "

@@ -447,6 +447,29 @@ def _refuse_if_3d(m: np.ndarray, ratio: float, planar_ratio: float) -> None:
                          "fluxcal.calibrate (`fluxcal calibrate FILE` without the planar option)")
 
 
+# Body frames of a level vehicle whose sensor's x points forward: y right and z down (FRD: aviation's NED body
+# frame, ArduPilot and PX4) or y left and z up (FLU: ROS REP 103). The heading, clockwise from magnetic north,
+# is atan2(−h_y, h_x) in the first and atan2(h_y, h_x) in the second (the field points north: forward reads
+# H cos ψ, right reads −H sin ψ).
+HEADING_FRAMES = ("frd", "flu")
+
+
+def heading(h, frame: str = "frd", declination: float = 0.0) -> np.ndarray:
+    """Heading in degrees [0, 360), clockwise from north, of a level sensor's corrected field: `h` N×2 (its x, y)
+    or N×3 (x, y used), as a planar calibration of axes x, y gives it. `frame`: "frd" (x forward, y right, z down)
+    or "flu" (x forward, y left, z up). `declination` (degrees, east positive): added, for the true heading; 0
+    gives the magnetic one. The constant alignment of the sensor on the vehicle is not known to a magnitude fit and
+    is not removed (compare with a known heading once)."""
+    if frame not in HEADING_FRAMES:
+        raise ValueError(f"frame: {frame!r} is not 'frd' (x forward, y right, z down) or 'flu' (x forward, y left, "
+                         "z up)")
+    h = np.asarray(h, dtype=float)
+    if h.shape[-1] not in (2, 3):
+        raise ValueError(f"h: shape {h.shape}, expected (N, 2) or (N, 3) corrected fields")
+    y = -h[..., 1] if frame == "frd" else h[..., 1]
+    return np.mod(np.degrees(np.arctan2(y, h[..., 0])) + float(declination), 360.0)
+
+
 def plane_axes(cal: Calibration) -> np.ndarray | None:
     """The 2×3 unit vectors of a planar calibration's plane in the sensor axes (h @ plane_axes(cal).T: h's plane
     components, whose magnitude is the horizontal field the calibration is scaled to), or None for a 3-D one."""
