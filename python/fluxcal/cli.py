@@ -644,7 +644,8 @@ def _calibrate_planar(args, rec: Recording) -> int:
                                         ("--plot", args.plot),
                                         ("--serial-correlation", args.serial_correlation)) if given]
     if refused:
-        raise ValueError(f"--planar: {', '.join(refused)} belong to the 3-D fits (the planar fit has one method, no "
+        raise ValueError(f"--planar: {', '.join(refused)} {'belong' if len(refused) > 1 else 'belongs'} to the 3-D "
+                         "fits (the planar fit has one method, no "
                          "reference, alignment or plot); leave them out")
     field_norm = args.field_norm
     if isinstance(field_norm, str) and field_norm not in rec.columns:

@@ -86,7 +86,8 @@ class Outliers:
         if len(self.rows):
             shown = ", ".join(str(r) for r in self.rows[:8]) + (", …" if len(self.rows) > 8 else "")
             kinds = "".join(f"; {k} {what}" for what, k in (
-                ("read exactly 0,0,0 (glitches)", self.kinds.get("zero", 0)),
+                ("read exactly 0,0 in the plane (glitches)" if self.model.startswith("the ellipse ") or
+                 self.model == "the ellipse" else "read exactly 0,0,0 (glitches)", self.kinds.get("zero", 0)),
                 ("sit at a column's extreme value, repeated (ADC rail)", self.kinds.get("rail", 0)),
                 ("lie past any sensor's range (their squares overflow)", self.kinds.get("overflow", 0)),
                 (f"are off |h| by more than {GROSS:.0%} of the field (garbage, or a magnet at the sensor: no "
