@@ -172,3 +172,14 @@ def test_one_column_or_a_third_axis_left_out_is_no_biaxial_sensor(tmp_path, caps
     cut.write_text("mx,my,mz\n" + "".join(f"{x:.4f},{y:.4f},ovf\n" for x, y in m))
     code, out, err = run(capsys, "calibrate", cut, "--planar")
     assert code == 2 and "no magnetometer columns" in err and "left out as text: mz" in err, err
+
+
+def test_a_headerless_two_column_file_reads_biaxial_in_python(tmp_path):
+    """read_recording(file, columns="a,b") of a table without a header: the two named columns are the biaxial
+    magnetometer (the CLI selected them; Python had left no magnetometer found)."""
+    import fluxcal
+
+    path = tmp_path / "two.txt"
+    path.write_text("".join(f"{20 * np.cos(a) + 3:.4f} {20 * np.sin(a) - 1:.4f}\n" for a in np.linspace(0, 12, 300)))
+    rec = fluxcal.read_recording(path, columns="a,b")
+    assert rec.biaxial() and rec.mag_names() == ("a", "b") and rec.samples(biaxial=True).shape == (300, 2)

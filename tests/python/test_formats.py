@@ -211,7 +211,7 @@ def test_headerless_tables_named_by_columns(tmp_path):
     rec = read_recording(path, columns="t,mx,my,mz", units="counts")
     np.testing.assert_array_equal(rec.samples(), [[1, 2, 3], [4, 5, 6]])
     assert rec.field_units() == "counts" and rec.line_numbers.tolist() == [1, 2]
-    with pytest.raises(ValueError, match="--columns gives 3 names, need one per column"):
+    with pytest.raises(ValueError, match=r"--columns \(columns=\) gives 3 names, need one per column"):
         read_recording(path, columns="a,b,c")
     (tmp_path / "three.csv").write_text("1,2,3\n4,5,6\n")
     np.testing.assert_array_equal(read_recording(tmp_path / "three.csv", columns="bx,by,bz").samples()[1], [4, 5, 6])

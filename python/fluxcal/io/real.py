@@ -155,10 +155,10 @@ def _read_headerless(path, lines, start, names, columns, units, delimiter) -> Re
         names = [n.strip() for n in (names.split(",") if isinstance(names, str) else names)]
         if len(names) != len(first):
             raise ValueError(f"{path}, line {start + 1}: {len(first)} {sep}-separated numbers and no header; "
-                             f"--columns gives {len(names)} names, need one per column")
+                             f"--columns (columns=) gives {len(names)} names, need one per column")
         data, line_numbers, notes = parse_rows(path, lines, start, names, delimiter, expected="--columns")
         rec = Recording(columns=dict(zip(names, data.T)), source=str(path), line_numbers=line_numbers)
-        if len(names) == 3:
+        if len(names) in (2, 3):  # the magnetometer's columns (two: a biaxial sensor's)
             rec.select(names)
         if notes:
             rec.metadata["notes"] = "; ".join(f"line {n}: {text}" for n, text in notes)
@@ -168,13 +168,14 @@ def _read_headerless(path, lines, start, names, columns, units, delimiter) -> Re
     if why is None and columns is not None:
         given = len(columns.split(",")) if isinstance(columns, str) else len(columns)
         raise ValueError(f"{path}, line {start + 1}: {len(first)} {sep}-separated numbers and no header; "
-                         f"--columns gives {given} names, need one per column")
+                         f"--columns (columns=) gives {given} names, need one per column")
     if why is None:
         # three columns or fewer hold no time: "t,mx,my" made the x readings the times as well
         example = ",".join(["mx", "my", "mz"][:len(first)] if len(first) <= 3 else
                            ["t", "mx", "my", "mz"] + [f"c{k}" for k in range(5, len(first) + 1)])
         raise ValueError(f"{path}, line {start + 1}: {len(first)} {sep}-separated numbers and no header; name the "
-                         f"columns with --columns (one name per column, e.g. {example}) or add a header line")
+                         f"columns with --columns (Python: columns=; one name per column, e.g. {example}) or add a header "
+                         "line")
     data, line_numbers, notes = parse_rows(path, lines, start, AIRBORNE_COLUMNS, delimiter,
                                            expected="the airborne layout")
     metadata = {"layout": f"airborne MagNav segment: time, flux x,y,z, INS pitch,roll,yaw, IGRF N,E,D ({why})",
