@@ -632,10 +632,17 @@ def _calibration_part(cal: Calibration, name: str, q_format, input_range, i32):
     u = f" {cal.units}" if cal.units else ""
     hu = f" {cal.h_units}" if cal.h_units else ""  # h is in the field norm's unit (µT from counts, say)
     n, na, lsb = fx.fmt.frac_bits, fx.matrix_frac_bits, fx.fmt.lsb
+    s = cal.summary
+    planar = s.get("method") == "planar" and "not_calibrated" in s
+    what = ((f" * Planar ({', '.join(s['plane_axes'])}): |h| is the HORIZONTAL field in that plane; axis "
+             f"{s['not_calibrated']['axis']} " + ("is absent (a biaxial sensor: give 0)" if s.get("biaxial") else
+                                                   "passes through uncalibrated, only scaled into h's unit")
+             + ".") if planar else None)
     lines = [
         "/* ---- Magnetometer calibration ----",
         f" * Model: h = A (m - b). m: a raw reading in {units}; h: the corrected field, |h| = {cal.field_norm:.9g}{hu}"
         f" in the calibration field.",
+        *([what] if what else []),
         f" * Float: {name}_apply_float(m, h): A and b in float (single precision). On the test vector it",
         f" *   reproduces fluxcal's double result within {FLOAT_RELATIVE_TOLERANCE:g} x max(|h| (largest component), "
         f"{cal.field_norm:.6g}).",

@@ -25,3 +25,15 @@ def test_the_fixed_point_range_holds_the_axis_passed_through():
     h_q, saturated = fixed.apply_int(fixed.to_fixed(m[:50]))
     assert not saturated
     assert np.allclose(h_q * fixed.fmt.lsb, cal.apply(m[:50]), atol=fixed.error_bound)
+
+
+def test_the_header_says_it_is_planar_and_what_passes_through(tmp_path):
+    from fluxcal.export_c import export_c
+
+    cal = calibrate_planar(high_latitude_log(), field_norm=14.0)
+    export_c(cal, tmp_path / "cal.h")
+    text = (tmp_path / "cal.h").read_text()
+    assert "Planar (x, y): |h| is the HORIZONTAL field in that plane; axis z passes through uncalibrated" in text
+    biaxial = calibrate_planar(high_latitude_log()[:, :2], field_norm=14.0)
+    export_c(biaxial, tmp_path / "bi.h")
+    assert "axis z is absent (a biaxial sensor: give 0)" in (tmp_path / "bi.h").read_text()
