@@ -87,7 +87,8 @@ class Calibration:
 
     def _apply_biaxial(self, readings, axes: str | None, source: str) -> np.ndarray:
         """apply() of a biaxial sensor's readings (N×2 or one row of 2) in the sensor axes `axes` ("xz"; None: the
-        calibration's plane's): embedded with the missing axis 0, corrected, the plane's components returned."""
+        calibration's plane's, in its order): embedded with the missing axis 0, corrected, the plane's components
+        returned in the readings' axis order."""
         plane = self.summary.get("plane_axes") if self.summary.get("method") == "planar" else None
         if plane is None:
             raise ValueError(f"{source}: two values a reading (a biaxial sensor's), and this is a 3-D calibration, "
@@ -99,7 +100,7 @@ class Calibration:
         if axes is not None and set(axes) != set(plane):
             raise ValueError(f"{source}: the sensor's {' and '.join(axes)} axes, and the calibration is of axes "
                              f"{' and '.join(plane)}: apply a calibration of these axes")
-        columns = ["xyz".index(a) for a in plane]
+        columns = ["xyz".index(a) for a in (axes or plane)]  # the readings' own axis order (a Recording's: x before z)
         rows = np.atleast_2d(np.asarray(readings, dtype=float))
         if rows.ndim != 2 or rows.shape[1] != 2:
             raise ValueError(f"{source}: shape {np.shape(readings)}, expected (N, 2) readings of a biaxial sensor")

@@ -589,7 +589,7 @@ def cmd_calibrate(args) -> int:
     # the refinement's setting only when asked for: methods ls and als refuse it, having no refinement
     settings = {} if args.serial_correlation is None else {"serial_correlation": args.serial_correlation}
     try:
-        cal = calibrate(raw, method=args.method, field_norm=field_norm, reference=reference, units=units,
+        cal = calibrate(raw, method=args.method, field_norm=field_norm, reference=reference, units=units, times=rec.time(),
                         outliers=args.outliers, shape=args.shape, **settings)
     except ValueError as exc:  # the solvers name their argument ("samples: …"); the user knows the file
         raise ValueError(f"{args.file}: {exc}") from None
@@ -653,16 +653,11 @@ def _calibrate_planar(args, rec: Recording) -> int:
                          "of each reading's H); the total |F| of a file or of igrf is not the field in the turning "
                          f"plane (H = F cos(inclination)); the recording's columns: {', '.join(rec.columns)}")
     axes = None if args.planar == "auto" else args.planar
-    readings, units = rec, None
-    if rec.biaxial():  # a biaxial sensor's two columns: N×2, in the sensor axes they are (names, --planar, else x,y)
-        from ._arrays import field_norm_given
-
-        if axes is not None:
-            rec.take_axes(axes, f"--planar {axes}")
-        readings, axes, units = rec.samples(biaxial=True), rec.biaxial_axes, rec.field_units()
-        field_norm = field_norm_given(rec, field_norm)  # a column of each reading's H: its values
+    if rec.biaxial() and axes is not None:  # a biaxial sensor's two columns: the recording carries their axes (by
+        rec.take_axes(axes, f"--planar {axes}")  # their names, --planar's, else x,y said)
+        axes = None
     try:
-        cal = calibrate_planar(readings, field_norm=field_norm, axes=axes, units=units, shape=args.shape,
+        cal = calibrate_planar(rec, field_norm=field_norm, axes=axes, shape=args.shape,
                                field_units=unit_name(args.field_units) if args.field_units else None,
                                outliers=args.outliers)
     except ValueError as exc:
@@ -872,19 +867,23 @@ def _heading_column(cal: Calibration, h: np.ndarray, args) -> np.ndarray:
 
 def _gross_readings(cal: Calibration, raw: np.ndarray, h: np.ndarray, far: np.ndarray) -> str | None:
     """A warning (with "{file}" to fill) naming the readings that read exactly 0 in every axis or whose corrected
-    |h| is off the calibration's field by more than outliers.GROSS of it, as calibrate leaves them out: I²C glitches,
-    a burst of garbage, a magnet at the sensor. Corrected and written like the rest; said so that no one takes
-    them for the field."""
+    |h| is off these readings' median |h| by more than outliers.GROSS of it, as calibrate leaves them out: I²C
+    glitches, a burst of garbage, a magnet at the sensor. Corrected and written like the rest; said so that no one
+    takes them for the field. (Against the median, not the calibration's field: in another place's field every
+    reading would be 'off'; that is _scale_warning's.)"""
     from .outliers import GROSS
 
+    finite = ~far & np.isfinite(raw).all(axis=1)
     with np.errstate(over="ignore", invalid="ignore"):  # (the readings past range are `far`, said apart)
-        off = np.abs(np.linalg.norm(h, axis=1) - cal.field_norm) > GROSS * cal.field_norm
-    rows = np.flatnonzero((off | ~raw.any(axis=1)) & ~far & np.isfinite(raw).all(axis=1))
-    if not len(rows):
+        size = np.linalg.norm(h, axis=1)
+        typical = float(np.median(size[finite])) if finite.any() else 0.0
+        off = np.abs(size - typical) > GROSS * typical
+    rows = np.flatnonzero((off | ~raw.any(axis=1)) & finite)
+    if not len(rows) or not typical > 0:
         return None
     shown = ", ".join(str(r) for r in rows[:8]) + (", …" if len(rows) > 8 else "")
     return (f"{{file}}: {len(rows)} reading(s) read 0 in every axis or are off |h| by more than {GROSS:.0%} of the "
-            f"calibration's field (rows {shown}): glitches (0,0,0, a burst of garbage) or a magnet at the sensor, "
+            f"readings' median |h| (rows {shown}): glitches (zeros, a burst of garbage) or a magnet at the sensor, "
             "corrected like the rest and written — drop them before using the field (fluxcal calibrate leaves such "
             "readings out)")
 

@@ -40,7 +40,7 @@ def usable_cpus() -> int:
 
 def calibrate(samples, method: str = "auto", field_norm: float | None = None, reference=None,
               units: str | None = None, loss: str = "none", outliers: str = "drop", shape: str = "auto",
-              **settings) -> Calibration:
+              times=None, **settings) -> Calibration:
     """Calibrate a three-axis magnetometer.
 
     method "auto": with `reference` (true field per reading, sensor frame) the vector fit
@@ -68,6 +68,9 @@ def calibrate(samples, method: str = "auto", field_norm: float | None = None, re
     RSS and whether it was determined. A sensor without soft-iron coupling then gets no noise in its
     off-diagonal terms; on the real recordings in ../shared/data/real "sym" wins by thousands. The vector
     fit's W is always full.
+
+    times: each reading's time (seconds; a Recording's own when None), for judging the residuals against the
+    readings' own noise in time order (summary["readings_noise_sigma"]); None and no Recording: row order.
 
     settings: the ellipsoid fit's (planar_ratio, poor_coverage_ratio, … as fluxcal.fit_ellipsoid) go to the
     algebraic fit, the others (max_iterations, serial_correlation, … as fluxcal.refine) to the refinement
@@ -118,8 +121,12 @@ def calibrate(samples, method: str = "auto", field_norm: float | None = None, re
             raise ValueError("reference: it is the readings themselves (the same columns given twice?); give the "
                              "true field of each reading (e.g. IGRF rotated by the attitude)")
     left_out = find_outliers(m, reference if vector else None, field_norms=field_norms) if outliers == "drop" else None
-    all_readings, all_norms = m, field_norms
+    all_readings = m
+    times = recording_times(samples) if times is None else np.asarray(times, dtype=float)
+    if times is not None and len(times) != len(m):
+        raise ValueError(f"times: {len(times)} values for {len(m)} readings; give one time per reading")
     if left_out:
+        times = None if times is None else np.delete(times, left_out.rows)
         m = np.delete(m, left_out.rows, axis=0)
         if vector:
             reference = np.delete(reference, left_out.rows, axis=0)
@@ -164,7 +171,7 @@ def calibrate(samples, method: str = "auto", field_norm: float | None = None, re
     if left_out is not None:
         cal.summary["outliers"] = left_out.to_dict()
         cal.summary["warnings"] = list(cal.summary["warnings"]) + left_out.messages(len(all_readings))
-    said = [plausible_field(cal)] + ([] if vector else [misses_the_noise(cal, all_readings, recording_times(samples), all_norms)])
+    said = [plausible_field(cal)] + ([] if vector else [misses_the_noise(cal, m, times, field_norms)])
     cal.summary["warnings"] = list(cal.summary["warnings"]) + [w for w in said if w]
     return _note_copies(cal, all_readings)
 
@@ -215,10 +222,8 @@ def readings_noise(cal: Calibration, m: np.ndarray, t=None, field_norms=None) ->
     rows that are no time series."""
     from .diagnose.core import residual_noise
 
-    with np.errstate(all="ignore"):  # a glitch of 1e300 left out of the fit overflows; the MAD ignores it
-        h = cal.apply(m)
-        residuals = sampson_residuals(cal, m, field_norms)
-    return residual_noise(m, residuals, h / np.linalg.norm(h, axis=1, keepdims=True), t)
+    h = cal.apply(m)
+    return residual_noise(m, sampson_residuals(cal, m, field_norms), h / np.linalg.norm(h, axis=1, keepdims=True), t)
 
 
 def misses_the_noise(cal: Calibration, m: np.ndarray, t=None, field_norms=None) -> str | None:

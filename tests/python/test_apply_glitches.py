@@ -31,3 +31,15 @@ def test_clean_readings_are_not_named(tmp_path, capsys):
     main(["apply", str(tmp_path / "cal.json"), _csv(tmp_path / "other.csv", m[1500:]),
           "-o", str(tmp_path / "out.csv")])
     assert "read 0 in every axis" not in capsys.readouterr().out
+
+
+def test_a_calibration_used_in_another_field_names_no_glitches(tmp_path, capsys):
+    """The same sensor in a field 1.55× the calibration's (another site): every reading is off the calibration's
+    field by over 50 %, and each had been called a glitch (review); readings are judged against their own median
+    |h|, the field's size is _scale_warning's."""
+    m = simulated(4).readings
+    b = np.median(m, axis=0)
+    main(["calibrate", _csv(tmp_path / "fit.csv", m[:1500]), "-o", str(tmp_path / "cal.json")])
+    stronger = b + 1.55 * (m[1500:] - b)  # roughly: the offset kept, the field 1.55×
+    main(["apply", str(tmp_path / "cal.json"), _csv(tmp_path / "site2.csv", stronger), "-o", str(tmp_path / "o.csv")])
+    assert "read 0 in every axis" not in capsys.readouterr().out

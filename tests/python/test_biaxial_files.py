@@ -183,3 +183,19 @@ def test_a_headerless_two_column_file_reads_biaxial_in_python(tmp_path):
     path.write_text("".join(f"{20 * np.cos(a) + 3:.4f} {20 * np.sin(a) - 1:.4f}\n" for a in np.linspace(0, 12, 300)))
     rec = fluxcal.read_recording(path, columns="a,b")
     assert rec.biaxial() and rec.mag_names() == ("a", "b") and rec.samples(biaxial=True).shape == (300, 2)
+
+
+def test_a_misnamed_third_axis_or_a_position_is_no_biaxial_sensor():
+    """Review: mx,my,mz_uT and mag_x,mag_y,mag_z_bad read as a biaxial sensor, the z axis dropped unsaid; bare x,y
+    beside lat,lon (a car's position) read as a magnetometer."""
+    from fluxcal.io.recording import Recording
+
+    columns = lambda *names: {n: np.arange(50.0) for n in names}  # noqa: E731
+    for names in (("mx", "my", "mz_uT"), ("mag_x", "mag_y", "mag_z_bad")):
+        with pytest.raises(ValueError, match=f"column {names[2]} its z axis in another form"):
+            Recording(columns=columns(*names), source="f.csv").mag_names()
+    with pytest.raises(ValueError, match="no magnetometer columns"):
+        Recording(columns=columns("t", "lat", "lon", "x", "y", "hdg"), source="f.csv").mag_names()
+    assert Recording(columns=columns("t", "x", "y"), source="f.csv").mag_names() == ("x", "y")
+    assert Recording(columns=columns("t", "lat", "x", "y"), units={"x": "uT", "y": "uT"},
+                     source="f.csv").mag_names() == ("x", "y")

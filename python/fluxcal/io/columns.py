@@ -270,7 +270,11 @@ def find_magnetometer_pair(names, source: str = "recording", units=None):
     for qualifier in ("raw", "", "axis"):
         if len(bare.get(qualifier, {})) == 2:
             axes = "".join(a for a in "xyz" if a in bare[qualifier])
-            return tuple(bare[qualifier][a] for a in axes), axes
+            pair = tuple(bare[qualifier][a] for a in axes)
+            # x,y alone are as often a position (a car driving its calibration circles traces one): a field's
+            # only when their unit says so, or when nothing but a time stands beside them
+            if all(_states_field((units or {}).get(n)) for n in pair) or len(names) <= 3:
+                return pair, axes
     return None
 
 

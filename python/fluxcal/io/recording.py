@@ -1,6 +1,7 @@
 """Recording: named columns (mx, my, mz, optional t, ax, ay, az, temp, ...) with units and metadata."""
 from __future__ import annotations
 
+import re
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -177,6 +178,18 @@ class Recording:
         pair = find_magnetometer_pair(self.columns, self.source, self.units)
         if pair is None:
             return None
+        (first, second), axes = pair
+        if axes:  # a column named as the missing axis beside them (mx,my,mz_uT; mag_z_bad): a 3-axis sensor misnamed
+            missing = next(a for a in "xyz" if a not in axes)
+            stems = {re.sub(rf"{a}(?!.*{a})", missing, n, flags=re.IGNORECASE).lower()
+                     for n, a in ((first, axes[0]), (second, axes[1]))}
+            third = [c for c in self.columns if c not in (first, second) and axis_of_name(c) == "xyz".index(missing)
+                     and any(c.lower().startswith(stem) for stem in stems)]
+            if third:
+                raise ValueError(f"{self.source}: columns {first}, {second} name a magnetometer's {axes[0]} and "
+                                 f"{axes[1]} axes, and column {third[0]} its {missing} axis in another form: name the "
+                                 f"three alike (e.g. m{axes[0]},m{axes[1]},m{missing}) or choose them with --columns "
+                                 "(three of a 3-axis sensor, two of a biaxial one)")
         left_out = [entry.split(" (")[0].strip() for key in ("text_columns", "ignored_variables", "ignored_columns")
                     for entry in str(self.metadata.get(key) or "").split("; ") if entry.strip()]
         if left_out:
