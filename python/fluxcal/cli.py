@@ -18,7 +18,7 @@ from .calibration import TESLA_PER_UNIT, Calibration, _significant
 from .io import Recording, read_csv, read_recording, write_csv, write_recording
 from .io.formats import WRITERS
 from .io.columns import unit_name
-from .pipeline import METHODS, PLAUSIBLE_WORDS, UNITS_WORDS, calibrate, plausible_field
+from .pipeline import METHODS, PLAUSIBLE_WORDS, UNITS_WORDS, calibrate, noise_line, plausible_field
 from .planar import plane_axes
 
 def positive_number(text: str, zero: bool = False) -> float:
@@ -101,7 +101,7 @@ def _report(cal: Calibration, raw: np.ndarray, out=None, t=None) -> None:
         unit = f" {cal.units}" if cal.units else ""
         print(f"  residual σ            {s['noise_sigma']:.4g}{unit}   (from the fit's residuals: the noise plus "
               "whatever the model misses)", file=out)
-        line = _noise_from_differences(raw, t, s["noise_sigma"], unit, s)
+        line = noise_line(s, unit, raw, t)
         if line:
             print(line, file=out)
     if "standard_errors" in s:
@@ -137,38 +137,6 @@ def _shape_scores(table: dict) -> str:
                "" if row["identifiable"] else "not determined by the data")
         scores.append(f"{name} {row['bic']:.1f}" + (f" ({why})" if why else ""))
     return ", ".join(scores)
-
-
-# The fit's residual σ this many times the readings' own noise (or less than its inverse): said what it means.
-# Right models leave the noise (the real recordings' QMC5883L: 1.3×, simulations ≈ 1); the airborne magnitude fit
-# left 160×, the handheld's 3.6×, a simulated temperature offset 2×.
-NOISE_RATIO = 1.5
-
-
-def _noise_from_differences(raw: np.ndarray, t, residual: float, unit: str, summary: dict) -> str | None:
-    """The readings' own noise σ from third differences in time order, beside the fit's residual σ: the two differ
-    by what the model misses. A magnitude fit's (summary["readings_noise_sigma"], pipeline.readings_noise: of its
-    residuals, so that noise correlated in time counts whole), else the readings' (as `diagnose` estimates it).
-    None for rows that are not a time series (consecutive readings differ about as much as any two, e.g.
-    `fluxcal simulate`'s independent orientations): their differences measure the turning, not the noise."""
-    from .diagnose.core import time_series_noise
-    from .pipeline import NOISE_METHOD
-
-    if "readings_noise_sigma" in summary:
-        sigma, how = summary["readings_noise_sigma"], NOISE_METHOD.format(stride=summary["readings_noise_stride"])
-    else:
-        sigma = time_series_noise(raw if t is None else raw[np.argsort(t, kind="stable")])
-        how = "third differences of the readings in time order, as diagnose estimates it"
-    if sigma is None:
-        return None
-    ratio = residual / sigma
-    times = f"{ratio:.2f}×" if ratio < 10 else f"{ratio:.0f}×"
-    what = (f"the residual σ is {times} it: the model misses more than the noise (fluxcal diagnose names what)"
-            if ratio > NOISE_RATIO else
-            f"above the residual σ ({times} it): the readings change between rows faster than their differences "
-            "can tell from noise, and the residual σ bounds it" if ratio < 1 / NOISE_RATIO else
-            f"the residual σ is {times} it")
-    return f"  noise σ, differences  {sigma:.4g}{unit}   ({how}; {what})"
 
 
 PLANES = ("auto", "xy", "xz", "yz")  # calibrate --planar's values

@@ -92,8 +92,8 @@ class Outliers:
                 ("lie past any sensor's range (their squares overflow)", self.kinds.get("overflow", 0)),
                 (f"are off |h| by more than {GROSS:.0%} of the field (garbage, or a magnet at the sensor: no "
                  "calibration absorbs them, in a stretch or alone)", self.kinds.get("gross", 0)),
-                (f"lie more than {DOMINATING:g}× farther from the readings' median than the median reading (off the "
-                 "plane: spikes)", self.kinds.get("far", 0))) if k)
+                (f"lie more than {DOMINATING:g}× farther from the readings' median than the median reading (spikes, "
+                 "judged before the plane was found)", self.kinds.get("far", 0))) if k)
             largest = f" (up to {self.largest:.3g})" if self.largest > 0 else ""  # (none but readings past range)
             plain = len(self.rows) - sum(self.kinds.get(k, 0) for k in ("zero", "rail", "overflow", "gross", "far"))
             many = (f"; glitches are rarely so many ({100 * plain / n:.1f} % of the readings): a second group of "

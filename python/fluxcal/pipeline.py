@@ -217,7 +217,8 @@ MISSES_NOISE = 3.0
 def readings_noise(cal: Calibration, m: np.ndarray, t=None, field_norms=None) -> tuple[float, int] | None:
     """The readings' own noise σ (their unit) and the stride it was measured at, for the magnitude fit `cal`
     (diagnose.core.residual_noise: third differences of its residuals in time order at strides over which the sensor
-    turns less than ~40°, so that noise correlated in time counts whole while what the model misses, which varies
+    turns less than ~40° (at most 8 readings apart), so that noise correlated over so few readings counts whole
+    while what the model misses, which varies
     with the direction, does not). `t`: the rows' times, else row order; `field_norms`: each row's |field|. None for
     rows that are no time series."""
     from .diagnose.core import residual_noise
@@ -247,17 +248,53 @@ def misfit_said(cal: Calibration, own: tuple[float, int] | None, planar: bool = 
         return None
     unit = f" {cal.units}" if cal.units else ""
     return (f"the fit's residual σ {residual:.4g}{unit} is {residual / sigma:.3g}× the readings' own noise "
-            f"{sigma:.4g}{unit} ({NOISE_METHOD.format(stride=stride)}): the model misses something larger than the "
+            f"{sigma:.4g}{unit} ({noise_method(stride)}): the model misses something larger than the "
             "noise, which can bias the calibration beyond its standard errors"
             + (" (and the headings by as much)" if planar else "") + " — a disturbance (a magnet, a motor, a "
             "current near the sensor), an offset that moved within the log (two sessions in one file, a battery or "
             "board moved, a load on the seat: calibrate each apart), or a |field| that changed"
             + ("" if planar else "; fluxcal diagnose names what") + ". (Noise correlated over longer than the "
-            "sensor takes to turn ~40° also raises the ratio: turn faster or average fewer readings)")
+            "sensor takes to turn ~40°, or than 8 readings, also raises the ratio: log at a higher rate or turn more slowly, "
+            "or average fewer readings)")
 
 
-# How readings_noise's σ was measured, for a printout (stride: readings_noise's)
-NOISE_METHOD = "third differences in time order of the fit's residuals, {stride} readings apart"
+def noise_method(stride: int) -> str:
+    """How readings_noise's σ was measured, for a printout (stride: readings_noise's)."""
+    return ("third differences in time order of the fit's residuals, "
+            + ("consecutive readings" if stride == 1 else f"{stride} readings apart"))
+
+
+# The fit's residual σ this many times the readings' own noise (or less than its inverse): said what it means.
+# Right models leave the noise (the real recordings' QMC5883L: 1.3×, simulations ≈ 1); the airborne magnitude fit
+# left 160×, the handheld's 3.6×, a simulated temperature offset 2×.
+NOISE_RATIO = 1.5
+
+
+def noise_line(summary: dict, unit: str, raw: np.ndarray | None = None, t=None, planar: bool = False) -> str | None:
+    """The printout's line of the readings' own noise σ beside the fit's residual σ (summary["noise_sigma"]): the two
+    differ by what the model misses. A magnitude fit's (summary["readings_noise_sigma"], readings_noise), else from
+    the `raw` readings' third differences in time order (`t`), as `diagnose` estimates it. None for rows that are
+    not a time series (consecutive readings differ about as much as any two, e.g. `fluxcal simulate`'s independent
+    orientations): their differences measure the turning, not the noise. `planar`: calibrate_planar's words."""
+    from .diagnose.core import time_series_noise
+
+    if "readings_noise_sigma" in summary:
+        sigma, how = summary["readings_noise_sigma"], noise_method(summary["readings_noise_stride"])
+    elif raw is not None:
+        sigma = time_series_noise(raw if t is None else raw[np.argsort(t, kind="stable")])
+        how = "third differences of the readings in time order, as diagnose estimates it"
+    else:
+        return None
+    if sigma is None:
+        return None
+    ratio = summary["noise_sigma"] / sigma
+    times = f"{ratio:.2f}×" if ratio < 10 else f"{ratio:.0f}×"
+    what = (f"the residual σ is {times} it: the model misses more than the noise"
+            + ("" if planar else " (fluxcal diagnose names what)") if ratio > NOISE_RATIO else
+            f"above the residual σ ({times} it): the readings change between rows faster than their differences "
+            "can tell from noise, and the residual σ bounds it" if ratio < 1 / NOISE_RATIO else
+            f"the residual σ is {times} it")
+    return f"  noise σ, differences  {sigma:.4g}{unit}   ({how}; {what})"
 
 
 def _magnitude_start(m: np.ndarray, field_norm, field_norms, units, start_settings: dict) -> Calibration:

@@ -121,13 +121,16 @@ def calibrate_planar(samples, field_norm=None, axes=None, units: str | None = No
     "keep": every reading is fitted.
 
     Returns a Calibration h = A (m − b): the plane's 2×2 A and offset embedded in 3×3, the normal axis passed through
-    (A's row and column for it √det A on the diagonal, its offset 0). For N×2 readings apply it to N×3 rows with the
-    missing axis' column zero. summary: method "planar", plane_axes, normal_axis, plane_normal, plane_tilt_deg,
-    thinnest_over_widest, arc_deg, norm_std_over_mean (of the horizontal |h|, against each reading's own H when
-    given per reading), norm_std_over_mean_raw (|u| of the raw plane readings), residual_rms (|h| − H, h's unit),
-    noise_sigma (Sampson residuals, reading units), parameter_names/parameters/standard_errors/determined (the
-    plane's, in the sensor axes' names), identifiable (all of them determined), not_calibrated, scale ("given" or
-    "relative"), shape and shapes (BIC), converged, iterations, warnings.
+    (A's row and column for it √det A on the diagonal, its offset 0). Its apply takes N×2 readings (or a biaxial
+    Recording) of the plane's axes and returns the plane's two components. summary: method "planar", plane_axes,
+    biaxial, normal_axis, plane_basis, plane_normal, plane_tilt_deg, thinnest_over_widest, arc_deg,
+    largest_heading_gap_deg, norm_std_over_mean (of the horizontal |h|, against each reading's own H when given per
+    reading), norm_std_over_mean_raw (|u| of the raw plane readings), residual_rms (|h| − H, h's unit), noise_sigma
+    (Sampson residuals, reading units), readings_noise_sigma and readings_noise_stride (the readings' own noise, for
+    readings in time order: pipeline.readings_noise's rule), parameter_names/parameters/standard_errors/determined
+    (the plane's, in the sensor axes' names), identifiable (all of them determined), not_calibrated, scale ("given"
+    or "relative"), shape and shapes (BIC), start, converged, iterations, readings_extent (the largest |component|
+    read, for export-c's range), outliers (with outliers="drop"), warnings.
 
     Raises ValueError naming the input on: too few readings, NaN/Inf, readings that hardly change, readings
     that span three dimensions well enough for fluxcal.calibrate to determine every axis, an arc under `min_arc`,
@@ -267,7 +270,7 @@ def summary_lines(cal: Calibration) -> list[str]:
     """What `fluxcal calibrate --planar` prints after the Calibration itself (str(cal)) and before its warnings:
     the plane, the arc, the horizontal |h| spread before/after, the noise, the standard errors and whether the
     data determine the plane's parameters."""
-    from .pipeline import NOISE_METHOD
+    from .pipeline import noise_line
 
     s = cal.summary
     u = f" {cal.units}" if cal.units else ""
@@ -290,9 +293,7 @@ def summary_lines(cal: Calibration) -> list[str]:
              f"  residual RMS          {s['residual_rms']:.6g}{hu}",
              f"  residual σ            {s['noise_sigma']:.4g}{u}   (from the fit's residuals: the noise plus whatever "
              "the model misses)",
-             *([f"  noise σ, differences  {s['readings_noise_sigma']:.4g}{u}   "
-                f"({NOISE_METHOD.format(stride=s['readings_noise_stride'])}; the residual σ is "
-                f"{s['noise_sigma'] / s['readings_noise_sigma']:.2f}× it)"] if s.get("readings_noise_sigma") else []),
+             *filter(None, [noise_line(s, u, planar=True)]),
              f"  scale                 " + ("the horizontal field given" if s["scale"] == "given" else
                                            f"relative: |h| = the fitted mean radius {cal.field_norm:.6g}{hu} "
                                            "(no horizontal field given)"),

@@ -161,3 +161,42 @@ def test_times_put_rows_out_of_order_back_in_time_order():
     assert shuffled.summary["readings_noise_sigma"] == pytest.approx(in_order.summary["readings_noise_sigma"], rel=0.02)
     with pytest.raises(ValueError, match="times: 10 values for 3000 readings"):
         fluxcal.calibrate(s.readings, times=t[:10])
+
+
+def test_noise_within_turns_counts_correlated_noise_and_leaves_a_miss_out():
+    """The stride rule alone (diagnose.core.noise_within_turns): white residuals stay at stride 1; AR(1) residuals
+    (φ 0.9, σ 1) of a slow turn are counted at stride 8 (their third differences there: ~0.7 of σ); a fast turn
+    (0.3 rad a reading) allows no stride; a miss smooth in time (a slow sine 10× the noise) is not counted."""
+    from scipy.signal import lfilter
+
+    from fluxcal.diagnose.core import noise_within_turns
+
+    rng = np.random.default_rng(0)
+    n = 4000
+    slow = np.column_stack([np.cos(0.002 * np.arange(n)), np.sin(0.002 * np.arange(n)), np.zeros(n)])
+    fast = np.column_stack([np.cos(0.3 * np.arange(n)), np.sin(0.3 * np.arange(n)), np.zeros(n)])
+    white = rng.standard_normal(n)
+    sigma, stride = noise_within_turns(white, slow)
+    assert stride == 1 and sigma == pytest.approx(1.0, rel=0.05)
+    ar = lfilter([1.0], [1.0, -0.9], rng.standard_normal(n))
+    ar /= ar.std()
+    sigma, stride = noise_within_turns(ar, slow)
+    assert stride == 8 and 0.6 < sigma < 0.8
+    assert noise_within_turns(ar, fast)[1] == 1
+    miss = 0.1 * white + np.sin(2 * np.pi * np.arange(n) / 400)
+    sigma, _ = noise_within_turns(miss, slow)
+    assert sigma < 0.15
+
+
+def test_each_readings_field_is_taken_out_of_the_noise_yardstick():
+    """With each reading's |field| given (±5 % every 2 s: a coil's or a logged field, faster than the Earth's), the
+    residuals the readings' noise is measured on are against it: low-pass noise (AR(1) 0.9) is measured at stride
+    8 as without the change (0.068 µT); against one |field| the change's share had raised it to 0.090."""
+    s = hand_turned(4, LOW_PASS)
+    t = np.arange(len(s.readings)) / 50.0
+    k = 1 + 0.05 * np.sin(2 * np.pi * t / 2.0)
+    b = s.true_calibration().offset
+    m = b + k[:, None] * (s.clean - b) + (s.readings - s.clean)
+    cal = fluxcal.calibrate(m, field_norm=k * H)
+    assert not misses(cal)
+    assert cal.summary["readings_noise_stride"] == 8 and cal.summary["readings_noise_sigma"] < 0.08
