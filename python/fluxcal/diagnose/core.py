@@ -314,18 +314,23 @@ def residual_noise(readings, residuals, directions, t=None) -> tuple[float, int]
 
 def noise_within_turns(residuals, directions) -> tuple[float, int]:
     """The noise σ of a fit's residuals (rows in time order) and the stride k it was taken at: third differences of
-    residuals k apart, k = 1, 2, 4, … (at most MAX_STRIDE and N/24) while the sensor turns less than TURN_SPAN over the 3k readings
-    a difference spans (`directions`: the corrected field's unit vectors, the same rows; on average) and while each
-    doubling of k after the first raises the σ by no more than GROWTH; k = 1 unless that raised it by more than LEVEL. Noise correlated over fewer readings than that (a sensor's
-    internal low-pass filter: AR(1) with φ = 0.9 leaves a quarter of its σ in consecutive readings' third
-    differences) is then all counted; what the model misses is not: a miss that varies with the direction varies
-    little over such a span, and one that varies smoothly in time (a |field| that changes along a flight) grows
-    faster than noise does."""
+    residuals k apart, k = 1, 2, 4, … (at most MAX_STRIDE and N/24) while the sensor turns less than TURN_SPAN over
+    the 3k readings a difference spans in at least half such spans (`directions`: the corrected field's unit vectors,
+    the same rows), and while each doubling of k after the first raises the σ by no more than GROWTH; k = 1 unless
+    that raised it by more than LEVEL. Noise correlated over fewer readings than that (a sensor's internal low-pass
+    filter: AR(1) with φ = 0.9 leaves a quarter of its σ in consecutive readings' third differences) is then all
+    counted; what the model misses is not: a miss that varies with the direction varies little over such a span,
+    and one that varies smoothly in time (a |field| that changes along a flight) grows faster than noise does."""
     r = np.asarray(residuals, dtype=float).ravel()
     u = np.asarray(directions, dtype=float)
-    # mean angle turned per reading (2 arcsin of half the chord: exact at any angle)
-    turn = float(np.mean(2 * np.arcsin(np.clip(np.linalg.norm(np.diff(u, axis=0), axis=1) / 2, 0, 1)))) \
-        if len(u) > 1 else np.inf
+    # the angle turned from each reading to the next (2 arcsin of half the chord: exact at any angle), summed over
+    # spans; judged at the spans' median, as the σ is the differences' median: when half the spans turn less, the
+    # median difference is one of theirs (a vehicle that stops and goes: its mean turn had been half its turns')
+    step = np.nan_to_num(2 * np.arcsin(np.clip(np.linalg.norm(np.diff(u, axis=0), axis=1) / 2, 0, 1)), nan=np.pi)
+    path = np.concatenate([[0.0], np.cumsum(step)])
+
+    def turned(span):
+        return float(np.median(path[span:] - path[:-span])) if len(path) > span else np.inf
 
     def sigma(k):
         d = r[3 * k:] - 3 * r[2 * k:-k] + 3 * r[k:-2 * k] - r[:-3 * k] if len(r) > 3 * k else np.zeros(0)
@@ -333,7 +338,7 @@ def noise_within_turns(residuals, directions) -> tuple[float, int]:
 
     first = sigma(1)
     k, at_k = 1, first
-    while 2 * k <= MAX_STRIDE and 3 * 2 * k <= len(r) / 8 and 3 * 2 * k * turn <= TURN_SPAN:
+    while 2 * k <= MAX_STRIDE and 3 * 2 * k <= len(r) / 8 and turned(3 * 2 * k) <= TURN_SPAN:
         wider = sigma(2 * k)
         if k > 1 and not wider <= GROWTH * at_k:  # (the first doubling: FIRST_DOUBLING)
             break
@@ -348,10 +353,10 @@ TURN_SPAN = 0.75  # rad (≈ 43°) turned over a third difference's span. What t
 LEVEL = 1.15  # the longest stride's σ under this × the first's: the noise is white, and the first's σ is kept
               # (estimates at longer strides scatter more: 6 % at stride 16 in 3000 readings)
 GROWTH = 3.5  # a doubled stride's σ over the stride's: noise grows by at most ~2^1.5 = 2.8 (white: 1; a first-order
-              # filter's, AR(1), like a random walk within its correlation: √2; a second-order low-pass's: 2.8, above 3 in
-              # one of four simulated 3000-reading logs), a miss smooth in time by up to 2³ = 8 (the airborne recording's magnitude fit, a
-              # |field| changing along the track: 6.5, then 4.7). A smooth miss under white noise inflates the σ by at
-              # most 9 % before its growth passes this.
+              # filter's, AR(1), like a random walk within its correlation: √2; a second-order low-pass's: 2.8, above
+              # 3 in one of four simulated 3000-reading logs), a miss smooth in time by up to 2³ = 8 (the airborne
+              # recording's magnitude fit, a |field| changing along the track: 6.5, then 4.7). A smooth miss under
+              # white noise inflates the σ by at most 9 % before its growth passes this.
 # FIRST_DOUBLING: stride 2 is taken whatever it adds. A low-pass filter's zero at the Nyquist frequency (a
 # second-order Butterworth's) hides its noise from consecutive readings' third differences (a quarter of its σ at a
 # cutoff of 0.4× Nyquist, growing > 3× at the first doubling), while a miss smooth in time has a negligible share at
