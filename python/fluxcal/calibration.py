@@ -77,13 +77,22 @@ class Calibration:
         factor = self.unit_factor(samples.field_units(), getattr(samples, "source", "samples")) \
             if hasattr(samples, "field_units") else 1.0
         biaxial = callable(getattr(samples, "biaxial", None)) and samples.biaxial()
-        if biaxial or np.shape(samples)[-1:] == (2,):
-            return self._apply_biaxial(samples.samples(biaxial=True) * factor if biaxial else samples,
-                                       samples.biaxial_axes if biaxial else None,
-                                       getattr(samples, "source", "samples"))
+        if biaxial:
+            return self._apply_biaxial(samples.samples(biaxial=True) * factor, self._biaxial_axes(samples),
+                                       samples.source)
+        if np.shape(samples)[-1:] == (2,):
+            return self._apply_biaxial(samples, None, "samples")
         if np.ndim(samples) == 1:
             return self.matrix @ (np.asarray(samples, dtype=float).reshape(3) - self.offset)
         return (as_samples(samples) * factor - self.offset) @ self.matrix.T
+
+    def _biaxial_axes(self, rec) -> str | None:
+        """A biaxial Recording's sensor axes for this calibration: by the columns' names, or what said them; when
+        nothing did, the calibration's plane's (taken, and said in rec.biaxial_axes_from)."""
+        plane = self.summary.get("plane_axes") if self.summary.get("method") == "planar" else None
+        if not rec.biaxial_axes_from and plane is not None and set(plane) <= set("xyz"):
+            rec.take_axes("".join(sorted(plane)), "the calibration")
+        return rec.biaxial_axes
 
     def _apply_biaxial(self, readings, axes: str | None, source: str) -> np.ndarray:
         """apply() of a biaxial sensor's readings (N×2 or one row of 2) in the sensor axes `axes` ("xz"; None: the
@@ -91,11 +100,11 @@ class Calibration:
         returned in the readings' axis order."""
         plane = self.summary.get("plane_axes") if self.summary.get("method") == "planar" else None
         if plane is None:
-            raise ValueError(f"{source}: two values a reading (a biaxial sensor's), and this is a 3-D calibration, "
+            raise ValueError(f"{source}: 2 field columns (a biaxial sensor's), and this is a 3-D calibration, "
                              "which needs three axes' readings; a biaxial sensor takes a planar calibration "
-                             "(fluxcal.calibrate_planar of its readings)")
+                             "(fluxcal calibrate --planar; fluxcal.calibrate_planar)")
         if not set(plane) <= set("xyz"):
-            raise ValueError(f"{source}: two values a reading, and the calibration was made in a fitted plane tilted "
+            raise ValueError(f"{source}: 2 field columns, and the calibration was made in a fitted plane tilted "
                              "from the sensor axes (summary plane_basis), which needs all three axes' readings")
         if axes is not None and set(axes) != set(plane):
             raise ValueError(f"{source}: the sensor's {' and '.join(axes)} axes, and the calibration is of axes "

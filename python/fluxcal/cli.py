@@ -719,32 +719,9 @@ def _naming_the_input(message: str, args) -> str:
     return f"{inputs[0]}: {message}"
 
 
-def _biaxial_apply_axes(cal: Calibration, rec: Recording, args) -> str:
-    """The sensor axes of a biaxial recording's two columns for `cal`: a planar calibration's plane must be two sensor
-    axes, the columns' by their names or, when their names do not say, taken as the columns' (said)."""
-    names = ", ".join(rec.mag_names())
-    plane = plane_axes(cal)
-    if plane is None:
-        raise ValueError(f"{args.file}: 2 field columns ({names}: a biaxial magnetometer's), and {args.calibration} "
-                         "is a 3-D calibration, which needs three axes' readings; apply this sensor's planar "
-                         "calibration (`fluxcal calibrate --planar`)")
-    rows = np.abs(plane)
-    if not (np.allclose(rows.max(axis=1), 1.0) and np.allclose(np.sort(rows, axis=1)[:, :2], 0.0)):
-        raise ValueError(f"{args.calibration}: calibrated in a fitted plane tilted from the sensor axes (summary "
-                         f"plane_basis), which needs all three axes' readings; {args.file} has 2 field columns "
-                         f"({names})")
-    axes = "".join("xyz"[int(k)] for k in np.argmax(rows, axis=1))
-    named = rec.biaxial_axes_from
-    rec.take_axes(axes, f"the calibration {args.calibration}")
-    if not named:
-        print(f"note: {args.file}: columns {names} taken as the calibration's axes {', '.join(rec.biaxial_axes)} "
-              "(their names do not say which)")
-    return rec.biaxial_axes
-
-
 def _in_sensor_axes(readings: np.ndarray, axes: str) -> np.ndarray:
-    """A biaxial sensor's N×2 readings as N×3 rows in the sensor axes `axes`, the third 0 (a planar calibration
-    passes the third through, with no offset: its h is then 0, and is not written)."""
+    """A biaxial sensor's N×2 readings (or corrected fields) as N×3 rows in the sensor axes `axes`, the third 0 (a
+    planar calibration passes the third through, with no offset: its h is then 0, and is not written)."""
     out = np.zeros((len(readings), 3))
     out[:, ["xyz".index(a) for a in axes]] = readings
     return out
@@ -766,9 +743,18 @@ def cmd_apply(args) -> int:
     if factor != 1.0:
         print(f"readings in {rec.field_units()} converted to the calibration's {cal.units} (× {factor:g})")
     # a biaxial sensor's two columns (a planar calibration's axes): corrected in its axes, those two written
-    axes = _biaxial_apply_axes(cal, rec, args) if rec.biaxial() else None
+    axes, named = (None, None) if not rec.biaxial() else (None, rec.biaxial_axes_from)
     with np.errstate(over="ignore", invalid="ignore"):  # said below, naming the files
-        h = cal.apply(rec) if axes is None else cal.apply(_in_sensor_axes(rec.samples(biaxial=True), axes) * factor)
+        try:
+            h = cal.apply(rec)
+        except ValueError as exc:  # (Calibration.apply names the recording; here the calibration too)
+            raise ValueError(f"{args.calibration} on {exc}") from None
+    if named is not None:
+        axes = rec.biaxial_axes
+        if not named:
+            print(f"note: {args.file}: columns {', '.join(rec.mag_names())} taken as the calibration's axes "
+                  f"{', '.join(axes)} (their names do not say which)")
+        h = _in_sensor_axes(h, axes)
     raw = (rec.samples(check_finite=False) if axes is None
            else _in_sensor_axes(rec.samples(check_finite=False, biaxial=True), axes))
     bad = ~np.isfinite(h).all(axis=1) & np.isfinite(raw).all(axis=1)
