@@ -609,12 +609,10 @@ def _calibrate_planar(args, rec: Recording) -> int:
 
     refused = [name for name, given in (("--reference", args.reference), ("--method", args.method != "auto"),
                                         ("--align-accelerometer", args.align_accelerometer),
-                                        ("--plot", args.plot),
                                         ("--serial-correlation", args.serial_correlation)) if given]
     if refused:
         raise ValueError(f"--planar: {', '.join(refused)} {'belong' if len(refused) > 1 else 'belongs'} to the 3-D "
-                         "fits (the planar fit has one method, no "
-                         "reference, alignment or plot); leave them out")
+                         "fits (the planar fit has one method, no reference or alignment); leave them out")
     field_norm = args.field_norm
     if isinstance(field_norm, str) and field_norm not in rec.columns:
         raise ValueError(f"--field-norm {field_norm}: with --planar, the HORIZONTAL field H (a number, or a column "
@@ -638,6 +636,10 @@ def _calibrate_planar(args, rec: Recording) -> int:
     print(cal)
     for line in summary_lines(cal):
         print(line)
+    if args.plot:
+        from .plots import before_after
+
+        print(f"wrote {before_after(rec.samples(biaxial=rec.biaxial()), cal, args.plot, title=Path(args.file).name)}")
     for w in cal.summary["warnings"]:
         print(f"warning: {w}")
     if args.output:

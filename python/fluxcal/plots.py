@@ -10,7 +10,8 @@ THOUSANDS = 1e4   # an axis reaching this far is labelled in k (thousands), M…
 
 
 def before_after(raw, calibration, path, title: str = "") -> Path:
-    """Raw readings and corrected fields (three projections each) and |h| before/after, to `path`."""
+    """Raw readings and corrected fields (three projections each; a planar calibration's plane) and |h|
+    before/after, to `path`."""
     import matplotlib
 
     matplotlib.use("Agg")
@@ -37,7 +38,14 @@ def before_after_figure(raw, calibration, title: str = ""):
     u = f" [{unit}]" if unit else ""
     hu = f" [{h_unit}]" if h_unit else ""
     fig, ax = plt.subplots(1, 3, figsize=(15, 4.8))
-    pairs = ((0, 1, "x–y"), (0, 2, "x–z"), (1, 2, "y–z"))
+    plane = calibration.summary.get("plane_basis") if calibration.summary.get("method") == "planar" else None
+    if plane is not None:  # a planar calibration: the plane's two axes, |h| the horizontal field in it
+        basis = np.asarray(plane, dtype=float)
+        raw, h = (raw, h) if raw.shape[1] == 2 else (raw @ basis.T, h @ basis.T)
+        names = calibration.summary.get("plane_axes", ["1", "2"])
+        pairs = ((0, 1, f"{names[0]}–{names[1]}"),)
+    else:
+        pairs = ((0, 1, "x–y"), (0, 2, "x–z"), (1, 2, "y–z"))
     for (i, j, label), colour in zip(pairs, ("C0", "C1", "C2")):
         ax[0].plot(raw[:, i], raw[:, j], ".", ms=1.5, color=colour, label=label)
         ax[1].plot(h[:, i], h[:, j], ".", ms=1.5, color=colour, label=label)
@@ -56,7 +64,7 @@ def before_after_figure(raw, calibration, title: str = ""):
                label=f"corrected |h|: std/mean {100 * norm.std() / norm.mean():.3f} %")
     ax[2].set_xlabel("sample")
     ax[2].set_ylabel("deviation of the magnitude [%]")
-    ax[2].set_title("field magnitude")
+    ax[2].set_title("field magnitude" if plane is None else "horizontal field magnitude")
     ax[2].legend(markerscale=6, fontsize=8)
     ax[2].grid(alpha=0.3)
     for a in ax:

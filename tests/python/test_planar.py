@@ -456,8 +456,8 @@ def test_cli_planar_calibrates_saves_and_applies_in_the_plane(tmp_path):
     assert "horizontal |h| std/mean" in a.stdout and "warning" not in a.stdout
     assert run_cli("export-c", tmp_path / "cal.json", "-o", tmp_path / "cal.h").returncode == 0
     # 3-D options and a total field are refused, not ignored
-    r = run_cli("calibrate", log, "--planar", "--plot", tmp_path / "p.png")
-    assert r.returncode == 2 and "--plot belongs to the 3-D fits" in r.stderr
+    r = run_cli("calibrate", log, "--planar", "--method", "als")
+    assert r.returncode == 2 and "--method belongs to the 3-D fits" in r.stderr
     r = run_cli("calibrate", log, "--planar", "--field-norm", "igrf")
     assert r.returncode == 2 and "HORIZONTAL field H" in r.stderr
     # and the 3-D fit's planar error now names the route

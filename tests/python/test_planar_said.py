@@ -42,3 +42,20 @@ def test_a_field_far_from_any_horizontal_field_is_said():
     assert not far(calibrate_planar(m, units="uT", field_norm=H))
     assert far(calibrate_planar(10 * m, units="uT"))  # mG labelled µT
     assert far(calibrate_planar(m, units="uT", field_norm=H, field_units="nT"))  # H in µT labelled nT
+
+
+def test_calibrate_planar_plots_the_plane_before_and_after(tmp_path, capsys):
+    """--plot with --planar (refused before: a newcomer expected the ellipse-to-circle picture here most): the plane's
+    two axes raw and corrected, and the horizontal |h|; for three columns and for a biaxial sensor's two."""
+    import matplotlib.image
+
+    from fluxcal.cli import main
+
+    m, _ = yaw_only(5, n=600)
+    for name, header, rows in (("three.csv", "mx [uT],my [uT],mz [uT]", m), ("two.csv", "Bx [uT],By [uT]", m[:, :2])):
+        log = tmp_path / name
+        log.write_text(header + "\n" + "".join(",".join(f"{v:.5f}" for v in row) + "\n" for row in rows))
+        png = tmp_path / (name + ".png")
+        assert main(["calibrate", str(log), "--planar", "--field-norm", str(H), "--plot", str(png)]) == 0
+        assert f"wrote {png}" in capsys.readouterr().out
+        assert matplotlib.image.imread(png).shape[0] > 100
