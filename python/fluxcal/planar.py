@@ -168,10 +168,14 @@ def calibrate_planar(samples, field_norm=None, axes=None, units: str | None = No
     u = m @ plane["basis"].T  # N×2: the readings' components along the plane's axes
     left_out = _screen(u, norms, far, max_iterations, tolerance) if outliers == "drop" else None
     if left_out is not None and len(left_out.rows):
-        m, u = np.delete(m, left_out.rows, axis=0), np.delete(u, left_out.rows, axis=0)
+        m = np.delete(m, left_out.rows, axis=0)
         norms = None if norms is None else np.delete(norms, left_out.rows)
         times = None if times is None or len(times) != n else np.delete(times, left_out.rows)
         n = len(m)
+        if len(np.setdiff1d(left_out.rows, far)):  # found again without them: a burst of readings 2–5× the field,
+            warnings = []                           # under the far rule, had tipped the plane by 5–15° (blind check)
+            plane = _plane(m, axes, axis_tolerance, planar_ratio, warnings)
+        u = m @ plane["basis"].T
     fit = _fit(u, norms, shapes, max_iterations, tolerance)
     names = plane["names"]
     h = fit["h"]
