@@ -517,18 +517,9 @@ def _field_norm_from(rec: Recording, path: str, args) -> np.ndarray:
     return np.interp(mine, theirs, values) * factor
 
 
-def _two_columns_given(rec: Recording, columns) -> Recording:
-    """--columns with two names: a biaxial sensor's columns, also in a table without a header (whose reader takes
-    them as the columns' names and picks no magnetometer from two)."""
-    names = columns.split(",") if isinstance(columns, str) else None
-    if names is not None and len(names) == 2:
-        rec.select(names)
-    return rec
-
-
 def cmd_calibrate(args) -> int:
-    rec = _two_columns_given(read_recording(args.file, columns=args.columns, units=args.units,
-                                            bad_lines=args.bad_lines, decimal=args.decimal), args.columns)
+    rec = read_recording(args.file, columns=args.columns, units=args.units, bad_lines=args.bad_lines,
+                         decimal=args.decimal)
     raw = rec.samples(biaxial=bool(args.planar))  # two field columns: only the planar fit takes them
     if args.planar:
         return _calibrate_planar(args, rec)
@@ -731,8 +722,8 @@ def _in_sensor_axes(readings: np.ndarray, axes: str) -> np.ndarray:
 
 def cmd_apply(args) -> int:
     cal = Calibration.load(args.calibration)
-    rec = _two_columns_given(read_recording(args.file, columns=args.columns, units=args.units,
-                                            bad_lines=args.bad_lines, decimal=args.decimal), args.columns)
+    rec = read_recording(args.file, columns=args.columns, units=args.units, bad_lines=args.bad_lines,
+                         decimal=args.decimal)
     taken = [k for k in ("hx", "hy", "hz") + (("heading",) if args.heading else ()) if k in rec.columns]
     if taken:  # the corrected columns would replace them (raw readings named hx,hy,hz, an earlier correction)
         raise ValueError(f"{args.file}: already has column(s) {', '.join(taken)}, which the corrected field would "
@@ -745,7 +736,7 @@ def cmd_apply(args) -> int:
     if factor != 1.0:
         print(f"readings in {rec.field_units()} converted to the calibration's {cal.units} (× {factor:g})")
     # a biaxial sensor's two columns (a planar calibration's axes): corrected in its axes, those two written
-    axes, named = (None, None) if not rec.biaxial() else (None, rec.biaxial_axes_from)
+    axes, named = None, (rec.biaxial_axes_from if rec.biaxial() else None)
     with np.errstate(over="ignore", invalid="ignore"):  # said below, naming the files
         try:
             h = cal.apply(rec)

@@ -307,7 +307,7 @@ def residual_noise(readings, residuals, directions, t=None) -> tuple[float, int]
     if white is None:
         return None
     changed = changed_rows(x)  # (as the readings' own σ leaves a logger's repeats out)
-    with np.errstate(all="ignore"):  # a glitch of 1e300 left out of the fit overflows; the MAD ignores it
+    with np.errstate(all="ignore"):  # (a reading far off the fit may overflow its square; the MAD ignores it)
         sigma, stride = noise_within_turns(r[changed], u[changed])
     return (sigma, stride) if sigma > white else (white, 1)
 
