@@ -2,6 +2,7 @@
 
 #include "checks.hpp"
 #include "clones.hpp"
+#include "long_run.hpp"
 
 #include <Eigen/Cholesky>
 #include <Eigen/Eigenvalues>
@@ -180,6 +181,23 @@ Evaluation evaluate(const Problem& pr, const Eigen::VectorXd& p, const Eigen::Ve
   return ev;
 }
 
+// Each reading's Sampson residual (N×1) and score J_kᵀ r_k by the shape's parameters (N×k), normalised units, rows
+// in the readings' order: what the test for correlation in time and the Newey–West sandwich take (long_run.hpp).
+std::pair<Eigen::MatrixXd, Eigen::MatrixXd> residuals_and_scores(const Problem& pr, const Eigen::VectorXd& p,
+                                                                 const Eigen::VectorXd& T) {
+  const Eigen::Matrix2d A = matrix_of(pr.shape, p.data() + 2);
+  const Eigen::Index n = pr.ux.size();
+  Eigen::MatrixXd r(n, 1), J(n, 5);
+  double out[6];
+  for (Eigen::Index i = 0; i < n; ++i) {
+    sampson_2d(pr.ux(i) - p(0), pr.uy(i) - p(1), A(0, 0), A(0, 1), A(1, 1), T(i), out, 1);
+    for (int j = 0; j < 5; ++j) J(i, j) = out[j];
+    r(i, 0) = out[5];
+  }
+  Eigen::MatrixXd scores = (J * pr.P).array().colwise() * r.col(0).array();
+  return {std::move(r), std::move(scores)};
+}
+
 struct Solve {
   Eigen::VectorXd p;
   Evaluation at;  // cost, F, g at p
@@ -306,6 +324,9 @@ void check(const PlanarOptions& o) {
   detail::require_positive(s + "tolerance", o.tolerance);
   detail::require_positive(s + "determined_tolerance", o.determined_tolerance);
   detail::require_nonnegative(s + "min_radius_over_noise", o.min_radius_over_noise, "a finite value ≥ 0 (0: never)");
+  detail::require_enum(s + "serial_correlation", o.serial_correlation, 3, "automatic, independent, newey_west (0 … 2)");
+  detail::require_open_unit(s + "serial_correlation_alpha", o.serial_correlation_alpha,
+                            "a significance level in (0, 1)");
 }
 
 void check_readings(const Readings2DRef& readings) {
@@ -421,11 +442,12 @@ PlanarResult fit(const Readings2DRef& u, const Eigen::VectorXd* norms, const Pla
   const double dof = std::max(nd - k, 1.0);
 
   // Noise bias: raise each target by σ̂²‖A‖_F²/(4 T_k) and solve again (the header's step 3).
+  Eigen::VectorXd fitted_targets = pr.T;
   if (options.noise_bias_correction) {
     const double sigma2 = result.at.cost / dof;
     const Eigen::Matrix2d A = matrix_of(options.shape, result.p.data() + 2);
-    const Eigen::VectorXd raised = pr.T.array() + sigma2 * A.squaredNorm() / (4.0 * pr.T.array());
-    Solve again = levenberg_marquardt(pr, result.p, raised, options.max_iterations, options.tolerance);
+    fitted_targets = pr.T.array() + sigma2 * A.squaredNorm() / (4.0 * pr.T.array());
+    Solve again = levenberg_marquardt(pr, result.p, fitted_targets, options.max_iterations, options.tolerance);
     iterations += again.iterations;
     result = std::move(again);
   }
@@ -440,15 +462,21 @@ PlanarResult fit(const Readings2DRef& u, const Eigen::VectorXd* norms, const Pla
   const Eigen::VectorXd lam = eig.eigenvalues();
   out.fisher_condition = lam(0) > 0.0 ? lam(k - 1) / lam(0) : kInf;
   const Eigen::VectorXd inv = lam.cwiseMax(lam(k - 1) * kTiny).cwiseInverse();
-  Eigen::MatrixXd cov = sigma2 * dscale.asDiagonal() * eig.eigenvectors() * inv.asDiagonal() *
-                        eig.eigenvectors().transpose() * dscale.asDiagonal();
+  const Eigen::MatrixXd Finv = dscale.asDiagonal() * eig.eigenvectors() * inv.asDiagonal() *
+                               eig.eigenvectors().transpose() * dscale.asDiagonal();
+  Eigen::MatrixXd independent = sigma2 * Finv, cov = independent;
+  // Readings correlated in time: the Newey–West sandwich (the header's step 4), rows in the readings' order.
+  const auto [r_n, scores] = residuals_and_scores(pr, result.p, fitted_targets);
+  const std::string correlated = detail::correct_for_serial_correlation(
+      cov, out.serial_correlation, r_n, scores, Finv, lam(0) <= lam(k - 1) * kTiny, options.serial_correlation,
+      options.serial_correlation_alpha);
   // Back to reading units: b = centre + scale·β, A = A_n·field_scale/scale.
   Eigen::VectorXd to(k), values(k);
   to.head<2>().setConstant(scale);
   to.tail(k - 2).setConstant(field_scale / scale);
   values.head<2>() = centre + scale * result.p.head<2>();
   values.tail(k - 2) = result.p.tail(k - 2) * (field_scale / scale);
-  cov = to.asDiagonal() * cov * to.asDiagonal();
+  for (Eigen::MatrixXd* c : {&cov, &independent}) *c = to.asDiagonal() * *c * to.asDiagonal();
   Eigen::Matrix2d A = matrix_of(options.shape, values.data() + 2);
   Eigen::VectorXd H = targets;  // each reading's |h| target, reading units of h
   out.field_norm = field_scale;
@@ -466,7 +494,7 @@ PlanarResult fit(const Readings2DRef& u, const Eigen::VectorXd* norms, const Pla
     Eigen::MatrixXd G = Eigen::MatrixXd::Identity(k, k);
     G.bottomRightCorner(k - 2, k - 2) =
         Eigen::MatrixXd::Identity(k - 2, k - 2) / root - 0.5 * c * grad.transpose() / (det * root);
-    cov = G * cov * G.transpose();
+    for (Eigen::MatrixXd* m : {&cov, &independent}) *m = G * *m * G.transpose();
     values.tail(k - 2) = c / root;
     A /= root;
     out.field_norm = radius / root;
@@ -477,6 +505,7 @@ PlanarResult fit(const Readings2DRef& u, const Eigen::VectorXd* norms, const Pla
   out.parameters = values;
   out.covariance = cov;
   out.standard_errors = cov.diagonal().cwiseMax(0.0).cwiseSqrt();
+  out.serial_correlation.standard_errors_independent = independent.diagonal().cwiseMax(0.0).cwiseSqrt();
   out.sigma = std::sqrt(sigma2) * scale;
   out.rss = result.at.cost * scale * scale;
   out.parameter_names = {"b_x", "b_y"};
@@ -517,7 +546,9 @@ PlanarResult fit(const Readings2DRef& u, const Eigen::VectorXd* norms, const Pla
   out.identifiable = true;
   std::string undetermined;
   for (int j = 0; j < k; ++j) {
-    const bool ok = out.standard_errors(j) < options.determined_tolerance * (j < 2 ? out.mean_radius : matrix_scale);
+    // a property of the coverage: judged on the independent-readings errors, as refine's
+    const bool ok = out.serial_correlation.standard_errors_independent(j) <
+                    options.determined_tolerance * (j < 2 ? out.mean_radius : matrix_scale);
     out.determined[static_cast<std::size_t>(j)] = ok;
     if (!ok) {
       out.identifiable = false;
@@ -534,6 +565,7 @@ PlanarResult fit(const Readings2DRef& u, const Eigen::VectorXd* norms, const Pla
     sum.warnings.push_back("the planar fit did not converge in " + std::to_string(iterations) +
                            " iterations: the result is the last iterate — check the readings for outliers and that "
                            "the vehicle turned a full circle");
+  if (!correlated.empty()) sum.warnings.push_back(correlated);
   if (!out.identifiable)
     sum.warnings.push_back("not identifiable: the data do not determine " + undetermined + " (standard error above " +
                            percent(options.determined_tolerance) + " of its scale) — turn through more of the circle, "

@@ -16,7 +16,8 @@ py::dict planar_dict(const fluxcal::PlanarResult& r) {
                   "standard_errors"_a = r.standard_errors, "determined"_a = r.determined,
                   "identifiable"_a = r.identifiable, "sigma"_a = r.sigma, "rss"_a = r.rss,
                   "mean_radius"_a = r.mean_radius, "fisher_condition"_a = r.fisher_condition, "start"_a = r.start,
-                  "residuals"_a = r.residuals, "units"_a = r.units, "summary"_a = summary_dict(r.summary));
+                  "residuals"_a = r.residuals, "units"_a = r.units,
+                  "serial_correlation"_a = serial_correlation_dict(r.serial_correlation), "summary"_a = summary_dict(r.summary));
 }
 
 }  // namespace
@@ -38,6 +39,8 @@ void bind_planar(py::module_& m) {
       .def_readwrite("noise_bias_correction", &PlanarOptions::noise_bias_correction)
       .def_readwrite("determined_tolerance", &PlanarOptions::determined_tolerance)
       .def_readwrite("min_radius_over_noise", &PlanarOptions::min_radius_over_noise)
+      .def_readwrite("serial_correlation", &PlanarOptions::serial_correlation)
+      .def_readwrite("serial_correlation_alpha", &PlanarOptions::serial_correlation_alpha)
       .def_readwrite("units", &PlanarOptions::units);
 
   // readings arrive as a C-contiguous float64 (N, 2) array and field_norms as float64 (N,) or None (the Python

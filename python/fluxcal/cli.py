@@ -599,8 +599,7 @@ def _calibrate_planar(args, rec: Recording) -> int:
     from .planar import calibrate_planar, summary_lines
 
     refused = [name for name, given in (("--reference", args.reference), ("--method", args.method != "auto"),
-                                        ("--align-accelerometer", args.align_accelerometer),
-                                        ("--serial-correlation", args.serial_correlation)) if given]
+                                        ("--align-accelerometer", args.align_accelerometer)) if given]
     if refused:
         raise ValueError(f"--planar: {', '.join(refused)} {'belong' if len(refused) > 1 else 'belongs'} to the 3-D "
                          "fits (the planar fit has one method, no reference or alignment); leave them out")
@@ -616,7 +615,7 @@ def _calibrate_planar(args, rec: Recording) -> int:
     try:
         cal = calibrate_planar(rec, field_norm=field_norm, axes=axes, shape=args.shape,
                                field_units=unit_name(args.field_units) if args.field_units else None,
-                               outliers=args.outliers)
+                               outliers=args.outliers, serial_correlation=args.serial_correlation or "automatic")
     except ValueError as exc:
         raise ValueError(f"{args.file}: {exc}") from None
     cal.metadata.update(source=str(args.file), columns=",".join(rec.mag_names()))

@@ -29,7 +29,9 @@ reading); from the one that fits better (the other too when that one does not co
 Sampson residual (|h| − H)·|h|/|A h| (the reading-space distance to the ellipse to first order: maximum likelihood
 for isotropic Gaussian noise, as fluxcal.refine's magnitude model); then one more solve with the targets raised by
 the noise's bias of |h| (≈ σ²‖A‖²_F/(4H): the tangential noise lengthens |h|), which fitting |h| to H would
-otherwise put into A; the covariance σ̂²(JᵀJ)⁻¹. This module finds the plane, chooses the shape by BIC, checks the
+otherwise put into A; the covariance σ̂²(JᵀJ)⁻¹, or for readings correlated in time (a sensor's own filter, noise
+that wanders) the prewhitened Newey–West sandwich, as fluxcal.refine's: with AR(1) noise of φ 0.9 the independent
+errors were 4–5× too small (the offset more than 4 of them off in 13 of 20 logs), the sandwich's within 1.0–1.25×. This module finds the plane, chooses the shape by BIC, checks the
 arc and the ellipse, and words the warnings: they judge a vehicle's log rather than solve for a calibration.
 
 Which plane (N×3 readings): the readings' scatter's thinnest direction is the plane's normal. Within
@@ -54,6 +56,7 @@ from . import _core
 from ._arrays import as_field_norms, field_norm_given, first_nonfinite, recording_times, units_text
 from .calibration import Calibration
 from .outliers import Quadric, far_readings, find_outliers
+from .refine import serial_correlation_mode
 
 AXES = "xyz"
 SHAPES = ("circle", "diag", "sym")  # as calibrate's sphere, diag, sym: one gain, per-axis gains, symmetric matrix
@@ -96,7 +99,7 @@ NOT_CALIBRATED_WORDS = "is not calibrated"
 def calibrate_planar(samples, field_norm=None, axes=None, units: str | None = None, shape: str = "auto",
                      min_arc: float = MIN_ARC_DEG, axis_tolerance: float = 5.0, planar_ratio: float = 0.02,
                      max_iterations: int = 100, tolerance: float = 1e-10, field_units: str | None = None,
-                     outliers: str = "drop") -> Calibration:
+                     outliers: str = "drop", serial_correlation: str = "automatic") -> Calibration:
     """Calibrate the two axes of the plane a magnetometer turns in (yaw-only vehicle, biaxial compass).
 
     samples: N×3 readings (or a fluxcal Recording, whose unit is carried), or N×2 of a biaxial sensor.
@@ -119,6 +122,10 @@ def calibrate_planar(samples, field_norm=None, axes=None, units: str | None = No
     squares, then the Bonferroni line at α = 1 %), and readings 10× farther from the readings' median than the median
     reading are left out before the plane is found; summary["outliers"] lists the rows, a warning says how many.
     "keep": every reading is fitted.
+    serial_correlation: the standard errors' treatment of readings correlated in time, rows in time order (as
+    fluxcal.refine's): "automatic" (default) takes the Newey–West sandwich when the residuals fail a Ljung–Box test
+    and it widens an error, or when it widens one ≥ 1.5×; "independent" never (rows not in time order);
+    "newey_west" always. summary["serial_correlation"] says what the residuals showed.
 
     Returns a Calibration h = A (m − b): the plane's 2×2 A and offset embedded in 3×3, the normal axis passed through
     (A's row and column for it √det A on the diagonal, its offset 0). Its apply takes N×2 readings (or a biaxial
@@ -130,7 +137,8 @@ def calibrate_planar(samples, field_norm=None, axes=None, units: str | None = No
     readings in time order: pipeline.readings_noise's rule), parameter_names/parameters/standard_errors/determined
     (the plane's, in the sensor axes' names), identifiable (all of them determined), not_calibrated, scale ("given"
     or "relative"), shape and shapes (BIC), start, converged, iterations, readings_extent (the largest |component|
-    read, for export-c's range), outliers (with outliers="drop"), warnings.
+    read, for export-c's range), outliers (with outliers="drop"), serial_correlation (lag1, ljung_box_p, lags: 0 =
+    independent readings assumed, inflation, standard_errors_independent), warnings.
 
     Raises ValueError naming the input on: too few readings, NaN/Inf, readings that hardly change, readings
     that span three dimensions well enough for fluxcal.calibrate to determine every axis, an arc under `min_arc`,
@@ -159,6 +167,7 @@ def calibrate_planar(samples, field_norm=None, axes=None, units: str | None = No
                          f"2×2 matrix) and needs at least {MIN_READINGS} — log more readings while the vehicle turns "
                          "a full circle")
     norms = None if field_norm is None else as_field_norms(field_norm, n, "field_norm")
+    correlation = serial_correlation_mode(serial_correlation)
     if outliers not in ("drop", "keep"):
         raise ValueError(f"outliers: {outliers!r} is not 'drop' (screen the readings, the default) or 'keep'")
     warnings: list[str] = []
@@ -176,7 +185,7 @@ def calibrate_planar(samples, field_norm=None, axes=None, units: str | None = No
             warnings = []                           # under the far rule, had tipped the plane by 5–15° (blind check)
             plane = _plane(m, axes, axis_tolerance, planar_ratio, warnings)
         u = m @ plane["basis"].T
-    fit = _fit(u, norms, shapes, max_iterations, tolerance)
+    fit = _fit(u, norms, shapes, max_iterations, tolerance, correlation)
     names = plane["names"]
     h = fit["h"]
     targets = fit["targets"]
@@ -219,6 +228,7 @@ def calibrate_planar(samples, field_norm=None, axes=None, units: str | None = No
         "parameters": fit["parameters"].tolist(),
         "standard_errors": fit["standard_errors"].tolist(),
         "determined": [bool(d) for d in fit["determined"]],
+        "serial_correlation": fit["serial_correlation"],
         "identifiable": bool(all(fit["determined"])) and not fit["undetermined_larger"],
         "fisher_condition": fit["fisher_condition"],
         "degrees_of_freedom": n - fit["k"],
@@ -308,8 +318,11 @@ def summary_lines(cal: Calibration) -> list[str]:
     offsets = [se for name, se in zip(s["parameter_names"], s["standard_errors"]) if name.startswith("b_")]
     caveat = "" if s["identifiable"] else "   (NOT the error: the data do not determine every parameter)"
     lines.append(f"  std error of b        {', '.join(f'{v:.3g}' for v in offsets)}{u}{caveat}")
+    # judged on the independent-readings errors (as calibrate's printout says beside Newey–West-widened ones)
+    widened = (", judged on the Fisher information of independent readings; the std errors above are widened for "
+               "readings correlated in time" if s.get("serial_correlation", {}).get("lags", 0) > 0 else "")
     lines.append(f"  identifiable          {'yes' if s['identifiable'] else 'NO'} (the plane's {len(s['parameters'])} "
-                 "parameters)")
+                 f"parameters{widened})")
     if s.get("biaxial"):
         lines.append(f"  third axis            {s['not_calibrated']['axis']}: none (a biaxial sensor)")
     elif "not_calibrated" in s:
@@ -531,10 +544,13 @@ def _parameter_names(shape: str, names) -> list[str]:
                                    "sym": [f"a_{x}{x}", f"a_{x}{y}", f"a_{y}{y}"]}[shape]
 
 
-def _fit(u: np.ndarray, norms, shapes: tuple, max_iterations: int, tolerance: float) -> dict:
+def _fit(u: np.ndarray, norms, shapes: tuple, max_iterations: int, tolerance: float,
+         serial_correlation=_core.SerialCorrelation.independent) -> dict:
     """Each shape's fit by the C++ core (`fluxcal::fit_planar`, cpp/include/fluxcal/planar.hpp: both starts,
     Levenberg–Marquardt on the Sampson residual, the noise-bias solve, the covariance; its reference is
-    fluxcal.oracle.planar), then the BIC choice across shapes and what the summary reads, in u's units."""
+    fluxcal.oracle.planar), then the BIC choice across shapes and what the summary reads, in u's units.
+    serial_correlation: the core's SerialCorrelation (independent for the outlier screen's many subset fits, which
+    use no standard error)."""
     n = len(u)
     u = np.ascontiguousarray(u, dtype=np.float64)
     field_norms = None if norms is None else np.ascontiguousarray(norms, dtype=np.float64)
@@ -544,6 +560,7 @@ def _fit(u: np.ndarray, norms, shapes: tuple, max_iterations: int, tolerance: fl
         options.shape = getattr(_core.PlanarShape, _CORE_SHAPES[shape])
         options.max_iterations = int(max_iterations)
         options.tolerance = float(tolerance)
+        options.serial_correlation = serial_correlation
         # "traces no ellipse" is judged once, on the chosen shape (calibrate_planar): a circle that misfits an
         # elongated ellipse should lose on BIC, not fail the calibration
         options.min_radius_over_noise = 0.0
@@ -577,7 +594,11 @@ def _fit(u: np.ndarray, norms, shapes: tuple, max_iterations: int, tolerance: fl
               "covariance": np.asarray(r["covariance"], dtype=float),
               "residuals": np.asarray(r["residuals"], dtype=float), "shape": chosen, "table": table,
               "start": r["start"], "converged": bool(r["summary"]["converged"]),
-              "iterations": int(r["summary"]["iterations"]), "k": len(r["parameters"])}
+              "iterations": int(r["summary"]["iterations"]), "k": len(r["parameters"]),
+              "serial_correlation": {key: (list(value) if key == "standard_errors_independent" else value)
+                                     for key, value in r["serial_correlation"].items()},
+              # the core's words when it widened the errors (Newey–West), kept as it says them
+              "correlated": [w for w in r["summary"]["warnings"] if "correlated in time" in w]}
     # As calibrate's shape "auto": a smaller shape that wins while the data cannot determine the larger one holds
     # only if the terms it leaves out are zero, which these data cannot test.
     larger = SHAPES[SHAPES.index(chosen) + 1:]
@@ -622,6 +643,7 @@ def _notes(m: np.ndarray, summary: dict, plane: dict, fit: dict, norms, units: s
                      "never changes and its offset and gain leave no trace in the readings; it passes through, "
                      "only scaled by the plane's mean gain into h's unit (its offset not removed). Tumble the sensor "
                      "(fluxcal calibrate without the planar option) for a 3-D calibration")
+    notes += fit["correlated"]
     if not summary["converged"]:
         notes.append(f"the planar fit did not converge in {summary['iterations']} iterations: the result is the last "
                      "iterate — check the readings for outliers and that the vehicle turned a full circle")

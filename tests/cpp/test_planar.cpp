@@ -154,11 +154,14 @@ TEST(Planar, FewerParametersForShapesWithoutCoupling) {
   EXPECT_EQ(c.parameters.size(), 3);
   EXPECT_EQ(c.matrix(0, 0), c.matrix(1, 1));
   EXPECT_GT(c.sigma, 10.0 * d.sigma);
-  // the diagonal model misses a rotated ellipse by far more than its errors
+  // the diagonal model misses a rotated ellipse by far more than its errors for independent readings; its misfit
+  // follows twice the heading, slowly in time, so the Newey–West errors it reports are wider, the miss beyond 3
   const Yaw rotated = yaw_only(6, 2000, soft_iron(30.0, 1.12, 0.9));
   opt.shape = PlanarShape::diagonal;
   const auto miss = fluxcal::fit_planar(rotated.u, opt);
-  EXPECT_GT(std::abs(rotated.A(0, 1)), 20.0 * miss.standard_errors.tail(2).maxCoeff());
+  EXPECT_GT(std::abs(rotated.A(0, 1)), 20.0 * miss.serial_correlation.standard_errors_independent.tail(2).maxCoeff());
+  EXPECT_GT(std::abs(rotated.A(0, 1)), 3.0 * miss.standard_errors.tail(2).maxCoeff());
+  EXPECT_GT(miss.serial_correlation.lags, 0);
 }
 
 TEST(Planar, NoiseBiasCorrectionRemovesTheShrinkOfTheMatrix) {
@@ -206,6 +209,56 @@ TEST(Planar, AShortArcLeavesParametersUndetermined) {
   EXPECT_TRUE(said);
 }
 
+TEST(Planar, ReadingsCorrelatedInTimeGetNeweyWestErrors) {
+  // A sensor's own filter: AR(1) noise of φ 0.9 (stationary σ kSigma). σ̂²(JᵀJ)⁻¹ assumes independent readings and
+  // is 4–5× too narrow; the sandwich is taken (the residuals fail Ljung–Box) and the offset's z-scores are ~1.
+  const int n = 1000, seeds = 20;
+  const double phi = 0.9;
+  int far_independent = 0, far_reported = 0;
+  double z2 = 0.0;
+  for (int seed = 0; seed < seeds; ++seed) {
+    Yaw y = yaw_only(100 + seed, n, soft_iron(30.0, 1.12, 0.9), 0.0);
+    std::mt19937 rng(500 + seed);
+    std::normal_distribution<double> g(0.0, kSigma * std::sqrt(1.0 - phi * phi));
+    Eigen::Vector2d e(kSigma * std::normal_distribution<double>()(rng), kSigma * std::normal_distribution<double>()(rng));
+    for (int k = 0; k < n; ++k) {
+      e = phi * e + Eigen::Vector2d(g(rng), g(rng));
+      y.u.row(k) += e.transpose();
+    }
+    PlanarOptions opt;
+    opt.field_norm = kH;
+    const auto r = fluxcal::fit_planar(y.u, opt);
+    const auto& sc = r.serial_correlation;
+    EXPECT_GT(sc.lags, 0);
+    EXPECT_GT(sc.inflation, 2.0);
+    EXPECT_GT(sc.lag1, 0.5);
+    EXPECT_TRUE(r.identifiable);  // judged on the independent errors: the coverage, not the noise's colour
+    bool said = false;
+    for (const auto& w : r.summary.warnings) said = said || w.find("correlated in time") != std::string::npos;
+    EXPECT_TRUE(said);
+    for (int j = 0; j < 2; ++j) {
+      const double off = std::abs(r.offset(j) - y.b(j));
+      far_independent += off > kZ * sc.standard_errors_independent(j);
+      far_reported += off > kZ * r.standard_errors(j);
+      z2 += off * off / (r.standard_errors(j) * r.standard_errors(j));
+    }
+  }
+  EXPECT_GE(far_independent, 10);  // of 40 offsets (measured: 21)
+  EXPECT_LE(far_reported, 1);
+  EXPECT_LT(std::sqrt(z2 / (2.0 * seeds)), 1.5);
+  // independent: never the sandwich; white noise: automatic keeps σ̂²(JᵀJ)⁻¹ exactly
+  const Yaw white = yaw_only(99, n, soft_iron(30.0, 1.12, 0.9));
+  PlanarOptions opt;
+  opt.field_norm = kH;
+  const auto r = fluxcal::fit_planar(white.u, opt);
+  EXPECT_EQ(r.serial_correlation.lags, 0);
+  EXPECT_EQ(r.standard_errors, r.serial_correlation.standard_errors_independent);
+  opt.serial_correlation = fluxcal::SerialCorrelation::newey_west;
+  const auto nw = fluxcal::fit_planar(white.u, opt);
+  EXPECT_GT(nw.serial_correlation.lags, 0);
+  EXPECT_NEAR(nw.standard_errors(0) / r.standard_errors(0), 1.0, 0.3);
+}
+
 TEST(Planar, BadInputNamesTheInput) {
   const Yaw y = yaw_only(10, 200, soft_iron(30.0, 1.12, 0.9));
   EXPECT_ERROR_SAYS(fluxcal::fit_planar(Readings2D(y.u.topRows(9))), "readings: 9 rows");
@@ -231,6 +284,12 @@ TEST(Planar, BadInputNamesTheInput) {
   bad = {};
   bad.shape = static_cast<PlanarShape>(7);
   EXPECT_ERROR_SAYS(fluxcal::fit_planar(y.u, bad), "PlanarOptions::shape: 7");
+  bad = {};
+  bad.serial_correlation_alpha = 1.5;
+  EXPECT_ERROR_SAYS(fluxcal::fit_planar(y.u, bad), "PlanarOptions::serial_correlation_alpha: 1.5");
+  bad = {};
+  bad.serial_correlation = static_cast<fluxcal::SerialCorrelation>(5);
+  EXPECT_ERROR_SAYS(fluxcal::fit_planar(y.u, bad), "PlanarOptions::serial_correlation: 5");
 }
 
 TEST(Planar, ReadingsThatTraceNoEllipseAreRefused) {

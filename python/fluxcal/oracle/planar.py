@@ -8,12 +8,16 @@ step in its own Levenberg–Marquardt and differentiates the relative scale anal
 Model h = A (u − b), |h_k| = H_k, A symmetric positive definite as Σ c_j B_j over a shape's basis (circle: I; diag:
 E00, E11; sym: E00, E01 + E10, E11); residual r_k = (|h_k| − H_k)|h_k|/|A h_k| (reading units); after the first
 solve the targets are raised by σ̂²‖A‖_F²/(4 H_k) (the tangential noise's bias of |h|) and it is solved again.
+Readings correlated in time: the Newey–West sandwich of fluxcal.oracle.serial (statsmodels' Bartlett sums, arch's
+block length) over the N×k Jacobian and the residuals, taken by the core's rule (refine's): when the residuals fail
+Ljung–Box at α and it widens an error, or when it widens one ≥ 1.5× with ≥ 10 readings per parameter.
 """
 from __future__ import annotations
 
 import numpy as np
 from scipy.optimize import least_squares
 
+from .serial import newey_west_covariance, residual_test
 from .twostep import twostep_2d
 
 SHAPES = ("circle", "diag", "sym")
@@ -147,12 +151,14 @@ def _least_squares(U, T, p0, basis, max_iterations, tolerance):
 
 
 def fit_planar(readings, field_norms=None, shape: str = "sym", max_iterations: int = 100,
-               tolerance: float = 1e-10, noise_bias_correction: bool = True) -> dict:
+               tolerance: float = 1e-10, noise_bias_correction: bool = True, serial_correlation: str = "automatic",
+               serial_correlation_alpha: float = 0.01) -> dict:
     """The planar fit of N×2 readings in one shape ("circle", "diag", "sym"); field_norms: one value, one per
     reading, or None (relative scale: det A = 1, field_norm the fitted mean radius). Returns what the core's
     fit_planar does: offset, matrix, field_norm, parameters, covariance, standard_errors, determined, sigma, rss,
-    mean_radius, fisher_condition, residuals (reading units, against each target), start, converged, and
-    evaluations (MINPACK's function evaluations, the core counts iterations)."""
+    mean_radius, fisher_condition, residuals (reading units, against each target), start, converged, serial_correlation
+    (lag1, ljung_box_p, lags, inflation, standard_errors_independent) and evaluations (MINPACK's function
+    evaluations, the core counts iterations)."""
     u = np.asarray(readings, dtype=float)
     n = len(u)
     norms = None if field_norms is None else np.broadcast_to(np.asarray(field_norms, dtype=float), (n,)).copy()
@@ -180,21 +186,33 @@ def fit_planar(readings, field_norms=None, shape: str = "sym", max_iterations: i
     if best is None:
         raise ValueError("readings: the planar fit found no ellipse from any start")
     start, (p, cost, J, converged, evaluations) = best
+    fitted = Tn
     if noise_bias_correction:
         sigma2 = cost / (n - k)
         A = _matrix(p[2:], basis)
-        raised = Tn + sigma2 * float(np.sum(A * A)) / (4 * Tn)
-        p, cost, J, converged, more = _least_squares(U, raised, p, basis, max_iterations, tolerance)
+        fitted = Tn + sigma2 * float(np.sum(A * A)) / (4 * Tn)
+        p, cost, J, converged, more = _least_squares(U, fitted, p, basis, max_iterations, tolerance)
         evaluations += more
     sigma2 = cost / (n - k)
     # Covariance σ̂² J⁺ J⁺ᵀ (the pseudo-inverse by SVD), back to u's units: b = centre + scale·β, A = A_n·tscale/scale.
     Jp = np.linalg.pinv(J)
-    cov = sigma2 * Jp @ Jp.T
+    cov = independent = sigma2 * Jp @ Jp.T
+    # (with "independent" the residuals are not tested: statsmodels' direct acf is O(N²), 0.5 s at N = 1e5)
+    test = {"ljung_box_p": None, "lag1": None}
+    lags, inflation = 0, 1.0
+    if serial_correlation != "independent" and np.linalg.matrix_rank(J) == k and n // 5 >= 1:
+        r = sampson(U, fitted, p, basis)
+        test = residual_test(r)
+        sandwich, nw_lags = newey_west_covariance(J, r)
+        ratio = np.sqrt(np.diag(sandwich)) / np.sqrt(np.diag(independent))
+        rejected = test["ljung_box_p"] < serial_correlation_alpha
+        if serial_correlation == "newey_west" or (rejected and ratio.max() > 1) or (n >= 10 * k and ratio.max() >= 1.5):
+            cov, lags, inflation = sandwich, nw_lags, float(ratio.max())
     Js = J / np.linalg.norm(J, axis=0)
     fisher_condition = float(np.linalg.cond(Js) ** 2)
     to = np.concatenate([[scale, scale], np.full(k - 2, tscale / scale)])
     values = np.concatenate([centre + scale * p[:2], p[2:] * tscale / scale])
-    cov = cov * np.outer(to, to)
+    cov, independent = cov * np.outer(to, to), independent * np.outer(to, to)
     A = _matrix(values[2:], basis)
     field_norm = tscale
     if norms is None:
@@ -209,11 +227,12 @@ def fit_planar(readings, field_norms=None, shape: str = "sym", max_iterations: i
             G[2:, 2 + j] = (normalised(c + step) - normalised(c - step)) / (2 * eps)
         s = float(np.sqrt(np.linalg.det(A)))
         values = np.concatenate([values[:2], normalised(c)])
-        cov = G @ cov @ G.T
+        cov, independent = G @ cov @ G.T, G @ independent @ G.T
         A = A / s
         field_norm = radius / s
         targets = np.full(n, field_norm)
     se = np.sqrt(np.maximum(np.diag(cov), 0.0))
+    se_independent = np.sqrt(np.maximum(np.diag(independent), 0.0))
     b = values[:2]
     h = (u - b) @ A
     rho = np.linalg.norm(h, axis=1)
@@ -221,6 +240,8 @@ def fit_planar(readings, field_norms=None, shape: str = "sym", max_iterations: i
     mean_radius = float(np.mean(np.linalg.norm(u - b, axis=1)))
     scales = np.concatenate([[mean_radius, mean_radius], np.full(k - 2, np.linalg.norm(A) / np.sqrt(2))])
     return {"offset": b, "matrix": A, "field_norm": float(field_norm), "parameters": values, "covariance": cov,
-            "standard_errors": se, "determined": se < DETERMINED * scales, "sigma": float(np.sqrt(sigma2) * scale),
+            "standard_errors": se, "determined": se_independent < DETERMINED * scales, "sigma": float(np.sqrt(sigma2) * scale),
             "rss": float(cost * scale ** 2), "mean_radius": mean_radius, "fisher_condition": fisher_condition,
-            "residuals": residuals, "start": start, "converged": converged, "evaluations": evaluations}
+            "residuals": residuals, "start": start, "converged": converged, "evaluations": evaluations,
+            "serial_correlation": {**test, "lags": lags, "inflation": inflation,
+                                   "standard_errors_independent": se_independent}}
