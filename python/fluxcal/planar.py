@@ -94,6 +94,17 @@ THICK_OVER_NOISE = 2.0
 TOTAL_FIELD_RATIO = 1.25
 UNITS_RATIO = 5.0  # beyond this, another unit (as every fluxcal solver's "check the units")
 NOT_CALIBRATED_WORDS = "is not calibrated"
+# The offsets fitted to the log's first and second halves (in time) differ beyond their errors at this significance
+# (Hotelling's F on 2 degrees of freedom, the halves' covariances Newey–West where the readings are correlated): a hard iron
+# that moved within the log. The misfit check (residual σ against the readings' own noise) misses a move under ~10 %
+# of H, which still turns the headings by degrees (a blind check: silent in 8 of 30 logs, 2° RMS). Strict, since a
+# clean log must stay silent and the halves' Newey–West errors run ~1.2× narrow at a few hundred readings (AR(1)
+# noise, φ 0.5–0.9: a nominal 1e-3 gave 0.5 % false alarms; 1e-4 gave 1 in 1250 logs, /work/scratch/s34/halves_fa.py),
+# while a move of the noise's size is still found at N = 300 (39 of 40).
+HALVES_ALPHA = 1e-4
+# Effective readings (n(1 − ρ)/(1 + ρ) for residuals of lag-1 autocorrelation ρ) per parameter in each half: with 5,
+# AR(1) noise of φ 0.8–0.9 gave 0.5–1 % false alarms, the halves' errors themselves too noisy to judge by.
+HALF_READINGS = 10
 
 
 def calibrate_planar(samples, field_norm=None, axes=None, units: str | None = None, shape: str = "auto",
@@ -277,6 +288,10 @@ def calibrate_planar(samples, field_norm=None, axes=None, units: str | None = No
     said = [misfit_said(cal, residual_noise(u, fit["residuals"], h / np.linalg.norm(h, axis=1, keepdims=True),
                                             times), planar=True), plausible_field(cal, horizontal=True)]
     cal.summary["warnings"] += [w for w in said if w]
+    halves = _halves(u, norms, fit, correlation, max_iterations, tolerance, min_arc)
+    cal.summary["halves"] = halves
+    if halves.get("p_value") is not None and halves["p_value"] < HALVES_ALPHA:
+        cal.summary["warnings"].append(_moved_words(halves, names, units))
     return cal
 
 
@@ -323,6 +338,12 @@ def summary_lines(cal: Calibration) -> list[str]:
                "readings correlated in time" if s.get("serial_correlation", {}).get("lags", 0) > 0 else "")
     lines.append(f"  identifiable          {'yes' if s['identifiable'] else 'NO'} (the plane's {len(s['parameters'])} "
                  f"parameters{widened})")
+    halves = s.get("halves", {})
+    if halves.get("compared"):
+        first, second = (", ".join(f"{v:.4g}" for v in b) for b in halves["offsets"])
+        lines.append(f"  offset by half        ({first}) then ({second}){u}: "
+                     + ("MOVED" if halves["p_value"] < HALVES_ALPHA else "the same within their errors")
+                     + f" (p = {halves['p_value']:.2g})")
     if s.get("biaxial"):
         lines.append(f"  third axis            {s['not_calibrated']['axis']}: none (a biaxial sensor)")
     elif "not_calibrated" in s:
@@ -604,6 +625,59 @@ def _fit(u: np.ndarray, norms, shapes: tuple, max_iterations: int, tolerance: fl
     larger = SHAPES[SHAPES.index(chosen) + 1:]
     result["undetermined_larger"] = [s for s in larger if s in table and not table[s].get("identifiable", False)]
     return result
+
+
+def _halves(u: np.ndarray, norms, fit: dict, correlation, max_iterations: int, tolerance: float,
+            min_arc: float) -> dict:
+    """The chosen shape fitted to the first and the second half of the readings in time (rows in the log's order),
+    their offsets compared: {"offsets", "difference", "standard_error" (of each component of the difference),
+    "statistic" (Hotelling's F on 2 and the effective readings' spare degrees of freedom), "p_value"}, or
+    {"compared": False, "reason"} when a half cannot determine its offset (under `min_arc` of heading, fewer
+    effective readings than HALF_READINGS per parameter, or a fit that fails)."""
+    from scipy.stats import f as f_distribution
+
+    n = len(u)
+    offsets, covariances, effective = [], [], []
+    for rows in (slice(0, n // 2), slice(n // 2, n)):
+        try:
+            half = _fit(u[rows], None if norms is None else norms[rows], (fit["shape"],), max_iterations, tolerance,
+                        correlation)
+        except ValueError as exc:
+            return {"compared": False, "reason": f"a half's fit failed ({exc})"}
+        arc, _ = _arc(np.arctan2(half["h"][:, 1], half["h"][:, 0]))
+        if arc < min_arc or not all(half["determined"][:2]):
+            return {"compared": False, "reason": f"a half turns through {arc:.0f}° of heading (each needs "
+                                                 f"{min_arc:g}° and its offset determined)"}
+        # readings correlated in time carry less: AR(1)'s effective count n(1 − ρ)/(1 + ρ), ρ the half's own
+        # residuals' lag-1 autocorrelation (the whole log's would count a moved offset's misfit as correlation)
+        rho = min(max(float(half["serial_correlation"]["lag1"]), 0.0), 0.999)
+        effective.append(len(half["h"]) * (1 - rho) / (1 + rho))
+        if effective[-1] < HALF_READINGS * half["k"]:
+            return {"compared": False, "reason": f"a half holds {effective[-1]:.0f} effective readings (its residuals' "
+                                                 f"lag-1 autocorrelation {rho:.2f}); a comparison needs "
+                                                 f"{HALF_READINGS * half['k']}"}
+        offsets.append(half["b"])
+        covariances.append(half["covariance"][:2, :2])
+    d = offsets[1] - offsets[0]
+    c = covariances[0] + covariances[1]
+    spare = sum(effective) - 2 * fit["k"]
+    statistic = float(d @ np.linalg.solve(c, d)) / 2
+    return {"compared": True, "offsets": [b.tolist() for b in offsets], "difference": d.tolist(),
+            "radius": fit["radius"],
+            "standard_error": np.sqrt(np.diag(c)).tolist(), "statistic": statistic,
+            "p_value": float(f_distribution.sf(statistic, 2, spare))}
+
+
+def _moved_words(halves: dict, names, units: str) -> str:
+    unit = f" {units}" if units else ""
+    d, se = halves["difference"], halves["standard_error"]
+    moved = ", ".join(f"{v:+.3g} ± {e:.2g}" for v, e in zip(d, se))
+    return (f"the offset moved within the log: fitted to the second half of the readings it differs from the first "
+            f"half's by ({moved}){unit} in {names[0]}, {names[1]} (F {halves['statistic']:.3g}, p = "
+            f"{halves['p_value']:.2g}), so the calibration is of neither and the headings are off by up to "
+            f"{np.degrees(np.hypot(*d) / halves['radius']):.2g}° — a load placed or removed, a battery or board moved, "
+            "a device switched on, or a sensor warming up: calibrate each part apart, or log again with nothing aboard "
+            "changing")
 
 
 def _screen(u: np.ndarray, norms, far: np.ndarray, max_iterations: int, tolerance: float):
