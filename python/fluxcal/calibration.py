@@ -42,6 +42,17 @@ class Calibration:
     def __post_init__(self):
         self.offset, self.matrix, self.field_norm = self.checked_fields("Calibration")
 
+    @property
+    def plane(self) -> dict | None:
+        """A planar calibration of two sensor axes (fluxcal.calibrate_planar): {"axes": "xy", "offset": its 2 values,
+        "matrix": its 2×2} — what the calibration is, without the third axis that passes through (a biaxial
+        sensor has none). None for a 3-D calibration or one in a fitted, tilted plane (its 3×3 is the plane's)."""
+        axes = self.summary.get("plane_axes") if self.summary.get("method") == "planar" else None
+        if not (isinstance(axes, list) and len(axes) == 2 and all(a in ("x", "y", "z") for a in axes)):
+            return None
+        idx = ["xyz".index(a) for a in axes]
+        return {"axes": "".join(axes), "offset": self.offset[idx], "matrix": self.matrix[np.ix_(idx, idx)]}
+
     def checked_fields(self, source: str) -> tuple[np.ndarray, np.ndarray, float]:
         """(offset as 3 floats, matrix as 3×3, field_norm as a float), or an error naming `source` and the
         field: also for fields assigned after construction (cal.field_norm = "50"), which the solvers
@@ -172,6 +183,12 @@ class Calibration:
     def to_dict(self) -> dict:
         from . import __version__
 
+        plane = self.plane
+        # a planar calibration's own two axes, for the reader (fluxcal loads offset and matrix, which embed them)
+        plane = {} if plane is None else {"plane": {"axes": plane["axes"], "offset": plane["offset"].tolist(),
+                                                    "matrix": plane["matrix"].tolist(),
+                                                    "note": "the plane's part of offset and matrix, for reading; "
+                                                            "fluxcal loads offset and matrix"}}
         return {
             "fluxcal_version": __version__,
             "convention": CONVENTION,
@@ -180,6 +197,7 @@ class Calibration:
             "field_units": self.h_units,
             "offset": self.offset.tolist(),
             "matrix": self.matrix.tolist(),
+            **plane,
             "field_norm": self.field_norm,
             "summary": _jsonable(self.summary),
             "metadata": _jsonable(self.metadata),
@@ -232,13 +250,17 @@ class Calibration:
     def __str__(self) -> str:
         u = f" {self.units}" if self.units else ""
         hu = f" {self.h_units}" if self.h_units else " (no unit stated)"
+        # a biaxial sensor's calibration is its two axes' (the 3×3 it is stored as passes a third column through)
+        plane = self.plane if self.summary.get("biaxial") else None
+        offset, matrix = (self.offset, self.matrix) if plane is None else (plane["offset"], plane["matrix"])
+        axes = "" if plane is None else f" ({', '.join(plane['axes'])})"
         with np.printoptions(precision=6, suppress=True):
             # each row of A on its own line, columns aligned (the nested-list form indents all but the first)
-            rows = np.array2string(self.matrix).replace("[[", "[").replace("]]", "]").splitlines()
+            rows = np.array2string(matrix).replace("[[", "[").replace("]]", "]").splitlines()
             rows = "\n".join("    " + line.strip() for line in rows)
             return (f"{self.model or 'calibration'}: h = A (m - b), |h| = {self.field_norm:.6g}{hu}\n"
-                    f"  offset b = {_significant(self.offset, 7)}{u}\n"
-                    f"  matrix A =\n{rows}")
+                    f"  offset b{axes} = {_significant(offset, 7)}{u}\n"
+                    f"  matrix A{axes} =\n{rows}")
 
 
 def _model_part(convention: str) -> str:

@@ -275,8 +275,9 @@ def calibrate_planar(samples, field_norm=None, axes=None, units: str | None = No
     offset, matrix = _embed(plane, fit["b"], fit["A"])
     what = (f"axis {plane['normal_name']} not calibrated" if plane["normal_name"] in tuple(AXES)
             else "its normal not calibrated")
-    cal = Calibration(offset=offset, matrix=matrix, field_norm=fit["field_norm"], units=units,
-                      model=f"planar {''.join(names) if len(''.join(names)) == 2 else '(fitted plane)'}, {what}",
+    model = (f"biaxial {names[0]}, {names[1]} (planar)" if plane["biaxial"] else
+             f"planar {''.join(names) if len(''.join(names)) == 2 else '(fitted plane)'}, {what}")
+    cal = Calibration(offset=offset, matrix=matrix, field_norm=fit["field_norm"], units=units, model=model,
                       summary=summary)
     if stated:
         cal.field_units = stated

@@ -6,6 +6,8 @@ The simulation: a vehicle turning (yaw only) in a horizontal field H, hard iron 
 are rotated against the sensor's (couples the two axes), Gaussian noise σ. The planar fit's standard errors
 (summary standard_errors) judge the recovered offset and matrix.
 """
+import json
+
 import numpy as np
 import pytest
 
@@ -199,3 +201,28 @@ def test_a_misnamed_third_axis_or_a_position_is_no_biaxial_sensor():
     assert Recording(columns=columns("t", "x", "y"), source="f.csv").mag_names() == ("x", "y")
     assert Recording(columns=columns("t", "lat", "x", "y"), units={"x": "uT", "y": "uT"},
                      source="f.csv").mag_names() == ("x", "y")
+
+
+def test_a_biaxial_calibration_prints_and_saves_its_two_axes(tmp_path, capsys):
+    """The printout shows the 2 offsets and the 2×2 matrix of the sensor's own axes (not the 3×3 it is stored as, which
+    passes a third column through), and the JSON a "plane" block beside the offset and matrix fluxcal loads."""
+    m, A = turning(3)
+    log = write_log(tmp_path / "car.csv", m, names=("mag_x", "mag_z"))
+    code, out, err = run(capsys, "calibrate", log, "--planar", "--field-norm", H, "-o", tmp_path / "cal.json")
+    assert code == 0, err
+    assert "biaxial x, z (planar): h = A (m - b)" in out and "offset b (x, z) = [" in out
+    matrix_rows = out.split("matrix A (x, z) =\n")[1].splitlines()[:3]
+    assert matrix_rows[0].count("[") == 1 and matrix_rows[1].count("[") == 1 and "[" not in matrix_rows[2]
+    cal = Calibration.load(tmp_path / "cal.json")
+    plane = cal.plane
+    assert plane["axes"] == "xz"
+    np.testing.assert_allclose(plane["offset"], cal.offset[[0, 2]])
+    np.testing.assert_allclose(plane["matrix"], cal.matrix[np.ix_([0, 2], [0, 2])])
+    np.testing.assert_allclose(plane["offset"], B, atol=Z_LIMIT * max(cal.summary["standard_errors"][:2]))
+    saved = json.loads((tmp_path / "cal.json").read_text())["plane"]
+    assert saved["axes"] == "xz" and np.allclose(saved["matrix"], plane["matrix"]) and "fluxcal loads" in saved["note"]
+    # a three-axis sensor's planar calibration keeps its 3×3 printout (the third axis is read, and passes through);
+    # a 3-D calibration has no plane
+    three = fluxcal.calibrate_planar(np.column_stack([m, np.full(len(m), 40.0)]), field_norm=H)
+    assert three.plane["axes"] == "xy" and "offset b = [" in str(three) and "plane" in three.to_dict()
+    assert Calibration(offset=np.zeros(3), matrix=np.eye(3), field_norm=1.0).plane is None
