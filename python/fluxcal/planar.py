@@ -31,8 +31,10 @@ for isotropic Gaussian noise, as fluxcal.refine's magnitude model); then one mor
 the noise's bias of |h| (≈ σ²‖A‖²_F/(4H): the tangential noise lengthens |h|), which fitting |h| to H would
 otherwise put into A; the covariance σ̂²(JᵀJ)⁻¹, or for readings correlated in time (a sensor's own filter, noise
 that wanders) the prewhitened Newey–West sandwich, as fluxcal.refine's: with AR(1) noise of φ 0.9 the independent
-errors were 4–5× too small (the offset more than 4 of them off in 13 of 20 logs), the sandwich's within 1.0–1.25×. This module finds the plane, chooses the shape by BIC, checks the
-arc and the ellipse, and words the warnings: they judge a vehicle's log rather than solve for a calibration.
+errors were 4–5× too small (the offset more than 4 of them off in 13 of 20 logs), the sandwich's within 1.0–1.25×.
+This module finds the plane, chooses the shape by BIC, checks the arc and the ellipse, compares the offsets of the
+log's two halves (a hard iron that moved), and words the warnings: they judge a vehicle's log rather than solve for
+a calibration.
 
 Which plane (N×3 readings): the readings' scatter's thinnest direction is the plane's normal. Within
 `axis_tolerance` degrees of a sensor axis (a level mounting; a soft iron coupling of a few % between the normal
@@ -95,8 +97,8 @@ TOTAL_FIELD_RATIO = 1.25
 UNITS_RATIO = 5.0  # beyond this, another unit (as every fluxcal solver's "check the units")
 NOT_CALIBRATED_WORDS = "is not calibrated"
 # The offsets fitted to the log's first and second halves (in time) differ beyond their errors at this significance
-# (Hotelling's F on 2 degrees of freedom, the halves' covariances Newey–West where the readings are correlated): a hard iron
-# that moved within the log. The misfit check (residual σ against the readings' own noise) misses a move under ~10 %
+# (Hotelling's F on 2 degrees of freedom, the halves' covariances Newey–West where the readings are correlated): a
+# hard iron that moved within the log. The misfit check (residual σ against the readings' own noise) misses a move under ~10 %
 # of H, which still turns the headings by degrees (a blind check: silent in 8 of 30 logs, 2° RMS). Strict, since a
 # clean log must stay silent and the halves' Newey–West errors run ~1.2× narrow at a few hundred readings (AR(1)
 # noise, φ 0.5–0.9: a nominal 1e-3 gave 0.5 % false alarms; 1e-4 gave 1 in 1250 logs, /work/scratch/s34/halves_fa.py),
@@ -110,7 +112,7 @@ HALF_READINGS = 10
 def calibrate_planar(samples, field_norm=None, axes=None, units: str | None = None, shape: str = "auto",
                      min_arc: float = MIN_ARC_DEG, axis_tolerance: float = 5.0, planar_ratio: float = 0.02,
                      max_iterations: int = 100, tolerance: float = 1e-10, field_units: str | None = None,
-                     outliers: str = "drop", serial_correlation: str = "automatic") -> Calibration:
+                     outliers: str = "drop", serial_correlation: str = "automatic", times=None) -> Calibration:
     """Calibrate the two axes of the plane a magnetometer turns in (yaw-only vehicle, biaxial compass).
 
     samples: N×3 readings (or a fluxcal Recording, whose unit is carried), or N×2 of a biaxial sensor.
@@ -137,6 +139,8 @@ def calibrate_planar(samples, field_norm=None, axes=None, units: str | None = No
     fluxcal.refine's): "automatic" (default) takes the Newey–West sandwich when the residuals fail a Ljung–Box test
     and it widens an error, or when it widens one ≥ 1.5×; "independent" never (rows not in time order);
     "newey_west" always. summary["serial_correlation"] says what the residuals showed.
+    times: each reading's time (seconds; a Recording's own when None), as fluxcal.calibrate's: the readings' own
+    noise and the log's two halves are taken in time order; None and no Recording: row order.
 
     Returns a Calibration h = A (m − b): the plane's 2×2 A and offset embedded in 3×3, the normal axis passed through
     (A's row and column for it √det A on the diagonal, its offset 0). Its apply takes N×2 readings (or a biaxial
@@ -149,7 +153,9 @@ def calibrate_planar(samples, field_norm=None, axes=None, units: str | None = No
     (the plane's, in the sensor axes' names), identifiable (all of them determined), not_calibrated, scale ("given"
     or "relative"), shape and shapes (BIC), start, converged, iterations, readings_extent (the largest |component|
     read, for export-c's range), outliers (with outliers="drop"), serial_correlation (lag1, ljung_box_p, lags: 0 =
-    independent readings assumed, inflation, standard_errors_independent), warnings.
+    independent readings assumed, inflation, standard_errors_independent), halves (the offsets fitted to the first
+    and second half of the log in time, their difference, its standard errors, Hotelling's F and p; or compared
+    False and the reason: a warning says when they differ at p < HALVES_ALPHA), warnings.
 
     Raises ValueError naming the input on: too few readings, NaN/Inf, readings that hardly change, readings
     that span three dimensions well enough for fluxcal.calibrate to determine every axis, an arc under `min_arc`,
@@ -159,7 +165,7 @@ def calibrate_planar(samples, field_norm=None, axes=None, units: str | None = No
         units = getattr(samples, "field_units", lambda: "")()
     units = units_text(units)
     field_norm = field_norm_given(samples, field_norm)
-    times = recording_times(samples)
+    times = recording_times(samples) if times is None else np.asarray(times, dtype=float)
     if callable(getattr(samples, "biaxial", None)) and samples.biaxial():  # a Recording of two field columns
         if axes is not None:
             samples.take_axes("".join(AXES[a] for a in _axes(axes)), f"axes={axes!r}")
@@ -177,6 +183,8 @@ def calibrate_planar(samples, field_norm=None, axes=None, units: str | None = No
         raise ValueError(f"samples: {n} readings; a planar calibration fits {PARAMETERS} parameters (offset and a "
                          f"2×2 matrix) and needs at least {MIN_READINGS} — log more readings while the vehicle turns "
                          "a full circle")
+    if times is not None and len(times) != n:
+        raise ValueError(f"times: {len(times)} values for {n} readings; give one time per reading")
     norms = None if field_norm is None else as_field_norms(field_norm, n, "field_norm")
     correlation = serial_correlation_mode(serial_correlation)
     if outliers not in ("drop", "keep"):
@@ -190,7 +198,7 @@ def calibrate_planar(samples, field_norm=None, axes=None, units: str | None = No
     if left_out is not None and len(left_out.rows):
         m = np.delete(m, left_out.rows, axis=0)
         norms = None if norms is None else np.delete(norms, left_out.rows)
-        times = None if times is None or len(times) != n else np.delete(times, left_out.rows)
+        times = None if times is None else np.delete(times, left_out.rows)
         n = len(m)
         if len(np.setdiff1d(left_out.rows, far)):  # found again without them: a burst of readings 2–5× the field,
             warnings = []                           # under the far rule, had tipped the plane by 5–15° (blind check)
@@ -289,7 +297,7 @@ def calibrate_planar(samples, field_norm=None, axes=None, units: str | None = No
     said = [misfit_said(cal, residual_noise(u, fit["residuals"], h / np.linalg.norm(h, axis=1, keepdims=True),
                                             times), planar=True), plausible_field(cal, horizontal=True)]
     cal.summary["warnings"] += [w for w in said if w]
-    halves = _halves(u, norms, fit, correlation, max_iterations, tolerance, min_arc)
+    halves = _halves(u, norms, fit, correlation, max_iterations, tolerance, min_arc, times)
     cal.summary["halves"] = halves
     if halves.get("p_value") is not None and halves["p_value"] < HALVES_ALPHA:
         cal.summary["warnings"].append(_moved_words(halves, names, units))
@@ -629,17 +637,21 @@ def _fit(u: np.ndarray, norms, shapes: tuple, max_iterations: int, tolerance: fl
 
 
 def _halves(u: np.ndarray, norms, fit: dict, correlation, max_iterations: int, tolerance: float,
-            min_arc: float) -> dict:
-    """The chosen shape fitted to the first and the second half of the readings in time (rows in the log's order),
-    their offsets compared: {"offsets", "difference", "standard_error" (of each component of the difference),
+            min_arc: float, times=None) -> dict:
+    """The chosen shape fitted to the first and the second half of the readings in time (`times`, else the rows'
+    order), their offsets compared: {"offsets", "difference", "standard_error" (of each component of the difference),
     "statistic" (Hotelling's F on 2 and the effective readings' spare degrees of freedom), "p_value"}, or
     {"compared": False, "reason"} when a half cannot determine its offset (under `min_arc` of heading, fewer
-    effective readings than HALF_READINGS per parameter, or a fit that fails)."""
+    effective readings than HALF_READINGS per parameter, or a fit that fails), or the rows are not in time order
+    (serial_correlation "independent")."""
     from scipy.stats import f as f_distribution
 
+    if correlation == _core.SerialCorrelation.independent:
+        return {"compared": False, "reason": "serial_correlation 'independent': the rows are not taken in time order"}
     n = len(u)
+    order = np.arange(n) if times is None else np.argsort(times, kind="stable")
     offsets, covariances, effective = [], [], []
-    for rows in (slice(0, n // 2), slice(n // 2, n)):
+    for rows in (order[:n // 2], order[n // 2:]):
         try:
             half = _fit(u[rows], None if norms is None else norms[rows], (fit["shape"],), max_iterations, tolerance,
                         correlation)

@@ -67,3 +67,18 @@ def test_the_cli_prints_both_halves(tmp_path, capsys):
     assert main(["calibrate", str(path), "--planar", "--field-norm", str(H)]) == 0
     out = capsys.readouterr().out
     assert "offset by half" in out and "MOVED" in out and f"warning: {MOVED}" in out and " uT" in out
+
+
+def test_halves_follow_the_times_and_not_without_time_order():
+    m = moved(11)
+    times = np.arange(len(m)) * 0.1
+    shuffled = np.random.default_rng(0).permutation(len(m))
+    # the rows shuffled, their times with them: the halves are still the log's first and second half in time
+    s = calibrate_planar(m[shuffled], field_norm=H, serial_correlation="newey_west").summary
+    assert not any(w.startswith(MOVED) for w in s["warnings"])  # (without times each half mixes both offsets)
+    s = calibrate_planar(m[shuffled], field_norm=H, times=times[shuffled]).summary
+    assert s["halves"]["compared"] and any(w.startswith(MOVED) for w in s["warnings"])
+    s = calibrate_planar(m, field_norm=H, serial_correlation="independent").summary
+    assert not s["halves"]["compared"] and "not taken in time order" in s["halves"]["reason"]
+    with pytest.raises(ValueError, match="times: 7 values for 600 readings"):
+        calibrate_planar(m, field_norm=H, times=times[:7])
