@@ -32,8 +32,8 @@ the noise's bias of |h| (≈ σ²‖A‖²_F/(4H): the tangential noise lengthen
 otherwise put into A; the covariance σ̂²(JᵀJ)⁻¹, or for readings correlated in time (a sensor's own filter, noise
 that wanders) the prewhitened Newey–West sandwich, as fluxcal.refine's: with AR(1) noise of φ 0.9 the independent
 errors were 4–5× too small (the offset more than 4 of them off in 13 of 20 logs), the sandwich's within 1.0–1.25×.
-This module finds the plane, chooses the shape by BIC, checks the arc and the ellipse, compares the offsets of the
-log's two halves (a hard iron that moved), and words the warnings: they judge a vehicle's log rather than solve for
+This module finds the plane, chooses the shape by BIC, checks the arc and the ellipse, compares the offsets fitted
+before and after a quarter, a half and three quarters of the log (a hard iron that moved), and words the warnings: they judge a vehicle's log rather than solve for
 a calibration.
 
 Which plane (N×3 readings): the readings' scatter's thinnest direction is the plane's normal. Within
@@ -96,17 +96,22 @@ THICK_OVER_NOISE = 2.0
 TOTAL_FIELD_RATIO = 1.25
 UNITS_RATIO = 5.0  # beyond this, another unit (as every fluxcal solver's "check the units")
 NOT_CALIBRATED_WORDS = "is not calibrated"
-# The offsets fitted to the log's first and second halves (in time) differ beyond their errors at this significance
-# (Hotelling's F on 2 degrees of freedom, the halves' covariances Newey–West where the readings are correlated): a
-# hard iron that moved within the log. The misfit check (residual σ against the readings' own noise) misses a move under ~10 %
-# of H, which still turns the headings by degrees (a blind check: silent in 8 of 30 logs, 2° RMS). Strict, since a
-# clean log must stay silent and the halves' Newey–West errors run ~1.2× narrow at a few hundred readings (AR(1)
-# noise, φ 0.5–0.9: a nominal 1e-3 gave 0.5 % false alarms; 1e-4 gave 1 in 1250 logs, /work/scratch/s34/halves_fa.py),
-# while a move of the noise's size is still found at N = 300 (39 of 40).
-HALVES_ALPHA = 1e-4
-# Effective readings (n(1 − ρ)/(1 + ρ) for residuals of lag-1 autocorrelation ρ) per parameter in each half: with 5,
-# AR(1) noise of φ 0.8–0.9 gave 0.5–1 % false alarms, the halves' errors themselves too noisy to judge by.
-HALF_READINGS = 10
+# Whether the offset moved within the log: the offsets fitted to the readings before and after each of SPLITS
+# (fractions of the log in time) compared by Hotelling's F on 2 degrees of freedom (the two sides' covariances
+# Newey–West where the readings are correlated), the smallest p × the splits compared (Bonferroni) against
+# MOVED_ALPHA. The misfit check (residual σ against the readings' own noise) misses a move under ~10 % of H, which
+# still turns the headings by degrees (a blind check: silent in 8 of 30 logs, 2° RMS). Three places, because a move
+# inside one side makes that side's residuals correlated, which widens its errors and can leave it too few effective
+# readings: halves alone found a step of 10–20 % of H at 1/4 or 3/4 of the log in a third of the logs (a blind check,
+# /work/scratch/s34/blind2), where the split at the step finds it as a step at the middle.
+SPLITS = (0.25, 0.5, 0.75)
+# Strict, since a clean log must stay silent and the sides' Newey–West errors run ~1.2× narrow at a few hundred
+# readings (AR(1) noise, φ 0.5–0.9: a nominal 1e-3 gave 0.5 % false alarms, 1e-4 1 in 1250 logs with halves alone,
+# /work/scratch/s34/halves_fa.py), while a move of the noise's size is still found at N = 300 (39 of 40).
+MOVED_ALPHA = 1e-4
+# Effective readings (n(1 − ρ)/(1 + ρ) for residuals of lag-1 autocorrelation ρ) per parameter on each side of a
+# split: with 5, AR(1) noise of φ 0.8–0.9 gave 0.5–1 % false alarms, the sides' errors themselves too noisy.
+SIDE_READINGS = 10
 
 
 def calibrate_planar(samples, field_norm=None, axes=None, units: str | None = None, shape: str = "auto",
@@ -140,7 +145,7 @@ def calibrate_planar(samples, field_norm=None, axes=None, units: str | None = No
     and it widens an error, or when it widens one ≥ 1.5×; "independent" never (rows not in time order);
     "newey_west" always. summary["serial_correlation"] says what the residuals showed.
     times: each reading's time (seconds; a Recording's own when None), as fluxcal.calibrate's: the readings' own
-    noise and the log's two halves are taken in time order; None and no Recording: row order.
+    noise and the log's parts before and after each split are taken in time order; None and no Recording: row order.
 
     Returns a Calibration h = A (m − b): the plane's 2×2 A and offset embedded in 3×3, the normal axis passed through
     (A's row and column for it √det A on the diagonal, its offset 0). Its apply takes N×2 readings (or a biaxial
@@ -153,9 +158,10 @@ def calibrate_planar(samples, field_norm=None, axes=None, units: str | None = No
     (the plane's, in the sensor axes' names), identifiable (all of them determined), not_calibrated, scale ("given"
     or "relative"), shape and shapes (BIC), start, converged, iterations, readings_extent (the largest |component|
     read, for export-c's range), outliers (with outliers="drop"), serial_correlation (lag1, ljung_box_p, lags: 0 =
-    independent readings assumed, inflation, standard_errors_independent), halves (the offsets fitted to the first
-    and second half of the log in time, their difference, its standard errors, Hotelling's F and p; or compared
-    False and the reason: a warning says when they differ at p < HALVES_ALPHA), warnings.
+    independent readings assumed, inflation, standard_errors_independent), offset_split (the offsets fitted before
+    and after SPLITS of the log in time, each split's difference, its standard errors, Hotelling's F and p, the
+    smallest p × the splits compared and its split; or compared False and the reason: a warning says when the
+    offset moved, p < MOVED_ALPHA), warnings.
 
     Raises ValueError naming the input on: too few readings, NaN/Inf, readings that hardly change, readings
     that span three dimensions well enough for fluxcal.calibrate to determine every axis, an arc under `min_arc`,
@@ -297,10 +303,10 @@ def calibrate_planar(samples, field_norm=None, axes=None, units: str | None = No
     said = [misfit_said(cal, residual_noise(u, fit["residuals"], h / np.linalg.norm(h, axis=1, keepdims=True),
                                             times), planar=True), plausible_field(cal, horizontal=True)]
     cal.summary["warnings"] += [w for w in said if w]
-    halves = _halves(u, norms, fit, correlation, max_iterations, tolerance, min_arc, times)
-    cal.summary["halves"] = halves
-    if halves.get("p_value") is not None and halves["p_value"] < HALVES_ALPHA:
-        cal.summary["warnings"].append(_moved_words(halves, names, units))
+    split = _offset_split(u, norms, fit, correlation, max_iterations, tolerance, min_arc, times)
+    cal.summary["offset_split"] = split
+    if split["compared"] and split["p_value"] < MOVED_ALPHA:
+        cal.summary["warnings"].append(_moved_words(split, names, units))
     return cal
 
 
@@ -347,12 +353,13 @@ def summary_lines(cal: Calibration) -> list[str]:
                "readings correlated in time" if s.get("serial_correlation", {}).get("lags", 0) > 0 else "")
     lines.append(f"  identifiable          {'yes' if s['identifiable'] else 'NO'} (the plane's {len(s['parameters'])} "
                  f"parameters{widened})")
-    halves = s.get("halves", {})
-    if halves.get("compared"):
-        first, second = (", ".join(f"{v:.4g}" for v in b) for b in halves["offsets"])
-        lines.append(f"  offset by half        ({first}) then ({second}){u}: "
-                     + ("MOVED" if halves["p_value"] < HALVES_ALPHA else "the same within their errors")
-                     + f" (p = {halves['p_value']:.2g})")
+    split = s.get("offset_split", {})
+    if split.get("compared"):
+        best = next(sp for sp in split["splits"] if sp["fraction"] == split["fraction"])
+        first, second = (", ".join(f"{v:.4g}" for v in b) for b in best["offsets"])
+        lines.append(f"  offset before/after   ({first}) then ({second}){u}, split at {100 * split['fraction']:.0f} % of "
+                     "the log: " + ("MOVED" if split["p_value"] < MOVED_ALPHA else "the same within their errors")
+                     + f" (p = {split['p_value']:.2g})")
     if s.get("biaxial"):
         lines.append(f"  third axis            {s['not_calibrated']['axis']}: none (a biaxial sensor)")
     elif "not_calibrated" in s:
@@ -636,61 +643,80 @@ def _fit(u: np.ndarray, norms, shapes: tuple, max_iterations: int, tolerance: fl
     return result
 
 
-def _halves(u: np.ndarray, norms, fit: dict, correlation, max_iterations: int, tolerance: float,
-            min_arc: float, times=None) -> dict:
-    """The chosen shape fitted to the first and the second half of the readings in time (`times`, else the rows'
-    order), their offsets compared: {"offsets", "difference", "standard_error" (of each component of the difference),
-    "statistic" (Hotelling's F on 2 and the effective readings' spare degrees of freedom), "p_value"}, or
-    {"compared": False, "reason"} when a half cannot determine its offset (under `min_arc` of heading, fewer
-    effective readings than HALF_READINGS per parameter, or a fit that fails), or the rows are not in time order
-    (serial_correlation "independent")."""
-    from scipy.stats import f as f_distribution
-
+def _offset_split(u: np.ndarray, norms, fit: dict, correlation, max_iterations: int, tolerance: float,
+                  min_arc: float, times=None) -> dict:
+    """Whether the offset moved within the log: the chosen shape fitted to the readings before and after each of
+    SPLITS (fractions of the log in time: `times`, else the rows' order), the two offsets compared by Hotelling's F;
+    {"compared", "splits" (each {"fraction", "offsets", "difference", "standard_error" of each of its components,
+    "statistic", "p_value"} or {"fraction", "compared": False, "reason"}), "p_value" (the smallest split's ×
+    the number compared: Bonferroni), "fraction" (that split's), "radius"} — or {"compared": False, "reason"} when
+    no split can be judged or the rows are not in time order (serial_correlation "independent")."""
     if correlation == _core.SerialCorrelation.independent:
         return {"compared": False, "reason": "serial_correlation 'independent': the rows are not taken in time order"}
     n = len(u)
     order = np.arange(n) if times is None else np.argsort(times, kind="stable")
+    splits = [_split(u, norms, order, fraction, fit, correlation, max_iterations, tolerance, min_arc)
+              for fraction in SPLITS]
+    judged = [sp for sp in splits if sp.get("compared", True)]
+    if not judged:
+        return {"compared": False, "splits": splits,
+                "reason": "; ".join(f"at {100 * sp['fraction']:.0f} %: {sp['reason']}" for sp in splits)}
+    best = min(judged, key=lambda sp: sp["p_value"])
+    return {"compared": True, "splits": splits, "fraction": best["fraction"], "radius": fit["radius"],
+            "p_value": min(1.0, best["p_value"] * len(judged))}
+
+
+def _split(u: np.ndarray, norms, order: np.ndarray, fraction: float, fit: dict, correlation, max_iterations: int,
+           tolerance: float, min_arc: float) -> dict:
+    """One split of _offset_split: the offsets before and after `fraction` of the log (rows `order`) and their F test,
+    or {"compared": False, "reason"} when a side cannot determine its offset: under `min_arc` of heading, an offset
+    not determined, fewer effective readings than SIDE_READINGS per parameter, or a fit that fails."""
+    from scipy.stats import f as f_distribution
+
+    cut = int(round(fraction * len(u)))
     offsets, covariances, effective = [], [], []
-    for rows in (order[:n // 2], order[n // 2:]):
+    for side, rows in (("before", order[:cut]), ("after", order[cut:])):
+        def refused(why):
+            return {"fraction": fraction, "compared": False, "reason": f"the readings {side} {why}"}
         try:
-            half = _fit(u[rows], None if norms is None else norms[rows], (fit["shape"],), max_iterations, tolerance,
+            part = _fit(u[rows], None if norms is None else norms[rows], (fit["shape"],), max_iterations, tolerance,
                         correlation)
         except ValueError as exc:
-            return {"compared": False, "reason": f"a half's fit failed ({exc})"}
-        arc, _ = _arc(np.arctan2(half["h"][:, 1], half["h"][:, 0]))
-        if arc < min_arc or not all(half["determined"][:2]):
-            return {"compared": False, "reason": f"a half turns through {arc:.0f}° of heading (each needs "
-                                                 f"{min_arc:g}° and its offset determined)"}
-        # readings correlated in time carry less: AR(1)'s effective count n(1 − ρ)/(1 + ρ), ρ the half's own
+            return refused(f"fit no ellipse ({exc})")
+        arc, _ = _arc(np.arctan2(part["h"][:, 1], part["h"][:, 0]))
+        if arc < min_arc:
+            return refused(f"turn through {arc:.0f}° of heading (under {min_arc:g}°)")
+        if not all(part["determined"][:2]):
+            return refused("do not determine their offset (its standard error above 1 % of the radius)")
+        # readings correlated in time carry less: AR(1)'s effective count n(1 − ρ)/(1 + ρ), ρ the side's own
         # residuals' lag-1 autocorrelation (the whole log's would count a moved offset's misfit as correlation)
-        rho = min(max(float(half["serial_correlation"]["lag1"]), 0.0), 0.999)
-        effective.append(len(half["h"]) * (1 - rho) / (1 + rho))
-        if effective[-1] < HALF_READINGS * half["k"]:
-            return {"compared": False, "reason": f"a half holds {effective[-1]:.0f} effective readings (its residuals' "
-                                                 f"lag-1 autocorrelation {rho:.2f}); a comparison needs "
-                                                 f"{HALF_READINGS * half['k']}"}
-        offsets.append(half["b"])
-        covariances.append(half["covariance"][:2, :2])
+        rho = min(max(float(part["serial_correlation"]["lag1"]), 0.0), 0.999)
+        effective.append(len(rows) * (1 - rho) / (1 + rho))
+        if effective[-1] < SIDE_READINGS * part["k"]:
+            return refused(f"hold {effective[-1]:.0f} effective readings (their residuals' lag-1 autocorrelation "
+                           f"{rho:.2f}), under the {SIDE_READINGS * part['k']} a comparison needs")
+        offsets.append(part["b"])
+        covariances.append(part["covariance"][:2, :2])
     d = offsets[1] - offsets[0]
     c = covariances[0] + covariances[1]
-    spare = sum(effective) - 2 * fit["k"]
     statistic = float(d @ np.linalg.solve(c, d)) / 2
-    return {"compared": True, "offsets": [b.tolist() for b in offsets], "difference": d.tolist(),
-            "radius": fit["radius"],
+    return {"fraction": fraction, "offsets": [b.tolist() for b in offsets], "difference": d.tolist(),
             "standard_error": np.sqrt(np.diag(c)).tolist(), "statistic": statistic,
-            "p_value": float(f_distribution.sf(statistic, 2, spare))}
+            "p_value": float(f_distribution.sf(statistic, 2, sum(effective) - 2 * fit["k"]))}
 
 
-def _moved_words(halves: dict, names, units: str) -> str:
+def _moved_words(split: dict, names, units: str) -> str:
     unit = f" {units}" if units else ""
-    d, se = halves["difference"], halves["standard_error"]
+    best = next(sp for sp in split["splits"] if sp["fraction"] == split["fraction"])
+    d, se = best["difference"], best["standard_error"]
     moved = ", ".join(f"{v:+.3g} ± {e:.2g}" for v, e in zip(d, se))
-    return (f"the offset moved within the log: fitted to the second half of the readings it differs from the first "
-            f"half's by ({moved}){unit} in {names[0]}, {names[1]} (F {halves['statistic']:.3g}, p = "
-            f"{halves['p_value']:.2g}), so the calibration is of neither and the headings are off by up to "
-            f"{np.degrees(np.hypot(*d) / halves['radius']):.2g}° — a load placed or removed, a battery or board moved, "
-            "a device switched on, or a sensor warming up: calibrate each part apart, or log again with nothing aboard "
-            "changing")
+    return (f"the offset moved within the log: fitted to the readings after the first {100 * split['fraction']:.0f} % "
+            f"of the log it differs from the offset fitted to those before by ({moved}){unit} in {names[0]}, "
+            f"{names[1]} (F {best['statistic']:.3g}, p = {split['p_value']:.2g} over {len(SPLITS)} places), so the "
+            f"calibration is of neither and the headings are off by up to "
+            f"{np.degrees(np.hypot(*d) / split['radius']):.2g}° — a load placed or removed, a battery or board moved, "
+            "a device switched on, or an offset that drifts (a sensor warming up, a wandering field): calibrate each "
+            "part apart, or log again with nothing aboard changing")
 
 
 def _screen(u: np.ndarray, norms, far: np.ndarray, max_iterations: int, tolerance: float):
