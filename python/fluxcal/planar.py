@@ -112,6 +112,12 @@ MOVED_ALPHA = 1e-4
 # Effective readings (n(1 − ρ)/(1 + ρ) for residuals of lag-1 autocorrelation ρ) per parameter on each side of a
 # split: with 5, AR(1) noise of φ 0.8–0.9 gave 0.5–1 % false alarms, the sides' errors themselves too noisy.
 SIDE_READINGS = 10
+# Heading each side of a split must cover. Under MIN_ARC_DEG: a side's offset on 150° has errors 7–22× a full
+# turn's (_arc_inflation) but they hold — a single circle split at its middle (each side ~180°, which the
+# calibration's own 180° rule had refused by a reading or two) warned in 1 of 1500 clean logs (white and AR(1) noise,
+# N 300–3000) and found a move of 5 % of H in 111 of 120 (/work/scratch/s34/side_arc.py); a blind check's single
+# circles with a move had been silent (99 in 1000 wrong with no warning).
+SIDE_ARC_DEG = 150.0
 
 
 def calibrate_planar(samples, field_norm=None, axes=None, units: str | None = None, shape: str = "auto",
@@ -303,7 +309,7 @@ def calibrate_planar(samples, field_norm=None, axes=None, units: str | None = No
     said = [misfit_said(cal, residual_noise(u, fit["residuals"], h / np.linalg.norm(h, axis=1, keepdims=True),
                                             times), planar=True), plausible_field(cal, horizontal=True)]
     cal.summary["warnings"] += [w for w in said if w]
-    split = _offset_split(u, norms, fit, correlation, max_iterations, tolerance, min_arc, times)
+    split = _offset_split(u, norms, fit, correlation, max_iterations, tolerance, times)
     cal.summary["offset_split"] = split
     if split["compared"] and split["p_value"] < MOVED_ALPHA:
         cal.summary["warnings"].append(_moved_words(split, names, units))
@@ -644,7 +650,7 @@ def _fit(u: np.ndarray, norms, shapes: tuple, max_iterations: int, tolerance: fl
 
 
 def _offset_split(u: np.ndarray, norms, fit: dict, correlation, max_iterations: int, tolerance: float,
-                  min_arc: float, times=None) -> dict:
+                  times=None) -> dict:
     """Whether the offset moved within the log: the chosen shape fitted to the readings before and after each of
     SPLITS (fractions of the log in time: `times`, else the rows' order), the two offsets compared by Hotelling's F;
     {"compared", "splits" (each {"fraction", "offsets", "difference", "standard_error" of each of its components,
@@ -655,7 +661,7 @@ def _offset_split(u: np.ndarray, norms, fit: dict, correlation, max_iterations: 
         return {"compared": False, "reason": "serial_correlation 'independent': the rows are not taken in time order"}
     n = len(u)
     order = np.arange(n) if times is None else np.argsort(times, kind="stable")
-    splits = [_split(u, norms, order, fraction, fit, correlation, max_iterations, tolerance, min_arc)
+    splits = [_split(u, norms, order, fraction, fit, correlation, max_iterations, tolerance)
               for fraction in SPLITS]
     judged = [sp for sp in splits if sp.get("compared", True)]
     if not judged:
@@ -667,9 +673,9 @@ def _offset_split(u: np.ndarray, norms, fit: dict, correlation, max_iterations: 
 
 
 def _split(u: np.ndarray, norms, order: np.ndarray, fraction: float, fit: dict, correlation, max_iterations: int,
-           tolerance: float, min_arc: float) -> dict:
+           tolerance: float) -> dict:
     """One split of _offset_split: the offsets before and after `fraction` of the log (rows `order`) and their F test,
-    or {"compared": False, "reason"} when a side cannot determine its offset: under `min_arc` of heading, an offset
+    or {"compared": False, "reason"} when a side cannot determine its offset: under SIDE_ARC_DEG of heading, an offset
     not determined, fewer effective readings than SIDE_READINGS per parameter, or a fit that fails."""
     from scipy.stats import f as f_distribution
 
@@ -684,8 +690,8 @@ def _split(u: np.ndarray, norms, order: np.ndarray, fraction: float, fit: dict, 
         except ValueError as exc:
             return refused(f"fit no ellipse ({exc})")
         arc, _ = _arc(np.arctan2(part["h"][:, 1], part["h"][:, 0]))
-        if arc < min_arc:
-            return refused(f"turn through {arc:.0f}° of heading (under {min_arc:g}°)")
+        if arc < SIDE_ARC_DEG:
+            return refused(f"turn through {arc:.0f}° of heading (under {SIDE_ARC_DEG:g}°)")
         if not all(part["determined"][:2]):
             return refused("do not determine their offset (its standard error above 1 % of the radius)")
         # readings correlated in time carry less: AR(1)'s effective count n(1 − ρ)/(1 + ρ), ρ the side's own

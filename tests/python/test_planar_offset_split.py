@@ -71,11 +71,23 @@ def test_sides_that_cannot_be_judged_are_not_compared():
     s = calibrate_planar(moved(8, n=400, phi=0.9, by=(2.0, 0.0)), field_norm=H).summary
     assert not s["offset_split"]["compared"] and "effective readings" in s["offset_split"]["reason"]
     assert not any(w.startswith(MOVED) for w in s["warnings"])
-    # one turn: each half sees half the compass rose
-    s = calibrate_planar(turning(9, n=600, phi=0.0, turns=1.0), field_norm=H).summary
-    assert not s["offset_split"]["compared"] and "of heading" in s["offset_split"]["reason"]
+    # three quarters of a turn: on one side of every split less than SIDE_ARC_DEG (a half: 135°, a quarter: 68°)
+    s = calibrate_planar(turning(9, n=600, phi=0.0, turns=0.75), field_norm=H).summary
+    reasons = [sp.get("reason", "") for sp in s["offset_split"]["splits"]]
+    assert not s["offset_split"]["compared"] and all("of heading (under 150°)" in r for r in reasons), reasons
     assert not any(line.lstrip().startswith("offset before/after") for line in summary_lines(
-        calibrate_planar(turning(9, n=600, phi=0.0, turns=1.0), field_norm=H)))
+        calibrate_planar(turning(9, n=600, phi=0.0, turns=0.75), field_norm=H)))
+
+
+def test_a_move_in_a_single_circle_is_said():
+    """One circle: each half turns ~180° (the calibration's own MIN_ARC_DEG refused it by a reading or two before);
+    a blind check's single circles with a move of 2–20 % of H were wrong with no warning in 99 of 1000."""
+    s = calibrate_planar(moved(12, n=1000, turns=1.0, by=(0.8, 0.6)), field_norm=H).summary
+    split = s["offset_split"]
+    assert split["compared"] and split["fraction"] == 0.5 and split["p_value"] < MOVED_ALPHA
+    assert [sp.get("compared", True) for sp in split["splits"]] == [False, True, False]  # a quarter turn each side
+    clean = calibrate_planar(turning(12, n=1000, phi=0.0, turns=1.0), field_norm=H).summary
+    assert clean["offset_split"]["compared"] and clean["offset_split"]["p_value"] > MOVED_ALPHA
 
 
 def test_the_cli_prints_both_offsets(tmp_path, capsys):
