@@ -3,9 +3,11 @@ spikes. A few of them wreck an ellipsoid fit (0.5 % zero rows make the least-squ
 so `fluxcal.calibrate` screens for them before fitting, leaves them out, and says which rows and why.
 
 A reading is off the ellipsoid when its distance from it, |h|/median|h| − 1 (with each reading's |field|,
-(|h| − s·|field|)/(s·mean |field|), s the median |h|/|field|), lies further
-from the median than the two-sided normal quantile at α/N (Bonferroni: with Gaussian noise a whole
-recording is flagged wrongly with probability α) times the robust σ, 1.4826 · MAD. Outliers distort a
+(|h| − s·|field|)/(s·mean |field|), s the median |h|/|field|), over √(1 ∓ its leverage) in the fit, lies further
+from the median than the two-sided quantile at α/N (Bonferroni: with Gaussian noise a whole recording is flagged
+wrongly with probability α) times the robust σ, 1.4826 · MAD — Student's t quantile, the robust σ being estimated
+from few readings' residuals (_threshold), normal from a few thousand on. A reading of exactly 0,0,0 is suspect
+before it is judged, so its line is at α over the number of such readings. Outliers distort a
 fit of all readings and can hide each other (0.5 % zero rows and a few spikes raised the robust σ of
 an ALS fit's distances 16×, so nothing stood out), so the distances come from the least-median-of-
 squares fit (Rousseeuw 1984) over the ALS fit of all readings and 64 LS fits of random 20-reading
@@ -38,6 +40,10 @@ from .twostep import twostep
 SUBSET = 20      # readings per LMedS subset: 10 % contamination leaves a clean subset 12 % of the time
 SUBSETS = 64     # so 64 subsets miss a clean one with probability 3e-4
 MIN_SAMPLES = 40
+# The robust σ (1.4826 · MAD) scatters like the standard deviation of this share of the readings (its asymptotic
+# efficiency at the normal, 2 (2 q φ(q))² with q = Φ⁻¹(¾): 0.37), less the fitted parameters: see _threshold.
+_Q = stats.norm.ppf(0.75)
+MAD_DOF_SHARE = 2 * (2 * _Q * stats.norm.pdf(_Q)) ** 2
 GLITCH_RUN = 3   # a glitch lasts a sample or a short burst; a longer stretch off the ellipsoid is a
                  # disturbance or a drift of the sensor, which the calibration keeps and diagnose explains
 NOISE_FACTOR = 2.0  # a fit whose distances scatter less than this × the white noise explains the readings
@@ -70,13 +76,15 @@ class Outliers:
     screened: bool = True            # False: too few readings (< MIN_SAMPLES) or NaN, nothing judged
     stretches: list = field(default_factory=list)  # (first, last, largest σ) of longer runs off the model, kept
     model: str = "the ellipsoid"     # what the readings were judged against
+    zero_threshold: float = 0.0      # in robust σ, the line for readings of exactly 0,0,0 (0: `threshold`'s)
+    zeros_within: int = 0            # of the rows, 0,0,0 readings within `threshold` (left out by `zero_threshold`)
 
     def __len__(self) -> int:
         return len(self.rows)
 
     def to_dict(self) -> dict:
         return {"screened": self.screened, "rows": self.rows.tolist(), "count": len(self.rows),
-                "threshold_sigma": self.threshold,
+                "threshold_sigma": self.threshold, "zero_threshold_sigma": self.zero_threshold or self.threshold,
                 "robust_sigma": self.robust_sigma, "largest_sigma": self.largest, "kinds": dict(self.kinds),
                 "stretches_kept": [list(s) for s in self.stretches]}
 
@@ -100,7 +108,10 @@ class Outliers:
                     "readings (an offset that moved within the log, two sessions in one file) or a disturbance would "
                     "look so, and the fit of the rest may be biased by it — fluxcal diagnose looks for the cause"
                     if plain > MANY_OUTLIERS * n else "")
-            judged = (f"that lie more than {self.threshold:.1f} robust σ{largest} off {self.model} (rows {shown}{kinds})"
+            zero_line = (f"; exact zeros, suspect before they are measured, are judged at "
+                         f"{self.zero_threshold:.1f} σ" if self.zeros_within else "")
+            judged = (f"that lie more than {self.threshold:.1f} robust σ{largest} off {self.model} (rows {shown}"
+                      f"{kinds}{zero_line})"
                       if self.threshold > 0 else  # (too few readings for the robust fits: the far-reading rule only)
                       f"more than {DOMINATING:g}× farther from the readings' median than the median reading (rows "
                       f"{shown}; under {MIN_SAMPLES} readings, too few for the robust screen, only such are judged)")
@@ -172,6 +183,37 @@ class Quadric:
 
     def apply(self, m: np.ndarray) -> np.ndarray:
         return (np.asarray(m, dtype=float) - self.offset) @ self.matrix.T
+
+
+def _leverage_scale(cal, m: np.ndarray, keep: np.ndarray) -> np.ndarray:
+    """√(1 − h) for the readings the fit `cal` was fitted to (`keep`), √(1 + h) for the others, h each reading's
+    leverage in the linearised fit of the distances (_distances: Sampson's, |h| − R over |Aᵀĥ|) to the offset and
+    the symmetric matrix, as the vector model's _vector_z: a fit pulls toward the readings it takes, and a reading
+    left out of it lies off it by its own noise and the fit's error. Without this, a reading of a sparse direction,
+    flagged by the least-median start (a 20-reading fit), was refitted without and then lay off by
+    √((1 + h)/(1 − h̄)), 1.4× its noise at h = 0.4 of 45 readings of a sphere (h̄ = 9/45): 14 of 400 clean
+    simulations left such a reading out (3.5 %, α = 1 %), all within the line when fitted with it; with this, 2.
+    The Jacobian is taken where the reading's direction meets the ellipsoid (x R/|h|), so a spike's leverage is its
+    direction's, not one its distance blows up."""
+    x = np.asarray(m, dtype=float) - cal.offset
+    h = x @ cal.matrix.T
+    radius = np.linalg.norm(h, axis=1)
+    ok = np.isfinite(radius) & (radius > 0)
+    if not ok.any():
+        return np.ones(len(m))
+    safe = np.where(ok, radius, 1.0)[:, None]
+    u = np.where(ok[:, None], h / safe, 0.0)                       # ĥ
+    x = np.where(ok[:, None], x * (np.median(radius[ok]) / safe), 0.0)  # on the ellipsoid, in the reading's direction
+    g = u @ cal.matrix                                             # ∇|h| with respect to the reading: Aᵀĥ
+    slope = np.linalg.norm(g, axis=1)
+    slope = np.where(slope > 0, slope, 1.0)
+    dim = m.shape[1]
+    columns = [g[:, j] for j in range(dim)] + [u[:, j] * x[:, k] + (u[:, k] * x[:, j] if j != k else 0.0)
+                                               for j in range(dim) for k in range(j, dim)]
+    J = np.column_stack(columns) / slope[:, None]
+    J /= np.maximum(np.linalg.norm(J[keep], axis=0), 1e-300)  # (unit columns: offsets and gains differ in scale)
+    lev = _row_quadratic(J, np.linalg.pinv(J[keep].T @ J[keep]))
+    return np.sqrt(np.where(keep, np.maximum(1.0 - lev, 1e-12), 1.0 + lev))
 
 
 def _robust_z(e: np.ndarray):
@@ -285,8 +327,17 @@ def find_outliers(samples, reference=None, alpha: float = 0.01, seed: int = 0, f
         return _vector_outliers(m, as_samples(reference, "reference"), alpha, seed)
     fit = (lambda x, norms: _try_fit(x, "als", norms)) if ellipse is None else ellipse
     model = "the ellipsoid" if ellipse is None else "the ellipse"
-    threshold = float(stats.norm.isf(alpha / (2 * n))) if n else 0.0
-    none = Outliers(np.zeros(0, dtype=int), threshold, screened=False, model=model)
+    dim = m.shape[1]
+    parameters = dim + dim * (dim + 1) // 2  # centre and symmetric matrix: the ellipsoid's 9, the ellipse's 5
+    threshold = _threshold(n, alpha, parameters)
+    # Readings of exactly 0,0,0 (0,0 in the plane: an I²C glitch) are suspect before their distance is seen, so only
+    # they are tested, not all n: their line is at α/(2k), k of them, not α/(2n). At the n-reading line, 45 clean
+    # readings and a 0,0,0 one whose |h| happened to be within 3–6 σ of the ellipsoid's kept it in 1–2 % of
+    # simulations, and on a plane that reading, off it along the normal, tilted it by 5°.
+    zero = ~m.any(axis=1) if m.ndim == 2 else np.zeros(n, dtype=bool)
+    zero_threshold = _threshold(n, alpha, parameters, max(int(zero.sum()), 1))
+    line = np.where(zero, min(zero_threshold, threshold), threshold)
+    none = Outliers(np.zeros(0, dtype=int), threshold, screened=False, model=model, zero_threshold=zero_threshold)
     huge = past_range(m)
     if huge.any() and n - huge.sum() >= MIN_SAMPLES:  # readings past any sensor's range (1e300): left out first
         kept = np.flatnonzero(~huge)
@@ -302,24 +353,47 @@ def find_outliers(samples, reference=None, alpha: float = 0.01, seed: int = 0, f
     if n < MIN_SAMPLES or not _squares_representable(m):
         return none  # too few to judge, NaN or out of scale: the fit itself names the problem
     start = fit(m, field_norms)
-    quick = _fits_to_the_noise(m, start, threshold, field_norms)
+    quick = _fits_to_the_noise(m, start, line, field_norms)
     if quick is not None:
-        return Outliers(np.zeros(0, dtype=int), threshold, quick, model=model)
+        return Outliers(np.zeros(0, dtype=int), threshold, quick, model=model, zero_threshold=zero_threshold)
     cal = _lmeds_start(m, np.random.default_rng(seed), start, field_norms)
     if cal is None:
         return none  # no subset fits an ellipsoid: the fit itself will say why
     z, sigma = _robust_z(_distances(cal, m, field_norms))
     for _ in range(3):  # refit on the accepted readings and judge everything again, until nothing changes
-        refit = fit(m[z <= threshold], None if field_norms is None else field_norms[z <= threshold])
+        keep = z <= line
+        refit = fit(m[keep], None if field_norms is None else field_norms[keep])
         if refit is None:
             break
-        z_new, sigma = _robust_z(_distances(refit, m, field_norms))
-        changed = np.any((z_new > threshold) != (z > threshold))
+        z_new, sigma = _robust_z(_distances(refit, m, field_norms) / _leverage_scale(refit, m, keep))
+        changed = np.any((z_new > line) != (z > line))
         z = z_new
         if not changed:
             break
-    return _verdicts(m, z, threshold, float(sigma), model if field_norms is None else f"{model} (each against its own "
-                     "|field|)")
+    out = _verdicts(m, z, threshold, float(sigma), model if field_norms is None else f"{model} (each against its own "
+                    "|field|)", line=line)
+    within = int(np.sum(zero[out.rows] & (z[out.rows] <= threshold)))
+    return replace(out, zero_threshold=zero_threshold, zeros_within=within)
+
+
+def _threshold(n: int, alpha: float, parameters: int, tests: int | None = None) -> float:
+    """The line in robust σ that n clean readings all stay within with probability 1 − α (Bonferroni at α/n,
+    two-sided): Student's t quantile with ν = MAD_DOF_SHARE · (n − parameters) in place of the normal one, since
+    the σ a reading is divided by is itself estimated, from n readings' residuals off a fit of `parameters`.
+    `tests`: the readings judged (default n), for readings suspect before they are measured (0,0,0).
+    The MAD's σ scatters by 1.17/√n (18 % at 45 readings), so the normal line took the largest reading of every
+    recording whose σ came out small for an outlier: clean simulated logs (σ 0.2–1 % of the field) had rows left out
+    in 7 % (ellipse of a level turn, 45 readings), 6 % (60), 2–3 % (100–300) and 22 % (ellipsoid, 45), 12 % (60),
+    6 % (100), 2 % (300) of 400 each, against α = 1 % — and iid normal numbers judged by their own MAD in 6.4 % (45)
+    and 1.8 % (300), so it is the σ's scatter, not the fits. The t line is 4.85 robust σ at 45 readings of an ellipse
+    (normal 3.69), 5.0 of an ellipsoid, 4.3 at 300 (4.15), 4.9 at 10 000 (normal 4.89). With it and
+    the leverage (_leverage_scale): 0–0.75 % (ellipse), 0.5–1 % (ellipsoid) at 45–300 readings; spikes at 3× and
+    10× the field still all found."""
+    if n <= 0:
+        return 0.0
+    nu = MAD_DOF_SHARE * (n - parameters)
+    tail = alpha / (2 * (n if tests is None else tests))
+    return float(stats.t.isf(tail, max(nu, 1.0)))  # (ν < 1: too few to judge, and find_outliers does not)
 
 
 def far_readings(m: np.ndarray) -> np.ndarray:
@@ -333,12 +407,12 @@ def far_readings(m: np.ndarray) -> np.ndarray:
 
 
 def _verdicts(m: np.ndarray, z: np.ndarray, threshold: float, sigma: float, model: str = "the ellipsoid",
-              gross: float | None = GROSS) -> Outliers:
+              gross: float | None = GROSS, line: np.ndarray | None = None) -> Outliers:
     """From each reading's distance off the model (`z`, robust σ) to the rows left out: flagged readings that
     cannot be real (0,0,0, at a rail, or off by more than `gross` of the field: GROSS) or lie in a run of at most
     GLITCH_RUN; longer runs are kept as stretches. `gross` None: not judged (the vector model's σ is not a share
-    of the field)."""
-    flagged = z > threshold
+    of the field). `line`: each reading's own threshold (lower for 0,0,0 readings), default `threshold`."""
+    flagged = z > (threshold if line is None else line)
     zero, rail = ~m.any(axis=1), _at_rail(m)
     impossible = zero | rail
     if gross is not None:
@@ -441,9 +515,9 @@ def _fits_to_the_noise(m: np.ndarray, cal, threshold: float, norms=None):
     noise = time_series_noise(m, steady=True)
     if noise is None:
         return None
-    z, sigma = _robust_z(_distances(cal, m, norms))
+    z, sigma = _robust_z(_distances(cal, m, norms) / _leverage_scale(cal, m, np.ones(len(m), dtype=bool)))
     radius = np.median(np.linalg.norm(m - cal.offset, axis=1))
-    if np.any(z > threshold) or not sigma <= NOISE_FACTOR * noise / radius:
+    if np.any(z > threshold) or not sigma <= NOISE_FACTOR * noise / radius:  # (threshold: one, or each reading's)
         return None
     return float(sigma)
 
