@@ -145,3 +145,24 @@ def test_a_burst_under_the_far_rule_does_not_tip_the_plane(seed):
     assert cal.summary["plane_axes"] == ["x", "y"] and cal.summary["plane_tilt_deg"] < 2.0
     assert offset_z(cal, truth) < Z_LIMIT
     assert not [w for w in cal.summary["warnings"] if "tilted" in w]
+
+
+def test_a_zero_row_in_a_short_log_is_left_out_before_the_plane():
+    """One 0,0,0 reading in 45 (hard irons up to ±30 µT on every axis, so that the glitch's place in the plane can lie
+    near the ellipse, where the ellipse's screen cannot see it): off the plane along its normal it tipped the plane
+    and stayed in 9 of 300 such logs (a helper's simulation; 2 of these 100); now it is left out before the plane, and said."""
+    kept = []
+    for seed in range(100):
+        rng = np.random.default_rng(seed)
+        field, vertical = rng.uniform(15, 40), rng.uniform(20, 60)
+        psi = np.linspace(0, rng.uniform(1, 3) * 2 * np.pi, 45, endpoint=False)
+        b = rng.uniform(-30, 30, 3)
+        m = np.column_stack([field * np.cos(psi) + b[0], field * np.sin(psi) + b[1], np.full(45, vertical + b[2])])
+        m += rng.uniform(0.002, 0.01) * field * rng.standard_normal(m.shape)
+        m[20] = 0.0
+        s = calibrate_planar(m, field_norm=field).summary
+        if 20 not in s["outliers"]["rows"]:
+            kept.append(seed)
+        else:
+            assert s["outliers"]["kinds"].get("zero") == 1 and s["samples"] == 44
+    assert kept == []
