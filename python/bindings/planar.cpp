@@ -17,7 +17,8 @@ py::dict planar_dict(const fluxcal::PlanarResult& r) {
                   "identifiable"_a = r.identifiable, "sigma"_a = r.sigma, "rss"_a = r.rss,
                   "mean_radius"_a = r.mean_radius, "fisher_condition"_a = r.fisher_condition, "start"_a = r.start,
                   "residuals"_a = r.residuals, "units"_a = r.units,
-                  "serial_correlation"_a = serial_correlation_dict(r.serial_correlation), "summary"_a = summary_dict(r.summary));
+                  "serial_correlation"_a = serial_correlation_dict(r.serial_correlation),
+                  "summary"_a = summary_dict(r.summary));
 }
 
 }  // namespace

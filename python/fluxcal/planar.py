@@ -33,8 +33,8 @@ otherwise put into A; the covariance σ̂²(JᵀJ)⁻¹, or for readings correla
 that wanders) the prewhitened Newey–West sandwich, as fluxcal.refine's: with AR(1) noise of φ 0.9 the independent
 errors were 4–5× too small (the offset more than 4 of them off in 13 of 20 logs), the sandwich's within 1.0–1.25×.
 This module finds the plane, chooses the shape by BIC, checks the arc and the ellipse, compares the offsets fitted
-before and after a quarter, a half and three quarters of the log (a hard iron that moved), and words the warnings: they judge a vehicle's log rather than solve for
-a calibration.
+before and after a quarter, a half and three quarters of the log (a hard iron that moved), and words the warnings:
+they judge a vehicle's log rather than solve for a calibration.
 
 Which plane (N×3 readings): the readings' scatter's thinnest direction is the plane's normal. Within
 `axis_tolerance` degrees of a sensor axis (a level mounting; a soft iron coupling of a few % between the normal
@@ -366,8 +366,8 @@ def summary_lines(cal: Calibration) -> list[str]:
     if split.get("compared"):
         best = next(sp for sp in split["splits"] if sp["fraction"] == split["fraction"])
         first, second = (", ".join(f"{v:.4g}" for v in b) for b in best["offsets"])
-        lines.append(f"  offset before/after   ({first}) then ({second}){u}, split at {100 * split['fraction']:.0f} % of "
-                     "the log: " + ("MOVED" if split["p_value"] < MOVED_ALPHA else "the same within their errors")
+        lines.append(f"  offset before/after   ({first}) then ({second}){u}, split at "
+                     f"{100 * split['fraction']:.0f} % of the log: " + ("MOVED" if split["p_value"] < MOVED_ALPHA else "the same within their errors")
                      + f" (p = {split['p_value']:.2g})")
     if s.get("biaxial"):
         lines.append(f"  third axis            {s['not_calibrated']['axis']}: none (a biaxial sensor)")

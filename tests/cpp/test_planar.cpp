@@ -220,7 +220,8 @@ TEST(Planar, ReadingsCorrelatedInTimeGetNeweyWestErrors) {
     Yaw y = yaw_only(100 + seed, n, soft_iron(30.0, 1.12, 0.9), 0.0);
     std::mt19937 rng(500 + seed);
     std::normal_distribution<double> g(0.0, kSigma * std::sqrt(1.0 - phi * phi));
-    Eigen::Vector2d e(kSigma * std::normal_distribution<double>()(rng), kSigma * std::normal_distribution<double>()(rng));
+    std::normal_distribution<double> start(0.0, kSigma);  // the stationary distribution
+    Eigen::Vector2d e(start(rng), start(rng));
     for (int k = 0; k < n; ++k) {
       e = phi * e + Eigen::Vector2d(g(rng), g(rng));
       y.u.row(k) += e.transpose();

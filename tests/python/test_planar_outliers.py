@@ -150,7 +150,8 @@ def test_a_burst_under_the_far_rule_does_not_tip_the_plane(seed):
 def test_a_zero_row_in_a_short_log_is_left_out_before_the_plane():
     """One 0,0,0 reading in 45 (hard irons up to ±30 µT on every axis, so that the glitch's place in the plane can lie
     near the ellipse, where the ellipse's screen cannot see it): off the plane along its normal it tipped the plane
-    and stayed in 9 of 300 such logs (a helper's simulation; 2 of these 100); now it is left out before the plane, and said."""
+    and stayed in 9 of 300 such logs (a helper's simulation; 2 of these 100); now it is left out before the plane,
+    and said."""
     kept = []
     for seed in range(100):
         rng = np.random.default_rng(seed)

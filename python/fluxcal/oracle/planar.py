@@ -240,7 +240,8 @@ def fit_planar(readings, field_norms=None, shape: str = "sym", max_iterations: i
     mean_radius = float(np.mean(np.linalg.norm(u - b, axis=1)))
     scales = np.concatenate([[mean_radius, mean_radius], np.full(k - 2, np.linalg.norm(A) / np.sqrt(2))])
     return {"offset": b, "matrix": A, "field_norm": float(field_norm), "parameters": values, "covariance": cov,
-            "standard_errors": se, "determined": se_independent < DETERMINED * scales, "sigma": float(np.sqrt(sigma2) * scale),
+            "standard_errors": se, "determined": se_independent < DETERMINED * scales,
+            "sigma": float(np.sqrt(sigma2) * scale),
             "rss": float(cost * scale ** 2), "mean_radius": mean_radius, "fisher_condition": fisher_condition,
             "residuals": residuals, "start": start, "converged": converged, "evaluations": evaluations,
             "serial_correlation": {**test, "lags": lags, "inflation": inflation,
