@@ -369,6 +369,9 @@ def summary_lines(cal: Calibration) -> list[str]:
         lines.append(f"  offset before/after   ({first}) then ({second}){u}, split at "
                      f"{100 * split['fraction']:.0f} % of the log: " + ("MOVED" if split["p_value"] < MOVED_ALPHA else "the same within their errors")
                      + f" (p = {split['p_value']:.2g})")
+    elif split.get("splits"):  # (not for rows out of time order: nothing to say of them)
+        half = next(sp for sp in split["splits"] if sp["fraction"] == 0.5)
+        lines.append(f"  offset before/after   not judged: at the middle, {half['reason']}")
     if s.get("biaxial"):
         lines.append(f"  third axis            {s['not_calibrated']['axis']}: none (a biaxial sensor)")
     elif "not_calibrated" in s:
