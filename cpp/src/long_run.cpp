@@ -186,8 +186,8 @@ std::string correct_for_serial_correlation(Eigen::MatrixXd& covariance, SerialCo
   std::ostringstream msg;
   msg.precision(2);
   if (rejected)
-    msg << "readings are correlated in time (residual lag-1 autocorrelation " << rep.lag1 << ", Ljung-Box p = "
-        << rep.ljung_box_p << ")";
+    msg << "the residuals are correlated in time (lag-1 autocorrelation " << rep.lag1 << ", Ljung-Box p = "
+        << rep.ljung_box_p << ": noise correlated in time, or something the model misses)";
   else
     msg << "the scores are correlated in time although the residuals pass the Ljung-Box test (p = " << rep.ljung_box_p
         << "; orientations that change fast hide the correlation from the residuals)";

@@ -506,6 +506,13 @@ PlanarResult fit(const Readings2DRef& u, const Eigen::VectorXd* norms, const Pla
   out.covariance = cov;
   out.standard_errors = cov.diagonal().cwiseMax(0.0).cwiseSqrt();
   out.serial_correlation.standard_errors_independent = independent.diagonal().cwiseMax(0.0).cwiseSqrt();
+  if (out.serial_correlation.lags > 0) {  // the widening of the reported parameters (after the delta method)
+    double widest = 0.0;
+    for (int j = 0; j < k; ++j)
+      if (out.serial_correlation.standard_errors_independent(j) > 0.0)
+        widest = std::max(widest, out.standard_errors(j) / out.serial_correlation.standard_errors_independent(j));
+    out.serial_correlation.inflation = widest;
+  }
   out.sigma = std::sqrt(sigma2) * scale;
   out.rss = result.at.cost * scale * scale;
   out.parameter_names = {"b_x", "b_y"};

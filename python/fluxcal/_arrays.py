@@ -180,6 +180,25 @@ def as_field_norms(values, n: int, name: str = "field_norms") -> np.ndarray:
     return norms
 
 
+def readings_times(samples, times, n: int) -> np.ndarray | None:
+    """Each reading's time: `times` (n finite numbers, seconds), else a Recording's own (recording_times), else None;
+    ValueError naming `times` otherwise."""
+    if times is None:
+        return recording_times(samples)
+    try:
+        t = np.asarray(times, dtype=float)
+    except (TypeError, ValueError):
+        raise ValueError(f"times: not numbers ({str(times)[:60]!r}); give each reading's time in seconds") from None
+    if t.ndim != 1:
+        raise ValueError(f"times: shape {t.shape}; give one time per reading, a 1-D list of {n}")
+    if len(t) != n:
+        raise ValueError(f"times: {len(t)} values for {n} readings; give one time per reading")
+    bad = np.flatnonzero(~np.isfinite(t))
+    if len(bad):
+        raise ValueError(f"times: value {bad[0]} is {t[bad[0]]}; give each reading a finite time in seconds")
+    return t
+
+
 def recording_times(samples) -> np.ndarray | None:
     """The times of a Recording's rows (its time()), else None: arrays carry none, and a DataFrame's "time" column
     is no method."""

@@ -1461,7 +1461,8 @@ def build_parser() -> argparse.ArgumentParser:
                         "and list them; keep: fit every reading")
     c.add_argument("--serial-correlation", default=None, choices=["automatic", "independent", "newey_west"],
                    help="standard errors: automatic (default) widens them (Newey-West) when the readings are "
-                        "correlated in time; independent when the rows are not in time order")
+                        "correlated in time; independent when the rows are not in time order (with --planar it also "
+                        "leaves out the check of an offset that moved, which needs time order)")
     c.add_argument("--align-accelerometer", action="store_true",
                    help="also turn the magnetometer's axes onto the accelerometer's (its columns ax,ay,az or "
                         "AccX…), from the dip that stays the same at rest in every attitude; the calibration "

@@ -336,7 +336,7 @@ def find_outliers(samples, reference=None, alpha: float = 0.01, seed: int = 0, f
     # simulations, and on a plane that reading, off it along the normal, tilted it by 5°.
     zero = ~m.any(axis=1) if m.ndim == 2 else np.zeros(n, dtype=bool)
     zero_threshold = _threshold(n, alpha, parameters, max(int(zero.sum()), 1))
-    line = np.where(zero, min(zero_threshold, threshold), threshold)
+    line = np.where(zero, zero_threshold, threshold)  # (zero_threshold ≤ threshold: it tests fewer readings)
     none = Outliers(np.zeros(0, dtype=int), threshold, screened=False, model=model, zero_threshold=zero_threshold)
     huge = past_range(m)
     if huge.any() and n - huge.sum() >= MIN_SAMPLES:  # readings past any sensor's range (1e300): left out first

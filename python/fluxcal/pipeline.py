@@ -8,7 +8,7 @@ from concurrent.futures import ThreadPoolExecutor
 import numpy as np
 
 from . import _core
-from ._arrays import as_samples, held_copies, recording_times
+from ._arrays import as_samples, held_copies, readings_times
 from .calibration import TESLA_PER_UNIT, Calibration
 from .ellipsoid import fit_ellipsoid
 from .outliers import DOMINATING, far_readings, find_outliers
@@ -122,9 +122,7 @@ def calibrate(samples, method: str = "auto", field_norm: float | None = None, re
                              "true field of each reading (e.g. IGRF rotated by the attitude)")
     left_out = find_outliers(m, reference if vector else None, field_norms=field_norms) if outliers == "drop" else None
     all_readings = m
-    times = recording_times(samples) if times is None else np.asarray(times, dtype=float)
-    if times is not None and len(times) != len(m):
-        raise ValueError(f"times: {len(times)} values for {len(m)} readings; give one time per reading")
+    times = readings_times(samples, times, len(m))
     if left_out:
         times = None if times is None else np.delete(times, left_out.rows)
         m = np.delete(m, left_out.rows, axis=0)

@@ -55,7 +55,7 @@ from __future__ import annotations
 import numpy as np
 
 from . import _core
-from ._arrays import as_field_norms, field_norm_given, first_nonfinite, recording_times, units_text
+from ._arrays import as_field_norms, field_norm_given, first_nonfinite, readings_times, units_text
 from .calibration import Calibration
 from .outliers import Quadric, far_readings, find_outliers
 from .refine import serial_correlation_mode
@@ -106,9 +106,11 @@ NOT_CALIBRATED_WORDS = "is not calibrated"
 # /work/scratch/s34/blind2), where the split at the step finds it as a step at the middle.
 SPLITS = (0.25, 0.5, 0.75)
 # Strict, since a clean log must stay silent and the sides' Newey–West errors run ~1.2× narrow at a few hundred
-# readings (AR(1) noise, φ 0.5–0.9: a nominal 1e-3 gave 0.5 % false alarms, 1e-4 1 in 1250 logs with halves alone,
-# /work/scratch/s34/halves_fa.py), while a move of the noise's size is still found at N = 300 (39 of 40).
-MOVED_ALPHA = 1e-4
+# readings, which the F squares: over clean logs with AR(1) noise of φ 0–0.6 (N 300–3000; a review's check and
+# /work/scratch/s34/split_p.py) p fell under 1e-2 in 3–7 % of logs, under 1e-4 in 2 of 1991 (φ 0.5, N 300),
+# under 1e-5 in none. A move of the noise's size at the middle of 300 white readings is still found in 36 of 40
+# (38 at 1e-4), one of 2 % of H in every log (/work/scratch/s34/power_alpha.py).
+MOVED_ALPHA = 1e-5
 # Effective readings (n(1 − ρ)/(1 + ρ) for residuals of lag-1 autocorrelation ρ) per parameter on each side of a
 # split: with 5, AR(1) noise of φ 0.8–0.9 gave 0.5–1 % false alarms, the sides' errors themselves too noisy.
 SIDE_READINGS = 10
@@ -148,10 +150,12 @@ def calibrate_planar(samples, field_norm=None, axes=None, units: str | None = No
     "keep": every reading is fitted.
     serial_correlation: the standard errors' treatment of readings correlated in time, rows in time order (as
     fluxcal.refine's): "automatic" (default) takes the Newey–West sandwich when the residuals fail a Ljung–Box test
-    and it widens an error, or when it widens one ≥ 1.5×; "independent" never (rows not in time order);
-    "newey_west" always. summary["serial_correlation"] says what the residuals showed.
-    times: each reading's time (seconds; a Recording's own when None), as fluxcal.calibrate's: the readings' own
-    noise and the log's parts before and after each split are taken in time order; None and no Recording: row order.
+    and it widens an error, or when it widens one ≥ 1.5× with ≥ 10 readings per parameter; "independent" never (for
+    rows not in time order: it also leaves out the moved-offset check, whose splits need time order); "newey_west"
+    always. summary["serial_correlation"] says what the residuals showed.
+    times: each reading's time (seconds; a Recording's own when None), as fluxcal.calibrate's: the readings' own noise
+    is taken in their order. The standard errors and the moved-offset check take the rows as they come, in time order
+    (as fluxcal.refine).
 
     Returns a Calibration h = A (m − b): the plane's 2×2 A and offset embedded in 3×3, the normal axis passed through
     (A's row and column for it √det A on the diagonal, its offset 0). Its apply takes N×2 readings (or a biaxial
@@ -177,7 +181,7 @@ def calibrate_planar(samples, field_norm=None, axes=None, units: str | None = No
         units = getattr(samples, "field_units", lambda: "")()
     units = units_text(units)
     field_norm = field_norm_given(samples, field_norm)
-    times = recording_times(samples) if times is None else np.asarray(times, dtype=float)
+    recording = samples  # (its times, once its two field columns replace it below)
     if callable(getattr(samples, "biaxial", None)) and samples.biaxial():  # a Recording of two field columns
         if axes is not None:
             samples.take_axes("".join(AXES[a] for a in _axes(axes)), f"axes={axes!r}")
@@ -195,8 +199,7 @@ def calibrate_planar(samples, field_norm=None, axes=None, units: str | None = No
         raise ValueError(f"samples: {n} readings; a planar calibration fits {PARAMETERS} parameters (offset and a "
                          f"2×2 matrix) and needs at least {MIN_READINGS} — log more readings while the vehicle turns "
                          "a full circle")
-    if times is not None and len(times) != n:
-        raise ValueError(f"times: {len(times)} values for {n} readings; give one time per reading")
+    times = readings_times(recording, times, n)
     norms = None if field_norm is None else as_field_norms(field_norm, n, "field_norm")
     correlation = serial_correlation_mode(serial_correlation)
     if outliers not in ("drop", "keep"):
@@ -215,7 +218,7 @@ def calibrate_planar(samples, field_norm=None, axes=None, units: str | None = No
         norms = None if norms is None else np.delete(norms, left_out.rows)
         times = None if times is None else np.delete(times, left_out.rows)
         n = len(m)
-        if len(np.setdiff1d(left_out.rows, far)):  # found again without them: a burst of readings 2–5× the field,
+        if len(np.setdiff1d(left_out.rows, np.union1d(far, zeros))):  # found again without them: a burst of readings 2–5× the field,
             warnings = []                           # under the far rule, had tipped the plane by 5–15° (blind check)
             plane = _plane(m, axes, axis_tolerance, planar_ratio, warnings)
         u = m @ plane["basis"].T
@@ -312,7 +315,7 @@ def calibrate_planar(samples, field_norm=None, axes=None, units: str | None = No
     said = [misfit_said(cal, residual_noise(u, fit["residuals"], h / np.linalg.norm(h, axis=1, keepdims=True),
                                             times), planar=True), plausible_field(cal, horizontal=True)]
     cal.summary["warnings"] += [w for w in said if w]
-    split = _offset_split(u, norms, fit, correlation, max_iterations, tolerance, times)
+    split = _offset_split(u, norms, fit, correlation, max_iterations, tolerance)
     cal.summary["offset_split"] = split
     if split["compared"] and split["p_value"] < MOVED_ALPHA:
         cal.summary["warnings"].append(_moved_words(split, names, units))
@@ -364,7 +367,7 @@ def summary_lines(cal: Calibration) -> list[str]:
                  f"parameters{widened})")
     split = s.get("offset_split", {})
     if split.get("compared"):
-        best = next(sp for sp in split["splits"] if sp["fraction"] == split["fraction"])
+        best = _best_split(split)
         first, second = (", ".join(f"{v:.4g}" for v in b) for b in best["offsets"])
         lines.append(f"  offset before/after   ({first}) then ({second}){u}, split at "
                      f"{100 * split['fraction']:.0f} % of the log: " + ("MOVED" if split["p_value"] < MOVED_ALPHA else "the same within their errors")
@@ -655,39 +658,41 @@ def _fit(u: np.ndarray, norms, shapes: tuple, max_iterations: int, tolerance: fl
     return result
 
 
-def _offset_split(u: np.ndarray, norms, fit: dict, correlation, max_iterations: int, tolerance: float,
-                  times=None) -> dict:
+def _offset_split(u: np.ndarray, norms, fit: dict, correlation, max_iterations: int, tolerance: float) -> dict:
     """Whether the offset moved within the log: the chosen shape fitted to the readings before and after each of
-    SPLITS (fractions of the log in time: `times`, else the rows' order), the two offsets compared by Hotelling's F;
-    {"compared", "splits" (each {"fraction", "offsets", "difference", "standard_error" of each of its components,
-    "statistic", "p_value"} or {"fraction", "compared": False, "reason"}), "p_value" (the smallest split's ×
-    the number compared: Bonferroni), "fraction" (that split's), "radius"} — or {"compared": False, "reason"} when
-    no split can be judged or the rows are not in time order (serial_correlation "independent")."""
+    SPLITS (fractions of the rows, taken in time order as the standard errors take them), the two offsets compared by
+    Hotelling's F; {"compared", "splits" (each {"fraction", "offsets", "difference", "standard_error" of each of its
+    components, "statistic", "p_value"} or {"fraction", "compared": False, "reason"}), "p_value" (the smallest
+    split's × the number compared: Bonferroni), "fraction" (that split's), "judged" (how many splits were compared),
+    "radius"} — or {"compared": False, "reason"} when no split can be judged or the rows are not in time order
+    (serial_correlation "independent")."""
     if correlation == _core.SerialCorrelation.independent:
         return {"compared": False, "reason": "serial_correlation 'independent': the rows are not taken in time order"}
-    n = len(u)
-    order = np.arange(n) if times is None else np.argsort(times, kind="stable")
-    splits = [_split(u, norms, order, fraction, fit, correlation, max_iterations, tolerance)
-              for fraction in SPLITS]
+    splits = [_split(u, norms, fraction, fit, correlation, max_iterations, tolerance) for fraction in SPLITS]
     judged = [sp for sp in splits if sp.get("compared", True)]
     if not judged:
         return {"compared": False, "splits": splits,
                 "reason": "; ".join(f"at {100 * sp['fraction']:.0f} %: {sp['reason']}" for sp in splits)}
     best = min(judged, key=lambda sp: sp["p_value"])
-    return {"compared": True, "splits": splits, "fraction": best["fraction"], "radius": fit["radius"],
-            "p_value": min(1.0, best["p_value"] * len(judged))}
+    return {"compared": True, "splits": splits, "fraction": best["fraction"], "judged": len(judged),
+            "radius": fit["radius"], "p_value": min(1.0, best["p_value"] * len(judged))}
 
 
-def _split(u: np.ndarray, norms, order: np.ndarray, fraction: float, fit: dict, correlation, max_iterations: int,
+def _best_split(split: dict) -> dict:
+    """The split of _offset_split whose p is the smallest."""
+    return next(sp for sp in split["splits"] if sp["fraction"] == split["fraction"])
+
+
+def _split(u: np.ndarray, norms, fraction: float, fit: dict, correlation, max_iterations: int,
            tolerance: float) -> dict:
-    """One split of _offset_split: the offsets before and after `fraction` of the log (rows `order`) and their F test,
-    or {"compared": False, "reason"} when a side cannot determine its offset: under SIDE_ARC_DEG of heading, an offset
+    """One split of _offset_split: the offsets before and after `fraction` of the rows and their F test, or
+    {"compared": False, "reason"} when a side cannot determine its offset: under SIDE_ARC_DEG of heading, an offset
     not determined, fewer effective readings than SIDE_READINGS per parameter, or a fit that fails."""
     from scipy.stats import f as f_distribution
 
     cut = int(round(fraction * len(u)))
     offsets, covariances, effective = [], [], []
-    for side, rows in (("before", order[:cut]), ("after", order[cut:])):
+    for side, rows in (("before", slice(0, cut)), ("after", slice(cut, len(u)))):
         def refused(why):
             return {"fraction": fraction, "compared": False, "reason": f"the readings {side} {why}"}
         try:
@@ -702,8 +707,8 @@ def _split(u: np.ndarray, norms, order: np.ndarray, fraction: float, fit: dict, 
             return refused("do not determine their offset (its standard error above 1 % of the radius)")
         # readings correlated in time carry less: AR(1)'s effective count n(1 − ρ)/(1 + ρ), ρ the side's own
         # residuals' lag-1 autocorrelation (the whole log's would count a moved offset's misfit as correlation)
-        rho = min(max(float(part["serial_correlation"]["lag1"]), 0.0), 0.999)
-        effective.append(len(rows) * (1 - rho) / (1 + rho))
+        rho = float(np.clip(np.nan_to_num(part["serial_correlation"]["lag1"], nan=1.0), 0.0, 0.999))
+        effective.append(len(part["h"]) * (1 - rho) / (1 + rho))
         if effective[-1] < SIDE_READINGS * part["k"]:
             return refused(f"hold {effective[-1]:.0f} effective readings (their residuals' lag-1 autocorrelation "
                            f"{rho:.2f}), under the {SIDE_READINGS * part['k']} a comparison needs")
@@ -711,7 +716,9 @@ def _split(u: np.ndarray, norms, order: np.ndarray, fraction: float, fit: dict, 
         covariances.append(part["covariance"][:2, :2])
     d = offsets[1] - offsets[0]
     c = covariances[0] + covariances[1]
-    statistic = float(d @ np.linalg.solve(c, d)) / 2
+    statistic = float(d @ np.linalg.pinv(c) @ d) / 2
+    if not np.isfinite(statistic):
+        return {"fraction": fraction, "compared": False, "reason": "the two offsets' errors are not finite"}
     return {"fraction": fraction, "offsets": [b.tolist() for b in offsets], "difference": d.tolist(),
             "standard_error": np.sqrt(np.diag(c)).tolist(), "statistic": statistic,
             "p_value": float(f_distribution.sf(statistic, 2, sum(effective) - 2 * fit["k"]))}
@@ -719,12 +726,13 @@ def _split(u: np.ndarray, norms, order: np.ndarray, fraction: float, fit: dict, 
 
 def _moved_words(split: dict, names, units: str) -> str:
     unit = f" {units}" if units else ""
-    best = next(sp for sp in split["splits"] if sp["fraction"] == split["fraction"])
+    best = _best_split(split)
     d, se = best["difference"], best["standard_error"]
     moved = ", ".join(f"{v:+.3g} ± {e:.2g}" for v, e in zip(d, se))
     return (f"the offset moved within the log: fitted to the readings after the first {100 * split['fraction']:.0f} % "
             f"of the log it differs from the offset fitted to those before by ({moved}){unit} in {names[0]}, "
-            f"{names[1]} (F {best['statistic']:.3g}, p = {split['p_value']:.2g} over {len(SPLITS)} places), so the "
+            f"{names[1]} (F {best['statistic']:.3g}, p = {split['p_value']:.2g} over the {split['judged']} places "
+            f"judged), so the "
             f"calibration is of neither and the headings are off by up to "
             f"{np.degrees(np.hypot(*d) / split['radius']):.2g}° — a load placed or removed, a battery or board moved, "
             "a device switched on, or an offset that drifts (a sensor warming up, a wandering field): calibrate each "

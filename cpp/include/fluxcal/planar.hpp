@@ -24,9 +24,9 @@
 //      eigen-decomposition of the column-scaled JᵀJ (a near-null direction gives a huge standard error, not a
 //      failed factorisation). Readings correlated in time (a sensor's own filter, a vehicle's slow wander) make
 //      it too narrow: with AR(1) noise of φ 0.9 the offset lay more than 4 of its errors off in 13 of 20 logs.
-//      When the Sampson residuals, rows in time order, fail a Ljung–Box test (or the sandwich widens an error
-//      ≥ 1.5×), the covariance is the prewhitened Newey–West sandwich over the scores J_kᵀ r_k, as refine.hpp's
-//      (PlanarOptions::serial_correlation). Whether a parameter is determined is judged on the independent one.
+//      When the Sampson residuals, rows in time order, fail a Ljung–Box test and the sandwich widens an error
+//      (or it widens one ≥ 1.5× with ≥ 10 readings per parameter), the covariance is the prewhitened Newey–West
+//      sandwich over the scores J_kᵀ r_k, as refine.hpp's (PlanarOptions::serial_correlation). Whether a parameter is determined is judged on the independent one.
 // Without a field magnitude the scale is relative (as fluxcal.calibrate without a field norm): det A = 1 and
 // field_norm is the fitted ellipse's geometric-mean radius; the covariance is carried to those parameters by the
 // delta method.
@@ -73,7 +73,8 @@ struct PlanarOptions {
   double min_radius_over_noise = 3.0;
   /// Standard errors for readings correlated in time (step 4 above; refine.hpp's rule): `automatic` takes the
   /// Newey–West sandwich when the residuals fail the Ljung–Box test at serial_correlation_alpha and it widens an
-  /// error, or when it widens one ≥ 1.5×; `independent` never (rows not in time order); `newey_west` always.
+  /// error, or when it widens one ≥ 1.5× with ≥ 10 readings per parameter; `independent` never (rows not in time
+  /// order); `newey_west` always.
   SerialCorrelation serial_correlation = SerialCorrelation::automatic;
   double serial_correlation_alpha = 0.01;  ///< in (0, 1); strict, so that white noise keeps σ̂²(JᵀJ)⁻¹
   /// Units of the readings, carried into the result ("" = not stated).

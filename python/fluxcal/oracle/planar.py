@@ -233,6 +233,8 @@ def fit_planar(readings, field_norms=None, shape: str = "sym", max_iterations: i
         targets = np.full(n, field_norm)
     se = np.sqrt(np.maximum(np.diag(cov), 0.0))
     se_independent = np.sqrt(np.maximum(np.diag(independent), 0.0))
+    if lags:  # the widening of the reported parameters (after the delta method)
+        inflation = float(np.max(se[se_independent > 0] / se_independent[se_independent > 0]))
     b = values[:2]
     h = (u - b) @ A
     rho = np.linalg.norm(h, axis=1)
