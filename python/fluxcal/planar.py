@@ -102,14 +102,14 @@ NOT_CALIBRATED_WORDS = "is not calibrated"
 # MOVED_ALPHA. The misfit check (residual σ against the readings' own noise) misses a move under ~10 % of H, which
 # still turns the headings by degrees (a blind check: silent in 8 of 30 logs, 2° RMS). Three places, because a move
 # inside one side makes that side's residuals correlated, which widens its errors and can leave it too few effective
-# readings: halves alone found a step of 10–20 % of H at 1/4 or 3/4 of the log in a third of the logs (a blind check,
-# /work/scratch/s34/blind2), where the split at the step finds it as a step at the middle.
+# readings: halves alone found a step of 10–20 % of H at 1/4 or 3/4 of the log in a third of a blind check's logs,
+# where the split at the step finds it as a step at the middle (bench/RESULTS.md, thirty-fourth session).
 SPLITS = (0.25, 0.5, 0.75)
 # Strict, since a clean log must stay silent and the sides' Newey–West errors run ~1.2× narrow at a few hundred
-# readings, which the F squares: over clean logs with AR(1) noise of φ 0–0.6 (N 300–3000; a review's check and
-# /work/scratch/s34/split_p.py) p fell under 1e-2 in 3–7 % of logs, under 1e-4 in 2 of 1991 (φ 0.5, N 300),
-# under 1e-5 in none. A move of the noise's size at the middle of 300 white readings is still found in 36 of 40
-# (38 at 1e-4), one of 2 % of H in every log (/work/scratch/s34/power_alpha.py).
+# readings, which the F squares: over clean logs with AR(1) noise of φ 0–0.6 (N 300–3000, bench/planar_checks.py)
+# p fell under 1e-2 in 3–7 % of logs, under 1e-4 in 2 of 1991 (φ 0.5, N 300), under 1e-5 in none. A move of the
+# noise's size at the middle of 300 white readings is still found in 36 of 40 (38 at 1e-4), one of 2 % of H in
+# every log.
 MOVED_ALPHA = 1e-5
 # Effective readings (n(1 − ρ)/(1 + ρ) for residuals of lag-1 autocorrelation ρ) per parameter on each side of a
 # split: with 5, AR(1) noise of φ 0.8–0.9 gave 0.5–1 % false alarms, the sides' errors themselves too noisy.
@@ -117,8 +117,8 @@ SIDE_READINGS = 10
 # Heading each side of a split must cover. Under MIN_ARC_DEG: a side's offset on 150° has errors 7–22× a full
 # turn's (_arc_inflation) but they hold — a single circle split at its middle (each side ~180°, which the
 # calibration's own 180° rule had refused by a reading or two) warned in 1 of 1500 clean logs (white and AR(1) noise,
-# N 300–3000) and found a move of 5 % of H in 111 of 120 (/work/scratch/s34/side_arc.py); a blind check's single
-# circles with a move had been silent (99 in 1000 wrong with no warning).
+# N 300–3000, at α 1e-4) and found a move of 5 % of H in 111 of 120; a blind check's single circles with a move had
+# been silent (99 in 1000 wrong with no warning).
 SIDE_ARC_DEG = 150.0
 
 
