@@ -1614,7 +1614,8 @@ def build_parser() -> argparse.ArgumentParser:
     x.add_argument("--drift", default=None, help="also export a drift model's f(T) per temperature range (a JSON of "
                                                  "fluxcal drift fit), in double with a test vector")
     x.add_argument("--force", action="store_true", help="export a calibration whose data did not determine every "
-                                                        "parameter (identifiable NO), marked so in the header")
+                                                        "parameter (identifiable NO), or whose offset moved within "
+                                                        "its log, marked so in the header")
     x.set_defaults(run=cmd_export_c)
 
     d = sub.add_parser("demo", help="simulate a magnetometer, calibrate it, print and plot the result")

@@ -46,6 +46,7 @@ from ._arrays import as_number
 from ._saved import load_json_object
 from .calibration import Calibration
 from .kalman import signal_format
+from .planar import MOVED_ALPHA
 
 INT32_MIN, INT32_MAX = -(2 ** 31), 2 ** 31 - 1
 FLOAT_RELATIVE_TOLERANCE = 1e-6  # float32 result vs double: relative to max(|h|∞, field norm)
@@ -554,7 +555,8 @@ def export_c(cal: Calibration | None, path, q_format=None, name: str | None = No
     part alone; `kalman`: a FixedArKalman, or a JSON path for `load_kalman`; `drift`: a DriftModel or its JSON
     path (f(T) in C); `input_range`: the sensor's full scale in the calibration's units (`fixed_point`). A
     calibration whose summary says its data did not determine every parameter
-    (identifiable false: a yaw-only turn, small tilts) is refused — firmware would apply a guess with
+    (identifiable false: a yaw-only turn, small tilts), or whose offset moved within its log (a planar calibration's
+    offset_split: the calibration is of neither part), is refused — firmware would apply a guess with
     nothing to say so — unless `force`, and then the header says it. Returns what was written
     (ExportResult.describe() says it in one line)."""
     from . import __version__
@@ -607,6 +609,10 @@ def _undetermined(cal: Calibration) -> str | None:
         why = next((w for w in cal.summary.get("warnings", []) if "converge" in w), "")
         return ("the calibration's fit did not converge: the result is an intermediate iterate"
                 + (f" ({why.rstrip('.')})" if why else ""))
+    split = cal.summary.get("offset_split", {})
+    if split.get("compared") and split.get("p_value", 1.0) < MOVED_ALPHA:  # a planar calibration "of neither" part
+        why = next((w for w in cal.summary.get("warnings", []) if w.startswith("the offset moved")), "")
+        return "the offset moved within the calibration's log" + (f" ({why.rstrip('.')})" if why else "")
     if cal.summary.get("identifiable", True):
         return None
     why = next((w for w in cal.summary.get("warnings", []) if "identif" in w or "determin" in w), "")

@@ -194,7 +194,7 @@ def calibrate_planar(samples, field_norm=None, axes=None, units: str | None = No
             raise ValueError(f"{name}: {value!r} must be a positive number")
     if not (isinstance(max_iterations, (int, np.integer)) and max_iterations >= 1):
         raise ValueError(f"max_iterations: {max_iterations!r} must be a whole number ≥ 1")
-    n = len(m)
+    n = n_given = len(m)
     if n < MIN_READINGS:
         raise ValueError(f"samples: {n} readings; a planar calibration fits {PARAMETERS} parameters (offset and a "
                          f"2×2 matrix) and needs at least {MIN_READINGS} — log more readings while the vehicle turns "
@@ -316,6 +316,11 @@ def calibrate_planar(samples, field_norm=None, axes=None, units: str | None = No
                                             times), planar=True), plausible_field(cal, horizontal=True)]
     cal.summary["warnings"] += [w for w in said if w]
     split = _offset_split(u, norms, fit, correlation, max_iterations, tolerance)
+    if split.get("change_row") is not None:  # in the rows as given (the outlier screen's left out), and its time
+        kept = np.arange(n_given) if left_out is None else np.delete(np.arange(n_given), left_out.rows)
+        if times is not None:
+            split["change_time"] = float(times[split["change_row"]])
+        split["change_row"] = int(kept[split["change_row"]])
     cal.summary["offset_split"] = split
     if split["compared"] and split["p_value"] < MOVED_ALPHA:
         cal.summary["warnings"].append(_moved_words(split, names, units))
@@ -369,12 +374,16 @@ def summary_lines(cal: Calibration) -> list[str]:
     if split.get("compared"):
         best = _best_split(split)
         first, second = (", ".join(f"{v:.4g}" for v in b) for b in best["offsets"])
+        moved = split["p_value"] < MOVED_ALPHA
         lines.append(f"  offset before/after   ({first}) then ({second}){u}, split at "
-                     f"{100 * split['fraction']:.0f} % of the log: " + ("MOVED" if split["p_value"] < MOVED_ALPHA else "the same within their errors")
-                     + f" (p = {split['p_value']:.2g})")
-    elif split.get("splits"):  # (not for rows out of time order: nothing to say of them)
+                     f"{100 * split['fraction']:.0f} % of the log: "
+                     + (f"MOVED, most likely at reading {split['change_row']}" if moved else
+                        "the same within their errors") + f" ({_p_text(split)})")
+    elif split.get("splits"):
         half = next(sp for sp in split["splits"] if sp["fraction"] == 0.5)
-        lines.append(f"  offset before/after   not judged: at the middle, {half['reason']}")
+        lines.append(f"  offset before/after   not judged at any split; at the middle, {half['reason']}")
+    elif split:
+        lines.append(f"  offset before/after   not judged: {split['reason']}")
     if s.get("biaxial"):
         lines.append(f"  third axis            {s['not_calibrated']['axis']}: none (a biaxial sensor)")
     elif "not_calibrated" in s:
@@ -662,20 +671,35 @@ def _offset_split(u: np.ndarray, norms, fit: dict, correlation, max_iterations: 
     """Whether the offset moved within the log: the chosen shape fitted to the readings before and after each of
     SPLITS (fractions of the rows, taken in time order as the standard errors take them), the two offsets compared by
     Hotelling's F; {"compared", "splits" (each {"fraction", "offsets", "difference", "standard_error" of each of its
-    components, "statistic", "p_value"} or {"fraction", "compared": False, "reason"}), "p_value" (the smallest
-    split's × the number compared: Bonferroni), "fraction" (that split's), "judged" (how many splits were compared),
-    "radius"} — or {"compared": False, "reason"} when no split can be judged or the rows are not in time order
-    (serial_correlation "independent")."""
+    components, "statistic", "p_value" (this split's own)} or {"fraction", "compared": False, "reason"}),
+    "p_value" (the smallest split's × the number compared: Bonferroni), "fraction" (that split's), "judged" (how many
+    splits were compared), "change_row" (where the move most likely is: _change_row), "radius"} — or
+    {"compared": False, "reason"} when no split can be judged or the rows are not in time order (serial_correlation
+    "independent")."""
     if correlation == _core.SerialCorrelation.independent:
         return {"compared": False, "reason": "serial_correlation 'independent': the rows are not taken in time order"}
-    splits = [_split(u, norms, fraction, fit, correlation, max_iterations, tolerance) for fraction in SPLITS]
+    sides = [[_side(u, norms, rows, fit, correlation, max_iterations, tolerance) for rows in
+              (slice(0, cut), slice(cut, len(u)))] for cut in (int(round(f * len(u))) for f in SPLITS)]
+    # The noise's own correlation in time: the least lag-1 autocorrelation of any side's residuals. A move inside a
+    # side correlates that side's residuals too (a step under the noise), which had left a move at 60 % of a log
+    # unjudged, every split having the move in one side; a side without it shows the noise's own.
+    lags1 = [side["lag1"] for pair in sides for side in pair if "lag1" in side]
+    rho = float(np.clip(min(lags1), 0.0, 0.999)) if lags1 else 0.999
+    splits = [_split(fraction, pair, rho, fit) for fraction, pair in zip(SPLITS, sides)]
     judged = [sp for sp in splits if sp.get("compared", True)]
     if not judged:
         return {"compared": False, "splits": splits,
                 "reason": "; ".join(f"at {100 * sp['fraction']:.0f} %: {sp['reason']}" for sp in splits)}
     best = min(judged, key=lambda sp: sp["p_value"])
+    p = min(1.0, best["p_value"] * len(judged))
+    change = _change_row(u, fit, best["offsets"])
+    if p < MOVED_ALPHA:  # once more from the offsets on either side of that row: the split's mixed a few of the other's
+        at = [_side(u, norms, rows, fit, correlation, max_iterations, tolerance)
+              for rows in (slice(0, change), slice(change, len(u)))]
+        if all("fit" in side for side in at):
+            change = _change_row(u, fit, [side["fit"]["b"] for side in at])
     return {"compared": True, "splits": splits, "fraction": best["fraction"], "judged": len(judged),
-            "radius": fit["radius"], "p_value": min(1.0, best["p_value"] * len(judged))}
+            "radius": fit["radius"], "p_value": p, "change_row": change}
 
 
 def _best_split(split: dict) -> dict:
@@ -683,39 +707,41 @@ def _best_split(split: dict) -> dict:
     return next(sp for sp in split["splits"] if sp["fraction"] == split["fraction"])
 
 
-def _split(u: np.ndarray, norms, fraction: float, fit: dict, correlation, max_iterations: int,
-           tolerance: float) -> dict:
-    """One split of _offset_split: the offsets before and after `fraction` of the rows and their F test, or
-    {"compared": False, "reason"} when a side cannot determine its offset: under SIDE_ARC_DEG of heading, an offset
-    not determined, fewer effective readings than SIDE_READINGS per parameter, or a fit that fails."""
+def _side(u: np.ndarray, norms, rows: slice, fit: dict, correlation, max_iterations: int, tolerance: float) -> dict:
+    """One side of a split: its fit ({"fit", "lag1"}), or {"refused": why} when it cannot determine its offset (under
+    SIDE_ARC_DEG of heading, an offset not determined, a fit that fails)."""
+    try:
+        part = _fit(u[rows], None if norms is None else norms[rows], (fit["shape"],), max_iterations, tolerance,
+                    correlation)
+    except ValueError as exc:
+        return {"refused": f"fit no ellipse ({exc})"}
+    arc, _ = _arc(np.arctan2(part["h"][:, 1], part["h"][:, 0]))
+    if arc < SIDE_ARC_DEG:
+        return {"refused": f"turn through {arc:.0f}° of heading (under {SIDE_ARC_DEG:g}°)"}
+    if not all(part["determined"][:2]):
+        return {"refused": "do not determine their offset (its standard error above 1 % of the radius)"}
+    return {"fit": part, "lag1": float(np.nan_to_num(part["serial_correlation"]["lag1"], nan=1.0))}
+
+
+def _split(fraction: float, sides: list, rho: float, fit: dict) -> dict:
+    """One split of _offset_split from its two sides (_side): the offsets' difference and its F test, or
+    {"compared": False, "reason"} when a side was refused or holds fewer effective readings than SIDE_READINGS per
+    parameter (AR(1)'s count n(1 − ρ)/(1 + ρ), ρ the noise's lag-1 autocorrelation)."""
     from scipy.stats import f as f_distribution
 
-    cut = int(round(fraction * len(u)))
-    offsets, covariances, effective = [], [], []
-    for side, rows in (("before", slice(0, cut)), ("after", slice(cut, len(u)))):
-        def refused(why):
-            return {"fraction": fraction, "compared": False, "reason": f"the readings {side} {why}"}
-        try:
-            part = _fit(u[rows], None if norms is None else norms[rows], (fit["shape"],), max_iterations, tolerance,
-                        correlation)
-        except ValueError as exc:
-            return refused(f"fit no ellipse ({exc})")
-        arc, _ = _arc(np.arctan2(part["h"][:, 1], part["h"][:, 0]))
-        if arc < SIDE_ARC_DEG:
-            return refused(f"turn through {arc:.0f}° of heading (under {SIDE_ARC_DEG:g}°)")
-        if not all(part["determined"][:2]):
-            return refused("do not determine their offset (its standard error above 1 % of the radius)")
-        # readings correlated in time carry less: AR(1)'s effective count n(1 − ρ)/(1 + ρ), ρ the side's own
-        # residuals' lag-1 autocorrelation (the whole log's would count a moved offset's misfit as correlation)
-        rho = float(np.clip(np.nan_to_num(part["serial_correlation"]["lag1"], nan=1.0), 0.0, 0.999))
-        effective.append(len(part["h"]) * (1 - rho) / (1 + rho))
-        if effective[-1] < SIDE_READINGS * part["k"]:
-            return refused(f"hold {effective[-1]:.0f} effective readings (their residuals' lag-1 autocorrelation "
-                           f"{rho:.2f}), under the {SIDE_READINGS * part['k']} a comparison needs")
-        offsets.append(part["b"])
-        covariances.append(part["covariance"][:2, :2])
+    effective = []
+    for name, side in zip(("before", "after"), sides):
+        if "refused" in side:
+            return {"fraction": fraction, "compared": False, "reason": f"the readings {name} {side['refused']}"}
+        effective.append(len(side["fit"]["h"]) * (1 - rho) / (1 + rho))
+        if effective[-1] < SIDE_READINGS * side["fit"]["k"]:
+            return {"fraction": fraction, "compared": False,
+                    "reason": f"the readings {name} hold {effective[-1]:.0f} effective readings (the noise's lag-1 "
+                              f"autocorrelation {rho:.2f}), under the {SIDE_READINGS * side['fit']['k']} a comparison "
+                              "needs: log longer (more turns), or at a lower rate"}
+    offsets = [side["fit"]["b"] for side in sides]
     d = offsets[1] - offsets[0]
-    c = covariances[0] + covariances[1]
+    c = sides[0]["fit"]["covariance"][:2, :2] + sides[1]["fit"]["covariance"][:2, :2]
     statistic = float(d @ np.linalg.pinv(c) @ d) / 2
     if not np.isfinite(statistic):
         return {"fraction": fraction, "compared": False, "reason": "the two offsets' errors are not finite"}
@@ -724,19 +750,36 @@ def _split(u: np.ndarray, norms, fraction: float, fit: dict, correlation, max_it
             "p_value": float(f_distribution.sf(statistic, 2, sum(effective) - 2 * fit["k"]))}
 
 
+def _change_row(u: np.ndarray, fit: dict, offsets) -> int:
+    """The row where the offset most likely moved from the first of `offsets` to the second: the k that minimises the
+    misfit of rows before k to the first offset and of the rest to the second (the fit's matrix and targets; a
+    change point between two known models, by prefix sums). The splits only test a move; this says where it is."""
+    A, targets = fit["A"], fit["targets"]
+    misfit = [(np.linalg.norm((u - np.asarray(b)) @ A.T, axis=1) - targets) ** 2 for b in offsets]
+    before_minus_after = np.concatenate([[0.0], np.cumsum(misfit[0] - misfit[1])])
+    return int(np.argmin(before_minus_after))
+
+
 def _moved_words(split: dict, names, units: str) -> str:
     unit = f" {units}" if units else ""
     best = _best_split(split)
     d, se = best["difference"], best["standard_error"]
     moved = ", ".join(f"{v:+.3g} ± {e:.2g}" for v, e in zip(d, se))
-    return (f"the offset moved within the log: fitted to the readings after the first {100 * split['fraction']:.0f} % "
-            f"of the log it differs from the offset fitted to those before by ({moved}){unit} in {names[0]}, "
-            f"{names[1]} (F {best['statistic']:.3g}, p = {split['p_value']:.2g} over the {split['judged']} places "
-            f"judged), so the "
-            f"calibration is of neither and the headings are off by up to "
-            f"{np.degrees(np.hypot(*d) / split['radius']):.2g}° — a load placed or removed, a battery or board moved, "
-            "a device switched on, or an offset that drifts (a sensor warming up, a wandering field): calibrate each "
-            "part apart, or log again with nothing aboard changing")
+    at = f"reading {split['change_row']}" + (f" (t = {split['change_time']:.6g} s)" if "change_time" in split else "")
+    return (f"the offset moved within the log, most likely at {at}: the offsets fitted before and after "
+            f"{100 * split['fraction']:.0f} % of the log differ by ({moved}){unit} in {names[0]}, {names[1]} "
+            f"(F {best['statistic']:.3g}, {_p_text(split)}), so the calibration is of neither and the headings are off "
+            f"by up to {np.degrees(np.hypot(*d) / split['radius']):.2g}° — a load placed or removed, a battery or "
+            f"board moved, a device switched on, or an offset that drifts (a sensor warming up, a wandering field): "
+            f"calibrate the readings before and after {at} apart, or log again with nothing aboard changing")
+
+
+def _p_text(split: dict) -> str:
+    """The moved-offset check's p as the printout and the warning say it: Bonferroni over the splits judged, and the
+    line."""
+    p = split["p_value"]
+    return (f"p {'< 1e-16' if p < 1e-16 else f'= {p:.2g}'} over the {split['judged']} split"
+            f"{'s' if split['judged'] > 1 else ''} judged; said below {MOVED_ALPHA:g}")
 
 
 def _screen(u: np.ndarray, norms, far: np.ndarray, zeros: np.ndarray, max_iterations: int, tolerance: float):

@@ -31,7 +31,8 @@ def test_a_move_of_the_noise_size_is_said_with_both_offsets(seed):
     np.testing.assert_allclose(half["offsets"][0], OFFSET, atol=4 * max(half["standard_error"]))
     np.testing.assert_allclose(half["difference"], (0.24, -0.18), atol=4 * max(half["standard_error"]))
     said = [w for w in s["warnings"] if w.startswith(MOVED)]
-    assert len(said) == 1 and "calibrate each part apart" in said[0] and "in x, y" in said[0]
+    assert len(said) == 1 and "most likely at reading" in said[0] and "in x, y" in said[0]
+    assert abs(split["change_row"] - 300) <= 30  # where the move is (the splits only test one)
     # the residual σ check does not see a move this small: without the splits nothing was said
     assert not any("the model misses something" in w for w in s["warnings"])
     assert any("MOVED" in line for line in summary_lines(cal))
@@ -61,7 +62,8 @@ def test_a_move_at_a_quarter_of_the_log_is_found_there():
         assert split["compared"] and split["fraction"] == 0.25 and split["p_value"] < MOVED_ALPHA
         quarter = split["splits"][0]
         np.testing.assert_allclose(quarter["difference"], (1.5, 0.5), atol=4 * max(quarter["standard_error"]))
-        assert any(w.startswith(MOVED) and "after the first 25 % of the log" in w for w in s["warnings"])
+        assert any(w.startswith(MOVED) and "before and after 25 % of the log" in w for w in s["warnings"])
+        assert abs(split["change_row"] - 250) <= 25
         assert not any("the model misses something" in w for w in s["warnings"])
 
 
@@ -76,7 +78,7 @@ def test_sides_that_cannot_be_judged_are_not_compared():
     reasons = [sp.get("reason", "") for sp in s["offset_split"]["splits"]]
     assert not s["offset_split"]["compared"] and all("of heading (under 150°)" in r for r in reasons), reasons
     said = [line for line in summary_lines(cal) if line.lstrip().startswith("offset before/after")]
-    assert len(said) == 1 and "not judged: at the middle, the readings before turn through" in said[0]
+    assert len(said) == 1 and "not judged at any split; at the middle, the readings before turn through" in said[0]
 
 
 def test_a_move_in_a_single_circle_is_said():
@@ -112,3 +114,17 @@ def test_the_rows_are_taken_in_time_order_and_times_are_checked():
                       (["a"] * 600, "times: not numbers")):
         with pytest.raises(ValueError, match=said):
             calibrate_planar(m, field_norm=H, times=bad)
+
+
+def test_export_c_refuses_a_calibration_whose_offset_moved(tmp_path):
+    """calibrate said "the calibration is of neither" part: firmware must not get it silently (as an unidentifiable
+    one), only with --force, and then the header says why."""
+    from fluxcal.export_c import export_c
+
+    cal = calibrate_planar(moved(13), field_norm=H)
+    assert any(w.startswith(MOVED) for w in cal.summary["warnings"])
+    with pytest.raises(ValueError, match="cal: the offset moved within the calibration's log .*force=True"):
+        export_c(cal, tmp_path / "moved.h")
+    export_c(cal, tmp_path / "moved.h", force=True)
+    assert "WARNING (exported with --force): the offset moved" in (tmp_path / "moved.h").read_text()
+    export_c(calibrate_planar(turning(13, n=600, phi=0.0), field_norm=H), tmp_path / "clean.h")  # a clean log's
