@@ -4,7 +4,7 @@
 
 errors: the offset's z-scores (estimate − truth)/SE over `logs` logs with AR(1) noise of φ 0 … 0.95 — their spread
         should be about 1 (Newey–West errors), and is shown beside the independent-readings errors'.
-clean:  the moved-offset check's smallest Bonferroni p over clean logs (N 300–3000, φ 0–0.6): how many fall under
+clean:  the moved-offset check's smallest Bonferroni p over clean logs (N 300–3000, φ 0–0.95): how many fall under
         1e-2 … 1e-5 (fluxcal.planar.MOVED_ALPHA is the line).
 power:  how many of 40 logs with an offset that moves by 0.5, 1 and 2 % of H are said at MOVED_ALPHA.
 
@@ -58,7 +58,7 @@ def clean(logs: int) -> None:
     print("| N | φ | turns | compared | p < 1e-2 | < 1e-3 | < 1e-4 | < 1e-5 |")
     print("|---:|---:|---:|---:|---:|---:|---:|---:|")
     for n, phi, turns in ((300, 0.3, 2), (300, 0.5, 2), (1000, 0.5, 2), (1000, 0.3, 4), (3000, 0.5, 6), (600, 0.0, 2),
-                          (2000, 0.6, 4)):
+                          (2000, 0.6, 4), (1000, 0.9, 2), (2000, 0.9, 2), (3000, 0.95, 6)):
         ps = []
         for seed in range(logs):
             split = planar.calibrate_planar(turning(9000 + seed, n, phi, turns), field_norm=H).summary["offset_split"]

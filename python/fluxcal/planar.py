@@ -112,8 +112,10 @@ SPLITS = (0.25, 0.5, 0.75)
 # every log.
 MOVED_ALPHA = 1e-5
 # Effective readings (n(1 − ρ)/(1 + ρ) for residuals of lag-1 autocorrelation ρ) per parameter on each side of a
-# split: with 5, AR(1) noise of φ 0.8–0.9 gave 0.5–1 % false alarms, the sides' errors themselves too noisy.
-SIDE_READINGS = 10
+# split: the sides' Newey–West errors are themselves noisy with fewer. With 5, AR(1) noise of φ 0.8–0.9 gave
+# 0.5–1 % false alarms at α 1e-4; with 10, φ 0.95 (N 3000) 1 in 138 compared logs at 1e-5; with 15 none of 335
+# (φ 0.9–0.95, N 1000–3000), a move of 1 % of H under φ 0.9 still found as often (bench/planar_checks.py).
+SIDE_READINGS = 15
 # Heading each side of a split must cover. Under MIN_ARC_DEG: a side's offset on 150° has errors 7–22× a full
 # turn's (_arc_inflation) but they hold — a single circle split at its middle (each side ~180°, which the
 # calibration's own 180° rule had refused by a reading or two) warned in 1 of 1500 clean logs (white and AR(1) noise,
@@ -673,33 +675,31 @@ def _offset_split(u: np.ndarray, norms, fit: dict, correlation, max_iterations: 
     Hotelling's F; {"compared", "splits" (each {"fraction", "offsets", "difference", "standard_error" of each of its
     components, "statistic", "p_value" (this split's own)} or {"fraction", "compared": False, "reason"}),
     "p_value" (the smallest split's × the number compared: Bonferroni), "fraction" (that split's), "judged" (how many
-    splits were compared), "change_row" (where the move most likely is: _change_row), "radius"} — or
+    splits were compared), "change_row" (when the move is said: where it most likely is, _change_row), "radius"} — or
     {"compared": False, "reason"} when no split can be judged or the rows are not in time order (serial_correlation
     "independent")."""
     if correlation == _core.SerialCorrelation.independent:
         return {"compared": False, "reason": "serial_correlation 'independent': the rows are not taken in time order"}
     sides = [[_side(u, norms, rows, fit, correlation, max_iterations, tolerance) for rows in
               (slice(0, cut), slice(cut, len(u)))] for cut in (int(round(f * len(u))) for f in SPLITS)]
-    # The noise's own correlation in time: the least lag-1 autocorrelation of any side's residuals. A move inside a
-    # side correlates that side's residuals too (a step under the noise), which had left a move at 60 % of a log
-    # unjudged, every split having the move in one side; a side without it shows the noise's own.
-    lags1 = [side["lag1"] for pair in sides for side in pair if "lag1" in side]
-    rho = float(np.clip(min(lags1), 0.0, 0.999)) if lags1 else 0.999
-    splits = [_split(fraction, pair, rho, fit) for fraction, pair in zip(SPLITS, sides)]
+    splits = [_split(fraction, pair, fit) for fraction, pair in zip(SPLITS, sides)]
     judged = [sp for sp in splits if sp.get("compared", True)]
     if not judged:
         return {"compared": False, "splits": splits,
                 "reason": "; ".join(f"at {100 * sp['fraction']:.0f} %: {sp['reason']}" for sp in splits)}
     best = min(judged, key=lambda sp: sp["p_value"])
     p = min(1.0, best["p_value"] * len(judged))
-    change = _change_row(u, fit, best["offsets"])
-    if p < MOVED_ALPHA:  # once more from the offsets on either side of that row: the split's mixed a few of the other's
+    result = {"compared": True, "splits": splits, "fraction": best["fraction"], "judged": len(judged),
+              "radius": fit["radius"], "p_value": p}
+    if p < MOVED_ALPHA:
+        change = _change_row(u, fit, best["offsets"])
+        # once more from the offsets on either side of that row: the split's sides held a few of the other's readings
         at = [_side(u, norms, rows, fit, correlation, max_iterations, tolerance)
               for rows in (slice(0, change), slice(change, len(u)))]
         if all("fit" in side for side in at):
             change = _change_row(u, fit, [side["fit"]["b"] for side in at])
-    return {"compared": True, "splits": splits, "fraction": best["fraction"], "judged": len(judged),
-            "radius": fit["radius"], "p_value": p, "change_row": change}
+        result["change_row"] = change
+    return result
 
 
 def _best_split(split: dict) -> dict:
@@ -723,16 +723,20 @@ def _side(u: np.ndarray, norms, rows: slice, fit: dict, correlation, max_iterati
     return {"fit": part, "lag1": float(np.nan_to_num(part["serial_correlation"]["lag1"], nan=1.0))}
 
 
-def _split(fraction: float, sides: list, rho: float, fit: dict) -> dict:
+def _split(fraction: float, sides: list, fit: dict) -> dict:
     """One split of _offset_split from its two sides (_side): the offsets' difference and its F test, or
     {"compared": False, "reason"} when a side was refused or holds fewer effective readings than SIDE_READINGS per
-    parameter (AR(1)'s count n(1 − ρ)/(1 + ρ), ρ the noise's lag-1 autocorrelation)."""
+    parameter (AR(1)'s count n(1 − ρ)/(1 + ρ), ρ the noise's lag-1 autocorrelation: the lesser of the two sides'
+    residuals'. A move inside one side correlates that side's residuals too, a step under the noise: judged by its
+    own, a move at 60 % of a log was left unjudged, every split having it in one side.)"""
     from scipy.stats import f as f_distribution
 
-    effective = []
     for name, side in zip(("before", "after"), sides):
         if "refused" in side:
             return {"fraction": fraction, "compared": False, "reason": f"the readings {name} {side['refused']}"}
+    rho = float(np.clip(min(side["lag1"] for side in sides), 0.0, 0.999))
+    effective = []
+    for name, side in zip(("before", "after"), sides):
         effective.append(len(side["fit"]["h"]) * (1 - rho) / (1 + rho))
         if effective[-1] < SIDE_READINGS * side["fit"]["k"]:
             return {"fraction": fraction, "compared": False,
@@ -756,8 +760,8 @@ def _change_row(u: np.ndarray, fit: dict, offsets) -> int:
     change point between two known models, by prefix sums). The splits only test a move; this says where it is."""
     A, targets = fit["A"], fit["targets"]
     misfit = [(np.linalg.norm((u - np.asarray(b)) @ A.T, axis=1) - targets) ** 2 for b in offsets]
-    before_minus_after = np.concatenate([[0.0], np.cumsum(misfit[0] - misfit[1])])
-    return int(np.argmin(before_minus_after))
+    before_minus_after = np.cumsum(misfit[0] - misfit[1])[:-1]  # k = 1 … N − 1: a reading on either side
+    return int(np.argmin(before_minus_after)) + 1
 
 
 def _moved_words(split: dict, names, units: str) -> str:
