@@ -258,7 +258,8 @@ class Calibration:
             # each row of A on its own line, columns aligned (the nested-list form indents all but the first)
             rows = np.array2string(matrix).replace("[[", "[").replace("]]", "]").splitlines()
             rows = "\n".join("    " + line.strip() for line in rows)
-            return (f"{self.model or 'calibration'}: h = A (m - b), |h| = {self.field_norm:.6g}{hu}\n"
+            horizontal = " (horizontal)" if self.summary.get("method") == "planar" else ""
+            return (f"{self.model or 'calibration'}: h = A (m - b), |h|{horizontal} = {self.field_norm:.6g}{hu}\n"
                     f"  offset b{axes} = {_significant(offset, 7)}{u}\n"
                     f"  matrix A{axes} =\n{rows}")
 

@@ -106,7 +106,7 @@ class Outliers:
             plain = len(self.rows) - sum(self.kinds.get(k, 0) for k in ("zero", "rail", "overflow", "gross", "far"))
             many = (f"; glitches are rarely so many ({100 * plain / n:.1f} % of the readings): a second group of "
                     "readings (an offset that moved within the log, two sessions in one file) or a disturbance would "
-                    "look so, and the fit of the rest may be biased by it — fluxcal diagnose looks for the cause"
+                    f"look so, and the fit of the rest may be biased by it — {self._cause_tool()}"
                     if plain > MANY_OUTLIERS * n else "")
             zero_line = (f"; exact zeros, suspect before they are measured, are judged at "
                          f"{self.zero_threshold:.1f} σ" if self.zeros_within else "")
@@ -121,8 +121,13 @@ class Outliers:
             shown = ", ".join(f"{a}–{b} (up to {z:.0f} σ)" for a, b, z in self.stretches[:4])
             out.append(f"rows {shown}{', …' if len(self.stretches) > 4 else ''} lie off {self.model} for a stretch "
                        f"of more than {GLITCH_RUN} readings: a disturbance or a drift rather than glitches, kept in "
-                       "the fit; fluxcal diagnose looks for the cause")
+                       f"the fit; {self._cause_tool()}")
         return out
+
+    def _cause_tool(self) -> str:
+        """Where to look for the cause: diagnose takes a 3-D log, not a planar one (it refuses yaw-only readings)."""
+        return ("calibrate --planar --plot shows them against the heading" if self.model.startswith("the ellipse")
+                else "fluxcal diagnose looks for the cause")
 
 
 def _distances(cal, m: np.ndarray, norms=None) -> np.ndarray:

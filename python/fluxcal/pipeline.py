@@ -274,7 +274,7 @@ def noise_line(summary: dict, unit: str, raw: np.ndarray | None = None, t=None, 
     the `raw` readings' third differences in time order (`t`), as `diagnose` estimates it. None for rows that are
     not a time series (consecutive readings differ about as much as any two, e.g. `fluxcal simulate`'s independent
     orientations): their differences measure the turning, not the noise. `planar`: calibrate_planar's words."""
-    from .diagnose.core import time_series_noise
+    from .diagnose.core import MAX_STRIDE, time_series_noise
 
     if "readings_noise_sigma" in summary:
         sigma, how = summary["readings_noise_sigma"], noise_method(summary["readings_noise_stride"])
@@ -287,8 +287,11 @@ def noise_line(summary: dict, unit: str, raw: np.ndarray | None = None, t=None, 
         return None
     ratio = summary["noise_sigma"] / sigma
     times = f"{ratio:.2f}×" if ratio < 10 else f"{ratio:.0f}×"
+    # (noise correlated over more readings than the stride is a second cause: a sensor's strong low-pass filter)
     what = (f"the residual σ is {times} it: the model misses more than the noise"
-            + ("" if planar else " (fluxcal diagnose names what)") if ratio > NOISE_RATIO else
+            + ("" if planar else " (fluxcal diagnose names what)")
+            + (", or the noise is correlated over more than these readings" if summary.get(
+                "readings_noise_stride", 1) >= MAX_STRIDE else "") if ratio > NOISE_RATIO else
             f"above the residual σ ({times} it): the readings change between rows faster than their differences "
             "can tell from noise, and the residual σ bounds it" if ratio < 1 / NOISE_RATIO else
             f"the residual σ is {times} it")

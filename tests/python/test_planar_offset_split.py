@@ -128,3 +128,13 @@ def test_export_c_refuses_a_calibration_whose_offset_moved(tmp_path):
     export_c(cal, tmp_path / "moved.h", force=True)
     assert "WARNING (exported with --force): the offset moved" in (tmp_path / "moved.h").read_text()
     export_c(calibrate_planar(turning(13, n=600, phi=0.0), field_norm=H), tmp_path / "clean.h")  # a clean log's
+
+
+def test_the_printout_names_the_horizontal_field_and_a_planar_tool_for_stretches():
+    """A planar run's headline |h| is the horizontal field's; a stretch off the ellipse points to --plot, not to
+    fluxcal diagnose (which refuses yaw-only logs)."""
+    m = moved(14, n=300, by=(2.4, 1.8), at=0.15)  # 15 % of H near the start: the first readings lie off for a stretch
+    cal = calibrate_planar(m, field_norm=H)
+    assert str(cal).splitlines()[0].endswith("|h| (horizontal) = 20 (no unit stated)")
+    stretch = [w for w in cal.summary["warnings"] if "for a stretch" in w]
+    assert stretch and "calibrate --planar --plot shows them" in stretch[0] and "diagnose" not in stretch[0]
