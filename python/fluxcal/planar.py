@@ -353,9 +353,9 @@ def summary_lines(cal: Calibration) -> list[str]:
              f"(raw |({', '.join(names)})|)",
              f"  horizontal |h| std/mean after    {100 * s['norm_std_over_mean']:.3f} %"
              + ("   (against each reading's own H)" if "field_norms" in s else ""),
-             f"  residual RMS          {s['residual_rms']:.6g}{hu}",
-             f"  residual σ            {s['noise_sigma']:.4g}{u}   (from the fit's residuals: the noise plus whatever "
-             "the model misses)",
+             f"  residual RMS          {s['residual_rms']:.6g}{hu}   (of the corrected |h| − H)",
+             f"  residual σ            {s['noise_sigma']:.4g}{u}   (the readings' distance to the fitted ellipse: the "
+             "noise plus whatever the model misses)",
              *filter(None, [noise_line(s, u, planar=True)]),
              f"  scale                 " + ("the horizontal field given" if s["scale"] == "given" else
                                            f"relative: |h| = the fitted mean radius {cal.field_norm:.6g}{hu} "
