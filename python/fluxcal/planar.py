@@ -97,19 +97,18 @@ TOTAL_FIELD_RATIO = 1.25
 UNITS_RATIO = 5.0  # beyond this, another unit (as every fluxcal solver's "check the units")
 NOT_CALIBRATED_WORDS = "is not calibrated"
 # Whether the offset moved within the log: the offsets fitted to the readings before and after each of SPLITS
-# (fractions of the heading turned over the log, in time order) compared by Hotelling's F on 2 degrees of freedom (the two sides' covariances
-# Newey–West where the readings are correlated), the smallest p × the splits compared (Bonferroni) against
-# MOVED_ALPHA. The misfit check (residual σ against the readings' own noise) misses a move under ~10 % of H, which
-# still turns the headings by degrees (a blind check: silent in 8 of 30 logs, 2° RMS). Three places, because a move
-# inside one side makes that side's residuals correlated, which widens its errors and can leave it too few effective
-# readings: halves alone found a step of 10–20 % of H at 1/4 or 3/4 of the log in a third of a blind check's logs,
-# where the split at the step finds it as a step at the middle (bench/RESULTS.md, thirty-fourth session).
+# (fractions of the heading turned over the log, in time order) compared by Hotelling's F on 2 degrees of freedom
+# (the two sides' covariances Newey–West where the readings are correlated), the smallest p × the splits compared
+# (Bonferroni) against MOVED_ALPHA. The misfit check (residual σ against the readings' own noise) misses a move under
+# ~10 % of H, which still turns the headings by degrees (a blind check: silent in 8 of 30 logs, 2° RMS). Three places,
+# because a move inside one side makes that side's residuals correlated, which widens its errors and can leave it too
+# few effective readings: halves alone found a step of 10–20 % of H at 1/4 or 3/4 of the log in a third of a blind
+# check's logs, where the split at the step finds it as a step at the middle (bench/RESULTS.md, thirty-fourth session).
 SPLITS = (0.25, 0.5, 0.75)
 # Strict, since a clean log must stay silent and the sides' Newey–West errors run ~1.2× narrow at a few hundred
-# readings, which the F squares: over clean logs with AR(1) noise of φ 0–0.6 (N 300–3000, bench/planar_checks.py)
-# p fell under 1e-2 in 3–7 % of logs, under 1e-4 in 2 of 1991 (φ 0.5, N 300), under 1e-5 in none. A move of the
-# noise's size at the middle of 300 white readings is still found in 36 of 40 (38 at 1e-4), one of 2 % of H in
-# every log.
+# readings, which the F squares: over clean logs with AR(1) noise of φ 0–0.95 (N 300–3000, bench/planar_checks.py)
+# p fell under 1e-2 in 2–6 % of logs, under 1e-4 in 3 of 2102, under 1e-5 in 1. A move of the noise's size at the
+# middle of 300 white readings is still found in 36 of 40 (38 at 1e-4), one of 2 % of H in every log.
 MOVED_ALPHA = 1e-5
 # Effective readings (n(1 − ρ)/(1 + ρ) for residuals of lag-1 autocorrelation ρ) per parameter on each side of a
 # split: the sides' Newey–West errors are themselves noisy with fewer. With 5, AR(1) noise of φ 0.8–0.9 gave
@@ -171,8 +170,8 @@ def calibrate_planar(samples, field_norm=None, axes=None, units: str | None = No
     or "relative"), shape and shapes (BIC), start, converged, iterations, readings_extent (the largest |component|
     read, for export-c's range), outliers (with outliers="drop"), serial_correlation (lag1, ljung_box_p, lags: 0 =
     independent readings assumed, inflation, standard_errors_independent), offset_split (the offsets fitted before
-    and after SPLITS of the log in time, each split's difference, its standard errors, Hotelling's F and p, the
-    smallest p × the splits compared and its split; or compared False and the reason: a warning says when the
+    and after SPLITS of the turning, in time order, each split's difference, its standard errors, Hotelling's F and
+    p, the smallest p × the splits compared and its split, the change row when a move is said; or compared False and the reason: a warning says when the
     offset moved, p < MOVED_ALPHA), warnings.
 
     Raises ValueError naming the input on: too few readings, NaN/Inf, readings that hardly change, readings
@@ -220,8 +219,10 @@ def calibrate_planar(samples, field_norm=None, axes=None, units: str | None = No
         norms = None if norms is None else np.delete(norms, left_out.rows)
         times = None if times is None else np.delete(times, left_out.rows)
         n = len(m)
-        if len(np.setdiff1d(left_out.rows, np.union1d(far, zeros))):  # found again without them: a burst of readings 2–5× the field,
-            warnings = []                           # under the far rule, had tipped the plane by 5–15° (blind check)
+        # found again without them: a burst of readings 2–5× the field, under the far rule, had tipped the plane by
+        # 5–15° (a blind check)
+        if len(np.setdiff1d(left_out.rows, np.union1d(far, zeros))):
+            warnings = []
             plane = _plane(m, axes, axis_tolerance, planar_ratio, warnings)
         u = m @ plane["basis"].T
     fit = _fit(u, norms, shapes, max_iterations, tolerance, correlation)

@@ -26,7 +26,8 @@
 //      it too narrow: with AR(1) noise of φ 0.9 the offset lay more than 4 of its errors off in 13 of 20 logs.
 //      When the Sampson residuals, rows in time order, fail a Ljung–Box test and the sandwich widens an error
 //      (or it widens one ≥ 1.5× with ≥ 10 readings per parameter), the covariance is the prewhitened Newey–West
-//      sandwich over the scores J_kᵀ r_k, as refine.hpp's (PlanarOptions::serial_correlation). Whether a parameter is determined is judged on the independent one.
+//      sandwich over the scores J_kᵀ r_k, as refine.hpp's (PlanarOptions::serial_correlation). Whether a
+//      parameter is determined is judged on the independent one.
 // Without a field magnitude the scale is relative (as fluxcal.calibrate without a field norm): det A = 1 and
 // field_norm is the fitted ellipse's geometric-mean radius; the covariance is carried to those parameters by the
 // delta method.
