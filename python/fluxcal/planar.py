@@ -171,8 +171,8 @@ def calibrate_planar(samples, field_norm=None, axes=None, units: str | None = No
     read, for export-c's range), outliers (with outliers="drop"), serial_correlation (lag1, ljung_box_p, lags: 0 =
     independent readings assumed, inflation, standard_errors_independent), offset_split (the offsets fitted before
     and after SPLITS of the turning, in time order, each split's difference, its standard errors, Hotelling's F and
-    p, the smallest p × the splits compared and its split, the change row when a move is said; or compared False and the reason: a warning says when the
-    offset moved, p < MOVED_ALPHA), warnings.
+    p, the smallest p × the splits compared and its split, the change row when a move is said; or compared False and
+    the reason: a warning says when the offset moved, p < MOVED_ALPHA), warnings.
 
     Raises ValueError naming the input on: too few readings, NaN/Inf, readings that hardly change, readings
     that span three dimensions well enough for fluxcal.calibrate to determine every axis, an arc under `min_arc`,
