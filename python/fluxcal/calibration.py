@@ -42,13 +42,18 @@ class Calibration:
     def __post_init__(self):
         self.offset, self.matrix, self.field_norm = self.checked_fields("Calibration")
 
+    def _plane_axes(self) -> list | None:
+        """A planar calibration's plane axes (summary["plane_axes"]: two sensor axes, or a fitted plane's e1, e2),
+        None for a 3-D calibration."""
+        return self.summary.get("plane_axes") if self.summary.get("method") == "planar" else None
+
     @property
     def plane(self) -> dict | None:
         """A planar calibration of two sensor axes (fluxcal.calibrate_planar): {"axes": "xy", "offset": its 2 values,
         "matrix": its 2×2} — what the calibration is, without the third axis that passes through (a biaxial
         sensor has none). None for a 3-D calibration or one in a fitted, tilted plane (its 3×3 is the plane's)."""
-        axes = self.summary.get("plane_axes") if self.summary.get("method") == "planar" else None
-        if not (isinstance(axes, list) and len(axes) == 2 and all(a in ("x", "y", "z") for a in axes)):
+        axes = self._plane_axes()
+        if not (isinstance(axes, list) and len(axes) == 2 and set(axes) <= set("xyz")):
             return None
         idx = ["xyz".index(a) for a in axes]
         return {"axes": "".join(axes), "offset": self.offset[idx], "matrix": self.matrix[np.ix_(idx, idx)]}
@@ -100,7 +105,7 @@ class Calibration:
     def _biaxial_axes(self, rec) -> str | None:
         """A biaxial Recording's sensor axes for this calibration: by the columns' names, or what said them; when
         nothing did, the calibration's plane's (taken, and said in rec.biaxial_axes_from)."""
-        plane = self.summary.get("plane_axes") if self.summary.get("method") == "planar" else None
+        plane = self._plane_axes()
         if not rec.biaxial_axes_from and plane is not None and set(plane) <= set("xyz"):
             rec.take_axes("".join(sorted(plane)), "the calibration")
         return rec.biaxial_axes
@@ -109,7 +114,7 @@ class Calibration:
         """apply() of a biaxial sensor's readings (N×2 or one row of 2) in the sensor axes `axes` ("xz"; None: the
         calibration's plane's, in its order): embedded with the missing axis 0, corrected, the plane's components
         returned in the readings' axis order."""
-        plane = self.summary.get("plane_axes") if self.summary.get("method") == "planar" else None
+        plane = self._plane_axes()
         if plane is None:
             raise ValueError(f"{source}: 2 field columns (a biaxial sensor's), and this is a 3-D calibration, "
                              "which needs three axes' readings; a biaxial sensor takes a planar calibration "
@@ -120,13 +125,11 @@ class Calibration:
         if axes is not None and set(axes) != set(plane):
             raise ValueError(f"{source}: the sensor's {' and '.join(axes)} axes, and the calibration is of axes "
                              f"{' and '.join(plane)}: apply a calibration of these axes")
-        columns = ["xyz".index(a) for a in (axes or plane)]  # the readings' own axis order (a Recording's: x before z)
+        axes = axes or "".join(plane)  # the readings' own axis order (a Recording's: x before z)
         rows = np.atleast_2d(np.asarray(readings, dtype=float))
         if rows.ndim != 2 or rows.shape[1] != 2:
             raise ValueError(f"{source}: shape {np.shape(readings)}, expected (N, 2) readings of a biaxial sensor")
-        m = np.zeros((len(rows), 3))
-        m[:, columns] = rows
-        h = ((m - self.offset) @ self.matrix.T)[:, columns]
+        h = ((in_sensor_axes(rows, axes) - self.offset) @ self.matrix.T)[:, ["xyz".index(a) for a in axes]]
         return h[0] if np.ndim(readings) == 1 else h
 
     def unit_factor(self, units: str, source: str = "samples") -> float:
@@ -310,3 +313,10 @@ def _positions_determined(data: dict) -> bool:
         return all(d for name, d in zip(data["parameter_names"], data["determined"]) if name.startswith(("U0", "K_")))
     return not any("poorly determined" in w for w in data.get("warnings", []))
 
+
+def in_sensor_axes(readings: np.ndarray, axes: str) -> np.ndarray:
+    """A biaxial sensor's N×2 readings (or corrected fields) as N×3 rows in the sensor axes `axes` ("xz": the two
+    columns are x and z), the third 0: what a planar calibration of those axes takes and passes through."""
+    out = np.zeros((len(readings), 3))
+    out[:, ["xyz".index(a) for a in axes]] = readings
+    return out

@@ -14,7 +14,7 @@ import numpy as np
 
 from . import __version__, cmake_dir
 from ._arrays import past_range
-from .calibration import TESLA_PER_UNIT, Calibration, _significant
+from .calibration import TESLA_PER_UNIT, Calibration, _significant, in_sensor_axes
 from .io import Recording, read_csv, read_recording, write_csv, write_recording
 from .io.formats import WRITERS
 from .io.columns import unit_name
@@ -711,14 +711,6 @@ def _naming_the_input(message: str, args) -> str:
     return f"{inputs[0]}: {message}"
 
 
-def _in_sensor_axes(readings: np.ndarray, axes: str) -> np.ndarray:
-    """A biaxial sensor's N×2 readings (or corrected fields) as N×3 rows in the sensor axes `axes`, the third 0 (a
-    planar calibration passes the third through, with no offset: its h is then 0, and is not written)."""
-    out = np.zeros((len(readings), 3))
-    out[:, ["xyz".index(a) for a in axes]] = readings
-    return out
-
-
 def cmd_apply(args) -> int:
     cal = Calibration.load(args.calibration)
     rec = read_recording(args.file, columns=args.columns, units=args.units, bad_lines=args.bad_lines,
@@ -746,9 +738,9 @@ def cmd_apply(args) -> int:
         if not named:
             print(f"note: {args.file}: columns {', '.join(rec.mag_names())} taken as the calibration's axes "
                   f"{', '.join(axes)} (their names do not say which)")
-        h = _in_sensor_axes(h, axes)
+        h = in_sensor_axes(h, axes)
     raw = (rec.samples(check_finite=False) if axes is None
-           else _in_sensor_axes(rec.samples(check_finite=False, biaxial=True), axes))
+           else in_sensor_axes(rec.samples(check_finite=False, biaxial=True), axes))
     bad = ~np.isfinite(h).all(axis=1) & np.isfinite(raw).all(axis=1)
     if bad.any():  # a finite reading corrected to inf: nothing is written
         raise ValueError(f"{args.calibration}: correcting {args.file} overflows from row {int(np.argmax(bad))} on "

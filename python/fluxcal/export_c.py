@@ -46,7 +46,7 @@ from ._arrays import as_number
 from ._saved import load_json_object
 from .calibration import Calibration
 from .kalman import signal_format
-from .planar import MOVED_ALPHA
+from .planar import offset_moved
 
 INT32_MIN, INT32_MAX = -(2 ** 31), 2 ** 31 - 1
 FLOAT_RELATIVE_TOLERANCE = 1e-6  # float32 result vs double: relative to max(|h|∞, field norm)
@@ -609,8 +609,7 @@ def _undetermined(cal: Calibration) -> str | None:
         why = next((w for w in cal.summary.get("warnings", []) if "converge" in w), "")
         return ("the calibration's fit did not converge: the result is an intermediate iterate"
                 + (f" ({why.rstrip('.')})" if why else ""))
-    split = cal.summary.get("offset_split", {})
-    if split.get("compared") and split.get("p_value", 1.0) < MOVED_ALPHA:  # a planar calibration "of neither" part
+    if offset_moved(cal.summary):  # a planar calibration "of neither" part
         why = next((w for w in cal.summary.get("warnings", []) if w.startswith("the offset moved")), "")
         return "the offset moved within the calibration's log" + (f" ({why.rstrip('.')})" if why else "")
     if cal.summary.get("identifiable", True):

@@ -216,8 +216,7 @@ def readings_noise(cal: Calibration, m: np.ndarray, t=None, field_norms=None) ->
     """The readings' own noise σ (their unit) and the stride it was measured at, for the magnitude fit `cal`
     (diagnose.core.residual_noise: third differences of its residuals in time order at strides over which the sensor
     turns less than ~40° (at most 8 readings apart), so that noise correlated over so few readings counts whole
-    while what the model misses, which varies
-    with the direction, does not). `t`: the rows' times, else row order; `field_norms`: each row's |field|. None for
+    while what the model misses, which varies with the direction, does not). `t`: the rows' times, else row order; `field_norms`: each row's |field|. None for
     rows that are no time series."""
     from .diagnose.core import residual_noise
 

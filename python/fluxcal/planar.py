@@ -325,7 +325,7 @@ def calibrate_planar(samples, field_norm=None, axes=None, units: str | None = No
             split["change_time"] = float(times[split["change_row"]])
         split["change_row"] = int(kept[split["change_row"]])
     cal.summary["offset_split"] = split
-    if split["compared"] and split["p_value"] < MOVED_ALPHA:
+    if offset_moved(cal.summary):
         cal.summary["warnings"].append(_moved_words(split, names, units))
     return cal
 
@@ -377,7 +377,7 @@ def summary_lines(cal: Calibration) -> list[str]:
     if split.get("compared"):
         best = _best_split(split)
         first, second = (", ".join(f"{v:.4g}" for v in b) for b in best["offsets"])
-        moved = split["p_value"] < MOVED_ALPHA
+        moved = offset_moved(s)
         lines.append(f"  offset before/after   ({first}) then ({second}){u}, split at "
                      f"{100 * split['fraction']:.0f} % of the turning: "
                      + (f"MOVED, most likely at reading {split['change_row']}" if moved else
@@ -668,6 +668,13 @@ def _fit(u: np.ndarray, norms, shapes: tuple, max_iterations: int, tolerance: fl
     larger = SHAPES[SHAPES.index(chosen) + 1:]
     result["undetermined_larger"] = [s for s in larger if s in table and not table[s].get("identifiable", False)]
     return result
+
+
+def offset_moved(summary: dict) -> bool:
+    """Whether a planar calibration's summary says its offset moved within the log (offset_split, p < MOVED_ALPHA):
+    the calibration is of neither part (export-c refuses it without force)."""
+    split = summary.get("offset_split", {})
+    return bool(split.get("compared")) and split.get("p_value", 1.0) < MOVED_ALPHA
 
 
 def _offset_split(u: np.ndarray, norms, fit: dict, correlation, max_iterations: int, tolerance: float) -> dict:
