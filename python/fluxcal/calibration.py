@@ -262,8 +262,11 @@ class Calibration:
             rows = np.array2string(matrix).replace("[[", "[").replace("]]", "]").splitlines()
             rows = "\n".join("    " + line.strip() for line in rows)
             horizontal = " (horizontal)" if self.summary.get("method") == "planar" else ""
+            # a planar calibration's offset has no component along the normal: not a measured 0 but none removed
+            normal = self.summary.get("not_calibrated", {}).get("axis") if plane is None else None
+            along = "" if normal is None else f"   (none along {normal}: not calibrated)"
             return (f"{self.model or 'calibration'}: h = A (m - b), |h|{horizontal} = {self.field_norm:.6g}{hu}\n"
-                    f"  offset b{axes} = {_significant(offset, 7)}{u}\n"
+                    f"  offset b{axes} = {_significant(offset, 7)}{u}{along}\n"
                     f"  matrix A{axes} =\n{rows}")
 
 

@@ -724,8 +724,6 @@ def cmd_apply(args) -> int:
     if "text_columns" in rec.metadata:
         print(f"note: text columns are not written to {args.output}: {rec.metadata['text_columns']}")
     factor = cal.unit_factor(rec.field_units(), f"{args.file}")
-    if factor != 1.0:
-        print(f"readings in {rec.field_units()} converted to the calibration's {cal.units} (× {factor:g})")
     # a biaxial sensor's two columns (a planar calibration's axes): corrected in its axes, those two written
     axes, named = None, (rec.biaxial_axes_from if rec.biaxial() else None)
     with np.errstate(over="ignore", invalid="ignore"):  # said below, naming the files
@@ -733,6 +731,8 @@ def cmd_apply(args) -> int:
             h = cal.apply(rec)
         except ValueError as exc:  # (Calibration.apply names the recording; here the calibration too)
             raise ValueError(f"{args.calibration} on {exc}") from None
+    if factor != 1.0:  # (said once applied: a refusal had followed a conversion it never made)
+        print(f"readings in {rec.field_units()} converted to the calibration's {cal.units} (× {factor:g})")
     if named is not None:
         axes = rec.biaxial_axes
         if not named:

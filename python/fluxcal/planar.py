@@ -95,7 +95,6 @@ THICK_OVER_NOISE = 2.0
 # inhabited world), while a sensor's gain and a vehicle's soft iron in a field unit stay within ~±20 %.
 TOTAL_FIELD_RATIO = 1.25
 UNITS_RATIO = 5.0  # beyond this, another unit (as every fluxcal solver's "check the units")
-NOT_CALIBRATED_WORDS = "is not calibrated"
 # Whether the offset moved within the log: the offsets fitted to the readings before and after each of SPLITS
 # (fractions of the heading turned over the log, in time order) compared by Hotelling's F on 2 degrees of freedom
 # (the two sides' covariances Newey–West where the readings are correlated), the smallest p × the splits compared
@@ -390,7 +389,8 @@ def summary_lines(cal: Calibration) -> list[str]:
     if s.get("biaxial"):
         lines.append(f"  third axis            {s['not_calibrated']['axis']}: none (a biaxial sensor)")
     elif "not_calibrated" in s:
-        lines.append(f"  not calibrated        {s['not_calibrated']['axis']} (passes through, × the plane's mean gain)")
+        lines.append(f"  not calibrated        {s['not_calibrated']['axis']} (passes through, × the plane's mean gain: "
+                     "the turns leave its offset and gain no trace; tumble the sensor for a 3-D calibration)")
     return lines
 
 
@@ -505,8 +505,8 @@ def _plane(m: np.ndarray, axes, axis_tolerance: float, planar_ratio: float, warn
                         f"({AXES[k]}; normal {np.round(normal, 4).tolist()}): a tilted mounting. Calibrated in the "
                         f"fitted plane, axes e1 = {np.round(e1, 4).tolist()}, e2 = {np.round(e2, 4).tolist()} "
                         "(summary plane_basis): the heading is the angle of h in (e1, e2), not atan2(h_y, h_x); "
-                        "h along the normal passes through uncalibrated. axes='xy' (or the two axes nearest the "
-                        "plane) calibrates two sensor axes as they are instead")
+                        "h along the normal passes through uncalibrated. axes='xy' (--planar xy; or the two axes "
+                        "nearest the plane) calibrates two sensor axes as they are instead")
     return {"basis": basis, "names": names, "normal": normal, "normal_name": normal_name, "tilt": tilt,
             "ratio": ratio, "embed": basis, "biaxial": False}
 
@@ -837,14 +837,7 @@ def _screen(u: np.ndarray, norms, far: np.ndarray, zeros: np.ndarray, max_iterat
 def _notes(m: np.ndarray, summary: dict, plane: dict, fit: dict, norms, units: str, planar_ratio: float) -> list[str]:
     from .io.columns import FIELD_UNITS
 
-    notes = []
-    if plane["normal_name"] is not None and not plane["biaxial"]:  # (a biaxial sensor has no third axis to say of)
-        axis = plane["normal_name"]
-        what = f"axis {axis}" if axis in tuple(AXES) else "the plane's normal"
-        notes.append(f"{what} {NOT_CALIBRATED_WORDS}: the vehicle turns about it, so the field's component along it "
-                     "never changes and its offset and gain leave no trace in the readings; it passes through, "
-                     "only scaled by the plane's mean gain into h's unit (its offset not removed). Tumble the sensor "
-                     "(fluxcal calibrate without the planar option) for a 3-D calibration")
+    notes = []  # (the axis along the normal, not calibrated by design, is summary["not_calibrated"], printed)
     notes += fit["correlated"]
     if not summary["converged"]:
         notes.append(f"the planar fit did not converge in {summary['iterations']} iterations: the result is the last "

@@ -153,6 +153,12 @@ def test_what_needs_three_axes_refuses_two_columns_naming_the_file(tmp_path, cap
     code, out, err = run(capsys, "apply", tmp_path / "3d.json", log, "-o", tmp_path / "o.csv")
     assert code == 2 and "2 field columns" in err and "is a 3-D calibration" in err, err
     assert not (tmp_path / "o.csv").exists()
+    # the refusal is all it says: no unit conversion (µT log, nT calibration) printed before it as if made
+    nt = tmp_path / "3d_nT.json"
+    fluxcal.write_csv(three, _three_axis(300), units={c: "nT" for c in ("mx", "my", "mz")})
+    assert run(capsys, "calibrate", three, "-o", nt)[0] == 0
+    code, out, err = run(capsys, "apply", nt, log, "-o", tmp_path / "o.csv")
+    assert code == 2 and "is a 3-D calibration" in err and "converted" not in out, out
 
 
 def _three_axis(n):
@@ -185,6 +191,34 @@ def test_a_headerless_two_column_file_reads_biaxial_in_python(tmp_path):
     path.write_text("".join(f"{20 * np.cos(a) + 3:.4f} {20 * np.sin(a) - 1:.4f}\n" for a in np.linspace(0, 12, 300)))
     rec = fluxcal.read_recording(path, columns="a,b")
     assert rec.biaxial() and rec.mag_names() == ("a", "b") and rec.samples(biaxial=True).shape == (300, 2)
+
+
+def test_a_headerless_biaxial_log_with_its_clock_names_its_columns(tmp_path, capsys):
+    """A headerless t, x, y log named by --columns t,mx,my: the clock and a biaxial sensor's two axes (the clock
+    had been refused as a third magnetometer axis, with the advice to name it mz)."""
+    m, truth = turning(8, n=600)
+    path = tmp_path / "car.txt"
+    path.write_text("".join(f"{0.1 * k:.1f},{x:.5f},{y:.5f}\n" for k, (x, y) in enumerate(m)))
+    rec = fluxcal.read_recording(path, columns="t,mx,my")
+    assert rec.biaxial() and rec.mag_names() == ("mx", "my") and rec.time() is not None
+    code, out, err = run(capsys, "calibrate", path, "--planar", "--columns", "t,mx,my", "--field-norm", H,
+                         "-o", tmp_path / "cal.json")
+    assert code == 0 and "time t" in out, err
+    cal = Calibration.load(tmp_path / "cal.json")
+    se = np.asarray(cal.summary["standard_errors"][:2])
+    assert np.all(np.abs(cal.plane["offset"] - B) < Z_LIMIT * se)
+
+
+def test_a_biaxial_header_tests_its_absent_axis_at_zero(tmp_path, capsys):
+    """export-c of a biaxial calibration: its self-test's inputs read 0 on the axis the sensor does not have, as
+    the header tells the firmware to give (they had held ±|h| there)."""
+    from fluxcal.export_c import fixed_point, vector_inputs
+
+    m, _ = turning(9, n=400)
+    cal = fluxcal.calibrate_planar(fluxcal.read_recording(write_log(tmp_path / "a.csv", m, names=("Bx", "Bz"))))
+    inputs = vector_inputs(fixed_point(cal))
+    assert cal.summary["not_calibrated"]["axis"] == "y" and np.all(inputs[:, 1] == 0)
+    assert len(np.unique(inputs, axis=0)) == len(inputs) and np.any(inputs[:, 2] != 0)
 
 
 def test_a_misnamed_third_axis_or_a_position_is_no_biaxial_sensor():

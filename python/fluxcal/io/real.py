@@ -26,6 +26,7 @@ import numpy as np
 
 from .csv import (readable_file, _is_number, decimal_points, is_comment, parse_csv, parse_rows,
                   read_lines, read_text, thousands_read)
+from .columns import find_time
 from .recording import ATTITUDE_COLUMNS, FIELD_NED_COLUMNS, Recording
 
 # -- key,value preamble (QMC5883L logger) -------------------------------------------------------------------
@@ -158,8 +159,13 @@ def _read_headerless(path, lines, start, names, columns, units, delimiter) -> Re
                              f"--columns (columns=) gives {len(names)} names, need one per column")
         data, line_numbers, notes = parse_rows(path, lines, start, names, delimiter, expected="--columns")
         rec = Recording(columns=dict(zip(names, data.T)), source=str(path), line_numbers=line_numbers)
-        if len(names) in (2, 3):  # the magnetometer's columns (two: a biaxial sensor's)
-            rec.select(names)
+        # the magnetometer's columns (two: a biaxial sensor's), less a clock among them (t,mx,my: a biaxial log);
+        # a "clock" whose values go back is a three-axis sensor's x misnamed, which select() refuses
+        clock = find_time(names, rec.units)
+        ticking = clock is not None and np.all(np.diff(rec.columns[clock[0]]) >= 0)
+        field = [n for n in names if not ticking or n != clock[0]]
+        if len(field) in (2, 3):
+            rec.select(field)
         if notes:
             rec.metadata["notes"] = "; ".join(f"line {n}: {text}" for n, text in notes)
         return rec.choose(None, units)
