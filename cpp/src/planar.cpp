@@ -327,6 +327,11 @@ void check(const PlanarOptions& o) {
   detail::require_enum(s + "serial_correlation", o.serial_correlation, 3, "automatic, independent, newey_west (0 … 2)");
   detail::require_open_unit(s + "serial_correlation_alpha", o.serial_correlation_alpha,
                             "a significance level in (0, 1)");
+  if (o.start && !(o.start->offset.allFinite() && o.start->matrix.allFinite() &&
+                   positive_definite(0.5 * (o.start->matrix + o.start->matrix.transpose()))))
+    throw Error(s + "start: the offset and matrix must be finite and the matrix positive definite (a planar "
+                "calibration's), got offset (" + std::to_string(o.start->offset(0)) + ", " +
+                std::to_string(o.start->offset(1)) + ")");
 }
 
 void check_readings(const Readings2DRef& readings) {
@@ -376,22 +381,39 @@ PlanarResult fit(const Readings2DRef& u, const Eigen::VectorXd* norms, const Pla
   }
 
   // Starts (reading units), and the reference radius R0 of a relative scale: the direct fit's geometric-mean radius
-  // (any radius gives the same b and det-normalised A: the Sampson residual is unchanged by A → λA, T → λT).
+  // (any radius gives the same b and det-normalised A: the Sampson residual is unchanged by A → λA, T → λT), or a
+  // given start's (its mean |A (u − b)| / √det A).
   std::vector<Start> starts;
   double radius = scale;
-  if (const auto direct = direct_ellipse(pr.ux, pr.uy)) {
-    const Eigen::Matrix2d E = direct->second / (scale * scale);  // (u − b)ᵀ E (u − b) = 1
-    radius = std::pow(E.determinant(), -0.25);
-    starts.push_back({"direct ellipse fit", centre + scale * direct->first,
-                      Eigen::SelfAdjointEigenSolver<Eigen::Matrix2d>(E).operatorSqrt()});
+  std::optional<std::pair<Eigen::Vector2d, Eigen::Matrix2d>> direct;
+  if (options.start) {
+    const PlanarStart& given = *options.start;
+    double mean_h = 0.0;
+    for (Eigen::Index i = 0; i < n; ++i) mean_h += (given.matrix * (u.row(i).transpose() - given.offset)).norm();
+    radius = mean_h / nd / std::sqrt(std::abs(given.matrix.determinant()));
+    starts.push_back({"given", given.offset, given.matrix});
+  } else if ((direct = direct_ellipse(pr.ux, pr.uy))) {
+    radius = std::pow((direct->second / (scale * scale)).determinant(), -0.25);
   }
   const Eigen::VectorXd targets = norms ? *norms : Eigen::VectorXd::Constant(n, radius);
-  try {
-    const TwoStep2DResult ts = twostep_2d(u, targets);  // reading = γ ⊙ h + b
-    starts.push_back({"twostep_2d", ts.offset, Eigen::Vector2d(ts.gain.cwiseInverse()).asDiagonal()});
-  } catch (const Error&) {
-    // no start from it; the direct fit may still have one
-  }
+  // step 1's two starts (with a given start: only when the refinement from it does not converge)
+  const auto step_one = [&]() {
+    std::vector<Start> found;
+    if (options.start) direct = direct_ellipse(pr.ux, pr.uy);
+    if (direct) {
+      const Eigen::Matrix2d E = direct->second / (scale * scale);  // (u − b)ᵀ E (u − b) = 1
+      found.push_back({"direct ellipse fit", centre + scale * direct->first,
+                       Eigen::SelfAdjointEigenSolver<Eigen::Matrix2d>(E).operatorSqrt()});
+    }
+    try {
+      const TwoStep2DResult ts = twostep_2d(u, targets);  // reading = γ ⊙ h + b
+      found.push_back({"twostep_2d", ts.offset, Eigen::Vector2d(ts.gain.cwiseInverse()).asDiagonal()});
+    } catch (const Error&) {
+      // no start from it; the direct fit may still have one
+    }
+    return found;
+  };
+  if (!options.start) starts = step_one();
   if (starts.empty())
     throw Error("readings: the readings trace no ellipse (the direct ellipse fit and TWOSTEP 2-D both fail: points on "
                 "a line, or at a few places) — turn the vehicle through a full circle");
@@ -402,35 +424,43 @@ PlanarResult fit(const Readings2DRef& u, const Eigen::VectorXd* norms, const Pla
   // to begin with; the other only when that refinement does not converge (each solve passes over all readings a few
   // dozen times: at 10⁵ readings the second start doubled the time for the same answer).
   const int k = 2 + coefficient_count(options.shape);
-  std::vector<std::tuple<double, std::size_t, Eigen::VectorXd>> candidates;
-  for (std::size_t s = 0; s < starts.size(); ++s) {
-    const Start& st = starts[s];
-    const Eigen::Vector2d beta = (st.b - centre) / scale;
-    double mean_h = 0.0;
-    for (Eigen::Index i = 0; i < n; ++i) mean_h += (st.A * Eigen::Vector2d(pr.ux(i) - beta(0), pr.uy(i) - beta(1))).norm();
-    mean_h /= nd;
-    Eigen::VectorXd p0(k);
-    p0.head<2>() = beta;
-    p0.tail(k - 2) = coefficients_of(options.shape, st.A * (pr.T.mean() / mean_h));
-    double cost0 = kInf;
-    if (p0.allFinite() && positive_definite(matrix_of(options.shape, p0.data() + 2))) {
-      cost0 = evaluate(pr, p0, pr.T).cost;
-      if (!std::isfinite(cost0)) cost0 = kInf;
-    }
-    candidates.emplace_back(cost0, s, std::move(p0));
-  }
-  std::stable_sort(candidates.begin(), candidates.end(),
-                   [](const auto& l, const auto& r) { return std::get<0>(l) < std::get<0>(r); });
   std::optional<Solve> best;
   std::size_t best_start = 0;
-  for (const auto& [cost0, s, p0] : candidates) {
-    if (!p0.allFinite() || !positive_definite(matrix_of(options.shape, p0.data() + 2))) continue;
-    Solve solved = levenberg_marquardt(pr, p0, pr.T, options.max_iterations, options.tolerance);
-    if (solved.p.allFinite() && std::isfinite(solved.at.cost) && (!best || solved.at.cost < best->at.cost)) {
-      best = std::move(solved);
-      best_start = s;
+  const auto refine_from = [&](std::size_t first) {
+    std::vector<std::tuple<double, std::size_t, Eigen::VectorXd>> candidates;
+    for (std::size_t s = first; s < starts.size(); ++s) {
+      const Start& st = starts[s];
+      const Eigen::Vector2d beta = (st.b - centre) / scale;
+      double mean_h = 0.0;
+      for (Eigen::Index i = 0; i < n; ++i)
+        mean_h += (st.A * Eigen::Vector2d(pr.ux(i) - beta(0), pr.uy(i) - beta(1))).norm();
+      mean_h /= nd;
+      Eigen::VectorXd p0(k);
+      p0.head<2>() = beta;
+      p0.tail(k - 2) = coefficients_of(options.shape, st.A * (pr.T.mean() / mean_h));
+      double cost0 = kInf;
+      if (p0.allFinite() && positive_definite(matrix_of(options.shape, p0.data() + 2))) {
+        cost0 = evaluate(pr, p0, pr.T).cost;
+        if (!std::isfinite(cost0)) cost0 = kInf;
+      }
+      candidates.emplace_back(cost0, s, std::move(p0));
     }
-    if (best && best->converged) break;
+    std::stable_sort(candidates.begin(), candidates.end(),
+                     [](const auto& l, const auto& r) { return std::get<0>(l) < std::get<0>(r); });
+    for (const auto& [cost0, s, p0] : candidates) {
+      if (!p0.allFinite() || !positive_definite(matrix_of(options.shape, p0.data() + 2))) continue;
+      Solve solved = levenberg_marquardt(pr, p0, pr.T, options.max_iterations, options.tolerance);
+      if (solved.p.allFinite() && std::isfinite(solved.at.cost) && (!best || solved.at.cost < best->at.cost)) {
+        best = std::move(solved);
+        best_start = s;
+      }
+      if (best && best->converged) break;
+    }
+  };
+  refine_from(0);
+  if (options.start && !(best && best->converged)) {
+    for (Start& st : step_one()) starts.push_back(std::move(st));
+    refine_from(1);
   }
   if (!best)
     throw Error("readings: the planar fit (shape " + std::string(shape_name(options.shape)) +

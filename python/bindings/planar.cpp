@@ -31,6 +31,15 @@ void bind_planar(py::module_& m) {
       .value("diagonal", PlanarShape::diagonal)
       .value("symmetric", PlanarShape::symmetric);
 
+  py::class_<fluxcal::PlanarStart>(m, "PlanarStart")
+      .def(py::init<>())
+      .def(py::init([](const Eigen::Vector2d& offset, const Eigen::Matrix2d& matrix) {
+             return fluxcal::PlanarStart{offset, matrix};
+           }),
+           "offset"_a, "matrix"_a)
+      .def_readwrite("offset", &fluxcal::PlanarStart::offset)
+      .def_readwrite("matrix", &fluxcal::PlanarStart::matrix);
+
   py::class_<PlanarOptions>(m, "PlanarOptions")
       .def(py::init<>())
       .def_readwrite("shape", &PlanarOptions::shape)
@@ -42,6 +51,7 @@ void bind_planar(py::module_& m) {
       .def_readwrite("min_radius_over_noise", &PlanarOptions::min_radius_over_noise)
       .def_readwrite("serial_correlation", &PlanarOptions::serial_correlation)
       .def_readwrite("serial_correlation_alpha", &PlanarOptions::serial_correlation_alpha)
+      .def_readwrite("start", &PlanarOptions::start)
       .def_readwrite("units", &PlanarOptions::units);
 
   // readings arrive as a C-contiguous float64 (N, 2) array and field_norms as float64 (N,) or None (the Python

@@ -609,12 +609,13 @@ def _parameter_names(shape: str, names) -> list[str]:
 
 
 def _fit(u: np.ndarray, norms, shapes: tuple, max_iterations: int, tolerance: float,
-         serial_correlation=_core.SerialCorrelation.independent) -> dict:
+         serial_correlation=_core.SerialCorrelation.independent, start: tuple | None = None) -> dict:
     """Each shape's fit by the C++ core (`fluxcal::fit_planar`, cpp/include/fluxcal/planar.hpp: both starts,
     Levenberg–Marquardt on the Sampson residual, the noise-bias solve, the covariance; its reference is
     fluxcal.oracle.planar), then the BIC choice across shapes and what the summary reads, in u's units.
     serial_correlation: the core's SerialCorrelation (independent for the outlier screen's many subset fits, which
-    use no standard error)."""
+    use no standard error). start: (b, A) to refine from instead of the core's two starts (a whole log's fit for its
+    parts: the same answer in fewer passes)."""
     n = len(u)
     u = np.ascontiguousarray(u, dtype=np.float64)
     field_norms = None if norms is None else np.ascontiguousarray(norms, dtype=np.float64)
@@ -625,6 +626,8 @@ def _fit(u: np.ndarray, norms, shapes: tuple, max_iterations: int, tolerance: fl
         options.max_iterations = int(max_iterations)
         options.tolerance = float(tolerance)
         options.serial_correlation = serial_correlation
+        if start is not None:
+            options.start = _core.PlanarStart(*start)
         # "traces no ellipse" is judged once, on the chosen shape (calibrate_planar): a circle that misfits an
         # elongated ellipse should lose on BIC, not fail the calibration
         options.min_radius_over_noise = 0.0
@@ -736,7 +739,7 @@ def _side(u: np.ndarray, norms, rows: slice, fit: dict, correlation, max_iterati
         return {"refused": f"turn through {arc:.0f}° of heading (under {SIDE_ARC_DEG:g}°)"}
     try:
         part = _fit(u[rows], None if norms is None else norms[rows], (fit["shape"],), max_iterations, tolerance,
-                    correlation)
+                    correlation, start=(fit["b"], fit["A"]))
     except ValueError as exc:
         return {"refused": f"fit no ellipse ({exc})"}
     if not all(part["determined"][:2]):

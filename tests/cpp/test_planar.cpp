@@ -291,6 +291,35 @@ TEST(Planar, BadInputNamesTheInput) {
   bad = {};
   bad.serial_correlation = static_cast<fluxcal::SerialCorrelation>(5);
   EXPECT_ERROR_SAYS(fluxcal::fit_planar(y.u, bad), "PlanarOptions::serial_correlation: 5");
+  bad = {};
+  bad.start = fluxcal::PlanarStart{Eigen::Vector2d(1.0, 2.0), -Eigen::Matrix2d::Identity()};
+  EXPECT_ERROR_SAYS(fluxcal::fit_planar(y.u, bad), "PlanarOptions::start: the offset and matrix must be finite");
+}
+
+TEST(Planar, AGivenStartGivesTheSameAnswer) {
+  // a part of a log refined from the whole log's fit (what calibrate_planar's moved-offset check does): the same
+  // offset, matrix, field norm and errors as from the two starts of its own, with or without a field given
+  const Yaw y = yaw_only(12, 3000, soft_iron(30.0, 1.12, 0.9), kSigma, 4.0);
+  for (const double field : {kH, 0.0}) {
+    PlanarOptions opt;
+    opt.field_norm = field;
+    const auto whole = fluxcal::fit_planar(y.u, opt);
+    const Readings2D part = y.u.topRows(1000);
+    const auto cold = fluxcal::fit_planar(part, opt);
+    opt.start = fluxcal::PlanarStart{whole.offset, 3.0 * whole.matrix};  // (any scale of A)
+    const auto warm = fluxcal::fit_planar(part, opt);
+    EXPECT_EQ(warm.start, "given");
+    EXPECT_TRUE(warm.summary.converged);
+    EXPECT_LT((warm.offset - cold.offset).norm(), 1e-6 * cold.standard_errors(0));
+    EXPECT_LT((warm.matrix - cold.matrix).norm(), 1e-8);
+    EXPECT_NEAR(warm.field_norm, cold.field_norm, 1e-8 * cold.field_norm);
+    EXPECT_LT((warm.standard_errors - cold.standard_errors).norm(), 1e-6 * cold.standard_errors.norm());
+    // a start far off, refined with one iteration: not converged from it, so the two starts of step 1 are tried
+    opt.start = fluxcal::PlanarStart{Eigen::Vector2d(500.0, -300.0), Eigen::Matrix2d::Identity()};
+    opt.max_iterations = 1;
+    const auto far = fluxcal::fit_planar(part, opt);
+    EXPECT_NE(far.start, "given");
+  }
 }
 
 TEST(Planar, ReadingsThatTraceNoEllipseAreRefused) {

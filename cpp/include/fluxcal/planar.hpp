@@ -42,6 +42,7 @@
 
 #include <Eigen/Core>
 
+#include <optional>
 #include <string>
 #include <vector>
 
@@ -53,6 +54,12 @@ enum class PlanarShape {
   circle,     ///< A = a I: offset and one gain (3 parameters: b_x b_y a)
   diagonal,   ///< A = diag(a_xx, a_yy): per-axis gains, TWOSTEP 2-D's model (4: b_x b_y a_xx a_yy)
   symmetric,  ///< A symmetric: gains and the coupling of the axes (5: b_x b_y a_xx a_xy a_yy)
+};
+
+/// A planar calibration to start from: h = matrix (reading − offset).
+struct PlanarStart {
+  Eigen::Vector2d offset = Eigen::Vector2d::Zero();
+  Eigen::Matrix2d matrix = Eigen::Matrix2d::Identity();  ///< positive definite (it is projected onto the shape)
 };
 
 struct PlanarOptions {
@@ -78,6 +85,10 @@ struct PlanarOptions {
   /// order); `newey_west` always.
   SerialCorrelation serial_correlation = SerialCorrelation::automatic;
   double serial_correlation_alpha = 0.01;  ///< in (0, 1); strict, so that white noise keeps σ̂²(JᵀJ)⁻¹
+  /// A start for the refinement instead of step 1's two (reading units; any scale of A): another fit of the same
+  /// sensor, such as a whole log's for each of its parts. Step 1's starts are still tried when the refinement from
+  /// it does not converge. result.start says "given".
+  std::optional<PlanarStart> start;
   /// Units of the readings, carried into the result ("" = not stated).
   std::string units;
 };
