@@ -316,11 +316,16 @@ def calibrate_ring(readings, true_fields, method: str = "twostep") -> RingCalibr
                     raise ValueError(f"sensor {i}: {exc}. The field at this sensor turned through only {arc:.0f}° "
                                      "in the calibration run: turn the ring about the cable through a full circle "
                                      "(the paper uses 5 × 72°), or calibrate at several currents") from None
-                raise ValueError(f"sensor {i}: {exc}. Here the magnitudes are the ring model's (straight conductors at "
-                                 "the given positions with the reference currents): a calibration run the model does "
-                                 "not describe (a cable's lay, its end or a bend near the ring, iron nearby, a wrong "
-                                 "ring_radius_m) gives this; `fluxcal diagnose RUN.csv --model cable` says which"
-                                 ) from None
+                fit = _sampson_fit(r[:, i], norms[:, i], str(exc))
+                if fit is None:
+                    raise ValueError(f"sensor {i}: {exc}. Here the magnitudes are the ring model's (straight conductors "
+                                     "at the given positions with the reference currents): a calibration run the model "
+                                     "does not describe (a cable's lay, its end or a bend near the ring, iron nearby, a "
+                                     "wrong ring_radius_m) gives this, or magnitudes that hardly change across the run "
+                                     f"(here by {100 * (np.ptp(norms[:, i]) / np.mean(norms[:, i])):.3g} %: calibrate at "
+                                     "positions off the ring's centre); `fluxcal diagnose RUN.csv --model cable` says "
+                                     "which") from None
+                fits.append(fit)
         elif method == "least_squares":
             common = np.full(r.shape[0], np.sqrt(np.mean(norms[:, i] ** 2)))
             fits.append(twostep_2d(r[:, i], common, refine=False))
@@ -332,6 +337,36 @@ def calibrate_ring(readings, true_fields, method: str = "twostep") -> RingCalibr
         covariance = np.array([_axis_blocks(f.covariance) for f in fits])
     return RingCalibration(offsets=offsets, gains=gains, method=method, sensors=fits, residual_sigma=residual_sigma,
                            covariance=covariance)
+
+
+def _sampson_fit(readings: np.ndarray, norms: np.ndarray, why: str) -> TwoStep2D | None:
+    """TWOSTEP 2-D's model (offset, per-axis gain) by maximum likelihood without its closed-form first step: the
+    planar core's diagonal fit (`fluxcal::fit_planar`, Sampson residual, each reading's own |field|, from a direct
+    ellipse fit). For a calibration run whose magnitudes hardly change (a jig symmetric about the ring's centre: 8 %
+    across the run), the first step's h² column is nearly the constant one and noise can drive its γ² below 0 (a
+    newcomer's symmetric jig refused in 1–3 of 30 rigs whose data determine the gains to 0.1 %). None when it does
+    not converge, or when |h|/|field| scatters more after it than TWOSTEP's misfit warning allows (readings that do
+    not belong to the magnitudes: the first step's failure was the model's, which the message says)."""
+    options = _core.PlanarOptions()
+    options.shape = _core.PlanarShape.diagonal
+    options.serial_correlation = _core.SerialCorrelation.independent
+    options.min_radius_over_noise = 0.0
+    try:
+        r = _core.fit_planar(np.ascontiguousarray(readings), np.ascontiguousarray(norms), options)
+    except ValueError:
+        return None
+    if not r["summary"]["converged"] or r["summary"]["norm_std_over_mean"] > _core.TwoStep2DOptions().misfit_spread:
+        return None
+    a = np.diag(np.asarray(r["matrix"], dtype=float))  # h = diag(a) (ĥ − b): γ = 1/a
+    to_gain = np.diag([1.0, 1.0, -1.0 / a[0] ** 2, -1.0 / a[1] ** 2])
+    covariance = to_gain @ np.asarray(r["covariance"], dtype=float) @ to_gain.T
+    se = np.sqrt(np.maximum(np.diag(covariance), 0.0))
+    summary = dict(r["summary"])
+    summary["warnings"] = list(summary.get("warnings", [])) + [
+        f"TWOSTEP's first step failed ({why}); the offset and gains are the maximum-likelihood fit of the same model "
+        "from a direct ellipse fit instead (Sampson residual against each reading's |field|)"]
+    return TwoStep2D(offset=r["offset"], gain=1.0 / a, units=r["units"], summary=summary, offset_se=se[:2],
+                     gain_se=se[2:], covariance=covariance)
 
 
 def _turned_deg(directions: np.ndarray) -> float:
@@ -430,16 +465,17 @@ def _column_scale(path, name: str, unit: str, table: dict, default: str, what: s
                      f"{default})")
 
 
-def read_ring_csv(path) -> dict:
+def read_ring_csv(path, bad_lines: str = "error") -> dict:
     """Read a ring recording (any table format fluxcal reads; see RING_FORMAT): dict with ring, readings
     (K, n_sensors, 2) in tesla, rotations_deg (K,) (zeros when absent), currents_a (K, n) or None,
-    positions_m (n, 2) or None, t_s (K,) or None. Columns in other units (uT, mA, rad) are converted by
-    the units the file states."""
+    positions_m (n, 2) or None, t_s (K,) or None, skipped_lines (what bad_lines="skip" left out, or None). Columns
+    in other units (uT, mA, rad) are converted by the units the file states. bad_lines: "error" (a garbled or
+    truncated line stops the read with its line and column) or "skip" (its snapshot is left out and listed)."""
     from .calibration import TESLA_PER_UNIT
     from .io import read_recording
     from .io.columns import TIME_UNITS, unit_name
 
-    rec = read_recording(path)
+    rec = read_recording(path, bad_lines=bad_lines)
     meta = rec.metadata
     if "ring_angles_deg" not in meta or "ring_radius_m" not in meta:
         raise ValueError(f"{path}: no ring_angles_deg / ring_radius_m metadata lines: not a ring recording? "
@@ -490,7 +526,8 @@ def read_ring_csv(path) -> dict:
     used = {n for pair in names for n in pair} | set(cur_names) | {"rotation_deg", "t"}
     return {"ring": ring, "readings": readings, "rotations_deg": np.asarray(rotations, float), "currents_a": currents,
             "positions_m": positions, "t_s": None if t is None else np.asarray(t, float),
-            "unused_columns": [n for n in rec.columns if n not in used]}
+            "unused_columns": [n for n in rec.columns if n not in used],
+            "skipped_lines": rec.metadata.get("skipped_lines")}
 
 
 def ring_columns_note(data: dict) -> str | None:

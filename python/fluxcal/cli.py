@@ -1095,11 +1095,9 @@ def cmd_cable(args) -> int:
                               "true_gains": " ".join(f"{v:.10g}" for v in rig.errors.gain.ravel())})
         print(f"wrote {args.output}: {len(rot)} snapshots of {rig.ring.n_sensors} sensors")
         return 0
-    data = cable.read_ring_csv(args.file)
+    data = cable.read_ring_csv(args.file, bad_lines=args.bad_lines)
     ring = data["ring"]
-    note = cable.ring_columns_note(data)
-    if note:
-        print(note)
+    _ring_notes(cable, data)
     if args.cable_command == "calibrate":
         if data["currents_a"] is None or data["positions_m"] is None:
             raise ValueError(f"{args.file}: a calibration recording needs reference currents (i0, i1, …) and "
@@ -1129,6 +1127,9 @@ def cmd_cable(args) -> int:
         groups = [np.nonzero(rotations == r)[0] for r in dict.fromkeys(rotations.tolist())]
     else:
         groups = [np.array([k]) for k in range(len(raw))]
+    if ring_cal is None and args.noise_sigma is None:
+        print(f"note: the standard errors take the sensors' noise σ as {cable._core.CableSolveOptions().noise_sigma:g} T "
+              "(neither --calibration nor --noise-sigma gives it): give either for errors of this ring")
     solutions = []
     for rows in groups:
         sol = _solve_ring_snapshots(ring, ring_cal, raw[rows], float(rotations[rows[0]]), rows, args)
@@ -1137,7 +1138,21 @@ def cmd_cable(args) -> int:
         Path(args.output).write_text(json.dumps({"source": str(args.file), "joint": bool(args.joint),
                                                  "solutions": solutions}, indent=2))
         print(f"wrote {args.output}")
+    if not any(s["well_conditioned"] and s["fits_model"] for s in solutions):
+        # (a script reads the exit status: every solution flagged had exited 0)
+        print("error: no snapshot's solution both fits the model and is well conditioned (exit status 3)",
+              file=sys.stderr)
+        return 3
     return 0
+
+
+def _ring_notes(cable, data: dict) -> None:
+    """What a ring recording's read left out (--bad-lines skip) and the columns it does not use, printed."""
+    if data["skipped_lines"]:
+        print(f"skipped {data['skipped_lines'].replace(':', ' lines:', 1)} (their snapshots left out)")
+    note = cable.ring_columns_note(data)
+    if note:
+        print(note)
 
 
 def _solve_ring_snapshots(ring, ring_cal, snaps, rotation: float, rows, args) -> dict:
@@ -1168,6 +1183,8 @@ def _solve_ring_snapshots(ring, ring_cal, snaps, rotation: float, rows, args) ->
         sigma = cal.field_sigma(snaps)
         settings = {} if sigma is None else {"noise_sigma": sigma}
         snaps = cal.apply(snaps)
+    if args.noise_sigma is not None:  # the user's σ (a datasheet's, repeats'): before the calibration's
+        settings = {"noise_sigma": args.noise_sigma}
     n = args.conductors
     unknowns = 2 * n + len(rows) * (n - bool(args.zero_sum_currents))
     if snaps.size == unknowns:
@@ -1392,10 +1409,8 @@ def _diagnose_cable(args) -> int:
     from . import cable
     from .diagnose import diagnose_cable
 
-    ring = cable.read_ring_csv(args.file)
-    note = cable.ring_columns_note(ring)
-    if note:
-        print(note)
+    ring = cable.read_ring_csv(args.file, bad_lines=args.bad_lines)
+    _ring_notes(cable, ring)
     candidates = args.candidates.split(",") if args.candidates else None
     result = diagnose_cable(ring["readings"], ring["ring"], currents=ring["currents_a"],
                             rotations_deg=ring["rotations_deg"], positions=ring["positions_m"], t=ring["t_s"],
@@ -1574,6 +1589,7 @@ def build_parser() -> argparse.ArgumentParser:
                     help="twostep: TWOSTEP 2-D per sensor with the true magnitude of every reading (default); "
                          "least_squares: the ordinary ellipse fit on one magnitude (the RMS), the paper's "
                          "comparison")
+    kc.add_argument("--bad-lines", default="error", choices=["error", "skip"], help=bad_lines_help)
     kc.add_argument("-o", "--output", help="write the calibration (JSON)")
     kv = ksub.add_parser("solve", help="conductor positions and currents of every snapshot")
     kv.add_argument("file")
@@ -1585,8 +1601,13 @@ def build_parser() -> argparse.ArgumentParser:
     kv.add_argument("--joint", action="store_true",
                     help="solve the snapshots at each rotation together: the conductors' positions shared, the "
                          "currents per snapshot (AC waveforms; three or more conductors need it)")
+    kv.add_argument("--noise-sigma", type=positive_number, default=None,
+                    help="the sensors' noise σ (T) the standard errors take (default: the calibration's scatter, "
+                         "else 1e-8 T, said)")
+    kv.add_argument("--bad-lines", default="error", choices=["error", "skip"], help=bad_lines_help)
     kv.add_argument("-o", "--output", default=None, help="write the solutions (positions, currents, standard "
-                                                        "errors, flags) as JSON")
+                                                        "errors, flags) as JSON; exit status 3 when no snapshot's "
+                                                        "solution fits the model and is well conditioned")
     k.set_defaults(run=cmd_cable)
 
     x = sub.add_parser("export-c", help="write a calibration as a C header for firmware (float and Q-format), "
