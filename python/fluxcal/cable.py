@@ -299,7 +299,17 @@ def calibrate_ring(readings, true_fields, method: str = "twostep") -> RingCalibr
         raise ValueError(f"readings {r.shape} and true_fields {h.shape}: expected the same shape (K, n_sensors, 2)")
     norms = np.linalg.norm(h, axis=2)
     fits: list[TwoStep2D] = []
-    for i in range(r.shape[1]):
+    all_r, all_h, all_norms = r, h, norms
+    for i in range(all_r.shape[1]):
+        # a sensor's readings that are not numbers (a dropout, a glitch logged as nan) are left out of its own fit;
+        # a sensor with none is dead: the others' calibration cannot stand in for it
+        finite = np.isfinite(all_r[:, i]).all(axis=1)
+        if (~finite).any() and finite.sum() < 5:
+            raise ValueError(f"sensor {i}: {int((~finite).sum())} of {len(finite)} calibration readings are not finite "
+                             "(a dead sensor?): it cannot be calibrated; repair it, or leave its columns out of the "
+                             "ring (ring_angles_deg without it) for a ring of the others")
+        dropped = np.nonzero(~finite)[0]
+        r, h, norms = all_r[finite], all_h[finite], all_norms[finite]
         u = h[:, i] / np.where(norms[:, i] > 0, norms[:, i], 1.0)[:, None]
         if np.linalg.eigvalsh(u.T @ u / len(u))[0] < 1e-6:  # ±one direction: currents scale it, never turn it
             raise ValueError(f"true_fields: the field at sensor {i} never changes direction (its readings lie on a "
@@ -331,6 +341,11 @@ def calibrate_ring(readings, true_fields, method: str = "twostep") -> RingCalibr
             fits.append(twostep_2d(r[:, i], common, refine=False))
         else:
             raise ValueError(f"method: {method!r}, expected 'twostep' or 'least_squares'")
+        if len(dropped):
+            shown = ", ".join(map(str, dropped[:8])) + (", …" if len(dropped) > 8 else "")
+            fits[-1].summary["warnings"] = list(fits[-1].summary.get("warnings", [])) + [
+                f"{len(dropped)} of {len(finite)} readings not finite, left out of this sensor's fit (rows {shown})"]
+    r, h = all_r, all_h
     offsets, gains = np.array([f.offset for f in fits]), np.array([f.gain for f in fits])
     residual_sigma, covariance = _calibration_errors(r, h, offsets, gains, linear=method != "twostep")
     if method == "twostep":
@@ -362,9 +377,11 @@ def _sampson_fit(readings: np.ndarray, norms: np.ndarray, why: str) -> TwoStep2D
     covariance = to_gain @ np.asarray(r["covariance"], dtype=float) @ to_gain.T
     se = np.sqrt(np.maximum(np.diag(covariance), 0.0))
     summary = dict(r["summary"])
+    failed = (re.search(r"γ[xy]² = \S+ ≤ 0", why) or [why])[0]
     summary["warnings"] = list(summary.get("warnings", [])) + [
-        f"TWOSTEP's first step failed ({why}); the offset and gains are the maximum-likelihood fit of the same model "
-        "from a direct ellipse fit instead (Sampson residual against each reading's |field|)"]
+        f"TWOSTEP's first step failed ({failed}, with |field| changing by "
+        f"{100 * np.ptp(norms) / np.mean(norms):.3g} % over the run); the offset and gains are the maximum-likelihood "
+        "fit of the same model from a direct ellipse fit instead (Sampson residual against each reading's |field|)"]
     return TwoStep2D(offset=r["offset"], gain=1.0 / a, units=r["units"], summary=summary, offset_se=se[:2],
                      gain_se=se[2:], covariance=covariance)
 
@@ -386,12 +403,13 @@ def _calibration_errors(readings, true_fields, offsets, gains, linear: bool = Tr
     """Per sensor and axis: the RMS of the readings about γ h + b (dof K − 2) and σ² (XᵀX)⁻¹ of (γ, b), X = [h, 1],
     the linear model's covariance at the fitted values (the known true fields make each axis a straight line; None
     without `linear`: a fit that brings its own)."""
-    k = readings.shape[0]
     e = readings - (true_fields * gains + offsets)
-    sigma = np.sqrt(np.sum(e ** 2, axis=0) / max(k - 2, 1))
+    finite = np.isfinite(e)  # (a sensor's readings that are not numbers were left out of its fit)
+    k = finite.sum(axis=0)
+    sigma = np.sqrt(np.sum(np.where(finite, e, 0.0) ** 2, axis=0) / np.maximum(k - 2, 1))
     if not linear:
         return sigma, None
-    x = np.stack([true_fields, np.ones_like(true_fields)], axis=-1)  # (K, sensors, axes, 2)
+    x = np.stack([true_fields, np.ones_like(true_fields)], axis=-1) * finite[..., None]  # (K, sensors, axes, 2)
     xtx = np.einsum("ksai,ksaj->saij", x, x)
     covariance = sigma[..., None, None] ** 2 * np.linalg.pinv(xtx)
     return sigma, covariance

@@ -1110,6 +1110,8 @@ def cmd_cable(args) -> int:
         for k in range(ring.n_sensors):
             print(f"sensor {k}: offset {cal.offsets[k, 0] * per_tesla:.4g} {cal.offsets[k, 1] * per_tesla:.4g} "
                   f"{unit}, gain {cal.gains[k, 0]:.6f} {cal.gains[k, 1]:.6f}")
+            for w in cal.sensors[k].summary.get("warnings", []) if cal.sensors else []:
+                print(f"warning: sensor {k}: {w}")
         far = float(np.max(np.abs(np.log(cal.gains))))
         if far > np.log(1.2):  # readings in tesla: an AMR's gain error is a few %, not tens
             print(f"warning: gains up to ×{np.exp(far):.3g} away from 1: the readings' scale is not the ring model's — "

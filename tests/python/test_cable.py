@@ -378,9 +378,12 @@ def test_a_calibration_run_the_model_does_not_describe_points_to_the_diagnosis(t
                                          r"fluxcal diagnose RUN.csv --model cable"):
         calibrate_ring(h[np.random.default_rng(0).permutation(len(h))], h)
     bad = h.copy()
-    bad[3, 2, 1] = np.nan  # bad input says what it is, without blaming the model
-    with pytest.raises(ValueError, match="sensor 2: readings: row 3") as err:
-        calibrate_ring(bad, h)
+    bad[3, 2, 1] = np.inf  # a reading that is not a number is left out of its sensor's fit and said
+    assert "rows 3)" in calibrate_ring(bad, h).sensors[2].summary["warnings"][-1]
+    bad = h.copy()
+    bad[3, 2, 1] = np.nan  # bad true fields say what they are, without blaming the model
+    with pytest.raises(ValueError, match="sensor 2: field_norms") as err:
+        calibrate_ring(h, bad)
     assert "diagnose" not in str(err.value)
 
 
@@ -497,3 +500,25 @@ def test_cli_ring_files_skip_bad_lines_state_sigma_and_exit_3_when_nothing_fits(
     # the user's σ: taken, no note, and the errors scale with it
     wide = run_cli("cable", "solve", meas, "--bad-lines", "skip", "--noise-sigma", "1e-6")
     assert "noise σ as" not in wide.stdout and "(σ 1e-06 T)" in wide.stdout, wide.stdout
+
+
+def test_a_sensor_with_readings_that_are_not_numbers_is_calibrated_on_the_rest():
+    """A calibration run where one sensor logged NaN for 3 of its readings had refused the whole ring; that
+    sensor is now fitted on its other readings (said), and a dead sensor is named with what to do."""
+    ring = Ring([0, 90, 180, 270], 0.01)
+    truth = np.repeat(calibration_fields(ring, [[-2e-3, 0.0], [2e-3, 0.5e-3]], [[5.0, -5.0], [-5.0, 5.0]],
+                                         72.0 * np.arange(5)), 10, axis=0)
+    rng = np.random.default_rng(2)
+    readings = truth * 1.01 + 2e-6 + rng.normal(0, 2e-8, truth.shape)
+    clean = calibrate_ring(readings, truth)
+    readings[[4, 30, 77], 2, 0] = np.nan
+    cal = calibrate_ring(readings, truth)
+    assert any("3 of 100 readings not finite, left out of this sensor's fit (rows 4, 30, 77)" in w
+               for w in cal.sensors[2].summary["warnings"])
+    assert np.all(np.isfinite(cal.residual_sigma)) and np.all(np.isfinite(cal.covariance))
+    np.testing.assert_allclose(cal.gains[[0, 1, 3]], clean.gains[[0, 1, 3]], rtol=1e-12)
+    assert np.all(np.abs(cal.gains[2] - clean.gains[2]) < 4 * cal.sensors[2].gain_se)
+    readings[:, 1] = np.nan
+    with pytest.raises(ValueError, match=r"sensor 1: 100 of 100 calibration readings are not finite \(a dead "
+                                         r"sensor\?\): it cannot be calibrated"):
+        calibrate_ring(readings, truth)

@@ -463,3 +463,21 @@ def test_a_field_from_outside_the_ring_is_said_not_explained():
     text = d.text()
     assert "NOT EXPLAINED" in text and "a field from outside the ring" in text, text
     assert "noise σ is underestimated" not in text
+
+
+def test_a_dead_sensor_is_left_out_and_a_missing_reading_is_named():
+    """A sensor reading NaN in every snapshot had refused the diagnosis (`cable solve` leaves it out): the ring of
+    the others is diagnosed, the report naming the sensors by their numbers in the recording; a reading missing
+    here and there is refused with the remedy."""
+    kwargs, _ = cable_trial([], 15)
+    dead = kwargs["readings"].copy()
+    dead[:, 2] = np.nan
+    d = diagnose_cable(**{**kwargs, "readings": dead})
+    assert any("sensor(s) 2 read no finite value in any snapshot (dead?): left out, the ring of the other 3" in c
+               for c in d.caveats), d.caveats
+    assert [row["bin"] for row in d.where["tables"]["sensor"]] == ["sensor 0", "sensor 1", "sensor 3"]
+    assert not d.significant
+    dead[5, 1, 0] = np.nan
+    with pytest.raises(ValueError, match=r"snapshot 5, sensor 1, axis x is not finite \(1 such values in 1 "
+                                         r"snapshots\): leave those snapshots out"):
+        diagnose_cable(**{**kwargs, "readings": dead})

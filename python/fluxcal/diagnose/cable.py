@@ -45,7 +45,7 @@ as a whole, so the verdict then says it cannot judge whether the model fits.
 """
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 from types import SimpleNamespace
 
@@ -92,6 +92,13 @@ class _Data:
     points: np.ndarray       # (R, M) complex sensor positions, cable frame
     axes: np.ndarray         # (R, M) x-axis directions, radians
     source: str
+    sensor_ids: np.ndarray | None = None  # (M,) each sensor's number in the recording (dead ones left out)
+    notes: list = field(default_factory=list)  # what _prepare changed in the data, for the report
+
+    @property
+    def sensor_names(self) -> list:
+        ids = np.arange(self.y.shape[1]) if self.sensor_ids is None else self.sensor_ids
+        return [f"sensor {i}" for i in ids]
 
     @property
     def refines(self) -> bool:
@@ -599,7 +606,7 @@ def _where(data: _Data, r_w: np.ndarray, levels) -> dict:
     per_value = lambda v: np.repeat(np.asarray(v), 2 * m)  # noqa: E731 - snapshot variable per value
     sensor = np.tile(np.repeat(np.arange(m), 2), k)
     axis = np.tile(np.arange(2), k * m)
-    tables = {"sensor": _binned(z, sensor, [f"sensor {i}" for i in range(m)]),
+    tables = {"sensor": _binned(z, sensor, data.sensor_names),
               "axis": _binned(z, axis, ["radial (x)", "tangential (y)"])}
     lv = np.unique(levels)
     tables["current"] = _binned(z, per_value(np.searchsorted(lv, levels)), [f"{v:g} A" for v in lv])
@@ -834,16 +841,31 @@ def _prepare(readings, ring, currents, rotations_deg, positions, calibration, no
         raise ValueError(f"readings: shape {y.shape}, expected (snapshots, {m}, 2) for this ring of {m} "
                          f"biaxial sensors")
     k = len(y)
+    if isinstance(calibration, (str, Path)):
+        calibration = RingCalibration.load(calibration)
+    elif isinstance(calibration, dict):
+        calibration = RingCalibration.from_dict(calibration)
+    # a sensor that reads no number in any snapshot is dead: the ring of the others is diagnosed (as `cable solve`
+    # solves it), and said; a reading missing here and there is the recording's, said with the remedy
+    dead = ~np.isfinite(y).any(axis=(0, 2))
+    ids, notes = np.arange(m), []
+    if dead.any() and not dead.all():
+        ids = np.nonzero(~dead)[0]
+        notes.append(f"sensor(s) {', '.join(map(str, np.nonzero(dead)[0]))} read no finite value in any snapshot "
+                     f"(dead?): left out, the ring of the other {len(ids)} diagnosed")
+        ring, y = ring.subset(ids), y[:, ids]
+        calibration = None if calibration is None else calibration.subset(ids)
+        if noise_sigma is not None and np.size(noise_sigma) == m:
+            noise_sigma = np.asarray(noise_sigma, dtype=float)[ids]
+        m = len(ids)
     bad = np.argwhere(~np.isfinite(y))
     if len(bad):
         s, i, a = bad[0]
-        raise ValueError(f"readings: snapshot {s}, sensor {i}, axis {'xy'[a]} is not finite ({len(bad)} such values)")
+        raise ValueError(f"readings: snapshot {s}, sensor {ids[i]}, axis {'xy'[a]} is not finite ({len(bad)} such "
+                         f"values in {len(np.unique(bad[:, 0]))} snapshots): leave those snapshots out (a ring "
+                         "file read with --bad-lines skip, bad_lines='skip', drops the lines that hold one)")
     raw = y
     if calibration is not None:
-        if isinstance(calibration, (str, Path)):
-            calibration = RingCalibration.load(calibration)
-        elif isinstance(calibration, dict):
-            calibration = RingCalibration.from_dict(calibration)
         y = calibration.apply(y)
     rot = np.zeros(k) if rotations_deg is None else np.asarray(rotations_deg, dtype=float).ravel()
     if rot.shape != (k,) or not np.all(np.isfinite(rot)):
@@ -908,7 +930,7 @@ def _prepare(readings, ring, currents, rotations_deg, positions, calibration, no
     data = _Data(y=y, ring=ring, rotations=rot, t=t, reference=reference, fit_currents=fit, n=n,
                  sigma=np.ones(m) if sigma is None else sigma, counts=counts, truth=truth,
                  refine_calibration=bool(refine_calibration), gain_currents=reference, unique=unique,
-                 rot_index=np.ravel(rot_index), points=pts, axes=axes, source=source)
+                 rot_index=np.ravel(rot_index), points=pts, axes=axes, source=source, sensor_ids=ids, notes=notes)
     return data, sigma is not None, source_noise
 
 
@@ -1047,8 +1069,8 @@ def diagnose_cable(readings, ring: Ring, currents=None, rotations_deg=None, posi
     remaining["base"] = base_info
     remaining["unexplained"] = _unexplained(where["overall"], remaining["overall"], accepted)
     # the gains after the effects found: a strong effect (a 100 mm lay) moves the base model's gains by 37 %
-    caveats = _caveats(data, _calibration_summary(final["coefficients"], state["model"].n_calibration), base_info,
-                       noise_source, where["overall"])
+    caveats = data.notes + _caveats(data, _calibration_summary(final["coefficients"], state["model"].n_calibration),
+                                    base_info, noise_source, where["overall"])
     series = {"t": data.t, "rotations": data.rotations, "levels": levels, "residual_before": base["residuals"],
               "residual_after": final["residuals"]}
     return CableDiagnosis(model="cable_ring", noise_sigma=float(np.sqrt(np.mean(data.sigma ** 2))),
