@@ -1026,8 +1026,11 @@ def cmd_export_c(args) -> int:
 
     cal = Calibration.load(args.calibration) if args.calibration else None
     sources = [Path(f).name for f in dict.fromkeys(filter(None, (args.calibration, args.kalman, args.drift)))]
-    print(export_c(cal, args.output, q_format=args.q_format, name=args.name, kalman=args.kalman, drift=args.drift,
-                   source=", ".join(sources), force=args.force, input_range=args.input_range).describe())
+    result = export_c(cal, args.output, q_format=args.q_format, name=args.name, kalman=args.kalman,
+                      drift=args.drift, source=", ".join(sources), force=args.force, input_range=args.input_range)
+    for w in result.warnings:  # what the fit of a drift model warned (in the header too)
+        print(f"warning: {w}")
+    print(result.describe())
     return 0
 
 
@@ -1276,26 +1279,41 @@ def cmd_drift(args) -> int:
                      "each")
             print(f"skipped {rec.metadata['skipped_lines'].replace(':', ' lines:', 1)} ({where})")
         temp, outside, temperature = _temperatures(rec, args.temp_column, args.outside_column, args.file)
-        glitches = drift.temperature_glitches(temp)
-        if len(glitches):  # (said with their file lines, before the fit says them by row)
-            lines = rec.line_numbers[glitches] if rec.line_numbers is not None else None
-            raise ValueError(f"{args.file}: {temperature['column']}: "
-                             + drift.glitch_words(temp, glitches, "line" if lines is not None else "row", lines))
+        for name, values in ((args.column, rec.columns[args.column]), (temperature["column"], temp),
+                             (args.outside_column, outside)):
+            bad = np.flatnonzero(~np.isfinite(values)) if values is not None else []
+            if len(bad):  # NaN, inf in a cell (the fit would name a 0-based sample of an array)
+                at = rec.line_numbers[bad] if rec.line_numbers is not None else bad
+                word = "line" if rec.line_numbers is not None else "row"
+                more = (f" ({len(bad)} {word}s: {', '.join(map(str, at[:5]))}{', …' if len(bad) > 5 else ''})"
+                        if len(bad) > 1 else "")
+                raise ValueError(f"{args.file}, {word} {at[0]}, column {name!r}: {float(values[bad[0]])} is not "
+                                 f"finite (NaN/Inf not allowed){more}; pass bad_lines='skip' (--bad-lines skip) to "
+                                 "leave such lines out")
         try:
             breakpoints = [float(v) for v in args.breakpoints.split(",")]
         except ValueError:
             raise ValueError(f"--breakpoints: {args.breakpoints!r} is not a comma-separated list of numbers") from None
-        model, report = drift.fit_pipeline(rec.columns[args.column], temp, outside,
-                                           regressor=args.regressor, breakpoints=breakpoints,
-                                           max_order=args.max_order, significance=args.significance,
-                                           continuous=args.continuous, ar_max_order=args.ar_max_order,
-                                           steady_state=args.steady_state, rated=args.rated,
-                                           accuracy_class=args.accuracy_class, drift_input=args.drift_input,
-                                           t=times)
+        try:
+            model, report = drift.fit_pipeline(rec.columns[args.column], temp, outside,
+                                               regressor=args.regressor, breakpoints=breakpoints,
+                                               max_order=args.max_order, significance=args.significance,
+                                               continuous=args.continuous, ar_max_order=args.ar_max_order,
+                                               steady_state=args.steady_state, rated=args.rated,
+                                               accuracy_class=args.accuracy_class, drift_input=args.drift_input,
+                                               t=times)
+        except drift.TemperatureGlitches as exc:  # said with their file lines (after the fit's size checks)
+            lines = rec.line_numbers[exc.rows] if rec.line_numbers is not None else None
+            raise ValueError(f"{args.file}: {temperature['column']}: "
+                             + drift.glitch_words(temp, exc.rows, "line" if lines is not None else "row", lines)
+                             ) from None
         if temperature["column"] != "temp":  # the °F/K hint names the file's column, and the remedy its unit line
             said = drift.temperature_unit_hint(temp, breakpoints)
-            report["warnings"] = [drift.temperature_unit_hint(temp, breakpoints, name=temperature["column"])
-                                  if w == said else w for w in report["warnings"]]
+            named = drift.temperature_unit_hint(temp, breakpoints, name=temperature["column"])
+            report["warnings"] = [named if w == said else w for w in report["warnings"]]
+            model.summary["fit_warnings"] = [named if w == said else w for w in model.summary["fit_warnings"]]
+            if "temperature_unit_hint" in model.summary:
+                model.summary["temperature_unit_hint"] = named
         model.settings["source"] = str(args.file)
         model.settings["column"] = args.column
         # the model's temperatures are °C whatever the file's; apply converts its file's alike
@@ -1346,9 +1364,27 @@ def cmd_drift(args) -> int:
     rec = _zero_bias_recording(args, column)
     if "skipped_lines" in rec.metadata:
         print(f"skipped {rec.metadata['skipped_lines'].replace(':', ' lines:', 1)} (not in the output)")
+    for w in drift.fit_warnings(model):  # what the fit said of the model goes with it
+        print(f"warning: {args.model} (at its fit): {w}")
     fitted = model.settings.get("temperature") or {}
-    temp, outside, temperature = _temperatures(rec, args.temp_column, args.outside_column or fitted.get("outside")
+    # the temperature column the model was fitted on, as the zero bias's, when this file has it
+    temp_column = args.temp_column or (fitted.get("column") if fitted.get("column") in rec.columns else None)
+    temp, outside, temperature = _temperatures(rec, temp_column, args.outside_column or fitted.get("outside")
                                                or "temp_outside", args.file)
+    lo, hi = model.segments[0]["range"][0], model.segments[-1]["range"][1]
+    if args.outside_range == "error":  # said with the file's line, the option that takes them, and a unit's hint
+        beyond = np.flatnonzero(np.isnan(model.evaluate(temp, outside, outside="nan"))
+                                & np.isfinite(rec.columns[column]))
+        if beyond.size:
+            k = beyond[0]
+            where = f"line {rec.line_numbers[k]}" if rec.line_numbers is not None else f"row {k}"
+            hint = drift.outside_unit_hint(temp[np.isfinite(rec.columns[column])], lo, hi, temperature["column"])
+            raise ValueError(f"{args.file}, {where}: {temperature['column']} {temp[k]:g} °C is outside every range of "
+                             f"the drift model {args.model} ({lo:g} … {hi:g} °C; {beyond.size} of {len(rec)} "
+                             "samples outside): the polynomials are not extrapolated; "
+                             + (f"{hint}. Else: " if hint else "")
+                             + "pass --outside-range nan to write NaN for them and compensate the rest, or fit the "
+                             "drift over the temperatures the device will meet (a chamber cycle that reaches them)")
     compensated = model.compensate(rec.columns[column], temp, outside, outside=args.outside_range)
     known = ~np.isnan(compensated)  # with --outside-range nan, the samples the model speaks for
     missing = ~np.isfinite(rec.columns[column])  # (NaN in, NaN out: not the temperature's doing)
@@ -1360,7 +1396,6 @@ def cmd_drift(args) -> int:
               f"({'file line' if rec.line_numbers is not None else 'row'}{'s' if len(rows) > 1 else ''} {shown}): "
               f"NaN in {column}_compensated")
     unknown = int((~known & ~missing).sum())
-    lo, hi = model.segments[0]["range"][0], model.segments[-1]["range"][1]
     if unknown and not known.any():
         # NaN for every sample is what --outside-range nan asks for, but a file of nothing but NaN is seldom what
         # was meant (another chamber, a temperature in another unit, the wrong model): written, and said loudly
@@ -1371,7 +1406,8 @@ def cmd_drift(args) -> int:
         print(f"warning: {args.file}: {every} ({unknown} of {len(rec)}) is outside the model's range "
               f"[{lo:g}, {hi:g}] °C of its temperature {temperature['column']!r}{seen}: {column}_compensated is NaN "
               "throughout (--outside-range nan; without it this is an error). Is it the right model, and the "
-              "temperature's column and unit?", file=sys.stderr)
+              "temperature's column and unit?" + (f" ({hint})" if (hint := drift.outside_unit_hint(
+                  hot, lo, hi, temperature["column"])) else ""), file=sys.stderr)
     elif unknown:
         print(f"warning: {unknown} of {len(rec)} samples at temperatures outside the model's {lo:g} … {hi:g} °C are "
               f"NaN in {column}_compensated (the polynomials are not extrapolated)")
@@ -1630,7 +1666,10 @@ def build_parser() -> argparse.ArgumentParser:
                                                  "fluxcal drift fit), in double with a test vector")
     x.add_argument("--force", action="store_true", help="export a calibration whose data did not determine every "
                                                         "parameter (identifiable NO), or whose offset moved within "
-                                                        "its log, marked so in the header")
+                                                        "its log; a --kalman whose noise model the drift fit "
+                                                        "rejected (residuals not white); a --drift whose fit "
+                                                        "warned its temperatures look like °F or K: marked so in "
+                                                        "the header")
     x.set_defaults(run=cmd_export_c)
 
     d = sub.add_parser("demo", help="simulate a magnetometer, calibrate it, print and plot the result")

@@ -111,8 +111,12 @@ class DriftModel:
         except ValueError as err:
             if "outside every range" not in str(err):
                 raise
-            raise ValueError(f"{err}: the polynomials are not extrapolated; fit the drift over the temperatures "
-                             "the device will meet (a chamber cycle that reaches them)") from None
+            hint = outside_unit_hint(temp, lo, hi)
+            raise ValueError(f"{err}: the polynomials are not extrapolated; "
+                             + (f"{hint}. Else: " if hint else "")
+                             + "pass outside='nan' (--outside-range nan) to mark such samples NaN and compensate "
+                             "the rest, or fit the drift over the temperatures the device will meet (a chamber "
+                             "cycle that reaches them)") from None
 
     def compensate(self, zero_bias, temp, temp_outside=None, outside: str = "error") -> np.ndarray:
         """W_c = W − f(T). A temperature outside every range: ValueError, or NaN with outside="nan"."""
@@ -274,24 +278,64 @@ def dc_gain(kalman: ArKalman) -> float:
 
 
 def temperature_glitches(temp, run: int = 3) -> np.ndarray:
-    """Rows where a logged temperature leaves its neighbours for at most `run` samples by more than the whole
-    range of the rest: a thermometer's error code (85 °C at a DS18B20's power-on, −127, 327.67 = 32767/100) or
-    a garbled line, no temperature a sensing element reaches and leaves so fast. Only such gross glitches: the
-    rule has no scale of its own to tune (a 327.67 in a −20…50 °C log had stretched the last range to 327.67 °C
-    and cut the drift reduction from 937× to 2.8×)."""
+    """Rows where a logged temperature leaves its course for at most `run` samples farther than a temperature
+    can: a thermometer's error code (85 °C at a DS18B20's power-on, −127, 327.67 = 32767/100) or a garbled line.
+    Two rules, either suffices, neither has a constant to tune (the departure is from the running median over
+    2·run + 1 samples, mirrored at the ends so that a first reading is judged against the ones after it):
+      - the departure exceeds the whole range of the rest by more than the thermometer's resolution (a 327.67
+        in a −20…50 °C log had stretched the last range to 327.67 °C and cut the drift reduction from 937× to
+        2.8×; a 1/16 °C step off a hold that never moved is no glitch);
+      - the departure exceeds run·D, D the largest step |ΔT| between consecutive samples of the rest: the median
+        of a series whose steps never exceed D lies within run·D of its centre sample, so no temperature the
+        rest of the log moves like departs that far (an 85 °C at 23 °C in a −40…70 °C log, within the range
+        of the rest, had changed a class-0.2S verdict and stretched the last range to 85 °C). D is taken over
+        the steps that touch none of the largest departures (a hundredth of the samples, twice as many while
+        every one of them is beyond the limit that gives), so that several glitches do not hide each other, and
+        is at least the thermometer's resolution (its smallest nonzero step: a quantised hold that seldom moves
+        is no glitch).
+    A slow log's steps are its own scale: at one sample per 10 min on a 1 °C/min ramp D is 10 °C."""
     from scipy.ndimage import median_filter
 
     t = np.asarray(temp, dtype=float)
-    if len(t) < 2 * run + 2 or not np.all(np.isfinite(t)):
+    n = len(t)
+    if n < 2 * run + 2 or not np.all(np.isfinite(t)):
         return np.zeros(0, dtype=int)
-    off = np.abs(t - median_filter(t, size=2 * run + 1, mode="nearest"))
-    rows = []
-    for i in np.argsort(off)[::-1][:max(1, len(t) // 100)]:  # the largest departures, a hundredth at most
+    off = np.abs(t - median_filter(t, size=2 * run + 1, mode="mirror"))
+    order = np.argsort(-off, kind="stable")  # the largest departures first
+    steps = np.abs(np.diff(t))
+    moved = steps[steps > 0]
+    resolution = float(moved.min()) if moved.size else 0.0
+    rows = set()
+    for i in order[:max(1, n // 100)]:  # the whole-range rule, a hundredth at most
         rest = t[off < off[i]]  # (without it and the glitches beyond it)
-        if len(rest) < len(t) // 2 or not off[i] > np.ptp(rest):
+        if len(rest) < n // 2 or not off[i] > np.ptp(rest) + resolution:
             break
-        rows.append(int(i))
-    return np.sort(np.array(rows, dtype=int))
+        rows.add(int(i))
+
+    def limit(count):  # run·D, D over the steps that touch none of the `count` largest departures
+        top = order[:count]
+        touched = np.zeros(n - 1, dtype=bool)
+        touched[top[top < n - 1]] = True  # the step after each
+        touched[top[top > 0] - 1] = True  # and the one before
+        free = steps[~touched]
+        return run * max(float(free.max()) if free.size else 0.0, resolution)
+
+    count = max(1, n // 100)
+    # more glitches than that (every candidate beyond the limit that twice as many give): take twice as many
+    while 2 * count <= n // 4 and off[order[count - 1]] > limit(2 * count):
+        count *= 2
+    beyond = limit(count)
+    rows.update(int(i) for i in order[:count] if off[i] > beyond)  # (descending: a leading run of them)
+    return np.array(sorted(rows), dtype=int)
+
+
+class TemperatureGlitches(ValueError):
+    """fit_pipeline's error for readings `temperature_glitches` finds; `rows` holds them (the CLI names their file
+    lines)."""
+
+    def __init__(self, message: str, rows):
+        super().__init__(message)
+        self.rows = np.asarray(rows, dtype=int)
 
 
 def glitch_words(temp, rows, word: str = "row", labels=None) -> str:
@@ -299,10 +343,11 @@ def glitch_words(temp, rows, word: str = "row", labels=None) -> str:
     the remedy."""
     labels = rows if labels is None else labels
     shown = ", ".join(f"{word} {k}: {temp[i]:g} °C" for i, k in zip(rows[:5], labels[:5]))
-    return (f"{len(rows)} reading(s) leave the temperature's course and come back within 3 samples by more than the "
-            f"whole range of the rest ({shown}{', …' if len(rows) > 5 else ''}): a thermometer's error code or a "
-            "garbled line, which would stretch the model's ranges; remove them, or leave their temperature empty "
-            "and pass --bad-lines skip")
+    return (f"{len(rows)} reading(s) leave the temperature's course and come back within 3 samples, farther than "
+            "a temperature the rest of the log follows can (by more than the whole range of the rest, or than 3 of "
+            f"its largest steps) ({shown}{', …' if len(rows) > 5 else ''}): a thermometer's error code or a garbled "
+            "line, which would stretch the model's ranges and bias its fit; remove them, or leave their temperature "
+            "empty and pass --bad-lines skip")
 
 
 # The temperatures an FOCT's own thermometer reads in service: an outdoor substation's ambient to the rating of its
@@ -379,10 +424,75 @@ def temperature_unit_hint(temp, breakpoints=DEFAULT_BREAKPOINTS, name: str = "te
             f"is, the model's ranges are {sign} numbers taken for °C")
 
 
+def outside_unit_hint(temp, lo: float, hi: float, name: str = "temp") -> str | None:
+    """When temperatures of a log are outside a model's ranges [lo, hi] (°C): the unit that explains it, or None.
+    Either the log's numbers are °F or K with no unit (converted, all fall within the ranges, and either span them
+    edge to edge within UNIT_EDGE_TOLERANCE or as °C are beyond what an FOCT meets or are all outside: a log a
+    few °C hotter than the model is not °F), or, when every one is outside, the model's are (a model fitted on
+    °F or K numbers taken for °C: its ranges, converted, hold the log and are temperatures an FOCT meets)."""
+    from .io.columns import TO_CELSIUS
+
+    t = np.asarray(temp, dtype=float)
+    t = t[np.isfinite(t)]
+    if t.size == 0 or not hi > lo:
+        return None
+    a, b = float(t.min()), float(t.max())
+    margin = EDGE_MARGIN * (hi - lo)
+    within = (t >= lo - margin) & (t <= hi + margin)
+    if within.all():
+        return None
+    cold, hot = DEVICE_TEMPERATURES[0] - UNIT_OVERSHOOT, DEVICE_TEMPERATURES[1] + UNIT_OVERSHOOT
+    tol = UNIT_EDGE_TOLERANCE * (hi - lo)
+    for unit, sign, stated, suffix in _OTHER_UNITS:
+        ca, cb = TO_CELSIUS[unit](a), TO_CELSIUS[unit](b)
+        spans = abs(ca - lo) <= tol and abs(cb - hi) <= tol
+        if ca >= lo - margin and cb <= hi + margin and (spans or a < cold or b > hot or not within.any()):
+            return (f"this log's {name} {a:.4g} … {b:.4g} would be {ca:.3g} … {cb:.3g} °C in {sign}, within the "
+                    f"model's ranges {lo:.4g} … {hi:.4g} °C: is it in {sign}? State its unit ('# units: "
+                    f"{name}={stated}' in a CSV, or name the column {name}{suffix})")
+    for unit, sign, stated, suffix in _OTHER_UNITS if not within.any() else ():
+        cl, ch = TO_CELSIUS[unit](lo), TO_CELSIUS[unit](hi)
+        slack = EDGE_MARGIN * (ch - cl)
+        if cl >= cold and ch <= hot and a >= cl - slack and b <= ch + slack:
+            return (f"the model's ranges {lo:.4g} … {hi:.4g} read as {sign} would be {cl:.3g} … {ch:.3g} °C, "
+                    "which "
+                    f"hold this log's {a:.4g} … {b:.4g} °C: was the model fitted on a temperature in {sign} logged "
+                    f"with no unit? Fit it again with the unit stated ('# units: temp={stated}' in a CSV, or a "
+                    f"column named temp{suffix})")
+    return None
+
+
+# the warnings of a fit that describe how its ranges were set, not the model's validity (not repeated by
+# fit_warnings: apply and export-c enforce the ranges)
+_RANGE_NOTE = "adjusted to the data:"
+
+
+def fit_warnings(model: "DriftModel") -> list:
+    """The warnings of the fit that made `model` (fit_pipeline's report["warnings"], kept in
+    model.summary["fit_warnings"]: a unit hint, an AR model rejected, a noise not stationary, …, then the drift
+    fit's own, model.summary["warnings"]), for `drift apply` and `export-c` to repeat; the note that the ranges
+    were adjusted to the data is left out. A model saved before fluxcal kept them has only the drift fit's."""
+    said = list(model.summary.get("fit_warnings", []))
+    said += [w for w in model.summary.get("warnings", []) if w not in said]
+    return [w for w in said if _RANGE_NOTE not in w]
+
+
+def noise_model_rejected(model: "DriftModel") -> str | None:
+    """Why the fit rejected the AR model of the noise about the drift (Ljung–Box: residuals not white), or None
+    (white, untested, or a model saved before the test was kept)."""
+    whiteness = (model.settings.get("ar") or {}).get("whiteness") or {}
+    p = whiteness.get("p_value")
+    if p is None or not p == p or whiteness.get("white", True):
+        return None
+    return (f"the fit rejected the AR({model.settings['ar'].get('order')}) model of the noise about the drift: its "
+            f"residuals are not white (Ljung-Box p = {p:.3g} over {whiteness.get('lags')} lags)")
+
+
 def _finite(values: np.ndarray, name: str) -> np.ndarray:
     bad = ~np.isfinite(values)
     if bad.any():
-        raise ValueError(f"{name}: sample {int(np.argmax(bad))} is {values[np.argmax(bad)]} (NaN/Inf not allowed)")
+        raise ValueError(f"{name}: sample {int(np.argmax(bad))} is {values[np.argmax(bad)]} (NaN/Inf not allowed; "
+                         f"{int(bad.sum())} such sample(s)): leave those samples out (in a file: --bad-lines skip)")
     return values
 
 
@@ -438,9 +548,9 @@ def fit_pipeline(zero_bias, temp, temp_outside=None, regressor: str = "temp", br
         raise ValueError(f"temp: {temp.size} samples, zero_bias has {w.size}")
     breaks, gaps, gap_notes, gap_warnings = _gaps(t, w.size, ar_max_order)
     pre = ts.preprocess(w, subseries=subseries, breaks=breaks)
-    glitches = temperature_glitches(temp)  # (after the sizes and the length are judged)
+    glitches = temperature_glitches(temp)  # (after the sizes and the length are judged: 8 rows are too few first)
     if len(glitches):
-        raise ValueError(f"temp: {glitch_words(temp, glitches)}")
+        raise TemperatureGlitches(f"temp: {glitch_words(temp, glitches)}", glitches)
     if np.ptp(temp) == 0:  # (else "range [-20, 0]: 0 samples", as if the ranges were wrong)
         raise ValueError(f"temp: every sample is {temp[0]:g} °C; a drift with temperature needs the temperature to "
                          "change (a chamber cycle, a warm-up)")
@@ -516,4 +626,13 @@ def fit_pipeline(zero_bias, temp, temp_outside=None, regressor: str = "temp", br
         # leaves), and the drift alone (the compensated zero bias averaged per temperature level).
         report["accuracy"] = accuracy(residual_filtered, rated, accuracy_class)
         report["accuracy_drift"] = accuracy(list(level_means(compensated, temp).values()), rated, accuracy_class)
+    # The data's warnings go with the model (summary["warnings"] keeps the drift fit's own; drift apply and
+    # export-c repeat both: fit_warnings), the ones that decide whether the model may be exported as it is also
+    # by name: the AR model's whiteness test (noise_model_rejected) and a unit hint (temperature_unit_hint).
+    model.summary["fit_warnings"] = list(report["warnings"])
+    p_value = float(ar.whiteness["p_value"])
+    model.settings["ar"]["whiteness"] = {"p_value": p_value if p_value == p_value else None,  # (untested: null)
+                                         "lags": int(ar.whiteness["lags"]), "white": bool(ar.whiteness["white"])}
+    if unit_warnings:
+        model.summary["temperature_unit_hint"] = unit_warnings[0]
     return model, report

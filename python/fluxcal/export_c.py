@@ -37,7 +37,7 @@ import json
 import math
 import re
 import tempfile
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
@@ -484,6 +484,59 @@ def _drift_part(drift, name: str):
     return lines, model
 
 
+def _drift_fit_said(kalman, drift, force: bool):
+    """What the fits of the drift models given as `kalman` and `drift` said (a DriftModel or the path of its
+    JSON; a saved FixedArKalman says nothing): ({part: comment lines for the header}, warnings to print). A drift
+    model whose temperatures looked like °F or K logged with no unit is refused unless `force`, and then the header
+    says it; a Kalman filter whose noise model the fit rejected (residuals not white) is written with that warning
+    in the header and printed (its 5 % test rejects one good model in twenty: a refusal would need --force there)."""
+    from .drift import DriftModel, fit_warnings, noise_model_rejected
+
+    lines, warnings, said = {}, [], set()
+    for part, given in (("kalman", kalman), ("drift", drift)):
+        model, where = given, "drift model"
+        if isinstance(given, (str, Path)):
+            data = load_json_object(given, "a saved FixedArKalman or drift model")
+            if data.get("kind") != "fluxcal drift model":
+                continue
+            model, where = DriftModel.from_dict(data, str(given)), str(given)
+        if not isinstance(model, DriftModel):
+            continue
+        if part == "kalman":
+            rejected = noise_model_rejected(model)
+            comment = _c_comment(f"WARNING: {rejected}: this filter's q, r and coefficients may describe another "
+                                 "noise than the device's (a thermal lag, a step, a longer memory).") if rejected else []
+            if rejected:
+                warnings.append(f"{where}: {rejected}: the filter is written, its header says so; find the cause (a "
+                                "thermal lag, a step, a memory beyond --ar-max-order) and fit again for one that fits")
+            why = rejected
+        else:
+            why = model.summary.get("temperature_unit_hint")
+            if why and not force:
+                raise ValueError(f"drift: {where}: its fit warned that the temperatures are not °C: {why}; the header "
+                                 "would say degrees C over those numbers. Fit again with the unit stated, or export it "
+                                 "anyway with force=True (--force), which the header then says")
+            comment = _c_comment(f"WARNING (exported with --force): {why}.") if why else []
+        for w in fit_warnings(model):
+            if (where, w) not in said and w != why:
+                said.add((where, w))
+                warnings.append(f"{where} (at its fit): {w}")
+                comment += _c_comment(f"The fit of {Path(where).name} warned: {w}")
+        if why and part == "drift":
+            warnings.append(f"{where}: exported with --force: {why}")
+        lines[part] = comment
+    return lines, warnings
+
+
+def _c_comment(text: str) -> list:
+    """`text` as a C comment in lines of at most 110 characters."""
+    import textwrap
+
+    body = textwrap.wrap(text.replace("*/", "* /"), 104, break_long_words=False, break_on_hyphens=False)
+    return [("/* " if k == 0 else " * ") + line for k, line in enumerate(body)][:-1] + \
+        [("/* " if len(body) == 1 else " * ") + body[-1] + " */"]
+
+
 def _kalman_test_vector(f, n: int = 256, seed: int = 0):
     """An AR series of the filter's own model (seeded) in the signal format, and filter_int's outputs."""
     d = f.double
@@ -514,6 +567,7 @@ class ExportResult:
     kalman: object = None
     kalman_test: tuple | None = None
     drift: object = None  # the DriftModel written as f(T)
+    warnings: list = field(default_factory=list)  # what the fit of a drift model (--drift, --kalman) warned
 
     def describe(self) -> str:
         said = []
@@ -561,8 +615,9 @@ def export_c(cal: Calibration | None, path, q_format=None, name: str | None = No
     calibration whose summary says its data did not determine every parameter
     (identifiable false: a yaw-only turn, small tilts), or whose offset moved within its log (a planar calibration's
     offset_split: the calibration is of neither part), is refused — firmware would apply a guess with
-    nothing to say so — unless `force`, and then the header says it. Returns what was written
-    (ExportResult.describe() says it in one line)."""
+    nothing to say so — unless `force`, and then the header says it. So is a drift model whose fit warned that
+    its temperatures look like °F or K logged with no unit; the other warnings of a drift model's fit (a Kalman
+    filter's noise model rejected among them) are repeated in the header and in ExportResult.warnings. Returns what was written (ExportResult.describe() says it in one line)."""
     from . import __version__
     from ._arrays import require_calibration
     from .kalman import FixedArKalman
@@ -581,11 +636,12 @@ def export_c(cal: Calibration | None, path, q_format=None, name: str | None = No
                              "with force=True (--force), which the header then says")
     if kalman is not None and not isinstance(kalman, (str, Path, FixedArKalman)):
         raise TypeError(f"kalman: expected a FixedArKalman or the path of its JSON, got {type(kalman).__name__}")
+    fit_said, fit_warned = _drift_fit_said(kalman, drift, force)  # (before anything is written)
     path = Path(path)
     name = _c_name(name if name is not None else default_name(path))
     up = name.upper()
     i32 = lambda v: str(int(v)) if v != INT32_MIN else "INT32_MIN"  # noqa: E731
-    result = ExportResult(path)
+    result = ExportResult(path, warnings=fit_warned)
     parts = []
     if cal is not None:
         lines, result.fixed, result.inputs_q = _calibration_part(cal, name, q_format, input_range, i32)
@@ -594,10 +650,10 @@ def export_c(cal: Calibration | None, path, q_format=None, name: str | None = No
         parts.append(("magnetometer calibration", lines))
     if kalman is not None:
         lines, result.kalman, result.kalman_test = _kalman_part(kalman, name, i32)
-        parts.append(("fixed-point Kalman filter", lines))
+        parts.append(("fixed-point Kalman filter", fit_said.get("kalman", []) + lines))
     if drift is not None:
         lines, result.drift = _drift_part(drift, name)
-        parts.append(("temperature drift compensation", lines))
+        parts.append(("temperature drift compensation", fit_said.get("drift", []) + lines))
     head = [f"/* {path.name}: {' and '.join(what for what, _ in parts)} for firmware, written by fluxcal "
             f"{__version__}" + (f" from {source}." if source else "."),
             " * C99, also valid C++; every function is static inline. */",
