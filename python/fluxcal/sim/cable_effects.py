@@ -587,8 +587,45 @@ class CableZLeakage(CableEffect):
                    float(np.radians(rng.uniform(2.0, 4.0))), float(rng.uniform(0.0, 360.0)))
 
 
-CABLE_CANDIDATES = (HelicalLay, FiniteLength, SensorPositionError, CableTilt, CableZLeakage)
-"""The cable candidates by name: helical_lay, finite_length, sensor_position_error, cable_tilt, z_leakage."""
+@dataclass
+class SensorCoupling(CableEffect):
+    """Each sensor's two axes coupled: its x axis also reads c_x × the field along its y axis, and its y axis c_y ×
+    the field along its x (`coupling` (M, 2)): axes not at right angles (an x axis tilted ε towards y: c_x = sin ε,
+    c_y = 0), each axis turned on its own on the package, or crosstalk between the two channels. Typical (AMR and
+    Hall packages, a board's assembly): ±0.5–2 % per axis (0.3–1.1°).
+
+    Candidate: per sensor axis, the field along its other axis at the fitted positions: 2M linear coefficients. An
+    equal and opposite pair c_x = −c_y is a turn of the sensor's axes, which sensor_position_error also holds (its
+    axis angle); c_x ≠ −c_y is this effect's own, which a per-axis gain and offset cannot take (the calibration's
+    TWOSTEP then leaves |h| varying with twice the angle of the field at the sensor)."""
+
+    coupling: np.ndarray
+    name = "sensor_coupling"
+    n_params = 8  # 2 per sensor of the 4-sensor ring
+    regime = "rotation"
+    kind = "readings"
+
+    def readings(self, field_lab, axis_rad):
+        """c ⊙ (the field along the other axis) (…, M, 2) for the true cable field `field_lab` (…, M) complex."""
+        return np.asarray(self.coupling) * to_axes(field_lab, axis_rad)[..., ::-1]
+
+    @classmethod
+    def features(cls, ctx, alternative=None):
+        h = to_axes(ctx.field_lab, ctx.axes[ctx.rot_index])  # (K, M, 2) in each sensor's axes
+        k, m, _ = h.shape
+        out = np.zeros((k, m, 2, m, 2))
+        for a in range(2):  # sensor i's axis a reads its own other axis's field
+            out[:, np.arange(m), a, np.arange(m), a] = h[..., 1 - a]
+        return out.reshape(k, m, 2, 2 * m)
+
+    @classmethod
+    def typical(cls, n_sensors, rng):
+        return cls(rng.choice([-1.0, 1.0], (n_sensors, 2)) * rng.uniform(0.005, 0.02, (n_sensors, 2)))
+
+
+CABLE_CANDIDATES = (HelicalLay, FiniteLength, SensorPositionError, CableTilt, CableZLeakage, SensorCoupling)
+"""The cable candidates by name: helical_lay, finite_length, sensor_position_error, cable_tilt, z_leakage,
+sensor_coupling."""
 
 
 # ---------------------------------------------------------------- a rig with effects
