@@ -457,7 +457,70 @@ def calibrate(mag, acc, field_ned, frame: str = "ned", preset=None, attitudes=No
     res = _result(d, frame)
     _check_field_fit(res, f, frame, U, sf, nominal, refit, **sameness)
     res.summary["warnings"] = list(res.summary["warnings"]) + _unit_warnings(res, f, units, False)
+    if options.estimate_inclination:
+        said = _dip_moved(res, f)
+        if said:
+            res.summary["warnings"].append(said)
+    if options.estimate_yaw and len(nominal):
+        said = _turned_around(res)
+        if said:
+            if "K's sign is reversed" in said:  # (not a relabelling that "holds": the same reversal, its cause said)
+                res.summary["warnings"] = [w for w in res.summary["warnings"]
+                                           if not w.startswith("K is an axis relabelling")]
+            res.summary["warnings"].append(said)
     return res
+
+
+# An estimated dip this far from the given field's: no local anomaly or model error (IGRF's dip is good to a fraction of
+# a degree away from anomalies of a few degrees) — the reference field is wrong as a whole
+DIP_CONTRADICTED_DEG = 5.0
+
+
+def _dip_moved(res, given) -> str | None:
+    """The dip estimated far from the reference field's (DIP_CONTRADICTED_DEG): the dip is free, but the magnitude
+    that sets K's scale still comes from the same reference (a newcomer's IGRF at swapped lat/lon: dip 16° given,
+    68° estimated, K 29 % too large with a perfect residual and no word)."""
+    def dip(v):
+        return float(np.degrees(np.arctan2(v[2], np.hypot(v[0], v[1]))))
+
+    f = np.asarray(given, dtype=float)
+    moved = dip(res.field_ned) - dip(f)
+    if abs(moved) <= DIP_CONTRADICTED_DEG:
+        return None
+    return (f"the dip estimated, {dip(res.field_ned):.2f}°, is {abs(moved):.1f}° from the reference field's "
+            f"({dip(f):.2f}°): more than a local anomaly or the field model's error — the reference field is "
+            f"probably wrong as a whole (the place, the date, the components' order), and its magnitude "
+            f"({np.linalg.norm(f):.6g}), which sets K's scale, comes from it: check it (without estimating the dip the "
+            "fit names a field that does not fit)")
+
+
+# A heading correction beyond this from a nominal attitude contradicts it: a bench sets its positions to a few degrees
+HEADING_CONTRADICTED_DEG = 90.0
+
+
+def _turned_around(res) -> str | None:
+    """Headings estimated beside nominal attitudes that turn positions by more than HEADING_CONTRADICTED_DEG: the fit
+    turned them about the vertical rather than fit the attitudes given. Every one, with K's sign reversed: the
+    reference field's sign (a down component given up: −(N, E, −D) is (N, E, D) turned 180°, a negated K then fits
+    it exactly — a newcomer's inclination of −52° for +52° passed with K negated and only an axis-relabelling note);
+    every one with K upright: the bench's north mark; some: positions swapped (an attitude turned 180° about the
+    vertical is another of the preset's). Without estimated headings the fit names each of these mistakes."""
+    turn = np.mod(np.asarray(res.yaw_deg, dtype=float) + 180.0, 360.0) - 180.0
+    rows = np.flatnonzero(np.abs(turn) > HEADING_CONTRADICTED_DEG)
+    if not len(rows):
+        return None
+    size = f"{np.median(np.abs(turn[rows])):.0f}°"
+    remedy = "; fit without estimating the headings (no --estimate-yaw; estimate_yaw=False), which names the mistake"
+    if len(rows) < len(turn):
+        return (f"the estimated headings turn position(s) {', '.join(str(r + 1) for r in rows)} (counted from 1 in "
+                f"the order given) by {size} from their nominal attitudes: positions swapped (an attitude turned 180° "
+                f"about the vertical is another position) or misplaced on the bench{remedy}")
+    if np.trace(res.K) < 0:
+        return (f"the estimated headings turn every position by {size} from its nominal attitude, and K's sign is "
+                "reversed with them: the reference field's down component probably has the wrong sign (the "
+                f"inclination's: up taken for down), which such a fit absorbs into K's sign{remedy}")
+    return (f"the estimated headings turn every position by {size} from its nominal attitude: the bench's north "
+            f"reference reversed, or the field's horizontal part given with the wrong sign{remedy}")
 
 
 def fit(mag, reference, units: str = "", frame: str = "ned") -> PositionsResult:

@@ -602,3 +602,30 @@ def test_cli_positions_takes_named_positions(tmp_path):
                                json.loads((tmp_path / "n.json").read_text())["K"], rtol=1e-9)
     rec = fluxcal.read_recording(tmp_path / "named.csv")
     assert rec.metadata["position_labels"].startswith("P") and "P01=1" in rec.metadata["position_labels"]
+
+
+def test_estimated_headings_that_turn_the_positions_around_are_said():
+    """A newcomer's walk-through: with --estimate-yaw, an inclination given with the wrong sign was absorbed as every
+    heading turned 180° and K negated (exit 0, a note that the relabelled K "holds"); two swapped positions as two
+    headings turned 180°, unsaid; and with the dip estimated, a reference field from swapped lat/lon (dip 16° given,
+    68° estimated) kept its magnitude and K came out 29 % too large, unsaid."""
+    s = _twelve(np.random.default_rng(0))  # (a scene whose fit against the flipped field reaches the 180° turn)
+    nominal = sim.twelve_scene("nue").nominal
+    up_down = PAPER_FIELD * [1.0, 1.0, -1.0]
+    r = fp.calibrate(s.outputs, s.acc_raw, up_down, frame="nue", rotations=nominal, estimate_yaw=True)
+    said = [w for w in r.summary["warnings"] if "estimated headings turn" in w]
+    assert len(said) == 1 and "every position by 179°" in said[0] and "down component" in said[0], r.summary
+    assert not any(w.startswith("K is an axis relabelling") for w in r.summary["warnings"])
+    swapped = s.outputs.copy(), s.acc_raw.copy()
+    for a in swapped:
+        a[[2, 3]] = a[[3, 2]]
+    r = fp.calibrate(*swapped, PAPER_FIELD, frame="nue", rotations=nominal, estimate_yaw=True)
+    assert any("turn position(s) 3, 4 (counted from 1" in w for w in r.summary["warnings"]), r.summary["warnings"]
+    r = fp.calibrate(s.outputs, s.acc_raw, PAPER_FIELD, frame="nue", rotations=nominal, estimate_yaw=True)
+    assert not any("estimated headings turn" in w for w in r.summary["warnings"])
+    # a reference field of another place: the dip estimated far from it, its magnitude (K's scale) said suspect
+    elsewhere = fp.reference_field(total=38900.0, inclination=16.0)
+    r = fp.calibrate(s.outputs, s.acc_raw, elsewhere, frame="nue", rotations=nominal, estimate_inclination=True)
+    assert any("is 36.0° from the reference field's (16.00°)" in w for w in r.summary["warnings"]), r.summary
+    r = fp.calibrate(s.outputs, s.acc_raw, PAPER_FIELD, frame="nue", rotations=nominal, estimate_inclination=True)
+    assert not any("the dip estimated" in w for w in r.summary["warnings"])
