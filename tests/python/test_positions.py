@@ -629,3 +629,24 @@ def test_estimated_headings_that_turn_the_positions_around_are_said():
     assert any("is 36.0° from the reference field's (16.00°)" in w for w in r.summary["warnings"]), r.summary
     r = fp.calibrate(s.outputs, s.acc_raw, PAPER_FIELD, frame="nue", rotations=nominal, estimate_inclination=True)
     assert not any("the dip estimated" in w for w in r.summary["warnings"])
+
+
+def test_cli_positions_moves_between_positions_with_an_empty_position_cell(tmp_path):
+    """A twelve-position log with the moves between positions logged (a newcomer's): an empty position cell and
+    --bad-lines skip leave them out even when they are most of the lines (the reader had asked whether a preamble
+    stood above the table), and a 0 label is refused with that remedy."""
+    rng = np.random.default_rng(4)
+    s = _twelve(rng)
+    lines = ["position,ax,ay,az,mx,my,mz"]
+    for k in range(12):
+        for _ in range(3):  # three still readings, then ten while moving
+            lines.append(",".join([str(k + 1)] + [f"{v:.6f}" for v in (*s.acc_raw[k], *s.outputs[k])]))
+        lines += [",".join([""] + [f"{v:.6f}" for v in (*s.acc_raw[k], *s.outputs[k])])] * 10
+    path = tmp_path / "moves.csv"
+    path.write_text("\n".join(lines) + "\n")
+    field = ",".join(f"{v:.3f}" for v in PAPER_FIELD)
+    r = run_cli("positions", path, "--preset", "twelve", "--frame", "nue", "--field", field, "--bad-lines", "skip")
+    assert r.returncode == 0 and "skipped 120 of 156 lines" in r.stdout, r.stdout + r.stderr
+    path.write_text("\n".join(ln if not ln.startswith(",") else "0" + ln for ln in lines) + "\n")
+    r = run_cli("positions", path, "--preset", "twelve", "--frame", "nue", "--field", field)
+    assert r.returncode == 2 and "has 0 besides (rows logged while the device moves" in r.stderr, r.stderr

@@ -232,17 +232,18 @@ def parse_mixed_rows(path, lines, start: int, names, delimiter, bad_lines: str, 
     if text_notes:
         metadata["text_columns"] = "; ".join(text_notes)
     numeric = [j for j in range(len(names)) if j not in text]
-    good, skipped = [], []
+    good, skipped, skipped_in = [], [], set()  # skipped_in: the column of each skipped line's problem (None: fields)
     # skipping, a number written as nan or inf is a bad line too (a sensor's failed read printed as a float)
     usable = _is_finite_number if bad_lines == "skip" else _is_number
     never_finite = {j for j in range(len(names)) if whole and not any(_is_finite_number(c[j]) for c in whole)}
     for row, (c, line_no) in enumerate(zip(cells, line_numbers)):
-        problem = None
+        problem, where = None, None
         if len(c) != len(names):
             problem = (f"{len(c)} fields, the header has {len(names)} (truncated or garbled line?)")
         else:
             bad = next((j for j in numeric if not (usable(c[j]) or (j in never_finite and _is_number(c[j])))), None)
             stamp = next((j for j in columns if not np.isfinite(columns[j][row])), None)
+            where = bad if bad is not None else stamp
             if bad is not None:
                 problem = f"column {names[bad]!r}: {_not_a_number(c[bad])}"
             elif stamp is not None:
@@ -257,9 +258,13 @@ def parse_mixed_rows(path, lines, start: int, names, delimiter, bad_lines: str, 
             raise ValueError(f"{path}, line {line_no}: {problem}; {SKIP_HINT}")
         else:
             skipped.append(f"{line_no} ({problem})")
+            skipped_in.add(where)
     if not good:
         raise ValueError(f"{path}: no readable data rows" + (f" (all {len(skipped)} lines bad)" if skipped else ""))
-    if len(skipped) > len(good):  # not a few garbled lines: the header is not the table's (a preamble line?)
+    # Most lines skipped: not a few garbled lines, the header is not the table's (a preamble line?) — unless every
+    # skipped line has the header's fields and one column's cell is what is missing (a position column filled only
+    # while the device is still: a twelve-position log with its moves between positions had been refused so)
+    if len(skipped) > len(good) and not (len(skipped_in) == 1 and None not in skipped_in):
         raise ValueError(f"{path}: {len(skipped)} of {len(cells)} lines do not fit the header on line {start} "
                          f"({', '.join(names)}); skipping them would keep {len(good)}. Is a preamble above the "
                          "table? fluxcal.read_recording (and the command line) find the header after one")
