@@ -471,6 +471,24 @@ def calibrate(mag, acc, field_ned, frame: str = "ned", preset=None, attitudes=No
     return res
 
 
+# Every estimated heading turned the same way by more than this (and beyond their scatter): said, with its causes
+COMMON_TURN_DEG = 1.0
+
+
+def _common_turn(turn) -> str | None:
+    """Headings estimated beside nominal attitudes that share one turn (their mean beyond COMMON_TURN_DEG and
+    beyond 3 standard errors of the mean by their scatter): a declination not given (magnetic north taken for true
+    north on the bench, or the reverse) or the bench's north mark off — the fit absorbs either, unsaid (a newcomer's
+    −3° on every position)."""
+    mean = float(np.mean(turn))
+    spread = float(np.std(turn, ddof=1)) / np.sqrt(len(turn)) if len(turn) > 1 else np.inf
+    if abs(mean) <= COMMON_TURN_DEG or abs(mean) <= 3.0 * spread:
+        return None
+    return (f"every estimated heading is turned by about {mean:+.2f}° from its nominal attitude (mean; their scatter "
+            f"±{spread:.2f}°): a declination not given or given with the wrong sign (--declination; the field's "
+            "north against the bench's), or the bench's north mark off by that; the fit absorbs it, K is unaffected")
+
+
 # An estimated dip this far from the given field's: no local anomaly or model error (IGRF's dip is good to a fraction of
 # a degree away from anomalies of a few degrees) — the reference field is wrong as a whole
 DIP_CONTRADICTED_DEG = 5.0
@@ -508,7 +526,7 @@ def _turned_around(res) -> str | None:
     turn = np.mod(np.asarray(res.yaw_deg, dtype=float) + 180.0, 360.0) - 180.0
     rows = np.flatnonzero(np.abs(turn) > HEADING_CONTRADICTED_DEG)
     if not len(rows):
-        return None
+        return _common_turn(turn)
     size = f"{np.median(np.abs(turn[rows])):.0f}°"
     remedy = "; fit without estimating the headings (no --estimate-yaw; estimate_yaw=False), which names the mistake"
     if len(rows) < len(turn):

@@ -622,7 +622,12 @@ def test_estimated_headings_that_turn_the_positions_around_are_said():
     r = fp.calibrate(*swapped, PAPER_FIELD, frame="nue", rotations=nominal, estimate_yaw=True)
     assert any("turn position(s) 3, 4 (counted from 1" in w for w in r.summary["warnings"]), r.summary["warnings"]
     r = fp.calibrate(s.outputs, s.acc_raw, PAPER_FIELD, frame="nue", rotations=nominal, estimate_yaw=True)
-    assert not any("estimated headings turn" in w for w in r.summary["warnings"])
+    assert not any("estimated headings turn" in w or "every estimated heading" in w for w in r.summary["warnings"])
+    # a declination left out: every heading turned by it, said (the fit absorbs it)
+    declined = fp.reference_field(total=52200.0, inclination=52.0, declination=3.0)
+    r = fp.calibrate(s.outputs, s.acc_raw, declined, frame="nue", rotations=nominal, estimate_yaw=True)
+    assert any("every estimated heading is turned by about" in w and "declination" in w
+               for w in r.summary["warnings"]), r.summary["warnings"]
     # a reference field of another place: the dip estimated far from it, its magnitude (K's scale) said suspect
     elsewhere = fp.reference_field(total=38900.0, inclination=16.0)
     r = fp.calibrate(s.outputs, s.acc_raw, elsewhere, frame="nue", rotations=nominal, estimate_inclination=True)
