@@ -1413,14 +1413,19 @@ def cmd_drift(args) -> int:
               f"NaN in {column}_compensated (the polynomials are not extrapolated)")
     out_name = f"{column}_compensated"
     columns = {**rec.columns, out_name: compensated}
-    units = {**rec.units, **({out_name: rec.units[column]} if rec.units.get(column) else {})}
+    names = [out_name]
+    if args.filtered:  # the firmware's output (export-c --kalman runs this filter on W − f(T))
+        times = rec.time() if rec._time_column() is not None else None
+        columns[f"{column}_filtered"] = drift.filter_compensated(model, compensated, times)
+        names.append(f"{column}_filtered")
+    units = {**rec.units, **({n: rec.units[column] for n in names} if rec.units.get(column) else {})}
     write_output(args.output, Recording(columns=columns, units=units, source=str(args.output),
                                         metadata={**rec.metadata, "drift_model": args.model}))
     # the span is of the samples compensated: with none there is none to give
     span = (f"drift span {drift.drift_span(rec.columns[column][known], temp[known]):.4g} -> "
             f"{drift.drift_span(compensated[known], temp[known]):.4g}" if known.any() else
             "every value NaN: no sample compensated")
-    print(f"wrote {args.output}: {len(rec)} rows, column {out_name} ({span})")
+    print(f"wrote {args.output}: {len(rec)} rows, column{'s' if len(names) > 1 else ''} {', '.join(names)} ({span})")
     return 0
 
 
@@ -1748,6 +1753,9 @@ def build_parser() -> argparse.ArgumentParser:
                          "output (the others compensated; every sample outside: all NaN, with a warning)")
     da.add_argument("--outside-column", default=None,
                     help="the outside temperature's column (default: the one the model was fitted with)")
+    da.add_argument("--filtered", action="store_true",
+                    help="also write <column>_filtered: the model's Kalman filter on the compensated zero bias (what "
+                         "export-c --kalman runs in firmware), started again after gaps in t and NaN stretches")
     da.add_argument("--bad-lines", default="error", choices=["error", "skip"], help=bad_lines_help)
     dr.set_defaults(run=cmd_drift)
     from .batch import add_batch_parser

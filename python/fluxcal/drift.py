@@ -477,6 +477,28 @@ def fit_warnings(model: "DriftModel") -> list:
     return [w for w in said if _RANGE_NOTE not in w]
 
 
+def filter_compensated(model: "DriftModel", compensated, t=None) -> np.ndarray:
+    """The model's Kalman filter on a log's compensated zero bias W − f(T) (what `export-c --kalman` runs in
+    firmware): started again after each gap in `t` (fluxcal.timeseries.find_breaks) and after each stretch of NaN
+    (samples outside the model's ranges, or not numbers), which stay NaN. ValueError when the model has no filter
+    (white noise about the drift: the compensated zero bias is then its output)."""
+    kalman = model.settings.get("kalman")
+    ar = model.settings.get("ar") or {}
+    if not kalman:
+        raise ValueError("drift model: it has no Kalman filter (the noise about its drift was white: AIC order 0), "
+                         "so the compensated zero bias is its output")
+    w = np.asarray(compensated, dtype=float)
+    out = np.full(w.shape, np.nan)
+    breaks = set(ts.find_breaks(t).tolist()) if t is not None else set()
+    finite = np.isfinite(w)
+    edges = np.flatnonzero(np.diff(np.concatenate([[False], finite, [False]]).astype(int)))
+    for start, stop in zip(edges[::2], edges[1::2]):  # each run of numbers, its own gaps as breaks
+        f = ArKalman(ar["coefficients"], float(kalman["q"]), float(kalman["r"]),
+                     steady_state=bool(kalman.get("steady_state", False)))
+        out[start:stop] = f.filter(w[start:stop], sorted(b - start for b in breaks if start < b < stop))
+    return out
+
+
 def noise_model_rejected(model: "DriftModel") -> str | None:
     """Why the fit rejected the AR model of the noise about the drift (Ljung–Box: residuals not white), or None
     (white, untested, or a model saved before the test was kept)."""

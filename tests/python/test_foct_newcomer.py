@@ -228,3 +228,34 @@ def test_outside_the_ranges_names_the_line_the_option_and_a_unit(tmp_path, log, 
     # the Python spelling names outside='nan'
     with pytest.raises(ValueError, match=r"outside='nan' \(--outside-range nan\)"):
         drift.DriftModel.load(model_path).compensate(log["zero_bias"], log["temp"] + 6.0)
+
+
+def test_drift_apply_writes_the_kalman_output_the_firmware_would(tmp_path, log, capsys):
+    """No command wrote a new log's Kalman-filtered output (a newcomer built the filter by hand): `drift apply
+    --filtered` adds it, the model's filter on W − f(T) as export-c --kalman runs it, started again after a gap in
+    time and after samples outside the model's ranges (NaN there)."""
+    from fluxcal.kalman import ArKalman
+
+    src = write_csv(tmp_path / "log.csv", log)
+    model_path = tmp_path / "m.json"
+    assert cli(capsys, "drift", "fit", src, "-o", model_path)[0] == 0
+    model = drift.DriftModel.load(model_path)
+    k = model.settings["kalman"]
+    filt = ArKalman(model.settings["ar"]["coefficients"], k["q"], k["r"], steady_state=k["steady_state"])
+    other = foct_log(seed=2)
+    other["t"] = other["t"] + np.where(np.arange(other["t"].size) >= 1500, 3600.0, 0.0)  # an hour's gap
+    other["temp"][3000:3010] = 90.0  # beyond the model's ranges
+    code, out, err = cli(capsys, "drift", "apply", model_path, write_csv(tmp_path / "new.csv", other),
+                         "-o", tmp_path / "out.csv", "--filtered", "--outside-range", "nan")
+    assert code == 0 and "columns zero_bias_compensated, zero_bias_filtered" in out, out + err
+    got = read_csv(tmp_path / "out.csv")
+    w = got.columns["zero_bias_compensated"]
+    want = np.full(w.size, np.nan)
+    for a, b in ((0, 1500), (1500, 3000), (3010, w.size)):
+        want[a:b] = filt.filter(w[a:b])
+    np.testing.assert_allclose(got.columns["zero_bias_filtered"], want, rtol=0, atol=1e-12)
+    assert np.std(want[np.isfinite(want)]) < np.std(w[np.isfinite(w)])
+    white = drift.DriftModel.load(model_path)
+    white.settings["kalman"] = None
+    with pytest.raises(ValueError, match="no Kalman filter"):
+        drift.filter_compensated(white, w)
