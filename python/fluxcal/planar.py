@@ -379,7 +379,8 @@ def summary_lines(cal: Calibration) -> list[str]:
         moved = offset_moved(s)
         lines.append(f"  offset before/after   ({first}) then ({second}){u}, split at "
                      f"{100 * split['fraction']:.0f} % of the turning: "
-                     + (f"MOVED, most likely at reading {split['change_row']}" if moved else
+                     + (("DRIFTED (a steady drift fits better than one step)" if split.get("kind") == "drift" else
+                         f"MOVED, most likely at reading {split['change_row']}") if moved else
                         "the same within their errors") + f" ({_p_text(split)})")
     elif split.get("splits"):
         half = next(sp for sp in split["splits"] if sp["fraction"] == 0.5)
@@ -687,7 +688,8 @@ def _offset_split(u: np.ndarray, norms, fit: dict, correlation, max_iterations: 
     Hotelling's F; {"compared", "splits" (each {"fraction", "offsets", "difference", "standard_error" of each of its
     components, "statistic", "p_value" (this split's own)} or {"fraction", "compared": False, "reason"}),
     "p_value" (the smallest split's × the number compared: Bonferroni), "fraction" (that split's), "judged" (how many
-    splits were compared), "change_row" (when the move is said: where it most likely is, _change_row), "radius"} — or
+    splits were compared), "change_row" (when the move is said: where it most likely is, _change_row), "kind" (then:
+    "step" or "drift", _step_or_drift), "radius"} — or
     {"compared": False, "reason"} when no split can be judged or the rows are not in time order (serial_correlation
     "independent")."""
     if correlation == _core.SerialCorrelation.independent:
@@ -718,8 +720,39 @@ def _offset_split(u: np.ndarray, norms, fit: dict, correlation, max_iterations: 
               for rows in (slice(0, change), slice(change, len(u)))]
         if all("fit" in side for side in at):
             change = _change_row(u, fit, [side["fit"]["b"] for side in at])
+            result["kind"] = _step_or_drift(u, fit, change, [side["fit"]["b"] for side in at])
         result["change_row"] = change
     return result
+
+
+def _step_or_drift(u: np.ndarray, fit: dict, change: int, offsets) -> str:
+    """"step" or "drift": whether one step at `change` or an offset drifting linearly through the rows fits the
+    readings better, each fitted by least squares (SciPy) with its own symmetric matrix — 7 parameters each: the
+    offset at the start, its change (at `change`, or over the log), the matrix — against the fit's targets. (A
+    wandering offset got the step's remedy, calibrate the two parts apart, in 88 % of such logs; a drift wants the
+    warm-up left out or shorter logs. Judged with the whole log's matrix, a drift over two turns looked like a step:
+    the matrix had taken part of it.)"""
+    from scipy.optimize import least_squares
+
+    targets = fit["targets"]
+    n = len(u)
+    b0, b1 = (np.asarray(b, dtype=float) for b in offsets)
+    A = fit["A"]
+    start = np.concatenate([b0, b1 - b0, [A[0, 0], A[0, 1], A[1, 1]]])
+    courses = {"step": (np.arange(n) >= change).astype(float), "drift": np.arange(n) / max(n - 1, 1)}
+
+    def cost(course):
+        def residuals(p):
+            a = np.array([[p[4], p[5]], [p[5], p[6]]])
+            return np.linalg.norm((u - p[:2] - np.outer(course, p[2:4])) @ a.T, axis=1) - targets
+        x0 = start.copy()
+        if course is courses["drift"]:  # the same means on either side of the change as the step's offsets
+            m0, m1 = course[:change].mean(), course[change:].mean()
+            x0[2:4] = (b1 - b0) / (m1 - m0)
+            x0[:2] = b0 - m0 * x0[2:4]
+        return float(np.sum(least_squares(residuals, x0, method="lm").fun ** 2))
+
+    return "drift" if cost(courses["drift"]) < cost(courses["step"]) else "step"
 
 
 def _best_split(split: dict) -> dict:
@@ -794,6 +827,14 @@ def _moved_words(split: dict, names, units: str) -> str:
     d, se = best["difference"], best["standard_error"]
     moved = ", ".join(f"{v:+.3g} ± {e:.2g}" for v, e in zip(d, se))
     at = f"reading {split['change_row']}" + (f" (t = {split['change_time']:.6g} s)" if "change_time" in split else "")
+    if split.get("kind") == "drift":
+        return (f"the offset drifted through the log: the offsets fitted before and after "
+                f"{100 * split['fraction']:.0f} % of the turning differ by ({moved}){unit} in {names[0]}, {names[1]} "
+                f"(F {best['statistic']:.3g}, {_p_text(split)}), and a steady drift fits the readings better than one "
+                f"step, so the calibration is of no moment of it and the headings are off by up to "
+                f"{np.degrees(np.hypot(*d) / split['radius']):.2g}° — a sensor warming up, a field or a load that "
+                "changes slowly (a battery discharging, a motor heating): log once the drift has settled (after the "
+                "warm-up), or in shorter logs")
     return (f"the offset moved within the log, most likely at {at}: the offsets fitted before and after "
             f"{100 * split['fraction']:.0f} % of the turning differ by ({moved}){unit} in {names[0]}, {names[1]} "
             f"(F {best['statistic']:.3g}, {_p_text(split)}), so the calibration is of neither and the headings are off "

@@ -157,3 +157,22 @@ def test_a_single_circle_turned_unevenly_is_split_by_its_heading():
     m[np.searchsorted(psi, np.pi):] += (1.0, -0.8)  # 6 % of H where half the circle is done
     s = calibrate_planar(m, field_norm=H).summary
     assert s["offset_split"]["fraction"] == 0.5 and any(w.startswith(MOVED) for w in s["warnings"])
+
+
+def test_an_offset_that_drifts_is_told_from_one_that_steps():
+    """An offset drifting steadily through the log (a sensor warming up) had the step's warning and remedy
+    (calibrate the parts apart, at a reading that means nothing for a drift); one step keeps them."""
+    drifted = said = 0
+    for seed in range(5):
+        m = turning(seed, n=900, phi=0.0)
+        m[:, :2] += np.outer(np.linspace(0.0, 1.0, len(m)), (0.6, -0.45))
+        cal = calibrate_planar(m, field_norm=H)
+        split = cal.summary["offset_split"]
+        drifted += split.get("kind") == "drift"
+        said += any(w.startswith("the offset drifted through the log") for w in cal.summary["warnings"])
+        assert not any(w.startswith(MOVED) for w in cal.summary["warnings"])
+        step = calibrate_planar(moved(seed, n=900, by=(0.6, -0.45)), field_norm=H)
+        assert step.summary["offset_split"].get("kind") == "step"
+        assert any(w.startswith(MOVED) for w in step.summary["warnings"])
+    assert drifted == said == 5
+    assert any("DRIFTED" in line for line in summary_lines(cal))
