@@ -4,6 +4,17 @@ Formats a device may print, one record per line (`--format`):
 
   csv          numbers separated by commas, semicolons, tabs or spaces: `12.3,-4,7` / `12.3 -4 7`.
                `--columns` names them in order (default mx,my,mz), e.g. `t,mx[nT],my[nT],mz[nT]`.
+               A header line the device prints (`seq,mx[uT],my[uT],mz[uT]`, `mx [uT]`, `mx (uT)`) is
+               matched on its names without units or case: one in another order is followed (a note in
+               the file says so); without --columns, one printed before the first record, holding
+               mx,my,mz, names the columns and their units (`fluxcal record`: an Arduino prints it on
+               the reset the open causes). A unit it prints is the recording's when none is stated;
+               another unit than the recording's, or mx,my,mz at other places under names that are not
+               the columns', cannot be followed: its line and the lines after it are refused (`unit`,
+               `fields`), with a warning and a note, until a header that can be followed comes (no
+               conversion, as for kv). A header of as many fields naming none of the columns' names
+               elsewhere (`time,x,y,z` for --columns t,mx,my,mz) is taken by position, and a later
+               header of its names in another order is followed.
   kv           `key=value` or `key:value` pairs: `X=12.3 Y=-4 Z=7`, `mx:1,my:2,mz:3`. Keys match the
                column names case-insensitively; `KEY=NAME` in `--columns` renames (default
                `x=mx,y=my,z=mz`, which also accepts the keys mx,my,mz). Every key must be in the spec.
@@ -27,8 +38,11 @@ host's monotonic time (s) since the recording started when the chunk holding it 
 
 What is rejected, and counted by reason (never written as data): `binary` (bytes that are not text:
 invalid UTF-8 or control characters, or garbage between binary frames), `partial` (the first line
-after the port opens, which may be the tail of a line already in flight; the line in flight at a
-disconnect or at the end), `fields` (wrong number of fields, unknown or missing keys), `non_numeric`
+after the port opens, which may be the tail of a line already in flight, unless it is a csv header of
+the columns or no byte came for QUIET_OPEN_S after the open: pyserial's open empties the input queue,
+so a line that starts after a second of silence is whole; the line in flight at a disconnect or at
+the end), `fields` (wrong number of fields, unknown or missing keys; a csv header line the device
+prints: it is followed, see csv above, or refused as `unit`), `non_numeric`
 (a field that is not a finite decimal number), `ambiguous` (kv: a number whose comma may be a decimal comma
 or a thousands separator, 1,234, until a line shows a decimal comma that cannot be one, 12,34 or 0,123;
 or a comma between digits on a line whose fields are separated by commas), `unit` (kv: a unit that is not a magnetic-field unit on
@@ -66,7 +80,8 @@ from .columns import FIELD_UNITS, MAG_WORDS, comma_kind, is_unit, unit_name
 
 REASONS = {
     "binary": "non-text bytes (invalid UTF-8, control characters, garbage between frames)",
-    "partial": "partial line (first after opening the port, or in flight at a disconnect or the end)",
+    "partial": "partial line (first after opening the port unless a second of silence came before it, or in flight "
+               "at a disconnect or the end)",
     "fields": "wrong number of fields or unknown/missing keys",
     "non_numeric": "a field that is not a finite number",
     "unit": "a unit that is not a magnetic-field unit on mx,my,mz, or not the recording's unit",
@@ -93,14 +108,23 @@ _LINE_END = re.compile(rb"\r\n|\r|\n")
 _COMMAS = re.compile(r"\d+(?:,\d+){2,}")
 _FIELD_COMMA = re.compile(r"(?<!\d),|,(?!\d)")
 _CONTROL = re.compile(r"[\x00-\x08\x0b-\x1f\x7f]")
+# csv: a cell of a header line the device prints: NAME, NAME[unit], NAME [unit], NAME(unit)
+_HEADER_CELL = re.compile(r"([A-Za-z_][\w.]*)\s*(?:\[\s*([^\]]*?)\s*\]|\(\s*([^)]*?)\s*\))?")
+_HEADER_WORDS = re.compile(r"[^\s\[(]+(?:\s*(?:\[[^\]]*\]|\([^)]*\)))?")  # cells of a header without , or ;
+# seconds without a byte after the port opens (pyserial's open empties the input queue) after which the first
+# line is taken whole: the tail of a line in flight at the open comes at once (a USB adapter holds bytes for
+# at most its latency timer, 16 ms by default, 255 ms at most), not after a second of silence
+QUIET_OPEN_S = 1.0
 
 
 class Reject(Exception):
-    """A line (or frame) that does not become a record: `reason` is a key of REASONS."""
+    """A line (or frame) that does not become a record: `reason` is a key of REASONS. `note`: a line the
+    recording keeps as a `# note:` (a header the device printed, and what the recorder made of it);
+    `warning`: that, and something the user must hear at once (the Recorder warns once per text)."""
 
-    def __init__(self, reason: str, detail: str):
+    def __init__(self, reason: str, detail: str, note: str = "", warning: str = ""):
         super().__init__(detail)
-        self.reason, self.detail = reason, detail
+        self.reason, self.detail, self.note, self.warning = reason, detail, note, warning
 
 
 @dataclass(frozen=True)
@@ -217,7 +241,9 @@ def _check_ranges(values, names, ranges):
 class TextDecoder:
     """Bytes from the port → records (tuples of floats, in column order) and Rejects, for csv and kv."""
 
-    def __init__(self, columns, fmt: str = "csv", ranges: dict | None = None):
+    def __init__(self, columns, fmt: str = "csv", ranges: dict | None = None, header_columns: bool = False):
+        """`header_columns` (csv; `fluxcal record` without --columns): a header line the device prints before
+        the first record (at start-up, say) names the columns when it holds mx, my and mz, with its units."""
         if fmt not in ("csv", "kv", "nmea"):
             raise ValueError(f"--format: {fmt!r} is not a text format (csv, kv, nmea)")
         if fmt == "nmea":
@@ -233,6 +259,11 @@ class TextDecoder:
         self._rest_of_long_line = False
         self.blank_lines = 0
         self._order = None  # csv: positions of the columns after the device printed its header in another order
+        self._refused = None  # csv: why lines are refused after a header that cannot be followed (a Reject)
+        self._header_columns = header_columns and fmt == "csv"
+        self._recorded = False  # a line became a record: the columns are the recording's from then on
+        self._headers_said = set()  # csv: the header lines already reported (a device reprints it every N lines)
+        self._aliases = None  # csv: the device's names of the columns, when --columns renames its fields by position
         # units as --units/--columns state them, and as the first recorded line printed them (kv)
         self._stated = {c.name: unit_name(c.unit) for c in self.columns if c.unit}
         self.printed_units, self._line_units = {}, {}
@@ -254,6 +285,12 @@ class TextDecoder:
         self._first = True
         self._rest_of_long_line = False
 
+    def port_was_quiet(self) -> None:
+        """No byte came for QUIET_OPEN_S after the port opened: the first line starts after the open, it is whole
+        (the Recorder calls this when it saw the input queue empty that long after the open)."""
+        if not self._buffer:
+            self._first = False
+
     def feed(self, data: bytes):
         """Yield a tuple of values or a Reject for every line completed by `data`."""
         self._buffer += data
@@ -273,7 +310,8 @@ class TextDecoder:
                 continue
             if self._first:
                 self._first = False
-                yield Reject("partial", f"first line after opening the port: {_show(raw)}")
+                header = self._first_line_header(raw)  # a device that prints its header on start-up (a reset)
+                yield header or Reject("partial", f"first line after opening the port: {_show(raw)}")
                 continue
             try:
                 yield self.parse(raw)
@@ -315,7 +353,117 @@ class TextDecoder:
         for name, unit in self._line_units.items():  # the first recorded line's units are the recording's
             self.printed_units.setdefault(name, unit)
         self.decimal_comma = self.decimal_comma or self._line_decimal_comma  # a recorded line's decimal comma
+        self._recorded = True
         return values
+
+    def _first_line_header(self, raw: bytes):
+        """The first line after the port opens, when it is a complete csv header: its Reject (with what was made
+        of it), else None (the line is `partial`). A header cut at the open is no header of these columns: it
+        lacks a name, or holds a cut one, and is left as partial, unless it puts mx, my or mz elsewhere."""
+        if self.format != "csv":
+            return None
+        try:
+            text = raw.decode("utf-8").strip()
+        except UnicodeDecodeError:
+            return None
+        cells = None if _CONTROL.search(text) else _header_cells(text)
+        return self._header(cells, text, first=True) if cells else None
+
+    def _header(self, cells, text: str, first: bool = False):
+        """A csv header line the device printed ([(name, unit)]): follow its order, take its columns (before the
+        first record, with header_columns), or refuse the lines after it; never store an axis under another's
+        name. Names are compared without their units and case. Returns the header line's Reject; None for a
+        line of another number of fields that is no header of these columns (a first line after the open: the
+        caller calls it partial, it may be a cut header; later: a line of other fields)."""
+        printed = [n.lower() for n, _ in cells]
+        mine = [n.lower() for n in self.names]
+        said = text not in self._headers_said
+        self._headers_said.add(text)
+        line = f"the device's header line {text!r}"
+        names = ",".join(self.names)
+        if sorted(printed) == sorted(mine):
+            return self._follow(cells, mine, line, said)
+        if self._aliases is not None and sorted(printed) == sorted(self._aliases):
+            return self._follow(cells, self._aliases, line, said)  # the device's own names, reordered
+        if (self._header_columns and not self._recorded and all(m in printed for m in MAG)
+                and "t_host" not in printed):
+            known = {c.name.lower(): c for c in self.columns}
+            clash = self._header_unit_clash(cells, mine)
+            if clash:
+                return self._refuse("unit", line, clash, said)
+            self.columns = [Column(known[n.lower()].name if n.lower() in known else n, "",
+                                   unit or (known[n.lower()].unit if n.lower() in known else ""))
+                            for n, unit in cells]
+            self.names = [c.name for c in self.columns]
+            self._order, self._refused, self._aliases = None, None, None
+            spec = ",".join(f"{c.name}[{c.unit}]" if c.unit else c.name for c in self.columns)
+            return Reject("fields", f"{line}: its columns are the recording's ({spec})",
+                          note=f"columns from {line}: {spec}")
+        if len(printed) != len(mine):  # no header of these columns; its lines do not fit them either
+            if said:
+                self._headers_said.discard(text)
+            return None  # a cut header (first line: partial), a status word: rejected as a line of other fields
+        for reference, whose in ((mine, f"the columns {names}"), (self._aliases, "the device's earlier header")):
+            misplaced = [n for j, n in enumerate(reference or ()) if n in printed and printed.index(n) != j]
+            if misplaced:  # mz where mx was: never record by position
+                return self._refuse(
+                    "fields", line, f"it puts {', '.join(misplaced)} at other places than {whose}, and its other "
+                    "names are not theirs (compared without units): the new order cannot be followed", said)
+        if self._aliases is not None:  # a status line of as many words, or the device renamed its fields
+            warning = (f"{line} names neither the columns {names} nor the fields of the device's earlier header "
+                       f"({','.join(self._aliases)}): its lines are read as before; if the device reorders them "
+                       "under these names, that is not seen. Give --columns with the device's names to have its "
+                       "header followed") if said else ""
+            return Reject("fields", f"{line} names neither the columns nor the device's earlier header",
+                          warning=warning)
+        # as many fields, none of the columns' names elsewhere: --columns names the device's fields by position;
+        # the device's names are remembered, so that a header it prints later in another order is followed
+        renamed = ", ".join(f"{n}={c}" for (n, _), c in zip(cells, self.names) if n.lower() != c.lower())
+        event = self._follow(cells, printed, line, said, note=f"{line}: its fields taken as the columns {names} "
+                             f"by position ({renamed}); a header in another order is followed")
+        if event.reason == "fields":
+            self._aliases = printed
+        return event
+
+    def _follow(self, cells, reference, line: str, said: bool, note: str = ""):
+        """Follow a header whose names are `reference` (the device's names of the columns, in column order) in
+        another order: the lines after it are read in its order; units it prints are the recording's when none
+        are stated (a unit other than the recording's refuses the lines after it)."""
+        clash = self._header_unit_clash(cells, reference)
+        if clash:
+            return self._refuse("unit", line, clash, said)
+        printed = [n.lower() for n, _ in cells]
+        for name, unit in cells:
+            if unit:  # the recording's units when --units/--columns state none
+                self.printed_units.setdefault(self.names[reference.index(name.lower())], unit)
+        order = [printed.index(n) for n in reference]
+        identity = list(range(len(order)))
+        changed = (self._order or identity) != order or self._refused is not None
+        self._order, self._refused = (None if order == identity else order), None
+        return Reject("fields", line + (": columns now in its order" if self._order else ""),
+                      note=note or (f"{line}: columns in its order from here on" if changed else ""))
+
+    def _header_unit_clash(self, cells, reference) -> str:
+        """Why a header's units cannot be those of the recording (the stated or first printed ones), or ""."""
+        for name, unit in cells:
+            if not unit or name.lower() not in reference:
+                continue
+            column = self.columns[reference.index(name.lower())]
+            stated = unit_name(column.unit) if column.unit else self.printed_units.get(column.name)
+            if stated and unit != stated:
+                return (f"column {column.name!r} is in {unit} there, in {stated} in the recording (no conversion: a "
+                        "range change? another sensor?)")
+        return ""
+
+    def _refuse(self, reason: str, line: str, why: str, said: bool):
+        """A header that cannot be followed: its line and every line after it are refused until a header that can
+        be comes, loudly (a warning and a note), never recorded as if nothing had changed."""
+        self._refused = Reject(reason, f"a line after {line}, which cannot be followed: {why}")
+        remedy = ("record each unit setting of the device on its own" if reason == "unit" else
+                  "stop, and record again with --columns naming the columns as the device prints them")
+        warning = (f"{line}: {why}. The lines after it are refused until the device prints a header of the "
+                   f"columns {','.join(self.names)} again; {remedy}") if said else ""
+        return Reject(reason, f"{line} cannot be followed: {why}", warning=warning)
 
     def _parse_sentence(self, text: str) -> tuple:
         """`$VNYMR,…*64` (fluxcal.io.sentences' layouts): its checksum, then the columns' fields."""
@@ -341,13 +489,12 @@ class TextDecoder:
         fields = [f.strip() for f in re.split(r"[,;]", text)] if ("," in text or ";" in text) else text.split()
         if len(fields) == len(self.columns) + 1 and fields[-1] == "":
             fields.pop()  # a separator after the last field, as a sketch's print loop writes: 12.3,-4.5,40.1,
-        header = [f.lower() for f in fields]
-        if sorted(header) == sorted(n.lower() for n in self.names):
-            # the device (re)printed its header: follow its order, never record mz under mx
-            order = [header.index(n.lower()) for n in self.names]
-            self._order = None if order == list(range(len(order))) else order
-            raise Reject("fields", f"the device's header line {text!r}" + (
-                ": columns now in its order" if self._order else ""))
+        cells = _header_cells(text) if fields[0][:1].isalpha() or fields[0][:1] == "_" else None
+        header = self._header(cells, text) if cells else None
+        if header:  # the device (re)printed its header: follow its order, never record mz under mx
+            raise header
+        if self._refused is not None:
+            raise Reject(self._refused.reason, self._refused.detail)
         if self._order is not None and len(fields) == len(self.columns):
             fields = [fields[j] for j in self._order]
         if len(fields) != len(self.columns):
@@ -465,6 +612,26 @@ class TextDecoder:
             raise Reject("fields", (f"keys {', '.join(unknown)} not in --columns; " if unknown else "")
                          + (f"missing {', '.join(missing)}; " if missing else "") + f"line {text!r}")
         return tuple(_number(v, n) for v, n in zip(values, self.names))
+
+
+def _header_cells(text: str):
+    """[(name, unit)] when every field of a csv line is a column name with an optional unit (mx, mx[uT],
+    mx [uT], mx(uT)) and no name repeats (case ignored), else None. Units as the recording writes them."""
+    if "," in text or ";" in text:
+        cells = [f.strip() for f in re.split(r"[,;]", text)]
+        if len(cells) > 1 and cells[-1] == "":
+            cells.pop()  # a separator after the last name
+    else:
+        cells = _HEADER_WORDS.findall(text)
+    header = []
+    for cell in cells:
+        m = _HEADER_CELL.fullmatch(cell)
+        if not m:
+            return None
+        unit = m.group(2) or m.group(3) or ""
+        header.append((m.group(1), unit_name(unit) if unit else ""))
+    names = [n.lower() for n, _ in header]
+    return header if header and len(set(names)) == len(names) else None
 
 
 class FrameDecoder:
@@ -610,6 +777,7 @@ class RecordingWriter:
         self._file = self.path.open("wb", buffering=0)
         self._size = 0  # bytes of whole rows and notes in the file
         self.head_written = False
+        self._notes = []  # the notes written before the first row (a new head before it keeps them)
         if not defer_head:
             self._write_head()
 
@@ -647,6 +815,25 @@ class RecordingWriter:
         if not self.head_written:
             self._write_head()
         self._write(f"# note: {_one_line(text)}\n")
+        if not self.rows:
+            self._notes.append(text)
+
+    def restart_head(self, names, units: dict) -> None:
+        """Before the first row: the columns (or their units) are now `names` (`units`), as a header line the
+        device printed says; the file is written again from its head, with the notes it had."""
+        if self.rows:
+            raise ValueError(f"{self.path}: the columns cannot change after {self.rows} rows")
+        self.names = list(names)
+        self.units.update(units)
+        if not self.head_written:
+            return
+        os.ftruncate(self._file.fileno(), 0)
+        self._file.seek(0)
+        self._size = 0
+        notes, self._notes = self._notes, []
+        self._write_head()
+        for text in notes:
+            self.note(text)
 
     def close(self) -> None:
         if not self._file.closed:
@@ -747,6 +934,8 @@ class Recorder:
         self.writer = None
         self.warn_after = warn_after
         self.warn = warn or (lambda text: print(text, file=sys.stderr, flush=True))
+        self._warned = set()  # the warnings given (a device that reprints a header warns once)
+        self._opened_at = None  # when the port (re)opened, until its first byte comes
 
     def _open(self):
         return serial.serial_for_url(self.port, baudrate=self.baudrate, timeout=self.read_timeout)
@@ -758,7 +947,7 @@ class Recorder:
             port = self._open()
         except (serial.SerialException, OSError, ValueError) as exc:
             raise ValueError(f"{self.port}: cannot open the serial port ({exc})") from None
-        start = self.clock()
+        start = self._opened_at = self.clock()
         deadline = None if self.duration is None else start + float(self.duration)
         # the stop signals are ours before the file exists: a kill that comes once it does is a stop request
         with _ctrl_c_as_request(self.hold_ctrl_c) as self._interrupted:
@@ -785,12 +974,16 @@ class Recorder:
                         self._drain(port, start)  # bytes already received belong to the recording
                         break
                     try:
+                        if self._opened_at is not None:  # no byte yet since the port opened
+                            self._listen(port)
                         data = port.read(port.in_waiting or 1)
                     except (serial.SerialException, OSError) as exc:
                         port = self._reconnect(port, exc, start, deadline)
                         if port is None:
                             break
                         continue
+                    if data:
+                        self._opened_at = None
                     if data and self._handle(self.decoder.feed(data), self.clock() - start):
                         stats.stopped = "write error" if stats.write_error else "done"
                         break
@@ -815,6 +1008,18 @@ class Recorder:
                     except OSError as exc:
                         self._write_failed(exc)
         return stats
+
+    def _listen(self, port) -> None:
+        """Before the first byte after an open: once the input queue is seen empty QUIET_OPEN_S after it (pyserial's
+        open empties it), the device was quiet at the open and its first line is whole, not a tail to reject."""
+        now = self.clock()  # before the look: nothing had come by `now`
+        if port.in_waiting:
+            self._opened_at = None
+        elif now - self._opened_at >= QUIET_OPEN_S:
+            self._opened_at = None
+            quiet = getattr(self.decoder, "port_was_quiet", None)
+            if quiet is not None:
+                quiet()
 
     def _warn_if_silent(self, start: float) -> None:
         if self.warn_after is None or self.stats.records or self.clock() - start < self.warn_after:
@@ -869,6 +1074,7 @@ class Recorder:
         for event in events:
             if isinstance(event, Reject):
                 self.stats.reject(event, t_host)
+                self._header_said(event, t_host)
                 continue
             if self.writer:
                 if not self.writer.head_written:  # the units the first good line printed
@@ -891,6 +1097,26 @@ class Recorder:
                 stop = True  # finish the chunk: its records are written, nothing read is dropped
         return stop
 
+    def _header_said(self, reject: Reject, t_host: float) -> None:
+        """After a rejected line: a header the device printed may have changed the columns or their units (the
+        file's head is written again while it holds no row), and may carry a note or a warning."""
+        names = ["t_host", *self.decoder.names]
+        if self.writer and not self.writer.rows and not self.stats.write_error:
+            # the columns a header named, with their units; or the units a header printed for them
+            units = getattr(self.decoder, "units" if names != self.writer.names else "printed_units", {})
+            units = {k: u for k, u in units.items() if u}
+            if names != self.writer.names or any(self.writer.units.get(k) != u for k, u in units.items()):
+                try:
+                    self.writer.restart_head(names, units)
+                except OSError as exc:
+                    self._write_failed(exc)
+        self.names = names
+        if reject.note or reject.warning:
+            self._note(f"{reject.warning or reject.note} (t_host={t_host:.3f} s)")
+        if reject.warning and reject.warning not in self._warned:
+            self._warned.add(reject.warning)
+            self.warn(reject.warning)
+
     def _reconnect(self, port, exc, start, deadline):
         """The port failed: note it, reopen with back-off until a stop. Returns the new port or None."""
         lost = self.clock()
@@ -911,7 +1137,7 @@ class Recorder:
             except (serial.SerialException, OSError, ValueError):
                 backoff = min(2 * backoff, self.max_backoff)
                 continue
-            back = self.clock()
+            back = self._opened_at = self.clock()
             self.decoder.reset()
             self.stats.reconnects += 1
             self.stats.disconnected_s += back - lost
@@ -991,8 +1217,9 @@ def add_stream_arguments(p) -> None:
                         "(1,0.1,0.1,0.1) or one for every column but t (0.1); --range applies to scaled values")
 
 
-def decoder_from_args(args):
-    """The decoder the stream options describe; ValueError names the bad option."""
+def decoder_from_args(args, header_columns: bool = False):
+    """The decoder the stream options describe; ValueError names the bad option. `header_columns`: without
+    --columns, a csv header the device prints before the first record names the columns (`fluxcal record`)."""
     columns = parse_columns(args.columns, args.format, args.units)
     ranges = {}
     for text in args.range:
@@ -1009,7 +1236,7 @@ def decoder_from_args(args):
         return FrameDecoder(args.frame, sync, columns, args.checksum, ranges, scale)
     if args.frame or args.sync or scale_text is not None:
         raise ValueError("--frame, --sync and --scale belong to --format binary-spec")
-    return TextDecoder(columns, args.format, ranges)
+    return TextDecoder(columns, args.format, ranges, header_columns=header_columns and not args.columns)
 
 
 def check_output(path, option: str, overwrite: bool = True) -> None:
@@ -1050,7 +1277,7 @@ def add_record_parser(subparsers):
 
 
 def cmd_record(args) -> int:
-    decoder = decoder_from_args(args)
+    decoder = decoder_from_args(args, header_columns=True)
     check_output(args.output, "-o", args.overwrite)
     recorder = Recorder(args.port, args.baud, decoder, output=args.output, duration=args.duration,
                         units=stream_units(decoder), metadata={"format": args.format}, warn_after=args.warn_after,
