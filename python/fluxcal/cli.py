@@ -1257,6 +1257,21 @@ def _temperatures(rec, column: str | None, outside_column: str, file) -> tuple:
     return TO_CELSIUS[unit](rec.columns[name]), outside, {"column": name, "unit": unit}
 
 
+def _require_finite(rec, file, named) -> None:
+    """ValueError naming the file's line, the column and --bad-lines skip for the first value of `named` ((column,
+    values or None) pairs) that is NaN or infinite (the fit would name a 0-based sample of an array)."""
+    for name, values in named:
+        bad = np.flatnonzero(~np.isfinite(values)) if values is not None else []
+        if len(bad):
+            at = rec.line_numbers[bad] if rec.line_numbers is not None else bad
+            word = "line" if rec.line_numbers is not None else "row"
+            more = (f" ({len(bad)} {word}s: {', '.join(map(str, at[:5]))}{', …' if len(bad) > 5 else ''})"
+                    if len(bad) > 1 else "")
+            raise ValueError(f"{file}, {word} {at[0]}, column {name!r}: {float(values[bad[0]])} is not finite "
+                             f"(NaN/Inf not allowed){more}; pass bad_lines='skip' (--bad-lines skip) to leave such "
+                             "lines out")
+
+
 def _zero_bias_recording(args, column: str):
     """The recording of `drift fit`/`drift apply` (any format read_recording takes) and its zero-bias column."""
     rec = read_recording(args.file, bad_lines=args.bad_lines)
@@ -1279,17 +1294,8 @@ def cmd_drift(args) -> int:
                      "each")
             print(f"skipped {rec.metadata['skipped_lines'].replace(':', ' lines:', 1)} ({where})")
         temp, outside, temperature = _temperatures(rec, args.temp_column, args.outside_column, args.file)
-        for name, values in ((args.column, rec.columns[args.column]), (temperature["column"], temp),
-                             (args.outside_column, outside)):
-            bad = np.flatnonzero(~np.isfinite(values)) if values is not None else []
-            if len(bad):  # NaN, inf in a cell (the fit would name a 0-based sample of an array)
-                at = rec.line_numbers[bad] if rec.line_numbers is not None else bad
-                word = "line" if rec.line_numbers is not None else "row"
-                more = (f" ({len(bad)} {word}s: {', '.join(map(str, at[:5]))}{', …' if len(bad) > 5 else ''})"
-                        if len(bad) > 1 else "")
-                raise ValueError(f"{args.file}, {word} {at[0]}, column {name!r}: {float(values[bad[0]])} is not "
-                                 f"finite (NaN/Inf not allowed){more}; pass bad_lines='skip' (--bad-lines skip) to "
-                                 "leave such lines out")
+        _require_finite(rec, args.file, ((args.column, rec.columns[args.column]), (temperature["column"], temp),
+                                         (args.outside_column, outside)))
         try:
             breakpoints = [float(v) for v in args.breakpoints.split(",")]
         except ValueError:
@@ -1371,6 +1377,8 @@ def cmd_drift(args) -> int:
     temp_column = args.temp_column or (fitted.get("column") if fitted.get("column") in rec.columns else None)
     temp, outside, temperature = _temperatures(rec, temp_column, args.outside_column or fitted.get("outside")
                                                or "temp_outside", args.file)
+    # a temperature that is not a number is the file's (not one outside the model's ranges): said as drift fit says it
+    _require_finite(rec, args.file, ((temperature["column"], temp), (args.outside_column or "temp_outside", outside)))
     lo, hi = model.segments[0]["range"][0], model.segments[-1]["range"][1]
     if args.outside_range == "error":  # said with the file's line, the option that takes them, and a unit's hint
         beyond = np.flatnonzero(np.isnan(model.evaluate(temp, outside, outside="nan"))
@@ -1671,10 +1679,10 @@ def build_parser() -> argparse.ArgumentParser:
                                                  "fluxcal drift fit), in double with a test vector")
     x.add_argument("--force", action="store_true", help="export a calibration whose data did not determine every "
                                                         "parameter (identifiable NO), or whose offset moved within "
-                                                        "its log; a --kalman whose noise model the drift fit "
-                                                        "rejected (residuals not white); a --drift whose fit "
-                                                        "warned its temperatures look like °F or K: marked so in "
-                                                        "the header")
+                                                        "its log; a --drift whose fit warned its temperatures look "
+                                                        "like °F or K: marked so in the header (a --kalman whose "
+                                                        "noise model the fit rejected is written with a WARNING in "
+                                                        "the header, without --force)")
     x.set_defaults(run=cmd_export_c)
 
     d = sub.add_parser("demo", help="simulate a magnetometer, calibrate it, print and plot the result")

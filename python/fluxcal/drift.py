@@ -477,6 +477,49 @@ def fit_warnings(model: "DriftModel") -> list:
     return [w for w in said if _RANGE_NOTE not in w]
 
 
+# A thermal lag is said when the compensated zero bias follows f'(T)·dT/dt with a Newey–West p below LAG_P and that
+# term takes at least LAG_SHARE of its variance (strict: slow correlated noise on long ramps is common)
+LAG_P, LAG_SHARE = 1e-6, 0.1
+
+
+def thermal_lag(model: "DriftModel", compensated, temp, t=None, temp_outside=None, breaks=()) -> dict | None:
+    """Whether W − f(T) follows f'(T)·dT/dt: the sensing element's temperature lagging the logged one by τ (first
+    order, T_e ≈ T − τ dT/dt, so W − f(T) ≈ −τ f'(T) dT/dt — a newcomer's coil 10 min behind its thermometer left
+    residuals 16× the noise, the AR model rejected, and nothing named). OLS of the compensated zero bias on
+    f'(T)·dT/dt with Newey–West errors (statsmodels); dT/dt from differences over a hundredth of the samples either
+    side (the thermometer's noise then shrinks τ little), not across gaps. {"tau_s", "p_value", "share", "said"},
+    or None when it cannot be judged (no temperature change, too few samples, a regressor that is not f(T))."""
+    import statsmodels.api as sm
+
+    w = np.asarray(compensated, dtype=float)
+    temp = np.asarray(temp, dtype=float)
+    n = w.size
+    if n < 50 or model.regressor != "temp":
+        return None
+    time = np.arange(n, dtype=float) if t is None else np.asarray(t, dtype=float)
+    m = max(1, n // 100)
+    lo, hi = np.clip(np.arange(n) - m, 0, n - 1), np.clip(np.arange(n) + m, 0, n - 1)
+    for b in breaks:  # a difference does not reach across a gap in time
+        left, right = np.arange(n) < b, np.arange(n) >= b
+        lo = np.where(right & (lo < b), b, lo)
+        hi = np.where(left & (hi >= b), b - 1, hi)
+    span = time[hi] - time[lo]
+    rate = np.divide(temp[hi] - temp[lo], span, out=np.zeros(n), where=span > 0)
+    step = 1e-3 * max(float(np.ptp(temp)), 1e-9)
+    up = model.evaluate(np.minimum(temp + step, model.segments[-1]["range"][1]), outside="nan")
+    down = model.evaluate(np.maximum(temp - step, model.segments[0]["range"][0]), outside="nan")
+    slope = (up - down) / (np.minimum(temp + step, model.segments[-1]["range"][1])
+                           - np.maximum(temp - step, model.segments[0]["range"][0]))
+    x = slope * rate
+    ok = np.isfinite(x) & np.isfinite(w)
+    if ok.sum() < 50 or not np.any(x[ok] != 0):
+        return None
+    fit = sm.OLS(w[ok], sm.add_constant(x[ok])).fit(cov_type="HAC", cov_kwds={"maxlags": int(4 * (n / 100) ** (2 / 9))})
+    tau, p = -float(fit.params[1]), float(fit.pvalues[1])
+    share = float(1.0 - np.var(fit.resid) / np.var(w[ok])) if np.var(w[ok]) > 0 else 0.0
+    return {"tau_s": tau, "p_value": p, "share": share, "said": bool(p < LAG_P and share >= LAG_SHARE and tau > 0)}
+
+
 def filter_compensated(model: "DriftModel", compensated, t=None) -> np.ndarray:
     """The model's Kalman filter on a log's compensated zero bias W − f(T) (what `export-c --kalman` runs in
     firmware): started again after each gap in `t` (fluxcal.timeseries.find_breaks) and after each stretch of NaN
@@ -643,6 +686,16 @@ def fit_pipeline(zero_bias, temp, temp_outside=None, regressor: str = "temp", br
             f"{report['drift_span_after']:.4g}, per-level means): the model does not describe this drift — a "
             "dependence on the inside–outside difference (--regressor difference), on the rate of change, or "
             "hysteresis? Do not apply it as it is")
+    lag = thermal_lag(model, compensated, temp, t, temp_outside, breaks)
+    if lag is not None:
+        report["thermal_lag"] = lag
+        if lag["said"]:
+            report["warnings"].append(
+                "the compensated zero bias follows the temperature's rate of change (Newey–West p "
+                f"{lag['p_value']:.2g}, {100 * lag['share']:.0f} % of its variance): the sensing element lags the thermometer by about "
+                f"{lag['tau_s']:.3g} s (first order; a lower bound, the thermometer's noise in dT/dt shrinks it) — "
+                "the drift model, a function of the logged temperature, cannot follow it on the ramps; put the "
+                "thermometer at the element, log slower ramps, or judge the model on the holds")
     if rated is not None:
         # Two views: the filtered output sample by sample (drift residual plus what noise the filter
         # leaves), and the drift alone (the compensated zero bias averaged per temperature level).

@@ -670,8 +670,10 @@ def _undetermined(cal: Calibration) -> str | None:
         return ("the calibration's fit did not converge: the result is an intermediate iterate"
                 + (f" ({why.rstrip('.')})" if why else ""))
     if offset_moved(cal.summary):  # a planar calibration "of neither" part
-        why = next((w for w in cal.summary.get("warnings", []) if w.startswith("the offset moved")), "")
-        return "the offset moved within the calibration's log" + (f" ({why.rstrip('.')})" if why else "")
+        split = cal.summary["offset_split"]
+        why = split.get("said", "")
+        moved = "drifted through" if split.get("kind") == "drift" else "moved within"
+        return f"the offset {moved} the calibration's log" + (f" ({why.rstrip('.')})" if why else "")
     if cal.summary.get("identifiable", True):
         return None
     why = next((w for w in cal.summary.get("warnings", []) if "identif" in w or "determin" in w), "")

@@ -95,6 +95,8 @@ THICK_OVER_NOISE = 2.0
 # inhabited world), while a sensor's gain and a vehicle's soft iron in a field unit stay within ~±20 %.
 TOTAL_FIELD_RATIO = 1.25
 UNITS_RATIO = 5.0  # beyond this, another unit (as every fluxcal solver's "check the units")
+# The rows _step_or_drift fits its two models to at most (evenly spread in time): enough to tell a step from a drift
+STEP_OR_DRIFT_ROWS = 5000
 # Whether the offset moved within the log: the offsets fitted to the readings before and after each of SPLITS
 # (fractions of the heading turned over the log, in time order) compared by Hotelling's F on 2 degrees of freedom
 # (the two sides' covariances Newey–West where the readings are correlated), the smallest p × the splits compared
@@ -324,8 +326,9 @@ def calibrate_planar(samples, field_norm=None, axes=None, units: str | None = No
             split["change_time"] = float(times[split["change_row"]])
         split["change_row"] = int(kept[split["change_row"]])
     cal.summary["offset_split"] = split
-    if offset_moved(cal.summary):
-        cal.summary["warnings"].append(_moved_words(split, names, units))
+    if offset_moved(cal.summary):  # (kept with the split too: export-c says it, whatever its wording)
+        split["said"] = _moved_words(split, names, units)
+        cal.summary["warnings"].append(split["said"])
     return cal
 
 
@@ -718,41 +721,49 @@ def _offset_split(u: np.ndarray, norms, fit: dict, correlation, max_iterations: 
         # once more from the offsets on either side of that row: the split's sides held a few of the other's readings
         at = [_side(u, norms, rows, fit, correlation, max_iterations, tolerance)
               for rows in (slice(0, change), slice(change, len(u)))]
+        offsets = best["offsets"]  # (a side at the change row too short to refit, as a warm-up's first one)
         if all("fit" in side for side in at):
-            change = _change_row(u, fit, [side["fit"]["b"] for side in at])
-            result["kind"] = _step_or_drift(u, fit, change, [side["fit"]["b"] for side in at])
+            offsets = [side["fit"]["b"] for side in at]
+            change = _change_row(u, fit, offsets)
+        result["kind"] = _step_or_drift(u, fit, [change, *cuts], offsets)
         result["change_row"] = change
     return result
 
 
-def _step_or_drift(u: np.ndarray, fit: dict, change: int, offsets) -> str:
-    """"step" or "drift": whether one step at `change` or an offset drifting linearly through the rows fits the
-    readings better, each fitted by least squares (SciPy) with its own symmetric matrix — 7 parameters each: the
-    offset at the start, its change (at `change`, or over the log), the matrix — against the fit's targets. (A
-    wandering offset got the step's remedy, calibrate the two parts apart, in 88 % of such logs; a drift wants the
-    warm-up left out or shorter logs. Judged with the whole log's matrix, a drift over two turns looked like a step:
-    the matrix had taken part of it.)"""
+def _step_or_drift(u: np.ndarray, fit: dict, changes, offsets) -> str:
+    """"step" or "drift": whether one step (at the first of `changes`, the change row, or at another of them, the
+    splits' rows: in a single circle the change row can miss) or an offset that drifts through the rows — linearly,
+    or settling as a warm-up does (1 − e^(−s/τ), τ a twentieth to two fifths of the log) — fits the readings better,
+    each fitted by least squares (SciPy) with its own symmetric matrix — 7 parameters each: the offset at the start,
+    its change (at the step, or over the course), the matrix — against the fit's targets, on at most
+    STEP_OR_DRIFT_ROWS rows evenly spread in time. (A wandering offset got the step's remedy, calibrate the two parts
+    apart, in 88 % of such logs; a drift wants the warm-up left out or shorter logs. Judged with the whole log's
+    matrix, a drift over two turns looked like a step: the matrix had taken part of it.)"""
     from scipy.optimize import least_squares
 
-    targets = fit["targets"]
     n = len(u)
+    rows = np.unique(np.linspace(0, n - 1, min(n, STEP_OR_DRIFT_ROWS)).astype(int))
+    x, targets = u[rows], fit["targets"][rows]
     b0, b1 = (np.asarray(b, dtype=float) for b in offsets)
     A = fit["A"]
     start = np.concatenate([b0, b1 - b0, [A[0, 0], A[0, 1], A[1, 1]]])
-    courses = {"step": (np.arange(n) >= change).astype(float), "drift": np.arange(n) / max(n - 1, 1)}
+    s = rows / max(n - 1, 1)
+    first = int(np.searchsorted(rows, changes[0]))
 
     def cost(course):
         def residuals(p):
             a = np.array([[p[4], p[5]], [p[5], p[6]]])
-            return np.linalg.norm((u - p[:2] - np.outer(course, p[2:4])) @ a.T, axis=1) - targets
-        x0 = start.copy()
-        if course is courses["drift"]:  # the same means on either side of the change as the step's offsets
-            m0, m1 = course[:change].mean(), course[change:].mean()
+            return np.linalg.norm((x - p[:2] - np.outer(course, p[2:4])) @ a.T, axis=1) - targets
+        x0 = start.copy()  # the same means on either side of the change row as the offsets given
+        m0, m1 = course[:first].mean() if first else 0.0, course[first:].mean()
+        if m1 != m0:
             x0[2:4] = (b1 - b0) / (m1 - m0)
             x0[:2] = b0 - m0 * x0[2:4]
         return float(np.sum(least_squares(residuals, x0, method="lm").fun ** 2))
 
-    return "drift" if cost(courses["drift"]) < cost(courses["step"]) else "step"
+    step = min(cost((rows >= c).astype(float)) for c in dict.fromkeys(int(c) for c in changes))
+    drifts = [s] + [1.0 - np.exp(-s / tau) for tau in (0.05, 0.1, 0.2, 0.4)]
+    return "drift" if min(cost(course) for course in drifts) < step else "step"
 
 
 def _best_split(split: dict) -> dict:

@@ -935,8 +935,11 @@ def _require_preset_ids(source, ids, count: int) -> None:
     missing = [k for k in range(1, count + 1) if float(k) not in numbers]
     extra = sorted(_label(u) for u in numbers if not (u.is_integer() and 1 <= u <= count))
     if missing or extra:
+        # (not for a label beside a missing position: a mislabelled one, which leaving out would lose)
+        odd = [u for u in numbers if not (u.is_integer() and 1 <= u <= count)]
         moving = (f" (rows logged while the device moves between positions, marked {', '.join(map(str, extra))}? "
-                  "Leave their position cell empty and pass --bad-lines skip, bad_lines='skip')" if extra else "")
+                  "Leave their position cell empty and pass --bad-lines skip, bad_lines='skip')"
+                  if extra and (not missing or all(u <= 0 for u in odd)) else "")
         raise ValueError(f"{source}: the preset numbers its positions 1–{count}; the position column "
                          + "; ".join(([f"lacks {', '.join(map(str, missing))}"] if missing else [])
                                      + ([f"has {', '.join(map(str, extra))} besides"] if extra else [])) + moving)

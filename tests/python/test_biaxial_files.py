@@ -207,6 +207,12 @@ def test_a_headerless_biaxial_log_with_its_clock_names_its_columns(tmp_path, cap
     cal = Calibration.load(tmp_path / "cal.json")
     se = np.asarray(cal.summary["standard_errors"][:2])
     assert np.all(np.abs(cal.plane["offset"] - B) < Z_LIMIT * se)
+    # a clock reset once (a reboot) is still a clock; a three-axis x misnamed t (half its steps back) is not
+    path.write_text("".join(f"{0.1 * (k % 400):.1f},{x:.5f},{y:.5f}\n" for k, (x, y) in enumerate(m)))
+    assert fluxcal.read_recording(path, columns="t,mx,my").mag_names() == ("mx", "my")
+    path.write_text("".join(f"{x:.5f},{y:.5f},{x - y:.5f}\n" for x, y in m))
+    with pytest.raises(ValueError, match="column 't' is chosen as a magnetometer axis"):
+        fluxcal.read_recording(path, columns="t,mx,my").mag_names()
 
 
 def test_a_biaxial_header_tests_its_absent_axis_at_zero(tmp_path, capsys):

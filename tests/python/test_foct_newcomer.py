@@ -259,3 +259,31 @@ def test_drift_apply_writes_the_kalman_output_the_firmware_would(tmp_path, log, 
     white.settings["kalman"] = None
     with pytest.raises(ValueError, match="no Kalman filter"):
         drift.filter_compensated(white, w)
+
+
+def test_a_thermal_lag_is_named_with_its_time_constant():
+    """A coil 10 min behind its thermometer left residuals 16× the noise and the AR model rejected, with nothing
+    naming the cause: the compensated zero bias following f'(T)·dT/dt now says a thermal lag (τ a lower bound);
+    the same log without the lag says nothing."""
+    lagged = foct_log(seed=3, coil_lag=600.0)
+    _, report = drift.fit_pipeline(lagged["zero_bias"], lagged["temp"], t=lagged["t"])
+    lag = report["thermal_lag"]
+    assert lag["said"] and 300.0 < lag["tau_s"] <= 650.0, lag
+    assert any("lags the thermometer by about" in w for w in report["warnings"])
+    clean = foct_log(seed=3)
+    _, report = drift.fit_pipeline(clean["zero_bias"], clean["temp"], t=clean["t"])
+    assert not report["thermal_lag"]["said"] and not any("lags the thermometer" in w for w in report["warnings"])
+
+
+def test_drift_apply_names_a_temperature_that_is_not_a_number(tmp_path, log, capsys):
+    """An empty or NaN temperature in the log to compensate had been said "nan °C is outside every range" with the
+    --outside-range remedy (a review): it is the file's, named by its line with --bad-lines skip, as drift fit does."""
+    src = write_csv(tmp_path / "log.csv", log)
+    model_path = tmp_path / "m.json"
+    assert cli(capsys, "drift", "fit", src, "-o", model_path)[0] == 0
+    other = {k: v.copy() for k, v in log.items()}
+    other["temp"][50] = np.nan
+    path = write_csv(tmp_path / "nan.csv", other)
+    code, out, err = cli(capsys, "drift", "apply", model_path, path, "-o", tmp_path / "out.csv")
+    assert code == 2 and f"line {line_of(path, 50)}, column 'temp'" in err and "--bad-lines skip" in err, err
+    assert "outside every range" not in err

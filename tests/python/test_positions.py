@@ -655,3 +655,7 @@ def test_cli_positions_moves_between_positions_with_an_empty_position_cell(tmp_p
     path.write_text("\n".join(ln if not ln.startswith(",") else "0" + ln for ln in lines) + "\n")
     r = run_cli("positions", path, "--preset", "twelve", "--frame", "nue", "--field", field)
     assert r.returncode == 2 and "has 0 besides (rows logged while the device moves" in r.stderr, r.stderr
+    # a mislabelled position (12 written 13) is not taken for moves: leaving it out would lose a position
+    path.write_text("\n".join(("13" + ln[2:]) if ln.startswith("12,") else ln for ln in lines) + "\n")
+    r = run_cli("positions", path, "--preset", "twelve", "--frame", "nue", "--field", field, "--bad-lines", "skip")
+    assert r.returncode == 2 and "lacks 12; has 13 besides" in r.stderr and "while the device moves" not in r.stderr

@@ -156,3 +156,23 @@ def test_the_first_line_after_a_quiet_open_is_kept(tmp_path):
     _, got = values(recording, ("t", "mx", "my", "mz"))
     assert stats.records == len(ROWS) and not stats.rejected, stats.report()
     np.testing.assert_array_equal(got[:, 1:], np.array(ROWS, dtype=float)[:, 1:])
+
+
+def test_a_status_line_of_plain_words_is_no_header():
+    """A sketch's status line ("my sensor ready", "Sensor init OK") is a line of other fields: one had refused every
+    line after it (it holds `my` at another place), another was taken for the device's names by position and hid
+    its real header's reorder, storing z under mx (a review). A header it prints afterwards is still followed."""
+    def events(decoder, lines):
+        out = []
+        for raw in lines:
+            out += list(decoder.feed(raw + b"\n"))
+        return [e if isinstance(e, tuple) else e.reason for e in out]
+
+    decoder = TextDecoder(parse_columns("mx,my,mz"))
+    decoder.port_was_quiet()  # (the first line is whole)
+    got = events(decoder, [b"1,2,3", b"my sensor ready", b"4,5,6", b"7,8,9"])
+    assert got == [(1.0, 2.0, 3.0), "non_numeric", (4.0, 5.0, 6.0), (7.0, 8.0, 9.0)], got
+    decoder = TextDecoder(parse_columns("mx,my,mz"))
+    decoder.port_was_quiet()
+    got = events(decoder, [b"Sensor init OK", b"x,y,z", b"1,2,3", b"z,x,y", b"30,10,20"])
+    assert got[-1] == (10.0, 20.0, 30.0), got

@@ -1095,7 +1095,7 @@ def diagnose_cable(readings, ring: Ring, currents=None, rotations_deg=None, posi
 # What the ring's model and its candidates leave out, most likely first (the NOT EXPLAINED line)
 OUTSIDE_CANDIDATES = ("a field from outside the ring: a neighbouring cable or busbar, a background field that turns "
                       "with the ring against its sensors (the Earth's, a magnet's), iron near the ring; a sensor whose "
-                      "axes are coupled (misaligned, crosstalk) or whose gain changes; a harmonic in a current")
+                      "gain changes; a harmonic in a current")
 # A residual RMS this many σ and above is no σ underestimated a little: the model lacks something
 FAR_BEYOND_NOISE = 3.0
 GAIN_MISMATCH = 0.2  # the base model moved a sensor's gain by more than this: the readings' scale is not the model's

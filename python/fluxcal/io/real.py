@@ -160,9 +160,10 @@ def _read_headerless(path, lines, start, names, columns, units, delimiter) -> Re
         data, line_numbers, notes = parse_rows(path, lines, start, names, delimiter, expected="--columns")
         rec = Recording(columns=dict(zip(names, data.T)), source=str(path), line_numbers=line_numbers)
         # the magnetometer's columns (two: a biaxial sensor's), less a clock among them (t,mx,my: a biaxial log);
-        # a "clock" whose values go back is a three-axis sensor's x misnamed, which select() refuses
+        # a "clock" that goes back at more than one step in a hundred is a three-axis sensor's x misnamed (half its
+        # steps go back), which select() refuses; a clock reset now and then (a reboot, a wrap) is still a clock
         clock = find_time(names, rec.units)
-        ticking = clock is not None and np.all(np.diff(rec.columns[clock[0]]) >= 0)
+        ticking = clock is not None and np.mean(np.diff(rec.columns[clock[0]]) >= 0) >= 0.99
         field = [n for n in names if not ticking or n != clock[0]]
         if len(field) in (2, 3):
             rec.select(field)

@@ -377,6 +377,13 @@ class TextDecoder:
         caller calls it partial, it may be a cut header; later: a line of other fields)."""
         printed = [n.lower() for n, _ in cells]
         mine = [n.lower() for n in self.names]
+        # Plain words with spaces ("my sensor ready", "Sensor init OK": a sketch's status line) are a header only
+        # when they name two of the columns (or of the device's earlier names): one such line had refused every
+        # line after it, another was taken for the device's names and hid its real header's reorder (a review)
+        structured = any(c in text for c in ",;[(")
+        known = set(mine) | set(self._aliases or ())
+        if not structured and len(known.intersection(printed)) < 2:
+            return None
         said = text not in self._headers_said
         self._headers_said.add(text)
         line = f"the device's header line {text!r}"
@@ -403,9 +410,16 @@ class TextDecoder:
             if said:
                 self._headers_said.discard(text)
             return None  # a cut header (first line: partial), a status word: rejected as a line of other fields
+        axes = [m for m in MAG if m in mine]
         for reference, whose in ((mine, f"the columns {names}"), (self._aliases, "the device's earlier header")):
             misplaced = [n for j, n in enumerate(reference or ()) if n in printed and printed.index(n) != j]
-            if misplaced:  # mz where mx was: never record by position
+            # mz where mx was: never record by position — a header, when it names every axis; a line that names
+            # some at other places is a line of other fields, which changes nothing
+            if misplaced and not all(m in printed for m in axes):
+                if said:
+                    self._headers_said.discard(text)
+                return None
+            if misplaced:
                 return self._refuse(
                     "fields", line, f"it puts {', '.join(misplaced)} at other places than {whose}, and its other "
                     "names are not theirs (compared without units): the new order cannot be followed", said)
@@ -417,7 +431,12 @@ class TextDecoder:
             return Reject("fields", f"{line} names neither the columns nor the device's earlier header",
                           warning=warning)
         # as many fields, none of the columns' names elsewhere: --columns names the device's fields by position;
-        # the device's names are remembered, so that a header it prints later in another order is followed
+        # the device's names are remembered, so that a header it prints later in another order is followed (not
+        # from plain words, which name nothing of the columns: a status line)
+        if not structured:
+            if said:
+                self._headers_said.discard(text)
+            return None
         renamed = ", ".join(f"{n}={c}" for (n, _), c in zip(cells, self.names) if n.lower() != c.lower())
         event = self._follow(cells, printed, line, said, note=f"{line}: its fields taken as the columns {names} "
                              f"by position ({renamed}); a header in another order is followed")
