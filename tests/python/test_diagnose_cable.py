@@ -495,3 +495,21 @@ def test_a_dead_sensor_is_left_out_and_a_missing_reading_is_named():
     with pytest.raises(ValueError, match=r"snapshot 5, sensor 1, axis x is not finite \(1 such values in 1 "
                                          r"snapshots\): leave those snapshots out"):
         diagnose_cable(**{**kwargs, "readings": dead})
+
+
+def test_least_squares_survives_an_eigensolver_that_does_not_converge(monkeypatch):
+    """LAPACK's eigh failed to converge on one ill-conditioned candidate fit of a blind check and aborted the whole
+    diagnosis: the SVD-based solve takes over."""
+    from fluxcal.diagnose import cable as dc
+
+    rng = np.random.default_rng(0)
+    X, y = rng.normal(size=(50, 3)), rng.normal(size=50)
+    want = dc._lstsq(X, y)
+
+    def fails(_):
+        raise np.linalg.LinAlgError("Eigenvalues did not converge")
+
+    monkeypatch.setattr(dc.np.linalg, "eigh", fails)
+    np.testing.assert_allclose(dc._lstsq(X, y), want, rtol=1e-9)
+    np.testing.assert_allclose(dc._lstsq(X, np.column_stack([y, 2 * y])),
+                               np.column_stack([want, 2 * want]), rtol=1e-9)
