@@ -19,6 +19,7 @@ from conftest import run_cli
 ROTATIONS = "0,45,90,135,180,225,270,315"
 G = 9.80665
 FIELD = np.array([17000.0, 1000.0, 48000.0])  # (N, E, D) nT, the newcomer's
+NOT_COUPLING = "helical_lay,finite_length,sensor_position_error,cable_tilt,z_leakage"  # the candidates of the time
 
 
 # ---------------------------------------------------------------- W2: the cable ring's diagnosis
@@ -41,11 +42,16 @@ def test_cable_diagnosis_judges_the_fit_against_the_calibrations_noise(ring_file
     solve = run_cli("cable", "solve", d / "lab.csv", "--calibration", d / "ringcal.json")
     assert solve.returncode == 0, solve.stderr
     assert solve.stdout.count("MISFIT") >= 4, solve.stdout  # the solver itself flags it (6 of 8)
-    r = run_cli("diagnose", d / "lab.csv", "--model", "cable", "--calibration", d / "ringcal.json", "--quiet")
+    # without the candidate for what the lab's ferrous parts do (sensor_coupling), nothing explains the departure
+    r = run_cli("diagnose", d / "lab.csv", "--model", "cable", "--calibration", d / "ringcal.json", "--quiet",
+                f"--candidates={NOT_COUPLING}")
     assert r.returncode == 0, r.stderr
     assert "explains the readings to the noise" not in r.stdout, r.stdout
     assert "from the calibration's scatter" in r.stdout, r.stdout
     assert "the readings still depart from the ring's model" in r.stdout, r.stdout
+    # with it, the lab rig's ferrous parts (each sensor's field through a 2×2 matrix: its off-diagonal part) are named
+    r = run_cli("diagnose", d / "lab.csv", "--model", "cable", "--calibration", d / "ringcal.json", "--quiet")
+    assert r.returncode == 0 and "FOUND: sensor_coupling" in r.stdout, r.stdout
 
 
 def test_cable_diagnosis_noise_from_the_calibration_in_python(ring_files):
@@ -73,7 +79,7 @@ def test_clean_ring_is_still_explained_to_the_calibrations_noise(ring_files):
 
 def test_cable_diagnosis_with_sigma_from_its_own_residuals_says_it_cannot_judge(ring_files):
     # no calibration, no repeats, no --noise-sigma: σ can only come from the residuals, which hold the misfit
-    r = run_cli("diagnose", ring_files / "lab.csv", "--model", "cable", "--quiet")
+    r = run_cli("diagnose", ring_files / "lab.csv", "--model", "cable", "--quiet", f"--candidates={NOT_COUPLING}")
     assert r.returncode == 0, r.stderr
     assert "explains the readings to the noise" not in r.stdout, r.stdout
     assert "whether the ring's model fits cannot be judged" in r.stdout, r.stdout
