@@ -299,25 +299,24 @@ def calibrate_ring(readings, true_fields, method: str = "twostep") -> RingCalibr
         raise ValueError(f"readings {r.shape} and true_fields {h.shape}: expected the same shape (K, n_sensors, 2)")
     norms = np.linalg.norm(h, axis=2)
     fits: list[TwoStep2D] = []
-    all_r, all_h, all_norms = r, h, norms
-    for i in range(all_r.shape[1]):
+    for i in range(r.shape[1]):
         # a sensor's readings that are not numbers (a dropout, a glitch logged as nan) are left out of its own fit;
         # a sensor with none is dead: the others' calibration cannot stand in for it
-        finite = np.isfinite(all_r[:, i]).all(axis=1)
+        finite = np.isfinite(r[:, i]).all(axis=1)
         if (~finite).any() and finite.sum() < 5:
             raise ValueError(f"sensor {i}: {int((~finite).sum())} of {len(finite)} calibration readings are not finite "
                              "(a dead sensor?): it cannot be calibrated; repair it, or leave its columns out of the "
                              "ring (ring_angles_deg without it) for a ring of the others")
         dropped = np.nonzero(~finite)[0]
-        r, h, norms = all_r[finite], all_h[finite], all_norms[finite]
-        u = h[:, i] / np.where(norms[:, i] > 0, norms[:, i], 1.0)[:, None]
+        m, norm = r[finite, i], norms[finite, i]  # this sensor's readings and their true |field|
+        u = h[finite, i] / np.where(norm > 0, norm, 1.0)[:, None]
         if np.linalg.eigvalsh(u.T @ u / len(u))[0] < 1e-6:  # ±one direction: currents scale it, never turn it
             raise ValueError(f"true_fields: the field at sensor {i} never changes direction (its readings lie on a "
                              "line: one rotation of the ring?); turn the ring about the cable between readings "
                              "(the paper uses 5 × 72°)")
         if method == "twostep":
             try:
-                fits.append(twostep_2d(r[:, i], norms[:, i]))
+                fits.append(twostep_2d(m, norm))
             except ValueError as exc:
                 if "first step" not in str(exc):  # bad input (a NaN), a run-away: its own message says what
                     raise ValueError(f"sensor {i}: {exc}") from None
@@ -326,26 +325,25 @@ def calibrate_ring(readings, true_fields, method: str = "twostep") -> RingCalibr
                     raise ValueError(f"sensor {i}: {exc}. The field at this sensor turned through only {arc:.0f}° "
                                      "in the calibration run: turn the ring about the cable through a full circle "
                                      "(the paper uses 5 × 72°), or calibrate at several currents") from None
-                fit = _sampson_fit(r[:, i], norms[:, i], str(exc))
+                fit = _sampson_fit(m, norm, str(exc))
                 if fit is None:
-                    raise ValueError(f"sensor {i}: {exc}. Here the magnitudes are the ring model's (straight conductors "
-                                     "at the given positions with the reference currents): a calibration run the model "
-                                     "does not describe (a cable's lay, its end or a bend near the ring, iron nearby, a "
-                                     "wrong ring_radius_m) gives this, or magnitudes that hardly change across the run "
-                                     f"(here by {100 * (np.ptp(norms[:, i]) / np.mean(norms[:, i])):.3g} %: calibrate at "
+                    raise ValueError(f"sensor {i}: {exc}. Here the magnitudes are the ring model's (straight "
+                                     "conductors at the given positions with the reference currents): a calibration "
+                                     "run the model does not describe (a cable's lay, its end or a bend near the ring, "
+                                     "iron nearby, a wrong ring_radius_m) gives this, or magnitudes that hardly change "
+                                     "across the run "
+                                     f"(here by {100 * (np.ptp(norm) / np.mean(norm)):.3g} %: calibrate at "
                                      "positions off the ring's centre); `fluxcal diagnose RUN.csv --model cable` says "
                                      "which") from None
                 fits.append(fit)
         elif method == "least_squares":
-            common = np.full(r.shape[0], np.sqrt(np.mean(norms[:, i] ** 2)))
-            fits.append(twostep_2d(r[:, i], common, refine=False))
+            fits.append(twostep_2d(m, np.full(len(m), np.sqrt(np.mean(norm ** 2))), refine=False))
         else:
             raise ValueError(f"method: {method!r}, expected 'twostep' or 'least_squares'")
         if len(dropped):
             shown = ", ".join(map(str, dropped[:8])) + (", …" if len(dropped) > 8 else "")
             fits[-1].summary["warnings"] = list(fits[-1].summary.get("warnings", [])) + [
                 f"{len(dropped)} of {len(finite)} readings not finite, left out of this sensor's fit (rows {shown})"]
-    r, h = all_r, all_h
     offsets, gains = np.array([f.offset for f in fits]), np.array([f.gain for f in fits])
     residual_sigma, covariance = _calibration_errors(r, h, offsets, gains, linear=method != "twostep")
     if method == "twostep":

@@ -18,6 +18,7 @@ from .calibration import TESLA_PER_UNIT, Calibration, _significant, in_sensor_ax
 from .io import Recording, read_csv, read_recording, write_csv, write_recording
 from .io.formats import WRITERS
 from .io.columns import unit_name
+from .io.csv import skipped_words
 from .pipeline import METHODS, PLAUSIBLE_WORDS, UNITS_WORDS, calibrate, noise_line, plausible_field
 from .planar import plane_axes
 
@@ -365,7 +366,7 @@ def _print_roles(rec: Recording, reference: str | None = None):
     print("columns: " + "; ".join([f"{role} {names}" for role, names in rec.roles().items()]
                                   + ([reference] if reference else [])))
     if "skipped_lines" in rec.metadata:
-        print(f"skipped {rec.metadata['skipped_lines'].replace(':', ' lines:', 1)}")
+        print(skipped_words(rec.metadata['skipped_lines']))
     if "text_columns" in rec.metadata:
         print(f"text columns not used: {rec.metadata['text_columns']}")
 
@@ -720,7 +721,7 @@ def cmd_apply(args) -> int:
         raise ValueError(f"{args.file}: already has column(s) {', '.join(taken)}, which the corrected field would "
                          "overwrite; rename them (or apply to the recording the correction was made from)")
     if "skipped_lines" in rec.metadata:
-        print(f"skipped {rec.metadata['skipped_lines'].replace(':', ' lines:', 1)}")
+        print(skipped_words(rec.metadata['skipped_lines']))
     if "text_columns" in rec.metadata:
         print(f"note: text columns are not written to {args.output}: {rec.metadata['text_columns']}")
     factor = cal.unit_factor(rec.field_units(), f"{args.file}")
@@ -1154,7 +1155,7 @@ def cmd_cable(args) -> int:
 def _ring_notes(cable, data: dict) -> None:
     """What a ring recording's read left out (--bad-lines skip) and the columns it does not use, printed."""
     if data["skipped_lines"]:
-        print(f"skipped {data['skipped_lines'].replace(':', ' lines:', 1)} (their snapshots left out)")
+        print(skipped_words(data['skipped_lines'], "their snapshots left out"))
     note = cable.ring_columns_note(data)
     if note:
         print(note)
@@ -1292,7 +1293,7 @@ def cmd_drift(args) -> int:
             where = ("the gaps they leave in t are not reached across" if times is not None else
                      "no time column: the series is modelled as if they were not there, a time step is missing at "
                      "each")
-            print(f"skipped {rec.metadata['skipped_lines'].replace(':', ' lines:', 1)} ({where})")
+            print(skipped_words(rec.metadata['skipped_lines'], where))
         temp, outside, temperature = _temperatures(rec, args.temp_column, args.outside_column, args.file)
         _require_finite(rec, args.file, ((args.column, rec.columns[args.column]), (temperature["column"], temp),
                                          (args.outside_column, outside)))
@@ -1369,7 +1370,7 @@ def cmd_drift(args) -> int:
     column = args.column or model.settings.get("column", "zero_bias")  # the model remembers what it was fitted on
     rec = _zero_bias_recording(args, column)
     if "skipped_lines" in rec.metadata:
-        print(f"skipped {rec.metadata['skipped_lines'].replace(':', ' lines:', 1)} (not in the output)")
+        print(skipped_words(rec.metadata['skipped_lines'], "not in the output"))
     for w in drift.fit_warnings(model):  # what the fit said of the model goes with it
         print(f"warning: {args.model} (at its fit): {w}")
     fitted = model.settings.get("temperature") or {}
@@ -1389,10 +1390,8 @@ def cmd_drift(args) -> int:
             hint = drift.outside_unit_hint(temp[np.isfinite(rec.columns[column])], lo, hi, temperature["column"])
             raise ValueError(f"{args.file}, {where}: {temperature['column']} {temp[k]:g} °C is outside every range of "
                              f"the drift model {args.model} ({lo:g} … {hi:g} °C; {beyond.size} of {len(rec)} "
-                             "samples outside): the polynomials are not extrapolated; "
-                             + (f"{hint}. Else: " if hint else "")
-                             + "pass --outside-range nan to write NaN for them and compensate the rest, or fit the "
-                             "drift over the temperatures the device will meet (a chamber cycle that reaches them)")
+                             "samples outside): " + drift.not_extrapolated_words(
+                                 hint, "pass --outside-range nan to write NaN for them and compensate the rest"))
     compensated = model.compensate(rec.columns[column], temp, outside, outside=args.outside_range)
     known = ~np.isnan(compensated)  # with --outside-range nan, the samples the model speaks for
     missing = ~np.isfinite(rec.columns[column])  # (NaN in, NaN out: not the temperature's doing)

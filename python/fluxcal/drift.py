@@ -111,12 +111,9 @@ class DriftModel:
         except ValueError as err:
             if "outside every range" not in str(err):
                 raise
-            hint = outside_unit_hint(temp, lo, hi)
-            raise ValueError(f"{err}: the polynomials are not extrapolated; "
-                             + (f"{hint}. Else: " if hint else "")
-                             + "pass outside='nan' (--outside-range nan) to mark such samples NaN and compensate "
-                             "the rest, or fit the drift over the temperatures the device will meet (a chamber "
-                             "cycle that reaches them)") from None
+            raise ValueError(f"{err}: " + not_extrapolated_words(
+                outside_unit_hint(temp, lo, hi),
+                "pass outside='nan' (--outside-range nan) to mark such samples NaN and compensate the rest")) from None
 
     def compensate(self, zero_bias, temp, temp_outside=None, outside: str = "error") -> np.ndarray:
         """W_c = W − f(T). A temperature outside every range: ValueError, or NaN with outside="nan"."""
@@ -424,6 +421,13 @@ def temperature_unit_hint(temp, breakpoints=DEFAULT_BREAKPOINTS, name: str = "te
             f"is, the model's ranges are {sign} numbers taken for °C")
 
 
+def not_extrapolated_words(hint: str | None, use_nan: str) -> str:
+    """The remedies for temperatures outside a model's ranges: a unit's `hint` (outside_unit_hint), else `use_nan`
+    (how to mark them NaN, as the caller spells it) or a fit over the temperatures the device will meet."""
+    return ("the polynomials are not extrapolated; " + (f"{hint}. Else: " if hint else "") + use_nan
+            + ", or fit the drift over the temperatures the device will meet (a chamber cycle that reaches them)")
+
+
 def outside_unit_hint(temp, lo: float, hi: float, name: str = "temp") -> str | None:
     """When temperatures of a log are outside a model's ranges [lo, hi] (°C): the unit that explains it, or None.
     Either the log's numbers are °F or K with no unit (converted, all fall within the ranges, and either span them
@@ -505,11 +509,10 @@ def thermal_lag(model: "DriftModel", compensated, temp, t=None, temp_outside=Non
         hi = np.where(left & (hi >= b), b - 1, hi)
     span = time[hi] - time[lo]
     rate = np.divide(temp[hi] - temp[lo], span, out=np.zeros(n), where=span > 0)
-    step = 1e-3 * max(float(np.ptp(temp)), 1e-9)
-    up = model.evaluate(np.minimum(temp + step, model.segments[-1]["range"][1]), outside="nan")
-    down = model.evaluate(np.maximum(temp - step, model.segments[0]["range"][0]), outside="nan")
-    slope = (up - down) / (np.minimum(temp + step, model.segments[-1]["range"][1])
-                           - np.maximum(temp - step, model.segments[0]["range"][0]))
+    step = 1e-3 * max(float(np.ptp(temp)), 1e-9)  # f'(T) by a central difference, within the model's ranges
+    above = np.minimum(temp + step, model.segments[-1]["range"][1])
+    below = np.maximum(temp - step, model.segments[0]["range"][0])
+    slope = (model.evaluate(above, outside="nan") - model.evaluate(below, outside="nan")) / (above - below)
     x = slope * rate
     ok = np.isfinite(x) & np.isfinite(w)
     if ok.sum() < 50 or not np.any(x[ok] != 0):

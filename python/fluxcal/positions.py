@@ -1054,13 +1054,14 @@ def run_cli(args, out=None) -> int:
     from pathlib import Path
 
     from .io import read_recording
+    from .io.csv import skipped_words
 
     out = out or sys.stdout
     # every format calibrate reads (the SAP6 survey instrument's JSON shots, .mat, a logger's CSV)
     rec = read_recording(args.file, columns=getattr(args, "columns", None),
                          bad_lines=getattr(args, "bad_lines", "error"))
     if "skipped_lines" in rec.metadata:
-        print(f"skipped {rec.metadata['skipped_lines'].replace(':', ' lines:', 1)}", file=out)
+        print(skipped_words(rec.metadata['skipped_lines']), file=out)
     acc = rec.acceleration()
     if acc is None:
         raise ValueError(f"{args.file}: no accelerometer columns (ax,ay,az, or a triple named AccX.., accel_x..; "

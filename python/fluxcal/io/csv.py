@@ -61,6 +61,14 @@ def listing(entries, total: int | None = None, shown: int = 10) -> str:
     head = f"{len(entries)} of {total}: " if total is not None else ""
     more = f"; … {len(entries) - shown} more" if len(entries) > shown else ""
     return head + "; ".join(entries[:shown]) + more
+
+
+def skipped_words(skipped_lines: str, why: str = "") -> str:
+    """What the command line prints of a recording's metadata "skipped_lines" (`listing`'s 'k of total: …'):
+    'skipped k of total lines: …', then `why` in parentheses."""
+    return f"skipped {skipped_lines.replace(':', ' lines:', 1)}" + (f" ({why})" if why else "")
+
+
 _UNIT_IN_HEADER = re.compile(r"^\s*([^\[\(]+?)\s*[\[\(]\s*([^\]\)]*)\s*[\]\)]\s*$")
 
 
