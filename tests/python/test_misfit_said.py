@@ -47,7 +47,7 @@ def test_cable_diagnosis_judges_the_fit_against_the_calibrations_noise(ring_file
                 f"--candidates={NOT_COUPLING}")
     assert r.returncode == 0, r.stderr
     assert "explains the readings to the noise" not in r.stdout, r.stdout
-    assert "from the calibration's scatter" in r.stdout, r.stdout
+    assert "from the calibration run's repeated readings" in r.stdout, r.stdout
     assert "the readings still depart from the ring's model" in r.stdout, r.stdout
     # with it, the lab rig's ferrous parts (each sensor's field through a 2×2 matrix: its off-diagonal part) are named
     r = run_cli("diagnose", d / "lab.csv", "--model", "cable", "--calibration", d / "ringcal.json", "--quiet")
@@ -59,11 +59,19 @@ def test_cable_diagnosis_noise_from_the_calibration_in_python(ring_files):
     cal = RingCalibration.load(ring_files / "ringcal.json")
     dg = diagnose_cable(data["readings"], data["ring"], currents=data["currents_a"],
                         rotations_deg=data["rotations_deg"], positions=data["positions_m"], calibration=cal)
+    assert dg.noise_source.startswith("from the calibration run's repeated readings")
+    # σ per sensor is the scatter of the calibration run's repeats over its gain (refined gains: its own parameter
+    # errors left out)
+    np.testing.assert_allclose(dg.where["noise_sigma_per_sensor"],
+                               np.sqrt(np.mean((cal.repeat_sigma / cal.gains) ** 2, axis=1)), rtol=1e-12)
+    assert dg.where["overall"]["rms_z"] > 3.0  # 7.7 σ: the departure the solver flags
+    # a calibration without its repeats' scatter (saved before it was kept): its scatter about its fit
+    older = RingCalibration(cal.offsets, cal.gains, residual_sigma=cal.residual_sigma, covariance=cal.covariance)
+    dg = diagnose_cable(data["readings"], data["ring"], currents=data["currents_a"],
+                        rotations_deg=data["rotations_deg"], positions=data["positions_m"], calibration=older)
     assert dg.noise_source.startswith("from the calibration's scatter")
-    # σ per sensor is the calibration's scatter over its gain (refined gains: its own parameter errors left out)
     np.testing.assert_allclose(dg.where["noise_sigma_per_sensor"],
                                np.sqrt(np.mean((cal.residual_sigma / cal.gains) ** 2, axis=1)), rtol=1e-12)
-    assert dg.where["overall"]["rms_z"] > 3.0  # 7.7 σ: the departure the solver flags
     # the solver's own σ is the RMS over the sensors of the per-sensor σ at these fields
     assert cal.field_sigma(data["readings"]) == pytest.approx(
         float(np.sqrt(np.mean(cal.sensor_sigma(data["readings"]) ** 2))), rel=1e-12)
