@@ -1380,18 +1380,14 @@ def cmd_drift(args) -> int:
                                                or "temp_outside", args.file)
     # a temperature that is not a number is the file's (not one outside the model's ranges): said as drift fit says it
     _require_finite(rec, args.file, ((temperature["column"], temp), (args.outside_column or "temp_outside", outside)))
-    lo, hi = model.segments[0]["range"][0], model.segments[-1]["range"][1]
-    if args.outside_range == "error":  # said with the file's line, the option that takes them, and a unit's hint
-        beyond = np.flatnonzero(np.isnan(model.evaluate(temp, outside, outside="nan"))
-                                & np.isfinite(rec.columns[column]))
-        if beyond.size:
-            k = beyond[0]
-            where = f"line {rec.line_numbers[k]}" if rec.line_numbers is not None else f"row {k}"
-            hint = drift.outside_unit_hint(temp[np.isfinite(rec.columns[column])], lo, hi, temperature["column"])
-            raise ValueError(f"{args.file}, {where}: {temperature['column']} {temp[k]:g} °C is outside every range of "
-                             f"the drift model {args.model} ({lo:g} … {hi:g} °C; {beyond.size} of {len(rec)} "
-                             "samples outside): " + drift.not_extrapolated_words(
-                                 hint, "pass --outside-range nan to write NaN for them and compensate the rest"))
+    lo, hi = model.span()
+    if args.outside_range == "error":  # the model's text, with the file's line and the option as the CLI spells it
+        said = drift.outside_ranges_words(model, temp, "--outside-range nan", counted=np.isfinite(rec.columns[column]),
+                                          name=temperature["column"], where=str(args.file),
+                                          word="line" if rec.line_numbers is not None else "row",
+                                          labels=rec.line_numbers, source=f"the drift model {args.model}")
+        if said:
+            raise ValueError(said)
     compensated = model.compensate(rec.columns[column], temp, outside, outside=args.outside_range)
     known = ~np.isnan(compensated)  # with --outside-range nan, the samples the model speaks for
     missing = ~np.isfinite(rec.columns[column])  # (NaN in, NaN out: not the temperature's doing)

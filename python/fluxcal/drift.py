@@ -95,9 +95,10 @@ class DriftModel:
                 for s in self.segments]
         # The outer edges are the fit's coldest and hottest samples: a later log at the same holds reads a little
         # beyond them half the time (0.007 °C was refused). Within EDGE_MARGIN of the span the edge range's
-        # polynomial is used, a negligible extrapolation.
-        lo, hi = segs[0][0][0], segs[-1][0][1]
+        # polynomial is used, a negligible extrapolation (beyond_ranges).
+        lo, hi = self.span()
         margin = EDGE_MARGIN * (hi - lo)
+        given = temp
         temp = np.where((temp < lo) & (temp >= lo - margin), lo, np.where((temp > hi) & (temp <= hi + margin), hi, temp))
         if outside == "nan":
             inside = (temp >= segs[0][0][0]) & (temp <= segs[-1][0][1])  # the ranges are contiguous (from_dict)
@@ -108,12 +109,33 @@ class DriftModel:
             return f
         try:
             return np.asarray(_core.drift_evaluate(segs, temp, np.ascontiguousarray(x)))
-        except ValueError as err:
-            if "outside every range" not in str(err):
-                raise
-            raise ValueError(f"{err}: " + not_extrapolated_words(
-                outside_unit_hint(temp, lo, hi),
-                "pass outside='nan' (--outside-range nan) to mark such samples NaN and compensate the rest")) from None
+        except ValueError:
+            # Refused: samples outside the ranges are said as drift apply says them (outside_ranges_words); the
+            # core's own error stands for what it finds first (a NaN, segments not ascending and contiguous).
+            if np.all(np.isfinite(given)) and self._contiguous():
+                said = outside_ranges_words(self, given, "outside='nan' (--outside-range nan)")
+                if said:
+                    raise ValueError(said) from None
+            raise
+
+    def _contiguous(self) -> bool:
+        """Whether the ranges are finite, ascending and contiguous (from_dict refuses others; the core too)."""
+        edges = [(float(s["range"][0]), float(s["range"][1])) for s in self.segments]
+        return all(np.isfinite(a) and np.isfinite(b) and a < b for a, b in edges) and all(
+            b == c for (_, b), (c, _) in zip(edges[:-1], edges[1:]))
+
+    def span(self) -> tuple:
+        """(lo, hi): the coldest edge of the model's ranges and the hottest (°C; the ranges are contiguous)."""
+        return float(self.segments[0]["range"][0]), float(self.segments[-1]["range"][1])
+
+    def beyond_ranges(self, temp) -> np.ndarray:
+        """Which temperatures are outside every range by more than EDGE_MARGIN of the span: those evaluate refuses
+        (or gives NaN for). A NaN is not one (it is not a temperature, and is said as such)."""
+        t = np.asarray(temp, dtype=float)
+        lo, hi = self.span()
+        margin = EDGE_MARGIN * (hi - lo)
+        with np.errstate(invalid="ignore"):
+            return (t < lo - margin) | (t > hi + margin)
 
     def compensate(self, zero_bias, temp, temp_outside=None, outside: str = "error") -> np.ndarray:
         """W_c = W − f(T). A temperature outside every range: ValueError, or NaN with outside="nan"."""
@@ -219,7 +241,12 @@ def fit_drift(zero_bias, temp, temp_outside=None, regressor: str = "temp", break
     settings = {"breakpoints": used, "max_order": options.max_order,
                 "significance": options.significance, "continuous": options.continuous, "whiten": options.whiten,
                 "noise_ar": np.asarray(r["noise_ar"]).tolist()}
-    return DriftModel(segments=segments, regressor=regressor, settings=settings, summary=r["summary"])
+    summary = dict(r["summary"])
+    # the core's note that it adjusted the ranges (its first warning then), kept by name for fit_warnings: told by
+    # what the fit did, not by its words
+    moved = _ranges_moved(options.breakpoints, used) and len(summary["warnings"]) > 0
+    summary["range_notes"] = [summary["warnings"][0]] if moved else []
+    return DriftModel(segments=segments, regressor=regressor, settings=settings, summary=summary)
 
 
 def accuracy(residual, rated: float, accuracy_class: str = "0.2S") -> dict:
@@ -278,7 +305,9 @@ def temperature_glitches(temp, run: int = 3) -> np.ndarray:
     """Rows where a logged temperature leaves its course for at most `run` samples farther than a temperature
     can: a thermometer's error code (85 °C at a DS18B20's power-on, −127, 327.67 = 32767/100) or a garbled line.
     Two rules, either suffices, neither has a constant to tune (the departure is from the running median over
-    2·run + 1 samples, mirrored at the ends so that a first reading is judged against the ones after it):
+    2·run + 1 samples; the first and last `run` rows take the median of the first or last 2·run + 1, a window
+    within the log: mirrored at the ends, three glitches at the start filled five of its seven samples and were
+    the median, and a genuine first row next to them was blamed):
       - the departure exceeds the whole range of the rest by more than the thermometer's resolution (a 327.67
         in a −20…50 °C log had stretched the last range to 327.67 °C and cut the drift reduction from 937× to
         2.8×; a 1/16 °C step off a hold that never moved is no glitch);
@@ -290,6 +319,12 @@ def temperature_glitches(temp, run: int = 3) -> np.ndarray:
         every one of them is beyond the limit that gives), so that several glitches do not hide each other, and
         is at least the thermometer's resolution (its smallest nonzero step: a quantised hold that seldom moves
         is no glitch).
+    A row the second rule finds is judged again against its window without the other rows found (the median of
+    a genuine row beside a block of glitches is pulled along a fast ramp by them).
+    Rows found at an end of the log (a block from the first row, or to the last, within `run` rows) are kept only
+    when the block steps into the rest farther than run times its own largest step in that direction (and than
+    run·D): a glitch jumps back to the course, while a log that starts (or ends) on a fast warm-up ramp moves into
+    it by ever smaller steps, which neither the rest's range nor D (taken without those rows' steps) allows for.
     A slow log's steps are its own scale: at one sample per 10 min on a 1 °C/min ramp D is 10 °C."""
     from scipy.ndimage import median_filter
 
@@ -297,7 +332,10 @@ def temperature_glitches(temp, run: int = 3) -> np.ndarray:
     n = len(t)
     if n < 2 * run + 2 or not np.all(np.isfinite(t)):
         return np.zeros(0, dtype=int)
-    off = np.abs(t - median_filter(t, size=2 * run + 1, mode="mirror"))
+    size = 2 * run + 1
+    course = median_filter(t, size=size, mode="nearest")  # (the ends' are replaced: a window within the log)
+    course[:run], course[n - run:] = np.median(t[:size]), np.median(t[n - size:])
+    off = np.abs(t - course)
     order = np.argsort(-off, kind="stable")  # the largest departures first
     steps = np.abs(np.diff(t))
     moved = steps[steps > 0]
@@ -322,8 +360,39 @@ def temperature_glitches(temp, run: int = 3) -> np.ndarray:
     while 2 * count <= n // 4 and off[order[count - 1]] > limit(2 * count):
         count *= 2
     beyond = limit(count)
-    rows.update(int(i) for i in order[:count] if off[i] > beyond)  # (descending: a leading run of them)
-    return np.array(sorted(rows), dtype=int)
+    stepped = {int(i) for i in order[:count] if off[i] > beyond} - rows  # (descending: a leading run of them)
+    # A genuine row beside a block of glitches on a fast ramp departs from a median the glitches pulled along it
+    # (three 85 °C readings before a warm-up: the fourth row, on the ramp, was named): judged again against its
+    # window without the others found
+    found = rows | stepped
+    for i in stepped:
+        a = min(max(i - run, 0), n - size)
+        kept = [j for j in range(a, a + size) if j == i or j not in found]
+        if abs(t[i] - np.median(t[kept])) > beyond:
+            rows.add(i)
+    return np.array(sorted(rows - _ramps_at_the_ends(t, rows, run, beyond)), dtype=int)
+
+
+def _ramps_at_the_ends(t: np.ndarray, found: set, run: int, beyond: float) -> set:
+    """The rows of `found` (temperature_glitches') that are a genuine ramp at an end of the log: a block of them
+    from the first row (or to the last), within the first (last) `run` rows, that steps into the rest by no more
+    than `run` times its own largest step in that direction, or than `beyond` (run·D)."""
+    n, ramps = len(t), set()
+    for start, direction in ((0, 1), (n - 1, -1)):  # from the first row forwards, from the last backwards
+        block = []
+        i = start
+        while i in found and len(block) < run:
+            block.append(i)
+            i += direction
+        if not block or i in found:  # none, or the block reaches past the ends' rows (judged by centred windows)
+            continue
+        # in time order: the block's own steps, and the step between it and the rest
+        inside = np.diff(t[min(block):max(block) + 1])
+        into = t[i] - t[block[-1]] if direction == 1 else t[block[-1]] - t[i]
+        along = inside[np.sign(inside) == np.sign(into)]
+        if abs(into) <= max(beyond, run * (float(np.abs(along).max()) if along.size else 0.0)):
+            ramps.update(block)
+    return ramps
 
 
 class TemperatureGlitches(ValueError):
@@ -421,6 +490,28 @@ def temperature_unit_hint(temp, breakpoints=DEFAULT_BREAKPOINTS, name: str = "te
             f"is, the model's ranges are {sign} numbers taken for °C")
 
 
+def outside_ranges_words(model: "DriftModel", temp, option: str, counted=None, name: str = "temp", where: str = "",
+                         word: str = "sample", labels=None, source: str = "the drift model") -> str | None:
+    """The error for temperatures outside every range of `model` (DriftModel.evaluate's and drift apply's, one
+    text), or None when none is: where the first one is (`where`, e.g. the file, then `word` and its label in
+    `labels`, e.g. its file line, else its 0-based sample), what `name` reads there, `source`'s ranges, how many are
+    outside, and the remedies (not_extrapolated_words: a unit's hint, `option` — how the caller spells the NaN
+    option — or a fit over the temperatures the device will meet). counted: a mask of the samples that count
+    (drift apply: those with a zero-bias reading; the others are NaN whatever their temperature)."""
+    t = np.asarray(temp, dtype=float)
+    counted = np.ones(t.size, dtype=bool) if counted is None else np.asarray(counted, dtype=bool)
+    beyond = np.flatnonzero(model.beyond_ranges(t) & counted)
+    if not beyond.size:
+        return None
+    k = int(beyond[0])
+    lo, hi = model.span()
+    at = f"{word} {k if labels is None else labels[k]}"
+    hint = outside_unit_hint(t[counted], lo, hi, name)
+    return (f"{f'{where}, ' if where else ''}{at}: {name} {t[k]:g} °C is outside every range of {source} ({lo:g} … "
+            f"{hi:g} °C; {beyond.size} of {t.size} samples outside): "
+            + not_extrapolated_words(hint, f"pass {option} to mark them NaN and compensate the rest"))
+
+
 def not_extrapolated_words(hint: str | None, use_nan: str) -> str:
     """The remedies for temperatures outside a model's ranges: a unit's `hint` (outside_unit_hint), else `use_nan`
     (how to mark them NaN, as the caller spells it) or a fit over the temperatures the device will meet."""
@@ -466,19 +557,31 @@ def outside_unit_hint(temp, lo: float, hi: float, name: str = "temp") -> str | N
     return None
 
 
-# the warnings of a fit that describe how its ranges were set, not the model's validity (not repeated by
-# fit_warnings: apply and export-c enforce the ranges)
-_RANGE_NOTE = "adjusted to the data:"
+# The warnings of a fit that describe how its ranges were set, not the model's validity (not repeated by
+# fit_warnings: apply and export-c enforce the ranges) are kept by name, model.summary["range_notes"] (fit_drift,
+# fit_pipeline), so that a reworded note is still left out. A model saved before that (no "range_notes") has only
+# the words to go by: this part of the core's note.
+_LEGACY_RANGE_NOTE = "adjusted to the data:"
 
 
 def fit_warnings(model: "DriftModel") -> list:
     """The warnings of the fit that made `model` (fit_pipeline's report["warnings"], kept in
     model.summary["fit_warnings"]: a unit hint, an AR model rejected, a noise not stationary, …, then the drift
-    fit's own, model.summary["warnings"]), for `drift apply` and `export-c` to repeat; the note that the ranges
-    were adjusted to the data is left out. A model saved before fluxcal kept them has only the drift fit's."""
+    fit's own, model.summary["warnings"]), for `drift apply` and `export-c` to repeat; the notes that the ranges
+    were adjusted to the data (model.summary["range_notes"]) are left out. A model saved before fluxcal kept the
+    fit's warnings has only the drift fit's."""
     said = list(model.summary.get("fit_warnings", []))
     said += [w for w in model.summary.get("warnings", []) if w not in said]
-    return [w for w in said if _RANGE_NOTE not in w]
+    if "range_notes" in model.summary:
+        notes = set(model.summary["range_notes"])
+        return [w for w in said if w not in notes]
+    return [w for w in said if _LEGACY_RANGE_NOTE not in w]  # (a model saved before the notes were kept by name)
+
+
+def _ranges_moved(given, used) -> bool:
+    """Whether fit_drift's core adjusted the ranges (and said so, its first warning): an edge dropped or moved by
+    more than 0.1 % of the span (drift.cpp, the same rule)."""
+    return len(used) != len(given) or any(abs(a - b) > 1e-3 * (used[-1] - used[0]) for a, b in zip(used, given))
 
 
 # A thermal lag is said when the compensated zero bias follows f'(T)·dT/dt with a Newey–West p below LAG_P and that
@@ -666,6 +769,9 @@ def fit_pipeline(zero_bias, temp, temp_outside=None, regressor: str = "temp", br
     # The data's warnings: S2's, S3's, and the first drift fit's when the model is a refit to L (the model's
     # summary keeps the warnings of the fit it is, so by default the first fit's are there).
     first_warnings = [] if model is first else [f"drift fit to the zero bias: {m}" for m in first.summary["warnings"]]
+    if model is not first:  # the first fit's notes on its ranges, as said here, are notes on ranges too
+        model.summary["range_notes"] = list(model.summary["range_notes"]) + [
+            said for said, m in zip(first_warnings, first.summary["warnings"]) if m in first.summary["range_notes"]]
     compensated = model.compensate(w, temp, temp_outside)
     # what the user gets, less the drift model: the Kalman output, or with no filter the compensated zero bias
     # itself (L − f would be a constant, and the class check could not fail)

@@ -1,0 +1,169 @@
+"""Session 36 fixes of the drift path: glitches at a log's ends (the running median's mirrored edge), one text for
+temperatures outside a model's ranges (the model's and drift apply's), and the ranges' note left out of the
+repeated warnings by what the fit did, not by its words (review s35, section 10)."""
+import json
+
+import numpy as np
+import pytest
+
+from fluxcal import drift, write_csv
+from fluxcal.cli import main
+
+
+def chamber_temp(n=2000, seed=0):
+    """A chamber log: 23 → −20 → 50 → 23 °C ramps and holds, 0.05 °C noise, logged to 0.01 °C."""
+    rng = np.random.default_rng(seed)
+    k = np.arange(n, dtype=float)
+    course = np.interp(k, [0, 200, 500, 800, 1100, 1400, 1700, n], [23, 23, -20, -20, 50, 50, 23, 23])
+    return np.round(course + rng.normal(0.0, 0.05, n), 2)
+
+
+def warm_up(n=2000, tau=3.0, seed=1):
+    """A device that warms 23 → 40 °C with a time constant of `tau` samples from its first reading (a slow log
+    of a fast warm-up), 0.05 °C noise, logged to 0.01 °C."""
+    rng = np.random.default_rng(seed)
+    k = np.arange(n, dtype=float)
+    return np.round(23.0 + 17.0 * (1.0 - np.exp(-k / tau)) + rng.normal(0.0, 0.05, n), 2)
+
+
+def cli(capsys, *args):
+    code = main([str(a) for a in args])
+    out = capsys.readouterr()
+    return code, out.out, out.err
+
+
+# -- 1: glitches at the very start or end of a log ----------------------------------------------------------------
+
+def test_three_glitches_at_the_start_or_the_end_of_a_log_are_found():
+    """Mirrored at the ends, the running median of the first rows was made of the glitches themselves: three 85 °C
+    readings at rows 0–2 were not found (they filled 5 of its 7 samples), and at rows 1–3 the genuine row 0 was
+    named instead of rows 1 and 2. The ends' median is now of the first (last) 7 samples."""
+    temp = chamber_temp()
+    assert drift.temperature_glitches(temp).size == 0
+    n = temp.size
+    for rows in ([0, 1, 2], [1, 2, 3], [2, 3, 4], [n - 3, n - 2, n - 1], [0]):
+        glitched = temp.copy()
+        glitched[rows] = 85.0
+        assert drift.temperature_glitches(glitched).tolist() == rows, rows
+    mixed = temp.copy()
+    mixed[[0, 1, 2]] = [-127.0, 85.0, 85.0]  # a dropout, then two power-on codes
+    assert drift.temperature_glitches(mixed).tolist() == [0, 1, 2]
+
+
+def test_a_log_that_starts_or_ends_on_a_fast_ramp_is_not_a_glitch():
+    """A log that starts on a warm-up ramp (time constant 3 samples: each first step larger than the rest of the
+    log's: the session-35 rule named its first row) is no glitch, nor one that ends on the mirror image; glitches
+    before such a ramp still are, and the ramp's first row beside them is not (its median, pulled along the ramp by
+    them, is taken again without them)."""
+    for tau in (3.0, 10.0, 120.0):
+        ramp = warm_up(tau=tau)
+        assert drift.temperature_glitches(ramp).size == 0, tau
+        assert drift.temperature_glitches(ramp[::-1].copy()).size == 0, tau  # a cool-down at the end
+    glitched = warm_up(tau=10.0)
+    glitched[:3] = 85.0
+    assert drift.temperature_glitches(glitched).tolist() == [0, 1, 2]
+
+
+# -- 2: one text for temperatures outside a model's ranges ---------------------------------------------------------
+
+@pytest.fixture(scope="module")
+def linear_model():
+    temp = np.linspace(-20.0, 50.0, 1500)
+    w = 0.01 * temp + 0.002 * np.random.default_rng(5).standard_normal(temp.size)
+    return drift.fit_drift(w, temp)
+
+
+def test_the_model_and_drift_apply_say_temperatures_outside_its_ranges_alike(tmp_path, linear_model, capsys):
+    """DriftModel.evaluate and drift apply each built their own text (the model's had no count and no °C, drift
+    apply's another remedy phrase): one function now, the input, its problem and the remedies said alike."""
+    lo, hi = linear_model.segments[0]["range"][0], linear_model.segments[-1]["range"][1]
+    temp = np.array([20.0, 30.0, 55.0, 40.0, 70.0])
+    with pytest.raises(ValueError) as said:
+        linear_model.compensate(np.zeros(5), temp)
+    lib = str(said.value)
+    assert lib.startswith(f"sample 2: temp 55 °C is outside every range of the drift model ({lo:g} … {hi:g} °C; "
+                          "2 of 5 samples outside): the polynomials are not extrapolated; pass outside='nan' "
+                          "(--outside-range nan) to mark them NaN and compensate the rest, or fit the drift over"), lib
+    assert lib == drift.outside_ranges_words(linear_model, temp, "outside='nan' (--outside-range nan)")
+    model_path = linear_model.save(tmp_path / "m.json")
+    src = write_csv(tmp_path / "hot.csv", {"zero_bias": np.zeros(5), "temp": temp})
+    code, _, err = cli(capsys, "drift", "apply", model_path, src, "-o", tmp_path / "out.csv")
+    line = next(k for k, text in enumerate(src.read_text().splitlines(), 1) if text.endswith(",55.0"))
+    expected = (f"{src}, line {line}: temp 55 °C is outside every range of the drift model {model_path} "
+                f"({lo:g} … {hi:g} °C; 2 of 5 samples outside): the polynomials are not extrapolated; pass "
+                "--outside-range nan to mark them NaN and compensate the rest, or fit the drift over")
+    assert code == 2 and expected in err, err
+    within = [lo, hi, lo - 0.005 * (hi - lo)]  # (within the margin)
+    assert drift.outside_ranges_words(linear_model, within, "x") is None
+
+
+def test_a_unit_hint_and_a_missing_zero_bias_are_said_alike(linear_model):
+    """The °F hint comes with the model's text too (drift apply's did), and samples that do not count (drift apply:
+    no zero-bias reading) are not named."""
+    temp = np.array([10.0, 40.0]) * 1.8 + 32.0  # 50, 104: °F numbers of 10 and 40 °C
+    said = drift.outside_ranges_words(linear_model, temp, "OPTION")
+    assert said.startswith("sample 1: temp 104 °C") and "is it in °F?" in said and "Else: pass OPTION" in said, said
+    assert drift.outside_ranges_words(linear_model, temp, "OPTION", counted=[True, False]) is None
+
+
+# -- 3: the ranges' note told by what the fit did ------------------------------------------------------------------
+
+def adjusted_fit():
+    """A cycle to −40 and 70 °C: the default ranges are adjusted to it, which the core notes."""
+    temp = np.linspace(-40.0, 70.0, 1500)
+    return drift.fit_drift(0.01 * temp + 0.002 * np.random.default_rng(3).standard_normal(temp.size), temp)
+
+
+def test_a_reworded_range_note_is_still_left_out(monkeypatch):
+    """fit_warnings left out the note that the ranges were adjusted by its words ("adjusted to the data:"): the same
+    note reworded in the core would have been repeated by drift apply and export-c as a warning on the model."""
+    real = drift._core.fit_drift
+
+    def reworded(*args):
+        r = real(*args)
+        r["summary"]["warnings"] = ["the ranges were moved to cover the samples"] + r["summary"]["warnings"][1:]
+        return r
+
+    monkeypatch.setattr(drift._core, "fit_drift", reworded)
+    model = adjusted_fit()
+    assert model.summary["warnings"][0] == "the ranges were moved to cover the samples"
+    assert drift.fit_warnings(model) == model.summary["warnings"][1:]
+    assert model.summary["range_notes"] == ["the ranges were moved to cover the samples"]
+    model.summary["fit_warnings"] = ["a warning of the data"]
+    assert drift.fit_warnings(model) == ["a warning of the data"] + model.summary["warnings"][1:]
+    # ranges as given: no note, nothing left out
+    inside = np.linspace(-20.0, 50.0, 1500)
+    assert drift.fit_drift(0.01 * inside, inside).summary["range_notes"] == []
+
+
+def test_the_first_fits_range_note_is_left_out_of_a_refit_to_the_filtered_output():
+    """drift_input="filtered": the first fit's warnings are repeated with a prefix; its note on the ranges is a note
+    on the ranges there too."""
+    rng = np.random.default_rng(8)
+    temp = np.r_[np.linspace(-40.0, 70.0, 1500), np.linspace(70.0, -40.0, 1500)]
+    w = 0.01 * temp + 0.01 * np.convolve(rng.standard_normal(temp.size + 20), [1, 0.6, 0.3], "same")[10:-10]
+    model, report = drift.fit_pipeline(w, temp, drift_input="filtered", ar_max_order=3)
+    prefixed = [m for m in report["warnings"] if m.startswith("drift fit to the zero bias: ")]
+    assert any("--breakpoints" in m for m in prefixed), report["warnings"]  # (the note, by its words, in the test)
+    assert not any("--breakpoints" in m for m in drift.fit_warnings(model)), drift.fit_warnings(model)
+
+
+def test_models_saved_before_the_notes_were_kept_by_name_still_load_and_leave_them_out(tmp_path):
+    """A model saved by session 35's code has no "range_notes": it loads, and fit_warnings leaves out its note by
+    the words it had; a model saved now keeps its notes through the round trip."""
+    model = adjusted_fit()
+    # (the core's note, by its words here only: what fit_drift keeps by name is that note and no other warning)
+    assert model.summary["range_notes"] == [w for w in model.summary["warnings"] if "adjusted to the data:" in w] != []
+    model.summary["fit_warnings"] = ["temp: a unit hint"]
+    path = model.save(tmp_path / "new.json")
+    back = drift.DriftModel.load(path)
+    assert back.summary["range_notes"] == model.summary["range_notes"] != []
+    repeated = ["temp: a unit hint"] + model.summary["warnings"][1:]
+    assert drift.fit_warnings(back) == drift.fit_warnings(model) == repeated
+    older = json.loads(path.read_text())
+    del older["summary"]["range_notes"]  # the layout the code before wrote
+    (tmp_path / "old.json").write_text(json.dumps(older))
+    old = drift.DriftModel.load(tmp_path / "old.json")
+    assert "adjusted to the data:" in old.summary["warnings"][0]
+    assert drift.fit_warnings(old) == repeated
+    np.testing.assert_array_equal(old.evaluate([0.0, 25.0]), model.evaluate([0.0, 25.0]))
