@@ -18,15 +18,16 @@ calibration's own noise is not taken for one). The gain multiplies the whole rea
 terms included — a bilinear model, solved by Gauss–Newton inside a variable projection: Levenberg–Marquardt
 (SciPy) over the conductor positions and the candidates' non-linear parameters, the currents and the
 linear coefficients solved at every step. Residuals are weighted by each sensor's noise σ: given, or from
-consecutive repeated snapshots (which are then averaged), or the calibration's own scatter (the σ the ring's
-solver takes), and only failing all three from the base fit's residuals — which hold any misfit of the model
+consecutive repeated snapshots (which are then averaged), or the calibration run's repeated readings, or its
+scatter about its fit (the σ the ring's solver takes), and only failing all of them from the base fit's residuals — which hold any misfit of the model
 as a whole, so the verdict then says it cannot judge whether the model fits.
 
 1. Where: residual / σ per sensor, per axis (radial, tangential), per current level, per rotation and in
    time, with a χ² test per bin (worst bin, Bonferroni), a regression of z² on the current and of z on
    time, and a whiteness test over time.
 2. Which: every candidate of `fluxcal.sim.cable_effects.CABLE_CANDIDATES` — helical_lay, finite_length,
-   sensor_position_error, cable_tilt, z_leakage — gets the statistics of `fluxcal.diagnose.core`: a score test at the
+   sensor_position_error, cable_tilt, z_leakage, sensor_coupling, background_field, background_gradient (the last
+   two do not follow the currents: their features are held apart, `_Model.constant_features`) — gets the statistics of `fluxcal.diagnose.core`: a score test at the
    current fit, the check whether the model's own parameters absorb it (the part of its columns outside
    their span — positions, currents, the calibration's gains and offsets: `ABSORBED`), a refit with its
    coefficients (the features recomputed at every trial position; a non-linear parameter — the lay
@@ -38,7 +39,8 @@ as a whole, so the verdict then says it cannot judge whether the model fits.
    and after, the block t-test of the improvement, and the downstream errors: the currents measured on
    the held-out snapshots (fitted per snapshot with the trained positions and coefficients) against the
    reference currents (RMS, amperes and % of the current; with currents fitted per snapshot also after their
-   best common scale, which such a recording does not fix — that error is the one an effect must not raise),
+   best common scale, which such a recording does not fix — that error is the one an effect must not raise
+   beyond the held-out snapshots' own scatter),
    and the conductor positions against the truth when it is given. Effects are added greedily: the in-sample
    significant candidates are validated in order of ΔBIC and the first that holds on the held-out regime is
    accepted (core's rule: the lowest ΔBIC among the significant), until none does.
@@ -152,6 +154,7 @@ def _context(data: _Data, positions, currents, extra=None, net=None) -> SimpleNa
         net = bool(np.max(np.abs(np.sum(currents, axis=1))) > 1e-6 * np.max(np.abs(currents)))
     return SimpleNamespace(ring=data.ring, positions=pos, currents=currents, points=data.points, axes=data.axes,
                            rot_index=data.rot_index, rotations=data.rotations, extra=extra, net_current=net,
+                           fit_currents=data.fit_currents,
                            field_lab=np.einsum("kmn,kn->km", lab, currents) + extra)
 
 
@@ -223,7 +226,8 @@ def _project_out(A, X, known, Z):
     return Z - (X.reshape(-1, X.shape[-1]) @ _lstsq(X.reshape(-1, X.shape[-1]), Z.reshape(-1, q))).reshape(Z.shape)
 
 
-def _solve_linear(data: _Data, positions, feats, rows, coefficients=None, fit_currents=None, warm=None):
+def _solve_linear(data: _Data, positions, feats, rows, coefficients=None, fit_currents=None, warm=None,
+                  constant=None):
     """For fixed positions: the currents (reference, or fitted per snapshot) and the linear coefficients —
     the calibration's corrections (4M: a relative gain δ and an offset β per sensor axis, when refined) then
     the candidates' c — solved, or given. `feats`: (K, M, 2, p) at given currents, or (K, M, 2, p, n) per
@@ -236,7 +240,9 @@ def _solve_linear(data: _Data, positions, feats, rows, coefficients=None, fit_cu
     reading g_n = (G + F c_n) I_n, solve the linear problem
         y + δ_n g_n + (1 + δ_n) F(I_n) c_n = (1 + δ_n)(G + F c_n) I + δ g_n + (1 + δ_n) F(I_n) c + β
     (F c_n in the current columns only for per-ampere terms) — quadratic convergence, a few iterations.
-    `warm`: a dict holding the last solution, to start from it (a fit evaluates nearby positions)."""
+    `warm`: a dict holding the last solution, to start from it (a fit evaluates nearby positions). `constant`:
+    with given coefficients and per-ampere `feats`, the terms' part that does not follow the currents (K, M, 2, p),
+    `_Model.constant_features`."""
     fit_currents = data.fit_currents if fit_currents is None else fit_currents
     k, m = len(rows), data.shape[1]
     w = data.weights[rows][:, :, None]
@@ -259,6 +265,8 @@ def _solve_linear(data: _Data, positions, feats, rows, coefficients=None, fit_cu
         delta = coefficients[:2 * m].reshape(m, 2) if refine else np.zeros((m, 2))
         beta = coefficients[2 * m:ncal].reshape(m, 2) if refine else np.zeros((m, 2))
         c = coefficients[ncal:]
+        if constant is not None and len(c):  # (a background field's: at any current)
+            beta = beta + (1 + delta) * (constant[rows] @ c)
         if per_ampere:
             A, target = (unit + np.einsum("kmapn,p->kman", F, c)) * gain(delta), y - beta
         else:
@@ -355,19 +363,31 @@ class _Model:
         return np.concatenate(blocks, axis=-1)
 
     def unit_features(self, positions, terms=None):
-        """Per ampere of each conductor (K, M, 2, p, n): every candidate is linear in the currents, so with
-        currents fitted per snapshot the terms follow them: (1 + δ) ⊙ (G + Σ_p F_p c_p) I + β."""
+        """Per ampere of each conductor (K, M, 2, p, n): every candidate is affine in the currents, so with
+        currents fitted per snapshot the terms follow them: (1 + δ) ⊙ (G I + Σ_p F_p c_p I + F0 c) + β, F0 the
+        part that does not follow them (`constant_features`, a background field's)."""
         terms = self.terms if terms is None else terms
         if not terms:
             return None
         k, n = len(self.data.y), self.data.n
         net = _context(self.data, positions, self.feature_currents).net_current
+        constant = self.constant_features(positions, terms)
         out = []
         for j in range(n):
             e = np.zeros((k, n))
             e[:, j] = 1.0
-            out.append(self.features(positions, terms, e, net))
+            f = self.features(positions, terms, e, net)
+            out.append(f if constant is None else f - constant)
         return np.stack(out, axis=-1)
+
+    def constant_features(self, positions, terms=None):
+        """The terms' features at zero currents (K, M, 2, p) — what does not follow the currents — or None when
+        every term follows them."""
+        terms = self.terms if terms is None else terms
+        if all(cls.follows_current for cls, _ in terms):
+            return None
+        net = _context(self.data, positions, self.feature_currents).net_current
+        return self.features(positions, terms, np.zeros((len(self.data.y), self.data.n)), net)
 
     def solver_features(self, positions, terms=None):
         """What `_solve_linear` takes: per-ampere features when the currents are fitted, else the features."""
@@ -681,11 +701,13 @@ def _evaluate_heldout(data: _Data, model: _Model, fit: dict, held) -> dict:
     currents (or currents fitted per snapshot when the base model fits them) — and the currents measured
     there (fitted per snapshot) against the reference."""
     per_ampere = model.unit_features(fit["positions"], fit["terms"])
-    r, _, _ = _solve_linear(data, fit["positions"], per_ampere, held, coefficients=fit["coefficients"])
+    constant = model.constant_features(fit["positions"], fit["terms"])
+    r, _, _ = _solve_linear(data, fit["positions"], per_ampere, held, coefficients=fit["coefficients"],
+                            constant=constant)
     out = {"r_w": r}
     if data.reference is not None:  # the terms scale with the measured currents
         _, measured, _ = _solve_linear(data, fit["positions"], per_ampere, held, coefficients=fit["coefficients"],
-                                       fit_currents=True)
+                                       fit_currents=True, constant=constant)
         err = measured - data.reference[held]
         out["current_errors"], out["current_sigma"] = err, _current_sigma(data, fit["positions"], held)
         rms = float(np.sqrt(np.mean(err ** 2)))
@@ -1183,9 +1205,9 @@ def _caveats(data: _Data, correction: dict, base: dict, noise_source: str, overa
     if (data.reference is not None and len(np.unique(_levels(data, data.reference))) == 1
             and overall["rms_z"] > FAR_BEYOND_NOISE):
         out.append("the recording holds one current level: a field that does not follow the current (a background "
-                   "field, a neighbouring cable) cannot be told apart from the sensors' own gains, offsets and "
-                   "couplings, and any effect named may stand in for it; record at two current levels or more, or "
-                   "subtract a zero-current snapshot taken in the same pose")
+                   "field, a neighbouring cable) cannot be told apart from one that does (a circuit closing near the "
+                   "ring, the sensors' own gains and couplings), and any effect named may stand in for it; record at "
+                   "two current levels or more, or subtract a zero-current snapshot taken in the same pose")
     if noise_source.startswith(FROM_RESIDUALS):
         out.append(f"σ was estimated from the base fit's own residuals (no repeated snapshots, no calibration with its "
                    f"scatter, no --noise-sigma), so their RMS ({overall['rms_z']:.2f} σ) is about 1 σ by construction: "
@@ -1229,6 +1251,11 @@ def _accepted_text(row) -> str:
                 f"pitch diameters, coefficient {c[0]:.3g})")
     if row.get("tilt_deg") is not None:
         return f"{row['effect']} ({row['tilt_deg']:.2g}° towards {row['tilt_direction_deg']:.0f}° in the cable frame)"
+    if row.get("background_t") is not None:
+        return (f"{row['effect']} ({1e6 * row['background_t']:.3g} µT towards {row['background_direction_deg']:.0f}° "
+                f"in the cable frame at the ring's centre; it does not follow the currents)")
+    if row.get("background_gradient_t") is not None:
+        return f"{row['effect']} ({1e6 * row['background_gradient_t']:.3g} µT across the ring's radius: a source near it)"
     return row["effect"]
 
 

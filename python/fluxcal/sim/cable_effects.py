@@ -18,6 +18,10 @@ depart from that:
   z_leakage               each in-plane axis reads a fraction k_z of the field along the ring's axis B_z:
                           the Earth's (constant, an offset the per-sensor calibration removes) and the
                           cable field's share when the cable is tilted by τ in direction ψ
+  sensor_coupling         each sensor's two axes coupled (not at right angles, crosstalk, iron near it)
+  background_field        a field that does not follow the currents and stays in the cable (lab) frame as the
+                          ring turns: the Earth's, a magnet's, a neighbouring conductor on another circuit
+  background_gradient     that field's change across the ring: a source near it
 
 Simulation (exact): `EffectRig` is a `fluxcal.sim.cable.CableRig` whose true field comes from the effects:
 Biot–Savart of discretised conductor paths (closed-form field of a finite straight segment, vectorised
@@ -114,13 +118,15 @@ def _paths_field(points, paths) -> np.ndarray:
 class CableEffect(Effect):
     """A cable effect. Simulation, by `kind`: "conductors" — `unit_fields(points, positions)`, the complex
     field (P, n) per ampere of each conductor; "sensors" — `sensors(ring, rotation_deg)`, where the sensors
-    are and their axes; "readings" — `readings(field_lab, axis_rad)`, what the transducer adds.
+    are and their axes; "readings" — `readings(field_lab, axis_rad)`, what the transducer adds; "background" —
+    `field(points, ring)`, a field of its own that the currents do not make.
     Candidate: `features(ctx, alternative)`, `alternatives`, `search`, `regime` (held out: "rotation",
     "current" or "time")."""
 
-    kind = "conductors"  # "conductors", "sensors" or "readings"
+    kind = "conductors"  # "conductors", "sensors", "readings" or "background"
     regime = "rotation"
     refinable = False  # the non-linear parameter (the alternative) is refined with the positions in a fit
+    follows_current = True  # the features scale with the currents (False: a field of its own, at any current)
 
     @staticmethod
     def encode(alternative) -> float:
@@ -623,9 +629,90 @@ class SensorCoupling(CableEffect):
         return cls(rng.choice([-1.0, 1.0], (n_sensors, 2)) * rng.uniform(0.005, 0.02, (n_sensors, 2)))
 
 
-CABLE_CANDIDATES = (HelicalLay, FiniteLength, SensorPositionError, CableTilt, CableZLeakage, SensorCoupling)
+@dataclass
+class BackgroundField(CableEffect):
+    """A field at the ring that does not follow the cable's currents and stays put in the cable (lab) frame while
+    the ring turns: the Earth's in-plane field, a magnet's, a neighbouring cable or busbar on another circuit.
+    `field_t` is its complex value (Bx + iBy, cable frame) at the ring's centre and `gradient_t` its change across
+    the ring's radius R: B(z) = field_t + gradient_t · z̄ / R at the point z = x + iy (a current-free field is the
+    conjugate of an analytic function of z; a conductor at distance d is this to first order in R/d, its gradient
+    R/d of its field). Typical: 20–50 µT (the Earth's horizontal field, recorded without subtracting a
+    zero-current snapshot); a neighbouring 10 A conductor 50 mm away: 40 µT.
+
+    Candidate: the uniform field, 2 coefficients (tesla; `background_gradient` is its gradient, tried after it).
+    It does not scale with the currents (`follows_current` False): the diagnosis holds it apart from the
+    per-ampere terms, and needs the reference currents for it. Fixed to the ring instead, it would be the
+    per-sensor calibration's offsets; the ring's turns tell the two apart."""
+
+    field_t: complex
+    gradient_t: complex = 0.0
+    name = "background_field"
+    n_params = 2
+    regime = "rotation"
+    kind = "background"
+    follows_current = False
+
+    def field(self, points, ring: Ring) -> np.ndarray:
+        """The field (P,) complex, cable frame, at `points` (P,) complex."""
+        return self.field_t + self.gradient_t * np.conj(np.asarray(points)) / ring.radius_m
+
+    @classmethod
+    def not_applicable(cls, ctx) -> str | None:
+        if ctx.fit_currents:
+            return ("it needs the reference currents (with currents fitted per snapshot, a field that does not "
+                    "follow them is not told apart here)")
+        return None
+
+    @classmethod
+    def shapes(cls, z):
+        """The field's unit shapes at the points z (in ring radii), complex, cable frame."""
+        return [np.ones_like(z), 1j * np.ones_like(z)]
+
+    @classmethod
+    def features(cls, ctx, alternative=None):
+        z = ctx.points[ctx.rot_index] / ctx.ring.radius_m  # (K, M) in ring radii
+        return np.stack([to_axes(b, ctx.axes[ctx.rot_index]) for b in cls.shapes(z)], axis=-1)
+
+    @classmethod
+    def interpret(cls, coefficients) -> dict:
+        b = complex(*np.ravel(coefficients)[:2])
+        return {"background_t": float(abs(b)), "background_direction_deg": float(np.mod(np.degrees(np.angle(b)), 360))}
+
+    @classmethod
+    def typical(cls, n_sensors, rng):
+        return cls(rng.uniform(20e-6, 50e-6) * np.exp(1j * rng.uniform(0, 2 * np.pi)))
+
+
+class BackgroundGradient(BackgroundField):
+    """The change across the ring of a field that does not follow the currents (`BackgroundField`'s gradient_t):
+    a source near the ring, a neighbouring conductor rather than the Earth. Candidate: B = g · z̄ / R, 2
+    coefficients (tesla across the ring's radius), tried once the uniform part is found (alone it stands in
+    for nothing a uniform field leaves). Simulated by `BackgroundField`; `typical` gives a neighbouring 5–20 A
+    conductor 40–100 mm from the cable's axis."""
+
+    name = "background_gradient"
+
+    @classmethod
+    def shapes(cls, z):
+        return [np.conj(z), 1j * np.conj(z)]
+
+    @classmethod
+    def interpret(cls, coefficients) -> dict:
+        g = complex(*np.ravel(coefficients)[:2])
+        return {"background_gradient_t": float(abs(g))}
+
+    @classmethod
+    def typical(cls, n_sensors, rng, radius_m: float = 0.010):
+        d = rng.uniform(0.040, 0.100) * np.exp(1j * rng.uniform(0, 2 * np.pi))
+        k = MU0_OVER_2PI * rng.choice([-1.0, 1.0]) * rng.uniform(5.0, 20.0)
+        # a line current at d: B = k i / conj(z − d) = −k i/conj(d) · (1 + conj(z)/conj(d) + …)
+        return BackgroundField(-1j * k / np.conj(d), -1j * k * radius_m / np.conj(d) ** 2)
+
+
+CABLE_CANDIDATES = (HelicalLay, FiniteLength, SensorPositionError, CableTilt, CableZLeakage, SensorCoupling,
+                    BackgroundField, BackgroundGradient)
 """The cable candidates by name: helical_lay, finite_length, sensor_position_error, cable_tilt, z_leakage,
-sensor_coupling."""
+sensor_coupling, background_field, background_gradient."""
 
 
 # ---------------------------------------------------------------- a rig with effects
@@ -640,6 +727,7 @@ class EffectRig(CableRig):
 
     effects: list = field(default_factory=list)
     _cache: dict = field(default_factory=dict, repr=False)  # per rotation: the sensors' unit fields and axes
+    without_background: bool = False  # the calibration run: a background field is not there (see cable_trial)
 
     def _one(self, kind):
         found = [e for e in self.effects if e.kind == kind]
@@ -651,6 +739,7 @@ class EffectRig(CableRig):
     def true_fields(self, rotation_deg, currents_a):
         """(n_rot, M) complex lab field at the real sensors and (n_rot, M) their x-axis directions."""
         conductors, sensors = self._one("conductors"), self._one("sensors")
+        background = None if self.without_background else self._one("background")
         fields, axes = [], []
         cur = np.asarray(currents_a, float)
         for rot in np.atleast_1d(np.asarray(rotation_deg, float)):
@@ -663,6 +752,9 @@ class EffectRig(CableRig):
             unit, ax = self._cache[key]
             fields.append(unit @ cur)
             axes.append(ax)
+            if background is not None:
+                pts = sensors.sensors(self.ring, rot)[0] if sensors else sensor_points(self.ring, rot)[0]
+                fields[-1] = fields[-1] + background.field(pts, self.ring)
         return np.array(fields), np.array(axes)
 
     def ideal(self, rotation_deg, currents_a) -> np.ndarray:
@@ -726,10 +818,14 @@ def cable_trial(names, seed: int, rotations_deg=TRIAL_ROTATIONS_DEG, levels_a=TR
     rig = EffectRig(ring=base.ring, positions_m=base.positions_m, errors=base.errors)
     rig.effects = list(effects) if effects is not None else [make_effect(n, rig, rng) for n in names]
     cal_raw, cal_truth = [], []
+    # a background field is not in the calibration run (a jig away from it, or each pose's zero-current reading
+    # subtracted): the per-sensor calibration's model has no place for it
+    rig.without_background = True
     for rot in (72.0 * np.arange(5)):
         for cur in reference_currents(calibration_current_a):
             cal_raw.append(rig.read([rot], cur, rng, repeats=calibration_repeats))
             cal_truth.append(np.repeat(rig.nominal([rot], cur), calibration_repeats, axis=0))
+    rig.without_background = False
     calibration = calibrate_ring(np.concatenate(cal_raw), np.concatenate(cal_truth))
     raw, rots, curs = [], [], []
     for rot in np.atleast_1d(rotations_deg):
