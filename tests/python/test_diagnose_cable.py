@@ -23,8 +23,9 @@ from fluxcal.sim.cable_effects import (CABLE_CANDIDATES, FiniteLength, HelicalLa
 from fluxcal.sim.cable import PAPER_POSITIONS_M
 
 TRIALS = 10
-# (background_gradient is a background field's change across the ring: found after the field itself, below)
-EFFECTS = [c.name for c in CABLE_CANDIDATES if c.name != "background_gradient"]
+# (background_gradient and _curvature are a background field's change across the ring: found after the field
+# itself, below)
+EFFECTS = [c.name for c in CABLE_CANDIDATES if c.name not in ("background_gradient", "background_curvature")]
 RING = Ring([0, 90, 180, 270], 0.010)
 POSITIONS = np.asarray(PAPER_POSITIONS_M)
 D = HelicalLay.pitch_diameter(POSITIONS)  # 4 mm
@@ -563,12 +564,14 @@ def test_a_field_that_does_not_follow_the_currents_is_found_and_taken_out_of_the
     assert row["current_error_a_after"] < 0.1 * row["current_error_a_before"]
     # a 13.7 A conductor 45 mm from the cable (61 µT here): its field and its change across the ring are both found
     rng = np.random.default_rng(3)
-    near = BackgroundGradient.typical(4, rng)
+    near = BackgroundGradient.typical(4, rng)  # an exact line current
     kwargs, _ = cable_trial([], 6, effects=[near])
     d = diagnose_cable(**kwargs)
     assert set(d.accepted) >= {"background_field", "background_gradient"}, d.accepted
+    (where, current), = near.conductors
+    at_radius = 2e-7 * abs(current) / abs(where) * (kwargs["ring"].radius_m / abs(where))  # μ0 I/2πd · R/d
     gradient = next(r for r in d.ranking if r["effect"] == "background_gradient")
-    assert gradient["background_gradient_t"] == pytest.approx(abs(near.gradient_t), rel=0.2)
+    assert gradient["background_gradient_t"] == pytest.approx(at_radius, rel=0.2)
     # the candidates' features are affine in the currents: per ampere of each conductor, plus what does not follow
     kwargs, _ = cable_trial(["sensor_coupling"], 7)
     data = _prepare(kwargs["readings"], kwargs["ring"], kwargs["currents"], kwargs["rotations_deg"],

@@ -26,8 +26,9 @@ as a whole, so the verdict then says it cannot judge whether the model fits.
    time, with a χ² test per bin (worst bin, Bonferroni), a regression of z² on the current and of z on
    time, and a whiteness test over time.
 2. Which: every candidate of `fluxcal.sim.cable_effects.CABLE_CANDIDATES` — helical_lay, finite_length,
-   sensor_position_error, cable_tilt, z_leakage, sensor_coupling, background_field, background_gradient (the last
-   two do not follow the currents: their features are held apart, `_Model.constant_features`) — gets the statistics of `fluxcal.diagnose.core`: a score test at the
+   sensor_position_error, cable_tilt, z_leakage, sensor_coupling, background_field, background_gradient,
+   background_curvature (the last three do not follow the currents: their features are held apart,
+   `_Model.constant_features`) — gets the statistics of `fluxcal.diagnose.core`: a score test at the
    current fit, the check whether the model's own parameters absorb it (the part of its columns outside
    their span — positions, currents, the calibration's gains and offsets: `ABSORBED`), a refit with its
    coefficients (the features recomputed at every trial position; a non-linear parameter — the lay
@@ -756,6 +757,7 @@ def _evaluate(cls, data: _Data, state: dict, n_candidates: int, levels) -> dict:
                 V[:, new])
 
     ctx = _context(data, current["positions"], state["feature_currents"], state["model"].extra(current["positions"]))
+    ctx.accepted = [term.name for term, _ in state["terms"]]
     why_not = cls.not_applicable(ctx)
     if why_not:
         return {"effect": cls.name, "regime": _regime(cls.regime, data, levels), "n_params": cls.n_params,
@@ -1256,6 +1258,8 @@ def _accepted_text(row) -> str:
                 f"in the cable frame at the ring's centre; it does not follow the currents)")
     if row.get("background_gradient_t") is not None:
         return f"{row['effect']} ({1e6 * row['background_gradient_t']:.3g} µT across the ring's radius: a source near it)"
+    if row.get("background_curvature_t") is not None:
+        return f"{row['effect']} ({1e6 * row['background_curvature_t']:.3g} µT at the ring's radius)"
     return row["effect"]
 
 
