@@ -289,11 +289,20 @@ class LiveFit:
 
 
 class LiveSession:
-    """Feeds a LiveFit from the Recorder's records, refreshes the display and says when to stop."""
+    """Feeds a LiveFit from the Recorder's records, refreshes the display and says when to stop.
 
-    def __init__(self, fit: LiveFit, mag_index, min_coverage: float = 0.9, max_spread: float = 0.03,
-                 min_records: int = 200, refresh_s: float = 0.25, show: bool = True, clock=time.monotonic):
-        self.fit, self.mag_index = fit, list(mag_index)
+    `mag_index`: where mx, my, mz are in a record. `decoder` (the Recorder's): where they are is looked up in its
+    columns whenever those change — a header the device prints at start-up names them (decoder_from_args with
+    header_columns, as `fluxcal record` takes it): `seq,mx[uT],my[uT],mz[uT]` puts mx second."""
+
+    def __init__(self, fit: LiveFit, mag_index=None, min_coverage: float = 0.9, max_spread: float = 0.03,
+                 min_records: int = 200, refresh_s: float = 0.25, show: bool = True, clock=time.monotonic,
+                 decoder=None):
+        if mag_index is None and decoder is None:
+            raise ValueError("LiveSession: give mag_index (where mx, my, mz are in a record) or the decoder")
+        self.fit, self.decoder = fit, decoder
+        self._names = None  # the decoder's column names mag_index was found in
+        self.mag_index = list(mag_index) if mag_index is not None else self._find_mag()
         self.min_coverage, self.max_spread, self.min_records = min_coverage, max_spread, min_records
         self.refresh_s, self.clock = refresh_s, clock
         self.state = LiveState(records=0)
@@ -304,7 +313,19 @@ class LiveSession:
                         mininterval=0.2, dynamic_ncols=True,
                         bar_format="{desc}: {percentage:3.0f}%|{bar}| {n}/{total} [{elapsed}{postfix}]")
 
+    def _find_mag(self) -> list:
+        """mx, my, mz's places among the decoder's columns (and the unit a header printed for them, for the fit)."""
+        self._names = self.decoder.names
+        missing = [m for m in MAG if m not in self._names]
+        if missing:  # (a header names the columns only when it holds all three)
+            raise ValueError(f"live calibration needs columns mx,my,mz; {', '.join(missing)} not among "
+                             f"{','.join(self._names)}")
+        self.fit.units = self.fit.units or getattr(self.decoder, "units", {}).get("mx", "")
+        return [self._names.index(m) for m in MAG]
+
     def on_record(self, t_host: float, values) -> bool:
+        if self.decoder is not None and self.decoder.names is not self._names:  # the device's header named them
+            self.mag_index = self._find_mag()
         self.fit.add([values[j] for j in self.mag_index])
         now = self.clock()
         if now - self._last < self.refresh_s:
@@ -395,7 +416,8 @@ def cmd_live(args) -> int:
     check_output(args.output, "-o")  # written at the end: a bad path must not cost the session
     if args.raw:
         check_output(args.raw, "--raw", args.overwrite)
-    decoder = decoder_from_args(args)
+    # without --columns, a header the device prints at start-up names the columns, as for `fluxcal record`
+    decoder = decoder_from_args(args, header_columns=True)
     missing = [m for m in MAG if m not in decoder.names]
     if missing:
         raise ValueError(f"--columns: live calibration needs columns mx,my,mz; {', '.join(missing)} not among "
@@ -405,8 +427,8 @@ def cmd_live(args) -> int:
     if len(mag_units) > 1:
         raise ValueError(f"--columns: mx, my, mz have different units ({', '.join(sorted(mag_units))})")
     unit = mag_units.pop()
-    session = LiveSession(LiveFit(args.field_norm, unit), [decoder.names.index(m) for m in MAG],
-                          args.min_coverage, args.max_spread, args.min_records, show=not args.quiet)
+    session = LiveSession(LiveFit(args.field_norm, unit), None, args.min_coverage, args.max_spread,
+                          args.min_records, show=not args.quiet, decoder=decoder)
     recorder = Recorder(args.port, args.baud, decoder, output=args.raw, duration=args.duration, units=units,
                         metadata={"format": args.format, "purpose": "fluxcal live calibration"},
                         on_record=session.on_record, hold_ctrl_c=True)  # Ctrl-C twice must not cost the calibration
@@ -427,7 +449,13 @@ def cmd_live(args) -> int:
     if session.fit.rails:
         print(f"left out {session.fit.rails} readings with an axis at an ADC rail ({session.fit.rail_text()}: its "
               "extreme value, repeated: the sensor saturated; they stay in the raw recording)")
-    unit = unit or getattr(decoder, "units", {}).get("mx", "")  # kv: as the device printed it
+    # kv lines, a csv header: as the device printed it
+    printed = {getattr(decoder, "units", {}).get(m, "") for m in MAG} - {""}
+    if not unit and len(printed) > 1:
+        kept = f"; the raw records are in {args.raw}" if args.raw else ""
+        raise ValueError(f"{args.port}: the device printed mx, my, mz in different units ({', '.join(sorted(printed))})"
+                         f"; not calibrated (no conversion): set the device to one unit for all three axes{kept}")
+    unit = unit or getattr(decoder, "units", {}).get("mx", "")
     readings = session.fit.readings
     if len(readings) < 9:
         raise ValueError(f"{args.port}: {len(readings)} good readings, need at least 9 to calibrate"

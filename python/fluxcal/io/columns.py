@@ -342,9 +342,12 @@ def find_time(names, units: dict, values=None, sensor=None):
     Several time columns are one clock when their steps agree in seconds (Sensor Logger's epoch `time` and
     `seconds_elapsed`): the first is taken. Clocks that disagree are not guessed: None. `sensor` (the
     magnetometer's column names) picks the magnetometer's own clock among one per sensor (SensorLog's
-    magnetometerTimestamp_sinceReboot beside accelerometerTimestamp_sinceReboot …)."""
+    magnetometerTimestamp_sinceReboot beside accelerometerTimestamp_sinceReboot …). A host's clock (t_host, which
+    `fluxcal record` adds) is the time only when the device's own is not there: t, time, millis win."""
     hits = [("t", None)] if "t" in names else (_own_clock(names, sensor) or _named(names, TIME_WORDS, TIME_UNITS))
     hits = _dated_last(hits, units)
+    # the host stamps a chunk when it reads it (latency, several rows per stamp); the device stamps each sample
+    hits = [hit for hit in hits if "host" not in words(hit[0])] or hits
     times = [_time_unit(name, word, units, values) for name, word in hits]
     if not times or None in times:
         return None
@@ -354,7 +357,8 @@ def find_time(names, units: dict, values=None, sensor=None):
 
 
 # words that say whose or which clock a time column is (rtcTime, loggingTime, timestamp_sinceReboot)
-CLOCK_WORDS = {"rtc", "logging", "log", "system", "sys", "since", "reboot", "boot", "epoch", "unix", "1970"}
+# ("host": t_host, host_time, the time a logging computer received the row)
+CLOCK_WORDS = {"rtc", "logging", "log", "system", "sys", "since", "reboot", "boot", "epoch", "unix", "1970", "host"}
 # a date beside the time in one column: DateTime, Date Time, German Datum/Zeit
 DATE_WORDS = {"date", "datum", "fecha"}
 

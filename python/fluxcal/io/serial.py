@@ -17,13 +17,19 @@ Formats a device may print, one record per line (`--format`):
                header of its names in another order is followed.
   kv           `key=value` or `key:value` pairs: `X=12.3 Y=-4 Z=7`, `mx:1,my:2,mz:3`. Keys match the
                column names case-insensitively; `KEY=NAME` in `--columns` renames (default
-               `x=mx,y=my,z=mz`, which also accepts the keys mx,my,mz). Every key must be in the spec.
+               `x=mx,y=my,z=mz`, which also accepts the keys mx,my,mz). Every column's key must be on the
+               line; a key beyond them (`temp=25`, `Temp: 25 C`) is ignored, and said: a note in the file the
+               first time, its count in the report.
                Lines as sketches print them are read too (fluxcal.io.labelled): `Mag X: 12.3 Y: -4 Z: 7 uT`
                (the magnetometer's words before the labels, units after the numbers); lines of another
                sensor (`Accel X: …`) are rejected as `fields`, never recorded as the magnetometer. The
                unit a line prints is checked: mx,my,mz must be in a magnetic-field unit (`X: .. m/s^2`
                is rejected as `unit`), in the one --units/--columns state, or else in the one the first
                recorded line printed, which goes into the recording's units header (no conversion).
+  nmea         `$VNYMR,…*64` sentences (fluxcal.io.sentences' layouts), checksums verified. A device that sends
+               none (nothing after the fields, or VectorNav's literal `*XX`: checksums off) is recorded
+               unverified, with a note; once a sentence with a checksum came, one without is cut or garbled:
+               rejected as `checksum`.
   binary-spec  fixed-size binary frames: a sync word (`--sync A55A`, hex), then a `struct` layout
                (`--frame "<hhh"`, one field per column), then optionally a one-byte checksum of the
                payload (`--checksum sum8|xor8`). Bytes between frames are garbage and counted.
@@ -39,15 +45,16 @@ host's monotonic time (s) since the recording started when the chunk holding it 
 What is rejected, and counted by reason (never written as data): `binary` (bytes that are not text:
 invalid UTF-8 or control characters, or garbage between binary frames), `partial` (the first line
 after the port opens, which may be the tail of a line already in flight, unless it is a csv header of
-the columns or no byte came for QUIET_OPEN_S after the open: pyserial's open empties the input queue,
-so a line that starts after a second of silence is whole; the line in flight at a disconnect or at
-the end), `fields` (wrong number of fields, unknown or missing keys; a csv header line the device
+the columns or no byte came for QUIET_OPEN_S (0.5 s) after the open: pyserial's open empties the input
+queue, so a line that starts after that silence is whole (a note in the file says so); the line in
+flight at a disconnect or at the end), `fields` (wrong number of fields, missing keys; a csv header line the device
 prints: it is followed, see csv above, or refused as `unit`), `non_numeric`
 (a field that is not a finite decimal number), `ambiguous` (kv: a number whose comma may be a decimal comma
 or a thousands separator, 1,234, until a line shows a decimal comma that cannot be one, 12,34 or 0,123;
 or a comma between digits on a line whose fields are separated by commas), `unit` (kv: a unit that is not a magnetic-field unit on
 mx,my,mz, or differs from --units/--columns or from the first recorded line), `out_of_range` (outside `--range`), `too_long` (no line
-end within 1024 bytes), `checksum` (binary frame whose checksum does not match).
+end within 1024 bytes), `checksum` (binary frame or sentence whose checksum does not match; a sentence without
+one where the device's others carry one).
 
 The output is the CSV layout of fluxcal.io.write_csv (`# fluxcal recording`, `# units: ...`, metadata,
 header, rows), flushed after every record so that a crash loses at most the line in flight. A
@@ -80,14 +87,15 @@ from .columns import FIELD_UNITS, MAG_WORDS, comma_kind, is_unit, unit_name
 
 REASONS = {
     "binary": "non-text bytes (invalid UTF-8, control characters, garbage between frames)",
-    "partial": "partial line (first after opening the port unless a second of silence came before it, or in flight "
-               "at a disconnect or the end)",
-    "fields": "wrong number of fields or unknown/missing keys",
+    "partial": "partial line (first after opening the port unless half a second of silence came before it, or in "
+               "flight at a disconnect or the end)",
+    "fields": "wrong number of fields or missing keys",
     "non_numeric": "a field that is not a finite number",
     "unit": "a unit that is not a magnetic-field unit on mx,my,mz, or not the recording's unit",
     "out_of_range": "a value outside --range",
     "too_long": "no line end within 1024 bytes",
-    "checksum": "checksum mismatch (a binary frame's, or a $…*XX sentence's)",
+    "checksum": "checksum mismatch (a binary frame's, or a $…*XX sentence's), or a sentence without one where the "
+                "device's others carry one",
     "sentence": "a $TYPE sentence without the magnetometer's layout (a register reply, $VNERR)",
     "ambiguous": "a number whose comma may be a decimal comma, a thousands separator or a field separator",
 }
@@ -113,8 +121,10 @@ _HEADER_CELL = re.compile(r"([A-Za-z_][\w.]*)\s*(?:\[\s*([^\]]*?)\s*\]|\(\s*([^)
 _HEADER_WORDS = re.compile(r"[^\s\[(]+(?:\s*(?:\[[^\]]*\]|\([^)]*\)))?")  # cells of a header without , or ;
 # seconds without a byte after the port opens (pyserial's open empties the input queue) after which the first
 # line is taken whole: the tail of a line in flight at the open comes at once (a USB adapter holds bytes for
-# at most its latency timer, 16 ms by default, 255 ms at most), not after a second of silence
-QUIET_OPEN_S = 1.0
+# at most its latency timer, 16 ms by default, 255 ms at most: twice that is the bound). It was 1 s, longer
+# than a device at more than 1 Hz ever stays quiet, and about as long as an Arduino takes from the reset the
+# open causes to its first line (~1 s with optiboot): such a device lost its first line
+QUIET_OPEN_S = 0.5
 
 
 class Reject(Exception):
@@ -268,6 +278,14 @@ class TextDecoder:
         self._stated = {c.name: unit_name(c.unit) for c in self.columns if c.unit}
         self.printed_units, self._line_units = {}, {}
         self.decimal_comma, self._line_decimal_comma = False, False  # kv: the device writes decimal commas
+        # kv: the keys beyond the columns on recorded lines ({key as printed: lines}), ignored
+        self.ignored_keys, self._line_ignored = Counter(), []
+        # nmea: whether a sentence with a checksum came (from then on one without is garbled); sentences recorded
+        # without one (unverified)
+        self.checksummed, self.unverified, self._line_unverified = False, 0, False
+        # what the recording should say once about lines it keeps (an ignored key, unverified sentences): the
+        # Recorder writes these as notes and empties the list
+        self.notes = []
 
     @property
     def units(self) -> dict:
@@ -285,11 +303,14 @@ class TextDecoder:
         self._first = True
         self._rest_of_long_line = False
 
-    def port_was_quiet(self) -> None:
+    def port_was_quiet(self) -> bool:
         """No byte came for QUIET_OPEN_S after the port opened: the first line starts after the open, it is whole
-        (the Recorder calls this when it saw the input queue empty that long after the open)."""
-        if not self._buffer:
-            self._first = False
+        (the Recorder calls this when it saw the input queue empty that long after the open). True when that
+        changed how the first line is taken."""
+        if self._buffer or not self._first:
+            return False
+        self._first = False
+        return True
 
     def feed(self, data: bytes):
         """Yield a tuple of values or a Reject for every line completed by `data`."""
@@ -346,7 +367,8 @@ class TextDecoder:
             raise Reject("binary", f"control character 0x{ord(bad.group()):02x} at column {bad.start() + 1}: "
                                    f"{_show(raw)}")
         text = text.strip()
-        self._line_units, self._line_decimal_comma = {}, False
+        self._line_units, self._line_decimal_comma, self._line_ignored = {}, False, []
+        self._line_unverified = False
         values = (self._parse_kv(text) if self.format == "kv" else self._parse_sentence(text) if self.format == "nmea"
                   else self._parse_csv(text))
         _check_ranges(values, self.names, self.ranges)
@@ -354,7 +376,23 @@ class TextDecoder:
             self.printed_units.setdefault(name, unit)
         self.decimal_comma = self.decimal_comma or self._line_decimal_comma  # a recorded line's decimal comma
         self._recorded = True
+        self._said_of_recorded(text)
         return values
+
+    def _said_of_recorded(self, text: str) -> None:
+        """Count what a recorded line left unchecked or unrecorded; the first time, a note for the recording."""
+        for key in self._line_ignored:
+            if key not in self.ignored_keys:
+                spec = ",".join((f"{c.key}=" if c.key else "") + c.name + (f"[{c.unit}]" if c.unit else "")
+                                for c in self.columns)
+                self.notes.append(f"the device's key {key!r} ({text[:60]!r}) is not in --columns ({spec}): its "
+                                  f"values are not recorded; name it in --columns ({spec},{key}) to record it")
+            self.ignored_keys[key] += 1
+        if self._line_unverified:
+            if not self.unverified:
+                self.notes.append(f"the device's sentences carry no checksum ({text[:40]!r}…): recorded unverified; "
+                                  "once one with a checksum comes, one without is rejected as garbled")
+            self.unverified += 1
 
     def _first_line_header(self, raw: bytes):
         """The first line after the port opens, when it is a complete csv header: its Reject (with what was made
@@ -496,6 +534,19 @@ class TextDecoder:
         problem = sentence_problem(kind, fields, given, len(layout) if layout else 0)
         if problem and (problem[0] == "checksum" or layout):
             raise Reject(problem[0], f"${kind}: {problem[1]}")
+        verified = given is not None and given.upper() != "XX"  # VectorNav's *XX: checksums switched off
+        if not verified and self.checksummed:
+            # "*64" lost to line noise or a dropped byte; a device does not stop sending checksums mid-stream
+            raise Reject("checksum", f"${kind} without a checksum ({'*XX' if given else 'none'}), where the device's "
+                                     "earlier sentences carry one: cut or garbled. (A checksum setting changed while "
+                                     "recording? Record each setting on its own)")
+        if verified and not self.checksummed:
+            self.checksummed = True
+            if self.unverified:
+                self.notes.append(f"the device's sentences carry a checksum from here on (${kind}…*{given}): the "
+                                  f"{self.unverified} recorded before without one are unverified; a sentence "
+                                  "without one is rejected from here on")
+        self._line_unverified = not verified
         if layout is None or "mag_x" not in layout:
             raise Reject("sentence", f"${kind} (no magnetometer in it)")
         cells = fields.split(",")
@@ -539,13 +590,16 @@ class TextDecoder:
         from .labelled import _parse_line
 
         _, pairs = _parse_line(text)
-        values, units = [None] * len(self.columns), {}
+        values, units, ignored = [None] * len(self.columns), {}, []
         for name, value, unit in pairs:
             *group, label = name.lower().split()
             j = self._keys.get(name.lower())
             if j is None and set(group) <= MAG_WORDS:
                 j = self._keys.get(label)
-            if j is None or values[j] is not None:
+            if j is None:  # another quantity (Temp: 25 C, Accel X: ...): ignored when the columns are all there
+                ignored.append(name)
+                continue
+            if values[j] is not None:
                 return None
             if unit and not is_unit(unit):
                 raise Reject("non_numeric", f"column {self.names[j]!r}: {value + unit!r} is not a number")
@@ -554,8 +608,12 @@ class TextDecoder:
             values[j] = value
         if any(v is None for v in values):
             return None
+        said = {units[n] for n in MAG if n in units}
+        if ignored and len(said) == 1:  # "Mag X: 1 Y: 2 Z: 3 uT Temp: 25 C": the unit after Z is the sensor's
+            units.update({n: next(iter(said)) for n in MAG if n in self.names})
         values = self._decimal_commas(text, values)
         self._line_units = self._check_units(units)
+        self._line_ignored = ignored
         return tuple(_number(v, n) for v, n in zip(values, self.names))
 
     def _decimal_commas(self, text: str, values: list) -> list:
@@ -627,9 +685,12 @@ class TextDecoder:
                 values[j] = value
             pos = _PAIR_SEPARATOR.match(text, m.end()).end()
         missing = [n for n, v in zip(self.names, values) if v is None]
-        if unknown or missing:
-            raise Reject("fields", (f"keys {', '.join(unknown)} not in --columns; " if unknown else "")
-                         + (f"missing {', '.join(missing)}; " if missing else "") + f"line {text!r}")
+        if missing:
+            others = f" (keys {', '.join(unknown)} are not in --columns)" if unknown else ""
+            raise Reject("fields", f"missing {', '.join(missing)}{others}; line {text!r}")
+        # keys beyond the columns (temp=25 beside mx,my,mz): the columns are all there; the rest is ignored, and
+        # said once with its count (they had cost every line)
+        self._line_ignored = unknown
         return tuple(_number(v, n) for v, n in zip(values, self.names))
 
 
@@ -783,8 +844,8 @@ def _show(raw) -> str:
 class RecordingWriter:
     """Appends records to a CSV in the layout of fluxcal.io.write_csv, flushing after each.
 
-    `defer_head`: the header is written with the first row or note (or at close), so that `units` can
-    still take the units the device prints on its first good line."""
+    `defer_head`: the header is written with the first row (or at close), so that `units` can still take the
+    units the device prints on its first good line; notes before it are held until then."""
 
     def __init__(self, path, names, units: dict | None = None, metadata: dict | None = None,
                  defer_head: bool = False):
@@ -797,6 +858,7 @@ class RecordingWriter:
         self._size = 0  # bytes of whole rows and notes in the file
         self.head_written = False
         self._notes = []  # the notes written before the first row (a new head before it keeps them)
+        self._held = [] if defer_head else None  # notes that wait for the deferred head
         if not defer_head:
             self._write_head()
 
@@ -808,6 +870,9 @@ class RecordingWriter:
             head.append("# units: " + ", ".join(f"{n}={u}" for n, u in units.items()))
         head += [f"# {k}: {_one_line(v)}" for k, v in self.metadata.items()]
         self._write("\n".join(head) + "\n" + ",".join(self.names) + "\n")
+        held, self._held = self._held or [], None
+        for text in held:
+            self.note(text)
 
     def _write(self, text: str) -> None:
         """Write `text` whole; on an OSError cut the file back to its last whole line and raise."""
@@ -831,6 +896,9 @@ class RecordingWriter:
         self.rows += 1
 
     def note(self, text: str) -> None:
+        if not self.head_written and self._held is not None:  # (a note must not fix the units before a line says them)
+            self._held.append(text)
+            return
         if not self.head_written:
             self._write_head()
         self._write(f"# note: {_one_line(text)}\n")
@@ -884,6 +952,8 @@ class RecordStats:
     blank_lines: int = 0
     output: str | None = None
     write_error: str = ""  # why the output could not be written (disk full, ...): the recording stopped there
+    ignored_keys: Counter = field(default_factory=Counter)  # kv: keys beyond the columns on kept lines -> lines
+    unverified: int = 0  # nmea: sentences kept without a checksum (the device sends none)
 
     def reject(self, reject: Reject, t_host: float) -> None:
         self.rejected[reject.reason] += 1
@@ -903,6 +973,11 @@ class RecordStats:
                 f"{self.rejected_text()}.")
         for reason in sorted(self.rejected):
             text += f" First {reason} {self.examples[reason]}."
+        if self.ignored_keys:
+            keys = ", ".join(f"{k!r} on {n} line{'s' * (n != 1)}" for k, n in self.ignored_keys.most_common())
+            text += f" Ignored keys not in --columns: {keys} (name a key in --columns to record it)."
+        if self.unverified:
+            text += f" {self.unverified} sentences without a checksum were kept unverified (the device sent none)."
         if self.reconnects:
             text += (f" Reconnected {self.reconnects} time{'s' if self.reconnects > 1 else ''} "
                      f"({self.disconnected_s:.2f} s without the port).")
@@ -915,8 +990,11 @@ class RecordStats:
         return text + f" Stopped: {self.stopped or 'end'}."
 
     def summary_note(self) -> str:
-        return (f"summary: {self.records} records, {self.rejected_text()}, {self.reconnects} reconnects, "
-                f"{self.duration_s:.3f} s, stopped: {self.stopped or 'end'}")
+        ignored = "".join(f", key {k!r} ignored on {n} line{'s' * (n != 1)}" for k, n in
+                          self.ignored_keys.most_common())
+        unverified = f", {self.unverified} sentences unverified (no checksum)" if self.unverified else ""
+        return (f"summary: {self.records} records, {self.rejected_text()}{ignored}{unverified}, {self.reconnects} "
+                f"reconnects, {self.duration_s:.3f} s, stopped: {self.stopped or 'end'}")
 
 
 class Recorder:
@@ -930,20 +1008,26 @@ class Recorder:
     causes (default: print to stderr); None never warns. `hold_ctrl_c`: once a stop was asked, further
     Ctrl-C stays ignored after run() returns (a command line whose report and exit follow: a Ctrl-C pressed
     twice must not kill it while it prints, and the restored default handler would); False restores the
-    caller's handler.
+    caller's handler. `quiet_open_s`: the silence after an open (and a reopen) after which the device's first
+    line is taken whole, with a note in the file (see QUIET_OPEN_S); None: the first line is always `partial`.
     """
 
     def __init__(self, port: str, baudrate: int = 115200, decoder=None, output=None, duration: float | None = None,
                  units: dict | None = None, metadata: dict | None = None, on_record=None, should_stop=None,
                  read_timeout: float = 0.05, max_backoff: float = 1.0, clock=time.monotonic,
-                 warn_after: float | None = None, warn=None, hold_ctrl_c: bool = False):
+                 warn_after: float | None = None, warn=None, hold_ctrl_c: bool = False,
+                 quiet_open_s: float | None = QUIET_OPEN_S):
         self.port, self.baudrate, self.hold_ctrl_c = port, int(baudrate), hold_ctrl_c
+        self.quiet_open_s = quiet_open_s
         self.decoder = decoder or TextDecoder(parse_columns(None))
         if duration is not None and not (isinstance(duration, numbers.Real) and math.isfinite(duration)
                                          and duration > 0):
             # NaN never reached the deadline (recorded forever); ≤ 0 recorded nothing without a word
             raise ValueError(f"duration: {duration!r} is not a positive number of seconds (None records until "
                              "stopped)")
+        if quiet_open_s is not None and not (isinstance(quiet_open_s, numbers.Real) and quiet_open_s > 0):
+            raise ValueError(f"quiet_open_s: {quiet_open_s!r} is not a positive number of seconds (None: the first "
+                             "line after an open is always taken as partial)")
         self.output, self.duration = output, duration
         self.units, self.metadata = dict(units or {}), dict(metadata or {})
         self.should_stop = should_stop or (lambda: False)
@@ -955,6 +1039,7 @@ class Recorder:
         self.warn = warn or (lambda text: print(text, file=sys.stderr, flush=True))
         self._warned = set()  # the warnings given (a device that reprints a header warns once)
         self._opened_at = None  # when the port (re)opened, until its first byte comes
+        self._quiet_said = ""  # the note that the first line after a quiet open is taken whole, for when it comes
 
     def _open(self):
         return serial.serial_for_url(self.port, baudrate=self.baudrate, timeout=self.read_timeout)
@@ -1003,6 +1088,10 @@ class Recorder:
                         continue
                     if data:
                         self._opened_at = None
+                        if self._quiet_said:  # said with the line it concerns (a silent device: nothing to say)
+                            came = self.clock() - start
+                            self._note(f"{self._quiet_said}; its first byte came at t_host={came:.3f} s")
+                            self._quiet_said = ""
                     if data and self._handle(self.decoder.feed(data), self.clock() - start):
                         stats.stopped = "write error" if stats.write_error else "done"
                         break
@@ -1019,6 +1108,8 @@ class Recorder:
                     port.close()
                 stats.duration_s = now - start
                 stats.blank_lines = self.decoder.blank_lines
+                stats.ignored_keys = Counter(getattr(self.decoder, "ignored_keys", {}))
+                stats.unverified = getattr(self.decoder, "unverified", 0)
                 if self.writer:
                     if not stats.write_error:
                         self._note(stats.summary_note())
@@ -1034,11 +1125,12 @@ class Recorder:
         now = self.clock()  # before the look: nothing had come by `now`
         if port.in_waiting:
             self._opened_at = None
-        elif now - self._opened_at >= QUIET_OPEN_S:
-            self._opened_at = None
+        elif self.quiet_open_s is not None and now - self._opened_at >= self.quiet_open_s:
             quiet = getattr(self.decoder, "port_was_quiet", None)
-            if quiet is not None:
-                quiet()
+            if quiet is not None and quiet():  # said in the file: a tail taken whole would be a wrong first record
+                self._quiet_said = (f"no byte for {now - self._opened_at:.2f} s after the port opened: the device's "
+                                    "first line is taken whole")
+            self._opened_at = None
 
     def _warn_if_silent(self, start: float) -> None:
         if self.warn_after is None or self.stats.records or self.clock() - start < self.warn_after:
@@ -1094,6 +1186,7 @@ class Recorder:
             if isinstance(event, Reject):
                 self.stats.reject(event, t_host)
                 self._header_said(event, t_host)
+                self._decoder_said(t_host)
                 continue
             if self.writer:
                 if not self.writer.head_written:  # the units the first good line printed
@@ -1112,9 +1205,16 @@ class Recorder:
                     self.stats.stopped = "write error"
                     return True
             self.stats.records += 1
+            self._decoder_said(t_host)  # after the row: the head holds the units its line printed
             if self.on_record is not None and self.on_record(t_host, event):
                 stop = True  # finish the chunk: its records are written, nothing read is dropped
         return stop
+
+    def _decoder_said(self, t_host: float) -> None:
+        """The notes the decoder has for the recording (a key it ignores, sentences without a checksum), once."""
+        notes = getattr(self.decoder, "notes", None)
+        while notes:
+            self._note(f"{notes.pop(0)} (t_host={t_host:.3f} s)")
 
     def _header_said(self, reject: Reject, t_host: float) -> None:
         """After a rejected line: a header the device printed may have changed the columns or their units (the
@@ -1157,6 +1257,7 @@ class Recorder:
                 backoff = min(2 * backoff, self.max_backoff)
                 continue
             back = self._opened_at = self.clock()
+            self._quiet_said = ""
             self.decoder.reset()
             self.stats.reconnects += 1
             self.stats.disconnected_s += back - lost
@@ -1218,11 +1319,13 @@ def add_stream_arguments(p) -> None:
     p.add_argument("--duration", type=positive_number, default=None, help="stop after this many seconds (default: Ctrl-C)")
     p.add_argument("--format", choices=FORMATS, default="csv",
                    help="csv: separated numbers; kv: key=value or key:value pairs; nmea: $VNYMR,…*XX sentences "
-                        "(checksums verified; --columns from mx,my,mz, ax,ay,az, gx,gy,gz, yaw,pitch,roll, temp); "
+                        "(checksums verified; a device that sends none is recorded unverified; --columns from "
+                        "mx,my,mz, ax,ay,az, gx,gy,gz, yaw,pitch,roll, temp); "
                         "binary-spec: --frame/--sync")
     p.add_argument("--columns", default=None,
                    help="names of the fields in order, optional unit in brackets: t,mx[nT],my[nT],mz[nT] "
-                        "(default mx,my,mz; kv: KEY=NAME renames, default x=mx,y=my,z=mz); t = device time")
+                        "(default mx,my,mz, or the columns of a csv header the device prints at start-up; kv: "
+                        "KEY=NAME renames, default x=mx,y=my,z=mz, other keys are ignored); t = device time")
     p.add_argument("--units", default=None, help="unit of mx,my,mz when --columns does not state it (nT, uT, counts)")
     p.add_argument("--range", action="append", default=[], metavar="[NAME=]LO:HI",
                    help="reject records with a value outside LO..HI (every column but t, or NAME only); "
