@@ -369,8 +369,11 @@ def calibrate_ring(readings, true_fields, method: str = "twostep") -> RingCalibr
         fits[i].summary["warnings"] = list(fits[i].summary.get("warnings", [])) + [
             f"its readings miss the calibration's model (an offset and a gain per axis) by more than its repeated "
             f"readings scatter (residual σ {ratio:.3g}× theirs, lack-of-fit p {np.min(lack_of_fit[i]):.2g}): an axis "
-            "misaligned, crosstalk between the axes or iron near the sensor, which the model lacks — `fluxcal "
-            "diagnose RECORDING.csv --model cable --calibration …` names it against the repeats' σ"]
+            "misaligned, crosstalk between the axes or iron near the sensor, which the model lacks (`fluxcal "
+            "diagnose RECORDING.csv --model cable --calibration …` names it against the repeats' σ), a drift "
+            "between the poses"
+            + (", or the least-squares fit's one field magnitude (method='twostep' knows each reading's)"
+               if method == "least_squares" else "")]
     if method == "twostep":
         covariance = np.array([_axis_blocks(f.covariance) for f in fits])
     return RingCalibration(offsets=offsets, gains=gains, method=method, sensors=fits, residual_sigma=residual_sigma,
@@ -396,11 +399,22 @@ def _repeat_scatter(readings: np.ndarray, true_fields: np.ndarray, residuals: np
     poses = np.sum(counts > 0, axis=0).reshape(readings.shape[1:])
     if dof.min() < 10 or poses.min() < 3:
         return None, None
+    from .diagnose.core import _lattice_step
+
     means = (per_group(np.where(finite, readings, 0.0)) / np.maximum(counts, 1)).reshape((-1,) + readings.shape[1:])
     within = np.sum(np.where(finite, readings - means[group], 0.0) ** 2, axis=0)
     misfit = np.sum(np.where(finite, residuals, 0.0) ** 2, axis=0) - within  # between the poses
-    f = (np.maximum(misfit, 0.0) / np.maximum(poses - 2, 1)) / np.maximum(within / dof, np.finfo(float).tiny)
-    return np.sqrt(within / dof), stats.f.sf(f, np.maximum(poses - 2, 1), dof)
+    # readings on an ADC's grid repeat exactly when the noise is below its step: the scatter is at least step/√12
+    # (a coarse ring's repeats gave 4e-21 T, and every test of the diagnosis then "departed" at 10²⁷)
+    steps = np.array([[_lattice_step(readings[finite[:, i, a], i, a]) for a in range(readings.shape[2])]
+                      for i in range(readings.shape[1])])
+    if not steps.all():  # an axis with few levels may skip steps (gaps of 2 and 4 LSB): the ring's common grid
+        steps = np.where(steps > 0, steps, _lattice_step(readings[finite]))
+    floor = steps / np.sqrt(12.0)
+    sigma = np.maximum(np.sqrt(within / dof), floor)
+    f = (np.maximum(misfit, 0.0) / np.maximum(poses - 2, 1)) / np.maximum(sigma ** 2, np.finfo(float).tiny)
+    # (on the floor a pose's repeats share its rounding, which their mean then keeps: no test of the model there)
+    return sigma, np.where(sigma > floor, stats.f.sf(f, np.maximum(poses - 2, 1), dof), 1.0)
 
 
 def _sampson_fit(readings: np.ndarray, norms: np.ndarray, why: str) -> TwoStep2D | None:

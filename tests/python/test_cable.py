@@ -546,6 +546,10 @@ def test_the_calibration_keeps_its_repeats_scatter_and_says_when_its_model_misse
     pooled = np.sqrt(np.mean(np.var(raw.reshape(10, 10, 4, 2), axis=1, ddof=1), axis=0))
     np.testing.assert_allclose(calibrate_ring(raw, truth).repeat_sigma, pooled, rtol=1e-12)
     assert calibrate_ring(raw[::10], truth[::10]).repeat_sigma is None  # one reading per pose: no repeats
+    # readings on a coarse ADC grid repeat exactly: the scatter is the grid's step/√12, and nothing is said
+    coarse = calibrate_ring(np.round(raw / 1e-6) * 1e-6, truth)
+    np.testing.assert_allclose(coarse.repeat_sigma, 1e-6 / np.sqrt(12.0), rtol=1e-9)
+    assert not any(said(coarse))
     with pytest.raises(ValueError, match="sensor 0: 4 calibration readings, need at least 5"):
         calibrate_ring(raw[::25], truth[::25])
     again = cable.RingCalibration.from_dict(json.loads(json.dumps(cal.to_dict())))

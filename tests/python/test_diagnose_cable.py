@@ -477,12 +477,17 @@ def test_a_field_from_outside_the_ring_is_said_not_explained():
     d = diagnose_cable(**{**kwargs, "readings": shifted})  # (background_field is a candidate now)
     assert d.accepted == ["background_field"] and "NOT EXPLAINED" not in d.text()
     assert d.ranking[0]["background_t"] == pytest.approx(2e-6, rel=0.05)  # (1.93 µT: the paper rig's sensor errors)
-    # at one current level nothing tells such a field from one that follows the currents: said
-    one = np.max(np.abs(kwargs["currents"]), axis=1) == 10.0
+    # at one set of currents nothing tells such a field from one that follows them: said
+    one = np.all(kwargs["currents"] == [10.0, -10.0], axis=1)
     d = diagnose_cable(**{**kwargs, "readings": shifted[one], "currents": kwargs["currents"][one],
                           "rotations_deg": rotations[one]}, candidates=others)
     assert any("the recording holds one current level" in c for c in d.caveats), d.caveats
-    assert "NOT EXPLAINED" in d.text()
+    # both polarities at that level do tell it (it does not change sign with them): found, and no such caveat
+    both = np.max(np.abs(kwargs["currents"]), axis=1) == 10.0
+    d = diagnose_cable(**{**kwargs, "readings": shifted[both], "currents": kwargs["currents"][both],
+                          "rotations_deg": rotations[both]})
+    assert d.accepted[:1] == ["background_field"], d.accepted
+    assert not any("one current level" in c for c in d.caveats), d.caveats
 
 
 def test_a_dead_sensor_is_left_out_and_a_missing_reading_is_named():
@@ -544,6 +549,10 @@ def test_a_rise_of_the_held_out_current_error_is_judged_against_its_scatter():
     # errors within the noise that move by less than it are no rise
     within = np.array([[2e-4, -1e-4], [-3e-4, 1e-4]])
     assert _rise_pvalue(within, within + [[1e-4, 1e-4], [-2e-4, 1e-4]], sigma[:2] / 15) > CURRENT_RISE_ALPHA
+    # and a diagnosis judges its held-out currents with it (a row without it would fall back to "any rise")
+    d = diagnose_cable(**cable_trial(["cable_tilt"], 0)[0])
+    judged = [r for r in d.ranking if r.get("current_error_a_before") is not None]
+    assert judged and all(0.0 <= r["current_error_rise_pvalue"] <= 1.0 for r in judged)
 
 
 def test_a_field_that_does_not_follow_the_currents_is_found_and_taken_out_of_them():
