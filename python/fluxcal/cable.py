@@ -19,7 +19,6 @@ from dataclasses import dataclass, field
 import re
 
 import numpy as np
-from scipy import stats
 
 from . import _core
 from ._arrays import as_number, set_options
@@ -399,6 +398,8 @@ def _repeat_scatter(readings: np.ndarray, true_fields: np.ndarray, residuals: np
     poses = np.sum(counts > 0, axis=0).reshape(readings.shape[1:])
     if dof.min() < 10 or poses.min() < 3:
         return None, None
+    from scipy.stats import f as f_distribution
+
     from .diagnose.core import _lattice_step
 
     means = (per_group(np.where(finite, readings, 0.0)) / np.maximum(counts, 1)).reshape((-1,) + readings.shape[1:])
@@ -412,9 +413,9 @@ def _repeat_scatter(readings: np.ndarray, true_fields: np.ndarray, residuals: np
         steps = np.where(steps > 0, steps, _lattice_step(readings[finite]))
     floor = steps / np.sqrt(12.0)
     sigma = np.maximum(np.sqrt(within / dof), floor)
-    f = (np.maximum(misfit, 0.0) / np.maximum(poses - 2, 1)) / np.maximum(sigma ** 2, np.finfo(float).tiny)
+    ratio = (np.maximum(misfit, 0.0) / np.maximum(poses - 2, 1)) / np.maximum(sigma ** 2, np.finfo(float).tiny)
     # (on the floor a pose's repeats share its rounding, which their mean then keeps: no test of the model there)
-    return sigma, np.where(sigma > floor, stats.f.sf(f, np.maximum(poses - 2, 1), dof), 1.0)
+    return sigma, np.where(sigma > floor, f_distribution.sf(ratio, np.maximum(poses - 2, 1), dof), 1.0)
 
 
 def _sampson_fit(readings: np.ndarray, norms: np.ndarray, why: str) -> TwoStep2D | None:

@@ -19,7 +19,8 @@ terms included — a bilinear model, solved by Gauss–Newton inside a variable 
 (SciPy) over the conductor positions and the candidates' non-linear parameters, the currents and the
 linear coefficients solved at every step. Residuals are weighted by each sensor's noise σ: given, or from
 consecutive repeated snapshots (which are then averaged), or the calibration run's repeated readings, or its
-scatter about its fit (the σ the ring's solver takes), and only failing all of them from the base fit's residuals — which hold any misfit of the model
+scatter about its fit (the σ the ring's solver takes), and only failing all of them from the base fit's residuals
+— which hold any misfit of the model
 as a whole, so the verdict then says it cannot judge whether the model fits.
 
 1. Where: residual / σ per sensor, per axis (radial, tangential), per current level, per rotation and in
@@ -1044,7 +1045,7 @@ def diagnose_cable(readings, ring: Ring, currents=None, rotations_deg=None, posi
     (its repeat_sigma: the noise without what its own model missed), else its scatter about its fit (its
     residual_sigma, the σ the ring's solver takes), else the base fit's residuals — which then cannot show a
     misfit of the model as a whole, and the verdict says so). candidates:
-    effect names (default all six). t: (K,) times (default the snapshot order). fit_currents: fit the
+    effect names (default all of CABLE_CANDIDATES). t: (K,) times (default the snapshot order). fit_currents: fit the
     currents per snapshot even when the reference is given (default: only without one; the gains' mean is
     then held at the calibration's, a common gain being a common current scale). refine_calibration:
     refine each sensor axis's gain and offset in the base model (default True). average_repeats: average
