@@ -345,8 +345,10 @@ def calibrate_ring(readings, true_fields, method: str = "twostep") -> RingCalibr
                 if fit is None:
                     raise ValueError(f"sensor {i}: {exc}. Here the magnitudes are the ring model's (straight "
                                      "conductors at the given positions with the reference currents): a calibration "
-                                     "run the model does not describe (a cable's lay, its end or a bend near the ring, "
-                                     "iron nearby, a wrong ring_radius_m) gives this, or magnitudes that hardly change "
+                                     "run the model does not describe gives this — a field that does not follow the "
+                                     "currents (the Earth's, a neighbouring conductor: subtract each pose's "
+                                     "zero-current reading, or calibrate away from it), a cable's lay, its end or a "
+                                     "bend near the ring, iron nearby, a wrong ring_radius_m — or magnitudes that hardly change "
                                      "across the run "
                                      f"(here by {100 * (np.ptp(norm) / np.mean(norm)):.3g} %: calibrate at "
                                      "positions off the ring's centre); `fluxcal diagnose RUN.csv --model cable` says "

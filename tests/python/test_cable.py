@@ -377,6 +377,14 @@ def test_a_calibration_run_the_model_does_not_describe_points_to_the_diagnosis(t
     with pytest.raises(ValueError, match=r"sensor 0: readings: the first step gives .* the ring model's .*"
                                          r"fluxcal diagnose RUN.csv --model cable"):
         calibrate_ring(h[np.random.default_rng(0).permutation(len(h))], h)
+    # a field that does not follow the currents (a newcomer's switch room: the Earth's 20 µT, turned against the
+    # sensors with the ring) is named first, with its remedy
+    from fluxcal.sim.cable_effects import sensor_points, to_axes
+
+    axes = np.repeat(np.array([sensor_points(ring, r)[1] for r in 72.0 * np.arange(5)]), 3, axis=0)
+    with pytest.raises(ValueError, match=r"a field that does not follow the currents \(the Earth's, a neighbouring "
+                                         r"conductor: subtract each pose's zero-current reading"):
+        calibrate_ring(h + to_axes(np.full(axes.shape, 20e-6 * np.exp(0.4j)), axes), h)
     bad = h.copy()
     bad[3, 2, 1] = np.inf  # a reading that is not a number is left out of its sensor's fit and said
     assert "rows 3)" in calibrate_ring(bad, h).sensors[2].summary["warnings"][-1]

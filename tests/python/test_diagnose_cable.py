@@ -571,13 +571,25 @@ def test_a_field_that_does_not_follow_the_currents_is_found_and_taken_out_of_the
     assert row["background_t"] == pytest.approx(30e-6, rel=0.01)
     assert row["background_direction_deg"] == pytest.approx(np.degrees(0.7), abs=1.0)
     assert row["current_error_a_after"] < 0.1 * row["current_error_a_before"]
-    # a 13.7 A conductor 45 mm from the cable (61 µT here): its field and its change across the ring are both found
+    # a 13.7 A conductor 45 mm from the cable (61 µT here) beside the Earth's 20 µT: its field and its change across
+    # the ring are found
     rng = np.random.default_rng(3)
     near = BackgroundGradient.typical(4, rng)  # an exact line current
-    kwargs, _ = cable_trial([], 6, effects=[near])
-    d = diagnose_cable(**kwargs)
-    assert set(d.accepted) >= {"background_field", "background_gradient"}, d.accepted
     (where, current), = near.conductors
+    earth = 20e-6 * np.exp(1.2j)
+    kwargs, _ = cable_trial([], 6, effects=[BackgroundField(earth, conductors=near.conductors)])
+    d = diagnose_cable(**kwargs)
+    assert set(d.accepted) >= {"background_field", "background_gradient", "background_curvature"}, d.accepted
+    # told apart: the line (where the busbar is, and its current) and the uniform rest (the Earth's)
+    source = d.remaining["background_source"]
+    assert source["distance_m"] == pytest.approx(abs(where), rel=0.02)
+    assert source["direction_deg"] == pytest.approx(np.degrees(np.angle(where)) % 360.0, abs=1.0)
+    assert source["current_a"] == pytest.approx(current, rel=0.02)
+    assert source["uniform_t"] == pytest.approx(20e-6, rel=0.02)
+    assert source["uniform_direction_deg"] == pytest.approx(np.degrees(1.2), abs=1.0)
+    assert "BACKGROUND: as one line current of" in d.text()
+    # what is left is that close source's higher terms: NOT EXPLAINED says so first, in the JSON too
+    assert d.remaining["unexplained"]["not_explained"] == ("NOT EXPLAINED" in d.text())
     at_radius = 2e-7 * abs(current) / abs(where) * (kwargs["ring"].radius_m / abs(where))  # μ0 I/2πd · R/d
     gradient = next(r for r in d.ranking if r["effect"] == "background_gradient")
     assert gradient["background_gradient_t"] == pytest.approx(at_radius, rel=0.2)
@@ -593,3 +605,49 @@ def test_a_field_that_does_not_follow_the_currents_is_found_and_taken_out_of_the
     rebuilt += model.constant_features(pos, terms)
     np.testing.assert_allclose(rebuilt, whole, atol=1e-12 * np.abs(whole).max())
     assert _Model(data, terms[1:], data.reference).constant_features(pos, terms[1:]) is None
+
+
+def test_three_cores_without_known_positions_start_in_the_reference_currents_order():
+    """The ring's solver numbers the conductors its own way: a newcomer's 3-core cable without positions_m was
+    started from a swapped pair, its conductors pushed 55–71 mm out of a 14 mm ring, the gains ×3, and the report
+    said "the ring's model explains the readings to the noise"."""
+    ring = Ring(np.arange(0.0, 360.0, 60.0), 0.014)
+    truth = np.array([[-2.1e-3, -1.8e-3], [0.5e-3, 2.7e-3], [3.1e-3, -1.8e-3]])
+    rng = np.random.default_rng(8)
+    rots, curs = [], []
+    for rot in np.arange(0.0, 360.0, 45.0):
+        for level in (5.0, 10.0, 20.0):
+            for pattern in ((1.0, -0.5, -0.5), (-0.5, 1.0, -0.5), (-0.5, -0.5, 1.0)):
+                rots.append(rot)
+                curs.append(level * np.array(pattern))
+    y = np.array([ring.rotated(r).field(truth, c) for r, c in zip(rots, curs)]) + rng.normal(0, 2e-8, (len(rots), 6, 2))
+    d = diagnose_cable(y, ring, currents=np.array(curs), rotations_deg=np.array(rots), noise_sigma=2e-8)
+    fitted = np.asarray(d.base["positions_m"])
+    np.testing.assert_allclose(fitted, truth, atol=5e-5)  # in the currents' order, not the solver's
+    assert not d.caveats and not d.accepted
+    # a start the currents do not match is said, never "explained to the noise" with conductors outside the bore
+    from fluxcal.diagnose import cable as diagnosis
+
+    swapped = diagnosis._start_positions
+    diagnosis._start_positions = lambda data: truth[[1, 0, 2]]
+    try:
+        d = diagnose_cable(y, ring, currents=np.array(curs), rotations_deg=np.array(rots), noise_sigma=2e-8,
+                           max_effects=0)
+    finally:
+        diagnosis._start_positions = swapped
+    assert np.linalg.norm(np.asarray(d.base["positions_m"]), axis=1).max() > ring.bore_radius_m  # (the gains ×3)
+    assert any("outside its bore" in c for c in d.caveats), d.caveats
+    assert "explains the readings to the noise" not in d.text() and "its fit is not the cable's" in d.text()
+
+
+def test_repeats_that_scatter_beyond_the_calibration_runs_are_said():
+    """A neighbouring current that varies makes a recording's repeated snapshots differ 94× the calibration run's
+    repeated readings (a newcomer's switch room): σ from them made every test that much too lenient, unsaid."""
+    kwargs, _ = cable_trial([], 16)
+    d = diagnose_cable(**kwargs)
+    assert not any("repeated snapshots scatter" in c for c in d.caveats), d.caveats
+    noisy = kwargs["readings"] + np.random.default_rng(0).normal(0.0, 1e-7, kwargs["readings"].shape)
+    d = diagnose_cable(**{**kwargs, "readings": noisy})
+    assert d.noise_source.startswith("from repeated snapshots")
+    assert any("this recording's repeated snapshots scatter" in c and "--noise-sigma" in c for c in d.caveats), \
+        d.caveats
