@@ -220,6 +220,10 @@ class RingCalibration:
     # The scatter of consecutive repeated readings (the same true field), tesla: the noise alone, without what the
     # model misses (axis coupling, crosstalk), which residual_sigma holds too. None without ≥ 10 degrees of freedom.
     repeat_sigma: np.ndarray | None = None    # (n_sensors, 2)
+    # calibrate_ring_in_field's: the field that did not follow the currents in the calibration run, tesla in the cable
+    # frame — {"terms_t": [[re, im] of b₀, b₁, …]}, B(z) = Σ bₙ (z̄/R)ⁿ: b₀ at the ring's centre, b₁ its change
+    # across the radius, … — or None
+    background: dict | None = None
 
     def apply(self, readings) -> np.ndarray:
         """Compensated readings, same shape as `readings` (…, n_sensors, 2)."""
@@ -235,6 +239,18 @@ class RingCalibration:
         sensors and axes; None without the calibration's statistics."""
         per_sensor = self.sensor_sigma(readings)
         return None if per_sensor is None else float(np.sqrt(np.mean(per_sensor ** 2)))
+
+    def background_in_axes(self, ring: "Ring", rotation_deg: float) -> np.ndarray:
+        """The calibration run's field that does not follow the currents (`background`, calibrate_ring_in_field's)
+        in each sensor's axes with the ring turned by `rotation_deg`: (n_sensors, 2) tesla, to take off compensated
+        readings taken where the ring was calibrated. ValueError without one."""
+        if self.background is None:
+            raise ValueError("this ring calibration has no background field (`cable calibrate --method in_field` "
+                             "fits one)")
+        theta = np.radians(ring.angles_deg + rotation_deg)
+        field = sum(complex(*b) * np.exp(-1j * n * theta) for n, b in enumerate(self.background["terms_t"]))
+        turned = field * np.exp(-1j * (theta + np.radians(ring.axis_angles_deg)))
+        return np.stack([turned.real, turned.imag], axis=-1)
 
     def sensor_sigma(self, readings=None, repeats: bool = False) -> np.ndarray | None:
         """`field_sigma` per sensor (n_sensors,), RMS over its two axes: the calibration's scatter divided by the
@@ -260,7 +276,8 @@ class RingCalibration:
         if self.repeat_sigma is not None:
             stats["repeat_sigma"] = self.repeat_sigma[keep]
         return RingCalibration(self.offsets[keep], self.gains[keep], self.method,
-                               [self.sensors[k] for k in keep] if self.sensors else [], **stats)
+                               [self.sensors[k] for k in keep] if self.sensors else [], background=self.background,
+                               **stats)
 
     def to_dict(self) -> dict:
         d = {"method": self.method, "offsets": self.offsets.tolist(), "gains": self.gains.tolist()}
@@ -268,6 +285,8 @@ class RingCalibration:
             d.update(residual_sigma=self.residual_sigma.tolist(), covariance=self.covariance.tolist())
         if self.repeat_sigma is not None:
             d["repeat_sigma"] = self.repeat_sigma.tolist()
+        if self.background is not None:
+            d["background"] = self.background
         return d
 
     def __post_init__(self):
@@ -287,7 +306,7 @@ class RingCalibration:
         try:
             stats = {k: np.asarray(d[k], float) for k in ("residual_sigma", "covariance", "repeat_sigma") if k in d}
             return cls(offsets=np.asarray(d["offsets"], float), gains=np.asarray(d["gains"], float),
-                       method=d.get("method", "twostep"), **stats)
+                       method=d.get("method", "twostep"), background=d.get("background"), **stats)
         except (TypeError, ValueError) as exc:
             raise ValueError(f"{source}: {str(exc).removeprefix('ring calibration: ')}") from None
 
@@ -346,8 +365,9 @@ def calibrate_ring(readings, true_fields, method: str = "twostep") -> RingCalibr
                     raise ValueError(f"sensor {i}: {exc}. Here the magnitudes are the ring model's (straight "
                                      "conductors at the given positions with the reference currents): a calibration "
                                      "run the model does not describe gives this — a field that does not follow the "
-                                     "currents (the Earth's, a neighbouring conductor: subtract each pose's "
-                                     "zero-current reading, or calibrate away from it), a cable's lay, its end or a "
+                                     "currents (the Earth's, a neighbouring conductor: `cable calibrate --method "
+                                     "in_field`, calibrate_ring_in_field, fits it from each rotation's currents "
+                                     "reversed; or subtract each pose's zero-current reading), a cable's lay, its end or a "
                                      "bend near the ring, iron nearby, a wrong ring_radius_m — or magnitudes that hardly change "
                                      "across the run "
                                      f"(here by {100 * (np.ptp(norm) / np.mean(norm)):.3g} %: calibrate at "
@@ -379,6 +399,77 @@ def calibrate_ring(readings, true_fields, method: str = "twostep") -> RingCalibr
         covariance = np.array([_axis_blocks(f.covariance) for f in fits])
     return RingCalibration(offsets=offsets, gains=gains, method=method, sensors=fits, residual_sigma=residual_sigma,
                            covariance=covariance, repeat_sigma=repeat_sigma)
+
+
+def calibrate_ring_in_field(readings, true_fields, ring: Ring, rotations_deg, order: int = 3) -> RingCalibration:
+    """Calibrate every sensor of a ring in a field that does not follow the currents and stays put while the ring
+    turns (the Earth's, a neighbouring conductor's: a calibration run in a switch room), from a run that reverses
+    the currents at each rotation (the paper's ±I at 5 × 72°). TWOSTEP cannot: |h + B| is not the model's |h|.
+
+    Each pose (consecutive readings with the same true fields and rotation) is averaged; a pose and the pose at the
+    same rotation with the true fields reversed give, per sensor axis, half their difference γ h (offset and field
+    gone: γ by least squares over the pairs) and half their sum b + γ B, B the field in the sensor's axes at that
+    rotation: b (fixed to the ring) and B (fixed to the room: B(z) = Σₙ bₙ (z̄/R)ⁿ, n ≤ `order`: 0 uniform, 1 its
+    gradient, 2, 3 — a neighbouring conductor 4–5 ring radii away leaves µT in its third term) by linear least
+    squares over all pairs and sensors — the ring's turns tell them apart (a term that turns n + 1 times per turn is
+    an offset to rotations n + 1 apart: 5 × 72° determine order ≤ 3). Statistics as calibrate_ring's linear ones,
+    about γ (h + B) + b; `background` holds the bₙ (tesla, cable frame).
+    readings, true_fields: (K, n_sensors, 2); rotations_deg: (K,) the ring's turn of each reading."""
+    r = np.asarray(readings, dtype=float)
+    h = np.asarray(true_fields, dtype=float)
+    rot = np.asarray(rotations_deg, dtype=float).ravel()
+    if r.ndim != 3 or r.shape[2] != 2 or h.shape != r.shape or r.shape[1] != ring.n_sensors:
+        raise ValueError(f"readings {r.shape} and true_fields {h.shape}: expected the same shape (K, "
+                         f"{ring.n_sensors}, 2) for this ring")
+    if rot.shape != (len(r),) or not np.all(np.isfinite(rot)):
+        raise ValueError(f"rotations_deg: need {len(r)} finite rotations, one per reading")
+    if not (np.all(np.isfinite(r)) and np.all(np.isfinite(h))):
+        raise ValueError("readings, true_fields: not finite (NaN or Inf); leave those readings out")
+    key = np.column_stack([h.reshape(len(h), -1), rot])
+    start = np.concatenate([[True], np.any(key[1:] != key[:-1], axis=1)])
+    group = np.cumsum(start) - 1
+    counts = np.bincount(group).astype(float)
+    mean = lambda v: np.stack([np.bincount(group, weights=c) for c in v.reshape(len(v), -1).T], -1) / counts[:, None]  # noqa: E731
+    poses, fields, angles = mean(r).reshape(-1, *r.shape[1:]), h[start], rot[start]
+    scale = np.abs(fields).max()
+    pairs = [(g, j) for g in range(len(poses)) for j in range(g + 1, len(poses))
+             if np.isclose(angles[g], angles[j]) and np.allclose(fields[j], -fields[g], atol=1e-9 * scale, rtol=0)]
+    turns = np.unique(np.round(np.mod([angles[g] for g, _ in pairs], 360.0), 9))
+    if len(turns) < 3:
+        raise ValueError(f"readings: {len(pairs)} pairs of poses with the currents reversed at the same rotation, at "
+                         f"{len(turns)} rotations; a calibration in a field that does not follow the currents needs "
+                         "each rotation's currents reversed (±I) at 3 rotations or more (the paper: 5 × 72°)")
+    first, second = map(list, zip(*pairs))
+    half_diff = (poses[first] - poses[second]) / 2.0  # γ ⊙ h
+    half_sum = (poses[first] + poses[second]) / 2.0   # b + γ ⊙ B
+    h_pairs = fields[first]
+    gains = np.sum(half_diff * h_pairs, axis=0) / np.sum(h_pairs ** 2, axis=0)
+    m = ring.n_sensors
+    theta = np.radians(ring.angles_deg[None] + np.asarray(angles[first])[:, None])  # (P, M)
+    z = np.exp(1j * theta)  # the sensors' places in ring radii, cable frame
+    axis = theta + np.radians(ring.axis_angles_deg)[None]
+    shapes = [unit * np.conj(z) ** n for n in range(order + 1) for unit in (1.0, 1j)]
+    in_axes = [np.stack([(b * np.exp(-1j * axis)).real, (b * np.exp(-1j * axis)).imag], -1) for b in shapes]
+    columns = np.zeros((len(pairs), m, 2, 2 * m + len(shapes)))
+    for i in range(m):
+        for a in range(2):
+            columns[:, i, a, 2 * i + a] = 1.0
+    for j, b in enumerate(in_axes):
+        columns[..., 2 * m + j] = gains[None] * b
+    A = columns.reshape(-1, columns.shape[-1])
+    if np.linalg.matrix_rank(A) < A.shape[1]:
+        raise ValueError(f"readings: the offsets and a field of order {order} cannot be told apart at {len(turns)} "
+                         "rotations (a term turning n + 1 times per turn is an offset at rotations 360°/(n + 1) apart): "
+                         "turn the ring to more rotations, or give a lower order")
+    solution = np.linalg.lstsq(A, half_sum.ravel(), rcond=None)[0]
+    offsets = solution[:2 * m].reshape(m, 2)
+    terms = solution[2 * m:].reshape(-1, 2)
+    cal = RingCalibration(offsets=offsets, gains=gains, method="in_field", background={"terms_t": terms.tolist()})
+    # every reading's field in its sensor's axes: the true one and the room's
+    total = h + np.stack([cal.background_in_axes(ring, a) for a in rot])
+    cal.residual_sigma, cal.covariance = _calibration_errors(r, total, offsets, gains)
+    cal.repeat_sigma, _ = _repeat_scatter(r, total, r - (total * gains + offsets))
+    return cal
 
 
 def _repeat_scatter(readings: np.ndarray, true_fields: np.ndarray, residuals: np.ndarray):

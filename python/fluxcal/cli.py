@@ -1108,7 +1108,10 @@ def cmd_cable(args) -> int:
                              "the conductor positions (positions_m metadata)")
         truth = np.stack([ring.rotated(a).field(data["positions_m"], c)
                           for a, c in zip(data["rotations_deg"], data["currents_a"])])
-        cal = cable.calibrate_ring(data["readings"], truth, method=args.method)
+        if args.method == "in_field":
+            cal = cable.calibrate_ring_in_field(data["readings"], truth, ring, data["rotations_deg"])
+        else:
+            cal = cable.calibrate_ring(data["readings"], truth, method=args.method)
         # offsets of a ring's sensors are tenths of µT to tens (5.183e-07 T read poorly): one unit for all
         unit, per_tesla = ("nT", 1e9) if np.max(np.abs(cal.offsets)) < 1e-6 else ("µT", 1e6)
         for k in range(ring.n_sensors):
@@ -1116,6 +1119,11 @@ def cmd_cable(args) -> int:
                   f"{unit}, gain {cal.gains[k, 0]:.6f} {cal.gains[k, 1]:.6f}")
             for w in cal.sensors[k].summary.get("warnings", []) if cal.sensors else []:
                 print(f"warning: sensor {k}: {w}")
+        if cal.background is not None:  # (the room's field, the ring's turns told from the sensors' offsets)
+            b = [complex(*t) for t in cal.background["terms_t"]]
+            print(f"field that does not follow the currents: {1e6 * abs(b[0]):.4g} µT towards "
+                  f"{np.degrees(np.angle(b[0])) % 360:.0f}° (cable frame) at the ring's centre; its terms at the "
+                  "ring's radius " + ", ".join(f"{1e6 * abs(t):.3g}" for t in b[1:]) + " µT")
         far = float(np.max(np.abs(np.log(cal.gains))))
         if far > np.log(1.2):  # readings in tesla: an AMR's gain error is a few %, not tens
             print(f"warning: gains up to ×{np.exp(far):.3g} away from 1: the readings' scale is not the ring model's — "
@@ -1126,6 +1134,9 @@ def cmd_cable(args) -> int:
         return 0
     raw, rotations = data["readings"], data["rotations_deg"]
     ring_cal = cable.RingCalibration.load(args.calibration) if args.calibration else None
+    if args.subtract_background and (ring_cal is None or ring_cal.background is None):
+        raise ValueError("--subtract-background: needs --calibration with a background field (`fluxcal cable "
+                         "calibrate --method in_field` fits one)")
     if ring_cal is not None and ring_cal.offsets.shape[0] != ring.n_sensors:
         raise ValueError(f"{args.calibration}: a calibration of {ring_cal.offsets.shape[0]} sensors, the ring has "
                          f"{ring.n_sensors}")
@@ -1189,6 +1200,8 @@ def _solve_ring_snapshots(ring, ring_cal, snaps, rotation: float, rows, args) ->
         sigma = cal.field_sigma(snaps)
         settings = {} if sigma is None else {"noise_sigma": sigma}
         snaps = cal.apply(snaps)
+        if args.subtract_background:  # the room's field the calibration found, at this rotation
+            snaps = snaps - cal.background_in_axes(sub, rotation)
     if args.noise_sigma is not None:  # the user's σ (a datasheet's, repeats'): before the calibration's
         settings = {"noise_sigma": args.noise_sigma}
     n = args.conductors
@@ -1631,15 +1644,19 @@ def build_parser() -> argparse.ArgumentParser:
     ks.add_argument("--noise-seed", type=int, default=None, help="the noise (default: --seed)")
     kc = ksub.add_parser("calibrate", help="per-sensor calibration from a calibration recording")
     kc.add_argument("file")
-    kc.add_argument("--method", default="twostep", choices=["twostep", "least_squares"],
+    kc.add_argument("--method", default="twostep", choices=["twostep", "least_squares", "in_field"],
                     help="twostep: TWOSTEP 2-D per sensor with the true magnitude of every reading (default); "
                          "least_squares: the ordinary ellipse fit on one magnitude (the RMS), the paper's "
-                         "comparison")
+                         "comparison; in_field: in a field that does not follow the currents (the Earth's, a "
+                         "neighbouring conductor's), fitted with the offsets, from each rotation's currents reversed")
     kc.add_argument("--bad-lines", default="error", choices=["error", "skip"], help=bad_lines_help)
     kc.add_argument("-o", "--output", help="write the calibration (JSON)")
     kv = ksub.add_parser("solve", help="conductor positions and currents of every snapshot")
     kv.add_argument("file")
     kv.add_argument("--calibration", help="a calibration JSON from `fluxcal cable calibrate`")
+    kv.add_argument("--subtract-background", action="store_true",
+                    help="take the calibration's field that does not follow the currents (`cable calibrate --method "
+                         "in_field`) off every snapshot: for a ring recording where it was calibrated")
     kv.add_argument("--conductors", type=positive_int, default=2, help="conductors in the cable (default 2)")
     kv.add_argument("--zero-sum-currents", action="store_true",
                     help="the currents sum to zero (go and return, a balanced three-phase load): one unknown "

@@ -383,7 +383,7 @@ def test_a_calibration_run_the_model_does_not_describe_points_to_the_diagnosis(t
 
     axes = np.repeat(np.array([sensor_points(ring, r)[1] for r in 72.0 * np.arange(5)]), 3, axis=0)
     with pytest.raises(ValueError, match=r"a field that does not follow the currents \(the Earth's, a neighbouring "
-                                         r"conductor: subtract each pose's zero-current reading"):
+                                         r"conductor: `cable calibrate --method in_field`"):
         calibrate_ring(h + to_axes(np.full(axes.shape, 20e-6 * np.exp(0.4j)), axes), h)
     bad = h.copy()
     bad[3, 2, 1] = np.inf  # a reading that is not a number is left out of its sensor's fit and said
@@ -577,3 +577,64 @@ def test_the_calibration_keeps_its_repeats_scatter_and_says_when_its_model_misse
     assert before.noise_source.startswith(FROM_CALIBRATION)
     # against the residual scatter the coupling's departure is less than half as many σ
     assert d.where["overall"]["rms_z"] > 2 * before.where["overall"]["rms_z"]
+
+
+def _room_run(ring, rng, background, rotations=72.0 * np.arange(5), repeats=10, noise=2e-7):
+    """A calibration run (each rotation's currents reversed, `repeats` readings each) in a room whose field
+    `background(points)` (complex, cable frame) does not follow the currents; returns readings, truth, rotations,
+    the true gains and offsets."""
+    from fluxcal.sim.cable_effects import sensor_points, to_axes
+
+    positions = [[-2e-3, 0.5e-3], [2.5e-3, 0.0]]
+    truth = np.repeat(calibration_fields(ring, positions, np.array([[5.0, -5.0], [-5.0, 5.0]]), rotations), repeats,
+                      axis=0)
+    rot = np.repeat(np.repeat(rotations, 2), repeats)
+    points, axes = map(np.array, zip(*[sensor_points(ring, r) for r in rot]))
+    gains = rng.uniform(0.97, 1.03, (ring.n_sensors, 2))
+    offsets = rng.uniform(-5e-6, 5e-6, (ring.n_sensors, 2))
+    readings = gains * (truth + to_axes(background(points), axes)) + offsets + rng.normal(0, noise, truth.shape)
+    return readings, truth, rot, gains, offsets
+
+
+def test_a_calibration_in_a_field_that_does_not_follow_the_currents(tmp_path):
+    """A switch room: the Earth's 20 µT and a busbar carrying 20 A 55 mm away. TWOSTEP refuses (|h + B| is not the
+    model's |h|); calibrate_ring_in_field takes each rotation's reversed currents: their difference is γ h, their sum
+    b + γ B, the offsets fixed to the ring and B to the room."""
+    from fluxcal import cable
+
+    ring = Ring(np.arange(0.0, 360.0, 60.0), 0.012)
+    where, current, earth = 0.055 * np.exp(0.5j), 20.0, 20e-6 * np.exp(1.2j)
+    room = lambda z: earth + 2e-7 * current * 1j / np.conj(z - where)  # noqa: E731 - μ0 I / 2π · i / conj(z − d)
+    readings, truth, rot, gains, offsets = _room_run(ring, np.random.default_rng(2), room)
+    with pytest.raises(ValueError, match="a field that does not follow the currents"):
+        calibrate_ring(readings, truth)
+    cal = cable.calibrate_ring_in_field(readings, truth, ring, rot)
+    se = np.sqrt(cal.covariance[..., 0, 0])
+    assert np.all(np.abs(cal.gains - gains) < 5 * se) and np.abs(cal.gains - gains).max() < 3e-3
+    assert np.abs(cal.offsets - offsets).max() < 0.3e-6
+    b = [complex(*t) for t in cal.background["terms_t"]]
+    assert b[0] == pytest.approx(room(0.0), abs=0.05e-6)  # the field at the ring's centre
+    # its next term: the line's −i k R / d̄², at the ring's radius
+    assert b[1] == pytest.approx(-1j * 2e-7 * current * ring.radius_m / np.conj(where) ** 2, abs=0.05e-6)
+    assert np.all(cal.residual_sigma < 1.5 * cal.repeat_sigma)  # the room's field modelled to the noise
+    again = cable.RingCalibration.from_dict(json.loads(json.dumps(cal.to_dict())))
+    np.testing.assert_allclose(again.background_in_axes(ring, 30.0), cal.background_in_axes(ring, 30.0))
+    # without it the run's readings hold the room's field: each reading less it is the sensors' own model
+    total = truth + np.stack([cal.background_in_axes(ring, a) for a in rot])
+    np.testing.assert_allclose(cal.apply(readings), total, atol=1e-6)
+    with pytest.raises(ValueError, match="each rotation's currents reversed"):
+        one = (np.arange(len(rot)) // 10) % 2 == 0  # one current direction only
+        cable.calibrate_ring_in_field(readings[one], truth[one], ring, rot[one])
+    # the command line: calibrate in the room, and solve a recording made there with the room's field taken off
+    path = cable.write_ring_csv(tmp_path / "room.csv", ring, readings, rot, np.repeat(
+        np.tile([[5.0, -5.0], [-5.0, 5.0]], (5, 1)), 10, axis=0), [[-2e-3, 0.5e-3], [2.5e-3, 0.0]])
+    r = run_cli("cable", "calibrate", path, "--method", "in_field", "-o", tmp_path / "cal.json")
+    assert r.returncode == 0, r.stderr
+    assert "field that does not follow the currents:" in r.stdout
+    r = run_cli("cable", "solve", path, "--calibration", tmp_path / "cal.json", "--subtract-background")
+    assert r.returncode == 0 and "MISFIT" not in r.stdout, r.stdout[-2000:] + r.stderr
+    plain = tmp_path / "plain.json"
+    plain.write_text(json.dumps(calibrate_ring(*_room_run(ring, np.random.default_rng(3), lambda z: 0 * z)[:2])
+                                .to_dict()))
+    r = run_cli("cable", "solve", path, "--calibration", plain, "--subtract-background")
+    assert r.returncode == 2 and "--subtract-background: needs --calibration with a background field" in r.stderr
