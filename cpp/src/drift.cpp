@@ -199,8 +199,9 @@ DriftModel fit_drift(const SeriesRef& select, const SeriesRef& x, const SeriesRe
   bool moved = edges.size() != options.breakpoints.size();  // an edge dropped, or one moved by > 0.1 % of the span
   for (std::size_t i = 0; !moved && i < edges.size(); ++i)
     moved = std::abs(edges[i] - options.breakpoints[i]) > 1e-3 * (edges.back() - edges.front());
+  std::string range_note;
   if (moved)
-    notes.push_back("temperature ranges " + edges_name(options.breakpoints) + " adjusted to the data: " +
+    notes.push_back(range_note = "temperature ranges " + edges_name(options.breakpoints) + " adjusted to the data: " +
                     edges_name(edges) + " (outer edges at the coldest and hottest sample; a range with fewer than " +
                     std::to_string(options.min_samples) + " samples joined its neighbour); set them with --breakpoints");
   const int k = static_cast<int>(edges.size()) - 1;
@@ -394,6 +395,7 @@ DriftModel fit_drift(const SeriesRef& select, const SeriesRef& x, const SeriesRe
   sum.warnings.insert(sum.warnings.begin(), notes.begin(), notes.end());
   if (outside > 0)
     sum.warnings.push_back(std::to_string(outside) + " samples outside every temperature range were not used");
+  model.range_note = range_note;
   return model;
 }
 

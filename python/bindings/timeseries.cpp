@@ -367,7 +367,8 @@ void bind_timeseries(py::module_& m) {
     }
     py::list segs;
     for (const auto& s : model.segments) segs.append(segment_dict(s));
-    return py::dict("segments"_a = segs, "noise_ar"_a = model.noise_ar, "summary"_a = summary_dict(model.summary));
+    return py::dict("segments"_a = segs, "noise_ar"_a = model.noise_ar, "summary"_a = summary_dict(model.summary),
+                    "range_note"_a = model.range_note);
   }, "select"_a.noconvert(), "x"_a.noconvert(), "w"_a.noconvert(), "options"_a);
   m.def("drift_evaluate", [](const std::vector<std::pair<std::pair<double, double>, std::vector<double>>>& segments,
                              const SeriesRef& select, const SeriesRef& x) {

@@ -249,8 +249,7 @@ class RingCalibration:
                              "fits one)")
         theta = np.radians(ring.angles_deg + rotation_deg)
         field = sum(complex(*b) * np.exp(-1j * n * theta) for n, b in enumerate(self.background["terms_t"]))
-        turned = field * np.exp(-1j * (theta + np.radians(ring.axis_angles_deg)))
-        return np.stack([turned.real, turned.imag], axis=-1)
+        return _in_axes(field, theta + np.radians(ring.axis_angles_deg))
 
     def sensor_sigma(self, readings=None, repeats: bool = False) -> np.ndarray | None:
         """`field_sigma` per sensor (n_sensors,), RMS over its two axes: the calibration's scatter divided by the
@@ -425,12 +424,9 @@ def calibrate_ring_in_field(readings, true_fields, ring: Ring, rotations_deg, or
         raise ValueError(f"rotations_deg: need {len(r)} finite rotations, one per reading")
     if not (np.all(np.isfinite(r)) and np.all(np.isfinite(h))):
         raise ValueError("readings, true_fields: not finite (NaN or Inf); leave those readings out")
-    key = np.column_stack([h.reshape(len(h), -1), rot])
-    start = np.concatenate([[True], np.any(key[1:] != key[:-1], axis=1)])
-    group = np.cumsum(start) - 1
-    counts = np.bincount(group).astype(float)
-    mean = lambda v: np.stack([np.bincount(group, weights=c) for c in v.reshape(len(v), -1).T], -1) / counts[:, None]  # noqa: E731
-    poses, fields, angles = mean(r).reshape(-1, *r.shape[1:]), h[start], rot[start]
+    start, run = consecutive_runs(h, rot)
+    poses = run_sums(r, run) / np.bincount(run)[:, None, None]
+    fields, angles = h[start], rot[start]
     scale = np.abs(fields).max()
     pairs = [(g, j) for g in range(len(poses)) for j in range(g + 1, len(poses))
              if np.isclose(angles[g], angles[j]) and np.allclose(fields[j], -fields[g], atol=1e-9 * scale, rtol=0)]
@@ -449,7 +445,7 @@ def calibrate_ring_in_field(readings, true_fields, ring: Ring, rotations_deg, or
     z = np.exp(1j * theta)  # the sensors' places in ring radii, cable frame
     axis = theta + np.radians(ring.axis_angles_deg)[None]
     shapes = [unit * np.conj(z) ** n for n in range(order + 1) for unit in (1.0, 1j)]
-    in_axes = [np.stack([(b * np.exp(-1j * axis)).real, (b * np.exp(-1j * axis)).imag], -1) for b in shapes]
+    in_axes = [_in_axes(b, axis) for b in shapes]
     columns = np.zeros((len(pairs), m, 2, 2 * m + len(shapes)))
     for i in range(m):
         for a in range(2):
@@ -472,6 +468,27 @@ def calibrate_ring_in_field(readings, true_fields, ring: Ring, rotations_deg, or
     return cal
 
 
+def consecutive_runs(*keys) -> tuple:
+    """Runs of consecutive rows whose `keys` (each (K, …)) are all equal — a pose held, readings repeated: (start
+    (K,) bool, each run's first row; run (K,) each row's run number)."""
+    key = np.column_stack([np.asarray(k, dtype=float).reshape(len(k), -1) for k in keys])
+    start = np.concatenate([[True], np.any(key[1:] != key[:-1], axis=1)])
+    return start, np.cumsum(start) - 1
+
+
+def run_sums(values, run) -> np.ndarray:
+    """Per run (`consecutive_runs`'), the sum of `values` (K, …) over its rows: (runs, …)."""
+    v = np.asarray(values, dtype=float)
+    sums = [np.bincount(run, weights=column) for column in v.reshape(len(v), -1).T]
+    return np.stack(sums, axis=-1).reshape((-1,) + v.shape[1:])
+
+
+def _in_axes(field, axis_rad) -> np.ndarray:
+    """Complex fields (…, cable frame) → readings (…, 2) along sensor axes at `axis_rad` (broadcast)."""
+    turned = field * np.exp(-1j * np.asarray(axis_rad))
+    return np.stack([turned.real, turned.imag], axis=-1)
+
+
 def _repeat_scatter(readings: np.ndarray, true_fields: np.ndarray, residuals: np.ndarray):
     """Per sensor and axis: the pooled scatter of consecutive readings with the same true fields (a pose and its
     currents held) — the noise alone — and the lack-of-fit test's p that the residuals `residuals` (readings less
@@ -479,23 +496,18 @@ def _repeat_scatter(readings: np.ndarray, true_fields: np.ndarray, residuals: np
     fewer than 10 degrees of freedom or 3 poses. (A blind check's ±1° axis misalignment put 2.5× the noise into the
     residual scatter; judged against that, the diagnosis found the coupling in 2 rigs of 20, against 20 of 20 with
     a σ from repeats.)"""
-    key = true_fields.reshape(len(true_fields), -1)
-    group = np.cumsum(np.concatenate([[True], np.any(key[1:] != key[:-1], axis=1)])) - 1
+    group = consecutive_runs(true_fields)[1]
     finite = np.isfinite(readings)
-
-    def per_group(v):
-        return np.stack([np.bincount(group, weights=c) for c in v.reshape(len(v), -1).T], axis=-1)
-
-    counts = per_group(finite.astype(float))
-    dof = np.sum(np.maximum(counts - 1, 0), axis=0).reshape(readings.shape[1:])
-    poses = np.sum(counts > 0, axis=0).reshape(readings.shape[1:])
+    counts = run_sums(finite, group)  # (runs, n_sensors, 2): each axis's finite readings per pose
+    dof = np.sum(np.maximum(counts - 1, 0), axis=0)
+    poses = np.sum(counts > 0, axis=0)
     if dof.min() < 10 or poses.min() < 3:
         return None, None
     from scipy.stats import f as f_distribution
 
     from .diagnose.core import _lattice_step
 
-    means = (per_group(np.where(finite, readings, 0.0)) / np.maximum(counts, 1)).reshape((-1,) + readings.shape[1:])
+    means = run_sums(np.where(finite, readings, 0.0), group) / np.maximum(counts, 1)
     within = np.sum(np.where(finite, readings - means[group], 0.0) ** 2, axis=0)
     misfit = np.sum(np.where(finite, residuals, 0.0) ** 2, axis=0) - within  # between the poses
     # readings on an ADC's grid repeat exactly when the noise is below its step: the scatter is at least step/√12

@@ -242,10 +242,9 @@ def fit_drift(zero_bias, temp, temp_outside=None, regressor: str = "temp", break
                 "significance": options.significance, "continuous": options.continuous, "whiten": options.whiten,
                 "noise_ar": np.asarray(r["noise_ar"]).tolist()}
     summary = dict(r["summary"])
-    # the core's note that it adjusted the ranges (its first warning then), kept by name for fit_warnings: told by
-    # what the fit did, not by its words
-    moved = _ranges_moved(options.breakpoints, used) and len(summary["warnings"]) > 0
-    summary["range_notes"] = [summary["warnings"][0]] if moved else []
+    # the core's note that it adjusted the ranges (one of its warnings), kept by name for fit_warnings: told by what
+    # the fit did, not by its words
+    summary["range_notes"] = [r["range_note"]] if r["range_note"] else []
     return DriftModel(segments=segments, regressor=regressor, settings=settings, summary=summary)
 
 
@@ -576,12 +575,6 @@ def fit_warnings(model: "DriftModel") -> list:
         notes = set(model.summary["range_notes"])
         return [w for w in said if w not in notes]
     return [w for w in said if _LEGACY_RANGE_NOTE not in w]  # (a model saved before the notes were kept by name)
-
-
-def _ranges_moved(given, used) -> bool:
-    """Whether fit_drift's core adjusted the ranges (and said so, its first warning): an edge dropped or moved by
-    more than 0.1 % of the span (drift.cpp, the same rule)."""
-    return len(used) != len(given) or any(abs(a - b) > 1e-3 * (used[-1] - used[0]) for a, b in zip(used, given))
 
 
 # A thermal lag is said when the compensated zero bias follows f'(T)·dT/dt with a Newey–West p below LAG_P and that

@@ -60,6 +60,9 @@ struct DriftModel {
   std::vector<DriftSegment> segments;
   Eigen::VectorXd noise_ar;  ///< AR coefficients used for whitening (empty: none)
   Summary summary;
+  /// The note that the ranges were adjusted to the data (also the first of summary.warnings), empty when they
+  /// were used as given: a note on how the ranges were set, not on the model's validity.
+  std::string range_note;
   /// The drift f(x) of each sample; `select` decides the segment. Throws Error for a sample whose
   /// selecting temperature is outside every range.
   Eigen::VectorXd evaluate(const SeriesRef& select, const SeriesRef& x) const;

@@ -57,7 +57,7 @@ import numpy as np
 from scipy import stats
 from scipy.optimize import least_squares
 
-from ..cable import Ring, RingCalibration
+from ..cable import Ring, RingCalibration, consecutive_runs, run_sums
 from ..sim.cable_effects import MU0_OVER_2PI, CABLE_CANDIDATES, sensor_points, straight_unit_fields, to_axes
 from .core import (ABSORBED, HELDOUT_ALPHA, HELDOUT_FRACTION, MIN_GAIN, Diagnosis, _binned, _collapsed, _gap,
                    _improvement_pvalue, _quantile_bins, _rivals, _unexplained, _whitened_lr, _whiteness,
@@ -605,16 +605,12 @@ def _noise_from_repeats(y, rotations, reference):
     when fewer than 10 degrees of freedom."""
     if reference is None:
         return None
-    key = np.column_stack([rotations, reference])
-    group = np.cumsum(np.concatenate([[True], np.any(key[1:] != key[:-1], axis=1)])) - 1
+    group = consecutive_runs(rotations, reference)[1]
     counts = np.bincount(group)
     dof = int(np.sum(counts[counts > 1] - 1))
     if dof < 10:
         return None
-    means = np.zeros((counts.size,) + y.shape[1:])
-    np.add.at(means, group, y)
-    means /= counts[:, None, None]
-    dev = y - means[group]
+    dev = y - (run_sums(y, group) / counts[:, None, None])[group]
     return np.sqrt(np.sum(dev ** 2, axis=(0, 2)) / (2 * dof))
 
 
@@ -992,27 +988,22 @@ def _prepare(readings, ring, currents, rotations_deg, positions, calibration, no
         elif calibration is not None and calibration.repeat_sigma is not None:
             # this recording's repeats against the calibration run's: a neighbouring current that varies made them
             # differ 94× (a newcomer's switch room), and every test was then that much too lenient, unsaid
-            ratio = float(np.median(sigma / calibration.sensor_sigma(None, repeats=True)))
+            calibration_sigma = calibration.sensor_sigma(None, repeats=True)
+            ratio = float(np.median(sigma / calibration_sigma))
             if ratio > REPEATS_NOISIER:
                 notes.append(f"this recording's repeated snapshots scatter {ratio:.3g}× the calibration run's repeated "
                              "readings: something changes between repeats (a neighbouring current that varies, a "
                              "harmonic, the ring moving), so σ from them is overestimated and every test too "
                              "lenient; give the sensors' noise σ (--noise-sigma, the calibration's: "
-                             f"{np.median(calibration.sensor_sigma(None, repeats=True)):.3g} T)")
+                             f"{np.median(calibration_sigma):.3g} T)")
     counts = np.ones(k)
     if average_repeats and reference is not None:
         # consecutive repeats of one rotation and currents are averaged: the same information (their spread
         # is the noise, estimated above) in half the fitting time
-        key = np.column_stack([rot, reference])
-        start = np.concatenate([[True], np.any(key[1:] != key[:-1], axis=1)])
-        group = np.cumsum(start) - 1
+        start, group = consecutive_runs(rot, reference)
         counts = np.bincount(group).astype(float)
-
-        def mean(v):
-            return np.stack([np.bincount(group, weights=c) for c in v.reshape(k, -1).T], axis=-1) / counts[:, None]
-
-        y = mean(y).reshape((-1,) + y.shape[1:])
-        t = mean(t)[:, 0]
+        y = run_sums(y, group) / counts[:, None, None]
+        t = run_sums(t, group) / counts
         rot, reference = rot[start], reference[start]
     unique, rot_index = np.unique(rot, return_inverse=True)
     geometry = [sensor_points(ring, a) for a in unique]
