@@ -8,6 +8,9 @@
 //   BM_CableSolveWarmCeres  the same refined by Ceres (options.refiner = ceres).
 //   BM_CableSolveCold   the same snapshot from the grid initialisation (9 points per diameter, 6 starts).
 //   BM_CableField       the forward model alone (4 sensors, 2 conductors).
+//   BM_CableSolveSnapshots/0|1  three snapshots of that cable (currents ×1, −0.6, 0.3) in the Earth's
+//                       (25, −30) µT, from the grid: /1 fits the uniform background (options.fit_background),
+//                       /0 does not (and misfits) — the background's cost.
 #include "fluxcal/cable.hpp"
 
 #include <benchmark/benchmark.h>
@@ -31,6 +34,22 @@ struct Problem {
     std::mt19937_64 rng(2017);
     std::normal_distribution<double> g(0.0, 1e-8);
     for (int i = 0; i < 4; ++i) readings(0, 2 * i) = b(i, 0) + g(rng), readings(0, 2 * i + 1) = b(i, 1) + g(rng);
+  }
+};
+
+// Three snapshots in a uniform field (x radial, y tangential).
+struct Snapshots : Problem {
+  Eigen::MatrixXd rows{3, 8};
+  Snapshots() {
+    const double scale[3] = {1.0, -0.6, 0.3};
+    const Eigen::Vector2d earth(25e-6, -30e-6);
+    for (int s = 0; s < 3; ++s) {
+      const auto b = fluxcal::cable_field(ring, truth, currents * scale[s]);
+      for (int i = 0; i < 4; ++i) {
+        const Eigen::Vector2d r(std::cos(ring.angles(i)), std::sin(ring.angles(i))), t(-r(1), r(0));
+        rows(s, 2 * i) = b(i, 0) + r.dot(earth), rows(s, 2 * i + 1) = b(i, 1) + t.dot(earth);
+      }
+    }
   }
 };
 
@@ -69,6 +88,14 @@ void BM_CableField(benchmark::State& state) {
   for (auto _ : state) benchmark::DoNotOptimize(fluxcal::cable_field(p.ring, p.truth, p.currents));
 }
 BENCHMARK(BM_CableField)->Unit(benchmark::kNanosecond);
+
+void BM_CableSolveSnapshots(benchmark::State& state) {
+  static const Snapshots p;
+  fluxcal::CableSolveOptions o;
+  o.fit_background = state.range(0) != 0;
+  for (auto _ : state) benchmark::DoNotOptimize(fluxcal::solve_cable(p.ring, p.rows, o));
+}
+BENCHMARK(BM_CableSolveSnapshots)->Arg(0)->Arg(1)->Unit(benchmark::kMicrosecond);
 
 }  // namespace
 

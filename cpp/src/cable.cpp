@@ -79,15 +79,26 @@ Eigen::MatrixXd reduce(const Eigen::MatrixXd& G, bool zero_sum) {
   return G.leftCols(n - 1).colwise() - G.col(n - 1);
 }
 
+// Readings of a uniform field b (cable frame) in every sensor's axes: 2M × 2, rows x̂_iᵀ, ŷ_iᵀ.
+Eigen::MatrixXd background_design(const RingFrame& f) {
+  Eigen::MatrixXd U(2 * f.m, 2);
+  for (Eigen::Index i = 0; i < f.m; ++i) {
+    U.row(2 * i) = f.x.col(i).transpose();
+    U.row(2 * i + 1) = f.y.col(i).transpose();
+  }
+  return U;
+}
+
 // One snapshot: residuals 2M (model − reading, normalised), parameter blocks: positions (2N), currents
-// (N, or N − 1 with ΣI = 0).
+// (N, or N − 1 with ΣI = 0) and, with a background, the uniform field (2, shared by every snapshot).
 class SnapshotCost : public ceres::CostFunction {
  public:
-  SnapshotCost(const RingFrame& f, const double* reading, int n, bool zero_sum)
-      : f_(f), reading_(reading), n_(n), zero_sum_(zero_sum) {
+  SnapshotCost(const RingFrame& f, const double* reading, int n, bool zero_sum, bool background)
+      : f_(f), reading_(reading), n_(n), zero_sum_(zero_sum), background_(background) {
     set_num_residuals(static_cast<int>(2 * f.m));
     mutable_parameter_block_sizes()->push_back(2 * n);
     mutable_parameter_block_sizes()->push_back(zero_sum ? n - 1 : n);
+    if (background) mutable_parameter_block_sizes()->push_back(2);
   }
 
   bool Evaluate(double const* const* params, double* residuals, double** jacobians) const override {
@@ -99,6 +110,18 @@ class SnapshotCost : public ceres::CostFunction {
     if (zero_sum_)
       for (int j = 0; j < nc; ++j) last -= cur[j];
     for (int k = 0; k < rows; ++k) residuals[k] = -reading_[k];
+    if (background_) {
+      const double* b = params[2];
+      double* jb = jacobians ? jacobians[2] : nullptr;
+      for (Eigen::Index i = 0; i < f_.m; ++i) {
+        const double* axes[2] = {&f_.x(0, i), &f_.y(0, i)};
+        for (int a = 0; a < 2; ++a) {
+          const int row = static_cast<int>(2 * i) + a;
+          residuals[row] += axes[a][0] * b[0] + axes[a][1] * b[1];
+          if (jb) jb[2 * row] = axes[a][0], jb[2 * row + 1] = axes[a][1];
+        }
+      }
+    }
     double* jp = jacobians ? jacobians[0] : nullptr;
     double* jc = jacobians ? jacobians[1] : nullptr;
     if (jc)
@@ -133,6 +156,7 @@ class SnapshotCost : public ceres::CostFunction {
   const double* reading_;
   int n_;
   bool zero_sum_;
+  bool background_;
 };
 
 // How a refinement went.
@@ -146,29 +170,33 @@ struct RunInfo {
 
 // Dense Levenberg–Marquardt (Marquardt's diagonal scaling, bounds by projection) on the same residual
 // blocks: no set-up cost, for the warm-started path of a continuous measurement.
-RunInfo dense_lm(const std::vector<std::unique_ptr<SnapshotCost>>& costs, std::vector<double>& pos, Eigen::MatrixXd& cur, int n,
-                 double bore, const CableSolveOptions& opt) {
+// `bg` is the background field (2, normalised) or empty when none is fitted.
+RunInfo dense_lm(const std::vector<std::unique_ptr<SnapshotCost>>& costs, std::vector<double>& pos, Eigen::MatrixXd& cur,
+                 Eigen::Vector2d* bg, int n, double bore, const CableSolveOptions& opt) {
   const int nc = static_cast<int>(cur.rows());
   const Eigen::Index S = cur.cols(), rows = costs.empty() ? 0 : costs[0]->num_residuals();
-  const Eigen::Index p = 2 * n + nc * S;
+  const Eigen::Index nb = bg ? 2 : 0, p = 2 * n + nc * S + nb;
   using RowMat = Eigen::Matrix<double, Eigen::Dynamic, Eigen::Dynamic, Eigen::RowMajor>;
   Eigen::VectorXd r(rows * S), r_try(rows * S);
   Eigen::MatrixXd J = Eigen::MatrixXd::Zero(rows * S, p);
-  RowMat Jp(rows, 2 * n), Jc(rows, nc);
-  auto evaluate = [&](const std::vector<double>& ps, const Eigen::MatrixXd& cs, Eigen::VectorXd& res, bool jac) {
+  RowMat Jp(rows, 2 * n), Jc(rows, nc), Jb(rows, 2);
+  Eigen::Vector2d b = bg ? *bg : Eigen::Vector2d::Zero(), b_try = b;
+  auto evaluate = [&](const std::vector<double>& ps, const Eigen::MatrixXd& cs, const Eigen::Vector2d& bs,
+                      Eigen::VectorXd& res, bool jac) {
     for (Eigen::Index k = 0; k < S; ++k) {
-      const double* params[2] = {ps.data(), cs.col(k).data()};
-      double* jacs[2] = {Jp.data(), Jc.data()};
+      const double* params[3] = {ps.data(), cs.col(k).data(), bs.data()};
+      double* jacs[3] = {Jp.data(), Jc.data(), Jb.data()};
       costs[static_cast<std::size_t>(k)]->Evaluate(params, res.data() + rows * k, jac ? jacs : nullptr);
       if (jac) {
         J.block(rows * k, 0, rows, 2 * n) = Jp;
         J.block(rows * k, 2 * n + nc * k, rows, nc) = Jc;
+        if (bg) J.block(rows * k, p - 2, rows, 2) = Jb;
       }
     }
     return 0.5 * res.squaredNorm();
   };
   RunInfo info;
-  double cost = evaluate(pos, cur, r, true);
+  double cost = evaluate(pos, cur, b, r, true);
   Eigen::MatrixXd A = J.transpose() * J;
   Eigen::VectorXd g = J.transpose() * r;
   double lambda = 1e-4;
@@ -190,17 +218,19 @@ RunInfo dense_lm(const std::vector<std::unique_ptr<SnapshotCost>>& costs, std::v
     for (int k = 0; k < 2 * n; ++k) pos_try[static_cast<std::size_t>(k)] = std::clamp(pos[static_cast<std::size_t>(k)] + step(k), -bore, bore);
     for (Eigen::Index k = 0; k < S; ++k)
       for (int j = 0; j < nc; ++j) cur_try(j, k) = cur(j, k) + step(2 * n + nc * k + j);
-    const double cost_try = evaluate(pos_try, cur_try, r_try, false);
+    if (bg) b_try = b + step.tail<2>();
+    const double cost_try = evaluate(pos_try, cur_try, b_try, r_try, false);
     ++info.iterations;
     if (cost_try < cost) {
       double x_norm = 0.0;
       for (double v : pos) x_norm += v * v;
-      x_norm = std::sqrt(x_norm + cur.squaredNorm());
+      x_norm = std::sqrt(x_norm + cur.squaredNorm() + (bg ? b.squaredNorm() : 0.0));
       const bool small_step = step.norm() <= opt.parameter_tolerance * (x_norm + opt.parameter_tolerance);
       const bool small_change = (cost - cost_try) <= opt.function_tolerance * cost;
       pos = pos_try;
       cur = cur_try;
-      cost = evaluate(pos, cur, r, true);
+      b = b_try;
+      cost = evaluate(pos, cur, b, r, true);
       A.noalias() = J.transpose() * J;
       g.noalias() = J.transpose() * r;
       lambda = std::max(lambda / 3.0, 1e-12);
@@ -219,6 +249,7 @@ RunInfo dense_lm(const std::vector<std::unique_ptr<SnapshotCost>>& costs, std::v
     }
   }
   if (info.message.empty()) info.message = "maximum iterations reached";
+  if (bg) *bg = b;
   info.cost = cost;
   info.usable = std::isfinite(cost);
   return info;
@@ -238,18 +269,43 @@ void check_positions(const CableRing& ring, const ConductorPositionsRef& positio
   }
 }
 
-// Score of a set of positions: residual sum of squares after the best currents (all snapshots).
-double seed_cost(const RingFrame& f, const std::vector<double>& pos, int n, bool zero_sum,
-                 const Eigen::MatrixXd& R, double total) {
+// The background's part of the linear fit at fixed positions. It is shared by the snapshots while each has
+// its own currents, so with the currents' columns Q projected out (W = U − QQᵀU) it fits the snapshots'
+// mean: b = (WᵀW)⁻¹Wᵀr̄, lowering the sum of squares by S·r̄ᵀW b. False when W does not determine it.
+bool background_beside_currents(const Eigen::MatrixXd& Q, const Eigen::MatrixXd& U, const Eigen::MatrixXd& R,
+                                     Eigen::Vector2d& b, double& reduction) {
+  const Eigen::MatrixXd W = U - Q * (Q.transpose() * U);
+  const Eigen::Matrix2d WtW = W.transpose() * W;
+  if (!(std::abs(WtW.determinant()) > 1e-12 * std::max(WtW.squaredNorm(), 1e-300))) return false;
+  const Eigen::Vector2d wm = W.transpose() * R.rowwise().mean();
+  b = WtW.ldlt().solve(wm);
+  reduction = static_cast<double>(R.cols()) * wm.dot(b);
+  return true;
+}
+
+// Orthonormal basis of the currents' columns at fixed positions; false when the design is (near) rank-deficient
+// (two seeds at one point).
+bool currents_basis(const RingFrame& f, const double* pos, int n, bool zero_sum, Eigen::MatrixXd& Q) {
   Eigen::MatrixXd G;
-  design(f, pos.data(), n, G);
+  design(f, pos, n, G);
   const Eigen::MatrixXd Gr = reduce(G, zero_sum);
   Eigen::HouseholderQR<Eigen::MatrixXd> qr(Gr);
-  const Eigen::MatrixXd Q = qr.householderQ() * Eigen::MatrixXd::Identity(Gr.rows(), Gr.cols());
-  // a (near) rank-deficient design (two seeds at one point) scores as useless
+  Q = qr.householderQ() * Eigen::MatrixXd::Identity(Gr.rows(), Gr.cols());
   const Eigen::VectorXd diag = qr.matrixQR().diagonal().cwiseAbs();
-  if (diag.minCoeff() < 1e-9 * std::max(diag.maxCoeff(), 1e-300)) return kInf;
-  return total - (Q.transpose() * R).squaredNorm();
+  return diag.minCoeff() >= 1e-9 * std::max(diag.maxCoeff(), 1e-300);
+}
+
+// Score of a set of positions: residual sum of squares after the best currents (all snapshots) and, when U
+// (the background's design) is given, the best background.
+double seed_cost(const RingFrame& f, const std::vector<double>& pos, int n, bool zero_sum,
+                 const Eigen::MatrixXd& R, double total, const Eigen::MatrixXd* U) {
+  Eigen::MatrixXd Q;
+  if (!currents_basis(f, pos.data(), n, zero_sum, Q)) return kInf;  // a degenerate seed scores as useless
+  double cost = total - (Q.transpose() * R).squaredNorm();
+  Eigen::Vector2d b;
+  double reduction = 0.0;
+  if (U && !background_beside_currents(Q, *U, R, b, reduction)) return kInf;
+  return cost - reduction;
 }
 
 Eigen::Matrix<double, Eigen::Dynamic, 2, Eigen::RowMajor> field_kernel(const CableRing& ring,
@@ -391,17 +447,22 @@ CableSolution solve_cable(const CableRing& ring, const Eigen::Ref<const Eigen::M
                     (c % 2 ? "y" : "x") + " is " + (std::isnan(readings(s, c)) ? "NaN" : "infinite") +
                     "; remove or repair non-finite readings first");
   const int nc = zs ? n - 1 : n;
-  const Eigen::Index unknowns = 2 * n + static_cast<Eigen::Index>(nc) * S, equations = 2 * m * S;
-  if (equations < unknowns || 2 * m < nc)
+  const bool bg = opt.fit_background;
+  const Eigen::Index nb = bg ? 2 : 0;
+  const Eigen::Index unknowns = 2 * n + static_cast<Eigen::Index>(nc) * S + nb, equations = 2 * m * S;
+  if (equations < unknowns || 2 * m < nc + nb)
     throw Error("readings: " + std::to_string(m) + " biaxial sensors × " + std::to_string(S) + " snapshot(s) give " +
                 std::to_string(equations) + " readings for " + std::to_string(unknowns) + " unknowns (" +
                 std::to_string(n) + " conductors: 2 coordinates each + " + std::to_string(nc) +
-                " currents per snapshot); too few sensors for the unknowns — add sensors, give more snapshots "
+                " currents per snapshot" + (bg ? "; + 2 for the background field" : "") +
+                "); too few sensors for the unknowns — add sensors, give more snapshots "
                 "sharing the positions (AC waveforms), or set zero_sum_currents (--zero-sum-currents) when they sum to "
                 "zero");
 
   const double R = ring.radius, field_unit = kMu0Over2Pi / R, bore = ring.bore() / R;
   const RingFrame f(ring);
+  const Eigen::MatrixXd U = background_design(f);
+  const Eigen::MatrixXd* Ub = bg ? &U : nullptr;
   // Normalised readings, one column per snapshot (2M × S).
   const Eigen::MatrixXd Rn = readings.transpose() / field_unit;
   const double total = Rn.squaredNorm();
@@ -432,7 +493,7 @@ CableSolution solve_cable(const CableRing& ring, const Eigen::Ref<const Eigen::M
     // three or more conductors: the greedy seeds are cheap and their basins small, so take more of them
     const int starts = n > 2 ? std::max(opt.starts, 8 * n) : opt.starts;
     std::vector<std::pair<double, std::vector<double>>> scored;
-    auto score = [&](const std::vector<double>& pos, int k) { return seed_cost(f, pos, k, zs && k == n, Rn, total); };
+    auto score = [&](const std::vector<double>& pos, int k) { return seed_cost(f, pos, k, zs && k == n, Rn, total, Ub); };
     if (n <= 2) {
       for (int a = 0; a < P; ++a)
         for (int b = (n == 1 ? a : a + 1); b < (n == 1 ? a + 1 : P); ++b) {
@@ -496,6 +557,7 @@ CableSolution solve_cable(const CableRing& ring, const Eigen::Ref<const Eigen::M
   double best_cost = kInf;
   std::vector<double> best_pos;
   Eigen::MatrixXd best_cur;  // nc × S
+  Eigen::Vector2d best_bg = Eigen::Vector2d::Zero();
   RunInfo best_run;
   int tried = 0;
   std::vector<std::pair<double, std::vector<double>>> found;  // every usable end point: (cost, positions)
@@ -505,11 +567,17 @@ CableSolution solve_cable(const CableRing& ring, const Eigen::Ref<const Eigen::M
   std::vector<std::unique_ptr<SnapshotCost>> costs;  // for the dense solver
   if (dense) {
     costs.reserve(static_cast<std::size_t>(S));
-    for (Eigen::Index s = 0; s < S; ++s) costs.push_back(std::make_unique<SnapshotCost>(f, Rn.col(s).data(), n, zs));
+    for (Eigen::Index s = 0; s < S; ++s) costs.push_back(std::make_unique<SnapshotCost>(f, Rn.col(s).data(), n, zs, bg));
   }
   for (std::size_t t = 0; t < seeds.size(); ++t) {
     std::vector<double> pos = seeds[t];
     Eigen::MatrixXd cur(nc, S);
+    Eigen::Vector2d b = Eigen::Vector2d::Zero();
+    if (bg) {  // the seed's best background, then its currents with it taken off
+      Eigen::MatrixXd Q;
+      double reduction = 0.0;
+      if (currents_basis(f, pos.data(), n, zs, Q)) background_beside_currents(Q, U, Rn, b, reduction);
+    }
     if (t == 0 && opt.initial_positions.rows() > 0 && opt.initial_currents.size() > 0) {
       if (opt.initial_currents.rows() != S || opt.initial_currents.cols() != n)
         throw Error("CableSolveOptions::initial_currents: shape " + std::to_string(opt.initial_currents.rows()) + "×" +
@@ -519,18 +587,21 @@ CableSolution solve_cable(const CableRing& ring, const Eigen::Ref<const Eigen::M
     } else {
       Eigen::MatrixXd G;
       design(f, pos.data(), n, G);
-      cur = reduce(G, zs).colPivHouseholderQr().solve(Rn);
+      cur = reduce(G, zs).colPivHouseholderQr().solve(Rn.colwise() - U * b);
     }
     RunInfo run;
     if (dense) {
-      run = dense_lm(costs, pos, cur, n, bore, opt);
+      run = dense_lm(costs, pos, cur, bg ? &b : nullptr, n, bore, opt);
     } else {
       ceres::Problem::Options po;
       po.cost_function_ownership = ceres::TAKE_OWNERSHIP;
       po.disable_all_safety_checks = true;  // the blocks are built right here
       ceres::Problem problem(po);
-      for (Eigen::Index s = 0; s < S; ++s)
-        problem.AddResidualBlock(new SnapshotCost(f, Rn.col(s).data(), n, zs), nullptr, pos.data(), cur.col(s).data());
+      for (Eigen::Index s = 0; s < S; ++s) {
+        std::vector<double*> blocks = {pos.data(), cur.col(s).data()};
+        if (bg) blocks.push_back(b.data());
+        problem.AddResidualBlock(new SnapshotCost(f, Rn.col(s).data(), n, zs, bg), nullptr, blocks);
+      }
       for (int k = 0; k < 2 * n; ++k) {
         problem.SetParameterLowerBound(pos.data(), k, -bore);
         problem.SetParameterUpperBound(pos.data(), k, bore);
@@ -549,6 +620,7 @@ CableSolution solve_cable(const CableRing& ring, const Eigen::Ref<const Eigen::M
       best_cost = run.cost;
       best_pos = pos;
       best_cur = cur;
+      best_bg = b;
       best_run = run;
     }
   }
@@ -575,23 +647,27 @@ CableSolution solve_cable(const CableRing& ring, const Eigen::Ref<const Eigen::M
     out.currents.col(j) = full_cur.col(order[j]);
   }
   out.starts_tried = tried;
+  if (bg) out.background = best_bg * field_unit;
 
   // ---- residuals, Jacobian (physical units, full parametrisation), covariance ------------------------
-  const Eigen::Index pf = 2 * n + n * S;
+  const Eigen::Index pf = 2 * n + n * S + nb;
   Eigen::MatrixXd J = Eigen::MatrixXd::Zero(2 * m * S, pf);
+  const Eigen::VectorXd background_readings = U * out.background;  // zero without a background
   out.residuals.resize(S, 2 * m);
   for (Eigen::Index s = 0; s < S; ++s) {
     const Eigen::MatrixXd Js = jacobian_kernel(ring, out.positions, out.currents.row(s).transpose());
     const auto model = field_kernel(ring, out.positions, out.currents.row(s).transpose());
     for (Eigen::Index i = 0; i < m; ++i)
-      for (int a = 0; a < 2; ++a) out.residuals(s, 2 * i + a) = readings(s, 2 * i + a) - model(i, a);
+      for (int a = 0; a < 2; ++a) out.residuals(s, 2 * i + a) = readings(s, 2 * i + a) - model(i, a) - background_readings(2 * i + a);
     J.block(2 * m * s, 0, 2 * m, 2 * n) = Js.leftCols(2 * n);
     J.block(2 * m * s, 2 * n + n * s, 2 * m, n) = Js.rightCols(n);
+    if (bg) J.block(2 * m * s, pf - 2, 2 * m, 2) = U;
   }
   // reduced parametrisation: θ_full = T θ_reduced
-  const Eigen::Index pr = 2 * n + nc * S;
+  const Eigen::Index pr = 2 * n + nc * S + nb;
   Eigen::MatrixXd T = Eigen::MatrixXd::Zero(pf, pr);
   T.topLeftCorner(2 * n, 2 * n).setIdentity();
+  if (bg) T.bottomRightCorner(2, 2).setIdentity();
   // after sorting, the derived conductor is order⁻¹(n − 1); its current is −Σ of the others
   int derived = -1;
   if (zs)
@@ -699,7 +775,8 @@ CableSolution solve_cable(const CableRing& ring, const Eigen::Ref<const Eigen::M
       out.fits_model = false;
       out.summary.warnings.push_back("the readings do not fit the model: residual " + num(per_dof) + " T per degree of "
                                      "freedom vs noise σ = " + num(opt.noise_sigma) +
-                                     " T (uncalibrated sensors, a wrong number of conductors or an external field?)");
+                                     " T (" + (bg ? "" : "a field that does not follow the currents: fit_background / --fit-background; ") +
+                                     "sensors' offsets or gains, a wrong number of conductors?)");
     }
   }
   if (!ok) out.summary.warnings.push_back("ill-conditioned: " + why + "; do not trust these positions and currents");
@@ -718,6 +795,7 @@ CableSolution solve_cable(const CableRing& ring, const Eigen::Ref<const Eigen::M
   msg << n << " conductor(s) from " << m << " sensors × " << S << " snapshot(s); residual RMS "
       << num(sum.residual_rms) << " T; " << (ok ? "well conditioned" : "ILL-CONDITIONED") << (out.fits_model ? "" : ", MISFIT") << "; " << tried
       << " start(s)";
+  if (bg) msg << "; background " << num(out.background.norm()) << " T";
   sum.message = msg.str();
   return out;
 }

@@ -42,6 +42,7 @@ void bind_cable(py::module_& m) {
       .def_readwrite("max_position_sigma", &CableSolveOptions::max_position_sigma)
       .def_readwrite("max_current_relative_sigma", &CableSolveOptions::max_current_relative_sigma)
       .def_readwrite("misfit_ratio", &CableSolveOptions::misfit_ratio)
+      .def_readwrite("fit_background", &CableSolveOptions::fit_background)
       .def_readwrite("initial_positions", &CableSolveOptions::initial_positions)
       .def_readwrite("initial_currents", &CableSolveOptions::initial_currents);
 
@@ -71,7 +72,9 @@ void bind_cable(py::module_& m) {
           py::gil_scoped_release release;
           r = fluxcal::solve_cable(ring, readings, options);
         }
-        return py::dict("positions"_a = r.positions, "currents"_a = r.currents, "covariance"_a = r.covariance,
+        return py::dict("positions"_a = r.positions, "currents"_a = r.currents,
+                        "background"_a = options.fit_background ? py::object(py::cast(Eigen::Vector2d(r.background))) : py::none(),
+                        "covariance"_a = r.covariance,
                         "standard_errors"_a = r.standard_errors, "well_conditioned"_a = r.well_conditioned, "fits_model"_a = r.fits_model,
                         "noise_sigma"_a = r.noise_sigma, "fisher_condition"_a = r.fisher_condition,
                         "residuals"_a = r.residuals, "starts_tried"_a = r.starts_tried,

@@ -54,9 +54,10 @@ def _currents(currents_a, positions: np.ndarray, snapshots: bool) -> np.ndarray:
 @dataclass
 class CableSolution:
     """Conductor positions (n, 2) in metres, currents (n,) — or (snapshots, n) for several snapshots —
-    in amperes, the covariance of [x0, y0, x1, y1, …, currents of snapshot 0, …] (m, A), whether the
-    geometry determines them (`well_conditioned`) and whether the readings fit the model to within a few
-    noise σ (`fits_model`; see cable.hpp)."""
+    in amperes, the covariance of [x0, y0, x1, y1, …, currents of snapshot 0, …, then bx, by when a background
+    was fitted] (m, A, T), whether the geometry determines them (`well_conditioned`) and whether the readings fit
+    the model to within a few noise σ (`fits_model`; see cable.hpp). `background_t`: the uniform field (bx, by)
+    in the cable's frame, tesla, when `fit_background` was asked (else None)."""
 
     positions: np.ndarray
     currents: np.ndarray
@@ -69,6 +70,12 @@ class CableSolution:
     residuals: np.ndarray = None
     starts_tried: int = 0
     summary: dict = field(default_factory=dict)
+    background_t: np.ndarray | None = None
+
+    @property
+    def background_sigma(self) -> np.ndarray | None:
+        """Standard errors of the background field (bx, by), tesla, or None without one."""
+        return None if self.background_t is None else self.standard_errors[-2:]
 
     @property
     def position_sigma(self) -> np.ndarray:
@@ -131,7 +138,8 @@ class Ring:
         return np.asarray(_core.cable_field_jacobian(*self._args(), pos, _currents(currents_a, pos, snapshots=False)))
 
     def solve(self, readings, n_conductors: int = 2, zero_sum_currents: bool = False, initial_positions=None,
-              initial_currents=None, search_again: bool = True, **settings) -> CableSolution:
+              initial_currents=None, search_again: bool = True, fit_background: bool = False,
+              **settings) -> CableSolution:
         """Conductor positions and currents from readings (n_sensors, 2) — one snapshot — or
         (snapshots, n_sensors, 2) sharing the positions (AC waveforms), tesla in each sensor's axes.
 
@@ -141,8 +149,10 @@ class Ring:
         residuals; "automatic" = dense for a warm start, Ceres for the multi-start from the grid).
         `initial_positions` (n, 2) warm-starts the solver (no grid). search_again: when the default starts
         leave a misfit, search again from 4× the starts on a 15×15 grid (a local minimum, not the model, is
-        then to blame; off where a misfit is expected, e.g. a diagnosis's start). Raises ValueError on NaN readings,
-        too few sensors for the unknowns, or a start outside the bore."""
+        then to blame; off where a misfit is expected, e.g. a diagnosis's start). fit_background: fit a uniform field
+        (the Earth's, a busbar's far off) in the cable's frame, shared by the snapshots, beside the conductors
+        (`background_t`). Raises ValueError on NaN readings, too few sensors for the unknowns, or a start outside the
+        bore."""
         arr = np.asarray(readings, dtype=float)
         single = arr.ndim == 2
         if single:
@@ -155,6 +165,7 @@ class Ring:
             raise ValueError(f"n_conductors: {n_conductors!r} is not a whole number of conductors ≥ 1")
         options.n_conductors = int(n_conductors)
         options.zero_sum_currents = bool(zero_sum_currents)
+        options.fit_background = bool(fit_background)
         if initial_positions is not None:
             options.initial_positions = _positions(initial_positions)
         if initial_currents is not None:
@@ -187,7 +198,8 @@ class Ring:
                              noise_sigma=r["noise_sigma"],
                              fisher_condition=r["fisher_condition"],
                              residuals=np.asarray(r["residuals"]).reshape(arr.shape), starts_tried=r["starts_tried"],
-                             summary=r["summary"])
+                             summary=r["summary"],
+                             background_t=None if r["background"] is None else np.asarray(r["background"]))
 
 
 def ac_currents(phasors, times_s, frequency_hz: float = 50.0) -> np.ndarray:

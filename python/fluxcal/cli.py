@@ -1205,15 +1205,18 @@ def _solve_ring_snapshots(ring, ring_cal, snaps, rotation: float, rows, args) ->
     if args.noise_sigma is not None:  # the user's σ (a datasheet's, repeats'): before the calibration's
         settings = {"noise_sigma": args.noise_sigma}
     n = args.conductors
-    unknowns = 2 * n + len(rows) * (n - bool(args.zero_sum_currents))
+    unknowns = 2 * n + len(rows) * (n - bool(args.zero_sum_currents)) + 2 * bool(args.fit_background)
     if snaps.size == unknowns:
-        print(f"{where}: {snaps.size} readings for {unknowns} unknowns: the fit is exact and cannot show a misfit")
+        print(f"{where}: {snaps.size} readings for {unknowns} unknowns: the fit is exact and cannot show a misfit"
+              + (" (--joint shares the background and positions between a rotation's snapshots)"
+                 if args.fit_background and not args.joint else ""))
     sol = sub.rotated(rotation).solve(snaps if len(rows) > 1 else snaps[0], n_conductors=n,
-                                      zero_sum_currents=args.zero_sum_currents, **settings)
+                                      zero_sum_currents=args.zero_sum_currents, fit_background=args.fit_background,
+                                      **settings)
     currents = np.atleast_2d(sol.currents)
     se = np.where(np.isfinite(sol.standard_errors), sol.standard_errors, np.nan)
     pos_se = se[:2 * n].reshape(n, 2)
-    cur_se = se[2 * n:].reshape(len(rows), n)  # with zero-sum currents the last one's is derived, still there
+    cur_se = se[2 * n:2 * n + len(rows) * n].reshape(len(rows), n)  # zero-sum currents: the last one's is derived
     flag = ("well conditioned" if sol.well_conditioned else "ILL-CONDITIONED") + \
         ("" if sol.fits_model else f", MISFIT (residual above 5 × σ {sol.noise_sigma:.3g} T)")
     at = "; ".join(f"({x * 1e3:.4f} ± {sx * 1e3:.2g}, {y * 1e3:.4f} ± {sy * 1e3:.2g}) mm"
@@ -1224,13 +1227,19 @@ def _solve_ring_snapshots(ring, ring_cal, snaps, rotation: float, rows, args) ->
     for k, cur, err in zip(rows, currents, cur_se):
         amps = ", ".join(f"{i:.5g} ± {e:.2g} A" for i, e in zip(cur, err))
         print(f"snapshot {k}: " + (f"{amps}" if len(rows) > 1 else f"{at}; {amps}; {tail}"))
+    out = {"snapshots": [int(k) for k in rows], "rotation_deg": rotation, "sensors_used": np.nonzero(live)[0].tolist(),
+           "positions_m": sol.positions.tolist(), "position_sigma_m": _nan_to_none_rows(pos_se),
+           "currents_a": currents.tolist(), "current_sigma_a": _nan_to_none_rows(cur_se),
+           "residual_rms_t": sol.summary["residual_rms"], "noise_sigma_t": sol.noise_sigma,
+           "well_conditioned": sol.well_conditioned, "fits_model": sol.fits_model}
+    if sol.background_t is not None:
+        b, sb = sol.background_t, se[-2:]
+        print(f"{where}: background field ({1e6 * b[0]:.4g} ± {1e6 * sb[0]:.2g}, {1e6 * b[1]:.4g} ± {1e6 * sb[1]:.2g}) "
+              f"µT, {1e6 * np.hypot(*b):.4g} µT towards {np.degrees(np.arctan2(b[1], b[0])) % 360:.0f}° (cable frame)")
+        out.update(background_t=b.tolist(), background_sigma_t=_nan_to_none_rows(sb)[0])
     for w in sol.summary.get("warnings", []):
         print(f"warning: {where}: {w}")
-    return {"snapshots": [int(k) for k in rows], "rotation_deg": rotation, "sensors_used": np.nonzero(live)[0].tolist(),
-            "positions_m": sol.positions.tolist(), "position_sigma_m": _nan_to_none_rows(pos_se),
-            "currents_a": currents.tolist(), "current_sigma_a": _nan_to_none_rows(cur_se),
-            "residual_rms_t": sol.summary["residual_rms"], "noise_sigma_t": sol.noise_sigma,
-            "well_conditioned": sol.well_conditioned, "fits_model": sol.fits_model}
+    return out
 
 
 def _nan_to_none_rows(a) -> list:
@@ -1657,6 +1666,9 @@ def build_parser() -> argparse.ArgumentParser:
     kv.add_argument("--subtract-background", action="store_true",
                     help="take the calibration's field that does not follow the currents (`cable calibrate --method "
                          "in_field`) off every snapshot: for a ring recording where it was calibrated")
+    kv.add_argument("--fit-background", action="store_true",
+                    help="fit a uniform field that does not follow the currents (the Earth's, a far busbar's) beside "
+                         "the conductors, in the cable's frame; with --joint one per rotation, shared by its snapshots")
     kv.add_argument("--conductors", type=positive_int, default=2, help="conductors in the cable (default 2)")
     kv.add_argument("--zero-sum-currents", action="store_true",
                     help="the currents sum to zero (go and return, a balanced three-phase load): one unknown "

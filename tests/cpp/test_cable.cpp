@@ -89,6 +89,38 @@ TEST(Cable, SolvesATwoCoreCableFromOneSnapshot) {
   EXPECT_EQ(sol.covariance.rows(), 6);
 }
 
+TEST(Cable, FitsAUniformBackgroundBesideTheConductors) {
+  const CableRing ring = paper_ring();
+  ConductorPositions p(2, 2);
+  p << -1.7e-3, 0.4e-3, 2.3e-3, 0.1e-3;
+  const Eigen::Vector2d earth(25e-6, -30e-6);
+  Eigen::MatrixXd R(3, 8);
+  const double scale[3] = {1.0, -0.6, 0.3};
+  for (int s = 0; s < 3; ++s) {
+    R.row(s) = snapshot(ring, p, Eigen::Vector2d(5.0, -5.0) * scale[s]);
+    for (Eigen::Index i = 0; i < 4; ++i) {  // x radial, y tangential
+      const Eigen::Vector2d r(std::cos(ring.angles(i)), std::sin(ring.angles(i))), t(-r(1), r(0));
+      R(s, 2 * i) += r.dot(earth);
+      R(s, 2 * i + 1) += t.dot(earth);
+    }
+  }
+  fluxcal::CableSolveOptions o;
+  const auto plain = fluxcal::solve_cable(ring, R, o);
+  EXPECT_FALSE(plain.fits_model);
+  bool hinted = false;  // the misfit's warning names the remedy
+  for (const auto& w : plain.summary.warnings) hinted = hinted || w.find("fit_background") != std::string::npos;
+  EXPECT_TRUE(hinted);
+  o.fit_background = true;
+  for (auto refiner : {fluxcal::CableSolveOptions::Refiner::ceres, fluxcal::CableSolveOptions::Refiner::dense}) {
+    o.refiner = refiner;
+    const auto sol = fluxcal::solve_cable(ring, R, o);
+    EXPECT_TRUE(sol.fits_model && sol.well_conditioned) << sol.summary.message;
+    EXPECT_LT((sol.positions - p).cwiseAbs().maxCoeff(), 1e-9);
+    EXPECT_LT((sol.background - earth).cwiseAbs().maxCoeff(), 1e-12);
+    EXPECT_EQ(sol.covariance.rows(), 4 + 2 * 3 + 2);
+  }
+}
+
 TEST(Cable, ThreeConductorsNeedSnapshotsAndShareTheirPositions) {
   const CableRing ring = paper_ring();
   ConductorPositions p(3, 2);

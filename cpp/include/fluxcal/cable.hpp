@@ -22,6 +22,13 @@
 // cost wins. A warm start (positions, optionally currents) skips the grid and, by default (options.refiner), is
 // refined by a built-in dense Levenberg–Marquardt on the same residuals (no set-up cost).
 //
+// Background. A field that does not follow the currents (the Earth's, a neighbouring busbar's) misfits the
+// model and pulls the positions. fit_background adds a uniform field b = (b_x, b_y) in the cable's frame,
+// shared by every snapshot (the ring and the room keep still during a recording): each sensor reads
+// (x̂_i·b, ŷ_i·b) on top of the conductors. Its readings' pattern turns once with the sensors' axes, which
+// the conductors' field (1/r and its multipoles) does not do, so a ring of M ≥ 3 sensors tells it apart to
+// within the conductors' M-th multipole. A gradient across the ring is not modelled.
+//
 // Conditioning. The covariance is σ² (JᵀJ)⁻¹ at the solution with σ the reading noise
 // (options.noise_sigma, or the residual estimate). Two conductors close together are only seen through
 // their dipole moment, conductors near the centre of a symmetric ring through few independent
@@ -111,8 +118,10 @@ struct CableSolveOptions {
   /// 2-core cable with 2 mm spacing on a 10 mm ring has ~1 % at 10 nT; 0.6 mm spacing ~50 %).
   double max_current_relative_sigma = 0.05;
   /// fits_model is false when the residual RMS per degree of freedom exceeds this multiple of noise_sigma
-  /// (uncalibrated sensors, a wrong number of conductors, an external field).
+  /// (sensors' offsets or gains, a wrong number of conductors, a field that does not follow the currents).
   double misfit_ratio = 5.0;
+  /// Fit a uniform background field (cable frame, shared by every snapshot) beside the conductors; see Background.
+  bool fit_background = false;
   /// Warm start: N×2 positions (metres; empty = grid initialisation) ...
   ConductorPositions initial_positions;
   /// ... and S×N currents (empty = linear least squares at the initial positions).
@@ -123,8 +132,10 @@ struct CableSolveOptions {
 struct CableSolution {
   ConductorPositions positions;  ///< N×2, metres (sorted by x, then y)
   Eigen::MatrixXd currents;      ///< S×N, amperes
+  Eigen::Vector2d background = Eigen::Vector2d::Zero();  ///< uniform field, cable frame, tesla (0 unless fitted)
   /// Covariance of [x_0, y_0, …, x_{N−1}, y_{N−1}, I(snapshot 0, conductors 0…N−1), …] (2N + N·S
-  /// square, m² / m·A / A²); with zero_sum_currents the last current of each snapshot is derived.
+  /// square, m² / m·A / A²), then with fit_background (b_x, b_y) (T²); with zero_sum_currents the last current
+  /// of each snapshot is derived.
   Eigen::MatrixXd covariance;
   Eigen::VectorXd standard_errors;  ///< sqrt of its diagonal (+inf where undetermined)
   bool well_conditioned = false;

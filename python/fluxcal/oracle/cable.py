@@ -48,17 +48,29 @@ def jacobian_fd(angles_rad, radius, positions, currents, step=1e-9, axis_angles_
     return J
 
 
-def solve(angles_rad, radius, readings, n_conductors=2, bore=None, grid=7) -> dict:
+def uniform_field(angles_rad, field_t, axis_angles_rad=None) -> np.ndarray:
+    """(M, 2) readings of a uniform field (bx, by) in each sensor's axes, by the angle between the field and
+    the sensor's x axis."""
+    th = np.asarray(angles_rad, float)
+    psi = np.zeros_like(th) if axis_angles_rad is None else np.asarray(axis_angles_rad, float)
+    rel = np.arctan2(field_t[1], field_t[0]) - (th + psi)
+    return np.hypot(*field_t) * np.column_stack([np.cos(rel), np.sin(rel)])
+
+
+def solve(angles_rad, radius, readings, n_conductors=2, bore=None, grid=7, background=False) -> dict:
     """Least squares (SciPy, trust-region reflective with bounds) from every grid combination's linear
-    current fit; returns the lowest-cost solution, conductors sorted by x then y."""
+    current fit; returns the lowest-cost solution, conductors sorted by x then y. background: a uniform field
+    (bx, by) beside the conductors, fitted with the currents (returned as "background")."""
     bore = 0.4 * radius if bore is None else bore
     readings = np.asarray(readings, float).ravel()
     g = (np.arange(grid) + 0.5) * 2 * bore / grid - bore
     pts = [np.array([x, y]) for x in g for y in g if np.hypot(x, y) < bore]
     n = n_conductors
+    uniform = [uniform_field(angles_rad, unit).ravel() for unit in ((1.0, 0.0), (0.0, 1.0))] if background else []
+    nb = len(uniform)
 
     def currents_for(pos):
-        G = np.column_stack([field(angles_rad, radius, [p], [1.0]).ravel() for p in pos])
+        G = np.column_stack([field(angles_rad, radius, [p], [1.0]).ravel() for p in pos] + uniform)
         c, *_ = np.linalg.lstsq(G, readings, rcond=None)
         return c, np.sum((G @ c - readings) ** 2)
 
@@ -68,14 +80,17 @@ def solve(angles_rad, radius, readings, n_conductors=2, bore=None, grid=7) -> di
         c, cost = currents_for(pos)
         seeds.append((cost, np.concatenate([np.ravel(pos), c])))
     seeds.sort(key=lambda s: s[0])
-    scale = np.concatenate([np.full(2 * n, radius), np.ones(n)])
+    unit = MU0 / (2 * np.pi) / radius  # field of 1 A at the ring's radius
+    scale = np.concatenate([np.full(2 * n, radius), np.ones(n), np.full(nb, unit)])
 
     def resid(t):
         t = t * scale
-        return (field(angles_rad, radius, t[: 2 * n].reshape(n, 2), t[2 * n:]) - readings.reshape(-1, 2)).ravel() \
-            * radius / (MU0 / (2 * np.pi))
+        model = field(angles_rad, radius, t[: 2 * n].reshape(n, 2), t[2 * n: 3 * n])
+        if nb:
+            model = model + uniform_field(angles_rad, t[3 * n:])
+        return (model - readings.reshape(-1, 2)).ravel() / unit
 
-    lo = np.concatenate([np.full(2 * n, -bore / radius), np.full(n, -np.inf)])
+    lo = np.concatenate([np.full(2 * n, -bore / radius), np.full(n + nb, -np.inf)])
     hi = -lo
     best = None
     for _, t0 in seeds[:4]:
@@ -84,9 +99,12 @@ def solve(angles_rad, radius, readings, n_conductors=2, bore=None, grid=7) -> di
         if best is None or sol.cost < best.cost:
             best = sol
     t = best.x * scale
-    pos, cur = t[: 2 * n].reshape(n, 2), t[2 * n:]
+    pos, cur = t[: 2 * n].reshape(n, 2), t[2 * n: 3 * n]
     order = np.lexsort((pos[:, 1], pos[:, 0]))
-    return {"positions": pos[order], "currents": cur[order], "cost": best.cost}
+    out = {"positions": pos[order], "currents": cur[order], "cost": best.cost}
+    if nb:
+        out["background"] = t[3 * n:]
+    return out
 
 
 def fit_axis_aligned_ellipse(readings, magnitude) -> tuple:
