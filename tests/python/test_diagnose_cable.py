@@ -651,3 +651,38 @@ def test_repeats_that_scatter_beyond_the_calibration_runs_are_said():
     assert d.noise_source.startswith("from repeated snapshots")
     assert any("this recording's repeated snapshots scatter" in c and "--noise-sigma" in c for c in d.caveats), \
         d.caveats
+
+
+def test_the_given_calibration_is_compared_with_the_refit(tmp_path):
+    """A ring calibrated by TWOSTEP, then one sensor's x gain changes by 0.3 % (or not) before the recording: the
+    diagnosis's refit of the gains and offsets is compared with the calibration in units of their combined standard
+    error, and the CALIBRATION line names the sensor (or says consistent); the refit is in the JSON."""
+    from fluxcal import cable
+    from test_cable import _room_run
+
+    ring = Ring(np.arange(0.0, 360.0, 60.0), 0.012)
+    rng = np.random.default_rng(0)
+    readings, truth, rot, gains, offsets = _room_run(ring, rng, lambda z: 0 * z, noise=2e-8)
+    cal = cable.calibrate_ring(readings, truth)
+    cur = np.array([[3.0, -3.0], [-6.0, 6.0]])
+    positions = [[-2e-3, 0.5e-3], [2.5e-3, 0.0]]
+    truth2 = np.repeat(cable.calibration_fields(ring, positions, cur, 72.0 * np.arange(5)), 10, axis=0)
+    noise = rng.normal(0, 2e-8, truth2.shape)
+    for change in (0.0, 0.003):
+        changed = gains.copy()
+        changed[2, 0] *= 1 + change
+        d = diagnose_cable(changed * truth2 + offsets + noise, ring, currents=np.repeat(np.tile(cur, (5, 1)), 10, axis=0),
+                           rotations_deg=np.repeat(72.0 * np.arange(5), 20), positions=positions, calibration=cal,
+                           max_effects=0)
+        check = d.remaining["calibration_check"]
+        line = next(x for x in d.text().splitlines() if x.startswith("CALIBRATION:"))
+        if change:
+            assert not check["consistent"] and check["largest"]["sensor"] == "sensor 2", line
+            assert check["largest"]["what"] == "gain" and check["largest"]["axis"] == "x" and check["largest"]["z"] > 4
+            assert "does not describe these sensors" in line and "sensor 2 x gain" in line
+            assert check["refit_gains"][2][0] == pytest.approx(gains[2, 0] * 1.003, abs=5e-4)
+        else:
+            assert check["consistent"] and "consistent with this recording" in line, line
+    d.save_json(tmp_path / "d.json")
+    saved = json.loads((tmp_path / "d.json").read_text())["remaining"]["calibration_check"]
+    assert saved["changed"][0]["sensor"] == "sensor 2"

@@ -99,6 +99,7 @@ class _Data:
     source: str
     sensor_ids: np.ndarray | None = None  # (M,) each sensor's number in the recording (dead ones left out)
     notes: list = field(default_factory=list)  # what _prepare changed in the data, for the report
+    calibration: RingCalibration | None = None  # the given one (of the sensors diagnosed)
 
     @property
     def sensor_names(self) -> list:
@@ -508,6 +509,16 @@ class _Model:
         `project` removing each snapshot's currents (when fitted) and U an orthonormal basis of the
         projected derivatives of the model with respect to the positions, the calibration's corrections
         and the accepted terms' coefficients."""
+        project, Jp = self.projected_jacobian(fit)
+        norms = np.linalg.norm(Jp, axis=0)
+        Jp = Jp[:, norms > 0] / norms[norms > 0]
+        U, s, _ = np.linalg.svd(Jp, full_matrices=False)
+        return project, U[:, s > 1e-9 * s.max()] if s.size else U[:, :0]
+
+    def projected_jacobian(self, fit):
+        """(project, J): the derivatives of the weighted model readings of `fit` with respect to the positions
+        (metres), the calibration's corrections (δ, β) and the accepted terms' coefficients, one column each,
+        with each snapshot's currents projected out when they are fitted (`project` does that to any columns)."""
         data, rows = self.data, fit["rows"]
         pos = fit["positions"]
         k, m = len(rows), data.shape[1]
@@ -542,11 +553,7 @@ class _Model:
         else:
             def project(Z):
                 return Z
-        Jp = project(J)
-        norms = np.linalg.norm(Jp, axis=0)
-        Jp = Jp[:, norms > 0] / norms[norms > 0]
-        U, s, _ = np.linalg.svd(Jp, full_matrices=False)
-        return project, U[:, s > 1e-9 * s.max()] if s.size else U[:, :0]
+        return project, project(J)
 
 
 def _calibration_summary(coefficients, n_calibration: int) -> dict:
@@ -557,6 +564,46 @@ def _calibration_summary(coefficients, n_calibration: int) -> dict:
     half = n_calibration // 2
     return {"max_gain_correction": float(np.max(np.abs(c[:half]))),
             "max_offset_correction_t": float(np.max(np.abs(c[half:])))}
+
+
+def _calibration_check(model: "_Model", fit: dict, calibration: RingCalibration, alpha: float, rms_z: float) -> dict:
+    """The given calibration against the diagnosis's refit of it (after the effects found): each sensor axis's gain
+    γ' = γ (1 + δ) and offset b' = b + γ β against γ and b, in units of their combined standard error (the
+    calibration's own covariance, when it has one, and the refit's, σ² (JᵀJ)⁻¹ of the projected Jacobian inflated by
+    a residual RMS above 1 σ). Consistent unless the smallest p-value, Bonferroni over the 4M values, is below
+    `alpha`."""
+    data = model.data
+    m = data.shape[1]
+    npos = fit["positions"].size
+    _, J = model.projected_jacobian(fit)
+    norms = np.linalg.norm(J, axis=0)
+    norms[norms == 0] = 1.0
+    cov = np.linalg.pinv((J / norms).T @ (J / norms)) / np.outer(norms, norms) * max(1.0, rms_z) ** 2
+    se_refit = np.sqrt(np.clip(np.diag(cov)[npos:npos + model.n_calibration], 0.0, None)).reshape(2, m, 2)
+    delta, beta, _ = model._split(fit["coefficients"])
+    gains, offsets = calibration.gains, calibration.offsets
+    refit = {"gain": gains * (1 + delta), "offset": offsets + gains * beta}
+    own = {"gain": gains, "offset": offsets}
+    se = {"gain": gains * se_refit[0], "offset": gains * se_refit[1]}
+    has_cov = calibration.covariance is not None
+    if has_cov:
+        c = np.asarray(calibration.covariance)
+        se["gain"] = np.hypot(se["gain"], np.sqrt(c[..., 0, 0]))
+        se["offset"] = np.hypot(se["offset"], np.sqrt(c[..., 1, 1]))
+    rows = []
+    for what in ("gain", "offset"):
+        z = (refit[what] - own[what]) / np.where(se[what] > 0, se[what], np.inf)
+        for i in range(m):
+            for a in range(2):
+                rows.append({"sensor": data.sensor_names[i], "axis": "xy"[a], "what": what,
+                             "calibration": float(own[what][i, a]), "refit": float(refit[what][i, a]),
+                             "z": float(z[i, a])})
+    rows.sort(key=lambda r: -abs(r["z"]))
+    p = min(1.0, len(rows) * float(2 * stats.norm.sf(abs(rows[0]["z"]))))
+    changed = [r for r in rows if len(rows) * 2 * stats.norm.sf(abs(r["z"])) < alpha]
+    return {"consistent": p >= alpha, "pvalue": p, "changed": changed, "largest": rows[0],
+            "calibration_covariance": has_cov, "common_gain_held": bool(data.fit_currents),
+            "refit_gains": refit["gain"].tolist(), "refit_offsets_t": refit["offset"].tolist()}
 
 
 # ---------------------------------------------------------------- held-out regimes
@@ -1012,7 +1059,8 @@ def _prepare(readings, ring, currents, rotations_deg, positions, calibration, no
     data = _Data(y=y, ring=ring, rotations=rot, t=t, reference=reference, fit_currents=fit, n=n,
                  sigma=np.ones(m) if sigma is None else sigma, counts=counts, truth=truth,
                  refine_calibration=bool(refine_calibration), gain_currents=reference, unique=unique,
-                 rot_index=np.ravel(rot_index), points=pts, axes=axes, source=source, sensor_ids=ids, notes=notes)
+                 rot_index=np.ravel(rot_index), points=pts, axes=axes, source=source, sensor_ids=ids, notes=notes,
+                 calibration=calibration)
     return data, sigma is not None, source_noise
 
 
@@ -1167,6 +1215,9 @@ def diagnose_cable(readings, ring: Ring, currents=None, rotations_deg=None, posi
         accepted and (remaining["unexplained"].get("left")
                       or remaining["unexplained"].get("rms_over_sigma", 0.0) >= FAR_BEYOND_NOISE))
     remaining["background_source"] = _background_source(state["model"], final, data.ring.radius_m)
+    if data.calibration is not None and data.refines:  # (a least-squares calibration off by ×2.35 had passed unsaid)
+        remaining["calibration_check"] = _calibration_check(state["model"], final, data.calibration, alpha,
+                                                            remaining["overall"]["rms_z"])
     # the gains after the effects found: a strong effect (a 100 mm lay) moves the base model's gains by 37 %
     caveats = data.notes + _caveats(data, _calibration_summary(final["coefficients"], state["model"].n_calibration),
                                     base_info, noise_source, where["overall"])
@@ -1396,6 +1447,9 @@ def _text(d) -> str:
                    f"from the cable's axis towards {source['direction_deg']:.0f}° (cable frame; a neighbouring "
                    f"conductor), beside a uniform {1e6 * source['uniform_t']:.3g} µT towards "
                    f"{source['uniform_direction_deg']:.0f}° (the Earth's?)")
+    check = d.remaining.get("calibration_check")
+    if check:
+        out.append(_calibration_line(check, bool(d.remaining.get("unexplained", {}).get("not_explained"))))
     out += [f"CAVEAT: {c}" for c in d.caveats]
     b = d.base
     if b.get("position_error_mm") is not None:
@@ -1404,6 +1458,34 @@ def _text(d) -> str:
     out.append(f"remaining: residual RMS {rem['overall']['rms_z']:.2f} σ, gap {rem['overall']['gap']:.4g} T; "
                + "; ".join(f"{t['regime']} {t['test']} p {t['pvalue']:.2g}" for t in rem["tests"]))
     return "\n".join(out)
+
+
+def _calibration_change_words(r: dict) -> str:
+    if r["what"] == "gain":
+        return f"{r['sensor']} {r['axis']} gain {r['calibration']:.4g} → {r['refit']:.4g} (z {r['z']:.2g})"
+    return (f"{r['sensor']} {r['axis']} offset {1e6 * r['calibration']:.4g} → {1e6 * r['refit']:.4g} µT "
+            f"(z {r['z']:.2g})")
+
+
+def _calibration_line(check: dict, not_explained: bool) -> str:
+    """The CALIBRATION line: whether the given calibration still describes these sensors."""
+    se = ("" if check["calibration_covariance"] else
+          " (the calibration holds no covariance: judged by the refit's standard errors alone)")
+    held = " The gains' common scale was held (currents fitted)." if check["common_gain_held"] else ""
+    if check["consistent"]:
+        return (f"CALIBRATION: consistent with this recording — largest change {_calibration_change_words(check['largest'])}, "
+                f"p {check['pvalue']:.2g} over the {4 * len(check['refit_gains'])} gains and offsets{se}.{held}")
+    changed = check["changed"]
+    listed = "; ".join(_calibration_change_words(r) for r in changed[:4]) + (
+        f"; and {len(changed) - 4} more" if len(changed) > 4 else "")
+    why = ("the sensors changed since (temperature, a knock, a magnetised part), a calibration of another ring, or "
+           "one made in a field that does not follow the currents (least squares in a room: `cable calibrate "
+           "--method in_field`)")
+    if not_explained:
+        why += ", or what the candidates do not explain (NOT EXPLAINED above), which the refit's gains took up"
+    return (f"CALIBRATION: the given calibration does not describe these sensors here (p {check['pvalue']:.2g}){se}: "
+            f"{listed} — {why}. Recalibrate; the refit's gains and offsets are in the JSON "
+            f"(remaining.calibration_check).{held}")
 
 
 def _write_report(d, folder) -> Path:
