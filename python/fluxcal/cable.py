@@ -436,22 +436,24 @@ def calibrate_ring_in_field(readings, true_fields, ring: Ring, rotations_deg, or
         raise ValueError(f"rotations_deg: need {len(r)} finite rotations, one per reading")
     if not (np.all(np.isfinite(r)) and np.all(np.isfinite(h))):
         raise ValueError("readings, true_fields: not finite (NaN or Inf); leave those readings out")
-    start, run = consecutive_runs(h, rot)
-    poses = run_sums(r, run) / np.bincount(run)[:, None, None]
-    fields, angles = h[start], rot[start]
-    scale = np.abs(fields).max()
+    start, run = consecutive_runs(rot, near=h)
+    counts = np.bincount(run)[:, None, None]
+    poses, fields, angles = run_sums(r, run) / counts, run_sums(h, run) / counts, rot[start]
+    # (currents logged per reading jitter: a pose and its reversal agree to POSE_RTOL, not exactly)
     pairs = [(g, j) for g in range(len(poses)) for j in range(g + 1, len(poses))
-             if np.isclose(angles[g], angles[j]) and np.allclose(fields[j], -fields[g], atol=1e-9 * scale, rtol=0)]
+             if np.isclose(angles[g], angles[j])
+             and np.allclose(fields[j], -fields[g], atol=POSE_RTOL * np.abs(fields[g]).max(), rtol=0)]
     turns = np.unique(np.round(np.mod([angles[g] for g, _ in pairs], 360.0), 9))
     if len(turns) < 3:
         raise ValueError(f"readings: {len(pairs)} pairs of poses with the currents reversed at the same rotation, at "
                          f"{len(turns)} rotations; a calibration in a field that does not follow the currents needs "
                          "each rotation's currents reversed (±I) at 3 rotations or more (the paper: 5 × 72°)")
     first, second = map(list, zip(*pairs))
-    half_diff = (poses[first] - poses[second]) / 2.0  # γ ⊙ h
-    half_sum = (poses[first] + poses[second]) / 2.0   # b + γ ⊙ B
-    h_pairs = fields[first]
+    h_pairs = (fields[first] - fields[second]) / 2.0  # ≈ the first pose's field: exactly when reversed exactly
+    half_diff = (poses[first] - poses[second]) / 2.0  # γ ⊙ h_pairs
     gains = np.sum(half_diff * h_pairs, axis=0) / np.sum(h_pairs ** 2, axis=0)
+    # b + γ ⊙ B, less what the pair's currents did not cancel
+    half_sum = (poses[first] + poses[second]) / 2.0 - gains * (fields[first] + fields[second]) / 2.0
     m = ring.n_sensors
     theta = np.radians(ring.angles_deg[None] + np.asarray(angles[first])[:, None])  # (P, M)
     z = np.exp(1j * theta)  # the sensors' places in ring radii, cable frame
@@ -480,11 +482,24 @@ def calibrate_ring_in_field(readings, true_fields, ring: Ring, rotations_deg, or
     return cal
 
 
-def consecutive_runs(*keys) -> tuple:
-    """Runs of consecutive rows whose `keys` (each (K, …)) are all equal — a pose held, readings repeated: (start
-    (K,) bool, each run's first row; run (K,) each row's run number)."""
-    key = np.column_stack([np.asarray(k, dtype=float).reshape(len(k), -1) for k in keys])
-    start = np.concatenate([[True], np.any(key[1:] != key[:-1], axis=1)])
+# Consecutive readings whose true fields differ by less than this fraction of the field hold one pose: currents logged
+# per reading jitter by a meter's 0.1 %, while a new pose (a turn, a reversal, another level) changes them by tens of %
+POSE_RTOL = 0.02
+
+
+def consecutive_runs(*keys, near=None, rtol: float = POSE_RTOL) -> tuple:
+    """Runs of consecutive rows whose `keys` (each (K, …)) are all equal and, when given, whose `near` values (K, …:
+    true fields) differ from the row before by at most `rtol` of its largest — a pose held, readings repeated:
+    (start (K,) bool, each run's first row; run (K,) each row's run number)."""
+    k = len(keys[0]) if keys else len(near)
+    start = np.zeros(k, bool)
+    start[0] = True
+    if keys:
+        key = np.column_stack([np.asarray(v, dtype=float).reshape(len(v), -1) for v in keys])
+        start[1:] |= np.any(key[1:] != key[:-1], axis=1)
+    if near is not None:
+        v = np.asarray(near, dtype=float).reshape(k, -1)
+        start[1:] |= np.abs(v[1:] - v[:-1]).max(axis=1) > rtol * np.abs(v[:-1]).max(axis=1)
     return start, np.cumsum(start) - 1
 
 
@@ -502,13 +517,14 @@ def _in_axes(field, axis_rad) -> np.ndarray:
 
 
 def _repeat_scatter(readings: np.ndarray, true_fields: np.ndarray, residuals: np.ndarray):
-    """Per sensor and axis: the pooled scatter of consecutive readings with the same true fields (a pose and its
-    currents held) — the noise alone — and the lack-of-fit test's p that the residuals `residuals` (readings less
-    the fitted model) scatter more than that between the poses: (σ, p), each (n_sensors, 2), or (None, None) with
-    fewer than 10 degrees of freedom or 3 poses. (A blind check's ±1° axis misalignment put 2.5× the noise into the
-    residual scatter; judged against that, the diagnosis found the coupling in 2 rigs of 20, against 20 of 20 with
-    a σ from repeats.)"""
-    group = consecutive_runs(true_fields)[1]
+    """Per sensor and axis: the pooled scatter of consecutive readings that hold a pose (true fields within
+    POSE_RTOL of each other: a pose and its currents held, or logged per reading) about the model — the noise alone —
+    and the lack-of-fit test's p that the residuals `residuals` (readings less the fitted model) scatter more than
+    that between the poses: (σ, p), each (n_sensors, 2), or (None, None) with fewer than 10 degrees of freedom or 3
+    poses. Within a pose the residuals' scatter is taken, so a logged current's jitter, which the model follows, is
+    not counted as noise. (A blind check's ±1° axis misalignment put 2.5× the noise into the residual scatter;
+    judged against that, the diagnosis found the coupling in 2 rigs of 20, against 20 of 20 with a σ from repeats.)"""
+    group = consecutive_runs(near=true_fields)[1]
     finite = np.isfinite(readings)
     counts = run_sums(finite, group)  # (runs, n_sensors, 2): each axis's finite readings per pose
     dof = np.sum(np.maximum(counts - 1, 0), axis=0)
@@ -519,8 +535,8 @@ def _repeat_scatter(readings: np.ndarray, true_fields: np.ndarray, residuals: np
 
     from .diagnose.core import _lattice_step
 
-    means = run_sums(np.where(finite, readings, 0.0), group) / np.maximum(counts, 1)
-    within = np.sum(np.where(finite, readings - means[group], 0.0) ** 2, axis=0)
+    means = run_sums(np.where(finite, residuals, 0.0), group) / np.maximum(counts, 1)
+    within = np.sum(np.where(finite, residuals - means[group], 0.0) ** 2, axis=0)
     misfit = np.sum(np.where(finite, residuals, 0.0) ** 2, axis=0) - within  # between the poses
     # readings on an ADC's grid repeat exactly when the noise is below its step: the scatter is at least step/√12
     # (a coarse ring's repeats gave 4e-21 T, and every test of the diagnosis then "departed" at 10²⁷)

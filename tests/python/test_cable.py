@@ -718,3 +718,32 @@ def test_solve_fits_a_uniform_background_from_the_command_line(tmp_path):
         b = complex(*s["background_t"])
         assert abs(b - earth) < 4 * max(s["background_sigma_t"]) + 1e-9
         assert np.all(np.abs(np.abs(s["currents_a"]) - 5.0) < 4 * np.array(s["current_sigma_a"]))
+
+
+def test_repeats_held_with_currents_logged_per_reading():
+    """Currents logged per reading (a meter's 0.1 % jitter) make no two true fields equal: the calibration still
+    takes each held pose's readings as repeats (within POSE_RTOL) and their scatter about the model as the noise, and
+    the in-field calibration still pairs each rotation's reversed currents."""
+    from fluxcal import cable
+
+    ring = Ring(np.arange(0.0, 360.0, 60.0), 0.012)
+    rng = np.random.default_rng(7)
+    positions = np.array([[-2e-3, 0.5e-3], [2.5e-3, 0.0]])
+    rot = np.repeat(np.repeat(72.0 * np.arange(5), 2), 10)
+    sign = np.repeat(np.tile([1.0, -1.0], 5), 10)
+    currents = (sign[:, None] * [5.0, -5.0]) * (1 + 1e-3 * rng.standard_normal((len(rot), 2)))
+    truth = np.stack([ring.rotated(a).field(positions, c) for a, c in zip(rot, currents)])
+    gains, offsets = rng.uniform(0.97, 1.03, (6, 2)), rng.uniform(-5e-6, 5e-6, (6, 2))
+    noise = 2e-8
+    readings = gains * truth + offsets + rng.normal(0, noise, truth.shape)
+    cal = calibrate_ring(readings, truth)
+    assert cal.repeat_sigma is not None
+    np.testing.assert_allclose(cal.repeat_sigma, noise, rtol=0.35)
+    assert not any("miss the calibration's model" in w for f in cal.sensors for w in f.summary.get("warnings", []))
+    earth = 20e-6 * np.exp(1.0j)
+    from fluxcal.sim.cable_effects import sensor_points, to_axes
+    axes = np.array([sensor_points(ring, a)[1] for a in rot])
+    room = readings + gains * to_axes(np.full(axes.shape, earth), axes)
+    in_field = cable.calibrate_ring_in_field(room, truth, ring, rot)
+    assert np.abs(in_field.gains - gains).max() < 2e-3
+    assert complex(*in_field.background["terms_t"][0]) == pytest.approx(earth, abs=0.05e-6)
