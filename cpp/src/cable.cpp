@@ -450,11 +450,18 @@ CableSolution solve_cable(const CableRing& ring, const Eigen::Ref<const Eigen::M
   const bool bg = opt.fit_background;
   const Eigen::Index nb = bg ? 2 : 0;
   const Eigen::Index unknowns = 2 * n + static_cast<Eigen::Index>(nc) * S + nb, equations = 2 * m * S;
-  if (equations < unknowns || 2 * m < nc + nb)
+  if (2 * m < nc + nb)  // each snapshot's readings must tell its currents from the background: more snapshots cannot
+    throw Error("readings: each snapshot's " + std::to_string(2 * m) + " readings (" + std::to_string(m) +
+                " biaxial sensors) must cover its " + std::to_string(nc) +
+                " current(s) + 2 for the background field, which is told from the currents within a snapshot: add "
+                "sensors, set zero_sum_currents (--zero-sum-currents) when the currents sum to zero, or leave out "
+                "fit_background (--fit-background)");
+  if (equations < unknowns)
     throw Error("readings: " + std::to_string(m) + " biaxial sensors × " + std::to_string(S) + " snapshot(s) give " +
                 std::to_string(equations) + " readings for " + std::to_string(unknowns) + " unknowns (" +
-                std::to_string(n) + " conductors: 2 coordinates each + " + std::to_string(nc) +
-                " currents per snapshot" + (bg ? "; + 2 for the background field" : "") +
+                std::to_string(n) + (n == 1 ? " conductor: 2 coordinates" : " conductors: 2 coordinates each") + " + " +
+                std::to_string(nc) + (nc == 1 ? " current" : " currents") + " per snapshot" +
+                (bg ? "; + 2 for the background field" : "") +
                 "); too few sensors for the unknowns — add sensors, give more snapshots "
                 "sharing the positions (AC waveforms), or set zero_sum_currents (--zero-sum-currents) when they sum to "
                 "zero");
@@ -483,7 +490,13 @@ CableSolution solve_cable(const CableRing& ring, const Eigen::Ref<const Eigen::M
     seeds.push_back(s);
   } else {
     std::vector<Eigen::Vector2d> grid;
-    const int g = opt.grid_points;
+    // With at most 1 reading to spare the fit can hardly show a misfit, and other exact (or near-exact) roots are the
+    // danger, which only a start that reaches them reveals: search a finer grid from 4× the starts (a blind check's
+    // 4-sensor ring with a background, 8 readings for 8 unknowns, gave 17–59 % wrong currents, flagged nowhere, in
+    // 1–3 rigs of 40 from the default starts, and 6 sensors, 3 conductors with 1 to spare 2 of 40: 0 of 40 from
+    // these; with 2 to spare, the paper's ring without a background, the default starts had none).
+    const bool few_spare = equations - unknowns <= 1;
+    const int g = few_spare ? std::max(opt.grid_points, 15) : opt.grid_points;
     for (int a = 0; a < g; ++a)
       for (int b = 0; b < g; ++b) {
         const Eigen::Vector2d c(-bore + (a + 0.5) * 2.0 * bore / g, -bore + (b + 0.5) * 2.0 * bore / g);
@@ -491,7 +504,7 @@ CableSolution solve_cable(const CableRing& ring, const Eigen::Ref<const Eigen::M
       }
     const int P = static_cast<int>(grid.size());
     // three or more conductors: the greedy seeds are cheap and their basins small, so take more of them
-    const int starts = n > 2 ? std::max(opt.starts, 8 * n) : opt.starts;
+    const int starts = (n > 2 ? std::max(opt.starts, 8 * n) : opt.starts) * (few_spare ? 4 : 1);
     std::vector<std::pair<double, std::vector<double>>> scored;
     auto score = [&](const std::vector<double>& pos, int k) { return seed_cost(f, pos, k, zs && k == n, Rn, total, Ub); };
     if (n <= 2) {
@@ -693,6 +706,9 @@ CableSolution solve_cable(const CableRing& ring, const Eigen::Ref<const Eigen::M
     out.summary.warnings.push_back("as many readings as unknowns: the noise cannot be estimated from the residuals; "
                                    "set noise_sigma for a covariance");
   }
+  if (dof == 0)
+    out.summary.warnings.push_back("as many readings as unknowns: the fit is exact and cannot show a misfit (add "
+                                   "sensors, or solve snapshots that share the positions together)");
   Eigen::MatrixXd F = Jr.transpose() * Jr;
   Eigen::VectorXd d(pr);
   for (Eigen::Index k = 0; k < pr; ++k) d(k) = F(k, k) > 0.0 ? 1.0 / std::sqrt(F(k, k)) : 1.0;
@@ -701,7 +717,9 @@ CableSolution solve_cable(const CableRing& ring, const Eigen::Ref<const Eigen::M
   const Eigen::VectorXd lam = eig.eigenvalues();
   out.fisher_condition = lam(0) > 0.0 ? lam(pr - 1) / lam(0) : kInf;
   const bool singular = !(out.fisher_condition < kSingularFisher);
-  if (singular) {
+  // no σ given and none to estimate (an exact fit): the standard errors are unknown, not 0
+  const bool unknown_sigma = opt.noise_sigma <= 0.0 && dof <= 0;
+  if (singular || unknown_sigma) {
     out.covariance = Eigen::MatrixXd::Zero(pf, pf);
     out.covariance.diagonal().setConstant(kInf);
   } else {
@@ -711,17 +729,20 @@ CableSolution solve_cable(const CableRing& ring, const Eigen::Ref<const Eigen::M
   }
   out.standard_errors = out.covariance.diagonal().cwiseMax(0.0).cwiseSqrt();
 
-  bool ok = !singular;
+  bool ok = !singular && !unknown_sigma;
   std::string why;
   if (singular) why = "the Fisher matrix is singular (condition " + num(out.fisher_condition) + ")";
+  else if (unknown_sigma) why = "no noise σ: the standard errors are unknown";
   for (Eigen::Index k = 0; k < 2 * n && ok; ++k)
     if (!(out.standard_errors(k) <= opt.max_position_sigma)) {
       ok = false;
       why = "position standard error " + num(out.standard_errors(k)) + " m of conductor " + std::to_string(k / 2) +
             " exceeds " + num(opt.max_position_sigma) + " m at noise σ = " + num(out.noise_sigma) + " T";
     }
+  // a current's error against the largest current of the snapshots solved together: an idle snapshot (the one that
+  // pins a background best) or an AC waveform's zero crossing is small, not undetermined
+  const double scale = out.currents.cwiseAbs().maxCoeff();
   for (Eigen::Index s = 0; s < S && ok; ++s) {
-    const double scale = out.currents.row(s).cwiseAbs().maxCoeff();
     if (!(scale > 0.0)) continue;
     for (int j = 0; j < n && ok; ++j) {
       const double se = out.standard_errors(2 * n + n * s + j);
@@ -775,7 +796,10 @@ CableSolution solve_cable(const CableRing& ring, const Eigen::Ref<const Eigen::M
       out.fits_model = false;
       out.summary.warnings.push_back("the readings do not fit the model: residual " + num(per_dof) + " T per degree of "
                                      "freedom vs noise σ = " + num(opt.noise_sigma) +
-                                     " T (" + (bg ? "" : "a field that does not follow the currents: fit_background / --fit-background; ") +
+                                     " T (" + (bg ? "a background that is not uniform: a conductor near the ring, whose gradient "
+                                                  "`diagnose --model cable` names; "
+                                               : "a field that does not follow the currents: fit_background / "
+                                                 "--fit-background; ") +
                                      "sensors' offsets or gains, a wrong number of conductors?)");
     }
   }

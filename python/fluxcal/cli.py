@@ -1151,6 +1151,9 @@ def cmd_cable(args) -> int:
     for rows in groups:
         sol = _solve_ring_snapshots(ring, ring_cal, raw[rows], float(rotations[rows[0]]), rows, args)
         solutions.append(sol)
+    if all("left_out" in s for s in solutions):  # nothing solved: the ring cannot, whatever the snapshot
+        raise ValueError(f"{args.file}: every snapshot " + solutions[0]["left_out"].split(" — ", 1)[1] +
+                         " (or add sensors, or --zero-sum-currents when the currents sum to zero)")
     if args.output:
         Path(args.output).write_text(json.dumps({"source": str(args.file), "joint": bool(args.joint),
                                                  "solutions": solutions}, indent=2))
@@ -1205,7 +1208,17 @@ def _solve_ring_snapshots(ring, ring_cal, snaps, rotation: float, rows, args) ->
     if args.noise_sigma is not None:  # the user's σ (a datasheet's, repeats'): before the calibration's
         settings = {"noise_sigma": args.noise_sigma}
     n = args.conductors
+    per_snapshot = n - bool(args.zero_sum_currents) + 2 * bool(args.fit_background)  # what each must tell apart
     unknowns = 2 * n + len(rows) * (n - bool(args.zero_sum_currents)) + 2 * bool(args.fit_background)
+    if snaps.size < unknowns or 2 * int(live.sum()) < per_snapshot:
+        # (a dead sensor in one snapshot had ended the whole run, the others unsolved)
+        why = (f"{where}: left out — {snaps.size} readings ({int(live.sum())} live sensors) for {unknowns} unknowns"
+               + (" with the background field: --joint shares it and the positions between a rotation's snapshots "
+                  "(record several at each)" if args.fit_background
+                  else "; --joint shares the positions between a rotation's snapshots (record several at each)"))
+        print(why)
+        return {"snapshots": [int(k) for k in rows], "rotation_deg": rotation, "left_out": why,
+                "well_conditioned": False, "fits_model": False}
     if snaps.size == unknowns:
         print(f"{where}: {snaps.size} readings for {unknowns} unknowns: the fit is exact and cannot show a misfit"
               + (" (--joint shares the background and positions between a rotation's snapshots)"
@@ -1668,7 +1681,8 @@ def build_parser() -> argparse.ArgumentParser:
                          "in_field`) off every snapshot: for a ring recording where it was calibrated")
     kv.add_argument("--fit-background", action="store_true",
                     help="fit a uniform field that does not follow the currents (the Earth's, a far busbar's) beside "
-                         "the conductors, in the cable's frame; with --joint one per rotation, shared by its snapshots")
+                         "the conductors, in the cable's frame; with --joint one per rotation, shared by its snapshots (on a "
+                         "4-sensor ring a snapshot alone is then an exact fit: use --joint)")
     kv.add_argument("--conductors", type=positive_int, default=2, help="conductors in the cable (default 2)")
     kv.add_argument("--zero-sum-currents", action="store_true",
                     help="the currents sum to zero (go and return, a balanced three-phase load): one unknown "

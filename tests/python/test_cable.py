@@ -174,6 +174,19 @@ def test_background_covariance_predicts_the_scatter_and_both_refiners_agree():
     assert np.all(np.abs(np.mean(est, axis=0)[-2:] - earth) < 3 * predicted[-2:] / np.sqrt(300))
 
 
+def test_an_exact_fit_says_so_and_searches_wider():
+    """The paper's ring with a background: 8 readings for 8 unknowns. The fit cannot show a misfit (said), other exact
+    roots are the danger (4× the starts on a finer grid look for them), and without a noise σ its standard errors are
+    unknown, not 0."""
+    ring = Ring([0, 90, 180, 270], 0.010)
+    readings = ring.field([[-1.7e-3, 0.4e-3], [2.3e-3, 0.1e-3]], [5.0, -5.0]) + _uniform_readings(ring, (25e-6, -30e-6))
+    sol = ring.solve(readings, fit_background=True)
+    assert any("the fit is exact and cannot show a misfit" in w for w in sol.summary["warnings"])
+    assert sol.starts_tried >= 24
+    unknown = ring.solve(readings, fit_background=True, noise_sigma=0.0)
+    assert not unknown.well_conditioned and np.all(np.isinf(unknown.standard_errors))
+
+
 def test_background_needs_readings_for_its_two_unknowns():
     ring = Ring([0, 90, 180, 270], 0.010)
     readings = ring.field([[-1e-3, 0.0], [1e-3, 0.0]], [3.0, -3.0])
@@ -747,3 +760,63 @@ def test_repeats_held_with_currents_logged_per_reading():
     in_field = cable.calibrate_ring_in_field(room, truth, ring, rot)
     assert np.abs(in_field.gains - gains).max() < 2e-3
     assert complex(*in_field.background["terms_t"][0]) == pytest.approx(earth, abs=0.05e-6)
+
+
+def test_background_covariance_with_zero_sum_currents_and_three_conductors():
+    """The solver's covariance against one built here (J from Ring.jacobian and the oracle's uniform field, the
+    currents in ΣI = 0), with axes turned, 3 conductors, zero-sum currents and 4 snapshots: every entry, the
+    background's cross terms too. An idle snapshot among them is small, not undetermined."""
+    ring = Ring(np.arange(6) * 60.0 + 7.0, 0.010, axis_angles_deg=np.full(6, 10.0))
+    n, S, sigma = 3, 4, 2e-8
+    pos = np.array([[-2.0e-3, 0.5e-3], [1.9e-3, 1.1e-3], [0.3e-3, -2.2e-3]])
+    cur = np.array([[5.0, -2.0, -3.0], [-1.0, 4.0, -3.0], [2.0, 2.0, -4.0], [-6.0, 1.0, 5.0]])
+    earth = np.array([25e-6, -30e-6])
+    th, psi = np.radians(ring.angles_deg), np.radians(ring.axis_angles_deg)
+    U = np.column_stack([oracle.uniform_field(th, e, psi).ravel() for e in ((1.0, 0.0), (0.0, 1.0))])
+    clean = ring.field(pos, cur) + oracle.uniform_field(th, earth, psi)[None]
+    sol = ring.solve(clean, n_conductors=n, zero_sum_currents=True, fit_background=True, noise_sigma=sigma)
+    np.testing.assert_allclose(sol.positions, pos[np.lexsort((pos[:, 1], pos[:, 0]))], atol=1e-9)
+    np.testing.assert_allclose(sol.background_t, earth, atol=1e-12)
+    m, full = ring.n_sensors, 2 * n + n * S + 2
+    J = np.zeros((2 * m * S, full))
+    for s in range(S):
+        Js = ring.jacobian(sol.positions, sol.currents[s])
+        J[2 * m * s:2 * m * (s + 1), :2 * n] = Js[:, :2 * n]
+        J[2 * m * s:2 * m * (s + 1), 2 * n + n * s:2 * n + n * (s + 1)] = Js[:, 2 * n:]
+        J[2 * m * s:2 * m * (s + 1), -2:] = U
+    basis = np.vstack([np.eye(n - 1), -np.ones(n - 1)])  # ΣI = 0: the last current is minus the others
+    T = np.zeros((full, 2 * n + (n - 1) * S + 2))
+    T[:2 * n, :2 * n], T[-2:, -2:] = np.eye(2 * n), np.eye(2)
+    for s in range(S):
+        T[2 * n + n * s:2 * n + n * (s + 1), 2 * n + (n - 1) * s:2 * n + (n - 1) * (s + 1)] = basis
+    cov = sigma ** 2 * T @ np.linalg.inv(T.T @ J.T @ J @ T) @ T.T
+    scale = np.sqrt(np.outer(np.diag(cov), np.diag(cov)))
+    assert np.abs(cov - sol.covariance).max() / scale.max() < 1e-8
+    assert np.all(np.abs(cov - sol.covariance) <= 1e-8 * scale)
+    idle = cur.copy()
+    idle[1] = 0.0
+    quiet = ring.solve(ring.field(pos, idle) + oracle.uniform_field(th, earth, psi)[None], n_conductors=n,
+                       zero_sum_currents=True, fit_background=True, noise_sigma=sigma)
+    assert quiet.well_conditioned, quiet.summary["warnings"]
+
+
+def test_solve_with_a_background_keeps_going_past_a_snapshot_too_small_for_it(tmp_path):
+    """--fit-background without --joint on the paper's 4-sensor ring: a snapshot with a dead sensor has 6 readings
+    for 8 unknowns; it is left out with the remedy, and the others are solved. The JSON's standard errors are the
+    API's slices."""
+    from fluxcal import cable
+
+    ring = Ring([0, 90, 180, 270], 0.010)
+    pos, earth = np.array([[-1.7e-3, 0.4e-3], [2.3e-3, 0.1e-3]]), np.array([25e-6, -30e-6])
+    cur = np.array([[5.0, -5.0], [3.0, -3.0], [-4.0, 4.0]])
+    readings = ring.field(pos, cur) + _uniform_readings(ring, earth)[None]
+    readings[1, 2] = np.nan
+    path = cable.write_ring_csv(tmp_path / "dead.csv", ring, readings, None, cur)
+    r = run_cli("cable", "solve", path, "--fit-background", "--noise-sigma", "2e-8", "-o", tmp_path / "s.json")
+    assert r.returncode == 0, r.stdout + r.stderr
+    assert "snapshot 1: left out" in r.stdout and "--joint" in r.stdout
+    solutions = json.loads((tmp_path / "s.json").read_text())["solutions"]
+    assert [s["snapshots"] for s in solutions if "left_out" not in s] == [[0], [2]]
+    api = ring.solve(readings[2], fit_background=True, noise_sigma=2e-8)
+    np.testing.assert_allclose(solutions[2]["background_sigma_t"], api.background_sigma, rtol=1e-6)
+    np.testing.assert_allclose(solutions[2]["current_sigma_a"][0], api.standard_errors[4:6], rtol=1e-6)

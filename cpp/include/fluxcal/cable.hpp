@@ -25,9 +25,11 @@
 // Background. A field that does not follow the currents (the Earth's, a neighbouring busbar's) misfits the
 // model and pulls the positions. fit_background adds a uniform field b = (b_x, b_y) in the cable's frame,
 // shared by every snapshot (the ring and the room keep still during a recording): each sensor reads
-// (x̂_i·b, ŷ_i·b) on top of the conductors. Its readings' pattern turns once with the sensors' axes, which
-// the conductors' field (1/r and its multipoles) does not do, so a ring of M ≥ 3 sensors tells it apart to
-// within the conductors' M-th multipole. A gradient across the ring is not modelled.
+// (x̂_i·b, ŷ_i·b) on top of the conductors. In the sensors' frame its pattern is harmonic −1 round the ring,
+// which no conductor's field has; on M equally spaced sensors it aliases with the conductors' (M−1)-th term, so
+// the ring tells it from the conductors' lower terms, and fully once the snapshots' currents differ (a field
+// that does not follow them). Each snapshot needs 2M ≥ its currents + 2 readings. A gradient across the ring is
+// not modelled (subtracting a zero-current snapshot taken in the same pose removes it too).
 //
 // Conditioning. The covariance is σ² (JᵀJ)⁻¹ at the solution with σ the reading noise
 // (options.noise_sigma, or the residual estimate). Two conductors close together are only seen through
@@ -114,7 +116,7 @@ struct CableSolveOptions {
   double noise_sigma = 1e-8;
   /// well_conditioned needs every position standard error below this (metres) ...
   double max_position_sigma = 1e-4;
-  /// ... and every current standard error below this fraction of the largest |current| of its snapshot (a
+  /// ... and every current standard error below this fraction of the largest |current| of the snapshots (a
   /// 2-core cable with 2 mm spacing on a 10 mm ring has ~1 % at 10 nT; 0.6 mm spacing ~50 %).
   double max_current_relative_sigma = 0.05;
   /// fits_model is false when the residual RMS per degree of freedom exceeds this multiple of noise_sigma

@@ -57,7 +57,7 @@ import numpy as np
 from scipy import stats
 from scipy.optimize import least_squares
 
-from ..cable import Ring, RingCalibration, consecutive_runs, run_sums
+from ..cable import POSE_RTOL, Ring, RingCalibration, consecutive_runs, run_sums
 from ..sim.cable_effects import MU0_OVER_2PI, CABLE_CANDIDATES, sensor_points, straight_unit_fields, to_axes
 from .core import (ABSORBED, HELDOUT_ALPHA, HELDOUT_FRACTION, MIN_GAIN, Diagnosis, _binned, _collapsed, _gap,
                    _improvement_pvalue, _quantile_bins, _rivals, _unexplained, _whitened_lr, _whiteness,
@@ -609,8 +609,15 @@ def _calibration_check(model: "_Model", fit: dict, calibration: RingCalibration,
 # ---------------------------------------------------------------- held-out regimes
 
 def _levels(data: _Data, currents) -> np.ndarray:
-    """The current level of every snapshot: the largest |current| of its conductors, rounded."""
-    return np.round(np.max(np.abs(currents), axis=1), 6)
+    """The current level of every snapshot: the largest |current| of its conductors, those within POSE_RTOL of the
+    next smaller one taken as one level (currents logged per reading jitter), their mean rounded."""
+    level = np.max(np.abs(currents), axis=1)
+    order = np.argsort(level, kind="stable")
+    ranked = level[order]
+    cluster = np.cumsum(np.concatenate([[True], np.diff(ranked) > POSE_RTOL * ranked[:-1]])) - 1
+    out = np.empty_like(level)
+    out[order] = (np.bincount(cluster, weights=ranked) / np.bincount(cluster))[cluster]
+    return np.round(out, 6)
 
 
 def _regime(wanted: str, data: _Data, levels) -> str:
@@ -647,17 +654,27 @@ def _heldout(regime: str, data: _Data, levels) -> np.ndarray:
 # ---------------------------------------------------------------- noise
 
 def _noise_from_repeats(y, rotations, reference):
-    """σ per sensor from consecutive snapshots repeated at the same rotation and reference currents
-    (pooled within-run variance, both axes; repeats far apart in time could differ by a drift); None
-    when fewer than 10 degrees of freedom."""
+    """σ per sensor from consecutive snapshots repeated at the same rotation and reference currents (within
+    POSE_RTOL: currents logged per reading jitter) — pooled within-run variance, both axes; repeats far apart in time
+    could differ by a drift. The readings follow a logged current's jitter, by a field per ampere the same for every
+    run at one rotation: that part of the within-run deviations is fitted (per rotation, sensor and axis) and taken
+    off, its columns off the degrees of freedom. None when fewer than 10 degrees of freedom."""
     if reference is None:
         return None
-    group = consecutive_runs(rotations, reference)[1]
+    group = consecutive_runs(rotations, near=reference)[1]
     counts = np.bincount(group)
-    dof = int(np.sum(counts[counts > 1] - 1))
+    dev = y - (run_sums(y, group) / counts[:, None, None])[group]
+    dev_i = reference - (run_sums(reference, group) / counts[:, None])[group]
+    dof = int(np.sum(counts - 1))
+    for angle in np.unique(rotations):
+        rows = rotations == angle
+        rank = np.linalg.matrix_rank(dev_i[rows]) if np.any(dev_i[rows]) else 0
+        if rank:
+            flat = dev[rows].reshape(int(rows.sum()), -1)
+            dev[rows] = (flat - dev_i[rows] @ np.linalg.lstsq(dev_i[rows], flat, rcond=None)[0]).reshape(dev[rows].shape)
+            dof -= rank
     if dof < 10:
         return None
-    dev = y - (run_sums(y, group) / counts[:, None, None])[group]
     return np.sqrt(np.sum(dev ** 2, axis=(0, 2)) / (2 * dof))
 
 
@@ -1047,11 +1064,11 @@ def _prepare(readings, ring, currents, rotations_deg, positions, calibration, no
     if average_repeats and reference is not None:
         # consecutive repeats of one rotation and currents are averaged: the same information (their spread
         # is the noise, estimated above) in half the fitting time
-        start, group = consecutive_runs(rot, reference)
+        start, group = consecutive_runs(rot, near=reference)  # (the model is linear in the currents: their mean)
         counts = np.bincount(group).astype(float)
         y = run_sums(y, group) / counts[:, None, None]
         t = run_sums(t, group) / counts
-        rot, reference = rot[start], reference[start]
+        rot, reference = rot[start], run_sums(reference, group) / counts[:, None]
     unique, rot_index = np.unique(rot, return_inverse=True)
     geometry = [sensor_points(ring, a) for a in unique]
     pts = np.array([g[0] for g in geometry])
@@ -1320,7 +1337,8 @@ def _caveats(data: _Data, correction: dict, base: dict, noise_source: str, overa
     # background fields at one level were "explained" by stand-ins in 20 of 20 rigs, 8 of them with nothing said)
     # (one set of currents throughout: ±I, or another pattern at the same level, does tell a field that does not
     # follow them — a 30 µT background at ±10 A was found exactly, the caveat beside it wrong)
-    if (data.reference is not None and len(np.unique(np.round(data.reference, 6), axis=0)) == 1
+    if (data.reference is not None and np.all(np.abs(data.reference - data.reference[0]).max(axis=1)
+                                               <= POSE_RTOL * np.abs(data.reference[0]).max())
             and overall["rms_z"] > FAR_BEYOND_NOISE):
         out.append("the recording holds one current level: a field that does not follow the current (a background "
                    "field, a neighbouring cable) cannot be told apart from one that does (a circuit closing near the "
