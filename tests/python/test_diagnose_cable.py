@@ -686,3 +686,27 @@ def test_the_given_calibration_is_compared_with_the_refit(tmp_path):
     d.save_json(tmp_path / "d.json")
     saved = json.loads((tmp_path / "d.json").read_text())["remaining"]["calibration_check"]
     assert saved["changed"][0]["sensor"] == "sensor 2"
+
+
+def test_repeats_with_currents_logged_per_reading():
+    """Currents logged per reading (0.1 % jitter): consecutive readings at one rotation and currents within POSE_RTOL
+    are repeats — σ from their scatter less what the jitter did (fitted per rotation), their averages the snapshots,
+    the levels three, not one per snapshot."""
+    from fluxcal import cable
+
+    ring = Ring(np.arange(0.0, 360.0, 60.0), 0.012)
+    rng = np.random.default_rng(3)
+    pos = np.array([[-2e-3, 0.5e-3], [2.5e-3, 0.0]])
+    gains, offsets = rng.uniform(0.97, 1.03, (6, 2)), rng.uniform(-5e-6, 5e-6, (6, 2))
+    rot = np.repeat(90.0 * np.arange(4), 24)
+    pattern = np.repeat(np.outer(np.tile([1.0, -1.0], 3), [1.0, -1.0]) * np.repeat([2.0, 5.0, 10.0], 2)[:, None], 4,
+                        axis=0)
+    cur = np.tile(pattern, (4, 1)) * (1 + 1e-3 * rng.standard_normal((len(rot), 2)))
+    truth = np.stack([ring.rotated(a).field(pos, c) for a, c in zip(rot, cur)])
+    y = gains * truth + offsets + rng.normal(0, 2e-8, truth.shape)
+    d = diagnose_cable(y, ring, currents=cur, rotations_deg=rot, positions=pos,
+                       calibration=cable.RingCalibration(offsets, gains), max_effects=0)
+    assert d.noise_source.startswith("from repeated snapshots")
+    np.testing.assert_allclose(d.where["noise_sigma_per_sensor"], 2e-8, rtol=0.25)
+    assert d.where["overall"]["snapshots"] == 24 and len(np.unique(d.series["levels"])) == 3
+    assert d.remaining["calibration_check"]["consistent"]
