@@ -169,70 +169,93 @@ struct RunInfo {
 };
 
 // Dense Levenberg–Marquardt (Marquardt's diagonal scaling, bounds by projection) on the same residual
-// blocks: no set-up cost, for the warm-started path of a continuous measurement.
-// `bg` is the background field (2, normalised) or empty when none is fitted.
+// blocks: no set-up cost, for the warm-started path of a continuous measurement. Its normal equations have the
+// arrow shape of the problem — the shared parameters (positions, background) against each snapshot's own
+// currents — and are solved by blocks (the Schur complement on the shared ones): O(S), where the whole matrix
+// was O(S³) (800 snapshots of an AC waveform: 20 s).
+// `bg` is the background field (2, normalised) or null when none is fitted.
 RunInfo dense_lm(const std::vector<std::unique_ptr<SnapshotCost>>& costs, std::vector<double>& pos, Eigen::MatrixXd& cur,
                  Eigen::Vector2d* bg, int n, double bore, const CableSolveOptions& opt) {
   const int nc = static_cast<int>(cur.rows());
   const Eigen::Index S = cur.cols(), rows = costs.empty() ? 0 : costs[0]->num_residuals();
-  const Eigen::Index nb = bg ? 2 : 0, p = 2 * n + nc * S + nb;
+  const Eigen::Index nb = bg ? 2 : 0, k = 2 * n + nb;  // shared parameters: positions, then the background
   using RowMat = Eigen::Matrix<double, Eigen::Dynamic, Eigen::Dynamic, Eigen::RowMajor>;
   Eigen::VectorXd r(rows * S), r_try(rows * S);
-  Eigen::MatrixXd J = Eigen::MatrixXd::Zero(rows * S, p);
   RowMat Jp(rows, 2 * n), Jc(rows, nc), Jb(rows, 2);
+  Eigen::MatrixXd A(k, k), Jk(rows, k);  // Σ JₖᵀJₖ over the snapshots; one snapshot's shared columns
+  std::vector<Eigen::MatrixXd> B(static_cast<std::size_t>(S)), D(static_cast<std::size_t>(S));  // JₖᵀJ_c, J_cᵀJ_c
+  Eigen::VectorXd gk(k);
+  Eigen::MatrixXd gc(nc, S);
   Eigen::Vector2d b = bg ? *bg : Eigen::Vector2d::Zero(), b_try = b;
   auto evaluate = [&](const std::vector<double>& ps, const Eigen::MatrixXd& cs, const Eigen::Vector2d& bs,
                       Eigen::VectorXd& res, bool jac) {
-    for (Eigen::Index k = 0; k < S; ++k) {
-      const double* params[3] = {ps.data(), cs.col(k).data(), bs.data()};
+    if (jac) A.setZero(), gk.setZero();
+    for (Eigen::Index s = 0; s < S; ++s) {
+      const double* params[3] = {ps.data(), cs.col(s).data(), bs.data()};
       double* jacs[3] = {Jp.data(), Jc.data(), Jb.data()};
-      costs[static_cast<std::size_t>(k)]->Evaluate(params, res.data() + rows * k, jac ? jacs : nullptr);
+      costs[static_cast<std::size_t>(s)]->Evaluate(params, res.data() + rows * s, jac ? jacs : nullptr);
       if (jac) {
-        J.block(rows * k, 0, rows, 2 * n) = Jp;
-        J.block(rows * k, 2 * n + nc * k, rows, nc) = Jc;
-        if (bg) J.block(rows * k, p - 2, rows, 2) = Jb;
+        Jk.leftCols(2 * n) = Jp;
+        if (bg) Jk.rightCols(2) = Jb;
+        const auto rs = res.segment(rows * s, rows);
+        A.noalias() += Jk.transpose() * Jk;
+        B[static_cast<std::size_t>(s)].noalias() = Jk.transpose() * Jc;
+        D[static_cast<std::size_t>(s)].noalias() = Jc.transpose() * Jc;
+        gk.noalias() += Jk.transpose() * rs;
+        gc.col(s).noalias() = Jc.transpose() * rs;
       }
     }
     return 0.5 * res.squaredNorm();
   };
   RunInfo info;
   double cost = evaluate(pos, cur, b, r, true);
-  Eigen::MatrixXd A = J.transpose() * J;
-  Eigen::VectorXd g = J.transpose() * r;
   double lambda = 1e-4;
   std::vector<double> pos_try(pos.size());
-  Eigen::MatrixXd cur_try(cur.rows(), cur.cols());
+  Eigen::MatrixXd cur_try(cur.rows(), cur.cols()), step_c(nc, S);
+  std::vector<Eigen::LDLT<Eigen::MatrixXd>> Dd(static_cast<std::size_t>(S));
   for (info.iterations = 0; info.iterations < opt.max_iterations;) {
-    if (g.cwiseAbs().maxCoeff() <= opt.gradient_tolerance) {
+    if (std::max(gk.cwiseAbs().maxCoeff(), gc.cwiseAbs().maxCoeff()) <= opt.gradient_tolerance) {
       info.converged = true;
       info.message = "gradient tolerance reached";
       break;
     }
-    Eigen::MatrixXd M = A;
-    M.diagonal() += lambda * A.diagonal().cwiseMax(1e-300);
-    const Eigen::VectorXd step = -M.ldlt().solve(g);
-    if (!step.allFinite()) {
+    // (M + λ diag M) step = −g by blocks: each snapshot's currents eliminated into the shared block
+    Eigen::MatrixXd schur = A;
+    schur.diagonal() += lambda * A.diagonal().cwiseMax(1e-300);
+    Eigen::VectorXd rhs = -gk;
+    for (Eigen::Index s = 0; s < S; ++s) {
+      const auto u = static_cast<std::size_t>(s);
+      Eigen::MatrixXd Ds = D[u];
+      Ds.diagonal() += lambda * D[u].diagonal().cwiseMax(1e-300);
+      Dd[u].compute(Ds);
+      schur.noalias() -= B[u] * Dd[u].solve(B[u].transpose());
+      rhs.noalias() += B[u] * Dd[u].solve(gc.col(s));
+    }
+    const Eigen::VectorXd step_k = schur.ldlt().solve(rhs);
+    for (Eigen::Index s = 0; s < S; ++s) {
+      const auto u = static_cast<std::size_t>(s);
+      step_c.col(s) = Dd[u].solve(-gc.col(s) - B[u].transpose() * step_k);
+    }
+    if (!step_k.allFinite() || !step_c.allFinite()) {
       info.message = "the normal equations are singular";
       break;
     }
-    for (int k = 0; k < 2 * n; ++k) pos_try[static_cast<std::size_t>(k)] = std::clamp(pos[static_cast<std::size_t>(k)] + step(k), -bore, bore);
-    for (Eigen::Index k = 0; k < S; ++k)
-      for (int j = 0; j < nc; ++j) cur_try(j, k) = cur(j, k) + step(2 * n + nc * k + j);
-    if (bg) b_try = b + step.tail<2>();
+    for (int j = 0; j < 2 * n; ++j) pos_try[static_cast<std::size_t>(j)] = std::clamp(pos[static_cast<std::size_t>(j)] + step_k(j), -bore, bore);
+    cur_try = cur + step_c;
+    if (bg) b_try = b + step_k.tail<2>();
     const double cost_try = evaluate(pos_try, cur_try, b_try, r_try, false);
     ++info.iterations;
     if (cost_try < cost) {
       double x_norm = 0.0;
       for (double v : pos) x_norm += v * v;
       x_norm = std::sqrt(x_norm + cur.squaredNorm() + (bg ? b.squaredNorm() : 0.0));
-      const bool small_step = step.norm() <= opt.parameter_tolerance * (x_norm + opt.parameter_tolerance);
+      const double step_norm = std::sqrt(step_k.squaredNorm() + step_c.squaredNorm());
+      const bool small_step = step_norm <= opt.parameter_tolerance * (x_norm + opt.parameter_tolerance);
       const bool small_change = (cost - cost_try) <= opt.function_tolerance * cost;
       pos = pos_try;
       cur = cur_try;
       b = b_try;
       cost = evaluate(pos, cur, b, r, true);
-      A.noalias() = J.transpose() * J;
-      g.noalias() = J.transpose() * r;
       lambda = std::max(lambda / 3.0, 1e-12);
       if (small_step || small_change) {
         info.converged = true;
@@ -254,6 +277,152 @@ RunInfo dense_lm(const std::vector<std::unique_ptr<SnapshotCost>>& costs, std::v
   info.usable = std::isfinite(cost);
   return info;
 }
+
+// Up to this many parameters the Fisher information is inverted whole (an eigen-decomposition, O(p³)); above, by
+// blocks (one snapshot's currents are 1–4 parameters; 800 snapshots of an AC waveform had taken 8 s whole).
+constexpr Eigen::Index kDenseFisher = 400;
+
+// The inverse of the column-scaled Fisher information of the cable problem, read back unscaled by blocks, and its
+// condition number (inf when singular: no inverse then).
+class FisherInverse {
+ public:
+  double condition = kInf;
+  Eigen::MatrixXd shared() const { return dk_.asDiagonal() * at(-1, -1) * dk_.asDiagonal(); }
+  Eigen::MatrixXd shared_currents(Eigen::Index s) const { return dk_.asDiagonal() * at(-1, s) * dc(s).asDiagonal(); }
+  Eigen::MatrixXd currents(Eigen::Index s, Eigen::Index t) const {
+    return dc(s).asDiagonal() * at(s, t) * dc(t).asDiagonal();
+  }
+
+ private:
+  friend class FisherBlocks;
+  Eigen::Index k_ = 0, nc_ = 0;
+  Eigen::VectorXd dk_, dc_;  // column scaling: shared, then every snapshot's currents
+  Eigen::MatrixXd dense_;    // the whole scaled inverse (shared first), or empty ...
+  Eigen::MatrixXd cpp_;      // ... its blocks: the shared block, E_s = D_s⁻¹ B_sᵀ and D_s⁻¹
+  std::vector<Eigen::MatrixXd> e_, dinv_;
+  Eigen::VectorXd dc(Eigen::Index s) const { return dc_.segment(nc_ * s, nc_); }
+  // scaled inverse block: rows of the shared parameters (−1) or of snapshot s's currents, columns likewise
+  Eigen::MatrixXd at(Eigen::Index s, Eigen::Index t) const {
+    if (dense_.size()) {
+      const Eigen::Index r0 = s < 0 ? 0 : k_ + nc_ * s, c0 = t < 0 ? 0 : k_ + nc_ * t;
+      return dense_.block(r0, c0, s < 0 ? k_ : nc_, t < 0 ? k_ : nc_);
+    }
+    if (s < 0 && t < 0) return cpp_;
+    if (s < 0) return -cpp_ * e_[static_cast<std::size_t>(t)].transpose();
+    if (t < 0) return -e_[static_cast<std::size_t>(s)] * cpp_;
+    Eigen::MatrixXd out = e_[static_cast<std::size_t>(s)] * cpp_ * e_[static_cast<std::size_t>(t)].transpose();
+    if (s == t) out += dinv_[static_cast<std::size_t>(s)];
+    return out;
+  }
+};
+
+// JᵀJ of the cable problem in its arrow shape: the shared parameters (positions, background: k) against each
+// snapshot's own currents (nc), which only that snapshot's readings see.
+class FisherBlocks {
+ public:
+  FisherBlocks(Eigen::Index k, Eigen::Index nc, Eigen::Index snapshots)
+      : k_(k), nc_(nc), A_(Eigen::MatrixXd::Zero(k, k)), B_(static_cast<std::size_t>(snapshots)),
+        D_(static_cast<std::size_t>(snapshots)) {}
+  /// Snapshot s's Jacobian: its shared columns and its currents' columns.
+  void add(Eigen::Index s, const Eigen::MatrixXd& Jk, const Eigen::MatrixXd& Jc) {
+    A_.noalias() += Jk.transpose() * Jk;
+    B_[static_cast<std::size_t>(s)] = Jk.transpose() * Jc;
+    D_[static_cast<std::size_t>(s)] = Jc.transpose() * Jc;
+  }
+
+  FisherInverse invert() const {
+    const Eigen::Index S = static_cast<Eigen::Index>(D_.size()), p = k_ + nc_ * S;
+    FisherInverse out;
+    out.k_ = k_, out.nc_ = nc_;
+    auto scale = [](const Eigen::VectorXd& diag) {
+      return diag.unaryExpr([](double v) { return v > 0.0 ? 1.0 / std::sqrt(v) : 1.0; }).eval();
+    };
+    out.dk_ = scale(A_.diagonal());
+    out.dc_.resize(nc_ * S);
+    for (Eigen::Index s = 0; s < S; ++s) out.dc_.segment(nc_ * s, nc_) = scale(D_[static_cast<std::size_t>(s)].diagonal());
+    const auto& dk = out.dk_;
+    auto dc = [&](Eigen::Index s) { return out.dc_.segment(nc_ * s, nc_); };
+    const Eigen::MatrixXd As = dk.asDiagonal() * A_ * dk.asDiagonal();
+    std::vector<Eigen::MatrixXd> Bs(static_cast<std::size_t>(S)), Ds(static_cast<std::size_t>(S));
+    for (Eigen::Index s = 0; s < S; ++s) {
+      const auto u = static_cast<std::size_t>(s);
+      Bs[u] = dk.asDiagonal() * B_[u] * dc(s).asDiagonal();
+      Ds[u] = dc(s).asDiagonal() * D_[u] * dc(s).asDiagonal();
+    }
+    if (p <= kDenseFisher) {  // whole: as small problems always were
+      Eigen::MatrixXd F(p, p);
+      F.topLeftCorner(k_, k_) = As;
+      F.bottomRightCorner(p - k_, p - k_).setZero();
+      for (Eigen::Index s = 0; s < S; ++s) {
+        const auto u = static_cast<std::size_t>(s);
+        F.block(0, k_ + nc_ * s, k_, nc_) = Bs[u];
+        F.block(k_ + nc_ * s, 0, nc_, k_) = Bs[u].transpose();
+        F.block(k_ + nc_ * s, k_ + nc_ * s, nc_, nc_) = Ds[u];
+      }
+      Eigen::SelfAdjointEigenSolver<Eigen::MatrixXd> eig(F);
+      const Eigen::VectorXd lam = eig.eigenvalues();
+      out.condition = lam(0) > 0.0 ? lam(p - 1) / lam(0) : kInf;
+      if (out.condition < kSingularFisher)
+        out.dense_ = eig.eigenvectors() * lam.cwiseInverse().asDiagonal() * eig.eigenvectors().transpose();
+      return out;
+    }
+    // by blocks: each snapshot's currents eliminated into the shared block (Schur complement)
+    Eigen::MatrixXd schur = As;
+    out.dinv_.resize(static_cast<std::size_t>(S));
+    out.e_.resize(static_cast<std::size_t>(S));
+    for (Eigen::Index s = 0; s < S; ++s) {
+      const auto u = static_cast<std::size_t>(s);
+      Eigen::SelfAdjointEigenSolver<Eigen::MatrixXd> eig(Ds[u]);
+      if (!(eig.eigenvalues()(0) > 1e-14 * eig.eigenvalues()(nc_ - 1))) return out;  // singular
+      out.dinv_[u] = eig.eigenvectors() * eig.eigenvalues().cwiseInverse().asDiagonal() * eig.eigenvectors().transpose();
+      out.e_[u] = out.dinv_[u] * Bs[u].transpose();
+      schur.noalias() -= Bs[u] * out.e_[u];
+    }
+    Eigen::SelfAdjointEigenSolver<Eigen::MatrixXd> eig(schur);
+    if (!(eig.eigenvalues()(0) > 1e-14 * eig.eigenvalues()(k_ - 1))) return out;
+    out.cpp_ = eig.eigenvectors() * eig.eigenvalues().cwiseInverse().asDiagonal() * eig.eigenvectors().transpose();
+    // the extreme eigenvalues by power iteration: on the matrix for the largest, on its inverse for the smallest
+    auto times = [&](const Eigen::VectorXd& x) {
+      Eigen::VectorXd y(p);
+      y.head(k_) = As * x.head(k_);
+      for (Eigen::Index s = 0; s < S; ++s) {
+        const auto u = static_cast<std::size_t>(s);
+        y.head(k_) += Bs[u] * x.segment(k_ + nc_ * s, nc_);
+        y.segment(k_ + nc_ * s, nc_) = Bs[u].transpose() * x.head(k_) + Ds[u] * x.segment(k_ + nc_ * s, nc_);
+      }
+      return y;
+    };
+    auto solve = [&](const Eigen::VectorXd& x) {
+      Eigen::VectorXd y(p), rhs = x.head(k_);
+      for (Eigen::Index s = 0; s < S; ++s) rhs -= out.e_[static_cast<std::size_t>(s)].transpose() * x.segment(k_ + nc_ * s, nc_);
+      y.head(k_) = out.cpp_ * rhs;
+      for (Eigen::Index s = 0; s < S; ++s) {
+        const auto u = static_cast<std::size_t>(s);
+        y.segment(k_ + nc_ * s, nc_) = out.dinv_[u] * x.segment(k_ + nc_ * s, nc_) - out.e_[u] * y.head(k_);
+      }
+      return y;
+    };
+    auto largest = [&](auto&& apply) {
+      Eigen::VectorXd x = Eigen::VectorXd::LinSpaced(p, 1.0, 2.0).normalized();
+      double value = 0.0;
+      for (int it = 0; it < 500; ++it) {
+        const Eigen::VectorXd y = apply(x);
+        const double next = x.dot(y);  // Rayleigh quotient
+        x = y.normalized();
+        if (it > 10 && std::abs(next - value) <= 1e-12 * std::abs(next)) return next;
+        value = next;
+      }
+      return value;
+    };
+    out.condition = largest(times) * largest(solve);
+    return out;
+  }
+
+ private:
+  Eigen::Index k_, nc_;
+  Eigen::MatrixXd A_;
+  std::vector<Eigen::MatrixXd> B_, D_;
+};
 
 void check_positions(const CableRing& ring, const ConductorPositionsRef& positions,
                      const char* name) {
@@ -662,40 +831,39 @@ CableSolution solve_cable(const CableRing& ring, const Eigen::Ref<const Eigen::M
   out.starts_tried = tried;
   if (bg) out.background = best_bg * field_unit;
 
-  // ---- residuals, Jacobian (physical units, full parametrisation), covariance ------------------------
-  const Eigen::Index pf = 2 * n + n * S + nb;
-  Eigen::MatrixXd J = Eigen::MatrixXd::Zero(2 * m * S, pf);
+  // ---- residuals, Fisher information (physical units, by blocks), covariance -------------------------
+  // Parameters: full [x_0, y_0, …, I(snapshot 0, conductors 0…N−1), …, b_x, b_y] (pf); reduced, with ΣI = 0 the
+  // derived current left out (pr). A snapshot's currents: full = Tc · reduced; after sorting, the derived conductor
+  // is order⁻¹(n − 1), its current −Σ of the others.
+  const Eigen::Index pf = 2 * n + n * S + nb, pr = 2 * n + nc * S + nb, k = 2 * n + nb;
+  Eigen::MatrixXd Tc = Eigen::MatrixXd::Zero(n, nc);
+  {
+    int derived = -1, col = 0;
+    if (zs)
+      for (int j = 0; j < n; ++j)
+        if (order[j] == n - 1) derived = j;
+    for (int j = 0; j < n; ++j) {
+      if (j == derived) continue;
+      Tc(j, col) = 1.0;
+      if (zs) Tc(derived, col) = -1.0;
+      ++col;
+    }
+  }
+  // The Fisher information JᵀJ has the problem's arrow shape: the shared block A (positions, background), and for
+  // each snapshot B_s (shared × its currents) and D_s (its currents), which no other snapshot's readings touch.
+  FisherBlocks fb(k, nc, S);
   const Eigen::VectorXd background_readings = U * out.background;  // zero without a background
   out.residuals.resize(S, 2 * m);
+  Eigen::MatrixXd Jk(2 * m, k);
   for (Eigen::Index s = 0; s < S; ++s) {
     const Eigen::MatrixXd Js = jacobian_kernel(ring, out.positions, out.currents.row(s).transpose());
     const auto model = field_kernel(ring, out.positions, out.currents.row(s).transpose());
     for (Eigen::Index i = 0; i < m; ++i)
       for (int a = 0; a < 2; ++a) out.residuals(s, 2 * i + a) = readings(s, 2 * i + a) - model(i, a) - background_readings(2 * i + a);
-    J.block(2 * m * s, 0, 2 * m, 2 * n) = Js.leftCols(2 * n);
-    J.block(2 * m * s, 2 * n + n * s, 2 * m, n) = Js.rightCols(n);
-    if (bg) J.block(2 * m * s, pf - 2, 2 * m, 2) = U;
+    Jk.leftCols(2 * n) = Js.leftCols(2 * n);
+    if (bg) Jk.rightCols(2) = U;
+    fb.add(s, Jk, Js.rightCols(n) * Tc);
   }
-  // reduced parametrisation: θ_full = T θ_reduced
-  const Eigen::Index pr = 2 * n + nc * S + nb;
-  Eigen::MatrixXd T = Eigen::MatrixXd::Zero(pf, pr);
-  T.topLeftCorner(2 * n, 2 * n).setIdentity();
-  if (bg) T.bottomRightCorner(2, 2).setIdentity();
-  // after sorting, the derived conductor is order⁻¹(n − 1); its current is −Σ of the others
-  int derived = -1;
-  if (zs)
-    for (int j = 0; j < n; ++j)
-      if (order[j] == n - 1) derived = j;
-  for (Eigen::Index s = 0; s < S; ++s) {
-    int col = 0;
-    for (int j = 0; j < n; ++j) {
-      if (j == derived) continue;
-      T(2 * n + n * s + j, 2 * n + nc * s + col) = 1.0;
-      if (zs) T(2 * n + n * s + derived, 2 * n + nc * s + col) = -1.0;
-      ++col;
-    }
-  }
-  const Eigen::MatrixXd Jr = J * T;
   const double ssr = out.residuals.squaredNorm();
   const Eigen::Index dof = equations - pr;
   if (opt.noise_sigma > 0.0) {
@@ -709,23 +877,33 @@ CableSolution solve_cable(const CableRing& ring, const Eigen::Ref<const Eigen::M
   if (dof == 0)
     out.summary.warnings.push_back("as many readings as unknowns: the fit is exact and cannot show a misfit (add "
                                    "sensors, or solve snapshots that share the positions together)");
-  Eigen::MatrixXd F = Jr.transpose() * Jr;
-  Eigen::VectorXd d(pr);
-  for (Eigen::Index k = 0; k < pr; ++k) d(k) = F(k, k) > 0.0 ? 1.0 / std::sqrt(F(k, k)) : 1.0;
-  const Eigen::MatrixXd Fs = d.asDiagonal() * F * d.asDiagonal();
-  Eigen::SelfAdjointEigenSolver<Eigen::MatrixXd> eig(Fs);
-  const Eigen::VectorXd lam = eig.eigenvalues();
-  out.fisher_condition = lam(0) > 0.0 ? lam(pr - 1) / lam(0) : kInf;
+  const FisherInverse inv = fb.invert();  // of the column-scaled information, and its condition number
+  out.fisher_condition = inv.condition;
   const bool singular = !(out.fisher_condition < kSingularFisher);
   // no σ given and none to estimate (an exact fit): the standard errors are unknown, not 0
   const bool unknown_sigma = opt.noise_sigma <= 0.0 && dof <= 0;
+  out.covariance = Eigen::MatrixXd::Zero(pf, pf);
   if (singular || unknown_sigma) {
-    out.covariance = Eigen::MatrixXd::Zero(pf, pf);
     out.covariance.diagonal().setConstant(kInf);
   } else {
-    const Eigen::MatrixXd inv = eig.eigenvectors() * lam.cwiseInverse().asDiagonal() * eig.eigenvectors().transpose();
-    const Eigen::MatrixXd cov_r = out.noise_sigma * out.noise_sigma * (d.asDiagonal() * inv * d.asDiagonal());
-    out.covariance = T * cov_r * T.transpose();
+    // full index of shared parameter j (positions, then the background last) and of snapshot s's current block
+    auto shared = [&](Eigen::Index j) { return j < 2 * n ? j : pf - (k - j); };
+    const double v = out.noise_sigma * out.noise_sigma;
+    const Eigen::MatrixXd Ckk = v * inv.shared();
+    for (Eigen::Index a = 0; a < k; ++a)
+      for (Eigen::Index b = 0; b < k; ++b) out.covariance(shared(a), shared(b)) = Ckk(a, b);
+    for (Eigen::Index s = 0; s < S; ++s) {
+      const Eigen::MatrixXd Cks = v * inv.shared_currents(s) * Tc.transpose();  // k × n
+      for (Eigen::Index a = 0; a < k; ++a) {
+        out.covariance.block(shared(a), 2 * n + n * s, 1, n) = Cks.row(a);
+        out.covariance.block(2 * n + n * s, shared(a), n, 1) = Cks.row(a).transpose();
+      }
+      for (Eigen::Index t = s; t < S; ++t) {
+        const Eigen::MatrixXd Cst = v * Tc * inv.currents(s, t) * Tc.transpose();
+        out.covariance.block(2 * n + n * s, 2 * n + n * t, n, n) = Cst;
+        out.covariance.block(2 * n + n * t, 2 * n + n * s, n, n) = Cst.transpose();
+      }
+    }
   }
   out.standard_errors = out.covariance.diagonal().cwiseMax(0.0).cwiseSqrt();
 

@@ -31,7 +31,9 @@
 // that does not follow them). Each snapshot needs 2M ≥ its currents + 2 readings. A gradient across the ring is
 // not modelled (subtracting a zero-current snapshot taken in the same pose removes it too).
 //
-// Conditioning. The covariance is σ² (JᵀJ)⁻¹ at the solution with σ the reading noise
+// Conditioning. The covariance is σ² (JᵀJ)⁻¹ at the solution (JᵀJ has an arrow shape — the shared positions
+// and background against each snapshot's own currents —: above 400 parameters it is inverted by blocks, its
+// condition number then estimated by power iteration) with σ the reading noise
 // (options.noise_sigma, or the residual estimate). Two conductors close together are only seen through
 // their dipole moment, conductors near the centre of a symmetric ring through few independent
 // components; then JᵀJ is nearly singular and the standard errors explode. well_conditioned is false
