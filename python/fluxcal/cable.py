@@ -246,10 +246,12 @@ class RingCalibration:
 
     def field_sigma(self, readings) -> float | None:
         """The σ (tesla) of a compensated reading of `readings` (…, n_sensors, 2, raw) as the solver should take
-        it: the calibration's scatter divided by the gain, and the error its own (γ, b) carry at these fields,
-        δh = −(δb + h δγ)/γ (which grows with the current: a calibration at 5 A read at 100 A). RMS over the
-        sensors and axes; None without the calibration's statistics."""
-        per_sensor = self.sensor_sigma(readings)
+        it: the calibration's scatter divided by the gain — its repeated readings' (the noise) when it has them,
+        else its residuals' (which hold what its model missed, and a reference meter's scatter: 5× the noise had
+        hidden a 1 % current error) — and the error its own (γ, b) carry at these fields, δh = −(δb + h δγ)/γ
+        (which grows with the current: a calibration at 5 A read at 100 A). RMS over the sensors and axes; None
+        without the calibration's statistics."""
+        per_sensor = self.sensor_sigma(readings, repeats=self.repeat_sigma is not None)
         return None if per_sensor is None else float(np.sqrt(np.mean(per_sensor ** 2)))
 
     def background_in_axes(self, ring: "Ring", rotation_deg: float) -> np.ndarray:
@@ -521,8 +523,9 @@ def _repeat_scatter(readings: np.ndarray, true_fields: np.ndarray, residuals: np
     POSE_RTOL of each other: a pose and its currents held, or logged per reading) about the model — the noise alone —
     and the lack-of-fit test's p that the residuals `residuals` (readings less the fitted model) scatter more than
     that between the poses: (σ, p), each (n_sensors, 2), or (None, None) with fewer than 10 degrees of freedom or 3
-    poses. Within a pose the residuals' scatter is taken, so a logged current's jitter, which the model follows, is
-    not counted as noise. (A blind check's ±1° axis misalignment put 2.5× the noise into the residual scatter;
+    poses. Within a pose the smaller of the readings' own scatter and the residuals' is taken: a current that jitters
+    and is logged so moves the readings, which the model follows; a steady current read by a meter that scatters
+    (a clamp meter's 0.1 %: 5× the sensors' noise) moves the model, which the readings do not. (A blind check's ±1° axis misalignment put 2.5× the noise into the residual scatter;
     judged against that, the diagnosis found the coupling in 2 rigs of 20, against 20 of 20 with a σ from repeats.)"""
     group = consecutive_runs(near=true_fields)[1]
     finite = np.isfinite(readings)
@@ -535,8 +538,11 @@ def _repeat_scatter(readings: np.ndarray, true_fields: np.ndarray, residuals: np
 
     from .diagnose.core import _lattice_step
 
-    means = run_sums(np.where(finite, residuals, 0.0), group) / np.maximum(counts, 1)
-    within = np.sum(np.where(finite, residuals - means[group], 0.0) ** 2, axis=0)
+    def scatter(values):
+        means = run_sums(np.where(finite, values, 0.0), group) / np.maximum(counts, 1)
+        return np.sum(np.where(finite, values - means[group], 0.0) ** 2, axis=0)
+
+    within = np.minimum(scatter(readings), scatter(residuals))
     misfit = np.sum(np.where(finite, residuals, 0.0) ** 2, axis=0) - within  # between the poses
     # readings on an ADC's grid repeat exactly when the noise is below its step: the scatter is at least step/√12
     # (a coarse ring's repeats gave 4e-21 T, and every test of the diagnosis then "departed" at 10²⁷)

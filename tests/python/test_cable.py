@@ -753,6 +753,12 @@ def test_repeats_held_with_currents_logged_per_reading():
     assert cal.repeat_sigma is not None
     np.testing.assert_allclose(cal.repeat_sigma, noise, rtol=0.35)
     assert not any("miss the calibration's model" in w for f in cal.sensors for w in f.summary.get("warnings", []))
+    # a steady current read by a meter that scatters: the readings do not follow the logged currents, their own
+    # scatter is the noise (the residuals' is 5× it)
+    steady = np.stack([ring.rotated(a).field(positions, c) for a, c in zip(rot, sign[:, None] * [5.0, -5.0])])
+    metered = calibrate_ring(gains * steady + offsets + rng.normal(0, noise, truth.shape), truth)
+    np.testing.assert_allclose(metered.repeat_sigma, noise, rtol=0.35)
+    assert np.median(metered.residual_sigma) > 3 * noise
     earth = 20e-6 * np.exp(1.0j)
     from fluxcal.sim.cable_effects import sensor_points, to_axes
     axes = np.array([sensor_points(ring, a)[1] for a in rot])

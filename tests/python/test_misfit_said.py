@@ -72,8 +72,11 @@ def test_cable_diagnosis_noise_from_the_calibration_in_python(ring_files):
     assert dg.noise_source.startswith("from the calibration's scatter")
     np.testing.assert_allclose(dg.where["noise_sigma_per_sensor"],
                                np.sqrt(np.mean((cal.residual_sigma / cal.gains) ** 2, axis=1)), rtol=1e-12)
-    # the solver's own σ is the RMS over the sensors of the per-sensor σ at these fields
+    # the solver's own σ is the RMS over the sensors of the per-sensor σ at these fields: the repeats' scatter when
+    # the calibration has it, else its residuals'
     assert cal.field_sigma(data["readings"]) == pytest.approx(
+        float(np.sqrt(np.mean(cal.sensor_sigma(data["readings"], repeats=True) ** 2))), rel=1e-12)
+    assert older.field_sigma(data["readings"]) == pytest.approx(
         float(np.sqrt(np.mean(cal.sensor_sigma(data["readings"]) ** 2))), rel=1e-12)
 
 
