@@ -232,6 +232,10 @@ class RingCalibration:
     # The scatter of consecutive repeated readings (the same true field), tesla: the noise alone, without what the
     # model misses (axis coupling, crosstalk), which residual_sigma holds too. None without ≥ 10 degrees of freedom.
     repeat_sigma: np.ndarray | None = None    # (n_sensors, 2)
+    # The lack-of-fit test's p per sensor and axis (its residuals between the poses against their scatter within):
+    # below LACK_OF_FIT_P its model missed (a field that does not follow the currents, an axis misaligned), and its
+    # residual_sigma and covariance hold that miss, not the noise. None without repeats.
+    lack_of_fit_p: np.ndarray | None = None   # (n_sensors, 2)
     # calibrate_ring_in_field's: the field that did not follow the currents in the calibration run, tesla in the cable
     # frame — {"terms_t": [[re, im] of b₀, b₁, …]}, B(z) = Σ bₙ (z̄/R)ⁿ: b₀ at the ring's centre, b₁ its change
     # across the radius, … — or None
@@ -288,6 +292,8 @@ class RingCalibration:
             "residual_sigma": self.residual_sigma[keep], "covariance": self.covariance[keep]}
         if self.repeat_sigma is not None:
             stats["repeat_sigma"] = self.repeat_sigma[keep]
+        if self.lack_of_fit_p is not None:
+            stats["lack_of_fit_p"] = self.lack_of_fit_p[keep]
         return RingCalibration(self.offsets[keep], self.gains[keep], self.method,
                                [self.sensors[k] for k in keep] if self.sensors else [], background=self.background,
                                **stats)
@@ -298,6 +304,8 @@ class RingCalibration:
             d.update(residual_sigma=self.residual_sigma.tolist(), covariance=self.covariance.tolist())
         if self.repeat_sigma is not None:
             d["repeat_sigma"] = self.repeat_sigma.tolist()
+        if self.lack_of_fit_p is not None:
+            d["lack_of_fit_p"] = self.lack_of_fit_p.tolist()
         if self.background is not None:
             d["background"] = self.background
         return d
@@ -317,7 +325,8 @@ class RingCalibration:
             raise ValueError(f"{source}: not a ring calibration (no {' or '.join(missing)}; `fluxcal cable "
                              "calibrate -o` writes one)")
         try:
-            stats = {k: np.asarray(d[k], float) for k in ("residual_sigma", "covariance", "repeat_sigma") if k in d}
+            stats = {k: np.asarray(d[k], float) for k in ("residual_sigma", "covariance", "repeat_sigma", "lack_of_fit_p")
+                     if k in d}
             return cls(offsets=np.asarray(d["offsets"], float), gains=np.asarray(d["gains"], float),
                        method=d.get("method", "twostep"), background=d.get("background"), **stats)
         except (TypeError, ValueError) as exc:
@@ -411,7 +420,7 @@ def calibrate_ring(readings, true_fields, method: str = "twostep") -> RingCalibr
     if method == "twostep":
         covariance = np.array([_axis_blocks(f.covariance) for f in fits])
     return RingCalibration(offsets=offsets, gains=gains, method=method, sensors=fits, residual_sigma=residual_sigma,
-                           covariance=covariance, repeat_sigma=repeat_sigma)
+                           covariance=covariance, repeat_sigma=repeat_sigma, lack_of_fit_p=lack_of_fit)
 
 
 def calibrate_ring_in_field(readings, true_fields, ring: Ring, rotations_deg, order: int = 3) -> RingCalibration:
@@ -480,7 +489,7 @@ def calibrate_ring_in_field(readings, true_fields, ring: Ring, rotations_deg, or
     # every reading's field in its sensor's axes: the true one and the room's
     total = h + np.stack([cal.background_in_axes(ring, a) for a in rot])
     cal.residual_sigma, cal.covariance = _calibration_errors(r, total, offsets, gains)
-    cal.repeat_sigma, _ = _repeat_scatter(r, total, r - (total * gains + offsets))
+    cal.repeat_sigma, cal.lack_of_fit_p = _repeat_scatter(r, total, r - (total * gains + offsets))
     return cal
 
 
@@ -542,8 +551,9 @@ def _repeat_scatter(readings: np.ndarray, true_fields: np.ndarray, residuals: np
         means = run_sums(np.where(finite, values, 0.0), group) / np.maximum(counts, 1)
         return np.sum(np.where(finite, values - means[group], 0.0) ** 2, axis=0)
 
-    within = np.minimum(scatter(readings), scatter(residuals))
-    misfit = np.sum(np.where(finite, residuals, 0.0) ** 2, axis=0) - within  # between the poses
+    within_residuals = scatter(residuals)
+    within = np.minimum(scatter(readings), within_residuals)
+    misfit = np.sum(np.where(finite, residuals, 0.0) ** 2, axis=0) - within_residuals  # between the poses
     # readings on an ADC's grid repeat exactly when the noise is below its step: the scatter is at least step/√12
     # (a coarse ring's repeats gave 4e-21 T, and every test of the diagnosis then "departed" at 10²⁷)
     steps = np.array([[_lattice_step(readings[finite[:, i, a], i, a]) for a in range(readings.shape[2])]
@@ -552,7 +562,10 @@ def _repeat_scatter(readings: np.ndarray, true_fields: np.ndarray, residuals: np
         steps = np.where(steps > 0, steps, _lattice_step(readings[finite]))
     floor = steps / np.sqrt(12.0)
     sigma = np.maximum(np.sqrt(within / dof), floor)
-    ratio = (np.maximum(misfit, 0.0) / np.maximum(poses - 2, 1)) / np.maximum(sigma ** 2, np.finfo(float).tiny)
+    # the poses' misfit against the residuals' own scatter within a pose (a meter's scatter is in both)
+    sigma_residuals = np.maximum(np.sqrt(within_residuals / dof), floor)
+    ratio = ((np.maximum(misfit, 0.0) / np.maximum(poses - 2, 1))
+             / np.maximum(sigma_residuals ** 2, np.finfo(float).tiny))
     # (on the floor a pose's repeats share its rounding, which their mean then keeps: no test of the model there)
     return sigma, np.where(sigma > floor, f_distribution.sf(ratio, np.maximum(poses - 2, 1), dof), 1.0)
 

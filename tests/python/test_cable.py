@@ -632,6 +632,8 @@ def test_the_calibration_keeps_its_repeats_scatter_and_says_when_its_model_misse
     again = cable.RingCalibration.from_dict(json.loads(json.dumps(cal.to_dict())))
     np.testing.assert_array_equal(again.repeat_sigma, cal.repeat_sigma)
     np.testing.assert_array_equal(cal.subset([1, 3]).repeat_sigma, cal.repeat_sigma[[1, 3]])
+    np.testing.assert_array_equal(again.lack_of_fit_p, cal.lack_of_fit_p)
+    np.testing.assert_array_equal(cal.subset([1, 3]).lack_of_fit_p, cal.lack_of_fit_p[[1, 3]])
     d = diagnose_cable(**kwargs)  # no repeated snapshots in the recording: σ from the calibration's repeats
     assert d.noise_source.startswith(FROM_CALIBRATION_REPEATS) and not d.accepted
     coupled, _ = cable_trial([], 3, repeats=1, calibration_repeats=10,
@@ -759,6 +761,7 @@ def test_repeats_held_with_currents_logged_per_reading():
     metered = calibrate_ring(gains * steady + offsets + rng.normal(0, noise, truth.shape), truth)
     np.testing.assert_allclose(metered.repeat_sigma, noise, rtol=0.35)
     assert np.median(metered.residual_sigma) > 3 * noise
+    assert not any("miss the calibration's model" in w for f in metered.sensors for w in f.summary.get("warnings", []))
     earth = 20e-6 * np.exp(1.0j)
     from fluxcal.sim.cable_effects import sensor_points, to_axes
     axes = np.array([sensor_points(ring, a)[1] for a in rot])

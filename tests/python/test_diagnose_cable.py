@@ -710,3 +710,29 @@ def test_repeats_with_currents_logged_per_reading():
     np.testing.assert_allclose(d.where["noise_sigma_per_sensor"], 2e-8, rtol=0.25)
     assert d.where["overall"]["snapshots"] == 24 and len(np.unique(d.series["levels"])) == 3
     assert d.remaining["calibration_check"]["consistent"]
+
+
+def test_a_calibration_whose_fit_missed_its_model_is_judged_by_its_noise():
+    """TWOSTEP on a bench with a 1.5 µT field that does not follow the ±5 A currents: its residuals (and so its
+    standard errors) hold that miss, ~50× its repeats' noise, and its lack-of-fit test says so. The check judges
+    the sensors there by the repeats' noise and names the calibration; with its standard errors as they are (no
+    lack-of-fit kept: a calibration saved before) the same calibration passes."""
+    from fluxcal import cable
+    from test_cable import _room_run
+
+    ring = Ring(np.arange(0.0, 360.0, 60.0), 0.012)
+    rng = np.random.default_rng(0)
+    readings, truth, rot, gains, offsets = _room_run(ring, rng, lambda z: 1.5e-6 * np.exp(-0.6j) + 0 * z, noise=2e-8)
+    cal = cable.calibrate_ring(readings, truth)
+    assert np.all(cal.lack_of_fit_p < cable.LACK_OF_FIT_P)
+    cur, positions = np.array([[3.0, -3.0], [-6.0, 6.0]]), [[-2e-3, 0.5e-3], [2.5e-3, 0.0]]
+    truth2 = np.repeat(cable.calibration_fields(ring, positions, cur, 72.0 * np.arange(5)), 10, axis=0)
+    y = gains * truth2 + offsets + rng.normal(0, 2e-8, truth2.shape)
+    kw = dict(currents=np.repeat(np.tile(cur, (5, 1)), 10, axis=0), rotations_deg=np.repeat(72.0 * np.arange(5), 20),
+              positions=positions, max_effects=0)
+    d = diagnose_cable(y, ring, calibration=cal, **kw)
+    check = d.remaining["calibration_check"]
+    assert not check["consistent"] and len(check["calibration_missed_model"]) == 6
+    assert "its lack-of-fit warning" in next(x for x in d.text().splitlines() if x.startswith("CALIBRATION:"))
+    saved_before = cable.RingCalibration.from_dict({k: v for k, v in cal.to_dict().items() if k != "lack_of_fit_p"})
+    assert diagnose_cable(y, ring, calibration=saved_before, **kw).remaining["calibration_check"]["consistent"]

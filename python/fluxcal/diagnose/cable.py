@@ -57,7 +57,7 @@ import numpy as np
 from scipy import stats
 from scipy.optimize import least_squares
 
-from ..cable import POSE_RTOL, Ring, RingCalibration, consecutive_runs, run_sums
+from ..cable import LACK_OF_FIT_P, POSE_RTOL, Ring, RingCalibration, consecutive_runs, run_sums
 from ..sim.cable_effects import MU0_OVER_2PI, CABLE_CANDIDATES, sensor_points, straight_unit_fields, to_axes
 from .core import (ABSORBED, HELDOUT_ALPHA, HELDOUT_FRACTION, MIN_GAIN, Diagnosis, _binned, _collapsed, _gap,
                    _improvement_pvalue, _quantile_bins, _rivals, _unexplained, _whitened_lr, _whiteness,
@@ -586,10 +586,18 @@ def _calibration_check(model: "_Model", fit: dict, calibration: RingCalibration,
     own = {"gain": gains, "offset": offsets}
     se = {"gain": gains * se_refit[0], "offset": gains * se_refit[1]}
     has_cov = calibration.covariance is not None
+    missed = np.zeros((m, 2), bool)  # sensor axes whose calibration fit missed its model
     if has_cov:
         c = np.asarray(calibration.covariance)
-        se["gain"] = np.hypot(se["gain"], np.sqrt(c[..., 0, 0]))
-        se["offset"] = np.hypot(se["offset"], np.sqrt(c[..., 1, 1]))
+        scale = np.ones((m, 2))
+        if (calibration.lack_of_fit_p is not None and calibration.repeat_sigma is not None
+                and calibration.residual_sigma is not None):
+            # its standard errors then hold that miss (the Earth's field in a TWOSTEP run: ±3 %, and a calibration 6 %
+            # off had passed): judged by its repeats' noise instead
+            missed = np.asarray(calibration.lack_of_fit_p) < LACK_OF_FIT_P
+            scale = np.where(missed, np.minimum(1.0, calibration.repeat_sigma / calibration.residual_sigma), 1.0)
+        se["gain"] = np.hypot(se["gain"], scale * np.sqrt(c[..., 0, 0]))
+        se["offset"] = np.hypot(se["offset"], scale * np.sqrt(c[..., 1, 1]))
     rows = []
     for what in ("gain", "offset"):
         z = (refit[what] - own[what]) / np.where(se[what] > 0, se[what], np.inf)
@@ -603,6 +611,7 @@ def _calibration_check(model: "_Model", fit: dict, calibration: RingCalibration,
     changed = [r for r in rows if len(rows) * 2 * stats.norm.sf(abs(r["z"])) < alpha]
     return {"consistent": p >= alpha, "pvalue": p, "changed": changed, "largest": rows[0],
             "calibration_covariance": has_cov, "common_gain_held": bool(data.fit_currents),
+            "calibration_missed_model": [data.sensor_names[i] for i in np.nonzero(missed.any(axis=1))[0]],
             "refit_gains": refit["gain"].tolist(), "refit_offsets_t": refit["offset"].tolist()}
 
 
@@ -1489,6 +1498,10 @@ def _calibration_line(check: dict, not_explained: bool) -> str:
     """The CALIBRATION line: whether the given calibration still describes these sensors."""
     se = ("" if check["calibration_covariance"] else
           " (the calibration holds no covariance: judged by the refit's standard errors alone)")
+    missed = check.get("calibration_missed_model")
+    if missed:
+        se += (f" (the calibration's own fit missed its model on {', '.join(missed)} — its lack-of-fit warning —: "
+               "its standard errors there are its repeats' noise, not its residuals')")
     held = " The gains' common scale was held (currents fitted)." if check["common_gain_held"] else ""
     if check["consistent"]:
         return (f"CALIBRATION: consistent with this recording — largest change {_calibration_change_words(check['largest'])}, "
