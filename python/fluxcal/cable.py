@@ -411,8 +411,9 @@ def calibrate_ring(readings, true_fields, method: str = "twostep") -> RingCalibr
         ratio = float(np.max(residual_sigma[i] / repeat_sigma[i]))
         fits[i].summary["warnings"] = list(fits[i].summary.get("warnings", [])) + [
             f"its readings miss the calibration's model (an offset and a gain per axis) by more than its repeated "
-            f"readings scatter (residual σ {ratio:.3g}× theirs, lack-of-fit p {np.min(lack_of_fit[i]):.2g}): an axis "
-            "misaligned, crosstalk between the axes or iron near the sensor, which the model lacks (`fluxcal "
+            f"readings scatter (residual σ {ratio:.3g}× theirs, lack-of-fit p {np.min(lack_of_fit[i]):.2g}): a field "
+            "that does not follow the currents (the Earth's on a bench, a neighbouring conductor's: method 'in_field'), "
+            "an axis misaligned, crosstalk between the axes or iron near the sensor, which the model lacks (`fluxcal "
             "diagnose RECORDING.csv --model cable --calibration …` names it against the repeats' σ), a drift "
             "between the poses"
             + (", or the least-squares fit's one field magnitude (method='twostep' knows each reading's)"

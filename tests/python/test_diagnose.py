@@ -98,7 +98,7 @@ def test_confound_report_words():
     assert "follows time here (r = 0.995)" in fake("temperature", "time", 0.995)
     weak = fake("temperature", "time", 0.3)  # a weak correlation is not the explanation
     assert "follows time" not in weak and "the temperature and the elapsed time vary independently" in weak
-    assert "Both act through the orientation" in fake("orientation", "orientation")
+    assert "Both were held out on the orientation" in fake("orientation", "orientation")
 
 
 def test_a_curved_warm_up_lets_the_data_decide():

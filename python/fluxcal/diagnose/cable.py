@@ -1513,7 +1513,7 @@ def _calibration_line(check: dict, not_explained: bool) -> str:
            "one made in a field that does not follow the currents (least squares in a room: `cable calibrate "
            "--method in_field`)")
     if not_explained:
-        why += ", or what the candidates do not explain (NOT EXPLAINED above), which the refit's gains took up"
+        why += ", or what the candidates do not explain, which the refit's gains took up"
     return (f"CALIBRATION: the given calibration does not describe these sensors here (p {check['pvalue']:.2g}){se}: "
             f"{listed} — {why}. Recalibrate; the refit's gains and offsets are in the JSON "
             f"(remaining.calibration_check).{held}")

@@ -91,8 +91,9 @@ def confound_lines(d, words=None) -> list:
                 both = [words_of.get(x, x) for x in (regime[name], r["regime"])]
                 lines.append(f"  A recording in which {both[0]} and {both[1]} vary independently would separate them.")
             else:
-                lines.append(f"  Both act through {words_of.get(r['regime'], r['regime'])}; this recording's "
-                             "range of it does not separate them.")
+                # (not "act through": a background held out on the current does not follow it)
+                lines.append(f"  Both were held out on {words_of.get(r['regime'], r['regime'])}, whose range here does "
+                             "not separate them: a recording that varies it more would.")
     return lines
 
 
