@@ -710,6 +710,7 @@ def test_repeats_with_currents_logged_per_reading():
     np.testing.assert_allclose(d.where["noise_sigma_per_sensor"], 2e-8, rtol=0.25)
     assert d.where["overall"]["snapshots"] == 24 and len(np.unique(d.series["levels"])) == 3
     assert d.remaining["calibration_check"]["consistent"]
+    assert "time: the rows' order, no time column given" in d.text()  # (no t given)
 
 
 def test_a_calibration_whose_fit_missed_its_model_is_judged_by_its_noise():

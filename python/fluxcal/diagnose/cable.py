@@ -100,6 +100,7 @@ class _Data:
     sensor_ids: np.ndarray | None = None  # (M,) each sensor's number in the recording (dead ones left out)
     notes: list = field(default_factory=list)  # what _prepare changed in the data, for the report
     calibration: RingCalibration | None = None  # the given one (of the sensors diagnosed)
+    time_from_rows: bool = False  # no times given: the rows' order stands for time
 
     @property
     def sensor_names(self) -> list:
@@ -1014,6 +1015,7 @@ def _prepare(readings, ring, currents, rotations_deg, positions, calibration, no
     rot = np.zeros(k) if rotations_deg is None else np.asarray(rotations_deg, dtype=float).ravel()
     if rot.shape != (k,) or not np.all(np.isfinite(rot)):
         raise ValueError(f"rotations_deg: need {k} finite rotations (one per snapshot), got shape {rot.shape}")
+    time_from_rows = t is None  # (the time tests had run on row numbers, unsaid)
     t = np.arange(k, dtype=float) if t is None else np.asarray(t, dtype=float).ravel()
     if t.shape != (k,) or not np.all(np.isfinite(t)):
         raise ValueError(f"t: need {k} finite times, got shape {t.shape}")
@@ -1086,7 +1088,7 @@ def _prepare(readings, ring, currents, rotations_deg, positions, calibration, no
                  sigma=np.ones(m) if sigma is None else sigma, counts=counts, truth=truth,
                  refine_calibration=bool(refine_calibration), gain_currents=reference, unique=unique,
                  rot_index=np.ravel(rot_index), points=pts, axes=axes, source=source, sensor_ids=ids, notes=notes,
-                 calibration=calibration)
+                 calibration=calibration, time_from_rows=time_from_rows)
     return data, sigma is not None, source_noise
 
 
@@ -1232,6 +1234,7 @@ def diagnose_cable(readings, ring: Ring, currents=None, rotations_deg=None, posi
                  "position_error_mm": _position_error(base["positions"], data.truth),
                  "final_position_error_mm": _position_error(final["positions"], data.truth),
                  "fit_currents": data.fit_currents, "calibration": calibration is not None,
+                 "time_from_rows": data.time_from_rows,
                  "bore_radius_m": data.ring.bore_radius_m}
     remaining["base"] = base_info
     remaining["unexplained"] = _unexplained(where["overall"], remaining["overall"], accepted)
@@ -1423,7 +1426,8 @@ def _text(d) -> str:
            f"base model (straight infinite conductors, "
            f"{'currents fitted per snapshot' if d.base['fit_currents'] else 'reference currents'}): "
            f"residual RMS {w['overall']['rms_z']:.2f} σ, gap √(RMS² − σ²) {w['overall']['gap']:.4g} T",
-           "", "WHERE (base model residuals / σ; tests per regime):"]
+           "", "WHERE (base model residuals / σ; tests per regime" +
+           ("; time: the rows' order, no time column given" if d.base.get("time_from_rows") else "") + "):"]
     for t in w["tests"]:
         flag = "  <-- departs" if t["pvalue"] < DEPARTS else ""
         out.append(f"  {t['regime']:9s} {t['test']:44s} stat {t['statistic']:10.3g}  p {t['pvalue']:.2g}{flag}")
