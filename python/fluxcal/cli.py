@@ -2,6 +2,7 @@
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import json
 import os
 import re
@@ -1137,6 +1138,9 @@ def cmd_cable(args) -> int:
         return 0
     raw, rotations = data["readings"], data["rotations_deg"]
     ring_cal = cable.RingCalibration.load(args.calibration) if args.calibration else None
+    if args.subtract_zero and args.subtract_background:
+        raise ValueError("--subtract-zero and --subtract-background: the zero-current snapshots already hold the "
+                         "room's field; give one of them")
     if args.subtract_background and (ring_cal is None or ring_cal.background is None):
         raise ValueError("--subtract-background: needs --calibration with a background field (`fluxcal cable "
                          "calibrate --method in_field` fits one)")
@@ -1149,10 +1153,13 @@ def cmd_cable(args) -> int:
     if ring_cal is not None and ring_cal.offsets.shape[0] != ring.n_sensors:
         raise ValueError(f"{args.calibration}: a calibration of {ring_cal.offsets.shape[0]} sensors, the ring has "
                          f"{ring.n_sensors}")
+    solve = np.arange(len(raw))
+    if args.subtract_zero:
+        raw, solve, ring_cal = _zero_differences(data, ring_cal, args)
     if args.joint:  # the conductors do not move: every snapshot at one rotation shares their positions
-        groups = [np.nonzero(rotations == r)[0] for r in dict.fromkeys(rotations.tolist())]
+        groups = [solve[rotations[solve] == r] for r in dict.fromkeys(rotations[solve].tolist())]
     else:
-        groups = [np.array([k]) for k in range(len(raw))]
+        groups = [np.array([k]) for k in solve]
     if ring_cal is None and args.noise_sigma is None:
         print(f"note: the standard errors take the sensors' noise σ as {cable._core.CableSolveOptions().noise_sigma:g} T "
               "(neither --calibration nor --noise-sigma gives it): give either for errors of this ring")
@@ -1173,6 +1180,37 @@ def cmd_cable(args) -> int:
               file=sys.stderr)
         return 3
     return 0
+
+
+def _zero_differences(data: dict, ring_cal, args) -> tuple:
+    """--subtract-zero: every snapshot less the mean of the zero-current snapshots at its rotation (the Earth's, a
+    busbar's field — its gradient too — and the sensors' offsets cancel); returns the differences, the snapshots to
+    solve (those with current) and the calibration with its offsets set to 0 (taken off twice otherwise: a newcomer's
+    2.7–6 % off) and its noise grown by the zero's own, √(1 + 1/n₀)."""
+    currents, rotations = data["currents_a"], data["rotations_deg"]
+    if currents is None:
+        raise ValueError(f"--subtract-zero: {args.file} has no reference currents (i0, i1, …) to tell its zero-current "
+                         "snapshots by")
+    level = np.max(np.abs(currents), axis=1)
+    zero = level <= 0.01 * level.max()  # (a logged 0 A jitters about zero)
+    diff = np.full_like(data["readings"], np.nan)
+    smallest = np.inf
+    for r in np.unique(rotations):
+        at, zeros = rotations == r, (rotations == r) & zero
+        if not zeros.any():
+            raise ValueError(f"--subtract-zero: no zero-current snapshot at rotation {r:g}° (snapshots "
+                             f"{', '.join(map(str, np.nonzero(at)[0][:6]))}…): record one in each pose")
+        diff[at] = data["readings"][at] - np.nanmean(data["readings"][zeros], axis=0)
+        smallest = min(smallest, int(zeros.sum()))
+    print(f"subtracting each rotation's zero-current snapshots ({int(zero.sum())} of {len(zero)}; not solved)"
+          + ("; the calibration's gains only: its offsets cancel" if ring_cal is not None else ""))
+    if ring_cal is not None:
+        factor = np.sqrt(1.0 + 1.0 / smallest)
+        ring_cal = dataclasses.replace(
+            ring_cal, offsets=np.zeros_like(ring_cal.offsets),
+            residual_sigma=None if ring_cal.residual_sigma is None else ring_cal.residual_sigma * factor,
+            repeat_sigma=None if ring_cal.repeat_sigma is None else ring_cal.repeat_sigma * factor)
+    return diff, np.nonzero(~zero)[0], ring_cal
 
 
 def _in_field_instead(cable, cal, data: dict, truth) -> None:
@@ -1709,6 +1747,10 @@ def build_parser() -> argparse.ArgumentParser:
     kv.add_argument("--subtract-background", action="store_true",
                     help="take the calibration's field that does not follow the currents (`cable calibrate --method "
                          "in_field`) off every snapshot: for a ring recording where it was calibrated")
+    kv.add_argument("--subtract-zero", action="store_true",
+                    help="take each rotation's zero-current snapshots (all reference currents 0) off the others: the "
+                         "room's field, its gradient too, and the sensors' offsets cancel (DC currents; the "
+                         "calibration's gains are applied, its offsets not)")
     kv.add_argument("--fit-background", action="store_true",
                     help="fit a uniform field that does not follow the currents (the Earth's, a far busbar's) beside "
                          "the conductors, in the cable's frame; with --joint one per rotation, shared by its snapshots (on a "

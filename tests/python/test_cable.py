@@ -874,3 +874,41 @@ def test_calibrate_names_in_field_when_a_background_explains_the_lack_of_fit(tmp
     assert "1.5 µT towards 326°" in line and "`--method in_field` fits it" in line
     r = run_cli("cable", "calibrate", path, "--method", "in_field")
     assert "method: in_field" in r.stdout and "explains this run's lack of fit" not in r.stdout
+
+
+def test_solve_subtracts_each_rotations_zero_current_snapshots(tmp_path):
+    """DC currents beside a busbar (its gradient across the ring is beyond a uniform background): each rotation's
+    zero-current snapshots taken off the others cancel the room's field and the offsets; the calibration's gains
+    alone are applied. The currents come out within their SEs, where --fit-background misfits."""
+    from fluxcal import cable
+    from fluxcal.sim.cable_effects import sensor_points, to_axes
+
+    ring = Ring(np.arange(0.0, 360.0, 60.0), 0.012)
+    rng = np.random.default_rng(11)
+    pos = np.array([[-2.3e-3, -0.4e-3], [2.2e-3, 0.6e-3]])
+    gains, offsets = rng.uniform(0.97, 1.03, (6, 2)), rng.uniform(-5e-6, 5e-6, (6, 2))
+    where, earth = 0.08 * np.exp(0.5j), 30e-6 * np.exp(2.0j)
+    room = lambda z: earth + 2e-7 * 30.0 * 1j / np.conj(z - where)  # noqa: E731 - a 30 A busbar 80 mm away
+    rot = np.repeat([0.0, 90.0], 8)
+    cur = np.tile(np.repeat([[0.0, 0.0], [10.0, -10.0], [20.0, -20.0], [-20.0, 20.0]], 2, axis=0), (2, 1))
+    truth = np.stack([ring.rotated(a).field(pos, c) for a, c in zip(rot, cur)])
+    points, axes = map(np.array, zip(*[sensor_points(ring, a) for a in rot]))
+    readings = gains * (truth + to_axes(room(points), axes)) + offsets + rng.normal(0, 2e-8, truth.shape)
+    path = cable.write_ring_csv(tmp_path / "room.csv", ring, readings, rot, cur)
+    (tmp_path / "cal.json").write_text(json.dumps(cable.RingCalibration(offsets, gains).to_dict()))
+    args = ("cable", "solve", path, "--calibration", tmp_path / "cal.json", "--joint", "--noise-sigma", "3e-8")
+    r = run_cli(*args, "--fit-background")
+    assert r.returncode == 3 and "MISFIT" in r.stdout
+    r = run_cli(*args, "--subtract-zero", "-o", tmp_path / "s.json")
+    assert r.returncode == 0, r.stdout[-2000:] + r.stderr
+    assert "subtracting each rotation's zero-current snapshots (4 of 16; not solved)" in r.stdout
+    for s in json.loads((tmp_path / "s.json").read_text())["solutions"]:
+        assert s["fits_model"] and 0 not in s["snapshots"] and 8 not in s["snapshots"]
+        want = cur[s["snapshots"]]
+        assert np.all(np.abs(np.array(s["currents_a"]) - want) < 4 * np.array(s["current_sigma_a"]))
+    r = run_cli("cable", "solve", path, "--subtract-zero", "--subtract-background")
+    assert r.returncode == 2 and "give one of them" in r.stderr
+    keep = cur.any(axis=1) | (rot == 0.0)  # rotation 90° without its zero
+    cable.write_ring_csv(tmp_path / "no_zero.csv", ring, readings[keep], rot[keep], cur[keep])
+    r = run_cli("cable", "solve", tmp_path / "no_zero.csv", "--subtract-zero")
+    assert r.returncode == 2 and "no zero-current snapshot at rotation 90°" in r.stderr
