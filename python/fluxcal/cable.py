@@ -501,8 +501,10 @@ POSE_RTOL = 0.02
 
 def consecutive_runs(*keys, near=None, rtol: float = POSE_RTOL) -> tuple:
     """Runs of consecutive rows whose `keys` (each (K, …)) are all equal and, when given, whose `near` values (K, …:
-    true fields) differ from the row before by at most `rtol` of its largest — a pose held, readings repeated:
-    (start (K,) bool, each run's first row; run (K,) each row's run number)."""
+    true fields, currents) differ from the run's first row by at most `rtol` of its largest (and of 0.1 % of the
+    largest of all, for a 0 A that jitters) — a pose held, readings repeated: (start (K,) bool, each run's first
+    row; run (K,) each row's run number). (Against the row before, a ramp of 1.35 % steps had chained into one
+    pose.)"""
     k = len(keys[0]) if keys else len(near)
     start = np.zeros(k, bool)
     start[0] = True
@@ -511,7 +513,13 @@ def consecutive_runs(*keys, near=None, rtol: float = POSE_RTOL) -> tuple:
         start[1:] |= np.any(key[1:] != key[:-1], axis=1)
     if near is not None:
         v = np.asarray(near, dtype=float).reshape(k, -1)
-        start[1:] |= np.abs(v[1:] - v[:-1]).max(axis=1) > rtol * np.abs(v[:-1]).max(axis=1)
+        floor = 1e-3 * np.abs(v).max()
+        first = 0
+        for row in range(1, k):
+            if not start[row]:
+                start[row] = np.abs(v[row] - v[first]).max() > max(rtol * np.abs(v[first]).max(), floor)
+            if start[row]:
+                first = row
     return start, np.cumsum(start) - 1
 
 

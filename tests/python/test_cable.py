@@ -736,6 +736,21 @@ def test_solve_fits_a_uniform_background_from_the_command_line(tmp_path):
         assert np.all(np.abs(np.abs(s["currents_a"]) - 5.0) < 4 * np.array(s["current_sigma_a"]))
 
 
+def test_poses_within_a_tolerance_do_not_chain():
+    """Rows hold one pose while within POSE_RTOL of the pose's first row: a ramp of 1.35 % steps is many poses, a
+    0 A that jitters one."""
+    from fluxcal.cable import consecutive_runs
+
+    ramp = 2.0 * 1.0135 ** np.arange(120)
+    assert consecutive_runs(near=ramp)[1][-1] + 1 >= 60
+    jitter = np.concatenate([1e-3 * np.random.default_rng(0).standard_normal(10), np.full(10, 5.0)])
+    assert consecutive_runs(near=jitter)[1].tolist() == [0] * 10 + [1] * 10
+    from fluxcal.diagnose.cable import _levels
+
+    assert len(np.unique(_levels(None, np.column_stack([ramp, -ramp])))) >= 60  # current levels likewise
+    assert len(np.unique(_levels(None, np.column_stack([jitter, -jitter])))) == 2
+
+
 def test_repeats_held_with_currents_logged_per_reading():
     """Currents logged per reading (a meter's 0.1 % jitter) make no two true fields equal: the calibration still
     takes each held pose's readings as repeats (within POSE_RTOL) and their scatter about the model as the noise, and
@@ -769,6 +784,7 @@ def test_repeats_held_with_currents_logged_per_reading():
     room = readings + gains * to_axes(np.full(axes.shape, earth), axes)
     in_field = cable.calibrate_ring_in_field(room, truth, ring, rot)
     assert np.abs(in_field.gains - gains).max() < 2e-3
+    assert np.abs(in_field.offsets - offsets).max() < 8e-9  # (4.4 nT; 12 nT without what the pairs' currents left)
     assert complex(*in_field.background["terms_t"][0]) == pytest.approx(earth, abs=0.05e-6)
 
 
@@ -890,7 +906,9 @@ def test_solve_subtracts_each_rotations_zero_current_snapshots(tmp_path):
     where, earth = 0.08 * np.exp(0.5j), 30e-6 * np.exp(2.0j)
     room = lambda z: earth + 2e-7 * 30.0 * 1j / np.conj(z - where)  # noqa: E731 - a 30 A busbar 80 mm away
     rot = np.repeat([0.0, 90.0], 8)
-    cur = np.tile(np.repeat([[0.0, 0.0], [10.0, -10.0], [20.0, -20.0], [-20.0, 20.0]], 2, axis=0), (2, 1))
+    # (a 0.15 A snapshot counts as zero: the zeros' mean current is added back)
+    cur = np.tile([[0.0, 0.0], [0.15, -0.15], [10.0, -10.0], [10.0, -10.0], [20.0, -20.0], [20.0, -20.0],
+                   [-20.0, 20.0], [-20.0, 20.0]], (2, 1))
     truth = np.stack([ring.rotated(a).field(pos, c) for a, c in zip(rot, cur)])
     points, axes = map(np.array, zip(*[sensor_points(ring, a) for a in rot]))
     readings = gains * (truth + to_axes(room(points), axes)) + offsets + rng.normal(0, 2e-8, truth.shape)
@@ -901,14 +919,14 @@ def test_solve_subtracts_each_rotations_zero_current_snapshots(tmp_path):
     assert r.returncode == 3 and "MISFIT" in r.stdout
     r = run_cli(*args, "--subtract-zero", "-o", tmp_path / "s.json")
     assert r.returncode == 0, r.stdout[-2000:] + r.stderr
-    assert "subtracting each rotation's zero-current snapshots (4 of 16; not solved)" in r.stdout
+    assert "subtracting each rotation's zero-current snapshots (4 of 16, up to 0.15 A" in r.stdout
     for s in json.loads((tmp_path / "s.json").read_text())["solutions"]:
         assert s["fits_model"] and 0 not in s["snapshots"] and 8 not in s["snapshots"]
         want = cur[s["snapshots"]]
         assert np.all(np.abs(np.array(s["currents_a"]) - want) < 4 * np.array(s["current_sigma_a"]))
     r = run_cli("cable", "solve", path, "--subtract-zero", "--subtract-background")
     assert r.returncode == 2 and "give one of them" in r.stderr
-    keep = cur.any(axis=1) | (rot == 0.0)  # rotation 90° without its zero
+    keep = (np.abs(cur).max(axis=1) > 1.0) | (rot == 0.0)  # rotation 90° without its zeros
     cable.write_ring_csv(tmp_path / "no_zero.csv", ring, readings[keep], rot[keep], cur[keep])
     r = run_cli("cable", "solve", tmp_path / "no_zero.csv", "--subtract-zero")
     assert r.returncode == 2 and "no zero-current snapshot at rotation 90°" in r.stderr

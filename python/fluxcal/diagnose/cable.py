@@ -612,6 +612,7 @@ def _calibration_check(model: "_Model", fit: dict, calibration: RingCalibration,
     changed = [r for r in rows if len(rows) * 2 * stats.norm.sf(abs(r["z"])) < alpha]
     return {"consistent": p >= alpha, "pvalue": p, "changed": changed, "largest": rows[0],
             "calibration_covariance": has_cov, "common_gain_held": bool(data.fit_currents),
+            "calibration_method": calibration.method,
             "calibration_missed_model": [data.sensor_names[i] for i in np.nonzero(missed.any(axis=1))[0]],
             "refit_gains": refit["gain"].tolist(), "refit_offsets_t": refit["offset"].tolist()}
 
@@ -624,7 +625,14 @@ def _levels(data: _Data, currents) -> np.ndarray:
     level = np.max(np.abs(currents), axis=1)
     order = np.argsort(level, kind="stable")
     ranked = level[order]
-    cluster = np.cumsum(np.concatenate([[True], np.diff(ranked) > POSE_RTOL * ranked[:-1]])) - 1
+    # within POSE_RTOL of the level's smallest (not of the next: a ramp had chained into one level), or of 0.1 % of
+    # the largest (a 0 A that jitters)
+    floor, new, first = 1e-3 * ranked[-1], np.zeros(len(ranked), bool), 0
+    new[0] = True
+    for i in range(1, len(ranked)):
+        new[i] = ranked[i] - ranked[first] > max(POSE_RTOL * ranked[first], floor)
+        first = i if new[i] else first
+    cluster = np.cumsum(new) - 1
     out = np.empty_like(level)
     out[order] = (np.bincount(cluster, weights=ranked) / np.bincount(cluster))[cluster]
     return np.round(out, 6)
@@ -1480,7 +1488,8 @@ def _text(d) -> str:
                    f"{source['uniform_direction_deg']:.0f}° (the Earth's?)")
     check = d.remaining.get("calibration_check")
     if check:
-        out.append(_calibration_line(check, bool(d.remaining.get("unexplained", {}).get("not_explained"))))
+        out.append(_calibration_line(check, bool(d.remaining.get("unexplained", {}).get("not_explained")),
+                                     check.get("calibration_method"), d.accepted))
     out += [f"CAVEAT: {c}" for c in d.caveats]
     b = d.base
     if b.get("position_error_mm") is not None:
@@ -1498,7 +1507,7 @@ def _calibration_change_words(r: dict) -> str:
             f"(z {r['z']:.2g})")
 
 
-def _calibration_line(check: dict, not_explained: bool) -> str:
+def _calibration_line(check: dict, not_explained: bool, method: str | None = None, found=()) -> str:
     """The CALIBRATION line: whether the given calibration still describes these sensors."""
     se = ("" if check["calibration_covariance"] else
           " (the calibration holds no covariance: judged by the refit's standard errors alone)")
@@ -1513,9 +1522,13 @@ def _calibration_line(check: dict, not_explained: bool) -> str:
     changed = check["changed"]
     listed = "; ".join(_calibration_change_words(r) for r in changed[:4]) + (
         f"; and {len(changed) - 4} more" if len(changed) > 4 else "")
-    why = ("the sensors changed since (temperature, a knock, a magnetised part), a calibration of another ring, or "
-           "one made in a field that does not follow the currents (least squares in a room: `cable calibrate "
-           "--method in_field`)")
+    why = "the sensors changed since (temperature, a knock, a magnetised part), a calibration of another ring"
+    if method != "in_field":
+        why += (", one made in a field that does not follow the currents (`cable calibrate --method in_field`)"
+                + (" — least squares knows one magnitude" if method == "least_squares" else ""))
+    if found:  # (a busbar's gradient taken by sensor_position_error had left a perfect calibration "to recalibrate")
+        why += (f", or what the effects found ({', '.join(found)}) do not model, which the refit's gains took up: "
+                "record more rotations to tell them apart")
     if not_explained:
         why += ", or what the candidates do not explain, which the refit's gains took up"
     return (f"CALIBRATION: the given calibration does not describe these sensors here (p {check['pvalue']:.2g}){se}: "
