@@ -1281,14 +1281,10 @@ def _solve_ring_snapshots(ring, ring_cal, snaps, rotation: float, rows, args) ->
             snaps = snaps - cal.background_in_axes(sub, rotation)
     if args.noise_sigma is not None:  # the user's σ (a datasheet's, repeats'): before the calibration's
         settings = {"noise_sigma": args.noise_sigma}
-    se_factor = 1.0
-    if getattr(args, "zero_counts", None):
-        # each difference holds the zero snapshots' mean too: √(1 + 1/n₀) per reading; and that part is common to the
-        # snapshots solved together, which the solver takes as independent — their ± grown to the common part's
-        # share, √((1 + S/n₀)/(1 + 1/n₀)) (the ± had been 1.7× too small over 12 seeds)
-        zeros = args.zero_counts[rotation]
-        settings = {"noise_sigma": settings.get("noise_sigma", cable_default_sigma()) * np.sqrt(1.0 + 1.0 / zeros)}
-        se_factor = np.sqrt((1.0 + len(rows) / zeros) / (1.0 + 1.0 / zeros))
+    zeros = getattr(args, "zero_counts", {}).get(rotation)
+    if zeros:  # each difference holds the zero snapshots' mean too: √(1 + 1/n₀) per reading for the misfit test
+        sigma0 = settings.get("noise_sigma", cable_default_sigma())
+        settings = {"noise_sigma": sigma0 * np.sqrt(1.0 + 1.0 / zeros)}
     n = args.conductors
     per_snapshot = n - bool(args.zero_sum_currents) + 2 * bool(args.fit_background)  # what each must tell apart
     unknowns = 2 * n + len(rows) * (n - bool(args.zero_sum_currents)) + 2 * bool(args.fit_background)
@@ -1311,7 +1307,10 @@ def _solve_ring_snapshots(ring, ring_cal, snaps, rotation: float, rows, args) ->
     currents = np.atleast_2d(sol.currents)
     if getattr(args, "zero_currents", None):
         currents = currents + args.zero_currents[rotation]
-    se = se_factor * np.where(np.isfinite(sol.standard_errors), sol.standard_errors, np.nan)
+    se = sol.standard_errors
+    if zeros and np.all(np.isfinite(sol.covariance)):
+        se = _zero_common_errors(sub.rotated(rotation), sol, len(rows), sigma0, zeros)
+    se = np.where(np.isfinite(se), se, np.nan)
     pos_se = se[:2 * n].reshape(n, 2)
     cur_se = se[2 * n:2 * n + len(rows) * n].reshape(len(rows), n)  # zero-sum currents: the last one's is derived
     flag = ("well conditioned" if sol.well_conditioned else "ILL-CONDITIONED") + \
@@ -1341,6 +1340,34 @@ def _solve_ring_snapshots(ring, ring_cal, snaps, rotation: float, rows, args) ->
             continue  # said above, with the CLI's remedy
         print(f"warning: {where}: {w}")
     return out
+
+
+def _zero_common_errors(ring, sol, snapshots: int, sigma0: float, zeros: int) -> np.ndarray:
+    """Standard errors of a --subtract-zero solution: each difference holds its own noise σ₀ and the zero snapshots'
+    mean error e (σ₀²/n₀ per reading), the same in every snapshot solved together, which the solver takes as
+    independent (its ± had been 1.7× too small). With C the solver's covariance per unit σ² (C = T(JᵣᵀJᵣ)⁻¹Tᵀ), the
+    estimate moves by K e, K = C Σₛ Jₛᵀ: Cov = σ₀² (C + K Kᵀ / n₀)."""
+    n = sol.positions.shape[0]
+    currents = np.atleast_2d(sol.currents)
+    unit = sol.covariance / sol.noise_sigma ** 2
+    m = ring.n_sensors
+    summed = np.zeros((unit.shape[0], 2 * m))  # Σₛ Jₛᵀ over the snapshots, full parametrisation
+    for s in range(snapshots):
+        J = ring.jacobian(sol.positions, currents[s])
+        summed[:2 * n] += J[:, :2 * n].T
+        summed[2 * n + n * s:2 * n + n * (s + 1)] = J[:, 2 * n:].T
+    if sol.background_t is not None:
+        axis = np.radians(ring.angles_deg + ring.axis_angles_deg)
+        U = np.stack([cable_in_axes(np.ones(m), axis), cable_in_axes(np.full(m, 1j), axis)], axis=-1).reshape(2 * m, 2)
+        summed[-2:] = snapshots * U.T
+    K = unit @ summed
+    return sigma0 * np.sqrt(np.clip(np.diag(unit) + np.sum(K ** 2, axis=1) / zeros, 0.0, None))
+
+
+def cable_in_axes(field, axis_rad) -> np.ndarray:
+    from .cable import _in_axes
+
+    return _in_axes(field, axis_rad)
 
 
 def _tesla_words(value: float) -> str:
