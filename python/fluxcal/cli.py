@@ -1283,7 +1283,7 @@ def _solve_ring_snapshots(ring, ring_cal, snaps, rotation: float, rows, args) ->
         settings = {"noise_sigma": args.noise_sigma}
     zeros = getattr(args, "zero_counts", {}).get(rotation)
     if zeros:  # each difference holds the zero snapshots' mean too: √(1 + 1/n₀) per reading for the misfit test
-        sigma0 = settings.get("noise_sigma", cable_default_sigma())
+        sigma0 = settings.get("noise_sigma", _cable_default_sigma())
         settings = {"noise_sigma": sigma0 * np.sqrt(1.0 + 1.0 / zeros)}
     n = args.conductors
     per_snapshot = n - bool(args.zero_sum_currents) + 2 * bool(args.fit_background)  # what each must tell apart
@@ -1358,13 +1358,13 @@ def _zero_common_errors(ring, sol, snapshots: int, sigma0: float, zeros: int) ->
         summed[2 * n + n * s:2 * n + n * (s + 1)] = J[:, 2 * n:].T
     if sol.background_t is not None:
         axis = np.radians(ring.angles_deg + ring.axis_angles_deg)
-        U = np.stack([cable_in_axes(np.ones(m), axis), cable_in_axes(np.full(m, 1j), axis)], axis=-1).reshape(2 * m, 2)
+        U = np.stack([_cable_in_axes(np.ones(m), axis), _cable_in_axes(np.full(m, 1j), axis)], axis=-1).reshape(2 * m, 2)
         summed[-2:] = snapshots * U.T
     K = unit @ summed
     return sigma0 * np.sqrt(np.clip(np.diag(unit) + np.sum(K ** 2, axis=1) / zeros, 0.0, None))
 
 
-def cable_in_axes(field, axis_rad) -> np.ndarray:
+def _cable_in_axes(field, axis_rad) -> np.ndarray:
     from .cable import _in_axes
 
     return _in_axes(field, axis_rad)
@@ -1374,7 +1374,7 @@ def _tesla_words(value: float) -> str:
     return f"{1e9 * value:.3g} nT" if value < 1e-6 else f"{1e6 * value:.3g} µT"
 
 
-def cable_default_sigma() -> float:
+def _cable_default_sigma() -> float:
     from . import _core
 
     return _core.CableSolveOptions().noise_sigma
