@@ -168,116 +168,6 @@ struct RunInfo {
   std::string message;
 };
 
-// Dense Levenberg–Marquardt (Marquardt's diagonal scaling, bounds by projection) on the same residual
-// blocks: no set-up cost, for the warm-started path of a continuous measurement. Its normal equations have the
-// arrow shape of the problem — the shared parameters (positions, background) against each snapshot's own
-// currents — and are solved by blocks (the Schur complement on the shared ones): O(S), where the whole matrix
-// was O(S³) (800 snapshots of an AC waveform: 20 s).
-// `bg` is the background field (2, normalised) or null when none is fitted.
-RunInfo dense_lm(const std::vector<std::unique_ptr<SnapshotCost>>& costs, std::vector<double>& pos, Eigen::MatrixXd& cur,
-                 Eigen::Vector2d* bg, int n, double bore, const CableSolveOptions& opt) {
-  const int nc = static_cast<int>(cur.rows());
-  const Eigen::Index S = cur.cols(), rows = costs.empty() ? 0 : costs[0]->num_residuals();
-  const Eigen::Index nb = bg ? 2 : 0, k = 2 * n + nb;  // shared parameters: positions, then the background
-  using RowMat = Eigen::Matrix<double, Eigen::Dynamic, Eigen::Dynamic, Eigen::RowMajor>;
-  Eigen::VectorXd r(rows * S), r_try(rows * S);
-  RowMat Jp(rows, 2 * n), Jc(rows, nc), Jb(rows, 2);
-  Eigen::MatrixXd A(k, k), Jk(rows, k);  // Σ JₖᵀJₖ over the snapshots; one snapshot's shared columns
-  std::vector<Eigen::MatrixXd> B(static_cast<std::size_t>(S)), D(static_cast<std::size_t>(S));  // JₖᵀJ_c, J_cᵀJ_c
-  Eigen::VectorXd gk(k);
-  Eigen::MatrixXd gc(nc, S);
-  Eigen::Vector2d b = bg ? *bg : Eigen::Vector2d::Zero(), b_try = b;
-  auto evaluate = [&](const std::vector<double>& ps, const Eigen::MatrixXd& cs, const Eigen::Vector2d& bs,
-                      Eigen::VectorXd& res, bool jac) {
-    if (jac) A.setZero(), gk.setZero();
-    for (Eigen::Index s = 0; s < S; ++s) {
-      const double* params[3] = {ps.data(), cs.col(s).data(), bs.data()};
-      double* jacs[3] = {Jp.data(), Jc.data(), Jb.data()};
-      costs[static_cast<std::size_t>(s)]->Evaluate(params, res.data() + rows * s, jac ? jacs : nullptr);
-      if (jac) {
-        Jk.leftCols(2 * n) = Jp;
-        if (bg) Jk.rightCols(2) = Jb;
-        const auto rs = res.segment(rows * s, rows);
-        A.noalias() += Jk.transpose() * Jk;
-        B[static_cast<std::size_t>(s)].noalias() = Jk.transpose() * Jc;
-        D[static_cast<std::size_t>(s)].noalias() = Jc.transpose() * Jc;
-        gk.noalias() += Jk.transpose() * rs;
-        gc.col(s).noalias() = Jc.transpose() * rs;
-      }
-    }
-    return 0.5 * res.squaredNorm();
-  };
-  RunInfo info;
-  double cost = evaluate(pos, cur, b, r, true);
-  double lambda = 1e-4;
-  std::vector<double> pos_try(pos.size());
-  Eigen::MatrixXd cur_try(cur.rows(), cur.cols()), step_c(nc, S);
-  std::vector<Eigen::LDLT<Eigen::MatrixXd>> Dd(static_cast<std::size_t>(S));
-  for (info.iterations = 0; info.iterations < opt.max_iterations;) {
-    if (std::max(gk.cwiseAbs().maxCoeff(), gc.cwiseAbs().maxCoeff()) <= opt.gradient_tolerance) {
-      info.converged = true;
-      info.message = "gradient tolerance reached";
-      break;
-    }
-    // (M + λ diag M) step = −g by blocks: each snapshot's currents eliminated into the shared block
-    Eigen::MatrixXd schur = A;
-    schur.diagonal() += lambda * A.diagonal().cwiseMax(1e-300);
-    Eigen::VectorXd rhs = -gk;
-    for (Eigen::Index s = 0; s < S; ++s) {
-      const auto u = static_cast<std::size_t>(s);
-      Eigen::MatrixXd Ds = D[u];
-      Ds.diagonal() += lambda * D[u].diagonal().cwiseMax(1e-300);
-      Dd[u].compute(Ds);
-      schur.noalias() -= B[u] * Dd[u].solve(B[u].transpose());
-      rhs.noalias() += B[u] * Dd[u].solve(gc.col(s));
-    }
-    const Eigen::VectorXd step_k = schur.ldlt().solve(rhs);
-    for (Eigen::Index s = 0; s < S; ++s) {
-      const auto u = static_cast<std::size_t>(s);
-      step_c.col(s) = Dd[u].solve(-gc.col(s) - B[u].transpose() * step_k);
-    }
-    if (!step_k.allFinite() || !step_c.allFinite()) {
-      info.message = "the normal equations are singular";
-      break;
-    }
-    for (int j = 0; j < 2 * n; ++j) pos_try[static_cast<std::size_t>(j)] = std::clamp(pos[static_cast<std::size_t>(j)] + step_k(j), -bore, bore);
-    cur_try = cur + step_c;
-    if (bg) b_try = b + step_k.tail<2>();
-    const double cost_try = evaluate(pos_try, cur_try, b_try, r_try, false);
-    ++info.iterations;
-    if (cost_try < cost) {
-      double x_norm = 0.0;
-      for (double v : pos) x_norm += v * v;
-      x_norm = std::sqrt(x_norm + cur.squaredNorm() + (bg ? b.squaredNorm() : 0.0));
-      const double step_norm = std::sqrt(step_k.squaredNorm() + step_c.squaredNorm());
-      const bool small_step = step_norm <= opt.parameter_tolerance * (x_norm + opt.parameter_tolerance);
-      const bool small_change = (cost - cost_try) <= opt.function_tolerance * cost;
-      pos = pos_try;
-      cur = cur_try;
-      b = b_try;
-      cost = evaluate(pos, cur, b, r, true);
-      lambda = std::max(lambda / 3.0, 1e-12);
-      if (small_step || small_change) {
-        info.converged = true;
-        info.message = small_step ? "parameter tolerance reached" : "function tolerance reached";
-        break;
-      }
-    } else {
-      lambda *= 4.0;
-      if (lambda > 1e12) {  // no descent left: at a minimum to working precision
-        info.converged = true;
-        info.message = "no further decrease";
-        break;
-      }
-    }
-  }
-  if (info.message.empty()) info.message = "maximum iterations reached";
-  if (bg) *bg = b;
-  info.cost = cost;
-  info.usable = std::isfinite(cost);
-  return info;
-}
-
 // Up to this many parameters the Fisher information is inverted whole (an eigen-decomposition, O(p³)); above, by
 // blocks (one snapshot's currents are 1–4 parameters; 800 snapshots of an AC waveform had taken 8 s whole).
 constexpr Eigen::Index kDenseFisher = 400;
@@ -323,12 +213,17 @@ class FisherBlocks {
   FisherBlocks(Eigen::Index k, Eigen::Index nc, Eigen::Index snapshots)
       : k_(k), nc_(nc), A_(Eigen::MatrixXd::Zero(k, k)), B_(static_cast<std::size_t>(snapshots)),
         D_(static_cast<std::size_t>(snapshots)) {}
+  void clear() { A_.setZero(); }
   /// Snapshot s's Jacobian: its shared columns and its currents' columns.
   void add(Eigen::Index s, const Eigen::MatrixXd& Jk, const Eigen::MatrixXd& Jc) {
     A_.noalias() += Jk.transpose() * Jk;
     B_[static_cast<std::size_t>(s)] = Jk.transpose() * Jc;
     D_[static_cast<std::size_t>(s)] = Jc.transpose() * Jc;
   }
+
+  const Eigen::MatrixXd& shared() const { return A_; }
+  const Eigen::MatrixXd& shared_currents(Eigen::Index s) const { return B_[static_cast<std::size_t>(s)]; }
+  const Eigen::MatrixXd& currents(Eigen::Index s) const { return D_[static_cast<std::size_t>(s)]; }
 
   FisherInverse invert() const {
     const Eigen::Index S = static_cast<Eigen::Index>(D_.size()), p = k_ + nc_ * S;
@@ -423,6 +318,113 @@ class FisherBlocks {
   Eigen::MatrixXd A_;
   std::vector<Eigen::MatrixXd> B_, D_;
 };
+
+// Dense Levenberg–Marquardt (Marquardt's diagonal scaling, bounds by projection) on the same residual
+// blocks: no set-up cost, for the warm-started path of a continuous measurement. Its normal equations have the
+// arrow shape of the problem — the shared parameters (positions, background) against each snapshot's own
+// currents — and are solved by blocks (the Schur complement on the shared ones): O(S), where the whole matrix
+// was O(S³) (800 snapshots of an AC waveform: 20 s).
+// `bg` is the background field (2, normalised) or null when none is fitted.
+RunInfo dense_lm(const std::vector<std::unique_ptr<SnapshotCost>>& costs, std::vector<double>& pos, Eigen::MatrixXd& cur,
+                 Eigen::Vector2d* bg, int n, double bore, const CableSolveOptions& opt) {
+  const int nc = static_cast<int>(cur.rows());
+  const Eigen::Index S = cur.cols(), rows = costs.empty() ? 0 : costs[0]->num_residuals();
+  const Eigen::Index nb = bg ? 2 : 0, k = 2 * n + nb;  // shared parameters: positions, then the background
+  using RowMat = Eigen::Matrix<double, Eigen::Dynamic, Eigen::Dynamic, Eigen::RowMajor>;
+  Eigen::VectorXd r(rows * S), r_try(rows * S);
+  RowMat Jp(rows, 2 * n), Jc(rows, nc), Jb(rows, 2);
+  Eigen::MatrixXd Jk(rows, k);  // one snapshot's shared columns
+  FisherBlocks fb(k, nc, S);    // JᵀJ by blocks
+  Eigen::VectorXd gk(k);
+  Eigen::MatrixXd gc(nc, S);
+  Eigen::Vector2d b = bg ? *bg : Eigen::Vector2d::Zero(), b_try = b;
+  auto evaluate = [&](const std::vector<double>& ps, const Eigen::MatrixXd& cs, const Eigen::Vector2d& bs,
+                      Eigen::VectorXd& res, bool jac) {
+    if (jac) fb.clear(), gk.setZero();
+    for (Eigen::Index s = 0; s < S; ++s) {
+      const double* params[3] = {ps.data(), cs.col(s).data(), bs.data()};
+      double* jacs[3] = {Jp.data(), Jc.data(), Jb.data()};
+      costs[static_cast<std::size_t>(s)]->Evaluate(params, res.data() + rows * s, jac ? jacs : nullptr);
+      if (jac) {
+        Jk.leftCols(2 * n) = Jp;
+        if (bg) Jk.rightCols(2) = Jb;
+        const auto rs = res.segment(rows * s, rows);
+        fb.add(s, Jk, Jc);
+        gk.noalias() += Jk.transpose() * rs;
+        gc.col(s).noalias() = Jc.transpose() * rs;
+      }
+    }
+    return 0.5 * res.squaredNorm();
+  };
+  RunInfo info;
+  double cost = evaluate(pos, cur, b, r, true);
+  double lambda = 1e-4;
+  std::vector<double> pos_try(pos.size());
+  Eigen::MatrixXd cur_try(cur.rows(), cur.cols()), step_c(nc, S);
+  std::vector<Eigen::LDLT<Eigen::MatrixXd>> Dd(static_cast<std::size_t>(S));
+  for (info.iterations = 0; info.iterations < opt.max_iterations;) {
+    if (std::max(gk.cwiseAbs().maxCoeff(), gc.cwiseAbs().maxCoeff()) <= opt.gradient_tolerance) {
+      info.converged = true;
+      info.message = "gradient tolerance reached";
+      break;
+    }
+    // (M + λ diag M) step = −g by blocks: each snapshot's currents eliminated into the shared block
+    Eigen::MatrixXd schur = fb.shared();
+    schur.diagonal() += lambda * fb.shared().diagonal().cwiseMax(1e-300);
+    Eigen::VectorXd rhs = -gk;
+    for (Eigen::Index s = 0; s < S; ++s) {
+      const auto u = static_cast<std::size_t>(s);
+      const Eigen::MatrixXd& B = fb.shared_currents(s);
+      Eigen::MatrixXd Ds = fb.currents(s);
+      Ds.diagonal() += lambda * fb.currents(s).diagonal().cwiseMax(1e-300);
+      Dd[u].compute(Ds);
+      schur.noalias() -= B * Dd[u].solve(B.transpose());
+      rhs.noalias() += B * Dd[u].solve(gc.col(s));
+    }
+    const Eigen::VectorXd step_k = schur.ldlt().solve(rhs);
+    for (Eigen::Index s = 0; s < S; ++s)
+      step_c.col(s) = Dd[static_cast<std::size_t>(s)].solve(-gc.col(s) - fb.shared_currents(s).transpose() * step_k);
+    if (!step_k.allFinite() || !step_c.allFinite()) {
+      info.message = "the normal equations are singular";
+      break;
+    }
+    for (int j = 0; j < 2 * n; ++j) pos_try[static_cast<std::size_t>(j)] = std::clamp(pos[static_cast<std::size_t>(j)] + step_k(j), -bore, bore);
+    cur_try = cur + step_c;
+    if (bg) b_try = b + step_k.tail<2>();
+    const double cost_try = evaluate(pos_try, cur_try, b_try, r_try, false);
+    ++info.iterations;
+    if (cost_try < cost) {
+      double x_norm = 0.0;
+      for (double v : pos) x_norm += v * v;
+      x_norm = std::sqrt(x_norm + cur.squaredNorm() + (bg ? b.squaredNorm() : 0.0));
+      const double step_norm = std::sqrt(step_k.squaredNorm() + step_c.squaredNorm());
+      const bool small_step = step_norm <= opt.parameter_tolerance * (x_norm + opt.parameter_tolerance);
+      const bool small_change = (cost - cost_try) <= opt.function_tolerance * cost;
+      pos = pos_try;
+      cur = cur_try;
+      b = b_try;
+      cost = evaluate(pos, cur, b, r, true);
+      lambda = std::max(lambda / 3.0, 1e-12);
+      if (small_step || small_change) {
+        info.converged = true;
+        info.message = small_step ? "parameter tolerance reached" : "function tolerance reached";
+        break;
+      }
+    } else {
+      lambda *= 4.0;
+      if (lambda > 1e12) {  // no descent left: at a minimum to working precision
+        info.converged = true;
+        info.message = "no further decrease";
+        break;
+      }
+    }
+  }
+  if (info.message.empty()) info.message = "maximum iterations reached";
+  if (bg) *bg = b;
+  info.cost = cost;
+  info.usable = std::isfinite(cost);
+  return info;
+}
 
 void check_positions(const CableRing& ring, const ConductorPositionsRef& positions,
                      const char* name) {

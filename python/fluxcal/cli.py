@@ -1159,9 +1159,9 @@ def cmd_cable(args) -> int:
             print(f"warning: {args.calibration}: its own fit missed its model on sensor(s) "
                   f"{', '.join(map(str, missed))} (its lack-of-fit test): its gains and offsets may be off, and the "
                   "currents with them — recalibrate (`cable calibrate` says whether `--method in_field` explains it)")
-    solve = np.arange(len(raw))
+    solve, zeros = np.arange(len(raw)), {}
     if args.subtract_zero:
-        raw, solve, ring_cal = _zero_differences(data, ring_cal, args)
+        raw, solve, ring_cal, zeros = _zero_differences(data, ring_cal, args)
     if args.joint:  # the conductors do not move: every snapshot at one rotation shares their positions
         groups = [solve[rotations[solve] == r] for r in dict.fromkeys(rotations[solve].tolist())]
     else:
@@ -1171,7 +1171,8 @@ def cmd_cable(args) -> int:
               "(neither --calibration nor --noise-sigma gives it): give either for errors of this ring")
     solutions = []
     for rows in groups:
-        sol = _solve_ring_snapshots(ring, ring_cal, raw[rows], float(rotations[rows[0]]), rows, args)
+        rotation = float(rotations[rows[0]])
+        sol = _solve_ring_snapshots(ring, ring_cal, raw[rows], rotation, rows, args, zeros.get(rotation))
         solutions.append(sol)
     if all("left_out" in s for s in solutions):  # nothing solved: the ring cannot, whatever the snapshot
         raise ValueError(f"{args.file}: every snapshot " + solutions[0]["left_out"].split(" — ", 1)[1] +
@@ -1191,9 +1192,8 @@ def cmd_cable(args) -> int:
 def _zero_differences(data: dict, ring_cal, args) -> tuple:
     """--subtract-zero: every snapshot less the mean of the zero-current snapshots at its rotation (the Earth's, a
     busbar's field — its gradient too — and the sensors' offsets cancel); returns the differences, the snapshots to
-    solve (those with current) and the calibration with its offsets set to 0 (taken off twice otherwise: a newcomer's
-    2.7–6 % off). Each rotation's count of zero snapshots goes to args.zero_counts (for the noise: see
-    _solve_ring_snapshots)."""
+    solve (those with current), the calibration with its offsets set to 0 (taken off twice otherwise: a newcomer's
+    2.7–6 % off) and per rotation its zero snapshots' count and mean current (for _solve_ring_snapshots)."""
     currents, rotations = data["currents_a"], data["rotations_deg"]
     if currents is None:
         raise ValueError(f"--subtract-zero: {args.file} has no reference currents (i0, i1, …) to tell its zero-current "
@@ -1204,23 +1204,22 @@ def _zero_differences(data: dict, ring_cal, args) -> tuple:
         raise ValueError(f"--subtract-zero: every snapshot of {args.file} has no current (at most 1 % of the "
                          f"largest, {level.max():.3g} A): nothing to solve")
     diff = np.full_like(data["readings"], np.nan)
-    args.zero_counts, args.zero_currents = {}, {}
+    zeros_at = {}
     for r in np.unique(rotations):
         at, zeros = rotations == r, (rotations == r) & zero
         if not zeros.any():
             raise ValueError(f"--subtract-zero: no zero-current snapshot at rotation {r:g}° (snapshots "
                              f"{', '.join(map(str, np.nonzero(at)[0][:6]))}…): record one in each pose")
         diff[at] = data["readings"][at] - np.nanmean(data["readings"][zeros], axis=0)
-        args.zero_counts[float(r)] = int(zeros.sum())
         # the difference reads the currents less the zeros' mean (the model is linear in them): added back after
-        args.zero_currents[float(r)] = currents[zeros].mean(axis=0)
+        zeros_at[float(r)] = (int(zeros.sum()), currents[zeros].mean(axis=0))
     print(f"subtracting each rotation's zero-current snapshots ({int(zero.sum())} of {len(zero)}, up to "
           f"{level[zero].max():.3g} A, their mean added back to the currents; not solved)"
           + ("; the calibration's gains only: its offsets cancel" if ring_cal is not None else
              "; without --calibration the sensors' gains are taken as 1"))
     if ring_cal is not None:
         ring_cal = dataclasses.replace(ring_cal, offsets=np.zeros_like(ring_cal.offsets))
-    return diff, np.nonzero(~zero)[0], ring_cal
+    return diff, np.nonzero(~zero)[0], ring_cal, zeros_at
 
 
 def _in_field_instead(cable, cal, data: dict, truth) -> None:
@@ -1249,10 +1248,11 @@ def _ring_notes(cable, data: dict) -> None:
         print(note)
 
 
-def _solve_ring_snapshots(ring, ring_cal, snaps, rotation: float, rows, args) -> dict:
+def _solve_ring_snapshots(ring, ring_cal, snaps, rotation: float, rows, args, zero=None) -> dict:
     """`cable solve` of snapshots `rows` (one, or those sharing a rotation with --joint): sensors with a NaN
     left out (a dead sensor: the ring of the others), the calibration's σ for the solver, and a line per
-    snapshot with positions, currents and their standard errors. Returns the solution as a JSON-ready dict."""
+    snapshot with positions, currents and their standard errors; `zero`: with --subtract-zero, (count, mean
+    current) of the zero snapshots taken off. Returns the solution as a JSON-ready dict."""
     live = np.isfinite(snaps).all(axis=(0, 2))
     contiguous = np.all(np.diff(rows) == 1)
     where = (f"snapshot {rows[0]}" if len(rows) == 1 else f"snapshots {', '.join(map(str, rows))}" if len(rows) <= 6
@@ -1281,10 +1281,11 @@ def _solve_ring_snapshots(ring, ring_cal, snaps, rotation: float, rows, args) ->
             snaps = snaps - cal.background_in_axes(sub, rotation)
     if args.noise_sigma is not None:  # the user's σ (a datasheet's, repeats'): before the calibration's
         settings = {"noise_sigma": args.noise_sigma}
-    zeros = getattr(args, "zero_counts", {}).get(rotation)
-    if zeros:  # each difference holds the zero snapshots' mean too: √(1 + 1/n₀) per reading for the misfit test
-        sigma0 = settings.get("noise_sigma", _cable_default_sigma())
-        settings = {"noise_sigma": sigma0 * np.sqrt(1.0 + 1.0 / zeros)}
+    if zero:  # each difference holds the zero snapshots' mean too: √(1 + 1/n₀) per reading for the misfit test
+        from ._core import CableSolveOptions
+
+        sigma0 = settings.get("noise_sigma", CableSolveOptions().noise_sigma)
+        settings = {"noise_sigma": sigma0 * np.sqrt(1.0 + 1.0 / zero[0])}
     n = args.conductors
     per_snapshot = n - bool(args.zero_sum_currents) + 2 * bool(args.fit_background)  # what each must tell apart
     unknowns = 2 * n + len(rows) * (n - bool(args.zero_sum_currents)) + 2 * bool(args.fit_background)
@@ -1305,11 +1306,11 @@ def _solve_ring_snapshots(ring, ring_cal, snaps, rotation: float, rows, args) ->
                                       zero_sum_currents=args.zero_sum_currents, fit_background=args.fit_background,
                                       **settings)
     currents = np.atleast_2d(sol.currents)
-    if getattr(args, "zero_currents", None):
-        currents = currents + args.zero_currents[rotation]
     se = sol.standard_errors
-    if zeros and np.all(np.isfinite(sol.covariance)):
-        se = _zero_common_errors(sub.rotated(rotation), sol, len(rows), sigma0, zeros)
+    if zero:
+        currents = currents + zero[1]
+        if np.all(np.isfinite(sol.covariance)):
+            se = _zero_common_errors(sub.rotated(rotation), sol, len(rows), sigma0, zero[0])
     se = np.where(np.isfinite(se), se, np.nan)
     pos_se = se[:2 * n].reshape(n, 2)
     cur_se = se[2 * n:2 * n + len(rows) * n].reshape(len(rows), n)  # zero-sum currents: the last one's is derived
@@ -1357,27 +1358,17 @@ def _zero_common_errors(ring, sol, snapshots: int, sigma0: float, zeros: int) ->
         summed[:2 * n] += J[:, :2 * n].T
         summed[2 * n + n * s:2 * n + n * (s + 1)] = J[:, 2 * n:].T
     if sol.background_t is not None:
+        from .cable import _in_axes
+
         axis = np.radians(ring.angles_deg + ring.axis_angles_deg)
-        U = np.stack([_cable_in_axes(np.ones(m), axis), _cable_in_axes(np.full(m, 1j), axis)], axis=-1).reshape(2 * m, 2)
+        U = np.stack([_in_axes(np.ones(m), axis), _in_axes(np.full(m, 1j), axis)], axis=-1).reshape(2 * m, 2)
         summed[-2:] = snapshots * U.T
     K = unit @ summed
     return sigma0 * np.sqrt(np.clip(np.diag(unit) + np.sum(K ** 2, axis=1) / zeros, 0.0, None))
 
 
-def _cable_in_axes(field, axis_rad) -> np.ndarray:
-    from .cable import _in_axes
-
-    return _in_axes(field, axis_rad)
-
-
 def _tesla_words(value: float) -> str:
     return f"{1e9 * value:.3g} nT" if value < 1e-6 else f"{1e6 * value:.3g} µT"
-
-
-def _cable_default_sigma() -> float:
-    from . import _core
-
-    return _core.CableSolveOptions().noise_sigma
 
 
 def _nan_to_none_rows(a) -> list:

@@ -621,18 +621,11 @@ def _calibration_check(model: "_Model", fit: dict, calibration: RingCalibration,
 
 def _levels(data: _Data, currents) -> np.ndarray:
     """The current level of every snapshot: the largest |current| of its conductors, those within POSE_RTOL of the
-    next smaller one taken as one level (currents logged per reading jitter), their mean rounded."""
+    level's smallest taken as one level (currents logged per reading jitter), their mean rounded."""
     level = np.max(np.abs(currents), axis=1)
     order = np.argsort(level, kind="stable")
     ranked = level[order]
-    # within POSE_RTOL of the level's smallest (not of the next: a ramp had chained into one level), or of 0.1 % of
-    # the largest (a 0 A that jitters)
-    floor, new, first = 1e-3 * ranked[-1], np.zeros(len(ranked), bool), 0
-    new[0] = True
-    for i in range(1, len(ranked)):
-        new[i] = ranked[i] - ranked[first] > max(POSE_RTOL * ranked[first], floor)
-        first = i if new[i] else first
-    cluster = np.cumsum(new) - 1
+    cluster = consecutive_runs(near=ranked)[1]  # sorted: runs within POSE_RTOL of their smallest
     out = np.empty_like(level)
     out[order] = (np.bincount(cluster, weights=ranked) / np.bincount(cluster))[cluster]
     return np.round(out, 6)
