@@ -1,6 +1,7 @@
 #include "fluxcal/cable.hpp"
 
 #include "checks.hpp"
+#include "fluxcal/timeseries.hpp"
 
 #include <ceres/ceres.h>
 
@@ -590,6 +591,8 @@ void check(const CableSolveOptions& o) {
                                 {"max_current_relative_sigma", o.max_current_relative_sigma},
                                 {"misfit_ratio", o.misfit_ratio}})
     require_positive(s + name, v);
+  require(o.noise_sigma_dof >= 0.0, s + "noise_sigma_dof", o.noise_sigma_dof, "≥ 0 (0: σ's precision not known; +inf: exact)");
+  require(o.misfit_alpha > 0.0 && o.misfit_alpha < 1.0, s + "misfit_alpha", o.misfit_alpha, "in (0, 1)");
   // NaN compares false: it fell through `noise_sigma > 0` to the residual estimate silently.
   require_finite(s + "noise_sigma", o.noise_sigma, "a finite value (≤ 0: estimate it from the residuals)");
   require_enum(s + "refiner", o.refiner, 3, "automatic, ceres, dense (0 … 2)");
@@ -972,11 +975,18 @@ CableSolution solve_cable(const CableRing& ring, const Eigen::Ref<const Eigen::M
   out.well_conditioned = ok;
   if (opt.noise_sigma > 0.0 && dof > 0) {
     const double per_dof = std::sqrt(ssr / static_cast<double>(dof));
-    if (per_dof > opt.misfit_ratio * opt.noise_sigma) {
+    std::string judged = " T";
+    if (opt.noise_sigma_dof > 0.0) {
+      out.misfit_p = f_sf(per_dof * per_dof / (opt.noise_sigma * opt.noise_sigma), static_cast<double>(dof),
+                          opt.noise_sigma_dof);
+      judged += " (p " + num(out.misfit_p) + " with σ from " +
+                (std::isinf(opt.noise_sigma_dof) ? std::string("exact") : std::to_string(std::lround(opt.noise_sigma_dof)) + " dof") + ")";
+    }
+    if (per_dof > opt.misfit_ratio * opt.noise_sigma || out.misfit_p < opt.misfit_alpha) {
       out.fits_model = false;
       out.summary.warnings.push_back("the readings do not fit the model: residual " + num(per_dof) + " T per degree of "
-                                     "freedom vs noise σ = " + num(opt.noise_sigma) +
-                                     " T (" + (bg ? "a background that is not uniform: a conductor near the ring, whose gradient "
+                                     "freedom vs noise σ = " + num(opt.noise_sigma) + judged +
+                                     " (" + (bg ? "a background that is not uniform: a conductor near the ring, whose gradient "
                                                   "`diagnose --model cable` names; "
                                                : "a field that does not follow the currents: fit_background / "
                                                  "--fit-background; ") +

@@ -134,6 +134,16 @@ double f1_sf(double x, double df) {
   return beta_i(0.5 * df, 0.5, df / (df + x));
 }
 
+double f_sf(double x, double d1, double d2) {
+  detail::require(!std::isnan(x), "f_sf: x", x, "a number (not NaN)");
+  detail::require_positive("f_sf: d1", d1);
+  detail::require(d2 > 0.0, "f_sf: d2", d2, "> 0 (+inf: σ known exactly)");
+  if (x <= 0.0) return 1.0;
+  if (std::isinf(x)) return 0.0;
+  if (std::isinf(d2)) return chi2_sf(d1 * x, d1);
+  return beta_i(0.5 * d2, 0.5 * d1, d2 / (d2 + d1 * x));
+}
+
 namespace detail {
 
 void check(const ArOptions& o) {

@@ -42,6 +42,8 @@ void bind_cable(py::module_& m) {
       .def_readwrite("max_position_sigma", &CableSolveOptions::max_position_sigma)
       .def_readwrite("max_current_relative_sigma", &CableSolveOptions::max_current_relative_sigma)
       .def_readwrite("misfit_ratio", &CableSolveOptions::misfit_ratio)
+      .def_readwrite("noise_sigma_dof", &CableSolveOptions::noise_sigma_dof)
+      .def_readwrite("misfit_alpha", &CableSolveOptions::misfit_alpha)
       .def_readwrite("fit_background", &CableSolveOptions::fit_background)
       .def_readwrite("initial_positions", &CableSolveOptions::initial_positions)
       .def_readwrite("initial_currents", &CableSolveOptions::initial_currents);
@@ -76,6 +78,7 @@ void bind_cable(py::module_& m) {
                         "background"_a = options.fit_background ? py::object(py::cast(Eigen::Vector2d(r.background))) : py::none(),
                         "covariance"_a = r.covariance,
                         "standard_errors"_a = r.standard_errors, "well_conditioned"_a = r.well_conditioned, "fits_model"_a = r.fits_model,
+                        "misfit_p"_a = r.misfit_p,
                         "noise_sigma"_a = r.noise_sigma, "fisher_condition"_a = r.fisher_condition,
                         "residuals"_a = r.residuals, "starts_tried"_a = r.starts_tried,
                         "summary"_a = summary_dict(r.summary));

@@ -56,7 +56,8 @@ class CableSolution:
     """Conductor positions (n, 2) in metres, currents (n,) — or (snapshots, n) for several snapshots —
     in amperes, the covariance of [x0, y0, x1, y1, …, currents of snapshot 0, …, then bx, by when a background
     was fitted] (m, A, T), whether the geometry determines them (`well_conditioned`) and whether the readings fit
-    the model to within a few noise σ (`fits_model`; see cable.hpp). `background_t`: the uniform field (bx, by)
+    the model to within a few noise σ (`fits_model`, and `misfit_p` the test's p when σ's degrees of freedom were
+    given, else NaN; see cable.hpp). `background_t`: the uniform field (bx, by)
     in the cable's frame, tesla, when `fit_background` was asked (else None)."""
 
     positions: np.ndarray
@@ -65,6 +66,7 @@ class CableSolution:
     standard_errors: np.ndarray
     well_conditioned: bool
     fits_model: bool = True
+    misfit_p: float = float("nan")
     noise_sigma: float = 0.0
     fisher_condition: float = 0.0
     residuals: np.ndarray = None
@@ -145,8 +147,10 @@ class Ring:
 
         settings (defaults in cable.hpp): grid_points=9, starts=6, max_iterations=100, noise_sigma=1e-8 (T;
         ≤ 0 = estimate from the residuals), max_position_sigma=1e-4 (m), max_current_relative_sigma=0.05,
-        misfit_ratio=5, refiner="automatic" ("ceres", or "dense": fluxcal's dense Levenberg–Marquardt on the same
-        residuals; "automatic" = dense for a warm start, Ceres for the multi-start from the grid).
+        misfit_ratio=5, noise_sigma_dof=0 (the degrees of freedom behind noise_sigma, e.g. a calibration's
+        repeats': a misfit is then also an F test's p below misfit_alpha=1e-3; inf: σ exact, χ²),
+        refiner="automatic" ("ceres", or "dense": fluxcal's dense Levenberg–Marquardt on the same residuals;
+        "automatic" = dense for a warm start, Ceres for the multi-start from the grid).
         `initial_positions` (n, 2) warm-starts the solver (no grid). search_again: when the default starts
         leave a misfit, search again from 4× the starts on a 15×15 grid (a local minimum, not the model, is
         then to blame; off where a misfit is expected, e.g. a diagnosis's start). fit_background: fit a uniform field
@@ -195,7 +199,7 @@ class Ring:
         return CableSolution(positions=np.asarray(r["positions"]), currents=currents[0] if single else currents,
                              covariance=np.asarray(r["covariance"]), standard_errors=np.asarray(r["standard_errors"]),
                              well_conditioned=bool(r["well_conditioned"]), fits_model=bool(r["fits_model"]),
-                             noise_sigma=r["noise_sigma"],
+                             misfit_p=r["misfit_p"], noise_sigma=r["noise_sigma"],
                              fisher_condition=r["fisher_condition"],
                              residuals=np.asarray(r["residuals"]).reshape(arr.shape), starts_tried=r["starts_tried"],
                              summary=r["summary"],
@@ -232,6 +236,8 @@ class RingCalibration:
     # The scatter of consecutive repeated readings (the same true field), tesla: the noise alone, without what the
     # model misses (axis coupling, crosstalk), which residual_sigma holds too. None without ≥ 10 degrees of freedom.
     repeat_sigma: np.ndarray | None = None    # (n_sensors, 2)
+    # ... and its degrees of freedom (the readings less the poses), for the solver's misfit test; None when not saved
+    repeat_dof: np.ndarray | None = None      # (n_sensors, 2)
     # The lack-of-fit test's p per sensor and axis (its residuals between the poses against their scatter within):
     # below LACK_OF_FIT_P its model missed (a field that does not follow the currents, an axis misaligned), and its
     # residual_sigma and covariance hold that miss, not the noise. None without repeats.
@@ -258,6 +264,23 @@ class RingCalibration:
         per_sensor = self.sensor_sigma(readings, repeats=self.repeat_sigma is not None)
         return None if per_sensor is None else float(np.sqrt(np.mean(per_sensor ** 2)))
 
+    def field_sigma_dof(self, readings, snapshots_solved_together: int = 1) -> float | None:
+        """The degrees of freedom behind `field_sigma(readings)`, for the solver's misfit test (`noise_sigma_dof`):
+        Satterthwaite's, of the repeats' pooled scatter (their dof) and of the error the calibration's own (γ, b)
+        leave: two numbers per sensor axis, the same in every snapshot, so one draw per sensor axis in one snapshot
+        and two in several (counted as one per reading, they gave 2 % false misfits at p < 1e-3 for a ring
+        calibrated at 5 A and read at 100 A in 10 snapshots). None without
+        the repeats' dof (a calibration without repeats, whose residual scatter holds its model's misses, or saved
+        before it kept them): the ratio rule alone then."""
+        if self.repeat_dof is None or self.repeat_sigma is None:
+            return None
+        noise, own = self._variances(readings, repeats=True)
+        if noise is None:
+            return None
+        own_dof = min(int(snapshots_solved_together), 2) * own.size
+        total = np.mean(noise + own)
+        return float(total ** 2 / (np.mean(noise) ** 2 / np.sum(self.repeat_dof) + np.mean(own) ** 2 / own_dof))
+
     def background_in_axes(self, ring: "Ring", rotation_deg: float) -> np.ndarray:
         """The calibration run's field that does not follow the currents (`background`, calibrate_ring_in_field's)
         in each sensor's axes with the ring turned by `rotation_deg`: (n_sensors, 2) tesla, to take off compensated
@@ -275,25 +298,31 @@ class RingCalibration:
         (without: the scatter alone, for a fit that refines γ and b itself). `repeats`: the scatter of its repeated
         readings instead (the noise without the model's misses; None when the run had no repeats). None without
         the statistics."""
+        scatter, own = self._variances(readings, repeats)
+        return None if scatter is None else np.sqrt(np.mean(scatter + own, axis=-1))
+
+    def _variances(self, readings, repeats: bool):
+        """Per sensor and axis, the variances (tesla²) of a compensated reading: the scatter's (the repeats' or the
+        residuals'), and what the calibration's own (γ, b) errors leave at `readings` (0 without) — (None, None)
+        without the statistics."""
         scatter = self.repeat_sigma if repeats else self.residual_sigma
         if scatter is None or self.covariance is None:
-            return None
-        var = (scatter / self.gains) ** 2
+            return None, None
+        own = np.zeros_like(self.gains)
         if readings is not None:
             h = self.apply(readings).reshape(-1, *self.offsets.shape)
             x = np.stack([h, np.ones_like(h)], axis=-1)  # [h, 1] per reading, sensor, axis
-            var = var + np.mean(np.einsum("nsai,saij,nsaj->nsa", x, self.covariance, x), axis=0) / self.gains ** 2
-        return np.sqrt(np.mean(var, axis=-1))
+            own = np.mean(np.einsum("nsai,saij,nsaj->nsa", x, self.covariance, x), axis=0) / self.gains ** 2
+        return (scatter / self.gains) ** 2, own
 
     def subset(self, keep) -> "RingCalibration":
         """The calibration of the sensors `keep` (a boolean mask or indices) only."""
         keep = np.arange(self.offsets.shape[0])[keep]
         stats = {} if self.residual_sigma is None or self.covariance is None else {
             "residual_sigma": self.residual_sigma[keep], "covariance": self.covariance[keep]}
-        if self.repeat_sigma is not None:
-            stats["repeat_sigma"] = self.repeat_sigma[keep]
-        if self.lack_of_fit_p is not None:
-            stats["lack_of_fit_p"] = self.lack_of_fit_p[keep]
+        for name in ("repeat_sigma", "repeat_dof", "lack_of_fit_p"):
+            if getattr(self, name) is not None:
+                stats[name] = getattr(self, name)[keep]
         return RingCalibration(self.offsets[keep], self.gains[keep], self.method,
                                [self.sensors[k] for k in keep] if self.sensors else [], background=self.background,
                                **stats)
@@ -302,10 +331,9 @@ class RingCalibration:
         d = {"method": self.method, "offsets": self.offsets.tolist(), "gains": self.gains.tolist()}
         if self.residual_sigma is not None and self.covariance is not None:
             d.update(residual_sigma=self.residual_sigma.tolist(), covariance=self.covariance.tolist())
-        if self.repeat_sigma is not None:
-            d["repeat_sigma"] = self.repeat_sigma.tolist()
-        if self.lack_of_fit_p is not None:
-            d["lack_of_fit_p"] = self.lack_of_fit_p.tolist()
+        for name in ("repeat_sigma", "repeat_dof", "lack_of_fit_p"):
+            if getattr(self, name) is not None:
+                d[name] = getattr(self, name).tolist()
         if self.background is not None:
             d["background"] = self.background
         return d
@@ -325,8 +353,8 @@ class RingCalibration:
             raise ValueError(f"{source}: not a ring calibration (no {' or '.join(missing)}; `fluxcal cable "
                              "calibrate -o` writes one)")
         try:
-            stats = {k: np.asarray(d[k], float) for k in ("residual_sigma", "covariance", "repeat_sigma", "lack_of_fit_p")
-                     if k in d}
+            stats = {k: np.asarray(d[k], float) for k in ("residual_sigma", "covariance", "repeat_sigma", "repeat_dof",
+                                                              "lack_of_fit_p") if k in d}
             return cls(offsets=np.asarray(d["offsets"], float), gains=np.asarray(d["gains"], float),
                        method=d.get("method", "twostep"), background=d.get("background"), **stats)
         except (TypeError, ValueError) as exc:
@@ -406,7 +434,7 @@ def calibrate_ring(readings, true_fields, method: str = "twostep") -> RingCalibr
                 f"{len(dropped)} of {len(finite)} readings not finite, left out of this sensor's fit (rows {shown})"]
     offsets, gains = np.array([f.offset for f in fits]), np.array([f.gain for f in fits])
     residual_sigma, covariance = _calibration_errors(r, h, offsets, gains, linear=method != "twostep")
-    repeat_sigma, lack_of_fit = _repeat_scatter(r, h, r - (h * gains + offsets))
+    repeat_sigma, repeat_dof, lack_of_fit = _repeat_scatter(r, h, r - (h * gains + offsets))
     for i in [] if lack_of_fit is None else np.nonzero(np.min(lack_of_fit, axis=1) < LACK_OF_FIT_P)[0]:
         ratio = float(np.max(residual_sigma[i] / repeat_sigma[i]))
         fits[i].summary["warnings"] = list(fits[i].summary.get("warnings", [])) + [
@@ -421,7 +449,8 @@ def calibrate_ring(readings, true_fields, method: str = "twostep") -> RingCalibr
     if method == "twostep":
         covariance = np.array([_axis_blocks(f.covariance) for f in fits])
     return RingCalibration(offsets=offsets, gains=gains, method=method, sensors=fits, residual_sigma=residual_sigma,
-                           covariance=covariance, repeat_sigma=repeat_sigma, lack_of_fit_p=lack_of_fit)
+                           covariance=covariance, repeat_sigma=repeat_sigma, repeat_dof=repeat_dof,
+                           lack_of_fit_p=lack_of_fit)
 
 
 def calibrate_ring_in_field(readings, true_fields, ring: Ring, rotations_deg, order: int = 3) -> RingCalibration:
@@ -490,7 +519,7 @@ def calibrate_ring_in_field(readings, true_fields, ring: Ring, rotations_deg, or
     # every reading's field in its sensor's axes: the true one and the room's
     total = h + np.stack([cal.background_in_axes(ring, a) for a in rot])
     cal.residual_sigma, cal.covariance = _calibration_errors(r, total, offsets, gains)
-    cal.repeat_sigma, cal.lack_of_fit_p = _repeat_scatter(r, total, r - (total * gains + offsets))
+    cal.repeat_sigma, cal.repeat_dof, cal.lack_of_fit_p = _repeat_scatter(r, total, r - (total * gains + offsets))
     return cal
 
 
@@ -539,9 +568,9 @@ def _in_axes(field, axis_rad) -> np.ndarray:
 def _repeat_scatter(readings: np.ndarray, true_fields: np.ndarray, residuals: np.ndarray):
     """Per sensor and axis: the pooled scatter of consecutive readings that hold a pose (true fields within
     POSE_RTOL of each other: a pose and its currents held, or logged per reading) about the model — the noise alone —
-    and the lack-of-fit test's p that the residuals `residuals` (readings less the fitted model) scatter more than
-    that between the poses: (σ, p), each (n_sensors, 2), or (None, None) with fewer than 10 degrees of freedom or 3
-    poses. Within a pose the smaller of the readings' own scatter and the residuals' is taken: a current that jitters
+    its degrees of freedom, and the lack-of-fit test's p that the residuals `residuals` (readings less the fitted
+    model) scatter more than that between the poses: (σ, dof, p), each (n_sensors, 2), or (None, None, None) with
+    fewer than 10 degrees of freedom or 3 poses. Within a pose the smaller of the readings' own scatter and the residuals' is taken: a current that jitters
     and is logged so moves the readings, which the model follows; a steady current read by a meter that scatters
     (a clamp meter's 0.1 %: 5× the sensors' noise) moves the model, which the readings do not. (A blind check's ±1° axis misalignment put 2.5× the noise into the residual scatter;
     judged against that, the diagnosis found the coupling in 2 rigs of 20, against 20 of 20 with a σ from repeats.)"""
@@ -551,7 +580,7 @@ def _repeat_scatter(readings: np.ndarray, true_fields: np.ndarray, residuals: np
     dof = np.sum(np.maximum(counts - 1, 0), axis=0)
     poses = np.sum(counts > 0, axis=0)
     if dof.min() < 10 or poses.min() < 3:
-        return None, None
+        return None, None, None
     from scipy.stats import f as f_distribution
 
     from .diagnose.core import _lattice_step
@@ -576,7 +605,7 @@ def _repeat_scatter(readings: np.ndarray, true_fields: np.ndarray, residuals: np
     ratio = ((np.maximum(misfit, 0.0) / np.maximum(poses - 2, 1))
              / np.maximum(sigma_residuals ** 2, np.finfo(float).tiny))
     # (on the floor a pose's repeats share its rounding, which their mean then keeps: no test of the model there)
-    return sigma, np.where(sigma > floor, f_distribution.sf(ratio, np.maximum(poses - 2, 1), dof), 1.0)
+    return sigma, dof.astype(float), np.where(sigma > floor, f_distribution.sf(ratio, np.maximum(poses - 2, 1), dof), 1.0)
 
 
 def _sampson_fit(readings: np.ndarray, norms: np.ndarray, why: str) -> TwoStep2D | None:

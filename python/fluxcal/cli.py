@@ -1141,6 +1141,8 @@ def cmd_cable(args) -> int:
     if args.subtract_zero and args.subtract_background:
         raise ValueError("--subtract-zero and --subtract-background: the zero-current snapshots already hold the "
                          "room's field; give one of them")
+    if args.noise_sigma_dof is not None and args.noise_sigma is None:
+        raise ValueError("--noise-sigma-dof: the degrees of freedom of --noise-sigma, which is not given")
     if args.subtract_background and (ring_cal is None or ring_cal.background is None):
         raise ValueError("--subtract-background: needs --calibration with a background field (`fluxcal cable "
                          "calibrate --method in_field` fits one)")
@@ -1276,16 +1278,21 @@ def _solve_ring_snapshots(ring, ring_cal, snaps, rotation: float, rows, args, ze
         # the solver's σ: the calibration's scatter and what its own gains and offsets leave at these fields
         sigma = cal.field_sigma(snaps)
         settings = {} if sigma is None else {"noise_sigma": sigma}
+        dof = cal.field_sigma_dof(snaps, len(rows))
+        if sigma is not None and dof is not None:
+            settings["noise_sigma_dof"] = dof
         snaps = cal.apply(snaps)
         if args.subtract_background:  # the room's field the calibration found, at this rotation
             snaps = snaps - cal.background_in_axes(sub, rotation)
     if args.noise_sigma is not None:  # the user's σ (a datasheet's, repeats'): before the calibration's
         settings = {"noise_sigma": args.noise_sigma}
+        if args.noise_sigma_dof is not None:
+            settings["noise_sigma_dof"] = args.noise_sigma_dof
     if zero:  # each difference holds the zero snapshots' mean too: √(1 + 1/n₀) per reading for the misfit test
         from ._core import CableSolveOptions
 
         sigma0 = settings.get("noise_sigma", CableSolveOptions().noise_sigma)
-        settings = {"noise_sigma": sigma0 * np.sqrt(1.0 + 1.0 / zero[0])}
+        settings = {**settings, "noise_sigma": sigma0 * np.sqrt(1.0 + 1.0 / zero[0])}
     n = args.conductors
     per_snapshot = n - bool(args.zero_sum_currents) + 2 * bool(args.fit_background)  # what each must tell apart
     unknowns = 2 * n + len(rows) * (n - bool(args.zero_sum_currents)) + 2 * bool(args.fit_background)
@@ -1315,7 +1322,8 @@ def _solve_ring_snapshots(ring, ring_cal, snaps, rotation: float, rows, args, ze
     pos_se = se[:2 * n].reshape(n, 2)
     cur_se = se[2 * n:2 * n + len(rows) * n].reshape(len(rows), n)  # zero-sum currents: the last one's is derived
     flag = ("well conditioned" if sol.well_conditioned else "ILL-CONDITIONED") + \
-        ("" if sol.fits_model else f", MISFIT (residual above 5 × σ {sol.noise_sigma:.3g} T)")
+        ("" if sol.fits_model else f", MISFIT (residual above 5 × σ {sol.noise_sigma:.3g} T)"
+         if not np.isfinite(sol.misfit_p) else f", MISFIT (p {sol.misfit_p:.2g} for σ {sol.noise_sigma:.3g} T)")
     at = "; ".join(f"({x * 1e3:.4f} ± {sx * 1e3:.2g}, {y * 1e3:.4f} ± {sy * 1e3:.2g}) mm"
                    for (x, y), (sx, sy) in zip(sol.positions, pos_se))
     tail = f"residual {sol.summary['residual_rms']:.3g} T (σ {sol.noise_sigma:.3g} T); {flag}"
@@ -1328,7 +1336,8 @@ def _solve_ring_snapshots(ring, ring_cal, snaps, rotation: float, rows, args, ze
            "positions_m": sol.positions.tolist(), "position_sigma_m": _nan_to_none_rows(pos_se),
            "currents_a": currents.tolist(), "current_sigma_a": _nan_to_none_rows(cur_se),
            "residual_rms_t": sol.summary["residual_rms"], "noise_sigma_t": sol.noise_sigma,
-           "well_conditioned": sol.well_conditioned, "fits_model": sol.fits_model}
+           "well_conditioned": sol.well_conditioned, "fits_model": sol.fits_model,
+           "misfit_p": float(sol.misfit_p) if np.isfinite(sol.misfit_p) else None}
     if sol.background_t is not None:
         b, sb = sol.background_t, se[-2:]
         beyond = " beyond the calibration run's" if args.subtract_background else ""
@@ -1813,6 +1822,10 @@ def build_parser() -> argparse.ArgumentParser:
     kv.add_argument("--noise-sigma", type=positive_number, default=None,
                     help="the sensors' noise σ (T) the standard errors take (default: the calibration's scatter, "
                          "else 1e-8 T, said)")
+    kv.add_argument("--noise-sigma-dof", type=positive_number, default=None,
+                    help="the degrees of freedom behind --noise-sigma (e.g. repeated readings less one per pose): a "
+                         "misfit is then also an F test's p below 1e-3, which catches a residual of 1.5–5 σ; without "
+                         "it only a residual above 5 σ is (σ from the calibration's repeats brings its own)")
     kv.add_argument("--bad-lines", default="error", choices=["error", "skip"], help=bad_lines_help)
     kv.add_argument("-o", "--output", default=None, help="write the solutions (positions, currents, standard "
                                                         "errors, flags) as JSON; exit status 3 when no snapshot's "

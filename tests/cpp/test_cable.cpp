@@ -121,6 +121,39 @@ TEST(Cable, FitsAUniformBackgroundBesideTheConductors) {
   }
 }
 
+TEST(Cable, MisfitTestWithSigmaOfKnownPrecision) {
+  // a uniform field of 4 σ that the model leaves out, under 10 nT noise: within the ratio rule's 5 σ, but
+  // improbable for a σ known from its degrees of freedom
+  const CableRing ring = paper_ring();
+  ConductorPositions p(2, 2);
+  p << -1.7e-3, 0.4e-3, 2.3e-3, 0.1e-3;
+  std::mt19937 rng(11);
+  std::normal_distribution<double> g(0.0, 1e-8);
+  Eigen::MatrixXd clean(6, 8), shifted(6, 8);
+  for (int s = 0; s < 6; ++s) {
+    clean.row(s) = snapshot(ring, p, Eigen::Vector2d(5.0, -5.0) * (1.0 - 0.3 * s));
+    for (int k = 0; k < 8; ++k) clean(s, k) += g(rng);
+    shifted.row(s) = clean.row(s);
+    for (Eigen::Index i = 0; i < 4; ++i)  // 40 nT along x of the cable frame
+      shifted(s, 2 * i) += 4e-8 * std::cos(ring.angles(i)), shifted(s, 2 * i + 1) -= 4e-8 * std::sin(ring.angles(i));
+  }
+  fluxcal::CableSolveOptions o;
+  const auto ratio_only = fluxcal::solve_cable(ring, shifted, o);
+  EXPECT_TRUE(ratio_only.fits_model) << ratio_only.summary.message;
+  EXPECT_TRUE(std::isnan(ratio_only.misfit_p));
+  for (double dof : {200.0, std::numeric_limits<double>::infinity()}) {
+    o.noise_sigma_dof = dof;
+    const auto flagged = fluxcal::solve_cable(ring, shifted, o);
+    EXPECT_FALSE(flagged.fits_model) << flagged.summary.message;
+    EXPECT_LT(flagged.misfit_p, 1e-3);
+    const auto fine = fluxcal::solve_cable(ring, clean, o);
+    EXPECT_TRUE(fine.fits_model) << fine.summary.message;
+    EXPECT_GT(fine.misfit_p, 1e-3);
+  }
+  o.noise_sigma_dof = 3.0;  // σ from 3 degrees of freedom could be far too small: no verdict from the test
+  EXPECT_TRUE(fluxcal::solve_cable(ring, shifted, o).fits_model);
+}
+
 TEST(Cable, ThreeConductorsNeedSnapshotsAndShareTheirPositions) {
   const CableRing ring = paper_ring();
   ConductorPositions p(3, 2);
@@ -256,6 +289,12 @@ TEST(CableOptions, BadValuesAreNamed) {
   o = {};
   o.misfit_ratio = std::numeric_limits<double>::infinity();
   EXPECT_ERROR_SAYS(fluxcal::solve_cable(ring, y, o), "CableSolveOptions::misfit_ratio: inf");
+  o = {};
+  o.noise_sigma_dof = -2.0;
+  EXPECT_ERROR_SAYS(fluxcal::solve_cable(ring, y, o), "CableSolveOptions::noise_sigma_dof: -2");
+  o = {};
+  o.misfit_alpha = 1.0;
+  EXPECT_ERROR_SAYS(fluxcal::solve_cable(ring, y, o), "CableSolveOptions::misfit_alpha: 1");
   o = {};
   o.max_current_relative_sigma = std::nan("");
   EXPECT_ERROR_SAYS(fluxcal::solve_cable(ring, y, o), "CableSolveOptions::max_current_relative_sigma: nan");

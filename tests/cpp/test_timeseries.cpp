@@ -91,6 +91,12 @@ TEST(TimeSeries, Distributions) {
   EXPECT_NEAR(fluxcal::f1_sf(161.44763879758855, 1), 0.05, 1e-10);   // F(1,1) upper 5 %
   EXPECT_NEAR(fluxcal::f1_sf(3.8414588206941245 * 1.0000000, 1e8), 0.05, 1e-6);  // → χ²(1)
   EXPECT_NEAR(fluxcal::f1_sf(6.607890972, 50), 0.0132, 1e-3);
+  // F(d1, d2) against SciPy's f.sf; d2 = inf is the χ²(d1) limit
+  EXPECT_NEAR(fluxcal::f_sf(1.3, 7, 200), 0.2519774548904117, 1e-12);
+  EXPECT_NEAR(fluxcal::f_sf(3.0, 1, 5), 0.1438108087116039, 1e-12);
+  EXPECT_NEAR(fluxcal::f_sf(0.5, 20, 20), 0.9352338272090371, 1e-12);
+  EXPECT_NEAR(fluxcal::f_sf(2.0, 30, std::numeric_limits<double>::infinity()), 0.0009206823961486636, 1e-15);
+  EXPECT_EQ(fluxcal::f_sf(3.0, 1, 5), fluxcal::f1_sf(3.0, 5));
 }
 
 TEST(TimeSeries, ReverseArrangement) {
@@ -223,6 +229,8 @@ TEST(TimeSeries, DistributionsRefuseBadArguments) {
   EXPECT_ERROR_SAYS(fluxcal::chi2_sf(std::nan(""), 2.0), "chi2_sf: x: nan");
   EXPECT_ERROR_SAYS(fluxcal::f1_sf(1.0, std::nan("")), "f1_sf: df: nan");
   EXPECT_ERROR_SAYS(fluxcal::f1_sf(std::nan(""), 5.0), "f1_sf: x: nan");
+  EXPECT_ERROR_SAYS(fluxcal::f_sf(1.0, 0.0, 5.0), "f_sf: d1: 0");
+  EXPECT_ERROR_SAYS(fluxcal::f_sf(1.0, 2.0, -1.0), "f_sf: d2: -1");
   EXPECT_EQ(fluxcal::chi2_sf(std::numeric_limits<double>::infinity(), 2.0), 0.0);
   EXPECT_NEAR(fluxcal::chi2_sf(2.0, 2.0), std::exp(-1.0), 1e-14);
   EXPECT_ERROR_SAYS(fluxcal::ljung_box(ar_series({0.5}, 200, 1), 10, -1), "ljung_box: model_df: -1");

@@ -45,6 +45,7 @@
 
 #include <Eigen/Core>
 
+#include <limits>
 #include <string>
 #include <vector>
 
@@ -122,8 +123,15 @@ struct CableSolveOptions {
   /// 2-core cable with 2 mm spacing on a 10 mm ring has ~1 % at 10 nT; 0.6 mm spacing ~50 %).
   double max_current_relative_sigma = 0.05;
   /// fits_model is false when the residual RMS per degree of freedom exceeds this multiple of noise_sigma
-  /// (sensors' offsets or gains, a wrong number of conductors, a field that does not follow the currents).
+  /// (sensors' offsets or gains, a wrong number of conductors, a field that does not follow the currents) ...
   double misfit_ratio = 5.0;
+  /// ... or, when noise_sigma's own precision is known, when the residual's sum of squares over σ² is improbable:
+  /// P(F(dof, noise_sigma_dof) > mean square / σ²) < misfit_alpha. noise_sigma_dof is the degrees of freedom
+  /// behind noise_sigma (a calibration's repeated readings: their count less the poses); 0: not known (a
+  /// datasheet's σ: the ratio rule alone, which allows σ to be 5× off); +inf: σ known exactly (χ² test). A
+  /// busbar's gradient 2–36× the noise left currents 5–50 standard errors off with the ratio rule alone.
+  double noise_sigma_dof = 0.0;
+  double misfit_alpha = 1e-3;
   /// Fit a uniform background field (cable frame, shared by every snapshot) beside the conductors; see Background.
   bool fit_background = false;
   /// Warm start: N×2 positions (metres; empty = grid initialisation) ...
@@ -143,9 +151,11 @@ struct CableSolution {
   Eigen::MatrixXd covariance;
   Eigen::VectorXd standard_errors;  ///< sqrt of its diagonal (+inf where undetermined)
   bool well_conditioned = false;
-  /// The readings fit the model to within misfit_ratio × noise_sigma (only judged with more readings than
-  /// unknowns and a given noise_sigma; true otherwise).
+  /// The readings fit the model: within misfit_ratio × noise_sigma and, with noise_sigma_dof, the test at
+  /// misfit_alpha (only judged with more readings than unknowns and a given noise_sigma; true otherwise).
   bool fits_model = true;
+  /// The misfit test's p (see CableSolveOptions::noise_sigma_dof); NaN when not judged by it.
+  double misfit_p = std::numeric_limits<double>::quiet_NaN();
   double noise_sigma = 0.0;       ///< σ used for the covariance (tesla)
   double fisher_condition = 0.0;  ///< condition number of the column-scaled JᵀJ
   Eigen::MatrixXd residuals;      ///< S × 2M, reading − model (tesla)

@@ -169,5 +169,7 @@ PreprocessResult preprocess(const SeriesRef& x, const PreprocessOptions& options
 double chi2_sf(double x, double df);
 /// P(F(1, df) > x) (regularised incomplete beta I_{df/(df+x)}(df/2, 1/2)).
 double f1_sf(double x, double df);
+/// P(F(d1, d2) > x) (I_{d2/(d2+d1 x)}(d2/2, d1/2)); d2 = +inf gives the χ² limit P(χ²(d1) > d1 x).
+double f_sf(double x, double d1, double d2);
 
 }  // namespace fluxcal

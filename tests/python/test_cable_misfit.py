@@ -1,0 +1,103 @@
+"""The cable solver's misfit test when σ's own precision is known (noise_sigma_dof): an F test on the residuals'
+mean square over σ², beside the 5 σ ratio rule. A field the model leaves out at 2–3 σ left the currents 3–6
+standard errors off while the ratio rule said the readings fit (a busbar's gradient, last session's blind check:
+52 of 557 rigs)."""
+import json
+
+import numpy as np
+import pytest
+from scipy.stats import f as f_distribution
+
+from fluxcal.cable import RingCalibration, calibrate_ring
+from fluxcal.sim import cable as simcable
+from fluxcal.sim.cable_effects import to_axes
+
+from conftest import run_cli
+
+ROTATION = 30.0
+SCALES = np.linspace(1.0, -0.7, 10)  # 10 snapshots solved together
+
+
+def calibrated_rig(seed):
+    """The paper's rig calibrated at 5 A with 5 repeats per pose (10 poses), and a generator for its readings."""
+    rig = simcable.paper_rig(np.random.default_rng(seed))
+    rng = np.random.default_rng(seed + 100)
+    raw, truth = simcable.calibration_data(rig, simcable.reference_currents(5.0), rng, repeats=5)
+    return rig, calibrate_ring(raw, truth), rng
+
+
+def snapshots(rig, rng, amps):
+    rot = np.array([ROTATION])
+    return np.stack([rig.read(rot, [amps * s, -amps * s], rng)[0] - rig.earth_in_sensor_axes(rot)[0] for s in SCALES])
+
+
+def test_the_calibrations_repeats_give_the_sigmas_degrees_of_freedom():
+    rig, cal, rng = calibrated_rig(0)
+    np.testing.assert_array_equal(cal.repeat_dof, np.full((4, 2), 10 * (5 - 1)))  # 10 poses of 5 readings
+    snaps = snapshots(rig, rng, 5.0)
+    # at the calibration's current its noise dominates: about the pooled repeats' 320 dof; at 100 A the
+    # calibration's own (γ, b) errors do, which are 2 numbers per sensor axis: far fewer
+    at5, at100 = cal.field_sigma_dof(snaps, 10), cal.field_sigma_dof(snapshots(rig, rng, 100.0), 10)
+    assert 250 < at5 < 400 and 8 < at100 < 100, (at5, at100)
+    assert cal.field_sigma_dof(snaps[:1], 1) < at5
+    again = RingCalibration.from_dict(json.loads(json.dumps(cal.to_dict())))
+    np.testing.assert_array_equal(again.repeat_dof, cal.repeat_dof)
+    np.testing.assert_array_equal(cal.subset([0, 2]).repeat_dof, cal.repeat_dof[[0, 2]])
+    older = {k: v for k, v in cal.to_dict().items() if k != "repeat_dof"}  # saved before the dof were kept
+    assert RingCalibration.from_dict(older).field_sigma_dof(snaps) is None
+
+
+def test_a_field_of_a_few_sigma_the_model_leaves_out_is_a_misfit():
+    for seed in range(3):
+        rig, cal, rng = calibrated_rig(seed)
+        raw = snapshots(rig, rng, 5.0)
+        ring = rig.ring.rotated(ROTATION)
+        # 40 nT uniform in the cable frame, not fitted: ~2.5 σ
+        stray = to_axes(40e-9 * np.exp(0.7j) * np.ones(4), np.radians(ring.angles_deg + ring.axis_angles_deg))
+        h = cal.apply(raw) + stray
+        sigma, dof = cal.field_sigma(raw), cal.field_sigma_dof(raw, len(SCALES))
+        ratio_only = ring.solve(h, n_conductors=2, noise_sigma=sigma)
+        tested = ring.solve(h, n_conductors=2, noise_sigma=sigma, noise_sigma_dof=dof)
+        assert ratio_only.fits_model and np.isnan(ratio_only.misfit_p)
+        assert not tested.fits_model and tested.misfit_p < 1e-10, tested.summary["warnings"]
+        assert any(f"with σ from {round(dof)} dof" in w for w in tested.summary["warnings"]), tested.summary["warnings"]
+        # what the ratio rule let through: currents more than 3 of their standard errors off
+        se = ratio_only.standard_errors[4:].reshape(len(SCALES), 2)
+        assert np.max(np.abs(ratio_only.currents[:, 0] - 5.0 * SCALES) / se[:, 0]) > 3
+
+
+@pytest.mark.parametrize("amps", [5.0, 100.0])
+def test_a_ring_that_follows_its_model_is_not_called_a_misfit(amps):
+    """Read at the calibration's 5 A, or at 100 A where the calibration's own errors dominate σ and are shared by
+    the snapshots: no misfit in 10 rigs (nominally 1 in 1000); counting the calibration's part as one draw per
+    reading had flagged 2 % of such rigs."""
+    ps = []
+    for seed in range(10):
+        rig, cal, rng = calibrated_rig(seed)
+        raw = snapshots(rig, rng, amps)
+        sol = rig.ring.rotated(ROTATION).solve(cal.apply(raw), n_conductors=2, noise_sigma=cal.field_sigma(raw),
+                                              noise_sigma_dof=cal.field_sigma_dof(raw, len(SCALES)))
+        assert sol.fits_model, sol.summary["warnings"]
+        ps.append(sol.misfit_p)
+    # the C++ test's p is SciPy's F distribution at the residuals' mean square (80 readings, 4 + 20 unknowns)
+    dof = raw.size - (4 + 2 * len(SCALES))
+    ratio = np.sum(sol.residuals ** 2) / dof / sol.noise_sigma ** 2
+    assert sol.misfit_p == pytest.approx(f_distribution.sf(ratio, dof, cal.field_sigma_dof(raw, len(SCALES))),
+                                         rel=1e-9)
+    assert np.all(np.isfinite(ps)) and np.median(ps) > 0.05, ps
+
+
+def test_cli_takes_the_dof_from_the_calibration_or_with_noise_sigma(tmp_path):
+    for args in (["--calibration"], ["--current", "10", "--rotations", "0,90"]):
+        assert run_cli("cable", "simulate", "-o", tmp_path / f"{args[0]}.csv", *args).returncode == 0
+    assert run_cli("cable", "calibrate", tmp_path / "--calibration.csv", "-o", tmp_path / "cal.json").returncode == 0
+    data = tmp_path / "--current.csv"
+    r = run_cli("cable", "solve", data, "--calibration", tmp_path / "cal.json", "-o", tmp_path / "out.json")
+    assert r.returncode == 0, r.stderr
+    assert all(0.001 < s["misfit_p"] <= 1 for s in json.loads((tmp_path / "out.json").read_text())["solutions"])
+    r = run_cli("cable", "solve", data, "--noise-sigma-dof", "50")
+    assert r.returncode != 0 and "--noise-sigma-dof: the degrees of freedom of --noise-sigma" in r.stderr, r.stderr
+    # uncalibrated, against a σ of 1e-8 T known from 50 dof: a misfit, and its p said
+    r = run_cli("cable", "solve", data, "--noise-sigma", "1e-8", "--noise-sigma-dof", "50", "-o", tmp_path / "raw.json")
+    assert r.returncode == 3 and "MISFIT (p " in r.stdout, r.stdout
+    assert all(s["misfit_p"] < 1e-3 for s in json.loads((tmp_path / "raw.json").read_text())["solutions"])
