@@ -1109,25 +1109,30 @@ def cmd_cable(args) -> int:
                              "the conductor positions (positions_m metadata)")
         truth = np.stack([ring.rotated(a).field(data["positions_m"], c)
                           for a, c in zip(data["rotations_deg"], data["currents_a"])])
+        why = ""
         if args.method == "in_field":
             cal = cable.calibrate_ring_in_field(data["readings"], truth, ring, data["rotations_deg"])
+        elif args.method == "auto":
+            cal, why = _ring_calibration_auto(cable, data, truth)
         else:
             cal = cable.calibrate_ring(data["readings"], truth, method=args.method)
-        print(f"method: {cal.method}")
+        print(f"method: {cal.method}{why}")
         # offsets of a ring's sensors are tenths of µT to tens (5.183e-07 T read poorly): one unit for all
         unit, per_tesla = ("nT", 1e9) if np.max(np.abs(cal.offsets)) < 1e-6 else ("µT", 1e6)
         for k in range(ring.n_sensors):
             print(f"sensor {k}: offset {cal.offsets[k, 0] * per_tesla:.4g} {cal.offsets[k, 1] * per_tesla:.4g} "
                   f"{unit}, gain {cal.gains[k, 0]:.6f} {cal.gains[k, 1]:.6f}")
-            for w in cal.sensors[k].summary.get("warnings", []) if cal.sensors else []:
-                print(f"warning: sensor {k}: {w}")
+        if args.method != "auto" and cal.method != "in_field":  # (auto has looked already)
+            explained = _in_field_explains(cable, cal, data, truth)
+            if explained is not None:  # said first: it explains the sensors' warnings below
+                print(f"warning: {explained[1]}. `--method in_field` (or auto) fits it")
+        for line in _sensor_warning_lines(cal):
+            print(line)
         if cal.background is not None:  # (the room's field, the ring's turns told from the sensors' offsets)
             b = [complex(*t) for t in cal.background["terms_t"]]
             print(f"field that does not follow the currents: {1e6 * abs(b[0]):.4g} µT towards "
                   f"{np.degrees(np.angle(b[0])) % 360:.0f}° (cable frame) at the ring's centre; its terms at the "
                   "ring's radius " + ", ".join(f"{1e6 * abs(t):.3g}" for t in b[1:]) + " µT")
-        if cal.method != "in_field" and cal.lack_of_fit_p is not None and np.any(cal.lack_of_fit_p < cable.LACK_OF_FIT_P):
-            _in_field_instead(cable, cal, data, truth)
         far = float(np.max(np.abs(np.log(cal.gains))))
         if far > np.log(1.2):  # readings in tesla: an AMR's gain error is a few %, not tens
             print(f"warning: gains up to ×{np.exp(far):.3g} away from 1: the readings' scale is not the ring model's — "
@@ -1224,21 +1229,64 @@ def _zero_differences(data: dict, ring_cal, args) -> tuple:
     return diff, np.nonzero(~zero)[0], ring_cal, zeros_at
 
 
-def _in_field_instead(cable, cal, data: dict, truth) -> None:
-    """Said when a field that does not follow the currents explains a calibration's lack of fit: every bench has the
-    Earth's, which TWOSTEP takes into the gains (6 % off, 18 warnings naming other causes, for a newcomer's 36 µT)."""
+def _in_field_explains(cable, cal, data: dict, truth):
+    """(the in_field calibration, what it explains said) when a field that does not follow the currents explains a
+    calibration's lack of fit — every bench has the Earth's, which TWOSTEP takes into the gains (6 % off, 18 warnings
+    naming other causes, for a newcomer's 36 µT) — else None: no lack of fit, or no currents reversed at 3 rotations
+    to tell."""
+    if cal is not None and (cal.lack_of_fit_p is None or not np.any(cal.lack_of_fit_p < cable.LACK_OF_FIT_P)):
+        return None
     try:
         other = cable.calibrate_ring_in_field(data["readings"], truth, data["ring"], data["rotations_deg"])
-    except ValueError:  # no currents reversed at 3 rotations: it cannot be told
-        return
-    before, after = float(np.median(cal.residual_sigma)), float(np.median(other.residual_sigma))
-    if after < 0.5 * before:
-        b0 = complex(*other.background["terms_t"][0])
-        print(f"warning: a field that does not follow the currents explains this run's lack of fit: the Earth's or a "
-              f"neighbouring conductor's, {1e6 * abs(b0):.3g} µT towards {np.degrees(np.angle(b0)) % 360:.0f}° (cable "
-              f"frame); {cal.method} took it into the gains and offsets. `--method in_field` fits it (residual σ "
-              f"{_tesla_words(before)} → {_tesla_words(after)}, gains up to "
-              f"{100 * float(np.max(np.abs(other.gains / cal.gains - 1))):.2g} % apart)")
+    except ValueError:
+        return None
+    after = float(np.median(other.residual_sigma))
+    if cal is None:  # TWOSTEP refused: in_field must fit to its own repeats' scatter
+        if other.lack_of_fit_p is None or np.any(other.lack_of_fit_p < cable.LACK_OF_FIT_P):
+            return None
+        change = f", which twostep refused; in_field fits it to its repeats' scatter (residual σ {_tesla_words(after)})"
+    else:
+        before = float(np.median(cal.residual_sigma))
+        if not after < 0.5 * before:
+            return None
+        change = (f"; {cal.method} took it into the gains and offsets (residual σ {_tesla_words(before)} → "
+                  f"{_tesla_words(after)}, gains up to {100 * float(np.max(np.abs(other.gains / cal.gains - 1))):.2g} % "
+                  "apart)")
+    b0 = complex(*other.background["terms_t"][0])
+    return other, (f"a field that does not follow the currents explains this run's lack of fit: the Earth's or a "
+                   f"neighbouring conductor's, {1e6 * abs(b0):.3g} µT towards {np.degrees(np.angle(b0)) % 360:.0f}° "
+                   f"(cable frame){change}")
+
+
+def _ring_calibration_auto(cable, data: dict, truth):
+    """`cable calibrate --method auto`: TWOSTEP, or in_field when a field that does not follow the currents explains
+    TWOSTEP's lack of fit or its refusal (the Earth's on a bench). Returns (calibration, why said after the method)."""
+    try:
+        cal = cable.calibrate_ring(data["readings"], truth)
+    except ValueError:  # the first step's refusal names in_field among its causes: try it
+        explained = _in_field_explains(cable, None, data, truth)
+        if explained is None:
+            raise
+        return explained[0], f" (auto: {explained[1]})"
+    explained = _in_field_explains(cable, cal, data, truth)
+    return (cal, "") if explained is None else (explained[0], f" (auto: {explained[1]})")
+
+
+def _sensor_warning_lines(cal) -> list:
+    """The per-sensor warnings of a ring calibration, each kind once with the sensors it concerns (6 sensors × 3
+    warnings of one cause had buried the line naming it) and the first one's numbers."""
+    kinds: dict = {}
+    for k, fit in enumerate(cal.sensors or []):
+        for w in fit.summary.get("warnings", []):
+            kinds.setdefault(re.split(r" \(|: ", w, maxsplit=1)[0], []).append((k, w))
+    lines = []
+    for hits in kinds.values():
+        k0, text = hits[0]
+        if len(hits) == 1:
+            lines.append(f"warning: sensor {k0}: {text}")
+        else:
+            lines.append(f"warning: sensors {', '.join(str(k) for k, _ in hits)}: {text} (sensor {k0}'s numbers)")
+    return lines
 
 
 def _ring_notes(cable, data: dict) -> None:
@@ -1791,8 +1839,10 @@ def build_parser() -> argparse.ArgumentParser:
     ks.add_argument("--noise-seed", type=int, default=None, help="the noise (default: --seed)")
     kc = ksub.add_parser("calibrate", help="per-sensor calibration from a calibration recording")
     kc.add_argument("file")
-    kc.add_argument("--method", default="twostep", choices=["twostep", "least_squares", "in_field"],
-                    help="twostep: TWOSTEP 2-D per sensor with the true magnitude of every reading (default); "
+    kc.add_argument("--method", default="auto", choices=["auto", "twostep", "least_squares", "in_field"],
+                    help="auto (default): twostep, or in_field when a field that does not follow the currents explains "
+                         "twostep's lack of fit or refusal (the Earth's on a bench; said); "
+                         "twostep: TWOSTEP 2-D per sensor with the true magnitude of every reading; "
                          "least_squares: the ordinary ellipse fit on one magnitude (the RMS), the paper's "
                          "comparison; in_field: in a field that does not follow the currents (the Earth's, a "
                          "neighbouring conductor's), fitted with the offsets, from each rotation's currents reversed")

@@ -875,8 +875,9 @@ def test_many_snapshots_take_the_fisher_information_by_blocks():
 
 
 def test_calibrate_names_in_field_when_a_background_explains_the_lack_of_fit(tmp_path):
-    """TWOSTEP (the default) on a bench with a field that does not follow the ±5 A currents: `cable calibrate` says
-    which method ran, and that in_field fits the lack of fit (the field's size and direction, the residual σ)."""
+    """TWOSTEP on a bench with a field that does not follow the ±5 A currents: `cable calibrate --method twostep`
+    says, before the sensors' warnings, that in_field fits the lack of fit (the field's size and direction, the
+    residual σ), and gives each kind of sensor warning once; the default (auto) calibrates in_field and says why."""
     from fluxcal import cable
 
     ring = Ring(np.arange(0.0, 360.0, 60.0), 0.012)
@@ -884,12 +885,29 @@ def test_calibrate_names_in_field_when_a_background_explains_the_lack_of_fit(tmp
                                                      lambda z: 1.5e-6 * np.exp(-0.6j) + 0 * z, noise=2e-8)
     cur = np.repeat(np.tile([[5.0, -5.0], [-5.0, 5.0]], (5, 1)), 10, axis=0)
     path = cable.write_ring_csv(tmp_path / "bench.csv", ring, readings, rot, cur, [[-2e-3, 0.5e-3], [2.5e-3, 0.0]])
-    r = run_cli("cable", "calibrate", path)
+    r = run_cli("cable", "calibrate", path, "--method", "twostep")
     assert r.returncode == 0 and "method: twostep" in r.stdout, r.stderr
-    line = next(x for x in r.stdout.splitlines() if "explains this run's lack of fit" in x)
-    assert "1.5 µT towards 326°" in line and "`--method in_field` fits it" in line
-    r = run_cli("cable", "calibrate", path, "--method", "in_field")
-    assert "method: in_field" in r.stdout and "explains this run's lack of fit" not in r.stdout
+    lines = [x for x in r.stdout.splitlines() if x.startswith("warning:")]
+    assert "explains this run's lack of fit" in lines[0], lines  # first: it explains the others
+    assert "1.5 µT towards 326°" in lines[0] and "`--method in_field` (or auto) fits it" in lines[0]
+    assert sum("its readings miss the calibration's model" in x for x in lines) == 1, lines
+    assert "warning: sensors 0, 1, 2, 3, 4, 5: its readings miss" in r.stdout, r.stdout
+    for args in ([], ["--method", "in_field"]):
+        r = run_cli("cable", "calibrate", path, *args, "-o", tmp_path / "cal.json")
+        assert r.returncode == 0 and "method: in_field" in r.stdout, r.stdout
+        assert ("(auto: a field that does not follow the currents explains this run's lack of fit" in r.stdout) == \
+            (not args) and "warning:" not in r.stdout, r.stdout
+        cal = cable.RingCalibration.load(tmp_path / "cal.json")
+        assert cal.method == "in_field" and np.abs(cal.gains - gains).max() < 2e-3
+    # the Earth's 30 µT: TWOSTEP refuses; auto calibrates in_field, said, and twostep's refusal still names in_field
+    readings, truth, rot, gains, _ = _room_run(ring, np.random.default_rng(0), lambda z: 30e-6 * np.exp(-0.6j) + 0 * z,
+                                               noise=2e-8)
+    path = cable.write_ring_csv(tmp_path / "earth.csv", ring, readings, rot, cur, [[-2e-3, 0.5e-3], [2.5e-3, 0.0]])
+    r = run_cli("cable", "calibrate", path, "-o", tmp_path / "earth.json")
+    assert r.returncode == 0 and "30 µT towards 326° (cable frame), which twostep refused" in r.stdout, r.stdout
+    assert np.abs(cable.RingCalibration.load(tmp_path / "earth.json").gains - gains).max() < 2e-3
+    r = run_cli("cable", "calibrate", path, "--method", "twostep")
+    assert r.returncode != 0 and "`cable calibrate --method in_field`" in r.stderr, r.stderr
 
 
 def test_solve_subtracts_each_rotations_zero_current_snapshots(tmp_path):
