@@ -713,6 +713,38 @@ def test_repeats_with_currents_logged_per_reading():
     assert "time: the rows' order, no time column given" in d.text()  # (no t given)
 
 
+def test_a_reference_meter_that_scatters_is_named():
+    """A steady current read by a meter that scatters by 0.3 % (logged per reading): the readings do not follow the
+    logged jitter, and what is left is named as the reference's scatter (before: NOT EXPLAINED named busbars and
+    iron, never the meter). When the cable's current does jitter and is logged so, the readings follow it."""
+    from fluxcal import cable
+
+    ring = Ring(np.arange(0.0, 360.0, 60.0), 0.012)
+    rng = np.random.default_rng(5)
+    pos = np.array([[-2e-3, 0.5e-3], [2.5e-3, 0.0]])
+    gains, offsets = rng.uniform(0.97, 1.03, (6, 2)), rng.uniform(-5e-6, 5e-6, (6, 2))
+    rot = np.repeat(90.0 * np.arange(4), 24)
+    steady = np.tile(np.repeat(np.outer(np.tile([1.0, -1.0], 3), [1.0, -1.0]) * np.repeat([2.0, 5.0, 10.0], 2)[:, None],
+                               4, axis=0), (4, 1))
+    logged = steady * (1 + 3e-3 * rng.standard_normal((len(rot), 1)))  # one meter for the go and return conductors
+    for cable_current, meter in ((steady, True), (logged, False)):
+        truth = np.stack([ring.rotated(a).field(pos, c) for a, c in zip(rot, cable_current)])
+        y = gains * truth + offsets + rng.normal(0, 2e-8, truth.shape)
+        d = diagnose_cable(y, ring, currents=logged, rotations_deg=rot, positions=pos,
+                           calibration=cable.RingCalibration(offsets, gains), max_effects=0)
+        ref = d.remaining["reference_scatter"]
+        assert ref["scatters"] == meter, ref
+        lines = d.text().splitlines()
+        if meter:
+            assert abs(ref["followed"]) < 0.05 and 0.7 < ref["meter_sigma_a"][1] / 0.021 < 1.3, ref  # 0.3 % of 7 A RMS
+            assert d.remaining["overall"]["rms_z"] > 3 and 0.7 < ref["predicted_rms_z"] / d.remaining["overall"]["rms_z"] < 1.6
+            assert any(x.startswith("NOT EXPLAINED") and "the reference currents' scatter (REFERENCE below)" in x
+                       for x in lines), lines
+            assert any(x.startswith("REFERENCE: the readings follow") for x in lines), lines
+        else:
+            assert abs(ref["followed"] - 1) < 0.05 and not any(x.startswith("REFERENCE") for x in lines), ref
+
+
 def test_a_calibration_whose_fit_missed_its_model_is_judged_by_its_noise():
     """TWOSTEP on a bench with a 1.5 µT field that does not follow the ±5 A currents: its residuals (and so its
     standard errors) hold that miss, ~50× its repeats' noise, and its lack-of-fit test says so. The check judges

@@ -101,6 +101,9 @@ class _Data:
     notes: list = field(default_factory=list)  # what _prepare changed in the data, for the report
     calibration: RingCalibration | None = None  # the given one (of the sensors diagnosed)
     time_from_rows: bool = False  # no times given: the rows' order stands for time
+    # before averaging: each reading's and its logged currents' deviation from its pose's mean, and its rotation —
+    # (dev_y (N, M, 2), dev_i (N, n), rotations (N,), poses) — when the logged currents jitter within a pose, else None
+    jitter: tuple | None = None
 
     @property
     def sensor_names(self) -> list:
@@ -664,18 +667,24 @@ def _heldout(regime: str, data: _Data, levels) -> np.ndarray:
 
 # ---------------------------------------------------------------- noise
 
-def _noise_from_repeats(y, rotations, reference):
-    """σ per sensor from consecutive snapshots repeated at the same rotation and reference currents (within
-    POSE_RTOL: currents logged per reading jitter) — pooled within-run variance, both axes; repeats far apart in time
-    could differ by a drift. The readings follow a logged current's jitter, by a field per ampere the same for every
-    run at one rotation: that part of the within-run deviations is fitted (per rotation, sensor and axis) and taken
-    off, its columns off the degrees of freedom. None when fewer than 10 degrees of freedom."""
-    if reference is None:
-        return None
+def _within_poses(y, rotations, reference):
+    """Consecutive snapshots at the same rotation and reference currents (within POSE_RTOL: currents logged per
+    reading jitter): each one's readings' and logged currents' deviation from its pose's mean, and the pose counts."""
     group = consecutive_runs(rotations, near=reference)[1]
     counts = np.bincount(group)
     dev = y - (run_sums(y, group) / counts[:, None, None])[group]
-    dev_i = reference - (run_sums(reference, group) / counts[:, None])[group]
+    return dev, reference - (run_sums(reference, group) / counts[:, None])[group], counts
+
+
+def _noise_from_repeats(y, rotations, reference):
+    """σ per sensor from consecutive snapshots repeated at the same rotation and reference currents (_within_poses)
+    — pooled within-run variance, both axes; repeats far apart in time could differ by a drift. The readings follow a
+    logged current's jitter, by a field per ampere the same for every run at one rotation: that part of the
+    within-run deviations is fitted (per rotation, sensor and axis) and taken off, its columns off the degrees of
+    freedom. None when fewer than 10 degrees of freedom."""
+    if reference is None:
+        return None
+    dev, dev_i, counts = _within_poses(y, rotations, reference)
     dof = int(np.sum(counts - 1))
     for angle in np.unique(rotations):
         rows = rotations == angle
@@ -687,6 +696,43 @@ def _noise_from_repeats(y, rotations, reference):
     if dof < 10:
         return None
     return np.sqrt(np.sum(dev ** 2, axis=(0, 2)) / (2 * dof))
+
+
+# The readings follow significantly less of the logged currents' jitter within a pose than all of it (this many
+# standard errors): the reference meter scatters, and the cable's current does not
+METER_Z = 4.0
+
+
+def _reference_scatter(data: _Data, positions) -> dict | None:
+    """How much of the logged reference currents' jitter within a pose the readings follow, by the model's field per
+    ampere at `positions`: β = 1 when the cable's current jitters and is logged so, 0 when the current is steady and
+    its meter scatters (a clamp meter's 0.1 %), which the readings cannot follow. The meter's own scatter is then
+    (1 − β) of the logged jitter's covariance, Σₑ; each (averaged) snapshot's logged currents carry Σₑ / count of it,
+    which the model turns into readings — `predicted_rms_z`, the residual RMS / σ that this alone leaves. None when
+    the logged currents do not jitter (a newcomer's bench: NOT EXPLAINED had named busbars and iron, never the
+    reference meter)."""
+    if data.jitter is None:
+        return None
+    dev_y, dev_i, rot, poses = data.jitter
+    unique, index = np.unique(rot, return_inverse=True)
+    geometry = [sensor_points(data.ring, a) for a in unique]
+    per_ampere = straight_unit_fields(np.array([g[0] for g in geometry]), np.asarray(positions, float))  # (R, M, n)
+    axes = np.array([g[1] for g in geometry])[..., None]
+    k_axes = np.moveaxis(to_axes(per_ampere, axes), -1, -2)  # (R, M, 2, n): tesla per ampere along each axis
+    predicted = np.einsum("kman,kn->kma", k_axes[np.ravel(index)], dev_i)
+    w2 = (1.0 / data.sigma ** 2)[None, :, None]
+    information = float(np.sum(w2 * predicted ** 2))
+    if not information > 0:
+        return None
+    followed = float(np.sum(w2 * predicted * dev_y)) / information
+    se = 1.0 / np.sqrt(information)
+    meter = max(1.0 - followed, 0.0) * (dev_i.T @ dev_i) / max(len(dev_i) - poses, 1)  # (n, n) A²
+    extra = np.einsum("kman,nq,kmaq->kma", k_axes[data.rot_index], meter, k_axes[data.rot_index]) / \
+        data.counts[:, None, None]
+    return {"followed": followed, "followed_se": float(se), "meter_sigma_a": np.sqrt(np.diag(meter)).tolist(),
+            "logged_jitter_a": np.sqrt(np.diag(dev_i.T @ dev_i) / max(len(dev_i) - poses, 1)).tolist(),
+            "predicted_rms_z": float(np.sqrt(np.mean(1.0 + extra / data.sigma_eff[..., None] ** 2))),
+            "scatters": bool((1.0 - followed) / se > METER_Z)}
 
 
 # ---------------------------------------------------------------- where
@@ -1073,6 +1119,11 @@ def _prepare(readings, ring, currents, rotations_deg, positions, calibration, no
                              "lenient; give the sensors' noise σ (--noise-sigma, the calibration's: "
                              f"{np.median(calibration_sigma):.3g} T)")
     counts = np.ones(k)
+    jitter = None
+    if reference is not None:
+        dev_y, dev_i, poses = _within_poses(y, rot, reference)
+        if np.any(dev_i):
+            jitter = (dev_y, dev_i, rot, len(poses))
     if average_repeats and reference is not None:
         # consecutive repeats of one rotation and currents are averaged: the same information (their spread
         # is the noise, estimated above) in half the fitting time
@@ -1089,7 +1140,7 @@ def _prepare(readings, ring, currents, rotations_deg, positions, calibration, no
                  sigma=np.ones(m) if sigma is None else sigma, counts=counts, truth=truth,
                  refine_calibration=bool(refine_calibration), gain_currents=reference, unique=unique,
                  rot_index=np.ravel(rot_index), points=pts, axes=axes, source=source, sensor_ids=ids, notes=notes,
-                 calibration=calibration, time_from_rows=time_from_rows)
+                 calibration=calibration, time_from_rows=time_from_rows, jitter=jitter)
     return data, sigma is not None, source_noise
 
 
@@ -1245,6 +1296,7 @@ def diagnose_cable(readings, ring: Ring, currents=None, rotations_deg=None, posi
         accepted and (remaining["unexplained"].get("left")
                       or remaining["unexplained"].get("rms_over_sigma", 0.0) >= FAR_BEYOND_NOISE))
     remaining["background_source"] = _background_source(state["model"], final, data.ring.radius_m)
+    remaining["reference_scatter"] = None if data.fit_currents else _reference_scatter(data, final["positions"])
     if data.calibration is not None and data.refines:  # (a least-squares calibration off by ×2.35 had passed unsaid)
         remaining["calibration_check"] = _calibration_check(state["model"], final, data.calibration, alpha,
                                                             remaining["overall"]["rms_z"])
@@ -1439,6 +1491,9 @@ def _text(d) -> str:
     out += ["", "WHICH and HOW FAR (candidates; held-out gap = √(RMS² − σ²) on the unseen regime, tesla):"]
     out += ["  " + line for line in _ranking_lines(d)]
     out.append("")
+    meter = rem.get("reference_scatter") or {}
+    # the reference meter's scatter, when the readings do not follow the logged currents' jitter: the likeliest cause
+    outside = ("the reference currents' scatter (REFERENCE below); " if meter.get("scatters") else "") + OUTSIDE_CANDIDATES
     if d.accepted:
         out.append(f"FOUND: {', '.join(_accepted_text(r) for r in d.ranking if r['significant'])} (added in this order)")
         out += confound_lines(d, CABLE_REGIME_WORDS)
@@ -1451,7 +1506,7 @@ def _text(d) -> str:
                     if "background_gradient" in d.accepted else "")
             out.append(f"NOT EXPLAINED: {100 * left['share']:.2g} % of the departure is left, residual RMS "
                        f"{left['rms_over_sigma']:.2f} σ: its cause is not among the candidates' effects — "
-                       f"{near}{OUTSIDE_CANDIDATES}; the effects named above may stand in for it")
+                       f"{near}{outside}; the effects named above may stand in for it")
     elif d.noise_source.startswith(FROM_RESIDUALS):  # σ fitted to these residuals: "to the noise" is circular
         out.append("FOUND: no significant effect among the candidates — whether the ring's model fits cannot be "
                    "judged: σ came from the base fit's own residuals (see CAVEAT)")
@@ -1467,12 +1522,22 @@ def _text(d) -> str:
         if rms >= FAR_BEYOND_NOISE:  # not a σ a little low: something the model lacks (a newcomer's 20 µT background
             # field at 211 σ had read "the cause is outside the candidates, or the noise σ is underestimated")
             out.append(f"NOT EXPLAINED: all of the departure: its cause is not among the candidates' effects — "
-                       f"{OUTSIDE_CANDIDATES}")
+                       f"{outside}")
         else:
-            out.append("  the cause is outside the candidates, or the noise σ is " +
+            out.append("  the cause is outside the candidates" +
+                       (" (the reference currents' scatter: REFERENCE below)" if meter.get("scatters") else "") +
+                       ", or the noise σ is " +
                        ("underestimated" if rms >= 1 else "overestimated (an RMS under 1 σ beside departing tests"
                         + (": see CAVEAT)" if d.caveats else f"; σ {d.noise_source.split(' (')[0]}: give the sensors' "
                            "noise σ, --noise-sigma, or record repeated snapshots)")))
+    if meter.get("scatters"):
+        out.append(f"REFERENCE: the readings follow {100 * meter['followed']:.2g} ± {100 * meter['followed_se']:.2g} % of "
+                   "the logged currents' jitter within a pose (" + ", ".join(f"{a:.3g}" for a in meter['logged_jitter_a'])
+                   + " A RMS): the reference meter scatters by " + ", ".join(f"{a:.3g}" for a in meter['meter_sigma_a'])
+                   + " A where the cable's current does not. Averaged into each snapshot, it leaves about "
+                   f"{meter['predicted_rms_z']:.2f} σ RMS in the residuals before the fit takes up part of it (left: "
+                   f"{rem['overall']['rms_z']:.2f} σ): average the reference over more readings per pose, or use a "
+                   "steadier reference")
     source = d.remaining.get("background_source")
     if source:
         out.append(f"BACKGROUND: as one line current of {source['current_a']:.3g} A, {1e3 * source['distance_m']:.3g} mm "
