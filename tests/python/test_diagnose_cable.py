@@ -769,3 +769,26 @@ def test_a_calibration_whose_fit_missed_its_model_is_judged_by_its_noise():
     assert "its lack-of-fit warning" in next(x for x in d.text().splitlines() if x.startswith("CALIBRATION:"))
     saved_before = cable.RingCalibration.from_dict({k: v for k, v in cal.to_dict().items() if k != "lack_of_fit_p"})
     assert diagnose_cable(y, ring, calibration=saved_before, **kw).remaining["calibration_check"]["consistent"]
+
+
+def test_cannot_tell_apart_names_the_rotations_that_would():
+    """Two effects the ring's turns tell apart (a sensor's position error, a room's field gradient), confounded in a
+    recording of 2 rotations: the line names the rotations to record, not "a recording that varies [the current]
+    more" (held out on the current for want of rotations, which does not separate them: a newcomer's switch room,
+    10 recordings of 11)."""
+    from fluxcal.sim.cable_effects import BackgroundField, cable_trial
+
+    kwargs, _ = cable_trial([], 0, rotations_deg=(0.0, 90.0), levels_a=(10.0, 20.0, 40.0),
+                            effects=[BackgroundField(-15e-6 + 35e-6j, gradient_t=0.5e-6j)])
+    d = diagnose_cable(**kwargs, max_effects=2)
+    winner = next(r for r in d.ranking if r["effect"] == "background_gradient")
+    assert winner["significant"]
+    winner["confounded_with"] = [{"effect": "sensor_position_error", "regime": "current", "delta_bic_difference": 5.5,
+                                  "signature_correlation": 0.995, "same_departure": False}]
+    text = d.text()
+    assert "CANNOT TELL APART: background_gradient and sensor_position_error" in text, text
+    assert "This recording turned the ring to 2 rotation(s) (0°, 90°), too few to separate them: record at least 5 " \
+           "spread evenly over the turn, e.g. 0°, 72°, 144°, 216°, 288°" in text, text
+    assert "Both were held out on" not in text
+    winner["confounded_with"][0]["effect"] = "finite_length"  # the current's range separates that one
+    assert "Both were held out on the cable's current" in d.text() and "too few to separate" not in d.text()

@@ -1316,6 +1316,9 @@ OUTSIDE_CANDIDATES = ("a field from outside the ring: a neighbouring cable or bu
                       "gain changes; a harmonic in a current")
 # A residual RMS this many σ and above is no σ underestimated a little: the model lacks something
 FAR_BEYOND_NOISE = 3.0
+# Rotations of the ring that told a sensor's position error from a room's field gradient and found a drift beside
+# them every time in a blind check (with 2 rotations the diagnosis named the wrong one in 10 recordings of 11)
+ROTATIONS_THAT_SEPARATE = 5
 REPEATS_NOISIER = 2.0  # a recording's repeats scattering this many times the calibration run's: not the noise alone
 GAIN_MISMATCH = 0.2  # the base model moved a sensor's gain by more than this: the readings' scale is not the model's
 # An effect that needs the gains moved by more than this (×2, or to nothing) and twice what the base model moved them
@@ -1496,9 +1499,22 @@ def _text(d) -> str:
     outside = ("the reference currents' scatter (REFERENCE below); " if meter.get("scatters") else "") + OUTSIDE_CANDIDATES
     if d.accepted:
         out.append(f"FOUND: {', '.join(_accepted_text(r) for r in d.ranking if r['significant'])} (added in this order)")
-        out += confound_lines(d, CABLE_REGIME_WORDS)
-        if d.confounded and len(np.unique(np.mod(d.series["rotations"], 360.0))) == 1:
-            out.append("  The ring never turned: snapshots with the ring turned about the cable would separate them.")
+        lines = confound_lines(d, CABLE_REGIME_WORDS)
+        turns = np.unique(np.mod(d.series["rotations"], 360.0))
+        by_turn = {c.name for c in CABLE_CANDIDATES if c.regime == "rotation"}  # what the ring's turns tell apart
+        if d.confounded and len(turns) == 1:
+            lines.append("  The ring never turned: snapshots with the ring turned about the cable would separate them.")
+        elif len(turns) < ROTATIONS_THAT_SEPARATE and all(
+                {name, r["effect"]} <= by_turn for name, rivals in d.confounded.items() for r in rivals):
+            # (held out on the current for want of rotations, "a recording that varies it more" sent users to the
+            # current, which does not separate a gradient from a sensor's position error)
+            lines = [x for x in lines if not x.startswith("  Both were held out on")]
+            lines.append(f"  This recording turned the ring to {len(turns)} rotation(s) ("
+                         + ", ".join(f"{a:g}°" for a in turns) + f"), too few to separate them: record at least "
+                         f"{ROTATIONS_THAT_SEPARATE} spread evenly over the turn, e.g. "
+                         + ", ".join(f"{a:g}°" for a in np.arange(ROTATIONS_THAT_SEPARATE) * 360.0 / ROTATIONS_THAT_SEPARATE)
+                         + " (not 180° apart: a room's field gradient looks the same to the ring turned by 180°)")
+        out += lines
         left = rem.get("unexplained", {})
         if left.get("not_explained", left.get("left")):
             # a background's gradient found: its source is near, and its expansion's next terms the likeliest rest
