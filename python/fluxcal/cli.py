@@ -23,6 +23,11 @@ from .io.csv import skipped_words
 from .pipeline import METHODS, PLAUSIBLE_WORDS, UNITS_WORDS, calibrate, noise_line, plausible_field
 from .planar import plane_axes
 
+def _dof_or_inf(text: str) -> float:
+    """argparse type of degrees of freedom: a positive number, or inf (exact)."""
+    return float("inf") if text.strip().lower() in ("inf", "infinity") else positive_number(text)
+
+
 def positive_number(text: str, zero: bool = False) -> float:
     """argparse type of a magnitude (--field-norm, --noise-sigma): a positive finite number, so that the error
     names the option instead of the solver's option struct deep inside; with `zero`, 0 too."""
@@ -1872,10 +1877,12 @@ def build_parser() -> argparse.ArgumentParser:
     kv.add_argument("--noise-sigma", type=positive_number, default=None,
                     help="the sensors' noise σ (T) the standard errors take (default: the calibration's scatter, "
                          "else 1e-8 T, said)")
-    kv.add_argument("--noise-sigma-dof", type=positive_number, default=None,
+    kv.add_argument("--noise-sigma-dof", type=_dof_or_inf, default=None,
                     help="the degrees of freedom behind --noise-sigma (e.g. repeated readings less one per pose): a "
                          "misfit is then also an F test's p below 1e-3, which catches a residual of 1.5–5 σ; without "
-                         "it only a residual above 5 σ is (σ from the calibration's repeats brings its own)")
+                         "it only a residual above 5 σ is (σ from the calibration's repeats brings its own). inf: σ "
+                         "known exactly — claimed for a σ 30 %% too small, it flagged 32 %% of good fits in a blind "
+                         "check (79 %% at 31 dof or more)")
     kv.add_argument("--bad-lines", default="error", choices=["error", "skip"], help=bad_lines_help)
     kv.add_argument("-o", "--output", default=None, help="write the solutions (positions, currents, standard "
                                                         "errors, flags) as JSON; exit status 3 when no snapshot's "

@@ -60,7 +60,7 @@ def test_a_field_of_a_few_sigma_the_model_leaves_out_is_a_misfit():
         tested = ring.solve(h, n_conductors=2, noise_sigma=sigma, noise_sigma_dof=dof)
         assert ratio_only.fits_model and np.isnan(ratio_only.misfit_p)
         assert not tested.fits_model and tested.misfit_p < 1e-10, tested.summary["warnings"]
-        assert any(f"with σ from {round(dof)} dof" in w for w in tested.summary["warnings"]), tested.summary["warnings"]
+        assert any(f", σ from {round(dof)} dof)" in w for w in tested.summary["warnings"]), tested.summary["warnings"]
         # what the ratio rule let through: currents more than 3 of their standard errors off
         se = ratio_only.standard_errors[4:].reshape(len(SCALES), 2)
         assert np.max(np.abs(ratio_only.currents[:, 0] - 5.0 * SCALES) / se[:, 0]) > 3
@@ -101,3 +101,5 @@ def test_cli_takes_the_dof_from_the_calibration_or_with_noise_sigma(tmp_path):
     r = run_cli("cable", "solve", data, "--noise-sigma", "1e-8", "--noise-sigma-dof", "50", "-o", tmp_path / "raw.json")
     assert r.returncode == 3 and "MISFIT (p " in r.stdout, r.stdout
     assert all(s["misfit_p"] < 1e-3 for s in json.loads((tmp_path / "raw.json").read_text())["solutions"])
+    r = run_cli("cable", "solve", data, "--noise-sigma", "1e-8", "--noise-sigma-dof", "inf")
+    assert r.returncode == 3 and ", σ taken as exact)" in r.stdout, r.stdout
