@@ -351,7 +351,10 @@ TwoStep2DResult twostep_2d(const Readings2DRef& readings, const SeriesRef& field
   if (!(relative.maxCoeff() <= options.poorly_determined))
     sum.warnings.push_back("poorly determined: standard errors of the gains ±" + percent(relative(0)) + ", ±" +
                            percent(relative(1)) + " and of the offset ±" + num(out.offset_se(0)) + ", ±" +
-                           num(out.offset_se(1)) + " — the field did not turn through enough of the sensor's "
+                           num(out.offset_se(1)) + " (the readings' unit: " +  // (bare numbers beside offsets in µT)
+                           percent(out.offset_se(0) / field_norms.mean()) + ", " +
+                           percent(out.offset_se(1) / field_norms.mean()) + " of the mean |field|)" +
+                           " — the field did not turn through enough of the sensor's "
                            "plane, or never had a component along one axis; turn it through a full circle");
   if (sum.norm_std_over_mean > options.misfit_spread)
     sum.warnings.push_back("the readings do not fit the model: |h|/h scatters by " + percent(sum.norm_std_over_mean) +

@@ -163,7 +163,11 @@ def test_2d_a_field_along_one_axis_only_leaves_that_gain_undetermined_and_says_s
                 + 0.005 * rng.standard_normal((60, 2)))
     cal = twostep_2d(readings, h)
     assert cal.gain_se[1] > 0.2 * cal.gain[1] and cal.gain_se[0] < 0.01 * cal.gain[0]
-    assert any(w.startswith("poorly determined") and "component along one axis" in w for w in cal.summary["warnings"])
+    said = next(w for w in cal.summary["warnings"] if w.startswith("poorly determined"))
+    assert "component along one axis" in said
+    # the offsets' errors in the readings' unit and against the field they were read in
+    se = cal.offset_se / np.mean(h)
+    assert f"(the readings' unit: {100 * se[0]:.3g} %, {100 * se[1]:.3g} % of the mean |field|)" in said, said
 
 
 def test_2d_summary_is_that_of_the_compensated_readings():
