@@ -1186,6 +1186,10 @@ def cmd_cable(args) -> int:
         rotation = float(rotations[rows[0]])
         sol = _solve_ring_snapshots(ring, ring_cal, raw[rows], rotation, rows, args, zeros.get(rotation))
         solutions.append(sol)
+    # each kind of warning once, with the snapshots it concerns (24 snapshots' misfit had run to 48 lines)
+    said = [(s["where"], w) for s in solutions for w in s.pop("warnings_said", [])]
+    for line in _grouped_warning_lines([where for where, _ in said], [w for _, w in said], _snapshots_words):
+        print(line)
     if all("left_out" in s for s in solutions):  # nothing solved: the ring cannot, whatever the snapshot
         raise ValueError(f"{args.file}: every snapshot " + solutions[0]["left_out"].split(" — ", 1)[1] +
                          " (or add sensors, or --zero-sum-currents when the currents sum to zero)")
@@ -1277,21 +1281,40 @@ def _ring_calibration_auto(cable, data: dict, truth):
     return (cal, "") if explained is None else (explained[0], f" (auto: {explained[1]})")
 
 
-def _sensor_warning_lines(cal) -> list:
-    """The per-sensor warnings of a ring calibration, each kind once with the sensors it concerns (6 sensors × 3
-    warnings of one cause had buried the line naming it) and the first one's numbers."""
+def _grouped_warning_lines(labels: list, texts: list, words) -> list:
+    """Warnings (`texts`, each of the item `labels[i]`) said once per kind — their words before the first number's
+    clause — with the items it concerns (`words(labels)`) and the first one's numbers: 6 sensors × 3 warnings of one
+    cause had buried the line naming it."""
     kinds: dict = {}
-    for k, fit in enumerate(cal.sensors or []):
-        for w in fit.summary.get("warnings", []):
-            kinds.setdefault(re.split(r" \(|: ", w, maxsplit=1)[0], []).append((k, w))
+    for label, text in zip(labels, texts):
+        kinds.setdefault(re.split(r" \(|: ", text, maxsplit=1)[0], []).append((label, text))
     lines = []
     for hits in kinds.values():
-        k0, text = hits[0]
-        if len(hits) == 1:
-            lines.append(f"warning: sensor {k0}: {text}")
-        else:
-            lines.append(f"warning: sensors {', '.join(str(k) for k, _ in hits)}: {text} (sensor {k0}'s numbers)")
+        first, text = hits[0]
+        differ = len({t for _, t in hits}) > 1
+        lines.append(f"warning: {words([label for label, _ in hits])}: {text}" + (f" ({words([first])}'s numbers)"
+                                                                                   if differ else ""))
     return lines
+
+
+def _sensor_warning_lines(cal) -> list:
+    """The per-sensor warnings of a ring calibration, each kind once (_grouped_warning_lines)."""
+    pairs = [(k, w) for k, fit in enumerate(cal.sensors or []) for w in fit.summary.get("warnings", [])]
+    return _grouped_warning_lines([k for k, _ in pairs], [w for _, w in pairs],
+                                  lambda ks: f"sensor{'s' if len(ks) > 1 else ''} {', '.join(map(str, ks))}")
+
+
+def _snapshots_words(wheres: list) -> str:
+    """"snapshots 0–7, 9" from single snapshots' "snapshot k" (as _solve_ring_snapshots says them), else joined."""
+    singles = [int(w.split()[1]) for w in wheres if re.fullmatch(r"snapshot \d+", w)]
+    if len(wheres) == 1 or len(singles) < len(wheres):
+        return "; ".join(wheres)
+    runs, start = [], singles[0]
+    for a, b in zip(singles, singles[1:] + [None]):
+        if b != a + 1:
+            runs.append(f"{start}" if start == a else f"{start}–{a}")
+            start = b
+    return "snapshots " + ", ".join(runs)
 
 
 def _ring_notes(cable, data: dict) -> None:
@@ -1398,10 +1421,11 @@ def _solve_ring_snapshots(ring, ring_cal, snaps, rotation: float, rows, args, ze
               f"({1e6 * b[0]:.4g} ± {1e6 * sb[0]:.2g}, {1e6 * b[1]:.4g} ± {1e6 * sb[1]:.2g}) "
               f"µT, {1e6 * np.hypot(*b):.4g} µT towards {np.degrees(np.arctan2(b[1], b[0])) % 360:.0f}° (cable frame)")
         out.update(background_t=b.tolist(), background_sigma_t=_nan_to_none_rows(sb)[0])
-    for w in sol.summary.get("warnings", []):
-        if snaps.size == unknowns and w.startswith("as many readings as unknowns: the fit is exact"):
-            continue  # said above, with the CLI's remedy
-        print(f"warning: {where}: {w}")
+    out["warnings"] = list(sol.summary.get("warnings", []))
+    out["where"] = where
+    # (the exact fit is said above, with the CLI's remedy)
+    out["warnings_said"] = [w for w in out["warnings"]
+                            if not (snaps.size == unknowns and w.startswith("as many readings as unknowns: the fit is exact"))]
     return out
 
 
