@@ -1190,6 +1190,11 @@ def cmd_cable(args) -> int:
     said = [(s["where"], w) for s in solutions for w in s.pop("warnings_said", [])]
     for line in _grouped_warning_lines([where for where, _ in said], [w for _, w in said], _snapshots_words):
         print(line)
+    if args.subtract_zero and any(not s["fits_model"] and "left_out" not in s for s in solutions):
+        # (the misfit's hint names --fit-background, which has nothing left to fit here)
+        print("note: the zero-current snapshots took off every field that does not follow the currents: a misfit here "
+              "is the sensors' gains" + (" (give --calibration)" if ring_cal is None else "") + ", a wrong number "
+              "of conductors, or a field that changed between the zero snapshots and the others")
     if all("left_out" in s for s in solutions):  # nothing solved: the ring cannot, whatever the snapshot
         raise ValueError(f"{args.file}: every snapshot " + solutions[0]["left_out"].split(" — ", 1)[1] +
                          " (or add sensors, or --zero-sum-currents when the currents sum to zero)")

@@ -942,6 +942,10 @@ def test_solve_subtracts_each_rotations_zero_current_snapshots(tmp_path):
         assert s["fits_model"] and 0 not in s["snapshots"] and 8 not in s["snapshots"]
         want = cur[s["snapshots"]]
         assert np.all(np.abs(np.array(s["currents_a"]) - want) < 4 * np.array(s["current_sigma_a"]))
+    assert "note: the zero-current snapshots took off" not in r.stdout
+    # without the calibration the gains are taken as 1: a misfit, whose cause is said (not --fit-background)
+    r = run_cli("cable", "solve", path, "--joint", "--noise-sigma", "3e-8", "--subtract-zero")
+    assert r.returncode == 3 and "is the sensors' gains (give --calibration)" in r.stdout, r.stdout
     r = run_cli("cable", "solve", path, "--subtract-zero", "--subtract-background")
     assert r.returncode == 2 and "give one of them" in r.stderr
     keep = (np.abs(cur).max(axis=1) > 1.0) | (rot == 0.0)  # rotation 90° without its zeros
