@@ -518,8 +518,23 @@ def calibrate_ring_in_field(readings, true_fields, ring: Ring, rotations_deg, or
     cal = RingCalibration(offsets=offsets, gains=gains, method="in_field", background={"terms_t": terms.tolist()})
     # every reading's field in its sensor's axes: the true one and the room's
     total = h + np.stack([cal.background_in_axes(ring, a) for a in rot])
-    cal.residual_sigma, cal.covariance = _calibration_errors(r, total, offsets, gains)
+    cal.residual_sigma = _calibration_errors(r, total, offsets, gains, linear=False)[0]
     cal.repeat_sigma, cal.repeat_dof, cal.lack_of_fit_p = _repeat_scatter(r, total, r - (total * gains + offsets))
+    # (γ, b) as they were estimated: γ from the pairs' half differences alone, b with the room's field from their half
+    # sums, each pair's noise that of its two poses' means. The linear model's covariance about γ (h + B) + b counted
+    # the room's field's change across the rotations as information on γ, which it is not here, and its σ had the
+    # pairs' 4 dof: the gains' errors over their SEs had a spread of 1.55 (a uniform 36 µT) to 2 (a busbar).
+    per_pair = (1.0 / counts[first] + 1.0 / counts[second])[:, :, 0] / 4.0  # (P, 1): a half sum's or difference's σ²/σ²
+    if cal.repeat_sigma is not None:  # the noise, from many dof; the lack-of-fit test says when the model missed
+        noise = cal.repeat_sigma[None] ** 2 * per_pair[..., None]
+    else:  # the pairs' own scatter about γ h (P − 1 dof per sensor axis)
+        noise = np.broadcast_to(np.sum((half_diff - gains * h_pairs) ** 2, axis=0) / max(len(pairs) - 1, 1),
+                                half_diff.shape)
+    cal.covariance = np.zeros((m, 2, 2, 2))
+    cal.covariance[..., 0, 0] = np.sum(noise * h_pairs ** 2, axis=0) / np.sum(h_pairs ** 2, axis=0) ** 2
+    inverse = np.linalg.pinv(A.T @ A)
+    sandwich = inverse @ (A.T * noise.ravel()) @ A @ inverse
+    cal.covariance[..., 1, 1] = np.diag(sandwich)[:2 * m].reshape(m, 2)
     return cal
 
 
