@@ -30,7 +30,8 @@ using detail::num;
 struct RingFrame {
   Eigen::Index m = 0;
   Eigen::Matrix2Xd p, x, y;  // position, x axis, y axis of each sensor
-  explicit RingFrame(const CableRing& ring) : m(ring.sensors()), p(2, m), x(2, m), y(2, m) {
+  Eigen::VectorXd w;         // each sensor's residual weight in the fit: 1 / its relative σ
+  explicit RingFrame(const CableRing& ring) : m(ring.sensors()), p(2, m), x(2, m), y(2, m), w(Eigen::VectorXd::Ones(m)) {
     for (Eigen::Index i = 0; i < m; ++i) {
       const double th = ring.angles(i), a = th + ring.axis_angle(i);
       p.col(i) << std::cos(th), std::sin(th);
@@ -148,6 +149,16 @@ class SnapshotCost : public ceres::CostFunction {
           }
         }
       }
+    }
+    // each sensor's rows weighted by 1 / its relative σ (all 1 unless CableSolveOptions::relative_sigma)
+    const int widths[3] = {2 * n_, nc, 2};
+    for (int row = 0; row < rows; ++row) {
+      const double w = f_.w(row / 2);
+      if (w == 1.0) continue;
+      residuals[row] *= w;
+      for (int b = 0; b < (background_ ? 3 : 2); ++b)
+        if (jacobians && jacobians[b])
+          for (int c = 0; c < widths[b]; ++c) jacobians[b][row * widths[b] + c] *= w;
     }
     return true;
   }
@@ -598,6 +609,8 @@ void check(const CableSolveOptions& o) {
   require_enum(s + "refiner", o.refiner, 3, "automatic, ceres, dense (0 … 2)");
   if (o.initial_currents.size() > 0 && !o.initial_currents.allFinite())
     throw Error(s + "initial_currents: contains NaN or Inf");
+  if (o.relative_sigma.size() > 0 && !(o.relative_sigma.allFinite() && o.relative_sigma.minCoeff() > 0.0))
+    throw Error(s + "relative_sigma: need a finite σ > 0 per sensor (relative to noise_sigma)");
 }
 
 }  // namespace detail
@@ -614,6 +627,9 @@ CableSolution solve_cable(const CableRing& ring, const Eigen::Ref<const Eigen::M
                 " biaxial sensors: give 2 × " + std::to_string(m) + " = " + std::to_string(2 * m) +
                 " columns (x_0, y_0, x_1, …) per snapshot");
   if (S < 1) throw Error("readings: no snapshots");
+  if (opt.relative_sigma.size() > 0 && opt.relative_sigma.size() != m)
+    throw Error("CableSolveOptions::relative_sigma: " + std::to_string(opt.relative_sigma.size()) +
+                " values, the ring has " + std::to_string(m) + " sensors");
   for (Eigen::Index s = 0; s < S; ++s)
     for (Eigen::Index c = 0; c < readings.cols(); ++c)
       if (!std::isfinite(readings(s, c)))
@@ -641,7 +657,8 @@ CableSolution solve_cable(const CableRing& ring, const Eigen::Ref<const Eigen::M
                 "zero");
 
   const double R = ring.radius, field_unit = kMu0Over2Pi / R, bore = ring.bore() / R;
-  const RingFrame f(ring);
+  RingFrame f(ring);
+  if (opt.relative_sigma.size() > 0) f.w = opt.relative_sigma.cwiseInverse();
   const Eigen::MatrixXd U = background_design(f);
   const Eigen::MatrixXd* Ub = bg ? &U : nullptr;
   // Normalised readings, one column per snapshot (2M × S).
@@ -862,16 +879,19 @@ CableSolution solve_cable(const CableRing& ring, const Eigen::Ref<const Eigen::M
   const Eigen::VectorXd background_readings = U * out.background;  // zero without a background
   out.residuals.resize(S, 2 * m);
   Eigen::MatrixXd Jk(2 * m, k);
+  // each sensor's rows weighted by 1 / its relative σ (the noise σ is noise_sigma × relative_sigma)
+  Eigen::VectorXd row_w(2 * m);
+  for (Eigen::Index i = 0; i < m; ++i) row_w(2 * i) = row_w(2 * i + 1) = f.w(i);
   for (Eigen::Index s = 0; s < S; ++s) {
-    const Eigen::MatrixXd Js = jacobian_kernel(ring, out.positions, out.currents.row(s).transpose());
+    const Eigen::MatrixXd Js = row_w.asDiagonal() * jacobian_kernel(ring, out.positions, out.currents.row(s).transpose());
     const auto model = field_kernel(ring, out.positions, out.currents.row(s).transpose());
     for (Eigen::Index i = 0; i < m; ++i)
       for (int a = 0; a < 2; ++a) out.residuals(s, 2 * i + a) = readings(s, 2 * i + a) - model(i, a) - background_readings(2 * i + a);
     Jk.leftCols(2 * n) = Js.leftCols(2 * n);
-    if (bg) Jk.rightCols(2) = U;
+    if (bg) Jk.rightCols(2) = row_w.asDiagonal() * U;
     fb.add(s, Jk, Js.rightCols(n) * Tc);
   }
-  const double ssr = out.residuals.squaredNorm();
+  const double ssr = (out.residuals * row_w.asDiagonal()).squaredNorm();  // weighted: in units of noise_sigma²
   const Eigen::Index dof = equations - pr;
   if (opt.noise_sigma > 0.0) {
     out.noise_sigma = opt.noise_sigma;
@@ -1002,7 +1022,7 @@ CableSolution solve_cable(const CableRing& ring, const Eigen::Ref<const Eigen::M
   Summary& sum = out.summary;
   sum.samples = static_cast<std::size_t>(equations);
   sum.iterations = best_run.iterations;
-  sum.cost = ssr / static_cast<double>(equations);
+  sum.cost = out.residuals.squaredNorm() / static_cast<double>(equations);
   sum.residual_rms = std::sqrt(sum.cost);
   sum.condition_number = out.fisher_condition;
   sum.converged = best_run.converged;

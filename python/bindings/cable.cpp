@@ -44,6 +44,7 @@ void bind_cable(py::module_& m) {
       .def_readwrite("misfit_ratio", &CableSolveOptions::misfit_ratio)
       .def_readwrite("noise_sigma_dof", &CableSolveOptions::noise_sigma_dof)
       .def_readwrite("misfit_alpha", &CableSolveOptions::misfit_alpha)
+      .def_readwrite("relative_sigma", &CableSolveOptions::relative_sigma)
       .def_readwrite("fit_background", &CableSolveOptions::fit_background)
       .def_readwrite("initial_positions", &CableSolveOptions::initial_positions)
       .def_readwrite("initial_currents", &CableSolveOptions::initial_currents);

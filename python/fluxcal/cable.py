@@ -148,7 +148,8 @@ class Ring:
         settings (defaults in cable.hpp): grid_points=9, starts=6, max_iterations=100, noise_sigma=1e-8 (T;
         ≤ 0 = estimate from the residuals), max_position_sigma=1e-4 (m), max_current_relative_sigma=0.05,
         misfit_ratio=5, noise_sigma_dof=0 (the degrees of freedom behind noise_sigma, e.g. a calibration's
-        repeats': a misfit is then also an F test's p below misfit_alpha=1e-3; inf: σ exact, χ²),
+        repeats': a misfit is then also an F test's p below misfit_alpha=1e-3; inf: σ exact, χ²), relative_sigma
+        (n_sensors,) each sensor's σ relative to noise_sigma (its residuals weighted by the inverse; default all 1),
         refiner="automatic" ("ceres", or "dense": fluxcal's dense Levenberg–Marquardt on the same residuals;
         "automatic" = dense for a warm start, Ceres for the multi-start from the grid).
         `initial_positions` (n, 2) warm-starts the solver (no grid). search_again: when the default starts
@@ -265,21 +266,25 @@ class RingCalibration:
         return None if per_sensor is None else float(np.sqrt(np.mean(per_sensor ** 2)))
 
     def field_sigma_dof(self, readings, snapshots_solved_together: int = 1) -> float | None:
-        """The degrees of freedom behind `field_sigma(readings)`, for the solver's misfit test (`noise_sigma_dof`):
-        Satterthwaite's, of the repeats' pooled scatter (their dof) and of the error the calibration's own (γ, b)
-        leave: two numbers per sensor axis, the same in every snapshot, so one draw per sensor axis in one snapshot
-        and two in several (counted as one per reading, they gave 2 % false misfits at p < 1e-3 for a ring
-        calibrated at 5 A and read at 100 A in 10 snapshots). None without
-        the repeats' dof (a calibration without repeats, whose residual scatter holds its model's misses, or saved
-        before it kept them): the ratio rule alone then."""
+        """The degrees of freedom behind `sensor_sigma(readings, repeats=True)`, for the solver's misfit test
+        (`noise_sigma_dof`, with each sensor weighted by its σ: `relative_sigma`). Per sensor, Satterthwaite's, of its
+        repeats' scatter (their dof) and of the error the calibration's own (γ, b) leave: two numbers per axis, the
+        same in every snapshot, so one draw per axis in one snapshot and two in several (counted as one per reading,
+        they gave 2 % false misfits at p < 1e-3 for a ring calibrated at 5 A and read at 100 A in 10 snapshots); over
+        the sensors, which weigh alike in the weighted test, M² / Σ 1/νᵢ. None without the repeats' dof (a calibration
+        without repeats, whose residual scatter holds its model's misses, or saved before it kept them): the ratio
+        rule alone then."""
         if self.repeat_dof is None or self.repeat_sigma is None:
             return None
+        if int(snapshots_solved_together) < 1:
+            raise ValueError(f"snapshots_solved_together: {snapshots_solved_together}, need ≥ 1")
         noise, own = self._variances(readings, repeats=True)
         if noise is None:
             return None
-        own_dof = min(int(snapshots_solved_together), 2) * own.size
-        total = np.mean(noise + own)
-        return float(total ** 2 / (np.mean(noise) ** 2 / np.sum(self.repeat_dof) + np.mean(own) ** 2 / own_dof))
+        noise, own = np.mean(noise, axis=-1), np.mean(own, axis=-1)  # per sensor, as sensor_sigma
+        per_sensor = (noise + own) ** 2 / (noise ** 2 / np.sum(self.repeat_dof, axis=-1)
+                                           + own ** 2 / (2 * min(int(snapshots_solved_together), 2)))
+        return float(len(per_sensor) ** 2 / np.sum(1.0 / per_sensor))
 
     def background_in_axes(self, ring: "Ring", rotation_deg: float) -> np.ndarray:
         """The calibration run's field that does not follow the currents (`background`, calibrate_ring_in_field's)

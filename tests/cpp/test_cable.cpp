@@ -152,6 +152,17 @@ TEST(Cable, MisfitTestWithSigmaOfKnownPrecision) {
   }
   o.noise_sigma_dof = 3.0;  // σ from 3 degrees of freedom could be far too small: no verdict from the test
   EXPECT_TRUE(fluxcal::solve_cable(ring, shifted, o).fits_model);
+  // every sensor's σ twice noise_sigma: the same fit, the covariance 4×
+  fluxcal::CableSolveOptions w;
+  const auto plain = fluxcal::solve_cable(ring, clean, w);
+  w.relative_sigma = Eigen::VectorXd::Constant(4, 2.0);
+  const auto weighted = fluxcal::solve_cable(ring, clean, w);
+  EXPECT_LT((weighted.positions - plain.positions).cwiseAbs().maxCoeff(), 1e-12);
+  EXPECT_NEAR(weighted.covariance(0, 0) / plain.covariance(0, 0), 4.0, 1e-6);
+  w.relative_sigma = Eigen::VectorXd::Constant(3, 1.0);
+  EXPECT_ERROR_SAYS(fluxcal::solve_cable(ring, clean, w), "relative_sigma: 3 values, the ring has 4 sensors");
+  w.relative_sigma = Eigen::VectorXd::Constant(4, 0.0);
+  EXPECT_ERROR_SAYS(fluxcal::solve_cable(ring, clean, w), "relative_sigma: need a finite σ > 0");
 }
 
 TEST(Cable, ThreeConductorsNeedSnapshotsAndShareTheirPositions) {

@@ -104,3 +104,34 @@ def test_cli_takes_the_dof_from_the_calibration_or_with_noise_sigma(tmp_path):
     assert all(s["misfit_p"] < 1e-3 and "the readings do not fit the model" in s["warnings"][0] for s in solutions)
     r = run_cli("cable", "solve", data, "--noise-sigma", "1e-8", "--noise-sigma-dof", "inf")
     assert r.returncode == 3 and ", σ taken as exact)" in r.stdout, r.stdout
+
+
+def test_sensors_weighted_by_their_own_sigma():
+    """relative_sigma weights each sensor's residuals by 1/σᵢ: the fit agrees with SciPy's weighted least squares,
+    and where one sensor of 8 is 5× noisier the currents' errors over their SEs have a spread of 1 over 30 joint
+    solves of 10 snapshots (with one σ for all: 1.18; and a reviewer's ring with one σ had 8 % false misfits at 3×,
+    now none), with no false misfit."""
+    from fluxcal.cable import Ring
+    from fluxcal.oracle import cable as oracle
+
+    ring = Ring(np.arange(0.0, 360.0, 45.0), 0.010)
+    positions = np.array([[-1.7e-3, 0.4e-3], [2.3e-3, 0.1e-3]])
+    sigma = np.full(8, 1.5e-8)
+    sigma[0] *= 5
+    rms = np.sqrt(np.mean(sigma ** 2))
+    rng = np.random.default_rng(21)
+    currents = np.outer(SCALES, [5.0, -5.0])
+    z, flagged = [], 0
+    for seed in range(30):
+        y = np.stack([ring.field(positions, c) for c in currents]) + rng.standard_normal((10, 8, 2)) * sigma[:, None]
+        sol = ring.solve(y, 2, noise_sigma=rms, relative_sigma=sigma / rms, noise_sigma_dof=float("inf"))
+        flagged += not sol.fits_model
+        z.append((sol.currents - currents) / sol.standard_errors[4:24].reshape(10, 2))
+    assert flagged <= 1 and 0.9 < np.std(z) < 1.1, (flagged, np.std(z))
+    one = ring.solve(y[0], 2, noise_sigma=rms, relative_sigma=sigma / rms)
+    ref = oracle.solve(np.radians(ring.angles_deg), ring.radius_m, y[0], sensor_sigma=sigma)
+    np.testing.assert_allclose(one.positions, ref["positions"], atol=1e-10)
+    np.testing.assert_allclose(one.currents, ref["currents"], rtol=1e-7)
+    assert np.max(np.abs(ring.solve(y[0], 2, noise_sigma=rms).positions - one.positions)) > 1e-7  # they do move it
+    with pytest.raises(ValueError, match="relative_sigma: 3 values, the ring has 8 sensors"):
+        ring.solve(y, 2, relative_sigma=np.ones(3))

@@ -102,7 +102,8 @@ class _Data:
     calibration: RingCalibration | None = None  # the given one (of the sensors diagnosed)
     time_from_rows: bool = False  # no times given: the rows' order stands for time
     # before averaging: each reading's and its logged currents' deviation from its pose's mean, and its rotation —
-    # (dev_y (N, M, 2), dev_i (N, n), rotations (N,), poses) — when the logged currents jitter within a pose, else None
+    # (dev_y (N, M, 2), dev_i (N, n), rotations (N,), poses, each reading's pose's mean currents (N, n)) — when the
+    # logged currents jitter within a pose, else None
     jitter: tuple | None = None
 
     @property
@@ -701,6 +702,7 @@ def _noise_from_repeats(y, rotations, reference):
 # The readings follow significantly less of the logged currents' jitter within a pose than all of it (this many
 # standard errors): the reference meter scatters, and the cable's current does not
 METER_Z = 4.0
+METER_MATTERS = 1.2  # ... and its scatter alone would leave a residual RMS of this many σ or more: said
 
 
 def _reference_scatter(data: _Data, positions) -> dict | None:
@@ -713,26 +715,28 @@ def _reference_scatter(data: _Data, positions) -> dict | None:
     reference meter)."""
     if data.jitter is None:
         return None
-    dev_y, dev_i, rot, poses = data.jitter
-    unique, index = np.unique(rot, return_inverse=True)
-    geometry = [sensor_points(data.ring, a) for a in unique]
-    per_ampere = straight_unit_fields(np.array([g[0] for g in geometry]), np.asarray(positions, float))  # (R, M, n)
-    axes = np.array([g[1] for g in geometry])[..., None]
-    k_axes = np.moveaxis(to_axes(per_ampere, axes), -1, -2)  # (R, M, 2, n): tesla per ampere along each axis
-    predicted = np.einsum("kman,kn->kma", k_axes[np.ravel(index)], dev_i)
+    dev_y, dev_i, rot, poses, level = data.jitter
+    k_axes = _unit(data, positions)  # (R, M, 2, n): tesla per ampere along each axis, at each rotation
+    predicted = np.einsum("kman,kn->kma", k_axes[np.searchsorted(data.unique, rot)], dev_i)
     w2 = (1.0 / data.sigma ** 2)[None, :, None]
     information = float(np.sum(w2 * predicted ** 2))
     if not information > 0:
         return None
     followed = float(np.sum(w2 * predicted * dev_y)) / information
     se = 1.0 / np.sqrt(information)
-    meter = max(1.0 - followed, 0.0) * (dev_i.T @ dev_i) / max(len(dev_i) - poses, 1)  # (n, n) A²
+    unfollowed = min(max(1.0 - followed, 0.0), 1.0)
+    meter = unfollowed * (dev_i.T @ dev_i) / max(len(dev_i) - poses, 1)  # (n, n) A²
+    # the same as a share of the reading (a clamp meter's specification), over the readings of poses with current
+    carrying = np.abs(level) > 1e-3 * np.abs(level).max()
+    relative = np.where(carrying, dev_i / np.where(carrying, level, 1.0), 0.0)
+    share = np.sqrt(unfollowed * np.sum(relative ** 2, axis=0) / np.maximum(np.sum(carrying, axis=0) - poses, 1))
     extra = np.einsum("kman,nq,kmaq->kma", k_axes[data.rot_index], meter, k_axes[data.rot_index]) / \
         data.counts[:, None, None]
     return {"followed": followed, "followed_se": float(se), "meter_sigma_a": np.sqrt(np.diag(meter)).tolist(),
+            "meter_share_of_reading": share.tolist(),
             "logged_jitter_a": np.sqrt(np.diag(dev_i.T @ dev_i) / max(len(dev_i) - poses, 1)).tolist(),
             "predicted_rms_z": float(np.sqrt(np.mean(1.0 + extra / data.sigma_eff[..., None] ** 2))),
-            "scatters": bool((1.0 - followed) / se > METER_Z)}
+            "scatters": bool((1.0 - followed) / se > METER_Z), "averaged": bool(np.any(data.counts > 1))}
 
 
 # ---------------------------------------------------------------- where
@@ -1123,7 +1127,7 @@ def _prepare(readings, ring, currents, rotations_deg, positions, calibration, no
     if reference is not None:
         dev_y, dev_i, poses = _within_poses(y, rot, reference)
         if np.any(dev_i):
-            jitter = (dev_y, dev_i, rot, len(poses))
+            jitter = (dev_y, dev_i, rot, len(poses), reference - dev_i)
     if average_repeats and reference is not None:
         # consecutive repeats of one rotation and currents are averaged: the same information (their spread
         # is the noise, estimated above) in half the fitting time
@@ -1495,8 +1499,10 @@ def _text(d) -> str:
     out += ["  " + line for line in _ranking_lines(d)]
     out.append("")
     meter = rem.get("reference_scatter") or {}
+    # said where it leaves a residual worth naming (a meter seen scattering behind 0.84 σ needs no remedy)
+    meter = meter if meter.get("scatters") and meter["predicted_rms_z"] >= METER_MATTERS else {}
     # the reference meter's scatter, when the readings do not follow the logged currents' jitter: the likeliest cause
-    outside = ("the reference currents' scatter (REFERENCE below); " if meter.get("scatters") else "") + OUTSIDE_CANDIDATES
+    outside = ("the reference currents' scatter (REFERENCE below); " if meter else "") + OUTSIDE_CANDIDATES
     if d.accepted:
         out.append(f"FOUND: {', '.join(_accepted_text(r) for r in d.ranking if r['significant'])} (added in this order)")
         lines = confound_lines(d, CABLE_REGIME_WORDS)
@@ -1504,7 +1510,7 @@ def _text(d) -> str:
         by_turn = {c.name for c in CABLE_CANDIDATES if c.regime == "rotation"}  # what the ring's turns tell apart
         if d.confounded and len(turns) == 1:
             lines.append("  The ring never turned: snapshots with the ring turned about the cable would separate them.")
-        elif len(turns) < ROTATIONS_THAT_SEPARATE and all(
+        elif d.confounded and len(turns) < ROTATIONS_THAT_SEPARATE and all(
                 {name, r["effect"]} <= by_turn for name, rivals in d.confounded.items() for r in rivals):
             # (held out on the current for want of rotations, "a recording that varies it more" sent users to the
             # current, which does not separate a gradient from a sensor's position error)
@@ -1541,16 +1547,19 @@ def _text(d) -> str:
                        f"{outside}")
         else:
             out.append("  the cause is outside the candidates" +
-                       (" (the reference currents' scatter: REFERENCE below)" if meter.get("scatters") else "") +
+                       (" (the reference currents' scatter: REFERENCE below)" if meter else "") +
                        ", or the noise σ is " +
                        ("underestimated" if rms >= 1 else "overestimated (an RMS under 1 σ beside departing tests"
                         + (": see CAVEAT)" if d.caveats else f"; σ {d.noise_source.split(' (')[0]}: give the sensors' "
                            "noise σ, --noise-sigma, or record repeated snapshots)")))
-    if meter.get("scatters"):
+    if meter:
         out.append(f"REFERENCE: the readings follow {100 * meter['followed']:.2g} ± {100 * meter['followed_se']:.2g} % of "
                    "the logged currents' jitter within a pose (" + ", ".join(f"{a:.3g}" for a in meter['logged_jitter_a'])
                    + " A RMS): the reference meter scatters by " + ", ".join(f"{a:.3g}" for a in meter['meter_sigma_a'])
-                   + " A where the cable's current does not. Averaged into each snapshot, it leaves about "
+                   + " A RMS (" + ", ".join(f"{100 * a:.2g}" for a in meter['meter_share_of_reading'])
+                   + " % of reading) where the cable's current does not (or its log lags the readings). "
+                   + ("Averaged into each snapshot, it" if meter.get("averaged") else "In each snapshot's logged "
+                      "currents it") + " leaves about "
                    f"{meter['predicted_rms_z']:.2f} σ RMS in the residuals before the fit takes up part of it (left: "
                    f"{rem['overall']['rms_z']:.2f} σ): average the reference over more readings per pose, or use a "
                    "steadier reference")

@@ -57,12 +57,14 @@ def uniform_field(angles_rad, field_t, axis_angles_rad=None) -> np.ndarray:
     return np.hypot(*field_t) * np.column_stack([np.cos(rel), np.sin(rel)])
 
 
-def solve(angles_rad, radius, readings, n_conductors=2, bore=None, grid=7, background=False) -> dict:
+def solve(angles_rad, radius, readings, n_conductors=2, bore=None, grid=7, background=False, sensor_sigma=None) -> dict:
     """Least squares (SciPy, trust-region reflective with bounds) from every grid combination's linear
     current fit; returns the lowest-cost solution, conductors sorted by x then y. background: a uniform field
-    (bx, by) beside the conductors, fitted with the currents (returned as "background")."""
+    (bx, by) beside the conductors, fitted with the currents (returned as "background"). sensor_sigma: each
+    sensor's noise σ (any common scale), its residuals weighted by the inverse."""
     bore = 0.4 * radius if bore is None else bore
     readings = np.asarray(readings, float).ravel()
+    weight = np.ones(readings.size) if sensor_sigma is None else np.repeat(1.0 / np.asarray(sensor_sigma, float), 2)
     g = (np.arange(grid) + 0.5) * 2 * bore / grid - bore
     pts = [np.array([x, y]) for x in g for y in g if np.hypot(x, y) < bore]
     n = n_conductors
@@ -71,8 +73,8 @@ def solve(angles_rad, radius, readings, n_conductors=2, bore=None, grid=7, backg
 
     def currents_for(pos):
         G = np.column_stack([field(angles_rad, radius, [p], [1.0]).ravel() for p in pos] + uniform)
-        c, *_ = np.linalg.lstsq(G, readings, rcond=None)
-        return c, np.sum((G @ c - readings) ** 2)
+        c, *_ = np.linalg.lstsq(G * weight[:, None], readings * weight, rcond=None)
+        return c, np.sum(((G @ c - readings) * weight) ** 2)
 
     seeds = []
     for combo in itertools.combinations(range(len(pts)), n):
@@ -88,7 +90,7 @@ def solve(angles_rad, radius, readings, n_conductors=2, bore=None, grid=7, backg
         model = field(angles_rad, radius, t[: 2 * n].reshape(n, 2), t[2 * n: 3 * n])
         if nb:
             model = model + uniform_field(angles_rad, t[3 * n:])
-        return (model - readings.reshape(-1, 2)).ravel() / unit
+        return (model - readings.reshape(-1, 2)).ravel() * weight / unit
 
     lo = np.concatenate([np.full(2 * n, -bore / radius), np.full(n + nb, -np.inf)])
     hi = -lo
