@@ -1127,6 +1127,13 @@ def cmd_cable(args) -> int:
         for k in range(ring.n_sensors):
             print(f"sensor {k}: offset {cal.offsets[k, 0] * per_tesla:.4g} {cal.offsets[k, 1] * per_tesla:.4g} "
                   f"{unit}, gain {cal.gains[k, 0]:.6f} {cal.gains[k, 1]:.6f}")
+        if cal.method == "in_field" and cal.lack_of_fit_p is not None and np.any(cal.lack_of_fit_p < cable.LACK_OF_FIT_P):
+            missed = np.nonzero(np.min(cal.lack_of_fit_p, axis=1) < cable.LACK_OF_FIT_P)[0]
+            ratio = float(np.max(cal.residual_sigma[missed] / cal.repeat_sigma[missed]))
+            print(f"warning: in_field's fit still misses its model on sensor(s) {', '.join(map(str, missed))} (residual "
+                  f"σ up to {ratio:.3g}× the repeats' scatter): a field that changes faster across the ring than its "
+                  "third term (a conductor within ~4 ring radii), an axis misaligned, crosstalk or iron near a sensor, "
+                  "or a drift between the poses; `fluxcal diagnose RUN.csv --model cable` says which")
         if args.method != "auto" and cal.method != "in_field":  # (auto has looked already)
             explained = _in_field_explains(cable, cal, data, truth)
             if explained is not None:  # said first: it explains the sensors' warnings below
@@ -1247,18 +1254,20 @@ def _in_field_explains(cable, cal, data: dict, truth):
     """(the in_field calibration, what it explains said) when a field that does not follow the currents explains a
     calibration's lack of fit — every bench has the Earth's, which TWOSTEP takes into the gains (6 % off, 18 warnings
     naming other causes, for a newcomer's 36 µT) — else None: no lack of fit, or no currents reversed at 3 rotations
-    to tell."""
-    if cal is not None and (cal.lack_of_fit_p is None or not np.any(cal.lack_of_fit_p < cable.LACK_OF_FIT_P)):
+    to tell. Without repeated readings (no lack-of-fit test) the residuals alone decide: in_field's half or less."""
+    if cal is not None and cal.lack_of_fit_p is not None and not np.any(cal.lack_of_fit_p < cable.LACK_OF_FIT_P):
         return None
     try:
         other = cable.calibrate_ring_in_field(data["readings"], truth, data["ring"], data["rotations_deg"])
     except ValueError:
         return None
     after = float(np.median(other.residual_sigma))
-    if cal is None:  # TWOSTEP refused: in_field must fit to its own repeats' scatter
-        if other.lack_of_fit_p is None or np.any(other.lack_of_fit_p < cable.LACK_OF_FIT_P):
+    if cal is None:  # TWOSTEP refused: in_field must fit to its own repeats' scatter, where it has repeats
+        if other.lack_of_fit_p is not None and np.any(other.lack_of_fit_p < cable.LACK_OF_FIT_P):
             return None
-        change = f", which twostep refused; in_field fits it to its repeats' scatter (residual σ {_tesla_words(after)})"
+        change = (", which twostep refused; in_field fits it " +
+                  ("to its repeats' scatter" if other.lack_of_fit_p is not None else
+                   "(no repeated readings to judge its fit by)") + f" (residual σ {_tesla_words(after)})")
     else:
         before = float(np.median(cal.residual_sigma))
         if not after < 0.5 * before:
@@ -1336,6 +1345,8 @@ def _solve_ring_snapshots(ring, ring_cal, snaps, rotation: float, rows, args, ze
     left out (a dead sensor: the ring of the others), the calibration's σ for the solver, and a line per
     snapshot with positions, currents and their standard errors; `zero`: with --subtract-zero, (count, mean
     current) of the zero snapshots taken off. Returns the solution as a JSON-ready dict."""
+    from ._core import CableSolveOptions
+
     live = np.isfinite(snaps).all(axis=(0, 2))
     contiguous = np.all(np.diff(rows) == 1)
     where = (f"snapshot {rows[0]}" if len(rows) == 1 else f"snapshots {', '.join(map(str, rows))}" if len(rows) <= 6
@@ -1371,8 +1382,6 @@ def _solve_ring_snapshots(ring, ring_cal, snaps, rotation: float, rows, args, ze
         if args.noise_sigma_dof is not None:
             settings["noise_sigma_dof"] = args.noise_sigma_dof
     if zero:  # each difference holds the zero snapshots' mean too: √(1 + 1/n₀) per reading for the misfit test
-        from ._core import CableSolveOptions
-
         sigma0 = settings.get("noise_sigma", CableSolveOptions().noise_sigma)
         settings = {**settings, "noise_sigma": sigma0 * np.sqrt(1.0 + 1.0 / zero[0])}
         if settings.get("noise_sigma_dof") and len(rows) > 1:
@@ -1410,8 +1419,8 @@ def _solve_ring_snapshots(ring, ring_cal, snaps, rotation: float, rows, args, ze
     pos_se = se[:2 * n].reshape(n, 2)
     cur_se = se[2 * n:2 * n + len(rows) * n].reshape(len(rows), n)  # zero-sum currents: the last one's is derived
     flag = ("well conditioned" if sol.well_conditioned else "ILL-CONDITIONED") + \
-        ("" if sol.fits_model else f", MISFIT (residual above 5 × σ {sol.noise_sigma:.3g} T)"
-         if not np.isfinite(sol.misfit_p) else f", MISFIT (p {sol.misfit_p:.2g} for σ {sol.noise_sigma:.3g} T)")
+        ("" if sol.fits_model else f", MISFIT (p {sol.misfit_p:.2g} for σ {sol.noise_sigma:.3g} T)"
+         if sol.misfit_p < CableSolveOptions().misfit_alpha else f", MISFIT (residual above 5 × σ {sol.noise_sigma:.3g} T)")
     at = "; ".join(f"({x * 1e3:.4f} ± {sx * 1e3:.2g}, {y * 1e3:.4f} ± {sy * 1e3:.2g}) mm"
                    for (x, y), (sx, sy) in zip(sol.positions, pos_se))
     tail = f"residual {sol.summary['residual_rms']:.3g} T (σ {sol.noise_sigma:.3g} T); {flag}"

@@ -908,6 +908,19 @@ def test_calibrate_names_in_field_when_a_background_explains_the_lack_of_fit(tmp
     assert np.abs(cable.RingCalibration.load(tmp_path / "earth.json").gains - gains).max() < 2e-3
     r = run_cli("cable", "calibrate", path, "--method", "twostep")
     assert r.returncode != 0 and "`cable calibrate --method in_field`" in r.stderr, r.stderr
+    # one reading per pose (no repeats, no lack-of-fit test): in_field all the same, said
+    path = cable.write_ring_csv(tmp_path / "once.csv", ring, readings[::10], rot[::10], cur[::10],
+                                [[-2e-3, 0.5e-3], [2.5e-3, 0.0]])
+    r = run_cli("cable", "calibrate", path)
+    assert r.returncode == 0 and "(no repeated readings to judge its fit by)" in r.stdout, r.stdout + r.stderr
+    # a conductor 30 mm away: in_field explains most of the lack of fit but not all (its third term), and says so
+    readings, truth, rot, gains, _ = _room_run(
+        ring, np.random.default_rng(0), lambda z: 1e-6 * np.exp(1.2j) + 1e-7j / np.conj(z - 0.03 * np.exp(0.5j)),
+        noise=2e-8)
+    path = cable.write_ring_csv(tmp_path / "near.csv", ring, readings, rot, cur, [[-2e-3, 0.5e-3], [2.5e-3, 0.0]])
+    r = run_cli("cable", "calibrate", path)
+    assert r.returncode == 0 and "method: in_field (auto:" in r.stdout, r.stdout + r.stderr
+    assert "warning: in_field's fit still misses its model on sensor(s)" in r.stdout, r.stdout
 
 
 def test_solve_subtracts_each_rotations_zero_current_snapshots(tmp_path):
