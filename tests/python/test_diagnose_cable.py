@@ -793,3 +793,18 @@ def test_cannot_tell_apart_names_the_rotations_that_would():
     assert "Both were held out on" not in text
     winner["confounded_with"][0]["effect"] = "finite_length"  # the current's range separates that one
     assert "Both were held out on the cable's current" in d.text() and "too few to separate" not in d.text()
+
+
+def test_with_currents_fitted_an_untried_background_leaves_the_calibration_unjudged():
+    """With --fit-currents a field that does not follow the currents is not tried, and the refit's offsets take it up:
+    a newcomer's good calibration beside a busbar was told "Recalibrate" (offsets 28 µT "changed") and a cable-end
+    effect FOUND. The CALIBRATION line now says it cannot judge, and the FOUND line that it is tentative."""
+    from fluxcal.sim.cable_effects import BackgroundField, cable_trial
+
+    kwargs, _ = cable_trial([], 4, effects=[BackgroundField(30e-6 * np.exp(0.4j))])
+    d = diagnose_cable(**kwargs, fit_currents=True, candidates=["z_leakage", "background_field"], max_effects=1)
+    text = d.text()
+    calibration = next(x for x in text.splitlines() if x.startswith("CALIBRATION:"))
+    assert calibration.startswith("CALIBRATION: not judged") and "Recalibrate" not in calibration, calibration
+    assert d.accepted == ["z_leakage"]  # (what stood in for the field here)
+    assert "tentative: with the currents fitted" in next(x for x in text.splitlines() if x.startswith("FOUND:"))

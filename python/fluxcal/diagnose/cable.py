@@ -1504,7 +1504,10 @@ def _text(d) -> str:
     # the reference meter's scatter, when the readings do not follow the logged currents' jitter: the likeliest cause
     outside = ("the reference currents' scatter (REFERENCE below); " if meter else "") + OUTSIDE_CANDIDATES
     if d.accepted:
-        out.append(f"FOUND: {', '.join(_accepted_text(r) for r in d.ranking if r['significant'])} (added in this order)")
+        untried = any(r["effect"] == "background_field" and r.get("not_applicable") for r in d.ranking)
+        out.append(f"FOUND: {', '.join(_accepted_text(r) for r in d.ranking if r['significant'])} (added in this order)"
+                   + (" — tentative: with the currents fitted a field that does not follow them was not tried, and "
+                      "these may stand in for it (see CAVEAT)" if untried else ""))
         lines = confound_lines(d, CABLE_REGIME_WORDS)
         turns = np.unique(np.mod(d.series["rotations"], 360.0))
         by_turn = {c.name for c in CABLE_CANDIDATES if c.regime == "rotation"}  # what the ring's turns tell apart
@@ -1571,8 +1574,9 @@ def _text(d) -> str:
                    f"{source['uniform_direction_deg']:.0f}° (the Earth's?)")
     check = d.remaining.get("calibration_check")
     if check:
+        untried = any(r["effect"] == "background_field" and r.get("not_applicable") for r in d.ranking)
         out.append(_calibration_line(check, bool(d.remaining.get("unexplained", {}).get("not_explained")),
-                                     check.get("calibration_method"), d.accepted))
+                                     check.get("calibration_method"), d.accepted, untried))
     out += [f"CAVEAT: {c}" for c in d.caveats]
     b = d.base
     if b.get("position_error_mm") is not None:
@@ -1590,8 +1594,11 @@ def _calibration_change_words(r: dict) -> str:
             f"(z {r['z']:.2g})")
 
 
-def _calibration_line(check: dict, not_explained: bool, method: str | None = None, found=()) -> str:
-    """The CALIBRATION line: whether the given calibration still describes these sensors."""
+def _calibration_line(check: dict, not_explained: bool, method: str | None = None, found=(),
+                      background_untried: bool = False) -> str:
+    """The CALIBRATION line: whether the given calibration still describes these sensors. `background_untried`: the
+    currents were fitted, so a field that does not follow them was not tried — and the refit's offsets take it up
+    (a newcomer's good calibration beside a busbar was told "Recalibrate", offsets 28 µT "changed")."""
     se = ("" if check["calibration_covariance"] else
           " (the calibration holds no covariance: judged by the refit's standard errors alone)")
     missed = check.get("calibration_missed_model")
@@ -1605,6 +1612,11 @@ def _calibration_line(check: dict, not_explained: bool, method: str | None = Non
     changed = check["changed"]
     listed = "; ".join(_calibration_change_words(r) for r in changed[:4]) + (
         f"; and {len(changed) - 4} more" if len(changed) > 4 else "")
+    if background_untried:
+        return (f"CALIBRATION: not judged — the refit departs from it (p {check['pvalue']:.2g}{se}: {listed}), but with "
+                "the currents fitted per snapshot a field that does not follow them (the Earth's, a busbar's) is not "
+                "tried, and the refit's offsets take it up: diagnose with the reference currents (logged, without "
+                f"--fit-currents) before recalibrating; the refit is in the JSON (remaining.calibration_check).{held}")
     why = "the sensors changed since (temperature, a knock, a magnetised part), a calibration of another ring"
     if method != "in_field":
         why += (", one made in a field that does not follow the currents (`cable calibrate --method in_field`)"
