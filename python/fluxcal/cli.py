@@ -1188,10 +1188,15 @@ def cmd_cable(args) -> int:
     if ring_cal is None and args.noise_sigma is None:
         print(f"note: the standard errors take the sensors' noise σ as {cable._core.CableSolveOptions().noise_sigma:g} T "
               "(neither --calibration nor --noise-sigma gives it): give either for errors of this ring")
+    if args.conductors > 1 and (data["positions_m"] is not None or data["currents_a"] is not None):
+        print("conductors numbered as the recording's " + ("positions_m (nearest)" if data["positions_m"] is not None
+                                                             else "reference currents i0, i1, … (best match)"))
     solutions = []
     for rows in groups:
         rotation = float(rotations[rows[0]])
-        sol = _solve_ring_snapshots(ring, ring_cal, raw[rows], rotation, rows, args, zeros.get(rotation))
+        reference = None if data["currents_a"] is None else data["currents_a"][rows]
+        sol = _solve_ring_snapshots(ring, ring_cal, raw[rows], rotation, rows, args, zeros.get(rotation),
+                                    reference, data["positions_m"])
         solutions.append(sol)
     # each kind of warning once, with the snapshots it concerns (24 snapshots' misfit had run to 48 lines)
     said = [(s["where"], w) for s in solutions for w in s.pop("warnings_said", [])]
@@ -1340,7 +1345,8 @@ def _ring_notes(cable, data: dict) -> None:
         print(note)
 
 
-def _solve_ring_snapshots(ring, ring_cal, snaps, rotation: float, rows, args, zero=None) -> dict:
+def _solve_ring_snapshots(ring, ring_cal, snaps, rotation: float, rows, args, zero=None, reference=None,
+                          known_positions=None) -> dict:
     """`cable solve` of snapshots `rows` (one, or those sharing a rotation with --joint): sensors with a NaN
     left out (a dead sensor: the ring of the others), the calibration's σ for the solver, and a line per
     snapshot with positions, currents and their standard errors; `zero`: with --subtract-zero, (count, mean
@@ -1418,11 +1424,15 @@ def _solve_ring_snapshots(ring, ring_cal, snaps, rotation: float, rows, args, ze
     se = np.where(np.isfinite(se), se, np.nan)
     pos_se = se[:2 * n].reshape(n, 2)
     cur_se = se[2 * n:2 * n + len(rows) * n].reshape(len(rows), n)  # zero-sum currents: the last one's is derived
+    positions = sol.positions
+    order = _conductor_order(positions, currents, reference, known_positions)
+    if order is not None:  # the recording's conductors, not the solver's (sorted by x): a newcomer's i0 came second
+        positions, pos_se, currents, cur_se = positions[order], pos_se[order], currents[:, order], cur_se[:, order]
     flag = ("well conditioned" if sol.well_conditioned else "ILL-CONDITIONED") + \
         ("" if sol.fits_model else f", MISFIT (p {sol.misfit_p:.2g} for σ {sol.noise_sigma:.3g} T)"
          if sol.misfit_p < CableSolveOptions().misfit_alpha else f", MISFIT (residual above 5 × σ {sol.noise_sigma:.3g} T)")
     at = "; ".join(f"({x * 1e3:.4f} ± {sx * 1e3:.2g}, {y * 1e3:.4f} ± {sy * 1e3:.2g}) mm"
-                   for (x, y), (sx, sy) in zip(sol.positions, pos_se))
+                   for (x, y), (sx, sy) in zip(positions, pos_se))
     tail = f"residual {sol.summary['residual_rms']:.3g} T (σ {sol.noise_sigma:.3g} T); {flag}"
     if len(rows) > 1:
         print(f"{where} (joint, rotation {rotation:g}°): conductors at {at}; {tail}")
@@ -1430,7 +1440,7 @@ def _solve_ring_snapshots(ring, ring_cal, snaps, rotation: float, rows, args, ze
         amps = ", ".join(f"{i:.5g} ± {e:.2g} A" for i, e in zip(cur, err))
         print(f"snapshot {k}: " + (f"{amps}" if len(rows) > 1 else f"{at}; {amps}; {tail}"))
     out = {"snapshots": [int(k) for k in rows], "rotation_deg": rotation, "sensors_used": np.nonzero(live)[0].tolist(),
-           "positions_m": sol.positions.tolist(), "position_sigma_m": _nan_to_none_rows(pos_se),
+           "positions_m": positions.tolist(), "position_sigma_m": _nan_to_none_rows(pos_se),
            "currents_a": currents.tolist(), "current_sigma_a": _nan_to_none_rows(cur_se),
            "residual_rms_t": sol.summary["residual_rms"], "noise_sigma_t": sol.noise_sigma,
            "well_conditioned": sol.well_conditioned, "fits_model": sol.fits_model,
@@ -1448,6 +1458,24 @@ def _solve_ring_snapshots(ring, ring_cal, snaps, rotation: float, rows, args, ze
     out["warnings_said"] = [w for w in out["warnings"]
                             if not (snaps.size == unknowns and w.startswith("as many readings as unknowns: the fit is exact"))]
     return out
+
+
+def _conductor_order(positions, currents, reference, known_positions):
+    """The solved conductors (the solver sorts them by x) in the recording's order: nearest to its `positions_m` when
+    given, else best matching its reference currents i0, i1, … over the snapshots — indices, or None (neither
+    given, or one conductor)."""
+    from scipy.optimize import linear_sum_assignment
+
+    n = len(positions)
+    if n < 2:
+        return None
+    if known_positions is not None and len(known_positions) == n:
+        cost = np.linalg.norm(np.asarray(known_positions)[:, None, :] - positions[None], axis=-1)
+    elif reference is not None and np.shape(reference)[1] == n:
+        cost = np.sum((np.asarray(reference)[:, :, None] - currents[:, None, :]) ** 2, axis=0)
+    else:
+        return None
+    return linear_sum_assignment(cost)[1]
 
 
 def _zero_common_errors(ring, sol, snapshots: int, sigma0: float, zeros: int) -> np.ndarray:

@@ -998,3 +998,21 @@ def test_in_field_calibration_standard_errors_match_the_spread():
         zg.append((cal.gains - gains) / np.sqrt(cal.covariance[..., 0, 0]))
         zb.append((cal.offsets - offsets) / np.sqrt(cal.covariance[..., 1, 1]))
     assert 0.8 < np.std(zg) < 1.25 and 0.8 < np.std(zb) < 1.25, (np.std(zg), np.std(zb))
+
+
+def test_cli_solve_numbers_the_conductors_as_the_recording(tmp_path):
+    """The solver sorts its conductors by x; `cable solve` gives them in the recording's order — nearest to its
+    positions_m, else best matching i0, i1 (a newcomer's i0 = +12 A at x = +2.5 mm had come out second)."""
+    from fluxcal import cable
+
+    ring = Ring(np.arange(0.0, 360.0, 60.0), 0.012)
+    positions = np.array([[2.5e-3, 0.5e-3], [-2.5e-3, 0.3e-3]])  # i0 on the right: second by x
+    cur = np.array([[12.0, -12.0], [25.0, -24.5], [7.0, -7.2]])
+    readings = np.stack([ring.field(positions, c) for c in cur])
+    for name, known in (("currents", None), ("positions", positions)):
+        path = cable.write_ring_csv(tmp_path / f"{name}.csv", ring, readings, np.zeros(3), cur, known)
+        r = run_cli("cable", "solve", path, "--joint", "-o", tmp_path / f"{name}.json")
+        assert r.returncode == 0 and "conductors numbered as the recording's" in r.stdout, r.stdout + r.stderr
+        out = json.loads((tmp_path / f"{name}.json").read_text())["solutions"][0]
+        np.testing.assert_allclose(out["currents_a"], cur, rtol=1e-6)
+        np.testing.assert_allclose(out["positions_m"], positions, atol=1e-8)
