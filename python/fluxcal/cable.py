@@ -207,6 +207,60 @@ class Ring:
                              background_t=None if r["background"] is None else np.asarray(r["background"]))
 
 
+def propagated_covariance(ring: Ring, solution: CableSolution, noise_var, shared=(), relative_sigma=None) -> np.ndarray:
+    """The covariance of `solution`'s parameters (as its own: positions, each snapshot's currents, the background)
+    from `ring` (as solved: rotated) when each reading's error is independent noise of variance `noise_var`
+    ((n_sensors, 2), tesla²) plus errors the snapshots solved together share: `shared`, pairs (G, Σ) — the readings
+    move by G[s] δc (G: (snapshots, n_sensors, 2, p)), δc ~ (0, Σ) (p × p): a calibration's own gains and offsets, the
+    zero snapshots' mean. The estimate moves by A_s δy_s, A_s = C J_sᵀ W (C its covariance per unit σ², W its weights,
+    `relative_sigma`'s): a sandwich. (As independent noise of the solver's σ, a calibration's errors — common to every
+    snapshot — had left a newcomer's currents 1.3× their ±, and the zero snapshots' mean 1.7×.) The solver's own
+    covariance where it is undetermined (inf)."""
+    n = solution.positions.shape[0]
+    currents = np.atleast_2d(solution.currents)
+    snapshots, m = currents.shape[0], ring.n_sensors
+    C = solution.covariance / solution.noise_sigma ** 2
+    if not np.all(np.isfinite(C)):
+        return solution.covariance
+    J = np.zeros((snapshots, 2 * m, C.shape[0]))
+    for k in range(snapshots):
+        Jk = ring.jacobian(solution.positions, currents[k])
+        J[k, :, :2 * n] = Jk[:, :2 * n]
+        J[k, :, 2 * n + n * k:2 * n + n * (k + 1)] = Jk[:, 2 * n:]
+    if solution.background_t is not None:
+        axis = np.radians(ring.angles_deg + ring.axis_angles_deg)
+        J[:, :, -2:] = np.stack([_in_axes(np.ones(m), axis), _in_axes(np.full(m, 1j), axis)], axis=-1).reshape(2 * m, 2)
+    w2 = 1.0 if relative_sigma is None else np.repeat(1.0 / np.asarray(relative_sigma, float) ** 2, 2)[:, None]
+    A = np.einsum("pq,krq->kpr", C, J * w2)  # (snapshots, parameters, readings)
+    out = np.einsum("kpr,r,kqr->pq", A, np.asarray(noise_var, float).ravel(), A)
+    for G, sigma in shared:
+        moved = np.einsum("kpr,krc->pc", A, np.asarray(G, float).reshape(snapshots, 2 * m, -1))
+        out += moved @ sigma @ moved.T
+    return out
+
+
+def calibration_shared_errors(calibration: "RingCalibration", fields, offsets: bool = True) -> tuple:
+    """(G, Σ) for propagated_covariance: the error a calibration's own (γ, b) leave in compensated readings of
+    `fields` ((snapshots, n_sensors, 2), tesla: the compensated readings), δh = −(δb + h δγ)/γ per sensor axis, the
+    same draw in every snapshot; `offsets` False where they cancel (zero snapshots subtracted)."""
+    h = np.asarray(fields, float)
+    m = calibration.offsets.shape[0]
+    G = np.zeros(h.shape + (m, 2, 2))  # … → (sensor, axis, [γ, b])
+    for i in range(m):
+        for a in range(2):
+            G[:, i, a, i, a, 0] = -h[:, i, a] / calibration.gains[i, a]
+            if offsets:
+                G[:, i, a, i, a, 1] = -1.0 / calibration.gains[i, a]
+    sigma = np.zeros((m, 2, 2, m, 2, 2))
+    for i in range(m):
+        if calibration.sensor_covariance is not None:  # the axes' correlation too
+            sigma[i, :, :, i, :, :] = calibration.sensor_covariance[i].reshape(2, 2, 2, 2)
+        else:
+            for a in range(2):
+                sigma[i, a, :, i, a, :] = calibration.covariance[i, a]
+    return G.reshape(h.shape + (-1,)), sigma.reshape(4 * m, 4 * m)
+
+
 def ac_currents(phasors, times_s, frequency_hz: float = 50.0) -> np.ndarray:
     """Instantaneous currents (len(times), n) of AC conductors: `phasors` (n,) complex amplitudes (peak,
     A) of the fundamental, or (harmonics, n) for harmonics 1, 2, …: i(t) = Re Σ_h P_h e^{j h ω t}."""
@@ -234,6 +288,9 @@ class RingCalibration:
     # linear one on the true fields.
     residual_sigma: np.ndarray | None = None  # (n_sensors, 2)
     covariance: np.ndarray | None = None      # (n_sensors, 2, 2, 2): [sensor, axis] → Cov(γ, b)
+    # TWOSTEP's whole per-sensor covariance of (γx, bx, γy, by), the axes' correlation too (the magnitudes tie them:
+    # without it the currents' ± read at 20× the calibration's field were a further 10 % small); None otherwise
+    sensor_covariance: np.ndarray | None = None  # (n_sensors, 4, 4)
     # The scatter of consecutive repeated readings (the same true field), tesla: the noise alone, without what the
     # model misses (axis coupling, crosstalk), which residual_sigma holds too. None without ≥ 10 degrees of freedom.
     repeat_sigma: np.ndarray | None = None    # (n_sensors, 2)
@@ -325,7 +382,7 @@ class RingCalibration:
         keep = np.arange(self.offsets.shape[0])[keep]
         stats = {} if self.residual_sigma is None or self.covariance is None else {
             "residual_sigma": self.residual_sigma[keep], "covariance": self.covariance[keep]}
-        for name in ("repeat_sigma", "repeat_dof", "lack_of_fit_p"):
+        for name in ("repeat_sigma", "repeat_dof", "lack_of_fit_p", "sensor_covariance"):
             if getattr(self, name) is not None:
                 stats[name] = getattr(self, name)[keep]
         return RingCalibration(self.offsets[keep], self.gains[keep], self.method,
@@ -336,7 +393,7 @@ class RingCalibration:
         d = {"method": self.method, "offsets": self.offsets.tolist(), "gains": self.gains.tolist()}
         if self.residual_sigma is not None and self.covariance is not None:
             d.update(residual_sigma=self.residual_sigma.tolist(), covariance=self.covariance.tolist())
-        for name in ("repeat_sigma", "repeat_dof", "lack_of_fit_p"):
+        for name in ("repeat_sigma", "repeat_dof", "lack_of_fit_p", "sensor_covariance"):
             if getattr(self, name) is not None:
                 d[name] = getattr(self, name).tolist()
         if self.background is not None:
@@ -359,7 +416,7 @@ class RingCalibration:
                              "calibrate -o` writes one)")
         try:
             stats = {k: np.asarray(d[k], float) for k in ("residual_sigma", "covariance", "repeat_sigma", "repeat_dof",
-                                                              "lack_of_fit_p") if k in d}
+                                                              "lack_of_fit_p", "sensor_covariance") if k in d}
             return cls(offsets=np.asarray(d["offsets"], float), gains=np.asarray(d["gains"], float),
                        method=d.get("method", "twostep"), background=d.get("background"), **stats)
         except (TypeError, ValueError) as exc:
@@ -451,11 +508,13 @@ def calibrate_ring(readings, true_fields, method: str = "twostep") -> RingCalibr
             "between the poses"
             + (", or the least-squares fit's one field magnitude (method='twostep' knows each reading's)"
                if method == "least_squares" else "")]
+    whole = None
     if method == "twostep":
         covariance = np.array([_axis_blocks(f.covariance) for f in fits])
+        whole = np.array([np.asarray(f.covariance, float)[np.ix_(TWOSTEP_ORDER, TWOSTEP_ORDER)] for f in fits])
     return RingCalibration(offsets=offsets, gains=gains, method=method, sensors=fits, residual_sigma=residual_sigma,
                            covariance=covariance, repeat_sigma=repeat_sigma, repeat_dof=repeat_dof,
-                           lack_of_fit_p=lack_of_fit)
+                           lack_of_fit_p=lack_of_fit, sensor_covariance=whole)
 
 
 def calibrate_ring_in_field(readings, true_fields, ring: Ring, rotations_deg, order: int = 3) -> RingCalibration:
@@ -665,6 +724,9 @@ def _turned_deg(directions: np.ndarray) -> float:
     angles = np.sort(np.degrees(np.arctan2(directions[:, 1], directions[:, 0])))
     gaps = np.diff(np.concatenate([angles, angles[:1] + 360.0]))
     return float(360.0 - gaps.max())
+
+
+TWOSTEP_ORDER = [2, 0, 3, 1]  # TWOSTEP's (bx, by, γx, γy) → (γx, bx, γy, by)
 
 
 def _axis_blocks(covariance: np.ndarray) -> np.ndarray:

@@ -1416,11 +1416,11 @@ def _solve_ring_snapshots(ring, ring_cal, snaps, rotation: float, rows, args, ze
                                       zero_sum_currents=args.zero_sum_currents, fit_background=args.fit_background,
                                       **settings)
     currents = np.atleast_2d(sol.currents)
-    se = sol.standard_errors
     if zero:
         currents = currents + zero[1]
-        if np.all(np.isfinite(sol.covariance)):
-            se = _zero_common_errors(sub.rotated(rotation), sol, len(rows), sigma0, zero[0])
+    from_calibration = ring_cal is not None and args.noise_sigma is None and "noise_sigma" in settings
+    se = np.sqrt(np.diag(_solution_covariance(sub.rotated(rotation), sol, cal if ring_cal is not None else None,
+                                              snaps, settings, zero, from_calibration)))
     se = np.where(np.isfinite(se), se, np.nan)
     pos_se = se[:2 * n].reshape(n, 2)
     cur_se = se[2 * n:2 * n + len(rows) * n].reshape(len(rows), n)  # zero-sum currents: the last one's is derived
@@ -1478,28 +1478,27 @@ def _conductor_order(positions, currents, reference, known_positions):
     return linear_sum_assignment(cost)[1]
 
 
-def _zero_common_errors(ring, sol, snapshots: int, sigma0: float, zeros: int) -> np.ndarray:
-    """Standard errors of a --subtract-zero solution: each difference holds its own noise σ₀ and the zero snapshots'
-    mean error e (σ₀²/n₀ per reading), the same in every snapshot solved together, which the solver takes as
-    independent (its ± had been 1.7× too small). With C the solver's covariance per unit σ² (C = T(JᵣᵀJᵣ)⁻¹Tᵀ), the
-    estimate moves by K e, K = C Σₛ Jₛᵀ: Cov = σ₀² (C + K Kᵀ / n₀)."""
-    n = sol.positions.shape[0]
-    currents = np.atleast_2d(sol.currents)
-    unit = sol.covariance / sol.noise_sigma ** 2
-    m = ring.n_sensors
-    summed = np.zeros((unit.shape[0], 2 * m))  # Σₛ Jₛᵀ over the snapshots, full parametrisation
-    for s in range(snapshots):
-        J = ring.jacobian(sol.positions, currents[s])
-        summed[:2 * n] += J[:, :2 * n].T
-        summed[2 * n + n * s:2 * n + n * (s + 1)] = J[:, 2 * n:].T
-    if sol.background_t is not None:
-        from .cable import _in_axes
+def _solution_covariance(ring, sol, cal, fields, settings: dict, zero, from_calibration: bool) -> np.ndarray:
+    """A `cable solve` solution's covariance with the errors its snapshots share (cable.propagated_covariance): each
+    reading's own noise — the calibration's repeats' (or residuals') scatter, else the solver's σ — plus the
+    calibration's own gains and offsets (the offsets cancel with --subtract-zero) and the zero snapshots' mean."""
+    from . import cable
 
-        axis = np.radians(ring.angles_deg + ring.axis_angles_deg)
-        U = np.stack([_in_axes(np.ones(m), axis), _in_axes(np.full(m, 1j), axis)], axis=-1).reshape(2 * m, 2)
-        summed[-2:] = snapshots * U.T
-    K = unit @ summed
-    return sigma0 * np.sqrt(np.clip(np.diag(unit) + np.sum(K ** 2, axis=1) / zeros, 0.0, None))
+    relative = settings.get("relative_sigma")
+    m = ring.n_sensors
+    sigma0 = settings.get("noise_sigma", sol.noise_sigma) / (np.sqrt(1.0 + 1.0 / zero[0]) if zero else 1.0)
+    noise = np.full((m, 2), sigma0 ** 2) * (1.0 if relative is None else relative[:, None] ** 2)
+    shared = []
+    if cal is not None and cal.covariance is not None:
+        if from_calibration:  # the solver's σ held the calibration's own errors too: its scatter alone here
+            noise = cal._variances(None, repeats=cal.repeat_sigma is not None)[0]
+        shared.append(cable.calibration_shared_errors(cal, fields.reshape(-1, m, 2), offsets=not zero))
+    if zero:
+        shared.append((np.broadcast_to(np.eye(2 * m).reshape(1, m, 2, 2 * m), (len(fields), m, 2, 2 * m)),
+                       np.diag(noise.ravel() / zero[0])))
+    if not shared and relative is None:
+        return sol.covariance
+    return cable.propagated_covariance(ring, sol, noise, shared, relative)
 
 
 def _tesla_words(value: float) -> str:
