@@ -1011,7 +1011,8 @@ CableSolution solve_cable(const CableRing& ring, const Eigen::Ref<const Eigen::M
       out.summary.warnings.push_back("the readings do not fit the model: residual " + num(per_dof) + " T per degree of "
                                      "freedom vs noise σ = " + num(opt.noise_sigma) + judged +
                                      " (" + (bg ? "a background that is not uniform: a conductor near the ring, whose gradient "
-                                                  "`diagnose --model cable` names; "
+                                                  "`diagnose --model cable` names and zero-current snapshots taken "
+                                                  "off (--subtract-zero) remove; "
                                                : "a field that does not follow the currents: fit_background / "
                                                  "--fit-background; ") +
                                      "sensors' offsets or gains, a wrong number of conductors?)");

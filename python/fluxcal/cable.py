@@ -195,7 +195,7 @@ class Ring:
                 r = again
             r["summary"]["warnings"] = list(r["summary"]["warnings"]) + [
                 f"the default starts left a misfit: searched again from {options.starts} starts on a "
-                f"{options.grid_points}×{options.grid_points} grid" + ("" if r is again else " (no better)")]
+                f"{options.grid_points}×{options.grid_points} grid" + (" (better: taken)" if r is again else " (no better)")]
         currents = np.asarray(r["currents"])
         return CableSolution(positions=np.asarray(r["positions"]), currents=currents[0] if single else currents,
                              covariance=np.asarray(r["covariance"]), standard_errors=np.asarray(r["standard_errors"]),

@@ -1281,6 +1281,8 @@ def _in_field_explains(cable, cal, data: dict, truth):
                   f"{_tesla_words(after)}, gains up to {100 * float(np.max(np.abs(other.gains / cal.gains - 1))):.2g} % "
                   "apart)")
     b0 = complex(*other.background["terms_t"][0])
+    if abs(b0) < 3.0 * after:  # a field within the noise explains nothing (least squares' own misfit halved by in_field)
+        return None
     return other, (f"a field that does not follow the currents explains this run's lack of fit: the Earth's or a "
                    f"neighbouring conductor's, {1e6 * abs(b0):.3g} µT towards {np.degrees(np.angle(b0)) % 360:.0f}° "
                    f"(cable frame){change}")
@@ -1297,7 +1299,12 @@ def _ring_calibration_auto(cable, data: dict, truth):
             raise
         return explained[0], f" (auto: {explained[1]})"
     explained = _in_field_explains(cable, cal, data, truth)
-    return (cal, "") if explained is None else (explained[0], f" (auto: {explained[1]})")
+    if explained is None:
+        if cal.lack_of_fit_p is None:
+            return cal, ""
+        return cal, (" (auto: no field that does not follow the currents explains its lack of fit)"
+                     if np.any(cal.lack_of_fit_p < cable.LACK_OF_FIT_P) else " (auto: it fits to its repeats' scatter)")
+    return explained[0], f" (auto: {explained[1]})"
 
 
 def _grouped_warning_lines(labels: list, texts: list, words) -> list:
@@ -1433,7 +1440,7 @@ def _solve_ring_snapshots(ring, ring_cal, snaps, rotation: float, rows, args, ze
          if sol.misfit_p < CableSolveOptions().misfit_alpha else f", MISFIT (residual above 5 × σ {sol.noise_sigma:.3g} T)")
     at = "; ".join(f"({x * 1e3:.4f} ± {sx * 1e3:.2g}, {y * 1e3:.4f} ± {sy * 1e3:.2g}) mm"
                    for (x, y), (sx, sy) in zip(positions, pos_se))
-    tail = f"residual {sol.summary['residual_rms']:.3g} T (σ {sol.noise_sigma:.3g} T); {flag}"
+    tail = f"residual RMS {sol.summary['residual_rms']:.3g} T (σ {sol.noise_sigma:.3g} T); {flag}"
     if len(rows) > 1:
         print(f"{where} (joint, rotation {rotation:g}°): conductors at {at}; {tail}")
     for k, cur, err in zip(rows, currents, cur_se):

@@ -908,6 +908,14 @@ def test_calibrate_names_in_field_when_a_background_explains_the_lack_of_fit(tmp
     assert np.abs(cable.RingCalibration.load(tmp_path / "earth.json").gains - gains).max() < 2e-3
     r = run_cli("cable", "calibrate", path, "--method", "twostep")
     assert r.returncode != 0 and "`cable calibrate --method in_field`" in r.stderr, r.stderr
+    # a shielded bench: twostep kept, said why; least squares' own misfit (one magnitude) is no room field
+    readings0, truth0, rot0, _, _ = _room_run(ring, np.random.default_rng(1), lambda z: 0 * z, noise=2e-8)
+    shielded = cable.write_ring_csv(tmp_path / "shielded.csv", ring, readings0, rot0, cur,
+                                    [[-2e-3, 0.5e-3], [2.5e-3, 0.0]])
+    r = run_cli("cable", "calibrate", shielded)
+    assert "method: twostep (auto: it fits to its repeats' scatter)" in r.stdout, r.stdout
+    r = run_cli("cable", "calibrate", shielded, "--method", "least_squares")
+    assert "explains this run's lack of fit" not in r.stdout, r.stdout
     # one reading per pose (no repeats, no lack-of-fit test): in_field all the same, said
     path = cable.write_ring_csv(tmp_path / "once.csv", ring, readings[::10], rot[::10], cur[::10],
                                 [[-2e-3, 0.5e-3], [2.5e-3, 0.0]])

@@ -1471,6 +1471,11 @@ def _accepted_text(row) -> str:
         return f"{row['effect']} ({1e6 * row['background_gradient_t']:.3g} µT across the ring's radius: a source near it)"
     if row.get("background_curvature_t") is not None:
         return f"{row['effect']} ({1e6 * row['background_curvature_t']:.3g} µT at the ring's radius)"
+    if row.get("coupling_sensor") is not None:  # (the sensor and size had been only in the JSON's coefficients)
+        other = "yx"["xy".index(row["coupling_axis"])]
+        return (f"{row['effect']} (largest: sensor {row['coupling_sensor']}'s {row['coupling_axis']} axis reads "
+                f"{100 * row['coupling']:.3g} % of the field along its {other}: an axis {row['coupling_deg']:.2g}° off "
+                "right angles, or crosstalk)")
     return row["effect"]
 
 

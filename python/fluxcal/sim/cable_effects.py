@@ -625,6 +625,16 @@ class SensorCoupling(CableEffect):
         return out.reshape(k, m, 2, 2 * m)
 
     @classmethod
+    def interpret(cls, coefficients) -> dict:
+        """The largest coupling: its sensor (the diagnosed ring's numbering), axis, c and the axis's tilt asin c."""
+        c = np.ravel(coefficients)
+        if not c.size:
+            return {}
+        k = int(np.argmax(np.abs(c)))
+        return {"coupling_sensor": k // 2, "coupling_axis": "xy"[k % 2], "coupling": float(c[k]),
+                "coupling_deg": float(np.degrees(np.arcsin(np.clip(c[k], -1.0, 1.0))))}
+
+    @classmethod
     def typical(cls, n_sensors, rng):
         return cls(rng.choice([-1.0, 1.0], (n_sensors, 2)) * rng.uniform(0.005, 0.02, (n_sensors, 2)))
 
