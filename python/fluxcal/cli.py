@@ -23,6 +23,7 @@ from .io.csv import skipped_words
 from .pipeline import METHODS, PLAUSIBLE_WORDS, UNITS_WORDS, calibrate, noise_line, plausible_field
 from .planar import plane_axes
 
+
 def _dof_or_inf(text: str) -> float:
     """argparse type of degrees of freedom: a positive number, or inf (exact)."""
     return float("inf") if text.strip().lower() in ("inf", "infinity") else positive_number(text)
@@ -1309,17 +1310,23 @@ def _ring_calibration_auto(cable, data: dict, truth):
 
 def _grouped_warning_lines(labels: list, texts: list, words) -> list:
     """Warnings (`texts`, each of the item `labels[i]`) said once per kind — their words before the first number's
-    clause — with the items it concerns (`words(labels)`) and the first one's numbers: 6 sensors × 3 warnings of one
-    cause had buried the line naming it."""
+    clause — with the items it concerns (`words(labels)`) and the numbers of the one whose first number is largest
+    (the worst: a reviewer's line had quoted 6.8× beside a sensor at 88×): 6 sensors × 3 warnings of one cause had
+    buried the line naming it."""
     kinds: dict = {}
     for label, text in zip(labels, texts):
         kinds.setdefault(re.split(r" \(|: ", text, maxsplit=1)[0], []).append((label, text))
+
+    def first_number(hit) -> float:
+        found = re.search(r"[-+]?\d+(?:\.\d+)?(?:e[-+]?\d+)?", hit[1])
+        return abs(float(found.group())) if found else 0.0
+
     lines = []
     for hits in kinds.values():
-        first, text = hits[0]
+        worst, text = max(hits, key=first_number)
         differ = len({t for _, t in hits}) > 1
-        lines.append(f"warning: {words([label for label, _ in hits])}: {text}" + (f" ({words([first])}'s numbers)"
-                                                                                   if differ else ""))
+        lines.append(f"warning: {words([label for label, _ in hits])}: {text}" + (f" ({words([worst])}'s numbers, the "
+                                                                                   "largest)" if differ else ""))
     return lines
 
 

@@ -43,10 +43,13 @@ def test_cable_diagnosis_judges_the_fit_against_the_calibrations_noise(ring_file
     # the solver itself flags it in every snapshot, by the F test with the calibration's repeats' degrees of freedom
     # (the 5 σ rule alone flagged 6 of 8), and exits 3 since no snapshot fits
     assert solve.returncode == 3 and solve.stdout.count("MISFIT (p ") == 8, solve.stdout
-    # its warning once, with the snapshots it concerns (and the first one's numbers)
+    # its warning once, with the snapshots it concerns and the worst one's numbers
     assert solve.stdout.count("the readings do not fit the model") == 1, solve.stdout
-    assert "warning: snapshots 0–7: the readings do not fit the model" in solve.stdout
-    assert "(snapshot 0's numbers)" in solve.stdout
+    line = next(x for x in solve.stdout.splitlines() if "the readings do not fit the model" in x)
+    assert line.startswith("warning: snapshots 0–7: the readings do not fit the model: residual ")
+    worst = max(float(x.split("residual RMS ")[1].split()[0]) for x in solve.stdout.splitlines() if "MISFIT" in x)
+    worst_at = next(x.split(":")[0] for x in solve.stdout.splitlines() if f"residual RMS {worst:.3g} T" in x)
+    assert line.endswith(f"({worst_at}'s numbers, the largest)"), (line, worst_at)
     # without the candidate for what the lab's ferrous parts do (sensor_coupling), nothing explains the departure
     r = run_cli("diagnose", d / "lab.csv", "--model", "cable", "--calibration", d / "ringcal.json", "--quiet",
                 f"--candidates={NOT_COUPLING}")
