@@ -783,16 +783,17 @@ def test_cannot_tell_apart_names_the_rotations_that_would():
                             effects=[BackgroundField(-15e-6 + 35e-6j, gradient_t=0.5e-6j)])
     d = diagnose_cable(**kwargs, max_effects=2)
     winner = next(r for r in d.ranking if r["effect"] == "background_gradient")
-    assert winner["significant"] and not d.confounded and "too few to separate" not in d.text()  # nothing to separate
+    assert winner["significant"] and not d.confounded and "too few to tell" not in d.text()  # nothing to separate
     winner["confounded_with"] = [{"effect": "sensor_position_error", "regime": "current", "delta_bic_difference": 5.5,
                                   "signature_correlation": 0.995, "same_departure": False}]
     text = d.text()
     assert "CANNOT TELL APART: background_gradient and sensor_position_error" in text, text
-    assert "This recording turned the ring to 2 rotation(s) (0°, 90°), too few to separate them: record at least 5 " \
-           "spread evenly over the turn, e.g. 0°, 72°, 144°, 216°, 288°" in text, text
+    assert "This recording turned the ring to 2 rotation(s) (0°, 90°), too few to tell these two apart: record at " \
+           "least 5 spread evenly over the turn, e.g. 0°, 72°, 144°, 216°, 288°" in text, text
+    assert "a zero-current snapshot at each rotation and `cable solve --subtract-zero`" in text  # the currents' remedy
     assert "Both were held out on" not in text
     winner["confounded_with"][0]["effect"] = "finite_length"  # the current's range separates that one
-    assert "Both were held out on the cable's current" in d.text() and "too few to separate" not in d.text()
+    assert "Both were held out on the cable's current" in d.text() and "too few to tell" not in d.text()
 
 
 def test_with_currents_fitted_an_untried_background_leaves_the_calibration_unjudged():

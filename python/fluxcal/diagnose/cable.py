@@ -1523,11 +1523,15 @@ def _text(d) -> str:
             # (held out on the current for want of rotations, "a recording that varies it more" sent users to the
             # current, which does not separate a gradient from a sensor's position error)
             lines = [x for x in lines if not x.startswith("  Both were held out on")]
+            room = any(x.startswith("background") for name, rivals in d.confounded.items()
+                       for x in [name] + [r["effect"] for r in rivals])
             lines.append(f"  This recording turned the ring to {len(turns)} rotation(s) ("
-                         + ", ".join(f"{a:g}°" for a in turns) + f"), too few to separate them: record at least "
+                         + ", ".join(f"{a:g}°" for a in turns) + f"), too few to tell these two apart: record at least "
                          f"{ROTATIONS_THAT_SEPARATE} spread evenly over the turn, e.g. "
                          + ", ".join(f"{a:g}°" for a in np.arange(ROTATIONS_THAT_SEPARATE) * 360.0 / ROTATIONS_THAT_SEPARATE)
-                         + " (not 180° apart: a room's field gradient looks the same to the ring turned by 180°)")
+                         + " (not 180° apart: a room's field gradient looks the same to the ring turned by 180°)"
+                         + ("; for the currents themselves, a zero-current snapshot at each rotation and `cable solve "
+                            "--subtract-zero` take the room's field off, whatever its shape" if room else ""))
         out += lines
         left = rem.get("unexplained", {})
         if left.get("not_explained", left.get("left")):
