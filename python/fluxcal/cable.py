@@ -191,7 +191,9 @@ class Ring:
             # on the paper's ring): search again from a finer grid and more starts before blaming the model
             options.grid_points, options.starts = 15, 4 * options.starts
             again = _core.solve_cable(*self._args(), flat, options)
-            if again["summary"]["residual_rms"] < r["summary"]["residual_rms"]:
+            weights = np.repeat(1.0 / np.asarray(options.relative_sigma, float), 2) if len(options.relative_sigma) else 1.0
+            cost = lambda run: float(np.sum((np.asarray(run["residuals"]) * weights) ** 2))  # noqa: E731 - what both minimised
+            if cost(again) < cost(r):
                 r = again
             r["summary"]["warnings"] = list(r["summary"]["warnings"]) + [
                 f"the default starts left a misfit: searched again from {options.starts} starts on a "

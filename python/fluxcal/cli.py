@@ -1189,16 +1189,16 @@ def cmd_cable(args) -> int:
     if ring_cal is None and args.noise_sigma is None:
         print(f"note: the standard errors take the sensors' noise σ as {cable._core.CableSolveOptions().noise_sigma:g} T "
               "(neither --calibration nor --noise-sigma gives it): give either for errors of this ring")
-    if args.conductors > 1 and (data["positions_m"] is not None or data["currents_a"] is not None):
-        print("conductors numbered as the recording's " + ("positions_m (nearest)" if data["positions_m"] is not None
-                                                             else "reference currents i0, i1, … (best match)"))
     solutions = []
     for rows in groups:
         rotation = float(rotations[rows[0]])
-        reference = None if data["currents_a"] is None else data["currents_a"][rows]
-        sol = _solve_ring_snapshots(ring, ring_cal, raw[rows], rotation, rows, args, zeros.get(rotation),
-                                    reference, data["positions_m"])
+        sol = _solve_ring_snapshots(ring, ring_cal, raw[rows], rotation, rows, args, zeros.get(rotation))
         solutions.append(sol)
+    numbered = _number_conductors(solutions, data)
+    if numbered:
+        print(f"conductors numbered as the recording's {numbered}")
+    for sol in solutions:
+        _print_ring_solution(sol)
     # each kind of warning once, with the snapshots it concerns (24 snapshots' misfit had run to 48 lines)
     said = [(s["where"], w) for s in solutions for w in s.pop("warnings_said", [])]
     for line in _grouped_warning_lines([where for where, _ in said], [w for _, w in said], _snapshots_words):
@@ -1359,12 +1359,12 @@ def _ring_notes(cable, data: dict) -> None:
         print(note)
 
 
-def _solve_ring_snapshots(ring, ring_cal, snaps, rotation: float, rows, args, zero=None, reference=None,
-                          known_positions=None) -> dict:
+def _solve_ring_snapshots(ring, ring_cal, snaps, rotation: float, rows, args, zero=None) -> dict:
     """`cable solve` of snapshots `rows` (one, or those sharing a rotation with --joint): sensors with a NaN
     left out (a dead sensor: the ring of the others), the calibration's σ for the solver, and a line per
-    snapshot with positions, currents and their standard errors; `zero`: with --subtract-zero, (count, mean
-    current) of the zero snapshots taken off. Returns the solution as a JSON-ready dict."""
+    snapshot with positions, currents and their standard errors (said by _print_ring_solution, once numbered);
+    `zero`: with --subtract-zero, (count, mean current) of the zero snapshots taken off. Returns the solution as a
+    JSON-ready dict (its `_said` for the printing)."""
     from ._core import CableSolveOptions
 
     live = np.isfinite(snaps).all(axis=(0, 2))
@@ -1438,33 +1438,25 @@ def _solve_ring_snapshots(ring, ring_cal, snaps, rotation: float, rows, args, ze
     se = np.where(np.isfinite(se), se, np.nan)
     pos_se = se[:2 * n].reshape(n, 2)
     cur_se = se[2 * n:2 * n + len(rows) * n].reshape(len(rows), n)  # zero-sum currents: the last one's is derived
-    positions = sol.positions
-    order = _conductor_order(positions, currents, reference, known_positions)
-    if order is not None:  # the recording's conductors, not the solver's (sorted by x): a newcomer's i0 came second
-        positions, pos_se, currents, cur_se = positions[order], pos_se[order], currents[:, order], cur_se[:, order]
     flag = ("well conditioned" if sol.well_conditioned else "ILL-CONDITIONED") + \
         ("" if sol.fits_model else f", MISFIT (p {sol.misfit_p:.2g} for σ {sol.noise_sigma:.3g} T)"
          if sol.misfit_p < CableSolveOptions().misfit_alpha else f", MISFIT (residual above 5 × σ {sol.noise_sigma:.3g} T)")
-    at = "; ".join(f"({x * 1e3:.4f} ± {sx * 1e3:.2g}, {y * 1e3:.4f} ± {sy * 1e3:.2g}) mm"
-                   for (x, y), (sx, sy) in zip(positions, pos_se))
-    tail = f"residual RMS {sol.summary['residual_rms']:.3g} T (σ {sol.noise_sigma:.3g} T); {flag}"
-    if len(rows) > 1:
-        print(f"{where} (joint, rotation {rotation:g}°): conductors at {at}; {tail}")
-    for k, cur, err in zip(rows, currents, cur_se):
-        amps = ", ".join(f"{i:.5g} ± {e:.2g} A" for i, e in zip(cur, err))
-        print(f"snapshot {k}: " + (f"{amps}" if len(rows) > 1 else f"{at}; {amps}; {tail}"))
     out = {"snapshots": [int(k) for k in rows], "rotation_deg": rotation, "sensors_used": np.nonzero(live)[0].tolist(),
-           "positions_m": positions.tolist(), "position_sigma_m": _nan_to_none_rows(pos_se),
+           "positions_m": sol.positions.tolist(), "position_sigma_m": _nan_to_none_rows(pos_se),
            "currents_a": currents.tolist(), "current_sigma_a": _nan_to_none_rows(cur_se),
            "residual_rms_t": sol.summary["residual_rms"], "noise_sigma_t": sol.noise_sigma,
            "well_conditioned": sol.well_conditioned, "fits_model": sol.fits_model,
            "misfit_p": float(sol.misfit_p) if np.isfinite(sol.misfit_p) else None}
+    # said once the conductors are numbered as the recording's (_number_conductors, _print_ring_solution)
+    out["_said"] = {"where": where, "tail": f"residual RMS {sol.summary['residual_rms']:.3g} T (σ {sol.noise_sigma:.3g} T); "
+                                            f"{flag}", "after": []}
     if sol.background_t is not None:
         b, sb = sol.background_t, se[-2:]
         beyond = " beyond the calibration run's" if args.subtract_background else ""
-        print(f"{where}: background field{beyond} "
-              f"({1e6 * b[0]:.4g} ± {1e6 * sb[0]:.2g}, {1e6 * b[1]:.4g} ± {1e6 * sb[1]:.2g}) "
-              f"µT, {1e6 * np.hypot(*b):.4g} µT towards {np.degrees(np.arctan2(b[1], b[0])) % 360:.0f}° (cable frame)")
+        out["_said"]["after"].append(
+            f"{where}: background field{beyond} ({1e6 * b[0]:.4g} ± {1e6 * sb[0]:.2g}, {1e6 * b[1]:.4g} ± "
+            f"{1e6 * sb[1]:.2g}) µT, {1e6 * np.hypot(*b):.4g} µT towards {np.degrees(np.arctan2(b[1], b[0])) % 360:.0f}° "
+            "(cable frame)")
         out.update(background_t=b.tolist(), background_sigma_t=_nan_to_none_rows(sb)[0])
     out["warnings"] = list(sol.summary.get("warnings", []))
     out["where"] = where
@@ -1474,22 +1466,71 @@ def _solve_ring_snapshots(ring, ring_cal, snaps, rotation: float, rows, args, ze
     return out
 
 
-def _conductor_order(positions, currents, reference, known_positions):
-    """The solved conductors (the solver sorts them by x) in the recording's order: nearest to its `positions_m` when
-    given, else best matching its reference currents i0, i1, … over the snapshots — indices, or None (neither
-    given, or one conductor)."""
+def _number_conductors(solutions: list, data: dict) -> str | None:
+    """Put each solution's conductors (the solver sorts them by x) in the recording's order, in place: nearest to its
+    `positions_m`, else — the conductors staying put at one rotation — each rotation's solutions linked by position to
+    its first, and those matched to the reference currents i0, i1, … over all of that rotation's snapshots (near-equal
+    phases had swapped from one snapshot to the next). Solved conductors beyond the recording's come last. Returns
+    what numbered them, or None (neither given, one conductor). (By x, a newcomer's i0 had come out second.)"""
     from scipy.optimize import linear_sum_assignment
 
-    n = len(positions)
-    if n < 2:
+    solved = [s for s in solutions if "left_out" not in s]
+    if not solved or len(solved[0]["positions_m"]) < 2:
         return None
-    if known_positions is not None and len(known_positions) == n:
-        cost = np.linalg.norm(np.asarray(known_positions)[:, None, :] - positions[None], axis=-1)
-    elif reference is not None and np.shape(reference)[1] == n:
-        cost = np.sum((np.asarray(reference)[:, :, None] - currents[:, None, :]) ** 2, axis=0)
+
+    def order_of(cost) -> list:  # cost (recording's, solved): the solved in the recording's order, the rest after
+        rows, cols = linear_sum_assignment(cost)
+        first = [int(c) for _, c in sorted(zip(rows, cols))]
+        return first + [j for j in range(cost.shape[1]) if j not in first]
+
+    known, reference = data["positions_m"], data["currents_a"]
+    if known is not None:
+        for s in solved:
+            s["_order"] = order_of(np.linalg.norm(np.asarray(known)[:, None] - np.asarray(s["positions_m"])[None], axis=-1))
+        by = "positions_m (nearest)"
+    elif reference is not None:
+        for rotation in dict.fromkeys(s["rotation_deg"] for s in solved):
+            group = [s for s in solved if s["rotation_deg"] == rotation]
+            anchor = np.asarray(group[0]["positions_m"])
+            links = [order_of(np.linalg.norm(anchor[:, None] - np.asarray(s["positions_m"])[None], axis=-1))
+                     for s in group]
+            currents = np.vstack([np.asarray(s["currents_a"])[:, link] for s, link in zip(group, links)])
+            wanted = np.vstack([reference[s["snapshots"]] for s in group])
+            logged = np.all(np.isfinite(wanted), axis=1)  # (a meter's dropped reading: not matched on)
+            if not logged.any():
+                continue
+            cost = np.sum((wanted[logged][:, :, None] - currents[logged][:, None, :]) ** 2, axis=0)
+            for s, link in zip(group, links):
+                s["_order"] = [link[j] for j in order_of(cost)]
+        by = "reference currents i0, i1, … (best match over each rotation's snapshots)"
     else:
         return None
-    return linear_sum_assignment(cost)[1]
+    for s in solved:
+        order = s.pop("_order", None)
+        if order is not None:
+            for key in ("positions_m", "position_sigma_m"):
+                s[key] = [s[key][j] for j in order]
+            for key in ("currents_a", "current_sigma_a"):
+                s[key] = [[row[j] for j in order] for row in s[key]]
+    return by
+
+
+def _print_ring_solution(sol: dict) -> None:
+    """A `cable solve` solution's lines: positions, each snapshot's currents, with their standard errors."""
+    said = sol.pop("_said", None)
+    if said is None:  # left out, said already
+        return
+    nan = lambda v: np.nan if v is None else v  # noqa: E731 - JSON's null for an undetermined standard error
+    at = "; ".join(f"({x * 1e3:.4f} ± {nan(sx) * 1e3:.2g}, {y * 1e3:.4f} ± {nan(sy) * 1e3:.2g}) mm"
+                   for (x, y), (sx, sy) in zip(sol["positions_m"], sol["position_sigma_m"]))
+    rows = sol["snapshots"]
+    if len(rows) > 1:
+        print(f"{said['where']} (joint, rotation {sol['rotation_deg']:g}°): conductors at {at}; {said['tail']}")
+    for k, cur, err in zip(rows, sol["currents_a"], sol["current_sigma_a"]):
+        amps = ", ".join(f"{i:.5g} ± {nan(e):.2g} A" for i, e in zip(cur, err))
+        print(f"snapshot {k}: " + (f"{amps}" if len(rows) > 1 else f"{at}; {amps}; {said['tail']}"))
+    for line in said["after"]:
+        print(line)
 
 
 def _solution_covariance(ring, sol, cal, fields, settings: dict, zero, from_calibration: bool) -> np.ndarray:

@@ -1024,3 +1024,23 @@ def test_cli_solve_numbers_the_conductors_as_the_recording(tmp_path):
         out = json.loads((tmp_path / f"{name}.json").read_text())["solutions"][0]
         np.testing.assert_allclose(out["currents_a"], cur, rtol=1e-6)
         np.testing.assert_allclose(out["positions_m"], positions, atol=1e-8)
+    # a reference reading dropped (NaN), and a third core at 0 A logged but not solved (--conductors 2): still numbered
+    logged = np.column_stack([cur, np.zeros(3)])
+    logged[1, 0] = np.nan
+    path = cable.write_ring_csv(tmp_path / "pe.csv", ring, readings, np.zeros(3), logged)
+    r = run_cli("cable", "solve", path, "-o", tmp_path / "pe.json")
+    assert r.returncode == 0, r.stdout + r.stderr
+    for k, out in enumerate(json.loads((tmp_path / "pe.json").read_text())["solutions"]):
+        np.testing.assert_allclose(out["currents_a"][0], cur[k], rtol=1e-6)
+    # three phases, two of them within 0.1 A in some snapshots, each solved alone: the same numbering throughout
+    three = np.array([[2.5e-3, 0.5e-3], [-2.0e-3, 1.2e-3], [0.2e-3, -2.4e-3]])
+    t = np.linspace(0.0, 0.02, 12, endpoint=False)
+    phases = 10.0 * np.cos(2 * np.pi * 50 * t[:, None] - np.radians([0.0, 120.0, 240.0]))
+    path = cable.write_ring_csv(tmp_path / "abc.csv", ring, np.stack([ring.field(three, c) for c in phases]),
+                                np.zeros(12), phases)
+    r = run_cli("cable", "solve", path, "--conductors", "3", "--zero-sum-currents", "-o", tmp_path / "abc.json")
+    assert r.returncode == 0, r.stdout + r.stderr
+    solved = [out for out in json.loads((tmp_path / "abc.json").read_text())["solutions"] if out["well_conditioned"]]
+    assert len(solved) >= 4  # (a phase near 0 A leaves its conductor's place undetermined, said)
+    for out in solved:
+        np.testing.assert_allclose(out["positions_m"], three, atol=1e-7)
