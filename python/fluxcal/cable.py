@@ -601,6 +601,8 @@ def calibrate_ring_in_field(readings, true_fields, ring: Ring, rotations_deg, or
     inverse = np.linalg.pinv(A.T @ A)
     sandwich = inverse @ (A.T * noise.ravel()) @ A @ inverse
     cal.covariance[..., 1, 1] = np.diag(sandwich)[:2 * m].reshape(m, 2)
+    # each term's standard error (its real and imaginary parts): whether a term of 1–2 nT means anything
+    cal.background["terms_sigma_t"] = np.sqrt(np.diag(sandwich)[2 * m:]).reshape(-1, 2).tolist()
     return cal
 
 

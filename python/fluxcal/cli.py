@@ -1143,9 +1143,11 @@ def cmd_cable(args) -> int:
             print(line)
         if cal.background is not None:  # (the room's field, the ring's turns told from the sensors' offsets)
             b = [complex(*t) for t in cal.background["terms_t"]]
-            print(f"field that does not follow the currents: {1e6 * abs(b[0]):.4g} µT towards "
+            se = [np.hypot(*t) for t in cal.background.get("terms_sigma_t", [[np.nan, np.nan]] * len(b))]
+            print(f"field that does not follow the currents: {1e6 * abs(b[0]):.4g} ± {1e6 * se[0]:.2g} µT towards "
                   f"{np.degrees(np.angle(b[0])) % 360:.0f}° (cable frame) at the ring's centre; its terms at the "
-                  "ring's radius " + ", ".join(f"{1e6 * abs(t):.3g}" for t in b[1:]) + " µT")
+                  "ring's radius " + ", ".join(f"{1e6 * abs(t):.3g} ± {1e6 * e:.2g}" for t, e in zip(b[1:], se[1:]))
+                  + " µT")
         far = float(np.max(np.abs(np.log(cal.gains))))
         if far > np.log(1.2):  # readings in tesla: an AMR's gain error is a few %, not tens
             print(f"warning: gains up to ×{np.exp(far):.3g} away from 1: the readings' scale is not the ring model's — "

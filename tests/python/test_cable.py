@@ -899,6 +899,11 @@ def test_calibrate_names_in_field_when_a_background_explains_the_lack_of_fit(tmp
             (not args) and "warning:" not in r.stdout, r.stdout
         cal = cable.RingCalibration.load(tmp_path / "cal.json")
         assert cal.method == "in_field" and np.abs(cal.gains - gains).max() < 2e-3
+        # the room's terms with their standard errors: the truth has no gradient, whose term is within a few of them
+        line = next(x for x in r.stdout.splitlines() if x.startswith("field that does not follow the currents:"))
+        assert line.count(" ± ") == 4, line
+        gradient, sigma = complex(*cal.background["terms_t"][1]), np.hypot(*cal.background["terms_sigma_t"][1])
+        assert abs(gradient) < 5 * sigma, (gradient, sigma)
     # the Earth's 30 µT: TWOSTEP refuses; auto calibrates in_field, said, and twostep's refusal still names in_field
     readings, truth, rot, gains, _ = _room_run(ring, np.random.default_rng(0), lambda z: 30e-6 * np.exp(-0.6j) + 0 * z,
                                                noise=2e-8)
