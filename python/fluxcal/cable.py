@@ -365,6 +365,11 @@ class RingCalibration:
         scatter, own = self._variances(readings, repeats)
         return None if scatter is None else np.sqrt(np.mean(scatter + own, axis=-1))
 
+    def noise_variance(self) -> np.ndarray | None:
+        """(n_sensors, 2) the variance (tesla²) of a compensated reading's own noise: its repeated readings' scatter
+        over the gain, else its residuals'; None without the statistics."""
+        return self._variances(None, repeats=self.repeat_sigma is not None)[0]
+
     def _variances(self, readings, repeats: bool):
         """Per sensor and axis, the variances (tesla²) of a compensated reading: the scatter's (the repeats' or the
         residuals'), and what the calibration's own (γ, b) errors leave at `readings` (0 without) — (None, None)

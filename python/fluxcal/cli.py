@@ -1548,7 +1548,7 @@ def _solution_covariance(ring, sol, cal, fields, settings: dict, zero, from_cali
     shared = []
     if cal is not None and cal.covariance is not None:
         if from_calibration:  # the solver's σ held the calibration's own errors too: its scatter alone here
-            noise = cal._variances(None, repeats=cal.repeat_sigma is not None)[0]
+            noise = cal.noise_variance()
         shared.append(cable.calibration_shared_errors(cal, fields.reshape(-1, m, 2), offsets=not zero))
     if zero:
         shared.append((np.broadcast_to(np.eye(2 * m).reshape(1, m, 2, 2 * m), (len(fields), m, 2, 2 * m)),

@@ -153,7 +153,7 @@ def test_the_currents_errors_carry_the_calibrations_own():
         relative = cal.sensor_sigma(raw, repeats=True) / sigma
         ring = rig.ring.rotated(ROTATION)
         sol = ring.solve(h, 2, noise_sigma=sigma, relative_sigma=relative)
-        cov = cable.propagated_covariance(ring, sol, cal._variances(None, repeats=True)[0],
+        cov = cable.propagated_covariance(ring, sol, cal.noise_variance(),
                                           [cable.calibration_shared_errors(cal, h)], relative)
         order = [int(np.argmin(np.linalg.norm(sol.positions - p, axis=1))) for p in rig.positions_m]
         error = sol.currents[:, order] - np.outer(SCALES, [100.0, -100.0])
