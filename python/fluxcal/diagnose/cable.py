@@ -1386,13 +1386,17 @@ def _gradient_in_solve(data: _Data, model: _Model, fit: dict) -> dict | None:
             gradient * np.conj(data.points[r]) / data.ring.radius_m, data.axes[r])
         if readings.size <= 2 * n + n * int(rows.sum()) + 2:
             continue  # an exact fit: nothing to compare
-        sol = ring.solve(readings, n_conductors=n, fit_background=True, initial_positions=fit["positions"])
+        try:
+            sol = ring.solve(readings, n_conductors=n, fit_background=True, initial_positions=fit["positions"])
+        except ValueError:  # (fitted positions outside the bore: the CAVEAT says so)
+            continue
         order = [int(np.argmin(np.linalg.norm(sol.positions - p, axis=1))) for p in fit["positions"]]
-        got = np.atleast_2d(sol.currents)[:, order]
-        errors.append(np.max(np.abs(got - data.reference[rows]), axis=1) / np.abs(data.reference[rows]).max(axis=1))
-    if not errors:
+        got, wanted = np.atleast_2d(sol.currents)[:, order], data.reference[rows]
+        carrying = np.abs(wanted).max(axis=1) > 0
+        errors.append(np.max(np.abs(got - wanted), axis=1)[carrying] / np.abs(wanted).max(axis=1)[carrying])
+    errors = np.concatenate(errors) if errors else np.zeros(0)
+    if not errors.size:
         return None
-    errors = np.concatenate(errors)
     return {"max_relative_error": float(errors.max()), "rms_relative_error": float(np.sqrt(np.mean(errors ** 2)))}
 
 
