@@ -1340,20 +1340,28 @@ def _gain_words(gain: float) -> str:
 LINE_SOURCE_IMAGINARY = 0.2  # a line's current from the gradient and curvature is real: beyond this share, no line
 
 
+def _room_terms(model: _Model, fit: dict, *names) -> list | None:
+    """The fitted room-field terms `names` (background_field, _gradient, _curvature) as complex tesla, or None when
+    one of them is not in the fit."""
+    found = [cls.name for cls, _ in fit["terms"]]
+    if not all(name in found for name in names):
+        return None
+    sizes = [model.features(fit["positions"], [term]).shape[-1] for term in fit["terms"]]
+    starts = np.concatenate([[0], np.cumsum(sizes)])
+    c = model._split(fit["coefficients"])[2]
+    return [complex(*c[starts[found.index(name)]:starts[found.index(name)] + 2]) for name in names]
+
+
 def _background_source(model: _Model, fit: dict, radius_m: float) -> dict | None:
     """With background_field, _gradient and _curvature all in the final model: the field as one line current
     along the cable (a neighbouring conductor on another circuit) beside a uniform rest (the Earth's). A line at d
     (complex, cable frame) gives B = −i k/d̄ · Σ (z̄/d̄)ⁿ, k = μ0 I/2π: its gradient and curvature b₁, b₂ (per ring
     radius R) put it at d̄ = R b₁/b₂ carrying k = i b₁ d̄²/R — real for a line, and |d| > R for the expansion.
     None otherwise (a newcomer had worked the busbar's 55 mm out of the numbers by hand)."""
-    names = [cls.name for cls, _ in fit["terms"]]
-    wanted = ("background_field", "background_gradient", "background_curvature")
-    if not all(name in names for name in wanted):
+    terms = _room_terms(model, fit, "background_field", "background_gradient", "background_curvature")
+    if terms is None:
         return None
-    sizes = [model.features(fit["positions"], [term]).shape[-1] for term in fit["terms"]]
-    c = model._split(fit["coefficients"])[2]
-    starts = np.concatenate([[0], np.cumsum(sizes)])
-    b0, b1, b2 = (complex(*c[starts[names.index(name)]:starts[names.index(name)] + 2]) for name in wanted)
+    b0, b1, b2 = terms
     if b1 == 0 or b2 == 0:
         return None
     d_conj = radius_m * b1 / b2
@@ -1372,12 +1380,10 @@ def _gradient_in_solve(data: _Data, model: _Model, fit: dict) -> dict | None:
     rotation (warm-started at the fitted positions) — the largest and RMS current error, a share of each snapshot's
     largest current. (The held-out current error is the diagnosis's own models': a newcomer read 0.09 % there and 0.6 %
     from the solve.) None without a gradient found or reference currents."""
-    names = [cls.name for cls, _ in fit["terms"]]
-    if "background_gradient" not in names or data.reference is None or data.fit_currents:
+    terms = _room_terms(model, fit, "background_gradient")
+    if terms is None or data.reference is None or data.fit_currents:
         return None
-    sizes = [model.features(fit["positions"], [term]).shape[-1] for term in fit["terms"]]
-    start = int(np.concatenate([[0], np.cumsum(sizes)])[names.index("background_gradient")])
-    gradient = complex(*model._split(fit["coefficients"])[2][start:start + 2])
+    gradient = terms[0]
     n, errors = data.n, []
     for r, angle in enumerate(data.unique):
         rows = data.rot_index == r
