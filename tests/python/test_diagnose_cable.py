@@ -508,6 +508,23 @@ def test_a_dead_sensor_is_left_out_and_a_missing_reading_is_named():
         diagnose_cable(**{**kwargs, "readings": dead})
 
 
+def test_the_coupled_sensor_is_named_by_its_number_in_the_recording():
+    """With sensor 0 dead, the coupling found on sensor 3 had been named "sensor 2" (the diagnosed ring's own
+    numbering)."""
+    from fluxcal.sim.cable_effects import SensorCoupling
+
+    coupling = np.full((4, 2), 0.002)
+    coupling[3, 1] = 0.03
+    kwargs, _ = cable_trial([], 7, effects=[SensorCoupling(coupling)])
+    readings = kwargs["readings"].copy()
+    readings[:, 0] = np.nan
+    d = diagnose_cable(**{**kwargs, "readings": readings})
+    row = next(row for row in d.ranking if row["effect"] == "sensor_coupling")
+    assert d.accepted == ["sensor_coupling"]
+    assert (row["coupling_sensor"], row["coupling_axis"]) == (3, "y")
+    assert row["coupling"] == pytest.approx(0.03, rel=0.1)
+
+
 def test_least_squares_survives_an_eigensolver_that_does_not_converge(monkeypatch):
     """LAPACK's eigh failed to converge on one ill-conditioned candidate fit of a blind check and aborted the whole
     diagnosis: the SVD-based solve takes over."""

@@ -936,6 +936,8 @@ def _evaluate(cls, data: _Data, state: dict, n_candidates: int, levels) -> dict:
     if "reference_lay_over_pitch_diameter" in row and row["reference_lay_over_pitch_diameter"] is not None:
         row["lay_length_m"] = row["reference_lay_over_pitch_diameter"] * cls.pitch_diameter(fit["positions"])
     row.update(cls.interpret(row["coefficients"]))
+    if row.get("coupling_sensor") is not None and data.sensor_ids is not None:  # the recording's number, not the
+        row["coupling_sensor"] = int(data.sensor_ids[row["coupling_sensor"]])  # diagnosed ring's (dead ones out)
     in_sample = bool(row["lr_pvalue"] * n_candidates < state["alpha"] and row["delta_bic"] < 0)
     unphysical = cls.unphysical(row["coefficients"]) if in_sample else ""  # (a null fit's sign means nothing)
     row["_in_sample"] = in_sample and not unphysical

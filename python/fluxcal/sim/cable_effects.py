@@ -626,7 +626,8 @@ class SensorCoupling(CableEffect):
 
     @classmethod
     def interpret(cls, coefficients) -> dict:
-        """The largest coupling: its sensor (the diagnosed ring's numbering), axis, c and the axis's tilt asin c."""
+        """The largest coupling: its sensor (the diagnosed ring's numbering; the diagnosis renumbers it as the
+        recording's), axis, c and the axis's tilt asin c."""
         c = np.ravel(coefficients)
         if not c.size:
             return {}
