@@ -837,8 +837,9 @@ def test_what_the_gradient_does_to_the_solvers_currents():
     kwargs, rig = cable_trial([], 5, effects=[BackgroundField(30e-6 * np.exp(0.4j), gradient_t=0.6e-6 * np.exp(2.0j))])
     d = diagnose_cable(**kwargs, candidates=["background_field", "background_gradient"], max_effects=2)
     assert d.accepted == ["background_field", "background_gradient"]
-    said = d.remaining["gradient_in_solve"]
-    assert any(x.startswith("SOLVE: this gradient leaves") for x in d.text().splitlines())
+    said = d.remaining["room_in_solve"]
+    assert said["terms"] == ["background_gradient"]
+    assert any(x.startswith("SOLVE: the room field's gradient leaves") for x in d.text().splitlines())
     cal, rot, cur = kwargs["calibration"], kwargs["rotations_deg"], kwargs["currents"]
     worst = 0.0
     for angle in np.unique(rot):
@@ -847,3 +848,34 @@ def test_what_the_gradient_does_to_the_solvers_currents():
         order = [int(np.argmin(np.linalg.norm(sol.positions - p, axis=1))) for p in kwargs["positions"]]
         worst = max(worst, float(np.max(np.abs(sol.currents[:, order] - cur[rows]) / np.abs(cur[rows]).max(axis=1)[:, None])))
     assert worst > 1e-3 and 0.5 < worst / said["max_relative_error"] < 2.0, (worst, said)
+
+
+def test_a_busbar_near_the_ring_is_found_term_by_term():
+    """A 14 A busbar 4.7 ring radii from the cable (the library's own `typical` range): the room field's uniform part,
+    alone, moved the held-out currents further off (5.97 → 7.08 %) and was refused for it, and nothing was found.
+    A term of the series is now judged with the series' next terms (0.25 %); the BACKGROUND line then places the
+    busbar, and the SOLVE line says what its gradient and curvature do to `cable solve --fit-background`, as a solve
+    of the recording shows."""
+    from fluxcal.sim.cable_effects import BackgroundField, cable_trial
+
+    where, current = 0.04695 * np.exp(4.88j), 14.35
+    earth = 38.4e-6 * np.exp(-0.52j)
+    kwargs, _ = cable_trial([], 421117, effects=[BackgroundField(earth, conductors=((where, current),))])
+    d = diagnose_cable(**kwargs, candidates=["background_field", "background_gradient", "background_curvature"])
+    assert d.accepted == ["background_field", "background_gradient", "background_curvature"], d.accepted
+    first = d.ranking[0]
+    assert first["current_error_falls_with"] == ["background_gradient", "background_curvature"]
+    assert first["current_error_series_after"] < first["current_error_a_before"] < first["current_error_a_after"]
+    assert "(with its series' next terms: → " in d.text()
+    source = d.remaining["background_source"]
+    assert source["distance_m"] == pytest.approx(abs(where), rel=0.02)
+    assert source["current_a"] == pytest.approx(current, rel=0.02)
+    said = d.remaining["room_in_solve"]
+    assert said["terms"] == ["background_gradient", "background_curvature"]
+    assert "SOLVE: the room field's gradient and curvature leave" in d.text()
+    cal, rot, cur = kwargs["calibration"], kwargs["rotations_deg"], kwargs["currents"]
+    rows = rot == rot[0]
+    sol = kwargs["ring"].rotated(rot[0]).solve(cal.apply(kwargs["readings"][rows]), 2, fit_background=True)
+    order = [int(np.argmin(np.linalg.norm(sol.positions - p, axis=1))) for p in kwargs["positions"]]
+    off = np.max(np.abs(sol.currents[:, order] - cur[rows]) / np.abs(cur[rows]).max(axis=1)[:, None])
+    assert 0.5 < off / said["max_relative_error"] < 1.5, (off, said)
