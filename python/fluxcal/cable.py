@@ -285,8 +285,9 @@ class RingCalibration:
     sensors: list = field(default_factory=list)  # the TwoStep2D of each sensor
     # What the calibration recording says about its own accuracy, per sensor and axis (None when not known,
     # e.g. a calibration saved before they existed): the readings' scatter about γ h + b (noise and anything the
-    # model leaves, tesla) and the covariance of (γ, b): TWOSTEP's own (from the magnitudes it fits; the linear
-    # one on the true field vectors was 0.66–0.87 of a blind check's Monte-Carlo spread), or for least squares the
+    # model leaves, tesla) and the covariance of (γ, b): TWOSTEP's (from the magnitudes it fits; the linear
+    # one on the true field vectors was 0.66–0.87 of a blind check's Monte-Carlo spread) — with repeats, at their
+    # σ per axis (_magnitude_sandwich; `sensors` keep TWOSTEP's own σ̂²(JᵀJ)⁻¹) — or for least squares the
     # linear one on the true fields.
     residual_sigma: np.ndarray | None = None  # (n_sensors, 2)
     covariance: np.ndarray | None = None      # (n_sensors, 2, 2, 2): [sensor, axis] → Cov(γ, b)
@@ -450,6 +451,7 @@ def calibrate_ring(readings, true_fields, method: str = "twostep") -> RingCalibr
         raise ValueError(f"readings {r.shape} and true_fields {h.shape}: expected the same shape (K, n_sensors, 2)")
     norms = np.linalg.norm(h, axis=2)
     fits: list[TwoStep2D] = []
+    refined = []  # per sensor: its fit is TWOSTEP's magnitude least squares (not the ellipse fallback's)
     for i in range(r.shape[1]):
         # a sensor's readings that are not numbers (a dropout, a glitch logged as nan) are left out of its own fit;
         # a sensor with none is dead: the others' calibration cannot stand in for it
@@ -471,6 +473,7 @@ def calibrate_ring(readings, true_fields, method: str = "twostep") -> RingCalibr
         if method == "twostep":
             try:
                 fits.append(twostep_2d(m, norm))
+                refined.append(True)
             except ValueError as exc:
                 if "first step" not in str(exc):  # bad input (a NaN), a run-away: its own message says what
                     raise ValueError(f"sensor {i}: {exc}") from None
@@ -493,6 +496,7 @@ def calibrate_ring(readings, true_fields, method: str = "twostep") -> RingCalibr
                                      "positions off the ring's centre); `fluxcal diagnose RUN.csv --model cable` says "
                                      "which") from None
                 fits.append(fit)
+                refined.append(False)
         elif method == "least_squares":
             fits.append(twostep_2d(m, np.full(len(m), np.sqrt(np.mean(norm ** 2))), refine=False))
         else:
@@ -517,8 +521,18 @@ def calibrate_ring(readings, true_fields, method: str = "twostep") -> RingCalibr
                if method == "least_squares" else "")]
     whole = None
     if method == "twostep":
-        covariance = np.array([_axis_blocks(f.covariance) for f in fits])
-        whole = np.array([np.asarray(f.covariance, float)[np.ix_(TWOSTEP_ORDER, TWOSTEP_ORDER)] for f in fits])
+        own = [np.asarray(f.covariance, float) for f in fits]
+        for i in range(len(fits)) if repeat_sigma is not None else []:
+            # With the repeats' σ per axis, each magnitude residual gets its own variance (_magnitude_sandwich). Not
+            # without repeats (the magnitude residuals alone do not tell the axes' noise apart: one σ̂, as TWOSTEP's),
+            # nor where the lack-of-fit test says the model missed (the residuals then hold more than the repeats'
+            # noise, which TWOSTEP's σ̂ keeps), nor for the ellipse fallback's fit (another estimator) or a covariance
+            # the data do not determine (inf).
+            if refined[i] and np.min(lack_of_fit[i]) >= LACK_OF_FIT_P and np.all(np.isfinite(own[i])):
+                finite = np.isfinite(r[:, i]).all(axis=1)
+                own[i] = _magnitude_sandwich(r[finite, i], fits[i].offset, fits[i].gain, repeat_sigma[i])
+        covariance = np.array([_axis_blocks(c) for c in own])
+        whole = np.array([c[np.ix_(TWOSTEP_ORDER, TWOSTEP_ORDER)] for c in own])
     return RingCalibration(offsets=offsets, gains=gains, method=method, sensors=fits, residual_sigma=residual_sigma,
                            covariance=covariance, repeat_sigma=repeat_sigma, repeat_dof=repeat_dof,
                            lack_of_fit_p=lack_of_fit, sensor_covariance=whole)
@@ -758,6 +772,25 @@ def _calibration_errors(readings, true_fields, offsets, gains, linear: bool = Tr
     xtx = np.einsum("ksai,ksaj->saij", x, x)
     covariance = sigma[..., None, None] ** 2 * np.linalg.pinv(xtx)
     return sigma, covariance
+
+
+def _magnitude_sandwich(readings, offset, gain, sigma) -> np.ndarray:
+    """The covariance of (bx, by, γx, γy) (TWOSTEP's order) of the magnitude least squares min Σ (|(ĥ − b) ⊘ γ| − h_k)²
+    at (b, γ) from `readings` (N, 2) whose axes have the noise σ `sigma` (2,), tesla: the sandwich
+    (JᵀJ)⁻¹ (Σ v_k J_kᵀJ_k) (JᵀJ)⁻¹, J_k = ∂e_k/∂(b, γ), with each residual's own variance
+    v_k = Σ_a σ_a² (f_a / (γ_a |f|))², f = (ĥ_k − b) ⊘ γ: only the noise along the field enters |f|, so a reading
+    along the noisy axis scatters more. (TWOSTEP's σ̂²(JᵀJ)⁻¹ pools one σ̂ over all readings: at σy = 3σx its
+    standard errors were 0.79–1.42 of the Monte-Carlo spread, the two axes' with opposite signs.) The true fields h_k
+    are taken as exact: a reference meter's scatter is not in it."""
+    f = (np.asarray(readings, float) - offset) / gain
+    m = np.linalg.norm(f, axis=1)
+    along = f / gain / m[:, None]  # ∂e_k/∂ĥ_a
+    J = -np.column_stack([along, f ** 2 / gain / m[:, None]])
+    v = along ** 2 @ (np.asarray(sigma, float) ** 2)
+    scale = 1.0 / np.linalg.norm(J, axis=0)  # the offsets' and gains' columns differ by ~|h|: scale before inverting
+    Js = J * scale
+    bread = np.linalg.inv(Js.T @ Js)
+    return bread @ (Js.T @ (v[:, None] * Js)) @ bread * np.outer(scale, scale)
 
 
 def calibration_fields(ring: Ring, positions_m, currents_a, rotations_deg) -> np.ndarray:
