@@ -1686,8 +1686,8 @@ def cmd_drift(args) -> int:
         squared = f" ({u.strip()})²" if u else ""  # the unit squared, not the number
         print(f"  AR({ar['order']}) by AIC of the noise (zero bias - drift model), sigma2 {ar['sigma2']:.4g}{squared}, "
               f"{white}")
-        for note in report["notes"]:  # white noise about the drift: no Kalman filter (and why)
-            print(f"  {note}")
+        for note in report["notes"] + [n for n in [drift.one_way_note(report.get("thermal_lag"))] if n]:
+            print(f"  {note}")  # white noise about the drift (no Kalman filter), gaps, a log that runs one way
         for w in list(report["warnings"]) + [w for w in model.summary["warnings"] if w not in report["warnings"]]:
             print(f"warning: {w}")
         for seg in model.segments:

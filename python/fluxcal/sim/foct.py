@@ -39,8 +39,11 @@ def drift_law(temp, segments) -> np.ndarray:
 
 
 def chamber_profile(levels=np.arange(-20.0, 50.0 + 1e-9, 5.0), hold_s: float = 1200.0, ramp_s: float = 600.0,
-                    rate_hz: float = 1.0) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """(t, chamber temperature, hold index or −1 on ramps): holds at every level joined by linear ramps."""
+                    rate_hz: float = 1.0, cycle: bool = False) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """(t, chamber temperature, hold index or −1 on ramps): holds at every level joined by linear ramps; with
+    `cycle`, up the levels and back down them (a heating and a cooling branch)."""
+    if cycle:
+        levels = np.concatenate([levels, np.asarray(levels)[-2::-1]])
     pieces, holds = [], []
     for i, level in enumerate(levels):
         pieces.append(np.full(int(round(hold_s * rate_hz)), level))
@@ -71,18 +74,20 @@ class FoctSimulation:
 def foct_zero_bias(rng=None, segments=None, ar=(0.5, -0.2), sigma: float = 0.05, hold_s: float = 1200.0,
                    ramp_s: float = 600.0, rate_hz: float = 1.0, thermal_lag_s: float = 60.0,
                    self_heating: float = 0.0, phase_gains=(1.0, 0.9, 1.1), rated: float = 1000.0,
-                   logged: str = "all") -> FoctSimulation:
+                   logged: str = "all", cycle: bool = False, hysteresis: float = 0.0) -> FoctSimulation:
     """Simulated zero bias of the three phases of a FOCT over the chamber cycle (see the module doc).
     The device temperature lags the chamber by `thermal_lag_s` (first order) and sits `self_heating` °C
     above it; each phase has the drift law times its gain plus its own AR noise (coefficients `ar`,
     innovation σ `sigma`). logged: "all" (the recorder runs through the ramps) or "holds" (it records at
     each temperature point only, as seed 001's S1 reads: the log has a gap in t at every ramp, and the
-    noise has run on unseen through it)."""
+    noise has run on unseen through it). cycle: the chamber goes up the levels and back down. hysteresis: the drift
+    follows the device temperature through a play operator of this half-width (°C; heating and cooling then differ
+    by about 2 × hysteresis × the drift's slope)."""
     if logged not in ("all", "holds"):
         raise ValueError(f"logged: {logged!r} is not one of all, holds")
     rng = np.random.default_rng(rng)  # None, a seed or a Generator, as sim.simulate takes
     segments = default_segments() if segments is None else segments
-    t, chamber, holds = chamber_profile(hold_s=hold_s, ramp_s=ramp_s, rate_hz=rate_hz)
+    t, chamber, holds = chamber_profile(hold_s=hold_s, ramp_s=ramp_s, rate_hz=rate_hz, cycle=cycle)
     alpha = 1.0 - np.exp(-1.0 / (thermal_lag_s * rate_hz)) if thermal_lag_s > 0 else 1.0
     from scipy.signal import lfilter
 
@@ -90,7 +95,9 @@ def foct_zero_bias(rng=None, segments=None, ar=(0.5, -0.2), sigma: float = 0.05,
     device = device + self_heating
     lo, hi = segments[0]["range"][0], segments[-1]["range"][1]
     device = np.clip(device, lo, hi)  # the chamber never leaves the modelled span; rounding must not either
-    drift = drift_law(device, segments)
+    from ..drift import play
+
+    drift = drift_law(np.clip(play(device, hysteresis), lo, hi) if hysteresis > 0 else device, segments)
     columns = {"t": t, "temp": device, "temp_outside": chamber}
     phases = {}
     for name, gain in zip(("zero_bias", "zero_bias_b", "zero_bias_c"), phase_gains):
