@@ -1650,12 +1650,20 @@ def cmd_drift(args) -> int:
                                                continuous=args.continuous, ar_max_order=args.ar_max_order,
                                                steady_state=args.steady_state, rated=args.rated,
                                                accuracy_class=args.accuracy_class, drift_input=args.drift_input,
-                                               t=times)
+                                               t=times, spikes="drop" if args.drop_spikes else "keep")
         except drift.TemperatureGlitches as exc:  # said with their file lines (after the fit's size checks)
             lines = rec.line_numbers[exc.rows] if rec.line_numbers is not None else None
             raise ValueError(f"{args.file}: {temperature['column']}: "
                              + drift.glitch_words(temp, exc.rows, "line" if lines is not None else "row", lines)
                              ) from None
+        found = report["spikes"]
+        if found["rows"] and rec.line_numbers is not None:  # the spikes said by their file lines
+            said = drift.spike_words(found["rows"], found["sigmas"], dropped=found["dropped"])
+            lines = drift.spike_words(found["rows"], found["sigmas"], "line", rec.line_numbers[found["rows"]],
+                                      dropped=found["dropped"])
+            for key in ("warnings", "notes"):
+                report[key] = [lines if w == said else w for w in report[key]]
+            model.summary["fit_warnings"] = [lines if w == said else w for w in model.summary["fit_warnings"]]
         if temperature["column"] != "temp":  # the °F/K hint names the file's column, and the remedy its unit line
             said = drift.temperature_unit_hint(temp, breakpoints)
             named = drift.temperature_unit_hint(temp, breakpoints, name=temperature["column"])
@@ -2098,6 +2106,10 @@ def build_parser() -> argparse.ArgumentParser:
                                                              "per range (default 4)")
     df.add_argument("--significance", type=float, default=0.05, help="of the F-test (0.05 or 0.01)")
     df.add_argument("--continuous", action="store_true", help="drift continuous at the breakpoints")
+    df.add_argument("--drop-spikes", action="store_true",
+                    help="leave the zero bias's spikes (a readout's glitches: samples that leave the noise's course "
+                         "for at most 3 samples, farther than it can) out of the fit; without it they are named in a "
+                         "warning")
     df.add_argument("--ar-max-order", type=int, default=10,
                     help="highest AR order AIC may choose for the noise about the drift (default 10)")
     df.add_argument("--steady-state", action="store_true", help="Kalman filter with the steady-state gain")

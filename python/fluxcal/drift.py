@@ -415,6 +415,72 @@ def glitch_words(temp, rows, word: str = "row", labels=None) -> str:
             "empty and pass --bad-lines skip")
 
 
+# A zero-bias spike is flagged at this family-wise false-alarm rate over the log (Bonferroni): Gaussian noise about
+# the drift flags about one log in a hundred, a readout glitch 20–100 σ off is found whatever the log's length
+SPIKE_ALPHA = 0.01
+
+
+def zero_bias_spikes(noise, run: int = 3, breaks=()) -> tuple[np.ndarray, np.ndarray]:
+    """Rows where the zero bias's noise about the drift (`noise`, zero bias − a first drift model) leaves its course
+    for at most `run` samples farther than that noise can: a readout's glitch. For blocks of L = 1 … run samples, the
+    block's mean less the mean of its two neighbours — a linear function of the noise, so Gaussian noise leaves it
+    Gaussian (a running median's departures are not: on AR noise they flagged 1 % of a clean log) — against its own
+    scale, a running MAD (robust to the spikes), at Bonferroni's limit for SPIKE_ALPHA over the log's blocks,
+    standing off both neighbours on the same side (it comes back); each L after the shorter blocks found are
+    bridged. (0.2 % of samples 0.2–1 A off, σ 0.01 A, had turned an AR(1) 0.70 into AR(4) 0.08 … and passed through
+    the Kalman filter, with only "kurtosis 276" said.) No block is judged across a gap in time (`breaks`: the samples
+    after one). Returns (rows, their departures in their block's scale)."""
+    from scipy import stats
+    from scipy.ndimage import median_filter
+
+    x = np.array(noise, dtype=float)
+    n = x.size
+    rows, sizes = [], []
+    if n < 20 * run:
+        return np.zeros(0, dtype=int), np.zeros(0)
+    limit = float(stats.norm.isf(SPIKE_ALPHA / (2 * n * run)))
+    for length in range(1, run + 1):
+        k = np.arange(1, n - length)  # blocks x[k:k+length] with a neighbour on each side, within one stretch
+        k = k[~np.isin(k, [b - j for b in breaks for j in range(length + 1)])]
+        block = np.mean([x[k + j] for j in range(length)], axis=0)
+        d = block - 0.5 * (x[k - 1] + x[k + length])
+        # the scale where the block is: a running MAD (the noise about the drift grows where the drift is steep, by
+        # the thermometer's noise times f'(T): one MAD over the log flagged a newcomer's clean log 3 times at 5 σ)
+        size = int(np.clip(2 * (n // 40) + 1, 201, 4001))
+        scale = 1.4826 * median_filter(np.abs(d - np.median(d)), size=size, mode="mirror")  # (not the edge repeated)
+        if not np.any(scale > 0):
+            continue
+        scale = np.where(scale > 0, scale, np.inf)
+        # …and it comes back: the block stands off each neighbour, on the same side, by half of d at least (a kink
+        # of a misfit drift, flat then steep at a ramp's start, stands off one neighbour only)
+        left, right = block - x[k - 1], block - x[k + length]
+        back = (np.sign(left) == np.sign(right)) & (np.minimum(np.abs(left), np.abs(right)) >= 0.5 * np.abs(d))
+        found = np.flatnonzero((np.abs(d) > limit * scale) & back)
+        for i in found[np.argsort(-np.abs(d[found]))]:
+            start = int(k[i])
+            if any(start <= r < start + length for r in rows) or any(r in (start - 1, start + length) for r in rows):
+                continue  # (a block beside or over one found: the same spike seen again)
+            rows.extend(range(start, start + length))
+            sizes.extend([float(d[i] / scale[i])] * length)
+            x[start:start + length] = 0.5 * (x[start - 1] + x[start + length])  # bridged for the longer blocks
+    order = np.argsort(rows)
+    return np.asarray(rows, dtype=int)[order], np.asarray(sizes)[order]
+
+
+def spike_words(rows, sigmas, word: str = "row", labels=None, dropped: bool = False) -> str:
+    """`zero_bias_spikes`' rows said: where (`labels`, e.g. file lines, else the rows), how far off (`sigmas`, in the
+    noise's σ), what they do, and the remedy."""
+    labels = rows if labels is None else labels
+    shown = ", ".join(f"{word} {k}: {z:+.0f} σ" for z, k in zip(sigmas[:5], labels[:5]))
+    said = (f"{len(rows)} zero-bias sample(s) leave the noise's course and come back within 3 samples, farther than "
+            f"the noise about the drift can ({shown}{', …' if len(rows) > 5 else ''}): a readout's glitch")
+    if dropped:
+        return said + "; left out of the fit (the AR model, the Kalman filter and the class check)"
+    return (said + ", which distorts the AR model of the noise (its order and coefficients), passes through the "
+            "Kalman filter and fails the sample-by-sample class check; leave them out (--drop-spikes, "
+            "fit_pipeline(spikes=\"drop\")) or find the readout's fault")
+
+
 # The temperatures an FOCT's own thermometer reads in service: an outdoor substation's ambient to the rating of its
 # electronics, about −40…+85 °C (temperature_unit_hint).
 DEVICE_TEMPERATURES = (-40.0, 85.0)
@@ -607,7 +673,8 @@ def temperature_branch(temp) -> np.ndarray:
     of its last move of more than a turn (TURN_SHARE of its span, or 5× its sample-to-sample noise) — a play operator
     of that half-width, so a hold keeps the branch that reached it, across gaps in time too."""
     temp = np.asarray(temp, dtype=float)
-    noise = 1.4826 * float(np.median(np.abs(np.diff(temp) - np.median(np.diff(temp))))) / np.sqrt(2) if temp.size > 2 else 0.0
+    steps = np.diff(temp)
+    noise = 1.4826 * float(np.median(np.abs(steps - np.median(steps)))) / np.sqrt(2) if temp.size > 2 else 0.0
     turn = max(TURN_SHARE * float(np.ptp(temp)), 5.0 * noise, 1e-12)
     branch = np.zeros(temp.size, dtype=int)
     play, state = temp[0], 0
@@ -693,17 +760,22 @@ def _lagged(temp: np.ndarray, step: float, tau: float, breaks=()) -> np.ndarray:
 
 
 def thermal_lag(model: "DriftModel", compensated, temp, t=None, temp_outside=None, breaks=()) -> dict | None:
-    """Whether W − f(T) follows f(T_e) − f(T), T_e the logged temperature through a first-order lag τ: the sensing
-    element lagging the thermometer (a newcomer's coil 10 min behind its thermometer left residuals 16× the noise,
-    the AR model rejected, and nothing named) — and, where the log visits temperatures on both a heating and a
-    cooling branch (`temperature_branch`), whether it differs between them at the same temperature: hysteresis,
-    which stays through a hold where a lag's error dies away (a blind check's 3 °C hysteresis had been named a
-    383 s lag, and a lag longer than the holds was, judged at the holds alone, hysteresis). τ by profile over a
-    geometric grid; then OLS with Newey–West errors (statsmodels) of the compensated zero bias on that term and the
-    branch (±1 on the levels both branches visit, else 0). {"tau_s", "p_value", "share", "said", "holds",
-    "hysteresis": {"offset", "dead_band_c", "p_value", "share", "said", "on_holds", "difference_by_level" (heating
-    minus cooling, measured at the holds both branches hold at), "largest_difference", "at_level"} or None, "one_way": {"heating", "per_minute_of_lag"} or None}, or None when it cannot be judged (no
-    temperature change, too few samples, a regressor that is not f(T))."""
+    """What in W − f(T) a function of the logged temperature cannot follow, from the log's history:
+      - a lag: W − f(T) following f(T_e) − f(T), T_e the logged temperature through a first-order lag (a newcomer's
+        coil 10 min behind its thermometer left residuals 16× the noise and nothing named);
+      - hysteresis, where the log visits levels both heating and cooling (`temperature_branch`): W − f(T) following
+        f(P) − f(T), P the logged temperature through a dead band (a play operator), which stays through a hold where
+        a lag's error dies away (a blind check's 3 °C hysteresis had been named a 383 s lag);
+      - ageing, once the temperature has turned back: a trend in time.
+    The lag's τ and the dead band's half-width are profiled over geometric grids (each scaled by its fitted
+    coefficient); each feature is judged alone by OLS with Newey–West errors (statsmodels), p below LAG_P and at least
+    LAG_SHARE of the variance; of those, the one that explains most is named, then each other one while it still
+    takes LAG_SHARE of what is left beside those named (the rest in "fits_too": name → the one named instead).
+    {"tau_s", "p_value", "share", "said", "holds", "hysteresis": {"dead_band_c", "p_value", "share", "said",
+    "on_holds", "difference_by_level" (heating minus cooling, measured at the holds both branches hold at),
+    "largest_difference", "at_level"} or None, "ageing": {"per_hour", "p_value", "share", "said", "hours"} or None,
+    "fits_too", "one_way": {"heating", "per_minute_of_lag"} or None}, or None when it cannot be judged (no temperature
+    change, too few samples, a regressor that is not f(T), a flat drift model)."""
     import statsmodels.api as sm
 
     w = np.asarray(compensated, dtype=float)
@@ -727,13 +799,13 @@ def thermal_lag(model: "DriftModel", compensated, temp, t=None, temp_outside=Non
         return None  # a flat drift model: no lag can show
     branch = temperature_branch(temp)
     settled = ok & (np.abs(rate) <= SETTLED_RATE * np.percentile(np.abs(rate[ok]), 95))
-    holds = bool(settled.sum() >= 0.1 * ok.sum())  # without holds, on ramps of one rate, a lag and hysteresis look alike
+    holds = bool(settled.sum() >= 0.1 * ok.sum())  # without holds, on ramps of one rate, lag and hysteresis look alike
     maxlags = int(4 * (n / 100) ** (2 / 9))
     lag = _profiled(w, ok, lagged, maxlags)
     # τ from the fit: the profile's τ times its coefficient (a short τ scaled fits a long lag's ramps about as well,
     # and the product is the lag: a newcomer's 600 s coil gave 60 s × 10.1, 170 s × 3.54, 600 s × 1.00)
-    out = {"tau_s": float(taus[lag["best"]] * lag["coefficient"]), "p_value": lag["p"], "share": lag["share"], "said": lag["significant"],
-           "holds": holds, "hysteresis": None, "one_way": None}
+    out = {"tau_s": float(taus[lag["best"]] * lag["coefficient"]), "p_value": lag["p"], "share": lag["share"],
+           "said": lag["significant"], "holds": holds, "hysteresis": None, "ageing": None, "one_way": None}
     if _both_ways(ok, branch, temp) is not None:
         # hysteresis as a dead band of half-width r °C: the element's state a play operator of T (it moves only once
         # T has pushed it r away), exact through f rather than r·f'(T) (a 2 °C band on the steep range was off 25 %)
@@ -753,20 +825,35 @@ def thermal_lag(model: "DriftModel", compensated, temp, t=None, temp_outside=Non
                              "p_value": hyst["p"], "share": hyst["share"],
                              "said": hyst["significant"], "on_holds": holds, "difference_by_level": at,
                              "largest_difference": at[worst], "at_level": worst}
-        if lag["significant"] and hyst["significant"]:
-            # on holds not much longer than τ a lag and a dead band look alike: the one that fits better is named,
-            # the other too when it still takes LAG_SHARE of what is left (the two fitted together, HAC p)
-            X = sm.add_constant(np.column_stack([lagged[lag["best"]][ok], played[hyst["best"]][ok]]))
-            fit = sm.OLS(w[ok], X).fit(cov_type="HAC", cov_kwds={"maxlags": maxlags})
-            weaker, column = ("said", 1) if hyst["share"] > lag["share"] else ("hysteresis", 2)
-            left = 1.0 - max(lag["share"], hyst["share"])
-            beside = bool(fit.pvalues[column] < LAG_P and _term_share(w[ok], X, column) >= LAG_SHARE * left)
-            if weaker == "said":
-                out["said"], out["hysteresis"]["lag_fits_too"] = beside, not beside
-            else:
-                out["hysteresis"]["said"], out["hysteresis"]["lag_fits_too"] = beside, False
-                out["hysteresis_fits_too"] = not beside
     turned = set(np.unique(branch[branch != 0]).tolist())
+    features = {"lag": (lagged[lag["best"]], lag)}
+    if out["hysteresis"] is not None:
+        features["hysteresis"] = (played[hyst["best"]], hyst)
+    if len(turned) == 2:  # ageing: a trend in time, told from the temperature's once the temperature has turned back
+        hours = (time - time[0]) / 3600.0
+        trend = _profiled(w, ok, [hours], maxlags)
+        out["ageing"] = {"per_hour": trend["coefficient"], "p_value": trend["p"], "share": trend["share"],
+                         "said": bool(trend["p"] < LAG_P and trend["share"] >= LAG_SHARE), "hours": float(hours[-1])}
+        features["ageing"] = (hours, {**trend, "significant": out["ageing"]["said"]})
+    # a lag, a dead band and a trend in time can each stand in for another (on holds not much longer than τ a lag
+    # looks like a dead band; heating first and cooling later, a dead band like a trend): the one that fits best is
+    # named, then each other one too while it still takes LAG_SHARE of what is left beside those named (HAC p)
+    named = []
+    significant = [k for k, (_, r) in features.items() if r["significant"]]
+    for name in sorted(significant, key=lambda k: -features[k][1]["share"]):
+        if named:
+            X = sm.add_constant(np.column_stack([features[k][0][ok] for k in named + [name]]), has_constant="add")
+            fit = sm.OLS(w[ok], X).fit(cov_type="HAC", cov_kwds={"maxlags": maxlags})
+            beside = X[:, :-1]  # the share of var(w) those named leave
+            left = float(np.var(w[ok] - beside @ np.linalg.lstsq(beside, w[ok], rcond=None)[0]) / np.var(w[ok]))
+            if not (fit.pvalues[-1] < LAG_P and _term_share(w[ok], X, X.shape[1] - 1) >= LAG_SHARE * left):
+                out.setdefault("fits_too", {})[name] = named[0]  # significant alone, not beside those named
+                continue
+        named.append(name)
+    out["said"] = "lag" in named
+    for name in ("hysteresis", "ageing"):
+        if out.get(name) is not None:
+            out[name]["said"] = name in named
     if len(turned) == 1:  # one way only: a lag shifts the whole curve, hysteresis cannot show
         ramps = ok & ~settled
         minute = model.evaluate(np.clip(_lagged(temp, step, 60.0, breaks), temp.min(), temp.max()), outside="nan") - f
@@ -785,31 +872,46 @@ def one_way_note(lag: dict | None) -> str | None:
 
 
 def history_warnings(lag: dict | None, unit: str = "") -> list:
-    """What thermal_lag found said: a lag, hysteresis, or a log that runs the temperature one way without holds."""
+    """What thermal_lag found said: a lag, hysteresis, ageing, or a log that runs the temperature one way without
+    holds."""
     if lag is None:
         return []
     out = []
-    h = lag.get("hysteresis") or {}
+    h, a = lag.get("hysteresis") or {}, lag.get("ageing") or {}
+    also = lag.get("fits_too", {})
+    words = {"lag": f"a lag of about {lag['tau_s']:.3g} s",
+             "hysteresis": f"a dead band of ±{h.get('dead_band_c', 0):.2g} °C (hysteresis)",
+             "ageing": f"a trend of {a.get('per_hour', 0):.3g}{unit} per hour (ageing)"}
+    shares = {"lag": lag["share"], "hysteresis": h.get("share", 0.0), "ageing": a.get("share", 0.0)}
+
+    def too(name):  # what else, not named, fits nearly as well as a named one (80 % of its share alone)
+        others = [k for k, v in also.items() if v == name and shares[k] >= 0.8 * shares[name]]
+        return (f" ({' and '.join(words[k] for k in others)} fits almost as well: holds several times longer than "
+                "the lag, and a second cycle, tell them apart)") if others else ""
+
     if lag["said"]:
         out.append("the compensated zero bias follows the temperature's rate of change (Newey–West p "
                    f"{lag['p_value']:.2g}, {100 * lag['share']:.0f} % of its variance): the sensing element lags the "
                    f"thermometer by about {lag['tau_s']:.3g} s (first order) — the drift model, a function of the "
                    "logged temperature, cannot follow it on the ramps; put the thermometer at the element, log slower "
-                   "ramps, or judge the model on the holds"
-                   + (f" (a dead band of ±{h['dead_band_c']:.2g} °C, hysteresis, fits almost as well: holds several "
-                      "times longer than τ tell the two apart)" if lag.get("hysteresis_fits_too") else ""))
+                   "ramps, or judge the model on the holds" + too("lag"))
     if h.get("said"):
         out.append(f"the compensated zero bias differs between heating and cooling at the same temperature, by up to "
-                   f"{h['largest_difference']:.4g}{unit} at {h['at_level']:g} °C (heating minus cooling; as a dead band "
-                   f"of ±{h['dead_band_c']:.2g} °C; Newey–West p {h['p_value']:.2g}, {100 * h['share']:.0f} % of its "
-                   f"variance, {len(h['difference_by_level'])} levels visited both ways): "
+                   f"{h['largest_difference']:.4g}{unit} at {h['at_level']:g} °C (heating minus cooling; as a dead "
+                   f"band of ±{h['dead_band_c']:.2g} °C; Newey–West p {h['p_value']:.2g}, "
+                   f"{100 * h['share']:.0f} % of "
+                   f"its variance, {len(h['difference_by_level'])} levels visited both ways): "
                    + ("hysteresis" if h["on_holds"] else "hysteresis, or the sensing element lagging the thermometer "
                       "(without settled holds the two look alike)")
                    + " — a function of temperature cannot follow it and the model sits between the branches, about "
-                   f"{abs(h['largest_difference']) / 2:.3g}{unit} off each there, at the holds too; judge the class per "
-                   "branch (accuracy_drift does), or model the branch the device is on"
-                   + (f" (a lag of about {lag['tau_s']:.3g} s fits almost as well: holds several times longer than "
-                      "it tell the two apart)" if h.get("lag_fits_too") else ""))
+                   f"{abs(h['largest_difference']) / 2:.3g}{unit} off each there, at the holds too; judge the class "
+                   "per branch (accuracy_drift does), or model the branch the device is on" + too("hysteresis"))
+    if a.get("said"):
+        out.append(f"the compensated zero bias drifts with time by {a['per_hour']:.3g}{unit} per hour beyond the "
+                   f"temperature (Newey–West p {a['p_value']:.2g}, {100 * a['share']:.0f} % of its variance; "
+                   f"{a['per_hour'] * a['hours']:.3g}{unit} over this log's {a['hours']:.3g} h): ageing, or a slow "
+                   "warm-up of the electronics — the model is fitted to this log's mean and is off by that much per "
+                   "hour since; log again later and compare, or let the device settle before the cycle" + too("ageing"))
     one = lag.get("one_way")
     if one and not lag["holds"] and one["per_minute_of_lag"] > 0:  # (a flat drift model: a lag moves nothing)
         out.append(f"the log runs the temperature one way ({'heating' if one['heating'] else 'cooling'}) without "
@@ -895,7 +997,7 @@ def fit_pipeline(zero_bias, temp, temp_outside=None, regressor: str = "temp", br
                  max_order: int = 4, significance: float = 0.05, continuous: bool = False, ar_max_order: int = 10,
                  q: float | None = None, r: float | None = None, steady_state: bool = False, subseries: int = 20,
                  rated: float | None = None, accuracy_class: str = "0.2S", whiten: bool = True,
-                 drift_input: str = "zero_bias", t=None):
+                 drift_input: str = "zero_bias", t=None, spikes: str = "keep"):
     """Seed 001 end to end (module doc). drift_input: "zero_bias" (default, GLS on the zero bias) or
     "filtered" (the Kalman output L, seed 001 as written; module doc step 4). The AR model (report["ar"],
     model.settings["ar"], "fitted_to": "zero_bias - drift") is of the noise about a first drift model,
@@ -903,10 +1005,15 @@ def fit_pipeline(zero_bias, temp, temp_outside=None, regressor: str = "temp", br
     report["notes"] says so (drift_input="filtered" then has nothing to refit). t: the sample times; where
     they have gaps (timeseries.find_breaks: a recorder paused between temperature holds, lost lines) the
     whitening, the AR model and the Kalman filter do not reach across them and the filter starts again
-    after each (report["gaps"], a note). Without t the samples are taken as evenly spaced.
+    after each (report["gaps"], a note). Without t the samples are taken as evenly spaced. spikes: the zero
+    bias's spikes (`zero_bias_spikes`: a readout's glitches) are said in a warning ("keep", the default), left out
+    of the fit ("drop": the rows go, and with t each leaves a gap) or not looked for ("off"); report["spikes"] =
+    {"rows" (of the input), "sigmas", "dropped"}, and with "drop" the report's series are of the rows kept.
     Returns (DriftModel, report)."""
     if drift_input not in DRIFT_INPUTS:
         raise ValueError(f"drift_input: {drift_input!r} is not one of {', '.join(DRIFT_INPUTS)}")
+    if spikes not in ("keep", "drop", "off"):
+        raise ValueError(f"spikes: {spikes!r} is not one of keep, drop, off")
     w = _finite(ts.as_series(zero_bias, "zero_bias"), "zero_bias")
     temp = _finite(ts.as_series(temp, "temp"), "temp")
     if temp.size != w.size:
@@ -928,6 +1035,17 @@ def fit_pipeline(zero_bias, temp, temp_outside=None, regressor: str = "temp", br
     # the zero bias itself it also had to describe the drift (AIC went to max_order, Ljung–Box rejected it).
     first = fit_drift(w, temp, temp_outside, **drift_options)
     drift_first = first.evaluate(temp, temp_outside)
+    spike_rows, spike_sigmas = (zero_bias_spikes(w - drift_first, breaks=breaks) if spikes != "off"
+                                else (np.zeros(0, dtype=int), np.zeros(0)))
+    if spike_rows.size and spikes == "drop":
+        kept = np.setdiff1d(np.arange(w.size), spike_rows)
+        model, report = fit_pipeline(
+            w[kept], temp[kept], None if temp_outside is None else np.asarray(temp_outside, float)[kept], regressor,
+            breakpoints, max_order, significance, continuous, ar_max_order, q, r, steady_state, subseries, rated,
+            accuracy_class, whiten, drift_input, None if t is None else np.asarray(t, float)[kept], spikes="off")
+        report["spikes"] = {"rows": spike_rows.tolist(), "sigmas": np.asarray(spike_sigmas).tolist(), "dropped": True}
+        report["notes"].append(spike_words(spike_rows, report["spikes"]["sigmas"], dropped=True))
+        return model, report
     noise, noise_mean = ts.zero_mean(w - drift_first)
     # Ljung–Box over twice the largest order AIC may take, so correlation beyond max_order is tested too.
     ar = ts.fit_ar(noise, max_order=ar_max_order, whiteness_lags=max(10, 2 * ar_max_order), breaks=breaks)
@@ -978,7 +1096,10 @@ def fit_pipeline(zero_bias, temp, temp_outside=None, regressor: str = "temp", br
                      "warnings": ar.summary["warnings"], "fitted_to": AR_FITTED_TO},
               "orders": [s["order"] for s in model.segments],
               "drift_span_before": drift_span(w, temp), "drift_span_after": drift_span(compensated, temp),
-              "compensated": compensated, "filtered": filtered, "notes": gap_notes + notes}
+              "compensated": compensated, "filtered": filtered, "notes": gap_notes + notes,
+              "spikes": {"rows": spike_rows.tolist(), "sigmas": np.asarray(spike_sigmas).tolist(), "dropped": False}}
+    if spike_rows.size:
+        report["warnings"].append(spike_words(spike_rows, report["spikes"]["sigmas"]))
     # One temperature level (every sample in one 5 °C bin): both spans are 0 and say nothing about the model.
     one_level = len(level_means(w, temp)) < 2
     report["drift_reduction"] = (float("nan") if one_level else

@@ -74,7 +74,8 @@ class FoctSimulation:
 def foct_zero_bias(rng=None, segments=None, ar=(0.5, -0.2), sigma: float = 0.05, hold_s: float = 1200.0,
                    ramp_s: float = 600.0, rate_hz: float = 1.0, thermal_lag_s: float = 60.0,
                    self_heating: float = 0.0, phase_gains=(1.0, 0.9, 1.1), rated: float = 1000.0,
-                   logged: str = "all", cycle: bool = False, hysteresis: float = 0.0) -> FoctSimulation:
+                   logged: str = "all", cycle: bool = False, hysteresis: float = 0.0,
+                   ageing: float = 0.0) -> FoctSimulation:
     """Simulated zero bias of the three phases of a FOCT over the chamber cycle (see the module doc).
     The device temperature lags the chamber by `thermal_lag_s` (first order) and sits `self_heating` °C
     above it; each phase has the drift law times its gain plus its own AR noise (coefficients `ar`,
@@ -82,7 +83,8 @@ def foct_zero_bias(rng=None, segments=None, ar=(0.5, -0.2), sigma: float = 0.05,
     each temperature point only, as seed 001's S1 reads: the log has a gap in t at every ramp, and the
     noise has run on unseen through it). cycle: the chamber goes up the levels and back down. hysteresis: the drift
     follows the device temperature through a play operator of this half-width (°C; heating and cooling then differ
-    by about 2 × hysteresis × the drift's slope)."""
+    by about 2 × hysteresis × the drift's slope). ageing: a trend of the zero bias in time (amperes per hour, times
+    each phase's gain)."""
     if logged not in ("all", "holds"):
         raise ValueError(f"logged: {logged!r} is not one of all, holds")
     rng = np.random.default_rng(rng)  # None, a seed or a Generator, as sim.simulate takes
@@ -98,6 +100,7 @@ def foct_zero_bias(rng=None, segments=None, ar=(0.5, -0.2), sigma: float = 0.05,
     from ..drift import play
 
     drift = drift_law(np.clip(play(device, hysteresis), lo, hi) if hysteresis > 0 else device, segments)
+    drift = drift + ageing * t / 3600.0
     columns = {"t": t, "temp": device, "temp_outside": chamber}
     phases = {}
     for name, gain in zip(("zero_bias", "zero_bias_b", "zero_bias_c"), phase_gains):
