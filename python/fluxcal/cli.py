@@ -1624,6 +1624,13 @@ def _zero_bias_recording(args, column: str):
     return rec
 
 
+def _reword(report: dict, model, said: str, named: str, keys=("warnings",)) -> None:
+    """One of the drift fit's messages (`said`) in the file's words (`named`), in the report and in the model."""
+    for key in keys:
+        report[key] = [named if w == said else w for w in report[key]]
+    model.summary["fit_warnings"] = [named if w == said else w for w in model.summary["fit_warnings"]]
+
+
 def cmd_drift(args) -> int:
     """`fluxcal drift fit FILE -o MODEL.json` and `fluxcal drift apply MODEL.json FILE -o OUT` (seed 001)."""
     from . import drift
@@ -1657,18 +1664,18 @@ def cmd_drift(args) -> int:
                              + drift.glitch_words(temp, exc.rows, "line" if lines is not None else "row", lines)
                              ) from None
         found = report["spikes"]
-        if found["rows"] and rec.line_numbers is not None:  # the spikes said by their file lines
-            said = drift.spike_words(found["rows"], found["sigmas"], dropped=found["dropped"])
-            lines = drift.spike_words(found["rows"], found["sigmas"], "line", rec.line_numbers[found["rows"]],
-                                      dropped=found["dropped"])
-            for key in ("warnings", "notes"):
-                report[key] = [lines if w == said else w for w in report[key]]
-            model.summary["fit_warnings"] = [lines if w == said else w for w in model.summary["fit_warnings"]]
+        u = f" {rec.units[args.column]}" if rec.units.get(args.column) else ""  # the file's unit of the column
+        # the fit's messages said again in the file's words: its lines, its column, its unit
+        if found["rows"] and rec.line_numbers is not None:
+            _reword(report, model, drift.spike_words(found["rows"], found["sigmas"], dropped=found["dropped"]),
+                    drift.spike_words(found["rows"], found["sigmas"], "line", rec.line_numbers[found["rows"]],
+                                      dropped=found["dropped"]), ("warnings", "notes"))
+        for said, named in zip(drift.history_warnings(report.get("thermal_lag")),
+                               drift.history_warnings(report.get("thermal_lag"), u)):
+            _reword(report, model, said, named)
         if temperature["column"] != "temp":  # the °F/K hint names the file's column, and the remedy its unit line
-            said = drift.temperature_unit_hint(temp, breakpoints)
             named = drift.temperature_unit_hint(temp, breakpoints, name=temperature["column"])
-            report["warnings"] = [named if w == said else w for w in report["warnings"]]
-            model.summary["fit_warnings"] = [named if w == said else w for w in model.summary["fit_warnings"]]
+            _reword(report, model, drift.temperature_unit_hint(temp, breakpoints), named)
             if "temperature_unit_hint" in model.summary:
                 model.summary["temperature_unit_hint"] = named
         model.settings["source"] = str(args.file)
@@ -1676,7 +1683,6 @@ def cmd_drift(args) -> int:
         # the model's temperatures are °C whatever the file's; apply converts its file's alike
         model.settings["temperature"] = {**temperature, "outside": args.outside_column if outside is not None else None}
         pre, ar = report["preprocess"], report["ar"]
-        u = f" {rec.units[args.column]}" if rec.units.get(args.column) else ""  # the file's unit of the column
         print(f"{args.column}: {len(rec)} samples, mean {pre['mean']:.6g}{u}")
         if temperature["column"] != "temp" or temperature["unit"] != "C":
             converted = {"C": "", "F": " in °F, converted to °C", "K": " in K, converted to °C"}[temperature["unit"]]
@@ -1702,6 +1708,9 @@ def cmd_drift(args) -> int:
             lo, hi = seg["range"]
             print(f"  range [{lo:g}, {hi:g}]: order {seg['order']}, {seg['samples']} samples, residual RMS "
                   f"{seg['residual_rms']:.4g}{u}")
+        if model.steps() and not args.continuous:  # the output steps there as the device crosses
+            print("  the model steps by " + ", ".join(f"{step:+.4g}{u} at {where:g} °C" for where, step in model.steps())
+                  + " (each range fitted on its own; --continuous joins them)")
         print(f"  drift over the temperature span (per-level means, peak to peak): "
               f"{report['drift_span_before']:.4g}{u} -> {report['drift_span_after']:.4g}{u} "
               + (f"({report['drift_reduction']:.1f}x smaller)" if np.isfinite(report["drift_reduction"]) else

@@ -124,6 +124,18 @@ class DriftModel:
         return all(np.isfinite(a) and np.isfinite(b) and a < b for a, b in edges) and all(
             b == c for (_, b), (c, _) in zip(edges[:-1], edges[1:]))
 
+    def steps(self) -> list:
+        """[(T, f just above T − f just below)] at each inner breakpoint T: what the compensated output steps by as
+        the device crosses it (each range's polynomial is fitted on its own unless `continuous`; a blind check's
+        0.025 A at 30 °C, a third of the 0.2S budget at 1 %, had gone unsaid). Empty for the difference regressor
+        (its polynomial's variable is not the temperature that crosses)."""
+        if self.regressor != "temp":
+            return []
+        poly = np.polynomial.polynomial.polyval
+        return [(float(b["range"][0]), float(poly(b["range"][0], b["coefficients"])
+                                             - poly(b["range"][0], a["coefficients"])))
+                for a, b in zip(self.segments[:-1], self.segments[1:])]
+
     def span(self) -> tuple:
         """(lo, hi): the coldest edge of the model's ranges and the hottest (°C; the ranges are contiguous)."""
         return float(self.segments[0]["range"][0]), float(self.segments[-1]["range"][1])

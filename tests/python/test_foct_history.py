@@ -118,6 +118,9 @@ def test_drift_fit_names_the_spikes_by_their_file_lines(tmp_path, capsys):
     assert main(["drift", "fit", str(path), "-o", str(tmp_path / "m.json")]) == 0
     out = capsys.readouterr().out
     assert f"3 zero-bias sample(s) leave the noise's course" in out and f"line {first + rows[0]}: " in out, out
+    # (and the steps at the breakpoints, which the model makes as the device crosses them, 0.025 A unsaid before)
+    model = drift.DriftModel.load(tmp_path / "m.json")
+    assert "the model steps by " + f"{model.steps()[0][1]:+.4g} at 0 °C" in out
     assert main(["drift", "fit", str(path), "-o", str(tmp_path / "m2.json"), "--drop-spikes"]) == 0
     out = capsys.readouterr().out
     assert "left out of the fit" in out and f"line {first + rows[0]}: " in out and "warning: 3 zero-bias" not in out
