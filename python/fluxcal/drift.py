@@ -1122,6 +1122,17 @@ def fit_pipeline(zero_bias, temp, temp_outside=None, regressor: str = "temp", br
             f"{report['drift_span_after']:.4g}, per-level means): the model does not describe this drift — a "
             "dependence on the inside–outside difference (--regressor difference), on the rate of change, or "
             "hysteresis? Do not apply it as it is")
+    if regressor == "difference" and not one_level:
+        # the other regressor tried: at settled holds the inside–outside difference is nearly constant (self-heating)
+        # and a blind check's model of it was three constants, 2.9× smaller a drift where the temperature gave 65×
+        other = fit_drift(w, temp, None, **{**drift_options, "regressor": "temp"})
+        span = drift_span(other.compensate(w, temp), temp)
+        if span < 0.5 * report["drift_span_after"]:
+            report["warnings"].append(
+                f"the device temperature explains this drift better than the inside–outside difference: compensated "
+                f"with it the spread over temperature is {span:.4g}, against {report['drift_span_after']:.4g} "
+                f"(per-level means, {report['drift_span_after'] / max(span, 1e-300):.3g}× wider with the "
+                "difference); fit with --regressor temp")
     lag = thermal_lag(model, compensated, temp, t, temp_outside, breaks)
     if lag is not None:
         report["thermal_lag"] = lag

@@ -77,8 +77,10 @@ def assert_agree(got, model, report, zero_bias):
         np.testing.assert_allclose(got[key], report[key], rtol=RTOL, atol=RTOL * scale)
     for key in ("drift_span_before", "drift_span_after", "drift_reduction"):
         assert got[key] == pytest.approx(report[key], rel=RTOL)
-    # The C++ summary also carries the drift model's (and the Kalman filter's) warnings.
-    assert got["warnings"] == report["warnings"] + model.summary["warnings"]
+    # The C++ summary also carries the drift model's (and the Kalman filter's) warnings. (Python's checks of the data
+    # beyond the pipeline are its own: here, the other regressor tried.)
+    own = ("the device temperature explains this drift better",)
+    assert got["warnings"] == [w for w in report["warnings"] if not w.startswith(own)] + model.summary["warnings"]
     for key in ("accuracy", "accuracy_drift"):
         if key not in report:
             assert got[key] is None
