@@ -1657,7 +1657,8 @@ def cmd_drift(args) -> int:
                                                continuous=args.continuous, ar_max_order=args.ar_max_order,
                                                steady_state=args.steady_state, rated=args.rated,
                                                accuracy_class=args.accuracy_class, drift_input=args.drift_input,
-                                               t=times, spikes="drop" if args.drop_spikes else "keep")
+                                               t=times if times is not None else rec.time(),  # (a sample rate's)
+                                               spikes="drop" if args.drop_spikes else "keep")
         except drift.TemperatureGlitches as exc:  # said with their file lines (after the fit's size checks)
             lines = rec.line_numbers[exc.rows] if rec.line_numbers is not None else None
             raise ValueError(f"{args.file}: {temperature['column']}: "

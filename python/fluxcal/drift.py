@@ -451,6 +451,7 @@ def zero_bias_spikes(noise, run: int = 3, breaks=()) -> tuple[np.ndarray, np.nda
     if n < 20 * run:
         return np.zeros(0, dtype=int), np.zeros(0)
     limit = float(stats.norm.isf(SPIKE_ALPHA / (2 * n * run)))
+    course = median_filter(x, size=2 * run + 1, mode="mirror")
     for length in range(1, run + 1):
         k = np.arange(1, n - length)  # blocks x[k:k+length] with a neighbour on each side, within one stretch
         k = k[~np.isin(k, [b - j for b in breaks for j in range(length + 1)])]
@@ -464,9 +465,12 @@ def zero_bias_spikes(noise, run: int = 3, breaks=()) -> tuple[np.ndarray, np.nda
             continue
         scale = np.where(scale > 0, scale, np.inf)
         # …and it comes back: the block stands off each neighbour, on the same side, by half of d at least (a kink
-        # of a misfit drift, flat then steep at a ramp's start, stands off one neighbour only)
+        # of a misfit drift, flat then steep at a ramp's start, stands off one neighbour only), and off the running
+        # median of 2·run + 1 samples (a clean sample between two glitches stands off both, not off the median)
         left, right = block - x[k - 1], block - x[k + length]
-        back = (np.sign(left) == np.sign(right)) & (np.minimum(np.abs(left), np.abs(right)) >= 0.5 * np.abs(d))
+        off = block - np.mean([course[k + j] for j in range(length)], axis=0)
+        back = ((np.sign(left) == np.sign(right)) & (np.minimum(np.abs(left), np.abs(right)) >= 0.5 * np.abs(d))
+                & (np.sign(off) == np.sign(d)) & (np.abs(off) >= 0.5 * np.abs(d)))
         found = np.flatnonzero((np.abs(d) > limit * scale) & back)
         for i in found[np.argsort(-np.abs(d[found]))]:
             start = int(k[i])
@@ -817,7 +821,8 @@ def thermal_lag(model: "DriftModel", compensated, temp, t=None, temp_outside=Non
     # τ from the fit: the profile's τ times its coefficient (a short τ scaled fits a long lag's ramps about as well,
     # and the product is the lag: a newcomer's 600 s coil gave 60 s × 10.1, 170 s × 3.54, 600 s × 1.00)
     out = {"tau_s": float(taus[lag["best"]] * lag["coefficient"]), "p_value": lag["p"], "share": lag["share"],
-           "said": lag["significant"], "holds": holds, "hysteresis": None, "ageing": None, "one_way": None}
+           "said": lag["significant"], "holds": holds, "hysteresis": None, "ageing": None, "one_way": None,
+           "seconds": t is not None}  # (without times, τ is in samples)
     if _both_ways(ok, branch, temp) is not None:
         # hysteresis as a dead band of half-width r °C: the element's state a play operator of T (it moves only once
         # T has pushed it r away), exact through f rather than r·f'(T) (a 2 °C band on the steep range was off 25 %)
@@ -841,7 +846,8 @@ def thermal_lag(model: "DriftModel", compensated, temp, t=None, temp_outside=Non
     features = {"lag": (lagged[lag["best"]], lag)}
     if out["hysteresis"] is not None:
         features["hysteresis"] = (played[hyst["best"]], hyst)
-    if len(turned) == 2:  # ageing: a trend in time, told from the temperature's once the temperature has turned back
+    if len(turned) == 2 and t is not None:  # ageing: a trend in time (times needed), told from the temperature's
+        # once the temperature has turned back
         hours = (time - time[0]) / 3600.0
         trend = _profiled(w, ok, [hours], maxlags)
         out["ageing"] = {"per_hour": trend["coefficient"], "p_value": trend["p"], "share": trend["share"],
@@ -883,6 +889,33 @@ def one_way_note(lag: dict | None) -> str | None:
             "difference between heating and cooling at the same temperature, cannot show in it")
 
 
+def _p_words(p: float) -> str:
+    """A p-value said: "< 1e-16" below double precision's resolution of 1 − p (a "p 0" read as a typo)."""
+    return "< 1e-16" if p < 1e-16 else f"{p:.2g}"
+
+
+def _branch_level_means(values, temp, lag: dict | None) -> list:
+    """The per-level means of the class check on the drift alone, per branch at the levels the log heats and cools
+    through with a quarter of the level's samples on each branch (averaged together, a 3 °C hysteresis's 0.056 A off
+    each branch had cancelled to 0.004 A and the class "MET"; a branch's few ramp samples alone had failed clean slow
+    noise), else per level."""
+    if not lag or not lag.get("hysteresis"):
+        return list(level_means(values, temp).values())
+    branch = temperature_branch(temp)
+    bins = np.round(temp / 5.0) * 5.0
+    out = []
+    for b in np.unique(bins):
+        here = bins == b
+        counts = [np.sum(here & (branch == side)) for side in (-1, 1)]
+        if min(counts) >= 0.25 * here.sum():
+            out += [float(values[here & (branch == side)].mean()) for side in (-1, 1)]
+            rest = here & (branch == 0)
+            out += [float(values[rest].mean())] if rest.any() else []
+        else:
+            out.append(float(values[here].mean()))
+    return out
+
+
 def history_warnings(lag: dict | None, unit: str = "") -> list:
     """What thermal_lag found said: a lag, hysteresis, ageing, or a log that runs the temperature one way without
     holds."""
@@ -891,7 +924,8 @@ def history_warnings(lag: dict | None, unit: str = "") -> list:
     out = []
     h, a = lag.get("hysteresis") or {}, lag.get("ageing") or {}
     also = lag.get("fits_too", {})
-    words = {"lag": f"a lag of about {lag['tau_s']:.3g} s",
+    secs = "s" if lag.get("seconds", True) else "samples (no times given)"
+    words = {"lag": f"a lag of about {lag['tau_s']:.3g} {secs}",
              "hysteresis": f"a dead band of ±{h.get('dead_band_c', 0):.2g} °C (hysteresis)",
              "ageing": f"a trend of {a.get('per_hour', 0):.3g}{unit} per hour (ageing)"}
     shares = {"lag": lag["share"], "hysteresis": h.get("share", 0.0), "ageing": a.get("share", 0.0)}
@@ -899,18 +933,18 @@ def history_warnings(lag: dict | None, unit: str = "") -> list:
     def too(name):  # what else, not named, fits nearly as well as a named one (80 % of its share alone)
         others = [k for k, v in also.items() if v == name and shares[k] >= 0.8 * shares[name]]
         return (f" ({' and '.join(words[k] for k in others)} fits almost as well: holds several times longer than "
-                "the lag, and a second cycle, tell them apart)") if others else ""
+                "the lag, or another cycle, tell them apart)") if others else ""
 
     if lag["said"]:
         out.append("the compensated zero bias follows the temperature's rate of change (Newey–West p "
-                   f"{lag['p_value']:.2g}, {100 * lag['share']:.0f} % of its variance): the sensing element lags the "
-                   f"thermometer by about {lag['tau_s']:.3g} s (first order) — the drift model, a function of the "
+                   f"{_p_words(lag['p_value'])}, {100 * lag['share']:.0f} % of its variance): the sensing element lags the "
+                   f"thermometer by about {lag['tau_s']:.3g} {secs} (first order) — the drift model, a function of the "
                    "logged temperature, cannot follow it on the ramps; put the thermometer at the element, log slower "
                    "ramps, or judge the model on the holds" + too("lag"))
     if h.get("said"):
         out.append(f"the compensated zero bias differs between heating and cooling at the same temperature, by up to "
                    f"{h['largest_difference']:.4g}{unit} at {h['at_level']:g} °C (heating minus cooling; as a dead "
-                   f"band of ±{h['dead_band_c']:.2g} °C; Newey–West p {h['p_value']:.2g}, "
+                   f"band of ±{h['dead_band_c']:.2g} °C; Newey–West p {_p_words(h['p_value'])}, "
                    f"{100 * h['share']:.0f} % of "
                    f"its variance, {len(h['difference_by_level'])} levels visited both ways): "
                    + ("hysteresis" if h["on_holds"] else "hysteresis, or the sensing element lagging the thermometer "
@@ -920,7 +954,7 @@ def history_warnings(lag: dict | None, unit: str = "") -> list:
                    "per branch (accuracy_drift does), or model the branch the device is on" + too("hysteresis"))
     if a.get("said"):
         out.append(f"the compensated zero bias drifts with time by {a['per_hour']:.3g}{unit} per hour beyond the "
-                   f"temperature (Newey–West p {a['p_value']:.2g}, {100 * a['share']:.0f} % of its variance; "
+                   f"temperature (Newey–West p {_p_words(a['p_value'])}, {100 * a['share']:.0f} % of its variance; "
                    f"{a['per_hour'] * a['hours']:.3g}{unit} over this log's {a['hours']:.3g} h): ageing, or a slow "
                    "warm-up of the electronics — the model is fitted to this log's mean and is off by that much per "
                    "hour since; log again later and compare, or let the device settle before the cycle" + too("ageing"))
@@ -928,7 +962,8 @@ def history_warnings(lag: dict | None, unit: str = "") -> list:
     if one and not lag["holds"] and one["per_minute_of_lag"] > 0:  # (a flat drift model: a lag moves nothing)
         out.append(f"the log runs the temperature one way ({'heating' if one['heating'] else 'cooling'}) without "
                    "settled holds: a lag of the sensing element behind the thermometer shifts the whole drift curve "
-                   "here and no fit can tell it from the drift — each minute of lag moves the model by up to "
+                   "here and no fit can tell it from the drift — each "
+                   + ("minute" if lag.get("seconds", True) else "60 samples") + " of lag moves the model by up to "
                    f"{one['per_minute_of_lag']:.3g}{unit} at steady state; log holds at settled temperatures, or a "
                    "ramp back")
     return out
@@ -1047,8 +1082,12 @@ def fit_pipeline(zero_bias, temp, temp_outside=None, regressor: str = "temp", br
     # the zero bias itself it also had to describe the drift (AIC went to max_order, Ljung–Box rejected it).
     first = fit_drift(w, temp, temp_outside, **drift_options)
     drift_first = first.evaluate(temp, temp_outside)
-    spike_rows, spike_sigmas = (zero_bias_spikes(w - drift_first, breaks=breaks) if spikes != "off"
-                                else (np.zeros(0, dtype=int), np.zeros(0)))
+    # no block judged across a gap, nor where the temperature crosses a breakpoint: the model steps there (a hold
+    # on 30 °C with a thermometer's 0.01 °C noise had 288 "spikes", its crossings)
+    ranges = np.searchsorted([s["range"][0] for s in first.segments[1:]], temp)
+    crossings = np.flatnonzero(np.diff(ranges)) + 1
+    spike_rows, spike_sigmas = (zero_bias_spikes(w - drift_first, breaks=sorted(set(breaks) | set(crossings.tolist())))
+                                if spikes != "off" else (np.zeros(0, dtype=int), np.zeros(0)))
     if spike_rows.size and spikes == "drop":
         kept = np.setdiff1d(np.arange(w.size), spike_rows)
         model, report = fit_pipeline(
@@ -1143,9 +1182,7 @@ def fit_pipeline(zero_bias, temp, temp_outside=None, regressor: str = "temp", br
         report["accuracy"] = accuracy(residual_filtered, rated, accuracy_class)
         # per level and per branch where the log visits a level both ways: averaged together, a 3 °C hysteresis's
         # 0.056 A off each branch had cancelled to 0.004 A, and the class "MET"
-        branch = temperature_branch(temp) if lag is not None and lag.get("hysteresis") else np.zeros(temp.size)
-        report["accuracy_drift"] = accuracy([m for b in np.unique(branch) for m in level_means(
-            compensated[branch == b], temp[branch == b]).values()], rated, accuracy_class)
+        report["accuracy_drift"] = accuracy(_branch_level_means(compensated, temp, lag), rated, accuracy_class)
     # The data's warnings go with the model (summary["warnings"] keeps the drift fit's own; drift apply and
     # export-c repeat both: fit_warnings), the ones that decide whether the model may be exported as it is also
     # by name: the AR model's whiteness test (noise_model_rejected) and a unit hint (temperature_unit_hint).

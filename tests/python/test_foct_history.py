@@ -136,3 +136,19 @@ def test_the_difference_regressor_is_compared_with_the_temperature():
     assert len(said) == 1 and "--regressor temp" in said[0]
     _, report = drift.fit_pipeline(c["zero_bias"], c["temp"], t=c["t"])
     assert not any("inside–outside difference" in w for w in report["warnings"])
+
+
+def test_spikes_two_samples_apart_and_a_hold_on_a_breakpoint():
+    """A review: two glitches two samples apart had the clean sample between them named (and dropped) instead; and a
+    hold on the 30 °C breakpoint, its thermometer's 0.01 °C noise crossing it, had 288 "spikes" — the model's step."""
+    sim, w, _ = with_spikes(count=0)
+    c = sim.columns
+    w[[5000, 5002]] += 0.5
+    _, report = drift.fit_pipeline(w, c["temp"], t=c["t"])
+    assert report["spikes"]["rows"] == [5000, 5002]
+    sim = foct_zero_bias(rng=2, ar=(0.98,), sigma=0.01)
+    c = sim.columns
+    temp = c["temp"] + 0.01 * np.random.default_rng(102).standard_normal(c["temp"].size)
+    model, report = drift.fit_pipeline(c["zero_bias"], temp, t=c["t"])
+    assert abs(dict(model.steps())[30.0]) > 0.05  # the step the crossings see
+    assert report["spikes"]["rows"] == []
