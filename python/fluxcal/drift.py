@@ -938,7 +938,9 @@ def history_warnings(lag: dict | None, unit: str = "") -> list:
     if lag["said"]:
         out.append("the compensated zero bias follows the temperature's rate of change (Newey–West p "
                    f"{_p_words(lag['p_value'])}, {100 * lag['share']:.0f} % of its variance): the sensing element lags the "
-                   f"thermometer by about {lag['tau_s']:.3g} {secs} (first order) — the drift model, a function of the "
+                   f"thermometer by about {lag['tau_s']:.3g} {secs} (first order"
+                   + ("; a lower bound: on a log that runs one way the drift model takes up part of the lag"
+                      if lag.get("one_way") else "") + ") — the drift model, a function of the "
                    "logged temperature, cannot follow it on the ramps; put the thermometer at the element, log slower "
                    "ramps, or judge the model on the holds" + too("lag"))
     if h.get("said"):
