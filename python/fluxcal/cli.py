@@ -1709,8 +1709,9 @@ def cmd_drift(args) -> int:
             lo, hi = seg["range"]
             print(f"  range [{lo:g}, {hi:g}]: order {seg['order']}, {seg['samples']} samples, residual RMS "
                   f"{seg['residual_rms']:.4g}{u}")
-        if model.steps() and not args.continuous:  # the output steps there as the device crosses
-            print("  the model steps by " + ", ".join(f"{step:+.4g}{u} at {where:g} °C" for where, step in model.steps())
+        steps = [] if args.continuous else model.steps()  # the output steps there as the device crosses
+        if steps:
+            print("  the model steps by " + ", ".join(f"{step:+.4g}{u} at {where:g} °C" for where, step in steps)
                   + " (each range fitted on its own; --continuous joins them)")
         print(f"  drift over the temperature span (per-level means, peak to peak): "
               f"{report['drift_span_before']:.4g}{u} -> {report['drift_span_after']:.4g}{u} "

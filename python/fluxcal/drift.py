@@ -279,6 +279,11 @@ def accuracy(residual, rated: float, accuracy_class: str = "0.2S") -> dict:
             "met": all(p["met"] for p in points)}
 
 
+def level_bins(temp, step: float = 5.0) -> np.ndarray:
+    """Each sample's temperature level: its temperature rounded to a multiple of `step` (the chamber's holds)."""
+    return np.round(np.asarray(temp, dtype=float) / step) * step
+
+
 def level_means(values, temp, step: float = 5.0) -> dict:
     """Mean of `values` in each temperature bin of width `step` centred on multiples of `step`
     (the chamber's hold levels)."""
@@ -290,7 +295,7 @@ def level_means(values, temp, step: float = 5.0) -> dict:
         raise ValueError("values: empty, no samples to average")
     if not (np.isfinite(step) and step > 0):  # 0 divided by zero, a negative step was taken as given
         raise ValueError(f"step: {step} must be a finite number > 0")
-    bins = np.round(temp / step) * step
+    bins = level_bins(temp, step)
     return {float(b): float(values[bins == b].mean()) for b in np.unique(bins)}
 
 
@@ -750,7 +755,7 @@ def _term_share(w: np.ndarray, X: np.ndarray, j) -> float:
 def _both_ways(rows: np.ndarray, branch: np.ndarray, temp: np.ndarray) -> np.ndarray | None:
     """`rows` (mask) on the temperature levels (level_means' 5 °C bins) that both branches visit with ≥ 10 samples
     each, or None when fewer than 2 levels (or 50 samples) are."""
-    bins = np.round(temp / 5.0) * 5.0
+    bins = level_bins(temp)
     both = np.zeros(temp.size, dtype=bool)
     levels = 0
     for b in np.unique(bins[rows]):
@@ -823,7 +828,8 @@ def thermal_lag(model: "DriftModel", compensated, temp, t=None, temp_outside=Non
     out = {"tau_s": float(taus[lag["best"]] * lag["coefficient"]), "p_value": lag["p"], "share": lag["share"],
            "said": lag["significant"], "holds": holds, "hysteresis": None, "ageing": None, "one_way": None,
            "seconds": t is not None}  # (without times, τ is in samples)
-    if _both_ways(ok, branch, temp) is not None:
+    both_ways = _both_ways(ok, branch, temp)
+    if both_ways is not None:
         # hysteresis as a dead band of half-width r °C: the element's state a play operator of T (it moves only once
         # T has pushed it r away), exact through f rather than r·f'(T) (a 2 °C band on the steep range was off 25 %)
         span = float(np.ptp(temp))
@@ -831,9 +837,9 @@ def thermal_lag(model: "DriftModel", compensated, temp, t=None, temp_outside=Non
         played = [model.evaluate(np.clip(play(temp, r), temp.min(), temp.max()), outside="nan") - f for r in bands]
         hyst = _profiled(w, ok, played, maxlags)
         # heating minus cooling as measured, level by level: at the holds where both branches hold there
-        levels = np.round(temp / 5.0) * 5.0
+        levels = level_bins(temp)
         both = _both_ways(settled, branch, temp) if holds else None
-        both = _both_ways(ok, branch, temp) if both is None else both
+        both = both_ways if both is None else both
         at = {float(b): float(np.mean(w[both & (levels == b) & (branch > 0)]) - np.mean(w[both & (levels == b) &
                                                                                           (branch < 0)]))
               for b in np.unique(levels[both])}
@@ -902,7 +908,7 @@ def _branch_level_means(values, temp, lag: dict | None) -> list:
     if not lag or not lag.get("hysteresis"):
         return list(level_means(values, temp).values())
     branch = temperature_branch(temp)
-    bins = np.round(temp / 5.0) * 5.0
+    bins = level_bins(temp)
     out = []
     for b in np.unique(bins):
         here = bins == b
