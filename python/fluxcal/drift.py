@@ -437,7 +437,7 @@ def glitch_words(temp, rows, word: str = "row", labels=None) -> str:
 SPIKE_ALPHA = 0.01
 
 
-def zero_bias_spikes(noise, run: int = 3, breaks=()) -> tuple[np.ndarray, np.ndarray]:
+def zero_bias_spikes(noise, run: int = 3, breaks=(), steps=()) -> tuple[np.ndarray, np.ndarray]:
     """Rows where the zero bias's noise about the drift (`noise`, zero bias − a first drift model) leaves its course
     for at most `run` samples farther than that noise can: a readout's glitch. For blocks of L = 1 … run samples, the
     block's mean less the mean of its two neighbours — a linear function of the noise, so Gaussian noise leaves it
@@ -446,7 +446,9 @@ def zero_bias_spikes(noise, run: int = 3, breaks=()) -> tuple[np.ndarray, np.nda
     standing off both neighbours on the same side (it comes back); each L after the shorter blocks found are
     bridged. (0.2 % of samples 0.2–1 A off, σ 0.01 A, had turned an AR(1) 0.70 into AR(4) 0.08 … and passed through
     the Kalman filter, with only "kurtosis 276" said.) No block is judged across a gap in time (`breaks`: the samples
-    after one). Returns (rows, their departures in their block's scale)."""
+    after one) or a step of the model (`steps`: where the temperature crosses a breakpoint); a block at the log's
+    ends or beside a gap is judged against its one neighbour, at that difference's own scale (the first reading after
+    a recorder's pause is as likely to glitch as any). Returns (rows, their departures in their block's scale)."""
     from scipy import stats
     from scipy.ndimage import median_filter
 
@@ -457,14 +459,17 @@ def zero_bias_spikes(noise, run: int = 3, breaks=()) -> tuple[np.ndarray, np.nda
         return np.zeros(0, dtype=int), np.zeros(0)
     limit = float(stats.norm.isf(SPIKE_ALPHA / (2 * n * run)))
     course = median_filter(x, size=2 * run + 1, mode="mirror")
+    cuts = sorted(set(int(b) for b in breaks) | set(int(b) for b in steps))
+    starts, ends = [0] + cuts, cuts + [n]  # the stretches no block reaches across
+    gaps = set(int(b) for b in breaks)
+    size = int(np.clip(2 * (n // 40) + 1, 201, 4001))  # the running MAD's window
     for length in range(1, run + 1):
         k = np.arange(1, n - length)  # blocks x[k:k+length] with a neighbour on each side, within one stretch
-        k = k[~np.isin(k, [b - j for b in breaks for j in range(length + 1)])]
+        k = k[~np.isin(k, [b - j for b in cuts for j in range(length + 1)])]
         block = np.mean([x[k + j] for j in range(length)], axis=0)
         d = block - 0.5 * (x[k - 1] + x[k + length])
         # the scale where the block is: a running MAD (the noise about the drift grows where the drift is steep, by
         # the thermometer's noise times f'(T): one MAD over the log flagged a newcomer's clean log 3 times at 5 σ)
-        size = int(np.clip(2 * (n // 40) + 1, 201, 4001))
         scale = 1.4826 * median_filter(np.abs(d - np.median(d)), size=size, mode="mirror")  # (not the edge repeated)
         if not np.any(scale > 0):
             continue
@@ -476,6 +481,28 @@ def zero_bias_spikes(noise, run: int = 3, breaks=()) -> tuple[np.ndarray, np.nda
         off = block - np.mean([course[k + j] for j in range(length)], axis=0)
         back = ((np.sign(left) == np.sign(right)) & (np.minimum(np.abs(left), np.abs(right)) >= 0.5 * np.abs(d))
                 & (np.sign(off) == np.sign(d)) & (np.abs(off) >= 0.5 * np.abs(d)))
+        # at an end (the log's, or a gap's): the block less its one neighbour, scaled by the running MAD there times
+        # the ratio of the one-sided difference's MAD to the two-sided one's over the log (1.15 for white noise)
+        one = block - x[k + length]
+        ratio = float(np.median(np.abs(one - np.median(one))) / max(np.median(np.abs(d - np.median(d))), 1e-300))
+        edge_k, edge_d, edge_scale, edge_back = [], [], [], []
+        for lo, hi in zip(starts, ends):
+            if hi - lo < 2 * run + 2:
+                continue
+            for at, nb, judged in ((lo, lo + length, lo == 0 or lo in gaps), (hi - length, hi - length - 1,
+                                                                             hi == n or hi in gaps)):
+                if not judged:
+                    continue
+                here = float(np.mean(x[at:at + length]))
+                dd = here - x[nb]
+                near = int(np.clip(np.searchsorted(k, at), 0, k.size - 1))
+                edge_k.append(at)
+                edge_d.append(dd)
+                edge_scale.append(scale[near] * ratio)
+                o = here - float(np.mean(course[at:at + length]))
+                edge_back.append(np.sign(o) == np.sign(dd) and abs(o) >= 0.5 * abs(dd))
+        k, d = np.concatenate([k, edge_k]).astype(int), np.concatenate([d, edge_d])
+        scale, back = np.concatenate([scale, edge_scale]), np.concatenate([back, np.asarray(edge_back, dtype=bool)])
         found = np.flatnonzero((np.abs(d) > limit * scale) & back)
         for i in found[np.argsort(-np.abs(d[found]))]:
             start = int(k[i])
@@ -483,7 +510,10 @@ def zero_bias_spikes(noise, run: int = 3, breaks=()) -> tuple[np.ndarray, np.nda
                 continue  # (a block beside or over one found: the same spike seen again)
             rows.extend(range(start, start + length))
             sizes.extend([float(d[i] / scale[i])] * length)
-            x[start:start + length] = 0.5 * (x[start - 1] + x[start + length])  # bridged for the longer blocks
+            # bridged for the longer blocks: the mean of its neighbours (the one it has at an end)
+            neighbours = [x[j] for j in (start - 1, start + length) if 0 <= j < n and not (j < start and start in cuts)
+                          and not (j >= start + length and start + length in cuts)]
+            x[start:start + length] = np.mean(neighbours)
     order = np.argsort(rows)
     return np.asarray(rows, dtype=int)[order], np.asarray(sizes)[order]
 
@@ -727,20 +757,74 @@ def play(x, half_width: float) -> np.ndarray:
     return out
 
 
-def _profiled(w: np.ndarray, ok: np.ndarray, features: list, maxlags: int) -> dict:
-    """The feature of `features` (one per grid value) that fits w best with a constant (least squares), its HAC
-    (Newey–West) p and its share of var(w): {"best", "coefficient", "p", "share", "significant"} (LAG_P, LAG_SHARE,
-    a positive coefficient: the effect's own sign)."""
+def _profiled(w: np.ndarray, ok: np.ndarray, features: list, maxlags: int, given=(), signed: bool = False) -> dict:
+    """The feature of `features` (one per grid value) that fits w best beside the `given` columns and a constant
+    (least squares), its HAC (Newey–West) p and the share of var(w) it takes added last: {"best", "coefficient",
+    "p", "share", "significant"} — significant: p below LAG_P, a share of at least LAG_SHARE of what the given
+    columns leave, and (unless `signed`) a positive coefficient, the effect's own sign."""
     import statsmodels.api as sm
 
-    designs = [sm.add_constant(g[ok], has_constant="add") for g in features]
+    rest = sm.add_constant(np.column_stack([np.asarray(g)[ok] for g in given]) if len(given) else
+                           np.empty((int(ok.sum()), 0)), has_constant="add")
+    designs = [np.column_stack([rest, g[ok]]) for g in features]
     rss = [float(np.sum((w[ok] - X @ np.linalg.lstsq(X, w[ok], rcond=None)[0]) ** 2)) for X in designs]
     best = int(np.argmin(rss))
     fit = sm.OLS(w[ok], designs[best]).fit(cov_type="HAC", cov_kwds={"maxlags": maxlags})
-    share = _term_share(w[ok], designs[best], 1)
-    p = float(fit.pvalues[1])
-    return {"best": best, "coefficient": float(fit.params[1]), "p": p, "share": share,
-            "significant": bool(p < LAG_P and share >= LAG_SHARE and fit.params[1] > 0)}
+    share = _term_share(w[ok], designs[best], -1)
+    left = float(np.var(w[ok] - rest @ np.linalg.lstsq(rest, w[ok], rcond=None)[0]) / max(np.var(w[ok]), 1e-300))
+    p, coefficient = float(fit.pvalues[-1]), float(fit.params[-1])
+    return {"best": best, "coefficient": coefficient, "p": p, "share": share,
+            "significant": bool(p < LAG_P and share >= LAG_SHARE * left and (signed or coefficient > 0))}
+
+
+def _named_jointly(w: np.ndarray, ok: np.ndarray, grids: dict, alone: dict, maxlags: int) -> tuple[list, dict]:
+    """Which of the features in `grids` (name → (columns over its grid, signed)) the log shows, and their fits
+    together: the one significant alone that explains most is named, then, one at a time, the feature that is
+    significant beside those named (each re-profiled beside them) and explains most; after each, the named ones'
+    grid values are re-profiled beside one another until they settle, and one no longer significant beside the
+    others is dropped (and not tried again). Judged alone, one effect's feature takes up
+    part of another's (a lag's error on a cycle looks like −0.010 A/h of ageing, so 0.01 A/h of ageing beside it had
+    read −0.0003 A/h and gone unsaid; a lag beside a ±2 °C dead band read 1362 s for 540 s). → (named, fits)."""
+    named, fits, dropped = [], {}, set()
+    while True:
+        trial = {}
+        for name, (columns, signed) in grids.items():
+            if name in named or name in dropped:
+                continue
+            given = [grids[k][0][fits[k]["best"]] for k in named]
+            trial[name] = _profiled(w, ok, columns, maxlags, given, signed) if named else alone[name]
+        trial = {k: r for k, r in trial.items() if r["significant"]}
+        if not trial:
+            return named, fits
+        name = max(trial, key=lambda k: trial[k]["share"])
+        named.append(name)
+        fits[name] = trial[name]
+        while len(named) > 1:
+            _settle(w, ok, grids, named, fits, maxlags)
+            weak = [k for k in named if not fits[k]["significant"]]  # taken up by those named after it
+            if not weak:
+                break
+            gone = min(weak, key=lambda k: fits[k]["share"])
+            named.remove(gone)
+            dropped.add(gone)
+            fits.pop(gone)
+        if len(named) == 1:  # (left alone: judged alone again)
+            fits[named[0]] = alone[named[0]]
+            if not alone[named[0]]["significant"]:
+                dropped.add(named.pop())
+
+
+def _settle(w: np.ndarray, ok: np.ndarray, grids: dict, named: list, fits: dict, maxlags: int) -> None:
+    """The named features' grid values re-profiled beside one another (coordinate descent) until they settle."""
+    for _ in range(4):
+        moved = False
+        for k in named:
+            given = [grids[j][0][fits[j]["best"]] for j in named if j != k]
+            was = fits[k]["best"]
+            fits[k] = _profiled(w, ok, grids[k][0], maxlags, given, grids[k][1])
+            moved |= fits[k]["best"] != was
+        if not moved:
+            return
 
 
 def _term_share(w: np.ndarray, X: np.ndarray, j) -> float:
@@ -789,16 +873,16 @@ def thermal_lag(model: "DriftModel", compensated, temp, t=None, temp_outside=Non
         a lag's error dies away (a blind check's 3 °C hysteresis had been named a 383 s lag);
       - ageing, once the temperature has turned back: a trend in time.
     The lag's τ and the dead band's half-width are profiled over geometric grids (each scaled by its fitted
-    coefficient); each feature is judged alone by OLS with Newey–West errors (statsmodels), p below LAG_P and at least
-    LAG_SHARE of the variance; of those, the one that explains most is named, then each other one while it still
-    takes LAG_SHARE of what is left beside those named (the rest in "fits_too": name → the one named instead).
-    {"tau_s", "p_value", "share", "said", "holds", "hysteresis": {"dead_band_c", "p_value", "share", "said",
-    "on_holds", "difference_by_level" (heating minus cooling, measured at the holds both branches hold at),
-    "largest_difference", "at_level"} or None, "ageing": {"per_hour", "p_value", "share", "said", "hours"} or None,
-    "fits_too", "one_way": {"heating", "per_minute_of_lag"} or None}, or None when it cannot be judged (no temperature
-    change, too few samples, a regressor that is not f(T), a flat drift model)."""
-    import statsmodels.api as sm
-
+    coefficient); each feature is judged by OLS with Newey–West errors (statsmodels), p below LAG_P and at least
+    LAG_SHARE of the variance: the one that explains most alone is named, then each other one that still takes
+    LAG_SHARE of what is left beside those named, and the sizes of those named are fitted together
+    (`_named_jointly`; one significant alone but not beside those named goes in "fits_too": name → the first named).
+    {"tau_s", "p_value", "share", "share_alone", "said", "holds", "hysteresis": {"dead_band_c", "p_value", "share",
+    "share_alone", "said", "on_holds", "difference_by_level" (heating minus cooling, measured at the holds both
+    branches hold at), "largest_difference", "at_level"} or None, "ageing": {"per_hour", "p_value", "share",
+    "share_alone", "said", "hours"} or None, "fits_too", "one_way": {"heating", "per_minute_of_lag"} or None} — p and
+    share of a named feature beside the others named, of the rest alone — or None when it cannot be judged (no
+    temperature change, too few samples, a regressor that is not f(T), a flat drift model)."""
     w = np.asarray(compensated, dtype=float)
     temp = np.asarray(temp, dtype=float)
     n = w.size
@@ -822,62 +906,54 @@ def thermal_lag(model: "DriftModel", compensated, temp, t=None, temp_outside=Non
     settled = ok & (np.abs(rate) <= SETTLED_RATE * np.percentile(np.abs(rate[ok]), 95))
     holds = bool(settled.sum() >= 0.1 * ok.sum())  # without holds, on ramps of one rate, lag and hysteresis look alike
     maxlags = int(4 * (n / 100) ** (2 / 9))
-    lag = _profiled(w, ok, lagged, maxlags)
-    # τ from the fit: the profile's τ times its coefficient (a short τ scaled fits a long lag's ramps about as well,
-    # and the product is the lag: a newcomer's 600 s coil gave 60 s × 10.1, 170 s × 3.54, 600 s × 1.00)
-    out = {"tau_s": float(taus[lag["best"]] * lag["coefficient"]), "p_value": lag["p"], "share": lag["share"],
-           "said": lag["significant"], "holds": holds, "hysteresis": None, "ageing": None, "one_way": None,
+    grids, scales = {"lag": (lagged, False)}, {"lag": taus}  # name → (columns over its grid, either sign)
+    out = {"holds": holds, "hysteresis": None, "ageing": None, "one_way": None,
            "seconds": t is not None}  # (without times, τ is in samples)
     both_ways = _both_ways(ok, branch, temp)
     if both_ways is not None:
         # hysteresis as a dead band of half-width r °C: the element's state a play operator of T (it moves only once
         # T has pushed it r away), exact through f rather than r·f'(T) (a 2 °C band on the steep range was off 25 %)
-        span = float(np.ptp(temp))
-        bands = span * np.geomspace(2e-3, 0.1, 10)
-        played = [model.evaluate(np.clip(play(temp, r), temp.min(), temp.max()), outside="nan") - f for r in bands]
-        hyst = _profiled(w, ok, played, maxlags)
-        # heating minus cooling as measured, level by level: at the holds where both branches hold there
-        levels = level_bins(temp)
-        both = _both_ways(settled, branch, temp) if holds else None
-        both = both_ways if both is None else both
-        at = {float(b): float(np.mean(w[both & (levels == b) & (branch > 0)]) - np.mean(w[both & (levels == b) &
-                                                                                          (branch < 0)]))
-              for b in np.unique(levels[both])}
-        worst = max(at, key=lambda b: abs(at[b]))
-        out["hysteresis"] = {"dead_band_c": float(bands[hyst["best"]] * hyst["coefficient"]),  # (as τ above)
-                             "p_value": hyst["p"], "share": hyst["share"],
-                             "said": hyst["significant"], "on_holds": holds, "difference_by_level": at,
-                             "largest_difference": at[worst], "at_level": worst}
+        scales["hysteresis"] = float(np.ptp(temp)) * np.geomspace(2e-3, 0.1, 10)
+        grids["hysteresis"] = ([model.evaluate(np.clip(play(temp, r), temp.min(), temp.max()), outside="nan") - f
+                                for r in scales["hysteresis"]], False)
+        out["hysteresis"] = {"on_holds": holds}
     turned = set(np.unique(branch[branch != 0]).tolist())
-    features = {"lag": (lagged[lag["best"]], lag)}
-    if out["hysteresis"] is not None:
-        features["hysteresis"] = (played[hyst["best"]], hyst)
     if len(turned) == 2 and t is not None:  # ageing: a trend in time (times needed), told from the temperature's
         # once the temperature has turned back
         hours = (time - time[0]) / 3600.0
-        trend = _profiled(w, ok, [hours], maxlags)
-        out["ageing"] = {"per_hour": trend["coefficient"], "p_value": trend["p"], "share": trend["share"],
-                         "said": bool(trend["p"] < LAG_P and trend["share"] >= LAG_SHARE), "hours": float(hours[-1])}
-        features["ageing"] = (hours, {**trend, "significant": out["ageing"]["said"]})
+        grids["ageing"], scales["ageing"] = ([hours], True), [1.0]
+        out["ageing"] = {"hours": float(hours[-1])}
     # a lag, a dead band and a trend in time can each stand in for another (on holds not much longer than τ a lag
-    # looks like a dead band; heating first and cooling later, a dead band like a trend): the one that fits best is
-    # named, then each other one too while it still takes LAG_SHARE of what is left beside those named (HAC p)
-    named = []
-    significant = [k for k, (_, r) in features.items() if r["significant"]]
-    for name in sorted(significant, key=lambda k: -features[k][1]["share"]):
-        if named:
-            X = sm.add_constant(np.column_stack([features[k][0][ok] for k in named + [name]]), has_constant="add")
-            fit = sm.OLS(w[ok], X).fit(cov_type="HAC", cov_kwds={"maxlags": maxlags})
-            beside = X[:, :-1]  # the share of var(w) those named leave
-            left = float(np.var(w[ok] - beside @ np.linalg.lstsq(beside, w[ok], rcond=None)[0]) / np.var(w[ok]))
-            if not (fit.pvalues[-1] < LAG_P and _term_share(w[ok], X, X.shape[1] - 1) >= LAG_SHARE * left):
-                out.setdefault("fits_too", {})[name] = named[0]  # significant alone, not beside those named
-                continue
-        named.append(name)
-    out["said"] = "lag" in named
-    for name in ("hysteresis", "ageing"):
-        if out.get(name) is not None:
-            out[name]["said"] = name in named
+    # looks like a dead band; heating first and cooling later, a dead band like a trend): named one at a time,
+    # each beside those named before, and their sizes fitted together
+    alone = {k: _profiled(w, ok, columns, maxlags, signed=signed) for k, (columns, signed) in grids.items()}
+    named, together = _named_jointly(w, ok, grids, alone, maxlags)
+    for k in grids:
+        fit = together.get(k, alone[k])  # (a feature not named: its fit alone)
+        # a size from the fit: the profile's grid value times its coefficient (a short τ scaled fits a long lag's
+        # ramps about as well, and the product is the lag: a newcomer's 600 s coil gave 60 s × 10.1, 170 s × 3.54,
+        # 600 s × 1.00)
+        size = float(scales[k][fit["best"]] * fit["coefficient"])
+        found = {"p_value": fit["p"], "share": fit["share"], "share_alone": alone[k]["share"], "said": k in named}
+        if k == "lag":
+            out.update({"tau_s": size, **found})
+        else:
+            out[k].update({"dead_band_c" if k == "hysteresis" else "per_hour": size, **found})
+        if named and k not in named and alone[k]["significant"]:
+            out.setdefault("fits_too", {})[k] = named[0]  # significant alone, not beside those named
+    if out["hysteresis"] is not None:
+        # heating minus cooling as measured, level by level, at the holds where both branches hold there — with the
+        # other effects named taken out (cooling comes later: ageing's 0.02 A/h had doubled a 2 °C band's difference)
+        others = sum((together[k]["coefficient"] * grids[k][0][together[k]["best"]] for k in named
+                      if k != "hysteresis"), np.zeros(n))
+        levels = level_bins(temp)
+        both = _both_ways(settled, branch, temp) if holds else None
+        both = both_ways if both is None else both
+        at = {float(b): float(np.mean((w - others)[both & (levels == b) & (branch > 0)]) -
+                              np.mean((w - others)[both & (levels == b) & (branch < 0)]))
+              for b in np.unique(levels[both])}
+        worst = max(at, key=lambda b: abs(at[b]))
+        out["hysteresis"].update({"difference_by_level": at, "largest_difference": at[worst], "at_level": worst})
     if len(turned) == 1:  # one way only: a lag shifts the whole curve, hysteresis cannot show
         ramps = ok & ~settled
         minute = model.evaluate(np.clip(_lagged(temp, step, 60.0, breaks), temp.min(), temp.max()), outside="nan") - f
@@ -934,9 +1010,9 @@ def history_warnings(lag: dict | None, unit: str = "") -> list:
     words = {"lag": f"a lag of about {lag['tau_s']:.3g} {secs}",
              "hysteresis": f"a dead band of ±{h.get('dead_band_c', 0):.2g} °C (hysteresis)",
              "ageing": f"a trend of {a.get('per_hour', 0):.3g}{unit} per hour (ageing)"}
-    shares = {"lag": lag["share"], "hysteresis": h.get("share", 0.0), "ageing": a.get("share", 0.0)}
+    shares = {"lag": lag["share_alone"], "hysteresis": h.get("share_alone", 0.0), "ageing": a.get("share_alone", 0.0)}
 
-    def too(name):  # what else, not named, fits nearly as well as a named one (80 % of its share alone)
+    def too(name):  # what else, not named, fits nearly as well as a named one (80 % of its share, both alone)
         others = [k for k, v in also.items() if v == name and shares[k] >= 0.8 * shares[name]]
         return (f" ({' and '.join(words[k] for k in others)} fits almost as well: holds several times longer than "
                 "the lag, or another cycle, tell them apart)") if others else ""
@@ -1094,7 +1170,7 @@ def fit_pipeline(zero_bias, temp, temp_outside=None, regressor: str = "temp", br
     # on 30 °C with a thermometer's 0.01 °C noise had 288 "spikes", its crossings)
     ranges = np.searchsorted([s["range"][0] for s in first.segments[1:]], temp)
     crossings = np.flatnonzero(np.diff(ranges)) + 1
-    spike_rows, spike_sigmas = (zero_bias_spikes(w - drift_first, breaks=sorted(set(breaks) | set(crossings.tolist())))
+    spike_rows, spike_sigmas = (zero_bias_spikes(w - drift_first, breaks=breaks, steps=crossings.tolist())
                                 if spikes != "off" else (np.zeros(0, dtype=int), np.zeros(0)))
     if spike_rows.size and spikes == "drop":
         kept = np.setdiff1d(np.arange(w.size), spike_rows)

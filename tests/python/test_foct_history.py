@@ -15,6 +15,13 @@ def fit(sim, temp=None):
     return drift.fit_pipeline(c["zero_bias"], c["temp"] if temp is None else temp, t=c["t"], rated=1000.0)
 
 
+def thermometer(sim, tau_s=60.0):
+    """The chamber's temperature as a thermometer τ behind it sees it (1 Hz)."""
+    a = 1.0 - np.exp(-1.0 / tau_s)
+    chamber = sim.columns["temp_outside"]
+    return lfilter([a], [1.0, a - 1.0], chamber, zi=[chamber[0] * (1.0 - a)])[0]
+
+
 def test_hysteresis_is_named_with_its_dead_band_and_judged_per_branch():
     sim = foct_zero_bias(rng=0, cycle=True, hysteresis=2.0)
     _, report = fit(sim)
@@ -41,10 +48,7 @@ def test_a_lag_longer_than_the_holds_is_a_lag_not_hysteresis():
     """The element 10 min behind the chamber, the thermometer 1 min: on 20 min holds the lag's error is still there
     at their ends, where a test on the holds alone took it for hysteresis."""
     sim = foct_zero_bias(rng=1, cycle=True, thermal_lag_s=600.0)
-    a = 1.0 - np.exp(-1.0 / 60.0)
-    chamber = sim.columns["temp_outside"]
-    thermometer = lfilter([a], [1.0, a - 1.0], chamber, zi=[chamber[0] * (1.0 - a)])[0]
-    _, report = fit(sim, thermometer)
+    _, report = fit(sim, thermometer(sim))
     found = report["thermal_lag"]
     assert found["said"] and 350.0 < found["tau_s"] < 700.0, found  # about 540 s
     assert not found["hysteresis"]["said"]
@@ -70,6 +74,20 @@ def test_ageing_is_told_from_hysteresis_once_the_temperature_turns_back():
     assert len(said) == 1 and "per hour beyond the temperature" in said[0]
     _, report = fit(foct_zero_bias(rng=3, ageing=0.02))  # one way: time and temperature move together
     assert report["thermal_lag"]["ageing"] is None
+
+
+def test_two_effects_together_are_both_named_with_their_sizes():
+    """Judged alone each feature takes up part of the other: ageing beside a dead band had been missed (the band
+    read ±1.1 °C for ±2), a 540 s lag beside it read 1362 s. Named one beside the other, sized together."""
+    found = fit(foct_zero_bias(rng=0, cycle=True, ageing=0.02, hysteresis=2.0))[1]["thermal_lag"]
+    assert found["hysteresis"]["said"] and found["ageing"]["said"] and not found["said"], found
+    assert 1.5 < found["hysteresis"]["dead_band_c"] < 2.5 and 0.014 < found["ageing"]["per_hour"] < 0.026
+    # the measured difference between the branches with the ageing taken out: near the band's alone (0.695 A)
+    assert 0.6 < found["hysteresis"]["largest_difference"] < 0.8
+    sim = foct_zero_bias(rng=1, cycle=True, hysteresis=2.0, thermal_lag_s=600.0)
+    found = fit(sim, thermometer(sim))[1]["thermal_lag"]
+    assert found["said"] and found["hysteresis"]["said"] and not found["ageing"]["said"], found
+    assert 350.0 < found["tau_s"] < 700.0 and 1.5 < found["hysteresis"]["dead_band_c"] < 3.0  # ~540 s, 2 °C
 
 
 def test_a_log_that_runs_one_way_without_holds_says_what_a_lag_would_do():
@@ -152,3 +170,18 @@ def test_spikes_two_samples_apart_and_a_hold_on_a_breakpoint():
     model, report = drift.fit_pipeline(c["zero_bias"], temp, t=c["t"])
     assert abs(dict(model.steps())[30.0]) > 0.05  # the step the crossings see
     assert report["spikes"]["rows"] == []
+
+
+def test_spikes_at_the_logs_ends_and_beside_its_gaps():
+    """A recorder that logs the holds only: the first reading after each pause had not been looked at (nor the log's
+    first and last), for want of a neighbour on each side; there it is judged against its one neighbour."""
+    sim = foct_zero_bias(rng=0, ar=(0.7,), sigma=0.01, logged="holds")
+    c = sim.columns
+    gaps = np.flatnonzero(np.diff(c["t"]) > 1.5) + 1
+    _, clean = drift.fit_pipeline(c["zero_bias"], c["temp"], t=c["t"])
+    assert gaps.size > 10 and clean["spikes"]["rows"] == []
+    want = [0, int(gaps[0]), int(gaps[1]) - 1, c["t"].size - 1]
+    w = c["zero_bias"].copy()
+    w[want] += [0.2, -0.2, 0.2, -0.2]  # 14 σ of the noise
+    _, report = drift.fit_pipeline(w, c["temp"], t=c["t"])
+    assert report["spikes"]["rows"] == want
