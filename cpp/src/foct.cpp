@@ -78,6 +78,23 @@ double drift_span(const SeriesRef& values, const SeriesRef& temp, double step) {
   return hi->mean - lo->mean;
 }
 
+Eigen::MatrixXd play(const SeriesRef& x, const Eigen::Ref<const Eigen::VectorXd>& half_widths,
+                     const std::string& name) {
+  check_series(x, name, 1, "a play operator");
+  for (double r : half_widths)
+    if (!(r >= 0.0)) throw Error("play: half-width " + std::to_string(r) + " of " + name + " is not ≥ 0");
+  Eigen::MatrixXd out(x.size(), half_widths.size());
+  for (Eigen::Index j = 0; j < half_widths.size(); ++j) {
+    const double r = half_widths[j];
+    double state = x[0];
+    for (Eigen::Index k = 0; k < x.size(); ++k) {
+      state = std::clamp(state, x[k] - r, x[k] + r);
+      out(k, j) = state;
+    }
+  }
+  return out;
+}
+
 double kalman_dc_gain(const ArKalman& kalman) {
   const Eigen::Index n = kalman.order();
   Eigen::MatrixXd a = Eigen::MatrixXd::Zero(n, n);

@@ -165,6 +165,9 @@ void bind_foct(py::module_& m) {
   m.def("foct_drift_span", [](const SeriesRef& values, const SeriesRef& temp, double step) {
     return fluxcal::drift_span(values, temp, step);
   }, "values"_a.noconvert(), "temp"_a.noconvert(), "step"_a = 5.0);
+  m.def("play", [](const SeriesRef& x, const Eigen::VectorXd& half_widths, const std::string& name) {
+    return fluxcal::play(x, half_widths, name);
+  }, "x"_a.noconvert(), "half_widths"_a, "name"_a = "x");
   m.def("kalman_dc_gain", [](const Eigen::VectorXd& a, double q, double r, const fluxcal::KalmanOptions& options) {
     return fluxcal::kalman_dc_gain(fluxcal::ArKalman(a, q, r, options));
   }, "a"_a, "q"_a, "r"_a, "options"_a);

@@ -254,6 +254,8 @@ def calibration_shared_errors(calibration: "RingCalibration", fields, offsets: b
             if offsets:
                 G[:, i, a, i, a, 1] = -1.0 / calibration.gains[i, a]
     sigma = np.zeros((m, 2, 2, m, 2, 2))
+    if calibration.reference_covariance is not None:  # a reference meter's error per pose: the same at every sensor
+        sigma[:] = calibration.reference_covariance.reshape(m, 2, 2, m, 2, 2)
     for i in range(m):
         if calibration.sensor_covariance is not None:  # the axes' correlation too
             sigma[i, :, :, i, :, :] = calibration.sensor_covariance[i].reshape(2, 2, 2, 2)
@@ -303,6 +305,12 @@ class RingCalibration:
     # below LACK_OF_FIT_P its model missed (a field that does not follow the currents, an axis misaligned), and its
     # residual_sigma and covariance hold that miss, not the noise. None without repeats.
     lack_of_fit_p: np.ndarray | None = None   # (n_sensors, 2)
+    # The reference's relative error per pose that calibrate_ring found beyond the sensors' noise (one meter reading
+    # of the currents per pose: the same error at every sensor of the pose; _reference_scatter), as a standard
+    # deviation, and the covariance it leaves across the sensors' (γx, bx, γy, by) — its diagonal blocks are in
+    # sensor_covariance, the others tie the sensors' errors (calibration_shared_errors). None when none was found.
+    reference_scatter: float | None = None
+    reference_covariance: np.ndarray | None = None  # (n_sensors, 4, n_sensors, 4)
     # calibrate_ring_in_field's: the field that did not follow the currents in the calibration run, tesla in the cable
     # frame — {"terms_t": [[re, im] of b₀, b₁, …]}, B(z) = Σ bₙ (z̄/R)ⁿ: b₀ at the ring's centre, b₁ its change
     # across the radius, … — or None
@@ -393,6 +401,9 @@ class RingCalibration:
         for name in ("repeat_sigma", "repeat_dof", "lack_of_fit_p", "sensor_covariance"):
             if getattr(self, name) is not None:
                 stats[name] = getattr(self, name)[keep]
+        if self.reference_covariance is not None:
+            stats.update(reference_scatter=self.reference_scatter,
+                         reference_covariance=self.reference_covariance[np.ix_(keep, range(4), keep, range(4))])
         return RingCalibration(self.offsets[keep], self.gains[keep], self.method,
                                [self.sensors[k] for k in keep] if self.sensors else [], background=self.background,
                                **stats)
@@ -401,9 +412,11 @@ class RingCalibration:
         d = {"method": self.method, "offsets": self.offsets.tolist(), "gains": self.gains.tolist()}
         if self.residual_sigma is not None and self.covariance is not None:
             d.update(residual_sigma=self.residual_sigma.tolist(), covariance=self.covariance.tolist())
-        for name in ("repeat_sigma", "repeat_dof", "lack_of_fit_p", "sensor_covariance"):
+        for name in ("repeat_sigma", "repeat_dof", "lack_of_fit_p", "sensor_covariance", "reference_covariance"):
             if getattr(self, name) is not None:
                 d[name] = getattr(self, name).tolist()
+        if self.reference_scatter is not None:
+            d["reference_scatter"] = self.reference_scatter
         if self.background is not None:
             d["background"] = self.background
         return d
@@ -424,7 +437,10 @@ class RingCalibration:
                              "calibrate -o` writes one)")
         try:
             stats = {k: np.asarray(d[k], float) for k in ("residual_sigma", "covariance", "repeat_sigma", "repeat_dof",
-                                                              "lack_of_fit_p", "sensor_covariance") if k in d}
+                                                              "lack_of_fit_p", "sensor_covariance",
+                                                              "reference_covariance") if k in d}
+            if "reference_scatter" in d:
+                stats["reference_scatter"] = float(d["reference_scatter"])
             return cls(offsets=np.asarray(d["offsets"], float), gains=np.asarray(d["gains"], float),
                        method=d.get("method", "twostep"), background=d.get("background"), **stats)
         except (TypeError, ValueError) as exc:

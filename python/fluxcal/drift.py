@@ -727,15 +727,9 @@ def temperature_branch(temp) -> np.ndarray:
     steps = np.diff(temp)
     noise = 1.4826 * float(np.median(np.abs(steps - np.median(steps)))) / np.sqrt(2) if temp.size > 2 else 0.0
     turn = max(TURN_SHARE * float(np.ptp(temp)), 5.0 * noise, 1e-12)
-    branch = np.zeros(temp.size, dtype=int)
-    play, state = temp[0], 0
-    for k, x in enumerate(temp):
-        if x > play + turn:
-            play, state = x - turn, 1
-        elif x < play - turn:
-            play, state = x + turn, -1
-        branch[k] = state
-    return branch
+    moves = np.sign(np.diff(play(temp, turn, "temp"), prepend=temp[0])).astype(int)
+    last = np.maximum.accumulate(np.where(moves != 0, np.arange(temp.size), 0))  # its last move (0: none yet)
+    return moves[last]
 
 
 def _slope(model: "DriftModel", temp: np.ndarray) -> np.ndarray:
@@ -746,15 +740,13 @@ def _slope(model: "DriftModel", temp: np.ndarray) -> np.ndarray:
     return (model.evaluate(above, outside="nan") - model.evaluate(below, outside="nan")) / (above - below)
 
 
-def play(x, half_width: float) -> np.ndarray:
+def play(x, half_width, name: str = "x") -> np.ndarray:
     """A play operator (backlash) of `half_width`: its output moves only once the input has pushed it that far —
-    the simplest hysteresis, e.g. a sensing coil's adhesive that follows the temperature with a dead band."""
-    out = np.empty(len(x))
-    state = float(x[0])
-    for k, v in enumerate(np.asarray(x, dtype=float).tolist()):
-        state = min(max(state, v - half_width), v + half_width)
-        out[k] = state
-    return out
+    the simplest hysteresis, e.g. a sensing coil's adhesive that follows the temperature with a dead band. Several
+    half-widths give one column each (C++: a Python loop took 0.36 s of a 51k-sample cycle's 0.43 s fit)."""
+    widths = np.atleast_1d(np.asarray(half_width, dtype=float))
+    out = _core.play(np.ascontiguousarray(x, dtype=float), widths, name)
+    return out[:, 0] if np.ndim(half_width) == 0 else out
 
 
 def _profiled(w: np.ndarray, ok: np.ndarray, features: list, maxlags: int, given=(), signed: bool = False) -> dict:
@@ -914,8 +906,8 @@ def thermal_lag(model: "DriftModel", compensated, temp, t=None, temp_outside=Non
         # hysteresis as a dead band of half-width r °C: the element's state a play operator of T (it moves only once
         # T has pushed it r away), exact through f rather than r·f'(T) (a 2 °C band on the steep range was off 25 %)
         scales["hysteresis"] = float(np.ptp(temp)) * np.geomspace(2e-3, 0.1, 10)
-        grids["hysteresis"] = ([model.evaluate(np.clip(play(temp, r), temp.min(), temp.max()), outside="nan") - f
-                                for r in scales["hysteresis"]], False)
+        grids["hysteresis"] = ([model.evaluate(np.clip(p, temp.min(), temp.max()), outside="nan") - f
+                                for p in play(temp, scales["hysteresis"], "temp").T], False)
         out["hysteresis"] = {"on_holds": holds}
     turned = set(np.unique(branch[branch != 0]).tolist())
     if len(turned) == 2 and t is not None:  # ageing: a trend in time (times needed), told from the temperature's

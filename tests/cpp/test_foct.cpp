@@ -354,3 +354,22 @@ TEST(Foct, OneTemperatureLevelHasNoReduction) {
   EXPECT_TRUE(std::isnan(fit.drift_reduction));
   EXPECT_NE(fit.summary.message.find("one temperature level"), std::string::npos) << fit.summary.message;
 }
+
+TEST(Foct, PlayOperatorIsADeadBand) {
+  // Up 0 → 3, back to 1, up to 2: a band of ±1 follows 1 behind on the way up, holds at 2 until the input
+  // falls below 1, and holds again on the way back up while the input stays within 1 of it.
+  Eigen::VectorXd x(8);
+  x << 0.0, 1.0, 2.0, 3.0, 2.0, 1.0, 1.5, 2.0;
+  Eigen::VectorXd widths(2);
+  widths << 0.0, 1.0;
+  const Eigen::MatrixXd y = fluxcal::play(x, widths);
+  EXPECT_EQ(y.col(0), x);  // no band: the input itself
+  Eigen::VectorXd expected(8);
+  expected << 0.0, 0.0, 1.0, 2.0, 2.0, 2.0, 2.0, 2.0;
+  EXPECT_EQ(y.col(1), expected);
+  x[4] = std::nan("");
+  EXPECT_NE(error_message([&] { fluxcal::play(x, widths, "temp"); }).find("temp"), std::string::npos);
+  widths[1] = -1.0;
+  x[4] = 2.0;
+  EXPECT_NE(error_message([&] { fluxcal::play(x, widths); }).find("not ≥ 0"), std::string::npos);
+}

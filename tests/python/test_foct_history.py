@@ -7,6 +7,7 @@ import numpy as np
 from scipy.signal import lfilter
 
 from fluxcal import drift
+from fluxcal.oracle import drift as oracle
 from fluxcal.sim.foct import foct_zero_bias
 
 
@@ -185,3 +186,17 @@ def test_spikes_at_the_logs_ends_and_beside_its_gaps():
     w[want] += [0.2, -0.2, 0.2, -0.2]  # 14 σ of the noise
     _, report = drift.fit_pipeline(w, c["temp"], t=c["t"])
     assert report["spikes"]["rows"] == want
+
+
+def test_the_play_operator_and_the_branches_against_the_oracle():
+    """C++ play (a Python loop had taken 0.36 s of a 51k-sample cycle's 0.43 s fit) against the loop, on a random
+    walk, and the heating/cooling branches it gives."""
+    x = np.cumsum(np.random.default_rng(7).standard_normal(5000))
+    widths = [0.0, 0.3, 2.0, 10.0]
+    both = drift.play(x, widths)
+    for j, r in enumerate(widths):
+        assert np.array_equal(both[:, j], oracle.play(x, r)) and np.array_equal(drift.play(x, r), both[:, j])
+    steps = np.diff(x)
+    noise = 1.4826 * np.median(np.abs(steps - np.median(steps))) / np.sqrt(2)
+    turn = max(drift.TURN_SHARE * np.ptp(x), 5.0 * noise)
+    assert np.array_equal(drift.temperature_branch(x), oracle.temperature_branch(x, turn))

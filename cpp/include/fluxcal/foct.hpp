@@ -94,6 +94,13 @@ std::vector<LevelMean> level_means(const SeriesRef& values, const SeriesRef& tem
 /// Peak-to-peak of the per-level means: the zero-bias drift over the temperature span, noise averaged.
 double drift_span(const SeriesRef& values, const SeriesRef& temp, double step = 5.0);
 
+/// A play operator (backlash) per half-width r ≥ 0: y_0 = x_0, y_k = clamp(y_{k−1}, x_k − r, x_k + r) — the
+/// output moves only once the input has pushed it r away: a dead band, the simplest hysteresis (a sensing
+/// coil's adhesive that follows the temperature late by r either way). One column per half-width; `name` is the
+/// input's in errors (x must be finite).
+Eigen::MatrixXd play(const SeriesRef& x, const Eigen::Ref<const Eigen::VectorXd>& half_widths,
+                     const std::string& name = "x");
+
 /// Output per unit constant input of the steady-state filter: e1ᵀ (I − F)⁻¹ K with F = (I − K e1ᵀ) A.
 /// A slow drift passes the filter (which expects a zero-mean AR signal) scaled by this gain (< 1); fit_foct
 /// keeps the drift out of the filter, so it does not need it.

@@ -109,3 +109,27 @@ def fit_drift(select, x, w, breakpoints=(-20.0, 0.0, 30.0, 50.0), max_order=4, s
             m, c, s = m + 1, c1, s1
         segments.append({"order": m, "coefficients": c})
     return segments, ar
+
+
+def play(x, half_width):
+    """fluxcal.drift.play as a Python loop: the output clamped to within half_width of each input."""
+    out = np.empty(len(x))
+    state = float(x[0])
+    for k, v in enumerate(np.asarray(x, dtype=float).tolist()):
+        state = min(max(state, v - half_width), v + half_width)
+        out[k] = state
+    return out
+
+
+def temperature_branch(temp, turn):
+    """fluxcal.drift.temperature_branch at a given turn: +1 after a move up of more than `turn` from the play
+    operator's state, −1 after one down, 0 before any."""
+    branch = np.zeros(len(temp), dtype=int)
+    state, side = float(temp[0]), 0
+    for k, x in enumerate(np.asarray(temp, dtype=float).tolist()):
+        if x > state + turn:
+            state, side = x - turn, 1
+        elif x < state - turn:
+            state, side = x + turn, -1
+        branch[k] = side
+    return branch
