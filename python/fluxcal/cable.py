@@ -244,7 +244,8 @@ def propagated_covariance(ring: Ring, solution: CableSolution, noise_var, shared
 def calibration_shared_errors(calibration: "RingCalibration", fields, offsets: bool = True) -> tuple:
     """(G, Σ) for propagated_covariance: the error a calibration's own (γ, b) leave in compensated readings of
     `fields` ((snapshots, n_sensors, 2), tesla: the compensated readings), δh = −(δb + h δγ)/γ per sensor axis, the
-    same draw in every snapshot; `offsets` False where they cancel (zero snapshots subtracted)."""
+    same draw in every snapshot; `offsets` False where they cancel (zero snapshots subtracted). Σ per sensor, and
+    across the sensors what a reference meter's scatter per pose left shared (`reference_covariance`)."""
     h = np.asarray(fields, float)
     m = calibration.offsets.shape[0]
     G = np.zeros(h.shape + (m, 2, 2))  # … → (sensor, axis, [γ, b])
@@ -524,6 +525,11 @@ def calibrate_ring(readings, true_fields, method: str = "twostep") -> RingCalibr
     offsets, gains = np.array([f.offset for f in fits]), np.array([f.gain for f in fits])
     residual_sigma, covariance = _calibration_errors(r, h, offsets, gains, linear=method != "twostep")
     repeat_sigma, repeat_dof, lack_of_fit = _repeat_scatter(r, h, r - (h * gains + offsets))
+    reference = None
+    if method == "twostep" and repeat_sigma is not None:
+        reference = _reference_scatter(r, h, offsets, gains, repeat_sigma, repeat_dof)
+    if reference is not None:  # the model's misses judged beyond the reference's error (which it found, and carries)
+        lack_of_fit = _repeat_scatter(r, h, reference["residuals"])[2]
     for i in [] if lack_of_fit is None else np.nonzero(np.min(lack_of_fit, axis=1) < LACK_OF_FIT_P)[0]:
         ratio = float(np.max(residual_sigma[i] / repeat_sigma[i]))
         fits[i].summary["warnings"] = list(fits[i].summary.get("warnings", [])) + [
@@ -535,9 +541,10 @@ def calibrate_ring(readings, true_fields, method: str = "twostep") -> RingCalibr
             "between the poses"
             + (", or the least-squares fit's one field magnitude (method='twostep' knows each reading's)"
                if method == "least_squares" else "")]
-    whole = None
+    whole = shared = None
     if method == "twostep":
         own = [np.asarray(f.covariance, float) for f in fits]
+        moved = np.zeros((len(fits), 4, 0 if reference is None else int(reference["pose"].max()) + 1))
         for i in range(len(fits)) if repeat_sigma is not None else []:
             # With the repeats' σ per axis, each magnitude residual gets its own variance (_magnitude_sandwich). Not
             # without repeats (the magnitude residuals alone do not tell the axes' noise apart: one σ̂, as TWOSTEP's),
@@ -546,12 +553,28 @@ def calibrate_ring(readings, true_fields, method: str = "twostep") -> RingCalibr
             # the data do not determine (inf).
             if refined[i] and np.min(lack_of_fit[i]) >= LACK_OF_FIT_P and np.all(np.isfinite(own[i])):
                 finite = np.isfinite(r[:, i]).all(axis=1)
-                own[i] = _magnitude_sandwich(r[finite, i], fits[i].offset, fits[i].gain, repeat_sigma[i])
+                per_pose = None if reference is None else (
+                    reference["tau2"], reference["pose"][finite], norms[finite, i], moved.shape[2])
+                own[i], response = _magnitude_sandwich(r[finite, i], fits[i].offset, fits[i].gain, repeat_sigma[i],
+                                                       per_pose)
+                if response is not None:
+                    moved[i] = response[TWOSTEP_ORDER]
         covariance = np.array([_axis_blocks(c) for c in own])
         whole = np.array([c[np.ix_(TWOSTEP_ORDER, TWOSTEP_ORDER)] for c in own])
+        if reference is not None:  # the one meter's error moves every sensor's (γ, b): their errors are correlated
+            shared = reference["tau2"] * np.einsum("ipk,jqk->ipjq", moved, moved)
+            words = (f"the reference current's readings scatter by about {100 * np.sqrt(reference['tau2']):.2g} % from "
+                     f"pose to pose beyond the sensors' noise (p {reference['p']:.2g}; the same error at every sensor "
+                     "of a pose): included in the calibration's uncertainty, shared between the sensors; a steadier "
+                     "reference (a better meter, or the current read at every repeat and averaged over the pose) or "
+                     "more poses shrink it")
+            for i in np.nonzero(moved.any(axis=(1, 2)))[0]:
+                fits[i].summary["warnings"] = list(fits[i].summary.get("warnings", [])) + [words]
     return RingCalibration(offsets=offsets, gains=gains, method=method, sensors=fits, residual_sigma=residual_sigma,
                            covariance=covariance, repeat_sigma=repeat_sigma, repeat_dof=repeat_dof,
-                           lack_of_fit_p=lack_of_fit, sensor_covariance=whole)
+                           lack_of_fit_p=lack_of_fit, sensor_covariance=whole,
+                           reference_scatter=None if shared is None else float(np.sqrt(reference["tau2"])),
+                           reference_covariance=shared)
 
 
 def calibrate_ring_in_field(readings, true_fields, ring: Ring, rotations_deg, order: int = 3) -> RingCalibration:
@@ -726,6 +749,73 @@ def _repeat_scatter(readings: np.ndarray, true_fields: np.ndarray, residuals: np
     return sigma, dof.astype(float), np.where(sigma > floor, f_distribution.sf(ratio, np.maximum(poses - 2, 1), dof), 1.0)
 
 
+# A reference current read once per pose by a meter that scatters: the same relative error at every sensor of the pose.
+# Its variance is carried only when the poses' residuals share it beyond the noise at this p (else the calibration's
+# covariance is the noise's alone, as without a meter's scatter: 1 % of calibrations with a steady reference get a
+# small term; 0.02 % per pose at 5× the sensors' noise had left the currents' ± at 0.7 of their spread, found by the
+# per-sensor lack-of-fit test in 1 rig of 10).
+REFERENCE_SCATTER_P = 0.01
+
+
+def _reference_scatter(readings, true_fields, offsets, gains, sigma, dof) -> dict | None:
+    """The reference's relative error per pose, ε_p ~ (0, τ²), the same at every sensor (the currents read once per
+    pose by a meter that scatters), from the readings' residuals about the fitted γ h + b and their repeats' σ per
+    axis (`sigma`, `dof`: _repeat_scatter's). Each sensor axis's pose mean is, to first order, r̄_p = −γ h̄_p ε_p +
+    δγ h̄_p + δb + noise (variance σ² / c_p): one linear weighted least squares of the ε_p shared by all the sensors,
+    with each axis's own line (δγ, δb) taken off (a scale common to every pose is a gain: one direction less). Per
+    axis, not on TWOSTEP's magnitudes: there the offsets and gains absorb much of a pattern of ε, which then corrected
+    the residuals so poorly that the lack-of-fit test flagged more rigs than without it. The sum of squares the ε_p
+    explain is F-tested against the repeats' scatter and against what the ε_p leave (p: the larger); τ² by the
+    method of moments, (SS − its dof × what is left per dof, at least the noise's) / tr F, F the ε's information.
+    Returns dict(tau2, p, pose (K,) each reading's pose, residuals: the readings less the fit with the ε_p, for the
+    lack-of-fit test) when p is below REFERENCE_SCATTER_P, else None."""
+    from scipy.stats import f as f_distribution
+
+    pose = consecutive_runs(near=true_fields)[1]
+    finite = np.isfinite(readings)
+    counts = run_sums(finite, pose)  # (poses, n_sensors, 2)
+    residuals = readings - (true_fields * gains + offsets)
+    mean = lambda x: run_sums(np.where(finite, x, 0.0), pose) / np.maximum(counts, 1)  # noqa: E731 - per pose
+    r, h = mean(residuals), mean(true_fields)
+    w = counts / sigma ** 2  # the pose means' inverse variances (0 where a pose lacks the axis)
+    if not np.all(np.isfinite(w)):
+        return None
+    n_poses = len(r)
+    info, g, lines = np.zeros((n_poses, n_poses)), np.zeros(n_poses), []
+    rss, rss_dof = 0.0, 0
+    for i, a in np.ndindex(*r.shape[1:]):
+        x = np.column_stack([h[:, i, a], np.ones(n_poses)])
+        wi = w[:, i, a]
+        off_line = np.eye(n_poses) - x @ np.linalg.pinv(x.T @ (wi[:, None] * x)) @ (x.T * wi)  # (δγ, δb) taken off
+        d = -gains[i, a] * h[:, i, a]  # ∂r̄_p/∂ε_p
+        e = off_line @ r[:, i, a]
+        rss, rss_dof = rss + e @ (wi * e), rss_dof + int(np.sum(wi > 0)) - 2
+        info += d[:, None] * (wi[:, None] * off_line) * d[None, :]
+        g += d * wi * e
+        lines.append((i, a, x, wi, d))
+    lam, u = np.linalg.eigh(info)
+    keep = lam > 1e-9 * lam.max()  # (the common scale's direction is null)
+    dof_meter = int(keep.sum())
+    dof_left = rss_dof - dof_meter
+    if dof_meter == 0 or dof_left < dof_meter:  # too few sensors to tell a shared error from each one's own miss
+        return None
+    z = u[:, keep].T @ g / lam[keep]
+    explained = float(z @ (lam[keep] * z))
+    # against the repeats' noise (their σ² pooled over the sensors and axes), and against what the ε leave (a model
+    # miss, which the ε would share in, not be the cause of: a simulated rig's left 2× the noise, the ε 50×)
+    left = max((rss - explained) / dof_left, 1.0)
+    p_meter = max(f_distribution.sf(explained / dof_meter, dof_meter, float(np.sum(dof))),
+                  f_distribution.sf(explained / dof_meter / left, dof_meter, dof_left))
+    tau2 = max(explained - dof_meter * left, 0.0) / float(lam[keep].sum())
+    if p_meter >= REFERENCE_SCATTER_P or tau2 <= 0.0:
+        return None
+    epsilon = u[:, keep] @ z
+    for i, a, x, wi, d in lines:  # each reading less the ε_p's part and its axis's refitted line
+        line = np.linalg.pinv(x.T @ (wi[:, None] * x)) @ (x.T @ (wi * (r[:, i, a] - d * epsilon)))
+        residuals[:, i, a] -= (-gains[i, a] * epsilon[pose] + line[0]) * true_fields[:, i, a] + line[1]
+    return {"tau2": tau2, "p": float(p_meter), "pose": pose, "residuals": residuals}
+
+
 def _sampson_fit(readings: np.ndarray, norms: np.ndarray, why: str) -> TwoStep2D | None:
     """TWOSTEP 2-D's model (offset, per-axis gain) by maximum likelihood without its closed-form first step: the
     planar core's diagonal fit (`fluxcal::fit_planar`, Sampson residual, each reading's own |field|, from a direct
@@ -790,14 +880,17 @@ def _calibration_errors(readings, true_fields, offsets, gains, linear: bool = Tr
     return sigma, covariance
 
 
-def _magnitude_sandwich(readings, offset, gain, sigma) -> np.ndarray:
+def _magnitude_sandwich(readings, offset, gain, sigma, reference=None) -> tuple:
     """The covariance of (bx, by, γx, γy) (TWOSTEP's order) of the magnitude least squares min Σ (|(ĥ − b) ⊘ γ| − h_k)²
     at (b, γ) from `readings` (N, 2) whose axes have the noise σ `sigma` (2,), tesla: the sandwich
     (JᵀJ)⁻¹ (Σ v_k J_kᵀJ_k) (JᵀJ)⁻¹, J_k = ∂e_k/∂(b, γ), with each residual's own variance
     v_k = Σ_a σ_a² (f_a / (γ_a |f|))², f = (ĥ_k − b) ⊘ γ: only the noise along the field enters |f|, so a reading
     along the noisy axis scatters more. (TWOSTEP's σ̂²(JᵀJ)⁻¹ pools one σ̂ over all readings: at σy = 3σx its
-    standard errors were 0.79–1.42 of the Monte-Carlo spread, the two axes' with opposite signs.) The true fields h_k
-    are taken as exact: a reference meter's scatter is not in it."""
+    standard errors were 0.79–1.42 of the Monte-Carlo spread, the two axes' with opposite signs.)
+    `reference` (τ², pose (N,) each reading's pose number, h_k (N,), n_poses), from _reference_scatter: the h_k carry
+    a relative error ε_p ~ (0, τ²) per pose, which e_k holds as −h_k ε_p — the middle term gains τ² Σ_p y_p y_pᵀ,
+    y_p = Σ_{k in p} h_k J_k. Returns (the covariance, L (4, n_poses): the estimate moves by L ε, so that two sensors'
+    estimates share τ² L_i L_jᵀ; None without `reference`)."""
     f = (np.asarray(readings, float) - offset) / gain
     m = np.linalg.norm(f, axis=1)
     along = f / gain / m[:, None]  # ∂e_k/∂ĥ_a
@@ -806,7 +899,12 @@ def _magnitude_sandwich(readings, offset, gain, sigma) -> np.ndarray:
     scale = 1.0 / np.linalg.norm(J, axis=0)  # the offsets' and gains' columns differ by ~|h|: scale before inverting
     Js = J * scale
     bread = np.linalg.inv(Js.T @ Js)
-    return bread @ (Js.T @ (v[:, None] * Js)) @ bread * np.outer(scale, scale)
+    middle = Js.T @ (v[:, None] * Js)
+    if reference is None:
+        return bread @ middle @ bread * np.outer(scale, scale), None
+    tau2, pose, norms, n_poses = reference
+    y = np.stack([np.bincount(pose, Js[:, j] * norms, minlength=n_poses) for j in range(4)])
+    return bread @ (middle + tau2 * y @ y.T) @ bread * np.outer(scale, scale), bread @ y * scale[:, None]
 
 
 def calibration_fields(ring: Ring, positions_m, currents_a, rotations_deg) -> np.ndarray:
