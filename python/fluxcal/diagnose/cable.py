@@ -106,6 +106,7 @@ class _Data:
     # (dev_y (N, M, 2), dev_i (N, n), rotations (N,), poses, each reading's pose's mean currents (N, n)) — when the
     # logged currents jitter within a pose, else None
     jitter: tuple | None = None
+    sigma_dof: np.ndarray | float = np.inf  # (M,) the degrees of freedom of each sensor's σ (inf: known, given)
 
     @property
     def sensor_names(self) -> list:
@@ -683,9 +684,10 @@ def _noise_from_repeats(y, rotations, reference):
     — pooled within-run variance, both axes; repeats far apart in time could differ by a drift. The readings follow a
     logged current's jitter, by a field per ampere the same for every run at one rotation: that part of the
     within-run deviations is fitted (per rotation, sensor and axis) and taken off, its columns off the degrees of
-    freedom. None when fewer than 10 degrees of freedom."""
+    freedom. Returns (σ, its degrees of freedom: both axes' of the runs), or (None, 0) when fewer than 10 degrees of
+    freedom."""
     if reference is None:
-        return None
+        return None, 0
     dev, dev_i, counts = _within_poses(y, rotations, reference)
     dof = int(np.sum(counts - 1))
     for angle in np.unique(rotations):
@@ -696,8 +698,8 @@ def _noise_from_repeats(y, rotations, reference):
             dev[rows] = (flat - dev_i[rows] @ np.linalg.lstsq(dev_i[rows], flat, rcond=None)[0]).reshape(dev[rows].shape)
             dof -= rank
     if dof < 10:
-        return None
-    return np.sqrt(np.sum(dev ** 2, axis=(0, 2)) / (2 * dof))
+        return None, 0
+    return np.sqrt(np.sum(dev ** 2, axis=(0, 2)) / (2 * dof)), 2 * dof
 
 
 # The readings follow significantly less of the logged currents' jitter within a pose than all of it (this many
@@ -754,18 +756,20 @@ def _where(data: _Data, r_w: np.ndarray, levels) -> dict:
     per_value = lambda v: np.repeat(np.asarray(v), 2 * m)  # noqa: E731 - snapshot variable per value
     sensor = np.tile(np.repeat(np.arange(m), 2), k)
     axis = np.tile(np.arange(2), k * m)
-    tables = {"sensor": _binned(z, sensor, data.sensor_names),
-              "axis": _binned(z, axis, ["radial (x)", "tangential (y)"])}
+    # σ's own degrees of freedom: a sensor's bin against its σ's, the others against all sensors' (pooled)
+    nu, pooled = data.sigma_dof, float(np.sum(data.sigma_dof))
+    tables = {"sensor": _binned(z, sensor, data.sensor_names, sigma_dof=nu),
+              "axis": _binned(z, axis, ["radial (x)", "tangential (y)"], sigma_dof=pooled)}
     lv = np.unique(levels)
-    tables["current"] = _binned(z, per_value(np.searchsorted(lv, levels)), [f"{v:g} A" for v in lv])
+    tables["current"] = _binned(z, per_value(np.searchsorted(lv, levels)), [f"{v:g} A" for v in lv], sigma_dof=pooled)
     rot = np.mod(data.rotations, 360.0)
     ur = np.unique(rot)
     if len(ur) <= 24:
-        tables["rotation"] = _binned(z, per_value(np.searchsorted(ur, rot)), [f"{v:g}°" for v in ur])
+        tables["rotation"] = _binned(z, per_value(np.searchsorted(ur, rot)), [f"{v:g}°" for v in ur], sigma_dof=pooled)
     else:
-        tables["rotation"] = _binned(z, per_value(_quantile_bins(rot, 12)), None, per_value(rot))
+        tables["rotation"] = _binned(z, per_value(_quantile_bins(rot, 12)), None, per_value(rot), sigma_dof=pooled)
     tables["time"] = _binned(z, per_value(_quantile_bins(data.t, min(10, k))), None, per_value(data.t),
-                             time_number(data.t))
+                             time_number(data.t), sigma_dof=pooled)
     tests = []
     for name, rows in tables.items():
         # by p, then (p underflows to 0 for strong departures) by the χ²'s excess over its n in its own σ
@@ -1140,13 +1144,14 @@ def _prepare(readings, ring, currents, rotations_deg, positions, calibration, no
         raise ValueError(f"{source}: {k} snapshots of {m} sensors give {2 * k * m} readings for {unknowns} unknowns; "
                          f"the diagnosis needs more snapshots")
     sigma_given = noise_sigma is not None
+    sigma_dof = np.inf  # (given, or the calibration's residuals: taken as known)
     if sigma_given:
         sigma = np.broadcast_to(np.asarray(noise_sigma, dtype=float), (m,)).astype(float)
         if not np.all(sigma > 0):
             raise ValueError(f"noise_sigma: need a positive σ (tesla) per sensor, got {noise_sigma}")
         source_noise = "given"
     else:
-        sigma = _noise_from_repeats(y, rot, reference)
+        sigma, sigma_dof = _noise_from_repeats(y, rot, reference)
         source_noise = f"{FROM_REPEATS} (same rotation and currents)"
         if sigma is None and calibration is not None:
             # No repeats: the calibration run's scatter, measured apart from this recording, is the σ the ring's
@@ -1162,6 +1167,8 @@ def _prepare(readings, ring, currents, rotations_deg, positions, calibration, no
                 sigma = calibration.sensor_sigma(None if refine_calibration else raw, repeats=True)
                 source_noise = (f"{FROM_CALIBRATION_REPEATS} (repeat_sigma ÷ gain per sensor; no repeated snapshots "
                                 "here)")
+                if calibration.repeat_dof is not None:
+                    sigma_dof = np.sum(calibration.repeat_dof, axis=-1)
         elif calibration is not None and calibration.repeat_sigma is not None:
             # this recording's repeats against the calibration run's: a neighbouring current that varies made them
             # differ 94× (a newcomer's switch room), and every test was then that much too lenient, unsaid
@@ -1195,7 +1202,8 @@ def _prepare(readings, ring, currents, rotations_deg, positions, calibration, no
                  sigma=np.ones(m) if sigma is None else sigma, counts=counts, truth=truth,
                  refine_calibration=bool(refine_calibration), gain_currents=reference, unique=unique,
                  rot_index=np.ravel(rot_index), points=pts, axes=axes, source=source, sensor_ids=ids, notes=notes,
-                 calibration=calibration, time_from_rows=time_from_rows, jitter=jitter)
+                 calibration=calibration, time_from_rows=time_from_rows, jitter=jitter,
+                 sigma_dof=np.broadcast_to(np.asarray(sigma_dof, float), (m,)).copy())
     return data, sigma is not None, source_noise
 
 

@@ -907,16 +907,21 @@ def _quantile_bins(x: np.ndarray, k: int) -> np.ndarray:
     return np.searchsorted(edges, x, side="right")
 
 
-def _binned(z: np.ndarray, bins: np.ndarray, labels, x=None, number=None) -> list:
+def _binned(z: np.ndarray, bins: np.ndarray, labels, x=None, number=None, sigma_dof=np.inf) -> list:
+    """Per bin of `bins`: n, mean and RMS of z (residual / σ) and the p of Σz² — χ²(n) against a σ known, F(n, ν)
+    against one estimated with ν degrees of freedom (`sigma_dof`: one number, or one per bin): with σ from a few
+    repeated snapshots its own error is a departure of every bin (σ 21 % low from 23 pairs had read p 3e-19)."""
     number = number or (lambda v: f"{v:.4g}")
     rows = []
     for b in np.unique(bins):
         sel = bins == b
         zb = z[sel]
-        row = {"bin": labels[b] if labels else f"{number(x[sel].min())}…{number(x[sel].max())}", "n": int(sel.sum()),
-               "mean_z": float(zb.mean()), "rms_z": float(np.sqrt(np.mean(zb ** 2))),
-               "pvalue": float(stats.chi2.sf(np.sum(zb ** 2), sel.sum()))}
-        rows.append(row)
+        nu = float(np.ravel(sigma_dof)[b] if np.ndim(sigma_dof) else sigma_dof)
+        p = stats.chi2.sf(np.sum(zb ** 2), sel.sum()) if not np.isfinite(nu) else stats.f.sf(np.mean(zb ** 2),
+                                                                                             sel.sum(), nu)
+        rows.append({"bin": labels[b] if labels else f"{number(x[sel].min())}…{number(x[sel].max())}",
+                     "n": int(sel.sum()), "mean_z": float(zb.mean()), "rms_z": float(np.sqrt(np.mean(zb ** 2))),
+                     "pvalue": float(p)})
     return rows
 
 
