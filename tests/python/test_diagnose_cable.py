@@ -915,3 +915,22 @@ def test_a_clean_recording_with_few_repeats_does_not_depart():
         d = diagnose_cable(**kwargs)
         assert d.noise_source.startswith("from repeated snapshots") and d.accepted == []
         assert "explains the readings to the noise" in d.text(), [t for t in d.where["tests"] if t["pvalue"] < 0.01]
+
+
+def test_a_sensor_out_of_place_and_a_near_circuit_are_said_with_their_sizes():
+    """A blind check: sensor_position_error named no sensor and no size (the JSON's raw radii read −0.29 mm on five
+    sensors and +0.47 on the one 0.76 mm out), finite_length no length."""
+    kwargs, rig = cable_trial(["sensor_position_error"], 0)
+    row = diagnose_cable(**kwargs).ranking[0]
+    truth = rig.effects[0]
+    for key, value in (("position_radius", 1e3 * np.asarray(truth.radius_m)), ("position_angle", truth.angle_deg),
+                       ("position_axis", truth.axis_deg)):
+        off = np.asarray(value) - np.median(value)  # against the others
+        i = int(np.argmax(np.abs(off)))
+        assert row[f"{key}_sensor"] == i and abs(row[key] - off[i]) < 0.05 * abs(off[i]), (key, row[key], off[i])
+    kwargs, rig = cable_trial(["finite_length"], 0)
+    d = diagnose_cable(**kwargs)
+    e = rig.effects[0]
+    symmetric = np.sqrt(2.0 / (1.0 / e.near_m ** 2 + 1.0 / e.far_m ** 2))  # 197 mm
+    assert abs(d.ranking[0]["closing_distance_m"] - symmetric) < 0.15 * symmetric
+    assert "the circuit closes about 185 mm either side of the ring" in d.text()

@@ -943,8 +943,9 @@ def _evaluate(cls, data: _Data, state: dict, n_candidates: int, levels) -> dict:
     row.update(cls.interpret(row["coefficients"]))
     row.update(cls.field_share(_context(data, fit["positions"], state["feature_currents"]),  # (the cores' field)
                                model.features(fit["positions"])[..., -feats.shape[-1]:], row["coefficients"]))
-    if row.get("coupling_sensor") is not None and data.sensor_ids is not None:  # the recording's number, not the
-        row["coupling_sensor"] = int(data.sensor_ids[row["coupling_sensor"]])  # diagnosed ring's (dead ones out)
+    for key in ("coupling_sensor", "position_angle_sensor", "position_radius_sensor", "position_axis_sensor"):
+        if row.get(key) is not None and data.sensor_ids is not None:  # the recording's number, not the diagnosed
+            row[key] = int(data.sensor_ids[row[key]])  # ring's (dead ones out)
     in_sample = bool(row["lr_pvalue"] * n_candidates < state["alpha"] and row["delta_bic"] < 0)
     unphysical = (cls.unphysical(row["coefficients"], fit["terms"][-1][1]) if in_sample  # (a null fit's sign
                   else "")  # means nothing)
@@ -1577,6 +1578,19 @@ def _accepted_text(row, accepted=()) -> str:
         return f"{row['effect']} ({1e6 * row['background_gradient_t']:.3g} µT across the ring's radius: a source near it)"
     if row.get("background_curvature_t") is not None:
         return f"{row['effect']} ({1e6 * row['background_curvature_t']:.3g} µT at the ring's radius)"
+    if row.get("position_radius_sensor") is not None:  # (no sensor, no size had been said)
+        words = {"position_radius": lambda i, v: f"sensor {i} {abs(v):.2g} mm {'further out' if v > 0 else 'further in'}",
+                 "position_angle": lambda i, v: f"sensor {i} {v:+.2g}° along the ring",
+                 "position_axis": lambda i, v: f"sensor {i}'s axes turned {v:+.2g}°"}
+        # each against its typical assembly error (SensorPositionError: 0.15 mm, 0.5°, 1°); those under a quarter of
+        # the largest so measured left out (a 0.5 mm radial error came with −0.0086° "along the ring")
+        scaled = {k: abs(row[k]) / typical for k, typical in
+                  (("position_radius", 0.15), ("position_angle", 0.5), ("position_axis", 1.0))}
+        said = [words[k](row[f"{k}_sensor"], row[k]) for k in words if scaled[k] >= 0.25 * max(scaled.values())]
+        return f"{row['effect']} (against the others: {'; '.join(said)})"
+    if row.get("closing_distance_m") is not None:
+        return (f"{row['effect']} (the circuit closes about {1e3 * row['closing_distance_m']:.3g} mm either side of "
+                "the ring, were it symmetric)")
     if row.get("iron_field_share") is not None and "finite_length" in accepted:  # (its coefficients trade with
         # finite_length's: a share of its own would mean little)
         return (f"{row['effect']} (beside finite_length: the rest of a field from outside the ring that follows the "
@@ -1708,8 +1722,9 @@ def _text(d) -> str:
     check = d.remaining.get("calibration_check")
     if check:
         untried = any(r["effect"] == "background_field" and r.get("not_applicable") for r in d.ranking)
-        out.append(_calibration_line(check, bool(d.remaining.get("unexplained", {}).get("not_explained")),
-                                     check.get("calibration_method"), d.accepted, untried))
+        not_explained = bool(d.remaining.get("unexplained", {}).get("not_explained")) or (
+            not d.accepted and rem["overall"]["rms_z"] >= FAR_BEYOND_NOISE)  # ("NOT EXPLAINED: all of the departure")
+        out.append(_calibration_line(check, not_explained, check.get("calibration_method"), d.accepted, untried))
     out += [f"CAVEAT: {c}" for c in d.caveats]
     b = d.base
     if b.get("position_error_mm") is not None:
@@ -1757,10 +1772,12 @@ def _calibration_line(check: dict, not_explained: bool, method: str | None = Non
     if found:  # (a busbar's gradient taken by sensor_position_error had left a perfect calibration "to recalibrate")
         why += (f", or what the effects found ({', '.join(found)}) do not model, which the refit's gains took up: "
                 "record more rotations to tell them apart")
-    if not_explained:
-        why += ", or what the candidates do not explain, which the refit's gains took up"
+    if not_explained:  # (a sensor saturating at 10 A had been told to recalibrate at 5 A)
+        why += (", or what the candidates do not explain, which the refit's gains took up (a sensor whose scale "
+                "depends on the current — saturating at the highest — or on time)")
     return (f"CALIBRATION: the given calibration does not describe these sensors here (p {check['pvalue']:.2g}){se}: "
-            f"{listed} — {why}. Recalibrate; the refit's gains and offsets are in the JSON "
+            f"{listed} — {why}. " + ("Find what is not explained before recalibrating" if not_explained else
+                                     "Recalibrate") + f"; the refit's gains and offsets are in the JSON "
             f"(remaining.calibration_check).{held}")
 
 
