@@ -80,7 +80,7 @@ double drift_span(const SeriesRef& values, const SeriesRef& temp, double step) {
 
 Eigen::MatrixXd play(const SeriesRef& x, const Eigen::Ref<const Eigen::VectorXd>& half_widths,
                      const std::string& name) {
-  check_series(x, name, 1, "a play operator");
+  check_series(x, name, 1, "for a play operator");
   for (double r : half_widths)
     if (!(r >= 0.0)) throw Error("play: half-width " + std::to_string(r) + " of " + name + " is not ≥ 0");
   Eigen::MatrixXd out(x.size(), half_widths.size());

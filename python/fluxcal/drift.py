@@ -499,7 +499,10 @@ def zero_bias_spikes(noise, run: int = 3, breaks=(), steps=()) -> tuple[np.ndarr
                 edge_k.append(at)
                 edge_d.append(dd)
                 edge_scale.append(scale[near] * ratio)
-                o = here - float(np.mean(course[at:at + length]))
+                # its course from the samples on its one side (the running median there, mirrored at the end, had
+                # followed a 3-sample glitch in the first rows: a review)
+                side = x[at + length:at + length + 2 * run + 1] if at == lo else x[max(lo, at - 2 * run - 1):at]
+                o = here - float(np.median(side))
                 edge_back.append(np.sign(o) == np.sign(dd) and abs(o) >= 0.5 * abs(dd))
         k, d = np.concatenate([k, edge_k]).astype(int), np.concatenate([d, edge_d])
         scale, back = np.concatenate([scale, edge_scale]), np.concatenate([back, np.asarray(edge_back, dtype=bool)])

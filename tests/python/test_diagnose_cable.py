@@ -915,6 +915,11 @@ def test_a_clean_recording_with_few_repeats_does_not_depart():
         d = diagnose_cable(**kwargs)
         assert d.noise_source.startswith("from repeated snapshots") and d.accepted == []
         assert "explains the readings to the noise" in d.text(), [t for t in d.where["tests"] if t["pvalue"] < 0.01]
+    # without repeats here or in the calibration σ is its residuals', taken as known (a review: 0 degrees of freedom had
+    # made every bin's p NaN, "p 1", and z leakage's departures unsaid)
+    d = diagnose_cable(**cable_trial(["z_leakage"], 0, repeats=1, calibration_repeats=1)[0])
+    assert d.noise_source.startswith("from the calibration's scatter about its own fit")
+    assert all(t["pvalue"] < 1e-20 for t in d.where["tests"] if "worst bin" in t["test"]), d.where["tests"]
 
 
 def test_a_sensor_out_of_place_and_a_near_circuit_are_said_with_their_sizes():

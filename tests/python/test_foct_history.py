@@ -186,6 +186,12 @@ def test_spikes_at_the_logs_ends_and_beside_its_gaps():
     w[want] += [0.2, -0.2, 0.2, -0.2]  # 14 σ of the noise
     _, report = drift.fit_pipeline(w, c["temp"], t=c["t"])
     assert report["spikes"]["rows"] == want
+    w = c["zero_bias"].copy()  # three samples at each end (the running median there had followed them)
+    w[:3] += 0.2
+    w[-3:] -= 0.2
+    _, report = drift.fit_pipeline(w, c["temp"], t=c["t"])
+    n = w.size
+    assert report["spikes"]["rows"] == [0, 1, 2, n - 3, n - 2, n - 1]
 
 
 def test_the_play_operator_and_the_branches_against_the_oracle():
