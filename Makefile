@@ -53,14 +53,13 @@ $(VENV)/.deps: pyproject.toml | deps
 
 # The package is built in $(DEV) (a plain `pip install .` uses build/<wheel tag>, pyproject.toml), so
 # reinstalling only rebuilds what changed.
-# The Debian cmake and ninja (`deps`) named outright: scikit-build-core takes the first `cmake` on PATH and gives it
+# The Debian cmake and ctest (`deps`) named outright: scikit-build-core takes the first `cmake` on PATH and gives it
 # 5 s to answer, and a pyenv shim in front of /usr/bin/cmake once timed out ("Could not find CMake with version >=3.18")
 # (recursive `=`: looked up when the recipe runs, after `deps` installed them)
 CMAKE_BIN = $(firstword $(wildcard /usr/bin/cmake) cmake)
-NINJA_BIN = $(firstword $(wildcard /usr/bin/ninja) ninja)
 CTEST_BIN = $(firstword $(wildcard /usr/bin/ctest) ctest)
 install: $(VENV)/.deps
-	CMAKE_EXECUTABLE=$(CMAKE_BIN) CMAKE_MAKE_PROGRAM=$(NINJA_BIN) \
+	CMAKE_EXECUTABLE=$(CMAKE_BIN) \
 	$(PY) -m pip install -q --no-build-isolation -C build-dir=$(DEV) \
 	  -C cmake.define.FLUXCAL_BUILD_TESTS=ON -C cmake.define.FLUXCAL_BUILD_BENCH=ON '.[test]'
 

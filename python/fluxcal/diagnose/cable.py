@@ -373,6 +373,11 @@ class _Model:
                     1j * self.data.axes[self.data.rot_index])
         return np.concatenate(blocks, axis=-1)
 
+    def term_sizes(self, positions, terms=None) -> list:
+        """How many coefficients each term has (its features' last axis) at `positions`."""
+        ctx = _context(self.data, positions, self.feature_currents)
+        return [cls.features(ctx, alt).shape[-1] for cls, alt in (self.terms if terms is None else terms)]
+
     def unit_features(self, positions, terms=None):
         """Per ampere of each conductor (K, M, 2, p, n): every candidate is affine in the currents, so with
         currents fitted per snapshot the terms follow them: (1 + δ) ⊙ (G I + Σ_p F_p c_p I + F0 c) + β, F0 the
@@ -1329,8 +1334,7 @@ def diagnose_cable(readings, ring: Ring, currents=None, rotations_deg=None, posi
         w["_rivals"] = _rivals(w, rows, key="_in_sample")
         accepted.append(w["effect"])
         state["terms"] = list(w["_fit"]["terms"])
-        sizes = [cls.features(_context(data, w["_fit"]["positions"], feature_currents), alt).shape[-1]
-                 for cls, alt in state["terms"]]
+        sizes = w["_model"].term_sizes(w["_fit"]["positions"], state["terms"])
         own = np.asarray(w["_fit"]["coefficients"])[w["_model"].n_calibration:]
         state["term_coefficients"] = np.split(own, np.cumsum(sizes)[:-1])
         state["model"] = _Model(data, state["terms"], feature_currents, state["term_coefficients"])
@@ -1412,7 +1416,7 @@ def _room_terms(model: _Model, fit: dict, *names) -> list | None:
     found = [cls.name for cls, _ in fit["terms"]]
     if not all(name in found for name in names):
         return None
-    sizes = [model.features(fit["positions"], [term]).shape[-1] for term in fit["terms"]]
+    sizes = model.term_sizes(fit["positions"], fit["terms"])
     starts = np.concatenate([[0], np.cumsum(sizes)])
     c = model._split(fit["coefficients"])[2]
     return [complex(*c[starts[found.index(name)]:starts[found.index(name)] + 2]) for name in names]
@@ -1471,8 +1475,7 @@ def _effects_in_solve(data: _Data, model: _Model, fit: dict) -> dict | None:
     terms = fit["terms"]
     if not terms or data.reference is None or data.fit_currents or not any(c.follows_current for c, _ in terms):
         return None
-    ctx = _context(data, fit["positions"], model.feature_currents)
-    sizes = [cls.features(ctx, alt).shape[-1] for cls, alt in terms]
+    sizes = model.term_sizes(fit["positions"], terms)
     feats = np.split(model.features(fit["positions"], terms), np.cumsum(sizes)[:-1], axis=-1)
     delta, _, own = model._split(fit["coefficients"])
     coefficients = np.split(np.asarray(own), np.cumsum(sizes)[:-1])
