@@ -119,18 +119,24 @@ def test_first_order_candidates_against_the_exact_simulation():
         assert c[0] == pytest.approx(1.0, abs=1e-4) and left < 1e-4
         _, left_grid = _fit_share(HelicalLay.features(ctx, ratio * np.sqrt(2.0)), exact)
         assert 0.02 < left_grid < 0.25
-    # sensor position error at assembly magnitudes: the derivatives leave only second-order terms
+    # sensor position error at assembly magnitudes: the derivatives leave only second-order terms; re-linearised at
+    # the displacement, nothing (the angles and radii against their mean: a common part turns or scales the ring)
     rng = np.random.default_rng(5)
-    effect = SensorPositionError.typical(4, rng)
-    exact = []
-    for r, rot in enumerate(rots):
-        moved, axes = effect.sensors(RING, rot)
-        exact.append(to_axes(straight_unit_fields(moved, POSITIONS), axes[:, None])
-                     - to_axes(straight_unit_fields(ctx.points[r], POSITIONS), ctx.axes[r][:, None]))
-    exact = np.einsum("kmna,kn->kma", np.array(exact)[ctx.rot_index], ctx.currents)
-    params = np.column_stack([effect.angle_deg, effect.radius_m * 1e3, effect.axis_deg]).ravel()
-    first_order = SensorPositionError.features(ctx) @ params
-    assert np.sqrt(np.mean((exact - first_order) ** 2) / np.mean(exact ** 2)) < 0.03
+    for effect, first_left in ((SensorPositionError.typical(4, rng), 0.03),
+                               (SensorPositionError(np.zeros(4), np.array([0.0, 0.0, 0.8e-3, 0.0]), np.zeros(4)), 0.1)):
+        effect.angle_deg, effect.radius_m = (v - np.mean(v) for v in (effect.angle_deg, effect.radius_m))
+        exact = []
+        for r, rot in enumerate(rots):
+            moved, axes = effect.sensors(RING, rot)
+            exact.append(to_axes(straight_unit_fields(moved, POSITIONS), axes[:, None])
+                         - to_axes(straight_unit_fields(ctx.points[r], POSITIONS), ctx.axes[r][:, None]))
+        exact = np.einsum("kmna,kn->kma", np.array(exact)[ctx.rot_index], ctx.currents)
+        params = np.column_stack([effect.angle_deg, effect.radius_m * 1e3, effect.axis_deg]).ravel()
+        left = np.sqrt(np.mean((exact - SensorPositionError.features(ctx) @ params) ** 2) / np.mean(exact ** 2))
+        assert 1e-4 < left < first_left
+        at = SensorPositionError.relinearised_at(params)
+        relinearised = SensorPositionError.features(ctx, at) @ np.append(params, 1.0)
+        assert np.sqrt(np.mean((exact - relinearised) ** 2) / np.mean(exact ** 2)) < 1e-9
 
 
 @pytest.mark.parametrize("name", EFFECTS)
@@ -280,14 +286,12 @@ def test_an_effect_that_raises_the_current_error_is_not_accepted(tmp_path):
     r = run_cli("diagnose", ring, "--model", "cable", "--calibration", cal, others, "--json", tmp_path / "d.json")
     assert r.returncode == 0, r.stderr
     d = json.loads((tmp_path / "d.json").read_text())
-    judged = [row for row in d["ranking"] if row.get("current_error_a_after") is not None]
-    assert judged
-    for row in judged:
-        rises = row["current_error_a_after"] > row["current_error_a_before"]
-        assert not (row["significant"] and rises), row["effect"]
-        if rises and row.get("current_error_rises"):
-            assert "not accepted: the current error rises held out" in r.stdout
-    assert any(row.get("current_error_rises") for row in judged)
+    # (since sensor_position_error's common angle and radius were taken out — a turn and a scale of the whole ring,
+    # which had moved the cores 0.53 mm — it is no longer significant in sample here, and not judged held out)
+    assert "sensor_position_error" not in d["accepted"]
+    for row in d["ranking"]:
+        if row.get("current_error_a_after") is not None:
+            assert not (row["significant"] and row["current_error_a_after"] > row["current_error_a_before"])
     if not d["accepted"]:
         assert "explains the readings to the noise" not in r.stdout
         assert "the readings still depart from the ring's model" in r.stdout
@@ -301,6 +305,7 @@ def test_an_effect_that_raises_the_current_error_is_not_accepted(tmp_path):
     assert "sensor_position_error" not in d["accepted"]
     row = next(row for row in d["ranking"] if row["effect"] == "sensor_position_error")
     assert row["current_error_scaled_a_after"] > row["current_error_scaled_a_before"] and row["current_error_rises"]
+    assert "not accepted: the current error rises held out" in r.stdout
 
 
 def test_ring_files_in_other_units_and_formats_are_read_as_stated(tmp_path):
@@ -939,6 +944,20 @@ def test_a_sensor_out_of_place_and_a_near_circuit_are_said_with_their_sizes():
     symmetric = np.sqrt(2.0 / (1.0 / e.near_m ** 2 + 1.0 / e.far_m ** 2))  # 197 mm
     assert abs(d.ranking[0]["closing_distance_m"] - symmetric) < 0.15 * symmetric
     assert "the circuit closes about 185 mm either side of the ring" in d.text()
+
+
+def test_a_sensor_far_out_of_place_is_named_alone():
+    """A blind check: 0.8 mm on a 12 mm ring left the first-order candidate's remainder, which a lay, then a near
+    circuit and a 0.58° tilt, took (here 1 mm on 10 mm: finite_length and a lay). Re-linearised where its fit moved
+    the sensors, nothing is left."""
+    radius = np.zeros(4)
+    radius[1] = 1e-3
+    kwargs, _ = cable_trial([], 1, effects=[SensorPositionError(np.zeros(4), radius, np.zeros(4))])
+    d = diagnose_cable(**kwargs)
+    assert d.accepted == ["sensor_position_error"], d.accepted
+    row = d.ranking[0]
+    assert row["position_radius_sensor"] == 1 and abs(row["position_radius"] - 1.0) < 0.05, row["position_radius"]
+    assert "sensor 1 0.98 mm further out" in d.text()
 
 
 def test_solve_line_says_what_cable_solve_reads_with_the_effects_found():

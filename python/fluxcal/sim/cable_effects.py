@@ -128,6 +128,7 @@ class CableEffect(Effect):
     kind = "conductors"  # "conductors", "sensors", "readings" or "background"
     regime = "rotation"
     refinable = False  # the non-linear parameter (the alternative) is refined with the positions in a fit
+    relinearised_at = None  # a first-order term: coefficients → the alternative to linearise at next (a fit's steps)
     follows_current = True  # the features scale with the currents (False: a field of its own, at any current)
 
     @staticmethod
@@ -453,8 +454,10 @@ class SensorPositionError(CableEffect):
 
     Candidate: the derivative of every sensor's reading with respect to its own angle, radius and axis
     angle (per degree, millimetre, degree) at the fitted positions: 3M coefficients (analytic derivatives
-    of the straight-conductor field). A common turn of all sensors is a turn of the cable (absorbed by the
-    positions); the diagnosis finds that by itself."""
+    of the straight-conductor field). A common turn of all sensors is a turn of the cable, a common radius the
+    ring scaled: the angles and radii are taken against their mean. The diagnosis fits it again linearised where
+    its first fit moved the sensors (`relinearised_at`), so that a large displacement leaves no second-order
+    remainder."""
 
     angle_deg: np.ndarray
     radius_m: np.ndarray
@@ -469,10 +472,26 @@ class SensorPositionError(CableEffect):
 
     @classmethod
     def features(cls, ctx, alternative=None):
+        """The derivatives (3M columns), at the drawing's positions or, with `alternative` a displacement (M, 3: °,
+        mm, °, as the coefficients), at the sensors so moved, with one more column: the reading there less the
+        drawing's and the derivatives' share of the displacement — its coefficient 1, the coefficients then the
+        whole displacement (a re-linearisation; `relinearised_at`)."""
+        if alternative is None:
+            return cls._derivatives(ctx, ctx.points, ctx.axes)[0]
+        d = np.asarray(alternative, float).reshape(-1, 3)
+        deg = np.pi / 180.0
+        points = ctx.points * np.exp(1j * deg * d[:, 0]) * (1.0 + 1e-3 * d[:, 1] / np.abs(ctx.points))
+        axes = ctx.axes + deg * (d[:, 0] + d[:, 2])
+        derivs, moved = cls._derivatives(ctx, points, axes)
+        drawn = cls._derivatives(ctx, ctx.points, ctx.axes)[1]
+        return np.concatenate([derivs, (moved - drawn - derivs @ d.ravel())[..., None]], axis=-1)
+
+    @staticmethod
+    def _derivatives(ctx, points, axes):
+        """Each reading's derivatives (K, M, 2, 3M) with respect to its sensor's angle, radius and axis angle, and
+        the readings (K, M, 2), for sensors at `points` (R, M) with x axes at `axes` (R, M)."""
         pos = ctx.positions
-        p = pos[:, 0] + 1j * pos[:, 1]
-        s = ctx.points  # (R, M)
-        w = s[..., None] - p  # (R, M, n)
+        w = points[..., None] - (pos[:, 0] + 1j * pos[:, 1])  # (R, M, n)
         unit = MU0_OVER_2PI * 1j / np.conj(w)
         slope = -MU0_OVER_2PI * 1j / np.conj(w) ** 2  # dB/ds along u: slope · conj(u)
         cur = ctx.currents
@@ -480,25 +499,38 @@ class SensorPositionError(CableEffect):
         # field to first order: its gradient is left out)
         b = np.einsum("kmn,kn->km", unit[ctx.rot_index], cur) + getattr(ctx, "extra", 0.0)
         g = np.einsum("kmn,kn->km", slope[ctx.rot_index], cur)
-        sk = s[ctx.rot_index]
+        sk = points[ctx.rot_index]
         rhat = sk / np.abs(sk)
-        axes = ctx.axes[ctx.rot_index]
+        axes = axes[ctx.rot_index]
         deg = np.pi / 180.0
         d_angle = (g * np.conj(1j * sk) - 1j * b) * deg           # position moves along the ring, axes turn
         d_radius = g * np.conj(rhat) * 1e-3                         # per millimetre
         d_axis = -1j * b * deg                                      # axes turn about the normal
-        m = s.shape[1]
+        m = points.shape[1]
         derivs = to_axes(np.stack([d_angle, d_radius, d_axis], axis=-1), axes[..., None])  # (K, M, 3, 2)
         out = np.zeros(b.shape + (2, m, 3))
         out[:, np.arange(m), :, np.arange(m), :] = derivs.transpose(1, 0, 3, 2)  # sensor i moves only itself
-        return out.reshape(b.shape + (2, 3 * m))
+        # a common turn of the sensors is the cores turned the other way, a common radius the ring scaled (the cores'
+        # positions and the gains with it): both are taken against their mean (left free, the fit had turned all six
+        # sensors −1.4° and moved them 0.28 mm in, and the cores 0.06 mm off with them)
+        out[..., :2] -= out[..., :2].mean(axis=-2, keepdims=True)
+        return out.reshape(b.shape + (2, 3 * m)), to_axes(b, axes)
+
+    @staticmethod
+    def relinearised_at(coefficients):
+        """Where to linearise next: the fitted displacement (M, 3). A first-order fit of 0.8 mm on a 12 mm ring
+        left a remainder (4 nT, 0.3 σ per reading, thousands of readings) that a lay, then a near circuit and a
+        0.58° tilt, took up."""
+        c = np.array(coefficients, float)[:3 * (len(coefficients) // 3)].reshape(-1, 3)
+        c[:, :2] -= c[:, :2].mean(axis=0)  # (a common angle or radius does nothing: their columns are centred)
+        return c
 
     @classmethod
     def interpret(cls, coefficients) -> dict:
         """The sensor most out of place, against the others (their median: a common angle is the conductors turned,
         a common radius the gains, which the fit cannot tell from it — the JSON's raw radii read −0.29 mm on five
         sensors and +0.47 on the one 0.76 mm out): along the ring (°), radially (mm), its axes turned (°)."""
-        c = np.asarray(coefficients, float).reshape(-1, 3)
+        c = SensorPositionError.relinearised_at(coefficients)  # (re-linearised: the remainder's coefficient last)
         if len(c) < 3:
             return {}
         off = c - np.median(c, axis=0)
