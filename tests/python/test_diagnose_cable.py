@@ -944,6 +944,9 @@ def test_a_sensor_out_of_place_and_a_near_circuit_are_said_with_their_sizes():
     symmetric = np.sqrt(2.0 / (1.0 / e.near_m ** 2 + 1.0 / e.far_m ** 2))  # 197 mm
     assert abs(d.ranking[0]["closing_distance_m"] - symmetric) < 0.15 * symmetric
     assert "the circuit closes about 185 mm either side of the ring" in d.text()
+    # the leads beyond finite_length's first order, taken by nearby_iron: its rest, said so in the JSON too
+    assert d.accepted == ["finite_length", "nearby_iron"] and d.ranking[1]["rest_of"] == ["finite_length"]
+    assert "nearby_iron (beside finite_length: the rest of a field" in d.text()
 
 
 def test_a_sensor_far_out_of_place_is_named_alone():

@@ -1340,6 +1340,11 @@ def diagnose_cable(readings, ring: Ring, currents=None, rotations_deg=None, posi
         w = previous_winner = winner
         # rivals: significant in sample (only the winner is validated on held-out data, to save its fits)
         w["_rivals"] = _rivals(w, rows, key="_in_sample")
+        # a general candidate found after a special case of it is that one's rest (nearby_iron after finite_length:
+        # the circuit's leads beyond its first order, or iron), not a second effect of its own: said in the JSON
+        contained = [a for a in getattr(names.get(w["effect"]), "contains", ()) if a in accepted]
+        if contained:
+            w["rest_of"] = contained
         accepted.append(w["effect"])
         state["terms"] = list(w["_fit"]["terms"])
         sizes = w["_model"].term_sizes(w["_fit"]["positions"], state["terms"])
@@ -1612,8 +1617,8 @@ def _ranking_lines(d) -> list:
     return lines
 
 
-def _accepted_text(row, accepted=()) -> str:
-    """An accepted effect's name with what it found (a lay's length and coefficient); `accepted`: all those found."""
+def _accepted_text(row) -> str:
+    """An accepted effect's name with what it found (a lay's length and coefficient)."""
     if row.get("lay_length_m") is not None:
         c = row.get("coefficients") or [float("nan")]
         return (f"{row['effect']} (lay {1e3 * row['lay_length_m']:.3g} mm, {row['reference_lay_over_pitch_diameter']:.3g} "
@@ -1640,7 +1645,7 @@ def _accepted_text(row, accepted=()) -> str:
     if row.get("closing_distance_m") is not None:
         return (f"{row['effect']} (the circuit closes about {1e3 * row['closing_distance_m']:.3g} mm either side of "
                 "the ring, were it symmetric)")
-    if row.get("iron_field_share") is not None and "finite_length" in accepted:  # (its coefficients trade with
+    if row.get("iron_field_share") is not None and row.get("rest_of"):  # (its coefficients trade with
         # finite_length's: a share of its own would mean little)
         return (f"{row['effect']} (beside finite_length: the rest of a field from outside the ring that follows the "
                 "currents — the circuit's leads and return nearer the ring than finite_length's first order takes "
@@ -1690,7 +1695,7 @@ def _text(d) -> str:
     outside = ("the reference currents' scatter (REFERENCE below); " if meter else "") + OUTSIDE_CANDIDATES
     if d.accepted:
         untried = any(r["effect"] == "background_field" and r.get("not_applicable") for r in d.ranking)
-        out.append(f"FOUND: {', '.join(_accepted_text(r, d.accepted) for r in d.ranking if r['significant'])} (added in "
+        out.append(f"FOUND: {', '.join(_accepted_text(r) for r in d.ranking if r['significant'])} (added in "
                    "this order)"
                    + (" — tentative: with the currents fitted a field that does not follow them was not tried, and "
                       "these may stand in for it (see CAVEAT)" if untried else ""))
