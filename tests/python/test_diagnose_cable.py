@@ -759,6 +759,9 @@ def test_a_reference_meter_that_scatters_is_named():
         lines = d.text().splitlines()
         if meter:
             assert abs(ref["followed"]) < 0.05 and 0.7 < ref["meter_sigma_a"][1] / 0.021 < 1.3, ref  # 0.3 % of 7 A RMS
+            # a meter's scatter is every sensor's alike (channels sampled at other instants would differ)
+            assert np.all(np.abs(np.array(ref["followed_per_sensor"]) - ref["followed"])
+                          < 4 * np.array(ref["followed_per_sensor_se"])), ref
             assert 0.7 < ref["meter_share_of_reading"][0] / 0.003 < 1.3, ref  # a clamp meter's % of reading
             assert d.remaining["overall"]["rms_z"] > 3 and 0.7 < ref["predicted_rms_z"] / d.remaining["overall"]["rms_z"] < 1.6
             assert any(x.startswith("NOT EXPLAINED") and "the reference currents' scatter (REFERENCE below)" in x
