@@ -940,8 +940,14 @@ def _evaluate(cls, data: _Data, state: dict, n_candidates: int, levels) -> dict:
     fit = model.fit(current["positions"], state["all_rows"])
     size = feats.shape[-1]
     for _ in range(RELINEARISE_STEPS if cls.relinearised_at else 0):  # a first-order term: linearised again where
-        # its fit moved it, so that its second-order remainder is not left for other candidates
-        terms = state["terms"] + [(cls, cls.relinearised_at(fit["coefficients"][-size:]))]
+        # its fit moved it, so that its second-order remainder is not left for other candidates — when that remainder
+        # reaches the noise over the recording (each step is a fit: done always, it had tripled some diagnoses' time)
+        at = cls.relinearised_at(fit["coefficients"][-size:])
+        remainder = cls.features(_context(data, fit["positions"], state["feature_currents"],
+                                          state["model"].extra(fit["positions"])), at)[..., -1]
+        if np.sum((remainder * data.weights[:, :, None]) ** 2) < 1.0:
+            break
+        terms = state["terms"] + [(cls, at)]
         model = _Model(data, terms, state["feature_currents"], state["term_coefficients"])
         fit = model.fit(fit["positions"], state["all_rows"])
         size = model.term_sizes(fit["positions"])[-1]  # (re-linearised: one column more, the remainder's)
