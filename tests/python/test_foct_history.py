@@ -30,7 +30,7 @@ def test_hysteresis_is_named_with_its_dead_band_and_judged_per_branch():
     assert found["hysteresis"]["said"] and not found["said"], found
     assert 1.5 < found["hysteresis"]["dead_band_c"] < 2.5  # truth 2 °C
     said = [w for w in report["warnings"] if "differs between heating and cooling" in w]
-    assert len(said) == 1 and "dead band of ±1.9 °C" in said[0] and "lags the thermometer" not in " ".join(
+    assert len(said) == 1 and "dead band of ±2.3 °C" in said[0] and "lags the thermometer" not in " ".join(
         report["warnings"])
     # heating minus cooling at a level, against the truth's (the drift at the two branches' states)
     c, truth = sim.columns, sim.truth["drift"]["zero_bias"]
@@ -51,7 +51,7 @@ def test_a_lag_longer_than_the_holds_is_a_lag_not_hysteresis():
     sim = foct_zero_bias(rng=1, cycle=True, thermal_lag_s=600.0)
     _, report = fit(sim, thermometer(sim))
     found = report["thermal_lag"]
-    assert found["said"] and 350.0 < found["tau_s"] < 700.0, found  # about 540 s
+    assert found["said"] and 490.0 < found["tau_s"] < 590.0, found  # about 540 s (478 before the drift was refitted)
     assert not found["hysteresis"]["said"]
     assert not any("heating and cooling" in w for w in report["warnings"])
 
@@ -82,7 +82,8 @@ def test_two_effects_together_are_both_named_with_their_sizes():
     read ±1.1 °C for ±2), a 540 s lag beside it read 1362 s. Named one beside the other, sized together."""
     found = fit(foct_zero_bias(rng=0, cycle=True, ageing=0.02, hysteresis=2.0))[1]["thermal_lag"]
     assert found["hysteresis"]["said"] and found["ageing"]["said"] and not found["said"], found
-    assert 1.5 < found["hysteresis"]["dead_band_c"] < 2.5 and 0.014 < found["ageing"]["per_hour"] < 0.026
+    # (sized beside the drift model refitted: the ageing had read 0.0168 A/h)
+    assert 1.5 < found["hysteresis"]["dead_band_c"] < 2.5 and 0.018 < found["ageing"]["per_hour"] < 0.022
     # the measured difference between the branches with the ageing taken out: near the band's alone (0.695 A)
     assert 0.6 < found["hysteresis"]["largest_difference"] < 0.8
     sim = foct_zero_bias(rng=1, cycle=True, hysteresis=2.0, thermal_lag_s=600.0)
