@@ -96,6 +96,11 @@ def _saturation(result, d, line):
 def _hysteresis(result, d, line):
     truth = _truth(result, "hysteresis")
     assert np.allclose(_vectors(line)[0], truth.share * truth.width, rtol=0.1)
+    # the loop twice the play's half-width (a blind check read "0.297 uT wide" for a loop 0.6 wide)
+    wide, half = (float(x) for x in re.search(rf"a loop ({NUMBER}) uT wide \(a play of half-width ({NUMBER}) uT",
+                                                line).groups())
+    assert wide == pytest.approx(2 * half, rel=0.01)
+    assert 0.9 * np.min(truth.width) < half < 1.1 * np.max(truth.width), (half, truth.width)
 
 
 # The numbers, not only the words: each against the simulation's truth.

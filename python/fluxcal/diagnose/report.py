@@ -379,7 +379,10 @@ def non_orthogonality_line(d, r) -> str:
 def hysteresis_line(d, r) -> str:
     u = f" {d.units}" if d.units else ""
     c = np.asarray(r["coefficients"], dtype=float)
-    width = f"a loop {_g(r['width'])}{u} wide (one width for every axis), " if r.get("width") is not None else ""
+    # the play holds until its input moves `width` either way: a loop twice that wide (a blind check read "0.297 uT
+    # wide" beside a half-height of 0.3 for a loop 0.6 wide)
+    width = (f"a loop {_g(2 * r['width'])}{u} wide (a play of half-width {_g(r['width'])}{u}, one for every axis), "
+             if r.get("width") is not None else "")
     return (f"hysteresis: {width}the readings lag their input by up to {_vec(c)}{u} (x, y, z; the loop's "
             f"half-height) once the field turns back: {_share(d, float(np.max(np.abs(c))))}")
 
