@@ -5,6 +5,7 @@ import json
 import warnings
 from datetime import datetime, timezone
 from dataclasses import dataclass, field, replace
+from functools import lru_cache
 from math import comb
 from pathlib import Path
 from types import SimpleNamespace
@@ -18,7 +19,7 @@ from ..attitude import magnetic_frame
 from ..calibration import Calibration
 from ..io.recording import UNIX_SECONDS
 from ..outliers import find_outliers
-from ..sim.effects import CANDIDATES, scatter_rows
+from ..sim.effects import CANDIDATES, _per_diagnosis, scatter_rows
 
 # Base models: (uses a reference vector, base parameters held at their start values).
 MODELS = {
@@ -73,6 +74,8 @@ class _Data:
     current: np.ndarray | None = None  # A drawn near the sensor (motors, a heater)
     clipping: list = field(default_factory=list)  # [{axis, rail, readings, fraction}]: the sensor's range clips
     field_norms: np.ndarray | None = None  # each reading's |field| (logged beside it: a field that changes)
+    # what the candidates compute once per diagnosis (sim.effects._per_diagnosis; its entries name their inputs)
+    memo: dict = field(default_factory=dict, repr=False, compare=False)
 
 
 def _field_at(data: _Data, rows=slice(None)):
@@ -565,7 +568,7 @@ def _context(data: _Data, result: dict, feats=None) -> SimpleNamespace:
     return SimpleNamespace(signal=signal, readings=data.m, scale=float(np.median(np.linalg.norm(signal, axis=1))),
                            vector=data.reference is not None,
                            field=field, W=W, direction=direction, t=data.t, temp=data.temp,
-                           current=data.current, world=_world_axes(data, W))
+                           current=data.current, world=_world_axes(data, W), memo=data.memo)
 
 
 def _forms(cls, ctx) -> dict:
@@ -612,11 +615,13 @@ def _world_frame(data: _Data):
     the field is vertical (at a magnetic pole the horizontal axes are unknown)."""
     if data.reference is None or data.down is None:
         return None
-    down = data.down / np.linalg.norm(data.down, axis=1, keepdims=True)
-    horizontal = np.linalg.norm(np.cross(data.reference, down), axis=1) / np.linalg.norm(data.reference, axis=1)
-    if np.median(horizontal) < 1e-3:
-        return None
-    return magnetic_frame(data.reference, down)
+
+    def frame():
+        down = data.down / np.linalg.norm(data.down, axis=1, keepdims=True)
+        horizontal = np.linalg.norm(np.cross(data.reference, down), axis=1) / np.linalg.norm(data.reference, axis=1)
+        return None if np.median(horizontal) < 1e-3 else magnetic_frame(data.reference, down)
+    # (once per reference: every candidate's context asks for it)
+    return _per_diagnosis(data.memo, ("world_frame",), (data.reference, data.down), frame)
 
 
 def _world_axes(data: _Data, W: np.ndarray):
@@ -653,8 +658,10 @@ def _field_directions(data: _Data, result: dict) -> np.ndarray:
 def _project(result: dict, feats: np.ndarray, vector: bool, rows=slice(None)) -> np.ndarray:
     """Candidate columns in residual space: ∂r/∂c at the current fit (of the readings `rows` when feats
     holds only those)."""
-    if vector:
-        return -feats.transpose(0, 2, 1).reshape(-1, feats.shape[1])
+    if vector:  # −feats with its axes swapped, in one pass (reshaping the swapped view copied it slowly: 8×)
+        out = np.empty((feats.shape[0], feats.shape[2], feats.shape[1]))
+        np.negative(feats.transpose(0, 2, 1), out=out)
+        return out.reshape(-1, feats.shape[1])
     jb = np.asarray(result["jacobian"])[rows, :3]  # ∂r/∂b; r depends on m − b, so ∂r/∂c = jb · f
     return np.einsum("nk,npk->np", jb, feats)
 
@@ -797,8 +804,15 @@ def _improvement_pvalue(before: np.ndarray, after: np.ndarray, length: int | Non
 
 def _signed_sums(values: np.ndarray) -> np.ndarray:
     """Σ ±values over every pattern of signs (2^len of them)."""
-    signs = 1.0 - 2.0 * ((np.arange(2 ** len(values))[:, None] >> np.arange(len(values))) & 1)
-    return signs @ values
+    return _sign_patterns(len(values)) @ values
+
+
+@lru_cache(maxsize=4)
+def _sign_patterns(k: int) -> np.ndarray:
+    """Every pattern of k signs, 2^k × k (read-only: shared; a diagnosis' held-out tests ask for the same few k)."""
+    signs = 1.0 - 2.0 * ((np.arange(2 ** k)[:, None] >> np.arange(k)) & 1)
+    signs.setflags(write=False)
+    return signs
 
 
 def _gap(residuals: np.ndarray, sigma: float) -> float:
@@ -934,10 +948,12 @@ def _evaluate(cls, data, model, state, sigma, n_candidates) -> dict:
     e = np.asarray(base["residuals"])
     n = len(e)
     ctx = _context(data, base, _features(state["features"]))
-    J = np.asarray(base["jacobian"])
-    J = J[:, np.any(J != 0, axis=0)]
-    Q, _ = np.linalg.qr(J)
-    sigma2 = e @ e / (n - J.shape[1])
+    if state.get("_basis", (None,))[0] is not base:  # one QR per round's base fit, not per candidate
+        J = np.asarray(base["jacobian"])
+        J = J[:, np.any(J != 0, axis=0)]
+        state["_basis"] = (base, np.linalg.qr(J)[0], J.shape[1])
+    Q, columns = state["_basis"][1:]
+    sigma2 = e @ e / (n - columns)
 
     def new_part(feats):
         """The candidate's columns orthogonal to the base Jacobian: (score, new dimensions, singular values,
@@ -970,15 +986,17 @@ def _evaluate(cls, data, model, state, sigma, n_candidates) -> dict:
         with W = Q'Z, without forming the N × p new part."""
         if rows is None or (cls.signal_features and not fixed):  # (the latter's norms need every reading)
             return new_part(feats if rows is None else scatter_rows(len(data.m), feats, rows))[0]
+        # (some 600–1000 calls per event candidate: the same arithmetic as new_part's, with less call overhead —
+        # np.linalg.norm, np.outer and np.clip spelt out as the operations they perform)
         r = _residual_rows(rows, per_reading)
         Z = _project(base, feats, vector, rows)
-        norms = np.linalg.norm(Z, axis=0)
+        norms = np.sqrt(np.add.reduce(Z * Z, axis=0))  # np.linalg.norm(Z, axis=0)
         norms[norms == 0] = 1.0
         W = Q[r].T @ Z
-        s2, V = np.linalg.eigh((Z.T @ Z - W.T @ W) / np.outer(norms, norms))
-        s = np.sqrt(np.clip(s2, 0.0, None))
+        s2, V = np.linalg.eigh((Z.T @ Z - W.T @ W) / (norms[:, None] * norms[None, :]))
+        s = np.sqrt(np.maximum(s2, 0.0))
         new = s >= ABSORBED
-        return float(np.sum((V[:, new].T @ ((Z.T @ e[r] - W.T @ Qe) / norms) / s[new]) ** 2) / sigma2)
+        return float(((V[:, new].T @ ((Z.T @ e[r] - W.T @ Qe) / norms) / s[new]) ** 2).sum() / sigma2)
 
     profiled, ctxs, form, taken = {}, _forms(cls, ctx), "hard_iron", {}
     if cls.linear and not fixed:  # exactly absorbed by the full matrix; its first-order features are not
@@ -1202,12 +1220,16 @@ def _profile_value(cls, ctx, result: dict, Q: np.ndarray, e: np.ndarray, vector:
         U, singular, _ = np.linalg.svd(Q[keep], full_matrices=False)
         Q, e = U[:, singular > 1e-10 * singular.max()], e[keep]
 
+    known = {}  # gains by value: the null value may be on the grid (a drift's ∞)
+
     def gain(value):
-        Z = _project(result, cls.features_at(ctx, value), vector)
-        Z = Z if keep is None else Z[keep]
-        R = Z - Q @ (Q.T @ Z)
-        coef, *_ = np.linalg.lstsq(R, e, rcond=None)
-        return float(np.sum((R @ coef) ** 2))
+        if value not in known:
+            Z = _project(result, cls.features_at(ctx, value), vector)
+            Z = Z if keep is None else Z[keep]
+            R = Z - Q @ (Q.T @ Z)
+            coef, *_ = np.linalg.lstsq(R, e, rcond=None)
+            known[value] = float(np.sum((R @ coef) ** 2))
+        return known[value]
 
     grid = np.asarray(cls.profile_grid(ctx), dtype=float)
     gains = [gain(v) for v in grid]

@@ -34,6 +34,8 @@ import numpy as np
 from scipy.signal import lfilter, savgol_filter
 from scipy.spatial.transform import Rotation
 
+from .. import _core
+
 AXES = np.eye(3)
 
 
@@ -155,12 +157,55 @@ def _below_zero(coefficients, standard_errors) -> np.ndarray:
 
 def _per_axis(columns: np.ndarray) -> np.ndarray:
     """N×3 columns → N × 3 × 3 features: term k moves axis k only."""
-    return columns[:, :, None] * AXES[None, :, :]
+    # the diagonal set: 4× faster than columns times AXES, the same values (+0 off the diagonal where that product
+    # gave −0 for a negative column, which no sum or product downstream tells apart)
+    out = np.zeros((len(columns), 3, 3))
+    for k in range(3):
+        out[:, k, k] = columns[:, k]
+    return out
 
 
 def _offset_along(x: np.ndarray) -> np.ndarray:
     """Features of an offset per axis proportional to x, centred (its mean is part of the hard iron)."""
     return _per_axis(np.repeat((x - x.mean())[:, None], 3, axis=1))
+
+
+def _per_context(ctx, key: str, inputs: tuple, compute):
+    """compute() once per candidate context `ctx` while its `inputs` are the same arrays (by identity; a context
+    that is copied or given a new signal computes again), kept on the context (freed with it)."""
+    held = getattr(ctx, key, None)
+    if held is not None and len(held[0]) == len(inputs) and all(a is b for a, b in zip(held[0], inputs)):
+        return held[1]
+    value = compute()
+    try:
+        setattr(ctx, key, (inputs, value))
+    except AttributeError:  # (a context that takes no attributes: computed each time)
+        pass
+    return value
+
+
+MEMO_FLOATS = 2 ** 23  # a diagnosis' memo holds at most this many floats (64 MB): then it computes again
+
+
+def _per_diagnosis(memo, key: tuple, inputs: tuple, compute):
+    """compute() once per diagnosis for `key` while its `inputs` are the same arrays (by identity), in the
+    diagnosis' `memo` (a dict, `ctx.memo`; None: computed each time). For what does not change between its
+    rounds: a temperature's lagged courses and slopes (the lag profile asks for the same grid in every round,
+    form and held-out choice), an event's time profiles (every round's search scores the same coarse boxes and
+    passes), the world frame. The result is shared: read-only when it is an array of its own."""
+    if memo is None:
+        return compute()
+    held = memo.get(key)
+    if held is not None and all(a is b for a, b in zip(held[0], inputs)):
+        return held[1]
+    value = compute()
+    size = getattr(value, "size", 1)
+    if memo.get("_floats", 0) + size <= MEMO_FLOATS:
+        if isinstance(value, np.ndarray) and value.base is None and not any(value is a for a in inputs):
+            value.setflags(write=False)  # (not an input: a lag of 0 gives the temperature itself)
+        memo[key] = (inputs, value)
+        memo["_floats"] = memo.get("_floats", 0) + size
+    return value
 
 
 def _smooth(values: np.ndarray, t: np.ndarray, deriv: int = 0) -> np.ndarray:
@@ -448,7 +493,9 @@ class Hysteresis(Effect):
     def features_at(cls, ctx, value):
         # the reading lags by up to the width: (play(s, w) − s)/w per axis, whose coefficient is the loop's
         # half-height (the width times the share)
-        smooth = _smooth(ctx.signal, ctx.t)  # the play operator would follow what noise is left
+        # the play operator would follow what noise is left; smoothed once per context (the profile asks for dozens
+        # of widths at one signal)
+        smooth = _per_context(ctx, "_hysteresis_smooth", (ctx.signal, ctx.t), lambda: _smooth(ctx.signal, ctx.t))
         return _per_axis((_play(smooth, np.full(3, value)) - smooth) / value)
 
     @classmethod
@@ -471,12 +518,24 @@ class Hysteresis(Effect):
 
 def _play(values: np.ndarray, width: np.ndarray) -> np.ndarray:
     """The play operator along axis 0, each column with its width (`width` broadcast to a row): the output holds
-    until the input moves the width away, then follows it. Column by column on Python floats: NumPy's per-row
-    overhead made it 8× slower on three columns, and hysteresis' width profile runs it a few dozen times."""
+    until the input moves the width away, then follows it. The core's loop (`_core.play`, the same clamp): hysteresis'
+    width profile runs it a few dozen times per diagnosis; Python floats (`_play_python`) for what the core refuses
+    (a non-finite or negative value, no rows)."""
     values = np.asarray(values, dtype=float)
+    widths = np.broadcast_to(np.asarray(width, dtype=float), values.shape[1:]).reshape(-1)
+    if not (len(values) and np.all(np.isfinite(values)) and np.all(widths >= 0)):
+        return _play_python(values, widths)
     out = np.empty_like(values)
     columns, outs = values.reshape(len(values), -1), out.reshape(len(values), -1)
-    widths = np.broadcast_to(np.asarray(width, dtype=float), values.shape[1:]).reshape(-1)
+    for k, w in enumerate(widths.tolist()):
+        outs[:, k] = _core.play(np.ascontiguousarray(columns[:, k]), np.array([w]), "signal")[:, 0]
+    return out
+
+
+def _play_python(values: np.ndarray, widths: np.ndarray) -> np.ndarray:
+    """`_play` column by column on Python floats (NumPy's per-row overhead made it 8× slower on three columns)."""
+    out = np.empty_like(values)
+    columns, outs = values.reshape(len(values), -1), out.reshape(len(values), -1)
     for k, w in enumerate(widths.tolist()):
         column = columns[:, k].tolist()
         y, played = column[0] if column else 0.0, []
@@ -487,7 +546,7 @@ def _play(values: np.ndarray, width: np.ndarray) -> np.ndarray:
     return out
 
 
-def lagged(temp, t, lag_s: float) -> np.ndarray:
+def lagged(temp, t, lag_s: float, memo: dict | None = None) -> np.ndarray:
     """`temp` through a first-order lag of time constant `lag_s` (in t's unit, s): the sensing element's own
     temperature when the logged one is measured beside it, behind some thermal mass (a board thermistor, the
     chamber's air). In equilibrium at the start; irregular steps and gaps are followed exactly.
@@ -495,10 +554,11 @@ def lagged(temp, t, lag_s: float) -> np.ndarray:
     A negative `lag_s`: the logged temperature lags the element's by |lag_s| (a thermometer behind more thermal
     mass than the element, the element heated by its own current): the element's is the logged one undone of
     that lag, T + |lag_s| dT/dt, the slope smoothed over |lag_s|/2 (`_slope`: a short window would feed the
-    thermometer's quantisation steps through the derivative)."""
+    thermometer's quantisation steps through the derivative). `memo`: a diagnosis' (`_per_diagnosis`), for the
+    slopes."""
     temp = np.asarray(temp, dtype=float)
     if lag_s < 0 and len(temp) > 2:
-        return temp - lag_s * _slope(temp, np.asarray(t, dtype=float), -lag_s / 2)
+        return temp - lag_s * _slope(temp, np.asarray(t, dtype=float), -lag_s / 2, memo)
     if not lag_s > 0 or len(temp) < 2:
         return temp
     steps = np.diff(np.asarray(t, dtype=float))
@@ -514,11 +574,13 @@ def lagged(temp, t, lag_s: float) -> np.ndarray:
     return out
 
 
-def _slope(values: np.ndarray, t: np.ndarray, width: float) -> np.ndarray:
+def _slope(values: np.ndarray, t: np.ndarray, width: float, memo: dict | None = None) -> np.ndarray:
     """d(values)/dt from a quartic fitted over `width` (in t's unit) about each sample (Savitzky–Golay) on an
     even grid at the median step: a dropped row or a jittery clock must not turn quantisation steps into spikes
     (unsmoothed differences did: a 0.1 °C step over one jittered interval). Quartic: a quadratic's slope over
-    a window of the lag was 3 % short on a slow sine and left a residual taken for coloured noise."""
+    a window of the lag was 3 % short on a slow sine and left a residual taken for coloured noise. `memo`: a
+    diagnosis' (`_per_diagnosis`): the slope depends on the width only through the window, in samples, and the
+    lag profile's refinement asks for many widths of one window."""
     order = np.argsort(t, kind="stable")
     ts, vs = t[order], values[order]
     dt = _sample_step(ts, none=0.0)
@@ -529,10 +591,12 @@ def _slope(values: np.ndarray, t: np.ndarray, width: float) -> np.ndarray:
     window = min(max(5, int(round(width / dt)) | 1), len(grid) - (1 - len(grid) % 2))  # odd, at most the grid
     if window < 3:  # two grid points: no slope worth the name
         return np.zeros_like(values)
-    slope = savgol_filter(even, window, min(4, window - 1), deriv=1, delta=dt)
-    out = np.empty_like(values)
-    out[order] = np.interp(ts, grid, slope)
-    return out
+
+    def slope():
+        out = np.empty_like(values)
+        out[order] = np.interp(ts, grid, savgol_filter(even, window, min(4, window - 1), deriv=1, delta=dt))
+        return out
+    return _per_diagnosis(memo, ("slope", window), (values, t), slope)
 
 
 def _span_and_step(t) -> tuple:
@@ -574,6 +638,13 @@ class _TemperatureLag:
         return cls.features_at(ctx, 0.0)
 
 
+def _lagged_temp(ctx, lag_s: float) -> np.ndarray:
+    """`lagged(ctx.temp, ctx.t, lag_s)`, once per diagnosis and lag (`_per_diagnosis`)."""
+    memo = getattr(ctx, "memo", None)
+    return _per_diagnosis(memo, ("lagged", float(lag_s)), (ctx.temp, ctx.t),
+                          lambda: lagged(ctx.temp, ctx.t, lag_s, memo))
+
+
 @dataclass
 class TemperatureScale(_TemperatureLag, Effect):
     """Sensitivity drift with temperature: s_k (1 + α_k (T − T0)), α in 1/°C, T the sensing element's
@@ -595,7 +666,7 @@ class TemperatureScale(_TemperatureLag, Effect):
 
     @classmethod
     def features_at(cls, ctx, value):
-        temp = lagged(ctx.temp, ctx.t, value)
+        temp = _lagged_temp(ctx, value)
         return _per_axis(ctx.signal * (temp - temp.mean())[:, None])
 
     @classmethod
@@ -622,7 +693,7 @@ class TemperatureOffset(_TemperatureLag, Effect):
 
     @classmethod
     def features_at(cls, ctx, value):
-        return _offset_along(lagged(ctx.temp, ctx.t, value))
+        return _offset_along(_lagged_temp(ctx, value))
 
     @classmethod
     def typical(cls, field_norm, rng):
@@ -759,13 +830,22 @@ class ScaleDrift(_TimeCourse, Effect):
 
 # ---------------------------------------------------------------- field effects
 
-def _rows_within(t: np.ndarray, t_on: float, t_off: float):
+def _rows_within(t: np.ndarray, t_on: float, t_off: float, ordered: bool = False):
     """The readings with t_on ≤ t ≤ t_off: a slice when they are consecutive rows (readings in time order),
-    else their indices."""
+    else their indices. `ordered`: t is known to be non-decreasing (`_time_ordered`), the slice found by bisection
+    (an event search asks some 1000 times)."""
+    if ordered:
+        lo, hi = int(t.searchsorted(t_on, side="left")), int(t.searchsorted(t_off, side="right"))
+        return slice(lo, hi) if lo < hi else slice(0, 0)
     rows = np.flatnonzero((t >= t_on) & (t <= t_off))
     if len(rows) == 0:
         return slice(0, 0)
     return slice(int(rows[0]), int(rows[-1]) + 1) if rows[-1] - rows[0] + 1 == len(rows) else rows
+
+
+def _time_ordered(ctx) -> bool:
+    """Whether the context's times never decrease (the diagnosis sorts them), once per context."""
+    return _per_context(ctx, "_time_ordered", (ctx.t,), lambda: bool(np.all(ctx.t[1:] >= ctx.t[:-1])))
 
 
 def _sample_step(t: np.ndarray, none: float = 1.0) -> float:
@@ -926,9 +1006,14 @@ class MovingDipole(_TimeBox):
 
     @classmethod
     def _box_rows(cls, ctx, t_on, t_off, degree: int = 2):
-        rows = _rows_within(ctx.t, t_on, t_off)
-        u = 2 * (ctx.t[rows] - 0.5 * (t_on + t_off)) / (t_off - t_on)  # −1…1 across the box
-        return cls._along_field(ctx, rows, np.polynomial.legendre.legvander(u, degree)), rows
+        rows = _rows_within(ctx.t, t_on, t_off, _time_ordered(ctx))
+
+        def shape():
+            u = 2 * (ctx.t[rows] - 0.5 * (t_on + t_off)) / (t_off - t_on)  # −1…1 across the box
+            return np.polynomial.legendre.legvander(u, degree)
+        # (the time profile depends on the times alone: every round's search scores the same coarse boxes)
+        shape = _per_diagnosis(getattr(ctx, "memo", None), ("box", t_on, t_off, degree), (ctx.t,), shape)
+        return cls._along_field(ctx, rows, shape), rows
 
     @staticmethod
     def _along_field(ctx, rows, shape: np.ndarray) -> np.ndarray:
@@ -962,14 +1047,20 @@ class MovingDipole(_TimeBox):
         """A pass's features on the readings it reaches, and those readings. order 2 (magnitudes only): also
         the magnitude's second-order change |B⊥|²/2H, a quartic in τ over (1 + τ²)⁵ — up to a tenth of a pass at
         20 % of the field."""
-        rows = _rows_within(ctx.t, t_close - cls.PASS_REACH * t_pass, t_close + cls.PASS_REACH * t_pass)
-        tau = (ctx.t[rows] - t_close) / t_pass
-        near = 1.0 / (1.0 + tau * tau)
-        envelope = near * near * np.sqrt(near)  # (1 + τ²)^(−5/2) (a fractional power costs 3× this)
-        profiles = [envelope, envelope * tau, envelope * tau * tau]
-        if order == 2:
-            profiles += [envelope * envelope * tau ** n for n in range(5)]
-        return cls._along_field(ctx, rows, np.stack(profiles, axis=1)), rows
+        rows = _rows_within(ctx.t, t_close - cls.PASS_REACH * t_pass, t_close + cls.PASS_REACH * t_pass,
+                            _time_ordered(ctx))
+
+        def shape():
+            tau = (ctx.t[rows] - t_close) / t_pass
+            near = 1.0 / (1.0 + tau * tau)
+            envelope = near * near * np.sqrt(near)  # (1 + τ²)^(−5/2) (a fractional power costs 3× this)
+            profiles = [envelope, envelope * tau, envelope * tau * tau]
+            if order == 2:
+                profiles += [envelope * envelope * tau ** n for n in range(5)]
+            return np.stack(profiles, axis=1)
+        # (the time profile depends on the times alone: every round's search scores the same coarse passes)
+        shape = _per_diagnosis(getattr(ctx, "memo", None), ("pass", t_close, t_pass, order), (ctx.t,), shape)
+        return cls._along_field(ctx, rows, shape), rows
 
     @classmethod
     def _search_pass(cls, ctx, score):
@@ -1108,8 +1199,10 @@ class OffsetStep(_TimeBox):
 
     @classmethod
     def _box_rows(cls, ctx, t_on, t_off):
-        rows = _rows_within(ctx.t, t_on, t_off)
-        return _per_axis(np.ones((len(ctx.t[rows]), 3))), rows
+        rows = _rows_within(ctx.t, t_on, t_off, _time_ordered(ctx))
+        # ones per axis: the identity on every row (some 600 boxes are scored). Copied, not the broadcast view:
+        # einsum sums over a zero stride in another order, which flipped a tie between a box and its complement
+        return np.broadcast_to(AXES, (len(ctx.t[rows]), 3, 3)).copy(), rows
 
     @classmethod
     def typical(cls, field_norm, rng, duration_s: float = 60.0):
