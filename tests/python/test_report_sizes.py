@@ -37,8 +37,10 @@ SIZE_LINES = {
     "moving_dipole": rf"moving_dipole: .*largest at t = {NUMBER} s: [-+]{NUMBER} uT along the field "
                      rf"\({NUMBER} % of the field",
     "offset_step": rf"offset_step: the offset jumped by {VECTOR} uT \(x, y, z; {NUMBER} % of the field\)",
-    "eddy_current": rf"eddy_current: the readings lag the field by time constants {VECTOR} ms \(x, y, z; "
-                    rf"m = s − τ ds/dt, in field per field/s\); a magnitude shows only .*; with the readings changing "
+    # (from a magnitude: above the smallest axis's, none negative)
+    "eddy_current": rf"eddy_current: the readings lag the field by time constants \[(?:[0-9.]+(?:e[-+][0-9]+)?, ){{2}}"
+                    rf"[0-9.]+(?:e[-+][0-9]+)?\] ms above the smallest axis's: a magnitude shows only .* \(x, y, z; "
+                    rf"m = s − τ ds/dt, in field per field/s\); with the readings changing "
                     rf"by up to {NUMBER} uT/s in this recording, up to {SHARE}",
     "time_offset": rf"time_offset: the readings {NUMBER} ms (behind|ahead of) the reference vectors.*; with the "
                    rf"readings changing by up to {NUMBER} uT/s in this recording, up to {SHARE}",
@@ -105,6 +107,10 @@ def _hysteresis(result, d, line):
 
 # The numbers, not only the words: each against the simulation's truth.
 TRUE_SIZES = {
+    # from a magnitude, the time constants above the smallest axis's (ms)
+    "eddy_current": lambda result, d, line: np.testing.assert_allclose(
+        _vectors(line)[0], 1e3 * (_truth(result, "eddy_current").tau - np.min(_truth(result, "eddy_current").tau)),
+        atol=0.3),
     "temp_offset": _temp_offset,
     "temp_scale": lambda result, d, line: np.testing.assert_allclose(
         _vectors(line)[0], 100 * _truth(result, "temp_scale").alpha, rtol=0.05),

@@ -88,13 +88,21 @@ CLIPPED_MIN = 20    # the sensor's range clips it (hard saturation), not a glitc
 PILE_UP = 4         # the extreme value holds more than this many times the readings of its inward neighbours
 CLIP_MARGIN = 3.0   # readings within this many noise σ inside a clipping rail are left out with it: the noise that
                     # would have taken them past it was cut, so those left below are biased inwards (a compression)
+RAIL_BAND = 7.0     # a rail the noise blurs: its readings lie within this many σ of the extreme reading (± 3.5 σ)
+RAIL_MOVES = 10.0   # ... while the other axes spread over more than this many σ (_mad: the sensor turning, not still)
+RAIL_SPREAD = 1.5   # ... its readings spread less than this many σ (the noise on one value: a band RAIL_BAND wide
+                    # over which the readings still rise, a soft saturation or a sine's peak, spreads some 2 σ)
+RAIL_CUT = 3.0      # ... and its readings fall this many times further inside the others' ellipsoid than they fall off it
 
 
-def _clipping(m: np.ndarray) -> list:
-    """[{axis, rail, readings, fraction}] for each axis whose readings pile up at its minimum or maximum: more
-    than PILE_UP times as many as on either of the next two values inward (a coarse ADC's extreme code is as
-    full as its neighbours; a rail collects everything beyond the range)."""
-    out = []
+def _clipping(m: np.ndarray, sigma: float = 0.0) -> list:
+    """[{axis, rail, readings, fraction, noisy}] for each axis whose readings pile up at its minimum or maximum: more
+    than PILE_UP times as many as on either of the next two values inward (a coarse ADC's extreme code is as full as
+    its neighbours; a rail collects everything beyond the range). With the noise σ given, also a rail the noise
+    blurs (an analog front end that saturates before a noisy converter: a blind check's ±55 µT clip was named a 24 %
+    cubic non-linearity): more than PILE_UP times as many readings within RAIL_BAND σ of the extreme as in the band
+    inward of it, while the other axes move (a sensor held still at an extreme orientation piles up too)."""
+    out, cut = [], np.zeros(len(m), dtype=bool)  # (cut: the blurred rails' readings found so far)
     for axis, column in enumerate(np.ascontiguousarray(m.T)):
         values, counts = np.unique(column, return_counts=True)
         for end in (slice(None, 3), slice(-1, -4, -1)):
@@ -102,8 +110,45 @@ def _clipping(m: np.ndarray) -> list:
             rail = float(values[end][0])
             if count >= max(CLIPPED_MIN, CLIPPED * len(column)) and count > PILE_UP * max(inward, default=0):
                 out.append({"axis": "xyz"[axis], "rail": float(rail), "readings": count,
-                            "fraction": count / len(column)})
+                            "fraction": count / len(column), "noisy": False})
+                cut |= column == rail
+            elif sigma > 0:
+                side = 1.0 if end.start == -1 else -1.0  # (the maximum's end, or the minimum's)
+                depth = side * (rail - column)  # how far inward of the extreme
+                band = depth <= RAIL_BAND * sigma
+                count, inward = int(band.sum()), int(np.sum((depth > RAIL_BAND * sigma) & (depth <= 2 * RAIL_BAND * sigma)))
+                others = np.delete(m[band], axis, axis=1)
+                if (count >= max(CLIPPED_MIN, CLIPPED * len(column)) and count > PILE_UP * max(inward, 1)
+                        and np.std(column[band]) < RAIL_SPREAD * sigma
+                        and np.min(_mad(others)) > RAIL_MOVES * sigma and _cut_off(m, band | cut, band)):
+                    cut |= band
+                    out.append({"axis": "xyz"[axis], "rail": float(np.median(column[band])), "readings": count,
+                                "fraction": count / len(column), "noisy": True})
     return out
+
+
+def _mad(values: np.ndarray) -> np.ndarray:
+    """Each column's spread as a σ from its median absolute deviation (a few readings far off do not make it: a
+    simulation's still start, 43 of a pile's 53 readings, beside 10 from two turns, had a standard deviation of 30 σ)."""
+    return 1.4826 * np.median(np.abs(values - np.median(values, axis=0)), axis=0)
+
+
+def _cut_off(m: np.ndarray, left_out: np.ndarray, band: np.ndarray) -> bool:
+    """Whether the readings in `band` (piled up at an axis's extreme) fall inside the ellipsoid the others (not
+    `left_out`: other rails' too) describe, RAIL_CUT times further than those fall off it (median |residual|): a range
+    that cuts them. A component that turns about one axis piles up at its extremes as well (a sine dwells at its
+    peaks: the library's own tumbles were taken for rails in 3 of 30), but on the ellipsoid."""
+    from ..ellipsoid import fit_ellipsoid
+
+    try:
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore")
+            cal = fit_ellipsoid(m[~left_out])
+    except ValueError:  # (the others alone do not span an ellipsoid: not judged a blurred rail)
+        return False
+    size = np.linalg.norm(cal.apply(m), axis=1)
+    residual = np.abs(size - np.median(size[~left_out]))
+    return bool(np.median(residual[band]) > RAIL_CUT * np.median(residual[~left_out]))
 
 
 @dataclass
@@ -2020,17 +2065,22 @@ def _prepare(samples, t, temp, reference, down, field_norm, units, source, curre
         take(keep)
         notes.append(f"{int(copies.sum())} of {n} readings ({100 * copies.mean():.0f} %) repeat the previous one "
                      "exactly (sample and hold: the logger ran faster than the sensor) and were left out")
-    clipping = _clipping(m) if np.isfinite(m).all() else []
+    sigma = estimate_noise(m) if len(m) >= 20 and np.isfinite(m).all() else 0.0
+    clipping = _clipping(m, sigma) if np.isfinite(m).all() else []
     if clipping:  # hard saturation: what the range cut, and what the cut biased, carry no field to model
-        sigma = estimate_noise(m) if len(m) >= 20 else 0.0
-        near = np.zeros(len(m), dtype=bool)
+        on_rail, near = np.zeros(len(m), dtype=bool), np.zeros(len(m), dtype=bool)
         for c in clipping:
             column = m[:, "xyz".index(c["axis"])]
-            near |= np.abs(column - c["rail"]) <= CLIP_MARGIN * sigma
+            # a blurred rail's readings spread ± RAIL_BAND/2 σ about it: those and CLIP_MARGIN σ more inward
+            reach = (RAIL_BAND / 2 if c["noisy"] else 0.0) * sigma
+            on_rail |= np.abs(column - c["rail"]) <= reach
+            near |= np.abs(column - c["rail"]) <= reach + CLIP_MARGIN * sigma
         keep = ~near
         clipped = "; ".join(f"{c['axis']} at {c['rail']:.6g}{' ' + units if units else ''} ({c['readings']} readings, "
-                            f"{100 * c['fraction']:.1f} %)" for c in clipping)
-        notes.append(f"the sensor's range clips the readings ({clipped}): those and the {int(near.sum()) - sum(c['readings'] for c in clipping)} "
+                            f"{100 * c['fraction']:.1f} %{', blurred by the noise' if c['noisy'] else ''})"
+                            for c in clipping)
+        # (counted once: a reading on two rails had been counted twice, "the -258 within 3 σ")
+        notes.append(f"the sensor's range clips the readings ({clipped}): those and the {int((near & ~on_rail).sum())} "
                      f"within {CLIP_MARGIN:g} σ of the rail (the cut noise biases them inwards) were left out")
         take(keep)
     if np.isfinite(m).all():

@@ -392,14 +392,18 @@ def eddy_current_line(d, r) -> str:
     u, unit = (f" {d.units}" if d.units else ""), _time_unit(d)
     tau = np.asarray(r["coefficients"], dtype=float)
     rate = _rate(d)
-    taus = f"{_vec(tau, 1e3)} ms" if unit == "s" else f"{_vec(tau)} rows"
-    blind = ("" if d.series.get("vector") else
-             f"; a magnitude shows only the differences between the axes' time constants (standard errors "
-             f"{_vec(r['standard_errors'], 1e3 if unit == 's' else 1)}{' ms' if unit == 's' else ' rows'})")
-    return (f"eddy_current: the readings lag the field by time constants {taus} (x, y, z; m = s − τ ds/dt, in field "
-            f"per field/{unit}){blind}; with the readings changing by up to "
+    vector = bool(d.series.get("vector"))
+    # a magnitude shows only the differences: said above the smallest (a blind check read "time constants [-3.06,
+    # -2.34, 2.18] ms" — a lag cannot be negative — for [1, 2, 6])
+    shown = tau if vector else tau - tau.min()
+    taus = f"{_vec(shown, 1e3)} ms" if unit == "s" else f"{_vec(shown)} rows"
+    blind = ("" if vector else
+             f" above the smallest axis's: a magnitude shows only the differences between the axes' time constants "
+             f"(standard errors {_vec(r['standard_errors'], 1e3 if unit == 's' else 1)}{' ms' if unit == 's' else ' rows'})")
+    return (f"eddy_current: the readings lag the field by time constants {taus}{blind} (x, y, z; m = s − τ ds/dt, in "
+            f"field per field/{unit}); with the readings changing by up to "
             f"{_g(np.max(np.linalg.norm(rate, axis=1)))}{u}/{unit} in this recording, up to "
-            f"{_share(d, float(np.max(np.linalg.norm(rate * tau, axis=1))))} (a conductive housing or plate near "
+            f"{_share(d, float(np.max(np.linalg.norm(rate * shown, axis=1))))} (a conductive housing or plate near "
             "the sensor?)")
 
 
