@@ -1244,6 +1244,12 @@ def test_a_row_says_which_acceptance_tests_it_fails():
     lines = ranking_lines(SimpleNamespace(ranking=[dict(row, significant=True, unmet=[]), held, weak]))
     assert "not confirmed" not in lines[2] and "not confirmed" not in lines[4]
     assert "strong in sample, not confirmed held out: p 0.074, gap 0.01 → 0.008" in lines[3]
+    # and NOT EXPLAINED says so (a blind check's magnet pass, ΔBIC −10 943, had been passed over for generic causes)
+    from fluxcal.diagnose.report import _unconfirmed_words
+
+    said = _unconfirmed_words(SimpleNamespace(ranking=[held, weak]))
+    assert "not confirmed on its held-out readings: temp_scale (ΔBIC -300; held out p 0.074, gap 0.01 → 0.008)" in said
+    assert _unconfirmed_words(SimpleNamespace(ranking=[weak])) == ""
 
 
 def test_why_a_fit_cannot_be_an_effect():
