@@ -394,12 +394,16 @@ def eddy_current_line(d, r) -> str:
     rate = _rate(d)
     vector = bool(d.series.get("vector"))
     # a magnitude shows only the differences: said above the smallest (a blind check read "time constants [-3.06,
-    # -2.34, 2.18] ms" — a lag cannot be negative — for [1, 2, 6])
-    shown = tau if vector else tau - tau.min()
+    # -2.34, 2.18] ms" — a lag cannot be negative — for [1, 2, 6]); so does a delay found beside them, which is the
+    # same lag on every axis to first order (20 ms and [1, 2, 6] had read 23.6 ms and [-2.66, -1.71, 2.42])
+    delayed = vector and "time_offset" in d.accepted
+    shown = tau if vector and not delayed else tau - tau.min()
     taus = f"{_vec(shown, 1e3)} ms" if unit == "s" else f"{_vec(shown)} rows"
-    blind = ("" if vector else
-             f" above the smallest axis's: a magnitude shows only the differences between the axes' time constants "
-             f"(standard errors {_vec(r['standard_errors'], 1e3 if unit == 's' else 1)}{' ms' if unit == 's' else ' rows'})")
+    se = f"(standard errors {_vec(r['standard_errors'], 1e3 if unit == 's' else 1)}{' ms' if unit == 's' else ' rows'})"
+    blind = ("" if vector and not delayed else
+             f" above the smallest axis's: beside the delay found (time_offset), a lag common to every axis is the "
+             f"delay's, which holds it {se}" if delayed else
+             f" above the smallest axis's: a magnitude shows only the differences between the axes' time constants {se}")
     return (f"eddy_current: the readings lag the field by time constants {taus}{blind} (x, y, z; m = s − τ ds/dt, in "
             f"field per field/{unit}); with the readings changing by up to "
             f"{_g(np.max(np.linalg.norm(rate, axis=1)))}{u}/{unit} in this recording, up to "
