@@ -27,6 +27,9 @@ SIZE_LINES = {
     "scale_drift": rf"scale_drift: the sensitivity drifts linearly, by {VECTOR} % \(x, y, z\)",
     "nonlinearity_cubic": rf"nonlinearity_cubic: the readings depart from a straight line by {VECTOR} % "
                           rf"\(x, y, z\) at a reading of {NUMBER} uT .*; in this recording up to {SHARE}",
+    "nonlinearity_quadratic": rf"nonlinearity_quadratic: the readings depart from a straight line by {VECTOR} % "
+                              rf"\(x, y, z\) at a reading of \+{NUMBER} uT, the opposite at −{NUMBER} uT .*; in this "
+                              rf"recording up to {SHARE}",
     "saturation": rf"saturation: .*: it compresses a reading of {NUMBER} uT by {NUMBER} %.*; in this recording the "
                   rf"readings by up to {SHARE}",
     "cross_axis": rf"cross_axis: anisotropy fields {VECTOR} uT \(x, y, z.*; in this recording up to {SHARE}",
@@ -91,6 +94,12 @@ def _cubic(result, d, line):
     assert np.allclose(_vectors(line)[0], 100 * truth.relative * (at / truth.scale) ** 2, rtol=0.1)
 
 
+def _quadratic(result, d, line):
+    at = float(re.search(r"at a reading of \+([0-9.]+) uT", line).group(1))
+    truth = _truth(result, "nonlinearity_quadratic")
+    assert np.allclose(_vectors(line)[0], 100 * truth.relative * at / truth.scale, rtol=0.15)
+
+
 def _saturation(result, d, line):
     limit = float(re.search(r"as a core saturating at ([0-9.]+) uT", line).group(1))
     assert limit == pytest.approx(_truth(result, "saturation").limit, rel=0.1)
@@ -116,6 +125,7 @@ TRUE_SIZES = {
     "temp_scale": lambda result, d, line: np.testing.assert_allclose(
         _vectors(line)[0], 100 * _truth(result, "temp_scale").alpha, rtol=0.05),
     "nonlinearity_cubic": _cubic,
+    "nonlinearity_quadratic": _quadratic,
     "saturation": _saturation,
     "cross_axis": lambda result, d, line: np.testing.assert_allclose(
         _vectors(line)[0], _truth(result, "cross_axis").hk, rtol=0.1),

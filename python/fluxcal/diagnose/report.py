@@ -16,7 +16,7 @@ def _num(x, fmt=".3g") -> str:
 
 
 def ranking_lines(d) -> list:
-    head = (f"{'effect':20s} {'signif.':>7s} {'ΔBIC':>10s} {'LR p':>9s} {'dims':>4s} {'held out':>11s} "
+    head = (f"{'effect':22s} {'signif.':>7s} {'ΔBIC':>10s} {'LR p':>9s} {'dims':>4s} {'held out':>11s} "
             f"{'gap before':>10s} {'gap after':>10s} downstream (held out) before → after")
     lines = [head, "-" * len(head)]
     for r in d.ranking:
@@ -36,7 +36,7 @@ def ranking_lines(d) -> list:
                 else "  (a noise model: its gap after counts the correlated noise as noise, not as a fit)"
                 if r["effect"] == "colored_noise" and r.get("significant")
                 else _unconfirmed(r))
-        lines.append(f"{r['effect']:20s} {'YES' if r['significant'] else 'no':>7s} {r['delta_bic']:10.1f} "
+        lines.append(f"{r['effect']:22s} {'YES' if r['significant'] else 'no':>7s} {r['delta_bic']:10.1f} "
                      f"{r['lr_pvalue']:9.2g} {r.get('new_dimensions', 0):4d} {str(r.get('heldout', '')):>11s} "
                      f"{_num(r.get('heldout_gap_before')):>10s} {_num(r.get('heldout_gap_after')):>10s} "
                      f"{fe}{note}")
@@ -342,6 +342,14 @@ def cubic_line(d, r) -> str:
             f"transducer sees); in this recording {_largest_change(d, r, ctx)}")
 
 
+def quadratic_line(d, r) -> str:
+    u = f" {d.units}" if d.units else ""
+    ctx = _context(d, r)
+    return (f"nonlinearity_quadratic: the readings depart from a straight line by {_vec(r['coefficients'], 100)} % "
+            f"(x, y, z) at a reading of +{_g(ctx.scale)}{u}, the opposite at −{_g(ctx.scale)}{u} (an even order: m = "
+            f"s (1 + c s/{_g(ctx.scale)}), s what the transducer sees); in this recording {_largest_change(d, r, ctx)}")
+
+
 def saturation_line(d, r) -> str:
     """The limit (or, for the cubic form, the limit of a tanh that compresses as much at the typical reading)
     and how much it takes off the readings."""
@@ -479,6 +487,7 @@ def move_size(d, r) -> str:
 
 
 SIZE_LINES = {"temp_offset": temp_offset_line, "temp_scale": temp_scale_line, "nonlinearity_cubic": cubic_line,
+              "nonlinearity_quadratic": quadratic_line,
               "saturation": saturation_line, "cross_axis": cross_axis_line,
               "non_orthogonality": non_orthogonality_line, "hysteresis": hysteresis_line,
               "eddy_current": eddy_current_line, "motor_current": motor_current_line,

@@ -397,6 +397,32 @@ class CubicNonlinearity(Effect):
 
 
 @dataclass
+class QuadraticNonlinearity(Effect):
+    """m_k = s_k (1 + c_k s_k / S): an even-order error, `relative[k]` the fraction at s_k = S (`scale`; −c_k at −S).
+    An AMR bridge whose elements are not matched, a fluxgate whose drive is not symmetric, a Hall element's planar
+    term: the reading departs one way at both ends of the range. Typical ±0.3–1 % at S. (Not a candidate, a blind
+    check's 0.3–0.4 % was named a cubic or a saturation with opposite signs in two seeds.)"""
+
+    relative: np.ndarray
+    scale: float
+    name = "nonlinearity_quadratic"
+    transducer = True
+    n_params = 3
+    signal_features = True
+
+    def apply(self, values, context):
+        return values * (1.0 + np.asarray(self.relative) * values / self.scale)
+
+    @classmethod
+    def features(cls, ctx):
+        return _per_axis(ctx.signal ** 2 / ctx.scale)
+
+    @classmethod
+    def typical(cls, field_norm, rng):
+        return cls(rng.choice([-1, 1], 3) * rng.uniform(0.003, 0.01, 3), field_norm)
+
+
+@dataclass
 class Saturation(Effect):
     """Soft saturation of every axis at `limit`: m = L tanh(s / L). Typical: L = 4× the field (a 2 G range
     sensor in 0.5 G) — 2 % compression at the field's magnitude.
@@ -1365,7 +1391,8 @@ class Quantization(Effect):
         return self.step * np.round(values / self.step)
 
 
-CANDIDATES = (TemperatureScale, TemperatureOffset, MotorCurrent, OffsetDrift, ScaleDrift, CubicNonlinearity, Saturation, CrossAxis,
+CANDIDATES = (TemperatureScale, TemperatureOffset, MotorCurrent, OffsetDrift, ScaleDrift, CubicNonlinearity,
+              QuadraticNonlinearity, Saturation, CrossAxis,
               NonOrthogonality, Misalignment, Hysteresis, MovingDipole, OffsetStep, EddyCurrent, TimeOffset,
               ColoredNoise, Quantization)
 """Every effect the diagnosis can rank, by its candidate name (`fluxcal diagnose` documents them)."""
@@ -1380,6 +1407,7 @@ PARAMETER_UNITS = {
     "offset_drift": {"rate": "{u}/s", "random_walk": "{u}/sqrt(s)", "warmup_s": "s"},
     "scale_drift": {"rate": "1/s", "warmup_s": "s"},
     "nonlinearity_cubic": {"relative": "(fraction at |s| = scale)", "scale": "{u}"},
+    "nonlinearity_quadratic": {"relative": "(fraction at s = scale)", "scale": "{u}"},
     "saturation": {"limit": "{u}"},
     "cross_axis": {"hk": "{u}"},
     "non_orthogonality": {"angles": "deg"},
