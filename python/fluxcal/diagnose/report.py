@@ -335,19 +335,22 @@ def temp_scale_line(d, r) -> str:
 
 
 def cubic_line(d, r) -> str:
-    u = f" {d.units}" if d.units else ""
-    ctx = _context(d, r)
-    return (f"nonlinearity_cubic: the readings depart from a straight line by {_vec(r['coefficients'], 100)} % "
-            f"(x, y, z) at a reading of {_g(ctx.scale)}{u} (m = s (1 + c (s/{_g(ctx.scale)})²), s what the "
-            f"transducer sees); in this recording {_largest_change(d, r, ctx)}")
+    return _nonlinearity_line(d, r, "at a reading of {S}", "m = s (1 + c (s/{S})²)")
 
 
 def quadratic_line(d, r) -> str:
+    return _nonlinearity_line(d, r, "at a reading of +{S}, the opposite at −{S}", "an even order: m = s (1 + c s/{S})")
+
+
+def _nonlinearity_line(d, r, where: str, law: str) -> str:
+    """A non-linearity's departure from a straight line (% at the typical reading S, `where`: its words with {S}),
+    its law (`law`) and how far it moves this recording's readings."""
     u = f" {d.units}" if d.units else ""
     ctx = _context(d, r)
-    return (f"nonlinearity_quadratic: the readings depart from a straight line by {_vec(r['coefficients'], 100)} % "
-            f"(x, y, z) at a reading of +{_g(ctx.scale)}{u}, the opposite at −{_g(ctx.scale)}{u} (an even order: m = "
-            f"s (1 + c s/{_g(ctx.scale)}), s what the transducer sees); in this recording {_largest_change(d, r, ctx)}")
+    at = f"{_g(ctx.scale)}{u}"
+    return (f"{r['effect']}: the readings depart from a straight line by {_vec(r['coefficients'], 100)} % (x, y, z) "
+            f"{where.format(S=at)} ({law.format(S=_g(ctx.scale))}, s what the transducer sees); in this recording "
+            f"{_largest_change(d, r, ctx)}")
 
 
 def saturation_line(d, r) -> str:

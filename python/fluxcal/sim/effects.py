@@ -372,24 +372,32 @@ class CrossAxis(Effect):
 
 
 @dataclass
-class CubicNonlinearity(Effect):
+class _Nonlinearity(Effect):
+    """m_k = s_k (1 + c_k (s_k / S)^(ORDER − 1)) in the transducer: `relative[k]` is the error fraction at s_k = S
+    (`scale`)."""
+
+    relative: np.ndarray
+    scale: float
+    transducer = True
+    n_params = 3
+    signal_features = True
+    ORDER = 3
+
+    def apply(self, values, context):
+        return values * (1.0 + np.asarray(self.relative) * (values / self.scale) ** (self.ORDER - 1))
+
+    @classmethod
+    def features(cls, ctx):
+        return _per_axis(ctx.signal ** cls.ORDER / ctx.scale ** (cls.ORDER - 1))
+
+
+@dataclass
+class CubicNonlinearity(_Nonlinearity):
     """m_k = s_k (1 + c_k (s_k / S)²): `relative[k]` is the error fraction at |s_k| = S (`scale`). Typical
     ±1–2 % at S: a sensor used at 50–70 % of its range with a datasheet linearity of ±0.5 % FS
     (QMC5883L/AMR class), or a fluxgate near the end of its range."""
 
-    relative: np.ndarray
-    scale: float
     name = "nonlinearity_cubic"
-    transducer = True
-    n_params = 3
-    signal_features = True
-
-    def apply(self, values, context):
-        return values * (1.0 + np.asarray(self.relative) * (values / self.scale) ** 2)
-
-    @classmethod
-    def features(cls, ctx):
-        return _per_axis(ctx.signal ** 3 / ctx.scale ** 2)
 
     @classmethod
     def typical(cls, field_norm, rng):
@@ -397,25 +405,14 @@ class CubicNonlinearity(Effect):
 
 
 @dataclass
-class QuadraticNonlinearity(Effect):
+class QuadraticNonlinearity(_Nonlinearity):
     """m_k = s_k (1 + c_k s_k / S): an even-order error, `relative[k]` the fraction at s_k = S (`scale`; −c_k at −S).
     An AMR bridge whose elements are not matched, a fluxgate whose drive is not symmetric, a Hall element's planar
     term: the reading departs one way at both ends of the range. Typical ±0.3–1 % at S. (Not a candidate, a blind
     check's 0.3–0.4 % was named a cubic or a saturation with opposite signs in two seeds.)"""
 
-    relative: np.ndarray
-    scale: float
     name = "nonlinearity_quadratic"
-    transducer = True
-    n_params = 3
-    signal_features = True
-
-    def apply(self, values, context):
-        return values * (1.0 + np.asarray(self.relative) * values / self.scale)
-
-    @classmethod
-    def features(cls, ctx):
-        return _per_axis(ctx.signal ** 2 / ctx.scale)
+    ORDER = 2
 
     @classmethod
     def typical(cls, field_norm, rng):
