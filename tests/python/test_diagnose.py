@@ -1272,6 +1272,13 @@ def test_why_a_fit_cannot_be_an_effect():
     # a sign the effect's physics forbids: a saturation that expands
     flag, why, note = _implausible(dict(row, coefficients=[-0.02], standard_errors=[0.001]), 0.05, False, Saturation)
     assert flag == "unphysical" and "expanding" in why and note.startswith("not accepted as saturation")
+    # an even-order error far beyond any magnetometer's: a trade with another term (beside a clean cross-axis error
+    # a blind check's fit took 34.5 % of it on x against anisotropy fields of −142 µT)
+    from fluxcal.sim.effects import QuadraticNonlinearity
+
+    assert _implausible(dict(row, coefficients=[0.008, -0.003, 0.004]), 0.05, False, QuadraticNonlinearity) is None
+    flag, why, _ = _implausible(dict(row, coefficients=[0.345, 0.0003, 0.0008]), 0.05, False, QuadraticNonlinearity)
+    assert flag == "unphysical" and "even-order error of 34.5 %" in why
 
 
 @pytest.mark.parametrize("lag", [40.0, -20.0])
