@@ -200,11 +200,13 @@ def _per_diagnosis(memo, key: tuple, inputs: tuple, compute):
         return held[1]
     value = compute()
     size = getattr(value, "size", 1)
-    if memo.get("_floats", 0) + size <= MEMO_FLOATS:
+    # (what a replaced entry held is freed: counted once, the cap had been reached by replacements alone)
+    held_size = getattr(held[1], "size", 1) if held is not None else 0
+    if memo.get("_floats", 0) - held_size + size <= MEMO_FLOATS:
         if isinstance(value, np.ndarray) and value.base is None and not any(value is a for a in inputs):
             value.setflags(write=False)  # (not an input: a lag of 0 gives the temperature itself)
         memo[key] = (inputs, value)
-        memo["_floats"] = memo.get("_floats", 0) + size
+        memo["_floats"] = memo.get("_floats", 0) - held_size + size
     return value
 
 
