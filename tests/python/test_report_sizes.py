@@ -32,6 +32,9 @@ SIZE_LINES = {
                               rf"recording up to {SHARE}",
     "saturation": rf"saturation: .*: it compresses a reading of {NUMBER} uT by {NUMBER} %.*; in this recording the "
                   rf"readings by up to {SHARE}",
+    "saturation_knee": rf"saturation_knee: straight up to a knee at {NUMBER} uT \({NUMBER} × the field\), then it bends: "
+                       rf"the largest readings \({NUMBER} uT\) by {NUMBER} uT .*; in this recording the readings by up "
+                       rf"to {SHARE}",
     "cross_axis": rf"cross_axis: anisotropy fields {VECTOR} uT \(x, y, z.*; in this recording up to {SHARE}",
     "non_orthogonality": rf"non_orthogonality: the axes x–y, x–z, y–z are {VECTOR}° apart \(90° − {VECTOR}°\); "
                          rf"in this recording up to {SHARE}",
@@ -105,6 +108,13 @@ def _saturation(result, d, line):
     assert limit == pytest.approx(_truth(result, "saturation").limit, rel=0.1)
 
 
+def _knee(result, d, line):
+    truth = _truth(result, "saturation_knee")
+    knee, limit = (float(x) for x in re.search(rf"a knee at ({NUMBER}) uT.*bending towards ({NUMBER}) uT", line).groups())
+    assert knee == pytest.approx(truth.knee, rel=0.03)
+    assert limit == pytest.approx(truth.knee + truth.width, rel=0.1)
+
+
 def _hysteresis(result, d, line):
     truth = _truth(result, "hysteresis")
     assert np.allclose(_vectors(line)[0], truth.share * truth.width, rtol=0.1)
@@ -127,6 +137,7 @@ TRUE_SIZES = {
     "nonlinearity_cubic": _cubic,
     "nonlinearity_quadratic": _quadratic,
     "saturation": _saturation,
+    "saturation_knee": _knee,
     "cross_axis": lambda result, d, line: np.testing.assert_allclose(
         _vectors(line)[0], _truth(result, "cross_axis").hk, rtol=0.1),
     # (the angles lean as simulated: 90° less the angle)
@@ -178,6 +189,17 @@ def test_an_eddy_current_against_reference_vectors_is_timed_and_sized():
     assert "check the timestamps" not in line
     same = eddy_current_line(d, dict(row, coefficients=[5.02e-3, 5.08e-3, 5.18e-3]))
     assert "as a delay between the readings and the reference vectors of 5.09 ms (time_offset)" in same, same
+
+
+def test_a_delay_found_beside_eddy_currents_says_it_holds_their_common_lag():
+    # a blind check's 20 ms delay beside eddy currents of [1, 2, 6] ms read 23.6 ms, with nothing said of the split
+    from fluxcal.diagnose.report import text as report_text
+
+    _, d, text = _found(["time_offset"])
+    line = _line(text, "time_offset")
+    assert "ms behind the reference vectors" in line and "CANNOT TELL APART" not in line
+    beside = _line(report_text(replace(d, accepted=[*d.accepted, "eddy_current"])), "time_offset")
+    assert "the delay alone may be shorter (CANNOT TELL APART to first order)" in beside, beside
 
 
 def test_a_cross_axis_error_about_a_large_hard_iron_is_sized_in_the_form_it_was_fitted():
@@ -256,3 +278,17 @@ def test_plot_tick_labels_do_not_overlap_and_the_legend_has_the_unit(field, offs
         assert legend in legends, legends
     finally:
         plt.close(fig)
+
+
+def test_mains_pickup_aliased_by_the_sampling_is_said_as_one_line_and_red_noise_is_not():
+    # a blind check's 50 Hz pickup sampled at 40 Hz (a 10 Hz line) was said as colored_noise alone
+    result, kw = withheld_trial([], 0, rate_hz=40.0)
+    t = kw["t"]
+    pickup = 0.3 * np.sin(2 * np.pi * 50.0 * t + 0.4)[:, None] * np.array([0.6, -0.3, 0.74])  # fixed in the sensor
+    d = diagnose(result.readings + pickup, **kw, units="uT")
+    assert "colored_noise" in d.accepted, d.accepted
+    line = _line(d.text(), "colored_noise")
+    assert re.search(r"one line near (9\.[89]|10|10\.[12]) Hz", line) and "50 Hz mains aliased by the 40 Hz" in line, line
+    # a red spectrum (colored noise, slow) is no line
+    red = _line(_found(["colored_noise"])[2], "colored_noise")
+    assert "one line" not in red, red

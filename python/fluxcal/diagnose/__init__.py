@@ -32,8 +32,8 @@ it, and how far the gap shrinks once that effect is modelled — proved on held-
    Features non-linear in the signal are computed from the fitted model's noise-free reading, so the reading
    noise cannot fake them, then again at the signal (and, for cross_axis' exact 1/(1 + s_e/H_k), the
    coefficients) of the fit that models them; their absorption is judged on the part not affine in the
-   signal (offset and matrix hold the rest). Saturation's limit is profiled (a 1-D search, each step a
-   linear refit) and counted as a parameter. An effect in the transducer (a gain, a non-linearity) is tried
+   signal (offset and matrix hold the rest). Saturation's limit and saturation_knee's knee are profiled (a 1-D
+   search, each step a linear refit) and counted as a parameter. An effect in the transducer (a gain, a non-linearity) is tried
    acting on the field with the offset (the platform's hard iron) and on the field alone (the sensor's own
    electronic offset, added after it), counted as alternatives; the row's `offset_kind` says which when the
    data decide. A fit with a sign the effect's physics forbids (an expanding saturation, a hysteresis ahead

@@ -494,6 +494,65 @@ class Saturation(Effect):
 
 
 @dataclass
+class SaturationKnee(Effect):
+    """Saturation that begins at a knee: each axis is linear up to |s| = `knee`, then bends towards
+    knee + `width`: m = sign(s) (k + w (1 − exp(−(|s| − k)/w))). A sensor used near the top of its range (an
+    AMR bridge's or a Hall ASIC's transfer curve, a fluxgate's feedback running out) is straight over most of it
+    and bends only near its end, where tanh (`saturation`) compresses every reading. Typical: a knee at 75–95 %
+    of the field's magnitude, bending over 1–2.5 fields.
+
+    As a candidate: the knee is profiled (`profile_grid`, `features_at`) and one coefficient gives the size: the
+    bend's first order, −sign(s) (|s| − k)₊² / scale — any curve that is straight up to k and bends smoothly from
+    there starts so (its slope continuous, its curvature not: the tanh beyond a knee has none there and is not
+    generic). Its coefficient a is the compression a reading scale beyond the knee would have (scale / 2w here)."""
+
+    knee: float
+    width: float
+    name = "saturation_knee"
+    transducer = True
+    n_params = 1
+    signal_features = True
+    profile_name = "knee"
+    profile_open_end = False  # (the grid's last knee is near the readings' reach: beyond it, no reading bends)
+    KNEES = 12  # knees searched (then refined between grid points), from LOWEST to HIGHEST of the readings' reach
+    LOWEST, HIGHEST = 0.4, 0.95  # below 0.4 of the reach it is a non-linearity of the whole range (cubic, tanh)
+
+    def apply(self, values, context):
+        over = np.maximum(np.abs(values) - self.knee, 0.0)
+        return values - np.sign(values) * (over - self.width * (1.0 - np.exp(-over / self.width)))
+
+    @classmethod
+    def profile_grid(cls, ctx):
+        reach = float(np.max(np.quantile(np.abs(ctx.readings), 0.999, axis=0)))  # (a spike must not raise it)
+        return reach * np.linspace(cls.LOWEST, cls.HIGHEST, cls.KNEES)
+
+    @classmethod
+    def features_at(cls, ctx, value):
+        s = ctx.signal
+        return (-np.sign(s) * np.maximum(np.abs(s) - value, 0.0) ** 2 / ctx.scale)[:, None, :]
+
+    @classmethod
+    def alternatives(cls, ctx):
+        return [cls.features_at(ctx, v) for v in cls.profile_grid(ctx)]
+
+    @classmethod
+    def features(cls, ctx):
+        return cls.features_at(ctx, cls.profile_grid(ctx)[len(cls.profile_grid(ctx)) // 2])
+
+    @classmethod
+    def unphysical(cls, coefficients, standard_errors, vector: bool = False, period: float = 0.0):
+        # the features compress per unit size: a negative size makes the readings beyond the knee grow faster
+        if _below_zero(coefficients, standard_errors)[0]:
+            return ("a negative size: the readings beyond the knee grow faster than the field, where a saturating "
+                    "sensor compresses them")
+        return ""
+
+    @classmethod
+    def typical(cls, field_norm, rng):
+        return cls(field_norm * rng.uniform(0.75, 0.95), field_norm * rng.uniform(1.0, 2.5))
+
+
+@dataclass
 class Hysteresis(Effect):
     """Magnetic hysteresis of the core: each axis lags its input by `width` (reading units), a play
     operator — the output holds until the input moves `width` away, then follows it. `share` < 1: only that
@@ -1403,7 +1462,7 @@ class Quantization(Effect):
 
 
 CANDIDATES = (TemperatureScale, TemperatureOffset, MotorCurrent, OffsetDrift, ScaleDrift, CubicNonlinearity,
-              QuadraticNonlinearity, Saturation, CrossAxis,
+              QuadraticNonlinearity, Saturation, SaturationKnee, CrossAxis,
               NonOrthogonality, Misalignment, Hysteresis, MovingDipole, OffsetStep, EddyCurrent, TimeOffset,
               ColoredNoise, Quantization)
 """Every effect the diagnosis can rank, by its candidate name (`fluxcal diagnose` documents them)."""
@@ -1420,6 +1479,7 @@ PARAMETER_UNITS = {
     "nonlinearity_cubic": {"relative": "(fraction at |s| = scale)", "scale": "{u}"},
     "nonlinearity_quadratic": {"relative": "(fraction at s = scale)", "scale": "{u}"},
     "saturation": {"limit": "{u}"},
+    "saturation_knee": {"knee": "{u}", "width": "{u}"},
     "cross_axis": {"hk": "{u}"},
     "non_orthogonality": {"angles": "deg"},
     "misalignment": {"rotvec": "deg"},

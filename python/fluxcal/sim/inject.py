@@ -38,12 +38,12 @@ from .scene import throttle, warming
 
 FIELD_STAGE = ("moving_dipole", "eddy_current", "misalignment")
 TRANSDUCER_STAGE = ("temp_scale", "scale_drift", "cross_axis", "nonlinearity_cubic", "nonlinearity_quadratic",
-                    "saturation", "hysteresis")
+                    "saturation", "saturation_knee", "hysteresis")
 ON_READINGS = ("time_offset", "colored_noise", "quantization")  # applied to the readings as they are
 NEEDS_REFERENCE = ("misalignment", "time_offset")
 NOT_OFFERED = ("non_orthogonality",)
 TIMED = ("offset_drift", "scale_drift", "moving_dipole", "offset_step")  # typical() wants the recording's duration
-SIGNAL_SCALED = ("nonlinearity_cubic", "nonlinearity_quadratic", "saturation", "cross_axis")
+SIGNAL_SCALED = ("nonlinearity_cubic", "nonlinearity_quadratic", "saturation", "saturation_knee", "cross_axis")
 CURRENT = (20.0, 4.0)  # A peak, s per throttle setting
 
 
