@@ -433,8 +433,32 @@ class QuadraticNonlinearity(_Nonlinearity):
         return cls(rng.choice([-1, 1], 3) * rng.uniform(0.003, 0.01, 3), field_norm)
 
 
+class _Compression(Effect):
+    """A saturating transducer (`saturation`, `saturation_knee`): one coefficient, the size of a compression whose
+    shape has one profiled parameter (`profile_grid`, `features_at`); it can only compress (`GROWS`: where, else)."""
+
+    transducer = True
+    n_params = 1
+    signal_features = True
+    GROWS = "the readings"
+
+    @classmethod
+    def alternatives(cls, ctx):
+        return [cls.features_at(ctx, v) for v in cls.profile_grid(ctx)]
+
+    @classmethod
+    def unphysical(cls, coefficients, standard_errors, vector: bool = False, period: float = 0.0):
+        # its features are a compression per unit size: a negative size makes the readings grow faster than
+        # the field, which no saturating core does (an expanding cubic with equal coefficients on every axis
+        # was reported as saturation)
+        if _below_zero(coefficients, standard_errors)[0]:
+            return (f"a negative size: {cls.GROWS} grow faster than the field (an expanding non-linearity), where "
+                    "a saturating sensor compresses them")
+        return ""
+
+
 @dataclass
-class Saturation(Effect):
+class Saturation(_Compression):
     """Soft saturation of every axis at `limit`: m = L tanh(s / L). Typical: L = 4× the field (a 2 G range
     sensor in 0.5 G) — 2 % compression at the field's magnitude.
 
@@ -445,9 +469,6 @@ class Saturation(Effect):
 
     limit: float
     name = "saturation"
-    transducer = True
-    n_params = 1
-    signal_features = True
     profile_name = "limit"
     LIMITS = 16  # values of L searched (then refined between grid points), up to 16× the scale, and ∞
 
@@ -471,22 +492,8 @@ class Saturation(Effect):
         return ((value * np.tanh(s / value) - s) * 3 * value ** 2 / ctx.scale ** 2)[:, None, :]
 
     @classmethod
-    def alternatives(cls, ctx):
-        return [cls.features_at(ctx, v) for v in cls.profile_grid(ctx)]
-
-    @classmethod
     def features(cls, ctx):
         return cls.features_at(ctx, np.inf)
-
-    @classmethod
-    def unphysical(cls, coefficients, standard_errors, vector: bool = False, period: float = 0.0):
-        # its features are a compression per unit size: a negative size makes the readings grow faster than
-        # the field, which no saturating core does (an expanding cubic with equal coefficients on every axis
-        # was reported as saturation)
-        if _below_zero(coefficients, standard_errors)[0]:
-            return ("a negative size: the readings grow faster than the field (an expanding non-linearity), where "
-                    "a saturating core compresses them")
-        return ""
 
     @classmethod
     def typical(cls, field_norm, rng):
@@ -494,7 +501,7 @@ class Saturation(Effect):
 
 
 @dataclass
-class SaturationKnee(Effect):
+class SaturationKnee(_Compression):
     """Saturation that begins at a knee: each axis is linear up to |s| = `knee`, then bends towards
     knee + `width`: m = sign(s) (k + w (1 − exp(−(|s| − k)/w))). A sensor used near the top of its range (an
     AMR bridge's or a Hall ASIC's transfer curve, a fluxgate's feedback running out) is straight over most of it
@@ -509,10 +516,8 @@ class SaturationKnee(Effect):
     knee: float
     width: float
     name = "saturation_knee"
-    transducer = True
-    n_params = 1
-    signal_features = True
     profile_name = "knee"
+    GROWS = "the readings beyond the knee"
     profile_open_end = False  # (the grid's last knee is near the readings' reach: beyond it, no reading bends)
     KNEES = 12  # knees searched (then refined between grid points), from LOWEST to HIGHEST of the readings' reach
     LOWEST, HIGHEST = 0.4, 0.95  # below 0.4 of the reach it is a non-linearity of the whole range (cubic, tanh)
@@ -532,20 +537,9 @@ class SaturationKnee(Effect):
         return (-np.sign(s) * np.maximum(np.abs(s) - value, 0.0) ** 2 / ctx.scale)[:, None, :]
 
     @classmethod
-    def alternatives(cls, ctx):
-        return [cls.features_at(ctx, v) for v in cls.profile_grid(ctx)]
-
-    @classmethod
     def features(cls, ctx):
-        return cls.features_at(ctx, cls.profile_grid(ctx)[len(cls.profile_grid(ctx)) // 2])
-
-    @classmethod
-    def unphysical(cls, coefficients, standard_errors, vector: bool = False, period: float = 0.0):
-        # the features compress per unit size: a negative size makes the readings beyond the knee grow faster
-        if _below_zero(coefficients, standard_errors)[0]:
-            return ("a negative size: the readings beyond the knee grow faster than the field, where a saturating "
-                    "sensor compresses them")
-        return ""
+        grid = cls.profile_grid(ctx)
+        return cls.features_at(ctx, grid[len(grid) // 2])
 
     @classmethod
     def typical(cls, field_norm, rng):
