@@ -1146,6 +1146,10 @@ def test_quantization_seen_in_a_short_fast_recording():
     x = rng.normal(scale=20.0, size=(600, 3))
     assert quantization_step(x) == 0.0 and quantization_step(x.astype(np.float32).astype(float)) == 0.0
     assert quantization_step(np.round(x / 0.1) * 0.1) == pytest.approx(0.1)
+    # a coarse step in gauss printed with 6 decimals: the smallest gap is the step ± the last digit (a blind check's
+    # log was taken off its grid, its σ came out 0 and the diagnosis stopped)
+    printed = np.round(np.round(x / 50 / 0.0154778) * 0.0154778, 6)
+    assert quantization_step(printed) == pytest.approx(0.0154778, rel=1e-4)
     result, kwargs = withheld_trial(["quantization"], 0, rate_hz=10.0)
     assert len(result.readings) == 600
     assert diagnose(result.readings, **kwargs).accepted == ["quantization"]

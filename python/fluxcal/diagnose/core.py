@@ -1581,7 +1581,7 @@ def _pair(data: _Data, model: str, state: dict, names: dict, first: dict, second
     if hasattr(names[second["effect"]], "shapes"):
         _richer_shape(data, model, given, names[second["effect"]], second)
     again = _evaluate(names[first["effect"]], data, model, given, sigma, n_candidates)
-    if not again["significant"]:
+    if not again["significant"] or _cancelling(again["_fit"], [feats, again["_features"]], vector):
         return None
     again["_rivals"] = []
     if again["effect"] == second["effect"]:  # two episodes of one event: `accept` makes them one block
@@ -1589,6 +1589,23 @@ def _pair(data: _Data, model: str, state: dict, names: dict, first: dict, second
     else:
         second["found_with"], again["found_with"] = again["effect"], second["effect"]
     return second, again
+
+
+CANCELLING = 3.0  # two effects found together whose changes are each this many times their sum: they cancel
+
+
+def _cancelling(fit: dict, blocks: list, vector: bool) -> bool:
+    """Whether the last blocks of a fit (`blocks`, its last feature blocks in order) change the residuals each by
+    CANCELLING times as much as they do together: the data determine their difference, not each. (A blind check's
+    warm-up that only rose made temp_offset and offset_drift "found together", each ~30 % of the field and ten times
+    a truth of 1e-3 G/°C, cancelling each other.)"""
+    parameters, hi = np.asarray(fit["parameters"]), len(fit["parameters"])
+    changes = []
+    for feats in reversed(blocks):
+        changes.append(_project(fit, feats, vector) @ parameters[hi - feats.shape[1]:hi])
+        hi -= feats.shape[1]
+    together = float(np.linalg.norm(sum(changes)))
+    return bool(min(float(np.linalg.norm(c)) for c in changes) > CANCELLING * together)
 
 
 def _law_inside_event(event: dict, other: dict) -> bool:
@@ -1866,11 +1883,26 @@ def _lattice_step(values: np.ndarray) -> float:
     if len(u) < 3:
         return 0.0
     step = float(np.min(np.diff(u)))
-    k = (values - u[0]) / step
-    if np.max(k) > 2 ** 24:
+    if (u[-1] - u[0]) / step > 2 ** 24:
         return 0.0
-    on_grid = np.abs(k - np.round(k)) < max(1e-3, 1e-9 * np.max(k))
+    # Printed with few decimals, the smallest gap is the step give or take the print's last digit (a blind check's
+    # 0.015478 G steps written with 6 decimals: k off by up to 0.0097, no grid, σ 0 and the diagnosis stopped): the
+    # step refitted over every level, and the print's resolution allowed for.
+    levels = np.round((u - u[0]) / step)
+    step = float(np.sum(levels * (u - u[0])) / np.sum(levels ** 2))
+    k = (values - u[0]) / step
+    on_grid = np.abs(k - np.round(k)) < max(1e-3, 1e-9 * np.max(k), _printed_resolution(u) / step)
     return step if np.mean(on_grid) > 0.999 else 0.0
+
+
+def _printed_resolution(values: np.ndarray) -> float:
+    """The last printed digit's size (10^−d for the fewest decimals d ≤ 12 that hold every value), 0 if none."""
+    scale = max(float(np.max(np.abs(values))), 1e-300)
+    for d in range(13):
+        x = values * 10.0 ** d
+        if np.max(np.abs(x - np.round(x))) < 1e-6 + 1e-12 * scale * 10.0 ** d:
+            return 10.0 ** -d
+    return 0.0
 
 
 def _quantization(data, state, sigma, n_candidates, noise_given: bool) -> dict:
