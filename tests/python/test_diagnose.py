@@ -1561,6 +1561,27 @@ def test_a_short_event_is_also_judged_by_the_block_test_where_it_acts():
     assert _event_pvalue(before, after, None, 1) == _improvement_pvalue(before, after, 1)
     draws = [_event_pvalue(a, b, (a[acts], b[acts]), 1) for a, b in (rng.normal(size=(2, 1860)) for _ in range(100))]
     assert np.mean(np.array(draws) < 0.05) <= 0.1
+    # too few readings where it acts for 6 blocks of two correlation lengths: judged over every held-out reading only
+    # (a review: 5 forced blocks of AR(1) noise gave p ≤ 1/32 in 6–7 % of nulls)
+    assert _event_pvalue(before, after, (before[acts], after[acts]), 3) == _improvement_pvalue(before, after, 3)
+
+
+def test_two_effects_found_together_that_cancel_are_refused():
+    """A blind check's warm-up that only rose made temp_offset and offset_drift "found together", each ~30 % of the
+    field, their changes cancelling: the data determine their difference only."""
+    from fluxcal.diagnose.core import _cancelling
+
+    rng = np.random.default_rng(0)
+    n = 500
+    J = np.column_stack([rng.normal(size=(n, 3)), np.zeros((n, 6))])  # ∂r/∂b first (a magnitude model's)
+    ramp = np.linspace(-1, 1, n)
+    warm = ramp + 0.1 * (ramp ** 2 - 1 / 3)  # a warm-up, nearly the ramp
+    first = (warm[:, None] * np.array([1.0, 0.5, 0.2]))[:, None, :]
+    second = (ramp[:, None] * np.array([1.0, 0.5, 0.2]))[:, None, :]
+    fit = {"jacobian": J, "parameters": np.concatenate([np.zeros(9), [-10.0, 10.0]])}  # [..., second, first]
+    assert _cancelling(fit, [second, first], vector=False)
+    fit["parameters"] = np.concatenate([np.zeros(9), [0.3, 1.0]])  # the same blocks, adding up: both stand
+    assert not _cancelling(fit, [second, first], vector=False)
 
 
 def test_heldout_block_test_is_free_of_units_and_refuses_non_finite():

@@ -200,6 +200,26 @@ def test_a_delay_found_beside_eddy_currents_says_it_holds_their_common_lag():
     assert "ms behind the reference vectors" in line and "CANNOT TELL APART" not in line
     beside = _line(report_text(replace(d, accepted=[*d.accepted, "eddy_current"])), "time_offset")
     assert "the delay alone may be shorter (CANNOT TELL APART to first order)" in beside, beside
+    # readings ahead: eddy currents' lag makes the lead look shorter (a review: 5.42 ms read 3.61 ms)
+    ahead = [dict(r, delay_ms=-r["delay_ms"]) if r.get("delay_ms") else r for r in d.ranking]
+    lead = _line(report_text(replace(d, accepted=[*d.accepted, "eddy_current"], ranking=ahead)), "time_offset")
+    assert "ms ahead of the reference vectors" in lead and "the lead alone may be longer" in lead, lead
+
+
+def test_left_over_is_said_when_most_is_taken_but_the_residuals_still_depart():
+    # a blind check's fast eddy currents left the time whiteness at p 5.5e-33 and the report said nothing; beside
+    # colored_noise what is left is the correlated noise it names (a review: an exact temp_offset read "not quite")
+    from fluxcal.diagnose.report import text as report_text
+
+    _, d, text = _found(["temp_offset"])
+    assert "LEFT OVER" not in text
+    rem = dict(d.remaining, unexplained=dict(d.remaining["unexplained"], share=0.01),
+               tests=[dict(t, pvalue=1e-9 if t["test"].startswith("whiteness") else t["pvalue"])
+                      for t in d.remaining["tests"]])
+    said = report_text(replace(d, remaining=rem))
+    assert "LEFT OVER: the effects found take 99 % of the departure, but the residuals still depart (time " \
+           "whiteness (Ljung-Box, 20 lags) p 1e-09" in said, said
+    assert "LEFT OVER" not in report_text(replace(d, remaining=rem, accepted=[*d.accepted, "colored_noise"]))
 
 
 def test_a_cross_axis_error_about_a_large_hard_iron_is_sized_in_the_form_it_was_fitted():

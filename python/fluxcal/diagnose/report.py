@@ -506,7 +506,8 @@ def _spectral_line(d) -> str:
     order = np.argsort(t, kind="stable")
     dt = np.diff(np.asarray(t, float)[order])
     step = float(np.median(dt))
-    if not step > 0 or np.mean(np.abs(dt - step) < 0.1 * step) < 0.9:  # (uneven sampling: no plain spectrum)
+    # (uneven sampling: no plain spectrum — a review's 10 Hz line read 11 Hz with 9 % of the samples dropped)
+    if not step > 0 or np.mean(np.abs(dt - step) < 0.1 * step) < 0.99:
         return ""
     e = np.asarray(d.series["residual_after"], float).reshape(len(t), -1)[order]
     f, power = periodogram(e, 1.0 / step, detrend="linear", axis=0)
@@ -523,10 +524,12 @@ def _spectral_line(d) -> str:
         return ""
     fs, half = 1.0 / step, max(LINE_BAND * at, 3 * f[1])
     mains = [m for m in MAINS if abs(abs(m - round(m / fs) * fs) - at) <= half]
-    cause = (f"the {_g(mains[0])} Hz mains aliased by the {_g(fs)} Hz sampling? (filter before the converter, or "
-             f"sample at a multiple of the mains)" if mains else
+    # (sampling at the mains' own rate only moves the line to 0 Hz, an offset that wanders: a review)
+    cause = (f"the {_g(mains[0])} Hz mains aliased by the {_g(fs)} Hz sampling? (an anti-alias filter before the "
+             f"converter, or readings averaged over whole mains periods)" if mains else
              "a periodic interference: a motor, a switching supply, a rotating part?")
-    return f"; most of it one line near {_g(at, 2)} Hz, RMS {_share(d, np.sqrt(line - background))}: {cause}"
+    # (no RMS of its own: the noise σ, from third differences, holds part of a line, and the RMS above σ the rest)
+    return f"; most of it one line near {_g(at, 2)} Hz: {cause}"
 
 
 def quantization_line(d, r) -> str:
@@ -615,8 +618,9 @@ def text(d) -> str:
                            + move_size(d, r)
                            # (a blind check's 20 ms delay beside eddy currents of [1, 2, 6] ms read 23.6 ms)
                            + ("; it holds the lag every axis shares, which the eddy currents found beside it may "
-                              "make part of: the delay alone may be shorter (CANNOT TELL APART to first order)"
-                              if "eddy_current" in d.accepted else ""))
+                              "make part of: the " + ("delay alone may be shorter" if r["delay_ms"] > 0 else
+                                                      "lead alone may be longer")
+                              + " (CANNOT TELL APART to first order)" if "eddy_current" in d.accepted else ""))
             if r.get("lag_s") is not None and r.get("step") is not None:
                 grid_floor = 1.5 * float(np.median(np.diff(d.series["t"]))) if len(d.series.get("t", [])) > 1 else 0.0
                 lag = r["lag_s"]
@@ -672,7 +676,9 @@ def text(d) -> str:
         noise = " (colored_noise describes it as noise, not its cause)" if left["as_noise"] else ""
         out.append(f"LEFT: {100 * left['share']:.0f} % of a small departure (residual RMS {left['rms_over_sigma']:.2f} σ, "
                    f"gap {rem['overall']['gap']:.4g}{u}){noise}: the candidates do not explain it" + _unconfirmed_words(d))
-    elif d.accepted and _shape_left(rem):
+    elif d.accepted and "colored_noise" not in d.accepted and _shape_left(rem):
+        # (beside colored_noise what is left is the correlated noise it names: a review's exact temp_offset beside
+        # it read "not quite its model's")
         worst = min(rem["tests"], key=lambda t: t["pvalue"])
         out.append(f"LEFT OVER: the effects found take {100 * (1 - left.get('share', 0.0)):.0f} % of the departure, but "
                    f"the residuals still depart ({worst['regime']} {worst['test']} p {worst['pvalue']:.2g}; residual "
