@@ -495,7 +495,7 @@ MAINS = (50.0, 60.0)
 
 def _spectral_line(d) -> str:
     """When most of the correlated part of the residuals left is one line in their spectrum (periodogram, evenly
-    sampled readings only): its frequency and RMS, and whether it is the mains aliased by the sampling rate. A blind
+    sampled readings only): its frequency, and whether it is the mains aliased by the sampling rate. A blind
     check's 50 Hz pickup sampled at 40 Hz (a 10 Hz line, 0.4 uT) was said as colored_noise alone: what makes it and
     its remedy stayed unsaid. (A line under LINE_LOWEST is not told from a red spectrum: a random walk's peaks low.)"""
     from scipy.signal import periodogram
@@ -680,7 +680,9 @@ def text(d) -> str:
         # (beside colored_noise what is left is the correlated noise it names: a review's exact temp_offset beside
         # it read "not quite its model's")
         worst = min(rem["tests"], key=lambda t: t["pvalue"])
-        out.append(f"LEFT OVER: the effects found take {100 * (1 - left.get('share', 0.0)):.0f} % of the departure, but "
+        taken = 100 * (1 - left.get("share", 0.0))  # (not "100 %" beside residuals that still depart)
+        out.append(f"LEFT OVER: the effects found take {'nearly all' if taken > 99.5 else f'{taken:.0f} %'} of the "
+                   "departure, but "
                    f"the residuals still depart ({worst['regime']} {worst['test']} p {worst['pvalue']:.2g}; residual "
                    f"RMS {left.get('rms_over_sigma', 0.0):.2f} σ): the effect's shape is not quite its model's (a "
                    "first-order form beyond its range, a law of its own), or a further small effect")
