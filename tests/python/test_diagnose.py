@@ -960,8 +960,12 @@ def test_a_settling_longer_than_the_recording_is_said_to_be_extrapolated():
     r = simulate(scene, effects, FIELD, rng)
     d = diagnose(r.readings, t=r.t, field_norm=50.0)
     line = next(x for x in d.text().splitlines() if "offset_drift: the offset settles" in x)
-    within = round(100 * -np.expm1(-np.ptp(r.t) / d.ranking[0]["warmup_s"]))
-    assert f"{within} % of the way within the recording" in line and "the end value extrapolated" in line
+    share = -np.expm1(-np.ptp(r.t) / d.ranking[0]["warmup_s"])
+    assert f"within the recording, {round(100 * share)} % of the way towards" in line, line
+    assert "(that end value extrapolated)" in line
+    # what changed inside the recording leads (a blind check's led with an end value 5× the step it had found)
+    inside = [float(x) for x in re.search(r"by \[([^]]*)\]", line).group(1).split(",")]
+    assert np.allclose(inside, np.round(share * np.asarray(d.ranking[0]["coefficients"]), 4), atol=1e-4), line
     assert ("at least" in line) == (d.ranking[0]["warmup_s"] >= 0.99 * 2 * np.ptp(r.t))
 
 

@@ -143,14 +143,15 @@ def drift_line(d, r) -> str:
     """How far the offset (offset_drift) or the sensitivity (scale_drift) drifted: across the recording when
     linear, else how far and how fast it settles."""
     c = np.asarray(r["coefficients"])
-    if r["effect"] == "offset_drift":
-        u = f" {d.units}" if d.units else ""
-        what = "offset"
-        size = (f"{np.round(c, 4).tolist()}{u} (x, y, z; "
-                f"{100 * np.linalg.norm(d.base.matrix @ c) / d.base.field_norm:.2g} % of the field)")
-    else:
-        what = "sensitivity"
-        size = f"{np.round(100 * c, 3).tolist()} % (x, y, z)"
+
+    def sized(c):
+        if r["effect"] == "offset_drift":
+            u = f" {d.units}" if d.units else ""
+            return (f"{np.round(c, 4).tolist()}{u} (x, y, z; "
+                    f"{100 * np.linalg.norm(d.base.matrix @ c) / d.base.field_norm:.2g} % of the field)")
+        return f"{np.round(100 * c, 3).tolist()} % (x, y, z)"
+
+    what, size = ("offset" if r["effect"] == "offset_drift" else "sensitivity"), sized(c)
     tau = r.get("warmup_s")
     if tau is None:
         return f"{r['effect']}: the {what} drifts linearly, by {size} across the recording"
@@ -160,9 +161,10 @@ def drift_line(d, r) -> str:
     within = -np.expm1(-span / tau)  # the part of the settling inside the recording
     if within > 0.95:
         extent = f"by {size} from the first reading on, 95 % of it three time constants in"
-    else:  # the end value is an extrapolation of the curve: say how far it got in the recording first
-        extent = (f"{round(100 * within)} % of the way within the recording, towards {size} from the first "
-                  "reading (the end value extrapolated)")
+    else:  # the end value is an extrapolation of the curve: what changed in the recording first (a blind check's
+        # step on the QMC5883L had led with an end value extrapolated to 26 % of the field, 5× the step)
+        extent = (f"by {sized(c * within)} within the recording, {round(100 * within)} % of the way towards {size} "
+                  "from the first reading (that end value extrapolated)")
     # the grid ends at twice the recording: a time constant there is a lower bound
     bound = "at least " if tau >= 0.99 * 2 * span else ""
     return (f"{r['effect']}: the {what} settles exponentially with a time constant of {bound}{tau:.3g}{unit}, {extent} "
