@@ -1618,3 +1618,15 @@ def test_in_sample_length_counts_residuals_not_readings():
     rows = np.ones(600, bool)
     length = _in_sample_length({"residuals": residuals}, SimpleNamespace(t=np.arange(600.0)), rows)
     assert length == 3 * _correlation_length(residuals.reshape(-1, 3).mean(axis=1)) and length > 30
+
+
+def test_a_second_shape_of_one_compression_is_refused():
+    # a review's knee about a hard iron of three fields came out as a knee, a 13 % tanh and a cubic
+    from fluxcal.diagnose.core import _second_shape, refused
+    from fluxcal.sim.effects import CubicNonlinearity, Saturation, SaturationKnee
+
+    row = {"significant": True}
+    _second_shape(row, SaturationKnee, [CubicNonlinearity])
+    assert row == {"significant": True}  # beside another kind of effect: judged as it is
+    _second_shape(row, SaturationKnee, [Saturation])
+    assert refused(row) and not row["significant"] and "second shape of the compression saturation" in row["note"]

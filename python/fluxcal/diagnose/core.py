@@ -19,7 +19,7 @@ from ..attitude import magnetic_frame
 from ..calibration import Calibration
 from ..io.recording import UNIX_SECONDS
 from ..outliers import find_outliers
-from ..sim.effects import CANDIDATES, _per_diagnosis, scatter_rows
+from ..sim.effects import CANDIDATES, _Compression, _per_diagnosis, scatter_rows
 
 # Base models: (uses a reference vector, base parameters held at their start values).
 MODELS = {
@@ -1614,6 +1614,16 @@ def _cancelling(fit: dict, blocks: list, vector: bool) -> bool:
     return bool(min(float(np.linalg.norm(c)) for c in changes) > CANCELLING * together)
 
 
+def _second_shape(row: dict, cls, accepted: list) -> None:
+    """A sensor has one compression curve: a second shape of it (`saturation` beside `saturation_knee`, or the other
+    way) beside one found is refused as unphysical — it shapes what the first one's form leaves (a review's knee about
+    a hard iron of three fields came out as a knee, a 13 % tanh and a cubic)."""
+    first = next((a.name for a in accepted if issubclass(a, _Compression)), None)
+    if first and issubclass(cls, _Compression) and not refused(row):
+        reason = f"a second shape of the compression {first} describes: one sensor has one compression curve"
+        row.update(unphysical=reason, significant=False, note=f"not accepted as {cls.name}: {reason}")
+
+
 def _law_inside_event(event: dict, other: dict) -> bool:
     """Whether `event` (a free course in time: a magnet passing, a step) and `other` (driven by a logged
     temperature or current, or a drift's law in time) take out the same departure — the changes their fits make
@@ -2338,6 +2348,7 @@ def diagnose(samples, t=None, temp=None, reference=None, gravity=None, field_nor
         systematic = [c for c in pool if c.name not in NOISE_CANDIDATES and c.name not in accepted]
         for cls in systematic:
             rows.append(_evaluate(cls, data, model, state, sigma, n_candidates))
+            _second_shape(rows[-1], cls, [names[a] for a in accepted])
             if rows[-1].get("absorbed"):
                 if not accepted:
                     by_base.add(cls.name)
