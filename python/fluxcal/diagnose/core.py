@@ -1903,22 +1903,12 @@ def _lattice_step(values: np.ndarray) -> float:
         return 0.0
     # Printed with few decimals, the smallest gap is the step give or take the print's last digit (a blind check's
     # 0.015478 G steps written with 6 decimals: k off by up to 0.0097, no grid, σ 0 and the diagnosis stopped): the
-    # step refitted over every level, and the print's resolution allowed for.
+    # step refitted over every level (the print's own rounding then moves k by under 1e-4).
     levels = np.round((u - u[0]) / step)
     step = float(np.sum(levels * (u - u[0])) / np.sum(levels ** 2))
     k = (values - u[0]) / step
-    on_grid = np.abs(k - np.round(k)) < max(1e-3, 1e-9 * np.max(k), _printed_resolution(u) / step)
+    on_grid = np.abs(k - np.round(k)) < max(1e-3, 1e-9 * np.max(k))
     return step if np.mean(on_grid) > 0.999 else 0.0
-
-
-def _printed_resolution(values: np.ndarray) -> float:
-    """The last printed digit's size (10^−d for the fewest decimals d ≤ 12 that hold every value), 0 if none."""
-    scale = max(float(np.max(np.abs(values))), 1e-300)
-    for d in range(13):
-        x = values * 10.0 ** d
-        if np.max(np.abs(x - np.round(x))) < 1e-6 + 1e-12 * scale * 10.0 ** d:
-            return 10.0 ** -d
-    return 0.0
 
 
 def _quantization(data, state, sigma, n_candidates, noise_given: bool) -> dict:
