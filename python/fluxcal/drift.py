@@ -906,10 +906,15 @@ def _sized_beside_drift(w: np.ndarray, ok: np.ndarray, temp: np.ndarray, f: np.n
     0.02 A/h of ageing beside a 2 °C band 0.0199–0.0200 A/h. An element 600 s and a thermometer 60 s behind the
     chamber (not one first-order lag: about 540 s on the ramps) read 528 s, beside a 2 °C band 505–510 s /
     2.08–2.10 °C (559–566 s / 2.53–2.57 °C before). → {name: size}."""
-    nonlinear = [k for k in ("lag", "hysteresis") if k in start and np.isfinite(start[k]) and start[k] > 0]
-    top = int(model.settings.get("max_order", 0)) if nonlinear else 0
-    orders = [max(len(s["coefficients"]) - 1, top) for s in model.segments]
-    return _state_fit(w + f, ok, temp, model, orders, start, step, breaks, hours)[0]
+    of_state = any(k in start and np.isfinite(start[k]) and start[k] > 0 for k in ("lag", "hysteresis"))
+    return _state_fit(w + f, ok, temp, model, _state_orders(model, of_state), start, step, breaks, hours)[0]
+
+
+def _state_orders(model: "DriftModel", of_state: bool = True) -> list:
+    """Each range's polynomial order in the state model: f's own, or, when the polynomials are of a state other than
+    T (through a lag or a dead band), at least the fit's highest ("max_order")."""
+    top = int(model.settings.get("max_order", 0)) if of_state else 0
+    return [max(len(s["coefficients"]) - 1, top) for s in model.segments]
 
 
 def _newey_west_last(X: np.ndarray, y: np.ndarray, maxlags: int) -> tuple[float, float]:
@@ -944,8 +949,7 @@ def _named_in_state(w: np.ndarray, ok: np.ndarray, temp: np.ndarray, f: np.ndarr
     20 % of what the others leave, and no wrong one is named in the library's and a blind simulator's 46 cases. Judged on at most STATE_ROWS rows (a share is a ratio of sums of squares). → None when none is named
     so, else (named, their sizes there: starts for `_sized_beside_drift`, {name: {"p", "share"}} of each named beside
     the others, share of var(w))."""
-    top = int(model.settings.get("max_order", 0))
-    orders = [max(len(s["coefficients"]) - 1, top) for s in model.segments]
+    orders = _state_orders(model)
     W = w + f
     # (judged on evenly spaced rows, at most STATE_ROWS: the state is computed on all of them)
     every = int(np.ceil(ok.sum() / STATE_ROWS))

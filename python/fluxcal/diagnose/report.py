@@ -7,7 +7,7 @@ from types import SimpleNamespace
 
 import numpy as np
 
-from ..sim.effects import ISOTROPIC_LAG
+from ..sim.effects import ISOTROPIC_LAG, reach
 from .core import UNEXPLAINED, time_words
 
 
@@ -275,12 +275,17 @@ def _form(d, row) -> str:
     return min(rms, key=lambda form: abs(np.log(max(rms[form], 1e-300) / size)))
 
 
+def _candidate(row: dict):
+    """The candidate class of a ranking row."""
+    from ..sim.effects import CANDIDATES
+
+    return next(c for c in CANDIDATES if c.name == row["effect"])
+
+
 def _change(d, row, ctx) -> np.ndarray:
     """The change (N×3, readings' unit) the effect makes to the readings: its features (sim.effects) at `ctx`
     times its coefficients."""
-    from ..sim.effects import CANDIDATES
-
-    cls = next(c for c in CANDIDATES if c.name == row["effect"])
+    cls = _candidate(row)
     value = row.get(cls.profile_name) if cls.profile_name else None
     if cls.profile_name == "limit" and value is None:  # saturation's cubic form: L → ∞
         value = np.inf
@@ -351,12 +356,11 @@ def _nonlinearity_line(d, r, where: str, law: str) -> str:
     ctx = _context(d, r)
     at = f"{_g(ctx.scale)}{u}"
     # each axis at its own largest reading too: a QMC5883L's 230 % at 7550 counts was 4 % at its y axis' 1020
-    reach = np.quantile(np.abs(ctx.signal), 0.999, axis=0)
-    order = 3 if r["effect"] == "nonlinearity_cubic" else 2
-    own = np.asarray(r["coefficients"], float) * (reach / ctx.scale) ** (order - 1)
+    largest = reach(ctx.signal)
+    own = np.asarray(r["coefficients"], float) * (largest / ctx.scale) ** (_candidate(r).ORDER - 1)
     return (f"{r['effect']}: the readings depart from a straight line by {_vec(r['coefficients'], 100)} % (x, y, z) "
             f"{where.format(S=at)} ({law.format(S=_g(ctx.scale))}, s what the transducer sees), by {_vec(own, 100)} % "
-            f"at each axis' largest reading ({_vec(reach)}{u}); in this recording {_largest_change(d, r, ctx)}")
+            f"at each axis' largest reading ({_vec(largest)}{u}); in this recording {_largest_change(d, r, ctx)}")
 
 
 def saturation_line(d, r) -> str:
@@ -383,11 +387,11 @@ def knee_line(d, r) -> str:
     u = f" {d.units}" if d.units else ""
     ctx, a, knee = _context(d, r), float(r["coefficients"][0]), float(r["knee"])
     S, H = ctx.scale, d.base.field_norm
-    reach = float(np.max(np.quantile(np.abs(ctx.signal), 0.999, axis=0)))
-    taken = a * max(reach - knee, 0.0) ** 2 / S
+    largest = float(np.max(reach(ctx.signal)))
+    taken = a * max(largest - knee, 0.0) ** 2 / S
     like = f", as a sensor bending towards {_g(knee + S / (2 * a))}{u} would" if a > 0 else ""
     return (f"saturation_knee: straight up to a knee at {_g(knee)}{u} ({_g(knee / H, 2)} × the field), then it bends: "
-            f"the largest readings ({_g(reach)}{u}) by {_g(taken)}{u} ({_g(100 * taken / reach, 2)} %){like} (beyond "
+            f"the largest readings ({_g(largest)}{u}) by {_g(taken)}{u} ({_g(100 * taken / largest, 2)} %){like} (beyond "
             f"the knee k + w (1 − exp(−o/w)), o the reading's excess); in this recording the readings by "
             f"{_largest_change(d, r, ctx)}")
 

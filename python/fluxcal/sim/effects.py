@@ -210,6 +210,11 @@ def _per_diagnosis(memo, key: tuple, inputs: tuple, compute):
     return value
 
 
+def reach(values: np.ndarray) -> np.ndarray:
+    """Each axis' largest |value|, as its 99.9th percentile (a spike must not raise it)."""
+    return np.quantile(np.abs(values), 0.999, axis=0)
+
+
 def _smooth(values: np.ndarray, t: np.ndarray, deriv: int = 0) -> np.ndarray:
     """The values (or their time derivative) smoothed by a Savitzky–Golay filter over ≈ 0.2 s, so that
     reading noise is not amplified."""
@@ -480,8 +485,8 @@ class Saturation(_Compression):
         # L tanh(s/L) never reaches L: a limit below what the readings reach is no saturation (free, a
         # strongly bent tanh about a large hard iron fitted the QMC5883L recording's even-order residue with
         # L at 0.4 of its readings). The 99.9th percentile: a spike must not raise the bound.
-        reach = float(np.max(np.quantile(np.abs(ctx.readings), 0.999, axis=0)))
-        return np.append(np.geomspace(reach, max(16.0 * ctx.scale, 2.0 * reach), cls.LIMITS), np.inf)
+        largest = float(np.max(reach(ctx.readings)))
+        return np.append(np.geomspace(largest, max(16.0 * ctx.scale, 2.0 * largest), cls.LIMITS), np.inf)
 
     @classmethod
     def features_at(cls, ctx, value):
@@ -528,8 +533,7 @@ class SaturationKnee(_Compression):
 
     @classmethod
     def profile_grid(cls, ctx):
-        reach = float(np.max(np.quantile(np.abs(ctx.readings), 0.999, axis=0)))  # (a spike must not raise it)
-        return reach * np.linspace(cls.LOWEST, cls.HIGHEST, cls.KNEES)
+        return float(np.max(reach(ctx.readings))) * np.linspace(cls.LOWEST, cls.HIGHEST, cls.KNEES)
 
     @classmethod
     def features_at(cls, ctx, value):
