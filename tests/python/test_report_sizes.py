@@ -95,6 +95,8 @@ def _cubic(result, d, line):
     at = float(re.search(r"at a reading of ([0-9.]+) uT", line).group(1))
     truth = _truth(result, "nonlinearity_cubic")
     assert np.allclose(_vectors(line)[0], 100 * truth.relative * (at / truth.scale) ** 2, rtol=0.1)
+    # a compression on every axis is said as one (a saturation's first order)
+    assert ("every axis compressed" in line) == bool(np.all(np.asarray(truth.relative) < 0)), line
 
 
 def _quadratic(result, d, line):
@@ -232,6 +234,12 @@ def test_a_cross_axis_error_about_a_large_hard_iron_is_sized_in_the_form_it_was_
     assert np.allclose(hk, _truth(result, "cross_axis").hk, rtol=0.15), hk
 
 
+def test_a_cubic_that_compresses_every_axis_is_said_as_a_saturations_first_order():
+    result, d, text = _found(["nonlinearity_cubic"], 29)  # seed 29: every axis compressed, by −1.0 to −2.0 %
+    assert "nonlinearity_cubic" in d.accepted, d.accepted
+    _cubic(result, d, _line(text, "nonlinearity_cubic"))
+
+
 def test_a_non_linearity_mostly_absorbed_by_the_offset_and_matrix_says_how_much_is_left():
     # a cubic about a hard iron of six fields changes the readings by more than the field, nearly all of it a shift
     # and a gain that the calibration takes up: the line says what is beyond them
@@ -312,3 +320,20 @@ def test_mains_pickup_aliased_by_the_sampling_is_said_as_one_line_and_red_noise_
     # a red spectrum (colored noise, slow) is no line
     red = _line(_found(["colored_noise"])[2], "colored_noise")
     assert "one line" not in red, red
+
+
+def test_mains_sampled_at_twice_its_frequency_is_not_taken_for_noise():
+    # 50 Hz pickup sampled at 100 Hz sits at the Nyquist frequency: consecutive readings alternate, and their third
+    # differences, the noise σ's yardstick, weigh it 3.2× — a review's pickup hid inside a σ raised 1.6× (and at 4 %
+    # of the field, 4×: every effect "below the noise")
+    result, kw = withheld_trial([], 0, rate_hz=100.0)
+    t = kw["t"]
+    white = diagnose(result.readings, **kw, units="uT")
+    pickup = 1.0 * np.sin(2 * np.pi * 50.05 * t + 0.4)[:, None] * np.array([0.6, -0.3, 0.74])  # 2 % of the field
+    d = diagnose(result.readings + pickup, **kw, units="uT")
+    assert "alternate" not in white.noise_source, white.noise_source
+    assert "readings two apart" in d.noise_source, d.noise_source
+    assert abs(d.noise_sigma / white.noise_sigma - 1) < 0.1, (d.noise_sigma, white.noise_sigma)
+    assert "colored_noise" in d.accepted, d.accepted
+    line = _line(d.text(), "colored_noise")
+    assert re.search(r"one line near (49\.9|50) Hz", line) and "50 Hz mains aliased by the 100 Hz" in line, line

@@ -342,7 +342,12 @@ def temp_scale_line(d, r) -> str:
 
 
 def cubic_line(d, r) -> str:
-    return _nonlinearity_line(d, r, "at a reading of {S}", "m = s (1 + c (s/{S})²)")
+    c = np.asarray(r["coefficients"], dtype=float)
+    # (a blind check's tanh saturations, each axis compressed by 5–8 % at its largest reading, came out as this
+    # cubic, sizes right: to first order they are one law, and the words should say so)
+    compressed = ("; every axis compressed, as a sensor or its front end nearing its limit is, to first order"
+                  if np.all(c < 0) else "")
+    return _nonlinearity_line(d, r, "at a reading of {S}", "m = s (1 + c (s/{S})²)") + compressed
 
 
 def quadratic_line(d, r) -> str:
