@@ -989,3 +989,14 @@ def test_solve_line_says_what_cable_solve_reads_with_the_effects_found():
     # 4.2 %, where the diagnosis's own held-out solve reads 0.088 % before the tilt is modelled
     assert said["max_relative_error"] > 10 * d.ranking[0]["current_error_pct_before"] / 100
     assert "`cable solve --joint`" in d.text()
+
+
+def test_a_clean_ring_departs_only_when_a_regime_test_does_so_beside_the_others():
+    """Eight regime tests at p < 0.01 each had made 10 of 150 clean simulated rings (4 rotations × 2 levels × 3
+    patterns, 48 snapshots) read "the readings still depart" (a blind check: 2 of 9 clean 64-snapshot rings); over
+    the number of tests (Bonferroni) none of the 150 does. Seed 146's smallest p is 0.0067 of 8 tests."""
+    kwargs, _ = cable_trial([], 146, rotations_deg=np.arange(0.0, 360.0, 90.0), levels_a=(5.0, 10.0), repeats=1)
+    d = diagnose_cable(**kwargs)
+    tests = d.remaining["tests"]
+    assert d.accepted == [] and 0.01 / len(tests) < min(t["pvalue"] for t in tests) < 0.01, tests
+    assert "explains the readings to the noise" in d.text() and "<-- departs" not in d.text(), d.text()
