@@ -304,6 +304,24 @@ def test_an_offset_step_is_timed_and_sized():
         assert ("came back" in line) == (back is not None)
 
 
+def test_a_step_that_stays_is_not_said_to_come_back_in_the_last_seconds():
+    # The box search moves an edge inside for BIC's price in the plain ratio, which correlated noise pays: seed 15's
+    # step (34.67 s, stays) had "came back at t = 58.7 s" of 60. An edge in the first or last grid cell must pay under
+    # the residuals' correlation; a real return there does (a 2 % step back 1 s before the end, white noise).
+    result, kwargs = withheld_trial(["offset_step", "colored_noise"], 15)
+    d = diagnose(result.readings, **kwargs, units="uT")
+    row = next(r for r in d.ranking if r["effect"] == "offset_step")
+    assert "offset_step" in d.accepted and row["off_s"] is None and abs(row["on_s"] - 34.67) < 1.5, row
+    line = next(x for x in d.text().splitlines() if "offset_step: the offset jumped by" in x)
+    assert "and stayed" in line, line
+    clean, kwargs = withheld_trial([], 0)
+    t = kwargs["t"]
+    jump = np.outer((t >= 20.0) & (t <= t[-1] - 1.0), [0.6, -0.5, 0.62])  # 1 uT, 2 % of the field
+    d = diagnose(clean.readings + jump, **kwargs, units="uT")
+    row = next(r for r in d.ranking if r["effect"] == "offset_step")
+    assert d.accepted == ["offset_step"] and abs(row["off_s"] - (t[-1] - 1.0)) < 0.1, (d.accepted, row)
+
+
 def test_an_offset_step_without_timestamps_is_placed_by_row():
     result, kwargs = withheld_trial(["offset_step"], 0)
     d = diagnose(result.readings, temp=kwargs["temp"], field_norm=50.0)  # no t: the row number is the time

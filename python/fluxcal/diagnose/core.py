@@ -1125,6 +1125,12 @@ def _evaluate(cls, data, model, state, sigma, n_candidates) -> dict:
     try:
         fit = _fit(data, state["start"], fixed, all_feats,
                    start_terms=np.concatenate([state["terms"], np.zeros(feats.shape[1])]))
+        if getattr(cls, "step_at_ends", False):
+            feats, fit = _step_at_ends(cls, data, ctx, state, fixed, feats, fit, e)
+            score, dims, singular, signature = new_part(feats)
+            row.update(cls.describe(ctx, feats), score=score, new_dimensions=dims,
+                       score_pvalue=min(1.0, float(stats.chi2.sf(score, max(dims, 1))) * tried),
+                       absorbed_fraction=float(1 - singular.min()) if len(singular) else 1.0)
         held_feats = feats
         if cls.signal_features:
             feats, fit, value = _at_own_signal(cls, data, fixed, state, feats, fit, ctxs[form].scale, sigma,
@@ -1175,6 +1181,33 @@ def _evaluate(cls, data, model, state, sigma, n_candidates) -> dict:
     row["_signal_features"] = cls.signal_features
     row["_law_in_time"] = bool(getattr(cls, "law_in_time", False))
     return row
+
+
+def _step_at_ends(cls, data, ctx, state, fixed, feats, fit, e) -> tuple:
+    """A box whose edge lies within the recording's first or last grid cell of the search (`cls.GRID`) is a step,
+    the edge at the recording's end, unless that edge pays BIC's price under the residuals' correlation
+    (`_whitened_lr`): the search moves an edge inside for BIC's price in the plain ratio, which the recording's own
+    correlated wander pays (a blind check: steps that stayed, on a phone's 120 s log, "came back at t = 119.2 s",
+    or "jumped at 2.81 s and came back at 61.92 s"). Returns (features, fit)."""
+    span = cls.span(ctx, feats)
+    t0, t1 = float(np.min(ctx.t)), float(np.max(ctx.t))
+    if span is None or not t1 > t0:
+        return feats, fit
+    cell = (t1 - t0) / cls.GRID
+    near = (t0 < span[0] < t0 + cell, t1 - cell < span[1] < t1)
+    if not any(near) or all(near):
+        return feats, fit
+    trial = cls._box(ctx, t0 if near[0] else span[0], t1 if near[1] else span[1])
+    try:
+        step = _fit(data, state["start"], fixed, _features(state["features"] + [trial]),
+                    start_terms=np.concatenate([state["terms"], np.zeros(trial.shape[1])]))
+    except _core.Error:
+        return feats, fit
+    if state.get("_wander", (None,))[0] is not state["result"]:
+        state["_wander"] = (state["result"], _wander_basis(data, state["result"]))
+    edge = _whitened_lr(np.asarray(step["residuals"]), np.asarray(fit["residuals"]), data,
+                        wander=state["_wander"][1])
+    return (trial, step) if edge < np.log(len(e)) else (feats, fit)
 
 
 # Beside an effect already found, a held-out fall within the fits' parameter noise (`_gain_unresolved`) confirms

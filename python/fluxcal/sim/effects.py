@@ -1286,6 +1286,7 @@ class OffsetStep(_TimeBox):
     t_off: float = np.inf
     name = "offset_step"
     n_params = 3
+    step_at_ends = True  # an edge in the recording's first or last grid cell pays for itself (diagnose._step_at_ends)
 
     def apply(self, values, context):
         on = (context.t >= self.t_on) & (context.t <= self.t_off)
