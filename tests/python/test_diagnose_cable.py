@@ -12,6 +12,8 @@ finite length ℓ = 0.1–0.25 m either side of the ring, return wire 0.15–0.3
 """
 import json
 
+import re
+
 import numpy as np
 import pytest
 
@@ -528,6 +530,23 @@ def test_the_coupled_sensor_is_named_by_its_number_in_the_recording():
     assert d.accepted == ["sensor_coupling"]
     assert (row["coupling_sensor"], row["coupling_axis"]) == (3, "y")
     assert row["coupling"] == pytest.approx(0.03, rel=0.1)
+    assert "off right angles and turned together by" in d.text(), d.text()  # one axis coupled: not a turn
+
+
+def test_a_sensor_turned_as_a_whole_is_said_turned_not_skewed():
+    """Both axes of sensor 2 turned together by 0.6° (x reads +sin θ of y, y reads −sin θ of x): a blind check's
+    turned sensor had read "an axis 0.54° off right angles, or crosstalk"."""
+    from fluxcal.sim.cable_effects import SensorCoupling
+
+    theta = np.radians(0.6)
+    coupling = np.zeros((4, 2))
+    coupling[2] = np.sin(theta), -np.sin(theta)
+    kwargs, _ = cable_trial([], 7, effects=[SensorCoupling(coupling)])
+    d = diagnose_cable(**kwargs)
+    assert "sensor_coupling" in d.accepted, d.accepted
+    line = next(x for x in d.text().splitlines() if "sensor_coupling (largest" in x)
+    turned = float(re.search(r"both axes turned together by ([0-9.]+)°", line).group(1))
+    assert turned == pytest.approx(0.6, abs=0.06) and "off right angles" not in line, line
 
 
 def test_least_squares_survives_an_eigensolver_that_does_not_converge(monkeypatch):
@@ -1000,3 +1019,13 @@ def test_a_clean_ring_departs_only_when_a_regime_test_does_so_beside_the_others(
     tests = d.remaining["tests"]
     assert d.accepted == [] and 0.01 / len(tests) < min(t["pvalue"] for t in tests) < 0.01, tests
     assert "explains the readings to the noise" in d.text() and "<-- departs" not in d.text(), d.text()
+
+
+def test_a_calibration_made_with_the_cables_own_effect_is_said_to_have_held_it():
+    """A blind check: every lay, tilt and sensor effect had been in its calibration run too, whose gains took it up
+    (up to 0.24 off, the refit's within 1e-3), and the CALIBRATION line offered only sensors that changed since."""
+    kwargs, _ = cable_trial(["cable_tilt"], 0)
+    d = diagnose_cable(**kwargs)
+    line = next(x for x in d.text().splitlines() if x.startswith("CALIBRATION"))
+    assert d.accepted == ["cable_tilt"] and "does not describe these sensors" in line, (d.accepted, line)
+    assert "the calibration run had cable_tilt too" in line and "calibrate on a straight jig" in line, line

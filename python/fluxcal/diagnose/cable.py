@@ -78,6 +78,10 @@ DEPARTS = 0.01  # a regime test of the residuals below this p, over the number o
                 # ~8 tests at p < 0.01)
 
 
+ROOM_EFFECTS = ("background", "nearby_iron")  # effects of the room, not of the cable or the sensors (name prefixes)
+TURNED = 0.2  # a sensor's two couplings equal and opposite within this share of their sizes: its axes turned together
+
+
 def _departs(test: dict, tests: list) -> bool:
     """Whether a regime test of the residuals departs: p below DEPARTS over the number of tests run beside it."""
     return test["pvalue"] < DEPARTS / max(len(tests), 1)
@@ -1677,9 +1681,17 @@ def _accepted_text(row) -> str:
                 "away from them, or calibrate the ring where it measures)")
     if row.get("coupling_sensor") is not None:  # (the sensor and size had been only in the JSON's coefficients)
         other = "yx"["xy".index(row["coupling_axis"])]
-        return (f"{row['effect']} (largest: sensor {row['coupling_sensor']}'s {row['coupling_axis']} axis reads "
-                f"{100 * row['coupling']:.3g} % of the field along its {other}: an axis {row['coupling_deg']:.2g}° off "
-                "right angles, or crosstalk)")
+        head = (f"{row['effect']} (largest: sensor {row['coupling_sensor']}'s {row['coupling_axis']} axis reads "
+                f"{100 * row['coupling']:.3g} % of the field along its {other}")
+        cx, cy = row.get("coupling_pair", (row["coupling"], 0.0))
+        # x reading c_x of y and y reading c_y of x: turned together by (c_x − c_y)/2, off right angles by c_x + c_y
+        # (a blind check's sensors turned as a whole, 0.2–0.6°, had read "an axis 0.54° off right angles")
+        turn, skew = np.degrees(np.arcsin(np.clip([(cx - cy) / 2, cx + cy], -1.0, 1.0)))
+        if abs(cx + cy) <= TURNED * (abs(cx) + abs(cy)):
+            return (f"{head}, its other axis the opposite: both axes turned together by {turn:.2g}° — the sensor "
+                    "turned on its board, which its position's angle (sensor_position_error) holds too)")
+        return (f"{head}: its axes {abs(skew):.2g}° off right angles and turned together by {turn:.2g}°, or "
+                "crosstalk)")
     return row["effect"]
 
 
@@ -1856,6 +1868,11 @@ def _calibration_line(check: dict, not_explained: bool, method: str | None = Non
     if found:  # (a busbar's gradient taken by sensor_position_error had left a perfect calibration "to recalibrate")
         why += (f", or what the effects found ({', '.join(found)}) do not model, which the refit's gains took up: "
                 "record more rotations to tell them apart")
+        own = [f for f in found if not f.startswith(ROOM_EFFECTS)]
+        if own:  # (a blind check: every lay, tilt and sensor effect had been in its calibration run too, whose gains
+            # took it up — up to 0.24 off where the refit's were within 1e-3 — and only "changed" was offered)
+            why += (f", or the calibration run had {', '.join(own)} too, which its gains took up — the refit's gains "
+                    "are then the sensors' own: calibrate on a straight jig, the cable square to the ring")
     if not_explained:  # (a sensor saturating at 10 A had been told to recalibrate at 5 A)
         why += (", or what the candidates do not explain, which the refit's gains took up (a sensor whose scale "
                 "depends on the current — saturating at the highest — or on time)")

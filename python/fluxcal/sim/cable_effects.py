@@ -701,8 +701,10 @@ class SensorCoupling(CableEffect):
         if not c.size:
             return {}
         k = int(np.argmax(np.abs(c)))
+        pair = c[2 * (k // 2):2 * (k // 2) + 2]
         return {"coupling_sensor": k // 2, "coupling_axis": "xy"[k % 2], "coupling": float(c[k]),
-                "coupling_deg": float(np.degrees(np.arcsin(np.clip(c[k], -1.0, 1.0))))}
+                "coupling_deg": float(np.degrees(np.arcsin(np.clip(c[k], -1.0, 1.0)))),
+                "coupling_pair": pair.tolist()}
 
     @classmethod
     def typical(cls, n_sensors, rng):
