@@ -85,6 +85,8 @@ TURNED = 0.2  # a sensor's two couplings equal and opposite within this share of
 def _departs(test: dict, tests: list) -> bool:
     """Whether a regime test of the residuals departs: p below DEPARTS over the number of tests run beside it."""
     return test["pvalue"] < DEPARTS / max(len(tests), 1)
+
+
 # Where σ came from (the start of `noise_source`): the text and caveats judge the verdict by it
 FROM_REPEATS = "from repeated snapshots"
 FROM_CALIBRATION = "from the calibration's scatter"
