@@ -1110,10 +1110,8 @@ def _evaluate(cls, data, model, state, sigma, n_candidates) -> dict:
         form = max(taken, key=taken.get)
         feats, tried = found[form][0], sum(n for _, n in found.values())
         score, dims, singular, signature = new_part(feats)
-    row = {"effect": cls.name, "regime": cls.regime, "n_params": int(feats.shape[1]), "new_dimensions": dims,
-           "absorbed": dims == 0, "alternatives": tried, "score": score,
-           "score_pvalue": min(1.0, float(stats.chi2.sf(score, max(dims, 1))) * tried),
-           "absorbed_fraction": float(1 - singular.min()) if len(singular) else 1.0, **cls.describe(ctx, feats)}
+    row = {"effect": cls.name, "regime": cls.regime, "n_params": int(feats.shape[1]),
+           **_score_fields(score, dims, singular, tried), **cls.describe(ctx, feats)}
     row.update(_profiled_row(profiled), **_offset_kind(form, taken, e))
     if dims == 0:
         row.update(lr=0.0, lr_pvalue=1.0, delta_aic=0.0, delta_bic=0.0, significant=False,
@@ -1128,9 +1126,7 @@ def _evaluate(cls, data, model, state, sigma, n_candidates) -> dict:
         if getattr(cls, "step_at_ends", False):
             feats, fit = _step_at_ends(cls, data, ctx, state, fixed, feats, fit, e)
             score, dims, singular, signature = new_part(feats)
-            row.update(cls.describe(ctx, feats), score=score, new_dimensions=dims,
-                       score_pvalue=min(1.0, float(stats.chi2.sf(score, max(dims, 1))) * tried),
-                       absorbed_fraction=float(1 - singular.min()) if len(singular) else 1.0)
+            row.update(_score_fields(score, dims, singular, tried), **cls.describe(ctx, feats))
         held_feats = feats
         if cls.signal_features:
             feats, fit, value = _at_own_signal(cls, data, fixed, state, feats, fit, ctxs[form].scale, sigma,
@@ -1181,6 +1177,14 @@ def _evaluate(cls, data, model, state, sigma, n_candidates) -> dict:
     row["_signal_features"] = cls.signal_features
     row["_law_in_time"] = bool(getattr(cls, "law_in_time", False))
     return row
+
+
+def _score_fields(score: float, dims: int, singular: np.ndarray, tried: int) -> dict:
+    """A candidate's new part: its score, the score's p-value over the `tried` alternatives (Bonferroni), and how
+    much of it the model's parameters already hold."""
+    return {"new_dimensions": dims, "absorbed": dims == 0, "alternatives": tried, "score": score,
+            "score_pvalue": min(1.0, float(stats.chi2.sf(score, max(dims, 1))) * tried),
+            "absorbed_fraction": float(1 - singular.min()) if len(singular) else 1.0}
 
 
 def _step_at_ends(cls, data, ctx, state, fixed, feats, fit, e) -> tuple:
