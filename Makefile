@@ -18,9 +18,11 @@ SUDO := $(shell [ "$$(id -u)" = 0 ] || echo sudo)
 demo: install
 	$(VENV)/bin/fluxcal demo -o build/demo
 
+# pytest: two workers (pytest-xdist) on 2 cores; worksteal, so that the half-minute diagnosis tests left at the
+# end do not leave one worker idle. 9.5 min in CI on 2026-11-27; ~20–24 min on the slower machine of 2026-12-02.
 test: install
 	$(CTEST_BIN) --test-dir $(DEV) --output-on-failure
-	$(PY) -m pytest -q -n 2   # two workers (pytest-xdist) on 2 cores: 9.5 min in CI (2026-11-27)
+	$(PY) -m pytest -q -n 2 --dist worksteal
 
 bench: install
 	for b in ellipsoid twostep refine positions cable kalman planar; do \
