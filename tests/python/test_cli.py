@@ -16,10 +16,11 @@ def test_version():
 
 
 def test_simulate_calibrate_apply(tmp_path):
+    # these two tests start `python -m fluxcal` itself (process=True); the rest run its main in this process
     rec, cal, out = tmp_path / "sim.csv", tmp_path / "cal.json", tmp_path / "out.csv"
-    r = run_cli("simulate", "-o", rec, "--n", 1500, "--noise", 0.002, "--seed", 3)
+    r = run_cli("simulate", "-o", rec, "--n", 1500, "--noise", 0.002, "--seed", 3, process=True)
     assert r.returncode == 0, r.stderr
-    r = run_cli("calibrate", rec, "--field-norm", 50000, "-o", cal, "--plot", tmp_path / "p.png")
+    r = run_cli("calibrate", rec, "--field-norm", 50000, "-o", cal, "--plot", tmp_path / "p.png", process=True)
     assert r.returncode == 0, r.stderr
     assert "|h| std/mean after" in r.stdout and "offset b" in r.stdout and "samples used          1500" in r.stdout
     assert (tmp_path / "p.png").stat().st_size > 10_000
@@ -28,7 +29,7 @@ def test_simulate_calibrate_apply(tmp_path):
     saved = fluxcal.Calibration.load(cal)
     assert saved.units == "nT" and saved.metadata["source"] == str(rec)
     assert np.linalg.norm(saved.offset - true_offset) < 0.005 * 50000
-    r = run_cli("apply", cal, rec, "-o", out)
+    r = run_cli("apply", cal, rec, "-o", out, process=True)
     assert r.returncode == 0, r.stderr
     corrected = fluxcal.read_csv(out)
     h = np.column_stack([corrected.columns[c] for c in ("hx", "hy", "hz")])
@@ -49,18 +50,18 @@ def test_phone_recording_is_calibrated(real_data, tmp_path):
 def test_errors_are_reported_not_raised(tmp_path):
     bad = tmp_path / "bad.csv"
     bad.write_text("mx,my,mz\n1,2,3\n1,x,3\n")
-    r = run_cli("calibrate", bad)
+    r = run_cli("calibrate", bad, process=True)
     assert r.returncode == 2
     assert "bad.csv, line 3, column 'my': 'x' is not a number" in r.stderr
     assert "Traceback" not in r.stderr
     few = tmp_path / "few.csv"
     few.write_text("mx,my,mz\n" + "1,2,3\n" * 5)
-    r = run_cli("calibrate", few)
+    r = run_cli("calibrate", few, process=True)
     assert r.returncode == 2 and "5 rows, need at least 9" in r.stderr
-    r = run_cli("calibrate", tmp_path / "absent.csv")
+    r = run_cli("calibrate", tmp_path / "absent.csv", process=True)
     assert r.returncode == 2 and "cannot read" in r.stderr
     # an output that cannot be written (here a folder): an error naming it, not a traceback
-    r = run_cli("simulate", "-o", tmp_path, "--n", 20)
+    r = run_cli("simulate", "-o", tmp_path, "--n", 20, process=True)
     assert r.returncode == 2 and f"{tmp_path}: Is a directory" in r.stderr and "Traceback" not in r.stderr
 
 
