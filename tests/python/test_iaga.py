@@ -33,11 +33,11 @@ def field(n=240, seed=0):
     return np.array([17300.0, -250.0, 46500.0]) + wander
 
 
-def write(path, elements, rows, day="2024-03-01", doy=61, start=0):
+def write(path, elements, rows, day="2024-03-01", doy=61, start=0, precision=2):
     text = HEADER.format(*elements, elements=elements)
     for k, row in enumerate(rows):
         h, m = divmod(start + k, 60)
-        text += f"{day} {h:02d}:{m:02d}:00.000 {doy:03d}    " + " ".join(f"{v:9.2f}" for v in row) + "\n"
+        text += f"{day} {h:02d}:{m:02d}:00.000 {doy:03d}    " + " ".join(f"{v:9.{precision}f}" for v in row) + "\n"
     path.write_text(text)
     return path
 
@@ -71,6 +71,25 @@ def test_hdz_and_dhi_become_the_same_vector(tmp_path):
     assert "H cos D" in hdz.metadata["vector"] and "H tan I" in dhi.metadata["vector"]
     hez = read_recording(write(tmp_path / "hez.min", "HEZF", np.column_stack([h, np.zeros(len(h)), xyz[:, 2], f])))
     assert "magnetic meridian" in hez.metadata["vector"]
+
+
+def test_a_dhif_file_in_degrees_is_told_apart_by_its_f(tmp_path):
+    # IAGA-2002's angles are minutes of arc; a logger writing degrees gave Z = H tan(I/60): |field| ≈ H, 65 % below
+    # F at this 70° inclination. Only degrees match F, so the file is read in degrees, with a warning that says so.
+    xyz = field(seed=2)
+    h = np.hypot(xyz[:, 0], xyz[:, 1])
+    d, i = np.degrees(np.arctan2(xyz[:, 1], xyz[:, 0])), np.degrees(np.arctan2(xyz[:, 2], h))
+    f = np.linalg.norm(xyz, axis=1)
+    rows = np.column_stack([np.round(d, 4), h, np.round(i, 4), f])
+    with pytest.warns(UserWarning, match=r"D and I read in degrees.*missed F by 65\.\d %"):
+        rec = read_recording(write(tmp_path / "deg.min", "DHIF", rows, precision=4))
+    np.testing.assert_allclose(rec.samples(), xyz, atol=0.3)
+    assert "in degrees" in rec.metadata["vector"]
+    # the same file without F cannot be told apart: minutes of arc, the format's unit, and so Z ≈ 0.02 H
+    not_recorded = np.full(len(rows), 88888.0)
+    no_f = read_recording(write(tmp_path / "deg_no_f.min", "DHIF", np.column_stack([rows[:, :3], not_recorded]),
+                                precision=4))
+    assert "minutes of arc" in no_f.metadata["vector"] and np.all(no_f.samples()[:, 2] < 0.05 * h)
 
 
 def test_gaps_and_bad_records_are_named_or_left_out_and_listed(tmp_path):

@@ -11,7 +11,8 @@ the loggers of many observatory-grade magnetometers).
 
 Elements (the last letter of each name in the data header; the first three form the vector, the fourth is a scalar):
 X north, Y east, Z down, H horizontal, E east in the magnetic meridian's frame, F total and G its difference in nT;
-D declination and I inclination in minutes of arc (the format's unit: a file in degrees is not told apart). The
+D declination and I inclination in minutes of arc (the format's unit; a DHIF file in degrees is told apart by its F,
+which only degrees then match, and read so with a warning; HDZ's D is not, as D does not change |field|). The
 vector becomes the columns X, Y, Z in nT: XYZ as they are, HDZ as X = H cos D, Y = H sin D, DHI with Z = H tan I,
 HEZ as (H, E, Z) in the magnetic meridian's frame (a variometer's: its axes, not geographic ones). The fourth
 element (F, G) is kept as a column, NaN where a record lacks it.
@@ -25,6 +26,8 @@ Written by hand, not through geomagpy (MagPy), which reads it among many formats
 client, a MySQL driver, cdflib pinned below 1.4) are not a calibration library's.
 """
 from __future__ import annotations
+
+import warnings
 
 import numpy as np
 
@@ -135,6 +138,31 @@ def _missing_word(value: float) -> str:
             else f"{value}, not a number")
 
 
+# A DHIF file's |X, Y, Z| matches its F when the median of |(|X, Y, Z|/F − 1)| is within this: I read in the wrong
+# unit misses by far more (I = 65° read as 65′ gives |field| = H, 58 % below F), a good record by < 1e-4.
+F_AGREES = 0.01
+
+
+def _angle_unit(path, elements: list, data: np.ndarray, column: int, h: np.ndarray) -> tuple[float, str]:
+    """(units per degree, the unit's name) of a DHIF file's angles: minutes of arc, the format's unit, unless only
+    degrees make |X, Y, Z| = H / |cos I| match the file's F (`F_AGREES`)."""
+    f = data[:, 3]
+    known = f < MISSING
+    if elements[3] != "F" or not known.any():
+        return 60.0, "minutes of arc"
+
+    def miss(per_degree):
+        cos_i = np.abs(np.cos(np.radians(data[known, column] / per_degree)))
+        return float(np.median(np.abs(h[known] / cos_i / f[known] - 1.0)))
+
+    by_minutes, by_degrees = miss(60.0), miss(1.0)
+    if by_minutes <= F_AGREES or by_degrees > F_AGREES:
+        return 60.0, "minutes of arc"
+    warnings.warn(f"{path}: D and I read in degrees, not in minutes of arc (the IAGA-2002 unit): in minutes |X, Y, Z| "
+                  f"missed F by {100 * by_minutes:.3g} % (median), in degrees by {100 * by_degrees:.2g} %")
+    return 1.0, f"degrees: in minutes of arc |X, Y, Z| missed F by {100 * by_minutes:.3g} %"
+
+
 def _vector(path, elements: list, data: np.ndarray) -> tuple[dict, str]:
     """The columns X, Y, Z (nT) from the elements reported, and how they were formed."""
     at = {letter: k for k, letter in enumerate(elements[:3])}
@@ -146,10 +174,11 @@ def _vector(path, elements: list, data: np.ndarray) -> tuple[dict, str]:
         return ({"X": data[:, at["H"]] * np.cos(d), "Y": data[:, at["H"]] * np.sin(d), "Z": data[:, at["Z"]]},
                 "X = H cos D, Y = H sin D (D in minutes of arc)")
     if have == {"D", "H", "I"}:
-        d, i = np.radians(data[:, at["D"]] / 60.0), np.radians(data[:, at["I"]] / 60.0)
         h = data[:, at["H"]]
+        per_degree, unit = _angle_unit(path, elements, data, at["I"], h)
+        d, i = np.radians(data[:, at["D"]] / per_degree), np.radians(data[:, at["I"]] / per_degree)
         return ({"X": h * np.cos(d), "Y": h * np.sin(d), "Z": h * np.tan(i)},
-                "X = H cos D, Y = H sin D, Z = H tan I (D, I in minutes of arc)")
+                f"X = H cos D, Y = H sin D, Z = H tan I (D, I in {unit})")
     if have == {"H", "E", "Z"}:
         return ({"X": data[:, at["H"]], "Y": data[:, at["E"]], "Z": data[:, at["Z"]]},
                 "X = H, Y = E: the magnetic meridian's frame, not geographic north and east")
