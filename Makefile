@@ -5,7 +5,7 @@ PYTHON ?= python3
 VENV := .venv
 PY := $(VENV)/bin/python
 BUILD := build/cpp   # make cpp: the C++ library, its tests and benchmarks on their own (no Python)
-# make install: the wheel's CMake tree, configured with the C++ tests and benchmarks too, so that make test
+# make install: the wheel's CMake tree, with the C++ tests (and for make bench the benchmarks), so that make test
 # and make bench compile the library once (it was compiled twice, ~6.5 min on 2 cores each time)
 DEV := build/dev
 APT_PACKAGES := build-essential cmake ninja-build python3-dev python3-venv \
@@ -24,7 +24,8 @@ test: install
 	$(CTEST_BIN) --test-dir $(DEV) --output-on-failure
 	$(PY) -m pytest -q -n 2 --dist worksteal
 
-bench: install
+bench:
+	$(MAKE) install BENCH=ON
 	for b in ellipsoid twostep refine positions cable kalman planar; do \
 	  $(DEV)/bench/bench_$$b --benchmark_min_time=0.5 || exit 1; done
 	$(PY) bench/ellipsoid.py
@@ -60,10 +61,12 @@ $(VENV)/.deps: pyproject.toml | deps
 # (recursive `=`: looked up when the recipe runs, after `deps` installed them)
 CMAKE_BIN = $(firstword $(wildcard /usr/bin/cmake) cmake)
 CTEST_BIN = $(firstword $(wildcard /usr/bin/ctest) ctest)
+# the Google Benchmark programs: built by make bench (BENCH=ON), not for make test (half a minute of 2 cores)
+BENCH ?= OFF
 install: $(VENV)/.deps
 	CMAKE_EXECUTABLE=$(CMAKE_BIN) \
 	$(PY) -m pip install -q --no-build-isolation -C build-dir=$(DEV) \
-	  -C cmake.define.FLUXCAL_BUILD_TESTS=ON -C cmake.define.FLUXCAL_BUILD_BENCH=ON '.[test]'
+	  -C cmake.define.FLUXCAL_BUILD_TESTS=ON -C cmake.define.FLUXCAL_BUILD_BENCH=$(BENCH) '.[test]'
 
 cpp: deps
 	cmake -S . -B $(BUILD) -G Ninja -DCMAKE_BUILD_TYPE=Release -DFLUXCAL_BUILD_TESTS=ON -DFLUXCAL_BUILD_BENCH=ON
