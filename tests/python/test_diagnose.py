@@ -1,5 +1,6 @@
 """The sim-to-real diagnosis, checked blind on simulations with withheld effects (fluxcal.sim.withheld):
 the diagnosis sees only readings, time and temperature; candidates are fitted, never looked up."""
+import importlib
 import json
 import re
 
@@ -37,6 +38,36 @@ def test_withheld_effect_ranks_first_and_closes_the_gap(name):
     assert hits >= 0.9 * TRIALS, f"{name} ranked first and significant in {hits}/{TRIALS}"
     assert alone >= 0.8 * TRIALS, f"{name} found with no spurious extra effect in only {alone}/{TRIALS}"
     assert np.median(shrinks) >= 0.7, f"{name}: held-out gap shrinks {np.round(shrinks, 2)}"
+
+
+def test_events_scored_at_once_score_as_each_on_its_own_readings(monkeypatch):
+    # The event searches score their coarse scans at once (core._EventScores): ~530 boxes in time from running sums
+    # over the readings, ~600 passes of a magnet in one padded stack. Each score must be the one the event's own
+    # readings give (score_on), against magnitudes (a step: a constant per axis; a magnet along the field) and
+    # against reference vectors (a magnet in the world frame).
+    events, compared = importlib.import_module("fluxcal.diagnose.core")._EventScores, {"boxes": [], "passes": []}
+    boxes, passes = events.boxes, events.passes
+
+    def boxes_and_own(self, cls, ctx, edges):
+        fast = boxes(self, cls, ctx, edges)
+        compared["boxes"] += [(f, self.score_on(*cls._box_rows(ctx, *ab)), self.vector) for f, ab in zip(fast, edges)]
+        return fast
+
+    def passes_and_own(self, cls, ctx, closest, t_pass):
+        fast = passes(self, cls, ctx, closest, t_pass)
+        compared["passes"] += [(f, self.score_on(*cls._pass_rows(ctx, c, t_pass)), self.vector)
+                               for f, c in zip(fast, closest)]
+        return fast
+
+    monkeypatch.setattr(events, "boxes", boxes_and_own)
+    monkeypatch.setattr(events, "passes", passes_and_own)
+    for names, model in ((["offset_step"], None), (["moving_dipole"], "vector")):
+        result, kwargs = withheld_trial(names, 0, model=model)
+        assert diagnose(result.readings, **kwargs).accepted == names
+    for kind, tolerance in (("boxes", 1e-6), ("passes", 1e-12)):  # (boxes: powers of time across the recording)
+        fast, own, vector = np.array(compared[kind]).T
+        assert len(own) > 1000 and vector.any() and not vector.all(), kind
+        np.testing.assert_allclose(fast, own, rtol=tolerance, atol=1e-9 * own.max(), err_msg=kind)
 
 
 @pytest.mark.parametrize("pair", [("temp_offset", "nonlinearity_cubic"), ("offset_drift", "cross_axis"),

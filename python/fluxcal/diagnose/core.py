@@ -19,7 +19,7 @@ from ..attitude import magnetic_frame
 from ..calibration import Calibration
 from ..io.recording import UNIX_SECONDS
 from ..outliers import find_outliers
-from ..sim.effects import CANDIDATES, _Compression, _per_diagnosis, scatter_rows
+from ..sim.effects import CANDIDATES, MEMO_FLOATS, _Compression, _per_diagnosis, scatter_rows
 
 # Base models: (uses a reference vector, base parameters held at their start values).
 MODELS = {
@@ -1038,6 +1038,151 @@ def _binned(z: np.ndarray, bins: np.ndarray, labels, x=None, number=None, sigma_
 
 # ---------------------------------------------------------------- which and how far
 
+def _gram_score(ZtZ, W, Zte, norms, Qe):
+    """new_part's score × σ² from the Gram matrices of candidate columns Z: Z'Z, W = Q'Z, Z'e, and the columns'
+    norms (Q the base Jacobian's orthonormal basis, Qe = Q'e): R'R = (Z'Z − W'W) and R'e = Z'e − W'Q'e of the new
+    part R = Z − QW, without forming it. Stacks of candidates alike (leading axes)."""
+    norms = np.where(norms == 0, 1.0, norms)
+    Wt = np.swapaxes(W, -1, -2)
+    s2, V = np.linalg.eigh((ZtZ - Wt @ W) / (norms[..., :, None] * norms[..., None, :]))
+    s = np.sqrt(np.maximum(s2, 0.0))
+    new = s >= ABSORBED
+    along = (np.swapaxes(V, -1, -2) @ ((Zte - Wt @ Qe) / norms)[..., None])[..., 0]
+    return np.sum(np.where(new, along / np.where(new, s, 1.0), 0.0) ** 2, axis=-1)
+
+
+# A box narrower than this part of the recording is scored from its own readings: the sums over all boxes hold
+# powers of the time across the recording, which a narrow box's Legendre polynomials combine with coefficients up to
+# (span / width)² — rounding grows with them (relative 3e-8 at a 16th, 4e-7 at a 32nd), while a narrow box's own
+# readings are few.
+BOX_SUMS_NARROWEST = 1 / 16
+
+
+class _EventScores:
+    """score_on for many events at once: the coarse scans of the event searches (sim.effects._TimeBox), ~530 boxes
+    in time and ~600 passes of a magnet, each of which from its own readings cost ~40 numpy calls. Their features
+    are a time profile times the candidate's carrier (`_carrier`) on the readings the event reaches, so one
+    projection of the carrier into residual space serves them all. Readings out of time order go to score_on one by
+    one."""
+
+    def __init__(self, base: dict, vector: bool, Q: np.ndarray, e: np.ndarray, Qe: np.ndarray, sigma2: float,
+                 score_on):
+        self.base, self.vector, self.Q, self.e, self.Qe, self.sigma2 = base, vector, Q, e, Qe, sigma2
+        self.score_on, self.held = score_on, {}
+
+    def _held(self, ctx, key, compute):
+        """compute() once per context (kept with it: its id is not reused meanwhile)."""
+        if (id(ctx), key) not in self.held:
+            self.held[id(ctx), key] = (ctx, compute())
+        return self.held[id(ctx), key][1]
+
+    def _carrier_columns(self, cls, ctx):
+        """The carrier's columns in residual space, reading × its residuals × q; None out of time order."""
+        t = ctx.t
+        if not (t[-1] > t[0] and np.all(t[1:] >= t[:-1])):
+            return None
+        carrier = cls._carrier(ctx)
+        return _project(self.base, carrier, self.vector).reshape(len(t), -1, carrier.shape[1])
+
+    def _running_sums(self, cls, ctx):
+        """Running sums over the readings of τ^m z z', τ^m Q'z and τ^m z e (z: the carrier's columns, τ = −1…1
+        across the recording), Legendre-major as the box's columns: a box's Gram matrices are their differences
+        combined with its Legendre coefficients in τ. None out of time order or beyond a memory's worth."""
+        Z, t, degree = self._held(ctx, "carrier", lambda: self._carrier_columns(cls, ctx)), ctx.t, cls.BOX_DEGREE
+        if Z is None:
+            return None
+        n, q = Z.shape[0], Z.shape[2]
+        p = (degree + 1) * q
+        if n * p * (p + self.Q.shape[1] + 1) > MEMO_FLOATS:
+            return None
+        mid, half = 0.5 * (t[0] + t[-1]), 0.5 * (t[-1] - t[0])
+        powers = ((t - mid) / half)[:, None] ** np.arange(2 * degree + 1)
+        k = np.arange(degree + 1)
+        hankel = powers[:, np.add.outer(k, k)]  # [n, m, l] = τ^(m+l)
+        zz = np.einsum("nra,nrb->nab", Z, Z)
+        gram = (hankel[:, :, None, :, None] * zz[:, None, :, None, :]).reshape(n, p, p)
+        qz = np.einsum("nrc,nra->nca", self.Q.reshape(n, Z.shape[1], -1), Z)
+        cross = (qz[:, :, None, :] * powers[:, None, :len(k), None]).reshape(n, -1, p)
+        ez = np.einsum("nr,nra->na", self.e.reshape(n, Z.shape[1]), Z)[:, None, :] * powers[:, :len(k), None]
+
+        def running(x):  # row i: the sum over the first i readings
+            out = np.zeros((n + 1,) + x.shape[1:])
+            np.cumsum(x, axis=0, out=out[1:])
+            return out
+        return q, mid, half, running(gram), running(cross), running(ez.reshape(n, -1))
+
+    def boxes(self, cls, ctx, edges) -> np.ndarray:
+        """The scores of the boxes (t_on, t_off) in `edges`."""
+        sums = self._held(ctx, "boxes", lambda: self._running_sums(cls, ctx))
+        on, off = np.asarray(edges, dtype=float).reshape(-1, 2).T
+        out = np.empty(len(on))
+        summed = np.zeros(len(on), dtype=bool)
+        if sums is not None:
+            q, mid, half, S, G, E = sums
+            lo, hi = ctx.t.searchsorted(on, side="left"), ctx.t.searchsorted(off, side="right")
+            summed = (off - on >= 2 * BOX_SUMS_NARROWEST * half) & (hi > lo)
+            lo, hi = lo[summed], hi[summed]
+            A = _legendre_in_time(0.5 * (on + off)[summed] - mid, 0.5 * (off - on)[summed], half, cls.BOX_DEGREE)
+            M = np.zeros((len(A), A.shape[1] * q, A.shape[1] * q))  # A ⊗ I_q: P_k times carrier column a
+            for a in range(q):
+                M[:, a::q, a::q] = A
+            Mt = np.swapaxes(M, 1, 2)
+            ZtZ = M @ (S[hi] - S[lo]) @ Mt
+            norms = np.sqrt(np.maximum(np.diagonal(ZtZ, axis1=1, axis2=2), 0.0))
+            out[summed] = _gram_score(ZtZ, (G[hi] - G[lo]) @ Mt, (M @ (E[hi] - E[lo])[:, :, None])[:, :, 0], norms,
+                                      self.Qe) / self.sigma2
+        for i in np.flatnonzero(~summed):  # (narrow: few readings of their own)
+            out[i] = self.score_on(*cls._box_rows(ctx, on[i], off[i]))
+        return out
+
+    def passes(self, cls, ctx, closest, t_pass: float) -> np.ndarray:
+        """The scores of the passes with closest approaches `closest`, each taking `t_pass` (`_pass_rows`): the
+        readings each reaches, padded to the longest with zero rows, in one stack."""
+        Z = self._held(ctx, "carrier", lambda: self._carrier_columns(cls, ctx))
+        closest = np.asarray(closest, dtype=float)
+        if Z is None:
+            return np.array([self.score_on(*cls._pass_rows(ctx, c, t_pass)) for c in closest])
+        t, reach = ctx.t, cls.PASS_REACH * t_pass
+        lo, hi = t.searchsorted(closest - reach, side="left"), t.searchsorted(closest + reach, side="right")
+        longest, per = max(int(np.max(hi - lo)), 1), Z.shape[1]
+        chunk = max(1, MEMO_FLOATS // (longest * per * (self.Q.shape[1] + 3 * Z.shape[2] + 1)))  # (a memory's worth)
+        if len(closest) > chunk:
+            return np.concatenate([self.passes(cls, ctx, closest[i:i + chunk], t_pass)
+                                   for i in range(0, len(closest), chunk)])
+        rows = lo[:, None] + np.arange(longest)
+        within = rows < hi[:, None]
+        rows = np.minimum(rows, len(t) - 1)
+        profile = cls.pass_profile((t[rows] - closest[:, None]) / t_pass) * within[:, :, None]  # B × L × k
+        Zb = (profile[:, :, None, :, None] * Z[rows][:, :, :, None, :]).reshape(len(closest), -1, profile.shape[2]
+                                                                               * Z.shape[2])
+        r = (rows[:, :, None] * per + np.arange(per)).reshape(len(closest), -1)  # their residuals
+        Zt = np.swapaxes(Zb, 1, 2)
+        ZtZ = Zt @ Zb
+        norms = np.sqrt(np.maximum(np.diagonal(ZtZ, axis1=1, axis2=2), 0.0))
+        return _gram_score(ZtZ, np.swapaxes(self.Q[r], 1, 2) @ Zb, (Zt @ self.e[r][:, :, None])[:, :, 0], norms,
+                           self.Qe) / self.sigma2
+
+
+@lru_cache(maxsize=None)
+def _legendre_powers(degree: int) -> tuple:
+    """(L, C, j): L[k, j] the coefficient of u^j in the Legendre polynomial P_k(u), C[j, m] = binomial(j, m), j."""
+    L = np.zeros((degree + 1, degree + 1))
+    for k in range(degree + 1):
+        c = np.polynomial.legendre.leg2poly(np.eye(degree + 1)[k])
+        L[k, :len(c)] = c
+    j = np.arange(degree + 1)
+    return L, np.array([[comb(a, b) for b in j] for a in j], dtype=float), j
+
+
+def _legendre_in_time(centre: np.ndarray, half_width: np.ndarray, half_span: float, degree: int) -> np.ndarray:
+    """A[b, k, m]: P_k(u) = Σ_m A[b, k, m] τ^m for boxes b, u = −1…1 across a box (its centre and half-width from
+    the recording's middle), τ = −1…1 across the recording (its half span): u = (τ − c)/h,
+    u^j = Σ_m C(j, m) (−c)^(j−m) τ^m / h^j."""
+    L, C, j = _legendre_powers(degree)
+    c, h = (centre / half_span)[:, None, None], (half_width / half_span)[:, None, None]
+    return L @ (C * (-c) ** np.maximum(j[:, None] - j[None, :], 0) / h ** j[:, None])
+
+
 def _evaluate(cls, data, model, state, sigma, n_candidates) -> dict:
     """Score test, absorption check, refit, likelihood ratio and held-out validation of one candidate."""
     vector, fixed = MODELS[model]
@@ -1088,12 +1233,11 @@ def _evaluate(cls, data, model, state, sigma, n_candidates) -> dict:
         r = _residual_rows(rows, per_reading)
         Z = _project(base, feats, vector, rows)
         norms = np.sqrt(np.add.reduce(Z * Z, axis=0))  # np.linalg.norm(Z, axis=0)
-        norms[norms == 0] = 1.0
-        W = Q[r].T @ Z
-        s2, V = np.linalg.eigh((Z.T @ Z - W.T @ W) / (norms[:, None] * norms[None, :]))
-        s = np.sqrt(np.maximum(s2, 0.0))
-        new = s >= ABSORBED
-        return float(((V[:, new].T @ ((Z.T @ e[r] - W.T @ Qe) / norms) / s[new]) ** 2).sum() / sigma2)
+        return float(_gram_score(Z.T @ Z, Q[r].T @ Z, Z.T @ e[r], norms, Qe)) / sigma2
+
+    if not (cls.signal_features and not fixed):
+        events = _EventScores(base, vector, Q, e, Qe, sigma2, score_on)
+        score_on.boxes, score_on.passes = events.boxes, events.passes
 
     profiled, ctxs, form, taken = {}, _forms(cls, ctx), "hard_iron", {}
     if cls.linear and not fixed:  # exactly absorbed by the full matrix; its first-order features are not

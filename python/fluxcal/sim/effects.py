@@ -972,6 +972,14 @@ class _TimeBox(Effect):
         """(features, rows): the features on the readings within the box, and those readings."""
         raise NotImplementedError
 
+    BOX_DEGREE = 0  # within a box: the Legendre polynomials P_0…P_BOX_DEGREE of u (−1…1 across it) times `_carrier`
+
+    @classmethod
+    def _carrier(cls, ctx):  # pragma: no cover - interface
+        """N × q × 3: what every time profile multiplies (a box's features on its readings are P_k(u) times the
+        carrier, column k·q + a) — what a scorer of many boxes at once sums (`score.boxes`)."""
+        raise NotImplementedError
+
     @classmethod
     def _box(cls, ctx, t_on, t_off, *args):
         return scatter_rows(len(ctx.t), *cls._box_rows(ctx, t_on, t_off, *args))
@@ -997,8 +1005,17 @@ class _TimeBox(Effect):
     def _search_box(cls, ctx, score):
         """The box search: (edges, best score, alternatives tried)."""
         coarse = cls._coarse_edges(ctx)
-        scores = [score(*cls._box_rows(ctx, a, b)) for a, b in coarse]
-        edges, best, tried = list(coarse[int(np.argmax(scores))]), max(scores), len(coarse)
+        boxes = getattr(score, "boxes", None)  # a scorer of many boxes at once (the diagnosis': score_on.boxes)
+        scores = list(boxes(cls, ctx, coarse)) if boxes else [score(*cls._box_rows(ctx, a, b)) for a, b in coarse]
+        best_at = int(np.argmax(scores))
+        # A box from the recording's start and the box from its other edge to the end are one step told two ways
+        # (on one, an offset is the base's offset plus its negative on the other): their scores tie, up to rounding,
+        # and the step is told as on from its time
+        if coarse[best_at][0] <= ctx.t.min():
+            after = [k for k, (a, b) in enumerate(coarse) if a == coarse[best_at][1] and b >= ctx.t.max()]
+            if after and scores[after[0]] >= scores[best_at] - 1e-9 * abs(scores[best_at]):
+                best_at = after[0]
+        edges, best, tried = list(coarse[best_at]), scores[best_at], len(coarse)
         dt = _sample_step(ctx.t)
         width = np.ptp(ctx.t) / cls.GRID
         # An edge at an end of the recording makes the box a step (one edge): moving it inside adds an
@@ -1098,8 +1115,10 @@ class MovingDipole(_TimeBox):
         passing.moment = passing.moment * size * field_norm / largest
         return passing
 
+    BOX_DEGREE = 2
+
     @classmethod
-    def _box_rows(cls, ctx, t_on, t_off, degree: int = 2):
+    def _box_rows(cls, ctx, t_on, t_off, degree: int = BOX_DEGREE):
         rows = _rows_within(ctx.t, t_on, t_off, _time_ordered(ctx))
 
         def shape():
@@ -1108,6 +1127,10 @@ class MovingDipole(_TimeBox):
         # (the time profile depends on the times alone: every round's search scores the same coarse boxes)
         shape = _per_diagnosis(getattr(ctx, "memo", None), ("box", t_on, t_off, degree), (ctx.t,), shape)
         return cls._along_field(ctx, rows, shape), rows
+
+    @classmethod
+    def _carrier(cls, ctx):
+        return cls._along_field(ctx, slice(None), np.ones((len(ctx.t), 1)))
 
     @staticmethod
     def _along_field(ctx, rows, shape: np.ndarray) -> np.ndarray:
@@ -1143,18 +1166,21 @@ class MovingDipole(_TimeBox):
         20 % of the field."""
         rows = _rows_within(ctx.t, t_close - cls.PASS_REACH * t_pass, t_close + cls.PASS_REACH * t_pass,
                             _time_ordered(ctx))
-
-        def shape():
-            tau = (ctx.t[rows] - t_close) / t_pass
-            near = 1.0 / (1.0 + tau * tau)
-            envelope = near * near * np.sqrt(near)  # (1 + τ²)^(−5/2) (a fractional power costs 3× this)
-            profiles = [envelope, envelope * tau, envelope * tau * tau]
-            if order == 2:
-                profiles += [envelope * envelope * tau ** n for n in range(5)]
-            return np.stack(profiles, axis=1)
         # (the time profile depends on the times alone: every round's search scores the same coarse passes)
-        shape = _per_diagnosis(getattr(ctx, "memo", None), ("pass", t_close, t_pass, order), (ctx.t,), shape)
+        shape = _per_diagnosis(getattr(ctx, "memo", None), ("pass", t_close, t_pass, order), (ctx.t,),
+                               lambda: cls.pass_profile((ctx.t[rows] - t_close) / t_pass, order))
         return cls._along_field(ctx, rows, shape), rows
+
+    @staticmethod
+    def pass_profile(tau: np.ndarray, order: int = 1) -> np.ndarray:
+        """A pass's time profiles at τ (any shape; a last axis added): Anderson's functions (order 2: and the
+        magnitude's second-order change, see `_pass_rows`)."""
+        near = 1.0 / (1.0 + tau * tau)
+        envelope = near * near * np.sqrt(near)  # (1 + τ²)^(−5/2) (a fractional power costs 3× this)
+        profiles = [envelope, envelope * tau, envelope * tau * tau]
+        if order == 2:
+            profiles += [envelope * envelope * tau ** n for n in range(5)]
+        return np.stack(profiles, axis=-1)
 
     @classmethod
     def _search_pass(cls, ctx, score):
@@ -1174,10 +1200,14 @@ class MovingDipole(_TimeBox):
                     and t_close + cls.PASS_SIDES * t_pass <= ctx.t.max())
 
         coarse, tried = [], 0  # per passage time: its best closest time on the coarse grid
+        passes = getattr(score, "passes", None)  # a scorer of many passes at once (the diagnosis': score_on.passes)
         for t_pass in times:
             closest = np.arange(ctx.t.min() + cls.PASS_SIDES * t_pass, ctx.t.max() - cls.PASS_SIDES * t_pass,
                                 max(t_pass, dt))
-            values = [score(*cls._pass_rows(ctx, t_close, t_pass)) for t_close in closest]
+            if passes is not None:
+                values = list(passes(cls, ctx, closest, t_pass)) if len(closest) else []
+            else:
+                values = [score(*cls._pass_rows(ctx, t_close, t_pass)) for t_close in closest]
             tried += len(values)
             if values:
                 coarse.append((max(values), [closest[int(np.argmax(values))], t_pass]))
@@ -1298,6 +1328,10 @@ class OffsetStep(_TimeBox):
         # ones per axis: the identity on every row (some 600 boxes are scored). Copied, not the broadcast view:
         # einsum sums over a zero stride in another order, which flipped a tie between a box and its complement
         return np.broadcast_to(AXES, (len(ctx.t[rows]), 3, 3)).copy(), rows
+
+    @classmethod
+    def _carrier(cls, ctx):
+        return np.broadcast_to(AXES, (len(ctx.t), 3, 3)).copy()
 
     @classmethod
     def typical(cls, field_norm, rng, duration_s: float = 60.0):
