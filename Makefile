@@ -19,7 +19,7 @@ demo: install
 	$(VENV)/bin/fluxcal demo -o build/demo
 
 # pytest: two workers (pytest-xdist) on 2 cores; worksteal, so that the half-minute diagnosis tests left at the
-# end do not leave one worker idle. 9.5 min in CI on 2026-11-27; ~20–24 min on the slower machine of 2026-12-02.
+# end do not leave one worker idle. 9.5 min in CI on 2026-11-27; ~15 min on the slower machine of 2026-12-02.
 test: install
 	$(CTEST_BIN) --test-dir $(DEV) --output-on-failure
 	$(PY) -m pytest -q -n 2 --dist worksteal

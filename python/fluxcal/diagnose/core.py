@@ -19,7 +19,7 @@ from ..attitude import magnetic_frame
 from ..calibration import Calibration
 from ..io.recording import UNIX_SECONDS
 from ..outliers import find_outliers
-from ..sim.effects import CANDIDATES, MEMO_FLOATS, _Compression, _per_diagnosis, scatter_rows
+from ..sim.effects import CANDIDATES, MEMO_FLOATS, _Compression, _per_diagnosis, _time_ordered, scatter_rows
 
 # Base models: (uses a reference vector, base parameters held at their start values).
 MODELS = {
@@ -1070,25 +1070,22 @@ class _EventScores:
         self.base, self.vector, self.Q, self.e, self.Qe, self.sigma2 = base, vector, Q, e, Qe, sigma2
         self.score_on, self.held = score_on, {}
 
-    def _held(self, ctx, key, compute):
-        """compute() once per context (kept with it: its id is not reused meanwhile)."""
-        if (id(ctx), key) not in self.held:
-            self.held[id(ctx), key] = (ctx, compute())
-        return self.held[id(ctx), key][1]
-
     def _carrier_columns(self, cls, ctx):
-        """The carrier's columns in residual space, reading × its residuals × q; None out of time order."""
-        t = ctx.t
-        if not (t[-1] > t[0] and np.all(t[1:] >= t[:-1])):
-            return None
-        carrier = cls._carrier(ctx)
-        return _project(self.base, carrier, self.vector).reshape(len(t), -1, carrier.shape[1])
+        """The carrier's columns in residual space, reading × its residuals × q, once per context (kept with it:
+        its id is not reused meanwhile); None out of time order."""
+        if id(ctx) not in self.held:
+            Z = None
+            if ctx.t[-1] > ctx.t[0] and _time_ordered(ctx):
+                carrier = cls._carrier(ctx)
+                Z = _project(self.base, carrier, self.vector).reshape(len(ctx.t), -1, carrier.shape[1])
+            self.held[id(ctx)] = (ctx, Z)
+        return self.held[id(ctx)][1]
 
     def _running_sums(self, cls, ctx):
         """Running sums over the readings of τ^m z z', τ^m Q'z and τ^m z e (z: the carrier's columns, τ = −1…1
         across the recording), Legendre-major as the box's columns: a box's Gram matrices are their differences
         combined with its Legendre coefficients in τ. None out of time order or beyond a memory's worth."""
-        Z, t, degree = self._held(ctx, "carrier", lambda: self._carrier_columns(cls, ctx)), ctx.t, cls.BOX_DEGREE
+        Z, t, degree = self._carrier_columns(cls, ctx), ctx.t, cls.BOX_DEGREE
         if Z is None:
             return None
         n, q = Z.shape[0], Z.shape[2]
@@ -1113,13 +1110,13 @@ class _EventScores:
 
     def boxes(self, cls, ctx, edges) -> np.ndarray:
         """The scores of the boxes (t_on, t_off) in `edges`."""
-        sums = self._held(ctx, "boxes", lambda: self._running_sums(cls, ctx))
+        sums = self._running_sums(cls, ctx)  # (once: a search scans its coarse boxes in one call)
         on, off = np.asarray(edges, dtype=float).reshape(-1, 2).T
         out = np.empty(len(on))
         summed = np.zeros(len(on), dtype=bool)
         if sums is not None:
             q, mid, half, S, G, E = sums
-            lo, hi = ctx.t.searchsorted(on, side="left"), ctx.t.searchsorted(off, side="right")
+            lo, hi = ctx.t.searchsorted(on, side="left"), ctx.t.searchsorted(off, side="right")  # (_rows_within's)
             summed = (off - on >= 2 * BOX_SUMS_NARROWEST * half) & (hi > lo)
             lo, hi = lo[summed], hi[summed]
             A = _legendre_in_time(0.5 * (on + off)[summed] - mid, 0.5 * (off - on)[summed], half, cls.BOX_DEGREE)
@@ -1138,7 +1135,7 @@ class _EventScores:
     def passes(self, cls, ctx, closest, t_pass: float) -> np.ndarray:
         """The scores of the passes with closest approaches `closest`, each taking `t_pass` (`_pass_rows`): the
         readings each reaches, padded to the longest with zero rows, in one stack."""
-        Z = self._held(ctx, "carrier", lambda: self._carrier_columns(cls, ctx))
+        Z = self._carrier_columns(cls, ctx)
         closest = np.asarray(closest, dtype=float)
         if Z is None:
             return np.array([self.score_on(*cls._pass_rows(ctx, c, t_pass)) for c in closest])
