@@ -1,6 +1,7 @@
 """Scenes: the sensor's orientations over time in a fixed world field."""
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 
 import numpy as np
@@ -75,12 +76,7 @@ def tumble(duration_s: float = 60.0, rate_hz: float = 50.0, turn_rate_deg: float
     for _ in range(3):
         omega = lfilter([alpha], [1.0, alpha - 1.0], omega, axis=0)
     omega *= np.deg2rad(turn_rate_deg) / np.sqrt(np.mean(omega ** 2))
-    steps = Rotation.from_rotvec(omega * dt)
-    quats = np.empty((n, 4))
-    attitude = Rotation.random(random_state=rng)
-    for i in range(n):
-        quats[i] = attitude.as_quat()
-        attitude = attitude * steps[i]
+    quats = _integrate(Rotation.random(random_state=rng).as_quat(), Rotation.from_rotvec(omega * dt).as_quat())
     t = np.arange(n) * dt
     temp = None
     if callable(temperature):
@@ -97,6 +93,23 @@ def tumble(duration_s: float = 60.0, rate_hz: float = 50.0, turn_rate_deg: float
     elif current is not None:
         amps = throttle(t, rng, *current, duration_s=duration_s, dt=dt)
     return Scene(Rotation.from_quat(quats), t, temp, amps)
+
+
+def _integrate(start: np.ndarray, steps: np.ndarray) -> np.ndarray:
+    """The attitudes (n, 4 scalar-last quaternions) from `start` through the body-frame `steps` (n, 4): attitude i
+    is start · step 0 ⋯ step i−1. The product SciPy's `Rotation.__mul__` forms, then normalised as it does, in the
+    same order of operations (the same bits; checked over 120 000 steps), on Python floats: a Rotation per
+    step cost 0.4 s of a minute's recording, a seventh of the time a diagnosis of it takes."""
+    quats = np.empty((len(steps), 4))
+    px, py, pz, pw = start.tolist()
+    for i, (qx, qy, qz, qw) in enumerate(steps.tolist()):
+        quats[i] = (px, py, pz, pw)
+        cx, cy, cz = py * qz - pz * qy, pz * qx - px * qz, px * qy - py * qx  # p⃗ × q⃗
+        x, y, z = pw * qx + qw * px + cx, pw * qy + qw * py + cy, pw * qz + qw * pz + cz
+        w = pw * qw - px * qx - py * qy - pz * qz
+        norm = math.sqrt(x * x + y * y + z * z + w * w)
+        px, py, pz, pw = x / norm, y / norm, z / norm, w / norm
+    return quats
 
 
 def warming(t: np.ndarray, rng, mean: float = 25.0, amplitude: float = 10.0, period: float = 40.0,
