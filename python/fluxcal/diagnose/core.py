@@ -1237,11 +1237,12 @@ def _evaluate(cls, data, model, state, sigma, n_candidates) -> dict:
         score_on.boxes, score_on.passes = events.boxes, events.passes
 
     profiled, ctxs, form, taken = {}, _forms(cls, ctx), "hard_iron", {}
+    projected = {f: {} for f in ctxs}  # a profile's projected grid, for the profile on the kept residuals (below)
     if cls.linear and not fixed:  # exactly absorbed by the full matrix; its first-order features are not
         # (one of three directions looked new on a real recording with a 4 % temperature scale error)
         feats, tried, score, dims, singular, signature = cls.features(ctx), 1, 0.0, 0, np.zeros(0), None
     elif cls.profile_name:  # its parameter is counted as a parameter (below), not as alternatives tried
-        value, form, feats, taken = _profile(cls, ctxs, base, Q, e, vector)
+        value, form, feats, taken = _profile(cls, ctxs, base, Q, e, vector, projected)
         # at its null value (a temperature's lag of 0) the candidate is its plain form: no parameter to count
         tried, profiled = len(ctxs), ({} if value == cls.profile_null else {cls.profile_name: value})
         score, dims, singular, signature = new_part(feats)
@@ -1278,7 +1279,7 @@ def _evaluate(cls, data, model, state, sigma, n_candidates) -> dict:
             # The held-out readings choose nothing: a lag or time constant picked on all the readings had let a
             # made-up temperature's lag fit the recording's own slow wander in the held-out quarter too.
             keep = np.repeat(~_held_regime(data, state, cls.regime)[1], per_reading)
-            value = _profile_value(cls, ctxs[form], base, Q, e, vector, keep)[0]
+            value = _profile_value(cls, ctxs[form], base, Q, e, vector, keep, projected[form])[0]
             row[f"{cls.profile_name}_without_heldout"] = _profiled_row({"v": value})["v"]
             held_feats = cls.features_at(ctxs[form], value)
         validated = _validate(data, model, state, held_feats, cls.regime, sigma)
@@ -1474,21 +1475,25 @@ def _profiled_row(profiled: dict) -> dict:
     return {k: (float(v) if np.isfinite(v) else None) for k, v in profiled.items()}
 
 
-def _profile(cls, ctxs: dict, result: dict, Q: np.ndarray, e: np.ndarray, vector: bool):
+def _profile(cls, ctxs: dict, result: dict, Q: np.ndarray, e: np.ndarray, vector: bool, projected=None):
     """A profiled candidate's parameter and form: for each form's context (`_forms`), the value whose features,
     fitted together with the columns of the orthonormal basis Q (the rest of the model, linearised at `result`),
-    take most off the residuals e (`_profile_value`), and the form that takes most. Returns (value, form,
-    features, the part of e each form takes)."""
-    found = {form: _profile_value(cls, ctx, result, Q, e, vector) for form, ctx in ctxs.items()}
+    take most off the residuals e (`_profile_value`), and the form that takes most. `projected`: a dict per form
+    to keep the grid's projected features in (`_profile_value`). Returns (value, form, features, the part of e
+    each form takes)."""
+    found = {form: _profile_value(cls, ctx, result, Q, e, vector, projected=(projected or {}).get(form))
+             for form, ctx in ctxs.items()}
     form = max(found, key=lambda f: found[f][1])
     value = found[form][0]
     return value, form, cls.features_at(ctxs[form], value), {f: g for f, (_, g) in found.items()}
 
 
-def _profile_value(cls, ctx, result: dict, Q: np.ndarray, e: np.ndarray, vector: bool, keep=None):
+def _profile_value(cls, ctx, result: dict, Q: np.ndarray, e: np.ndarray, vector: bool, keep=None, projected=None):
     """The profiled parameter: its grid (`cls.profile_grid`), then a bounded search in log between
     the best point's neighbours. Each step is a linear refit, so the profile costs projections, not solver runs.
-    `keep` (a mask of the residuals): chosen on those alone. Returns (value, the part of e its features take)."""
+    `keep` (a mask of the residuals): chosen on those alone. `projected` (a dict, or None): the grid's features
+    projected at `result`, kept there and taken from there — the profile on the kept residuals runs over the same
+    grid as the one on all of them. Returns (value, the part of e its features take)."""
     from scipy.optimize import minimize_scalar
 
     if keep is not None:  # (an SVD: an accepted event's columns can vanish on the kept rows, leaving Q[keep] short of rank)
@@ -1497,9 +1502,13 @@ def _profile_value(cls, ctx, result: dict, Q: np.ndarray, e: np.ndarray, vector:
 
     known = {}  # gains by value: the null value may be on the grid (a drift's ∞)
 
-    def gain(value):
+    def gain(value, on_grid=False):
         if value not in known:
-            Z = _project(result, cls.features_at(ctx, value), vector)
+            Z = projected.get(value) if on_grid and projected is not None else None
+            if Z is None:
+                Z = _project(result, cls.features_at(ctx, value), vector)
+                if on_grid and projected is not None and (len(projected) + 1) * Z.size <= MEMO_FLOATS:
+                    projected[value] = Z
             Z = Z if keep is None else Z[keep]
             R = Z - Q @ (Q.T @ Z)
             coef, *_ = np.linalg.lstsq(R, e, rcond=None)
@@ -1507,7 +1516,7 @@ def _profile_value(cls, ctx, result: dict, Q: np.ndarray, e: np.ndarray, vector:
         return known[value]
 
     grid = np.asarray(cls.profile_grid(ctx), dtype=float)
-    gains = [gain(v) for v in grid]
+    gains = [gain(v, on_grid=True) for v in grid]
     i = int(np.argmax(gains))
     value, best_gain = grid[i], gains[i]
     if np.isfinite(value) and value != 0 and len(grid) > 1:  # (a one-point grid: nothing to refine)
@@ -2050,17 +2059,17 @@ def _wander_lr(e0: np.ndarray, e1: np.ndarray, basis) -> float:
     n = len(e1)
     c0, c1 = V.T @ (S.T @ (H.T @ e0)), V.T @ (S.T @ (H.T @ e1))
 
-    def quad(c, e, tau):
-        return max(float(e @ e) - float(np.sum(tau * c ** 2 / (1.0 + tau * s))), 1e-300)
+    def quad(c, e, tau):  # for every τ (a column) at once
+        return np.maximum(float(e @ e) - np.sum(tau * c ** 2 / (1.0 + tau * s), axis=-1), 1e-300)
 
     positive = s[s > s.max() * 1e-12]
     # from a wander far under the noise to one far over it, whatever the recording's length (Z'Z grows with N); none
     # when there is no offset to wander (held at its start): τ 0, the plain ratio
     taus = np.concatenate([[0.0], np.geomspace(1e-4 / positive.max(), 1e4 / positive.min(), 61)
-                           if positive.size else []])
-    nll = [n * np.log(quad(c1, e1, tau)) + float(np.sum(np.log1p(tau * s))) for tau in taus]
+                           if positive.size else []])[:, None]
+    nll = n * np.log(quad(c1, e1, taus)) + np.sum(np.log1p(taus * s), axis=-1)
     tau = taus[int(np.argmin(nll))]
-    return max(0.0, n * np.log(quad(c0, e0, tau) / quad(c1, e1, tau)))
+    return max(0.0, float(n * np.log(quad(c0, e0, tau) / quad(c1, e1, tau))))
 
 
 def _colored_noise(data, state, sigma, n_candidates, max_order: int = 30) -> dict:
