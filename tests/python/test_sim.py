@@ -59,3 +59,22 @@ def test_cross_axis_holds_only_where_its_exact_features_do():
     ctx.coefficients = np.array([0.0, 0.0, 0.25])
     assert np.array_equal(clipped, sim.CrossAxis.features(ctx))
     assert sim.Effect.holds(ctx, [1e9])  # other candidates' features hold everywhere
+
+
+def test_a_tumble_turns_by_its_body_rates_as_scipys_rotation_product():
+    # tumble integrates the attitude on Python floats (fast); it must be SciPy's R_{i+1} = R_i · step_i, composed
+    # on the body side (the other order turns by the same angles about the world's axes: O(1) apart)
+    from scipy.spatial.transform import Rotation
+
+    from fluxcal.sim.scene import _integrate
+
+    rng = np.random.default_rng(3)
+    steps = Rotation.from_rotvec(0.05 * rng.standard_normal((500, 3)))
+    attitude = start = Rotation.random(random_state=rng)
+    expected = []
+    for i in range(len(steps)):
+        expected.append(attitude.as_quat())
+        attitude = attitude * steps[i]
+    np.testing.assert_allclose(_integrate(start.as_quat(), steps.as_quat()), expected, rtol=0, atol=1e-14)
+    scene = sim.tumble(duration_s=2.0, rng=0)
+    np.testing.assert_allclose(np.linalg.norm(scene.rotations.as_quat(), axis=1), 1.0, atol=1e-15)
