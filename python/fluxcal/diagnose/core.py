@@ -1945,15 +1945,17 @@ def _validate(data, model, state, feats, regime, sigma) -> dict:
     regime, held = _held_regime(data, state, regime, block)
     key = (regime, block)
     terms = _validated_terms(state)
-    if key not in state["train_fits"]:
-        state["train_fits"][key] = _fit(data, state["start"], fixed, _features(state["validated"]), ~held,
-                                        start_terms=terms)
-    before = state["train_fits"][key]
     base_feats = _features(state["validated"])
+    if key not in state["train_fits"]:  # the fit without it and its held-out residuals: once per held-out part
+        before = _fit(data, state["start"], fixed, base_feats, ~held, start_terms=terms)
+        state["train_fits"][key] = (before, _residuals(before, data, base_feats, held),
+                                    _downstream(before, data, base_feats, held), {})
+    before, e0, downstream_before, floors = state["train_fits"][key]
+    if sigma not in floors:
+        floors[sigma] = _noise_floor(before, data, base_feats, held, sigma)
     all_feats = _features(state["validated"] + [feats])
     after = _fit(data, state["start"], fixed, all_feats, ~held,
                  start_terms=np.concatenate([terms, np.zeros(feats.shape[1])]))
-    e0 = _residuals(before, data, base_feats, held)
     e1 = _residuals(after, data, all_feats, held)
     # A short event's gaps where it acts: a magnet's second-long pass in ten minutes takes most of the departure
     # within its reach, and next to nothing of the whole held-out part's, where the noise alone had left a gap of 0
@@ -1962,13 +1964,13 @@ def _validate(data, model, state, feats, regime, sigma) -> dict:
     g0, g1 = (_residuals(fit, data, f, within) for fit, f in ((before, base_feats), (after, all_feats)))
     return {"heldout": regime, "heldout_n": int(held.sum()), "heldout_block": block,
             "heldout_n_judged": int(within.sum()),
-            "heldout_noise_floor": _noise_floor(before, data, base_feats, held, sigma),
+            "heldout_noise_floor": floors[sigma],
             "heldout_gap_before": _gap(g0, sigma), "heldout_gap_after": _gap(g1, sigma),
             "heldout_rms_before": float(np.sqrt(np.mean(g0 ** 2))),
             "heldout_rms_after": float(np.sqrt(np.mean(g1 ** 2))),
             "heldout_pvalue": _event_pvalue(e0, e1, (g0, g1) if block is not None else None,
                                             _in_sample_length(after, data, ~held)),
-            **{f"{k}_before": v for k, v in _downstream(before, data, base_feats, held).items()},
+            **{f"{k}_before": v for k, v in downstream_before.items()},
             **{f"{k}_after": v for k, v in _downstream(after, data, all_feats, held).items()}}
 
 
