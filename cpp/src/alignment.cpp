@@ -2,6 +2,7 @@
 #include "fluxcal/alignment.hpp"
 
 #include "checks.hpp"
+#include "linalg.hpp"
 #include "long_run.hpp"
 
 #include <Eigen/SVD>
@@ -85,14 +86,14 @@ void normal_equations(const Samples& down, const Samples& dir, const Eigen::Matr
 /// heading (every heading fits nearly as well). Not max_se_deg itself: an eigen-direction mixing two parameters
 /// has a larger SE than either, and the iterates' variance is inflated far from the minimum; weakly determined
 /// directions frozen so stopped hand-turn fits 5–10° off at 10–30 % more cost (a blind check).
-Eigen::Vector4d determined_step(const Eigen::SelfAdjointEigenSolver<Eigen::Matrix4d>& eig, const Eigen::Vector4d& g,
+Eigen::Vector4d determined_step(const detail::SymmetricEigen<4>& eig, const Eigen::Vector4d& g,
                                 double sigma2, double mu, const AlignmentOptions& options) {
-  const Eigen::Vector4d lambda = eig.eigenvalues(), in_eigen = eig.eigenvectors().transpose() * g;
+  const Eigen::Vector4d lambda = eig.values, in_eigen = eig.vectors.transpose() * g;
   const double se_limit2 = std::pow(3.0 * options.max_se_deg / kDeg, 2), scale = std::max(lambda(3), 1e-300);
   Eigen::Vector4d step = Eigen::Vector4d::Zero();
   for (int i = 0; i < 4; ++i)
     if (lambda(i) > 0 && sigma2 / lambda(i) <= se_limit2) step(i) = -in_eigen(i) / (lambda(i) + mu * scale);
-  return eig.eigenvectors() * step;
+  return eig.vectors * step;
 }
 
 struct Fit {
@@ -115,7 +116,7 @@ Fit gauss_newton(const Samples& down, const Samples& dir, Eigen::Matrix3d r, dou
     Eigen::Vector4d jte;
     normal_equations(down, dir, r, dip, jtj, jte);
     ++fit.iterations;
-    const Eigen::SelfAdjointEigenSolver<Eigen::Matrix4d> eig(jtj);
+    const detail::SymmetricEigen<4> eig = detail::symmetric_eigen(jtj);
     const double sigma2 = residual_variance(current, down.rows());
     bool accepted = false;
     for (; mu <= 1e6 && !accepted; ) {
@@ -146,12 +147,12 @@ void covariance(const Samples& down, const Samples& dir, Fit& fit, const Alignme
   Eigen::Vector4d jte;
   normal_equations(down, dir, fit.rotation, fit.dip, jtj, jte);
   fit.sigma2 = residual_variance(fit.cost, down.rows());
-  Eigen::SelfAdjointEigenSolver<Eigen::Matrix4d> eig(jtj);
-  const Eigen::Vector4d lambda = eig.eigenvalues();
+  const detail::SymmetricEigen<4> eig = detail::symmetric_eigen(jtj);
+  const Eigen::Vector4d lambda = eig.values;
   const double floor = 1e-12 * std::max(lambda(3), 1e-300);
   fit.singular = !(lambda(0) > floor);
   const Eigen::Vector4d inverse = lambda.cwiseMax(floor).cwiseInverse();
-  fit.inverse = eig.eigenvectors() * inverse.asDiagonal() * eig.eigenvectors().transpose();
+  fit.inverse = eig.vectors * inverse.asDiagonal() * eig.vectors.transpose();
   fit.covariance = fit.sigma2 * fit.inverse;
   fit.identifiable = (fit.covariance.diagonal().cwiseMax(0.0).cwiseSqrt() * kDeg).maxCoeff() <= options.max_se_deg;
 }
@@ -167,8 +168,7 @@ Fit solve(const Samples& down, const Samples& dir, const AlignmentOptions& optio
     a(k, 9) = -1.0;
   }
   const Eigen::Matrix<double, 10, 10> ata = a.transpose() * a;
-  Eigen::SelfAdjointEigenSolver<Eigen::Matrix<double, 10, 10>> smallest(ata);
-  Eigen::Matrix<double, 10, 1> x = smallest.eigenvectors().col(0);
+  Eigen::Matrix<double, 10, 1> x = detail::symmetric_eigen(ata).vectors.col(0);
   Eigen::Matrix3d m;
   m << x(0), x(1), x(2), x(3), x(4), x(5), x(6), x(7), x(8);
   if (m.determinant() < 0) {

@@ -1,6 +1,7 @@
 #include "fluxcal/cable.hpp"
 
 #include "checks.hpp"
+#include "linalg.hpp"
 #include "fluxcal/timeseries.hpp"
 
 #include <ceres/ceres.h>
@@ -266,11 +267,11 @@ class FisherBlocks {
         F.block(k_ + nc_ * s, 0, nc_, k_) = Bs[u].transpose();
         F.block(k_ + nc_ * s, k_ + nc_ * s, nc_, nc_) = Ds[u];
       }
-      Eigen::SelfAdjointEigenSolver<Eigen::MatrixXd> eig(F);
-      const Eigen::VectorXd lam = eig.eigenvalues();
+      const detail::SymmetricEigen<Eigen::Dynamic> eig = detail::symmetric_eigen(F);
+      const Eigen::VectorXd& lam = eig.values;
       out.condition = lam(0) > 0.0 ? lam(p - 1) / lam(0) : kInf;
       if (out.condition < kSingularFisher)
-        out.dense_ = eig.eigenvectors() * lam.cwiseInverse().asDiagonal() * eig.eigenvectors().transpose();
+        out.dense_ = eig.vectors * lam.cwiseInverse().asDiagonal() * eig.vectors.transpose();
       return out;
     }
     // by blocks: each snapshot's currents eliminated into the shared block (Schur complement)
@@ -279,15 +280,15 @@ class FisherBlocks {
     out.e_.resize(static_cast<std::size_t>(S));
     for (Eigen::Index s = 0; s < S; ++s) {
       const auto u = static_cast<std::size_t>(s);
-      Eigen::SelfAdjointEigenSolver<Eigen::MatrixXd> eig(Ds[u]);
-      if (!(eig.eigenvalues()(0) > 1e-14 * eig.eigenvalues()(nc_ - 1))) return out;  // singular
-      out.dinv_[u] = eig.eigenvectors() * eig.eigenvalues().cwiseInverse().asDiagonal() * eig.eigenvectors().transpose();
+      const detail::SymmetricEigen<Eigen::Dynamic> eig = detail::symmetric_eigen(Ds[u]);
+      if (!(eig.values(0) > 1e-14 * eig.values(nc_ - 1))) return out;  // singular
+      out.dinv_[u] = eig.vectors * eig.values.cwiseInverse().asDiagonal() * eig.vectors.transpose();
       out.e_[u] = out.dinv_[u] * Bs[u].transpose();
       schur.noalias() -= Bs[u] * out.e_[u];
     }
-    Eigen::SelfAdjointEigenSolver<Eigen::MatrixXd> eig(schur);
-    if (!(eig.eigenvalues()(0) > 1e-14 * eig.eigenvalues()(k_ - 1))) return out;
-    out.cpp_ = eig.eigenvectors() * eig.eigenvalues().cwiseInverse().asDiagonal() * eig.eigenvectors().transpose();
+    const detail::SymmetricEigen<Eigen::Dynamic> eig = detail::symmetric_eigen(schur);
+    if (!(eig.values(0) > 1e-14 * eig.values(k_ - 1))) return out;
+    out.cpp_ = eig.vectors * eig.values.cwiseInverse().asDiagonal() * eig.vectors.transpose();
     // the extreme eigenvalues by power iteration: on the matrix for the largest, on its inverse for the smallest
     auto times = [&](const Eigen::VectorXd& x) {
       Eigen::VectorXd y(p);
@@ -373,7 +374,7 @@ RunInfo dense_lm(const std::vector<std::unique_ptr<SnapshotCost>>& costs, std::v
   double lambda = 1e-4;
   std::vector<double> pos_try(pos.size());
   Eigen::MatrixXd cur_try(cur.rows(), cur.cols()), step_c(nc, S);
-  std::vector<Eigen::LDLT<Eigen::MatrixXd>> Dd(static_cast<std::size_t>(S));
+  std::vector<detail::Ldlt> Dd(static_cast<std::size_t>(S));
   for (info.iterations = 0; info.iterations < opt.max_iterations;) {
     if (std::max(gk.cwiseAbs().maxCoeff(), gc.cwiseAbs().maxCoeff()) <= opt.gradient_tolerance) {
       info.converged = true;
@@ -390,12 +391,13 @@ RunInfo dense_lm(const std::vector<std::unique_ptr<SnapshotCost>>& costs, std::v
       Eigen::MatrixXd Ds = fb.currents(s);
       Ds.diagonal() += lambda * fb.currents(s).diagonal().cwiseMax(1e-300);
       Dd[u].compute(Ds);
-      schur.noalias() -= B * Dd[u].solve(B.transpose());
-      rhs.noalias() += B * Dd[u].solve(gc.col(s));
+      schur.noalias() -= B * Dd[u].solve_transposed(B);
+      rhs.noalias() += B * Dd[u].solve(Eigen::VectorXd(gc.col(s)));
     }
-    const Eigen::VectorXd step_k = schur.ldlt().solve(rhs);
+    const Eigen::VectorXd step_k = detail::ldlt_solve(schur, rhs);
     for (Eigen::Index s = 0; s < S; ++s)
-      step_c.col(s) = Dd[static_cast<std::size_t>(s)].solve(-gc.col(s) - fb.shared_currents(s).transpose() * step_k);
+      step_c.col(s) =
+          Dd[static_cast<std::size_t>(s)].solve(Eigen::VectorXd(-gc.col(s) - fb.shared_currents(s).transpose() * step_k));
     if (!step_k.allFinite() || !step_c.allFinite()) {
       info.message = "the normal equations are singular";
       break;
@@ -472,9 +474,9 @@ bool currents_basis(const RingFrame& f, const double* pos, int n, bool zero_sum,
   Eigen::MatrixXd G;
   design(f, pos, n, G);
   const Eigen::MatrixXd Gr = reduce(G, zero_sum);
-  Eigen::HouseholderQR<Eigen::MatrixXd> qr(Gr);
-  Q = qr.householderQ() * Eigen::MatrixXd::Identity(Gr.rows(), Gr.cols());
-  const Eigen::VectorXd diag = qr.matrixQR().diagonal().cwiseAbs();
+  detail::HouseholderThinQ qr = detail::householder_thin_q(Gr);
+  Q = std::move(qr.q);
+  const Eigen::VectorXd diag = qr.r_diagonal.cwiseAbs();
   return diag.minCoeff() >= 1e-9 * std::max(diag.maxCoeff(), 1e-300);
 }
 
@@ -793,7 +795,7 @@ CableSolution solve_cable(const CableRing& ring, const Eigen::Ref<const Eigen::M
     } else {
       Eigen::MatrixXd G;
       design(f, pos.data(), n, G);
-      cur = reduce(G, zs).colPivHouseholderQr().solve(Rn.colwise() - U * b);
+      cur = detail::least_squares_qr(reduce(G, zs), Eigen::MatrixXd(Rn.colwise() - U * b));
     }
     RunInfo run;
     if (dense) {

@@ -1,8 +1,7 @@
 #include "fluxcal/drift.hpp"
 
 #include "checks.hpp"
-
-#include <Eigen/SVD>
+#include "linalg.hpp"
 
 #include <algorithm>
 #include <cmath>
@@ -139,14 +138,15 @@ Eigen::VectorXd fit_rows(const Eigen::VectorXd& x, const Eigen::VectorXd& w, con
     throw Error("drift: too few consecutive samples in a range for order " + std::to_string(order));
   const Eigen::VectorXd s = column_scales(vw);
   const Eigen::MatrixXd vb = vw * s.cwiseInverse().asDiagonal();
-  Eigen::ColPivHouseholderQR<Eigen::MatrixXd> qr(vb);
-  if (qr.rank() < order + 1)
+  Eigen::Index rank = 0;
+  const Eigen::VectorXd solution = detail::least_squares_qr(vb, ww, &rank);
+  if (rank < order + 1)
     throw Error("drift: the temperatures take too few distinct values for a polynomial of order " +
                 std::to_string(order));
-  const Eigen::VectorXd coef = qr.solve(ww).cwiseQuotient(s);
+  const Eigen::VectorXd coef = solution.cwiseQuotient(s);
   if (sse) *sse = (ww - vw * coef).squaredNorm();
   if (condition) {
-    const Eigen::VectorXd sv = Eigen::JacobiSVD<Eigen::MatrixXd>(vb).singularValues();
+    const Eigen::VectorXd sv = detail::singular_values(vb);
     *condition = sv[0] / sv[sv.size() - 1];
   }
   return coef;
@@ -359,9 +359,8 @@ DriftModel fit_drift(const SeriesRef& select, const SeriesRef& x, const SeriesRe
           con(s, offset[seg] + i) = (side == 0 ? 1.0 : -1.0) * p / scale[offset[seg] + i];
       }
     }
-    Eigen::JacobiSVD<Eigen::MatrixXd> svd(con, Eigen::ComputeFullV);
-    const Eigen::MatrixXd null = svd.matrixV().rightCols(cols - (k - 1));
-    const Eigen::VectorXd z = (big * null).colPivHouseholderQr().solve(rhs);
+    const Eigen::MatrixXd null = detail::right_singular_vectors(con).rightCols(cols - (k - 1));
+    const Eigen::VectorXd z = detail::least_squares_qr(big * null, rhs);
     const Eigen::VectorXd theta = (null * z).cwiseQuotient(scale);
     r0 = 0;
     for (int s = 0; s < k; ++s) {

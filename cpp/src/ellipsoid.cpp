@@ -3,6 +3,7 @@
 #include "fluxcal/coverage.hpp"
 #include "checks.hpp"
 #include "clones.hpp"
+#include "linalg.hpp"
 #include "quadric.hpp"
 
 #include <Eigen/Eigenvalues>
@@ -399,7 +400,7 @@ std::pair<Eigen::Vector3d, double> normalisation(const SamplesRef& samples, Eige
 namespace {
 
 double smallest_eigenvalue(const Eigen::Matrix<double, 10, 10>& m) {
-  return Eigen::SelfAdjointEigenSolver<Eigen::Matrix<double, 10, 10>>(m, Eigen::EigenvaluesOnly).eigenvalues()(0);
+  return detail::symmetric_eigenvalues(m)(0);
 }
 
 // ALS: the noise variance v (normalised units) at which the adjusted scatter ψ(v) turns singular,
@@ -419,8 +420,8 @@ Eigen::Matrix<double, 10, 1> adjusted_quadric(const EllipsoidMoments& mom, doubl
     (lambda_min(mid) > 0.0 ? lo : hi) = mid;
   }
   const double v = 0.5 * (lo + hi);
-  Eigen::SelfAdjointEigenSolver<Eigen::Matrix<double, 10, 10>> eig(mom.scatter(v) / n);
-  Eigen::Matrix<double, 10, 1> p = eig.eigenvectors().col(0);
+  Eigen::Matrix<double, 10, 1> p =
+      detail::symmetric_eigen(Eigen::Matrix<double, 10, 10>(mom.scatter(v) / n)).vectors.col(0);
   const double trace = p(0) + p(1) + p(2);
   if (!(std::abs(trace) > 1e-12 * p.norm()))
     throw Error("samples: adjusted least squares gave a degenerate quadric (trace 0); use the ordinary fit");
@@ -467,8 +468,8 @@ EllipsoidResult solve(const EllipsoidMoments& mom, const EllipsoidOptions& opt, 
   e0(0) = 1.0;
   const Eigen::Matrix<double, 9, 9> normal = E.transpose() * S * E / n;
   const Eigen::Matrix<double, 9, 1> rhs = -E.transpose() * S * e0 / n;
-  Eigen::SelfAdjointEigenSolver<Eigen::Matrix<double, 9, 9>> eig(normal);
-  const auto& lam = eig.eigenvalues();
+  const detail::SymmetricEigen<9> eig = detail::symmetric_eigen(normal);
+  const auto& lam = eig.values;
   sum.condition_number = lam(0) > 0.0 ? lam(8) / lam(0) : std::numeric_limits<double>::infinity();
   if (!(sum.condition_number < 1e14)) {
     throw Error("samples: the ellipsoid fit is rank deficient (condition number " + detail::num(sum.condition_number) +
@@ -476,7 +477,7 @@ EllipsoidResult solve(const EllipsoidMoments& mom, const EllipsoidOptions& opt, 
                 hardly_turned);
   }
   const Eigen::Matrix<double, 9, 1> q =
-      eig.eigenvectors() * (eig.eigenvectors().transpose() * rhs).cwiseQuotient(lam);
+      eig.vectors * (eig.vectors.transpose() * rhs).cwiseQuotient(lam);
   Eigen::Matrix<double, 10, 1> p = e0 + E * q;
   if (opt.method == EllipsoidMethod::adjusted) p = adjusted_quadric(mom, out.noise_sigma);
   out.quadric = p;

@@ -1,8 +1,7 @@
 #include "fluxcal/foct.hpp"
 
 #include "checks.hpp"
-
-#include <Eigen/LU>
+#include "linalg.hpp"
 
 #include <algorithm>
 #include <cmath>
@@ -104,7 +103,7 @@ double kalman_dc_gain(const ArKalman& kalman) {
   Eigen::MatrixXd ikc = Eigen::MatrixXd::Identity(n, n);
   ikc.col(0) -= k;  // I − K e1ᵀ
   const Eigen::MatrixXd f = ikc * a;
-  const double gain = (Eigen::MatrixXd::Identity(n, n) - f).partialPivLu().solve(k)[0];
+  const double gain = detail::PartialPivLu(Eigen::MatrixXd::Identity(n, n) - f).solve(k)[0];
   if (!(std::isfinite(gain) && gain > 0.0))
     throw Error("kalman: DC gain " + number(gain) + " is not > 0, the steady-state filter does not pass a constant");
   return gain;

@@ -1,8 +1,7 @@
 #include "fluxcal/kalman.hpp"
 
 #include "checks.hpp"
-
-#include <Eigen/Eigenvalues>
+#include "linalg.hpp"
 
 #include <cmath>
 #include <cstdlib>
@@ -70,7 +69,7 @@ Eigen::MatrixXd ar_stationary_covariance(const Eigen::VectorXd& a, double q) {
   if (!(q >= 0.0) || !std::isfinite(q))
     throw Error("q: the innovation variance " + std::to_string(q) + " must be finite and ≥ 0");
   const Eigen::MatrixXd A = companion(a);
-  const double rho = A.eigenvalues().cwiseAbs().maxCoeff();
+  const double rho = detail::general_eigenvalues(A).cwiseAbs().maxCoeff();
   if (!(rho < 1.0)) {
     std::ostringstream msg;
     msg << "ar_coefficients: the AR model is not stationary (companion spectral radius " << rho
@@ -87,7 +86,7 @@ Eigen::MatrixXd ar_stationary_covariance(const Eigen::VectorXd& a, double q) {
   Eigen::MatrixXd m = Eigen::MatrixXd::Identity(n, n);
   for (Eigen::Index k = 0; k < n; ++k)
     for (Eigen::Index i = 1; i <= p; ++i) m(k, std::abs(k - i)) -= a[i - 1];
-  const Eigen::PartialPivLU<Eigen::MatrixXd> lu(m);
+  const detail::PartialPivLu lu(m);
   Eigen::VectorXd rhs = Eigen::VectorXd::Zero(n), r(n);
   rhs[0] = q;
   Eigen::VectorXd g = lu.solve(rhs);
@@ -106,7 +105,7 @@ Eigen::MatrixXd ar_stationary_covariance(const Eigen::VectorXd& a, double q) {
   Eigen::MatrixXd cov(p, p);
   for (Eigen::Index i = 0; i < p; ++i)
     for (Eigen::Index j = 0; j < p; ++j) cov(i, j) = g[std::abs(i - j)];
-  if (!converged || !g.allFinite() || !(g[0] > 0.0) || cov.llt().info() != Eigen::Success) {
+  if (!converged || !g.allFinite() || !(g[0] > 0.0) || !detail::cholesky_succeeds(cov)) {
     std::ostringstream msg;
     msg << "ar_coefficients: the AR model is too close to non-stationary (companion spectral radius " << rho
         << "): its stationary covariance is not determined in double precision"
@@ -156,7 +155,7 @@ ArKalman ArKalman::from_ar(const ArResult& fit, double r, const KalmanOptions& o
   return ArKalman(fit.coefficients, fit.sigma2, r >= 0.0 ? r : fit.sigma2, options);
 }
 
-double ArKalman::spectral_radius() const { return companion(a_).eigenvalues().cwiseAbs().maxCoeff(); }
+double ArKalman::spectral_radius() const { return detail::general_eigenvalues(companion(a_)).cwiseAbs().maxCoeff(); }
 
 Eigen::VectorXd ArKalman::steady_state_gain(Eigen::MatrixXd* prior_covariance, int* iterations) const {
   const Eigen::Index n = a_.size();
@@ -174,7 +173,7 @@ Eigen::VectorXd ArKalman::steady_state_gain(Eigen::MatrixXd* prior_covariance, i
     h(0, 0) = q_;
     const Eigen::MatrixXd eye = Eigen::MatrixXd::Identity(n, n);
     for (; it < options_.riccati_max_iterations; ++it) {
-      const Eigen::PartialPivLU<Eigen::MatrixXd> w(eye + g * h);
+      const detail::PartialPivLu w(eye + g * h);
       const Eigen::MatrixXd wf = w.solve(f), wg = w.solve(g);
       Eigen::MatrixXd h_next = h + f.transpose() * h * wf;
       g += f * wg * f.transpose();

@@ -2,9 +2,9 @@
 
 #include "checks.hpp"
 #include "clones.hpp"
+#include "linalg.hpp"
 #include "long_run.hpp"
 
-#include <Eigen/Cholesky>
 #include <Eigen/Eigenvalues>
 #include <Eigen/LU>
 
@@ -222,9 +222,9 @@ Solve levenberg_marquardt(const Problem& pr, Eigen::VectorXd p, const Eigen::Vec
     while (lambda < 1e16) {
       Eigen::MatrixXd M = cur.F;
       M.diagonal() += lambda * D;
-      const Eigen::LDLT<Eigen::MatrixXd> ldlt(M);
-      const Eigen::VectorXd delta = ldlt.solve(-cur.g);
-      if (ldlt.info() != Eigen::Success || !delta.allFinite()) {
+      bool factored = false;
+      const Eigen::VectorXd delta = detail::ldlt_solve(M, -cur.g, &factored);
+      if (!factored || !delta.allFinite()) {
         lambda *= 10.0;
         continue;
       }
@@ -239,7 +239,7 @@ Solve levenberg_marquardt(const Problem& pr, Eigen::VectorXd p, const Eigen::Vec
       lambda *= 4.0;
     }
     if (!accepted) {
-      const Eigen::VectorXd x = cur.F.completeOrthogonalDecomposition().solve(-cur.g);
+      const Eigen::VectorXd x = detail::least_squares_min_norm(cur.F, -cur.g);
       const double predicted = x.allFinite() ? 0.5 * (-cur.g).dot(x) : kInf;
       out.converged = predicted <= std::max(cur.cost, kTiny) * n * std::numeric_limits<double>::epsilon();
       break;
@@ -293,9 +293,9 @@ std::optional<std::pair<Eigen::Vector2d, Eigen::Matrix2d>> direct_ellipse(const 
   C.row(0) = M.row(2) / 2.0;
   C.row(1) = -M.row(1);
   C.row(2) = M.row(0) / 2.0;
-  const Eigen::EigenSolver<Eigen::Matrix3d> eig(C);
-  if (eig.info() != Eigen::Success) return std::nullopt;
-  const Eigen::Matrix3d V = eig.eigenvectors().real();
+  const std::optional<Eigen::Matrix3d> vectors = detail::general_eigenvectors_real(C);
+  if (!vectors) return std::nullopt;
+  const Eigen::Matrix3d& V = *vectors;
   int chosen = -1;
   for (int j = 0; j < 3 && chosen < 0; ++j)
     if (4.0 * V(0, j) * V(2, j) - V(1, j) * V(1, j) > 0.0) chosen = j;  // the ellipse's constraint 4ac − b² > 0
@@ -376,7 +376,7 @@ PlanarResult fit(const Readings2DRef& u, const Eigen::VectorXd* norms, const Pla
   {
     Eigen::Matrix2d cov;
     cov << pr.ux.squaredNorm(), pr.ux.dot(pr.uy), pr.ux.dot(pr.uy), pr.uy.squaredNorm();
-    const Eigen::Vector2d ev = Eigen::SelfAdjointEigenSolver<Eigen::Matrix2d>(cov, Eigen::EigenvaluesOnly).eigenvalues();
+    const Eigen::Vector2d ev = detail::symmetric_eigenvalues(cov);
     sum.coverage_ratio = ev(1) > 0.0 ? std::sqrt(std::max(ev(0), 0.0) / ev(1)) : 0.0;
   }
 
@@ -403,7 +403,7 @@ PlanarResult fit(const Readings2DRef& u, const Eigen::VectorXd* norms, const Pla
     if (direct) {
       const Eigen::Matrix2d E = direct->second / (scale * scale);  // (u − b)ᵀ E (u − b) = 1
       found.push_back({"direct ellipse fit", centre + scale * direct->first,
-                       Eigen::SelfAdjointEigenSolver<Eigen::Matrix2d>(E).operatorSqrt()});
+                       detail::symmetric_sqrt(E)});
     }
     try {
       const TwoStep2DResult ts = twostep_2d(u, targets);  // reading = γ ⊙ h + b
@@ -488,12 +488,12 @@ PlanarResult fit(const Readings2DRef& u, const Eigen::VectorXd* norms, const Pla
   const double sigma2 = result.at.cost / dof;
   const Eigen::VectorXd dscale = result.at.F.diagonal().cwiseMax(kTiny).cwiseSqrt().cwiseInverse();
   const Eigen::MatrixXd Fs = dscale.asDiagonal() * result.at.F * dscale.asDiagonal();
-  const Eigen::SelfAdjointEigenSolver<Eigen::MatrixXd> eig(Fs);
-  const Eigen::VectorXd lam = eig.eigenvalues();
+  const detail::SymmetricEigen<Eigen::Dynamic> eig = detail::symmetric_eigen(Fs);
+  const Eigen::VectorXd& lam = eig.values;
   out.fisher_condition = lam(0) > 0.0 ? lam(k - 1) / lam(0) : kInf;
   const Eigen::VectorXd inv = lam.cwiseMax(lam(k - 1) * kTiny).cwiseInverse();
-  const Eigen::MatrixXd Finv = dscale.asDiagonal() * eig.eigenvectors() * inv.asDiagonal() *
-                               eig.eigenvectors().transpose() * dscale.asDiagonal();
+  const Eigen::MatrixXd Finv = dscale.asDiagonal() * eig.vectors * inv.asDiagonal() *
+                               eig.vectors.transpose() * dscale.asDiagonal();
   Eigen::MatrixXd independent = sigma2 * Finv, cov = independent;
   // Readings correlated in time: the Newey–West sandwich (the header's step 4), rows in the readings' order.
   const auto [r_n, scores] = residuals_and_scores(pr, result.p, fitted_targets);

@@ -2,6 +2,7 @@
 
 #include "fluxcal/ellipsoid.hpp"
 #include "checks.hpp"
+#include "linalg.hpp"
 
 #include <Eigen/Sparse>
 #include <ceres/ceres.h>
@@ -108,8 +109,8 @@ Eigen::MatrixXd spd_pinv(const Eigen::MatrixXd& M, std::vector<bool>& null_coord
   const Eigen::Index n = M.rows();
   null_coord.assign(static_cast<std::size_t>(n), false);
   if (n == 0) return M;
-  Eigen::SelfAdjointEigenSolver<Eigen::MatrixXd> eig(M);
-  const Eigen::VectorXd ev = eig.eigenvalues();
+  const detail::SymmetricEigen<Eigen::Dynamic> eig = detail::symmetric_eigen(M);
+  const Eigen::VectorXd& ev = eig.values;
   const double evmax = std::max(ev.maxCoeff(), 0.0), floor = evmax * 1e-14;
   if (condition)
     *condition = ev.minCoeff() > 0 ? std::sqrt(evmax / ev.minCoeff()) : std::numeric_limits<double>::infinity();
@@ -119,10 +120,10 @@ Eigen::MatrixXd spd_pinv(const Eigen::MatrixXd& M, std::vector<bool>& null_coord
       inv(i) = 1.0 / ev(i);
     } else {
       for (Eigen::Index j = 0; j < n; ++j)
-        if (std::abs(eig.eigenvectors()(j, i)) > 1e-3) null_coord[static_cast<std::size_t>(j)] = true;
+        if (std::abs(eig.vectors(j, i)) > 1e-3) null_coord[static_cast<std::size_t>(j)] = true;
     }
   }
-  return eig.eigenvectors() * inv.asDiagonal() * eig.eigenvectors().transpose();
+  return eig.vectors * inv.asDiagonal() * eig.vectors.transpose();
 }
 
 // Statistics shared by the linear and the joint fit: σ̂ and the covariance σ̂²(JᵀJ)⁻¹ of the
@@ -436,9 +437,10 @@ void check_rotation(const Eigen::Matrix3d& r, const std::string& name) {
 }  // namespace
 
 Eigen::Vector3d PositionsResult::field_of(const Eigen::Vector3d& output) const {
-  const Eigen::FullPivLU<Eigen::Matrix3d> lu(K);
-  if (!K.allFinite() || !lu.isInvertible()) throw Error("field_of: K is singular or not finite (no calibration?)");
-  return lu.solve(output - offset);
+  const std::optional<Eigen::Vector3d> field =
+      K.allFinite() ? detail::full_piv_solve(K, output - offset) : std::nullopt;
+  if (!field) throw Error("field_of: K is singular or not finite (no calibration?)");
+  return *field;
 }
 
 Eigen::Matrix3d level_rotation(const Eigen::Matrix3d& nominal, const Eigen::Vector3d& body_up, Frame frame) {
@@ -447,7 +449,7 @@ Eigen::Matrix3d level_rotation(const Eigen::Matrix3d& nominal, const Eigen::Vect
   if (!body_up.allFinite() || !(body_up.norm() > 0.0))
     throw Error("body_up: need a finite vector of length > 0 (the accelerometer's up in the body frame)");
   const Eigen::Vector3d v = nominal * body_up.normalized();
-  const Eigen::Matrix3d correction = Eigen::Quaterniond::FromTwoVectors(v, local_up(frame)).toRotationMatrix();
+  const Eigen::Matrix3d correction = detail::rotation_between(v, local_up(frame));
   return correction * nominal;
 }
 
@@ -505,10 +507,10 @@ PositionsResult fit_positions(const SamplesRef& outputs, const SamplesRef& refer
   Eigen::Vector4d scale = X.colwise().norm().transpose();
   for (int j = 0; j < 4; ++j) scale(j) = scale(j) > 0 ? scale(j) : 1.0;
   const Eigen::MatrixXd Xs = X * scale.cwiseInverse().asDiagonal();
-  Eigen::JacobiSVD<Eigen::MatrixXd> svd(Xs, Eigen::ComputeThinU | Eigen::ComputeThinV);
-  const Eigen::Vector4d sv = svd.singularValues();
+  const detail::SvdLeastSquares svd = detail::svd_least_squares(Xs, Eigen::MatrixXd(outputs));
+  const Eigen::Vector4d sv = svd.singular_values;
   if (sv(3) < 1e-9 * sv(0)) {
-    const Eigen::Vector4d v = scale.cwiseInverse().asDiagonal() * svd.matrixV().col(3);
+    const Eigen::Vector4d v = scale.cwiseInverse().asDiagonal() * svd.v.col(3);
     const Eigen::Vector3d normal = v.tail<3>();
     const double nn = normal.norm();
     const Eigen::Vector3d nhat = normal / nn;
@@ -521,7 +523,7 @@ PositionsResult fit_positions(const SamplesRef& outputs, const SamplesRef& refer
                 " positions lie in one plane (n·H = " + fmt(c) + "): " + what +
                 "; add positions that put the field on both sides of that plane (turn the sensor over)");
   }
-  const Eigen::MatrixXd beta = scale.cwiseInverse().asDiagonal() * svd.solve(Eigen::MatrixXd(outputs));  // 4×3
+  const Eigen::MatrixXd beta = scale.cwiseInverse().asDiagonal() * svd.solution;  // 4×3
 
   PositionsResult r;
   r.units = options.units;

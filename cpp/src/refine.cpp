@@ -4,6 +4,7 @@
 #include "fluxcal/timeseries.hpp"
 #include "checks.hpp"
 #include "clones.hpp"
+#include "linalg.hpp"
 #include "long_run.hpp"
 
 #include <ceres/ceres.h>
@@ -135,7 +136,7 @@ ShapeMap shape_map(Shape shape) {
     map.names.emplace_back(free[j].first);
     for (int row : free[j].second) map.P(row, static_cast<Eigen::Index>(j)) = 1.0;
   }
-  map.pinv = (map.P.transpose() * map.P).inverse() * map.P.transpose();
+  map.pinv = detail::inverse(map.P.transpose() * map.P) * map.P.transpose();
   return map;
 }
 
@@ -285,15 +286,15 @@ void finish_statistics(RefineResult& out, const Eigen::MatrixXd& F, double sigma
   const Eigen::Index p = F.rows();
   const Eigen::VectorXd d = F.diagonal().cwiseMax(1e-300).cwiseSqrt().cwiseInverse();
   const Eigen::MatrixXd scaled = d.asDiagonal() * F * d.asDiagonal();
-  Eigen::SelfAdjointEigenSolver<Eigen::MatrixXd> eig(scaled);
-  const Eigen::VectorXd lam = eig.eigenvalues();
+  const detail::SymmetricEigen<Eigen::Dynamic> eig = detail::symmetric_eigen(scaled);
+  const Eigen::VectorXd& lam = eig.values;
   out.fisher_condition = lam(0) > 0.0 ? lam(p - 1) / lam(0) : std::numeric_limits<double>::infinity();
   // F⁻¹ through the scaled eigen-decomposition: near-null directions get a huge (not infinite)
   // variance, so undetermined parameters show up as such instead of as a failed factorisation.
   const double floor = lam(p - 1) * 1e-300;
   const Eigen::VectorXd inv = lam.cwiseMax(floor).cwiseInverse();
-  const Eigen::MatrixXd Finv = d.asDiagonal() * eig.eigenvectors() * inv.asDiagonal() *
-                               eig.eigenvectors().transpose() * d.asDiagonal();
+  const Eigen::MatrixXd Finv = d.asDiagonal() * eig.vectors * inv.asDiagonal() *
+                               eig.vectors.transpose() * d.asDiagonal();
   out.covariance = sigma2 * Finv;
   const Eigen::VectorXd independent = out.covariance.diagonal().cwiseMax(0.0).cwiseSqrt();
   out.determined.assign(static_cast<std::size_t>(p), true);
@@ -510,9 +511,9 @@ void finish_vector(RefineResult& out, const SamplesRef& samples, const SamplesRe
   Calibration& cal = out.calibration;
   cal.offset = out.parameters.head<3>();
   const Eigen::Matrix<double, 3, 3, Eigen::RowMajor> W(out.parameters.tail<9>().data());
-  Eigen::FullPivLU<Eigen::Matrix3d> lu(W);
-  if (!lu.isInvertible()) throw Error(std::string(model) + ": the fitted W is singular");
-  cal.matrix = lu.inverse();
+  const std::optional<Eigen::Matrix3d> inverse = detail::full_piv_inverse(W);
+  if (!inverse) throw Error(std::string(model) + ": the fitted W is singular");
+  cal.matrix = *inverse;
   cal.field_norm = reference.rowwise().norm().mean();
   cal.units = units;
   cal.model = model;
@@ -727,7 +728,7 @@ RefineResult refine_magnitude(const Calibration& start, const SamplesRef& sample
       // pass that found the step has the statistics at θ.
       for (int step = 0; step < 4; ++step) {
         plain_fit(H_fit, Hs, F, ssr);
-        const Eigen::VectorXd delta = -F.ldlt().solve(gradient);
+        const Eigen::VectorXd delta = -detail::ldlt_solve(F, gradient);
         current = delta.dot(F * delta) <= 1e-10 * ssr / spare;
         if (current) break;
         th += shape.P * delta;
@@ -843,11 +844,11 @@ RefineResult fit_vector(const SamplesRef& samples, const SamplesRef& reference, 
   XtM.topRows<3>() = reference.transpose() * samples;
   XtM.row(3) = samples.colwise().sum();
   const Eigen::Vector4d d = XtX.diagonal().cwiseSqrt().cwiseInverse();
-  Eigen::SelfAdjointEigenSolver<Eigen::Matrix4d> eig(d.asDiagonal() * XtX * d.asDiagonal());
-  if (!(eig.eigenvalues()(0) > 1e-12 * eig.eigenvalues()(3)))
+  const Eigen::Vector4d lam = detail::symmetric_eigen(Eigen::Matrix4d(d.asDiagonal() * XtX * d.asDiagonal())).values;
+  if (!(lam(0) > 1e-12 * lam(3)))
     throw Error("reference: the reference vectors do not span 3-D (all in one plane or one direction); "
                 "the full 3×3 matrix is not identifiable — turn the sensor about more axes");
-  const Eigen::Matrix<double, 4, 3> beta = XtX.ldlt().solve(XtM);  // rows: W columns 0..2, then b
+  const Eigen::Matrix<double, 4, 3> beta = detail::ldlt_solve(XtX, XtM);  // rows: W columns 0..2, then b
 
   RefineResult out;
   out.parameter_names.assign(std::begin(kVectorNames), std::end(kVectorNames));
@@ -941,11 +942,11 @@ RefineResult terms_fit(const Calibration& start, const SamplesRef& samples, cons
   // Covariance σ̂² (JᵀJ)⁺ over the free parameters, through the column-scaled eigen-decomposition.
   const Eigen::MatrixXd info = out.jacobian.transpose() * out.jacobian;
   const Eigen::VectorXd d = info.diagonal().unaryExpr([](double v) { return v > 0.0 ? 1.0 / std::sqrt(v) : 0.0; });
-  Eigen::SelfAdjointEigenSolver<Eigen::MatrixXd> eig(d.asDiagonal() * info * d.asDiagonal());
-  const Eigen::VectorXd lam = eig.eigenvalues();
+  const detail::SymmetricEigen<Eigen::Dynamic> eig = detail::symmetric_eigen(Eigen::MatrixXd(d.asDiagonal() * info * d.asDiagonal()));
+  const Eigen::VectorXd& lam = eig.values;
   const double top = lam.maxCoeff();
   const Eigen::VectorXd inv = lam.unaryExpr([top](double v) { return v > 1e-14 * top ? 1.0 / v : 0.0; });
-  out.covariance = sigma2 * d.asDiagonal() * eig.eigenvectors() * inv.asDiagonal() * eig.eigenvectors().transpose() *
+  out.covariance = sigma2 * d.asDiagonal() * eig.vectors * inv.asDiagonal() * eig.vectors.transpose() *
                    d.asDiagonal();
   out.standard_errors = out.covariance.diagonal().cwiseMax(0.0).cwiseSqrt();
   // A direction of (near) zero information moves the parameters on it without changing the residuals
@@ -955,7 +956,7 @@ RefineResult terms_fit(const Calibration& start, const SamplesRef& samples, cons
   double smallest = std::numeric_limits<double>::infinity();
   std::ostringstream undetermined;
   for (Eigen::Index j = 0; j < lam.size(); ++j) {
-    const Eigen::VectorXd v = eig.eigenvectors().col(j);
+    const Eigen::VectorXd v = eig.vectors.col(j);
     double on_free = 0.0;
     for (Eigen::Index k = 0; k < v.size(); ++k) on_free += d(k) > 0.0 ? v(k) * v(k) : 0.0;
     if (on_free < 0.5) continue;  // the zero column of a held parameter

@@ -1,6 +1,7 @@
 #include "fluxcal/timeseries.hpp"
 
 #include "checks.hpp"
+#include "linalg.hpp"
 
 #include <algorithm>
 #include <cmath>
@@ -102,9 +103,7 @@ Eigen::MatrixXd lagged_r(const SeriesRef& y, int k, const Breaks& breaks) {
   Eigen::Index filled = 0;
   const auto fold = [&] {
     stack.topRows(r.rows()) = r;
-    Eigen::HouseholderQR<Eigen::MatrixXd> qr(stack.topRows(r.rows() + filled));
-    const Eigen::Index keep = std::min<Eigen::Index>(r.rows() + filled, cols);
-    r = qr.matrixQR().topRows(keep).triangularView<Eigen::Upper>();
+    r = detail::householder_r(stack.topRows(r.rows() + filled));
     filled = 0;
   };
   for_each_regressed(y.size(), breaks, k, [&](Eigen::Index t) {
@@ -244,7 +243,7 @@ Eigen::VectorXd remove_trend(const SeriesRef& x, int degree) {
     double p = 1.0;
     for (int j = 0; j <= degree; ++j, p *= s) v(i, j) = p;
   }
-  const Eigen::VectorXd coef = v.colPivHouseholderQr().solve(x);
+  const Eigen::VectorXd coef = detail::least_squares_qr(v, Eigen::VectorXd(x));
   return x - v * coef;
 }
 
@@ -393,8 +392,7 @@ ArResult fit_ar(const SeriesRef& y, const ArOptions& options) {
     Eigen::Index n0 = std::min<Eigen::Index>(rows, std::max(options.init_samples, 2 * p));
     Eigen::MatrixXd x0;
     Eigen::VectorXd y0;
-    Eigen::HouseholderQR<Eigen::MatrixXd> qr;
-    Eigen::MatrixXd r0;
+    detail::HouseholderLeastSquares qr;
     for (;;) {
       x0.resize(n0, p);
       y0.resize(n0);
@@ -404,8 +402,8 @@ ArResult fit_ar(const SeriesRef& y, const ArOptions& options) {
         for (int j = 0; j < p; ++j) x0(i, j) = y[t - 1 - j];
         y0[i++] = y[t];
       });
-      qr.compute(x0);
-      r0 = qr.matrixQR().topRows(p).triangularView<Eigen::Upper>();
+      qr = detail::householder_least_squares(x0, y0);
+      const Eigen::MatrixXd& r0 = qr.r;
       const double diag_min = r0.diagonal().cwiseAbs().minCoeff(), diag_max = r0.diagonal().cwiseAbs().maxCoeff();
       if (diag_min > 1e-12 * diag_max) break;
       if (n0 >= rows)
@@ -413,8 +411,8 @@ ArResult fit_ar(const SeriesRef& y, const ArOptions& options) {
                     ") model are rank deficient (the series repeats itself exactly), no least-squares fit");
       n0 = std::min<Eigen::Index>(rows, 2 * n0);
     }
-    theta = qr.solve(y0);
-    const Eigen::MatrixXd r_inv = r0.triangularView<Eigen::Upper>().solve(Eigen::MatrixXd::Identity(p, p));
+    theta = qr.solution;
+    const Eigen::MatrixXd r_inv = qr.r.triangularView<Eigen::Upper>().solve(Eigen::MatrixXd::Identity(p, p));
     Eigen::MatrixXd cov = r_inv * r_inv.transpose();  // (X0ᵀX0)⁻¹
     cov = (0.5 * (cov + cov.transpose())).eval();     // exactly symmetric from the start (see below)
     const double lambda = options.forgetting;

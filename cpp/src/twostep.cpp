@@ -4,6 +4,7 @@
 #include "fluxcal/ellipsoid.hpp"
 #include "checks.hpp"
 #include "clones.hpp"
+#include "linalg.hpp"
 #include "quadric.hpp"
 
 #include <Eigen/Eigenvalues>
@@ -42,14 +43,14 @@ double solve_scaled(const Eigen::Matrix<double, K, K>& N, const Eigen::Matrix<do
   for (int i = 0; i < K; ++i) d(i) = N(i, i) > 0.0 ? 1.0 / std::sqrt(N(i, i)) : 1.0;
   // One dynamic-size solver for every K: each fixed-size one instantiated cost ~10 s of compile time.
   const Eigen::MatrixXd Ns = d.asDiagonal() * N * d.asDiagonal();
-  Eigen::SelfAdjointEigenSolver<Eigen::MatrixXd> eig(Ns);
-  const auto& lam = eig.eigenvalues();
+  const detail::SymmetricEigen<Eigen::Dynamic> eig = detail::symmetric_eigen(Ns);
+  const auto& lam = eig.values;
   if (!(lam(0) > 0.0) || !lam.allFinite()) {
     x.setConstant(std::numeric_limits<double>::quiet_NaN());
     return kInf;
   }
   x = d.asDiagonal() *
-      (eig.eigenvectors() * (eig.eigenvectors().transpose() * d.cwiseProduct(rhs)).cwiseQuotient(lam));
+      (eig.vectors * (eig.vectors.transpose() * d.cwiseProduct(rhs)).cwiseQuotient(lam));
   return lam(K - 1) / lam(0);
 }
 
@@ -203,7 +204,7 @@ TwoStep2DResult twostep_2d(const Readings2DRef& readings, const SeriesRef& field
     Eigen::Matrix2d second;
     second << N(0, 0), N(0, 1), N(0, 1), N(1, 1);
     const Eigen::Matrix2d cov = second / (4.0 * nd) - mean * mean.transpose();
-    const Eigen::Vector2d ev = Eigen::SelfAdjointEigenSolver<Eigen::Matrix2d>(cov, Eigen::EigenvaluesOnly).eigenvalues();
+    const Eigen::Vector2d ev = detail::symmetric_eigenvalues(cov);
     sum.coverage_ratio = ev(1) > 0.0 ? std::sqrt(std::max(ev(0), 0.0) / ev(1)) : 0.0;
   }
 
@@ -316,9 +317,9 @@ TwoStep2DResult twostep_2d(const Readings2DRef& readings, const SeriesRef& field
     Eigen::Vector4d g;
     const double cost = magnitude_residuals(readings, field_norms, nz, th, F, g);
     Eigen::Matrix4d cov = Eigen::Matrix4d::Constant(kInf);
-    const Eigen::LDLT<Eigen::Matrix4d> ldlt(F);
-    if (n > 4 && ldlt.info() == Eigen::Success && ldlt.isPositive() && F.diagonal().minCoeff() > 0.0) {
-      const Eigen::Matrix4d c = (cost / (nd - 4.0)) * ldlt.solve(Eigen::Matrix4d::Identity());
+    const std::optional<Eigen::Matrix4d> inverse = detail::ldlt_inverse_if_positive(F);
+    if (n > 4 && inverse && F.diagonal().minCoeff() > 0.0) {
+      const Eigen::Matrix4d c = (cost / (nd - 4.0)) * *inverse;
       if (c.allFinite() && c.diagonal().minCoeff() >= 0.0) cov = c;
     }
     // back to b and γ: b = centre + scale·β, γ = (scale / field_scale)·|κ|

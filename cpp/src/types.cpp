@@ -1,7 +1,6 @@
 #include "fluxcal/types.hpp"
 #include "fluxcal/version.hpp"
-
-#include <Eigen/LU>
+#include "linalg.hpp"
 
 #include <cmath>
 #include <sstream>
@@ -17,9 +16,9 @@ Samples Calibration::apply_rows(const SamplesRef& readings) const {
 }
 
 Eigen::Vector3d Calibration::reading(const Eigen::Vector3d& field) const {
-  Eigen::FullPivLU<Eigen::Matrix3d> lu(matrix);
-  if (!lu.isInvertible()) throw Error("calibration: matrix A is singular, the forward model m = A⁻¹h + b does not exist");
-  return lu.solve(field) + offset;
+  const std::optional<Eigen::Vector3d> unshifted = detail::full_piv_solve(matrix, field);
+  if (!unshifted) throw Error("calibration: matrix A is singular, the forward model m = A⁻¹h + b does not exist");
+  return *unshifted + offset;
 }
 
 void check_finite(const SamplesRef& samples, const std::string& name) {
