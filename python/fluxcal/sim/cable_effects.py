@@ -292,13 +292,24 @@ class HelicalLay(CableEffect):
         pos = np.asarray(positions, float)
         return 2.0 * float(np.max(np.linalg.norm(pos - pos.mean(axis=0), axis=1)))
 
+    _last_delta = (None, None)  # (key, Δ): the diagnosis asks again at once, per ampere of each core in turn
+
     @classmethod
     def delta_unit(cls, ctx, lay_length_m) -> np.ndarray:
-        """Δ per unit current of each core: (R rotations, M, 2, n) real, sensor axes."""
+        """Δ per unit current of each core: (R rotations, M, 2, n) real, sensor axes; read-only, since a repeated
+        question gets the same array."""
         pts = ctx.points  # (R, M) complex
+        key = (np.asarray(ctx.positions, float).tobytes(), float(lay_length_m), pts.tobytes(), pts.shape,
+               np.asarray(ctx.axes).tobytes())
+        last_key, last = cls._last_delta
+        if key == last_key:
+            return last
         twisted = helix_series_unit_fields(pts.ravel(), ctx.positions, lay_length_m).reshape(pts.shape + (-1,))
         straight = straight_unit_fields(pts, ctx.positions)
-        return to_axes(twisted - straight, ctx.axes[..., None]).transpose(0, 1, 3, 2)
+        delta = to_axes(twisted - straight, ctx.axes[..., None]).transpose(0, 1, 3, 2)
+        delta.flags.writeable = False  # shared by the next caller with the same question
+        cls._last_delta = (key, delta)
+        return delta
 
     @classmethod
     def features(cls, ctx, alternative=None):
@@ -863,12 +874,13 @@ class NearbyIron(CableEffect):
     @classmethod
     def features(cls, ctx, alternative=None):
         z = ctx.points[ctx.rot_index] / ctx.ring.radius_m  # (K, M) in ring radii
+        powers = [np.conj(z) ** n for n in range(IRON_TERMS)]
+        axes = ctx.axes[ctx.rot_index]
         cols = []
         for j in range(ctx.currents.shape[1]):
             for n in range(IRON_TERMS):
                 for unit in (1.0, 1j):
-                    cols.append(to_axes(1e-7 * ctx.currents[:, j, None] * unit * np.conj(z) ** n,
-                                        ctx.axes[ctx.rot_index]))
+                    cols.append(to_axes(1e-7 * ctx.currents[:, j, None] * unit * powers[n], axes))
         return np.stack(cols, axis=-1)
 
     @classmethod
