@@ -392,12 +392,12 @@ RunInfo dense_lm(const std::vector<std::unique_ptr<SnapshotCost>>& costs, std::v
       Ds.diagonal() += lambda * fb.currents(s).diagonal().cwiseMax(1e-300);
       Dd[u].compute(Ds);
       schur.noalias() -= B * Dd[u].solve_transposed(B);
-      rhs.noalias() += B * Dd[u].solve(Eigen::VectorXd(gc.col(s)));
+      rhs.noalias() += B * Dd[u].solve(gc.col(s));
     }
     const Eigen::VectorXd step_k = detail::ldlt_solve(schur, rhs);
     for (Eigen::Index s = 0; s < S; ++s)
       step_c.col(s) =
-          Dd[static_cast<std::size_t>(s)].solve(Eigen::VectorXd(-gc.col(s) - fb.shared_currents(s).transpose() * step_k));
+          Dd[static_cast<std::size_t>(s)].solve(-gc.col(s) - fb.shared_currents(s).transpose() * step_k);
     if (!step_k.allFinite() || !step_c.allFinite()) {
       info.message = "the normal equations are singular";
       break;
@@ -795,7 +795,7 @@ CableSolution solve_cable(const CableRing& ring, const Eigen::Ref<const Eigen::M
     } else {
       Eigen::MatrixXd G;
       design(f, pos.data(), n, G);
-      cur = detail::least_squares_qr(reduce(G, zs), Eigen::MatrixXd(Rn.colwise() - U * b));
+      cur = detail::least_squares_qr_columns(reduce(G, zs), Rn.colwise() - U * b);
     }
     RunInfo run;
     if (dense) {

@@ -174,7 +174,7 @@ Eigen::VectorXd ArKalman::steady_state_gain(Eigen::MatrixXd* prior_covariance, i
     const Eigen::MatrixXd eye = Eigen::MatrixXd::Identity(n, n);
     for (; it < options_.riccati_max_iterations; ++it) {
       const detail::PartialPivLu w(eye + g * h);
-      const Eigen::MatrixXd wf = w.solve(f), wg = w.solve(g);
+      const Eigen::MatrixXd wf = w.solve_columns(f), wg = w.solve_columns(g);
       Eigen::MatrixXd h_next = h + f.transpose() * h * wf;
       g += f * wg * f.transpose();
       f = (f * wf).eval();

@@ -1,7 +1,5 @@
-// The LU and Cholesky factorisations of linalg.hpp; the other decompositions are in linalg_symmetric.cpp,
-// linalg_general_eigen.cpp, linalg_qr.cpp and linalg_svd.cpp. Several files rather than one: GCC's cost per
-// instantiation grows with the instantiations already in the file (all in one file took 228 s of CPU, the
-// same split 181 s), and they compile in parallel.
+// The LU and Cholesky factorisations of linalg.hpp; the others are split over linalg_*.cpp so they compile in
+// parallel and each file stays cheap (GCC's cost per instantiation grows with what the file already holds).
 #include "linalg.hpp"
 
 #include <Eigen/Cholesky>
@@ -49,13 +47,13 @@ std::optional<Eigen::Vector3d> full_piv_solve(const Eigen::Matrix3d& m, const Ei
   return Eigen::Vector3d(lu.solve(b));
 }
 
-Eigen::MatrixXd inverse(const Eigen::MatrixXd& m) { return m.inverse(); }
+Eigen::MatrixXd lu_inverse(const Eigen::MatrixXd& m) { return m.inverse(); }
 
 PartialPivLu::PartialPivLu(const Eigen::MatrixXd& m) : lu_(std::make_unique<Eigen::PartialPivLU<Eigen::MatrixXd>>(m)) {}
 PartialPivLu::~PartialPivLu() = default;
 PartialPivLu::PartialPivLu(PartialPivLu&&) noexcept = default;
 PartialPivLu& PartialPivLu::operator=(PartialPivLu&&) noexcept = default;
 Eigen::VectorXd PartialPivLu::solve(const Eigen::VectorXd& b) const { return lu_->solve(b); }
-Eigen::MatrixXd PartialPivLu::solve(const Eigen::MatrixXd& b) const { return lu_->solve(b); }
+Eigen::MatrixXd PartialPivLu::solve_columns(const Eigen::MatrixXd& b) const { return lu_->solve(b); }
 
 }  // namespace fluxcal::detail

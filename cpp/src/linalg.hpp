@@ -1,15 +1,6 @@
-// Internal (not installed): Eigen's decompositions behind plain functions, each instantiated once, in linalg*.cpp.
-//
-// Why this file exists: compile time. GCC spends seconds of front end (template instantiation, overload
-// resolution) and again of optimisation on every instantiation of an Eigen decomposition, in every file that
-// uses it (g++ -O3, CPU on top of <Eigen/Dense> alone: EigenSolver ~18 s, CompleteOrthogonalDecomposition
-// ~15 s, SelfAdjointEigenSolver<MatrixXd> ~12 s, and of a fixed 2×2, 4×4, 9×9 or 10×10 ~8–11 s each,
-// JacobiSVD<MatrixXd> ~12 s, Quaterniond::FromTwoVectors ~10 s, ColPivHouseholderQR ~9 s), and the more a file
-// already holds the more each costs. Each function instantiates exactly the class, matrix type and options of
-// the call sites it replaced, on the same values (an expression argument is evaluated first, as Eigen did
-// inside), and returns what they read off it, so the results are the same bits; only where the template is
-// compiled changes. Cheap ones stay inline: SelfAdjointEigenSolver<Matrix3d> (Eigen special-cases the 3×3
-// tridiagonalisation), JacobiSVD<Matrix3d>, LDLT<Matrix2d>, fixed-size inverse() (closed forms).
+// Internal (not installed): Eigen's heavy decompositions behind plain functions, each instantiated once in
+// linalg*.cpp, to save compile time. Each has the class, matrix type and options of the call sites it replaced,
+// so the results are the same bits. Cheap fixed-size ones (3×3 eigen, 2×2 LDLT, closed-form inverses) stay inline.
 #pragma once
 
 #include <Eigen/Core>
@@ -51,7 +42,8 @@ Eigen::VectorXd least_squares_min_norm(const Eigen::MatrixXd& a, const Eigen::Ve
 /// The least-squares solution by a column-pivoting QR, a.colPivHouseholderQr().solve(b); `rank`, when given, gets
 /// the QR's rank().
 Eigen::VectorXd least_squares_qr(const Eigen::MatrixXd& a, const Eigen::VectorXd& b, Eigen::Index* rank = nullptr);
-Eigen::MatrixXd least_squares_qr(const Eigen::MatrixXd& a, const Eigen::MatrixXd& b);
+/// The same for each column of b.
+Eigen::MatrixXd least_squares_qr_columns(const Eigen::MatrixXd& a, const Eigen::MatrixXd& b);
 
 /// Unpivoted Householder QR (HouseholderQR<MatrixXd>) of a: R, the upper triangle of its first min(rows, cols) rows.
 Eigen::MatrixXd householder_r(const Eigen::MatrixXd& a);
@@ -115,7 +107,7 @@ std::optional<Eigen::Matrix3d> full_piv_inverse(const Eigen::Matrix3d& m);
 std::optional<Eigen::Vector3d> full_piv_solve(const Eigen::Matrix3d& m, const Eigen::Vector3d& b);
 
 /// m⁻¹ by Eigen's PartialPivLU, as m.inverse() of a MatrixXd.
-Eigen::MatrixXd inverse(const Eigen::MatrixXd& m);
+Eigen::MatrixXd lu_inverse(const Eigen::MatrixXd& m);
 
 /// PartialPivLU<MatrixXd> of a square matrix, kept for several solves m x = b.
 class PartialPivLu {
@@ -125,7 +117,7 @@ class PartialPivLu {
   PartialPivLu(PartialPivLu&&) noexcept;
   PartialPivLu& operator=(PartialPivLu&&) noexcept;
   Eigen::VectorXd solve(const Eigen::VectorXd& b) const;
-  Eigen::MatrixXd solve(const Eigen::MatrixXd& b) const;
+  Eigen::MatrixXd solve_columns(const Eigen::MatrixXd& b) const;  ///< m x = b for each column of b
 
  private:
   std::unique_ptr<Eigen::PartialPivLU<Eigen::MatrixXd>> lu_;

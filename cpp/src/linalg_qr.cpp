@@ -17,7 +17,7 @@ Eigen::VectorXd least_squares_qr(const Eigen::MatrixXd& a, const Eigen::VectorXd
   return qr.solve(b);
 }
 
-Eigen::MatrixXd least_squares_qr(const Eigen::MatrixXd& a, const Eigen::MatrixXd& b) {
+Eigen::MatrixXd least_squares_qr_columns(const Eigen::MatrixXd& a, const Eigen::MatrixXd& b) {
   return a.colPivHouseholderQr().solve(b);
 }
 

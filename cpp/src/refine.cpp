@@ -136,7 +136,7 @@ ShapeMap shape_map(Shape shape) {
     map.names.emplace_back(free[j].first);
     for (int row : free[j].second) map.P(row, static_cast<Eigen::Index>(j)) = 1.0;
   }
-  map.pinv = detail::inverse(map.P.transpose() * map.P) * map.P.transpose();
+  map.pinv = detail::lu_inverse(map.P.transpose() * map.P) * map.P.transpose();
   return map;
 }
 

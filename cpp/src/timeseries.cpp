@@ -243,7 +243,7 @@ Eigen::VectorXd remove_trend(const SeriesRef& x, int degree) {
     double p = 1.0;
     for (int j = 0; j <= degree; ++j, p *= s) v(i, j) = p;
   }
-  const Eigen::VectorXd coef = detail::least_squares_qr(v, Eigen::VectorXd(x));
+  const Eigen::VectorXd coef = detail::least_squares_qr(v, x);
   return x - v * coef;
 }
 
