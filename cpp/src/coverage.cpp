@@ -2,6 +2,7 @@
 
 #include <algorithm>
 #include <bitset>
+#include <string>
 
 namespace fluxcal {
 
@@ -18,15 +19,27 @@ double coverage_of(Eigen::Index rows, Eigen::Index max_rows, Field&& field) {
   return static_cast<double>(seen.count()) / kDirectionBins;
 }
 
+// What both direction_coverage overloads refuse: a NaN row would be skipped and the other rows' fraction passed for
+// the whole set's; no rows, or a negative max_rows (0 looks at every row).
+void check_coverage_input(const SamplesRef& rows, const char* name, Eigen::Index max_rows) {
+  rows.require_width(name);
+  if (rows.rows() == 0) throw Error(std::string(name) + ": no rows, nothing to cover");
+  if (max_rows < 0)
+    throw Error("max_rows: " + std::to_string(max_rows) + ", need a whole number ≥ 0 (0 looks at every row)");
+  check_finite(rows, name);
+}
+
 }  // namespace
 
 double direction_coverage(const SamplesRef& fields, Eigen::Index max_rows) {
-  fields.require_width("fields");
+  check_coverage_input(fields, "fields", max_rows);
   return coverage_of(fields.rows(), max_rows, [&](Eigen::Index i) { return Eigen::Vector3d(fields.row(i)); });
 }
 
 double direction_coverage(const SamplesRef& readings, const Calibration& cal, Eigen::Index max_rows) {
-  readings.require_width("readings");
+  check_coverage_input(readings, "readings", max_rows);
+  if (!cal.offset.allFinite() || !cal.matrix.allFinite())
+    throw Error("calibration: offset or matrix is not finite, no corrected field to bin");
   return coverage_of(readings.rows(), max_rows,
                      [&](Eigen::Index i) { return cal.apply(readings.row(i).transpose()); });
 }

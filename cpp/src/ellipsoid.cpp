@@ -377,7 +377,7 @@ std::pair<Eigen::Vector3d, double> normalisation(const SamplesRef& samples, Eige
   samples.require_width("samples");
   const Eigen::Index n = samples.rows();
   if (n == 0) throw Error("samples: no rows");
-  const Eigen::Index step = std::max<Eigen::Index>(1, n / std::max<Eigen::Index>(1, max_rows));
+  const Eigen::Index step = max_rows > 0 ? std::max<Eigen::Index>(1, n / max_rows) : 1;  // 0: every row
   Eigen::Vector3d lo = Eigen::Vector3d::Constant(std::numeric_limits<double>::infinity());
   Eigen::Vector3d hi = -lo;
   for (Eigen::Index i = 0; i < n; i += step) {
@@ -428,6 +428,10 @@ Eigen::Matrix<double, 10, 1> adjusted_quadric(const EllipsoidMoments& mom, doubl
   noise_sigma = std::sqrt(v) * mom.scale();
   return p / trace;
 }
+
+// The unit of the |h| statistics: 1, or the field H when H⁴ (their largest power) underflows below the normal doubles
+// (readings so large that it overflows stay an Error: the corrected fields' squares overflow too).
+double statistics_unit(double H) { return H * H * H * H < std::numeric_limits<double>::min() ? H : 1.0; }
 
 // `samples` (null when only their moments are known): the readings, for naming a few far ones that spoil the fit.
 EllipsoidResult solve(const EllipsoidMoments& mom, const EllipsoidOptions& opt, const SamplesRef* samples = nullptr) {
@@ -516,16 +520,20 @@ EllipsoidResult solve(const EllipsoidMoments& mom, const EllipsoidOptions& opt, 
   cal.units = opt.units;
   cal.model = opt.method == EllipsoidMethod::adjusted ? "ellipsoid_als" : "ellipsoid";
 
-  // Residual statistics from the moments: |h|² = H² (1 + pᵀd/ρ²), d the design row.
+  // Residual statistics from the moments: |h|² = H² (1 + pᵀd/ρ²), d the design row. In units of H when H⁴ is not a
+  // normal double (readings below ~1e-77 had a negative mean |h| and a zero residual); else unit 1, the same bits.
+  const double unit = statistics_unit(H);
+  const double Hu = H / unit;
   const Eigen::Matrix<double, 10, 1> dmean = S.col(9) / n;
   const double alg = p.dot(S * p) / n;  // mean (pᵀd)²
   const double mean_pd = p.dot(dmean);
-  const double mean_q = H * H * (1.0 + mean_pd / rho2);
-  const double var_q = std::max(0.0, H * H * H * H / (rho2 * rho2) * (alg - mean_pd * mean_pd));
+  const double mean_q = Hu * Hu * (1.0 + mean_pd / rho2);
+  const double var_q = std::max(0.0, Hu * Hu * Hu * Hu / (rho2 * rho2) * (alg - mean_pd * mean_pd));
   sum.cost = alg;
-  sum.norm_mean = std::sqrt(mean_q) * (1.0 - var_q / (8.0 * mean_q * mean_q));
-  sum.norm_std_over_mean = std::sqrt(var_q) / (2.0 * std::sqrt(mean_q)) / sum.norm_mean;
-  sum.residual_rms = H * std::sqrt(alg) / (2.0 * rho2);
+  const double norm_mean = std::sqrt(mean_q) * (1.0 - var_q / (8.0 * mean_q * mean_q));
+  sum.norm_mean = unit * norm_mean;
+  sum.norm_std_over_mean = std::sqrt(var_q) / (2.0 * std::sqrt(mean_q)) / norm_mean;
+  sum.residual_rms = unit * (Hu * std::sqrt(alg) / (2.0 * rho2));
   sum.exact_statistics = false;
   sum.converged = true;
 
@@ -534,6 +542,10 @@ EllipsoidResult solve(const EllipsoidMoments& mom, const EllipsoidOptions& opt, 
   if (!hardly_turned.empty() && sum.norm_std_over_mean > 0.1)
     sum.warnings.push_back("not turned:" + hardly_turned.substr(1) +
                            " An ellipsoid fitted to such readings is the noise's shape, not the sensor's");
+  if (mom.count() == 9)  // 9 readings fix the 9 parameters: the quadric passes through them, whatever their noise
+    sum.warnings.push_back("samples: 9 readings fix the 9 parameters exactly, so the residual is 0 whatever the "
+                           "noise and says nothing of the fit's error; give many more readings (hundreds, turned "
+                           "through all directions)");
   if (sum.coverage_ratio < opt.poor_coverage_ratio)
     sum.warnings.push_back("poor coverage: thinnest/widest spread of the readings is " +
                            percent(sum.coverage_ratio) +
@@ -606,9 +618,10 @@ EllipsoidResult fit_ellipsoid(const SamplesRef& samples, const EllipsoidOptions&
 
   if (options.exact_statistics) {  // one more pass: |h| of every corrected reading
     const Calibration& cal = r.calibration;
-    const double H = cal.field_norm;
-    const Eigen::Matrix<double, 3, 3, Eigen::RowMajor> A = cal.matrix;
-    double sums[2] = {0.0, 0.0};  // Σ(|h| − H), Σ(|h| − H)²
+    const double unit = statistics_unit(cal.field_norm);  // (|h| − H)² underflowed for tiny readings
+    const double H = cal.field_norm / unit;
+    const Eigen::Matrix<double, 3, 3, Eigen::RowMajor> A = cal.matrix / unit;
+    double sums[2] = {0.0, 0.0};  // Σ(|h| − H), Σ(|h| − H)², in units of `unit`
     for_each_packed_block(samples, [&](const double* rows, std::size_t len) {
       accumulate_residuals(rows, len, A.data(), cal.offset.data(), H, sums);
     });
@@ -619,9 +632,9 @@ EllipsoidResult fit_ellipsoid(const SamplesRef& samples, const EllipsoidOptions&
     if (!poor.empty()) r.summary.warnings.push_back(poor);
     const double n = static_cast<double>(samples.rows());
     const double mean_d = sd / n;
-    r.summary.norm_mean = H + mean_d;
-    r.summary.norm_std_over_mean = std::sqrt(std::max(0.0, sd2 / n - mean_d * mean_d)) / r.summary.norm_mean;
-    r.summary.residual_rms = std::sqrt(sd2 / n);
+    r.summary.norm_mean = unit * (H + mean_d);
+    r.summary.norm_std_over_mean = std::sqrt(std::max(0.0, sd2 / n - mean_d * mean_d)) / (H + mean_d);
+    r.summary.residual_rms = unit * std::sqrt(sd2 / n);
     r.summary.exact_statistics = true;
   }
   detail::require_finite_fit(detail::finite_fit(r.summary), "samples", samples, "the ellipsoid fit");

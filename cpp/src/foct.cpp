@@ -81,7 +81,7 @@ Eigen::MatrixXd play(const SeriesRef& x, const Eigen::Ref<const Eigen::VectorXd>
                      const std::string& name) {
   check_series(x, name, 1, "for a play operator");
   for (double r : half_widths)
-    if (!(r >= 0.0)) throw Error("play: half-width " + std::to_string(r) + " of " + name + " is not ≥ 0");
+    if (!(r >= 0.0)) throw Error("play: half-width " + detail::num(r) + " of " + name + " is not ≥ 0");
   Eigen::MatrixXd out(x.size(), half_widths.size());
   for (Eigen::Index j = 0; j < half_widths.size(); ++j) {
     const double r = half_widths[j];

@@ -67,7 +67,7 @@ Eigen::MatrixXd ar_stationary_covariance(const Eigen::VectorXd& a, double q) {
   if (a.size() < 1) throw Error("ar_coefficients: empty, the AR order must be ≥ 1");
   if (!a.allFinite()) throw Error("ar_coefficients: not finite");
   if (!(q >= 0.0) || !std::isfinite(q))
-    throw Error("q: the innovation variance " + std::to_string(q) + " must be finite and ≥ 0");
+    throw Error("q: the innovation variance " + detail::num(q) + " must be finite and ≥ 0");
   const Eigen::MatrixXd A = companion(a);
   const double rho = detail::general_eigenvalues(A).cwiseAbs().maxCoeff();
   if (!(rho < 1.0)) {
@@ -130,8 +130,8 @@ ArKalman::ArKalman(const Eigen::VectorXd& ar_coefficients, double q, double r, c
     : a_(ar_coefficients), q_(q), r_(r), options_(options) {
   if (a_.size() < 1) throw Error("ar_coefficients: empty, the Kalman filter needs an AR order p ≥ 1");
   if (!a_.allFinite()) throw Error("ar_coefficients: NaN/Inf");
-  if (!(std::isfinite(q) && q > 0.0)) throw Error("q: process variance " + std::to_string(q) + " must be > 0");
-  if (!(std::isfinite(r) && r >= 0.0)) throw Error("r: measurement variance " + std::to_string(r) + " must be ≥ 0");
+  if (!(std::isfinite(q) && q > 0.0)) throw Error("q: process variance " + detail::num(q) + " must be > 0");
+  if (!(std::isfinite(r) && r >= 0.0)) throw Error("r: measurement variance " + detail::num(r) + " must be ≥ 0");
   detail::check(options);
   const Eigen::Index n = a_.size();
   if (options.initial_variance > 0.0) {
@@ -151,7 +151,7 @@ ArKalman ArKalman::from_ar(const ArResult& fit, double r, const KalmanOptions& o
   if (fit.order < 1 || fit.coefficients.size() != fit.order)
     throw Error("ar fit: order " + std::to_string(fit.order) +
                 ", the Kalman filter needs an AR order p ≥ 1 (a white series has no dynamics to filter)");
-  if (!(fit.sigma2 > 0.0)) throw Error("ar fit: residual variance " + std::to_string(fit.sigma2) + " is not > 0");
+  if (!(fit.sigma2 > 0.0)) throw Error("ar fit: residual variance " + detail::num(fit.sigma2) + " is not > 0");
   return ArKalman(fit.coefficients, fit.sigma2, r >= 0.0 ? r : fit.sigma2, options);
 }
 
@@ -248,7 +248,7 @@ KalmanResult ArKalman::filter(const SeriesRef& y, const Breaks& breaks) const {
       res.filtered[t] = x[0];
     }
     res.gain = k;
-    res.covariance = m;
+    res.covariance = m - k * m.row(0);  // P = (I − K C) M, C = e1ᵀ: the posterior, as the time-varying form reports
     res.summary.iterations = iterations;
   } else {
     Eigen::MatrixXd p = p0_, m(n, n);
@@ -265,7 +265,7 @@ KalmanResult ArKalman::filter(const SeriesRef& y, const Breaks& breaks) const {
       x[0] = x0;
       predict_covariance(a_, q_, p, m, pa);
       const double s = m(0, 0) + r_;
-      if (!(s > 0.0)) throw Error("kalman: innovation variance became " + std::to_string(s) + " at sample " +
+      if (!(s > 0.0)) throw Error("kalman: innovation variance became " + detail::num(s) + " at sample " +
                                   std::to_string(t) + " (set r > 0 or initial_variance > 0)");
       k = m.col(0) / s;
       const double e = y[t] - x0;

@@ -334,6 +334,14 @@ void finish_statistics(RefineResult& out, const Eigen::MatrixXd& F, double sigma
         "or " + std::string(detail::kTwoDAdvice));
 }
 
+// Thinnest/widest standard deviation of a set of 3-vectors (Summary::coverage_ratio; 0 on a plane or a line).
+double spread_ratio(const SamplesRef& v) {
+  const Eigen::RowVector3d mean = v.colwise().mean();
+  const Eigen::Matrix3d cov = (v.rowwise() - mean).transpose() * (v.rowwise() - mean) / static_cast<double>(v.rows());
+  const Eigen::Vector3d ev = Eigen::SelfAdjointEigenSolver<Eigen::Matrix3d>(cov, Eigen::EigenvaluesOnly).eigenvalues();
+  return ev(2) > 0.0 ? std::sqrt(std::max(ev(0), 0.0) / ev(2)) : 0.0;
+}
+
 // Fills the Summary's residual statistics from the final calibration.
 void finish_summary(RefineResult& out, const SamplesRef& samples, const SamplesRef* reference,
                     const Eigen::VectorXd* norms = nullptr) {
@@ -357,13 +365,10 @@ void finish_summary(RefineResult& out, const SamplesRef& samples, const SamplesR
     // With reference vectors the field's directions are known without the fit: coverage is theirs, and
     // coverage_ratio the thinnest/widest spread of the reference vectors (it was left 0, "planar").
     describe_coverage(s, *reference, Calibration{}, 16384);
-    const Eigen::RowVector3d mean = reference->colwise().mean();
-    const Eigen::Matrix3d cov = (reference->rowwise() - mean).transpose() * (reference->rowwise() - mean) / n;
-    const Eigen::Vector3d ev =
-        Eigen::SelfAdjointEigenSolver<Eigen::Matrix3d>(cov, Eigen::EigenvaluesOnly).eigenvalues();
-    s.coverage_ratio = ev(2) > 0.0 ? std::sqrt(std::max(ev(0), 0.0) / ev(2)) : 0.0;
+    s.coverage_ratio = spread_ratio(*reference);
   } else {
     describe_coverage(s, samples, cal, 16384);
+    s.coverage_ratio = spread_ratio(samples);  // the readings', as the ellipsoid fit reports it (it was left 0)
   }
   s.condition_number = out.fisher_condition;
   const bool finite =
@@ -776,8 +781,43 @@ RefineResult refine_magnitude(const Calibration& start, const SamplesRef& sample
 
 }  // namespace
 
+namespace {
+
+// A start whose correction maps the readings far from its own field_norm (beyond 5× either way, as a units mismatch
+// is judged) had left the solver far off, and it failed blaming the data ("not positive definite"): a Calibration
+// filled with a cal.json's offset and matrix alone keeps the default field_norm 1. Its matrix is scaled to
+// field_norm, and `said` says so; nothing changes for a start that is roughly right.
+Calibration at_stated_norm(const Calibration& start, const SamplesRef& samples, std::string& said) {
+  if (!(start.offset.allFinite() && start.matrix.allFinite() && std::isfinite(start.field_norm) &&
+        start.field_norm > 0.0))
+    return start;  // check_start says what is wrong
+  std::vector<double> h;
+  h.reserve(static_cast<std::size_t>(samples.rows()));
+  for (Eigen::Index i = 0; i < samples.rows(); ++i) {
+    const Eigen::Vector3d m = samples.row(i).transpose();
+    if (m.allFinite()) h.push_back((start.matrix * (m - start.offset)).norm());
+  }
+  if (h.empty()) return start;
+  const auto mid = h.begin() + static_cast<std::ptrdiff_t>(h.size() / 2);
+  std::nth_element(h.begin(), mid, h.end());
+  const double median = *mid, gain = median / start.field_norm;
+  if (!(std::isfinite(gain) && gain > 0.0) || !(gain > 5.0 || gain < 0.2)) return start;
+  said = "start: its correction maps the readings to a median |h| of " + detail::num(median) + ", " +
+         detail::num(gain) + " times start.field_norm " + detail::num(start.field_norm) +
+         "; its matrix was scaled to field_norm before refining (if the field is about " + detail::num(median) +
+         ", set start.field_norm to it: a calibration read from a file has it as field_norm)";
+  Calibration out = start;
+  out.matrix /= gain;
+  return out;
+}
+
+}  // namespace
+
 RefineResult refine(const Calibration& start, const SamplesRef& samples, const RefineOptions& opt) {
-  return refine_magnitude(start, samples, nullptr, opt);
+  std::string said;
+  RefineResult out = refine_magnitude(at_stated_norm(start, samples, said), samples, nullptr, opt);
+  if (!said.empty()) out.summary.warnings.push_back(said);
+  return out;
 }
 
 RefineResult refine(const Calibration& start, const SamplesRef& samples, const SeriesRef& field_norms,

@@ -249,7 +249,8 @@ Eigen::VectorXd remove_trend(const SeriesRef& x, int degree) {
 
 ReverseArrangementResult reverse_arrangement(const SeriesRef& x, int subseries, double threshold) {
   if (subseries < 3) throw Error("reverse_arrangement: subseries = " + std::to_string(subseries) + ", need ≥ 3");
-  if (!std::isfinite(threshold)) throw Error("reverse_arrangement: threshold is not finite");
+  if (!(std::isfinite(threshold) && threshold > 0.0))
+    throw Error("reverse_arrangement: threshold " + detail::num(threshold) + ", need a finite |u| > 0 (1.96: 5 %)");
   check_series(x, "series", 2 * static_cast<Eigen::Index>(subseries),
                "for " + std::to_string(subseries) + " sub-series of ≥ 2 samples");
   ReverseArrangementResult r;
@@ -353,7 +354,7 @@ ArResult fit_ar(const SeriesRef& y, const ArOptions& options) {
   check_series(y, "series", 2 * static_cast<Eigen::Index>(k) + 3,
                "for an AR model of order " + std::to_string(k) + (fixed ? "" : " (max_order)"));
   check_breaks(options.breaks, y.size(), "ArOptions::breaks");
-  if (!((y.array() != y[0]).any())) throw Error("series: constant (every sample equals " + std::to_string(y[0]) +
+  if (!((y.array() != y[0]).any())) throw Error("series: constant (every sample equals " + detail::num(y[0]) +
                                                 "), an AR model needs a varying series");
   // Every step is a sum of squares: values whose squares overflow gave σ² = inf, "converged" at order 0.
   detail::require_finite_fit(std::isfinite(y.squaredNorm()), "series", y, "the AR fit");
@@ -433,8 +434,8 @@ ArResult fit_ar(const SeriesRef& y, const ArOptions& options) {
     });
   }
   if (!theta.allFinite())  // 1/λ^t overflowed: a memory of 1/(1 − λ) readings is far too short
-    throw Error("fit_ar: forgetting factor " + std::to_string(options.forgetting) +
-                " forgets too fast (a memory of about " + std::to_string(1.0 / (1.0 - options.forgetting)) +
+    throw Error("fit_ar: forgetting factor " + detail::num(options.forgetting) +
+                " forgets too fast (a memory of about " + detail::num(1.0 / (1.0 - options.forgetting)) +
                 " readings): the recursive least squares overflowed; use a λ closer to 1");
   result.coefficients = theta;
   result.residuals.resize(rows);
@@ -486,7 +487,7 @@ ArResult fit_ar(const SeriesRef& y, const ArOptions& options) {
         ", the test needs more than the AR order " + std::to_string(p) +
         (tested_lags < wanted_lags ? " (more samples or a lower order)" : ""));
   else if (tested && !result.whiteness.white)
-    s.warnings.push_back("residuals are not white (Ljung-Box p = " + std::to_string(result.whiteness.p_value) +
+    s.warnings.push_back("residuals are not white (Ljung-Box p = " + detail::num(result.whiteness.p_value) +
                          "): the AR model is rejected by seed 001's S3.3 check");
   return result;
 }
@@ -504,7 +505,7 @@ PreprocessResult preprocess(const SeriesRef& x, const PreprocessOptions& options
                 " second differences for the stationarity test on " + std::to_string(options.subseries) +
                 " sub-series");
   if (!((x.array() != x[0]).any()))
-    throw Error("series: constant (every sample equals " + std::to_string(x[0]) + "), nothing to model");
+    throw Error("series: constant (every sample equals " + detail::num(x[0]) + "), nothing to model");
   PreprocessResult r;
   const Eigen::VectorXd z = zero_mean(x, &r.mean);
   Breaks breaks1;
@@ -532,11 +533,11 @@ PreprocessResult preprocess(const SeriesRef& x, const PreprocessOptions& options
   s.message = msg.str();
   if (!r.stationarity_after.stationary)
     s.warnings.push_back("the series is not stationary even after differencing twice and removing a trend (u = " +
-                         std::to_string(r.stationarity_after.u) + ")");
+                         detail::num(r.stationarity_after.u) + ")");
   if (!r.normality.normal)
     s.warnings.push_back("the stationary series is not normal (Jarque-Bera p = " +
-                         std::to_string(r.normality.p_value) + ", skewness " + std::to_string(r.normality.skewness) +
-                         ", kurtosis " + std::to_string(r.normality.kurtosis) + ")");
+                         detail::num(r.normality.p_value) + ", skewness " + detail::num(r.normality.skewness) +
+                         ", kurtosis " + detail::num(r.normality.kurtosis) + ")");
   return r;
 }
 

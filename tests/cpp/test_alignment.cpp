@@ -90,4 +90,14 @@ TEST(Alignment, BadInputThrowsNamingIt) {
   fluxcal::AlignmentOptions bad;
   bad.max_iterations = 0;
   EXPECT_ERROR_SAYS(fluxcal::align_to_gravity(s.field, s.force, bad), "AlignmentOptions::max_iterations");
+  // Each option named alone (one message had named tolerance, max_se_deg and max_dynamic together).
+  fluxcal::AlignmentOptions se;
+  se.max_se_deg = -1.0;
+  EXPECT_ERROR_SAYS(fluxcal::align_to_gravity(s.field, s.force, se), "AlignmentOptions::max_se_deg: -1, need");
+  fluxcal::AlignmentOptions tol;
+  tol.tolerance = 0.0;
+  EXPECT_ERROR_SAYS(fluxcal::align_to_gravity(s.field, s.force, tol), "AlignmentOptions::tolerance: 0, need");
+  fluxcal::AlignmentOptions dyn;
+  dyn.max_dynamic = std::nan("");
+  EXPECT_ERROR_SAYS(fluxcal::align_to_gravity(s.field, s.force, dyn), "AlignmentOptions::max_dynamic: nan, need");
 }

@@ -45,3 +45,16 @@ TEST(Coverage, WrongWidthNamesTheArgument) {
   EXPECT_ERROR_SAYS(fluxcal::direction_coverage(Eigen::MatrixXd::Ones(10, 4), fluxcal::Calibration()),
                     "readings: a matrix of 10 rows × 4 columns");
 }
+
+TEST(Coverage, NoRowsNaNRowsNegativeMaxRowsAndANaNCalibrationAreNamed) {
+  // They had given 0.0, the other rows' fraction (a NaN row skipped), or looked at every row, without a word.
+  Eigen::MatrixXd v = Eigen::MatrixXd::Random(50, 3);
+  EXPECT_ERROR_SAYS(fluxcal::direction_coverage(Eigen::MatrixXd(0, 3)), "fields: no rows");
+  EXPECT_ERROR_SAYS(fluxcal::direction_coverage(v, -1), "max_rows: -1, need a whole number ≥ 0");
+  v(7, 2) = std::nan("");
+  EXPECT_ERROR_SAYS(fluxcal::direction_coverage(v), "fields: row 7, column 2 (z) is NaN");
+  EXPECT_ERROR_SAYS(fluxcal::direction_coverage(v, fluxcal::Calibration()), "readings: row 7");
+  fluxcal::Calibration bad;
+  bad.matrix(0, 0) = std::nan("");
+  EXPECT_ERROR_SAYS(fluxcal::direction_coverage(Eigen::MatrixXd::Random(50, 3), bad), "calibration: offset or matrix is not finite");
+}

@@ -107,6 +107,18 @@ TEST(EllipsoidErrors, TooFewRows) {
   } catch (const fluxcal::Error& e) {
     EXPECT_NE(std::string(e.what()).find("8 rows, need at least 9"), std::string::npos) << e.what();
   }
+  // Nine fix the nine parameters: a residual of 0 whatever the noise, said (it had read as a perfect fit).
+  const Truth t = make_truth(1, 50000.0);
+  for (int seed = 1; seed <= 5; ++seed) {
+    try {
+      const fluxcal::Summary nine = fluxcal::fit_ellipsoid(simulate(t, 9, 0.002, seed)).summary;
+      ASSERT_FALSE(nine.warnings.empty());
+      EXPECT_NE(nine.warnings.front().find("9 readings fix the 9 parameters exactly"), std::string::npos);
+    } catch (const fluxcal::Error&) {  // nine noisy points need not lie on an ellipsoid
+    }
+  }
+  for (const std::string& w : fluxcal::fit_ellipsoid(simulate(t, 10, 0.0, 1)).summary.warnings)
+    EXPECT_EQ(w.find("fix the 9 parameters"), std::string::npos) << w;
 }
 
 TEST(EllipsoidErrors, PlanarReadingsAreRejected) {

@@ -218,6 +218,7 @@ TEST(Positions, CoreRefusesNonRotationsAndNonFiniteOptions) {
   EXPECT_THROW(fluxcal::PositionsResult().field_of(Eigen::Vector3d::Ones()), fluxcal::Error);
   EXPECT_THROW(fluxcal::level_rotation(Eigen::Matrix3d::Identity(), Eigen::Vector3d::Zero(), Frame::nue),
                fluxcal::Error);
+  EXPECT_ERROR_SAYS(fluxcal::body_to_local(0.1, std::nan(""), 0.0, Frame::ned), "roll: nan, need a finite angle");
 }
 
 TEST(PositionsOptions, BadValuesAreNamed) {

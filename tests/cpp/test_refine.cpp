@@ -210,12 +210,43 @@ TEST(RefineInputs, HugeReadingsAreNamed) {
 
 // Readings whose squares underflow (|x| < 1.5e-154): refine failed inside Ceres with a NaN Jacobian,
 // fit_vector called the fitted W singular or the reference planar.
+TEST(RefineInputs, AStartFarFromItsOwnFieldNormIsScaledToItAndSaid) {
+  // A Calibration filled with a file's offset and matrix alone keeps field_norm 1: refine had failed, blaming the
+  // data ("not positive definite"). Now the start's matrix is scaled to field_norm and a warning names it.
+  const auto truth = fluxcal_test::make_truth(3, 50000.0);
+  const fluxcal::Samples s = fluxcal_test::simulate(truth, 600, 0.002, 4);
+  const fluxcal::RefineResult right = fluxcal::refine(fluxcal::fit_ellipsoid(s, {}).calibration, s);
+  fluxcal::Calibration start;
+  start.offset = right.calibration.offset;
+  start.matrix = right.calibration.matrix * 1.01;
+  start.field_norm = 1.0;
+  const fluxcal::RefineResult r = fluxcal::refine(start, s);
+  EXPECT_NEAR(r.calibration.field_norm, 1.0, 0.0);
+  EXPECT_LT((r.calibration.offset - right.calibration.offset).norm(), 1e-6 * truth.field);
+  EXPECT_LT((r.calibration.matrix * right.calibration.field_norm - right.calibration.matrix).norm(),
+            1e-6 * right.calibration.matrix.norm());
+  ASSERT_FALSE(r.summary.warnings.empty());
+  EXPECT_NE(r.summary.warnings.back().find("times start.field_norm 1; its matrix was scaled"), std::string::npos)
+      << r.summary.warnings.back();
+  for (const std::string& w : right.summary.warnings) EXPECT_EQ(w.find("start.field_norm"), std::string::npos) << w;
+  EXPECT_GT(right.summary.coverage_ratio, 0.5);  // the readings' spread, as the ellipsoid fit reports (it was 0)
+}
+
 TEST(RefineInputs, TinyReadingsAreNamed) {
   const auto truth = fluxcal_test::make_truth(3, 50.0);
   const fluxcal::Samples s = fluxcal_test::simulate(truth, 400, 0.01, 4);
   const fluxcal::Samples tiny = s * 1e-200;
   fluxcal::Calibration start = fluxcal::fit_ellipsoid(tiny).calibration;  // normalised: fits at any scale
   EXPECT_NEAR((start.offset * 1e200 - truth.b).norm() / truth.field, 0.0, 0.01);
+  // Its |h| statistics too (they had underflowed to a negative mean |h| and a zero residual): as at full scale.
+  for (const bool exact : {false, true}) {
+    fluxcal::EllipsoidOptions o;
+    o.exact_statistics = exact;
+    const fluxcal::Summary big = fluxcal::fit_ellipsoid(s, o).summary, small = fluxcal::fit_ellipsoid(tiny, o).summary;
+    EXPECT_NEAR(small.norm_mean * 1e200 / big.norm_mean, 1.0, 1e-9) << exact;
+    EXPECT_NEAR(small.residual_rms * 1e200 / big.residual_rms, 1.0, 1e-6) << exact;
+    EXPECT_NEAR(small.norm_std_over_mean / big.norm_std_over_mean, 1.0, 1e-6) << exact;
+  }
   EXPECT_ERROR_SAYS(fluxcal::refine(start, tiny), "samples: values no larger than");
   EXPECT_ERROR_SAYS(fluxcal::refine(start, tiny), "underflow a 9-parameter magnitude refinement");
   const fluxcal::Samples reference = (s.rowwise() - truth.b.transpose()) * truth.W.inverse().transpose();

@@ -185,6 +185,9 @@ TEST(TimeSeries, BadInput) {
   }
   options.forgetting = 1.5;
   EXPECT_THROW(fluxcal::fit_ar(ar_series({0.5}, 100, 1), options), fluxcal::Error);
+  // A threshold ≤ 0 had been taken (every series "not stationary").
+  EXPECT_ERROR_SAYS(fluxcal::reverse_arrangement(ar_series({0.5}, 100, 1), 20, -1.0),
+                    "reverse_arrangement: threshold -1, need a finite |u| > 0");
 }
 
 }  // namespace

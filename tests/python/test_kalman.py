@@ -44,6 +44,27 @@ def test_double_filter_matches_filterpy(a, q, r):
     np.testing.assert_allclose(filtered, oracle.kalman_filter(a, q, r, k.initial_covariance, y), atol=1e-10)
 
 
+@pytest.mark.parametrize("a,q,r", MODELS)
+def test_both_forms_report_the_posterior_covariance(a, q, r):
+    """result["covariance"] is P_{N|N} in both forms: the steady-state filter's (I − K C) M from SciPy's DARE is
+    where the time-varying filter's P ends (it had been the prior M, 2.33 against 1.47 for AR(1) 0.95, q 1, r 4)."""
+    from scipy.linalg import solve_discrete_are
+
+    y = ar_signal(a, q, r, 3000, 1)
+    A = oracle.companion(a)
+    n = A.shape[0]
+    Q = np.zeros((n, n))
+    Q[0, 0] = q
+    M = solve_discrete_are(A.T, np.eye(n)[:1].T, Q, np.array([[r]]))  # the steady prior
+    posterior = M - np.outer(M[:, 0], M[0]) / (M[0, 0] + r)
+    varying, steady = ArKalman(a, q, r), ArKalman(a, q, r, steady_state=True)
+    varying.filter(y)
+    steady.filter(y)
+    np.testing.assert_allclose(steady.result["covariance"], posterior, rtol=1e-9, atol=1e-12)
+    np.testing.assert_allclose(varying.result["covariance"], posterior, rtol=1e-9, atol=1e-12)
+    np.testing.assert_allclose(steady.steady_prior_covariance, M, rtol=1e-9, atol=1e-12)
+
+
 @pytest.mark.parametrize("steady_state", [False, True])
 def test_filter_starts_again_after_each_gap(steady_state):
     """breaks: each stretch between gaps in time filtered on its own from x = 0, P = P0 (the oracle filters

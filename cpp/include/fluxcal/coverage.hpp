@@ -38,10 +38,12 @@ inline int direction_bin(const Eigen::Vector3d& v) { return direction_bin(v(0), 
 /// Fraction of the 96 direction bins that hold at least one row of `fields` (corrected fields, not
 /// raw readings: raw readings are off-centre). 1.0 = every direction seen; a yaw-only turn ≈ 0.1.
 /// `max_rows` > 0 looks at an evenly strided subsample of at most that many rows (a bin holding
-/// fewer than N/max_rows readings may then be missed — it carries almost no weight in a fit).
+/// fewer than N/max_rows readings may then be missed — it carries almost no weight in a fit). Error for no rows,
+/// a NaN or infinite row (named), or max_rows < 0.
 double direction_coverage(const SamplesRef& fields, Eigen::Index max_rows = 0);
 
-/// The same for the corrected fields A (m − b) of raw readings m, without forming them.
+/// The same for the corrected fields A (m − b) of raw readings m, without forming them (Error also for a
+/// calibration that is not finite).
 double direction_coverage(const SamplesRef& readings, const Calibration& calibration, Eigen::Index max_rows = 0);
 
 /// Sets summary.direction_coverage and summary.direction_eigenvalues for the corrected fields of

@@ -97,7 +97,7 @@ class EllipsoidMoments {
 };
 
 /// Normalisation (centre, scale) from a strided subsample of at most `max_rows` rows: the midrange
-/// and the largest half-range. Costs O(max_rows), not a pass over the data.
+/// and the largest half-range. Costs O(max_rows), not a pass over the data; max_rows ≤ 0 looks at every row.
 std::pair<Eigen::Vector3d, double> normalisation(const SamplesRef& samples, Eigen::Index max_rows = 1024);
 
 /// Fits the ellipsoid to N×3 readings (N ≥ 9). Throws Error on NaN/Inf, too few rows, planar

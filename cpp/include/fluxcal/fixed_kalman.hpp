@@ -148,7 +148,7 @@ class FixedArKalman {
 
     if (!c_.steady_state) {
       // Predict the covariance: M = A P Aᵀ + Q e1 e1ᵀ (companion structure).
-      std::int32_t u[kSize];
+      std::int32_t u[kSize] = {};  // zeroed: GCC cannot see that order ≥ 1 fills what is read
       for (int j = 0; j < n; ++j) {
         std::int64_t s = 0;
         for (int i = 0; i < n; ++i) s = fixed::add64(s, fixed::mul(p_[j][i], c_.a[i]), of);
@@ -170,7 +170,7 @@ class FixedArKalman {
           k_[i] = fixed::saturate32(fixed::div_round(std::int64_t{m_[i][0]} * (std::int64_t{1} << cf), s), of);
       }
       // Joseph form for C = e1ᵀ, expanded: P = M − K m0ᵀ − m0 Kᵀ + S K Kᵀ.
-      std::int32_t t[kSize];
+      std::int32_t t[kSize] = {};
       for (int i = 0; i < n; ++i) t[i] = fixed::saturate32(fixed::shift_round(fixed::mul(s, k_[i]), cf, of), of);
       for (int j = 0; j < n; ++j) {
         for (int i = j; i < n; ++i) {

@@ -35,7 +35,9 @@ struct KalmanResult {
   Eigen::VectorXd filtered;     ///< C x̂_{k|k}: the filtered output L of seed 001
   Eigen::VectorXd innovations;  ///< y_k − C x̂_{k|k−1}
   Eigen::VectorXd state;        ///< final x̂_{N|N}
-  Eigen::MatrixXd covariance;   ///< final P_{N|N} (time-varying form) or the steady-state P
+  /// final P_{N|N}, the posterior covariance: the time-varying filter's last, or the steady-state filter's
+  /// (I − K C) M (M, the steady-state prior, is what steady_state_gain gives)
+  Eigen::MatrixXd covariance;
   Eigen::VectorXd gain;         ///< final (or steady-state) K
   Summary summary;
 };

@@ -84,7 +84,9 @@ struct RefineResult {
   Eigen::VectorXd standard_errors;          ///< sqrt of the covariance diagonal
   std::vector<bool> determined;             ///< per parameter (see RefineOptions::determined_tolerance)
   bool identifiable = true;                 ///< every parameter determined
-  double noise_sigma = 0.0;                 ///< σ̂ from the final residuals (reading units)
+  /// σ̂ from all final residuals (reading units), outliers included: with a robust loss the covariance uses the
+  /// loss's own variance (robust), so this reads larger than the noise when there are outliers
+  double noise_sigma = 0.0;
   double fisher_condition = 0.0;            ///< condition number of the column-scaled JᵀJ
   std::string solver_report;                ///< Ceres' brief report
   SerialCorrelationReport serial_correlation;  ///< empty for refine_terms (the diagnosis whitens itself)

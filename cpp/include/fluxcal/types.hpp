@@ -167,7 +167,9 @@ struct Summary {
   double norm_mean = 0.0;          ///< mean of |h| after correction
   double norm_std_over_mean = 0.0; ///< std/mean of |h| after correction (0.01 = 1 %)
   double condition_number = 0.0;   ///< of the solver's (normalised) linear system
-  double coverage_ratio = 0.0;     ///< thinnest/widest spread of the readings (0 planar, 1 sphere-like)
+  /// Thinnest/widest spread of the readings (0 planar, 1 sphere-like): the ellipsoid fit, TWOSTEP, the planar fit and
+  /// refine (the reference vectors' with a vector model) set it; the other solvers leave the default 0.
+  double coverage_ratio = 0.0;
   double direction_coverage = -1;  ///< fraction of direction bins seen after correction (−1: not computed)
   /// Eigenvalues (ascending) of the direction scatter mean(ĥĥᵀ) of the corrected fields: 1/3 each on a
   /// full sphere, one near 0 for a planar (yaw-only) turn, two near 0 for a single direction.
