@@ -212,8 +212,10 @@ AlignmentResult align_to_gravity(const SamplesRef& field, const SamplesRef& spec
   if (!(options.serial_correlation_alpha > 0.0 && options.serial_correlation_alpha < 1.0))
     throw Error("AlignmentOptions::serial_correlation_alpha: " + detail::num(options.serial_correlation_alpha) +
                 ", need a significance level in (0, 1)");
-  detail::require_positive("AlignmentOptions::tolerance", options.tolerance);
-  detail::require_positive("AlignmentOptions::max_se_deg", options.max_se_deg, "a standard error in degrees > 0");
+  // +inf stays allowed (max_se_deg = inf: never flag an axis), as before
+  detail::require(options.tolerance > 0.0, "AlignmentOptions::tolerance", options.tolerance, "a step > 0 (radians)");
+  detail::require(options.max_se_deg > 0.0, "AlignmentOptions::max_se_deg", options.max_se_deg,
+                  "a standard error in degrees > 0");
   detail::require(!std::isnan(options.max_dynamic), "AlignmentOptions::max_dynamic", options.max_dynamic,
                   "a fraction of the median |f| (≤ 0 keeps every reading)");
   check_samples(field, "field", 8, "a rotation and the dip");

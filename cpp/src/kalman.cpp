@@ -248,7 +248,9 @@ KalmanResult ArKalman::filter(const SeriesRef& y, const Breaks& breaks) const {
       res.filtered[t] = x[0];
     }
     res.gain = k;
-    res.covariance = m - k * m.row(0);  // P = (I − K C) M, C = e1ᵀ: the posterior, as the time-varying form reports
+    // P = (I − K C) M, C = e1ᵀ: the posterior, as the time-varying form reports (symmetrised: rounding)
+    const Eigen::MatrixXd p = m - k * m.row(0);
+    res.covariance = 0.5 * (p + p.transpose());
     res.summary.iterations = iterations;
   } else {
     Eigen::MatrixXd p = p0_, m(n, n);

@@ -408,7 +408,8 @@ Eigen::Vector2d pitch_roll(const Eigen::Vector3d& a, Frame frame) {
 Eigen::Matrix3d body_to_local(double pitch, double roll, double yaw, Frame frame) {
   check_frame(frame);
   for (const auto& [name, angle] : {std::pair<const char*, double>{"pitch", pitch}, {"roll", roll}, {"yaw", yaw}})
-    if (!std::isfinite(angle)) throw Error(std::string(name) + ": " + detail::num(angle) + ", need a finite angle (radians)");
+    if (!std::isfinite(angle))
+      throw Error(std::string(name) + ": " + detail::num(angle) + ", need a finite angle (radians)");
   using Eigen::AngleAxisd;
   using Eigen::Vector3d;
   if (frame == Frame::ned) {

@@ -786,7 +786,8 @@ namespace {
 // A start whose correction maps the readings far from its own field_norm (beyond 5× either way, as a units mismatch
 // is judged) had left the solver far off, and it failed blaming the data ("not positive definite"): a Calibration
 // filled with a cal.json's offset and matrix alone keeps the default field_norm 1. Its matrix is scaled to
-// field_norm, and `said` says so; nothing changes for a start that is roughly right.
+// field_norm, and `said` says so; nothing changes for a start that is roughly right. (A far offset, the identity on
+// raw readings with a large hard iron, moves the median too: the scaling still helps, hence the advice's "if".)
 Calibration at_stated_norm(const Calibration& start, const SamplesRef& samples, std::string& said) {
   if (!(start.offset.allFinite() && start.matrix.allFinite() && std::isfinite(start.field_norm) &&
         start.field_norm > 0.0))
@@ -804,8 +805,9 @@ Calibration at_stated_norm(const Calibration& start, const SamplesRef& samples, 
   if (!(std::isfinite(gain) && gain > 0.0) || !(gain > 5.0 || gain < 0.2)) return start;
   said = "start: its correction maps the readings to a median |h| of " + detail::num(median) + ", " +
          detail::num(gain) + " times start.field_norm " + detail::num(start.field_norm) +
-         "; its matrix was scaled to field_norm before refining (if the field is about " + detail::num(median) +
-         ", set start.field_norm to it: a calibration read from a file has it as field_norm)";
+         "; its matrix was scaled to field_norm before refining (if the start's offset is right and its field is "
+         "about " + detail::num(median) + ", set start.field_norm to it: a calibration read from a file has it as "
+         "field_norm)";
   Calibration out = start;
   out.matrix /= gain;
   return out;
@@ -824,7 +826,9 @@ RefineResult refine(const Calibration& start, const SamplesRef& samples, const S
                     const RefineOptions& opt) {
   detail::check_field_norms(field_norms, samples.rows());
   const Eigen::VectorXd norms = field_norms;
-  RefineResult out = refine_magnitude(at_mean_norm(start, norms), samples, &norms, opt);
+  std::string stated;
+  RefineResult out = refine_magnitude(at_mean_norm(at_stated_norm(start, samples, stated), norms), samples, &norms, opt);
+  if (!stated.empty()) out.summary.warnings.push_back(stated);
   // Norms far from the readings' own radius usually mean another unit (nT magnitudes for µT readings), as the
   // ellipsoid fit and TWOSTEP say of a field_norm; the start's matrix, rescaled to them, hid it here.
   const double gain = std::cbrt(out.calibration.matrix.determinant());

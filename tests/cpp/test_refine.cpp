@@ -229,6 +229,11 @@ TEST(RefineInputs, AStartFarFromItsOwnFieldNormIsScaledToItAndSaid) {
   EXPECT_NE(r.summary.warnings.back().find("times start.field_norm 1; its matrix was scaled"), std::string::npos)
       << r.summary.warnings.back();
   for (const std::string& w : right.summary.warnings) EXPECT_EQ(w.find("start.field_norm"), std::string::npos) << w;
+  // The same start with each reading's field magnitude: its matrix had been scaled by their mean over 1, 5e4× off.
+  const Eigen::VectorXd norms = Eigen::VectorXd::Constant(s.rows(), right.calibration.field_norm);
+  const fluxcal::RefineResult each = fluxcal::refine(start, s, norms);
+  EXPECT_LT((each.calibration.offset - right.calibration.offset).norm(), 1e-6 * truth.field);
+  EXPECT_NE(each.summary.warnings.front().find("times start.field_norm 1"), std::string::npos);
   EXPECT_GT(right.summary.coverage_ratio, 0.5);  // the readings' spread, as the ellipsoid fit reports (it was 0)
 }
 

@@ -97,7 +97,9 @@ struct RefineResult {
 };
 
 /// Magnitude model, starting from `start` (offset, matrix — made symmetric by its polar factor — and
-/// the known field norm start.field_norm). Needs ≥ 10 finite readings.
+/// the known field norm start.field_norm). Needs ≥ 10 finite readings. A start whose correction maps the readings
+/// beyond 5× either way from start.field_norm (a Calibration given only a file's offset and matrix keeps
+/// field_norm 1) has its matrix scaled to field_norm first, with a warning; so does the overload below.
 RefineResult refine(const Calibration& start, const SamplesRef& samples, const RefineOptions& options = {});
 
 /// Magnitude model with the true field magnitude of each reading (`field_norms`, N values > 0): a field that
