@@ -2,6 +2,7 @@
 #include "long_run.hpp"
 
 #include "fluxcal/timeseries.hpp"
+#include "linalg.hpp"
 
 #include <algorithm>
 #include <cmath>
@@ -102,6 +103,22 @@ Eigen::MatrixXd newey_west(const Eigen::MatrixXd& g, int lags) {
 }
 
 }  // namespace
+
+ScaledInverse scaled_inverse(const Eigen::MatrixXd& F) {
+  constexpr double kTiny = 1e-300;  // guards the diagonal against exact zeros; the eigenvalues' floor
+  const Eigen::Index p = F.rows();
+  const Eigen::VectorXd d = F.diagonal().cwiseMax(kTiny).cwiseSqrt().cwiseInverse();
+  const Eigen::MatrixXd scaled = d.asDiagonal() * F * d.asDiagonal();
+  const SymmetricEigen<Eigen::Dynamic> eig = symmetric_eigen(scaled);
+  const Eigen::VectorXd& lam = eig.values;
+  const double floor = lam(p - 1) * kTiny;
+  const Eigen::VectorXd inv = lam.cwiseMax(floor).cwiseInverse();
+  ScaledInverse out;
+  out.inverse = d.asDiagonal() * eig.vectors * inv.asDiagonal() * eig.vectors.transpose() * d.asDiagonal();
+  out.condition = lam(0) > 0.0 ? lam(p - 1) / lam(0) : std::numeric_limits<double>::infinity();
+  out.singular = lam(0) <= floor;
+  return out;
+}
 
 // Long-run covariance of the scores, prewhitened (Andrews & Monahan 1992) with a diagonal first-order
 // autoregression: each column's lag-1 coefficient a_j = Σ g_t g_{t−1} / Σ g_{t−1}² (clipped to ±0.97, as

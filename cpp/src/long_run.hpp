@@ -8,6 +8,15 @@
 
 namespace fluxcal::detail {
 
+/// F⁻¹ of an information matrix F through the eigen-decomposition of the column-scaled F: near-null directions get a
+/// huge (not infinite) variance, so undetermined parameters show up as such instead of as a failed factorisation.
+struct ScaledInverse {
+  Eigen::MatrixXd inverse;
+  double condition = 0.0;  ///< of the column-scaled F (inf: singular)
+  bool singular = false;   ///< an eigenvalue at the floor (1e-300 of the largest): no sandwich is defined
+};
+ScaledInverse scaled_inverse(const Eigen::MatrixXd& F);
+
 /// Long-run covariance of the scores (N×p, rows in time order), prewhitened; `lags` gets the bandwidth.
 Eigen::MatrixXd prewhitened_long_run(const Eigen::MatrixXd& scores, int& lags);
 

@@ -486,19 +486,13 @@ PlanarResult fit(const Readings2DRef& u, const Eigen::VectorXd* norms, const Pla
 
   // Covariance σ̂²(JᵀJ)⁻¹ through the eigen-decomposition of the column-scaled JᵀJ.
   const double sigma2 = result.at.cost / dof;
-  const Eigen::VectorXd dscale = result.at.F.diagonal().cwiseMax(kTiny).cwiseSqrt().cwiseInverse();
-  const Eigen::MatrixXd Fs = dscale.asDiagonal() * result.at.F * dscale.asDiagonal();
-  const detail::SymmetricEigen<Eigen::Dynamic> eig = detail::symmetric_eigen(Fs);
-  const Eigen::VectorXd& lam = eig.values;
-  out.fisher_condition = lam(0) > 0.0 ? lam(k - 1) / lam(0) : kInf;
-  const Eigen::VectorXd inv = lam.cwiseMax(lam(k - 1) * kTiny).cwiseInverse();
-  const Eigen::MatrixXd Finv = dscale.asDiagonal() * eig.vectors * inv.asDiagonal() *
-                               eig.vectors.transpose() * dscale.asDiagonal();
-  Eigen::MatrixXd independent = sigma2 * Finv, cov = independent;
+  const detail::ScaledInverse Finv = detail::scaled_inverse(result.at.F);
+  out.fisher_condition = Finv.condition;
+  Eigen::MatrixXd independent = sigma2 * Finv.inverse, cov = independent;
   // Readings correlated in time: the Newey–West sandwich (the header's step 4), rows in the readings' order.
   const auto [r_n, scores] = residuals_and_scores(pr, result.p, fitted_targets);
   const std::string correlated = detail::correct_for_serial_correlation(
-      cov, out.serial_correlation, r_n, scores, Finv, lam(0) <= lam(k - 1) * kTiny, options.serial_correlation,
+      cov, out.serial_correlation, r_n, scores, Finv.inverse, Finv.singular, options.serial_correlation,
       options.serial_correlation_alpha);
   // Back to reading units: b = centre + scale·β, A = A_n·field_scale/scale.
   Eigen::VectorXd to(k), values(k);

@@ -284,18 +284,9 @@ void serial_correlation(RefineResult& out, const Eigen::MatrixXd& Finv, bool sin
 void finish_statistics(RefineResult& out, const Eigen::MatrixXd& F, double sigma2, const Eigen::VectorXd& scales,
                        const RefineOptions& opt, bool vector_model, const Scores* scores = nullptr) {
   const Eigen::Index p = F.rows();
-  const Eigen::VectorXd d = F.diagonal().cwiseMax(1e-300).cwiseSqrt().cwiseInverse();
-  const Eigen::MatrixXd scaled = d.asDiagonal() * F * d.asDiagonal();
-  const detail::SymmetricEigen<Eigen::Dynamic> eig = detail::symmetric_eigen(scaled);
-  const Eigen::VectorXd& lam = eig.values;
-  out.fisher_condition = lam(0) > 0.0 ? lam(p - 1) / lam(0) : std::numeric_limits<double>::infinity();
-  // F⁻¹ through the scaled eigen-decomposition: near-null directions get a huge (not infinite)
-  // variance, so undetermined parameters show up as such instead of as a failed factorisation.
-  const double floor = lam(p - 1) * 1e-300;
-  const Eigen::VectorXd inv = lam.cwiseMax(floor).cwiseInverse();
-  const Eigen::MatrixXd Finv = d.asDiagonal() * eig.vectors * inv.asDiagonal() *
-                               eig.vectors.transpose() * d.asDiagonal();
-  out.covariance = sigma2 * Finv;
+  const detail::ScaledInverse Finv = detail::scaled_inverse(F);
+  out.fisher_condition = Finv.condition;
+  out.covariance = sigma2 * Finv.inverse;
   const Eigen::VectorXd independent = out.covariance.diagonal().cwiseMax(0.0).cwiseSqrt();
   out.determined.assign(static_cast<std::size_t>(p), true);
   std::ostringstream undetermined;
@@ -305,7 +296,7 @@ void finish_statistics(RefineResult& out, const Eigen::MatrixXd& F, double sigma
     if (!ok) undetermined << (out.identifiable ? "" : ", ") << out.parameter_names[static_cast<std::size_t>(k)];
     if (!ok) out.identifiable = false;
   }
-  if (scores) serial_correlation(out, Finv, lam(0) <= floor, *scores, opt);
+  if (scores) serial_correlation(out, Finv.inverse, Finv.singular, *scores, opt);
   out.standard_errors = out.covariance.diagonal().cwiseMax(0.0).cwiseSqrt();
   // Residuals of several % of the field are no sensor's noise: then the standard errors are large because
   // the readings do not fit the model, and "rotate more" would send the user the wrong way.

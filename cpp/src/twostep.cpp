@@ -5,6 +5,7 @@
 #include "checks.hpp"
 #include "clones.hpp"
 #include "linalg.hpp"
+#include "long_run.hpp"
 #include "quadric.hpp"
 
 #include <Eigen/Eigenvalues>
@@ -71,6 +72,10 @@ void check(const TwoStepOptions& o) {
   detail::require_finite(s + "noise_sigma", o.noise_sigma, "a finite value (< 0: estimate it, 0: no correction)");
   detail::require_coverage_options(s, o);
   detail::require(o.runaway_misfit > 1.0, s + "runaway_misfit", o.runaway_misfit, "a value > 1 (inf: never)");
+  detail::require_positive(s + "determined_tolerance", o.determined_tolerance);
+  detail::require_enum(s + "serial_correlation", o.serial_correlation, 3, "automatic, independent, newey_west (0 … 2)");
+  detail::require_open_unit(s + "serial_correlation_alpha", o.serial_correlation_alpha,
+                            "a significance level in (0, 1)");
 }
 
 // ---- 2-D ---------------------------------------------------------------------------------------------
@@ -504,6 +509,100 @@ Calibration calibration_of(const Model3D& model, const Eigen::Vector3d& centre, 
   return cal;
 }
 
+// The second step's covariance (TwoStepResult), from one pass over the readings: with x = u − q, each reading's
+// weighted residual r_k = √w_k R_k, R_k = xᵀN x − 1 − ε_k − μ′, and its score r_k √w_k ∂R_k/∂θ over
+// θ = [q0 q1 q2 N00 N11 N22 N01 N02 N12] (jacobian_map's: −2 N x, x_i², 2 x_i x_j); F = Σ w ∂R ∂Rᵀ is the scoring's.
+void parameter_covariance(TwoStepResult& out, const SamplesRef& samples, const Model3D& m, double mu, const Mat9& F,
+                          const Eigen::Vector3d& centre, double scale, double H, const Eigen::VectorXd* relative,
+                          const TwoStepOptions& options) {
+  const Calibration& cal = out.calibration;
+  out.parameter_names = {"b0", "b1", "b2", "a00", "a01", "a02", "a11", "a12", "a22"};
+  out.parameters.resize(9);
+  out.parameters << cal.offset, cal.matrix(0, 0), cal.matrix(0, 1), cal.matrix(0, 2), cal.matrix(1, 1),
+      cal.matrix(1, 2), cal.matrix(2, 2);
+  const Eigen::Index n = samples.rows();
+  const Eigen::MatrixXd X =
+      ((samples.rowwise() - centre.transpose()) / scale).rowwise() - m.q.transpose();  // x_k, rows
+  const Eigen::MatrixXd NX = X * m.N;
+  Eigen::ArrayXd R = (X.array() * NX.array()).rowwise().sum() - 1.0 - mu;
+  Eigen::ArrayXd root_w = Eigen::ArrayXd::Ones(n);  // √w_k = H/H_k
+  if (relative) {
+    R -= relative->array().square() - 1.0;
+    root_w = relative->array().inverse();
+  }
+  const Eigen::ArrayXd r = root_w * R;
+  Eigen::MatrixXd scores(n, 9);
+  const Eigen::ArrayXd rw = r * root_w;
+  for (int j = 0; j < 3; ++j) {
+    scores.col(j) = (-2.0 * rw * NX.col(j).array()).matrix();
+    scores.col(3 + j) = (rw * X.col(j).array().square()).matrix();
+  }
+  constexpr int pairs[3][2] = {{0, 1}, {0, 2}, {1, 2}};
+  for (int c = 0; c < 3; ++c)
+    scores.col(6 + c) = (2.0 * rw * X.col(pairs[c][0]).array() * X.col(pairs[c][1]).array()).matrix();
+  // μ′ is the tenth fitted number when estimated from the residuals (noise_sigma < 0)
+  const double dof = static_cast<double>(n) - (options.noise_sigma < 0.0 ? 10.0 : 9.0);
+  const double sigma2 = r.square().sum() / std::max(dof, 1.0);
+  const detail::ScaledInverse Finv = detail::scaled_inverse(F);
+  Eigen::MatrixXd cov = sigma2 * Finv.inverse;
+  const Eigen::MatrixXd independent_theta = cov;
+  // R is relative to H²: residuals at rounding (readings without noise) have no correlation worth a sandwich (exact
+  // readings' rounding widened an error 2×)
+  const bool rounding = std::sqrt(sigma2) < 1e3 * std::numeric_limits<double>::epsilon();
+  const std::string correlated = detail::correct_for_serial_correlation(
+      cov, out.serial_correlation, r.matrix(), scores, Finv.inverse, Finv.singular,
+      rounding ? SerialCorrelation::independent : options.serial_correlation, options.serial_correlation_alpha);
+
+  // The delta method to [o, a00 a01 a02 a11 a12 a22]: ∂o/∂q = scale·I; A = c N^½ (c = H/scale) moves by
+  // dA = c V [(Vᵀ dN V)_ij / (s_i + s_j)] Vᵀ, N = V diag(s²) Vᵀ.
+  Eigen::SelfAdjointEigenSolver<Eigen::Matrix3d> eig(m.N);
+  const Eigen::Matrix3d V = eig.eigenvectors();
+  const Eigen::Vector3d sv = eig.eigenvalues().cwiseMax(0.0).cwiseSqrt();
+  const double c = H / scale;
+  Eigen::Matrix<double, 9, 9> G = Eigen::Matrix<double, 9, 9>::Zero();
+  G.topLeftCorner<3, 3>() = scale * Eigen::Matrix3d::Identity();
+  constexpr int entries[6][2] = {{0, 0}, {1, 1}, {2, 2}, {0, 1}, {0, 2}, {1, 2}};  // θ's N entries, in order
+  constexpr int rows[3][3] = {{3, 4, 5}, {4, 6, 7}, {5, 7, 8}};  // row of A(i, j) among a00 a01 a02 a11 a12 a22
+  for (int e = 0; e < 6; ++e) {
+    Eigen::Matrix3d dN = Eigen::Matrix3d::Zero();
+    dN(entries[e][0], entries[e][1]) = dN(entries[e][1], entries[e][0]) = 1.0;
+    Eigen::Matrix3d inner = V.transpose() * dN * V;
+    for (int i = 0; i < 3; ++i)
+      for (int j = 0; j < 3; ++j) inner(i, j) /= std::max(sv(i) + sv(j), 1e-300);
+    const Eigen::Matrix3d dA = c * V * inner * V.transpose();
+    for (int i = 0; i < 3; ++i)
+      for (int j = i; j < 3; ++j) G(rows[i][j], 3 + e) = dA(i, j);
+  }
+  out.covariance = G * cov * G.transpose();
+  out.standard_errors = out.covariance.diagonal().cwiseMax(0.0).cwiseSqrt();
+  const Eigen::VectorXd independent = (G * independent_theta * G.transpose()).diagonal().cwiseMax(0.0).cwiseSqrt();
+  out.serial_correlation.standard_errors_independent = independent;
+  if (out.serial_correlation.lags > 0) {  // the widening of the reported parameters (after the delta method)
+    double widest = 0.0;
+    for (int j = 0; j < 9; ++j)
+      if (independent(j) > 0.0) widest = std::max(widest, out.standard_errors(j) / independent(j));
+    out.serial_correlation.inflation = widest;
+  }
+  if (!correlated.empty()) out.summary.warnings.push_back(correlated);
+
+  // Determined: the independent-readings error against each parameter's scale (refine's rule).
+  const double radius = scale * X.rowwise().norm().mean(), gain = cal.matrix.norm() / std::sqrt(3.0);
+  out.determined.assign(9, true);
+  out.identifiable = true;
+  std::string undetermined;
+  for (int k = 0; k < 9; ++k) {
+    if (std::isfinite(independent(k)) && independent(k) < options.determined_tolerance * (k < 3 ? radius : gain))
+      continue;
+    out.determined[static_cast<std::size_t>(k)] = false;
+    undetermined += (out.identifiable ? "" : ", ") + out.parameter_names[static_cast<std::size_t>(k)];
+    out.identifiable = false;
+  }
+  if (!out.identifiable)
+    out.summary.warnings.push_back("not identifiable: the data do not determine " + undetermined +
+                                   " (standard error above " + percent(options.determined_tolerance) +
+                                   " of its scale); " + std::string(detail::kTurnAdvice));
+}
+
 // How far the readings lie from a model's ellipsoid |h| = radius (times reading i's `relative` field magnitude, when
 // given) in their own units, d = (|h| − radius)/|Aᵀĥ| (first order): the RMS of d — the misfit maximum likelihood
 // minimises, which a shrinking A cannot lower — and the row farthest off.
@@ -696,6 +795,7 @@ TwoStepResult twostep_fit(const SamplesRef& samples, const TwoStepOptions& optio
 
   // Second step: Fisher scoring (Gauss–Newton) on Σ w_k R_k², all sums from the weighted scatter.
   double mu = 0.0;
+  Mat9 F = Mat9::Zero();  // its Fisher matrix at the result
   sum.condition_number = first_condition;
   sum.converged = true;
   if (options.max_iterations > 0) {
@@ -752,7 +852,7 @@ TwoStepResult twostep_fit(const SamplesRef& samples, const TwoStepOptions& optio
       sum.iterations = it + 1;
     }
     mu = noise_mean(Sw, n, m, options.noise_sigma, scale);
-    const Mat9 F = [&] {
+    F = [&] {
       const Eigen::Matrix<double, 9, 11> T = jacobian_map(m.q, m.N);
       return Mat9(T * Sw * T.transpose());
     }();
@@ -793,6 +893,8 @@ TwoStepResult twostep_fit(const SamplesRef& samples, const TwoStepOptions& optio
   detail::require_finite_fit(detail::finite_fit(sum) && cal.matrix.allFinite() && cal.offset.allFinite(), "samples",
                              samples, "the two-step calibration");
   describe_coverage(sum, samples, cal, options.coverage_rows);
+  if (options.max_iterations > 0 && options.standard_errors)
+    parameter_covariance(out, samples, m, mu, F, centre, scale, H, relative, options);
   // The readings' misfit to the first step's (unweighted) ellipsoid: where a reading lies that pulls the weighted
   // fit its way, and the yardstick of a second step that ran away.
   const Calibration start = calibration_of(first, centre, scale, H);

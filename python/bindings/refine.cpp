@@ -12,16 +12,10 @@ namespace {
 
 py::dict result_dict(const fluxcal::RefineResult& r) {
   py::dict d = calibration_dict(r.calibration, r.summary);
-  d["parameters"] = r.parameters;
-  d["parameter_names"] = r.parameter_names;
-  d["covariance"] = r.covariance;
-  d["standard_errors"] = r.standard_errors;
-  d["determined"] = r.determined;
-  d["identifiable"] = r.identifiable;
+  add_parameter_statistics(d, r);
   d["noise_sigma"] = r.noise_sigma;
   d["fisher_condition"] = r.fisher_condition;
   d["solver_report"] = r.solver_report;
-  d["serial_correlation"] = serial_correlation_dict(r.serial_correlation);
   d["residuals"] = r.residuals;
   d["jacobian"] = r.jacobian;
   return d;

@@ -6,6 +6,16 @@
 using namespace pybind11::literals;
 
 namespace fluxcal_py {
+namespace {
+
+// The Calibration, and the second step's covariance when it was computed (keys as refine's).
+py::dict result_dict(const fluxcal::TwoStepResult& r) {
+  py::dict d = calibration_dict(r.calibration, r.summary);
+  if (r.covariance.size() > 0) add_parameter_statistics(d, r);
+  return d;
+}
+
+}  // namespace
 
 void bind_twostep(py::module_& m) {
   using fluxcal::TwoStep2DOptions;
@@ -31,7 +41,11 @@ void bind_twostep(py::module_& m) {
       .def_readwrite("poor_coverage_ratio", &TwoStepOptions::poor_coverage_ratio)
       .def_readwrite("poor_direction_coverage", &TwoStepOptions::poor_direction_coverage)
       .def_readwrite("coverage_rows", &TwoStepOptions::coverage_rows)
-      .def_readwrite("runaway_misfit", &TwoStepOptions::runaway_misfit);
+      .def_readwrite("runaway_misfit", &TwoStepOptions::runaway_misfit)
+      .def_readwrite("standard_errors", &TwoStepOptions::standard_errors)
+      .def_readwrite("determined_tolerance", &TwoStepOptions::determined_tolerance)
+      .def_readwrite("serial_correlation", &TwoStepOptions::serial_correlation)
+      .def_readwrite("serial_correlation_alpha", &TwoStepOptions::serial_correlation_alpha);
 
   // readings arrive as a C-contiguous float64 (N, 2) array and field_norms as float64 (N,) (the Python
   // layer ensures it): no copy.
@@ -59,7 +73,7 @@ void bind_twostep(py::module_& m) {
           py::gil_scoped_release release;
           r = fluxcal::twostep(samples, options);
         }
-        return calibration_dict(r.calibration, r.summary);
+        return result_dict(r);
       },
       "samples"_a.noconvert(), "options"_a);
   m.def(
@@ -70,7 +84,7 @@ void bind_twostep(py::module_& m) {
           py::gil_scoped_release release;
           r = fluxcal::twostep(samples, field_norms, options);
         }
-        return calibration_dict(r.calibration, r.summary);
+        return result_dict(r);
       },
       "samples"_a.noconvert(), "field_norms"_a, "options"_a);
 }

@@ -464,7 +464,7 @@ def _altitude_unit_checked(rec: Recording, args, names, lat, lon, alt, t, norms)
     try:
         m = rec.samples()
         # (relative to each |F|: 500 000 m read as km puts the sensor far out, where the field and all misfits vanish)
-        misfit = {unit: twostep(m, values).summary["residual_rms"] / np.mean(values)
+        misfit = {unit: twostep(m, values, standard_errors=False).summary["residual_rms"] / np.mean(values)
                   for unit, values in (("m", norms), ("km", in_km))}
     except ValueError:  # readings TWOSTEP cannot fit: the calibration itself says why
         return ""

@@ -233,7 +233,7 @@ def _try_fit(m: np.ndarray, method: str, norms=None):
     fit fails or is no ellipsoid."""
     try:
         if norms is not None and changing_field(norms):
-            cal = twostep(m, norms)
+            cal = twostep(m, norms, standard_errors=False)
         else:
             cal = fit_ellipsoid(m, method=method)
     except (ValueError, RuntimeError):

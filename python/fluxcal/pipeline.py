@@ -304,7 +304,7 @@ def _magnitude_start(m: np.ndarray, field_norm, field_norms, units, start_settin
     on a cap of directions), the ellipsoid's start, as before."""
     if field_norms is not None and changing_field(field_norms):
         try:
-            return twostep(m, field_norms, units=units,
+            return twostep(m, field_norms, units=units, standard_errors=False,  # the refinement gives them
                            **{k: v for k, v in start_settings.items() if k != "exact_statistics"})
         except ValueError as exc:
             start = fit_ellipsoid(m, field_norm=field_norm, units=units, method="als", **start_settings)

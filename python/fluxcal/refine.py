@@ -59,16 +59,25 @@ def serial_correlation_mode(name):
 
 def _calibration(result: dict, method: str) -> Calibration:
     summary = dict(result["summary"])
-    for key in ("parameter_names", "identifiable", "noise_sigma", "fisher_condition", "solver_report"):
+    for key in ("noise_sigma", "fisher_condition", "solver_report"):
         summary[key] = result[key]
+    summary["method"] = method
+    parameter_statistics(summary, result, 3 if method in ("vector", "refine_vector") else 1)
+    return Calibration(offset=result["offset"], matrix=result["matrix"], field_norm=result["field_norm"],
+                       units=result["units"], model=result["model"], summary=summary)
+
+
+def parameter_statistics(summary: dict, result: dict, per_reading: int) -> None:
+    """A fit's parameter statistics from the core (its result's parameters, parameter_names, covariance,
+    standard_errors, determined, identifiable, serial_correlation) into `summary` as plain lists and dicts, with
+    the degrees of freedom of `per_reading` residuals a reading (_few_spare_readings)."""
+    summary["parameter_names"] = result["parameter_names"]
+    summary["identifiable"] = result["identifiable"]
     for key in ("parameters", "standard_errors", "covariance"):
         summary[key] = np.asarray(result[key]).tolist()
     summary["determined"] = list(result["determined"])
     summary["serial_correlation"] = dict(result["serial_correlation"])
-    summary["method"] = method
-    _few_spare_readings(summary, 3 if method in ("vector", "refine_vector") else 1)
-    return Calibration(offset=result["offset"], matrix=result["matrix"], field_norm=result["field_norm"],
-                       units=result["units"], model=result["model"], summary=summary)
+    _few_spare_readings(summary, per_reading)
 
 
 FEW_SPARE = 10  # below this many residuals beyond the parameters, t(ν) is ≥ 14 % wider than the normal

@@ -21,6 +21,7 @@ from ._arrays import (as_field_norms, as_number, as_samples, changing_field, fie
                       recording_times, set_options, units_text)
 from .calibration import Calibration
 from .ellipsoid import _calibration
+from .refine import parameter_statistics, serial_correlation_mode
 
 
 @dataclass
@@ -224,8 +225,9 @@ def _log_lag(m: np.ndarray, cal: Calibration, norms: np.ndarray) -> tuple[int, f
         said = lag
         rows, values = (m[lag:], norms[:n - lag]) if lag > 0 else (m[:n + lag], norms[-lag:])
         try:
-            fit = _calibration(_core.twostep_norms(np.ascontiguousarray(rows), np.ascontiguousarray(values),
-                                                   _core.TwoStepOptions()))
+            quick = _core.TwoStepOptions()
+            quick.standard_errors = False  # only its offset and matrix are looked at
+            fit = _calibration(_core.twostep_norms(np.ascontiguousarray(rows), np.ascontiguousarray(values), quick))
         except ValueError:
             break
     return lag, realigned
@@ -291,7 +293,12 @@ def twostep(samples, field_norm, units: str | None = None, **settings) -> Calibr
     settings (defaults in cpp/include/fluxcal/twostep.hpp): max_iterations=50 (0 = first step only),
     tolerance=1e-10, noise_sigma=-1 (estimate; 0 = no noise-mean correction), planar_ratio=0.02,
     poor_coverage_ratio=0.3, poor_direction_coverage=0.5 (of what N readings spread evenly would fill),
-    coverage_rows=16384, runaway_misfit=1.1 (inf: never). Raises ValueError on a missing field_norm, NaN/Inf,
+    coverage_rows=16384, runaway_misfit=1.1 (inf: never), standard_errors=True, determined_tolerance=0.01,
+    serial_correlation="automatic" ("independent", "newey_west"), serial_correlation_alpha=0.01. With the second step
+    the summary holds A&S's error covariance of [b0 b1 b2 a00 a01 a02 a11 a12 a22] under refine's keys
+    (parameters, parameter_names, covariance, standard_errors, determined, identifiable, serial_correlation):
+    the inverse Fisher information times the residuals' variance, or the Newey–West sandwich for readings
+    correlated in time; standard_errors=False skips its pass over the readings. Raises ValueError on a missing field_norm, NaN/Inf,
     too few rows, planar readings, a non-positive-definite result, or a second step that ran away from the
     readings (on a cap of directions its objective falls towards an infinite offset, and a few far outliers can
     run it away too: not converged, and the readings' misfit to its ellipsoid, in their own units, grew by
@@ -307,14 +314,25 @@ def twostep(samples, field_norm, units: str | None = None, **settings) -> Calibr
         raise ValueError("field_norm: required (the known |H|, e.g. from IGRF)")
     options = _core.TwoStepOptions()
     options.units = units_text(units)
+    if "serial_correlation" in settings:
+        settings = {**settings, "serial_correlation": serial_correlation_mode(settings["serial_correlation"])}
     set_options(options, settings, "twostep")
     if np.ndim(field_norm) > 0:  # each reading's own |H|
         norms = as_field_norms(field_norm, len(arr), "field_norm")
-        cal = _calibration(_core.twostep_norms(arr, norms, options))
+        cal = _with_errors(_core.twostep_norms(arr, norms, options))
         cal.summary["field_norms"] = field_norms_summary(norms)
         said = field_log_misfit(arr, cal, norms, reading_interval(samples))
         if said:
             cal.summary["warnings"] = list(cal.summary["warnings"]) + [said]
         return cal
     options.field_norm = as_number(field_norm, "field_norm")
-    return _calibration(_core.twostep(arr, options))
+    return _with_errors(_core.twostep(arr, options))
+
+
+def _with_errors(result: dict) -> Calibration:
+    """The Calibration, its summary holding the second step's parameters, covariance, standard errors,
+    determined/identifiable and serial_correlation under refine's keys (absent for the first step alone)."""
+    cal = _calibration(result)
+    if "covariance" in result:
+        parameter_statistics(cal.summary, result, 1)
+    return cal

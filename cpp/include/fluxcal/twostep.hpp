@@ -57,6 +57,7 @@
 #include <Eigen/Core>
 
 #include <string>
+#include <vector>
 
 namespace fluxcal {
 
@@ -152,6 +153,15 @@ struct TwoStepOptions {
   /// factor over the first step's throws Error, naming the first step's coverage and its farthest reading,
   /// instead of returning the iterate. inf: never.
   double runaway_misfit = 1.1;
+  /// The second step's covariance (TwoStepResult::covariance); false skips its pass over the readings.
+  bool standard_errors = true;
+  /// As RefineOptions: a parameter is determined when its independent-readings standard error is below this
+  /// fraction of its scale (the readings' mean radius |m − o| for offsets, the gain ‖A‖_F/√3 for matrix entries).
+  double determined_tolerance = 0.01;
+  /// Readings correlated in time: automatic (Newey–West when the residuals fail the Ljung–Box test at
+  /// serial_correlation_alpha and it widens an error, or it widens one ≥ 1.5×), independent, or newey_west.
+  SerialCorrelation serial_correlation = SerialCorrelation::automatic;
+  double serial_correlation_alpha = 0.01;
 };
 
 /// Calibration (model "twostep", A symmetric) and Summary: iterations and converged of the second
@@ -159,9 +169,22 @@ struct TwoStepOptions {
 /// ((|h_k|² − H_k² − μ)/H²)² (H/H_k)²; residual_rms, norm_mean and
 /// norm_std_over_mean of |h| from a pass over the samples (exact_statistics); condition_number of the
 /// (column-scaled) Fisher matrix, or of the first step's normal matrix when max_iterations = 0.
+/// With the second step (max_iterations > 0) and options.standard_errors, A&S's error covariance: the inverse
+/// Fisher information of the second step times the residuals' variance σ̂² = Σ w_k R_k²/(N − 10) (9 parameters and
+/// μ), or the Newey–West sandwich for readings correlated in time, carried by the delta method (o = centre +
+/// scale·q, A = (H/scale) N^½) to refine's magnitude-model parameters — to first order in the noise the covariance
+/// refine reports at the same point.
 struct TwoStepResult {
   Calibration calibration;
   Summary summary;
+  Eigen::VectorXd parameters;               ///< [o0 o1 o2 a00 a01 a02 a11 a12 a22], as parameter_names
+  std::vector<std::string> parameter_names;  ///< "b0".."b2", "a00".."a22" (refine's names)
+  Eigen::MatrixXd covariance;               ///< of parameters; empty for the first step alone
+  Eigen::VectorXd standard_errors;          ///< sqrt of its diagonal
+  std::vector<bool> determined;             ///< per parameter (options.determined_tolerance)
+  bool identifiable = false;                ///< every parameter determined (false when no covariance was computed)
+  /// (summary.condition_number is the column-scaled Fisher matrix's)
+  SerialCorrelationReport serial_correlation;  ///< the residuals' test and the Newey–West widening
 };
 
 /// TWOSTEP for a three-axis sensor in a field of known constant magnitude (N ≥ 9 readings).

@@ -132,3 +132,24 @@ def twostep(samples, field_norm, iterate: bool = True, noise_sigma: float = -1.0
 
     A = _sqrtm_spd(M)  # h = std·A_u(u − o) = A_u (m − offset): the std cancels
     return {"offset": mean + std * o, "matrix": A, "field_norm": float(np.mean(field_norm))}
+
+
+def twostep_covariance(samples, field_norm, offset, matrix) -> np.ndarray:
+    """Covariance of [b0 b1 b2 a00 a01 a02 a11 a12 a22] at a TWOSTEP result, as a maximum-likelihood fit of
+    e_k = |A(m_k − b)| − H_k would state it: s² (JᵀJ)⁻¹, J the analytic Jacobian, s² the variance of e about its
+    mean over N − 10 (9 parameters and the noise mean). To first order in the noise the same as the core's
+    Fisher information of Σ w_k R_k² (another residual, another route)."""
+    m = np.asarray(samples, dtype=float)
+    A = np.asarray(matrix, dtype=float)
+    d = m - np.asarray(offset, dtype=float)
+    h = d @ A.T
+    norm = np.linalg.norm(h, axis=1)
+    e = norm - np.broadcast_to(np.asarray(field_norm, dtype=float), len(m))
+    u = h / norm[:, None]                                   # ∂|h|/∂h
+    J = np.empty((len(m), 9))
+    J[:, :3] = -u @ A                                       # ∂|h|/∂b = −uᵀA
+    for col, (i, j) in enumerate([(0, 0), (0, 1), (0, 2), (1, 1), (1, 2), (2, 2)]):
+        # A_ij = A_ji: ∂h/∂a_ij moves h_i by d_j and (off the diagonal) h_j by d_i
+        J[:, 3 + col] = u[:, i] * d[:, j] + (u[:, j] * d[:, i] if i != j else 0.0)
+    s2 = np.sum((e - e.mean()) ** 2) / (len(m) - 10)
+    return s2 * np.linalg.inv(J.T @ J)
