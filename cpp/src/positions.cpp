@@ -275,13 +275,25 @@ void fill_summary(PositionsResult& r, const char* what) {
   std::ostringstream msg;
   msg << what << ": " << n << " positions, residual RMS " << fmt(r.summary.residual_rms)
       << (r.units.empty() ? "" : " " + r.units) << ", condition number " << fmt(r.summary.condition_number, 3);
-  int undetermined = 0;
-  for (bool d : r.determined) undetermined += d ? 0 : 1;
-  if (undetermined > 0) {
+  // Named one by one, but for the headings: a long log's hundreds of yaw_i are counted (a stream of 885 rows
+  // taken as positions had listed 894 names in one 7 kB line).
+  std::vector<std::string> named, headings;
+  std::size_t all_headings = 0;
+  for (std::size_t j = 0; j < r.determined.size(); ++j) {
+    const bool heading = r.parameter_names[j].rfind("yaw_", 0) == 0;
+    all_headings += heading ? 1 : 0;
+    if (!r.determined[j]) (heading ? headings : named).push_back(r.parameter_names[j]);
+  }
+  if (!named.empty() || !headings.empty()) {
     std::ostringstream w;
-    w << undetermined << " parameter(s) poorly determined:";
-    for (std::size_t j = 0; j < r.determined.size(); ++j)
-      if (!r.determined[j]) w << " " << r.parameter_names[j];
+    w << named.size() + headings.size() << " parameter(s) poorly determined:";
+    for (const std::string& name : named) w << " " << name;
+    constexpr std::size_t kListed = 6;
+    if (headings.size() <= kListed)
+      for (const std::string& name : headings) w << " " << name;
+    else
+      w << " " << headings.size() << " of the " << all_headings << " headings (" << headings.front() << " … "
+        << headings.back() << ")";
     r.summary.warnings.push_back(w.str());
   }
   r.summary.message = msg.str();

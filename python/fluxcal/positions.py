@@ -1122,6 +1122,9 @@ def run_cli(args, out=None) -> int:
     res.summary["warnings"] = _misfit_first(res, misfit[0], warnings_) if misfit else warnings_
     report = res.verify(mag, acc, preset=args.preset, acc_measures=args.acc_measures) if args.preset else \
         res.verify(mag, acc, acc_measures=args.acc_measures)
+    gross = _gross_misfit(report, f, res.summary["warnings"], " nT" if args.lat is not None else "")
+    if gross:
+        res.summary["warnings"] = [gross] + list(res.summary["warnings"])
     doc = res.to_dict()
     field_name = "nT" if args.lat is not None else "the reference field's unit"  # IGRF gives nT
     doc["units_of"] = {"offset": res.units or "the outputs' unit", "K": f"{res.units or 'output'} per {field_name}",
@@ -1137,7 +1140,8 @@ def run_cli(args, out=None) -> int:
     with np.printoptions(precision=8, suppress=True):
         print(res.summary["message"], file=out)
         print(f"  U0 = {res.offset} {res.units}".rstrip(), file=out)
-        print(f"  K  = {res.K.tolist()} ({doc['units_of']['K']})", file=out)
+        rows = ", ".join("[" + ", ".join(f"{v:.8g}" for v in row) + "]" for row in res.K)
+        print(f"  K  = [{rows}] ({doc['units_of']['K']})", file=out)
         print(f"  field (N, E, D) = {res.field_ned}  inclination {inclination_of(res.field_ned):.3f}°", file=out)
         v = doc["verification"]
         field_unit = f" {field_name}" if args.lat is not None else f" ({field_name})"
@@ -1150,3 +1154,23 @@ def run_cli(args, out=None) -> int:
     if args.output:
         print(f"wrote {args.output}", file=out)
     return 0
+
+
+GROSS_MISFIT = 0.05  # in-sample |H| error RMS, as a share of the field, that no sensor's noise explains (refine's)
+
+
+def _gross_misfit(report: dict, field_ned, warnings_: list, unit: str) -> str | None:
+    """A warning when the fit leaves the field's magnitude wrong by more than GROSS_MISFIT at its own positions
+    and nothing said so yet: without repeats within positions or a noise σ there is no yardstick for the
+    residual, but 5 % of the field is none's noise (a hand-tumbled stream taken as positions: 20 %, 10.7° of dip,
+    with every parameter poorly determined as the only word)."""
+    size = float(np.linalg.norm(field_ned))
+    error = report.get("magnitude_error_rms", 0.0)
+    if not (size > 0 and error > GROSS_MISFIT * size) or any(w.startswith("the model does not fit") for w in warnings_):
+        return None
+    return (f"the model does not fit the readings: at its own positions the field's magnitude is {error:.4g}{unit} RMS "
+            f"({100 * error / size:.3g} % of it) and the dip {report.get('dip_error_deg_rms', float('nan')):.3g}° "
+            "RMS off, far above a sensor's noise. Check that the rows are held positions (a log taken while the "
+            "device turns is no set of positions: calibrate the magnetometer from it with fluxcal calibrate), the "
+            "reference field (inclination sign, --field order N,E,D), the magnetometer's and accelerometer's axes, "
+            "and magnetic objects near the bench")

@@ -659,3 +659,36 @@ def test_cli_positions_moves_between_positions_with_an_empty_position_cell(tmp_p
     path.write_text("\n".join(("13" + ln[2:]) if ln.startswith("12,") else ln for ln in lines) + "\n")
     r = run_cli("positions", path, "--preset", "twelve", "--frame", "nue", "--field", field, "--bad-lines", "skip")
     assert r.returncode == 2 and "lacks 12; has 13 besides" in r.stderr and "while the device moves" not in r.stderr
+
+
+def test_cli_positions_says_a_stream_of_moving_rows_does_not_fit(tmp_path):
+    """Rows logged while the device swings (0.3 g sideways: |a| within the 5 % tolerance, the vertical 17° off) taken
+    as positions: the fit leaves |H| and the dip grossly wrong at its own positions, and says so first (a blind
+    check's hand-tumbled log had printed 20 % |H| and 10.7° dip errors with "894 parameter(s) poorly determined"
+    as the only word, the 885 headings listed one by one); held rows of the same scene do not."""
+    rng = np.random.default_rng(3)
+    field = np.array([30000.0, 1000.0, 35000.0])
+    s = sim.simulate_positions(sim.random_scene(300, "ned", rng), field, noise=0.05, rng=rng)
+    side = rng.standard_normal((300, 3))
+    side -= np.sum(side * s.acc_true, axis=1, keepdims=True) * s.acc_true / np.sum(s.acc_true**2, axis=1, keepdims=True)
+    swung = s.acc_raw + 0.3 * 9.80665 * side / np.linalg.norm(side, axis=1, keepdims=True)
+    for name, acc, misfit in (("held", s.acc_raw, False), ("swung", swung, True)):
+        path = tmp_path / f"{name}.csv"
+        np.savetxt(path, np.column_stack([acc, s.outputs]), delimiter=",", header="ax,ay,az,mx,my,mz", comments="")
+        r = run_cli("positions", str(path), "--field", ",".join(map(str, field)))
+        assert r.returncode == 0, r.stderr
+        said = [line for line in r.stdout.splitlines() if line.startswith("warning: the model does not fit")]
+        assert bool(said) == misfit, r.stdout
+        assert all(len(line) < 1000 for line in r.stdout.splitlines()), max(map(len, r.stdout.splitlines()))
+    assert "300 of the 300 headings (yaw_0 … yaw_299)" in r.stdout, r.stdout
+
+
+def test_a_gross_misfit_nothing_else_named_is_said():
+    """The backstop when no other misfit test spoke (the blind check's log: 20 % of |H|, its misfit unnamed): 5 % of
+    the field at the fit's own positions is no sensor's noise; below it, or beside another misfit warning, nothing."""
+    field = [37700.0, -2170.0, 25400.0]  # |f| 45 500 nT
+    said = fp._gross_misfit({"magnitude_error_rms": 9246.0, "dip_error_deg_rms": 10.65}, field, [], " nT")
+    assert said.startswith("the model does not fit the readings") and "9246 nT RMS (20.3 % of it)" in said, said
+    assert "held positions" in said and "10.7°" in said, said
+    assert fp._gross_misfit({"magnitude_error_rms": 2000.0, "dip_error_deg_rms": 1.0}, field, [], " nT") is None
+    assert fp._gross_misfit({"magnitude_error_rms": 9246.0}, field, ["the model does not fit the reference …"], "") is None
