@@ -246,8 +246,10 @@ def test_headerless_gradiometer_table_is_not_the_airborne_layout(tmp_path, real_
     path = tmp_path / "grad.txt"
     np.savetxt(path, _gradiometer_rows(), fmt="%.3f", delimiter="\t")
     with pytest.raises(ValueError, match=r"grad.txt, line 1: 10 tab-separated numbers and no header; name the "
-                                         r"columns with --columns"):
+                                         r"columns with --columns") as refused:
         read_recording(path)
+    # the example's t,mx,my,mz,c5… is a pattern: the first row, numbered, shows where the magnetometer is
+    assert "line 1 reads 1: 0.000, 2: 48000.000, 3: 0.000, 4: 20000.000, 5: " in str(refused.value), refused.value
     # the published segment without its _info.txt still reads as the layout, and says it was guessed
     lines = (real_data / "airborne_flt1002_02.tsv").read_text().splitlines(keepends=True)
     for first in (0, 5000, 12000):
@@ -356,3 +358,13 @@ def test_more_bracketed_forms(tmp_path, line, names):
     rec = read_recording(path)
     assert list(rec.columns) == names
     assert rec.samples()[1].tolist() == [49.0, 4.0, -20.0]
+
+
+def test_columns_given_for_every_column_of_a_header_file_name_the_header(tmp_path):
+    """With a header, --columns picks the magnetometer's columns by name: four names for a t,X,Y,Z file are refused
+    with the file's own column names to choose from (a blind check's newcomer had only 'got t, mx, my, mz')."""
+    path = tmp_path / "eight.csv"
+    path.write_text("Collecting time,X,Y,Z\n" + "".join(f"{40 * i},{i % 7},{i % 5},{i % 3}\n" for i in range(50)))
+    with pytest.raises(ValueError, match=r"got t, mx, my, mz; of this file's columns \(Collecting time, X, Y, Z\) "
+                                         r"name those three"):
+        read_recording(path, columns="t,mx,my,mz")

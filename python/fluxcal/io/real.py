@@ -180,9 +180,14 @@ def _read_headerless(path, lines, start, names, columns, units, delimiter) -> Re
         # three columns or fewer hold no time: "t,mx,my" made the x readings the times as well
         example = ",".join(["mx", "my", "mz"][:len(first)] if len(first) <= 3 else
                            ["t", "mx", "my", "mz"] + [f"c{k}" for k in range(5, len(first) + 1)])
+        # Beyond four columns the example's order is a pattern, not a guess that holds (a 10-column IMU log's
+        # gyro then stood in the magnetometer's place): the first row, numbered, lets the reader point at them.
+        shown = "" if len(first) <= 4 else (
+            f"; line {start + 1} reads " + ", ".join(f"{k}: {v}" for k, v in enumerate(first, 1)) +
+            " — name the magnetometer's three mx,my,mz where they are (and ax,ay,az an accelerometer's, t a clock)")
         raise ValueError(f"{path}, line {start + 1}: {len(first)} {sep}-separated numbers and no header; name the "
                          f"columns with --columns (Python: columns=; one name per column, e.g. {example}) or add a header "
-                         "line")
+                         f"line{shown}")
     data, line_numbers, notes = parse_rows(path, lines, start, AIRBORNE_COLUMNS, delimiter,
                                            expected="the airborne layout")
     metadata = {"layout": f"airborne MagNav segment: time, flux x,y,z, INS pitch,roll,yaw, IGRF N,E,D ({why})",

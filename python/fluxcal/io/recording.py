@@ -56,8 +56,10 @@ class Recording:
         two columns are a biaxial sensor's (which axes: by their names, else x,y — see `take_axes`)."""
         names = tuple(n.strip() for n in names.split(",")) if isinstance(names, str) else tuple(names)
         if len(names) not in (2, 3):
+            # with a header, --columns names the magnetometer's among its columns (a newcomer had named every one)
+            header = f"; of this file's columns ({', '.join(self.columns)}) name those three" if self.columns else ""
             raise ValueError(f"{self.source}: need three magnetometer columns (or two of a biaxial sensor), got "
-                             f"{', '.join(names) or 'none'}")
+                             f"{', '.join(names) or 'none'}{header}")
         if len(set(names)) != len(names):
             raise ValueError(f"{self.source}: magnetometer columns {', '.join(names)} repeat a name; give "
                              f"{'three' if len(names) == 3 else 'two'} different columns")
