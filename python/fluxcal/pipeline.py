@@ -256,7 +256,10 @@ def misfit_said(cal: Calibration, own: tuple[float, int] | None, planar: bool = 
 
 
 def noise_method(stride: int) -> str:
-    """How readings_noise's σ was measured, for a printout (stride: readings_noise's)."""
+    """How readings_noise's σ was measured, for a printout (stride: readings_noise's; 0 when the readings' own
+    differences, its floor, were the larger: a blind check found them labelled as the residuals')."""
+    if stride == 0:
+        return "third differences of the readings in time order, above those of the fit's residuals"
     return ("third differences in time order of the fit's residuals, "
             + ("consecutive readings" if stride == 1 else f"{stride} readings apart"))
 

@@ -200,3 +200,21 @@ def test_each_readings_field_is_taken_out_of_the_noise_yardstick():
     cal = fluxcal.calibrate(m, field_norm=k * H)
     assert not misses(cal)
     assert cal.summary["readings_noise_stride"] == 8 and cal.summary["readings_noise_sigma"] < 0.08
+
+
+@pytest.mark.parametrize("seed", [0, 1, 2])
+@pytest.mark.parametrize("every", [10, 20])
+def test_a_fast_turn_s_motion_is_not_taken_for_its_noise(seed, every):
+    """The hand turn logged at 5 or 2.5 Hz: its readings' own third differences hold the turning (0.4–3 µT against
+    0.1 of noise), which had been the floor of the noise printed beside the residual σ — labelled as the residuals'
+    (a blind check's figure-8, 6.6 counts where diagnose measured 1.7). Now, as diagnose judges, the residuals'
+    differences give the noise (measured 0.079–0.122 µT), and the printout names where it came from."""
+    from fluxcal.diagnose.core import time_series_noise
+    from fluxcal.pipeline import noise_method
+
+    m = hand_turned(seed).readings[::every]
+    cal = fluxcal.calibrate(m)
+    assert time_series_noise(m) > 3 * 0.1
+    assert 0.07 < cal.summary["readings_noise_sigma"] < 0.13 and cal.summary["readings_noise_stride"] >= 1
+    assert not misses(cal)
+    assert noise_method(0).startswith("third differences of the readings") and "residuals, consecutive" in noise_method(1)

@@ -1333,7 +1333,8 @@ def diagnose_cable(readings, ring: Ring, currents=None, rotations_deg=None, posi
     if progress:
         from tqdm import tqdm
 
-        bar = tqdm(total=len(pool) * (max_effects + 1), desc="diagnose cable", unit="candidate", leave=False)
+        bar = tqdm(total=len(pool) * (max_effects + 1), desc="diagnose cable", unit="candidate", leave=False,
+                   disable=None)  # None: no bar when stderr is no terminal
     previous_winner = None
     for _round in range(max_effects + 1):
         rows = []

@@ -347,7 +347,10 @@ def residual_noise(readings, residuals, directions, t=None) -> tuple[float, int]
     residuals (one per reading, the readings' unit) against: noise_within_turns of the residuals in time order
     (`directions`: the corrected field's unit vectors), never below the readings' own third differences
     (time_series_noise), whose test of being a time series it takes. `t`: the rows' times (ordered by them), else row
-    order. None for rows that are no time series."""
+    order. Stride 0: the readings' own differences were the larger, and taken. They are not when they hold the
+    motion (diagnose's _noise rule: their 4th-order σ departs from the 3rd, or the residuals' σ is below BELOW_NOISE
+    of theirs): a figure-8 turned fast had its readings' 6.6 counts of turning taken for noise where diagnose
+    measured 1.7. None for rows that are no time series."""
     x, r, u = (np.asarray(a, dtype=float) for a in (readings, residuals, directions))
     order = slice(None) if t is None or len(t) != len(x) else np.argsort(t, kind="stable")
     x, r, u = x[order], r[order], u[order]
@@ -357,7 +360,10 @@ def residual_noise(readings, residuals, directions, t=None) -> tuple[float, int]
     changed = changed_rows(x)  # (as the readings' own σ leaves a logger's repeats out)
     with np.errstate(all="ignore"):  # (a reading far off the fit may overflow its square; the MAD ignores it)
         sigma, stride = noise_within_turns(r[changed], u[changed])
-    return (sigma, stride) if sigma > white else (white, 1)
+    if sigma > white:
+        return sigma, stride
+    steady = time_series_noise(x, steady=True) is not None
+    return (white, 0) if steady and sigma >= BELOW_NOISE * white else (sigma, stride)
 
 
 def noise_within_turns(residuals, directions) -> tuple[float, int]:
@@ -2534,7 +2540,8 @@ def diagnose(samples, t=None, temp=None, reference=None, gravity=None, field_nor
     if progress:
         from tqdm import tqdm
 
-        bar = tqdm(total=len(pool) * (max_effects + 1), desc="diagnose", unit="candidate", leave=False)
+        bar = tqdm(total=len(pool) * (max_effects + 1), desc="diagnose", unit="candidate", leave=False,
+                   disable=None)  # None: no bar when stderr is no terminal (a log file filled with \r lines)
     previous_winner, moves = None, []
     by_base = set()  # candidates the base model's own parameters absorb (before any effect is accepted)
 

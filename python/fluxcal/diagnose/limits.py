@@ -193,7 +193,8 @@ def detection_limits(samples, t=None, temp=None, current=None, reference=None, g
     if progress:
         from tqdm import tqdm
 
-        bar = tqdm(total=len(wanted), desc="detection limits", unit="candidate", leave=False)
+        bar = tqdm(total=len(wanted), desc="detection limits", unit="candidate", leave=False,
+                   disable=None)  # None: no bar when stderr is no terminal
     rows = []
     for name in wanted:
         made_up = [key for key in ("temp", "current") if own[key] is None and key in NEEDS[name]]
