@@ -67,6 +67,14 @@ inline constexpr const char* kTwoDAdvice =
     "plane (fluxcal calibrate --planar; in Python fluxcal.calibrate_planar, with the horizontal field as the known "
     "norm)";
 
+/// Residuals above this fraction of the field are no sensor's noise: the readings do not fit the model, and a
+/// parameter left undetermined by them wants the model checked, not more turning.
+inline constexpr double kMisfitFraction = 0.05;
+/// Where a magnitude fit's misfit comes from, for its warnings.
+inline constexpr const char* kMagnitudeMisfitCauses =
+    "for outliers or a disturbance (a magnet, a motor or a current near the sensor while it turned: fluxcal diagnose "
+    "looks for the cause)";
+
 /// A ratio as a percentage for a message: three significant digits ("12.3 %").
 inline std::string percent(double ratio) {
   char buf[32];

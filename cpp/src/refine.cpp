@@ -266,8 +266,6 @@ double robust_variance(const ceres::LossFunction& loss, Scores& sc, int p, doubl
   return K * K * psi_sq / (nk - p) / (mean * mean);
 }
 
-constexpr double kMisfitFraction = 0.05;  // residual σ̂ / field above which a fit is a misfit, not noise
-
 // The residuals' test for correlation in time and, as the options say, the Newey–West sandwich (long_run.hpp).
 void serial_correlation(RefineResult& out, const Eigen::MatrixXd& Finv, bool singular, const Scores& sc,
                         const RefineOptions& opt) {
@@ -301,16 +299,15 @@ void finish_statistics(RefineResult& out, const Eigen::MatrixXd& F, double sigma
   // Residuals of several % of the field are no sensor's noise: then the standard errors are large because
   // the readings do not fit the model, and "rotate more" would send the user the wrong way.
   const double misfit = std::sqrt(sigma2) / scales(0);
-  if (!out.identifiable && misfit > kMisfitFraction)
+  if (!out.identifiable && misfit > detail::kMisfitFraction)
     out.summary.warnings.push_back(
         "not identifiable: the data do not determine " + undetermined.str() + " (standard error above " +
         percent(opt.determined_tolerance) + " of its scale) because the residuals are " + percent(misfit) +
         " of the field, far above a sensor's noise: the readings do not fit the model — check " +
         (vector_model ? "the reference vectors' attitude convention and time alignment, outliers or a disturbance"
-                      : "for outliers or a disturbance (a magnet, a motor or a current near the sensor while it "
-                        "turned: fluxcal diagnose looks for the cause)") +
+                      : detail::kMagnitudeMisfitCauses) +
         ", and that the start is in the readings' units");
-  else if (misfit > kMisfitFraction)  // determined, yet not by a model that fits: the answer may be biased
+  else if (misfit > detail::kMisfitFraction)  // determined, yet not by a model that fits: the answer may be biased
     out.summary.warnings.push_back(
         "the residuals are " + percent(misfit) + " of the field, far above a sensor's noise: the readings do not "
         "fit the model, and the calibration may be biased by what it misses beyond its standard errors — check " +

@@ -515,12 +515,19 @@ Calibration calibration_of(const Model3D& model, const Eigen::Vector3d& centre, 
 void parameter_covariance(TwoStepResult& out, const SamplesRef& samples, const Model3D& m, double mu, const Mat9& F,
                           const Eigen::Vector3d& centre, double scale, double H, const Eigen::VectorXd* relative,
                           const TwoStepOptions& options) {
+  constexpr Eigen::Index p = 9;
+  const Eigen::Index n = samples.rows();
+  if (n <= p) {  // an exact fit: no residual is left to measure the noise by (its σ̂² would be 0/0)
+    out.summary.warnings.push_back(
+        "no standard errors: " + std::to_string(n) + " readings fit the 9 parameters exactly, leaving no residual to "
+        "measure the noise by; log at least 10 readings (hundreds, while turning the sensor, for errors worth having)");
+    return;
+  }
   const Calibration& cal = out.calibration;
   out.parameter_names = {"b0", "b1", "b2", "a00", "a01", "a02", "a11", "a12", "a22"};
   out.parameters.resize(9);
   out.parameters << cal.offset, cal.matrix(0, 0), cal.matrix(0, 1), cal.matrix(0, 2), cal.matrix(1, 1),
       cal.matrix(1, 2), cal.matrix(2, 2);
-  const Eigen::Index n = samples.rows();
   const Eigen::MatrixXd X =
       ((samples.rowwise() - centre.transpose()) / scale).rowwise() - m.q.transpose();  // x_k, rows
   const Eigen::MatrixXd NX = X * m.N;
@@ -540,15 +547,23 @@ void parameter_covariance(TwoStepResult& out, const SamplesRef& samples, const M
   constexpr int pairs[3][2] = {{0, 1}, {0, 2}, {1, 2}};
   for (int c = 0; c < 3; ++c)
     scores.col(6 + c) = (2.0 * rw * X.col(pairs[c][0]).array() * X.col(pairs[c][1]).array()).matrix();
-  // μ′ is the tenth fitted number when estimated from the residuals (noise_sigma < 0)
-  const double dof = static_cast<double>(n) - (options.noise_sigma < 0.0 ? 10.0 : 9.0);
-  const double sigma2 = r.square().sum() / std::max(dof, 1.0);
+  // μ′ is no free parameter (N's scale absorbs a constant in R): N − 9 degrees of freedom
+  const double sigma2 = r.square().sum() / static_cast<double>(n - p);
   const detail::ScaledInverse Finv = detail::scaled_inverse(F);
-  Eigen::MatrixXd cov = sigma2 * Finv.inverse;
-  const Eigen::MatrixXd independent_theta = cov;
-  // R is relative to H²: residuals at rounding (readings without noise) have no correlation worth a sandwich (exact
-  // readings' rounding widened an error 2×)
+  // R's variance follows |Aᵀĥ|² around the ellipsoid (4 H² ĥᵀA Aᵀĥ σ²): for a strongly anisotropic A the readings
+  // are not equally noisy, and over 200 runs of 300 readings (gains 0.6/1/1.6) σ̂² F⁻¹ gave 0.86–1.12× the spread,
+  // the sandwich F⁻¹ Σ g gᵀ F⁻¹ 0.91–1.08×. A sandwich of fewer than 10 readings a parameter is noisy (long_run.hpp):
+  // then σ̂² F⁻¹. R is relative to H²: residuals at rounding (readings without noise) have no structure worth a
+  // sandwich (exact readings' rounding had widened an error 2× under Newey–West).
   const bool rounding = std::sqrt(sigma2) < 1e3 * std::numeric_limits<double>::epsilon();
+  Eigen::MatrixXd cov = sigma2 * Finv.inverse;
+  if (n >= 10 * p && !Finv.singular && !rounding) {
+    Eigen::MatrixXd hc = Finv.inverse * (scores.transpose() * scores) * Finv.inverse *
+                         (static_cast<double>(n) / static_cast<double>(n - p));
+    hc = 0.5 * (hc + hc.transpose());
+    if (hc.allFinite()) cov = hc;
+  }
+  const Eigen::MatrixXd independent_theta = cov;
   const std::string correlated = detail::correct_for_serial_correlation(
       cov, out.serial_correlation, r.matrix(), scores, Finv.inverse, Finv.singular,
       rounding ? SerialCorrelation::independent : options.serial_correlation, options.serial_correlation_alpha);
@@ -597,10 +612,16 @@ void parameter_covariance(TwoStepResult& out, const SamplesRef& samples, const M
     undetermined += (out.identifiable ? "" : ", ") + out.parameter_names[static_cast<std::size_t>(k)];
     out.identifiable = false;
   }
+  // (as refine: residuals of several % of the field make the errors large, and "turn more" would mislead)
+  const double misfit = out.summary.residual_rms / H;
   if (!out.identifiable)
-    out.summary.warnings.push_back("not identifiable: the data do not determine " + undetermined +
-                                   " (standard error above " + percent(options.determined_tolerance) +
-                                   " of its scale); " + std::string(detail::kTurnAdvice));
+    out.summary.warnings.push_back(
+        "not identifiable: the data do not determine " + undetermined + " (standard error above " +
+        percent(options.determined_tolerance) + " of its scale)" +
+        (misfit > detail::kMisfitFraction
+             ? " because the residuals are " + percent(misfit) + " of the field, far above a sensor's noise: the "
+               "readings do not fit the model — check " + std::string(detail::kMagnitudeMisfitCauses)
+             : "; log more readings (the errors shrink as 1/√N), or " + std::string(detail::kTurnAdvice)));
 }
 
 // How far the readings lie from a model's ellipsoid |h| = radius (times reading i's `relative` field magnitude, when

@@ -135,21 +135,27 @@ def twostep(samples, field_norm, iterate: bool = True, noise_sigma: float = -1.0
 
 
 def twostep_covariance(samples, field_norm, offset, matrix) -> np.ndarray:
-    """Covariance of [b0 b1 b2 a00 a01 a02 a11 a12 a22] at a TWOSTEP result, as a maximum-likelihood fit of
-    e_k = |A(m_k − b)| − H_k would state it: s² (JᵀJ)⁻¹, J the analytic Jacobian, s² the variance of e about its
-    mean over N − 10 (9 parameters and the noise mean). To first order in the noise the same as the core's
-    Fisher information of Σ w_k R_k² (another residual, another route)."""
+    """Covariance of [b0 b1 b2 a00 a01 a02 a11 a12 a22] at a TWOSTEP result, from its objective Σ w_k R_k² written
+    in those parameters: R_k = |A(m_k − b)|² − H_k² about its weighted mean (the noise mean), w_k = 1/H_k², J_k its
+    analytic gradient. The sandwich B⁻¹ M B⁻¹ · N/(N − 9), B = Σ w J Jᵀ, M = Σ w² R² J Jᵀ, from 90 readings (R's
+    variance changes around the ellipsoid); below, s² B⁻¹ with s² = Σ w R²/(N − 9). (The core forms the same in its
+    normalised quadric's parameters and carries it over by the delta method.)"""
     m = np.asarray(samples, dtype=float)
     A = np.asarray(matrix, dtype=float)
     d = m - np.asarray(offset, dtype=float)
     h = d @ A.T
-    norm = np.linalg.norm(h, axis=1)
-    e = norm - np.broadcast_to(np.asarray(field_norm, dtype=float), len(m))
-    u = h / norm[:, None]                                   # ∂|h|/∂h
+    H2 = np.broadcast_to(np.asarray(field_norm, dtype=float), len(m)) ** 2
+    w = 1.0 / H2
+    R = np.sum(h * h, axis=1) - H2
+    R = R - np.sum(w * R) / np.sum(w)
     J = np.empty((len(m), 9))
-    J[:, :3] = -u @ A                                       # ∂|h|/∂b = −uᵀA
+    J[:, :3] = -2.0 * h @ A                                 # ∂|h|²/∂b = −2 hᵀA
     for col, (i, j) in enumerate([(0, 0), (0, 1), (0, 2), (1, 1), (1, 2), (2, 2)]):
         # A_ij = A_ji: ∂h/∂a_ij moves h_i by d_j and (off the diagonal) h_j by d_i
-        J[:, 3 + col] = u[:, i] * d[:, j] + (u[:, j] * d[:, i] if i != j else 0.0)
-    s2 = np.sum((e - e.mean()) ** 2) / (len(m) - 10)
-    return s2 * np.linalg.inv(J.T @ J)
+        J[:, 3 + col] = 2.0 * (h[:, i] * d[:, j] + (h[:, j] * d[:, i] if i != j else 0.0))
+    n, p = J.shape
+    B_inv = np.linalg.inv(J.T @ (w[:, None] * J))
+    if n >= 10 * p:
+        g = (w * R)[:, None] * J
+        return B_inv @ (g.T @ g) @ B_inv * n / (n - p)
+    return np.sum(w * R**2) / (n - p) * B_inv
