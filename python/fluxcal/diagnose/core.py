@@ -347,10 +347,11 @@ def residual_noise(readings, residuals, directions, t=None) -> tuple[float, int]
     residuals (one per reading, the readings' unit) against: noise_within_turns of the residuals in time order
     (`directions`: the corrected field's unit vectors), never below the readings' own third differences
     (time_series_noise), whose test of being a time series it takes. `t`: the rows' times (ordered by them), else row
-    order. Stride 0: the readings' own differences were the larger, and taken. They are not when they hold the
-    motion (diagnose's _noise rule: their 4th-order σ departs from the 3rd, or the residuals' σ is below BELOW_NOISE
-    of theirs): a figure-8 turned fast had its readings' 6.6 counts of turning taken for noise where diagnose
-    measured 1.7. None for rows that are no time series."""
+    order. Stride 0: the readings' own differences were the larger, and taken — also when they hold the motion of a
+    fast turn (a figure-8's 6.6 counts where diagnose measured 1.7): the residuals' differences then cannot tell noise
+    correlated over a few readings (a sensor's low-pass filter) from white, and taking them for the yardstick had
+    said "the model misses" of right models at 3.7–6.8× (a review's simulations); the printout says that the
+    readings' differences hold the turning (noise_line). None for rows that are no time series."""
     x, r, u = (np.asarray(a, dtype=float) for a in (readings, residuals, directions))
     order = slice(None) if t is None or len(t) != len(x) else np.argsort(t, kind="stable")
     x, r, u = x[order], r[order], u[order]
@@ -360,10 +361,7 @@ def residual_noise(readings, residuals, directions, t=None) -> tuple[float, int]
     changed = changed_rows(x)  # (as the readings' own σ leaves a logger's repeats out)
     with np.errstate(all="ignore"):  # (a reading far off the fit may overflow its square; the MAD ignores it)
         sigma, stride = noise_within_turns(r[changed], u[changed])
-    if sigma > white:
-        return sigma, stride
-    steady = time_series_noise(x, steady=True) is not None
-    return (white, 0) if steady and sigma >= BELOW_NOISE * white else (sigma, stride)
+    return (sigma, stride) if sigma > white else (white, 0)
 
 
 def noise_within_turns(residuals, directions) -> tuple[float, int]:
