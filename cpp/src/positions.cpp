@@ -275,25 +275,35 @@ void fill_summary(PositionsResult& r, const char* what) {
   std::ostringstream msg;
   msg << what << ": " << n << " positions, residual RMS " << fmt(r.summary.residual_rms)
       << (r.units.empty() ? "" : " " + r.units) << ", condition number " << fmt(r.summary.condition_number, 3);
-  // Named one by one, but for the headings: a long log's hundreds of yaw_i are counted (a stream of 885 rows
-  // taken as positions had listed 894 names in one 7 kB line).
-  std::vector<std::string> named, headings;
-  std::size_t all_headings = 0;
+  // Named one by one, but for the per-position unknowns (headings, levelling tilts): a long log's hundreds of
+  // yaw_i are counted (a stream of 885 rows taken as positions had listed 894 names in one 7 kB line).
+  const auto kind = [](const std::string& name) -> int {  // 0: named; 1–3: per position
+    if (name.rfind("yaw_", 0) == 0) return 1;
+    if (name.rfind("tilt_", 0) != 0) return 0;
+    return name.size() >= 6 && name.compare(name.size() - 6, 6, "_north") == 0 ? 2 : 3;
+  };
+  constexpr const char* kKinds[4] = {"", "headings", "north tilts", "east tilts"};
+  std::vector<std::string> poor[4];
+  std::size_t all[4] = {0, 0, 0, 0};
   for (std::size_t j = 0; j < r.determined.size(); ++j) {
-    const bool heading = r.parameter_names[j].rfind("yaw_", 0) == 0;
-    all_headings += heading ? 1 : 0;
-    if (!r.determined[j]) (heading ? headings : named).push_back(r.parameter_names[j]);
+    const int k = kind(r.parameter_names[j]);
+    ++all[k];
+    if (!r.determined[j]) poor[k].push_back(r.parameter_names[j]);
   }
-  if (!named.empty() || !headings.empty()) {
+  const std::size_t total = poor[0].size() + poor[1].size() + poor[2].size() + poor[3].size();
+  if (total > 0) {
     std::ostringstream w;
-    w << named.size() + headings.size() << " parameter(s) poorly determined:";
-    for (const std::string& name : named) w << " " << name;
+    w << total << " parameter(s) poorly determined:";
     constexpr std::size_t kListed = 6;
-    if (headings.size() <= kListed)
-      for (const std::string& name : headings) w << " " << name;
-    else
-      w << " " << headings.size() << " of the " << all_headings << " headings (" << headings.front() << " … "
-        << headings.back() << ")";
+    bool listed = false;  // (a count follows names or another count after a semicolon)
+    for (int k = 0; k < 4; ++k) {
+      if (k == 0 || poor[k].size() <= kListed)
+        for (const std::string& name : poor[k]) w << " " << name;
+      else
+        w << (listed ? "; " : " ") << poor[k].size() << " of the " << all[k] << " " << kKinds[k] << " (first "
+          << poor[k].front() << ", last " << poor[k].back() << ")";
+      listed = listed || !poor[k].empty();
+    }
     r.summary.warnings.push_back(w.str());
   }
   r.summary.message = msg.str();

@@ -468,6 +468,10 @@ def calibrate(mag, acc, field_ned, frame: str = "ned", preset=None, attitudes=No
                 res.summary["warnings"] = [w for w in res.summary["warnings"]
                                            if not w.startswith("K is an axis relabelling")]
             res.summary["warnings"].append(said)
+    gross = _gross_misfit(res.verify(U, acc, preset=preset, attitudes=attitudes, rotations=rotations,
+                                     acc_measures=acc_measures), f, res.summary["warnings"], "")
+    if gross:
+        res.summary["warnings"] = _misfit_first(res, gross, res.summary["warnings"])
     return res
 
 
@@ -1118,13 +1122,15 @@ def run_cli(args, out=None) -> int:
     extra_warnings += [w for w in _unit_warnings(res, f, units, args.lat is not None)  # calibrate's own: once
                        if w not in res.summary["warnings"]]
     misfit = [w for w in extra_warnings if w.startswith("the model does not fit")]
-    warnings_ = list(res.summary["warnings"]) + [w for w in extra_warnings if w not in misfit]
+    # (calibrate's own gross-misfit warning is said again below, in the field's unit, unless a misfit came first)
+    warnings_ = [w for w in res.summary["warnings"] if not w.startswith(GROSS_SAID)] + \
+        [w for w in extra_warnings if w not in misfit]
     res.summary["warnings"] = _misfit_first(res, misfit[0], warnings_) if misfit else warnings_
     report = res.verify(mag, acc, preset=args.preset, acc_measures=args.acc_measures) if args.preset else \
         res.verify(mag, acc, acc_measures=args.acc_measures)
     gross = _gross_misfit(report, f, res.summary["warnings"], " nT" if args.lat is not None else "")
     if gross:
-        res.summary["warnings"] = [gross] + list(res.summary["warnings"])
+        res.summary["warnings"] = _misfit_first(res, gross, res.summary["warnings"])
     doc = res.to_dict()
     field_name = "nT" if args.lat is not None else "the reference field's unit"  # IGRF gives nT
     doc["units_of"] = {"offset": res.units or "the outputs' unit", "K": f"{res.units or 'output'} per {field_name}",
@@ -1157,6 +1163,7 @@ def run_cli(args, out=None) -> int:
 
 
 GROSS_MISFIT = 0.05  # in-sample |H| error RMS, as a share of the field, that no sensor's noise explains (refine's)
+GROSS_SAID = "the model does not fit the readings: at its own positions"
 
 
 def _gross_misfit(report: dict, field_ned, warnings_: list, unit: str) -> str | None:
@@ -1168,7 +1175,7 @@ def _gross_misfit(report: dict, field_ned, warnings_: list, unit: str) -> str | 
     error = report.get("magnitude_error_rms", 0.0)
     if not (size > 0 and error > GROSS_MISFIT * size) or any(w.startswith("the model does not fit") for w in warnings_):
         return None
-    return (f"the model does not fit the readings: at its own positions the field's magnitude is {error:.4g}{unit} RMS "
+    return (f"{GROSS_SAID} the field's magnitude is {error:.4g}{unit} RMS "
             f"({100 * error / size:.3g} % of it) and the dip {report.get('dip_error_deg_rms', float('nan')):.3g}° "
             "RMS off, far above a sensor's noise. Check that the rows are held positions (a log taken while the "
             "device turns is no set of positions: calibrate the magnetometer from it with fluxcal calibrate), the "

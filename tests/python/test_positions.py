@@ -680,7 +680,14 @@ def test_cli_positions_says_a_stream_of_moving_rows_does_not_fit(tmp_path):
         said = [line for line in r.stdout.splitlines() if line.startswith("warning: the model does not fit")]
         assert bool(said) == misfit, r.stdout
         assert all(len(line) < 1000 for line in r.stdout.splitlines()), max(map(len, r.stdout.splitlines()))
-    assert "300 of the 300 headings (yaw_0 … yaw_299)" in r.stdout, r.stdout
+    assert "300 of the 300 headings (first yaw_0, last yaw_299)" in r.stdout, r.stdout
+    assert "their standard errors scale with the residual RMS" in r.stdout, r.stdout
+    # the Python API says a misfit first too (here its misplaced field), and the gross misfit only when none did
+    res = fp.calibrate(s.outputs, swung, field)
+    assert res.summary["warnings"][0].startswith("the model does not fit"), res.summary["warnings"][0]
+    assert not any(w.startswith(fp.GROSS_SAID) for w in res.summary["warnings"])
+    assert any("headings (first yaw_0" in w and "residual RMS" in w for w in res.summary["warnings"])
+    assert not any(w.startswith(fp.GROSS_SAID) for w in fp.calibrate(s.outputs, s.acc_raw, field).summary["warnings"])
 
 
 def test_a_gross_misfit_nothing_else_named_is_said():
@@ -692,3 +699,34 @@ def test_a_gross_misfit_nothing_else_named_is_said():
     assert "held positions" in said and "10.7°" in said, said
     assert fp._gross_misfit({"magnitude_error_rms": 2000.0, "dip_error_deg_rms": 1.0}, field, [], " nT") is None
     assert fp._gross_misfit({"magnitude_error_rms": 9246.0}, field, ["the model does not fit the reference …"], "") is None
+
+
+def test_calibrate_itself_says_a_gross_misfit_first(monkeypatch):
+    """The gross-misfit backstop is calibrate's, not only the command line's: with the other misfit tests silenced
+    and its threshold at 1 % (the swung stream leaves 2.8 % of |H|), the API's first warning is it, and "poorly
+    determined" says the misfit inflates the errors."""
+    monkeypatch.setattr(fp, "MISPLACED_DEG", 1e9)
+    monkeypatch.setattr(fp, "LOOK_DEG", 1e9)
+    monkeypatch.setattr(fp, "GROSS_MISFIT", 0.01)
+    rng = np.random.default_rng(3)
+    field = np.array([30000.0, 1000.0, 35000.0])
+    s = sim.simulate_positions(sim.random_scene(300, "ned", rng), field, noise=0.05, rng=rng)
+    side = rng.standard_normal((300, 3))
+    side -= np.sum(side * s.acc_true, axis=1, keepdims=True) * s.acc_true / np.sum(s.acc_true**2, axis=1, keepdims=True)
+    swung = s.acc_raw + 0.3 * 9.80665 * side / np.linalg.norm(side, axis=1, keepdims=True)
+    said = fp.calibrate(s.outputs, swung, field).summary["warnings"]
+    assert said[0].startswith(fp.GROSS_SAID), said[0]
+    assert any("poorly determined" in w and "which the misfit above inflates" in w for w in said)
+    assert not any(w.startswith(fp.GROSS_SAID) for w in fp.calibrate(s.outputs, s.acc_raw, field).summary["warnings"])
+
+
+def test_many_levelling_tilts_poorly_determined_are_counted_not_listed():
+    """40 positions with levelling corrections (tilt_sigma_deg): the poorly determined headings and tilts are counted
+    per kind, first and last named, as the headings alone had been (80 tilt names had filled the line)."""
+    rng = np.random.default_rng(3)
+    field = np.array([30000.0, 1000.0, 35000.0])
+    s = sim.simulate_positions(sim.random_scene(40, "ned", rng), field, noise=0.05, rng=rng)
+    said = next(w for w in fp.calibrate(s.outputs, s.acc_raw, field, tilt_sigma_deg=2.0).summary["warnings"]
+                if "poorly determined" in w)
+    assert "of the 40 headings (first yaw_" in said and "of the 40 north tilts (first tilt_" in said, said
+    assert "; " in said and said.count("tilt_") == 4 and len(said) < 400, said
