@@ -113,7 +113,8 @@ inline EllipsoidShape ellipsoid_shape(const Eigen::Matrix3d& M, const Eigen::Vec
         << (samples > 0 && samples < kFewReadings
                 ? "only " + std::to_string(samples) + " readings: with so few, the noise decides the quadric's shape "
                   "— record a few hundred while turning the sensor"
-                : std::string("check that the columns are one magnetometer's x, y, z (--columns), and for mixed "
+                : std::string("check that the columns are one magnetometer's x, y, z (from a file: the reader's columns=, "
+                              "fluxcal's --columns), and for mixed "
                               "recordings, saturation or a field that changes during the recording"));
     throw Error(msg.str());
   }

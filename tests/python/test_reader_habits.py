@@ -366,5 +366,17 @@ def test_columns_given_for_every_column_of_a_header_file_name_the_header(tmp_pat
     path = tmp_path / "eight.csv"
     path.write_text("Collecting time,X,Y,Z\n" + "".join(f"{40 * i},{i % 7},{i % 5},{i % 3}\n" for i in range(50)))
     with pytest.raises(ValueError, match=r"got t, mx, my, mz; of this file's columns \(Collecting time, X, Y, Z\) "
-                                         r"name those three"):
+                                         r"name the magnetometer's three \(two for a biaxial sensor\)"):
         read_recording(path, columns="t,mx,my,mz")
+
+
+def test_a_very_wide_header_less_row_is_shown_elided(tmp_path):
+    """A 40-column header-less log: the refusal's example and numbered first row show 11 columns, "…" and the last
+    (all 40 had filled three terminal lines)."""
+    path = tmp_path / "wide.csv"
+    path.write_text("".join(",".join(f"{i + k}.5" for k in range(40)) + "\n" for i in range(30)))
+    with pytest.raises(ValueError) as err:
+        read_recording(path)
+    said = str(err.value)
+    assert "t,mx,my,mz,c5,c6,c7,c8,c9,c10,c11,…,c40" in said and "11: 10.5, …, 40: 39.5" in said, said
+    assert "12: " not in said and len(said) < 600, len(said)

@@ -57,7 +57,7 @@ class Recording:
         names = tuple(n.strip() for n in names.split(",")) if isinstance(names, str) else tuple(names)
         if len(names) not in (2, 3):
             # with a header, --columns names the magnetometer's among its columns (a newcomer had named every one)
-            header = f"; of this file's columns ({', '.join(self.columns)}) name those three" if self.columns else ""
+            header = f"; of this file's columns ({', '.join(self.columns)}) name the magnetometer's three (two for a biaxial sensor)" if self.columns else ""
             raise ValueError(f"{self.source}: need three magnetometer columns (or two of a biaxial sensor), got "
                              f"{', '.join(names) or 'none'}{header}")
         if len(set(names)) != len(names):
