@@ -661,17 +661,23 @@ def test_cli_positions_moves_between_positions_with_an_empty_position_cell(tmp_p
     assert r.returncode == 2 and "lacks 12; has 13 besides" in r.stderr and "while the device moves" not in r.stderr
 
 
-def test_cli_positions_says_a_stream_of_moving_rows_does_not_fit(tmp_path):
-    """Rows logged while the device swings (0.3 g sideways: |a| within the 5 % tolerance, the vertical 17° off) taken
-    as positions: the fit leaves |H| and the dip grossly wrong at its own positions, and says so first (a blind
-    check's hand-tumbled log had printed 20 % |H| and 10.7° dip errors with "894 parameter(s) poorly determined"
-    as the only word, the 885 headings listed one by one); held rows of the same scene do not."""
+def swung_stream():
+    """300 held positions (seed 3, 0.05 output noise) and the same rows' accelerometer swung 0.3 g sideways (|a|
+    within the 5 % tolerance, the vertical 17° off): (the simulation, the field N,E,D, the swung readings)."""
     rng = np.random.default_rng(3)
     field = np.array([30000.0, 1000.0, 35000.0])
     s = sim.simulate_positions(sim.random_scene(300, "ned", rng), field, noise=0.05, rng=rng)
     side = rng.standard_normal((300, 3))
     side -= np.sum(side * s.acc_true, axis=1, keepdims=True) * s.acc_true / np.sum(s.acc_true**2, axis=1, keepdims=True)
-    swung = s.acc_raw + 0.3 * 9.80665 * side / np.linalg.norm(side, axis=1, keepdims=True)
+    return s, field, s.acc_raw + 0.3 * 9.80665 * side / np.linalg.norm(side, axis=1, keepdims=True)
+
+
+def test_cli_positions_says_a_stream_of_moving_rows_does_not_fit(tmp_path):
+    """Rows logged while the device swings (0.3 g sideways: |a| within the 5 % tolerance, the vertical 17° off) taken
+    as positions: the fit leaves |H| and the dip grossly wrong at its own positions, and says so first (a blind
+    check's hand-tumbled log had printed 20 % |H| and 10.7° dip errors with "894 parameter(s) poorly determined"
+    as the only word, the 885 headings listed one by one); held rows of the same scene do not."""
+    s, field, swung = swung_stream()
     for name, acc, misfit in (("held", s.acc_raw, False), ("swung", swung, True)):
         path = tmp_path / f"{name}.csv"
         np.savetxt(path, np.column_stack([acc, s.outputs]), delimiter=",", header="ax,ay,az,mx,my,mz", comments="")
@@ -708,12 +714,7 @@ def test_calibrate_itself_says_a_gross_misfit_first(monkeypatch):
     monkeypatch.setattr(fp, "MISPLACED_DEG", 1e9)
     monkeypatch.setattr(fp, "LOOK_DEG", 1e9)
     monkeypatch.setattr(fp, "GROSS_MISFIT", 0.01)
-    rng = np.random.default_rng(3)
-    field = np.array([30000.0, 1000.0, 35000.0])
-    s = sim.simulate_positions(sim.random_scene(300, "ned", rng), field, noise=0.05, rng=rng)
-    side = rng.standard_normal((300, 3))
-    side -= np.sum(side * s.acc_true, axis=1, keepdims=True) * s.acc_true / np.sum(s.acc_true**2, axis=1, keepdims=True)
-    swung = s.acc_raw + 0.3 * 9.80665 * side / np.linalg.norm(side, axis=1, keepdims=True)
+    s, field, swung = swung_stream()
     said = fp.calibrate(s.outputs, swung, field).summary["warnings"]
     assert said[0].startswith(fp.GROSS_SAID), said[0]
     assert any("poorly determined" in w and "which the misfit above inflates" in w for w in said)
