@@ -21,8 +21,8 @@ ScaledInverse scaled_inverse(const Eigen::MatrixXd& F);
 Eigen::MatrixXd prewhitened_long_run(const Eigen::MatrixXd& scores, int& lags);
 
 /// Tests `residuals` (N×k, k per reading, time order) for correlation in time (Ljung–Box, Bonferroni over the
-/// k columns) and, as `mode` says, replaces `covariance` (σ̂² F⁻¹, F⁻¹ = `Finv`) by the Newey–West sandwich
-/// F⁻¹ S F⁻¹ · N/(N − p), S the prewhitened long-run covariance of the `scores` g_i = Σ_a J_ia r_ia (N×p).
+/// k columns) and, as `mode` says, replaces `covariance` (the independent-readings one: σ̂² F⁻¹, or TWOSTEP's HC2
+/// sandwich; F⁻¹ = `Finv`) by the Newey–West sandwich F⁻¹ S F⁻¹ · N/(N − p), S the prewhitened long-run covariance of the `scores` g_i = Σ_a J_ia r_ia (N×p).
 /// Fills `report`; returns the warning to give when the sandwich was taken, else "". `singular`: F had an
 /// undetermined direction (no sandwich). Throws Error when alpha is not in (0, 1).
 std::string correct_for_serial_correlation(Eigen::MatrixXd& covariance, SerialCorrelationReport& report,

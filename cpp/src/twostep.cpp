@@ -509,6 +509,9 @@ Calibration calibration_of(const Model3D& model, const Eigen::Vector3d& centre, 
   return cal;
 }
 
+// The errors are σ̂² F⁻¹ up to kPlainReadings readings, the HC2 sandwich's from kSandwichReadings, a blend between.
+constexpr Eigen::Index kPlainReadings = 10, kSandwichReadings = 30;
+
 // The second step's covariance (TwoStepResult), from one pass over the readings: with x = u − q, each reading's
 // weighted residual r_k = √w_k R_k, R_k = xᵀN x − 1 − ε_k − μ′, and its score r_k √w_k ∂R_k/∂θ over
 // θ = [q0 q1 q2 N00 N11 N22 N01 N02 N12] (jacobian_map's: −2 N x, x_i², 2 x_i x_j); F = Σ w ∂R ∂Rᵀ is the scoring's.
@@ -517,17 +520,20 @@ void parameter_covariance(TwoStepResult& out, const SamplesRef& samples, const M
                           const TwoStepOptions& options) {
   constexpr Eigen::Index p = 9;
   const Eigen::Index n = samples.rows();
-  if (n <= p) {  // an exact fit: no residual is left to measure the noise by (its σ̂² would be 0/0)
-    out.summary.warnings.push_back(
-        "no standard errors: " + std::to_string(n) + " readings fit the 9 parameters exactly, leaving no residual to "
-        "measure the noise by; log at least 10 readings (hundreds, while turning the sensor, for errors worth having)");
-    return;
-  }
   const Calibration& cal = out.calibration;
   out.parameter_names = {"b0", "b1", "b2", "a00", "a01", "a02", "a11", "a12", "a22"};
   out.parameters.resize(9);
   out.parameters << cal.offset, cal.matrix(0, 0), cal.matrix(0, 1), cal.matrix(0, 2), cal.matrix(1, 1),
       cal.matrix(1, 2), cal.matrix(2, 2);
+  if (n <= p) {  // an exact fit: no residual is left to measure the noise by (its σ̂² would be 0/0)
+    out.determined.assign(9, false);
+    out.identifiable = false;
+    out.summary.warnings.push_back(
+        "not identifiable: " + std::to_string(n) + " readings fit the 9 parameters exactly, leaving no residual to "
+        "measure the noise by, so no standard errors; log at least 10 readings (hundreds, while turning the sensor, "
+        "for errors worth having)");
+    return;
+  }
   const Eigen::MatrixXd X =
       ((samples.rowwise() - centre.transpose()) / scale).rowwise() - m.q.transpose();  // x_k, rows
   const Eigen::MatrixXd NX = X * m.N;
@@ -538,30 +544,36 @@ void parameter_covariance(TwoStepResult& out, const SamplesRef& samples, const M
     root_w = relative->array().inverse();
   }
   const Eigen::ArrayXd r = root_w * R;
-  Eigen::MatrixXd scores(n, 9);
-  const Eigen::ArrayXd rw = r * root_w;
+  Eigen::MatrixXd J(n, 9);  // √w_k ∂R_k/∂θ, rows: F = JᵀJ, the scores r_k J_k
   for (int j = 0; j < 3; ++j) {
-    scores.col(j) = (-2.0 * rw * NX.col(j).array()).matrix();
-    scores.col(3 + j) = (rw * X.col(j).array().square()).matrix();
+    J.col(j) = (-2.0 * root_w * NX.col(j).array()).matrix();
+    J.col(3 + j) = (root_w * X.col(j).array().square()).matrix();
   }
   constexpr int pairs[3][2] = {{0, 1}, {0, 2}, {1, 2}};
   for (int c = 0; c < 3; ++c)
-    scores.col(6 + c) = (2.0 * rw * X.col(pairs[c][0]).array() * X.col(pairs[c][1]).array()).matrix();
+    J.col(6 + c) = (2.0 * root_w * X.col(pairs[c][0]).array() * X.col(pairs[c][1]).array()).matrix();
+  const Eigen::MatrixXd scores = r.matrix().asDiagonal() * J;
   // μ′ is no free parameter (N's scale absorbs a constant in R): N − 9 degrees of freedom
   const double sigma2 = r.square().sum() / static_cast<double>(n - p);
   const detail::ScaledInverse Finv = detail::scaled_inverse(F);
   // R's variance follows |Aᵀĥ|² around the ellipsoid (4 H² ĥᵀA Aᵀĥ σ²): for a strongly anisotropic A the readings
-  // are not equally noisy, and over 200 runs of 300 readings (gains 0.6/1/1.6) σ̂² F⁻¹ gave 0.86–1.12× the spread,
-  // the sandwich F⁻¹ Σ g gᵀ F⁻¹ 0.91–1.08×. A sandwich of fewer than 10 readings a parameter is noisy (long_run.hpp):
-  // then σ̂² F⁻¹. R is relative to H²: residuals at rounding (readings without noise) have no structure worth a
-  // sandwich (exact readings' rounding had widened an error 2× under Newey–West).
+  // are not equally noisy, and σ̂² F⁻¹ gave 0.72–1.38× the Monte-Carlo spread (gains 0.3/1/3, 45–89 readings).
+  // The sandwich F⁻¹ Σ g gᵀ/(1 − h_kk) F⁻¹ (HC2: h_kk each reading's leverage J_k F⁻¹ J_kᵀ, which N/(N − 9) had only
+  // averaged) stays within 0.94–1.10× from 30 readings. With fewer it scatters from fit to fit, so it is blended
+  // linearly with σ̂² F⁻¹ from 10 readings (σ̂² F⁻¹ alone) to 30 (the sandwich alone): a reading added had changed an
+  // error 1.4–1.6× (median) where a hard switch was. R is relative to H²: residuals at rounding (readings without
+  // noise) have no structure worth a sandwich (exact readings' rounding had widened an error 2× under Newey–West).
   const bool rounding = std::sqrt(sigma2) < 1e3 * std::numeric_limits<double>::epsilon();
   Eigen::MatrixXd cov = sigma2 * Finv.inverse;
-  if (n >= 10 * p && !Finv.singular && !rounding) {
-    Eigen::MatrixXd hc = Finv.inverse * (scores.transpose() * scores) * Finv.inverse *
-                         (static_cast<double>(n) / static_cast<double>(n - p));
+  const double sandwich_share =
+      std::clamp(static_cast<double>(n - kPlainReadings) / static_cast<double>(kSandwichReadings - kPlainReadings),
+                 0.0, 1.0);
+  if (sandwich_share > 0.0 && !Finv.singular && !rounding) {
+    const Eigen::ArrayXd leverage = (J * Finv.inverse).cwiseProduct(J).rowwise().sum().array();
+    const Eigen::MatrixXd g = (1.0 - leverage.min(0.99)).rsqrt().matrix().asDiagonal() * scores;
+    Eigen::MatrixXd hc = Finv.inverse * (g.transpose() * g) * Finv.inverse;
     hc = 0.5 * (hc + hc.transpose());
-    if (hc.allFinite()) cov = hc;
+    if (hc.allFinite()) cov = sandwich_share * hc + (1.0 - sandwich_share) * cov;
   }
   const Eigen::MatrixXd independent_theta = cov;
   const std::string correlated = detail::correct_for_serial_correlation(
@@ -612,16 +624,25 @@ void parameter_covariance(TwoStepResult& out, const SamplesRef& samples, const M
     undetermined += (out.identifiable ? "" : ", ") + out.parameter_names[static_cast<std::size_t>(k)];
     out.identifiable = false;
   }
-  // (as refine: residuals of several % of the field make the errors large, and "turn more" would mislead)
+  // (as refine: residuals of several % of the field make the errors large, and "turn more" would mislead; determined,
+  // the answer may still be biased by what the model misses)
   const double misfit = out.summary.residual_rms / H;
+  const std::string causes =
+      relative ? "that field_norms belong to the readings (same order, same time, same units), " +
+                     std::string(detail::kMagnitudeMisfitCauses)
+               : std::string(detail::kMagnitudeMisfitCauses);
+  const std::string misfit_said = "the residuals are " + percent(misfit) + " of the field, far above a sensor's noise: "
+                                  "the readings do not fit the model";
   if (!out.identifiable)
     out.summary.warnings.push_back(
         "not identifiable: the data do not determine " + undetermined + " (standard error above " +
         percent(options.determined_tolerance) + " of its scale)" +
         (misfit > detail::kMisfitFraction
-             ? " because the residuals are " + percent(misfit) + " of the field, far above a sensor's noise: the "
-               "readings do not fit the model — check " + std::string(detail::kMagnitudeMisfitCauses)
+             ? " because " + misfit_said + " — check " + causes
              : "; log more readings (the errors shrink as 1/√N), or " + std::string(detail::kTurnAdvice)));
+  else if (misfit > detail::kMisfitFraction)
+    out.summary.warnings.push_back(misfit_said + ", and the calibration may be biased by what it misses beyond its "
+                                   "standard errors — check " + causes);
 }
 
 // How far the readings lie from a model's ellipsoid |h| = radius (times reading i's `relative` field magnitude, when

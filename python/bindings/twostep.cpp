@@ -11,7 +11,14 @@ namespace {
 // The Calibration, and the second step's covariance when it was computed (keys as refine's).
 py::dict result_dict(const fluxcal::TwoStepResult& r) {
   py::dict d = calibration_dict(r.calibration, r.summary);
-  if (r.covariance.size() > 0) add_parameter_statistics(d, r);
+  if (r.covariance.size() > 0) {
+    add_parameter_statistics(d, r);
+  } else if (!r.parameter_names.empty()) {  // an exact fit (9 readings): the verdict, no errors
+    d["parameters"] = r.parameters;
+    d["parameter_names"] = r.parameter_names;
+    d["determined"] = r.determined;
+    d["identifiable"] = r.identifiable;
+  }
   return d;
 }
 

@@ -124,6 +124,8 @@ def _report(cal: Calibration, raw: np.ndarray, out=None, t=None) -> None:
         why = ("   (judged on the Fisher information of independent readings; the std errors above are widened for "
                "readings correlated in time)" if widened else "")
         print(f"  identifiable          {'yes' if s['identifiable'] else 'NO'}{why}", file=out)
+    elif "identifiable" in s:  # a verdict without errors (TWOSTEP's exact fit of 9 readings)
+        print(f"  identifiable          {'yes' if s['identifiable'] else 'NO'}   (no standard errors)", file=out)
     for w in s["warnings"]:
         print(f"warning: {w}", file=out)
 

@@ -297,8 +297,10 @@ def twostep(samples, field_norm, units: str | None = None, **settings) -> Calibr
     serial_correlation="automatic" ("independent", "newey_west"), serial_correlation_alpha=0.01. With the second step
     the summary holds A&S's error covariance of [b0 b1 b2 a00 a01 a02 a11 a12 a22] under refine's keys
     (parameters, parameter_names, covariance, standard_errors, determined, identifiable, serial_correlation):
-    the inverse Fisher information times the residuals' variance, or the Newey–West sandwich for readings
-    correlated in time; standard_errors=False skips its pass over the readings. Raises ValueError on a missing field_norm, NaN/Inf,
+    from 30 readings the HC2 sandwich of the second step's scores about its Fisher information (the residuals'
+    variance changes around an anisotropic ellipsoid), below the inverse Fisher information times the residuals'
+    variance over N − 9, or the Newey–West sandwich for readings correlated in time; 9 readings fit exactly: no
+    covariance, identifiable False. standard_errors=False skips its pass over the readings. Raises ValueError on a missing field_norm, NaN/Inf,
     too few rows, planar readings, a non-positive-definite result, or a second step that ran away from the
     readings (on a cap of directions its objective falls towards an infinite offset, and a few far outliers can
     run it away too: not converged, and the readings' misfit to its ellipsoid, in their own units, grew by
@@ -335,4 +337,7 @@ def _with_errors(result: dict) -> Calibration:
     cal = _calibration(result)
     if "covariance" in result:
         parameter_statistics(cal.summary, result, 1)
+    elif "identifiable" in result:  # an exact fit of 9 readings: not identifiable, no errors
+        cal.summary.update(parameter_names=result["parameter_names"], parameters=np.asarray(result["parameters"]).tolist(),
+                           determined=list(result["determined"]), identifiable=result["identifiable"])
     return cal

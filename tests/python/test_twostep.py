@@ -604,10 +604,20 @@ def test_3d_from_calibrate_and_the_command_line(tmp_path):
 
 # ---- the second step's covariance (A&S's error covariance) -------------------------------------------------------
 
+@pytest.mark.parametrize("n", [12, 20, 29])
+def test_3d_covariance_of_a_few_readings_agrees_with_oracle(n):
+    """From 10 to 30 readings the errors blend σ̂²F⁻¹ into the HC2 sandwich (no step when a reading is added): the
+    core against the oracle's blend at the same point."""
+    s = simulated(8, n=n, noise=0.005)
+    cal = twostep(s.readings, s.field_norm, serial_correlation="independent")
+    ref = oracle.twostep_covariance(s.readings, s.field_norm, cal.offset, cal.matrix)
+    np.testing.assert_allclose(cal.summary["standard_errors"], np.sqrt(np.diag(ref)), rtol=0.02)
+
+
 @pytest.mark.parametrize("seed", range(3))
 @pytest.mark.parametrize("change", [0.0, 0.3])
 def test_3d_covariance_agrees_with_oracle(seed, change):
-    """The core's covariance (the sandwich of Σ w R² in its normalised quadric's parameters, carried to [b, A's
+    """The core's covariance (the HC2 sandwich of Σ w R² in its normalised quadric's parameters, carried to [b, A's
     upper triangle] by the delta method) against the oracle's sandwich written in [b, A] at the same point: within
     1 % on the standard errors."""
     s = simulated(40 + seed, n=400 + 300 * seed, noise=0.01)
@@ -658,13 +668,19 @@ def test_3d_standard_errors_of_a_strongly_anisotropic_sensor_match_the_monte_car
     assert np.all((ratio > 0.9) & (ratio < 1.1)), ratio
 
 
-def test_3d_nine_readings_fit_exactly_and_give_no_standard_errors():
+def test_3d_nine_readings_fit_exactly_and_give_no_standard_errors(tmp_path):
     """9 readings fit the 9 parameters exactly: no residual measures the noise, so no covariance (it had been all
-    zeros, "identifiable"), and a warning saying so; 10 readings give one."""
+    zeros, "identifiable"), not identifiable (the command line's exit status 3, batch's verdict) and a warning saying
+    so; 10 readings give one."""
     s = simulated(6, n=9, noise=0.01)
     cal = twostep(s.readings, s.field_norm)
-    assert "standard_errors" not in cal.summary and "identifiable" not in cal.summary
+    assert "standard_errors" not in cal.summary and cal.summary["identifiable"] is False
+    assert not any(cal.summary["determined"]) and len(cal.summary["parameters"]) == 9
     assert any("9 readings fit the 9 parameters exactly" in w for w in cal.summary["warnings"])
+    src = fluxcal.write_csv(tmp_path / "nine.csv", {"mx": s.readings[:, 0], "my": s.readings[:, 1],
+                                                   "mz": s.readings[:, 2]})
+    run = run_cli("calibrate", src, "--method", "twostep", "--field-norm", f"{s.field_norm!r}")
+    assert run.returncode == 3 and "identifiable          NO   (no standard errors)" in run.stdout, run.stdout
     ten = simulated(6, n=10, noise=0.01)
     cal = twostep(ten.readings, ten.field_norm)
     assert np.all(np.array(cal.summary["standard_errors"]) > 0) and cal.summary["degrees_of_freedom"] == 1
@@ -680,6 +696,15 @@ def test_3d_undetermined_by_a_misfit_says_so_rather_than_turn_more():
     cal = twostep(simulated(3, n=40, noise=0.02).readings, 50000.0)
     said = [w for w in cal.summary["warnings"] if w.startswith("not identifiable")]
     assert said and "log more readings" in said[0] and "do not fit" not in said[0]
+    # determined by many readings, yet no model that fits: said too (refine's second branch), and with each
+    # reading's |field| the field log is named among the causes
+    s = simulated(3, n=5000, noise=0.08)
+    cal = twostep(s.readings, 50000.0)
+    assert cal.summary["identifiable"]
+    assert any(w.startswith("the residuals are") and "may be biased" in w for w in cal.summary["warnings"])
+    cal = twostep(s.readings, np.full(len(s.readings), 50000.0) * (1 + 0.01 * np.sin(np.arange(len(s.readings)))))
+    said = [w for w in cal.summary["warnings"] if w.startswith("the residuals are")]
+    assert said and "field_norms belong to the readings" in said[0], cal.summary["warnings"]
 
 
 def test_3d_readings_correlated_in_time_widen_the_standard_errors():

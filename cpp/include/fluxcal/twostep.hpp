@@ -169,14 +169,17 @@ struct TwoStepOptions {
 /// ((|h_k|² − H_k² − μ)/H²)² (H/H_k)²; residual_rms, norm_mean and
 /// norm_std_over_mean of |h| from a pass over the samples (exact_statistics); condition_number of the
 /// (column-scaled) Fisher matrix, or of the first step's normal matrix when max_iterations = 0.
-/// With the second step (max_iterations > 0), options.standard_errors and more than 9 readings, A&S's error
-/// covariance of the second step, carried by the delta method (o = centre + scale·q, A = (H/scale) N^½) to refine's
-/// magnitude-model parameters: the sandwich F⁻¹ Σ g_k g_kᵀ F⁻¹ · N/(N − 9) of the scores g_k (F the scoring's Fisher
-/// information) — the residuals' variance follows |Aᵀĥ|² around the ellipsoid, so one σ̂² fits them only for a
-/// near-spherical A — or, below 90 readings, σ̂² F⁻¹ with σ̂² = Σ w_k R_k²/(N − 9) (μ is no free parameter: N's scale
-/// absorbs it); the Newey–West sandwich for readings correlated in time. TWOSTEP weighs the readings equally where
-/// refine (maximum likelihood) weighs them by that variance, so for an anisotropic A its errors are somewhat wider
-/// than refine's; for a near-spherical A the two agree to first order. 9 readings fit exactly: no covariance, a warning.
+/// With the second step (max_iterations > 0) and options.standard_errors, A&S's error covariance of the second step,
+/// carried by the delta method (o = centre + scale·q, A = (H/scale) N^½) to refine's magnitude-model parameters: from
+/// 30 readings the HC2 sandwich F⁻¹ Σ g_k g_kᵀ/(1 − h_kk) F⁻¹ of the scores g_k (F the scoring's Fisher information,
+/// h_kk the readings' leverages) — the residuals' variance follows |Aᵀĥ|² around the ellipsoid, so one σ̂² fits them
+/// only for a near-spherical A — below, σ̂² F⁻¹ with σ̂² = Σ w_k R_k²/(N − 9) (μ is no free parameter: N's scale
+/// absorbs it); the Newey–West sandwich for readings correlated in time. `determined` and `identifiable` are judged
+/// on the independent-readings errors (serial_correlation.standard_errors_independent: the sandwich's from 30
+/// readings). TWOSTEP weighs the readings equally where refine (maximum likelihood) weighs them by that variance, so
+/// for an anisotropic A its errors are somewhat wider than refine's; for a near-spherical A the two agree to first
+/// order. 9 readings fit exactly: no covariance, identifiable false, a warning. Residuals above 5 % of the field are
+/// said to be a misfit (in the not-identifiable warning, or alone).
 struct TwoStepResult {
   Calibration calibration;
   Summary summary;

@@ -155,7 +155,8 @@ struct SerialCorrelationReport {
   double ljung_box_p = 1.0;          ///< Ljung–Box p-value (smallest axis × 3 for vectors)
   int lags = 0;                      ///< Newey–West bandwidth; 0 = independent readings assumed
   double inflation = 1.0;            ///< largest ratio of the reported to the independent-readings standard error
-  Eigen::VectorXd standard_errors_independent;  ///< sqrt diag σ̂² (JᵀJ)⁻¹, for comparison
+  /// sqrt diag of the independent-readings covariance (σ̂² (JᵀJ)⁻¹; TWOSTEP's from 30 readings its HC2 sandwich)
+  Eigen::VectorXd standard_errors_independent;
 };
 
 /// What a solver reports. Fields that do not apply to a solver keep their defaults.

@@ -137,9 +137,10 @@ def twostep(samples, field_norm, iterate: bool = True, noise_sigma: float = -1.0
 def twostep_covariance(samples, field_norm, offset, matrix) -> np.ndarray:
     """Covariance of [b0 b1 b2 a00 a01 a02 a11 a12 a22] at a TWOSTEP result, from its objective Σ w_k R_k² written
     in those parameters: R_k = |A(m_k − b)|² − H_k² about its weighted mean (the noise mean), w_k = 1/H_k², J_k its
-    analytic gradient. The sandwich B⁻¹ M B⁻¹ · N/(N − 9), B = Σ w J Jᵀ, M = Σ w² R² J Jᵀ, from 90 readings (R's
-    variance changes around the ellipsoid); below, s² B⁻¹ with s² = Σ w R²/(N − 9). (The core forms the same in its
-    normalised quadric's parameters and carries it over by the delta method.)"""
+    analytic gradient. From 30 readings the HC2 sandwich B⁻¹ M B⁻¹, B = Σ w J Jᵀ, M = Σ w² R² J Jᵀ/(1 − h_k) with
+    h_k = w_k J_kᵀ B⁻¹ J_k the leverage (R's variance changes around the ellipsoid); up to 10, s² B⁻¹ with
+    s² = Σ w R²/(N − 9); a linear blend between. (The core forms the same in its normalised quadric's parameters and carries it over by the
+    delta method.)"""
     m = np.asarray(samples, dtype=float)
     A = np.asarray(matrix, dtype=float)
     d = m - np.asarray(offset, dtype=float)
@@ -154,8 +155,12 @@ def twostep_covariance(samples, field_norm, offset, matrix) -> np.ndarray:
         # A_ij = A_ji: ∂h/∂a_ij moves h_i by d_j and (off the diagonal) h_j by d_i
         J[:, 3 + col] = 2.0 * (h[:, i] * d[:, j] + (h[:, j] * d[:, i] if i != j else 0.0))
     n, p = J.shape
-    B_inv = np.linalg.inv(J.T @ (w[:, None] * J))
-    if n >= 10 * p:
-        g = (w * R)[:, None] * J
-        return B_inv @ (g.T @ g) @ B_inv * n / (n - p)
-    return np.sum(w * R**2) / (n - p) * B_inv
+    Jw = np.sqrt(w)[:, None] * J
+    B_inv = np.linalg.inv(Jw.T @ Jw)
+    plain = np.sum(w * R**2) / (n - p) * B_inv
+    share = float(np.clip((n - 10) / 20, 0.0, 1.0))  # the sandwich's share: none at 10 readings, whole from 30
+    if share == 0.0:
+        return plain
+    leverage = np.einsum("ij,jk,ik->i", Jw, B_inv, Jw)
+    g = (np.sqrt(w) * R / np.sqrt(1.0 - np.minimum(leverage, 0.99)))[:, None] * Jw
+    return share * (B_inv @ (g.T @ g) @ B_inv) + (1.0 - share) * plain
