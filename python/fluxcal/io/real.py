@@ -150,12 +150,17 @@ def read_headerless(path, names=None, columns=None, units: str | None = None, de
 
 
 
-SHOWN_COLUMNS = 12  # a message lists at most this many of a row's columns (40 of them had filled three lines)
+SPELLED_COLUMNS = 12  # an example of --columns spelt out up to this many names; beyond, its pattern and count
 
 
-def _elided(items: list) -> list:
-    """The first SHOWN_COLUMNS − 1 items, "…" and the last, when there are more."""
-    return items if len(items) <= SHOWN_COLUMNS else [*items[:SHOWN_COLUMNS - 1], "…", items[-1]]
+def _short(token: str) -> str:
+    """A number of a row as a message shows it: as written when short, else to 6 significant digits (every column
+    of a 40-column row then fits in ~600 characters, where full precision had filled three terminal lines)."""
+    text = token.strip()
+    try:
+        return text if len(text) <= 10 else f"{float(text):.6g}"
+    except ValueError:
+        return text
 
 def _read_headerless(path, lines, start, names, columns, units, delimiter) -> Recording:
     first = lines[start].split(delimiter)
@@ -186,12 +191,13 @@ def _read_headerless(path, lines, start, names, columns, units, delimiter) -> Re
                          f"--columns (columns=) gives {given} names, need one per column")
     if why is None:
         # three columns or fewer hold no time: "t,mx,my" made the x readings the times as well
-        example = ",".join(_elided(["mx", "my", "mz"][:len(first)] if len(first) <= 3 else
-                                   ["t", "mx", "my", "mz"] + [f"c{k}" for k in range(5, len(first) + 1)]))
+        example = (",".join(["mx", "my", "mz"][:len(first)] if len(first) <= 3 else
+                            ["t", "mx", "my", "mz"] + [f"c{k}" for k in range(5, len(first) + 1)])
+                   if len(first) <= SPELLED_COLUMNS else f"t,mx,my,mz,c5,…,c{len(first)}: {len(first)} names")
         # Beyond four columns the example's order is a pattern, not a guess that holds (a 10-column IMU log's
         # gyro then stood in the magnetometer's place): the first row, numbered, lets the reader point at them.
         shown = "" if len(first) <= 4 else (
-            f"; line {start + 1} reads " + ", ".join(_elided([f"{k}: {v}" for k, v in enumerate(first, 1)])) +
+            f"; line {start + 1} reads " + ", ".join(f"{k}: {_short(v)}" for k, v in enumerate(first, 1)) +
             " — name the magnetometer's three mx,my,mz where they are (and ax,ay,az an accelerometer's, t a clock)")
         raise ValueError(f"{path}, line {start + 1}: {len(first)} {sep}-separated numbers and no header; name the "
                          f"columns with --columns (Python: columns=; one name per column, e.g. {example}) or add a header "
