@@ -298,10 +298,10 @@ def twostep(samples, field_norm, units: str | None = None, **settings) -> Calibr
     the summary holds A&S's error covariance of [b0 b1 b2 a00 a01 a02 a11 a12 a22] under refine's keys
     (parameters, parameter_names, covariance, standard_errors, determined, identifiable, serial_correlation):
     from 30 readings the HC2 sandwich of the second step's scores about its Fisher information (the residuals'
-    variance changes around an anisotropic ellipsoid), below the inverse Fisher information times the residuals'
-    variance over N − 9, or the Newey–West sandwich for readings correlated in time; 9 readings fit exactly: no
-    covariance, identifiable False. standard_errors=False skips its pass over the readings. Raises ValueError on a missing field_norm, NaN/Inf,
-    too few rows, planar readings, a non-positive-definite result, or a second step that ran away from the
+    variance changes around an anisotropic ellipsoid), up to 10 the inverse Fisher information times the residuals'
+    variance over N − 9, a linear blend between, or the Newey–West sandwich for readings correlated in time;
+    9 readings fit exactly: no covariance, identifiable False. standard_errors=False skips its pass over the
+    readings. Raises ValueError on a missing field_norm, NaN/Inf, too few rows, planar readings, a non-positive-definite result, or a second step that ran away from the
     readings (on a cap of directions its objective falls towards an infinite offset, and a few far outliers can
     run it away too: not converged, and the readings' misfit to its ellipsoid, in their own units, grew by
     more than runaway_misfit over the first step's; the message names the first step's coverage and its farthest
