@@ -18,15 +18,18 @@ py::dict serial_correlation_dict(const fluxcal::SerialCorrelationReport& r);
 /// A Calibration plus its Summary as the dict fluxcal's Python layer turns into a Calibration.
 py::dict calibration_dict(const fluxcal::Calibration& c, const fluxcal::Summary& s);
 
-/// A fit's parameter statistics (RefineResult, TwoStepResult) added to its result dict under refine's keys.
+/// A fit's parameter statistics (RefineResult, TwoStepResult) added to its result dict under refine's keys; without
+/// a covariance (TWOSTEP's exact fit of 9 readings) the verdict alone: no covariance, standard_errors or
+/// serial_correlation keys.
 template <class Result>
 void add_parameter_statistics(py::dict& d, const Result& r) {
   d["parameters"] = r.parameters;
   d["parameter_names"] = r.parameter_names;
-  d["covariance"] = r.covariance;
-  d["standard_errors"] = r.standard_errors;
   d["determined"] = r.determined;
   d["identifiable"] = r.identifiable;
+  if (r.covariance.size() == 0) return;
+  d["covariance"] = r.covariance;
+  d["standard_errors"] = r.standard_errors;
   d["serial_correlation"] = serial_correlation_dict(r.serial_correlation);
 }
 

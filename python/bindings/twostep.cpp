@@ -8,17 +8,10 @@ using namespace pybind11::literals;
 namespace fluxcal_py {
 namespace {
 
-// The Calibration, and the second step's covariance when it was computed (keys as refine's).
+// The Calibration, and the second step's parameter statistics when they were computed (keys as refine's).
 py::dict result_dict(const fluxcal::TwoStepResult& r) {
   py::dict d = calibration_dict(r.calibration, r.summary);
-  if (r.covariance.size() > 0) {
-    add_parameter_statistics(d, r);
-  } else if (!r.parameter_names.empty()) {  // an exact fit (9 readings): the verdict, no errors
-    d["parameters"] = r.parameters;
-    d["parameter_names"] = r.parameter_names;
-    d["determined"] = r.determined;
-    d["identifiable"] = r.identifiable;
-  }
+  if (!r.parameter_names.empty()) add_parameter_statistics(d, r);
   return d;
 }
 

@@ -70,12 +70,16 @@ def _calibration(result: dict, method: str) -> Calibration:
 def parameter_statistics(summary: dict, result: dict, per_reading: int) -> None:
     """A fit's parameter statistics from the core (its result's parameters, parameter_names, covariance,
     standard_errors, determined, identifiable, serial_correlation) into `summary` as plain lists and dicts, with
-    the degrees of freedom of `per_reading` residuals a reading (_few_spare_readings)."""
+    the degrees of freedom of `per_reading` residuals a reading (_few_spare_readings). A result without a
+    covariance (TWOSTEP's exact fit of 9 readings) gives the verdict alone."""
     summary["parameter_names"] = result["parameter_names"]
     summary["identifiable"] = result["identifiable"]
-    for key in ("parameters", "standard_errors", "covariance"):
-        summary[key] = np.asarray(result[key]).tolist()
+    summary["parameters"] = np.asarray(result["parameters"]).tolist()
     summary["determined"] = list(result["determined"])
+    if "covariance" not in result:
+        return
+    for key in ("standard_errors", "covariance"):
+        summary[key] = np.asarray(result[key]).tolist()
     summary["serial_correlation"] = dict(result["serial_correlation"])
     _few_spare_readings(summary, per_reading)
 

@@ -335,9 +335,6 @@ def _with_errors(result: dict) -> Calibration:
     """The Calibration, its summary holding the second step's parameters, covariance, standard errors,
     determined/identifiable and serial_correlation under refine's keys (absent for the first step alone)."""
     cal = _calibration(result)
-    if "covariance" in result:
+    if "identifiable" in result:  # an exact fit of 9 readings has the verdict and no errors
         parameter_statistics(cal.summary, result, 1)
-    elif "identifiable" in result:  # an exact fit of 9 readings: not identifiable, no errors
-        cal.summary.update(parameter_names=result["parameter_names"], parameters=np.asarray(result["parameters"]).tolist(),
-                           determined=list(result["determined"]), identifiable=result["identifiable"])
     return cal
