@@ -400,7 +400,8 @@ def _nominal(n: int, frame: str, preset, attitudes, rotations) -> np.ndarray:
 
 def calibrate(mag, acc, field_ned, frame: str = "ned", preset=None, attitudes=None, rotations=None,
               estimate_yaw=None, estimate_inclination: bool = False, acc_measures: str = "specific_force",
-              units: str = "", gravity: float = 0.0, gravity_tolerance: float = 0.05, **settings) -> PositionsResult:
+              units: str = "", gravity: float = 0.0, gravity_tolerance: float = 0.05, field_units: str = "",
+              **settings) -> PositionsResult:
     """Calibrate U = U0 + K H from N static positions.
 
     mag: N×3 outputs; acc: N×3 calibrated accelerometer readings in the same body axes
@@ -417,7 +418,9 @@ def calibrate(mag, acc, field_ned, frame: str = "ned", preset=None, attitudes=No
     seen (the headings absorb any turn or mirror of its horizontal part, and K's sign a reversed down component,
     which is said when K comes out a mirror); a fit that fails against the field given but succeeds against a
     corrected one is an error naming the mistake. A field in another unit than the readings' is seen only by K's
-    gain (`units` a field unit: nT, uT, ...), and said.
+    gain (`units` a field unit: nT, uT, ...), and said. A fit that leaves the field's magnitude wrong by more
+    than GROSS_MISFIT of it at its own positions, with nothing else said, is said first (`field_units`, the
+    field's unit, e.g. "nT" for IGRF, names the error's unit there).
     """
     if field_ned is None:
         raise ValueError("field_ned: the reference field is missing; give (N, E, D), or use reference_field() "
@@ -469,7 +472,8 @@ def calibrate(mag, acc, field_ned, frame: str = "ned", preset=None, attitudes=No
                                            if not w.startswith("K is an axis relabelling")]
             res.summary["warnings"].append(said)
     gross = _gross_misfit(res.verify(U, acc, preset=preset, attitudes=attitudes, rotations=rotations,
-                                     acc_measures=acc_measures), f, res.summary["warnings"], "")
+                                     acc_measures=acc_measures), f, res.summary["warnings"],
+                          f" {field_units}" if field_units else "")
     if gross:
         res.summary["warnings"] = _misfit_first(res, gross, res.summary["warnings"])
     return res
@@ -1110,7 +1114,8 @@ def run_cli(args, out=None) -> int:
             extra_warnings += [f"accelerometer calibration: {w}" for w in acc_cal.summary.get("warnings", [])]
         res = calibrate(mag, acc, f, frame=args.frame, preset=args.preset, estimate_yaw=args.estimate_yaw or None,
                         estimate_inclination=args.estimate_inclination, units=units, acc_measures=args.acc_measures,
-                        tilt_sigma_deg=args.tilt_sigma, **({"output_sigma": sigma_out} if sigma_out else {}))
+                        tilt_sigma_deg=args.tilt_sigma, field_units="nT" if args.lat is not None else "",
+                        **({"output_sigma": sigma_out} if sigma_out else {}))
     except ValueError as exc:
         raise ValueError(_in_file_terms(str(exc), args.file, rec, uniq if ids is not None else None)) from None
     if scatter is None and getattr(args, "noise_sigma", 0.0):  # one row per position: the σ given is the yardstick
@@ -1122,15 +1127,12 @@ def run_cli(args, out=None) -> int:
     extra_warnings += [w for w in _unit_warnings(res, f, units, args.lat is not None)  # calibrate's own: once
                        if w not in res.summary["warnings"]]
     misfit = [w for w in extra_warnings if w.startswith("the model does not fit")]
-    # (calibrate's own gross-misfit warning is said again below, in the field's unit, unless a misfit came first)
-    warnings_ = [w for w in res.summary["warnings"] if not w.startswith(GROSS_SAID)] + \
+    # calibrate's own gross-misfit warning (first when said) gives way to a misfit the positions' scatter measured
+    warnings_ = [w for w in res.summary["warnings"] if not (misfit and w.startswith(GROSS_SAID))] + \
         [w for w in extra_warnings if w not in misfit]
     res.summary["warnings"] = _misfit_first(res, misfit[0], warnings_) if misfit else warnings_
     report = res.verify(mag, acc, preset=args.preset, acc_measures=args.acc_measures) if args.preset else \
         res.verify(mag, acc, acc_measures=args.acc_measures)
-    gross = _gross_misfit(report, f, res.summary["warnings"], " nT" if args.lat is not None else "")
-    if gross:
-        res.summary["warnings"] = _misfit_first(res, gross, res.summary["warnings"])
     doc = res.to_dict()
     field_name = "nT" if args.lat is not None else "the reference field's unit"  # IGRF gives nT
     doc["units_of"] = {"offset": res.units or "the outputs' unit", "K": f"{res.units or 'output'} per {field_name}",

@@ -718,6 +718,8 @@ def test_calibrate_itself_says_a_gross_misfit_first(monkeypatch):
     said = fp.calibrate(s.outputs, swung, field).summary["warnings"]
     assert said[0].startswith(fp.GROSS_SAID), said[0]
     assert any("poorly determined" in w and "which the misfit above inflates" in w for w in said)
+    assert " nT RMS" not in said[0]  # the field's unit is named only when given
+    assert " nT RMS" in fp.calibrate(s.outputs, swung, field, field_units="nT").summary["warnings"][0]
     assert not any(w.startswith(fp.GROSS_SAID) for w in fp.calibrate(s.outputs, s.acc_raw, field).summary["warnings"])
 
 
