@@ -569,9 +569,17 @@ void parameter_covariance(TwoStepResult& out, const SamplesRef& samples, const M
       std::clamp(static_cast<double>(n - kPlainReadings) / static_cast<double>(kSandwichReadings - kPlainReadings),
                  0.0, 1.0);
   if (sandwich_share > 0.0 && !Finv.singular && !rounding) {
-    const Eigen::ArrayXd leverage = (J * Finv.inverse).cwiseProduct(J).rowwise().sum().array();
-    const Eigen::MatrixXd g = (1.0 - leverage.min(0.99)).rsqrt().matrix().asDiagonal() * scores;
-    Eigen::MatrixXd hc = Finv.inverse * (g.transpose() * g) * Finv.inverse;
+    // Σ r_k² J_kᵀJ_k / (1 − h_k), a block of rows at a time: no N×9 matrix beyond J and the scores
+    constexpr Eigen::Index kBlock = 512;
+    Mat9 meat = Mat9::Zero();
+    for (Eigen::Index k0 = 0; k0 < n; k0 += kBlock) {
+      const Eigen::Index rows = std::min(kBlock, n - k0);
+      const auto Jb = J.middleRows(k0, rows);
+      const Eigen::ArrayXd leverage = (Jb * Finv.inverse).cwiseProduct(Jb).rowwise().sum().array();
+      const Eigen::ArrayXd weight = r.segment(k0, rows).square() / (1.0 - leverage.min(0.99));
+      meat.noalias() += Jb.transpose() * (weight.matrix().asDiagonal() * Jb);
+    }
+    Eigen::MatrixXd hc = Finv.inverse * meat * Finv.inverse;
     hc = 0.5 * (hc + hc.transpose());
     if (hc.allFinite()) cov = sandwich_share * hc + (1.0 - sandwich_share) * cov;
   }
