@@ -287,6 +287,7 @@ void finish_statistics(RefineResult& out, const Eigen::MatrixXd& F, double sigma
   out.covariance = sigma2 * Finv.inverse;
   const Eigen::VectorXd independent = out.covariance.diagonal().cwiseMax(0.0).cwiseSqrt();
   out.determined.assign(static_cast<std::size_t>(p), true);
+  out.identifiable = true;  // until a parameter is not determined
   std::ostringstream undetermined;
   for (Eigen::Index k = 0; k < p; ++k) {
     const bool ok = std::isfinite(independent(k)) && independent(k) < opt.determined_tolerance * scales(k);
@@ -985,6 +986,7 @@ RefineResult terms_fit(const Calibration& start, const SamplesRef& samples, cons
   // (a term that copies the offset, a reference with no z component): those are not determined, and
   // the pseudo-inverse's finite errors for them mean nothing. Held parameters' zero columns are skipped.
   out.determined.assign(static_cast<std::size_t>(nb + p), true);
+  out.identifiable = true;  // until a direction without information names a parameter
   double smallest = std::numeric_limits<double>::infinity();
   std::ostringstream undetermined;
   for (Eigen::Index j = 0; j < lam.size(); ++j) {

@@ -83,7 +83,7 @@ struct RefineResult {
   Eigen::MatrixXd covariance;               ///< σ̂² (JᵀJ)⁻¹ or Newey–West; huge on the diagonal where undetermined
   Eigen::VectorXd standard_errors;          ///< sqrt of the covariance diagonal
   std::vector<bool> determined;             ///< per parameter (see RefineOptions::determined_tolerance)
-  bool identifiable = true;                 ///< every parameter determined
+  bool identifiable = false;                ///< every parameter determined (judged with the covariance)
   /// σ̂ from all final residuals (reading units), outliers included: with a robust loss the covariance uses the
   /// loss's own variance (robust), so this reads larger than the noise when there are outliers
   double noise_sigma = 0.0;
