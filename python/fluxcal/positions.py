@@ -896,7 +896,10 @@ __all__ = ["FRAMES", "PRESETS", "TWELVE", "STANDARD_GRAVITY", "AccelerometerCali
 
 
 def _replicate_scatter(ids, uniq, acc, mag, acc_av, mag_av) -> dict:
-    """Pooled scatter of the rows within each position (outputs, and the accelerometer's direction)."""
+    """Pooled scatter of the rows within each position (outputs, and the accelerometer's direction), over the
+    positions held still: one whose rows moved (_unsteady_positions, or a tilt beyond moved_limit_deg) is named,
+    not taken as the sensor's noise (a position turned 10° about the vertical for 4 of its 10 rows had made the
+    yardstick 20× too wide, and the fit's misfit unsaid)."""
     ids = np.asarray(ids)
     dm, da, counts, worst = [], [], [], []
     with np.errstate(divide="ignore", invalid="ignore"):  # an accelerometer reading 0 is refused later, named
@@ -911,19 +914,45 @@ def _replicate_scatter(ids, uniq, acc, mag, acc_av, mag_av) -> dict:
                 worst.append((float(np.nan_to_num(ang).max()), _label(u)))
     if not dm:
         return None
-    repeated = len(dm)  # positions read more than once: each spends one degree of freedom on its mean
-    dm, da = np.vstack(dm), np.concatenate(da)
-    dof = max(len(dm) - repeated, 1)
-    n_mean = float(np.mean(counts))
-    # repeats that read alike (a quantised sensor quieter than its step) still carry the step's rounding
-    mag_sigma = max(float(np.sqrt((dm ** 2).sum() / (3 * dof))), _lattice_step(mag) / np.sqrt(12.0))
-    tilt_sigma = float(np.sqrt((da ** 2).sum() / (2 * dof)))  # radians per axis, one reading
     # a reading this far from its position's mean direction moved: the angle of two axes' noise is Rayleigh
     # (median 1.1774 σ), beyond 5 σ once in 270 000 readings; at least 1° for a quiet accelerometer
-    moved = max(1.0, np.degrees(5.0 * float(np.median(da)) / 1.1774))
+    moved = max(1.0, np.degrees(5.0 * float(np.median(np.concatenate(da))) / 1.1774))
+    step = _lattice_step(mag) / np.sqrt(12.0)  # repeats that read alike (quantised) still carry the step's rounding
+    unsteady = _unsteady_positions([(d ** 2).sum() for d in dm], [3 * (len(d) - 1) for d in dm], step ** 2)
+    still = [k for k in range(len(dm)) if k not in unsteady and worst[k][0] <= moved] or list(range(len(dm)))
+    dof = max(sum(len(dm[k]) - 1 for k in still), 1)  # each position spends one degree of freedom on its mean
+    n_mean = float(np.mean(counts))
+    mag_sigma = max(float(np.sqrt(sum((dm[k] ** 2).sum() for k in still) / (3 * dof))), step)
+    tilt_sigma = float(np.sqrt(sum((da[k] ** 2).sum() for k in still) / (2 * dof)))  # radians per axis, one reading
     return {"mag_sigma": mag_sigma, "mag_sigma_per_position": mag_sigma / np.sqrt(n_mean),
             "tilt_sigma_per_position": tilt_sigma / np.sqrt(n_mean), "worst_tilt": max(worst),
-            "moved_limit_deg": moved, "labels": [_label(u) for u in uniq]}
+            "moved_limit_deg": moved, "labels": [_label(u) for u in uniq],
+            "unsteady": [(worst[k][1], float(np.sqrt(unsteady[k])), mag_sigma) for k in sorted(unsteady)]}
+
+
+# A position whose outputs scatter this many times (in σ) the steady positions' is no held position; the F test's
+# p below UNSTEADY_P (Bonferroni over the positions) as well, so a few readings' chance scatter is not named
+UNSTEADY_RATIO = 3.0
+UNSTEADY_P = 1e-3
+
+
+def _unsteady_positions(sums, dofs, floor: float) -> dict:
+    """{index: variance} of the positions whose outputs scatter far beyond the others' (sums of squared deviations
+    from their means over `dofs` degrees of freedom): against the pooled variance of the quieter half (floored at
+    `floor`, a quantised sensor's), each by an F test and UNSTEADY_RATIO. A turn about the vertical while logging
+    moves the outputs but not the accelerometer's direction: this is its only trace."""
+    from scipy import stats
+
+    var = [s / d if d > 0 else 0.0 for s, d in zip(sums, dofs)]
+    order = [k for k in np.argsort(var) if dofs[k] > 0]
+    quiet = order[:max(len(order) // 2, 1)]
+    ref_dof = sum(dofs[k] for k in quiet)
+    ref = max(sum(sums[k] for k in quiet) / ref_dof, floor) if ref_dof else 0.0
+    if not ref > 0.0 or len(order) < 3:
+        return {}
+    return {k: var[k] for k in order
+            if var[k] > UNSTEADY_RATIO ** 2 * ref
+            and stats.f.sf(var[k] / ref, dofs[k], ref_dof) * len(order) < UNSTEADY_P}
 
 
 def _lattice_step(values: np.ndarray) -> float:
@@ -1006,10 +1035,24 @@ def _misfit_warnings(res, field_ned, scatter) -> list:
 
 
 def _moved_warnings(scatter) -> list:
+    out = []
+    unsteady = scatter.get("unsteady", [])
     if scatter["worst_tilt"] is not None and scatter["worst_tilt"][0] > scatter["moved_limit_deg"]:
-        return [f"position {scatter['worst_tilt'][1]}: a reading's accelerometer direction is "
-                f"{scatter['worst_tilt'][0]:.2g}° from the position's mean (the device moved while logging?)"]
-    return []
+        label = scatter["worst_tilt"][1]
+        also = [f"; its outputs scatter {sigma / steady:.3g}x the other positions' (σ {sigma:.3g} against {steady:.3g})"
+                for named, sigma, steady in unsteady if named == label]
+        unsteady = [u for u in unsteady if u[0] != label]
+        out.append(f"position {label}: a reading's accelerometer direction is {scatter['worst_tilt'][0]:.2g}° from "
+                   f"the position's mean{''.join(also)} (the device moved while logging?)")
+    if unsteady:
+        named = ", ".join(f"{label} (σ {sigma:.3g}, {sigma / steady:.3g}x)" for label, sigma, steady in unsteady)
+        out.append(f"position(s) {named}: the outputs scatter within the position far beyond the other positions' "
+                   f"(σ {unsteady[0][2]:.3g} per reading): the device turned while logging (a turn about "
+                   "the vertical leaves the accelerometer's direction as it was) or a magnetic disturbance came and "
+                   "went; the position's mean is off by part of that. Log it again, or leave its rows out "
+                   "(--bad-lines skip with its position cell empty); the misfit test takes the other positions' "
+                   "scatter as its yardstick")
+    return out
 
 
 def _unit_warnings(res, field_ned, units, igrf) -> list:

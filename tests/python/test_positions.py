@@ -451,6 +451,34 @@ def test_cli_positions_says_when_the_model_does_not_fit(tmp_path):
     assert "the model does not fit" in text and "largest at position 8" in text, text
 
 
+def test_cli_positions_names_a_position_turned_about_the_vertical_while_logging(tmp_path):
+    """4 of position 7's 10 rows turned 10° about the vertical: the accelerometer cannot see it, and its outputs'
+    scatter (200× the others') had widened the misfit test's yardstick so that nothing was said (a blind check:
+    U0 off by 125 nT, exit 0, no word). The position is named and the misfit said; the clean log says neither."""
+    from scipy.spatial.transform import Rotation
+
+    rng = np.random.default_rng(9)
+    scene = sim.twelve_scene("nue", tilt_deg=1.0, rng=rng)
+    s = sim.simulate_positions(scene, PAPER_FIELD, noise=0.0, rng=rng)
+    f = ",".join(f"{v:.6f}" for v in PAPER_FIELD)
+    for name, turned in (("clean", 0.0), ("turned", 10.0)):
+        rows = []
+        for i in range(12):
+            h = np.linalg.solve(K_TRUE, s.outputs[i] - U0_TRUE)  # the body-frame field
+            up = s.acc_raw[i] / np.linalg.norm(s.acc_raw[i])
+            for k in range(10):
+                angle = np.radians(turned) if (i == 6 and k >= 6) else 0.0
+                u = U0_TRUE + K_TRUE @ Rotation.from_rotvec(-angle * up).apply(h)
+                rows.append([i + 1, *(s.acc_raw[i] + G * np.radians(0.005) * rng.standard_normal(3)),
+                             *(u + 0.3 * rng.standard_normal(3))])
+        path = tmp_path / f"{name}.csv"
+        path.write_text("position,ax,ay,az,mx,my,mz\n" + "\n".join(",".join(f"{v:.10g}" for v in r) for r in rows) + "\n")
+        r = run_cli("positions", path, "--field", f, "--frame", "nue", "--preset", "twelve")
+        assert r.returncode == 0, r.stderr
+        assert ("position(s) 7 (σ" in r.stdout and "turned while logging" in r.stdout) == bool(turned), r.stdout
+        assert ("the model does not fit" in r.stdout and "largest at position 7" in r.stdout) == bool(turned), r.stdout
+
+
 def test_cli_positions_wrong_inclination_sign_comes_back_on_the_physical_branch(tmp_path):
     """--inclination with the wrong sign and --estimate-inclination: the fit can end with the field reversed and
     K negated (a blind check: K = −K_true with the dip reported as −52°). The physical branch is returned, said."""
