@@ -520,8 +520,9 @@ def _dip_moved(res, given) -> str | None:
             "fit names a field that does not fit)")
 
 
-# A heading correction beyond this from a nominal attitude contradicts it: a bench sets its positions to a few degrees
-HEADING_CONTRADICTED_DEG = 90.0
+# A heading correction beyond this from a nominal attitude contradicts it: a bench sets its positions to a few degrees,
+# and a position mislabelled is a quarter or half turn off (at 90° a strict "> 90°" had left it to the noise's sign)
+HEADING_CONTRADICTED_DEG = 45.0
 
 
 def _turned_around(res) -> str | None:
@@ -537,16 +538,20 @@ def _turned_around(res) -> str | None:
         return _common_turn(turn)
     size = f"{np.median(np.abs(turn[rows])):.0f}°"
     remedy = "; fit without estimating the headings (no --estimate-yaw; estimate_yaw=False), which names the mistake"
+    # a turn about the vertical is what an estimated heading is: it absorbs the mistake, and U0 and K hold
+    holds = ("; the estimated headings absorb it, so U0 and K hold — correct the nominal attitudes (a fit without "
+             "estimating the headings then agrees)")
     if len(rows) < len(turn):
-        return (f"the estimated headings turn position(s) {', '.join(str(r + 1) for r in rows)} (counted from 1 in "
-                f"the order given) by {size} from their nominal attitudes: positions swapped (an attitude turned 180° "
-                f"about the vertical is another position) or misplaced on the bench{remedy}")
+        turns = ", ".join(f"{r + 1} by {turn[r]:+.0f}°" for r in rows)
+        return (f"the estimated headings turn position(s) {turns} (counted from 1 in the order given) from their "
+                f"nominal attitudes: positions mislabelled or swapped (a quarter or half turn about the vertical is "
+                f"another position), or misplaced on the bench{holds}")
     if np.trace(res.K) < 0:
         return (f"the estimated headings turn every position by {size} from its nominal attitude, and K's sign is "
                 "reversed with them: the reference field's down component probably has the wrong sign (the "
                 f"inclination's: up taken for down), which such a fit absorbs into K's sign{remedy}")
     return (f"the estimated headings turn every position by {size} from its nominal attitude: the bench's north "
-            f"reference reversed, or the field's horizontal part given with the wrong sign{remedy}")
+            f"reference reversed, or the field's horizontal part given with the wrong sign{holds}")
 
 
 def fit(mag, reference, units: str = "", frame: str = "ned") -> PositionsResult:
