@@ -100,7 +100,12 @@ def set_options(options, settings: dict, what: str):
     check off)."""
     for name, value in settings.items():
         if not hasattr(options, name):
-            raise TypeError(f"{what}: unknown option {name!r}")
+            import difflib
+
+            known = sorted(n for n in dir(options) if not n.startswith("_"))
+            near = difflib.get_close_matches(name, known, n=1)
+            raise TypeError(f"{what}: unknown option {name!r}" + (f" (did you mean {near[0]!r}?)" if near else "")
+                            + f"; its options: {', '.join(known)}")
         if isinstance(value, (float, np.floating)) and np.isnan(value):
             raise ValueError(f"{what}: option {name} is NaN")
         current = getattr(options, name)

@@ -409,7 +409,9 @@ def calibrate(mag, acc, field_ned, frame: str = "ned", preset=None, attitudes=No
     local field (see `reference_field`; None is an error). Nominal attitudes: `preset` ("twelve", in
     the paper's order), `attitudes` (N×3 pitch, roll, heading in degrees) or `rotations` (N×3×3
     body→local); none = headings unknown. estimate_yaw: None = only when no nominal attitudes are
-    given. settings: max_iterations, determined_tolerance.
+    given. settings: tilt_sigma_deg (a levelling correction per position with this Gaussian prior, for an
+    accelerometer noisier than the magnetometer), output_sigma (the outputs' noise σ when known), max_iterations,
+    determined_tolerance.
 
     No noise σ is needed to see a wrong reference field: when the residual misplaces the field by more than
     MISPLACED_DEG per position, or the same fit against a plausible mistake in it (a component's sign, N and E
@@ -579,11 +581,17 @@ def _result(d: dict, frame: str) -> PositionsResult:
     field_ned = _NED_TO_LOCAL[frame].T @ local
     remapped = axis_remapping(d["K"])
     if remapped:  # K absorbs it, but differently labelled axes deserve a word (SAP6's mag +X+Y-Z, grav -Y-X+Z)
+        # every axis reversed is seldom a mounting and often a sign: gravity for specific force, the field's down
+        every = remapped[1].replace(" ", "") == "-x,-y,-z"
         d = dict(d, summary=dict(d["summary"], warnings=list(d["summary"]["warnings"]) + [
             f"K is an axis relabelling: the magnetometer's x, y, z read the field's {remapped[1]} in the "
-            "accelerometer's axes" + (" (a mirror: the two frames differ in handedness)" if remapped[2] else "")
-            + ". The two sensors' axes are labelled (or mounted) differently; K includes the remapping, so the "
-            "calibration holds, but check the chips' axis conventions if this is unexpected"]))
+            "accelerometer's axes" + (" (a mirror)" if every else " (a mirror: the two frames differ in handedness)"
+                                      if remapped[2] else "")
+            + (". Every axis reversed is seldom a mounting and often a sign: what the accelerometer reports (gravity "
+               "or specific force) or the field's signs; K includes the reversal, so the calibration holds with this "
+               "accelerometer and field, but check both before using it with others" if every else
+               ". The two sensors' axes are labelled (or mounted) differently; K includes the remapping, so the "
+               "calibration holds, but check the chips' axis conventions if this is unexpected")]))
     return PositionsResult(offset=np.asarray(d["offset"]), K=np.asarray(d["K"]), frame=frame, field_ned=field_ned,
                            yaw_deg=np.degrees(np.asarray(d["yaw"])), rotations=_rotations(d["rotations"]),
                            reference=np.asarray(d["reference"]), residuals=np.asarray(d["residuals"]),
@@ -757,10 +765,13 @@ def _mirror_said(res, field_ned) -> None:
     if not np.linalg.det(res.K) < 0 or abs(field_ned[2]) <= 1e-9 * np.linalg.norm(field_ned):
         return  # (no down component: reversing it changes nothing)
     wrong = (f"the reference field N,E,D = {_vector(field_ned)} has the wrong sign of its down component (the "
-             "inclination's: up taken for down; or it was given as E,N,U)")
-    tail = (f"With the headings unknown the data cannot tell the two apart: {_vector(field_ned * [1.0, 1.0, -1.0])} "
-            "fits exactly as well, with K negated. Check the inclination's sign (positive down) and the chips' axis "
-            "conventions, or give nominal attitudes (a preset), which tell them apart")
+             "inclination's: up taken for down; or it was given as E,N,U), or the accelerometer reports gravity "
+             "(down) where its specific force (up, what most chips report) is taken (--acc-measures gravity; "
+             "acc_measures=\"gravity\")")
+    tail = (f"With the headings unknown the data cannot tell these apart: {_vector(field_ned * [1.0, 1.0, -1.0])} "
+            "fits exactly as well, with K negated, and so does the accelerometer's sign reversed. Check the "
+            "inclination's sign (positive down), what the accelerometer reports and the chips' axis conventions, or "
+            "give nominal attitudes (a preset), which tell them apart")
     warnings_ = list(res.summary["warnings"])
     for i, w in enumerate(warnings_):
         if w.startswith("K is an axis relabelling") and "(a mirror" in w:
@@ -1020,18 +1031,18 @@ def _misfit_warnings(res, field_ned, scatter) -> list:
     ratio = rms / (expected * dof_factor) if expected > 0 else 0.0
     if ratio > MISFIT_RATIO:
         worst = scatter["labels"][int(np.argmax(np.linalg.norm(res.residuals, axis=1)))]
+        against = "the noise σ given" if scatter.get("given") else "the scatter within positions"
         # its size as the angle by which the field would be misplaced at each position: K's relative error is of
         # that order in radians (a review: headings set to ±0.1° on a long log, 6×, 4e-4; an uncalibrated MEMS
         # accelerometer, 6×, 4e-3) — the ratio says it is there, this says whether it matters
         if field is not None:
             res.summary["warnings"] = [w for w in res.summary["warnings"] if w != field["warning"]]
-            against = "the noise σ given" if scatter.get("given") else "the scatter within positions"
             out.append(f"{field['warning']} Against {against} as well: the residual is {ratio:.0f}x what it allows "
                        f"({expected * dof_factor:.3g}); largest at position {worst}")
             return out + _moved_warnings(scatter)
         angle = _misplacement(res)
-        out.append(f"the model does not fit: residual RMS {rms:.4g} is {ratio:.0f}x what the scatter within "
-                   f"positions allows ({expected * dof_factor:.3g}); largest at position {worst}. It is a misplacement "
+        out.append(f"the model does not fit: residual RMS {rms:.4g} is {ratio:.0f}x what {against} allows "
+                   f"(an RMS of {expected * dof_factor:.3g}); largest at position {worst}. It is a misplacement "
                    f"of the field by {np.degrees(angle):.2g}° per position, and U0 and K are biased by about that "
                    f"({angle:.1g} of K). Check the reference field (inclination sign, declination, --field order "
                    "N,E,D), the position order or labels, heading placement (--estimate-yaw), the accelerometer "

@@ -217,7 +217,8 @@ def test_2d_bad_input_errors():
         twostep_2d(readings, h[:, None])
     with pytest.raises(ValueError, match="field_norms: 'abc' is not numbers"):
         twostep_2d(readings, "abc")
-    with pytest.raises(TypeError, match="unknown option 'iterations'"):
+    with pytest.raises(TypeError, match=r"unknown option 'iterations' \(did you mean 'max_iterations'\?\); its options: "
+                                        r".*max_iterations, misfit_spread"):
         twostep_2d(readings, h, iterations=3)
 
 
