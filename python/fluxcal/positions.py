@@ -422,7 +422,8 @@ def calibrate(mag, acc, field_ned, frame: str = "ned", preset=None, attitudes=No
     corrected one is an error naming the mistake. A field in another unit than the readings' is seen only by K's
     gain (`units` a field unit: nT, uT, ...), and said. A fit that leaves the field's magnitude wrong by more
     than GROSS_MISFIT of it at its own positions, with nothing else said, is said first (`field_units`, the
-    field's unit, e.g. "nT" for IGRF, names the error's unit there).
+    field's unit, e.g. "nT" for IGRF, names the error's unit there; a stated unit the field's magnitude contradicts
+    is said too: 48.9 stated in nT is an Earth field in µT).
     """
     if field_ned is None:
         raise ValueError("field_ned: the reference field is missing; give (N, E, D), or use reference_field() "
@@ -461,7 +462,7 @@ def calibrate(mag, acc, field_ned, frame: str = "ned", preset=None, attitudes=No
         raise ValueError(said) from None
     res = _result(d, frame)
     _check_field_fit(res, f, frame, U, sf, nominal, refit, **sameness)
-    res.summary["warnings"] = list(res.summary["warnings"]) + _unit_warnings(res, f, units, False)
+    res.summary["warnings"] = list(res.summary["warnings"]) + _unit_warnings(res, f, units, field_units)
     if options.estimate_inclination:
         said = _dip_moved(res, f)
         if said:
@@ -572,7 +573,7 @@ def fit(mag, reference, units: str = "", frame: str = "ned") -> PositionsResult:
     _check_field_fit(res, None, frame, None, None, np.zeros((0, 9)), None)
     # the reference's own size stands for |f| (a coil's varying fields: their RMS)
     res.summary["warnings"] = list(res.summary["warnings"]) + _unit_warnings(
-        res, float(np.sqrt(np.mean(np.sum(H ** 2, axis=1)))), units, False)
+        res, float(np.sqrt(np.mean(np.sum(H ** 2, axis=1)))), units)
     return res
 
 
@@ -1071,23 +1072,35 @@ def _moved_warnings(scatter) -> list:
     return out
 
 
-def _unit_warnings(res, field_ned, units, igrf) -> list:
+def _field_unit_guess(magnitude: float) -> str | None:
+    """The unit an Earth field of this magnitude is given in: nT (15 000–80 000) or uT (15–80); None otherwise."""
+    return "nT" if 15000 < magnitude < 80000 else ("uT" if 15 < magnitude < 80 else None)
+
+
+def _unit_warnings(res, field_ned, units, field_units: str = "") -> list:
     """Readings in a field unit should give |K| near the unit conversion: flag µT labelled nT and the like (or the
     field in another unit than the readings': no residual shows it, K's scale absorbs it). `field_ned`: the field,
-    or its magnitude."""
+    or its magnitude; `field_units`: its unit when stated (IGRF's nT), else guessed from its magnitude — and a
+    stated unit the magnitude contradicts is said (48.9 given as nT is an Earth field in µT)."""
     from .calibration import TESLA_PER_UNIT
     from .io.columns import unit_name
 
     F = float(np.linalg.norm(field_ned))
-    field_unit = "nT" if (igrf or 15000 < F < 80000) else ("uT" if 15 < F < 80 else None)
+    guessed = _field_unit_guess(F)
+    stated = unit_name(field_units) if field_units and unit_name(field_units) in TESLA_PER_UNIT else None
+    out = []
+    if stated and guessed and stated != guessed:
+        out.append(f"the reference field's magnitude {F:.6g} is an Earth field in {guessed}, not in {field_units} as "
+                   f"stated: check the field's unit (K is in {units or 'output'} per the unit the field is in)")
+    field_unit = stated or guessed
     if unit_name(units) not in TESLA_PER_UNIT or field_unit is None:
-        return []
+        return out
     expected = TESLA_PER_UNIT[field_unit] / TESLA_PER_UNIT[unit_name(units)]  # readings per field unit, unit gain
     gain = _gain(res)
     if not 0.2 < gain / expected < 5.0:
-        return [f"K's gain is {gain:.3g} {units} per {field_unit}, {gain / expected:.3g}x a unit-gain sensor's: "
-                f"the readings are probably not in {units} (or the field not in {field_unit}); check the unit labels"]
-    return []
+        out.append(f"K's gain is {gain:.3g} {units} per {field_unit}, {gain / expected:.3g}x a unit-gain sensor's: "
+                   f"the readings are probably not in {units} (or the field not in {field_unit}); check the unit labels")
+    return out
 
 
 # --- command line (fluxcal positions) ---------------------------------------------------------------
@@ -1183,8 +1196,6 @@ def run_cli(args, out=None) -> int:
                    "labels": [_label(u) for u in (uniq if ids is not None else range(1, len(mag) + 1))]}
     if scatter is not None:
         extra_warnings += _misfit_warnings(res, f, scatter)
-    extra_warnings += [w for w in _unit_warnings(res, f, units, args.lat is not None)  # calibrate's own: once
-                       if w not in res.summary["warnings"]]
     misfit = [w for w in extra_warnings if w.startswith("the model does not fit")]
     # calibrate's own gross-misfit warning (first when said) gives way to a misfit the positions' scatter measured
     warnings_ = [w for w in res.summary["warnings"] if not (misfit and w.startswith(GROSS_SAID))] + \
@@ -1193,9 +1204,11 @@ def run_cli(args, out=None) -> int:
     report = res.verify(mag, acc, preset=args.preset, acc_measures=args.acc_measures) if args.preset else \
         res.verify(mag, acc, acc_measures=args.acc_measures)
     doc = res.to_dict()
-    field_name = "nT" if args.lat is not None else "the reference field's unit"  # IGRF gives nT
-    doc["units_of"] = {"offset": res.units or "the outputs' unit", "K": f"{res.units or 'output'} per {field_name}",
-                       "field_ned": field_name, "standard_errors": "each parameter's own (U0, K as above; yaw_* and "
+    guess = _field_unit_guess(float(np.linalg.norm(f)))
+    field_name = "nT" if args.lat is not None else (guess or "the reference field's unit")  # IGRF gives nT
+    by_size = ", the field's unit by its magnitude" if args.lat is None and guess else ""
+    doc["units_of"] = {"offset": res.units or "the outputs' unit",
+                       "K": f"{res.units or 'output'} per {field_name}{by_size}", "field_ned": field_name + by_size, "standard_errors": "each parameter's own (U0, K as above; yaw_* and "
                        "inclination in radians)", "yaw_deg": "degrees"}
     doc.update(source=str(args.file), positions=int(len(mag)), preset=args.preset,
                verification={k: v for k, v in report.items() if not isinstance(v, list) or k == "field_error_rms"})
@@ -1211,7 +1224,7 @@ def run_cli(args, out=None) -> int:
         print(f"  K  = [{rows}] ({doc['units_of']['K']})", file=out)
         print(f"  field (N, E, D) = {res.field_ned}  inclination {inclination_of(res.field_ned):.3f}°", file=out)
         v = doc["verification"]
-        field_unit = f" {field_name}" if args.lat is not None else f" ({field_name})"
+        field_unit = f" {field_name}" if args.lat is not None or guess else f" ({field_name})"
         print(f"  in-sample: |H| error RMS {v['magnitude_error_rms']:.4g}{field_unit}, dip error RMS "
               f"{v['dip_error_deg_rms']:.4g}°"
               + (f", heading error RMS {v['heading_error_rms_deg']:.4g}°" if "heading_error_rms_deg" in v else ""),

@@ -501,6 +501,25 @@ def test_a_position_a_quarter_turn_off_its_label_is_said_and_the_calibration_hol
     assert np.abs(z).max() < 5, z  # (the correctly labelled positions' fit reaches 3.1 on this seed)
 
 
+def test_a_field_stated_in_one_unit_and_given_in_another_is_said(tmp_path):
+    """The field given in µT and stated in nT (a blind check: no word, K 1000× a unit-gain sensor's with nothing to
+    compare it with) is said; stated right, nothing; the command line names the unit its magnitude shows."""
+    s = _twelve(np.random.default_rng(11))
+    micro = PAPER_FIELD / 1000.0
+    nominal = sim.twelve_scene("nue").nominal
+    stated = fp.calibrate(s.outputs, s.acc_raw, micro, frame="nue", rotations=nominal, field_units="nT")
+    assert any("magnitude 52.2 is an Earth field in uT, not in nT as stated" in w for w in stated.summary["warnings"]), \
+        stated.summary["warnings"]
+    right = fp.calibrate(s.outputs, s.acc_raw, micro, frame="nue", rotations=nominal, field_units="uT")
+    assert not any("as stated" in w for w in right.summary["warnings"]), right.summary["warnings"]
+    path = tmp_path / "twelve.csv"
+    path.write_text("position,ax,ay,az,mx,my,mz\n" + "\n".join(
+        ",".join(f"{v:.10g}" for v in [i + 1, *s.acc_raw[i], *s.outputs[i]]) for i in range(12)) + "\n")
+    r = run_cli("positions", path, "--field", ",".join(f"{v:.6f}" for v in micro), "--frame", "nue", "--preset",
+                "twelve")
+    assert r.returncode == 0 and "(output per uT, the field's unit by its magnitude)" in r.stdout, r.stdout
+
+
 def test_cli_positions_wrong_inclination_sign_comes_back_on_the_physical_branch(tmp_path):
     """--inclination with the wrong sign and --estimate-inclination: the fit can end with the field reversed and
     K negated (a blind check: K = −K_true with the dip reported as −52°). The physical branch is returned, said."""
