@@ -456,7 +456,8 @@ def calibrate(mag, acc, field_ned, frame: str = "ned", preset=None, attitudes=No
     except ValueError as exc:
         # a field that fits no attitude can leave the solver a flat, inflated K ("not observable"): when a
         # corrected field fits, the field is the error to give, not the positions' spread
-        said = _refused_field(str(exc), f, frame, refit, **sameness)
+        said = _refused_field(str(exc), f, frame, refit, **sameness) or (
+            _one_attitude(sf) if not len(nominal) and any(w in str(exc) for w in ("ellipsoid", "plane", "observable")) else None)
         if said is None:
             raise
         raise ValueError(said) from None
@@ -480,6 +481,24 @@ def calibrate(mag, acc, field_ned, frame: str = "ned", preset=None, attitudes=No
     if gross:
         res.summary["warnings"] = _misfit_first(res, gross, res.summary["warnings"])
     return res
+
+
+# Positions whose accelerometer directions all lie within this of their mean were held in one tilt
+ONE_TILT_DEG = 5.0
+
+
+def _one_attitude(sf) -> str | None:
+    """With the headings unknown, a refused fit of positions that all share one tilt: the start's ellipsoid fit had
+    answered with advice for a turning log ("record a few hundred while turning the sensor")."""
+    up = sf / np.linalg.norm(sf, axis=1, keepdims=True)
+    mean = up.mean(axis=0)
+    spread = float(np.degrees(np.arccos(np.clip(up @ (mean / np.linalg.norm(mean)), -1.0, 1.0))).max())
+    if not spread < ONE_TILT_DEG:
+        return None
+    return (f"specific_force: every position has the same tilt (the accelerometer's directions within {spread:.2g}° "
+            "of their mean), and with the headings unknown the fit needs positions that differ: hold the device in 10 "
+            "or more attitudes, tilted several ways and turned round (or give nominal attitudes: a preset such as "
+            "the twelve)")
 
 
 # Every estimated heading turned the same way by more than this (and beyond their scatter): said, with its causes

@@ -520,6 +520,16 @@ def test_a_field_stated_in_one_unit_and_given_in_another_is_said(tmp_path):
     assert r.returncode == 0 and "(output per uT, the field's unit by its magnitude)" in r.stdout, r.stdout
 
 
+def test_positions_of_one_tilt_with_the_headings_unknown_are_refused_for_what_they_are():
+    """Twelve rows of one attitude and no nominal attitudes: the start's ellipsoid fit had refused them with a
+    turning log's advice ("record a few hundred while turning the sensor"); the refusal says the positions share
+    one tilt and what a bench should do."""
+    s = _twelve(np.random.default_rng(12))
+    with pytest.raises(ValueError, match=r"specific_force: every position has the same tilt .*10 or more attitudes"):
+        fp.calibrate(np.repeat(s.outputs[:1], 12, axis=0) + 0.3 * np.random.default_rng(0).standard_normal((12, 3)),
+                     np.repeat(s.acc_raw[:1], 12, axis=0), PAPER_FIELD, frame="nue")
+
+
 def test_cli_positions_wrong_inclination_sign_comes_back_on_the_physical_branch(tmp_path):
     """--inclination with the wrong sign and --estimate-inclination: the fit can end with the field reversed and
     K negated (a blind check: K = −K_true with the dip reported as −52°). The physical branch is returned, said."""
