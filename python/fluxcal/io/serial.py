@@ -48,13 +48,15 @@ after the port opens, which may be the tail of a line already in flight, unless 
 the columns or no byte came for QUIET_OPEN_S (0.5 s) after the open: pyserial's open empties the input
 queue, so a line that starts after that silence is whole (a note in the file says so); the line in
 flight at a disconnect or at the end), `fields` (wrong number of fields, missing keys; a csv header line the device
-prints: it is followed, see csv above, or refused as `unit`), `non_numeric`
+prints that names neither the columns nor its earlier header), `non_numeric`
 (a field that is not a finite decimal number), `ambiguous` (kv: a number whose comma may be a decimal comma
 or a thousands separator, 1,234, until a line shows a decimal comma that cannot be one, 12,34 or 0,123;
 or a comma between digits on a line whose fields are separated by commas), `unit` (kv: a unit that is not a magnetic-field unit on
 mx,my,mz, or differs from --units/--columns or from the first recorded line), `out_of_range` (outside `--range`), `too_long` (no line
 end within 1024 bytes), `checksum` (binary frame or sentence whose checksum does not match; a sentence without
-one where the device's others carry one).
+one where the device's others carry one). A csv header line the device prints and the recorder follows (its order,
+its units; see csv above) is no data and no rejection: counted apart ("Followed 2 header lines"); one whose units
+cannot be the recording's is rejected as `unit`.
 
 The output is the CSV layout of fluxcal.io.write_csv (`# fluxcal recording`, `# units: ...`, metadata,
 header, rows), flushed after every record so that a crash loses at most the line in flight. A
@@ -442,7 +444,7 @@ class TextDecoder:
             self.names = [c.name for c in self.columns]
             self._order, self._refused, self._aliases = None, None, None
             spec = ",".join(f"{c.name}[{c.unit}]" if c.unit else c.name for c in self.columns)
-            return Reject("fields", f"{line}: its columns are the recording's ({spec})",
+            return Reject("header", f"{line}: its columns are the recording's ({spec})",
                           note=f"columns from {line}: {spec}")
         if len(printed) != len(mine):  # no header of these columns; its lines do not fit them either
             if said:
@@ -478,7 +480,7 @@ class TextDecoder:
         renamed = ", ".join(f"{n}={c}" for (n, _), c in zip(cells, self.names) if n.lower() != c.lower())
         event = self._follow(cells, printed, line, said, note=f"{line}: its fields taken as the columns {names} "
                              f"by position ({renamed}); a header in another order is followed")
-        if event.reason == "fields":
+        if event.reason == "header":
             self._aliases = printed
         return event
 
@@ -497,7 +499,7 @@ class TextDecoder:
         identity = list(range(len(order)))
         changed = (self._order or identity) != order or self._refused is not None
         self._order, self._refused = (None if order == identity else order), None
-        return Reject("fields", line + (": columns now in its order" if self._order else ""),
+        return Reject("header", line + (": columns now in its order" if self._order else ""),
                       note=note or (f"{line}: columns in its order from here on" if changed else ""))
 
     def _header_unit_clash(self, cells, reference) -> str:
@@ -954,8 +956,14 @@ class RecordStats:
     write_error: str = ""  # why the output could not be written (disk full, ...): the recording stopped there
     ignored_keys: Counter = field(default_factory=Counter)  # kv: keys beyond the columns on kept lines -> lines
     unverified: int = 0  # nmea: sentences kept without a checksum (the device sends none)
+    headers: int = 0  # csv: header lines the device printed and the recorder followed (no data, not rejected)
+    first_header: str = ""
 
     def reject(self, reject: Reject, t_host: float) -> None:
+        if reject.reason == "header":  # followed, not refused: counted apart from the rejected lines
+            self.headers += 1
+            self.first_header = self.first_header or f"at t_host={t_host:.3f} s: {reject.detail}"
+            return
         self.rejected[reject.reason] += 1
         self.examples.setdefault(reject.reason, f"at t_host={t_host:.3f} s: {reject.detail}")
 
@@ -973,6 +981,9 @@ class RecordStats:
                 f"{self.rejected_text()}.")
         for reason in sorted(self.rejected):
             text += f" First {reason} {self.examples[reason]}."
+        if self.headers:
+            text += (f" Followed {self.headers} header line{'s' * (self.headers != 1)} the device printed (first "
+                     f"{self.first_header}).")
         if self.ignored_keys:
             keys = ", ".join(f"{k!r} on {n} line{'s' * (n != 1)}" for k, n in self.ignored_keys.most_common())
             text += f" Ignored keys not in --columns: {keys} (name a key in --columns to record it)."
@@ -993,6 +1004,7 @@ class RecordStats:
         ignored = "".join(f", key {k!r} ignored on {n} line{'s' * (n != 1)}" for k, n in
                           self.ignored_keys.most_common())
         unverified = f", {self.unverified} sentences unverified (no checksum)" if self.unverified else ""
+        unverified += f", {self.headers} header line{'s' * (self.headers != 1)} followed" if self.headers else ""
         return (f"summary: {self.records} records, {self.rejected_text()}{ignored}{unverified}, {self.reconnects} "
                 f"reconnects, {self.duration_s:.3f} s, stopped: {self.stopped or 'end'}")
 
