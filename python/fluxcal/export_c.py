@@ -195,8 +195,8 @@ def fixed_point(cal: Calibration, q_format: str | QFormat | None = None,
         if fmt is None or not _fits(a, b, fmt, na, r):
             smallest = _smallest_format(a, b, na, r)
             raise ValueError((f"--q-format {fmt}: " if fmt is not None else "") +
-                             f"readings up to the input range ±{r:.6g}{units} and their corrections "
-                             f"±{_output_range(a, b, r):.6g} do not fit " +
+                             f"readings up to the input range ±{r:.6g}{units} per axis, and their corrections "
+                             f"(up to ±{_output_range(a, b, r):.6g} at the box's worst corner), do not fit " +
                              (f"the format's ±{fmt.max_value:.6g}; use at least {smallest}" if smallest else
                               "any int32 Q format"))
         note = f"the sensor's full scale (--input-range), {r / extent:.3g} x the readings' extent {extent:.6g}{units}"
@@ -212,8 +212,8 @@ def fixed_point(cal: Calibration, q_format: str | QFormat | None = None,
         if not _fits(a, b, fmt, na, extent):
             smallest = _smallest_format(a, b, na, extent)
             raise ValueError(f"--q-format {fmt}: readings of the calibration field reach ±{extent:.6g} {cal.units} "
-                             f"and their corrections ±{_output_range(a, b, extent):.6g}, beyond the format's "
-                             f"±{fmt.max_value:.6g}; use at least {smallest}")
+                             f"per axis, and a reading in that box corrects to up to ±{_output_range(a, b, extent):.6g} "
+                             f"(its worst corner): beyond the format's ±{fmt.max_value:.6g}; use at least {smallest}")
         lo, hi = extent, wanted  # the largest range up to `wanted` that fits: bisection (both sides monotone)
         if _fits(a, b, fmt, na, hi):
             lo = hi
