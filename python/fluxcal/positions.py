@@ -32,6 +32,8 @@ ellipsoid-fit start (≥ 10 positions).
 from __future__ import annotations
 
 import datetime as _dt
+import itertools
+import math
 import re
 import warnings
 from dataclasses import dataclass, field as _field
@@ -401,7 +403,7 @@ def _nominal(n: int, frame: str, preset, attitudes, rotations) -> np.ndarray:
 def calibrate(mag, acc, field_ned, frame: str = "ned", preset=None, attitudes=None, rotations=None,
               estimate_yaw=None, estimate_inclination: bool = False, acc_measures: str = "specific_force",
               units: str = "", gravity: float = 0.0, gravity_tolerance: float = 0.05, field_units: str = "",
-              **settings) -> PositionsResult:
+              position_labels=None, **settings) -> PositionsResult:
     """Calibrate U = U0 + K H from N static positions.
 
     mag: N×3 outputs; acc: N×3 calibrated accelerometer readings in the same body axes
@@ -423,7 +425,10 @@ def calibrate(mag, acc, field_ned, frame: str = "ned", preset=None, attitudes=No
     gain (`units` a field unit: nT, uT, ...), and said. A fit that leaves the field's magnitude wrong by more
     than GROSS_MISFIT of it at its own positions, with nothing else said, is said first (`field_units`, the
     field's unit, e.g. "nT" for IGRF, names the error's unit there; a stated unit the field's magnitude contradicts
-    is said too: 48.9 stated in nT is an Earth field in µT).
+    is said too: 48.9 stated in nT is an Earth field in µT). A misfit that one or two positions make (the fit
+    without them leaves MISFIT_RATIO× less) names them and how they read by the other positions' calibration: a
+    quarter turn from the label, the attitudes of two positions swapped, a field disturbed there
+    (`position_labels`: the positions' names in those words, default 1, 2, … in the order given).
     """
     if field_ned is None:
         raise ValueError("field_ned: the reference field is missing; give (N, E, D), or use reference_field() "
@@ -449,6 +454,14 @@ def calibrate(mag, acc, field_ned, frame: str = "ned", preset=None, attitudes=No
         except ValueError:
             return None
 
+    def refit_without(rows):  # the same fit without these positions (None when it cannot be made)
+        keep = np.setdiff1d(np.arange(len(U)), rows)
+        try:
+            return _result(_core.calibrate_positions(U[keep], sf[keep], nominal[keep] if len(nominal) else nominal,
+                                                     to_local(f, frame), options), frame)
+        except ValueError:
+            return None
+
     # with no nominal attitudes the headings are free (the core estimates them whatever estimate_yaw says)
     sameness = {"headings_free": not len(nominal), "dip_free": options.estimate_inclination}
     try:
@@ -462,7 +475,8 @@ def calibrate(mag, acc, field_ned, frame: str = "ned", preset=None, attitudes=No
             raise
         raise ValueError(said) from None
     res = _result(d, frame)
-    _check_field_fit(res, f, frame, U, sf, nominal, refit, **sameness)
+    odd = _OddPositions(U, sf, nominal, refit_without, position_labels, headings_fixed=not options.estimate_yaw)
+    _check_field_fit(res, f, frame, U, sf, nominal, refit, odd=odd, **sameness)
     res.summary["warnings"] = list(res.summary["warnings"]) + _unit_warnings(res, f, units, field_units)
     if options.estimate_inclination:
         said = _dip_moved(res, f)
@@ -728,7 +742,7 @@ _BODY_FRAME_CAUSE = ("Which mistake a body-frame reference holds cannot be told 
 
 
 def _check_field_fit(res, field_ned, frame, U, sf, nominal, refit, headings_free: bool = False,
-                     dip_free: bool = False) -> None:
+                     dip_free: bool = False, odd: "_OddPositions | None" = None) -> None:
     """Warn, without any noise σ, when the fit does not fit the reference field: its residual misplaces the field by
     more than MISPLACED_DEG per position, or (above LOOK_DEG) the same fit against a plausibly mistaken field
     (_FIELD_MISTAKES, those the fit can tell apart: _same_to_the_fit) leaves MISFIT_RATIO× less — an upper bound on
@@ -736,7 +750,8 @@ def _check_field_fit(res, field_ned, frame, U, sf, nominal, refit, headings_free
     mistake when one fits; puts the warning first (a misfit inflates the standard errors: "12 parameters poorly
     determined" was the only word for a north sign flipped) and keeps its parts in `res.summary["field_misfit"]` for
     run_cli. `field_ned` None: a body-frame reference (fit()), only the misfit's size is judged. `headings_free`: no
-    nominal attitudes; a K that comes out a mirror without a misfit is said too (_mirror_said)."""
+    nominal attitudes; a K that comes out a mirror without a misfit is said too (_mirror_said). `odd`: when no field
+    mistake is named, the positions whose leaving out removes the misfit are sought, and named."""
     rms = float(res.summary["residual_rms"])
     if not (rms > 0 and np.all(np.isfinite(res.K)) and np.all(np.isfinite(res.reference)) and _gain(res) > 0):
         return
@@ -747,8 +762,11 @@ def _check_field_fit(res, field_ned, frame, U, sf, nominal, refit, headings_free
     if refit is not None and f is not None and np.degrees(angle) > LOOK_DEG:
         tried = _mistake_refits(f, frame, refit, headings_free, dip_free)
     named = _named(tried, rms)
+    # (with the headings fixed its refits are linear and cheap, and it is its own yardstick: tried on every fit)
+    odd_said = odd.said(res) if odd is not None and not named and (odd.headings or np.degrees(angle) > LOOK_DEG) \
+        else None
     gross = np.degrees(angle) > MISPLACED_DEG
-    if not (gross or named):
+    if not (gross or named or odd_said):
         if headings_free and f is not None:  # (a misfit's K, mirror or not, is no evidence of either)
             _mirror_said(res, f)
         return
@@ -767,6 +785,8 @@ def _check_field_fit(res, field_ned, frame, U, sf, nominal, refit, headings_free
         turn = (f", heading error RMS {_deg(heading)}° → {_deg(alt_heading)}°" if heading is not None and
                 alt_heading is not None else "")
         cause = _mistake_named(named, f"the residual falls to {best[0]:.4g}{unit} ({rms / best[0]:.0f}× less{turn})")
+    elif odd_said:
+        cause = odd_said
     elif f is None:
         cause = _BODY_FRAME_CAUSE
     else:
@@ -774,8 +794,118 @@ def _check_field_fit(res, field_ned, frame, U, sf, nominal, refit, headings_free
                  "(--frame), the position order or labels and magnetic objects near the bench")
     text += f". U0 and K are biased by about {angle:.1g} of K. {cause}"
     res.summary["warnings"] = _misfit_first(res, text, res.summary["warnings"])
-    res.summary["field_misfit"] = {"warning": text, "cause": cause if named else None,
+    res.summary["field_misfit"] = {"warning": text, "cause": cause if named or odd_said else None,
                                    "misplacement_deg": float(np.degrees(angle)), "gross": bool(gross)}
+
+
+# The positions with the largest residuals tried as the misfit's source, singly and in pairs: a position mislabelled
+# or disturbed has the largest residual or nearly (least squares spreads part of it over the others), and trying
+# only these bounds the search at 10 refits (a log's many positions would otherwise cost one refit each)
+ODD_SUSPECTS = 4
+# A position read this near a quarter or half turn from its label was set or labelled that way, not misplaced
+QUARTER_TOL_DEG = 15.0
+ODD_P = 1e-3  # the odd positions' F test, Bonferroni over the choices of positions
+# A position whose |H| is this many times the others' |H| error RMS off the field's magnitude holds a disturbance (a
+# magnetic object near it): a heading set off or mislabelled turns the field, it leaves |H| as the others'
+DISTURBED_RATIO = 5.0
+
+
+class _OddPositions:
+    """Whether leaving one or two positions out removes the fit's misfit (their refit leaves MISFIT_RATIO× less), and
+    what they read by the other positions' calibration: how far their heading is from their label (headings fixed),
+    whether two read as each other's attitude, how far |H| is from the field's magnitude."""
+
+    def __init__(self, U, sf, nominal, refit_without, labels=None, headings_fixed: bool = True):
+        self.U, self.sf, self.nominal, self.refit_without = U, sf, nominal, refit_without
+        self.labels = list(labels) if labels is not None else list(range(1, len(U) + 1))
+        if len(self.labels) != len(U):
+            raise ValueError(f"position_labels: {len(self.labels)} labels for {len(U)} positions")
+        self.headings = headings_fixed and len(nominal) > 0
+
+    def search(self, res):
+        """(rows, refit, ratio) of the fewest positions (one, else two, among ODD_SUSPECTS) whose leaving out leaves
+        MISFIT_RATIO× less residual RMS, and significantly so: the F test of the residual they take away against
+        what is left, p below ODD_P over every choice of that many positions (the suspects are picked as the worst:
+        6 arbitrary positions without this test: noise alone gave a 5× fall in 16 of 300 fits; with it, 0). None
+        otherwise."""
+        from scipy.stats import f as f_dist
+
+        n = len(self.U)
+        ssr = float(np.sum(res.residuals ** 2))
+        suspects = np.argsort(-np.linalg.norm(res.residuals, axis=1))[:ODD_SUSPECTS]
+        for size in (1, 2):
+            fits = []
+            for rows in itertools.combinations(sorted(int(r) for r in suspects), size):
+                alt = self.refit_without(list(rows))
+                if alt is not None and np.isfinite(alt.summary["residual_rms"]):
+                    fits.append((float(alt.summary["residual_rms"]), rows, alt))
+            if not fits:
+                continue
+            rms_left, rows, alt = min(fits, key=lambda t: t[0])
+            dof_left = 3 * (n - size) - len(alt.parameters)
+            ssr_left = float(np.sum(alt.residuals ** 2))
+            if dof_left < 1 or not rms_left * MISFIT_RATIO <= float(res.summary["residual_rms"]):
+                continue
+            taken = max(ssr - ssr_left, 0.0) / (3 * size)
+            p = f_dist.sf(taken / max(ssr_left / dof_left, 1e-300 * ssr), 3 * size, dof_left)
+            if p * math.comb(n, size) < ODD_P:
+                return rows, alt, float(res.summary["residual_rms"]) / max(rms_left, 1e-300)
+        return None
+
+    def _reading(self, alt, row: int, attitude: int) -> dict:
+        """Position `row` read by the calibration `alt`, against the nominal attitude of position `attitude`."""
+        rotations = self.nominal[[attitude]] if self.headings else None
+        return verification_report(alt, self.U[[row]], self.sf[[row]], rotations=rotations)
+
+    def said(self, res) -> str | None:
+        found = self.search(res)
+        if found is None:
+            return None
+        rows, alt, ratio = found
+        unit = f" {alt.units}" if alt.units else ""
+        names = " and ".join(str(self.labels[r]) for r in rows)
+        text = (f"Position{'s' if len(rows) > 1 else ''} {names} do{'' if len(rows) > 1 else 'es'} not fit the "
+                f"others: without {'them' if len(rows) > 1 else 'it'} the residual falls to "
+                f"{alt.summary['residual_rms']:.4g}{unit} ({ratio:.0f}x less)")
+        F = float(np.linalg.norm(alt.field_ned))
+        if self.headings and len(rows) == 2:
+            a, b = rows
+            crossed = [self._reading(alt, a, b), self._reading(alt, b, a)]
+            if all(abs(r["heading_error_deg"][0]) < QUARTER_TOL_DEG and abs(r["dip_error_deg"][0]) < QUARTER_TOL_DEG
+                   for r in crossed):
+                return (f"{text}, and each reads as the other's attitude (headings "
+                        f"{_signed(crossed[0]['heading_error_deg'][0], 1)}° and "
+                        f"{_signed(crossed[1]['heading_error_deg'][0], 1)}° from them): logged in each other's place, or "
+                        "their labels swapped? Correct the labels or the order; U0 and K above include the mix-up")
+        keep = np.setdiff1d(np.arange(len(self.U)), rows)
+        others = verification_report(alt, self.U[keep], self.sf[keep])["magnitude_error_rms"]
+        parts = []
+        for r in rows:
+            seen = self._reading(alt, r, r)
+            share = seen["magnitude_error"][0] / F if F > 0 else 0.0
+            disturbed = abs(seen["magnitude_error"][0]) > DISTURBED_RATIO * max(others, 1e-9 * F)
+            said = f"|H| {100 * share:+.2g} % off the field's"
+            turn = float(seen["heading_error_deg"][0]) if self.headings else 0.0
+            quarter = 90.0 * round(turn / 90.0)
+            if quarter and abs(turn - quarter) < QUARTER_TOL_DEG:
+                half = abs(quarter) == 180.0  # (±180° are one turn)
+                said = (f"turned {'180' if half else f'{turn:+.0f}'}° from its label: mislabelled, or set a quarter "
+                        "or half turn off?")
+            elif disturbed:
+                said = (f"{said} ({abs(seen['magnitude_error'][0]) / max(others, 1e-9 * F):.0f}x the others')"
+                        + (f" and a heading {_signed(turn, 1)}° from its label" if self.headings else
+                                     f" and its dip {_signed(seen['dip_error_deg'][0], 2)}°")
+                        + ": a magnetic object near it, or the field disturbed while it was logged?")
+            else:
+                said = f"a heading {_signed(turn, 1)}° from its label, {said}: misplaced on the bench?"
+            parts.append(f"position {self.labels[r]} reads {said}")
+        return (f"{text}; by the others' calibration {' '.join(parts)} Correct the attitude or log the position again "
+                "(U0 and K above include it)")
+
+
+def _signed(x: float, digits: int) -> str:
+    """x with its sign, rounded, and no −0."""
+    return f"{(round(float(x), digits) or 0.0):+.{digits}f}" if abs(x) < 10 else f"{x:+.0f}"
 
 
 def _mirror_said(res, field_ned) -> None:
@@ -1057,7 +1187,7 @@ def _misfit_warnings(res, field_ned, scatter) -> list:
         # accelerometer, 6×, 4e-3) — the ratio says it is there, this says whether it matters
         if field is not None:
             res.summary["warnings"] = [w for w in res.summary["warnings"] if w != field["warning"]]
-            out.append(f"{field['warning']} Against {against} as well: the residual is {ratio:.0f}x what it allows "
+            out.append(f"{field['warning'].rstrip('.')}. Against {against} as well: the residual is {ratio:.0f}x what it allows "
                        f"({expected * dof_factor:.3g}); largest at position {worst}")
             return out + _moved_warnings(scatter)
         angle = _misplacement(res)
@@ -1206,6 +1336,7 @@ def run_cli(args, out=None) -> int:
         res = calibrate(mag, acc, f, frame=args.frame, preset=args.preset, estimate_yaw=args.estimate_yaw or None,
                         estimate_inclination=args.estimate_inclination, units=units, acc_measures=args.acc_measures,
                         tilt_sigma_deg=args.tilt_sigma, field_units="nT" if args.lat is not None else "",
+                        position_labels=[_label(u) for u in uniq] if ids is not None else None,
                         **({"output_sigma": sigma_out} if sigma_out else {}))
     except ValueError as exc:
         raise ValueError(_in_file_terms(str(exc), args.file, rec, uniq if ids is not None else None)) from None

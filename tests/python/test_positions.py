@@ -477,6 +477,7 @@ def test_cli_positions_names_a_position_turned_about_the_vertical_while_logging(
         assert r.returncode == 0, r.stderr
         assert ("position(s) 7 (σ" in r.stdout and "turned while logging" in r.stdout) == bool(turned), r.stdout
         assert ("the model does not fit" in r.stdout and "largest at position 7" in r.stdout) == bool(turned), r.stdout
+        assert ("Position 7 does not fit the others" in r.stdout) == bool(turned), r.stdout
 
 
 @pytest.mark.parametrize("quarter", [90.0, -90.0])
@@ -499,6 +500,55 @@ def test_a_position_a_quarter_turn_off_its_label_is_said_and_the_calibration_hol
     assert r.parameter_names[:12][0] == "U0_x" and r.parameter_names[:12][-1] == "K_zz"
     z = (np.asarray(r.parameters[:12]) - truth) / np.asarray(r.standard_errors[:12])
     assert np.abs(z).max() < 5, z  # (the correctly labelled positions' fit reaches 3.1 on this seed)
+
+
+@pytest.mark.parametrize("mistake, said", [
+    ("none", None),
+    ("quarter turn at 5", "position E reads turned +90° from its label: mislabelled"),
+    ("half turn at 9", "position I reads turned 180° from its label: mislabelled"),
+    ("20° off at 3", "position C reads a heading +20° from its label"),
+    ("1 and 2 swapped", "Positions A and B do not fit the others: without them"),
+    ("steel near 3", "position C reads |H|"),
+])
+def test_the_positions_that_make_a_misfit_are_named_with_what_they_read(mistake, said):
+    """Headings fixed by the nominal attitudes: one position held a quarter or half turn from its label, one set
+    20° off, two logged in each other's place (1 and 2 share a tilt), steel near one — the fit without it or them
+    leaves MISFIT_RATIO× less, and the warning names them (by the labels given) and what they read by the others'
+    calibration. Before, the quarter turn was 'misplaces the field by 8.5°… check labels' and the 20° heading had no
+    word at all (2.1° misplacement, under the gross line); clean positions name nothing."""
+    s = _twelve(np.random.default_rng(12))
+    outputs, acc = np.array(s.outputs), np.array(s.acc_raw)
+    up = acc / np.linalg.norm(acc, axis=1, keepdims=True)
+
+    def turned(i, deg):  # position i (from 0) held turned by deg about the vertical
+        h = np.linalg.solve(K_TRUE, outputs[i] - U0_TRUE)
+        outputs[i] = U0_TRUE + K_TRUE @ Rotation.from_rotvec(np.radians(deg) * up[i]).apply(h)
+
+    if mistake == "quarter turn at 5":
+        turned(4, 90.0)
+    elif mistake == "half turn at 9":
+        turned(8, 180.0)
+    elif mistake == "20° off at 3":
+        turned(2, 20.0)
+    elif mistake == "1 and 2 swapped":
+        outputs[[0, 1]], acc[[0, 1]] = outputs[[1, 0]], acc[[1, 0]]
+    elif mistake == "steel near 3":
+        outputs[2] += K_TRUE @ np.array([1500.0, -1000.0, 500.0])  # nT: 3.5 % of the field
+    labels = list("ABCDEFGHIJKL")
+    r = fp.calibrate(outputs, acc, PAPER_FIELD, frame="nue", rotations=sim.twelve_scene("nue").nominal,
+                     units="mV", position_labels=labels)
+    misfit = [w for w in r.summary["warnings"] if w.startswith("the model does not fit")]
+    if said is None:
+        assert not misfit, r.summary["warnings"]
+        return
+    assert len(misfit) == 1 and said in misfit[0], r.summary["warnings"]
+    if mistake == "1 and 2 swapped":
+        assert "each reads as the other's attitude" in misfit[0], misfit[0]
+    if mistake == "steel near 3":
+        assert "a magnetic object near it" in misfit[0], misfit[0]
+    with pytest.raises(ValueError, match="position_labels: 11 labels for 12 positions"):
+        fp.calibrate(outputs, acc, PAPER_FIELD, frame="nue", rotations=sim.twelve_scene("nue").nominal,
+                     position_labels=labels[:11])
 
 
 def test_a_field_stated_in_one_unit_and_given_in_another_is_said(tmp_path):
