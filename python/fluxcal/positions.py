@@ -1200,6 +1200,20 @@ def _misfit_warnings(res, field_ned, scatter) -> list:
     return out + _moved_warnings(scatter)
 
 
+# A noise σ stated this many times off the scatter within positions (either way) is said: the standard errors take it
+STATED_SIGMA_RATIO = 3.0
+
+
+def _stated_sigma_words(stated: float, measured: float) -> str | None:
+    """--noise-sigma against what the repeats within positions measure (both per position, after averaging)."""
+    if not (measured > 0 and stated > 0) or 1.0 / STATED_SIGMA_RATIO <= stated / measured <= STATED_SIGMA_RATIO:
+        return None
+    return (f"--noise-sigma {stated:.3g} is {stated / measured:.2g}x the scatter the repeats within positions show "
+            f"per position ({measured:.3g}): the standard errors take the σ given, so they are "
+            f"{'too wide' if stated > measured else 'too narrow'} by about that if the repeats are right (is the σ "
+            "per reading, not per position after averaging, or in another unit?)")
+
+
 def _moved_warnings(scatter) -> list:
     out = []
     unsteady = scatter.get("unsteady", [])
@@ -1328,6 +1342,10 @@ def run_cli(args, out=None) -> int:
     sigma_out = getattr(args, "noise_sigma", 0.0) or 0.0
     if not sigma_out and scatter is not None and args.tilt_sigma > 0:
         sigma_out = scatter["mag_sigma_per_position"]  # σ̂ from 12 positions with 24 tilts is not identified
+    if sigma_out and scatter is not None and getattr(args, "noise_sigma", 0.0):
+        said = _stated_sigma_words(sigma_out, scatter["mag_sigma_per_position"])
+        if said:
+            extra_warnings.append(said)
     try:
         if args.calibrate_accelerometer:
             acc_cal = calibrate_accelerometer(acc, gravity=float(np.median(np.linalg.norm(acc, axis=1))))

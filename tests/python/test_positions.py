@@ -480,6 +480,22 @@ def test_cli_positions_names_a_position_turned_about_the_vertical_while_logging(
         assert ("Position 7 does not fit the others" in r.stdout) == bool(turned), r.stdout
 
 
+def test_cli_positions_says_a_noise_sigma_the_repeats_contradict(tmp_path):
+    """--noise-sigma sets the standard errors; when the repeats within positions show a per-position scatter more
+    than 3× off it (a σ per reading given, 10 rows: 3.2×; a unit mixed up), that is said, and a σ near them is not."""
+    rng = np.random.default_rng(13)
+    s = _twelve(rng, noise=0.0)
+    rows = [[i + 1, *s.acc_raw[i], *(s.outputs[i] + 0.45 * rng.standard_normal(3))] for i in range(12) for _ in range(10)]
+    path = tmp_path / "repeats.csv"
+    path.write_text("position,ax,ay,az,mx,my,mz\n" + "\n".join(",".join(f"{v:.10g}" for v in r) for r in rows) + "\n")
+    f = ",".join(f"{v:.6f}" for v in PAPER_FIELD)
+    per_position = 0.45 / np.sqrt(10)
+    for sigma, said in ((per_position, False), (0.45 * 1.5, True), (per_position / 5, True)):
+        r = run_cli("positions", path, "--field", f, "--frame", "nue", "--preset", "twelve", "--noise-sigma", f"{sigma:.4g}")
+        assert r.returncode == 0, r.stderr
+        assert ("the scatter the repeats within positions show per position" in r.stdout) == said, r.stdout
+
+
 @pytest.mark.parametrize("quarter", [90.0, -90.0])
 def test_a_position_a_quarter_turn_off_its_label_is_said_and_the_calibration_holds(quarter):
     """Position 5 held a quarter turn about the vertical from its nominal attitude, headings estimated: the fit
