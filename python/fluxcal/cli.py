@@ -2098,6 +2098,9 @@ def build_parser() -> argparse.ArgumentParser:
     q.add_argument("--calibrate-accelerometer", action="store_true",
                    help="calibrate the accelerometer from the same positions first (>= 6 distinct gravity "
                         "directions; its misalignment needs 9, which the twelve positions alone do not give)")
+    q.add_argument("--leave-out", default=None, metavar="LABELS",
+                   help="positions to leave out of the fit, as the position column names them (e.g. 7 or 5,9): "
+                        "each is reported held out, read by the others' calibration against its nominal attitude")
     q.add_argument("-o", "--output", help="write the result (JSON)")
     q.set_defaults(run=cmd_positions)
     dr = sub.add_parser("drift", help="temperature-drift compensation of a current transformer's zero bias (seed 001)")

@@ -899,8 +899,9 @@ class _OddPositions:
             else:
                 said = f"a heading {_signed(turn, 1)}° from its label, {said}: misplaced on the bench?"
             parts.append(f"position {self.labels[r]} reads {said}")
-        return (f"{text}; by the others' calibration {' '.join(parts)} Correct the attitude or log the position again "
-                "(U0 and K above include it)")
+        return (f"{text}; by the others' calibration {' '.join(parts)} Correct the attitude, log the position again "
+                f"or leave it out (fluxcal positions --leave-out {','.join(str(self.labels[r]) for r in rows)}); U0 "
+                "and K above include it")
 
 
 def _signed(x: float, digits: int) -> str:
@@ -1229,8 +1230,8 @@ def _moved_warnings(scatter) -> list:
         out.append(f"position(s) {named}: the outputs scatter within the position far beyond the other positions' "
                    f"(σ {unsteady[0][2]:.3g} per reading): the device turned while logging (a turn about "
                    "the vertical leaves the accelerometer's direction as it was) or a magnetic disturbance came and "
-                   "went; the position's mean is off by part of that. Log it again, or leave its rows out "
-                   "(--bad-lines skip with its position cell empty); the misfit test takes the other positions' "
+                   "went; the position's mean is off by part of that. Log it again, or leave it out (--leave-out "
+                   f"{','.join(str(u[0]) for u in unsteady)}); the misfit test takes the other positions' "
                    "scatter as its yardstick")
     return out
 
@@ -1317,12 +1318,31 @@ def run_cli(args, out=None) -> int:
             raise ValueError(f"{args.file}, {rec.place(row)}: {name} is not finite")
     ids = rec.columns.get("position")
     scatter = None
+    attitudes = {"preset": args.preset} if args.preset else {}
+    held = None  # (labels, accelerometer, magnetometer, nominal rotations or None) of the positions left out
     if ids is not None:
         uniq, acc_av, mag_av = average_positions(ids, acc, mag)
         if args.preset:
             _require_preset_ids(args.file, uniq, len(preset_rotations(args.preset, args.frame)))
         scatter = _replicate_scatter(ids, uniq, acc, mag, acc_av, mag_av)
         acc, mag = acc_av, mag_av
+        out_rows = _left_out(getattr(args, "leave_out", None), uniq, args.file)
+        if len(out_rows):
+            keep = np.setdiff1d(np.arange(len(uniq)), out_rows)
+            nominal = preset_rotations(args.preset, args.frame) if args.preset else None
+            held = ([_label(uniq[k]) for k in out_rows], acc[out_rows], mag[out_rows],
+                    None if nominal is None else nominal[out_rows])
+            if nominal is not None:
+                attitudes = {"rotations": nominal[keep]}
+            dropped = set(held[0])
+            scatter = dict(scatter, labels=[label for label in scatter["labels"] if label not in dropped],
+                           unsteady=[u for u in scatter["unsteady"] if u[0] not in dropped])
+            if scatter["worst_tilt"] is not None and scatter["worst_tilt"][1] in dropped:
+                scatter["worst_tilt"] = None
+            uniq, acc, mag = uniq[keep], acc[keep], mag[keep]
+    elif getattr(args, "leave_out", None):
+        raise ValueError(f"--leave-out: {args.file} has no position column to name positions by (its rows are the "
+                         "positions: leave rows out of the file)")
     field_args = {}
     if args.field:
         try:
@@ -1351,7 +1371,7 @@ def run_cli(args, out=None) -> int:
             acc_cal = calibrate_accelerometer(acc, gravity=float(np.median(np.linalg.norm(acc, axis=1))))
             acc = acc_cal.apply(acc)
             extra_warnings += [f"accelerometer calibration: {w}" for w in acc_cal.summary.get("warnings", [])]
-        res = calibrate(mag, acc, f, frame=args.frame, preset=args.preset, estimate_yaw=args.estimate_yaw or None,
+        res = calibrate(mag, acc, f, frame=args.frame, **attitudes, estimate_yaw=args.estimate_yaw or None,
                         estimate_inclination=args.estimate_inclination, units=units, acc_measures=args.acc_measures,
                         tilt_sigma_deg=args.tilt_sigma, field_units="nT" if args.lat is not None else "",
                         position_labels=[_label(u) for u in uniq] if ids is not None else None,
@@ -1369,8 +1389,7 @@ def run_cli(args, out=None) -> int:
     warnings_ = [w for w in res.summary["warnings"] if not (misfit and w.startswith(GROSS_SAID))] + \
         [w for w in extra_warnings if w not in misfit]
     res.summary["warnings"] = _misfit_first(res, misfit[0], warnings_) if misfit else warnings_
-    report = res.verify(mag, acc, preset=args.preset, acc_measures=args.acc_measures) if args.preset else \
-        res.verify(mag, acc, acc_measures=args.acc_measures)
+    report = res.verify(mag, acc, **attitudes, acc_measures=args.acc_measures)
     doc = res.to_dict()
     guess = _field_unit_guess(float(np.linalg.norm(f)))
     field_name = "nT" if args.lat is not None else (guess or "the reference field's unit")  # IGRF gives nT
@@ -1380,6 +1399,8 @@ def run_cli(args, out=None) -> int:
                        "inclination in radians)", "yaw_deg": "degrees"}
     doc.update(source=str(args.file), positions=int(len(mag)), preset=args.preset,
                verification={k: v for k, v in report.items() if not isinstance(v, list) or k == "field_error_rms"})
+    if held is not None:
+        doc["left_out"] = _held_out(res, held, args.acc_measures)
     if acc_cal is not None:
         doc["accelerometer"] = {"offset": acc_cal.offset.tolist(), "matrix": acc_cal.matrix.tolist(),
                                 "tilt_error_deg": acc_cal.tilt_error_deg}
@@ -1397,11 +1418,41 @@ def run_cli(args, out=None) -> int:
               f"{v['dip_error_deg_rms']:.4g}°"
               + (f", heading error RMS {v['heading_error_rms_deg']:.4g}°" if "heading_error_rms_deg" in v else ""),
               file=out)
+        for label, seen in zip(held[0] if held is not None else [], doc.get("left_out", [])):
+            print(f"  left out: position {label}: |H| error {seen['magnitude_error']:+.4g}{field_unit}, dip error "
+                  f"{seen['dip_error_deg']:+.3g}°" + (f", heading error {seen['heading_error_deg']:+.3g}°"
+                                                      if "heading_error_deg" in seen else ""), file=out)
     for w in res.summary["warnings"]:
         print(f"warning: {w}", file=out)
     if args.output:
         print(f"wrote {args.output}", file=out)
     return 0
+
+
+def _left_out(text, uniq, source) -> np.ndarray:
+    """The rows of `uniq` (the position column's labels) that --leave-out names; an unknown label is an error."""
+    if not text:
+        return np.zeros(0, dtype=int)
+    labels = [str(_label(u)) for u in uniq]
+    wanted = [w.strip() for w in str(text).split(",") if w.strip()]
+    unknown = [w for w in wanted if w not in labels and str(_label(w)) not in labels]
+    if unknown:
+        raise ValueError(f"--leave-out: {', '.join(unknown)} not among {source}'s positions ({', '.join(labels)})")
+    return np.array(sorted({labels.index(w if w in labels else str(_label(w))) for w in wanted}), dtype=int)
+
+
+def _held_out(res, held, acc_measures: str) -> list:
+    """Each position left out, read by the calibration against its nominal attitude (when there is one)."""
+    labels, acc, mag, nominal = held
+    report = res.verify(mag, acc, **({"rotations": nominal} if nominal is not None else {}), acc_measures=acc_measures)
+    out = []
+    for i, label in enumerate(labels):
+        seen = {"position": label, "magnitude_error": report["magnitude_error"][i],
+                "dip_error_deg": report["dip_error_deg"][i]}
+        if "heading_error_deg" in report:
+            seen["heading_error_deg"] = report["heading_error_deg"][i]
+        out.append(seen)
+    return out
 
 
 GROSS_MISFIT = 0.05  # in-sample |H| error RMS, as a share of the field, that no sensor's noise explains (refine's)

@@ -478,6 +478,14 @@ def test_cli_positions_names_a_position_turned_about_the_vertical_while_logging(
         assert ("position(s) 7 (σ" in r.stdout and "turned while logging" in r.stdout) == bool(turned), r.stdout
         assert ("the model does not fit" in r.stdout and "largest at position 7" in r.stdout) == bool(turned), r.stdout
         assert ("Position 7 does not fit the others" in r.stdout) == bool(turned), r.stdout
+    # the position named, left out: the others fit, and it is read held out against its nominal attitude
+    r = run_cli("positions", path, "--field", f, "--frame", "nue", "--preset", "twelve", "--leave-out", "7",
+                "-o", tmp_path / "left.json")
+    assert r.returncode == 0 and "11 positions" in r.stdout and "does not fit" not in r.stdout, r.stdout
+    assert "left out: position 7: |H| error" in r.stdout and "heading error" in r.stdout, r.stdout
+    assert json.loads((tmp_path / "left.json").read_text())["left_out"][0]["position"] == 7
+    r = run_cli("positions", path, "--field", f, "--frame", "nue", "--preset", "twelve", "--leave-out", "7,13")
+    assert r.returncode != 0 and "--leave-out: 13 not among" in r.stderr and "Traceback" not in r.stderr, r.stderr
 
 
 def test_cli_positions_says_a_noise_sigma_the_repeats_contradict(tmp_path):
