@@ -533,6 +533,8 @@ def test_a_position_a_quarter_turn_off_its_label_is_said_and_the_calibration_hol
     ("20° off at 3", "position C reads a heading +20° from its label"),
     ("1 and 2 swapped", "Positions A and B do not fit the others: without them"),
     ("steel near 3", "position C reads |H|"),
+    ("steel near 3, headings estimated", "position C reads |H|"),
+    ("none, headings estimated", None),
 ])
 def test_the_positions_that_make_a_misfit_are_named_with_what_they_read(mistake, said):
     """Headings fixed by the nominal attitudes: one position held a quarter or half turn from its label, one set
@@ -556,11 +558,11 @@ def test_the_positions_that_make_a_misfit_are_named_with_what_they_read(mistake,
         turned(2, 20.0)
     elif mistake == "1 and 2 swapped":
         outputs[[0, 1]], acc[[0, 1]] = outputs[[1, 0]], acc[[1, 0]]
-    elif mistake == "steel near 3":
+    elif mistake.startswith("steel near 3"):
         outputs[2] += K_TRUE @ np.array([1500.0, -1000.0, 500.0])  # nT: 3.5 % of the field
     labels = list("ABCDEFGHIJKL")
     r = fp.calibrate(outputs, acc, PAPER_FIELD, frame="nue", rotations=sim.twelve_scene("nue").nominal,
-                     units="mV", position_labels=labels)
+                     units="mV", position_labels=labels, estimate_yaw="headings estimated" in mistake)
     misfit = [w for w in r.summary["warnings"] if w.startswith("the model does not fit")]
     if said is None:
         assert not misfit, r.summary["warnings"]
@@ -568,7 +570,7 @@ def test_the_positions_that_make_a_misfit_are_named_with_what_they_read(mistake,
     assert len(misfit) == 1 and said in misfit[0], r.summary["warnings"]
     if mistake == "1 and 2 swapped":
         assert "each reads as the other's attitude" in misfit[0], misfit[0]
-    if mistake == "steel near 3":
+    if mistake.startswith("steel near 3"):
         assert "a magnetic object near it" in misfit[0], misfit[0]
     with pytest.raises(ValueError, match="position_labels: 11 labels for 12 positions"):
         fp.calibrate(outputs, acc, PAPER_FIELD, frame="nue", rotations=sim.twelve_scene("nue").nominal,
