@@ -1111,6 +1111,9 @@ def cmd_cable(args) -> int:
     data = cable.read_ring_csv(args.file, bad_lines=args.bad_lines)
     ring = data["ring"]
     _ring_notes(cable, data)
+    clipped = cable.clipped_readings(data["readings"])  # (raw: a rail is one value before any calibration)
+    if clipped.any():
+        print(f"warning: {args.file}: {cable.clipped_words(data['readings'], clipped)}")
     if args.cable_command == "calibrate":
         if data["currents_a"] is None or data["positions_m"] is None:
             raise ValueError(f"{args.file}: a calibration recording needs reference currents (i0, i1, …) and "
@@ -1198,13 +1201,18 @@ def cmd_cable(args) -> int:
         rotation = float(rotations[rows[0]])
         sol = _solve_ring_snapshots(ring, ring_cal, raw[rows], rotation, rows, args, zeros.get(rotation))
         solutions.append(sol)
+    for s in solutions:  # a clipped reading leaves no misfit: the solution is flagged for it
+        s["clipped"] = bool(clipped[s["snapshots"]].any())
+        if s["clipped"] and "_said" in s:
+            s["_said"]["tail"] += ", ON A RAIL (clipped readings)"
     numbered = _number_conductors(solutions, data)
     if numbered:
         print(f"conductors numbered as the recording's {numbered}")
     for sol in solutions:
         _print_ring_solution(sol)
     # each kind of warning once, with the snapshots it concerns (24 snapshots' misfit had run to 48 lines)
-    said = [(s["where"], w) for s in solutions for w in s.pop("warnings_said", [])]
+    said = [(s["where"], w) for s in solutions for w in s.pop("warnings_said", [])
+            if not w.startswith("readings on a rail")]  # (said once for the recording, above)
     for line in _grouped_warning_lines([where for where, _ in said], [w for _, w in said], _snapshots_words):
         print(line)
     if args.subtract_zero and any(not s["fits_model"] and "left_out" not in s for s in solutions):
@@ -1219,9 +1227,10 @@ def cmd_cable(args) -> int:
         Path(args.output).write_text(json.dumps({"source": str(args.file), "joint": bool(args.joint),
                                                  "solutions": solutions}, indent=2))
         print(f"wrote {args.output}")
-    if not any(s["well_conditioned"] and s["fits_model"] for s in solutions):
+    if not any(s["well_conditioned"] and s["fits_model"] and not s["clipped"] for s in solutions):
         # (a script reads the exit status: every solution flagged had exited 0)
-        print("error: no snapshot's solution both fits the model and is well conditioned (exit status 3)",
+        print("error: no snapshot's solution both fits the model and is well conditioned"
+              + (" with no reading on a rail" if any(s["clipped"] for s in solutions) else "") + " (exit status 3)",
               file=sys.stderr)
         return 3
     return 0

@@ -1049,3 +1049,30 @@ def test_cli_solve_numbers_the_conductors_as_the_recording(tmp_path):
     assert len(solved) >= 4  # (a phase near 0 A leaves its conductor's place undetermined, said)
     for out in solved:
         np.testing.assert_allclose(out["positions_m"], three, atol=1e-7)
+
+
+def test_readings_clipped_at_a_rail_are_said_and_fail_the_exit_status(tmp_path):
+    """Two sensors clipped at ±800 µT (4 % of their 833 µT) in every snapshot: another geometry fits them within the
+    noise (a blind check: 140 A for 100 A, 'well conditioned', exit 0, no word). The rail is named, by the API and
+    by `cable solve`, which flags each snapshot and exits 3. A quantised AC waveform's peaks (a sine dwells longest
+    there) and noise-free symmetric readings are no rail."""
+    from fluxcal.cable import clipped_readings, write_ring_csv
+
+    ring = Ring([0.0, 90.0, 180.0, 270.0], 0.010)
+    rng = np.random.default_rng(3)
+    true = ring.field([[-2e-3, 0.0], [2e-3, 0.0]], [100.0, -100.0])
+    snaps = np.stack([np.clip(true + 1e-7 * rng.standard_normal(true.shape), -8e-4, 8e-4) for _ in range(5)])
+    sol = ring.solve(snaps, noise_sigma=1e-7)
+    assert any(w.startswith("readings on a rail: sensor 0 y (±800 µT, 5 of 5") for w in sol.summary["warnings"]), \
+        sol.summary["warnings"]
+    path = tmp_path / "clipped.csv"
+    write_ring_csv(path, ring, snaps)
+    r = run_cli("cable", "solve", path, "--noise-sigma", "1e-7")
+    assert r.returncode == 3 and "readings on a rail" in r.stdout and "ON A RAIL" in r.stdout, r.stdout + r.stderr
+    assert r.stdout.count("readings on a rail") == 1, r.stdout  # once for the recording, not per snapshot
+    # no rail: unclipped readings; a 50 Hz waveform sampled at 5 kHz, quantised to 1 µT; noise-free symmetry
+    assert not clipped_readings(np.stack([true + 1e-7 * rng.standard_normal(true.shape) for _ in range(5)])).any()
+    t = np.arange(400) / 5000.0
+    wave = np.stack([ring.field([[-2e-3, 0.0], [2e-3, 0.0]], [i, -i]) for i in 10.0 * np.sin(2 * np.pi * 50 * t)])
+    assert not clipped_readings(np.round(wave / 1e-6) * 1e-6).any()
+    assert not clipped_readings(true).any()
