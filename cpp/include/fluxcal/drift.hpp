@@ -5,7 +5,8 @@
 // Columns are balanced by their maximum |value| before least squares (same SSE, far smaller
 // condition number), A solved by a column-pivoted QR. The order m rises from 0 while the F-test
 //   F = (SSE_m − SSE_{m+1}) / (SSE_{m+1} / (N − m − 2))  >  F(1, N − m − 2; significance)
-// says the next power is significant, up to max_order and one below the regressor's separate levels
+// says the next power is significant — or, when it is not, the next two together (F(2, N − m − 3) at the significance
+// squared: a drift even about the range's middle has no linear term) — up to max_order and one below the regressor's separate levels
 // (values within 5 % of the range's width are one level: two temperature holds determine a line). Optionally the segments are refitted jointly
 // with equality constraints so the drift is continuous at the breakpoints. A sample belongs to the
 // range [lo, hi) of its selecting temperature (the last range includes hi). A random-walk-like noise (its
@@ -53,7 +54,7 @@ struct DriftSegment {
   double sse = 0.0;
   double residual_rms = 0.0;
   double condition_number = 0.0;  ///< of the balanced Vandermonde matrix
-  std::vector<double> f_statistics;  ///< F of each step m → m+1 that was tested
+  std::vector<double> f_statistics;  ///< F of each step tested: m → m+1, and m → m+2 (2 dof) after one that fails
 };
 
 struct DriftModel {

@@ -105,7 +105,13 @@ def fit_drift(select, x, w, breakpoints=(-20.0, 0.0, 30.0, 50.0), max_order=4, s
             dof = rows - m - 2
             f = (s - s1) / (s1 / dof)
             if not stats.f.sf(f, 1, dof) < significance:
-                break
+                if m + 2 > top or rows - m - 3 <= 0:  # the step to m+1 failed: m+2 on its own 2 dof (a bowl)
+                    break
+                c2, s2, _ = sse(m + 2)
+                if not stats.f.sf(0.5 * (s - s2) / (s2 / (rows - m - 3)), 2, rows - m - 3) < significance ** 2:
+                    break
+                m, c, s = m + 2, c2, s2
+                continue
             m, c, s = m + 1, c1, s1
         segments.append({"order": m, "coefficients": c})
     return segments, ar
