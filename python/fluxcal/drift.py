@@ -769,8 +769,12 @@ def _profiled(w: np.ndarray, ok: np.ndarray, features: list, maxlags: int, given
     rest = sm.add_constant(np.column_stack([np.asarray(g)[ok] for g in given]) if len(given) else
                            np.empty((int(ok.sum()), 0)), has_constant="add")
     designs = [np.column_stack([rest, g[ok]]) for g in features]
-    rss = [float(np.sum((w[ok] - X @ np.linalg.lstsq(X, w[ok], rcond=None)[0]) ** 2)) for X in designs]
-    best = int(np.argmin(rss))
+    solved = [np.linalg.lstsq(X, w[ok], rcond=None)[0] for X in designs]
+    rss = [float(np.sum((w[ok] - X @ b) ** 2)) for X, b in zip(designs, solved)]
+    # the best of the effect's own sign (a dead band's two senses are near negatives of each other: the best by
+    # RSS alone could be the other sense's column, with its sign wrong and so "not significant")
+    ranked = np.argsort(rss)
+    best = next((int(i) for i in ranked if signed or solved[i][-1] > 0), int(ranked[0]))
     fit = sm.OLS(w[ok], designs[best]).fit(cov_type="HAC", cov_kwds={"maxlags": maxlags})
     share = _term_share(w[ok], designs[best], -1)
     left = float(np.var(w[ok] - rest @ np.linalg.lstsq(rest, w[ok], rcond=None)[0]) / max(np.var(w[ok]), 1e-300))
@@ -837,7 +841,7 @@ def _state_design(temp: np.ndarray, model: "DriftModel", orders: list, sizes: di
     lo, hi = float(temp.min()), float(temp.max())
     state = _lagged(temp, step, sizes["lag"], breaks) if "lag" in sizes else temp
     if "hysteresis" in sizes:
-        state = play(state, sizes["hysteresis"], "temp")
+        state = _banded(state, sizes["hysteresis"])
     state = np.clip(state if rows is None else state[rows], lo, hi)
     if X is None:
         X = np.zeros((state.size, sum(orders) + len(orders) + len(trend)))
@@ -855,6 +859,15 @@ def _state_design(temp: np.ndarray, model: "DriftModel", orders: list, sizes: di
     return X
 
 
+def _banded(state: np.ndarray, r: float) -> np.ndarray:
+    """The state through a dead band of half-width |r|: a play operator for r > 0 (the element follows the thermometer
+    only once pushed r away: heating, it reads T − r), its mirror 2T − play(T) for r < 0 (heating, T + |r|: the
+    thermometer, not the element, follows through the dead band — a blind check's heating branch read as if hotter,
+    measured at +0.04 A heating minus cooling with p 1e-134, and was never said)."""
+    banded = play(state, abs(r), "temp")
+    return banded if r > 0 else 2.0 * state - banded
+
+
 def _state_fit(W: np.ndarray, ok: np.ndarray, temp: np.ndarray, model: "DriftModel", orders: list, start: dict,
                step: float, breaks=(), hours=None, xtol: float = 1e-4) -> tuple[dict, np.ndarray, np.ndarray]:
     """W (the zero bias) as the state model of the effects in `start` (name → size): the polynomials and the trend
@@ -863,28 +876,34 @@ def _state_fit(W: np.ndarray, ok: np.ndarray, temp: np.ndarray, model: "DriftMod
     first-order 600 s lag beside a band at 580 s). → (sizes, residual, polynomial and trend coefficients)."""
     from scipy.optimize import least_squares
 
-    nonlinear = [k for k in ("lag", "hysteresis") if k in start and np.isfinite(start[k]) and start[k] > 0]
+    nonlinear = [k for k in ("lag", "hysteresis") if k in start and np.isfinite(start[k]) and _sized(k, start[k])]
+    signs = np.array([np.sign(start[k]) for k in nonlinear])  # (a dead band's sense kept: log |r| fitted)
     trend = [hours] if "ageing" in start and hours is not None else []
     rows = None if ok.all() else ok
     y = W if rows is None else W[rows]
     X = np.zeros((y.size, sum(orders) + len(orders) + len(trend)))
 
     def fitted(z):
-        _state_design(temp, model, orders, dict(zip(nonlinear, np.exp(z))), step, breaks, rows, trend, X)
+        _state_design(temp, model, orders, dict(zip(nonlinear, signs * np.exp(z))), step, breaks, rows, trend, X)
         # (normal equations: 51k rows, a few columns; rcond: a range the state hardly visits)
         b = np.linalg.lstsq(X.T @ X, X.T @ y, rcond=1e-12)[0]
         return y - X @ b, b
 
-    z = np.log([start[k] for k in nonlinear])
+    z = np.log([abs(start[k]) for k in nonlinear])
     if nonlinear:
         wide = np.log(SIZE_SEARCH)
         z = least_squares(lambda v: fitted(v)[0], z, bounds=(z - wide, z + wide), diff_step=1e-3, xtol=xtol,
                           ftol=1e-10, gtol=1e-10).x
-    sizes = {k: float(v) for k, v in zip(nonlinear, np.exp(z))}
+    sizes = {k: float(v) for k, v in zip(nonlinear, signs * np.exp(z))}
     e, b = fitted(z)
     if trend:
         sizes["ageing"] = float(b[-1])
     return sizes, e, b
+
+
+def _sized(name: str, size: float) -> bool:
+    """Whether a lag (τ > 0) or a dead band (r ≠ 0: either sense, _banded) of this size is one to fit."""
+    return size > 0 if name == "lag" else size != 0
 
 
 def _sized_beside_drift(w: np.ndarray, ok: np.ndarray, temp: np.ndarray, f: np.ndarray, model: "DriftModel",
@@ -906,7 +925,7 @@ def _sized_beside_drift(w: np.ndarray, ok: np.ndarray, temp: np.ndarray, f: np.n
     0.02 A/h of ageing beside a 2 °C band 0.0199–0.0200 A/h. An element 600 s and a thermometer 60 s behind the
     chamber (not one first-order lag: about 540 s on the ramps) read 528 s, beside a 2 °C band 505–510 s /
     2.08–2.10 °C (559–566 s / 2.53–2.57 °C before). → {name: size}."""
-    of_state = any(k in start and np.isfinite(start[k]) and start[k] > 0 for k in ("lag", "hysteresis"))
+    of_state = any(k in start and np.isfinite(start[k]) and _sized(k, start[k]) for k in ("lag", "hysteresis"))
     return _state_fit(w + f, ok, temp, model, _state_orders(model, of_state), start, step, breaks, hours)[0]
 
 
@@ -986,7 +1005,7 @@ def _named_in_state(w: np.ndarray, ok: np.ndarray, temp: np.ndarray, f: np.ndarr
     while True:
         trial = {}
         for k, size in candidates.items():
-            if k in named or k in tried or not (k == "ageing" or (np.isfinite(size) and size > 0)):
+            if k in named or k in tried or not (k == "ageing" or (np.isfinite(size) and _sized(k, size))):
                 continue
             _, with_k, _ = fit(named + [k], {**sizes, k: size})
             if rss - with_k >= LAG_SHARE * rss:
@@ -1103,10 +1122,13 @@ def thermal_lag(model: "DriftModel", compensated, temp, t=None, temp_outside=Non
     both_ways = _both_ways(ok, branch, temp)
     if both_ways is not None:
         # hysteresis as a dead band of half-width r °C: the element's state a play operator of T (it moves only once
-        # T has pushed it r away), exact through f rather than r·f'(T) (a 2 °C band on the steep range was off 25 %)
-        scales["hysteresis"] = float(np.ptp(temp)) * np.geomspace(2e-3, 0.1, 10)
+        # T has pushed it r away), exact through f rather than r·f'(T) (a 2 °C band on the steep range was off 25 %);
+        # or the band in the other sense, the thermometer's (r < 0: _banded)
+        widths = float(np.ptp(temp)) * np.geomspace(2e-3, 0.1, 10)
+        scales["hysteresis"] = np.concatenate([widths, -widths])
+        plays = play(temp, widths, "temp").T
         grids["hysteresis"] = ([model.evaluate(np.clip(p, temp.min(), temp.max()), outside="nan") - f
-                                for p in play(temp, scales["hysteresis"], "temp").T], False)
+                                for p in np.concatenate([plays, 2.0 * temp - plays])], False)
         out["hysteresis"] = {"on_holds": holds}
     turned = set(np.unique(branch[branch != 0]).tolist())
     if len(turned) == 2 and t is not None:  # ageing: a trend in time (times needed), told from the temperature's
@@ -1211,6 +1233,11 @@ def _branch_level_means(values, temp, lag: dict | None) -> list:
     return out
 
 
+def _band_words(r: float) -> str:
+    """A dead band's half-width and sense (_banded)."""
+    return f"±{abs(r):.2g} °C" + ("" if r >= 0 else ", the thermometer's (heating, the element reads as if hotter)")
+
+
 def history_warnings(lag: dict | None, unit: str = "") -> list:
     """What thermal_lag found said: a lag, hysteresis, ageing, or a log that runs the temperature one way without
     holds."""
@@ -1221,7 +1248,7 @@ def history_warnings(lag: dict | None, unit: str = "") -> list:
     also = lag.get("fits_too", {})
     secs = "s" if lag.get("seconds", True) else "samples (no times given)"
     words = {"lag": f"a lag of about {lag['tau_s']:.3g} {secs}",
-             "hysteresis": f"a dead band of ±{h.get('dead_band_c', 0):.2g} °C (hysteresis)",
+             "hysteresis": f"a dead band of {_band_words(h.get('dead_band_c', 0.0))} (hysteresis)",
              "ageing": f"a trend of {a.get('per_hour', 0):.3g}{unit} per hour (ageing)"}
     shares = {"lag": lag["share_alone"], "hysteresis": h.get("share_alone", 0.0), "ageing": a.get("share_alone", 0.0)}
 
@@ -1241,7 +1268,7 @@ def history_warnings(lag: dict | None, unit: str = "") -> list:
     if h.get("said"):
         out.append(f"the compensated zero bias differs between heating and cooling at the same temperature, by up to "
                    f"{h['largest_difference']:.4g}{unit} at {h['at_level']:g} °C (heating minus cooling; as a dead "
-                   f"band of ±{h['dead_band_c']:.2g} °C; Newey–West p {_p_words(h['p_value'])}, "
+                   f"band of {_band_words(h['dead_band_c'])}; Newey–West p {_p_words(h['p_value'])}, "
                    f"{100 * h['share']:.0f} % of "
                    f"its variance, {len(h['difference_by_level'])} levels visited both ways): "
                    + ("hysteresis" if h["on_holds"] else "hysteresis, or the sensing element lagging the thermometer "

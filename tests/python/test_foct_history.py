@@ -48,6 +48,20 @@ def test_hysteresis_is_named_with_its_dead_band_and_judged_per_branch():
     assert not report["accuracy_drift"]["met"]
 
 
+def test_a_dead_band_in_the_thermometer_is_named_with_its_sense():
+    """Heating reads as if hotter (the band in the thermometer, not the element: the element's state 2T − play(T)):
+    a blind check measured heating minus cooling at +0.04 A with p 1e-134 and never said it — the feature, a play
+    operator's, fits only with the wrong sign. Named now, sized with its sense, and the play sense as before."""
+    for band in (-2.0, 2.0):
+        sim = foct_zero_bias(rng=0, cycle=True, hysteresis=band)
+        _, report = fit(sim)
+        found = report["thermal_lag"]
+        assert found["hysteresis"]["said"] and not found["said"], found
+        assert abs(found["hysteresis"]["dead_band_c"] - band) < 0.1, found["hysteresis"]
+        said = [w for w in report["warnings"] if "differs between heating and cooling" in w]
+        assert len(said) == 1 and ("the thermometer's" in said[0]) == (band < 0), said
+
+
 def test_a_lag_longer_than_the_holds_is_a_lag_not_hysteresis():
     """The element 10 min behind the chamber, the thermometer 1 min: on 20 min holds the lag's error is still there
     at their ends, where a test on the holds alone took it for hysteresis."""

@@ -83,7 +83,8 @@ def foct_zero_bias(rng=None, segments=None, ar=(0.5, -0.2), sigma: float = 0.05,
     each temperature point only, as seed 001's S1 reads: the log has a gap in t at every ramp, and the
     noise has run on unseen through it). cycle: the chamber goes up the levels and back down. hysteresis: the drift
     follows the device temperature through a play operator of this half-width (°C; heating and cooling then differ
-    by about 2 × hysteresis × the drift's slope). ageing: a trend of the zero bias in time (amperes per hour, times
+    by about 2 × hysteresis × the drift's slope; negative: the band in the thermometer, heating reads as if hotter).
+    ageing: a trend of the zero bias in time (amperes per hour, times
     each phase's gain)."""
     if logged not in ("all", "holds"):
         raise ValueError(f"logged: {logged!r} is not one of all, holds")
@@ -99,7 +100,10 @@ def foct_zero_bias(rng=None, segments=None, ar=(0.5, -0.2), sigma: float = 0.05,
     device = np.clip(device, lo, hi)  # the chamber never leaves the modelled span; rounding must not either
     from ..drift import play
 
-    drift = drift_law(np.clip(play(device, hysteresis), lo, hi) if hysteresis > 0 else device, segments)
+    # (hysteresis < 0: the band in the thermometer, the element's state 2T − play(T): heating, it reads as if hotter)
+    banded = play(device, abs(hysteresis)) if hysteresis else device
+    drift = drift_law(np.clip(banded if hysteresis > 0 else 2.0 * device - banded, lo, hi) if hysteresis else device,
+                      segments)
     drift = drift + ageing * t / 3600.0
     columns = {"t": t, "temp": device, "temp_outside": chamber}
     phases = {}
