@@ -1363,6 +1363,10 @@ def _snapshots_words(wheres: list) -> str:
     return "snapshots " + ", ".join(runs)
 
 
+PLAUSIBLE_RING_FIELD_T = 0.1  # a reading beyond this (tesla) is another unit: 5000 A at 1 cm
+PLAUSIBLE_RING_RADIUS_M = 0.5  # a ring beyond this radius (metres) is another unit
+
+
 def _ring_notes(cable, data: dict) -> None:
     """What a ring recording's read left out (--bad-lines skip) and the columns it does not use, printed."""
     if data["skipped_lines"]:
@@ -1370,6 +1374,16 @@ def _ring_notes(cable, data: dict) -> None:
     note = cable.ring_columns_note(data)
     if note:
         print(note)
+    # The field scales as I/r: readings or a radius in the wrong unit fit exactly, the currents or positions scaled by
+    # it (µT read as tesla gave 8 MA, well conditioned; a radius in mm, conductors metres apart). Said by their size.
+    largest = float(np.nanmax(np.abs(data["readings"]))) if np.isfinite(data["readings"]).any() else 0.0
+    if largest > PLAUSIBLE_RING_FIELD_T:
+        print(f"warning: readings up to {largest:.4g} T: no cable ring's sensor reads that ({PLAUSIBLE_RING_FIELD_T:g} "
+              "T is 5000 A at 1 cm) — are they in µT or mT, not tesla? Name the unit in the header (units: s0_x=uT, …); "
+              "the currents scale with it")
+    if data["ring"].radius_m > PLAUSIBLE_RING_RADIUS_M:
+        print(f"warning: ring_radius_m {data['ring'].radius_m:g}: a ring {data['ring'].radius_m:g} m in radius — is it in mm "
+              "(ring_radius_m is metres)? The positions and the currents scale with it")
 
 
 def _solve_ring_snapshots(ring, ring_cal, snaps, rotation: float, rows, args, zero=None) -> dict:

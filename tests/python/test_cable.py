@@ -1076,3 +1076,20 @@ def test_readings_clipped_at_a_rail_are_said_and_fail_the_exit_status(tmp_path):
     wave = np.stack([ring.field([[-2e-3, 0.0], [2e-3, 0.0]], [i, -i]) for i in 10.0 * np.sin(2 * np.pi * 50 * t)])
     assert not clipped_readings(np.round(wave / 1e-6) * 1e-6).any()
     assert not clipped_readings(true).any()
+
+
+def test_readings_or_a_radius_in_another_unit_are_said_by_their_size(tmp_path):
+    """The field scales as I/r, so readings in µT written as tesla, or a radius in mm, fit exactly with the currents
+    (and positions) scaled (a blind check: 8 MA, well conditioned, exit 0). Their sizes say it; right units, nothing."""
+    from fluxcal.cable import write_ring_csv
+
+    ring = Ring([0.0, 90.0, 180.0, 270.0], 0.010)
+    true = ring.field([[-1.5e-3, 1.0e-3], [2.2e-3, 0.4e-3]], [8.0, -6.0])
+    for name, written, readings, said in (
+            ("right", ring, true, None), ("uT", ring, true * 1e6, "readings up to"),
+            ("mm", Ring([0.0, 90.0, 180.0, 270.0], 10.0), true, "ring_radius_m 10: a ring 10 m in radius")):
+        path = tmp_path / f"{name}.csv"
+        write_ring_csv(path, written, np.stack([readings, readings]))
+        r = run_cli("cable", "solve", path, "--noise-sigma", "1e-7")
+        warnings = [line for line in r.stdout.splitlines() if line.startswith("warning:")]
+        assert (said is None and not warnings) or (said is not None and any(said in w for w in warnings)), r.stdout
