@@ -1273,6 +1273,8 @@ def history_warnings(lag: dict | None, unit: str = "") -> list:
                    f"its variance, {len(h['difference_by_level'])} levels visited both ways): "
                    + ("hysteresis" if h["on_holds"] else "hysteresis, or the sensing element lagging the thermometer "
                       "(without settled holds the two look alike)")
+                   + " — or a step of the zero bias at one time, between the legs that heat and those that cool (a "
+                   "blind check's 0.05 A step read so: plot the compensated zero bias against time)"
                    + " — a function of temperature cannot follow it and the model sits between the branches, about "
                    f"{abs(h['largest_difference']) / 2:.3g}{unit} off each there, at the holds too; judge the class "
                    "per branch (accuracy_drift does), or model the branch the device is on" + too("hysteresis"))
