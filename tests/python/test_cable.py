@@ -1093,3 +1093,55 @@ def test_readings_or_a_radius_in_another_unit_are_said_by_their_size(tmp_path):
         r = run_cli("cable", "solve", path, "--noise-sigma", "1e-7")
         warnings = [line for line in r.stdout.splitlines() if line.startswith("warning:")]
         assert (said is None and not warnings) or (said is not None and any(said in w for w in warnings)), r.stdout
+
+
+def test_a_sensors_placement_tolerance_is_carried_into_the_standard_errors(tmp_path):
+    """Sensors off their places by σ 0.1 mm (radial and along the ring) on the paper's 4-sensor ring: the solver's
+    own ± (noise only) was 12× too small (a blind check: one sensor 0.25 mm out, 9 % off, nothing said); with the
+    tolerance propagated (placement_shared_errors) the currents' z spread is about 1. Its derivatives are the
+    field's (Ring.field moved by finite differences); `cable solve --placement-sigma` widens the ±."""
+    from fluxcal.cable import CableSolution, placement_shared_errors, propagated_covariance, write_ring_csv
+
+    ring = Ring([10.0, 100.0, 190.0, 280.0], 0.010, axis_angles_deg=[3.0, -2.0, 0.0, 5.0])
+    pos, cur = np.array([[-1.5e-3, 1e-3], [2.2e-3, 0.4e-3]]), np.array([[8.0, -6.0], [5.0, 2.0]])
+    sol = CableSolution(positions=pos, currents=cur, covariance=np.eye(6), standard_errors=np.ones(6),
+                        well_conditioned=True)
+    G, _ = placement_shared_errors(ring, sol, 1e-4, 1.0)
+    base, h = ring.field(pos, cur), 1e-7
+    for i in range(4):
+        angles, axes = ring.angles_deg.copy(), ring.axis_angles_deg.copy()
+        angles[i] += np.degrees(h / 0.010)
+        axes[i] -= np.degrees(h / 0.010)  # (the axes kept as they were: moved along the ring only)
+        moved = (Ring(angles, 0.010, axis_angles_deg=axes).field(pos, cur) - base)[:, i] / h
+        np.testing.assert_allclose(moved, G[:, i, :, 3 * i + 1], rtol=1e-4)
+        axes = ring.axis_angles_deg.copy()
+        axes[i] += np.degrees(1e-6)
+        turned = (Ring(ring.angles_deg, 0.010, axis_angles_deg=axes).field(pos, cur) - base)[:, i] / 1e-6
+        np.testing.assert_allclose(turned, G[:, i, :, 3 * i + 2], rtol=1e-4)
+    wider = (Ring(ring.angles_deg, 0.010 + h, axis_angles_deg=ring.axis_angles_deg).field(pos, cur) - base) / h
+    np.testing.assert_allclose(wider, G[..., [3 * i for i in range(4)]].sum(axis=-1), rtol=1e-4)
+
+    paper = Ring([0.0, 90.0, 180.0, 270.0], 0.010)
+    truth, sigma, mu = np.array([8.0, -6.0]), 1e-7, 2e-7
+    z_solver, z_placed = [], []
+    for seed in range(60):
+        rng = np.random.default_rng(seed)
+        theta = np.radians(paper.angles_deg)
+        p = (0.010 + rng.normal(0, 1e-4, 4) + 1j * rng.normal(0, 1e-4, 4)) * np.exp(1j * theta)
+        b = np.sum(1j * mu * truth[None] / np.conj(p[:, None] - (pos[:, 0] + 1j * pos[:, 1])[None]), axis=1)
+        turned = b * np.exp(-1j * theta)
+        s = paper.solve(np.stack([turned.real, turned.imag], -1) + rng.normal(0, sigma, (4, 2)), noise_sigma=sigma)
+        order = np.argsort(s.positions[:, 0])
+        error = s.currents[order] - truth
+        placed = propagated_covariance(paper, s, np.full((4, 2), sigma ** 2), [placement_shared_errors(paper, s, 1e-4)])
+        z_solver += list(error / np.sqrt(np.diag(s.covariance)[4 + order]))
+        z_placed += list(error / np.sqrt(np.diag(placed)[4 + order]))
+    assert np.std(z_solver) > 5 and 0.8 < np.std(z_placed) < 1.25, (np.std(z_solver), np.std(z_placed))
+
+    path = tmp_path / "ring.csv"
+    write_ring_csv(path, paper, np.stack([paper.field(pos, truth)] * 2))
+    plain = run_cli("cable", "solve", path, "--noise-sigma", "1e-7")
+    placed = run_cli("cable", "solve", path, "--noise-sigma", "1e-7", "--placement-sigma", "1e-4", "--axis-sigma", "0.5")
+    assert plain.returncode == 0 and placed.returncode == 0, placed.stderr
+    se = [float(re.findall(r"; 8(?:\.\d+)? ± ([0-9.e+-]+) A", r.stdout)[0]) for r in (plain, placed)]
+    assert se[1] > 5 * se[0], (plain.stdout, placed.stdout)
