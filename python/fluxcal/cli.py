@@ -1037,7 +1037,8 @@ def cmd_export_c(args) -> int:
     cal = Calibration.load(args.calibration) if args.calibration else None
     sources = [Path(f).name for f in dict.fromkeys(filter(None, (args.calibration, args.kalman, args.drift)))]
     result = export_c(cal, args.output, q_format=args.q_format, name=args.name, kalman=args.kalman,
-                      drift=args.drift, source=", ".join(sources), force=args.force, input_range=args.input_range)
+                      drift=args.drift, source=", ".join(sources), force=args.force, input_range=args.input_range,
+                      kalman_range=args.kalman_range)
     for w in result.warnings:  # what the fit of a drift model warned (in the header too)
         print(f"warning: {w}")
     print(result.describe())
@@ -2084,6 +2085,9 @@ def build_parser() -> argparse.ArgumentParser:
                    help="the sensor's full scale in the calibration's units (e.g. 32768 for int16 counts): the "
                         "Q format must correct every reading up to it without saturating (default: 2 x the "
                         "calibration readings' extent)")
+    x.add_argument("--kalman-range", type=positive_number, default=None,
+                   help="the largest |input| the Kalman filter must take without saturating, in its input's unit "
+                        "(default: 8 sigma of its input; readout spikes beyond it saturate, overflow flagged)")
     x.add_argument("--name", default=None, help="C prefix of every name (default: the header's file name)")
     x.add_argument("--kalman", default=None, help="also export a fixed-point AR Kalman filter: a JSON of "
                                                   "fluxcal.export_c.save_kalman or a drift model (fluxcal drift fit)")

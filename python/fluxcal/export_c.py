@@ -578,7 +578,8 @@ class ExportResult:
                         f"|m| ≤ {fx.input_range:.6g}{unit}; fixed-point error ≤ {fx.error_bound:.3g}{h_unit} "
                         f"({fx.error_bound_lsb:.2f} LSB); {len(self.inputs_q)} test vectors")
         if self.kalman is not None:
-            said.append(f"AR({self.kalman.order}) Kalman filter in C99 (signal {signal_format(self.kalman.frac_bits)})"
+            said.append(f"AR({self.kalman.order}) Kalman filter in C99 (signal {signal_format(self.kalman.frac_bits)}, "
+                        f"inputs to ±{_kalman_reach(self.kalman):.3g})"
                         f" with a {len(self.kalman_test[0])}-sample bit-exact test vector")
         if self.drift is not None:
             orders = ", ".join(str(int(seg["order"])) for seg in self.drift.segments)
@@ -608,10 +609,13 @@ def _rows(values, fmt, indent="  ") -> str:
 
 
 def export_c(cal: Calibration | None, path, q_format=None, name: str | None = None, kalman=None, drift=None,
-             source: str = "", force: bool = False, input_range: float | None = None) -> ExportResult:
+             source: str = "", force: bool = False, input_range: float | None = None,
+             kalman_range: float | None = None) -> ExportResult:
     """Write the firmware header (module docstring). `cal`: a Calibration, or None for a header of the drift
     part alone; `kalman`: a FixedArKalman, or a JSON path for `load_kalman`; `drift`: a DriftModel or its JSON
-    path (f(T) in C); `input_range`: the sensor's full scale in the calibration's units (`fixed_point`). A
+    path (f(T) in C); `input_range`: the sensor's full scale in the calibration's units (`fixed_point`);
+    `kalman_range`: the largest |input| the Kalman filter must take unsaturated (its signal format; default 8 σ of
+    its input: a 40 σ readout spike saturated it, the overflow flag set, and nothing let a user widen it). A
     calibration whose summary says its data did not determine every parameter
     (identifiable false: a yaw-only turn, small tilts), or whose offset moved within its log (a planar calibration's
     offset_split: the calibration is of neither part), is refused — firmware would apply a guess with
@@ -626,7 +630,14 @@ def export_c(cal: Calibration | None, path, q_format=None, name: str | None = No
         raise ValueError("export-c: nothing to export: give a calibration, a Kalman filter (--kalman) or a drift "
                          "model (--drift)")
     if input_range is not None and cal is None:
-        raise ValueError("--input-range: the sensor's full scale sizes a calibration's Q format; give a calibration")
+        raise ValueError("--input-range: the sensor's full scale sizes a calibration's Q format; give a calibration"
+                         + (" (the Kalman filter's input range is --kalman-range)" if kalman is not None else ""))
+    if q_format is not None and cal is None:  # (it had been taken and ignored)
+        raise ValueError("--q-format: the Q format of a calibration's matrix and offsets; without a calibration nothing "
+                         "takes it" + (" (the Kalman filter's signal format follows --kalman-range)"
+                                       if kalman is not None else ""))
+    if kalman_range is not None and kalman is None:
+        raise ValueError("--kalman-range: the largest input of a Kalman filter; give one (--kalman)")
     undetermined = None
     if cal is not None:
         require_calibration(cal, "cal")
@@ -649,7 +660,7 @@ def export_c(cal: Calibration | None, path, q_format=None, name: str | None = No
             lines = [f"/* WARNING (exported with --force): {undetermined.replace('*/', '* /')}. */"] + lines
         parts.append(("magnetometer calibration", lines))
     if kalman is not None:
-        lines, result.kalman, result.kalman_test = _kalman_part(kalman, name, i32)
+        lines, result.kalman, result.kalman_test = _kalman_part(kalman, name, i32, kalman_range)
         parts.append(("fixed-point Kalman filter", fit_said.get("kalman", []) + lines))
     if drift is not None:
         lines, result.drift = _drift_part(drift, name)
@@ -810,10 +821,20 @@ def _calibration_part(cal: Calibration, name: str, q_format, input_range, i32):
     return lines, fx, inputs_q
 
 
-def _kalman_part(kalman, name: str, i32):
+def _kalman_reach(f) -> float:
+    """The largest |input| the filter's signal format holds unsaturated (signal_frac_bits' rule, inverted)."""
+    return 2.0 ** (31 - f.frac_bits) / (2.0 * f.signal_gain)
+
+
+def _kalman_part(kalman, name: str, i32, kalman_range: float | None = None):
     """The header lines of the fixed-point AR Kalman filter (coefficients, C99 filter, test vector), the filter
-    and its test (input, output)."""
+    and its test (input, output); `kalman_range` sizes its signal format for inputs up to that."""
     f = load_kalman(kalman) if isinstance(kalman, (str, Path)) else kalman
+    if kalman_range is not None:
+        y_max = as_number(kalman_range, "kalman_range")
+        if not y_max > 0:
+            raise ValueError(f"--kalman-range {kalman_range}: must be a positive number (the largest |input|)")
+        f.frac_bits = f.signal_frac_bits(y_max)
     if f.frac_bits is None:
         raise ValueError("kalman: the filter's signal format (frac_bits) is not set")
     y_int, out, overflowed = _kalman_test_vector(f)
@@ -825,7 +846,8 @@ def _kalman_part(kalman, name: str, i32):
     lines = [
         f"/* ---- Fixed-point AR({f.order}) Kalman filter (fluxcal.kalman.FixedArKalman) ----",
         f" * C:   {kname}_t f; {kname}_reset(&f); then y_hat = {kname}_step(&f, y) per sample (int32, signal",
-        f" *      format 2^-{kname.upper()}_SIGNAL_FRAC_BITS); f.overflow says whether anything saturated.",
+        f" *      format 2^-{kname.upper()}_SIGNAL_FRAC_BITS: inputs up to about ±{_kalman_reach(f):.3g} unsaturated);",
+        " *      f.overflow says whether anything saturated (a readout spike past that: --kalman-range widens it).",
         " * C++: fluxcal::FixedArKalman<MaxOrder> of cpp/include/fluxcal/fixed_kalman.hpp, configured from these",
         " *      coefficients, runs the same arithmetic.",
         f" * Either, fed {kname}_test_input, returns {kname}_test_output bit for bit (fluxcal's",

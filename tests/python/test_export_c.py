@@ -3,6 +3,7 @@ fixed-point corrections reproduce Calibration.apply on the generated test vector
 precision (float: relative 1e-6; fixed: the stated bound, and bit for bit with the Python model), the
 self-test catches a damaged constant, and the Kalman part runs bit-exactly in fixed_kalman.hpp."""
 import json
+import re
 import shutil
 import subprocess
 
@@ -277,6 +278,26 @@ def test_kalman_from_a_drift_model(tmp_path):
     export_c(CALS["nT"], header, name="p", kalman=path)
     outputs, mismatches = run_kalman_driver(tmp_path, header)
     assert mismatches == 0 and len(outputs) == 256
+
+
+def test_kalman_signal_range_is_stated_and_can_be_widened(tmp_path):
+    """The firmware filter's signal format is sized for 8 σ of its input; a 40 σ readout spike saturated it and
+    nothing let a user widen it, and --q-format with --kalman alone was taken and ignored (a blind check). The header
+    states the reach; --kalman-range widens it (still bit exact); --q-format without a calibration is refused."""
+    foct = sim.foct_zero_bias(rng=np.random.default_rng(1), hold_s=300, ramp_s=150)
+    model, _ = drift.fit_pipeline(foct.columns["zero_bias"], foct.columns["temp"])
+    path = model.save(tmp_path / "drift.json")
+    narrow = export_c(None, tmp_path / "n.h", name="n", kalman=path)
+    wide = export_c(None, tmp_path / "p.h", name="p", kalman=path, kalman_range=10.0)  # (the driver's prefix)
+    reach = [float(re.search(r"inputs to ±([0-9.e+-]+)\)", r.describe()).group(1)) for r in (narrow, wide)]
+    assert reach[1] >= 10.0 > reach[0] and wide.kalman.frac_bits < narrow.kalman.frac_bits, reach
+    assert "unsaturated" in (tmp_path / "p.h").read_text()
+    outputs, mismatches = run_kalman_driver(tmp_path, tmp_path / "p.h")
+    assert mismatches == 0 and len(outputs) == 256
+    with pytest.raises(ValueError, match="--q-format: .*without a calibration nothing takes it"):
+        export_c(None, tmp_path / "q.h", q_format="Q5.26", kalman=path)
+    with pytest.raises(ValueError, match="--kalman-range: the largest input of a Kalman filter; give one"):
+        export_c(None, tmp_path / "q.h", drift=path, kalman_range=1.0)
 
 
 def test_kalman_from_a_drift_model_without_a_filter(tmp_path):
