@@ -113,7 +113,8 @@ class Ring:
         return self.angles_deg.size
 
     def __repr__(self):
-        return (f"Ring(angles_deg={self.angles_deg.tolist()}, radius_m={self.radius_m}, "
+        axes = f", axis_angles_deg={self.axis_angles_deg.tolist()}" if np.any(self.axis_angles_deg) else ""
+        return (f"Ring(angles_deg={self.angles_deg.tolist()}, radius_m={self.radius_m}{axes}, "
                 f"bore_radius_m={self.bore_radius_m})")
 
     def subset(self, keep) -> "Ring":
