@@ -1145,6 +1145,9 @@ def cmd_cable(args) -> int:
             explained = _in_field_explains(cable, cal, data, truth)
             if explained is not None:  # said first: it explains the sensors' warnings below
                 print(f"warning: {explained[1]}. `--method in_field` (or auto) fits it")
+        mislabelled = _reference_mislabelled(cable, cal, data)
+        if mislabelled:  # said first too: the sensors' warnings below are its consequence
+            print(f"warning: {mislabelled}")
         for line in _sensor_warning_lines(cal):
             print(line)
         if cal.background is not None:  # (the room's field, the ring's turns told from the sensors' offsets)
@@ -1301,6 +1304,60 @@ def _in_field_explains(cable, cal, data: dict, truth):
     return other, (f"a field that does not follow the currents explains this run's lack of fit: the Earth's or a "
                    f"neighbouring conductor's, {1e6 * abs(b0):.3g} µT towards {np.degrees(np.angle(b0)) % 360:.0f}° "
                    f"(cable frame){change}")
+
+
+def _misfit_ratio(cal) -> float:
+    """A ring calibration's worst residual σ over its repeats' (inf without repeats: nothing to compare)."""
+    if cal.repeat_sigma is None or cal.residual_sigma is None:
+        return float("inf")
+    return float(np.max(cal.residual_sigma / np.maximum(cal.repeat_sigma, 1e-300)))
+
+
+def _reference_mislabelled(cable, cal, data: dict) -> str | None:
+    """When the calibration misses its model on every sensor, whether the reference currents mislabelled explain it:
+    the conductors' currents swapped (i0 ↔ i1: the columns or the positions_m in another order) or all their signs
+    reversed. TWOSTEP uses |h| alone, so its gains come out right either way, but the readings' components then
+    miss the model by hundreds of times the repeats' scatter, and the warning had named a field, an axis or iron (a
+    blind check: i0 and i1 swapped, residual σ 683× the repeats')."""
+    from itertools import permutations
+
+    if cal.lack_of_fit_p is None or not np.all(np.min(cal.lack_of_fit_p, axis=1) < cable.LACK_OF_FIT_P):
+        return None
+    ratio = _misfit_ratio(cal)
+    n = data["currents_a"].shape[1]
+    tried = []
+    for order in list(permutations(range(n)))[:6]:
+        for sign in (1.0, -1.0):
+            if order == tuple(range(n)) and sign > 0:
+                continue
+            currents = sign * data["currents_a"][:, list(order)]
+            truth = np.stack([data["ring"].rotated(a).field(data["positions_m"], c)
+                              for a, c in zip(data["rotations_deg"], currents)])
+            try:
+                alt = cable.calibrate_ring(data["readings"], truth, method=cal.method if cal.method != "in_field"
+                                           else "twostep")
+            except ValueError:
+                continue
+            if alt.lack_of_fit_p is not None and np.all(np.min(alt.lack_of_fit_p, axis=1) >= cable.LACK_OF_FIT_P):
+                tried.append((_misfit_ratio(alt), order, sign))
+    if not tried:
+        return None
+    best = min(tried)[0]
+    if not best * 5.0 <= ratio:
+        return None
+
+    def words(order, sign):
+        return " and ".join(filter(None, [
+            "the currents' signs reversed" if sign < 0 else "",
+            ("the conductors' currents taken as " + ", ".join(f"i{k}" for k in order) + " (swapped)")
+            if order != tuple(range(n)) else ""]))
+
+    # (equally good ones said together: go and return currents swapped are the same as their signs reversed)
+    what = " or, equally, ".join(words(order, sign) for fit, order, sign in sorted(tried) if fit <= 1.1 * best)
+    return (f"with {what}, the calibration fits its model (residual σ {ratio:.3g}× the repeats' → {best:.3g}×): the "
+            "reference currents do not match the conductors in positions_m — swapped columns, the conductors listed "
+            "in another order, or the currents' sense. The gains and offsets above hold either way (TWOSTEP uses "
+            "the field's magnitude), but check the recording's labels before a calibration with directions (in_field)")
 
 
 def _ring_calibration_auto(cable, data: dict, truth):
