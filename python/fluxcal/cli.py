@@ -1606,14 +1606,16 @@ def _print_ring_solution(sol: dict) -> None:
     said = sol.pop("_said", None)
     if said is None:  # left out, said already
         return
-    nan = lambda v: np.nan if v is None else v  # noqa: E731 - JSON's null for an undetermined standard error
-    at = "; ".join(f"({x * 1e3:.4f} ± {nan(sx) * 1e3:.2g}, {y * 1e3:.4f} ± {nan(sy) * 1e3:.2g}) mm"
+    def pm(v, scale: float = 1.0) -> str:  # JSON's null (or NaN) for an undetermined standard error: said so
+        return "± undetermined" if v is None or not np.isfinite(v) else f"± {v * scale:.2g}"
+
+    at = "; ".join(f"({x * 1e3:.4f} {pm(sx, 1e3)}, {y * 1e3:.4f} {pm(sy, 1e3)}) mm"
                    for (x, y), (sx, sy) in zip(sol["positions_m"], sol["position_sigma_m"]))
     rows = sol["snapshots"]
     if len(rows) > 1:
         print(f"{said['where']} (joint, rotation {sol['rotation_deg']:g}°): conductors at {at}; {said['tail']}")
     for k, cur, err in zip(rows, sol["currents_a"], sol["current_sigma_a"]):
-        amps = ", ".join(f"{i:.5g} ± {nan(e):.2g} A" for i, e in zip(cur, err))
+        amps = ", ".join(f"{i:.5g} {pm(e)} A" for i, e in zip(cur, err))
         print(f"snapshot {k}: " + (f"{amps}" if len(rows) > 1 else f"{at}; {amps}; {said['tail']}"))
     for line in said["after"]:
         print(line)
