@@ -471,6 +471,8 @@ def calibrate(mag, acc, field_ned, frame: str = "ned", preset=None, attitudes=No
         # corrected field fits, the field is the error to give, not the positions' spread
         said = _refused_field(str(exc), f, frame, refit, **sameness) or (
             _one_attitude(sf) if not len(nominal) and any(w in str(exc) for w in ("ellipsoid", "plane", "observable")) else None)
+        if said is None and any(w in str(exc) for w in ("ellipsoid", "plane", "observable", "converge", "singular")):
+            said = _refused_for_one(str(exc), len(U), refit_without, position_labels)  # (a fit's refusal, not input's)
         if said is None:
             raise
         raise ValueError(said) from None
@@ -495,6 +497,29 @@ def calibrate(mag, acc, field_ned, frame: str = "ned", preset=None, attitudes=No
     if gross:
         res.summary["warnings"] = _misfit_first(res, gross, res.summary["warnings"])
     return res
+
+
+def _refused_for_one(message: str, n: int, refit_without, labels=None) -> str | None:
+    """The error to give when the fit was refused but succeeds without one position, within MISPLACED_DEG and
+    MISFIT_RATIO× better than without any other (with the headings unknown, one position with steel near it had left the ellipsoid start "no ellipsoid … record a few
+    hundred while turning", a turning log's advice); None when no single position is to blame. One refit per
+    position, only on a refusal."""
+    if n < 7:  # (the others must still determine the fit)
+        return None
+    fits = []
+    for row in range(n):
+        alt = refit_without([row])
+        if alt is not None and np.isfinite(alt.summary["residual_rms"]) and \
+                np.degrees(_misplacement(alt)) <= MISPLACED_DEG:
+            fits.append((float(alt.summary["residual_rms"]), row))
+    fits.sort()
+    if not fits or (len(fits) > 1 and fits[0][0] * MISFIT_RATIO > fits[1][0]):
+        return None  # (none, or several alike: then it is no one position's doing)
+    rms, row = fits[0]
+    label = labels[row] if labels is not None else row + 1
+    return (f"the positions cannot be fitted (the fit failed: {message.rstrip('.')}), but without position {label} "
+            f"they fit (residual RMS {rms:.4g}): a magnetic object near it, the device moved while it was logged, or "
+            f"its readings garbled — log it again or leave it out (fluxcal positions --leave-out {label})")
 
 
 # Positions whose accelerometer directions all lie within this of their mean were held in one tilt

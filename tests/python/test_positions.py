@@ -577,6 +577,20 @@ def test_the_positions_that_make_a_misfit_are_named_with_what_they_read(mistake,
                      position_labels=labels[:11])
 
 
+def test_a_refusal_that_one_position_makes_names_it():
+    """Headings unknown, steel near position 3 (3.5 % and 14 % of the field): the ellipsoid start was refused with a
+    turning log's advice ("record a few hundred while turning the sensor"). Without position 3 the others fit, and
+    the error says so and names it; clean positions still fit."""
+    s = _twelve(np.random.default_rng(12))
+    outputs, acc = np.array(s.outputs), np.array(s.acc_raw)
+    assert fp.calibrate(outputs, acc, PAPER_FIELD, frame="nue").summary["residual_rms"] < 1.0
+    for size in (1500.0, 6000.0):
+        steel = outputs.copy()
+        steel[2] += K_TRUE @ (size * np.array([1.0, -0.66, 0.33]))
+        with pytest.raises(ValueError, match=r"but without position 3 they fit .*--leave-out 3"):
+            fp.calibrate(steel, acc, PAPER_FIELD, frame="nue")
+
+
 def test_a_field_stated_in_one_unit_and_given_in_another_is_said(tmp_path):
     """The field given in µT and stated in nT (a blind check: no word, K 1000× a unit-gain sensor's with nothing to
     compare it with) is said; stated right, nothing; the command line names the unit its magnitude shows."""
