@@ -237,8 +237,7 @@ def clipped_readings(readings) -> np.ndarray:
     of the readings' shape. A clipped reading is no misfit the solver can see: two sensors clipped alike on the
     paper's ring fitted conductors 1.4 mm apart at 140 A for 100 A, well conditioned, within the noise."""
     arr = np.asarray(readings, dtype=float)
-    flat = arr.reshape(-1, arr.shape[-2], 2) if arr.ndim >= 2 else arr
-    size = np.abs(flat)
+    size = np.abs(arr.reshape(-1, arr.shape[-2], 2))
     mask = np.zeros(size.shape, dtype=bool)
     finite = np.isfinite(size)
     if not finite.any():

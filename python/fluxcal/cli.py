@@ -1119,8 +1119,7 @@ def cmd_cable(args) -> int:
         if data["currents_a"] is None or data["positions_m"] is None:
             raise ValueError(f"{args.file}: a calibration recording needs reference currents (i0, i1, …) and "
                              "the conductor positions (positions_m metadata)")
-        truth = np.stack([ring.rotated(a).field(data["positions_m"], c)
-                          for a, c in zip(data["rotations_deg"], data["currents_a"])])
+        truth = _recording_fields(data)
         why = ""
         if args.method == "in_field":
             cal = cable.calibrate_ring_in_field(data["readings"], truth, ring, data["rotations_deg"])
@@ -1306,6 +1305,14 @@ def _in_field_explains(cable, cal, data: dict, truth):
                    f"(cable frame){change}")
 
 
+def _recording_fields(data: dict, currents=None) -> np.ndarray:
+    """The true field of a ring calibration recording at each snapshot: its rotation and its reference currents
+    (`currents`: others in their place)."""
+    currents = data["currents_a"] if currents is None else currents
+    return np.stack([data["ring"].rotated(a).field(data["positions_m"], c)
+                     for a, c in zip(data["rotations_deg"], currents)])
+
+
 def _misfit_ratio(cal) -> float:
     """A ring calibration's worst residual σ over its repeats' (inf without repeats: nothing to compare)."""
     if cal.repeat_sigma is None or cal.residual_sigma is None:
@@ -1330,9 +1337,7 @@ def _reference_mislabelled(cable, cal, data: dict) -> str | None:
         for sign in (1.0, -1.0):
             if order == tuple(range(n)) and sign > 0:
                 continue
-            currents = sign * data["currents_a"][:, list(order)]
-            truth = np.stack([data["ring"].rotated(a).field(data["positions_m"], c)
-                              for a, c in zip(data["rotations_deg"], currents)])
+            truth = _recording_fields(data, sign * data["currents_a"][:, list(order)])
             try:
                 alt = cable.calibrate_ring(data["readings"], truth, method=cal.method if cal.method != "in_field"
                                            else "twostep")

@@ -33,6 +33,7 @@ that both must reproduce bit for bit (`<name>_kalman_self_test()`).
 """
 from __future__ import annotations
 
+import copy
 import json
 import math
 import re
@@ -579,7 +580,7 @@ class ExportResult:
                         f"({fx.error_bound_lsb:.2f} LSB); {len(self.inputs_q)} test vectors")
         if self.kalman is not None:
             said.append(f"AR({self.kalman.order}) Kalman filter in C99 (signal {signal_format(self.kalman.frac_bits)}, "
-                        f"inputs to ±{_kalman_reach(self.kalman):.3g})"
+                        f"inputs to ±{self.kalman.input_reach():.3g})"
                         f" with a {len(self.kalman_test[0])}-sample bit-exact test vector")
         if self.drift is not None:
             orders = ", ".join(str(int(seg["order"])) for seg in self.drift.segments)
@@ -821,16 +822,12 @@ def _calibration_part(cal: Calibration, name: str, q_format, input_range, i32):
     return lines, fx, inputs_q
 
 
-def _kalman_reach(f) -> float:
-    """The largest |input| the filter's signal format holds unsaturated (signal_frac_bits' rule, inverted)."""
-    return 2.0 ** (31 - f.frac_bits) / (2.0 * f.signal_gain)
-
-
 def _kalman_part(kalman, name: str, i32, kalman_range: float | None = None):
     """The header lines of the fixed-point AR Kalman filter (coefficients, C99 filter, test vector), the filter
     and its test (input, output); `kalman_range` sizes its signal format for inputs up to that."""
     f = load_kalman(kalman) if isinstance(kalman, (str, Path)) else kalman
     if kalman_range is not None:
+        f = copy.copy(f) if f is kalman else f  # (the caller's filter keeps its format)
         y_max = as_number(kalman_range, "kalman_range")
         if not y_max > 0:
             raise ValueError(f"--kalman-range {kalman_range}: must be a positive number (the largest |input|)")
@@ -846,7 +843,7 @@ def _kalman_part(kalman, name: str, i32, kalman_range: float | None = None):
     lines = [
         f"/* ---- Fixed-point AR({f.order}) Kalman filter (fluxcal.kalman.FixedArKalman) ----",
         f" * C:   {kname}_t f; {kname}_reset(&f); then y_hat = {kname}_step(&f, y) per sample (int32, signal",
-        f" *      format 2^-{kname.upper()}_SIGNAL_FRAC_BITS: inputs up to about ±{_kalman_reach(f):.3g} unsaturated);",
+        f" *      format 2^-{kname.upper()}_SIGNAL_FRAC_BITS: inputs up to about ±{f.input_reach():.3g} unsaturated);",
         " *      f.overflow says whether anything saturated (a readout spike past that: --kalman-range widens it).",
         " * C++: fluxcal::FixedArKalman<MaxOrder> of cpp/include/fluxcal/fixed_kalman.hpp, configured from these",
         " *      coefficients, runs the same arithmetic.",

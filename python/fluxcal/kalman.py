@@ -256,6 +256,10 @@ class FixedArKalman:
     def order(self) -> int:
         return self.double.order
 
+    def input_reach(self) -> float:
+        """The largest |input| the set signal format holds unsaturated: signal_frac_bits' rule inverted."""
+        return 2.0 ** (31 - self.frac_bits) / (2.0 * self.signal_gain)
+
     def signal_frac_bits(self, y_max: float) -> int:
         """Signal fraction bits for inputs up to ±y_max: 2·signal_gain·y_max fits (one guard bit). They follow
         the signal's scale (beyond 31 for small signals, negative for large ones), so the relative precision

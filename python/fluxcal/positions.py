@@ -448,19 +448,16 @@ def calibrate(mag, acc, field_ned, frame: str = "ned", preset=None, attitudes=No
     set_options(options, settings, "calibrate")
     sf = np.ascontiguousarray(sf)
 
-    def refit(g):  # the same fit against another reference field (None when it cannot be made)
+    def refit(g=None, without=()):  # the same fit against another field, or without these positions (None: it fails)
+        keep = np.setdiff1d(np.arange(len(U)), without)
         try:
-            return _result(_core.calibrate_positions(U, sf, nominal, to_local(g, frame), options), frame)
+            return _result(_core.calibrate_positions(U[keep], sf[keep], nominal[keep] if len(nominal) else nominal,
+                                                     to_local(f if g is None else g, frame), options), frame)
         except ValueError:
             return None
 
-    def refit_without(rows):  # the same fit without these positions (None when it cannot be made)
-        keep = np.setdiff1d(np.arange(len(U)), rows)
-        try:
-            return _result(_core.calibrate_positions(U[keep], sf[keep], nominal[keep] if len(nominal) else nominal,
-                                                     to_local(f, frame), options), frame)
-        except ValueError:
-            return None
+    def refit_without(rows):
+        return refit(without=rows)
 
     # with no nominal attitudes the headings are free (the core estimates them whatever estimate_yaw says)
     sameness = {"headings_free": not len(nominal), "dip_free": options.estimate_inclination}
@@ -1463,8 +1460,8 @@ def run_cli(args, out=None) -> int:
               f"{v['dip_error_deg_rms']:.4g}°"
               + (f", heading error RMS {v['heading_error_rms_deg']:.4g}°" if "heading_error_rms_deg" in v else ""),
               file=out)
-        for label, seen in zip(held[0] if held is not None else [], doc.get("left_out", [])):
-            print(f"  left out: position {label}: |H| error {seen['magnitude_error']:+.4g}{field_unit}, dip error "
+        for seen in doc.get("left_out", []):
+            print(f"  left out: position {seen['position']}: |H| error {seen['magnitude_error']:+.4g}{field_unit}, dip error "
                   f"{seen['dip_error_deg']:+.3g}°" + (f", heading error {seen['heading_error_deg']:+.3g}°"
                                                       if "heading_error_deg" in seen else ""), file=out)
     for w in res.summary["warnings"]:
