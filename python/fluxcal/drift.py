@@ -706,6 +706,9 @@ TURN_SHARE = 0.01
 # A sample is settled (at a hold) where |dT/dt| is below this share of the ramps' (the 95th percentile): a log with
 # a tenth of its samples settled has holds (a lag's error decays through them where hysteresis's stays)
 SETTLED_RATE = 0.1
+# A step of the zero bias in time is told from a slow wander where the level moves across its row by this many
+# robust σ of how it moves across the other rows (_step_row)
+STEP_MOVES = 5.0
 # The named lag's τ and dead band's half-width are fitted (`_sized_beside_drift`) within this factor of the sizes
 # their profiles gave (the profiles' grid values are about ×1.5 apart: the fit starts near)
 SIZE_SEARCH = 4.0
@@ -1131,10 +1134,22 @@ def thermal_lag(model: "DriftModel", compensated, temp, t=None, temp_outside=Non
                                 for p in np.concatenate([plays, 2.0 * temp - plays])], False)
         out["hysteresis"] = {"on_holds": holds}
     turned = set(np.unique(branch[branch != 0]).tolist())
+    hours = None  # (the trend itself, for the state model, which refits f beside it)
     if len(turned) == 2 and t is not None:  # ageing: a trend in time (times needed), told from the temperature's
         # once the temperature has turned back
         hours = (time - time[0]) / 3600.0
-        grids["ageing"], scales["ageing"] = ([hours], True), [1.0]
+        # judged as the trend that the drift polynomials cannot take (its part that is not a function of T, as in a
+        # joint fit: Frisch–Waugh): w is what f left after it took what of the trend it could, so a trend judged whole
+        # read 4× small beside it and 2 mA/h (p 1e-19) took 4 % of var(w), unsaid, with f 10× off
+        basis = _state_design(temp, model, _state_orders(model, of_state=False), {}, step, breaks, ok, [])
+        # or a step at one time, at the row where it fits best: the two compete as one feature, the better named (a
+        # blind check's 0.05 A step had been named hysteresis, then a trend, and the model refitted about it)
+        jump = _step_row(w, ok, basis)
+        trends = [hours] + ([] if jump is None else [(np.arange(n) >= jump).astype(float)])
+        beyond = [c.copy() for c in trends]
+        for c in beyond:
+            c[ok] -= basis @ np.linalg.lstsq(basis, c[ok], rcond=None)[0]
+        grids["ageing"], scales["ageing"] = (beyond, True), [1.0] * len(beyond)
         out["ageing"] = {"hours": float(hours[-1])}
     # a lag, a dead band and a trend in time can each stand in for another (on holds not much longer than τ a lag
     # looks like a dead band; heating first and cooling later, a dead band like a trend): named one at a time,
@@ -1142,7 +1157,11 @@ def thermal_lag(model: "DriftModel", compensated, temp, t=None, temp_outside=Non
     alone = {k: _profiled(w, ok, columns, maxlags, signed=signed) for k, (columns, signed) in grids.items()}
     named, together = _named_jointly(w, ok, grids, alone, maxlags)
     starts = {k: float(scales[k][together[k]["best"]] * together[k]["coefficient"]) for k in named}
-    hours = grids["ageing"][0][0] if "ageing" in grids else None
+    if "ageing" in grids:  # (the trend or the step, whichever fits better)
+        jumped = (together if "ageing" in named else alone)["ageing"]["best"] == 1
+        hours = trends[int(jumped)]
+        out["ageing"]["step"] = ({"row": int(jump), "t": float(time[jump]), "at_s": float(time[jump] - time[0])}
+                                 if jumped else None)
     # each not named is judged again in the state model, beside those named at their sizes fitted together
     # (`_named_in_state`), from its size alone (its grid value where its coefficient alone has the other sign)
     candidates = {k: float(scales[k][alone[k]["best"]] * (alone[k]["coefficient"] if k == "ageing" or
@@ -1164,6 +1183,9 @@ def thermal_lag(model: "DriftModel", compensated, temp, t=None, temp_outside=Non
         found = {"p_value": fit["p"], "share": fit["share"], "share_alone": alone[k]["share"], "said": k in named}
         if k == "lag":
             out.update({"tau_s": size, **found})
+        elif k == "ageing" and out["ageing"]["step"] is not None:  # (a step: its size, no rate)
+            out["ageing"]["step"]["size"] = size
+            out["ageing"].update({"per_hour": 0.0, **found})
         else:
             out[k].update({"dead_band_c" if k == "hysteresis" else "per_hour": size, **found})
         if named and k not in named and alone[k]["significant"]:
@@ -1195,6 +1217,59 @@ def thermal_lag(model: "DriftModel", compensated, temp, t=None, temp_outside=Non
         out["one_way"] = {"heating": turned == {1},  # what a minute's lag does on the ramps: the fit's shift
                           "per_minute_of_lag": float(np.percentile(np.abs(minute[ramps]), 95)) if ramps.any() else 0.0}
     return out
+
+
+def _step_row(w: np.ndarray, ok: np.ndarray, basis: np.ndarray) -> int | None:
+    """The row where a step of w (1 from there on) fits best what the drift polynomials (`basis`, on the `ok` rows)
+    leave, not within a fiftieth of the log of its ends (a trend's tail there); None when the log is too short, or
+    where the level does not move there abruptly. Every
+    row is tried at once: the basis's part of a step from row i is a sum from i to the end, one cumulative sum."""
+    q = np.linalg.qr(basis)[0]
+    y = w[ok] - q @ (q.T @ w[ok])
+    tail_q = np.cumsum(q[::-1], axis=0)[::-1]  # Σ_{j ≥ i} q_j: qᵀs for the step s from row i
+    n = y.size
+    norm = (n - np.arange(n)) - np.einsum("ij,ij->i", tail_q, tail_q)  # s̃ᵀs̃, s̃ the step less its part in the basis
+    fit = np.cumsum(y[::-1])[::-1]  # s̃ᵀy = sᵀy (y has no part in the basis)
+    edge = max(1, n // 50)
+    usable = np.zeros(n, dtype=bool)
+    usable[edge:n - edge] = True
+    usable &= norm > 1e-9 * n
+    if not usable.any():
+        return None
+    gain = np.where(usable, fit ** 2 / np.where(usable, norm, 1.0), -1.0)
+    i = int(np.argmax(gain))
+    # a step is abrupt: across its row the level moves by about its size within a fiftieth of the log, and by far
+    # more than it moves so elsewhere (the differences of neighbouring means, robust σ): a slow wander's best step
+    # moves little more there than anywhere, and had been named a step in 8 of 20 logs
+    m = max(edge, 5)
+    c = np.concatenate([[0.0], np.cumsum(y)])
+    moves = (c[2 * m:] - 2.0 * c[m:-m] + c[:-2 * m]) / m  # mean of the m rows from i less that of the m before
+    jump = moves[i - m] if m <= i <= n - m else 0.0
+    spread = 1.4826 * float(np.median(np.abs(moves - np.median(moves)))) if moves.size else 0.0
+    if abs(jump) < max(0.5 * abs(fit[i] / norm[i]), STEP_MOVES * spread):
+        return None
+    return int(np.flatnonzero(ok)[i])
+
+
+def _hours_words(seconds: float) -> str:
+    return f"{seconds / 3600.0:.3g} h" if seconds >= 3600.0 else f"{seconds / 60.0:.3g} min"
+
+
+def _time_words(ageing: dict, unit: str = "") -> str:
+    """What thermal_lag's time term is, in a few words: a trend per hour, or a step at one time."""
+    jump = ageing.get("step")
+    if jump:
+        return f"a step of {jump.get('size', 0.0):.3g}{unit} at {_hours_words(jump['at_s'])} into the log"
+    return f"a trend of {ageing.get('per_hour', 0.0):.3g}{unit} per hour (ageing)"
+
+
+def _time_course(ageing: dict, t) -> np.ndarray:
+    """The zero bias's course in time that thermal_lag named (a trend, or a step), zero at the end of the log."""
+    time = np.asarray(t, dtype=float)
+    jump = ageing.get("step")
+    if jump:
+        return jump["size"] * ((np.arange(time.size) >= jump["row"]) - 1.0)
+    return ageing["per_hour"] * (time - time[-1]) / 3600.0
 
 
 def one_way_note(lag: dict | None) -> str | None:
@@ -1249,7 +1324,7 @@ def history_warnings(lag: dict | None, unit: str = "") -> list:
     secs = "s" if lag.get("seconds", True) else "samples (no times given)"
     words = {"lag": f"a lag of about {lag['tau_s']:.3g} {secs}",
              "hysteresis": f"a dead band of {_band_words(h.get('dead_band_c', 0.0))} (hysteresis)",
-             "ageing": f"a trend of {a.get('per_hour', 0):.3g}{unit} per hour (ageing)"}
+             "ageing": _time_words(a, unit)}
     shares = {"lag": lag["share_alone"], "hysteresis": h.get("share_alone", 0.0), "ageing": a.get("share_alone", 0.0)}
 
     def too(name):  # what else, not named, fits nearly as well as a named one (80 % of its share, both alone)
@@ -1278,7 +1353,23 @@ def history_warnings(lag: dict | None, unit: str = "") -> list:
                    + " — a function of temperature cannot follow it and the model sits between the branches, about "
                    f"{abs(h['largest_difference']) / 2:.3g}{unit} off each there, at the holds too; judge the class "
                    "per branch (accuracy_drift does), or model the branch the device is on" + too("hysteresis"))
-    if a.get("said"):
+    if a.get("said") and a.get("taken_out"):
+        jump = a.get("step")
+        out.append(f"the zero bias {'steps' if jump else 'drifts with time'} by "
+                   + (f"{jump['size']:.3g}{unit} at t = {jump['t']:.6g} s ({_hours_words(jump['at_s'])} into the log; "
+                      "a step fits better than a steady trend)" if jump else f"{a['per_hour']:.3g}{unit} per hour")
+                   + f" beyond the temperature (Newey–West p {_p_words(a['p_value'])}, {100 * a['share']:.0f} % of "
+                   "what the drift model left"
+                   + ("): a fault, a knock, a connector or a setting changed, or the readout restarted"
+                      if jump else f"; {a['per_hour'] * a['hours']:.3g}{unit} over this log's {a['hours']:.3g} h): "
+                      "ageing, or a slow warm-up of the electronics")
+                   + f" — the drift model is fitted with the {'step' if jump else 'trend'} taken out, as the device "
+                   f"was at the end of this log (fitted beside it, it was up to {a.get('model_moved', 0.0):.3g}{unit} "
+                   "different across the temperatures)"
+                   + ("; plot the compensated zero bias against time, and log again if the device may have changed"
+                      if jump else ", and is off by the trend's rate per hour since if it goes on; log again later "
+                      "and compare, or let the device settle before the cycle"))
+    elif a.get("said"):
         out.append(f"the compensated zero bias drifts with time by {a['per_hour']:.3g}{unit} per hour beyond the "
                    f"temperature (Newey–West p {_p_words(a['p_value'])}, {100 * a['share']:.0f} % of its variance; "
                    f"{a['per_hour'] * a['hours']:.3g}{unit} over this log's {a['hours']:.3g} h): ageing, or a slow "
@@ -1328,6 +1419,32 @@ def noise_model_rejected(model: "DriftModel") -> str | None:
             f"residuals are not white (Ljung-Box p = {p:.3g} over {whiteness.get('lags')} lags)")
 
 
+def _refitted_without_trend(w: np.ndarray, temp: np.ndarray, temp_outside, t, lag: dict, first: "DriftModel",
+                            options: dict) -> tuple:
+    """fit_pipeline again on the zero bias less the ageing that thermal_lag named, the trend's level at the end of
+    the log taken as the zero: (model, report) of that fit, the trend in model.settings["ageing"] {"per_hour",
+    "hours"} and in the report's thermal_lag, and how far the model fitted beside it had been off."""
+    ageing = dict(lag["ageing"])
+    model, report = fit_pipeline(w - _time_course(ageing, t), temp, temp_outside, t=t,
+                                 _detrended={**ageing, "taken_out": True}, **options)
+    # how far f(T) fitted beside the trend was from f(T) fitted without it, over the log's temperatures (the
+    # trend's level at the log's mean time is a constant between them: taken out)
+    levels = np.linspace(float(temp.min()), float(temp.max()), 200)
+    moved = first.evaluate(levels, outside="nan") - model.evaluate(levels, outside="nan")
+    moved = moved[np.isfinite(moved)]
+    # (the refit's own judgement, or none where the model came out flat without the trend)
+    history = report.setdefault("thermal_lag", {"said": False, "tau_s": 0.0, "p_value": 1.0, "share": 0.0,
+                                                "share_alone": 0.0, "holds": False, "hysteresis": None,
+                                                "one_way": None, "ageing": None})
+    history["ageing"] = {**ageing, "taken_out": True, "model_moved": float(np.ptp(moved)) if moved.size else 0.0}
+    model.settings["ageing"] = {"per_hour": float(ageing["per_hour"]), "hours": float(ageing["hours"]),
+                                "step": ageing.get("step")}
+    said = history_warnings({"said": False, "tau_s": 0.0, "share_alone": 0.0, "ageing": history["ageing"]})
+    report["warnings"] += said
+    model.summary["fit_warnings"] = list(model.summary.get("fit_warnings", [])) + said
+    return model, report
+
+
 def _finite(values: np.ndarray, name: str) -> np.ndarray:
     bad = ~np.isfinite(values)
     if bad.any():
@@ -1370,7 +1487,7 @@ def fit_pipeline(zero_bias, temp, temp_outside=None, regressor: str = "temp", br
                  max_order: int = 4, significance: float = 0.05, continuous: bool = False, ar_max_order: int = 10,
                  q: float | None = None, r: float | None = None, steady_state: bool = False, subseries: int = 20,
                  rated: float | None = None, accuracy_class: str = "0.2S", whiten: bool = True,
-                 drift_input: str = "zero_bias", t=None, spikes: str = "keep"):
+                 drift_input: str = "zero_bias", t=None, spikes: str = "keep", _detrended: dict | None = None):
     """Seed 001 end to end (module doc). drift_input: "zero_bias" (default, GLS on the zero bias) or
     "filtered" (the Kalman output L, seed 001 as written; module doc step 4). The AR model (report["ar"],
     model.settings["ar"], "fitted_to": "zero_bias - drift") is of the noise about a first drift model,
@@ -1382,6 +1499,10 @@ def fit_pipeline(zero_bias, temp, temp_outside=None, regressor: str = "temp", br
     bias's spikes (`zero_bias_spikes`: a readout's glitches) are said in a warning ("keep", the default), left out
     of the fit ("drop": the rows go, and with t each leaves a gap) or not looked for ("off"); report["spikes"] =
     {"rows" (of the input), "sigmas", "dropped"}, and with "drop" the report's series are of the rows kept.
+    Where thermal_lag names ageing (a trend in time beyond the temperature), the whole fit is made again on the
+    zero bias with that trend taken out, as the device was at the end of the log (model.settings["ageing"]): fitted
+    beside it, f(T) took part of it (2 mA/h over a 19 h cycle left f 10× further off than the noise alone) and chose
+    its orders on it; the report's series are then of the zero bias without the trend.
     Returns (DriftModel, report)."""
     if drift_input not in DRIFT_INPUTS:
         raise ValueError(f"drift_input: {drift_input!r} is not one of {', '.join(DRIFT_INPUTS)}")
@@ -1421,6 +1542,9 @@ def fit_pipeline(zero_bias, temp, temp_outside=None, regressor: str = "temp", br
             breakpoints, max_order, significance, continuous, ar_max_order, q, r, steady_state, subseries, rated,
             accuracy_class, whiten, drift_input, None if t is None else np.asarray(t, float)[kept], spikes="off")
         report["spikes"] = {"rows": spike_rows.tolist(), "sigmas": np.asarray(spike_sigmas).tolist(), "dropped": True}
+        jump = ((report.get("thermal_lag") or {}).get("ageing") or {}).get("step")
+        if jump:  # (a row of the input, as the spikes' are; the model's settings hold the same dict)
+            jump["row"] = int(kept[jump["row"]])
         report["notes"].append(spike_words(spike_rows, report["spikes"]["sigmas"], dropped=True))
         return model, report
     noise, noise_mean = ts.zero_mean(w - drift_first)
@@ -1499,9 +1623,17 @@ def fit_pipeline(zero_bias, temp, temp_outside=None, regressor: str = "temp", br
                 f"(per-level means, {report['drift_span_after'] / max(span, 1e-300):.3g}× wider with the "
                 "difference); fit with --regressor temp")
     lag = thermal_lag(model, compensated, temp, t, temp_outside, breaks)
+    if _detrended is None and lag is not None and (lag.get("ageing") or {}).get("said"):
+        return _refitted_without_trend(w, temp, temp_outside, t, lag, model, dict(
+            regressor=regressor, breakpoints=breakpoints, max_order=max_order, significance=significance,
+            continuous=continuous, ar_max_order=ar_max_order, q=q, r=r, steady_state=steady_state,
+            subseries=subseries, rated=rated, accuracy_class=accuracy_class, whiten=whiten,
+            drift_input=drift_input, spikes=spikes))
     if lag is not None:
         report["thermal_lag"] = lag
         report["warnings"] += history_warnings(lag)
+        if _detrended is not None:  # (the trend taken out: named and sized in the first fit, said by the caller)
+            lag["ageing"] = _detrended
     if rated is not None:
         # Two views: the filtered output sample by sample (drift residual plus what noise the filter
         # leaves), and the drift alone (the compensated zero bias averaged per temperature level).
