@@ -68,6 +68,15 @@ def test_celsius_logs_reaching_beyond_the_ranges_are_not_taken_for_fahrenheit(lo
     assert drift.temperature_unit_hint(temp) is None
 
 
+def test_a_value_a_little_past_a_models_range_is_not_taken_for_fahrenheit():
+    """A model's evaluation refused outside its ranges: a blind check's single 80 °C (an overheat 10 °C past a
+    −40 … 70 °C model) was asked "is it in °F?" because 80 °F is 26.7 °C. Values all outside but within
+    UNIT_OVERSHOOT of the range are a hot or cold log; far past it, a °F reading that falls inside is hinted."""
+    assert drift.outside_unit_hint([80.0], -40.0, 70.0) is None
+    assert drift.outside_unit_hint([-50.0, -48.0], -40.0, 70.0) is None
+    assert "is it in °F?" in drift.outside_unit_hint([100.0], -40.0, 70.0)
+
+
 def test_a_cold_start_fit_warns_of_the_ranges_but_not_of_the_unit(foct):
     """The newcomer's situation (the ranges adjusted to the data) from a genuine °C log: no °F hint."""
     n = 400
@@ -118,3 +127,18 @@ def test_cli_hint_names_the_files_temperature_column(tmp_path, capsys, foct):
     out = capsys.readouterr().out
     assert "warning: T_dev: -4 … 121.8 read as °C" in out and "'# units: T_dev=degF'" in out
     assert "warning: temp:" not in out
+
+
+def test_a_temperature_that_barely_moves_is_said(foct):
+    """A blind check's temperature held at 25 ± 0.1 °C, the zero bias wandering by 0.38 A for another reason: fitted
+    as a one-range model over 0.2 °C with no word of the span. Within one 5 °C level the span is said, with the zero
+    bias's own spread there; a chamber cycle says nothing of it."""
+    rng = np.random.default_rng(2)
+    n = 2000
+    temp = 25.0 + 0.1 * np.sin(np.linspace(0, 20, n)) + 0.005 * rng.standard_normal(n)
+    w = 0.19 * np.sin(np.linspace(0, 3, n)) + 0.01 * rng.standard_normal(n)
+    _, report = drift.fit_pipeline(w, temp)
+    said = [m for m in report["warnings"] if "temp moves only" in m]
+    assert len(said) == 1 and "(24.89 … 25.11; within one 5 °C level)" in said[0] and "the operating range" in said[0]
+    _, report = drift.fit_pipeline(foct["zero_bias"], foct["temp"])
+    assert not [m for m in report["warnings"] if "temp moves only" in m]
