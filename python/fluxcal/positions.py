@@ -1468,6 +1468,15 @@ def run_cli(args, out=None) -> int:
         print(f"warning: {w}", file=out)
     if args.output:
         print(f"wrote {args.output}", file=out)
+    # the calibration's offset or gains (U0, K's diagonal; not a small cross term, nor the positions' headings and
+    # tilts) not determined: a script reading the exit status must not take it for a calibration to ship (it had
+    # exited 0 with every parameter poorly determined)
+    poor = [n for n, d in zip(res.parameter_names, res.determined)
+            if not d and (n.startswith("U0_") or n in ("K_xx", "K_yy", "K_zz"))]
+    if poor:
+        print(f"fluxcal positions: {args.file}: the calibration's {', '.join(poor[:6])}{', …' if len(poor) > 6 else ''}"
+              " poorly determined: see the warnings above (exit status 3; -o still writes it)", file=sys.stderr)
+        return 3
     return 0
 
 
