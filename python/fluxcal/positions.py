@@ -612,20 +612,31 @@ def _turned_around(res) -> str | None:
             f"reference reversed, or the field's horizontal part given with the wrong sign{holds}")
 
 
-def fit(mag, reference, units: str = "", frame: str = "ned") -> PositionsResult:
+def fit(mag, reference, units: str = "", frame: str = "ned", position_labels=None) -> PositionsResult:
     """Linear least squares of U = U0 + K H when each position's body-frame field H is known (N×3).
 
     A reference that does not fit (its residual misplaces the field by more than MISPLACED_DEG per position) is
-    said first, as by `calibrate`; which mistake it holds cannot be named here (see _check_field_fit). With
-    `units` a field unit, a reference in another unit than the readings' is said by K's gain."""
+    said first, as by `calibrate`; which mistake it holds cannot be named here (see _check_field_fit), but one or two
+    positions that make the misfit are, as by `calibrate`, with how far their reading turns from their reference and
+    how far its magnitude is off (a coil's axis or polarity wrong for one position, two references swapped, a
+    disturbed field). With `units` a field unit, a reference in another unit than the readings' is said by K's gain."""
     options = _core.PositionsOptions()
     options.frame = _frame(frame)
     options.units = units_text(units)
-    H = as_samples(reference, "reference")
-    d = _core.fit_positions(as_samples(mag, "mag"), H, options)
+    U, H = as_samples(mag, "mag"), as_samples(reference, "reference")
+
+    def refit_without(rows):
+        keep = np.setdiff1d(np.arange(len(U)), rows)
+        try:
+            return _result(dict(_core.fit_positions(U[keep], H[keep], options), field=np.full(3, np.nan)), frame)
+        except ValueError:
+            return None
+
+    d = _core.fit_positions(U, H, options)
     d = dict(d, field=np.full(3, np.nan))
     res = _result(d, frame)
-    _check_field_fit(res, None, frame, None, None, np.zeros((0, 9)), None)
+    odd = _OddPositions(U, None, np.zeros((0, 9)), refit_without, position_labels, reference=H)
+    _check_field_fit(res, None, frame, None, None, np.zeros((0, 9)), None, odd=odd)
     # the reference's own size stands for |f| (a coil's varying fields: their RMS)
     res.summary["warnings"] = list(res.summary["warnings"]) + _unit_warnings(
         res, float(np.sqrt(np.mean(np.sum(H ** 2, axis=1)))), units)
@@ -836,12 +847,14 @@ class _OddPositions:
     what they read by the other positions' calibration: how far their heading is from their label (headings fixed),
     whether two read as each other's attitude, how far |H| is from the field's magnitude."""
 
-    def __init__(self, U, sf, nominal, refit_without, labels=None, headings_fixed: bool = True):
+    def __init__(self, U, sf, nominal, refit_without, labels=None, headings_fixed: bool = True, reference=None):
         self.U, self.sf, self.nominal, self.refit_without = U, sf, nominal, refit_without
         self.labels = list(labels) if labels is not None else list(range(1, len(U) + 1))
         if len(self.labels) != len(U):
             raise ValueError(f"position_labels: {len(self.labels)} labels for {len(U)} positions")
-        self.headings = headings_fixed and len(nominal) > 0
+        # fit()'s body-frame reference H per position (sf None): a position is read against its own H
+        self.reference = None if reference is None else np.asarray(reference, float)
+        self.headings = headings_fixed and (len(nominal) > 0 or self.reference is not None)
 
     def search(self, res):
         """(rows, refit, ratio) of the fewest positions (one, else two, among ODD_SUSPECTS) whose leaving out leaves
@@ -894,6 +907,36 @@ class _OddPositions:
                     return tuple(S), alt, rms / max(rms_left, 1e-300)
         return None
 
+    def _body_reading(self, alt, row: int, against: int) -> tuple:
+        """fit()'s position `row` read by the calibration `alt`, H = K⁻¹(U − U0), against position `against`'s
+        reference: (the angle between them in degrees, |H| less |reference| as a share of |reference|)."""
+        seen = np.linalg.solve(alt.K, self.U[row] - alt.offset)
+        given = self.reference[against]
+        cosine = float(seen @ given) / max(float(np.linalg.norm(seen) * np.linalg.norm(given)), 1e-300)
+        return (float(np.degrees(np.arccos(np.clip(cosine, -1.0, 1.0)))),
+                float(np.linalg.norm(seen) / max(float(np.linalg.norm(given)), 1e-300) - 1.0))
+
+    def _body_said(self, text: str, rows: tuple, alt) -> str:
+        """fit()'s words for the positions found: how each reads against its reference, or each against the other's."""
+        if len(rows) == 2:
+            a, b = rows
+            crossed = [self._body_reading(alt, a, b), self._body_reading(alt, b, a)]
+            if all(turn < QUARTER_TOL_DEG and abs(share) < 0.05 for turn, share in crossed):
+                return (f"{text}, and each reads as the other's reference (turned {crossed[0][0]:.1f}° and "
+                        f"{crossed[1][0]:.1f}° from it): their references swapped, or the positions logged in each "
+                        "other's place? U0 and K above include the mix-up")
+        parts = []
+        for r in rows:
+            turn, share = self._body_reading(alt, r, r)
+            why = ("reversed: a coil's current or an axis's sign wrong for it?" if turn > 180.0 - QUARTER_TOL_DEG else
+                   "a quarter turn: an axis of its reference wrong, or the device set a quarter turn off?"
+                   if abs(turn - 90.0) < QUARTER_TOL_DEG else
+                   "its reference wrong, or the field disturbed while it was logged?")
+            parts.append(f"position {self.labels[r]} reads the field turned {turn:.1f}° from its reference and |H| "
+                         f"{100 * share:+.2g} % off its reference's: {why}")
+        return (f"{text}; by the others' calibration {' '.join(parts)} Correct its reference, log the position again "
+                "or leave it out; U0 and K above include it")
+
     def _reading(self, alt, row: int, attitude: int) -> dict:
         """Position `row` read by the calibration `alt`, against the nominal attitude of position `attitude`."""
         rotations = self.nominal[[attitude]] if self.headings else None
@@ -909,6 +952,8 @@ class _OddPositions:
         text = (f"Position{'s' if len(rows) > 1 else ''} {names} do{'' if len(rows) > 1 else 'es'} not fit the "
                 f"others: without {'them' if len(rows) > 1 else 'it'} the residual falls to "
                 f"{alt.summary['residual_rms']:.4g}{unit} ({ratio:.0f}x less)")
+        if self.reference is not None:
+            return self._body_said(text, rows, alt)
         F = float(np.linalg.norm(alt.field_ned))
         if self.headings and len(rows) == 2:
             a, b = rows
