@@ -616,7 +616,7 @@ def calibrate_ring(readings, true_fields, method: str = "twostep") -> RingCalibr
         if len(dropped):
             shown = ", ".join(map(str, dropped[:8])) + (", …" if len(dropped) > 8 else "")
             fits[-1].summary["warnings"] = list(fits[-1].summary.get("warnings", [])) + [
-                f"{len(dropped)} of {len(finite)} readings not finite, left out of this sensor's fit (rows {shown})"]
+                f"{len(dropped)} of {len(finite)} readings not finite, left out of this sensor's fit (row{'s' if len(dropped) > 1 else ''} {shown})"]
     offsets, gains = np.array([f.offset for f in fits]), np.array([f.gain for f in fits])
     residual_sigma, covariance = _calibration_errors(r, h, offsets, gains, linear=method != "twostep")
     repeat_sigma, repeat_dof, lack_of_fit = _repeat_scatter(r, h, r - (h * gains + offsets))
@@ -1120,6 +1120,11 @@ def read_ring_csv(path, bad_lines: str = "error") -> dict:
     if not np.all(np.isfinite(rotations)):
         row = int(np.argmax(~np.isfinite(rotations)))
         raise ValueError(f"{path}: rotation_deg of snapshot {row} (file line {rec.line_numbers[row]}) is not a number")
+    if currents is not None and not np.all(np.isfinite(currents)):  # (the core had said "currents: value 0")
+        row, j = (int(v[0]) for v in np.nonzero(~np.isfinite(currents)))
+        raise ValueError(f"{path}: {cur_names[j]} of snapshot {row} (file line {rec.line_numbers[row]}) is not a "
+                         "number: a reference current is needed for every reading (repair the line, or leave it out "
+                         "with --bad-lines skip)")
     positions = _floats(meta["positions_m"]) if "positions_m" in meta else None
     if positions is not None:
         if positions.size % 2:
@@ -1132,7 +1137,7 @@ def read_ring_csv(path, bad_lines: str = "error") -> dict:
     return {"ring": ring, "readings": readings, "rotations_deg": np.asarray(rotations, float), "currents_a": currents,
             "positions_m": positions, "t_s": None if t is None else np.asarray(t, float),
             "unused_columns": [n for n in rec.columns if n not in used],
-            "skipped_lines": rec.metadata.get("skipped_lines")}
+            "skipped_lines": rec.metadata.get("skipped_lines"), "line_numbers": rec.line_numbers}
 
 
 def ring_columns_note(data: dict) -> str | None:

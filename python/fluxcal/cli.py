@@ -1147,7 +1147,7 @@ def cmd_cable(args) -> int:
         mislabelled = _reference_mislabelled(cable, cal, data)
         if mislabelled:  # said first too: the sensors' warnings below are its consequence
             print(f"warning: {mislabelled}")
-        for line in _sensor_warning_lines(cal):
+        for line in _sensor_warning_lines(cal, data.get("line_numbers")):
             print(line)
         if cal.background is not None:  # (the room's field, the ring's turns told from the sensors' offsets)
             b = [complex(*t) for t in cal.background["terms_t"]]
@@ -1406,9 +1406,11 @@ def _grouped_warning_lines(labels: list, texts: list, words) -> list:
     return lines
 
 
-def _sensor_warning_lines(cal) -> list:
-    """The per-sensor warnings of a ring calibration, each kind once (_grouped_warning_lines)."""
-    pairs = [(k, w) for k, fit in enumerate(cal.sensors or []) for w in fit.summary.get("warnings", [])]
+def _sensor_warning_lines(cal, line_numbers=None) -> list:
+    """The per-sensor warnings of a ring calibration, each kind once (_grouped_warning_lines); rows they name (a
+    reading left out) with their file lines when `line_numbers` are given."""
+    pairs = [(k, w if line_numbers is None else _with_file_lines(w, line_numbers))
+             for k, fit in enumerate(cal.sensors or []) for w in fit.summary.get("warnings", [])]
     return _grouped_warning_lines([k for k, _ in pairs], [w for _, w in pairs],
                                   lambda ks: f"sensor{'s' if len(ks) > 1 else ''} {', '.join(map(str, ks))}")
 

@@ -601,6 +601,29 @@ def test_a_sensor_with_readings_that_are_not_numbers_is_calibrated_on_the_rest()
         calibrate_ring(readings, truth)
 
 
+def test_cli_calibrate_names_a_reading_or_a_current_that_is_not_a_number_by_its_file_line(tmp_path):
+    """A reading left out was named by its row ("rows 4"), which after the recording's 11 lines of metadata is not
+    where it is; a reference current NaN was refused as "currents: value 0 is not finite"."""
+    path = tmp_path / "cal.csv"
+    assert run_cli("cable", "simulate", "-o", path, "--calibration", "--seed", "3").returncode == 0
+    lines = path.read_text().splitlines()
+    first = next(i for i, line in enumerate(lines) if not line.startswith("#")) + 1  # the first data line, 0-based
+    for column, name in ((3, "reading"), (1, "current")):
+        edited = list(lines)
+        cells = edited[first + 4].split(",")
+        cells[column] = "nan"
+        edited[first + 4] = ",".join(cells)
+        bad = tmp_path / f"{name}.csv"
+        bad.write_text("\n".join(edited) + "\n")
+        r = run_cli("cable", "calibrate", bad)
+        if name == "reading":
+            assert r.returncode == 0 and (f"1 of 50 readings not finite, left out of this sensor's fit (row 4; file "
+                                          f"line {first + 5})") in r.stdout, r.stdout
+        else:
+            assert r.returncode == 2 and (f"i0 of snapshot 4 (file line {first + 5}) is not a number") in r.stderr, \
+                r.stderr
+
+
 def test_the_calibration_keeps_its_repeats_scatter_and_says_when_its_model_misses():
     """A calibration run's repeated readings scatter by the noise alone; its residuals about the model also hold
     what the model lacks. A blind check's ±1° axis misalignment put 2.5× the noise into the residuals, and the
