@@ -1120,11 +1120,6 @@ def read_ring_csv(path, bad_lines: str = "error") -> dict:
     if not np.all(np.isfinite(rotations)):
         row = int(np.argmax(~np.isfinite(rotations)))
         raise ValueError(f"{path}: rotation_deg of snapshot {row} (file line {rec.line_numbers[row]}) is not a number")
-    if currents is not None and not np.all(np.isfinite(currents)):  # (the core had said "currents: value 0")
-        row, j = (int(v[0]) for v in np.nonzero(~np.isfinite(currents)))
-        raise ValueError(f"{path}: {cur_names[j]} of snapshot {row} (file line {rec.line_numbers[row]}) is not a "
-                         "number: a reference current is needed for every reading (repair the line, or leave it out "
-                         "with --bad-lines skip)")
     positions = _floats(meta["positions_m"]) if "positions_m" in meta else None
     if positions is not None:
         if positions.size % 2:
@@ -1137,7 +1132,8 @@ def read_ring_csv(path, bad_lines: str = "error") -> dict:
     return {"ring": ring, "readings": readings, "rotations_deg": np.asarray(rotations, float), "currents_a": currents,
             "positions_m": positions, "t_s": None if t is None else np.asarray(t, float),
             "unused_columns": [n for n in rec.columns if n not in used],
-            "skipped_lines": rec.metadata.get("skipped_lines"), "line_numbers": rec.line_numbers}
+            "skipped_lines": rec.metadata.get("skipped_lines"), "line_numbers": rec.line_numbers,
+            "current_names": cur_names}
 
 
 def ring_columns_note(data: dict) -> str | None:

@@ -1119,6 +1119,12 @@ def cmd_cable(args) -> int:
         if data["currents_a"] is None or data["positions_m"] is None:
             raise ValueError(f"{args.file}: a calibration recording needs reference currents (i0, i1, …) and "
                              "the conductor positions (positions_m metadata)")
+        if not np.all(np.isfinite(data["currents_a"])):  # (the core had said "currents: value 0 is not finite")
+            row, j = (int(v[0]) for v in np.nonzero(~np.isfinite(data["currents_a"])))
+            line = f" (file line {data['line_numbers'][row]})" if data.get("line_numbers") is not None else ""
+            raise ValueError(f"{args.file}: {data['current_names'][j]} of snapshot {row}{line} is not a number: a "
+                             "calibration needs the reference current of every reading (repair the line, or leave it "
+                             "out with --bad-lines skip)")
         truth = _recording_fields(data)
         why = ""
         if args.method == "in_field":

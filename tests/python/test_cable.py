@@ -456,7 +456,7 @@ def test_a_calibration_run_the_model_does_not_describe_points_to_the_diagnosis(t
         calibrate_ring(h + to_axes(np.full(axes.shape, 20e-6 * np.exp(0.4j)), axes), h)
     bad = h.copy()
     bad[3, 2, 1] = np.inf  # a reading that is not a number is left out of its sensor's fit and said
-    assert "rows 3)" in calibrate_ring(bad, h).sensors[2].summary["warnings"][-1]
+    assert "row 3)" in calibrate_ring(bad, h).sensors[2].summary["warnings"][-1]
     bad = h.copy()
     bad[3, 2, 1] = np.nan  # bad true fields say what they are, without blaming the model
     with pytest.raises(ValueError, match="sensor 2: field_norms") as err:
