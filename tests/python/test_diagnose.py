@@ -157,6 +157,34 @@ def test_an_exponential_warm_up_is_an_offset_settling_in_time():
     assert [r["effect"] for r in d.confounded["temp_offset"]] == ["offset_drift"]
 
 
+def test_a_warm_up_logged_with_a_noisy_or_coarse_thermometer_is_not_told_from_a_drift(monkeypatch):
+    """An offset that follows a warm-up's temperature (10× the typical, 1.5–3 µT over 15 °C), logged with 0.02 °C of
+    noise or to 0.25 °C: the drift's smooth law fits it better than the logged temperature by what that logging costs
+    (ΔBIC 15–160), and a blind check's reports named offset_drift alone, with "or log its temperature" beside a
+    temperature logged. The two are now said not to be told apart; the exact S-curve above still is."""
+    from fluxcal.sim.effects import TemperatureOffset
+
+    typical = TemperatureOffset.typical.__func__
+
+    def larger(cls, field_norm, rng):
+        effect = typical(cls, field_norm, rng)
+        effect.beta = 10.0 * effect.beta
+        return effect
+
+    monkeypatch.setattr(TemperatureOffset, "typical", classmethod(larger))
+    for seed, logged in ((8, lambda T: T + np.random.default_rng(8).normal(0.0, 0.02, T.size)),
+                         (7, lambda T: 0.25 * np.round(T / 0.25))):
+        result, kwargs = withheld_trial(["temp_offset"], seed,
+                                        temperature=lambda t: 20.0 + 15.0 * (1 - np.exp(-t / 30.0)))
+        kwargs["temp"] = logged(np.asarray(kwargs["temp"], dtype=float))
+        d = diagnose(result.readings, **kwargs)
+        assert d.accepted == ["offset_drift"], d.accepted
+        assert [r["effect"] for r in d.confounded["offset_drift"]] == ["temp_offset"], d.confounded
+        text = d.text()
+        assert "CANNOT TELL APART: offset_drift and temp_offset take out the same departure" in text, text
+        assert "or log its temperature" not in text, text
+
+
 @pytest.mark.parametrize("name", ["temp_scale", "scale_drift", "nonlinearity_cubic"])
 def test_an_electronic_offset_is_told_from_a_hard_iron(monkeypatch, name):
     # A sensor's own (electronic) offset is added after its transducer; a platform's hard iron is a field the

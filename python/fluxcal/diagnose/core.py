@@ -56,6 +56,9 @@ CONFOUND_BIC = 10.0   # a rival within 10 of the winner's ΔBIC is not told apar
 # rival said). The event is still named: preferring the logged one took a temperature bump 0.08 of the recording
 # after a magnet's pass for an effect. Between two of fixed shape ΔBIC decides.
 SAME_DEPARTURE, CONFOUND_SHARE = 0.95, 0.5
+# A drift's law beside a logged quantity's effect that take out the same departure are not told apart while the law's
+# ΔBIC lead is within this many times what the logging's noise and resolution could cost the logged one (_rivals)
+LOGGING_MARGIN = 3.0
 LOGGED_REGIMES = ("temperature", "current")
 NESTED = 0.999        # signatures this close span one inside the other (saturation = equal cubics on every axis)
 
@@ -1853,12 +1856,28 @@ def _second_shape(row: dict, cls, accepted: list) -> None:
         row.update(unphysical=reason, significant=False, note=f"not accepted as {cls.name}: {reason}")
 
 
-def _law_inside_event(event: dict, other: dict) -> bool:
-    """Whether `event` (a free course in time: a magnet passing, a step) and `other` (driven by a logged
-    temperature or current, or a drift's law in time) take out the same departure — the changes their fits make
+def _law_inside_event(event: dict, other: dict, logging_noise: dict | None = None) -> bool:
+    """Whether `event` (a free course in time: a magnet passing, a step; or a drift's law in time beside a logged
+    quantity) and `other` (driven by a logged temperature or current, or a drift's law in time) take out the same
+    departure — the changes their fits make
     to the residuals agree to a cosine of SAME_DEPARTURE — and `other` at least CONFOUND_SHARE of the event's
     ΔBIC: the course fits whatever the logged quantity drives, or the law, and noise besides."""
-    if event["regime"] != "events" or not (other["regime"] in LOGGED_REGIMES or other.get("_law_in_time")) \
+    logging_noise = logging_noise or {}
+    # (a drift's law in time beside a logged quantity that follows time too: a warm-up the temperature drives, which
+    # a thermometer's noise or resolution left 1000s of ΔBIC behind the smooth law — a blind check's 0.5 µT offset
+    # over a 10 °C warm-up, logged with 0.02 °C of noise, was named offset_drift alone)
+    drift = event["regime"] != "events"
+    course = not drift or (event.get("_law_in_time") and other["regime"] in LOGGED_REGIMES)
+    # ... where the law's lead over the logged one is what the logging's noise and resolution could cost it (its share
+    # of the quantity's variance times what it explains, LOGGING_MARGIN over): a law that fits better than any noise
+    # there explains is the data's choice (an S-curve warm-up logged exactly: the drift 229 ahead, rightly)
+    if drift and course and "_explained" in other:
+        n = other["_explained"].size  # (lr = n ln(|e|²/|e1|²): what it explains, in its residuals' variances)
+        explained = n * float(np.expm1(min(other.get("lr", 0.0) / n, 700.0)))
+        if not (other["delta_bic"] - event["delta_bic"]
+                <= CONFOUND_BIC + LOGGING_MARGIN * explained * logging_noise.get(other["regime"], 0.0)):
+            return False
+    if not course or not (other["regime"] in LOGGED_REGIMES or other.get("_law_in_time")) \
             or "_explained" not in event or "_explained" not in other \
             or not other["delta_bic"] <= CONFOUND_SHARE * event["delta_bic"]:
         return False
@@ -1867,7 +1886,19 @@ def _law_inside_event(event: dict, other: dict) -> bool:
     return norms > 0 and float(a @ b) / norms >= SAME_DEPARTURE
 
 
-def _rivals(winner: dict, rows: list, key: str = "significant") -> list:
+def _logging_noise(x: np.ndarray | None, t: np.ndarray) -> float:
+    """The share of a logged quantity's variance that its logging's noise or resolution takes: the larger of its
+    sample-to-sample scatter (robust, in time order) and its smallest step's rounding (q²/12), over its variance."""
+    if x is None or not np.ptp(x) > 0:
+        return 0.0
+    steps = np.diff(np.asarray(x, float)[np.argsort(t, kind="stable")])
+    scatter = 1.4826 * float(np.median(np.abs(steps - np.median(steps)))) / np.sqrt(2.0)
+    moved = np.abs(steps[steps != 0])
+    resolution = float(moved.min()) if moved.size else 0.0
+    return max(scatter ** 2, resolution ** 2 / 12.0) / float(np.var(x))
+
+
+def _rivals(winner: dict, rows: list, key: str = "significant", logging_noise: dict | None = None) -> list:
     """Candidates of the same round that explain the data about as well as the winner: significant themselves
     (`key` of the row, True) with ΔBIC within CONFOUND_BIC of it either way; or, beside an event, a candidate
     driven by a logged quantity or a drift's law that takes out the same departure (`_law_inside_event`), strong
@@ -1878,7 +1909,7 @@ def _rivals(winner: dict, rows: list, key: str = "significant") -> list:
         if r is winner or not r["delta_bic"] < 0 or refused(r):
             continue
         close = r.get(key) and abs(r["delta_bic"] - winner["delta_bic"]) < CONFOUND_BIC
-        same = not {"in_sample", "bic"} & set(r.get("unmet", [])) and _law_inside_event(winner, r)
+        same = not {"in_sample", "bic"} & set(r.get("unmet", [])) and _law_inside_event(winner, r, logging_noise)
         if not (close or same):
             continue
         overlap = np.linalg.svd(winner["_signature"].T @ r["_signature"], compute_uv=False)
@@ -2545,6 +2576,7 @@ def diagnose(samples, t=None, temp=None, reference=None, gravity=None, field_nor
                    disable=None)  # None: no bar when stderr is no terminal (a log file filled with \r lines)
     previous_winner, moves = None, []
     by_base = set()  # candidates the base model's own parameters absorb (before any effect is accepted)
+    logging_noise = {"temperature": _logging_noise(data.temp, data.t), "current": _logging_noise(data.current, data.t)}
 
     def accept(w):
         nonlocal data
@@ -2599,7 +2631,7 @@ def diagnose(samples, t=None, temp=None, reference=None, gravity=None, field_nor
         added = len(accepted) + sum(len(last_rows[a].get("episodes", [0])) - 1 for a in accepted)
         if winners and added < max_effects:
             w = previous_winner = winners[0]
-            w["_rivals"] = [] if w.get("episode") else _rivals(w, candidates)
+            w["_rivals"] = [] if w.get("episode") else _rivals(w, candidates, logging_noise=logging_noise)
             accept(w)
             continue
         pair = (_together(data, model, state, candidates, pool, accepted, sigma, n_candidates)

@@ -71,7 +71,13 @@ def confound_lines(d, words=None) -> list:
     regime = {r["effect"]: r["regime"] for r in d.ranking}
     for name, rivals in d.confounded.items():
         for r in rivals:
-            if r.get("same_departure"):
+            if r.get("same_departure") and regime[name] != "events":  # (a drift's law beside a logged quantity)
+                lines.append(f"CANNOT TELL APART: {name} and {r['effect']} take out the same departure (ΔBIC "
+                             f"{r['delta_bic_difference']:+.1f} for {r['effect']} against {name}, and it is not "
+                             f"significant once {name} is modelled): where {words_of.get(r['regime'], r['regime'])} "
+                             f"follows time, a drift in time fits what it drives, and its logging's noise and "
+                             "resolution count against it, not the sensor; the choice between them is not the data's.")
+            elif r.get("same_departure"):
                 lines.append(f"CANNOT TELL APART: {name} and {r['effect']} take out the same departure (ΔBIC "
                              f"{r['delta_bic_difference']:+.1f} for {r['effect']} against {name}, and it is not "
                              f"significant once {name} is modelled): a free course in time fits "
@@ -167,8 +173,11 @@ def drift_line(d, r) -> str:
                   "from the first reading (that end value extrapolated)")
     # the grid ends at twice the recording: a time constant there is a lower bound
     bound = "at least " if tau >= 0.99 * 2 * span else ""
+    # (the temperature logged: a temperature effect that follows time is said as a rival, not asked for)
+    logged = not any(n.startswith("temp_") for n in d.remaining.get("skipped_candidates", []))
     return (f"{r['effect']}: the {what} settles exponentially with a time constant of {bound}{tau:.3g}{unit}, {extent} "
-            f"(a warm-up after power-on? let the sensor warm up before calibrating, or log its temperature)")
+            "(a warm-up after power-on? let the sensor warm up before calibrating"
+            + (")" if logged else ", or log its temperature)"))
 
 
 def moving_dipole_line(d, r) -> str:
