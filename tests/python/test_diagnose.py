@@ -1713,3 +1713,27 @@ def test_a_second_shape_of_one_compression_is_refused():
     assert row == {"significant": True}  # beside another kind of effect: judged as it is
     _second_shape(row, SaturationKnee, [Saturation])
     assert refused(row) and not row["significant"] and "second shape of the compression saturation" in row["note"]
+
+
+def test_a_departure_against_the_orientation_is_left_over_beside_colored_noise():
+    """colored_noise describes what is correlated in time; beside it a blind check's 10 ms lag of one axis left
+    2.5 σ and the orientation's bins at p 5e-289, and nothing was said. LEFT OVER now, as without it; what is left in
+    time only, or within 1.5 σ, stays the correlated noise it names."""
+    from fluxcal.diagnose.report import _shape_left
+
+    rem = {"unexplained": {"share": 0.01, "rms_over_sigma": 2.5},
+           "tests": [{"regime": "orientation", "pvalue": 4.6e-289}, {"regime": "time", "pvalue": 0.0}]}
+    assert _shape_left(rem, beside_noise=True) and _shape_left(rem)
+    assert not _shape_left({**rem, "unexplained": {"share": 0.01, "rms_over_sigma": 1.2}}, beside_noise=True)
+    in_time = {**rem, "tests": [{"regime": "orientation", "pvalue": 0.3}, {"regime": "time", "pvalue": 0.0}]}
+    assert not _shape_left(in_time, beside_noise=True) and _shape_left(in_time)
+
+
+def test_a_recording_that_determines_no_base_model_clears_nothing():
+    """100 readings (2 s of turning): the base model's parameters undetermined (a CAVEAT says so), yet the verdict had
+    read "the base model explains the data to the noise" (a blind check)."""
+    result, kwargs = withheld_trial([], 3, duration_s=2.0)
+    d = diagnose(result.readings, **kwargs)
+    text = d.text()
+    assert any("not identifiable" in c for c in d.caveats), d.caveats
+    assert "nothing is cleared" in text and "explains the data to the noise" not in text, text
