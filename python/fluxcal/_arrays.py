@@ -139,6 +139,35 @@ def held_copies(m: np.ndarray):
     return repeat if regular else None
 
 
+REPEAT_BLOCK = 20  # rows: a stretch this long, of as many distinct readings, repeated exactly is a copy (continuous
+                   # readings never repeat by chance; a still sensor's few quantised values repeat row by row, but
+                   # do not make 20 distinct readings in the same order)
+
+
+def repeated_blocks(values: np.ndarray) -> np.ndarray:
+    """Mask of the rows that repeat an earlier stretch of rows exactly (a log appended to itself, a buffer
+    written twice): runs of ≥ REPEAT_BLOCK rows, holding as many distinct rows, equal row by row to an earlier
+    run."""
+    n = len(values)
+    rows = np.ascontiguousarray(values).view(np.dtype((np.void, values.dtype.itemsize * values.shape[1]))).ravel()
+    first = {}
+    earlier = np.array([first.setdefault(r.tobytes(), i) for i, r in enumerate(rows)])
+    copied = np.zeros(n, dtype=bool)
+    i = 0
+    while i < n - REPEAT_BLOCK + 1:
+        j = earlier[i]
+        if j == i or not np.array_equal(rows[i:i + REPEAT_BLOCK], rows[j:j + REPEAT_BLOCK]):
+            i += 1
+            continue
+        length = REPEAT_BLOCK
+        while i + length < n and rows[i + length] == rows[j + length]:
+            length += 1
+        if len(np.unique(rows[i:i + length])) >= REPEAT_BLOCK:
+            copied[i:i + length] = True
+        i += length
+    return copied
+
+
 def field_norms_summary(norms: np.ndarray) -> dict:
     """What a fit to each reading's own |field| says of them in its summary."""
     return {"count": len(norms), "min": float(norms.min()), "max": float(norms.max())}

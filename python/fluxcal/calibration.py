@@ -10,7 +10,8 @@ import numpy as np
 from ._arrays import as_samples
 from ._saved import load_json_object
 
-CONVENTION = "h = A (m - b); rows of samples are readings; A = W^-1 for a sensor reading m = W h + b"
+CONVENTION = ("h = A (m - b); rows of samples are readings; for a sensor reading m = W h + b, A W is a rotation: from "
+              "magnitudes alone A is the symmetric (W W^T)^-1/2, with reference vectors A = W^-1")
 # magnetic-field units fluxcal converts between (the unit names of fluxcal.io.columns.FIELD_UNITS)
 TESLA_PER_UNIT = {"T": 1.0, "mT": 1e-3, "uT": 1e-6, "nT": 1e-9, "G": 1e-4, "mG": 1e-7}
 

@@ -8,7 +8,7 @@ from concurrent.futures import ThreadPoolExecutor
 import numpy as np
 
 from . import _core
-from ._arrays import as_samples, held_copies, readings_times
+from ._arrays import as_samples, held_copies, readings_times, repeated_blocks
 from .calibration import TESLA_PER_UNIT, Calibration
 from .ellipsoid import fit_ellipsoid
 from .outliers import DOMINATING, far_readings, find_outliers
@@ -92,6 +92,16 @@ def calibrate(samples, method: str = "auto", field_norm: float | None = None, re
         units = getattr(samples, "field_units", lambda: "")()
     field_norm = field_norm_given(samples, field_norm)
     m = as_samples(samples)
+    dead = [k for k in range(m.shape[1]) if len(m) >= 10 and np.ptp(m[:, k]) == 0]  # (fewer: too few is said)
+    if len(dead) == m.shape[1]:
+        raise ValueError(f"samples: all {len(m)} readings are the same ({', '.join(f'{v:g}' for v in m[0])}): a "
+                         "sensor that is stuck, not updating, or was never turned")
+    if dead:  # (a blind check's constant axis was refused as "nearly in one plane … turn the sensor")
+        k = dead[0]
+        raise ValueError(f"samples: the readings lie in one plane: axis {'xyz'[k] if m.shape[1] == 3 else k} reads "
+                         f"{m[0, k]:g} in every one of the {len(m)}: a dead axis, or a column that is not the "
+                         "magnetometer's? (a field turned through directions moves every axis; a two-axis sensor: "
+                         "calibrate --planar)")
     vector = method == "vector" or (method == "auto" and reference is not None)
     if "field_norms" in settings:  # (refine's keyword: here it would pass the outlier screen and its dropped rows)
         raise ValueError("field_norms: give each reading's |field| to calibrate as field_norm= (one value, or one "
@@ -138,6 +148,9 @@ def calibrate(samples, method: str = "auto", field_norm: float | None = None, re
     elif method == "twostep":
         cal = twostep(m, field_norm if field_norms is None else field_norms, units=units, **settings)
         cal.summary["method"] = "twostep"
+        said = _twostep_bias(cal, m, field_norms)
+        if said:
+            cal.summary["warnings"] = list(cal.summary["warnings"]) + [said]
     else:
         start, judged = (_screened_start(m, field_norm, field_norms, units, start_settings, loss)
                          if loss != "none" and outliers == "keep" else
@@ -370,6 +383,39 @@ def _settings_named(names) -> str:
     return f"{', '.join(names)}: {'a setting' if len(names) == 1 else 'settings'}"
 
 
+# TWOSTEP's estimate this many of its own standard errors from the maximum-likelihood one is said (_twostep_bias)
+TWOSTEP_BIAS_SE = 2.0
+
+
+def _twostep_bias(cal: Calibration, m: np.ndarray, field_norms=None) -> str | None:
+    """How far TWOSTEP's estimate lies from the maximum-likelihood one (the refinement started from it), in TWOSTEP's
+    own standard errors, when that is more than TWOSTEP_BIAS_SE: its first-order errors do not hold its bias where the
+    readings determine some directions poorly (a blind check on ±20° of tilt: errors 2–3× the bound that its standard
+    errors claimed, the matrix's diagonal −1.3 to −1.7 of them off, "identifiable yes")."""
+    se = np.asarray(cal.summary.get("standard_errors") or [], dtype=float)
+    if se.size != 9 or not np.all(np.isfinite(se) & (se > 0)):
+        return None
+    try:
+        ml = refine(cal, m, shape="sym", field_norms=field_norms)
+    except (ValueError, RuntimeError):
+        return None
+
+    def params(c):
+        a = np.asarray(c.matrix, dtype=float)
+        return np.r_[c.offset, a[0, 0], a[0, 1], a[0, 2], a[1, 1], a[1, 2], a[2, 2]]
+
+    apart = np.abs(params(ml) - params(cal)) / se
+    if not apart.max() > TWOSTEP_BIAS_SE:
+        return None
+    names = ("b0", "b1", "b2", "a00", "a01", "a02", "a11", "a12", "a22")
+    worst = np.argsort(-apart)[:3]
+    return (f"TWOSTEP's estimate lies up to {apart.max():.1f} of its standard errors from the maximum-likelihood one "
+            f"on these readings ({', '.join(f'{names[k]} {apart[k]:.1f}' for k in worst if apart[k] > 1.0)}): its "
+            "standard errors are first order and do not hold its bias where the readings leave some directions poorly "
+            "determined (a narrow band of tilts); the default method (no --method) gives the maximum-likelihood "
+            "calibration and its errors")
+
+
 def _refine_shape(start: Calibration, m: np.ndarray, shape: str, judged: np.ndarray | None = None,
                   **settings) -> Calibration:
     """The refinement in `shape`, or with "auto" the shape of lowest BIC, determined or not (see calibrate).
@@ -494,10 +540,33 @@ def _forced_shape(start: Calibration, m: np.ndarray, shape: str, judged: np.ndar
     return cal
 
 
+# One reading repeated in this many consecutive rows or more (and in 1 % of them), beyond sample-and-hold's regular runs,
+# is a sensor that stuck or a logger that held it
+STUCK_ROWS = 20
+
+
 def _note_copies(cal: Calibration, m: np.ndarray) -> Calibration:
-    """Warn about sample-and-hold copies (see fluxcal._arrays.held_copies)."""
+    """Warn about sample-and-hold copies (see fluxcal._arrays.held_copies), stretches of the log written twice
+    (fluxcal._arrays.repeated_blocks) and one reading held for many rows: each counted as independent readings."""
+    copied = repeated_blocks(m)
+    if copied.any():  # (a blind check: a file appended to itself left the z spread 1.54 and nothing said)
+        starts = np.flatnonzero(np.diff(np.concatenate([[0], copied.astype(int)])) == 1)
+        cal.summary["warnings"] = list(cal.summary["warnings"]) + [
+            f"{int(copied.sum())} of {len(m)} rows (from row{'s' if len(starts) > 1 else ''} "
+            f"{', '.join(str(i) for i in starts[:5])}{', …' if len(starts) > 5 else ''}) repeat earlier rows exactly, "
+            "in the same order (a log appended to itself, a buffer written twice?): the fit counts them twice, and "
+            f"its standard errors are too small by up to √2; drop them"]
     copies = held_copies(m)
     if copies is None:
+        same = np.concatenate([[False], np.all(m[1:] == m[:-1], axis=1)])
+        starts = np.flatnonzero(np.diff(np.concatenate([[0], same.astype(int), [0]])) == 1)
+        ends = np.flatnonzero(np.diff(np.concatenate([[0], same.astype(int), [0]])) == -1)
+        longest = int(np.argmax(ends - starts)) if len(starts) else None
+        if longest is not None and ends[longest] - starts[longest] + 1 >= max(STUCK_ROWS, 0.01 * len(m)):
+            first, count = int(starts[longest]) - 1, int(ends[longest] - starts[longest]) + 1
+            cal.summary["warnings"] = list(cal.summary["warnings"]) + [
+                f"rows {first}–{first + count - 1} hold one reading {count} times (a sensor that stuck, or a logger "
+                "that held its last value while the sensor did not answer?): the fit counts each as a reading"]
         return cal
     corrected = cal.summary.get("serial_correlation", {}).get("lags", 0) > 0
     errors = ("the Newey–West standard errors allow for them, but record at the sensor's rate or drop the copies"

@@ -22,7 +22,7 @@ MAG_UNITS = {"mx": "nT", "my": "nT", "mz": "nT"}
 OUTLIERS = {"big_offset": "offset", "double_gain": "scale", "noisy": "noise"}
 BROKEN = {"truncated": r"line \d+: 2 fields, the header has 4",
           "has_nan": r"line \d+, column 'my' is nan",
-          "planar": r"lie nearly in one plane"}
+          "planar": r"lie in one plane: axis z reads"}
 
 
 def _unit(seed, scene="uniform", gain=1.0, extra_offset=(0.0, 0.0, 0.0), noise=NOISE):

@@ -101,7 +101,7 @@ def test_a_log_appended_to_itself_is_left_out(short):
 
 
 def test_a_still_quantised_sensor_is_no_copy():
-    from fluxcal.diagnose.core import _repeated_blocks
+    from fluxcal._arrays import repeated_blocks as _repeated_blocks
 
     rng = np.random.default_rng(0)  # three levels per axis: rows repeat all the time, but not as a block
     still = np.round(np.array([10.0, -3.0, 40.0]) + rng.normal(0, 0.5, (20000, 3)))

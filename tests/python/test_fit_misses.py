@@ -223,3 +223,26 @@ def test_a_fast_turn_is_not_said_to_miss_and_its_noise_is_said_to_hold_the_turni
     assert cal.summary["readings_noise_stride"] == 0 and cal.summary["readings_noise_sigma"] > 0.3
     line = noise_line(cal.summary, "µT")
     assert "third differences of the readings" in line and "the residual σ bounds it" in line, line
+
+
+def test_a_log_written_twice_a_held_reading_and_a_dead_axis_are_said():
+    """A blind check: a file appended to itself (the z spread of the errors 1.54, not 1.08) and one reading held for
+    200 rows passed without a note, and a constant axis was refused as "nearly in one plane … turn the sensor"."""
+    from scipy.spatial.transform import Rotation
+
+    rng = np.random.default_rng(0)
+    H = np.array([20000.0, 1000.0, 45000.0])
+    m = Rotation.random(1000, random_state=1).inv().apply(H) + [1500.0, -2200.0, 800.0] + rng.normal(0, 50.0, (1000, 3))
+    F = float(np.linalg.norm(H))
+    assert fluxcal.calibrate(m, field_norm=F).summary["warnings"] == []
+    twice = fluxcal.calibrate(np.vstack([m, m]), field_norm=F).summary["warnings"]
+    assert any(w.startswith("1000 of 2000 rows (from row 1000) repeat earlier rows exactly") for w in twice), twice
+    held = np.vstack([m[:400], np.repeat(m[400:401], 200, axis=0), m[401:]])
+    said = fluxcal.calibrate(held, field_norm=F).summary["warnings"]
+    assert any(w.startswith("rows 400–599 hold one reading 200 times") for w in said), said
+    dead = m.copy()
+    dead[:, 2] = 12.5
+    with pytest.raises(ValueError, match="axis z reads 12.5 in every one of the 1000: a dead axis"):
+        fluxcal.calibrate(dead, field_norm=F)
+    with pytest.raises(ValueError, match="all 1000 readings are the same"):
+        fluxcal.calibrate(np.tile(m[:1], (1000, 1)), field_norm=F)

@@ -14,7 +14,7 @@ import numpy as np
 from scipy import stats
 
 from .. import _core
-from .._arrays import as_field_norms, as_samples, field_norm_given, held_copies
+from .._arrays import as_field_norms, as_samples, field_norm_given, held_copies, repeated_blocks
 from ..attitude import magnetic_frame
 from ..calibration import Calibration
 from ..io.recording import UNIX_SECONDS
@@ -2266,35 +2266,6 @@ def _side(values, n: int, name: str, what: str):
     return values if np.ptp(values) > 0 else None
 
 
-REPEAT_BLOCK = 20  # rows: a stretch this long, of as many distinct readings, repeated exactly is a copy (continuous
-                   # readings never repeat by chance; a still sensor's few quantised values repeat row by row, but
-                   # do not make 20 distinct readings in the same order)
-
-
-def _repeated_blocks(values: np.ndarray) -> np.ndarray:
-    """Mask of the rows that repeat an earlier stretch of rows exactly (a log appended to itself, a buffer
-    written twice): runs of ≥ REPEAT_BLOCK rows, holding as many distinct rows, equal row by row to an earlier
-    run."""
-    n = len(values)
-    rows = np.ascontiguousarray(values).view(np.dtype((np.void, values.dtype.itemsize * values.shape[1]))).ravel()
-    first = {}
-    earlier = np.array([first.setdefault(r.tobytes(), i) for i, r in enumerate(rows)])
-    copied = np.zeros(n, dtype=bool)
-    i = 0
-    while i < n - REPEAT_BLOCK + 1:
-        j = earlier[i]
-        if j == i or not np.array_equal(rows[i:i + REPEAT_BLOCK], rows[j:j + REPEAT_BLOCK]):
-            i += 1
-            continue
-        length = REPEAT_BLOCK
-        while i + length < n and rows[i + length] == rows[j + length]:
-            length += 1
-        if len(np.unique(rows[i:i + length])) >= REPEAT_BLOCK:
-            copied[i:i + length] = True
-        i += length
-    return copied
-
-
 def _spread_ticks(t: np.ndarray) -> np.ndarray:
     """Times in order (non-decreasing) with runs of equal values: each run spread evenly from its tick to
     the next one (the last run over the median tick)."""
@@ -2343,7 +2314,7 @@ def _prepare(samples, t, temp, reference, down, field_norm, units, source, curre
         m, t, rows, temp, reference, down, current, norms = (
             None if a is None else a[keep] for a in (m, t, rows, temp, reference, down, current, norms))
 
-    copied = _repeated_blocks(m if temp is None else np.column_stack([m, temp]))
+    copied = repeated_blocks(m if temp is None else np.column_stack([m, temp]))
     if copied.any():  # the copies add no information, yet would double the evidence and fake a jump where they join
         starts = np.flatnonzero(np.diff(np.concatenate([[0], copied.astype(int)])) == 1)
         keep = ~copied
