@@ -1116,7 +1116,8 @@ def thermal_lag(model: "DriftModel", compensated, temp, t=None, temp_outside=Non
     {"tau_s", "p_value", "share", "share_alone", "said", "holds", "hysteresis": {"dead_band_c", "p_value", "share",
     "share_alone", "said", "on_holds", "difference_by_level" (heating minus cooling, measured at the holds both
     branches hold at), "largest_difference", "at_level"} or None, "ageing": {"per_hour", "p_value", "share",
-    "share_alone", "said", "hours"} or None, "fits_too", "one_way": {"heating", "per_minute_of_lag"} or None} — p and
+    "share_alone", "said", "hours", "step": {"row", "t", "at_s", "size"} where a step at one time fits better than a
+    trend (per_hour then 0), else None} or None, "fits_too", "one_way": {"heating", "per_minute_of_lag"} or None} — p and
     share of a named feature beside the others named, of the rest alone — or None when it cannot be judged (no
     temperature change, too few samples, a regressor that is not f(T), a flat drift model)."""
     w = np.asarray(compensated, dtype=float)

@@ -450,7 +450,13 @@ def eddy_current_line(d, r) -> str:
     delayed = vector and "time_offset" in d.accepted
     shown = tau if vector and not delayed else tau - tau.min()
     taus = f"{_vec(shown, 1e3)} ms" if unit == "s" else f"{_vec(shown)} rows"
-    se = f"(standard errors {_vec(r['standard_errors'], 1e3 if unit == 's' else 1)}{' ms' if unit == 's' else ' rows'})"
+    errors = np.asarray(r["standard_errors"], dtype=float)
+    if not (vector and not delayed) and r.get("correlation") is not None:
+        # the differences' own errors (each axis's holds the common part a magnitude does not determine)
+        k, rho = int(np.argmin(tau)), np.asarray(r["correlation"], dtype=float)
+        errors = np.sqrt(np.maximum(errors ** 2 + errors[k] ** 2 - 2 * rho[:, k] * errors * errors[k], 0.0))
+        errors[k] = 0.0
+    se = f"(standard errors {_vec(errors, 1e3 if unit == 's' else 1)}{' ms' if unit == 's' else ' rows'})"
     blind = ("" if vector and not delayed else
              f" above the smallest axis's: beside the delay found (time_offset), a lag common to every axis is the "
              f"delay's, which holds it {se}" if delayed else
