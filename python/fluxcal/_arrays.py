@@ -168,6 +168,14 @@ def repeated_blocks(values: np.ndarray) -> np.ndarray:
     return copied
 
 
+def repeated_words(copied: np.ndarray) -> str:
+    """What repeated_blocks found, in words: how many rows, from where, and what makes such copies."""
+    starts = np.flatnonzero(np.diff(np.concatenate([[0], copied.astype(int)])) == 1)
+    return (f"{int(copied.sum())} of {len(copied)} rows (from row{'s' if len(starts) > 1 else ''} "
+            f"{', '.join(str(i) for i in starts[:5])}{', …' if len(starts) > 5 else ''}) repeat earlier rows exactly, "
+            "in the same order (a log appended to itself, a buffer written twice?)")
+
+
 def field_norms_summary(norms: np.ndarray) -> dict:
     """What a fit to each reading's own |field| says of them in its summary."""
     return {"count": len(norms), "min": float(norms.min()), "max": float(norms.max())}

@@ -8,7 +8,7 @@ from concurrent.futures import ThreadPoolExecutor
 import numpy as np
 
 from . import _core
-from ._arrays import as_samples, held_copies, readings_times, repeated_blocks
+from ._arrays import as_samples, held_copies, readings_times, repeated_blocks, repeated_words
 from .calibration import TESLA_PER_UNIT, Calibration
 from .ellipsoid import fit_ellipsoid
 from .outliers import DOMINATING, far_readings, find_outliers
@@ -550,12 +550,9 @@ def _note_copies(cal: Calibration, m: np.ndarray) -> Calibration:
     (fluxcal._arrays.repeated_blocks) and one reading held for many rows: each counted as independent readings."""
     copied = repeated_blocks(m)
     if copied.any():  # (a blind check: a file appended to itself left the z spread 1.54 and nothing said)
-        starts = np.flatnonzero(np.diff(np.concatenate([[0], copied.astype(int)])) == 1)
         cal.summary["warnings"] = list(cal.summary["warnings"]) + [
-            f"{int(copied.sum())} of {len(m)} rows (from row{'s' if len(starts) > 1 else ''} "
-            f"{', '.join(str(i) for i in starts[:5])}{', …' if len(starts) > 5 else ''}) repeat earlier rows exactly, "
-            "in the same order (a log appended to itself, a buffer written twice?): the fit counts them twice, and "
-            f"its standard errors are too small by up to √2; drop them"]
+            f"{repeated_words(copied)}: the fit counts them twice, and its standard errors are too small by up to √2; "
+            "drop them"]
     copies = held_copies(m)
     if copies is None:
         same = np.concatenate([[False], np.all(m[1:] == m[:-1], axis=1)])

@@ -14,7 +14,7 @@ import numpy as np
 from scipy import stats
 
 from .. import _core
-from .._arrays import as_field_norms, as_samples, field_norm_given, held_copies, repeated_blocks
+from .._arrays import as_field_norms, as_samples, field_norm_given, held_copies, repeated_blocks, repeated_words
 from ..attitude import magnetic_frame
 from ..calibration import Calibration
 from ..io.recording import UNIX_SECONDS
@@ -2328,12 +2328,8 @@ def _prepare(samples, t, temp, reference, down, field_norm, units, source, curre
 
     copied = repeated_blocks(m if temp is None else np.column_stack([m, temp]))
     if copied.any():  # the copies add no information, yet would double the evidence and fake a jump where they join
-        starts = np.flatnonzero(np.diff(np.concatenate([[0], copied.astype(int)])) == 1)
-        keep = ~copied
-        take(keep)
-        notes.append(f"{int(copied.sum())} of {n} rows (from row{'s' if len(starts) > 1 else ''} "
-                     f"{', '.join(str(i) for i in starts[:5])}{', …' if len(starts) > 5 else ''}) repeat earlier rows "
-                     "exactly, in the same order (a log appended to itself, a buffer written twice?) and were left out")
+        take(~copied)
+        notes.append(f"{repeated_words(copied)} and were left out")
     back = np.flatnonzero(np.diff(t) < 0)  # differences, runs and time blocks all need time order
     if len(back) > CLOCK_JUMPS * n:
         take(np.argsort(t, kind="stable"))
