@@ -1168,11 +1168,15 @@ def thermal_lag(model: "DriftModel", compensated, temp, t=None, temp_outside=Non
         basis = _state_design(temp, model, _state_orders(model, of_state=False), {}, step, breaks, ok, [])
         # or a step at one time, at the row where it fits best: the two compete as one feature, the better named (a
         # blind check's 0.05 A step had been named hysteresis, then a trend, and the model refitted about it)
-        jump = _step_row(w, ok, basis)
+        # an orthonormal basis of the polynomials' span (a column's part in them by one product; as least squares
+        # would, without the directions a range's empty or collinear columns do not span)
+        u, sv, _ = np.linalg.svd(basis, full_matrices=False)
+        q = u[:, sv > 1e-12 * sv[0]]
+        jump = _step_row(w, ok, q)
         trends = [hours] + ([] if jump is None else [(np.arange(n) >= jump).astype(float)])
         beyond = [c.copy() for c in trends]
         for c in beyond:
-            c[ok] -= basis @ np.linalg.lstsq(basis, c[ok], rcond=None)[0]
+            c[ok] -= q @ (q.T @ c[ok])
         grids["ageing"], scales["ageing"] = (beyond, True), [1.0] * len(beyond)
         out["ageing"] = {"hours": float(hours[-1])}
     # a lag, a dead band and a trend in time can each stand in for another (on holds not much longer than τ a lag
@@ -1243,12 +1247,11 @@ def thermal_lag(model: "DriftModel", compensated, temp, t=None, temp_outside=Non
     return out
 
 
-def _step_row(w: np.ndarray, ok: np.ndarray, basis: np.ndarray) -> int | None:
-    """The row where a step of w (1 from there on) fits best what the drift polynomials (`basis`, on the `ok` rows)
-    leave, not within a fiftieth of the log of its ends (a trend's tail there); None when the log is too short, or
+def _step_row(w: np.ndarray, ok: np.ndarray, q: np.ndarray) -> int | None:
+    """The row where a step of w (1 from there on) fits best what the drift polynomials (`q`, an orthonormal basis of
+    them on the `ok` rows) leave, not within a fiftieth of the log of its ends (a trend's tail there); None when the log is too short, or
     where the level does not move there abruptly. Every
     row is tried at once: the basis's part of a step from row i is a sum from i to the end, one cumulative sum."""
-    q = np.linalg.qr(basis)[0]
     y = w[ok] - q @ (q.T @ w[ok])
     tail_q = np.cumsum(q[::-1], axis=0)[::-1]  # Σ_{j ≥ i} q_j: qᵀs for the step s from row i
     n = y.size

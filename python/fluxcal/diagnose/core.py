@@ -1857,29 +1857,28 @@ def _second_shape(row: dict, cls, accepted: list) -> None:
 
 
 def _law_inside_event(event: dict, other: dict, logging_noise: dict | None = None) -> bool:
-    """Whether `event` (a free course in time: a magnet passing, a step; or a drift's law in time beside a logged
-    quantity) and `other` (driven by a logged temperature or current, or a drift's law in time) take out the same
-    departure — the changes their fits make
-    to the residuals agree to a cosine of SAME_DEPARTURE — and `other` at least CONFOUND_SHARE of the event's
-    ΔBIC: the course fits whatever the logged quantity drives, or the law, and noise besides."""
-    logging_noise = logging_noise or {}
-    # (a drift's law in time beside a logged quantity that follows time too: a warm-up the temperature drives, which
-    # a thermometer's noise or resolution left 1000s of ΔBIC behind the smooth law — a blind check's 0.5 µT offset
-    # over a 10 °C warm-up, logged with 0.02 °C of noise, was named offset_drift alone)
-    drift = event["regime"] != "events"
-    course = not drift or (event.get("_law_in_time") and other["regime"] in LOGGED_REGIMES)
-    # ... where the law's lead over the logged one is what the logging's noise and resolution could cost it (its share
-    # of the quantity's variance times what it explains, LOGGING_MARGIN over): a law that fits better than any noise
-    # there explains is the data's choice (an S-curve warm-up logged exactly: the drift 229 ahead, rightly)
-    if drift and course and "_explained" in other:
+    """Whether `event` and `other` take out the same departure — the changes their fits make to the residuals agree
+    to a cosine of SAME_DEPARTURE — with `other` at least CONFOUND_SHARE of the event's ΔBIC: `event` a free course in
+    time (a magnet passing, a step) and `other` driven by a logged temperature or current, or a drift's law in time —
+    the course fits whatever the logged quantity drives, or the law, and noise besides; or `event` a drift's law and
+    `other` driven by a logged quantity, while the law's lead is within what the logging's noise and resolution
+    (`logging_noise`: their share of each logged quantity's variance) could cost it, LOGGING_MARGIN over — a warm-up
+    the temperature drives, whose thermometer's 0.02 °C of noise left it behind the smooth law (a blind check's 0.5 µT
+    over 10 °C named offset_drift alone), where an S-curve warm-up logged exactly is the data's choice (229 ahead)."""
+    if "_explained" not in event or "_explained" not in other:
+        return False
+    if event["regime"] == "events":
+        if not (other["regime"] in LOGGED_REGIMES or other.get("_law_in_time")):
+            return False
+    else:
+        if not (event.get("_law_in_time") and other["regime"] in LOGGED_REGIMES):
+            return False
         n = other["_explained"].size  # (lr = n ln(|e|²/|e1|²): what it explains, in its residuals' variances)
         explained = n * float(np.expm1(min(other.get("lr", 0.0) / n, 700.0)))
-        if not (other["delta_bic"] - event["delta_bic"]
-                <= CONFOUND_BIC + LOGGING_MARGIN * explained * logging_noise.get(other["regime"], 0.0)):
+        allowance = LOGGING_MARGIN * explained * (logging_noise or {}).get(other["regime"], 0.0)
+        if not other["delta_bic"] - event["delta_bic"] <= CONFOUND_BIC + allowance:
             return False
-    if not course or not (other["regime"] in LOGGED_REGIMES or other.get("_law_in_time")) \
-            or "_explained" not in event or "_explained" not in other \
-            or not other["delta_bic"] <= CONFOUND_SHARE * event["delta_bic"]:
+    if not other["delta_bic"] <= CONFOUND_SHARE * event["delta_bic"]:
         return False
     a, b = event["_explained"], other["_explained"]
     norms = float(np.linalg.norm(a) * np.linalg.norm(b))
