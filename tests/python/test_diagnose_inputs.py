@@ -241,3 +241,24 @@ def test_hard_clipping_is_named_saturation_and_its_censored_edge_is_not_a_cubic(
     coarse = np.round(sim_.readings / 0.6) * 0.6
     assert diagnose(coarse, t=kw["t"], temp=kw["temp"], field_norm=kw["field_norm"], progress=False,
                             candidates=["quantization"]).clipping == []
+
+
+def test_a_short_clipping_episode_at_the_other_rail_is_found_beside_a_long_one():
+    """A front end that saturates before a noisy converter, cut at both ends: 8 % of the readings at the top rail,
+    one pass 66 readings past the bottom one (0.45 µT, 9 σ, at its deepest), its way in and out as many again. The
+    short one was judged beside the top rail's uncut readings, and its band held too few more than the band inward
+    of it: a blind check's such episodes were missed in 7 of 30 and named a moving dipole (here: two). Both rails
+    are found now, and nothing is left for an effect."""
+    sim_, kw = withheld_trial([], seed=7, duration_s=180.0)
+    m, z = sim_.readings.copy(), sim_.readings[:, 2]
+    deepest = int(np.argmin(z))
+    bottom, top = float(min(z[deepest - 9], z[deepest + 8])), float(np.quantile(z, 0.92))
+    noise = np.random.default_rng(1)
+    for rail, side in ((top, 1.0), (bottom, -1.0)):
+        past = side * (m[:, 2] - rail) > 0
+        m[past, 2] = rail + noise.normal(0.0, 0.05, past.sum())
+    d = diagnose(m, t=kw["t"], temp=kw["temp"], field_norm=kw["field_norm"], progress=False)
+    assert [(c["axis"], c["noisy"]) for c in d.clipping] == [("z", True), ("z", True)], d.clipping
+    assert abs(d.clipping[0]["rail"] - bottom) < 0.05 and abs(d.clipping[1]["rail"] - top) < 0.05
+    assert 60 <= d.clipping[0]["readings"] <= 2 * np.sum(z < bottom), d.clipping
+    assert not d.accepted, d.accepted

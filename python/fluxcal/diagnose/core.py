@@ -93,8 +93,11 @@ CLIP_MARGIN = 3.0   # readings within this many noise σ inside a clipping rail 
                     # would have taken them past it was cut, so those left below are biased inwards (a compression)
 RAIL_BAND = 7.0     # a rail the noise blurs: its readings lie within this many σ of the extreme reading (± 3.5 σ)
 RAIL_MOVES = 10.0   # ... while the other axes spread over more than this many σ (_mad: the sensor turning, not still)
-RAIL_SPREAD = 1.5   # ... its readings spread less than this many σ (the noise on one value: a band RAIL_BAND wide
-                    # over which the readings still rise, a soft saturation or a sine's peak, spreads some 2 σ)
+RAIL_SPREAD = 1.5   # ... its readings spread less than this many σ (_mad; the noise on one value: a band RAIL_BAND
+                    # wide over which the readings still rise, a soft saturation or a sine's peak, spreads 2.3 σ)
+RAIL_SHORT = 10     # ... a short episode's readings at least (more than in the band inward: not PILE_UP times),
+RAIL_DEEP = 4.0     # ... (its readings this many σ inside the others' ellipsoid: those a range cut)
+RAIL_SLOPE = 0.5    # ... held at the rail: they follow the value the ellipsoid gives them by less than this slope
 RAIL_CUT = 3.0      # ... and its readings fall this many times further inside the others' ellipsoid than they fall off it
 
 
@@ -103,9 +106,12 @@ def _clipping(m: np.ndarray, sigma: float = 0.0) -> list:
     than PILE_UP times as many as on either of the next two values inward (a coarse ADC's extreme code is as full as
     its neighbours; a rail collects everything beyond the range). With the noise σ given, also a rail the noise
     blurs (an analog front end that saturates before a noisy converter: a blind check's ±55 µT clip was named a 24 %
-    cubic non-linearity): more than PILE_UP times as many readings within RAIL_BAND σ of the extreme as in the band
-    inward of it, while the other axes move (a sensor held still at an extreme orientation piles up too)."""
-    out, cut = [], np.zeros(len(m), dtype=bool)  # (cut: the blurred rails' readings found so far)
+    cubic non-linearity): readings within RAIL_BAND σ of the extreme, while the other axes move (a sensor held still
+    at an extreme orientation piles up too), and are flat: PILE_UP times as many as in the band inward of it, spread
+    as the noise alone spreads them, and off the ellipsoid of the readings on no rail (_rail_cut); or, for a short
+    episode or a slow way in and out (RAIL_SHORT readings up, more than in the band inward), RAIL_SHORT of them
+    deep inside that ellipsoid not following the value it gives them (slope under RAIL_SLOPE)."""
+    out, cut, blurred = [], np.zeros(len(m), dtype=bool), []
     for axis, column in enumerate(np.ascontiguousarray(m.T)):
         values, counts = np.unique(column, return_counts=True)
         for end in (slice(None, 3), slice(-1, -4, -1)):
@@ -120,13 +126,21 @@ def _clipping(m: np.ndarray, sigma: float = 0.0) -> list:
                 depth = side * (rail - column)  # how far inward of the extreme
                 band = depth <= RAIL_BAND * sigma
                 count, inward = int(band.sum()), int(np.sum((depth > RAIL_BAND * sigma) & (depth <= 2 * RAIL_BAND * sigma)))
-                others = np.delete(m[band], axis, axis=1)
-                if (count >= max(CLIPPED_MIN, CLIPPED * len(column)) and count > PILE_UP * max(inward, 1)
-                        and np.std(column[band]) < RAIL_SPREAD * sigma
-                        and np.min(_mad(others)) > RAIL_MOVES * sigma and _cut_off(m, band | cut, band)):
-                    cut |= band
-                    out.append({"axis": "xyz"[axis], "rail": float(np.median(column[band])), "readings": count,
-                                "fraction": count / len(column), "noisy": True})
+                piled = (count >= max(CLIPPED_MIN, CLIPPED * len(column)) and count > PILE_UP * max(inward, 1)
+                         and _mad(column[band]) < RAIL_SPREAD * sigma)
+                # a short episode (a hand turn through the rail for half a second, 15–24 readings) or a slow way in
+                # and out fills the band inward too: a blind check's went unseen in 7 of 30, named a moving dipole
+                if ((piled or (count >= RAIL_SHORT and count > inward))
+                        and np.min(_mad(np.delete(m[band], axis, axis=1))) > RAIL_MOVES * sigma):
+                    blurred.append((len(out) + len(blurred), axis, side, band, count, piled))
+    # each blurred rail judged against the readings on no rail, the others' too (a 24-reading rail judged beside the
+    # other end's 229 uncut readings had the ellipsoid's misfit of those, and was missed)
+    left_out = cut | np.logical_or.reduce([c[3] for c in blurred]) if blurred else cut
+    for place, axis, side, band, count, piled in blurred:
+        falls_off, slope = _rail_cut(m, left_out, band, axis, side, sigma)
+        if (piled and falls_off) or slope < RAIL_SLOPE:
+            out.insert(min(place, len(out)), {"axis": "xyz"[axis], "rail": float(np.median(m[band, axis])),
+                                              "readings": count, "fraction": count / len(m), "noisy": True})
     return out
 
 
@@ -136,11 +150,15 @@ def _mad(values: np.ndarray) -> np.ndarray:
     return 1.4826 * np.median(np.abs(values - np.median(values, axis=0)), axis=0)
 
 
-def _cut_off(m: np.ndarray, left_out: np.ndarray, band: np.ndarray) -> bool:
-    """Whether the readings in `band` (piled up at an axis's extreme) fall inside the ellipsoid the others (not
-    `left_out`: other rails' too) describe, RAIL_CUT times further than those fall off it (median |residual|): a range
-    that cuts them. A component that turns about one axis piles up at its extremes as well (a sine dwells at its
-    peaks: the library's own tumbles were taken for rails in 3 of 30), but on the ellipsoid."""
+def _rail_cut(m: np.ndarray, left_out: np.ndarray, band: np.ndarray, axis: int, side: float, sigma: float):
+    """(falls_off, slope) for the readings in `band` (piled up at `axis`'s extreme, `side` +1 its maximum): whether they
+    fall inside the ellipsoid the others (not `left_out`: other rails' too) describe, RAIL_CUT times further than
+    those fall off it (median |residual|) — a component that turns about one axis piles up at its extremes as well
+    (a sine dwells at its peaks: the library's own tumbles were taken for rails in 3 of 30), but on the ellipsoid —;
+    and, over the readings that fall inside it by more than RAIL_DEEP of the others' σ (a short episode's way in and
+    out is most of its band, on the ellipsoid), how the axis's readings follow the value that puts each on it: a
+    range's cut holds them at the rail (slope 0), a soft saturation still rises (inf when fewer than RAIL_SHORT
+    readings fall so far inside: nothing is cut)."""
     from ..ellipsoid import fit_ellipsoid
 
     try:
@@ -148,10 +166,21 @@ def _cut_off(m: np.ndarray, left_out: np.ndarray, band: np.ndarray) -> bool:
             warnings.simplefilter("ignore")
             cal = fit_ellipsoid(m[~left_out])
     except ValueError:  # (the others alone do not span an ellipsoid: not judged a blurred rail)
-        return False
+        return False, np.inf
     size = np.linalg.norm(cal.apply(m), axis=1)
-    residual = np.abs(size - np.median(size[~left_out]))
-    return bool(np.median(residual[band]) > RAIL_CUT * np.median(residual[~left_out]))
+    radius = np.median(size[~left_out])
+    typical = np.median(np.abs(size[~left_out] - radius))
+    falls_off = bool(np.median(np.abs(size[band] - radius)) > RAIL_CUT * typical)
+    deep = band & (radius - size > RAIL_DEEP * 1.4826 * typical)
+    if deep.sum() < RAIL_SHORT:
+        return falls_off, np.inf
+    # the axis's value on the ellipsoid, the others as read: |h + a s|² = R² for s, its root on the rail's side
+    h, a, column = cal.apply(m[deep]), cal.matrix[:, axis], m[deep, axis]
+    ha = h @ a
+    root = np.sqrt(np.maximum(ha ** 2 - (a @ a) * (np.sum(h * h, axis=1) - radius ** 2), 0.0))
+    implied = column + (-ha + side * root) / (a @ a)
+    x = implied - implied.mean()
+    return falls_off, float(x @ (column - column.mean()) / (x @ x))
 
 
 @dataclass
