@@ -1784,6 +1784,7 @@ def cmd_drift(args) -> int:
                 model.summary["temperature_unit_hint"] = named
         model.settings["source"] = str(args.file)
         model.settings["column"] = args.column
+        model.settings["unit"] = rec.units.get(args.column) or None  # apply and export-c say it, apply checks it
         # the model's temperatures are °C whatever the file's; apply converts its file's alike
         model.settings["temperature"] = {**temperature, "outside": args.outside_column if outside is not None else None}
         pre, ar = report["preprocess"], report["ar"]
@@ -1833,6 +1834,11 @@ def cmd_drift(args) -> int:
     model = drift.DriftModel.load(args.model)
     column = args.column or model.settings.get("column", "zero_bias")  # the model remembers what it was fitted on
     rec = _zero_bias_recording(args, column)
+    fitted_unit, unit = model.settings.get("unit"), rec.units.get(column)
+    # (a blind check fed a log in A to a model fitted in mA: 900x the drift, said by nothing)
+    if fitted_unit and unit and fitted_unit.strip(" []()") != unit.strip(" []()"):
+        raise ValueError(f"{args.file}: {column} is in {unit}, and the drift model {args.model} was fitted to a zero "
+                         f"bias in {fitted_unit}: convert the column to {fitted_unit}, or fit a model to this file")
     if "skipped_lines" in rec.metadata:
         print(skipped_words(rec.metadata['skipped_lines'], "not in the output"))
     for w in drift.fit_warnings(model):  # what the fit said of the model goes with it

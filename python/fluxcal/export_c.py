@@ -52,6 +52,7 @@ from .planar import offset_moved
 INT32_MIN, INT32_MAX = -(2 ** 31), 2 ** 31 - 1
 FLOAT_RELATIVE_TOLERANCE = 1e-6  # float32 result vs double: relative to max(|h|∞, field norm)
 RANGE_MARGIN = 2.0               # the stated input range is this many times the readings' extent
+RANGE_LSB_SHARE = 16.0           # a Kalman filter's LSB under its input's σ over this (rounding adds 0.02 σ)
 KALMAN_KIND = "fluxcal fixed AR Kalman"
 
 
@@ -120,6 +121,13 @@ class FixedCalibration:
     @property
     def error_bound_lsb(self) -> float:
         return self.error_bound / self.fmt.lsb
+
+    @property
+    def reading_error_bound(self) -> float:
+        """The error bound for a real reading r rounded into the format (round(r·2^n)): error_bound holds against
+        A (m − b) of the rounded m; against A (r − b) the rounding adds up to 2^−(n+1) Σ_j |a_ij| (a blind check
+        measured 1.60 against E = 1.26 at Q31.0)."""
+        return self.error_bound + self.fmt.lsb / 2 * float(np.max(np.abs(self.calibration.matrix).sum(axis=1)))
 
     def to_fixed(self, m) -> np.ndarray:
         """Readings in the signal format: round to nearest, saturate to int32."""
@@ -297,15 +305,41 @@ def load_kalman(path):
         else:
             raise ValueError(f"{path}: neither a saved FixedArKalman (kind {KALMAN_KIND!r}) nor a drift model with "
                              "'ar' and 'kalman' sections (fluxcal drift fit)")
-        f = FixedArKalman(**settings, frac_bits=frac_bits)
+        try:
+            f = FixedArKalman(**settings, frac_bits=frac_bits)
+        except ValueError as exc:  # (the filter's own check, "ar_coeffs: NaN/Inf", had not named the file)
+            raise ValueError(f"{path}: {exc}") from None
     except (KeyError, TypeError) as exc:
         raise ValueError(f"{path}: malformed Kalman settings (missing or wrong {exc})") from None
     if f.frac_bits is None:
-        sigma = math.sqrt(float(f.double.initial_covariance[0, 0]) + f.double.r)
+        sigma = _input_sigma(f)
         if not math.isfinite(sigma):
             raise ValueError(f"{path}: the AR model is not stationary; give frac_bits explicitly")
         f.frac_bits = f.signal_frac_bits(8.0 * sigma)
     return f
+
+
+def _input_sigma(f) -> float:
+    """The σ of a FixedArKalman's input: √(the AR process's stationary variance + r)."""
+    return math.sqrt(float(f.double.initial_covariance[0, 0]) + f.double.r)
+
+
+def _kalman_range_warnings(f, kalman_range) -> list:
+    """What a --kalman-range does to the filter of its input's own noise: an LSB coarse beside its σ (1e9 in place
+    of 1: every output 0), or a reach below 3 σ (5998 of 6000 samples saturated) — both compiled and passed the
+    self-test, whose vector is the same integers at every scale."""
+    sigma, lsb, reach = _input_sigma(f), 2.0 ** -f.frac_bits, f.input_reach()
+    if not math.isfinite(sigma) or not sigma > 0:
+        return []
+    if lsb > sigma / RANGE_LSB_SHARE:
+        return [f"--kalman-range {kalman_range:g}: the filter's LSB 2^{-f.frac_bits} = {lsb:.3g} is {lsb / sigma:.2g} times "
+                f"of its input's σ {sigma:.3g} (its own model's noise): the output loses that precision. Give the "
+                "largest |input| in the model's unit (default 8 σ)"]
+    if reach < 3.0 * sigma:
+        return [f"--kalman-range {kalman_range:g}: inputs past ±{reach:.3g} saturate, {reach / sigma:.2g} σ of its "
+                f"input's own noise (σ {sigma:.3g}): most samples will. Give the largest |input| in the model's unit "
+                "(default 8 σ)"]
+    return []
 
 
 # The filter of cpp/include/fluxcal/fixed_kalman.hpp in C99 (also valid C++), for firmware without C++: the same
@@ -525,15 +559,28 @@ def _drift_fit_said(kalman, drift, force: bool):
                 comment += _c_comment(f"The fit of {Path(where).name} warned: {w}")
         if why and part == "drift":
             warnings.append(f"{where}: exported with --force: {why}")
+        unit = model.settings.get("unit")  # (a blind check fed amperes to a header fitted in mA: nothing said so)
+        what = "f and W - f" if part == "drift" else "the filter's input and output"
+        comment += _c_comment(f"Unit: {what} are in {unit}, the unit of the zero bias this model was fitted to "
+                              f"({model.settings.get('column', 'zero_bias')} of {Path(where).name}); feed the zero "
+                              f"bias in {unit}." if unit else
+                              f"Unit: {what} are in the unit of the zero bias this model was fitted to (not stated "
+                              "in its file).")
         lines[part] = comment
     return lines, warnings
+
+
+def _in_comment(text) -> str:
+    """`text` (a unit, a file name, a column: the user's) safe inside a C comment: no comment end or start, no line
+    break (a unit 'counts*/x' had ended the comment, and the header failed to compile; '*/ int evil; /*' compiled)."""
+    return " ".join(str(text).replace("*/", "* /").replace("/*", "/ *").split())
 
 
 def _c_comment(text: str) -> list:
     """`text` as a C comment in lines of at most 110 characters."""
     import textwrap
 
-    body = textwrap.wrap(text.replace("*/", "* /"), 104, break_long_words=False, break_on_hyphens=False)
+    body = textwrap.wrap(_in_comment(text), 104, break_long_words=False, break_on_hyphens=False)
     return [("/* " if k == 0 else " * ") + line for k, line in enumerate(body)][:-1] + \
         [("/* " if len(body) == 1 else " * ") + body[-1] + " */"]
 
@@ -577,7 +624,8 @@ class ExportResult:
             unit, h_unit = f" {u}" if u else "", f" {hu}" if hu else ""
             said.append(f"float and {fx.fmt} fixed point (matrix 2^-{fx.matrix_frac_bits}); inputs "
                         f"|m| ≤ {fx.input_range:.6g}{unit}; fixed-point error ≤ {fx.error_bound:.3g}{h_unit} "
-                        f"({fx.error_bound_lsb:.2f} LSB); {len(self.inputs_q)} test vectors")
+                        f"({fx.error_bound_lsb:.2f} LSB; {fx.reading_error_bound:.3g}{h_unit} for real readings "
+                        f"rounded into it); {len(self.inputs_q)} test vectors")
         if self.kalman is not None:
             said.append(f"AR({self.kalman.order}) Kalman filter in C99 (signal {signal_format(self.kalman.frac_bits)}, "
                         f"inputs to ±{self.kalman.input_reach():.3g})"
@@ -658,16 +706,19 @@ def export_c(cal: Calibration | None, path, q_format=None, name: str | None = No
     if cal is not None:
         lines, result.fixed, result.inputs_q = _calibration_part(cal, name, q_format, input_range, i32)
         if undetermined:
-            lines = [f"/* WARNING (exported with --force): {undetermined.replace('*/', '* /')}. */"] + lines
+            lines = [f"/* WARNING (exported with --force): {_in_comment(undetermined)}. */"] + lines
         parts.append(("magnetometer calibration", lines))
     if kalman is not None:
         lines, result.kalman, result.kalman_test = _kalman_part(kalman, name, i32, kalman_range)
+        range_said = _kalman_range_warnings(result.kalman, kalman_range) if kalman_range is not None else []
+        result.warnings += range_said
+        lines = [line for w in range_said for line in _c_comment(f"WARNING: {w}.")] + lines
         parts.append(("fixed-point Kalman filter", fit_said.get("kalman", []) + lines))
     if drift is not None:
         lines, result.drift = _drift_part(drift, name)
         parts.append(("temperature drift compensation", fit_said.get("drift", []) + lines))
     head = [f"/* {path.name}: {' and '.join(what for what, _ in parts)} for firmware, written by fluxcal "
-            f"{__version__}" + (f" from {source}." if source else "."),
+            f"{__version__}" + (f" from {_in_comment(source)}." if source else "."),
             " * C99, also valid C++; every function is static inline. */",
             f"#ifndef {up}_H", f"#define {up}_H", "", "#include <stdint.h>"]
     body = [line for _, lines in parts for line in ["", *lines]]
@@ -707,14 +758,14 @@ def _calibration_part(cal: Calibration, name: str, q_format, input_range, i32):
     _, saturated = fx.apply_int(inputs_q)
     if saturated:  # cannot happen by construction; a guard against a broken range rule
         raise AssertionError("export-c: a test input saturates inside the stated range")
-    units = cal.units or "(units not stated)"
-    u = f" {cal.units}" if cal.units else ""
-    hu = f" {cal.h_units}" if cal.h_units else ""  # h is in the field norm's unit (µT from counts, say)
+    units = _in_comment(cal.units) if cal.units else "(units not stated)"
+    u = f" {_in_comment(cal.units)}" if cal.units else ""
+    hu = f" {_in_comment(cal.h_units)}" if cal.h_units else ""  # h is in the field norm's unit (µT from counts, say)
     n, na, lsb = fx.fmt.frac_bits, fx.matrix_frac_bits, fx.fmt.lsb
     s = cal.summary
     planar = s.get("method") == "planar" and "not_calibrated" in s
-    what = ((f" * Planar ({', '.join(s['plane_axes'])}): |h| is the HORIZONTAL field in that plane; axis "
-             f"{s['not_calibrated']['axis']} " + ("is absent (a biaxial sensor: give 0)" if s.get("biaxial") else
+    what = ((f" * Planar ({_in_comment(', '.join(s['plane_axes']))}): |h| is the HORIZONTAL field in that plane; axis "
+             f"{_in_comment(s['not_calibrated']['axis'])} " + ("is absent (a biaxial sensor: give 0)" if s.get("biaxial") else
                                                    "passes through uncalibrated, only scaled into h's unit")
              + ".") if planar else None)
     lines = [
@@ -728,16 +779,20 @@ def _calibration_part(cal: Calibration, name: str, q_format, input_range, i32):
         f" * Fixed: {name}_apply_fixed(m, h): int32 in and out, int64 inside, no division, no floating point.",
         f" *   Signal format {fx.fmt} for m, b and h: value = int32 / 2^{n}; a sign bit, {fx.fmt.int_bits} integer and "
         f"{n} fraction bits;",
-        f" *     range [-2^{fx.fmt.int_bits}, 2^{fx.fmt.int_bits} - 2^-{n}], LSB 2^-{n} = {lsb:.6g}{u}.",
+        f" *     range [-2^{fx.fmt.int_bits}, 2^{fx.fmt.int_bits} - 2^-{n}], LSB 2^-{n} = {lsb:.6g}{u}"
+        + (f" (of h: {lsb:.6g}{hu})." if hu and hu != u else "."),
         f" *     A raw reading r converts as round(r * 2^{n}), saturated to int32 (integer counts: r * 2^{n}).",
         f" *   Matrix: a_ij = int32 / 2^{na}, |a_ij| <= 2^30, so sums of three products are exact in int64.",
         " *   Arithmetic: d_j = m_j - b_j in int64, saturated to int32; acc_i = sum_j a_ij d_j (exact);",
         f" *     h_i = acc_i / 2^{na} rounded to nearest, ties away from zero, saturated to int32. Constants are",
         " *     rounded to nearest. The function returns 1 when anything saturated (values never wrap), else 0.",
-        f" *   Stated input range: |m_j| <= R = {fx.input_range:.9g}{u} ({up}_INPUT_RANGE_Q), {fx.range_note}.",
+        f" *   Stated input range: |m_j| <= R = {fx.input_range:.9g}{u} ({up}_INPUT_RANGE_Q), {_in_comment(fx.range_note)}.",
         f" *     In it nothing saturates and every component of h is within E = {fx.error_bound:.6g}{hu}",
         f" *     ({fx.error_bound_lsb:.3f} LSB) of the exact h = A (m - b):",
         f" *     E = max_i [2^-{n + 1} (1 + sum_j |a_ij|) + 2^-{na + 1} sum_j (R + |b_j|)]  (rounding of b, A, h).",
+        f" *     That is against m as given in the format (integer counts are exact). A real reading r rounded into",
+        f" *     it adds up to 2^-{n + 1} max_i sum_j |a_ij|: h is within E_r = {fx.reading_error_bound:.6g}{hu} of A (r - b)",
+        f" *     ({up}_READING_ERROR_BOUND).",
         f" * Self-check: {name}_self_test() runs the {len(inputs_q)} test vectors through both functions and",
         " *   returns how many components miss fluxcal's double result by more than the tolerance (0 = pass):",
         f" *   float {up}_FLOAT_REL_TOL relative as above, fixed {up}_FIXED_TOL_LSB LSB (E plus the rounding of",
@@ -750,6 +805,7 @@ def _calibration_part(cal: Calibration, name: str, q_format, input_range, i32):
         f"#define {up}_INPUT_RANGE {_float_literal(fx.input_range)}",
         f"#define {up}_INPUT_RANGE_Q {fx.input_range_q}",
         f"#define {up}_FIXED_ERROR_BOUND {_float_literal(fx.error_bound)}",
+        f"#define {up}_READING_ERROR_BOUND {_float_literal(fx.reading_error_bound)}",
         f"#define {up}_FIXED_TOL_LSB {tolerance_lsb}",
         f"#define {up}_FLOAT_REL_TOL {_float_literal(FLOAT_RELATIVE_TOLERANCE)}",
         "",
@@ -845,6 +901,8 @@ def _kalman_part(kalman, name: str, i32, kalman_range: float | None = None):
         f" * C:   {kname}_t f; {kname}_reset(&f); then y_hat = {kname}_step(&f, y) per sample (int32, signal",
         f" *      format 2^-{kname.upper()}_SIGNAL_FRAC_BITS: inputs up to about ±{f.input_reach():.3g} unsaturated);",
         " *      f.overflow says whether anything saturated (a readout spike past that: --kalman-range widens it).",
+        f" *      Call {kname}_reset() again after a gap in time and after samples left out (a temperature the drift",
+        " *      model refuses): fluxcal's filter restarts there too (FixedArKalman.filter(y, breaks), drift apply).",
         " * C++: fluxcal::FixedArKalman<MaxOrder> of cpp/include/fluxcal/fixed_kalman.hpp, configured from these",
         " *      coefficients, runs the same arithmetic.",
         f" * Either, fed {kname}_test_input, returns {kname}_test_output bit for bit (fluxcal's",

@@ -142,3 +142,22 @@ def test_a_temperature_that_barely_moves_is_said(foct):
     assert len(said) == 1 and "(24.89 … 25.11; within one 5 °C level)" in said[0] and "the operating range" in said[0]
     _, report = drift.fit_pipeline(foct["zero_bias"], foct["temp"])
     assert not [m for m in report["warnings"] if "temp moves only" in m]
+
+
+def test_the_zero_bias_unit_goes_with_the_model_and_another_is_refused(tmp_path, capsys, foct):
+    """The model remembers its zero bias's unit: `drift apply` refuses a file in another (a blind check applied a
+    model fitted in mA to a log in A: the compensation made the zero bias 900x worse, said by nothing) and the
+    firmware header says which unit to feed."""
+    def log(name, unit, scale):
+        return write_csv(tmp_path / name, {"t": foct["t"], "zero_bias": foct["zero_bias"] * scale, "temp": foct["temp"]},
+                         units={"t": "s", "zero_bias": unit, "temp": "C"})
+    model = tmp_path / "m.json"
+    assert cli.main(["drift", "fit", str(log("ma.csv", "mA", 1e3)), "-o", str(model)]) == 0
+    assert json.loads(model.read_text())["unit"] == "mA"
+    capsys.readouterr()
+    assert cli.main(["drift", "apply", str(model), str(log("a.csv", "A", 1.0)), "-o", str(tmp_path / "o.csv")]) == 2
+    err = capsys.readouterr().err
+    assert "a.csv: zero_bias is in A, and the drift model" in err and "fitted to a zero bias in mA" in err, err
+    assert cli.main(["drift", "apply", str(model), str(log("ma2.csv", "mA", 1e3)), "-o", str(tmp_path / "o.csv")]) == 0
+    assert cli.main(["export-c", "--drift", str(model), "-o", str(tmp_path / "d.h")]) == 0
+    assert "Unit: f and W - f are in mA" in (tmp_path / "d.h").read_text()

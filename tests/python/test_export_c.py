@@ -300,6 +300,52 @@ def test_kalman_signal_range_is_stated_and_can_be_widened(tmp_path):
         export_c(None, tmp_path / "q.h", drift=path, kalman_range=1.0)
 
 
+def test_a_kalman_range_that_defeats_the_filter_is_said(tmp_path):
+    """A --kalman-range in the wrong unit (1e12 for 1) made every output 0, one below the noise saturated 5998 of 6000
+    samples; both compiled and passed the self-test (a blind check). Each is warned, in the header too; a range
+    the noise sits well inside is not."""
+    foct = sim.foct_zero_bias(rng=np.random.default_rng(1), hold_s=300, ramp_s=150)
+    model, _ = drift.fit_pipeline(foct.columns["zero_bias"], foct.columns["temp"])
+    path = model.save(tmp_path / "drift.json")
+    f = load_kalman(path)
+    sigma = float(np.sqrt(f.double.initial_covariance[0, 0] + f.double.r))
+    coarse = export_c(None, tmp_path / "c.h", name="c", kalman=path, kalman_range=1e8 * sigma)
+    assert any("loses that precision" in w for w in coarse.warnings), coarse.warnings
+    assert "WARNING: --kalman-range" in (tmp_path / "c.h").read_text()
+    narrow = export_c(None, tmp_path / "n.h", name="n", kalman=path, kalman_range=0.1 * sigma)
+    assert any("most samples will" in w for w in narrow.warnings), narrow.warnings
+    fine = export_c(None, tmp_path / "f.h", name="f", kalman=path, kalman_range=20 * sigma)
+    assert not [w for w in fine.warnings if "--kalman-range" in w], fine.warnings
+    text = (tmp_path / "f.h").read_text()
+    assert "f_kalman_reset() again after a gap in time" in text  # as fluxcal's filter restarts
+
+
+def test_text_from_the_files_cannot_end_a_comment_of_the_header(tmp_path):
+    """A unit is the user's text: 'counts*/x' ended the header's comment and it failed to compile, and
+    '*/ int evil; /*' compiled with a declaration of its own (a blind check). Both stay inside comments now."""
+    cal = CALS["nT"]
+    for unit in ("counts*/x", "*/ int evil; /*", "n\nT"):
+        tricky = fluxcal.Calibration.from_dict({**cal.to_dict(), "units": unit})
+        header = tmp_path / "p.h"
+        export_c(tricky, header, name="p", source="a*/b.json")
+        code = re.sub(r"/\*.*?\*/", "", header.read_text(), flags=re.S)  # what the compiler sees
+        assert "evil" not in code and "counts" not in code and "*/" not in code, code[:400]
+        rows, self_test = run_driver(tmp_path, header)
+        assert self_test == 0
+
+
+def test_the_bound_for_real_readings_covers_their_rounding_into_the_format():
+    """E holds against A (m − b) of the reading in the signal format; a real reading rounded into it adds
+    2^-(n+1) Σ|a_ij|, and a blind check measured 1.60 nT against E = 1.26 at Q31.0. The header states E_r for
+    that, and it holds."""
+    cal = CALS["nT"]
+    fx = fixed_point(cal, "Q31.0")
+    r = np.random.default_rng(3).uniform(-fx.input_range, fx.input_range, (20000, 3))
+    h_q, saturated = fx.apply_int(fx.to_fixed(r))
+    error = np.abs(h_q * fx.fmt.lsb - cal.apply(r)).max()
+    assert not saturated and fx.error_bound < error <= fx.reading_error_bound, (fx.error_bound, error)
+
+
 def test_kalman_from_a_drift_model_without_a_filter(tmp_path):
     # White noise about the drift (AR order 0): the drift model has no Kalman filter ("kalman": null), and
     # export-c --kalman says so rather than exporting a filter the pipeline did not use.
