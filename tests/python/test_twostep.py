@@ -136,7 +136,8 @@ def test_2d_short_arcs_are_refused_or_flagged_never_silent():
     """One field magnitude and a 90° arc: the magnitude objective falls towards infinite offsets and gains (every
     corrected reading the same vector of length h). A blind check got offsets of 1e5–1e6 for a true 0.2, said
     "not converged … check for outliers". Now a run-away refinement raises naming the coverage, and a fit that
-    converged says its gains are poorly determined, with standard errors that hold its error."""
+    converged says its gains are poorly determined, with standard errors that hold its error. (On the Sampson
+    residuals none of these 12 runs away: measured |z| ≤ 2.1, RMS 1.03; on the magnitudes' own residuals 1 did.)"""
     b, g = np.array([0.2, -0.1]), np.array([1.05, 0.95])
     refused, z = 0, []
     for seed in range(12):
@@ -151,8 +152,8 @@ def test_2d_short_arcs_are_refused_or_flagged_never_silent():
             continue
         assert any(w.startswith("poorly determined") for w in cal.summary["warnings"])
         z.append(np.r_[(cal.offset - b) / cal.offset_se, (cal.gain - g) / cal.gain_se])
-    assert refused >= 1 and len(z) >= 6  # measured: 1 of 12 ran away
-    assert np.abs(z).max() < 4 and 0.5 < np.sqrt(np.mean(np.square(z))) < 1.6  # measured 2.3, 1.05
+    assert refused + len(z) == 12 and len(z) >= 6
+    assert np.abs(z).max() < 4 and 0.5 < np.sqrt(np.mean(np.square(z))) < 1.6
 
 
 def test_2d_a_field_along_one_axis_only_leaves_that_gain_undetermined_and_says_so():
@@ -233,7 +234,7 @@ def test_2d_field_norms_of_other_readings_are_warned_about():
     for k in range(20):
         try:
             t = fluxcal.twostep_2d(r2, np.random.default_rng(k).permutation(hn))
-        except ValueError as exc:  # γ² ≤ 0: the documented error
+        except ValueError as exc:  # γ² ≤ 0, or a refinement run away on a full turn: the documented errors
             assert "field_norms belong to the readings" in str(exc)
             continue
         assert any(w.startswith("the readings do not fit the model: |h|/h scatters by") for w in t.summary["warnings"])
@@ -435,14 +436,17 @@ def test_3d_each_readings_field_is_at_the_bound_and_one_field_is_not(change):
 
 
 def test_3d_noise_mean_correction_removes_scale_shrinkage():
-    # σ = 2 %: without μ the scale shrinks by 1.3e-3, with the estimated μ by 6.2e-4 (measured; the
-    # rest is errors-in-variables bias), with the true σ the same as estimated.
+    # σ = 2 %: without μ the scale is 6.0e-4 off, with the estimated μ 3.7e-4 (measured), as refine's maximum
+    # likelihood with its noise bias correction (3.70e-4; at σ = 1 and 5 % too, within 2e-5); with the true σ the
+    # same as estimated. (The algebraic second step before: 1.3e-3 without μ, 6.2e-4 with.)
     s = simulated(21, n=20000, noise=0.02)
     truth = np.cbrt(np.linalg.det(s.true_calibration().matrix))
     with_mu = np.cbrt(np.linalg.det(twostep(s.readings, s.field_norm).matrix))
     without = np.cbrt(np.linalg.det(twostep(s.readings, s.field_norm, noise_sigma=0.0).matrix))
     known = np.cbrt(np.linalg.det(twostep(s.readings, s.field_norm, noise_sigma=0.02 * s.field_norm).matrix))
-    assert abs(with_mu / truth - 1) < 0.6 * abs(without / truth - 1)
+    ml = np.cbrt(np.linalg.det(fluxcal.refine(twostep(s.readings, s.field_norm), s.readings).matrix))
+    assert abs(with_mu / truth - 1) < 0.7 * abs(without / truth - 1)
+    assert with_mu / ml == pytest.approx(1.0, abs=5e-5)
     assert known / with_mu == pytest.approx(1.0, abs=1e-4)
 
 
@@ -455,8 +459,13 @@ def test_3d_summary_is_that_of_the_corrected_readings():
     assert m["norm_mean"] == pytest.approx(norm.mean(), rel=1e-12)
     assert m["norm_std_over_mean"] == pytest.approx(norm.std() / norm.mean(), rel=1e-8)
     assert m["residual_rms"] == pytest.approx(np.sqrt(np.mean((norm - s.field_norm) ** 2)), rel=1e-10)
-    mu = 0.75 * np.var(norm**2 - s.field_norm**2) / s.field_norm**2
-    assert m["cost"] == pytest.approx(np.mean(((norm**2 - s.field_norm**2 - mu) / s.field_norm**2) ** 2), rel=1e-6)
+    # the mean squared Sampson distance of the readings (the noise mean μ: −¼ of the weighted variance of |h|² − H²)
+    h = cal.apply(s.readings)
+    slope = np.linalg.norm(h @ cal.matrix, axis=1)  # |Aᵀh|: ∇|h|²/2 in the readings
+    w = np.trace(cal.matrix @ cal.matrix) / (3 * slope**2)
+    excess = norm**2 - s.field_norm**2
+    mu = -0.25 * np.mean(w * (excess - np.sum(w * excess) / np.sum(w)) ** 2)
+    assert m["cost"] == pytest.approx(np.mean(((excess - mu) / (2 * slope)) ** 2), rel=1e-4)
     assert m["direction_coverage"] > 0.95 and m["coverage_ratio"] > 0.5
     assert "converged in" in m["message"]
 
@@ -504,10 +513,12 @@ def test_3d_non_convergence_is_reported_not_raised():
     assert any("did not converge" in w for w in cal.summary["warnings"])
 
 
-def test_3d_a_second_step_running_away_on_a_cap_is_an_error_naming_the_coverage(tmp_path):
+def test_3d_a_cap_of_directions_is_fitted_by_maximum_likelihood_and_flagged_not_identifiable(tmp_path):
     """Readings within 60° of one direction: the squared-magnitude objective falls towards an infinite offset and a
-    vanishing A, so the second step had ended 29 units off (the first step 10, maximum likelihood 1) with only
-    "did not converge … check the readings for outliers"."""
+    vanishing A, so its scoring had ended 29 units off (the first step 10, maximum likelihood 1), then was refused
+    as a run-away. The Sampson part starts again from the first step there, and gives the maximum-likelihood answer,
+    flagged not identifiable (b2 and a22 are not determined) with the coverage said: its z offset within 2 of its
+    standard errors (measured 1.84 off, standard error 1.17)."""
     rng = np.random.default_rng(3)
     z, phi = rng.uniform(np.cos(np.radians(60)), 1, 1000), rng.uniform(0, 2 * np.pi, 1000)
     directions = np.column_stack([np.sqrt(1 - z**2) * np.cos(phi), np.sqrt(1 - z**2) * np.sin(phi), z])
@@ -515,24 +526,22 @@ def test_3d_a_second_step_running_away_on_a_cap_is_an_error_naming_the_coverage(
     readings = 50.0 * directions + offset + 0.5 * rng.standard_normal((1000, 3))
     first = twostep(readings, 50.0, max_iterations=0)  # the first step alone is still there to have
     assert first.summary["converged"] and first.summary["iterations"] == 0
-    seen = f"{100 * first.summary['direction_coverage']:.3g} %"  # the first step's coverage, not the run-off's
-    with pytest.raises(ValueError, match=r"ran away from the readings \(not converged after 50 iterations; their "
-                                         r"misfit to its ellipsoid, in the readings' units, grew from 0\.5.*the "
-                                         rf"first step sees {seen} of the field directions.*turn the sensor through "
-                                         r"more orientations.*or a few readings lie far off the ellipsoid \(row \d+"):
-        twostep(readings, 50.0)
-    assert twostep(readings, 50.0, runaway_misfit=np.inf).summary["converged"] is False  # the rule switched off
+    cal = twostep(readings, 50.0)
+    assert cal.summary["converged"] and cal.summary["identifiable"] is False
+    said = " ".join(cal.summary["warnings"])
+    assert "the data do not determine b2, a22" in said and "poor coverage" in said, said
+    assert np.all(np.abs(cal.offset - offset) < 2 * np.asarray(cal.summary["standard_errors"][:3]))
     path = tmp_path / "cap.csv"
     np.savetxt(path, readings, delimiter=",", header="mx,my,mz", comments="", fmt="%.4f")
     r = run_cli("calibrate", path, "--field-norm", "50", "--method", "twostep")
-    assert r.returncode != 0 and "ran away from the readings" in r.stderr and "Traceback" not in r.stderr
+    assert "not identifiable" in r.stdout + r.stderr and "Traceback" not in r.stderr, r.stdout + r.stderr
 
 
 def test_3d_a_few_iterations_with_an_overstated_noise_are_no_runaway():
     """A full sphere, noise_sigma 10× the truth, 2 iterations: the noise mean μ puts |h|² at H² + μ, which the
     runaway rule had counted as misfit (50 of 50 such fits refused, review13); it measures against the iterate's own
-    radius now. One reading far off runs the second step away on a full sphere: the message names it, and the
-    first step's coverage (81 % of the 96 % 300 readings can fill; the run-off iterate's had been quoted)."""
+    radius now. One reading far off runs the scoring away on a full sphere; the Sampson part, from the first step,
+    converges beside it (calibrate's screen leaves such a reading out)."""
     def sphere(n):
         rng = np.random.default_rng(0)
         d = rng.standard_normal((n, 3))
@@ -543,10 +552,8 @@ def test_3d_a_few_iterations_with_an_overstated_noise_are_no_runaway():
     assert cal.summary["converged"] is False and any("did not converge" in w for w in cal.summary["warnings"])
     rng, m = sphere(300)
     m[17] += 100.0 * rng.standard_normal(3)
-    with pytest.raises(ValueError, match=r"the first step sees 81\.2 % of the field directions, where 300 readings "
-                                         r"spread evenly would fill 95\.7 %.*or a few readings lie far off the "
-                                         r"ellipsoid \(row 17 is 87\.0\d* from the first step's"):
-        twostep(m, 50.0)
+    cal = twostep(m, 50.0)
+    assert cal.summary["converged"] and np.abs(cal.offset - [10.0, -5.0, 20.0]).max() < 1.0  # (measured 0.39)
 
 
 def test_3d_wrong_units_warn():
@@ -657,7 +664,8 @@ def test_3d_standard_errors_match_the_monte_carlo_spread():
 
 def test_3d_standard_errors_of_a_strongly_anisotropic_sensor_match_the_monte_carlo_spread():
     """Gains 0.6/1/1.6: the residuals' variance then changes around the ellipsoid, and one σ̂² times F⁻¹ gave
-    0.86–1.12× the spread of 200 runs (N = 300, σ = 1 %); the sandwich comes within 10 % (measured 0.91–1.08)."""
+    0.86–1.12× the spread of 200 runs (N = 300, σ = 1 %); the Sampson residuals' sandwich comes within the issue's
+    15 % (measured 0.89–1.09 over these 200 runs; 0.92–1.07, 0.96–1.02 and 0.98–1.07 over 400 of seeds 12–14)."""
     from scipy.spatial.transform import Rotation
 
     rng = np.random.default_rng(12)
@@ -666,7 +674,7 @@ def test_3d_standard_errors_of_a_strongly_anisotropic_sensor_match_the_monte_car
     W = V @ np.diag([0.6, 1.0, 1.6]) @ V.T
     effects = [sim.SoftIron(W), sim.HardIron(np.array([0.2, -0.1, 0.3]) * H), sim.WhiteNoise(0.01 * H)]
     ratio = se_over_spread(effects, np.array([0.0, 0.6, 0.8]) * H, H, rng)
-    assert np.all((ratio > 0.9) & (ratio < 1.1)), ratio
+    assert np.all((ratio > 0.85) & (ratio < 1.15)), ratio
 
 
 def test_3d_nine_readings_fit_exactly_and_give_no_standard_errors(tmp_path):
@@ -788,11 +796,15 @@ def test_3d_standard_errors_on_the_command_line(tmp_path):
     assert f"{se[0]:.3g}" in line.replace("[", " ").replace("]", " ")
 
 
-def test_calibrate_twostep_says_when_its_estimate_is_far_from_the_maximum_likelihood_one():
-    """On ±20° of tilt (a car, a drone) TWOSTEP's errors were 2–3× the bound its standard errors claimed, its matrix's
-    diagonal 1.3–1.7 of them off (a blind check, "identifiable yes"). Said now where its estimate lies over 2 of its
-    standard errors from the maximum-likelihood one (the refinement from it); not on a full sphere."""
+def test_twostep_on_a_band_of_tilts_is_at_the_maximum_likelihood_estimate():
+    """On ±20° of tilt (a car, a drone) TWOSTEP's errors were 2–12× the bound its standard errors claimed, z's offset
+    10 of them off (two blind checks, "identifiable yes"): its second step weighed every reading alike, and an axis
+    the readings see little of shrank with its noise. With each reading over its own σ it is the maximum-likelihood
+    estimate: calibrate's warning of an estimate over 2 standard errors from that one is not said, on a band nor on a
+    full sphere, and z's offset is within 3 of its standard errors of the truth."""
     from scipy.spatial.transform import Rotation
+
+    offset = np.array([1500.0, -2200.0, 800.0])
 
     def readings(seed, band):
         rng = np.random.default_rng(seed)
@@ -801,14 +813,13 @@ def test_calibrate_twostep_says_when_its_estimate_is_far_from_the_maximum_likeli
              if band else Rotation.random(n, random_state=seed))
         H = np.array([20000.0, 1000.0, 45000.0])
         W = np.array([[1.06, 0.05, -0.08], [0.03, 0.95, 0.07], [-0.06, 0.09, 1.02]])
-        return R.inv().apply(H) @ W.T + [1500.0, -2200.0, 800.0] + rng.normal(0, 50.0, (n, 3)), float(np.linalg.norm(H))
+        return R.inv().apply(H) @ W.T + offset + rng.normal(0, 50.0, (n, 3)), float(np.linalg.norm(H))
 
-    def said(seed, band):
-        m, F = readings(seed, band)
-        warnings = fluxcal.calibrate(m, field_norm=F, method="twostep").summary["warnings"]
-        return [w for w in warnings if w.startswith("TWOSTEP's estimate lies")]
-
-    banded = [said(seed, True) for seed in range(4)]
-    assert sum(map(bool, banded)) >= 3, banded
-    assert "the default method (no --method) gives the maximum-likelihood calibration" in next(filter(None, banded))[0]
-    assert not any(said(seed, False) for seed in range(4))
+    for seed in range(4):
+        for band in (True, False):
+            m, F = readings(seed, band)
+            cal = fluxcal.calibrate(m, field_norm=F, method="twostep")
+            assert not [w for w in cal.summary["warnings"] if w.startswith("TWOSTEP's estimate lies")], (seed, band)
+            # (W is not symmetric: the offset is A's rotation-free part's, the same for every rotation of A)
+            z_off = abs(cal.offset[2] - offset[2]) / cal.summary["standard_errors"][2]
+            assert z_off < 3.0, (seed, band, z_off)

@@ -34,14 +34,18 @@
 // and the centred problem has a null direction (E → λ(I + E) − I, c → λc: every λ fits equally, λ = 0
 // trivially); fluxcal fixes it by tr E = 0 and recovers the scale from H in the second step, which
 // makes the first step the trace-normalised algebraic ellipsoid fit. The iterated second step is
-// A&S's Fisher scoring on the full model (|b|² tied to c and E) — with isotropic ε and constant H
-// every v_k has the same variance 4H²σ_ε², so the objective is Σ (|A(m_k − o)|² − H² − μ)² — run on the
-// 35 moments of the readings: one pass over the data, then each iteration costs O(1). μ is A&S's
-// noise mean: from options.noise_sigma when given (reading noise σ per axis: Σ_ε = σ²A², μ = σ² tr A²),
-// else estimated from the residual variance (var v ≈ (4/3) H² tr Σ_ε ⇒ μ ≈ ¾ var v / H²). It removes
-// the noise-mean part of the O(σ²/H²) shrinkage of the scale that a plain Σ (|h|² − H²)² fit has
-// (about half of it in simulation; the rest is the errors-in-variables bias of any fit that uses the
-// noisy readings as regressors). The offset is unbiased to that order on a well-covered sphere.
+// A&S's Fisher scoring on the full model (|b|² tied to c and E), in two parts. First on Σ (|A(m_k − o)|² − H² −
+// μ)², each v_k's variance taken as the same 4H²σ_ε² — run on the 35 moments of the readings: one pass over the data,
+// then each iteration costs O(1). Then, from there (from the first step when that ran off), on v_k over its own σ_k: 4σ²|A²(m_k − o)|² for reading noise σ
+// (the Sampson distance, first-order maximum likelihood), σ_k's dependence on the parameters in the Jacobian — two
+// passes over the readings an iteration. Held at an iterate, or the same for all, the weights let the fit shrink an
+// axis the readings see little of (its noise shrinks with it): on a ±20° band of tilts a blind check found the offset
+// along it 7× the Cramér–Rao bound off, not falling with more readings; so, at the bound. μ is the noise mean of
+// that fit: Σ_ε = σ²A², E[v_k] = σ² tr A², and weighted by 1/σ_k², whose noise is correlated with v_k's, the mean
+// comes to −σ² tr A²/3 (the |h|² a reading pushed outwards weighs less) — from options.noise_sigma when given, else
+// from the weighted residual variance (w_k var v_k = (4/3) σ² tr A², w_k = (tr A²/3)/|A²(m_k − o)|² up to scale). It
+// removes the O(σ²/H²) scale bias as refine's noise_bias_correction does (the two agree to 2e-5 of the scale at σ =
+// 1–5 % of the field). The offset is unbiased to that order.
 // With each reading's own |H_k| (A&S's general case) the centring leaves H_k² − mean H² in z_k: the first step
 // fits it with a free coefficient beside the trace-normalised quadric, and the second step's objective is
 // Σ (|A(m_k − o)|² − H_k² − μ)²/H_k², each reading weighted by the inverse of its v_k's variance (∝ H_k², as A&S
@@ -165,20 +169,19 @@ struct TwoStepOptions {
 };
 
 /// Calibration (model "twostep", A symmetric) and Summary: iterations and converged of the second
-/// step; cost = its objective over N: mean ((|h|² − H² − μ)/H²)², with each reading's H_k mean of
-/// ((|h_k|² − H_k² − μ)/H²)² (H/H_k)²; residual_rms, norm_mean and
+/// step; cost = its objective over N: the mean squared Sampson distance (|h_k|² − H_k² − μ)/(2|Aᵀh_k|) of the
+/// readings from the ellipsoid, in the readings' units squared (with max_iterations = 0, the first step's mean
+/// ((|h|² − H²)/H²)²); residual_rms, norm_mean and
 /// norm_std_over_mean of |h| from a pass over the samples (exact_statistics); condition_number of the
 /// (column-scaled) Fisher matrix, or of the first step's normal matrix when max_iterations = 0.
 /// With the second step (max_iterations > 0) and options.standard_errors, A&S's error covariance of the second step,
 /// carried by the delta method (o = centre + scale·q, A = (H/scale) N^½) to refine's magnitude-model parameters: from
 /// 30 readings the HC2 sandwich F⁻¹ Σ g_k g_kᵀ/(1 − h_kk) F⁻¹ of the scores g_k (F the scoring's Fisher information,
 /// h_kk the readings' leverages) — the residuals' variance follows |Aᵀĥ|² around the ellipsoid, so one σ̂² fits them
-/// only for a near-spherical A — below, σ̂² F⁻¹ with σ̂² = Σ w_k R_k²/(N − 9) (μ is no free parameter: N's scale
-/// absorbs it); the Newey–West sandwich for readings correlated in time. `determined` and `identifiable` are judged
-/// on the independent-readings errors (serial_correlation.standard_errors_independent: the sandwich's from 30
-/// readings). TWOSTEP weighs the readings equally where refine (maximum likelihood) weighs them by that variance, so
-/// for an anisotropic A its errors are somewhat wider than refine's; for a near-spherical A the two agree to first
-/// order. 9 readings fit exactly: no covariance, identifiable false, a warning. Residuals above 5 % of the field are
+/// only for a near-spherical A — below, σ̂² F⁻¹ with σ̂² = Σ r_k²/(N − 9) of the Sampson residuals (μ is no free
+/// parameter: N's scale absorbs it); the Newey–West sandwich for readings correlated in time. `determined` and
+/// `identifiable` are judged on the independent-readings errors (serial_correlation.standard_errors_independent: the
+/// sandwich's from 30 readings). 9 readings fit exactly: no covariance, identifiable false, a warning. Residuals above 5 % of the field are
 /// said to be a misfit (in the not-identifiable warning, or alone).
 struct TwoStepResult {
   Calibration calibration;

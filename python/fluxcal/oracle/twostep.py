@@ -46,7 +46,8 @@ def twostep_2d_first_step(readings, field_norms) -> dict:
 
 
 def twostep_2d(readings, field_norms, refine: bool = True) -> dict:
-    """First step, then (refine) least squares on √((ĥx − bx)²/γx² + (ĥy − by)²/γy²) − h_k."""
+    """First step, then (refine) least squares on the Sampson residual (ρ_k − h_k)/|∇ρ_k|, ρ_k = √((ĥx − bx)²/γx² +
+    (ĥy − by)²/γy²) and ∇ its gradient in the reading: the reading's distance from its field's ellipse."""
     first = twostep_2d_first_step(readings, field_norms)
     if not refine:
         return first
@@ -54,7 +55,9 @@ def twostep_2d(readings, field_norms, refine: bool = True) -> dict:
     h = np.asarray(field_norms, dtype=float)
 
     def residual(p):
-        return np.hypot((m[:, 0] - p[0]) / p[2], (m[:, 1] - p[1]) / p[3]) - h
+        hx, hy = (m[:, 0] - p[0]) / p[2], (m[:, 1] - p[1]) / p[3]
+        rho = np.hypot(hx, hy)
+        return (rho - h) * rho / np.hypot(hx / p[2], hy / p[3])
 
     p0 = np.concatenate([first["offset"], first["gain"]])
     sol = least_squares(residual, p0, method="lm", x_scale="jac", xtol=1e-15, ftol=1e-15, gtol=1e-15)
@@ -85,10 +88,12 @@ def twostep(samples, field_norm, iterate: bool = True, noise_sigma: float = -1.0
 
     First step: centred least squares of z_k = |u_k|² on L_k = [−(v² − u²), −(w² − u²), −2uv, −2uw, −2vw, 2u,
     2v, 2w] (E with tr E = 0 eliminated through E11; c) and, when the H_k differ, H_k² with a free coefficient;
-    then M = I + E, o = M⁻¹c and the scale from the mean H_k². Second step (iterate): least_squares on
-    (|A(u − o)|² − H_k² − μ)/H_k over (o, M = A²) (a residual's variance grows as H_k²), with r_k = |A(u − o)|² −
-    H_k² and r̄ their mean weighted by 1/H_k², μ = ¾ mean((r_k − r̄)²/H_k²) (or σ² tr A² for a known noise σ, 0
-    for none), repeated with μ updated until it stops changing — the fixed point the core's scoring reaches."""
+    then M = I + E, o = M⁻¹c and the scale from the mean H_k². Second step (iterate): least_squares on the Sampson
+    residuals (|A(u − o)|² − H_k² − μ)/|M (u − o)| over (o, M = A²) (r_k = |A(u − o)|² − H_k² over its gradient in
+    the readings: its σ around the ellipsoid), with μ = −¼ of the r_k's variance weighted by w_k = (tr M/3)/|M (u −
+    o)|² about their weighted mean (or −σ² tr A²/3 for a known noise σ, 0 for none: the noise mean of r_k weighted
+    by 1/|M (u − o)|², whose noise is correlated with r_k's), repeated with μ updated until it stops changing — the
+    fixed point the core's scoring reaches."""
     B = np.asarray(samples, dtype=float)
     mean, std = B.mean(axis=0), B.std()
     u = (B - mean) / std
@@ -114,18 +119,24 @@ def twostep(samples, field_norm, iterate: bool = True, noise_sigma: float = -1.0
             d = u - p[:3]
             return np.einsum("ij,jk,ik->i", d, _sym(p[3:]), d) - H2
 
+        def gradient(p):  # |M (u − o)|: r_k's gradient in the readings, over 2
+            return np.linalg.norm((u - p[:3]) @ _sym(p[3:]), axis=1)
+
         def noise_mean(p):
             if noise_sigma == 0:
                 return 0.0
             if noise_sigma > 0:
-                return (noise_sigma / std) ** 2 * np.trace(_sym(p[3:]))
-            r = raw(p)  # var v_k ≈ (4/3) H_k² tr Σ: each weighted by 1/H_k², about their weighted mean
-            return 0.75 * np.mean((r - np.sum(r / H2) / np.sum(1 / H2)) ** 2 / H2)
+                return -((noise_sigma / std) ** 2) * np.trace(_sym(p[3:])) / 3.0
+            r = raw(p)  # w_k var r_k = (4/3) σ² tr M: each weighted by w_k, about their weighted mean
+            w = np.trace(_sym(p[3:])) / 3.0 / gradient(p) ** 2
+            mean = np.sum(w * r) / np.sum(w)
+            return -0.25 * np.mean(w * (r - mean) ** 2)
 
         p = np.concatenate([o, M[[0, 1, 2, 0, 0, 1], [0, 1, 2, 1, 2, 2]]])
         for _ in range(100):
             mu = noise_mean(p)
-            p = least_squares(lambda q: (raw(q) - mu) / Hs, p, method="lm", xtol=1e-15, ftol=1e-15, gtol=1e-15).x
+            p = least_squares(lambda q: (raw(q) - mu) / gradient(q), p, method="lm", xtol=1e-15, ftol=1e-15,
+                              gtol=1e-15).x
             if abs(noise_mean(p) - mu) <= 1e-14 * Hbar**2:
                 break
         o, M = p[:3], _sym(p[3:])
@@ -135,32 +146,46 @@ def twostep(samples, field_norm, iterate: bool = True, noise_sigma: float = -1.0
 
 
 def twostep_covariance(samples, field_norm, offset, matrix) -> np.ndarray:
-    """Covariance of [b0 b1 b2 a00 a01 a02 a11 a12 a22] at a TWOSTEP result, from its objective Σ w_k R_k² written
-    in those parameters: R_k = |A(m_k − b)|² − H_k² about its weighted mean (the noise mean), w_k = 1/H_k², J_k its
-    analytic gradient. From 30 readings the HC2 sandwich B⁻¹ M B⁻¹, B = Σ w J Jᵀ, M = Σ w² R² J Jᵀ/(1 − h_k) with
-    h_k = w_k J_kᵀ B⁻¹ J_k the leverage (R's variance changes around the ellipsoid); up to 10, s² B⁻¹ with
-    s² = Σ w R²/(N − 9); a linear blend between. (The core forms the same in its normalised quadric's parameters and carries it over by the
-    delta method.)"""
+    """Covariance of [b0 b1 b2 a00 a01 a02 a11 a12 a22] at a TWOSTEP result, from its objective Σ r_k² written in
+    those parameters: the Sampson residual r_k = (|A(m_k − b)|² − H_k² − μ)/|A² (m_k − b)|, μ the residuals' mean
+    weighted by 1/|A² (m_k − b)|² (the noise mean), J_k its gradient by central differences. From 30 readings the
+    HC2 sandwich B⁻¹ M B⁻¹, B = Σ J Jᵀ, M = Σ r² J Jᵀ/(1 − h_k) with h_k = J_kᵀ B⁻¹ J_k the leverage; up to 10,
+    s² B⁻¹ with s² = Σ r²/(N − 9); a linear blend between. (The core forms the same in its normalised quadric's
+    parameters, analytically, and carries it over by the delta method.)"""
     m = np.asarray(samples, dtype=float)
-    A = np.asarray(matrix, dtype=float)
-    d = m - np.asarray(offset, dtype=float)
-    h = d @ A.T
     H2 = np.broadcast_to(np.asarray(field_norm, dtype=float), len(m)) ** 2
-    w = 1.0 / H2
-    R = np.sum(h * h, axis=1) - H2
-    R = R - np.sum(w * R) / np.sum(w)
+    upper = [(0, 0), (0, 1), (0, 2), (1, 1), (1, 2), (2, 2)]
+
+    def parts(theta):
+        A = np.zeros((3, 3))
+        for v, (i, j) in zip(theta[3:], upper):
+            A[i, j] = A[j, i] = v
+        d = m - theta[:3]
+        R = np.sum((d @ A.T) ** 2, axis=1) - H2
+        return R, np.linalg.norm(d @ (A @ A).T, axis=1)
+
+    theta0 = np.concatenate([np.asarray(offset, dtype=float), [np.asarray(matrix)[i, j] for i, j in upper]])
+    R0, G0 = parts(theta0)
+    mu = np.sum(R0 / G0**2) / np.sum(1.0 / G0**2)  # (held at the result: the core's μ is no free parameter)
+
+    def residual(theta):
+        R, G = parts(theta)
+        return (R - mu) / G
+
+    r = residual(theta0)
     J = np.empty((len(m), 9))
-    J[:, :3] = -2.0 * h @ A                                 # ∂|h|²/∂b = −2 hᵀA
-    for col, (i, j) in enumerate([(0, 0), (0, 1), (0, 2), (1, 1), (1, 2), (2, 2)]):
-        # A_ij = A_ji: ∂h/∂a_ij moves h_i by d_j and (off the diagonal) h_j by d_i
-        J[:, 3 + col] = 2.0 * (h[:, i] * d[:, j] + (h[:, j] * d[:, i] if i != j else 0.0))
+    for k in range(9):
+        step = 1e-6 * max(abs(theta0[k]), np.abs(theta0[3:]).max() if k >= 3 else np.abs(m).max())
+        up, down = theta0.copy(), theta0.copy()
+        up[k] += step
+        down[k] -= step
+        J[:, k] = (residual(up) - residual(down)) / (2 * step)
     n, p = J.shape
-    Jw = np.sqrt(w)[:, None] * J
-    B_inv = np.linalg.inv(Jw.T @ Jw)
-    plain = np.sum(w * R**2) / (n - p) * B_inv
+    B_inv = np.linalg.inv(J.T @ J)
+    plain = np.sum(r**2) / (n - p) * B_inv
     share = float(np.clip((n - 10) / 20, 0.0, 1.0))  # the sandwich's share: none at 10 readings, whole from 30
     if share == 0.0:
         return plain
-    leverage = np.einsum("ij,jk,ik->i", Jw, B_inv, Jw)
-    g = (np.sqrt(w) * R / np.sqrt(1.0 - np.minimum(leverage, 0.99)))[:, None] * Jw
+    leverage = np.einsum("ij,jk,ik->i", J, B_inv, J)
+    g = (r / np.sqrt(1.0 - np.minimum(leverage, 0.99)))[:, None] * J
     return share * (B_inv @ (g.T @ g) @ B_inv) + (1.0 - share) * plain
