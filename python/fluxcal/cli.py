@@ -761,8 +761,15 @@ def cmd_apply(args) -> int:
     if args.heading:
         columns["heading"], units["heading"] = _heading_column(cal, h, args), "deg"
         written.append("heading")
+    # a planar calibration passes the axis it turns about through: said in the file and here (a blind check read hz,
+    # its hard iron still in it, as the vertical field: 12 % off)
+    loose = cal.summary.get("not_calibrated") if axes is None else None
+    passed = ({"not_calibrated": f"h{loose['axis']} is not calibrated: {loose['reason']}"}
+              if loose and loose.get("axis") in ("x", "y", "z") else {})
     write_output(args.output, Recording(columns=columns, units=units, source=str(args.output),
-                                        metadata={**rec.metadata, "calibration": args.calibration}))
+                                        metadata={**rec.metadata, "calibration": args.calibration, **passed}))
+    if passed:
+        print(f"note: {passed['not_calibrated']}")
     # a planar calibration's field norm is the horizontal field's: |h| and its spread are judged in its plane
     plane = plane_axes(cal)
     to_plane = np.eye(3) if plane is None else plane.T

@@ -244,6 +244,14 @@ def calibrate_planar(samples, field_norm=None, axes=None, units: str | None = No
                          "ellipse — "
                          "a vehicle that barely turned (turn a full circle), or readings disturbed far beyond a "
                          "sensor's noise (a magnet or motor near the sensor, a tumbled or shaken sensor)")
+    # (collinear readings, a thin ellipse around them: a blind check's came back with gains of 7.7e5 "converged")
+    narrow = float(np.mean(targets)) / float(np.linalg.svd(fit["A"], compute_uv=False)[0])
+    if not narrow > MIN_RADIUS_OVER_NOISE * fit["sigma"]:
+        raise ValueError(f"samples: the readings lie along a line in the plane {names[0]}{names[1]}: the ellipse "
+                         f"through them is {2 * narrow:.3g} across its narrow axis, {narrow / fit['sigma']:.2g}× "
+                         f"their scatter about it ({fit['sigma']:.3g} RMS), so they trace no ellipse (a sensor moved "
+                         "along one direction, or an axis that did not change) — turn the vehicle (or the sensor) "
+                         "through a full circle")
     q = np.linalg.norm(h, axis=1) / targets
     raw = np.linalg.norm(u, axis=1)
     summary = {
@@ -423,6 +431,13 @@ def _readings(samples) -> np.ndarray:
         row, col = bad
         raise ValueError(f"samples: row {row}, column {col} ({AXES[col]}) is "
                          f"{'NaN' if np.isnan(m[row, col]) else 'infinite'}; remove or repair non-finite readings")
+    # the ellipse's moments are fourth powers: at 1e170 an eigen solver failed unnamed, at 1e-170 a division by zero
+    largest = np.max(np.abs(m)) if m.size else np.float64(0.0)
+    with np.errstate(over="ignore", under="ignore"):
+        fourth = largest**4
+    if largest > 0 and not (np.isfinite(fourth * len(m)) and fourth >= np.finfo(float).tiny):
+        raise ValueError(f"samples: readings up to {largest:.3g}, whose fourth powers (the ellipse's moments) "
+                         "are no finite double: give them in another unit (nT, µT, counts)")
     return np.ascontiguousarray(m)
 
 

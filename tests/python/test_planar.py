@@ -514,3 +514,42 @@ def test_a_file_named_after_planar_is_said_so(capsys):
         main(["calibrate", "--planar", "log.csv"])
     assert exit_.value.code == 2
     assert "the file goes before the option (fluxcal calibrate FILE --planar)" in capsys.readouterr().err
+
+
+def test_readings_along_a_line_are_refused_not_fitted_by_a_thin_ellipse():
+    """Collinear readings (a sensor moved along one direction) fit a thin ellipse around them: a blind check got
+    gains of 7.7e5 and a field of 1e8, "converged", only flagged not identifiable. Refused now, naming the line."""
+    rng = np.random.default_rng(1)
+    t = rng.uniform(-1, 1, 200)
+    m = np.c_[t, 0.5 * t, -t] * 5e4 + [100, 200, 300] + 50 * rng.standard_normal((200, 3))
+    with pytest.raises(ValueError, match=r"the readings lie along a line in the plane .*trace no ellipse"):
+        fluxcal.calibrate_planar(m)
+
+
+def test_apply_says_the_axis_a_planar_calibration_passes_through(tmp_path):
+    """A level turn calibrated in its plane: `apply` writes hz with its hard iron still in it (a blind check read it as
+    the vertical field, 12 % off). The note says so, on the console and in the written file."""
+    from conftest import run_cli
+
+    rng = np.random.default_rng(4)
+    heading = np.linspace(0, 4 * np.pi, 400)
+    field = np.c_[20000 * np.cos(heading), -20000 * np.sin(heading), np.full(400, 45000.0)]
+    m = field @ np.diag([1.05, 0.96, 1.0]).T + [800.0, -300.0, 5000.0] + 20 * rng.standard_normal((400, 3))
+    src = tmp_path / "turn.csv"
+    np.savetxt(src, m, delimiter=",", header="mx,my,mz", comments="# units: mx=nT, my=nT, mz=nT\n", fmt="%.3f")
+    cal = tmp_path / "cal.json"
+    assert run_cli("calibrate", src, "--planar", "--field-norm", "20000", "-o", cal).returncode == 0
+    out = tmp_path / "out.csv"
+    r = run_cli("apply", cal, src, "-o", out)
+    assert r.returncode == 0 and "note: hz is not calibrated" in r.stdout, r.stdout + r.stderr
+    assert "# not_calibrated: hz is not calibrated" in out.read_text()
+
+
+def test_readings_whose_fourth_powers_are_no_double_are_named():
+    """At ×1e170 an eigen solver's LinAlgError, at ×1e-170 a ZeroDivisionError, at ×1e140 "found no ellipse"
+    (a blind check): the readings' scale is named now."""
+    a = np.linspace(0, 2 * np.pi, 200)
+    m = np.c_[np.cos(a) * 20000 + 100, np.sin(a) * 21000 - 50, np.full(200, 45000.0)]
+    for k in (1e140, 1e170, 1e-170):
+        with pytest.raises(ValueError, match=r"samples: readings up to .*fourth powers .* another unit"):
+            fluxcal.calibrate_planar(m * k)
