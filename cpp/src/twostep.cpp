@@ -561,7 +561,8 @@ struct SampsonPass {
 
 SampsonPass sampson_pass(const SamplesRef& samples, const Eigen::Vector3d& centre, double scale,
                          const Eigen::VectorXd* relative, const Model3D& m, double mu, bool jacobian) {
-  constexpr Eigen::Index kChunk = 4096;
+  // (512 rows: a block's temporaries stay under malloc's mmap threshold; at 4096 their page faults took a fifth)
+  constexpr Eigen::Index kChunk = 512;
   const double mean_eigen = m.N.trace() / 3.0;
   SampsonPass out;
   for (Eigen::Index start = 0; start < samples.rows(); start += kChunk) {
@@ -1016,8 +1017,8 @@ TwoStepResult twostep_fit(const SamplesRef& samples, const TwoStepOptions& optio
       // refused), from the first step.
       if (!sum.converged) m = first;
       sum.converged = failed = false;
-      mu = sampson_noise_mean(sampson_pass(samples, centre, scale, relative, m, mu, false), n, m, options.noise_sigma,
-                              scale);
+      // μ starts as the scoring's, ¾ of the weighted variance, carried to this fit's −¼ of it (no pass for it)
+      mu = options.noise_sigma < 0.0 ? -mu / 3.0 : sampson_noise_mean(SampsonPass{}, n, m, options.noise_sigma, scale);
       SampsonPass pass = sampson_pass(samples, centre, scale, relative, m, mu, true);
       for (int it = 0; it < options.max_iterations; ++it) {
         Vec9 delta;
@@ -1028,8 +1029,7 @@ TwoStepResult twostep_fit(const SamplesRef& samples, const TwoStepOptions& optio
         last_step = delta.cwiseAbs().maxCoeff();
         ++sum.iterations;
         if (last_step <= options.tolerance || delta.dot(pass.F * delta) <= pass.rounding) {
-          m = moved(m, delta, 1.0);
-          pass = sampson_pass(samples, centre, scale, relative, m, mu, true);
+          m = moved(m, delta, 1.0);  // (F and the cost of the pass before it: the step is below the tolerance)
           sum.converged = true;
           break;
         }
