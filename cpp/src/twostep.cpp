@@ -963,14 +963,7 @@ TwoStepResult twostep_fit(const SamplesRef& samples, const TwoStepOptions& optio
         failed = true;
         break;
       }
-      const auto step = [&](double t) {
-        Model3D next = m;
-        next.q += t * delta.head<3>();
-        Eigen::Matrix3d dN;
-        dN << delta(3), delta(6), delta(7), delta(6), delta(4), delta(8), delta(7), delta(8), delta(5);
-        next.N += t * dN;
-        return next;
-      };
+      const auto step = [&](double t) { return moved(m, delta, t); };
       last_step = delta.cwiseAbs().maxCoeff();
       // Below the tolerance, or with a predicted decrease δᵀFδ (of the cost pᵀS p, a sum of squares without ½)
       // below the rounding of that cost (the size of the terms it cancels), the cost cannot tell the step from

@@ -286,9 +286,11 @@ def twostep(samples, field_norm, units: str | None = None, **settings) -> Calibr
 
     First step: the centred linear estimate of z_k = |m_k|² − H² = −m_kᵀ E m_k + 2cᵀm_k + const with
     tr E = 0 (a constant |H| leaves the scale to the second step); second step: Fisher scoring of
-    Σ (|A(m_k − b)|² − H² − μ)² over the offset and the symmetric A, μ the noise mean (estimated from
-    the residuals, or from `noise_sigma`, the reading noise per axis). `samples` may be a
-    `fluxcal.io.Recording`, whose units are then carried.
+    Σ (|A(m_k − b)|² − H² − μ)² over the offset and the symmetric A, then on to its maximum-likelihood form, each
+    residual over its own σ_k ∝ |A²(m_k − b)| (the Sampson distance; from the first step when the first scoring ran
+    off: a cap of directions, a narrow band of tilts at high noise), μ the noise mean (estimated from the residuals,
+    or from `noise_sigma`, the reading noise per axis). `samples` may be a `fluxcal.io.Recording`, whose units are
+    then carried.
 
     settings (defaults in cpp/include/fluxcal/twostep.hpp): max_iterations=50 (0 = first step only),
     tolerance=1e-10, noise_sigma=-1 (estimate; 0 = no noise-mean correction), planar_ratio=0.02,
@@ -301,12 +303,11 @@ def twostep(samples, field_norm, units: str | None = None, **settings) -> Calibr
     variance changes around an anisotropic ellipsoid), up to 10 the inverse Fisher information times the residuals'
     variance over N − 9, a linear blend between, or the Newey–West sandwich for readings correlated in time;
     9 readings fit exactly: no covariance, identifiable False. standard_errors=False skips its pass over the
-    readings. Raises ValueError on a missing field_norm, NaN/Inf, too few rows, planar readings, a non-positive-definite result, or a second step that ran away from the
-    readings (on a cap of directions its objective falls towards an infinite offset, and a few far outliers can
-    run it away too: not converged, and the readings' misfit to its ellipsoid, in their own units, grew by
-    more than runaway_misfit over the first step's; the message names the first step's coverage and its farthest
-    reading); a second step that does not converge otherwise is reported in summary["converged"] and
-    summary["warnings"].
+    readings. Raises ValueError on a missing field_norm, NaN/Inf, too few rows, planar readings, a non-positive-definite
+    result, or a second step that ran away from the readings (not converged, and the readings' misfit to its
+    ellipsoid, in their own units, grew by more than runaway_misfit over the first step's; the message names the first
+    step's coverage and its farthest reading); a second step that does not converge otherwise is reported in
+    summary["converged"] and summary["warnings"]. A cap of directions is answered, flagged not identifiable.
     """
     if units is None:
         units = getattr(samples, "field_units", lambda: "")()
