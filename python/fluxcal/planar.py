@@ -245,11 +245,13 @@ def calibrate_planar(samples, field_norm=None, axes=None, units: str | None = No
                          "a vehicle that barely turned (turn a full circle), or readings disturbed far beyond a "
                          "sensor's noise (a magnet or motor near the sensor, a tumbled or shaken sensor)")
     # (collinear readings, a thin ellipse around them: a blind check's came back with gains of 7.7e5 "converged")
-    narrow = float(np.mean(targets)) / float(np.linalg.svd(fit["A"], compute_uv=False)[0])
-    if not narrow > MIN_RADIUS_OVER_NOISE * fit["sigma"]:
-        raise ValueError(f"samples: the readings lie along a line in the plane {names[0]}{names[1]}: the ellipse "
-                         f"through them is {2 * narrow:.3g} across its narrow axis, {narrow / fit['sigma']:.2g}× "
-                         f"their scatter about it ({fit['sigma']:.3g} RMS), so they trace no ellipse (a sensor moved "
+    # (and a tenth of their spread along it: glitches kept by outliers="keep" make a turn's scatter as wide)
+    narrow, wide = np.sqrt(np.maximum(np.linalg.eigvalsh(np.cov(u.T)), 0.0))
+    scatter = 1.4826 * float(np.median(np.abs(fit["residuals"])))
+    if not narrow > MIN_RADIUS_OVER_NOISE * scatter and narrow < 0.1 * wide:
+        raise ValueError(f"samples: the readings lie along a line in the plane {names[0]}{names[1]}: they spread "
+                         f"{narrow:.3g} (RMS) across it, {narrow / scatter:.2g}× their scatter about the ellipse "
+                         f"fitted through them ({scatter:.3g}, robust σ), so they trace no ellipse (a sensor moved "
                          "along one direction, or an axis that did not change) — turn the vehicle (or the sensor) "
                          "through a full circle")
     q = np.linalg.norm(h, axis=1) / targets
