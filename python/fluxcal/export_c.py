@@ -465,7 +465,14 @@ def _drift_part(drift, name: str):
     coefficients = [list(map(float, seg["coefficients"])) + [0.0] * (top - int(seg["order"])) for seg in segments]
     # each range at its edges, a quarter and three quarters in; the inside-outside difference varies with it
     temps = np.concatenate([np.linspace(lo, hi, 5) for lo, hi in zip(edges[:-1], edges[1:])])
-    outside = temps - np.linspace(-5.0, 15.0, temps.size)
+    # the difference's fitted range per range (DriftModel.beyond_differences): the function refuses beyond it too
+    seen = ([seg["difference_range"] for seg in segments]
+            if model.regressor == "difference" and all("difference_range" in seg for seg in segments) else None)
+    if seen:  # each test temperature's x within what its own range saw (an edge belongs to the range above it)
+        bounds = np.array(seen, dtype=float)[np.searchsorted(edges[1:-1], temps, side="right")]
+        outside = temps - (bounds[:, 0] + np.tile(np.linspace(0.0, 1.0, 5), len(segments)) * np.ptp(bounds, axis=1))
+    else:
+        outside = temps - np.linspace(-5.0, 15.0, temps.size)
     expected = model.evaluate(temps, outside if model.regressor == "difference" else None)
     d = lambda v: f"{v:.17g}"  # noqa: E731  (round-trips a double)
     x = "temp" if model.regressor == "temp" else "temp - temp_outside"
@@ -474,7 +481,9 @@ def _drift_part(drift, name: str):
         f" * f = sum_i c_i x^i with x = {x} (degrees C), the polynomial of the range that holds the device",
         " * temperature temp: lo <= temp < hi (the last range includes its hi). Compensated: W_c = W - f.",
         " * The same model's Kalman filter (--kalman) runs on W_c, the noise about the drift, in its signal format.",
-        f" * {dname}(temp, temp_outside, &f) returns 0, or 1 when temp is outside every range (f = 0 then: a",
+        f" * {dname}(temp, temp_outside, &f) returns 0, or 1 when temp is outside every range"
+        + (" or temp - temp_outside outside what its range was fitted over" if seen else "")
+        + " (f = 0 then: a",
         f" * polynomial is not extrapolated){'' if model.regressor == 'difference' else '; temp_outside is unused'}.",
         f" * {dname}_self_test() compares the test temperatures with fluxcal's values (0 = pass). */",
         f"#define {dup}_RANGES {len(segments)}",
@@ -483,6 +492,8 @@ def _drift_part(drift, name: str):
         f"static const double {dname}_edges[{len(edges)}] = {{{', '.join(map(d, edges))}}};",
         f"static const double {dname}_coefficients[{len(segments)}][{top + 1}] = {{  /* c_0 ... c_m per range */",
         _rows(coefficients, d) + "};",
+        *([f"static const double {dname}_difference_range[{len(segments)}][2] = {{  /* fitted x per range, "
+           f"{EDGE_MARGIN:g} of its span beyond taken */", _rows(seen, d) + "};"] if seen else []),
         f"static inline int {dname}(double temp, double temp_outside, double *f) {{",
         f"  const double x = {x};",
         "  int s, j;",
@@ -492,6 +503,9 @@ def _drift_part(drift, name: str):
         f"    const double lo = {dname}_edges[s] - (s == 0 ? {dup}_EDGE_MARGIN : 0.0);",
         f"    const double hi = {dname}_edges[s + 1] + (s == {dup}_RANGES - 1 ? {dup}_EDGE_MARGIN : 0.0);",
         f"    if (temp >= lo && (temp < hi || (s == {dup}_RANGES - 1 && temp <= hi))) {{",
+        *([f"      const double span = {dname}_difference_range[s][1] - {dname}_difference_range[s][0];",
+           f"      if (x < {dname}_difference_range[s][0] - {d(EDGE_MARGIN)} * span ||",
+           f"          x > {dname}_difference_range[s][1] + {d(EDGE_MARGIN)} * span) return 1;"] if seen else []),
         f"      for (j = {dup}_MAX_ORDER; j >= 0; --j) *f = *f * x + {dname}_coefficients[s][j];",
         "      return 0;",
         "    }",

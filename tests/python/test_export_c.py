@@ -460,11 +460,19 @@ def test_drift_model_in_c_matches_the_model_and_needs_no_calibration(tmp_path, r
     flags = np.array([int(line.split()[0]) for line in lines[:-2]])
     values = np.array([float(line.split()[1]) for line in lines[:-2]])
     assert lines[-2] == "self_test 0"
-    # within the margin as DriftModel.evaluate; beyond it outside every range: said, not extrapolated
-    np.testing.assert_array_equal(flags, [0] * 204 + [1, 1])
-    expected = model.evaluate(temps[:204], outs[:204] if regressor == "difference" else None)
-    np.testing.assert_allclose(values[:204], expected, rtol=1e-12, atol=1e-12 * np.abs(expected).max())
-    assert np.all(values[204:] == 0.0)
+    # within the margin as DriftModel.evaluate; beyond it outside every range: said, not extrapolated — and for the
+    # difference, beyond what its range saw of it (a blind check's −1.32 A at 20 °C, fitted over −1 … 7 °C)
+    expected = model.evaluate(temps, outs if regressor == "difference" else None, outside="nan")
+    refused = ~np.isfinite(expected)
+    np.testing.assert_array_equal(flags, refused)
+    assert refused[-2:].all() and (refused[:204].sum() > 0) == (regressor == "difference"), refused.sum()
+    np.testing.assert_allclose(values[~refused], expected[~refused], rtol=1e-12,
+                               atol=1e-12 * np.abs(expected[~refused]).max())
+    assert np.all(values[refused] == 0.0)
+    if regressor == "difference":
+        with pytest.raises(ValueError, match=r"temp − temp_outside .* is outside what the model's range .* was fitted "
+                                             r"over"):
+            model.evaluate(temps, outs)
 
 
 def test_export_c_needs_something_to_export(tmp_path):
