@@ -1865,6 +1865,12 @@ def cmd_drift(args) -> int:
                                           labels=rec.line_numbers, source=f"the drift model {args.model}")
         if said:
             raise ValueError(said)
+        if outside is not None and model.regressor == "difference":  # (said with its file line, as the above)
+            unseen = model.beyond_differences(temp, temp - outside) & np.isfinite(rec.columns[column])
+            if unseen.any():
+                raise ValueError(model.differences_words(
+                    temp, temp - outside, unseen, f"{args.file}, {'line' if rec.line_numbers is not None else 'row'}",
+                    rec.line_numbers).replace("outside='nan' (--outside-range nan)", "--outside-range nan"))
     compensated = model.compensate(rec.columns[column], temp, outside, outside=args.outside_range)
     known = ~np.isnan(compensated)  # with --outside-range nan, the samples the model speaks for
     missing = ~np.isfinite(rec.columns[column])  # (NaN in, NaN out: not the temperature's doing)
@@ -1889,8 +1895,9 @@ def cmd_drift(args) -> int:
               "temperature's column and unit?" + (f" ({hint})" if (hint := drift.outside_unit_hint(
                   hot, lo, hi, temperature["column"])) else ""), file=sys.stderr)
     elif unknown:
-        print(f"warning: {unknown} of {len(rec)} samples at temperatures outside the model's {lo:g} … {hi:g} °C are "
-              f"NaN in {column}_compensated (the polynomials are not extrapolated)")
+        print(f"warning: {unknown} of {len(rec)} samples at temperatures outside the model's {lo:g} … {hi:g} °C"
+              f"{' (or inside–outside differences outside those its ranges saw)' if model.regressor == 'difference' else ''}"
+              f" are NaN in {column}_compensated (the polynomials are not extrapolated)")
     out_name = f"{column}_compensated"
     columns = {**rec.columns, out_name: compensated}
     names = [out_name]

@@ -161,3 +161,24 @@ def test_the_zero_bias_unit_goes_with_the_model_and_another_is_refused(tmp_path,
     assert cli.main(["drift", "apply", str(model), str(log("ma2.csv", "mA", 1e3)), "-o", str(tmp_path / "o.csv")]) == 0
     assert cli.main(["export-c", "--drift", str(model), "-o", str(tmp_path / "d.h")]) == 0
     assert "Unit: f and W - f are in mA" in (tmp_path / "d.h").read_text()
+
+
+def test_drift_apply_names_the_line_of_a_difference_its_model_never_saw(tmp_path, capsys, foct):
+    """A difference-regressor model refuses an inside–outside difference beyond what its range was fitted over (a
+    blind check's −1.32 A at 20 °C, fitted over −1 … 7 °C, "in range"): drift apply names the file line."""
+    outside = foct["temp"] - 3.0 - 0.05 * (foct["temp"] - foct["temp"].mean())
+    def log(name, out):
+        return write_csv(tmp_path / name, {"t": foct["t"], "zero_bias": foct["zero_bias"], "temp": foct["temp"],
+                                           "temp_outside": out}, units={"t": "s", "zero_bias": "A", "temp": "C",
+                                                                        "temp_outside": "C"})
+    model = tmp_path / "m.json"
+    assert cli.main(["drift", "fit", str(log("fit.csv", outside)), "--regressor", "difference", "-o", str(model)]) == 0
+    far = outside.copy()
+    far[100] = foct["temp"][100] - 25.0
+    capsys.readouterr()
+    assert cli.main(["drift", "apply", str(model), str(log("far.csv", far)), "-o", str(tmp_path / "o.csv")]) == 2
+    err = capsys.readouterr().err
+    assert "far.csv, line 104: temp − temp_outside 25 °C" in err and "--outside-range nan" in err, err
+    assert cli.main(["drift", "apply", str(model), str(log("far.csv", far)), "-o", str(tmp_path / "o.csv"),
+                     "--outside-range", "nan"]) == 0
+    assert "1 of" in capsys.readouterr().out
