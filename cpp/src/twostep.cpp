@@ -963,7 +963,6 @@ TwoStepResult twostep_fit(const SamplesRef& samples, const TwoStepOptions& optio
         failed = true;
         break;
       }
-      const auto step = [&](double t) { return moved(m, delta, t); };
       last_step = delta.cwiseAbs().maxCoeff();
       // Below the tolerance, or with a predicted decrease δᵀFδ (of the cost pᵀS p, a sum of squares without ½)
       // below the rounding of that cost (the size of the terms it cancels), the cost cannot tell the step from
@@ -972,7 +971,7 @@ TwoStepResult twostep_fit(const SamplesRef& samples, const TwoStepOptions& optio
       const double cost_rounding =
           p.cwiseAbs().dot(Sw.cwiseAbs() * p.cwiseAbs()) * std::numeric_limits<double>::epsilon();
       if (last_step <= options.tolerance || delta.dot(F * delta) <= cost_rounding) {
-        m = step(1.0);
+        m = moved(m, delta, 1.0);
         sum.iterations = it + 1;
         sum.converged = true;
         break;
@@ -981,7 +980,7 @@ TwoStepResult twostep_fit(const SamplesRef& samples, const TwoStepOptions& optio
       double t = 1.0, trial = kInf;
       Model3D next;
       for (int ls = 0; ls < kLineSearchSteps; ++ls, t *= 0.5) {
-        next = step(t);
+        next = moved(m, delta, t);
         const Vec11 pn = quadric(next.q, next.N, mu);
         trial = pn.dot(Sw * pn);
         if (trial < cost) break;

@@ -1870,7 +1870,7 @@ def cmd_drift(args) -> int:
             if unseen.any():
                 raise ValueError(model.differences_words(
                     temp, temp - outside, unseen, f"{args.file}, {'line' if rec.line_numbers is not None else 'row'}",
-                    rec.line_numbers).replace("outside='nan' (--outside-range nan)", "--outside-range nan"))
+                    rec.line_numbers, option="--outside-range nan"))
     compensated = model.compensate(rec.columns[column], temp, outside, outside=args.outside_range)
     known = ~np.isnan(compensated)  # with --outside-range nan, the samples the model speaks for
     missing = ~np.isfinite(rec.columns[column])  # (NaN in, NaN out: not the temperature's doing)

@@ -158,26 +158,33 @@ class DriftModel:
         models saved before it have none: nothing is). A blind check's model fitted over −1 … 7 °C had given −1.32 A
         at 20 °C, in range by the device temperature, said by nothing."""
         t, x = np.asarray(temp, dtype=float), np.asarray(x, dtype=float)
-        if self.regressor != "difference" or not all("difference_range" in seg for seg in self.segments):
+        if self.difference_ranges is None:
             return np.zeros(t.size, dtype=bool)
-        inner = [float(seg["range"][0]) for seg in self.segments[1:]]
-        which = np.searchsorted(inner, t, side="right")
-        bounds = np.array([seg["difference_range"] for seg in self.segments], dtype=float)
+        which = range_index(self.segments, t)
+        bounds = np.array(self.difference_ranges, dtype=float)
         margin = EDGE_MARGIN * (bounds[:, 1] - bounds[:, 0])
         with np.errstate(invalid="ignore"):
             return (x < bounds[which, 0] - margin[which]) | (x > bounds[which, 1] + margin[which])
 
-    def differences_words(self, temp, x, unseen, where: str = "sample", labels=None) -> str:
-        """The error for samples whose temp − temp_outside the model was not fitted over (beyond_differences)."""
+    @property
+    def difference_ranges(self) -> list | None:
+        """Each range's [lo, hi] of temp − temp_outside it was fitted over (the difference regressor), or None."""
+        if self.regressor != "difference" or not all("difference_range" in seg for seg in self.segments):
+            return None
+        return [seg["difference_range"] for seg in self.segments]
+
+    def differences_words(self, temp, x, unseen, where: str = "sample", labels=None,
+                          option: str = "outside='nan' (--outside-range nan)") -> str:
+        """The error for samples whose temp − temp_outside the model was not fitted over (beyond_differences);
+        `option`: how the caller spells the NaN option."""
         k = int(np.flatnonzero(unseen)[0])
-        inner = [float(seg["range"][0]) for seg in self.segments[1:]]
-        seg = self.segments[int(np.searchsorted(inner, float(temp[k]), side="right"))]
+        seg = self.segments[int(range_index(self.segments, np.asarray(temp, dtype=float)[k:k + 1])[0])]
         lo, hi = (float(v) for v in seg["difference_range"])
         return (f"{where} {k if labels is None else labels[k]}: temp − temp_outside {float(x[k]):g} °C at temp "
                 f"{float(temp[k]):g} °C is outside what the model's range [{seg['range'][0]:g}, {seg['range'][1]:g}] "
                 f"°C was fitted over ({lo:g} … {hi:g} °C; {int(unseen.sum())} of {unseen.size} samples outside): "
-                "the polynomials are not extrapolated; pass outside='nan' (--outside-range nan) to mark them NaN "
-                "and compensate the rest, or fit the drift over the differences the device will meet")
+                f"the polynomials are not extrapolated; pass {option} to mark them NaN and compensate the rest, or "
+                "fit the drift over the differences the device will meet")
 
     def compensate(self, zero_bias, temp, temp_outside=None, outside: str = "error") -> np.ndarray:
         """W_c = W − f(T). A temperature outside every range: ValueError, or NaN with outside="nan"."""
@@ -257,6 +264,13 @@ def _jsonable(v):
     raise TypeError(f"not JSON serialisable: {type(v).__name__}")
 
 
+def range_index(segments, temp) -> np.ndarray:
+    """The range of `segments` (contiguous, ascending) each device temperature falls in: an inner edge belongs to the
+    range above it (as the core evaluates); below the first or above the last, that one."""
+    return np.searchsorted([float(seg["range"][0]) for seg in segments[1:]], np.asarray(temp, dtype=float),
+                           side="right")
+
+
 def fit_drift(zero_bias, temp, temp_outside=None, regressor: str = "temp", breakpoints=DEFAULT_BREAKPOINTS,
               max_order: int = 4, significance: float = 0.05, order: int | None = None, continuous: bool = False,
               whiten: bool = True, whiten_max_order: int = 10, min_samples: int = 10, breaks=None) -> DriftModel:
@@ -279,8 +293,7 @@ def fit_drift(zero_bias, temp, temp_outside=None, regressor: str = "temp", break
     r = _core.fit_drift(temp, np.ascontiguousarray(x), w, options)
     segments = list(r["segments"])
     if regressor == "difference":  # what each range's polynomial saw of its variable (beyond_differences)
-        inner = [float(seg["range"][0]) for seg in segments[1:]]
-        which = np.searchsorted(inner, temp, side="right")
+        which = range_index(segments, temp)
         for k, seg in enumerate(segments):
             seen = x[which == k]
             if seen.size:

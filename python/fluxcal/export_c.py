@@ -333,7 +333,7 @@ def _kalman_range_warnings(f, kalman_range) -> list:
         return []
     if lsb > sigma / RANGE_LSB_SHARE:
         return [f"--kalman-range {kalman_range:g}: the filter's LSB 2^{-f.frac_bits} = {lsb:.3g} is {lsb / sigma:.2g} times "
-                f"of its input's σ {sigma:.3g} (its own model's noise): the output loses that precision. Give the "
+                f"its input's σ {sigma:.3g} (its own model's noise): the output loses that precision. Give the "
                 "largest |input| in the model's unit (default 8 σ)"]
     if reach < 3.0 * sigma:
         return [f"--kalman-range {kalman_range:g}: inputs past ±{reach:.3g} saturate, {reach / sigma:.2g} σ of its "
@@ -453,7 +453,7 @@ static inline int KNAME_self_test(void) {
 def _drift_part(drift, name: str):
     """The header lines of the drift f(T) of a DriftModel (or its JSON path) in double, with a test vector of
     temperatures across every range and the model's own values there; and the model."""
-    from .drift import EDGE_MARGIN, DriftModel
+    from .drift import EDGE_MARGIN, DriftModel, range_index
 
     model = DriftModel.load(drift) if isinstance(drift, (str, Path)) else drift
     if not isinstance(model, DriftModel):
@@ -466,10 +466,9 @@ def _drift_part(drift, name: str):
     # each range at its edges, a quarter and three quarters in; the inside-outside difference varies with it
     temps = np.concatenate([np.linspace(lo, hi, 5) for lo, hi in zip(edges[:-1], edges[1:])])
     # the difference's fitted range per range (DriftModel.beyond_differences): the function refuses beyond it too
-    seen = ([seg["difference_range"] for seg in segments]
-            if model.regressor == "difference" and all("difference_range" in seg for seg in segments) else None)
+    seen = model.difference_ranges
     if seen:  # each test temperature's x within what its own range saw (an edge belongs to the range above it)
-        bounds = np.array(seen, dtype=float)[np.searchsorted(edges[1:-1], temps, side="right")]
+        bounds = np.array(seen, dtype=float)[range_index(segments, temps)]
         outside = temps - (bounds[:, 0] + np.tile(np.linspace(0.0, 1.0, 5), len(segments)) * np.ptp(bounds, axis=1))
     else:
         outside = temps - np.linspace(-5.0, 15.0, temps.size)

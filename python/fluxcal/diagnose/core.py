@@ -167,7 +167,8 @@ def _rail_cut(m: np.ndarray, left_out: np.ndarray, band: np.ndarray, axis: int, 
             cal = fit_ellipsoid(m[~left_out])
     except ValueError:  # (the others alone do not span an ellipsoid: not judged a blurred rail)
         return False, np.inf
-    size = np.linalg.norm(cal.apply(m), axis=1)
+    corrected = cal.apply(m)
+    size = np.linalg.norm(corrected, axis=1)
     radius = np.median(size[~left_out])
     typical = np.median(np.abs(size[~left_out] - radius))
     falls_off = bool(np.median(np.abs(size[band] - radius)) > RAIL_CUT * typical)
@@ -175,7 +176,7 @@ def _rail_cut(m: np.ndarray, left_out: np.ndarray, band: np.ndarray, axis: int, 
     if deep.sum() < RAIL_SHORT:
         return falls_off, np.inf
     # the axis's value on the ellipsoid, the others as read: |h + a s|² = R² for s, its root on the rail's side
-    h, a, column = cal.apply(m[deep]), cal.matrix[:, axis], m[deep, axis]
+    h, a, column = corrected[deep], cal.matrix[:, axis], m[deep, axis]
     ha = h @ a
     root = np.sqrt(np.maximum(ha ** 2 - (a @ a) * (np.sum(h * h, axis=1) - radius ** 2), 0.0))
     implied = column + (-ha + side * root) / (a @ a)
