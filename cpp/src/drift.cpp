@@ -301,6 +301,10 @@ DriftModel fit_drift(const SeriesRef& select, const SeriesRef& x, const SeriesRe
     seg.lo = edges[s];
     seg.hi = edges[s + 1];
     const Eigen::Index n = xs[s].size();
+    if (n > 0) {
+      seg.x_lo = xs[s].minCoeff();
+      seg.x_hi = xs[s].maxCoeff();
+    }
     int m = options.order >= 0 ? options.order : 0;
     double sse = 0.0, cond = 0.0;
     Eigen::VectorXd coef = fit_rows(xs[s], ws[s], members[s], ar, m, &sse, &cond, options.breaks);
@@ -418,13 +422,12 @@ DriftModel fit_drift(const SeriesRef& select, const SeriesRef& x, const SeriesRe
   return model;
 }
 
-Eigen::VectorXd DriftModel::evaluate(const SeriesRef& select, const SeriesRef& x) const {
-  check_series(select, "temperature", 0, "");
-  check_series(x, "regressor", 0, "");
-  if (select.size() != x.size()) throw Error("drift: temperature and regressor lengths differ");
+namespace {
+
+// The edges lo_0 < lo_1 < … < hi_last the segments are found by: a gap or an unsorted list (a hand-edited
+// or merged model) would silently pick the wrong polynomial, so the ranges must tile one interval.
+std::vector<double> tiling_edges(const std::vector<DriftSegment>& segments) {
   if (segments.empty()) throw Error("drift: the model has no segments");
-  // Segments are found by the edges lo_0 < lo_1 < … < hi_last: a gap or an unsorted list (a hand-edited
-  // or merged model) would silently pick the wrong polynomial, so the ranges must tile one interval.
   std::vector<double> edges;
   for (std::size_t k = 0; k < segments.size(); ++k) {
     const DriftSegment& seg = segments[k];
@@ -439,6 +442,20 @@ Eigen::VectorXd DriftModel::evaluate(const SeriesRef& select, const SeriesRef& x
     edges.push_back(seg.lo);
   }
   edges.push_back(segments.back().hi);
+  return edges;
+}
+
+void check_lengths(const SeriesRef& select, const SeriesRef& x) {
+  check_series(select, "temperature", 0, "");
+  check_series(x, "regressor", 0, "");
+  if (select.size() != x.size()) throw Error("drift: temperature and regressor lengths differ");
+}
+
+}  // namespace
+
+Eigen::VectorXd DriftModel::evaluate(const SeriesRef& select, const SeriesRef& x) const {
+  check_lengths(select, x);
+  const std::vector<double> edges = tiling_edges(segments);
   Eigen::VectorXd f(x.size());
   for (Eigen::Index i = 0; i < x.size(); ++i) {
     const int s = segment_of(edges, select[i]);
@@ -454,6 +471,24 @@ Eigen::VectorXd DriftModel::evaluate(const SeriesRef& select, const SeriesRef& x
     f[i] = v;
   }
   return f;
+}
+
+void DriftModel::require_fitted_x(const SeriesRef& select, const SeriesRef& x, double margin) const {
+  check_lengths(select, x);
+  const std::vector<double> edges = tiling_edges(segments);
+  for (Eigen::Index i = 0; i < x.size(); ++i) {
+    const int s = segment_of(edges, select[i]);
+    if (s < 0) continue;  // evaluate says it
+    const DriftSegment& seg = segments[static_cast<std::size_t>(s)];
+    const double slack = margin * (seg.x_hi - seg.x_lo);
+    if (x[i] < seg.x_lo - slack || x[i] > seg.x_hi + slack) {  // false for NaN x_lo/x_hi: not recorded
+      std::ostringstream msg;
+      msg << "regressor: sample " << i << " is " << x[i] << " at temperature " << select[i]
+          << ", outside what the drift model's range " << range_name(seg.lo, seg.hi) << " was fitted over ("
+          << seg.x_lo << " … " << seg.x_hi << "): the polynomials are not extrapolated";
+      throw Error(msg.str());
+    }
+  }
 }
 
 Eigen::VectorXd DriftModel::compensate(const SeriesRef& w, const SeriesRef& select, const SeriesRef& x) const {

@@ -157,7 +157,9 @@ Eigen::VectorXd compensate_zero_bias(const DriftModel& drift, DriftRegressor reg
     throw Error("temp: " + std::to_string(temp.size()) + " samples, zero_bias has " + std::to_string(zero_bias.size()));
   Eigen::VectorXd storage;
   const SeriesRef x = regressor_values(regressor, temp, temp_outside, storage);
-  return drift.compensate(zero_bias, temp, x);
+  Eigen::VectorXd out = drift.compensate(zero_bias, temp, x);
+  if (regressor == DriftRegressor::difference) drift.require_fitted_x(temp, x, kDriftEdgeMargin);
+  return out;
 }
 
 std::string gaps_note(std::size_t gaps) {

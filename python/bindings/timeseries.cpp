@@ -29,7 +29,8 @@ py::dict segment_dict(const fluxcal::DriftSegment& s) {
   return py::dict("range"_a = std::vector<double>{s.lo, s.hi}, "order"_a = s.order,
                   "coefficients"_a = std::vector<double>(s.coefficients.data(), s.coefficients.data() + s.coefficients.size()),
                   "samples"_a = s.samples, "sse"_a = s.sse, "residual_rms"_a = s.residual_rms,
-                  "condition_number"_a = s.condition_number, "f_statistics"_a = s.f_statistics);
+                  "condition_number"_a = s.condition_number, "f_statistics"_a = s.f_statistics,
+                  "x_range"_a = std::vector<double>{s.x_lo, s.x_hi});
 }
 
 fluxcal::DriftModel model_from(const std::vector<std::pair<std::pair<double, double>, std::vector<double>>>& segs) {
@@ -284,6 +285,7 @@ void bind_timeseries(py::module_& m) {
   m.def("ar_stationary_covariance", &fluxcal::ar_stationary_covariance, "a"_a, "q"_a);
 
   m.attr("FIXED_MAX_ORDER") = kFixedMaxOrder;
+  m.attr("DRIFT_EDGE_MARGIN") = fluxcal::kDriftEdgeMargin;
   m.def("fixed_kalman_filter",
         [](const std::vector<std::int32_t>& a, const std::vector<std::int32_t>& gain, std::int32_t q, std::int32_t r,
            const std::vector<std::int32_t>& p0, int signal_frac_bits, int coef_frac_bits, int cov_frac_bits,

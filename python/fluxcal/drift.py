@@ -48,7 +48,7 @@ from ._saved import load_json_object
 from .kalman import ArKalman
 
 DEFAULT_BREAKPOINTS = (-20.0, 0.0, 30.0, 50.0)
-EDGE_MARGIN = 0.01  # beyond the outer edges, a fraction of the model's span still evaluated (DriftModel.evaluate)
+EDGE_MARGIN = _core.DRIFT_EDGE_MARGIN  # beyond the outer edges, a fraction of the model's span still evaluated
 CURRENT_POINTS = (1, 5, 20, 100, 120)  # % of rated current
 # IEC 61869-2 ratio-error limits (± %) at 1 / 5 / 20 / 100 / 120 % of rated current.
 IEC_LIMITS = {"0.2S": (0.75, 0.35, 0.2, 0.2, 0.2), "0.5S": (1.5, 0.75, 0.5, 0.5, 0.5)}
@@ -292,12 +292,10 @@ def fit_drift(zero_bias, temp, temp_outside=None, regressor: str = "temp", break
     options.breaks = ts.as_breaks(breaks, w.size)
     r = _core.fit_drift(temp, np.ascontiguousarray(x), w, options)
     segments = list(r["segments"])
-    if regressor == "difference":  # what each range's polynomial saw of its variable (beyond_differences)
-        which = range_index(segments, temp)
-        for k, seg in enumerate(segments):
-            seen = x[which == k]
-            if seen.size:
-                seg["difference_range"] = [float(seen.min()), float(seen.max())]
+    for seg in segments:  # what each range's polynomial saw of its variable: the difference's (beyond_differences)
+        seen = seg.pop("x_range")
+        if regressor == "difference" and np.all(np.isfinite(seen)):
+            seg["difference_range"] = [float(v) for v in seen]
     # the edges the fit used: the given ones made to cover the data (the core says so in the warnings)
     used = [float(segments[0]["range"][0])] + [float(seg["range"][1]) for seg in segments]
     settings = {"breakpoints": used, "max_order": options.max_order,

@@ -344,8 +344,8 @@ def _kalman_range_warnings(f, kalman_range) -> list:
 
 # The filter of cpp/include/fluxcal/fixed_kalman.hpp in C99 (also valid C++), for firmware without C++: the same
 # operations in the same order, so it reproduces FixedArKalman.filter_int bit for bit. KNAME/KUP are replaced by
-# the filter's name. A right shift of a negative int64 is arithmetic on every compiler fluxcal knows (GCC,
-# Clang, MSVC, IAR, Keil); C99 leaves it to the implementation, and the self-test would catch one that differs.
+# the filter's name. C99 leaves a right shift of a negative value to the implementation, so the floor shift
+# only ever shifts non-negative values (~v ≥ 0 when v < 0): the same bits as an arithmetic shift, on any compiler.
 _KALMAN_C = """
 /* The filter state: KNAME_reset() starts it, KNAME_step() filters one sample. overflow is sticky (set when
  * anything saturated; outputs are clamped, never wrapped) until the caller clears it. */
@@ -366,9 +366,11 @@ static inline int64_t KNAME_add64_(int64_t a, int64_t b, int *of) {
   return a + b;
 }
 static inline int64_t KNAME_mul_(int32_t a, int32_t b) { return (int64_t)a * (int64_t)b; }
-/* (v + 2^(s-1)) >> s: round half up (arithmetic shift) */
+/* floor(v / 2^s), shifting only non-negative values (portable C99) */
+static inline int64_t KNAME_floor_shift_(int64_t v, int s) { return v >= 0 ? v >> s : ~(~v >> s); }
+/* floor((v + 2^(s-1)) / 2^s): round half up */
 static inline int64_t KNAME_shift_(int64_t v, int s, int *of) {
-  return s == 0 ? v : KNAME_add64_(v, (int64_t)1 << (s - 1), of) >> s;
+  return s == 0 ? v : KNAME_floor_shift_(KNAME_add64_(v, (int64_t)1 << (s - 1), of), s);
 }
 /* num / den to nearest, ties away from zero; den > 0 */
 static inline int64_t KNAME_div_(int64_t num, int64_t den) {
@@ -583,10 +585,36 @@ def _drift_fit_said(kalman, drift, force: bool):
     return lines, warnings
 
 
+# What fluxcal's own text and a user's units carry beyond ASCII, spelled in ASCII: a header is compiled by tool
+# chains that read sources as Latin-1 or refuse bytes above 127, so it stays plain ASCII.
+_ASCII_SPELLING = {"±": "+/-", "σ": "sigma", "µ": "u", "μ": "u", "°": "deg", "−": "-", "–": "-", "—": "-",
+                   "×": "x", "·": ".", "≤": "<=", "≥": ">=", "≈": "~", "≪": "<<", "≫": ">>", "²": "^2", "³": "^3",
+                   "√": "sqrt", "Σ": "sum", "Δ": "delta", "…": "...", "→": "->", "’": "'", "‘": "'", "“": '"',
+                   "”": '"', "Ω": "Ohm"}
+
+
+def _ascii(text: str) -> str:
+    """`text` in ASCII: the spellings above, accents dropped (NFKD), anything else as '?'."""
+    import unicodedata
+
+    if text.isascii():
+        return text
+    out = []
+    for ch in text:
+        if ch.isascii():
+            out.append(ch)
+        elif ch in _ASCII_SPELLING:
+            out.append(_ASCII_SPELLING[ch])
+        else:
+            plain = unicodedata.normalize("NFKD", ch).encode("ascii", "ignore").decode()
+            out.append(plain if plain else "?")
+    return "".join(out)
+
+
 def _in_comment(text) -> str:
     """`text` (a unit, a file name, a column: the user's) safe inside a C comment: no comment end or start, no line
     break (a unit 'counts*/x' had ended the comment, and the header failed to compile; '*/ int evil; /*' compiled)."""
-    return " ".join(str(text).replace("*/", "* /").replace("/*", "/ *").split())
+    return " ".join(_ascii(str(text)).replace("*/", "* /").replace("/*", "/ *").split())  # ASCII first: NFKD makes ＊／ */
 
 
 def _c_comment(text: str) -> list:
@@ -653,12 +681,15 @@ class ExportResult:
 def _c_name(name: str) -> str:
     if not re.fullmatch(r"[A-Za-z_][A-Za-z0-9_]*", name or ""):
         raise ValueError(f"--name: {name!r} is not a C identifier (letters, digits, _; not starting with a digit)")
+    if name.startswith("_"):  # the header's file-scope functions and macros would start with it
+        raise ValueError(f"--name: {name!r} starts with '_': C reserves such file-scope names and macros (C99 7.1.3) "
+                         "for the compiler and its library; start it with a letter")
     return name
 
 
 def default_name(path) -> str:
-    stem = re.sub(r"\W", "_", Path(path).stem) or "fluxcal_cal"
-    return stem if not stem[0].isdigit() else "cal_" + stem
+    stem = re.sub(r"[^A-Za-z0-9_]", "_", Path(path).stem) or "fluxcal_cal"  # ASCII: C99 identifiers
+    return stem if stem[0].isalpha() else "cal_" + stem.lstrip("_")
 
 
 def _float_literal(v: float) -> str:
@@ -735,7 +766,7 @@ def export_c(cal: Calibration | None, path, q_format=None, name: str | None = No
             " * C99, also valid C++; every function is static inline. */",
             f"#ifndef {up}_H", f"#define {up}_H", "", "#include <stdint.h>"]
     body = [line for _, lines in parts for line in ["", *lines]]
-    path.write_text("\n".join(head + body + ["", f"#endif /* {up}_H */", ""]))
+    path.write_text(_ascii("\n".join(head + body + ["", f"#endif /* {up}_H */", ""])), encoding="ascii")
     return result
 
 

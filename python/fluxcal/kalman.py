@@ -102,6 +102,9 @@ def _int_bits(value: float) -> int:
 # The signal format is only a scale factor (no shift in the filter depends on it), so its fraction bits
 # may exceed 31 or go negative with the signal's units; these limits only keep 2^±frac_bits a double.
 SIGNAL_FRAC_BITS_RANGE = (-960, 1000)
+# The largest rounding error of q and r the covariance format may leave, as a share (q's of q, r's of q + r): a
+# tenth of the output error that 2 LSB of q gave (9.5 % of its σ); the default format keeps ~2^-28.
+COV_PRECISION = 0.01
 
 
 def _signal_frac_bits_holding(value: float) -> int:
@@ -244,13 +247,27 @@ class FixedArKalman:
         self.r_int = int(_quantize(d.r, self.cov_frac_bits, "r"))
         p0 = d.initial_covariance
         self.p0_int = _quantize(p0, self.cov_frac_bits, "initial covariance")
-        if self.q_int <= 0 and not self.steady_state:  # the steady-state filter never uses Q, R or P
-            raise ValueError(f"q: {d.q} rounds to 0 with {self.cov_frac_bits} covariance fraction bits (the "
-                             f"format also holds P0 and the covariances up to {2.0 ** (30 - self.cov_frac_bits):.3g}"
-                             "; use steady_state=True, a smaller initial_variance or cov_frac_bits)")
+        if not self.steady_state:  # the steady-state filter never uses Q, R or P
+            self._check_noise_precision()
         self.signal_gain = signal_gain(d.ar_coeffs, d.steady_gain)
         self.overflowed = False
         self.result: dict | None = None
+
+    def _check_noise_precision(self) -> None:
+        """q (relative to itself: the gain goes as √(q/r) when q ≪ r) and r (relative to q + r: when r ≪ q the gain
+        is near 1 whatever r is) must survive the covariance format within COV_PRECISION; 2 LSB of q put the
+        output 9.5 % of its σ off the double filter, and still passed the bit-exact self-test."""
+        d, lsb = self.double, 2.0 ** -self.cov_frac_bits
+        cover = f"{self.cov_frac_bits} covariance fraction bits (the format also holds P0 and the covariances up " \
+                f"to {2.0 ** (30 - self.cov_frac_bits):.3g})"
+        remedy = "; use more cov_frac_bits, a smaller initial_variance or steady_state=True"
+        if self.q_int <= 0:
+            raise ValueError(f"q: {d.q} rounds to 0 with {cover}{remedy}")
+        for name, value, held, scale in (("q", d.q, self.q_int, d.q), ("r", d.r, self.r_int, d.q + d.r)):
+            error = abs(held * lsb - value)
+            if error > COV_PRECISION * scale:
+                raise ValueError(f"{name}: {value:.6g} is held as {held} LSB with {cover}, {error / scale:.2g} of "
+                                 f"{'q' if name == 'q' else 'q + r'} off (at most {COV_PRECISION:g}){remedy}")
 
     @property
     def order(self) -> int:
@@ -277,7 +294,13 @@ class FixedArKalman:
 
     def to_fixed(self, y) -> tuple[np.ndarray, bool]:
         """y in the signal format (round half to even, saturated) and whether any value saturated."""
-        scaled = np.rint(as_series(y, "y") * 2.0 ** self.frac_bits)
+        y = as_series(y, "y")
+        if not np.all(np.isfinite(y)):  # a NaN cast to int32 is INT32_MIN: a reading, not a saturation
+            raise ValueError(f"y: sample {int(np.argmax(~np.isfinite(y)))} is {y[~np.isfinite(y)][0]}, not a value "
+                             "the signal format holds")
+        if self.frac_bits is None:
+            raise ValueError("frac_bits: not set yet (give it, or filter a series to derive it)")
+        scaled = np.rint(y * 2.0 ** self.frac_bits)
         clipped = np.clip(scaled, INT32_MIN, INT32_MAX)
         return clipped.astype(np.int32), bool(np.any(clipped != scaled))
 

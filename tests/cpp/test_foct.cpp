@@ -205,6 +205,19 @@ TEST(Foct, TemperatureDifferenceRegressor) {
   EXPECT_EQ((fluxcal::compensate_zero_bias(fit.drift, fit.regressor, s.zero_bias, s.temp, s.temp_outside) -
              fit.compensated).cwiseAbs().maxCoeff(), 0.0);
   for (int m : fit.orders) EXPECT_LE(m, 2);
+  // The difference is not the temperature that picks the range: with the device in range it can still leave what
+  // the range's polynomial saw (as fluxcal.drift refuses; a model fitted over −1 … 7 °C gave −1.32 A at 20 °C).
+  const fluxcal::DriftSegment& seg = fit.drift.segments.front();
+  ASSERT_TRUE(std::isfinite(seg.x_lo) && seg.x_hi > seg.x_lo);
+  Eigen::Index i = 0;
+  while (!(s.temp[i] >= seg.lo && s.temp[i] < seg.hi)) ++i;
+  Eigen::VectorXd outside = s.temp_outside;
+  outside[i] = s.temp[i] - (seg.x_hi + 0.005 * (seg.x_hi - seg.x_lo));  // within the margin: evaluated
+  EXPECT_NO_THROW(fit.compensate(s.zero_bias, s.temp, outside));
+  outside[i] = s.temp[i] - (seg.x_hi + 0.05 * (seg.x_hi - seg.x_lo));
+  const std::string said = error_message([&] { fit.compensate(s.zero_bias, s.temp, outside); });
+  EXPECT_NE(said.find("regressor: sample " + std::to_string(i)), std::string::npos) << said;
+  EXPECT_NE(said.find("was fitted over"), std::string::npos) << said;
 }
 
 TEST(Foct, GivenNoiseVariancesAndSteadyState) {

@@ -263,6 +263,25 @@ TEST(FixedPoint, SaturatingAddAtTheEdges) {
   EXPECT_FALSE(of);
 }
 
+// The rescaling shift floors without shifting a negative value (implementation-defined before C++20):
+// against floor division on both signs, at the ends of int64 and across every shift the filter uses.
+TEST(FixedPoint, FloorShiftIsFloorDivisionOnBothSigns) {
+  using fluxcal::fixed::floor_shift;
+  constexpr std::int64_t hi = std::numeric_limits<std::int64_t>::max(), lo = std::numeric_limits<std::int64_t>::min();
+  EXPECT_EQ(floor_shift(-1, 1), -1);
+  EXPECT_EQ(floor_shift(-3, 1), -2);
+  EXPECT_EQ(floor_shift(-4, 2), -1);
+  EXPECT_EQ(floor_shift(-5, 2), -2);
+  EXPECT_EQ(floor_shift(lo, 62), -2);
+  EXPECT_EQ(floor_shift(hi, 62), 1);
+  for (int s = 1; s <= 30; ++s) {
+    const auto d = static_cast<long double>(std::int64_t{1} << s);
+    for (std::int64_t v : {std::int64_t{-7}, std::int64_t{-1} << 40, lo + 1, std::int64_t{-123456789}, std::int64_t{99}}) {
+      EXPECT_EQ(floor_shift(v, s), static_cast<std::int64_t>(std::floor(static_cast<long double>(v) / d))) << v << " >> " << s;
+    }
+  }
+}
+
 TEST(KalmanOptions, BadValuesAreNamed) {
   const Eigen::VectorXd a = Eigen::VectorXd::Constant(1, 0.5);
   fluxcal::KalmanOptions o;

@@ -263,6 +263,45 @@ def test_the_c_filter_reports_saturation_and_its_self_test_catches_a_damaged_con
     assert self_test > 0
 
 
+def test_headers_are_plain_ascii_and_name_no_reserved_identifier(tmp_path, monkeypatch):
+    """The FOCT header carried a '±' (a blind check): tool chains that read sources as Latin-1 or refuse bytes
+    above 127 choke on it. Every header is ASCII now: fluxcal's own symbols spelled out (never the '?' of an
+    unknown one), a user's µ as u, and a fullwidth '＊／' in a unit, which NFKD turns into '*/', still cannot end the
+    comment. A --name starting with '_' made reserved file-scope names (C99 7.1.3) and was accepted."""
+    import unicodedata
+
+    import fluxcal.export_c as ec
+
+    fallbacks, real = [], ec._ascii
+
+    def spy(text):  # the characters _ascii can only write as '?'
+        fallbacks.extend(ch for ch in text if not ch.isascii() and ch not in ec._ASCII_SPELLING
+                         and not unicodedata.normalize("NFKD", ch).encode("ascii", "ignore"))
+        return real(text)
+
+    monkeypatch.setattr(ec, "_ascii", spy)
+    foct = sim.foct_zero_bias(rng=np.random.default_rng(1), hold_s=300, ramp_s=150)
+    model, _ = drift.fit_pipeline(foct.columns["zero_bias"], foct.columns["temp"])
+    saved = model.save(tmp_path / "drift.json")
+    ec.export_c(None, tmp_path / "foct.h", name="p", kalman=saved, drift=saved)
+    ec.export_c(CALS["nT"], tmp_path / "cal.h", name="p", kalman=saved)
+    assert fallbacks == []
+    monkeypatch.setattr(ec, "_ascii", real)
+    for header in (tmp_path / "foct.h", tmp_path / "cal.h"):
+        text = header.read_bytes()
+        assert max(text) < 128 and b"+/-" in text, header
+    tricky = fluxcal.Calibration.from_dict({**CALS["nT"].to_dict(), "units": "µT＊／ int evil; ／＊"})
+    header = tmp_path / "p.h"
+    ec.export_c(tricky, header, name="p")
+    code = re.sub(r"/\*.*?\*/", "", header.read_text(encoding="ascii"), flags=re.S)
+    assert "evil" not in code and "uT" in header.read_text()
+    assert run_driver(tmp_path, header)[1] == 0
+    for name in ("_x", "__x", "_Bool"):
+        with pytest.raises(ValueError, match=f"--name: '{name}' starts with '_': C reserves"):
+            ec.export_c(CALS["nT"], tmp_path / "r.h", name=name)
+    assert ec.default_name("_mag.h") == "cal_mag" and ec.default_name("magnétomètre.h") == "magn_tom_tre"
+
+
 def test_kalman_from_a_drift_model(tmp_path):
     foct = sim.foct_zero_bias(rng=np.random.default_rng(1), hold_s=300, ramp_s=150)
     model, _ = drift.fit_pipeline(foct.columns["zero_bias"], foct.columns["temp"])

@@ -416,6 +416,33 @@ def test_filter_int_rejects_samples_outside_int32():
     np.testing.assert_array_equal(f.filter_int([3.0, -4.0]), f.filter_int(np.array([3, -4], dtype=np.int32)))
 
 
+def test_covariance_format_too_coarse_for_q_or_r_is_refused():
+    # cov_frac_bits 16 held q as 2 LSB: the output sat 9.5 % of its σ off the double filter, and the bit-exact
+    # self-test still passed (a blind check of export-c).
+    a, q, r = (0.95,), 3.0e-5, 1.0e-4
+    y = ar_signal(a, q, r, 4000, 3)
+    exact = ArKalman(a, q, r).filter(y)
+    with pytest.raises(ValueError, match=r"q: 3e-05 is held as 2 LSB with 16 covariance fraction bits.*0\.017 of q"):
+        FixedArKalman(a, q, r, cov_frac_bits=16)
+    with pytest.raises(ValueError, match=r"r: 0\.3 is held as 1 LSB with 2 covariance.*0\.038 of q \+ r off"):
+        FixedArKalman((0.5,), 1.0, 0.3, cov_frac_bits=2)
+    fine = FixedArKalman(a, q, r, cov_frac_bits=24)  # 503 LSB: within 0.1 %
+    assert np.max(np.abs(fine.filter(y) - exact)) < 0.01 * np.std(exact)
+    steady = FixedArKalman(a, q, r, cov_frac_bits=16, steady_state=True)  # never uses Q, R or P
+    assert np.isfinite(steady.filter(y)).all()
+
+
+def test_to_fixed_refuses_nan_rather_than_calling_it_saturated():
+    # A NaN cast to int32 read INT32_MIN, reported only as "saturated".
+    f = FixedArKalman([0.5], 1.0, 1.0, frac_bits=20)
+    with pytest.raises(ValueError, match="y: sample 2 is nan"):
+        f.to_fixed([0.1, 0.2, np.nan])
+    with pytest.raises(ValueError, match="y: sample 0 is -inf"):
+        f.to_fixed([-np.inf])
+    with pytest.raises(ValueError, match="frac_bits: not set yet"):
+        FixedArKalman([0.5], 1.0, 1.0).to_fixed([0.1])
+
+
 @pytest.mark.parametrize("steady_state", [True, False])
 def test_signal_format_follows_the_signal_scale(steady_state):
     # The format is only a scale factor: frac_bits was capped at 31 (and the integer bits at ≥ 0), so a

@@ -18,6 +18,8 @@
 
 #include <Eigen/Dense>
 
+#include <limits>
+
 #include <vector>
 
 namespace fluxcal {
@@ -46,6 +48,10 @@ struct DriftOptions {
   Breaks breaks;
 };
 
+/// Beyond the values a range was fitted over, the share of their span still evaluated: a later log at the same
+/// holds reads a little beyond the fit's extremes half the time (fluxcal.drift.EDGE_MARGIN).
+constexpr double kDriftEdgeMargin = 0.01;
+
 struct DriftSegment {
   double lo = 0.0, hi = 0.0;
   int order = 0;
@@ -55,6 +61,9 @@ struct DriftSegment {
   double residual_rms = 0.0;
   double condition_number = 0.0;  ///< of the balanced Vandermonde matrix
   std::vector<double> f_statistics;  ///< F of each step tested: m → m+1, and m → m+2 (2 dof) after one that fails
+  /// The regressor's values the polynomial was fitted over (the inside–outside difference is not the temperature
+  /// that selects the range, so it can leave them while the temperature stays in range); NaN when not known.
+  double x_lo = std::numeric_limits<double>::quiet_NaN(), x_hi = std::numeric_limits<double>::quiet_NaN();
 };
 
 struct DriftModel {
@@ -69,6 +78,10 @@ struct DriftModel {
   Eigen::VectorXd evaluate(const SeriesRef& select, const SeriesRef& x) const;
   /// W − f(x).
   Eigen::VectorXd compensate(const SeriesRef& w, const SeriesRef& select, const SeriesRef& x) const;
+  /// Throws Error naming the first sample whose x lies beyond what its range's polynomial was fitted over
+  /// (DriftSegment::x_lo … x_hi) by more than `margin` of that span: the polynomials are not extrapolated.
+  /// Segments without x_lo/x_hi are not checked.
+  void require_fitted_x(const SeriesRef& select, const SeriesRef& x, double margin) const;
 };
 
 /// Fit the drift of `w` (e.g. the Kalman-filtered zero bias) in the regressor `x`, segments chosen by

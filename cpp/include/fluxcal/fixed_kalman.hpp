@@ -10,7 +10,7 @@
 // negative for large ones): they only say what the integers stand for.
 // Arithmetic (the bit-exact Python model is fluxcal.oracle.kalman.FixedModel; keep them in step):
 //   products     int32 × int32 exactly in int64; sums of products in int64 with saturating adds
-//   rescaling    shift_round(v, s) = (v + 2^(s−1)) >> s  (round half up, arithmetic shift), saturating
+//   rescaling    shift_round(v, s) = floor((v + 2^(s−1)) / 2^s)  (round half up), saturating
 //   narrowing    int64 → int32 saturates
 //   division     K_i = div_round(M_i0 · 2^cf, S): nearest, ties away from zero (one per gain entry)
 // Any saturation (an input at the int32 rails, or S ≤ 0) sets a sticky overflow flag: the output is clamped, never wrapped, and
@@ -85,10 +85,14 @@ inline std::int64_t add64(std::int64_t a, std::int64_t b, bool& overflow) {
 
 inline std::int64_t mul(std::int32_t a, std::int32_t b) { return static_cast<std::int64_t>(a) * b; }
 
-/// (v + 2^(s−1)) >> s: round half up; saturates when the rounding add overflows.
+/// floor(v / 2^s). C++17 leaves a right shift of a negative value to the implementation; ~v ≥ 0 when v < 0,
+/// so only non-negative values are shifted (the bits of an arithmetic shift on any compiler, as the C99 twin).
+inline std::int64_t floor_shift(std::int64_t v, int s) { return v >= 0 ? v >> s : ~(~v >> s); }
+
+/// floor((v + 2^(s−1)) / 2^s): round half up; saturates when the rounding add overflows.
 inline std::int64_t shift_round(std::int64_t v, int s, bool& overflow) {
   if (s == 0) return v;
-  return add64(v, std::int64_t{1} << (s - 1), overflow) >> s;
+  return floor_shift(add64(v, std::int64_t{1} << (s - 1), overflow), s);
 }
 
 /// num / den rounded to nearest, ties away from zero; den > 0, |num| < 2^62.

@@ -127,8 +127,9 @@ struct AccuracyResult {
 AccuracyResult zero_bias_accuracy(const SeriesRef& residual, double rated, const std::string& accuracy_class = "0.2S");
 
 /// W − f(x) with x = temp or temp − temp_outside as `regressor` says (temp_outside is needed for
-/// DriftRegressor::difference and ignored otherwise). Throws Error for mismatched lengths, NaN/Inf or a
-/// temperature outside every range of the model.
+/// DriftRegressor::difference and ignored otherwise). Throws Error for mismatched lengths, NaN/Inf, a
+/// temperature outside every range of the model, or a difference beyond what its range was fitted over by
+/// more than kDriftEdgeMargin of that span (DriftModel::require_fitted_x).
 Eigen::VectorXd compensate_zero_bias(const DriftModel& drift, DriftRegressor regressor, const SeriesRef& zero_bias,
                                      const SeriesRef& temp, const SeriesRef* temp_outside = nullptr);
 inline Eigen::VectorXd compensate_zero_bias(const DriftModel& drift, DriftRegressor regressor,
