@@ -14,6 +14,43 @@ CONVENTION = ("h = A (m - b); rows of samples are readings; for a sensor reading
               "magnitudes alone A is the symmetric (W W^T)^-1/2, with reference vectors A = W^-1")
 # magnetic-field units fluxcal converts between (the unit names of fluxcal.io.columns.FIELD_UNITS)
 TESLA_PER_UNIT = {"T": 1.0, "mT": 1e-3, "uT": 1e-6, "nT": 1e-9, "G": 1e-4, "mG": 1e-7}
+# A given field norm that scales readings stated in a field unit by more than this either way (but less than the 5×
+# of every solver's "check the units"): a magnetometer's gain in its stated unit is within about ±20 % (datasheet
+# sensitivities 5–15 %, soft iron a few %), so such a norm is more often the wrong number (another site's field, a
+# total field for a horizontal one) than the sensor. A blind check's 2.4× and 0.5× norms had been fitted in silence.
+SCALE_PLAUSIBLE = 1.5
+SCALE_WORDS = "times the readings' field"  # how scale_words' warning reads (the CLI redoes it)
+
+
+def readings_scale(cal: "Calibration") -> tuple[float, float] | None:
+    """(gain, radius): how many of the field norm's unit the calibration maps each of the readings' unit to (in
+    tesla: 1 for a sensor that reads its stated unit), and the readings' own radius field_norm / det(A)^⅓, their
+    unit; None unless both units are field units and A is a 3×3 matrix with a positive determinant."""
+    units, h_units = cal.units, cal.h_units
+    det = float(np.linalg.det(cal.matrix)) if np.shape(cal.matrix) == (3, 3) else float("nan")
+    if units not in TESLA_PER_UNIT or h_units not in TESLA_PER_UNIT or not det > 0 or not cal.field_norm > 0:
+        return None
+    radius = cal.field_norm / det ** (1 / 3)
+    return cal.field_norm * TESLA_PER_UNIT[h_units] / (radius * TESLA_PER_UNIT[units]), radius
+
+
+def scale_words(cal: "Calibration", units_too: bool = False) -> str | None:
+    """The warning for a field norm SCALE_PLAUSIBLE× or more off the field the readings show (`units_too`: also one
+    5× off, "check the units", which the solvers say themselves when the two units are one)."""
+    found = readings_scale(cal)
+    if found is None:
+        return None
+    gain, radius = found
+    if 1 / SCALE_PLAUSIBLE <= gain <= SCALE_PLAUSIBLE or (not units_too and not 0.2 <= gain <= 5.0):
+        return None
+    shown = radius * TESLA_PER_UNIT[cal.units] / TESLA_PER_UNIT[cal.h_units]
+    head = (f"field_norm {cal.field_norm:g} {cal.h_units} is {gain:.3g} {SCALE_WORDS} ({radius:.5g} {cal.units}" +
+            (f" = {shown:.5g} {cal.h_units}" if cal.h_units != cal.units else "") + ")")
+    if not 0.2 <= gain <= 5.0:
+        return head + ": check the units"
+    return (head + f": the calibration rescales every reading by that, while a magnetometer's gain in its stated unit "
+            f"is within about ±20 %; is field_norm this site's total field |F| (IGRF/WMM) in {cal.h_units}, and are "
+            f"the readings in {cal.units}?")
 
 
 @dataclass

@@ -15,7 +15,7 @@ import numpy as np
 
 from . import __version__, cmake_dir
 from ._arrays import past_range
-from .calibration import TESLA_PER_UNIT, Calibration, _significant, in_sensor_axes
+from .calibration import SCALE_WORDS, TESLA_PER_UNIT, Calibration, _significant, in_sensor_axes, scale_words
 from .io import Recording, read_csv, read_recording, write_csv, write_recording
 from .io.formats import WRITERS
 from .io.columns import unit_name
@@ -173,15 +173,9 @@ def _recheck_field_norm(cal: Calibration, units: str, field_units: str) -> None:
     """The solver compares a given field norm with the readings' radius in one unit ("check the units" beyond
     5×); with --field-units naming another unit than the readings' that comparison is void: it is redone
     with both in tesla where the two units are field units, and dropped for counts."""
-    warnings = [w for w in cal.summary.get("warnings", []) if UNITS_WORDS not in w]  # (every solver's words)
-    if units in TESLA_PER_UNIT and field_units in TESLA_PER_UNIT:
-        radius = cal.field_norm / abs(float(np.linalg.det(cal.matrix))) ** (1 / 3)  # the readings' |B|, their unit
-        gain = cal.field_norm * TESLA_PER_UNIT[field_units] / (radius * TESLA_PER_UNIT[units])
-        if gain > 5.0 or gain < 0.2:
-            warnings.append(f"field_norm {cal.field_norm:g} {field_units} is {gain:.3g} times the readings' field "
-                            f"({radius:.4g} {units} = {radius * TESLA_PER_UNIT[units] / TESLA_PER_UNIT[field_units]:.4g} "
-                            f"{field_units}): check the units")
-    cal.summary["warnings"] = warnings
+    warnings = [w for w in cal.summary.get("warnings", []) if UNITS_WORDS not in w and SCALE_WORDS not in w]
+    said = scale_words(cal, units_too=True)  # (cal.field_units is set: both in tesla)
+    cal.summary["warnings"] = warnings + ([said] if said else [])
 
 
 def _field_units(args, units: str, field_norm, reference) -> str | None:

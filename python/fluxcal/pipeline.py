@@ -9,7 +9,7 @@ import numpy as np
 
 from . import _core
 from ._arrays import as_samples, held_copies, readings_times, repeated_blocks, repeated_words
-from .calibration import TESLA_PER_UNIT, Calibration
+from .calibration import TESLA_PER_UNIT, Calibration, scale_words
 from .ellipsoid import fit_ellipsoid
 from .outliers import DOMINATING, far_readings, find_outliers
 from ._arrays import as_field_norms, changing_field, field_norm_given
@@ -183,6 +183,8 @@ def calibrate(samples, method: str = "auto", field_norm: float | None = None, re
         cal.summary["outliers"] = left_out.to_dict()
         cal.summary["warnings"] = list(cal.summary["warnings"]) + left_out.messages(len(all_readings))
     said = [plausible_field(cal)] + ([] if vector else [misses_the_noise(cal, m, times, field_norms)])
+    if not vector and method != "twostep" and (field_norm is not None or field_norms is not None):  # (twostep: its own)
+        said.append(scale_words(cal))
     cal.summary["warnings"] = list(cal.summary["warnings"]) + [w for w in said if w]
     return _note_copies(cal, all_readings)
 

@@ -19,7 +19,7 @@ import numpy as np
 from . import _core
 from ._arrays import (as_field_norms, as_number, as_samples, changing_field, field_norm_given, field_norms_summary,
                       recording_times, set_options, units_text)
-from .calibration import Calibration
+from .calibration import Calibration, scale_words
 from .ellipsoid import _calibration
 from .refine import parameter_statistics, serial_correlation_mode
 
@@ -324,12 +324,14 @@ def twostep(samples, field_norm, units: str | None = None, **settings) -> Calibr
         norms = as_field_norms(field_norm, len(arr), "field_norm")
         cal = _with_errors(_core.twostep_norms(arr, norms, options))
         cal.summary["field_norms"] = field_norms_summary(norms)
-        said = field_log_misfit(arr, cal, norms, reading_interval(samples))
-        if said:
-            cal.summary["warnings"] = list(cal.summary["warnings"]) + [said]
-        return cal
-    options.field_norm = as_number(field_norm, "field_norm")
-    return _with_errors(_core.twostep(arr, options))
+        said = [field_log_misfit(arr, cal, norms, reading_interval(samples))]
+    else:
+        options.field_norm = as_number(field_norm, "field_norm")
+        cal = _with_errors(_core.twostep(arr, options))
+        said = []
+    said = [w for w in said + [scale_words(cal)] if w]
+    cal.summary["warnings"] = list(cal.summary["warnings"]) + said
+    return cal
 
 
 def _with_errors(result: dict) -> Calibration:

@@ -562,6 +562,25 @@ def test_3d_wrong_units_warn():
     assert any("check the units" in w for w in cal.summary["warnings"])
 
 
+@pytest.mark.parametrize("factor, said", [(2.4, True), (0.5, True), (1.3, False), (0.8, False), (1.0, False)])
+def test_a_field_norm_far_from_the_readings_field_is_said_in_a_field_unit(factor, said):
+    """A field_norm 2.4× or 0.5× the field the readings show (both nT) was fitted without a word (a blind check),
+    by twostep and calibrate alike: a magnetometer's gain in its stated unit is within ~±20 %, so such a norm is
+    rather the wrong number. Within 1.5× it is a sensor's gain; without a field unit nothing is judged."""
+    s = simulated(12)
+    radius = s.field_norm / float(np.cbrt(np.linalg.det(s.true_calibration().matrix)))  # the field the readings show
+    norm = factor * radius
+    for cal in (twostep(s.readings, norm, units="nT"), fluxcal.calibrate(s.readings, field_norm=norm, units="nT"),
+                fluxcal.calibrate(s.readings, method="twostep", field_norm=norm, units="nT"),
+                fluxcal.calibrate(s.readings, field_norm=np.full(len(s.readings), norm), units="nT")):
+        found = [w for w in cal.summary["warnings"] if "times the readings' field" in w]
+        assert len(found) == said, cal.summary["warnings"]
+        if said:
+            assert f"is {factor:.3g} times the readings' field" in found[0] and "total field |F|" in found[0]
+    assert not [w for w in twostep(s.readings, 2.4 * radius, units="counts").summary["warnings"]
+                if "times the readings' field" in w]
+
+
 def test_twostep_2d_names_a_wrong_type_and_a_zero_gain():
     from fluxcal.twostep import TwoStep2D
 
