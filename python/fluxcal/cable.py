@@ -199,6 +199,10 @@ class Ring:
             r["summary"]["warnings"] = list(r["summary"]["warnings"]) + [
                 f"the default starts left a misfit: searched again from {options.starts} starts on a "
                 f"{options.grid_points}×{options.grid_points} grid" + (" (better: taken)" if r is again else " (no better)")]
+        silent = silent_sensors(arr)
+        if silent.any():
+            r["summary"]["warnings"] = [f"sensor(s) {', '.join(map(str, np.nonzero(silent)[0]))} {SILENT_WORDS}: "
+                                        "solved as readings; leave them out (Ring.subset)"] + list(r["summary"]["warnings"])
         clipped = clipped_readings(arr)
         if clipped.any():
             r["summary"]["warnings"] = [clipped_words(arr, clipped)] + list(r["summary"]["warnings"])
@@ -252,6 +256,19 @@ def clipped_readings(readings) -> np.ndarray:
             if ok.sum() >= 3 and len(np.unique(column[ok])) >= 3 and _on_rail(column[ok], 3):
                 mask[:, i, a] |= column == np.max(column[ok])
     return mask.reshape(arr.shape)
+
+
+def silent_sensors(readings) -> np.ndarray:
+    """The sensors of `readings` ((snapshots, n_sensors, 2), or (n_sensors, 2)) that read exactly 0.0 on both axes in
+    every snapshot while others read a field: a sensor that does not answer (a failed bus read returns zeros), dead.
+    No field a sensor measures reads 0.0 to the last digit on two axes; solved as a reading, such a sensor had a
+    three-core cable carry 319 A for 100 A, and the diagnosis found no significant effect. Boolean (n_sensors,)."""
+    arr = np.asarray(readings, dtype=float).reshape(-1, np.shape(readings)[-2], 2)
+    zero = (arr == 0.0).all(axis=(0, 2))
+    return zero & bool(np.any(arr[:, ~zero][np.isfinite(arr[:, ~zero])] != 0.0))
+
+
+SILENT_WORDS = "read exactly 0 on both axes in every snapshot (a sensor that does not answer: dead?)"
 
 
 def clipped_words(readings, mask, unit_t: float = 1e-6, unit: str = "µT") -> str:

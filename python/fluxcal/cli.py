@@ -1465,8 +1465,10 @@ def _solve_ring_snapshots(ring, ring_cal, snaps, rotation: float, rows, args, ze
     `zero`: with --subtract-zero, (count, mean current) of the zero snapshots taken off. Returns the solution as a
     JSON-ready dict (its `_said` for the printing)."""
     from ._core import CableSolveOptions
+    from .cable import SILENT_WORDS, silent_sensors
 
-    live = np.isfinite(snaps).all(axis=(0, 2))
+    silent = silent_sensors(snaps)
+    live = np.isfinite(snaps).all(axis=(0, 2)) & ~silent
     contiguous = np.all(np.diff(rows) == 1)
     where = (f"snapshot {rows[0]}" if len(rows) == 1 else f"snapshots {', '.join(map(str, rows))}" if len(rows) <= 6
              else f"snapshots {rows[0]}–{rows[-1]}" if contiguous else f"the {len(rows)} snapshots at {rotation:g}°")
@@ -1479,8 +1481,10 @@ def _solve_ring_snapshots(ring, ring_cal, snaps, rotation: float, rows, args, ze
                          f"{'xy'[axis]} axis, "
                          "past any sensor's range (a garbled line?)")
     if not live.all():
-        print(f"{where}: sensor(s) {', '.join(map(str, np.nonzero(~live)[0]))} not finite (dead?): solved with the "
-              f"other {int(live.sum())}")
+        named = lambda mask, words: f"sensor(s) {', '.join(map(str, np.nonzero(mask)[0]))} {words}"  # noqa: E731
+        said = [named(mask, words) for mask, words in ((~live & ~silent, "not finite (dead?)"), (silent, SILENT_WORDS))
+                if mask.any()]
+        print(f"{where}: {'; '.join(said)}: solved with the other {int(live.sum())}")
     sub = ring.subset(live)
     snaps = snaps[:, live]
     settings = {}

@@ -44,7 +44,8 @@ def calibrate(samples, method: str = "auto", field_norm: float | None = None, re
     """Calibrate a three-axis magnetometer.
 
     method "auto": with `reference` (true field per reading, sensor frame) the vector fit
-    (fluxcal.fit_vector, a full 3×3 matrix); otherwise the consistent ellipsoid fit (ALS) refined by
+    (fluxcal.fit_vector, a full 3×3 matrix) — a Recording with attitude and local field columns gives it
+    (Recording.reference_field), as the command line does; otherwise the consistent ellipsoid fit (ALS) refined by
     maximum likelihood (fluxcal.refine) — the estimate that reaches the Cramér–Rao bound. The result's
     summary says what ran ("method") and, after a refinement or a vector fit, whether the data determine
     every parameter ("identifiable"); when they do not (yaw-only turns, small tilts), the summary warns and
@@ -88,6 +89,12 @@ def calibrate(samples, method: str = "auto", field_norm: float | None = None, re
         given = " with a reference" if method == "auto" else ""
         raise ValueError(f"shape: {shape!r} restricts the refinement's matrix; method {method!r}{given} fits "
                          f"{fits} (use method 'als+refine', or shape 'sym')")
+    # a Recording with attitude and the local field (the airborne layout) gives the vector fit its reference, as
+    # `fluxcal calibrate` does (it had fitted magnitudes only from Python, in silence)
+    recorded = (samples.reference_field() if reference is None and method in ("auto", "vector")
+                and hasattr(samples, "reference_field") else None)
+    if recorded is not None:
+        reference = recorded
     if units is None:
         units = getattr(samples, "field_units", lambda: "")()
     field_norm = field_norm_given(samples, field_norm)
@@ -179,6 +186,10 @@ def calibrate(samples, method: str = "auto", field_norm: float | None = None, re
                        "method='auto' or 'vector' uses it")
     if ignored:
         cal.summary["warnings"] = list(cal.summary["warnings"]) + ignored
+    if recorded is not None:
+        cal.metadata["reference"] = "attitude pitch,roll,yaw and local field igrf_n,igrf_e,igrf_d of the recording"
+        if samples.reference_units() != units:  # counts fitted to a field model in nT: h is in nT
+            cal.field_units = samples.reference_units()
     if left_out is not None:
         cal.summary["outliers"] = left_out.to_dict()
         cal.summary["warnings"] = list(cal.summary["warnings"]) + left_out.messages(len(all_readings))

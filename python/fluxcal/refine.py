@@ -152,12 +152,16 @@ def fit_vector(samples, reference, units: str = "", loss: str = "none", loss_sca
                **settings) -> Calibration:
     """Reference-vector calibration: m = W r + b by linear least squares (closed form; the maximum-
     likelihood estimate under Gaussian noise), A = W⁻¹ — a full matrix, since the reference fixes the
-    rotation. With a robust `loss` the linear fit then seeds a Ceres refinement of the same model.
+    rotation. Its covariance is the multivariate regression's, Σ ⊗ (XᵀX)⁻¹ with Σ the axes' residual covariance
+    (each axis' own σ, summary["noise_sigma_axes"]; summary["noise_sigma"] pools them). With a robust `loss` the linear fit then seeds a Ceres refinement of the same model.
     `reference`: the true field of each reading in the sensor frame (see fluxcal.attitude)."""
     m, r = as_samples(samples), as_samples(reference, "reference")
     cal = _calibration(_core.fit_vector(m, r, _options(units=units, **settings)), "vector")
     if loss != "none":
         cal = refine(cal, m, reference=r, loss=loss, loss_scale=loss_scale, **settings)
+    # each axis' own noise (its standard errors are from it: an axis 6× noisier than the others has 6× the errors)
+    residuals = m - r @ np.linalg.inv(cal.matrix).T - cal.offset
+    cal.summary["noise_sigma_axes"] = np.sqrt(np.sum(residuals ** 2, axis=0) / max(len(m) - 4, 1)).tolist()
     remapped = axis_remapping(cal.matrix)
     if remapped:  # the fit holds, but a sensor mounted rotated, or a reference in other axes, deserves a word
         cal.summary["warnings"] = list(cal.summary["warnings"]) + [

@@ -1185,3 +1185,26 @@ def test_a_calibration_recordings_currents_mislabelled_are_named(tmp_path):
     assert all(r.returncode == 0 for r in said.values()), said
     assert "the reference currents do not match the conductors" not in said["good"].stdout, said["good"].stdout
     assert "the conductors' currents taken as i1, i0 (swapped)" in said["swapped"].stdout, said["swapped"].stdout
+
+
+def test_a_sensor_stuck_at_zero_is_left_out_as_dead(tmp_path):
+    """A sensor that does not answer reads 0.0, 0.0 (a failed bus read): solved as a reading it had the three cores
+    carry 319 A for 100 A (a blind check). `cable solve` leaves it out as it does a NaN sensor; Ring.solve warns."""
+    ring = Ring(np.arange(0.0, 360.0, 45.0), 0.01)
+    cores = np.array([[-1.7e-3, -1.0e-3], [0.0, 2.0e-3], [1.7e-3, -1.0e-3]])
+    phasors = 10.0 * np.exp(-2j * np.pi * np.arange(3) / 3) * np.array([1.0, 0.8, 1.1])
+    currents = ac_currents(phasors, np.linspace(0.0, 0.02, 20, endpoint=False))
+    y = ring.field(cores, currents) + np.random.default_rng(4).normal(0, 1e-8, (20, 8, 2))
+    y[:, 3] = 0.0
+    path = fluxcal.cable.write_ring_csv(tmp_path / "stuck.csv", ring, y)
+    out = tmp_path / "sol.json"
+    r = run_cli("cable", "solve", path, "--conductors", "3", "--joint", "-o", out)
+    assert r.returncode == 0, r.stdout + r.stderr
+    assert ("sensor(s) 3 read exactly 0 on both axes in every snapshot (a sensor that does not answer: dead?): "
+            "solved with the other 7") in r.stdout, r.stdout
+    sol = json.loads(out.read_text())["solutions"][0]
+    assert sol["sensors_used"] == [0, 1, 2, 4, 5, 6, 7]
+    np.testing.assert_allclose(np.array(sol["currents_a"]), currents, atol=0.05)
+    warned = ring.solve(y, n_conductors=3).summary["warnings"]
+    assert any(w.startswith("sensor(s) 3 read exactly 0 on both axes") for w in warned), warned
+    assert not fluxcal.cable.silent_sensors(np.zeros((20, 8, 2))).any()  # nothing read anywhere: not one sensor's fault

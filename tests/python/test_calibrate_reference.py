@@ -129,3 +129,33 @@ def test_a_magnitude_fit_is_judged_on_the_half_it_did_not_see(tmp_path):
     # (said as a half that turned through fewer directions than the whole recording, the fit's error beside it)
     assert out.returncode in (0, 3) and ("held-out |h| std/mean —   (the first half alone does not determine the fit: "
                                          "its readings cover") in out.stdout and "lie nearly in one plane" in out.stdout
+
+
+def test_python_calibrate_of_a_recording_with_attitude_runs_the_vector_fit_as_the_cli_does(tmp_path):
+    """fluxcal.calibrate(read_recording(file)) had fitted magnitudes only (als+refine) where `fluxcal calibrate file`
+    ran the vector fit; and attitude in radians with no unit had been read as degrees in silence."""
+    import fluxcal
+    from fluxcal.io import read_recording
+
+    pitch, roll, yaw, r = _flight()
+    W = np.array([[0.0068, 0.0002, -0.0001], [0.0002, 0.0057, 0.0003], [-0.0001, 0.0003, 0.0066]])
+    b = np.array([-150.0, -100.0, 470.0])
+    m = np.round(r @ W.T + b + np.random.default_rng(1).normal(0, 2.0, r.shape))
+    field = {"igrf_n": np.full(len(m), NED[0]), "igrf_e": np.full(len(m), NED[1]), "igrf_d": np.full(len(m), NED[2])}
+    mag = {"mx": m[:, 0], "my": m[:, 1], "mz": m[:, 2]}
+    units = {**{k: "nT" for k in field}, **{k: "counts" for k in mag}}
+    path = write_csv(tmp_path / "counts.csv", {"pitch": pitch, "roll": roll, "yaw": yaw, **field, **mag},
+                     units={**units, "pitch": "deg", "roll": "deg", "yaw": "deg"})
+    cal = fluxcal.calibrate(read_recording(path))
+    assert cal.summary["method"] == "vector" and cal.field_units == "nT"
+    assert np.max(np.abs(cal.matrix @ W - np.eye(3))) < 0.01 and np.allclose(cal.offset, b, atol=1.0)
+    assert cal.metadata["reference"].startswith("attitude pitch,roll,yaw")
+    assert fluxcal.calibrate(read_recording(path), method="als+refine").summary["method"] == "als+refine"
+    radians = write_csv(tmp_path / "rad.csv", {"pitch": np.radians(pitch), "roll": np.radians(roll),
+                                               "yaw": np.radians(yaw), **field, **mag}, units=units)
+    out = run_cli("calibrate", radians)
+    assert out.returncode == 2 and "attitude columns pitch, roll, yaw state no unit and never pass 2π" in out.stderr
+    stated = write_csv(tmp_path / "rad_stated.csv", {"pitch": np.radians(pitch), "roll": np.radians(roll),
+                                                     "yaw": np.radians(yaw), **field, **mag},
+                       units={**units, "pitch": "rad", "roll": "rad", "yaw": "rad"})
+    assert np.allclose(fluxcal.calibrate(read_recording(stated)).matrix, cal.matrix, atol=1e-9)

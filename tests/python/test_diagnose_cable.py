@@ -1029,3 +1029,31 @@ def test_a_calibration_made_with_the_cables_own_effect_is_said_to_have_held_it()
     line = next(x for x in d.text().splitlines() if x.startswith("CALIBRATION"))
     assert d.accepted == ["cable_tilt"] and "does not describe these sensors" in line, (d.accepted, line)
     assert "the calibration run had cable_tilt too" in line and "calibrate on a straight jig" in line, line
+
+
+def test_a_sensor_stuck_at_zero_is_left_out_and_a_rail_is_said():
+    """A sensor reading 0.0, 0.0 in every snapshot had been diagnosed as a reading ("no significant effect"); a
+    sensor clipped at its range was not said at all (cable solve says it)."""
+    kwargs, _ = cable_trial([], 15)
+    stuck = kwargs["readings"].copy()
+    stuck[:, 2] = 0.0
+    d = diagnose_cable(**{**kwargs, "readings": stuck})
+    assert any("sensor(s) 2 read exactly 0 on both axes in every snapshot (a sensor that does not answer: dead?): "
+               "left out, the ring of the other 3" in c for c in d.caveats), d.caveats
+    clipped = kwargs["readings"].copy()
+    rail = 0.6 * np.max(np.abs(clipped[:, 1, 0]))
+    clipped[:, 1, 0] = np.clip(clipped[:, 1, 0], -rail, rail)
+    d = diagnose_cable(**{**kwargs, "readings": clipped})
+    assert any(c.startswith("readings on a rail: sensor 1 x") for c in d.caveats), d.caveats
+
+
+def test_one_rotation_of_the_ring_is_said():
+    """A recording at one rotation cannot tell what is fixed to the sensors from what is fixed to the cable: a blind
+    check's was diagnosed with nothing said."""
+    kwargs, _ = cable_trial([], 15)
+    rotations = np.asarray(kwargs["rotations_deg"])
+    one = rotations == rotations[0]
+    d = diagnose_cable(**{**kwargs, "readings": kwargs["readings"][one], "currents": kwargs["currents"][one],
+                          "rotations_deg": rotations[one]})
+    assert any(c.startswith(f"the recording holds one rotation of the ring ({rotations[0]:g}°)") for c in d.caveats)
+    assert not any("one rotation" in c for c in diagnose_cable(**kwargs).caveats)

@@ -644,3 +644,47 @@ def test_select_takes_the_columns_as_one_string_as_columns_does():
     assert rec.select("c, a,b").mag_names() == ("c", "a", "b")
     with pytest.raises(ValueError, match="no column 'foo', 'bar', 'baz'"):
         rec.select("foo,bar,baz")
+
+
+@pytest.mark.parametrize("fmt, cut", [
+    ("%.3f,%.3f,%.3f", lambda last: last[:last.rfind(",") + 2]),  # 32.969 -> 3: a whole number, 10x too small
+    ("%d,%d,%d", lambda last: last[:-2]),                        # 1234 -> 12
+])
+def test_a_last_number_cut_in_its_whole_part_is_named_in_a_short_file(tmp_path, fmt, cut):
+    """Under 100 lines the decimals cannot judge a cut (%g drops zeros), but a last number shorter than the column's
+    and under half its smallest is one (a blind check's 32.969 read as 3 from a 40-line log)."""
+    rng = np.random.default_rng(5)
+    values = rng.uniform(20, 40, (40, 3)) * (50 if "d" in fmt else 1)
+    rows = [fmt % tuple(v) for v in values]
+    path = tmp_path / "cut5.csv"
+    path.write_text("mx,my,mz\n" + "\n".join(rows[:-1] + [cut(rows[-1])]))
+    with pytest.raises(ValueError, match=r"cut5.csv, line 41.*the file ends in the middle of this line"):
+        read_recording(path)
+    assert len(read_recording(path, bad_lines="skip")) == 39
+    if "d" in fmt:
+        return
+    near_zero = rows[:-5] + ["25,25,0.512"] + rows[-4:-1] + ["20,21,2.5"]  # the column came near zero: 2.5 is read
+    path.write_text("mx,my,mz\n" + "\n".join(near_zero))
+    assert len(read_recording(path)) == 40
+    path.write_text("mx,my,mz\n" + "\n".join(rows[:-1] + ["20,21,20"]))  # shorter, but not smaller: read
+    assert len(read_recording(path)) == 40
+
+
+def test_a_header_written_again_is_left_out_and_one_in_another_order_is_refused(tmp_path):
+    m = np.round(np.random.default_rng(6).normal(0, 30, (60, 3)), 3)
+    rows = [f"{k},{x},{y},{z}" for k, (x, y, z) in enumerate(m)]
+    path = tmp_path / "joined.csv"
+    path.write_text("t,mx [uT],my [uT],mz [uT]\n" + "\n".join(rows[:30] + ["t,mx [uT],my [uT],mz [uT]"] + rows[30:])
+                    + "\n")
+    rec = read_recording(path)
+    np.testing.assert_array_equal(rec.samples(), m)
+    assert rec.metadata["repeated_header"] == "line 32 (the same columns and units)"
+    swapped = [f"{k},{y},{x},{z}" for k, (x, y, z) in enumerate(m)]
+    path.write_text("t,mx,my,mz\n" + "\n".join(rows[:30] + ["t,my,mx,mz"] + swapped[30:]) + "\n")
+    for bad_lines in ("error", "skip"):
+        with pytest.raises(ValueError, match=r"joined.csv, line 32: the header again, with the columns in another "
+                                             r"order: t,my,mx,mz.*Split the file at line 32"):
+            read_recording(path, bad_lines=bad_lines)
+    path.write_text("t,mx [uT],my [uT],mz [uT]\n" + "\n".join(rows[:30] + ["t,mx [nT],my [nT],mz [nT]"] + rows[30:]))
+    with pytest.raises(ValueError, match=r"line 32: the header again, with mx in nT, not uT; my in nT"):
+        read_recording(path, bad_lines="skip")

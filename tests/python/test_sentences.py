@@ -81,3 +81,22 @@ def test_a_sentence_with_extra_fields_is_a_bad_line(tmp_path):
     with pytest.raises(ValueError, match=r"line 2: 4 fields, a VNMAG sentence has 3 \(two sentences run together\?\)"):
         read_recording(path)
     assert len(read_recording(path, bad_lines="skip")) == 2  # VectorNav's appended T… counter is not extra
+
+
+def test_a_sentence_without_its_checksum_among_checksummed_ones_is_a_bad_line(tmp_path):
+    """A VNMAG cut before its '*hh' (or with it lost) had been read as a good reading; a file of sentences that
+    carry none at all is read and says they are unverified."""
+    m = mag_readings(30)
+    bodies = [f"VNMAG,{x:+08.4f},{y:+08.4f},{z:+08.4f}" for x, y, z in m]
+    path = tmp_path / "vnmag.txt"
+    path.write_text("\n".join(f"${b}*{xor8(b)}" for b in bodies[:-1]) + f"\n${bodies[-1]}")
+    with pytest.raises(ValueError, match=r"vnmag.txt, line 30: no checksum \(none\), where the file's other VNMAG "
+                                         r"sentences carry one: cut or garbled"):
+        read_recording(path)
+    rec = read_recording(path, bad_lines="skip")
+    np.testing.assert_array_equal(rec.samples(), m[:-1])
+    assert "checksums" not in rec.metadata
+    path.write_text("\n".join(f"${b}" for b in bodies) + "\n")
+    rec = read_recording(path)
+    np.testing.assert_array_equal(rec.samples(), m)
+    assert rec.metadata["checksums"].startswith("none: the VNMAG sentences carry no checksum")

@@ -59,7 +59,8 @@ import numpy as np
 from scipy import stats
 from scipy.optimize import least_squares
 
-from ..cable import LACK_OF_FIT_P, POSE_RTOL, Ring, RingCalibration, consecutive_runs, run_sums
+from ..cable import (LACK_OF_FIT_P, POSE_RTOL, SILENT_WORDS, Ring, RingCalibration, clipped_readings, clipped_words,
+                     consecutive_runs, run_sums, silent_sensors)
 from ..sim.cable_effects import MU0_OVER_2PI, CABLE_CANDIDATES, sensor_points, straight_unit_fields, to_axes
 from .core import (ABSORBED, HELDOUT_ALPHA, HELDOUT_FRACTION, MIN_GAIN, Diagnosis, _binned, _collapsed, _gap,
                    _improvement_pvalue, _quantile_bins, _rivals, _unexplained, _whitened_lr, _whiteness,
@@ -1138,12 +1139,17 @@ def _prepare(readings, ring, currents, rotations_deg, positions, calibration, no
         calibration = RingCalibration.from_dict(calibration)
     # a sensor that reads no number in any snapshot is dead: the ring of the others is diagnosed (as `cable solve`
     # solves it), and said; a reading missing here and there is the recording's, said with the remedy
-    dead = ~np.isfinite(y).any(axis=(0, 2))
+    silent = silent_sensors(y)
+    dead = ~np.isfinite(y).any(axis=(0, 2)) | silent
     ids, notes = np.arange(m), []
+    clipped = clipped_readings(y)  # no model effect explains a rail: said first (as `cable solve` says it)
+    if clipped.any():
+        notes.append(clipped_words(y, clipped))
     if dead.any() and not dead.all():
         ids = np.nonzero(~dead)[0]
-        notes.append(f"sensor(s) {', '.join(map(str, np.nonzero(dead)[0]))} read no finite value in any snapshot "
-                     f"(dead?): left out, the ring of the other {len(ids)} diagnosed")
+        said = [f"sensor(s) {', '.join(map(str, np.nonzero(mask)[0]))} {words}" for mask, words in (
+            (dead & ~silent, "read no finite value in any snapshot (dead?)"), (silent, SILENT_WORDS)) if mask.any()]
+        notes.append(f"{'; '.join(said)}: left out, the ring of the other {len(ids)} diagnosed")
         ring, y = ring.subset(ids), y[:, ids]
         calibration = None if calibration is None else calibration.subset(ids)
         if noise_sigma is not None and np.size(noise_sigma) == m:
@@ -1601,6 +1607,11 @@ def _caveats(data: _Data, correction: dict, base: dict, noise_source: str, overa
                    "field, a neighbouring cable) cannot be told apart from one that does (a circuit closing near the "
                    "ring, the sensors' own gains and couplings), and any effect named may stand in for it; record at "
                    "two current levels or more, or subtract a zero-current snapshot taken in the same pose")
+    if len(data.unique) == 1:  # (a blind check's one-rotation recording was diagnosed with nothing said)
+        out.append(f"the recording holds one rotation of the ring ({data.unique[0]:g}°): what is fixed to the sensors "
+                   "(their gains, offsets, couplings, positions) and what is fixed to the cable (its conductors' "
+                   "positions, a field beside it) turn together, so any effect named may stand in for another, and no "
+                   "rotation is left to hold out; turn the ring about the cable and record at several rotations")
     if data.fit_currents and overall["rms_z"] > FAR_BEYOND_NOISE:  # (a room's 62 µT was named finite_length)
         out.append("with the currents fitted per snapshot a field that does not follow them (the Earth's, a "
                    "neighbouring conductor: background_field) is not tried, and any effect named may stand in for it"

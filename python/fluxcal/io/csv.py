@@ -151,6 +151,7 @@ def parse_csv(path, lines, delimiter=",", preamble_lines: int = 0, bad_lines: st
         raise ValueError(f"{path}, line {header_line}: the first line holds numbers, not column names; "
                          "add a header such as mx,my,mz")
     lines = _units_row(lines, i + 1, names, delimiter, unit_map)
+    lines = _repeated_headers(path, lines, i, names, delimiter, unit_map, metadata)
     lines = _trailing_delimiters(lines, i + 1, names, delimiter)
     separated = {}
     lines, converted = decimal_points(lines, i + 1, delimiter, separated)
@@ -453,9 +454,9 @@ def _cut_short(lines) -> bool:
     """Whether the last line (with no newline after it) stops short of the lines above: fewer values than
     they all have (a prefix of their layout), its last number ending in a sign, point or exponent mark, or
     with fewer decimals than that number has on each of at least 100 lines of the layout (a fixed format:
-    %g and a spreadsheet's General drop trailing zeros, and 20 lines were not enough to tell). Judged only
-    when the 20 data lines above share one layout; integers cut short (1234 -> 12) cannot be told from
-    smaller ones."""
+    %g and a spreadsheet's General drop trailing zeros, and 20 lines were not enough to tell), or cut in its
+    whole part (_cut_in_whole_part: 32.969 -> 3, 1234 -> 12). Judged only when the 20 data lines above share
+    one layout."""
     above = [line.rstrip() for line in lines[-21:-1] if line.strip() and not is_comment(line)]
     last = lines[-1].rstrip()
     if len(above) < 5 or not last.strip() or is_comment(last):
@@ -472,9 +473,22 @@ def _cut_short(lines) -> bool:
         return layout.startswith(_skeleton(core))
     if core != last and not any(line.endswith(last[len(core):]) for line in above):
         return True
+    token = _NUMBER.findall(core)[-1]
+    if _cut_in_whole_part(token, [_NUMBER.findall(line)[-1] for line in above]):
+        return True
     same = [line.rstrip() for line in lines[:-1] if line.strip() and _skeleton(line.rstrip()) == layout]
     decimals = {_decimals(_NUMBER.findall(line)[-1]) for line in same}
-    return len(same) >= 100 and len(decimals) == 1 and _decimals(_NUMBER.findall(core)[-1]) < decimals.pop()
+    return len(same) >= 100 and len(decimals) == 1 and _decimals(token) < decimals.pop()
+
+
+def _cut_in_whole_part(token: str, column) -> bool:
+    """Whether the last line's last number, `token`, reads as a cut one beside the same column's numbers on the
+    lines above (at least 10): shorter than each of them and under half the smallest in size (32.969 cut to 3
+    or to 32 is 10 or 1.03 times smaller: only the first is judged; a column that comes near zero never is)."""
+    if len(column) < 10:
+        return False
+    sizes = [abs(float(t)) for t in column]
+    return len(token) < min(map(len, column)) and 2 * abs(float(token)) < min(sizes)
 
 
 def _not_a_number(cell: str) -> str:
@@ -529,6 +543,37 @@ def parse_rows(path, lines, start: int, names, delimiter, expected: str = "the h
 
 _DECIMAL_COMMA = re.compile(r'^\s*"?[-+]?\d*,\d+([eE][-+]?\d+)?"?\s*$')  # quoted too ("100,25")
 _THOUSANDS = re.compile(r"^[-+]?\d+,\d{3}$")  # 1,234: a thousands separator, or a decimal comma
+
+
+def _repeated_headers(path, lines, header: int, names, delimiter, unit_map: dict, metadata: dict):
+    """The lines with the header written again among the data (a logger restarted, two logs joined with cat)
+    blanked and counted in metadata["repeated_header"] when it names the same columns in the same order and
+    units; a header that orders them otherwise or gives one another unit is an error naming both lines, in
+    any bad-lines mode: skipping it would read the rows below it into the wrong columns."""
+    from .columns import unit_name
+
+    repeats = []
+    for j in range(header + 1, len(lines)):
+        text = lines[j].lstrip()
+        if not (text[:1].isalpha() or text[:1] in "\"'") or is_comment(text):
+            continue  # data rows start with a digit, sign or point (the test stays cheap on a long log)
+        cells = [_split_header(c) for c in _header_cells(lines[j].strip(), delimiter)]
+        if sorted(n for n, _ in cells) != sorted(names):
+            continue
+        order = [n for n, _ in cells] != list(names)
+        units = [n for n, u in cells if u and unit_map.get(n) and unit_name(u) != unit_name(unit_map[n])]
+        if order or units:
+            change = ("the columns in another order: " + ",".join(n for n, _ in cells) if order else
+                      "; ".join(f"{n} in {dict(cells)[n]}, not {unit_map[n]}" for n in units))
+            raise ValueError(f"{path}, line {j + 1}: the header again, with {change} (line {header + 1}'s header: "
+                             f"{lines[header].strip()!r}): two logs joined? Split the file at line {j + 1} and read "
+                             "each part")
+        repeats.append(j)
+    if not repeats:
+        return lines
+    metadata["repeated_header"] = "line " + ", ".join(str(j + 1) for j in repeats) + " (the same columns and units)"
+    repeats = set(repeats)
+    return [("" if j in repeats else line) for j, line in enumerate(lines)]
 
 
 def _units_row(lines, start: int, names, delimiter, unit_map: dict):

@@ -349,7 +349,9 @@ class Recording:
             return None
         from ..attitude import reference_vectors
 
-        angle_units = {self.units.get(c, "deg") for c in ATTITUDE_COLUMNS}
+        if not any(self.units.get(c) for c in ATTITUDE_COLUMNS):
+            self._degrees_or_radians()
+        angle_units = {self.units.get(c) or "deg" for c in ATTITUDE_COLUMNS}
         if not angle_units <= {"deg", "rad"} or len(angle_units) > 1:
             raise ValueError(f"{self.source}: attitude columns pitch, roll, yaw must all be in deg or all in rad "
                              f"(units are {', '.join(sorted(angle_units))})")
@@ -363,6 +365,16 @@ class Recording:
                 raise ValueError(f"{self.source}: {where}, column {name!r} is {values[row]} (non-finite)")
         return reference_vectors(ned, pitch, roll, yaw, degrees=angle_units == {"deg"},
                                  convention=str(self.metadata.get("attitude_convention", "aerospace")))
+
+    def _degrees_or_radians(self) -> None:
+        """Attitude columns that state no unit are read in degrees; refuse them when no angle goes past 2π (6.3):
+        radians read as degrees turn the reference by 1/57 of the attitude, and a calibration turns the sensor
+        through far more than 6° of yaw."""
+        largest = max(float(np.nanmax(np.abs(self.columns[c]))) for c in ATTITUDE_COLUMNS)
+        if largest <= 2 * np.pi + 0.01:
+            raise ValueError(f"{self.source}: attitude columns pitch, roll, yaw state no unit and never pass 2π "
+                             f"(the largest is {largest:.4g}): radians? Degrees are taken when none is stated; "
+                             "state it in the header (pitch [rad], roll [rad], yaw [rad], or [deg])")
 
     def reference_units(self) -> str:
         """The unit of `reference_field()`: the magnetometer's when both are field units (the local field is

@@ -14,8 +14,9 @@ m/s², angular rate in rad/s, attitude in degrees):
 The rows are the most frequent sentence type that carries a magnetometer; other sentences (register
 replies, $VNERR) are counted in metadata["other_sentences"]. A sentence of an unknown type gives
 columns <TYPE>_1, <TYPE>_2, …. A leading clock time (a serial monitor's) becomes the column `time`.
-Bad lines (checksum, field count, a non-number, bytes that are not text) are errors naming the line,
-or are left out with bad_lines="skip".
+Bad lines (checksum, field count, a non-number, bytes that are not text; a sentence without a checksum in
+a file whose other sentences carry one) are errors naming the line, or are left out with bad_lines="skip";
+a file without checksums is read and says so in metadata["checksums"].
 """
 from __future__ import annotations
 
@@ -70,6 +71,11 @@ def _checksum_problem(payload: str, given: str | None):
     return None if given.upper() == expected else f"checksum {given} does not match the sentence ({expected})"
 
 
+def _verified(given) -> bool:
+    """Whether a sentence's checksum field is one that is checked (not absent, not VectorNav's *XX)."""
+    return given is not None and given.upper() != "XX"
+
+
 def sentence_problem(kind: str, fields: str, given, width: int):
     """What is wrong with one `$KIND,fields*given` sentence of `width` fields, as (reason, text) with reason
     "checksum" or "fields" (VectorNav's appended T…/S… counters allowed), or None."""
@@ -108,12 +114,17 @@ def read_sentences(path, columns=None, units: str | None = None, bad_lines: str 
     counts = Counter(len(fields.split(",")) for _, _, t, fields, _ in parsed if t == kind)
     width = len(LAYOUTS[kind]) if kind in LAYOUTS else counts.most_common(1)[0][0]
     names = LAYOUTS.get(kind) or tuple(f"{kind}_{j + 1}" for j in range(width))
+    # once the device sends checksums it does not stop: a sentence without one was cut or garbled (its "*64" lost)
+    checksummed = any(_verified(given) for _, _, t, _, given in parsed if t == kind)
     rows, lines_of, stamps = [], [], []
     for line_no, clock, t, fields, given in parsed:
         if t != kind:
             continue
         cells = fields.split(",")
         problem = (sentence_problem(t, fields, given, width) or (None, None))[1]
+        if problem is None and checksummed and not _verified(given):
+            problem = (f"no checksum ({'*XX' if given else 'none'}), where the file's other {kind} sentences "
+                       "carry one: cut or garbled")
         if problem is None:
             bad = next((j for j in range(width) if not _is_number(cells[j])), None)
             if bad is not None:
@@ -132,6 +143,8 @@ def read_sentences(path, columns=None, units: str | None = None, bad_lines: str 
     cols = {n: data[:, j] for j, n in enumerate(names)}
     unit_map = {n: UNITS[n] for n in names if n in UNITS and kind in LAYOUTS}
     metadata = {"layout": f"{kind} sentences" + (" (VectorNav)" if kind in LAYOUTS else "")}
+    if not checksummed:
+        metadata["checksums"] = f"none: the {kind} sentences carry no checksum (or *XX, checksums off) and are unverified"
     others = {t: c for t, c in types.items() if t != kind}
     if others:
         metadata["other_sentences"] = ", ".join(f"{t} {c}" for t, c in others.items())

@@ -526,7 +526,7 @@ class TextDecoder:
 
     def _parse_sentence(self, text: str) -> tuple:
         """`$VNYMR,…*64` (fluxcal.io.sentences' layouts): its checksum, then the columns' fields."""
-        from .sentences import LAYOUTS, _SENTENCE, _body, sentence_problem
+        from .sentences import LAYOUTS, _SENTENCE, _body, _verified, sentence_problem
 
         m = _SENTENCE.match(_body(text)[1])
         if m is None:
@@ -536,7 +536,7 @@ class TextDecoder:
         problem = sentence_problem(kind, fields, given, len(layout) if layout else 0)
         if problem and (problem[0] == "checksum" or layout):
             raise Reject(problem[0], f"${kind}: {problem[1]}")
-        verified = given is not None and given.upper() != "XX"  # VectorNav's *XX: checksums switched off
+        verified = _verified(given)
         if not verified and self.checksummed:
             # "*64" lost to line noise or a dropped byte; a device does not stop sending checksums mid-stream
             raise Reject("checksum", f"${kind} without a checksum ({'*XX' if given else 'none'}), where the device's "

@@ -55,18 +55,20 @@ def jacobian(reference) -> np.ndarray:
 
 
 def crlb_vector(reference, sigma) -> np.ndarray:
-    """Cramér–Rao bound (12×12 covariance) of (W row-major, b) for m = W r + b + N(0, σ² I).
+    """Cramér–Rao bound (12×12 covariance) of (W row-major, b) for m = W r + b + N(0, σ² I), or N(0, Σ) when
+    `sigma` is the 3×3 noise covariance Σ between the axes.
 
     Each output axis i has its own parameters θ_i = (W[i, 0], W[i, 1], W[i, 2], b[i]) and the same
-    design X = [r, 1], so cov θ_i = σ² (XᵀX)⁻¹ and different axes are uncorrelated. Arranged in the
-    module's order: W entries at 3 i + j, b[i] at 9 + i. Least squares attains this bound exactly.
+    design X = [r, 1], so cov(θ_i, θ_l) = Σ_il (XᵀX)⁻¹: with σ² I different axes are uncorrelated. Arranged in
+    the module's order: W entries at 3 i + j, b[i] at 9 + i. Least squares attains this bound exactly (with the
+    same regressors on every axis, generalised least squares with Σ is least squares axis by axis).
     """
     X = _design(reference)
-    C = float(sigma) ** 2 * np.linalg.inv(X.T @ X)  # 4×4 over (w_i0, w_i1, w_i2, b_i)
+    G = np.linalg.inv(X.T @ X)  # 4×4 over (w_i0, w_i1, w_i2, b_i)
+    noise = float(sigma) ** 2 * np.eye(3) if np.ndim(sigma) == 0 else np.asarray(sigma, dtype=float)
+    order = np.array([[3 * i, 3 * i + 1, 3 * i + 2, 9 + i] for i in range(3)]).ravel()
     out = np.zeros((12, 12))
-    for i in range(3):
-        idx = [3 * i, 3 * i + 1, 3 * i + 2, 9 + i]
-        out[np.ix_(idx, idx)] = C
+    out[np.ix_(order, order)] = np.kron(noise, G)
     return out
 
 
