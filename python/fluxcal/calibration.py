@@ -13,7 +13,7 @@ from ._saved import load_json_object
 CONVENTION = ("h = A (m - b); rows of samples are readings; for a sensor reading m = W h + b, A W is a rotation: from "
               "magnitudes alone A is the symmetric (W W^T)^-1/2, with reference vectors A = W^-1")
 # magnetic-field units fluxcal converts between (the unit names of fluxcal.io.columns.FIELD_UNITS)
-TESLA_PER_UNIT = {"T": 1.0, "mT": 1e-3, "uT": 1e-6, "nT": 1e-9, "G": 1e-4, "mG": 1e-7}
+TESLA_PER_UNIT = {"T": 1.0, "mT": 1e-3, "uT": 1e-6, "nT": 1e-9, "pT": 1e-12, "G": 1e-4, "mG": 1e-7}
 # A given field norm that scales readings stated in a field unit by more than this either way (but less than the 5×
 # of every solver's "check the units"): a magnetometer's gain in its stated unit is within about ±20 % (datasheet
 # sensitivities 5–15 %, soft iron a few %), so such a norm is more often the wrong number (another site's field, a

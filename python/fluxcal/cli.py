@@ -321,17 +321,20 @@ def _reference(rec: Recording, names: str | None, file) -> tuple:
     names = names.split(",")
     missing = [n for n in names if n not in rec.columns]
     if len(names) != 3 or missing:
-        raise ValueError(f"--reference: need three columns of {file} (columns are: {', '.join(rec.columns)})")
+        what = (f"no column {', '.join(map(repr, missing))} in {file}" if missing and len(names) == 3 else
+                f"{len(names)} names, need three columns of {file}")
+        raise ValueError(f"--reference: {what} (columns are: {', '.join(rec.columns)})")
     units, mag = {unit_name(rec.units.get(n, "")) for n in names}, rec.field_units()
     if len(units) > 1:
         raise ValueError(f"--reference: the columns {', '.join(names)} have different units ({', '.join(sorted(units))})")
     unit = units.pop()
     scale = TESLA_PER_UNIT[unit] / TESLA_PER_UNIT[mag] if unit in TESLA_PER_UNIT and mag in TESLA_PER_UNIT else 1.0
     reference = np.column_stack([rec.columns[n] for n in names]) * scale
-    bad = np.flatnonzero(~np.all(np.isfinite(reference), axis=1))
+    bad = np.argwhere(~np.isfinite(reference))
     if bad.size:
-        row = int(bad[0])
-        raise ValueError(f"--reference: {file}, {rec.place(row)}: a reference column is not a finite number")
+        row, k = (int(v) for v in bad[0])
+        raise ValueError(f"--reference: {file}, {rec.place(row)}: column {names[k]!r} is {rec.columns[names[k]][row]} "
+                         f"(not a finite number; {len(np.unique(bad[:, 0]))} such rows)")
     return reference, mag if scale != 1.0 or unit == mag or not unit else unit
 
 

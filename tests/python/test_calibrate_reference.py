@@ -159,3 +159,16 @@ def test_python_calibrate_of_a_recording_with_attitude_runs_the_vector_fit_as_th
                                                      "yaw": np.radians(yaw), **field, **mag},
                        units={**units, "pitch": "rad", "roll": "rad", "yaw": "rad"})
     assert np.allclose(fluxcal.calibrate(read_recording(stated)).matrix, cal.matrix, atol=1e-9)
+
+
+def test_a_reference_column_missing_or_not_a_number_is_named(tmp_path):
+    pitch, roll, yaw, r = _flight(200)
+    m = r * 1e-3 + np.array([3.0, -2.0, 1.0])
+    ref = r * 1e-3
+    ref[57, 1] = np.nan
+    cols = {"mx": m[:, 0], "my": m[:, 1], "mz": m[:, 2], "rx": ref[:, 0], "ry": ref[:, 1], "rz": ref[:, 2]}
+    path = write_csv(tmp_path / "ref.csv", cols, units={k: "uT" for k in cols})
+    typo = run_cli("calibrate", path, "--reference", "rx,ry,qq")
+    assert typo.returncode == 2 and "--reference: no column 'qq' in" in typo.stderr, typo.stderr
+    nan = run_cli("calibrate", path, "--reference", "rx,ry,rz")
+    assert nan.returncode == 2 and "column 'ry' is nan (not a finite number; 1 such rows)" in nan.stderr, nan.stderr

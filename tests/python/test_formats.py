@@ -688,3 +688,30 @@ def test_a_header_written_again_is_left_out_and_one_in_another_order_is_refused(
     path.write_text("t,mx [uT],my [uT],mz [uT]\n" + "\n".join(rows[:30] + ["t,mx [nT],my [nT],mz [nT]"] + rows[30:]))
     with pytest.raises(ValueError, match=r"line 32: the header again, with mx in nT, not uT; my in nT"):
         read_recording(path, bad_lines="skip")
+
+
+def test_magnetometer_vectors_under_their_own_names_in_mat_and_npz(tmp_path):
+    """Bx, By, Bz vectors (a LabVIEW or MATLAB log's) had been refused as "no N×3 magnetometer matrix", even with
+    --columns Bx,By,Bz; they are the magnetometer by name, and named columns pick among several triples."""
+    from scipy.io import savemat
+
+    rng = np.random.default_rng(8)
+    d = rng.normal(0, 30, (40, 3))
+    savemat(tmp_path / "vectors.mat", {"Bx": d[:, :1], "By": d[:, 1:2], "Bz": d[:, 2:], "T": rng.normal(20, 1, (40, 1))})
+    rec = read_recording(tmp_path / "vectors.mat", units="uT")
+    np.testing.assert_array_equal(rec.samples(), d)
+    np.savez(tmp_path / "two.npz", Bx=d[:, 0], By=d[:, 1], Bz=d[:, 2], Hx=-d[:, 0], Hy=-d[:, 1], Hz=-d[:, 2])
+    np.testing.assert_array_equal(read_recording(tmp_path / "two.npz", columns="Hx,Hy,Hz").samples(), -d)
+    out = run_cli("calibrate", tmp_path / "two.npz", "--columns", "Bx,By,Bz")
+    assert "no N×3" not in out.stderr, out.stderr
+
+
+def test_picotesla_and_gamma_are_field_units(tmp_path):
+    """pT (a SQUID's, an optically pumped magnetometer's) and gamma (the geophysicists' nT) had been left unread."""
+    path = tmp_path / "pt.csv"
+    path.write_text("t,mx [pT],my [pT],mz [pT]\n0,1000,2000,3000\n1,1100,2100,3100\n")
+    assert read_recording(path).field_units() == "pT"
+    path.write_text("t,mx [gamma],my [gamma],mz [gamma]\n0,1000,2000,3000\n1,1100,2100,3100\n")
+    assert read_recording(path).field_units() == "nT"
+    from fluxcal.calibration import TESLA_PER_UNIT
+    assert TESLA_PER_UNIT["pT"] == 1e-12

@@ -171,3 +171,15 @@ def test_automatic_switches_only_to_widen():
         forced = fluxcal.calibrate(s.readings, field_norm=H, serial_correlation="newey_west")
         assert forced.summary["serial_correlation"]["lags"] > 0
     assert switched <= 2
+
+
+def test_few_independent_readings_worth_is_said_beside_newey_west():
+    """AR(1) noise of φ 0.9 over 300 readings holds about 16 independent ones' worth for 12 parameters: the
+    Newey–West errors are then said to tend low (measured 1.1–1.3× too small); over 5000 readings they are not."""
+    short = fluxcal.fit_vector(*vector_scene(0, n=300))
+    assert short.summary["serial_correlation"]["lags"] > 0
+    assert any("independent ones' worth for 12 parameters" in w for w in short.summary["warnings"]), \
+        short.summary["warnings"]
+    long = fluxcal.fit_vector(*vector_scene(3, n=5000))
+    assert long.summary["serial_correlation"]["lags"] > 0
+    assert not any("independent ones' worth" in w for w in long.summary["warnings"]), long.summary["warnings"]

@@ -35,7 +35,8 @@ RAW_WORDS = {"raw", "uncal", "uncalibrated", "uncorrected"}
 # unit words a logger appends to a name -> the unit string fluxcal records
 FIELD_UNITS = {"nt": "nT", "ut": "uT", "µt": "uT", "mt": "mT", "g": "G", "ga": "G", "gauss": "G", "mg": "mG",
                "mgauss": "mG", "milligauss": "mG", "counts": "counts", "lsb": "counts", "utesla": "uT",
-               "µtesla": "uT", "microtesla": "uT", "nanotesla": "nT"}
+               "µtesla": "uT", "microtesla": "uT", "nanotesla": "nT", "pt": "pT", "picotesla": "pT",
+               "gamma": "nT", "γ": "nT"}  # (gamma: the geophysicists' nT)
 # the field units no other quantity writes the same way (g and mg are also accelerations; counts are anything's)
 FIELD_ONLY_UNITS = set(FIELD_UNITS) - {"g", "mg", "counts", "lsb"}
 TIME_UNITS = {"s": 1.0, "sec": 1.0, "secs": 1.0, "seconds": 1.0, "ms": 1e-3, "us": 1e-6, "µs": 1e-6,
@@ -294,7 +295,7 @@ def axis_of_name(name: str):
 def _states_field(unit) -> bool:
     """Whether a stated unit is a magnetic field's: T, µT, nT, G, mG… (not g or mg, accelerations)."""
     unit = (unit or "").strip().strip("[]()").strip()
-    return unit not in ("g", "mg") and unit_name(unit) in ("T", "mT", "uT", "nT", "G", "mG")
+    return unit not in ("g", "mg") and unit_name(unit) in ("T", "mT", "uT", "nT", "pT", "G", "mG")
 
 
 def find_accelerometer(names):

@@ -63,7 +63,7 @@ def read_hdf5(path, columns=None, units: str | None = None, matrix: str | None =
             variables, unit_of, ignored = _variables(f, matlab)
     except OSError as exc:  # h5py's error for a truncated or corrupt file
         raise ValueError(f"{path}: not a readable HDF5 file (truncated or corrupt? {exc})") from None
-    rec = recording_from_arrays(variables, str(path), matrix=matrix)
+    rec = recording_from_arrays(variables, str(path), matrix=matrix, columns=columns)
     chosen = rec.metadata.get("magnetometer_variable")
     if chosen in unit_of:
         rec.units.update(dict.fromkeys(("mx", "my", "mz"), unit_of[chosen]))

@@ -89,7 +89,7 @@ def read_mat(path, columns=None, units: str | None = None, matrix: str | None = 
         rec = Recording(columns={c: np.ravel(variables[names[c]]) for c in info["columns"]},
                         units=dict(info.get("units", {})), metadata=dict(info.get("metadata", {})), source=str(path))
     else:
-        rec = recording_from_arrays(variables, str(path), matrix=matrix)
+        rec = recording_from_arrays(variables, str(path), matrix=matrix, columns=columns)
     return rec.choose(columns, units)
 
 

@@ -446,11 +446,12 @@ class Recording:
         return units.pop()
 
 
-def recording_from_arrays(variables: dict, source: str, matrix: str | None = None) -> Recording:
+def recording_from_arrays(variables: dict, source: str, matrix: str | None = None, columns=None) -> Recording:
     """A Recording from named arrays of a file that fluxcal did not write (.mat, .npz, Parquet).
 
-    Rule: the magnetometer is the N×3 variable named `matrix`; else columns mx,my,mz (or x,y,z) when
-    vectors of those names exist; else the only N×3 variable (MATLAB magcal users keep one such matrix); else,
+    Rule: the magnetometer is the N×3 variable named `matrix`; else the vectors `columns` names (Bx,By,Bz: the
+    CLI's --columns); else three vectors named as a magnetometer's axes (mx,my,mz, x,y,z, Bx,By,Bz, MagX…: see
+    fluxcal.io.columns); else the only N×3 variable (MATLAB magcal users keep one such matrix); else,
     without any N×3 variable, two vectors a biaxial sensor's columns are named as (mx,my; Bx,Bz: see
     Recording.mag_names).
     The chosen matrix becomes mx,my,mz; any other N×3 variable V becomes V_x, V_y, V_z; vectors of length N
@@ -480,16 +481,23 @@ def recording_from_arrays(variables: dict, source: str, matrix: str | None = Non
         return f"{'×'.join(map(str, arr.shape))}{kind}"
 
     listing = ", ".join(f"{n} ({described(v)})" for n, v in variables.items() if not isinstance(v, str)) or "none"
+    named = [c.strip() for c in columns.split(",")] if isinstance(columns, str) else list(columns or ())
+    exact = next((list(names) for names in (MAG_COLUMNS, ("x", "y", "z")) if all(c in vectors for c in names)), None)
+    triple = None  # the magnetometer's three vectors, when it is not a matrix
     if matrix is not None:
         if matrix not in matrices:
             raise ValueError(f"{source}: no N×3 variable {matrix!r}; numeric variables are: {listing}")
         chosen = matrix
-    elif any(all(c in vectors for c in names) for names in (MAG_COLUMNS, ("x", "y", "z"))):
+    elif named and all(c in vectors for c in named):  # (Bx,By,Bz vectors had been refused, even named so)
+        chosen, triple = None, named
+    elif exact:
+        chosen, triple = None, exact
+    elif len(matrices) == 1:
+        chosen = next(iter(matrices))
+    elif not matrices and (triple := find_magnetometer(vectors, source)) is not None:
         chosen = None
     elif not matrices and find_magnetometer_pair(vectors, source) is not None:  # a biaxial sensor's two vectors
         chosen = None
-    elif len(matrices) == 1:
-        chosen = next(iter(matrices))
     elif matrices:
         raise ValueError(f"{source}: several N×3 variables ({', '.join(matrices)}); name the magnetometer "
                          "one (--columns NAME, or matrix=NAME)")
@@ -498,9 +506,8 @@ def recording_from_arrays(variables: dict, source: str, matrix: str | None = Non
                          " (readings go one per row: a 3×N matrix must be transposed)")
     if chosen:
         n_rows = len(matrices[chosen])
-    else:  # mx,my,mz or x,y,z, else the biaxial pair
-        n_rows = len(vectors[next((n for n in ("mx", "x") if n in vectors), None)
-                             or find_magnetometer_pair(vectors, source)[0][0]])
+    else:  # the magnetometer's vectors, else the biaxial pair
+        n_rows = len(vectors[triple[0] if triple is not None else find_magnetometer_pair(vectors, source)[0][0]])
     columns = {}
     for name, arr in matrices.items():
         if len(arr) != n_rows:
