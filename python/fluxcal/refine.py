@@ -153,7 +153,8 @@ def fit_vector(samples, reference, units: str = "", loss: str = "none", loss_sca
     """Reference-vector calibration: m = W r + b by linear least squares (closed form; the maximum-
     likelihood estimate under Gaussian noise), A = W⁻¹ — a full matrix, since the reference fixes the
     rotation. Its covariance is the multivariate regression's, Σ ⊗ (XᵀX)⁻¹ with Σ the axes' residual covariance
-    (each axis' own σ, summary["noise_sigma_axes"]; summary["noise_sigma"] pools them). With a robust `loss` the linear fit then seeds a Ceres refinement of the same model.
+    (each axis' own σ, summary["noise_sigma_axes"]; summary["noise_sigma"] pools them); the standard errors are of W
+    and b, summary["matrix_standard_errors"] those of A (3×3, delta method). With a robust `loss` the linear fit then seeds a Ceres refinement of the same model.
     `reference`: the true field of each reading in the sensor frame (see fluxcal.attitude)."""
     m, r = as_samples(samples), as_samples(reference, "reference")
     cal = _calibration(_core.fit_vector(m, r, _options(units=units, **settings)), "vector")
@@ -162,6 +163,12 @@ def fit_vector(samples, reference, units: str = "", loss: str = "none", loss_sca
     # each axis' own noise (its standard errors are from it: an axis 6× noisier than the others has 6× the errors)
     residuals = m - r @ np.linalg.inv(cal.matrix).T - cal.offset
     cal.summary["noise_sigma_axes"] = np.sqrt(np.sum(residuals ** 2, axis=0) / max(len(m) - 4, 1)).tolist()
+    # the parameters are W's (m = W r + b); the correction applies A = W⁻¹: dA = −A dW A, so in row-major order
+    # d vec(A) = −(A ⊗ Aᵀ) d vec(W), and A's standard errors follow by the delta method
+    if cal.summary.get("covariance") is not None and cal.summary.get("parameter_names", [])[3:4] == ["w00"]:
+        J = -np.kron(cal.matrix, cal.matrix.T)
+        cov_w = np.asarray(cal.summary["covariance"])[3:12, 3:12]
+        cal.summary["matrix_standard_errors"] = np.sqrt(np.clip(np.diag(J @ cov_w @ J.T), 0, None)).reshape(3, 3).tolist()
     remapped = axis_remapping(cal.matrix)
     if remapped:  # the fit holds, but a sensor mounted rotated, or a reference in other axes, deserves a word
         cal.summary["warnings"] = list(cal.summary["warnings"]) + [

@@ -529,3 +529,19 @@ def test_vector_fit_errors_follow_each_axis_noise():
     spread = np.std(np.array(z), axis=0)
     assert np.all((spread > 0.85) & (spread < 1.15)), spread
     assert switched <= 6, switched
+
+
+def test_vector_fit_gives_the_correction_matrix_its_own_standard_errors():
+    """The fit's parameters are W's (m = W r + b); A = W⁻¹ is what corrects: its standard errors (delta method) match
+    the spread of A over 300 fits."""
+    sigmas = np.array([0.2, 0.2, 0.4])
+    W = np.array([[1.1, 0.05, -0.02], [0.0, 0.9, 0.04], [0.03, 0.0, 1.05]])
+    fits, ses = [], []
+    for seed in range(300):
+        rng = np.random.default_rng(seed)
+        r = 50 * sim.uniform(300, rng).sensor_field([0.3, 0.2, 0.93])
+        cal = fluxcal.fit_vector(r @ W.T + 2.0 + sigmas * rng.standard_normal(r.shape), r)
+        fits.append(cal.matrix)
+        ses.append(cal.summary["matrix_standard_errors"])
+    ratio = np.std(fits, axis=0) / np.mean(ses, axis=0)
+    assert np.all((ratio > 0.85) & (ratio < 1.15)), ratio
