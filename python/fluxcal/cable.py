@@ -19,6 +19,7 @@ from dataclasses import dataclass, field
 import re
 
 import numpy as np
+from scipy import stats
 
 from . import _core
 from ._arrays import as_number, set_options
@@ -199,6 +200,15 @@ class Ring:
             r["summary"]["warnings"] = list(r["summary"]["warnings"]) + [
                 f"the default starts left a misfit: searched again from {options.starts} starts on a "
                 f"{options.grid_points}×{options.grid_points} grid" + (" (better: taken)" if r is again else " (no better)")]
+        if not options.noise_sigma > 0:  # σ from these readings' own residuals: its few degrees of freedom said
+            dof = arr.size - np.shape(r["covariance"])[0]
+            r["summary"]["noise_sigma_dof"] = int(dof)
+            if 0 < dof < 30:
+                t95 = float(stats.t.ppf(0.975, dof))
+                r["summary"]["warnings"] = list(r["summary"]["warnings"]) + [
+                    f"σ is estimated from these readings' residuals with {dof} degrees of freedom: the errors over "
+                    f"their standard errors follow Student's t, a 95 % interval is ±{t95:.3g} standard errors (not "
+                    "±1.96); give noise_sigma (a calibration's scatter, the datasheet's) for intervals of their own"]
         silent = silent_sensors(arr)
         if silent.any():
             r["summary"]["warnings"] = [f"sensor(s) {', '.join(map(str, np.nonzero(silent)[0]))} {SILENT_WORDS}: "

@@ -1208,3 +1208,16 @@ def test_a_sensor_stuck_at_zero_is_left_out_as_dead(tmp_path):
     warned = ring.solve(y, n_conductors=3).summary["warnings"]
     assert any(w.startswith("sensor(s) 3 read exactly 0 on both axes") for w in warned), warned
     assert not fluxcal.cable.silent_sensors(np.zeros((20, 8, 2))).any()  # nothing read anywhere: not one sensor's fault
+
+
+def test_a_sigma_from_the_residuals_says_its_degrees_of_freedom():
+    """One snapshot of 8 sensors for 3 conductors leaves 7 degrees of freedom: with σ from the residuals the errors
+    over their standard errors follow t₇ (sd 1.18: a blind check's "15–22 % small"), which the summary says."""
+    ring = Ring(np.arange(0.0, 360.0, 45.0), 0.01)
+    cores = np.array([[-1.7e-3, -1.0e-3], [0.0, 2.0e-3], [1.7e-3, -1.0e-3]])
+    y = ring.field(cores, np.array([[10.0, -4.0, -6.0]]))[0] + np.random.default_rng(0).normal(0, 1e-8, (8, 2))
+    sol = ring.solve(y, n_conductors=3, noise_sigma=0.0)
+    assert sol.summary["noise_sigma_dof"] == 7
+    assert any("with 7 degrees of freedom" in w and "±2.36 standard errors" in w for w in sol.summary["warnings"])
+    given = ring.solve(y, n_conductors=3, noise_sigma=1e-8)
+    assert "noise_sigma_dof" not in given.summary and not any("degrees of freedom" in w for w in given.summary["warnings"])
