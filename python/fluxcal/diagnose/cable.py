@@ -27,7 +27,8 @@ as a whole, so the verdict then says it cannot judge whether the model fits.
    time, with a χ² test per bin (worst bin, Bonferroni), a regression of z² on the current and of z on
    time, and a whiteness test over time.
 2. Which: every candidate of `fluxcal.sim.cable_effects.CABLE_CANDIDATES` — helical_lay, finite_length,
-   sensor_position_error, cable_tilt, z_leakage, sensor_coupling, background_field, background_gradient,
+   sensor_position_error, cable_tilt, z_leakage, sensor_coupling, sensor_nonlinearity (cubic in the currents: not with
+   currents fitted), background_field, background_gradient,
    background_curvature (these three do not follow the currents: their features are held apart,
    `_Model.constant_features`), nearby_iron (a field from outside the ring that follows the currents; it yields
    to finite_length, a special case, when that explains the recording: `_specific_first`) — gets the statistics
@@ -402,23 +403,38 @@ class _Model:
             return None
         k, n = len(self.data.y), self.data.n
         net = _context(self.data, positions, self.feature_currents).net_current
-        constant = self.constant_features(positions, terms)
+        constant, curved = self.constant_features(positions, terms), self._curved(positions, terms)
         out = []
         for j in range(n):
             e = np.zeros((k, n))
             e[:, j] = 1.0
             f = self.features(positions, terms, e, net)
-            out.append(f if constant is None else f - constant)
+            f = f if constant is None else f - constant
+            if curved is not None:
+                f[..., curved] = 0.0  # (held in `constant` at the feature currents)
+            out.append(f)
         return np.stack(out, axis=-1)
 
     def constant_features(self, positions, terms=None):
-        """The terms' features at zero currents (K, M, 2, p) — what does not follow the currents — or None when
-        every term follows them."""
+        """The terms' features at zero currents (K, M, 2, p) — what does not follow the currents — and those of
+        terms not affine in them (a sensor's bend, cubic) at the feature currents; None when every term follows
+        the currents, affinely."""
         terms = self.terms if terms is None else terms
-        if all(cls.follows_current for cls, _ in terms):
+        curved = self._curved(positions, terms)
+        if all(cls.follows_current for cls, _ in terms) and curved is None:
             return None
         net = _context(self.data, positions, self.feature_currents).net_current
-        return self.features(positions, terms, np.zeros((len(self.data.y), self.data.n)), net)
+        constant = self.features(positions, terms, np.zeros((len(self.data.y), self.data.n)), net)
+        if curved is not None:
+            constant[..., curved] = self.features(positions, terms)[..., curved]
+        return constant
+
+    def _curved(self, positions, terms):
+        """Which of the terms' coefficients belong to a term not affine in the currents (CableEffect.affine), as a
+        mask over them; None when every term is affine."""
+        if all(cls.affine for cls, _ in terms):
+            return None
+        return np.repeat([not cls.affine for cls, _ in terms], self.term_sizes(positions, terms))
 
     def solver_features(self, positions, terms=None):
         """What `_solve_linear` takes: per-ampere features when the currents are fitted, else the features."""
@@ -983,7 +999,8 @@ def _evaluate(cls, data: _Data, state: dict, n_candidates: int, levels) -> dict:
     row.update(cls.interpret(row["coefficients"]))
     row.update(cls.field_share(_context(data, fit["positions"], state["feature_currents"]),  # (the cores' field)
                                model.features(fit["positions"])[..., -size:], row["coefficients"]))
-    for key in ("coupling_sensor", "position_angle_sensor", "position_radius_sensor", "position_axis_sensor"):
+    for key in ("coupling_sensor", "nonlinearity_sensor", "position_angle_sensor", "position_radius_sensor",
+                "position_axis_sensor"):
         if row.get(key) is not None and data.sensor_ids is not None:  # the recording's number, not the diagnosed
             row[key] = int(data.sensor_ids[row[key]])  # ring's (dead ones out)
     in_sample = bool(row["lr_pvalue"] * n_candidates < state["alpha"] and row["delta_bic"] < 0)
@@ -1693,6 +1710,12 @@ def _accepted_text(row) -> str:
                 f"turns, {100 * row['iron_field_share']:.2g} % of the cores' at the sensors: iron near the ring — a steel "
                 "plate, tray, enclosure or frame — or the circuit's own leads and return close to it; move the ring "
                 "away from them, or calibrate the ring where it measures)")
+    if row.get("nonlinearity_sensor") is not None:
+        c, median = row["nonlinearity_at_100ut"], row["nonlinearity_median_at_100ut"]
+        return (f"{row['effect']} (largest: sensor {row['nonlinearity_sensor']}'s {row['nonlinearity_axis']} axis reads "
+                f"{100 * c:+.2g} % at 100 µT, the sensors' median {100 * median:+.2g} %: a reading that bends with the "
+                "field, cubic in the current — a sensor compressing towards its range; keep the field at the sensors "
+                "well within it, or calibrate at the currents it measures)")
     if row.get("coupling_sensor") is not None:  # (the sensor and size had been only in the JSON's coefficients)
         other = "yx"["xy".index(row["coupling_axis"])]
         head = (f"{row['effect']} (largest: sensor {row['coupling_sensor']}'s {row['coupling_axis']} axis reads "

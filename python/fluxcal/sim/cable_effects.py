@@ -19,6 +19,8 @@ depart from that:
                           the Earth's (constant, an offset the per-sensor calibration removes) and the
                           cable field's share when the cable is tilted by τ in direction ψ
   sensor_coupling         each sensor's two axes coupled (not at right angles, crosstalk, iron near it)
+  sensor_nonlinearity     each sensor axis's reading bends with the field (an AMR bridge compressing towards its
+                          range): cubic in the current, which the calibration at one current cannot fold away
   background_field        a field that does not follow the currents and stays in the cable (lab) frame as the
                           ring turns: the Earth's, a magnet's, a neighbouring conductor on another circuit
   background_gradient     that field's change across the ring: a source near it
@@ -130,6 +132,7 @@ class CableEffect(Effect):
     refinable = False  # the non-linear parameter (the alternative) is refined with the positions in a fit
     relinearised_at = None  # a first-order term: coefficients → the alternative to linearise at next (a fit's steps)
     follows_current = True  # the features scale with the currents (False: a field of its own, at any current)
+    affine = True  # the features are affine in the currents (False: a sensor's bend, cubic; held at the reference)
 
     @staticmethod
     def encode(alternative) -> float:
@@ -723,6 +726,59 @@ class SensorCoupling(CableEffect):
 
 
 @dataclass
+class SensorNonlinearity(CableEffect):
+    """Each sensor axis's reading bends with the field along it: h_a + c_a h_a³ / B_NONLINEAR² (`cubic` (M, 2), c_a
+    the share added at B_NONLINEAR = 100 µT): an AMR bridge compresses towards its range (c < 0), a Hall sensor's
+    or an amplifier's stage bends either way. Typical: −0.1 … −0.4 % at 100 µT (0.6–2.5 % at the paper ring's 250 µT
+    at 10 A). The calibration at one current folds the bend at its field into the gains: what is left is cubic in
+    the current, which no term linear in it (a tilt, a lay) follows across current levels.
+
+    Candidate: per sensor axis, h_a³ / B_NONLINEAR² at the fitted positions and reference currents: 2M linear
+    coefficients (not with currents fitted per snapshot: every other term is affine in them)."""
+
+    cubic: np.ndarray
+    name = "sensor_nonlinearity"
+    n_params = 8  # 2 per sensor of the 4-sensor ring
+    regime = "current"
+    kind = "readings"
+    B_NONLINEAR = 1e-4  # T: the field at which c is the share added
+    affine = False
+
+    def readings(self, field_lab, axis_rad):
+        """c ⊙ h³ / B² (…, M, 2) for the true cable field `field_lab` (…, M) complex."""
+        return np.asarray(self.cubic) * to_axes(field_lab, axis_rad) ** 3 / self.B_NONLINEAR ** 2
+
+    @classmethod
+    def not_applicable(cls, ctx) -> str | None:
+        if ctx.fit_currents:
+            return "it needs the reference currents (a bend cubic in the current does not follow currents fitted per snapshot)"
+        return None
+
+    @classmethod
+    def features(cls, ctx, alternative=None):
+        h = to_axes(ctx.field_lab, ctx.axes[ctx.rot_index])  # (K, M, 2) in each sensor's axes
+        k, m, _ = h.shape
+        out = np.zeros((k, m, 2, m, 2))
+        for a in range(2):
+            out[:, np.arange(m), a, np.arange(m), a] = h[..., a] ** 3 / cls.B_NONLINEAR ** 2
+        return out.reshape(k, m, 2, 2 * m)
+
+    @classmethod
+    def interpret(cls, coefficients) -> dict:
+        """The largest bend: its sensor (the diagnosed ring's numbering; the diagnosis renumbers it), axis and c."""
+        c = np.ravel(coefficients)
+        if not c.size:
+            return {}
+        k = int(np.argmax(np.abs(c)))
+        return {"nonlinearity_sensor": k // 2, "nonlinearity_axis": "xy"[k % 2], "nonlinearity_at_100ut": float(c[k]),
+                "nonlinearity_median_at_100ut": float(np.median(c))}
+
+    @classmethod
+    def typical(cls, n_sensors, rng):
+        return cls(-rng.uniform(0.001, 0.004, (n_sensors, 2)))
+
+
+@dataclass
 class BackgroundField(CableEffect):
     """A field at the ring that does not follow the cable's currents and stays put in the cable (lab) frame while
     the ring turns: the Earth's in-plane field, a magnet's, a neighbouring cable or busbar on another circuit.
@@ -896,9 +952,9 @@ class NearbyIron(CableEffect):
 
 
 CABLE_CANDIDATES = (HelicalLay, FiniteLength, SensorPositionError, CableTilt, CableZLeakage, SensorCoupling,
-                    BackgroundField, BackgroundGradient, BackgroundCurvature, NearbyIron)
+                    SensorNonlinearity, BackgroundField, BackgroundGradient, BackgroundCurvature, NearbyIron)
 """The cable candidates by name: helical_lay, finite_length, sensor_position_error, cable_tilt, z_leakage,
-sensor_coupling, background_field, background_gradient, background_curvature, nearby_iron."""
+sensor_coupling, sensor_nonlinearity, background_field, background_gradient, background_curvature, nearby_iron."""
 
 
 # ---------------------------------------------------------------- a rig with effects
