@@ -15,6 +15,7 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 
 import numpy as np
+from scipy import stats
 
 from . import _core
 from ._arrays import (as_field_norms, as_number, as_samples, changing_field, field_norm_given, field_norms_summary,
@@ -329,9 +330,22 @@ def twostep(samples, field_norm, units: str | None = None, **settings) -> Calibr
         options.field_norm = as_number(field_norm, "field_norm")
         cal = _with_errors(_core.twostep(arr, options))
         said = []
-    said = [w for w in said + [scale_words(cal)] if w]
+    said = [w for w in said + [scale_words(cal), _few_readings_words(cal, len(arr))] if w]
     cal.summary["warnings"] = list(cal.summary["warnings"]) + said
     return cal
+
+
+def _few_readings_words(cal: Calibration, n: int) -> str:
+    """With under 30 readings beyond the 9 parameters, the standard errors come from the residuals' own scatter:
+    the errors over them follow Student's t with N − 9 degrees of freedom (measured: consistent with t_{N−9} at
+    small N), which the summary says (residual_dof) with the 95 % factor."""
+    dof = n - 9
+    if not cal.summary.get("standard_errors") or not 0 < dof < 30:
+        return ""
+    cal.summary["residual_dof"] = dof
+    return (f"{n} readings for 9 parameters: the standard errors rest on {dof} degrees of freedom, and the errors "
+            f"over them follow Student's t — a 95 % interval is ±{stats.t.ppf(0.975, dof):.3g} standard errors (not "
+            "±1.96); more readings narrow both")
 
 
 def _with_errors(result: dict) -> Calibration:

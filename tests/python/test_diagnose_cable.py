@@ -1057,3 +1057,15 @@ def test_one_rotation_of_the_ring_is_said():
                           "rotations_deg": rotations[one]})
     assert any(c.startswith(f"the recording holds one rotation of the ring ({rotations[0]:g}°)") for c in d.caveats)
     assert not any("one rotation" in c for c in diagnose_cable(**kwargs).caveats)
+
+
+def test_found_sizes_carry_the_noise_standard_errors():
+    """A found effect's sizes had been said without any ±: its coefficients' standard errors (the projected Jacobian)
+    reach the report's numbers by draws, said to be the noise's alone (a candidate's approximation is not in them)."""
+    kwargs, rig = cable_trial(["cable_tilt"], 0)
+    d = diagnose_cable(**kwargs)
+    top = d.ranking[0]
+    assert top["effect"] == "cable_tilt" and top["tilt_deg_se"] > 0 and len(top["coefficient_standard_errors"]) == 2
+    assert abs(top["tilt_deg"] - np.degrees(rig.effects[0].tilt_rad)) < 4 * top["tilt_deg_se"]
+    found = next(line for line in d.text().splitlines() if line.startswith("FOUND: cable_tilt"))
+    assert f"{top['tilt_deg']:.2g}° ± " in found and "± the noise's alone" in found, found

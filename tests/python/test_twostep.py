@@ -842,3 +842,18 @@ def test_twostep_on_a_band_of_tilts_is_at_the_maximum_likelihood_estimate():
             # (W is not symmetric: the offset is A's rotation-free part's, the same for every rotation of A)
             z_off = abs(cal.offset[2] - offset[2]) / cal.summary["standard_errors"][2]
             assert z_off < 3.0, (seed, band, z_off)
+
+
+def test_few_readings_say_the_degrees_of_freedom_of_their_errors():
+    """20 readings for 9 parameters: the errors over the standard errors follow t₁₁; the summary says so."""
+    import fluxcal
+    from fluxcal import sim
+
+    rng = np.random.default_rng(3)
+    r = 50 * sim.uniform(20, rng).sensor_field([0.3, 0.2, 0.93])
+    m = r @ np.diag([1.1, 0.95, 1.02]).T + [3.0, -2.0, 1.0] + 0.3 * rng.standard_normal(r.shape)
+    cal = fluxcal.twostep(m, 50.0)
+    assert cal.summary["residual_dof"] == 11
+    assert any("20 readings for 9 parameters" in w and "±2.2 standard errors" in w for w in cal.summary["warnings"])
+    many = fluxcal.twostep(np.vstack([m] * 3) + 0.3 * rng.standard_normal((60, 3)), 50.0)
+    assert "residual_dof" not in many.summary

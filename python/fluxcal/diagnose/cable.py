@@ -996,14 +996,20 @@ def _evaluate(cls, data: _Data, state: dict, n_candidates: int, levels) -> dict:
                calibration_correction=_calibration_summary(fit["coefficients"], model.n_calibration))
     if "reference_lay_over_pitch_diameter" in row and row["reference_lay_over_pitch_diameter"] is not None:
         row["lay_length_m"] = row["reference_lay_over_pitch_diameter"] * cls.pitch_diameter(fit["positions"])
-    row.update(cls.interpret(row["coefficients"]))
-    row.update(cls.field_share(_context(data, fit["positions"], state["feature_currents"]),  # (the cores' field)
-                               model.features(fit["positions"])[..., -size:], row["coefficients"]))
+    share_ctx, share_feats = (_context(data, fit["positions"], state["feature_currents"]),  # (the cores' field)
+                              model.features(fit["positions"])[..., -size:])
+
+    def sizes(coefficients) -> dict:  # what the coefficients mean: the report's numbers
+        return {**cls.interpret(coefficients), **cls.field_share(share_ctx, share_feats, coefficients)}
+
+    row.update(sizes(row["coefficients"]))
+    in_sample = bool(row["lr_pvalue"] * n_candidates < state["alpha"] and row["delta_bic"] < 0)
+    if in_sample:
+        row.update(_size_errors(model, fit, size, sizes, row))
     for key in ("coupling_sensor", "nonlinearity_sensor", "position_angle_sensor", "position_radius_sensor",
                 "position_axis_sensor"):
         if row.get(key) is not None and data.sensor_ids is not None:  # the recording's number, not the diagnosed
             row[key] = int(data.sensor_ids[row[key]])  # ring's (dead ones out)
-    in_sample = bool(row["lr_pvalue"] * n_candidates < state["alpha"] and row["delta_bic"] < 0)
     unphysical = (cls.unphysical(row["coefficients"], fit["terms"][-1][1]) if in_sample  # (a null fit's sign
                   else "")  # means nothing)
     row["_in_sample"] = in_sample and not unphysical
@@ -1015,6 +1021,37 @@ def _evaluate(cls, data: _Data, state: dict, n_candidates: int, levels) -> dict:
         row.update(unphysical=unphysical, note=f"not accepted: {unphysical}")
     row["_fit"], row["_model"], row["_signature"] = fit, model, signature
     return row
+
+
+SIZE_DRAWS = 400  # draws of the coefficients through which their standard errors reach the report's numbers
+
+
+def _size_errors(model: "_Model", fit: dict, size: int, sizes, row: dict) -> dict:
+    """Standard errors of what an effect's fitted coefficients mean (its tilt, share, bend, offsets: `sizes`), as
+    "<key>_se": the coefficients' covariance σ² (JᵀJ)⁻¹ from the projected Jacobian (positions, calibration
+    corrections and terms; inflated by a residual RMS above 1 σ), drawn SIZE_DRAWS times through `sizes`. A number
+    picked as the largest of several (a coupling, a bend) is judged over the draws that pick the same one; angles
+    that wrap (directions) are left without. They are the noise's alone: where a candidate approximates its effect
+    (nearby_iron's four terms per core, a lay's first order) its size also carries that approximation, which they
+    do not hold (a blind check's iron shares scattered 5× between seeds)."""
+    _, J = model.projected_jacobian(fit)
+    norms = np.linalg.norm(J, axis=0)
+    norms[norms == 0] = 1.0
+    rms_z = float(np.sqrt(np.mean(np.asarray(fit["residuals"]) ** 2)))
+    cov = np.linalg.pinv((J / norms).T @ (J / norms)) / np.outer(norms, norms) * max(1.0, rms_z) ** 2
+    c, cov = np.asarray(row["coefficients"], float), cov[-size:, -size:]
+    row["coefficient_standard_errors"] = np.sqrt(np.clip(np.diag(cov), 0.0, None)).tolist()
+    values, draws = sizes(c), []
+    u, s, _ = np.linalg.svd(0.5 * (cov + cov.T))
+    for z in np.random.default_rng(0).standard_normal((SIZE_DRAWS, len(c))):
+        draws.append(sizes(c + u @ (np.sqrt(np.clip(s, 0.0, None)) * z)))
+    picked = [d for d in draws if all(d.get(k) == v for k, v in values.items() if isinstance(v, (int, str)))]
+    out = {}
+    for key, v in values.items():
+        drawn = [d[key] for d in picked if isinstance(d.get(key), float) and np.isfinite(d[key])]
+        if isinstance(v, float) and "direction" not in key and len(drawn) >= SIZE_DRAWS // 2:
+            out[f"{key}_se"] = float(np.std(drawn))  # (a size some draws do not have, a closing distance: left out)
+    return out
 
 
 def _confirm(row: dict, data: _Data, state: dict, levels) -> dict:
@@ -1671,6 +1708,15 @@ def _ranking_lines(d) -> list:
     return lines
 
 
+def _pm(row, key: str, unit: str, scale: float = 1.0) -> str:
+    """' ± e' of a size's standard error (_size_errors: the noise's), with its unit only where the unit follows it
+    ('°'); '' when there is none."""
+    se = row.get(f"{key}_se")
+    if se is None:
+        return ""
+    return f" ± {scale * se:.2g}" + (unit if unit == "°" else "")
+
+
 def _accepted_text(row) -> str:
     """An accepted effect's name with what it found (a lay's length and coefficient)."""
     if row.get("lay_length_m") is not None:
@@ -1678,7 +1724,8 @@ def _accepted_text(row) -> str:
         return (f"{row['effect']} (lay {1e3 * row['lay_length_m']:.3g} mm, {row['reference_lay_over_pitch_diameter']:.3g} "
                 f"pitch diameters, coefficient {c[0]:.3g})")
     if row.get("tilt_deg") is not None:
-        return f"{row['effect']} ({row['tilt_deg']:.2g}° towards {row['tilt_direction_deg']:.0f}° in the cable frame)"
+        return (f"{row['effect']} ({row['tilt_deg']:.2g}°{_pm(row, 'tilt_deg', '°')} towards "
+                f"{row['tilt_direction_deg']:.0f}° in the cable frame)")
     if row.get("background_t") is not None:
         return (f"{row['effect']} ({1e6 * row['background_t']:.3g} µT towards {row['background_direction_deg']:.0f}° "
                 f"in the cable frame at the ring's centre; it does not follow the currents)")
@@ -1687,9 +1734,10 @@ def _accepted_text(row) -> str:
     if row.get("background_curvature_t") is not None:
         return f"{row['effect']} ({1e6 * row['background_curvature_t']:.3g} µT at the ring's radius)"
     if row.get("position_radius_sensor") is not None:  # (no sensor, no size had been said)
-        words = {"position_radius": lambda i, v: f"sensor {i} {abs(v):.2g} mm {'further out' if v > 0 else 'further in'}",
-                 "position_angle": lambda i, v: f"sensor {i} {v:+.2g}° along the ring",
-                 "position_axis": lambda i, v: f"sensor {i}'s axes turned {v:+.2g}°"}
+        words = {"position_radius": lambda i, v: (f"sensor {i} {abs(v):.2g}{_pm(row, 'position_radius', ' mm')} mm "
+                                                  f"{'further out' if v > 0 else 'further in'}"),
+                 "position_angle": lambda i, v: f"sensor {i} {v:+.2g}°{_pm(row, 'position_angle', '°')} along the ring",
+                 "position_axis": lambda i, v: f"sensor {i}'s axes turned {v:+.2g}°{_pm(row, 'position_axis', '°')}"}
         # each against its typical assembly error (SensorPositionError: 0.15 mm, 0.5°, 1°); those under a quarter of
         # the largest so measured left out (a 0.5 mm radial error came with −0.0086° "along the ring")
         scaled = {k: abs(row[k]) / typical for k, typical in
@@ -1713,13 +1761,14 @@ def _accepted_text(row) -> str:
     if row.get("nonlinearity_sensor") is not None:
         c, median = row["nonlinearity_at_100ut"], row["nonlinearity_median_at_100ut"]
         return (f"{row['effect']} (largest: sensor {row['nonlinearity_sensor']}'s {row['nonlinearity_axis']} axis reads "
-                f"{100 * c:+.2g} % at 100 µT, the sensors' median {100 * median:+.2g} %: a reading that bends with the "
+                f"{100 * c:+.2g}{_pm(row, 'nonlinearity_at_100ut', ' %', 100)} % at 100 µT, the sensors' median "
+                f"{100 * median:+.2g}{_pm(row, 'nonlinearity_median_at_100ut', ' %', 100)} %: a reading that bends with the "
                 "field, cubic in the current — a sensor compressing towards its range; keep the field at the sensors "
                 "well within it, or calibrate at the currents it measures)")
     if row.get("coupling_sensor") is not None:  # (the sensor and size had been only in the JSON's coefficients)
         other = "yx"["xy".index(row["coupling_axis"])]
         head = (f"{row['effect']} (largest: sensor {row['coupling_sensor']}'s {row['coupling_axis']} axis reads "
-                f"{100 * row['coupling']:.3g} % of the field along its {other}")
+                f"{100 * row['coupling']:.3g}{_pm(row, 'coupling', ' %', 100)} % of the field along its {other}")
         cx, cy = row.get("coupling_pair", (row["coupling"], 0.0))
         # x reading c_x of y and y reading c_y of x: turned together by (c_x − c_y)/2, off right angles by c_x + c_y
         # (a blind check's sensors turned as a whole, 0.2–0.6°, had read "an axis 0.54° off right angles")
@@ -1763,8 +1812,10 @@ def _text(d) -> str:
     outside = ("the reference currents' scatter (REFERENCE below); " if meter else "") + OUTSIDE_CANDIDATES
     if d.accepted:
         untried = any(r["effect"] == "background_field" and r.get("not_applicable") for r in d.ranking)
-        out.append(f"FOUND: {', '.join(_accepted_text(r) for r in d.ranking if r['significant'])} (added in "
-                   "this order)"
+        found = ', '.join(_accepted_text(r) for r in d.ranking if r['significant'])
+        out.append(f"FOUND: {found} (added in this order"
+                   + ("; ± the noise's alone: a candidate's own approximation of its effect is not in it, and in "
+                      "simulations it was up to 10 times larger" if " ± " in found else "") + ")"
                    + (" — tentative: with the currents fitted a field that does not follow them was not tried, and "
                       "these may stand in for it (see CAVEAT)" if untried else ""))
         lines = confound_lines(d, CABLE_REGIME_WORDS)
@@ -1905,7 +1956,10 @@ def _calibration_line(check: dict, not_explained: bool, method: str | None = Non
     if found:  # (a busbar's gradient taken by sensor_position_error had left a perfect calibration "to recalibrate")
         why += (f", or what the effects found ({', '.join(found)}) do not model, which the refit's gains took up: "
                 "record more rotations to tell them apart")
-        own = [f for f in found if not f.startswith(ROOM_EFFECTS)]
+        own = [f for f in found if not f.startswith(ROOM_EFFECTS) and f != "sensor_nonlinearity"]
+        if "sensor_nonlinearity" in found:  # (a bend is the sensors' own at any jig: its calibration current matters)
+            why += (", or the sensors' bend (sensor_nonlinearity), which a calibration folds into its gains at its own "
+                    "current: calibrate at the currents the ring measures")
         if own:  # (a blind check: every lay, tilt and sensor effect had been in its calibration run too, whose gains
             # took it up — up to 0.24 off where the refit's were within 1e-3 — and only "changed" was offered)
             why += (f", or the calibration run had {', '.join(own)} too, which its gains took up — the refit's gains "
