@@ -715,3 +715,16 @@ def test_picotesla_and_gamma_are_field_units(tmp_path):
     assert read_recording(path).field_units() == "nT"
     from fluxcal.calibration import TESLA_PER_UNIT
     assert TESLA_PER_UNIT["pT"] == 1e-12
+
+
+@pytest.mark.parametrize("orient", ["columns", "index"])
+def test_pandas_to_json_default_and_index_layouts_are_read(tmp_path, orient):
+    """DataFrame.to_json()'s default ({column: {index: value}}) had been read as one record (mx_0, mx_1, …)."""
+    import pandas as pd
+
+    d = np.random.default_rng(0).normal(0, 30, (50, 3))
+    path = tmp_path / "frame.json"
+    pd.DataFrame({"t": np.arange(50) * 0.02, "mx": d[:, 0], "my": d[:, 1], "mz": d[:, 2]}).to_json(path, orient=orient)
+    rec = read_recording(path)
+    np.testing.assert_allclose(rec.samples(), d, atol=1e-9)  # (to_json writes 10 decimals)
+    np.testing.assert_allclose(rec.time(), np.arange(50) * 0.02, atol=1e-9)

@@ -3,6 +3,7 @@
     {"t": 0.02, "mag": {"x": -13.62, "y": 27.37, "z": -17.02}, "acc": [0.1, 0.0, 9.8]}   JSON Lines, one per line
     [{"ts": 20, "mx": -13.62, "my": 27.37, "mz": -17.02}, ...]                           a list of records
     {"columns": ["time", "Bx (uT)", ...], "data": [[0.0, -13.62, ...], ...]}               a table (pandas "split")
+    {"mx": {"0": -13.62, "1": -13.58, ...}, "my": {...}}                                    pandas to_json's default
 
 A record is flattened: nested objects join their keys with "_" (mag.x → mag_x), a list of numbers gives
 name[0], name[1], …; fluxcal.io.columns then finds the magnetometer, time, temperature by name. The
@@ -22,7 +23,7 @@ from pathlib import Path
 
 import numpy as np
 
-from .csv import SKIP_HINT, _timestamps, check_bad_lines, listing
+from .csv import SKIP_HINT, _is_number, _timestamps, check_bad_lines, listing
 from .recording import Recording
 
 _DECODER = json.JSONDecoder()
@@ -186,3 +187,20 @@ def table_rows(data: dict):
     return [(k + 1, dict(zip(names, row)) if isinstance(row, list) and len(row) == len(names) else
              f"{len(row) if isinstance(row, list) else 'not a list of'} values, the table has {len(names)} columns")
             for k, row in enumerate(rows)]
+
+
+def nested_rows(data: dict):
+    """[(row number, record)] of pandas to_json's default layout (orient "columns": {column: {index: value}}) or of
+    orient "index" ({index: {column: value}}), told apart by which keys are index labels (numbers: 0, 1, … or epoch
+    milliseconds), or None when `data` is neither (a single record with nested objects: {"mag": {"x": …}})."""
+    inner = [list(v) for v in data.values() if isinstance(v, dict)]
+    if len(inner) != len(data) or not inner or not inner[0] or any(keys != inner[0] for keys in inner):
+        return None
+    def labels(keys) -> bool:
+        return all(_is_number(str(k)) for k in keys)
+    if labels(inner[0]) and not labels(data):  # {column: {index: value}}
+        return [(k + 1, {c: data[c][i] for c in data}) for k, i in enumerate(inner[0])]
+    if labels(data) and not labels(inner[0]):  # {index: {column: value}}
+        return [(k + 1, dict(record)) for k, record in enumerate(data.values())]
+    return None
+

@@ -294,6 +294,9 @@ def _json_recording(path, text: str, columns, units, bad_lines) -> Recording:
     rows = jsonrecords.table_rows(data) if data.get("kind") != JSON_KIND else None
     if rows is not None:
         return jsonrecords.read_records(path, rows, bad_lines, what="data row").choose(columns, units)
+    rows = jsonrecords.nested_rows(data) if data.get("kind") != JSON_KIND else None
+    if rows is not None:  # (pandas' default to_json had been read as one record, mx_0, mx_1, …)
+        return jsonrecords.read_records(path, rows, bad_lines, what="row").choose(columns, units)
     if data.get("kind") != JSON_KIND and not any(isinstance(v, list) for v in data.values()):
         return jsonrecords.read_records(path, [(1, data)], bad_lines).choose(columns, units)  # one JSON line
     if data.get("kind") == JSON_KIND:
