@@ -243,8 +243,9 @@ def test_bad_input_is_a_clear_error():
     with pytest.raises(ValueError, match="readings: shape"):
         diagnose_cable(y[:, :3], RING)
     bad = y.copy()
-    bad[7, 2, 1] = np.nan
-    with pytest.raises(ValueError, match="snapshot 7, sensor 2, axis y"):
+    bad[:, 2, 1] = np.nan
+    bad[7, 2, 1] = 0.0  # a sensor axis that reads in 1 snapshot only: too many left to leave out
+    with pytest.raises(ValueError, match="snapshot 0, sensor 2, axis y"):
         diagnose_cable(bad, RING)
     with pytest.raises(ValueError, match="unknown cable effect"):
         diagnose_cable(**kwargs, candidates=["gremlins"])
@@ -509,9 +510,12 @@ def test_a_dead_sensor_is_left_out_and_a_missing_reading_is_named():
                for c in d.caveats), d.caveats
     assert [row["bin"] for row in d.where["tables"]["sensor"]] == ["sensor 0", "sensor 1", "sensor 3"]
     assert not d.significant
-    dead[5, 1, 0] = np.nan
-    with pytest.raises(ValueError, match=r"snapshot 5, sensor 1, axis x is not finite \(1 such values in 1 "
-                                         r"snapshots\): leave those snapshots out"):
+    dead[5, 1, 0] = np.nan  # one reading missing: its snapshot left out, said (it had stopped the diagnosis)
+    d = diagnose_cable(**{**kwargs, "readings": dead})
+    assert any("snapshot 5, sensor 1, axis x is not finite (1 such values in 1 snapshots): those snapshots left out "
+               f"(5), the other {len(dead) - 1} diagnosed" in c for c in d.caveats), d.caveats
+    dead[: len(dead) // 5, 0, 1] = np.nan  # a fifth of the snapshots: the recording to be cleaned first
+    with pytest.raises(ValueError, match=r"snapshot 0, sensor 0, axis y is not finite .*: leave those snapshots out"):
         diagnose_cable(**{**kwargs, "readings": dead})
 
 

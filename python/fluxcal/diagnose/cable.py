@@ -1023,6 +1023,9 @@ def _evaluate(cls, data: _Data, state: dict, n_candidates: int, levels) -> dict:
     return row
 
 
+# Snapshots holding a non-finite reading that are left out, with a note, up to this share of the recording (more: an
+# error asking for it to be cleaned)
+MISSING_SNAPSHOTS = 0.1
 SIZE_DRAWS = 400  # draws of the coefficients through which their standard errors reach the report's numbers
 
 
@@ -1212,9 +1215,20 @@ def _prepare(readings, ring, currents, rotations_deg, positions, calibration, no
     bad = np.argwhere(~np.isfinite(y))
     if len(bad):
         s, i, a = bad[0]
-        raise ValueError(f"readings: snapshot {s}, sensor {ids[i]}, axis {'xy'[a]} is not finite ({len(bad)} such "
-                         f"values in {len(np.unique(bad[:, 0]))} snapshots): leave those snapshots out (a ring "
-                         "file read with --bad-lines skip, bad_lines='skip', drops the lines that hold one)")
+        snapshots = np.unique(bad[:, 0])
+        what = (f"snapshot {s}, sensor {ids[i]}, axis {'xy'[a]} is not finite ({len(bad)} such values in "
+                f"{len(snapshots)} snapshots)")
+        if len(snapshots) > MISSING_SNAPSHOTS * k:  # (one NaN had stopped the whole diagnosis)
+            raise ValueError(f"readings: {what}: leave those snapshots out (a ring file read with --bad-lines skip, "
+                             "bad_lines='skip', drops the lines that hold one)")
+        keep = np.ones(k, bool)
+        keep[snapshots] = False
+        notes.append(f"{what}: those snapshots left out ({', '.join(map(str, snapshots[:10]))}"
+                     f"{', …' if len(snapshots) > 10 else ''}), the other {int(keep.sum())} diagnosed")
+        y = y[keep]
+        rotations_deg, t, currents = (v if v is None or np.shape(v)[:1] != (k,) else np.asarray(v)[keep]
+                                      for v in (rotations_deg, t, currents))  # (a wrong shape: refused below)
+        k = int(keep.sum())
     raw = y
     if calibration is not None:
         y = calibration.apply(y)
