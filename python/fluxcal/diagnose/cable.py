@@ -1560,7 +1560,8 @@ def _background_source(model: _Model, fit: dict, radius_m: float) -> dict | None
 def _solve_errors(data: _Data, positions, added, fit_background: bool) -> np.ndarray:
     """`cable solve --joint [--fit-background]` (straight cores) on readings made of the ring's model at `positions`
     and the reference currents plus `added` (K, M, 2), each rotation's snapshots together, warm-started at
-    `positions`: each carrying snapshot's largest current error over its largest current."""
+    `positions`: each carrying snapshot's largest current error over its largest current, at the rotations the solve
+    calls well conditioned."""
     n, errors = data.n, []
     for r, angle in enumerate(data.unique):
         rows = data.rot_index == r
@@ -1571,6 +1572,8 @@ def _solve_errors(data: _Data, positions, added, fit_background: bool) -> np.nda
         try:
             sol = ring.solve(readings, n_conductors=n, fit_background=fit_background, initial_positions=positions)
         except ValueError:  # (fitted positions outside the bore: the CAVEAT says so)
+            continue
+        if not sol.well_conditioned:  # (`cable solve` flags such a rotation itself: its error is not the effects')
             continue
         order = [int(np.argmin(np.linalg.norm(sol.positions - p, axis=1))) for p in positions]
         got, wanted = np.atleast_2d(sol.currents)[:, order], data.reference[rows]
