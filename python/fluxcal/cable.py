@@ -1152,6 +1152,12 @@ def read_ring_csv(path, bad_lines: str = "error") -> dict:
         if positions.size % 2:
             raise ValueError(f"{path}: positions_m holds {positions.size} numbers; it needs x y pairs")
         positions = positions.reshape(-1, 2)
+        wanted = [f"i{j}" for j in range(len(positions))]
+        if cur_names and cur_names != wanted:  # (a missing i1 had surfaced as a shape error further on)
+            missing = [n for n in wanted if n not in cur_names]
+            raise ValueError(f"{path}: positions_m gives {len(positions)} conductors, the reference currents are "
+                             f"{', '.join(cur_names)}" + (f": column {', '.join(missing)} missing" if missing else "")
+                             + " (one current column i0, i1, … per conductor, in positions_m's order)")
     t = rec.columns.get("t")
     if t is not None:
         t = t * _column_scale(path, "t", rec.units.get("t", ""), TIME_UNITS, "s", "a time unit")
@@ -1160,7 +1166,7 @@ def read_ring_csv(path, bad_lines: str = "error") -> dict:
             "positions_m": positions, "t_s": None if t is None else np.asarray(t, float),
             "unused_columns": [n for n in rec.columns if n not in used],
             "skipped_lines": rec.metadata.get("skipped_lines"), "line_numbers": rec.line_numbers,
-            "current_names": cur_names}
+            "current_names": cur_names, "rotations_given": "rotation_deg" in rec.columns}
 
 
 def ring_columns_note(data: dict) -> str | None:

@@ -1449,6 +1449,9 @@ def _ring_notes(cable, data: dict) -> None:
     note = cable.ring_columns_note(data)
     if note:
         print(note)
+    if not data.get("rotations_given", True) and len(data["readings"]) > 1:
+        print(f"note: no rotation_deg column: all {len(data['readings'])} snapshots taken at rotation 0° (the ring's "
+              "turn about the cable is read from rotation_deg, in degrees)")
     # The field scales as I/r: readings or a radius in the wrong unit fit exactly, the currents or positions scaled by
     # it (µT read as tesla gave 8 MA, well conditioned; a radius in mm, conductors metres apart). Said by their size.
     largest = float(np.nanmax(np.abs(data["readings"]))) if np.isfinite(data["readings"]).any() else 0.0

@@ -1221,3 +1221,23 @@ def test_a_sigma_from_the_residuals_says_its_degrees_of_freedom():
     assert any("with 7 degrees of freedom" in w and "±2.36 standard errors" in w for w in sol.summary["warnings"])
     given = ring.solve(y, n_conductors=3, noise_sigma=1e-8)
     assert "noise_sigma_dof" not in given.summary and not any("degrees of freedom" in w for w in given.summary["warnings"])
+
+
+def test_a_ring_file_without_rotations_or_with_a_current_column_missing_says_so(tmp_path):
+    src = tmp_path / "cal.csv"
+    assert run_cli("cable", "simulate", "-o", src, "--calibration").returncode == 0
+    lines = src.read_text().splitlines()
+    head = next(k for k, line in enumerate(lines) if line.startswith("rotation_deg"))
+    cols = lines[head].split(",")
+    def without(name):
+        j = cols.index(name)
+        return "\n".join(lines[:head] + [",".join(c for i, c in enumerate(line.split(",")) if i != j)
+                                         for line in lines[head:]]) + "\n"
+    norot, noi1 = tmp_path / "norot.csv", tmp_path / "noi1.csv"
+    norot.write_text(without("rotation_deg"))
+    noi1.write_text(without("i1"))
+    r = run_cli("cable", "solve", norot, "--conductors", "2")
+    assert "note: no rotation_deg column: all" in r.stdout and "snapshots taken at rotation 0°" in r.stdout, r.stdout
+    r = run_cli("cable", "calibrate", noi1)
+    assert r.returncode == 2 and "positions_m gives 2 conductors, the reference currents are i0: column i1 missing" \
+        in r.stderr, r.stderr
