@@ -1741,8 +1741,9 @@ def _accepted_text(row) -> str:
         return (f"{row['effect']} (lay {1e3 * row['lay_length_m']:.3g} mm, {row['reference_lay_over_pitch_diameter']:.3g} "
                 f"pitch diameters, coefficient {c[0]:.3g})")
     if row.get("tilt_deg") is not None:
-        return (f"{row['effect']} ({row['tilt_deg']:.2g}°{_pm(row, 'tilt_deg', '°')} towards "
-                f"{row['tilt_direction_deg']:.0f}° in the cable frame)")
+        psi = row["tilt_direction_deg"]  # (the field change repeats every half turn: ψ and ψ + 180° alike)
+        return (f"{row['effect']} ({row['tilt_deg']:.2g}°{_pm(row, 'tilt_deg', '°')} towards {psi:.0f}° or "
+                f"{psi + 180:.0f}° in the cable frame — the readings cannot tell the two)")
     if row.get("background_t") is not None:
         return (f"{row['effect']} ({1e6 * row['background_t']:.3g} µT towards {row['background_direction_deg']:.0f}° "
                 f"in the cable frame at the ring's centre; it does not follow the currents)")
