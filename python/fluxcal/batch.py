@@ -316,6 +316,19 @@ def _is_ours(path: Path) -> bool:
         return False
 
 
+def _is_calibration(path: Path) -> bool:
+    """Whether `path` is a calibration fluxcal wrote (<unit>.json, or a .json.stale set aside): with the output
+    folder the recordings' own, --pattern '*' had taken an earlier run's as recordings ("unit1.csv and unit1.json
+    would both be unit 'unit1'")."""
+    if not path.name.endswith((".json", ".json.stale")):
+        return False
+    try:
+        data = json.loads(path.read_text())
+    except (OSError, ValueError):
+        return False
+    return isinstance(data, dict) and "fluxcal_version" in data and {"offset", "matrix"} <= set(data)
+
+
 def _left_out(directory: Path, out_dir: Path, pattern: str, taken) -> dict:
     """The files of `directory` that `pattern` did not take, counted by extension ({".tsv": 1, ".txt": 1}): not
     hidden ones, the batch's own summaries, nor (when the output folder is the recordings' own) the calibrations it
@@ -345,7 +358,8 @@ def _left_out_words(left_out: dict, pattern: str, none_taken: bool = False) -> s
 def _recordings(directory: Path, out_dir: Path, pattern: str) -> list:
     # never read a summary back as a recording: this run's, or an earlier run's left in the recordings' folder
     ours = {p for d in (out_dir, directory) for p in (d / name for name in SUMMARY_FILES) if _is_ours(p)}
-    paths = sorted(p for p in directory.glob(pattern) if p.is_file() and p not in ours)
+    paths = sorted(p for p in directory.glob(pattern) if p.is_file() and p not in ours
+                   and not (out_dir == directory and _is_calibration(p)))  # (a run's own <unit>.json, read again)
     if not paths:
         left_out = _left_out(directory, out_dir, pattern, [])
         raise ValueError(f"{directory}: no recordings matching {pattern!r}"

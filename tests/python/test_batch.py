@@ -298,3 +298,17 @@ def test_a_simulated_recording_is_calibrated_as_calibrate_does(cluster, tmp_path
     assert r.returncode == 0, r.stderr
     calibrate_fleet(folder, tmp_path / "out", scheduler=cluster.scheduler_address, progress=False)
     assert Calibration.load(tmp_path / "out" / "sim.json").field_norm == pytest.approx(50000.0)
+
+
+def test_a_run_into_the_recordings_own_folder_with_every_file_taken_runs_again(cluster, tmp_path):
+    """-o the recordings' folder and --pattern '*': the second run had taken the first's u0.json for a recording
+    ("u0.csv and u0.json would both be unit 'u0'"); now it skips every unit already done."""
+    for i in range(3):
+        s = _unit(4000 + i)
+        _write(tmp_path / f"u{i}.csv", s.readings, s.t)
+    first = calibrate_fleet(tmp_path, tmp_path, scheduler=cluster.scheduler_address, field_norm=H, pattern="*",
+                            progress=False)
+    assert first.summary["counts"]["ok"] == 3
+    again = calibrate_fleet(tmp_path, tmp_path, scheduler=cluster.scheduler_address, field_norm=H, pattern="*",
+                            progress=False)
+    assert again.summary["counts"]["skipped"] == 3
