@@ -555,8 +555,8 @@ def _repeated_headers(path, lines, header: int, names, delimiter, unit_map: dict
     repeats = []
     for j in range(header + 1, len(lines)):
         text = lines[j].lstrip()
-        if not (text[:1].isalpha() or text[:1] in "\"'") or is_comment(text):
-            continue  # data rows start with a digit, sign or point (the test stays cheap on a long log)
+        if not (text[:1].isalpha() or text[:1] in "\"'") or is_comment(text) or not all(n in text for n in names):
+            continue  # data rows start with a digit, sign or point, or lack the names (the test stays cheap)
         cells = [_split_header(c) for c in _header_cells(lines[j].strip(), delimiter)]
         if sorted(n for n, _ in cells) != sorted(names):
             continue
