@@ -728,3 +728,18 @@ def test_pandas_to_json_default_and_index_layouts_are_read(tmp_path, orient):
     rec = read_recording(path)
     np.testing.assert_allclose(rec.samples(), d, atol=1e-9)  # (to_json writes 10 decimals)
     np.testing.assert_allclose(rec.time(), np.arange(50) * 0.02, atol=1e-9)
+
+
+def test_a_mat_v4_file_is_read(tmp_path):
+    """MAT v4 (save -v4, older instrument software) has no text header: it had been refused as "does not start as
+    a MATLAB .mat file"."""
+    from scipy.io import savemat
+
+    d = np.random.default_rng(0).normal(0, 30, (40, 3))
+    savemat(tmp_path / "v4.mat", {"mag": d}, format="4")
+    np.testing.assert_array_equal(read_recording(tmp_path / "v4.mat").samples(), d)
+    savemat(tmp_path / "v4vec.mat", {"Bx": d[:, :1], "By": d[:, 1:2], "Bz": d[:, 2:]}, format="4")
+    np.testing.assert_array_equal(read_recording(tmp_path / "v4vec.mat").samples(), d)
+    (tmp_path / "cut.mat").write_bytes((tmp_path / "v4.mat").read_bytes()[:100])
+    with pytest.raises(ValueError, match=r"cut.mat: not a readable MATLAB .mat file \(truncated or corrupt"):
+        read_recording(tmp_path / "cut.mat")

@@ -6,6 +6,7 @@ Reading looks at the bytes, not the name (a file's extension is only a hint in m
                                      Excel .xlsx/.xlsm      (fluxcal.io.excel; needs fluxcal[excel])
     \\x93NUMPY                      → NumPy .npy (one N×3 array)
     "MATLAB 5.0 MAT-file" header   → MATLAB .mat v5/v7     (fluxcal.io.matlab)
+    a MAT v4 matrix header (.mat)  → MATLAB .mat v4        (fluxcal.io.matlab: SciPy reads it too)
     HDF5, "MATLAB 7.3" header      → MATLAB v7.3 / HDF5    (fluxcal.io.hdf5; needs fluxcal[hdf5])
     PAR1                           → Parquet               (fluxcal.io.parquet)
     \\xA3\\x95                      → ArduPilot DataFlash .bin (fluxcal.io.drone; needs fluxcal[drone])
@@ -81,7 +82,7 @@ def sniff(path) -> str:
         return "npy"
     if head.startswith(b"MATLAB 7.3") or (head.startswith(b"MATLAB") and b"HDF5" in head):
         return "hdf5"
-    if head.startswith(b"MATLAB"):
+    if head.startswith(b"MATLAB") or (path.suffix.lower() == ".mat" and _mat_v4(head)):
         return "mat"
     if head.startswith(b"\x89HDF"):
         return "hdf5"
@@ -114,6 +115,24 @@ def sniff(path) -> str:
     if not head:
         raise ValueError(f"{path}: empty file")
     return "text"
+
+
+def _mat_v4(head: bytes) -> bool:
+    """Whether `head` starts as a MAT v4 file (MATLAB's save -v4, SciPy's savemat(format="4"), older instruments'
+    software): no text header, but a first matrix header of five int32 — type MOPT (M 0–1 byte order, O 0, P 0–5
+    the number type, T 0–2), rows, columns, imaginary flag 0 or 1, the name's length with its NUL. Had been refused
+    as "does not start as one"."""
+    import struct
+
+    if len(head) < 20:
+        return False
+    for order in "<>":
+        mopt, rows, cols, imag, namelen = struct.unpack(order + "5i", head[:20])
+        m, o, p, t = mopt // 1000, mopt // 100 % 10, mopt // 10 % 10, mopt % 10
+        if (0 <= mopt < 2000 and m == (0 if order == "<" else 1) and o == 0 and p <= 5 and t <= 2
+                and rows >= 0 and cols >= 0 and imag in (0, 1) and 1 < namelen <= 64):
+            return True
+    return False
 
 
 def _zip_holds(path: Path, member: str) -> bool:
