@@ -743,3 +743,16 @@ def test_a_mat_v4_file_is_read(tmp_path):
     (tmp_path / "cut.mat").write_bytes((tmp_path / "v4.mat").read_bytes()[:100])
     with pytest.raises(ValueError, match=r"cut.mat: not a readable MATLAB .mat file \(truncated or corrupt"):
         read_recording(tmp_path / "cut.mat")
+
+
+def test_a_banner_above_a_table_without_a_header_is_named_as_such(tmp_path):
+    """The banner had been taken for the header: "line 2: 3 fields, the header has 1 … (garbled line?)"."""
+    d = np.random.default_rng(0).normal(0, 30, (40, 3))
+    path = tmp_path / "banner.csv"
+    path.write_text("HMC5883L logger v1.2\n" + "".join(f"{x:.3f},{y:.3f},{z:.3f}\n" for x, y, z in d))
+    with pytest.raises(ValueError, match=r"banner.csv, line 2: 3 comma-separated numbers and no header \(line 1 above "
+                                         r"them, 'HMC5883L logger v1.2', is text: a banner\); name the columns"):
+        read_recording(path)
+    rec = read_recording(path, columns="mx,my,mz")
+    np.testing.assert_allclose(rec.samples(), d, atol=1e-3)
+    assert rec.metadata["preamble"].endswith("line 1: HMC5883L logger v1.2")

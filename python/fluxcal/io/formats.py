@@ -279,6 +279,8 @@ def _read_table(path: Path, columns, units, bad_lines: str = "error") -> Recordi
     lead = _lead_lines(lines, start, delimiter, len(given)) if given is not None and len(given) > 1 else 0
     if lead:  # a banner or a partial line above a header-less table whose columns --columns names
         return _read_after_lead(path, lines, start, lead, columns, len(given), units, bad_lines, delimiter)
+    if given is None:
+        _banner_above_headerless(path, lines, start, delimiter)
     first = [c.strip() for c in decimal_points(lines[start:start + 400], 0, delimiter)[0][0].split(delimiter)]
     numbers = sum(_is_number(c) for c in first)
     # a row of mostly numbers with a text cell or two (ROS `rostopic echo -p`: frame_id) is data, not a header,
@@ -363,6 +365,33 @@ def _lead_lines(lines, start: int, delimiter, count: int) -> int:
         if fits(k) and fits(body[n + 1]):
             return k - start
     return 0
+
+
+def _banner_above_headerless(path: Path, lines, start: int, delimiter) -> None:
+    """Refuse, naming both, a banner of free text above a table of numbers without a header: the banner had been
+    taken for the header ("line 2: 3 fields, the header has 1 … garbled line?"). --columns reads such a file (the
+    banner kept as its preamble)."""
+    from .csv import _header_cells
+
+    body = [_cells(lines[k], delimiter) for k in range(start, min(len(lines), start + 30))
+            if lines[k].strip() and not is_comment(lines[k])]
+    widths = Counter(len(c) for c in body if len(c) > 1 and all(_numberish(x, delimiter) for x in c))
+    if not widths:
+        return
+    count = widths.most_common(1)[0][0]
+    lead = _lead_lines(lines, start, delimiter, count)
+    lead_cells = [_header_cells(lines[k].strip(), delimiter) for k in range(start, start + lead)]  # (quotes kept)
+    # a banner is one field of text: a line of fewer names than the columns is a short header, said as before, and
+    # a line of numbers the partial line a capture starts with
+    if lead and all(len(c) <= 1 for c in lead_cells) and any(
+            not all(_numberish(x, delimiter) for x in c) for c in lead_cells if c and c != [""]):
+        sep = {"\t": "tab", ",": "comma", None: "whitespace"}.get(delimiter, repr(delimiter))
+        example = ",".join(["mx", "my", "mz"][:count] if count <= 3 else ["t", "mx", "my", "mz"][:count] +
+                           [f"c{k}" for k in range(5, count + 1)])
+        raise ValueError(f"{path}, line {start + lead + 1}: {count} {sep}-separated numbers and no header (line "
+                         f"{start + 1} above them, {lines[start].strip()[:60]!r}, is text: a banner); name the columns "
+                         f"with --columns (Python: columns=; one name per column, e.g. {example}) — the banner is then "
+                         "kept as the preamble — or add a header line under it")
 
 
 def _read_after_lead(path: Path, lines, start: int, lead: int, columns, count: int, units, bad_lines: str,
