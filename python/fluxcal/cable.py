@@ -1155,9 +1155,12 @@ def read_ring_csv(path, bad_lines: str = "error") -> dict:
         wanted = [f"i{j}" for j in range(len(positions))]
         if cur_names and cur_names != wanted:  # (a missing i1 had surfaced as a shape error further on)
             missing = [n for n in wanted if n not in cur_names]
+            others = [n for n in rec.columns if n not in {c for pair in names for c in pair} | set(cur_names)
+                      | {"rotation_deg", "t"}]
             raise ValueError(f"{path}: positions_m gives {len(positions)} conductors, the reference currents are "
                              f"{', '.join(cur_names)}" + (f": column {', '.join(missing)} missing" if missing else "")
-                             + " (one current column i0, i1, … per conductor, in positions_m's order)")
+                             + " (one current column i0, i1, … per conductor, in positions_m's order)"
+                             + (f"; columns not used: {', '.join(others)} — is one of them a current?" if others else ""))
     t = rec.columns.get("t")
     if t is not None:
         t = t * _column_scale(path, "t", rec.units.get("t", ""), TIME_UNITS, "s", "a time unit")

@@ -343,9 +343,15 @@ def test_ring_files_in_other_units_and_formats_are_read_as_stated(tmp_path):
     with pytest.raises(ValueError, match=r"column\(s\) IA hold currents \(A\), but reference currents are read "
                                          "from columns named i0, i1"):
         read_ring_csv(renamed)
-    renamed.write_text(path.read_text().replace("rotation_deg,i0,", "rotation_deg,IA,"))
+    renamed.write_text(path.read_text().replace("rotation_deg,i0,", "rotation_deg,IA,"))  # no unit: i0 is missing
+    with pytest.raises(ValueError, match=r"the reference currents are i1: column i0 missing .*; columns not used: IA "
+                                         r"— is one of them a current\?"):
+        read_ring_csv(renamed)
+    rows = path.read_text().splitlines()  # a column the ring does not read (a note beside i0): said, not an error
+    renamed.write_text("\n".join(r if r.startswith("#") else ",".join(r.split(",")[:2] + [
+        "IA_note" if r.startswith("rotation_deg") else "0"] + r.split(",")[2:]) for r in rows) + "\n")
     from fluxcal.cable import ring_columns_note
-    assert "columns not used: IA (reference currents are read from i0, i1" in ring_columns_note(read_ring_csv(renamed))
+    assert "columns not used: IA_note (reference currents are read from i0" in ring_columns_note(read_ring_csv(renamed))
     timed = tmp_path / "timed.csv"  # t in ms, stated
     lines = path.read_text().splitlines()
     k = next(i for i, line in enumerate(lines) if line.startswith("rotation_deg,"))
