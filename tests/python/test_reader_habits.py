@@ -381,3 +381,50 @@ def test_a_very_wide_header_less_row_is_shown_short(tmp_path):
     said = str(err.value)
     assert "t,mx,my,mz,c5,…,c40: 40 names" in said and "1: 0.123457, 2: 1.12346," in said and "40: 39.1235" in said, said
     assert "123456789" not in said and len(said) < 900, len(said)
+
+
+def _german_whole_numbers(values) -> list:
+    """German Excel's #.##0: whole numbers with points between thousands groups (-48.123, 523)."""
+    return [f"{v:,.0f}".replace(",", ".") for v in values]
+
+
+def test_point_thousands_beside_decimal_commas_are_read(tmp_path):
+    # a German export: time in seconds with a decimal comma, the field in nT as #.##0 (a 45 among them). The
+    # points had been read as decimal points (a field of 50 nT, 1000 times small: a review)
+    rng = np.random.default_rng(3)
+    field = rng.normal(size=(40, 3)) * 30000
+    field[5] = [45, -812, 7]
+    lines = [f"{0.1 * i:.1f}".replace(".", ",") + ";" + ";".join(_german_whole_numbers(row))
+             for i, row in enumerate(field)]
+    path = write(tmp_path, "de.csv", "Zeit;Bx [nT];By [nT];Bz [nT]\n" + "\n".join(lines) + "\n")
+    with pytest.warns(UserWarning, match=r"columns Bx, By, Bz: 1\.234 read as 1234 \(a thousands separator"):
+        rec = read_recording(path)
+    np.testing.assert_array_equal(rec.samples(), np.round(field))
+    np.testing.assert_allclose(rec.columns["Zeit"], 0.1 * np.arange(40), atol=1e-12)
+    assert rec.metadata["decimal_separator"] == "comma"
+    assert rec.metadata["thousands_separator"] == "point (Bx, By, Bz)"
+
+
+def test_point_thousands_of_a_long_table_are_read_by_the_spread_of_its_whole_numbers(tmp_path):
+    # no comma anywhere, independent orientations (no smooth run): the values under 1000 that #.##0 writes
+    # without a point spread over 0–999, as only whole numbers of a field in the tens of thousands do
+    rng = np.random.default_rng(4)
+    field = rng.normal(size=(300, 3)) * 30000
+    field[[3, 40, 77, 150], [0, 1, 2, 0]] = [523, -87, 914, -406]
+    body = "\n".join(";".join(_german_whole_numbers(row)) for row in field)
+    path = write(tmp_path, "de.csv", "Bx [nT];By [nT];Bz [nT]\n" + body + "\n")
+    with pytest.warns(UserWarning, match=r"1\.234 read as 1234"):
+        rec = read_recording(path)
+    np.testing.assert_array_equal(rec.samples(), np.round(field))
+
+    # µT printed with %g: three decimals on most cells, a few exact whole numbers of two digits: decimal
+    thousandths = rng.integers(1, 100, size=(30, 3)) * 10 + rng.integers(1, 10, size=(30, 3))  # no trailing 0
+    micro = rng.integers(10, 60, size=(30, 3)) + thousandths / 1000
+    micro[[2, 9, 17, 25], [0, 0, 0, 0]] = [45, 21, 33, 12]
+    body = "\n".join(";".join(f"{v:g}" for v in row) for row in micro)
+    path = write(tmp_path, "micro.csv", "mx;my;mz\n" + body + "\n")
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        rec = read_recording(path)
+    np.testing.assert_allclose(rec.samples(), micro)
+    assert "thousands_separator" not in rec.metadata

@@ -190,7 +190,7 @@ def thousands_read(path, metadata: dict, marks: dict) -> None:
     metadata["thousands_separator"] = f"{word} (" + ", ".join(names) + ")"
     warnings.warn(f"{path}: column{'s' if len(names) > 1 else ''} {', '.join(names)}: 1{mark}234 read as 1234 (a "
                   f"thousands separator, not a decimal {word}): every {word} has three digits after it and the "
-                  f"whole numbers beside them have three; if they are decimal {word}s, save the table with decimals "
+                  f"whole numbers beside them are below 1000; if they are decimal {word}s, save the table with decimals "
                   "written out", stacklevel=4)
 
 
@@ -604,8 +604,9 @@ def decimal_points(lines, start: int, delimiter, separated: dict | None = None):
     lists the columns whose thousands are grouped so, or is [-1] when none is. When some columns hold decimal
     points (an ISO time 12:00:01.5, a column a program wrote in its own format), only the decimal-comma columns
     are converted. When the commas group thousands instead (48,123 beside 523, see _comma_thousands_columns),
-    or points do in a table without commas (48.123 beside 523, see _point_thousands_whole_columns), they are
-    dropped, converted is [] and those columns are added to `separated` (when given) with their mark."""
+    or points do (48.123 beside 523, see _point_thousands_whole_columns), they are dropped, those columns are
+    added to `separated` (when given) with their mark, and converted is [] unless other columns hold decimal
+    commas (0,1;48.123: the points group thousands, the commas are decimal)."""
     from .columns import comma_kind
 
     if delimiter not in (";", "\t"):
@@ -615,7 +616,8 @@ def decimal_points(lines, start: int, delimiter, separated: dict | None = None):
     if points:
         if separated is not None:
             separated.update(dict.fromkeys(points, "."))
-        return _ungrouped(lines, start, delimiter, points, ".", lambda cell: bool(_POINT_THOUSAND.match(cell))), []
+        lines = _ungrouped(lines, start, delimiter, points, ".", lambda cell: bool(_POINT_THOUSAND.match(cell)))
+        rows = data_cells(lines[start:start + 400], delimiter)  # the decimal commas beside them are read next
     columns, grouped = _decimal_comma_columns(rows), _point_thousands_columns(rows)
     if not columns and not grouped:
         return lines, []
@@ -701,21 +703,37 @@ _WHOLE = re.compile(r'^\s*"?([-+]?\d+)"?\s*$')
 def _point_thousands_whole_columns(rows) -> list:
     """The columns of a ';' or tab table (`rows`: the first data lines' cells) whose points group the thousands
     of whole numbers (a German spreadsheet's #.##0 saved as text: 48.123 beside 523), else []; as
-    _comma_thousands_columns does for commas. Taken so when no cell holds a comma, the columns' cells are whole
-    numbers or one to three digits, a point and three digits (1.234), the whole numbers among them all have
-    three digits (100–999: the columns run on across 1000) and there is one, and each column holding one runs
-    more smoothly read so (-1.204 then -987: -1204, -987). µT to three decimals (48.123, 47.998) stays decimal
-    beside 48.5, a 0 or a 45; so do seconds 100.980 then 101."""
-    if any("," in c for row in rows for c in row):
-        return []
+    _comma_thousands_columns does for commas. A column is a candidate when its cells are whole numbers or one to
+    three digits, a point and three digits (1.234), some of the latter. The candidates are taken when their whole
+    numbers (|n| < 1000 written without a point) say so, one of:
+    - the table writes decimal commas in other columns (0,1: its points are no decimal points) and some whole
+      number of one to three digits stands among the candidates;
+    - each candidate holds ten or more 1.234 cells and three or more whole numbers, two thirds of those of three
+      digits (a spread over 0–999, as the values below 1000 of a column running to tens of thousands are;
+      µT to three decimals prints 45.000, and a %g-printed one has 20.5 beside its few whole numbers);
+    - (a few lines) the whole numbers all have three digits (100–999: the columns run on across 1000), and
+      each column holding one runs more smoothly read so (-1.204 then -987: -1204, -987).
+    µT to three decimals (48.123, 47.998) stays decimal beside 48.5, a 0 or a 45 in a short table without
+    commas; so do seconds 100.980 then 101."""
     by_column = {}
     for j in range(max(map(len, rows), default=0)):
         cells = [row[j] for row in rows if j < len(row) and row[j].strip()]
         if any("." in c for c in cells) and all(_POINT_THOUSAND.match(c) or _WHOLE.match(c) for c in cells):
             by_column[j] = cells
     columns = list(by_column)
-    whole = {j: [m.group(1) for m in map(_WHOLE.match, cells) if m] for j, cells in by_column.items()}
-    if not any(whole.values()) or not all(re.fullmatch(r"[-+]?[1-9]\d{2}", w) for ws in whole.values() for w in ws):
+    whole = {j: [m.group(1).lstrip("+-") for m in map(_WHOLE.match, cells) if m] for j, cells in by_column.items()}
+    wholes = [w for ws in whole.values() for w in ws]
+    if not wholes or any(len(w) > 3 or (len(w) > 1 and w[0] == "0") for w in wholes):
+        return []  # 1234 has no separator; 0123 is no number a spreadsheet writes
+    decimal_commas = any(_DECIMAL_COMMA.match(c) for row in rows for c in row)
+    if decimal_commas:
+        return columns
+    if any("," in c for row in rows for c in row):
+        return []
+    if all(sum("." in c for c in by_column[j]) >= 10 and len(whole[j]) >= 3
+           and sum(len(w) == 3 for w in whole[j]) >= 2 * len(whole[j]) / 3 for j in columns):
+        return columns
+    if not all(len(w) == 3 for w in wholes):
         return []
     if not all(_smoother_as_thousands(by_column[j]) for j in columns if whole[j]):
         return []
