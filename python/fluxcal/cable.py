@@ -211,8 +211,8 @@ class Ring:
                     "±1.96); give noise_sigma (a calibration's scatter, the datasheet's) for intervals of their own"]
         silent = silent_sensors(arr)
         if silent.any():
-            r["summary"]["warnings"] = [f"sensor(s) {', '.join(map(str, np.nonzero(silent)[0]))} {SILENT_WORDS}: "
-                                        "solved as readings; leave them out (Ring.subset)"] + list(r["summary"]["warnings"])
+            r["summary"]["warnings"] = [f"{'; '.join(silent_words(arr, silent))}: solved as readings; leave them "
+                                        "out (Ring.subset)"] + list(r["summary"]["warnings"])
         clipped = clipped_readings(arr)
         if clipped.any():
             r["summary"]["warnings"] = [clipped_words(arr, clipped)] + list(r["summary"]["warnings"])
@@ -269,16 +269,49 @@ def clipped_readings(readings) -> np.ndarray:
 
 
 def silent_sensors(readings) -> np.ndarray:
-    """The sensors of `readings` ((snapshots, n_sensors, 2), or (n_sensors, 2)) that read exactly 0.0 on both axes in
-    every snapshot while others read a field: a sensor that does not answer (a failed bus read returns zeros), dead.
-    No field a sensor measures reads 0.0 to the last digit on two axes; solved as a reading, such a sensor had a
-    three-core cable carry 319 A for 100 A, and the diagnosis found no significant effect. Boolean (n_sensors,)."""
+    """The sensors of `readings` ((snapshots, n_sensors, 2), or (n_sensors, 2)) that read nothing of the field: exactly
+    0.0 on both axes in every snapshot while others read a field (a sensor that does not answer: a failed bus read
+    returns zeros), or the same value on both axes in every one of three or more snapshots while most others changed
+    (frozen_sensors). No field a sensor measures reads 0.0 to the last digit on two axes; solved as a reading, such
+    a sensor had a three-core cable carry 319 A for 100 A, and the diagnosis found no significant effect. Boolean
+    (n_sensors,); silent_words says which is which."""
     arr = np.asarray(readings, dtype=float).reshape(-1, np.shape(readings)[-2], 2)
     zero = (arr == 0.0).all(axis=(0, 2))
-    return zero & bool(np.any(arr[:, ~zero][np.isfinite(arr[:, ~zero])] != 0.0))
+    return (zero & bool(np.any(arr[:, ~zero][np.isfinite(arr[:, ~zero])] != 0.0))) | frozen_sensors(arr)
+
+
+def frozen_sensors(readings) -> np.ndarray:
+    """The sensors of `readings` ((snapshots, n_sensors, 2)) whose two axes read the same finite values, to the last
+    digit, in all of three or more snapshots while most of the other sensors' readings changed (a sensor stuck on
+    its last reading — a hung bus, a frozen register —, or clipped on both axes): noise alone makes a live sensor's
+    readings differ, so it reads nothing of these snapshots. A ring whose sensors all hold still (a steady current
+    under a coarse quantum) names none. Boolean (n_sensors,)."""
+    arr = np.asarray(readings, dtype=float)
+    frozen = np.zeros(arr.shape[1], dtype=bool)
+    if arr.ndim != 3 or len(arr) < 3:
+        return frozen
+    finite = np.isfinite(arr).all(axis=(0, 2))
+    still = finite & (arr == arr[:1]).all(axis=(0, 2)) & ~(arr == 0.0).all(axis=(0, 2))
+    for i in np.nonzero(still)[0]:
+        others = finite & (np.arange(arr.shape[1]) != i)
+        changed = ~(arr[:, others] == arr[:1, others]).all(axis=(0, 2))
+        frozen[i] = others.sum() >= 2 and changed.sum() > others.sum() / 2
+    return frozen
 
 
 SILENT_WORDS = "read exactly 0 on both axes in every snapshot (a sensor that does not answer: dead?)"
+
+
+def silent_words(readings, silent) -> list:
+    """What a silent_sensors mask says, a phrase per kind: the sensors reading 0, and those frozen on one value."""
+    arr = np.asarray(readings, dtype=float).reshape(-1, np.shape(readings)[-2], 2)
+    frozen = np.asarray(silent) & ~(arr == 0.0).all(axis=(0, 2))
+    named = lambda mask: ", ".join(map(str, np.nonzero(mask)[0]))  # noqa: E731
+    said = [f"sensor(s) {named(silent & ~frozen)} {SILENT_WORDS}"] if (silent & ~frozen).any() else []
+    if frozen.any():
+        said.append(f"sensor(s) {named(frozen)} read the same value on both axes in all {len(arr)} snapshots while "
+                    "the others changed (stuck on its last reading, or clipped on both axes: dead?)")
+    return said
 
 
 def clipped_words(readings, mask, unit_t: float = 1e-6, unit: str = "µT") -> str:
@@ -606,6 +639,11 @@ def calibrate_ring(readings, true_fields, method: str = "twostep") -> RingCalibr
             raise ValueError(f"true_fields: the field at sensor {i} never changes direction (its readings lie on a "
                              "line: one rotation of the ring?); turn the ring about the cable between readings "
                              "(the paper uses 5 × 72°)")
+        if len(m) >= 3 and (m == m[0]).all():  # a field that turns read as one value: nothing to fit
+            raise ValueError(f"sensor {i}: reads {m[0, 0]:.6g}, {m[0, 1]:.6g} in all {len(m)} calibration readings while "
+                             "the field at it turns (stuck on its last reading, not answering, or clipped on both "
+                             "axes: dead?): it cannot be calibrated; repair it, or leave its columns out of the ring "
+                             "(ring_angles_deg without it) for a ring of the others")
         if len(m) < 5:  # (not the first step's failure, which the fallback below is for)
             raise ValueError(f"sensor {i}: {len(m)} calibration readings, need at least 5 for its offset and gains "
                              "(the paper takes 5 rotations × both current directions × repeats)")

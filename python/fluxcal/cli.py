@@ -1471,7 +1471,7 @@ def _solve_ring_snapshots(ring, ring_cal, snaps, rotation: float, rows, args, ze
     `zero`: with --subtract-zero, (count, mean current) of the zero snapshots taken off. Returns the solution as a
     JSON-ready dict (its `_said` for the printing)."""
     from ._core import CableSolveOptions
-    from .cable import SILENT_WORDS, silent_sensors
+    from .cable import silent_sensors, silent_words
 
     silent = silent_sensors(snaps)
     live = np.isfinite(snaps).all(axis=(0, 2)) & ~silent
@@ -1488,8 +1488,8 @@ def _solve_ring_snapshots(ring, ring_cal, snaps, rotation: float, rows, args, ze
                          "past any sensor's range (a garbled line?)")
     if not live.all():
         named = lambda mask, words: f"sensor(s) {', '.join(map(str, np.nonzero(mask)[0]))} {words}"  # noqa: E731
-        said = [named(mask, words) for mask, words in ((~live & ~silent, "not finite (dead?)"), (silent, SILENT_WORDS))
-                if mask.any()]
+        said = ([named(~live & ~silent, "not finite (dead?)")] if (~live & ~silent).any() else []) \
+            + silent_words(snaps, silent)
         print(f"{where}: {'; '.join(said)}: solved with the other {int(live.sum())}")
     sub = ring.subset(live)
     snaps = snaps[:, live]

@@ -1210,6 +1210,46 @@ def test_a_sensor_stuck_at_zero_is_left_out_as_dead(tmp_path):
     assert not fluxcal.cable.silent_sensors(np.zeros((20, 8, 2))).any()  # nothing read anywhere: not one sensor's fault
 
 
+def test_a_sensor_frozen_on_one_reading_is_left_out_as_dead(tmp_path):
+    """A sensor stuck on its last reading (a hung bus, a frozen register) repeats one nonzero value while the others
+    follow the currents: solved as readings it pulls the currents off; `cable solve` leaves it out, Ring.solve and the
+    diagnosis say it. A ring whose readings all hold still (a steady current under a coarse quantum) names none."""
+    ring = Ring(np.arange(0.0, 360.0, 45.0), 0.01)
+    cores = np.array([[-1.7e-3, -1.0e-3], [0.0, 2.0e-3], [1.7e-3, -1.0e-3]])
+    phasors = 10.0 * np.exp(-2j * np.pi * np.arange(3) / 3) * np.array([1.0, 0.8, 1.1])
+    currents = ac_currents(phasors, np.linspace(0.0, 0.02, 20, endpoint=False))
+    y = ring.field(cores, currents) + np.random.default_rng(5).normal(0, 1e-8, (20, 8, 2))
+    y[:, 5] = y[7, 5]  # frozen on the reading of snapshot 7
+    path = fluxcal.cable.write_ring_csv(tmp_path / "frozen.csv", ring, y)
+    out = tmp_path / "sol.json"
+    r = run_cli("cable", "solve", path, "--conductors", "3", "--joint", "-o", out)
+    assert r.returncode == 0, r.stdout + r.stderr
+    assert ("sensor(s) 5 read the same value on both axes in all 20 snapshots while the others changed (stuck on "
+            "its last reading, or clipped on both axes: dead?): solved with the other 7") in r.stdout, r.stdout
+    sol = json.loads(out.read_text())["solutions"][0]
+    assert sol["sensors_used"] == [0, 1, 2, 3, 4, 6, 7]
+    np.testing.assert_allclose(np.array(sol["currents_a"]), currents, atol=0.05)
+    warned = ring.solve(y, n_conductors=3).summary["warnings"]
+    assert any(w.startswith("sensor(s) 5 read the same value on both axes in all 20 snapshots") for w in warned)
+    d = fluxcal.diagnose_cable(y, ring, n_conductors=3)
+    assert any("sensor(s) 5 read the same value" in c and "the ring of the other 7 diagnosed" in c
+               for c in d.caveats), d.caveats
+
+    # in a calibration run it is refused by name (TWOSTEP had called its first step rank deficient)
+    rotations = np.repeat(np.arange(5) * 72.0, 4)
+    true = np.stack([ring.rotated(a).field(cores, currents[k % 20]) for k, a in enumerate(rotations)])
+    run = true + np.random.default_rng(6).normal(0, 1e-8, true.shape)
+    run[:, 2] = run[3, 2]
+    with pytest.raises(ValueError, match=r"sensor 2: reads .* in all 20 calibration readings while the field at it "
+                                         r"turns \(stuck on its last reading"):
+        fluxcal.cable.calibrate_ring(run, true)
+
+    assert not fluxcal.cable.frozen_sensors(np.repeat(y[:1], 20, axis=0)).any()  # every sensor still: none named
+    assert not fluxcal.cable.frozen_sensors(y[:2]).any()  # two snapshots: too few to tell
+    quantised = np.round(ring.field(cores, np.repeat(currents[:1], 20, axis=0)) / 1e-6) * 1e-6
+    assert not fluxcal.cable.silent_sensors(quantised).any()  # a steady current under a 1 µT quantum
+
+
 def test_a_sigma_from_the_residuals_says_its_degrees_of_freedom():
     """One snapshot of 8 sensors for 3 conductors leaves 7 degrees of freedom: with σ from the residuals the errors
     over their standard errors follow t₇ (sd 1.18: a blind check's "15–22 % small"), which the summary says."""

@@ -60,8 +60,8 @@ import numpy as np
 from scipy import stats
 from scipy.optimize import least_squares
 
-from ..cable import (LACK_OF_FIT_P, POSE_RTOL, SILENT_WORDS, Ring, RingCalibration, clipped_readings, clipped_words,
-                     consecutive_runs, run_sums, silent_sensors)
+from ..cable import (LACK_OF_FIT_P, POSE_RTOL, Ring, RingCalibration, clipped_readings, clipped_words,
+                     consecutive_runs, run_sums, silent_sensors, silent_words)
 from ..sim.cable_effects import MU0_OVER_2PI, CABLE_CANDIDATES, sensor_points, straight_unit_fields, to_axes
 from .core import (ABSORBED, HELDOUT_ALPHA, HELDOUT_FRACTION, MIN_GAIN, Diagnosis, _binned, _collapsed, _gap,
                    _improvement_pvalue, _quantile_bins, _rivals, _unexplained, _whitened_lr, _whiteness,
@@ -1204,8 +1204,8 @@ def _prepare(readings, ring, currents, rotations_deg, positions, calibration, no
         notes.append(clipped_words(y, clipped))
     if dead.any() and not dead.all():
         ids = np.nonzero(~dead)[0]
-        said = [f"sensor(s) {', '.join(map(str, np.nonzero(mask)[0]))} {words}" for mask, words in (
-            (dead & ~silent, "read no finite value in any snapshot (dead?)"), (silent, SILENT_WORDS)) if mask.any()]
+        said = ([f"sensor(s) {', '.join(map(str, np.nonzero(dead & ~silent)[0]))} read no finite value in any "
+                 "snapshot (dead?)"] if (dead & ~silent).any() else []) + silent_words(y, silent)
         notes.append(f"{'; '.join(said)}: left out, the ring of the other {len(ids)} diagnosed")
         ring, y = ring.subset(ids), y[:, ids]
         calibration = None if calibration is None else calibration.subset(ids)
