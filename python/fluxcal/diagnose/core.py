@@ -1567,7 +1567,7 @@ def _profile_value(cls, ctx, result: dict, Q: np.ndarray, e: np.ndarray, vector:
         lo = side[j - 1] if j > 0 else sign * value  # the grid's first value is a bound (saturation: the readings' reach)
         hi = side[j + 1] if j + 1 < len(side) else (sign * value * ratio if cls.profile_open_end else sign * value)
         best = minimize_scalar(lambda x: -gain(sign * np.exp(x)), bounds=(np.log(lo), np.log(hi)), method="bounded",
-                               options={"xatol": 1e-3})
+                               options={"xatol": cls.profile_xatol})
         if -best.fun > best_gain:
             value, best_gain = float(sign * np.exp(best.x)), -best.fun
     if cls.profile_null is not None:  # the parameter pays for itself (BIC's price, in the residual's variance) or stays null

@@ -518,6 +518,7 @@ LINE_LOWEST = 1.0    # Hz: above the turns of a hand or a vehicle and a thermal 
 LINE_BAND = 0.1      # its band ± this share of its frequency (a line fixed in the sensor's axes, seen through the
                      # field's turning direction, spreads by the turn rates)
 MAINS = (50.0, 60.0)
+MAINS_DRIFT = 0.2    # Hz: how far a power grid's frequency runs from its nominal one (Europe's limit in a disturbance)
 
 
 def _spectral_line(d) -> str:
@@ -559,6 +560,33 @@ def _spectral_line(d) -> str:
     return f"; most of it one line near {_g(at, 2)} Hz: {cause}"
 
 
+def periodic_interference_line(d, r) -> str:
+    """The line's frequency, each axis' amplitude and the peak field it adds, and what may make it: the mains aliased
+    by the sampling rate when a mains harmonic folds onto it, else a part running at a steady rate."""
+    u = f" {d.units}" if d.units else ""
+    c = np.asarray(r["coefficients"], dtype=float)
+    a, b = c[:3], c[3:6]  # sin and cos parts per axis
+    # the peak over a cycle of |M (a sin + b cos)| in the field: the larger singular value of [M a, M b]
+    peak = float(np.linalg.svd(d.base.matrix @ np.column_stack([a, b]), compute_uv=False)[0])
+    f = float(r["frequency_hz"])
+    t = np.asarray(d.series.get("t") if d.series.get("t") is not None else [], dtype=float)
+    steps = np.diff(np.sort(t))
+    fs = 1.0 / float(np.median(steps[steps > 0])) if np.any(steps > 0) else 0.0
+    resolution = 2.0 / float(np.ptp(t)) if len(t) > 1 and np.ptp(t) > 0 else 0.0
+    # a harmonic k of the mains folded by the sampling (a grid runs up to MAINS_DRIFT off its nominal frequency);
+    # one folded onto 0 Hz is an offset that wanders, not this line
+    folded = lambda hz: abs(hz - round(hz / fs) * fs)  # noqa: E731
+    mains = [(m, k) for m in MAINS for k in range(1, 6) if fs > 0 and folded(k * m) >= 0.5
+             and abs(folded(k * m) - f) <= max(resolution, MAINS_DRIFT * k)]
+    cause = (f"the {_g(mains[0][0])} Hz mains{'' if mains[0][1] == 1 else f' (its harmonic {mains[0][1]})'} aliased "
+             f"by the {_g(fs)} Hz sampling? — an anti-alias filter before the converter, or readings averaged over "
+             "whole mains periods" if mains else
+             "a motor, fan or pump at a steady speed, a PWM-driven heater or LED, a switching supply near the "
+             "sensor? — move it or the sensor, or log its current (motor_current)")
+    return (f"periodic_interference: a field at {_g(f, 4)} Hz fixed in the sensor's axes, amplitude "
+            f"{_vec(np.hypot(a, b))}{u} (x, y, z), up to {_share(d, peak)} ({cause})")
+
+
 def quantization_line(d, r) -> str:
     u = f" {d.units}" if d.units else ""
     steps = np.asarray(r["steps"], dtype=float)
@@ -587,7 +615,8 @@ SIZE_LINES = {"temp_offset": temp_offset_line, "temp_scale": temp_scale_line, "n
               "saturation": saturation_line, "saturation_knee": knee_line, "cross_axis": cross_axis_line,
               "non_orthogonality": non_orthogonality_line, "hysteresis": hysteresis_line,
               "eddy_current": eddy_current_line, "motor_current": motor_current_line,
-              "colored_noise": colored_noise_line, "quantization": quantization_line}
+              "colored_noise": colored_noise_line, "quantization": quantization_line,
+              "periodic_interference": periodic_interference_line}
 """The size line of each effect found that has no line of its own in `text` (offset_drift, scale_drift,
 offset_step, moving_dipole: their functions above; misalignment, time_offset: their move)."""
 

@@ -71,6 +71,7 @@ class Effect:
     profile_name = ""
     profile_null = None      # a value at which the candidate is its plain form (kept unless the profile pays for itself)
     profile_open_end = True  # the refinement may go one grid step beyond the last finite grid value
+    profile_xatol = 1e-3     # the refinement's tolerance in log(value) (a frequency needs far finer)
     # It acts in the transducer, on what the transducer sees (`ctx.signal`): a gain, a non-linearity. Whether
     # that includes the offset is the sensor's: a platform's hard iron is a field at the sensor and passes
     # through the transducer; a sensor's own electronic offset is added after it. The diagnosis tries both
@@ -922,6 +923,93 @@ class ScaleDrift(_TimeCourse, Effect):
         return cls(rng.choice([-1, 1], 3) * rng.uniform(0.005, 0.01, 3) / duration_s)
 
 
+LINE_PEAKS = 4         # periodic_interference: the residual spectrum's highest peaks whose frequencies are tried
+LINE_STEPS = (-1.0, -0.5, 0.0, 0.5, 1.0)  # ... each at these offsets, in the recording's frequency resolution 1/T
+LINE_LOWEST_CYCLES = 4.0  # ... from this many cycles in the recording (slower is a drift's course) to the Nyquist
+
+
+@dataclass
+class PeriodicInterference(Effect):
+    """A field at one frequency fixed in the sensor's frame: m + a sin(2π f t) + c cos(2π f t), a and c per axis
+    (reading units) — a motor's or fan's field at a steady speed, a PWM-driven heater or LED, a switching supply,
+    the mains aliased by the sampling rate, with no current logged (with one, motor_current). Seen through the
+    magnitude its line is spread by the sensor's turning; the candidate models it in the sensor's axes, so the fit
+    takes the spread line whole. The frequency is profiled (`frequency_hz`): the exact fit's best among the highest
+    peaks of the residuals' spectrum (each projected onto what the fit sees), refined between them. Typical:
+    0.5–1.5 % of the field at 1–10 Hz."""
+
+    amplitude: np.ndarray
+    frequency_hz: float
+    phase: np.ndarray
+    name = "periodic_interference"
+    n_params = 6
+    regime = "time"
+    needs = ("t", "timestamps")  # a frequency in Hz needs real times
+    profile_name = "frequency_hz"
+    profile_open_end = False
+    # (in log f: 1e-3 had left 6 mHz at 5.6 Hz, a third of a cycle over a minute, for colored_noise to take)
+    profile_xatol = 1e-7
+
+    def apply(self, values, context):
+        t = np.asarray(context.t, dtype=float)
+        return values + np.asarray(self.amplitude) * np.sin(2 * np.pi * self.frequency_hz * t[:, None]
+                                                            + np.asarray(self.phase))
+
+    @classmethod
+    def features_at(cls, ctx, value):
+        w = 2 * np.pi * float(value) * (np.asarray(ctx.t, dtype=float) - float(np.min(ctx.t)))
+        sin, cos = np.sin(w), np.cos(w)
+        return np.concatenate([_per_axis(np.repeat(sin[:, None], 3, axis=1)),
+                               _per_axis(np.repeat(cos[:, None], 3, axis=1))], axis=1)
+
+    @classmethod
+    def features(cls, ctx):
+        return cls.features_at(ctx, cls.profile_grid(ctx)[0])
+
+    @classmethod
+    def profile_grid(cls, ctx):
+        """Frequencies about the LINE_PEAKS highest peaks of what the fit leaves, seen as the fit sees it: against
+        reference vectors the readings less the model's (per axis), against magnitudes that difference along
+        each axis' share of the magnitude (the line modulated by the turning, demodulated per axis). Readings
+        resampled onto their median step (a few dropped samples do not move a line)."""
+        span, step = _span_and_step(ctx.t)
+        if not (span > 0 and step > 0) or len(ctx.t) < 64:
+            return np.array([1.0])
+        return _per_context(ctx, "_line_grid", (ctx.t, ctx.readings, ctx.signal), lambda: cls._grid(ctx, span, step))
+
+    @staticmethod
+    def _grid(ctx, span: float, step: float) -> np.ndarray:
+        t = np.asarray(ctx.t, dtype=float)
+        order = np.argsort(t, kind="stable")
+        rest = (np.asarray(ctx.readings) - np.asarray(ctx.signal))[order]
+        if ctx.vector:
+            series = rest
+        else:  # e = uᵀ A (m − s): each axis' part of the magnitude residual, modulated by u
+            A = np.linalg.inv(ctx.W)
+            u = np.asarray(ctx.field)[order]
+            u = u / np.linalg.norm(u, axis=1, keepdims=True)
+            e = np.einsum("nk,nk->n", u @ A, rest)
+            series = e[:, None] * (u @ A)
+        even = np.arange(t[order][0], t[order][-1] + 0.5 * step, step)
+        series = np.column_stack([np.interp(even, t[order], c) for c in series.T])
+        series -= series.mean(axis=0)
+        power = np.sum(np.abs(np.fft.rfft(series, axis=0)) ** 2, axis=1)
+        f = np.fft.rfftfreq(len(even), step)
+        df = 1.0 / (len(even) * step)
+        usable = (f >= LINE_LOWEST_CYCLES / span) & (f <= 0.5 / step - 2 * df)
+        peaks = np.flatnonzero(usable[1:-1] & (power[1:-1] >= power[:-2]) & (power[1:-1] >= power[2:])) + 1
+        top = peaks[np.argsort(power[peaks])[::-1][:LINE_PEAKS]]
+        if not len(top):
+            return np.array([max(LINE_LOWEST_CYCLES / span, df)])
+        grid = np.unique(np.concatenate([f[top] + k * df for k in LINE_STEPS]))
+        return grid[grid > 0]
+
+    @classmethod
+    def typical(cls, field_norm, rng):
+        return cls(rng.choice([-1, 1], 3) * field_norm * rng.uniform(0.005, 0.015, 3), float(np.exp(rng.uniform(0, np.log(10)))),
+                   rng.uniform(0, 2 * np.pi, 3))
+
+
 # ---------------------------------------------------------------- field effects
 
 def _rows_within(t: np.ndarray, t_on: float, t_off: float, ordered: bool = False):
@@ -1497,7 +1585,7 @@ class Quantization(Effect):
 CANDIDATES = (TemperatureScale, TemperatureOffset, MotorCurrent, OffsetDrift, ScaleDrift, CubicNonlinearity,
               QuadraticNonlinearity, Saturation, SaturationKnee, CrossAxis,
               NonOrthogonality, Misalignment, Hysteresis, MovingDipole, OffsetStep, EddyCurrent, TimeOffset,
-              ColoredNoise, Quantization)
+              PeriodicInterference, ColoredNoise, Quantization)
 """Every effect the diagnosis can rank, by its candidate name (`fluxcal diagnose` documents them)."""
 
 # The unit of each candidate's parameters ("{u}": the readings' unit), for stating a simulation's truth
@@ -1507,6 +1595,7 @@ PARAMETER_UNITS = {
     "temp_scale": {"alpha": "1/degC", "t0": "degC", "lag_s": "s"},
     "temp_offset": {"beta": "{u}/degC", "t0": "degC", "lag_s": "s"},
     "motor_current": {"k": "{u}/A"},
+    "periodic_interference": {"amplitude": "{u}", "frequency_hz": "Hz", "phase": "rad"},
     "offset_drift": {"rate": "{u}/s", "random_walk": "{u}/sqrt(s)", "warmup_s": "s"},
     "scale_drift": {"rate": "1/s", "warmup_s": "s"},
     "nonlinearity_cubic": {"relative": "(fraction at |s| = scale)", "scale": "{u}"},
