@@ -53,7 +53,7 @@ SUMMARY_FILES = ("fleet_summary.csv", "fleet_summary.json", "failures.json")
 
 # The per-unit quantities whose fleet distribution is summarised and screened for outliers.
 QUANTITIES = ("offset_x", "offset_y", "offset_z", "offset_norm", "scale_1", "scale_2", "scale_3", "field_norm",
-              "norm_std_over_mean", "residual_rms", "direction_coverage")
+              "norm_std_over_mean", "held_out_spread", "held_out_rms", "residual_rms", "direction_coverage")
 DEFINITIONS = {
     "offset_x, offset_y, offset_z": "offset b of h = A (m - b), reading units",
     "offset_norm": "|b|, reading units",
@@ -62,11 +62,17 @@ DEFINITIONS = {
                                  "gain is field_norm, the fitted mean radius)",
     "field_norm": "|h| the calibration maps to: the given --field-norm, or the fitted mean radius (reading units)",
     "norm_std_over_mean": "residual spread: std/mean of |h| after correction",
+    "held_out_spread": "std/mean of |h| on the second half of the readings, corrected by the same fit made on the "
+                       "first half (as `fluxcal calibrate` reports it; the accuracy a fleet's units compare by: the "
+                       "whole fit's spread is of the readings it was fitted to); empty when the first half alone "
+                       "cannot be fitted (its reason in warnings)",
+    "held_out_rms": "vector fit (reference vectors): RMS of |h - r| on the second half, fitted on the first, field units",
     "residual_rms": "RMS of the fit residuals, field units",
     "direction_coverage": "fraction of the 96 direction bins the readings visit",
 }
 CSV_COLUMNS = ("unit", "status", "method", "shape", "units", "samples", "offset_x", "offset_y", "offset_z", "offset_norm",
-               "scale_1", "scale_2", "scale_3", "field_norm", "norm_std_over_mean", "residual_rms",
+               "scale_1", "scale_2", "scale_3", "field_norm", "norm_std_over_mean", "held_out_spread",
+               "held_out_rms", "residual_rms",
                "direction_coverage", "coverage_ratio", "identifiable", "noise_sigma", "outlier", "source",
                "warnings", "error")
 
@@ -104,6 +110,8 @@ def unit_row(unit: str, source, cal) -> dict:
         "offset_norm": float(np.linalg.norm(cal.offset)),
         "scale_1": float(gains[0]), "scale_2": float(gains[1]), "scale_3": float(gains[2]),
         "field_norm": cal.field_norm, "norm_std_over_mean": s.get("norm_std_over_mean"),
+        # (a text when the first half alone cannot be fitted: said in the warnings instead)
+        **{k: s[k] if isinstance(s.get(k), (int, float)) else None for k in ("held_out_spread", "held_out_rms")},
         "residual_rms": s.get("residual_rms"), "direction_coverage": s.get("direction_coverage"),
         "coverage_ratio": s.get("coverage_ratio"), "identifiable": s.get("identifiable"),
         "noise_sigma": s.get("noise_sigma"), "outlier": "", "source": str(source),
@@ -145,6 +153,7 @@ def calibrate_unit(path, out_path, method: str = "auto", field_norm: float | Non
             cal.field_units = rec.reference_units()
         elif given is not None and reference is None and units not in TESLA_PER_UNIT:
             cal.field_units = ""  # counts fitted to a norm given without its unit (as calibrate: not stated)
+        _held_out(cal, rec.samples(), reference, given, method)
         if "skipped_lines" in rec.metadata:  # --bad-lines skip: what was left out, kept with the calibration
             cal.metadata["skipped_lines"] = rec.metadata["skipped_lines"]
             cal.summary.setdefault("warnings", []).append(f"skipped {rec.metadata['skipped_lines']}")
@@ -161,6 +170,28 @@ def calibrate_unit(path, out_path, method: str = "auto", field_norm: float | Non
     except Exception as exc:  # one bad unit must not stop the fleet
         return {"unit": unit, "source": str(path), "status": "failed", "error": _message(path, exc)
                 + _set_aside(out_path), "seconds": time.perf_counter() - start}
+
+
+def _held_out(cal, raw, reference, field_norm, method: str) -> None:
+    """The held-out check `fluxcal calibrate` prints, in the unit's summary: the same fit on the first half of the
+    readings, judged on the second (held_out_spread for a magnitude fit, held_out_rms for a vector fit); when the
+    first half alone cannot be fitted, why, among the warnings."""
+    from .cli import _held_out_rms, _held_out_spread
+
+    if reference is None and len(raw) >= 80 and method in ("auto", "als+refine"):
+        value, note = _held_out_spread(raw, cal, field_norm, {})
+        key = "held_out_spread"
+    elif reference is not None and len(raw) >= 40:
+        value, note = _held_out_rms(raw, reference, cal.units, cal, cal.summary.get("outliers", {}).get("rows", []))
+        key = "held_out_rms"
+    else:
+        return
+    if isinstance(value, str):
+        cal.summary.setdefault("warnings", []).append(f"held-out check: {value}")
+        return
+    cal.summary[key] = value
+    if note:
+        cal.summary["held_out_note"] = note
 
 
 def _set_aside(out_path: Path) -> str:
@@ -235,7 +266,8 @@ def fleet_statistics(rows: list, outlier_k: float = OUTLIER_K) -> tuple[dict, li
     same = [r for r in ok if r["units"] == fleet_units]
     dist = {}
     for q in QUANTITIES:
-        values = np.array([r[q] for r in same if r[q] is not None and np.isfinite(r[q])], dtype=float)
+        # (r.get: rows written before a quantity was added lack it)
+        values = np.array([r[q] for r in same if r.get(q) is not None and np.isfinite(r[q])], dtype=float)
         if values.size == 0:
             continue
         dist[q] = d = distribution(values)
@@ -243,7 +275,7 @@ def fleet_statistics(rows: list, outlier_k: float = OUTLIER_K) -> tuple[dict, li
             continue
         limit = outlier_k * d["robust_sigma"]
         for r in same:
-            value = r[q]
+            value = r.get(q)
             if value is None or not np.isfinite(value) or abs(value - d["median"]) <= limit:
                 continue
             deviation = (value - d["median"]) / d["robust_sigma"]

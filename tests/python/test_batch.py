@@ -151,6 +151,16 @@ def test_summary_csv_has_one_row_per_unit(first_run):
     assert rows["unit_000"]["status"] == "ok" and rows["unit_000"]["method"] == "als+refine"
     assert rows["unit_000"]["shape"] in ("sphere", "diag", "sym") and rows["planar"]["shape"] == ""
     assert float(rows["unit_000"]["direction_coverage"]) > 0.8
+    # the held-out check calibrate prints: fitted on the first half, |h|'s spread on the second — about the noise
+    # over the field (σ/H), a little above the whole fit's own; the noisy unit's ten times it
+    spreads = np.array([float(r["held_out_spread"]) for u, r in rows.items() if u.startswith("unit_")])
+    whole = np.array([float(r["norm_std_over_mean"]) for u, r in rows.items() if u.startswith("unit_")])
+    assert 0.9 * NOISE < np.median(spreads) < 1.2 * NOISE and np.median(spreads / whole) > 1.0, np.median(spreads)
+    assert float(rows["noisy"]["held_out_spread"]) > 8 * NOISE and rows["unit_000"]["held_out_rms"] == ""
+    assert rows["planar"]["held_out_spread"] == ""
+    summary = json.loads((out / "fleet_summary.json").read_text())
+    assert summary["distribution"]["held_out_spread"]["n"] == 196 and "held_out_rms" not in summary["distribution"]
+    assert "second half" in summary["definitions"]["held_out_spread"]
 
 
 def test_rerun_skips_every_unit_already_done(first_run, cluster, tmp_path):
