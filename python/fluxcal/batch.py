@@ -252,17 +252,30 @@ def distribution(values) -> dict:
             "p25": float(p[1]), "p75": float(p[2]), "p95": float(p[3]), "min": float(x.min()), "max": float(x.max())}
 
 
+def majority_units(rows: list) -> tuple[str, str]:
+    """The units most of `rows` are in, and, when two or more units are as common, the tie said ("nT 2, uT 2"; the
+    first of them in the rows' order is taken), else ""."""
+    counts = Counter(r["units"] for r in rows).most_common()
+    if not counts:
+        return "", ""
+    top = [(u, n) for u, n in counts if n == counts[0][1]]
+    return counts[0][0], (", ".join(f"{u or 'unstated'} {n}" for u, n in top) if len(top) > 1 else "")
+
+
 def fleet_statistics(rows: list, outlier_k: float = OUTLIER_K) -> tuple[dict, list]:
     """Distributions of QUANTITIES over the identifiable units in the fleet's (most common) units, and
     the outliers: |x − median| > outlier_k·robust σ, per quantity, each with its reason."""
     ok = [r for r in rows if r["status"] == "ok"]
     outliers = []
-    fleet_units = Counter(r["units"] for r in ok).most_common(1)[0][0] if ok else ""
+    fleet_units, tie = majority_units(ok)
+    named = lambda u: u or "unstated units"  # noqa: E731
     for r in ok:
         if r["units"] != fleet_units:
-            outliers.append({"unit": r["unit"], "quantity": "units", "value": r["units"], "reason":
-                             f"readings in {r['units'] or 'unstated units'}, the fleet's are in "
-                             f"{fleet_units or 'unstated units'}: left out of the distributions"})
+            reason = (f"readings in {named(r['units'])}, left out of the distributions: the fleet's units tie ({tie}) "
+                      f"and the distributions are of those in {named(fleet_units)}, the first in order" if tie else
+                      f"readings in {named(r['units'])}, the fleet's are in {named(fleet_units)}: left out of the "
+                      "distributions")
+            outliers.append({"unit": r["unit"], "quantity": "units", "value": r["units"], "reason": reason})
     same = [r for r in ok if r["units"] == fleet_units]
     dist = {}
     for q in QUANTITIES:
@@ -557,8 +570,7 @@ def calibrate_fleet(directory, out_dir, workers: int | None = None, scheduler: s
                    "not_converged": status["not_converged"],
                    "failed": status["failed"], "calibrated_now": len(todo), "skipped": why["done"],
                    "recalibrated_stale": why["stale"], "recalibrated_invalid": why["invalid"]},
-        "fleet_units": Counter(r["units"] for r in ordered if r["status"] == "ok").most_common(1)[0][0]
-        if status["ok"] else "",
+        "fleet_units": majority_units([r for r in ordered if r["status"] == "ok"])[0],
         "definitions": DEFINITIONS,
         "outlier_rule": f"|x - median| > {outlier_k:g} * 1.4826 * MAD per quantity, over the identifiable units "
                         f"(at least {MIN_UNITS_FOR_OUTLIERS}); MAD 0 falls back to 1.2533 * mean |x - median|",

@@ -210,6 +210,11 @@ def test_fleet_statistics_rules():
     reasons = {(o["unit"], o["quantity"]) for o in outliers}
     assert reasons == {("u3", "offset_x"), ("u5", "units")}  # identical values (MAD 0, no spread) flag nothing
     assert dist["offset_x"]["n"] == 7 and dist["field_norm"]["robust_sigma"] == 0
+    # a tie between two units is said, not passed off as the fleet's units (the first in order is taken)
+    tied = [{"unit": f"u{i}", "status": "ok", "units": "nT" if i < 2 else "uT", "offset_x": 1.0} for i in range(4)]
+    said = [o["reason"] for o in fleet_statistics(tied)[1]]
+    assert said == ["readings in uT, left out of the distributions: the fleet's units tie (nT 2, uT 2) and the "
+                    "distributions are of those in nT, the first in order"] * 2, said
 
 
 def _batch_cli(*args):
