@@ -355,3 +355,20 @@ def test_mains_sampled_at_twice_its_frequency_is_not_taken_for_noise():
     assert d.accepted == ["periodic_interference"], d.accepted
     line = _line(d.text(), "periodic_interference")
     assert re.search(r"a field at (49\.95|49\.9[4-6]\d*) Hz", line) and "50 Hz mains aliased by the 100 Hz" in line, line
+
+
+def test_two_interference_lines_are_found_and_sized_each():
+    # a second motor beside the first: the second line had been left to colored_noise ("one line near 7.3 Hz")
+    result, kw = withheld_trial(["periodic_interference"], 0)
+    t = kw["t"]
+    second = 0.4 * np.sin(2 * np.pi * 7.3 * t + 1.0)[:, None] * np.array([0.2, 0.9, -0.4])
+    d = diagnose(result.readings + second, **kw, units="uT")
+    text = d.text()
+    assert d.accepted == ["periodic_interference"] and "FOUND: periodic_interference (2 lines)" in text, text
+    lines = [line.strip() for line in text.splitlines() if line.startswith("  periodic_interference: ")]
+    assert len(lines) == 2, lines
+    truth = _truth(result, "periodic_interference")
+    _periodic(result, d, lines[0])
+    assert float(re.search(rf"at ({NUMBER}) Hz", lines[1]).group(1)) == pytest.approx(7.3, abs=0.01)
+    np.testing.assert_allclose(_vectors(lines[1])[0], 0.4 * np.array([0.2, 0.9, 0.4]), rtol=0.05)
+    assert truth.frequency_hz != pytest.approx(7.3, abs=0.1)

@@ -665,14 +665,16 @@ def _context(data: _Data, result: dict, feats=None) -> SimpleNamespace:
     calibrated into field directions (else the directions carry the effects already modelled)."""
     theta = np.asarray(result["parameters"])
     radius = np.reshape(_field_at(data), (-1, 1))  # |h| of each reading on the model (one for all, or its own)
+    modelled = np.zeros_like(data.m)  # the effects modelled, in the readings (what the fit takes off them)
+    if feats is not None and feats.shape[1]:
+        modelled = np.einsum("p,npk->nk", theta[12 if data.reference is not None else 9:], feats)
     if data.reference is not None:
         W = theta[3:12].reshape(3, 3)
         field = data.reference
     else:
         W = np.linalg.inv(np.asarray(result["matrix"]))
         m = data.m
-        if feats is not None and feats.shape[1]:
-            m = m - np.einsum("p,npk->nk", theta[9:], feats)
+        m = m - modelled
         # on the fitted sphere: the calibrated readings' own magnitude errors in a feature would let a
         # combination of features reproduce them (a degenerate fit to zero residuals: non_orthogonality at
         # coefficients ±1 after a temperature scale error of 4 % was added to a real recording)
@@ -685,7 +687,8 @@ def _context(data: _Data, result: dict, feats=None) -> SimpleNamespace:
     # whose correlation with the residual's noise fakes a fit — saturation came first in 29 of 30 pure
     # white-noise trials at σ = 1 % of the field, and was accepted in 6.
     signal = theta[:3] + direction
-    return SimpleNamespace(signal=signal, readings=data.m, scale=float(np.median(np.linalg.norm(signal, axis=1))),
+    return SimpleNamespace(signal=signal, readings=data.m, modelled=modelled,
+                           scale=float(np.median(np.linalg.norm(signal, axis=1))),
                            vector=data.reference is not None,
                            field=field, W=W, direction=direction, t=data.t, temp=data.temp,
                            current=data.current, world=_world_axes(data, W), memo=data.memo)
@@ -1723,7 +1726,7 @@ def _with_episode(data: _Data, model: str, state: dict, row: dict, i: int, colum
 
 
 # An accepted event's episodes: what each says of itself (its times, its evidence when it was added)
-EPISODE_KEYS = ("on_s", "off_s", "closest_s", "passage_s", "searched_times", "delta_bic", "lr_pvalue",
+EPISODE_KEYS = ("on_s", "off_s", "closest_s", "passage_s", "frequency_hz", "searched_times", "delta_bic", "lr_pvalue",
                 "heldout_pvalue", "heldout_gap_before", "heldout_gap_after")
 
 
@@ -1743,6 +1746,9 @@ def _overlaps(row: dict, event: dict) -> bool:
     """Whether a candidate episode overlaps in time an episode of the accepted event's row: it is then what the
     found episode's shape leaves (a magnet's course inside its own box, a pass's tail), not another occurrence —
     three magnets had come out as three nested boxes, each sized only in the sum."""
+    if row.get("frequency_hz") is not None:  # a line: the same one within the recording's resolution
+        return any(abs(row["frequency_hz"] - e["frequency_hz"]) < 2 * row["resolution_hz"]
+                   for e in event.get("episodes") or [event])
     a, b = _span(row)
     return any(a < d and c < b for c, d in map(_span, event.get("episodes") or [event]))
 
@@ -2618,10 +2624,11 @@ def diagnose(samples, t=None, temp=None, reference=None, gravity=None, field_nor
                     rows[-1]["absorbed_after"] = list(accepted)
             if bar:
                 bar.update(1)
-        # An event found may recur (a magnet carried past again): another episode of it competes with the rest,
-        # and joins its block (each episode counts against max_effects).
+        # An event found may recur (a magnet carried past again), and an interference at one frequency have others
+        # beside it (`recurs`: another line): another episode of it competes with the rest, and joins its block
+        # (each episode counts against max_effects).
         episodes = [dict(_evaluate(names[a], data, model, state, sigma, n_candidates), episode=True) for a in accepted
-                    if names[a].regime == "events" and not names[a].moves_reference]
+                    if (names[a].regime == "events" or names[a].recurs) and not names[a].moves_reference]
         rows += [r for r in episodes if not _overlaps(r, last_rows[r["effect"]])]
         candidates = [r for r in rows if not r.get("episode")]
         if previous_winner is not None:
@@ -2700,6 +2707,8 @@ def diagnose(samples, t=None, temp=None, reference=None, gravity=None, field_nor
                 episode.update(_disturbance(data, state["result"], feats[:, columns], params[lo + columns]))
             if name == "offset_step":
                 episode.update(_jump({**episode, "coefficients": params[lo + columns]}))
+            if names[name].recurs:  # each line's own sin and cos terms
+                episode["line_coefficients"] = params[lo + columns].tolist()
             if i == 0 and episode is not row:  # the row's own fields: its first episode's
                 row.update({k: v for k, v in episode.items() if k not in EPISODE_KEYS})
         lo += feats.shape[1]

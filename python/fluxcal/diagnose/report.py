@@ -562,9 +562,12 @@ def _spectral_line(d) -> str:
 
 def periodic_interference_line(d, r) -> str:
     """The line's frequency, each axis' amplitude and the peak field it adds, and what may make it: the mains aliased
-    by the sampling rate when a mains harmonic folds onto it, else a part running at a steady rate."""
+    by the sampling rate when a mains harmonic folds onto it, else a part running at a steady rate. Several lines
+    (episodes: a second motor, the mains beside a motor): a line each."""
+    if r.get("episodes"):
+        return "\n  ".join(periodic_interference_line(d, {**r, **e, "episodes": None}) for e in r["episodes"])
     u = f" {d.units}" if d.units else ""
-    c = np.asarray(r["coefficients"], dtype=float)
+    c = np.asarray(r.get("line_coefficients") or r["coefficients"], dtype=float)
     a, b = c[:3], c[3:6]  # sin and cos parts per axis
     # the peak over a cycle of |M (a sin + b cos)| in the field: the larger singular value of [M a, M b]
     peak = float(np.linalg.svd(d.base.matrix @ np.column_stack([a, b]), compute_uv=False)[0])
@@ -657,7 +660,9 @@ def text(d) -> str:
                      "the iron. Those readings, and those just inside the rail, are left out of the model below.")
     if d.accepted:
         episodes = {r["effect"]: len(r["episodes"]) for r in d.ranking if r.get("episodes")}
-        found = ", ".join(a + (f" ({episodes[a]} episodes)" if a in episodes else "") for a in d.accepted)
+        kinds = {"periodic_interference": "lines"}  # (an event's recurrences are episodes)
+        found = ", ".join(a + (f" ({episodes[a]} {kinds.get(a, 'episodes')})" if a in episodes else "")
+                          for a in d.accepted)
         out.append(f"FOUND: {found} (added in this order)")
         for r in d.ranking:
             if r.get("found_with") and r.get("step", 0) > next(x.get("step", 0) for x in d.ranking

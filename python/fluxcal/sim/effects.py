@@ -52,6 +52,9 @@ class Effect:
     is_noise = False
     regime = "orientation"
     needs: tuple = ()
+    # Found once, it may be found again beside itself (another line of a periodic interference): each further one an
+    # episode of its block, as an event's recurrence is.
+    recurs = False
     # It leaves every field magnitude unchanged (a rotation, a delay): only reference vectors show it.
     needs_reference = False
     # A fixed linear map of the field: a full soft-iron matrix represents it exactly (only a scale-only
@@ -949,6 +952,7 @@ class PeriodicInterference(Effect):
     profile_open_end = False
     # (in log f: 1e-3 had left 6 mHz at 5.6 Hz, a third of a cycle over a minute, for colored_noise to take)
     profile_xatol = 1e-7
+    recurs = True  # a second motor, the mains beside a motor: another line
 
     def apply(self, values, context):
         t = np.asarray(context.t, dtype=float)
@@ -967,6 +971,11 @@ class PeriodicInterference(Effect):
         return cls.features_at(ctx, cls.profile_grid(ctx)[0])
 
     @classmethod
+    def describe(cls, ctx, feats):
+        span = float(np.ptp(ctx.t)) if len(ctx.t) > 1 else 0.0
+        return {"resolution_hz": 1.0 / span if span > 0 else np.inf}  # lines closer than 2× this are one
+
+    @classmethod
     def profile_grid(cls, ctx):
         """Frequencies about the LINE_PEAKS highest peaks of what the fit leaves, seen as the fit sees it: against
         reference vectors the readings less the model's (per axis), against magnitudes that difference along
@@ -975,13 +984,15 @@ class PeriodicInterference(Effect):
         span, step = _span_and_step(ctx.t)
         if not (span > 0 and step > 0) or len(ctx.t) < 64:
             return np.array([1.0])
-        return _per_context(ctx, "_line_grid", (ctx.t, ctx.readings, ctx.signal), lambda: cls._grid(ctx, span, step))
+        return _per_context(ctx, "_line_grid", (ctx.t, ctx.readings, ctx.signal, getattr(ctx, "modelled", None)),
+                            lambda: cls._grid(ctx, span, step))
 
     @staticmethod
     def _grid(ctx, span: float, step: float) -> np.ndarray:
         t = np.asarray(ctx.t, dtype=float)
         order = np.argsort(t, kind="stable")
-        rest = (np.asarray(ctx.readings) - np.asarray(ctx.signal))[order]
+        # (less the effects modelled: a line found is no peak to find again)
+        rest = (np.asarray(ctx.readings) - getattr(ctx, "modelled", 0.0) - np.asarray(ctx.signal))[order]
         if ctx.vector:
             series = rest
         else:  # e = uᵀ A (m − s): each axis' part of the magnitude residual, modulated by u
