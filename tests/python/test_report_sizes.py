@@ -372,3 +372,21 @@ def test_two_interference_lines_are_found_and_sized_each():
     assert float(re.search(rf"at ({NUMBER}) Hz", lines[1]).group(1)) == pytest.approx(7.3, abs=0.01)
     np.testing.assert_allclose(_vectors(lines[1])[0], 0.4 * np.array([0.2, 0.9, 0.4]), rtol=0.05)
     assert truth.frequency_hz != pytest.approx(7.3, abs=0.1)
+
+
+def test_a_line_is_taken_out_of_the_noise_sigma_and_found():
+    # a 1.8 Hz line sampled at 10 Hz passes into third differences 1.2×: it had raised an injected airborne recording's
+    # σ 300× (0.42 → 139 nT), and the degenerate-fit guard then refused the line itself. The σ is now the readings'
+    # less the line, said; the line is found and sized
+    result, kw = withheld_trial([], 1, rate_hz=10.0)
+    white = diagnose(result.readings, **kw, units="uT")
+    t = kw["t"]
+    line = 1.0 * np.sin(2 * np.pi * 1.8 * t + 0.3)[:, None] * np.array([0.6, -0.3, 0.74])  # 2 % of the field
+    d = diagnose(result.readings + line, **kw, units="uT")
+    assert "the readings less the line at 1.8 Hz in their spectrum" in d.noise_source, d.noise_source
+    assert abs(d.noise_sigma / white.noise_sigma - 1) < 0.1, (d.noise_sigma, white.noise_sigma)
+    assert d.accepted == ["periodic_interference"], d.accepted
+    said = _line(d.text(), "periodic_interference")
+    assert re.search(r"a field at 1\.8 Hz", said), said
+    np.testing.assert_allclose(_vectors(said)[0], [0.6, 0.3, 0.74], rtol=0.05)
+    assert "less the line" not in white.noise_source  # no line, nothing taken out
