@@ -1187,26 +1187,38 @@ def test_a_calibration_recordings_currents_mislabelled_are_named(tmp_path):
     assert "the conductors' currents taken as i1, i0 (swapped)" in said["swapped"].stdout, said["swapped"].stdout
 
 
-def test_a_sensor_stuck_at_zero_is_left_out_as_dead(tmp_path):
-    """A sensor that does not answer reads 0.0, 0.0 (a failed bus read): solved as a reading it had the three cores
-    carry 319 A for 100 A (a blind check). `cable solve` leaves it out as it does a NaN sensor; Ring.solve warns."""
+def _three_core_ring(seed: int):
+    """Eight sensors about three cores carrying a three-phase current, 20 snapshots over a cycle, 10 nT noise:
+    (ring, cores, currents, readings)."""
     ring = Ring(np.arange(0.0, 360.0, 45.0), 0.01)
     cores = np.array([[-1.7e-3, -1.0e-3], [0.0, 2.0e-3], [1.7e-3, -1.0e-3]])
     phasors = 10.0 * np.exp(-2j * np.pi * np.arange(3) / 3) * np.array([1.0, 0.8, 1.1])
     currents = ac_currents(phasors, np.linspace(0.0, 0.02, 20, endpoint=False))
-    y = ring.field(cores, currents) + np.random.default_rng(4).normal(0, 1e-8, (20, 8, 2))
-    y[:, 3] = 0.0
-    path = fluxcal.cable.write_ring_csv(tmp_path / "stuck.csv", ring, y)
+    return ring, cores, currents, ring.field(cores, currents) + np.random.default_rng(seed).normal(0, 1e-8, (20, 8, 2))
+
+
+def _left_out(tmp_path, ring, y, currents, dead: int, said: str):
+    """`cable solve --joint` of the readings y (written as a ring file) leaves sensor `dead` out, saying `said`, and
+    solves the currents with the other seven; Ring.solve warns the same words."""
+    path = fluxcal.cable.write_ring_csv(tmp_path / "ring.csv", ring, y)
     out = tmp_path / "sol.json"
     r = run_cli("cable", "solve", path, "--conductors", "3", "--joint", "-o", out)
     assert r.returncode == 0, r.stdout + r.stderr
-    assert ("sensor(s) 3 read exactly 0 on both axes in every snapshot (a sensor that does not answer: dead?): "
-            "solved with the other 7") in r.stdout, r.stdout
+    assert f"{said}: solved with the other 7" in r.stdout, r.stdout
     sol = json.loads(out.read_text())["solutions"][0]
-    assert sol["sensors_used"] == [0, 1, 2, 4, 5, 6, 7]
+    assert sol["sensors_used"] == [i for i in range(8) if i != dead]
     np.testing.assert_allclose(np.array(sol["currents_a"]), currents, atol=0.05)
     warned = ring.solve(y, n_conductors=3).summary["warnings"]
-    assert any(w.startswith("sensor(s) 3 read exactly 0 on both axes") for w in warned), warned
+    assert any(w.startswith(said) for w in warned), warned
+
+
+def test_a_sensor_stuck_at_zero_is_left_out_as_dead(tmp_path):
+    """A sensor that does not answer reads 0.0, 0.0 (a failed bus read): solved as a reading it had the three cores
+    carry 319 A for 100 A (a blind check). `cable solve` leaves it out as it does a NaN sensor; Ring.solve warns."""
+    ring, cores, currents, y = _three_core_ring(4)
+    y[:, 3] = 0.0
+    _left_out(tmp_path, ring, y, currents, 3, "sensor(s) 3 read exactly 0 on both axes in every snapshot (a sensor "
+                                              "that does not answer: dead?)")
     assert not fluxcal.cable.silent_sensors(np.zeros((20, 8, 2))).any()  # nothing read anywhere: not one sensor's fault
 
 
@@ -1214,23 +1226,11 @@ def test_a_sensor_frozen_on_one_reading_is_left_out_as_dead(tmp_path):
     """A sensor stuck on its last reading (a hung bus, a frozen register) repeats one nonzero value while the others
     follow the currents: solved as readings it pulls the currents off; `cable solve` leaves it out, Ring.solve and the
     diagnosis say it. A ring whose readings all hold still (a steady current under a coarse quantum) names none."""
-    ring = Ring(np.arange(0.0, 360.0, 45.0), 0.01)
-    cores = np.array([[-1.7e-3, -1.0e-3], [0.0, 2.0e-3], [1.7e-3, -1.0e-3]])
-    phasors = 10.0 * np.exp(-2j * np.pi * np.arange(3) / 3) * np.array([1.0, 0.8, 1.1])
-    currents = ac_currents(phasors, np.linspace(0.0, 0.02, 20, endpoint=False))
-    y = ring.field(cores, currents) + np.random.default_rng(5).normal(0, 1e-8, (20, 8, 2))
+    ring, cores, currents, y = _three_core_ring(5)
     y[:, 5] = y[7, 5]  # frozen on the reading of snapshot 7
-    path = fluxcal.cable.write_ring_csv(tmp_path / "frozen.csv", ring, y)
-    out = tmp_path / "sol.json"
-    r = run_cli("cable", "solve", path, "--conductors", "3", "--joint", "-o", out)
-    assert r.returncode == 0, r.stdout + r.stderr
-    assert ("sensor(s) 5 read the same value on both axes in all 20 snapshots while the others changed (stuck on "
-            "its last reading, or clipped on both axes: dead?): solved with the other 7") in r.stdout, r.stdout
-    sol = json.loads(out.read_text())["solutions"][0]
-    assert sol["sensors_used"] == [0, 1, 2, 3, 4, 6, 7]
-    np.testing.assert_allclose(np.array(sol["currents_a"]), currents, atol=0.05)
-    warned = ring.solve(y, n_conductors=3).summary["warnings"]
-    assert any(w.startswith("sensor(s) 5 read the same value on both axes in all 20 snapshots") for w in warned)
+    _left_out(tmp_path, ring, y, currents, 5, "sensor(s) 5 read the same value on both axes in all 20 snapshots "
+                                              "while the others changed (stuck on its last reading, or clipped on "
+                                              "both axes: dead?)")
     d = fluxcal.diagnose_cable(y, ring, n_conductors=3)
     assert any("sensor(s) 5 read the same value" in c and "the ring of the other 7 diagnosed" in c
                for c in d.caveats), d.caveats
