@@ -962,8 +962,12 @@ CableSolution solve_cable(const CableRing& ring, const Eigen::Ref<const Eigen::M
   }
   for (int j = 0; j < n; ++j)
     if (out.positions.row(j).norm() > ring.bore() * (1.0 - 1e-9)) {
+      // the bore is the solver's bound, which the user may not know was set (0.4 × the ring's radius by default)
       out.summary.warnings.push_back("conductor " + std::to_string(j) +
-                                     " ended on the bore's edge: the readings fit no conductor inside the bore");
+                                     " ended on the bore's edge (" + num(1e3 * ring.bore()) +
+                                     " mm from the ring's centre): the readings fit no conductor inside the bore — "
+                                     "a cable off-centre beyond it? give the bore's radius (ring_bore_radius_m in "
+                                     "the ring file, Ring(bore_radius_m=…))");
       if (ok) why = "a conductor ended on the bore's edge";
       ok = false;
     }
