@@ -373,6 +373,8 @@ def _print_roles(rec: Recording, reference: str | None = None):
                                   + ([reference] if reference else [])))
     if "skipped_lines" in rec.metadata:
         print(skipped_words(rec.metadata['skipped_lines']))
+    if "repeated_header" in rec.metadata:  # a logger restarted, or two logs joined: the rows below it are read on
+        print(f"the header again at {rec.metadata['repeated_header']}: passed over, the rows on both sides read")
     if "text_columns" in rec.metadata:
         print(f"text columns not used: {rec.metadata['text_columns']}")
 
@@ -1967,8 +1969,8 @@ def build_parser() -> argparse.ArgumentParser:
     output_help = "the format follows the extension (.npz .mat .parquet .json), CSV text otherwise"
     bad_lines_help = ("a text line with the wrong number of fields or a non-number: stop with its line and column "
                       "(error, default) or leave it out and list it (skip)")
-    decimal_help = ("labelled text logs (X: 1,234) whose commas nothing in the file settles: ',' reads them as "
-                    "decimal commas, '.' as thousands separators")
+    decimal_help = ("labelled text logs (X: 1,234) and ';' or tab tables whose commas nothing in the file "
+                    "settles: ',' reads them as decimal commas, '.' as thousands separators")
     c = sub.add_parser("calibrate", help="calibrate a magnetometer from a recording (CSV, TSV, .npz, .mat, Parquet, "
                                          "JSON)",
                        epilog="exit status: 0 a calibration; 2 an error (nothing written); 3 not identifiable: the "

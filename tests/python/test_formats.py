@@ -242,6 +242,63 @@ def test_decimal_commas_of_a_semicolon_or_tab_table_are_read(tmp_path):
         read_recording(mixed)
 
 
+def test_a_german_export_with_a_dotted_date_column_keeps_its_decimal_commas(tmp_path):
+    # Excel's German CSV: a Zeit column 14.03.2026 09:26:53 beside readings to three decimals (-3,342) had made
+    # every reading column look like 1,234 beside a decimal point, and the file was refused
+    path = tmp_path / "de.csv"
+    path.write_text("Zeit;X (µT);Y (µT);Z (µT)\n14.03.2026 09:26:53,000;-3,342;-4,726;-45,408\n"
+                    "14.03.2026 09:26:53,100;-36,114;-29,139;-4,171\n", encoding="utf-8")
+    rec = read_recording(path)
+    np.testing.assert_array_equal(rec.samples(), [[-3.342, -4.726, -45.408], [-36.114, -29.139, -4.171]])
+    np.testing.assert_allclose(rec.time(), [0.0, 0.1])
+    assert rec.field_units() == "uT" and rec.metadata["decimal_separator"] == "comma"
+
+
+def test_decimal_given_settles_the_commas_of_a_semicolon_table(tmp_path):
+    # 1,234 beside a time's decimal point: either reading fits, so none is guessed; --decimal says which
+    path = tmp_path / "either.csv"
+    path.write_text("t;Bx;By;Bz\n0.1;1,234;2,345;3,456\n0.2;1,240;2,350;3,460\n")
+    with pytest.raises(ValueError, match=r"no value says.*--decimal , \(decimal commas\) or --decimal \."):
+        read_recording(path).samples()
+    np.testing.assert_array_equal(read_recording(path, decimal=",").samples(), [[1.234, 2.345, 3.456],
+                                                                               [1.24, 2.35, 3.46]])
+    np.testing.assert_array_equal(read_recording(path, decimal=".").samples(), [[1234, 2345, 3456],
+                                                                               [1240, 2350, 3460]])
+    np.testing.assert_array_equal(read_recording(path, thousands=",").samples()[0], [1234, 2345, 3456])
+    grouped = tmp_path / "grouped.csv"  # decimal=',' also drops points that group thousands before the comma
+    grouped.write_text("t;Bx;By;Bz\n0,1;45.199,6;-1,5;2\n")
+    np.testing.assert_array_equal(read_recording(grouped, decimal=",").samples(), [[45199.6, -1.5, 2]])
+    comma = tmp_path / "comma.csv"  # a comma-delimited table's commas are its delimiters
+    comma.write_text("mx,my,mz\n1,2,3\n")
+    with pytest.raises(ValueError, match=r"comma.csv: decimal= and thousands= apply to .* tab"):
+        read_recording(comma, decimal=",")
+    rng = np.random.default_rng(7)  # a sphere of radius 30 about (50, 50, 50): every cell 20,000–80,000
+    u = rng.normal(size=(300, 3))
+    field = 50 + 30 * u / np.linalg.norm(u, axis=1, keepdims=True)
+    sphere = tmp_path / "sphere.csv"
+    sphere.write_text("t;Bx;By;Bz\n" + "".join(f"{0.1 * k:.1f};" + ";".join(f"{v:.3f}".replace(".", ",") for v in row)
+                                               + "\n" for k, row in enumerate(field)))
+    out = run_cli("calibrate", str(sphere), "--decimal", ",", "-o", tmp_path / "cal.json")
+    assert out.returncode == 0, out.stderr
+    np.testing.assert_allclose(json.loads((tmp_path / "cal.json").read_text())["offset"], [50, 50, 50], atol=0.01)
+
+
+def test_a_banner_states_one_unit_for_the_magnetometer(tmp_path):
+    body = "t_s,x,y,z\n0,1,2,3\n0.1,4,5,6\n"
+    for banner in ("# Units: nT", "# units: nT", "# UNIT: nanotesla"):
+        path = tmp_path / "banner.csv"
+        path.write_text(f"# FluxLogger FL-300\n{banner}\n{body}")
+        rec = read_recording(path)
+        assert rec.field_units() == "nT" and rec.units.get("t_s") != "nT", banner
+    assert read_recording(path, units="nT").field_units() == "nT"
+    with pytest.raises(ValueError, match=r"units 'uT' given, but the file's comment says nT"):
+        read_recording(path, units="uT")
+    own = tmp_path / "own.csv"  # the header and the banner disagree: neither is guessed right
+    own.write_text("# units: nT\nt_s,x (uT),y (uT),z (uT)\n0,1,2,3\n")
+    with pytest.raises(ValueError, match=r"own.csv: column 'x' is in uT by the header but in nT by the file's"):
+        read_recording(own).field_units()
+
+
 def test_decimal_commas_are_read_per_column_beside_decimal_points(tmp_path):
     # ISO times with a decimal point beside decimal-comma readings: every reading column was left out as text
     iso = tmp_path / "iso.csv"

@@ -36,7 +36,8 @@ def test_units_in_header_cells_and_other_column_names(tmp_path):
     ("mx,my,mz\n", r"bad.csv: header but no data rows"),
     ("", r"bad.csv: no header line"),
     ("mx,mx,mz\n1,2,3\n", r"bad.csv, line 1: header .* repeated"),
-    ("# units: nT\nmx,my,mz\n1,2,3\n", r"bad.csv, line 1: units entry 'nT' is not name=unit"),
+    ("# units: furlongs\nmx,my,mz\n1,2,3\n", r"bad.csv, line 1: units 'furlongs' is no field unit"),
+    ("# units: x=nT, uT\nmx,my,mz\n1,2,3\n", r"bad.csv, line 1: units entry 'uT' is not name=unit"),
 ])
 def test_reader_errors_name_file_line_and_column(tmp_path, body, message):
     p = tmp_path / "bad.csv"

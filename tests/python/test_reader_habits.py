@@ -428,3 +428,69 @@ def test_point_thousands_of_a_long_table_are_read_by_the_spread_of_its_whole_num
         rec = read_recording(path)
     np.testing.assert_allclose(rec.samples(), micro)
     assert "thousands_separator" not in rec.metadata
+
+
+def test_two_trailing_delimiters_in_header_and_rows(tmp_path):
+    # a spreadsheet's two empty columns after the readings (Bx (µT),By (µT),Bz (µT),,): refused as empty names
+    path = write(tmp_path, "two.csv", "\ufeffBx (µT),By (µT),Bz (µT),,\r\n-3.342,-4.726,-45.408,,\r\n"
+                                      "-36.114,-29.139,-4.171,,\r\n")
+    rec = read_recording(path)
+    assert rec.samples().tolist() == [[-3.342, -4.726, -45.408], [-36.114, -29.139, -4.171]]
+    assert rec.field_units() == "uT"
+
+
+def test_a_tesla_suffix_after_a_field_axis_names_the_magnetometer(tmp_path):
+    path = write(tmp_path, "si.csv", "Bx_T,By_T,Bz_T\n-3.341920e-06,-4.725651e-06,-4.540787e-05\n"
+                                     "-3.611355e-05,-2.913865e-05,-4.170533e-06\n")
+    rec = read_recording(path)
+    assert rec.roles()["magnetometer"] == "Bx_T,By_T,Bz_T" and rec.field_units() == "T"
+    # a t after anything else stays a word (time_t is no field; Ax_T is an accelerometer's)
+    other = write(tmp_path, "other.csv", "time_t,mag_x_T,mag_y_T,mag_z_T,Ax_T\n0,1e-5,2e-5,3e-5,9.8\n")
+    rec = read_recording(other)
+    assert rec.roles()["magnetometer"] == "mag_x_T,mag_y_T,mag_z_T" and rec.field_units() == "T"
+    assert rec.units.get("time_t") != "T" and rec.units.get("Ax_T") != "T"
+
+
+def test_records_wrapped_in_an_object_with_the_unit_beside_them(tmp_path):
+    # a phone app's export: {"device": …, "unit": "mG", "samples": [{"timestamp", "x", "y", "z"}, …]}
+    import json
+
+    samples = [{"timestamp": f"2026-03-14T09:26:53.{k}00000", "x": 100.0 + k, "y": -50.0 * k, "z": 3.0}
+               for k in range(5)]
+    path = write(tmp_path, "phone.json", json.dumps({"device": "Pixel 7", "unit": "mG", "samples": samples}))
+    rec = read_recording(path)
+    assert rec.samples()[:, 0].tolist() == [100, 101, 102, 103, 104] and rec.field_units() == "mG"
+    np.testing.assert_allclose(rec.time(), [0, 0.1, 0.2, 0.3, 0.4])
+    assert rec.metadata["device"] == "Pixel 7"
+    samples[2]["y"] = "n/a"  # a bad record is named by its place in the list
+    write(tmp_path, "phone.json", json.dumps({"device": "Pixel 7", "unit": "mG", "samples": samples}))
+    with pytest.raises(ValueError, match=r"phone.json, 'samples' record 3: 'y' is \"n/a\", not a number"):
+        read_recording(path)
+    assert read_recording(path, bad_lines="skip").samples().shape == (4, 3)
+
+
+def test_a_capture_that_starts_inside_a_sentence(tmp_path):
+    def xor8(body):
+        from functools import reduce
+        return f"{reduce(lambda a, b: a ^ b, body.encode(), 0):02X}"
+
+    bodies = [f"VNMAG,{0.1 * k:+07.4f},-0.2000,+0.3000" for k in range(4)]
+    path = write(tmp_path, "vn.txt", "MR,+012.345,-001.234\r\n" + "".join(f"${b}*{xor8(b)}\r\n" for b in bodies))
+    rec = read_recording(path)
+    assert rec.samples()[:, 0].tolist() == [0, 0.1, 0.2, 0.3] and "line 1: MR,+012.345" in rec.metadata["preamble"]
+    # after the first sentence, a line that is none is a bad line as before
+    write(tmp_path, "vn.txt", "".join(f"${b}*{xor8(b)}\r\n" for b in bodies[:2]) + "MR,+012.345\r\n")
+    with pytest.raises(ValueError, match=r"vn.txt, line 3: not a \$TYPE,fields\*checksum sentence"):
+        read_recording(path)
+
+
+def test_the_header_again_among_the_rows_is_said(tmp_path, capsys):
+    from fluxcal.cli import main
+
+    rng = np.random.default_rng(3)
+    u = rng.normal(size=(60, 3))
+    rows = [",".join(f"{v:.4f}" for v in 50 * r / np.linalg.norm(r)) for r in u]
+    path = write(tmp_path, "joined.csv", "mx,my,mz\n" + "\n".join(rows[:30]) + "\nmx,my,mz\n"
+                 + "\n".join(rows[30:]) + "\n")
+    assert main(["calibrate", str(path)]) == 0
+    assert "the header again at line 32 (the same columns and units): passed over" in capsys.readouterr().out

@@ -90,6 +90,17 @@ def _peel_unit(ws: list[str], table) -> tuple[list[str], str | None]:
     return ws, None
 
 
+def _peel_field_unit(ws: list[str]) -> tuple[list[str], str | None]:
+    """_peel_unit with FIELD_UNITS, and a last word "t" or "tesla" after a magnetometer's axis (Bx_T, mag_x_T:
+    SI's tesla; "t" alone is too often a time to be a unit anywhere else) peeled as "tesla"."""
+    rest, unit = _peel_unit(ws, FIELD_UNITS)
+    if unit is None and len(ws) > 1 and ws[-1] in ("t", "tesla"):
+        hit = _axis_of(ws[:-1])
+        if hit is not None and set(hit[0]) & MAG_WORDS:
+            return ws[:-1], "tesla"
+    return rest, unit
+
+
 def _axis_of(ws: list[str]):
     """(prefix words, axis) when the name ends in an axis, else None. The axis is 0..2 for x/y/z, or
     ("index", k) for a number 0..3 after a magnetometer/accelerometer word (0-based or 1-based: which
@@ -141,7 +152,7 @@ def _axis_groups(names, kind_words) -> tuple:
     for name in names:
         ws = words(name)
         ws = _drop_accel_unit(ws)
-        ws, unit = _peel_unit(ws, FIELD_UNITS if kind_words is MAG_WORDS else {"g": 1})
+        ws, unit = _peel_field_unit(ws) if kind_words is MAG_WORDS else _peel_unit(ws, {"g": 1})
         qualifiers = []
         while len(ws) > 1 and ws[-1] in RAW_WORDS | CALIBRATED_WORDS:
             qualifiers.insert(0, ws.pop())
@@ -282,7 +293,7 @@ def find_magnetometer_pair(names, source: str = "recording", units=None):
 def axis_of_name(name: str):
     """The sensor axis (0, 1, 2 for x, y, z) a column's name says it is (mx, Bz, mag_y_uT, Y, x_raw), or None."""
     ws = _drop_accel_unit(words(name))
-    ws, _ = _peel_unit(ws, FIELD_UNITS)
+    ws, _ = _peel_field_unit(ws)
     while len(ws) > 1 and ws[-1] in RAW_WORDS | CALIBRATED_WORDS:
         ws = ws[:-1]
     hit = _axis_of(ws)
@@ -525,10 +536,15 @@ def unit_name(word: str) -> str:
     return "T" if w == "tesla" else FIELD_UNITS.get(w, word.strip())
 
 
+def is_field_unit(word: str) -> bool:
+    """Whether a unit word names a magnetic field's unit (nT, µT, gauss, tesla, counts …; see unit_name)."""
+    return unit_name(word) in set(FIELD_UNITS.values()) | {"T"}
+
+
 def field_unit_of(name: str) -> str:
     """The field unit a column's name carries (mag_x_uT -> "uT"), "" when none."""
-    _, unit = _peel_unit(words(name), FIELD_UNITS)
-    return FIELD_UNITS.get(unit, "") if unit else ""
+    _, unit = _peel_field_unit(words(name))
+    return unit_name(unit) if unit else ""
 
 
 _RATE_KEYS = {"updaterate", "outputrate", "samplingfrequency", "samplefrequency", "fs", "rate", "samplerate", "samplingrate", "samplerate hz", "odr", "datarate", "frequency", "freq"}

@@ -13,6 +13,7 @@ with empty units. Errors name the file, line and column.
 """
 from __future__ import annotations
 
+import contextvars
 import csv as _csv
 import io
 import re
@@ -115,12 +116,8 @@ def parse_csv(path, lines, delimiter=",", preamble_lines: int = 0, bad_lines: st
         body = comment_text(lines[i])
         if ":" in body or "=" in body:
             key, value = (s.strip() for s in body.split(":" if ":" in body else "=", 1))
-            if key == "units":
-                for pair in filter(None, (p.strip() for p in value.split(","))):
-                    if "=" not in pair:
-                        raise ValueError(f"{path}, line {i + 1}: units entry {pair!r} is not name=unit")
-                    name, unit = (s.strip() for s in pair.split("=", 1))
-                    unit_map[name] = unit
+            if key.lower() in ("units", "unit"):
+                _banner_units(path, i + 1, value, unit_map, metadata)
             else:
                 metadata[key] = value
         elif body and body != "fluxcal recording":  # free text above the header (a title, who recorded it)
@@ -143,8 +140,10 @@ def parse_csv(path, lines, delimiter=",", preamble_lines: int = 0, bad_lines: st
             unit_map.setdefault(name, unit)
     if len(names) > 1 and not names[0] and "index" not in names:  # pandas to_csv(): its unnamed index column
         names[0] = "index"
-    if names and not names[-1]:  # a header ending in the delimiter (mx,my,mz,): an unnamed column,
-        names[-1] = f"column{len(names)}"  # kept under this name (left out later if it is empty)
+    for k in range(len(names) - 1, 0, -1):  # a header ending in the delimiter (mx,my,mz, or mx,my,mz,,): unnamed
+        if names[k]:  # columns, kept under these names (left out later if they are empty)
+            break
+        names[k] = f"column{k + 1}"
     if any(not n for n in names) or len(set(names)) != len(names):
         raise ValueError(f"{path}, line {header_line}: header {lines[i]!r} has empty or repeated column names")
     if _is_number(names[0]):
@@ -175,6 +174,26 @@ def parse_csv(path, lines, delimiter=",", preamble_lines: int = 0, bad_lines: st
         metadata["notes"] = "; ".join(f"line {n}: {text}" for n, text in notes)
     return Recording(columns={n: data[:, j] for j, n in enumerate(names)}, units=unit_map, metadata=metadata,
                      source=str(path), line_numbers=line_numbers)
+
+
+def _banner_units(path, line: int, value: str, unit_map: dict, metadata: dict) -> None:
+    """A `# units:` comment: name=unit pairs (fluxcal's own, `x=nT, y=nT`) into unit_map, or one field unit for
+    the magnetometer (a logger's banner, `# Units: nT`) into metadata["field_unit"] (see Recording.choose)."""
+    from .columns import is_field_unit, unit_name
+
+    entries = [p.strip() for p in value.split(",") if p.strip()]
+    if len(entries) == 1 and "=" not in entries[0]:
+        if not is_field_unit(entries[0]):
+            raise ValueError(f"{path}, line {line}: units {entries[0]!r} is no field unit (nT, uT, mG, G, T) nor "
+                             "name=unit pairs (x=nT, y=nT, z=nT)")
+        metadata["field_unit"] = unit_name(entries[0])
+        return
+    for pair in entries:
+        if "=" not in pair:
+            raise ValueError(f"{path}, line {line}: units entry {pair!r} is not name=unit (a single field unit, "
+                             "'# units: nT', is taken for the magnetometer)")
+        name, unit = (s.strip() for s in pair.split("=", 1))
+        unit_map[name] = unit
 
 
 def thousands_read(path, metadata: dict, marks: dict) -> None:
@@ -611,6 +630,9 @@ def decimal_points(lines, start: int, delimiter, separated: dict | None = None):
 
     if delimiter not in (";", "\t"):
         return lines, []
+    given = COMMA_GIVEN.get()
+    if given:
+        return _commas_as_given(lines, start, delimiter, given)
     rows = data_cells(lines[start:start + 400], delimiter)
     points = _point_thousands_whole_columns(rows)
     if points:
@@ -628,7 +650,7 @@ def decimal_points(lines, start: int, delimiter, separated: dict | None = None):
         # only 1,234 and 1,234,567: another comma (1,2) is left for the parse to name
         return _ungrouped(lines, start, delimiter, thousands, ",",
                           lambda cell: comma_kind(cell.strip().strip('"')) in ("ambiguous", "several")), []
-    if not any("." in cell for row in rows for cell in row):  # every number in one form, so far
+    if not any(_decimal_point(cell) for row in rows for cell in row):  # every number in one form, so far
         columns = sorted(set(columns) | set(range(max(map(len, rows)))))
 
     def convert(line):
@@ -639,6 +661,26 @@ def decimal_points(lines, start: int, delimiter, separated: dict | None = None):
         return delimiter.join(cells)
 
     return lines[:start] + [line if is_comment(line) else convert(line) for line in lines[start:]], grouped or [-1]
+
+
+# what the user said a comma between digits is ("decimal" or "thousands"; read_recording's decimal=): it settles
+# a ';' or tab table's numbers where the values cannot (1,234 beside 0.5)
+COMMA_GIVEN = contextvars.ContextVar("COMMA_GIVEN", default=None)
+
+
+def _commas_as_given(lines, start: int, delimiter, given: str):
+    """decimal_points when the user said what a comma is: "decimal" reads 1,5 as 1.5 and drops the points that
+    group thousands before it (45.199,6); "thousands" drops the commas of 1,234 and 1,234,567."""
+    from .columns import comma_kind
+
+    def convert(cell):
+        if given == "thousands":
+            return cell.replace(",", "") if comma_kind(cell.strip().strip('"')) in ("ambiguous", "several") else cell
+        return (cell.replace(".", "") if _POINT_GROUPS.match(cell) else cell).replace(",", ".")
+
+    converted = [line if is_comment(line) else delimiter.join(map(convert, line.split(delimiter)))
+                 for line in lines[start:]]
+    return lines[:start] + converted, ([-1] if given == "decimal" else [])
 
 
 def _ungrouped(lines, start: int, delimiter, columns, mark: str, grouped) -> list:
@@ -654,6 +696,15 @@ def _ungrouped(lines, start: int, delimiter, columns, mark: str, grouped) -> lis
     return lines[:start] + [line if is_comment(line) else ungroup(line) for line in lines[start:]]
 
 
+_DOTTED_DATE = re.compile(r"\b\d{1,2}\.\d{1,2}\.\d{2,4}\b")  # 14.03.2026: a German date, not a decimal point
+
+
+def _decimal_point(cell: str) -> bool:
+    """Whether a cell writes a point other than a dotted date's (a German export's Zeit column, 14.03.2026
+    09:26:53, says nothing of how the table writes its numbers)."""
+    return "." in _DOTTED_DATE.sub("", cell)
+
+
 def data_cells(lines, delimiter) -> list:
     """The cells of the data lines among `lines` (blank and comment lines left out)."""
     return [line.split(delimiter) for line in lines if line.strip() and not is_comment(line)]
@@ -663,16 +714,19 @@ def _decimal_comma_columns(rows) -> list:
     """The columns of a table delimited by ';' or tab (`rows`: the first data lines' cells) that write their
     numbers with decimal commas: some cell reads as one (-0,123) and none holds a decimal point. When other
     columns do use decimal points, a column whose commas all have three digits after them (1,234) could be
-    thousands separators and is not taken: it is read as text and named as such."""
-    points = any("." in c for row in rows for c in row)
+    thousands separators and is not taken (unless one of them cannot be: 0,234, -0,5): it is read as text and
+    named as such."""
+    from .columns import comma_kind
+
+    points = any(_decimal_point(c) for row in rows for c in row)
     found = []
     for j in range(max(map(len, rows), default=0)):
         cells = [row[j] for row in rows if j < len(row)]
         commas = [c.strip().strip('"') for c in cells if _DECIMAL_COMMA.match(c)]
         if not commas or any("." in c for c in cells):
             continue
-        if points and all(_THOUSANDS.match(c) for c in commas):
-            continue  # 1,234 beside 0.5: a thousands separator as likely as a decimal comma
+        if points and all(comma_kind(c) == "ambiguous" for c in commas):
+            continue  # 1,234 beside 0.5: a thousands separator as likely as a decimal comma (0,234 is none)
         found.append(j)
     return found
 
@@ -686,7 +740,7 @@ def _comma_thousands_columns(rows, columns) -> list:
     whole number of four digits (1234 has no thousands separator)."""
     from .columns import comma_kind
 
-    if not columns or any("." in c for row in rows for c in row):
+    if not columns or any(_decimal_point(c) for row in rows for c in row):
         return []
     cells = [row[j].strip().strip('"') for row in rows for j in columns if j < len(row) and row[j].strip()]
     whole = [c for c in cells if "," not in c and _is_number(c)]

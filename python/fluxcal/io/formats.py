@@ -50,7 +50,7 @@ from pathlib import Path
 
 import numpy as np
 
-from .csv import (SKIP_HINT, _DECIMAL_COMMA, _decimal_comma_columns, readable_file, _is_number, comment_text, data_cells, data_lines, decimal_points, is_comment, parse_csv,
+from .csv import (COMMA_GIVEN, SKIP_HINT, _DECIMAL_COMMA, _decimal_comma_columns, readable_file, _is_number, comment_text, data_cells, data_lines, decimal_points, is_comment, parse_csv,
                   listing, read_csv, read_lines, read_text, write_csv, OTHER_WRITERS)
 from .columns import is_unit, is_unit_cell
 from .recording import Recording
@@ -152,21 +152,29 @@ def read_recording(path, columns=None, units: str | None = None, bad_lines: str 
     `bad_lines` (text tables with a header): "error" stops at a line with the wrong number of fields or a
     non-number, naming line and column; "skip" leaves such lines out and lists them in
     metadata["skipped_lines"].
-    `decimal`/`thousands` (labelled text logs, `X: 1,234`): decimal=',' reads a comma between digits as a
-    decimal comma, thousands=',' as a thousands separator, when no number in the file settles it (see
-    fluxcal.io.labelled.read_labelled); an error for other formats."""
+    `decimal`/`thousands` (labelled text logs, `X: 1,234`, and tables delimited by ';' or tab): decimal=','
+    reads a comma between digits as a decimal comma (and points before it as thousands groups, 45.199,6),
+    thousands=',' (or decimal='.') as a thousands separator, when no number in the file settles it (see
+    fluxcal.io.labelled.read_labelled, fluxcal.io.csv.decimal_points); an error for other formats."""
     path = Path(path)
     if decimal is not None or thousands is not None:
         from . import labelled, real, sentences
 
         lines = read_text(path).splitlines() if sniff(path) == "text" else []
         start = real._skip_comments(lines)
-        if start >= len(lines) or sentences.looks_like_sentences(lines, start) \
-                or not labelled.looks_labelled(lines, start):
-            raise ValueError(f"{path}: decimal= and thousands= apply to labelled text logs (X: 1,234), not to this "
-                             "file")
-        return labelled.read_labelled(path, columns=columns, units=units, bad_lines=bad_lines, decimal=decimal,
-                                      thousands=thousands)
+        if start < len(lines) and not sentences.looks_like_sentences(lines, start):
+            if labelled.looks_labelled(lines, start):
+                return labelled.read_labelled(path, columns=columns, units=units, bad_lines=bad_lines,
+                                              decimal=decimal, thousands=thousands)
+            if _delimiter(lines, start) in (";", "\t"):  # a spreadsheet export: the comma's reading is given
+                given = COMMA_GIVEN.set(labelled.stated_comma(decimal, thousands))
+                try:
+                    return _read_table(path, columns, units, bad_lines)
+                finally:
+                    COMMA_GIVEN.reset(given)
+        raise ValueError(f"{path}: decimal= and thousands= apply to labelled text logs (X: 1,234) and to tables "
+                         "delimited by ';' or tab, not to this file (a comma-delimited table's commas are its "
+                         "delimiters)")
     kind = sniff(path)
     if kind in ("dataflash", "dataflash_text"):
         from .drone import read_dataflash

@@ -218,18 +218,25 @@ SETTLE_HINT = ("pass decimal=',' (a decimal comma) or thousands=',' (a thousands
                "(the command line: --decimal , or --decimal .)")
 
 
+def stated_comma(decimal, thousands) -> str | None:
+    """What the caller says a comma between digits is: "decimal" (decimal=','), "thousands" (thousands=',', or
+    decimal='.': pandas' names), or None when neither is given; an error for other values."""
+    if decimal not in (None, ".", ",") or thousands not in (None, ","):
+        raise ValueError(f"decimal={decimal!r}, thousands={thousands!r}: decimal is '.' or ',', thousands ','")
+    if decimal == "," and thousands == ",":
+        raise ValueError("decimal=',' and thousands=',': a comma cannot be both")
+    return None if not (decimal or thousands) else "decimal" if decimal == "," else "thousands"
+
+
 def _comma_reading(path, parsed, names, decimal, thousands) -> str | None:
     """What a comma between digits is in this file: "decimal", "thousands", or None (no number in the file
     says). Stated by `decimal`/`thousands` (pandas' names: decimal=',' is a decimal comma; thousands=',', or
     decimal='.', a thousands separator), else decided by the values of the columns: a decimal comma that
     cannot be a thousands separator (12,34, 0,123, -0,5, 1234,5) against thousands groups beside a decimal
     point (1,234.5). Numbers that show both are an error naming a line of each."""
-    if decimal not in (None, ".", ",") or thousands not in (None, ","):
-        raise ValueError(f"decimal={decimal!r}, thousands={thousands!r}: decimal is '.' or ',', thousands ','")
-    if decimal == "," and thousands == ",":
-        raise ValueError("decimal=',' and thousands=',': a comma cannot be both")
-    if decimal or thousands:
-        return "decimal" if decimal == "," else "thousands"
+    stated = stated_comma(decimal, thousands)
+    if stated:
+        return stated
     first = {}
     for line_no, _, _, values in parsed:
         for name, value, _ in values:

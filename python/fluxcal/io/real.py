@@ -297,6 +297,13 @@ def _json_recording(path, text: str, columns, units, bad_lines) -> Recording:
     rows = jsonrecords.nested_rows(data) if data.get("kind") != JSON_KIND else None
     if rows is not None:  # (pandas' default to_json had been read as one record, mx_0, mx_1, …)
         return jsonrecords.read_records(path, rows, bad_lines, what="row").choose(columns, units)
+    wrapped = _wrapped_records(data) if data.get("kind") != JSON_KIND else None
+    if wrapped is not None:  # {"device": …, "unit": "mG", "samples": [{"x": …}, …]}: a phone app's export
+        key, items = wrapped
+        rec = jsonrecords.read_records(path, [(k + 1, item) for k, item in enumerate(items)], bad_lines,
+                                       what=f"{key!r} record")
+        _wrapper_metadata(rec, {k: v for k, v in data.items() if k != key})
+        return rec.choose(columns, units)
     if data.get("kind") != JSON_KIND and not any(isinstance(v, list) for v in data.values()):
         return jsonrecords.read_records(path, [(1, data)], bad_lines).choose(columns, units)  # one JSON line
     if data.get("kind") == JSON_KIND:
@@ -304,6 +311,29 @@ def _json_recording(path, text: str, columns, units, bad_lines) -> Recording:
     else:
         rec = _shots_json(path, text, data)
     return rec.choose(columns, units)
+
+
+def _wrapped_records(data: dict):
+    """(key, records) when a JSON object holds one list, of objects (the readings), beside single values (the
+    device, the unit), else None."""
+    lists = [(k, v) for k, v in data.items() if isinstance(v, list)]
+    if len(lists) != 1 or any(isinstance(v, dict) for v in data.values()):
+        return None
+    key, items = lists[0]
+    return (key, items) if items and sum(isinstance(i, dict) for i in items) >= 0.5 * len(items) else None
+
+
+def _wrapper_metadata(rec: Recording, values: dict) -> None:
+    """The single values beside a JSON object's records into the recording's metadata; a "unit" that is a field
+    unit states the magnetometer's (see Recording.choose), as a logger's '# units: nT' does."""
+    from .columns import is_field_unit, unit_name
+
+    for key, value in values.items():
+        if value is None:
+            continue
+        rec.metadata.setdefault(key, str(value))
+        if key.lower() in ("unit", "units", "field_unit") and isinstance(value, str) and is_field_unit(value):
+            rec.metadata["field_unit"] = unit_name(value)
 
 
 def _fluxcal_json(path, text, data) -> Recording:

@@ -16,6 +16,9 @@ from .columns import (TO_CELSIUS, axis_of_name, field_unit_of, unit_name, find_a
 MAG_COLUMNS = ("mx", "my", "mz")
 # A recording that carries its attitude and the local field (north, east, down) gives a reference vector
 # per reading: the vector fit then determines the full matrix (fluxcal.attitude, fluxcal.calibrate).
+# said when a column's commas could be decimal commas or thousands separators and no value tells which
+COMMAS_HINT = ("; say what their commas are: --decimal , (decimal commas) or --decimal . (thousands separators); "
+               "Python: read_recording(..., decimal=',' or '.')")
 ATTITUDE_COLUMNS = ("pitch", "roll", "yaw")
 FIELD_NED_COLUMNS = ("igrf_n", "igrf_e", "igrf_d")
 
@@ -166,7 +169,8 @@ class Recording:
                                  f"Bx.., x,y,z; columns are: {', '.join(self.columns)}"
                                  f"{f'; left out as text: {text}' if text else ''}"
                                  f"{f'; left out: {ignored}' if ignored else ''}); choose three with "
-                                 "--columns / select() (two of a biaxial sensor, for calibrate --planar)")
+                                 "--columns / select() (two of a biaxial sensor, for calibrate --planar)"
+                                 + (COMMAS_HINT if text and "no value says" in text else ""))
             self.mag_columns = found
             for n in found:
                 if not self.units.get(n) and field_unit_of(n):
@@ -339,6 +343,17 @@ class Recording:
                                  f"{', '.join(sorted(stated))}; leave the units out, or correct the file's header")
             for n in self.mag_names():
                 self.units[n] = unit_name(units)
+        banner = self.metadata.get("field_unit")  # a logger's '# Units: nT' above its header
+        if banner:
+            if units and unit_name(units) != unit_name(banner):
+                raise ValueError(f"{self.source}: units {units!r} given, but the file's comment says {banner}; "
+                                 "leave the units out, or correct the file")
+            for n in self.mag_names():
+                if not self.units.get(n):
+                    self.units[n] = unit_name(banner)
+                elif unit_name(self.units[n]) != unit_name(banner):
+                    raise ValueError(f"{self.source}: column {n!r} is in {self.units[n]} by the header but in "
+                                     f"{banner} by the file's '# units:' comment; correct one of them")
         return self
 
     def reference_field(self):

@@ -13,7 +13,8 @@ m/s², angular rate in rad/s, attitude in degrees):
 
 The rows are the most frequent sentence type that carries a magnetometer; other sentences (register
 replies, $VNERR) are counted in metadata["other_sentences"]. A sentence of an unknown type gives
-columns <TYPE>_1, <TYPE>_2, …. A leading clock time (a serial monitor's) becomes the column `time`.
+columns <TYPE>_1, <TYPE>_2, …. A leading clock time (a serial monitor's) becomes the column `time`. Lines before the first sentence (the
+part of one a capture starts in, a start-up banner) are kept in metadata["preamble"].
 Bad lines (checksum, field count, a non-number, bytes that are not text; a sentence without a checksum in
 a file whose other sentences carry one) are errors naming the line, or are left out with bad_lines="skip";
 a file without checksums is read and says so in metadata["checksums"].
@@ -92,13 +93,15 @@ def sentence_problem(kind: str, fields: str, given, width: int):
 def read_sentences(path, columns=None, units: str | None = None, bad_lines: str = "error") -> Recording:
     check_bad_lines(bad_lines)
     path = readable_file(path)
-    parsed, problems, types = [], [], Counter()
+    parsed, problems, types, preamble = [], [], Counter(), []
     for k, line in enumerate(read_lines(path)):
         if not line.strip() or is_comment(line):
             continue
         clock, body = _body(line)
         m = _SENTENCE.match(body)
-        if NOT_TEXT in line:
+        if m is None and not types:  # before the first sentence: the part of one a capture starts in, a banner
+            preamble.append(f"line {k + 1}: {line.strip()[:60]}")
+        elif NOT_TEXT in line:
             problems.append((k + 1, "bytes that are not text (garbage from a serial line?)"))
         elif CUT_SHORT in line:
             problems.append((k + 1, CUT_PROBLEM))
@@ -143,6 +146,8 @@ def read_sentences(path, columns=None, units: str | None = None, bad_lines: str 
     cols = {n: data[:, j] for j, n in enumerate(names)}
     unit_map = {n: UNITS[n] for n in names if n in UNITS and kind in LAYOUTS}
     metadata = {"layout": f"{kind} sentences" + (" (VectorNav)" if kind in LAYOUTS else "")}
+    if preamble:
+        metadata["preamble"] = listing(preamble)
     if not checksummed:
         metadata["checksums"] = f"none: the {kind} sentences carry no checksum (or *XX, checksums off) and are unverified"
     others = {t: c for t, c in types.items() if t != kind}
