@@ -1201,6 +1201,10 @@ def cmd_cable(args) -> int:
             print(f"warning: {args.calibration}: its own fit missed its model on sensor(s) "
                   f"{', '.join(map(str, missed))} (its lack-of-fit test): its gains and offsets may be off, and the "
                   "currents with them — recalibrate (`cable calibrate` says whether `--method in_field` explains it)")
+    args.left_out = _left_out(args.leave_out, ring.n_sensors)
+    if args.left_out.any():
+        print(f"sensor(s) {', '.join(map(str, np.nonzero(args.left_out)[0]))} left out (--leave-out): solved with "
+              f"the other {int((~args.left_out).sum())}")
     solve, zeros = np.arange(len(raw)), {}
     if args.subtract_zero:
         raw, solve, ring_cal, zeros = _zero_differences(data, ring_cal, args)
@@ -1235,6 +1239,9 @@ def cmd_cable(args) -> int:
         print("note: the zero-current snapshots took off every field that does not follow the currents: a misfit here "
               "is the sensors' gains" + (" (give --calibration)" if ring_cal is None else "") + ", a wrong number "
               "of conductors, or a field that changed between the zero snapshots and the others")
+    lone = _lone_sensor_words(ring, ring_cal, raw, solutions, args, zeros)
+    if lone:
+        print(f"warning: {lone}")
     if all("left_out" in s for s in solutions):  # nothing solved: the ring cannot, whatever the snapshot
         raise ValueError(f"{args.file}: every snapshot " + solutions[0]["left_out"].split(" — ", 1)[1] +
                          " (or add sensors, or --zero-sum-currents when the currents sum to zero)")
@@ -1249,6 +1256,60 @@ def cmd_cable(args) -> int:
               file=sys.stderr)
         return 3
     return 0
+
+
+def _left_out(text: str | None, n_sensors: int) -> np.ndarray:
+    """--leave-out's sensor numbers as a mask of the ring's sensors."""
+    mask = np.zeros(n_sensors, bool)
+    for word in filter(None, (w.strip() for w in (text or "").split(","))):
+        if not word.isdigit() or int(word) >= n_sensors:
+            raise ValueError(f"--leave-out: {word!r} is no sensor of this ring (0–{n_sensors - 1})")
+        mask[int(word)] = True
+    if (~mask).sum() < 3:
+        raise ValueError(f"--leave-out: {int(mask.sum())} of the ring's {n_sensors} sensors left out; at least 3 "
+                         "must stay")
+    return mask
+
+
+# Misfitting snapshots solved again without each sensor in turn, to find one that departs alone
+LONE_TRIALS = 4
+
+
+def _lone_sensor_words(ring, ring_cal, raw, solutions: list, args, zeros: dict) -> str | None:
+    """When most solved snapshots misfit: a few of them (LONE_TRIALS) solved again without each sensor in turn; the
+    warning naming the one sensor without which they all fit the model, and with which none does (a swapped sensor
+    had the whole recording misfit, no sensor named — a fit spreads a lone sensor's misfit over the others)."""
+    import contextlib
+    import io
+
+    solved = [s for s in solutions if "sensor_residual_rms_t" in s]
+    misfit = [s for s in solved if not s["fits_model"]]
+    if not solved or len(misfit) < 0.5 * len(solved):
+        return None
+    trials = misfit[::max(1, len(misfit) // LONE_TRIALS)][:LONE_TRIALS]
+    given = args.left_out
+    fits = {}
+    try:
+        for i in np.nonzero(~given)[0]:
+            if (~given).sum() - 1 < 3:
+                break
+            args.left_out = given.copy()
+            args.left_out[i] = True
+            with contextlib.redirect_stdout(io.StringIO()):  # (the trials' own lines are not the recording's)
+                fits[int(i)] = sum(bool(_solve_ring_snapshots(ring, ring_cal, raw[s["snapshots"]], s["rotation_deg"],
+                                                              np.array(s["snapshots"]), args,
+                                                              zeros.get(s["rotation_deg"])).get("fits_model"))
+                                   for s in trials)
+    finally:
+        args.left_out = given
+    alone = [i for i, n in fits.items() if n == len(trials)]
+    if len(alone) != 1 or sum(n > 0 for n in fits.values()) > 1:
+        return None
+    j = alone[0]
+    return (f"sensor {j} departs alone: {len(trials)} misfitting snapshot(s) solved again without each sensor in turn "
+            f"fit the model without sensor {j}, and without no other — a sensor miswired, with its axes swapped, "
+            "turned, its gain changed, or iron beside it? `fluxcal diagnose FILE --model cable` says how its readings "
+            f"depart; --leave-out {j} solves without it")
 
 
 def _zero_differences(data: dict, ring_cal, args) -> tuple:
@@ -1476,7 +1537,9 @@ def _solve_ring_snapshots(ring, ring_cal, snaps, rotation: float, rows, args, ze
     from .cable import silent_sensors, silent_words
 
     silent = silent_sensors(snaps)
-    live = np.isfinite(snaps).all(axis=(0, 2)) & ~silent
+    given = getattr(args, "left_out", None)  # --leave-out: said once, by cmd_cable
+    given = np.zeros(snaps.shape[1], bool) if given is None else given
+    live = np.isfinite(snaps).all(axis=(0, 2)) & ~silent & ~given
     contiguous = np.all(np.diff(rows) == 1)
     where = (f"snapshot {rows[0]}" if len(rows) == 1 else f"snapshots {', '.join(map(str, rows))}" if len(rows) <= 6
              else f"snapshots {rows[0]}–{rows[-1]}" if contiguous else f"the {len(rows)} snapshots at {rotation:g}°")
@@ -1488,10 +1551,10 @@ def _solve_ring_snapshots(ring, ring_cal, snaps, rotation: float, rows, args, ze
         raise ValueError(f"{args.file}, {where}: sensor {sensor} reads {snaps[k, sensor, axis]:.3g} on its "
                          f"{'xy'[axis]} axis, "
                          "past any sensor's range (a garbled line?)")
-    if not live.all():
+    if not (live | given).all():
         named = lambda mask, words: f"sensor(s) {', '.join(map(str, np.nonzero(mask)[0]))} {words}"  # noqa: E731
-        said = ([named(~live & ~silent, "not finite (dead?)")] if (~live & ~silent).any() else []) \
-            + silent_words(snaps, silent)
+        unread = ~live & ~silent & ~given
+        said = ([named(unread, "not finite (dead?)")] if unread.any() else []) + silent_words(snaps, silent & ~given)
         print(f"{where}: {'; '.join(said)}: solved with the other {int(live.sum())}")
     sub = ring.subset(live)
     snaps = snaps[:, live]
@@ -1554,6 +1617,8 @@ def _solve_ring_snapshots(ring, ring_cal, snaps, rotation: float, rows, args, ze
         ("" if sol.fits_model else f", MISFIT (p {sol.misfit_p:.2g} for σ {sol.noise_sigma:.3g} T)"
          if sol.misfit_p < CableSolveOptions().misfit_alpha else f", MISFIT (residual above 5 × σ {sol.noise_sigma:.3g} T)")
     out = {"snapshots": [int(k) for k in rows], "rotation_deg": rotation, "sensors_used": np.nonzero(live)[0].tolist(),
+           "sensor_residual_rms_t": np.sqrt(np.mean(np.reshape(sol.residuals, (-1, int(live.sum()), 2)) ** 2,
+                                                    axis=(0, 2))).tolist(),
            "positions_m": sol.positions.tolist(), "position_sigma_m": _nan_to_none_rows(pos_se),
            "currents_a": currents.tolist(), "current_sigma_a": _nan_to_none_rows(cur_se),
            "residual_rms_t": sol.summary["residual_rms"], "noise_sigma_t": sol.noise_sigma,
@@ -2144,6 +2209,9 @@ def build_parser() -> argparse.ArgumentParser:
                     help="fit a uniform field that does not follow the currents (the Earth's, a far busbar's) beside "
                          "the conductors, in the cable's frame; with --joint one per rotation, shared by its snapshots (on a "
                          "4-sensor ring a snapshot alone is then an exact fit: use --joint)")
+    kv.add_argument("--leave-out", default=None, metavar="SENSORS",
+                    help="comma-separated sensor numbers to solve without (a sensor miswired, swapped or stuck: "
+                         "`fluxcal diagnose FILE --model cable` names one that departs alone)")
     kv.add_argument("--conductors", type=positive_int, default=2, help="conductors in the cable (default 2)")
     kv.add_argument("--zero-sum-currents", action="store_true",
                     help="the currents sum to zero (go and return, a balanced three-phase load): one unknown "

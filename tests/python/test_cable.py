@@ -1281,3 +1281,37 @@ def test_a_ring_file_without_rotations_or_with_a_current_column_missing_says_so(
     r = run_cli("cable", "calibrate", noi1)
     assert r.returncode == 2 and "positions_m gives 2 conductors, the reference currents are i0: column i1 missing" \
         in r.stderr, r.stderr
+
+
+def test_a_sensor_with_its_axes_swapped_is_named_and_left_out_on_request(tmp_path):
+    """A sensor wired with x and y exchanged had every snapshot misfit and no sensor named (a blind check): `cable
+    solve` names the sensor that departs alone, --leave-out solves without it, and the diagnosis says how its readings
+    depart (LONE SENSOR: the field with its axes exchanged) and that the ring fits without it."""
+    ring, cores, currents, y = _three_core_ring(6)
+    y[:, 4] = y[:, 4, ::-1]
+    path = fluxcal.cable.write_ring_csv(tmp_path / "ring.csv", ring, y)
+    r = run_cli("cable", "solve", path, "--conductors", "3", "--noise-sigma", "1e-8")
+    assert r.returncode == 3 and "warning: sensor 4 departs alone: 4 misfitting snapshot(s) solved again without " \
+                                 "each sensor in turn fit the model without sensor 4, and without no other" in r.stdout, \
+        r.stdout
+    assert "--leave-out 4 solves without it" in r.stdout
+    out = tmp_path / "sol.json"
+    r = run_cli("cable", "solve", path, "--conductors", "3", "--noise-sigma", "1e-8", "--leave-out", "4", "--joint",
+                "-o", out)
+    assert r.returncode == 0 and "sensor(s) 4 left out (--leave-out): solved with the other 7" in r.stdout, r.stdout
+    sol = json.loads(out.read_text())["solutions"][0]
+    assert sol["sensors_used"] == [0, 1, 2, 3, 5, 6, 7] and sol["fits_model"]
+    np.testing.assert_allclose(sol["currents_a"], currents, atol=0.05)
+    assert "departs alone" not in r.stdout
+    for bad, said in (("9", "'9' is no sensor of this ring (0–7)"), ("0,1,2,3,4,5", "at least 3 must stay")):
+        r = run_cli("cable", "solve", path, "--conductors", "3", "--leave-out", bad)
+        assert r.returncode == 2 and said in r.stderr, r.stderr
+    d = fluxcal.diagnose_cable(y, ring, currents=currents, noise_sigma=1e-8)
+    lone = d.remaining["lone_sensor"]
+    assert lone["sensor"] == "sensor 4" and lone["kind"] == "mirrored" and lone["without_rms_z"] < 2, lone
+    np.testing.assert_allclose(lone["matrix"], [[0, 1], [1, 0]], atol=0.01)
+    line = next(x for x in d.text().splitlines() if x.startswith("LONE SENSOR:"))
+    assert "sensor 4 departs alone" in line and "its x and y exchanged" in line and "--leave-out 4" in line, line
+    assert "sensor 4 alone (LONE SENSOR below)" in d.text()
+    clean = fluxcal.diagnose_cable(_three_core_ring(6)[3], ring, currents=currents, noise_sigma=1e-8)
+    assert clean.remaining["lone_sensor"] is None and "LONE SENSOR" not in clean.text()

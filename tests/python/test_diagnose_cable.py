@@ -525,6 +525,31 @@ def test_a_dead_sensor_is_left_out_and_a_missing_reading_is_named():
         diagnose_cable(**{**kwargs, "readings": dead})
 
 
+def test_readings_on_a_rail_are_left_out_of_the_diagnosis():
+    """A sensor clipped at its range had been fitted as gains (NOT EXPLAINED) though `cable solve` names the rail:
+    a sensor on it in more than a tenth of the snapshots is left out, else the snapshots that hold a clipped
+    reading are; the rail is said either way."""
+    kwargs, _ = cable_trial([], 15)
+    readings = kwargs["readings"].copy()
+    x = readings[:, 2, 0]
+    rail = np.quantile(np.abs(x), 0.7)  # 30 % of its snapshots on the rail
+    readings[:, 2, 0] = np.clip(x, -rail, rail)
+    d = diagnose_cable(**{**kwargs, "readings": readings})
+    assert any(c.startswith("readings on a rail: sensor 2 x") for c in d.caveats), d.caveats
+    assert any("sensor(s) 2 on the rail in more than 10% of the snapshots: left out, the ring of the other 3" in c
+               for c in d.caveats), d.caveats
+    assert not d.significant and [row["bin"] for row in d.where["tables"]["sensor"]] == ["sensor 0", "sensor 1",
+                                                                                        "sensor 3"]
+    few = kwargs["readings"].copy()  # a few snapshots: those are left out, the sensor kept
+    order = np.argsort(-np.abs(few[:, 1, 1]))[:6]
+    few[order, 1, 1] = np.sign(few[order, 1, 1]) * np.abs(few[order[-1], 1, 1])
+    d = diagnose_cable(**{**kwargs, "readings": few})
+    assert any(c.startswith("readings on a rail: sensor 1 y") for c in d.caveats), d.caveats
+    assert any(f"the 6 snapshot(s) with a reading on the rail left out ({', '.join(map(str, sorted(order)))}), "
+               f"the other {len(few) - 6} diagnosed" in c for c in d.caveats), d.caveats
+    assert not d.significant and len(d.where["tables"]["sensor"]) == 4
+
+
 def test_the_coupled_sensor_is_named_by_its_number_in_the_recording():
     """With sensor 0 dead, the coupling found on sensor 3 had been named "sensor 2" (the diagnosed ring's own
     numbering)."""
@@ -727,6 +752,9 @@ def test_the_given_calibration_is_compared_with_the_refit(tmp_path):
                            max_effects=0)
         check = d.remaining["calibration_check"]
         line = next(x for x in d.text().splitlines() if x.startswith("CALIBRATION:"))
+        found = next(x for x in d.text().splitlines() if x.startswith("FOUND:"))
+        # FOUND says the model fits only with the calibration refitted (it had said "to the noise" alone)
+        assert found.endswith("the calibration given does not (see CALIBRATION)") == bool(change), found
         if change:
             assert not check["consistent"] and check["largest"]["sensor"] == "sensor 2", line
             assert check["largest"]["what"] == "gain" and check["largest"]["axis"] == "x" and check["largest"]["z"] > 4
@@ -1079,3 +1107,21 @@ def test_found_sizes_carry_the_noise_standard_errors():
     assert abs(top["tilt_deg"] - np.degrees(rig.effects[0].tilt_rad)) < 4 * top["tilt_deg_se"]
     found = next(line for line in d.text().splitlines() if line.startswith("FOUND: cable_tilt"))
     assert f"{top['tilt_deg']:.2g}° ± " in found and "± the noise's alone" in found, found
+
+
+@pytest.mark.parametrize("matrix, kind, said", [
+    ([[0, 1], [1, 0]], "mirrored", "its x and y exchanged"),
+    ([[0, -1], [-1, 0]], "mirrored", "its x and y exchanged and both reversed"),
+    ([[1, 0], [0, -1]], "mirrored", "its y axis reversed"),
+    ([[-0.98, 0], [0, 1.01]], "mirrored", "its x axis reversed"),
+    ([[np.cos(0.5), -np.sin(0.5)], [np.sin(0.5), np.cos(0.5)]], "turned", "turned by 28.6°"),
+    ([[-1, 0], [0, -1]], "turned", "or upside down"),
+    ([[1.05, 0], [0, 0.99]], "scaled", "the field scaled"),
+    ([[1, 0], [0.9, 0.02]], "one_axis", "one direction of the field only"),
+    ([[1e-3, 0], [0, 2e-3]], "unresponsive", "hardly follows the field"),
+])
+def test_a_lone_sensors_map_is_named(matrix, kind, said):
+    from fluxcal.diagnose.cable import _mapping_words
+
+    got, words = _mapping_words(np.asarray(matrix, float))
+    assert got == kind and said in words, words

@@ -52,7 +52,7 @@ as a whole, so the verdict then says it cannot judge whether the model fits.
 """
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 from types import SimpleNamespace
 
@@ -1178,6 +1178,86 @@ def _validate(data: _Data, state: dict, model: _Model, regime: str, levels) -> d
     return out
 
 
+# ---------------------------------------------------------------- one sensor alone
+
+# The sensors of largest residual tried left out, one at a time, when the ring's model leaves the readings far beyond
+# the noise: one without which the ring fits departs alone (the fit spreads its misfit over the others: a swapped
+# sensor's residual RMS was 3.7× the next one's with one rotation, 15 000× with eight)
+LONE_TRIES = 3
+
+
+def _without_sensor(data: _Data, j: int) -> _Data:
+    """`data` with its sensor j left out (its columns, its geometry, its calibration, its σ)."""
+    keep = np.delete(np.arange(data.shape[1]), j)
+    ids = np.arange(data.shape[1]) if data.sensor_ids is None else data.sensor_ids
+    jitter = None if data.jitter is None else (data.jitter[0][:, keep],) + tuple(data.jitter[1:])
+    return replace(data, y=data.y[:, keep], ring=data.ring.subset(keep), sigma=data.sigma[keep],
+                   points=data.points[:, keep], axes=data.axes[:, keep], sensor_ids=np.asarray(ids)[keep],
+                   calibration=None if data.calibration is None else data.calibration.subset(keep), jitter=jitter,
+                   sigma_dof=data.sigma_dof[keep] if np.ndim(data.sigma_dof) else data.sigma_dof, notes=[])
+
+
+def _mapping_words(matrix: np.ndarray) -> tuple:
+    """(kind, words) of the 2×2 map from the field the other sensors fit to a sensor's readings (x, y its radial and
+    tangential axes): its axes exchanged or one reversed (a mirror: det < 0), turned, scaled, or nothing at all."""
+    u, sv, vt = np.linalg.svd(matrix)
+    gain = float(np.sqrt(np.mean(sv ** 2)))
+    rows = "; ".join(f"{'xy'[a]} reads {matrix[a, 0]:+.3f} x {matrix[a, 1]:+.3f} y" for a in range(2))
+    if gain < 0.05:
+        return "unresponsive", f"it hardly follows the field (gain {gain:.2g}: {rows}) — a sensor dead or unpowered"
+    if sv[1] < 0.5 * sv[0]:
+        return "one_axis", (f"one direction of the field only ({rows}) — an axis dead, or both wired to one channel")
+    if np.linalg.det(matrix) < 0:  # a reflection about the line at φ: [[cos 2φ, sin 2φ], [sin 2φ, -cos 2φ]]
+        phi = 0.5 * np.degrees(np.arctan2(matrix[0, 1] + matrix[1, 0], matrix[0, 0] - matrix[1, 1]))
+        if abs(abs(phi) - 45.0) < 10.0:
+            what = "its x and y exchanged" + (" and both reversed" if phi < 0 else "")
+        elif abs(phi) < 10.0:
+            what = "its y axis reversed"
+        elif abs(abs(phi) - 90.0) < 10.0:
+            what = "its x axis reversed"
+        else:
+            what = f"mirrored about the line {phi:.0f}° from its x axis"
+        return "mirrored", (f"the field with {what} ({rows}, gain {gain:.3g}) — a sensor wired or mounted with its axes "
+                            "swapped or a channel's sign reversed")
+    turn = float(np.degrees(np.arctan2(matrix[1, 0] - matrix[0, 1], matrix[0, 0] + matrix[1, 1])))
+    if abs(turn) >= 5.0:
+        return "turned", (f"the field turned by {turn:.1f}° ({rows}, gain {gain:.3g}) — a sensor mounted turned on the "
+                          "ring" + (", or upside down" if abs(abs(turn) - 180.0) < 10.0 else ""))
+    return "scaled", f"the field scaled ({rows}) — a sensor whose gain or offset changed, or a wrong calibration"
+
+
+def _lone_sensor(data: _Data, remaining: dict, positions) -> dict | None:
+    """When the readings depart far beyond the noise and the ring without one sensor (of the LONE_TRIES of largest
+    residual) fits them, and without no other: the ring's fit without it (its residual RMS) and how that sensor's
+    readings map from the field the others fit (2×2 and offset, by least squares; _mapping_words) — a sensor
+    miswired, swapped, turned or dead, named instead of a field from outside the ring (a blind check's swapped sensor
+    at 17 788 σ had been told NOT EXPLAINED, a neighbouring cable)."""
+    rows = remaining["tables"]["sensor"]
+    if len(rows) < 4 or remaining["overall"]["rms_z"] < FAR_BEYOND_NOISE:
+        return None
+    rms = np.array([r["rms_z"] for r in rows])
+    k = data.shape[0]
+    fits = {}
+    for j in np.argsort(-rms)[:LONE_TRIES]:
+        fit = _Model(_without_sensor(data, int(j)), [], None).fit(np.asarray(positions, float), np.arange(k))
+        fits[int(j)] = (float(np.sqrt(np.mean(fit["residuals"] ** 2))), fit)
+    alone = [j for j, (without, _) in fits.items() if without < FAR_BEYOND_NOISE]
+    if len(alone) != 1:
+        return None
+    j = alone[0]
+    without, fit = fits[j]
+    field = np.einsum("kan,kn->ka", _unit(data, fit["positions"])[data.rot_index, j], fit["currents"])
+    X = np.column_stack([field, np.ones(k)])
+    w = 1.0 / data.sigma_eff[:, j]
+    coef, *_ = np.linalg.lstsq(X * w[:, None], data.y[:, j] * w[:, None], rcond=None)
+    matrix, offset = coef[:2].T, coef[2]
+    after = float(np.sqrt(np.mean(((data.y[:, j] - X @ coef) * w[:, None]) ** 2)))
+    kind, words = _mapping_words(matrix)
+    return {"sensor": rows[j]["bin"], "rms_z": float(rms[j]), "others_max_rms_z": float(np.max(np.delete(rms, j))),
+            "without_rms_z": without, "matrix": matrix.tolist(), "offset_t": offset.tolist(),
+            "mapped_rms_z": after, "kind": kind, "words": words}
+
+
 # ---------------------------------------------------------------- inputs
 
 def _prepare(readings, ring, currents, rotations_deg, positions, calibration, noise_sigma, t, n_conductors,
@@ -1199,20 +1279,31 @@ def _prepare(readings, ring, currents, rotations_deg, positions, calibration, no
     silent = silent_sensors(y)
     dead = ~np.isfinite(y).any(axis=(0, 2)) | silent
     ids, notes = np.arange(m), []
-    clipped = clipped_readings(y)  # no model effect explains a rail: said first (as `cable solve` says it)
+    # no model effect explains a rail (it had been fitted as sensor gains, NOT EXPLAINED): said first, as `cable
+    # solve` says it, and left out — a sensor on it in more than MISSING_SNAPSHOTS of the snapshots, else those
+    # snapshots (below)
+    clipped = clipped_readings(y)
+    railed = clipped.any(axis=2).mean(axis=0) > MISSING_SNAPSHOTS
+    if (~(dead | railed)).sum() < 3:
+        railed[:] = False  # (too few sensors would be left: the rail stays in, said)
     if clipped.any():
         notes.append(clipped_words(y, clipped))
+    dead = dead | railed
     if dead.any() and not dead.all():
         ids = np.nonzero(~dead)[0]
-        said = ([f"sensor(s) {', '.join(map(str, np.nonzero(dead & ~silent)[0]))} read no finite value in any "
-                 "snapshot (dead?)"] if (dead & ~silent).any() else []) + silent_words(y, silent)
+        unread = dead & ~silent & ~railed
+        said = ([f"sensor(s) {', '.join(map(str, np.nonzero(unread)[0]))} read no finite value in any "
+                 "snapshot (dead?)"] if unread.any() else []) + silent_words(y, silent) + (
+            [f"sensor(s) {', '.join(map(str, np.nonzero(railed)[0]))} on the rail in more than "
+             f"{MISSING_SNAPSHOTS:.0%} of the snapshots"] if railed.any() else [])
         notes.append(f"{'; '.join(said)}: left out, the ring of the other {len(ids)} diagnosed")
-        ring, y = ring.subset(ids), y[:, ids]
+        ring, y, clipped = ring.subset(ids), y[:, ids], clipped[:, ids]
         calibration = None if calibration is None else calibration.subset(ids)
         if noise_sigma is not None and np.size(noise_sigma) == m:
             noise_sigma = np.asarray(noise_sigma, dtype=float)[ids]
         m = len(ids)
     bad = np.argwhere(~np.isfinite(y))
+    keep = np.ones(k, bool)
     if len(bad):
         s, i, a = bad[0]
         snapshots = np.unique(bad[:, 0])
@@ -1221,10 +1312,16 @@ def _prepare(readings, ring, currents, rotations_deg, positions, calibration, no
         if len(snapshots) > MISSING_SNAPSHOTS * k:  # (one NaN had stopped the whole diagnosis)
             raise ValueError(f"readings: {what}: leave those snapshots out (a ring file read with --bad-lines skip, "
                              "bad_lines='skip', drops the lines that hold one)")
-        keep = np.ones(k, bool)
         keep[snapshots] = False
         notes.append(f"{what}: those snapshots left out ({', '.join(map(str, snapshots[:10]))}"
                      f"{', …' if len(snapshots) > 10 else ''}), the other {int(keep.sum())} diagnosed")
+    on_rail = np.nonzero(clipped.any(axis=(1, 2)) & keep)[0]
+    if 0 < len(on_rail) <= 0.5 * keep.sum():  # (more: left in, the rail said)
+        keep[on_rail] = False
+        notes.append(f"the {len(on_rail)} snapshot(s) with a reading on the rail left out "
+                     f"({', '.join(map(str, on_rail[:10]))}{', …' if len(on_rail) > 10 else ''}), the other "
+                     f"{int(keep.sum())} diagnosed")
+    if not keep.all():
         y = y[keep]
         rotations_deg, t, currents = (v if v is None or np.shape(v)[:1] != (k,) else np.asarray(v)[keep]
                                       for v in (rotations_deg, t, currents))  # (a wrong shape: refused below)
@@ -1484,6 +1581,7 @@ def diagnose_cable(readings, ring: Ring, currents=None, rotations_deg=None, posi
     remaining["reference_scatter"] = None if data.fit_currents else _reference_scatter(data, final["positions"])
     remaining["room_in_solve"] = _room_in_solve(data, state["model"], final)
     remaining["effects_in_solve"] = _effects_in_solve(data, state["model"], final)
+    remaining["lone_sensor"] = _lone_sensor(data, remaining, final["positions"])
     if data.calibration is not None and data.refines:  # (a least-squares calibration off by ×2.35 had passed unsaid)
         remaining["calibration_check"] = _calibration_check(state["model"], final, data.calibration, alpha,
                                                             remaining["overall"]["rms_z"])
@@ -1827,7 +1925,10 @@ def _text(d) -> str:
     # said where it leaves a residual worth naming (a meter seen scattering behind 0.84 σ needs no remedy)
     meter = meter if meter.get("scatters") and meter["predicted_rms_z"] >= METER_MATTERS else {}
     # the reference meter's scatter, when the readings do not follow the logged currents' jitter: the likeliest cause
-    outside = ("the reference currents' scatter (REFERENCE below); " if meter else "") + OUTSIDE_CANDIDATES
+    lone = rem.get("lone_sensor")
+    lone = lone if lone and lone["without_rms_z"] < FAR_BEYOND_NOISE else None  # the ring fits without it
+    outside = ((f"{lone['sensor']} alone (LONE SENSOR below); " if lone else "")
+               + ("the reference currents' scatter (REFERENCE below); " if meter else "") + OUTSIDE_CANDIDATES)
     if d.accepted:
         untried = any(r["effect"] == "background_field" and r.get("not_applicable") for r in d.ranking)
         found = ', '.join(_accepted_text(r) for r in d.ranking if r['significant'])
@@ -1871,7 +1972,12 @@ def _text(d) -> str:
         out.append("FOUND: no significant effect among the candidates — but the base model's conductors lie outside "
                    "the ring's bore: its fit is not the cable's (see CAVEAT)")
     elif not any(_departs(t, rem["tests"]) for t in rem["tests"]):
-        out.append("FOUND: no significant effect — the ring's model explains the readings to the noise")
+        check = d.remaining.get("calibration_check")
+        # (a blind check: "explains the readings to the noise" sat above a CALIBRATION line saying a sensor's gain
+        # is 5 % off — the model explains them with the gains refitted, not with the calibration given)
+        out.append("FOUND: no significant effect — the ring's model explains the readings to the noise"
+                   + (" once the sensors' gains and offsets are refitted: the calibration given does not (see "
+                      "CALIBRATION)" if check and not check["consistent"] and not _background_untried(d) else ""))
     else:  # the departures stand: saying "explained to the noise" beside an 8 σ residual would mislead
         rms = rem["overall"]["rms_z"]
         out.append(f"FOUND: no significant effect among the candidates — the readings still depart from the ring's "
@@ -1921,9 +2027,14 @@ def _text(d) -> str:
                    f"{100 * solve['max_relative_error']:.2g} % off (RMS "
                    f"{100 * solve['rms_relative_error']:.2g} %, simulated from the fit) — the held-out current error "
                    "above is the diagnosis's own model's, which shares the positions over every rotation")
+    if lone:
+        out.append(f"LONE SENSOR: {lone['sensor']} departs alone (residual RMS {lone['rms_z']:.4g} σ, the others' "
+                   f"up to {lone['others_max_rms_z']:.3g} σ); the ring without it fits to {lone['without_rms_z']:.2f} σ. "
+                   f"Its readings are {lone['words']}; so mapped they fit to {lone['mapped_rms_z']:.2f} σ. Correct it, "
+                   f"or leave it out (`cable solve --leave-out {lone['sensor'].split()[-1]}`, Ring.subset)")
     check = d.remaining.get("calibration_check")
     if check:
-        untried = any(r["effect"] == "background_field" and r.get("not_applicable") for r in d.ranking)
+        untried = _background_untried(d)
         not_explained = bool(d.remaining.get("unexplained", {}).get("not_explained")) or (
             not d.accepted and rem["overall"]["rms_z"] >= FAR_BEYOND_NOISE)  # ("NOT EXPLAINED: all of the departure")
         out.append(_calibration_line(check, not_explained, check.get("calibration_method"), d.accepted, untried))
@@ -1942,6 +2053,11 @@ def _calibration_change_words(r: dict) -> str:
         return f"{r['sensor']} {r['axis']} gain {r['calibration']:.4g} → {r['refit']:.4g} (z {r['z']:.2g})"
     return (f"{r['sensor']} {r['axis']} offset {1e6 * r['calibration']:.4g} → {1e6 * r['refit']:.4g} µT "
             f"(z {r['z']:.2g})")
+
+
+def _background_untried(d) -> bool:
+    """Whether a field that does not follow the currents was not tried (the currents fitted per snapshot)."""
+    return any(r["effect"] == "background_field" and r.get("not_applicable") for r in d.ranking)
 
 
 def _calibration_line(check: dict, not_explained: bool, method: str | None = None, found=(),
