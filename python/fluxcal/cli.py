@@ -1239,6 +1239,9 @@ def cmd_cable(args) -> int:
         print("note: the zero-current snapshots took off every field that does not follow the currents: a misfit here "
               "is the sensors' gains" + (" (give --calibration)" if ring_cal is None else "") + ", a wrong number "
               "of conductors, or a field that changed between the zero snapshots and the others")
+    heavy = _implausible_current_words(solutions, ring)
+    if heavy:
+        print(f"warning: {heavy}")
     lone = _lone_sensor_words(ring, ring_cal, raw, solutions, args, zeros)
     if lone:
         print(f"warning: {lone}")
@@ -1269,6 +1272,24 @@ def _left_out(text: str | None, n_sensors: int) -> np.ndarray:
         raise ValueError(f"--leave-out: {int(mask.sum())} of the ring's {n_sensors} sensors left out; at least 3 "
                          "must stay")
     return mask
+
+
+# A current beyond this many amperes per mm² of the ring's inner area (generous: copper carries ~3–6 continuously,
+# a fuse link ~20) is another unit: readings in mT written as tesla read 8 A as 8000 A through a ring of 1 cm
+PLAUSIBLE_CURRENT_DENSITY = 20.0
+
+
+def _implausible_current_words(solutions: list, ring) -> str | None:
+    """A warning when the largest current solved could not flow in any cable inside the ring (its whole inner area at
+    PLAUSIBLE_CURRENT_DENSITY): the readings' or the currents' unit."""
+    largest = max((float(np.nanmax(np.abs(s["currents_a"]))) for s in solutions if s.get("currents_a")), default=0.0)
+    area_mm2 = np.pi * (1e3 * ring.radius_m) ** 2
+    if not largest > PLAUSIBLE_CURRENT_DENSITY * area_mm2:
+        return None
+    return (f"currents up to {largest:.4g} A inside a ring of {1e3 * ring.radius_m:.3g} mm radius: a cable that fits "
+            f"({area_mm2:.3g} mm² at most) carries {PLAUSIBLE_CURRENT_DENSITY * area_mm2:.3g} A at "
+            f"{PLAUSIBLE_CURRENT_DENSITY:g} A/mm² — readings in mT or µT written as tesla (units: s0_x=mT, …), or "
+            "ring_radius_m not in metres?")
 
 
 # Misfitting snapshots solved again without each sensor in turn, to find one that departs alone
@@ -1502,6 +1523,7 @@ def _snapshots_words(wheres: list) -> str:
 
 
 PLAUSIBLE_RING_FIELD_T = 0.1  # a reading beyond this (tesla) is another unit: 5000 A at 1 cm
+IMPOSSIBLE_RING_FIELD_T = 1.0  # beyond this no ring's sensor reads (50 kA at 1 cm): an error, not a warning
 PLAUSIBLE_RING_RADIUS_M = 0.5  # a ring beyond this radius (metres) is another unit
 
 
@@ -1518,6 +1540,10 @@ def _ring_notes(cable, data: dict) -> None:
     # The field scales as I/r: readings or a radius in the wrong unit fit exactly, the currents or positions scaled by
     # it (µT read as tesla gave 8 MA, well conditioned; a radius in mm, conductors metres apart). Said by their size.
     largest = float(np.nanmax(np.abs(data["readings"]))) if np.isfinite(data["readings"]).any() else 0.0
+    if largest > IMPOSSIBLE_RING_FIELD_T:  # (µT read as tesla had exited 0 with the currents 10⁶ times too large)
+        raise ValueError(f"readings up to {largest:.4g} T: no cable ring's sensor reads that ({PLAUSIBLE_RING_FIELD_T:g} "
+                         "T is 5000 A at 1 cm) — are they in µT or mT, not tesla? Name the unit in the header (units: "
+                         "s0_x=uT, …); the currents scale with it")
     if largest > PLAUSIBLE_RING_FIELD_T:
         print(f"warning: readings up to {largest:.4g} T: no cable ring's sensor reads that ({PLAUSIBLE_RING_FIELD_T:g} "
               "T is 5000 A at 1 cm) — are they in µT or mT, not tesla? Name the unit in the header (units: s0_x=uT, …); "

@@ -1109,13 +1109,20 @@ def test_readings_or_a_radius_in_another_unit_are_said_by_their_size(tmp_path):
     ring = Ring([0.0, 90.0, 180.0, 270.0], 0.010)
     true = ring.field([[-1.5e-3, 1.0e-3], [2.2e-3, 0.4e-3]], [8.0, -6.0])
     for name, written, readings, said in (
-            ("right", ring, true, None), ("uT", ring, true * 1e6, "readings up to"),
+            ("right", ring, true, None), ("mT", ring, true * 1e3, "currents up to 8000 A inside a ring of 10 mm"),
             ("mm", Ring([0.0, 90.0, 180.0, 270.0], 10.0), true, "ring_radius_m 10: a ring 10 m in radius")):
         path = tmp_path / f"{name}.csv"
         write_ring_csv(path, written, np.stack([readings, readings]))
         r = run_cli("cable", "solve", path, "--noise-sigma", "1e-7")
         warnings = [line for line in r.stdout.splitlines() if line.startswith("warning:")]
         assert (said is None and not warnings) or (said is not None and any(said in w for w in warnings)), r.stdout
+    # µT written as tesla: hundreds of tesla, which no sensor reads — an error (it had exited 0, the currents ×10⁶)
+    write_ring_csv(tmp_path / "uT.csv", ring, np.stack([true * 1e6, true * 1e6]))
+    for command in (("cable", "solve"), ("diagnose", "--model", "cable")):
+        r = run_cli(*command[:1], tmp_path / "uT.csv", *command[1:]) if command[0] == "diagnose" else \
+            run_cli(*command, tmp_path / "uT.csv")
+        assert r.returncode == 2 and "readings up to 87.41 T: no cable ring's sensor reads that" in r.stderr \
+            and "are they in µT or mT" in r.stderr, r.stderr
 
 
 def test_a_sensors_placement_tolerance_is_carried_into_the_standard_errors(tmp_path):
