@@ -2,6 +2,7 @@
 temp_offset and eddy_current printed no size, their coefficients only in --json without a unit); and the
 before/after plot's tick labels and legend are legible for readings in nT (-80000-60000-40000…, |h| = 5e+04)."""
 import re
+from types import SimpleNamespace
 from dataclasses import replace
 
 import numpy as np
@@ -390,3 +391,28 @@ def test_a_line_is_taken_out_of_the_noise_sigma_and_found():
     assert re.search(r"a field at 1\.8 Hz", said), said
     np.testing.assert_allclose(_vectors(said)[0], [0.6, 0.3, 0.74], rtol=0.05)
     assert "less the line" not in white.noise_source  # no line, nothing taken out
+
+
+@pytest.mark.parametrize("start, end, rate_hz", [(8.0, 8.4, 50.0), (20.0, 21.0, 50.0), (3.0, 2.9, 25.0)])
+def test_a_line_whose_frequency_drifts_is_found_and_its_course_said(start, end, rate_hz):
+    # a motor whose speed changes by 1–5 % over the recording: its line, spread over many bins, had been left to
+    # colored_noise ("one line near 8.3 Hz", NOT EXPLAINED). Its frequency is followed through the recording (the
+    # first three quarters: the held-out quarter chooses nothing) and fitted with the drift; the held-out gap closes
+    from fluxcal.sim.effects import PeriodicInterference
+
+    result, kw = withheld_trial([], 2, rate_hz=rate_hz)
+    t = kw["t"]
+    span = float(np.ptp(t))
+    truth = PeriodicInterference(np.array([0.3, -0.24, 0.32]), 0.5 * (start + end), np.array([0.2, 1.0, 2.0]),
+                                 (end - start) / span)
+    d = diagnose(truth.apply(result.readings, SimpleNamespace(t=t)), **kw, units="uT")
+    assert d.accepted == ["periodic_interference"], d.accepted
+    row = d.ranking[0]
+    assert row["rate_hz_per_s"] == pytest.approx(truth.rate_hz_per_s, rel=0.03), row
+    assert row["heldout_gap_after"] < 0.2 * row["heldout_gap_before"], row
+    said = _line(d.text(), "periodic_interference")
+    found = re.search(rf"a field at ({NUMBER}) Hz drifting to ({NUMBER}) Hz", said)
+    assert found and float(found.group(1)) == pytest.approx(start, abs=0.02) \
+        and float(found.group(2)) == pytest.approx(end, abs=0.02), said
+    np.testing.assert_allclose(_vectors(said)[0], [0.3, 0.24, 0.32], rtol=0.05)
+    assert "whose speed changed" in said, said

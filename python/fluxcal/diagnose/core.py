@@ -1360,7 +1360,8 @@ def _evaluate(cls, data, model, state, sigma, n_candidates) -> dict:
         score, dims, singular, signature = new_part(feats)
     row = {"effect": cls.name, "regime": cls.regime, "n_params": int(feats.shape[1]),
            **_score_fields(score, dims, singular, tried), **cls.describe(ctx, feats)}
-    row.update(_profiled_row(profiled), **_offset_kind(form, taken, e))
+    extras = cls.profiled_extras(ctxs[form], profiled[cls.profile_name]) if profiled else {}
+    row.update(_profiled_row(profiled), **extras, **_offset_kind(form, taken, e))
     if dims == 0:
         row.update(lr=0.0, lr_pvalue=1.0, delta_aic=0.0, delta_bic=0.0, significant=False,
                    heldout_gap_before=None, heldout_gap_after=None,
@@ -1401,7 +1402,7 @@ def _evaluate(cls, data, model, state, sigma, n_candidates) -> dict:
     if state.get("_wander", (None,))[0] is not base:  # one design per round's base fit
         state["_wander"] = (base, _wander_basis(data, base))
     lr_whitened = _whitened_lr(e, e1, data, wander=state["_wander"][1])
-    k = dims + len(profiled)  # a profiled parameter is fitted too: it pays like a coefficient
+    k = dims + len(profiled) + len(extras)  # a profiled parameter is fitted too: it pays like a coefficient
     # So does a time the search placed (an event's edges): in the p-value the alternatives tried pay for it
     # (Bonferroni); left out of ΔBIC, a box's free edges had won ties against a drift's law, whose time constant
     # pays (a gain drifting over the whole recording named a magnet).
@@ -1789,7 +1790,8 @@ def _with_episode(data: _Data, model: str, state: dict, row: dict, i: int, colum
 
 
 # An accepted event's episodes: what each says of itself (its times, its evidence when it was added)
-EPISODE_KEYS = ("on_s", "off_s", "closest_s", "passage_s", "frequency_hz", "searched_times", "delta_bic", "lr_pvalue",
+EPISODE_KEYS = ("on_s", "off_s", "closest_s", "passage_s", "frequency_hz", "rate_hz_per_s", "searched_times",
+                "delta_bic", "lr_pvalue",
                 "heldout_pvalue", "heldout_gap_before", "heldout_gap_after")
 
 

@@ -581,14 +581,20 @@ def periodic_interference_line(d, r) -> str:
     folded = lambda hz: abs(hz - round(hz / fs) * fs)  # noqa: E731
     mains = [(m, k) for m in MAINS for k in range(1, 6) if fs > 0 and folded(k * m) >= 0.5
              and abs(folded(k * m) - f) <= max(resolution, MAINS_DRIFT * k)]
+    rate = r.get("rate_hz_per_s") or 0.0
+    span = float(np.ptp(t)) if len(t) > 1 else 0.0
     part = ("a motor, fan or pump at a steady speed, a PWM-driven heater or LED, a switching supply near the sensor? — "
-            "move it or the sensor, or log its current (motor_current)")
+            "move it or the sensor, or log its current (motor_current)") if not rate else (
+        "a motor, fan or pump whose speed changed (its supply sagging, its load or temperature changing)? — move it or "
+        "the sensor, or log its current (motor_current)")
     # a harmonic's fold is a coincidence as often as not at a low sampling rate (a blind check's 5 Hz line at 25 Hz
     # was put down to the 60 Hz mains' second harmonic alone): the part running at a steady rate is said beside it
     cause = (f"the {_g(mains[0][0])} Hz mains{'' if mains[0][1] == 1 else f' (its harmonic {mains[0][1]})'} aliased "
              f"by the {_g(fs)} Hz sampling? — an anti-alias filter before the converter, or readings averaged over "
              "whole mains periods" + ("" if mains[0][1] == 1 else f"; or {part}") if mains else part)
-    return (f"periodic_interference: a field at {_g(f, 4)} Hz fixed in the sensor's axes, amplitude "
+    at = (f"{_g(f, 4)} Hz" if not rate else
+          f"{_g(f - 0.5 * rate * span, 4)} Hz drifting to {_g(f + 0.5 * rate * span, 4)} Hz ({_g(rate, 3)} Hz/s)")
+    return (f"periodic_interference: a field at {at} fixed in the sensor's axes, amplitude "
             f"{_vec(np.hypot(a, b))}{u} (x, y, z), up to {_share(d, peak)} ({cause})")
 
 

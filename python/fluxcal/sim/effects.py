@@ -89,6 +89,12 @@ class Effect:
         return 0
 
     @classmethod
+    def profiled_extras(cls, ctx, value) -> dict:
+        """Parameters the features at a profiled `value` settled beside it (a line's drift of frequency), for the
+        ranking row: each one given (not None) pays in ΔBIC as a coefficient does."""
+        return {}
+
+    @classmethod
     def profile_grid(cls, ctx) -> np.ndarray:  # pragma: no cover - interface
         raise NotImplementedError
 
@@ -929,6 +935,110 @@ class ScaleDrift(_TimeCourse, Effect):
 LINE_PEAKS = 4         # periodic_interference: the residual spectrum's highest peaks whose frequencies are tried
 LINE_STEPS = (-1.0, -0.5, 0.0, 0.5, 1.0)  # ... each at these offsets, in the recording's frequency resolution 1/T
 LINE_LOWEST_CYCLES = 4.0  # ... from this many cycles in the recording (slower is a drift's course) to the Nyquist
+LINE_SEGMENTS = 8  # a line's drift of frequency: its peak followed through this many stretches of the recording
+LINE_DRIFT_MOST = 0.25  # ... within this share of its frequency either way (a motor's speed, a fan warming up)
+
+
+def _line_phase(t, f: float, rate: float, ends=None) -> np.ndarray:
+    """2π ∫ (f + rate (t − t_mid)) dt from the first reading: a line's phase, its frequency f at the recording's
+    middle (`ends`: the recording's first and last times, when t is part of it)."""
+    t = np.asarray(t, dtype=float)
+    t0, t1 = (float(np.min(t)), float(np.max(t))) if ends is None else ends
+    mid = 0.5 * (t0 + t1)
+    return 2 * np.pi * f * (t - t0) + np.pi * rate * ((t - mid) ** 2 - (t0 - mid) ** 2)
+
+
+def _line_series(ctx) -> tuple:
+    """(times, series): what the fit leaves of the readings, as the fit sees it (against reference vectors the
+    readings less the model's, per axis; against magnitudes that difference along each axis' share of the magnitude:
+    the line modulated by the turning, demodulated per axis), resampled onto the median step (a few dropped samples
+    do not move a line) and centred. Kept on the context."""
+    def compute():
+        t = np.asarray(ctx.t, dtype=float)
+        _, step = _span_and_step(t)
+        order = np.argsort(t, kind="stable")
+        # (less the effects modelled: a line found is no peak to find again)
+        rest = (np.asarray(ctx.readings) - getattr(ctx, "modelled", 0.0) - np.asarray(ctx.signal))[order]
+        if ctx.vector:
+            series = rest
+        else:  # e = uᵀ A (m − s): each axis' part of the magnitude residual, modulated by u
+            A = np.linalg.inv(ctx.W)
+            u = np.asarray(ctx.field)[order]
+            u = u / np.linalg.norm(u, axis=1, keepdims=True)
+            e = np.einsum("nk,nk->n", u @ A, rest)
+            series = e[:, None] * (u @ A)
+        even = np.arange(t[order][0], t[order][-1] + 0.5 * step, step)
+        series = np.column_stack([np.interp(even, t[order], c) for c in series.T])
+        return even, series - series.mean(axis=0)
+
+    return _per_context(ctx, "_line_series", (ctx.t, ctx.readings, ctx.signal, getattr(ctx, "modelled", None)),
+                        compute)
+
+
+def _demodulated_power(t, series, f: float, rates, ends) -> np.ndarray:
+    """Σ over the axes of |Σ series e^(−i phase)|² for the line at f drifting at each of `rates`: the power a line
+    of that course takes from the series."""
+    return np.array([np.sum(np.abs(np.exp(-1j * _line_phase(t, f, r, ends)) @ series) ** 2)  # (one course at a
+                     for r in np.atleast_1d(np.asarray(rates, dtype=float))])      # time: a long recording's memory)
+
+
+def _line_ridge(t, series, f: float):
+    """(rate Hz/s, frequency at the recording's middle) of the line near f, from its peak in LINE_SEGMENTS stretches
+    of the series' first three quarters (a straight line through their frequencies, weighted by their power), or
+    None for too short a series."""
+    used = int(0.75 * len(t))
+    if used < 8 * LINE_SEGMENTS or not f > 0:
+        return None
+    step = float(t[1] - t[0])
+    seg = used // LINE_SEGMENTS
+    pad = 8 * seg
+    freqs = np.fft.rfftfreq(pad, step)
+    band = np.abs(freqs - f) <= max(LINE_DRIFT_MOST * f, 3.0 / (seg * step))
+    if band.sum() < 3:
+        return None
+    centres, peaks, weights = [], [], []
+    window = np.hanning(seg)[:, None]
+    for k in range(LINE_SEGMENTS):
+        chunk = series[k * seg:(k + 1) * seg]
+        power = np.sum(np.abs(np.fft.rfft(chunk * window, n=pad, axis=0)) ** 2, axis=1)
+        j = np.flatnonzero(band)[np.argmax(power[band])]
+        if 0 < j < len(power) - 1:  # the peak between bins (a parabola through its three)
+            a, b, c = np.log(power[j - 1:j + 2] + 1e-300)
+            j = j + 0.5 * (a - c) / (a - 2 * b + c) if a - 2 * b + c < 0 else j
+        centres.append(float(np.mean(t[k * seg:(k + 1) * seg])) - 0.5 * float(t[0] + t[-1]))
+        peaks.append(float(j) * float(freqs[1]))
+        weights.append(float(np.max(power[band])))
+    rate, at_middle = np.polyfit(centres, peaks, 1, w=np.sqrt(weights))
+    return float(rate), float(at_middle)
+
+
+def _line_rate(t, series, f: float) -> float:
+    """_rate's estimate on the series' first three quarters (see PeriodicInterference._rate)."""
+    ridge = _line_ridge(t, series, f)
+    used = int(0.75 * len(t))
+    t_used, s_used = t[:used], series[:used]
+    span = float(t_used[-1] - t_used[0])
+    if ridge is None or abs(ridge[0]) * span < 0.5 / span:  # (steady: no demodulation to pay for)
+        return 0.0
+    ends = (float(t[0]), float(t[-1]))
+    centre = ridge[0]
+    for _ in range(4):  # the ridge's slope is rough (a slow drift within a stretch's bin): the steps move with the best
+        rates = np.concatenate([[0.0], centre + np.linspace(-4.0, 4.0, 33) / (2.0 * span ** 2)])  # quarter cycles
+        power = _demodulated_power(t_used, s_used, f, rates, ends)
+        best = int(np.argmax(power[1:])) + 1
+        if 1 < best < len(rates) - 1:
+            break
+        centre = float(rates[best])
+    rate = float(rates[best])
+    if 1 < best < len(rates) - 1:  # between the steps: a parabola through the three about the best
+        a, b, c = power[best - 1:best + 2]
+        rate += 0.5 * (a - c) / (a - 2 * b + c) * float(rates[2] - rates[1]) if a - 2 * b + c < 0 else 0.0
+    # the power it adds against BIC's price for one parameter, in the series' own noise (its power per sample
+    # once the line at that course is taken off)
+    noise = max(float(np.sum(s_used ** 2)) - 2.0 * power[best] / used, 0.0) / (used * s_used.shape[1])
+    if 2.0 * (power[best] - power[0]) / used < noise * np.log(used) or abs(rate) * span < 1.0 / span:
+        return 0.0
+    return rate
 
 
 @dataclass
@@ -944,6 +1054,8 @@ class PeriodicInterference(Effect):
     amplitude: np.ndarray
     frequency_hz: float
     phase: np.ndarray
+    # a frequency that drifts (a motor's speed sagging with its supply, a fan warming up): f + rate (t − t_mid), Hz/s
+    rate_hz_per_s: float = 0.0
     name = "periodic_interference"
     n_params = 6
     regime = "time"
@@ -956,15 +1068,32 @@ class PeriodicInterference(Effect):
 
     def apply(self, values, context):
         t = np.asarray(context.t, dtype=float)
-        return values + np.asarray(self.amplitude) * np.sin(2 * np.pi * self.frequency_hz * t[:, None]
-                                                            + np.asarray(self.phase))
+        w = _line_phase(t, self.frequency_hz, self.rate_hz_per_s) + 2 * np.pi * self.frequency_hz * float(np.min(t))
+        return values + np.asarray(self.amplitude) * np.sin(w[:, None] + np.asarray(self.phase))
 
     @classmethod
     def features_at(cls, ctx, value):
-        w = 2 * np.pi * float(value) * (np.asarray(ctx.t, dtype=float) - float(np.min(ctx.t)))
+        w = _line_phase(ctx.t, float(value), cls._rate(ctx, float(value)))
         sin, cos = np.sin(w), np.cos(w)
         return np.concatenate([_per_axis(np.repeat(sin[:, None], 3, axis=1)),
                                _per_axis(np.repeat(cos[:, None], 3, axis=1))], axis=1)
+
+    @classmethod
+    def profiled_extras(cls, ctx, value) -> dict:
+        rate = cls._rate(ctx, float(value))
+        return {"rate_hz_per_s": rate} if rate else {}
+
+    @classmethod
+    def _rate(cls, ctx, f: float) -> float:
+        """The line's drift of frequency (Hz/s) at mean frequency f, or 0.0 for a steady one: its peak followed
+        through LINE_SEGMENTS stretches of the residual series (_line_series), the slope of their frequencies
+        refined by the demodulated power, taken when the power it adds pays BIC's price for one more parameter.
+        Chosen on the first three quarters of the recording: the held-out last quarter chooses nothing."""
+        held = _per_context(ctx, "_line_rates", (ctx.t, ctx.readings, ctx.signal, getattr(ctx, "modelled", None)),
+                            dict)
+        if f not in held:
+            held[f] = _line_rate(*_line_series(ctx), f)
+        return held[f]
 
     @classmethod
     def features(cls, ctx):
@@ -989,21 +1118,7 @@ class PeriodicInterference(Effect):
 
     @staticmethod
     def _grid(ctx, span: float, step: float) -> np.ndarray:
-        t = np.asarray(ctx.t, dtype=float)
-        order = np.argsort(t, kind="stable")
-        # (less the effects modelled: a line found is no peak to find again)
-        rest = (np.asarray(ctx.readings) - getattr(ctx, "modelled", 0.0) - np.asarray(ctx.signal))[order]
-        if ctx.vector:
-            series = rest
-        else:  # e = uᵀ A (m − s): each axis' part of the magnitude residual, modulated by u
-            A = np.linalg.inv(ctx.W)
-            u = np.asarray(ctx.field)[order]
-            u = u / np.linalg.norm(u, axis=1, keepdims=True)
-            e = np.einsum("nk,nk->n", u @ A, rest)
-            series = e[:, None] * (u @ A)
-        even = np.arange(t[order][0], t[order][-1] + 0.5 * step, step)
-        series = np.column_stack([np.interp(even, t[order], c) for c in series.T])
-        series -= series.mean(axis=0)
+        even, series = _line_series(ctx)
         power = np.sum(np.abs(np.fft.rfft(series, axis=0)) ** 2, axis=1)
         f = np.fft.rfftfreq(len(even), step)
         df = 1.0 / (len(even) * step)
@@ -1012,7 +1127,13 @@ class PeriodicInterference(Effect):
         top = peaks[np.argsort(power[peaks])[::-1][:LINE_PEAKS]]
         if not len(top):
             return np.array([max(LINE_LOWEST_CYCLES / span, df)])
-        grid = np.unique(np.concatenate([f[top] + k * df for k in LINE_STEPS]))
+        # a line whose frequency drifts spreads its peak: its frequency at the middle, followed through the
+        # recording (_line_ridge), is tried beside the peak's
+        ridges = [_line_ridge(even, series, float(f[j])) for j in top]
+        middles = [r[1] for r in ridges if r is not None and abs(r[0]) * span > 1.0 / span
+                   and LINE_LOWEST_CYCLES / span <= r[1] <= 0.5 / step - 2 * df]
+        grid = np.unique(np.concatenate([np.concatenate([f[top], middles])[:, None] + df * np.asarray(LINE_STEPS)]
+                                        ).ravel())
         return grid[grid > 0]
 
     @classmethod
@@ -1606,7 +1727,7 @@ PARAMETER_UNITS = {
     "temp_scale": {"alpha": "1/degC", "t0": "degC", "lag_s": "s"},
     "temp_offset": {"beta": "{u}/degC", "t0": "degC", "lag_s": "s"},
     "motor_current": {"k": "{u}/A"},
-    "periodic_interference": {"amplitude": "{u}", "frequency_hz": "Hz", "phase": "rad"},
+    "periodic_interference": {"amplitude": "{u}", "frequency_hz": "Hz", "phase": "rad", "rate_hz_per_s": "Hz/s"},
     "offset_drift": {"rate": "{u}/s", "random_walk": "{u}/sqrt(s)", "warmup_s": "s"},
     "scale_drift": {"rate": "1/s", "warmup_s": "s"},
     "nonlinearity_cubic": {"relative": "(fraction at |s| = scale)", "scale": "{u}"},
