@@ -1199,6 +1199,16 @@ def read_ring_csv(path, bad_lines: str = "error") -> dict:
                              f"{', '.join(cur_names)}" + (f": column {', '.join(missing)} missing" if missing else "")
                              + " (one current column i0, i1, … per conductor, in positions_m's order)"
                              + (f"; columns not used: {', '.join(others)} — is one of them a current?" if others else ""))
+    bore_note = None
+    reach = float(np.max(np.hypot(*positions.T))) if positions is not None else 0.0
+    if "ring_bore_radius_m" not in meta and ring.bore_radius_m <= reach < ring.radius_m:
+        # the stated conductors lie beyond the default bore (0.4 × radius): the solver's bound would clamp them
+        # to its edge (a blind check's off-centre cable, "ended on the bore's edge" for every snapshot)
+        wider = reach + 0.25 * (ring.radius_m - reach)
+        bore_note = (f"positions_m puts a conductor {1e3 * reach:.3g} mm from the ring's centre, beyond the default "
+                     f"bore ({1e3 * ring.bore_radius_m:.3g} mm, 0.4 × ring_radius_m): the bore taken as "
+                     f"{1e3 * wider:.3g} mm (ring_bore_radius_m sets it)")
+        ring = Ring(ring.angles_deg, ring.radius_m, ring.axis_angles_deg, wider)
     t = rec.columns.get("t")
     if t is not None:
         t = t * _column_scale(path, "t", rec.units.get("t", ""), TIME_UNITS, "s", "a time unit")
@@ -1207,7 +1217,7 @@ def read_ring_csv(path, bad_lines: str = "error") -> dict:
             "positions_m": positions, "t_s": None if t is None else np.asarray(t, float),
             "unused_columns": [n for n in rec.columns if n not in used],
             "skipped_lines": rec.metadata.get("skipped_lines"), "line_numbers": rec.line_numbers,
-            "current_names": cur_names, "rotations_given": "rotation_deg" in rec.columns}
+            "current_names": cur_names, "rotations_given": "rotation_deg" in rec.columns, "bore_note": bore_note}
 
 
 def ring_columns_note(data: dict) -> str | None:

@@ -1534,12 +1534,16 @@ def _ring_notes(cable, data: dict) -> None:
     note = cable.ring_columns_note(data)
     if note:
         print(note)
+    if data.get("bore_note"):
+        print(f"note: {data['bore_note']}")
     if not data.get("rotations_given", True) and len(data["readings"]) > 1:
         print(f"note: no rotation_deg column: all {len(data['readings'])} snapshots taken at rotation 0° (the ring's "
               "turn about the cable is read from rotation_deg, in degrees)")
     # The field scales as I/r: readings or a radius in the wrong unit fit exactly, the currents or positions scaled by
     # it (µT read as tesla gave 8 MA, well conditioned; a radius in mm, conductors metres apart). Said by their size.
-    largest = float(np.nanmax(np.abs(data["readings"]))) if np.isfinite(data["readings"]).any() else 0.0
+    # (the largest hundredth: a unit is every reading's, a garbled line's 1e300 one snapshot's, named when solved)
+    finite = np.abs(data["readings"][np.isfinite(data["readings"])])
+    largest = float(np.percentile(finite, 99)) if finite.size else 0.0
     if largest > IMPOSSIBLE_RING_FIELD_T:  # (µT read as tesla had exited 0 with the currents 10⁶ times too large)
         raise ValueError(f"readings up to {largest:.4g} T: no cable ring's sensor reads that ({PLAUSIBLE_RING_FIELD_T:g} "
                          "T is 5000 A at 1 cm) — are they in µT or mT, not tesla? Name the unit in the header (units: "

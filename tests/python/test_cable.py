@@ -1322,3 +1322,27 @@ def test_a_sensor_with_its_axes_swapped_is_named_and_left_out_on_request(tmp_pat
     assert "sensor 4 alone (LONE SENSOR below)" in d.text()
     clean = fluxcal.diagnose_cable(_three_core_ring(6)[3], ring, currents=currents, noise_sigma=1e-8)
     assert clean.remaining["lone_sensor"] is None and "LONE SENSOR" not in clean.text()
+
+
+def test_stated_positions_beyond_the_default_bore_widen_it(tmp_path):
+    """A cable off-centre, its conductors stated 5.6 mm out on a 10 mm ring, in a file that gives no bore: the default
+    bore (4 mm) had clamped every snapshot's conductor to its edge (exit 3). The bore is widened to hold the stated
+    positions, said; a bore the file gives is kept."""
+    ring = Ring(np.arange(0.0, 360.0, 45.0), 0.010)
+    positions = np.array([[3e-3, 2e-3], [5e-3, 2.5e-3]])
+    currents = np.tile([20.0, -20.0], (10, 1)) * np.linspace(0.5, 1.0, 10)[:, None]
+    wide = Ring(ring.angles_deg, 0.010, bore_radius_m=0.008)  # (the field: Ring refuses conductors beyond its bore)
+    y = wide.field(positions, currents) + np.random.default_rng(1).normal(0, 1e-8, (10, 8, 2))
+    path = fluxcal.cable.write_ring_csv(tmp_path / "offc.csv", ring, y, positions_m=positions)
+    path.write_text("".join(line for line in path.read_text().splitlines(True)
+                            if not line.startswith("# ring_bore_radius_m")))
+    out = tmp_path / "sol.json"
+    r = run_cli("cable", "solve", path, "--joint", "--noise-sigma", "1e-8", "-o", out)
+    assert r.returncode == 0, r.stdout + r.stderr
+    assert "note: positions_m puts a conductor 5.59 mm from the ring's centre, beyond the default bore (4 mm, 0.4 × " \
+           "ring_radius_m): the bore taken as 6.69 mm" in r.stdout, r.stdout
+    np.testing.assert_allclose(json.loads(out.read_text())["solutions"][0]["positions_m"], positions, atol=2e-5)
+    assert "bore's edge" not in r.stdout
+    given = fluxcal.cable.write_ring_csv(tmp_path / "given.csv", Ring(ring.angles_deg, 0.010, bore_radius_m=0.004), y,
+                                         positions_m=positions)
+    assert fluxcal.cable.read_ring_csv(given)["ring"].bore_radius_m == 0.004  # the file's own bore stands

@@ -494,3 +494,11 @@ def test_the_header_again_among_the_rows_is_said(tmp_path, capsys):
                  + "\n".join(rows[30:]) + "\n")
     assert main(["calibrate", str(path)]) == 0
     assert "the header again at line 32 (the same columns and units): passed over" in capsys.readouterr().out
+
+
+def test_a_clock_time_column_beside_a_date_column_is_the_time(tmp_path):
+    # a German logger's Datum;Uhrzeit (date, clock time) in two columns: the clock time had not been taken for time
+    path = write(tmp_path, "de.csv", "Datum;Uhrzeit;X;Y;Z\n14.03.26;09:26:00;-15,571;-47,230;-4,920\n"
+                                     "14.03.26;09:26:01;-16,5;-46,2;-5,0\n")
+    rec = read_recording(path)
+    assert rec.roles()["time"] == "Uhrzeit" and rec.time().tolist() == [0.0, 1.0]

@@ -25,7 +25,8 @@ MAG_WORDS = {"m", "mag", "mags", "magn", "magnet", "magnetometer", "magnetic", "
              "b", "bfield", "h", "field", "flux", "fluxgate"}
 ACC_WORDS = {"a", "acc", "accel", "accelerometer", "acceleration", "accl"}
 TIME_WORDS = {"t", "ts", "time", "times", "timestamp", "elapsed", "sec", "secs", "seconds", "datetime",
-              "utc", "gps", "gpstime", "zeit", "tiempo", "tempo", "tijd", "czas"}  # ("temps" is also temperatures)
+              "utc", "gps", "gpstime", "zeit", "tiempo", "tempo", "tijd", "czas",
+              "uhrzeit", "heure", "hora"}  # (the clock time beside a Datum/Date column; "temps" is also temperatures)
 TEMP_WORDS = {"temp", "temperature", "tmp", "temperatur", "celsius"}
 GYRO_WORDS = {"gyro", "gyr", "gyroscope", "gyros", "omega", "angular", "rad"}
 # "motion": iOS Core Motion's device-motion field (SensorLog's motionMagneticFieldX beside the raw
