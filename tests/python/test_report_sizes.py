@@ -452,6 +452,8 @@ def test_a_lines_frequency_comes_with_its_cramer_rao_bound():
                               ).groups()
         found.append(float(at))
         bounds.append(float(bound))
+        row = next(r for r in d.ranking if r["effect"] == "periodic_interference")  # the JSON's too
+        assert row["frequency_se_hz"] == pytest.approx(float(bound), rel=0.05) and row["rate_se_hz_per_s"] is None
     ratio = np.std(found, ddof=1) / np.mean(bounds)
     assert 0.6 < ratio < 1.6, (found, bounds)
     assert abs(np.mean(found) - 5.3) < 3 * np.mean(bounds) / np.sqrt(10), found

@@ -2852,6 +2852,23 @@ def diagnose(samples, t=None, temp=None, reference=None, gravity=None, field_nor
                            model=model)
     series = {"t": data.t, "timestamps": timestamps, "temp": data.temp, "current": data.current, "directions": directions, "residual_before": e0,
               "residual_after": e_final, "vector": vector, "field_norms": data.field_norms}
-    return Diagnosis(model=model, noise_sigma=sigma, noise_source=noise_source, units=units, source=source,
-                     ranking=ranking, accepted=accepted, where=where, remaining=remaining, base=base_cal,
-                     series=series, caveats=caveats, clipping=data.clipping)
+    d = Diagnosis(model=model, noise_sigma=sigma, noise_source=noise_source, units=units, source=source,
+                  ranking=ranking, accepted=accepted, where=where, remaining=remaining, base=base_cal,
+                  series=series, caveats=caveats, clipping=data.clipping)
+    _line_bounds(d)
+    return d
+
+
+def _line_bounds(d) -> None:
+    """Each line's (periodic_interference's, and each of its episodes') frequency and drift rate bounds
+    (report.line_standard_errors) into its row: `frequency_se_hz`, `rate_se_hz_per_s` (JSON readers had the
+    text's ± only)."""
+    from .report import line_standard_errors
+
+    for r in d.ranking:
+        if r["effect"] != "periodic_interference" or not r.get("frequency_hz"):
+            continue
+        for line in [r] + list(r.get("episodes") or []):
+            if line.get("frequency_hz"):
+                se_f, se_rate = line_standard_errors(d, {**r, **line})
+                line["frequency_se_hz"], line["rate_se_hz_per_s"] = se_f, se_rate

@@ -622,7 +622,7 @@ def line_standard_errors(d, r) -> tuple:
 
     t = np.asarray(d.series.get("t") if d.series.get("t") is not None else [], dtype=float)
     c = np.asarray(r.get("line_coefficients") or r["coefficients"], dtype=float)
-    if len(t) < 3 or len(c) < 6:
+    if len(t) < 3 or len(c) < 6 or (not d.series.get("vector") and d.series.get("directions") is None):
         return None, None
     a, b = c[:3], c[3:6]
     rate = r.get("rate_hz_per_s") or 0.0
@@ -672,7 +672,8 @@ def periodic_interference_line(d, r) -> str:
              "whole mains periods" + ("" if mains[0][1] == 1 else f"; or {part}") if mains else part)
     at = (f"{_g(f, 4)} Hz" if not rate else
           f"{_g(f - 0.5 * rate * span, 4)} Hz drifting to {_g(f + 0.5 * rate * span, 4)} Hz")
-    se_f, se_rate = line_standard_errors(d, r)
+    se_f, se_rate = (r["frequency_se_hz"], r.get("rate_se_hz_per_s")) if r.get("frequency_se_hz") \
+        else line_standard_errors(d, r)
     bound = ""
     if se_f is not None and np.isfinite(se_f) and se_f > 0:  # the digits the bound says
         digits = max(0, 1 - int(np.floor(np.log10(se_f))))
