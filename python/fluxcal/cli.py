@@ -1849,6 +1849,15 @@ def cmd_drift(args) -> int:
     if args.drift_command == "fit":
         rec = _zero_bias_recording(args, args.column)
         times = rec.time() if rec._time_column() is not None else None  # a sample rate's times have no gaps
+        if times is not None and np.any(np.diff(times) < 0):  # (a blind check: shuffled rows fitted in file order,
+            # the AR model of a series that is no time series, AR(0) for AR(1) 0.7): the time column orders them
+            order = np.argsort(times, kind="stable")
+            print(f"note: {int(np.sum(np.diff(times) < 0))} row(s) of {args.file} come before an earlier time: the "
+                  "samples are taken in the order of their times")
+            rec.columns = {name: np.asarray(values)[order] for name, values in rec.columns.items()}
+            if rec.line_numbers is not None:
+                rec.line_numbers = np.asarray(rec.line_numbers)[order]
+            times = rec.time()
         if "skipped_lines" in rec.metadata:  # the AR model and the Kalman filter assume evenly spaced samples
             where = ("the gaps they leave in t are not reached across" if times is not None else
                      "no time column: the series is modelled as if they were not there, a time step is missing at "
@@ -1871,10 +1880,11 @@ def cmd_drift(args) -> int:
                                                t=times if times is not None else rec.time(),  # (a sample rate's)
                                                spikes="drop" if args.drop_spikes else "keep")
         except drift.TemperatureGlitches as exc:  # said with their file lines (after the fit's size checks)
-            lines = rec.line_numbers[exc.rows] if rec.line_numbers is not None else None
-            raise ValueError(f"{args.file}: {temperature['column']}: "
-                             + drift.glitch_words(temp, exc.rows, "line" if lines is not None else "row", lines)
-                             ) from None
+            word = "line" if rec.line_numbers is not None else "row"
+            said = (drift.hold_words(temp, exc.holds, word, rec.line_numbers) if exc.holds else
+                    drift.glitch_words(temp, exc.rows, word, rec.line_numbers[exc.rows]
+                                       if rec.line_numbers is not None else None))
+            raise ValueError(f"{args.file}: {temperature['column']}: {said}") from None
         found = report["spikes"]
         u = f" {rec.units[args.column]}" if rec.units.get(args.column) else ""  # the file's unit of the column
         # the fit's messages said again in the file's words: its lines, its column, its unit
@@ -1947,6 +1957,10 @@ def cmd_drift(args) -> int:
     if fitted_unit and unit and fitted_unit.strip(" []()") != unit.strip(" []()"):
         raise ValueError(f"{args.file}: {column} is in {unit}, and the drift model {args.model} was fitted to a zero "
                          f"bias in {fitted_unit}: convert the column to {fitted_unit}, or fit a model to this file")
+    if bool(fitted_unit) != bool(unit):  # (a blind check: an A model on a mA file, 1000× off, said by nothing)
+        print(f"warning: {column} is in {unit or 'no unit stated'} in {args.file}, the drift model {args.model} was "
+              f"fitted to one in {fitted_unit or 'no unit stated'}: they are taken as the same unit — if they are "
+              "not (A and mA), the compensation is off by the factor; state the unit in both files")
     if "skipped_lines" in rec.metadata:
         print(skipped_words(rec.metadata['skipped_lines'], "not in the output"))
     for w in drift.fit_warnings(model):  # what the fit said of the model goes with it

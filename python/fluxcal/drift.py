@@ -437,6 +437,52 @@ def temperature_glitches(temp, run: int = 3) -> np.ndarray:
     return np.array(sorted(rows - _ramps_at_the_ends(t, rows, run, beyond)), dtype=int)
 
 
+def temperature_holds(temp, run: int = 3) -> list:
+    """[(first row, last row)] of the blocks longer than `run` samples where a logged temperature holds one value to
+    the last digit and the log jumps into or out of it farther than run·D (D the largest step of the rest, at least
+    the thermometer's resolution, as temperature_glitches takes it): a thermometer's error code held for many
+    samples (a DS18B20's 85 °C through a brown-out), or a sensor stuck on its last reading while the element's
+    temperature moved on (a blind check: 601 samples at 49.99 °C while it fell to 43 °C, the top range 0.97 A off,
+    said by nothing). A quantised hold (a chamber's plateau) leaves it by one resolution step: no jump."""
+    t = np.asarray(temp, dtype=float)
+    n = len(t)
+    if n < 2 * run + 2 or not np.all(np.isfinite(t)):
+        return []
+    change = np.flatnonzero(np.diff(t) != 0)
+    starts, ends = np.concatenate([[0], change + 1]), np.concatenate([change, [n - 1]])
+    held = [(a, b) for a, b in zip(starts, ends) if b - a + 1 > run and b - a + 1 < n]
+    if not held:
+        return []
+    steps = np.abs(np.diff(t))
+    edge = np.zeros(n - 1, dtype=bool)  # the steps into and out of the held blocks
+    for a, b in held:
+        edge[[k for k in (a - 1, b) if 0 <= k < n - 1]] = True
+    moved = steps[steps > 0]
+    resolution = float(moved.min()) if moved.size else 0.0
+    free = steps[~edge]
+    beyond = run * max(float(free.max()) if free.size else 0.0, resolution)
+    return [(int(a), int(b)) for a, b in held
+            if max(steps[a - 1] if a > 0 else 0.0, steps[b] if b < n - 1 else 0.0) > beyond]
+
+
+def hold_words(temp, holds, word: str = "row", labels=None) -> str:
+    """`temperature_holds`' blocks said: where (`labels` of the rows, e.g. file lines), the value held, how long,
+    the jump, and the remedy."""
+    t = np.asarray(temp, dtype=float)
+    labels = np.arange(len(t)) if labels is None else np.asarray(labels)
+
+    def jump(a, b):
+        return max(abs(t[a] - t[a - 1]) if a > 0 else 0.0, abs(t[b + 1] - t[b]) if b + 1 < len(t) else 0.0)
+
+    shown = "; ".join(f"{word}s {labels[a]}–{labels[b]} read {t[a]:g} °C ({b - a + 1} samples, then a jump of "
+                      f"{jump(a, b):.3g} °C)" for a, b in holds[:3])
+    return (f"the temperature holds one value to the last digit and jumps {'into or out of it' if len(holds) == 1 else 'at those'} "
+            f"farther than the rest of the log ever steps ({shown}{'; …' if len(holds) > 3 else ''}): a thermometer "
+            "stuck on its last reading, or an error code held (85 °C: a DS18B20 at power-on; −127 °C: disconnected) "
+            "— fitted as temperatures they bias the model and stretch its ranges; remove those rows, or leave their "
+            "temperature empty and pass --bad-lines skip")
+
+
 def _ramps_at_the_ends(t: np.ndarray, found: set, run: int, beyond: float) -> set:
     """The rows of `found` (temperature_glitches') that are a genuine ramp at an end of the log: a block of them
     from the first row (or to the last), within the first (last) `run` rows, that steps into the rest by no more
@@ -463,9 +509,10 @@ class TemperatureGlitches(ValueError):
     """fit_pipeline's error for readings `temperature_glitches` finds; `rows` holds them (the CLI names their file
     lines)."""
 
-    def __init__(self, message: str, rows):
+    def __init__(self, message: str, rows, holds=None):
         super().__init__(message)
         self.rows = np.asarray(rows, dtype=int)
+        self.holds = holds  # temperature_holds' blocks, when those are what was found
 
 
 def glitch_words(temp, rows, word: str = "row", labels=None) -> str:
@@ -1592,6 +1639,10 @@ def fit_pipeline(zero_bias, temp, temp_outside=None, regressor: str = "temp", br
     glitches = temperature_glitches(temp)  # (after the sizes and the length are judged: 8 rows are too few first)
     if len(glitches):
         raise TemperatureGlitches(f"temp: {glitch_words(temp, glitches)}", glitches)
+    holds = temperature_holds(temp)
+    if holds:
+        raise TemperatureGlitches(f"temp: {hold_words(temp, holds)}", np.concatenate(
+            [np.arange(a, b + 1) for a, b in holds]), holds)
     if np.ptp(temp) == 0:  # (else "range [-20, 0]: 0 samples", as if the ranges were wrong)
         raise ValueError(f"temp: every sample is {temp[0]:g} °C; a drift with temperature needs the temperature to "
                          "change (a chamber cycle, a warm-up)")

@@ -169,3 +169,58 @@ def test_models_saved_before_the_notes_were_kept_by_name_still_load_and_leave_th
     assert "adjusted to the data:" in old.summary["warnings"][0]
     assert drift.fit_warnings(old) == repeated
     np.testing.assert_array_equal(old.evaluate([0.0, 25.0]), model.evaluate([0.0, 25.0]))
+
+
+def test_a_held_error_code_or_a_stuck_thermometer_is_refused_by_its_lines(tmp_path, capsys):
+    """A DS18B20's 85 °C held through a brown-out (51 samples), −127 °C for 4, or a thermometer stuck on its last
+    reading while the chamber moved on (a blind check: 601 samples at 49.99 °C, the top range 0.97 A off, said by
+    nothing) hold one value and jump out of it farther than the log ever steps: refused, naming the lines. A chamber's
+    plateau logged on a 1/16 °C grid (long runs of one value, left by one step) is no such hold."""
+    temp = chamber_temp()
+    assert drift.temperature_holds(temp) == []
+    for rows, value in ((slice(900, 951), 85.0), (slice(300, 304), -127.0)):
+        coded = temp.copy()
+        coded[rows] = value
+        assert drift.temperature_holds(coded) == [(rows.start, rows.stop - 1)], value
+    stuck = temp.copy()
+    stuck[1250:1500] = stuck[1249]  # stuck at 50 °C through the 50 → 23 °C ramp
+    (first, last), = drift.temperature_holds(stuck)
+    assert first <= 1249 and last == 1499
+    plateau = np.round(np.interp(np.arange(2000.0), [0, 400, 800, 2000], [23, 23, 40, 40])
+                       + np.random.default_rng(3).normal(0, 0.02, 2000), 0) / 1.0  # whole degrees: long runs
+    assert drift.temperature_holds(np.round(plateau * 16) / 16) == []
+    w = 0.01 * stuck + 0.002 * np.random.default_rng(4).standard_normal(stuck.size)
+    path = write_csv(tmp_path / "stuck.csv", {"t": np.arange(stuck.size, dtype=float), "zero_bias": w, "temp": stuck})
+    assert main(["drift", "fit", str(path), "-o", str(tmp_path / "m.json")]) == 2
+    err = capsys.readouterr().err
+    assert "stuck.csv: temp: the temperature holds one value to the last digit" in err and "lines " in err \
+        and "a thermometer stuck on its last reading" in err, err
+
+
+def test_shuffled_rows_are_fitted_in_the_order_of_their_times(tmp_path, capsys):
+    temp = chamber_temp()
+    rng = np.random.default_rng(6)
+    e = np.zeros(temp.size)
+    for i in range(1, temp.size):  # AR(1) 0.7 about a linear drift
+        e[i] = 0.7 * e[i - 1] + rng.normal(0, 0.002)
+    cols = {"t": np.arange(temp.size, dtype=float), "zero_bias": 0.01 * temp + e, "temp": temp}
+    ordered = write_csv(tmp_path / "ordered.csv", cols)
+    order = rng.permutation(temp.size)
+    shuffled = write_csv(tmp_path / "shuffled.csv", {k: v[order] for k, v in cols.items()})
+    assert main(["drift", "fit", str(ordered), "-o", str(tmp_path / "a.json")]) == 0
+    capsys.readouterr()
+    assert main(["drift", "fit", str(shuffled), "-o", str(tmp_path / "b.json")]) == 0
+    out = capsys.readouterr().out
+    assert "come before an earlier time: the samples are taken in the order of their times" in out, out
+    a, b = (json.loads((tmp_path / n).read_text()) for n in ("a.json", "b.json"))
+    assert a["segments"] == b["segments"] and a["ar"] == b["ar"]
+
+
+def test_apply_warns_when_one_side_states_a_unit(tmp_path, linear_model, capsys):
+    temp = np.linspace(-10.0, 40.0, 500)
+    path = write_csv(tmp_path / "mA.csv", {"zero_bias": 10.0 * temp, "temp": temp}, units={"zero_bias": "mA"})
+    model = tmp_path / "m.json"
+    linear_model.save(model)  # fitted to numbers with no unit
+    assert main(["drift", "apply", str(model), str(path), "-o", str(tmp_path / "out.csv")]) == 0
+    out = capsys.readouterr().out
+    assert "warning: zero_bias is in mA in" in out and "fitted to one in no unit stated" in out, out
