@@ -371,6 +371,11 @@ def _print_roles(rec: Recording, reference: str | None = None):
     from _reference_role) among them, and which lines and text columns the reader left out."""
     print("columns: " + "; ".join([f"{role} {names}" for role, names in rec.roles().items()]
                                   + ([reference] if reference else [])))
+    from .outliers import rail_words
+
+    rails = rail_words({n: rec.columns[n] for n in rec.mag_names()})
+    if rails:
+        print(f"warning: {rails}")
     if "skipped_lines" in rec.metadata:
         print(skipped_words(rec.metadata['skipped_lines']))
     if "repeated_header" in rec.metadata:  # a logger restarted, or two logs joined: the rows below it are read on

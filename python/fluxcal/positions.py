@@ -1393,6 +1393,11 @@ def run_cli(args, out=None) -> int:
                          bad_lines=getattr(args, "bad_lines", "error"))
     if "skipped_lines" in rec.metadata:
         print(skipped_words(rec.metadata['skipped_lines']), file=out)
+    from .outliers import rail_words
+
+    rails = rail_words({n: rec.columns[n] for n in rec.mag_names()})
+    if rails:
+        print(f"warning: {rails}", file=out)
     acc = rec.acceleration()
     if acc is None:
         raise ValueError(f"{args.file}: no accelerometer columns (ax,ay,az, or a triple named AccX.., accel_x..; "
