@@ -1523,6 +1523,14 @@ def run_cli(args, out=None) -> int:
     # exited 0 with every parameter poorly determined)
     poor = [n for n, d in zip(res.parameter_names, res.determined)
             if not d and (n.startswith("U0_") or n in ("K_xx", "K_yy", "K_zz"))]
+    unjudged = [n for n, se in zip(res.parameter_names, res.standard_errors)
+                if not np.isfinite(se) and (n.startswith("U0_") or n in ("K_xx", "K_yy", "K_zz")) and n not in poor]
+    if unjudged:  # (a blind check: 4 positions, an exact fit, exit 0 with every standard error null)
+        print(f"fluxcal positions: {args.file}: the calibration's {', '.join(unjudged[:6])}"
+              f"{', …' if len(unjudged) > 6 else ''} have no standard error (the fit has no degrees of freedom left "
+              "for the noise: as many equations as unknowns?): it cannot be judged — log more positions (exit status "
+              "3; -o still writes it)", file=sys.stderr)
+        return 3
     if poor:
         print(f"fluxcal positions: {args.file}: the calibration's {', '.join(poor[:6])}{', …' if len(poor) > 6 else ''}"
               " poorly determined: see the warnings above (exit status 3; -o still writes it)", file=sys.stderr)

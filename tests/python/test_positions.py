@@ -517,6 +517,11 @@ def test_cli_positions_names_a_position_turned_about_the_vertical_while_logging(
     assert json.loads((tmp_path / "left.json").read_text())["left_out"][0]["position"] == 7
     r = run_cli("positions", path, "--field", f, "--frame", "nue", "--preset", "twelve", "--leave-out", "7,13")
     assert r.returncode != 0 and "--leave-out: 13 not among" in r.stderr and "Traceback" not in r.stderr, r.stderr
+    # four positions left: an exact fit, no standard error — it had exited 0 with every parameter "determined"
+    r = run_cli("positions", path, "--field", f, "--frame", "nue", "--preset", "twelve", "--leave-out",
+                "5,6,7,8,9,10,11,12")
+    assert r.returncode == 3 and "have no standard error (the fit has no degrees of freedom left" in r.stderr, \
+        r.stdout + r.stderr
 
 
 def test_cli_positions_says_a_noise_sigma_the_repeats_contradict(tmp_path):
