@@ -873,9 +873,9 @@ def _unconfirmed_words(d) -> str:
     # whose course says why
     lines = [r for r in d.ranking if r["effect"] == "periodic_interference" and r not in rows and r.get("frequency_hz")
              and not r.get("significant") and r["delta_bic"] < 0]
+    courses = [(r, line_course(d, r["frequency_hz"], r.get("rate_hz_per_s") or 0.0)) for r in lines]
     course = "".join(f". A line at {_g(r['frequency_hz'], 4)} Hz is in it, not judged significant"
-                     + line_course(d, r["frequency_hz"], r.get("rate_hz_per_s") or 0.0).replace("; its", ": its", 1)
-                     for r in lines if line_course(d, r["frequency_hz"], r.get("rate_hz_per_s") or 0.0))
+                     + said.replace("; its", ": its", 1) for r, said in courses if said)
     if not rows:
         return course
     said = "; ".join(f"{r['effect']} (ΔBIC {r['delta_bic']:.0f}; held out p {r['heldout_pvalue']:.2g}"
