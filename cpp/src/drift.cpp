@@ -282,6 +282,21 @@ DriftModel fit_drift(const SeriesRef& select, const SeriesRef& x, const SeriesRe
     while (ar_options.max_order > 0 &&  // short stretches between gaps: no longer memory than they can show
            regressed_rows(series.size(), ar_options.breaks, ar_options.max_order) < ar_options.max_order + 3)
       --ar_options.max_order;
+    // Whitening by AR(p) drops each range's samples without p in-range predecessors: a sparse log (48 samples,
+    // ranges crossed in runs of 7) had AR(8) chosen and no row left in a range. Each range keeps enough to test
+    // every order it may take (top + 3 rows).
+    const int series_order = ar_options.max_order;
+    auto starved = [&](int p) {
+      for (int s = 0; s < k; ++s)
+        if (whitened_rows(members[s], p, options.breaks) < top[s] + 3) return true;
+      return false;
+    };
+    while (ar_options.max_order > 0 && starved(ar_options.max_order)) --ar_options.max_order;
+    if (ar_options.max_order < series_order)
+      notes.push_back("the noise model's AR order was kept at most " + std::to_string(ar_options.max_order) +
+                      " (not " + std::to_string(series_order) + "): whitened by more, a temperature range would keep "
+                      "too few consecutive samples to fit its drift (a range crossed in short runs; log faster, or "
+                      "set wider ranges with --breakpoints)");
     if (ar_options.max_order > 0 && (series.array() != series[0]).any()) ar = fit_ar(series, ar_options).coefficients;
     // Whitening multiplies a range's constant by 1 − Σa: near a random walk each range's level would rest on
     // the few rows at its edges, and the fitted levels landed further from the data than no model at all.

@@ -135,21 +135,27 @@ Eigen::MatrixXd spd_pinv(const Eigen::MatrixXd& M, std::vector<bool>& null_coord
 // (row-major) so that nothing of size rows × parameters is ever formed.
 using SparseRows = Eigen::SparseMatrix<double, Eigen::RowMajor>;
 // `prior_ss`: the sum of squares of J's prior rows (the tilt prior, in output units), part of the SSR;
-// `known_sigma` > 0: the output noise σ the caller knows, which then scales the standard errors.
+// `known_sigma` > 0: the output noise σ the caller knows, which then scales the standard errors — or, `floor`, the
+// least σ they take: σ̂ when the residuals say more (a misfit the σ given does not allow).
 void finish_statistics(PositionsResult& r, const SparseRows& J, const Eigen::VectorXd& scales, double tolerance,
-                       const std::vector<int>& local = {}, double prior_ss = 0.0, double known_sigma = 0.0) {
+                       const std::vector<int>& local = {}, double prior_ss = 0.0, double known_sigma = 0.0,
+                       bool floor = false) {
   const Eigen::Index p = J.cols(), m = J.rows();
   const double ssr = r.residuals.squaredNorm() + prior_ss;
   // No spare equation: the fit is exact and says nothing about the noise (σ̂ = 0 made every standard
   // error 0 and every parameter "determined" while U0 was off by 0.5 mV).
   const bool exact = m <= p;
   r.noise_sigma = exact ? std::numeric_limits<double>::quiet_NaN() : std::sqrt(ssr / static_cast<double>(m - p));
-  const double se_sigma = known_sigma > 0.0 ? known_sigma : r.noise_sigma;
+  const bool known = known_sigma > 0.0 && !(floor && r.noise_sigma > known_sigma);
+  const double se_sigma = known ? known_sigma : r.noise_sigma;
+  r.noise_dof = known ? std::numeric_limits<double>::infinity() : exact ? 0.0 : static_cast<double>(m - p);
   if (exact)
     r.summary.warnings.push_back(
         "as many equations as unknowns (" + std::to_string(m) + " for " + std::to_string(p) +
         "): the fit is exact, so it cannot estimate the noise σ" +
-        (known_sigma > 0.0 ? "" : " or the standard errors (NaN)") + "; add positions");
+        (known_sigma > 0.0 ? " (the standard errors take the σ given, and cannot show what the model misses: "
+                             "levelling, headings, a disturbed position)"
+                           : " or the standard errors (NaN)") + "; add positions");
   Eigen::VectorXd colnorm = Eigen::VectorXd::Zero(p);
   for (Eigen::Index i = 0; i < m; ++i)
     for (SparseRows::InnerIterator it(J, i); it; ++it) colnorm(it.col()) += it.value() * it.value();
@@ -573,7 +579,9 @@ PositionsResult fit_positions(const SamplesRef& outputs, const SamplesRef& refer
   Eigen::VectorXd scales(12);
   const double out_scale = std::sqrt(Eigen::MatrixXd(outputs).squaredNorm() / static_cast<double>(n));
   scales << Eigen::Vector3d::Constant(out_scale), Eigen::VectorXd::Constant(9, gain_scale(r.K));
-  finish_statistics(r, J, scales, options.determined_tolerance);
+  // a σ given is the least the standard errors take (a blind check's exact fit of 4 positions had none with it);
+  // σ̂ when the residuals say more: a wrong reference field is no smaller an error for a σ given
+  finish_statistics(r, J, scales, options.determined_tolerance, {}, 0.0, options.output_sigma, true);
   r.summary.condition_number = sv(0) / sv(3);
   fill_summary(r, "positions (linear least squares)");
   detail::require_finite_fit(detail::finite_fit(r.summary) && r.K.allFinite() && r.offset.allFinite(), "outputs",

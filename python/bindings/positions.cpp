@@ -36,7 +36,8 @@ py::dict result_dict(const fluxcal::PositionsResult& r) {
                   "rotations"_a = from_rotations(r.rotations), "reference"_a = r.reference,
                   "residuals"_a = r.residuals, "parameter_names"_a = r.parameter_names,
                   "parameters"_a = r.parameters, "standard_errors"_a = r.standard_errors,
-                  "determined"_a = r.determined, "noise_sigma"_a = r.noise_sigma, "units"_a = r.units,
+                  "determined"_a = r.determined, "noise_sigma"_a = r.noise_sigma,
+                  "noise_dof"_a = r.noise_dof, "units"_a = r.units,
                   "summary"_a = summary_dict(r.summary));
 }
 

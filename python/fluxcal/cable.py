@@ -19,12 +19,12 @@ from dataclasses import dataclass, field
 import re
 
 import numpy as np
-from scipy import stats
 
 from . import _core
 from ._arrays import as_number, set_options
 from ._saved import load_json_object
-from .io.columns import CURRENT_UNITS
+from .bounds import few_dof_words
+from .io.columns import LARGE_CURRENT_UNITS
 from .twostep import TwoStep2D, twostep_2d
 
 #: μ0/(2π) in T·m/A (the core's constant).
@@ -203,12 +203,11 @@ class Ring:
         if not options.noise_sigma > 0:  # σ from these readings' own residuals: its few degrees of freedom said
             dof = arr.size - np.shape(r["covariance"])[0]
             r["summary"]["noise_sigma_dof"] = int(dof)
-            if 0 < dof < 30:
-                t95 = float(stats.t.ppf(0.975, dof))
-                r["summary"]["warnings"] = list(r["summary"]["warnings"]) + [
-                    f"σ is estimated from these readings' residuals with {dof} degrees of freedom: the errors over "
-                    f"their standard errors follow Student's t, a 95 % interval is ±{t95:.3g} standard errors (not "
-                    "±1.96); give noise_sigma (a calibration's scatter, the datasheet's) for intervals of their own"]
+            said = few_dof_words(dof, "these readings' residuals",
+                                 "give noise_sigma (a calibration's scatter, the datasheet's) for intervals of their own",
+                                 below=30)  # (a ring's snapshots: said under 30 since before, the README's)
+            if said:
+                r["summary"]["warnings"] = list(r["summary"]["warnings"]) + [said]
         silent = silent_sensors(arr)
         if silent.any():
             r["summary"]["warnings"] = [f"{'; '.join(silent_words(arr, silent))}: solved as readings; leave them "
@@ -1110,7 +1109,7 @@ def write_ring_csv(path, ring: Ring, readings, rotations_deg=None, currents_a=No
     return write_csv(path, cols, units=units, metadata=meta, fmt="%.12g")
 
 
-RING_CURRENT_UNITS = {**CURRENT_UNITS, "ka": 1e3}  # a cable's currents may be stated in kA
+RING_CURRENT_UNITS = LARGE_CURRENT_UNITS  # a cable's currents may be stated in kA
 ANGLE_UNITS = {"deg": 1.0, "degree": 1.0, "degrees": 1.0, "°": 1.0, "rad": 180.0 / np.pi}
 RING_FORMAT = ("comment lines '# ring_angles_deg: 0 90 180 270' and '# ring_radius_m: 0.01' "
                "(optionally ring_axis_angles_deg, ring_bore_radius_m, positions_m: x0 y0 x1 y1 … in metres) "

@@ -18,7 +18,7 @@ from ._arrays import past_range
 from .calibration import SCALE_WORDS, TESLA_PER_UNIT, Calibration, _significant, in_sensor_axes, scale_words
 from .io import Recording, read_csv, read_recording, write_csv, write_recording
 from .io.formats import WRITERS
-from .io.columns import unit_name
+from .io.columns import LARGE_CURRENT_UNITS, unit_name
 from .io.csv import skipped_words
 from .pipeline import METHODS, PLAUSIBLE_WORDS, UNITS_WORDS, calibrate, noise_line, plausible_field
 from .planar import plane_axes
@@ -1847,6 +1847,31 @@ def _reword(report: dict, model, said: str, named: str, keys=("warnings",)) -> N
     model.summary["fit_warnings"] = [named if w == said else w for w in model.summary["fit_warnings"]]
 
 
+def _rated(text: str | None, unit: str | None, column: str) -> tuple:
+    """`--rated` in the zero bias's unit, and a note or None: a bare number is in that unit already; `1000A`,
+    `1.2 kA`, `800 mA` are converted to it (a blind check's `--rated 1000` beside a column in mA was taken as
+    1 A, below the zero bias itself, and `1000A` was refused as no number). A column that states no unit is taken
+    in A then, said."""
+    if text is None:
+        return None, None
+    hit = re.fullmatch(r"\s*([-+]?(?:\d+\.?\d*|\.\d+)(?:[eE][-+]?\d+)?)\s*([A-Za-z]*)\s*", text)
+    if not hit:
+        raise ValueError(f"--rated {text!r}: not a current (a number in the zero bias's unit, or with its own: "
+                         "1000A, 1.2kA, 800mA)")
+    value, given = float(hit[1]), hit[2].lower()
+    if not given:
+        return value, None
+    if given not in LARGE_CURRENT_UNITS:
+        raise ValueError(f"--rated {text!r}: {hit[2]} is no current unit (A, mA or kA)")
+    stated = (unit or "").strip().lower()
+    if not stated:
+        return value * LARGE_CURRENT_UNITS[given], f"{column} states no unit: taken in A beside --rated {text}"
+    if stated not in LARGE_CURRENT_UNITS:
+        raise ValueError(f"--rated {text!r}: {column} is in {unit}, not a current; give --rated as a bare number "
+                         f"in {unit}")
+    return value * LARGE_CURRENT_UNITS[given] / LARGE_CURRENT_UNITS[stated], None
+
+
 def cmd_drift(args) -> int:
     """`fluxcal drift fit FILE -o MODEL.json` and `fluxcal drift apply MODEL.json FILE -o OUT` (seed 001)."""
     from . import drift
@@ -1863,6 +1888,8 @@ def cmd_drift(args) -> int:
             if rec.line_numbers is not None:
                 rec.line_numbers = np.asarray(rec.line_numbers)[order]
             times = rec.time()
+        if (doubt := rec.time_unit_doubt()) is not None:  # the thermal lag and the ageing are said in its seconds
+            print(f"note: {doubt}")
         if "skipped_lines" in rec.metadata:  # the AR model and the Kalman filter assume evenly spaced samples
             where = ("the gaps they leave in t are not reached across" if times is not None else
                      "no time column: the series is modelled as if they were not there, a time step is missing at "
@@ -1875,12 +1902,18 @@ def cmd_drift(args) -> int:
             breakpoints = [float(v) for v in args.breakpoints.split(",")]
         except ValueError:
             raise ValueError(f"--breakpoints: {args.breakpoints!r} is not a comma-separated list of numbers") from None
+        rated, rated_note = _rated(args.rated, rec.units.get(args.column), args.column)
+        if rated_note:
+            print(f"note: {rated_note}")
+        if 0.1 < args.significance < 1:  # (a blind check's 0.5 took orders 4, 3, 4 for a quadratic, unsaid)
+            print(f"warning: --significance {args.significance:g}: the F-test then keeps a power the drift does not "
+                  f"have in {args.significance:.0%} of its tests (seed 001 takes 0.05 or 0.01)")
         try:
             model, report = drift.fit_pipeline(rec.columns[args.column], temp, outside,
                                                regressor=args.regressor, breakpoints=breakpoints,
                                                max_order=args.max_order, significance=args.significance,
                                                continuous=args.continuous, ar_max_order=args.ar_max_order,
-                                               steady_state=args.steady_state, rated=args.rated,
+                                               steady_state=args.steady_state, rated=rated,
                                                accuracy_class=args.accuracy_class, drift_input=args.drift_input,
                                                t=times if times is not None else rec.time(),  # (a sample rate's)
                                                spikes="drop" if args.drop_spikes else "keep")
@@ -1897,6 +1930,10 @@ def cmd_drift(args) -> int:
             _reword(report, model, drift.spike_words(found["rows"], found["sigmas"], dropped=found["dropped"]),
                     drift.spike_words(found["rows"], found["sigmas"], "line", rec.line_numbers[found["rows"]],
                                       dropped=found["dropped"]), ("warnings", "notes"))
+        if report["frozen"] and rec.line_numbers is not None:
+            w = rec.columns[args.column]
+            _reword(report, model, drift.frozen_words(w, report["frozen"]),
+                    drift.frozen_words(w, report["frozen"], "line", rec.line_numbers, u))
         for said, named in zip(drift.history_warnings(report.get("thermal_lag")),
                                drift.history_warnings(report.get("thermal_lag"), u)):
             _reword(report, model, said, named)
@@ -1944,6 +1981,9 @@ def cmd_drift(args) -> int:
               f"{report['drift_span_before']:.4g}{u} -> {report['drift_span_after']:.4g}{u} "
               + (f"({report['drift_reduction']:.1f}x smaller)" if np.isfinite(report["drift_reduction"]) else
                  "(one temperature level: no span to compare)"))
+        if rated is not None and not rated > abs(pre["mean"]):  # a rating in another unit than the column's
+            print(f"warning: --rated {rated:g}{u} is no larger than the zero bias itself (mean {pre['mean']:.4g}{u}): "
+                  "is it in another unit? Give it one (--rated 1000A, 1.2kA)")
         output = "filtered output" if model.settings.get("kalman") else "compensated output (no filter)"
         for key, what in (("accuracy", f"{output}, sample by sample"),
                           ("accuracy_drift", "drift alone, per-level means")):
@@ -1951,7 +1991,8 @@ def cmd_drift(args) -> int:
                 acc = report[key]
                 cells = ", ".join(f"{p['percent_rated']}%: {p['ratio_error_percent']:.3g} % "
                                   f"({'ok' if p['met'] else 'over'} {p['limit_percent']} %)" for p in acc["points"])
-                print(f"  class {acc['class']} {'MET' if acc['met'] else 'NOT met'} for the {what} ({cells})")
+                print(f"  class {acc['class']} at rated {acc['rated']:g}{u or (' A' if rated_note else '')} {'MET' if acc['met'] else 'NOT met'} for "
+                      f"the {what} ({cells})")
         print(f"wrote {model.save(args.output)}")
         return 0
     model = drift.DriftModel.load(args.model)
@@ -2382,7 +2423,8 @@ def build_parser() -> argparse.ArgumentParser:
     df.add_argument("--ar-max-order", type=int, default=10,
                     help="highest AR order AIC may choose for the noise about the drift (default 10)")
     df.add_argument("--steady-state", action="store_true", help="Kalman filter with the steady-state gain")
-    df.add_argument("--rated", type=float, default=None, help="rated current (zero-bias units) for the class check")
+    df.add_argument("--rated", default=None, help="rated current for the class check: a number in the zero bias's "
+                                                  "unit, or with its own (1000A, 1.2kA, 800mA)")
     df.add_argument("--class", dest="accuracy_class", default="0.2S", choices=("0.2S", "0.5S"))
     df.add_argument("--drift-input", default="zero_bias", choices=("zero_bias", "filtered"),
                     help="fit the drift to the zero bias (default; GLS with an AR noise model) or refit it to the "

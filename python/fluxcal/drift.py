@@ -651,6 +651,55 @@ def spike_words(rows, sigmas, word: str = "row", labels=None, dropped: bool = Fa
             "fit_pipeline(spikes=\"drop\")) or find the readout's fault")
 
 
+def frozen_runs(values, run: int = 3) -> list:
+    """[(first row, last row)] of the blocks longer than `run` samples where the zero bias holds one value to the last
+    digit for longer than its own noise allows: a readout frozen on its last value (a blind check's 101 identical
+    samples were said by nothing, their last 3 called spikes). A block of L samples is that unlikely when
+    (n − 1) · p · q^(L − 2) < SPIKE_ALPHA, p the chance that a sample repeats the one before and q that a repeat
+    follows a repeat, both counted without the blocks as long as it or longer (plus one: a continuous readout that
+    never repeats still allows 8), and when it is more than twice the longest of the shorter blocks (a quantised
+    readout's repeats come in runs of every length; judged by a geometric tail alone, the longest of them was named in
+    up to 17 of 100 clean logs). A readout that repeats its last value more often than 9 times in 10 (its quantum
+    far above its noise) holds values by nature: not judged."""
+    x = np.asarray(values, dtype=float)
+    n = x.size
+    if n < 2 * run + 2 or not np.all(np.isfinite(x)):
+        return []
+    same = np.diff(x) == 0
+    if same.mean() > 0.9:
+        return []
+    change = np.flatnonzero(~same)
+    starts, ends = np.concatenate([[0], change + 1]), np.concatenate([change, [n - 1]])
+    lengths = ends - starts + 1
+    # per block, its counts without the blocks as long or longer (no repeat pair spans two blocks: a block of L
+    # holds L − 1 repeats and L − 2 pairs of them)
+    sizes = np.unique(lengths[(lengths > run) & (lengths < n)])  # the block lengths judged
+    big = np.sort(lengths[lengths > 1])
+    above = np.searchsorted(big, sizes)  # the blocks as long or longer: big[above:]
+    drop_repeats = np.array([np.sum(big[k:] - 1) for k in above])
+    drop_pairs = np.array([np.sum(big[k:] - 2) for k in above])
+    rest = same.sum() - drop_repeats
+    p = (rest + 1.0) / (n - 1 - drop_repeats + 2.0)
+    q = (np.sum(same[1:] & same[:-1]) - drop_pairs + 1.0) / (rest + 2.0)
+    shorter = np.concatenate([[1], big])[above]  # the longest block shorter than each (1: none repeats)
+    unlikely = {int(size) for size, pp, qq, m in zip(sizes, p, q, shorter)
+                if (n - 1) * pp * qq ** (size - 2) < SPIKE_ALPHA and size > 2 * max(m, 1)}
+    found = [(int(a), int(b)) for a, b, size in zip(starts, ends, lengths) if int(size) in unlikely]
+    return found
+
+
+def frozen_words(values, runs, word: str = "row", labels=None, unit: str = "") -> str:
+    """`frozen_runs`' blocks said: where (`labels` of the rows, e.g. file lines), the value held, how long, and the
+    remedy."""
+    x = np.asarray(values, dtype=float)
+    labels = np.arange(x.size) if labels is None else np.asarray(labels)
+    shown = "; ".join(f"{word}s {labels[a]}–{labels[b]} read {x[a]:.10g}{unit} ({b - a + 1} samples)" for a, b in runs[:3])
+    return (f"the zero bias holds one value to the last digit for longer than its noise ever does "
+            f"({shown}{'; …' if len(runs) > 3 else ''}): a readout frozen on its last value? Fitted as data, they "
+            "pull the drift model there and bend the AR model of the noise; remove those rows, or leave their zero bias "
+            "empty and pass --bad-lines skip")
+
+
 # The temperatures an FOCT's own thermometer reads in service: an outdoor substation's ambient to the rating of its
 # electronics, about −40…+85 °C (temperature_unit_hint).
 DEVICE_TEMPERATURES = (-40.0, 85.0)
@@ -1609,7 +1658,8 @@ def fit_pipeline(zero_bias, temp, temp_outside=None, regressor: str = "temp", br
                  max_order: int = 4, significance: float = 0.05, continuous: bool = False, ar_max_order: int = 10,
                  q: float | None = None, r: float | None = None, steady_state: bool = False, subseries: int = 20,
                  rated: float | None = None, accuracy_class: str = "0.2S", whiten: bool = True,
-                 drift_input: str = "zero_bias", t=None, spikes: str = "keep", _detrended: dict | None = None):
+                 drift_input: str = "zero_bias", t=None, spikes: str = "keep", _detrended: dict | None = None,
+                 _frozen: dict | None = None):
     """Seed 001 end to end (module doc). drift_input: "zero_bias" (default, GLS on the zero bias) or
     "filtered" (the Kalman output L, seed 001 as written; module doc step 4). The AR model (report["ar"],
     model.settings["ar"], "fitted_to": "zero_bias - drift") is of the noise about a first drift model,
@@ -1635,6 +1685,9 @@ def fit_pipeline(zero_bias, temp, temp_outside=None, regressor: str = "temp", br
     if temp.size != w.size:
         raise ValueError(f"temp: {temp.size} samples, zero_bias has {w.size}")
     breaks, gaps, gap_notes, gap_warnings = _gaps(t, w.size, ar_max_order)
+    if _frozen is None:  # (judged on the input: the refits below see it with rows left out or a trend taken out)
+        runs = frozen_runs(w)
+        _frozen = {"runs": runs, "said": frozen_words(w, runs) if runs else None}
     pre = ts.preprocess(w, subseries=subseries, breaks=breaks)
     glitches = temperature_glitches(temp)  # (after the sizes and the length are judged: 8 rows are too few first)
     if len(glitches):
@@ -1666,7 +1719,8 @@ def fit_pipeline(zero_bias, temp, temp_outside=None, regressor: str = "temp", br
         model, report = fit_pipeline(
             w[kept], temp[kept], None if temp_outside is None else np.asarray(temp_outside, float)[kept], regressor,
             breakpoints, max_order, significance, continuous, ar_max_order, q, r, steady_state, subseries, rated,
-            accuracy_class, whiten, drift_input, None if t is None else np.asarray(t, float)[kept], spikes="off")
+            accuracy_class, whiten, drift_input, None if t is None else np.asarray(t, float)[kept], spikes="off",
+            _frozen=_frozen)
         report["spikes"] = {"rows": spike_rows.tolist(), "sigmas": np.asarray(spike_sigmas).tolist(), "dropped": True}
         jump = ((report.get("thermal_lag") or {}).get("ageing") or {}).get("step")
         if jump:  # (a row of the input, as the spikes' are; the model's settings hold the same dict)
@@ -1727,6 +1781,9 @@ def fit_pipeline(zero_bias, temp, temp_outside=None, regressor: str = "temp", br
               "spikes": {"rows": spike_rows.tolist(), "sigmas": np.asarray(spike_sigmas).tolist(), "dropped": False}}
     if spike_rows.size:
         report["warnings"].append(spike_words(spike_rows, report["spikes"]["sigmas"]))
+    report["frozen"] = _frozen["runs"]
+    if _frozen["said"]:
+        report["warnings"].append(_frozen["said"])
     # One temperature level (every sample in one 5 °C bin): both spans are 0 and say nothing about the model.
     one_level = len(level_means(w, temp)) < 2
     if one_level:  # (a blind check's 0.2 °C gave a one-range model and no word of the span)
@@ -1760,7 +1817,7 @@ def fit_pipeline(zero_bias, temp, temp_outside=None, regressor: str = "temp", br
             regressor=regressor, breakpoints=breakpoints, max_order=max_order, significance=significance,
             continuous=continuous, ar_max_order=ar_max_order, q=q, r=r, steady_state=steady_state,
             subseries=subseries, rated=rated, accuracy_class=accuracy_class, whiten=whiten,
-            drift_input=drift_input, spikes=spikes))
+            drift_input=drift_input, spikes=spikes, _frozen=_frozen))
     if lag is not None:
         report["thermal_lag"] = lag
         report["warnings"] += history_warnings(lag)

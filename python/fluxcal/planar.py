@@ -56,6 +56,7 @@ import numpy as np
 
 from . import _core
 from ._arrays import as_field_norms, field_norm_given, first_nonfinite, readings_times, units_text
+from .bounds import few_dof_words
 from .calibration import Calibration
 from .outliers import Quadric, far_readings, find_outliers
 from .refine import serial_correlation_mode
@@ -308,6 +309,10 @@ def calibrate_planar(samples, field_norm=None, axes=None, units: str | None = No
         warnings += left_out.messages(n + len(left_out.rows))
     stated = units_text(field_units) if field_units else ""
     warnings += _notes(m, summary, plane, fit, norms, units if not stated or stated == units else "", planar_ratio)
+    few = few_dof_words(n - fit["k"], f"the {n} readings' distances to the ellipse",
+                        "log more readings (a slower turn, or a second one)")
+    if few:  # (a blind check: 12 readings, an offset 15 standard errors off, "identifiable yes", nothing said)
+        warnings.append(few)
     summary["warnings"] = warnings
     summary["message"] = (f"planar: {n} readings in the plane {'/'.join(names)}, shape {fit['shape']}, "
                           f"{'converged' if fit['converged'] else 'NOT converged'} in {fit['iterations']} iterations, "

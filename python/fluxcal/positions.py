@@ -43,6 +43,7 @@ import numpy as np
 from . import _core
 from ._arrays import as_number, as_samples, as_specific_force, set_options, units_text
 from .attitude import axis_remapping
+from .bounds import few_dof_words
 
 FRAMES = ("ned", "nue")
 _FRAME = {"ned": _core.Frame.ned, "nue": _core.Frame.nue}
@@ -357,6 +358,7 @@ class PositionsResult:
     units: str
     summary: dict
     metadata: dict = _field(default_factory=dict)
+    noise_dof: float = float("inf")  # behind the standard errors' σ: 3N − p for σ̂, inf when σ was given, 0 exact
 
     def field_of(self, outputs) -> np.ndarray:
         """Body-frame field H = K⁻¹ (U − U0) of each output row (N×3)."""
@@ -372,6 +374,7 @@ class PositionsResult:
         return {"offset": self.offset.tolist(), "K": self.K.tolist(), "units": self.units, "frame": self.frame,
                 "field_ned": self.field_ned.tolist(), "inclination_deg": inclination_of(self.field_ned),
                 "yaw_deg": self.yaw_deg.tolist(), "noise_sigma": self.noise_sigma,
+                "noise_dof": float(self.noise_dof) if np.isfinite(self.noise_dof) else None,  # (null: σ given)
                 "parameter_names": list(self.parameter_names), "determined": [bool(d) for d in self.determined],
                 "standard_errors": [
                     (float(v) if np.isfinite(v) else None) for v in self.standard_errors],
@@ -659,12 +662,20 @@ def _result(d: dict, frame: str) -> PositionsResult:
                "accelerometer and field, but check both before using it with others" if every else
                ". The two sensors' axes are labelled (or mounted) differently; K includes the remapping, so the "
                "calibration holds, but check the chips' axis conventions if this is unexpected")]))
+    dof = float(d["noise_dof"])
+    said = few_dof_words(dof, f"the {len(d['residuals'])} positions' residuals",
+                         "add positions, or give the noise σ per position (output_sigma, --noise-sigma; repeated "
+                         "readings at each position show it)")
+    loose = any(w.startswith("output noise σ") for w in d["summary"]["warnings"])  # (the core's words on σ̂ beside tilts)
+    if said and not loose:  # (a blind check: 5 positions, 3 degrees of freedom, an offset 6.7 standard errors off)
+        d = dict(d, summary=dict(d["summary"], warnings=list(d["summary"]["warnings"]) + [said]))
     return PositionsResult(offset=np.asarray(d["offset"]), K=np.asarray(d["K"]), frame=frame, field_ned=field_ned,
                            yaw_deg=np.degrees(np.asarray(d["yaw"])), rotations=_rotations(d["rotations"]),
                            reference=np.asarray(d["reference"]), residuals=np.asarray(d["residuals"]),
                            parameter_names=list(d["parameter_names"]), parameters=np.asarray(d["parameters"]),
                            standard_errors=np.asarray(d["standard_errors"]), determined=list(d["determined"]),
-                           noise_sigma=float(d["noise_sigma"]), units=d["units"], summary=dict(d["summary"]))
+                           noise_sigma=float(d["noise_sigma"]), units=d["units"], summary=dict(d["summary"]),
+                           noise_dof=dof)
 
 
 # --- does the reference field fit? -----------------------------------------------------------------

@@ -716,6 +716,25 @@ def test_whitening_with_stretches_shorter_than_its_order_as_the_oracle_says():
     assert [s["order"] for s in got.segments] == [r["order"] for r in ref]
 
 
+def test_a_sparse_log_keeps_each_range_rows_to_fit_as_the_oracle_says(tmp_path):
+    """48 samples over a −20…50…−20 °C cycle, each range crossed in runs of about 7: AIC's AR(8) whitening left a
+    range no row, and the fit stopped with "too few consecutive samples in a range for order 0" (a blind check).
+    The whitening's order comes down until every range keeps rows to test its orders, said (C++ and oracle)."""
+    rng = np.random.default_rng(48)
+    t = np.arange(48) * 125.0
+    temp = np.interp(t, [0.0, 2940.0, 5875.0], [-20.0, 50.0, -20.0])
+    w = 0.5 + 0.02 * temp + 0.001 * temp ** 2 + lfilter([1.0], [1.0, -0.7], rng.normal(0.0, 0.05, t.size))
+    got = drift.fit_drift(w, temp)
+    ref, ar = oracle.fit_drift(temp, temp, w)
+    np.testing.assert_allclose(got.settings["noise_ar"], ar, atol=1e-8)
+    assert [s["order"] for s in got.segments] == [r["order"] for r in ref]
+    assert any("AR order was kept at most" in text for text in got.summary["warnings"])
+    src = write_csv(tmp_path / "sparse.csv", {"t": t, "zero_bias": w, "temp": temp})
+    run = run_cli("drift", "fit", src, "-o", tmp_path / "m.json")
+    assert run.returncode == 0, run.stderr
+    assert "the noise model's AR order was kept at most" in run.stdout, run.stdout
+
+
 def test_too_many_gaps_are_not_used(foct):
     """Gaps every 8 samples would leave an AR(10) nothing to fit: the samples are modelled as evenly spaced,
     with a warning, not an error."""
@@ -759,3 +778,26 @@ def test_a_recording_that_starts_held_is_fitted():
     ols = np.linalg.lstsq(x, z[2:], rcond=None)[0]
     assert fit.order == 2
     np.testing.assert_allclose(fit.coefficients, ols, atol=1e-9)
+
+
+def test_a_frozen_zero_bias_readout_is_named_by_its_lines(tmp_path, foct):
+    """A blind check's zero bias held one value for 101 samples (a readout frozen on its last value): said by
+    nothing, its last 3 samples called spikes. The block is named with its file lines; clean logs, continuous or
+    quantised (a quantum of half the noise σ, whose repeats come in runs), are not."""
+    c = foct.columns
+    w = c["zero_bias"].copy()
+    w[2000:2101] = w[2000]
+    src = write_csv(tmp_path / "frozen.csv", {"t": c["t"], "zero_bias": w, "temp": c["temp"]})
+    run = run_cli("drift", "fit", src, "-o", tmp_path / "m.json")
+    assert run.returncode == 0, run.stderr
+    assert "the zero bias holds one value to the last digit" in run.stdout, run.stdout
+    text = open(src).read().splitlines()
+    first = next(i for i, line in enumerate(text) if line[:1].isdigit())  # (0-based: row 0 is on line first + 1)
+    lines = (first + 2001, first + 2101)
+    assert f"lines {lines[0]}–{lines[1]} read {w[2000]:.10g} (101 samples)" in run.stdout, run.stdout
+    assert drift.frozen_runs(c["zero_bias"]) == []
+    sigma = np.std(np.diff(c["zero_bias"])) / np.sqrt(2)
+    for seed in range(5):
+        rng = np.random.default_rng(seed)
+        quantised = np.round((c["zero_bias"] + rng.normal(0, sigma, c["zero_bias"].size)) / (0.5 * sigma)) * 0.5 * sigma
+        assert drift.frozen_runs(quantised) == []

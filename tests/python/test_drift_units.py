@@ -182,3 +182,54 @@ def test_drift_apply_names_the_line_of_a_difference_its_model_never_saw(tmp_path
     assert cli.main(["drift", "apply", str(model), str(log("far.csv", far)), "-o", str(tmp_path / "o.csv"),
                      "--outside-range", "nan"]) == 0
     assert "1 of" in capsys.readouterr().out
+
+
+def test_rated_takes_a_unit_and_a_rating_below_the_zero_bias_is_warned(tmp_path, capsys, foct):
+    """A blind check's `--rated 1000` beside a zero bias in mA was taken as 1 A (below the zero bias itself), unsaid,
+    and `--rated 1000A` was refused as no number. A rating with a unit is converted to the column's; one no larger
+    than the zero bias's mean is warned of; the class line names the rating and its unit."""
+    path = write_csv(tmp_path / "ma.csv", {"t": foct["t"], "zero_bias": foct["zero_bias"] * 1e3, "temp": foct["temp"]},
+                     units={"t": "s", "zero_bias": "mA", "temp": "C"})
+    assert np.mean(foct["zero_bias"] * 1e3) > 100.0  # (so that a rating of 100 mA sits below it)
+    out = {}
+    for rated in ("1000A", "1kA", "1e6", "100"):
+        assert cli.main(["drift", "fit", str(path), "-o", str(tmp_path / "m.json"), "--rated", rated]) == 0
+        out[rated] = capsys.readouterr().out
+    for rated in ("1000A", "1kA", "1e6"):
+        assert "class 0.2S at rated 1e+06 mA" in out[rated] and "is no larger than the zero bias" not in out[rated]
+        assert out[rated].split("class 0.2S")[1] == out["1e6"].split("class 0.2S")[1]
+    assert "warning: --rated 100 mA is no larger than the zero bias itself" in out["100"]
+    assert "class 0.2S at rated 100 mA" in out["100"]
+    for bad, said in (("1000xyz", "xyz is no current unit"), ("abc", "not a current")):
+        assert cli.main(["drift", "fit", str(path), "-o", str(tmp_path / "m.json"), "--rated", bad]) == 2
+        assert said in capsys.readouterr().err
+    # a column that states no unit: taken in A beside a rating with one, said
+    bare = write_csv(tmp_path / "a.csv", {"t": foct["t"], "zero_bias": foct["zero_bias"], "temp": foct["temp"]})
+    assert cli.main(["drift", "fit", str(bare), "-o", str(tmp_path / "m.json"), "--rated", "1kA"]) == 0
+    said = capsys.readouterr().out
+    assert "note: zero_bias states no unit: taken in A beside --rated 1kA" in said and "at rated 1000 A" in said
+
+
+def test_a_time_column_in_milliseconds_without_a_unit_is_doubted(tmp_path, capsys, foct):
+    """A blind check's t in ms with no unit was read as seconds: a thermal lag of 3.5 days and an ageing 1000 times
+    too slow, with no word of the time's unit. A unitless time stepping by 100 or more per sample is said, with how
+    it was read and the header that states milliseconds; seconds at 1 Hz and a stated unit are not doubted."""
+    for name, t, units, doubted in (("ms.csv", foct["t"] * 1e3, {}, True), ("s.csv", foct["t"], {}, False),
+                                    ("ms_stated.csv", foct["t"] * 1e3, {"t": "ms"}, False)):
+        path = write_csv(tmp_path / name, {"t": t, "zero_bias": foct["zero_bias"], "temp": foct["temp"]}, units=units)
+        assert cli.main(["drift", "fit", str(path), "-o", str(tmp_path / "m.json")]) == 0
+        out = capsys.readouterr().out
+        step = float(np.median(np.diff(foct["t"]))) * 1e3
+        assert (f"note: t states no unit and steps by {step:g} per sample: read as seconds" in out) == doubted, out
+        if doubted:
+            assert "(t [ms])" in out
+
+
+def test_a_significance_far_above_the_seeds_is_warned(tmp_path, capsys, foct):
+    path = write_csv(tmp_path / "a.csv", {"t": foct["t"], "zero_bias": foct["zero_bias"], "temp": foct["temp"]},
+                     units={"t": "s"})
+    assert cli.main(["drift", "fit", str(path), "-o", str(tmp_path / "m.json"), "--significance", "0.5"]) == 0
+    assert "warning: --significance 0.5: the F-test then keeps a power the drift does not have in 50%" in \
+        capsys.readouterr().out
+    assert cli.main(["drift", "fit", str(path), "-o", str(tmp_path / "m.json"), "--significance", "0.05"]) == 0
+    assert "--significance" not in capsys.readouterr().out

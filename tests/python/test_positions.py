@@ -522,6 +522,20 @@ def test_cli_positions_names_a_position_turned_about_the_vertical_while_logging(
                 "5,6,7,8,9,10,11,12")
     assert r.returncode == 3 and "have no standard error (the fit has no degrees of freedom left" in r.stderr, \
         r.stdout + r.stderr
+    # …with the noise σ given the exact fit has standard errors (they had stayed null though the warning said they
+    # take the σ given), and says what they cannot show
+    r = run_cli("positions", path, "--field", f, "--frame", "nue", "--preset", "twelve", "--leave-out",
+                "5,6,7,8,9,10,11,12", "--noise-sigma", "0.001", "-o", tmp_path / "exact.json")
+    assert r.returncode == 0 and "the standard errors take the σ given, and cannot show what the model misses" in \
+        r.stdout, r.stdout + r.stderr
+    exact = json.loads((tmp_path / "exact.json").read_text())
+    assert all(se is not None and se > 0 for se in exact["standard_errors"]) and exact["noise_dof"] is None
+    # five positions: σ from 3 degrees of freedom, said with Student's t
+    r = run_cli("positions", path, "--field", f, "--frame", "nue", "--preset", "twelve", "--leave-out",
+                "6,7,8,9,10,11,12", "-o", tmp_path / "five.json")
+    assert r.returncode == 0 and "σ is estimated from the 5 positions' residuals with 3 degrees of freedom" in \
+        r.stdout and "±3.18 standard errors" in r.stdout, r.stdout
+    assert json.loads((tmp_path / "five.json").read_text())["noise_dof"] == 3
 
 
 def test_cli_positions_says_a_noise_sigma_the_repeats_contradict(tmp_path):

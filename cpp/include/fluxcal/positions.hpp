@@ -85,8 +85,9 @@ struct PositionsOptions {
   /// maximum-likelihood answer when the accelerometer is noisier than the sensor (then field
   /// magnitude, which needs no levelling, carries more weight). 0: the accelerometer is taken as exact.
   double tilt_sigma_deg = 0.0;
-  /// Output noise σ (output units), when known: it weighs the tilt prior and scales the joint solve's
-  /// standard errors. 0 = estimated from the fit (noise_sigma).
+  /// Output noise σ (output units), when known: it weighs the tilt prior and scales the joint solve's standard
+  /// errors; the linear fit's take it or σ̂, whichever is larger (an exact fit of 4 positions then has them).
+  /// 0 = estimated from the fit (noise_sigma).
   double output_sigma = 0.0;
   /// Expected magnitude of the accelerometer readings (their units); 0 = the median of the readings.
   double gravity = 0.0;
@@ -113,7 +114,10 @@ struct PositionsResult {
   Eigen::VectorXd standard_errors;  ///< σ̂ √diag((JᵀJ)⁻¹); +inf where undetermined
   std::vector<bool> determined;     ///< per parameter (PositionsOptions::determined_tolerance)
   double noise_sigma = 0.0;         ///< σ̂ = √(SSR/(3N − p)) (output units; SSR includes the tilt prior's
-                                    ///< residuals); 0 when 3N = p
+                                    ///< residuals); NaN when 3N = p (the fit is exact)
+  /// Degrees of freedom behind the standard errors' σ: 3N − p for σ̂ (tilt prior rows counted), +inf when they
+  /// take the σ given (output_sigma) or another fit's, 0 when the fit is exact and no σ was given.
+  double noise_dof = 0.0;
   std::string units;
   Summary summary;
 

@@ -11,7 +11,7 @@ from .._arrays import first_nonfinite, units_text
 UNIX_SECONDS = (1e8, 1e10)  # times in this range are clock times (Unix seconds, 1973 to 2286), not seconds from a start
 from .columns import (TO_CELSIUS, axis_of_name, field_unit_of, unit_name, find_accelerometer, find_current,
                       find_magnetometer, find_magnetometer_pair, find_position, find_temperature, find_time,
-                      sample_rate)
+                      sample_rate, TIME_UNITS, words)
 
 MAG_COLUMNS = ("mx", "my", "mz")
 # A recording that carries its attitude and the local field (north, east, down) gives a reference vector
@@ -216,6 +216,25 @@ class Recording:
             return self.columns[hit[0]] * hit[1]
         rate = sample_rate(self.metadata)
         return None if rate is None else np.arange(len(self)) / rate[1]
+
+    def time_unit_doubt(self) -> str | None:
+        """Words for a time column read as seconds though nothing states its unit and it steps by 100 or more per
+        sample (a sample every 100 s or more: a milliseconds counter, `millis()`, read as seconds made a blind
+        check's thermal lag 3.5 days and its ageing 1000 times too slow), else None. Unix times are not doubted."""
+        hit = self._time_column()
+        if hit is None or hit[1] != 1.0 or self.units.get(hit[0]) or set(words(hit[0])) & set(TIME_UNITS):
+            return None
+        t = np.asarray(self.columns[hit[0]], dtype=float)
+        steps = np.diff(t[np.isfinite(t)])
+        if steps.size == 0 or self.utc_seconds() is not None:
+            return None
+        step = float(np.median(steps))
+        if not step >= 100.0:
+            return None
+        span = float(np.ptp(t[np.isfinite(t)]))
+        return (f"{hit[0]} states no unit and steps by {step:g} per sample: read as seconds (a sample every "
+                f"{step / 60:.3g} min, {span / 86400:.3g} days in all); if it counts milliseconds, say so in the "
+                f"header ({hit[0]} [ms])")
 
     def utc_seconds(self):
         """Each reading's clock time as Unix seconds (UTC), or None when the recording's time is not anchored to a

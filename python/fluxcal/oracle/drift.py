@@ -87,6 +87,8 @@ def fit_drift(select, x, w, breakpoints=(-20.0, 0.0, 30.0, 50.0), max_order=4, s
         top = whiten_max_order
         while top > 0 and lagged(series, top, top, series_breaks)[1].size < top + 3:
             top -= 1
+        while top > 0 and any(_rows(x, w, g, np.zeros(top), 0, stretch)[1].size < t + 3 for g, t in zip(groups, tops)):
+            top -= 1  # each range keeps rows enough to test its orders
         p = int(np.argmin(ar_aic(series, top, series_breaks)))
         ar = ar_fit(series, p, series_breaks)[0] if p else np.zeros(0)
         if ar.size and ar.sum() > UNIT_ROOT:
