@@ -8,22 +8,27 @@ The header (C99, also valid C++) holds the offset b and matrix A in float and in
 inline correction h = A (m − b) for each, a test vector (inputs and fluxcal's double-precision outputs)
 and `<name>_self_test()`, so firmware can check itself. Fixed point:
 
-* Signal format Qm.n (int32: a sign bit, m integer and n fraction bits, m + n = 31) for the readings m,
-  the offset b and the output h. Matrix entries have their own fraction bits na, chosen so that
-  |a_ij| ≤ 2^30 · 2^-na: three products of an int32 difference sum exactly in int64.
-* Arithmetic: d = m − b in int64 saturated to int32; acc = Σ a_ij d_j exact in int64; h_i = acc / 2^na
-  rounded to nearest, ties away from zero, saturated to int32; the function returns 1 if anything
-  saturated (values never wrap). Constants are rounded to nearest.
+* Signal format Qm.n (int32: a sign bit, m integer and n fraction bits, m + n = 31) for the readings m and
+  the offset b; the output h has its own, Qp.q, the most fraction bits that hold every output (counts corrected
+  to tesla in the readings' Q16.15 had an LSB of 30 µT against a 48 µT field: a blind check). Matrix entries
+  have their own fraction bits na, chosen so that |a_ij| ≤ 2^30 · 2^-na: three products of an int32
+  difference sum exactly in int64.
+* Arithmetic: d = m − b in int64 saturated to int32; acc = Σ a_ij d_j exact in int64 (scale 2^-(na+n));
+  h_i = acc / 2^(na + n − q) rounded to nearest, ties away from zero, saturated to int32; the function
+  returns 1 if anything saturated (values never wrap). Constants are rounded to nearest.
 * Stated input range |m_j| ≤ R: R = 2 × the readings' extent (max_i |b_i| + F ‖row i of A⁻¹‖, the largest
   component of a reading of the calibration's field magnitude F), so that fields up to twice the
   calibration field still fit, reduced if needed so that neither d nor h can saturate in the format. With
   `input_range` (`--input-range`, the sensor's full scale, e.g. 32768 counts) R is that, and a format that
   cannot hold it is refused: the readings that reach the rails are the ones a fixed-point overflow hurts.
-* Default format: the smallest m for which inputs of ±R, the differences d and every output for such
-  inputs (max_i Σ_j |a_ij| (R + |b_j|)) fit — all remaining bits are fraction bits.
+* Default format: the smallest m for which inputs of ±R and the differences d fit, and an output format
+  that holds every output for such inputs (max_i Σ_j |a_ij| (R + |b_j|)) — all remaining bits are fraction bits.
 * Error bound, for every input in the range: |h_fixed − A (m − b)| ≤ E per component,
-  E = max_i [2^-(n+1) (1 + Σ_j |a_ij|) + 2^-(na+1) Σ_j (R + |b̃_j|)] — rounding of b, of A and of the output;
-  exact arithmetic otherwise, so E is a bound, not an estimate.
+  E = max_i [2^-(q+1) + 2^-(n+1) Σ_j |a_ij| + 2^-(na+1) Σ_j (R + |b̃_j|)] — rounding of the output, of b and
+  of A; exact arithmetic otherwise, so E is a bound, not an estimate.
+* Float: b is held as two floats, b_hi + b_lo, and d = (m − b_hi) − b_lo: one float b loses |b| 2^-24, which
+  an offset 15 times the field made larger than the float path's own tolerance (a blind check's self-test
+  failed 30 components of a correct calibration).
 
 With `kalman` (a JSON saved by `save_kalman`, or a drift model from `fluxcal drift fit`) the header also
 carries the fixed-point AR Kalman coefficients (`FixedArKalman.export_header`), the filter itself in C99
@@ -47,6 +52,7 @@ from ._arrays import as_number
 from ._saved import load_json_object
 from .calibration import Calibration
 from .kalman import signal_format
+from .timeseries import GAP_STEPS
 from .planar import offset_moved
 
 INT32_MIN, INT32_MAX = -(2 ** 31), 2 ** 31 - 1
@@ -106,13 +112,19 @@ class FixedCalibration:
     """The fixed-point form of a calibration (module docstring for the rules)."""
 
     calibration: Calibration
-    fmt: QFormat
+    fmt: QFormat          # of the readings m and the offset b
     matrix_frac_bits: int
     offset_q: np.ndarray  # int64 (3,), signal format
     matrix_q: np.ndarray  # int64 (3, 3), 2^-matrix_frac_bits
     input_range_q: int    # |m_j| ≤ input_range_q (signal format) is the stated range
     error_bound: float    # per component, in the calibration's units
     range_note: str
+    out_fmt: QFormat      # of the output h
+
+    @property
+    def output_shift(self) -> int:
+        """acc (2^-(na + n)) to h (2^-q): shifted right by na + n − q."""
+        return self.matrix_frac_bits + self.fmt.frac_bits - self.out_fmt.frac_bits
 
     @property
     def input_range(self) -> float:
@@ -120,7 +132,8 @@ class FixedCalibration:
 
     @property
     def error_bound_lsb(self) -> float:
-        return self.error_bound / self.fmt.lsb
+        """error_bound in the output's LSB."""
+        return self.error_bound / self.out_fmt.lsb
 
     @property
     def reading_error_bound(self) -> float:
@@ -135,18 +148,19 @@ class FixedCalibration:
         return np.clip(scaled, INT32_MIN, INT32_MAX).astype(np.int64)
 
     def apply_int(self, m_q) -> tuple[np.ndarray, bool]:
-        """The firmware's fixed-point correction, bit for bit (N×3 int in, N×3 int out, saturated?)."""
+        """The firmware's fixed-point correction, bit for bit (N×3 int in, N×3 int out in out_fmt, saturated?)."""
         m_q = np.atleast_2d(np.asarray(m_q, dtype=np.int64))
         raw_d = m_q - self.offset_q
         d = np.clip(raw_d, INT32_MIN, INT32_MAX)
         saturated = bool(np.any(d != raw_d))
+        shift = self.output_shift
         h = []
         for row in d.tolist():  # Python integers: exact like the firmware's int64
             out = []
             for i in range(3):
                 acc = sum(int(self.matrix_q[i, j]) * row[j] for j in range(3))
-                half = 1 << (self.matrix_frac_bits - 1)
-                acc = (acc + half) >> self.matrix_frac_bits if acc >= 0 else -((-acc + half) >> self.matrix_frac_bits)
+                half = 1 << (shift - 1)
+                acc = (acc + half) >> shift if acc >= 0 else -((-acc + half) >> shift)
                 saturated |= not INT32_MIN <= acc <= INT32_MAX
                 out.append(min(max(acc, INT32_MIN), INT32_MAX))
             h.append(out)
@@ -159,19 +173,33 @@ def _matrix_frac_bits(a: np.ndarray) -> int:
         raise ValueError("calibration: the matrix is zero")
     bits = 30 - math.ceil(math.log2(biggest))
     if bits < 1:
-        raise ValueError(f"calibration: matrix entries up to {biggest:.6g} do not fit an int32 with a fraction bit")
+        raise ValueError(f"calibration: matrix entries up to {biggest:.6g} do not fit an int32 with a fraction bit "
+                         "(the readings in a far smaller unit than h's: state the readings' unit, or calibrate to a "
+                         "field norm in theirs)")
     return min(bits, 61)  # 61: the rounding add (acc + 2^(na-1)) stays inside int64
 
 
-def _error_bound(a, b_q, fmt: QFormat, na: int, r: float) -> float:
-    rows = fmt.lsb / 2 * (1.0 + np.abs(a).sum(axis=1)) + 2.0 ** -(na + 1) * np.sum(r + np.abs(b_q))
+def _error_bound(a, b_q, fmt: QFormat, out: QFormat, na: int, r: float) -> float:
+    rows = out.lsb / 2 + fmt.lsb / 2 * np.abs(a).sum(axis=1) + 2.0 ** -(na + 1) * np.sum(r + np.abs(b_q))
     return float(np.max(rows))
 
 
+def _output_format(a, b, fmt: QFormat, na: int, r: float) -> QFormat | None:
+    """The int32 Q format of h with the most fraction bits that holds every output for inputs |m| ≤ r (with its
+    rounding error), at least one bit below the product's 2^-(na + n) to round by, and no more than 62 above
+    (an int64 shift); None: none does."""
+    top = _output_range(a, b, r)
+    for m in range(32):
+        out = QFormat(m, 31 - m)
+        shift = na + fmt.frac_bits - out.frac_bits
+        if 1 <= shift <= 62 and top + _error_bound(a, b, fmt, out, na, r) <= out.max_value:
+            return out
+    return None
+
+
 def _fits(a, b, fmt: QFormat, na: int, r: float) -> bool:
-    """Inputs |m| ≤ r: the differences d and the outputs (with their rounding error) fit the format."""
-    slack = _error_bound(a, b, fmt, na, r)
-    return r + float(np.max(np.abs(b))) <= fmt.max_value and _output_range(a, b, r) + slack <= fmt.max_value
+    """Inputs |m| ≤ r: the differences d fit the format, and the outputs (with their rounding error) an output one."""
+    return r + float(np.max(np.abs(b))) <= fmt.max_value and _output_format(a, b, fmt, na, r) is not None
 
 
 def _smallest_format(a, b, na: int, r: float) -> QFormat | None:
@@ -236,8 +264,9 @@ def fixed_point(cal: Calibration, q_format: str | QFormat | None = None,
     offset_q = np.rint(b * 2.0 ** fmt.frac_bits).astype(np.int64)
     matrix_q = np.rint(a * 2.0 ** na).astype(np.int64)
     range_q = int(math.floor(r * 2.0 ** fmt.frac_bits))
-    bound = _error_bound(a, offset_q * fmt.lsb, fmt, na, range_q * fmt.lsb)
-    return FixedCalibration(cal, fmt, na, offset_q, matrix_q, range_q, bound, note)
+    out = _output_format(a, offset_q * fmt.lsb, fmt, na, range_q * fmt.lsb) or _output_format(a, b, fmt, na, r)
+    bound = _error_bound(a, offset_q * fmt.lsb, fmt, out, na, range_q * fmt.lsb)
+    return FixedCalibration(cal, fmt, na, offset_q, matrix_q, range_q, bound, note, out)
 
 
 def vector_inputs(fx: FixedCalibration, seed: int = 0) -> np.ndarray:
@@ -481,7 +510,9 @@ def _drift_part(drift, name: str):
         "/* ---- Temperature drift of the zero bias (fluxcal drift fit) ----",
         f" * f = sum_i c_i x^i with x = {x} (degrees C), the polynomial of the range that holds the device",
         " * temperature temp: lo <= temp < hi (the last range includes its hi). Compensated: W_c = W - f.",
-        " * The same model's Kalman filter (--kalman) runs on W_c, the noise about the drift, in its signal format.",
+        (" * The same model's Kalman filter (--kalman) runs on W_c, the noise about the drift, in its signal format."
+         if model.settings.get("kalman") is not None else
+         " * The noise about this drift is white (AR order 0): there is no Kalman filter, W_c is the output."),
         f" * {dname}(temp, temp_outside, &f) returns 0, or 1 when temp is outside every range"
         + (" or temp - temp_outside outside what its range was fitted over" if seen else "")
         + " (f = 0 then: a",
@@ -663,7 +694,7 @@ class ExportResult:
         if self.fixed is not None:
             fx, u, hu = self.fixed, self.fixed.calibration.units, self.fixed.calibration.h_units
             unit, h_unit = f" {u}" if u else "", f" {hu}" if hu else ""
-            said.append(f"float and {fx.fmt} fixed point (matrix 2^-{fx.matrix_frac_bits}); inputs "
+            said.append(f"float and {fx.fmt} fixed point (h in {fx.out_fmt}, matrix 2^-{fx.matrix_frac_bits}); inputs "
                         f"|m| ≤ {fx.input_range:.6g}{unit}; fixed-point error ≤ {fx.error_bound:.3g}{h_unit} "
                         f"({fx.error_bound_lsb:.2f} LSB; {fx.reading_error_bound:.3g}{h_unit} for real readings "
                         f"rounded into it); {len(self.inputs_q)} test vectors")
@@ -742,15 +773,18 @@ def export_c(cal: Calibration | None, path, q_format=None, name: str | None = No
         raise TypeError(f"kalman: expected a FixedArKalman or the path of its JSON, got {type(kalman).__name__}")
     fit_said, fit_warned = _drift_fit_said(kalman, drift, force)  # (before anything is written)
     path = Path(path)
+    if path.is_file() and path.suffix.lower() not in (".h", ".hh", ".hpp", ".hxx"):  # (a recording overwritten, unsaid)
+        raise ValueError(f"export-c: {path} exists and is no C header (its name does not end in .h): it would be "
+                         "overwritten; name the header *.h")
     name = _c_name(name if name is not None else default_name(path))
-    up = name.upper()
     i32 = lambda v: str(int(v)) if v != INT32_MIN else "INT32_MIN"  # noqa: E731
     result = ExportResult(path, warnings=fit_warned)
     parts = []
     if cal is not None:
         lines, result.fixed, result.inputs_q = _calibration_part(cal, name, q_format, input_range, i32)
-        if undetermined:
-            lines = [f"/* WARNING (exported with --force): {_in_comment(undetermined)}. */"] + lines
+        if undetermined:  # (and a macro a build can refuse: #ifdef NAME_EXPORTED_WITH_FORCE / #error)
+            lines = [f"/* WARNING (exported with --force): {_in_comment(undetermined)}. */",
+                     f"#define {name.upper()}_EXPORTED_WITH_FORCE 1"] + lines
         parts.append(("magnetometer calibration", lines))
     if kalman is not None:
         lines, result.kalman, result.kalman_test = _kalman_part(kalman, name, i32, kalman_range)
@@ -764,9 +798,12 @@ def export_c(cal: Calibration | None, path, q_format=None, name: str | None = No
     head = [f"/* {path.name}: {' and '.join(what for what, _ in parts)} for firmware, written by fluxcal "
             f"{__version__}" + (f" from {_in_comment(source)}." if source else "."),
             " * C99, also valid C++; every function is static inline. */",
-            f"#ifndef {up}_H", f"#define {up}_H", "", "#include <stdint.h>"]
+            # the guard keeps the name's case and a prefix no part's own guard has: `--name mag` and `--name MAG`,
+            # or `--name comb_kalman` beside comb's Kalman part (COMB_KALMAN_H), had one guard and the second
+            # header was skipped without a word (a blind check); now their macros or functions clash aloud
+            f"#ifndef FLUXCAL_{name}_H", f"#define FLUXCAL_{name}_H", "", "#include <stdint.h>"]
     body = [line for _, lines in parts for line in ["", *lines]]
-    path.write_text(_ascii("\n".join(head + body + ["", f"#endif /* {up}_H */", ""])), encoding="ascii")
+    path.write_text(_ascii("\n".join(head + body + ["", f"#endif /* FLUXCAL_{name}_H */", ""])), encoding="ascii")
     return result
 
 
@@ -783,7 +820,9 @@ def _undetermined(cal: Calibration) -> str | None:
         return f"the offset {moved} the calibration's log" + (f" ({why.rstrip('.')})" if why else "")
     if cal.summary.get("identifiable", True):
         return None
-    why = next((w for w in cal.summary.get("warnings", []) if "identif" in w or "determin" in w), "")
+    # the warning that names the parameters first (a blind check got a coverage note that merely says "determined")
+    warnings = cal.summary.get("warnings", [])
+    why = next((w for w in warnings if "identif" in w), None) or next((w for w in warnings if "determin" in w), "")
     return ("the calibration is not identifiable: its data did not determine every parameter"
             + (f" ({why.rstrip('.')})" if why else ""))
 
@@ -797,7 +836,7 @@ def _calibration_part(cal: Calibration, name: str, q_format, input_range, i32):
     inputs_f = inputs.astype(np.float32).astype(float)  # what the float function is given
     expected = cal.apply(inputs)
     expected_f = cal.apply(inputs_f)
-    expected_q = np.rint(expected * 2.0 ** fx.fmt.frac_bits).astype(np.int64)
+    expected_q = np.rint(expected * 2.0 ** fx.out_fmt.frac_bits).astype(np.int64)
     tolerance_lsb = math.ceil(fx.error_bound_lsb + 0.5)  # the expected value itself is rounded to the grid
     _, saturated = fx.apply_int(inputs_q)
     if saturated:  # cannot happen by construction; a guard against a broken range rule
@@ -806,34 +845,47 @@ def _calibration_part(cal: Calibration, name: str, q_format, input_range, i32):
     u = f" {_in_comment(cal.units)}" if cal.units else ""
     hu = f" {_in_comment(cal.h_units)}" if cal.h_units else ""  # h is in the field norm's unit (µT from counts, say)
     n, na, lsb = fx.fmt.frac_bits, fx.matrix_frac_bits, fx.fmt.lsb
+    q, shift, out_lsb = fx.out_fmt.frac_bits, fx.output_shift, fx.out_fmt.lsb
+    offset_lo = cal.offset - cal.offset.astype(np.float32).astype(float)  # what one float of b loses
     s = cal.summary
     planar = s.get("method") == "planar" and "not_calibrated" in s
     what = ((f" * Planar ({_in_comment(', '.join(s['plane_axes']))}): |h| is the HORIZONTAL field in that plane; axis "
              f"{_in_comment(s['not_calibrated']['axis'])} " + ("is absent (a biaxial sensor: give 0)" if s.get("biaxial") else
                                                    "passes through uncalibrated, only scaled into h's unit")
              + ".") if planar else None)
+    # a plane that is no pair of the sensor's axes (a tilted mounting): its axes given, and how the heading is formed
+    # (a blind check's firmware took atan2(h_y, h_x) from a header that named e1, e2 without their values: 14° off)
+    tilted = planar and set(s.get("plane_axes", [])) - set("xyz") and "plane_basis" in s
+    basis = np.vstack([s["plane_basis"], s["plane_normal"]]) if tilted else None
+    plane_lines = ([
+        f" * The plane's axes in the sensor's (unit vectors): {name}_plane_axes[0] = e1, [1] = e2, [2] = n (its normal).",
+        " *   The heading is the angle of h in (e1, e2): atan2(h . e2, h . e1) - NOT atan2(h_y, h_x), which a tilted",
+        " *   mounting bends by up to its tilt; h itself is in the sensor's axes."] if tilted else [])
     lines = [
         "/* ---- Magnetometer calibration ----",
         f" * Model: h = A (m - b). m: a raw reading in {units}; h: the corrected field, |h| = {cal.field_norm:.9g}{hu}"
         f" in the calibration field.",
         *([what] if what else []),
-        f" * Float: {name}_apply_float(m, h): A and b in float (single precision). On the test vector it",
+        *plane_lines,
+        f" * Float: {name}_apply_float(m, h): A and b in float (single precision; b as b_hi + b_lo, d = (m - b_hi) - b_lo,",
+        " *   so that a large offset loses nothing to its own rounding). On the test vector it",
         f" *   reproduces fluxcal's double result within {FLOAT_RELATIVE_TOLERANCE:g} x max(|h| (largest component), "
         f"{cal.field_norm:.6g}).",
         f" * Fixed: {name}_apply_fixed(m, h): int32 in and out, int64 inside, no division, no floating point.",
-        f" *   Signal format {fx.fmt} for m, b and h: value = int32 / 2^{n}; a sign bit, {fx.fmt.int_bits} integer and "
+        f" *   Signal format {fx.fmt} for m and b: value = int32 / 2^{n}; a sign bit, {fx.fmt.int_bits} integer and "
         f"{n} fraction bits;",
-        f" *     range [-2^{fx.fmt.int_bits}, 2^{fx.fmt.int_bits} - 2^-{n}], LSB 2^-{n} = {lsb:.6g}{u}"
-        + (f" (of h: {lsb:.6g}{hu})." if hu and hu != u else "."),
+        f" *     range [-2^{fx.fmt.int_bits}, 2^{fx.fmt.int_bits} - 2^-{n}], LSB 2^-{n} = {lsb:.6g}{u}.",
+        f" *   Output format {fx.out_fmt} for h: value = int32 / 2^{q}, LSB {out_lsb:.6g}{hu} ({up}_H_Q_FRAC_BITS; the",
+        " *     most fraction bits that hold every output of the stated range).",
         f" *     A raw reading r converts as round(r * 2^{n}), saturated to int32 (integer counts: r * 2^{n}).",
         f" *   Matrix: a_ij = int32 / 2^{na}, |a_ij| <= 2^30, so sums of three products are exact in int64.",
         " *   Arithmetic: d_j = m_j - b_j in int64, saturated to int32; acc_i = sum_j a_ij d_j (exact);",
-        f" *     h_i = acc_i / 2^{na} rounded to nearest, ties away from zero, saturated to int32. Constants are",
+        f" *     h_i = acc_i / 2^{shift} (= 2^({na} + {n} - {q})) rounded to nearest, ties away from zero, saturated to int32. Constants are",
         " *     rounded to nearest. The function returns 1 when anything saturated (values never wrap), else 0.",
         f" *   Stated input range: |m_j| <= R = {fx.input_range:.9g}{u} ({up}_INPUT_RANGE_Q), {_in_comment(fx.range_note)}.",
         f" *     In it nothing saturates and every component of h is within E = {fx.error_bound:.6g}{hu}",
-        f" *     ({fx.error_bound_lsb:.3f} LSB) of the exact h = A (m - b):",
-        f" *     E = max_i [2^-{n + 1} (1 + sum_j |a_ij|) + 2^-{na + 1} sum_j (R + |b_j|)]  (rounding of b, A, h).",
+        f" *     ({fx.error_bound_lsb:.3f} LSB of h) of the exact h = A (m - b):",
+        f" *     E = max_i [2^-{q + 1} + 2^-{n + 1} sum_j |a_ij| + 2^-{na + 1} sum_j (R + |b_j|)]  (rounding of h, b, A).",
         f" *     That is against m as given in the format (integer counts are exact). A real reading r rounded into",
         f" *     it adds up to 2^-{n + 1} max_i sum_j |a_ij|: h is within E_r = {fx.reading_error_bound:.6g}{hu} of A (r - b)",
         f" *     ({up}_READING_ERROR_BOUND).",
@@ -845,7 +897,10 @@ def _calibration_part(cal: Calibration, name: str, q_format, input_range, i32):
         f"#define {up}_FIELD_NORM {_float_literal(cal.field_norm)}",
         f"#define {up}_Q_INT_BITS {fx.fmt.int_bits}",
         f"#define {up}_Q_FRAC_BITS {n}",
+        f"#define {up}_H_Q_INT_BITS {fx.out_fmt.int_bits}",
+        f"#define {up}_H_Q_FRAC_BITS {q}",
         f"#define {up}_MATRIX_FRAC_BITS {na}",
+        f"#define {up}_OUTPUT_SHIFT {shift}",
         f"#define {up}_INPUT_RANGE {_float_literal(fx.input_range)}",
         f"#define {up}_INPUT_RANGE_Q {fx.input_range_q}",
         f"#define {up}_FIXED_ERROR_BOUND {_float_literal(fx.error_bound)}",
@@ -855,15 +910,18 @@ def _calibration_part(cal: Calibration, name: str, q_format, input_range, i32):
         "",
         f"/* double: b = {', '.join(f'{v:.17g}' for v in cal.offset)} */",
         f"static const float {name}_offset_f[3] = {{{', '.join(_float_literal(v) for v in cal.offset)}}};",
+        f"static const float {name}_offset_lo_f[3] = {{{', '.join(_float_literal(v) for v in offset_lo)}}};",
         f"/* row-major, h_i = sum_j A[i][j] (m_j - b_j); double: "
         f"{', '.join(f'{v:.17g}' for v in cal.matrix.ravel())} */",
         f"static const float {name}_matrix_f[3][3] = {{\n{_rows(cal.matrix, _float_literal)}}};",
+        *([f"static const float {name}_plane_axes[3][3] = {{\n{_rows(basis, _float_literal)}}};"] if tilted else []),
         f"static const int32_t {name}_offset_q[3] = {{{', '.join(i32(v) for v in fx.offset_q)}}};",
         f"static const int32_t {name}_matrix_q[3][3] = {{\n{_rows(fx.matrix_q, i32)}}};",
         "",
         f"static inline void {name}_apply_float(const float m[3], float h[3]) {{",
-        f"  const float d0 = m[0] - {name}_offset_f[0], d1 = m[1] - {name}_offset_f[1],",
-        f"              d2 = m[2] - {name}_offset_f[2];",
+        f"  const float d0 = (m[0] - {name}_offset_f[0]) - {name}_offset_lo_f[0],",
+        f"              d1 = (m[1] - {name}_offset_f[1]) - {name}_offset_lo_f[1],",
+        f"              d2 = (m[2] - {name}_offset_f[2]) - {name}_offset_lo_f[2];",
         "  int i;",
         f"  for (i = 0; i < 3; ++i) h[i] = {name}_matrix_f[i][0] * d0 + {name}_matrix_f[i][1] * d1 + "
         f"{name}_matrix_f[i][2] * d2;",
@@ -874,7 +932,7 @@ def _calibration_part(cal: Calibration, name: str, q_format, input_range, i32):
         "  return (int32_t)v;",
         "}", "",
         f"static inline int {name}_apply_fixed(const int32_t m[3], int32_t h[3]) {{",
-        f"  const int64_t half = (int64_t)1 << ({up}_MATRIX_FRAC_BITS - 1);",
+        f"  const int64_t half = (int64_t)1 << ({up}_OUTPUT_SHIFT - 1);",
         "  int saturated = 0, i, j;",
         "  int32_t d[3];",
         "  /* a reading at INT32_MIN/INT32_MAX is what a saturated conversion round(r * 2^n) leaves: flagged */",
@@ -884,13 +942,13 @@ def _calibration_part(cal: Calibration, name: str, q_format, input_range, i32):
         "    int64_t acc = 0;",
         f"    for (j = 0; j < 3; ++j) acc += (int64_t){name}_matrix_q[i][j] * d[j];",
         "    /* nearest, ties away from zero; shifting only non-negative values keeps it portable C99 */",
-        f"    acc = acc >= 0 ? (acc + half) >> {up}_MATRIX_FRAC_BITS : -((-acc + half) >> {up}_MATRIX_FRAC_BITS);",
+        f"    acc = acc >= 0 ? (acc + half) >> {up}_OUTPUT_SHIFT : -((-acc + half) >> {up}_OUTPUT_SHIFT);",
         f"    h[i] = {name}_saturate_(acc, &saturated);",
         "  }",
         "  return saturated;",
         "}", "",
         f"/* Test vector: readings (the calibration field from 14 directions, the corners of the range, random",
-        f" * points in it, m = b, m = 0) and fluxcal's double-precision h, rounded to float and to {fx.fmt}. */",
+        f" * points in it, m = b, m = 0) and fluxcal's double-precision h, rounded to float and to {fx.out_fmt}. */",
         f"#define {up}_TEST_COUNT {len(inputs_q)}",
         f"static const float {name}_test_input_f[{up}_TEST_COUNT][3] = {{\n{_rows(inputs_f, _float_literal)}}};",
         f"static const float {name}_test_expected_f[{up}_TEST_COUNT][3] = {{\n{_rows(expected_f, _float_literal)}}};",
@@ -947,6 +1005,7 @@ def _kalman_part(kalman, name: str, i32, kalman_range: float | None = None):
         " *      f.overflow says whether anything saturated (a readout spike past that: --kalman-range widens it).",
         f" *      Call {kname}_reset() again after a gap in time and after samples left out (a temperature the drift",
         " *      model refuses): fluxcal's filter restarts there too (FixedArKalman.filter(y, breaks), drift apply).",
+        f" *      A gap is a time step of {GAP_STEPS:g} times the log's median step or more (fluxcal.timeseries.find_breaks).",
         " * C++: fluxcal::FixedArKalman<MaxOrder> of cpp/include/fluxcal/fixed_kalman.hpp, configured from these",
         " *      coefficients, runs the same arithmetic.",
         f" * Either, fed {kname}_test_input, returns {kname}_test_output bit for bit (fluxcal's",

@@ -88,7 +88,7 @@ def test_header_reproduces_calibration_apply(tmp_path, which, q_format):
     assert float_error.max() <= FLOAT_RELATIVE_TOLERANCE
     # fixed: within the stated bound of the double result for the exact values the inputs stand for
     exact = cal.apply(result.inputs_q * fx.fmt.lsb)
-    fixed_error = np.abs(h_fixed * fx.fmt.lsb - exact)
+    fixed_error = np.abs(h_fixed * fx.out_fmt.lsb - exact)
     assert fixed_error.max() <= fx.error_bound
     assert fixed_error.max() > 0.05 * fx.error_bound  # the bound is not vacuous (measured 0.1–0.4 of it)
     # and bit for bit what the Python model of the firmware arithmetic says
@@ -101,6 +101,28 @@ def test_header_reproduces_calibration_apply(tmp_path, which, q_format):
     assert f"Signal format {fx.fmt}" in header_text and f"#define P_Q_FRAC_BITS {fx.fmt.frac_bits}" in header_text
 
 
+@pytest.mark.parametrize("field_units, field_norm", [("uT", 48.0), ("T", 4.8e-5)])
+def test_counts_with_a_large_offset_to_any_unit_keep_the_fields_precision(tmp_path, field_units, field_norm):
+    """int16 counts at 6 counts/µT with a hard iron of 20000 counts: one float of b lost |b| 2^-24, and the header's
+    own self-test failed 30 components of this correct calibration (a blind check); corrected to tesla, h shared the
+    readings' Q16.15 and its LSB was 30 µT against a 48 µT field. Now b is two floats and h has its own format: the
+    self-test passes, and the fixed output is within a thousandth of the field of the double result."""
+    w = np.array([[6.1, 0.2, -0.1], [0.2, 5.8, 0.15], [-0.1, 0.15, 6.3]]) * (48.0 / field_norm)  # counts per unit
+    cal = fluxcal.Calibration(offset=np.array([20000.0, -15000.0, 18000.0]), matrix=np.linalg.inv(w),
+                              field_norm=field_norm, units="counts")
+    cal.field_units = field_units
+    header = tmp_path / "lg.h"
+    result = export_c(cal, header, name="p", input_range=32768)
+    fx = result.fixed
+    rows, self_test = run_driver(tmp_path, header)
+    assert self_test == 0
+    assert fx.error_bound < 1e-3 * field_norm and fx.out_fmt != fx.fmt, (fx.error_bound, fx.out_fmt)
+    exact = cal.apply(result.inputs_q * fx.fmt.lsb)
+    assert np.abs(rows[:, 6:9] * fx.out_fmt.lsb - exact).max() <= fx.error_bound
+    text = header.read_text()
+    assert f"#define P_H_Q_FRAC_BITS {fx.out_fmt.frac_bits}" in text and f"Output format {fx.out_fmt} for h" in text
+
+
 def test_default_format_follows_the_range_rule():
     cal = CALS["nT"]
     fx = fixed_point(cal)
@@ -108,9 +130,10 @@ def test_default_format_follows_the_range_rule():
     assert fx.input_range == pytest.approx(2 * extent, rel=1e-6)
     # the smallest m that holds the range and every output for it: one integer bit fewer would not
     outputs = np.abs(cal.matrix) @ (fx.input_range + np.abs(cal.offset))
-    assert outputs.max() + fx.error_bound <= fx.fmt.max_value
+    assert outputs.max() + fx.error_bound <= fx.out_fmt.max_value
+    assert outputs.max() + fx.error_bound > QFormat(fx.out_fmt.int_bits - 1, fx.out_fmt.frac_bits + 1).max_value
     smaller = QFormat(fx.fmt.int_bits - 1, fx.fmt.frac_bits + 1)
-    assert outputs.max() > smaller.max_value or fx.input_range + np.abs(cal.offset).max() > smaller.max_value
+    assert fx.input_range + np.abs(cal.offset).max() > smaller.max_value
     # a format with too few integer bits for the field is refused with the smallest that works
     with pytest.raises(ValueError, match=r"--q-format Q10.21: readings of the calibration field reach .* use at least Q1[5-7]\.1[4-6]"):
         fixed_point(cal, "Q10.21")
@@ -381,7 +404,7 @@ def test_the_bound_for_real_readings_covers_their_rounding_into_the_format():
     fx = fixed_point(cal, "Q31.0")
     r = np.random.default_rng(3).uniform(-fx.input_range, fx.input_range, (20000, 3))
     h_q, saturated = fx.apply_int(fx.to_fixed(r))
-    error = np.abs(h_q * fx.fmt.lsb - cal.apply(r)).max()
+    error = np.abs(h_q * fx.out_fmt.lsb - cal.apply(r)).max()
     assert not saturated and fx.error_bound < error <= fx.reading_error_bound, (fx.error_bound, error)
 
 
@@ -396,6 +419,10 @@ def test_kalman_from_a_drift_model_without_a_filter(tmp_path):
     assert r.returncode == 2 and "Traceback" not in r.stderr, r.stderr
     assert "no Kalman filter to export: the noise about its drift is white (AR order 0)" in r.stderr, r.stderr
     assert not (tmp_path / "p.h").exists()
+    # its drift alone: the header does not speak of a filter the model has not (a blind check)
+    export_c(None, tmp_path / "d.h", drift=path)
+    text = (tmp_path / "d.h").read_text()
+    assert "white (AR order 0): there is no Kalman filter" in text and "Kalman filter (--kalman) runs" not in text
 
 
 def test_cli_export_c_and_its_errors(tmp_path):
@@ -624,7 +651,7 @@ def test_input_range_sizes_the_format_for_the_sensors_full_scale(tmp_path):
     assert default.apply_int(default.to_fixed(rails))[1]  # the default range saturates there
     h_q, saturated = full_scale.apply_int(full_scale.to_fixed(rails))
     assert not saturated
-    np.testing.assert_array_less(np.abs(h_q * full_scale.fmt.lsb - cal.apply(rails)), full_scale.error_bound)
+    np.testing.assert_array_less(np.abs(h_q * full_scale.out_fmt.lsb - cal.apply(rails)), full_scale.error_bound)
     # the header's test vector holds the corners of ±32768, and the C code reproduces Python there
     header = tmp_path / "p.h"
     export_c(cal, header, name="p", input_range=32768)
@@ -643,3 +670,38 @@ def test_input_range_sizes_the_format_for_the_sensors_full_scale(tmp_path):
     assert r.returncode == 0 and "inputs |m| ≤ 32768" in r.stdout, r.stdout + r.stderr
     r = run_cli("export-c", saved, "-o", tmp_path / "cli.h", "--input-range", "-5")
     assert r.returncode == 2 and "--input-range" in r.stderr and "Traceback" not in r.stderr
+
+
+def test_headers_that_differ_in_case_or_clash_with_a_part_are_not_skipped_silently(tmp_path):
+    """`--name mag` and `--name MAG` shared one include guard (MAG_H), and `--name comb_kalman` the guard of comb's
+    Kalman part: the second header was skipped without a word (a blind check). The guard keeps the name's case."""
+    export_c(CALS["nT"], tmp_path / "lower.h", name="mag")
+    export_c(CALS["Gauss"], tmp_path / "upper.h", name="MAG")
+    lower, upper = (tmp_path / "lower.h").read_text(), (tmp_path / "upper.h").read_text()
+    assert "#ifndef FLUXCAL_mag_H" in lower and "#ifndef FLUXCAL_MAG_H" in upper
+    source = tmp_path / "two.c"
+    source.write_text('#include "lower.h"\n#include "upper.h"\nint main(void) { return mag_self_test() + '
+                      'MAG_self_test(); }\n')
+    build = subprocess.run([compiler(), "-std=c99", f"-I{tmp_path}", str(source), "-o", str(tmp_path / "two")],
+                           capture_output=True, text=True)
+    assert "MAG_FIELD_NORM\" redefined" in build.stderr or "MAG_FIELD_NORM' redefined" in build.stderr, build.stderr
+
+
+def test_a_forced_header_names_the_undetermined_parameters_and_defines_a_macro(tmp_path):
+    """A cap of directions: the refusal quoted a coverage note ("poorly determined") instead of the warning that
+    names b2, a00, …; a forced header said it only in a comment (a blind check)."""
+    cal = fluxcal.Calibration(offset=np.zeros(3), matrix=np.eye(3), field_norm=50.0, units="uT", summary={
+        "identifiable": False, "warnings": ["poor coverage: the offset and matrix along the thin direction are poorly "
+                                            "determined", "not identifiable: the data do not determine b2, a00"]})
+    with pytest.raises(ValueError, match="not identifiable: the data do not determine b2, a00"):
+        export_c(cal, tmp_path / "cap.h")
+    export_c(cal, tmp_path / "cap.h", force=True)
+    assert "#define CAP_EXPORTED_WITH_FORCE 1" in (tmp_path / "cap.h").read_text()
+
+
+def test_an_existing_file_that_is_no_header_is_not_overwritten(tmp_path):
+    kept = tmp_path / "run.csv"
+    kept.write_text("mx,my,mz\n1,2,3\n")
+    with pytest.raises(ValueError, match="run.csv exists and is no C header"):
+        export_c(CALS["nT"], kept)
+    assert kept.read_text() == "mx,my,mz\n1,2,3\n"

@@ -24,7 +24,7 @@ def test_the_fixed_point_range_holds_the_axis_passed_through():
     assert fixed.input_range >= np.max(np.abs(m))
     h_q, saturated = fixed.apply_int(fixed.to_fixed(m[:50]))
     assert not saturated
-    assert np.allclose(h_q * fixed.fmt.lsb, cal.apply(m[:50]), atol=fixed.error_bound)
+    assert np.allclose(h_q * fixed.out_fmt.lsb, cal.apply(m[:50]), atol=fixed.error_bound)
 
 
 def test_the_header_says_it_is_planar_and_what_passes_through(tmp_path):
@@ -37,3 +37,22 @@ def test_the_header_says_it_is_planar_and_what_passes_through(tmp_path):
     biaxial = calibrate_planar(high_latitude_log()[:, :2], field_norm=14.0)
     export_c(biaxial, tmp_path / "bi.h")
     assert "axis z is absent (a biaxial sensor: give 0)" in (tmp_path / "bi.h").read_text()
+    assert "plane_axes" not in text  # (the sensor's own x, y: nothing to give)
+
+
+def test_a_tilted_plane_gives_its_axes_and_the_heading_rule(tmp_path):
+    """A mounting tilted 20° about x: the header named axes e1, e2 without their values, and firmware that took
+    atan2(h_y, h_x) was up to 14° off (a blind check). Their unit vectors are in the header, as the fit found them,
+    and the heading's rule beside them."""
+    from fluxcal.export_c import export_c
+
+    m = high_latitude_log()
+    c, s = np.cos(np.radians(20.0)), np.sin(np.radians(20.0))
+    cal = calibrate_planar(m @ np.array([[1, 0, 0], [0, c, -s], [0, s, c]]).T, field_norm=14.0)
+    assert cal.summary["plane_axes"] == ["e1", "e2"]
+    export_c(cal, tmp_path / "tilt.h", name="tilt")
+    text = (tmp_path / "tilt.h").read_text()
+    assert "atan2(h . e2, h . e1) - NOT atan2(h_y, h_x)" in text
+    block = text.split("tilt_plane_axes[3][3] = {")[1].split("};")[0]
+    axes = np.array([[float(v.rstrip("f")) for v in row.strip(" {},\n").split(",")] for row in block.split("},")])
+    np.testing.assert_allclose(axes, np.vstack([cal.summary["plane_basis"], cal.summary["plane_normal"]]), atol=1e-7)
