@@ -1497,8 +1497,12 @@ def run_cli(args, out=None) -> int:
     guess = _field_unit_guess(float(np.linalg.norm(f)))
     field_name = "nT" if args.lat is not None else (guess or "the reference field's unit")  # IGRF gives nT
     by_size = ", the field's unit by its magnitude" if args.lat is None and guess else ""
+    # the body frame is the accelerometer's (levelling): K takes up a turn between the two sensors, and with the
+    # headings free nothing can see it (a blind check's 1° misalignment left a residual at the noise)
     doc["units_of"] = {"offset": res.units or "the outputs' unit",
-                       "K": f"{res.units or 'output'} per {field_name}{by_size}", "field_ned": field_name + by_size, "standard_errors": "each parameter's own (U0, K as above; yaw_* and "
+                       "K": f"{res.units or 'output'} per {field_name}{by_size}",
+                       "K_frame": "the field in the accelerometer's axes: K includes any turn between accelerometer "
+                                  "and magnetometer", "field_ned": field_name + by_size, "standard_errors": "each parameter's own (U0, K as above; yaw_* and "
                        "inclination in radians)", "yaw_deg": "degrees"}
     doc.update(source=str(args.file), positions=int(len(mag)), preset=args.preset,
                verification={k: v for k, v in report.items() if not isinstance(v, list) or k == "field_error_rms"})

@@ -413,6 +413,7 @@ def test_cli_positions_igrf_unknown_headings(tmp_path):
     v = d["verification"]
     assert v["magnitude_error_rms"] < 15 and v["dip_error_deg_rms"] < 0.05
     assert d["units_of"]["K"] == "output per nT" and d["units_of"]["field_ned"] == "nT"
+    assert d["units_of"]["K_frame"].startswith("the field in the accelerometer's axes")
     assert fluxcal.Calibration.load(out).summary["identifiable"]  # U0 and K determined (headings are nuisances)
     # the result is a correction h = K⁻¹ (U − U0): export-c writes it for firmware, apply corrects a recording
     header = tmp_path / "pos.h"
