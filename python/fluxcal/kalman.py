@@ -246,7 +246,19 @@ class FixedArKalman:
         self.q_int = int(_quantize(d.q, self.cov_frac_bits, "q"))
         self.r_int = int(_quantize(d.r, self.cov_frac_bits, "r"))
         p0 = d.initial_covariance
-        self.p0_int = _quantize(p0, self.cov_frac_bits, "initial covariance")
+        try:
+            self.p0_int = _quantize(p0, self.cov_frac_bits, "initial covariance")
+        except ValueError:  # (a saved filter edited to a unit root: only "does not fit" had been said)
+            a = np.asarray(d.ar_coeffs, dtype=float)
+            companion = np.vstack([a, np.eye(a.size)[:-1]]) if a.size else np.zeros((1, 1))
+            rho = float(np.max(np.abs(np.linalg.eigvals(companion))))
+            fits = 29 - math.ceil(math.log2(float(np.max(np.abs(p0)))))
+            raise ValueError(
+                f"initial covariance: up to {float(np.max(np.abs(p0))):.3g}, does not fit int32 with {self.cov_frac_bits} "
+                f"fraction bits (cov_frac_bits {fits} would hold it)"
+                + (f"; the AR model is not stationary (companion spectral radius {rho:.4g} ≥ 1), so the filter starts "
+                   "from 10 (q + r) instead of its stationary covariance: is the noise model right?" if rho >= 1.0
+                   else "")) from None
         if not self.steady_state:  # the steady-state filter never uses Q, R or P
             self._check_noise_precision()
         self.signal_gain = signal_gain(d.ar_coeffs, d.steady_gain)

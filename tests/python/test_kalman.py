@@ -510,3 +510,12 @@ def test_bad_input_is_named():
         signal_gain([0.5], [np.nan])
     with pytest.raises(ValueError, match="gain: shape"):
         signal_gain([0.5, 0.1], [0.1])
+
+
+def test_a_unit_root_whose_start_does_not_fit_says_why():
+    """A saved filter edited to AR coefficient 1.0 (a unit root) was refused as "initial covariance: does not fit
+    int32 with 39 fraction bits", which named neither the cause nor a format that holds it (a blind check)."""
+    from fluxcal.kalman import FixedArKalman
+
+    with pytest.raises(ValueError, match=r"cov_frac_bits 36 would hold it\); the AR model is not stationary"):
+        FixedArKalman((1.0,), 1e-4, 4e-4, frac_bits=20, cov_frac_bits=39)
