@@ -2016,6 +2016,11 @@ def cmd_drift(args) -> int:
     temp_column = args.temp_column or (fitted.get("column") if fitted.get("column") in rec.columns else None)
     temp, outside, temperature = _temperatures(rec, temp_column, args.outside_column or fitted.get("outside")
                                                or "temp_outside", args.file)
+    if outside is None and model.regressor == "difference":  # (a blind check: "temp_outside: needed", no file named)
+        wanted = args.outside_column or fitted.get("outside") or "temp_outside"
+        raise ValueError(f"{args.file}: no column {wanted!r}: the drift model {args.model} is a function of the inside-"
+                         f"outside temperature difference and needs the outside temperature (columns: "
+                         f"{', '.join(rec.columns)}; name it with --outside-column)")
     # a temperature that is not a number is the file's (not one outside the model's ranges): said as drift fit says it
     _require_finite(rec, args.file, ((temperature["column"], temp), (args.outside_column or "temp_outside", outside)))
     lo, hi = model.span()

@@ -233,3 +233,14 @@ def test_a_significance_far_above_the_seeds_is_warned(tmp_path, capsys, foct):
         capsys.readouterr().out
     assert cli.main(["drift", "fit", str(path), "-o", str(tmp_path / "m.json"), "--significance", "0.05"]) == 0
     assert "--significance" not in capsys.readouterr().out
+
+
+def test_apply_of_a_difference_model_to_a_file_without_the_outside_temperature_names_it(tmp_path, capsys, foct):
+    fitted = write_csv(tmp_path / "fit.csv", {k: foct[k] for k in ("t", "zero_bias", "temp", "temp_outside")})
+    model = tmp_path / "m.json"
+    assert cli.main(["drift", "fit", str(fitted), "-o", str(model), "--regressor", "difference"]) == 0
+    bare = write_csv(tmp_path / "bare.csv", {k: foct[k] for k in ("t", "zero_bias", "temp")})
+    capsys.readouterr()
+    assert cli.main(["drift", "apply", str(model), str(bare), "-o", str(tmp_path / "o.csv")]) == 2
+    err = capsys.readouterr().err
+    assert "bare.csv: no column 'temp_outside'" in err and "--outside-column" in err, err
