@@ -1315,19 +1315,16 @@ def _lone_sensor_words(ring, ring_cal, raw, solutions: list, args, zeros: dict) 
     trials = misfit[::max(1, len(misfit) // LONE_TRIALS)][:LONE_TRIALS]
     given = args.left_out
     fits = {}
-    try:
-        for i in np.nonzero(~given)[0]:
-            if (~given).sum() - 1 < 3:
-                break
-            args.left_out = given.copy()
-            args.left_out[i] = True
-            with contextlib.redirect_stdout(io.StringIO()):  # (the trials' own lines are not the recording's)
-                fits[int(i)] = sum(bool(_solve_ring_snapshots(ring, ring_cal, raw[s["snapshots"]], s["rotation_deg"],
-                                                              np.array(s["snapshots"]), args,
-                                                              zeros.get(s["rotation_deg"])).get("fits_model"))
-                                   for s in trials)
-    finally:
-        args.left_out = given
+    for i in np.nonzero(~given)[0]:
+        if (~given).sum() - 1 < 3:
+            break
+        without = given.copy()
+        without[i] = True
+        with contextlib.redirect_stdout(io.StringIO()):  # (the trials' own lines are not the recording's)
+            fits[int(i)] = sum(bool(_solve_ring_snapshots(ring, ring_cal, raw[s["snapshots"]], s["rotation_deg"],
+                                                          np.array(s["snapshots"]), args, zeros.get(s["rotation_deg"]),
+                                                          left_out=without).get("fits_model"))
+                               for s in trials)
     alone = [i for i, n in fits.items() if n == len(trials)]
     if len(alone) != 1 or sum(n > 0 for n in fits.values()) > 1:
         return None
@@ -1562,17 +1559,17 @@ def _ring_notes(cable, data: dict) -> None:
               "(ring_radius_m is metres)? The positions and the currents scale with it")
 
 
-def _solve_ring_snapshots(ring, ring_cal, snaps, rotation: float, rows, args, zero=None) -> dict:
+def _solve_ring_snapshots(ring, ring_cal, snaps, rotation: float, rows, args, zero=None, left_out=None) -> dict:
     """`cable solve` of snapshots `rows` (one, or those sharing a rotation with --joint): sensors with a NaN
     left out (a dead sensor: the ring of the others), the calibration's σ for the solver, and a line per
     snapshot with positions, currents and their standard errors (said by _print_ring_solution, once numbered);
     `zero`: with --subtract-zero, (count, mean current) of the zero snapshots taken off. Returns the solution as a
-    JSON-ready dict (its `_said` for the printing)."""
+    JSON-ready dict (its `_said` for the printing). `left_out`: the sensors left out, instead of --leave-out's."""
     from ._core import CableSolveOptions
     from .cable import silent_sensors, silent_words
 
     silent = silent_sensors(snaps)
-    given = getattr(args, "left_out", None)  # --leave-out: said once, by cmd_cable
+    given = getattr(args, "left_out", None) if left_out is None else left_out  # --leave-out: said once, by cmd_cable
     given = np.zeros(snaps.shape[1], bool) if given is None else given
     live = np.isfinite(snaps).all(axis=(0, 2)) & ~silent & ~given
     contiguous = np.all(np.diff(rows) == 1)
