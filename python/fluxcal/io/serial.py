@@ -85,7 +85,7 @@ from pathlib import Path
 
 import serial  # pyserial (absolute import: this module's own name does not shadow it)
 
-from .columns import FIELD_UNITS, MAG_WORDS, comma_kind, is_unit, unit_name
+from .columns import FIELD_UNITS, MAG_WORDS, comma_kind, find_magnetometer, is_unit, unit_name
 
 REASONS = {
     "binary": "non-text bytes (invalid UTF-8, control characters, garbage between frames)",
@@ -432,6 +432,19 @@ class TextDecoder:
             return self._follow(cells, mine, line, said)
         if self._aliases is not None and sorted(printed) == sorted(self._aliases):
             return self._follow(cells, self._aliases, line, said)  # the device's own names, reordered
+        renamed = ""
+        if self._header_columns and not self._recorded and not all(m in printed for m in MAG):
+            # a logger's own names beside a time column (t,Bx,By,Bz; timestamp,x,y,z; millis,mag_x,mag_y,mag_z):
+            # its magnetometer, as the readers find one, recorded as mx,my,mz (four fields had been taken for a
+            # line of other fields, and every line after it refused: a blind check lost a whole recording)
+            try:
+                triple = find_magnetometer([n for n, _ in cells], line)
+            except ValueError:
+                triple = None
+            if triple and len(printed) > len(MAG):
+                cells = [(MAG[triple.index(n)] if n in triple else n, unit) for n, unit in cells]
+                renamed = "; " + ", ".join(f"{n} as {m}" for n, m in zip(triple, MAG))
+                printed = [n.lower() for n, _ in cells]
         if (self._header_columns and not self._recorded and all(m in printed for m in MAG)
                 and "t_host" not in printed):
             known = {c.name.lower(): c for c in self.columns}
@@ -444,8 +457,8 @@ class TextDecoder:
             self.names = [c.name for c in self.columns]
             self._order, self._refused, self._aliases = None, None, None
             spec = ",".join(f"{c.name}[{c.unit}]" if c.unit else c.name for c in self.columns)
-            return Reject("header", f"{line}: its columns are the recording's ({spec})",
-                          note=f"columns from {line}: {spec}")
+            return Reject("header", f"{line}: its columns are the recording's ({spec}{renamed})",
+                          note=f"columns from {line}: {spec}{renamed}")
         if len(printed) != len(mine):  # no header of these columns; its lines do not fit them either
             if said:
                 self._headers_said.discard(text)
