@@ -1004,6 +1004,25 @@ def _simulate_effects(args) -> int:
     return 0
 
 
+def _side_columns(rec, args) -> tuple:
+    """(temperature °C, current A), each None unless named by --temp-column / --current-column (a blind check's `T`
+    and `motor_I` were ignored by name, and nothing could point diagnose at them): converted by the column's unit."""
+    temp = current = None
+    if args.temp_column:
+        temp, _, _ = _temperatures(rec, args.temp_column, "", args.file)
+        print(f"temperature: column {args.temp_column} (--temp-column)")
+    if args.current_column:
+        name = args.current_column
+        if name not in rec.columns:
+            raise ValueError(f"{args.file}: no column {name!r} (--current-column; columns: {', '.join(rec.columns)})")
+        unit = (rec.units.get(name) or "").strip().lower()
+        if unit and unit not in LARGE_CURRENT_UNITS:
+            raise ValueError(f"{args.file}: column {name!r} is in {rec.units[name]!r}, not A, mA or kA")
+        current = np.asarray(rec.columns[name], dtype=float) * LARGE_CURRENT_UNITS.get(unit, 1.0)
+        print(f"current: column {name} (--current-column)")
+    return temp, current
+
+
 def cmd_diagnose(args) -> int:
     from .diagnose import diagnose
 
@@ -1027,9 +1046,10 @@ def cmd_diagnose(args) -> int:
     field_norm = args.field_norm
     if isinstance(field_norm, str):
         field_norm = _field_norms_given(rec, field_norm, args)
+    temp, current = _side_columns(rec, args)
     with warnings.catch_warnings():  # the report prints its caveats (CAVEAT: …): not twice
         warnings.filterwarnings("ignore", message="t: readings")
-        result = diagnose(rec, reference=reference, field_norm=field_norm, model=args.model,
+        result = diagnose(rec, reference=reference, field_norm=field_norm, model=args.model, temp=temp, current=current,
                           noise_sigma=args.noise_sigma, candidates=candidates, alpha=args.alpha,
                           max_effects=args.max_effects, progress=not args.quiet)
         limits = None
@@ -2241,6 +2261,12 @@ def build_parser() -> argparse.ArgumentParser:
                         "residuals when those are smaller and the readings' differences hold the motion (fast turns, "
                         "held positions, uneven times) or the rows are not a time series (then an upper bound: the "
                         "residuals hold the model's misses too); at least the quantization floor LSB/√12")
+    g.add_argument("--temp-column", default=None,
+                   help="the sensor's temperature column when its name is not recognised (T, thermistor, …); °F and "
+                        "K converted by its unit")
+    g.add_argument("--current-column", default=None,
+                   help="the column of a current drawn near the sensor when its name is not recognised (I, motor_I, "
+                        "…), in A or mA by its unit")
     g.add_argument("--candidates", default=None, help="comma-separated effect names (default: all)")
     g.add_argument("--alpha", type=float, default=0.01, help="significance level (default 0.01)")
     g.add_argument("--max-effects", type=positive_int, default=3,

@@ -129,9 +129,13 @@ def test_a_recording_too_short_for_its_held_out_test_gets_a_caveat():
     flagged = [r for r in d.ranking if r.get("heldout_gain_unresolved")]
     assert d.accepted and flagged and all(r["effect"] in d.accepted for r in flagged)
     assert any("too short" in c for c in d.caveats) and "CAVEAT: " in d.text()
+    # …and the FOUND line says they are not confirmed (a blind check's clean 100 rows read "FOUND: hysteresis")
+    said = [line for line in d.text().splitlines() if line.startswith("  NOT CONFIRMED: ")]
+    assert len(said) == 1 and all(r["effect"] in said[0] for r in flagged), d.text()
     result, kwargs = withheld_trial(["temp_scale"], 0)  # a minute: no caveat
     d = diagnose(result.readings, **kwargs)
     assert d.accepted == ["temp_scale"] and d.ranking[0]["heldout_gain_unresolved"] is False and not d.caveats
+    assert "NOT CONFIRMED" not in d.text()
 
 
 def test_readings_nearly_in_a_plane_are_named_as_such():
@@ -262,3 +266,38 @@ def test_a_short_clipping_episode_at_the_other_rail_is_found_beside_a_long_one()
     assert abs(d.clipping[0]["rail"] - bottom) < 0.05 and abs(d.clipping[1]["rail"] - top) < 0.05
     assert 60 <= d.clipping[0]["readings"] <= 2 * np.sum(z < bottom), d.clipping
     assert not d.accepted, d.accepted
+
+
+def test_thermometer_error_codes_are_interpolated_and_a_constant_column_is_said():
+    """15 of the temperatures replaced by a DS18B20's error codes (85 °C, −127 °C) made a 3 s thermal lag and a
+    colored_noise the clean recording has not, unsaid; a stuck thermometer (constant) read "without a temperature
+    column" (a blind check). The codes are interpolated, said; the diagnosis is the clean one's."""
+    result, kw = withheld_trial(["temp_offset"], 3)
+    clean = diagnose(result.readings, **kw)
+    temp = np.array(kw["temp"], dtype=float)
+    rows = np.linspace(300, len(temp) - 300, 15).astype(int)
+    temp[rows[::2]], temp[rows[1::2]] = 85.0, -127.0
+    d = diagnose(result.readings, **{**kw, "temp": temp})
+    assert d.accepted == clean.accepted == ["temp_offset"], (d.accepted, clean.accepted)
+    assert "15 temperature reading(s) leave its course" in d.noise_source and "interpolated" in d.noise_source
+    row, clean_row = d.ranking[0], clean.ranking[0]
+    np.testing.assert_allclose(row["coefficients"], clean_row["coefficients"], rtol=0.02, atol=1e-6)
+    stuck = diagnose(result.readings, **{**kw, "temp": np.full(len(temp), 25.0)})
+    assert "its temperature column is constant (25)" in stuck.noise_source
+
+
+def test_temperature_and_current_columns_under_other_names_are_taken_when_named(tmp_path):
+    """`T` and `motor_I` were ignored by name and nothing could point diagnose at them (a blind check):
+    --temp-column and --current-column name them, converted by their unit."""
+    from conftest import run_cli
+    from fluxcal.io.csv import write_csv
+
+    result, kw = withheld_trial(["temp_offset"], 3)
+    m = result.readings
+    path = write_csv(tmp_path / "T.csv", {"t": kw["t"], "mx": m[:, 0], "my": m[:, 1], "mz": m[:, 2],
+                                          "T": np.asarray(kw["temp"]) * 1.8 + 32.0}, units={"T": "degF"})
+    out = run_cli("diagnose", path, "--quiet", "--temp-column", "T", "--candidates", "temp_offset,offset_drift")
+    assert out.returncode == 0 and "temperature: column T (--temp-column)" in out.stdout, out.stdout + out.stderr
+    assert "FOUND: temp_offset" in out.stdout, out.stdout
+    out = run_cli("diagnose", path, "--quiet", "--current-column", "I")
+    assert out.returncode == 2 and "no column 'I' (--current-column" in out.stderr, out.stderr

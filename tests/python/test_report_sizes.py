@@ -419,6 +419,21 @@ def test_a_line_whose_frequency_drifts_is_found_and_its_course_said(start, end, 
     assert "whose speed changed" in said, said
 
 
+def test_a_step_in_a_short_recording_is_no_line_drifting_through_zero_hertz():
+    """100 readings over 5 s with an offset step: the ridge through a step's spectrum fitted "a field at −0.151 Hz
+    drifting to 2.163 Hz" (a blind check). A line drifts within LINE_DRIFT_MOST of its frequency either way; on
+    steps the course is never taken (it had been, 35–70 % of the frequency, at 14 of 50 trial frequencies)."""
+    from fluxcal.sim.effects import LINE_DRIFT_MOST, _line_rate
+
+    t = np.arange(100) * 0.05
+    for seed in range(10):
+        rng = np.random.default_rng(seed)
+        steps = np.where(t[:, None] > 2.5, 1.0, 0.0) * np.array([0.8, -0.5, 0.4]) + rng.normal(0, 0.05, (100, 3))
+        for f in (0.5, 0.8, 1.0, 1.5, 2.0):
+            rate = _line_rate(t, steps - steps.mean(axis=0), f)
+            assert abs(rate) * 0.5 * np.ptp(t) <= LINE_DRIFT_MOST * f, (seed, f, rate)
+
+
 @pytest.mark.parametrize("model", [None, "vector"])
 def test_a_line_on_for_part_of_the_recording_is_said_so(model):
     # a motor switched on halfway: its line had been sized as one averaged over the whole (0.18 for 0.5, its

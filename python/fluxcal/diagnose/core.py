@@ -2533,6 +2533,29 @@ def usable_regressors(temp, current) -> tuple:
     return side, missing
 
 
+def screened_temperature(temp) -> tuple:
+    """(temp, [note]): readings that leave the temperature's course farther than a temperature can, or hold one value
+    and jump out of it (fluxcal.drift's temperature_glitches and temperature_holds: a DS18B20's 85 °C, −127 °C
+    disconnected, a thermometer stuck), interpolated from the readings beside them, and said (a blind check's 15
+    error codes among 6000 readings made a 3 s thermal lag and a colored_noise that the clean log had not)."""
+    if temp is None or np.size(temp) < 10 or not np.all(np.isfinite(np.asarray(temp, dtype=float))):
+        return temp, []
+    from ..drift import temperature_glitches, temperature_holds
+
+    given = np.asarray(temp, dtype=float)
+    rows = set(temperature_glitches(given).tolist())
+    rows |= {i for a, b in temperature_holds(given) for i in range(a, b + 1)}
+    if not rows or len(rows) > given.size // 2:
+        return temp, []
+    bad = np.array(sorted(rows))
+    kept = np.setdiff1d(np.arange(given.size), bad)
+    screened = given.copy()
+    screened[bad] = np.interp(bad, kept, given[kept])
+    shown = ", ".join(f"row {i}: {given[i]:g} °C" for i in bad[:4]) + (", …" if bad.size > 4 else "")
+    return screened, [f"{bad.size} temperature reading(s) leave its course farther than a temperature can ({shown}): "
+                      "a thermometer's error code or a stuck reading, interpolated from the readings beside them"]
+
+
 def recording_inputs(rec, t, temp, current, gravity, units: str) -> tuple:
     """(readings, t, temp, current, gravity, units, source) of a Recording, each one given explicitly first."""
     return (rec.samples(), rec.time() if t is None else t, rec.temperature() if temp is None else temp,
@@ -2571,6 +2594,12 @@ def diagnose(samples, t=None, temp=None, reference=None, gravity=None, field_nor
         unusable = [f"its {name} column has {n} missing or non-finite values and was not used (fill them in to try "
                     f"the {name} candidates)" for name, n in missing.items()]
         temp, current = side["temp"], side["current"]
+    temp, said = screened_temperature(temp)
+    unusable += said
+    for name, values in (("temperature", temp), ("current", current)):
+        if values is not None and np.size(values) > 1 and np.ptp(np.asarray(values, dtype=float)) == 0:
+            unusable.append(f"its {name} column is constant ({float(np.asarray(values)[0]):g}): a stuck sensor or "
+                            f"logging channel? (a constant carries nothing: its candidates were not tried)")
     model = model or ("vector" if reference is not None else "ellipsoid")
     if model not in MODELS:
         raise ValueError(f"model: {model!r} is not one of {', '.join(MODELS)}")

@@ -118,7 +118,8 @@ def temperature_caveat(d) -> list:
     timelike = [a for a in d.accepted if regime.get(a) in ("time", "events") and a not in FIELD_HISTORY]
     if not skipped or not timelike:
         return []
-    return [f"MAYBE TEMPERATURE: {', '.join(timelike)} follow(s) time, and without a temperature column "
+    return [f"MAYBE TEMPERATURE: {', '.join(timelike)} follow(s) time, and without a temperature column (or with "
+            f"one that does not change) "
             f"{' and '.join(skipped)} could not be tried: a sensor warming and cooling looks the same. "
             "Log the sensor's temperature to tell them apart."]
 
@@ -759,6 +760,16 @@ def text(d) -> str:
         found = ", ".join(a + (f" ({episodes[a]} {kinds.get(a, 'episodes')})" if a in episodes else "")
                           for a in d.accepted)
         out.append(f"FOUND: {found} (added in this order)")
+        # an effect whose held-out test cannot tell (CAVEAT): a possibility, not a finding (a blind check's clean
+        # 100-row recording read "FOUND: hysteresis", its caveat two screens down)
+        unresolved = [r["effect"] for r in d.ranking if r["effect"] in d.accepted and r.get("heldout_gain_unresolved")]
+        if unresolved:
+            one = len(unresolved) == 1
+            out.append(f"  NOT CONFIRMED: {', '.join(unresolved)} — "
+                       + ("its held-out test cannot tell the effect from the noise in its fitted parameters" if one else
+                          "their held-out tests cannot tell the effects from the noise in their fitted parameters")
+                       + " (CAVEAT above): a possibility, not a finding; a longer recording, or more of its regime, "
+                         "decides")
         for r in d.ranking:
             if r.get("found_with") and r.get("step", 0) > next(x.get("step", 0) for x in d.ranking
                                                                  if x["effect"] == r["found_with"]):

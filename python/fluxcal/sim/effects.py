@@ -1038,6 +1038,10 @@ def _line_rate(t, series, f: float) -> float:
     noise = max(float(np.sum(s_used ** 2)) - 2.0 * power[best] / used, 0.0) / (used * s_used.shape[1])
     if 2.0 * (power[best] - power[0]) / used < noise * np.log(used) or abs(rate) * span < 1.0 / span:
         return 0.0
+    # a line drifts within LINE_DRIFT_MOST of its frequency either way: a short recording's ridge had "a field at
+    # −0.151 Hz drifting to 2.163 Hz" take a step (a blind check) — through 0 Hz is no line's course
+    if abs(rate) * 0.5 * (ends[1] - ends[0]) > LINE_DRIFT_MOST * f:
+        return 0.0
     return rate
 
 
