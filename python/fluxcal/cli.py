@@ -1059,6 +1059,8 @@ def cmd_diagnose(args) -> int:
             limits = detection_limits(rec, reference=reference, field_norm=field_norm, model=args.model,
                                       noise_sigma=args.noise_sigma, alpha=args.alpha, seeds=args.seeds, names=candidates,
                                       progress=not args.quiet, diagnosis=None if candidates else result)
+    if (said := plausible_field(result.base)) is not None:  # every size below is in that unit (calibrate says it too)
+        print(f"warning: {said}")
     return _print_diagnosis(result, args, limits)
 
 

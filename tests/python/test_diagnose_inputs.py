@@ -301,3 +301,17 @@ def test_temperature_and_current_columns_under_other_names_are_taken_when_named(
     assert "FOUND: temp_offset" in out.stdout, out.stdout
     out = run_cli("diagnose", path, "--quiet", "--current-column", "I")
     assert out.returncode == 2 and "no column 'I' (--current-column" in out.stderr, out.stderr
+
+
+def test_readings_in_another_unit_than_stated_are_warned_of(tmp_path):
+    """nT readings stated as µT: calibrate warned, diagnose printed every size 1000× in µT unsaid (a blind check)."""
+    from conftest import run_cli
+    from fluxcal.io.csv import write_csv
+
+    result, kw = withheld_trial([], 4)
+    m = result.readings * 1000.0  # the simulation's µT in nT
+    path = write_csv(tmp_path / "nT.csv", {"t": kw["t"], "mx": m[:, 0], "my": m[:, 1], "mz": m[:, 2]})
+    for units, warned in (("uT", True), ("nT", False)):
+        out = run_cli("diagnose", path, "--quiet", "--units", units, "--candidates", "offset_drift")
+        assert out.returncode == 0, out.stderr
+        assert ("far from the Earth's field" in out.stdout) == warned, out.stdout
