@@ -378,6 +378,8 @@ def _print_roles(rec: Recording, reference: str | None = None):
         print(f"warning: {rails}")
     if "skipped_lines" in rec.metadata:
         print(skipped_words(rec.metadata['skipped_lines']))
+    if "units_from_note" in rec.metadata:  # `fluxcal record` of a device that printed its units late
+        print(f"units from the recorder's note at {rec.metadata['units_from_note']}")
     if "repeated_header" in rec.metadata:  # a logger restarted, or two logs joined: the rows below it are read on
         print(f"the header again at {rec.metadata['repeated_header']}: passed over, the rows on both sides read")
     if "text_columns" in rec.metadata:

@@ -53,3 +53,14 @@ def test_the_devices_own_clock_wins_over_t_host(tmp_path, readings, clock, colum
     rec = fluxcal.read_recording(path)
     assert rec.roles()["time"].split()[0] == clock
     np.testing.assert_allclose(rec.time(), column(k) * factor)
+
+
+def test_units_a_device_printed_after_its_first_rows_are_the_recordings(tmp_path):
+    """A device whose `mx[uT],…` header came after its first rows: `fluxcal record` noted the units from there on,
+    and `calibrate` said "no unit stated" beside the note (a blind check). The note's units are the columns'."""
+    path = tmp_path / "late.csv"
+    rows = "\n".join(f"{0.01 * k},{30 + np.cos(k)},{-5 + np.sin(k)},{40.0}" for k in range(5))
+    path.write_text("# fluxcal recording\n# units: t_host=s\nt_host,mx,my,mz\n" + rows + "\n"
+                    "# note: units printed by the device from here on: mx=uT, my=uT, mz=uT\n" + rows + "\n")
+    rec = fluxcal.read_csv(path)
+    assert rec.units["mx"] == rec.units["mz"] == "uT" and "line 9: mx=uT" in rec.metadata["units_from_note"]

@@ -172,8 +172,30 @@ def parse_csv(path, lines, delimiter=",", preamble_lines: int = 0, bad_lines: st
                                                             unit_map, metadata, exc)
     if notes:  # comment lines among the data (e.g. a recorder's reconnection note) are kept, not parsed
         metadata["notes"] = "; ".join(f"line {n}: {text}" for n, text in notes)
+    _units_from_notes(notes, names, unit_map, metadata)
     return Recording(columns={n: data[:, j] for j, n in enumerate(names)}, units=unit_map, metadata=metadata,
                      source=str(path), line_numbers=line_numbers)
+
+
+# `fluxcal record`'s note when the device prints its units only after the first rows (its header reprinted)
+UNITS_FROM_HERE = "units printed by the device from here on:"
+
+
+def _units_from_notes(notes, names, unit_map: dict, metadata: dict) -> None:
+    """Units a recorder's note gives for columns the head states none for (`fluxcal record` of a device that printed
+    `mx[uT],…` after its first rows): the device's units, the rows before the note being its own too (a blind check's
+    `calibrate` had said "no unit stated" beside the note). Said in metadata["units_from_note"]."""
+    for line, text in notes:
+        text = text.strip()
+        text = text[len("note:"):].strip() if text.startswith("note:") else text
+        if not text.startswith(UNITS_FROM_HERE):
+            continue
+        pairs = [p.strip().split("=", 1) for p in text[len(UNITS_FROM_HERE):].split(",") if "=" in p]
+        taken = {k.strip(): u.strip() for k, u in pairs if k.strip() in names and not unit_map.get(k.strip())}
+        if taken:
+            unit_map.update(taken)
+            metadata["units_from_note"] = (f"line {line}: " + ", ".join(f"{k}={u}" for k, u in taken.items())
+                                           + " (the device's, printed after its first rows)")
 
 
 def _banner_units(path, line: int, value: str, unit_map: dict, metadata: dict) -> None:
