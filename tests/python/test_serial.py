@@ -79,6 +79,18 @@ def test_a_loggers_header_with_a_time_column_is_followed(header, names):
     assert decoder.names == names and out[1:] == [(12.5, 1.0, 2.0, 3.0), (13.0, 1.5, 2.5, 3.5)]
 
 
+def test_json_lines_are_read_as_key_value_pairs_and_named_in_csv():
+    """An ESP32 printing `{"t": 0.1, "x": 11.0, "y": -5.2, "z": 71.1}` was refused line by line as "4 fields,
+    expected 3", with --format kv as "not key=value" (a blind check): kv reads a JSON object's number members, and
+    the csv format names the line for what it is."""
+    decoder = TextDecoder(parse_columns(None, "kv"), "kv")
+    decoder.parse(b"x: 0, y: 0, z: 0")  # (the first line after opening)
+    assert decoder.parse(b'{"t": 0.1, "x": 11.0, "y": -5.25, "z": 71.1, "ok": true}') == (11.0, -5.25, 71.1)
+    csv = TextDecoder(parse_columns(None))
+    with pytest.raises(Reject, match="a JSON record, not a csv line: record it with --format kv"):
+        csv.parse(b'{"t": 0.1, "x": 11.0, "y": -5.25, "z": 71.1}')
+
+
 def test_lines_as_sketches_print_them():
     decoder = TextDecoder(parse_columns(None, "kv"), "kv")
     assert decoder.parse(b"Mag X: 12.3  Y: -4  Z: 7 uT") == (12.3, -4.0, 7.0)

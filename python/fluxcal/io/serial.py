@@ -583,11 +583,16 @@ class TextDecoder:
         if self._order is not None and len(fields) == len(self.columns):
             fields = [fields[j] for j in self._order]
         if len(fields) != len(self.columns):
+            if text.startswith("{") and text.endswith("}"):  # (a blind check's ESP32 printed JSON lines: "4 fields")
+                raise Reject("fields", f"a JSON record, not a csv line: record it with --format kv (its keys name "
+                                       f"the columns): {text!r}")
             raise Reject("fields", f"{len(fields)} fields, expected {len(self.columns)} ({','.join(self.names)}): "
                                    f"{text!r}")
         return tuple(_number(f, n) for f, n in zip(fields, self.names))
 
     def _parse_kv(self, text: str) -> tuple:
+        if text.startswith("{") and text.endswith("}"):  # a JSON line ({"t": 0.1, "x": 11.0, …}): its pairs
+            text = _json_pairs(text)
         try:
             return self._parse_pairs(text)
         except Reject as strict:
@@ -707,6 +712,20 @@ class TextDecoder:
         # said once with its count (they had cost every line)
         self._line_ignored = unknown
         return tuple(_number(v, n) for v, n in zip(values, self.names))
+
+
+def _json_pairs(text: str) -> str:
+    """A JSON object's number members as `key: value` pairs (the kv format's), or Reject("fields")."""
+    import json
+
+    try:
+        record = json.loads(text)
+    except ValueError:
+        raise Reject("fields", f"a JSON record that does not parse (cut short?): {text[:40]!r}") from None
+    if not isinstance(record, dict):
+        raise Reject("fields", f"a JSON value that is no object of key: number members: {text[:40]!r}")
+    return ", ".join(f"{key}: {value!r}" for key, value in record.items()
+                     if isinstance(value, (int, float)) and not isinstance(value, bool))
 
 
 def _header_cells(text: str):
