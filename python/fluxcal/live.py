@@ -473,8 +473,11 @@ def cmd_live(args) -> int:
     print(stats.report())
     if stats.write_error:  # the readings received are still in memory: calibrate from them
         print(f"fluxcal live: error: {stats.write_error}", file=sys.stderr, flush=True)
-    print(coverage_map(state.seen))
-    print(missing_text(state.seen) if state.calibration is not None else f"no live fit: {state.error}")
+    if state.calibration is not None:  # (without a fit no reading has a direction: an all-empty map read as "nothing")
+        print(coverage_map(state.seen))
+        print(missing_text(state.seen))
+    else:
+        print(f"no live fit, so no map of directions: {state.error}")
     if session.fit.zeros:
         print(f"left out {session.fit.zeros} readings of exactly 0,0,0 (sensor glitches; they stay in the raw "
               "recording)")
