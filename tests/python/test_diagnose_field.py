@@ -200,3 +200,17 @@ def test_a_field_log_check_on_readings_coarser_than_their_noise_stands_down():
         assert not [w for w in cal.summary["warnings"] if "the readings miss each reading's |field|" in w]
         np.testing.assert_allclose(cal.offset, [10, -5, 3], atol=0.05)
     assert fluxcal.calibrate(m, field_norm="50").field_norm == 50.0  # a number as text, as fit_ellipsoid takes it
+
+
+def test_clean_readings_against_reference_vectors_have_unit_bins():
+    """Against reference vectors the bins took the mean of the three axes' z (a third of the variance): a clean
+    recording's bins read RMS 0.56 σ and every bin test p ≈ 1, so a departure three times larger went unflagged (a
+    blind check). The axes' sum over √3 has unit variance: bins near 1 σ."""
+    from fluxcal.diagnose import diagnose
+    from fluxcal.sim.withheld import withheld_trial
+
+    result, kw = withheld_trial([], 6, model="vector")
+    d = diagnose(result.readings, **kw)
+    for regime in ("orientation", "time"):
+        rms = np.median([row["rms_z"] for row in d.where["tables"][regime]])
+        assert 0.85 < rms < 1.15, (regime, rms)
