@@ -472,3 +472,17 @@ def test_a_lines_frequency_comes_with_its_cramer_rao_bound():
     ratio = np.std(found, ddof=1) / np.mean(bounds)
     assert 0.6 < ratio < 1.6, (found, bounds)
     assert abs(np.mean(found) - 5.3) < 3 * np.mean(bounds) / np.sqrt(10), found
+
+
+def test_a_step_at_the_first_reading_after_a_hole_is_dated_to_the_hole():
+    """A step inside 60 s without readings was dated to the first reading after them (a blind check): said as
+    between the readings on either side."""
+    from fluxcal.diagnose.report import offset_step_line
+
+    t = np.concatenate([np.arange(0, 150, 0.05), np.arange(210, 300, 0.05)])
+    d = SimpleNamespace(units="uT", base=Calibration(offset=np.zeros(3), matrix=np.eye(3), field_norm=50.0),
+                        series={"t": t, "timestamps": True})
+    said = offset_step_line(d, {"jump": [0.8, -0.5, 0.4], "jump_s": 210.0, "back_s": None})
+    assert "between t = 150 s and t = 210 s (no readings in between)" in said, said  # (149.95 s)
+    said = offset_step_line(d, {"jump": [0.8, -0.5, 0.4], "jump_s": 250.0, "back_s": None})
+    assert "at t = 250 s and stayed" in said, said

@@ -130,11 +130,24 @@ def offset_step_line(d, r) -> str:
     u = f" {d.units}" if d.units else ""
     c, at, back = np.asarray(r["jump"]), r["jump_s"], r["back_s"]  # core._jump
     percent = 100 * np.linalg.norm(d.base.matrix @ c) / d.base.field_norm
-    when = time_words(d.series.get("t"), d.series.get("timestamps", True))
+    t = d.series.get("t")
+    when = time_words(t, d.series.get("timestamps", True))
+
+    def edge(time) -> str:  # an edge at the first reading after a hole happened somewhere in the hole (a blind check
+        # dated a step to the reading after 60 s without any, unsaid)
+        if t is None or len(t) < 3 or not d.series.get("timestamps", True):
+            return f"at {when(time)}"
+        ticks = np.sort(np.asarray(t, dtype=float))
+        k = int(np.searchsorted(ticks, time))
+        step = float(np.median(np.diff(ticks)))
+        if 0 < k < len(ticks) and ticks[k] == time and ticks[k] - ticks[k - 1] > 10 * step:
+            return f"between {when(ticks[k - 1])} and {when(time)} (no readings in between)"
+        return f"at {when(time)}"
+
     return (f"offset_step: the offset jumped by {np.round(c, 4).tolist()}{u} (x, y, z; {percent:.2g} % of the field) "
-            f"at {when(at)}" + (f" and came back at {when(back)} (a device near the sensor switched on and off?)"
-                                     if back is not None else
-                                     " and stayed (a part magnetised by a shock or a strong field, a device switched on?)"))
+            f"{edge(at)}" + (f" and came back {edge(back)} (a device near the sensor switched on and off?)"
+                                if back is not None else
+                                " and stayed (a part magnetised by a shock or a strong field, a device switched on?)"))
 
 
 # What an effect in the transducer says about the offset, when the data decide its form (core._forms)
