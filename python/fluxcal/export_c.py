@@ -360,14 +360,17 @@ def _kalman_range_warnings(f, kalman_range) -> list:
     sigma, lsb, reach = _input_sigma(f), 2.0 ** -f.frac_bits, f.input_reach()
     if not math.isfinite(sigma) or not sigma > 0:
         return []
+    # (a saved filter's own format is judged alike: frac_bits 40 beside a noise σ of 0.02 saturated every sample)
+    given = (f"--kalman-range {kalman_range:g}" if kalman_range is not None else
+             f"the filter's signal format 2^-{f.frac_bits} (its JSON's)")
     if lsb > sigma / RANGE_LSB_SHARE:
-        return [f"--kalman-range {kalman_range:g}: the filter's LSB 2^{-f.frac_bits} = {lsb:.3g} is {lsb / sigma:.2g} times "
+        return [f"{given}: the filter's LSB 2^{-f.frac_bits} = {lsb:.3g} is {lsb / sigma:.2g} times "
                 f"its input's σ {sigma:.3g} (its own model's noise): the output loses that precision. Give the "
-                "largest |input| in the model's unit (default 8 σ)"]
+                "largest |input| in the model's unit with --kalman-range (default 8 σ)"]
     if reach < 3.0 * sigma:
-        return [f"--kalman-range {kalman_range:g}: inputs past ±{reach:.3g} saturate, {reach / sigma:.2g} σ of its "
+        return [f"{given}: inputs past ±{reach:.3g} saturate, {reach / sigma:.2g} σ of its "
                 f"input's own noise (σ {sigma:.3g}): most samples will. Give the largest |input| in the model's unit "
-                "(default 8 σ)"]
+                "with --kalman-range (default 8 σ)"]
     return []
 
 
@@ -788,7 +791,7 @@ def export_c(cal: Calibration | None, path, q_format=None, name: str | None = No
         parts.append(("magnetometer calibration", lines))
     if kalman is not None:
         lines, result.kalman, result.kalman_test = _kalman_part(kalman, name, i32, kalman_range)
-        range_said = _kalman_range_warnings(result.kalman, kalman_range) if kalman_range is not None else []
+        range_said = _kalman_range_warnings(result.kalman, kalman_range)
         result.warnings += range_said
         lines = [line for w in range_said for line in _c_comment(f"WARNING: {w}.")] + lines
         parts.append(("fixed-point Kalman filter", fit_said.get("kalman", []) + lines))

@@ -380,6 +380,11 @@ def test_a_kalman_range_that_defeats_the_filter_is_said(tmp_path):
     assert not [w for w in fine.warnings if "--kalman-range" in w], fine.warnings
     text = (tmp_path / "f.h").read_text()
     assert "f_kalman_reset() again after a gap in time" in text  # as fluxcal's filter restarts
+    # a saved filter's own format is judged alike (frac_bits 40 beside its noise σ had saturated every sample unsaid)
+    saved = save_kalman(FixedArKalman(f.double.ar_coeffs, f.double.q, f.double.r, frac_bits=40), tmp_path / "s.json")
+    own = export_c(None, tmp_path / "s.h", name="s", kalman=saved)
+    assert any("its JSON's): inputs past" in w and "most samples will" in w for w in own.warnings), own.warnings
+    assert not export_c(None, tmp_path / "d.h", name="d", kalman=path).warnings  # the default format: 8 σ
 
 
 def test_text_from_the_files_cannot_end_a_comment_of_the_header(tmp_path):
