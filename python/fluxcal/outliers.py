@@ -286,20 +286,28 @@ def _lmeds_start(m: np.ndarray, rng, best=None, norms=None):
 RAIL_LEAST = 5
 
 
-def rail_words(columns: dict) -> str | None:
-    """A warning naming the columns (name → values) whose largest or smallest value repeats as a saturated axis's
-    does (cable._on_rail's rule: RAIL_RATIO× as often as the values just inside it, and RAIL_LEAST times), with how
-    many readings sit there; None when none does."""
+def rail_values(columns: dict) -> list:
+    """[(name, value)] of the columns (name → values) whose largest or smallest value repeats as a saturated axis's
+    does (cable._on_rail's rule: RAIL_RATIO× as often as the values just inside it, and RAIL_LEAST times)."""
     from .cable import _on_rail
 
-    said = []
+    found = []
     for name, values in columns.items():
         v = np.asarray(values, dtype=float)
         v = v[np.isfinite(v)]
         for sign in (1.0, -1.0):
             if v.size and _on_rail(sign * v, max(RAIL_LEAST, int(0.01 * v.size))):
-                top = sign * float(np.max(sign * v))
-                said.append(f"{name} at {top:g} in {int(np.sum(v == top))} of {v.size} readings")
+                found.append((name, sign * float(np.max(sign * v))))
+    return found
+
+
+def rail_words(columns: dict) -> str | None:
+    """A warning naming the columns (name → values) on a rail (`rail_values`), with how many readings sit there;
+    None when none is."""
+    said = []
+    for name, top in rail_values(columns):
+        v = np.asarray(columns[name], dtype=float)
+        said.append(f"{name} at {top:g} in {int(np.sum(v == top))} of {int(np.sum(np.isfinite(v)))} readings")
     if not said:
         return None
     return (f"readings on a rail: {'; '.join(said)} — the same extreme value far more often than any value beside it: "

@@ -1404,11 +1404,21 @@ def run_cli(args, out=None) -> int:
                          bad_lines=getattr(args, "bad_lines", "error"))
     if "skipped_lines" in rec.metadata:
         print(skipped_words(rec.metadata['skipped_lines']), file=out)
-    from .outliers import rail_words
+    from .outliers import rail_values, rail_words
 
-    rails = rail_words({n: rec.columns[n] for n in rec.mag_names()})
+    axes = {n: rec.columns[n] for n in rec.mag_names()}
+    rails = rail_words(axes)
     if rails:
-        print(f"warning: {rails}", file=out)
+        ids_given = rec.columns.get("position")
+        where = ""
+        if ids_given is not None:  # which positions, and the remedy that names them (a blind check: only "a rail")
+            on = np.zeros(len(ids_given), dtype=bool)
+            for name, top in rail_values(axes):
+                on |= np.asarray(axes[name], dtype=float) == top
+            named = [_label(u) for u in np.unique(np.asarray(ids_given)[on])]
+            where = (f" — in position(s) {', '.join(map(str, named))}, whose averages it biases: --leave-out "
+                     f"{','.join(map(str, named))} fits without them")
+        print(f"warning: {rails}{where}", file=out)
     acc = rec.acceleration()
     if acc is None:
         raise ValueError(f"{args.file}: no accelerometer columns (ax,ay,az, or a triple named AccX.., accel_x..; "
