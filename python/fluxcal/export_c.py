@@ -691,6 +691,7 @@ class ExportResult:
     kalman_test: tuple | None = None
     drift: object = None  # the DriftModel written as f(T)
     warnings: list = field(default_factory=list)  # what the fit of a drift model (--drift, --kalman) warned
+    name: str = ""  # the prefix of the header's functions and (upper-cased) macros
 
     def describe(self) -> str:
         said = []
@@ -709,7 +710,12 @@ class ExportResult:
             orders = ", ".join(str(int(seg["order"])) for seg in self.drift.segments)
             said.append(f"drift f({'T' if self.drift.regressor == 'temp' else 'T - T_outside'}) in "
                         f"{len(self.drift.segments)} temperature range(s) (orders {orders}) with a test vector")
-        return f"wrote {self.path}: " + "; ".join(said)
+        # (a blind check had to open the header to learn the functions' names: the prefix follows -o's file name)
+        calls = ([f"{self.name}_apply_float/_apply_fixed/_self_test()"] if self.fixed is not None else []) + \
+            ([f"{self.name}_kalman_reset/_step/_self_test()"] if self.kalman is not None else []) + \
+            ([f"{self.name}_drift/_drift_self_test()"] if self.drift is not None else [])
+        return (f"wrote {self.path}: " + "; ".join(said)
+                + (f"; functions {', '.join(calls)}, macros {self.name.upper()}_*" if self.name and calls else ""))
 
 
 def _c_name(name: str) -> str:
@@ -781,7 +787,7 @@ def export_c(cal: Calibration | None, path, q_format=None, name: str | None = No
                          "overwritten; name the header *.h")
     name = _c_name(name if name is not None else default_name(path))
     i32 = lambda v: str(int(v)) if v != INT32_MIN else "INT32_MIN"  # noqa: E731
-    result = ExportResult(path, warnings=fit_warned)
+    result = ExportResult(path, warnings=fit_warned, name=name)
     parts = []
     if cal is not None:
         lines, result.fixed, result.inputs_q = _calibration_part(cal, name, q_format, input_range, i32)

@@ -436,6 +436,7 @@ def test_cli_export_c_and_its_errors(tmp_path):
     assert r.returncode == 0, r.stderr
     assert "fixed-point error ≤" in r.stdout and "30 test vectors" in r.stdout
     assert "sensor_7_apply_fixed" in (tmp_path / "sensor-7.h").read_text()  # default prefix from the file name
+    assert "functions sensor_7_apply_float/_apply_fixed/_self_test(), macros SENSOR_7_*" in r.stdout, r.stdout
     for args, message in [(("--q-format", "Q8.8"), "m + n must be 31"),
                           (("--q-format", "Q3.28"), "use at least Q1"),
                           (("--name", "7up"), "not a C identifier"),
