@@ -1014,13 +1014,13 @@ def _side_columns(rec, args) -> tuple:
         temp, _, _ = _temperatures(rec, args.temp_column, "", args.file)
         print(f"temperature: column {args.temp_column} (--temp-column)")
     if args.current_column:
+        from .cable import _column_scale
+
         name = args.current_column
         if name not in rec.columns:
             raise ValueError(f"{args.file}: no column {name!r} (--current-column; columns: {', '.join(rec.columns)})")
-        unit = (rec.units.get(name) or "").strip().lower()
-        if unit and unit not in LARGE_CURRENT_UNITS:
-            raise ValueError(f"{args.file}: column {name!r} is in {rec.units[name]!r}, not A, mA or kA")
-        current = np.asarray(rec.columns[name], dtype=float) * LARGE_CURRENT_UNITS.get(unit, 1.0)
+        current = np.asarray(rec.columns[name], dtype=float) * _column_scale(
+            args.file, name, rec.units.get(name, ""), LARGE_CURRENT_UNITS, "A", "a current")
         print(f"current: column {name} (--current-column)")
     return temp, current
 

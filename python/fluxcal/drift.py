@@ -437,6 +437,14 @@ def temperature_glitches(temp, run: int = 3) -> np.ndarray:
     return np.array(sorted(rows - _ramps_at_the_ends(t, rows, run, beyond)), dtype=int)
 
 
+def held_blocks(values) -> list:
+    """[(first row, last row)] of the blocks of two or more consecutive samples that hold one value to the last
+    digit (a stuck thermometer's, a frozen readout's)."""
+    from .outliers import _runs
+
+    return [(int(a), int(b) + 1) for a, b in _runs(np.diff(np.asarray(values, dtype=float)) == 0)]
+
+
 def temperature_holds(temp, run: int = 3) -> list:
     """[(first row, last row)] of the blocks longer than `run` samples where a logged temperature holds one value to
     the last digit and the log jumps into or out of it farther than run·D (D the largest step of the rest, at least
@@ -448,9 +456,7 @@ def temperature_holds(temp, run: int = 3) -> list:
     n = len(t)
     if n < 2 * run + 2 or not np.all(np.isfinite(t)):
         return []
-    change = np.flatnonzero(np.diff(t) != 0)
-    starts, ends = np.concatenate([[0], change + 1]), np.concatenate([change, [n - 1]])
-    held = [(a, b) for a, b in zip(starts, ends) if b - a + 1 > run and b - a + 1 < n]
+    held = [(a, b) for a, b in held_blocks(t) if run < b - a + 1 < n]
     if not held:
         return []
     steps = np.abs(np.diff(t))
@@ -668,13 +674,12 @@ def frozen_runs(values, run: int = 3) -> list:
     same = np.diff(x) == 0
     if same.mean() > 0.9:
         return []
-    change = np.flatnonzero(~same)
-    starts, ends = np.concatenate([[0], change + 1]), np.concatenate([change, [n - 1]])
-    lengths = ends - starts + 1
+    blocks = held_blocks(x)
+    lengths = np.array([b - a + 1 for a, b in blocks], dtype=int)
     # per block, its counts without the blocks as long or longer (no repeat pair spans two blocks: a block of L
     # holds L − 1 repeats and L − 2 pairs of them)
     sizes = np.unique(lengths[(lengths > run) & (lengths < n)])  # the block lengths judged
-    big = np.sort(lengths[lengths > 1])
+    big = np.sort(lengths)
     above = np.searchsorted(big, sizes)  # the blocks as long or longer: big[above:]
     drop_repeats = np.array([np.sum(big[k:] - 1) for k in above])
     drop_pairs = np.array([np.sum(big[k:] - 2) for k in above])
@@ -684,8 +689,7 @@ def frozen_runs(values, run: int = 3) -> list:
     shorter = np.concatenate([[1], big])[above]  # the longest block shorter than each (1: none repeats)
     unlikely = {int(size) for size, pp, qq, m in zip(sizes, p, q, shorter)
                 if (n - 1) * pp * qq ** (size - 2) < SPIKE_ALPHA and size > 2 * max(m, 1)}
-    found = [(int(a), int(b)) for a, b, size in zip(starts, ends, lengths) if int(size) in unlikely]
-    return found
+    return [(a, b) for (a, b), size in zip(blocks, lengths) if int(size) in unlikely]
 
 
 def frozen_words(values, runs, word: str = "row", labels=None, unit: str = "") -> str:

@@ -348,8 +348,8 @@ class LiveSession:
                 and s.spread <= self.max_spread)
         if not live:
             self.met = False
-        elif self.clock() - self._last_check >= CHECK_EVERY_S:
-            self._last_check = self.clock()
+        elif (now := self.clock()) - self._last_check >= CHECK_EVERY_S:
+            self._last_check = now
             self.met = self._calibration_meets()
         self.bar.n = int(round(s.coverage * N_DIRECTION_BINS))
         quality = f"|h| std/mean {100 * s.spread:.2f} %" if s.calibration is not None else s.error[:50]

@@ -301,11 +301,11 @@ def rail_values(columns: dict) -> list:
     return found
 
 
-def rail_words(columns: dict) -> str | None:
-    """A warning naming the columns (name → values) on a rail (`rail_values`), with how many readings sit there;
-    None when none is."""
+def rail_words(columns: dict, found=None) -> str | None:
+    """A warning naming the columns (name → values) on a rail (`rail_values`, or `found` when the caller has them),
+    with how many readings sit there; None when none is."""
     said = []
-    for name, top in rail_values(columns):
+    for name, top in rail_values(columns) if found is None else found:
         v = np.asarray(columns[name], dtype=float)
         said.append(f"{name} at {top:g} in {int(np.sum(v == top))} of {int(np.sum(np.isfinite(v)))} readings")
     if not said:

@@ -1407,18 +1407,18 @@ def run_cli(args, out=None) -> int:
     from .outliers import rail_values, rail_words
 
     axes = {n: rec.columns[n] for n in rec.mag_names()}
-    rails = rail_words(axes)
-    if rails:
+    railed = rail_values(axes)
+    if railed:
         ids_given = rec.columns.get("position")
         where = ""
         if ids_given is not None:  # which positions, and the remedy that names them (a blind check: only "a rail")
             on = np.zeros(len(ids_given), dtype=bool)
-            for name, top in rail_values(axes):
+            for name, top in railed:
                 on |= np.asarray(axes[name], dtype=float) == top
             named = [_label(u) for u in np.unique(np.asarray(ids_given)[on])]
             where = (f" — in position(s) {', '.join(map(str, named))}, whose averages it biases: --leave-out "
                      f"{','.join(map(str, named))} fits without them")
-        print(f"warning: {rails}{where}", file=out)
+        print(f"warning: {rail_words(axes, railed)}{where}", file=out)
     acc = rec.acceleration()
     if acc is None:
         raise ValueError(f"{args.file}: no accelerometer columns (ax,ay,az, or a triple named AccX.., accel_x..; "
@@ -1546,10 +1546,10 @@ def run_cli(args, out=None) -> int:
     # the calibration's offset or gains (U0, K's diagonal; not a small cross term, nor the positions' headings and
     # tilts) not determined: a script reading the exit status must not take it for a calibration to ship (it had
     # exited 0 with every parameter poorly determined)
-    poor = [n for n, d in zip(res.parameter_names, res.determined)
-            if not d and (n.startswith("U0_") or n in ("K_xx", "K_yy", "K_zz"))]
-    unjudged = [n for n, se in zip(res.parameter_names, res.standard_errors)
-                if not np.isfinite(se) and (n.startswith("U0_") or n in ("K_xx", "K_yy", "K_zz")) and n not in poor]
+    key = [n.startswith("U0_") or n in ("K_xx", "K_yy", "K_zz") for n in res.parameter_names]
+    poor = [n for n, d, k in zip(res.parameter_names, res.determined, key) if k and not d]
+    unjudged = [n for n, se, k in zip(res.parameter_names, res.standard_errors, key)
+                if k and not np.isfinite(se) and n not in poor]
     if unjudged:  # (a blind check: 4 positions, an exact fit, exit 0 with every standard error null)
         print(f"fluxcal positions: {args.file}: the calibration's {', '.join(unjudged[:6])}"
               f"{', …' if len(unjudged) > 6 else ''} have no standard error (the fit has no degrees of freedom left "
