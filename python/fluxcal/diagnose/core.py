@@ -1391,7 +1391,8 @@ def _evaluate(cls, data, model, state, sigma, n_candidates) -> dict:
             value = _profile_value(cls, ctxs[form], base, Q, e, vector, keep, projected[form])[0]
             row[f"{cls.profile_name}_without_heldout"] = _profiled_row({"v": value})["v"]
             held_feats = cls.features_at(ctxs[form], value)
-        validated = _validate(data, model, state, held_feats, cls.regime, sigma)
+        validated = _validate(data, model, state, held_feats, cls.regime, sigma,
+                              others=np.asarray(fit["parameters"])[12 if vector else 9:][:len(state["terms"])])
     except _core.Error as err:  # a candidate nearly inside the model can leave the solver no valid step
         row.update(lr=0.0, lr_pvalue=1.0, delta_aic=0.0, delta_bic=0.0, significant=False,
                    heldout_gap_before=None, heldout_gap_after=None,
@@ -1826,6 +1827,94 @@ def _block(state: dict, i: int) -> slice:
     return slice(lo, lo + state["features"][i].shape[1])
 
 
+def _price(cls, row: dict, width: int) -> int:
+    """What an accepted effect's block pays in BIC, in parameters: its terms, its profiled parameter (a lag, a time
+    constant) and every time its search placed (each episode's edges)."""
+    return (width + (1 if cls.profile_name and cls.profile_name in row else 0)
+            + sum(cls.searched_times(e) for e in row.get("episodes") or [row]))
+
+
+def _without(data: _Data, model: str, state: dict, i: int) -> dict:
+    """A copy of `state` with the i-th modelled effect taken out, refitted."""
+    block = _block(state, i)
+    rest = state["features"][:i] + state["features"][i + 1:]
+    terms = np.delete(state["terms"], np.arange(block.start, block.stop))
+    fit = _fit(data, state["start"], MODELS[model][1], _features(rest) if rest else None,
+               start_terms=terms if rest else None)
+    drop = lambda blocks: blocks[:i] + blocks[i + 1:]  # noqa: E731
+    return dict(state, features=rest, signal_blocks=drop(state["signal_blocks"]), validated=drop(state["validated"]),
+                result=fit, train_fits={}, terms=np.asarray(fit["parameters"])[12 if MODELS[model][0] else 9:])
+
+
+def _reprofile(data: _Data, model: str, state: dict, modelled: list, last_rows: dict, names: dict, sigma: float,
+               n_candidates: int) -> list:
+    """Place again what each earlier effect's search placed (a step's edges, a drift's time constant, a
+    temperature's lag) with the effects accepted after it modelled: the search placed them against residuals that
+    still held those. A drift taken as a step's slope had put the step 13 s late, and a magnet was then invented
+    to fill the hole; a current switched on at the end had made a step that stays "come back". Each earlier
+    effect is taken out, searched again against the rest, and put back where it was when BIC favours the new
+    placement; then every effect again while one moved (at most three turns). An event with several episodes, a richer time profile or a move of
+    the reference stays as it is, and so does one that is not significant against the rest (`_prune` weighs it).
+    Returns the names whose placement changed (their rows replaced, the first placement kept in `replaced`)."""
+    changed = []
+    for turn in range(3):  # until nothing moves (a step placed again can move the drift placed before it)
+        moved = False
+        for i, name in enumerate(modelled):
+            if turn == 0 and i == len(modelled) - 1 and not moved:
+                continue  # (the effect just accepted was searched against the rest as it is)
+            if _placed_again(data, model, state, modelled, i, last_rows, names, sigma, n_candidates, changed):
+                moved = True
+                changed.append(name)
+        if not moved:
+            break
+    return list(dict.fromkeys(changed))
+
+
+def _placed_again(data: _Data, model: str, state: dict, modelled: list, i: int, last_rows: dict, names: dict,
+                  sigma: float, n_candidates: int, changed: list) -> bool:
+    """`_reprofile`'s step for the i-th modelled effect: whether a new placement replaced the old (`state` and
+    `last_rows` updated)."""
+    vector, fixed = MODELS[model]
+    lo = 12 if vector else 9
+    name = modelled[i]
+    cls, old = names[name], last_rows[name]
+    if (not (cls.profile_name or cls.regime == "events") or cls.moves_reference or "episodes" in old
+            or "shape_terms" in old):
+        return False
+    try:
+        rest = _without(data, model, state, i)
+        row = _evaluate(cls, data, model, rest, sigma, n_candidates)
+        if "_fit" not in row or not row["significant"]:  # (one that no longer stands is for _prune to weigh)
+            return False
+        feats = rest["features"][:i] + [row["_features"]] + rest["features"][i:]
+        at, width = _block(state, i).start, row["_features"].shape[1]
+        new_terms = np.asarray(row["_fit"]["parameters"])[lo:]  # [the rest's…, its own]: its own go back to i
+        fit = _fit(data, state["start"], fixed, _features(feats),
+                   start_terms=np.concatenate([new_terms[:at], new_terms[-width:], new_terms[at:-width]]))
+    except _core.Error:
+        return False
+    e0, e1 = np.asarray(state["result"]["residuals"]), np.asarray(fit["residuals"])
+    n = len(e0)
+    gain = (n * np.log(float(e0 @ e0) / float(e1 @ e1))
+            - (_price(cls, row, width) - _price(cls, old, state["features"][i].shape[1])) * np.log(n))
+    if not gain > 0:
+        return False
+    first = old.get("replaced") or {k: old.get(k) for k in EPISODE_KEYS + (cls.profile_name,) if k in old}
+    # (the effects found after it, or for the last one found, those placed again before it)
+    after = modelled[i + 1:] or [a for a in changed if a != name]
+    row["replaced"] = dict(first, modelled=list(dict.fromkeys(first.get("modelled", []) + after)),
+                           delta_bic_gain=float(gain) + first.get("delta_bic_gain", 0.0))
+    for key in ("step", "_rivals", "confounded_with", "found_with"):
+        if key in old:
+            row[key] = old[key]
+    put = lambda blocks, block: blocks[:i] + [block] + blocks[i:]  # noqa: E731
+    state.update(features=feats, validated=put(rest["validated"], row.get("_validated", row["_features"])),
+                 signal_blocks=put(rest["signal_blocks"], row["_signal_features"]), result=fit, train_fits={},
+                 terms=np.asarray(fit["parameters"])[lo:])
+    last_rows[name] = row
+    return True
+
+
 def _prune(data: _Data, model: str, state: dict, accepted: list, last_rows: dict, names: dict, vector: bool) -> list:
     """Effects accepted early that no longer pay BIC's price once the later ones are modelled (a settling offset
     taken first for what an offset step and a passing magnet then explain): each is refitted out, the one
@@ -1852,10 +1941,7 @@ def _prune(data: _Data, model: str, state: dict, accepted: list, last_rows: dict
                 continue
             e0 = np.asarray(fit["residuals"])
             lr = max(0.0, n * np.log(float(e0 @ e0) / rss))
-            row = last_rows[name]
-            k = (block.stop - block.start + (1 if cls.profile_name and cls.profile_name in row else 0)
-                 + sum(cls.searched_times(e) for e in row.get("episodes") or [row]))
-            delta_bic = -lr + k * np.log(n)
+            delta_bic = -lr + _price(cls, last_rows[name], block.stop - block.start) * np.log(n)
             if delta_bic > 0 and (worst is None or delta_bic > worst[1]):
                 worst = (i, delta_bic, fit)
         if worst is None:
@@ -2090,8 +2176,13 @@ def _in_sample_length(fit: dict, data: _Data, rows: np.ndarray) -> int:
     return per_reading * _correlation_length(e[np.argsort(data.t[rows], kind="stable")])
 
 
-def _validate(data, model, state, feats, regime, sigma) -> dict:
-    """Fit with and without the candidate on all but a held-out regime; judge on the held-out part."""
+def _validate(data, model, state, feats, regime, sigma, others=None) -> dict:
+    """Fit with and without the candidate on all but a held-out regime; judge on the held-out part. `others`: the
+    accepted effects' terms as the fit with the candidate on every reading has them, the start of the fit with it
+    on the rest. A term the rest does not determine stays at its start (a step inside the held-out quarter), and
+    there the fit without the candidate has it from the fit without, the fit with from the fit with: from the fit
+    without, a step had kept the part of a drift it took while the drift was unmodelled, the drift's extrapolation
+    added that part again, and the drift failed its held-out test."""
     vector, fixed = MODELS[model]
     block = _event_block(feats, data, state["correlation"]) if regime == "events" else None
     regime, held = _held_regime(data, state, regime, block)
@@ -2107,7 +2198,8 @@ def _validate(data, model, state, feats, regime, sigma) -> dict:
         floors[sigma] = _noise_floor(before, data, base_feats, held, sigma)
     all_feats = _features(state["validated"] + [feats])
     after = _fit(data, state["start"], fixed, all_feats, ~held,
-                 start_terms=np.concatenate([terms, np.zeros(feats.shape[1])]))
+                 start_terms=np.concatenate([terms if others is None else _validated_terms(dict(state, terms=others)),
+                                             np.zeros(feats.shape[1])]))
     e1 = _residuals(after, data, all_feats, held)
     # A short event's gaps where it acts: a magnet's second-long pass in ten minutes takes most of the departure
     # within its reach, and next to nothing of the whole held-out part's, where the noise alone had left a gap of 0
@@ -2704,8 +2796,9 @@ def diagnose(samples, t=None, temp=None, reference=None, gravity=None, field_nor
             data, applied, block = _exact_move(data, state, model, names[w["effect"]])
             moves.append((w, names[w["effect"]], applied, block))
         w["step"] = len(accepted)
-        w["heldout_leverage"] = _row_leverage(data, state["result"], w, directions)
         last_rows[w["effect"]] = w
+        for name in [w["effect"]] + _reprofile(data, model, state, accepted, last_rows, names, sigma, n_candidates):
+            last_rows[name]["heldout_leverage"] = _row_leverage(data, state["result"], last_rows[name], directions)
 
     for _round in range(max_effects + 1):
         rows = []

@@ -124,6 +124,28 @@ def temperature_caveat(d) -> list:
             "Log the sensor's temperature to tell them apart."]
 
 
+PLACEMENT_WORDS = {"warmup_s": "a time constant of {:.3g} s", "lag_s": "a lag of {:.3g} s",
+                   "frequency_hz": "a line at {:.4g} Hz", "width": "a loop width of {:.3g}", "limit": "a limit of {:.3g}",
+                   "knee": "a knee at {:.3g}"}
+
+
+def replaced_line(d, r) -> str:
+    """An effect whose search placed it again once the effects found after it were modelled (`diagnose._reprofile`):
+    where it had been placed first, so that a reader comparing with an earlier run sees why it moved."""
+    old, at = r["replaced"], time_words(d.series.get("t"), d.series.get("timestamps", True))
+    if old.get("closest_s") is not None:
+        first = f"as a pass closest at {at(old['closest_s'])}"
+    elif "on_s" in old or "off_s" in old:
+        first = (f"from {'the start' if old.get('on_s') is None else at(old['on_s'])} to "
+                 f"{'the end' if old.get('off_s') is None else at(old['off_s'])}")
+    else:
+        first = next(("with " + words.format(old[k]) for k, words in PLACEMENT_WORDS.items()
+                      if old.get(k) is not None), "in another form")
+    return (f"  {r['effect']}: placed again once {', '.join(old['modelled'])} "
+            f"{'was' if len(old['modelled']) == 1 else 'were'} modelled (first found {first}, while "
+            f"{'it was' if len(old['modelled']) == 1 else 'they were'} not: ΔBIC {-old['delta_bic_gain']:+.1f} for the new placement)")
+
+
 def offset_step_line(d, r) -> str:
     """When the offset jumped, by how much (readings' units and % of the field) and whether it came back.
     A box from the recording's start is the stretch before a jump: the same step, the other way round."""
@@ -829,6 +851,7 @@ def text(d) -> str:
                 out += ["  " + moving_dipole_line(d, {**r, **e}) for e in r.get("episodes") or [r]]
             if r["effect"] in SIZE_LINES and r.get("step") is not None:
                 out.append("  " + SIZE_LINES[r["effect"]](d, r))
+        out += [replaced_line(d, r) for r in d.ranking if r.get("replaced") and r.get("step") is not None]
         out += [f"  {r['effect']}: {r['note']}" for r in d.ranking if r.get("pruned_delta_bic") is not None]
         out += confound_lines(d)
     elif any("not identifiable" in c for c in getattr(d, "caveats", [])):
