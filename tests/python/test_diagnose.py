@@ -773,6 +773,46 @@ def test_a_held_out_test_the_rest_cannot_determine_is_said_and_the_json_stays_st
     assert row["heldout_leverage"] is None and row["heldout_leverage_undetermined"] is True
 
 
+def test_unequal_noise_between_the_axes_is_the_noise_not_an_excess():
+    # σ [0.02, 0.05, 0.12] µT per axis, turned fast at 10 Hz (σ from the base model's residuals, a magnitude's: the
+    # noise along the field, whose σ changes with the direction). The MAD of that mixture falls short of its RMS:
+    # σ 0.81 of the noise's RMS and the residuals read 1.15 σ, "explained to the noise" beside an excess.
+    from fluxcal.sim.effects import HardIron, SoftIron, WhiteNoise
+    from fluxcal.sim.withheld import FIELD
+
+    per_axis = np.array([0.02, 0.05, 0.12])
+    for seed in range(3):
+        rng = np.random.default_rng(seed)
+        scene = sim.tumble(120.0, rate_hz=10.0, turn_rate_deg=200.0, rng=rng)
+        effects = [SoftIron(np.diag([1.03, 0.97, 1.01])), HardIron([4.0, -3.0, 2.0]), WhiteNoise(per_axis)]
+        r = sim.simulate(scene, effects, FIELD, rng)
+        d = diagnose(r.readings, t=r.t, field_norm=50.0)
+        assert "base model's residuals" in d.noise_source, d.noise_source  # (the path this is about)
+        assert d.noise_sigma == pytest.approx(np.sqrt(np.mean(per_axis ** 2)), rel=0.07), seed
+        assert abs(d.where["overall"]["rms_z"] - 1.0) < 0.06, (seed, d.where["overall"]["rms_z"])
+        assert d.accepted == [], (seed, d.accepted)
+
+
+def test_a_noise_the_effects_found_shrink_is_said_with_the_sigma_they_leave():
+    # Turned at 300°/s and logged at 20 Hz, the readings' differences hold the motion (σ 0.16 for 0.05) and the
+    # residuals' hold the 15 ms delay's error: once time_offset is modelled the residuals left scatter 0.3 σ.
+    from fluxcal.sim.effects import HardIron, SoftIron, TimeOffset, WhiteNoise
+    from fluxcal.sim.withheld import FIELD
+
+    rng = np.random.default_rng(0)
+    scene = sim.tumble(120.0, rate_hz=20.0, turn_rate_deg=300.0, rng=rng)
+    effects = [TimeOffset(0.015), SoftIron(np.diag([1.03, 0.97, 1.01])), HardIron([4.0, -3.0, 2.0]), WhiteNoise(0.05)]
+    r = sim.simulate(scene, effects, FIELD, rng)
+    d = diagnose(r.readings, t=r.t, reference=r.truth)
+    assert d.accepted == ["time_offset"] and d.noise_sigma > 0.1
+    said = next(c for c in d.caveats if c.startswith("noise σ:"))
+    suggested = float(re.search(r"--noise-sigma ([0-9.]+)", said).group(1))
+    assert suggested == pytest.approx(0.05, rel=0.1), said
+    # (a σ given or one the residuals bear out is not questioned)
+    assert not any(c.startswith("noise σ:") for c in diagnose(r.readings, t=r.t, reference=r.truth,
+                                                               noise_sigma=suggested).caveats)
+
+
 def test_noise_estimate_from_third_differences():
     result, _ = withheld_trial([], 7)
     assert estimate_noise(result.readings) == pytest.approx(0.05, rel=0.05)

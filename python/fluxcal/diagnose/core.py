@@ -455,20 +455,30 @@ MAX_STRIDE = 8  # readings: a sensor's own filter (an average of ≤ 16 readings
                 # slowly turning drone was taken for noise at stride 32, the ratio 2.7 for a miss 13× the noise)
 
 
-def _difference_noise(values: np.ndarray, order: int) -> float:
+MIXTURE_CLIP = 6.0  # a residual difference beyond this many robust σ is a glitch or an edge, not the noise
+
+
+def _difference_noise(values: np.ndarray, order: int, mixture: bool = False) -> float:
     """σ from the MAD of `order`-th differences along the rows (variance C(2k, k)σ² for white noise),
-    per column, then RMS over the columns."""
+    per column, then RMS over the columns. `mixture`: the noise's σ changes from row to row (a magnitude's
+    residual is the noise along the field, and the axes' noise differs: σ [0.02, 0.05, 0.12] per axis), and the
+    MAD of such a mixture falls short of its RMS (0.0645 for 0.0759: the residuals then read 1.18 σ); instead the
+    mean square of the differences, each clipped at MIXTURE_CLIP robust σ (a glitch or a step's edge stays out)."""
     x = np.asarray(values, dtype=float).reshape(len(values), -1)
     d = np.diff(x, n=order, axis=0)
-    mad = np.median(np.abs(d - np.median(d, axis=0)), axis=0)
-    return float(np.sqrt(np.mean((1.4826 * mad) ** 2 / comb(2 * order, order))))
+    spread = 1.4826 * np.median(np.abs(d - np.median(d, axis=0)), axis=0)
+    if mixture:
+        d = d - np.median(d, axis=0)
+        spread = np.sqrt(np.mean(np.minimum(np.abs(d), MIXTURE_CLIP * spread) ** 2, axis=0))
+    return float(np.sqrt(np.mean(spread ** 2 / comb(2 * order, order))))
 
 
-def _two_apart_noise(values: np.ndarray, order: int) -> float:
+def _two_apart_noise(values: np.ndarray, order: int, mixture: bool = False) -> float:
     """`_difference_noise` of the even and of the odd rows (differences of readings two apart), RMS of the two:
     blind to a line at the Nyquist frequency, which alternates from one reading to the next."""
     x = np.asarray(values, dtype=float)
-    return float(np.sqrt((_difference_noise(x[0::2], order) ** 2 + _difference_noise(x[1::2], order) ** 2) / 2))
+    return float(np.sqrt((_difference_noise(x[0::2], order, mixture) ** 2
+                          + _difference_noise(x[1::2], order, mixture) ** 2) / 2))
 
 
 def _alternating(values: np.ndarray) -> float | None:
@@ -604,7 +614,7 @@ def _noise(data: _Data, base: dict) -> tuple:
     # (the base model's residuals of the readings less their lines, when lines were taken out)
     e = np.asarray(base["residuals"] if lines is None else _residuals(base, replace(data, m=m), None, slice(None)))
     e = e.reshape(len(data.m), -1)[np.argsort(data.t, kind="stable")]
-    from_residuals = differences(e, 3)
+    from_residuals = differences(e, 3, mixture=True)
     # the base model's residuals differing less than the noise: the readings' differences held motion that is white
     # in them too (a random walk of the attitude: σ 2.8× the truth, every effect then "below the noise"; a brisk
     # random tumble: 1.8–2× with the 4th order only 4 % below the 3rd — two blind checks)
@@ -2435,6 +2445,27 @@ HAND_TURN_DEG_S = (6.0, 720.0)  # a hand turning a sensor through its orientatio
                                # slowest, two turns a second at the fastest
 
 
+NOISE_OVERSTATED = 0.85  # the residuals left, and their own differences, below this share of σ: σ held an effect
+
+
+def _noise_overstated(data: _Data, e: np.ndarray, sigma: float, remaining: dict) -> str | None:
+    """A CAVEAT when the estimated σ held what an effect found then took out (the readings' differences held a
+    delay's error, ∝ the turn rate: σ 0.071 for 0.05, the residuals left 0.81 σ): every candidate was judged
+    against too large a noise, so a further effect may have been missed. Said with the σ the residuals left give,
+    to give as noise_sigma; not refitted."""
+    if not remaining["overall"]["rms_z"] < NOISE_OVERSTATED:
+        return None
+    per_reading = len(e) // len(data.m)
+    order = np.argsort(data.t, kind="stable") if data.t is not None else np.arange(len(data.m))
+    left = _difference_noise(e.reshape(len(data.m), per_reading)[order], 3, mixture=True)
+    if not left < NOISE_OVERSTATED * sigma:
+        return None
+    return (f"noise σ: the residuals left scatter {remaining['overall']['rms_z']:.2f} σ and their third differences "
+            f"give {left:.4g} for the σ {sigma:.4g} estimated before the effects found were modelled: σ held part of "
+            f"them, and every candidate was judged against too large a noise (a further, smaller effect may have been "
+            f"missed). Run again with noise_sigma={left:.4g} (--noise-sigma {left:.4g})")
+
+
 def _time_unit_caveat(data: _Data, directions: np.ndarray, sigma: float) -> str | None:
     """Times in ms (or µs) taken for seconds: a period of ≥ 1 s while the field direction turns only a little
     from one reading to the next means a hand-turned sensor turning slower than a hand does; the same turns
@@ -2967,6 +2998,8 @@ def diagnose(samples, t=None, temp=None, reference=None, gravity=None, field_nor
     e_final = np.asarray(final["residuals"])
     final_dirs = _field_directions(data, final)
     remaining = _where(data, e_final, sigma, final_dirs, vector)
+    if noise_sigma is None and accepted and (lower := _noise_overstated(data, e_final, sigma, remaining)):
+        caveats.append(lower)
     if noise_sigma is not None:  # an estimated σ comes from these readings; a given one may not fit them
         remaining["noise_check"] = _noise_check(e_final, sigma, len(final["parameters"]) - len(fixed), alpha)
     remaining["unexplained"] = _unexplained(where["overall"], remaining["overall"], accepted)
