@@ -1880,6 +1880,16 @@ def _reprofile(data: _Data, model: str, state: dict, modelled: list, last_rows: 
     return list(dict.fromkeys(changed))
 
 
+PLACEMENT_KEYS = ("on_s", "off_s", "closest_s", "passage_s", "frequency_hz", "rate_hz_per_s", "offset_kind")
+
+
+def _placement(cls, row: dict) -> tuple:
+    """What a search placed in a row (an event's times, a line's frequency, the profiled parameter, the offset's
+    form), to 6 significant digits."""
+    keys = PLACEMENT_KEYS + ((cls.profile_name,) if cls.profile_name else ())
+    return tuple((k, v if not isinstance(v, float) else float(f"{v:.6g}")) for k in keys if (v := row.get(k)) is not None)
+
+
 def _placed_again(data: _Data, model: str, state: dict, modelled: list, i: int, last_rows: dict, names: dict,
                   sigma: float, n_candidates: int, changed: list) -> bool:
     """`_reprofile`'s step for the i-th modelled effect: whether a new placement replaced the old (`state` and
@@ -1907,9 +1917,9 @@ def _placed_again(data: _Data, model: str, state: dict, modelled: list, i: int, 
     n = len(e0)
     gain = (n * np.log(float(e0 @ e0) / float(e1 @ e1))
             - (_price(cls, row, width) - _price(cls, old, state["features"][i].shape[1])) * np.log(n))
-    if not gain > 0:
+    if not gain > 0 or _placement(cls, row) == _placement(cls, old):  # (a refit's rounding is no new placement)
         return False
-    first = old.get("replaced") or {k: old.get(k) for k in EPISODE_KEYS + (cls.profile_name,) if k in old}
+    first = old.get("replaced") or {k: old.get(k) for k in PLACEMENT_KEYS + (cls.profile_name,) if k in old}
     # (the effects found after it, or for the last one found, those placed again before it)
     after = modelled[i + 1:] or [a for a in changed if a != name]
     row["replaced"] = dict(first, modelled=list(dict.fromkeys(first.get("modelled", []) + after)),

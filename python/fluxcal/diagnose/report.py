@@ -140,7 +140,11 @@ def replaced_line(d, r) -> str:
                  f"{'the end' if old.get('off_s') is None else at(old['off_s'])}")
     else:
         first = next(("with " + words.format(old[k]) for k, words in PLACEMENT_WORDS.items()
-                      if old.get(k) is not None), "in another form")
+                      if old.get(k) is not None),
+                     {"offset_drift": "linear", "scale_drift": "linear", "temp_offset": "with no lag",
+                      "temp_scale": "with no lag"}.get(r["effect"], "in another form"))
+    if old.get("offset_kind") and old["offset_kind"] != r.get("offset_kind"):
+        first += f" and acting {'on the offset too' if old['offset_kind'] == 'hard_iron' else 'after the offset'}"
     return (f"  {r['effect']}: placed again once {', '.join(old['modelled'])} "
             f"{'was' if len(old['modelled']) == 1 else 'were'} modelled (first found {first}, while "
             f"{'it was' if len(old['modelled']) == 1 else 'they were'} not: ΔBIC {-old['delta_bic_gain']:+.1f} for the new placement)")
