@@ -1863,9 +1863,9 @@ def _reprofile(data: _Data, model: str, state: dict, modelled: list, last_rows: 
     still held those. A drift taken as a step's slope had put the step 13 s late, and a magnet was then invented
     to fill the hole; a current switched on at the end had made a step that stays "come back". Each earlier
     effect is taken out, searched again against the rest, and put back where it was when BIC favours the new
-    placement; then every effect again while one moved (at most three turns). An event with several episodes, a richer time profile or a move of
-    the reference stays as it is, and so does one that is not significant against the rest (`_prune` weighs it).
-    Returns the names whose placement changed (their rows replaced, the first placement kept in `replaced`)."""
+    placement; then every effect again while one moved (at most three turns). An event with several episodes, a
+    richer time profile or a move of the reference stays as it is, and so does one that is not significant against
+    the rest (`_prune` weighs it). Returns the names whose placement changed (their rows replaced, the first placement kept in `replaced`)."""
     changed = []
     for turn in range(3):  # until nothing moves (a step placed again can move the drift placed before it)
         moved = False
@@ -1919,7 +1919,7 @@ def _placed_again(data: _Data, model: str, state: dict, modelled: list, i: int, 
             - (_price(cls, row, width) - _price(cls, old, state["features"][i].shape[1])) * np.log(n))
     if not gain > 0 or _placement(cls, row) == _placement(cls, old):  # (a refit's rounding is no new placement)
         return False
-    first = old.get("replaced") or {k: old.get(k) for k in PLACEMENT_KEYS + (cls.profile_name,) if k in old}
+    first = old.get("replaced") or {k: old.get(k) for k in PLACEMENT_KEYS + (cls.profile_name,) if k and k in old}
     # (the effects found after it, or for the last one found, those placed again before it)
     after = modelled[i + 1:] or [a for a in changed if a != name]
     row["replaced"] = dict(first, modelled=list(dict.fromkeys(first.get("modelled", []) + after)),
@@ -1935,13 +1935,11 @@ def _placed_again(data: _Data, model: str, state: dict, modelled: list, i: int, 
     return True
 
 
-def _prune(data: _Data, model: str, state: dict, accepted: list, last_rows: dict, names: dict, vector: bool) -> list:
+def _prune(data: _Data, model: str, state: dict, accepted: list, last_rows: dict, names: dict) -> list:
     """Effects accepted early that no longer pay BIC's price once the later ones are modelled (a settling offset
     taken first for what an offset step and a passing magnet then explain): each is refitted out, the one
     whose removal BIC favours most first, until every one left pays. `state` is updated to the model without
     them; returns their names. A move of the reference stays (it has moved the reference itself)."""
-    fixed = MODELS[model][1]
-    lo = 12 if vector else 9
     systematic = [a for a in accepted if a not in NOISE_CANDIDATES]
     dropped = []
     while len(systematic) > 1:
@@ -1952,28 +1950,22 @@ def _prune(data: _Data, model: str, state: dict, accepted: list, last_rows: dict
             cls = names[name]
             if cls.moves_reference:
                 continue
-            rest = state["features"][:i] + state["features"][i + 1:]
-            block = _block(state, i)
-            terms = np.delete(state["terms"], np.arange(block.start, block.stop))
             try:
-                fit = _fit(data, state["start"], fixed, _features(rest), start_terms=terms)
+                rest = _without(data, model, state, i)
             except _core.Error:
                 continue
-            e0 = np.asarray(fit["residuals"])
+            e0 = np.asarray(rest["result"]["residuals"])
             lr = max(0.0, n * np.log(float(e0 @ e0) / rss))
-            delta_bic = -lr + _price(cls, last_rows[name], block.stop - block.start) * np.log(n)
+            delta_bic = -lr + _price(cls, last_rows[name], state["features"][i].shape[1]) * np.log(n)
             if delta_bic > 0 and (worst is None or delta_bic > worst[1]):
-                worst = (i, delta_bic, fit)
+                worst = (i, delta_bic, rest)
         if worst is None:
             break
-        i, delta_bic, fit = worst
+        i, delta_bic, rest = worst
         name = systematic.pop(i)
         last_rows[name]["pruned_delta_bic"] = float(delta_bic)
         dropped.append(name)
-        state.update(features=state["features"][:i] + state["features"][i + 1:],
-                     signal_blocks=state["signal_blocks"][:i] + state["signal_blocks"][i + 1:],
-                     validated=state["validated"][:i] + state["validated"][i + 1:], result=fit, train_fits={},
-                     terms=np.asarray(fit["parameters"])[lo:])
+        state.update(rest)
     return dropped
 
 
@@ -2904,7 +2896,7 @@ def diagnose(samples, t=None, temp=None, reference=None, gravity=None, field_nor
     if bar:
         bar.close()
 
-    pruned = _prune(data, model, state, accepted, last_rows, names, vector)
+    pruned = _prune(data, model, state, accepted, last_rows, names)
     accepted[:] = [a for a in accepted if a not in pruned]
     for name in pruned:
         r = last_rows[name]
