@@ -1314,6 +1314,22 @@ def test_saturation_about_a_large_hard_iron_is_found_as_saturation():
         assert d.remaining["overall"]["gap"] < 0.5 * 0.05, (seed, d.remaining["overall"]["gap"])
 
 
+def test_the_saturation_limit_said_is_the_one_that_gives_the_compression_said():
+    # The fit scales the tanh's shape by a free size, so its profiled limit is a shape: seed 3's came out 110 for a
+    # true 247 (its size then compressing as a 247 would), and the text read "limit 110 … compresses by x %". The
+    # limit said is the tanh's that compresses as the fit does; in the cubic form, the same to first order.
+    from fluxcal.sim.effects import Saturation
+
+    for seed in range(5):
+        result, kwargs = withheld_trial(["saturation"], seed)
+        d = diagnose(result.readings, **kwargs)
+        assert d.accepted == ["saturation"], (seed, d.accepted)
+        truth = next(e for e in result.effects if isinstance(e, Saturation)).limit
+        line = next(x for x in d.text().splitlines() if x.startswith("  saturation:"))
+        said = float(re.search(r"(?:limit|saturating at) ([0-9.]+)", line).group(1))
+        assert said == pytest.approx(truth, rel=0.05), (seed, line, truth)
+
+
 def test_quantization_seen_in_a_short_fast_recording():
     # 600 readings at 10 Hz hit ~500 distinct levels of the ADC: most values do not repeat, yet every
     # one lies on the grid. Continuous readings, float32 ones included, are not taken for a grid.
