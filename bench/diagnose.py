@@ -8,6 +8,7 @@
     .venv/bin/python bench/diagnose.py --warm-up 10                         # temperature following time
     .venv/bin/python bench/diagnose.py --settling 10                        # an offset settling in time (a warm-up)
     .venv/bin/python bench/diagnose.py --time-pairs 10                      # a drift, a step, a current together
+    .venv/bin/python bench/diagnose.py --family-pairs 10                    # saturation beside a drift, …
     .venv/bin/python bench/diagnose.py --trials 5 --noise 0.2 --rate 10     # other noise, rates, --duration
     .venv/bin/python bench/diagnose.py --nulls 30 --noise 0.5               # nothing withheld only
     .venv/bin/python bench/diagnose.py --passes 12                          # a magnet carried past (straight line)
@@ -324,6 +325,28 @@ def time_pairs(n: int):
               f"{', '.join(f'{k} {v}' for k, v in other.items()) or '—'} |", flush=True)
 
 
+FAMILY_PAIRS = (("saturation", "temp_scale"), ("saturation", "offset_drift"), ("nonlinearity_cubic", "temp_offset"),
+                ("hysteresis", "temp_scale"), ("cross_axis", "motor_current"))
+
+
+def family_pairs(n: int):
+    """A transducer effect beside one that follows the temperature, time or a current (`withheld_trial`, typical
+    sizes): is each named, and not its kin (the cubic for saturation)?"""
+    print("| pair | both named, nothing else | what was named instead |")
+    print("|---|---:|---|")
+    for pair in FAMILY_PAIRS:
+        right, instead = 0, {}
+        for seed in range(n):
+            r, kw = withheld_trial(list(pair), seed)
+            d = diagnose(r.readings, **kw)
+            right += sorted(d.accepted) == sorted(pair)
+            if sorted(d.accepted) != sorted(pair):
+                key = " + ".join(d.accepted) or "nothing"
+                instead[key] = instead.get(key, 0) + 1
+        print(f"| {' + '.join(pair)} | {right}/{n} | {', '.join(f'{k} ({v})' for k, v in instead.items()) or '—'} |",
+              flush=True)
+
+
 def margins(n: int, only=None, **sim):
     """How far the accepted effects of blind trials stay from the degenerate-fit guards (fluxcal.diagnose.core):
     the held-out field error over the noise floor (refused below NOISE_FLOOR_FRACTION), the distortion (refused
@@ -403,6 +426,7 @@ if __name__ == "__main__":
     p.add_argument("--warm-up", type=int)
     p.add_argument("--settling", type=int, help="trials per time constant of an offset settling in time")
     p.add_argument("--time-pairs", type=int, help="trials per pair of effects that both follow time")
+    p.add_argument("--family-pairs", type=int, help="trials per pair: a transducer effect beside another")
     p.add_argument("--only", nargs="*", help="withheld effects to run (default all)")
     p.add_argument("--noise", type=float, default=0.05, help="white noise σ of the trials, µT (field 50 µT)")
     p.add_argument("--rate", type=float, default=50.0, help="sample rate of the trials, Hz")
@@ -438,3 +462,5 @@ if __name__ == "__main__":
         settling(args.settling)
     if args.time_pairs:
         time_pairs(args.time_pairs)
+    if args.family_pairs:
+        family_pairs(args.family_pairs)

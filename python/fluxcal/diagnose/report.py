@@ -145,6 +145,9 @@ def replaced_line(d, r) -> str:
                       "temp_scale": "with no lag"}.get(r["effect"], "in another form"))
     if old.get("offset_kind") and old["offset_kind"] != r.get("offset_kind"):
         first += f" and acting {'on the offset too' if old['offset_kind'] == 'hard_iron' else 'after the offset'}"
+    if old.get("effect"):  # its kin had been found first in its place
+        return (f"  {r['effect']}: took the place of {old['effect']} once {', '.join(old['modelled'])} "
+                f"{'was' if len(old['modelled']) == 1 else 'were'} modelled (ΔBIC {-old['delta_bic_gain']:+.1f})")
     return (f"  {r['effect']}: placed again once {', '.join(old['modelled'])} "
             f"{'was' if len(old['modelled']) == 1 else 'were'} modelled (first found {first}, while "
             f"{'it was' if len(old['modelled']) == 1 else 'they were'} not: ΔBIC {-old['delta_bic_gain']:+.1f} for the new placement)")
@@ -873,7 +876,8 @@ def text(d) -> str:
             if r["effect"] in SIZE_LINES and r.get("step") is not None:
                 out.append("  " + SIZE_LINES[r["effect"]](d, r))
         out += [replaced_line(d, r) for r in d.ranking if r.get("replaced") and r.get("step") is not None]
-        out += [f"  {r['effect']}: {r['note']}" for r in d.ranking if r.get("pruned_delta_bic") is not None]
+        out += [f"  {r['effect']}: {r['note']}" for r in d.ranking
+                if r.get("pruned_delta_bic") is not None or "replaced" in (r.get("unmet") or [])]
         out += confound_lines(d)
     elif any("not identifiable" in c for c in getattr(d, "caveats", [])):
         # (a blind check's 100 rows, 3 % of the directions, none of the base model's 9 parameters determined, read
