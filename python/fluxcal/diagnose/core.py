@@ -1877,8 +1877,8 @@ def _reprofile(data: _Data, model: str, state: dict, modelled: list, last_rows: 
     to fill the hole; a current switched on at the end had made a step that stays "come back". Each earlier
     effect is taken out, searched again against the rest, and put back where it was when the new placement gains
     more in BIC than a parameter's price (a time constant moved by 0.004 s, an edge by 0.4 s away from the truth,
-    had been "placed again" for gains of 0.0004 and 1); then every effect again while one moved (at most three turns). An event with several episodes, a
-    richer time profile or a move of the reference stays as it is, and so does one that is not significant against
+    had been "placed again" for gains of 0.0004 and 1); then every effect again while one moved (at most three
+    turns). An event with several episodes, a richer time profile or a move of the reference stays as it is, and so does one that is not significant against
     the rest (`_prune` weighs it). An effect of a family (`KIN`: the cubic, saturation, its knee) is weighed against
     its kin too. Returns the names placed again (their rows replaced, the first placement kept in `replaced`)."""
     changed = []
@@ -1904,7 +1904,7 @@ def _placement(cls, row: dict) -> tuple:
     keys = PLACEMENT_KEYS + ((cls.profile_name,) if cls.profile_name else ())
     row = dict(row)
     if row.get("on_s") is None and row.get("off_s") is not None and row.get("closest_s") is None:
-        row.update(on_s=row["off_s"], off_s=None)  # a box from the start is the step at its end (the offset holds both)
+        row.update(on_s=row["off_s"], off_s=None)  # a box from the start is the step at its end (the offset holds it)
     return tuple((k, v if not isinstance(v, float) else float(f"{v:.6g}")) for k in keys if (v := row.get(k)) is not None)
 
 
@@ -2030,8 +2030,8 @@ def _with_the_rest_placed_again(data: _Data, model: str, state: dict, rows: list
     again with it modelled: a step found first beside a drift against it was a box that "came back", which took
     part of the drift, and the drift extrapolated from the rest then missed the held-out quarter. The candidate is
     added on trial (as found, then in its plain form: a drift linear), the effects found are placed again
-    (`_reprofile`), and the candidate is searched and judged against them. Returns (the state without it, the effects' order, their rows, its row) when it now passes, else
-    None; nothing is changed."""
+    (`_reprofile`), and the candidate is searched and judged against them. Returns (the state without it, the
+    effects' order, their rows, its row) when it now passes, else None; nothing is changed."""
     vector = MODELS[model][0]
     names = {c.name: c for c in pool}
     hopeful = _hopeful(rows, state, names, n_candidates)
@@ -2039,7 +2039,7 @@ def _with_the_rest_placed_again(data: _Data, model: str, state: dict, rows: list
         return None
     first, cls = hopeful[0], names[hopeful[0]["effect"]]
     tries = [first]
-    if cls.profile_name and first.get(cls.profile_name) is not None:
+    if getattr(cls, "law_in_time", False) and first.get(cls.profile_name) is not None:
         # and in its plain form: a linear drift beside a box that took its middle had profiled as a settling one,
         # and the box, placed again beside that, stayed where it was
         plain = cls.features_at(_context(data, state["result"], _features(state["features"])), cls.profile_null)
