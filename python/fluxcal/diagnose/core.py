@@ -235,7 +235,10 @@ class Diagnosis:
     strong evidence in the recording that the held-out readings do not confirm (a profiled lag or warm-up time is
     chosen again without them for that test: `lag_s_without_heldout`, `warmup_s_without_heldout`);
     an effect accepted in an early round that no longer pays BIC's price once the later ones are modelled
-    is left out (its row's `note` says so, `pruned_delta_bic` the ΔBIC for keeping it);
+    is left out (its row's `note` says so, `pruned_delta_bic` the ΔBIC for keeping it); one placed again once
+    later ones were modelled (a step's edges, a drift's time constant) or replaced by its kin (the cubic by
+    saturation) has `replaced`: its first placement's `on_s`/`off_s`/profiled value…, the kin's `effect`, the
+    effects `modelled` since, and `delta_bic_gain` (the row it left has "replaced" in `unmet`);
     `significant_not_modelled` marks a candidate still significant when the `max_effects` limit stopped
     the search; an accepted row's `coefficients` and `standard_errors` are those of the final model (every
     accepted effect fitted together), the others' those of their own round. `where`: residual tables per regime;
