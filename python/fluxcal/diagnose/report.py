@@ -132,7 +132,11 @@ PLACEMENT_WORDS = {"warmup_s": "a time constant of {:.3g} s", "lag_s": "a lag of
 def replaced_line(d, r) -> str:
     """An effect whose search placed it again once the effects found after it were modelled (`diagnose._reprofile`):
     where it had been placed first, so that a reader comparing with an earlier run sees why it moved."""
-    old, at = r["replaced"], time_words(d.series.get("t"), d.series.get("timestamps", True))
+    old = r["replaced"]
+    since = f"once {', '.join(old['modelled'])} {'was' if len(old['modelled']) == 1 else 'were'} modelled"
+    if old.get("effect"):  # its kin had been found first in its place
+        return f"  {r['effect']}: took the place of {old['effect']} {since} (ΔBIC {-old['delta_bic_gain']:+.1f})"
+    at = time_words(d.series.get("t"), d.series.get("timestamps", True))
     if old.get("closest_s") is not None:
         first = f"as a pass closest at {at(old['closest_s'])}"
     elif "on_s" in old or "off_s" in old:
@@ -145,12 +149,9 @@ def replaced_line(d, r) -> str:
                       "temp_scale": "with no lag"}.get(r["effect"], "in another form"))
     if old.get("offset_kind") and old["offset_kind"] != r.get("offset_kind"):
         first += f" and acting {'on the offset too' if old['offset_kind'] == 'hard_iron' else 'after the offset'}"
-    if old.get("effect"):  # its kin had been found first in its place
-        return (f"  {r['effect']}: took the place of {old['effect']} once {', '.join(old['modelled'])} "
-                f"{'was' if len(old['modelled']) == 1 else 'were'} modelled (ΔBIC {-old['delta_bic_gain']:+.1f})")
-    return (f"  {r['effect']}: placed again once {', '.join(old['modelled'])} "
-            f"{'was' if len(old['modelled']) == 1 else 'were'} modelled (first found {first}, while "
-            f"{'it was' if len(old['modelled']) == 1 else 'they were'} not: ΔBIC {-old['delta_bic_gain']:+.1f} for the new placement)")
+    return (f"  {r['effect']}: placed again {since} (first found {first}, while "
+            f"{'it was' if len(old['modelled']) == 1 else 'they were'} not: ΔBIC {-old['delta_bic_gain']:+.1f} for "
+            "the new placement)")
 
 
 def offset_step_line(d, r) -> str:
