@@ -14,7 +14,7 @@ from fluxcal.diagnose import diagnose, estimate_noise
 from fluxcal.diagnose.report import text as report_text
 from fluxcal.oracle.refine import refine_terms as oracle_refine_terms
 from fluxcal.sim.effects import CANDIDATES
-from fluxcal.sim.withheld import withheld_trial
+from fluxcal.sim.withheld import NOISE, withheld_trial
 
 TRIALS = 10
 EFFECTS = [c.name for c in CANDIDATES]
@@ -931,6 +931,31 @@ def test_cli_finds_motor_current_in_a_current_column(tmp_path):
     percent = 100 * np.linalg.norm(truth) * np.max(kwargs["current"]) / 50.0  # the interference at peak current
     said = re.search(r"([0-9.]+) % of the field \(compassmot's 'interference'\)", out.stdout)
     assert said and abs(float(said.group(1)) - percent) < 0.05 * percent, (percent, out.stdout)
+
+
+def test_a_current_jittering_from_reading_to_reading_is_no_noise():
+    # Throttle or PWM jitter: the current (logged beside the readings) changes by amperes from one reading to the
+    # next, and the readings follow it. Their third differences held it (σ 2–3× the sensor's, a blind check), and
+    # the motor was then refused as "below the noise" while a step took its place. The σ is taken from the
+    # readings less what follows the logged current's fast changes.
+    for seed in range(3):
+        rng = np.random.default_rng(100 + seed)
+
+        def current(t):
+            level = np.repeat(rng.choice([0, 0, 5, 10, 15], size=len(t) // 250 + 1), 250)[:len(t)]
+            return np.clip(level + 5.0 * rng.standard_normal(len(t)) * (level > 0), 0, None)
+
+        result, kwargs = withheld_trial(["motor_current"], seed, current=current)
+        d = diagnose(result.readings, **kwargs)
+        assert abs(d.noise_sigma / NOISE - 1) < 0.1, (seed, d.noise_sigma, d.noise_source)
+        assert "follows the logged current's fast changes" in d.noise_source, d.noise_source
+        assert d.accepted == ["motor_current"], (seed, d.accepted)
+        row = next(r for r in d.ranking if r["effect"] == "motor_current")
+        truth = next(e.k for e in result.effects if e.name == "motor_current")
+        assert np.all(np.abs(np.asarray(row["coefficients"]) - truth) < 4 * np.asarray(row["standard_errors"])), seed
+    # a current that only changes slowly (the default scene's) leaves the σ as the readings' differences give it
+    result, kwargs = withheld_trial(["motor_current"], 0)
+    assert "logged current" not in diagnose(result.readings, **kwargs).noise_source
 
 
 def test_a_current_that_follows_time_cannot_be_told_from_a_drift():

@@ -574,6 +574,44 @@ def _line_free(x: np.ndarray, t: np.ndarray) -> tuple[np.ndarray, list] | None:
     return (clean, found) if found else None
 
 
+def _logged(temp, current) -> dict:
+    """The channels logged beside the readings, by name."""
+    return {name: c for name, c in (("temperature", temp), ("current", current)) if c is not None}
+
+
+def _less_logged(x: np.ndarray, channels: list) -> tuple[np.ndarray, np.ndarray]:
+    """The readings `x` (rows in time order) less the part that follows the logged `channels` (each N values, same
+    rows), and its coefficients (channels × axes): fitted to the third differences, where the field's motion is
+    small, so it is what moves with the channels' own fast changes — a motor current jittering from reading to
+    reading (throttle, PWM: k·ΔI), which third differences would take for noise (σ 2–3.4× the sensor's in blind
+    checks, and the motor itself then refused as "below the noise"). Least squares, refitted without the
+    differences beyond MIXTURE_CLIP robust σ (glitches, a step's edges)."""
+    c = np.column_stack(channels)
+    dx, dc = np.diff(x, n=3, axis=0), np.diff(c, n=3, axis=0)
+    keep = np.ones(len(dx), dtype=bool)
+    for _ in range(3):
+        coef = np.linalg.lstsq(dc[keep], dx[keep], rcond=None)[0]
+        r = dx - dc @ coef
+        r = r - np.median(r, axis=0)
+        spread = 1.4826 * np.median(np.abs(r), axis=0)
+        keep = np.all(np.abs(r) <= MIXTURE_CLIP * np.maximum(spread, np.finfo(float).tiny), axis=1)
+        if keep.sum() < 2 * c.shape[1] + 10:
+            break
+    return x - c @ coef, coef
+
+
+def _follows_logged(m: np.ndarray, logged: dict) -> tuple[np.ndarray, list, float] | None:
+    """The readings `m` (rows in time order) less the part that follows the logged channels' fast changes
+    (`_less_logged`; `logged`: name → N values), the names of the channels taken and the noise σ of the readings'
+    own third differences, when that part holds a share of them: each channel taken whose part alone lowers the
+    σ under LINE_DROP × its. Else None."""
+    if not logged or len(m) < 60:
+        return None
+    with_it = estimate_noise(m)
+    taken = [name for name, c in logged.items() if estimate_noise(_less_logged(m, [c])[0]) < LINE_DROP * with_it]
+    return (_less_logged(m, [logged[k] for k in taken])[0], taken, with_it) if taken else None
+
+
 def _noise(data: _Data, base: dict) -> tuple:
     """The noise σ and where it came from. Third differences of the readings, unless the readings
     change too fast for them (a hand turn logged at 10 Hz: the estimate then falls with the difference
@@ -592,15 +630,21 @@ def _noise(data: _Data, base: dict) -> tuple:
         if free is not None and _difference_noise(free[0], 3) < LINE_DROP * estimate_noise(data.m[order]):
             m, lines = np.empty_like(data.m), (free[1], estimate_noise(data.m))
             m[order] = free[0]
-    sigma = estimate_noise(m)
     unit = f" {data.units}" if data.units else ""
-    source = "estimated from third differences of the readings"
     said_lines = ""  # (said after the source, whichever it is: the readings' and the residuals' lines are the same)
     if lines:
         shown = ", ".join(f"{f:.4g}" for f in lines[0])
         said_lines = (f"; the readings less the line{'s' if len(lines[0]) > 1 else ''} at {shown} Hz in their "
                       f"spectrum ({lines[1]:.4g}{unit} from their differences with them: a periodic interference is "
                       "no noise)")
+    followed = _follows_logged(m, _logged(data.temp, data.current))  # (rows in time order: _prepare)
+    if followed:
+        m, taken, with_it = followed
+        said_lines += (f"; the readings less the part that follows the logged {' and '.join(taken)}'s fast changes "
+                       f"({with_it:.4g}{unit} from their differences with it: what moves with a logged channel is no "
+                       "noise)")
+    sigma = estimate_noise(m)
+    source = "estimated from third differences of the readings"
     differences = _difference_noise
     alternate = _alternating(m)
     if alternate:
@@ -614,8 +658,8 @@ def _noise(data: _Data, base: dict) -> tuple:
     fourth = differences(m, 4) if len(m) >= 40 else sigma
     spread = np.sqrt(np.mean(np.var(m, axis=0)))
     uneven = _uneven_steps(data.t)
-    # (the base model's residuals of the readings less their lines, when lines were taken out)
-    e = np.asarray(base["residuals"] if lines is None else _residuals(base, replace(data, m=m), None, slice(None)))
+    # (the base model's residuals of the readings less their lines or the logged channels' part, when taken out)
+    e = np.asarray(base["residuals"] if m is data.m else _residuals(base, replace(data, m=m), None, slice(None)))
     e = e.reshape(len(data.m), -1)[np.argsort(data.t, kind="stable")]
     from_residuals = differences(e, 3, mixture=True)
     # the base model's residuals differing less than the noise: the readings' differences held motion that is white
@@ -2707,7 +2751,10 @@ def _prepare(samples, t, temp, reference, down, field_norm, units, source, curre
         # Glitches (0,0,0, ADC rails, spikes of ≤ 3 readings) are bad readings, not sensor physics: left
         # out as calibrate leaves them out. Longer stretches off the model stay: they are what the
         # candidates (a moving dipole, a drift, saturation) explain.
-        glitches = find_outliers(m, reference, field_norms=norms)
+        # (judged on the readings less what follows a logged current's or temperature's fast changes: a motor's
+        # current jittering by amperes had made its readings "glitches")
+        followed = _follows_logged(m, _logged(temp, current))
+        glitches = find_outliers(m if followed is None else followed[0], reference, field_norms=norms)
         if len(glitches):
             keep = np.ones(len(m), dtype=bool)
             keep[glitches.rows] = False
