@@ -5,7 +5,7 @@ import json
 import warnings
 from datetime import datetime, timezone
 from dataclasses import dataclass, field, replace
-from functools import lru_cache
+from functools import lru_cache, partial
 from math import comb
 from pathlib import Path
 from types import SimpleNamespace
@@ -238,7 +238,9 @@ class Diagnosis:
     is left out (its row's `note` says so, `pruned_delta_bic` the ΔBIC for keeping it); one placed again once
     later ones were modelled (a step's edges, a drift's time constant) or replaced by its kin (the cubic by
     saturation) has `replaced`: its first placement's `on_s`/`off_s`/profiled value…, the kin's `effect`, the
-    effects `modelled` since, and `delta_bic_gain` (the row it left has "replaced" in `unmet`);
+    effects `modelled` since, and `delta_bic_gain` (the row it left has "replaced" in `unmet`); one taken first
+    in a second search, whose model fits better than the first search's, has `another_order`: the first search's
+    `first` effect, its `accepted` effects, its residuals' `rms_z` and the `delta_bic` between the two models;
     `significant_not_modelled` marks a candidate still significant when the `max_effects` limit stopped
     the search; an accepted row's `coefficients` and `standard_errors` are those of the final model (every
     accepted effect fitted together), the others' those of their own round. `where`: residual tables per regime;
@@ -1488,16 +1490,20 @@ def _evaluate(cls, data, model, state, sigma, n_candidates) -> dict:
     return row
 
 
-SETTLED = 8  # a settling faster than the recording's span over this has settled long before its last quarter
+SETTLED = 0.05  # a settling that makes less than this share of its change within the held-out last quarter has
+                # settled before it (a time constant under ≈ the span / 3.2): the quarter shows nothing of it
 
 
 def _settled_regime(cls, data: _Data, profiled: dict) -> str:
-    """The held-out regime of a candidate: its own, but for a law in time that settles (a warm-up, its time
-    constant under the span / SETTLED) interleaved blocks of time, as an event's: in the last quarter it has settled
-    and shows nothing (a 20 s warm-up beside a step: ΔBIC −8157, held-out gap 0.0107 → 0.0086, refused)."""
+    """The held-out regime of a candidate: its own, but for a law in time that settles (a warm-up making less than
+    SETTLED of its change in the last quarter in time) interleaved blocks of time, as an event's: the last quarter
+    shows nothing of it (a 20 s warm-up beside a step: ΔBIC −8157, held-out gap 0.0107 → 0.0086, refused; a 44 s
+    one over 300 s, found first beside a step: ΔBIC −8446, 0.0147 → 0.0108, not confirmed)."""
     tau = profiled.get(getattr(cls, "profile_name", "")) if getattr(cls, "law_in_time", False) else None
-    if tau is not None and np.isfinite(tau) and data.t is not None and tau < np.ptp(data.t) / SETTLED:
-        return "events"
+    if tau is not None and np.isfinite(tau) and tau > 0 and data.t is not None:
+        x = np.ptp(data.t) / tau
+        if np.exp(-(1 - HELDOUT_FRACTION) * x) - np.exp(-x) < SETTLED:
+            return "events"
     return cls.regime
 
 
@@ -2071,6 +2077,20 @@ def _hopeful(rows: list, state: dict, names: dict, n_candidates: int) -> list:
                   key=lambda r: r["delta_bic"])
 
 
+def _plain(row: dict, cls, data: _Data, model: str, state: dict) -> dict | None:
+    """A law in time's `row` in its plain form (a drift linear: its profiled parameter at `profile_null`), fitted
+    beside the effects of `state`; None when the row has no profile or the fit fails."""
+    if not getattr(cls, "law_in_time", False) or row.get(cls.profile_name) is None:
+        return None
+    plain = cls.features_at(_context(data, state["result"], _features(state["features"])), cls.profile_null)
+    try:
+        fit = _fit(data, state["start"], MODELS[model][1], _features(state["features"] + [plain]),
+                   start_terms=np.concatenate([state["terms"], np.zeros(plain.shape[1])]))
+    except _core.Error:
+        return None
+    return {k: v for k, v in row.items() if k not in (cls.profile_name, "_validated")} | {"_features": plain, "_fit": fit}
+
+
 def _with_the_rest_placed_again(data: _Data, model: str, state: dict, rows: list, pool: list, accepted: list,
                                 last_rows: dict, sigma: float, n_candidates: int):
     """The strongest candidate that failed only its held-out test, judged again once the effects found are placed
@@ -2085,19 +2105,9 @@ def _with_the_rest_placed_again(data: _Data, model: str, state: dict, rows: list
     if not hopeful or names[hopeful[0]["effect"]].regime == "events" and hopeful[0]["effect"] in accepted:
         return None
     first, cls = hopeful[0], names[hopeful[0]["effect"]]
-    tries = [first]
-    if getattr(cls, "law_in_time", False) and first.get(cls.profile_name) is not None:
-        # and in its plain form: a linear drift beside a box that took its middle had profiled as a settling one,
-        # and the box, placed again beside that, stayed where it was
-        plain = cls.features_at(_context(data, state["result"], _features(state["features"])), cls.profile_null)
-        try:
-            fit = _fit(data, state["start"], MODELS[model][1], _features(state["features"] + [plain]),
-                       start_terms=np.concatenate([state["terms"], np.zeros(plain.shape[1])]))
-            tries.append({k: v for k, v in first.items() if k not in (cls.profile_name, "_validated")}
-                         | {"_features": plain, "_fit": fit})
-        except _core.Error:
-            pass
-    for row in tries:
+    # and in its plain form: a linear drift beside a box that took its middle had profiled as a settling one, and
+    # the box, placed again beside that, stayed where it was
+    for row in [first] + [r for r in [_plain(first, cls, data, model, state)] if r is not None]:
         trial, order = _with(state, row, vector), accepted + [row["effect"]]
         if hasattr(cls, "shapes"):
             _richer_shape(data, model, trial, cls, dict(row))
@@ -2839,6 +2849,204 @@ def recording_inputs(rec, t, temp, current, gravity, units: str) -> tuple:
             units or rec.field_units(), rec.source)
 
 
+def _search(data: _Data, model: str, pool: list, names: dict, state: dict, sigma: float, n_candidates: int,
+            max_effects: int, noise_sigma, logging_noise: dict, bar=None, first: str | None = None) -> dict:
+    """The greedy search from the base model `state`: each round the most significant candidate is added (or another
+    episode of an event found), the effects found are placed again, and the noise models are tried when none is
+    left; then those no longer paying BIC's price are pruned. `first`: the candidate to take in the first round
+    whatever its held-out test (`_in_another_order`). Returns {data, state, accepted, last_rows, moves, first_rows}
+    (`first_rows`: the first round's candidates)."""
+    vector = MODELS[model][0]
+    state, accepted, last_rows, first_rows, taken = dict(state), [], {}, [], []
+    previous_winner, moves = None, []
+    by_base = set()  # candidates the base model's own parameters absorb (before any effect is accepted)
+
+    def accept(w):
+        nonlocal data
+        if w["effect"] in accepted:  # a further episode of an event found: its block grows
+            first, i = last_rows[w["effect"]], accepted.index(w["effect"])  # (noise models come after the search)
+            columns = first.setdefault("_columns", [np.arange(state["features"][i].shape[1])])
+            first.setdefault("episodes", [_episode(first)]).append(_episode(w))
+            state.update(_with_episode(data, model, state, w, i, columns))
+            return
+        accepted.append(w["effect"])
+        taken.append(w["effect"])
+        state.update(_with(state, w, vector))
+        if hasattr(names[w["effect"]], "shapes") and "shape_terms" not in w:
+            _richer_shape(data, model, state, names[w["effect"]], w)
+        if vector and names[w["effect"]].moves_reference:
+            data, applied, block = _exact_move(data, state, model, names[w["effect"]])
+            moves.append((w, names[w["effect"]], applied, block))
+        w["step"] = len(accepted)
+        last_rows[w["effect"]] = w
+        for name in [w["effect"]] + _reprofile(data, model, state, accepted, last_rows, {c.name: c for c in pool},
+                                               sigma, n_candidates):
+            last_rows[name]["heldout_leverage"] = _row_leverage(data, state["result"], last_rows[name], state["directions"])
+
+    for _round in range(max_effects + 1):
+        rows = []
+        systematic = [c for c in pool if c.name not in NOISE_CANDIDATES and c.name not in accepted]
+        for cls in systematic:
+            rows.append(_evaluate(cls, data, model, state, sigma, n_candidates))
+            _second_shape(rows[-1], cls, [names[a] for a in accepted])
+            if rows[-1].get("absorbed"):
+                if not accepted:
+                    by_base.add(cls.name)
+                elif cls.name not in by_base:  # which effects found took it (a delay taken by an eddy term)
+                    rows[-1]["absorbed_after"] = list(accepted)
+            if bar:
+                bar.update(1)
+        # An event found may recur (a magnet carried past again), and an interference at one frequency have others
+        # beside it (`recurs`: another line): another episode of it competes with the rest, and joins its block
+        # (each episode counts against max_effects).
+        episodes = [dict(_evaluate(names[a], data, model, state, sigma, n_candidates), episode=True) for a in accepted
+                    if (names[a].regime == "events" or names[a].recurs) and not names[a].moves_reference]
+        rows += [r for r in episodes if not _overlaps(r, last_rows[r["effect"]])]
+        candidates = [r for r in rows if not r.get("episode")]
+        if previous_winner is not None:
+            rivals = _collapsed(data, previous_winner, candidates)
+            if rivals:
+                previous_winner["confounded_with"] = rivals
+            previous_winner = None
+        winners = sorted([r for r in rows if r["significant"]], key=lambda r: r["delta_bic"])
+        if _round == 0:
+            first_rows = candidates
+            if first is not None:  # (taken whatever its held-out test: `_in_another_order` judges it at the end),
+                # a law in time in its plain form: its profile was fitted to residuals that held the effect taken
+                # first before (`_reprofile` places it again beside the effects found after it)
+                winners = [_plain(r, names[first], data, model, state) or r for r in candidates if r["effect"] == first]
+        if accepted:  # beside an effect found, a small held-out fall the fits' own parameter noise can make
+            for r in winners:   # confirms nothing
+                _beside(r, data, state["directions"], sigma, accepted)
+            winners = [r for r in winners if r["significant"]]
+        for r in candidates:
+            last_rows[r["effect"]] = r
+        added = len(accepted) + sum(len(last_rows[a].get("episodes", [0])) - 1 for a in accepted)
+        if winners and added < max_effects:
+            w = previous_winner = winners[0]
+            w["_rivals"] = [] if w.get("episode") else _rivals(w, candidates, logging_noise=logging_noise)
+            accept(w)
+            continue
+        placed = (_with_the_rest_placed_again(data, model, state, candidates, pool, accepted, last_rows, sigma,
+                                              n_candidates) if accepted and added < max_effects else None)
+        if placed:
+            rest, order, placed_rows, w = placed
+            _beside(w, data, state["directions"], sigma, order)  # (as a winner beside effects found is judged)
+            if w["significant"]:
+                state.update(rest)
+                accepted[:] = order
+                last_rows.update(placed_rows)
+                w["_rivals"] = []
+                accept(w)
+                continue
+        pair = (_together(data, model, state, candidates, pool, accepted, sigma, n_candidates)
+                if added + 2 <= max_effects else None)
+        if pair:
+            for w in pair:
+                accept(w)
+            continue
+        # No systematic effect left: is the rest correlated noise or quantisation?
+        for name in NOISE_CANDIDATES:
+            if name in [c.name for c in pool]:
+                r = (_colored_noise(data, state, sigma, n_candidates) if name == "colored_noise"
+                     else _quantization(data, state, sigma, n_candidates, noise_sigma is not None))
+                last_rows[name] = r
+                if bar:
+                    bar.update(1)
+        noise_winners = sorted([last_rows[n] for n in NOISE_CANDIDATES if n in last_rows and last_rows[n]["significant"]],
+                               key=lambda r: r["delta_bic"])
+        for w in noise_winners:
+            if added < max_effects:
+                accepted.append(w["effect"])
+                w["step"] = len(accepted)
+                added += 1
+        break
+
+    pruned = _prune(data, model, state, accepted, last_rows, names)
+    accepted[:] = [a for a in accepted if a not in pruned]
+    for name in pruned:
+        r = last_rows[name]
+        r["note"] = (f"accepted in round {r.pop('step')}, but with {', '.join(a for a in accepted if a not in NOISE_CANDIDATES)} "
+                     f"modelled it no longer pays BIC's price (ΔBIC {r['pruned_delta_bic']:+.1f} for keeping it): left out")
+        r["unmet"] = list(r.get("unmet", [])) + ["pruned"]
+        r.pop("confounded_with", None)
+        for other in last_rows.values():
+            if other.get("found_with") == name:
+                other.pop("found_with")
+    for step, name in enumerate(accepted, start=1):
+        last_rows[name]["step"] = step
+    return {"data": data, "state": state, "accepted": accepted, "last_rows": last_rows, "moves": moves,
+            "first_rows": first_rows, "first": taken[0] if taken else None}
+
+
+ANOTHER_ORDER_P = 1e-6  # a test of the residuals the search left below this: they still depart (report.SHAPE_P)
+ANOTHER_ORDERS = 2      # first-round candidates tried first in another search, at most
+
+
+def _time_course(cls) -> bool:
+    """An effect with a course in time of its own (a drift's law, a step, a magnet passing)."""
+    return bool(getattr(cls, "law_in_time", False) or cls.regime in ("time", "events"))
+
+
+def _search_bic(found: dict, names: dict) -> float:
+    """BIC of a search's final model (its effects' prices, `_price`; the base model's parameters are common)."""
+    e = np.asarray(found["state"]["result"]["residuals"])
+    modelled = [a for a in found["accepted"] if a not in NOISE_CANDIDATES]
+    price = sum(_price(names[a], found["last_rows"][a], f.shape[1]) for a, f in zip(modelled, found["state"]["features"]))
+    return float(len(e) * np.log(float(e @ e)) + price * np.log(len(e)))
+
+
+def _in_another_order(found: dict, model: str, names: dict, sigma: float, n_candidates: int, search) -> dict:
+    """The greedy search takes the strongest effect first, and what it takes first can absorb part of another with a
+    course in time: a drift and a step against it came out as a box that "came back" beside the step (residuals left
+    at 1.5–2.1 σ), the drift then failing its held-out test. When the residuals the search left still depart
+    (a test at p < ANOTHER_ORDER_P), each first-round candidate with a course in time that BIC favoured but is not in
+    the model (its likelihood ratio, whitened by residuals the first effect still held, and its held-out test are
+    judged at the end) (at most ANOTHER_ORDERS, strongest first) is taken first in another search (`search`,
+    `first=`); that search's model replaces this one when it fits better by more than a parameter's BIC price, leaves
+    no larger residuals, and the candidate, searched again with the rest modelled, passes every test there. Its row
+    then says so (`another_order`: the first search's first effect, effects, residual RMS in σ and the ΔBIC)."""
+    vector = MODELS[model][0]
+    data, first = found["data"], found["first"]
+    modelled = [a for a in found["accepted"] if a not in NOISE_CANDIDATES]
+    if not modelled or first is None or not _time_course(names[first]):
+        return found
+    e = np.asarray(found["state"]["result"]["residuals"])
+    remaining = _where(data, e, sigma, _field_directions(data, found["state"]["result"]), vector)
+    if not any(t["pvalue"] < ANOTHER_ORDER_P for t in remaining["tests"]):
+        return found
+    others = sorted([r for r in found["first_rows"] if r["effect"] != first and r["effect"] not in modelled
+                     and "_fit" in r and r["delta_bic"] < 0 and not refused(r) and not r.get("absorbed") and not names[r["effect"]].moves_reference
+                     and _time_course(names[r["effect"]])],
+                    key=lambda r: (not getattr(names[r["effect"]], "law_in_time", False), r["delta_bic"]))[:ANOTHER_ORDERS]
+    bic, n = _search_bic(found, names), len(e)
+    for row in others:
+        name = row["effect"]
+        tried = search(first=name)
+        order = [a for a in tried["accepted"] if a not in NOISE_CANDIDATES]
+        e1 = np.asarray(tried["state"]["result"]["residuals"])
+        delta = _search_bic(tried, names) - bic
+        if name not in order or not delta < -np.log(n) or not float(e1 @ e1) <= float(e @ e):
+            continue
+        try:
+            again = _evaluate(names[name], tried["data"], model, _without(tried["data"], model, tried["state"],
+                                                                          order.index(name)), sigma, n_candidates)
+        except _core.Error:
+            continue
+        if again["significant"]:
+            _beside(again, tried["data"], tried["state"]["directions"], sigma, [a for a in order if a != name])
+        if not again["significant"]:
+            continue
+        old = tried["last_rows"][name]
+        again.update({k: old[k] for k in ("step", "replaced", "_rivals", "confounded_with", "found_with",
+                                          "heldout_leverage") if k in old})
+        again["another_order"] = {"first": first, "accepted": list(found["accepted"]),
+                                  "rms_z": float(np.sqrt(np.mean((e / sigma) ** 2))), "delta_bic": float(delta)}
+        tried["last_rows"][name] = again
+        return tried
+    return found
+
+
 def diagnose(samples, t=None, temp=None, reference=None, gravity=None, field_norm=None, model: str | None = None,
              noise_sigma: float | None = None, candidates=None, alpha: float = 0.01, max_effects: int = 3,
              progress: bool = False, units: str = "", source: str = "samples", current=None) -> Diagnosis:
@@ -2948,7 +3156,6 @@ def diagnose(samples, t=None, temp=None, reference=None, gravity=None, field_nor
              "directions": directions, "alpha": alpha,
              # the readings' median time step (an eddy lag of half a sample or more on every axis is a delay)
              "period": float(np.median(np.diff(np.sort(data.t)))) if data.t is not None and len(data.t) > 1 else 0.0}
-    accepted, last_rows = [], {}
     # (each round tries at most this many: an accepted event leaves the pool's systematic candidates and adds one
     # episode candidate; the noise models are counted though tried last)
     n_candidates = max(len(pool), 1)
@@ -2958,119 +3165,13 @@ def diagnose(samples, t=None, temp=None, reference=None, gravity=None, field_nor
 
         bar = tqdm(total=len(pool) * (max_effects + 1), desc="diagnose", unit="candidate", leave=False,
                    disable=None)  # None: no bar when stderr is no terminal (a log file filled with \r lines)
-    previous_winner, moves = None, []
-    by_base = set()  # candidates the base model's own parameters absorb (before any effect is accepted)
     logging_noise = {"temperature": _logging_noise(data.temp, data.t), "current": _logging_noise(data.current, data.t)}
-
-    def accept(w):
-        nonlocal data
-        if w["effect"] in accepted:  # a further episode of an event found: its block grows
-            first, i = last_rows[w["effect"]], accepted.index(w["effect"])  # (noise models come after the search)
-            columns = first.setdefault("_columns", [np.arange(state["features"][i].shape[1])])
-            first.setdefault("episodes", [_episode(first)]).append(_episode(w))
-            state.update(_with_episode(data, model, state, w, i, columns))
-            return
-        accepted.append(w["effect"])
-        state.update(_with(state, w, vector))
-        if hasattr(names[w["effect"]], "shapes") and "shape_terms" not in w:
-            _richer_shape(data, model, state, names[w["effect"]], w)
-        if vector and names[w["effect"]].moves_reference:
-            data, applied, block = _exact_move(data, state, model, names[w["effect"]])
-            moves.append((w, names[w["effect"]], applied, block))
-        w["step"] = len(accepted)
-        last_rows[w["effect"]] = w
-        for name in [w["effect"]] + _reprofile(data, model, state, accepted, last_rows, {c.name: c for c in pool},
-                                               sigma, n_candidates):
-            last_rows[name]["heldout_leverage"] = _row_leverage(data, state["result"], last_rows[name], directions)
-
-    for _round in range(max_effects + 1):
-        rows = []
-        systematic = [c for c in pool if c.name not in NOISE_CANDIDATES and c.name not in accepted]
-        for cls in systematic:
-            rows.append(_evaluate(cls, data, model, state, sigma, n_candidates))
-            _second_shape(rows[-1], cls, [names[a] for a in accepted])
-            if rows[-1].get("absorbed"):
-                if not accepted:
-                    by_base.add(cls.name)
-                elif cls.name not in by_base:  # which effects found took it (a delay taken by an eddy term)
-                    rows[-1]["absorbed_after"] = list(accepted)
-            if bar:
-                bar.update(1)
-        # An event found may recur (a magnet carried past again), and an interference at one frequency have others
-        # beside it (`recurs`: another line): another episode of it competes with the rest, and joins its block
-        # (each episode counts against max_effects).
-        episodes = [dict(_evaluate(names[a], data, model, state, sigma, n_candidates), episode=True) for a in accepted
-                    if (names[a].regime == "events" or names[a].recurs) and not names[a].moves_reference]
-        rows += [r for r in episodes if not _overlaps(r, last_rows[r["effect"]])]
-        candidates = [r for r in rows if not r.get("episode")]
-        if previous_winner is not None:
-            rivals = _collapsed(data, previous_winner, candidates)
-            if rivals:
-                previous_winner["confounded_with"] = rivals
-            previous_winner = None
-        winners = sorted([r for r in rows if r["significant"]], key=lambda r: r["delta_bic"])
-        if accepted:  # beside an effect found, a small held-out fall the fits' own parameter noise can make
-            for r in winners:   # confirms nothing
-                _beside(r, data, directions, sigma, accepted)
-            winners = [r for r in winners if r["significant"]]
-        for r in candidates:
-            last_rows[r["effect"]] = r
-        added = len(accepted) + sum(len(last_rows[a].get("episodes", [0])) - 1 for a in accepted)
-        if winners and added < max_effects:
-            w = previous_winner = winners[0]
-            w["_rivals"] = [] if w.get("episode") else _rivals(w, candidates, logging_noise=logging_noise)
-            accept(w)
-            continue
-        placed = (_with_the_rest_placed_again(data, model, state, candidates, pool, accepted, last_rows, sigma,
-                                              n_candidates) if accepted and added < max_effects else None)
-        if placed:
-            rest, order, placed_rows, w = placed
-            _beside(w, data, directions, sigma, order)  # (as a winner beside effects found is judged)
-            if w["significant"]:
-                state.update(rest)
-                accepted[:] = order
-                last_rows.update(placed_rows)
-                w["_rivals"] = []
-                accept(w)
-                continue
-        pair = (_together(data, model, state, candidates, pool, accepted, sigma, n_candidates)
-                if added + 2 <= max_effects else None)
-        if pair:
-            for w in pair:
-                accept(w)
-            continue
-        # No systematic effect left: is the rest correlated noise or quantisation?
-        for name in NOISE_CANDIDATES:
-            if name in [c.name for c in pool]:
-                r = (_colored_noise(data, state, sigma, n_candidates) if name == "colored_noise"
-                     else _quantization(data, state, sigma, n_candidates, noise_sigma is not None))
-                last_rows[name] = r
-                if bar:
-                    bar.update(1)
-        noise_winners = sorted([last_rows[n] for n in NOISE_CANDIDATES if n in last_rows and last_rows[n]["significant"]],
-                               key=lambda r: r["delta_bic"])
-        for w in noise_winners:
-            if added < max_effects:
-                accepted.append(w["effect"])
-                w["step"] = len(accepted)
-                added += 1
-        break
+    search = partial(_search, data, model, pool, names, state, sigma, n_candidates, max_effects, noise_sigma,
+                     logging_noise, bar)
+    found = _in_another_order(search(), model, names, sigma, n_candidates, search)
     if bar:
         bar.close()
-
-    pruned = _prune(data, model, state, accepted, last_rows, names)
-    accepted[:] = [a for a in accepted if a not in pruned]
-    for name in pruned:
-        r = last_rows[name]
-        r["note"] = (f"accepted in round {r.pop('step')}, but with {', '.join(a for a in accepted if a not in NOISE_CANDIDATES)} "
-                     f"modelled it no longer pays BIC's price (ΔBIC {r['pruned_delta_bic']:+.1f} for keeping it): left out")
-        r["unmet"] = list(r.get("unmet", [])) + ["pruned"]
-        r.pop("confounded_with", None)
-        for other in last_rows.values():
-            if other.get("found_with") == name:
-                other.pop("found_with")
-    for step, name in enumerate(accepted, start=1):
-        last_rows[name]["step"] = step
+    data, state, accepted, last_rows, moves = (found[k] for k in ("data", "state", "accepted", "last_rows", "moves"))
     modelled = [a for a in accepted if a not in NOISE_CANDIDATES]  # in the order of state["features"]
     moves = [(w, cls, applied, _block(state, modelled.index(w["effect"]))) for w, cls, applied, _ in moves]
     for w, cls, applied, block in moves:  # the whole move: the one applied, then the block's remainder

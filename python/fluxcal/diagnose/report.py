@@ -154,6 +154,15 @@ def replaced_line(d, r) -> str:
             "the new placement)")
 
 
+def another_order_line(r) -> str:
+    """An effect taken first in a second search (`diagnose._in_another_order`): what the first search, which took
+    another effect first, had ended with."""
+    first = r["another_order"]
+    return (f"  {r['effect']}: taken first in a second search — the first took {first['first']} first and ended with "
+            f"{', '.join(first['accepted'])}, residuals at {first['rms_z']:.2f} σ; this order's model fits better by "
+            f"ΔBIC {first['delta_bic']:+.1f}, and {r['effect']}, searched again beside the rest, passes every test")
+
+
 def offset_step_line(d, r) -> str:
     """When the offset jumped, by how much (readings' units and % of the field) and whether it came back.
     A box from the recording's start is the stretch before a jump: the same step, the other way round."""
@@ -877,6 +886,7 @@ def text(d) -> str:
             if r["effect"] in SIZE_LINES and r.get("step") is not None:
                 out.append("  " + SIZE_LINES[r["effect"]](d, r))
         out += [replaced_line(d, r) for r in d.ranking if r.get("replaced") and r.get("step") is not None]
+        out += [another_order_line(r) for r in d.ranking if r.get("another_order") and r.get("step") is not None]
         out += [f"  {r['effect']}: {r['note']}" for r in d.ranking
                 if r.get("pruned_delta_bic") is not None or "replaced" in (r.get("unmet") or [])]
         out += confound_lines(d)
