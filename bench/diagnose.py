@@ -9,6 +9,8 @@
     .venv/bin/python bench/diagnose.py --settling 10                        # an offset settling in time (a warm-up)
     .venv/bin/python bench/diagnose.py --time-pairs 10                      # a drift, a step, a current together
     .venv/bin/python bench/diagnose.py --family-pairs 10                    # saturation beside a drift, …
+    .venv/bin/python bench/diagnose.py --against 12                         # a drift or warm-up beside a step
+    .venv/bin/python bench/diagnose.py --jitter 5                           # a motor current jittering
     .venv/bin/python bench/diagnose.py --trials 5 --noise 0.2 --rate 10     # other noise, rates, --duration
     .venv/bin/python bench/diagnose.py --nulls 30 --noise 0.5               # nothing withheld only
     .venv/bin/python bench/diagnose.py --passes 12                          # a magnet carried past (straight line)
@@ -325,6 +327,70 @@ def time_pairs(n: int):
               f"{', '.join(f'{k} {v}' for k, v in other.items()) or '—'} |", flush=True)
 
 
+def against(n: int):
+    """A drift and a step against it (linear ±[1, −0.8, 0.6] µT over 300 s, the step ∓[0.8, −0.5, 0.4] µT at
+    60–240 s), and a warm-up [0.6, −0.5, 0.45] µT (τ 35–50 s) beside a step ±[0.8, −0.5, 0.4] µT: both found, the
+    step where it is and staying, and how often a second search with the drift taken first was the one kept
+    (tests/python/test_diagnose.py::test_a_drift_and_a_step_are_found_in_another_order draws the same)."""
+    from fluxcal.sim.effects import HardIron, OffsetDrift, OffsetStep, SoftIron, WhiteNoise
+    from fluxcal.sim.scene import tumble
+    from fluxcal.sim.simulate import simulate
+    from fluxcal.sim.withheld import FIELD, NOISE
+
+    print("| drift beside a step (300 s, 20 Hz) | both found, nothing else | step within 1 s, staying | "
+          "residual RMS ≤ 1.05 σ | kept from a second search | what was found instead |")
+    print("|---|---:|---:|---:|---:|---|")
+    for warm_up in (False, True):
+        both, placed, flat, second, instead = 0, 0, 0, 0, {}
+        for seed in range(n):
+            rng = np.random.default_rng(seed)
+            scene = tumble(300.0, rate_hz=20.0, rng=rng)
+            sign, at = rng.choice([-1, 1]), rng.uniform(60, 240)
+            step = np.array([0.8, -0.5, 0.4])
+            if warm_up:
+                tau = rng.uniform(35, 50)
+                course, jump = OffsetDrift(np.array([0.6, -0.5, 0.45]) / tau, warmup_s=tau), sign * step
+            else:
+                course, jump = OffsetDrift(sign * np.array([1.0, -0.8, 0.6]) / 300.0), -sign * step
+            effects = [SoftIron(np.diag([1.03, 0.97, 1.01])), HardIron([4.0, -3.0, 2.0]), course, OffsetStep(jump, at),
+                       WhiteNoise(NOISE)]
+            r = simulate(scene, effects, FIELD, rng)
+            d = diagnose(r.readings, t=r.t, field_norm=float(np.linalg.norm(FIELD)))
+            rows = {x["effect"]: x for x in d.to_dict()["ranking"]}
+            found = sorted(d.accepted) == ["offset_drift", "offset_step"]
+            both += found
+            placed += found and abs(rows["offset_step"]["jump_s"] - at) < 1.0 and rows["offset_step"]["back_s"] is None
+            flat += d.remaining["overall"]["rms_z"] <= 1.05
+            second += found and "another_order" in rows["offset_drift"]
+            if not found:
+                key = ", ".join(d.accepted) or "nothing"
+                instead[key] = instead.get(key, 0) + 1
+        print(f"| {'warm-up' if warm_up else 'linear drift against it'} | {both}/{n} | {placed}/{n} | {flat}/{n} | "
+              f"{second}/{n} | {'; '.join(f'{k} ({v})' for k, v in instead.items()) or '—'} |", flush=True)
+
+
+def jitter(n: int):
+    """A motor's current jittering from reading to reading (blocks of 0–15 A, ± 5 A white while on; withheld_trial's
+    motor_current otherwise): the noise σ against the truth, and is the motor found alone?"""
+    from fluxcal.sim.withheld import NOISE
+
+    print("| seed | noise σ / truth | found | k error / SE (largest) |")
+    print("|---|---:|---|---:|")
+    for seed in range(n):
+        rng = np.random.default_rng(100 + seed)
+
+        def current(t):
+            level = np.repeat(rng.choice([0, 0, 5, 10, 15], size=len(t) // 250 + 1), 250)[:len(t)]
+            return np.clip(level + 5.0 * rng.standard_normal(len(t)) * (level > 0), 0, None)
+
+        result, kwargs = withheld_trial(["motor_current"], seed, current=current)
+        d = diagnose(result.readings, **kwargs)
+        row = next(r for r in d.ranking if r["effect"] == "motor_current")
+        truth = next(e.k for e in result.effects if e.name == "motor_current")
+        z = np.max(np.abs(np.asarray(row["coefficients"]) - truth) / np.asarray(row["standard_errors"]))
+        print(f"| {seed} | {d.noise_sigma / NOISE:.3f} | {', '.join(d.accepted) or 'nothing'} | {z:.2f} |", flush=True)
+
+
 FAMILY_PAIRS = (("saturation", "temp_scale"), ("saturation", "offset_drift"), ("nonlinearity_cubic", "temp_offset"),
                 ("hysteresis", "temp_scale"), ("cross_axis", "motor_current"))
 
@@ -427,6 +493,8 @@ if __name__ == "__main__":
     p.add_argument("--settling", type=int, help="trials per time constant of an offset settling in time")
     p.add_argument("--time-pairs", type=int, help="trials per pair of effects that both follow time")
     p.add_argument("--family-pairs", type=int, help="trials per pair: a transducer effect beside another")
+    p.add_argument("--against", type=int, help="trials per case: a drift, or a warm-up, beside a step")
+    p.add_argument("--jitter", type=int, help="trials: a motor's current jittering from reading to reading")
     p.add_argument("--only", nargs="*", help="withheld effects to run (default all)")
     p.add_argument("--noise", type=float, default=0.05, help="white noise σ of the trials, µT (field 50 µT)")
     p.add_argument("--rate", type=float, default=50.0, help="sample rate of the trials, Hz")
@@ -464,3 +532,7 @@ if __name__ == "__main__":
         time_pairs(args.time_pairs)
     if args.family_pairs:
         family_pairs(args.family_pairs)
+    if args.against:
+        against(args.against)
+    if args.jitter:
+        jitter(args.jitter)

@@ -799,6 +799,48 @@ def test_a_drift_refused_beside_a_step_against_it_is_judged_with_the_step_placed
     assert d.remaining["overall"]["rms_z"] < 1.05
 
 
+@pytest.mark.parametrize("warm_up, seed", [(False, 2), (False, 4), (True, 0), (True, 4), (True, 11)])
+def test_a_drift_and_a_step_are_found_in_another_order(warm_up, seed):
+    # A drift ±[1, −0.8, 0.6] µT over 300 s and a step against it, or a warm-up [0.6, −0.5, 0.45] µT (τ 35–50 s) and
+    # a step, at a random time. Taken first, the step was a box that "came back", having taken part of the drift
+    # (seed 4: 75.9 → 186.85 s for a step at 186.87 s; seed 2: 150 → 226 s; the warm-up's seed 0: 11 → 118.7 s),
+    # residuals 1.4–2.1 σ (the warm-up's seed 11: nothing found, 3.65 σ — each failed its held-out test while the
+    # other was unmodelled); the warm-up's seed 4 was found exactly but refused on its last quarter, where it had
+    # settled (now held out on blocks of time). The drift, taken first in a second search (as found, or in its
+    # plain form), lets the step be placed as it is, and that search's model replaces the first one.
+    from fluxcal.sim.effects import HardIron, OffsetDrift, OffsetStep, SoftIron, WhiteNoise
+    from fluxcal.sim.withheld import FIELD
+
+    rng = np.random.default_rng(seed)
+    scene = sim.tumble(300.0, rate_hz=20.0, rng=rng)
+    sign, at = rng.choice([-1, 1]), rng.uniform(60, 240)
+    if warm_up:
+        tau = rng.uniform(35, 50)
+        drift, jump = np.array([0.6, -0.5, 0.45]), sign * np.array([0.8, -0.5, 0.4])
+        course = OffsetDrift(drift / tau, warmup_s=tau)
+    else:
+        drift, jump = sign * np.array([1.0, -0.8, 0.6]), -sign * np.array([0.8, -0.5, 0.4])
+        course = OffsetDrift(drift / 300.0)
+    effects = [SoftIron(np.diag([1.03, 0.97, 1.01])), HardIron([4.0, -3.0, 2.0]), course, OffsetStep(jump, at),
+               WhiteNoise(0.05)]
+    r = sim.simulate(scene, effects, FIELD, rng)
+    d = diagnose(r.readings, t=r.t, field_norm=50.0)
+    assert sorted(d.accepted) == ["offset_drift", "offset_step"], d.accepted
+    rows = {x["effect"]: x for x in d.to_dict()["ranking"]}
+    assert abs(rows["offset_step"]["jump_s"] - at) < 0.5 and rows["offset_step"]["back_s"] is None, rows["offset_step"]
+    assert np.allclose(rows["offset_step"]["jump"], jump, atol=0.05)
+    assert np.allclose(rows["offset_drift"]["coefficients"], drift, atol=0.05), rows["offset_drift"]["coefficients"]
+    if warm_up:
+        assert rows["offset_drift"]["warmup_s"] == pytest.approx(tau, rel=0.1)
+    if "another_order" in rows["offset_drift"]:
+        other = rows["offset_drift"]["another_order"]
+        assert other["first"] in ("offset_step", None) and other["rms_z"] > 1.3 and other["delta_bic"] < -100, other
+        assert "offset_drift: taken first in a second search — the first " in d.text()
+    else:  # (the warm-up's seed 4: found first time, held out where it had not settled)
+        assert warm_up and rows["offset_drift"]["heldout"] == "events", rows["offset_drift"]
+    assert d.remaining["overall"]["rms_z"] < 1.05
+
+
 def test_a_step_inside_the_held_out_quarter_does_not_fail_a_drift_beside_it():
     # Seed 4's step at 247.5 s lies in the drift's held-out quarter (the last): the held-out fits cannot determine it
     # and kept it as the fit without the drift had it — with part of the drift in it — so the drift's extrapolation

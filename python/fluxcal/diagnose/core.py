@@ -2077,10 +2077,15 @@ def _hopeful(rows: list, state: dict, names: dict, n_candidates: int) -> list:
                   key=lambda r: r["delta_bic"])
 
 
+def _plain_differs(row: dict, cls) -> bool:
+    """Whether a row of a law in time was profiled (a drift's time constant), so its plain form is another."""
+    return bool(getattr(cls, "law_in_time", False) and row.get(cls.profile_name) is not None)
+
+
 def _plain(row: dict, cls, data: _Data, model: str, state: dict) -> dict | None:
     """A law in time's `row` in its plain form (a drift linear: its profiled parameter at `profile_null`), fitted
     beside the effects of `state`; None when the row has no profile or the fit fails."""
-    if not getattr(cls, "law_in_time", False) or row.get(cls.profile_name) is None:
+    if not _plain_differs(row, cls):
         return None
     plain = cls.features_at(_context(data, state["result"], _features(state["features"])), cls.profile_null)
     try:
@@ -2850,11 +2855,13 @@ def recording_inputs(rec, t, temp, current, gravity, units: str) -> tuple:
 
 
 def _search(data: _Data, model: str, pool: list, names: dict, state: dict, sigma: float, n_candidates: int,
-            max_effects: int, noise_sigma, logging_noise: dict, bar=None, first: str | None = None) -> dict:
+            max_effects: int, noise_sigma, logging_noise: dict, bar=None, first: str | None = None,
+            plain: bool = False) -> dict:
     """The greedy search from the base model `state`: each round the most significant candidate is added (or another
     episode of an event found), the effects found are placed again, and the noise models are tried when none is
     left; then those no longer paying BIC's price are pruned. `first`: the candidate to take in the first round
-    whatever its held-out test (`_in_another_order`). Returns {data, state, accepted, last_rows, moves, first_rows}
+    whatever its held-out test (`_in_another_order`), a law in time in its `plain` form (a drift linear) when asked.
+    Returns {data, state, accepted, last_rows, moves, first_rows}
     (`first_rows`: the first round's candidates)."""
     vector = MODELS[model][0]
     state, accepted, last_rows, first_rows, taken = dict(state), [], {}, [], []
@@ -2911,10 +2918,9 @@ def _search(data: _Data, model: str, pool: list, names: dict, state: dict, sigma
         winners = sorted([r for r in rows if r["significant"]], key=lambda r: r["delta_bic"])
         if _round == 0:
             first_rows = candidates
-            if first is not None:  # (taken whatever its held-out test: `_in_another_order` judges it at the end),
-                # a law in time in its plain form: its profile was fitted to residuals that held the effect taken
-                # first before (`_reprofile` places it again beside the effects found after it)
-                winners = [_plain(r, names[first], data, model, state) or r for r in candidates if r["effect"] == first]
+            if first is not None:  # (taken whatever its held-out test: `_in_another_order` judges it at the end)
+                winners = [(plain and _plain(r, names[first], data, model, state)) or r
+                           for r in candidates if r["effect"] == first]
         if accepted:  # beside an effect found, a small held-out fall the fits' own parameter noise can make
             for r in winners:   # confirms nothing
                 _beside(r, data, state["directions"], sigma, accepted)
@@ -2980,7 +2986,7 @@ def _search(data: _Data, model: str, pool: list, names: dict, state: dict, sigma
 
 
 ANOTHER_ORDER_P = 1e-6  # a test of the residuals the search left below this: they still depart (report.SHAPE_P)
-ANOTHER_ORDERS = 2      # first-round candidates tried first in another search, at most
+ANOTHER_ORDERS = 2      # searches with another first-round candidate taken first (a drift as found, plain), at most
 
 
 def _time_course(cls) -> bool:
@@ -2992,37 +2998,43 @@ def _search_bic(found: dict, names: dict) -> float:
     """BIC of a search's final model (its effects' prices, `_price`; the base model's parameters are common)."""
     e = np.asarray(found["state"]["result"]["residuals"])
     modelled = [a for a in found["accepted"] if a not in NOISE_CANDIDATES]
-    price = sum(_price(names[a], found["last_rows"][a], f.shape[1]) for a, f in zip(modelled, found["state"]["features"]))
+    price = sum(_price(names[a], found["last_rows"][a], f.shape[1])
+                for a, f in zip(modelled, found["state"]["features"]))
     return float(len(e) * np.log(float(e @ e)) + price * np.log(len(e)))
 
 
 def _in_another_order(found: dict, model: str, names: dict, sigma: float, n_candidates: int, search) -> dict:
     """The greedy search takes the strongest effect first, and what it takes first can absorb part of another with a
     course in time: a drift and a step against it came out as a box that "came back" beside the step (residuals left
-    at 1.5–2.1 σ), the drift then failing its held-out test. When the residuals the search left still depart
-    (a test at p < ANOTHER_ORDER_P), each first-round candidate with a course in time that BIC favoured but is not in
-    the model (its likelihood ratio, whitened by residuals the first effect still held, and its held-out test are
-    judged at the end) (at most ANOTHER_ORDERS, strongest first) is taken first in another search (`search`,
+    at 1.5–2.1 σ), the drift then failing its held-out test; a warm-up and a step against it, each failing its
+    held-out test while the other was unmodelled, left nothing found and 3.65 σ. When the search took a course in time
+    first, or nothing, and the residuals it left still depart
+    (a test at p < ANOTHER_ORDER_P), each other first-round candidate with a course in time that BIC favoured (its
+    likelihood ratio, whitened by residuals the first effect still held, and its held-out test are judged at the
+    end; one found later too: a drift found second had been profiled as a warm-up beside the box) — at most
+    ANOTHER_ORDERS, laws in time before events, each by ΔBIC — is taken first in another search (`search`,
     `first=`); that search's model replaces this one when it fits better by more than a parameter's BIC price, leaves
     no larger residuals, and the candidate, searched again with the rest modelled, passes every test there. Its row
     then says so (`another_order`: the first search's first effect, effects, residual RMS in σ and the ΔBIC)."""
     vector = MODELS[model][0]
     data, first = found["data"], found["first"]
-    modelled = [a for a in found["accepted"] if a not in NOISE_CANDIDATES]
-    if not modelled or first is None or not _time_course(names[first]):
+    if first is not None and not _time_course(names[first]):  # (or none found: each failed its held-out test)
         return found
     e = np.asarray(found["state"]["result"]["residuals"])
     remaining = _where(data, e, sigma, _field_directions(data, found["state"]["result"]), vector)
     if not any(t["pvalue"] < ANOTHER_ORDER_P for t in remaining["tests"]):
         return found
-    others = sorted([r for r in found["first_rows"] if r["effect"] != first and r["effect"] not in modelled
-                     and "_fit" in r and r["delta_bic"] < 0 and not refused(r) and not r.get("absorbed") and not names[r["effect"]].moves_reference
+    others = sorted([r for r in found["first_rows"] if r["effect"] != first and "_fit" in r and r["delta_bic"] < 0
+                     and not refused(r) and not r.get("absorbed") and not names[r["effect"]].moves_reference
                      and _time_course(names[r["effect"]])],
                     key=lambda r: (not getattr(names[r["effect"]], "law_in_time", False), r["delta_bic"]))[:ANOTHER_ORDERS]
+    # a law in time as found, then in its plain form: its profile was fitted to residuals that held the effect
+    # taken first (a linear drift bent into a warm-up beside the box; a warm-up made linear kept the box)
+    tries = [(r["effect"], plain) for r in others
+             for plain in ((False, True) if _plain_differs(r, names[r["effect"]]) else (False,))][:ANOTHER_ORDERS]
     bic, n = _search_bic(found, names), len(e)
-    for row in others:
-        name = row["effect"]
-        tried = search(first=name)
+    for name, plain in tries:
+        tried = search(first=name, plain=plain)
         order = [a for a in tried["accepted"] if a not in NOISE_CANDIDATES]
         e1 = np.asarray(tried["state"]["result"]["residuals"])
         delta = _search_bic(tried, names) - bic

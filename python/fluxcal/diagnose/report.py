@@ -158,9 +158,11 @@ def another_order_line(r) -> str:
     """An effect taken first in a second search (`diagnose._in_another_order`): what the first search, which took
     another effect first, had ended with."""
     first = r["another_order"]
-    return (f"  {r['effect']}: taken first in a second search — the first took {first['first']} first and ended with "
-            f"{', '.join(first['accepted'])}, residuals at {first['rms_z']:.2f} σ; this order's model fits better by "
-            f"ΔBIC {first['delta_bic']:+.1f}, and {r['effect']}, searched again beside the rest, passes every test")
+    took = f"took {first['first']} first and" if first["first"] else "found no effect that passed its tests and"
+    ended = ", ".join(first["accepted"]) or "nothing"
+    return (f"  {r['effect']}: taken first in a second search — the first {took} ended with {ended}, residuals at "
+            f"{first['rms_z']:.2f} σ; this order's model fits better by ΔBIC {first['delta_bic']:+.1f}, and "
+            f"{r['effect']}, searched again beside the rest, passes every test")
 
 
 def offset_step_line(d, r) -> str:
