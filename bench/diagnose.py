@@ -372,18 +372,13 @@ def against(n: int):
 def jitter(n: int):
     """A motor's current jittering from reading to reading (blocks of 0–15 A, ± 5 A white while on; withheld_trial's
     motor_current otherwise): the noise σ against the truth, and is the motor found alone?"""
+    from fluxcal.sim.scene import jittering
     from fluxcal.sim.withheld import NOISE
 
     print("| seed | noise σ / truth | found | k error / SE (largest) |")
     print("|---|---:|---|---:|")
     for seed in range(n):
-        rng = np.random.default_rng(100 + seed)
-
-        def current(t):
-            level = np.repeat(rng.choice([0, 0, 5, 10, 15], size=len(t) // 250 + 1), 250)[:len(t)]
-            return np.clip(level + 5.0 * rng.standard_normal(len(t)) * (level > 0), 0, None)
-
-        result, kwargs = withheld_trial(["motor_current"], seed, current=current)
+        result, kwargs = withheld_trial(["motor_current"], seed, current=jittering(np.random.default_rng(100 + seed)))
         d = diagnose(result.readings, **kwargs)
         row = next(r for r in d.ranking if r["effect"] == "motor_current")
         truth = next(e.k for e in result.effects if e.name == "motor_current")

@@ -981,13 +981,7 @@ def test_a_current_jittering_from_reading_to_reading_is_no_noise():
     # the motor was then refused as "below the noise" while a step took its place. The σ is taken from the
     # readings less what follows the logged current's fast changes.
     for seed in range(3):
-        rng = np.random.default_rng(100 + seed)
-
-        def current(t):
-            level = np.repeat(rng.choice([0, 0, 5, 10, 15], size=len(t) // 250 + 1), 250)[:len(t)]
-            return np.clip(level + 5.0 * rng.standard_normal(len(t)) * (level > 0), 0, None)
-
-        result, kwargs = withheld_trial(["motor_current"], seed, current=current)
+        result, kwargs = withheld_trial(["motor_current"], seed, current=sim.jittering(np.random.default_rng(100 + seed)))
         d = diagnose(result.readings, **kwargs)
         assert abs(d.noise_sigma / NOISE - 1) < 0.1, (seed, d.noise_sigma, d.noise_source)
         assert "follows the logged current's fast changes" in d.noise_source, d.noise_source

@@ -9,7 +9,7 @@ from .effects import (CANDIDATES, ColoredNoise, CrossAxis, CubicNonlinearity, Ed
                       Hysteresis, Misalignment, MotorCurrent, MovingDipole, NonOrthogonality, OffsetDrift,
                       Quantization, Saturation, ScaleDrift, SoftIron, TemperatureOffset, TemperatureScale, TimeOffset,
                       WhiteNoise, ZLeakage, random_sensor)
-from .scene import Scene, sweeps, tumble, uniform
+from .scene import Scene, jittering, sweeps, tumble, uniform
 from .simulate import Simulation, simulate
 
 __all__ = ["CANDIDATES", "ColoredNoise", "CrossAxis", "CubicNonlinearity", "EddyCurrent", "Effect", "HardIron",

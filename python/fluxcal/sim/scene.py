@@ -131,3 +131,13 @@ def throttle(t: np.ndarray, rng, peak: float, hold: float, duration_s: float | N
     levels = peak * rng.uniform(0.1, 1.0, len(ends))
     lag = 1.0 - np.exp(-dt / 0.3)  # a first-order spin-up of 0.3 s, stable at any sample rate
     return lfilter([lag], [1.0, lag - 1.0], levels[np.searchsorted(ends, t)], zi=[levels[0] * (1 - lag)])[0]
+
+
+def jittering(rng, levels=(0.0, 0.0, 5.0, 10.0, 15.0), block: int = 250, jitter: float = 5.0):
+    """A current for `tumble(current=…)`: levels (A) drawn from `levels`, each held for `block` readings, with white
+    jitter of `jitter` A while on — a motor's throttle or PWM noise, faster than the sampling —, never below 0."""
+    def current(t):
+        level = np.repeat(rng.choice(levels, size=len(t) // block + 1), block)[:len(t)]
+        return np.clip(level + jitter * rng.standard_normal(len(t)) * (level > 0), 0, None)
+
+    return current
