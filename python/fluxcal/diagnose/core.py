@@ -2990,8 +2990,9 @@ ANOTHER_ORDERS = 2      # searches with another first-round candidate taken firs
 
 
 def _time_course(cls) -> bool:
-    """An effect with a course in time of its own (a drift's law, a step, a magnet passing)."""
-    return bool(getattr(cls, "law_in_time", False) or cls.regime in ("time", "events"))
+    """An effect with a course in time of its own (a drift's law, a step, a magnet passing; not one held out on later
+    time for another reason: a lag, a line, hysteresis)."""
+    return bool(getattr(cls, "law_in_time", False) or cls.regime == "events")
 
 
 def _search_bic(found: dict, names: dict) -> float:
