@@ -981,7 +981,8 @@ def test_a_current_jittering_from_reading_to_reading_is_no_noise():
     # the motor was then refused as "below the noise" while a step took its place. The σ is taken from the
     # readings less what follows the logged current's fast changes.
     for seed in range(3):
-        result, kwargs = withheld_trial(["motor_current"], seed, current=sim.jittering(np.random.default_rng(100 + seed)))
+        current = sim.jittering(np.random.default_rng(100 + seed))
+        result, kwargs = withheld_trial(["motor_current"], seed, current=current)
         d = diagnose(result.readings, **kwargs)
         assert abs(d.noise_sigma / NOISE - 1) < 0.1, (seed, d.noise_sigma, d.noise_source)
         assert "follows the logged current's fast changes" in d.noise_source, d.noise_source

@@ -2093,7 +2093,8 @@ def _plain(row: dict, cls, data: _Data, model: str, state: dict) -> dict | None:
                    start_terms=np.concatenate([state["terms"], np.zeros(plain.shape[1])]))
     except _core.Error:
         return None
-    return {k: v for k, v in row.items() if k not in (cls.profile_name, "_validated")} | {"_features": plain, "_fit": fit}
+    kept = {k: v for k, v in row.items() if k not in (cls.profile_name, "_validated")}
+    return kept | {"_features": plain, "_fit": fit}
 
 
 def _with_the_rest_placed_again(data: _Data, model: str, state: dict, rows: list, pool: list, accepted: list,
@@ -2871,9 +2872,9 @@ def _search(data: _Data, model: str, pool: list, names: dict, state: dict, sigma
     def accept(w):
         nonlocal data
         if w["effect"] in accepted:  # a further episode of an event found: its block grows
-            first, i = last_rows[w["effect"]], accepted.index(w["effect"])  # (noise models come after the search)
-            columns = first.setdefault("_columns", [np.arange(state["features"][i].shape[1])])
-            first.setdefault("episodes", [_episode(first)]).append(_episode(w))
+            found, i = last_rows[w["effect"]], accepted.index(w["effect"])  # (noise models come after the search)
+            columns = found.setdefault("_columns", [np.arange(state["features"][i].shape[1])])
+            found.setdefault("episodes", [_episode(found)]).append(_episode(w))
             state.update(_with_episode(data, model, state, w, i, columns))
             return
         accepted.append(w["effect"])
@@ -2888,7 +2889,8 @@ def _search(data: _Data, model: str, pool: list, names: dict, state: dict, sigma
         last_rows[w["effect"]] = w
         for name in [w["effect"]] + _reprofile(data, model, state, accepted, last_rows, {c.name: c for c in pool},
                                                sigma, n_candidates):
-            last_rows[name]["heldout_leverage"] = _row_leverage(data, state["result"], last_rows[name], state["directions"])
+            last_rows[name]["heldout_leverage"] = _row_leverage(data, state["result"], last_rows[name],
+                                                                state["directions"])
 
     for _round in range(max_effects + 1):
         rows = []
@@ -3028,7 +3030,8 @@ def _in_another_order(found: dict, model: str, names: dict, sigma: float, n_cand
     others = sorted([r for r in found["first_rows"] if r["effect"] != first and "_fit" in r and r["delta_bic"] < 0
                      and not refused(r) and not r.get("absorbed") and not names[r["effect"]].moves_reference
                      and _time_course(names[r["effect"]])],
-                    key=lambda r: (not getattr(names[r["effect"]], "law_in_time", False), r["delta_bic"]))[:ANOTHER_ORDERS]
+                    key=lambda r: (not getattr(names[r["effect"]], "law_in_time", False), r["delta_bic"])
+                    )[:ANOTHER_ORDERS]
     # a law in time as found, then in its plain form: its profile was fitted to residuals that held the effect
     # taken first (a linear drift bent into a warm-up beside the box; a warm-up made linear kept the box)
     tries = [(r["effect"], plain) for r in others
