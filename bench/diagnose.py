@@ -519,15 +519,6 @@ if __name__ == "__main__":
         margins(args.margins, args.only, **sim)
     if args.timing:
         timing()
-    if args.warm_up:
-        warm_up(args.warm_up)
-    if args.settling:
-        settling(args.settling)
-    if args.time_pairs:
-        time_pairs(args.time_pairs)
-    if args.family_pairs:
-        family_pairs(args.family_pairs)
-    if args.against:
-        against(args.against)
-    if args.jitter:
-        jitter(args.jitter)
+    for table in (warm_up, settling, time_pairs, family_pairs, against, jitter):  # (each option: its trials)
+        if getattr(args, table.__name__):
+            table(getattr(args, table.__name__))
