@@ -407,6 +407,18 @@ def test_a_clock_coarser_than_the_readings_is_spread_not_a_crash():
     assert abs((row["on_s"] if row["on_s"] is not None else row["off_s"]) - truth.t_on) < 1.0
 
 
+def test_lines_logged_twice_are_copies_not_a_coarse_clock():
+    """A blind check: every 7th row logged twice (same time, same readings) was said to be both a clock coarser than
+    the readings and sample-and-hold copies; it is one statement, and the step is still found where it is."""
+    result, kwargs = withheld_trial(["offset_step"], 0)
+    rows = np.sort(np.concatenate([np.arange(len(result.readings)), np.arange(0, len(result.readings), 7)]))
+    d = diagnose(result.readings[rows], **{**kwargs, "t": kwargs["t"][rows], "temp": kwargs["temp"][rows]})
+    copies = len(np.arange(0, len(result.readings), 7))
+    assert f"{copies} of {len(rows)} rows repeat the row before them exactly, time and readings" in d.noise_source
+    assert "clock coarser" not in d.noise_source and "sample and hold" not in d.noise_source, d.noise_source
+    assert d.accepted == ["offset_step"], d.accepted
+
+
 def test_a_moving_dipole_gains_no_spurious_offset_step():
     # What the dipole's low-order shape leaves inside its own box must not come back as a second event
     # (seeds where an offset box with two free edges was accepted after the dipole).
@@ -1893,9 +1905,35 @@ def test_two_effects_found_together_that_cancel_are_refused():
     first = (warm[:, None] * np.array([1.0, 0.5, 0.2]))[:, None, :]
     second = (ramp[:, None] * np.array([1.0, 0.5, 0.2]))[:, None, :]
     fit = {"jacobian": J, "parameters": np.concatenate([np.zeros(9), [-10.0, 10.0]])}  # [..., second, first]
-    assert _cancelling(fit, [second, first], vector=False)
+    assert _cancelling(fit, [second, first], vector=False) is not None
     fit["parameters"] = np.concatenate([np.zeros(9), [0.3, 1.0]])  # the same blocks, adding up: both stand
-    assert not _cancelling(fit, [second, first], vector=False)
+    assert _cancelling(fit, [second, first], vector=False) is None
+
+
+def test_an_effect_that_cancels_one_found_is_refused():
+    """A blind check (its seed 177): a quadratic of [0.67, −0.78, 0.36] % found first grew to 31 % on x once a
+    cross-axis error of 22 % of the field was fitted beside it (the two cancelling, the residuals at 0.99 σ, a cubic
+    found together with the cross-axis). The cross-axis is refused as cancelling the quadratic, which keeps its
+    size."""
+    from fluxcal.sim.effects import HardIron, SoftIron, WhiteNoise
+    from fluxcal.sim.scene import tumble
+    from fluxcal.sim.simulate import simulate
+    from fluxcal.sim.withheld import FIELD, OFF_DIAGONAL, SOFT_IRON
+
+    rng = np.random.default_rng(177)
+    off = OFF_DIAGONAL * 0.1 / SOFT_IRON  # the check's soft iron of ±10 %, hard iron of half the field
+    E = rng.uniform(-off, off, (3, 3))
+    W = np.diag(1 + rng.uniform(-0.1, 0.1, 3)) + np.triu(E, 1) + np.triu(E, 1).T
+    b = rng.uniform(-1, 1, 3) * 0.5 * 50.0 / np.sqrt(3)
+    quadratic = {c.name: c for c in CANDIDATES}["nonlinearity_quadratic"].typical(50.0, rng)
+    scene = tumble(60.0, rate_hz=50.0, rng=rng)
+    result = simulate(scene, [SoftIron(W), HardIron(b), quadratic, WhiteNoise(0.05)], FIELD, rng)
+    d = diagnose(result.readings, t=result.t, temp=scene.temperature, field_norm=50.0)
+    assert d.accepted == ["nonlinearity_quadratic"], d.accepted
+    row = next(r for r in d.ranking if r["effect"] == "nonlinearity_quadratic")
+    assert np.allclose(row["coefficients"], quadratic.relative, atol=0.001), row["coefficients"]
+    cross = next(r for r in d.ranking if r["effect"] == "cross_axis")
+    assert cross["cancels"] == "nonlinearity_quadratic" and "degenerate: cancels nonlinearity_quadratic" in d.text()
 
 
 def test_heldout_block_test_is_free_of_units_and_refuses_non_finite():

@@ -1478,6 +1478,10 @@ def _evaluate(cls, data, model, state, sigma, n_candidates) -> dict:
     row["distortion"] = _distortion(ctx.signal, state["features"] + [feats],
                                     state["signal_blocks"] + [cls.signal_features], np.asarray(fit["parameters"]),
                                     12 if vector else 9)
+    if state["features"]:  # beside the effects found: does its fit cancel one of theirs?
+        other = _cancelling(fit, state["features"] + [feats], vector, new=1)
+        if other is not None:
+            row["cancels"] = state["effects"][other]
     row["unmet"] = _unmet(row, n_candidates, state["alpha"])
     row["significant"] = not row["unmet"]
     flag = _implausible(row, sigma, state["sigma_bound"], cls, vector, state["period"])
@@ -1625,6 +1629,11 @@ def _implausible(row: dict, sigma: float, sigma_bound: bool, cls, vector: bool =
             f"not accepted: with it, the model's signal-dependent effects change the readings by "
             f"{row['distortion']:.3g}× the signal (RMS) — no sensor's non-linearity; their features, taken from "
             "the fit's own signal, stand in for the signal (a degenerate fit)")
+    if row.get("cancels"):
+        return "degenerate", f"cancels {row['cancels']}", (
+            f"not accepted: fitted beside {row['cancels']}, its change to the readings and {row['cancels']}'s are each "
+            f"over {CANCELLING:g}× what both make together — they cancel: the data determine their difference, not "
+            f"each (sizes that grow together without bound)")
     reason = cls.unphysical(row["coefficients"], row["standard_errors"], vector=vector, period=period)
     if reason:
         return "unphysical", reason, f"not accepted as {cls.name}: {reason}"
@@ -1843,6 +1852,7 @@ def _with(state: dict, row: dict, vector: bool) -> dict:
     """A copy of `state` with the candidate of `row` added (its features and its fit)."""
     return dict(state, features=state["features"] + [row["_features"]], result=row["_fit"], train_fits={},
                 signal_blocks=state["signal_blocks"] + [row["_signal_features"]],
+                effects=state["effects"] + [row["effect"]],
                 validated=state["validated"] + [row.get("_validated", row["_features"])],
                 terms=np.asarray(row["_fit"]["parameters"])[12 if vector else 9:])
 
@@ -1919,7 +1929,8 @@ def _without(data: _Data, model: str, state: dict, i: int) -> dict:
                start_terms=terms if rest else None)
     drop = lambda blocks: blocks[:i] + blocks[i + 1:]  # noqa: E731
     return dict(state, features=rest, signal_blocks=drop(state["signal_blocks"]), validated=drop(state["validated"]),
-                result=fit, train_fits={}, terms=np.asarray(fit["parameters"])[12 if MODELS[model][0] else 9:])
+                effects=drop(state["effects"]), result=fit, train_fits={},
+                terms=np.asarray(fit["parameters"])[12 if MODELS[model][0] else 9:])
 
 
 def _reprofile(data: _Data, model: str, state: dict, modelled: list, last_rows: dict, names: dict, sigma: float,
@@ -2029,7 +2040,8 @@ def _placed_again(data: _Data, model: str, state: dict, modelled: list, i: int, 
         modelled[i] = option.name
     put = lambda blocks, block: blocks[:i] + [block] + blocks[i:]  # noqa: E731
     state.update(features=feats, validated=put(rest["validated"], row.get("_validated", row["_features"])),
-                 signal_blocks=put(rest["signal_blocks"], row["_signal_features"]), result=fit, train_fits={},
+                 signal_blocks=put(rest["signal_blocks"], row["_signal_features"]),
+                 effects=put(rest["effects"], option.name), result=fit, train_fits={},
                  terms=np.asarray(fit["parameters"])[lo:])
     last_rows[option.name] = row
     return True
@@ -2182,7 +2194,8 @@ def _pair(data: _Data, model: str, state: dict, names: dict, first: dict, second
     if hasattr(names[second["effect"]], "shapes"):
         _richer_shape(data, model, given, names[second["effect"]], second)
     again = _evaluate(names[first["effect"]], data, model, given, sigma, n_candidates)
-    if not again["significant"] or _cancelling(again["_fit"], [feats, again["_features"]], vector):
+    if not again["significant"] or _cancelling(again["_fit"], state["features"] + [feats, again["_features"]], vector,
+                                               new=2) is not None:
         return None
     again["_rivals"] = []
     if again["effect"] == second["effect"]:  # two episodes of one event: `accept` makes them one block
@@ -2192,21 +2205,36 @@ def _pair(data: _Data, model: str, state: dict, names: dict, first: dict, second
     return second, again
 
 
-CANCELLING = 3.0  # two effects found together whose changes are each this many times their sum: they cancel
+CANCELLING = 3.0  # effects of one fit whose changes are each this many times their sum: they cancel
 
 
-def _cancelling(fit: dict, blocks: list, vector: bool) -> bool:
-    """Whether the last blocks of a fit (`blocks`, its last feature blocks in order) change the residuals each by
-    CANCELLING times as much as they do together: the data determine their difference, not each. (A blind check's
-    warm-up that only rose made temp_offset and offset_drift "found together", each ~30 % of the field and ten times
-    a truth of 1e-3 G/°C, cancelling each other.)"""
+def _cancelling(fit: dict, blocks: list, vector: bool, new: int | None = None) -> int | None:
+    """Which block cancels a new one: of the fit's last blocks (`blocks`, in order; the last `new` of them just added,
+    default all), the index of the largest other block when a new one and it each change the residuals by CANCELLING
+    times as much as every block does together — the data determine their difference, not each —, else None. The
+    changes are taken apart from what the base model's offset and matrix hold: a non-linearity about a hard iron of
+    several fields is mostly affine, and the base takes that part whatever the blocks do. (A blind check's warm-up
+    that only rose made temp_offset and offset_drift "found together", each ~30 % of the field and ten times a truth
+    of 1e-3 G/°C; a quadratic's x term of 0.7 % grew to 31 %, a cross-axis error of 22 % of the field cancelling it,
+    the residuals at 0.99 σ.)"""
     parameters, hi = np.asarray(fit["parameters"]), len(fit["parameters"])
+    J = np.asarray(fit["jacobian"])[:, :12 if vector else 9]
+    Q = np.linalg.qr(J[:, np.any(J != 0, axis=0)])[0]
     changes = []
     for feats in reversed(blocks):
-        changes.append(_project(fit, feats, vector) @ parameters[hi - feats.shape[1]:hi])
+        c = _project(fit, feats, vector) @ parameters[hi - feats.shape[1]:hi]
+        changes.append(c - Q @ (Q.T @ c))
         hi -= feats.shape[1]
-    together = float(np.linalg.norm(sum(changes)))
-    return bool(min(float(np.linalg.norm(c)) for c in changes) > CANCELLING * together)
+    changes.reverse()
+    line = CANCELLING * float(np.linalg.norm(sum(changes)))
+    size = [float(np.linalg.norm(c)) for c in changes]
+    new = len(blocks) if new is None else new
+    for i in range(len(blocks) - new, len(blocks)):
+        others = [j for j in range(len(blocks)) if j != i]
+        other = max(others, key=lambda j: size[j]) if others else None
+        if other is not None and size[i] > line and size[other] > line:
+            return other
+    return None
 
 
 def _second_shape(row: dict, cls, accepted: list) -> None:
@@ -2677,6 +2705,9 @@ def _spread_ticks(t: np.ndarray) -> np.ndarray:
     return t + within * np.repeat(step / count, count)
 
 
+LOGGED_TWICE = 0.9  # share of the ties of t that repeat their readings too: the lines were logged twice
+
+
 def _prepare(samples, t, temp, reference, down, field_norm, units, source, current=None) -> _Data:
     m = as_samples(samples)
     n = len(m)
@@ -2734,6 +2765,15 @@ def _prepare(samples, t, temp, reference, down, field_norm, units, source, curre
                      f"{', '.join(str(i + 1) for i in back[:5])}{', …' if len(back) > 5 else ''} (a counter "
                      "wrap or a clock reset in a log written in time order): the rows after each jump were "
                      "taken to follow it, one ordinary step later")
+    # Rows that repeat the row before, time and readings, when nearly every tie of t is one: lines logged twice, not a
+    # coarse clock's ticks (a blind check's every 7th row logged twice had been said to be both those ticks and
+    # sample-and-hold copies); a coarse clock's rows in one tick differ, a still sensor's within it only at times.
+    tie = np.diff(t) == 0
+    twice = np.concatenate([[False], tie & np.all(m[1:] == m[:-1], axis=1)])
+    if twice.any() and twice.sum() >= LOGGED_TWICE * tie.sum():
+        take(~twice)
+        notes.append(f"{int(twice.sum())} of {n} rows repeat the row before them exactly, time and readings (lines "
+                     "logged twice) and were left out")
     ties = np.diff(t) == 0
     if ties.any():  # a clock coarser than the sample rate (whole seconds at 50 Hz): spread each tick's rows
         t = _spread_ticks(t)
@@ -3165,8 +3205,8 @@ def diagnose(samples, t=None, temp=None, reference=None, gravity=None, field_nor
         warnings.warn(unit, stacklevel=2)
     e0 = np.asarray(base["residuals"])
     where = _where(data, e0, sigma, directions, vector)
-    state = {"start": start, "result": base, "features": [], "signal_blocks": [], "validated": [], "terms": np.zeros(0),
-             "train_fits": {}, "sigma_bound": sigma_bound,
+    state = {"start": start, "result": base, "features": [], "signal_blocks": [], "effects": [], "validated": [],
+             "terms": np.zeros(0), "train_fits": {}, "sigma_bound": sigma_bound,
              # the base residuals' correlation length in readings (`_event_block`)
              "correlation": _in_sample_length(base, data, np.ones(len(data.m), bool)) // (len(e0) // len(data.m)),
              "directions": directions, "alpha": alpha,
