@@ -5,7 +5,17 @@
     fields = cal.apply(readings)                   # h = A (m − b)
     cal.save("cal.json"); fluxcal.Calibration.load("cal.json")
 """
-from . import _core
+try:
+    from . import _core
+except ImportError as err:  # Python's own words for a missing module here blame "a circular import"
+    from pathlib import Path as _Path
+    _here = _Path(__file__).parent
+    _missing = not any(_here.glob("_core*.so")) and "_core" in str(err)
+    _why = (f"there is no _core*.so in {_here} (a source tree whose C++ core is not built or not copied here)"
+            if _missing else f"{err}")
+    raise ImportError(f"fluxcal's compiled core cannot be loaded: {_why}. Install the package (pip install ., or "
+                      "make install), or copy the built module beside this file (cp build/dev/python/_core*.so "
+                      "python/fluxcal/)") from (None if _missing else err)
 from .alignment import Alignment, align_to_gravity
 from .calibration import Calibration
 from .coverage import direction_coverage

@@ -399,3 +399,16 @@ def test_the_held_out_check_says_why_a_still_start_leaves_it_nothing_to_judge(tm
     cal = fluxcal.calibrate(m)
     spread, note = _held_out_spread(m, cal, None, {})
     assert spread < 1.5 * cal.summary["norm_std_over_mean"] and note == ""
+
+
+def test_a_source_tree_without_the_built_core_says_so(tmp_path):
+    """A blind check ran the CLI from the source tree before the C++ core was copied there: Python's own message
+    blamed "a circular import". It names the missing module and how to get it."""
+    import shutil
+
+    package = Path(fluxcal.__file__).parent
+    shutil.copytree(package, tmp_path / "fluxcal", ignore=shutil.ignore_patterns("_core*.so", "__pycache__"))
+    out = subprocess.run([sys.executable, "-c", "import fluxcal"], capture_output=True, text=True,
+                         env={"PYTHONPATH": str(tmp_path), "PATH": "/usr/bin:/bin"}, cwd=tmp_path)
+    assert out.returncode == 1 and "circular import" not in out.stderr, out.stderr
+    assert f"no _core*.so in {tmp_path / 'fluxcal'}" in out.stderr and "pip install ." in out.stderr, out.stderr
