@@ -228,7 +228,8 @@ class Diagnosis:
     that one signal-dependent effect makes to the readings in the fit with it; a row otherwise significant
     is not accepted, with a `note`, when its held-out field error falls below half that floor or its
     distortion exceeds the signal (`degenerate`, which of the two: its features rebuild the readings from
-    themselves), or when its held-out field error rises (`field_error_rises`: its residuals fell only
+    themselves), or when its fit cancels an effect found before it (`cancels`, that effect's name: each changes the
+    readings by over CANCELLING× what both do together; `degenerate` "cancels …"), or when its held-out field error rises (`field_error_rises`: its residuals fell only
     through its gain); a judged row's `unmet` lists the acceptance tests it fails ("in_sample", "bic",
     "heldout_p", "heldout_gain", "heldout_resolved" — beside an effect already found, a held-out fall within what
     the fits' parameter noise makes —, "pruned"; empty for an accepted one): a row that fails only the held-out ones has
