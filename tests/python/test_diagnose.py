@@ -1913,8 +1913,8 @@ def test_two_effects_found_together_that_cancel_are_refused():
 def test_an_effect_that_cancels_one_found_is_refused():
     """A blind check (its seed 177): a quadratic of [0.67, −0.78, 0.36] % found first grew to 31 % on x once a
     cross-axis error of 22 % of the field was fitted beside it (the two cancelling, the residuals at 0.99 σ, a cubic
-    found together with the cross-axis). The cross-axis is refused as cancelling the quadratic, which keeps its
-    size."""
+    found together with the cross-axis). The cross-axis is refused: its fit cancels the quadratic's and makes it
+    unphysical by the quadratic's own rule (over 5 % at the typical reading); the quadratic keeps its size."""
     from fluxcal.sim.effects import HardIron, SoftIron, WhiteNoise
     from fluxcal.sim.scene import tumble
     from fluxcal.sim.simulate import simulate
@@ -1933,7 +1933,25 @@ def test_an_effect_that_cancels_one_found_is_refused():
     row = next(r for r in d.ranking if r["effect"] == "nonlinearity_quadratic")
     assert np.allclose(row["coefficients"], quadratic.relative, atol=0.001), row["coefficients"]
     cross = next(r for r in d.ranking if r["effect"] == "cross_axis")
-    assert cross["cancels"] == "nonlinearity_quadratic" and "degenerate: cancels nonlinearity_quadratic" in d.text()
+    assert cross["cancels"] == "nonlinearity_quadratic" and cross["makes_unphysical"]["effect"] == cross["cancels"]
+    line = next(x for x in d.text().splitlines() if x.strip().startswith("cross_axis "))
+    assert "(degenerate: makes nonlinearity_quadratic unphysical)" in line, line
+
+
+def test_a_candidate_that_makes_an_effect_found_unphysical_is_named():
+    """_made_unphysical: an effect found (a quadratic of 1 %) whose terms, refitted beside a candidate, pass its own
+    rule's bound (5 % at the typical reading) is named with the rule's reason; not one that was already past it, nor
+    one still within it."""
+    from fluxcal.diagnose.core import _made_unphysical
+
+    terms = lambda *c: {"parameters": np.r_[np.zeros(9), c], "standard_errors": np.full(9 + len(c), 0.001)}  # noqa
+    state = {"effects": ["nonlinearity_quadratic"], "features": [np.zeros((10, 3, 3))], "period": 0.0,
+             "result": terms(0.01, -0.005, 0.002)}
+    name, reason = _made_unphysical(terms(0.31, -0.005, 0.002, 7.0, 7.0), state, vector=False)
+    assert name == "nonlinearity_quadratic" and "an even-order error of 31 %" in reason
+    assert _made_unphysical(terms(0.012, -0.005, 0.002, 7.0, 7.0), state, vector=False) is None
+    state["result"] = terms(0.2, -0.005, 0.002)
+    assert _made_unphysical(terms(0.31, -0.005, 0.002, 7.0, 7.0), state, vector=False) is None
 
 
 def test_heldout_block_test_is_free_of_units_and_refuses_non_finite():

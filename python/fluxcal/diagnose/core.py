@@ -229,10 +229,12 @@ class Diagnosis:
     is not accepted, with a `note`, when its held-out field error falls below half that floor or its
     distortion exceeds the signal (`degenerate`, which of the two: its features rebuild the readings from
     themselves), or when its fit cancels an effect found before it (`cancels`, that effect's name: each changes the
-    readings by over CANCELLING× what both do together; `degenerate` "cancels …"), or when its held-out field error rises (`field_error_rises`: its residuals fell only
-    through its gain); a judged row's `unmet` lists the acceptance tests it fails ("in_sample", "bic",
-    "heldout_p", "heldout_gain", "heldout_resolved" — beside an effect already found, a held-out fall within what
-    the fits' parameter noise makes —, "pruned"; empty for an accepted one): a row that fails only the held-out ones has
+    readings by over CANCELLING× what both do together; `degenerate` "cancels …") or turns one found before it
+    unphysical by that effect's own rule (`makes_unphysical`: its `effect` and `reason`), or when its held-out field
+    error rises (`field_error_rises`: its residuals fell only through its gain); a judged row's `unmet` lists the
+    acceptance tests it fails ("in_sample", "bic", "heldout_p", "heldout_gain", "heldout_resolved" — beside an
+    effect already found, a held-out fall within what the fits' parameter noise makes —, "pruned"; empty for an
+    accepted one): a row that fails only the held-out ones has
     strong evidence in the recording that the held-out readings do not confirm (a profiled lag or warm-up time is
     chosen again without them for that test: `lag_s_without_heldout`, `warmup_s_without_heldout`);
     an effect accepted in an early round that no longer pays BIC's price once the later ones are modelled
@@ -1479,10 +1481,13 @@ def _evaluate(cls, data, model, state, sigma, n_candidates) -> dict:
     row["distortion"] = _distortion(ctx.signal, state["features"] + [feats],
                                     state["signal_blocks"] + [cls.signal_features], np.asarray(fit["parameters"]),
                                     12 if vector else 9)
-    if state["features"]:  # beside the effects found: does its fit cancel one of theirs?
+    if state["features"]:  # beside the effects found: does its fit cancel one of theirs, or make one unphysical?
         other = _cancelling(fit, state["features"] + [feats], vector, new=1)
         if other is not None:
             row["cancels"] = state["effects"][other]
+        made = _made_unphysical(fit, state, vector)
+        if made:
+            row["makes_unphysical"] = dict(zip(("effect", "reason"), made))
     row["unmet"] = _unmet(row, n_candidates, state["alpha"])
     row["significant"] = not row["unmet"]
     flag = _implausible(row, sigma, state["sigma_bound"], cls, vector, state["period"])
@@ -1630,6 +1635,11 @@ def _implausible(row: dict, sigma: float, sigma_bound: bool, cls, vector: bool =
             f"not accepted: with it, the model's signal-dependent effects change the readings by "
             f"{row['distortion']:.3g}× the signal (RMS) — no sensor's non-linearity; their features, taken from "
             "the fit's own signal, stand in for the signal (a degenerate fit)")
+    if row.get("makes_unphysical"):
+        made = row["makes_unphysical"]
+        return "degenerate", f"makes {made['effect']} unphysical", (
+            f"not accepted: fitted beside it, {made['effect']} turns unphysical — {made['reason']} (the two trade "
+            "terms: the data determine their sum, not each)")
     if row.get("cancels"):
         return "degenerate", f"cancels {row['cancels']}", (
             f"not accepted: fitted beside {row['cancels']}, its change to the readings and {row['cancels']}'s are each "
@@ -2235,6 +2245,23 @@ def _cancelling(fit: dict, blocks: list, vector: bool, new: int | None = None) -
         other = max(others, key=lambda j: size[j]) if others else None
         if other is not None and size[i] > line and size[other] > line:
             return other
+    return None
+
+
+def _made_unphysical(fit: dict, state: dict, vector: bool) -> tuple | None:
+    """An effect found before whose terms, fitted again beside a candidate (`fit`), turn unphysical by its own rule
+    (its class's `unphysical`) where in the model without the candidate they were not: (its name, the reason), else
+    None. (A cubic injected at 8.5 % into a real hand-held recording: a quadratic found, then a cross-axis error of
+    79 % of the field beside it, which took the quadratic on x to −67 %.)"""
+    lo, names = 12 if vector else 9, {c.name: c for c in CANDIDATES}
+    now, was = ([np.asarray(f[k])[lo:] for k in ("parameters", "standard_errors")] for f in (fit, state["result"]))
+    for i, name in enumerate(state["effects"]):
+        cls, block = names.get(name), _block(state, i)
+        if cls is None:
+            continue
+        reason = cls.unphysical(now[0][block], now[1][block], vector=vector, period=state["period"])
+        if reason and not cls.unphysical(was[0][block], was[1][block], vector=vector, period=state["period"]):
+            return name, reason
     return None
 
 
