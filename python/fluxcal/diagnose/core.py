@@ -2248,17 +2248,18 @@ def _cancelling(fit: dict, blocks: list, vector: bool, new: int | None = None) -
     return None
 
 
+_CANDIDATE_CLASSES = {c.name: c for c in CANDIDATES}  # (once: _made_unphysical runs for every candidate judged)
+
+
 def _made_unphysical(fit: dict, state: dict, vector: bool) -> tuple | None:
     """An effect found before whose terms, fitted again beside a candidate (`fit`), turn unphysical by its own rule
     (its class's `unphysical`) where in the model without the candidate they were not: (its name, the reason), else
     None. (A cubic injected at 8.5 % into a real hand-held recording: a quadratic found, then a cross-axis error of
     79 % of the field beside it, which took the quadratic on x to −67 %.)"""
-    lo, names = 12 if vector else 9, {c.name: c for c in CANDIDATES}
+    lo = 12 if vector else 9
     now, was = ([np.asarray(f[k])[lo:] for k in ("parameters", "standard_errors")] for f in (fit, state["result"]))
     for i, name in enumerate(state["effects"]):
-        cls, block = names.get(name), _block(state, i)
-        if cls is None:
-            continue
+        cls, block = _CANDIDATE_CLASSES[name], _block(state, i)
         reason = cls.unphysical(now[0][block], now[1][block], vector=vector, period=state["period"])
         if reason and not cls.unphysical(was[0][block], was[1][block], vector=vector, period=state["period"]):
             return name, reason
