@@ -11,6 +11,7 @@
     .venv/bin/python bench/diagnose.py --family-pairs 10                    # saturation beside a drift, …
     .venv/bin/python bench/diagnose.py --against 12                         # a drift or warm-up beside a step
     .venv/bin/python bench/diagnose.py --jitter 5                           # a motor current jittering
+    .venv/bin/python bench/diagnose.py --wander 20                          # short recordings of correlated noise
     .venv/bin/python bench/diagnose.py --trials 5 --noise 0.2 --rate 10     # other noise, rates, --duration
     .venv/bin/python bench/diagnose.py --nulls 30 --noise 0.5               # nothing withheld only
     .venv/bin/python bench/diagnose.py --passes 12                          # a magnet carried past (straight line)
@@ -386,6 +387,28 @@ def jitter(n: int):
         print(f"| {seed} | {d.noise_sigma / NOISE:.3f} | {', '.join(d.accepted) or 'nothing'} | {z:.2f} |", flush=True)
 
 
+def wander(n: int):
+    """Short recordings (30–60 s at 10–50 Hz, drawn per seed) with correlated noise (`colored_noise`, typical: AR(1)
+    of 0.05–0.1 µT): an event named where there is none, and a true step or magnet beside the same noise found?"""
+    events = {"offset_step", "moving_dipole"}
+    print("| withheld | trials | an event named (false) | the withheld event found | mean time, s |")
+    print("|---|---:|---:|---:|---:|")
+    for extra in ([], ["offset_step"], ["moving_dipole"]):
+        false = found = 0
+        spent = 0.0
+        for seed in range(n):
+            rng = np.random.default_rng(seed)
+            duration, rate = float(rng.choice([30.0, 45.0, 60.0])), float(rng.choice([10.0, 20.0, 50.0]))
+            result, kwargs = withheld_trial(["colored_noise"] + extra, seed, duration_s=duration, rate_hz=rate)
+            start = time.perf_counter()
+            d = diagnose(result.readings, **kwargs)
+            spent += time.perf_counter() - start
+            false += bool((events - set(extra)) & set(d.accepted))
+            found += bool(extra) and extra[0] in d.accepted
+        print(f"| colored_noise{''.join(' + ' + e for e in extra)} | {n} | {false} | "
+              f"{f'{found}' if extra else '—'} | {spent / n:.1f} |", flush=True)
+
+
 FAMILY_PAIRS = (("saturation", "temp_scale"), ("saturation", "offset_drift"), ("nonlinearity_cubic", "temp_offset"),
                 ("hysteresis", "temp_scale"), ("cross_axis", "motor_current"))
 
@@ -490,6 +513,7 @@ if __name__ == "__main__":
     p.add_argument("--family-pairs", type=int, help="trials per pair: a transducer effect beside another")
     p.add_argument("--against", type=int, help="trials per case: a drift, or a warm-up, beside a step")
     p.add_argument("--jitter", type=int, help="trials: a motor's current jittering from reading to reading")
+    p.add_argument("--wander", type=int, help="trials per case: short recordings of correlated noise, an event or none")
     p.add_argument("--only", nargs="*", help="withheld effects to run (default all)")
     p.add_argument("--noise", type=float, default=0.05, help="white noise σ of the trials, µT (field 50 µT)")
     p.add_argument("--rate", type=float, default=50.0, help="sample rate of the trials, Hz")
@@ -519,6 +543,6 @@ if __name__ == "__main__":
         margins(args.margins, args.only, **sim)
     if args.timing:
         timing()
-    for table in (warm_up, settling, time_pairs, family_pairs, against, jitter):  # (each option: its trials)
+    for table in (warm_up, settling, time_pairs, family_pairs, against, jitter, wander):  # (each option: its trials)
         if getattr(args, table.__name__):
             table(getattr(args, table.__name__))

@@ -236,7 +236,10 @@ class Diagnosis:
     effect already found, a held-out fall within what the fits' parameter noise makes —, "pruned"; empty for an
     accepted one): a row that fails only the held-out ones has
     strong evidence in the recording that the held-out readings do not confirm (a profiled lag or warm-up time is
-    chosen again without them for that test: `lag_s_without_heldout`, `warmup_s_without_heldout`);
+    chosen again without them for that test: `lag_s_without_heldout`, `warmup_s_without_heldout`; a box longer than
+    two held-out blocks has its edges refined again without them, within a block's length, `on_s_without_heldout`,
+    `off_s_without_heldout`, and the `heldout_n_unplaced` held-out readings of a block an edge may lie in (within its
+    95 % interval on the training readings) are not judged: which side of it they lie only they would say);
     an effect accepted in an early round that no longer pays BIC's price once the later ones are modelled
     is left out (its row's `note` says so, `pruned_delta_bic` the ΔBIC for keeping it); one placed again once
     later ones were modelled (a step's edges, a drift's time constant) or replaced by its kin (the cubic by
@@ -1221,6 +1224,70 @@ def _gram_score(ZtZ, W, Zte, norms, Qe):
     return np.sum(np.where(new, along / np.where(new, s, 1.0), 0.0) ** 2, axis=-1)
 
 
+def _rows_score(base, vector, Q, e, Qe, feats, r, rows) -> float:
+    """_gram_score of features given on the readings `rows` (their residuals `r`), × σ². (Some 600–1000 calls per
+    event candidate: new_part's arithmetic with less call overhead — np.linalg.norm spelt out as the operations it
+    performs.)"""
+    Z = _project(base, feats, vector, rows)
+    norms = np.sqrt(np.add.reduce(Z * Z, axis=0))  # np.linalg.norm(Z, axis=0)
+    return float(_gram_score(Z.T @ Z, Q[r].T @ Z, Z.T @ e[r], norms, Qe))
+
+
+def _placed_without_heldout(cls, data, state, regime, ctx, feats, base, vector, Q, e, sigma2) -> tuple:
+    """A box placed again on the readings its held-out test of `regime` trains on, each edge within a held-out
+    block's length of where every reading put it (`cls.placed_again`): its features, and the held-out readings of
+    a held-out block an edge inside the recording could lie in (moved to its border, the training readings' score
+    falls by less than EDGE_OPEN: for them it may sit anywhere across that block). The refinement sees the training
+    readings alone: with the held-out ones' rows zeroed instead, its edges lay on flat ground across a held-out
+    block. A search of the whole recording on them found another box (a warm-up's curve and a step together)."""
+    held = _held_for(data, state, feats, regime)[1]
+    keep = ~held
+    n = len(data.m)
+    part = SimpleNamespace(**{k: v[keep] if isinstance(v, np.ndarray) and v.ndim and len(v) == n else v
+                              for k, v in vars(ctx).items()})
+    part.memo = None  # (what it holds is the whole recording's)
+    r = np.repeat(keep, len(e) // n)
+    U, singular, _ = np.linalg.svd(Q[r], full_matrices=False)  # (an event's columns can vanish there)
+    Q, e, base = U[:, singular > 1e-10 * singular.max()], e[r], dict(base, jacobian=np.asarray(base["jacobian"])[r])
+    Qe = Q.T @ e
+
+    def score_on(feats, rows):
+        return _rows_score(base, vector, Q, e, Qe, feats, _residual_rows(rows, len(e) // len(part.t)), rows) / sigma2
+    edges, placed = cls.placed_again(ctx, part, feats, score_on, np.ptp(data.t) / EVENT_BLOCKS)
+    if edges is None:
+        return placed, np.zeros(n, bool)
+    best = score_on(*cls._box_rows(part, *edges))
+    runs = _runs(data.t, held)
+    unplaced = np.zeros(n, bool)
+    for side in (0, 1):
+        if not part.t.min() < edges[side] < part.t.max():
+            continue  # (an end of the recording: a step's one edge is the other)
+        for r in runs:  # within a held-out block: open
+            unplaced[r] |= data.t[r[0]] <= edges[side] <= data.t[r[-1]]
+        later = [r for r in runs if data.t[r[0]] > edges[side]]
+        earlier = [r for r in runs if data.t[r[-1]] < edges[side]]
+        for rows, border in ((later[:1], 0), (earlier[-1:], -1)):
+            for r in rows:
+                moved = list(edges)
+                moved[side] = data.t[r[border]]
+                if best - score_on(*cls._box_rows(part, *moved)) < EDGE_OPEN:
+                    unplaced[r] = True
+    return placed, unplaced
+
+
+EDGE_OPEN = float(stats.chi2.ppf(0.95, 1))  # an edge moved to a held-out block's border for less than this loss of
+                                          # score (its 95 % interval) may lie within the block
+
+
+def _runs(t: np.ndarray, mask: np.ndarray) -> list:
+    """The runs in time of the readings `mask`: arrays of their indices, each in time order."""
+    order = np.argsort(t, kind="stable")
+    m = mask[order]
+    starts = np.flatnonzero(m & ~np.r_[False, m[:-1]])
+    ends = np.flatnonzero(m & ~np.r_[m[1:], False]) + 1
+    return [order[a:b] for a, b in zip(starts, ends)]
+
+
 # A box narrower than this part of the recording is scored from its own readings: the sums over all boxes hold
 # powers of the time across the recording, which a narrow box's Legendre polynomials combine with coefficients up to
 # (span / width)² — rounding grows with them (relative 3e-8 at a 16th, 4e-7 at a 32nd), while a narrow box's own
@@ -1395,12 +1462,7 @@ def _evaluate(cls, data, model, state, sigma, n_candidates) -> dict:
         with W = Q'Z, without forming the N × p new part."""
         if rows is None or (cls.signal_features and not fixed):  # (the latter's norms need every reading)
             return new_part(feats if rows is None else scatter_rows(len(data.m), feats, rows))[0]
-        # (some 600–1000 calls per event candidate: the same arithmetic as new_part's, with less call overhead —
-        # np.linalg.norm, np.outer and np.clip spelt out as the operations they perform)
-        r = _residual_rows(rows, per_reading)
-        Z = _project(base, feats, vector, rows)
-        norms = np.sqrt(np.add.reduce(Z * Z, axis=0))  # np.linalg.norm(Z, axis=0)
-        return float(_gram_score(Z.T @ Z, Q[r].T @ Z, Z.T @ e[r], norms, Qe)) / sigma2
+        return _rows_score(base, vector, Q, e, Qe, feats, _residual_rows(rows, per_reading), rows) / sigma2
 
     if not (cls.signal_features and not fixed):
         events = _EventScores(base, vector, Q, e, Qe, sigma2, score_on)
@@ -1453,8 +1515,22 @@ def _evaluate(cls, data, model, state, sigma, n_candidates) -> dict:
             value = _profile_value(cls, ctxs[form], base, Q, e, vector, keep, projected[form])[0]
             row[f"{cls.profile_name}_without_heldout"] = _profiled_row({"v": value})["v"]
             held_feats = cls.features_at(ctxs[form], value)
+        elif row.get("closest_s") is None and cls.searched_times(row) and _event_block(feats, data,
+                                                                                       state["correlation"]) is None:
+            # Nor do they place a long box: edges searched on every reading had put boxes over a third of a short
+            # recording of 1/f or AR(1) noise where the held-out blocks' wander lay, and their held-out tests
+            # confirmed them (10 of 60 simulations; refined on the training blocks, 5). A short event (its own
+            # blocks) and a pass keep their placement: a held-out block can hold a pass's whole core (a second-long
+            # one, placed from its tails, was missed). The held-out readings of a block an edge may lie in are not
+            # judged: a true step's edge within one, placed at its border, had failed on the block's readings
+            # before the step.
+            held_feats, row["_heldout_unplaced"] = _placed_without_heldout(cls, data, state, regime, ctxs[form],
+                                                                           feats, base, vector, Q, e, sigma2)
+            row.update({f"{k}_without_heldout": v for k, v in cls.describe(ctxs[form], held_feats).items()})
+            row["_heldout_features"] = held_feats
         validated = _validate(data, model, state, held_feats, regime, sigma,
-                              others=np.asarray(fit["parameters"])[12 if vector else 9:][:len(state["terms"])])
+                              others=np.asarray(fit["parameters"])[12 if vector else 9:][:len(state["terms"])],
+                              placed=feats, unplaced=row.get("_heldout_unplaced"))
     except _core.Error as err:  # a candidate nearly inside the model can leave the solver no valid step
         row.update(lr=0.0, lr_pvalue=1.0, delta_aic=0.0, delta_bic=0.0, significant=False,
                    heldout_gap_before=None, heldout_gap_after=None,
@@ -1584,7 +1660,10 @@ def _row_leverage(data, result: dict, row: dict, directions: np.ndarray) -> floa
     """`_heldout_leverage` of a judged row's held-out readings (its regime, its own blocks for a short event), on
     those it was judged on, for the fit `result`."""
     held = _heldout(row["heldout"], data, directions, row.get("heldout_block"))
-    return _heldout_leverage(data, result, held, _judged(row["_features"], held, row.get("heldout_block")))
+    unplaced = row.get("_heldout_unplaced")
+    judged = held if unplaced is None else held & ~unplaced
+    return _heldout_leverage(data, result, held, _judged(row.get("_heldout_features", row["_features"]), judged,
+                                                         row.get("heldout_block")))
 
 
 def _gain_unresolved(row: dict, leverage: float, sigma: float) -> bool:
@@ -2407,16 +2486,24 @@ def _in_sample_length(fit: dict, data: _Data, rows: np.ndarray) -> int:
     return per_reading * _correlation_length(e[np.argsort(data.t[rows], kind="stable")])
 
 
-def _validate(data, model, state, feats, regime, sigma, others=None) -> dict:
-    """Fit with and without the candidate on all but a held-out regime; judge on the held-out part. `others`: the
+def _held_for(data, state, feats, regime):
+    """The held-out regime, readings and short event's block (`_event_block`, None otherwise) of a candidate of
+    `regime` with features `feats`."""
+    block = _event_block(feats, data, state["correlation"]) if regime == "events" else None
+    return _held_regime(data, state, regime, block) + (block,)
+
+
+def _validate(data, model, state, feats, regime, sigma, others=None, placed=None, unplaced=None) -> dict:
+    """Fit with and without the candidate on all but a held-out regime; judge on the held-out part but `unplaced`
+    (a mask: readings whose side of an event's edge the rest leaves open). `placed`: an event as placed on every
+    reading, whose span sets its held-out blocks (default `feats`). `others`: the
     accepted effects' terms as the fit with the candidate on every reading has them, the start of the fit with it
     on the rest. A term the rest does not determine stays at its start (a step inside the held-out quarter), and
     there the fit without the candidate has it from the fit without, the fit with from the fit with: from the fit
     without, a step had kept the part of a drift it took while the drift was unmodelled, the drift's extrapolation
     added that part again, and the drift failed its held-out test."""
     vector, fixed = MODELS[model]
-    block = _event_block(feats, data, state["correlation"]) if regime == "events" else None
-    regime, held = _held_regime(data, state, regime, block)
+    regime, held, block = _held_for(data, state, feats if placed is None else placed, regime)
     key = (regime, block)
     terms = _validated_terms(state)
     base_feats = _features(state["validated"])
@@ -2431,13 +2518,20 @@ def _validate(data, model, state, feats, regime, sigma, others=None) -> dict:
     after = _fit(data, state["start"], fixed, all_feats, ~held,
                  start_terms=np.concatenate([terms if others is None else _validated_terms(dict(state, terms=others)),
                                              np.zeros(feats.shape[1])]))
-    e1 = _residuals(after, data, all_feats, held)
+    judged = held if unplaced is None else held & ~unplaced
+    confirms_nothing = not judged.any()
+    if confirms_nothing:  # an event's edges may lie in every held-out block: they confirm nothing (judged unchanged)
+        judged, after, all_feats = held, before, base_feats
+    if judged is not held:
+        e0 = _residuals(before, data, base_feats, judged)
+    e1 = _residuals(after, data, all_feats, judged)
     # A short event's gaps where it acts: a magnet's second-long pass in ten minutes takes most of the departure
     # within its reach, and next to nothing of the whole held-out part's, where the noise alone had left a gap of 0
     # before and after.
-    within = _judged(feats, held, block)
+    within = _judged(feats, judged, block)
     g0, g1 = (_residuals(fit, data, f, within) for fit, f in ((before, base_feats), (after, all_feats)))
     return {"heldout": regime, "heldout_n": int(held.sum()), "heldout_block": block,
+            "heldout_n_unplaced": int(held.sum() if confirms_nothing else (held & ~judged).sum()),
             "heldout_n_judged": int(within.sum()),
             "heldout_noise_floor": floors[sigma],
             "heldout_gap_before": _gap(g0, sigma), "heldout_gap_after": _gap(g1, sigma),
@@ -3337,7 +3431,7 @@ def diagnose(samples, t=None, temp=None, reference=None, gravity=None, field_nor
     ranking += rest
     for r in ranking:
         for key in ("_fit", "_features", "_signature", "_explained", "_rivals", "_signal_features",
-                    "_law_in_time", "_columns"):
+                    "_law_in_time", "_columns", "_heldout_features", "_heldout_unplaced"):
             r.pop(key, None)
         r.setdefault("significant", False)
         r["significant"] = r["effect"] in accepted

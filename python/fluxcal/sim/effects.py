@@ -1226,8 +1226,12 @@ class _TimeBox(Effect):
         return cls._box(ctx, *edges), tried
 
     @classmethod
-    def _search_box(cls, ctx, score):
-        """The box search: (edges, best score, alternatives tried)."""
+    def _search_box(cls, ctx, score, near=None):
+        """The box search: (edges, best score, alternatives tried). `near` (edges, width): only the refinement,
+        from those edges over ± width."""
+        if near is not None:
+            edges, width = list(near[0]), near[1]
+            return cls._refine_box(ctx, score, edges, score(*cls._box_rows(ctx, *edges)), 1, width)
         coarse = cls._coarse_edges(ctx)
         boxes = getattr(score, "boxes", None)  # a scorer of many boxes at once (the diagnosis': score_on.boxes)
         scores = list(boxes(cls, ctx, coarse)) if boxes else [score(*cls._box_rows(ctx, a, b)) for a, b in coarse]
@@ -1239,9 +1243,12 @@ class _TimeBox(Effect):
             after = [k for k, (a, b) in enumerate(coarse) if a == coarse[best_at][1] and b >= ctx.t.max()]
             if after and scores[after[0]] >= scores[best_at] - 1e-9 * abs(scores[best_at]):
                 best_at = after[0]
-        edges, best, tried = list(coarse[best_at]), scores[best_at], len(coarse)
+        return cls._refine_box(ctx, score, list(coarse[best_at]), scores[best_at], len(coarse), np.ptp(ctx.t) / cls.GRID)
+
+    @classmethod
+    def _refine_box(cls, ctx, score, edges, best, tried, width):
+        """Each edge refined in turn over ± width, on ever finer grids down to the sample spacing."""
         dt = _sample_step(ctx.t)
-        width = np.ptp(ctx.t) / cls.GRID
         # An edge at an end of the recording makes the box a step (one edge): moving it inside adds an
         # edge, worth it only for more than the BIC's price of a parameter (else noise moves it a few samples)
         price = np.log(len(ctx.t))
@@ -1284,6 +1291,22 @@ class _TimeBox(Effect):
     def searched_times(cls, described: dict) -> int:
         """The box's edges inside the recording (one at an end makes it a step: one time fewer)."""
         return sum(described.get(k) is not None for k in ("on_s", "off_s"))
+
+    @classmethod
+    def placed_again(cls, ctx, part, feats, score, width) -> tuple:
+        """The box `feats` (on ctx's readings) placed again on `part`'s readings (some of ctx's, in time order; `score`
+        theirs), each edge within ± `width` of where it was: (its edges there, the box laid on ctx's readings with its
+        edges halfway between its first and last reading in `part` and their neighbours there)."""
+        span = cls.span(ctx, feats)
+        if span is None:
+            return None, feats
+        edges = cls._search_box(part, score, near=(span, width))[0]
+        span = cls.span(part, cls._box(part, *edges))
+        if span is None:
+            return edges, np.zeros_like(feats)
+        before, after = part.t[part.t < span[0]], part.t[part.t > span[1]]
+        return edges, cls._box(ctx, 0.5 * (before.max() + span[0]) if len(before) else ctx.t.min(),
+                               0.5 * (span[1] + after.min()) if len(after) else ctx.t.max())
 
 
 @dataclass
