@@ -18,7 +18,7 @@ from .._arrays import as_field_norms, as_samples, field_norm_given, held_copies,
 from ..attitude import magnetic_frame
 from ..calibration import Calibration
 from ..io.recording import UNIX_SECONDS
-from ..outliers import find_outliers
+from ..outliers import _runs as index_runs, find_outliers
 from ..sim.effects import CANDIDATES, MEMO_FLOATS, _Compression, _per_diagnosis, _time_ordered, scatter_rows
 
 # Base models: (uses a reference vector, base parameters held at their start values).
@@ -1282,10 +1282,7 @@ EDGE_OPEN = float(stats.chi2.ppf(0.95, 1))  # an edge moved to a held-out block'
 def _runs(t: np.ndarray, mask: np.ndarray) -> list:
     """The runs in time of the readings `mask`: arrays of their indices, each in time order."""
     order = np.argsort(t, kind="stable")
-    m = mask[order]
-    starts = np.flatnonzero(m & ~np.r_[False, m[:-1]])
-    ends = np.flatnonzero(m & ~np.r_[m[1:], False]) + 1
-    return [order[a:b] for a, b in zip(starts, ends)]
+    return [order[first:last + 1] for first, last in index_runs(mask[order])]
 
 
 # A box narrower than this part of the recording is scored from its own readings: the sums over all boxes hold
