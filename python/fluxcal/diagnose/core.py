@@ -239,7 +239,8 @@ class Diagnosis:
     chosen again without them for that test: `lag_s_without_heldout`, `warmup_s_without_heldout`; a box longer than
     two held-out blocks has its edges refined again without them, within a block's length, `on_s_without_heldout`,
     `off_s_without_heldout`, and the `heldout_n_unplaced` held-out readings of a block an edge may lie in (within its
-    95 % interval on the training readings) are not judged: which side of it they lie only they would say);
+    95 % interval on the training readings) are not judged, its field errors and noise floor neither: which side of
+    it they lie only they would say);
     an effect accepted in an early round that no longer pays BIC's price once the later ones are modelled
     is left out (its row's `note` says so, `pruned_delta_bic` the ΔBIC for keeping it); one placed again once
     later ones were modelled (a step's edges, a drift's time constant) or replaced by its kin (the cubic by
@@ -2519,8 +2520,11 @@ def _validate(data, model, state, feats, regime, sigma, others=None, placed=None
     confirms_nothing = not judged.any()
     if confirms_nothing:  # an event's edges may lie in every held-out block: they confirm nothing (judged unchanged)
         judged, after, all_feats = held, before, base_feats
-    if judged is not held:
+    floor = floors[sigma]
+    if judged is not held:  # (the field errors too on the readings judged: the unplaced ones' say nothing)
         e0 = _residuals(before, data, base_feats, judged)
+        downstream_before = _downstream(before, data, base_feats, judged)
+        floor = _noise_floor(before, data, base_feats, judged, sigma)
     e1 = _residuals(after, data, all_feats, judged)
     # A short event's gaps where it acts: a magnet's second-long pass in ten minutes takes most of the departure
     # within its reach, and next to nothing of the whole held-out part's, where the noise alone had left a gap of 0
@@ -2530,14 +2534,14 @@ def _validate(data, model, state, feats, regime, sigma, others=None, placed=None
     return {"heldout": regime, "heldout_n": int(held.sum()), "heldout_block": block,
             "heldout_n_unplaced": int(held.sum() if confirms_nothing else (held & ~judged).sum()),
             "heldout_n_judged": int(within.sum()),
-            "heldout_noise_floor": floors[sigma],
+            "heldout_noise_floor": floor,
             "heldout_gap_before": _gap(g0, sigma), "heldout_gap_after": _gap(g1, sigma),
             "heldout_rms_before": float(np.sqrt(np.mean(g0 ** 2))),
             "heldout_rms_after": float(np.sqrt(np.mean(g1 ** 2))),
             "heldout_pvalue": _event_pvalue(e0, e1, (g0, g1) if block is not None else None,
                                             _in_sample_length(after, data, ~held)),
             **{f"{k}_before": v for k, v in downstream_before.items()},
-            **{f"{k}_after": v for k, v in _downstream(after, data, all_feats, held).items()}}
+            **{f"{k}_after": v for k, v in _downstream(after, data, all_feats, judged).items()}}
 
 
 def _ar_fit(series: np.ndarray, max_order: int):
