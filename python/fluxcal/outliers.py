@@ -176,11 +176,12 @@ def _axis_noise(cal, m: np.ndarray, keep: np.ndarray, norms=None) -> np.ndarray 
     from scipy.optimize import minimize
 
     d, g2 = _raw_distances(cal, m[keep], None if norms is None else norms[keep], squared_gradient=True)
+    d = d / _leverage_scale(cal, m, keep)[keep]  # (the fit pulls toward its own readings: by √(1 − leverage))
     ok = np.isfinite(d) & np.all(np.isfinite(g2), axis=1) & (g2.sum(axis=1) > 0)
-    d, g2 = d[ok] - np.median(d[ok]), g2[ok]
     dim = m.shape[1]
-    if len(d) < 10 * dim:
+    if ok.sum() < 10 * dim:
         return None
+    d, g2 = d[ok] - np.median(d[ok]), g2[ok]
 
     def deviance(log_v):  # −2 log L (constants dropped) and its gradient in log v
         v = g2 @ np.exp(log_v)
