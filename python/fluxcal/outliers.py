@@ -165,6 +165,7 @@ def _raw_distances(cal, m: np.ndarray, norms=None, axis_noise=None, squared_grad
 
 
 AXIS_NOISE_ALPHA = 0.01  # the axes' noise is taken as unequal when equal variances are rejected at this level
+AXIS_NOISE_SE = 0.5      # … each axis' own where its log-variance is known to this standard error (±65 % in variance)
 
 
 def _axis_noise(cal, m: np.ndarray, keep: np.ndarray, norms=None) -> np.ndarray | None:
@@ -195,6 +196,13 @@ def _axis_noise(cal, m: np.ndarray, keep: np.ndarray, norms=None) -> np.ndarray 
     if not np.isfinite(best.fun) or at_equal - best.fun <= stats.chi2.isf(AXIS_NOISE_ALPHA, dim - 1):
         return None
     v = np.exp(best.x)
+    # An axis the readings barely turn through (a level turn's z) leaves its variance undetermined, free to reach a
+    # bound and hide a spike along it: it keeps the equal variance unless its log-variance's standard error (Fisher
+    # information ½ Σᵢ wᵢₖ wᵢₗ, wᵢₖ = vₖ (Aᵀĥ)ᵢₖ² / vᵢ) is within AXIS_NOISE_SE.
+    w = g2 * v / (g2 @ v)[:, None]
+    with np.errstate(all="ignore"):
+        se = np.sqrt(np.abs(np.diag(np.linalg.pinv(0.5 * w.T @ w))))
+    v = np.where(se <= AXIS_NOISE_SE, v, np.exp(equal))
     return v / v.mean()
 
 

@@ -398,3 +398,24 @@ def test_equally_noisy_axes_are_judged_by_one_sigma():
             told += 1
             assert np.max(v) / np.min(v) < 1.3, (seed, v)
     assert told <= 1
+
+
+def test_an_axis_the_readings_barely_turn_through_keeps_the_equal_noise():
+    """A level turn (tilts of 0.02 rad) with x three times as noisy as y and z: x's variance is found (9× y's), z's
+    is undetermined and stays at the equal variance rather than one free to hide a spike along z (without the
+    standard-error check: 0.015 of the mean, near its bound). Tilted by 0.5 rad,
+    z's is found too."""
+    from fluxcal.outliers import AXIS_NOISE_SE, _axis_noise, _try_fit
+
+    assert AXIS_NOISE_SE < 1
+    for tilt in (0.02, 0.5):
+        rng = np.random.default_rng(1)
+        a, el = rng.uniform(0, 2 * np.pi, 3000), tilt * rng.standard_normal(3000)
+        u = np.column_stack([np.cos(a) * np.cos(el), np.sin(a) * np.cos(el), np.sin(el)])
+        m = H * u + np.array([3.0, -2.0, 5.0]) + 0.005 * H * rng.standard_normal((3000, 3)) * np.array([3, 1, 1])
+        v = _axis_noise(_try_fit(m, "als"), m, np.ones(3000, bool))
+        assert v is not None and abs(v[0] / v[1] - 9.0) < 2.0, (tilt, v)
+        if tilt < 0.1:  # (the equal variance: between x's and y's, not y's)
+            assert v[1] * 1.5 < v[2] < v[0], v
+        else:
+            assert abs(v[2] / v[1] - 1.0) < 0.3, v
