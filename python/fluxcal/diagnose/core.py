@@ -2516,7 +2516,7 @@ def _validate(data, model, state, feats, regime, sigma, others=None, placed=None
     after = _fit(data, state["start"], fixed, all_feats, ~held,
                  start_terms=np.concatenate([terms if others is None else _validated_terms(dict(state, terms=others)),
                                              np.zeros(feats.shape[1])]))
-    judged = held if unplaced is None else held & ~unplaced
+    judged = held if unplaced is None or not unplaced[held].any() else held & ~unplaced
     confirms_nothing = not judged.any()
     if confirms_nothing:  # an event's edges may lie in every held-out block: they confirm nothing (judged unchanged)
         judged, after, all_feats = held, before, base_feats
