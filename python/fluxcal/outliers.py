@@ -168,16 +168,18 @@ AXIS_NOISE_ALPHA = 0.01  # the axes' noise is taken as unequal when equal varian
 AXIS_NOISE_SE = 0.5      # … each axis' own where its log-variance is known to this standard error (±65 % in variance)
 
 
-def _axis_noise(cal, m: np.ndarray, keep: np.ndarray, norms=None) -> np.ndarray | None:
+def _axis_noise(cal, m: np.ndarray, keep: np.ndarray, norms=None, leverage=None) -> np.ndarray | None:
     """Each axis' noise variance over their mean, by maximum likelihood from the distances of the readings `keep`
     (one's variance is Σₖ vₖ (Aᵀĥ)ₖ², Gaussian), or None when the likelihood ratio against equal variances stays within
     χ²(dim − 1) at AXIS_NOISE_ALPHA. A sensor's axes need not be equally noisy (a z axis of a separate die, twice
     the others' σ): judged by one σ, a noisy axis's ordinary readings passed the Bonferroni line — one or more
-    "glitches" in 3 of 5 clean 3000-reading recordings at σ_z = 2σ_x, 5 of 5 at 3σ_x, against α = 1 %."""
+    "glitches" in 3 of 5 clean 3000-reading recordings at σ_z = 2σ_x, 5 of 5 at 3σ_x, against α = 1 %.
+    `leverage`: `_leverage_scale(cal, m, keep)` when the caller has it."""
     from scipy.optimize import minimize
 
     d, g2 = _raw_distances(cal, m[keep], None if norms is None else norms[keep], squared_gradient=True)
-    d = d / _leverage_scale(cal, m, keep)[keep]  # (the fit pulls toward its own readings: by √(1 − leverage))
+    leverage = _leverage_scale(cal, m, keep) if leverage is None else leverage
+    d = d / leverage[keep]  # (the fit pulls toward its own readings: by √(1 − leverage))
     ok = np.isfinite(d) & np.all(np.isfinite(g2), axis=1) & (g2.sum(axis=1) > 0)
     dim = m.shape[1]
     if ok.sum() < 10 * dim:
@@ -462,8 +464,9 @@ def find_outliers(samples, reference=None, alpha: float = 0.01, seed: int = 0, f
         refit = fit(m[keep], None if field_norms is None else field_norms[keep])
         if refit is None:
             break
-        axes = _axis_noise(refit, m, keep, field_norms)
-        z_new, sigma = _robust_z(_distances(refit, m, field_norms, axes) / _leverage_scale(refit, m, keep))
+        leverage = _leverage_scale(refit, m, keep)
+        axes = _axis_noise(refit, m, keep, field_norms, leverage)
+        z_new, sigma = _robust_z(_distances(refit, m, field_norms, axes) / leverage)
         changed = np.any((z_new > line) != (z > line))
         z = z_new
         if not changed:
