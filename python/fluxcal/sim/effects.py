@@ -975,46 +975,79 @@ def _line_series(ctx) -> tuple:
                         compute)
 
 
+def _line_spectra(ctx):
+    """_segment_spectra of the context's _line_series, kept on the context (every frequency tried asks)."""
+    return _per_context(ctx, "_line_spectra", (ctx.t, ctx.readings, ctx.signal, getattr(ctx, "modelled", None)),
+                        lambda: _segment_spectra(*_line_series(ctx)))
+
+
 def _demodulated_power(t, series, f: float, rates, ends) -> np.ndarray:
     """Σ over the axes of |Σ series e^(−i phase)|² for the line at f drifting at each of `rates`: the power a line
-    of that course takes from the series."""
-    return np.array([np.sum(np.abs(np.exp(-1j * _line_phase(t, f, r, ends)) @ series) ** 2)  # (one course at a
-                     for r in np.atleast_1d(np.asarray(rates, dtype=float))])      # time: a long recording's memory)
+    of that course takes from the series. One course at a time (a long recording's memory); a rate an even step
+    from the one before turns the last course's phasors by that step's, one product instead of an exponential
+    (the rate scan's 33 evenly spaced courses: ~3× faster, the same to 1e-10 of the highest)."""
+    rates = np.atleast_1d(np.asarray(rates, dtype=float))
+    gaps = np.diff(rates).tolist()
+    mid = 0.5 * (ends[0] + ends[1])
+    bend = np.pi * ((t - mid) ** 2 - (ends[0] - mid) ** 2)  # the phase a unit rate adds (_line_phase)
+    power, phasors, turn, step = np.empty(len(rates)), None, None, np.nan
+
+    def same(a, b):
+        return abs(a - b) <= 1e-9 * abs(a)
+    for k, r in enumerate(rates):
+        if k >= 2 and same(gaps[k - 1], gaps[k - 2]):
+            if not same(gaps[k - 1], step):
+                step, turn = gaps[k - 1], np.exp(-1j * gaps[k - 1] * bend)
+            phasors = phasors * turn
+        else:
+            phasors = np.exp(-1j * _line_phase(t, f, r, ends))
+        power[k] = np.sum(np.abs(phasors @ series) ** 2)
+    return power
 
 
-def _line_ridge(t, series, f: float):
-    """(rate Hz/s, frequency at the recording's middle) of the line near f, from its peak in LINE_SEGMENTS stretches
-    of the series' first three quarters (a straight line through their frequencies, weighted by their power), or
-    None for too short a series."""
+def _segment_spectra(t, series):
+    """(frequencies, the stretches' middles from the series' middle, their power spectra LINE_SEGMENTS × bins): the
+    series' first three quarters in LINE_SEGMENTS stretches, each Hann-windowed and padded 8×, for _line_ridge; or
+    None for too short a series. The same for every frequency asked about (a context keeps them: _rate)."""
     used = int(0.75 * len(t))
-    if used < 8 * LINE_SEGMENTS or not f > 0:
+    if used < 8 * LINE_SEGMENTS:
         return None
     step = float(t[1] - t[0])
     seg = used // LINE_SEGMENTS
-    pad = 8 * seg
-    freqs = np.fft.rfftfreq(pad, step)
-    band = np.abs(freqs - f) <= max(LINE_DRIFT_MOST * f, 3.0 / (seg * step))
+    window = np.hanning(seg)[:, None]
+    chunks = series[:seg * LINE_SEGMENTS].reshape(LINE_SEGMENTS, seg, -1) * window
+    power = np.sum(np.abs(np.fft.rfft(chunks, n=8 * seg, axis=1)) ** 2, axis=2)
+    centres = t[:seg * LINE_SEGMENTS].reshape(LINE_SEGMENTS, seg).mean(axis=1) - 0.5 * float(t[0] + t[-1])
+    return np.fft.rfftfreq(8 * seg, step), centres, power
+
+
+def _line_ridge(t, series, f: float, spectra=None):
+    """(rate Hz/s, frequency at the recording's middle) of the line near f, from its peak in LINE_SEGMENTS stretches
+    of the series' first three quarters (a straight line through their frequencies, weighted by their power), or
+    None for too short a series. `spectra`: _segment_spectra(t, series) when the caller has them."""
+    spectra = _segment_spectra(t, series) if spectra is None else spectra
+    if spectra is None or not f > 0:
+        return None
+    freqs, centres, powers = spectra
+    band = np.abs(freqs - f) <= max(LINE_DRIFT_MOST * f, 24.0 * float(freqs[1]))  # (3 / a stretch's span)
     if band.sum() < 3:
         return None
-    centres, peaks, weights = [], [], []
-    window = np.hanning(seg)[:, None]
-    for k in range(LINE_SEGMENTS):
-        chunk = series[k * seg:(k + 1) * seg]
-        power = np.sum(np.abs(np.fft.rfft(chunk * window, n=pad, axis=0)) ** 2, axis=1)
+    peaks, weights = [], []
+    for power in powers:
         j = np.flatnonzero(band)[np.argmax(power[band])]
         if 0 < j < len(power) - 1:  # the peak between bins (a parabola through its three)
             a, b, c = np.log(power[j - 1:j + 2] + 1e-300)
             j = j + 0.5 * (a - c) / (a - 2 * b + c) if a - 2 * b + c < 0 else j
-        centres.append(float(np.mean(t[k * seg:(k + 1) * seg])) - 0.5 * float(t[0] + t[-1]))
         peaks.append(float(j) * float(freqs[1]))
         weights.append(float(np.max(power[band])))
     rate, at_middle = np.polyfit(centres, peaks, 1, w=np.sqrt(weights))
     return float(rate), float(at_middle)
 
 
-def _line_rate(t, series, f: float) -> float:
-    """_rate's estimate on the series' first three quarters (see PeriodicInterference._rate)."""
-    ridge = _line_ridge(t, series, f)
+def _line_rate(t, series, f: float, spectra=None) -> float:
+    """_rate's estimate on the series' first three quarters (see PeriodicInterference._rate); `spectra` as for
+    _line_ridge."""
+    ridge = _line_ridge(t, series, f, spectra)
     used = int(0.75 * len(t))
     t_used, s_used = t[:used], series[:used]
     span = float(t_used[-1] - t_used[0])
@@ -1096,7 +1129,7 @@ class PeriodicInterference(Effect):
         held = _per_context(ctx, "_line_rates", (ctx.t, ctx.readings, ctx.signal, getattr(ctx, "modelled", None)),
                             dict)
         if f not in held:
-            held[f] = _line_rate(*_line_series(ctx), f)
+            held[f] = _line_rate(*_line_series(ctx), f, _line_spectra(ctx))
         return held[f]
 
     @classmethod
@@ -1133,7 +1166,7 @@ class PeriodicInterference(Effect):
             return np.array([max(LINE_LOWEST_CYCLES / span, df)])
         # a line whose frequency drifts spreads its peak: its frequency at the middle, followed through the
         # recording (_line_ridge), is tried beside the peak's
-        ridges = [_line_ridge(even, series, float(f[j])) for j in top]
+        ridges = [_line_ridge(even, series, float(f[j]), _line_spectra(ctx)) for j in top]
         middles = [r[1] for r in ridges if r is not None and abs(r[0]) * span > 1.0 / span
                    and LINE_LOWEST_CYCLES / span <= r[1] <= 0.5 / step - 2 * df]
         grid = np.unique(np.concatenate([np.concatenate([f[top], middles])[:, None] + df * np.asarray(LINE_STEPS)]
