@@ -991,6 +991,7 @@ def _demodulated_power(t, series, f: float, rates, ends) -> np.ndarray:
     mid = 0.5 * (ends[0] + ends[1])
     bend = np.pi * ((t - mid) ** 2 - (ends[0] - mid) ** 2)  # the phase a unit rate adds (_line_phase)
     power, phasors, turn, step = np.empty(len(rates)), None, None, np.nan
+    series = np.asarray(series, dtype=complex)  # (once, not by each product)
 
     def same(a, b):
         return abs(a - b) <= 1e-9 * abs(a)
