@@ -419,6 +419,39 @@ def test_a_line_whose_frequency_drifts_is_found_and_its_course_said(start, end, 
     assert "whose speed changed" in said, said
 
 
+def test_a_rate_scan_turned_step_by_step_is_the_power_of_each_course():
+    """_demodulated_power turns the last course's phasors by an even step's (one product, not an exponential): each
+    power must be the plain |Σ series e^(−i phase)|² of its own course, for evenly and unevenly spaced rates, over a
+    long recording (where a step's rounding would add up) and a short one."""
+    from fluxcal.sim.effects import _demodulated_power, _line_phase
+
+    rng = np.random.default_rng(4)
+    for n, dt in ((300, 0.05), (60000, 0.01)):
+        t = np.arange(n) * dt
+        series = rng.normal(size=(n, 3)) + np.sin(2 * np.pi * (3.0 * t + 0.004 * t ** 2))[:, None] * [1.0, 0.5, -0.3]
+        span = float(t[-1])
+        even = -0.2 + np.linspace(-4.0, 4.0, 33) / (2.0 * span ** 2)
+        for rates in (np.r_[0.0, even], np.r_[even[:5], 0.3, even[5:9], even[20:]], [0.01]):
+            plain = [np.sum(np.abs(np.exp(-1j * _line_phase(t, 3.0, r, (t[0], t[-1]))) @ series) ** 2) for r in rates]
+            np.testing.assert_allclose(_demodulated_power(t, series, 3.0, rates, (t[0], t[-1])), plain,
+                                       rtol=1e-9, atol=1e-9 * max(plain))
+
+
+def test_a_lines_ridge_is_the_same_from_spectra_kept():
+    """_line_ridge from the stretches' spectra a context keeps (_segment_spectra) is the one it computes itself."""
+    from fluxcal.sim.effects import _line_ridge, _segment_spectra
+
+    t = np.arange(4000) * 0.02
+    series = np.sin(2 * np.pi * (5.0 * t + 0.01 * t ** 2))[:, None] * [1.0, -0.4, 0.2]
+    series = series + np.random.default_rng(1).normal(0, 0.3, series.shape)
+    kept = _segment_spectra(t, series)
+    for f in (4.0, 5.5, 7.0, 12.0):
+        assert _line_ridge(t, series, f, kept) == _line_ridge(t, series, f), f
+    rate, middle = _line_ridge(t, series, 5.8)
+    assert rate == pytest.approx(0.02, rel=0.1) and middle == pytest.approx(5.0 + 0.02 * 0.5 * t[-1], abs=0.05)
+    assert _segment_spectra(t[:40], series[:40]) is None and _line_ridge(t[:40], series[:40], 5.0) is None
+
+
 def test_a_step_in_a_short_recording_is_no_line_drifting_through_zero_hertz():
     """100 readings over 5 s with an offset step: the ridge through a step's spectrum fitted "a field at −0.151 Hz
     drifting to 2.163 Hz" (a blind check). A line drifts within LINE_DRIFT_MOST of its frequency either way; on
