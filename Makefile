@@ -19,7 +19,8 @@ demo: install
 	$(VENV)/bin/fluxcal demo -o build/demo
 
 # pytest: two workers (pytest-xdist) on 2 cores; worksteal, so that the half-minute diagnosis tests left at the
-# end do not leave one worker idle. 9.5 min in CI on 2026-11-27; ~15 min on the slower machine of 2026-12-02.
+# end do not leave one worker idle. 18 min here on 2026-12-06 (the whole .ci/run 25 min; 30.5 min in CI before that
+# day's speed-up of the periodic-interference candidate). Keep .ci/run under 30 min on 2 cores.
 test: install
 	$(CTEST_BIN) --test-dir $(DEV) --output-on-failure
 	$(PY) -m pytest -q -n 2 --dist worksteal
