@@ -983,9 +983,10 @@ def _line_spectra(ctx):
 
 def _demodulated_power(t, series, f: float, rates, ends) -> np.ndarray:
     """Σ over the axes of |Σ series e^(−i phase)|² for the line at f drifting at each of `rates`: the power a line
-    of that course takes from the series. One course at a time (a long recording's memory); a rate an even step
-    from the one before turns the last course's phasors by that step's, one product instead of an exponential
-    (the rate scan's 33 evenly spaced courses: ~6× faster on 20 000 readings, the same to 1e-10 of the highest)."""
+    of that course takes from the series (`ends`: the recording's first and last times, as for _line_phase). One
+    course at a time (a long recording's memory); a rate an even step from the one before turns the last course's
+    phasors by that step's, one product instead of an exponential (the rate scan's 33 evenly spaced courses: ~6×
+    faster on 20 000 readings, the same to 1e-10 of the highest)."""
     rates = np.atleast_1d(np.asarray(rates, dtype=float))
     gaps = np.diff(rates)
     even = np.r_[False, False, np.abs(np.diff(gaps)) <= 1e-9 * np.abs(gaps[1:])]  # (a step as the one before)
@@ -1005,19 +1006,21 @@ def _demodulated_power(t, series, f: float, rates, ends) -> np.ndarray:
 
 
 def _segment_spectra(t, series):
-    """(frequencies, the stretches' middles from the series' middle, their power spectra LINE_SEGMENTS × bins): the
-    series' first three quarters in LINE_SEGMENTS stretches, each Hann-windowed and padded 8×, for _line_ridge; or
-    None for too short a series. The same for every frequency asked about (a context keeps them: _rate)."""
+    """(frequencies, the stretches' middles from the series' middle, their power spectra LINE_SEGMENTS × bins, the
+    narrowest band a peak is looked for in: 3 / a stretch's span): the series' first three quarters in LINE_SEGMENTS
+    stretches, each Hann-windowed and padded 8×, for _line_ridge; or None for too short a series. The same for every
+    frequency asked about (_line_spectra keeps them per context)."""
     used = int(0.75 * len(t))
     if used < 8 * LINE_SEGMENTS:
         return None
     step = float(t[1] - t[0])
     seg = used // LINE_SEGMENTS
     window = np.hanning(seg)[:, None]
-    chunks = series[:seg * LINE_SEGMENTS].reshape(LINE_SEGMENTS, seg, -1) * window
-    power = np.sum(np.abs(np.fft.rfft(chunks, n=8 * seg, axis=1)) ** 2, axis=2)
-    centres = t[:seg * LINE_SEGMENTS].reshape(LINE_SEGMENTS, seg).mean(axis=1) - 0.5 * float(t[0] + t[-1])
-    return np.fft.rfftfreq(8 * seg, step), centres, power
+    power, centres = np.empty((LINE_SEGMENTS, 4 * seg + 1)), np.empty(LINE_SEGMENTS)
+    for k in range(LINE_SEGMENTS):  # (one stretch at a time: all eight padded at once took 7× the memory)
+        power[k] = np.sum(np.abs(np.fft.rfft(series[k * seg:(k + 1) * seg] * window, n=8 * seg, axis=0)) ** 2, axis=1)
+        centres[k] = float(np.mean(t[k * seg:(k + 1) * seg])) - 0.5 * float(t[0] + t[-1])
+    return np.fft.rfftfreq(8 * seg, step), centres, power, 3.0 / (seg * step)
 
 
 def _line_ridge(t, series, f: float, spectra=None):
@@ -1027,8 +1030,8 @@ def _line_ridge(t, series, f: float, spectra=None):
     spectra = _segment_spectra(t, series) if spectra is None else spectra
     if spectra is None or not f > 0:
         return None
-    freqs, centres, powers = spectra
-    band = np.abs(freqs - f) <= max(LINE_DRIFT_MOST * f, 24.0 * float(freqs[1]))  # (3 / a stretch's span)
+    freqs, centres, powers, narrowest = spectra
+    band = np.abs(freqs - f) <= max(LINE_DRIFT_MOST * f, narrowest)
     if band.sum() < 3:
         return None
     peaks, weights = [], []
@@ -1165,7 +1168,8 @@ class PeriodicInterference(Effect):
             return np.array([max(LINE_LOWEST_CYCLES / span, df)])
         # a line whose frequency drifts spreads its peak: its frequency at the middle, followed through the
         # recording (_line_ridge), is tried beside the peak's
-        ridges = [_line_ridge(even, series, float(f[j]), _line_spectra(ctx)) for j in top]
+        spectra = _line_spectra(ctx)
+        ridges = [_line_ridge(even, series, float(f[j]), spectra) for j in top]
         middles = [r[1] for r in ridges if r is not None and abs(r[0]) * span > 1.0 / span
                    and LINE_LOWEST_CYCLES / span <= r[1] <= 0.5 / step - 2 * df]
         grid = np.unique(np.concatenate([np.concatenate([f[top], middles])[:, None] + df * np.asarray(LINE_STEPS)]
