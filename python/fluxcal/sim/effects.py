@@ -948,6 +948,11 @@ def _line_phase(t, f: float, rate: float, ends=None) -> np.ndarray:
     return 2 * np.pi * f * (t - t0) + np.pi * rate * ((t - mid) ** 2 - (t0 - mid) ** 2)
 
 
+def _line_inputs(ctx) -> tuple:
+    """What a line's residual series is made of (_per_context's key for everything derived from it)."""
+    return ctx.t, ctx.readings, ctx.signal, getattr(ctx, "modelled", None)
+
+
 def _line_series(ctx) -> tuple:
     """(times, series): what the fit leaves of the readings, as the fit sees it (against reference vectors the
     readings less the model's, per axis; against magnitudes that difference along each axis' share of the magnitude:
@@ -971,14 +976,12 @@ def _line_series(ctx) -> tuple:
         series = np.column_stack([np.interp(even, t[order], c) for c in series.T])
         return even, series - series.mean(axis=0)
 
-    return _per_context(ctx, "_line_series", (ctx.t, ctx.readings, ctx.signal, getattr(ctx, "modelled", None)),
-                        compute)
+    return _per_context(ctx, "_line_series", _line_inputs(ctx), compute)
 
 
 def _line_spectra(ctx):
     """_segment_spectra of the context's _line_series, kept on the context (every frequency tried asks)."""
-    return _per_context(ctx, "_line_spectra", (ctx.t, ctx.readings, ctx.signal, getattr(ctx, "modelled", None)),
-                        lambda: _segment_spectra(*_line_series(ctx)))
+    return _per_context(ctx, "_line_spectra", _line_inputs(ctx), lambda: _segment_spectra(*_line_series(ctx)))
 
 
 def _demodulated_power(t, series, f: float, rates, ends) -> np.ndarray:
@@ -1128,8 +1131,7 @@ class PeriodicInterference(Effect):
         through LINE_SEGMENTS stretches of the residual series (_line_series), the slope of their frequencies
         refined by the demodulated power, taken when the power it adds pays BIC's price for one more parameter.
         Chosen on the first three quarters of the recording: the held-out last quarter chooses nothing."""
-        held = _per_context(ctx, "_line_rates", (ctx.t, ctx.readings, ctx.signal, getattr(ctx, "modelled", None)),
-                            dict)
+        held = _per_context(ctx, "_line_rates", _line_inputs(ctx), dict)
         if f not in held:
             held[f] = _line_rate(*_line_series(ctx), f, _line_spectra(ctx))
         return held[f]
@@ -1152,8 +1154,7 @@ class PeriodicInterference(Effect):
         span, step = _span_and_step(ctx.t)
         if not (span > 0 and step > 0) or len(ctx.t) < 64:
             return np.array([1.0])
-        return _per_context(ctx, "_line_grid", (ctx.t, ctx.readings, ctx.signal, getattr(ctx, "modelled", None)),
-                            lambda: cls._grid(ctx, span, step))
+        return _per_context(ctx, "_line_grid", _line_inputs(ctx), lambda: cls._grid(ctx, span, step))
 
     @staticmethod
     def _grid(ctx, span: float, step: float) -> np.ndarray:
