@@ -79,6 +79,8 @@ class _Data:
     field_norms: np.ndarray | None = None  # each reading's |field| (logged beside it: a field that changes)
     # what the candidates compute once per diagnosis (sim.effects._per_diagnosis; its entries name their inputs)
     memo: dict = field(default_factory=dict, repr=False, compare=False)
+    # vector models, axes of unequal noise (_axis_noise): each axis's residuals × σ̄/σ_axis in every fit and test
+    axis_weights: np.ndarray | None = None
 
 
 def _field_at(data: _Data, rows=slice(None)):
@@ -255,7 +257,10 @@ class Diagnosis:
     the final residuals exceed it (`exceeds`, χ² `pvalue`, `rms_over_sigma`); `remaining["unexplained"]`: the
     share of the base model's gap² the effects found leave (`share`; colored_noise takes none), and `left`
     when that is most of it and the residuals are well above the noise (the text report says NOT EXPLAINED:
-    the cause is outside the candidates). `significant`: any effect found."""
+    the cause is outside the candidates). `significant`: any effect found. `axis_noise`: against reference vectors,
+    each axis's σ when their noise differs (equal rejected at AXES_ALPHA; `noise_sigma` is then their RMS): every fit
+    and test weights an axis's residuals by noise_sigma / its σ, and the residuals in `where`, `remaining` and
+    `series` are those weighted ones."""
 
     model: str
     noise_sigma: float
@@ -270,6 +275,7 @@ class Diagnosis:
     series: dict = field(repr=False, default_factory=dict)  # per-reading arrays for the figures
     caveats: list = field(default_factory=list)  # what may make the findings untrustworthy (inputs, coverage)
     clipping: list = field(default_factory=list)  # hard saturation: axes whose readings pile up at the range's end
+    axis_noise: list | None = None  # a vector model's σ per axis when their noise differs (None: noise_sigma on each)
 
     @property
     def significant(self) -> bool:
@@ -291,7 +297,7 @@ class Diagnosis:
         from .report import confound_lines, temperature_caveat
 
         return {"source": self.source, "model": self.model, "units": self.units,
-                "noise_sigma": self.noise_sigma, "noise_source": self.noise_source,
+                "noise_sigma": self.noise_sigma, "noise_source": self.noise_source, "axis_noise": self.axis_noise,
                 **({} if not isinstance(self.base, Calibration) else {  # (a cable diagnosis has no field norm)
                     # |h| of the magnitude models: the mean of each reading's own when those were given
                     "field_norm": self.base.field_norm,
@@ -629,9 +635,9 @@ def _noise(data: _Data, base: dict) -> tuple:
     third differences of the base model's residuals in time order, which no longer hold the field's
     rotation — also when those differ by less than BELOW_NOISE σ (a random walk of the attitude makes white
     steps in the readings, which differences of any order take for noise). A reference-vector model's residuals
-    hold the attitude's errors, so the smaller of the two is taken. Returns (σ, source, bound): `bound` when σ
+    hold the attitude's errors, so the smaller of the two is taken. Returns (σ, source, bound, axes): `bound` when σ
     came from residuals out of time order, which hold all the model misses (an upper bound on the noise, not the
-    noise)."""
+    noise); `axes` a vector model's `_axis_noise` of the same residuals (None: one σ for every axis)."""
     m, lines = data.m, None
     if data.t is not None and _alternating(data.m) is None:  # (a line at the Nyquist frequency: readings two apart)
         order = np.argsort(data.t, kind="stable")
@@ -671,6 +677,7 @@ def _noise(data: _Data, base: dict) -> tuple:
     e = np.asarray(base["residuals"] if m is data.m else _residuals(base, replace(data, m=m), None, slice(None)))
     e = e.reshape(len(data.m), -1)[np.argsort(data.t, kind="stable")]
     from_residuals = differences(e, 3, mixture=True)
+    axes = _axis_noise(e, differences) if e.shape[1] == 3 else None
     # the base model's residuals differing less than the noise: the readings' differences held motion that is white
     # in them too (a random walk of the attitude: σ 2.8× the truth, every effect then "below the noise"; a brisk
     # random tumble: 1.8–2× with the 4th order only 4 % below the 3rd — two blind checks)
@@ -686,7 +693,7 @@ def _noise(data: _Data, base: dict) -> tuple:
                       "apart in time, or rows out of time order with no times given): not a time series; give "
                       "noise_sigma (--noise-sigma; the datasheet's) to test the candidates against the sensor's "
                       "own noise")
-            return from_residuals, source + said_lines, True
+            return from_residuals, source + said_lines, True, axes
         elif from_residuals < sigma:
             why = (f"readings taken at uneven times (steps spread by {100 * uneven:.0f} % of the median step)"
                    if uneven else "fast turns, or steps between held positions" if orders_differ
@@ -695,7 +702,29 @@ def _noise(data: _Data, base: dict) -> tuple:
                       f"differences hold the motion — {why} ({sigma:.4g}{unit} from 3rd, {fourth:.4g}{unit} from "
                       "4th order)")
             sigma = from_residuals
-    return sigma, source + said_lines, False
+    return sigma, source + said_lines, False, axes
+
+
+AXES_ALPHA = 0.01      # the axes' noise is taken to differ when equal variances are rejected at this level
+AXES_MOST = 10.0       # ... and no axis's σ is taken beyond this many times their RMS either way
+
+
+def _axis_noise(e: np.ndarray, differences) -> tuple | None:
+    """A vector model's residuals per axis (N × 3, time order): (weights σ̄/σ_axis, σ_axis / σ̄, p-value) when their
+    noise differs — equal variances of their third differences rejected at AXES_ALPHA (Brown–Forsythe, on every
+    fourth difference: those share no reading) — else None. σ_axis from `differences` of that axis alone, σ̄ their
+    RMS, so that the weighted residuals keep the one σ the diagnosis reports. One pooled σ had judged a candidate
+    acting on the noisiest axis against a noise too small (σ_z = 3 σ_x: an offset step named in 2 of 40 recordings
+    with nothing withheld) and one on the quiet axes against a noise too large."""
+    d = np.diff(e, n=3, axis=0)[::4]
+    if len(d) < 10:
+        return None
+    p = float(stats.levene(*d.T, center="median").pvalue)
+    if not p < AXES_ALPHA:
+        return None
+    sigmas = np.array([differences(e[:, [k]], 3) for k in range(3)])
+    relative = np.clip(sigmas / np.sqrt(np.mean(sigmas ** 2)), 1 / AXES_MOST, AXES_MOST)
+    return 1.0 / relative, relative, p
 
 
 # ---------------------------------------------------------------- the model and its residuals
@@ -719,8 +748,26 @@ def _fit(data: _Data, start: Calibration, fixed, feats, rows=None, start_terms=N
     options.max_iterations = 100
     ref = None if data.reference is None else np.ascontiguousarray(data.reference[sel])
     norms = None if data.field_norms is None else np.ascontiguousarray(data.field_norms[sel])
-    return _core.refine_terms(start.offset, start.matrix, start.field_norm, start.units, m, f, terms,
-                              list(fixed), options, ref, norms)
+    w = data.axis_weights if ref is not None else None
+    if w is None:
+        return _core.refine_terms(start.offset, start.matrix, start.field_norm, start.units, m, f, terms,
+                                  list(fixed), options, ref, norms)
+    # Weighted least squares as plain least squares of the weighted readings: D m = D b + D W r + D F c + D n has
+    # the same form with offset D b and matrix D W (A D⁻¹), the terms' coefficients unchanged; its residuals are
+    # the weighted ones the tests need, its parameters are mapped back to b and W.
+    tiled = np.tile(w, p)
+    fit = _core.refine_terms(start.offset * w, np.asarray(start.matrix) / w, start.field_norm, start.units,
+                             np.ascontiguousarray(m * w), np.ascontiguousarray(f * tiled), terms, list(fixed),
+                             options, ref, norms)
+    scale = np.concatenate([w, np.repeat(w, 3), np.ones(p)])  # θ' = scale·θ: b' = D b, W' = D W (row-major)
+    fit["parameters"] = np.asarray(fit["parameters"]) / scale
+    fit["standard_errors"] = np.asarray(fit["standard_errors"]) / scale
+    fit["covariance"] = np.asarray(fit["covariance"]) / np.outer(scale, scale)
+    fit["jacobian"] = np.asarray(fit["jacobian"]) * scale  # ∂r'/∂θ of the weighted residuals r'
+    fit["offset"] = np.asarray(fit["offset"]) / w
+    fit["matrix"] = np.asarray(fit["matrix"]) * w  # A = (D⁻¹ W')⁻¹ = A' D
+    fit["axis_weights"] = w  # (_project weights the candidates' columns alike)
+    return fit
 
 
 def _residuals(result: dict, data: _Data, feats, rows) -> np.ndarray:
@@ -733,7 +780,8 @@ def _residuals(result: dict, data: _Data, feats, rows) -> np.ndarray:
     b = theta[:3]
     if data.reference is not None:
         W = theta[3:12].reshape(3, 3)
-        return (m - b - data.reference[rows] @ W.T).ravel()
+        e = m - b - data.reference[rows] @ W.T
+        return (e if data.axis_weights is None else e * data.axis_weights).ravel()
     a = theta[3:9]
     A = np.array([[a[0], a[1], a[2]], [a[1], a[3], a[4]], [a[2], a[4], a[5]]])
     h = (m - b) @ A
@@ -776,8 +824,8 @@ def _noise_floor(result: dict, data: _Data, feats, rows, sigma: float) -> float:
     """The RMS field error (as `_downstream`) that the readings' white noise σ alone leaves on `rows` through
     the fit's matrix A: |h| − H moves by u'A n along the field direction u, |h − r| by |A n|."""
     A = np.asarray(result["matrix"])
-    if data.reference is not None:
-        return float(sigma * np.linalg.norm(A))
+    if data.reference is not None:  # (each axis's own σ: σ̄ / its weight)
+        return float(sigma * np.linalg.norm(A if data.axis_weights is None else A / data.axis_weights))
     h = _calibrated(result, data, feats, rows)
     u = h / np.linalg.norm(h, axis=1, keepdims=True)
     return float(sigma * np.sqrt(np.mean(np.sum((u @ A) ** 2, axis=1))))
@@ -913,6 +961,8 @@ def _project(result: dict, feats: np.ndarray, vector: bool, rows=slice(None)) ->
     if vector:  # −feats with its axes swapped, in one pass (reshaping the swapped view copied it slowly: 8×)
         out = np.empty((feats.shape[0], feats.shape[2], feats.shape[1]))
         np.negative(feats.transpose(0, 2, 1), out=out)
+        if result.get("axis_weights") is not None:  # (the weighted residuals', _fit)
+            out *= result["axis_weights"][:, None]
         return out.reshape(-1, feats.shape[1])
     jb = np.asarray(result["jacobian"])[rows, :3]  # ∂r/∂b; r depends on m − b, so ∂r/∂c = jb · f
     return np.einsum("nk,npk->np", jb, feats)
@@ -3241,7 +3291,8 @@ def diagnose(samples, t=None, temp=None, reference=None, gravity=None, field_nor
     by a scalar magnetometer or an observatory; the magnitude models then fit each |h| to its own); with a Recording,
     a column's name ("F", in the readings' unit when both state a field unit).
     model: "ellipsoid" (default without reference), "scale", "vector" (default with one), "vector_scale".
-    noise_sigma: white-noise σ of the readings (default: estimated, see estimate_noise). candidates:
+    noise_sigma: white-noise σ of the readings, one for every axis (default: estimated, see estimate_noise; against
+    reference vectors each axis's own when their noise differs, `Diagnosis.axis_noise`). candidates:
     effect names to try (default all whose regressors are present). alpha: significance level
     (Bonferroni-corrected over the candidates). max_effects: how many effects to add greedily.
     """
@@ -3294,8 +3345,16 @@ def diagnose(samples, t=None, temp=None, reference=None, gravity=None, field_nor
         start = Calibration(offset=start.offset, matrix=np.diag(1.0 / np.diag(W)), field_norm=start.field_norm,
                             units=units, model=model)
     base = _fit(data, start, fixed, None)
+    axis_noise = None
     if noise_sigma is None:
-        sigma, noise_source, sigma_bound = _noise(data, base)
+        sigma, noise_source, sigma_bound, axes = _noise(data, base)
+        if axes is not None:  # weighted from here on: the base refitted with them
+            data.axis_weights, axis_noise = axes[0], (sigma * axes[1]).tolist()
+            base = _fit(data, start, fixed, None)
+            noise_source += (f"; the axes' noise differs (σ x, y, z {', '.join(f'{v:.4g}' for v in axis_noise)}"
+                             f"{' ' + data.units if data.units else ''}, from their residuals' third differences; "
+                             f"equal rejected at p {axes[2]:.2g}, Brown–Forsythe): each axis's residuals are weighted "
+                             "by σ/σ_axis in every fit and test")
         step = quantization_step(data.m)
         if sigma < step / np.sqrt(12.0):  # rounding alone leaves LSB/√12 even when the noise is below 1 LSB
             sigma = step / np.sqrt(12.0)
@@ -3456,7 +3515,7 @@ def diagnose(samples, t=None, temp=None, reference=None, gravity=None, field_nor
               "residual_after": e_final, "vector": vector, "field_norms": data.field_norms}
     d = Diagnosis(model=model, noise_sigma=sigma, noise_source=noise_source, units=units, source=source,
                   ranking=ranking, accepted=accepted, where=where, remaining=remaining, base=base_cal,
-                  series=series, caveats=caveats, clipping=data.clipping)
+                  series=series, caveats=caveats, clipping=data.clipping, axis_noise=axis_noise)
     _line_bounds(d)
     return d
 

@@ -105,3 +105,23 @@ def refine_terms(start, samples, features, field_norms=None) -> np.ndarray:
 
     sol = least_squares(fun, theta0, method="lm", xtol=1e-15, ftol=1e-15, gtol=1e-15)
     return sol.x
+
+
+def vector_terms(samples, reference, features, axis_weights=None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The vector model with extra terms (fluxcal._core.refine_terms with reference vectors) by weighted linear least
+    squares: m = b + W r + Σ_j c_j f_j, each axis's equations × axis_weights[k] (default 1). Returns θ = [b, W
+    (row-major), c], its standard errors σ̂ √diag((XᵀX)⁻¹) with σ̂² = Σr²/(3N − 12 − p), and the weighted residuals
+    (reading-major)."""
+    m, r, f = (np.asarray(x, dtype=float) for x in (samples, reference, features))
+    n, p = len(m), f.shape[1]
+    w = np.ones(3) if axis_weights is None else np.asarray(axis_weights, dtype=float)
+    X = np.zeros((n, 3, 12 + p))
+    for k in range(3):
+        X[:, k, k] = 1.0
+        X[:, k, 3 + 3 * k:6 + 3 * k] = r
+    X[:, :, 12:] = np.swapaxes(f, 1, 2)
+    X, y = (X * w[None, :, None]).reshape(3 * n, -1), (m * w).ravel()
+    theta = np.linalg.lstsq(X, y, rcond=None)[0]
+    e = y - X @ theta
+    errors = np.sqrt(e @ e / (3 * n - 12 - p) * np.diag(np.linalg.inv(X.T @ X)))
+    return theta, errors, e
