@@ -944,8 +944,9 @@ def test_a_step_on_a_quiet_axis_is_judged_against_that_axis_noise():
 
 def test_the_weighted_vector_fit_matches_weighted_least_squares():
     # _fit maps weighted least squares onto plain least squares of weighted readings (offset D b, matrix D W):
-    # parameters, standard errors and residuals as the linear oracle weighting each axis's equations finds them.
-    from fluxcal.diagnose.core import MODELS, _Data, _fit, _project, _residuals
+    # parameters, covariance, residuals and their Jacobian as the linear oracle weighting each axis's equations
+    # finds them, for the full matrix and for the scale-only one (its off-diagonal W held at the start's).
+    from fluxcal.diagnose.core import MODELS, _Data, _fit, _noise_floor, _project, _residuals
     from fluxcal.oracle.refine import vector_terms
 
     m, kwargs = _noisier_z(3)
@@ -956,15 +957,28 @@ def test_the_weighted_vector_fit_matches_weighted_least_squares():
     weights = np.array([1.3, 1.3, 0.45])
     data = _Data(m, kwargs["t"], temp, ref, None, 50.0, "", "weighted", [], axis_weights=weights)
     start = fluxcal.calibrate(m, reference=ref)
-    got = _fit(data, start, MODELS["vector"][1], feats)
-    theta, errors, e = vector_terms(m, ref, feats, weights)
-    np.testing.assert_allclose(got["parameters"], theta, rtol=0, atol=1e-8 * np.abs(theta).max())
-    np.testing.assert_allclose(got["standard_errors"], errors, rtol=1e-6)
-    np.testing.assert_allclose(got["residuals"], e, rtol=0, atol=1e-9)
-    np.testing.assert_allclose(_residuals(got, data, feats, slice(None)), e, rtol=0, atol=1e-9)
-    np.testing.assert_allclose(np.linalg.inv(got["matrix"]), theta[3:12].reshape(3, 3), rtol=1e-9)
-    # the candidates' columns are the weighted residuals' own derivatives, as the fit's Jacobian has them
-    np.testing.assert_allclose(_project(got, feats, True), np.asarray(got["jacobian"])[:, 12:], rtol=0, atol=1e-12)
+    W0 = np.linalg.inv(start.matrix)
+    for model in ("vector", "vector_scale"):
+        fixed = MODELS[model][1]
+        held = {3 + 3 * int(n[1]) + int(n[2]): W0[int(n[1]), int(n[2])] for n in fixed}
+        got = _fit(data, start, fixed, feats)
+        theta, covariance, e, J = vector_terms(m, ref, feats, weights, held)
+        scale = np.abs(theta).max()
+        np.testing.assert_allclose(got["parameters"], theta, rtol=0, atol=1e-8 * scale)
+        np.testing.assert_allclose(got["offset"], theta[:3], rtol=0, atol=1e-8 * scale)
+        np.testing.assert_allclose(np.linalg.inv(got["matrix"]), theta[3:12].reshape(3, 3), rtol=1e-9)
+        np.testing.assert_allclose(got["covariance"], covariance, rtol=1e-6, atol=1e-9 * np.abs(covariance).max())
+        np.testing.assert_allclose(got["standard_errors"], np.sqrt(np.diag(covariance)), rtol=1e-6)
+        np.testing.assert_allclose(got["residuals"], e, rtol=0, atol=1e-9)
+        np.testing.assert_allclose(_residuals(got, data, feats, slice(None)), e, rtol=0, atol=1e-9)
+        free = [i for i in range(J.shape[1]) if i not in held]  # (a held parameter's column is zero)
+        np.testing.assert_allclose(np.asarray(got["jacobian"])[:, free], J[:, free], rtol=0, atol=1e-9)
+        # the candidates' columns are the weighted residuals' own derivatives
+        np.testing.assert_allclose(_project(got, feats, True), J[:, 12:], rtol=0, atol=1e-12)
+    # the noise floor through A with each axis's own σ (σ̄ / its weight): E|A n|² = Σ_k σ_k² |A e_k|²
+    A = np.asarray(got["matrix"])
+    floor = _noise_floor(got, data, None, slice(None), 0.1)
+    assert floor == pytest.approx(np.sqrt(np.sum((0.1 / weights) ** 2 * np.sum(A ** 2, axis=0))), rel=1e-12)
     # with equal weights: the unweighted fit
     plain = _fit(_Data(m, kwargs["t"], temp, ref, None, 50.0, "", "plain", []), start, (), feats)
     np.testing.assert_allclose(plain["parameters"], vector_terms(m, ref, feats)[0], rtol=0,
@@ -985,6 +999,33 @@ def test_equally_noisy_axes_keep_one_sigma():
     w, relative, p = _axis_noise(e, _difference_noise)
     assert p < 1e-6 and np.sqrt(np.mean(relative ** 2)) == pytest.approx(1.0)
     np.testing.assert_allclose(relative / relative[0], [1.0, 1.0, 1.3], rtol=0.06)
+    # an axis whose readings stay on one step of a grid for several readings (a smooth slow course rounded to 3):
+    # its third differences are next to zero, and its σ is its rounding's, step/√12, not the 0.1 of the RMS it
+    # had been clipped to (weight 10)
+    slow = 10 * np.sin(np.linspace(0, 6, 3000))
+    e[:, 2] = np.round(slow / 3.0) * 3.0 - slow
+    assert _difference_noise(e[:, [2]], 3) < 0.01
+    w, relative, p = _axis_noise(e, _difference_noise, np.array([0.0, 0.0, 3.0 / np.sqrt(12)]))
+    np.testing.assert_allclose(relative / relative[0], [1.0, 1.0, 3.0 / np.sqrt(12)], rtol=0.06)
+
+
+def test_readings_rounded_to_a_coarse_grid_keep_one_sigma():
+    # Readings on a grid 20× their noise (σ raised to the quantization floor), one axis turning slowly: their
+    # "noise" is rounding, as large on every axis that moves. Weighted by its third differences (the slow axis
+    # 0.1 of the RMS, weight 10) the base's residuals read 6 σ and a magnet was named (a review, helper-202).
+    from scipy.spatial.transform import Rotation
+
+    rng = np.random.default_rng(1)
+    t = np.arange(3000) / 50.0
+    field = np.array([20.0, 1.0, 45.8]) * 50 / np.linalg.norm([20.0, 1.0, 45.8])
+    angles = np.column_stack([np.radians(90) * t, np.radians(30) * np.sin(2 * np.pi * 0.05 * t),
+                              np.radians(20) * np.sin(2 * np.pi * 0.031 * t + 1)])
+    ref = Rotation.from_euler("zyx", angles).inv().apply(field)
+    clean = np.array([3.0, -2.0, 5.0]) + ref @ np.diag([1.03, 0.97, 1.01]).T
+    m = np.round((clean + rng.normal(0, 0.05, clean.shape)) / 1.0) * 1.0
+    d = diagnose(m, t=t, reference=ref, units="uT")
+    assert "quantization floor" in d.noise_source and d.axis_noise is None
+    assert d.where["overall"]["rms_z"] < 1.2
 
 
 def test_a_noise_the_effects_found_shrink_is_said_with_the_sigma_they_leave():

@@ -677,7 +677,9 @@ def _noise(data: _Data, base: dict) -> tuple:
     e = np.asarray(base["residuals"] if m is data.m else _residuals(base, replace(data, m=m), None, slice(None)))
     e = e.reshape(len(data.m), -1)[np.argsort(data.t, kind="stable")]
     from_residuals = differences(e, 3, mixture=True)
-    axes = _axis_noise(e, differences) if e.shape[1] == 3 else None
+    axes = None
+    if e.shape[1] == 3:  # (each axis's quantisation floor, as the one σ's below)
+        axes = _axis_noise(e, differences, np.array([_lattice_step(data.m[:, k]) for k in range(3)]) / np.sqrt(12))
     # the base model's residuals differing less than the noise: the readings' differences held motion that is white
     # in them too (a random walk of the attitude: σ 2.8× the truth, every effect then "below the noise"; a brisk
     # random tumble: 1.8–2× with the 4th order only 4 % below the 3rd — two blind checks)
@@ -693,7 +695,7 @@ def _noise(data: _Data, base: dict) -> tuple:
                       "apart in time, or rows out of time order with no times given): not a time series; give "
                       "noise_sigma (--noise-sigma; the datasheet's) to test the candidates against the sensor's "
                       "own noise")
-            return from_residuals, source + said_lines, True, axes
+            return from_residuals, source + said_lines, True, None  # (their differences hold the misfit: no axes)
         elif from_residuals < sigma:
             why = (f"readings taken at uneven times (steps spread by {100 * uneven:.0f} % of the median step)"
                    if uneven else "fast turns, or steps between held positions" if orders_differ
@@ -706,24 +708,31 @@ def _noise(data: _Data, base: dict) -> tuple:
 
 
 AXES_ALPHA = 0.01      # the axes' noise is taken to differ when equal variances are rejected at this level
-AXES_MOST = 10.0       # ... and no axis's σ is taken beyond this many times their RMS either way
+AXES_RATIO = 1.1       # ... and the noisiest axis's σ is at least this many times the quietest's (below, no score
+                       # moves by more than (1.1² − 1)/3 ≈ 7 %: Brown–Forsythe also sees the shape of a distribution,
+                       # rounding's, and rejected σ equal to 0.1 % on a coarse grid)
+AXES_LEAST = 0.1       # ... no axis's σ is taken below this share of their RMS
 
 
-def _axis_noise(e: np.ndarray, differences) -> tuple | None:
+def _axis_noise(e: np.ndarray, differences, floors=0.0) -> tuple | None:
     """A vector model's residuals per axis (N × 3, time order): (weights σ̄/σ_axis, σ_axis / σ̄, p-value) when their
     noise differs — equal variances of their third differences rejected at AXES_ALPHA (Brown–Forsythe, on every
-    fourth difference: those share no reading) — else None. σ_axis from `differences` of that axis alone, σ̄ their
-    RMS, so that the weighted residuals keep the one σ the diagnosis reports. One pooled σ had judged a candidate
-    acting on the noisiest axis against a noise too small (σ_z = 3 σ_x: an offset step named in 2 of 40 recordings
-    with nothing withheld) and one on the quiet axes against a noise too large."""
+    fourth difference: those share no reading) and σ differing by AXES_RATIO — else None. σ_axis from `differences`
+    of that axis alone, at least its `floors` (its quantisation step/√12: an axis that moves by less than a step
+    over a few readings has third differences of zero, and had been weighted 10× for it), σ̄ their RMS, so that the
+    weighted residuals keep the one σ the diagnosis reports. One pooled σ had judged a candidate acting on the
+    noisiest axis against a noise too small (σ_z = 3 σ_x: an offset step named in 2 of 40 recordings with nothing
+    withheld) and one on the quiet axes against a noise too large."""
     d = np.diff(e, n=3, axis=0)[::4]
     if len(d) < 10:
         return None
     p = float(stats.levene(*d.T, center="median").pvalue)
     if not p < AXES_ALPHA:
         return None
-    sigmas = np.array([differences(e[:, [k]], 3) for k in range(3)])
-    relative = np.clip(sigmas / np.sqrt(np.mean(sigmas ** 2)), 1 / AXES_MOST, AXES_MOST)
+    sigmas = np.maximum([differences(e[:, [k]], 3) for k in range(3)], floors)
+    if not (np.all(sigmas > 0) and sigmas.max() >= AXES_RATIO * sigmas.min()):  # (NaN fails too)
+        return None
+    relative = np.maximum(sigmas / np.sqrt(np.mean(sigmas ** 2)), AXES_LEAST)
     return 1.0 / relative, relative, p
 
 
@@ -2648,7 +2657,7 @@ def _wander_basis(data: _Data, result: dict):
     Jacobian times the hat functions of its time, S the knots' values from the walk's steps (the offset at knot j
     the sum of the steps before it; its level at the first knot is the base's offset): Z = H S is the residuals'
     change for unit steps, Z'Z = V diag(s) V'. Z itself is dense (every later knot depends on a step), H has six
-    entries per reading."""
+    entries per reading. (Axes weighted by their noise, `_fit`: a walk as strong on each in its weighted units.)"""
     from scipy import sparse
 
     J = np.asarray(result["jacobian"])[:, :3]  # θ = [b, …]: the offset's columns
@@ -3345,22 +3354,25 @@ def diagnose(samples, t=None, temp=None, reference=None, gravity=None, field_nor
         start = Calibration(offset=start.offset, matrix=np.diag(1.0 / np.diag(W)), field_norm=start.field_norm,
                             units=units, model=model)
     base = _fit(data, start, fixed, None)
-    axis_noise = None
+    axes = axis_noise = None
     if noise_sigma is None:
         sigma, noise_source, sigma_bound, axes = _noise(data, base)
-        if axes is not None:  # weighted from here on: the base refitted with them
-            data.axis_weights, axis_noise = axes[0], (sigma * axes[1]).tolist()
-            base = _fit(data, start, fixed, None)
-            noise_source += (f"; the axes' noise differs (σ x, y, z {', '.join(f'{v:.4g}' for v in axis_noise)}"
-                             f"{' ' + data.units if data.units else ''}, from their residuals' third differences; "
-                             f"equal rejected at p {axes[2]:.2g}, Brown–Forsythe): each axis's residuals are weighted "
-                             "by σ/σ_axis in every fit and test")
         step = quantization_step(data.m)
         if sigma < step / np.sqrt(12.0):  # rounding alone leaves LSB/√12 even when the noise is below 1 LSB
             sigma = step / np.sqrt(12.0)
             noise_source += f", raised to the quantization floor {step:.4g}/√12 (readings on a {step:.4g} grid)"
+            # (then the axes' "noise" is rounding, as large on each axis that moves: an axis that moves slowly
+            # rounds to a course in time, not to noise — weighted by it, a step was named at a 1 µT grid)
+            axes = None
     else:
         sigma, noise_source, sigma_bound = float(noise_sigma), "given", False
+    if axes is not None:  # weighted from here on: the base refitted with them
+        data.axis_weights, axis_noise = axes[0], (sigma * axes[1]).tolist()
+        base = _fit(data, start, fixed, None)
+        noise_source += (f"; the axes' noise differs (σ x, y, z {', '.join(f'{v:.4g}' for v in axis_noise)}"
+                         f"{' ' + data.units if data.units else ''}, in the ratios of their residuals' third "
+                         f"differences; equal rejected at p {axes[2]:.2g}, Brown–Forsythe): each axis's residuals are "
+                         "weighted by σ/σ_axis in every fit and test")
     if data.notes:
         noise_source += "; " + "; ".join(data.notes)
     if not sigma > 0:

@@ -651,6 +651,8 @@ def line_course(d, f: float, rate: float = 0.0) -> str:
     order = np.argsort(t, kind="stable")
     t = t[order]
     e = np.asarray(d.series["residual_before"], dtype=float).reshape(len(t), -1)[order]
+    if d.series.get("vector") and getattr(d, "axis_noise", None):  # in reading units (the noise fits as much of the
+        e = e * (np.asarray(d.axis_noise) / d.noise_sigma)        # six as before: Σ σ_axis² is unchanged)
     phase = _line_phase(t, f, rate)
     wave = np.column_stack([np.sin(phase), np.cos(phase)])
     if d.series.get("vector"):  # each axis' own sin and cos: (n, 3) residuals, 6 columns acting on one axis each
@@ -703,6 +705,8 @@ def line_standard_errors(d, r) -> tuple:
     if not d.series.get("vector"):
         u = np.asarray(d.series["directions"], dtype=float).reshape(len(t), 3)
         wave = np.einsum("nj,nj->n", u, wave)[:, None]
+    elif getattr(d, "axis_noise", None):  # each axis against its own noise: the weighted residuals' derivative
+        wave = wave * (d.noise_sigma / np.asarray(d.axis_noise))
     mid = 0.5 * (t.min() + t.max())
     by_f = 2 * np.pi * (t - t.mean())  # ∂φ/∂f, centred
     by_rate = np.pi * ((t - mid) ** 2 - np.mean((t - mid) ** 2))  # ∂φ/∂rate, centred

@@ -107,11 +107,12 @@ def refine_terms(start, samples, features, field_norms=None) -> np.ndarray:
     return sol.x
 
 
-def vector_terms(samples, reference, features, axis_weights=None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+def vector_terms(samples, reference, features, axis_weights=None, held=None) -> tuple:
     """The vector model with extra terms (fluxcal._core.refine_terms with reference vectors) by weighted linear least
-    squares: m = b + W r + Σ_j c_j f_j, each axis's equations × axis_weights[k] (default 1). Returns θ = [b, W
-    (row-major), c], its standard errors σ̂ √diag((XᵀX)⁻¹) with σ̂² = Σr²/(3N − 12 − p), and the weighted residuals
-    (reading-major)."""
+    squares: m = b + W r + Σ_j c_j f_j, each axis's equations × axis_weights[k] (default 1); `held` {θ index: value}
+    holds parameters (a scale-only model's off-diagonal W). Returns θ = [b, W (row-major), c], its covariance
+    σ̂² (XᵀX)⁻¹ over the free parameters (zero for held ones) with σ̂² = Σr²/(3N − free), the weighted residuals
+    (reading-major) and their Jacobian ∂r/∂θ (−X, weighted)."""
     m, r, f = (np.asarray(x, dtype=float) for x in (samples, reference, features))
     n, p = len(m), f.shape[1]
     w = np.ones(3) if axis_weights is None else np.asarray(axis_weights, dtype=float)
@@ -121,7 +122,12 @@ def vector_terms(samples, reference, features, axis_weights=None) -> tuple[np.nd
         X[:, k, 3 + 3 * k:6 + 3 * k] = r
     X[:, :, 12:] = np.swapaxes(f, 1, 2)
     X, y = (X * w[None, :, None]).reshape(3 * n, -1), (m * w).ravel()
-    theta = np.linalg.lstsq(X, y, rcond=None)[0]
+    theta = np.zeros(12 + p)
+    for i, value in (held or {}).items():
+        theta[i] = value
+    free = np.setdiff1d(np.arange(12 + p), list(held or {}))
+    theta[free] = np.linalg.lstsq(X[:, free], y - X @ theta, rcond=None)[0]
     e = y - X @ theta
-    errors = np.sqrt(e @ e / (3 * n - 12 - p) * np.diag(np.linalg.inv(X.T @ X)))
-    return theta, errors, e
+    covariance = np.zeros((12 + p, 12 + p))
+    covariance[np.ix_(free, free)] = e @ e / (3 * n - len(free)) * np.linalg.inv(X[:, free].T @ X[:, free])
+    return theta, covariance, e, -X
