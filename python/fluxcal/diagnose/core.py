@@ -679,7 +679,7 @@ def _noise(data: _Data, base: dict) -> tuple:
     from_residuals = differences(e, 3, mixture=True)
     axes = None
     if e.shape[1] == 3:  # (each axis's quantisation floor, as the one σ's below)
-        axes = _axis_noise(e, differences, np.array([_lattice_step(data.m[:, k]) for k in range(3)]) / np.sqrt(12))
+        axes = _axis_noise(e, differences, _axis_steps(data.m) / np.sqrt(12))
     # the base model's residuals differing less than the noise: the readings' differences held motion that is white
     # in them too (a random walk of the attitude: σ 2.8× the truth, every effect then "below the noise"; a brisk
     # random tumble: 1.8–2× with the 4th order only 4 % below the 3rd — two blind checks)
@@ -2767,7 +2767,7 @@ def _lattice_step(values: np.ndarray) -> float:
 def _quantization(data, state, sigma, n_candidates, noise_given: bool) -> dict:
     """Readings on a lattice: the quantisation noise q²/12 belongs in the noise model. Only a given
     noise σ (a datasheet noise density) can show it: a σ estimated from the readings already holds it."""
-    steps = np.array([_lattice_step(data.m[:, k]) for k in range(3)])
+    steps = _axis_steps(data.m)
     row = {"effect": "quantization", "regime": "noise", "n_params": 1, "new_dimensions": int(steps.all()),
            "absorbed": False, "alternatives": 1, "steps": steps.tolist()}
     e = np.asarray(state["result"]["residuals"])
@@ -3007,8 +3007,13 @@ def _prepare(samples, t, temp, reference, down, field_norm, units, source, curre
 def quantization_step(samples) -> float:
     """RMS over axes of the readings' grid step (an ADC's LSB, see `_lattice_step`), or 0 when an axis is
     not on a grid."""
-    steps = [_lattice_step(axis) for axis in as_samples(samples).T]
-    return float(np.sqrt(np.mean(np.square(steps)))) if all(steps) else 0.0
+    steps = _axis_steps(as_samples(samples))
+    return float(np.sqrt(np.mean(np.square(steps)))) if steps.all() else 0.0
+
+
+def _axis_steps(m: np.ndarray) -> np.ndarray:
+    """Each axis's grid step (`_lattice_step`; 0: not on a grid)."""
+    return np.array([_lattice_step(axis) for axis in m.T])
 
 
 def _check_options(noise_sigma, candidates, alpha, max_effects):
