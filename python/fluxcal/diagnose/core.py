@@ -1830,6 +1830,31 @@ def _profile(cls, ctxs: dict, result: dict, Q: np.ndarray, e: np.ndarray, vector
     return value, form, cls.features_at(ctxs[form], value), {f: g for f, (_, g) in found.items()}
 
 
+def _taken_by(R: np.ndarray, e: np.ndarray) -> float:
+    """‖R c‖², c the least-squares coefficients of e on R's columns: the part of e they take, as numpy's lstsq
+    gives it. Through the normal equations of the unit-norm columns and their eigenvalues (half lstsq's time on
+    the profiles' tall, narrow problems, some 10⁵ per diagnosis run), or lstsq itself when those are ill-conditioned
+    (they square R's condition number: below 1e-10 of the largest eigenvalue lstsq keeps what they cannot resolve)
+    or the columns' norms differ by more than 1e5 (lstsq drops a direction below ~1e-13 of R's largest singular
+    value, whatever its column's norm). Zero columns take nothing, as in lstsq."""
+    G, b = R.T @ R, R.T @ e
+    d = np.diagonal(G)
+    used = d > 0
+    if not used.all():
+        if not used.any():
+            return 0.0
+        G, b, d = G[np.ix_(used, used)], b[used], d[used]
+    if len(d) == 1:
+        return float(b[0] ** 2 / d[0])
+    norms = np.sqrt(d)
+    if norms.min() > 1e-5 * norms.max():  # (with the eigenvalues' bound: R's singular values within 1e-10, all kept)
+        lam, V = np.linalg.eigh(G / np.outer(norms, norms))
+        if lam[0] > 1e-10 * lam[-1]:
+            return float(np.sum((V.T @ (b / norms)) ** 2 / lam))
+    coef, *_ = np.linalg.lstsq(R, e, rcond=None)
+    return float(np.sum((R @ coef) ** 2))
+
+
 def _profile_value(cls, ctx, result: dict, Q: np.ndarray, e: np.ndarray, vector: bool, keep=None, projected=None):
     """The profiled parameter: its grid (`cls.profile_grid`), then a bounded search in log between
     the best point's neighbours. Each step is a linear refit, so the profile costs projections, not solver runs.
@@ -1852,9 +1877,7 @@ def _profile_value(cls, ctx, result: dict, Q: np.ndarray, e: np.ndarray, vector:
                 if on_grid and projected is not None and (len(projected) + 1) * Z.size <= MEMO_FLOATS:
                     projected[value] = Z
             Z = Z if keep is None else Z[keep]
-            R = Z - Q @ (Q.T @ Z)
-            coef, *_ = np.linalg.lstsq(R, e, rcond=None)
-            known[value] = float(np.sum((R @ coef) ** 2))
+            known[value] = _taken_by(Z - Q @ (Q.T @ Z), e)
         return known[value]
 
     grid = np.asarray(cls.profile_grid(ctx), dtype=float)

@@ -51,7 +51,7 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 
 import numpy as np
-from scipy.special import ive, kve
+from scipy.special import ive, k0e, k1e
 
 from ..cable import MU0_OVER_2PI, Ring
 from .cable import CableRig, reference_currents
@@ -221,6 +221,20 @@ def helix_paths(positions, lay_length_m: float, turns: int = 20, per_turn: int =
     return paths
 
 
+def _scaled_k_pairs(y: np.ndarray) -> tuple:
+    """kve(m − 1, y[i]) and kve(m, y[i]) of each term i = m − 1 (y: terms × …): from orders 0 and 1 up the recurrence
+    K_{j+1} = K_{j−1} + (2j/y) K_j (stable upwards for K; the same for the scaled kve, one factor e^y at a given y),
+    term i's row carried up to its own order. scipy's kve at three orders per term was nearly all of the helix
+    series' time, and the series most of a lay candidate's."""
+    lower, upper = k0e(y), k1e(y)
+    below, at = np.empty_like(lower), np.empty_like(upper)
+    below[0], at[0] = lower[0], upper[0]
+    for j in range(1, len(y)):  # rows j…: K_j and K_{j+1}
+        lower, upper = upper[1:], lower[1:] + (2 * j / y[j:]) * upper[1:]
+        below[j], at[j] = lower[0], upper[0]
+    return below, at
+
+
 def helix_series_unit_fields(points, positions, lay_length_m: float, terms: int | None = None) -> np.ndarray:
     """The exact in-plane field at z = 0 (outside the helix radius) of infinite helical cores twisted about
     their centroid, 1 A each: complex (P, n). The helix's multipole series (modified Bessel functions;
@@ -243,8 +257,8 @@ def helix_series_unit_fields(points, positions, lay_length_m: float, terms: int 
     x = m * k * a[None, None, :]                            # (terms, 1, n)
     y = m * k * r[None, :, None]                            # (terms, P, 1)
     ip = 0.5 * (ive(m - 1, x) + ive(m + 1, x))              # I_m'(x) e^{-x}
-    km = kve(m, y)                                          # K_m(y) e^{y}
-    kp = -0.5 * (kve(m - 1, y) + kve(m + 1, y))             # K_m'(y) e^{y}
+    below, km = _scaled_k_pairs(y)                          # K_{m−1}(y) e^{y}, K_m(y) e^{y}
+    kp = -below - (m / y) * km                              # K_m'(y) e^{y}
     scale = np.exp(x - y)
     chi = m * (phi[None, :, None] - phj[None, None, :])
     mono = MU0_OVER_2PI / r[:, None]
