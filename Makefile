@@ -22,7 +22,7 @@ demo: install
 # end do not leave one worker idle. 18 min here on 2026-12-06 (the whole .ci/run 25 min; 30.5 min in CI before that
 # day's speed-up of the periodic-interference candidate). Keep .ci/run under 30 min on 2 cores.
 test: install
-	$(CTEST_BIN) --test-dir $(DEV) --output-on-failure
+	$(CTEST_BIN) --test-dir $(DEV) --output-on-failure -j 2
 	$(PY) -m pytest -q -n 2 --dist worksteal
 
 bench:

@@ -40,6 +40,27 @@ def test_withheld_effect_ranks_first_and_closes_the_gap(name):
     assert np.median(shrinks) >= 0.7, f"{name}: held-out gap shrinks {np.round(shrinks, 2)}"
 
 
+def test_a_profiles_gain_is_what_least_squares_takes():
+    # A profile's gain at each value (core._taken_by: the normal equations of the unit-norm columns) is the part of
+    # the residuals numpy's SVD-based lstsq takes: on well-conditioned columns, nearly collinear ones, a zero column,
+    # one column, and columns whose norms differ by 1e15 (lstsq drops the small one's direction there).
+    from fluxcal.diagnose.core import _taken_by
+
+    rng = np.random.default_rng(5)
+    for trial in range(300):
+        n, p = int(rng.integers(8, 600)), int(rng.integers(1, 7))
+        R = rng.normal(size=(n, p)) * 10.0 ** rng.uniform(-2, 2, size=p)
+        if trial % 5 == 1:
+            R[:, 0] = 0.0
+        if trial % 5 == 2 and p > 1:
+            R[:, -1] = 3.0 * R[:, 0] + 1e-7 * rng.normal(size=n)
+        if trial % 5 == 3:
+            R[:, 0] *= 1e-15 / np.linalg.norm(R[:, 0]) * np.linalg.norm(R, axis=0).max()
+        e = rng.normal(size=n) + R @ rng.normal(size=p)
+        coef, *_ = np.linalg.lstsq(R, e, rcond=None)
+        assert _taken_by(R, e) == pytest.approx(float(np.sum((R @ coef) ** 2)), rel=1e-6), trial
+
+
 def test_events_scored_at_once_score_as_each_on_its_own_readings(monkeypatch):
     # The event searches score their coarse scans at once (core._EventScores): ~530 boxes in time from running sums
     # over the readings, ~600 passes of a magnet in one padded stack. Each score must be the one the event's own

@@ -3106,14 +3106,23 @@ def recording_inputs(rec, t, temp, current, gravity, units: str) -> tuple:
             units or rec.field_units(), rec.source)
 
 
+def _row_copy(row: dict) -> dict:
+    """A candidate's row as evaluated, kept apart from the changes later rounds make to it (they set its keys, and
+    grow its lists and dicts; the arrays it holds are not changed)."""
+    return {k: dict(v) if isinstance(v, dict) else list(v) if isinstance(v, list) else v for k, v in row.items()}
+
+
 def _search(data: _Data, model: str, pool: list, names: dict, state: dict, sigma: float, n_candidates: int,
             max_effects: int, noise_sigma, logging_noise: dict, bar=None, first: str | None = None,
-            plain: bool = False) -> dict:
+            plain: bool = False, round0: list | None = None) -> dict:
     """The greedy search from the base model `state`: each round the most significant candidate is added (or another
     episode of an event found), the effects found are placed again, and the noise models are tried when none is
     left; then those no longer paying BIC's price are pruned. `first`: the candidate to take in the first round
     whatever its held-out test (`_in_another_order`), a law in time in its `plain` form (a drift linear) when asked.
-    Returns {data, state, accepted, last_rows, moves, first_rows}
+    `round0`: the first round's rows as another search from the same base model evaluated them (`round0` of its
+    result, copied here): `_in_another_order`'s searches start from the same base, and evaluating every candidate
+    on it again was a third of their time.
+    Returns {data, state, accepted, last_rows, moves, first_rows, round0}
     (`first_rows`: the first round's candidates)."""
     vector = MODELS[model][0]
     state, accepted, last_rows, first_rows, taken = dict(state), [], {}, [], []
@@ -3146,6 +3155,10 @@ def _search(data: _Data, model: str, pool: list, names: dict, state: dict, sigma
     for _round in range(max_effects + 1):
         rows = []
         systematic = [c for c in pool if c.name not in NOISE_CANDIDATES and c.name not in accepted]
+        if _round == 0 and round0 is not None:  # (the same base model: the same rows)
+            rows = [_row_copy(r) for r in round0]
+            by_base.update(r["effect"] for r in rows if r.get("absorbed"))
+            systematic = []
         for cls in systematic:
             rows.append(_evaluate(cls, data, model, state, sigma, n_candidates))
             _second_shape(rows[-1], cls, [names[a] for a in accepted])
@@ -3156,6 +3169,8 @@ def _search(data: _Data, model: str, pool: list, names: dict, state: dict, sigma
                     rows[-1]["absorbed_after"] = list(accepted)
             if bar:
                 bar.update(1)
+        if _round == 0 and round0 is None:
+            round0 = [_row_copy(r) for r in rows]
         # An event found may recur (a magnet carried past again), and an interference at one frequency have others
         # beside it (`recurs`: another line): another episode of it competes with the rest, and joins its block
         # (each episode counts against max_effects).
@@ -3235,7 +3250,7 @@ def _search(data: _Data, model: str, pool: list, names: dict, state: dict, sigma
     for step, name in enumerate(accepted, start=1):
         last_rows[name]["step"] = step
     return {"data": data, "state": state, "accepted": accepted, "last_rows": last_rows, "moves": moves,
-            "first_rows": first_rows, "first": taken[0] if taken else None}
+            "first_rows": first_rows, "first": taken[0] if taken else None, "round0": round0}
 
 
 ANOTHER_ORDER_P = 1e-6  # a test of the residuals the search left below this: they still depart (report.SHAPE_P)
@@ -3289,7 +3304,7 @@ def _in_another_order(found: dict, model: str, names: dict, sigma: float, n_cand
              for plain in ((False, True) if _plain_differs(r, names[r["effect"]]) else (False,))][:ANOTHER_ORDERS]
     bic, n = _search_bic(found, names), len(e)
     for name, plain in tries:
-        tried = search(first=name, plain=plain)
+        tried = search(first=name, plain=plain, round0=found["round0"])
         order = [a for a in tried["accepted"] if a not in NOISE_CANDIDATES]
         e1 = np.asarray(tried["state"]["result"]["residuals"])
         delta = _search_bic(tried, names) - bic
