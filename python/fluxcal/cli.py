@@ -41,6 +41,17 @@ def positive_number(text: str, zero: bool = False) -> float:
     return value
 
 
+def sigma_or_per_axis(text: str):
+    """argparse type of diagnose's --noise-sigma: one positive finite σ, or three separated by commas (x, y, z: a
+    datasheet's per axis), a list then."""
+    parts = [p for p in text.split(",")]
+    if len(parts) == 1:
+        return positive_number(text)
+    if len(parts) != 3:
+        raise argparse.ArgumentTypeError(f"{text!r}: need one σ, or three separated by commas (x, y, z)")
+    return [positive_number(p.strip()) for p in parts]
+
+
 def norm_or_column(text: str):
     """argparse type of calibrate's and diagnose's --field-norm: a positive finite number, or a column holding each
     reading's |field| (not a number: a scalar magnetometer's log, an observatory's F)."""
@@ -2126,6 +2137,8 @@ def _diagnose_cable(args) -> int:
     from . import cable
     from .diagnose import diagnose_cable
 
+    if isinstance(args.noise_sigma, list):
+        raise ValueError("--noise-sigma: --model cable takes one σ (tesla) for every sensor axis, got three")
     ring = cable.read_ring_csv(args.file, bad_lines=args.bad_lines)
     _ring_notes(cable, ring)
     candidates = args.candidates.split(",") if args.candidates else None
@@ -2257,8 +2270,10 @@ def build_parser() -> argparse.ArgumentParser:
                         "beside the sensor), another recording with clock times (an observatory's IAGA-2002 F) or "
                         "igrf (at each reading's lat, lon, alt), for a field that changes while the sensor turns "
                         "(the magnitude models)")
-    g.add_argument("--noise-sigma", type=positive_number, default=None,
-                   help="white-noise σ of the readings, in their unit (tesla for --model cable). Default, in this "
+    g.add_argument("--noise-sigma", type=sigma_or_per_axis, default=None,
+                   help="white-noise σ of the readings, in their unit (tesla for --model cable), or three separated "
+                        "by commas (x, y, z: a datasheet's per axis; against reference vectors each axis is weighted "
+                        "by its own, the magnitude models take their RMS). Default, in this "
                         "order: --model cable: the scatter of repeated snapshots (same rotation and currents), else "
                         "the --calibration's scatter, else the base fit's residuals (a misfit then counts as noise); "
                         "the other models: third differences of the readings in time order, or of the base model's "

@@ -950,6 +950,26 @@ def test_a_vector_models_axes_of_unequal_noise_are_weighted():
         np.testing.assert_allclose(np.std(e, axis=0), d.noise_sigma, rtol=0.1)
 
 
+def test_a_noise_given_per_axis_weights_each_axis_against_reference_vectors():
+    # A datasheet's σ per axis (x, y, z) against reference vectors: each axis weighted by its own, as when estimated;
+    # the σ reported is their RMS, and the weighted residuals scatter by it on every axis (unweighted, z's by 3×).
+    m, kwargs = _noisier_z(11)
+    given = [NOISE, NOISE, 3 * NOISE]
+    d = diagnose(m, **kwargs, noise_sigma=given)
+    assert d.accepted == [], d.accepted
+    np.testing.assert_allclose(d.axis_noise, given)
+    assert d.noise_sigma == pytest.approx(np.sqrt(np.mean(np.square(given))))
+    assert d.noise_source.startswith("given per axis (σ x, y, z 0.05, 0.05, 0.15, σ their RMS)"), d.noise_source
+    assert "weighted by σ/σ_axis" in d.noise_source
+    e = d.series["residual_before"].reshape(-1, 3)
+    np.testing.assert_allclose(np.std(e, axis=0), d.noise_sigma, rtol=0.1)
+    # the magnitude models weight no axis: their RMS, said
+    result, kwargs = withheld_trial([], 0)
+    d = diagnose(result.readings, **kwargs, noise_sigma=given)
+    assert d.axis_noise is None and d.noise_sigma == pytest.approx(np.sqrt(np.mean(np.square(given))))
+    assert "per axis" in d.noise_source and "RMS" in d.noise_source
+
+
 def test_a_step_on_a_quiet_axis_is_judged_against_that_axis_noise():
     # The same recordings with a step of 0.7 σ_x on x at mid-recording. Against the pooled σ (1.9 σ_x) the step was
     # named in 2 of these 10 (3 more called a drift, 5 missed); against x's own noise in 9. (Found as a step or a

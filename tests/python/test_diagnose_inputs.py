@@ -23,6 +23,33 @@ def test_bad_noise_sigma_is_named(short, sigma):
         diagnose(m, noise_sigma=sigma, **kw)
 
 
+@pytest.mark.parametrize("sigma, said", [([0.05, 0.05], "or three (x, y, z), got 2 values"),
+                                         ([0.05, -0.05, 0.05], "positive finite"),
+                                         ([0.05, np.nan, 0.05], "positive finite"),
+                                         ([[0.05, 0.05, 0.05]], "got an array of shape (1, 3)")])
+def test_a_noise_sigma_per_axis_must_be_three_positive_values(short, sigma, said):
+    m, kw = short
+    with pytest.raises(ValueError, match=re.escape(said)):
+        diagnose(m, noise_sigma=sigma, **kw)
+
+
+def test_the_command_line_takes_a_noise_sigma_per_axis(tmp_path):
+    # --noise-sigma σx,σy,σz: each axis weighted by its own against reference vectors; two values, or three with the
+    # cable model, are refused by name
+    from conftest import run_cli
+
+    path = tmp_path / "v.csv"
+    assert run_cli("simulate", "-o", path, "--effects", "misalignment", "--seed", "2").returncode == 0
+    out = run_cli("diagnose", path, "--model", "vector", "--reference", "rx,ry,rz", "--noise-sigma", "0.05,0.05,0.15",
+                  "--json", tmp_path / "d.json", "--quiet")
+    assert out.returncode == 0, out.stderr
+    assert json.loads((tmp_path / "d.json").read_text())["axis_noise"] == pytest.approx([0.05, 0.05, 0.15])
+    out = run_cli("diagnose", path, "--noise-sigma", "0.05,0.05", "--quiet")
+    assert out.returncode == 2 and "need one σ, or three separated by commas" in out.stderr, out.stderr
+    out = run_cli("diagnose", path, "--model", "cable", "--noise-sigma", "1e-8,1e-8,1e-8", "--quiet")
+    assert out.returncode == 2 and "--model cable takes one σ" in out.stderr, out.stderr
+
+
 @pytest.mark.parametrize("option", [{"alpha": 5}, {"alpha": 0}, {"alpha": 1.0}, {"max_effects": -1},
                                     {"max_effects": 1.5}, {"candidates": 3}, {"candidates": [1, 2]}])
 def test_out_of_range_options_are_named(short, option):

@@ -258,7 +258,7 @@ class Diagnosis:
     share of the base model's gap² the effects found leave (`share`; colored_noise takes none), and `left`
     when that is most of it and the residuals are well above the noise (the text report says NOT EXPLAINED:
     the cause is outside the candidates). `significant`: any effect found. `axis_noise`: against reference vectors,
-    each axis's σ when their noise differs (equal rejected at AXES_ALPHA; `noise_sigma` is then their RMS): every fit
+    each axis's σ when their noise differs (equal rejected at AXES_ALPHA, or given so; `noise_sigma` is their RMS): every fit
     and test weights an axis's residuals by noise_sigma / its σ, and the residuals in `where`, `remaining` and
     `series` are those weighted ones."""
 
@@ -3039,17 +3039,27 @@ def _axis_steps(m: np.ndarray) -> np.ndarray:
     return np.array([_lattice_step(axis) for axis in m.T])
 
 
+def _given_noise(noise_sigma) -> np.ndarray:
+    """The user's noise σ: one for every axis, or three (x, y, z: a datasheet's per axis), each positive and finite."""
+    try:
+        values = np.atleast_1d(np.asarray(noise_sigma, dtype=float))
+    except (TypeError, ValueError):
+        raise ValueError(f"noise_sigma: need a number (the readings' white-noise σ), or three (x, y, z), got "
+                         f"{noise_sigma!r}") from None
+    if values.ndim != 1 or len(values) not in (1, 3):
+        got = f"{values.size} values" if values.ndim == 1 else f"an array of shape {values.shape}"
+        raise ValueError(f"noise_sigma: need one σ for every axis, or three (x, y, z), got {got}")
+    if not (np.all(np.isfinite(values)) and np.all(values > 0)):
+        raise ValueError(f"noise_sigma: need a positive finite σ (the readings' white noise, in their units), "
+                         f"got {noise_sigma!r}")
+    return values
+
+
 def _check_options(noise_sigma, candidates, alpha, max_effects):
     """The options checked before any fit, each error naming its option. Returns the candidate names as a
     list (one name, or names separated by commas, may come as a string)."""
     if noise_sigma is not None:
-        try:
-            value = float(noise_sigma)
-        except (TypeError, ValueError):
-            raise ValueError(f"noise_sigma: need a number (the readings' white-noise σ), got {noise_sigma!r}") from None
-        if not (np.isfinite(value) and value > 0):
-            raise ValueError(f"noise_sigma: need a positive finite σ (the readings' white noise, in their units), "
-                             f"got {noise_sigma!r}")
+        _given_noise(noise_sigma)
     if not (isinstance(alpha, (int, float, np.integer, np.floating)) and 0 < alpha < 1):
         raise ValueError(f"alpha: need a significance level between 0 and 1 (0.01 for 1 %), got {alpha!r}")
     if isinstance(max_effects, (bool, np.bool_)) or not isinstance(max_effects, (int, np.integer)) or max_effects < 0:
@@ -3330,7 +3340,7 @@ def _in_another_order(found: dict, model: str, names: dict, sigma: float, n_cand
 
 
 def diagnose(samples, t=None, temp=None, reference=None, gravity=None, field_norm=None, model: str | None = None,
-             noise_sigma: float | None = None, candidates=None, alpha: float = 0.01, max_effects: int = 3,
+             noise_sigma=None, candidates=None, alpha: float = 0.01, max_effects: int = 3,
              progress: bool = False, units: str = "", source: str = "samples", current=None) -> Diagnosis:
     """Diagnose the gap between `samples` (N×3 readings, or a Recording) and the base `model`.
 
@@ -3343,8 +3353,10 @@ def diagnose(samples, t=None, temp=None, reference=None, gravity=None, field_nor
     by a scalar magnetometer or an observatory; the magnitude models then fit each |h| to its own); with a Recording,
     a column's name ("F", in the readings' unit when both state a field unit).
     model: "ellipsoid" (default without reference), "scale", "vector" (default with one), "vector_scale".
-    noise_sigma: white-noise σ of the readings, one for every axis (default: estimated, see estimate_noise; against
-    reference vectors each axis's own when their noise differs, `Diagnosis.axis_noise`). candidates:
+    noise_sigma: white-noise σ of the readings, one for every axis, or three (x, y, z: a datasheet's per axis;
+    against reference vectors each axis is weighted by its own, `Diagnosis.axis_noise`; the magnitude models take
+    their RMS) (default: estimated, see estimate_noise; against reference vectors each axis's own when their noise
+    differs). candidates:
     effect names to try (default all whose regressors are present). alpha: significance level
     (Bonferroni-corrected over the candidates). max_effects: how many effects to add greedily.
     """
@@ -3408,14 +3420,21 @@ def diagnose(samples, t=None, temp=None, reference=None, gravity=None, field_nor
             # rounds to a course in time, not to noise — weighted by it, a step was named at a 1 µT grid)
             axes = None
     else:
-        sigma, noise_source, sigma_bound = float(noise_sigma), "given", False
+        given = _given_noise(noise_sigma)
+        sigma, noise_source, sigma_bound = float(np.sqrt(np.mean(given ** 2))), "given", False
+        if np.ptp(given) > 0 and vector:  # (a datasheet's σ per axis: weighted as estimated ones are)
+            axes, noise_source = (sigma / given, given / sigma, None), "given per axis"
+        elif np.ptp(given) > 0:
+            noise_source += (f" per axis ({', '.join(f'{v:.4g}' for v in given)}): their RMS, the magnitude's noise on "
+                             "average over the field's directions (the magnitude models weight no axis)")
     if axes is not None:  # weighted from here on: the base refitted with them
         data.axis_weights, axis_noise = axes[0], (sigma * axes[1]).tolist()
         base = _fit(data, start, fixed, None)
-        noise_source += (f"; the axes' noise differs (σ x, y, z {', '.join(f'{v:.4g}' for v in axis_noise)}"
-                         f"{' ' + data.units if data.units else ''}, in the ratios of their residuals' third "
-                         f"differences; equal rejected at p {axes[2]:.2g}, Brown–Forsythe): each axis's residuals are "
-                         "weighted by σ/σ_axis in every fit and test")
+        values = f"σ x, y, z {', '.join(f'{v:.4g}' for v in axis_noise)}{' ' + data.units if data.units else ''}"
+        noise_source += (f" ({values}, σ their RMS)" if axes[2] is None else
+                         f"; the axes' noise differs ({values}, in the ratios of their residuals' third differences; "
+                         f"equal rejected at p {axes[2]:.2g}, Brown–Forsythe)")
+        noise_source += ": each axis's residuals are weighted by σ/σ_axis in every fit and test"
     if data.notes:
         noise_source += "; " + "; ".join(data.notes)
     if not sigma > 0:

@@ -136,7 +136,7 @@ def _full_run_words(r: dict) -> str:
 
 
 def detection_limits(samples, t=None, temp=None, current=None, reference=None, gravity=None, field_norm=None,
-                     model: str | None = None, noise_sigma: float | None = None, alpha: float = 0.01,
+                     model: str | None = None, noise_sigma=None, alpha: float = 0.01,
                      names=None, seeds: int = 3, units: str = "", source: str = "samples",
                      progress: bool = False, diagnosis=None) -> DetectionLimits:
     """The detection limit of every candidate `names` (default: every one `inject` can add) in this recording
