@@ -19,8 +19,8 @@ demo: install
 	$(VENV)/bin/fluxcal demo -o build/demo
 
 # pytest: two workers (pytest-xdist) on 2 cores; worksteal, so that the half-minute diagnosis tests left at the
-# end do not leave one worker idle. 18 min here on 2026-12-06 (the whole .ci/run 25 min; 30.5 min in CI before that
-# day's speed-up of the periodic-interference candidate). Keep .ci/run under 30 min on 2 cores.
+# end do not leave one worker idle. 12.8 min here on 2026-12-07 (the whole .ci/run 17.7 min; stop 88's CI took 30.1
+# min before that day's speed-up of the diagnosis, bench/RESULTS.md). Keep .ci/run under 30 min on 2 cores.
 test: install
 	$(CTEST_BIN) --test-dir $(DEV) --output-on-failure -j 2
 	$(PY) -m pytest -q -n 2 --dist worksteal
