@@ -44,7 +44,7 @@ def positive_number(text: str, zero: bool = False) -> float:
 def sigma_or_per_axis(text: str):
     """argparse type of diagnose's --noise-sigma: one positive finite σ, or three separated by commas (x, y, z: a
     datasheet's per axis), a list then."""
-    parts = [p for p in text.split(",")]
+    parts = text.split(",")
     if len(parts) == 1:
         return positive_number(text)
     if len(parts) != 3:
@@ -2138,7 +2138,8 @@ def _diagnose_cable(args) -> int:
     from .diagnose import diagnose_cable
 
     if isinstance(args.noise_sigma, list):
-        raise ValueError("--noise-sigma: --model cable takes one σ (tesla) for every sensor axis, got three")
+        raise ValueError("--noise-sigma: --model cable takes one σ (tesla) for all the ring's sensors, got three "
+                         "(one per sensor: fluxcal.diagnose_cable(noise_sigma=[…]) in Python)")
     ring = cable.read_ring_csv(args.file, bad_lines=args.bad_lines)
     _ring_notes(cable, ring)
     candidates = args.candidates.split(",") if args.candidates else None

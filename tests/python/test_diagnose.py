@@ -59,6 +59,21 @@ def test_a_profiles_gain_is_what_least_squares_takes():
         e = rng.normal(size=n) + R @ rng.normal(size=p)
         coef, *_ = np.linalg.lstsq(R, e, rcond=None)
         assert _taken_by(R, e) == pytest.approx(float(np.sum((R @ coef) ** 2)), rel=1e-6), trial
+    # two columns 2.1e-5 … 2e-4 rad apart (Gram condition 1e10 … 1e8: θ²/4), the residuals along their difference:
+    # the normal equations' weakest direction (a review found 3.5e-6 off at a 1e10 cut; the cut is 1e8 now)
+    for trial, angle in enumerate(np.geomspace(2.1e-5, 2e-4, 60)):
+        a, q = rng.normal(size=(2, 2000))
+        a /= np.linalg.norm(a)
+        q -= a * (a @ q)
+        q /= np.linalg.norm(q)
+        R = np.column_stack([a, np.cos(angle) * a + np.sin(angle) * q]) * rng.uniform(1, 1e4, size=2)
+        e = q + 1e-3 * rng.normal(size=2000)
+        coef, *_ = np.linalg.lstsq(R, e, rcond=None)
+        assert _taken_by(R, e) == pytest.approx(float(np.sum((R @ coef) ** 2)), rel=1e-6), (trial, angle)
+    assert _taken_by(np.zeros((10, 0)), np.ones(10)) == 0.0
+    R[0, 1] = np.nan  # as lstsq: no finite answer from a column that is not finite
+    with pytest.raises(np.linalg.LinAlgError):
+        _taken_by(R, e)
 
 
 def test_events_scored_at_once_score_as_each_on_its_own_readings(monkeypatch):
@@ -968,6 +983,23 @@ def test_a_noise_given_per_axis_weights_each_axis_against_reference_vectors():
     d = diagnose(result.readings, **kwargs, noise_sigma=given)
     assert d.axis_noise is None and d.noise_sigma == pytest.approx(np.sqrt(np.mean(np.square(given))))
     assert "per axis" in d.noise_source and "RMS" in d.noise_source
+
+
+def test_readings_on_a_grid_with_a_noise_given_per_axis_are_weighted_alike():
+    # The same recording rounded to a 0.08 grid, σ given per axis: the quantization candidate adds each axis's rounding
+    # variance in the units of its weighted residuals, σ̄² + (w_k q)²/12 with w_k = σ̄/σ_k (the unweighted q²/12 on
+    # every axis had put x's and y's at half theirs: LR 56 against 115). Quantization is found; with the RMS σ given
+    # on every axis, x's and y's rounding went unexplained.
+    m, kwargs = _noisier_z(11)
+    q, given = 0.08, np.array([NOISE, NOISE, 3 * NOISE])
+    d = diagnose(np.round(m / q) * q, **kwargs, noise_sigma=given, candidates=["quantization", "offset_step"])
+    assert d.accepted == ["quantization"], d.accepted
+    row = next(r for r in d.ranking if r["effect"] == "quantization")
+    e = d.series["residual_before"].reshape(-1, 3)
+    sigma = d.noise_sigma
+    var = sigma ** 2 + (sigma / given * np.asarray(row["steps"])) ** 2 / 12
+    lr = np.sum(np.log(sigma ** 2 / var) + e ** 2 / sigma ** 2 - e ** 2 / var)
+    assert row["lr"] == pytest.approx(lr, rel=1e-9)
 
 
 def test_a_step_on_a_quiet_axis_is_judged_against_that_axis_noise():

@@ -47,7 +47,8 @@ def test_the_command_line_takes_a_noise_sigma_per_axis(tmp_path):
     out = run_cli("diagnose", path, "--noise-sigma", "0.05,0.05", "--quiet")
     assert out.returncode == 2 and "need one σ, or three separated by commas" in out.stderr, out.stderr
     out = run_cli("diagnose", path, "--model", "cable", "--noise-sigma", "1e-8,1e-8,1e-8", "--quiet")
-    assert out.returncode == 2 and "--model cable takes one σ" in out.stderr, out.stderr
+    assert out.returncode == 2 and "--model cable takes one σ (tesla) for all the ring's sensors" in out.stderr, \
+        out.stderr
 
 
 @pytest.mark.parametrize("option", [{"alpha": 5}, {"alpha": 0}, {"alpha": 1.0}, {"max_effects": -1},

@@ -1833,24 +1833,28 @@ def _profile(cls, ctxs: dict, result: dict, Q: np.ndarray, e: np.ndarray, vector
 def _taken_by(R: np.ndarray, e: np.ndarray) -> float:
     """‖R c‖², c the least-squares coefficients of e on R's columns: the part of e they take, as numpy's lstsq
     gives it. Through the normal equations of the unit-norm columns and their eigenvalues (half lstsq's time on
-    the profiles' tall, narrow problems, some 10⁵ per diagnosis run), or lstsq itself when those are ill-conditioned
-    (they square R's condition number: below 1e-10 of the largest eigenvalue lstsq keeps what they cannot resolve)
-    or the columns' norms differ by more than 1e5 (lstsq drops a direction below ~1e-13 of R's largest singular
-    value, whatever its column's norm). Zero columns take nothing, as in lstsq."""
+    the profiles' tall, narrow problems, some 10⁵ per diagnosis run) when those resolve it: eigenvalues within 1e8
+    (they square R's condition number: the weakest direction's part then within ~4e-8 of lstsq's), column norms
+    within 1e5 and fewer than 4e6 residuals (R's singular values then within 1e9 of each other, above lstsq's cut at
+    eps·N of the largest: it keeps every direction too). Else, and for a column that is not finite, lstsq itself.
+    Zero columns take nothing, as in lstsq."""
+    if R.shape[1] == 0:
+        return 0.0
     G, b = R.T @ R, R.T @ e
     d = np.diagonal(G)
-    used = d > 0
-    if not used.all():
+    if np.all(np.isfinite(d)) and len(R) < 4e6:
+        used = d > 0
         if not used.any():
             return 0.0
-        G, b, d = G[np.ix_(used, used)], b[used], d[used]
-    if len(d) == 1:
-        return float(b[0] ** 2 / d[0])
-    norms = np.sqrt(d)
-    if norms.min() > 1e-5 * norms.max():  # (with the eigenvalues' bound: R's singular values within 1e-10, all kept)
-        lam, V = np.linalg.eigh(G / np.outer(norms, norms))
-        if lam[0] > 1e-10 * lam[-1]:
-            return float(np.sum((V.T @ (b / norms)) ** 2 / lam))
+        if not used.all():
+            G, b, d = G[np.ix_(used, used)], b[used], d[used]
+        if len(d) == 1:
+            return float(b[0] ** 2 / d[0])
+        norms = np.sqrt(d)
+        if norms.min() > 1e-5 * norms.max():
+            lam, V = np.linalg.eigh(G / np.outer(norms, norms))
+            if lam[0] > 1e-8 * lam[-1]:
+                return float(np.sum((V.T @ (b / norms)) ** 2 / lam))
     coef, *_ = np.linalg.lstsq(R, e, rcond=None)
     return float(np.sum((R @ coef) ** 2))
 
@@ -2798,14 +2802,15 @@ def _quantization(data, state, sigma, n_candidates, noise_given: bool) -> dict:
         row.update(lr=0.0, lr_pvalue=1.0, delta_aic=0.0, delta_bic=0.0, significant=False,
                    heldout_gap_before=None, heldout_gap_after=None, note="readings are not on a lattice")
         return row
-    q2 = float(np.mean(steps ** 2)) / 12.0
+    # each residual's rounding variance: an axis weighted by σ/σ_axis (`_fit`) has its step weighted alike
+    w = state["result"].get("axis_weights")
+    q2 = np.full(len(e), np.mean(steps ** 2) / 12.0) if w is None else np.tile((w * steps) ** 2 / 12.0, len(e) // 3)
+    loglik = lambda var: -0.5 * float(np.sum(np.log(var) + e ** 2 / var))  # noqa: E731 - Gaussian, known variances
+    lr = max(0.0, 2 * (loglik(sigma ** 2 + q2) - loglik(np.full(len(e), sigma ** 2))))
     n = len(e)
-    mse = float(np.mean(e ** 2))
-    loglik = lambda var: -0.5 * n * (np.log(var) + mse / var)  # noqa: E731 - Gaussian, known variance
-    lr = max(0.0, 2 * (loglik(sigma ** 2 + q2) - loglik(sigma ** 2)))
     held = _heldout("time", data, state["directions"])
     eh = _residuals(state["result"], data, _features(state["features"]), held)
-    before, after = _gap(eh, sigma), _gap(eh, np.sqrt(sigma ** 2 + q2))
+    before, after = _gap(eh, sigma), _gap(eh, np.sqrt(sigma ** 2 + float(np.mean(q2))))
     row.update(lr=lr, lr_pvalue=float(stats.chi2.sf(lr, 1)), delta_aic=-lr + 2, delta_bic=-lr + np.log(n),
                heldout="time", heldout_n=int(held.sum()), heldout_gap_before=before, heldout_gap_after=after,
                heldout_pvalue=0.0 if after < before else 1.0, noise_given=noise_given)
@@ -3425,8 +3430,9 @@ def diagnose(samples, t=None, temp=None, reference=None, gravity=None, field_nor
         if np.ptp(given) > 0 and vector:  # (a datasheet's σ per axis: weighted as estimated ones are)
             axes, noise_source = (sigma / given, given / sigma, None), "given per axis"
         elif np.ptp(given) > 0:
-            noise_source += (f" per axis ({', '.join(f'{v:.4g}' for v in given)}): their RMS, the magnitude's noise on "
-                             "average over the field's directions (the magnitude models weight no axis)")
+            noise_source += (f" per axis ({', '.join(f'{v:.4g}' for v in given)}{' ' + data.units if data.units else ''}"
+                             "): their RMS, the magnitude's noise on average over the field's directions (the magnitude "
+                             "models weight no axis)")
     if axes is not None:  # weighted from here on: the base refitted with them
         data.axis_weights, axis_noise = axes[0], (sigma * axes[1]).tolist()
         base = _fit(data, start, fixed, None)
