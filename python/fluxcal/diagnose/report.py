@@ -765,9 +765,9 @@ def quantization_line(d, r) -> str:
     u = f" {d.units}" if d.units else ""
     steps = np.asarray(r["steps"], dtype=float)
     q = float(np.sqrt(np.mean(steps ** 2) / 12.0))
-    given = f"σ given {_g(d.noise_sigma)}{u}" if d.axis_noise is None else f"σ x, y, z {_vec(d.axis_noise)}{u}"
+    noise = f"σ given {_g(d.noise_sigma)}{u}" if d.axis_noise is None else f"σ x, y, z {_vec(d.axis_noise)}{u}"
     return (f"quantization: readings on a grid of {_vec(steps)}{u} (x, y, z; the ADC's step), whose rounding adds "
-            f"step/√12 RMS to the noise ({given}): {_share(d, q)}")
+            f"step/√12 RMS to the noise ({noise}): {_share(d, q)}")
 
 
 def move_size(d, r) -> str:
