@@ -2273,8 +2273,8 @@ def build_parser() -> argparse.ArgumentParser:
                         "(the magnitude models)")
     g.add_argument("--noise-sigma", type=sigma_or_per_axis, default=None,
                    help="white-noise σ of the readings, in their unit (tesla for --model cable), or three separated "
-                        "by commas (x, y, z: a datasheet's per axis; against reference vectors each axis is weighted "
-                        "by its own, the magnitude models take their RMS). Default, in this "
+                        "by commas (x, y, z: a datasheet's per axis: each axis is weighted by its own, against reference "
+                        "vectors and in a magnitude's distance to the ellipsoid alike). Default, in this "
                         "order: --model cable: the scatter of repeated snapshots (same rotation and currents), else "
                         "the --calibration's scatter, else the base fit's residuals (a misfit then counts as noise); "
                         "the other models: third differences of the readings in time order, or of the base model's "

@@ -942,9 +942,9 @@ def test_unequal_noise_between_the_axes_is_the_noise_not_an_excess():
         assert d.accepted == [], (seed, d.accepted)
 
 
-def _noisier_z(seed, k=3.0):
-    """A vector-model trial with nothing withheld and its z axis k times as noisy as x and y."""
-    result, kwargs = withheld_trial([], seed, model="vector")
+def _noisier_z(seed, k=3.0, model="vector"):
+    """A trial (vector model, or a magnitude model) with nothing withheld and its z axis k times as noisy as x and y."""
+    result, kwargs = withheld_trial([], seed, model=model)
     rng = np.random.default_rng(500 + seed)
     m = result.readings.copy()
     m[:, 2] += rng.normal(0, NOISE * np.sqrt(k * k - 1), len(m))
@@ -978,11 +978,14 @@ def test_a_noise_given_per_axis_weights_each_axis_against_reference_vectors():
     assert "weighted by σ/σ_axis" in d.noise_source
     e = d.series["residual_before"].reshape(-1, 3)
     np.testing.assert_allclose(np.std(e, axis=0), d.noise_sigma, rtol=0.1)
-    # the magnitude models weight no axis: their RMS, said
-    result, kwargs = withheld_trial([], 0)
-    d = diagnose(result.readings, **kwargs, noise_sigma=given)
-    assert d.axis_noise is None and d.noise_sigma == pytest.approx(np.sqrt(np.mean(np.square(given))))
-    assert "per axis" in d.noise_source and "RMS" in d.noise_source
+    # a magnitude model weights each axis alike: its residual is the distance to the ellipsoid in noise units
+    m, kwargs = _noisier_z(11, model="ellipsoid")
+    d = diagnose(m, **kwargs, noise_sigma=given)
+    assert d.accepted == [], d.accepted
+    np.testing.assert_allclose(d.axis_noise, given)
+    assert d.noise_sigma == pytest.approx(np.sqrt(np.mean(np.square(given))))
+    assert "given per axis" in d.noise_source and "distance to the ellipsoid" in d.noise_source
+    assert abs(d.where["overall"]["rms_z"] - 1.0) < 0.05, d.where["overall"]["rms_z"]
 
 
 def test_readings_on_a_grid_with_a_noise_given_per_axis_are_weighted_alike():
@@ -1056,6 +1059,81 @@ def test_the_weighted_vector_fit_matches_weighted_least_squares():
     plain = _fit(_Data(m, kwargs["t"], temp, ref, None, 50.0, "", "plain", []), start, (), feats)
     np.testing.assert_allclose(plain["parameters"], vector_terms(m, ref, feats)[0], rtol=0,
                                atol=1e-8 * np.abs(theta).max())
+
+
+def test_a_magnitude_models_axes_of_unequal_noise_are_weighted():
+    # σ_z = 3 σ_x, nothing withheld, a magnitude model: each axis's σ from its readings' own third differences, and
+    # each residual the distance to the ellipsoid with every axis in units of its own noise. Unweighted, a reading
+    # whose field lies along z scatters 3× as much as one along x, and a candidate was judged against their mixture.
+    m, kwargs = _noisier_z(2, model="ellipsoid")
+    d = diagnose(m, **kwargs)
+    assert d.accepted == [], d.accepted
+    np.testing.assert_allclose(d.axis_noise, [NOISE, NOISE, 3 * NOISE], rtol=0.08)
+    assert "axes' noise differs" in d.noise_source and "readings' third differences" in d.noise_source
+    e = d.series["residual_before"]
+    cal = fluxcal.calibrate(m, field_norm=kwargs.get("field_norm"))
+    u = np.abs(cal.apply(m) / np.linalg.norm(cal.apply(m), axis=1, keepdims=True))
+    along_z, along_xy = u[:, 2] > 0.9, u[:, 2] < 0.3
+    assert along_z.sum() > 100 and along_xy.sum() > 100
+    for part in (along_z, along_xy):  # the one σ reported, whatever the field's direction
+        assert np.std(e[part]) == pytest.approx(d.noise_sigma, rel=0.12), (np.std(e[along_z]), np.std(e[along_xy]))
+
+
+def test_a_step_on_a_magnitude_models_quiet_axis_is_judged_against_that_axis_noise():
+    # The same recordings with a step of 2 σ_x on x at mid-recording: against the pooled σ it was taken for a drift
+    # (seed 3) or missed (seed 6); weighted, a step in each (10 of 10 at seeds 0–9, against 8; at 3 σ_x both 10).
+    for seed in (3, 6):
+        m, kwargs = _noisier_z(seed, model="ellipsoid")
+        t = kwargs["t"]
+        m[t > 0.5 * (t[0] + t[-1]), 0] += 2 * NOISE
+        assert diagnose(m, **kwargs).accepted == ["offset_step"], seed
+
+
+def test_the_weighted_magnitude_fit_matches_the_oracle():
+    # _fit scales the readings to D m and refits the symmetric A' = root(D⁻¹ A² D⁻¹): the parameters, residuals,
+    # Jacobian and covariance mapped back are those of the oracle's Sampson residual with the gradient in noise units.
+    from fluxcal.diagnose.core import MODELS, _Data, _fit, _noise_floor, _project, _residuals
+
+    oracle = importlib.import_module("fluxcal.oracle.refine")
+    m, kwargs = _noisier_z(3, model="ellipsoid")
+    temp = kwargs["temp"]
+    feats = np.zeros((len(m), 3, 3))
+    for k in range(3):
+        feats[:, k, k] = temp - temp.mean()
+    weights = np.array([1.3, 1.3, 0.45])
+    data = _Data(m, kwargs["t"], temp, None, None, 50.0, "", "weighted", [], axis_weights=weights)
+    start = fluxcal.calibrate(m, field_norm=50.0, shape="sym")
+    got = _fit(data, start, (), feats)
+    theta = oracle_refine_terms(start, m, feats, axis_weights=weights)
+    np.testing.assert_allclose(got["parameters"], theta, rtol=0, atol=1e-7)
+
+    def residuals(th):
+        return oracle.residuals(th[:9], m - np.einsum("p,npk->nk", th[9:], feats), 50.0, weights)
+
+    e = residuals(theta)
+    J = np.empty((len(e), len(theta)))
+    for j in range(len(theta)):
+        step = np.zeros(len(theta))
+        step[j] = 1e-6
+        J[:, j] = (residuals(theta + step) - residuals(theta - step)) / 2e-6
+    covariance = e @ e / (len(e) - len(theta)) * np.linalg.inv(J.T @ J)
+    np.testing.assert_allclose(got["residuals"], e, rtol=0, atol=1e-7)
+    np.testing.assert_allclose(_residuals(got, data, feats, slice(None)), e, rtol=0, atol=1e-7)
+    np.testing.assert_allclose(got["jacobian"], J, rtol=0, atol=1e-6 * np.abs(J).max())
+    np.testing.assert_allclose(got["covariance"], covariance, rtol=0, atol=1e-6 * np.abs(covariance).max())
+    np.testing.assert_allclose(_project(got, feats, False), J[:, 9:], rtol=0, atol=1e-6 * np.abs(J).max())
+    # the noise floor with each axis's own σ (σ̄ / its weight) along the field: E (u'A n)² = Σ_k σ_k² (u'A)_k²
+    h = fluxcal.Calibration(offset=got["offset"], matrix=got["matrix"], field_norm=50.0).apply(
+        m - np.einsum("p,npk->nk", theta[9:], feats))
+    uA = (h / np.linalg.norm(h, axis=1, keepdims=True)) @ np.asarray(got["matrix"])
+    floor = _noise_floor(got, data, feats, slice(None), 0.1)
+    assert floor == pytest.approx(np.sqrt(np.mean(np.sum((0.1 / weights * uA) ** 2, axis=1))), rel=1e-12)
+    # the scale-only model: its held off-diagonals stay zero through the mapping
+    W = np.linalg.inv(start.matrix)
+    diagonal = fluxcal.Calibration(offset=start.offset, matrix=np.diag(1.0 / np.diag(W)), field_norm=50.0)
+    scale = _fit(data, diagonal, MODELS["scale"][1], feats)
+    assert np.all(np.asarray(scale["matrix"])[~np.eye(3, dtype=bool)] == 0.0)
+    assert np.all(np.asarray(scale["jacobian"])[:, [4, 5, 7]] == 0.0)
 
 
 def test_equally_noisy_axes_keep_one_sigma():

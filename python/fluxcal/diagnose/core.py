@@ -257,10 +257,10 @@ class Diagnosis:
     the final residuals exceed it (`exceeds`, χ² `pvalue`, `rms_over_sigma`); `remaining["unexplained"]`: the
     share of the base model's gap² the effects found leave (`share`; colored_noise takes none), and `left`
     when that is most of it and the residuals are well above the noise (the text report says NOT EXPLAINED:
-    the cause is outside the candidates). `significant`: any effect found. `axis_noise`: against reference vectors,
-    each axis's σ when their noise differs (equal rejected at AXES_ALPHA, or given so; `noise_sigma` is their RMS): every fit
-    and test weights an axis's residuals by noise_sigma / its σ, and the residuals in `where`, `remaining` and
-    `series` are those weighted ones."""
+    the cause is outside the candidates). `significant`: any effect found. `axis_noise`: each axis's σ when their
+    noise differs (equal rejected at AXES_ALPHA, or given so; `noise_sigma` is their RMS): every fit and test weights an
+    axis's residuals by noise_sigma / its σ (against reference vectors; a magnitude model scales each axis so in its
+    distance to the ellipsoid), and the residuals in `where`, `remaining` and `series` are those weighted ones."""
 
     model: str
     noise_sigma: float
@@ -703,8 +703,21 @@ def _noise(data: _Data, base: dict) -> tuple:
             source = (f"estimated from third differences of the base model's residuals: the readings' own "
                       f"differences hold the motion — {why} ({sigma:.4g}{unit} from 3rd, {fourth:.4g}{unit} from "
                       "4th order)")
-            sigma = from_residuals
+            return from_residuals, source + said_lines, False, axes
+    if axes is None and e.shape[1] == 1:  # a magnitude model: each axis's noise from its readings' own differences
+        axes = _reading_axis_noise(m[np.argsort(data.t, kind="stable")], differences, _axis_steps(data.m) / np.sqrt(12))
     return sigma, source + said_lines, False, axes
+
+
+def _reading_axis_noise(m: np.ndarray, differences, floors) -> tuple | None:
+    """`_axis_noise` of the readings themselves (time order), for a magnitude model, whose one residual per reading
+    mixes the axes: only when each axis's third and fourth differences agree (within MOTION_DROP), so that they hold
+    its noise and not the turn (an axis the sensor turns about least moves least, and would seem the quietest)."""
+    for k in range(3):
+        third, fourth = differences(m[:, [k]], 3), differences(m[:, [k]], 4)
+        if not abs(fourth - third) <= (1 - MOTION_DROP) * third:
+            return None
+    return _axis_noise(m, differences, floors)
 
 
 AXES_ALPHA = 0.01      # the axes' noise is taken to differ when equal variances are rejected at this level
@@ -715,7 +728,8 @@ AXES_LEAST = 0.1       # ... no axis's σ is taken below this share of their RMS
 
 
 def _axis_noise(e: np.ndarray, differences, floors=0.0) -> tuple | None:
-    """A vector model's residuals per axis (N × 3, time order): (weights σ̄/σ_axis, σ_axis / σ̄, p-value) when their
+    """A vector model's residuals per axis, or a magnitude model's readings (N × 3, time order; `_reading_axis_noise`):
+    (weights σ̄/σ_axis, σ_axis / σ̄, p-value) when their
     noise differs — equal variances of their third differences rejected at AXES_ALPHA (Brown–Forsythe, on every
     fourth difference: those share no reading) and σ differing by AXES_RATIO — else None. σ_axis from `differences`
     of that axis alone, at least its `floors` (its quantisation step/√12: an axis that moves by less than a step
@@ -757,10 +771,12 @@ def _fit(data: _Data, start: Calibration, fixed, feats, rows=None, start_terms=N
     options.max_iterations = 100
     ref = None if data.reference is None else np.ascontiguousarray(data.reference[sel])
     norms = None if data.field_norms is None else np.ascontiguousarray(data.field_norms[sel])
-    w = data.axis_weights if ref is not None else None
+    w = data.axis_weights
     if w is None:
         return _core.refine_terms(start.offset, start.matrix, start.field_norm, start.units, m, f, terms,
                                   list(fixed), options, ref, norms)
+    if ref is None:
+        return _weighted_magnitude_fit(start, fixed, m, f, terms, options, norms, w)
     # Weighted least squares as plain least squares of the weighted readings: D m = D b + D W r + D F c + D n has
     # the same form with offset D b and matrix D W (A D⁻¹), the terms' coefficients unchanged; its residuals are
     # the weighted ones the tests need, its parameters are mapped back to b and W.
@@ -779,6 +795,62 @@ def _fit(data: _Data, start: Calibration, fixed, feats, rows=None, start_terms=N
     return fit
 
 
+def _symmetric_root(A: np.ndarray, left: np.ndarray) -> np.ndarray:
+    """The symmetric positive root of (A L)ᵀ(A L) = L A² L for L = diag(left): the symmetric matrix whose magnitudes
+    |(m − b) A'| of readings scaled by 1/left equal those of A (a magnitude sees A only through A²)."""
+    lam, V = np.linalg.eigh(left[:, None] * (A @ A) * left[None, :])
+    return (V * np.sqrt(np.clip(lam, 0.0, None))) @ V.T
+
+
+def _root_jacobian(A: np.ndarray, w: np.ndarray) -> np.ndarray:
+    """∂a'/∂a (6 × 6, the upper triangles row by row) of A' = _symmetric_root(A, 1/w): A'² = D⁻¹ A² D⁻¹, so
+    A' dA' + dA' A' = D⁻¹ (dA A + A dA) D⁻¹, solved in A''s eigenbasis (a Sylvester equation)."""
+    lam, V = np.linalg.eigh(_symmetric_root(A, 1.0 / w))
+    out = np.empty((6, 6))
+    for j, (r, c) in enumerate(_UPPER):
+        E = np.zeros((3, 3))
+        E[r, c] = E[c, r] = 1.0
+        X = (E @ A) / np.outer(w, w)
+        Y = V.T @ (X + X.T) @ V / (lam[:, None] + lam[None, :])
+        dA = V @ Y @ V.T
+        out[:, j] = [dA[i, k] for i, k in _UPPER]
+    return out
+
+
+_UPPER = ((0, 0), (0, 1), (0, 2), (1, 1), (1, 2), (2, 2))  # the magnitude model's a00 a01 a02 a11 a12 a22
+
+
+def _weighted_magnitude_fit(start: Calibration, fixed, m, f, terms, options, norms, w) -> dict:
+    """A magnitude model with each axis's noise weighted by w = σ̄/σ_axis: the Sampson residual of readings scaled
+    to D m (D = diag(w)), which is the distance to the ellipsoid in units of each axis's own noise, so that every
+    residual has the one σ̄ whatever the field's direction. Same form: |(m − b) A| = |(D m − D b) A'| with the
+    symmetric A' = root(D⁻¹ A² D⁻¹), terms D f with their coefficients unchanged; parameters, errors, covariance and
+    Jacobian are mapped back to b and A (∂θ'/∂θ: D on the offset, `_root_jacobian` on the matrix)."""
+    A = np.asarray(start.matrix, dtype=float)
+    A = 0.5 * (A + A.T)
+    p = len(terms)
+    fit = _core.refine_terms(np.asarray(start.offset) * w, _symmetric_root(A, 1.0 / w), start.field_norm,
+                             start.units, np.ascontiguousarray(m * w), np.ascontiguousarray(f * np.tile(w, p)),
+                             terms, list(fixed), options, None, norms)
+    theta_w = np.asarray(fit["parameters"], dtype=float)
+    A_w = np.array([[theta_w[3], theta_w[4], theta_w[5]], [theta_w[4], theta_w[6], theta_w[7]],
+                    [theta_w[5], theta_w[7], theta_w[8]]])
+    A_back = _symmetric_root(A_w, w)
+    M = np.eye(9 + p)  # ∂θ'/∂θ at the solution
+    M[:3, :3] = np.diag(w)
+    M[3:9, 3:9] = _root_jacobian(A_back, w)
+    T = np.linalg.inv(M)
+    theta = np.concatenate([theta_w[:3] / w, [A_back[i, k] for i, k in _UPPER], theta_w[9:]])
+    fit["parameters"] = theta
+    fit["covariance"] = T @ np.asarray(fit["covariance"]) @ T.T
+    fit["standard_errors"] = np.sqrt(np.clip(np.diag(fit["covariance"]), 0.0, None))
+    fit["jacobian"] = np.asarray(fit["jacobian"]) @ M  # ∂r'/∂θ of the weighted residuals r'
+    fit["offset"] = theta[:3]
+    fit["matrix"] = A_back
+    fit["axis_weights"] = w
+    return fit
+
+
 def _residuals(result: dict, data: _Data, feats, rows) -> np.ndarray:
     """The model's residuals (reading units) on `rows`, with the fitted parameters of `result`."""
     theta = np.asarray(result["parameters"])
@@ -794,9 +866,10 @@ def _residuals(result: dict, data: _Data, feats, rows) -> np.ndarray:
     a = theta[3:9]
     A = np.array([[a[0], a[1], a[2]], [a[1], a[3], a[4]], [a[2], a[4], a[5]]])
     h = (m - b) @ A
-    g = h @ A
+    g = h @ A  # (the gradient's direction in reading space; in units of each axis's noise, g / w)
     s = np.linalg.norm(h, axis=1)
-    return (s - _field_at(data, rows)) * s / np.linalg.norm(g, axis=1)
+    return (s - _field_at(data, rows)) * s / np.linalg.norm(g if data.axis_weights is None else g / data.axis_weights,
+                                                           axis=1)
 
 
 def _downstream(result: dict, data: _Data, feats, rows) -> dict:
@@ -837,7 +910,8 @@ def _noise_floor(result: dict, data: _Data, feats, rows, sigma: float) -> float:
         return float(sigma * np.linalg.norm(A if data.axis_weights is None else A / data.axis_weights))
     h = _calibrated(result, data, feats, rows)
     u = h / np.linalg.norm(h, axis=1, keepdims=True)
-    return float(sigma * np.sqrt(np.mean(np.sum((u @ A) ** 2, axis=1))))
+    along = u @ A if data.axis_weights is None else (u @ A) / data.axis_weights  # (each axis's σ: σ̄ / its weight)
+    return float(sigma * np.sqrt(np.mean(np.sum(along ** 2, axis=1))))
 
 
 def _rms_angle(a: np.ndarray, b: np.ndarray) -> float:
@@ -2804,7 +2878,12 @@ def _quantization(data, state, sigma, n_candidates, noise_given: bool) -> dict:
         return row
     # each residual's rounding variance: an axis weighted by σ/σ_axis (`_fit`) has its step weighted alike
     w = state["result"].get("axis_weights")
-    q2 = np.full(len(e), np.mean(steps ** 2) / 12.0) if w is None else np.tile((w * steps) ** 2 / 12.0, len(e) // 3)
+    if w is None:
+        q2 = np.full(len(e), np.mean(steps ** 2) / 12.0)
+    elif data.reference is not None:
+        q2 = np.tile((w * steps) ** 2 / 12.0, len(e) // 3)
+    else:  # a magnitude's weighted residual moves by ∂r/∂m = −∂r/∂b with each axis's rounding
+        q2 = (np.asarray(state["result"]["jacobian"])[:, :3] ** 2) @ (steps ** 2 / 12.0)
     loglik = lambda var: -0.5 * float(np.sum(np.log(var) + e ** 2 / var))  # noqa: E731 - Gaussian, known variances
     lr = max(0.0, 2 * (loglik(sigma ** 2 + q2) - loglik(np.full(len(e), sigma ** 2))))
     n = len(e)
@@ -3359,9 +3438,9 @@ def diagnose(samples, t=None, temp=None, reference=None, gravity=None, field_nor
     a column's name ("F", in the readings' unit when both state a field unit).
     model: "ellipsoid" (default without reference), "scale", "vector" (default with one), "vector_scale".
     noise_sigma: white-noise σ of the readings, one for every axis, or three (x, y, z: a datasheet's per axis;
-    against reference vectors each axis is weighted by its own, `Diagnosis.axis_noise`; the magnitude models take
-    their RMS) (default: estimated, see estimate_noise; against reference vectors each axis's own when their noise
-    differs). candidates:
+    each axis is weighted by its own, `Diagnosis.axis_noise`) (default: estimated, see estimate_noise; each axis's
+    own when their noise differs: a vector model's from its residuals, a magnitude model's from its readings).
+    candidates:
     effect names to try (default all whose regressors are present). alpha: significance level
     (Bonferroni-corrected over the candidates). max_effects: how many effects to add greedily.
     """
@@ -3427,20 +3506,19 @@ def diagnose(samples, t=None, temp=None, reference=None, gravity=None, field_nor
     else:
         given = _given_noise(noise_sigma)
         sigma, noise_source, sigma_bound = float(np.sqrt(np.mean(given ** 2))), "given", False
-        if np.ptp(given) > 0 and vector:  # (a datasheet's σ per axis: weighted as estimated ones are)
+        if np.ptp(given) > 0:  # (a datasheet's σ per axis: weighted as estimated ones are)
             axes, noise_source = (sigma / given, given / sigma, None), "given per axis"
-        elif np.ptp(given) > 0:
-            noise_source += (f" per axis ({', '.join(f'{v:.4g}' for v in given)}{' ' + data.units if data.units else ''}"
-                             "): their RMS, the magnitude's noise on average over the field's directions (the magnitude "
-                             "models weight no axis)")
     if axes is not None:  # weighted from here on: the base refitted with them
         data.axis_weights, axis_noise = axes[0], (sigma * axes[1]).tolist()
         base = _fit(data, start, fixed, None)
         values = f"σ x, y, z {', '.join(f'{v:.4g}' for v in axis_noise)}{' ' + data.units if data.units else ''}"
         noise_source += (f" ({values}, σ their RMS)" if axes[2] is None else
-                         f"; the axes' noise differs ({values}, in the ratios of their residuals' third differences; "
+                         f"; the axes' noise differs ({values}, in the ratios of their "
+                         f"{'residuals' if vector else 'readings'}' third differences; "
                          f"equal rejected at p {axes[2]:.2g}, Brown–Forsythe)")
-        noise_source += ": each axis's residuals are weighted by σ/σ_axis in every fit and test"
+        noise_source += (": each axis's residuals are weighted by σ/σ_axis in every fit and test" if vector else
+                         ": each reading's residual is its distance to the ellipsoid with each axis scaled by "
+                         "σ/σ_axis (its noise σ in every direction), in every fit and test")
     if data.notes:
         noise_source += "; " + "; ".join(data.notes)
     if not sigma > 0:

@@ -13,11 +13,14 @@ def _matrix(theta):
     return np.array([[a[0], a[1], a[2]], [a[1], a[3], a[4]], [a[2], a[4], a[5]]])
 
 
-def residuals(theta, m, H):
+def residuals(theta, m, H, axis_weights=None):
+    """The Sampson residual; with axis_weights w (σ̄/σ_axis) the gradient's norm is taken in units of each axis's
+    noise, |(h A)/w|: the distance to the ellipsoid in noise units."""
     A = _matrix(theta)
     h = (m - theta[:3]) @ A.T
     hn = np.linalg.norm(h, axis=1)
-    return (hn - H) * hn / np.linalg.norm(h @ A.T, axis=1)
+    g = h @ A.T
+    return (hn - H) * hn / np.linalg.norm(g if axis_weights is None else g / np.asarray(axis_weights), axis=1)
 
 
 def _psi(r, loss: str, scale: float):
@@ -89,10 +92,11 @@ def refine(offset, matrix, field_norm, samples, loss: str = "linear", loss_scale
             "noise_sigma": np.sqrt(sigma2), "jacobian": jac, "residuals": sol.fun}
 
 
-def refine_terms(start, samples, features, field_norms=None) -> np.ndarray:
+def refine_terms(start, samples, features, field_norms=None, axis_weights=None) -> np.ndarray:
     """The magnitude model with extra terms (fluxcal._core.refine_terms): readings corrected by
     m − Σ_j c_j f_j (features N × p × 3), then the Sampson residual against start.field_norm, or against each
-    reading's own |field| (`field_norms`, N values); θ = [b, A (6), c]."""
+    reading's own |field| (`field_norms`, N values), each axis weighted by `axis_weights` (the diagnosis's axes of
+    unequal noise); θ = [b, A (6), c]."""
     H = start.field_norm if field_norms is None else np.asarray(field_norms, dtype=float)
     m = np.asarray(samples, dtype=float)
     f = np.asarray(features, dtype=float)
@@ -101,7 +105,7 @@ def refine_terms(start, samples, features, field_norms=None) -> np.ndarray:
     theta0 = np.r_[start.offset, A[0, 0], A[0, 1], A[0, 2], A[1, 1], A[1, 2], A[2, 2], np.zeros(f.shape[1])]
 
     def fun(theta):
-        return residuals(theta[:9], m - np.einsum("p,npk->nk", theta[9:], f), H)
+        return residuals(theta[:9], m - np.einsum("p,npk->nk", theta[9:], f), H, axis_weights)
 
     sol = least_squares(fun, theta0, method="lm", xtol=1e-15, ftol=1e-15, gtol=1e-15)
     return sol.x
