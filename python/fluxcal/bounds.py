@@ -60,17 +60,23 @@ def vector_information(reference) -> np.ndarray:
     return F
 
 
-def crlb(calibration: Calibration, clean_readings=None, sigma: float = 1.0, reference=None) -> np.ndarray:
-    """Covariance bound σ² F⁻¹ for isotropic Gaussian noise σ (reading units) on each axis.
+def crlb(calibration: Calibration, clean_readings=None, sigma=1.0, reference=None) -> np.ndarray:
+    """Covariance bound F⁻¹ for Gaussian noise σ (reading units) on each axis: one σ for every axis, or three
+    (σ x, y, z: axes of unequal noise, as `fluxcal.refine(..., noise_sigma=[…])` weighs them).
 
     Magnitude model (reference None): pass the true calibration (symmetric A, offset, |h|) and the
-    noise-free readings. Vector model: pass the reference vectors (the bound does not depend on the
-    parameters, so `calibration` and `clean_readings` are not used).
+    noise-free readings; each reading's residual then has the variance Σ_k σ_k² (∂r/∂m_k)² of the noise along
+    its field's direction. Vector model: pass the reference vectors (the bound does not depend on the
+    parameters, so `calibration` and `clean_readings` are not used); axis k's σ scales its own row of W and b.
     """
-    if not (np.isfinite(sigma) and sigma > 0):
-        raise ValueError(f"crlb: sigma {sigma}, need the noise's positive standard deviation")
+    sigmas = np.atleast_1d(np.asarray(sigma, dtype=float))
+    if sigmas.ndim != 1 or len(sigmas) not in (1, 3) or not (np.all(np.isfinite(sigmas)) and np.all(sigmas > 0)):
+        raise ValueError(f"crlb: sigma {sigma}, need the noise's positive standard deviation (one, or three: x, y, z)")
+    sigmas = np.broadcast_to(sigmas, 3)
     if reference is not None:
         F = vector_information(require_finite(as_samples(reference, "reference"), "reference"))
+        axis = np.r_[0, 1, 2, np.repeat([0, 1, 2], 3)]  # b_k and W's row k: axis k's equations alone
+        F = F / np.outer(sigmas[axis], sigmas[axis])
     else:
         if clean_readings is None:
             raise ValueError("crlb: the magnitude model needs the noise-free readings")
@@ -81,10 +87,11 @@ def crlb(calibration: Calibration, clean_readings=None, sigma: float = 1.0, refe
             bad = int(np.flatnonzero(~np.all(np.isfinite(J), axis=1))[0])
             raise ValueError(f"crlb: clean_readings row {bad} sits at the offset (no field direction); "
                              "the bound is not defined there")
-        F = J.T @ J
+        variance = (J[:, :3] ** 2) @ (sigmas ** 2)  # ∂r/∂m = −∂r/∂b
+        F = J.T @ (J / variance[:, None])
     names = ["b0", "b1", "b2"] + ([f"w{i}{j}" for i in range(3) for j in range(3)] if reference is not None
                                   else [f"a{k}{l}" for k, l in _SYM])
-    return sigma**2 * _inverse(F, names)
+    return _inverse(F, names)
 
 
 def _inverse(F: np.ndarray, names) -> np.ndarray:

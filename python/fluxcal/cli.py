@@ -52,6 +52,15 @@ def sigma_or_per_axis(text: str):
     return [positive_number(p.strip()) for p in parts]
 
 
+def three_sigmas(text: str) -> list:
+    """argparse type of calibrate's --noise-sigma: three positive finite σ separated by commas (x, y, z)."""
+    value = sigma_or_per_axis(text)
+    if not isinstance(value, list):
+        raise argparse.ArgumentTypeError(f"{text!r}: need three σ separated by commas (x, y, z): one σ for every "
+                                         "axis weights nothing")
+    return value
+
+
 def norm_or_column(text: str):
     """argparse type of calibrate's and diagnose's --field-norm: a positive finite number, or a column holding each
     reading's |field| (not a number: a scalar magnetometer's log, an observatory's F)."""
@@ -120,6 +129,9 @@ def _report(cal: Calibration, raw: np.ndarray, out=None, t=None) -> None:
         unit = f" {cal.units}" if cal.units else ""
         print(f"  residual σ            {s['noise_sigma']:.4g}{unit}   (from the fit's residuals: the noise plus "
               "whatever the model misses)", file=out)
+        if s.get("axis_noise"):  # (refine's noise_sigma: the residuals are in units of each axis's own noise)
+            print(f"  axes weighted         σ x, y, z {', '.join(f'{v:.4g}' for v in s['axis_noise'])}{unit}   (the "
+                  "given ratios at the residual σ: each axis in units of its own noise)", file=out)
         line = noise_line(s, unit, raw, t)
         if line:
             print(line, file=out)
@@ -574,6 +586,11 @@ def cmd_calibrate(args) -> int:
         print(f"field norm {field_norm:g} {units} from the simulation's metadata".rstrip())
     # the refinement's setting only when asked for: methods ls and als refuse it, having no refinement
     settings = {} if args.serial_correlation is None else {"serial_correlation": args.serial_correlation}
+    if args.noise_sigma is not None:
+        if reference is not None or args.method not in ("auto", "als+refine"):
+            raise ValueError(f"--noise-sigma: weights the refinement's axes (the magnitude model of --method auto or "
+                             f"als+refine); {'the vector fit fits each axis apart' if reference is not None else '--method ' + args.method + ' has no refinement'}")
+        settings["noise_sigma"] = args.noise_sigma
     try:
         cal = calibrate(raw, method=args.method, field_norm=field_norm, reference=reference, units=units, times=rec.time(),
                         outliers=args.outliers, shape=args.shape, **settings)
@@ -2197,6 +2214,10 @@ def build_parser() -> argparse.ArgumentParser:
     c.add_argument("--outliers", default="drop", choices=["drop", "keep"],
                    help="drop (default): leave gross outliers (0,0,0 glitches, ADC rails, spikes) out of the fit "
                         "and list them; keep: fit every reading")
+    c.add_argument("--noise-sigma", type=three_sigmas, default=None, metavar="SX,SY,SZ",
+                   help="the axes' white-noise σ (a datasheet's, or `fluxcal diagnose`'s axis noise), in the readings' "
+                        "unit: the refinement weights each axis by its own (maximum likelihood when z is noisier, as "
+                        "on many MEMS parts); only their ratios matter")
     c.add_argument("--serial-correlation", default=None, choices=["automatic", "independent", "newey_west"],
                    help="standard errors: automatic (default) widens them (Newey-West) when the readings are "
                         "correlated in time; independent when the rows are not in time order (with --planar it also "

@@ -13,6 +13,7 @@ from .calibration import TESLA_PER_UNIT, Calibration, scale_words
 from .ellipsoid import fit_ellipsoid
 from .outliers import DOMINATING, far_readings, find_outliers
 from ._arrays import as_field_norms, changing_field, field_norm_given
+from ._axis_weights import weights_of
 from .refine import SHAPES, fit_vector, refine, shape_name
 from .twostep import FIELD_LOG_WORDS, field_log_misfit, reading_interval, twostep
 
@@ -447,19 +448,22 @@ def _refine_shape(start: Calibration, m: np.ndarray, shape: str, judged: np.ndar
         except (ValueError, RuntimeError) as error:  # a restricted shape far from the data may not converge
             return error
 
-    workers = min(len(SHAPES), usable_cpus())
+    # (axes of unequal noise: the weighted readings' sphere is no shape of the readings' own, so not tried)
+    shapes = [k for k in SHAPES if k != "sphere" or weights_of(settings.get("noise_sigma")) is None]
+    workers = min(len(shapes), usable_cpus())
     if len(m) >= PARALLEL_SHAPES and workers > 1:
         with ThreadPoolExecutor(max_workers=workers) as pool:
-            results = dict(zip(SHAPES, pool.map(fit, SHAPES)))
+            results = dict(zip(shapes, pool.map(fit, shapes)))
     else:
-        results = {name: fit(name) for name in SHAPES}
+        results = {name: fit(name) for name in shapes}
     fits, table = {}, {}
     for name, result in results.items():
         if isinstance(result, Exception):
             table[name] = {"error": str(result)}
             continue
         fits[name] = result
-        table[name] = _shape_row(result.summary, len(m), _judged_rss(result, m, judged, settings.get("field_norms")))
+        table[name] = _shape_row(result.summary, len(m), _judged_rss(result, m, judged, settings.get("field_norms"),
+                                                                     weights_of(settings.get("noise_sigma"))))
     if not fits:
         errors = {k: v["error"] for k, v in table.items()}
         if len({re.sub(r"\d+-parameter ", "", e) for e in errors.values()}) == 1:
@@ -507,22 +511,25 @@ def _shape_row(summary: dict, n: int, judged: tuple[float, int] | None = None) -
             "identifiable": bool(summary["identifiable"]), **row}
 
 
-def _judged_rss(cal: Calibration, m: np.ndarray, judged: np.ndarray | None, field_norms=None):
-    """(RSS, N) of the refinement's residuals (Sampson's, (|h| − H)|h|/|A h|, as refine's) over the `judged`
-    readings, or None when all are judged."""
+def _judged_rss(cal: Calibration, m: np.ndarray, judged: np.ndarray | None, field_norms=None, axis_weights=None):
+    """(RSS, N) of the refinement's residuals (Sampson's, (|h| − H)|h|/|A h|, as refine's, weighted as its were)
+    over the `judged` readings, or None when all are judged."""
     if judged is None:
         return None
-    r = sampson_residuals(cal, m[judged], None if field_norms is None else np.asarray(field_norms)[judged])
+    r = sampson_residuals(cal, m[judged], None if field_norms is None else np.asarray(field_norms)[judged],
+                          axis_weights)
     return float(r @ r), int(np.count_nonzero(judged))
 
 
-def sampson_residuals(cal: Calibration, m: np.ndarray, field_norms=None) -> np.ndarray:
+def sampson_residuals(cal: Calibration, m: np.ndarray, field_norms=None, axis_weights=None) -> np.ndarray:
     """Each reading's magnitude residual in the readings' unit, as refine's: Sampson's (|h| − H)|h|/|A h|, with H
-    the calibration's field norm or each reading's own `field_norms`."""
+    the calibration's field norm or each reading's own `field_norms`; with `axis_weights` (σ̄/σ_axis, refine's
+    noise_sigma) the gradient's norm in units of each axis's noise, |A h / w|."""
     h = cal.apply(m)
     size = np.linalg.norm(h, axis=1)
     target = cal.field_norm if field_norms is None else np.asarray(field_norms, dtype=float)
-    return (size - target) * size / np.linalg.norm(h @ cal.matrix.T, axis=1)
+    g = h @ cal.matrix.T
+    return (size - target) * size / np.linalg.norm(g if axis_weights is None else g / axis_weights, axis=1)
 
 
 # Kass & Raftery's "very strong" evidence: a BIC lower by more than this (a Bayes factor above ~150).
@@ -540,8 +547,9 @@ def _forced_shape(start: Calibration, m: np.ndarray, shape: str, judged: np.ndar
     except (ValueError, RuntimeError):  # the comparison is a courtesy: the user's fit stands without it
         return cal
     norms = settings.get("field_norms")
-    table = {shape: _shape_row(cal.summary, len(m), _judged_rss(cal, m, judged, norms)),
-             "sym": _shape_row(full.summary, len(m), _judged_rss(full, m, judged, norms))}
+    w = weights_of(settings.get("noise_sigma"))
+    table = {shape: _shape_row(cal.summary, len(m), _judged_rss(cal, m, judged, norms, w)),
+             "sym": _shape_row(full.summary, len(m), _judged_rss(full, m, judged, norms, w))}
     cal.summary["shapes"] = table
     excess = table[shape]["bic"] - table["sym"]["bic"]
     if excess > REJECTED_BIC:

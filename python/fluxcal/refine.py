@@ -14,6 +14,7 @@ import numpy as np
 
 from . import _core
 from ._arrays import as_field_norms, as_number, as_samples, field_norms_summary, require_calibration, set_options, units_text
+from ._axis_weights import map_fit, restate_summary, scaled_start, weights_of
 from .attitude import axis_remapping
 from .calibration import Calibration
 
@@ -103,7 +104,7 @@ def _few_spare_readings(summary: dict, per_reading: int) -> None:
 
 
 def refine(calibration: Calibration, samples, reference=None, loss: str = "none", loss_scale: float = 0.0,
-           shape: str = "sym", field_norms=None, **settings) -> Calibration:
+           shape: str = "sym", field_norms=None, noise_sigma=None, **settings) -> Calibration:
     """Refine `calibration` on `samples` by maximum likelihood (Ceres).
 
     Without `reference` the magnitude model is used with |h| = calibration.field_norm (known), or with
@@ -125,6 +126,14 @@ def refine(calibration: Calibration, samples, reference=None, loss: str = "none"
     summary["serial_correlation"] holds the residuals' lag-1 autocorrelation, the test's p-value, the
     Newey–West lags of the whitened scores (0 = independent readings assumed), the inflation of the standard errors and the
     independent-readings ones. Whether the data determine a parameter is judged on the latter.
+    noise_sigma: three values (σ x, y, z: a datasheet's, or `fluxcal.estimate_noise` per axis) when the axes' noise
+    differs — only their ratios matter: the magnitude model's residual is then the distance to the ellipsoid with
+    each axis in units of its own noise (maximum likelihood for that noise; with z 3× as noisy the unweighted fit
+    leaves the matrix's and offset's errors up to 1.2–1.4× the bound, `fluxcal.crlb(..., sigma=[…])`). The summary's
+    residuals and noise σ are then in those units (σ̄, the three's RMS), "axis_noise" holds the three scaled by
+    σ̂/σ̄, and the parameters, covariance and coverage are in the readings' own axes. Not for "sphere" (scaled axes
+    make it an ellipsoid) nor with `reference` (the vector model fits each axis's row apart: its noise weights
+    nothing). One value, or three equal, is the plain fit.
     """
     require_calibration(calibration)
     m = as_samples(samples)
@@ -135,6 +144,9 @@ def refine(calibration: Calibration, samples, reference=None, loss: str = "none"
         raise ValueError("field_norms: the vector model's reference vectors already give every reading's field; "
                          "give one or the other")
     options = _options(loss, loss_scale, calibration.units, shape, **settings)
+    w = _axis_weights(noise_sigma, shape, reference)
+    if w is not None:
+        return _weighted_refine(calibration, m, w, shape, field_norms, options)
     args = (calibration.offset, calibration.matrix, calibration.field_norm, calibration.units, m)
     if reference is None:
         if field_norms is None:
@@ -176,4 +188,55 @@ def fit_vector(samples, reference, units: str = "", loss: str = "none", loss_sca
             + (" (a mirror: the two frames differ in handedness)" if remapped[2] else "")
             + ". The sensor is mounted rotated, or the reference is written in other axes (check the attitude "
             "convention); the matrix includes the remapping, so the calibration holds"]
+    return cal
+
+
+def _axis_weights(noise_sigma, shape, reference) -> np.ndarray | None:
+    """refine's weights σ̄/σ_axis from `noise_sigma` (None when one σ, or three equal, is given or none)."""
+    w = weights_of(noise_sigma)
+    if w is None:
+        return None
+    if reference is not None:
+        raise ValueError("noise_sigma: three values weight the magnitude model's axes; with reference vectors each "
+                         "axis's row of W is fitted apart, so its noise changes nothing (leave noise_sigma out)")
+    if shape_name(shape) == "sphere":
+        raise ValueError("noise_sigma: with three values the readings' axes are scaled to equal noise, which makes a "
+                         "sphere an ellipsoid: give shape='diag' or 'sym'")
+    return w
+
+
+def _weighted_refine(calibration: Calibration, m: np.ndarray, w: np.ndarray, shape: str, field_norms,
+                     options) -> Calibration:
+    """refine of the magnitude model with each axis weighted by w (fluxcal._axis_weights): the readings scaled,
+    the core's fit mapped back, its summary restated in the readings' axes."""
+    offset, matrix = scaled_start(calibration.offset, calibration.matrix, w)
+    args = (offset, matrix, calibration.field_norm, calibration.units, np.ascontiguousarray(m * w))
+    if field_norms is None:
+        result = _core.refine(*args, options)
+    else:
+        norms = as_field_norms(field_norms, len(m))
+        result = _core.refine_norms(*args, norms, options)
+    result = dict(result)
+    diag = shape_name(shape) == "diag"
+    # the scaled fit's Jacobian at its solution (refine_terms with no terms returns it; the core's refine does not)
+    at = _core.refine_terms(result["offset"], result["matrix"], result["field_norm"], calibration.units, args[4],
+                            np.zeros((len(m), 0)), np.zeros(0), ["a01", "a02", "a12"] if diag else [],
+                            _core.RefineOptions(), None, None if field_norms is None else norms)
+    result["jacobian"] = np.asarray(at["jacobian"])[:, [0, 1, 2, 3, 6, 8] if diag else slice(None)]
+    # the independent-readings errors (a sandwich's are the covariance when the residuals are correlated):
+    # s²(J'ᵀJ')⁻¹ with the core's scale s² (σ̂², or Huber's for a robust loss), mapped as the covariance is
+    serial = dict(result["serial_correlation"])
+    plain = np.linalg.pinv(result["jacobian"].T @ result["jacobian"])
+    independent = np.square(serial["standard_errors_independent"])
+    s2 = float(np.median(independent[np.diag(plain) > 0] / np.diag(plain)[np.diag(plain) > 0]))
+    T = np.linalg.inv(map_fit(result, w, 3 if diag else 6))
+    serial["standard_errors_independent"] = np.sqrt(np.clip(np.diag(s2 * T @ plain @ T.T), 0.0, None)).tolist()
+    result["serial_correlation"] = serial
+    result["summary"] = dict(result["summary"])
+    restate_summary(result, m, w)
+    cal = _calibration(result, "refine")
+    cal.summary["shape"] = shape_name(shape)
+    cal.summary["axis_noise"] = (result["noise_sigma"] / w).tolist()
+    if field_norms is not None:
+        cal.summary["field_norms"] = field_norms_summary(norms)
     return cal

@@ -15,6 +15,7 @@ from scipy import stats
 
 from .. import _core
 from .._arrays import as_field_norms, as_samples, field_norm_given, held_copies, repeated_blocks, repeated_words
+from .._axis_weights import map_fit, noise_values, scaled_start
 from ..attitude import magnetic_frame
 from ..calibration import Calibration
 from ..io.recording import UNIX_SECONDS
@@ -795,58 +796,17 @@ def _fit(data: _Data, start: Calibration, fixed, feats, rows=None, start_terms=N
     return fit
 
 
-def _symmetric_root(A: np.ndarray, left: np.ndarray) -> np.ndarray:
-    """The symmetric positive root of (A L)ᵀ(A L) = L A² L for L = diag(left): the symmetric matrix whose magnitudes
-    |(m − b) A'| of readings scaled by 1/left equal those of A (a magnitude sees A only through A²)."""
-    lam, V = np.linalg.eigh(left[:, None] * (A @ A) * left[None, :])
-    return (V * np.sqrt(np.clip(lam, 0.0, None))) @ V.T
-
-
-def _root_jacobian(A: np.ndarray, w: np.ndarray) -> np.ndarray:
-    """∂a'/∂a (6 × 6, the upper triangles row by row) of A' = _symmetric_root(A, 1/w): A'² = D⁻¹ A² D⁻¹, so
-    A' dA' + dA' A' = D⁻¹ (dA A + A dA) D⁻¹, solved in A''s eigenbasis (a Sylvester equation)."""
-    lam, V = np.linalg.eigh(_symmetric_root(A, 1.0 / w))
-    out = np.empty((6, 6))
-    for j, (r, c) in enumerate(_UPPER):
-        E = np.zeros((3, 3))
-        E[r, c] = E[c, r] = 1.0
-        X = (E @ A) / np.outer(w, w)
-        Y = V.T @ (X + X.T) @ V / (lam[:, None] + lam[None, :])
-        dA = V @ Y @ V.T
-        out[:, j] = [dA[i, k] for i, k in _UPPER]
-    return out
-
-
-_UPPER = ((0, 0), (0, 1), (0, 2), (1, 1), (1, 2), (2, 2))  # the magnitude model's a00 a01 a02 a11 a12 a22
-
-
 def _weighted_magnitude_fit(start: Calibration, fixed, m, f, terms, options, norms, w) -> dict:
     """A magnitude model with each axis's noise weighted by w = σ̄/σ_axis: the Sampson residual of readings scaled
     to D m (D = diag(w)), which is the distance to the ellipsoid in units of each axis's own noise, so that every
     residual has the one σ̄ whatever the field's direction. Same form: |(m − b) A| = |(D m − D b) A'| with the
     symmetric A' = root(D⁻¹ A² D⁻¹), terms D f with their coefficients unchanged; parameters, errors, covariance and
-    Jacobian are mapped back to b and A (∂θ'/∂θ: D on the offset, `_root_jacobian` on the matrix)."""
-    A = np.asarray(start.matrix, dtype=float)
-    A = 0.5 * (A + A.T)
+    Jacobian are mapped back to b and A (fluxcal._axis_weights)."""
     p = len(terms)
-    fit = _core.refine_terms(np.asarray(start.offset) * w, _symmetric_root(A, 1.0 / w), start.field_norm,
-                             start.units, np.ascontiguousarray(m * w), np.ascontiguousarray(f * np.tile(w, p)),
-                             terms, list(fixed), options, None, norms)
-    theta_w = np.asarray(fit["parameters"], dtype=float)
-    A_w = np.array([[theta_w[3], theta_w[4], theta_w[5]], [theta_w[4], theta_w[6], theta_w[7]],
-                    [theta_w[5], theta_w[7], theta_w[8]]])
-    A_back = _symmetric_root(A_w, w)
-    M = np.eye(9 + p)  # ∂θ'/∂θ at the solution
-    M[:3, :3] = np.diag(w)
-    M[3:9, 3:9] = _root_jacobian(A_back, w)
-    T = np.linalg.inv(M)
-    theta = np.concatenate([theta_w[:3] / w, [A_back[i, k] for i, k in _UPPER], theta_w[9:]])
-    fit["parameters"] = theta
-    fit["covariance"] = T @ np.asarray(fit["covariance"]) @ T.T
-    fit["standard_errors"] = np.sqrt(np.clip(np.diag(fit["covariance"]), 0.0, None))
-    fit["jacobian"] = np.asarray(fit["jacobian"]) @ M  # ∂r'/∂θ of the weighted residuals r'
-    fit["offset"] = theta[:3]
-    fit["matrix"] = A_back
+    offset, matrix = scaled_start(start.offset, start.matrix, w)
+    fit = _core.refine_terms(offset, matrix, start.field_norm, start.units, np.ascontiguousarray(m * w),
+                             np.ascontiguousarray(f * np.tile(w, p)), terms, list(fixed), options, None, norms)
+    map_fit(fit, w)
     fit["axis_weights"] = w
     return fit
 
@@ -3125,18 +3085,7 @@ def _axis_steps(m: np.ndarray) -> np.ndarray:
 
 def _given_noise(noise_sigma) -> np.ndarray:
     """The user's noise σ: one for every axis, or three (x, y, z: a datasheet's per axis), each positive and finite."""
-    try:
-        values = np.atleast_1d(np.asarray(noise_sigma, dtype=float))
-    except (TypeError, ValueError):
-        raise ValueError(f"noise_sigma: need a number (the readings' white-noise σ), or three (x, y, z), got "
-                         f"{noise_sigma!r}") from None
-    if values.ndim != 1 or len(values) not in (1, 3):
-        got = f"{values.size} values" if values.ndim == 1 else f"an array of shape {values.shape}"
-        raise ValueError(f"noise_sigma: need one σ for every axis, or three (x, y, z), got {got}")
-    if not (np.all(np.isfinite(values)) and np.all(values > 0)):
-        raise ValueError(f"noise_sigma: need a positive finite σ (the readings' white noise, in their units), "
-                         f"got {noise_sigma!r}")
-    return values
+    return noise_values(noise_sigma)
 
 
 def _check_options(noise_sigma, candidates, alpha, max_effects):
