@@ -2216,8 +2216,8 @@ def build_parser() -> argparse.ArgumentParser:
                         "and list them; keep: fit every reading")
     c.add_argument("--noise-sigma", type=three_sigmas, default=None, metavar="SX,SY,SZ",
                    help="the axes' white-noise σ (a datasheet's, or `fluxcal diagnose`'s axis noise), in the readings' "
-                        "unit: the refinement weights each axis by its own (maximum likelihood when z is noisier, as "
-                        "on many MEMS parts); only their ratios matter")
+                        "unit: the refinement weights each axis by its own (maximum likelihood when one axis, often z, "
+                        "is noisier); only their ratios matter")
     c.add_argument("--serial-correlation", default=None, choices=["automatic", "independent", "newey_west"],
                    help="standard errors: automatic (default) widens them (Newey-West) when the readings are "
                         "correlated in time; independent when the rows are not in time order (with --planar it also "

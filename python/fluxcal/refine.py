@@ -128,8 +128,8 @@ def refine(calibration: Calibration, samples, reference=None, loss: str = "none"
     independent-readings ones. Whether the data determine a parameter is judged on the latter.
     noise_sigma: three values (σ x, y, z: a datasheet's, or `fluxcal.estimate_noise` per axis) when the axes' noise
     differs — only their ratios matter: the magnitude model's residual is then the distance to the ellipsoid with
-    each axis in units of its own noise (maximum likelihood for that noise; with z 3× as noisy the unweighted fit
-    leaves the matrix's and offset's errors up to 1.2–1.4× the bound, `fluxcal.crlb(..., sigma=[…])`). The summary's
+    each axis in units of its own noise (maximum likelihood for that noise; with z 3× as noisy the unweighted fit's
+    offset and matrix errors are 1.1–1.2× the bound `fluxcal.crlb(..., sigma=[…])`, the weighted fit's 1.0). The summary's
     residuals and noise σ are then in those units (σ̄, the three's RMS), "axis_noise" holds the three scaled by
     σ̂/σ̄, and the parameters, covariance and coverage are in the readings' own axes. Not for "sphere" (scaled axes
     make it an ellipsoid) nor with `reference` (the vector model fits each axis's row apart: its noise weights

@@ -1061,15 +1061,17 @@ def test_the_weighted_vector_fit_matches_weighted_least_squares():
                                atol=1e-8 * np.abs(theta).max())
 
 
-def test_a_magnitude_models_axes_of_unequal_noise_are_weighted():
-    # σ_z = 3 σ_x, nothing withheld, a magnitude model: each axis's σ from its readings' own third differences, and
-    # each residual the distance to the ellipsoid with every axis in units of its own noise. Unweighted, a reading
-    # whose field lies along z scatters 3× as much as one along x, and a candidate was judged against their mixture.
+def test_a_magnitude_model_weights_the_axes_noise_given_per_axis():
+    # σ_z = 3 σ_x, nothing withheld, a magnitude model, σ given per axis (a datasheet's): each residual the distance to
+    # the ellipsoid with every axis in units of its own noise. Unweighted, a reading whose field lies along z scatters
+    # 3× as much as one along x, and a candidate was judged against their mixture. Not estimated from the readings:
+    # their differences per axis also hold the turn (a yaw turn read x and y 1.1–1.17× noisier than z: effects named
+    # in 4 of 30 such recordings with nothing withheld, a review's blind check).
     m, kwargs = _noisier_z(2, model="ellipsoid")
-    d = diagnose(m, **kwargs)
+    assert diagnose(m, **kwargs).axis_noise is None
+    d = diagnose(m, **kwargs, noise_sigma=[NOISE, NOISE, 3 * NOISE])
     assert d.accepted == [], d.accepted
-    np.testing.assert_allclose(d.axis_noise, [NOISE, NOISE, 3 * NOISE], rtol=0.08)
-    assert "axes' noise differs" in d.noise_source and "readings' third differences" in d.noise_source
+    assert "given per axis" in d.noise_source and "distance to the ellipsoid" in d.noise_source
     e = d.series["residual_before"]
     cal = fluxcal.calibrate(m, field_norm=kwargs.get("field_norm"))
     u = np.abs(cal.apply(m) / np.linalg.norm(cal.apply(m), axis=1, keepdims=True))
@@ -1080,13 +1082,13 @@ def test_a_magnitude_models_axes_of_unequal_noise_are_weighted():
 
 
 def test_a_step_on_a_magnitude_models_quiet_axis_is_judged_against_that_axis_noise():
-    # The same recordings with a step of 2 σ_x on x at mid-recording: against the pooled σ it was taken for a drift
-    # (seed 3) or missed (seed 6); weighted, a step in each (10 of 10 at seeds 0–9, against 8; at 3 σ_x both 10).
-    for seed in (3, 6):
+    # The same recordings, σ given per axis, with a step of 1.5 σ_x on x at mid-recording: against their RMS it was
+    # missed at these seeds; weighted, a step in each (seeds 0–9: 10 of 10, against 7; at 2 σ_x 10 against 9).
+    for seed in (4, 6):
         m, kwargs = _noisier_z(seed, model="ellipsoid")
         t = kwargs["t"]
-        m[t > 0.5 * (t[0] + t[-1]), 0] += 2 * NOISE
-        assert diagnose(m, **kwargs).accepted == ["offset_step"], seed
+        m[t > 0.5 * (t[0] + t[-1]), 0] += 1.5 * NOISE
+        assert diagnose(m, **kwargs, noise_sigma=[NOISE, NOISE, 3 * NOISE]).accepted == ["offset_step"], seed
 
 
 def test_the_weighted_magnitude_fit_matches_the_oracle():

@@ -160,7 +160,7 @@ def test_refinement_reaches_the_cramer_rao_bound(sensor_seed):
 
 
 def test_axes_of_unequal_noise_are_refined_at_their_bound():
-    """300 seeded runs, N = 300, σ = (0.5, 0.5, 1.5) % of |field| (z 3× as noisy, as on many MEMS parts), soft iron
+    """300 seeded runs, N = 300, σ = (0.5, 0.5, 1.5) % of |field| (z 3× as noisy as x and y), soft iron
     within ±10 %, offset up to 50 %: weighted by noise_sigma the refinement reaches the bound for that noise
     (crlb with three σ) with honest standard errors; the plain fit does not (its offset RMS 1.2 of the bound, bias
     0.22–0.27 at sensors 1 and 2)."""

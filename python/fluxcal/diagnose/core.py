@@ -80,7 +80,7 @@ class _Data:
     field_norms: np.ndarray | None = None  # each reading's |field| (logged beside it: a field that changes)
     # what the candidates compute once per diagnosis (sim.effects._per_diagnosis; its entries name their inputs)
     memo: dict = field(default_factory=dict, repr=False, compare=False)
-    # vector models, axes of unequal noise (_axis_noise): each axis's residuals × σ̄/σ_axis in every fit and test
+    # axes of unequal noise (a vector model's _axis_noise, or σ given per axis): each axis × σ̄/σ_axis in every fit and test
     axis_weights: np.ndarray | None = None
 
 
@@ -259,9 +259,10 @@ class Diagnosis:
     share of the base model's gap² the effects found leave (`share`; colored_noise takes none), and `left`
     when that is most of it and the residuals are well above the noise (the text report says NOT EXPLAINED:
     the cause is outside the candidates). `significant`: any effect found. `axis_noise`: each axis's σ when their
-    noise differs (equal rejected at AXES_ALPHA, or given so; `noise_sigma` is their RMS): every fit and test weights an
-    axis's residuals by noise_sigma / its σ (against reference vectors; a magnitude model scales each axis so in its
-    distance to the ellipsoid), and the residuals in `where`, `remaining` and `series` are those weighted ones."""
+    noise differs (given so; or, against reference vectors, estimated and equal rejected at AXES_ALPHA; `noise_sigma`
+    is their RMS): every fit and test weights an axis's residuals by noise_sigma / its σ (a magnitude model scales
+    each axis so in its distance to the ellipsoid), and the residuals in `where`, `remaining` and `series` are those
+    weighted ones."""
 
     model: str
     noise_sigma: float
@@ -276,7 +277,7 @@ class Diagnosis:
     series: dict = field(repr=False, default_factory=dict)  # per-reading arrays for the figures
     caveats: list = field(default_factory=list)  # what may make the findings untrustworthy (inputs, coverage)
     clipping: list = field(default_factory=list)  # hard saturation: axes whose readings pile up at the range's end
-    axis_noise: list | None = None  # a vector model's σ per axis when their noise differs (None: noise_sigma on each)
+    axis_noise: list | None = None  # σ per axis when their noise differs (given, or a vector model's) (None: noise_sigma on each)
 
     @property
     def significant(self) -> bool:
@@ -704,21 +705,8 @@ def _noise(data: _Data, base: dict) -> tuple:
             source = (f"estimated from third differences of the base model's residuals: the readings' own "
                       f"differences hold the motion — {why} ({sigma:.4g}{unit} from 3rd, {fourth:.4g}{unit} from "
                       "4th order)")
-            return from_residuals, source + said_lines, False, axes
-    if axes is None and e.shape[1] == 1:  # a magnitude model: each axis's noise from its readings' own differences
-        axes = _reading_axis_noise(m[np.argsort(data.t, kind="stable")], differences, _axis_steps(data.m) / np.sqrt(12))
+            sigma = from_residuals
     return sigma, source + said_lines, False, axes
-
-
-def _reading_axis_noise(m: np.ndarray, differences, floors) -> tuple | None:
-    """`_axis_noise` of the readings themselves (time order), for a magnitude model, whose one residual per reading
-    mixes the axes: only when each axis's third and fourth differences agree (within MOTION_DROP), so that they hold
-    its noise and not the turn (an axis the sensor turns about least moves least, and would seem the quietest)."""
-    for k in range(3):
-        third, fourth = differences(m[:, [k]], 3), differences(m[:, [k]], 4)
-        if not abs(fourth - third) <= (1 - MOTION_DROP) * third:
-            return None
-    return _axis_noise(m, differences, floors)
 
 
 AXES_ALPHA = 0.01      # the axes' noise is taken to differ when equal variances are rejected at this level
@@ -729,8 +717,7 @@ AXES_LEAST = 0.1       # ... no axis's σ is taken below this share of their RMS
 
 
 def _axis_noise(e: np.ndarray, differences, floors=0.0) -> tuple | None:
-    """A vector model's residuals per axis, or a magnitude model's readings (N × 3, time order; `_reading_axis_noise`):
-    (weights σ̄/σ_axis, σ_axis / σ̄, p-value) when their
+    """A vector model's residuals per axis (N × 3, time order): (weights σ̄/σ_axis, σ_axis / σ̄, p-value) when their
     noise differs — equal variances of their third differences rejected at AXES_ALPHA (Brown–Forsythe, on every
     fourth difference: those share no reading) and σ differing by AXES_RATIO — else None. σ_axis from `differences`
     of that axis alone, at least its `floors` (its quantisation step/√12: an axis that moves by less than a step
@@ -2902,10 +2889,13 @@ def _noise_overstated(data: _Data, e: np.ndarray, sigma: float, remaining: dict)
     left = _difference_noise(e.reshape(len(data.m), per_reading)[order], 3, mixture=True)
     if not left < NOISE_OVERSTATED * sigma:
         return None
+    # (axes weighted: the residuals are in σ̄'s units, so each axis's σ scales alike — three values keep the weights)
+    given = f"{left:.4g}" if data.axis_weights is None else ",".join(f"{v:.4g}" for v in left / data.axis_weights)
     return (f"noise σ: the residuals left scatter {remaining['overall']['rms_z']:.2f} σ and their third differences "
             f"give {left:.4g} for the σ {sigma:.4g} estimated before the effects found were modelled: σ held part of "
             f"them, and every candidate was judged against too large a noise (a further, smaller effect may have been "
-            f"missed). Run again with noise_sigma={left:.4g} (--noise-sigma {left:.4g})")
+            f"missed). Run again with noise_sigma={given if data.axis_weights is None else '[' + given + ']'} "
+            f"(--noise-sigma {given})")
 
 
 def _time_unit_caveat(data: _Data, directions: np.ndarray, sigma: float) -> str | None:
@@ -3083,16 +3073,11 @@ def _axis_steps(m: np.ndarray) -> np.ndarray:
     return np.array([_lattice_step(axis) for axis in m.T])
 
 
-def _given_noise(noise_sigma) -> np.ndarray:
-    """The user's noise σ: one for every axis, or three (x, y, z: a datasheet's per axis), each positive and finite."""
-    return noise_values(noise_sigma)
-
-
 def _check_options(noise_sigma, candidates, alpha, max_effects):
     """The options checked before any fit, each error naming its option. Returns the candidate names as a
     list (one name, or names separated by commas, may come as a string)."""
     if noise_sigma is not None:
-        _given_noise(noise_sigma)
+        noise_values(noise_sigma)
     if not (isinstance(alpha, (int, float, np.integer, np.floating)) and 0 < alpha < 1):
         raise ValueError(f"alpha: need a significance level between 0 and 1 (0.01 for 1 %), got {alpha!r}")
     if isinstance(max_effects, (bool, np.bool_)) or not isinstance(max_effects, (int, np.integer)) or max_effects < 0:
@@ -3387,9 +3372,9 @@ def diagnose(samples, t=None, temp=None, reference=None, gravity=None, field_nor
     a column's name ("F", in the readings' unit when both state a field unit).
     model: "ellipsoid" (default without reference), "scale", "vector" (default with one), "vector_scale".
     noise_sigma: white-noise σ of the readings, one for every axis, or three (x, y, z: a datasheet's per axis;
-    each axis is weighted by its own, `Diagnosis.axis_noise`) (default: estimated, see estimate_noise; each axis's
-    own when their noise differs: a vector model's from its residuals, a magnitude model's from its readings).
-    candidates:
+    each axis is weighted by its own, `Diagnosis.axis_noise`) (default: estimated, see estimate_noise; against
+    reference vectors each axis's own when their noise differs — not for the magnitude models, whose readings'
+    differences per axis also hold the turn). candidates:
     effect names to try (default all whose regressors are present). alpha: significance level
     (Bonferroni-corrected over the candidates). max_effects: how many effects to add greedily.
     """
@@ -3453,7 +3438,7 @@ def diagnose(samples, t=None, temp=None, reference=None, gravity=None, field_nor
             # rounds to a course in time, not to noise — weighted by it, a step was named at a 1 µT grid)
             axes = None
     else:
-        given = _given_noise(noise_sigma)
+        given = noise_values(noise_sigma)
         sigma, noise_source, sigma_bound = float(np.sqrt(np.mean(given ** 2))), "given", False
         if np.ptp(given) > 0:  # (a datasheet's σ per axis: weighted as estimated ones are)
             axes, noise_source = (sigma / given, given / sigma, None), "given per axis"
@@ -3462,8 +3447,7 @@ def diagnose(samples, t=None, temp=None, reference=None, gravity=None, field_nor
         base = _fit(data, start, fixed, None)
         values = f"σ x, y, z {', '.join(f'{v:.4g}' for v in axis_noise)}{' ' + data.units if data.units else ''}"
         noise_source += (f" ({values}, σ their RMS)" if axes[2] is None else
-                         f"; the axes' noise differs ({values}, in the ratios of their "
-                         f"{'residuals' if vector else 'readings'}' third differences; "
+                         f"; the axes' noise differs ({values}, in the ratios of their residuals' third differences; "
                          f"equal rejected at p {axes[2]:.2g}, Brown–Forsythe)")
         noise_source += (": each axis's residuals are weighted by σ/σ_axis in every fit and test" if vector else
                          ": each reading's residual is its distance to the ellipsoid with each axis scaled by "

@@ -663,6 +663,8 @@ def line_course(d, f: float, rate: float = 0.0) -> str:
             if d.series.get("directions") is not None else np.ones((len(t), 3)) / np.sqrt(3.0)
         X = np.einsum("nw,nj->nwj", wave, u).reshape(len(t), 6)
         y, rows = e[:, 0], np.arange(len(t))
+        if getattr(d, "axis_noise", None):  # (σ given per axis: the distance in noise units, back in reading units)
+            y = y * np.linalg.norm(u * (np.asarray(d.axis_noise) / d.noise_sigma), axis=1)
     edges = np.linspace(t[0], t[-1], LINE_STRETCHES + 1)
     part = np.minimum(np.searchsorted(edges, t, side="right") - 1, LINE_STRETCHES - 1)[rows]
     a = np.zeros(LINE_STRETCHES)
@@ -704,6 +706,8 @@ def line_standard_errors(d, r) -> tuple:
     wave = np.cos(phase)[:, None] * a - np.sin(phase)[:, None] * b  # ∂(a sin φ + b cos φ)/∂φ per axis
     if not d.series.get("vector"):
         u = np.asarray(d.series["directions"], dtype=float).reshape(len(t), 3)
+        if getattr(d, "axis_noise", None):  # (σ given per axis: the weighted residual's derivative, u / |u/w|)
+            u = u / np.linalg.norm(u * (np.asarray(d.axis_noise) / d.noise_sigma), axis=1, keepdims=True)
         wave = np.einsum("nj,nj->n", u, wave)[:, None]
     elif getattr(d, "axis_noise", None):  # each axis against its own noise: the weighted residuals' derivative
         wave = wave * (d.noise_sigma / np.asarray(d.axis_noise))
