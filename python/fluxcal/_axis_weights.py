@@ -95,6 +95,28 @@ def noise_values(noise_sigma, name: str = "noise_sigma") -> np.ndarray:
     return values
 
 
+def sampson_jacobian(offset, matrix, samples: np.ndarray, field_norm) -> np.ndarray:
+    """∂r/∂θ (N × 9, θ = [b, A's upper triangle]) of the Sampson residual (|h| − H)|h|/|A h|, h = A(m − b), at
+    `offset`, `matrix` (symmetric) and each reading's H: central differences (the core's refine, whose solution this
+    is taken at, returns no Jacobian; a refit to get one would move off a solution its noise-bias correction set)."""
+    def residuals(theta):
+        a = theta[3:]
+        A = np.array([[a[0], a[1], a[2]], [a[1], a[3], a[4]], [a[2], a[4], a[5]]])
+        h = (samples - theta[:3]) @ A
+        size = np.linalg.norm(h, axis=1)
+        return (size - field_norm) * size / np.linalg.norm(h @ A, axis=1)
+
+    A = np.asarray(matrix, dtype=float)
+    theta = np.concatenate([np.asarray(offset, dtype=float), [A[i, k] for i, k in UPPER]])
+    scales = np.r_[[float(np.median(np.linalg.norm(samples - theta[:3], axis=1)))] * 3, [np.abs(A).max()] * 6]
+    J = np.empty((len(samples), 9))
+    for j in range(9):  # (steps of 1e-6 of each block's scale: the readings' radius, the matrix's largest entry)
+        step = np.zeros(9)
+        step[j] = 1e-6 * scales[j]
+        J[:, j] = (residuals(theta + step) - residuals(theta - step)) / (2 * step[j])
+    return J
+
+
 def weights_of(noise_sigma) -> np.ndarray | None:
     """The weights σ̄/σ_axis (σ̄ the RMS) of a noise_sigma of three unequal values; None for none, one, or three equal."""
     if noise_sigma is None:

@@ -14,7 +14,7 @@ import numpy as np
 
 from . import _core
 from ._arrays import as_field_norms, as_number, as_samples, field_norms_summary, require_calibration, set_options, units_text
-from ._axis_weights import map_fit, restate_summary, scaled_start, weights_of
+from ._axis_weights import map_fit, restate_summary, sampson_jacobian, scaled_start, weights_of
 from .attitude import axis_remapping
 from .calibration import Calibration
 
@@ -126,7 +126,7 @@ def refine(calibration: Calibration, samples, reference=None, loss: str = "none"
     summary["serial_correlation"] holds the residuals' lag-1 autocorrelation, the test's p-value, the
     Newey–West lags of the whitened scores (0 = independent readings assumed), the inflation of the standard errors and the
     independent-readings ones. Whether the data determine a parameter is judged on the latter.
-    noise_sigma: three values (σ x, y, z: a datasheet's, or `fluxcal.estimate_noise` per axis) when the axes' noise
+    noise_sigma: three values (σ x, y, z: a datasheet's, or a diagnosis's `axis_noise`) when the axes' noise
     differs — only their ratios matter: the magnitude model's residual is then the distance to the ellipsoid with
     each axis in units of its own noise (maximum likelihood for that noise; with z 3× as noisy the unweighted fit's
     offset and matrix errors are 1.1–1.2× the bound `fluxcal.crlb(..., sigma=[…])`, the weighted fit's 1.0). The summary's
@@ -218,11 +218,9 @@ def _weighted_refine(calibration: Calibration, m: np.ndarray, w: np.ndarray, sha
         result = _core.refine_norms(*args, norms, options)
     result = dict(result)
     diag = shape_name(shape) == "diag"
-    # the scaled fit's Jacobian at its solution (refine_terms with no terms returns it; the core's refine does not)
-    at = _core.refine_terms(result["offset"], result["matrix"], result["field_norm"], calibration.units, args[4],
-                            np.zeros((len(m), 0)), np.zeros(0), ["a01", "a02", "a12"] if diag else [],
-                            _core.RefineOptions(), None, None if field_norms is None else norms)
-    result["jacobian"] = np.asarray(at["jacobian"])[:, [0, 1, 2, 3, 6, 8] if diag else slice(None)]
+    J = sampson_jacobian(result["offset"], result["matrix"], args[4],
+                         result["field_norm"] if field_norms is None else norms)
+    result["jacobian"] = J[:, [0, 1, 2, 3, 6, 8]] if diag else J
     # the independent-readings errors (a sandwich's are the covariance when the residuals are correlated):
     # s²(J'ᵀJ')⁻¹ with the core's scale s² (σ̂², or Huber's for a robust loss), mapped as the covariance is
     serial = dict(result["serial_correlation"])
