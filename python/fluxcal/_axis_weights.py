@@ -82,6 +82,8 @@ def noise_values(noise_sigma, name: str = "noise_sigma") -> np.ndarray:
     """One σ for every axis, or three (x, y, z: a datasheet's per axis), each positive and finite; ValueError naming
     `name` otherwise."""
     try:
+        if isinstance(noise_sigma, (bool, np.bool_, str)):
+            raise TypeError
         values = np.atleast_1d(np.asarray(noise_sigma, dtype=float))
     except (TypeError, ValueError):
         raise ValueError(f"{name}: need a number (the readings' white-noise σ), or three (x, y, z), got "

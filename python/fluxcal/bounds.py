@@ -69,7 +69,11 @@ def crlb(calibration: Calibration, clean_readings=None, sigma=1.0, reference=Non
     its field's direction. Vector model: pass the reference vectors (the bound does not depend on the
     parameters, so `calibration` and `clean_readings` are not used); axis k's σ scales its own row of W and b.
     """
-    sigmas = np.atleast_1d(np.asarray(sigma, dtype=float))
+    try:
+        sigmas = np.atleast_1d(np.asarray(sigma, dtype=float))
+    except (TypeError, ValueError):
+        raise ValueError(f"crlb: sigma {sigma!r}, need the noise's positive standard deviation (one, or three: "
+                         "x, y, z)") from None
     if sigmas.ndim != 1 or len(sigmas) not in (1, 3) or not (np.all(np.isfinite(sigmas)) and np.all(sigmas > 0)):
         raise ValueError(f"crlb: sigma {sigma}, need the noise's positive standard deviation (one, or three: x, y, z)")
     sigmas = np.broadcast_to(sigmas, 3)

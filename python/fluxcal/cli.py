@@ -54,11 +54,11 @@ def sigma_or_per_axis(text: str):
 
 def three_sigmas(text: str) -> list:
     """argparse type of calibrate's --noise-sigma: three positive finite σ separated by commas (x, y, z)."""
-    value = sigma_or_per_axis(text)
-    if not isinstance(value, list):
-        raise argparse.ArgumentTypeError(f"{text!r}: need three σ separated by commas (x, y, z): one σ for every "
-                                         "axis weights nothing")
-    return value
+    parts = text.split(",")
+    if len(parts) != 3:
+        raise argparse.ArgumentTypeError(f"{text!r}: need three σ separated by commas (x, y, z), got {len(parts)}"
+                                         + (": one σ for every axis weights nothing" if len(parts) == 1 else ""))
+    return [positive_number(p.strip()) for p in parts]
 
 
 def norm_or_column(text: str):
@@ -2215,7 +2215,7 @@ def build_parser() -> argparse.ArgumentParser:
                    help="drop (default): leave gross outliers (0,0,0 glitches, ADC rails, spikes) out of the fit "
                         "and list them; keep: fit every reading")
     c.add_argument("--noise-sigma", type=three_sigmas, default=None, metavar="SX,SY,SZ",
-                   help="the axes' white-noise σ (a datasheet's, or `fluxcal diagnose`'s axis noise), in the readings' "
+                   help="the axes' white-noise σ (a datasheet's, or `fluxcal diagnose`'s against reference vectors), in the readings' "
                         "unit: the refinement weights each axis by its own (maximum likelihood when one axis, often z, "
                         "is noisier); only their ratios matter")
     c.add_argument("--serial-correlation", default=None, choices=["automatic", "independent", "newey_west"],

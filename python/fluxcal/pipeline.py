@@ -96,6 +96,12 @@ def calibrate(samples, method: str = "auto", field_norm: float | None = None, re
                 and hasattr(samples, "reference_field") else None)
     if recorded is not None:
         reference = recorded
+    if "noise_sigma" in settings and (reference is not None or method not in ("auto", "als+refine", "twostep")
+                                      or (method == "twostep" and np.size(settings["noise_sigma"]) != 1)):
+        why = ("the vector fit fits each axis's row apart, so per-axis noise weighs nothing" if reference is not None
+               else "twostep takes one σ of its own" if method == "twostep" else f"method {method!r} has no refinement")
+        raise ValueError(f"noise_sigma: three σ weight the axes of the magnitude model's refinement (method 'auto' or "
+                         f"'als+refine', no reference); {why}")
     if units is None:
         units = getattr(samples, "field_units", lambda: "")()
     field_norm = field_norm_given(samples, field_norm)

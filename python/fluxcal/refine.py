@@ -126,7 +126,7 @@ def refine(calibration: Calibration, samples, reference=None, loss: str = "none"
     summary["serial_correlation"] holds the residuals' lag-1 autocorrelation, the test's p-value, the
     Newey–West lags of the whitened scores (0 = independent readings assumed), the inflation of the standard errors and the
     independent-readings ones. Whether the data determine a parameter is judged on the latter.
-    noise_sigma: three values (σ x, y, z: a datasheet's, or a diagnosis's `axis_noise`) when the axes' noise
+    noise_sigma: three values (σ x, y, z: a datasheet's, or a diagnosis's `axis_noise` against reference vectors) when the axes' noise
     differs — only their ratios matter: the magnitude model's residual is then the distance to the ellipsoid with
     each axis in units of its own noise (maximum likelihood for that noise; with z 3× as noisy the unweighted fit's
     offset and matrix errors are 1.1–1.2× the bound `fluxcal.crlb(..., sigma=[…])`, the weighted fit's 1.0). The summary's
@@ -224,7 +224,9 @@ def _weighted_refine(calibration: Calibration, m: np.ndarray, w: np.ndarray, sha
     # the independent-readings errors (a sandwich's are the covariance when the residuals are correlated):
     # s²(J'ᵀJ')⁻¹ with the core's scale s² (σ̂², or Huber's for a robust loss), mapped as the covariance is
     serial = dict(result["serial_correlation"])
-    plain = np.linalg.pinv(result["jacobian"].T @ result["jacobian"])
+    info = result["jacobian"].T @ result["jacobian"]  # (column-scaled before the inverse: offset columns ~1 and
+    d = 1.0 / np.sqrt(np.clip(np.diag(info), 1e-300, None))  # matrix columns ~|field| put it past 1e15)
+    plain = d[:, None] * np.linalg.pinv(d[:, None] * info * d[None, :], rcond=1e-14) * d[None, :]
     independent = np.square(serial["standard_errors_independent"])
     s2 = float(np.median(independent[np.diag(plain) > 0] / np.diag(plain)[np.diag(plain) > 0]))
     T = np.linalg.inv(map_fit(result, w, 3 if diag else 6))

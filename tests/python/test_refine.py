@@ -227,6 +227,28 @@ def test_a_weighted_refine_agrees_with_the_oracle():
         fluxcal.refine(start, m, reference=m, noise_sigma=sigma)
 
 
+def test_a_weighted_refines_independent_errors_hold_at_any_scale_and_loss():
+    # The independent-readings errors come from the Jacobian at refine's own solution, column-scaled before the inverse:
+    # readings of |field| 5e7 had their offset's come out 0 (the unscaled JᵀJ past 1e15), and with a Huber loss and
+    # 10 % spikes a refit for the Jacobian had moved off the robust solution, 0.41–1.87× (a review, helper-205).
+    # Independent readings assumed, they are the standard errors themselves.
+    s = simulated(15, n=600, noise=0.01)
+    rng = np.random.default_rng(4)
+    m = s.readings + rng.normal(0, 0.01 * s.field_norm * np.sqrt(8), len(s.readings))[:, None] * [0, 0, 1]
+    sigma = np.array([1.0, 1.0, 3.0]) * 0.01 * s.field_norm
+    for scale, loss in ((1e6, "none"), (1.0, "huber")):
+        x = m * scale
+        if loss == "huber":
+            bad = rng.random(len(x)) < 0.1
+            x[bad] += rng.normal(0, s.field_norm, (bad.sum(), 3))
+        start = fluxcal.fit_ellipsoid(m, field_norm=s.field_norm, method="als")
+        start = fluxcal.Calibration(offset=start.offset * scale, matrix=start.matrix, field_norm=s.field_norm * scale)
+        cal = fluxcal.refine(start, x, loss=loss, noise_sigma=sigma * scale, serial_correlation="independent",
+                             noise_bias_correction=False)  # (its target |h| is not the Jacobian's: 1e-3 apart)
+        np.testing.assert_allclose(cal.summary["serial_correlation"]["standard_errors_independent"],
+                                   cal.summary["standard_errors"], rtol=1e-5)
+
+
 def test_the_command_line_weights_the_axes_it_is_given(tmp_path):
     # `fluxcal calibrate --noise-sigma σx,σy,σz`: the refinement weighted (the sphere not tried: scaled axes make it
     # an ellipsoid), the axes' σ said and saved; one σ, a vector fit and a method without a refinement refused.
