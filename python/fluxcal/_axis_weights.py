@@ -17,16 +17,16 @@ DIAGONAL = (0, 3, 5)  # a00 a11 a22 among UPPER (the "diag" shape's own)
 
 
 def symmetric_root(A: np.ndarray, left: np.ndarray) -> np.ndarray:
-    """The symmetric positive root of (A L)ᵀ(A L) = L A² L for L = diag(left): the symmetric matrix whose magnitudes
-    |(m − b) A'| of readings scaled by 1/left equal those of A (a magnitude sees A only through A²)."""
-    lam, V = np.linalg.eigh(left[:, None] * (A @ A) * left[None, :])
+    """The symmetric positive root of (A L)ᵀ(A L) = L AᵀA L for L = diag(left): the symmetric matrix whose magnitudes
+    |A'(m − b)| of readings scaled by 1/left equal those of A (a magnitude sees A only through AᵀA; a matrix that is
+    not symmetric, a rotation times one, gives its polar factor, as the core's refine takes it)."""
+    lam, V = np.linalg.eigh(left[:, None] * (A.T @ A) * left[None, :])
     return (V * np.sqrt(np.clip(lam, 0.0, None))) @ V.T
 
 
 def scaled_start(offset, matrix, w: np.ndarray) -> tuple:
-    """(D b, A') of a start calibration for the readings scaled by w (A made symmetric first)."""
-    A = np.asarray(matrix, dtype=float)
-    return np.asarray(offset, dtype=float) * w, symmetric_root(0.5 * (A + A.T), 1.0 / w)
+    """(D b, A') of a start calibration for the readings scaled by w."""
+    return np.asarray(offset, dtype=float) * w, symmetric_root(np.asarray(matrix, dtype=float), 1.0 / w)
 
 
 def root_jacobian(A: np.ndarray, w: np.ndarray) -> np.ndarray:

@@ -217,6 +217,11 @@ def test_a_weighted_refine_agrees_with_the_oracle():
         np.testing.assert_allclose(cal.summary["serial_correlation"]["standard_errors_independent"],
                                    np.sqrt(np.diag(covariance)), rtol=1e-3)
         assert cal.summary["norm_std_over_mean"] > 0 and cal.summary["direction_coverage"] > 0.9
+    # a start that is not symmetric (a rotation times it: a vector fit's, an aligned one) is taken by its polar factor
+    turned = fluxcal.Calibration(offset=start.offset, field_norm=start.field_norm,
+                                 matrix=attitude.rotation_from_euler(10.0, -5.0, 30.0).as_matrix() @ start.matrix)
+    np.testing.assert_allclose(fluxcal.refine(turned, m, noise_sigma=sigma).summary["parameters"],
+                               fluxcal.refine(start, m, noise_sigma=sigma).summary["parameters"], rtol=1e-7)
     for same in (0.02 * s.field_norm, [0.02 * s.field_norm] * 3):
         assert fluxcal.refine(start, m, noise_sigma=same).summary["parameters"] == fluxcal.refine(start, m).summary["parameters"]
     with pytest.raises(ValueError, match="sphere an ellipsoid"):
