@@ -44,6 +44,11 @@ def root_jacobian(A: np.ndarray, w: np.ndarray) -> np.ndarray:
     return out
 
 
+def symmetric(a) -> np.ndarray:
+    """The symmetric matrix of its upper triangle a00 a01 a02 a11 a12 a22."""
+    return np.array([[a[0], a[1], a[2]], [a[1], a[3], a[4]], [a[2], a[4], a[5]]])
+
+
 def unscaled(parameters, w: np.ndarray, n_matrix: int = 6) -> tuple:
     """The parameters [D b, A' (its `n_matrix` free entries: 6 symmetric, 3 diagonal), rest] of a fit to readings
     scaled by w, back in the readings' own units: (θ, A, M) with M = ∂θ'/∂θ at the solution (D on the offset,
@@ -51,8 +56,7 @@ def unscaled(parameters, w: np.ndarray, n_matrix: int = 6) -> tuple:
     theta_w = np.asarray(parameters, dtype=float)
     a = np.zeros(6)
     a[list(range(6)) if n_matrix == 6 else list(DIAGONAL)] = theta_w[3:3 + n_matrix]
-    A_w = np.array([[a[0], a[1], a[2]], [a[1], a[3], a[4]], [a[2], a[4], a[5]]])
-    A = symmetric_root(A_w, w)
+    A = symmetric_root(symmetric(a), w)
     M = np.eye(len(theta_w))
     M[:3, :3] = np.diag(w)
     full = root_jacobian(A, w)
@@ -97,16 +101,22 @@ def noise_values(noise_sigma, name: str = "noise_sigma") -> np.ndarray:
     return values
 
 
+def sampson(samples: np.ndarray, offset, matrix: np.ndarray, field_norm, axis_weights=None) -> np.ndarray:
+    """The magnitude model's residual, Sampson's (|h| − H)|h|/|A h| with h = A(m − b) (in reading units: the distance
+    to the ellipsoid to first order), H one |field| or each reading's; with `axis_weights` w (σ̄/σ_axis) the
+    gradient's norm in units of each axis's noise, |A h / w|."""
+    h = (samples - offset) @ matrix.T
+    size = np.linalg.norm(h, axis=1)
+    g = h @ matrix.T
+    return (size - field_norm) * size / np.linalg.norm(g if axis_weights is None else g / axis_weights, axis=1)
+
+
 def sampson_jacobian(offset, matrix, samples: np.ndarray, field_norm) -> np.ndarray:
     """∂r/∂θ (N × 9, θ = [b, A's upper triangle]) of the Sampson residual (|h| − H)|h|/|A h|, h = A(m − b), at
     `offset`, `matrix` (symmetric) and each reading's H: central differences (the core's refine, whose solution this
     is taken at, returns no Jacobian; a refit to get one would move off a solution its noise-bias correction set)."""
     def residuals(theta):
-        a = theta[3:]
-        A = np.array([[a[0], a[1], a[2]], [a[1], a[3], a[4]], [a[2], a[4], a[5]]])
-        h = (samples - theta[:3]) @ A
-        size = np.linalg.norm(h, axis=1)
-        return (size - field_norm) * size / np.linalg.norm(h @ A, axis=1)
+        return sampson(samples, theta[:3], symmetric(theta[3:]), field_norm)
 
     A = np.asarray(matrix, dtype=float)
     theta = np.concatenate([np.asarray(offset, dtype=float), [A[i, k] for i, k in UPPER]])

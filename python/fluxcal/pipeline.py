@@ -13,7 +13,7 @@ from .calibration import TESLA_PER_UNIT, Calibration, scale_words
 from .ellipsoid import fit_ellipsoid
 from .outliers import DOMINATING, far_readings, find_outliers
 from ._arrays import as_field_norms, changing_field, field_norm_given
-from ._axis_weights import weights_of
+from ._axis_weights import sampson, weights_of
 from .refine import SHAPES, fit_vector, refine, shape_name
 from .twostep import FIELD_LOG_WORDS, field_log_misfit, reading_interval, twostep
 
@@ -455,7 +455,8 @@ def _refine_shape(start: Calibration, m: np.ndarray, shape: str, judged: np.ndar
             return error
 
     # (axes of unequal noise: the weighted readings' sphere is no shape of the readings' own, so not tried)
-    shapes = [k for k in SHAPES if k != "sphere" or weights_of(settings.get("noise_sigma")) is None]
+    weights = weights_of(settings.get("noise_sigma"))
+    shapes = [k for k in SHAPES if k != "sphere" or weights is None]
     workers = min(len(shapes), usable_cpus())
     if len(m) >= PARALLEL_SHAPES and workers > 1:
         with ThreadPoolExecutor(max_workers=workers) as pool:
@@ -469,7 +470,7 @@ def _refine_shape(start: Calibration, m: np.ndarray, shape: str, judged: np.ndar
             continue
         fits[name] = result
         table[name] = _shape_row(result.summary, len(m), _judged_rss(result, m, judged, settings.get("field_norms"),
-                                                                     weights_of(settings.get("noise_sigma"))))
+                                                                     weights))
     if not fits:
         errors = {k: v["error"] for k, v in table.items()}
         if len({re.sub(r"\d+-parameter ", "", e) for e in errors.values()}) == 1:
@@ -530,12 +531,9 @@ def _judged_rss(cal: Calibration, m: np.ndarray, judged: np.ndarray | None, fiel
 def sampson_residuals(cal: Calibration, m: np.ndarray, field_norms=None, axis_weights=None) -> np.ndarray:
     """Each reading's magnitude residual in the readings' unit, as refine's: Sampson's (|h| − H)|h|/|A h|, with H
     the calibration's field norm or each reading's own `field_norms`; with `axis_weights` (σ̄/σ_axis, refine's
-    noise_sigma) the gradient's norm in units of each axis's noise, |A h / w|."""
-    h = cal.apply(m)
-    size = np.linalg.norm(h, axis=1)
+    noise_sigma) the gradient's norm in units of each axis's noise, |A h / w| (fluxcal._axis_weights.sampson)."""
     target = cal.field_norm if field_norms is None else np.asarray(field_norms, dtype=float)
-    g = h @ cal.matrix.T
-    return (size - target) * size / np.linalg.norm(g if axis_weights is None else g / axis_weights, axis=1)
+    return sampson(np.asarray(m, dtype=float), cal.offset, np.asarray(cal.matrix, dtype=float), target, axis_weights)
 
 
 # Kass & Raftery's "very strong" evidence: a BIC lower by more than this (a Bayes factor above ~150).

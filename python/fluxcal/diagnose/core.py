@@ -15,7 +15,7 @@ from scipy import stats
 
 from .. import _core
 from .._arrays import as_field_norms, as_samples, field_norm_given, held_copies, repeated_blocks, repeated_words
-from .._axis_weights import map_fit, noise_values, scaled_start
+from .._axis_weights import map_fit, noise_values, sampson, scaled_start, symmetric
 from ..attitude import magnetic_frame
 from ..calibration import Calibration
 from ..io.recording import UNIX_SECONDS
@@ -810,13 +810,7 @@ def _residuals(result: dict, data: _Data, feats, rows) -> np.ndarray:
         W = theta[3:12].reshape(3, 3)
         e = m - b - data.reference[rows] @ W.T
         return (e if data.axis_weights is None else e * data.axis_weights).ravel()
-    a = theta[3:9]
-    A = np.array([[a[0], a[1], a[2]], [a[1], a[3], a[4]], [a[2], a[4], a[5]]])
-    h = (m - b) @ A
-    g = h @ A  # (the gradient's direction in reading space; in units of each axis's noise, g / w)
-    s = np.linalg.norm(h, axis=1)
-    return (s - _field_at(data, rows)) * s / np.linalg.norm(g if data.axis_weights is None else g / data.axis_weights,
-                                                           axis=1)
+    return sampson(m, b, symmetric(theta[3:9]), _field_at(data, rows), data.axis_weights)
 
 
 def _downstream(result: dict, data: _Data, feats, rows) -> dict:
