@@ -586,10 +586,7 @@ def cmd_calibrate(args) -> int:
         print(f"field norm {field_norm:g} {units} from the simulation's metadata".rstrip())
     # the refinement's setting only when asked for: methods ls and als refuse it, having no refinement
     settings = {} if args.serial_correlation is None else {"serial_correlation": args.serial_correlation}
-    if args.noise_sigma is not None:
-        if reference is not None or args.method not in ("auto", "als+refine"):
-            raise ValueError(f"--noise-sigma: weights the refinement's axes (the magnitude model of --method auto or "
-                             f"als+refine); {'the vector fit fits each axis apart' if reference is not None else '--method ' + args.method + ' has no refinement'}")
+    if args.noise_sigma is not None:  # (calibrate refuses it, by name, where no magnitude refinement runs)
         settings["noise_sigma"] = args.noise_sigma
     try:
         cal = calibrate(raw, method=args.method, field_norm=field_norm, reference=reference, units=units, times=rec.time(),
