@@ -112,20 +112,27 @@ def sampson(samples: np.ndarray, offset, matrix: np.ndarray, field_norm, axis_we
 
 
 def sampson_jacobian(offset, matrix, samples: np.ndarray, field_norm) -> np.ndarray:
-    """∂r/∂θ (N × 9, θ = [b, A's upper triangle]) of the Sampson residual (|h| − H)|h|/|A h|, h = A(m − b), at
-    `offset`, `matrix` (symmetric) and each reading's H: central differences (the core's refine, whose solution this
-    is taken at, returns no Jacobian; a refit to get one would move off a solution its noise-bias correction set)."""
-    def residuals(theta):
-        return sampson(samples, theta[:3], symmetric(theta[3:]), field_norm)
-
+    """∂r/∂θ (N × 9, θ = [b, A's upper triangle]) of the Sampson residual r = (s − H)s/|g|, s = |h|, h = A(m − b),
+    g = A h, at `offset`, `matrix` (symmetric) and each reading's H — in closed form (the core's refine, whose solution
+    this is taken at, returns no Jacobian; a refit to get one would move off a solution its noise-bias correction set):
+    dr = (2s − H)/|g| ds − (s − H)s/|g|³ gᵀdg, ds = hᵀdh/s, with dh = dA v − A db and dg = dA h + A dh, v = m − b."""
     A = np.asarray(matrix, dtype=float)
-    theta = np.concatenate([np.asarray(offset, dtype=float), [A[i, k] for i, k in UPPER]])
-    scales = np.r_[[float(np.median(np.linalg.norm(samples - theta[:3], axis=1)))] * 3, [np.abs(A).max()] * 6]
+    v = samples - np.asarray(offset, dtype=float)
+    h = v @ A.T
+    g = h @ A.T
+    Ag = g @ A.T
+    s = np.linalg.norm(h, axis=1)
+    gn = np.linalg.norm(g, axis=1)
+    H = np.broadcast_to(np.asarray(field_norm, dtype=float), s.shape)
+    on_size = ((2 * s - H) / (s * gn))[:, None]  # ∂r/∂s / s: multiplies hᵀdh
+    on_g = ((s - H) * s / gn ** 3)[:, None]  # −∂r/∂g / g: multiplies gᵀdg
     J = np.empty((len(samples), 9))
-    for j in range(9):  # (steps of 1e-6 of each block's scale: the readings' radius, the matrix's largest entry)
-        step = np.zeros(9)
-        step[j] = 1e-6 * scales[j]
-        J[:, j] = (residuals(theta + step) - residuals(theta - step)) / (2 * step[j])
+    J[:, :3] = -on_size * g + on_g * (Ag @ A.T)  # dh = −A db: hᵀdh = −gᵀdb, gᵀdg = −gᵀA²db
+    for j, (i, k) in enumerate(UPPER):  # dA = E_ik + E_ki (E_ii on the diagonal)
+        hdh = h[:, i] * v[:, k] + (h[:, k] * v[:, i] if i != k else 0.0)
+        gdg = (g[:, i] * h[:, k] + Ag[:, i] * v[:, k]
+               + ((g[:, k] * h[:, i] + Ag[:, k] * v[:, i]) if i != k else 0.0))
+        J[:, 3 + j] = on_size[:, 0] * hdh - on_g[:, 0] * gdg
     return J
 
 

@@ -189,6 +189,24 @@ def test_axes_of_unequal_noise_are_refined_at_their_bound():
     np.testing.assert_allclose(cal.summary["axis_noise"], per_axis, rtol=0.15)
 
 
+def test_the_sampson_jacobian_in_closed_form_matches_the_oracles_differences():
+    # The weighted refine's Jacobian (fluxcal._axis_weights.sampson_jacobian, closed form) against the oracle's
+    # central differences of the Sampson residual, with one |field| and with each reading's own, off the solution.
+    ref = importlib.import_module("fluxcal.oracle.refine")
+    weights = importlib.import_module("fluxcal._axis_weights")
+    s = simulated(5, n=400, noise=0.02)
+    rng = np.random.default_rng(5)
+    true = s.true_calibration()
+    offset = true.offset + rng.normal(0, 0.05 * s.field_norm, 3)
+    matrix = true.matrix + 0.03 * np.diag([1.0, -1.0, 0.5])
+    theta = np.r_[offset, matrix[np.triu_indices(3)]]
+    for H in (s.field_norm, s.field_norm * (1 + 0.02 * rng.normal(size=len(s.readings)))):
+        closed = weights.sampson_jacobian(offset, matrix, s.readings, H)
+        numeric = ref._jacobian(theta, s.readings, H)
+        scale = np.abs(numeric).max(axis=0)  # each column in its own units (offset 1/1, matrix entry |field|)
+        np.testing.assert_allclose(closed / scale, numeric / scale, rtol=0, atol=1e-6)
+
+
 def test_a_weighted_refine_agrees_with_the_oracle():
     # The weighted Sampson residual fitted by SciPy in the readings' own parameters (fluxcal.oracle.refine with
     # axis_weights): parameters, and the independent-readings errors σ̂²(JᵀJ)⁻¹ of its finite-difference Jacobian,
