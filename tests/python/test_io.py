@@ -32,7 +32,7 @@ def test_units_in_header_cells_and_other_column_names(tmp_path):
     ("mx,my,mz\n1,2,3\n4,abc,6\n", r"bad.csv, line 3, column 'my': 'abc' is not a number"),
     ("mx,my,mz\n1,2,3\n4,,6\n", r"bad.csv, line 3, column 'my': empty"),
     ("# units: mx=nT\nmx,my,mz\n1,2,3\n4,5\n", r"bad.csv, line 4: 2 fields, the header has 3"),
-    ("1,2,3\n4,5,6\n", r"bad.csv, line 1: the first line holds numbers"),
+    ("1,2,3\n4,5,6\n", r"bad.csv, line 1: 3 comma-separated numbers and no header; name the columns"),
     ("mx,my,mz\n", r"bad.csv: header but no data rows"),
     ("", r"bad.csv: no header line"),
     ("mx,mx,mz\n1,2,3\n", r"bad.csv, line 1: header .* repeated"),
@@ -113,8 +113,9 @@ def test_skipping_most_lines_is_refused_as_a_wrong_header(tmp_path):
     path = tmp_path / "qmc.csv"  # a QMC5883L logger's preamble above the table
     path.write_text("Fs,100\nGain,2\nt,mx,my,mz\n0,1,2,3\n1,2,3,4\n2,3,4,5\n")
     with pytest.raises(ValueError, match=r"4 of 5 lines do not fit the header on line 1 \(Fs, 100\)"):
-        read_csv(path, bad_lines="skip")  # kept one row, a column named '100'
-    assert len(fluxcal.read_recording(path, bad_lines="skip")) == 3  # finds the header after the preamble
+        read_csv(path, delimiter=",", bad_lines="skip")  # the plain layout: kept one row, a column named '100'
+    for read in (fluxcal.read_recording, read_csv):  # the file's own layout: the header after the preamble
+        assert len(read(path, bad_lines="skip")) == 3
 
 
 def test_nan_and_inf_written_out_are_bad_lines_to_skip(tmp_path):
@@ -173,3 +174,17 @@ def test_a_banner_of_the_tables_width_on_the_first_line(tmp_path):
     path.write_text("Sensor: QMC5883L, range 8G, ODR 50 Hz\nmx,my,mz\n" + rows)
     rec = fluxcal.read_recording(path)
     assert list(rec.columns) == ["mx", "my", "mz"] and len(rec) == 20
+
+
+def test_read_csv_takes_the_files_own_delimiter(tmp_path):
+    # a spreadsheet's ';' export with decimal commas, its `sep=;` line, and a tab table: read_csv read them as one
+    # column and advised skipping every line as garbled; read_recording read them
+    rows = [(-19.628, -5.39, -91.966), (-20.58, -5.642, -92.33)]
+    bodies = {"semi.csv": "mx;my;mz\n" + "".join(f"{x};{y};{z}\n".replace(".", ",") for x, y, z in rows),
+              "excel.csv": "sep=;\nmx;my;mz\n" + "".join(f"{x};{y};{z}\n".replace(".", ",") for x, y, z in rows),
+              "tab.txt": "mx\tmy\tmz\n" + "".join(f"{x}\t{y}\t{z}\n" for x, y, z in rows)}
+    for name, body in bodies.items():
+        (tmp_path / name).write_text(body)
+        np.testing.assert_allclose(read_csv(tmp_path / name).samples(), rows)
+    with pytest.raises(ValueError, match="the header has 1"):  # a delimiter given is the one used
+        read_csv(tmp_path / "semi.csv", delimiter=",")

@@ -95,11 +95,18 @@ def _header_cells(line: str, delimiter) -> list:
     return line.split(delimiter)
 
 
-def read_csv(path, columns=None, units: str | None = None, delimiter: str = ",", bad_lines: str = "error"
+def read_csv(path, columns=None, units: str | None = None, delimiter: str | None = None, bad_lines: str = "error"
              ) -> Recording:
     """Read a CSV recording. `columns`: the three magnetometer columns (default mx,my,mz, or x,y,z).
-    `units`: the field unit, when the file does not state it. `bad_lines`: "error" or "skip"."""
+    `units`: the field unit, when the file does not state it. `delimiter`: by default the file's own, and its layout
+    read as fluxcal.read_recording reads a text table (';' or tab with decimal commas, a spreadsheet's `sep=;` line, a
+    banner above the header, no header); ",", ";" or "\t" reads the plain layout with that one. `bad_lines`: "error"
+    or "skip"."""
     path = readable_file(path)
+    if delimiter is None:
+        from .formats import _read_table
+
+        return _read_table(path, columns, units, bad_lines)
     return parse_csv(path, read_lines(path), delimiter, bad_lines=bad_lines).choose(columns, units)
 
 

@@ -51,7 +51,7 @@ from pathlib import Path
 import numpy as np
 
 from .csv import (COMMA_GIVEN, SKIP_HINT, _DECIMAL_COMMA, _decimal_comma_columns, readable_file, _is_number, comment_text, data_cells, data_lines, decimal_points, is_comment, parse_csv,
-                  listing, read_csv, read_lines, read_text, write_csv, OTHER_WRITERS)
+                  listing, read_lines, read_text, write_csv, OTHER_WRITERS)
 from .columns import is_unit, is_unit_cell
 from .recording import Recording
 
@@ -307,7 +307,7 @@ def _read_table(path: Path, columns, units, bad_lines: str = "error") -> Recordi
             return real.read_headerless(path, names=names, units=units, delimiter=delimiter)
         # no names, or three: the magnetometer of a recognised layout
         return real.read_headerless(path, columns=columns, units=units, delimiter=delimiter)
-    return read_csv(path, columns=columns, units=units, delimiter=delimiter, bad_lines=bad_lines)
+    return parse_csv(path, lines, delimiter, bad_lines=bad_lines).choose(columns, units)
 
 
 # a serial monitor's clock before a line: the Arduino IDE's `15:02:11.143 -> `, a terminal's `[2026-11-29 15:02:11.123] `
