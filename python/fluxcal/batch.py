@@ -82,8 +82,10 @@ log = logging.getLogger(__name__)
 def _read(path, bad_lines: str = "error"):
     """The one reader of the batch: any recording format fluxcal reads (by content)."""
     from .io import read_recording
+    from .io.csv import quiet_skipped
 
-    return read_recording(path, bad_lines=bad_lines)
+    with quiet_skipped():  # (each unit keeps the lines it skipped with its warnings)
+        return read_recording(path, bad_lines=bad_lines)
 
 
 # -- one unit (runs on a worker) ---------------------------------------------------------------------

@@ -19,7 +19,7 @@ from .calibration import SCALE_WORDS, TESLA_PER_UNIT, Calibration, _significant,
 from .io import Recording, read_csv, read_recording, write_csv, write_recording
 from .io.formats import WRITERS
 from .io.columns import LARGE_CURRENT_UNITS, unit_name
-from .io.csv import skipped_words
+from .io.csv import quiet_skipped, skipped_words
 from .pipeline import METHODS, PLAUSIBLE_WORDS, UNITS_WORDS, calibrate, noise_line, plausible_field
 from .planar import plane_axes
 
@@ -2559,7 +2559,7 @@ def main(argv=None) -> int:
         parser.print_help()
         return 1
     try:
-        with warnings.catch_warnings():
+        with warnings.catch_warnings(), quiet_skipped():  # (each command prints the lines it skipped)
             warnings.showwarning = _show_warning
             check_writes(args)
             return args.run(args)

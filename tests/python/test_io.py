@@ -123,7 +123,8 @@ def test_nan_and_inf_written_out_are_bad_lines_to_skip(tmp_path):
     cell is (both the fast and the text-column parse); without it the error names the line and the remedy."""
     path = tmp_path / "nan.csv"
     path.write_text("mx,my,mz\n1,2,3\nnan,2,3\n4,5,6\n7,inf,9\n1,1,1\n")
-    rec = read_csv(path, bad_lines="skip")
+    with pytest.warns(UserWarning, match=r"nan.csv: skipped 2 of 5 lines: 3 .*; 5 .*\(bad_lines='skip'\)"):
+        rec = read_csv(path, bad_lines="skip")
     np.testing.assert_array_equal(rec.samples(), [[1, 2, 3], [4, 5, 6], [1, 1, 1]])
     assert rec.metadata["skipped_lines"] == ("2 of 5: 3 (column 'mx': 'nan' is not finite); "
                                              "5 (column 'my': 'inf' is not finite)")
@@ -141,7 +142,8 @@ def test_nan_and_inf_written_out_are_bad_lines_to_skip(tmp_path):
     stamped = tmp_path / "stamped.csv"  # a text (timestamp) column: the slow parse skips them alike
     stamped.write_text("time,mx,my,mz\n2026-01-01T00:00:00,1,2,3\n2026-01-01T00:00:01,NaN,2,3\n"
                        "2026-01-01T00:00:02,4,5,6\n2026-01-01T00:00:03,1,1,1\n")
-    assert len(read_csv(stamped, bad_lines="skip")) == 3
+    with pytest.warns(UserWarning, match="stamped.csv: skipped 1 of 4 lines: 3"):
+        assert len(read_csv(stamped, bad_lines="skip")) == 3
 
 
 def test_arduino_csv_habits(tmp_path):
@@ -162,7 +164,8 @@ def test_arduino_csv_habits(tmp_path):
 def test_skipping_keeps_a_column_that_is_never_a_number(tmp_path):
     path = tmp_path / "alt.csv"
     path.write_text("mx,my,mz,alt\n" + "".join(f"{k},{2 * k},{3 * k},nan\n" for k in range(1, 30)) + "1,nan,3,nan\n")
-    rec = read_csv(path, bad_lines="skip")
+    with pytest.warns(UserWarning, match="alt.csv: skipped 1 of 30 lines: 31"):
+        rec = read_csv(path, bad_lines="skip")
     assert len(rec) == 29 and "skipped_lines" in rec.metadata and np.isnan(rec.columns["alt"]).all()
 
 
@@ -188,3 +191,97 @@ def test_read_csv_takes_the_files_own_delimiter(tmp_path):
         np.testing.assert_allclose(read_csv(tmp_path / name).samples(), rows)
     with pytest.raises(ValueError, match="the header has 1"):  # a delimiter given is the one used
         read_csv(tmp_path / "semi.csv", delimiter=",")
+
+
+def _unix(*stamp) -> float:
+    import datetime as dt
+
+    return dt.datetime(*stamp, tzinfo=dt.timezone.utc).timestamp()
+
+
+def test_dotted_dates_are_day_first(tmp_path):
+    """01.03.2024 is the 1st of March wherever dates are written with points (German, Russian …); every day ≤ 12
+    had been read month-first (3 January). Slash dates stay as they were: month-first when the file cannot say."""
+    import fluxcal
+
+    rows = [("12:00:00,000", "-19,628;-5,39;-91,966"), ("12:00:00,020", "-20,58;-5,642;-92,33"),
+            ("12:00:00,040", "-21,378;-5,39;-91,49")]
+    path = tmp_path / "de.csv"
+    path.write_text("Datum/Zeit;mx;my;mz\n" + "".join(f"01.03.2024 {t};{m}\n" for t, m in rows))
+    rec = fluxcal.read_recording(path)
+    assert rec.metadata["Datum/Zeit_start"].startswith("2024-03-01T12:00:00")
+    np.testing.assert_allclose(rec.utc_seconds(), _unix(2024, 3, 1, 12) + np.array([0, 0.02, 0.04]))
+    path.write_text("Datum;Uhrzeit;mx;my;mz\n" + "".join(f"01.03.2024;{t};{m}\n" for t, m in rows))
+    assert fluxcal.read_recording(path).metadata["Datum_start"].startswith("2024-03-01")
+    path = tmp_path / "us.csv"
+    path.write_text("Date,Time,mx,my,mz\n03/01/2024,12:00:00.000,1,2,3\n03/01/2024,12:00:00.020,1,2,3\n")
+    assert fluxcal.read_recording(path).metadata["Date_start"].startswith("2024-03-01")
+
+
+def test_a_date_column_beside_a_time_of_day_gives_clock_times(tmp_path):
+    """Date,Time (or Datum;Uhrzeit) columns: utc_seconds is the date's first day with the time's start and its
+    seconds since (across midnight too); it had been None (no clock time for --field-norm igrf)."""
+    import fluxcal
+
+    iso = tmp_path / "iso.csv"
+    iso.write_text("Date,Time,lat,lon,alt,mx,my,mz\n" + "".join(
+        f"2024-03-01,12:00:00.{20 * k:03d},48.1,11.6,500,{-19.6 - k},-5.39,-91.97\n" for k in range(4)))
+    np.testing.assert_allclose(fluxcal.read_recording(iso).utc_seconds(),
+                               _unix(2024, 3, 1, 12) + 0.02 * np.arange(4))
+    german = tmp_path / "de.csv"  # day-first dotted dates, decimal-comma seconds, crossing midnight
+    stamps = [("12.03.2024", "23:59:59,500"), ("12.03.2024", "23:59:59,900"), ("13.03.2024", "00:00:00,300"),
+              ("13.03.2024", "00:00:01,100")]
+    german.write_text("Datum;Uhrzeit;mx;my;mz\n" + "".join(f"{d};{t};-19,6{k};-5,39;-91,97\n"
+                                                          for k, (d, t) in enumerate(stamps)))
+    rec = fluxcal.read_recording(german)
+    np.testing.assert_allclose(rec.utc_seconds(), _unix(2024, 3, 12, 23, 59, 59) + np.array([0.5, 0.9, 1.3, 2.1]))
+    clock = tmp_path / "clock.csv"  # a time of day alone is still no clock time
+    clock.write_text("Time,mx,my,mz\n12:00:00.000,1,2,3\n12:00:00.020,1,2,3\n")
+    assert fluxcal.read_recording(clock).utc_seconds() is None
+
+
+def test_minutes_seconds_elapsed_column(tmp_path):
+    """An elapsed column written mm:ss.s (00:00.0 … 00:30.0) is minutes:seconds; it had been read as hours:minutes
+    (60× too long, steps of 0 or 6 s). hh:mm without a fraction stays hours:minutes."""
+    import fluxcal
+
+    t = np.arange(301) * 0.1
+    path = tmp_path / "mmss.csv"
+    path.write_text("elapsed,mx,my,mz\n" + "".join(f"{int(s) // 60:02d}:{s % 60:04.1f},{30 + np.cos(s):.3f},"
+                                                   f"{30 * np.sin(s):.3f},{s - 20:.3f}\n" for s in t))
+    np.testing.assert_allclose(fluxcal.read_recording(path).time(), t, atol=1e-9)
+    path.write_text("elapsed,mx,my,mz\n" + "".join(f"{m}:{s:02d},1,2,3\n" for m in (58, 59) for s in range(60)))
+    np.testing.assert_allclose(fluxcal.read_recording(path).time(), np.arange(120))  # 58:00: past 23, minutes
+    path.write_text("time,mx,my,mz\n12:00,1,2,3\n12:01,1,2,3\n12:02,1,2,3\n")
+    np.testing.assert_allclose(fluxcal.read_recording(path).time(), [0, 60, 120])
+
+
+def test_skipped_lines_are_warned_in_python(tmp_path):
+    """bad_lines="skip" said which lines it left out only in metadata["skipped_lines"] (the command line prints
+    it): Python had dropped them without a word."""
+    import warnings
+
+    import fluxcal
+
+    path = tmp_path / "garbled.csv"
+    path.write_text("mx,my,mz\n1,2,3\n0.1,0.2\n4,5,6\ngarbage,1,2\n7,8,9\n")
+    for read in (fluxcal.read_recording, read_csv):
+        with warnings.catch_warnings(record=True) as caught:
+            warnings.simplefilter("always")
+            rec = read(path, bad_lines="skip")
+        assert len(rec) == 3
+        said = [str(w.message) for w in caught if issubclass(w.category, UserWarning)]
+        assert said == [f"{path}: skipped 2 of 5 lines: 3 (2 fields, the header has 3 (truncated or garbled line?)); "
+                        "5 (column 'mx': 'garbage' is not a number) (bad_lines='skip')"]
+    from fluxcal.io.csv import quiet_skipped
+
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        with quiet_skipped():  # for a caller that prints metadata["skipped_lines"] itself (the command line)
+            assert "skipped_lines" in fluxcal.read_recording(path, bad_lines="skip").metadata
+        path.write_text("mx,my,mz\n1,2,3\n4,5,6\n")  # nothing skipped: nothing said
+        assert len(read_csv(path, bad_lines="skip")) == 2
+    labelled = tmp_path / "serial.txt"  # any format's skipped lines, numbered as its metadata numbers them
+    labelled.write_text("".join(f"X: {k} Y: {k + 1} Z: {k + 2}\n" for k in range(8)) + "X: 1 Y: oops Z: 3\n")
+    with pytest.warns(UserWarning, match=r"serial.txt: skipped 1 of 9 lines: 9 \("):
+        fluxcal.read_recording(labelled, bad_lines="skip")

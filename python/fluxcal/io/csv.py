@@ -13,6 +13,7 @@ with empty units. Errors name the file, line and column.
 """
 from __future__ import annotations
 
+import contextlib
 import contextvars
 import csv as _csv
 import io
@@ -70,6 +71,32 @@ def skipped_words(skipped_lines: str, why: str = "") -> str:
     return f"skipped {skipped_lines.replace(':', ' lines:', 1)}" + (f" ({why})" if why else "")
 
 
+def warn_skipped(rec: Recording) -> Recording:
+    """`rec`, with a warning of the lines bad_lines="skip" left out (metadata "skipped_lines", `listing`'s 'k of total:
+    …') when there are any: the command line prints them, and Python had left them out without a word. Said by the
+    public readers (read_recording, read_csv) once per read, with the lines as the recording's metadata numbers them."""
+    import warnings
+
+    if rec.metadata.get("skipped_lines"):
+        warnings.warn(f"{rec.source}: {skipped_words(rec.metadata['skipped_lines'], SKIPPED_WHY)}", UserWarning,
+                      stacklevel=3)
+    return rec
+
+
+SKIPPED_WHY = "bad_lines='skip'"  # ends the warning (quiet_skipped filters it by that)
+
+
+@contextlib.contextmanager
+def quiet_skipped():
+    """No warn_skipped warning within: for a caller that says metadata "skipped_lines" itself (the command line
+    prints it, a batch keeps it with each unit's warnings), so that it is not said twice."""
+    import warnings
+
+    with warnings.catch_warnings():
+        warnings.filterwarnings("ignore", message=rf".*\({re.escape(SKIPPED_WHY)}\)$", category=UserWarning)
+        yield
+
+
 _UNIT_IN_HEADER = re.compile(r"^\s*([^\[\(]+?)\s*[\[\(]\s*([^\]\)]*)\s*[\]\)]\s*$")
 
 
@@ -106,8 +133,8 @@ def read_csv(path, columns=None, units: str | None = None, delimiter: str | None
     if delimiter is None:
         from .formats import _read_table
 
-        return _read_table(path, columns, units, bad_lines)
-    return parse_csv(path, read_lines(path), delimiter, bad_lines=bad_lines).choose(columns, units)
+        return warn_skipped(_read_table(path, columns, units, bad_lines))
+    return warn_skipped(parse_csv(path, read_lines(path), delimiter, bad_lines=bad_lines).choose(columns, units))
 
 
 def parse_csv(path, lines, delimiter=",", preamble_lines: int = 0, bad_lines: str = "error") -> Recording:
@@ -356,14 +383,32 @@ def _position_numbers(values) -> tuple:
 
 _STAMP = re.compile(r"\d{1,2}:\d{2}|\d{4}-\d{1,2}-\d{1,2}|\d{1,2}[/.]\d{1,2}[/.]\d{2,4}")
 _DATE = re.compile(r"\d{4}-\d{1,2}-\d{1,2}|\d{1,2}[/.]\d{1,2}[/.]\d{2,4}")
+_MINUTES_SECONDS = re.compile(r"\s*(\d+):(\d{2}(?:[.,]\d+)?)\s*")  # 00:30.0 or 12:00: mm:ss or hh:mm
+
+
+def _minutes_seconds(values):
+    """(seconds since the first, the first as written) of a column of mm:ss values (a logger's elapsed time,
+    00:00.0 … 00:30.0) when at least 90 % of the values are two-part colon values and some have a fraction
+    after the seconds or more than 23 before the colon (no time of day: pandas read them as hh:mm, 60× too
+    long); else (None, None): 12:00, 12:01 stays a time of day."""
+    parts = [_MINUTES_SECONDS.fullmatch(v) if v else None for v in values]
+    found = [m for m in parts if m]
+    if len(found) < 0.9 * len(values) or not any(re.search(r"[.,]", m.group(2)) or int(m.group(1)) > 23
+                                                 for m in found):
+        return None, None
+    seconds = np.array([60.0 * int(m.group(1)) + float(m.group(2).replace(",", ".")) if m else np.nan
+                        for m in parts])
+    return seconds - seconds[np.isfinite(seconds)][0], found[0].group(0).strip()
 
 
 def _timestamps(values):
     """(seconds since the first, first as ISO text) when at least 90 % of the values are dates/times
     (the rest, garbled or empty, become NaN and their lines bad lines), else (None, None). Only values
     that look like a clock time or a date are tried (not labels such as "T1" or "3-1"); offsets are
-    taken to UTC; of month-first and day-first the reading that runs forward wins; a time of day without
-    a date is unwrapped across midnight."""
+    taken to UTC; of month-first and day-first the reading that runs forward wins (day-first tried first
+    for dotted dates, 01.03.2024: no locale writes them month-first); a time of day without a date is
+    unwrapped across midnight. Elapsed minutes:seconds (00:30.0) are read as such (_minutes_seconds; the first
+    as written)."""
     import warnings
 
     import pandas as pd
@@ -372,9 +417,15 @@ def _timestamps(values):
     sample = present[:200]
     if not sample or sum(bool(_STAMP.search(v)) for v in sample) < 0.9 * len(sample):
         return None, None
+    seconds, first = _minutes_seconds(values)
+    if seconds is not None:
+        return seconds, first
+    dates = [m.group(0) for m in map(_DATE.search, sample) if m]
+    dotted = bool(dates) and all("." in d for d in dates)  # 01.03.2024 (German, Russian …): the 1st of March
+    orders = (("mixed", True), ("mixed", False)) if dotted else (("mixed", False), ("mixed", True))
     series = pd.Series(values).replace("", None)
     best = None
-    for fmt, dayfirst in (("ISO8601", False), ("mixed", False), ("mixed", True)):
+    for fmt, dayfirst in (("ISO8601", False),) + orders:
         try:
             with warnings.catch_warnings():
                 warnings.simplefilter("ignore")

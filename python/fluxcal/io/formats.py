@@ -51,7 +51,7 @@ from pathlib import Path
 import numpy as np
 
 from .csv import (COMMA_GIVEN, SKIP_HINT, _DECIMAL_COMMA, _decimal_comma_columns, readable_file, _is_number, comment_text, data_cells, data_lines, decimal_points, is_comment, parse_csv,
-                  listing, read_lines, read_text, write_csv, OTHER_WRITERS)
+                  listing, read_lines, read_text, warn_skipped, write_csv, OTHER_WRITERS)
 from .columns import is_unit, is_unit_cell
 from .recording import Recording
 
@@ -150,12 +150,16 @@ def read_recording(path, columns=None, units: str | None = None, bad_lines: str 
     """Read any recording format fluxcal knows (module docstring); errors name the file, and for text
     formats the line and column.
     `bad_lines` (text tables with a header): "error" stops at a line with the wrong number of fields or a
-    non-number, naming line and column; "skip" leaves such lines out and lists them in
-    metadata["skipped_lines"].
+    non-number, naming line and column; "skip" leaves such lines out, lists them in
+    metadata["skipped_lines"] and warns of them (a UserWarning; fluxcal.io.csv.quiet_skipped silences it).
     `decimal`/`thousands` (labelled text logs, `X: 1,234`, and tables delimited by ';' or tab): decimal=','
     reads a comma between digits as a decimal comma (and points before it as thousands groups, 45.199,6),
     thousands=',' (or decimal='.') as a thousands separator, when no number in the file settles it (see
     fluxcal.io.labelled.read_labelled, fluxcal.io.csv.decimal_points); an error for other formats."""
+    return warn_skipped(_read_recording(path, columns, units, bad_lines, decimal, thousands))
+
+
+def _read_recording(path, columns, units, bad_lines: str, decimal, thousands) -> Recording:
     path = Path(path)
     if decimal is not None or thousands is not None:
         from . import labelled, real, sentences

@@ -13,6 +13,9 @@ from .columns import (TO_CELSIUS, axis_of_name, field_unit_of, unit_name, find_a
                       find_magnetometer, find_magnetometer_pair, find_position, find_temperature, find_time,
                       sample_rate, TIME_UNITS, words)
 
+# a time column's start when it is a time of day (its date not in it): "12:00:00", "23:59:54.020000"
+_TIME_OF_DAY = re.compile(r"\d{2}:\d{2}:\d{2}(?:\.\d+)?")
+_MIDNIGHT = re.compile(r"\d{4}-\d{2}-\d{2}(?:T00:00:00(?:\+00:00)?)?")  # a date column's start (no time in it)
 MAG_COLUMNS = ("mx", "my", "mz")
 # A recording that carries its attitude and the local field (north, east, down) gives a reference vector
 # per reading: the vector fit then determines the full matrix (fluxcal.attitude, fluxcal.calibrate).
@@ -238,19 +241,44 @@ class Recording:
 
     def utc_seconds(self):
         """Each reading's clock time as Unix seconds (UTC), or None when the recording's time is not anchored to a
-        date: a time column of dates and times (its start in metadata "<column>_start"), or one already in Unix
-        seconds (1973 to 2286)."""
+        date: a time column of dates and times (its start in metadata "<column>_start"), a time of day beside a
+        column of dates (Date,Time; Datum;Uhrzeit: see `_date_column`), or one already in Unix seconds (1973 to
+        2286)."""
         hit = self._time_column()
         if hit is None:
             return None
         t = self.columns[hit[0]] * hit[1]
         start = str(self.metadata.get(f"{hit[0]}_start", ""))
+        if _TIME_OF_DAY.fullmatch(start):  # a time of day: a clock time only with the date column beside it
+            date = self._date_column(hit[0])
+            if date is None:
+                return None
+            start = f"{date}T{start}"
         if start[:4].isdigit() and start[4:5] == "-":  # a date (a time of day alone is no clock time to match)
             import pandas as pd
 
             stamp = pd.Timestamp(start)  # a time without a stated zone is taken as UTC, as the readers take it
             return (stamp if stamp.tzinfo else stamp.tz_localize("UTC")).timestamp() + t
         return t if t.size and UNIX_SECONDS[0] <= np.min(t) and np.max(t) <= UNIX_SECONDS[1] else None
+
+    def _date_column(self, time: str):
+        """The date (YYYY-MM-DD) on the first reading of the time-of-day column `time` in the column of dates beside
+        it, or None: a column read from date stamps (its start in metadata "<column>_start" at midnight) whose
+        values are whole days since that start. The time's seconds since its first reading are unwrapped across
+        midnight (fluxcal.io.csv._timestamps), so that date and the time's start are all it needs; two date
+        columns that disagree are not guessed."""
+        import datetime
+
+        first = np.flatnonzero(np.isfinite(self.columns[time]))
+        found = set()
+        for name, values in self.columns.items():
+            start = str(self.metadata.get(f"{name}_start", ""))
+            if first.size == 0 or name == time or not _MIDNIGHT.fullmatch(start):
+                continue
+            days = values[np.isfinite(values)] / 86400.0
+            if days.size and np.all(days == np.round(days)) and np.isfinite(values[first[0]]):
+                found.add(datetime.date.fromisoformat(start[:10]) + datetime.timedelta(days=values[first[0]] / 86400))
+        return found.pop().isoformat() if len(found) == 1 else None
 
     def _time_column(self):
         """(column, factor to seconds) of the time, or None (fluxcal.io.columns.find_time)."""
