@@ -80,6 +80,9 @@ class Effect:
     # through the transducer; a sensor's own electronic offset is added after it. The diagnosis tries both
     # (`ctx.signal` the fitted b + W h, or W h alone) and says which when the data decide.
     transducer = False
+    # Its features are functions of the time, the temperature or the current alone, not of the readings: held out,
+    # its fit cannot predict a reading better than the noise lets it (a fit that does shows the noise σ overstated).
+    exogenous = False
 
     @classmethod
     def searched_times(cls, described: dict) -> int:
@@ -788,6 +791,7 @@ class TemperatureOffset(_TemperatureLag, Effect):
     t0: float = 25.0
     lag_s: float = 0.0
     name = "temp_offset"
+    exogenous = True
     n_params = 3
     regime = "temperature"
     needs = ("temp",)
@@ -813,6 +817,7 @@ class MotorCurrent(Effect):
 
     k: np.ndarray
     name = "motor_current"
+    exogenous = True
     n_params = 3
     regime = "current"
     needs = ("current",)
@@ -888,6 +893,7 @@ class OffsetDrift(_TimeCourse, Effect):
     random_walk: float = 0.0
     warmup_s: float = 0.0
     name = "offset_drift"
+    exogenous = True
     n_params = 3
 
     def apply(self, values, context):
@@ -1099,6 +1105,7 @@ class PeriodicInterference(Effect):
     # a frequency that drifts (a motor's speed sagging with its supply, a fan warming up): f + rate (t − t_mid), Hz/s
     rate_hz_per_s: float = 0.0
     name = "periodic_interference"
+    exogenous = True
     n_params = 6
     regime = "time"
     needs = ("t", "timestamps")  # a frequency in Hz needs real times
@@ -1364,6 +1371,7 @@ class MovingDipole(_TimeBox):
     t_on: float
     t_off: float
     name = "moving_dipole"
+    exogenous = True
     n_params = 3
 
     def apply(self, values, context):
@@ -1599,6 +1607,7 @@ class OffsetStep(_TimeBox):
     t_on: float
     t_off: float = np.inf
     name = "offset_step"
+    exogenous = True
     n_params = 3
     step_at_ends = True  # an edge in the recording's first or last grid cell pays for itself (diagnose._step_at_ends)
 
