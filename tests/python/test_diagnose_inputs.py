@@ -343,3 +343,18 @@ def test_readings_in_another_unit_than_stated_are_warned_of(tmp_path):
         out = run_cli("diagnose", path, "--quiet", "--units", units, "--candidates", "offset_drift")
         assert out.returncode == 0, out.stderr
         assert ("far from the Earth's field" in out.stdout) == warned, out.stdout
+
+
+def test_no_readings_and_a_missing_temperature_are_named():
+    # From a blind check: an empty array raised an IndexError from the clipping screen, and a temperature's NaN was
+    # counted without its row
+    import fluxcal
+
+    with pytest.raises(ValueError, match="samples: 0 readings, the diagnosis needs at least 50"):
+        fluxcal.diagnose(np.zeros((0, 3)))
+    t = np.arange(600.0)
+    m = np.random.default_rng(0).normal(0, 0.1, (600, 3)) + [30.0, 0.0, 40.0]
+    temp = 20 + t / 100
+    temp[7] = np.nan
+    with pytest.raises(ValueError, match=r"temp: 1 of the 600 temperatures are not finite \(row 7: nan\)"):
+        fluxcal.diagnose(m, t=t, temp=temp)

@@ -2938,7 +2938,9 @@ def _side(values, n: int, name: str, what: str):
     if values.shape != (n,):
         raise ValueError(f"{name}: need {n} {what}, got shape {values.shape}")
     if not np.all(np.isfinite(values)):
-        raise ValueError(f"{name}: {int(np.sum(~np.isfinite(values)))} of the {n} {what} are not finite")
+        bad = np.flatnonzero(~np.isfinite(values))
+        raise ValueError(f"{name}: {len(bad)} of the {n} {what} are not finite (row {bad[0]}: {values[bad[0]]}); "
+                         f"fill them in, or leave {name} out")
     return values if np.ptp(values) > 0 else None
 
 
@@ -2958,6 +2960,8 @@ LOGGED_TWICE = 0.9  # share of the ties of t that repeat their readings too: the
 def _prepare(samples, t, temp, reference, down, field_norm, units, source, current=None) -> _Data:
     m = as_samples(samples)
     n = len(m)
+    if n < 50:  # (before the screens, which need readings: an empty array had raised an IndexError)
+        raise ValueError(f"{source}: {n} readings, the diagnosis needs at least 50")
     t = np.arange(n, dtype=float) if t is None else np.asarray(t, dtype=float)
     if t.shape != (n,):
         raise ValueError(f"t: need {n} finite times, got shape {t.shape}")
