@@ -2403,3 +2403,13 @@ def test_a_level_drive_with_nothing_withheld_names_nothing(seed):
     d = diagnose(m, t=t)
     assert d.accepted == []
     assert any("the base calibration: poor coverage" in c for c in d.caveats)
+
+
+def test_correlated_noise_alone_is_said_to_may_be_all_there_is():
+    # A blind check's AR(1) nulls read "NOT EXPLAINED … its cause is not among the candidates" as if a cause were
+    # missing: with colored_noise alone found, the sensor's own correlated noise comes first
+    s, kw = withheld_trial(["colored_noise"], 1)
+    d = diagnose(s.readings, **kw)
+    assert d.accepted == ["colored_noise"]
+    said = next(line for line in d.text().splitlines() if line.startswith("NOT EXPLAINED"))
+    assert "the sensor's own correlated noise (its filter, 1/f), which colored_noise describes as noise, may be all" in said

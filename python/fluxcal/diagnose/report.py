@@ -921,11 +921,17 @@ def text(d) -> str:
     left = rem.get("unexplained", {})
     if left.get("left"):
         noise = " (colored_noise describes it as noise correlated in time, not its cause)" if left["as_noise"] else ""
+        # (colored_noise alone: the sensor's own correlated noise may be all there is — a blind check's AR(1) nulls
+        # read as if a cause were missing)
+        alone = d.accepted == ["colored_noise"]
+        own = ("the sensor's own correlated noise (its filter, 1/f), which colored_noise describes as noise, may be "
+               "all of it; else " if alone else "the sensor's own slow (1/f) noise, ")
+        noise = "" if alone else noise
         out.append(f"NOT EXPLAINED: {100 * left['share']:.0f} % of the departure is left, residual RMS "
-                   f"{left['rms_over_sigma']:.2f} σ{noise}: its cause is not among the candidates' effects — the "
-                   "sensor's own slow (1/f) noise, a field that changes with the sensor's position (a gradient "
-                   "near steel), a soft iron that changed during the recording, or the surroundings; a further "
-                   "named effect would be a guess" + _unconfirmed_words(d))
+                   f"{left['rms_over_sigma']:.2f} σ{noise}: its cause is not among the candidates' effects — {own}"
+                   "a field that changes with the sensor's position (a gradient near steel), a soft iron that changed "
+                   "during the recording, or the surroundings; a further named effect would be a guess"
+                   + _unconfirmed_words(d))
     elif _small_departure_left(rem):
         # most of a small departure left: not called NOT EXPLAINED (the residuals are within 1.5 σ RMS), but not
         # passed over either (an injected temperature offset on the QMC5883L was left as "colored_noise" alone)
