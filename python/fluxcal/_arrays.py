@@ -9,6 +9,9 @@ def as_samples(values, name: str = "samples", columns: int = 3) -> np.ndarray:
     """Return `values` as a C-contiguous float64 (N, columns) array; ValueError naming `name` otherwise."""
     if hasattr(values, "samples") and callable(values.samples):  # a Recording
         values = values.samples()
+    elif _is_table(values):  # a DataFrame: by its columns' names (its order mz,mx,my was taken as x,y,z)
+        chosen = table_columns(values, name, columns)
+        values = values.to_numpy() if chosen is None else values[chosen].to_numpy()
     if np.iscomplexobj(values):  # float64 would drop the imaginary part with only a warning
         raise ValueError(f"{name}: complex numbers; readings are real (pass .real or abs() explicitly)")
     try:
@@ -20,6 +23,66 @@ def as_samples(values, name: str = "samples", columns: int = 3) -> np.ndarray:
         hint = " (it looks transposed: pass one row per reading)" if transposed else ""
         raise ValueError(f"{name}: shape {arr.shape}, expected (N, {columns}) with one row per reading{hint}")
     return np.ascontiguousarray(arr)
+
+
+def _is_table(values) -> bool:
+    """Whether `values` is a table with named columns (a pandas or polars DataFrame), not an array."""
+    return hasattr(values, "columns") and callable(getattr(values, "to_numpy", None)) and not isinstance(
+        values, np.ndarray)
+
+
+def table_columns(table, name: str = "samples", columns: int = 3):
+    """The labels of a DataFrame's magnetometer columns in x, y, z order, found by their names as a Recording finds
+    them (fluxcal.io.columns.find_magnetometer: mx,my,mz; x,y,z; Bx,By,Bz; MagX..; mag_x_uT.., in any order and
+    beside other columns); None when no name says so and the table has exactly `columns` columns (taken in order, as
+    an array is); ValueError naming the columns otherwise."""
+    from .io.columns import find_magnetometer, find_magnetometer_pair  # (io imports this module)
+
+    labels = list(table.columns)
+    text = [str(c) for c in labels]
+    listed = ", ".join(text) if len(text) <= 12 else ", ".join(text[:12]) + f", … ({len(text)} columns)"
+    if columns == 3:
+        try:
+            found = find_magnetometer(text, name)
+        except ValueError as exc:  # several triples: its advice (--columns / select()) is the command line's
+            raise ValueError(f"{str(exc).split('; choose')[0]}; pass the three you mean, in x, y, z order "
+                             "(frame[[...]])") from None
+        if found is not None:
+            return [labels[text.index(n)] for n in found]
+        pair = find_magnetometer_pair(text, name) if len(text) == columns else None
+        if pair is not None:  # (t, mx, my: by position the time would be taken as the x axis)
+            raise ValueError(f"{name}: columns {listed}: {' and '.join(pair[0])} are named as two magnetometer axes "
+                             "and the other is not one; give the three field columns (a biaxial sensor's two: "
+                             "fluxcal.calibrate_planar)")
+    if len(text) == columns:
+        return None
+    raise ValueError(f"{name}: a table with columns {listed}: no {columns} of them are named as magnetometer axes "
+                     "(mx,my,mz; x,y,z; Bx,By,Bz; MagX,MagY,MagZ; mag_x,…), and by position it has not {columns}; pass "
+                     "the field columns in x, y, z order (frame[[...]]) or rename them")
+
+
+def sample_names(values) -> list | None:
+    """The names of the columns as_samples takes from `values` (a Recording's magnetometer columns, a DataFrame's),
+    for messages; None for an array."""
+    if hasattr(values, "samples") and callable(values.samples) and hasattr(values, "mag_names"):
+        return [str(n) for n in values.mag_names()]
+    if _is_table(values):
+        chosen = table_columns(values)
+        return [str(c) for c in (list(values.columns) if chosen is None else chosen)]
+    return None
+
+
+def positive_field_norm(field_norm) -> float:
+    """One known |field| as a positive finite float, or ValueError naming field_norm and what it takes."""
+    value = as_number(field_norm, "field_norm")
+    if value > 0 and np.isfinite(value):
+        return value
+    if value == 0:  # (the core's options take 0 for "fit it"; calibrate's documented way is None)
+        raise ValueError("field_norm: 0 is no field magnitude; give the known |field| (a positive number in the "
+                         "readings' unit, e.g. from IGRF), or leave it None (calibrate, fit_ellipsoid: the fitted radius)")
+    what = "negative" if value < 0 else "not a finite number"
+    raise ValueError(f"field_norm: {value:g} is {what}; give the known |field| as a positive number in the readings' "
+                     "unit (e.g. from IGRF), or None (calibrate, fit_ellipsoid: the fitted radius)")
 
 
 def as_specific_force(acc, acc_measures: str = "specific_force", name: str = "acc") -> np.ndarray:

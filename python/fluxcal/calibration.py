@@ -53,6 +53,19 @@ def scale_words(cal: "Calibration", units_too: bool = False) -> str | None:
             f"the readings in {cal.units}?")
 
 
+def json_path(path, option: str = "") -> Path:
+    """`path` as a Path for a calibration's JSON: named .json, or without an extension; ValueError (naming `option`,
+    the command line's, when given) for another, whose name would say another format. The command line checks it
+    before it reads (fluxcal live's calibration is written at the end of a session)."""
+    path = Path(path)
+    # (.tmp: a file written whole and then renamed to its .json name, as fluxcal batch does)
+    if path.suffix.lower() not in ("", ".json", ".tmp"):
+        raise ValueError(f"{option + ' ' if option else ''}{path}: a calibration is saved as JSON, the one format "
+                         f"Calibration.load reads; name the file .json (the {path.suffix} would hold JSON under "
+                         "another format's name)")
+    return path
+
+
 @dataclass
 class Calibration:
     """Offset `offset` (b, reading units), matrix `matrix` (A) and the field norm |h| it maps to.
@@ -280,7 +293,10 @@ class Calibration:
         return cal._finite(source)
 
     def save(self, path) -> Path:
-        path = Path(path)
+        """Write the calibration as JSON (Calibration.load reads it back) to `path`: named .json, or without an
+        extension; another extension (.npz, .csv, .txt) is a ValueError, as JSON under it would be read as that
+        format's file."""
+        path = json_path(path)
         path.write_text(json.dumps(self.to_dict(), indent=2) + "\n")
         return path
 

@@ -15,7 +15,7 @@ import numpy as np
 
 from . import __version__, cmake_dir
 from ._arrays import past_range
-from .calibration import SCALE_WORDS, TESLA_PER_UNIT, Calibration, _significant, in_sensor_axes, scale_words
+from .calibration import SCALE_WORDS, TESLA_PER_UNIT, Calibration, _significant, in_sensor_axes, json_path, scale_words
 from .io import Recording, read_csv, read_recording, write_csv, write_recording
 from .io.formats import WRITERS
 from .io.columns import LARGE_CURRENT_UNITS, unit_name
@@ -389,16 +389,17 @@ def _reference_role(rec: Recording, names: str | None) -> str:
             f"{with_unit(FIELD_NED_COLUMNS)}")
 
 
-def _print_roles(rec: Recording, reference: str | None = None):
+def _print_roles(rec: Recording, reference: str | None = None, rails: bool = True):
     """Say which columns were taken for what (so a name-guessed choice is visible), the reference's (`reference`,
-    from _reference_role) among them, and which lines and text columns the reader left out."""
+    from _reference_role) among them, and which lines and text columns the reader left out. `rails`: and an axis on
+    a rail (not for calibrate, whose summary says it with what it did about it)."""
     print("columns: " + "; ".join([f"{role} {names}" for role, names in rec.roles().items()]
                                   + ([reference] if reference else [])))
     from .outliers import rail_words
 
-    rails = rail_words({n: rec.columns[n] for n in rec.mag_names()})
-    if rails:
-        print(f"warning: {rails}")
+    said = rails and rail_words({n: rec.columns[n] for n in rec.mag_names()})
+    if said:
+        print(f"warning: {said}")
     if "skipped_lines" in rec.metadata:
         print(skipped_words(rec.metadata['skipped_lines']))
     if "units_from_note" in rec.metadata:  # `fluxcal record` of a device that printed its units late
@@ -557,6 +558,8 @@ def _field_norm_from(rec: Recording, path: str, args) -> np.ndarray:
 
 
 def cmd_calibrate(args) -> int:
+    if args.output:  # (before the fit: a name that says another format is refused when the calibration is saved)
+        json_path(args.output, "-o")
     rec = read_recording(args.file, columns=args.columns, units=args.units, bad_lines=args.bad_lines,
                          decimal=args.decimal)
     raw = rec.samples(biaxial=bool(args.planar))  # two field columns: only the planar fit takes them
@@ -570,7 +573,7 @@ def cmd_calibrate(args) -> int:
                          "--method out, or give vector)")
     reference, reference_units = (_reference(rec, args.reference, args.file) if args.method in ("auto", "vector")
                                   else (None, units))
-    _print_roles(rec, _reference_role(rec, args.reference) if reference is not None else None)
+    _print_roles(rec, _reference_role(rec, args.reference) if reference is not None else None, rails=False)
     if isinstance(field_norm, str):
         field_norm = _field_norms_given(rec, field_norm, args)
     if reference is not None and not reference_units and units == "counts":

@@ -4,7 +4,7 @@ from __future__ import annotations
 import numpy as np
 
 from . import _core
-from ._arrays import as_number, as_samples, set_options, units_text
+from ._arrays import as_samples, positive_field_norm, set_options, units_text
 from .calibration import Calibration
 
 
@@ -28,7 +28,7 @@ def _options(field_norm, units, method="ls", **settings):
     if np.size(field_norm) > 1:
         raise ValueError(f"field_norm: {np.size(field_norm)} values; the ellipsoid fit takes one |field| (each "
                          "reading's own: fluxcal.calibrate, refine or twostep)")
-    options.field_norm = 0.0 if field_norm is None else as_number(field_norm, "field_norm")
+    options.field_norm = 0.0 if field_norm is None else positive_field_norm(field_norm)
     options.units = units_text(units)
     return set_options(options, settings, "fit_ellipsoid")
 

@@ -25,6 +25,7 @@ from tqdm import tqdm
 from . import _core
 from .coverage import N_DIRECTION_BINS
 from .ellipsoid import EllipsoidMoments
+from .calibration import json_path
 from .outliers import GLITCH_RUN, _runs
 from .io.serial import Recorder, add_stream_arguments, check_output, decoder_from_args, stream_units
 
@@ -446,6 +447,7 @@ def cmd_live(args) -> int:
         raise ValueError(f"--raw {args.raw} and -o {args.output} are the same file: the calibration would replace "
                          "the recording; name two files")
     check_output(args.output, "-o")  # written at the end: a bad path must not cost the session
+    json_path(args.output, "-o")  # (nor a name that says another format)
     if args.raw:
         check_output(args.raw, "--raw", args.overwrite)
     # without --columns, a header the device prints at start-up names the columns, as for `fluxcal record`

@@ -8,10 +8,11 @@ from concurrent.futures import ThreadPoolExecutor
 import numpy as np
 
 from . import _core
-from ._arrays import as_samples, held_copies, readings_times, repeated_blocks, repeated_words
+from ._arrays import (as_samples, held_copies, positive_field_norm, readings_times, repeated_blocks, repeated_words,
+                      sample_names)
 from .calibration import TESLA_PER_UNIT, Calibration, scale_words
 from .ellipsoid import fit_ellipsoid
-from .outliers import DOMINATING, far_readings, find_outliers
+from .outliers import DOMINATING, MIN_SAMPLES, far_readings, find_outliers, rail_values, rail_words
 from ._arrays import as_field_norms, changing_field, field_norm_given
 from ._axis_weights import sampson, weights_of
 from .refine import SHAPES, fit_vector, refine, shape_name
@@ -60,8 +61,10 @@ def calibrate(samples, method: str = "auto", field_norm: float | None = None, re
 
     outliers "drop": the readings are first screened for gross outliers (I²C glitches reading 0,0,0, ADC
     rails, spikes; fluxcal.outliers) — off the ellipsoid, or with `reference` off the vector model — and
-    fitted without them; summary["outliers"] lists the rows and a warning says how many. "keep" fits
-    every reading.
+    fitted without them; summary["outliers"] lists the rows and a warning says how many. Readings with an axis on
+    a rail (saturated: its extreme value far more often than any beside it, as `fluxcal calibrate` judges it) are
+    left out before that screen, with a warning naming the axis, the value and how many. "keep" fits every reading
+    (a rail is still warned of).
 
     shape (the refinement's matrix, as MATLAB magcal's fit types): "sym" (symmetric soft iron, 9
     parameters), "diag" (axis scales, 6), "sphere" (one scale, 4; magcal's "eye"), or "auto" (default, as
@@ -105,6 +108,8 @@ def calibrate(samples, method: str = "auto", field_norm: float | None = None, re
     if units is None:
         units = getattr(samples, "field_units", lambda: "")()
     field_norm = field_norm_given(samples, field_norm)
+    if field_norm is not None and np.ndim(field_norm) == 0:  # (the core's refusal named EllipsoidOptions)
+        field_norm = positive_field_norm(field_norm)
     m = as_samples(samples)
     dead = [k for k in range(m.shape[1]) if len(m) >= 10 and np.ptp(m[:, k]) == 0]  # (fewer: too few is said)
     if len(dead) == m.shape[1]:
@@ -141,19 +146,29 @@ def calibrate(samples, method: str = "auto", field_norm: float | None = None, re
         if reference is None:
             raise ValueError("reference: the vector method needs the true field of each reading")
         reference = as_samples(reference, "reference")
+        if len(reference) != len(m):  # (as the fit says it, before rows are left out of both and the counts change)
+            raise ValueError(f"reference: {len(reference)} rows, samples have {len(m)}")
         if reference.shape == m.shape and np.array_equal(reference, m):  # a perfect fit of nothing, 1e-29 errors
             raise ValueError("reference: it is the readings themselves (the same columns given twice?); give the "
                              "true field of each reading (e.g. IGRF rotated by the attitude)")
-    left_out = find_outliers(m, reference if vector else None, field_norms=field_norms) if outliers == "drop" else None
+    railed, said_rails = _railed(m, sample_names(samples), outliers == "drop")
+    screened = np.flatnonzero(~railed)  # the rows the outlier screen judges: a clipped reading is known already
+    left_out = find_outliers(m[screened], reference[screened] if vector else None,
+                             field_norms=None if field_norms is None else field_norms[screened]
+                             ) if outliers == "drop" else None
     all_readings = m
     times = readings_times(samples, times, len(m))
-    if left_out:
-        times = None if times is None else np.delete(times, left_out.rows)
-        m = np.delete(m, left_out.rows, axis=0)
+    if left_out is not None:  # its rows and stretches in rows of all the readings, as summary["outliers"] lists them
+        left_out.rows = screened[left_out.rows]
+        left_out.stretches = [(int(screened[a]), int(screened[b]), z) for a, b, z in left_out.stretches]
+    dropped = np.union1d(np.flatnonzero(railed), [] if left_out is None else left_out.rows).astype(int)
+    if len(dropped):
+        times = None if times is None else np.delete(times, dropped)
+        m = np.delete(m, dropped, axis=0)
         if vector:
-            reference = np.delete(reference, left_out.rows, axis=0)
+            reference = np.delete(reference, dropped, axis=0)
         if field_norms is not None:
-            field_norms = np.delete(field_norms, left_out.rows)
+            field_norms = np.delete(field_norms, dropped)
     if vector:
         cal = fit_vector(m, reference, units=units, loss=loss, **settings)
     elif method in ("ls", "als"):
@@ -200,11 +215,43 @@ def calibrate(samples, method: str = "auto", field_norm: float | None = None, re
     if left_out is not None:
         cal.summary["outliers"] = left_out.to_dict()
         cal.summary["warnings"] = list(cal.summary["warnings"]) + left_out.messages(len(all_readings))
+        if railed.any():  # the rows left out, the rail's with the screen's (the CLI names their file lines)
+            rails = cal.summary["outliers"]
+            rails["kinds"]["rail"] = rails["kinds"].get("rail", 0) + int(railed.sum())
+            rails["rows"], rails["count"] = dropped.tolist(), len(dropped)
+    if said_rails:
+        cal.summary["warnings"] = list(cal.summary["warnings"]) + [said_rails]
     said = [plausible_field(cal)] + ([] if vector else [misses_the_noise(cal, m, times, field_norms)])
     if not vector and method != "twostep" and (field_norm is not None or field_norms is not None):  # (twostep: its own)
         said.append(scale_words(cal))
     cal.summary["warnings"] = list(cal.summary["warnings"]) + [w for w in said if w]
     return _note_copies(cal, all_readings)
+
+
+def _railed(m: np.ndarray, names, drop: bool) -> tuple:
+    """(mask of the readings with an axis on a rail, the warning saying so or None). A saturated axis reads its range's
+    limit, not the field, so such a reading is off the ellipsoid: on a handheld recording with x clipped on 20 % of
+    the readings, fitting them put the offset 10 standard errors off and A 8 % off, leaving them out 1.4 σ and
+    1 %. `drop`: they are left out (unless too few readings would remain), otherwise only said. The same detection
+    and words as the command line's (outliers.rail_values, rail_words)."""
+    if names is None or len(set(names)) != m.shape[1]:
+        names = list("xyz"[:m.shape[1]])
+    columns = {name: m[:, k] for k, name in enumerate(names)}
+    found = rail_values(columns)
+    railed = np.zeros(len(m), dtype=bool)
+    if not found:
+        return railed, None
+    for name, value in found:
+        railed |= columns[name] == value
+    said = rail_words(columns, found)
+    n = int(railed.sum())
+    if not drop:
+        return np.zeros(len(m), dtype=bool), f"{said} (fitted here, as outliers='keep' asks)"
+    if len(m) - n < MIN_SAMPLES:
+        return np.zeros(len(m), dtype=bool), (f"{said} (fitted here: leaving the {n} out would leave "
+                                              f"{len(m) - n} readings)")
+    return railed, (f"{said} — here the {n} readings with an axis on a rail are left out of the fit (a clipped "
+                    "reading is not on the ellipsoid; outliers='keep' keeps them)")
 
 
 # the Earth's field at the surface (WMM/IGRF: about 22 µT at the equator's anomaly to 67 µT at the poles),

@@ -18,8 +18,8 @@ import numpy as np
 from scipy import stats
 
 from . import _core
-from ._arrays import (as_field_norms, as_number, as_samples, changing_field, field_norm_given, field_norms_summary,
-                      recording_times, set_options, units_text)
+from ._arrays import (as_field_norms, as_samples, changing_field, field_norm_given, field_norms_summary,
+                      positive_field_norm, recording_times, set_options, units_text)
 from .calibration import Calibration, scale_words
 from .ellipsoid import _calibration
 from .refine import parameter_statistics, serial_correlation_mode
@@ -327,7 +327,7 @@ def twostep(samples, field_norm, units: str | None = None, **settings) -> Calibr
         cal.summary["field_norms"] = field_norms_summary(norms)
         said = [field_log_misfit(arr, cal, norms, reading_interval(samples))]
     else:
-        options.field_norm = as_number(field_norm, "field_norm")
+        options.field_norm = positive_field_norm(field_norm)
         cal = _with_errors(_core.twostep(arr, options))
         said = []
     said = [w for w in said + [scale_words(cal), _few_readings_words(cal, len(arr))] if w]

@@ -483,8 +483,8 @@ def test_3d_accepts_a_recording():
 
 def test_3d_bad_input_errors():
     x = simulated(9).readings.copy()
-    for norm in (0.0, -5.0, np.nan):
-        with pytest.raises(ValueError, match="field_norm: must be a positive"):
+    for norm, said in ((0.0, "0 is no field magnitude"), (-5.0, "-5 is negative"), (np.nan, "nan is not a finite")):
+        with pytest.raises(ValueError, match=f"field_norm: {said}"):
             twostep(x, norm)
     with pytest.raises(ValueError, match="field_norm: required"):
         twostep(x, None)
