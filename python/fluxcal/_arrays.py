@@ -57,7 +57,7 @@ def table_columns(table, name: str = "samples", columns: int = 3):
     if len(text) == columns:
         return None
     raise ValueError(f"{name}: a table with columns {listed}: no {columns} of them are named as magnetometer axes "
-                     "(mx,my,mz; x,y,z; Bx,By,Bz; MagX,MagY,MagZ; mag_x,…), and by position it has not {columns}; pass "
+                     f"(mx,my,mz; x,y,z; Bx,By,Bz; MagX,MagY,MagZ; mag_x,…), and by position it has not {columns}; pass "
                      "the field columns in x, y, z order (frame[[...]]) or rename them")
 
 

@@ -53,13 +53,18 @@ def scale_words(cal: "Calibration", units_too: bool = False) -> str | None:
             f"the readings in {cal.units}?")
 
 
+# extensions that name another format (a recording's, a table's, a header's, a text): JSON under them misleads
+OTHER_FORMATS = {".csv", ".tsv", ".txt", ".npz", ".npy", ".mat", ".parquet", ".pq", ".h5", ".hdf5", ".xlsx", ".xls",
+                 ".h", ".c", ".hpp", ".yaml", ".yml", ".toml", ".ini", ".xml", ".bin", ".log", ".pdf", ".png", ".html"}
+
+
 def json_path(path, option: str = "") -> Path:
-    """`path` as a Path for a calibration's JSON: named .json, or without an extension; ValueError (naming `option`,
-    the command line's, when given) for another, whose name would say another format. The command line checks it
+    """`path` as a Path for a calibration's JSON; ValueError (naming `option`, the command line's, when given) for a
+    name whose extension says another format (.csv, .npz, .txt, .h, …). The command line checks it
     before it reads (fluxcal live's calibration is written at the end of a session)."""
     path = Path(path)
-    # (.tmp: a file written whole and then renamed to its .json name, as fluxcal batch does)
-    if path.suffix.lower() not in ("", ".json", ".tmp"):
+    # (only another format's extension: "cal_v1.2" or "sensor.A" are names, not formats)
+    if path.suffix.lower() in OTHER_FORMATS:
         raise ValueError(f"{option + ' ' if option else ''}{path}: a calibration is saved as JSON, the one format "
                          f"Calibration.load reads; name the file .json (the {path.suffix} would hold JSON under "
                          "another format's name)")

@@ -346,18 +346,27 @@ RAIL_LEAST = 5
 
 
 def rail_values(columns: dict) -> list:
-    """[(name, value)] of the columns (name → values) whose largest or smallest value repeats as a saturated axis's
-    does (cable._on_rail's rule: RAIL_RATIO× as often as the values just inside it, and RAIL_LEAST times)."""
+    """[(name, value)] of the columns (name → values, rows in time order) whose largest or smallest value repeats as a
+    saturated axis's does (cable._on_rail's rule: RAIL_RATIO× as often as the values just inside it, and RAIL_LEAST
+    times), not within one stretch of time: a sensor resting where an axis reads its largest value, on a coarse grid
+    (0.6 µT steps, 0.1 µT noise), repeats it as often — a rest, not a range's limit, which a turning sensor meets
+    again and again (a review's 600-reading rest before a tumble had been taken for a rail and left out)."""
     from .cable import _on_rail
 
     found = []
     for name, values in columns.items():
-        v = np.asarray(values, dtype=float)
-        v = v[np.isfinite(v)]
+        column = np.asarray(values, dtype=float)
+        v = column[np.isfinite(column)]
         for sign in (1.0, -1.0):
             if v.size and _on_rail(sign * v, max(RAIL_LEAST, int(0.01 * v.size))):
-                found.append((name, sign * float(np.max(sign * v))))
+                top = sign * float(np.max(sign * v))
+                rows = np.flatnonzero(column == top)
+                if rows[-1] - rows[0] + 1 >= RAIL_SPREAD * len(rows):
+                    found.append((name, top))
     return found
+
+
+RAIL_SPREAD = 2.0  # a rail's readings span at least this many times their count in rows: not one rest
 
 
 def rail_words(columns: dict, found=None) -> str | None:
