@@ -346,27 +346,28 @@ RAIL_LEAST = 5
 
 
 def rail_values(columns: dict) -> list:
-    """[(name, value)] of the columns (name → values, rows in time order) whose largest or smallest value repeats as a
-    saturated axis's does (cable._on_rail's rule: RAIL_RATIO× as often as the values just inside it, and RAIL_LEAST
-    times), not within one stretch of time: a sensor resting where an axis reads its largest value, on a coarse grid
-    (0.6 µT steps, 0.1 µT noise), repeats it as often — a rest, not a range's limit, which a turning sensor meets
-    again and again (a review's 600-reading rest before a tumble had been taken for a rail and left out)."""
+    """[(name, value)] of the columns (name → values) whose largest or smallest value repeats as a saturated axis's
+    does (cable._on_rail's rule: RAIL_RATIO× as often as the values just inside it, and RAIL_LEAST times)."""
     from .cable import _on_rail
 
     found = []
     for name, values in columns.items():
-        column = np.asarray(values, dtype=float)
-        v = column[np.isfinite(column)]
+        v = np.asarray(values, dtype=float)
+        v = v[np.isfinite(v)]
         for sign in (1.0, -1.0):
             if v.size and _on_rail(sign * v, max(RAIL_LEAST, int(0.01 * v.size))):
-                top = sign * float(np.max(sign * v))
-                rows = np.flatnonzero(column == top)
-                if rows[-1] - rows[0] + 1 >= RAIL_SPREAD * len(rows):
-                    found.append((name, top))
+                found.append((name, sign * float(np.max(sign * v))))
     return found
 
 
-RAIL_SPREAD = 2.0  # a rail's readings span at least this many times their count in rows: not one rest
+def one_stretch(hit: np.ndarray) -> bool:
+    """Whether the rows `hit` (a mask in time order) lie in one stretch of time (spanning under RAIL_SPREAD× their
+    count): a sensor held still, whose rail — or rest at an axis's extreme on a coarse grid — is one pose."""
+    rows = np.flatnonzero(hit)
+    return bool(rows.size) and rows[-1] - rows[0] + 1 < RAIL_SPREAD * rows.size
+
+
+RAIL_SPREAD = 2.0
 
 
 def rail_words(columns: dict, found=None) -> str | None:

@@ -12,7 +12,7 @@ from ._arrays import (as_samples, held_copies, positive_field_norm, readings_tim
                       sample_names)
 from .calibration import TESLA_PER_UNIT, Calibration, scale_words
 from .ellipsoid import fit_ellipsoid
-from .outliers import DOMINATING, MIN_SAMPLES, far_readings, find_outliers, rail_values, rail_words
+from .outliers import DOMINATING, MIN_SAMPLES, far_readings, find_outliers, one_stretch, rail_values, rail_words
 from ._arrays import as_field_norms, changing_field, field_norm_given
 from ._axis_weights import sampson, weights_of
 from .refine import SHAPES, fit_vector, refine, shape_name
@@ -241,10 +241,20 @@ def _railed(m: np.ndarray, names, drop: bool) -> tuple:
     railed = np.zeros(len(m), dtype=bool)
     if not found:
         return railed, None
+    still = []
     for name, value in found:
-        railed |= columns[name] == value
+        hit = columns[name] == value
+        if one_stretch(hit):  # one pose: a rail, or a rest at the axis's extreme on a coarse grid — kept, and said
+            still.append(name)
+        else:
+            railed |= hit
     said = rail_words(columns, found)
+    if still:
+        said += (f" ({', '.join(still)}: within one stretch of time, a sensor held still — a rest at the axis's "
+                 "extreme on a coarse grid reads so too — so kept in the fit)")
     n = int(railed.sum())
+    if not n:
+        return railed, said
     if not drop:
         return np.zeros(len(m), dtype=bool), f"{said} (fitted here, as outliers='keep' asks)"
     if len(m) - n < MIN_SAMPLES:

@@ -172,9 +172,10 @@ def test_the_command_line_says_a_rail_once(tmp_path):
     assert result.stdout.count("readings on a rail") == 1 and "are left out of the fit" in result.stdout
 
 
-def test_a_rest_at_an_axis_extreme_on_a_coarse_grid_is_no_rail(tmp_path):
+def test_a_rest_at_an_axis_extreme_on_a_coarse_grid_is_kept(tmp_path):
     # A review: 600 readings resting with z along the field before a tumble, on a 0.6 µT grid with 0.1 µT noise,
-    # repeat z's largest value as a rail does; they were said to be a rail and left out. One stretch is a rest.
+    # repeat z's largest value as a rail does; they were left out as a rail. Within one stretch of time (a sensor held
+    # still: a rest, or a position clipped — fluxcal positions names those) it is said, and kept.
     from fluxcal.outliers import rail_values
 
     rng = np.random.default_rng(1)
@@ -183,11 +184,15 @@ def test_a_rest_at_an_axis_extreme_on_a_coarse_grid_is_no_rail(tmp_path):
     turn = np.stack([np.sin(theta) * np.cos(phi), np.sin(theta) * np.sin(phi), np.cos(theta)], 1)
     h = 50.0 * np.vstack([np.tile([0.0, 0.0, 1.0], (600, 1)), turn])
     m = np.round((h + [12.0, -7.0, 20.0] + rng.normal(0, 0.1, h.shape)) / 0.6) * 0.6
-    assert rail_values({k: m[:, i] for i, k in enumerate("xyz")}) == []
     cal = fluxcal.calibrate(m)
-    assert not any("rail" in w for w in cal.summary["warnings"])
+    assert cal.summary.get("outliers", {}).get("count", 0) == 0
+    if rail_values({k: m[:, i] for i, k in enumerate("xyz")}):
+        assert any("z: within one stretch of time" in w and "so kept in the fit" in w for w in cal.summary["warnings"])
+    np.testing.assert_allclose(cal.offset, [12.0, -7.0, 20.0], atol=0.1)
     clipped = m.copy()  # the same recording clipped on x while it turns: a rail
     clipped[:, 0] = np.minimum(clipped[:, 0], np.percentile(clipped[600:, 0], 85))
-    assert [name for name, _ in rail_values({k: clipped[:, i] for i, k in enumerate("xyz")})] == ["x"]
+    assert "x" in [name for name, _ in rail_values({k: clipped[:, i] for i, k in enumerate("xyz")})]
+    left_out = fluxcal.calibrate(clipped).summary["outliers"]["rows"]  # x's, met while turning: left out; the rest kept
+    assert len(left_out) > 300 and not set(left_out) & set(range(600))
     path = cal.save(tmp_path / "cal_v1.2")  # a dot in a name is no format (".2" had been refused)
     assert fluxcal.Calibration.load(path).offset.tolist() == cal.offset.tolist()
