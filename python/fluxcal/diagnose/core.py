@@ -3524,6 +3524,9 @@ def diagnose(samples, t=None, temp=None, reference=None, gravity=None, field_nor
     if bar:
         bar.close()
     data, state, accepted, last_rows, moves = (found[k] for k in ("data", "state", "accepted", "last_rows", "moves"))
+    # (before the rows are finished: a second pass at a σ the first showed overstated makes them again)
+    if noise_sigma is None and _reestimated is None and (again := _overstated_by(last_rows, names, sigma)):
+        return diagnose(**{**arguments, "_reestimated": again})
     modelled = [a for a in accepted if a not in NOISE_CANDIDATES]  # in the order of state["features"]
     moves = [(w, cls, applied, _block(state, modelled.index(w["effect"]))) for w, cls, applied, _ in moves]
     for w, cls, applied, block in moves:  # the whole move: the one applied, then the block's remainder
@@ -3594,8 +3597,6 @@ def diagnose(samples, t=None, temp=None, reference=None, gravity=None, field_nor
                               "inside a box" if _overlaps(again, last_rows[name]) else
                               "the search stopped before it: max_effects, or an effect left out since")
                            + "), so the effects found after it may stand in for it")
-    if noise_sigma is None and _reestimated is None and (again := _overstated_by(last_rows, names, sigma)):
-        return diagnose(**{**arguments, "_reestimated": again})
     # Significant in the last round but not modelled: the max_effects limit stopped the greedy search.
     for name, r in last_rows.items():
         r["significant_not_modelled"] = bool(r.get("significant")) and name not in accepted and "pruned_delta_bic" not in r
