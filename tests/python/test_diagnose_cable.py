@@ -10,6 +10,7 @@ finite length ℓ = 0.1–0.25 m either side of the ring, return wire 0.15–0.3
 ±0.3–0.7° along the ring, ±0.1–0.2 mm radius, ±0.5–1.5° axis; z leakage k_z ±1–2 % per axis with a
 2–4° cable tilt.
 """
+import importlib
 import json
 
 import re
@@ -257,6 +258,82 @@ def test_bad_input_is_a_clear_error():
         diagnose_cable(**kwargs, noise_sigma=-1.0)
     with pytest.raises(ValueError, match="more snapshots"):
         diagnose_cable(y[:2], RING, currents=kwargs["currents"][:2])
+
+
+def test_reference_inputs_that_cannot_be_right_are_named():
+    # a blind check: a NaN in a current or a rotation was reported as a wrong shape, a noise_sigma of the wrong length
+    # as NumPy's broadcast error, constant readings as SciPy's "residuals are not finite", and reference currents all
+    # zero beside a loaded cable's readings as "explained to the noise"
+    kwargs, _ = cable_trial([], 1)
+    currents, rotations = kwargs["currents"].copy(), np.asarray(kwargs["rotations_deg"], dtype=float).copy()
+    currents[3, 1] = np.nan
+    with pytest.raises(ValueError, match=r"currents: snapshot 3, conductor 1 is not finite \(1 such value\)"):
+        diagnose_cable(**dict(kwargs, currents=currents))
+    rotations[4] = np.nan
+    with pytest.raises(ValueError, match=r"rotations_deg: snapshot 4 is not finite"):
+        diagnose_cable(**dict(kwargs, rotations_deg=rotations))
+    with pytest.raises(ValueError, match=r"currents: every reference current is zero in all \d+ snapshots"):
+        diagnose_cable(**dict(kwargs, currents=np.zeros_like(kwargs["currents"])))
+    with pytest.raises(ValueError, match=r"noise_sigma: 3 values for a ring of 4 sensors"):
+        diagnose_cable(**kwargs, noise_sigma=[1e-8, 1e-8, 1e-8])
+    constant = dict(kwargs, readings=np.full_like(kwargs["readings"], 1e-5), calibration=None)
+    with pytest.raises(ValueError, match=r"readings: sensor\(s\) 0, 1, 2, 3 read the same in every repeated"):
+        diagnose_cable(**constant)
+
+
+def test_readings_in_another_unit_are_not_explained_to_the_noise():
+    # readings in µT passed as tesla: the gains ×1e6 fit them, and the FOUND line had said "explains the readings to
+    # the noise" under the caveat
+    kwargs, _ = cable_trial([], 1)
+    d = diagnose_cable(**dict(kwargs, readings=kwargs["readings"] * 1e6, calibration=None))
+    found = [line for line in d.text().splitlines() if line.startswith("FOUND")]
+    assert found and "gains had to change by a factor up to" in found[0] and "to the noise" not in found[0], found
+    assert d.base["max_gain_correction"] > 1e5
+
+
+def test_a_model_with_a_conductor_outside_the_bore_is_not_solved_again():
+    # a blind check: a return conductor outside the ring, at one rotation, moved the final fit's conductors outside
+    # the bore, and the solve of the effects found (`cable solve --joint`) raised the ring's own error from inside
+    cable = importlib.import_module("fluxcal.diagnose.cable")
+    kwargs, _ = cable_trial([], 1)
+    data = cable._prepare(kwargs["readings"], kwargs["ring"], kwargs["currents"], kwargs["rotations_deg"], None,
+                          kwargs.get("calibration"), None, None, None, None, True, True, "readings")[0]
+    outside = np.array([[1.2 * data.ring.bore_radius_m, 0.0], [-0.001, 0.0], [0.0, 0.001]])[:data.n]
+    errors = cable._solve_errors(data, outside, np.zeros_like(data.y), fit_background=False)
+    assert errors.size == 0
+    inside = outside * [[0.5, 1.0]]
+    assert cable._solve_errors(data, inside, np.zeros_like(data.y), fit_background=False).size > 0
+
+
+def test_a_sensor_moved_into_another_sensors_place_is_no_placement_error():
+    # a blind check: a return conductor outside a ring of 8 at one rotation was named a sensor 46° along the ring
+    # (its neighbours 45° away) and another 6.7 mm further in on a 15 mm ring
+    cable = importlib.import_module("fluxcal.diagnose.cable")
+    ring = Ring(np.arange(8) * 45.0, 0.015)
+    row = {"position_angle": 46.0, "position_angle_sensor": 4, "position_radius": -0.2, "position_radius_sensor": 2}
+    assert "another sensor's place" in cable._off_the_ring(row, ring)
+    row.update(position_angle=3.0, position_radius=-6.7)
+    assert "more than half the way from the ring to its bore (4.5 mm)" in cable._off_the_ring(row, ring)
+    row.update(position_radius=-1.0)  # a sensor 3° and 1 mm off: a placement error
+    assert cable._off_the_ring(row, ring) == ""
+
+
+def test_a_sigma_from_residuals_that_held_the_effect_is_estimated_again(monkeypatch):
+    # no repeats, no calibration, no noise_sigma: σ from the base fit's residuals held a neighbouring conductor's
+    # field (a blind check: 5× the noise), and its gradient, left at 0.21 σ once the uniform part was found, was never
+    # tested; σ from the residuals of the model with the effects found is taken for another pass
+    cable = importlib.import_module("fluxcal.diagnose.cable")
+    kwargs, _ = cable_trial(["background_gradient"], 0, repeats=1)
+    kwargs["calibration"] = None
+    monkeypatch.setattr(cable, "REESTIMATES", 0)
+    once = diagnose_cable(**kwargs)
+    assert once.accepted == ["background_field"] and once.remaining["overall"]["rms_z"] < cable.OVERSTATED
+    monkeypatch.setattr(cable, "REESTIMATES", 3)
+    d = diagnose_cable(**kwargs)
+    assert d.accepted[:2] == ["background_field", "background_gradient"], d.accepted
+    assert d.noise_source.startswith("from the base fit's residuals with background_field, background_gradient")
+    assert d.noise_sigma < 0.01 * once.noise_sigma
+    assert any("residuals with background_field" in c and "modelled" in c for c in d.caveats), d.caveats
 
 
 def test_cable_rivals_are_reported():

@@ -1010,8 +1010,8 @@ def _evaluate(cls, data: _Data, state: dict, n_candidates: int, levels) -> dict:
                 "position_axis_sensor"):
         if row.get(key) is not None and data.sensor_ids is not None:  # the recording's number, not the diagnosed
             row[key] = int(data.sensor_ids[row[key]])  # ring's (dead ones out)
-    unphysical = (cls.unphysical(row["coefficients"], fit["terms"][-1][1]) if in_sample  # (a null fit's sign
-                  else "")  # means nothing)
+    unphysical = ((cls.unphysical(row["coefficients"], fit["terms"][-1][1]) or _off_the_ring(row, data.ring))
+                  if in_sample else "")  # (a null fit's sign means nothing)
     row["_in_sample"] = in_sample and not unphysical
     row["significant"] = False
     row.update(heldout=regime, heldout_gap_before=None, heldout_gap_after=None, heldout_pvalue=None,
@@ -1021,6 +1021,26 @@ def _evaluate(cls, data: _Data, state: dict, n_candidates: int, levels) -> dict:
         row.update(unphysical=unphysical, note=f"not accepted: {unphysical}")
     row["_fit"], row["_model"], row["_signature"] = fit, model, signature
     return row
+
+
+def _off_the_ring(row: dict, ring: Ring) -> str:
+    """Why a sensor_position_error's fitted displacement (against the other sensors) is no sensor out of place, or "":
+    moved along the ring by more than half the gap to its nearest neighbour (it would sit in another sensor's place),
+    or radially by more than half the way from the ring to the bore. A blind check's return conductor outside a ring
+    of 15 mm, recorded at one rotation, was named a sensor 6.7 mm further in and another 46° along a ring of 8."""
+    angle, radius = row.get("position_angle"), row.get("position_radius")
+    if angle is None or radius is None or ring.n_sensors < 2:
+        return ""
+    placed = np.sort(np.mod(ring.angles_deg, 360.0))
+    half_gap = 0.5 * float(np.min(np.diff(np.r_[placed, placed[0] + 360.0])))
+    half_way_mm = 0.5e3 * (ring.radius_m - ring.bore_radius_m)
+    if abs(angle) > half_gap:
+        return (f"sensor {row['position_angle_sensor']} {angle:+.3g}° along the ring, more than half the gap to its "
+                f"nearest neighbour ({half_gap:.3g}°): another sensor's place, not one out of place")
+    if abs(radius) > half_way_mm:
+        return (f"sensor {row['position_radius_sensor']} {radius:+.3g} mm radially, more than half the way from the "
+                f"ring to its bore ({half_way_mm:.3g} mm): not a sensor out of place")
+    return ""
 
 
 # Snapshots holding a non-finite reading that are left out, with a note, up to this share of the recording (more: an
@@ -1260,6 +1280,16 @@ def _lone_sensor(data: _Data, remaining: dict, positions) -> dict | None:
 
 # ---------------------------------------------------------------- inputs
 
+def _refuse_not_finite(name: str, values: np.ndarray, *axes: str) -> None:
+    """A ValueError naming the input, where its first value that is not a number lies (`axes`: what each index
+    counts) and how many there are; nothing when every value is finite."""
+    bad = np.argwhere(~np.isfinite(values))
+    if len(bad):
+        where = ", ".join(f"{axis} {i}" for axis, i in zip(axes, bad[0]))
+        raise ValueError(f"{name}: {where} is not finite ({len(bad)} such value{'s' if len(bad) > 1 else ''}): "
+                         "give a number there, or leave the snapshot out")
+
+
 def _prepare(readings, ring, currents, rotations_deg, positions, calibration, noise_sigma, t, n_conductors,
              fit_currents, refine_calibration, average_repeats, source) -> tuple:
     if not isinstance(ring, Ring):
@@ -1330,20 +1360,27 @@ def _prepare(readings, ring, currents, rotations_deg, positions, calibration, no
     if calibration is not None:
         y = calibration.apply(y)
     rot = np.zeros(k) if rotations_deg is None else np.asarray(rotations_deg, dtype=float).ravel()
-    if rot.shape != (k,) or not np.all(np.isfinite(rot)):
-        raise ValueError(f"rotations_deg: need {k} finite rotations (one per snapshot), got shape {rot.shape}")
+    if rot.shape != (k,):
+        raise ValueError(f"rotations_deg: need {k} rotations (one per snapshot), got shape {rot.shape}")
+    _refuse_not_finite("rotations_deg", rot, "snapshot")
     time_from_rows = t is None  # (the time tests had run on row numbers, unsaid)
     t = np.arange(k, dtype=float) if t is None else np.asarray(t, dtype=float).ravel()
-    if t.shape != (k,) or not np.all(np.isfinite(t)):
-        raise ValueError(f"t: need {k} finite times, got shape {t.shape}")
+    if t.shape != (k,):
+        raise ValueError(f"t: need {k} times (one per snapshot), got shape {t.shape}")
+    _refuse_not_finite("t", t, "snapshot")
     reference = None
     if currents is not None:
         reference = np.asarray(currents, dtype=float)
         if reference.ndim == 1:
             reference = reference[:, None]
-        if reference.shape[0] != k or not np.all(np.isfinite(reference)):
-            raise ValueError(f"currents: need ({k}, n_conductors) finite reference currents, "
+        if reference.ndim != 2 or reference.shape[0] != k:
+            raise ValueError(f"currents: need ({k}, n_conductors) reference currents (one row per snapshot), "
                              f"got shape {reference.shape}")
+        _refuse_not_finite("currents", reference, "snapshot", "conductor")
+        if not np.any(reference):  # (the fit's currents scale by them: zeros "explained" a loaded cable's readings)
+            raise ValueError(f"currents: every reference current is zero in all {k} snapshots, while the readings "
+                             f"span {float(np.ptp(y)):.3g} T: give the currents the cable carried, or "
+                             "leave them out to fit them (fit_currents, --fit-currents)")
     truth = None if positions is None else np.asarray(positions, dtype=float).reshape(-1, 2)
     n = (reference.shape[1] if reference is not None else len(truth) if truth is not None
          else int(n_conductors or 2))
@@ -1357,7 +1394,11 @@ def _prepare(readings, ring, currents, rotations_deg, positions, calibration, no
     sigma_given = noise_sigma is not None
     sigma_dof = np.inf  # (given, or the calibration's residuals: taken as known)
     if sigma_given:
-        sigma = np.broadcast_to(np.asarray(noise_sigma, dtype=float), (m,)).astype(float)
+        given = np.asarray(noise_sigma, dtype=float).ravel()
+        if given.size not in (1, m):
+            raise ValueError(f"noise_sigma: {given.size} values for a ring of {m} sensors: give one σ (tesla) for "
+                             "every sensor, or one per sensor")
+        sigma = np.broadcast_to(given, (m,)).astype(float)
         if not np.all(sigma > 0):
             raise ValueError(f"noise_sigma: need a positive σ (tesla) per sensor, got {noise_sigma}")
         source_noise = "given"
@@ -1392,6 +1433,11 @@ def _prepare(readings, ring, currents, rotations_deg, positions, calibration, no
                              "harmonic, the ring moving), so σ from them is overestimated and every test too "
                              "lenient; give the sensors' noise σ (--noise-sigma, the calibration's: "
                              f"{np.median(calibration_sigma):.3g} T)")
+    if sigma is not None and not np.all(sigma > 0):  # (constant readings: a solver's "residuals not finite")
+        flat = ", ".join(map(str, ids[~(sigma > 0)]))
+        raise ValueError(f"readings: sensor(s) {flat} read the same in every repeated snapshot: the noise σ from the "
+                         "repeats is zero (readings constant, or a logger repeating one value?); give noise_sigma "
+                         "(--noise-sigma)")
     counts = np.ones(k)
     jitter = None
     if reference is not None:
@@ -1445,7 +1491,7 @@ def diagnose_cable(readings, ring: Ring, currents=None, rotations_deg=None, posi
                    noise_sigma=None, candidates=None, t=None, n_conductors: int | None = None,
                    fit_currents: bool | None = None, refine_calibration: bool = True, alpha: float = 0.01,
                    max_effects: int = 3, validate_all: bool = False, average_repeats: bool = True,
-                   progress: bool = False, source: str = "ring readings") -> CableDiagnosis:
+                   progress: bool = False, source: str = "ring readings", _reestimated=None) -> CableDiagnosis:
     """Diagnose the gap between a ring's readings and the straight-infinite-conductor model.
 
     readings: (K snapshots, M sensors, 2) tesla, raw when `calibration` (a RingCalibration, its dict or
@@ -1457,7 +1503,9 @@ def diagnose_cable(readings, ring: Ring, currents=None, rotations_deg=None, posi
     (M,), tesla; default from consecutive repeated snapshots, else the calibration run's repeated readings
     (its repeat_sigma: the noise without what its own model missed), else its scatter about its fit (its
     residual_sigma, the σ the ring's solver takes), else the base fit's residuals — which then cannot show a
-    misfit of the model as a whole, and the verdict says so). candidates:
+    misfit of the model as a whole, and the verdict says so; when the effects found leave under OVERSTATED of that
+    σ, the diagnosis runs again with σ from their model's residuals — the base's held them —, at most REESTIMATES
+    times). candidates:
     effect names (default all of CABLE_CANDIDATES). t: (K,) times (default the snapshot order). fit_currents: fit the
     currents per snapshot even when the reference is given (default: only without one; the gains' mean is
     then held at the calibration's, a common gain being a common current scale). refine_calibration:
@@ -1475,6 +1523,8 @@ def diagnose_cable(readings, ring: Ring, currents=None, rotations_deg=None, posi
     data, noise_known, noise_source = _prepare(readings, ring, currents, rotations_deg, positions, calibration,
                                                noise_sigma, t, n_conductors, fit_currents, refine_calibration,
                                                average_repeats, source)
+    if _reestimated is not None:  # (a further pass: σ given, from the last pass's residuals)
+        noise_source = _reestimated[0]
     k, m, _ = data.shape
     all_rows = np.arange(k)
     start = _start_positions(data)
@@ -1483,9 +1533,9 @@ def diagnose_cable(readings, ring: Ring, currents=None, rotations_deg=None, posi
     if data.refine_calibration and data.gain_currents is None:  # no reference: gains of the fitted currents' reading
         data.gain_currents = base["currents"]
         base = base_model.fit(base["positions"], all_rows)
+    dof_base = 2 * k - (2 * data.n + (k * data.n if data.fit_currents else 0) + base_model.n_calibration) / m
     if not noise_known:  # σ per sensor from the base fit's residuals: an effect present inflates it
-        dof = 2 * k - (2 * data.n + (k * data.n if data.fit_currents else 0) + base_model.n_calibration) / m
-        data.sigma = np.sqrt(np.sum(base["residuals"] ** 2, axis=(0, 2)) / max(dof, 1.0))
+        data.sigma = np.sqrt(np.sum(base["residuals"] ** 2, axis=(0, 2)) / max(dof_base, 1.0))
         noise_source = (f"{FROM_RESIDUALS} (no repeated snapshots, no calibration scatter, no --noise-sigma: "
                         "whatever the model misses is taken for noise)")
         base = base_model.fit(base["positions"], all_rows)
@@ -1586,10 +1636,30 @@ def diagnose_cable(readings, ring: Ring, currents=None, rotations_deg=None, posi
         remaining["calibration_check"] = _calibration_check(state["model"], final, data.calibration, alpha,
                                                             remaining["overall"]["rms_z"])
     # the gains after the effects found: a strong effect (a 100 mm lay) moves the base model's gains by 37 %
-    caveats = data.notes + _caveats(data, _calibration_summary(final["coefficients"], state["model"].n_calibration),
-                                    base_info, noise_source, where["overall"])
+    correction = _calibration_summary(final["coefficients"], state["model"].n_calibration)
+    base_info["max_gain_correction"] = correction.get("max_gain_correction", 0.0)
+    caveats = data.notes + _caveats(data, correction, base_info, noise_source, where["overall"])
     series = {"t": data.t, "rotations": data.rotations, "levels": levels, "residual_before": base["residuals"],
               "residual_after": final["residuals"]}
+    passes = 1 if _reestimated is None else _reestimated[1] + 1
+    if (accepted and remaining["overall"]["rms_z"] < OVERSTATED and passes <= REESTIMATES
+            and (not noise_known or _reestimated is not None)):
+        # σ from the base fit's residuals held what the effects found take out (a room's field 5× the noise: its
+        # gradient, left at 0.21 σ, was never tested): once more, σ from their model's residuals — again while
+        # the effects then found take out a share of it (the field's gradient, then its curvature)
+        terms = sum(len(c) for c in state["term_coefficients"])
+        dof = dof_base - terms / m
+        # (the fit's residuals are weighted by 1/σ: σ × their RMS per sensor, as the base's σ came from its own)
+        sigma = data.sigma * np.sqrt(np.sum(np.asarray(final["residuals"]) ** 2, axis=(0, 2)) / max(dof, 1.0))
+        sigma = np.full(m, float(np.sqrt(np.mean(sigma ** 2))))  # (one for all: what is left is misfit more than
+        given = np.full(ring.n_sensors, sigma[0])                    # noise, and per sensor it weighted them 20× apart)
+        words = (f"{FROM_RESIDUALS} with {', '.join(accepted)} modelled (no repeated snapshots, no calibration scatter, "
+                 f"no --noise-sigma; the fit without them held them: {float(np.sqrt(np.mean(data.sigma ** 2))):.3g} T "
+                 f"from its residuals, {float(np.sqrt(np.mean(sigma ** 2))):.3g} T from these; whatever this model "
+                 "misses is still taken for noise)")
+        return diagnose_cable(readings, ring, currents, rotations_deg, positions, calibration, given, candidates, t,
+                              n_conductors, fit_currents, refine_calibration, alpha, max_effects, validate_all,
+                              average_repeats, progress, source, _reestimated=(words, passes))
     return CableDiagnosis(model="cable_ring", noise_sigma=float(np.sqrt(np.mean(data.sigma ** 2))),
                           noise_source=noise_source, units="T", source=source, ranking=ranking, accepted=accepted,
                           where=where, remaining=remaining, base=base_info, series=series, caveats=caveats)
@@ -1606,6 +1676,8 @@ FAR_BEYOND_NOISE = 3.0
 # them every time in a blind check (with 2 rotations the diagnosis named the wrong one in 10 recordings of 11)
 ROTATIONS_THAT_SEPARATE = 5
 REPEATS_NOISIER = 2.0  # a recording's repeats scattering this many times the calibration run's: not the noise alone
+OVERSTATED = 0.8  # σ from the base fit's residuals, and the effects found leave under this × it: σ held them
+REESTIMATES = 3   # ... σ re-estimated from the residuals of the model with the effects found at most this many times
 GAIN_MISMATCH = 0.2  # the base model moved a sensor's gain by more than this: the readings' scale is not the model's
 # An effect that needs the gains moved by more than this (×2, or to nothing) and twice what the base model moved them
 # is not accepted: no calibrated sensor is that far off (with currents fitted per snapshot a lay moves them 36 %)
@@ -1661,6 +1733,8 @@ def _solve_errors(data: _Data, positions, added, fit_background: bool) -> np.nda
     `positions`: each carrying snapshot's largest current error over its largest current, at the rotations the solve
     calls well conditioned."""
     n, errors = data.n, []
+    if np.linalg.norm(positions, axis=1).max() > data.ring.bore_radius_m:
+        return np.zeros(0)  # (a model with a conductor outside the bore is not the cable's: the CAVEAT says so)
     for r, angle in enumerate(data.unique):
         rows = data.rot_index == r
         ring = data.ring.rotated(angle)
@@ -1726,9 +1800,10 @@ def _room_in_solve(data: _Data, model: _Model, fit: dict) -> dict | None:
 
 
 def _outside_bore(base: dict) -> float:
-    """How far from the ring's axis the base model puts its farthest conductor (m) when that is outside the ring's
-    bore — no cable's core lies outside the hole the ring is threaded on — else 0."""
-    outside = float(np.linalg.norm(np.asarray(base["positions_m"]), axis=1).max())
+    """How far from the ring's axis the base model, or the model with the effects found, puts its farthest conductor
+    (m) when that is outside the ring's bore — no cable's core lies outside the hole the ring is threaded on — else 0."""
+    outside = max(float(np.linalg.norm(np.asarray(base[key]), axis=1).max())
+                  for key in ("positions_m", "final_positions_m") if key in base)
     return outside if outside > base.get("bore_radius_m", np.inf) else 0.0
 
 
@@ -1747,7 +1822,7 @@ def _caveats(data: _Data, correction: dict, base: dict, noise_source: str, overa
                    "the gains took up")
     outside = _outside_bore(base)
     if outside:
-        out.append(f"the base model puts a conductor {1e3 * outside:.3g} mm from the ring's axis, outside its bore "
+        out.append(f"the ring's model puts a conductor {1e3 * outside:.3g} mm from the ring's axis, outside its bore "
                    f"({1e3 * data.ring.bore_radius_m:.3g} mm): its fit is not the cable's — the conductors' order "
                    "against the reference currents (i0, i1, …), their count, the ring's geometry, or a calibration "
                    "of another ring; give the positions (positions_m) if known")
@@ -1787,10 +1862,12 @@ def _caveats(data: _Data, correction: dict, base: dict, noise_source: str, overa
                    + ("; diagnose without --fit-currents (fit_currents=False) to try it" if data.reference is not None
                       else "; give the reference currents (i0, i1, …) to try it"))
     if noise_source.startswith(FROM_RESIDUALS):
-        out.append(f"σ was estimated from the base fit's own residuals (no repeated snapshots, no calibration with its "
-                   f"scatter, no --noise-sigma), so their RMS ({overall['rms_z']:.2f} σ) is about 1 σ by construction: "
-                   "a misfit of the model as a whole is taken for noise and cannot show — only an effect uneven across "
-                   "sensors, rotations or currents can. Give the sensors' noise σ (--noise-sigma, e.g. the "
+        fitted = (f"the fit's own residuals with {noise_source.split(' with ', 1)[1].split(' modelled', 1)[0]} modelled"
+                  if noise_source.startswith(f"{FROM_RESIDUALS} with ") else
+                  f"the base fit's own residuals, so their RMS ({overall['rms_z']:.2f} σ) is about 1 σ by construction")
+        out.append(f"σ was estimated from {fitted} (no repeated snapshots, no calibration with its scatter, no "
+                   "--noise-sigma): a misfit of that model as a whole is taken for noise and cannot show — only an "
+                   "effect uneven across sensors, rotations or currents can. Give the sensors' noise σ (--noise-sigma, e.g. the "
                    "datasheet's), record repeated snapshots, or give the ring's calibration with its scatter "
                    "(--calibration: `fluxcal cable calibrate` writes its residual_sigma)")
     return out
@@ -1968,8 +2045,12 @@ def _text(d) -> str:
     elif d.noise_source.startswith(FROM_RESIDUALS):  # σ fitted to these residuals: "to the noise" is circular
         out.append("FOUND: no significant effect among the candidates — whether the ring's model fits cannot be "
                    "judged: σ came from the base fit's own residuals (see CAVEAT)")
+    elif d.base.get("max_gain_correction", 0.0) > GAIN_IMPLAUSIBLE:  # (readings in µT passed as tesla: ×1e6)
+        out.append(f"FOUND: no significant effect among the candidates — but the sensors' gains had to change by "
+                   f"{_gain_words(d.base['max_gain_correction'])} to fit: the readings' scale is not the model's, "
+                   "and a fit at another scale says nothing of the ring (see CAVEAT)")
     elif _outside_bore(d.base):  # (gains ×3 had fitted conductors 70 mm out to the noise)
-        out.append("FOUND: no significant effect among the candidates — but the base model's conductors lie outside "
+        out.append("FOUND: no significant effect among the candidates — but the model's conductors lie outside "
                    "the ring's bore: its fit is not the cable's (see CAVEAT)")
     elif not any(_departs(t, rem["tests"]) for t in rem["tests"]):
         check = d.remaining.get("calibration_check")
