@@ -650,8 +650,12 @@ def _noise(data: _Data, base: dict) -> tuple:
         order = np.argsort(data.t, kind="stable")
         free = _line_free(data.m[order], np.asarray(data.t, dtype=float)[order])
         if free is not None and _difference_noise(free[0], 3) < LINE_DROP * estimate_noise(data.m[order]):
-            m, lines = np.empty_like(data.m), (free[1], estimate_noise(data.m))
+            m = np.empty_like(data.m)
             m[order] = free[0]
+            if _lines_in_the_residuals(data, base, m, order):
+                lines = (free[1], estimate_noise(data.m))
+            else:
+                m = data.m
     unit = f" {data.units}" if data.units else ""
     said_lines = ""  # (said after the source, whichever it is: the readings' and the residuals' lines are the same)
     if lines:
@@ -712,6 +716,20 @@ def _noise(data: _Data, base: dict) -> tuple:
                       "4th order)")
             sigma = from_residuals
     return sigma, source + said_lines, False, axes
+
+
+def _lines_in_the_residuals(data: _Data, base: dict, free: np.ndarray, order: np.ndarray) -> bool:
+    """Whether the lines taken out of the readings (`free`: the readings less them) are an interference, not the
+    motion: the base model's residuals of the readings less them differ no more than its residuals of the readings
+    (third differences in time order, LINE_RESIDUALS). A figure-8 waved at 2 Hz is periodic in the readings: its lines
+    taken out, the rest of the motion (9.2, 52× the noise) had been taken for the noise, and "explains the data to the
+    noise" said of a 3 % saturation missed (a blind check); the model fits the motion, so its residuals gain the lines."""
+    with_lines = _difference_noise(np.asarray(base["residuals"]).reshape(len(data.m), -1)[order], 3, mixture=True)
+    without = np.asarray(_residuals(base, replace(data, m=free), None, slice(None))).reshape(len(data.m), -1)[order]
+    return bool(_difference_noise(without, 3, mixture=True) <= LINE_RESIDUALS * with_lines)
+
+
+LINE_RESIDUALS = 1.5  # lines whose removal raises the base residuals' third-difference σ more than this are the motion
 
 
 AXES_ALPHA = 0.01      # the axes' noise is taken to differ when equal variances are rejected at this level
@@ -1625,7 +1643,7 @@ def _evaluate(cls, data, model, state, sigma, n_candidates) -> dict:
     # (Bonferroni); left out of ΔBIC, a box's free edges had won ties against a drift's law, whose time constant
     # pays (a gain drifting over the whole recording named a magnet).
     searched = cls.searched_times(row)
-    row.update(lr=lr, lr_whitened=lr_whitened, searched_times=searched,
+    row.update(lr=lr, lr_whitened=lr_whitened, searched_times=searched, fitted_parameters=k,
                lr_pvalue=min(1.0, float(stats.chi2.sf(lr_whitened, k)) * tried),
                delta_aic=-lr + 2 * (k + searched), delta_bic=-lr + (k + searched) * np.log(n),
                coefficients=np.asarray(fit["parameters"])[-feats.shape[1]:].tolist(),
@@ -1679,30 +1697,41 @@ def _score_fields(score: float, dims: int, singular: np.ndarray, tried: int) -> 
 
 
 def _step_at_ends(cls, data, ctx, state, fixed, feats, fit, e) -> tuple:
-    """A box whose edge lies within the recording's first or last grid cell of the search (`cls.GRID`) is a step,
-    the edge at the recording's end, unless that edge pays BIC's price under the residuals' correlation
-    (`_whitened_lr`): the search moves an edge inside for BIC's price in the plain ratio, which the recording's own
-    correlated wander pays (a blind check: steps that stayed, on a phone's 120 s log, "came back at t = 119.2 s",
-    or "jumped at 2.81 s and came back at 61.92 s"). Returns (features, fit)."""
+    """A box with both edges inside the recording is tried as a step too — each edge in turn moved to the recording's
+    end (the off edge) or start (the on edge), the other kept, refitted — and the step is taken (of two, the closer
+    fit) unless the box's edge pays BIC's price: under the residuals' correlation (`_whitened_lr`) for an edge within
+    the recording's first or last grid cell of the search (`cls.GRID`) — the search moves such an edge inside for
+    BIC's price in the plain ratio, which the recording's own correlated wander pays (a blind check: steps that stayed,
+    on a phone's 120 s log, "came back at t = 119.2 s", or "jumped at 2.81 s and came back at 61.92 s") —, in the plain
+    ratio for one farther in: the search scores the edges at the base fit, which the step itself distorts (another: a
+    vehicle's 10 % step that stayed was put in a box ending 17 s early, its whitened ratio 13 for the leftover step,
+    and a magnet's free course in time named instead). Returns (features, fit)."""
     span = cls.span(ctx, feats)
     t0, t1 = float(np.min(ctx.t)), float(np.max(ctx.t))
-    if span is None or not t1 > t0:
+    if span is None or not t1 > t0 or span[0] <= t0 or span[1] >= t1:
         return feats, fit
     cell = (t1 - t0) / cls.GRID
-    near = (t0 < span[0] < t0 + cell, t1 - cell < span[1] < t1)
-    if not any(near) or all(near):
+    if span[0] < t0 + cell and span[1] > t1 - cell:  # (a box over nearly all of it: the gaps at its ends are its own)
         return feats, fit
-    trial = cls._box(ctx, t0 if near[0] else span[0], t1 if near[1] else span[1])
-    try:
-        step = _fit(data, state["start"], fixed, _features(state["features"] + [trial]),
-                    start_terms=np.concatenate([state["terms"], np.zeros(trial.shape[1])]))
-    except _core.Error:
-        return feats, fit
-    if state.get("_wander", (None,))[0] is not state["result"]:
-        state["_wander"] = (state["result"], _wander_basis(data, state["result"]))
-    edge = _whitened_lr(np.asarray(step["residuals"]), np.asarray(fit["residuals"]), data,
-                        wander=state["_wander"][1])
-    return (trial, step) if edge < np.log(len(e)) else (feats, fit)
+    box = np.asarray(fit["residuals"])
+    best, rss = (feats, fit), None
+    for on, off, near in ((t0, span[1], span[0] < t0 + cell), (span[0], t1, span[1] > t1 - cell)):
+        trial = cls._box(ctx, on, off)
+        try:
+            step = _fit(data, state["start"], fixed, _features(state["features"] + [trial]),
+                        start_terms=np.concatenate([state["terms"], np.zeros(trial.shape[1])]))
+        except _core.Error:
+            continue
+        residuals = np.asarray(step["residuals"])
+        if near:
+            if state.get("_wander", (None,))[0] is not state["result"]:
+                state["_wander"] = (state["result"], _wander_basis(data, state["result"]))
+            edge = _whitened_lr(residuals, box, data, wander=state["_wander"][1])
+        else:
+            edge = len(e) * np.log(float(residuals @ residuals) / float(box @ box))
+        if edge < np.log(len(e)) and (rss is None or residuals @ residuals < rss):
+            best, rss = (trial, step), float(residuals @ residuals)
+    return best
 
 
 # Beside an effect already found, a held-out fall within the fits' parameter noise (`_gain_unresolved`) confirms
@@ -3222,7 +3251,8 @@ def _search(data: _Data, model: str, pool: list, names: dict, state: dict, sigma
             if rivals:
                 previous_winner["confounded_with"] = rivals
             previous_winner = None
-        winners = sorted([r for r in rows if r["significant"]], key=lambda r: r["delta_bic"])
+        winners = _special_case_first(sorted([r for r in rows if r["significant"]], key=lambda r: r["delta_bic"]),
+                                      data, state)
         if _round == 0:
             first_rows = candidates
             if first is not None:  # (taken whatever its held-out test: `_in_another_order` judges it at the end)
@@ -3290,6 +3320,30 @@ def _search(data: _Data, model: str, pool: list, names: dict, state: dict, sigma
         last_rows[name]["step"] = step
     return {"data": data, "state": state, "accepted": accepted, "last_rows": last_rows, "moves": moves,
             "first_rows": first_rows, "first": taken[0] if taken else None, "round0": round0}
+
+
+def _special_case_first(winners: list, data: _Data, state: dict) -> list:
+    """The winners, a special case of the first (its signature inside the first's, fewer parameters) put ahead of it
+    when the first's extra terms are not significant over it: the whitened likelihood ratio of the two fits, at the
+    search's α. ΔBIC, from the plain ratio, ranks the winners, and correlated noise pays a general form's extra terms
+    too: a blind check's saturation (AR(1) noise, φ 0.65) was named a cubic, ΔBIC −308 against −289, though the
+    cubic's extra terms' whitened ratio was 3.9. Nested forms are no rivals (`_rivals`), so nothing else chose."""
+    top = winners[0] if winners else None
+    for r in winners[1:]:
+        if (r.get("episode") or top.get("episode") or r.get("_signature") is None or top.get("_signature") is None
+                or not r.get("fitted_parameters", 0) < top.get("fitted_parameters", 0)):
+            continue
+        overlap = np.linalg.svd(top["_signature"].T @ r["_signature"], compute_uv=False)
+        if not (overlap.size and overlap.min() >= NESTED):
+            continue
+        if state.get("_wander", (None,))[0] is not state["result"]:  # (as _evaluate: one design per round's base)
+            state["_wander"] = (state["result"], _wander_basis(data, state["result"]))
+        lr = _whitened_lr(np.asarray(r["_fit"]["residuals"]), np.asarray(top["_fit"]["residuals"]), data,
+                          wander=state["_wander"][1])
+        if not stats.chi2.sf(lr, top["fitted_parameters"] - r["fitted_parameters"]) < state["alpha"]:
+            r["special_case_of"] = {"effect": top["effect"], "extra_terms_lr_whitened": float(lr)}
+            return [r] + [w for w in winners if w is not r]
+    return winners
 
 
 ANOTHER_ORDER_P = 1e-6  # a test of the residuals the search left below this: they still depart (report.SHAPE_P)
