@@ -1651,8 +1651,9 @@ def diagnose_cable(readings, ring: Ring, currents=None, rotations_deg=None, posi
         dof = dof_base - terms / m
         # (the fit's residuals are weighted by 1/σ: σ × their RMS per sensor, as the base's σ came from its own)
         sigma = data.sigma * np.sqrt(np.sum(np.asarray(final["residuals"]) ** 2, axis=(0, 2)) / max(dof, 1.0))
-        sigma = np.full(m, float(np.sqrt(np.mean(sigma ** 2))))  # (one for all: what is left is misfit more than
-        given = np.full(ring.n_sensors, sigma[0])                    # noise, and per sensor it weighted them 20× apart)
+        # one σ for every sensor: what is left is more misfit than noise, and per sensor it weighted them 20× apart
+        sigma = np.full(m, float(np.sqrt(np.mean(sigma ** 2))))
+        given = np.full(ring.n_sensors, sigma[0])
         words = (f"{FROM_RESIDUALS} with {', '.join(accepted)} modelled (no repeated snapshots, no calibration scatter, "
                  f"no --noise-sigma; the fit without them held them: {float(np.sqrt(np.mean(data.sigma ** 2))):.3g} T "
                  f"from its residuals, {float(np.sqrt(np.mean(sigma ** 2))):.3g} T from these; whatever this model "
