@@ -277,8 +277,22 @@ def test_reference_inputs_that_cannot_be_right_are_named():
     with pytest.raises(ValueError, match=r"noise_sigma: 3 values for a ring of 4 sensors"):
         diagnose_cable(**kwargs, noise_sigma=[1e-8, 1e-8, 1e-8])
     constant = dict(kwargs, readings=np.full_like(kwargs["readings"], 1e-5), calibration=None)
-    with pytest.raises(ValueError, match=r"readings: sensor\(s\) 0, 1, 2, 3 read the same in every repeated"):
+    with pytest.raises(ValueError, match=r"readings: every sensor reads the same in all \d+ snapshots"):
         diagnose_cable(**constant)
+    times = np.arange(len(currents), dtype=float)
+    times[6] = np.inf
+    with pytest.raises(ValueError, match=r"t: snapshot 6 is not finite"):
+        diagnose_cable(**kwargs, t=times)
+    # the snapshot said is the recording's, also when snapshots with a NaN reading are left out before (a review)
+    readings = kwargs["readings"].copy()
+    readings[2, 0, 0] = np.nan
+    with pytest.raises(ValueError, match=r"rotations_deg: snapshot 4 is not finite"):
+        diagnose_cable(**dict(kwargs, readings=readings, rotations_deg=rotations))
+    # noise_sigma's length is the recording's ring's, also when a dead sensor is left out
+    readings = kwargs["readings"].copy()
+    readings[:, 1] = np.nan
+    with pytest.raises(ValueError, match=r"noise_sigma: 3 values for a ring of 4 sensors"):
+        diagnose_cable(**dict(kwargs, readings=readings), noise_sigma=[1e-8, 1e-8, 1e-8])
 
 
 def test_readings_in_another_unit_are_not_explained_to_the_noise():
@@ -287,8 +301,12 @@ def test_readings_in_another_unit_are_not_explained_to_the_noise():
     kwargs, _ = cable_trial([], 1)
     d = diagnose_cable(**dict(kwargs, readings=kwargs["readings"] * 1e6, calibration=None))
     found = [line for line in d.text().splitlines() if line.startswith("FOUND")]
-    assert found and "gains had to change by a factor up to" in found[0] and "to the noise" not in found[0], found
-    assert d.base["max_gain_correction"] > 1e5
+    assert found and "gains had to be multiplied by up to" in found[0] and "to the noise" not in found[0], found
+    assert d.base["gain_factor_range"][1] > 1e5
+    # readings 1000× too small: the gains cut to a thousandth had been "explained to the noise" too (a review)
+    d = diagnose_cable(**dict(kwargs, readings=kwargs["readings"] * 1e-3, calibration=None))
+    found = [line for line in d.text().splitlines() if line.startswith("FOUND")]
+    assert found and "gains had to be divided by up to" in found[0] and "to the noise" not in found[0], found
 
 
 def test_a_model_with_a_conductor_outside_the_bore_is_not_solved_again():
@@ -303,6 +321,10 @@ def test_a_model_with_a_conductor_outside_the_bore_is_not_solved_again():
     assert errors.size == 0
     inside = outside * [[0.5, 1.0]]
     assert cable._solve_errors(data, inside, np.zeros_like(data.y), fit_background=False).size > 0
+    # the caveat's test sees the final model's conductors too, not only the base model's
+    bore = data.ring.bore_radius_m
+    assert cable._outside_bore({"positions_m": inside, "final_positions_m": outside, "bore_radius_m": bore}) > bore
+    assert cable._outside_bore({"positions_m": inside, "final_positions_m": inside, "bore_radius_m": bore}) == 0.0
 
 
 def test_a_sensor_moved_into_another_sensors_place_is_no_placement_error():
@@ -311,7 +333,7 @@ def test_a_sensor_moved_into_another_sensors_place_is_no_placement_error():
     cable = importlib.import_module("fluxcal.diagnose.cable")
     ring = Ring(np.arange(8) * 45.0, 0.015)
     row = {"position_angle": 46.0, "position_angle_sensor": 4, "position_radius": -0.2, "position_radius_sensor": 2}
-    assert "another sensor's place" in cable._off_the_ring(row, ring)
+    assert "another sensor's place" in cable._off_the_ring(row, ring)  # (its neighbours 45° away)
     row.update(position_angle=3.0, position_radius=-6.7)
     assert "more than half the way from the ring to its bore (4.5 mm)" in cable._off_the_ring(row, ring)
     row.update(position_radius=-1.0)  # a sensor 3° and 1 mm off: a placement error
@@ -331,9 +353,10 @@ def test_a_sigma_from_residuals_that_held_the_effect_is_estimated_again(monkeypa
     monkeypatch.setattr(cable, "REESTIMATES", 3)
     d = diagnose_cable(**kwargs)
     assert d.accepted[:2] == ["background_field", "background_gradient"], d.accepted
-    assert d.noise_source.startswith("from the base fit's residuals with background_field, background_gradient")
+    assert d.noise_source.startswith("from the base fit's residuals, then from those of the model with "
+                                     "background_field, background_gradient")
     assert d.noise_sigma < 0.01 * once.noise_sigma
-    assert any("residuals with background_field" in c and "modelled" in c for c in d.caveats), d.caveats
+    assert any("the residuals of the fit with background_field" in c for c in d.caveats), d.caveats
 
 
 def test_cable_rivals_are_reported():

@@ -55,6 +55,7 @@ from __future__ import annotations
 from dataclasses import dataclass, field, replace
 from pathlib import Path
 from types import SimpleNamespace
+import warnings
 
 import numpy as np
 from scipy import stats
@@ -94,6 +95,7 @@ FROM_REPEATS = "from repeated snapshots"
 FROM_CALIBRATION = "from the calibration's scatter"
 FROM_CALIBRATION_REPEATS = "from the calibration run's repeated readings"
 FROM_RESIDUALS = "from the base fit's residuals"
+THEN_FROM = ", then from those of the model with "  # (σ taken again once effects were found: diagnose_cable)
 
 
 @dataclass
@@ -606,8 +608,10 @@ def _calibration_summary(coefficients, n_calibration: int) -> dict:
         return {}
     c = np.asarray(coefficients[:n_calibration])
     half = n_calibration // 2
+    gains = 1.0 + c[:half]  # (the refit's gain factors)
     return {"max_gain_correction": float(np.max(np.abs(c[:half]))),
-            "max_offset_correction_t": float(np.max(np.abs(c[half:])))}
+            "max_offset_correction_t": float(np.max(np.abs(c[half:]))),
+            "gain_factor_range": [float(gains.min()), float(gains.max())]}
 
 
 def _calibration_check(model: "_Model", fit: dict, calibration: RingCalibration, alpha: float, rms_z: float) -> dict:
@@ -1025,8 +1029,8 @@ def _evaluate(cls, data: _Data, state: dict, n_candidates: int, levels) -> dict:
 
 def _off_the_ring(row: dict, ring: Ring) -> str:
     """Why a sensor_position_error's fitted displacement (against the other sensors) is no sensor out of place, or "":
-    moved along the ring by more than half the gap to its nearest neighbour (it would sit in another sensor's place),
-    or radially by more than half the way from the ring to the bore. A blind check's return conductor outside a ring
+    moved along the ring by more than half the smallest gap between neighbouring sensors of the ring diagnosed (it
+    would sit about where another sensor sits), or radially by more than half the way from the ring to the bore. A blind check's return conductor outside a ring
     of 15 mm, recorded at one rotation, was named a sensor 6.7 mm further in and another 46° along a ring of 8."""
     angle, radius = row.get("position_angle"), row.get("position_radius")
     if angle is None or radius is None or ring.n_sensors < 2:
@@ -1035,8 +1039,8 @@ def _off_the_ring(row: dict, ring: Ring) -> str:
     half_gap = 0.5 * float(np.min(np.diff(np.r_[placed, placed[0] + 360.0])))
     half_way_mm = 0.5e3 * (ring.radius_m - ring.bore_radius_m)
     if abs(angle) > half_gap:
-        return (f"sensor {row['position_angle_sensor']} {angle:+.3g}° along the ring, more than half the gap to its "
-                f"nearest neighbour ({half_gap:.3g}°): another sensor's place, not one out of place")
+        return (f"sensor {row['position_angle_sensor']} {angle:+.3g}° along the ring, more than half the gap between "
+                f"neighbouring sensors ({half_gap:.3g}°): another sensor's place, not one out of place")
     if abs(radius) > half_way_mm:
         return (f"sensor {row['position_radius_sensor']} {radius:+.3g} mm radially, more than half the way from the "
                 f"ring to its bore ({half_way_mm:.3g} mm): not a sensor out of place")
@@ -1300,6 +1304,13 @@ def _prepare(readings, ring, currents, rotations_deg, positions, calibration, no
         raise ValueError(f"readings: shape {y.shape}, expected (snapshots, {m}, 2) for this ring of {m} "
                          f"biaxial sensors")
     k = len(y)
+    # (before any snapshot or sensor is left out: the numbers said are the recording's)
+    for name, values in (("rotations_deg", rotations_deg), ("t", t), ("currents", currents)):
+        if values is not None and np.shape(values)[:1] == (k,):
+            _refuse_not_finite(name, np.asarray(values, dtype=float), "snapshot", "conductor")
+    if noise_sigma is not None and np.size(noise_sigma) not in (1, m):
+        raise ValueError(f"noise_sigma: {np.size(noise_sigma)} values for a ring of {m} sensors: give one σ (tesla) "
+                         "for every sensor, or one per sensor")
     if isinstance(calibration, (str, Path)):
         calibration = RingCalibration.load(calibration)
     elif isinstance(calibration, dict):
@@ -1332,6 +1343,12 @@ def _prepare(readings, ring, currents, rotations_deg, positions, calibration, no
         if noise_sigma is not None and np.size(noise_sigma) == m:
             noise_sigma = np.asarray(noise_sigma, dtype=float)[ids]
         m = len(ids)
+    with warnings.catch_warnings():  # (a sensor that reads no number at all: its spread is NaN, left to the next test)
+        warnings.simplefilter("ignore", RuntimeWarning)
+        spread = (np.nanmax(y, axis=0) - np.nanmin(y, axis=0))[np.isfinite(y).any(axis=0)]
+    if spread.size and np.all(spread == 0):
+        raise ValueError(f"readings: every sensor reads the same in all {k} snapshots: nothing varies for the ring's "
+                         "model to fit (a logger repeating one line, or the currents never on?)")
     bad = np.argwhere(~np.isfinite(y))
     keep = np.ones(k, bool)
     if len(bad):
@@ -1362,12 +1379,10 @@ def _prepare(readings, ring, currents, rotations_deg, positions, calibration, no
     rot = np.zeros(k) if rotations_deg is None else np.asarray(rotations_deg, dtype=float).ravel()
     if rot.shape != (k,):
         raise ValueError(f"rotations_deg: need {k} rotations (one per snapshot), got shape {rot.shape}")
-    _refuse_not_finite("rotations_deg", rot, "snapshot")
     time_from_rows = t is None  # (the time tests had run on row numbers, unsaid)
     t = np.arange(k, dtype=float) if t is None else np.asarray(t, dtype=float).ravel()
     if t.shape != (k,):
         raise ValueError(f"t: need {k} times (one per snapshot), got shape {t.shape}")
-    _refuse_not_finite("t", t, "snapshot")
     reference = None
     if currents is not None:
         reference = np.asarray(currents, dtype=float)
@@ -1376,7 +1391,6 @@ def _prepare(readings, ring, currents, rotations_deg, positions, calibration, no
         if reference.ndim != 2 or reference.shape[0] != k:
             raise ValueError(f"currents: need ({k}, n_conductors) reference currents (one row per snapshot), "
                              f"got shape {reference.shape}")
-        _refuse_not_finite("currents", reference, "snapshot", "conductor")
         if not np.any(reference):  # (the fit's currents scale by them: zeros "explained" a loaded cable's readings)
             raise ValueError(f"currents: every reference current is zero in all {k} snapshots, while the readings "
                              f"span {float(np.ptp(y)):.3g} T: give the currents the cable carried, or "
@@ -1394,11 +1408,7 @@ def _prepare(readings, ring, currents, rotations_deg, positions, calibration, no
     sigma_given = noise_sigma is not None
     sigma_dof = np.inf  # (given, or the calibration's residuals: taken as known)
     if sigma_given:
-        given = np.asarray(noise_sigma, dtype=float).ravel()
-        if given.size not in (1, m):
-            raise ValueError(f"noise_sigma: {given.size} values for a ring of {m} sensors: give one σ (tesla) for "
-                             "every sensor, or one per sensor")
-        sigma = np.broadcast_to(given, (m,)).astype(float)
+        sigma = np.broadcast_to(np.asarray(noise_sigma, dtype=float).ravel(), (m,)).astype(float)
         if not np.all(sigma > 0):
             raise ValueError(f"noise_sigma: need a positive σ (tesla) per sensor, got {noise_sigma}")
         source_noise = "given"
@@ -1435,9 +1445,8 @@ def _prepare(readings, ring, currents, rotations_deg, positions, calibration, no
                              f"{np.median(calibration_sigma):.3g} T)")
     if sigma is not None and not np.all(sigma > 0):  # (constant readings: a solver's "residuals not finite")
         flat = ", ".join(map(str, ids[~(sigma > 0)]))
-        raise ValueError(f"readings: sensor(s) {flat} read the same in every repeated snapshot: the noise σ from the "
-                         "repeats is zero (readings constant, or a logger repeating one value?); give noise_sigma "
-                         "(--noise-sigma)")
+        raise ValueError(f"noise_sigma: zero for sensor(s) {flat}, {source_noise} (readings repeated exactly: a logger "
+                         "repeating one value?); give noise_sigma (--noise-sigma)")
     counts = np.ones(k)
     jitter = None
     if reference is not None:
@@ -1638,6 +1647,7 @@ def diagnose_cable(readings, ring: Ring, currents=None, rotations_deg=None, posi
     # the gains after the effects found: a strong effect (a 100 mm lay) moves the base model's gains by 37 %
     correction = _calibration_summary(final["coefficients"], state["model"].n_calibration)
     base_info["max_gain_correction"] = correction.get("max_gain_correction", 0.0)
+    base_info["gain_factor_range"] = correction.get("gain_factor_range", [1.0, 1.0])
     caveats = data.notes + _caveats(data, correction, base_info, noise_source, where["overall"])
     series = {"t": data.t, "rotations": data.rotations, "levels": levels, "residual_before": base["residuals"],
               "residual_after": final["residuals"]}
@@ -1652,15 +1662,18 @@ def diagnose_cable(readings, ring: Ring, currents=None, rotations_deg=None, posi
         # (the fit's residuals are weighted by 1/σ: σ × their RMS per sensor, as the base's σ came from its own)
         sigma = data.sigma * np.sqrt(np.sum(np.asarray(final["residuals"]) ** 2, axis=(0, 2)) / max(dof, 1.0))
         # one σ for every sensor: what is left is more misfit than noise, and per sensor it weighted them 20× apart
-        sigma = np.full(m, float(np.sqrt(np.mean(sigma ** 2))))
-        given = np.full(ring.n_sensors, sigma[0])
-        words = (f"{FROM_RESIDUALS} with {', '.join(accepted)} modelled (no repeated snapshots, no calibration scatter, "
-                 f"no --noise-sigma; the fit without them held them: {float(np.sqrt(np.mean(data.sigma ** 2))):.3g} T "
-                 f"from its residuals, {float(np.sqrt(np.mean(sigma ** 2))):.3g} T from these; whatever this model "
-                 "misses is still taken for noise)")
-        return diagnose_cable(readings, ring, currents, rotations_deg, positions, calibration, given, candidates, t,
-                              n_conductors, fit_currents, refine_calibration, alpha, max_effects, validate_all,
-                              average_repeats, progress, source, _reestimated=(words, passes))
+        sigma = float(np.sqrt(np.mean(sigma ** 2)))
+        if sigma > 1e-9 * float(np.max(np.abs(data.y))):  # (noiseless readings leave no σ to take)
+            before = float(np.sqrt(np.mean(data.sigma ** 2)))
+            words = (f"{FROM_RESIDUALS}{THEN_FROM}{', '.join(accepted)} (no repeated snapshots, no calibration "
+                     f"scatter, no --noise-sigma; the last fit's residuals held them: {before:.3g} T from those, "
+                     f"{sigma:.3g} T from these; whatever this model misses is still taken for noise)")
+            return diagnose_cable(readings, ring, currents=currents, rotations_deg=rotations_deg, positions=positions,
+                                  calibration=calibration, noise_sigma=np.full(ring.n_sensors, sigma),
+                                  candidates=candidates, t=t, n_conductors=n_conductors, fit_currents=fit_currents,
+                                  refine_calibration=refine_calibration, alpha=alpha, max_effects=max_effects,
+                                  validate_all=validate_all, average_repeats=average_repeats, progress=progress,
+                                  source=source, _reestimated=(words, passes))
     return CableDiagnosis(model="cable_ring", noise_sigma=float(np.sqrt(np.mean(data.sigma ** 2))),
                           noise_source=noise_source, units="T", source=source, ranking=ranking, accepted=accepted,
                           where=where, remaining=remaining, base=base_info, series=series, caveats=caveats)
@@ -1684,6 +1697,26 @@ GAIN_MISMATCH = 0.2  # the base model moved a sensor's gain by more than this: t
 # is not accepted: no calibrated sensor is that far off (with currents fitted per snapshot a lay moves them 36 %)
 GAIN_IMPLAUSIBLE = 1.0
 CURRENT_RISE_ALPHA = 0.05  # one-sided, paired over the held-out snapshots: a rise beyond the currents' own scatter
+
+
+def _modelled(noise_source: str) -> str:
+    """The effects a re-estimated σ's model had (after THEN_FROM in its noise source)."""
+    return noise_source.split(THEN_FROM, 1)[1].split(" (", 1)[0]
+
+
+def _scale_off(factors) -> str:
+    """What the refit's gain factors (lowest, highest) did when a sensor's gain had to change ×2 or more either way
+    (1 + GAIN_IMPLAUSIBLE): "be multiplied by up to 1e+06", "be divided by up to 1000", "reach zero or turn negative";
+    "" otherwise. Readings 1000× too small had their gains cut to 0.001 and were "explained to the noise"."""
+    if not factors:
+        return ""
+    low, high = factors
+    limit = 1.0 + GAIN_IMPLAUSIBLE
+    if not low > 0:
+        return "reach zero or turn negative"
+    if high >= max(limit, 1.0 / low):
+        return f"be multiplied by up to {high:.4g}"
+    return f"be divided by up to {1.0 / low:.4g}" if 1.0 / low >= limit else ""
 
 
 def _gain_words(gain: float) -> str:
@@ -1863,8 +1896,7 @@ def _caveats(data: _Data, correction: dict, base: dict, noise_source: str, overa
                    + ("; diagnose without --fit-currents (fit_currents=False) to try it" if data.reference is not None
                       else "; give the reference currents (i0, i1, …) to try it"))
     if noise_source.startswith(FROM_RESIDUALS):
-        fitted = (f"the fit's own residuals with {noise_source.split(' with ', 1)[1].split(' modelled', 1)[0]} modelled"
-                  if noise_source.startswith(f"{FROM_RESIDUALS} with ") else
+        fitted = (f"the residuals of the fit with {_modelled(noise_source)}" if THEN_FROM in noise_source else
                   f"the base fit's own residuals, so their RMS ({overall['rms_z']:.2f} σ) is about 1 σ by construction")
         out.append(f"σ was estimated from {fitted} (no repeated snapshots, no calibration with its scatter, no "
                    "--noise-sigma): a misfit of that model as a whole is taken for noise and cannot show — only an "
@@ -2044,12 +2076,14 @@ def _text(d) -> str:
                        f"{left['rms_over_sigma']:.2f} σ: its cause is not among the candidates' effects — "
                        f"{near}{outside}; the effects named above may stand in for it")
     elif d.noise_source.startswith(FROM_RESIDUALS):  # σ fitted to these residuals: "to the noise" is circular
+        fitted = (f"the residuals of the fit with {_modelled(d.noise_source)}" if THEN_FROM in d.noise_source
+                  else "the base fit's own residuals")
         out.append("FOUND: no significant effect among the candidates — whether the ring's model fits cannot be "
-                   "judged: σ came from the base fit's own residuals (see CAVEAT)")
-    elif d.base.get("max_gain_correction", 0.0) > GAIN_IMPLAUSIBLE:  # (readings in µT passed as tesla: ×1e6)
-        out.append(f"FOUND: no significant effect among the candidates — but the sensors' gains had to change by "
-                   f"{_gain_words(d.base['max_gain_correction'])} to fit: the readings' scale is not the model's, "
-                   "and a fit at another scale says nothing of the ring (see CAVEAT)")
+                   f"judged: σ came from {fitted} (see CAVEAT)")
+    elif scale := _scale_off(d.base.get("gain_factor_range")):  # (readings in µT passed as tesla: ×1e6)
+        out.append(f"FOUND: no significant effect among the candidates — but the sensors' gains had to {scale} to "
+                   "fit: the readings' scale is not the model's, and a fit at another scale says nothing of the ring "
+                   "(see CAVEAT)")
     elif _outside_bore(d.base):  # (gains ×3 had fitted conductors 70 mm out to the noise)
         out.append("FOUND: no significant effect among the candidates — but the model's conductors lie outside "
                    "the ring's bore: its fit is not the cable's (see CAVEAT)")

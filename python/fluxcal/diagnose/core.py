@@ -720,8 +720,8 @@ def _noise(data: _Data, base: dict) -> tuple:
 
 def _lines_in_the_residuals(data: _Data, base: dict, free: np.ndarray, order: np.ndarray) -> bool:
     """Whether the lines taken out of the readings (`free`: the readings less them) are an interference, not the
-    motion: the base model's residuals of the readings less them differ no more than its residuals of the readings
-    (third differences in time order, LINE_RESIDUALS). A figure-8 waved at 2 Hz is periodic in the readings: its lines
+    motion: the third differences (in time order) of the base model's residuals of the readings less them are at most
+    LINE_RESIDUALS (1.5) times those of its residuals of the readings. A figure-8 waved at 2 Hz is periodic in the readings: its lines
     taken out, the rest of the motion (9.2, 52× the noise) had been taken for the noise, and "explains the data to the
     noise" said of a 3 % saturation missed (a blind check); the model fits the motion, so its residuals gain the lines."""
     with_lines = _difference_noise(np.asarray(base["residuals"]).reshape(len(data.m), -1)[order], 3, mixture=True)
