@@ -1030,8 +1030,9 @@ def _evaluate(cls, data: _Data, state: dict, n_candidates: int, levels) -> dict:
 def _off_the_ring(row: dict, ring: Ring) -> str:
     """Why a sensor_position_error's fitted displacement (against the other sensors) is no sensor out of place, or "":
     moved along the ring by more than half the smallest gap between neighbouring sensors of the ring diagnosed (it
-    would sit about where another sensor sits), or radially by more than half the way from the ring to the bore. A blind check's return conductor outside a ring
-    of 15 mm, recorded at one rotation, was named a sensor 6.7 mm further in and another 46° along a ring of 8."""
+    would sit about where another sensor sits), or radially by more than half the way from the ring to the bore. A
+    blind check's return conductor outside a ring of 15 mm, recorded at one rotation, was named a sensor 6.7 mm further
+    in and another 46° along a ring of 8."""
     angle, radius = row.get("position_angle"), row.get("position_radius")
     if angle is None or radius is None or ring.n_sensors < 2:
         return ""
@@ -1513,8 +1514,9 @@ def diagnose_cable(readings, ring: Ring, currents=None, rotations_deg=None, posi
     (its repeat_sigma: the noise without what its own model missed), else its scatter about its fit (its
     residual_sigma, the σ the ring's solver takes), else the base fit's residuals — which then cannot show a
     misfit of the model as a whole, and the verdict says so; when the effects found leave under OVERSTATED of that
-    σ, the diagnosis runs again with σ from their model's residuals — the base's held them —, at most REESTIMATES
-    times). candidates:
+    σ — or, none found, a candidate strong in sample, refused below it, brought the held-out current error under
+    CURRENT_ERROR_FALL of the base model's —, the diagnosis runs again with σ from their model's residuals, which the
+    base's held, at most REESTIMATES times). candidates:
     effect names (default all of CABLE_CANDIDATES). t: (K,) times (default the snapshot order). fit_currents: fit the
     currents per snapshot even when the reference is given (default: only without one; the gains' mean is
     then held at the calibration's, a common gain being a common current scale). refine_calibration:
