@@ -1654,7 +1654,6 @@ def diagnose_cable(readings, ring: Ring, currents=None, rotations_deg=None, posi
                                                             remaining["overall"]["rms_z"])
     # the gains after the effects found: a strong effect (a 100 mm lay) moves the base model's gains by 37 %
     correction = _calibration_summary(final["coefficients"], state["model"].n_calibration)
-    base_info["max_gain_correction"] = correction.get("max_gain_correction", 0.0)
     base_info["gain_factor_range"] = correction.get("gain_factor_range", [1.0, 1.0])
     caveats = data.notes + _caveats(data, correction, base_info, noise_source, where["overall"])
     series = {"t": data.t, "rotations": data.rotations, "levels": levels, "residual_before": base["residuals"],

@@ -721,9 +721,10 @@ def _noise(data: _Data, base: dict) -> tuple:
 def _lines_in_the_residuals(data: _Data, base: dict, free: np.ndarray, order: np.ndarray) -> bool:
     """Whether the lines taken out of the readings (`free`: the readings less them) are an interference, not the
     motion: the third differences (in time order) of the base model's residuals of the readings less them are at most
-    LINE_RESIDUALS (1.5) times those of its residuals of the readings. A figure-8 waved at 2 Hz is periodic in the readings: its lines
-    taken out, the rest of the motion (9.2, 52× the noise) had been taken for the noise, and "explains the data to the
-    noise" said of a 3 % saturation missed (a blind check); the model fits the motion, so its residuals gain the lines."""
+    LINE_RESIDUALS (1.5) times those of its residuals of the readings. A figure-8 waved at 2 Hz is periodic in the
+    readings: its lines taken out, the rest of the motion (9.2, 52× the noise) had been taken for the noise, and
+    "explains the data to the noise" said of a 3 % saturation missed (a blind check); the model fits the motion, so its
+    residuals gain the lines."""
     with_lines = _difference_noise(np.asarray(base["residuals"]).reshape(len(data.m), -1)[order], 3, mixture=True)
     without = np.asarray(_residuals(base, replace(data, m=free), None, slice(None))).reshape(len(data.m), -1)[order]
     return bool(_difference_noise(without, 3, mixture=True) <= LINE_RESIDUALS * with_lines)
@@ -1635,9 +1636,7 @@ def _evaluate(cls, data, model, state, sigma, n_candidates) -> dict:
     # from the whitened one, so that slow correlated noise is not taken for a systematic effect.
     e1 = np.asarray(fit["residuals"])
     lr = max(0.0, n * np.log(float(e @ e) / float(e1 @ e1)))
-    if state.get("_wander", (None,))[0] is not base:  # one design per round's base fit
-        state["_wander"] = (base, _wander_basis(data, base))
-    lr_whitened = _whitened_lr(e, e1, data, wander=state["_wander"][1])
+    lr_whitened = _whitened_lr(e, e1, data, wander=_round_wander(data, state))
     k = dims + len(profiled) + len(extras)  # a profiled parameter is fitted too: it pays like a coefficient
     # So does a time the search placed (an event's edges): in the p-value the alternatives tried pay for it
     # (Bonferroni); left out of ΔBIC, a box's free edges had won ties against a drift's law, whose time constant
@@ -1724,9 +1723,7 @@ def _step_at_ends(cls, data, ctx, state, fixed, feats, fit, e) -> tuple:
             continue
         residuals = np.asarray(step["residuals"])
         if near:
-            if state.get("_wander", (None,))[0] is not state["result"]:
-                state["_wander"] = (state["result"], _wander_basis(data, state["result"]))
-            edge = _whitened_lr(residuals, box, data, wander=state["_wander"][1])
+            edge = _whitened_lr(residuals, box, data, wander=_round_wander(data, state))
         else:
             edge = len(e) * np.log(float(residuals @ residuals) / float(box @ box))
         if edge < np.log(len(e)) and (rss is None or residuals @ residuals < rss):
@@ -2726,6 +2723,13 @@ def _whitened_lr(e0: np.ndarray, e1: np.ndarray, data: _Data, max_order: int = 3
     return max(0.0, a1.size * np.log(float(np.sum(a0 ** 2)) / float(np.sum(a1 ** 2))))
 
 
+def _round_wander(data: _Data, state: dict):
+    """The wandering offset's design (`_wander_basis`) for the round's base fit, `state["result"]`: made once per base."""
+    if state.get("_wander", (None,))[0] is not state["result"]:
+        state["_wander"] = (state["result"], _wander_basis(data, state["result"]))
+    return state["_wander"][1]
+
+
 # The sensor's offset wandering slowly in time (1/f noise of the offset, a part warming): each axis's offset a random
 # walk through WANDER_KNOTS times (piecewise linear between them, the event search's own grid), its step variance
 # chosen by maximum likelihood. The AR noise model sees only the magnitude's series, in which the turning sensor
@@ -3336,10 +3340,8 @@ def _special_case_first(winners: list, data: _Data, state: dict) -> list:
         overlap = np.linalg.svd(top["_signature"].T @ r["_signature"], compute_uv=False)
         if not (overlap.size and overlap.min() >= NESTED):
             continue
-        if state.get("_wander", (None,))[0] is not state["result"]:  # (as _evaluate: one design per round's base)
-            state["_wander"] = (state["result"], _wander_basis(data, state["result"]))
         lr = _whitened_lr(np.asarray(r["_fit"]["residuals"]), np.asarray(top["_fit"]["residuals"]), data,
-                          wander=state["_wander"][1])
+                          wander=_round_wander(data, state))
         if not stats.chi2.sf(lr, top["fitted_parameters"] - r["fitted_parameters"]) < state["alpha"]:
             r["special_case_of"] = {"effect": top["effect"], "extra_terms_lr_whitened": float(lr)}
             return [r] + [w for w in winners if w is not r]
