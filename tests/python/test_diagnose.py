@@ -1862,7 +1862,8 @@ def test_why_a_fit_cannot_be_an_effect():
     from fluxcal.sim.effects import Saturation, TemperatureScale
 
     row = {"heldout_noise_floor": 1.0, "field_error_before": 1.5, "field_error_after": 1.1, "distortion": 0.02,
-           "coefficients": [0.01, 0.02, 0.03], "standard_errors": [0.001] * 3, "significant": True}
+           "hidden_change": 0.5, "coefficients": [0.01, 0.02, 0.03], "standard_errors": [0.001] * 3,
+           "significant": True}
     assert _implausible(row, 0.05, False, TemperatureScale) is None
     flag, why, note = _implausible(dict(row, field_error_after=0.3), 0.05, False, TemperatureScale)  # below the noise held out
     assert (flag, why) == ("degenerate", "below the noise held out")
@@ -1873,6 +1874,9 @@ def test_why_a_fit_cannot_be_an_effect():
     assert "1.4× the signal" in note
     flag, why, note = _implausible(dict(row, field_error_after=1.6), 0.05, False, TemperatureScale)
     assert flag == "field_error_rises" and why and "1.5 → 1.6" in note
+    # a course the readings do not show, cancelled by the base: refused before its held-out error is read
+    flag, why, note = _implausible(dict(row, hidden_change=7.2, field_error_after=0.3), 0.05, False, TemperatureScale)
+    assert (flag, why) == ("degenerate", "changes the readings more than they vary") and "7.2× as much" in note
     assert _implausible(dict(row, field_error_after=1.6, significant=False), 0.05, False, TemperatureScale) is None
     # a sign the effect's physics forbids: a saturation that expands
     flag, why, note = _implausible(dict(row, coefficients=[-0.02], standard_errors=[0.001]), 0.05, False, Saturation)
@@ -2403,6 +2407,57 @@ def test_a_level_drive_with_nothing_withheld_names_nothing(seed):
     d = diagnose(m, t=t)
     assert d.accepted == []
     assert any("the base calibration: poor coverage" in c for c in d.caveats)
+    # its readings differ by the turning (σ 1.0–1.3 from them): along the ellipsoid, which the differences across it
+    # do not hold (0.19) — σ is the residuals', unlike a one-axis turntable's (below)
+    assert abs(d.noise_sigma / 0.1 - 1) < 0.2 and "across its ellipsoid" not in d.noise_source, d.noise_source
+
+
+def _one_axis_turntable(seed, n=1500, rate=10.0, noise=0.7):
+    """A sensor on a turntable in one mounting, turning 10°/s about an axis 25° from its z (µT, 10 Hz): its readings
+    lie on one circle, which leaves the ellipsoid undetermined. Soft iron ±10 %, hard iron 40 % of the field; white
+    noise `noise`. (t, readings, |field|)."""
+    from scipy.spatial.transform import Rotation
+
+    rng = np.random.default_rng(seed)
+    t = np.arange(n) / rate
+    tilt = np.radians(25)
+    turned = (Rotation.from_rotvec(np.outer(np.radians(10) * t, [np.sin(tilt), 0, np.cos(tilt)]))
+              * Rotation.random(random_state=rng))
+    E = rng.uniform(-0.1, 0.1, (3, 3))
+    b = rng.standard_normal(3)
+    world = np.array([25.0, 2.0, -28.0])
+    field = turned.inv().apply(world) @ (np.eye(3) + (E + E.T) / 2).T
+    return t, field + 15 * b / np.linalg.norm(b) + rng.normal(0, noise, (n, 3)), float(np.linalg.norm(world))
+
+
+@pytest.mark.parametrize("seed", [1, 3])
+def test_a_one_axis_turntable_is_judged_against_its_own_noise(seed):
+    # Readings on one circle: the base fit, undetermined, is a pancake whose rim wraps the circle, and its residuals
+    # differed by half the noise. Taken for σ (0.33–0.38 for 0.7), it had every null named coloured noise (a blind
+    # check's: a periodic interference as well). The readings' differences across the ellipsoid, where the turning
+    # does not move them, hold the noise: σ stays theirs, and the verdict says that nothing is cleared.
+    t, m, norm = _one_axis_turntable(seed)
+    d = diagnose(m, t=t, field_norm=norm)
+    assert abs(d.noise_sigma / 0.7 - 1) < 0.1, d.noise_sigma
+    assert "the readings' differences across its ellipsoid" in d.noise_source
+    assert d.accepted == []
+    assert "nothing is cleared" in next(line for line in d.text().splitlines() if line.startswith("FOUND"))
+
+
+def test_a_course_larger_than_the_readings_variation_is_no_effect():
+    # A static sensor's readings vary by its drift alone: a fit of that drift changes them by as much as they vary
+    # (1×), while one that changes them by several times as much must be cancelled by the base calibration (a blind
+    # check's one-axis turntable: a sensor-fixed interference 7.2× the readings' variation named).
+    core = importlib.import_module("fluxcal.diagnose.core")
+    rng = np.random.default_rng(0)
+    t = np.arange(600.0)
+    drift = np.outer(1 - np.exp(-t / 100), [0.5, -0.3, 0.8])
+    m = np.array([20.0, 5.0, 40.0]) + drift + 0.01 * rng.standard_normal((600, 3))
+    feats = drift[:, None, :]  # one feature: the drift's course, coefficient 1 reproduces it
+    base = np.zeros(9)
+    assert abs(core._hidden_change(m, [feats], [False], np.r_[base, 1.0], 9) - 1) < 0.05
+    assert core._hidden_change(m, [feats], [False], np.r_[base, 3.0], 9) > core.MAX_HIDDEN_CHANGE
+    assert core._hidden_change(m, [feats], [True], np.r_[base, 3.0], 9) == 0  # (the signal's: _distortion's)
 
 
 def test_correlated_noise_alone_is_said_to_may_be_all_there_is():

@@ -51,6 +51,9 @@ UNDETERMINED_FLOOR_FRACTION = 0.95
 # own signal can then stand in for the signal (an even-order candidate, tried on the QMC5883L recording,
 # reached a coefficient of 15 at the signal's scale once a drift was fitted beside it).
 MAX_DISTORTION = 1.0
+# An effect's course in time (or temperature, current) shows in the readings unless the field's course cancels it: a
+# static sensor's drift is all of their variation (1×); twice it can only be cancelled by the base calibration
+MAX_HIDDEN_CHANGE = 2.0
 NOISE_CANDIDATES = ("colored_noise", "quantization")
 CONFOUND_BIC = 10.0   # a rival within 10 of the winner's ΔBIC is not told apart (2 ln Bayes factor < 10 is short of
                       # "very strong" evidence, Kass & Raftery 1995)
@@ -233,10 +236,12 @@ class Diagnosis:
     blocks), its gaps measured on the `heldout_n_judged` held-out readings it acts on;
     every judged row's `heldout_noise_floor` is the held-out field error that white noise σ alone leaves
     through the calibration without it, and `distortion` the largest change (RMS, in units of the signal)
-    that one signal-dependent effect makes to the readings in the fit with it; a row otherwise significant
-    is not accepted, with a `note`, when its held-out field error falls below half that floor or its
+    that one signal-dependent effect makes to the readings in the fit with it, `hidden_change` the largest change (RMS
+    about its mean, in units of the readings' own variation) that one of its other effects makes; a row otherwise
+    significant is not accepted, with a `note`, when its held-out field error falls below half that floor or its
     distortion exceeds the signal (`degenerate`, which of the two: its features rebuild the readings from
-    themselves), or when its fit cancels an effect found before it (`cancels`, that effect's name: each changes the
+    themselves), when its hidden change exceeds MAX_HIDDEN_CHANGE (`degenerate` "changes the readings more than they
+    vary": the base calibration cancels it), or when its fit cancels an effect found before it (`cancels`, that effect's name: each changes the
     readings by over CANCELLING× what both do together; `degenerate` "cancels …") or turns one found before it
     unphysical by that effect's own rule (`makes_unphysical`: its `effect` and `reason`), or when its held-out field
     error rises (`field_error_rises`: its residuals fell only through its gain); a judged row's `unmet` lists the
@@ -696,6 +701,14 @@ def _noise(data: _Data, base: dict) -> tuple:
     # random tumble: 1.8–2× with the 4th order only 4 % below the 3rd — two blind checks)
     orders_differ = abs(fourth - sigma) > (1 - MOTION_DROP) * sigma
     below = from_residuals < BELOW_NOISE * sigma
+    if below and not (orders_differ or uneven) and e.shape[1] == 1 and differences is _difference_noise:
+        across = _across_the_surface(m[np.argsort(data.t, kind="stable")], base)
+        if ACROSS_HOLDS * sigma <= across <= sigma / ACROSS_HOLDS:  # (isotropic: noise; the base fit took part of it)
+            below = False
+            said_lines += (f"; the base model's residuals differ by less ({from_residuals:.4g}{unit}), yet the "
+                           f"readings' differences across its ellipsoid, where a turn does not move them, hold the "
+                           f"noise ({across:.4g}{unit}): the base fit, which its readings do not determine, has taken "
+                           "part of the noise into its shape")
     if orders_differ or sigma > UNORDERED * spread or uneven or below:
         # the readings do vary (not a static sensor, whose spread is its noise), yet jump between rows
         unordered = sigma > UNORDERED * spread and spread > 1 / UNORDERED * from_residuals
@@ -716,6 +729,32 @@ def _noise(data: _Data, base: dict) -> tuple:
                       "4th order)")
             sigma = from_residuals
     return sigma, source + said_lines, False, axes
+
+
+def _across_the_surface(m: np.ndarray, base: dict) -> float:
+    """The noise σ of the readings `m` (rows in time order) measured across the base ellipsoid: each third difference
+    (rows j … j+3) taken along the ellipsoid's normal at the mean of rows j−1 and j+4 (outside the difference, so
+    the normal does not follow its noise), clipped mean square as `_difference_noise(mixture=True)`. A steady turn, or
+    an attitude's random walk, moves the readings along the surface and leaves this small (a level drive: 0.15 of the
+    readings' own differences), while white noise has the same σ along any direction as along each axis. A single-axis turntable's
+    readings on one circle leave the ellipsoid undetermined, and the base fit, a pancake whose rim wraps the circle,
+    had residuals differing by half the noise: taken for σ, a null recording was given a periodic interference and
+    coloured noise (a blind check)."""
+    theta = np.asarray(base["parameters"])
+    b, A = theta[:3], symmetric(theta[3:9])
+    d = np.diff(m, n=3, axis=0)[1:-1]
+    g = ((m[:-5] + m[5:]) / 2 - b) @ A.T @ A.T
+    size = np.linalg.norm(g, axis=1)
+    keep = size > 0
+    if keep.sum() < 20:
+        return 0.0
+    p = np.sum(d[keep] * g[keep], axis=1) / size[keep]
+    return _difference_noise(p, 0, mixture=True) / np.sqrt(comb(6, 3))  # (order 0: p are differences already)
+
+
+ACROSS_HOLDS = 0.9  # the readings' differences across the base ellipsoid hold their σ within this ratio (either way):
+                    # isotropic, they are noise (more across it: a turn that speeds up and slows down moves them there
+                    # too — a sensor held still, then turned briskly: 6.6 across for 2.7 per axis, σ 0.39)
 
 
 def _lines_in_the_residuals(data: _Data, base: dict, free: np.ndarray, order: np.ndarray) -> bool:
@@ -1651,6 +1690,9 @@ def _evaluate(cls, data, model, state, sigma, n_candidates) -> dict:
     row["distortion"] = _distortion(ctx.signal, state["features"] + [feats],
                                     state["signal_blocks"] + [cls.signal_features], np.asarray(fit["parameters"]),
                                     12 if vector else 9)
+    row["hidden_change"] = _hidden_change(data.m, state["features"] + [feats],
+                                          state["signal_blocks"] + [cls.signal_features],
+                                          np.asarray(fit["parameters"]), 12 if vector else 9)
     if state["features"]:  # beside the effects found: does its fit cancel one of theirs, or make one unphysical?
         other = _cancelling(fit, state["features"] + [feats], vector, new=1)
         if other is not None:
@@ -1804,6 +1846,11 @@ def _implausible(row: dict, sigma: float, sigma_bound: bool, cls, vector: bool =
     """Why a candidate's fit cannot be an effect (`cls`'s) whatever its evidence, as (the row's flag, its value,
     a note), or None. `undetermined`: the base calibration's data leave some of it undetermined (poor coverage)."""
     floor, before, after = row["heldout_noise_floor"], row["field_error_before"], row["field_error_after"]
+    if row["hidden_change"] > MAX_HIDDEN_CHANGE:  # (first: such a fit's held-out error is no evidence either way)
+        return "degenerate", "changes the readings more than they vary", (
+            f"not accepted: its fit changes the readings by {row['hidden_change']:.3g}× as much as they vary (RMS about "
+            "their mean), which they do not show: the base calibration takes the change back (the two cancel — the "
+            "data determine their sum, not each; a base its readings do not determine, poor coverage, lets them)")
     # (a σ that holds the model's misses is no floor: a right model goes below it)
     if (not sigma_bound and undetermined and cls.regime == "orientation"  # (features of the signal alone)
             and after < UNDETERMINED_FLOOR_FRACTION * floor):
@@ -1854,6 +1901,24 @@ def _distortion(signal: np.ndarray, blocks: list, signal_dependent: list, parame
         p = feats.shape[1]
         if dependent:
             out = max(out, float(np.linalg.norm(np.einsum("p,npk->nk", parameters[lo:lo + p], feats)) / size))
+        lo += p
+    return out
+
+
+def _hidden_change(readings: np.ndarray, blocks: list, signal_dependent: list, parameters: np.ndarray,
+                   lo: int) -> float:
+    """The largest change that one block of a fit not taken from the signal (a course in time, temperature or
+    current) makes to the readings, RMS about its mean, in units of the readings' own RMS about theirs (0 without such
+    blocks). The readings hold the field's course and each effect's: an effect's course larger than theirs is cancelled
+    by the field's — by the base calibration, fitted to take it back. (A single-axis turntable's null recording: a
+    sensor-fixed interference at the turning's frequency, 7.2× the readings' variation, with a base ellipsoid flattened
+    to cancel it, was named — a blind check.)"""
+    out, size = 0.0, np.linalg.norm(readings - readings.mean(axis=0))
+    for feats, dependent in zip(blocks, signal_dependent):
+        p = feats.shape[1]
+        if not dependent and size > 0:
+            change = np.einsum("p,npk->nk", parameters[lo:lo + p], feats)
+            out = max(out, float(np.linalg.norm(change - change.mean(axis=0)) / size))
         lo += p
     return out
 
@@ -3704,8 +3769,8 @@ def _overstated_by(rows: dict, names: dict, sigma: float) -> tuple | None:
     best = None
     for name, r in rows.items():
         if not (getattr(names.get(name), "exogenous", False) and r.get("field_error_after") is not None
-                and r.get("heldout_noise_floor")):
-            continue
+                and r.get("heldout_noise_floor")) or r.get("degenerate") not in (None, "below the noise held out"):
+            continue  # (a fit refused as degenerate otherwise — one the base cancels — measures no noise)
         unmet = set(r.get("unmet") or ())
         below = r.get("degenerate") == "below the noise held out" or (
             unmet == {"heldout_gain"} and not r.get("heldout_gap_before"))
