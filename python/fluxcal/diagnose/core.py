@@ -241,10 +241,10 @@ class Diagnosis:
     significant is not accepted, with a `note`, when its held-out field error falls below half that floor or its
     distortion exceeds the signal (`degenerate`, which of the two: its features rebuild the readings from
     themselves), when its hidden change exceeds MAX_HIDDEN_CHANGE (`degenerate` "changes the readings more than they
-    vary": the base calibration cancels it), or when its fit cancels an effect found before it (`cancels`, that effect's name: each changes the
-    readings by over CANCELLING× what both do together; `degenerate` "cancels …") or turns one found before it
-    unphysical by that effect's own rule (`makes_unphysical`: its `effect` and `reason`), or when its held-out field
-    error rises (`field_error_rises`: its residuals fell only through its gain); a judged row's `unmet` lists the
+    vary": the base calibration cancels it), or when its fit cancels an effect found before it (`cancels`, that
+    effect's name: each changes the readings by over CANCELLING× what both do together; `degenerate` "cancels …") or
+    turns one found before it unphysical by that effect's own rule (`makes_unphysical`: its `effect` and `reason`), or
+    when its held-out field error rises (`field_error_rises`: its residuals fell only through its gain); a judged row's `unmet` lists the
     acceptance tests it fails ("in_sample", "bic", "heldout_p", "heldout_gain", "heldout_resolved" — beside an
     effect already found, a held-out fall within what the fits' parameter noise makes —, "pruned"; empty for an
     accepted one): a row that fails only the held-out ones has
@@ -736,10 +736,10 @@ def _across_the_surface(m: np.ndarray, base: dict) -> float:
     (rows j … j+3) taken along the ellipsoid's normal at the mean of rows j−1 and j+4 (outside the difference, so
     the normal does not follow its noise), clipped mean square as `_difference_noise(mixture=True)`. A steady turn, or
     an attitude's random walk, moves the readings along the surface and leaves this small (a level drive: 0.15 of the
-    readings' own differences), while white noise has the same σ along any direction as along each axis. A single-axis turntable's
-    readings on one circle leave the ellipsoid undetermined, and the base fit, a pancake whose rim wraps the circle,
-    had residuals differing by half the noise: taken for σ, a null recording was given a periodic interference and
-    coloured noise (a blind check)."""
+    readings' own differences), while white noise has the same σ along any direction as along each axis. A one-axis
+    turntable's readings on one circle leave the ellipsoid undetermined, and the base fit, a pancake whose rim wraps
+    the circle, had residuals differing by half the noise: taken for σ, a null recording was given a periodic
+    interference and coloured noise (a blind check)."""
     theta = np.asarray(base["parameters"])
     b, A = theta[:3], symmetric(theta[3:9])
     d = np.diff(m, n=3, axis=0)[1:-1]
