@@ -2458,6 +2458,8 @@ def test_a_course_larger_than_the_readings_variation_is_no_effect():
     assert abs(core._hidden_change(m, [feats], [False], np.r_[base, 1.0], 9) - 1) < 0.05
     assert core._hidden_change(m, [feats], [False], np.r_[base, 3.0], 9) > core.MAX_HIDDEN_CHANGE
     assert core._hidden_change(m, [feats], [True], np.r_[base, 3.0], 9) == 0  # (the signal's: _distortion's)
+    # two such courses that cancel each other are no change the base takes back (_cancelling's)
+    assert core._hidden_change(m, [feats, feats], [False, False], np.r_[base, 3.0, -2.0], 9) < 1.05
 
 
 def test_correlated_noise_alone_is_said_to_may_be_all_there_is():

@@ -51,7 +51,7 @@ UNDETERMINED_FLOOR_FRACTION = 0.95
 # own signal can then stand in for the signal (an even-order candidate, tried on the QMC5883L recording,
 # reached a coefficient of 15 at the signal's scale once a drift was fitted beside it).
 MAX_DISTORTION = 1.0
-# An effect's course in time (or temperature, current) shows in the readings unless the field's course cancels it: a
+# Effects' course in time (or temperature, current) shows in the readings unless the field's course cancels it: a
 # static sensor's drift is all of their variation (1×); twice it can only be cancelled by the base calibration
 MAX_HIDDEN_CHANGE = 2.0
 NOISE_CANDIDATES = ("colored_noise", "quantization")
@@ -236,8 +236,8 @@ class Diagnosis:
     blocks), its gaps measured on the `heldout_n_judged` held-out readings it acts on;
     every judged row's `heldout_noise_floor` is the held-out field error that white noise σ alone leaves
     through the calibration without it, and `distortion` the largest change (RMS, in units of the signal)
-    that one signal-dependent effect makes to the readings in the fit with it, `hidden_change` the largest change (RMS
-    about its mean, in units of the readings' own variation) that one of its other effects makes; a row otherwise
+    that one signal-dependent effect makes to the readings in the fit with it, `hidden_change` the change (RMS about
+    its mean, in units of the readings' own variation) that its other effects make together; a row otherwise
     significant is not accepted, with a `note`, when its held-out field error falls below half that floor or its
     distortion exceeds the signal (`degenerate`, which of the two: its features rebuild the readings from
     themselves), when its hidden change exceeds MAX_HIDDEN_CHANGE (`degenerate` "changes the readings more than they
@@ -1907,20 +1907,20 @@ def _distortion(signal: np.ndarray, blocks: list, signal_dependent: list, parame
 
 def _hidden_change(readings: np.ndarray, blocks: list, signal_dependent: list, parameters: np.ndarray,
                    lo: int) -> float:
-    """The largest change that one block of a fit not taken from the signal (a course in time, temperature or
-    current) makes to the readings, RMS about its mean, in units of the readings' own RMS about theirs (0 without such
-    blocks). The readings hold the field's course and each effect's: an effect's course larger than theirs is cancelled
-    by the field's — by the base calibration, fitted to take it back. (A single-axis turntable's null recording: a
-    sensor-fixed interference at the turning's frequency, 7.2× the readings' variation, with a base ellipsoid flattened
-    to cancel it, was named — a blind check.)"""
-    out, size = 0.0, np.linalg.norm(readings - readings.mean(axis=0))
+    """The change that the blocks of a fit not built from its own signal (`signal_dependent` False: a course in time,
+    temperature or current, or a gain or rotation of the signal that follows one) make together to the readings, RMS
+    about its mean, in units of the readings' own RMS about theirs (0 without such blocks). The readings hold the
+    field's course and the effects': effects whose course is larger than theirs are cancelled by the field's — by the
+    base calibration, fitted to take it back. (Together: two such blocks that cancel each other are `_cancelling`'s.)
+    A one-axis turntable's null recording: a sensor-fixed interference at the turning's frequency, 7.2× the readings'
+    variation, with a base ellipsoid flattened to cancel it, had been named (a blind check)."""
+    change, size = np.zeros_like(readings), np.linalg.norm(readings - readings.mean(axis=0))
     for feats, dependent in zip(blocks, signal_dependent):
         p = feats.shape[1]
-        if not dependent and size > 0:
-            change = np.einsum("p,npk->nk", parameters[lo:lo + p], feats)
-            out = max(out, float(np.linalg.norm(change - change.mean(axis=0)) / size))
+        if not dependent:
+            change += np.einsum("p,npk->nk", parameters[lo:lo + p], feats)
         lo += p
-    return out
+    return float(np.linalg.norm(change - change.mean(axis=0)) / size) if size > 0 else 0.0
 
 
 def _non_affine(feats: np.ndarray, signal: np.ndarray) -> np.ndarray:
@@ -3770,7 +3770,8 @@ def _overstated_by(rows: dict, names: dict, sigma: float) -> tuple | None:
     for name, r in rows.items():
         if not (getattr(names.get(name), "exogenous", False) and r.get("field_error_after") is not None
                 and r.get("heldout_noise_floor")) or r.get("degenerate") not in (None, "below the noise held out"):
-            continue  # (a fit refused as degenerate otherwise — one the base cancels — measures no noise)
+            continue  # (a fit refused as degenerate otherwise — cancelled by the base or by an effect found, or
+            # making one unphysical — measures no noise)
         unmet = set(r.get("unmet") or ())
         below = r.get("degenerate") == "below the noise held out" or (
             unmet == {"heldout_gain"} and not r.get("heldout_gap_before"))
