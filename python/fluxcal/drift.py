@@ -1267,7 +1267,8 @@ def thermal_lag(model: "DriftModel", compensated, temp, t=None, temp_outside=Non
     "share_alone", "said", "hours", "step": {"row", "t", "at_s", "size"} where a step at one time fits better than a
     trend (per_hour then 0), else None} or None, "fits_too", "one_way": {"heating", "per_minute_of_lag"} or None} — p and
     share of a named feature beside the others named, of the rest alone — or None when it cannot be judged (no
-    temperature change, too few samples, a regressor that is not f(T), a flat drift model)."""
+    temperature change, too few samples, a regressor that is not f(T), a flat drift model on a log that never turns
+    back); beside a flat drift model only a trend in time is judged (no lag nor dead band shows through a constant)."""
     w = np.asarray(compensated, dtype=float)
     temp = np.asarray(temp, dtype=float)
     n = w.size
@@ -1278,6 +1279,7 @@ def thermal_lag(model: "DriftModel", compensated, temp, t=None, temp_outside=Non
     if not step > 0:  # (a time column that does not increase: the samples taken as evenly spaced)
         time, step = np.arange(n, dtype=float), 1.0
     rate = _temperature_rate(temp, time, breaks)
+    temp = _held_on_edges(temp, rate, model)
     f = model.evaluate(temp, outside="nan")
     ok = np.isfinite(f) & np.isfinite(w)
     if ok.sum() < 50 or not np.any(rate[ok] != 0):
@@ -1285,17 +1287,18 @@ def thermal_lag(model: "DriftModel", compensated, temp, t=None, temp_outside=Non
     taus = step * np.geomspace(2.0, max(4.0, 0.2 * n), 24)
     lagged = [model.evaluate(np.clip(_lagged(temp, step, tau, breaks), temp.min(), temp.max()), outside="nan") - f
               for tau in taus]
-    if not np.any(np.abs(lagged[-1][ok]) > 0):
-        return None  # a flat drift model: no lag can show
+    # a flat drift model: no lag nor dead band can show, but a trend in time can (a blind check's field log aged by
+    # 1.9 A, 37× the noise, with f a constant beside it, had nothing said and no thermal_lag in the report)
+    flat = not np.any(np.abs(lagged[-1][ok]) > 0)
     branch = temperature_branch(temp)
     settled = ok & (np.abs(rate) <= SETTLED_RATE * np.percentile(np.abs(rate[ok]), 95))
     holds = bool(settled.sum() >= 0.1 * ok.sum())  # without holds, on ramps of one rate, lag and hysteresis look alike
     maxlags = int(4 * (n / 100) ** (2 / 9))
-    grids, scales = {"lag": (lagged, False)}, {"lag": taus}  # name → (columns over its grid, either sign)
-    out = {"holds": holds, "hysteresis": None, "ageing": None, "one_way": None,
-           "seconds": t is not None}  # (without times, τ is in samples)
+    grids, scales = ({}, {}) if flat else ({"lag": (lagged, False)}, {"lag": taus})  # name → (columns, either sign)
+    out = {"holds": holds, "hysteresis": None, "ageing": None, "one_way": None, "tau_s": 0.0, "p_value": 1.0,
+           "share": 0.0, "share_alone": 0.0, "said": False, "seconds": t is not None}  # (without times, τ in samples)
     both_ways = _both_ways(ok, branch, temp)
-    if both_ways is not None:
+    if both_ways is not None and not flat:
         # hysteresis as a dead band of half-width r °C: the element's state a play operator of T (it moves only once
         # T has pushed it r away), exact through f rather than r·f'(T) (a 2 °C band on the steep range was off 25 %);
         # or the band in the other sense, the thermometer's (r < 0: _banded)
@@ -1327,6 +1330,8 @@ def thermal_lag(model: "DriftModel", compensated, temp, t=None, temp_outside=Non
             c[ok] -= q @ (q.T @ c[ok])
         grids["ageing"], scales["ageing"] = (beyond, True), [1.0] * len(beyond)
         out["ageing"] = {"hours": float(hours[-1])}
+    if not grids:
+        return None  # (a flat drift model on a log that never turned back: nothing it can show)
     # a lag, a dead band and a trend in time can each stand in for another (on holds not much longer than τ a lag
     # looks like a dead band; heating first and cooling later, a dead band like a trend): named one at a time,
     # each beside those named before, and their sizes fitted together
@@ -1392,6 +1397,28 @@ def thermal_lag(model: "DriftModel", compensated, temp, t=None, temp_outside=Non
         minute = model.evaluate(np.clip(_lagged(temp, step, 60.0, breaks), temp.min(), temp.max()), outside="nan") - f
         out["one_way"] = {"heating": turned == {1},  # what a minute's lag does on the ramps: the fit's shift
                           "per_minute_of_lag": float(np.percentile(np.abs(minute[ramps]), 95)) if ramps.any() else 0.0}
+    return out
+
+
+def _held_on_edges(temp: np.ndarray, rate: np.ndarray, model: "DriftModel") -> np.ndarray:
+    """The temperatures with a hold on an inner edge of the model's ranges taken as the edge itself: its settled rows
+    (|rate| within SETTLED_RATE of the log's brisk one) within the thermometer's noise of the edge (4 σ of its third
+    differences, and a step of its resolution). The thermometer's noise crosses the edge there back and forth and
+    f(T) jumps between the two ranges' polynomials with it, which a lag's or a dead band's f(T′) − f(T) took up: a
+    blind check's holds at 0 and 30 °C (seed 001's own levels) had a ±0.02 °C "hysteresis" named beside a lag."""
+    edges = np.array([float(seg["range"][0]) for seg in model.segments[1:]])
+    finite = np.isfinite(temp) & np.isfinite(rate)
+    if not edges.size or finite.sum() < 20:
+        return temp
+    d = np.diff(temp[finite], n=3)
+    noise = 1.4826 * float(np.median(np.abs(d - np.median(d)))) / np.sqrt(20.0)
+    steps = np.abs(np.diff(temp[finite]))
+    resolution = float(steps[steps > 0].min()) if np.any(steps > 0) else 0.0
+    brisk = float(np.percentile(np.abs(rate[finite]), 95))
+    settled = finite & (np.abs(rate) <= SETTLED_RATE * brisk)
+    out = temp.copy()
+    for edge in edges:
+        out[settled & (np.abs(temp - edge) <= 4.0 * noise + resolution)] = edge
     return out
 
 
@@ -1608,9 +1635,9 @@ def _refitted_without_trend(w: np.ndarray, temp: np.ndarray, temp_outside, t, la
     moved = first.evaluate(levels, outside="nan") - model.evaluate(levels, outside="nan")
     moved = moved[np.isfinite(moved)]
     # (the refit's own judgement, or none where the model came out flat without the trend)
-    history = report.setdefault("thermal_lag", {"said": False, "tau_s": 0.0, "p_value": 1.0, "share": 0.0,
-                                                "share_alone": 0.0, "holds": False, "hysteresis": None,
-                                                "one_way": None, "ageing": None})
+    history = report["thermal_lag"] = report.get("thermal_lag") or {
+        "said": False, "tau_s": 0.0, "p_value": 1.0, "share": 0.0, "share_alone": 0.0, "holds": False,
+        "hysteresis": None, "one_way": None, "ageing": None}
     history["ageing"] = {**ageing, "taken_out": True, "model_moved": float(np.ptp(moved)) if moved.size else 0.0}
     model.settings["ageing"] = {"per_hour": float(ageing["per_hour"]), "hours": float(ageing["hours"]),
                                 "step": ageing.get("step")}
@@ -1678,7 +1705,9 @@ def fit_pipeline(zero_bias, temp, temp_outside=None, regressor: str = "temp", br
     Where thermal_lag names ageing (a trend in time beyond the temperature), the whole fit is made again on the
     zero bias with that trend taken out, as the device was at the end of the log (model.settings["ageing"]): fitted
     beside it, f(T) took part of it (2 mA/h over a 19 h cycle left f 10× further off than the noise alone) and chose
-    its orders on it; the report's series are then of the zero bias without the trend.
+    its orders on it; the report's series are then of the zero bias without the trend. report["thermal_lag"] is
+    thermal_lag's finding (None when the log's history cannot be judged) — a trend in time is judged beside a flat
+    drift model too.
     Returns (DriftModel, report)."""
     if drift_input not in DRIFT_INPUTS:
         raise ValueError(f"drift_input: {drift_input!r} is not one of {', '.join(DRIFT_INPUTS)}")
@@ -1714,7 +1743,7 @@ def fit_pipeline(zero_bias, temp, temp_outside=None, regressor: str = "temp", br
     drift_first = first.evaluate(temp, temp_outside)
     # no block judged across a gap, nor where the temperature crosses a breakpoint: the model steps there (a hold
     # on 30 °C with a thermometer's 0.01 °C noise had 288 "spikes", its crossings)
-    ranges = np.searchsorted([s["range"][0] for s in first.segments[1:]], temp)
+    ranges = range_index(first.segments, temp)  # (an edge's own value belongs to the range above, as evaluated)
     crossings = np.flatnonzero(np.diff(ranges)) + 1
     spike_rows, spike_sigmas = (zero_bias_spikes(w - drift_first, breaks=breaks, steps=crossings.tolist())
                                 if spikes != "off" else (np.zeros(0, dtype=int), np.zeros(0)))
@@ -1822,8 +1851,8 @@ def fit_pipeline(zero_bias, temp, temp_outside=None, regressor: str = "temp", br
             continuous=continuous, ar_max_order=ar_max_order, q=q, r=r, steady_state=steady_state,
             subseries=subseries, rated=rated, accuracy_class=accuracy_class, whiten=whiten,
             drift_input=drift_input, spikes=spikes, _frozen=_frozen))
+    report["thermal_lag"] = lag  # (None when the log's history cannot be judged: the key is there either way)
     if lag is not None:
-        report["thermal_lag"] = lag
         report["warnings"] += history_warnings(lag)
         if _detrended is not None:  # (the trend taken out: named and sized in the first fit, said by the caller)
             lag["ageing"] = _detrended
