@@ -2128,7 +2128,27 @@ def cmd_drift(args) -> int:
             f"{drift.drift_span(compensated[known], temp[known]):.4g}" if known.any() else
             "every value NaN: no sample compensated")
     print(f"wrote {args.output}: {len(rec)} rows, column{'s' if len(names) > 1 else ''} {', '.join(names)} ({span})")
+    if not fitted_unit and not unit and known.any():
+        raw = rec.columns[column][known]
+        factor = _unit_factor(raw, raw - compensated[known], temp[known])  # (the model's f: what it took off)
+        if factor:
+            print(f"warning: {column} in {args.file} drifts over its temperatures {factor:.3g}× as much as the drift "
+                  f"model {args.model} does there, and neither file states a unit: one in A and the other in mA? "
+                  "(the compensation is then off by 1000×; state the unit in both files)")
     return 0
+
+
+def _unit_factor(values, model_drift, temp) -> float | None:
+    """How many times the drift of `values` over temperature (per-level means) is the model's over the same
+    temperatures, when that is an A/mA factor (300–3000 either way: a blind check's mA log compensated by an A model,
+    neither stating a unit, had "drift span 594.5 -> 593.9" printed and nothing else), else None."""
+    from . import drift
+
+    ours, its = drift.drift_span(values, temp), drift.drift_span(model_drift, temp)
+    if not (ours > 0 and its > 0):
+        return None
+    factor = ours / its
+    return factor if 300.0 <= max(factor, 1.0 / factor) <= 3000.0 else None
 
 
 def _print_diagnosis(result, args, limits=None) -> int:

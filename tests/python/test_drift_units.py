@@ -163,6 +163,21 @@ def test_the_zero_bias_unit_goes_with_the_model_and_another_is_refused(tmp_path,
     assert "Unit: f and W - f are in mA" in (tmp_path / "d.h").read_text()
 
 
+def test_a_zero_bias_a_thousand_times_the_models_drift_is_doubted_when_no_unit_is_stated(tmp_path, capsys, foct):
+    """Neither file states a unit: an A model applied to a log in mA printed "drift span 594.5 -> 593.9" and nothing
+    else (a blind check). Its zero bias drifting ~1000× as much as the model over the same temperatures is said."""
+    def log(name, scale):
+        return write_csv(tmp_path / name, {"t": foct["t"], "zero_bias": foct["zero_bias"] * scale,
+                                           "temp": foct["temp"]})
+    model = tmp_path / "m.json"
+    assert cli.main(["drift", "fit", str(log("a.csv", 1.0)), "-o", str(model)]) == 0
+    capsys.readouterr()
+    for name, scale, said in (("same.csv", 1.0, False), ("ma.csv", 1e3, True)):
+        assert cli.main(["drift", "apply", str(model), str(log(name, scale)), "-o", str(tmp_path / "o.csv")]) == 0
+        out = capsys.readouterr().out
+        assert ("neither file states a unit: one in A and the other in mA?" in out) == said, out
+
+
 def test_drift_apply_names_the_line_of_a_difference_its_model_never_saw(tmp_path, capsys, foct):
     """A difference-regressor model refuses an inside–outside difference beyond what its range was fitted over (a
     blind check's −1.32 A at 20 °C, fitted over −1 … 7 °C, "in range"): drift apply names the file line."""
