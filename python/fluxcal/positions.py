@@ -440,6 +440,9 @@ def calibrate(mag, acc, field_ned, frame: str = "ned", preset=None, attitudes=No
     fr = _frame(frame)
     U = as_samples(mag, "mag")
     sf = _specific_force(acc, acc_measures)
+    if len(sf) != len(U):  # (before the refits that try the field's mistakes, which index both by position)
+        raise ValueError(f"acc: {len(sf)} rows for the {len(U)} positions of mag: give one accelerometer reading per "
+                         "position, in the same order")
     nominal = _nominal(len(U), frame, preset, attitudes, rotations)
     options = _core.PositionsOptions()
     options.frame = fr

@@ -279,6 +279,9 @@ def test_bad_input_messages():
         fp.calibrate(s.outputs, moving, PAPER_FIELD, frame="nue", preset="twelve")
     with pytest.raises(ValueError, match="reference field is missing"):
         fp.calibrate(s.outputs, s.acc_raw, None, frame="nue", preset="twelve")
+    # one accelerometer row short (a blind check: the refits that try the field's mistakes had raised IndexError)
+    with pytest.raises(ValueError, match=r"acc: 11 rows for the 12 positions of mag"):
+        fp.calibrate(s.outputs, s.acc_raw[:11], PAPER_FIELD, frame="nue", preset="twelve")
     with pytest.raises(ValueError, match="gravity .down."):
         fp.calibrate(s.outputs, -s.acc_raw, PAPER_FIELD, frame="nue", preset="twelve")
     with pytest.raises(ValueError, match="frame"):
