@@ -406,7 +406,7 @@ def _nominal(n: int, frame: str, preset, attitudes, rotations) -> np.ndarray:
 def calibrate(mag, acc, field_ned, frame: str = "ned", preset=None, attitudes=None, rotations=None,
               estimate_yaw=None, estimate_inclination: bool = False, acc_measures: str = "specific_force",
               units: str = "", gravity: float = 0.0, gravity_tolerance: float = 0.05, field_units: str = "",
-              position_labels=None, **settings) -> PositionsResult:
+              position_labels=None, _judge_misfit: bool = True, **settings) -> PositionsResult:
     """Calibrate U = U0 + K H from N static positions.
 
     mag: N×3 outputs; acc: N×3 calibrated accelerometer readings in the same body axes
@@ -499,6 +499,16 @@ def calibrate(mag, acc, field_ned, frame: str = "ned", preset=None, attitudes=No
                           f" {field_units}" if field_units else "")
     if gross:
         res.summary["warnings"] = _misfit_first(res, gross, res.summary["warnings"])
+    sigma = float(options.output_sigma)
+    if sigma > 0 and _judge_misfit:  # (`fluxcal positions` judges it against the repeats' scatter itself)
+        labels = list(position_labels) if position_labels is not None else list(range(1, len(U) + 1))
+        misfit = _misfit_warnings(res, f, {"mag_sigma": sigma, "mag_sigma_per_position": sigma,
+                                           "tilt_sigma_per_position": 0.0, "worst_tilt": None,
+                                           "moved_limit_deg": None, "given": True, "labels": labels})
+        if misfit:  # (the residual against the σ given: a heading 3° off had K 2.5 % off, said by nothing — a blind
+            # check; the command line, with the same σ, said "109x what the noise σ given allows")
+            kept = [w for w in res.summary["warnings"] if not w.startswith(GROSS_SAID)]
+            res.summary["warnings"] = _misfit_first(res, misfit[0], kept + misfit[1:])
     return res
 
 
@@ -1491,7 +1501,7 @@ def run_cli(args, out=None) -> int:
                         estimate_inclination=args.estimate_inclination, units=units, acc_measures=args.acc_measures,
                         tilt_sigma_deg=args.tilt_sigma, field_units="nT" if args.lat is not None else "",
                         position_labels=[_label(u) for u in uniq] if ids is not None else None,
-                        **({"output_sigma": sigma_out} if sigma_out else {}))
+                        _judge_misfit=False, **({"output_sigma": sigma_out} if sigma_out else {}))
     except ValueError as exc:
         raise ValueError(_in_file_terms(str(exc), args.file, rec, uniq if ids is not None else None)) from None
     if scatter is None and getattr(args, "noise_sigma", 0.0):  # one row per position: the σ given is the yardstick

@@ -808,6 +808,19 @@ def test_tilt_prior_without_the_output_noise_says_its_errors_are_loose():
     assert not any("estimated from the" in w for w in given.summary["warnings"])
 
 
+def test_a_misfit_beyond_the_output_noise_given_is_said_in_python_too():
+    """Headings 3° off their nominal attitudes: K came out 1.3–2.5 % off with no word from Python, though the noise σ
+    was given (a blind check; the command line, with the same σ, said 109× what it allows). At the nominal attitudes
+    the σ given finds nothing."""
+    clean = _twelve(np.random.default_rng(5), tilt=0.0, noise=0.45)
+    res = fp.calibrate(clean.outputs, clean.acc_raw, PAPER_FIELD, frame="nue", preset="twelve", output_sigma=0.45)
+    assert not any(w.startswith("the model does not fit") for w in res.summary["warnings"]), res.summary["warnings"]
+    turned = _twelve(np.random.default_rng(5), tilt=0.0, yaw=3.0, noise=0.45)
+    res = fp.calibrate(turned.outputs, turned.acc_raw, PAPER_FIELD, frame="nue", preset="twelve", output_sigma=0.45)
+    said = res.summary["warnings"][0]
+    assert said.startswith("the model does not fit") and "what the noise σ given allows" in said, res.summary["warnings"]
+
+
 def test_cli_positions_takes_named_positions(tmp_path):
     """Positions named P01…P12 (a blind check: the column was dropped as text, and the error said "120 readings but
     … 12 positions"): read by their number, logged in any order; names without numbers by first appearance."""
