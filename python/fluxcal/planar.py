@@ -506,6 +506,12 @@ def _plane(m: np.ndarray, axes, axis_tolerance: float, planar_ratio: float, warn
         basis[0, i] = basis[1, j] = 1.0
         k_given = 3 - i - j
         tilt_given = float(np.degrees(np.arccos(min(1.0, abs(normal[k_given])))))
+        if k != k_given and tilt_given > 45.0:  # (the readings turn in another pair's plane: no heading in this one)
+            pair = "".join(AXES[a] for a in range(3) if a != k)
+            raise ValueError(f"axes: the readings turn in the {pair} plane (its normal is {tilt:.0f}° from "
+                             f"axis {AXES[k]}, {tilt_given:.0f}° from axis {AXES[k_given]}), not in the "
+                             f"{AXES[i]}{AXES[j]} plane asked for: give axes=\"{pair}\" (--planar {pair}), or none "
+                             "to find the plane from the readings")
         if tilt_given > axis_tolerance:
             warnings.append(f"the readings' plane is tilted {tilt_given:.1f}° from axis {AXES[k_given]} (axes "
                             f"{AXES[i]}{AXES[j]} were asked for): axes {AXES[i]}, {AXES[j]} are calibrated as they "

@@ -345,6 +345,11 @@ def test_tilted_mounting_is_calibrated_in_the_fitted_plane():
     assert xy.summary["plane_axes"] == ["x", "y"]
     assert any("tilted" in w and "axes xy were asked for" in w for w in xy.summary["warnings"])
     assert heading_rms(xy.apply(m)[:, :2], truth["psi"]) < 1.5 * floor / np.cos(np.radians(20))
+    # readings that turn in the x, z plane, forced into x, y: no heading there (a blind check had "turned through
+    # 353°", a tilt of 88.5° and axes x, y "calibrated as they are")
+    with pytest.raises(ValueError, match=r"the readings turn in the xz plane .* not in the xy plane asked for: give "
+                                         r"axes=\"xz\" \(--planar xz\)"):
+        calibrate_planar(m[:, [0, 2, 1]], field_norm=H, axes="xy")
 
 
 def test_a_tilt_while_turning_is_said():
