@@ -343,6 +343,12 @@ def calibrate_planar(samples, field_norm=None, axes=None, units: str | None = No
     cal.summary["offset_split"] = split
     if offset_moved(cal.summary):  # (kept with the split too: export-c says it, whatever its wording)
         split["said"] = _moved_words(split, names, units)
+        if any(w.startswith(LEAVES_PLANE) for w in cal.summary["warnings"]):
+            # a mean pitch or roll that differs between the parts shifts the plane's readings as an offset does
+            # (a blind check: 2.3° of wander with a constant hard iron was said "a load placed or removed")
+            split["said"] += (" — or the tilt said above: a pitch or roll whose mean differs between the two parts "
+                              "moves the readings in the plane as an offset does (by the field along the normal "
+                              "times the tilt), so the move may be the tilt's")
         cal.summary["warnings"].append(split["said"])
     return cal
 
@@ -963,6 +969,9 @@ def _semi_axes_mean(fit: dict) -> float:
     return float(np.mean(fit["targets"]) / np.sqrt(abs(np.linalg.det(fit["A"]))))
 
 
+LEAVES_PLANE = "the readings leave the turning plane by"  # (how _out_of_plane's warning starts)
+
+
 def _out_of_plane(m: np.ndarray, plane: dict, fit: dict, planar_ratio: float) -> str | None:
     """A warning when N×3 readings leave the turning plane: thicker than calibrate's planar limit (and the 3-D fit
     could not determine them, or _refuse_if_3d would have refused), or a radial misfit that follows the
@@ -993,7 +1002,7 @@ def _out_of_plane(m: np.ndarray, plane: dict, fit: dict, planar_ratio: float) ->
     if tilted:
         why.append(f"the radial misfit follows the deviation from the plane ({100 * share:.0f} % of its variance, "
                    f"slope {beta[1]:.2g}: the field along the normal over the horizontal one, as a tilt makes it)")
-    return (f"the readings leave the turning plane by {spread:.3g} RMS ({'; '.join(why)}): the sensor tilts while "
+    return (f"{LEAVES_PLANE} {spread:.3g} RMS ({'; '.join(why)}): the sensor tilts while "
             f"it turns (roll, pitch: about {tilt:.2g}° RMS) — through a tilt the field along the normal moves the "
             "plane's axes, which the planar calibration cannot remove, and the headings carry it. Level the sensor "
             "(a gimbal; an accelerometer's tilt compensation), calibrate from the level stretches, or tumble it for a "
