@@ -73,6 +73,12 @@ MIN_READINGS = 2 * PARAMETERS
 # parameters on an arc, `_arc_inflation`), and the headings outside the arc are extrapolated from the fitted
 # ellipse, not measured. A vehicle can always drive one circle: calibration needs the whole compass rose.
 MIN_ARC_DEG = 180.0
+# A plane fitted to readings whose two smaller spreads are not this many times apart is not the turn's: a blind check's
+# 90° turns with 4° of pitch and roll (spreads 10.4, 2.0 and 1.0) had been fitted a plane tilted 20° and "turned
+# through 271°" in it (a full circle's are ~1 apart from the widest and ≥ 10× the thinnest)
+PLANE_DEFINED = 3.0
+SHORT_ARC_BOW = 0.35  # ... when the readings' middle spread is under this share of their widest (an arc, not a circle
+                      # whose tilt wanders widely: that one is fitted, and its tilt said)
 # A parameter counts as determined when its standard error is below this fraction of its scale (the mean radius
 # for the offset, ‖A‖_F/√2 for matrix entries) — fluxcal.refine's determined_tolerance.
 DETERMINED = 0.01
@@ -531,6 +537,15 @@ def _plane(m: np.ndarray, axes, axis_tolerance: float, planar_ratio: float, warn
         basis[0, i] = basis[1, j] = 1.0
         names, normal_name = (AXES[i], AXES[j]), AXES[k]
     else:
+        across = float(np.sqrt(lam[1] / lam[0])) if lam[0] > 0 else np.inf
+        bow = float(np.sqrt(lam[1] / lam[2]))  # (a full circle's ≈ 1, a half circle's 0.44, a quarter's 0.22)
+        if across < PLANE_DEFINED and 0.1 < bow < SHORT_ARC_BOW:  # (the fitted normal: the scatter's, not the turn's;
+            # under 0.1 a line, which the fit's own check names)
+            raise ValueError(f"samples: the readings do not define their turning plane — across their widest spread "
+                             f"({widest:.4g}) they spread {np.sqrt(lam[1]):.4g} one way and {np.sqrt(lam[0]):.4g} the "
+                             f"other, under {PLANE_DEFINED:g}× apart: an arc too short for its bow to stand out of the "
+                             "readings' scatter off the plane (a tilt while turning, the noise). Turn through a full "
+                             "circle, or, for a level mounting, give the plane's axes (axes='xy', --planar xy)")
         # A tilted mounting: the fitted plane, e1 the in-plane direction nearest a sensor axis (the one least along
         # the normal), e2 = n × e1, so that (e1, e2, n) is right-handed.
         a = int(np.argmin(np.abs(normal)))

@@ -383,6 +383,22 @@ def test_given_total_field_instead_of_horizontal_is_questioned():
 
 # ---- bad input -----------------------------------------------------------------------------------------------------
 
+def test_a_short_arc_whose_plane_the_tilt_hides_is_refused():
+    """A quarter turn with 4° of pitch and roll wandering: off the plane the readings spread half as far as across the
+    arc's bow, the fitted plane's normal is theirs, and a plane tilted 20° had been fitted in which the quarter turn
+    "turned through 271°" (a blind check; exit 3 only). The readings do not define the plane: refused, saying so; a
+    full circle wandering 10° on a mounting tilted 20° is still fitted in its plane."""
+    t = np.linspace(0, 1, 1000)
+    phase = np.random.default_rng(1).uniform(size=2)
+    course = np.radians(4.0) * np.column_stack([np.sin(2 * np.pi * (1.3 * t + phase[0])),
+                                                np.sin(2 * np.pi * (0.9 * t + phase[1]))])
+    m, _ = yaw_only(1, n=1000, arc_deg=90, tilt_course=course)
+    with pytest.raises(ValueError, match=r"samples: the readings do not define their turning plane .* under 3× apart"):
+        calibrate_planar(m, field_norm=H)
+    full, _ = yaw_only(1, n=1000, tilt_course=2.5 * course, tilt_deg=20)
+    assert calibrate_planar(full, field_norm=H).summary["plane_axes"] == ["e1", "e2"]
+
+
 def test_too_few_readings():
     m, _ = yaw_only(11, n=9)
     with pytest.raises(ValueError, match=r"samples: 9 readings.*at least 10"):
