@@ -103,7 +103,10 @@ def twostep_2d(readings, field_norms, units: str | None = None, refine: bool = T
     result = TwoStep2D(offset=r["offset"], gain=r["gain"], units=r["units"], constant_field=r["constant_field"],
                        summary=r["summary"], offset_se=np.asarray(r["offset_se"]), gain_se=np.asarray(r["gain_se"]),
                        covariance=np.asarray(r["covariance"]))
-    said = [w for w in (_far_off(result, arr, norms), _axis_coupling(result, arr, norms), _unit_mismatch(result)) if w]
+    said = [w for w in (_far_off(result, arr, norms), _axis_coupling(result, arr, norms), _unit_mismatch(result),
+                        _few_readings_words(result.summary, len(arr), 4, bool(np.all(np.isfinite(result.offset_se))
+                                                                               and np.any(result.offset_se > 0))))
+            if w]
     result.summary["warnings"] = list(result.summary["warnings"]) + said
     return result
 
@@ -358,22 +361,24 @@ def twostep(samples, field_norm, units: str | None = None, **settings) -> Calibr
         options.field_norm = positive_field_norm(field_norm)
         cal = _with_errors(_core.twostep(arr, options))
         said = []
-    said = [w for w in said + [scale_words(cal), _few_readings_words(cal, len(arr))] if w]
+    said = [w for w in said + [scale_words(cal), _few_readings_words(cal.summary, len(arr), 9,
+                                                                       bool(cal.summary.get("standard_errors")))] if w]
     cal.summary["warnings"] = list(cal.summary["warnings"]) + said
     return cal
 
 
-def _few_readings_words(cal: Calibration, n: int) -> str:
-    """With under 30 readings beyond the 9 parameters, the standard errors come from the residuals' own scatter:
-    the errors over them follow Student's t with N − 9 degrees of freedom (measured: consistent with t_{N−9} at
-    small N), which the summary says (residual_dof) with the 95 % factor."""
-    dof = n - 9
-    if not cal.summary.get("standard_errors") or not 0 < dof < 30:
+def _few_readings_words(summary: dict, n: int, parameters: int, errors: bool) -> str:
+    """With under 30 readings beyond the `parameters` (9 in 3-D, 4 in 2-D), the standard errors come from the
+    residuals' own scatter: the errors over them follow Student's t with N − p degrees of freedom (measured:
+    consistent with t_{N−9} at small N; in 2-D at N = 5, 30 % of the parameters fell outside ±1.96 standard errors,
+    a blind check), which the summary says (residual_dof) with the 95 % factor. `errors`: whether the fit has any."""
+    dof = n - parameters
+    if not errors or not 0 < dof < 30:
         return ""
-    cal.summary["residual_dof"] = dof
-    return (f"{n} readings for 9 parameters: the standard errors rest on {dof} degrees of freedom, and the errors "
-            f"over them follow Student's t — a 95 % interval is ±{stats.t.ppf(0.975, dof):.3g} standard errors (not "
-            "±1.96); more readings narrow both")
+    summary["residual_dof"] = dof
+    return (f"{n} readings for {parameters} parameters: the standard errors rest on {dof} degrees of freedom, and the "
+            f"errors over them follow Student's t — a 95 % interval is ±{stats.t.ppf(0.975, dof):.3g} standard errors "
+            "(not ±1.96); more readings narrow both")
 
 
 def _with_errors(result: dict) -> Calibration:

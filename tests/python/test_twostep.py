@@ -873,3 +873,10 @@ def test_few_readings_say_the_degrees_of_freedom_of_their_errors():
     assert any("20 readings for 9 parameters" in w and "±2.2 standard errors" in w for w in cal.summary["warnings"])
     many = fluxcal.twostep(np.vstack([m] * 3) + 0.3 * rng.standard_normal((60, 3)), 50.0)
     assert "residual_dof" not in many.summary
+    # the 2-D form too (4 parameters): 8 readings, t₄ — a blind check's N = 5 had 30 % of its parameters outside
+    # ±1.96 standard errors, unsaid
+    ang = rng.uniform(0, 2 * np.pi, 8)
+    h2 = 20.0 * np.column_stack([np.cos(ang), np.sin(ang)])
+    fit = fluxcal.twostep_2d(h2 * [1.1, 0.9] + [3.0, -2.0] + 0.2 * rng.standard_normal(h2.shape), 20.0)
+    assert fit.summary["residual_dof"] == 4
+    assert any("8 readings for 4 parameters" in w and "±2.78 standard errors" in w for w in fit.summary["warnings"])
