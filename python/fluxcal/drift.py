@@ -1401,11 +1401,12 @@ def thermal_lag(model: "DriftModel", compensated, temp, t=None, temp_outside=Non
 
 
 def _held_on_edges(temp: np.ndarray, rate: np.ndarray, model: "DriftModel") -> np.ndarray:
-    """The temperatures with a hold on an inner edge of the model's ranges taken as the edge itself: its settled rows
-    (|rate| within SETTLED_RATE of the log's brisk one) within the thermometer's noise of the edge (4 σ of its third
-    differences, and a step of its resolution). The thermometer's noise crosses the edge there back and forth and
-    f(T) jumps between the two ranges' polynomials with it, which a lag's or a dead band's f(T′) − f(T) took up: a
-    blind check's holds at 0 and 30 °C (seed 001's own levels) had a ±0.02 °C "hysteresis" named beside a lag."""
+    """The temperatures with each hold on an inner edge of the model's ranges taken as the edge itself: a run of
+    settled rows (|rate| within SETTLED_RATE of the log's brisk one) whose median lies within the thermometer's noise
+    of the edge (4 σ of its third differences, and a step of its resolution), the whole run. The thermometer's noise
+    crosses the edge there back and forth and f(T) jumps between the two ranges' polynomials with it, which a lag's or
+    a dead band's f(T′) − f(T) took up: a blind check's holds at 0 and 30 °C (seed 001's own levels) had a ±0.02 °C
+    "hysteresis" named beside a lag. (Row by row, a hold just off the edge had been cut in two: crossings invented.)"""
     edges = np.array([float(seg["range"][0]) for seg in model.segments[1:]])
     finite = np.isfinite(temp) & np.isfinite(rate)
     if not edges.size or finite.sum() < 20:
@@ -1416,9 +1417,13 @@ def _held_on_edges(temp: np.ndarray, rate: np.ndarray, model: "DriftModel") -> n
     resolution = float(steps[steps > 0].min()) if np.any(steps > 0) else 0.0
     brisk = float(np.percentile(np.abs(rate[finite]), 95))
     settled = finite & (np.abs(rate) <= SETTLED_RATE * brisk)
+    edge_of = np.diff(np.r_[0, settled.astype(np.int8), 0])
     out = temp.copy()
-    for edge in edges:
-        out[settled & (np.abs(temp - edge) <= 4.0 * noise + resolution)] = edge
+    for lo, hi in zip(np.flatnonzero(edge_of == 1), np.flatnonzero(edge_of == -1)):  # each settled run [lo, hi)
+        middle = float(np.median(temp[lo:hi]))
+        near = edges[np.abs(edges - middle) <= 4.0 * noise + resolution]
+        if near.size:
+            out[lo:hi] = near[0]
     return out
 
 

@@ -77,8 +77,12 @@ MIN_ARC_DEG = 180.0
 # 90° turns with 4° of pitch and roll (spreads 10.4, 2.0 and 1.0) had been fitted a plane tilted 20° and "turned
 # through 271°" in it (a full circle's are ~1 apart from the widest and ≥ 10× the thinnest)
 PLANE_DEFINED = 3.0
-SHORT_ARC_BOW = 0.35  # ... when the readings' middle spread is under this share of their widest (an arc, not a circle
-                      # whose tilt wanders widely: that one is fitted, and its tilt said)
+SHORT_ARC_BOW = 0.5  # ... when the readings' middle spread is under this share of their widest (an arc — a half
+                     # circle's is 0.44 —, not a circle whose tilt wanders widely: that one is fitted, its tilt said)
+# Axes asked for whose plane the readings' is tilted beyond this from (nearly edge-on, and nearer another pair's): the
+# readings turn in that other plane (a blind check's x, z turn forced into x, y: 88.5°). Below it a tilted circle's
+# projection is still an ellipse the fit maps back (headings 0.006 rad RMS at 44–60°, a review)
+EDGE_ON = 75.0
 # A parameter counts as determined when its standard error is below this fraction of its scale (the mean radius
 # for the offset, ‖A‖_F/√2 for matrix entries) — fluxcal.refine's determined_tolerance.
 DETERMINED = 0.01
@@ -518,7 +522,7 @@ def _plane(m: np.ndarray, axes, axis_tolerance: float, planar_ratio: float, warn
         basis[0, i] = basis[1, j] = 1.0
         k_given = 3 - i - j
         tilt_given = float(np.degrees(np.arccos(min(1.0, abs(normal[k_given])))))
-        if k != k_given and tilt_given > 45.0:  # (the readings turn in another pair's plane: no heading in this one)
+        if k != k_given and tilt_given > EDGE_ON:  # (the readings turn in another pair's plane: no heading in this one)
             pair = "".join(AXES[a] for a in range(3) if a != k)
             raise ValueError(f"axes: the readings turn in the {pair} plane (its normal is {tilt:.0f}° from "
                              f"axis {AXES[k]}, {tilt_given:.0f}° from axis {AXES[k_given]}), not in the "

@@ -147,7 +147,9 @@ def _far_off(result: TwoStep2D, readings: np.ndarray, norms: np.ndarray) -> str 
     if not far.size:
         return None
     rows = ", ".join(str(int(i)) for i in far[:8]) + (", …" if far.size > 8 else "")
-    return (f"{far.size} of {n} readings lie {z[far].min():.3g}–{z[far].max():.3g} robust σ off their field magnitudes "
+    sizes = f"{z[far].min():.3g}" if f"{z[far].min():.3g}" == f"{z[far].max():.3g}" else \
+        f"{z[far].min():.3g}–{z[far].max():.3g}"
+    return (f"{far.size} of {n} readings lie {sizes} robust σ off their field magnitudes "
             f"(rows {rows}): glitches (a read of 0, 0; a spike) or magnitudes that do not belong to them, which pull "
             "the offsets and gains their way — leave them out and fit again")
 
