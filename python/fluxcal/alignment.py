@@ -98,6 +98,16 @@ class Alignment:
                 "warnings": list(self.summary.get("warnings", []))}
 
 
+# A rotation from the magnetometer's axes to the accelerometer's beyond this is a labelling, not a mounting error (a
+# blind check: a mirrored axis in the southern hemisphere came back as a 178.8° turn, identifiable, with no word)
+LABELLED_TURN_DEG = 90.0
+
+
+def _turn_deg(rotation: np.ndarray) -> float:
+    """The angle (degrees) of a rotation matrix."""
+    return float(np.degrees(np.arccos(np.clip((np.trace(rotation) - 1.0) / 2.0, -1.0, 1.0))))
+
+
 def align_to_gravity(field, specific_force, serial_correlation: str = "automatic",
                      acc_measures: str = "specific_force", **settings) -> Alignment:
     """R and the dip from calibrated fields `field` (N×3, e.g. `cal.apply(m)`) and the accelerometer's rows
@@ -113,10 +123,23 @@ def align_to_gravity(field, specific_force, serial_correlation: str = "automatic
     rest."""
     h = as_samples(field, "field")
     f = as_specific_force(specific_force, acc_measures, "specific_force")
+    for name, rows in (("field", h), ("specific_force", f)):
+        # (a blind check: 50 identical readings came back identifiable, every standard error 0)
+        if len(rows) > 1 and np.all(np.ptp(rows, axis=0) == 0):
+            raise ValueError(f"{name}: all {len(rows)} readings are the same ({', '.join(f'{v:g}' for v in rows[0])}): "
+                             "one attitude, or a sensor that did not update — align_to_gravity needs readings of the "
+                             "device at rest in several attitudes")
     options = set_options(_core.AlignmentOptions(), {**settings, "serial_correlation":
                                                      serial_correlation_mode(serial_correlation)}, "align_to_gravity")
     r = _core.align_to_gravity(h, f, options)
     dip, summary = float(r["dip"]), dict(r["summary"])
+    turned = _turn_deg(np.asarray(r["rotation"]))
+    if turned > LABELLED_TURN_DEG:
+        summary["warnings"] = list(summary.get("warnings", [])) + [
+            f"R turns the magnetometer's axes by {turned:.0f}° onto the accelerometer's: no mounting error is that large "
+            "— the axes are labelled differently (two swapped, or signs reversed; a mirror image, one axis reversed, "
+            "reads as a turn of about 180° with the dip's sign changed, which no rotation undoes): check the axes' "
+            "order and signs against the datasheets"]
     summary["serial_correlation"] = {**r["serial_correlation"], "mode": options.serial_correlation.name}
     return Alignment(rotation=np.asarray(r["rotation"]), dip_deg=float(np.degrees(dip)),
                      covariance=np.asarray(r["covariance"]), identifiable=bool(r["identifiable"]),

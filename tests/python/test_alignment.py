@@ -116,6 +116,13 @@ def test_mirrored_axes_are_named():
     h, f, _, _ = scene(rng)
     a = align_to_gravity(h * [1, 1, -1], f)
     assert a.dip_deg < 0 and any("mirror image" in w for w in a.summary["warnings"])
+    # in the southern hemisphere the mirror's dip is positive: the turn of ~180° it needs is said (a blind check's
+    # came back identifiable, 178.8°, with no word); a right mounting's few degrees say nothing
+    south, f, _, _ = scene(rng, dip=np.radians(-40.0))
+    a = align_to_gravity(south * [1, 1, -1], f)
+    assert a.dip_deg > 0 and a.rotation_deg > 170
+    assert any(w.startswith(f"R turns the magnetometer's axes by {a.rotation_deg:.0f}°") for w in a.summary["warnings"])
+    assert not any(w.startswith("R turns") for w in align_to_gravity(south, f).summary["warnings"])
 
 
 def test_moving_readings_are_left_out_and_said():
@@ -155,6 +162,9 @@ def test_folds_into_a_calibration():
     (lambda h, f: (h[:60], f[:60] * np.linspace(0.5, 1.5, 60)[:, None]), "the device was moving"),
     (lambda h, f: (h * np.r_[0.0, np.ones(len(h) - 1)][:, None], f), "field: row 0 is zero"),
     (lambda h, f: (h[:, :2], f), "field: shape"),
+    # one attitude (a blind check: 50 identical readings, identifiable, every standard error 0)
+    (lambda h, f: (np.repeat(h[:1], 50, axis=0), f[:50]), "field: all 50 readings are the same"),
+    (lambda h, f: (h, np.repeat(f[:1], len(f), axis=0)), "specific_force: all 300 readings are the same"),
 ])
 def test_bad_input_is_named(change, message):
     h, f, _, _ = scene(np.random.default_rng(8))
