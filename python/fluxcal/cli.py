@@ -698,12 +698,23 @@ def _aligned(cal: Calibration, rec, raw: np.ndarray, file, acc_measures: str, se
                          f"recording has {', '.join(rec.columns)}")
     keep = np.ones(len(raw), dtype=bool)
     keep[list(cal.summary.get("outliers", {}).get("rows", []))] = False
-    keep &= np.isfinite(acc).all(axis=1)
+    missing = ~np.isfinite(acc).all(axis=1)  # (said by name and line: a blind check's were dropped without a word, and
+    if missing.all():                        # all of them named the field's "0 rows")
+        raise ValueError(f"{file}: --align-accelerometer: every accelerometer row has a value that is not a number")
+    keep &= ~missing
     try:
-        return align_to_gravity(cal.apply(raw[keep]), acc[keep], acc_measures=acc_measures,
-                                serial_correlation=serial or "automatic").calibration(cal)
+        aligned = align_to_gravity(cal.apply(raw[keep]), acc[keep], acc_measures=acc_measures,
+                                   serial_correlation=serial or "automatic").calibration(cal)
     except ValueError as exc:
         raise ValueError(f"{file}: --align-accelerometer: {exc}") from None
+    if missing.any():
+        rows = np.flatnonzero(missing)
+        lines = rec.line_numbers[rows] if rec.line_numbers is not None else rows
+        shown = ", ".join(str(x) for x in lines[:5]) + (", …" if len(rows) > 5 else "")
+        aligned.summary["warnings"] = list(aligned.summary.get("warnings", [])) + [
+            f"alignment to the accelerometer: {len(rows)} of {len(acc)} rows left out, their accelerometer not a "
+            f"number ({'file line' if rec.line_numbers is not None else 'row'}{'s' if len(rows) > 1 else ''} {shown})"]
+    return aligned
 
 
 def _alignment_line(a: dict) -> str:

@@ -209,6 +209,21 @@ def test_command_line_aligns_a_calibration_to_the_accelerometer(real_data, tmp_p
     assert r.returncode == 2 and "needs accelerometer columns" in r.stderr and "Traceback" not in r.stderr
 
 
+def test_command_line_names_accelerometer_rows_that_are_not_numbers(tmp_path):
+    # a blind check: one such row was dropped without a word, and all of them were "field: 0 rows"
+    h, f, _, _ = scene(np.random.default_rng(9))
+    f[11] = np.nan
+    columns = dict(zip(("mx", "my", "mz", "ax", "ay", "az"), np.column_stack([h + [3.0, -2.0, 1.0], f]).T))
+    path = fluxcal.write_csv(tmp_path / "one.csv", columns)
+    r = run_cli("calibrate", path, "--align-accelerometer", "--field-norm", "50")
+    assert r.returncode == 0, r.stderr
+    assert "1 of 300 rows left out, their accelerometer not a number (file line" in r.stdout, r.stdout
+    columns.update(ax=np.full(300, np.nan))
+    r = run_cli("calibrate", fluxcal.write_csv(tmp_path / "all.csv", columns), "--align-accelerometer", "--field-norm",
+                "50")
+    assert r.returncode == 2 and "every accelerometer row has a value that is not a number" in r.stderr, r.stderr
+
+
 def test_a_clustered_turn_is_not_biased_by_the_noise_in_both_vectors():
     """A hand turn covers attitudes unevenly (here a random walk of 2.9° steps, 1000 readings). Least squares on the
     cosine d·Rĥ − sin δ was then biased, the noise in its Jacobian correlating with its residual's: at 1 % noise its
