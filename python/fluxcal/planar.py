@@ -237,6 +237,8 @@ def calibrate_planar(samples, field_norm=None, axes=None, units: str | None = No
             warnings = []
             plane = _plane(m, axes, axis_tolerance, planar_ratio, warnings)
         u = m @ plane["basis"].T
+    if plane["names"] == ("e1", "e2"):  # (a fitted plane: is it the turn's? judged without the screen's outliers)
+        _refuse_undefined_plane(m if left_out is not None else np.delete(m, np.union1d(far, zeros), axis=0))
     fit = _fit(u, norms, shapes, max_iterations, tolerance, correlation)
     names = plane["names"]
     h = fit["h"]
@@ -541,15 +543,6 @@ def _plane(m: np.ndarray, axes, axis_tolerance: float, planar_ratio: float, warn
         basis[0, i] = basis[1, j] = 1.0
         names, normal_name = (AXES[i], AXES[j]), AXES[k]
     else:
-        across = float(np.sqrt(lam[1] / lam[0])) if lam[0] > 0 else np.inf
-        bow = float(np.sqrt(lam[1] / lam[2]))  # (a full circle's ≈ 1, a half circle's 0.44, a quarter's 0.22)
-        if across < PLANE_DEFINED and 0.1 < bow < SHORT_ARC_BOW:  # (the fitted normal: the scatter's, not the turn's;
-            # under 0.1 a line, which the fit's own check names)
-            raise ValueError(f"samples: the readings do not define their turning plane — across their widest spread "
-                             f"({widest:.4g}) they spread {np.sqrt(lam[1]):.4g} one way and {np.sqrt(lam[0]):.4g} the "
-                             f"other, under {PLANE_DEFINED:g}× apart: an arc too short for its bow to stand out of the "
-                             "readings' scatter off the plane (a tilt while turning, the noise). Turn through a full "
-                             "circle, or, for a level mounting, give the plane's axes (axes='xy', --planar xy)")
         # A tilted mounting: the fitted plane, e1 the in-plane direction nearest a sensor axis (the one least along
         # the normal), e2 = n × e1, so that (e1, e2, n) is right-handed.
         a = int(np.argmin(np.abs(normal)))
@@ -566,6 +559,21 @@ def _plane(m: np.ndarray, axes, axis_tolerance: float, planar_ratio: float, warn
                         "nearest the plane) calibrates two sensor axes as they are instead")
     return {"basis": basis, "names": names, "normal": normal, "normal_name": normal_name, "tilt": tilt,
             "ratio": ratio, "embed": basis, "biaxial": False}
+
+
+def _refuse_undefined_plane(m: np.ndarray) -> None:
+    """A ValueError when the readings (N×3, the outlier screen's left out: a spike tips the scatter) were given a
+    fitted plane that they do not define: their two smaller spreads under PLANE_DEFINED× apart and the middle one
+    between a line's and SHORT_ARC_BOW of the widest — an arc whose bow does not stand out of the scatter off it."""
+    lam = np.maximum(np.linalg.eigvalsh(np.cov((m - m.mean(axis=0)).T)), 0.0)
+    across = float(np.sqrt(lam[1] / lam[0])) if lam[0] > 0 else np.inf
+    bow = float(np.sqrt(lam[1] / lam[2])) if lam[2] > 0 else 0.0  # (a full circle's ≈ 1, a half's 0.44)
+    if across < PLANE_DEFINED and 0.1 < bow < SHORT_ARC_BOW:  # (under 0.1 a line, which the fit's own check names)
+        raise ValueError(f"samples: the readings do not define their turning plane — across their widest spread "
+                         f"({np.sqrt(lam[2]):.4g}) they spread {np.sqrt(lam[1]):.4g} one way and {np.sqrt(lam[0]):.4g} "
+                         f"the other, under {PLANE_DEFINED:g}× apart: an arc too short for its bow to stand out of the "
+                         "readings' scatter off the plane (a tilt while turning, the noise). Turn through a full "
+                         "circle, or, for a level mounting, give the plane's axes (axes='xy', --planar xy)")
 
 
 def _refuse_if_3d(m: np.ndarray, ratio: float, planar_ratio: float) -> None:
