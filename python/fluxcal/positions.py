@@ -1255,9 +1255,15 @@ def _require_preset_ids(source, ids, count: int) -> None:
         moving = (f" (rows logged while the device moves between positions, marked {', '.join(map(str, extra))}? "
                   "Leave their position cell empty and pass --bad-lines skip, bad_lines='skip')"
                   if extra and (not missing or all(u <= 0 for u in odd)) else "")
+        # (a position not logged: the preset cannot leave it out, the others' attitudes can be given — a blind check)
+        remedy = ("" if not missing or extra else
+                  f": log {'them' if len(missing) > 1 else 'it'} (in Python the positions logged fit without "
+                  f"{'them' if len(missing) > 1 else 'it'}, given their attitudes: attitudes= or rotations= in place of "
+                  "the preset)")
         raise ValueError(f"{source}: the preset numbers its positions 1–{count}; the position column "
                          + "; ".join(([f"lacks {', '.join(map(str, missing))}"] if missing else [])
-                                     + ([f"has {', '.join(map(str, extra))} besides"] if extra else [])) + moving)
+                                     + ([f"has {', '.join(map(str, extra))} besides"] if extra else [])) + moving
+                         + remedy)
 
 
 def _label(position):

@@ -708,7 +708,8 @@ def test_cli_positions_names_missing_positions_and_an_impossible_dip(tmp_path):
     path.write_text("\n".join(line for line in lines if not line.startswith("7,")) + "\n")
     f = ",".join(f"{v:.6f}" for v in PAPER_FIELD)
     r = run_cli("positions", path, "--field", f, "--frame", "nue", "--preset", "twelve", "-o", tmp_path / "o.json")
-    assert r.returncode == 2 and "the position column lacks 7" in r.stderr, r.stderr
+    assert r.returncode == 2 and "the position column lacks 7: log it (in Python the positions logged fit" in r.stderr, \
+        r.stderr
     whole = _repeated_twelve_csv(tmp_path / "whole.csv", np.random.default_rng(6))
     r = run_cli("positions", whole, "--total", "52200", "--inclination", "128", "--frame", "nue", "--preset",
                 "twelve", "-o", tmp_path / "o.json")
