@@ -103,11 +103,6 @@ class Alignment:
 LABELLED_TURN_DEG = 90.0
 
 
-def _turn_deg(rotation: np.ndarray) -> float:
-    """The angle (degrees) of a rotation matrix."""
-    return float(np.degrees(np.arccos(np.clip((np.trace(rotation) - 1.0) / 2.0, -1.0, 1.0))))
-
-
 def align_to_gravity(field, specific_force, serial_correlation: str = "automatic",
                      acc_measures: str = "specific_force", **settings) -> Alignment:
     """R and the dip from calibrated fields `field` (N×3, e.g. `cal.apply(m)`) and the accelerometer's rows
@@ -133,16 +128,16 @@ def align_to_gravity(field, specific_force, serial_correlation: str = "automatic
                                                      serial_correlation_mode(serial_correlation)}, "align_to_gravity")
     r = _core.align_to_gravity(h, f, options)
     dip, summary = float(r["dip"]), dict(r["summary"])
-    turned = _turn_deg(np.asarray(r["rotation"]))
-    if turned > LABELLED_TURN_DEG:
-        summary["warnings"] = list(summary.get("warnings", [])) + [
-            f"R turns the magnetometer's axes by {turned:.0f}° onto the accelerometer's: no mounting error is that large "
-            "— the axes are labelled differently (two swapped, or signs reversed; a mirror image, one axis reversed, "
-            "reads as a turn of about 180° with the dip's sign changed, which no rotation undoes): check the axes' "
-            "order and signs against the datasheets"]
     summary["serial_correlation"] = {**r["serial_correlation"], "mode": options.serial_correlation.name}
-    return Alignment(rotation=np.asarray(r["rotation"]), dip_deg=float(np.degrees(dip)),
-                     covariance=np.asarray(r["covariance"]), identifiable=bool(r["identifiable"]),
-                     readings_used=int(r["readings_used"]),
-                     residual_rms_deg=float(np.degrees(r["residual_rms"])),
-                     summary=summary)
+    result = Alignment(rotation=np.asarray(r["rotation"]), dip_deg=float(np.degrees(dip)),
+                       covariance=np.asarray(r["covariance"]), identifiable=bool(r["identifiable"]),
+                       readings_used=int(r["readings_used"]),
+                       residual_rms_deg=float(np.degrees(r["residual_rms"])),
+                       summary=summary)
+    if result.rotation_deg > LABELLED_TURN_DEG:
+        summary["warnings"] = list(summary.get("warnings", [])) + [
+            f"R turns the magnetometer's axes by {result.rotation_deg:.0f}° onto the accelerometer's: no mounting error "
+            "is that large — the axes are labelled differently (two swapped, or signs reversed; a mirror image, one "
+            "axis reversed, reads as a turn of about 180° with the dip's sign changed, which no rotation undoes): check "
+            "the axes' order and signs against the datasheets"]
+    return result

@@ -708,13 +708,19 @@ def _aligned(cal: Calibration, rec, raw: np.ndarray, file, acc_measures: str, se
     except ValueError as exc:
         raise ValueError(f"{file}: --align-accelerometer: {exc}") from None
     if missing.any():
-        rows = np.flatnonzero(missing)
-        lines = rec.line_numbers[rows] if rec.line_numbers is not None else rows
-        shown = ", ".join(str(x) for x in lines[:5]) + (", …" if len(rows) > 5 else "")
         aligned.summary["warnings"] = list(aligned.summary.get("warnings", [])) + [
-            f"alignment to the accelerometer: {len(rows)} of {len(acc)} rows left out, their accelerometer not a "
-            f"number ({'file line' if rec.line_numbers is not None else 'row'}{'s' if len(rows) > 1 else ''} {shown})"]
+            f"alignment to the accelerometer: {missing.sum()} of {len(acc)} rows left out, their accelerometer not a "
+            f"number ({_lines_of(rec, missing)})"]
     return aligned
+
+
+def _lines_of(rec, mask: np.ndarray) -> str:
+    """The rows of `rec` where `mask` holds, as a message names them: "file lines 12, 40, …" (the first five), or
+    "rows …" for a recording read without line numbers."""
+    rows = np.flatnonzero(mask)
+    lines = rec.line_numbers[rows] if rec.line_numbers is not None else rows
+    shown = ", ".join(str(x) for x in lines[:5]) + (", …" if len(rows) > 5 else "")
+    return f"{'file line' if rec.line_numbers is not None else 'row'}{'s' if len(rows) > 1 else ''} {shown}"
 
 
 def _alignment_line(a: dict) -> str:
@@ -2101,12 +2107,8 @@ def cmd_drift(args) -> int:
     known = ~np.isnan(compensated)  # with --outside-range nan, the samples the model speaks for
     missing = ~np.isfinite(rec.columns[column])  # (NaN in, NaN out: not the temperature's doing)
     if missing.any():
-        rows = np.flatnonzero(missing)
-        lines = rec.line_numbers[rows] if rec.line_numbers is not None else rows
-        shown = ", ".join(str(x) for x in lines[:5]) + (", …" if len(rows) > 5 else "")
-        print(f"warning: {args.file}: {len(rows)} of {len(rec)} samples of {column} are not numbers "
-              f"({'file line' if rec.line_numbers is not None else 'row'}{'s' if len(rows) > 1 else ''} {shown}): "
-              f"NaN in {column}_compensated")
+        print(f"warning: {args.file}: {missing.sum()} of {len(rec)} samples of {column} are not numbers "
+              f"({_lines_of(rec, missing)}): NaN in {column}_compensated")
     unknown = int((~known & ~missing).sum())
     if unknown and not known.any():
         # NaN for every sample is what --outside-range nan asks for, but a file of nothing but NaN is seldom what

@@ -46,6 +46,7 @@ from . import timeseries as ts
 from ._arrays import as_number
 from ._saved import load_json_object
 from .kalman import ArKalman
+from .outliers import _runs as index_runs
 
 DEFAULT_BREAKPOINTS = (-20.0, 0.0, 30.0, 50.0)
 EDGE_MARGIN = _core.DRIFT_EDGE_MARGIN  # beyond the outer edges, a fraction of the model's span still evaluated
@@ -1417,13 +1418,12 @@ def _held_on_edges(temp: np.ndarray, rate: np.ndarray, model: "DriftModel") -> n
     resolution = float(steps[steps > 0].min()) if np.any(steps > 0) else 0.0
     brisk = float(np.percentile(np.abs(rate[finite]), 95))
     settled = finite & (np.abs(rate) <= SETTLED_RATE * brisk)
-    edge_of = np.diff(np.r_[0, settled.astype(np.int8), 0])
     out = temp.copy()
-    for lo, hi in zip(np.flatnonzero(edge_of == 1), np.flatnonzero(edge_of == -1)):  # each settled run [lo, hi)
-        middle = float(np.median(temp[lo:hi]))
+    for first, last in index_runs(settled):
+        middle = float(np.median(temp[first:last + 1]))
         near = edges[np.abs(edges - middle) <= 4.0 * noise + resolution]
         if near.size:
-            out[lo:hi] = near[0]
+            out[first:last + 1] = near[0]
     return out
 
 

@@ -502,9 +502,7 @@ def calibrate(mag, acc, field_ned, frame: str = "ned", preset=None, attitudes=No
     sigma = float(options.output_sigma)
     if sigma > 0 and _judge_misfit:  # (`fluxcal positions` judges it against the repeats' scatter itself)
         labels = list(position_labels) if position_labels is not None else list(range(1, len(U) + 1))
-        misfit = _misfit_warnings(res, f, {"mag_sigma": sigma, "mag_sigma_per_position": sigma,
-                                           "tilt_sigma_per_position": 0.0, "worst_tilt": None,
-                                           "moved_limit_deg": None, "given": True, "labels": labels})
+        misfit = _misfit_warnings(res, f, _given_noise(sigma, labels))
         if misfit:  # (the residual against the σ given: a heading 3° off had K 2.5 % off, said by nothing — a blind
             # check; the command line, with the same σ, said "109x what the noise σ given allows")
             kept = [w for w in res.summary["warnings"] if not w.startswith(GROSS_SAID)]
@@ -1284,6 +1282,13 @@ def _gain(res) -> float:
     return float(np.linalg.norm(res.K) / np.sqrt(3.0))
 
 
+def _given_noise(sigma: float, labels: list) -> dict:
+    """The yardstick `_misfit_warnings` takes from a noise σ given per position (one row each, no repeats to
+    measure the scatter within positions or the tilts from)."""
+    return {"mag_sigma": sigma, "mag_sigma_per_position": sigma, "tilt_sigma_per_position": 0.0, "worst_tilt": None,
+            "moved_limit_deg": None, "given": True, "labels": labels}
+
+
 def _misfit_warnings(res, field_ned, scatter) -> list:
     """Compare the fit's residuals with what the repeats within positions allow (mag noise + levelling). When
     `calibrate` found the misfit from the field alone (res.summary["field_misfit"]), its warning — with the
@@ -1511,9 +1516,8 @@ def run_cli(args, out=None) -> int:
     except ValueError as exc:
         raise ValueError(_in_file_terms(str(exc), args.file, rec, uniq if ids is not None else None)) from None
     if scatter is None and getattr(args, "noise_sigma", 0.0):  # one row per position: the σ given is the yardstick
-        scatter = {"mag_sigma": args.noise_sigma, "mag_sigma_per_position": args.noise_sigma,
-                   "tilt_sigma_per_position": 0.0, "worst_tilt": None, "moved_limit_deg": None, "given": True,
-                   "labels": [_label(u) for u in (uniq if ids is not None else range(1, len(mag) + 1))]}
+        scatter = _given_noise(args.noise_sigma,
+                               [_label(u) for u in (uniq if ids is not None else range(1, len(mag) + 1))])
     if scatter is not None:
         extra_warnings += _misfit_warnings(res, f, scatter)
     misfit = [w for w in extra_warnings if w.startswith("the model does not fit")]

@@ -1896,13 +1896,19 @@ def _implausible(row: dict, sigma: float, sigma_bound: bool, cls, vector: bool =
 def _distortion(signal: np.ndarray, blocks: list, signal_dependent: list, parameters: np.ndarray, lo: int) -> float:
     """The largest change that one signal-dependent block of a fit makes to the readings, RMS over the
     readings, in units of the signal's RMS (0 without such blocks)."""
-    out, size = 0.0, np.linalg.norm(signal)
-    for feats, dependent in zip(blocks, signal_dependent):
+    size = np.linalg.norm(signal)
+    return max((float(np.linalg.norm(change) / size) for change in
+                _block_changes(blocks, signal_dependent, parameters, lo, dependent=True)), default=0.0)
+
+
+def _block_changes(blocks: list, signal_dependent: list, parameters: np.ndarray, lo: int, dependent: bool):
+    """Each block's change to the readings (N × 3: its coefficients, from `parameters[lo:]` in the blocks' order,
+    times its features), of the blocks whose `signal_dependent` flag is `dependent`."""
+    for feats, flag in zip(blocks, signal_dependent):
         p = feats.shape[1]
-        if dependent:
-            out = max(out, float(np.linalg.norm(np.einsum("p,npk->nk", parameters[lo:lo + p], feats)) / size))
+        if flag == dependent:
+            yield np.einsum("p,npk->nk", parameters[lo:lo + p], feats)
         lo += p
-    return out
 
 
 def _hidden_change(readings: np.ndarray, blocks: list, signal_dependent: list, parameters: np.ndarray,
@@ -1914,12 +1920,8 @@ def _hidden_change(readings: np.ndarray, blocks: list, signal_dependent: list, p
     base calibration, fitted to take it back. (Together: two such blocks that cancel each other are `_cancelling`'s.)
     A one-axis turntable's null recording: a sensor-fixed interference at the turning's frequency, 7.2× the readings'
     variation, with a base ellipsoid flattened to cancel it, had been named (a blind check)."""
-    change, size = np.zeros_like(readings), np.linalg.norm(readings - readings.mean(axis=0))
-    for feats, dependent in zip(blocks, signal_dependent):
-        p = feats.shape[1]
-        if not dependent:
-            change += np.einsum("p,npk->nk", parameters[lo:lo + p], feats)
-        lo += p
+    change = sum(_block_changes(blocks, signal_dependent, parameters, lo, dependent=False), np.zeros_like(readings))
+    size = np.linalg.norm(readings - readings.mean(axis=0))
     return float(np.linalg.norm(change - change.mean(axis=0)) / size) if size > 0 else 0.0
 
 
