@@ -25,6 +25,7 @@ void bind_twostep(py::module_& m) {
       .def_readwrite("refine", &TwoStep2DOptions::refine)
       .def_readwrite("max_iterations", &TwoStep2DOptions::max_iterations)
       .def_readwrite("tolerance", &TwoStep2DOptions::tolerance)
+      .def_readwrite("noise_bias_correction", &TwoStep2DOptions::noise_bias_correction)
       .def_readwrite("units", &TwoStep2DOptions::units)
       .def_readwrite("misfit_spread", &TwoStep2DOptions::misfit_spread)
       .def_readwrite("poorly_determined", &TwoStep2DOptions::poorly_determined)

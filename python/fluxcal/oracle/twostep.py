@@ -5,6 +5,7 @@ normal equations, moment sums and its own Gauss–Newton)."""
 from __future__ import annotations
 
 import numpy as np
+from scipy import special
 from scipy.optimize import least_squares
 
 # Field magnitudes within this relative spread count as one magnitude (as in the core).
@@ -45,22 +46,40 @@ def twostep_2d_first_step(readings, field_norms) -> dict:
     return {"offset": b, "gain": gain, "constant_field": bool(constant), "state": x}
 
 
-def twostep_2d(readings, field_norms, refine: bool = True) -> dict:
+def _rice_mean(nu, s):
+    """E|v + ε|, |v| = ν, ε 2-D Gaussian of σ = s per axis: s√(π/2)·L½(−ν²/2s²) with exponentially scaled Bessel
+    functions (scipy.stats.rice.mean overflows beyond ν/s ≈ 40); s = 0 gives ν."""
+    z = (nu / np.where(s > 0, s, 1.0)) ** 2 / 4
+    mean = s * np.sqrt(np.pi / 2) * ((1 + 2 * z) * special.i0e(z) + 2 * z * special.i1e(z))
+    return np.where(s > 0, mean, nu)
+
+
+def twostep_2d(readings, field_norms, refine: bool = True, noise_bias_correction: bool = True) -> dict:
     """First step, then (refine) least squares on the Sampson residual (ρ_k − h_k)/|∇ρ_k|, ρ_k = √((ĥx − bx)²/γx² +
-    (ĥy − by)²/γy²) and ∇ its gradient in the reading: the reading's distance from its field's ellipse."""
+    (ĥy − by)²/γy²) and ∇ its gradient in the reading: the reading's distance from its field's ellipse. With
+    noise_bias_correction, solved again towards each reading's Rice mean E|h_k + ε| (_rice_mean), ε the noise
+    across the reading's direction in field units, σ² the residuals' mean square over N − 4."""
     first = twostep_2d_first_step(readings, field_norms)
     if not refine:
         return first
     m = np.asarray(readings, dtype=float)
     h = np.asarray(field_norms, dtype=float)
 
-    def residual(p):
-        hx, hy = (m[:, 0] - p[0]) / p[2], (m[:, 1] - p[1]) / p[3]
-        rho = np.hypot(hx, hy)
-        return (rho - h) * rho / np.hypot(hx / p[2], hy / p[3])
+    def fit(p0, targets):
+        def residual(p):
+            hx, hy = (m[:, 0] - p[0]) / p[2], (m[:, 1] - p[1]) / p[3]
+            rho = np.hypot(hx, hy)
+            return (rho - targets) * rho / np.hypot(hx / p[2], hy / p[3])
 
-    p0 = np.concatenate([first["offset"], first["gain"]])
-    sol = least_squares(residual, p0, method="lm", x_scale="jac", xtol=1e-15, ftol=1e-15, gtol=1e-15)
+        return least_squares(residual, p0, method="lm", x_scale="jac", xtol=1e-15, ftol=1e-15, gtol=1e-15)
+
+    sol = fit(np.concatenate([first["offset"], first["gain"]]), h)
+    if noise_bias_correction:
+        p = sol.x
+        a, c = (m[:, 0] - p[0]) / p[2], (m[:, 1] - p[1]) / p[3]
+        across = (c**2 / p[2] ** 2 + a**2 / p[3] ** 2) / (a**2 + c**2)  # (field per reading)² across ρ's direction
+        s = np.sqrt(sol.fun @ sol.fun / (len(h) - 4) * across)
+        sol = fit(p, _rice_mean(h, s))
     # covariance of (bx, by, γx, γy): s²(JᵀJ)⁻¹ with SciPy's Jacobian at the solution (γ's sign made positive)
     flip = np.concatenate([np.ones(2), np.sign(sol.x[2:])])
     J = sol.jac * flip
