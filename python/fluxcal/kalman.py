@@ -59,7 +59,7 @@ class ArKalman:
 
     def __init__(self, ar_coeffs, q: float, r: float, initial_variance: float = 0.0, steady_state: bool = False):
         self.ar_coeffs = _order_within(_coefficients(ar_coeffs), MAX_ORDER, "filter's")
-        self.q, self.r = float(q), float(r)
+        self.q, self.r = as_number(q, "q"), as_number(r, "r")  # (float('a') named neither)
         self.options = _options(initial_variance, steady_state)
         setup = _core.kalman_setup(self.ar_coeffs, self.q, self.r, self.options)
         self.initial_covariance = np.asarray(setup["initial_covariance"])
