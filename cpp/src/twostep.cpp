@@ -114,14 +114,14 @@ struct Normalised2D {
 // Gauss–Newton normal matrix F = JᵀJ and gradient g = Jᵀr, all in one pass.
 double magnitude_residuals(const Readings2DRef& readings, const Eigen::Ref<const Eigen::VectorXd>& h,
                            const Normalised2D& nz, const Eigen::Vector4d& th, Eigen::Matrix4d& F,
-                           Eigen::Vector4d& g) {
+                           Eigen::Vector4d& g, Eigen::Vector4d* jacobian_sum = nullptr) {
   const double inv_s = 1.0 / nz.scale, inv_t = 1.0 / nz.field_scale;
   const double ikx = 1.0 / th(2), iky = 1.0 / th(3);
   // u − β = ĥ·inv_s − (centre·inv_s + β)
   const double ox = nz.centre(0) * inv_s + th(0), oy = nz.centre(1) * inv_s + th(1);
   // Scalar sums of the 10 distinct entries of JᵀJ and the 4 of Jᵀe (plain doubles keep the loop tight).
   double cost = 0.0, f00 = 0, f01 = 0, f02 = 0, f03 = 0, f11 = 0, f12 = 0, f13 = 0, f22 = 0, f23 = 0, f33 = 0;
-  double g0 = 0, g1 = 0, g2 = 0, g3 = 0;
+  double g0 = 0, g1 = 0, g2 = 0, g3 = 0, s0 = 0, s1 = 0, s2 = 0, s3 = 0;
   for (Eigen::Index k = 0; k < readings.rows(); ++k) {
     const double a = (readings(k, 0) * inv_s - ox) * ikx;
     const double c = (readings(k, 1) * inv_s - oy) * iky;
@@ -138,9 +138,10 @@ double magnitude_residuals(const Readings2DRef& readings, const Eigen::Ref<const
       const double d0 = -a * ikx * ir, d1 = -c * iky * ir, d2 = a * d0, d3 = c * d1;  // ∂ρ/∂θ
       // ∂(q²)/∂θ: through a and c, and for the gains through 1/κ² too
       const double a3 = a * ikx * ikx * ikx, c3 = c * iky * iky * iky;
-      const double s0 = -2.0 * a3, s1 = -2.0 * c3, s2 = -4.0 * a * a3, s3 = -4.0 * c * c3;
+      const double q0 = -2.0 * a3, q1 = -2.0 * c3, q2k = -4.0 * a * a3, q3 = -4.0 * c * c3;
       const double u = (rho + e) / q, v = e * rho / (2.0 * q2 * q);  // ∂r = (ρ + e) ∂ρ/q − e ρ ∂(q²)/(2q³)
-      const double j0 = u * d0 - v * s0, j1 = u * d1 - v * s1, j2 = u * d2 - v * s2, j3 = u * d3 - v * s3;
+      const double j0 = u * d0 - v * q0, j1 = u * d1 - v * q1, j2 = u * d2 - v * q2k, j3 = u * d3 - v * q3;
+      s0 += j0; s1 += j1; s2 += j2; s3 += j3;
       f00 += j0 * j0; f01 += j0 * j1; f02 += j0 * j2; f03 += j0 * j3;
       f11 += j1 * j1; f12 += j1 * j2; f13 += j1 * j3;
       f22 += j2 * j2; f23 += j2 * j3; f33 += j3 * j3;
@@ -150,6 +151,7 @@ double magnitude_residuals(const Readings2DRef& readings, const Eigen::Ref<const
   F << f00, f01, f02, f03, 0, f11, f12, f13, 0, 0, f22, f23, 0, 0, 0, f33;
   g << g0, g1, g2, g3;
   F.triangularView<Eigen::StrictlyLower>() = F.transpose();
+  if (jacobian_sum) *jacobian_sum << s0, s1, s2, s3;
   return cost;
 }
 
@@ -159,6 +161,7 @@ struct Refined2D {
   bool failed = false;  // no descent step found (rather than the iteration limit)
   int iterations = 0;
   double cost = 0.0;  // Σ r_k² at th
+  Eigen::Matrix4d F = Eigen::Matrix4d::Zero();  // JᵀJ at th
 };
 
 Refined2D gauss_newton_2d(const Readings2DRef& readings, const Eigen::Ref<const Eigen::VectorXd>& targets,
@@ -204,8 +207,29 @@ Refined2D gauss_newton_2d(const Readings2DRef& readings, const Eigen::Ref<const 
     g = gn;
     out.iterations = it + 1;
   }
-  out.cost = cost;
+  out.cost = magnitude_residuals(readings, targets, nz, th, out.F, g);  // (at the final th: a converged step moved it)
   return out;
+}
+
+// Σ_k ∂J_k/∂n_k in the normalised readings: each reading's Jacobian row differentiated along its normal ∇ρ/|∇ρ|,
+// by central differences (a step of 1e-4 of the readings' scale).
+Eigen::Vector4d normal_derivative_of_jacobian(const Readings2DRef& readings, const Eigen::Ref<const Eigen::VectorXd>& targets,
+                                             const Normalised2D& nz, const Eigen::Vector4d& th) {
+  const double step = 1e-4, inv_s = 1.0 / nz.scale, ikx = 1.0 / th(2), iky = 1.0 / th(3);
+  const double ox = nz.centre(0) * inv_s + th(0), oy = nz.centre(1) * inv_s + th(1);
+  Readings2D plus(readings.rows(), 2), minus(readings.rows(), 2);
+  for (Eigen::Index k = 0; k < readings.rows(); ++k) {
+    const double a = (readings(k, 0) * inv_s - ox) * ikx, c = (readings(k, 1) * inv_s - oy) * iky;
+    Eigen::Vector2d n(a * ikx, c * iky);  // ∇ρ's direction in the readings
+    n = n.norm() > 0.0 ? Eigen::Vector2d(n.normalized() * (step * nz.scale)) : Eigen::Vector2d::Zero();
+    plus.row(k) = readings.row(k) + n.transpose();
+    minus.row(k) = readings.row(k) - n.transpose();
+  }
+  Eigen::Matrix4d F;
+  Eigen::Vector4d g, up, down;
+  magnitude_residuals(plus, targets, nz, th, F, g, &up);
+  magnitude_residuals(minus, targets, nz, th, F, g, &down);
+  return (up - down) / (2.0 * step);
 }
 
 // The mean of a Rice distribution: E|v + ε| for |v| = nu and ε 2-D Gaussian of σ = s per axis,
@@ -239,10 +263,42 @@ Eigen::VectorXd raised_targets(const Readings2DRef& readings, const Eigen::Ref<c
     // across the reading's direction (−c, a)/ρ in the field: σ² (c²/κx² + a²/κy²)/ρ²; a reading at the
     // offset itself has no direction, so the mean of the two
     const double across = rho2 > 0.0 ? (c * c * ikx * ikx + a * a * iky * iky) / rho2 : 0.5 * (ikx * ikx + iky * iky);
+    // the Sampson residual's normaliser g = |∇ρ| moves with the noise along ∇ρ too: −σ²(q₄/q − q)/h, q = ûᵀK⁻²û,
+    // q₄ = ûᵀK⁻⁴û (refine.cpp's target; 0 for equal gains)
+    double normaliser = 0.0;
+    if (rho2 > 0.0) {
+      const double x2 = ikx * ikx, y2 = iky * iky;
+      const double q = (a * a * x2 + c * c * y2) / rho2, q4 = (a * a * x2 * x2 + c * c * y2 * y2) / rho2;
+      normaliser = q4 / q - q;
+    }
     const double f = h(k) / nz.field_scale;
-    out(k) = nz.field_scale * rice_mean(f, std::sqrt(sigma2 * across));
+    out(k) = nz.field_scale * (rice_mean(f, std::sqrt(sigma2 * across)) - sigma2 * normaliser / f);
   }
   return out;
+}
+
+// Both gains known to options.poorly_determined or better at the first pass's σ̂²(JᵀJ)⁻¹: else (a field along x
+// only) the noise-bias terms in 1/γ² along the undetermined gain are noise themselves (γy moved from 1 to 0.01), and
+// the gain's error is far beyond an O(σ²) bias anyway — the summary says "poorly determined".
+bool well_determined(const Refined2D& pass, const Eigen::Vector4d& th, double nd, const TwoStep2DOptions& options) {
+  const std::optional<Eigen::Matrix4d> inverse = detail::ldlt_inverse_if_positive(pass.F);
+  if (!inverse) return false;
+  const Eigen::Vector2d se = (pass.cost / (nd - 4.0) * inverse->diagonal().tail<2>()).cwiseSqrt();
+  return se.cwiseQuotient(th.tail<2>().cwiseAbs()).maxCoeff() <= options.poorly_determined;
+}
+
+// The noise's O(σ²) bias taken off a converged fit (pass, at th): solved again towards raised_targets, then moved by
+// F⁻¹σ²Σ∂J_k/∂n, since E[J_k r_k] = σ² ∂J_k/∂n ≠ 0 even at E[r_k] = 0 (an M-estimator's first-order bias; refine.cpp
+// takes off both the same way). Updates th, pass and targets; returns the iterations spent.
+int without_noise_bias(const Readings2DRef& readings, const SeriesRef& field_norms, const Normalised2D& nz,
+                       Eigen::Vector4d& th, Refined2D& pass, Eigen::VectorXd& targets, const TwoStep2DOptions& options) {
+  const double sigma2 = pass.cost / (static_cast<double>(readings.rows()) - 4.0);
+  targets = raised_targets(readings, field_norms, nz, th, sigma2);
+  pass = gauss_newton_2d(readings, targets, nz, th, options);
+  Eigen::Vector4d shift;
+  if (pass.converged && solve_scaled<4>(pass.F, normal_derivative_of_jacobian(readings, targets, nz, th), shift) < kInf)
+    th += sigma2 * shift;
+  return pass.iterations;
 }
 
 }  // namespace
@@ -373,11 +429,8 @@ TwoStep2DResult twostep_2d(const Readings2DRef& readings, const SeriesRef& field
                   "magnitudes; on a full turn, check that field_norms belong to the readings (same order, same "
                   "field units)");
     int iterations = pass.iterations;
-    if (options.noise_bias_correction && pass.converged && n > 4) {
-      targets = raised_targets(readings, field_norms, nz, th, pass.cost / (nd - 4.0));
-      pass = gauss_newton_2d(readings, targets, nz, th, options);
-      iterations += pass.iterations;
-    }
+    if (options.noise_bias_correction && pass.converged && n > 4 && well_determined(pass, th, nd, options))
+      iterations += without_noise_bias(readings, field_norms, nz, th, pass, targets, options);
     sum.converged = pass.converged;
     sum.iterations = iterations;
     if (!sum.converged)

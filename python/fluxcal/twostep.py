@@ -77,7 +77,8 @@ def twostep_2d(readings, field_norms, units: str | None = None, refine: bool = T
 
     settings: max_iterations=50, tolerance=1e-12 (refinement), noise_bias_correction=True (noise makes the corrected
     magnitudes σ²/2h too long on average, which raised the gains by that fraction: the fit is solved again towards
-    each reading's Rice mean E|h_k + ε|), misfit_spread=0.05 (a warning when |h|/h
+    each reading's Rice mean E|h_k + ε| less the Sampson normaliser's move, and the Jacobian's move with the noise
+    taken off; not when a gain is poorly determined), misfit_spread=0.05 (a warning when |h|/h
     scatters more after the fit: field_norms that do not belong to the readings), poorly_determined=0.02 (a
     warning when a gain's standard error is a larger fraction of it: too short an arc), runaway_factor=10 (a
     refinement that did not converge with a gain grown more than this over the first step's raises: one field

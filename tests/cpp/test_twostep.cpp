@@ -138,7 +138,7 @@ TEST(TwoStep2D, TheNoisesBiasOfTheGainsIsRemoved) {
   // A turn in one field at 3 % noise: |(ĥ − b) ⊘ γ| is σ²/2h too long on average, and a fit aimed at h raised
   // the gains — a blind check's 1.00057 ± 0.00016 at 10^5 readings. Mean over 10 fits of 10^5 readings against
   // the standard error of that mean: measured 2.7e-4 and 6.4e-4 (5.3 and 11.9 of them) without the correction,
-  // −4e-5 and 1e-4 (−0.8 and 1.8) with it.
+  // −2e-5 and 1.3e-4 (−0.3 and 2.4) with it.
   const Eigen::Vector2d b(0.3, -0.2), gamma(1.0, 1.2);
   const int runs = 10, n = 100000;
   auto mean_gain_error = [&](bool correct, Eigen::Vector2d& se_of_mean) {

@@ -133,14 +133,15 @@ def test_2d_refinement_reaches_the_cramer_rao_bound():
     assert np.all(np.abs(se / e1.std(axis=0) - 1) < 0.15) and np.all(np.abs(se / crb - 1) < 0.15)
 
 
-@pytest.mark.parametrize("arc", [360, 180])
-def test_2d_gains_carry_no_noise_bias(arc):
+@pytest.mark.parametrize("arc, gains", [(360, (1.0, 1.2)), (180, (1.0, 1.2)), (360, (0.5, 1.5))])
+def test_2d_gains_carry_no_noise_bias(arc, gains):
     """At 3 % noise |(ĥ − b) ⊘ γ| is σ²/2h longer than h on average, and a fit aimed at the magnitudes raised the gains
     (a blind check: 1.00057 ± 0.00016 at 10^5 readings) and, on a half turn, moved the offset. The fit now aims at
-    each reading's Rice mean. 100 fits of 10^4 readings, magnitudes 0.5–1.5: the mean error over the standard error
-    of that mean — measured without the correction up to 9.4 (a full turn's gains) and 8.8 (a half turn's offset),
-    with it ≤ 1.05."""
-    gain, offset = np.array([1.0, 1.2]), np.array([0.3, -0.2])
+    each reading's target (its Rice mean, less the Sampson normaliser's move) and the Jacobian's move with the noise is
+    taken off. 100 fits of 10^4 readings, magnitudes 0.5–1.5: the mean error over the standard error of that mean —
+    measured without the correction up to 9.4 (a full turn's gains), 8.8 (a half turn's offset) and 12.9 (gains
+    0.5/1.5), with it ≤ 1.6; the Rice mean alone had left gains 0.5/1.5 15 and 34 off."""
+    gain, offset = np.array(gains), np.array([0.3, -0.2])
     errors = {True: [], False: []}
     se = []
     for seed in range(100):
@@ -478,9 +479,10 @@ def test_3d_each_readings_field_is_at_the_bound_and_one_field_is_not(change):
 
 
 def test_3d_noise_mean_correction_removes_scale_shrinkage():
-    # σ = 2 %: without μ the scale is 6.0e-4 off, with the estimated μ 3.7e-4 (measured), as refine's maximum
-    # likelihood with its noise bias correction (3.70e-4; at σ = 1 and 5 % too, within 2e-5); with the true σ the
-    # same as estimated. (The algebraic second step before: 1.3e-3 without μ, 6.2e-4 with.)
+    # σ = 2 %: without μ the scale is 6.0e-4 off, with the estimated μ 3.7e-4 (measured); with the true σ the same as
+    # estimated. (The algebraic second step before: 1.3e-3 without μ, 6.2e-4 with.) refine's maximum likelihood agreed
+    # within 2e-5 until it also took off the Jacobian's move with the noise: now 2.8e-4, 9e-5 below — over 200 fits of
+    # 5000 readings at σ 2 % TWOSTEP's scale is +8.9e-5 off (t 3.8), refine's +5e-6 (t 0.2): μ is not all of it.
     s = simulated(21, n=20000, noise=0.02)
     truth = np.cbrt(np.linalg.det(s.true_calibration().matrix))
     with_mu = np.cbrt(np.linalg.det(twostep(s.readings, s.field_norm).matrix))
@@ -488,7 +490,7 @@ def test_3d_noise_mean_correction_removes_scale_shrinkage():
     known = np.cbrt(np.linalg.det(twostep(s.readings, s.field_norm, noise_sigma=0.02 * s.field_norm).matrix))
     ml = np.cbrt(np.linalg.det(fluxcal.refine(twostep(s.readings, s.field_norm), s.readings).matrix))
     assert abs(with_mu / truth - 1) < 0.7 * abs(without / truth - 1)
-    assert with_mu / ml == pytest.approx(1.0, abs=5e-5)
+    assert with_mu / ml == pytest.approx(1.0, abs=1.5e-4)
     assert known / with_mu == pytest.approx(1.0, abs=1e-4)
 
 

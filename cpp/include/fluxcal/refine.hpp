@@ -66,8 +66,10 @@ struct RefineOptions {
   std::string units;  ///< carried into the Calibration (default: the start's units)
   /// Magnitude model: remove the second-order noise bias. Noise on the readings makes |h| exceed H
   /// on average by ≈ σ²‖A‖_F²/(3H) (the two tangential components), so fitting |h| to H shrinks A by
-  /// ~σ²/H² (0.25 % at σ = 5 %). With this on, a second solve fits |h| to H + σ̂²‖A‖_F²/(3H), σ̂ from
-  /// the first; the Calibration still reports H.
+  /// ~σ²/H² (0.25 % at σ = 5 %). With this on, a second solve fits each reading's |h| to H + σ̂²(tr A² − ûᵀA²û)/(2H),
+  /// û its direction (the noise across it lengthens it; over all directions the mean is σ̂²‖A‖_F²/(3H)), less the
+  /// move of the Sampson normaliser, σ̂ from the first; without a robust loss the Jacobian's move with the noise is
+  /// then taken off too (−F⁻¹σ̂²Σ∂J/∂n, refine.cpp). The Calibration still reports H.
   bool noise_bias_correction = true;
   SerialCorrelation serial_correlation = SerialCorrelation::automatic;
   /// Significance of the Ljung–Box test (20 lags, or N/5 when fewer) that switches `automatic` to

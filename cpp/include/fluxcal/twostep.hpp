@@ -22,7 +22,7 @@
 // weights the readings algebraically); the refinement (default on) is Gauss–Newton on
 //   e_k = √((ĥx − bx)²/γx² + (ĥy − by)²/γy²) − h_k
 // over (bx, by, γx, γy), which for white reading noise reaches the Cramér–Rao bound. Noise biases |h| upwards by
-// σ²/(2h), the gains with it; noise_bias_correction (default on) solves again towards the raised magnitudes.
+// σ²/(2h), the gains with it; noise_bias_correction (default on) takes the O(σ²) bias off (the option's comment).
 // Compensation (eq. 19): h = (ĥ − b) ⊘ γ per axis; the frame change C_w→b of eq. 19 (sensor x/y to
 // radial/tangential) belongs to the application.
 //
@@ -80,7 +80,8 @@ struct TwoStep2DOptions {
   /// Noise lengthens the corrected magnitudes (E|h + ε| ≈ h + σ²/2h), which shrinks a fit aimed at h_k and raises
   /// the gains by σ²/(2h²) of the field (3e-4 at 3 % noise: several standard errors at 10^5 readings). With this on,
   /// after the refinement each target is raised to the Rice mean E|h_k + ε| (σ from the residuals, across the
-  /// reading's direction) and the fit solved again. Needs refine.
+  /// reading's direction) less the Sampson normaliser's move, the fit solved again, and the Jacobian's move with
+  /// the noise taken off (−F⁻¹σ²Σ∂J/∂n). Needs refine; not applied when a gain is poorly determined.
   bool noise_bias_correction = true;
   /// Stop when no parameter (in normalised units, O(1)) changes by more than this.
   double tolerance = 1e-12;

@@ -10,6 +10,8 @@ from scipy.optimize import least_squares
 
 # Field magnitudes within this relative spread count as one magnitude (as in the core).
 CONSTANT_FIELD = 1e-6
+# A gain known worse than this (relative standard error) gets no noise-bias correction (TwoStep2DOptions's default).
+POORLY_DETERMINED = 0.02
 
 
 def _lstsq_scaled(H, z):
@@ -57,29 +59,54 @@ def _rice_mean(nu, s):
 def twostep_2d(readings, field_norms, refine: bool = True, noise_bias_correction: bool = True) -> dict:
     """First step, then (refine) least squares on the Sampson residual (ρ_k − h_k)/|∇ρ_k|, ρ_k = √((ĥx − bx)²/γx² +
     (ĥy − by)²/γy²) and ∇ its gradient in the reading: the reading's distance from its field's ellipse. With
-    noise_bias_correction, solved again towards each reading's Rice mean E|h_k + ε| (_rice_mean), ε the noise
-    across the reading's direction in field units, σ² the residuals' mean square over N − 4."""
+    noise_bias_correction (σ² the first fit's residuals' mean square over N − 4; both gains known to 2 % or better):
+    solved again towards each reading's
+    target — its Rice mean E|h_k + ε| (_rice_mean), ε the noise across its direction in field units, less
+    σ²(q₄/q − q)/h_k, the normaliser's move (q = ûᵀΓ⁻²û, q₄ = ûᵀΓ⁻⁴û) — then moved by σ²(JᵀJ)⁻¹Σ∂J_k/∂n_k, the
+    Jacobian's move along each reading's normal (SciPy's Jacobian, central differences in the readings)."""
     first = twostep_2d_first_step(readings, field_norms)
     if not refine:
         return first
     m = np.asarray(readings, dtype=float)
     h = np.asarray(field_norms, dtype=float)
 
-    def fit(p0, targets):
-        def residual(p):
-            hx, hy = (m[:, 0] - p[0]) / p[2], (m[:, 1] - p[1]) / p[3]
-            rho = np.hypot(hx, hy)
-            return (rho - targets) * rho / np.hypot(hx / p[2], hy / p[3])
+    def residual(p, targets, m=m):
+        hx, hy = (m[:, 0] - p[0]) / p[2], (m[:, 1] - p[1]) / p[3]
+        rho = np.hypot(hx, hy)
+        return (rho - targets) * rho / np.hypot(hx / p[2], hy / p[3])
 
-        return least_squares(residual, p0, method="lm", x_scale="jac", xtol=1e-15, ftol=1e-15, gtol=1e-15)
+    def fit(p0, targets):
+        return least_squares(residual, p0, args=(targets,), method="lm", x_scale="jac", xtol=1e-15, ftol=1e-15,
+                             gtol=1e-15)
 
     sol = fit(np.concatenate([first["offset"], first["gain"]]), h)
-    if noise_bias_correction:
+    sigma2 = sol.fun @ sol.fun / (len(h) - 4)
+    gain_se = np.sqrt(sigma2 * np.diag(np.linalg.pinv(sol.jac.T @ sol.jac))[2:]) / np.abs(sol.x[2:])
+    if noise_bias_correction and gain_se.max() <= POORLY_DETERMINED:  # (a gain known worse: no O(σ²) correction)
         p = sol.x
         a, c = (m[:, 0] - p[0]) / p[2], (m[:, 1] - p[1]) / p[3]
-        across = (c**2 / p[2] ** 2 + a**2 / p[3] ** 2) / (a**2 + c**2)  # (field per reading)² across ρ's direction
-        s = np.sqrt(sol.fun @ sol.fun / (len(h) - 4) * across)
-        sol = fit(p, _rice_mean(h, s))
+        rho2 = a**2 + c**2
+        across = (c**2 / p[2] ** 2 + a**2 / p[3] ** 2) / rho2  # (field per reading)² across ρ's direction
+        q = (a**2 / p[2] ** 2 + c**2 / p[3] ** 2) / rho2
+        q4 = (a**2 / p[2] ** 4 + c**2 / p[3] ** 4) / rho2
+        targets = _rice_mean(h, np.sqrt(sigma2 * across)) - sigma2 * (q4 / q - q) / h
+        sol = fit(p, targets)
+        p = sol.x
+        # Σ_k ∂J_k/∂n_k: J by central differences in the parameters, then along each reading's normal ∇ρ/|∇ρ|
+        a, c = (m[:, 0] - p[0]) / p[2], (m[:, 1] - p[1]) / p[3]
+        normal = np.column_stack([a / p[2], c / p[3]])
+        normal /= np.linalg.norm(normal, axis=1, keepdims=True)
+        step = 1e-4 * np.ptp(m, axis=0).max() / 2
+
+        def jacobian(x, shifted=m):  # central differences in the parameters
+            dp = 1e-6 * np.maximum(np.abs(x), 1e-3)
+            return np.column_stack([(residual(x + dp[j] * np.eye(4)[j], targets, shifted)
+                                     - residual(x - dp[j] * np.eye(4)[j], targets, shifted)) / (2 * dp[j])
+                                    for j in range(4)])
+
+        dj = (jacobian(p, m + step * normal).sum(axis=0) - jacobian(p, m - step * normal).sum(axis=0)) / (2 * step)
+        sol.x = p + sigma2 * np.linalg.solve(sol.jac.T @ sol.jac, dj)
+        sol.fun, sol.jac = residual(sol.x, targets), jacobian(sol.x)
     # covariance of (bx, by, γx, γy): s²(JᵀJ)⁻¹ with SciPy's Jacobian at the solution (γ's sign made positive)
     flip = np.concatenate([np.ones(2), np.sign(sol.x[2:])])
     J = sol.jac * flip
