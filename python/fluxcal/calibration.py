@@ -120,8 +120,11 @@ class Calibration:
         would otherwise reject with pybind11's listing of their signatures."""
         def numbers(name, value, shape, need):
             try:
-                if np.asarray(value).dtype.kind in "US":  # NumPy would read "5e4" as a number
+                if np.asarray(value).dtype.kind in "USb":  # NumPy would read "5e4" as a number, and true as 1.0
                     raise TypeError
+                if isinstance(value, (list, tuple)) and any(isinstance(v, (bool, np.bool_))
+                                                            for v in np.asarray(value, dtype=object).ravel()):
+                    raise TypeError  # (a hand edit's true beside numbers: a blind check exported it as 1.0)
                 return np.asarray(value, dtype=float).reshape(shape)
             except (TypeError, ValueError):
                 shown = " ".join(repr(value).split())

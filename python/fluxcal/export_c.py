@@ -39,6 +39,7 @@ that both must reproduce bit for bit (`<name>_kalman_self_test()`).
 from __future__ import annotations
 
 import copy
+import hashlib
 import json
 import math
 import re
@@ -59,6 +60,11 @@ INT32_MIN, INT32_MAX = -(2 ** 31), 2 ** 31 - 1
 FLOAT_RELATIVE_TOLERANCE = 1e-6  # float32 result vs double: relative to max(|h|∞, field norm)
 RANGE_MARGIN = 2.0               # the stated input range is this many times the readings' extent
 RANGE_LSB_SHARE = 16.0           # a Kalman filter's LSB under its input's σ over this (rounding adds 0.02 σ)
+# The fixed-point error bound E is said when it exceeds the calibration's own residual RMS (|h| − F: the noise and
+# model error h already has; below it the format does not limit h), held within these shares of the field F: a
+# noise-free simulation's residual of 1e-14 is no line, nor a failed fit's several %. Without a residual (a hand-made
+# or multi-position calibration): PRECISION_SHARE of F, 1 mrad of heading.
+PRECISION_SHARE, PRECISION_SHARE_RANGE = 1e-3, (1e-6, 1e-2)
 KALMAN_KIND = "fluxcal fixed AR Kalman"
 
 
@@ -340,6 +346,23 @@ def load_kalman(path):
             raise ValueError(f"{path}: {exc}") from None
     except (KeyError, TypeError) as exc:
         raise ValueError(f"{path}: malformed Kalman settings (missing or wrong {exc})") from None
+    # A non-stationary AR model: ArKalman starts from 10 (q + r) in place of the stationary covariance, so σ stays
+    # finite and the check below it never fired; a drift model's coefficients edited to [2, -0.5, 0.1] (root 1.75)
+    # were exported silently, and that filter amplified the device's noise (std 0.057 against 0.051: a blind check).
+    # A drift model's AR model is of the noise about the drift, stationary by construction: refused whatever the
+    # format. A saved filter with frac_bits stated may be a deliberate random walk (a1 = 1): only its format's
+    # rule, 8 σ of the stationary noise, has no meaning without them.
+    rho = float(f.double.spectral_radius)
+    drift_model = data.get("kind") == "fluxcal drift model"
+    if not rho < 1.0 and (drift_model or f.frac_bits is None):
+        field_name = "ar.coefficients" if drift_model else "ar_coeffs"
+        coefficients = ", ".join(f"{a:.6g}" for a in f.double.ar_coeffs)
+        raise ValueError(
+            f"{path}: {field_name} [{coefficients}]: the AR model is not stationary (a root of magnitude {rho:.4g} "
+            "≥ 1): its noise would grow without bound, and a Kalman filter on it amplifies the noise instead of "
+            "smoothing it" + ("; the noise about a drift is stationary: the file was edited or damaged, or the fit "
+                              "left a trend in that noise — fit the drift model again (fluxcal drift fit)"
+                              if drift_model else "; give frac_bits explicitly if a random walk is meant"))
     if f.frac_bits is None:
         sigma = _input_sigma(f)
         if not math.isfinite(sigma):
@@ -518,6 +541,7 @@ def _drift_part(drift, name: str):
          " * The noise about this drift is white (AR order 0): there is no Kalman filter, W_c is the output."),
         f" * {dname}(temp, temp_outside, &f) returns 0, or 1 when temp is outside every range"
         + (" or temp - temp_outside outside what its range was fitted over" if seen else "")
+        + (",\n * or either is NaN or inf" if model.regressor == "difference" else " or NaN")
         + " (f = 0 then: a",
         f" * polynomial is not extrapolated){'' if model.regressor == 'difference' else '; temp_outside is unused'}.",
         f" * {dname}_self_test() compares the test temperatures with fluxcal's values (0 = pass). */",
@@ -538,9 +562,13 @@ def _drift_part(drift, name: str):
         f"    const double lo = {dname}_edges[s] - (s == 0 ? {dup}_EDGE_MARGIN : 0.0);",
         f"    const double hi = {dname}_edges[s + 1] + (s == {dup}_RANGES - 1 ? {dup}_EDGE_MARGIN : 0.0);",
         f"    if (temp >= lo && (temp < hi || (s == {dup}_RANGES - 1 && temp <= hi))) {{",
+        # written so that NaN fails it: `x < lo || x > hi` is false for NaN, and a NaN temp_outside (a failed
+        # thermometer) had returned 0 with f = NaN (a blind check)
         *([f"      const double span = {dname}_difference_range[s][1] - {dname}_difference_range[s][0];",
-           f"      if (x < {dname}_difference_range[s][0] - {d(EDGE_MARGIN)} * span ||",
-           f"          x > {dname}_difference_range[s][1] + {d(EDGE_MARGIN)} * span) return 1;"] if seen else []),
+           f"      if (!(x >= {dname}_difference_range[s][0] - {d(EDGE_MARGIN)} * span &&",
+           f"            x <= {dname}_difference_range[s][1] + {d(EDGE_MARGIN)} * span)) return 1;"] if seen else
+          # (a model saved without the difference's ranges: x is still refused when it is not a finite number)
+          ["      if (!(x >= -1e308 && x <= 1e308)) return 1;"] if model.regressor == "difference" else []),
         f"      for (j = {dup}_MAX_ORDER; j >= 0; --j) *f = *f * x + {dname}_coefficients[s][j];",
         "      return 0;",
         "    }",
@@ -771,13 +799,19 @@ def export_c(cal: Calibration | None, path, q_format=None, name: str | None = No
                                        if kalman is not None else ""))
     if kalman_range is not None and kalman is None:
         raise ValueError("--kalman-range: the largest input of a Kalman filter; give one (--kalman)")
-    undetermined = None
+    undetermined = mirror_said = None
     if cal is not None:
         require_calibration(cal, "cal")
         undetermined = _undetermined(cal)
         if undetermined and not force:
             raise ValueError(f"cal: {undetermined}; firmware would apply a guess — recalibrate, or export it anyway "
                              "with force=True (--force), which the header then says")
+        mirrored, mirror_said = _mirrored(cal)
+        if mirrored and not force:
+            raise ValueError(f"cal: {mirrored}; export it anyway with force=True (--force), which the header then "
+                             "says, only if that is meant (a reference-vector calibration of axes of the other "
+                             "handedness)")
+        undetermined = "; ".join(filter(None, (undetermined, mirrored))) or None
     if kalman is not None and not isinstance(kalman, (str, Path, FixedArKalman)):
         raise TypeError(f"kalman: expected a FixedArKalman or the path of its JSON, got {type(kalman).__name__}")
     fit_said, fit_warned = _drift_fit_said(kalman, drift, force)  # (before anything is written)
@@ -791,6 +825,12 @@ def export_c(cal: Calibration | None, path, q_format=None, name: str | None = No
     parts = []
     if cal is not None:
         lines, result.fixed, result.inputs_q = _calibration_part(cal, name, q_format, input_range, i32)
+        if mirror_said:
+            result.warnings.append(f"cal: {mirror_said}")
+            lines = _c_comment(f"WARNING: {mirror_said}.") + lines
+        precision_said = _precision_warnings(result.fixed, q_format, input_range)
+        result.warnings += precision_said
+        lines = [line for w in precision_said for line in _c_comment(f"WARNING: {w}.")] + lines
         if undetermined:  # (and a macro a build can refuse: #ifdef NAME_EXPORTED_WITH_FORCE / #error)
             lines = [f"/* WARNING (exported with --force): {_in_comment(undetermined)}. */",
                      f"#define {name.upper()}_EXPORTED_WITH_FORCE 1"] + lines
@@ -804,16 +844,45 @@ def export_c(cal: Calibration | None, path, q_format=None, name: str | None = No
     if drift is not None:
         lines, result.drift = _drift_part(drift, name)
         parts.append(("temperature drift compensation", fit_said.get("drift", []) + lines))
+    body = [line for _, lines in parts for line in ["", *lines]]
+    # ... and a hash of the content: two different calibrations exported under one name (magcal.h in two
+    # folders) shared the guard, and the second was skipped in silence, the first one's constants used (a blind
+    # check); now they clash aloud (redefinition), while the same header included twice is still skipped
+    digest = hashlib.sha256(_ascii("\n".join(body)).encode("ascii")).hexdigest()[:8].upper()
+    guard = f"FLUXCAL_{name}_{digest}_H"
     head = [f"/* {path.name}: {' and '.join(what for what, _ in parts)} for firmware, written by fluxcal "
             f"{__version__}" + (f" from {_in_comment(source)}." if source else "."),
             " * C99, also valid C++; every function is static inline. */",
             # the guard keeps the name's case and a prefix no part's own guard has: `--name mag` and `--name MAG`,
             # or `--name comb_kalman` beside comb's Kalman part (COMB_KALMAN_H), had one guard and the second
             # header was skipped without a word (a blind check); now their macros or functions clash aloud
-            f"#ifndef FLUXCAL_{name}_H", f"#define FLUXCAL_{name}_H", "", "#include <stdint.h>"]
-    body = [line for _, lines in parts for line in ["", *lines]]
-    path.write_text(_ascii("\n".join(head + body + ["", f"#endif /* FLUXCAL_{name}_H */", ""])), encoding="ascii")
+            f"#ifndef {guard}", f"#define {guard}", "", "#include <stdint.h>"]
+    path.write_text(_ascii("\n".join(head + body + ["", f"#endif /* {guard} */", ""])), encoding="ascii")
     return result
+
+
+def _mirrored(cal: Calibration) -> tuple[str | None, str | None]:
+    """(a refusal, a warning) for a matrix that mirrors the field. A magnitude calibration's A is symmetric positive
+    definite ((W Wᵀ)^-1/2: calibration.CONVENTION): a symmetric A with an eigenvalue ≤ 0 is a hand edit or a sign
+    error (a blind check's negated matrix, det A < 0, was exported and passed its self-test), refused. Only with
+    reference vectors (A = W⁻¹, a full matrix: fit_vector, fluxcal positions) may A be a mirror — axes of the other
+    handedness, which those fits say — and then det A < 0 is repeated as a warning."""
+    a = cal.matrix
+    det = float(np.linalg.det(a))
+    names = cal.summary.get("parameter_names")
+    vector = (isinstance(names, list) and names[3:4] == ["w00"]) or cal.model.startswith("positions")
+    if not vector and np.allclose(a, a.T, rtol=0.0, atol=1e-12 * float(np.max(np.abs(a)))):
+        eigenvalues = np.linalg.eigvalsh((a + a.T) / 2)
+        if not np.all(eigenvalues > 0):
+            return (f"matrix: symmetric with eigenvalues {', '.join(f'{v:.6g}' for v in eigenvalues)} (det A = "
+                    f"{det:.6g}): not positive definite, so it " + ("mirrors" if det < 0 else "turns over") +
+                    " the field; a magnitude calibration's A is symmetric positive definite ((W W^T)^-1/2), so this "
+                    "one was edited or its sign flipped"), None
+    if det < 0:
+        return None, (f"matrix: det A = {det:.6g} < 0, a mirror: right only when the sensor's axes and the "
+                      "reference's differ in handedness (a reference-vector or multi-position fit says so); a "
+                      "sign flipped in the file mirrors every field")
+    return None, None
 
 
 def _undetermined(cal: Calibration) -> str | None:
@@ -834,6 +903,45 @@ def _undetermined(cal: Calibration) -> str | None:
     why = next((w for w in warnings if "identif" in w), None) or next((w for w in warnings if "determin" in w), "")
     return ("the calibration is not identifiable: its data did not determine every parameter"
             + (f" ({why.rstrip('.')})" if why else ""))
+
+
+def _precision_warnings(fx: FixedCalibration, q_format, input_range) -> list:
+    """Words when the fixed-point error bound is a large share of the field (PRECISION_SHARE's comment): a typo'd
+    --input-range 1e9 (for 1e3 µT) gave Q30.1 and E = 3.6 µT on a 48 µT field, --q-format Q31.0 on µT readings
+    0.56 µT, both written without a word (a blind check); the Kalman part says its analogue
+    (_kalman_range_warnings)."""
+    cal = fx.calibration
+    norm, bound = float(cal.field_norm), fx.error_bound
+    hu, u = f" {cal.h_units}".rstrip(), f" {cal.units}".rstrip()
+    try:
+        residual = float(cal.summary.get("residual_rms"))
+    except (TypeError, ValueError):
+        residual = math.nan
+    if math.isfinite(residual) and residual > 0:
+        lo, hi = PRECISION_SHARE_RANGE
+        line = min(max(residual, lo * norm), hi * norm)
+        what = (f"the calibration's own residual RMS {residual:.3g}{hu}" if line == residual else
+                f"{line / norm:.2g} of the field (the calibration's residual RMS {residual:.3g}{hu} is no line)")
+    else:
+        line, what = PRECISION_SHARE * norm, f"{PRECISION_SHARE:.1%} of the field (no residual RMS in its summary)"
+    if not (norm > 0 and bound > line):
+        return []
+    given = " ".join(filter(None, (f"--q-format {fx.fmt}" if q_format is not None else "",
+                                   f"--input-range {fx.input_range:g}{u}" if input_range is not None else "")))
+    head = (f"{given or f'the default format {fx.fmt}'}: the fixed-point error bound E = {bound:.3g}{hu} "
+            f"({fx.fmt}, LSB {fx.fmt.lsb:.3g}{u}) is {bound / norm:.2%} of the field {norm:.6g}{hu}, above {what}: "
+            "the format, not the sensor, limits h")
+    if q_format is not None:  # what the range's own format gives
+        better = fixed_point(cal, None, input_range)
+        if better.error_bound <= line:
+            return [head + f"; {better.fmt}, the default for this range, gives E = {better.error_bound:.3g}{hu} "
+                    "(leave --q-format out)"]
+    if input_range is None:  # the range of the calibration's own readings: an int32 has no finer step over it
+        return [head + f"; an int32 over the readings' range ±{fx.input_range:.6g}{u} holds no finer step (an offset "
+                "that large beside the field?)"]
+    extent, unit = reading_extent(cal), cal.units or "the readings' unit"
+    return [head + f"; the stated input range ±{fx.input_range:.6g}{u} is {fx.input_range / extent:.3g} x the "
+            f"readings' extent {extent:.6g}{u}: is that the sensor's full scale in {unit}?"]
 
 
 def _calibration_part(cal: Calibration, name: str, q_format, input_range, i32):

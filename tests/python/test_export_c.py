@@ -684,7 +684,9 @@ def test_headers_that_differ_in_case_or_clash_with_a_part_are_not_skipped_silent
     export_c(CALS["nT"], tmp_path / "lower.h", name="mag")
     export_c(CALS["Gauss"], tmp_path / "upper.h", name="MAG")
     lower, upper = (tmp_path / "lower.h").read_text(), (tmp_path / "upper.h").read_text()
-    assert "#ifndef FLUXCAL_mag_H" in lower and "#ifndef FLUXCAL_MAG_H" in upper
+    # (the guard also holds a hash of the content: test_two_calibrations_of_one_name_in_one_file_clash_aloud)
+    assert re.search(r"#ifndef FLUXCAL_mag_[0-9A-F]{8}_H", lower) and \
+        re.search(r"#ifndef FLUXCAL_MAG_[0-9A-F]{8}_H", upper)
     source = tmp_path / "two.c"
     source.write_text('#include "lower.h"\n#include "upper.h"\nint main(void) { return mag_self_test() + '
                       'MAG_self_test(); }\n')
@@ -711,3 +713,176 @@ def test_an_existing_file_that_is_no_header_is_not_overwritten(tmp_path):
     with pytest.raises(ValueError, match="run.csv exists and is no C header"):
         export_c(CALS["nT"], kept)
     assert kept.read_text() == "mx,my,mz\n1,2,3\n"
+
+
+def _difference_drift_model():
+    foct = sim.foct_zero_bias(rng=np.random.default_rng(1), hold_s=300, ramp_s=150, self_heating=3.0)
+    model, _ = drift.fit_pipeline(foct.columns["zero_bias"], foct.columns["temp"], foct.columns["temp_outside"],
+                                  regressor="difference")
+    return model
+
+
+@pytest.mark.parametrize("ranges", ["with difference ranges", "saved without them"])
+def test_drift_function_refuses_a_temperature_that_is_not_a_number(tmp_path, ranges):
+    """`x < lo || x > hi` is false for NaN: with the difference regressor a NaN temp_outside (a failed outside
+    thermometer) returned 0, "ok", with f = NaN, where a NaN temp returned 1 and Python refuses it (a blind check).
+    Every non-number in either input now returns 1 with f = 0, also for a model saved without the difference's
+    fitted ranges."""
+    model = _difference_drift_model()
+    if ranges == "saved without them":
+        for seg in model.segments:
+            del seg["difference_range"]
+        assert model.difference_ranges is None
+    header = tmp_path / "p.h"
+    export_c(None, header, name="p", drift=model)
+    source, exe = tmp_path / "drift.c", tmp_path / "drift"
+    source.write_text(DRIFT_DRIVER.replace("HEADER", header.name))
+    subprocess.run([compiler(), "-std=c99", "-pedantic", "-Wall", "-Wextra", "-Werror", "-Wfloat-equal", "-O2",
+                    f"-I{tmp_path}", str(source), "-o", str(exe)], check=True)
+    seg = model.segments[0]
+    temp = float(np.mean(seg["range"]))
+    outside = temp - (float(np.mean(model.difference_ranges[0])) if model.difference_ranges else 5.0)
+    expected = float(model.evaluate([temp], [outside])[0])
+    pairs = [(temp, "nan"), ("nan", outside), (temp, "inf"), (temp, "-inf"), ("inf", "inf"), ("nan", "nan"),
+             (temp, outside)]
+    run = subprocess.run([str(exe)], input="".join(f"{t} {o}\n" for t, o in pairs), capture_output=True, text=True,
+                         check=True)
+    lines = run.stdout.split("\n")
+    assert lines[-2] == "self_test 0"
+    flags = [int(line.split()[0]) for line in lines[:-2]]
+    values = [float(line.split()[1]) for line in lines[:-2]]
+    assert flags == [1, 1, 1, 1, 1, 1, 0], run.stdout
+    assert values[:-1] == [0.0] * 6 and values[-1] == pytest.approx(expected, rel=1e-12)
+    assert "or either is NaN or inf" in header.read_text()  # (and the header says so)
+    with pytest.raises(ValueError, match="temp_outside"):  # what the C function now agrees with
+        model.evaluate([temp], [np.nan])
+
+
+def test_a_drift_model_with_a_non_stationary_noise_model_is_refused(tmp_path):
+    """A drift model's AR noise model edited to [2, -0.5, 0.1] (a root of magnitude 1.75) was exported with its
+    Kalman filter without a word, and that filter amplified the noise (a blind check): load_kalman's own refusal
+    never fired, since ArKalman starts a non-stationary model from 10 (q + r), a finite σ. Refused now, naming the
+    file and the field; so is a saved filter whose signal format would follow from that σ (frac_bits not given)."""
+    foct = sim.foct_zero_bias(rng=np.random.default_rng(1), hold_s=300, ramp_s=150)
+    model, _ = drift.fit_pipeline(foct.columns["zero_bias"], foct.columns["temp"])
+    path = model.save(tmp_path / "drift.json")
+    export_c(None, tmp_path / "fine.h", kalman=path)  # the fitted model itself is exported
+    data = json.loads(path.read_text())
+    data["ar"]["coefficients"], data["ar"]["order"] = [2.0, -0.5, 0.1], 3
+    edited = tmp_path / "edited.json"
+    edited.write_text(json.dumps(data))
+    words = r"edited.json: ar.coefficients \[2, -0.5, 0.1\]: the AR model is not stationary \(a root of magnitude 1.7"
+    with pytest.raises(ValueError, match=words):
+        export_c(None, tmp_path / "k.h", kalman=edited)
+    r = run_cli("export-c", "-o", tmp_path / "cli.h", "--kalman", edited)
+    assert r.returncode == 2 and "not stationary" in r.stderr and not (tmp_path / "cli.h").exists(), r.stderr
+    # a saved filter: with its format stated it may be a deliberate random walk; without, its 8 σ rule is void
+    walk = FixedArKalman((1.0,), 0.01, 0.1, frac_bits=20)
+    export_c(None, tmp_path / "walk.h", kalman=save_kalman(walk, tmp_path / "walk.json"))
+    walk.frac_bits = None
+    with pytest.raises(ValueError, match=r"walk.json: ar_coeffs \[1\]: the AR model is not stationary .* give "
+                                         r"frac_bits"):
+        load_kalman(save_kalman(walk, tmp_path / "walk.json"))
+
+
+def test_a_format_or_range_that_wastes_the_precision_is_said(tmp_path):
+    """A typo'd --input-range 1e9 (for 1e3 µT) gave Q30.1 and a bound of 3.6 µT on a 48 µT field, --q-format Q31.0 on
+    µT readings 0.56 µT, written without a word (a blind check). Said now, when the bound exceeds the calibration's
+    own residual RMS: in ExportResult.warnings, the command line's output and the header; integer counts in
+    Q31.0, whose bound is under the residual, and the default formats say nothing."""
+    s = simulated(21, n=1500, noise=0.003, field_norm=48.0)
+    cal = fluxcal.calibrate(s.readings, field_norm=48.0, units="uT")
+    residual = cal.summary["residual_rms"]
+    quiet = export_c(cal, tmp_path / "default.h")
+    assert quiet.warnings == [] and "WARNING" not in (tmp_path / "default.h").read_text()
+    q31 = export_c(cal, tmp_path / "q31.h", q_format="Q31.0")
+    assert q31.fixed.error_bound > residual
+    assert len(q31.warnings) == 1 and re.match(r"--q-format Q31.0: the fixed-point error bound E = 0\.\d+ uT .* "
+                                               r"above the calibration's own residual RMS .*\(leave --q-format out\)",
+                                               q31.warnings[0]), q31.warnings
+    assert "WARNING: --q-format Q31.0" in (tmp_path / "q31.h").read_text()
+    wide = export_c(cal, tmp_path / "wide.h", input_range=1e9)
+    assert len(wide.warnings) == 1 and wide.warnings[0].startswith("--input-range 1e+09 uT: the fixed-point error ")
+    assert "is that the sensor's full scale in uT?" in wide.warnings[0]
+    saved = cal.save(tmp_path / "cal.json")
+    r = run_cli("export-c", saved, "-o", tmp_path / "cli.h", "--input-range", "1e9")
+    assert r.returncode == 0 and "warning: --input-range 1e+09 uT" in r.stdout, r.stdout + r.stderr
+    # counts: Q31.0 (integer counts fed as they are) rounds to a share of a count, under the noise: nothing said
+    counts = fluxcal.calibrate(np.rint(s.readings * 10.0), field_norm=48.0, units="counts")
+    counts.field_units = "uT"
+    natural = export_c(counts, tmp_path / "counts.h", q_format="Q31.0", input_range=32768)
+    assert natural.fixed.error_bound < counts.summary["residual_rms"] and natural.warnings == []
+    # without a residual in the summary the line is 0.1 % of the field
+    bare = fluxcal.Calibration(offset=cal.offset, matrix=cal.matrix, field_norm=48.0, units="uT")
+    assert export_c(bare, tmp_path / "bare.h").warnings == []
+    assert "0.1% of the field" in export_c(bare, tmp_path / "bare.h", q_format="Q31.0").warnings[0]
+
+
+def test_two_calibrations_of_one_name_in_one_file_clash_aloud(tmp_path):
+    """magcal.h of one calibration and magcal.h of another in two folders shared the guard FLUXCAL_magcal_H: in one
+    C file the second was skipped without a word and the first one's constants used (a blind check). The guard now
+    holds a hash of the content: the two clash (redefinition), the same header included twice is still skipped."""
+    for folder, which in (("s1", "nT"), ("s2", "Gauss"), ("s3", "nT")):
+        (tmp_path / folder).mkdir()
+        export_c(CALS[which], tmp_path / folder / "magcal.h")
+    main = "int main(void) { return magcal_self_test(); }\n"
+    for name, includes, builds in (("two", ("s1", "s2"), False), ("same", ("s1", "s1"), True),
+                                   ("copy", ("s1", "s3"), True)):
+        source = tmp_path / f"{name}.c"
+        source.write_text("".join(f'#include "{f}/magcal.h"\n' for f in includes) + main)
+        build = subprocess.run([compiler(), "-std=c99", "-Wall", "-Wextra", "-Werror", f"-I{tmp_path}", str(source),
+                                "-o", str(tmp_path / name)], capture_output=True, text=True)
+        assert (build.returncode == 0) == builds, (name, build.stderr)
+        if not builds:
+            assert "redefinition" in build.stderr, build.stderr
+        else:
+            assert subprocess.run([str(tmp_path / name)]).returncode == 0
+    guards = [re.search(r"#ifndef (FLUXCAL_magcal_[0-9A-F]{8}_H)", (tmp_path / f / "magcal.h").read_text()).group(1)
+              for f in ("s1", "s2", "s3")]
+    assert guards[0] != guards[1] and guards[0] == guards[2]  # the content, not the folder, makes the guard
+
+
+def test_a_mirrored_magnitude_calibration_is_refused(tmp_path):
+    """A magnitude calibration's matrix negated by hand (det A < 0: every field mirrored) was exported and passed its
+    self-test (a blind check). fluxcal's magnitude calibrations are symmetric positive definite ((W W^T)^-1/2):
+    such a matrix is refused naming the field, unless forced (the header then says it); a reference-vector fit's full
+    matrix may be a mirror (axes of the other handedness) and is exported with a warning."""
+    cal = CALS["nT"]
+    negated = fluxcal.Calibration(offset=cal.offset, matrix=-cal.matrix, field_norm=cal.field_norm, units="nT",
+                                  model=cal.model, summary=cal.summary)
+    with pytest.raises(ValueError, match=r"cal: matrix: symmetric with eigenvalues -.* \(det A = -.*\): not positive "
+                                         r"definite, so it mirrors the field"):
+        export_c(negated, tmp_path / "n.h")
+    assert not (tmp_path / "n.h").exists()
+    saved = negated.save(tmp_path / "negated.json")
+    r = run_cli("export-c", saved, "-o", tmp_path / "cli.h")
+    assert r.returncode == 2 and "not positive definite" in r.stderr and not (tmp_path / "cli.h").exists()
+    export_c(negated, tmp_path / "n.h", force=True)
+    text = (tmp_path / "n.h").read_text()
+    assert "WARNING (exported with --force): matrix: symmetric" in text and "N_EXPORTED_WITH_FORCE 1" in text
+    # a turn of 180° (two axes negated, det > 0) is no magnitude calibration either
+    turned = fluxcal.Calibration(offset=cal.offset, matrix=cal.matrix @ np.diag([-1.0, -1.0, 1.0]) @ cal.matrix
+                                 / np.abs(cal.matrix).max(), field_norm=cal.field_norm, units="nT")
+    assert np.allclose(turned.matrix, turned.matrix.T) and np.linalg.det(turned.matrix) > 0
+    with pytest.raises(ValueError, match="not positive definite, so it turns over the field"):
+        export_c(turned, tmp_path / "t.h")
+    # a vector fit's matrix (not symmetric) that is a mirror: exported, said
+    rotation = np.array([[0.0, -1.0, 0.0], [1.0, 0.0, 0.0], [0.0, 0.0, 1.0]])
+    vector = fluxcal.Calibration(offset=cal.offset, matrix=np.diag([1.0, 1.0, -1.0]) @ rotation @ cal.matrix,
+                                 field_norm=cal.field_norm, units="nT", summary={"parameter_names": [
+                                     "b0", "b1", "b2", "w00", "w01", "w02", "w10", "w11", "w12", "w20", "w21", "w22"]})
+    result = export_c(vector, tmp_path / "v.h")
+    assert len(result.warnings) == 1 and result.warnings[0].startswith("cal: matrix: det A = -")
+    assert "WARNING: matrix: det A = -" in (tmp_path / "v.h").read_text()
+    # fluxcal's own calibrations are not touched
+    for which in CALS:
+        assert export_c(CALS[which], tmp_path / f"{which}.h").warnings == []
+
+
+def test_a_matrix_entry_that_is_a_json_bool_is_refused(tmp_path):
+    """A hand edit's `true` as a matrix entry was read as 1.0 and exported (a blind check)."""
+    data = json.loads(CALS["nT"].save(tmp_path / "cal.json").read_text())
+    data["matrix"][0][0] = True
+    (tmp_path / "bool.json").write_text(json.dumps(data))
+    r = run_cli("export-c", tmp_path / "bool.json", "-o", tmp_path / "b.h")
+    assert r.returncode == 2 and "matrix" in r.stderr and not (tmp_path / "b.h").exists()
