@@ -232,6 +232,37 @@ def find_magnetometer(names, source: str = "recording", units=None):
     return None
 
 
+def rival_magnetometers(names, chosen, units=None) -> list:
+    """The magnetometer triples among `names` beside `chosen` (the three taken by default: mx,my,mz, or what
+    find_magnetometer found) that rank as high: another sensor's named triple (MagX.. or Bx.. beside mx..), plain
+    x,y,z beside a named one (unless only the named one states a field unit), or pandas' x.1,y.1,z.1 for a second
+    x,y,z. A calibrated triple ranks below (mx_cal, and fluxcal apply's hx,hy,hz), and so does a plain one below a
+    raw one chosen (x,y,z beside x_raw..). Two compasses had been taken one of them without a word (a blind
+    check): the caller refuses them."""
+    names, chosen = list(names), tuple(chosen)
+    found = _triples(names, MAG_WORDS)
+    mine = next((p for p, t in found.items() if t == chosen), None)
+    raw = bool(set(mine or ()) & RAW_WORDS) or all("raw" in words(n) for n in chosen)
+    # bx,by,bz beside fluxcal's own mx,my,mz are as often the true field a vector fit is given (--reference
+    # bx,by,bz, read after the magnetometer is taken) as a second sensor: not refused (the columns line names mx)
+    reference = chosen == ("mx", "my", "mz")
+    rivals = [t for p, t in found.items() if t != chosen and not set(p) & CALIBRATED_WORDS and p[:1] != ("h",)
+              and (not raw or set(p) & RAW_WORDS) and not (reference and p == ("b",))]
+    bare = _bare_axes(names, units).get("", {})
+
+    def field(n):
+        return bool(field_unit_of(n) or _states_field((units or {}).get(n)))
+
+    # x,y,z beside x_uT..: the field unit says which is the magnetometer (a sketch's counts beside its µT)
+    if len(bare) == 3 and not raw and tuple(bare[a] for a in "xyz") != chosen \
+            and not (all(map(field, chosen)) and not any(map(field, bare.values()))):
+        rivals.append(tuple(bare[a] for a in "xyz"))
+    twins = tuple(f"{n}.1" for n in chosen)  # pandas' names for a second column of the same name
+    if all(n in names for n in twins):
+        rivals.append(twins)
+    return [t for t in dict.fromkeys(rivals) if not set(t) & set(chosen)]
+
+
 def _bare_axes(names, units) -> dict:
     """{qualifier: {axis letter: name}} of the columns named by an axis alone: x, Y, x_raw, "x-axis" (with a
     field unit stated)."""

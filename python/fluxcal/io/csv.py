@@ -22,7 +22,7 @@ from pathlib import Path
 
 import numpy as np
 
-from .recording import Recording
+from .recording import COMMAS_HINT, Recording
 
 BAD_LINES = ("error", "skip")
 SKIP_HINT = "pass bad_lines='skip' (--bad-lines skip) to leave such lines out"
@@ -187,7 +187,7 @@ def parse_csv(path, lines, delimiter=",", preamble_lines: int = 0, bad_lines: st
     lines = _repeated_headers(path, lines, i, names, delimiter, unit_map, metadata)
     lines = _trailing_delimiters(lines, i + 1, names, delimiter)
     separated = {}
-    lines, converted = decimal_points(lines, i + 1, delimiter, separated)
+    lines, converted = decimal_points(lines, i + 1, delimiter, separated, path)
     if converted:
         metadata["decimal_separator"] = "comma"
         grouped = [j for j in converted if 0 <= j < len(names)]
@@ -652,6 +652,8 @@ def _repeated_headers(path, lines, header: int, names, delimiter, unit_map: dict
     from .columns import unit_name
 
     repeats = []
+    # the units the header line itself prints (not a '# units:' comment's): a repeat without them is another log
+    printed = {n: u for n, u in map(_split_header, _header_cells(lines[header].strip(), delimiter)) if u}
     for j in range(header + 1, len(lines)):
         text = lines[j].lstrip()
         if not (text[:1].isalpha() or text[:1] in "\"'") or is_comment(text) or not all(n in text for n in names):
@@ -661,9 +663,12 @@ def _repeated_headers(path, lines, header: int, names, delimiter, unit_map: dict
             continue
         order = [n for n, _ in cells] != list(names)
         units = [n for n, u in cells if u and unit_map.get(n) and unit_name(u) != unit_name(unit_map[n])]
-        if order or units:
+        # `t,mx,my,mz` after `t,mx [uT],…`: its rows had been read in µT, silently (a blind check's were in nT)
+        dropped = [n for n, u in cells if not u and printed.get(n)]
+        if order or units or dropped:
             change = ("the columns in another order: " + ",".join(n for n, _ in cells) if order else
-                      "; ".join(f"{n} in {dict(cells)[n]}, not {unit_map[n]}" for n in units))
+                      "; ".join(f"{n} in {dict(cells)[n]}, not {unit_map[n]}" for n in units) if units else
+                      f"no units for {', '.join(dropped)}: its rows' units are not said")
             raise ValueError(f"{path}, line {j + 1}: the header again, with {change} (line {header + 1}'s header: "
                              f"{lines[header].strip()!r}): two logs joined? Split the file at line {j + 1} and read "
                              "each part")
@@ -696,7 +701,7 @@ def _units_row(lines, start: int, names, delimiter, unit_map: dict):
     return lines[:j] + [""] + lines[j + 1:]  # blank: later lines keep their numbers
 
 
-def decimal_points(lines, start: int, delimiter, separated: dict | None = None):
+def decimal_points(lines, start: int, delimiter, separated: dict | None = None, path=None):
     """(lines, converted) with the data lines' decimal commas from `start` on made points when the table writes
     its numbers so (a European spreadsheet export, 1,25;0,5; see _decimal_comma_columns; comment lines stay
     as written) and thousands grouped with points before them dropped (45.199,6), else (lines, []); `converted`
@@ -705,7 +710,9 @@ def decimal_points(lines, start: int, delimiter, separated: dict | None = None):
     are converted. When the commas group thousands instead (48,123 beside 523, see _comma_thousands_columns),
     or points do (48.123 beside 523, see _point_thousands_whole_columns), they are dropped, those columns are
     added to `separated` (when given) with their mark, and converted is [] unless other columns hold decimal
-    commas (0,1;48.123: the points group thousands, the commas are decimal)."""
+    commas (0,1;48.123: the points group thousands, the commas are decimal). With `path`, commas that no number
+    of the table settles, or that numbers settle both ways, are an error naming `path` and a line (see
+    _comma_thousands_columns); without it (a first look at a table) they read as decimal commas."""
     from .columns import comma_kind
 
     if delimiter not in (";", "\t"):
@@ -723,7 +730,7 @@ def decimal_points(lines, start: int, delimiter, separated: dict | None = None):
     columns, grouped = _decimal_comma_columns(rows), _point_thousands_columns(rows)
     if not columns and not grouped:
         return lines, []
-    thousands = _comma_thousands_columns(rows, columns)
+    thousands = _comma_thousands_columns(rows, columns, lines, start, delimiter, path)
     if thousands:
         if separated is not None:
             separated.update(dict.fromkeys(thousands, ","))
@@ -811,23 +818,76 @@ def _decimal_comma_columns(rows) -> list:
     return found
 
 
-def _comma_thousands_columns(rows, columns) -> list:
+def _comma_thousands_columns(rows, columns, lines=(), start: int = 0, delimiter=None, path=None) -> list:
     """The decimal-comma `columns` of a ';' or tab table (`rows`: the first data lines' cells) when their commas
-    are thousands separators instead (a spreadsheet's #,##0 saved as text: 48,123 beside 523), else []. Taken so
-    when no cell holds a point, every comma in them has three digits after one to three (1,234), and the whole
-    numbers among them all have three digits (100–999: the columns run on across 1000), and there is one: a 0, a
-    45 or a 9,807 beside 0 (a decimal-comma table with a few whole cells) read as decimal commas, and so does a
-    whole number of four digits (1234 has no thousands separator)."""
-    from .columns import comma_kind
-
+    are thousands separators instead (a spreadsheet's #,##0 saved as text: 48,123 beside 523), else []. When no
+    cell holds a point, the numbers of those columns in all data lines (`lines` from `start`) are read for what
+    settles it, column by column (see _comma_evidence): a decimal comma that cannot group thousands (0,123 12,34)
+    or a whole number of four digits (#,##0 writes 1,234) says decimal; 1,234,567, or a whole number beside a
+    12,340 (a spreadsheet writing 812 as a whole number trims 12.340 to 12,34) says thousands. Both in one table
+    is an error; neither: thousands when the whole numbers among them all have three digits (100–999: the columns
+    run on across 1000, said by a warning), else an error asking for --decimal (a blind check's 12,345 beside a
+    -95 had been read as 12.345 nT, the same without the -95 as 12345) when `path` is given."""
     if not columns or any(_decimal_point(c) for row in rows for c in row):
         return []
-    cells = [row[j].strip().strip('"') for row in rows for j in columns if j < len(row) and row[j].strip()]
-    whole = [c for c in cells if "," not in c and _is_number(c)]
-    if whole and all(re.fullmatch(r"[-+]?[1-9]\d{2}", c) for c in whole) \
-            and all(comma_kind(c) == "ambiguous" for c in cells if "," in c):
+    decimal, thousands, first, wholes = None, None, None, []
+    body = [(start + k + 1, line.split(delimiter)) for k, line in enumerate(lines[start:])
+            if line.strip() and not is_comment(line)] if path is not None else \
+        [(None, row) for row in rows]
+    for j in columns:
+        cells = [(n, row[j].strip().strip('"')) for n, row in body if j < len(row) and row[j].strip()]
+        said, ambiguous, whole = _comma_evidence(cells)
+        first = first or ambiguous
+        wholes += whole
+        if said and said[0] == "decimal":
+            decimal = decimal or said[1:]
+        elif said:
+            thousands = thousands or said[1:]
+    if decimal is None:  # a clock's seconds with a decimal comma (Excel's German 09:26:53,000): the table's locale
+        clocks = ((n, _CLOCK_COMMA.search(delimiter.join(row))) for n, row in body) if delimiter else ()
+        decimal = next(((n, m.group()) for n, m in clocks if m), None)
+    if decimal and thousands and path is not None:
+        raise ValueError(f"{path}: line {decimal[0]}'s {decimal[1]!r} has a decimal comma, line {thousands[0]}'s "
+                         f"{thousands[1]!r} {thousands[2]}: the table's commas read both ways" + COMMAS_HINT)
+    if decimal or thousands:
+        return [] if decimal else list(columns)
+    if wholes and all(re.fullmatch(r"[-+]?[1-9]\d{2}", c) for c in wholes):
         return list(columns)
+    if path is not None and first is not None:
+        n, cell = first
+        raise ValueError(f"{path}, line {n}: {cell!r} is {cell.replace(',', '.')} with a decimal comma, "
+                         f"{cell.replace(',', '')} with a thousands separator, and no number in the table says "
+                         "which (0,5 or 12,34 would be decimal commas, 1,234,567 thousands separators)" + COMMAS_HINT)
     return []
+
+
+_CLOCK_COMMA = re.compile(r"\d:\d{2},\d+")  # 09:26:53,000: a decimal comma, never a thousands separator
+
+
+def _comma_evidence(cells):
+    """(what settles a column's commas, its first ambiguous comma, its whole numbers) from its (line, cell)s:
+    ("decimal", line, cell) for a comma no thousands separator makes (0,123 12,34) or a whole number of four
+    digits or more; ("thousands", line, cell, why) for 1,234,567 or a whole number beside a 12,340 (a fixed
+    three decimals never writes a whole number, and a trimmed one no 0 at the end); else None."""
+    from .columns import comma_kind
+
+    said, ambiguous, zero, whole = None, None, None, []
+    for n, cell in cells:
+        kind = comma_kind(cell)
+        if kind == "decimal" or (not kind and re.fullmatch(r"[-+]?\d{4,}", cell)):
+            return ("decimal", n, cell), ambiguous, whole
+        if kind == "several":
+            said = said or ("thousands", n, cell, "has thousands separators")
+        elif kind == "ambiguous":
+            ambiguous = ambiguous or (n, cell)
+            zero = zero or (cell.endswith("0") and (n, cell))
+        elif not kind and re.fullmatch(r"[-+]?\d{1,3}", cell):
+            whole.append(cell)
+    if said is None and zero and whole:
+        said = ("thousands", *zero, f"has a thousands separator, as the whole number {whole[0]} in its column says "
+                                    "(with decimal commas, a table writing whole numbers would write it "
+                                    f"{zero[1].rstrip('0').rstrip(',')})")
+    return said, ambiguous, whole
 
 
 _POINT_THOUSAND = re.compile(r'^\s*"?[-+]?[1-9]\d{0,2}\.\d{3}"?\s*$')  # 48.123: 48123 (German #.##0) or 48.123

@@ -141,7 +141,7 @@ def read_headerless(path, names=None, columns=None, units: str | None = None, de
     lines = read_lines(path)
     start = _skip_comments(lines)
     separated = {}
-    lines, converted = decimal_points(lines, start, delimiter, separated)
+    lines, converted = decimal_points(lines, start, delimiter, separated, path)
     rec = _read_headerless(path, lines, start, names, columns, units, delimiter)
     if converted:
         rec.metadata["decimal_separator"] = "comma"

@@ -11,7 +11,7 @@ from .._arrays import first_nonfinite, units_text
 UNIX_SECONDS = (1e8, 1e10)  # times in this range are clock times (Unix seconds, 1973 to 2286), not seconds from a start
 from .columns import (TO_CELSIUS, axis_of_name, field_unit_of, unit_name, find_accelerometer, find_current,
                       find_magnetometer, find_magnetometer_pair, find_position, find_temperature, find_time,
-                      sample_rate, TIME_UNITS, words)
+                      rival_magnetometers, sample_rate, TIME_UNITS, words)
 
 # a time column's start when it is a time of day (its date not in it): "12:00:00", "23:59:54.020000"
 _TIME_OF_DAY = re.compile(r"\d{2}:\d{2}:\d{2}(?:\.\d+)?")
@@ -40,6 +40,7 @@ class Recording:
         if len(lengths) > 1:
             raise ValueError(f"{self.source}: columns have different lengths {sorted(lengths)}")
         self.mag_columns = MAG_COLUMNS if all(c in self.columns for c in MAG_COLUMNS) else None
+        self._mag_unchecked = True  # the triple taken by name, not yet checked for a second one (mag_names)
         # A biaxial sensor's recording (two field columns, see mag_names): which sensor axes they are ("xy", "xz",
         # "yz"), and what said so ("their names", or "" when nothing did and x,y is taken)
         self._biaxial_axes, self._biaxial_axes_from = None, None
@@ -87,7 +88,7 @@ class Recording:
         self._biaxial_axes, self._biaxial_axes_from = None, None
         if len(names) == 2:
             names = self._biaxial(names)
-        self.mag_columns = names
+        self.mag_columns, self._mag_unchecked = names, False
         return self
 
     def _biaxial(self, names: tuple, axes: str | None = None) -> tuple:
@@ -178,6 +179,13 @@ class Recording:
             for n in found:
                 if not self.units.get(n) and field_unit_of(n):
                     self.units[n] = field_unit_of(n)
+        if self._mag_unchecked and len(self.mag_columns) == 3:
+            rivals = rival_magnetometers(self.columns, self.mag_columns, self.units)
+            if rivals:  # two compasses (mx.. and MagX..; x,y,z and x.1,y.1,z.1): never one taken without a word
+                listed = "; ".join(",".join(t) for t in (self.mag_columns, *rivals))
+                raise ValueError(f"{self.source}: several magnetometer column triples ({listed}); choose one with "
+                                 f"--columns (e.g. --columns {','.join(rivals[0])}) / select()")
+        self._mag_unchecked = False
         return self.mag_columns
 
     def _pair(self):

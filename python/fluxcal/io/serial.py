@@ -448,11 +448,16 @@ class TextDecoder:
         if (self._header_columns and not self._recorded and all(m in printed for m in MAG)
                 and "t_host" not in printed):
             known = {c.name.lower(): c for c in self.columns}
-            clash = self._header_unit_clash(cells, mine)
+            # before the first record, only units the user stated bind: a header the device printed earlier (or
+            # a banner taken for one by position, `QMC5883L at (0x0D) ready` giving my the unit 0x0D) has
+            # recorded nothing, and its units had refused the real header after it (a blind check lost all)
+            clash = self._header_unit_clash(cells, mine, stated_only=True)
             if clash:
                 return self._refuse("unit", line, clash, said)
+            self.printed_units = {}
             self.columns = [Column(known[n.lower()].name if n.lower() in known else n, "",
-                                   unit or (known[n.lower()].unit if n.lower() in known else ""))
+                                   unit or (self._stated.get(known[n.lower()].name, "") if n.lower() in known
+                                            else ""))
                             for n, unit in cells]
             self.names = [c.name for c in self.columns]
             self._order, self._refused, self._aliases = None, None, None
@@ -486,7 +491,11 @@ class TextDecoder:
         # as many fields, none of the columns' names elsewhere: --columns names the device's fields by position;
         # the device's names are remembered, so that a header it prints later in another order is followed (not
         # from plain words, which name nothing of the columns: a status line)
-        if not structured:
+        # a start-up banner of as many words, one in brackets (`QMC5883L at (0x0D) ready`, `MagLogger v2.1 (c)
+        # ACME`), is no header: its bracket was taken for a unit (my=0x0D) and refused the real header after it
+        units = [u for _, u in cells]
+        banner = not any(c in text for c in ",;") and (not all(units) or not all(map(is_unit, units)))
+        if not structured or banner:
             if said:
                 self._headers_said.discard(text)
             return None
@@ -515,13 +524,15 @@ class TextDecoder:
         return Reject("header", line + (": columns now in its order" if self._order else ""),
                       note=note or (f"{line}: columns in its order from here on" if changed else ""))
 
-    def _header_unit_clash(self, cells, reference) -> str:
-        """Why a header's units cannot be those of the recording (the stated or first printed ones), or ""."""
+    def _header_unit_clash(self, cells, reference, stated_only: bool = False) -> str:
+        """Why a header's units cannot be those of the recording (the stated or first printed ones; with
+        `stated_only`, those --units/--columns state), or ""."""
         for name, unit in cells:
             if not unit or name.lower() not in reference:
                 continue
             column = self.columns[reference.index(name.lower())]
-            stated = unit_name(column.unit) if column.unit else self.printed_units.get(column.name)
+            stated = (self._stated.get(column.name) if stated_only else
+                      unit_name(column.unit) if column.unit else self.printed_units.get(column.name))
             if stated and unit != stated:
                 return (f"column {column.name!r} is in {unit} there, in {stated} in the recording (no conversion: a "
                         "range change? another sensor?)")
