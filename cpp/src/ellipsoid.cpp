@@ -546,17 +546,10 @@ EllipsoidResult solve(const EllipsoidMoments& mom, const EllipsoidOptions& opt, 
     sum.warnings.push_back("samples: 9 readings fix the 9 parameters exactly, so the residual is 0 whatever the "
                            "noise and says nothing of the fit's error; give many more readings (hundreds, turned "
                            "through all directions)");
-  // Judged on the corrected fields A(m − b), whose covariance is A C A: a sensor of gains 0.5/1/1.5 turned through
-  // every direction has readings 3× thinner one way than another, and was told "poor coverage" however it turned
-  // (a blind check: 300 of 300 full spheres).
-  const Eigen::Matrix3d corrected = meig.eigenvectors() * lamB.cwiseSqrt().asDiagonal() * meig.eigenvectors().transpose();
-  const Eigen::Vector3d fields = Eigen::SelfAdjointEigenSolver<Eigen::Matrix3d>(
-      corrected * detail::spread_covariance(S) * corrected, Eigen::EigenvaluesOnly).eigenvalues();
-  const double field_ratio = fields(2) > 0.0 ? std::sqrt(std::max(fields(0), 0.0) / fields(2)) : 0.0;
-  if (field_ratio < opt.poor_coverage_ratio)
-    sum.warnings.push_back("poor coverage: thinnest/widest spread of the corrected fields is " + percent(field_ratio) +
-                           " (of the readings " + percent(sum.coverage_ratio) +
-                           "); the offset and matrix along the thin direction are poorly determined");
+  if (sum.coverage_ratio < opt.poor_coverage_ratio)
+    sum.warnings.push_back("poor coverage: thinnest/widest spread of the readings is " +
+                           percent(sum.coverage_ratio) +
+                           "; the offset and matrix along the thin direction are poorly determined");
   if (opt.field_norm > 0.0) {
     // A known field norm far from the fitted volume radius usually means mismatched units.
     const std::string said = detail::units_mismatch("field_norm " + detail::num(H), H / fitted_radius, fitted_radius,

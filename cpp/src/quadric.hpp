@@ -16,23 +16,17 @@
 
 namespace fluxcal::detail {
 
-/// The covariance of the normalised readings u from the moments' 10×10 scatter of the design rows
-/// [u², v², w², 2uv, 2uw, 2vw, 2u, 2v, 2w, 1]; spread: its eigenvalues (ascending), and the readings' mean.
-inline Eigen::Matrix3d spread_covariance(const Eigen::Matrix<double, 10, 10>& scatter) {
+/// The spread of the normalised readings u from the moments' 10×10 scatter of the design rows
+/// [u², v², w², 2uv, 2uw, 2vw, 2u, 2v, 2w, 1]: the eigenvalues (ascending) of their covariance, and their mean.
+inline std::pair<Eigen::Vector3d, Eigen::Vector3d> spread(const Eigen::Matrix<double, 10, 10>& scatter) {
   const double n = scatter(9, 9);
   const Eigen::Vector3d mean = scatter.block<1, 3>(9, 6).transpose() / (2.0 * n);
   Eigen::Matrix3d second;
   second << scatter(0, 9), scatter(3, 9) / 2, scatter(4, 9) / 2,  //
       scatter(3, 9) / 2, scatter(1, 9), scatter(5, 9) / 2,        //
       scatter(4, 9) / 2, scatter(5, 9) / 2, scatter(2, 9);
-  return second / n - mean * mean.transpose();
-}
-
-inline std::pair<Eigen::Vector3d, Eigen::Vector3d> spread(const Eigen::Matrix<double, 10, 10>& scatter) {
-  const double n = scatter(9, 9);
-  const Eigen::Vector3d mean = scatter.block<1, 3>(9, 6).transpose() / (2.0 * n);
-  return {Eigen::SelfAdjointEigenSolver<Eigen::Matrix3d>(spread_covariance(scatter), Eigen::EigenvaluesOnly).eigenvalues(),
-          mean};
+  const Eigen::Matrix3d cov = second / n - mean * mean.transpose();
+  return {Eigen::SelfAdjointEigenSolver<Eigen::Matrix3d>(cov, Eigen::EigenvaluesOnly).eigenvalues(), mean};
 }
 
 /// Thinnest/widest standard deviation of the normalised readings (0: on a plane or a line).

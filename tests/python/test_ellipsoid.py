@@ -310,22 +310,3 @@ def test_summary_coverage_is_that_of_the_corrected_fields():
     assert cal.summary["direction_coverage"] == fluxcal.oracle.direction_coverage(cal.apply(s.readings))
     sub = fluxcal.fit_ellipsoid(s.readings, coverage_rows=300)  # strided subsample: never more bins
     assert sub.summary["direction_coverage"] <= cal.summary["direction_coverage"]
-
-
-def test_a_strongly_anisotropic_sensor_turned_everywhere_is_not_told_poor_coverage():
-    """A blind check: gains 0.5/1/1.5 over a full sphere had "poor coverage: thinnest/widest spread of the readings is
-    22.7 %" in 300 of 300 runs — the sensor's own soft iron, which no turning clears. The spread is now judged on the
-    corrected fields; a 60° cap of the same sensor is still told."""
-    rng = np.random.default_rng(4)
-    q, _ = np.linalg.qr(rng.standard_normal((3, 3)))
-    W = q @ np.diag([0.4, 1.0, 1.6]) @ q.T  # (readings 4× thinner one way: a ratio of 0.25)
-    u = rng.standard_normal((2000, 3))
-    u /= np.linalg.norm(u, axis=1, keepdims=True)
-    noise = 0.005 * rng.standard_normal((2000, 3))
-    everywhere = fluxcal.fit_ellipsoid(u @ W.T + noise, field_norm=1.0)
-    assert not any(w.startswith("poor coverage") for w in everywhere.summary["warnings"])
-    assert everywhere.summary["coverage_ratio"] < 0.3  # (the readings' own spread, as before)
-    cap = u[u[:, 2] > np.cos(np.radians(60))]
-    capped = fluxcal.fit_ellipsoid(cap @ W.T + noise[: len(cap)], field_norm=1.0)
-    said = [w for w in capped.summary["warnings"] if w.startswith("poor coverage")]
-    assert said, capped.summary["warnings"]  # (by the directions seen, or the corrected fields' spread)
