@@ -44,13 +44,15 @@ def test_a_long_table_of_whole_nT_with_comma_thousands_is_read_so(tmp_path):
     np.testing.assert_array_equal(rec.samples(), values)
 
 
-def test_commas_nothing_settles_are_refused_naming_the_line_and_the_remedy(tmp_path):
-    # every value ≥ 1000: 60,740 is 60.74 or 60740 and no cell says which (had been read ÷1000 without a word)
+def test_commas_nothing_settles_are_said_naming_the_line_and_the_remedy(tmp_path):
+    # every value ≥ 1000: 60,740 is 60.74 or 60740 and no cell says which (had been read ÷1000 without a word): read
+    # as decimal commas, as a ';' or tab table writes them, with a warning naming the line and --decimal (refusing it
+    # refused ordinary European logs to three decimals beside a counter: a review)
     text = "mx;my;mz\n60,740;15,156;28,154\n63,494;-12,561;4,504\n10,992;36,268;4,293\n"
     path = write(tmp_path, "either.csv", text)
-    with pytest.raises(ValueError, match=r"either.csv, line 2: '60,740' is 60.740 with a decimal comma, 60740 with a "
-                                         r"thousands separator.*--decimal , \(decimal commas\) or --decimal \."):
-        read_recording(path)
+    with pytest.warns(UserWarning, match=r"either.csv, line 2: '60,740' read as 60.740 \(a decimal comma.*60740 with "
+                                         r"a thousands separator.*--decimal , \(decimal commas\) or --decimal \."):
+        assert read_recording(path).samples()[0].tolist() == [60.74, 15.156, 28.154]
     assert read_recording(path, decimal=",").samples()[0].tolist() == [60.74, 15.156, 28.154]
     assert read_recording(path, decimal=".").samples()[0].tolist() == [60740, 15156, 28154]
     # a decimal comma that cannot group thousands (0,5) settles it, anywhere in the table (here past line 400)
@@ -144,3 +146,15 @@ def test_a_corrected_or_calibrated_triple_beside_the_raw_one_is_no_second_sensor
     path = write(tmp_path, "one.csv", header + "\n" + "1.5,2.5,3.5,4.5,5.5,6.5\n" * 3)
     names = read_recording(path).mag_names()
     assert names == (("x_raw", "y_raw", "z_raw") if "raw" in header else ("mx", "my", "mz"))
+
+
+@pytest.mark.parametrize("sep", [b"\t", b" "])
+def test_a_header_with_a_unit_on_some_names_is_still_a_header(sep):
+    # a review: the banner rule had dropped `time(ms) X Y Z` (a unit on the time only), and the device's reorder after
+    # it was recorded on the wrong axes (1, 3, 1, 2 for 1, 1, 2, 3)
+    decoder = TextDecoder(parse_columns("t,mx,my,mz"))
+    decoder.port_was_quiet()
+    stream = b"\r\n".join(sep.join(words) for words in ([b"time(ms)", b"X", b"Y", b"Z"], [b"0", b"1", b"2", b"3"],
+                                                        [b"time(ms)", b"Z", b"X", b"Y"], [b"1", b"3", b"1", b"2"]))
+    records = [r for r in decoder.feed(stream + b"\r\n") if isinstance(r, tuple)]
+    assert records == [(0.0, 1.0, 2.0, 3.0), (1.0, 1.0, 2.0, 3.0)]

@@ -171,19 +171,19 @@ def test_partial_first_line_of_a_headerless_capture(tmp_path):
     assert rec.metadata["skipped_lines"] == "1 of 4: 1 (2 fields, --columns names 3)"
 
 
-def test_three_decimals_with_a_few_whole_cells_are_not_guessed(tmp_path):
-    # a decimal-comma table to three decimals with a 0 or a 45 among its cells had been read ×1000 (a review), then
-    # a thousands-separated one with a -95 among its cells ÷1000 (a blind check): no number here says which, so the
-    # read is refused naming the line, and --decimal settles it
+def test_three_decimals_with_a_few_whole_cells_stay_decimal_commas(tmp_path):
+    # a decimal-comma table to three decimals with a 0 or a 45 among its cells is not a thousands-separated one (a
+    # review: both had been read ×1000); nothing in it settles the commas, so the read says so (a blind check's
+    # thousands-separated table with a -95 among its cells had been read ÷1000 without a word), and --decimal
+    # settles it
     for name, cell in (("zero.tsv", "0"), ("whole.tsv", "45")):
         path = write(tmp_path, name, f"mx\tmy\tmz\n21,456\t-4,312\t44,187\n-19,874\t{cell}\t-46,233\n"
                                      "47,215\t3,718\t-18,904\n")
-        with pytest.raises(ValueError, match=rf"{name}, line 2: '21,456' is 21.456 with a decimal comma, 21456 with "
-                                             r"a thousands separator.*--decimal , \(decimal commas\)"):
-            read_recording(path)
-        rec = read_recording(path, decimal=",")
+        with pytest.warns(UserWarning, match=rf"{name}, line 2: '21,456' read as 21.456 \(a decimal comma"):
+            rec = read_recording(path)
         assert rec.samples()[:, 0].tolist() == [21.456, -19.874, 47.215]
         assert rec.samples()[1, 1] == float(cell)
+        assert read_recording(path, decimal=".").samples()[0, 0] == 21456
 
 
 def test_sparkfun_icm20948_bracketed_vectors(tmp_path):

@@ -492,9 +492,13 @@ class TextDecoder:
         # the device's names are remembered, so that a header it prints later in another order is followed (not
         # from plain words, which name nothing of the columns: a status line)
         # a start-up banner of as many words, one in brackets (`QMC5883L at (0x0D) ready`, `MagLogger v2.1 (c)
-        # ACME`), is no header: its bracket was taken for a unit (my=0x0D) and refused the real header after it
-        units = [u for _, u in cells]
-        banner = not any(c in text for c in ",;") and (not all(units) or not all(map(is_unit, units)))
+        # ACME`), is no header: its bracket was taken for a unit (my=0x0D) and refused the real header after it.
+        # A bracket that is a unit keeps the line a header, on some names only too (`time(ms) X Y Z`: a review
+        # found such a header dropped, and the device's later reorder recorded on the wrong axes) — unless it gives
+        # one magnetometer axis a unit and not the others (`v2.1 (c)` in the my place)
+        axes = [bool(u) for (_, u), name in zip(cells, self.names) if name.lower() in MAG]
+        banner = not any(c in text for c in ",;") and (any(u and not is_unit(u) for _, u in cells)
+                                                       or (any(axes) and not all(axes)))
         if not structured or banner:
             if said:
                 self._headers_said.discard(text)
