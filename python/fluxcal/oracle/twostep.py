@@ -12,6 +12,9 @@ from scipy.optimize import least_squares
 CONSTANT_FIELD = 1e-6
 # A gain known worse than this (relative standard error) gets no noise-bias correction (TwoStep2DOptions's default).
 POORLY_DETERMINED = 0.02
+# Readings whose field is within this many noise σ keep their magnitude as the target and are left out of the
+# Jacobian term (as in the core): the O(σ²) expansion does not hold there.
+EXPANSION_REACH = 5.0
 
 
 def _lstsq_scaled(H, z):
@@ -60,10 +63,10 @@ def twostep_2d(readings, field_norms, refine: bool = True, noise_bias_correction
     """First step, then (refine) least squares on the Sampson residual (ρ_k − h_k)/|∇ρ_k|, ρ_k = √((ĥx − bx)²/γx² +
     (ĥy − by)²/γy²) and ∇ its gradient in the reading: the reading's distance from its field's ellipse. With
     noise_bias_correction (σ² the first fit's residuals' mean square over N − 4; both gains known to 2 % or better):
-    solved again towards each reading's
-    target — its Rice mean E|h_k + ε| (_rice_mean), ε the noise across its direction in field units, less
+    solved again towards each reading's target — its Rice mean E|h_k + ε| (_rice_mean), ε the noise across its direction in field units, less
     σ²(q₄/q − q)/h_k, the normaliser's move (q = ûᵀΓ⁻²û, q₄ = ûᵀΓ⁻⁴û) — then moved by σ²(JᵀJ)⁻¹Σ∂J_k/∂n_k, the
-    Jacobian's move along each reading's normal (SciPy's Jacobian, central differences in the readings)."""
+    Jacobian's move along each reading's normal (SciPy's Jacobian, central differences in the readings); a reading
+    whose h_k is within EXPANSION_REACH noise σ keeps h_k and is left out of that sum."""
     first = twostep_2d_first_step(readings, field_norms)
     if not refine:
         return first
@@ -89,22 +92,28 @@ def twostep_2d(readings, field_norms, refine: bool = True, noise_bias_correction
         across = (c**2 / p[2] ** 2 + a**2 / p[3] ** 2) / rho2  # (field per reading)² across ρ's direction
         q = (a**2 / p[2] ** 2 + c**2 / p[3] ** 2) / rho2
         q4 = (a**2 / p[2] ** 4 + c**2 / p[3] ** 4) / rho2
-        targets = _rice_mean(h, np.sqrt(sigma2 * across)) - sigma2 * (q4 / q - q) / h
+        noise = np.sqrt(sigma2 * across)
+        targets = np.where(h > EXPANSION_REACH * noise, _rice_mean(h, noise) - sigma2 * (q4 / q - q) / h, h)
         sol = fit(p, targets)
         p = sol.x
         # Σ_k ∂J_k/∂n_k: J by central differences in the parameters, then along each reading's normal ∇ρ/|∇ρ|
         a, c = (m[:, 0] - p[0]) / p[2], (m[:, 1] - p[1]) / p[3]
         normal = np.column_stack([a / p[2], c / p[3]])
         normal /= np.linalg.norm(normal, axis=1, keepdims=True)
+        # readings whose field lies within EXPANSION_REACH noise σ of 0 are left out of this term (as in the core)
+        across = (c**2 / p[2] ** 2 + a**2 / p[3] ** 2) / (a**2 + c**2)
+        keep = targets > EXPANSION_REACH * np.sqrt(sigma2 * across)
         step = 1e-4 * np.ptp(m, axis=0).max() / 2
 
-        def jacobian(x, shifted=m):  # central differences in the parameters
+        def jacobian(x, shifted=m, aims=targets):  # central differences in the parameters
             dp = 1e-6 * np.maximum(np.abs(x), 1e-3)
-            return np.column_stack([(residual(x + dp[j] * np.eye(4)[j], targets, shifted)
-                                     - residual(x - dp[j] * np.eye(4)[j], targets, shifted)) / (2 * dp[j])
+            return np.column_stack([(residual(x + dp[j] * np.eye(4)[j], aims, shifted)
+                                     - residual(x - dp[j] * np.eye(4)[j], aims, shifted)) / (2 * dp[j])
                                     for j in range(4)])
 
-        dj = (jacobian(p, m + step * normal).sum(axis=0) - jacobian(p, m - step * normal).sum(axis=0)) / (2 * step)
+        near, aims = m[keep], targets[keep]
+        dj = (jacobian(p, near + step * normal[keep], aims).sum(axis=0)
+              - jacobian(p, near - step * normal[keep], aims).sum(axis=0)) / (2 * step)
         sol.x = p + sigma2 * np.linalg.solve(sol.jac.T @ sol.jac, dj)
         sol.fun, sol.jac = residual(sol.x, targets), jacobian(sol.x)
     # covariance of (bx, by, γx, γy): s²(JᵀJ)⁻¹ with SciPy's Jacobian at the solution (γ's sign made positive)
