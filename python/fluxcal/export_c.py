@@ -856,7 +856,9 @@ def export_c(cal: Calibration | None, path, q_format=None, name: str | None = No
             # the guard keeps the name's case and a prefix no part's own guard has: `--name mag` and `--name MAG`,
             # or `--name comb_kalman` beside comb's Kalman part (COMB_KALMAN_H), had one guard and the second
             # header was skipped without a word (a blind check); now their macros or functions clash aloud
-            f"#ifndef {guard}", f"#define {guard}", "", "#include <stdint.h>"]
+            f"#ifndef {guard}", f"#define {guard}",
+            # the name's own macro too, for code that tests it (defined alike by every header of the name: no clash)
+            f"#define FLUXCAL_{name}_H 1", "", "#include <stdint.h>"]
     path.write_text(_ascii("\n".join(head + body + ["", f"#endif /* {guard} */", ""])), encoding="ascii")
     return result
 
