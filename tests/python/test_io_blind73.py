@@ -12,12 +12,7 @@ import pytest
 
 from fluxcal import read_recording
 from fluxcal.io.serial import Reject, TextDecoder, parse_columns
-
-
-def write(tmp_path, name, text):
-    path = tmp_path / name
-    path.write_text(text, encoding="utf-8")
-    return path
+from test_reader_habits import write
 
 
 # -- F1: what a comma is in a ';' or tab table -----------------------------------------------------------------
