@@ -125,6 +125,13 @@ Eigen::Matrix<double, 9, 1> normal_derivative_of_jacobian(const SamplesRef& samp
   return sum / (2.0 * step);
 }
 
+// The readings' mean distance from `offset`: the scale of the offsets' standard errors.
+double mean_radius(const SamplesRef& samples, const Eigen::Vector3d& offset) {
+  double radius = 0.0;
+  for (Eigen::Index i = 0; i < samples.rows(); ++i) radius += (samples.row(i).transpose() - offset).norm();
+  return radius / static_cast<double>(samples.rows());
+}
+
 // One Sampson residual (a robust loss acts per residual block).
 class MagnitudeOne : public ceres::SizedCostFunction<1, 9> {
  public:
@@ -800,9 +807,7 @@ RefineResult refine_magnitude(const Calibration& start, const SamplesRef& sample
       // noise into the shift, and that parameter's error is far beyond an O(σ²) bias anyway.
       const detail::ScaledInverse Finv = detail::scaled_inverse(F);
       const Calibration now = magnitude_calibration(th, H);
-      double radius = 0.0;
-      for (Eigen::Index i = 0; i < samples.rows(); ++i) radius += (samples.row(i).transpose() - now.offset).norm();
-      radius /= static_cast<double>(samples.rows());
+      const double radius = mean_radius(samples, now.offset);
       bool determined = !Finv.singular;
       for (Eigen::Index j = 0; j < k && determined; ++j)
         determined = std::sqrt(s2 * Finv.inverse(j, j)) <
@@ -829,9 +834,7 @@ RefineResult refine_magnitude(const Calibration& start, const SamplesRef& sample
                 "do not lie on an ellipsoid, or they cover too few directions (a small cap of the sphere: turn "
                 "the sensor through more orientations)");
 
-  double radius = 0.0;  // reading-space radius: the scale of the offsets
-  for (Eigen::Index i = 0; i < samples.rows(); ++i) radius += (samples.row(i).transpose() - cal.offset).norm();
-  radius /= static_cast<double>(samples.rows());
+  const double radius = mean_radius(samples, cal.offset);  // reading-space radius: the scale of the offsets
   const double gain = cal.matrix.norm() / std::sqrt(3.0);
   Eigen::VectorXd scales(k);  // offsets: the radius; matrix entries: the gain ‖A‖_F/√3
   for (Eigen::Index j = 0; j < k; ++j) scales(j) = j < 3 ? radius : gain;

@@ -214,6 +214,12 @@ Refined2D gauss_newton_2d(const Readings2DRef& readings, const Eigen::Ref<const 
   return out;
 }
 
+// The noise per axis in the field across a reading's direction (−c, a)/ρ, per unit of σ²: (c²/κx² + a²/κy²)/ρ²; a
+// reading at the offset itself has no direction, so the mean of the two.
+double noise_across(double a, double c, double rho2, double ikx, double iky) {
+  return rho2 > 0.0 ? (c * c * ikx * ikx + a * a * iky * iky) / rho2 : 0.5 * (ikx * ikx + iky * iky);
+}
+
 // Σ_k ∂J_k/∂n_k in the normalised readings: each reading's Jacobian row differentiated along its normal ∇ρ/|∇ρ|,
 // by central differences (a step of 1e-4 of the readings' scale).
 Eigen::Vector4d normal_derivative_of_jacobian(const Readings2DRef& readings, const Eigen::Ref<const Eigen::VectorXd>& targets,
@@ -228,7 +234,7 @@ Eigen::Vector4d normal_derivative_of_jacobian(const Readings2DRef& readings, con
     const double rho2 = a * a + c * c, f = targets(k) / nz.field_scale;
     // a field within kExpansionReach of the noise leaves the O(σ²) expansion: its term ∝ σ²/ρ² has no mean in 2-D,
     // and a few readings near the offset (a sweep through small currents) moved the offset by 100 standard errors
-    const double across = rho2 > 0.0 ? (c * c * ikx * ikx + a * a * iky * iky) / rho2 : 0.5 * (ikx * ikx + iky * iky);
+    const double across = noise_across(a, c, rho2, ikx, iky);
     if (!(f > kExpansionReach * std::sqrt(sigma2 * across)) || !(rho2 > 0.0)) continue;
     Eigen::Vector2d n(a * ikx, c * iky);  // ∇ρ's direction in the readings
     n = n.normalized() * (step * nz.scale);
@@ -271,9 +277,7 @@ Eigen::VectorXd raised_targets(const Readings2DRef& readings, const Eigen::Ref<c
   for (Eigen::Index k = 0; k < h.size(); ++k) {
     const double a = (readings(k, 0) * inv_s - ox) * ikx, c = (readings(k, 1) * inv_s - oy) * iky;
     const double rho2 = a * a + c * c;
-    // across the reading's direction (−c, a)/ρ in the field: σ² (c²/κx² + a²/κy²)/ρ²; a reading at the
-    // offset itself has no direction, so the mean of the two
-    const double across = rho2 > 0.0 ? (c * c * ikx * ikx + a * a * iky * iky) / rho2 : 0.5 * (ikx * ikx + iky * iky);
+    const double across = noise_across(a, c, rho2, ikx, iky);
     // the Sampson residual's normaliser g = |∇ρ| moves with the noise along ∇ρ too: −σ²(q₄/q − q)/h, q = ûᵀK⁻²û,
     // q₄ = ûᵀK⁻⁴û (refine.cpp's target; 0 for equal gains)
     double normaliser = 0.0;
