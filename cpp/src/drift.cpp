@@ -106,10 +106,21 @@ Eigen::Index whitened_rows(const std::vector<Eigen::Index>& idx, Eigen::Index p,
   return n;
 }
 
-// Balanced least squares on the (optionally AR-whitened) Vandermonde rows; SSE in the fitted space.
+// The coefficients' covariance σ² S⁻¹(BᵀB)⁻¹S⁻¹ of a least-squares fit on the balanced columns B = V S⁻¹ (full
+// column rank), from B's R: (BᵀB)⁻¹ = R⁻¹R⁻ᵀ, without forming BᵀB (a quartic's balanced columns are collinear).
+Eigen::MatrixXd coefficient_covariance(const Eigen::MatrixXd& balanced, const Eigen::VectorXd& scales, double sigma2) {
+  const Eigen::MatrixXd r = detail::householder_r(balanced);
+  const Eigen::MatrixXd r_inv =
+      r.triangularView<Eigen::Upper>().solve(Eigen::MatrixXd::Identity(r.rows(), r.cols()));
+  const Eigen::MatrixXd unscaled = scales.cwiseInverse().asDiagonal() * r_inv;
+  return sigma2 * unscaled * unscaled.transpose();
+}
+
+// Balanced least squares on the (optionally AR-whitened) Vandermonde rows; SSE in the fitted space; `covariance`:
+// the coefficients', σ̂² = SSE/(rows − order − 1) in that space (generalised least squares' when whitened).
 Eigen::VectorXd fit_rows(const Eigen::VectorXd& x, const Eigen::VectorXd& w, const std::vector<Eigen::Index>& idx,
                          const Eigen::VectorXd& ar, int order, double* sse, double* condition,
-                         const Breaks& breaks = {}) {
+                         const Breaks& breaks = {}, Eigen::MatrixXd* covariance = nullptr) {
   const Eigen::MatrixXd v = vandermonde(x, order);
   const Eigen::Index p = ar.size();
   Eigen::MatrixXd vw;
@@ -144,7 +155,10 @@ Eigen::VectorXd fit_rows(const Eigen::VectorXd& x, const Eigen::VectorXd& w, con
     throw Error("drift: the temperatures take too few distinct values for a polynomial of order " +
                 std::to_string(order));
   const Eigen::VectorXd coef = solution.cwiseQuotient(s);
-  if (sse) *sse = (ww - vw * coef).squaredNorm();
+  const double fitted_sse = (ww - vw * coef).squaredNorm();
+  if (sse) *sse = fitted_sse;
+  if (covariance)
+    *covariance = coefficient_covariance(vb, s, fitted_sse / static_cast<double>(vw.rows() - order - 1));
   if (condition) {
     const Eigen::VectorXd sv = detail::singular_values(vb);
     *condition = sv[0] / sv[sv.size() - 1];
@@ -304,7 +318,8 @@ DriftModel fit_drift(const SeriesRef& select, const SeriesRef& x, const SeriesRe
       std::ostringstream note;
       note << "the noise about the drift is close to a random walk (its AR coefficients sum to " << ar.sum()
            << "): weighted by it, each range's level is nearly undetermined, so the drift was fitted unweighted "
-              "(its F-tests then assume white noise and may keep too many orders)";
+              "(its F-tests and standard errors then assume white noise: they may keep too many orders, and the errors are "
+              "too small)";
       notes.push_back(note.str());
       ar.resize(0);
     }
@@ -362,6 +377,7 @@ DriftModel fit_drift(const SeriesRef& select, const SeriesRef& x, const SeriesRe
     }
     seg.order = m;
     seg.coefficients = coef;
+    fit_rows(xs[s], ws[s], members[s], ar, m, nullptr, nullptr, options.breaks, &seg.covariance);
     seg.samples = static_cast<std::size_t>(n);
     seg.sse = (ws[s] - vandermonde(xs[s], m) * coef).squaredNorm();
     seg.residual_rms = std::sqrt(seg.sse / static_cast<double>(n));
@@ -399,16 +415,38 @@ DriftModel fit_drift(const SeriesRef& select, const SeriesRef& x, const SeriesRe
       }
     }
     const Eigen::MatrixXd null = detail::right_singular_vectors(con).rightCols(cols - (k - 1));
-    const Eigen::VectorXd z = detail::least_squares_qr(big * null, rhs);
+    const Eigen::MatrixXd constrained = big * null;
+    const Eigen::VectorXd z = detail::least_squares_qr(constrained, rhs);
     const Eigen::VectorXd theta = (null * z).cwiseQuotient(scale);
-    r0 = 0;
+    // σ² of the covariance: the residuals' variance, or with an AR model the long-run variance σ_e²/(1 − Σa)² of
+    // the whitened residuals — this refit is unweighted, and for a drift slow beside the noise's memory that is
+    // what its least squares' variance comes to.
+    double sum_sq = 0.0;
+    Eigen::Index used_rows = 0;
     for (int s = 0; s < k; ++s) {
       DriftSegment& seg = model.segments[s];
       seg.coefficients = theta.segment(offset[s], seg.order + 1);
-      seg.sse = (ws[s] - vandermonde(xs[s], seg.order) * seg.coefficients).squaredNorm();
+      const Eigen::VectorXd r = ws[s] - vandermonde(xs[s], seg.order) * seg.coefficients;
+      seg.sse = r.squaredNorm();
       seg.residual_rms = std::sqrt(seg.sse / static_cast<double>(xs[s].size()));
+      for (std::size_t j = 0; j < members[s].size(); ++j) {
+        if (!whitenable(members[s], j, ar.size(), options.breaks)) continue;
+        double e = r[static_cast<Eigen::Index>(j)];
+        for (Eigen::Index q = 1; q <= ar.size(); ++q) e -= ar[q - 1] * r[static_cast<Eigen::Index>(j) - q];
+        sum_sq += e * e;
+        ++used_rows;
+      }
     }
+    const double long_run = ar.size() > 0 ? 1.0 / ((1.0 - ar.sum()) * (1.0 - ar.sum())) : 1.0;
+    const double sigma2 = long_run * sum_sq / static_cast<double>(used_rows - (cols - (k - 1)));
+    const Eigen::MatrixXd map = scale.cwiseInverse().asDiagonal() * null;
+    const Eigen::MatrixXd cov =
+        map * coefficient_covariance(constrained, Eigen::VectorXd::Ones(constrained.cols()), sigma2) * map.transpose();
+    for (int s = 0; s < k; ++s)
+      model.segments[s].covariance = cov.block(offset[s], offset[s], model.segments[s].order + 1,
+                                               model.segments[s].order + 1);
   }
+  for (DriftSegment& seg : model.segments) seg.standard_errors = seg.covariance.diagonal().cwiseSqrt();
 
   Summary& sum = model.summary;
   double sse_total = 0.0;
@@ -468,24 +506,51 @@ void check_lengths(const SeriesRef& select, const SeriesRef& x) {
 
 }  // namespace
 
+namespace {
+
+// The segment of sample i (by its selecting temperature); Error when it is outside every range.
+int segment_at(const std::vector<double>& edges, const SeriesRef& select, Eigen::Index i) {
+  const int s = segment_of(edges, select[i]);
+  if (s < 0) {
+    std::ostringstream msg;
+    msg << "temperature: sample " << i << " is " << select[i] << ", outside every range of the drift model ("
+        << edges.front() << " … " << edges.back() << ")";
+    throw Error(msg.str());
+  }
+  return s;
+}
+
+}  // namespace
+
 Eigen::VectorXd DriftModel::evaluate(const SeriesRef& select, const SeriesRef& x) const {
   check_lengths(select, x);
   const std::vector<double> edges = tiling_edges(segments);
   Eigen::VectorXd f(x.size());
   for (Eigen::Index i = 0; i < x.size(); ++i) {
-    const int s = segment_of(edges, select[i]);
-    if (s < 0) {
-      std::ostringstream msg;
-      msg << "temperature: sample " << i << " is " << select[i] << ", outside every range of the drift model ("
-          << edges.front() << " … " << edges.back() << ")";
-      throw Error(msg.str());
-    }
-    const Eigen::VectorXd& c = segments[s].coefficients;
+    const Eigen::VectorXd& c = segments[segment_at(edges, select, i)].coefficients;
     double v = 0.0;
     for (Eigen::Index j = c.size() - 1; j >= 0; --j) v = v * x[i] + c[j];
     f[i] = v;
   }
   return f;
+}
+
+Eigen::VectorXd DriftModel::standard_error(const SeriesRef& select, const SeriesRef& x) const {
+  check_lengths(select, x);
+  const std::vector<double> edges = tiling_edges(segments);
+  Eigen::VectorXd se(x.size());
+  for (Eigen::Index i = 0; i < x.size(); ++i) {
+    const DriftSegment& seg = segments[segment_at(edges, select, i)];
+    const Eigen::Index m = seg.coefficients.size();
+    if (seg.covariance.rows() != m || seg.covariance.cols() != m)
+      throw Error("drift: the segment [" + detail::num(seg.lo) + ", " + detail::num(seg.hi) + "] has no " +
+                  std::to_string(m) + "×" + std::to_string(m) + " covariance of its coefficients (a model built "
+                  "by hand, or saved before fluxcal kept them): fit it again for standard errors");
+    Eigen::VectorXd v(m);
+    for (Eigen::Index j = 0; j < m; ++j) v[j] = j == 0 ? 1.0 : v[j - 1] * x[i];
+    se[i] = std::sqrt(std::max(0.0, v.dot(seg.covariance * v)));
+  }
+  return se;
 }
 
 void DriftModel::require_fitted_x(const SeriesRef& select, const SeriesRef& x, double margin) const {

@@ -387,6 +387,7 @@ ArResult fit_ar(const SeriesRef& y, const ArOptions& options) {
   // Coefficients: batch least squares on the first rows, then recursive least squares on the rest.
   const Eigen::Index rows = regressed_rows(n_total, breaks, p);
   Eigen::VectorXd theta = Eigen::VectorXd::Zero(p);
+  Eigen::MatrixXd P, spread;  // the RLS's P = (Σ w xxᵀ)⁻¹ and Σ w² xxᵀ (for λ < 1): the covariance's parts
   if (p > 0) {
     // The batch start grows (doubling) until its rows have full rank: a recording that starts with a held or
     // zero stretch longer than init_samples made the whole fit fail although the full regression is well posed.
@@ -417,6 +418,7 @@ ArResult fit_ar(const SeriesRef& y, const ArOptions& options) {
     Eigen::MatrixXd cov = r_inv * r_inv.transpose();  // (X0ᵀX0)⁻¹
     cov = (0.5 * (cov + cov.transpose())).eval();     // exactly symmetric from the start (see below)
     const double lambda = options.forgetting;
+    if (lambda < 1.0) spread = qr.r.transpose() * qr.r;  // X0ᵀX0: the start's rows, weighed as one
     Eigen::VectorXd phi(p), g(p);
     Eigen::Index seen = 0;
     for_each_regressed(n_total, breaks, p, [&](Eigen::Index t) {
@@ -431,7 +433,9 @@ ArResult fit_ar(const SeriesRef& y, const ArOptions& options) {
       // antisymmetric part, and dividing by λ < 1 every step then grows it as λ^−t until it swamps cov.
       for (int j = 0; j < p; ++j)
         for (int i2 = j; i2 < p; ++i2) cov(i2, j) = cov(j, i2) = (cov(i2, j) - g[i2] * g[j] / denom) / lambda;
+      if (lambda < 1.0) spread = lambda * lambda * spread + phi * phi.transpose();
     });
+    P = cov;
   }
   if (!theta.allFinite())  // 1/λ^t overflowed: a memory of 1/(1 − λ) readings is far too short
     throw Error("fit_ar: forgetting factor " + detail::num(options.forgetting) +
@@ -451,6 +455,10 @@ ArResult fit_ar(const SeriesRef& y, const ArOptions& options) {
   });
   result.sigma2 = result.residuals.squaredNorm() / static_cast<double>(rows);
   detail::require_finite_fit(std::isfinite(result.sigma2), "series", y, "the AR fit");
+  result.covariance = p == 0 ? Eigen::MatrixXd(0, 0)
+                      : options.forgetting < 1.0 ? Eigen::MatrixXd(result.sigma2 * P * spread * P)
+                                                 : Eigen::MatrixXd(result.sigma2 * P);
+  result.standard_errors = result.covariance.diagonal().cwiseSqrt();
 
   const int wanted_lags = options.whiteness_lags > 0 ? options.whiteness_lags : std::max(10, 2 * p);
   const int lags = static_cast<int>(std::min<Eigen::Index>(wanted_lags, std::max<Eigen::Index>(1, rows / 2)));

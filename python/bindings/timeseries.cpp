@@ -30,7 +30,8 @@ py::dict segment_dict(const fluxcal::DriftSegment& s) {
                   "coefficients"_a = std::vector<double>(s.coefficients.data(), s.coefficients.data() + s.coefficients.size()),
                   "samples"_a = s.samples, "sse"_a = s.sse, "residual_rms"_a = s.residual_rms,
                   "condition_number"_a = s.condition_number, "f_statistics"_a = s.f_statistics,
-                  "x_range"_a = std::vector<double>{s.x_lo, s.x_hi});
+                  "x_range"_a = std::vector<double>{s.x_lo, s.x_hi}, "covariance"_a = s.covariance,
+                  "standard_errors"_a = s.standard_errors);
 }
 
 fluxcal::DriftModel model_from(const std::vector<std::pair<std::pair<double, double>, std::vector<double>>>& segs) {
@@ -244,7 +245,8 @@ void bind_timeseries(py::module_& m) {
       py::gil_scoped_release release;
       r = fluxcal::fit_ar(y, options);
     }
-    return py::dict("order"_a = r.order, "coefficients"_a = r.coefficients, "sigma2"_a = r.sigma2, "aic"_a = r.aic,
+    return py::dict("order"_a = r.order, "coefficients"_a = r.coefficients, "sigma2"_a = r.sigma2,
+                    "covariance"_a = r.covariance, "standard_errors"_a = r.standard_errors, "aic"_a = r.aic,
                     "order_at_maximum"_a = r.order_at_maximum, "residuals"_a = r.residuals,
                     "whiteness"_a = ljung_dict(r.whiteness), "summary"_a = summary_dict(r.summary));
   }, "y"_a.noconvert(), "options"_a);
@@ -379,6 +381,16 @@ void bind_timeseries(py::module_& m) {
                              const SeriesRef& select, const SeriesRef& x) {
     return model_from(segments).evaluate(select, x);
   }, "segments"_a, "select"_a.noconvert(), "x"_a.noconvert());
+  m.def("drift_standard_error", [](const std::vector<std::pair<std::pair<double, double>, std::vector<double>>>& segments,
+                                   const std::vector<Eigen::MatrixXd>& covariances, const SeriesRef& select,
+                                   const SeriesRef& x) {
+    fluxcal::DriftModel model = model_from(segments);
+    if (covariances.size() != model.segments.size())
+      throw fluxcal::Error("drift: " + std::to_string(covariances.size()) + " covariances for " +
+                           std::to_string(model.segments.size()) + " segments");
+    for (std::size_t s = 0; s < covariances.size(); ++s) model.segments[s].covariance = covariances[s];
+    return model.standard_error(select, x);
+  }, "segments"_a, "covariances"_a, "select"_a.noconvert(), "x"_a.noconvert());
   bind_foct(m);  // the foct.hpp section above
 }
 

@@ -2035,10 +2035,10 @@ def cmd_drift(args) -> int:
             print(f"  {note}")  # white noise about the drift (no Kalman filter), gaps, a log that runs one way
         for w in list(report["warnings"]) + [w for w in model.summary["warnings"] if w not in report["warnings"]]:
             print(f"warning: {w}")
-        for seg in model.segments:
+        for seg, se in zip(model.segments, report["drift_standard_error"]["per_range"]):
             lo, hi = seg["range"]
             print(f"  range [{lo:g}, {hi:g}]: order {seg['order']}, {seg['samples']} samples, residual RMS "
-                  f"{seg['residual_rms']:.4g}{u}")
+                  f"{seg['residual_rms']:.4g}{u}, drift's standard error up to {se:.3g}{u}")
         steps = [] if args.continuous else model.steps()  # the output steps there as the device crosses
         if steps:
             print("  the model steps by " + ", ".join(f"{step:+.4g}{u} at {where:g} °C" for where, step in steps)

@@ -88,6 +88,25 @@ class DriftModel:
         """f(T) of each sample. A temperature outside every range (by more than EDGE_MARGIN of the span) is a
         ValueError (outside="error"; the polynomials are not extrapolated) or gives NaN (outside="nan": the samples the model cannot speak for,
         marked, the others compensated)."""
+        return self._per_sample(_core.drift_evaluate, temp, temp_outside, outside)
+
+    def standard_error(self, temp, temp_outside=None, outside: str = "error") -> np.ndarray:
+        """The standard error of f(T) of each sample: √(vᵀCv), v = (1, x, …, x^m), C the range's coefficient
+        covariance (generalised least squares' under the AR noise model; see the core's DriftSegment::covariance).
+        What compensation adds to each sample's own noise, as a bias shared by the samples at one temperature —
+        conditional on the orders the F-tests chose. Outside the ranges as evaluate. A model saved before fluxcal
+        kept the covariance has none: ValueError (fit it again)."""
+        missing = [k for k, seg in enumerate(self.segments) if seg.get("covariance") is None]
+        if missing:
+            raise ValueError(f"drift model: segment(s) {missing} have no covariance of their coefficients (a model "
+                             "saved before fluxcal kept them, or made by hand): fit it again for standard errors")
+        covariances = [np.asarray(seg["covariance"], dtype=float).reshape(len(seg["coefficients"]), -1)
+                       for seg in self.segments]
+        return self._per_sample(lambda segs, t, x: _core.drift_standard_error(segs, covariances, t, x),
+                                temp, temp_outside, outside)
+
+    def _per_sample(self, core, temp, temp_outside, outside) -> np.ndarray:
+        """core(segments, temp, x) of each sample, with evaluate's rules for temperatures outside the ranges."""
         if outside not in ("error", "nan"):
             raise ValueError(f"outside: {outside!r} is not one of error, nan")
         temp = ts.as_series(temp, "temp")
@@ -108,11 +127,10 @@ class DriftModel:
             inside = (temp >= segs[0][0][0]) & (temp <= segs[-1][0][1]) & ~unseen  # (the ranges are contiguous)
             f = np.full(temp.size, np.nan)
             if inside.any():
-                f[inside] = _core.drift_evaluate(segs, np.ascontiguousarray(temp[inside]),
-                                                 np.ascontiguousarray(x[inside]))
+                f[inside] = core(segs, np.ascontiguousarray(temp[inside]), np.ascontiguousarray(x[inside]))
             return f
         try:
-            return np.asarray(_core.drift_evaluate(segs, temp, np.ascontiguousarray(x)))
+            return np.asarray(core(segs, temp, np.ascontiguousarray(x)))
         except ValueError:
             # Refused: samples outside the ranges are said as drift apply says them (outside_ranges_words); the
             # core's own error stands for what it finds first (a NaN, segments not ascending and contiguous).
@@ -224,6 +242,15 @@ class DriftModel:
                 if len(s["coefficients"]) != int(s["order"]) + 1:
                     raise ValueError(f"{source}: segment [{lo:g}, {hi:g}] has order {s['order']} but "
                                      f"{len(s['coefficients'])} coefficients")
+                if s.get("covariance") is not None:  # (optional: models saved before fluxcal kept it have none)
+                    try:
+                        covariance = np.asarray(s["covariance"], dtype=np.float64)
+                    except ValueError:
+                        covariance = np.array([np.nan])
+                    m = len(s["coefficients"])
+                    if covariance.shape != (m, m) or not np.all(np.isfinite(covariance)):
+                        raise ValueError(f"{source}: segment {k} [{lo:g}, {hi:g}] has a covariance that is not a "
+                                         f"finite {m}×{m} matrix of numbers (one row and column per coefficient)")
                 # Segments are looked up by ascending edges: a gap or an unsorted list would pick the wrong
                 # polynomial without a word.
                 if not (np.isfinite(lo) and np.isfinite(hi) and lo < hi):
@@ -297,6 +324,8 @@ def fit_drift(zero_bias, temp, temp_outside=None, regressor: str = "temp", break
         seen = seg.pop("x_range")
         if regressor == "difference" and np.all(np.isfinite(seen)):
             seg["difference_range"] = [float(v) for v in seen]
+        seg["covariance"] = np.asarray(seg["covariance"]).tolist()  # (plain lists: the model is saved as JSON)
+        seg["standard_errors"] = np.asarray(seg["standard_errors"]).tolist()
     # the edges the fit used: the given ones made to cover the data (the core says so in the warnings)
     used = [float(segments[0]["range"][0])] + [float(seg["range"][1]) for seg in segments]
     settings = {"breakpoints": used, "max_order": options.max_order,
@@ -1836,13 +1865,22 @@ def fit_pipeline(zero_bias, temp, temp_outside=None, regressor: str = "temp", br
     report = {"preprocess": {k: v for k, v in pre.items() if k != "series"},
               "warnings": unit_warnings + gap_warnings + list(pre["summary"]["warnings"]) +
               list(ar.summary["warnings"]) + first_warnings, "gaps": gaps,
-              "ar": {"order": ar.order, "coefficients": ar.coefficients.tolist(), "sigma2": ar.sigma2,
+              "ar": {"order": ar.order, "coefficients": ar.coefficients.tolist(),
+                     "standard_errors": ar.standard_errors.tolist(), "sigma2": ar.sigma2,
                      "order_at_maximum": ar.order_at_maximum, "whiteness": ar.whiteness,
                      "warnings": ar.summary["warnings"], "fitted_to": AR_FITTED_TO},
               "orders": [s["order"] for s in model.segments],
               "drift_span_before": drift_span(w, temp), "drift_span_after": drift_span(compensated, temp),
               "compensated": compensated, "filtered": filtered, "notes": gap_notes + notes,
               "spikes": {"rows": spike_rows.tolist(), "sigmas": np.asarray(spike_sigmas).tolist(), "dropped": False}}
+    # the drift model's own uncertainty over the log's temperatures: a bias that compensation adds, shared by the
+    # samples at one temperature (the accuracy checks above judge the residuals, this is what they cannot see)
+    drift_se = model.standard_error(temp, temp_outside)
+    which = range_index(model.segments, temp)
+    report["drift_standard_error"] = {
+        "max": float(drift_se.max()), "at_temp": float(temp[int(np.argmax(drift_se))]),
+        "per_range": [float(drift_se[which == k].max()) if np.any(which == k) else float("nan")
+                      for k in range(len(model.segments))]}
     if spike_rows.size:
         report["warnings"].append(spike_words(spike_rows, report["spikes"]["sigmas"]))
     report["frozen"] = _frozen["runs"]

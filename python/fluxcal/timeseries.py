@@ -164,6 +164,10 @@ class ArModel:
     residuals: np.ndarray
     whiteness: dict                 # Ljung–Box of the residuals, model_df = order
     summary: dict = field(default_factory=dict)
+    # of the coefficients: σ̂²(XᵀX)⁻¹ (statsmodels AutoReg's cov_params); with forgetting < 1 the weighted fit's
+    # sandwich, the spread over its memory of about 1/(1 − λ) rows
+    covariance: np.ndarray = field(default_factory=lambda: np.zeros((0, 0)))
+    standard_errors: np.ndarray = field(default_factory=lambda: np.zeros(0))
 
 
 def fit_ar(y, max_order: int = 10, order: int | None = None, **settings) -> ArModel:
@@ -186,7 +190,9 @@ def fit_ar(y, max_order: int = 10, order: int | None = None, **settings) -> ArMo
     r = _core.fit_ar(y, options)
     return ArModel(order=r["order"], coefficients=np.asarray(r["coefficients"]), sigma2=r["sigma2"],
                    aic=np.asarray(r["aic"]), order_at_maximum=r["order_at_maximum"],
-                   residuals=np.asarray(r["residuals"]), whiteness=r["whiteness"], summary=r["summary"])
+                   residuals=np.asarray(r["residuals"]), whiteness=r["whiteness"], summary=r["summary"],
+                   covariance=np.asarray(r["covariance"]).reshape(r["order"], r["order"]),
+                   standard_errors=np.asarray(r["standard_errors"]))
 
 
 def preprocess(x, subseries: int = 20, threshold: float = 1.96, trend_degree: int = 1,

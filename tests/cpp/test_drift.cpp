@@ -135,3 +135,39 @@ TEST(Drift, HugeZeroBiasIsNamed) {
   const Data d = make(3000, 0.01, 2);
   EXPECT_ERROR_SAYS(fluxcal::fit_drift(d.temp, d.temp, d.w * 1e300), "zero_bias: values up to");
 }
+
+namespace {
+
+// The drift's standard error at each sample: the covariance's quadratic form, by hand.
+TEST(Drift, StandardErrorsAreTheCovariancesQuadraticForm) {
+  const Data d = make(6000, 0.02, 11);
+  fluxcal::DriftOptions options;
+  options.order = 2;
+  options.whiten = false;  // white noise: σ̂²(VᵀV)⁻¹, checked against the normal equations
+  const auto m = fluxcal::fit_drift(d.temp, d.temp, d.w, options);
+  for (const auto& seg : m.segments) {
+    ASSERT_EQ(seg.covariance.rows(), 3);
+    EXPECT_TRUE(seg.standard_errors.isApprox(seg.covariance.diagonal().cwiseSqrt()));
+  }
+  // segment 1 (0 … 30 °C): σ̂²(VᵀV)⁻¹ from its own samples
+  std::vector<double> xs, ws;
+  for (Eigen::Index i = 0; i < d.temp.size(); ++i)
+    if (d.temp[i] >= 0.0 && d.temp[i] < 30.0) xs.push_back(d.temp[i]), ws.push_back(d.w[i]);
+  Eigen::MatrixXd v(static_cast<Eigen::Index>(xs.size()), 3);
+  for (Eigen::Index i = 0; i < v.rows(); ++i) v.row(i) << 1.0, xs[i], xs[i] * xs[i];
+  const auto& seg = m.segments[1];
+  const Eigen::VectorXd w = Eigen::Map<const Eigen::VectorXd>(ws.data(), v.rows());
+  const double sigma2 = (w - v * seg.coefficients).squaredNorm() / static_cast<double>(v.rows() - 3);
+  const Eigen::MatrixXd expected = sigma2 * (v.transpose() * v).inverse();
+  EXPECT_LT((seg.covariance - expected).norm(), 1e-6 * expected.norm());
+  const Eigen::Vector3d probe(-10.0, 12.5, 40.0);
+  const Eigen::VectorXd se = m.standard_error(probe, probe);
+  const Eigen::Vector3d at(1.0, 12.5, 12.5 * 12.5);
+  EXPECT_NEAR(se[1], std::sqrt(at.dot(seg.covariance * at)), 1e-12);
+  // a model made by hand has no covariance: said, not zero
+  fluxcal::DriftModel bare = m;
+  bare.segments[0].covariance.resize(0, 0);
+  EXPECT_ERROR_SAYS(bare.standard_error(probe, probe), "no 3×3 covariance");
+}
+
+}  // namespace

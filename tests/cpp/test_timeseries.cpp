@@ -47,6 +47,11 @@ TEST(TimeSeries, RlsWithoutForgettingIsBatchLeastSquares) {
   for (Eigen::Index t = 2; t < y.size(); ++t) x.row(t - 2) << y[t - 1], y[t - 2];
   const Eigen::VectorXd batch = x.colPivHouseholderQr().solve(y.tail(y.size() - 2));
   EXPECT_NEAR((r.coefficients - batch).cwiseAbs().maxCoeff(), 0.0, 1e-10);
+  // and its covariance is batch least squares' σ̂²(XᵀX)⁻¹, σ̂² = SSR/(N − p)
+  const double sigma2 = (y.tail(y.size() - 2) - x * batch).squaredNorm() / static_cast<double>(x.rows());
+  const Eigen::MatrixXd expected = sigma2 * (x.transpose() * x).inverse();
+  EXPECT_LT((r.covariance - expected).norm(), 1e-8 * expected.norm());
+  EXPECT_TRUE(r.standard_errors.isApprox(expected.diagonal().cwiseSqrt(), 1e-8));
 }
 
 // Gaps in time: the fit with breaks is the batch fit of the stacked rows of each stretch, and it is what a

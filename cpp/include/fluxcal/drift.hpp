@@ -61,6 +61,12 @@ struct DriftSegment {
   double residual_rms = 0.0;
   double condition_number = 0.0;  ///< of the balanced Vandermonde matrix
   std::vector<double> f_statistics;  ///< F of each step tested: m → m+1, and m → m+2 (2 dof) after one that fails
+  /// Covariance of the coefficients (data units), at the chosen order: generalised least squares' σ̂²(VᵀΣ⁻¹V)⁻¹
+  /// with the AR noise model's Σ when the fit was whitened, σ̂²(VᵀV)⁻¹ when not; of a continuous refit, its
+  /// block of the constrained fit's, σ̂² the long-run variance when an AR model is known. Conditional on the
+  /// order the F-tests chose (the model's uncertainty at that order, not the order's).
+  Eigen::MatrixXd covariance;
+  Eigen::VectorXd standard_errors;  ///< √diag(covariance)
   /// The regressor's values the polynomial was fitted over (the inside–outside difference is not the temperature
   /// that selects the range, so it can leave them while the temperature stays in range); NaN when not known.
   double x_lo = std::numeric_limits<double>::quiet_NaN(), x_hi = std::numeric_limits<double>::quiet_NaN();
@@ -76,6 +82,10 @@ struct DriftModel {
   /// The drift f(x) of each sample; `select` decides the segment. Throws Error for a sample whose
   /// selecting temperature is outside every range.
   Eigen::VectorXd evaluate(const SeriesRef& select, const SeriesRef& x) const;
+  /// The standard error of f(x) of each sample, √(vᵀ C v) with v = (1, x, …, x^m) and C the segment's covariance
+  /// (the drift's uncertainty, which compensation adds to each sample's own noise). Throws Error as evaluate does,
+  /// and for a segment without a covariance (a model built by hand).
+  Eigen::VectorXd standard_error(const SeriesRef& select, const SeriesRef& x) const;
   /// W − f(x).
   Eigen::VectorXd compensate(const SeriesRef& w, const SeriesRef& select, const SeriesRef& x) const;
   /// Throws Error naming the first sample whose x lies beyond what its range's polynomial was fitted over

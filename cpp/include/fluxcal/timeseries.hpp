@@ -127,6 +127,11 @@ struct ArResult {
   int order = 0;                 ///< p
   Eigen::VectorXd coefficients;  ///< a1 … ap
   double sigma2 = 0.0;           ///< residual variance SSR / (N − p) (statsmodels AutoReg's sigma2)
+  /// Covariance of the coefficients: σ̂²(XᵀX)⁻¹ over the regression rows (statsmodels AutoReg's cov_params) when
+  /// forgetting = 1; with λ < 1 the weighted fit's sandwich σ̂² P (Σ w_t² x_t x_tᵀ) P, w_t = λ^(T−t), P = (Σ w_t x_t x_tᵀ)⁻¹
+  /// — the spread of the final estimate over a memory of about 1/(1 − λ) rows.
+  Eigen::MatrixXd covariance;
+  Eigen::VectorXd standard_errors;  ///< √diag(covariance)
   Eigen::VectorXd aic;           ///< AIC(p) = n ln σ̂²_p + 2p for p = 0 … max_order (common sample)
   bool order_at_maximum = false; ///< AIC chose max_order: the noise may have longer memory
   Eigen::VectorXd residuals;     ///< r_k for k = p … N−1 (with breaks: of each stretch's rows from its p-th on)

@@ -1,8 +1,10 @@
 """NumPy/SciPy reference for fluxcal.drift.fit_drift: per-range polynomial least squares (numpy lstsq on
-the raw Vandermonde matrix, no balancing), F-test with scipy.stats.f, optional AR whitening."""
+the raw Vandermonde matrix, no balancing), F-test with scipy.stats.f, optional AR whitening; the coefficients'
+covariance from statsmodels' OLS on the (whitened) rows."""
 from __future__ import annotations
 
 import numpy as np
+import statsmodels.api as sm
 from scipy import stats
 
 from .timeseries import ar_aic, ar_fit, lagged
@@ -115,7 +117,8 @@ def fit_drift(select, x, w, breakpoints=(-20.0, 0.0, 30.0, 50.0), max_order=4, s
                 m, c, s = m + 2, c2, s2
                 continue
             m, c, s = m + 1, c1, s1
-        segments.append({"order": m, "coefficients": c})
+        V, t = _rows(x, w, g, ar, m, stretch)
+        segments.append({"order": m, "coefficients": c, "covariance": sm.OLS(t, V).fit().cov_params()})
     return segments, ar
 
 

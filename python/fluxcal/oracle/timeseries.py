@@ -100,6 +100,17 @@ def weighted_ls(y, p, init_samples=20, forgetting=1.0):
     return np.linalg.lstsq(X * sw[:, None], t * sw, rcond=None)[0]
 
 
+def weighted_ls_covariance(y, p, sigma2, init_samples=20, forgetting=1.0):
+    """The covariance of weighted_ls's coefficients when each row's noise has variance sigma2: the sandwich
+    σ² P (Xᵀ W² X) P with P = (Xᵀ W X)⁻¹ (σ² P for λ = 1)."""
+    X, t = lagged(y, p, p)
+    n0 = min(t.size, max(init_samples, 2 * p))
+    n = t.size
+    w = np.concatenate([np.full(n0, forgetting ** (n - n0)), forgetting ** (n - 1 - np.arange(n0, n))])
+    P = np.linalg.inv(X.T @ (w[:, None] * X))
+    return sigma2 * P @ (X.T @ ((w * w)[:, None] * X)) @ P
+
+
 def remove_trend(x, degree=1):
     """x minus its least-squares polynomial in the sample index (numpy.polynomial on the scaled index)."""
     x = np.asarray(x, dtype=float)
