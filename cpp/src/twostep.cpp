@@ -654,7 +654,7 @@ struct SampsonBlock {
 
 SampsonBlock sampson_block(const SamplesRef& rows, const Eigen::Vector3d& centre, double scale,
                            const Eigen::VectorXd* relative, Eigen::Index start, const Model3D& m, double mu,
-                           bool jacobian) {
+                           bool jacobian, const Eigen::VectorXd* each_mu = nullptr) {
   const Eigen::MatrixXd X = ((rows.rowwise() - centre.transpose()) / scale).rowwise() - m.q.transpose();
   const Eigen::MatrixXd NX = X * m.N;  // rows (N x_k)ᵀ: N is symmetric
   SampsonBlock b;
@@ -665,7 +665,9 @@ SampsonBlock sampson_block(const SamplesRef& rows, const Eigen::Vector3d& centre
   // ∂r/∂θ = ∂R/∂θ / g − R ∂(g²)/∂θ / (2 g³), g = |N x|; a reading at the centre (g = 0) takes no part
   const Eigen::ArrayXd ok = (b.g2 > 0.0).cast<double>();
   const Eigen::ArrayXd g = b.g2.max(1e-300).sqrt();
-  const Eigen::ArrayXd a = ok / g, c = ok * (b.R0 - mu) / (2.0 * g * b.g2.max(1e-300));
+  const Eigen::ArrayXd mus = each_mu ? Eigen::ArrayXd(each_mu->segment(start, rows.rows()).array())
+                                     : Eigen::ArrayXd::Constant(rows.rows(), mu);
+  const Eigen::ArrayXd a = ok / g, c = ok * (b.R0 - mus) / (2.0 * g * b.g2.max(1e-300));
   const Eigen::MatrixXd NNX = NX * m.N;
   b.J.resize(rows.rows(), 9);
   for (int j = 0; j < 3; ++j) {
@@ -691,18 +693,22 @@ struct SampsonPass {
 };
 
 SampsonPass sampson_pass(const SamplesRef& samples, const Eigen::Vector3d& centre, double scale,
-                         const Eigen::VectorXd* relative, const Model3D& m, double mu, bool jacobian) {
+                         const Eigen::VectorXd* relative, const Model3D& m, double mu, bool jacobian,
+                         const Eigen::VectorXd* each_mu = nullptr) {
   // (512 rows: a block's temporaries stay under malloc's mmap threshold; at 4096 their page faults took a fifth)
   constexpr Eigen::Index kChunk = 512;
   const double mean_eigen = m.N.trace() / 3.0;
   SampsonPass out;
   for (Eigen::Index start = 0; start < samples.rows(); start += kChunk) {
     const Eigen::Index len = std::min(kChunk, samples.rows() - start);
-    const SampsonBlock b = sampson_block(samples.middleRows(start, len), centre, scale, relative, start, m, mu, jacobian);
+    const SampsonBlock b =
+        sampson_block(samples.middleRows(start, len), centre, scale, relative, start, m, mu, jacobian, each_mu);
     const Eigen::ArrayXd ok = (b.g2 > 0.0).cast<double>(), g2 = b.g2.max(1e-300);
-    const Eigen::ArrayXd r = ok * (b.R0 - mu) / g2.sqrt();
+    const Eigen::ArrayXd mus =
+        each_mu ? Eigen::ArrayXd(each_mu->segment(start, len).array()) : Eigen::ArrayXd::Constant(len, mu);
+    const Eigen::ArrayXd r = ok * (b.R0 - mus) / g2.sqrt();
     out.cost += r.square().sum();
-    out.rounding += (ok * (b.R0.abs() + 2.0 + std::abs(mu)).square() / g2).sum();
+    out.rounding += (ok * (b.R0.abs() + 2.0 + mus.abs()).square() / g2).sum();
     const Eigen::ArrayXd w = ok * mean_eigen / g2;
     out.s0 += w.sum();
     out.s1 += (w * b.R0).sum();
@@ -726,6 +732,59 @@ double sampson_noise_mean(const SampsonPass& pass, double n, const Model3D& m, d
   if (noise_sigma > 0.0) return -noise_sigma * noise_sigma * m.N.trace() / (scale * scale) / 3.0;
   if (!(pass.s0 > 0.0)) return 0.0;
   return -0.25 * std::max(0.0, pass.s2 - pass.s1 * pass.s1 / pass.s0) / n;
+}
+
+// Each reading's noise mean of R_k to O(σ²) (σ² per axis, u units), where its Sampson residual r_k = (R_k − μ_k)/g_k,
+// g_k = |N x_k|, has mean 0: the noise ε lengthens R by εᵀNε (mean σ² tr N), and the normaliser g moves with R's own
+// noise along the normal n̂ = N x_k/g_k: E[R/g] = σ²(tr N − 2 q_k)/g, q_k = n̂ᵀN n̂. (On a sphere σ² tr N/3 for every
+// reading; the one μ′ = −σ² tr N/3 fitted first also holds the Jacobian's move, taken off on its own here:
+// normal_derivative_3d.) A reading at the centre (g = 0) gets the sphere's.
+Eigen::VectorXd reading_noise_means(const SamplesRef& samples, const Eigen::Vector3d& centre, double scale,
+                                    const Model3D& m, double sigma2) {
+  const Eigen::MatrixXd X = ((samples.rowwise() - centre.transpose()) / scale).rowwise() - m.q.transpose();
+  const Eigen::MatrixXd NX = X * m.N;
+  const Eigen::ArrayXd g2 = NX.rowwise().squaredNorm().array();
+  const Eigen::ArrayXd q = ((NX * m.N).array() * NX.array()).rowwise().sum() / g2.max(1e-300);
+  const double trace = m.N.trace();
+  return (sigma2 * (trace - 2.0 * (g2 > 0.0).select(q, trace / 3.0))).matrix();
+}
+
+// Σ_k ∂J_k/∂n̂_k: each reading's Jacobian row (∂r_k/∂θ, its μ_k held) differentiated along its normal n̂_k in u, by
+// central differences (a step of 1e-4 of the ellipsoid's mean radius), a chunk at a time.
+Vec9 normal_derivative_3d(const SamplesRef& samples, const Eigen::Vector3d& centre, double scale,
+                          const Eigen::VectorXd* relative, const Model3D& m, const Eigen::VectorXd& each_mu) {
+  const double step = 1e-4 / std::sqrt(m.N.trace() / 3.0);
+  constexpr Eigen::Index kChunk = 512;
+  Vec9 sum = Vec9::Zero();
+  for (Eigen::Index start = 0; start < samples.rows(); start += kChunk) {
+    const Eigen::Index len = std::min(kChunk, samples.rows() - start);
+    const Samples rows = samples.middleRows(start, len);
+    const Eigen::MatrixXd NX = (((rows.rowwise() - centre.transpose()) / scale).rowwise() - m.q.transpose()) * m.N;
+    Samples along(len, 3);  // step·n̂_k in the readings' units
+    for (Eigen::Index i = 0; i < len; ++i) {
+      const double g = NX.row(i).norm();
+      along.row(i) = g > 0.0 ? Eigen::RowVector3d(NX.row(i) * (step * scale / g)) : Eigen::RowVector3d::Zero();
+    }
+    const Samples plus = rows + along, minus = rows - along;
+    sum += (sampson_block(plus, centre, scale, relative, start, m, 0.0, true, &each_mu).J -
+            sampson_block(minus, centre, scale, relative, start, m, 0.0, true, &each_mu).J)
+               .colwise()
+               .sum()
+               .transpose();
+  }
+  return sum / (2.0 * step);
+}
+
+// Whether σ_r² F⁻¹ (σ_r² the Sampson residuals' variance) gives every parameter a standard error below `tolerance` of
+// its scale — the mean radius 1/√λ̄ for q, the mean eigenvalue λ̄ = tr N/3 for N's entries (refine's rule).
+bool all_determined(const Mat9& F, double var_r, const Model3D& m, double tolerance) {
+  const detail::ScaledInverse Finv = detail::scaled_inverse(F);
+  if (Finv.singular) return false;
+  const double mean_eigen = m.N.trace() / 3.0;
+  for (int j = 0; j < 9; ++j)
+    if (!(std::sqrt(var_r * Finv.inverse(j, j)) < tolerance * (j < 3 ? 1.0 / std::sqrt(mean_eigen) : mean_eigen)))
+      return false;
+  return true;
 }
 
 // The model moved by t·δ (δ over θ, sampson_block's order).
@@ -757,7 +816,7 @@ constexpr Eigen::Index kPlainReadings = 10, kSandwichReadings = 30;
 // θ = [q0 q1 q2 N00 N11 N22 N01 N02 N12] (jacobian_map's: −2 N x, x_i², 2 x_i x_j); F = Σ w ∂R ∂Rᵀ is the scoring's.
 void parameter_covariance(TwoStepResult& out, const SamplesRef& samples, const Model3D& m, double mu, const Mat9& F,
                           const Eigen::Vector3d& centre, double scale, double H, const Eigen::VectorXd* relative,
-                          const TwoStepOptions& options) {
+                          const TwoStepOptions& options, const Eigen::VectorXd* each_mu) {
   constexpr Eigen::Index p = 9;
   const Eigen::Index n = samples.rows();
   const Calibration& cal = out.calibration;
@@ -776,8 +835,9 @@ void parameter_covariance(TwoStepResult& out, const SamplesRef& samples, const M
   }
   const Eigen::MatrixXd X =
       ((samples.rowwise() - centre.transpose()) / scale).rowwise() - m.q.transpose();  // x_k, rows
-  const SampsonBlock block = sampson_block(samples, centre, scale, relative, 0, m, mu, true);
-  const Eigen::ArrayXd r = (block.g2 > 0.0).select((block.R0 - mu) / block.g2.max(1e-300).sqrt(), 0.0);
+  const SampsonBlock block = sampson_block(samples, centre, scale, relative, 0, m, mu, true, each_mu);
+  const Eigen::ArrayXd mus = each_mu ? Eigen::ArrayXd(each_mu->array()) : Eigen::ArrayXd::Constant(n, mu);
+  const Eigen::ArrayXd r = (block.g2 > 0.0).select((block.R0 - mus) / block.g2.max(1e-300).sqrt(), 0.0);
   const Eigen::MatrixXd& J = block.J;  // ∂r_k/∂θ, rows: F = JᵀJ, the scores r_k J_k
   const Eigen::MatrixXd scores = r.matrix().asDiagonal() * J;
   // μ′ is no free parameter (N's scale absorbs a constant in R): N − 9 degrees of freedom
@@ -1076,6 +1136,7 @@ TwoStepResult twostep_fit(const SamplesRef& samples, const TwoStepOptions& optio
 
   // Second step: Fisher scoring (Gauss–Newton) on Σ w_k R_k², all sums from the weighted scatter.
   double mu = 0.0;
+  Eigen::VectorXd each_mu;  // each reading's noise mean, once the noise's bias is taken off (else μ for all)
   Mat9 F = Mat9::Zero();  // its Fisher matrix at the result
   sum.condition_number = first_condition;
   sum.converged = true;
@@ -1173,6 +1234,36 @@ TwoStepResult twostep_fit(const SamplesRef& samples, const TwoStepOptions& optio
         mu = sampson_noise_mean(trial, n, m, options.noise_sigma, scale);  // (the trial's sums are m's)
         pass = sampson_pass(samples, centre, scale, relative, m, mu, true);
       }
+      // The noise's O(σ²) bias, as refine takes it off (its noise_bias_correction): the one noise mean μ′ left the
+      // matrix of an anisotropic sensor biased (gains 0.7–1.3 at σ 5 %, 2000 readings: its entries 0.4–1.2 standard
+      // errors off, over 400 fits). Each reading's own μ_k (reading_noise_means), the fit solved again, then moved by
+      // F⁻¹ 2σ² Σ ∂J_k/∂n̂ (E[J_k r_k] = 2σ² ∂J_k/∂n̂: r_k ≈ 2 n̂·ε). Only on a converged fit whose parameters the
+      // readings determine (F⁻¹ along an undetermined one turns noise into the shift).
+      const double spare = n - 9.0;
+      if (sum.converged && options.noise_sigma != 0.0 && spare > 0.0) {
+        const double var_r = options.noise_sigma > 0.0
+                                 ? 4.0 * (options.noise_sigma / scale) * (options.noise_sigma / scale)
+                                 : pass.cost / spare;
+        if (all_determined(pass.F, var_r, m, options.determined_tolerance)) {
+          each_mu = reading_noise_means(samples, centre, scale, m, var_r / 4.0);
+          // the targets move by O(σ²): Gauss–Newton from the solution converges at once; a step below 1e-5 of a
+          // standard error (δᵀFδ ≤ 1e-10 σ_r²) is not taken
+          for (int step = 0; step < 4; ++step) {
+            pass = sampson_pass(samples, centre, scale, relative, m, 0.0, true, &each_mu);
+            Vec9 delta;
+            if (!(solve_scaled<9>(pass.F, Vec9(-pass.g), delta) < kInf) ||
+                delta.dot(pass.F * delta) <= 1e-10 * pass.cost / spare)
+              break;
+            m = moved(m, delta, 1.0);
+            ++sum.iterations;
+          }
+          pass = sampson_pass(samples, centre, scale, relative, m, 0.0, true, &each_mu);
+          Vec9 shift;
+          if (solve_scaled<9>(pass.F, normal_derivative_3d(samples, centre, scale, relative, m, each_mu), shift) < kInf)
+            m = moved(m, shift, 0.5 * var_r);  // 2σ² = σ_r²/2
+          pass = sampson_pass(samples, centre, scale, relative, m, 0.0, true, &each_mu);
+        }
+      }
       F = pass.F;
       sum.cost = pass.cost * scale * scale / (4.0 * n);  // r_k = 2 × the distance in u = (m − centre)/scale
     }
@@ -1213,7 +1304,8 @@ TwoStepResult twostep_fit(const SamplesRef& samples, const TwoStepOptions& optio
                              samples, "the two-step calibration");
   describe_coverage(sum, samples, cal, options.coverage_rows);
   if (options.max_iterations > 0 && options.standard_errors)
-    parameter_covariance(out, samples, m, mu, F, centre, scale, H, relative, options);
+    parameter_covariance(out, samples, m, mu, F, centre, scale, H, relative, options,
+                         each_mu.size() ? &each_mu : nullptr);
   // The readings' misfit to the first step's (unweighted) ellipsoid: where a reading lies that pulls the weighted
   // fit its way, and the yardstick of a second step that ran away.
   const Calibration start = calibration_of(first, centre, scale, H);

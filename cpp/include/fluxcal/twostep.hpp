@@ -145,7 +145,10 @@ struct TwoStepOptions {
   /// Stop when no parameter (normalised units, O(1)) changes by more than this.
   double tolerance = 1e-10;
   /// Standard deviation of the reading noise per axis (reading units), for the noise mean μ.
-  /// < 0: estimate μ from the residuals (default); 0: no noise-mean correction.
+  /// < 0: estimate μ from the residuals (default); 0: no noise-mean correction. With it (≠ 0), once the second step
+  /// has converged and every parameter is determined (determined_tolerance), the noise's O(σ²) bias is taken off as
+  /// refine's noise_bias_correction does: each reading's own noise mean μ_k along its normal, the fit solved again,
+  /// and the Jacobian's move with the noise (F⁻¹ 2σ² Σ∂J_k/∂n̂) — at σ 2 % the scale agrees with refine's to 1e-6.
   double noise_sigma = -1.0;
   /// Units of the readings, carried into the Calibration ("" = not stated).
   std::string units;
@@ -176,7 +179,7 @@ struct TwoStepOptions {
 };
 
 /// Calibration (model "twostep", A symmetric) and Summary: iterations and converged of the second
-/// step; cost = its objective over N: the mean squared Sampson distance (|h_k|² − H_k² − μ)/(2|Aᵀh_k|) of the
+/// step; cost = its objective over N: the mean squared Sampson distance (|h_k|² − H_k² − μ_k)/(2|Aᵀh_k|) of the
 /// readings from the ellipsoid, in the readings' units squared (with max_iterations = 0, the first step's mean
 /// ((|h|² − H²)/H²)²); residual_rms, norm_mean and
 /// norm_std_over_mean of |h| from a pass over the samples (exact_statistics); condition_number of the

@@ -137,7 +137,54 @@ def _sqrtm_spd(M):
     return (V * np.sqrt(w)) @ V.T
 
 
-def twostep(samples, field_norm, iterate: bool = True, noise_sigma: float = -1.0) -> dict:
+def _sampson(p, u, H2, mu):
+    """The Sampson residuals (|A(u − o)|² − H_k² − μ_k)/|M (u − o)| at p = (o, M's 00 11 22 01 02 12)."""
+    d = u - p[:3]
+    M = _sym(p[3:])
+    return (np.einsum("ij,jk,ik->i", d, M, d) - H2 - mu) / np.linalg.norm(d @ M, axis=1)
+
+
+def _jacobian(p, u, H2, mu, step=1e-6):
+    """∂r_k/∂p by central differences (each step 1e-6 of the parameter's scale)."""
+    scales = np.r_[np.full(3, max(1.0, np.abs(p[:3]).max())), np.full(6, np.abs(p[3:]).max())]
+    J = np.empty((len(u), 9))
+    for j in range(9):
+        e = np.zeros(9)
+        e[j] = step * scales[j]
+        J[:, j] = (_sampson(p + e, u, H2, mu) - _sampson(p - e, u, H2, mu)) / (2 * e[j])
+    return J
+
+
+def _without_noise_bias(u, H2, p, mu, sigma, tolerance):
+    """The noise's O(σ²) bias taken off a converged Sampson fit (the core's second step does the same): each reading's
+    noise mean μ_k = σ²(tr M − 2 n̂ᵀM n̂) along its normal n̂ = M(u − o)/|M(u − o)|, where E[r_k] = 0; least squares
+    again with those; then p += F⁻¹ 2σ² Σ ∂J_k/∂n̂ (E[J_k r_k] = 2σ² ∂J_k/∂n̂), ∂J/∂n̂ by central differences of J in
+    the readings (1e-4 of the mean radius). σ² from the residuals, var r ≈ 4σ², unless given. Not when a parameter's
+    standard error (var r F⁻¹) reaches `tolerance` of its scale (1/√λ̄ for o, λ̄ = tr M/(3 mean H_k²)·mean H_k² for M)."""
+    n = len(u)
+    r = _sampson(p, u, H2, mu)
+    var_r = 4 * sigma**2 if sigma is not None else np.sum(r**2) / (n - 9)
+    J = _jacobian(p, u, H2, mu)
+    se = np.sqrt(var_r * np.diag(np.linalg.inv(J.T @ J)))
+    M = _sym(p[3:])
+    mean_eigen = np.trace(M) / 3 / H2.mean()  # (the core's N = M / mean H_k²)
+    if not (np.all(se[:3] < tolerance / np.sqrt(mean_eigen)) and np.all(se[3:] < tolerance * mean_eigen * H2.mean())):
+        return p
+    v = (u - p[:3]) @ M
+    q = np.einsum("ij,jk,ik->i", v, M, v) / np.sum(v * v, axis=1)
+    mus = var_r / 4 * (np.trace(M) - 2 * q)
+    p = least_squares(lambda x: _sampson(x, u, H2, mus), p, method="lm", xtol=1e-15, ftol=1e-15, gtol=1e-15).x
+    M = _sym(p[3:])
+    v = (u - p[:3]) @ M
+    normal = v / np.linalg.norm(v, axis=1)[:, None]
+    h = 1e-4 / np.sqrt(np.trace(M) / 3 / H2.mean())
+    dJ = (_jacobian(p, u + h * normal, H2, mus) - _jacobian(p, u - h * normal, H2, mus)).sum(axis=0) / (2 * h)
+    J = _jacobian(p, u, H2, mus)
+    return p + np.linalg.solve(J.T @ J, var_r / 2 * dJ)
+
+
+def twostep(samples, field_norm, iterate: bool = True, noise_sigma: float = -1.0,
+            determined_tolerance: float = 0.01) -> dict:
     """A&S TWOSTEP with a constant field magnitude H, or each reading's H_k (`field_norm` N values), in
     coordinates u = (m − mean)/std.
 
@@ -194,6 +241,9 @@ def twostep(samples, field_norm, iterate: bool = True, noise_sigma: float = -1.0
                               gtol=1e-15).x
             if abs(noise_mean(p) - mu) <= 1e-14 * Hbar**2:
                 break
+        if noise_sigma != 0 and len(u) > 9:
+            p = _without_noise_bias(u, H2, p, mu, noise_sigma / std if noise_sigma > 0 else None,
+                                    determined_tolerance)
         o, M = p[:3], _sym(p[3:])
 
     A = _sqrtm_spd(M)  # h = std·A_u(u − o) = A_u (m − offset): the std cancels
