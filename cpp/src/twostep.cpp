@@ -1248,16 +1248,17 @@ TwoStepResult twostep_fit(const SamplesRef& samples, const TwoStepOptions& optio
           each_mu = reading_noise_means(samples, centre, scale, m, var_r / 4.0);
           // the targets move by O(σ²): Gauss–Newton from the solution converges at once; a step below 1e-5 of a
           // standard error (δᵀFδ ≤ 1e-10 σ_r²) is not taken
+          bool current = false;  // pass is m's
           for (int step = 0; step < 4; ++step) {
             pass = sampson_pass(samples, centre, scale, relative, m, 0.0, true, &each_mu);
             Vec9 delta;
-            if (!(solve_scaled<9>(pass.F, Vec9(-pass.g), delta) < kInf) ||
-                delta.dot(pass.F * delta) <= 1e-10 * pass.cost / spare)
-              break;
+            current = !(solve_scaled<9>(pass.F, Vec9(-pass.g), delta) < kInf) ||
+                      delta.dot(pass.F * delta) <= 1e-10 * pass.cost / spare;
+            if (current) break;
             m = moved(m, delta, 1.0);
             ++sum.iterations;
           }
-          pass = sampson_pass(samples, centre, scale, relative, m, 0.0, true, &each_mu);
+          if (!current) pass = sampson_pass(samples, centre, scale, relative, m, 0.0, true, &each_mu);
           Vec9 shift;
           if (solve_scaled<9>(pass.F, normal_derivative_3d(samples, centre, scale, relative, m, each_mu), shift) < kInf)
             m = moved(m, shift, 0.5 * var_r);  // 2σ² = σ_r²/2
