@@ -2,7 +2,10 @@
 
 Formats a device may print, one record per line (`--format`):
 
-  csv          numbers separated by commas, semicolons, tabs or spaces: `12.3,-4,7` / `12.3 -4 7`.
+  csv          numbers separated by commas, semicolons, tabs or spaces: `12.3,-4,7` / `12.3 -4 7`. Between
+               semicolons or tabs a comma is a decimal comma (`12,5;-3,25;40,0`; 1,234 there too, said in a note,
+               unless a whole number beside it makes it a thousands separator, as the file readers take it);
+               comma-separated fields that may hold decimal commas (`12,5,-3,25,40,0`) are `ambiguous`.
                `--columns` names them in order (default mx,my,mz), e.g. `t,mx[nT],my[nT],mz[nT]`.
                A header line the device prints (`seq,mx[uT],my[uT],mz[uT]`, `mx [uT]`, `mx (uT)`) is
                matched on its names without units or case: one in another order is followed (a note in
@@ -14,7 +17,11 @@ Formats a device may print, one record per line (`--format`):
                `fields`), with a warning and a note, until a header that can be followed comes (no
                conversion, as for kv). A header of as many fields naming none of the columns' names
                elsewhere (`time,x,y,z` for --columns t,mx,my,mz) is taken by position, and a later
-               header of its names in another order is followed.
+               header of its names in another order is followed. A unit in the magnetometer's names
+               (`mag_x_ga`, `magnetometer_ga[0]`) is the recording's; bx,by,bz beside mx,my,mz are recorded as
+               a reference field (`fluxcal calibrate --reference bx,by,bz`), as the file readers take them; a
+               header naming the columns and more, or two magnetometer triples, refuses its lines with the
+               --columns that would keep them.
   kv           `key=value` or `key:value` pairs: `X=12.3 Y=-4 Z=7`, `mx:1,my:2,mz:3`. Keys match the
                column names case-insensitively; `KEY=NAME` in `--columns` renames (default
                `x=mx,y=my,z=mz`, which also accepts the keys mx,my,mz). Every column's key must be on the
@@ -43,7 +50,8 @@ time in ns, is kept and written digit for digit, not rounded to a double); every
 host's monotonic time (s) since the recording started when the chunk holding it was read.
 
 What is rejected, and counted by reason (never written as data): `binary` (bytes that are not text:
-invalid UTF-8 or control characters, or garbage between binary frames), `partial` (the first line
+invalid UTF-8 or control characters, or garbage between binary frames; NULs before or after a line, as a device
+sends them at a reset, are dropped and the line kept, noted once), `partial` (the first line
 after the port opens, which may be the tail of a line already in flight, unless it is a csv header of
 the columns or no byte came for QUIET_OPEN_S (0.5 s) after the open: pyserial's open empties the input
 queue, so a line that starts after that silence is whole (a note in the file says so); the line in
@@ -85,7 +93,8 @@ from pathlib import Path
 
 import serial  # pyserial (absolute import: this module's own name does not shadow it)
 
-from .columns import FIELD_UNITS, MAG_WORDS, comma_kind, find_magnetometer, is_unit, unit_name
+from .columns import (FIELD_UNITS, MAG_WORDS, _triples, comma_kind, field_unit_of, find_magnetometer, is_unit,
+                      unit_name, words)
 
 REASONS = {
     "binary": "non-text bytes (invalid UTF-8, control characters, garbage between frames)",
@@ -118,8 +127,11 @@ _LINE_END = re.compile(rb"\r\n|\r|\n")
 _COMMAS = re.compile(r"\d+(?:,\d+){2,}")
 _FIELD_COMMA = re.compile(r"(?<!\d),|,(?!\d)")
 _CONTROL = re.compile(r"[\x00-\x08\x0b-\x1f\x7f]")
-# csv: a cell of a header line the device prints: NAME, NAME[unit], NAME [unit], NAME(unit)
-_HEADER_CELL = re.compile(r"([A-Za-z_][\w.]*)\s*(?:\[\s*([^\]]*?)\s*\]|\(\s*([^)]*?)\s*\))?")
+# kv: "Gs" written as a unit after a number or in brackets (not a key "Gs: 1")
+_GS_UNIT = re.compile(r"(?<=[\d\s(\[])gs\b(?!\s*[:=])", re.IGNORECASE)
+# csv: a cell of a header line the device prints: NAME, NAME[unit], NAME [unit], NAME(unit); an index in brackets
+# is the name's (PX4's magnetometer_ga[0], [1], [2]: taken for a unit "0", the three names were one)
+_HEADER_CELL = re.compile(r"([A-Za-z_][\w.]*(?:\[\d+\])?)\s*(?:\[\s*([^\]]*?)\s*\]|\(\s*([^)]*?)\s*\))?")
 _HEADER_WORDS = re.compile(r"[^\s\[(]+(?:\s*(?:\[[^\]]*\]|\([^)]*\)))?")  # cells of a header without , or ;
 # seconds without a byte after the port opens (pyserial's open empties the input queue) after which the first
 # line is taken whole: the tail of a line in flight at the open comes at once (a USB adapter holds bytes for
@@ -127,6 +139,21 @@ _HEADER_WORDS = re.compile(r"[^\s\[(]+(?:\s*(?:\[[^\]]*\]|\([^)]*\)))?")  # cell
 # than a device at more than 1 Hz ever stays quiet, and about as long as an Arduino takes from the reset the
 # open causes to its first line (~1 s with optiboot): such a device lost its first line
 QUIET_OPEN_S = 0.5
+
+
+def _unit_name(word: str) -> str:
+    """unit_name, with "Gs" (a common spelling of gauss that fluxcal.io.columns does not list) as G: it had been
+    written into the recording as "Gs", a unit nothing downstream converts."""
+    return "G" if word.strip().strip("[]()").strip().lower() == "gs" else unit_name(word)
+
+
+def _name_unit(name: str) -> str:
+    """The field unit a magnetometer axis's name carries after or before its axis (mag_x_uT, Bx_nT, mag_x_ga,
+    magnetometer_ga[0]), else "": a logger's unit in its names, as the file readers take it."""
+    for w in reversed(words(name)[1:][-2:]):  # the last word, then the one before the axis or index
+        if w in FIELD_UNITS or w == "gs":
+            return _unit_name(w)
+    return field_unit_of(name)  # (Bx_T: tesla)
 
 
 class Reject(Exception):
@@ -164,6 +191,8 @@ def parse_columns(spec: str | None, fmt: str = "csv", units: str | None = None) 
             raise ValueError("--columns: t_host is the host time the recorder adds; name the device's time t")
         if not unit and units and name in ("mx", "my", "mz"):
             unit = units
+        if unit.lower() == "gs":
+            unit = "G"  # (see _unit_name)
         columns.append(Column(name, key, unit))
     names = [c.name for c in columns]
     if len(set(names)) != len(names):
@@ -270,6 +299,7 @@ class TextDecoder:
         self._first = True
         self._rest_of_long_line = False
         self.blank_lines = 0
+        self.nul_lines = 0  # lines kept after dropping the NULs before them (a device's reset)
         self._order = None  # csv: positions of the columns after the device printed its header in another order
         self._refused = None  # csv: why lines are refused after a header that cannot be followed (a Reject)
         self._header_columns = header_columns and fmt == "csv"
@@ -277,9 +307,11 @@ class TextDecoder:
         self._headers_said = set()  # csv: the header lines already reported (a device reprints it every N lines)
         self._aliases = None  # csv: the device's names of the columns, when --columns renames its fields by position
         # units as --units/--columns state them, and as the first recorded line printed them (kv)
-        self._stated = {c.name: unit_name(c.unit) for c in self.columns if c.unit}
+        self._stated = {c.name: _unit_name(c.unit) for c in self.columns if c.unit}
         self.printed_units, self._line_units = {}, {}
-        self.decimal_comma, self._line_decimal_comma = False, False  # kv: the device writes decimal commas
+        # the device writes decimal commas (kv; csv with fields separated by ';' or tabs)
+        self.decimal_comma, self._line_decimal_comma = False, False
+        self._comma_said = False  # csv: a note said that 1,234 between ';' or tabs is read as a decimal comma
         # kv: the keys beyond the columns on recorded lines ({key as printed: lines}), ignored
         self.ignored_keys, self._line_ignored = Counter(), []
         # nmea: whether a sentence with a checksum came (from then on one without is garbled); sentences recorded
@@ -321,6 +353,18 @@ class TextDecoder:
         for m in _LINE_END.finditer(self._buffer):
             raw = bytes(self._buffer[start:m.start()])
             start = m.end()
+            # NULs a device sends at power-up or a reset (a UART's break) before its line, or as padding after it:
+            # not the line's (a good line after them had been rejected as binary). A NUL inside a line is still
+            # garbage. A line they start began after the reset: whole, even as the first after the open
+            stripped = raw.lstrip(b"\x00")
+            reset = len(stripped) < len(raw) and bool(stripped.strip(b"\x00 \t"))
+            raw = stripped.rstrip(b"\x00")
+            if reset and not self._rest_of_long_line:
+                self._first = False
+                if not self.nul_lines:
+                    self.notes.append(f"NUL bytes before a line (the device's reset or power-up?) were dropped and "
+                                      f"the line kept: {_show(stripped[:40])}")
+                self.nul_lines += 1
             if self._rest_of_long_line:  # the end of a line already rejected as too long
                 self._rest_of_long_line = False
                 continue
@@ -428,19 +472,28 @@ class TextDecoder:
         self._headers_said.add(text)
         line = f"the device's header line {text!r}"
         names = ",".join(self.names)
+        try:
+            triple, rivals = find_magnetometer([n for n, _ in cells], line), ""
+        except ValueError as exc:  # two sensors' triples (MagX.. beside Bx..): the file readers refuse them too
+            triple, rivals = None, str(exc)[len(line) + 2:]
+        # a unit in the magnetometer's names (mag_x_ga, magnetometer_ga[0]): the recording's, as a file reader's
+        cells = [(n, u or (_name_unit(n) if n in (triple or ()) else "")) for n, u in cells]
         if sorted(printed) == sorted(mine):
             return self._follow(cells, mine, line, said)
         if self._aliases is not None and sorted(printed) == sorted(self._aliases):
             return self._follow(cells, self._aliases, line, said)  # the device's own names, reordered
-        renamed = ""
+        renamed, original = "", cells
         if self._header_columns and not self._recorded and not all(m in printed for m in MAG):
             # a logger's own names beside a time column (t,Bx,By,Bz; timestamp,x,y,z; millis,mag_x,mag_y,mag_z):
             # its magnetometer, as the readers find one, recorded as mx,my,mz (four fields had been taken for a
             # line of other fields, and every line after it refused: a blind check lost a whole recording)
-            try:
-                triple = find_magnetometer([n for n, _ in cells], line)
-            except ValueError:
-                triple = None
+            if rivals:  # its lines do not fit the columns: refused, saying which triples and how to choose
+                found = list(_triples([n for n, _ in cells], MAG_WORDS).values())
+                example = ",".join(MAG[found[0].index(n)] if n in found[0] else n for n, _ in cells)
+                return self._refuse("fields", line, rivals.split("; choose")[0], said,
+                                    remedy=f"record again with --columns naming its fields, the magnetometer's as "
+                                           f"mx,my,mz (e.g. {example}); a reference field beside them is for "
+                                           "`fluxcal calibrate --reference`")
             if triple and len(printed) > len(MAG):
                 cells = [(MAG[triple.index(n)] if n in triple else n, unit) for n, unit in cells]
                 renamed = "; " + ", ".join(f"{n} as {m}" for n, m in zip(triple, MAG))
@@ -460,10 +513,28 @@ class TextDecoder:
                                             else ""))
                             for n, unit in cells]
             self.names = [c.name for c in self.columns]
-            self._order, self._refused, self._aliases = None, None, None
+            # the device's own names, remembered when its triple was renamed: a reprint in another order (t,Bz,Bx,By
+            # after t,Bx,By,Bz) is followed by them (it had been taken by position, Bz recorded as mx)
+            self._order, self._refused = None, None
+            self._aliases = [n.lower() for n, _ in original] if renamed else None
             spec = ",".join(f"{c.name}[{c.unit}]" if c.unit else c.name for c in self.columns)
+            reference = _triples(self.names, MAG_WORDS).get(("b",))
+            if reference:  # bx,by,bz beside mx,my,mz: a reference field to the file readers (rival_magnetometers)
+                renamed += (f"; {','.join(reference)}: a reference field beside the magnetometer mx,my,mz, recorded "
+                            f"as printed (fluxcal calibrate --reference {','.join(reference)})")
             return Reject("header", f"{line}: its columns are the recording's ({spec}{renamed})",
                           note=f"columns from {line}: {spec}{renamed}")
+        if len(printed) > len(mine) and all(n in printed for n in mine):
+            # the columns and more (bx,by,bz beside t,mx,my,mz): its lines do not fit --columns; said with the remedy
+            # (every line had been rejected as `fields` with none)
+            extra = [n for n, _ in cells if n.lower() not in mine]
+            own = {c.name.lower(): c.name + (f"[{c.unit}]" if c.unit else "") for c in self.columns}
+            spec = ",".join(own.get(n.lower(), n + (f"[{u}]" if u else "")) for n, u in cells)
+            reference = _triples([n for n, _ in cells], MAG_WORDS).get(("b",)) if set(MAG) <= set(mine) else None
+            return self._refuse("fields", line, f"it names {','.join(extra)} beside the columns {names}", said,
+                                remedy=f"record again with --columns {spec} to keep them"
+                                + (f" ({','.join(reference)}: a reference field, for fluxcal calibrate --reference "
+                                   f"{','.join(reference)})" if reference else ""))
         if len(printed) != len(mine):  # no header of these columns; its lines do not fit them either
             if said:
                 self._headers_said.discard(text)
@@ -481,6 +552,22 @@ class TextDecoder:
                 return self._refuse(
                     "fields", line, f"it puts {', '.join(misplaced)} at other places than {whose}, and its other "
                     "names are not theirs (compared without units): the new order cannot be followed", said)
+        if triple and all(m in mine for m in MAG):
+            # the device's magnetometer names its axes (MagZ,MagX,MagY; time,Bz,Bx,By) in another order than the
+            # columns': followed by those names, its other fields by position (by position alone MagZ had been
+            # recorded as mx)
+            device = {MAG[i]: n.lower() for i, n in enumerate(triple)}
+            others = [n for n in printed if n not in device.values()]
+            mine_others = [n for n in mine if n not in MAG]
+            reference = [device.get(n) for n in mine]
+            if len(others) == len(mine_others) and any(printed.index(device[m]) != mine.index(m) for m in MAG):
+                for j, n in enumerate(mine_others):
+                    reference[mine.index(n)] = others[j]
+                event = self._follow(cells, reference, line, said, note=f"{line}: its magnetometer "
+                                     f"{','.join(triple)} taken as {','.join(MAG)} by its names, in its order")
+                if event.reason == "header":
+                    self._aliases = reference
+                return event
         if self._aliases is not None:  # a status line of as many words, or the device renamed its fields
             warning = (f"{line} names neither the columns {names} nor the fields of the device's earlier header "
                        f"({','.join(self._aliases)}): its lines are read as before; if the device reorders them "
@@ -536,18 +623,18 @@ class TextDecoder:
                 continue
             column = self.columns[reference.index(name.lower())]
             stated = (self._stated.get(column.name) if stated_only else
-                      unit_name(column.unit) if column.unit else self.printed_units.get(column.name))
+                      _unit_name(column.unit) if column.unit else self.printed_units.get(column.name))
             if stated and unit != stated:
                 return (f"column {column.name!r} is in {unit} there, in {stated} in the recording (no conversion: a "
                         "range change? another sensor?)")
         return ""
 
-    def _refuse(self, reason: str, line: str, why: str, said: bool):
+    def _refuse(self, reason: str, line: str, why: str, said: bool, remedy: str = ""):
         """A header that cannot be followed: its line and every line after it are refused until a header that can
         be comes, loudly (a warning and a note), never recorded as if nothing had changed."""
         self._refused = Reject(reason, f"a line after {line}, which cannot be followed: {why}")
-        remedy = ("record each unit setting of the device on its own" if reason == "unit" else
-                  "stop, and record again with --columns naming the columns as the device prints them")
+        remedy = remedy or ("record each unit setting of the device on its own" if reason == "unit" else
+                            "stop, and record again with --columns naming the columns as the device prints them")
         warning = (f"{line}: {why}. The lines after it are refused until the device prints a header of the "
                    f"columns {','.join(self.names)} again; {remedy}") if said else ""
         return Reject(reason, f"{line} cannot be followed: {why}", warning=warning)
@@ -586,7 +673,19 @@ class TextDecoder:
         return tuple(_number(cells[layout.index(NMEA_FIELDS[n])].strip(), n) for n in self.names)
 
     def _parse_csv(self, text: str) -> tuple:
-        fields = [f.strip() for f in re.split(r"[,;]", text)] if ("," in text or ";" in text) else text.split()
+        # ';' or a tab between fields leaves the commas to decimal commas (12,5;-3,25;40,0: a European logger;
+        # they had been split into 6 fields) when each field's commas can be one; else (1.5 ,\t-2 ; 3) commas
+        # separate fields too, as before — and so they do for 1,234 beside a whole number (1,234;5;6), which the
+        # file readers take for a thousands separator, unless a decimal comma settled it
+        sep = ";" if ";" in text else "\t" if "\t" in text else None
+        fields = [f.strip() for f in text.split(sep)] if sep and "," in text else []
+        kinds = [comma_kind(f) for f in fields]
+        column_of = dict(zip(self._order or range(len(self.names)), self.names))  # by the field's place on the line
+        thousands = not self.decimal_comma and "decimal" not in kinds and any(  # (a device time t is no evidence)
+            _INTEGER.fullmatch(f) and column_of.get(j) != "t" for j, f in enumerate(fields))
+        if not fields or "invalid" in kinds or thousands:
+            sep = "," if "," in text or ";" in text else None
+            fields = [f.strip() for f in re.split(r"[,;]", text)] if sep else text.split()
         if len(fields) == len(self.columns) + 1 and fields[-1] == "":
             fields.pop()  # a separator after the last field, as a sketch's print loop writes: 12.3,-4.5,40.1,
         cells = _header_cells(text) if fields[0][:1].isalpha() or fields[0][:1] == "_" else None
@@ -594,15 +693,25 @@ class TextDecoder:
         if header:  # the device (re)printed its header: follow its order, never record mz under mx
             raise header
         if self._refused is not None:
-            raise Reject(self._refused.reason, self._refused.detail)
+            raise Reject(self._refused.reason, f"{self._refused.detail}: {text!r}")
         if self._order is not None and len(fields) == len(self.columns):
             fields = [fields[j] for j in self._order]
         if len(fields) != len(self.columns):
+            if sep == "," and "." not in text and len(fields) == 2 * len(self.columns):  # 12,5,-3,25,40,0
+                raise Reject("ambiguous", f"{len(fields)} fields, expected {len(self.columns)} "
+                                          f"({','.join(self.names)}): its commas may be decimal commas or field "
+                                          "separators; not guessed: "
+                                          f"{text!r} (a device that writes decimal commas separates its fields by "
+                                          "';' or tabs)")
             if text.startswith("{") and text.endswith("}"):  # (a blind check's ESP32 printed JSON lines: "4 fields")
                 raise Reject("fields", f"a JSON record, not a csv line: record it with --format kv (its keys name "
                                        f"the columns): {text!r}")
             raise Reject("fields", f"{len(fields)} fields, expected {len(self.columns)} ({','.join(self.names)}): "
-                                   f"{text!r}")
+                                   f"{text!r}" + (" (its commas read as separators: 1,234 beside a whole number is a "
+                                                  "thousands separator, which the recorder does not read)"
+                                                  if thousands else ""))
+        if sep != ",":  # (a comma left in a field is a decimal comma)
+            fields = self._decimal_commas(text, fields, table=True)
         return tuple(_number(f, n) for f, n in zip(fields, self.names))
 
     def _parse_kv(self, text: str) -> tuple:
@@ -624,7 +733,7 @@ class TextDecoder:
         a magnetometer's (Mag, Compass) — an "Accel X:" line never fills the magnetometer."""
         from .labelled import _parse_line
 
-        _, pairs = _parse_line(text)
+        _, pairs = _parse_line(_GS_UNIT.sub("G", text))  # (Gs: not a unit to the labelled reader)
         values, units, ignored = [None] * len(self.columns), {}, []
         for name, value, unit in pairs:
             *group, label = name.lower().split()
@@ -651,12 +760,15 @@ class TextDecoder:
         self._line_ignored = ignored
         return tuple(_number(v, n) for v, n in zip(values, self.names))
 
-    def _decimal_commas(self, text: str, values: list) -> list:
+    def _decimal_commas(self, text: str, values: list, table: bool = False) -> list:
         """Values with a comma between digits read with a decimal comma (`X: -13,62`), or Reject("ambiguous")
         when the comma may mean something else: on a line whose fields are separated by commas (`X: 1,5, Y: 2`),
         in a number with several (1,234,567), or as a thousands separator (1,234 with three digits after it),
         unless a decimal comma that cannot be one (12,34, 0,123, -0,5, 1234,5) was on this line or an earlier
-        recorded one: never a guess that is 1000 times off."""
+        recorded one: never a guess that is 1000 times off. `table`: a csv line separated by ';' or tabs, whose
+        1,234 is a decimal comma as the file readers read such a table (a thousands separator there is an English
+        number in a European layout; refusing it had refused every line of a logger printing three decimals), said
+        in a note the first time."""
         with_comma = [(n, v) for n, v in zip(self.names, values) if "," in v]
         if not with_comma:
             return values
@@ -675,10 +787,16 @@ class TextDecoder:
         grouped = [(n, v) for n, v in with_comma if comma_kind(v) == "ambiguous"]
         if grouped and len(grouped) == len(with_comma) and not self.decimal_comma:
             name, value = grouped[0]
-            raise Reject("ambiguous", f"column {name!r}: {value!r} is {value.replace(',', '.')} with a decimal comma, "
-                                      f"{value.replace(',', '')} with a thousands separator; not guessed (a line with a "
-                                      "decimal comma that cannot be a thousands separator, such as 12,34 or -0,123, "
-                                      "settles it for the recording)")
+            if not table:
+                raise Reject("ambiguous", f"column {name!r}: {value!r} is {value.replace(',', '.')} with a decimal "
+                                          f"comma, {value.replace(',', '')} with a thousands separator; not guessed (a "
+                                          "line with a decimal comma that cannot be a thousands separator, such as "
+                                          f"12,34 or -0,123, settles it for the recording): {text!r}")
+            if not self._comma_said:
+                self._comma_said = True
+                self.notes.append(f"column {name!r}: {value!r} read as {value.replace(',', '.')} with a decimal comma, "
+                                  f"as a line separated by ';' or tabs writes one ({value.replace(',', '')} with a "
+                                  f"thousands separator): {text!r}")
         self._line_decimal_comma = True
         return [v.replace(",", ".") for v in values]
 
@@ -688,7 +806,7 @@ class TextDecoder:
         in two units under one label would be silently wrong (a range change, another sensor's line)."""
         named = {}
         for name, word in printed.items():
-            unit = named[name] = unit_name(word)
+            unit = named[name] = _unit_name(word)
             if name in MAG and unit not in {*FIELD_UNITS.values(), "T"}:
                 raise Reject("unit", f"column {name!r}: {word!r} is not a magnetic-field unit (another sensor's "
                                      "line?)")
@@ -758,7 +876,7 @@ def _header_cells(text: str):
         if not m:
             return None
         unit = m.group(2) or m.group(3) or ""
-        header.append((m.group(1), unit_name(unit) if unit else ""))
+        header.append((m.group(1), _unit_name(unit) if unit else ""))
     names = [n.lower() for n, _ in header]
     return header if header and len(set(names)) == len(names) else None
 
