@@ -76,10 +76,12 @@ def test_record_keeps_a_european_loggers_lines(tmp_path):
 
 def test_a_line_after_the_nuls_of_a_reset_is_kept():
     decoder = TextDecoder(parse_columns(None))
-    out = events(decoder, b"1,2,3\n\x00\x00\x0012.5,-3.2,40.1\n\x00\x00\n4,5,6\x00\n7,\x008,9\n")
-    # the NULs before a line and after it are dropped; a line of NULs is blank; a NUL inside a line is garbage
+    out = events(decoder, b"1,2,3\n\x00\x00\x0012.5,-3.2,40.1\n\x00\x00\n4,5,6\n7,\x008,9\n12.3,4.5,6\x00\x00\r\n")
+    # the NULs before a line are dropped; a line of NULs is blank; a NUL inside a line is garbage, and so is a line
+    # ending in them — one a reset cut (12.3,4.5,6 of 12.3,4.5,67.8 must not be kept: a review)
     assert out[:3] == [(1.0, 2.0, 3.0), (12.5, -3.2, 40.1), (4.0, 5.0, 6.0)]
     assert out[3][0] == "binary" and "7,\\x008,9" in out[3][1]
+    assert out[4][0] == "binary" and len(out) == 5
     assert decoder.nul_lines == 1 and len(decoder.notes) == 1 and "NUL bytes before a line" in decoder.notes[0]
     # a device reset by the open (an Arduino) sends NULs and then its first line: whole, not the tail of one
     opened = TextDecoder(parse_columns(None))

@@ -50,8 +50,8 @@ time in ns, is kept and written digit for digit, not rounded to a double); every
 host's monotonic time (s) since the recording started when the chunk holding it was read.
 
 What is rejected, and counted by reason (never written as data): `binary` (bytes that are not text:
-invalid UTF-8 or control characters, or garbage between binary frames; NULs before or after a line, as a device
-sends them at a reset, are dropped and the line kept, noted once), `partial` (the first line
+invalid UTF-8 or control characters, or garbage between binary frames; NULs before a line, as a device sends them
+at a reset, are dropped and the line kept, noted once; a line ending in NULs is one the reset cut: binary), `partial` (the first line
 after the port opens, which may be the tail of a line already in flight, unless it is a csv header of
 the columns or no byte came for QUIET_OPEN_S (0.5 s) after the open: pyserial's open empties the input
 queue, so a line that starts after that silence is whole (a note in the file says so); the line in
@@ -353,12 +353,13 @@ class TextDecoder:
         for m in _LINE_END.finditer(self._buffer):
             raw = bytes(self._buffer[start:m.start()])
             start = m.end()
-            # NULs a device sends at power-up or a reset (a UART's break) before its line, or as padding after it:
-            # not the line's (a good line after them had been rejected as binary). A NUL inside a line is still
-            # garbage. A line they start began after the reset: whole, even as the first after the open
+            # NULs a device sends at power-up or a reset (a UART's break) before its line: not the line's (a good
+            # line after them had been rejected as binary). NULs after a line are not dropped: a line the reset cut
+            # ends in them (12.3,4.5,6 of 67.8 had been kept), and stays garbage, as a NUL inside a line. A line
+            # they start began after the reset: whole, even as the first after the open
             stripped = raw.lstrip(b"\x00")
-            reset = len(stripped) < len(raw) and bool(stripped.strip(b"\x00 \t"))
-            raw = stripped.rstrip(b"\x00")
+            reset = len(stripped) < len(raw) and bool(stripped.strip(b" \t")) and not stripped.endswith(b"\x00")
+            raw = stripped if stripped.strip(b"\x00 \t") else b""  # (a line of NULs alone is blank)
             if reset and not self._rest_of_long_line:
                 self._first = False
                 if not self.nul_lines:
