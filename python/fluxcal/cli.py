@@ -408,6 +408,14 @@ def _print_roles(rec: Recording, reference: str | None = None, rails: bool = Tru
         print(f"the header again at {rec.metadata['repeated_header']}: passed over, the rows on both sides read")
     if "text_columns" in rec.metadata:
         print(f"text columns not used: {rec.metadata['text_columns']}")
+    if "blank_cells" in rec.metadata:  # in columns the magnetometer does not need (a temperature left out)
+        print(f"blank cells: {rec.metadata['blank_cells']}")
+    # which compass of several, and what the logger had already done to its readings (a flight log's, or a table
+    # interleaving compasses by an instance column): an answer for the wrong one looks as plausible as the right one
+    for key, label in (("instance", "compass instance"), ("instances", "instances in the file"),
+                       ("readings", "readings"), ("offsets_applied", "offsets already applied")):
+        if rec.metadata.get(key):
+            print(f"{label}: {rec.metadata[key]}")
 
 
 def _field_norms_given(rec: Recording, name: str, args) -> np.ndarray:

@@ -625,3 +625,23 @@ def comma_kind(number: str) -> str:
     if "," not in text:
         return ""
     return next((kind for kind, form in _COMMA_FORMS if form.fullmatch(text)), "invalid")
+
+
+# A column telling apart compasses whose rows one table interleaves: mavlogdump's MAG `I`, PX4's `device_id`
+INSTANCE_NAMES = {"i", "inst", "instance", "id", "deviceid", "sensorid", "compass", "compassid", "magid",
+                  "maginstance", "multiid"}
+
+
+def find_instance(columns: dict):
+    """(name, values, row counts) of an instance column: named as one (INSTANCE_NAMES, case, '_' and spaces aside),
+    whole numbers in every row, 2 to 8 of them each on 3 rows or more (a row counter has hundreds), else None."""
+    for name, values in columns.items():
+        if re.sub(r"[\s_\-]", "", name.lower()) not in INSTANCE_NAMES:
+            continue
+        values = np.asarray(values, dtype=float)
+        if not np.isfinite(values).all() or (values != np.round(values)).any():
+            continue
+        kinds, counts = np.unique(values, return_counts=True)
+        if 2 <= len(kinds) <= 8 and counts.min() >= 3:
+            return name, kinds, counts
+    return None

@@ -172,17 +172,17 @@ def parse_csv(path, lines, delimiter=",", preamble_lines: int = 0, bad_lines: st
                 raise ValueError(f"{path}, line {header_line}: column {name!r} is in {unit} by the header but in "
                                  f"{unit_map[name]} by the '# units:' comment; correct one of them")
             unit_map.setdefault(name, unit)
+    # before an empty first name becomes pandas' index: a partial line of numbers (",52.1,-18.2") is data
+    if _is_number(names[0]) or (not names[0] and len(names) > 1 and all(_is_number(n) for n in names[1:])):
+        raise ValueError(f"{path}, line {header_line}: the first line holds numbers, not column names; "
+                         + _later_header(lines, i, len(names), delimiter))
     if len(names) > 1 and not names[0] and "index" not in names:  # pandas to_csv(): its unnamed index column
         names[0] = "index"
-    for k in range(len(names) - 1, 0, -1):  # a header ending in the delimiter (mx,my,mz, or mx,my,mz,,): unnamed
-        if names[k]:  # columns, kept under these names (left out later if they are empty)
-            break
-        names[k] = f"column{k + 1}"
+    for k in range(1, len(names)):  # a header ending in the delimiter (mx,my,mz,,), or a spreadsheet's spacer
+        if not names[k]:  # column: unnamed columns, kept under these names (left out later, said, if they are empty)
+            names[k] = f"column{k + 1}"
     if any(not n for n in names) or len(set(names)) != len(names):
         raise ValueError(f"{path}, line {header_line}: header {lines[i]!r} has empty or repeated column names")
-    if _is_number(names[0]):
-        raise ValueError(f"{path}, line {header_line}: the first line holds numbers, not column names; "
-                         "add a header such as mx,my,mz")
     lines = _units_row(lines, i + 1, names, delimiter, unit_map)
     lines = _repeated_headers(path, lines, i, names, delimiter, unit_map, metadata)
     lines = _trailing_delimiters(lines, i + 1, names, delimiter)
@@ -209,6 +209,17 @@ def parse_csv(path, lines, delimiter=",", preamble_lines: int = 0, bad_lines: st
     _units_from_notes(notes, names, unit_map, metadata)
     return Recording(columns={n: data[:, j] for j, n in enumerate(names)}, units=unit_map, metadata=metadata,
                      source=str(path), line_numbers=line_numbers)
+
+
+def _later_header(lines, start: int, width: int, delimiter) -> str:
+    """What to do about a table starting with numbers: a header line further down (a logger reset, its banner and
+    header printed again under rows of before) is named, the rows above it to delete; else add a header."""
+    for k in range(start + 1, min(len(lines), start + 2000)):
+        cells = [c.strip() for c in _header_cells(lines[k].strip(), delimiter)]
+        if len(cells) == width and all(c and not _is_number(c) for c in cells) and not is_comment(lines[k]):
+            return (f"the header {lines[k].strip()!r} is on line {k + 1}: delete the lines above it (rows of before "
+                    "a logger's reset?), or add a header on line 1")
+    return "add a header such as mx,my,mz"
 
 
 # `fluxcal record`'s note when the device prints its units only after the first rows (its header reprinted)
@@ -295,6 +306,11 @@ def parse_mixed_rows(path, lines, start: int, names, delimiter, bad_lines: str, 
         cells = [[c.replace(",", "") if j in separated else c for j, c in enumerate(row)] for row in cells]
         whole = [c for c in cells if len(c) == len(names)]
         metadata["thousands_separator"] = "comma (" + ", ".join(names[j] for j in separated) + ")"
+    decimal = _quoted_decimal_commas(whole, len(names)) if delimiter == "," and not separated else []
+    if decimal:  # a German spreadsheet saved as CSV quotes its "-0,16": decimal commas, read as points
+        cells = [[c.replace(",", ".") if j in decimal else c for j, c in enumerate(row)] for row in cells]
+        whole = [c for c in cells if len(c) == len(names)]
+        metadata["decimal_separator"] = "comma (quoted cells: " + ", ".join(names[j] for j in decimal) + ")"
     # A column is text when most of its cells are not numbers (a status field that is sometimes "1");
     # an all-empty column (from a trailing delimiter) is text too and is left out.
     text = [j for j in range(len(names)) if whole and sum(_is_number(c[j]) for c in whole) < 0.5 * len(whole)]
@@ -320,12 +336,18 @@ def parse_mixed_rows(path, lines, start: int, names, delimiter, bad_lines: str, 
     # skipping, a number written as nan or inf is a bad line too (a sensor's failed read printed as a float)
     usable = _is_finite_number if bad_lines == "skip" else _is_number
     never_finite = {j for j in range(len(names)) if whole and not any(_is_finite_number(c[j]) for c in whole)}
+    optional = _optional_columns(names, numeric, units)
+    blanks = {}  # column index -> [its blank cells' lines] (read as NaN)
     for row, (c, line_no) in enumerate(zip(cells, line_numbers)):
         problem, where = None, None
         if len(c) != len(names):
             problem = (f"{len(c)} fields, the header has {len(names)} (truncated or garbled line?)")
         else:
-            bad = next((j for j in numeric if not (usable(c[j]) or (j in never_finite and _is_number(c[j])))), None)
+            for j in optional:
+                if not c[j].strip():
+                    blanks.setdefault(j, []).append(int(line_no))
+            bad = next((j for j in numeric if not (usable(c[j]) or (j in never_finite and _is_number(c[j]))
+                                                   or (j in optional and not c[j].strip()))), None)
             stamp = next((j for j in columns if not np.isfinite(columns[j][row])), None)
             where = bad if bad is not None else stamp
             if bad is not None:
@@ -354,14 +376,37 @@ def parse_mixed_rows(path, lines, start: int, names, delimiter, bad_lines: str, 
                          "table? fluxcal.read_recording (and the command line) find the header after one")
     if skipped:
         metadata["skipped_lines"] = listing(skipped, len(cells))
+    kept_lines = set(line_numbers[good].tolist())
+    kept_blanks = {j: [n for n in b if n in kept_lines] for j, b in blanks.items()}
+    said = [f"{names[j]}: {len(b)} (first on line {b[0]})" for j, b in kept_blanks.items() if b]
+    if said:
+        metadata["blank_cells"] = "; ".join(said) + " read as NaN"
     kept = [j for j in range(len(names)) if j in numeric or j in columns]
     if not any(j in numeric for j in kept):
         raise ValueError(f"{path}: no column of numbers (" + metadata.get("text_columns", "") + ")"
                          + (f"; is the delimiter {delimiter!r} right?" if delimiter else ""))
     data = np.empty((len(good), len(kept)))
     for out, j in enumerate(kept):
-        data[:, out] = columns[j][good] if j in columns else [float(cells[r][j]) for r in good]
+        data[:, out] = columns[j][good] if j in columns else [float(cells[r][j] if cells[r][j].strip() else "nan")
+                                                              for r in good]
     return [names[j] for j in kept], data, line_numbers[good], notes
+
+
+def _optional_columns(names, numeric, units) -> list:
+    """The numeric columns whose blank cells are read as NaN rather than bad lines: those neither the
+    magnetometer's (by name) nor a time (a temperature the logger left out on some lines, as it writes 'nan'
+    elsewhere; what needs that column refuses its NaN, naming it). None when no magnetometer is found by name
+    (--columns will name it: no column is known not to be needed)."""
+    from .columns import TIME_UNITS, TIME_WORDS, _named, find_magnetometer
+
+    try:
+        mag = find_magnetometer(names, units=units)
+    except ValueError:  # several triples: one is picked later
+        return []
+    if mag is None:
+        return []
+    needed = set(mag) | {n for n, _ in _named(names, TIME_WORDS, TIME_UNITS)} | {"t"}
+    return [j for j in numeric if names[j] not in needed]
 
 
 _LABEL_NUMBER = re.compile(r"^(\D*?)(\d+)(\D*)$")
@@ -680,6 +725,16 @@ def _repeated_headers(path, lines, header: int, names, delimiter, unit_map: dict
     return [("" if j in repeats else line) for j, line in enumerate(lines)]
 
 
+def is_units_row(cells) -> bool:
+    """Whether a row's cells (quotes stripped) are a row of units under the column names: no number, and at least
+    half of the filled ones ("-" fills a column without one) units — Campbell's TOA5 writes TS, RN beside nT, and
+    'Deg C'. The one rule for a table's head (fluxcal.io.formats._title_lines) and for its units (_units_row)."""
+    from .columns import NO_UNIT, is_unit
+
+    filled = [c for c in cells if c and c.strip("[]()").strip().lower() not in NO_UNIT]
+    return bool(filled) and not any(_is_number(c) for c in filled) and sum(map(is_unit, filled)) >= 0.5 * len(filled)
+
+
 def _units_row(lines, start: int, names, delimiter, unit_map: dict):
     """The lines with a row of units under the header (`s,uT,uT,uT` or `(s);(µT);…`, as data-logger and
     LabVIEW exports write) blanked, its units recorded for columns that have none; else the lines."""
@@ -691,14 +746,25 @@ def _units_row(lines, start: int, names, delimiter, unit_map: dict):
     if j == len(lines):
         return lines
     cells = [c.strip().strip('"') for c in lines[j].split(delimiter)]
-    filled = [c for c in cells if c and c.strip("[]()").strip().lower() not in NO_UNIT]  # "-": a column without one
-    if len(cells) != len(names) or not filled or any(_is_number(c) for c in filled) \
-            or sum(is_unit(c) for c in filled) < 0.5 * len(filled):
+    if len(cells) != len(names) or not is_units_row(cells):
         return lines
+    filled = [c for c in cells if c and c.strip("[]()").strip().lower() not in NO_UNIT]
     for name, cell in zip(names, cells):
-        if cell in filled:
-            unit_map.setdefault(name, cell.strip("[]()").strip())
-    return lines[:j] + [""] + lines[j + 1:]  # blank: later lines keep their numbers
+        unit = cell.strip("[]()").strip()
+        unit = unit.replace(" ", "") if is_unit(unit.replace(" ", "")) else unit  # TOA5's 'Deg C'
+        if cell in filled and (is_unit(unit) or sum(map(is_unit, filled)) == len(filled)):  # not TOA5's TS, RN
+            unit_map.setdefault(name, unit)
+    after = [c.strip().strip('"') for c in lines[j + 1].split(delimiter)] if j + 1 < len(lines) else []
+    cut = 2 if len(after) == len(names) and is_processing_row(after) else 1  # TOA5's Smp,Avg row under its units
+    return lines[:j] + [""] * cut + lines[j + cut:]  # blank: later lines keep their numbers
+
+
+# a Campbell logger's (TOA5) row under the units: how each column was processed (sample, average, maximum, …)
+PROCESSING = {"smp", "avg", "max", "min", "tot", "std", "wvc", "mom", "hst", "tmx", "tmn", "cov", "med", "rms"}
+
+
+def is_processing_row(cells) -> bool:
+    return any(cells) and all(not c or c.lower() in PROCESSING for c in cells)
 
 
 def decimal_points(lines, start: int, delimiter, separated: dict | None = None, path=None):
@@ -981,6 +1047,20 @@ def _thousands_columns(rows, width: int) -> list:
         if kinds & {"thousands", "several"} or ("ambiguous" in kinds and points):
             found.append(j)
     return found
+
+
+def _quoted_decimal_commas(rows, width: int) -> list:
+    """The columns of a comma-delimited table's quoted cells (`rows`: the lines of the header's width) that write
+    decimal commas, "-0,16": every filled cell a number with a comma for its point, when some cell of the table has
+    a comma only a decimal comma makes (0,5 12,34) and none one only thousands separators make (1,234,567
+    1,234.5); a table of 1,234 alone is not guessed (see _commas_unsettled)."""
+    from .columns import comma_kind
+
+    kinds = {comma_kind(row[j]) for row in rows for j in range(width)}
+    if "decimal" not in kinds or kinds & {"several", "thousands", "invalid"}:
+        return []
+    return [j for j in range(width) if any("," in row[j] for row in rows)
+            and all(_is_number(row[j].replace(",", ".")) for row in rows if row[j].strip())]
 
 
 def _commas_unsettled(values) -> str:

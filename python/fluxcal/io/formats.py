@@ -50,10 +50,9 @@ from pathlib import Path
 
 import numpy as np
 
-from .csv import (COMMA_GIVEN, SKIP_HINT, _DECIMAL_COMMA, _decimal_comma_columns, readable_file, _is_number, comment_text, data_cells, data_lines, decimal_points, is_comment, parse_csv,
+from .csv import (COMMA_GIVEN, is_processing_row, is_units_row, SKIP_HINT, _DECIMAL_COMMA, _decimal_comma_columns, readable_file, _is_number, comment_text, data_cells, data_lines, decimal_points, is_comment, parse_csv,
                   listing, read_lines, read_text, warn_skipped, write_csv, OTHER_WRITERS)
-from .columns import is_unit, is_unit_cell
-from .recording import Recording
+from .recording import Recording, instance_pick
 
 WRITERS = (".csv",) + OTHER_WRITERS
 
@@ -287,7 +286,7 @@ def _read_table(path: Path, columns, units, bad_lines: str = "error") -> Recordi
         rec.metadata["preamble"] = listing([f"line {k + 1}: {lines[k].strip()}" for k in range(start, start + titled)
                                             if lines[k].strip()])
         return rec.choose(columns, units)
-    given = columns.split(",") if isinstance(columns, str) else columns
+    given = instance_pick(columns, str(path))[0]  # the column names (not a compass's pick, I=1)
     lead = _lead_lines(lines, start, delimiter, len(given)) if given is not None and len(given) > 1 else 0
     if lead:  # a banner or a partial line above a header-less table whose columns --columns names
         return _read_after_lead(path, lines, start, lead, columns, len(given), units, bad_lines, delimiter)
@@ -436,8 +435,8 @@ def _title_lines(lines, start: int, delimiter) -> int:
     the data under it: 0 when the first line already has as many fields as the data. The header is the first
     line of as many fields, all names, with a row of mostly numbers after it (or after a row of units under
     the names: `s,uT,uT,uT`)."""
-    def cells(line):
-        return _cells(line, delimiter)
+    def cells(line):  # quotes aside ("Bx","nT"): a quoted head is read as the unquoted one
+        return [c.strip('"').strip() for c in _cells(line, delimiter)]
 
     def number(x):
         return _numberish(x, delimiter)
@@ -450,9 +449,10 @@ def _title_lines(lines, start: int, delimiter) -> int:
         return 0
     for k, here in enumerate(body[:min(30, len(body) - 1)]):
         c, d = cells(lines[here]), cells(lines[body[k + 1]])
-        if len(d) == width and all(is_unit_cell(x) for x in d if x) and any(is_unit(x) for x in d) \
-                and k + 2 < len(body):  # a units row: the data after
+        if len(d) == width and is_units_row(d) and k + 2 < len(body):  # a units row: the data after
             d = cells(lines[body[k + 2]])
+            if is_processing_row(d) and k + 3 < len(body):  # (TOA5: after its processing row)
+                d = cells(lines[body[k + 3]])
         # a banner line of as many fields, all words ("Sensor: QMC5883L, range 8G, ODR 50 Hz"), is not the
         # header unless numbers follow it: look on
         if len(c) == width and all(x and not number(x) for x in c) and len(d) == width \

@@ -389,8 +389,10 @@ class Recording:
         """Apply the reader options every format shares: `columns` (three names, or "a,b,c") selects the
         magnetometer axes, `units` states their unit when the file does not."""
         units = units_text(units)
+        columns, pick = instance_pick(columns, self.source)
+        self._one_compass(pick)
         if columns is not None:
-            self.select(columns.split(",") if isinstance(columns, str) else columns)
+            self.select(columns)
         if units:
             stated = {unit_name(self.units[n]) for n in self.mag_names() if self.units.get(n)}
             if stated and stated != {unit_name(units)}:  # the file's own statement wins over a default
@@ -410,6 +412,42 @@ class Recording:
                     raise ValueError(f"{self.source}: column {n!r} is in {self.units[n]} by the header but in "
                                      f"{banner} by the file's '# units:' comment; correct one of them")
         return self
+
+    def _one_compass(self, pick) -> None:
+        """Keep the rows of one compass when an instance column (fluxcal.io.columns.find_instance: mavlogdump's `I`,
+        PX4's `device_id`) interleaves several: `pick` (name, value) from --columns NAME=VALUE, else the lowest value,
+        said in metadata "instance" and "instances" as fluxcal.io.drone says a flight log's (one fit of two compasses'
+        rows is a wrong answer that looks like a poor sensor)."""
+        from .columns import find_instance
+
+        if pick is None and "instance" in self.metadata:  # a flight log's reader has picked it
+            return
+        if pick is not None:
+            name, value = pick
+            if name not in self.columns:
+                raise ValueError(f"{self.source}: --columns {name}={value:g}: no column {name!r}; columns are: "
+                                 f"{', '.join(self.columns)}")
+            kinds, counts = np.unique(self.columns[name], return_counts=True)
+            if value not in kinds:
+                raise ValueError(f"{self.source}: --columns {name}={value:g}: column {name!r} holds "
+                                 f"{', '.join(f'{k:.15g}' for k in kinds[:10])}, not {value:g}")
+        else:
+            hit = find_instance(self.columns)
+            if hit is None:
+                return
+            (name, kinds, counts), value = hit, hit[1][0]
+        rows = self.columns[name] == value
+        self.columns = {k: v[rows] for k, v in self.columns.items()}
+        if self.line_numbers is not None:
+            self.line_numbers = np.asarray(self.line_numbers)[rows]
+        said = [f"{name} = {k:.15g} ({c} rows)" for k, c in zip(kinds, counts)]
+        self.metadata["instance"] = f"{name} = {value:.15g} ({int(rows.sum())} rows)"
+        if len(kinds) > 1:
+            other = next(k for k in kinds if k != value)
+            left = ", ".join(f"{name} = {k:.15g}" for k in kinds if k != value)
+            self.metadata["instances"] = (f"{len(kinds)} compasses interleaved by column {name!r}: {', '.join(said)}; "
+                                          f"took {name} = {value:.15g}, left {left}; choose with --columns "
+                                          f"{name}={other:.15g} (Python: columns='{name}={other:.15g}')")
 
     def reference_field(self):
         """The true field of each reading in the sensor frame, N×3, when the recording carries attitude
@@ -514,6 +552,26 @@ class Recording:
         if len(units) > 1:
             raise ValueError(f"{self.source}: magnetometer columns have different units {sorted(units)}")
         return units.pop()
+
+
+def instance_pick(columns, source: str = "recording"):
+    """(the magnetometer columns of `columns` (None when it names none), (NAME, value) of a NAME=VALUE item or
+    None): --columns I=1 or MagX,MagY,MagZ,I=1 picks the compass of an interleaved table (Recording._one_compass)."""
+    if columns is None:
+        return None, None
+    items = [c.strip() for c in columns.split(",")] if isinstance(columns, str) else list(columns)
+    picks = [c for c in items if isinstance(c, str) and "=" in c]
+    if not picks:
+        return items, None
+    name, _, value = picks[0].partition("=")
+    try:
+        value = float(value)
+    except ValueError:
+        raise ValueError(f"{source}: --columns {picks[0]}: the compass's value in column {name.strip()!r} is not a "
+                         "number") from None
+    if len(picks) > 1:
+        raise ValueError(f"{source}: --columns picks two compasses ({', '.join(picks)}); give one NAME=VALUE")
+    return [c for c in items if c not in picks] or None, (name.strip(), value)
 
 
 def recording_from_arrays(variables: dict, source: str, matrix: str | None = None, columns=None) -> Recording:
