@@ -734,25 +734,39 @@ double sampson_noise_mean(const SampsonPass& pass, double n, const Model3D& m, d
   return -0.25 * std::max(0.0, pass.s2 - pass.s1 * pass.s1 / pass.s0) / n;
 }
 
+// Whether each reading lies where the O(σ²) expansion holds: its surface's distance from the centre along its normal,
+// x_kᵀN x_k/|N x_k| (the field's length there, in u), beyond kExpansionReach σ (σ per axis, u units). Nearer the
+// centre (field norms near the noise) a reading's terms are O(σ), not O(σ²), and noisy: as in 2-D, such a reading
+// keeps no noise mean and stays out of the Jacobian term (a review: an offset's spread 1.25× wider with field norms
+// 0–0.3 of the largest).
+Eigen::Array<bool, Eigen::Dynamic, 1> within_expansion(const SamplesRef& samples, const Eigen::Vector3d& centre,
+                                                        double scale, const Model3D& m, double sigma) {
+  const Eigen::MatrixXd X = ((samples.rowwise() - centre.transpose()) / scale).rowwise() - m.q.transpose();
+  const Eigen::MatrixXd NX = X * m.N;
+  const Eigen::ArrayXd along = (X.array() * NX.array()).rowwise().sum() / NX.rowwise().norm().array().max(1e-300);
+  return along > kExpansionReach * sigma;
+}
+
 // Each reading's noise mean of R_k to O(σ²) (σ² per axis, u units), where its Sampson residual r_k = (R_k − μ_k)/g_k,
 // g_k = |N x_k|, has mean 0: the noise ε lengthens R by εᵀNε (mean σ² tr N), and the normaliser g moves with R's own
 // noise along the normal n̂ = N x_k/g_k: E[R/g] = σ²(tr N − 2 q_k)/g, q_k = n̂ᵀN n̂. (On a sphere σ² tr N/3 for every
 // reading; the one μ′ = −σ² tr N/3 fitted first also holds the Jacobian's move, taken off on its own here:
-// normal_derivative_3d.) A reading at the centre (g = 0) gets the sphere's.
+// normal_derivative_3d.) 0 for a reading outside the expansion (`within`).
 Eigen::VectorXd reading_noise_means(const SamplesRef& samples, const Eigen::Vector3d& centre, double scale,
-                                    const Model3D& m, double sigma2) {
+                                    const Model3D& m, double sigma2, const Eigen::Array<bool, Eigen::Dynamic, 1>& within) {
   const Eigen::MatrixXd X = ((samples.rowwise() - centre.transpose()) / scale).rowwise() - m.q.transpose();
   const Eigen::MatrixXd NX = X * m.N;
   const Eigen::ArrayXd g2 = NX.rowwise().squaredNorm().array();
   const Eigen::ArrayXd q = ((NX * m.N).array() * NX.array()).rowwise().sum() / g2.max(1e-300);
-  const double trace = m.N.trace();
-  return (sigma2 * (trace - 2.0 * (g2 > 0.0).select(q, trace / 3.0))).matrix();
+  return within.select(sigma2 * (m.N.trace() - 2.0 * q), 0.0).matrix();
 }
 
-// Σ_k ∂J_k/∂n̂_k: each reading's Jacobian row (∂r_k/∂θ, its μ_k held) differentiated along its normal n̂_k in u, by
-// central differences (a step of 1e-4 of the ellipsoid's mean radius), a chunk at a time.
+// Σ_k ∂J_k/∂n̂_k over the readings `within` the expansion: each one's Jacobian row (∂r_k/∂θ, its μ_k held)
+// differentiated along its normal n̂_k in u, by central differences (a step of 1e-4 of the ellipsoid's mean radius),
+// a chunk at a time.
 Vec9 normal_derivative_3d(const SamplesRef& samples, const Eigen::Vector3d& centre, double scale,
-                          const Eigen::VectorXd* relative, const Model3D& m, const Eigen::VectorXd& each_mu) {
+                          const Eigen::VectorXd* relative, const Model3D& m, const Eigen::VectorXd& each_mu,
+                          const Eigen::Array<bool, Eigen::Dynamic, 1>& within) {
   const double step = 1e-4 / std::sqrt(m.N.trace() / 3.0);
   constexpr Eigen::Index kChunk = 512;
   Vec9 sum = Vec9::Zero();
@@ -760,10 +774,11 @@ Vec9 normal_derivative_3d(const SamplesRef& samples, const Eigen::Vector3d& cent
     const Eigen::Index len = std::min(kChunk, samples.rows() - start);
     const Samples rows = samples.middleRows(start, len);
     const Eigen::MatrixXd NX = (((rows.rowwise() - centre.transpose()) / scale).rowwise() - m.q.transpose()) * m.N;
-    Samples along(len, 3);  // step·n̂_k in the readings' units
+    Samples along(len, 3);  // step·n̂_k in the readings' units (0: the same row twice, no term)
     for (Eigen::Index i = 0; i < len; ++i) {
       const double g = NX.row(i).norm();
-      along.row(i) = g > 0.0 ? Eigen::RowVector3d(NX.row(i) * (step * scale / g)) : Eigen::RowVector3d::Zero();
+      along.row(i) = g > 0.0 && within(start + i) ? Eigen::RowVector3d(NX.row(i) * (step * scale / g))
+                                                  : Eigen::RowVector3d::Zero();
     }
     const Samples plus = rows + along, minus = rows - along;
     sum += (sampson_block(plus, centre, scale, relative, start, m, 0.0, true, &each_mu).J -
@@ -1245,7 +1260,9 @@ TwoStepResult twostep_fit(const SamplesRef& samples, const TwoStepOptions& optio
                                  ? 4.0 * (options.noise_sigma / scale) * (options.noise_sigma / scale)
                                  : pass.cost / spare;
         if (all_determined(pass.F, var_r, m, options.determined_tolerance)) {
-          each_mu = reading_noise_means(samples, centre, scale, m, var_r / 4.0);
+          const Eigen::Array<bool, Eigen::Dynamic, 1> within =
+              within_expansion(samples, centre, scale, m, std::sqrt(var_r / 4.0));
+          each_mu = reading_noise_means(samples, centre, scale, m, var_r / 4.0, within);
           // the targets move by O(σ²): Gauss–Newton from the solution converges at once; a step below 1e-5 of a
           // standard error (δᵀFδ ≤ 1e-10 σ_r²) is not taken
           bool current = false;  // pass is m's
@@ -1260,7 +1277,7 @@ TwoStepResult twostep_fit(const SamplesRef& samples, const TwoStepOptions& optio
           }
           if (!current) pass = sampson_pass(samples, centre, scale, relative, m, 0.0, true, &each_mu);
           Vec9 shift;
-          if (solve_scaled<9>(pass.F, normal_derivative_3d(samples, centre, scale, relative, m, each_mu), shift) < kInf)
+          if (solve_scaled<9>(pass.F, normal_derivative_3d(samples, centre, scale, relative, m, each_mu, within), shift) < kInf)
             m = moved(m, shift, 0.5 * var_r);  // 2σ² = σ_r²/2
           pass = sampson_pass(samples, centre, scale, relative, m, 0.0, true, &each_mu);
         }

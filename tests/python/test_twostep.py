@@ -352,6 +352,17 @@ def test_3d_each_readings_field_agrees_with_oracle(seed, change):
         assert cal.field_norm == pytest.approx(norms.mean(), rel=1e-12) and cal.summary["converged"]
 
 
+def test_3d_field_norms_near_the_noise_agree_with_oracle():
+    """|field| from 2 % to 100 % of its largest at σ 1 % of it: the readings within 5 σ of the centre along their
+    normal keep no noise mean and stay out of the Jacobian term (as in 2-D), in the core as in the oracle."""
+    s = simulated(41, n=1500, noise=0.01)
+    _, readings, norms = changing_field(s, np.linspace(0.02, 1.0, len(s.readings)))
+    cal = twostep(readings, norms)
+    ref = oracle.twostep(readings, norms)
+    assert cal.summary["converged"]
+    assert rel(cal.offset, ref["offset"]) < 1e-6 and rel(cal.matrix, ref["matrix"]) < 1e-6
+
+
 def test_3d_each_readings_field_agrees_with_oracle_past_the_weights_chunk():
     """9001 readings: the weights are made 4096 at a time, and the last chunk is not a whole block of lanes."""
     s = simulated(31, n=9001, noise=0.01)

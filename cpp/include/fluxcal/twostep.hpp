@@ -179,7 +179,8 @@ struct TwoStepOptions {
 };
 
 /// Calibration (model "twostep", A symmetric) and Summary: iterations and converged of the second
-/// step; cost = its objective over N: the mean squared Sampson distance (|h_k|² − H_k² − μ_k)/(2|Aᵀh_k|) of the
+/// step; cost = its objective over N: the mean squared Sampson distance (|h_k|² − H_k² − μ_k)/(2|Aᵀh_k|) (μ_k each
+/// reading's noise mean, or one μ for all where the noise-bias correction is not applied) of the
 /// readings from the ellipsoid, in the readings' units squared (with max_iterations = 0, the first step's mean
 /// ((|h|² − H²)/H²)²); residual_rms, norm_mean and
 /// norm_std_over_mean of |h| from a pass over the samples (exact_statistics); condition_number of the

@@ -159,7 +159,8 @@ def _without_noise_bias(u, H2, p, mu, sigma, tolerance):
     """The noise's O(σ²) bias taken off a converged Sampson fit (the core's second step does the same): each reading's
     noise mean μ_k = σ²(tr M − 2 n̂ᵀM n̂) along its normal n̂ = M(u − o)/|M(u − o)|, where E[r_k] = 0; least squares
     again with those; then p += F⁻¹ 2σ² Σ ∂J_k/∂n̂ (E[J_k r_k] = 2σ² ∂J_k/∂n̂), ∂J/∂n̂ by central differences of J in
-    the readings (1e-4 of the mean radius). σ² from the residuals, var r ≈ 4σ², unless given. Not when a parameter's
+    the readings (1e-4 of the mean radius), over the readings whose surface lies beyond 5σ from the centre along their
+    normal (nearer, no μ_k and no term). σ² from the residuals, var r ≈ 4σ², unless given. Not when a parameter's
     standard error (var r F⁻¹) reaches `tolerance` of its scale (1/√λ̄ for o, λ̄ = tr M/(3 mean H_k²)·mean H_k² for M)."""
     n = len(u)
     r = _sampson(p, u, H2, mu)
@@ -172,11 +173,14 @@ def _without_noise_bias(u, H2, p, mu, sigma, tolerance):
         return p
     v = (u - p[:3]) @ M
     q = np.einsum("ij,jk,ik->i", v, M, v) / np.sum(v * v, axis=1)
-    mus = var_r / 4 * (np.trace(M) - 2 * q)
+    # where the expansion holds: the surface's distance from the centre along the normal beyond 5 σ (else no μ_k and
+    # no Jacobian term: the terms are O(σ) there, as in 2-D)
+    within = np.einsum("ij,ij->i", u - p[:3], v) / np.linalg.norm(v, axis=1) > 5.0 * np.sqrt(var_r / 4)
+    mus = np.where(within, var_r / 4 * (np.trace(M) - 2 * q), 0.0)
     p = least_squares(lambda x: _sampson(x, u, H2, mus), p, method="lm", xtol=1e-15, ftol=1e-15, gtol=1e-15).x
     M = _sym(p[3:])
     v = (u - p[:3]) @ M
-    normal = v / np.linalg.norm(v, axis=1)[:, None]
+    normal = within[:, None] * v / np.linalg.norm(v, axis=1)[:, None]
     h = 1e-4 / np.sqrt(np.trace(M) / 3 / H2.mean())
     dJ = (_jacobian(p, u + h * normal, H2, mus) - _jacobian(p, u - h * normal, H2, mus)).sum(axis=0) / (2 * h)
     J = _jacobian(p, u, H2, mus)
