@@ -2,6 +2,7 @@
 
 #include "checks.hpp"
 #include "linalg.hpp"
+#include "long_run.hpp"
 
 #include <algorithm>
 #include <cmath>
@@ -106,21 +107,38 @@ Eigen::Index whitened_rows(const std::vector<Eigen::Index>& idx, Eigen::Index p,
   return n;
 }
 
-// The coefficients' covariance σ² S⁻¹(BᵀB)⁻¹S⁻¹ of a least-squares fit on the balanced columns B = V S⁻¹ (full
-// column rank), from B's R: (BᵀB)⁻¹ = R⁻¹R⁻ᵀ, without forming BᵀB (a quartic's balanced columns are collinear).
-Eigen::MatrixXd coefficient_covariance(const Eigen::MatrixXd& balanced, const Eigen::VectorXd& scales, double sigma2) {
-  const Eigen::MatrixXd r = detail::householder_r(balanced);
-  const Eigen::MatrixXd r_inv =
-      r.triangularView<Eigen::Upper>().solve(Eigen::MatrixXd::Identity(r.rows(), r.cols()));
-  const Eigen::MatrixXd unscaled = scales.cwiseInverse().asDiagonal() * r_inv;
-  return sigma2 * unscaled * unscaled.transpose();
+// The covariance of the coefficients S⁻¹z of a least-squares fit B z ≈ w on the balanced columns B = V S⁻¹ (full
+// column rank) with residuals r: σ̂²(BᵀB)⁻¹, σ̂² = Σr²/(rows − cols), or with `correlated` noise the prewhitened
+// Newey–West sandwich (BᵀB)⁻¹ S (BᵀB)⁻¹ · rows/(rows − cols) of the scores B_k r_k (rows in time order), as refine's
+// errors take correlation in time — for rows no AR model whitened (whiten off, a noise near a random walk, a
+// continuous refit), where σ̂²(BᵀB)⁻¹ was 3× too small on AR(1) 0.8 noise (a review). Then to the data units by S⁻¹.
+// (BᵀB)⁻¹ = R⁻¹R⁻ᵀ from B's R, without forming BᵀB (a quartic's balanced columns are collinear.)
+Eigen::MatrixXd gram_inverse(const Eigen::MatrixXd& b) {
+  const Eigen::MatrixXd r = detail::householder_r(b);
+  const Eigen::MatrixXd r_inv = r.triangularView<Eigen::Upper>().solve(Eigen::MatrixXd::Identity(b.cols(), b.cols()));
+  return r_inv * r_inv.transpose();
+}
+
+Eigen::MatrixXd coefficient_covariance(const Eigen::MatrixXd& balanced, const Eigen::VectorXd& scales,
+                                       const Eigen::VectorXd& residuals, bool correlated) {
+  const Eigen::Index rows = balanced.rows(), cols = balanced.cols();
+  Eigen::MatrixXd inverse = gram_inverse(balanced);
+  const double spare = static_cast<double>(rows - cols);
+  if (correlated) {
+    int lags = 0;
+    const Eigen::MatrixXd S = detail::prewhitened_long_run(residuals.asDiagonal() * balanced, lags);
+    inverse = inverse * S * inverse * (static_cast<double>(rows) / spare);
+  } else {
+    inverse *= residuals.squaredNorm() / spare;
+  }
+  return scales.cwiseInverse().asDiagonal() * inverse * scales.cwiseInverse().asDiagonal();
 }
 
 // Balanced least squares on the (optionally AR-whitened) Vandermonde rows; SSE in the fitted space; `covariance`:
-// the coefficients', σ̂² = SSE/(rows − order − 1) in that space (generalised least squares' when whitened).
+// the coefficients' (coefficient_covariance; `correlated`: the noise is not white and no AR model whitened it).
 Eigen::VectorXd fit_rows(const Eigen::VectorXd& x, const Eigen::VectorXd& w, const std::vector<Eigen::Index>& idx,
                          const Eigen::VectorXd& ar, int order, double* sse, double* condition,
-                         const Breaks& breaks = {}, Eigen::MatrixXd* covariance = nullptr) {
+                         const Breaks& breaks = {}, Eigen::MatrixXd* covariance = nullptr, bool correlated = false) {
   const Eigen::MatrixXd v = vandermonde(x, order);
   const Eigen::Index p = ar.size();
   Eigen::MatrixXd vw;
@@ -155,10 +173,9 @@ Eigen::VectorXd fit_rows(const Eigen::VectorXd& x, const Eigen::VectorXd& w, con
     throw Error("drift: the temperatures take too few distinct values for a polynomial of order " +
                 std::to_string(order));
   const Eigen::VectorXd coef = solution.cwiseQuotient(s);
-  const double fitted_sse = (ww - vw * coef).squaredNorm();
-  if (sse) *sse = fitted_sse;
-  if (covariance)
-    *covariance = coefficient_covariance(vb, s, fitted_sse / static_cast<double>(vw.rows() - order - 1));
+  const Eigen::VectorXd residuals = ww - vw * coef;
+  if (sse) *sse = residuals.squaredNorm();
+  if (covariance) *covariance = coefficient_covariance(vb, s, residuals, correlated);
   if (condition) {
     const Eigen::VectorXd sv = detail::singular_values(vb);
     *condition = sv[0] / sv[sv.size() - 1];
@@ -275,6 +292,7 @@ DriftModel fit_drift(const SeriesRef& select, const SeriesRef& x, const SeriesRe
   // Noise model for generalised least squares: AR fit to the residual of the highest-order fits,
   // taken in time order over every sample inside a range.
   Eigen::VectorXd ar;
+  bool white = false;  // an AR model was fitted and AIC found the noise white
   if (options.whiten) {
     Eigen::VectorXd residual = Eigen::VectorXd::Constant(w.size(), std::numeric_limits<double>::quiet_NaN());
     for (int s = 0; s < k; ++s) {
@@ -311,15 +329,17 @@ DriftModel fit_drift(const SeriesRef& select, const SeriesRef& x, const SeriesRe
                       " (not " + std::to_string(series_order) + "): whitened by more, a temperature range would keep "
                       "too few consecutive samples to fit its drift (a range crossed in short runs; log faster, or "
                       "set wider ranges with --breakpoints)");
-    if (ar_options.max_order > 0 && (series.array() != series[0]).any()) ar = fit_ar(series, ar_options).coefficients;
+    if (ar_options.max_order > 0 && (series.array() != series[0]).any()) {
+      ar = fit_ar(series, ar_options).coefficients;
+      white = ar.size() == 0;
+    }
     // Whitening multiplies a range's constant by 1 − Σa: near a random walk each range's level would rest on
     // the few rows at its edges, and the fitted levels landed further from the data than no model at all.
     if (ar.size() > 0 && ar.sum() > kUnitRoot) {
       std::ostringstream note;
       note << "the noise about the drift is close to a random walk (its AR coefficients sum to " << ar.sum()
            << "): weighted by it, each range's level is nearly undetermined, so the drift was fitted unweighted "
-              "(its F-tests and standard errors then assume white noise: they may keep too many orders, and the errors are "
-              "too small)";
+              "(its F-tests then assume white noise and may keep too many orders; its standard errors are Newey–West's)";
       notes.push_back(note.str());
       ar.resize(0);
     }
@@ -377,7 +397,9 @@ DriftModel fit_drift(const SeriesRef& select, const SeriesRef& x, const SeriesRe
     }
     seg.order = m;
     seg.coefficients = coef;
-    fit_rows(xs[s], ws[s], members[s], ar, m, nullptr, nullptr, options.breaks, &seg.covariance);
+    // the errors: generalised least squares' under the AR model; Newey–West's where no model whitened the rows
+    fit_rows(xs[s], ws[s], members[s], ar, m, nullptr, nullptr, options.breaks, &seg.covariance,
+             ar.size() == 0 && !white);
     seg.samples = static_cast<std::size_t>(n);
     seg.sse = (ws[s] - vandermonde(xs[s], m) * coef).squaredNorm();
     seg.residual_rms = std::sqrt(seg.sse / static_cast<double>(n));
@@ -418,30 +440,60 @@ DriftModel fit_drift(const SeriesRef& select, const SeriesRef& x, const SeriesRe
     const Eigen::MatrixXd constrained = big * null;
     const Eigen::VectorXd z = detail::least_squares_qr(constrained, rhs);
     const Eigen::VectorXd theta = (null * z).cwiseQuotient(scale);
-    // σ² of the covariance: the residuals' variance, or with an AR model the long-run variance σ_e²/(1 − Σa)² of
-    // the whitened residuals — this refit is unweighted, and for a drift slow beside the noise's memory that is
-    // what its least squares' variance comes to.
-    double sum_sq = 0.0;
-    Eigen::Index used_rows = 0;
+    // The covariance: this refit is unweighted, so with an AR noise model its errors are least squares' sandwich
+    // under that model, with noise neither modelled nor white the Newey–West sandwich of its scores in time order
+    // (the long-run variance σ_e²/(1 − Σa)² alone held only for a drift slow beside the noise's memory: 2.6× too
+    // wide on a temperature cycling every 20 samples, a review).
+    std::vector<std::pair<Eigen::Index, Eigen::Index>> when;  // (sample, row of `big`)
+    Eigen::VectorXd residuals(rows);
+    r0 = 0;
     for (int s = 0; s < k; ++s) {
       DriftSegment& seg = model.segments[s];
       seg.coefficients = theta.segment(offset[s], seg.order + 1);
       const Eigen::VectorXd r = ws[s] - vandermonde(xs[s], seg.order) * seg.coefficients;
       seg.sse = r.squaredNorm();
       seg.residual_rms = std::sqrt(seg.sse / static_cast<double>(xs[s].size()));
-      for (std::size_t j = 0; j < members[s].size(); ++j) {
-        if (!whitenable(members[s], j, ar.size(), options.breaks)) continue;
-        double e = r[static_cast<Eigen::Index>(j)];
-        for (Eigen::Index q = 1; q <= ar.size(); ++q) e -= ar[q - 1] * r[static_cast<Eigen::Index>(j) - q];
-        sum_sq += e * e;
-        ++used_rows;
-      }
+      residuals.segment(r0, r.size()) = r;
+      for (std::size_t j = 0; j < members[s].size(); ++j) when.emplace_back(members[s][j], r0 + static_cast<Eigen::Index>(j));
+      r0 += r.size();
     }
-    const double long_run = ar.size() > 0 ? 1.0 / ((1.0 - ar.sum()) * (1.0 - ar.sum())) : 1.0;
-    const double sigma2 = long_run * sum_sq / static_cast<double>(used_rows - (cols - (k - 1)));
+    std::sort(when.begin(), when.end());
+    Eigen::MatrixXd in_time(rows, constrained.cols());
+    Eigen::VectorXd residuals_in_time(rows);
+    for (Eigen::Index i = 0; i < rows; ++i) {
+      in_time.row(i) = constrained.row(when[i].second);
+      residuals_in_time[i] = residuals[when[i].second];
+    }
     const Eigen::MatrixXd map = scale.cwiseInverse().asDiagonal() * null;
-    const Eigen::MatrixXd cov =
-        map * coefficient_covariance(constrained, Eigen::VectorXd::Ones(constrained.cols()), sigma2) * map.transpose();
+    Eigen::MatrixXd zcov;
+    if (ar.size() > 0) {
+      // Under the AR model itself: Σ = σ_e² L⁻¹L⁻ᵀ, L the whitening filter (e_t = n_t − Σ a_q n_{t−q} within a
+      // stretch of consecutive samples), so BᵀΣB = σ_e² YᵀY with LᵀY = B: Y_t = B_t + Σ a_q Y_{t+q}, backwards
+      // in time; σ_e² from the whitened residuals.
+      const Eigen::Index p = ar.size();
+      std::vector<Eigen::Index> stretch(static_cast<std::size_t>(rows));
+      for (Eigen::Index i = 0; i < rows; ++i)
+        stretch[i] = i > 0 && when[i].first == when[i - 1].first + 1 && stretch_start(options.breaks, when[i].first) !=
+                                                                          when[i].first
+                         ? stretch[i - 1]
+                         : i;
+      Eigen::MatrixXd y = in_time;
+      double sum_sq = 0.0;
+      for (Eigen::Index i = rows - 1; i >= 0; --i)
+        for (Eigen::Index q = 1; q <= p && i + q < rows && stretch[i + q] == stretch[i]; ++q)
+          y.row(i) += ar[q - 1] * y.row(i + q);
+      for (Eigen::Index i = 0; i < rows; ++i) {
+        double e = residuals_in_time[i];
+        for (Eigen::Index q = 1; q <= p && i - q >= 0 && stretch[i - q] == stretch[i]; ++q)
+          e -= ar[q - 1] * residuals_in_time[i - q];
+        sum_sq += e * e;
+      }
+      const Eigen::MatrixXd inverse = gram_inverse(in_time);
+      zcov = inverse * (y.transpose() * y) * inverse * (sum_sq / static_cast<double>(rows - in_time.cols()));
+    } else {
+      zcov = coefficient_covariance(in_time, Eigen::VectorXd::Ones(in_time.cols()), residuals_in_time, !white);
+    }
+    const Eigen::MatrixXd cov = map * zcov * map.transpose();
     for (int s = 0; s < k; ++s)
       model.segments[s].covariance = cov.block(offset[s], offset[s], model.segments[s].order + 1,
                                                model.segments[s].order + 1);

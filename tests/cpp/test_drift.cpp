@@ -140,11 +140,13 @@ namespace {
 
 // The drift's standard error at each sample: the covariance's quadratic form, by hand.
 TEST(Drift, StandardErrorsAreTheCovariancesQuadraticForm) {
-  const Data d = make(6000, 0.02, 11);
+  Data d = make(6000, 0.02, 11);
+  for (Eigen::Index i = 0; i < d.w.size(); ++i)  // a quadratic drift in every range: order 2 leaves white noise
+    d.w[i] += 0.02 + 1e-3 * d.temp[i] + 2e-5 * d.temp[i] * d.temp[i] - foct_drift_law(d.temp[i]);
   fluxcal::DriftOptions options;
   options.order = 2;
-  options.whiten = false;  // white noise: σ̂²(VᵀV)⁻¹, checked against the normal equations
   const auto m = fluxcal::fit_drift(d.temp, d.temp, d.w, options);
+  ASSERT_EQ(m.noise_ar.size(), 0);  // white noise, found so by AIC: σ̂²(VᵀV)⁻¹, checked against the normal equations
   for (const auto& seg : m.segments) {
     ASSERT_EQ(seg.covariance.rows(), 3);
     EXPECT_TRUE(seg.standard_errors.isApprox(seg.covariance.diagonal().cwiseSqrt()));

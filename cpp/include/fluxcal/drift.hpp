@@ -62,9 +62,10 @@ struct DriftSegment {
   double condition_number = 0.0;  ///< of the balanced Vandermonde matrix
   std::vector<double> f_statistics;  ///< F of each step tested: m → m+1, and m → m+2 (2 dof) after one that fails
   /// Covariance of the coefficients (data units), at the chosen order: generalised least squares' σ̂²(VᵀΣ⁻¹V)⁻¹
-  /// with the AR noise model's Σ when the fit was whitened, σ̂²(VᵀV)⁻¹ when not; of a continuous refit, its
-  /// block of the constrained fit's, σ̂² the long-run variance when an AR model is known. Conditional on the
-  /// order the F-tests chose (the model's uncertainty at that order, not the order's).
+  /// with the AR noise model's Σ when the fit was whitened; σ̂²(VᵀV)⁻¹ when AIC found the noise white; the
+  /// prewhitened Newey–West sandwich when no model whitened it (whiten off, a noise near a random walk). Of a
+  /// continuous refit, its block of the constrained least squares' sandwich under the AR model (or as above).
+  /// Conditional on the order the F-tests chose (the model's uncertainty at that order, not the order's).
   Eigen::MatrixXd covariance;
   Eigen::VectorXd standard_errors;  ///< √diag(covariance)
   /// The regressor's values the polynomial was fitted over (the inside–outside difference is not the temperature

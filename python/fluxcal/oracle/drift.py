@@ -1,12 +1,14 @@
 """NumPy/SciPy reference for fluxcal.drift.fit_drift: per-range polynomial least squares (numpy lstsq on
 the raw Vandermonde matrix, no balancing), F-test with scipy.stats.f, optional AR whitening; the coefficients'
-covariance from statsmodels' OLS on the (whitened) rows."""
+covariance from statsmodels' OLS on the (whitened) rows, or with no AR model and noise not found white the
+prewhitened Newey–West sandwich (fluxcal.oracle.serial's, on arch's block lengths and statsmodels' S_hac_simple)."""
 from __future__ import annotations
 
 import numpy as np
 import statsmodels.api as sm
 from scipy import stats
 
+from .serial import newey_west_covariance
 from .timeseries import ar_aic, ar_fit, lagged
 
 
@@ -77,6 +79,7 @@ def fit_drift(select, x, w, breakpoints=(-20.0, 0.0, 30.0, 50.0), max_order=4, s
     widths = [edges[k + 1] - edges[k] if same else np.ptp(x[g]) for k, g in enumerate(groups)]
     tops = [min(max_order, separate_levels(x[g], width) - 1, g.size - 3) for g, width in zip(groups, widths)]
     ar = np.zeros(0)
+    white = False  # AIC found the noise white (else, with no AR model, the errors are Newey–West's)
     if whiten:
         resid = np.full(w.size, np.nan)
         for g, top in zip(groups, tops):
@@ -93,6 +96,7 @@ def fit_drift(select, x, w, breakpoints=(-20.0, 0.0, 30.0, 50.0), max_order=4, s
             top -= 1  # each range keeps rows enough to test its orders
         p = int(np.argmin(ar_aic(series, top, series_breaks)))
         ar = ar_fit(series, p, series_breaks)[0] if p else np.zeros(0)
+        white = top > 0 and p == 0
         if ar.size and ar.sum() > UNIT_ROOT:
             ar = np.zeros(0)
     segments = []
@@ -118,7 +122,11 @@ def fit_drift(select, x, w, breakpoints=(-20.0, 0.0, 30.0, 50.0), max_order=4, s
                 continue
             m, c, s = m + 1, c1, s1
         V, t = _rows(x, w, g, ar, m, stretch)
-        segments.append({"order": m, "coefficients": c, "covariance": sm.OLS(t, V).fit().cov_params()})
+        if len(ar) or white:
+            covariance = sm.OLS(t, V).fit().cov_params()
+        else:
+            covariance = newey_west_covariance(V, t - V @ c)[0]
+        segments.append({"order": m, "coefficients": c, "covariance": covariance})
     return segments, ar
 
 
