@@ -49,8 +49,11 @@ UNDETERMINED_FLOOR_FRACTION = 0.95
 # the signal (simulated and found: at most 15 %, saturation about a hard iron of 4.4 fields). Coefficients
 # that change them by as much as the signal itself no longer describe a sensor: features taken from the fit's
 # own signal can then stand in for the signal (an even-order candidate, tried on the QMC5883L recording,
-# reached a coefficient of 15 at the signal's scale once a drift was fitted beside it).
-MAX_DISTORTION = 1.0
+# reached a coefficient of 15 at the signal's scale once a drift was fitted beside it). The bound is half the signal,
+# over three times that largest: a blind check's level drives with correlated noise had a cubic, saturation and a
+# cross-axis error accepted at 0.6–0.8 of the signal (164 % departures from a straight line), which no transducer
+# whose readings are still a calibration's input makes; 1.0 let them through.
+MAX_DISTORTION = 0.5
 # Effects' course in time (or temperature, current) shows in the readings unless the field's course cancels it: a
 # static sensor's drift is all of their variation (1×); twice it can only be cancelled by the base calibration
 MAX_HIDDEN_CHANGE = 2.0
@@ -811,6 +814,45 @@ def _features(alternative_list, rows=None):
     return f if rows is None else f[rows]
 
 
+def _undetermined_start(data: _Data, given, units: str, refusal: Exception):
+    """The base model's start when calibrate's full symmetric fit fails (`refusal`), as (start, caveat): calibrate's
+    own shape when that holds (caveat None). Readings nearly in one plane (a level drive, a one-axis turntable)
+    calibrate refuses outright — a 3-D ellipsoid is not identifiable from them — but the diagnosis owes a verdict on
+    them: that refusal lifted (planar_ratio 0; else the plain algebraic fit, whose noise bias keeps a thin scatter's
+    quadric an ellipsoid where the noise-corrected one turns it into a hyperboloid), the base is fitted as well as
+    they allow and the caveat says what they leave open, so that nothing is cleared (an effect can hide there). A
+    ValueError, calibrate's words and not its error chained, when even the plain quadric is no ellipsoid."""
+    from ..pipeline import calibrate
+
+    try:
+        start = calibrate(data.m, field_norm=given, units=units)
+        data.notes.append(f"the base model starts from calibrate's {start.summary.get('shape', 'chosen')} shape: "
+                          f"the full symmetric refinement failed on these readings ({refusal})")
+        return start, None
+    except _core.Error as exc:
+        refusal = exc
+    for how in ({"planar_ratio": 0.0}, {"method": "ls", "planar_ratio": 0.0}):
+        try:
+            start = calibrate(data.m, field_norm=given, units=units, **how)
+            break
+        except _core.Error:
+            continue
+    else:  # not even the plain algebraic quadric is an ellipsoid: the readings themselves curve away from every
+        # ellipsoid (not the noise correction), and no base model holds them — said as calibrate says it, not chained
+        raise ValueError(f"samples: no base model can be fitted to these readings, so there is no diagnosis: "
+                         f"{refusal}") from None
+    words = " (the plain algebraic start: the noise-corrected quadric is no ellipsoid)" if "method" in how else ""
+    thin = np.linalg.eigh(np.cov(data.m.T))[1][:, 0]  # (the readings' thinnest direction, its largest part positive)
+    thin = thin * np.sign(thin[np.argmax(np.abs(thin))])
+    caveat = (f"the base calibration: not identifiable — calibrate refuses these readings ({refusal}). "
+              f"The offset and the matrix across their plane (along [{', '.join(f'{v:.2f}' for v in thin)}], x, y, z) are "
+              "undetermined: the diagnosis fits them as far as the readings allow"
+              + words
+              + ", and an effect can stand in for them or hide in them; turn the sensor about more axes (tumble it), "
+              "or give the true field per reading (reference=)")
+    return start, caveat
+
+
 def _fit(data: _Data, start: Calibration, fixed, feats, rows=None, start_terms=None) -> dict:
     """Refit the base model plus `feats` (N × p × 3 or None) on `rows` (Ceres, refine_terms)."""
     sel = slice(None) if rows is None else rows
@@ -1264,10 +1306,17 @@ def _where(data: _Data, e: np.ndarray, sigma: float, directions: np.ndarray, vec
         beta, *_ = np.linalg.lstsq(X, z, rcond=None)
         tables["axis"] = [{"bin": f"cos²({'xyz'[k]})", "slope_z": float(beta[k + 1])} for k in range(3)]
     tests = []
+    # (the noise's correlation from the residuals within their orientation bins: the bins' own means, an orientation
+    # effect's part, are no noise — taken with it, a cubic's slow course through the turns hid the cubic)
+    in_time = np.argsort(data.t, kind="stable")
+    within = signed - np.bincount(bins, signed, 24)[bins] / np.maximum(np.bincount(bins, minlength=24)[bins], 1)
+    spread = _bin_sum_variance(within[in_time])
     for name in ("orientation", "temperature", "current", "time"):
         if name in tables:
             rows = tables[name]
             chi2 = sum(r["n"] * r["mean_z"] ** 2 for r in rows)
+            if name == "orientation" and spread is not None:  # (correlated residuals: each bin's sum as it spreads)
+                chi2 = sum(float(np.sum(signed[bins == b])) ** 2 / spread(bins[in_time] == b) for b in np.unique(bins))
             tests.append({"regime": name, "test": "bin means (χ²)", "statistic": chi2,
                           "pvalue": float(stats.chi2.sf(chi2, len(rows)))})
     for name, x in (("temperature", data.temp), ("current", data.current), ("time", data.t)):
@@ -1281,6 +1330,41 @@ def _where(data: _Data, e: np.ndarray, sigma: float, directions: np.ndarray, vec
     return out
 
 
+
+
+def _bin_sum_variance(series: np.ndarray, max_order: int = 30):
+    """For residuals z (unit variance if white) in time order: a function giving the variance of the sum of z over
+    the readings a mask picks, under the AR(p) noise model the residuals show (`_ar_fit`, p by AIC, as the
+    whitened likelihood ratio's), or None when they show none (p 0, or too few readings for it: their bin tests
+    then take z as independent). The orientation bins' χ² had taken the residuals as independent: pure AR(1)
+    noise of φ 0.9, no effect, a tumble (a bin visited in runs of correlated readings), read p 1e-19…1e-118;
+    Var Σ z = Σ_k γ(k) c(k), γ the model's autocovariance and c the mask's own autocorrelation (pairs k apart)."""
+    n = len(series)
+    if n < 10 * max_order:
+        return None
+    p, c, rss, *_ = _ar_fit(series - series.mean(), max_order)
+    if not p:
+        return None
+    from scipy.signal import lfilter
+
+    lags = min(n, 4096)  # (the impulse response long enough for a φ of 0.999 to fall under e⁻⁴)
+    impulse = np.zeros(lags)
+    impulse[0] = 1.0
+    psi = lfilter([1.0], np.concatenate([[1.0], -c]), impulse)
+    if not np.all(np.isfinite(psi)) or abs(psi[-1]) > 1e-3 * np.max(np.abs(psi)):
+        return None  # (a model at the edge of stationarity: no variance to trust)
+    innovation = rss[p] / (n - max_order)
+    size = 1 << int(np.ceil(np.log2(2 * lags)))
+    gamma = innovation * np.fft.irfft(np.abs(np.fft.rfft(psi, size)) ** 2, size)[:lags]
+
+    def spread(mask: np.ndarray) -> float:
+        m = mask.astype(float)
+        size_m = 1 << int(np.ceil(np.log2(2 * n)))
+        pairs = np.fft.irfft(np.abs(np.fft.rfft(m, size_m)) ** 2, size_m)[:lags]  # c(k): picked pairs k apart
+        pairs = np.round(pairs)
+        return float(gamma[0] * pairs[0] + 2.0 * np.sum(gamma[1:len(pairs)] * pairs[1:]))
+
+    return spread
 
 
 def time_number(t):
@@ -1846,17 +1930,23 @@ def _implausible(row: dict, sigma: float, sigma_bound: bool, cls, vector: bool =
     """Why a candidate's fit cannot be an effect (`cls`'s) whatever its evidence, as (the row's flag, its value,
     a note), or None. `undetermined`: the base calibration's data leave some of it undetermined (poor coverage)."""
     floor, before, after = row["heldout_noise_floor"], row["field_error_before"], row["field_error_after"]
+    # With the base undetermined, what the noise leaves held out includes its correlated part (`_noise_shown`)
+    shown_floor = floor * max(1.0, row.get("heldout_noise_shown") or 1.0)
     if row["hidden_change"] > MAX_HIDDEN_CHANGE:  # (first: such a fit's held-out error is no evidence either way)
         return "degenerate", "changes the readings more than they vary", (
             f"not accepted: its fit changes the readings by {row['hidden_change']:.3g}× as much as they vary (RMS about "
             "their mean), which they do not show: the base calibration takes the change back (the two cancel — the "
             "data determine their sum, not each; a base its readings do not determine, poor coverage, lets them)")
     # (a σ that holds the model's misses is no floor: a right model goes below it)
-    if (not sigma_bound and undetermined and cls.regime == "orientation"  # (features of the signal alone)
-            and after < UNDETERMINED_FLOOR_FRACTION * floor):
+    # (features of the signal alone, or computed from it — hysteresis' loop, held out in time, follows the signal's
+    # course: with the base undetermined it takes up the noise along the open direction as a cubic does)
+    if (not sigma_bound and undetermined and (cls.regime == "orientation" or cls.signal_features)
+            and after < UNDETERMINED_FLOOR_FRACTION * shown_floor):
+        noise = (f"σ {sigma:.3g}" if shown_floor == floor else
+                 f"σ {sigma:.3g} and the correlated noise its fit leaves, {shown_floor / floor:.3g} σ in all,")
         return "degenerate", "below the noise held out, the base undetermined", (
-            f"not accepted: held out, its fit gives a field error of {after:.3g}, {after / floor:.2f} of what the "
-            f"readings' noise alone leaves there ({floor:.3g}, σ {sigma:.3g} through the calibration). With a base "
+            f"not accepted: held out, its fit gives a field error of {after:.3g}, {after / shown_floor:.2f} of what "
+            f"the readings' noise alone leaves there ({shown_floor:.3g}, {noise} through the calibration). With a base "
             "calibration its readings do not determine (poor coverage), features taken from the signal take up the "
             "noise along the direction the readings leave open, and predict each reading partly from itself")
     if not sigma_bound and after < NOISE_FLOOR_FRACTION * floor:
@@ -2691,6 +2781,22 @@ def _in_sample_length(fit: dict, data: _Data, rows: np.ndarray) -> int:
     return per_reading * _correlation_length(e[np.argsort(data.t[rows], kind="stable")])
 
 
+def _noise_shown(fit: dict, data: _Data, rows: np.ndarray, sigma: float) -> float:
+    """The noise a fit's residuals on `rows` show, in σ: their RMS when they are correlated in time (Ljung–Box
+    p < 0.01), else 1. σ is the white part (third differences); a correlated noise's slow part (an AR(1) of φ 0.9,
+    a 1/f: a blind check's level drives, σ 0.5 of the noise's RMS) adds as much to each held-out reading's error as
+    to the residuals in sample. The fit with the candidate: its residuals hold no misses of it, which a right model
+    goes below (the base's residuals held them, and a right cubic on a tumble of poor coverage was refused); white
+    residuals (an effect modelled, white noise) leave the floor at σ's, whatever their RMS's sampling error."""
+    e = np.asarray(fit["residuals"])
+    per_reading = len(e) // int(rows.sum())
+    series = e.reshape(-1, per_reading).mean(axis=1)[np.argsort(data.t[rows], kind="stable")]
+    white = _whiteness(series)
+    if not white or white[0]["pvalue"] >= 0.01:
+        return 1.0
+    return float(np.sqrt(np.mean(e ** 2)) / sigma)
+
+
 def _held_for(data, state, feats, regime):
     """The held-out regime, readings and short event's block (`_event_block`, None otherwise) of a candidate of
     `regime` with features `feats`."""
@@ -2742,6 +2848,7 @@ def _validate(data, model, state, feats, regime, sigma, others=None, placed=None
             "heldout_n_unplaced": int(held.sum() if confirms_nothing else (held & ~judged).sum()),
             "heldout_n_judged": int(within.sum()),
             "heldout_noise_floor": floor,
+            "heldout_noise_shown": _noise_shown(after, data, ~held, sigma),
             "heldout_gap_before": _gap(g0, sigma), "heldout_gap_after": _gap(g1, sigma),
             "heldout_rms_before": float(np.sqrt(np.mean(g0 ** 2))),
             "heldout_rms_after": float(np.sqrt(np.mean(g1 ** 2))),
@@ -3550,6 +3657,7 @@ def diagnose(samples, t=None, temp=None, reference=None, gravity=None, field_nor
     if len(data.m) < 50:
         raise ValueError(f"{source}: {len(data.m)} readings, the diagnosis needs at least 50")
 
+    refused_start = None  # (why calibrate refuses these readings, when the base starts without it)
     if vector:
         start = calibrate(data.m, reference=data.reference, units=units)
         data.field_norm = float(np.mean(np.linalg.norm(data.reference, axis=1)))
@@ -3558,9 +3666,7 @@ def diagnose(samples, t=None, temp=None, reference=None, gravity=None, field_nor
         try:
             start = calibrate(data.m, field_norm=given, units=units, shape="sym")  # the full base's start
         except _core.Error as exc:  # (a near-planar drive: the full refinement runs away where a simpler shape holds)
-            start = calibrate(data.m, field_norm=given, units=units)
-            data.notes.append(f"the base model starts from calibrate's {start.summary.get('shape', 'chosen')} shape: "
-                              f"the full symmetric refinement failed on these readings ({exc})")
+            start, refused_start = _undetermined_start(data, given, units, exc)
         # (each reading's own: their mean over every reading diagnosed, not over those the start's screen kept)
         data.field_norm = start.field_norm if data.field_norms is None else float(np.mean(data.field_norms))
     if fixed:  # a scale-only model starts from the diagonal of the full fit's W = A⁻¹
@@ -3618,6 +3724,8 @@ def diagnose(samples, t=None, temp=None, reference=None, gravity=None, field_nor
     caveats = [f"the base calibration: {w} — what its data do not determine, an effect can stand in for (and "
                "an effect can hide in it)" for w in start.summary.get("warnings", [])
                if "poor coverage" in w or "not identifiable" in w]
+    if refused_start:
+        caveats.insert(0, refused_start)
     undetermined = bool(caveats)  # (before any other caveat joins them)
     if timestamps and (unit := _time_unit_caveat(data, directions, sigma)):
         caveats.append(unit)
@@ -3802,6 +3910,8 @@ def _line_bounds(d) -> None:
     for r in d.ranking:
         if r["effect"] != "periodic_interference" or not r.get("frequency_hz"):
             continue
+        if r.get("line_coefficients") is None and r.get("coefficients") is None:
+            continue  # (absorbed by the base before any fit — a one-axis turntable's turning rate: no line fitted)
         for line in [r] + list(r.get("episodes") or []):
             if line.get("frequency_hz"):
                 se_f, se_rate = line_standard_errors(d, {**r, **line})

@@ -734,11 +734,16 @@ def periodic_interference_line(d, r) -> str:
     steps = np.diff(np.sort(t))
     fs = 1.0 / float(np.median(steps[steps > 0])) if np.any(steps > 0) else 0.0
     resolution = 2.0 / float(np.ptp(t)) if len(t) > 1 and np.ptp(t) > 0 else 0.0
-    # a harmonic k of the mains folded by the sampling (a grid runs up to MAINS_DRIFT off its nominal frequency);
-    # one folded onto 0 Hz is an offset that wanders, not this line
+    # a harmonic k of the mains folded by the sampling (a grid runs up to MAINS_DRIFT off its nominal frequency)
     folded = lambda hz: abs(hz - round(hz / fs) * fs)  # noqa: E731
-    mains = [(m, k) for m in MAINS for k in range(1, 6) if fs > 0 and folded(k * m) >= 0.5
-             and abs(folded(k * m) - f) <= max(resolution, MAINS_DRIFT * k)]
+    aliases = [(m, k) for m in MAINS for k in range(1, 6)
+               if fs > 0 and abs(folded(k * m) - f) <= max(resolution, MAINS_DRIFT * k)]
+    mains = [(m, k) for m, k in aliases if folded(k * m) >= 0.5]
+    # One a sampling rate that divides it folds onto 0 Hz (the mains at 10 Hz, 25 Hz, 50 Hz) shows only as far as the
+    # grid runs off its nominal frequency: a line of a fraction of a Hz (a blind check's 50.05 Hz grid at 10 Hz, a
+    # 0.05 Hz line, was put down to a motor). The lowest harmonic that reaches f is named, both grids when both fold.
+    low = min((k for _, k in aliases), default=0) if not mains else 0
+    near_zero = sorted({m for m, k in aliases if k == low})
     rate = r.get("rate_hz_per_s") or 0.0
     span = float(np.ptp(t)) if len(t) > 1 else 0.0
     part = ("a motor, fan or pump at a steady speed, a PWM-driven heater or LED, a switching supply near the sensor? — "
@@ -750,6 +755,12 @@ def periodic_interference_line(d, r) -> str:
     cause = (f"the {_g(mains[0][0])} Hz mains{'' if mains[0][1] == 1 else f' (its harmonic {mains[0][1]})'} aliased "
              f"by the {_g(fs)} Hz sampling? — an anti-alias filter before the converter, or readings averaged over "
              "whole mains periods" + ("" if mains[0][1] == 1 else f"; or {part}") if mains else part)
+    if near_zero:
+        which = " or ".join(_g(m) for m in near_zero)
+        cause = (f"the {which} Hz mains{'' if low == 1 else f' (its harmonic {low})'} aliased near 0 Hz by the "
+                 f"{_g(fs)} Hz sampling? — the sampling rate divides the mains frequency, so the line shows at how far "
+                 f"the grid runs off its nominal frequency ({_g(f / low, 2)} Hz); an anti-alias filter before the "
+                 "converter, or readings averaged over whole mains periods" + ("" if low == 1 else f"; or {part}"))
     at = (f"{_g(f, 4)} Hz" if not rate else
           f"{_g(f - 0.5 * rate * span, 4)} Hz drifting to {_g(f + 0.5 * rate * span, 4)} Hz")
     se_f, se_rate = (r["frequency_se_hz"], r.get("rate_se_hz_per_s")) if r.get("frequency_se_hz") \
@@ -840,6 +851,13 @@ def text(d) -> str:
         found = ", ".join(a + (f" ({episodes[a]} {kinds.get(a, 'episodes')})" if a in episodes else "")
                           for a in d.accepted)
         out.append(f"FOUND: {found} (added in this order)")
+        # (a noise model alone on readings that leave the base undetermined clears no effect either: a blind check's
+        # level drives with correlated noise read "FOUND: colored_noise" as though nothing else could be there)
+        if all(a in ("colored_noise", "quantization") for a in d.accepted) \
+                and any("not identifiable" in c for c in getattr(d, "caveats", [])):
+            out.append("  no systematic effect found — but the base model is not identifiable from these readings "
+                       "(CAVEAT above), and an effect can hide in what they leave undetermined: nothing is cleared; "
+                       "turn the sensor through more directions")
         # an effect whose held-out test cannot tell (CAVEAT): a possibility, not a finding (a blind check's clean
         # 100-row recording read "FOUND: hysteresis", its caveat two screens down)
         unresolved = [r["effect"] for r in d.ranking if r["effect"] in d.accepted and r.get("heldout_gain_unresolved")]
