@@ -154,3 +154,15 @@ def test_quoted_decimal_commas_of_a_comma_delimited_table_are_read(tmp_path):
     # 1,234 alone says nothing: left as text, as before
     rec = read_recording(write(tmp_path, "k.csv", 'mx,my,mz,n\n1,2,3,"1,234"\n4,5,6,"2,345"\n'))
     assert "n" not in rec.columns
+
+
+def test_gauss_as_gs_or_before_an_axis_index_is_the_files_unit(tmp_path):
+    """PX4's vehicle_magnetometer export names its axes magnetometer_ga[0..2] (gauss before the index), and some
+    loggers write gauss as Gs: both had been left without a unit (or as "Gs", which nothing converts)."""
+    px4 = tmp_path / "vehicle_magnetometer_0.csv"
+    px4.write_text("timestamp,magnetometer_ga[0],magnetometer_ga[1],magnetometer_ga[2]\n"
+                   "1000,0.21,-0.05,0.40\n2000,0.22,-0.04,0.41\n3000,0.20,-0.06,0.39\n")
+    rec = read_recording(px4)
+    assert [rec.units[n] for n in rec.mag_names()] == ["G"] * 3
+    from fluxcal.io.columns import unit_name
+    assert unit_name("Gs") == "G" and unit_name("[gs]") == "G"

@@ -37,9 +37,10 @@ RAW_WORDS = {"raw", "uncal", "uncalibrated", "uncorrected"}
 FIELD_UNITS = {"nt": "nT", "ut": "uT", "µt": "uT", "mt": "mT", "g": "G", "ga": "G", "gauss": "G", "mg": "mG",
                "mgauss": "mG", "milligauss": "mG", "counts": "counts", "lsb": "counts", "utesla": "uT",
                "µtesla": "uT", "microtesla": "uT", "nanotesla": "nT", "pt": "pT", "picotesla": "pT",
-               "gamma": "nT", "γ": "nT"}  # (gamma: the geophysicists' nT)
-# the field units no other quantity writes the same way (g and mg are also accelerations; counts are anything's)
-FIELD_ONLY_UNITS = set(FIELD_UNITS) - {"g", "mg", "counts", "lsb"}
+               "gamma": "nT", "γ": "nT", "gs": "G"}  # (gamma: the geophysicists' nT; Gs: gauss)
+# the field units no other quantity writes the same way (g and mg are also accelerations; counts are anything's; Gs a
+# ground speed too)
+FIELD_ONLY_UNITS = set(FIELD_UNITS) - {"g", "mg", "counts", "lsb", "gs"}
 TIME_UNITS = {"s": 1.0, "sec": 1.0, "secs": 1.0, "seconds": 1.0, "ms": 1e-3, "us": 1e-6, "µs": 1e-6,
               "ns": 1e-9, "min": 60.0, "mins": 60.0, "minutes": 60.0, "h": 3600.0, "hr": 3600.0, "hours": 3600.0}
 TEMP_UNITS = {"c": "C", "degc": "C", "celsius": "C", "°c": "C", "k": "K", "kelvin": "K", "°k": "K", "f": "F",
@@ -575,8 +576,12 @@ def is_field_unit(word: str) -> bool:
 
 
 def field_unit_of(name: str) -> str:
-    """The field unit a column's name carries (mag_x_uT -> "uT"), "" when none."""
-    _, unit = _peel_field_unit(words(name))
+    """The field unit a column's name carries (mag_x_uT -> "uT"; PX4's magnetometer_ga[0] -> "G", its unit before
+    the axis's index), "" when none."""
+    ws = words(name)
+    if len(ws) > 2 and ws[-1] in ("0", "1", "2", "3") and ws[-2] in FIELD_ONLY_UNITS:
+        return unit_name(ws[-2])
+    _, unit = _peel_field_unit(ws)
     return unit_name(unit) if unit else ""
 
 

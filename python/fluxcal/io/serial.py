@@ -141,18 +141,12 @@ _HEADER_WORDS = re.compile(r"[^\s\[(]+(?:\s*(?:\[[^\]]*\]|\([^)]*\)))?")  # cell
 QUIET_OPEN_S = 0.5
 
 
-def _unit_name(word: str) -> str:
-    """unit_name, with "Gs" (a common spelling of gauss that fluxcal.io.columns does not list) as G: it had been
-    written into the recording as "Gs", a unit nothing downstream converts."""
-    return "G" if word.strip().strip("[]()").strip().lower() == "gs" else unit_name(word)
-
-
 def _name_unit(name: str) -> str:
     """The field unit a magnetometer axis's name carries after or before its axis (mag_x_uT, Bx_nT, mag_x_ga,
     magnetometer_ga[0]), else "": a logger's unit in its names, as the file readers take it."""
     for w in reversed(words(name)[1:][-2:]):  # the last word, then the one before the axis or index
-        if w in FIELD_UNITS or w == "gs":
-            return _unit_name(w)
+        if w in FIELD_UNITS:
+            return unit_name(w)
     return field_unit_of(name)  # (Bx_T: tesla)
 
 
@@ -192,7 +186,7 @@ def parse_columns(spec: str | None, fmt: str = "csv", units: str | None = None) 
         if not unit and units and name in ("mx", "my", "mz"):
             unit = units
         if unit.lower() == "gs":
-            unit = "G"  # (see _unit_name)
+            unit = "G"  # (gauss as some write it; written as G, the unit every reader knows)
         columns.append(Column(name, key, unit))
     names = [c.name for c in columns]
     if len(set(names)) != len(names):
@@ -307,7 +301,7 @@ class TextDecoder:
         self._headers_said = set()  # csv: the header lines already reported (a device reprints it every N lines)
         self._aliases = None  # csv: the device's names of the columns, when --columns renames its fields by position
         # units as --units/--columns state them, and as the first recorded line printed them (kv)
-        self._stated = {c.name: _unit_name(c.unit) for c in self.columns if c.unit}
+        self._stated = {c.name: unit_name(c.unit) for c in self.columns if c.unit}
         self.printed_units, self._line_units = {}, {}
         # the device writes decimal commas (kv; csv with fields separated by ';' or tabs)
         self.decimal_comma, self._line_decimal_comma = False, False
@@ -624,7 +618,7 @@ class TextDecoder:
                 continue
             column = self.columns[reference.index(name.lower())]
             stated = (self._stated.get(column.name) if stated_only else
-                      _unit_name(column.unit) if column.unit else self.printed_units.get(column.name))
+                      unit_name(column.unit) if column.unit else self.printed_units.get(column.name))
             if stated and unit != stated:
                 return (f"column {column.name!r} is in {unit} there, in {stated} in the recording (no conversion: a "
                         "range change? another sensor?)")
@@ -807,7 +801,7 @@ class TextDecoder:
         in two units under one label would be silently wrong (a range change, another sensor's line)."""
         named = {}
         for name, word in printed.items():
-            unit = named[name] = _unit_name(word)
+            unit = named[name] = unit_name(word)
             if name in MAG and unit not in {*FIELD_UNITS.values(), "T"}:
                 raise Reject("unit", f"column {name!r}: {word!r} is not a magnetic-field unit (another sensor's "
                                      "line?)")
@@ -877,7 +871,7 @@ def _header_cells(text: str):
         if not m:
             return None
         unit = m.group(2) or m.group(3) or ""
-        header.append((m.group(1), _unit_name(unit) if unit else ""))
+        header.append((m.group(1), unit_name(unit) if unit else ""))
     names = [n.lower() for n, _ in header]
     return header if header and len(set(names)) == len(names) else None
 
