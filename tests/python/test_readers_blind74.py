@@ -166,3 +166,20 @@ def test_gauss_as_gs_or_before_an_axis_index_is_the_files_unit(tmp_path):
     assert [rec.units[n] for n in rec.mag_names()] == ["G"] * 3
     from fluxcal.io.columns import unit_name
     assert unit_name("Gs") == "G" and unit_name("[gs]") == "G"
+
+
+def test_a_gzip_compressed_log_is_read_and_a_cut_one_named(tmp_path):
+    """A rotated logger's log.csv.gz had been refused as "byte 0x8b is not text … a binary file"."""
+    import gzip
+
+    text = "t,mx,my,mz\n" + "".join(f"{k},{20 + k % 7}.5,-5.25,40.125\n" for k in range(30))
+    packed = tmp_path / "log.csv.gz"
+    packed.write_bytes(gzip.compress(text.encode()))
+    plain = tmp_path / "log.csv"
+    plain.write_text(text)
+    a, b = read_recording(packed), read_recording(plain)
+    assert list(a.columns) == list(b.columns) and all(np.array_equal(a.columns[k], b.columns[k]) for k in a.columns)
+    cut = tmp_path / "cut.csv.gz"
+    cut.write_bytes(gzip.compress(text.encode())[:-12])
+    with pytest.raises(ValueError, match=r"cut\.csv\.gz: gzip-compressed, but cannot be decompressed"):
+        read_recording(cut)

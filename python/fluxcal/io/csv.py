@@ -16,8 +16,10 @@ from __future__ import annotations
 import contextlib
 import contextvars
 import csv as _csv
+import gzip
 import io
 import re
+import zlib
 from pathlib import Path
 
 import numpy as np
@@ -533,6 +535,12 @@ def read_text(path) -> str:
         raw = path.read_bytes()
     except OSError as exc:
         raise ValueError(f"{path}: cannot read ({exc.strerror or exc})") from None
+    if raw.startswith(b"\x1f\x8b"):  # a gzip-compressed log (log.csv.gz, as loggers rotate them): its text
+        try:
+            raw = gzip.decompress(raw)
+        except (OSError, EOFError, zlib.error) as exc:
+            raise ValueError(f"{path}: gzip-compressed, but cannot be decompressed ({exc}): cut short while copied?"
+                             ) from None
     if raw.startswith((b"\xff\xfe", b"\xfe\xff")):
         try:
             return raw.decode("utf-16")
