@@ -183,3 +183,18 @@ def test_a_gzip_compressed_log_is_read_and_a_cut_one_named(tmp_path):
     cut.write_bytes(gzip.compress(text.encode())[:-12])
     with pytest.raises(ValueError, match=r"cut\.csv\.gz: gzip-compressed, but cannot be decompressed"):
         read_recording(cut)
+
+
+def test_read_csv_points_other_formats_to_read_recording_and_one_unit_to_units(tmp_path):
+    from fluxcal import read_csv
+
+    lines = tmp_path / "mag.jsonl"
+    lines.write_text("".join(f'{{"ts": {k}, "mag": {{"x": 1.{k}, "y": 2, "z": 3}}}}\n' for k in range(5)))
+    with pytest.raises(ValueError, match=r"looks like JSON records, not a table: read it with fluxcal.read_recording"):
+        read_csv(lines)
+    assert read_recording(lines).mag_names()  # (which does read it)
+    one = tmp_path / "one.csv"
+    one.write_text("t,mx [uT],my,mz\n0,1,2,3\n1,2,3,4\n")
+    with pytest.raises(ValueError, match=r"\(mx: uT, my: none, mz: none\); if they share uT, state it for all "
+                                         r"\(--units uT"):
+        read_recording(one).field_units()

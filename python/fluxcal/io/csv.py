@@ -132,11 +132,29 @@ def read_csv(path, columns=None, units: str | None = None, delimiter: str | None
     banner above the header, no header); ",", ";" or "\t" reads the plain layout with that one. `bad_lines`: "error"
     or "skip"."""
     path = readable_file(path)
-    if delimiter is None:
-        from .formats import _read_table
+    try:
+        if delimiter is None:
+            from .formats import _read_table
 
-        return warn_skipped(_read_table(path, columns, units, bad_lines))
-    return warn_skipped(parse_csv(path, read_lines(path), delimiter, bad_lines=bad_lines).choose(columns, units))
+            return warn_skipped(_read_table(path, columns, units, bad_lines))
+        return warn_skipped(parse_csv(path, read_lines(path), delimiter, bad_lines=bad_lines).choose(columns, units))
+    except ValueError as exc:
+        other = _not_a_table(path)
+        if other:  # (a blind check: JSON Lines read as "no column of numbers", a flight log as a bad header)
+            raise ValueError(f"{exc}; {other}") from None
+        raise
+
+
+def _not_a_table(path) -> str:
+    """What a file read_csv refused looks like when it is a format fluxcal.read_recording reads, else ""."""
+    try:
+        head = [line.strip() for line in read_lines(path)[:50] if line.strip()]
+    except ValueError:
+        return ""
+    what = ("JSON records" if head and head[0][:1] in "{[" else
+            "an ArduPilot text log" if any(line.startswith("FMT,") for line in head) else "")
+    return (f"it looks like {what}, not a table: read it with fluxcal.read_recording (the command line does)"
+            if what else "")
 
 
 def parse_csv(path, lines, delimiter=",", preamble_lines: int = 0, bad_lines: str = "error") -> Recording:

@@ -550,7 +550,11 @@ class Recording:
         # one spelling per unit (µT, uTesla, nanotesla, gauss → uT, nT, G): a calibration compares them by name
         units = {unit_name(self.units.get(n, "")) for n in self.mag_names()}
         if len(units) > 1:
-            raise ValueError(f"{self.source}: magnetometer columns have different units {sorted(units)}")
+            named = {n: self.units.get(n) or "none" for n in self.mag_names()}
+            remedy = (f"; if they share {max(units)}, state it for all (--units {max(units)}, units='{max(units)}')"
+                      if "" in units and len(units) == 2 else "; convert them to one unit")
+            raise ValueError(f"{self.source}: magnetometer columns have different units {sorted(units)} ("
+                             + ", ".join(f"{n}: {u}" for n, u in named.items()) + ")" + remedy)
         return units.pop()
 
 
