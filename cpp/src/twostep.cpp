@@ -647,6 +647,11 @@ double noise_mean(const Mat11& Sw, double n, const Model3D& m, double noise_sigm
 // (or w = (H/H_k)² alone, A&S's form for one field) shrinks an axis the readings see little of — its noise shrinks
 // with it —, and a blind check found the offset along it 7× the Cramér–Rao bound off on a ±20° band of tilts (z
 // 2680 nT off at σ 50 nT, not falling with more readings); with |N x_k|'s own derivative in the Jacobian, at the bound.
+// The noise means of readings start … start + len: each one's (each_mu), else the one μ for all.
+Eigen::ArrayXd block_noise_means(const Eigen::VectorXd* each_mu, double mu, Eigen::Index start, Eigen::Index len) {
+  return each_mu ? Eigen::ArrayXd(each_mu->segment(start, len).array()) : Eigen::ArrayXd::Constant(len, mu);
+}
+
 struct SampsonBlock {
   Eigen::ArrayXd R0, g2;  // x_kᵀN x_k − 1 − ε_k (μ′ not taken off) and |N x_k|²
   Eigen::MatrixXd J;      // ∂r_k/∂θ, rows (when asked)
@@ -665,8 +670,7 @@ SampsonBlock sampson_block(const SamplesRef& rows, const Eigen::Vector3d& centre
   // ∂r/∂θ = ∂R/∂θ / g − R ∂(g²)/∂θ / (2 g³), g = |N x|; a reading at the centre (g = 0) takes no part
   const Eigen::ArrayXd ok = (b.g2 > 0.0).cast<double>();
   const Eigen::ArrayXd g = b.g2.max(1e-300).sqrt();
-  const Eigen::ArrayXd mus = each_mu ? Eigen::ArrayXd(each_mu->segment(start, rows.rows()).array())
-                                     : Eigen::ArrayXd::Constant(rows.rows(), mu);
+  const Eigen::ArrayXd mus = block_noise_means(each_mu, mu, start, rows.rows());
   const Eigen::ArrayXd a = ok / g, c = ok * (b.R0 - mus) / (2.0 * g * b.g2.max(1e-300));
   const Eigen::MatrixXd NNX = NX * m.N;
   b.J.resize(rows.rows(), 9);
@@ -704,8 +708,7 @@ SampsonPass sampson_pass(const SamplesRef& samples, const Eigen::Vector3d& centr
     const SampsonBlock b =
         sampson_block(samples.middleRows(start, len), centre, scale, relative, start, m, mu, jacobian, each_mu);
     const Eigen::ArrayXd ok = (b.g2 > 0.0).cast<double>(), g2 = b.g2.max(1e-300);
-    const Eigen::ArrayXd mus =
-        each_mu ? Eigen::ArrayXd(each_mu->segment(start, len).array()) : Eigen::ArrayXd::Constant(len, mu);
+    const Eigen::ArrayXd mus = block_noise_means(each_mu, mu, start, len);
     const Eigen::ArrayXd r = ok * (b.R0 - mus) / g2.sqrt();
     out.cost += r.square().sum();
     out.rounding += (ok * (b.R0.abs() + 2.0 + mus.abs()).square() / g2).sum();
@@ -734,30 +737,24 @@ double sampson_noise_mean(const SampsonPass& pass, double n, const Model3D& m, d
   return -0.25 * std::max(0.0, pass.s2 - pass.s1 * pass.s1 / pass.s0) / n;
 }
 
-// Whether each reading lies where the O(σ²) expansion holds: its surface's distance from the centre along its normal,
-// x_kᵀN x_k/|N x_k| (the field's length there, in u), beyond kExpansionReach σ (σ per axis, u units). Nearer the
-// centre (field norms near the noise) a reading's terms are O(σ), not O(σ²), and noisy: as in 2-D, such a reading
-// keeps no noise mean and stays out of the Jacobian term (a review: an offset's spread 1.25× wider with field norms
-// 0–0.3 of the largest).
-Eigen::Array<bool, Eigen::Dynamic, 1> within_expansion(const SamplesRef& samples, const Eigen::Vector3d& centre,
-                                                        double scale, const Model3D& m, double sigma) {
-  const Eigen::MatrixXd X = ((samples.rowwise() - centre.transpose()) / scale).rowwise() - m.q.transpose();
-  const Eigen::MatrixXd NX = X * m.N;
-  const Eigen::ArrayXd along = (X.array() * NX.array()).rowwise().sum() / NX.rowwise().norm().array().max(1e-300);
-  return along > kExpansionReach * sigma;
-}
+using Within = Eigen::Array<bool, Eigen::Dynamic, 1>;
 
 // Each reading's noise mean of R_k to O(σ²) (σ² per axis, u units), where its Sampson residual r_k = (R_k − μ_k)/g_k,
 // g_k = |N x_k|, has mean 0: the noise ε lengthens R by εᵀNε (mean σ² tr N), and the normaliser g moves with R's own
 // noise along the normal n̂ = N x_k/g_k: E[R/g] = σ²(tr N − 2 q_k)/g, q_k = n̂ᵀN n̂. (On a sphere σ² tr N/3 for every
 // reading; the one μ′ = −σ² tr N/3 fitted first also holds the Jacobian's move, taken off on its own here:
-// normal_derivative_3d.) 0 for a reading outside the expansion (`within`).
+// normal_derivative_3d.) `within`: whether the expansion holds at each reading — its surface's distance from the
+// centre along its normal, x_kᵀN x_k/g_k (the field's length there, in u), beyond kExpansionReach σ. Nearer the
+// centre (field norms near the noise) its terms are O(σ), not O(σ²), and noisy: as in 2-D, such a reading keeps no
+// noise mean (0) and stays out of the Jacobian term (a review: an offset's spread 1.25× wider with field norms 0–0.3
+// of the largest).
 Eigen::VectorXd reading_noise_means(const SamplesRef& samples, const Eigen::Vector3d& centre, double scale,
-                                    const Model3D& m, double sigma2, const Eigen::Array<bool, Eigen::Dynamic, 1>& within) {
+                                    const Model3D& m, double sigma2, Within& within) {
   const Eigen::MatrixXd X = ((samples.rowwise() - centre.transpose()) / scale).rowwise() - m.q.transpose();
   const Eigen::MatrixXd NX = X * m.N;
   const Eigen::ArrayXd g2 = NX.rowwise().squaredNorm().array();
   const Eigen::ArrayXd q = ((NX * m.N).array() * NX.array()).rowwise().sum() / g2.max(1e-300);
+  within = (X.array() * NX.array()).rowwise().sum() / g2.max(1e-300).sqrt() > kExpansionReach * std::sqrt(sigma2);
   return within.select(sigma2 * (m.N.trace() - 2.0 * q), 0.0).matrix();
 }
 
@@ -766,7 +763,7 @@ Eigen::VectorXd reading_noise_means(const SamplesRef& samples, const Eigen::Vect
 // a chunk at a time.
 Vec9 normal_derivative_3d(const SamplesRef& samples, const Eigen::Vector3d& centre, double scale,
                           const Eigen::VectorXd* relative, const Model3D& m, const Eigen::VectorXd& each_mu,
-                          const Eigen::Array<bool, Eigen::Dynamic, 1>& within) {
+                          const Within& within) {
   const double step = 1e-4 / std::sqrt(m.N.trace() / 3.0);
   constexpr Eigen::Index kChunk = 512;
   Vec9 sum = Vec9::Zero();
@@ -851,7 +848,7 @@ void parameter_covariance(TwoStepResult& out, const SamplesRef& samples, const M
   const Eigen::MatrixXd X =
       ((samples.rowwise() - centre.transpose()) / scale).rowwise() - m.q.transpose();  // x_k, rows
   const SampsonBlock block = sampson_block(samples, centre, scale, relative, 0, m, mu, true, each_mu);
-  const Eigen::ArrayXd mus = each_mu ? Eigen::ArrayXd(each_mu->array()) : Eigen::ArrayXd::Constant(n, mu);
+  const Eigen::ArrayXd mus = block_noise_means(each_mu, mu, 0, n);
   const Eigen::ArrayXd r = (block.g2 > 0.0).select((block.R0 - mus) / block.g2.max(1e-300).sqrt(), 0.0);
   const Eigen::MatrixXd& J = block.J;  // ∂r_k/∂θ, rows: F = JᵀJ, the scores r_k J_k
   const Eigen::MatrixXd scores = r.matrix().asDiagonal() * J;
@@ -1260,8 +1257,7 @@ TwoStepResult twostep_fit(const SamplesRef& samples, const TwoStepOptions& optio
                                  ? 4.0 * (options.noise_sigma / scale) * (options.noise_sigma / scale)
                                  : pass.cost / spare;
         if (all_determined(pass.F, var_r, m, options.determined_tolerance)) {
-          const Eigen::Array<bool, Eigen::Dynamic, 1> within =
-              within_expansion(samples, centre, scale, m, std::sqrt(var_r / 4.0));
+          Within within;
           each_mu = reading_noise_means(samples, centre, scale, m, var_r / 4.0, within);
           // the targets move by O(σ²): Gauss–Newton from the solution converges at once; a step below 1e-5 of a
           // standard error (δᵀFδ ≤ 1e-10 σ_r²) is not taken

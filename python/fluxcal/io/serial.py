@@ -142,12 +142,11 @@ QUIET_OPEN_S = 0.5
 
 
 def _name_unit(name: str) -> str:
-    """The field unit a magnetometer axis's name carries after or before its axis (mag_x_uT, Bx_nT, mag_x_ga,
-    magnetometer_ga[0]), else "": a logger's unit in its names, as the file readers take it."""
-    for w in reversed(words(name)[1:][-2:]):  # the last word, then the one before the axis or index
-        if w in FIELD_UNITS:
-            return unit_name(w)
-    return field_unit_of(name)  # (Bx_T: tesla)
+    """The field unit a magnetometer axis's name carries, else "": as the file readers take it (field_unit_of:
+    mag_x_uT, Bx_T, magnetometer_ga[0]), or a unit word just before its axis or index (mag_ga_x, mag_mg[0]), which
+    in a magnetometer's name can only be its unit."""
+    ws = words(name)
+    return field_unit_of(name) or (unit_name(ws[-2]) if len(ws) > 2 and ws[-2] in FIELD_UNITS else "")
 
 
 class Reject(Exception):
