@@ -3312,14 +3312,38 @@ def _check_options(noise_sigma, candidates, alpha, max_effects):
 
 
 def usable_regressors(temp, current) -> tuple:
-    """({"temp": …, "current": …} with a column that holds a missing or non-finite value left out (None), and
-    {name: how many such values}): a blank cell in a side column costs that column, not the diagnosis."""
-    side, missing = {"temp": temp, "current": current}, {}
+    """({"temp": …, "current": …}, {name: how many missing or non-finite values left it out}, {name: how many were
+    filled in}). A temperature's blank cells (a thermometer logged at a lower rate than the magnetometer on the same
+    lines, a read it missed) are interpolated from the readings beside them, in row order, when every run of them is
+    short (`_short_gaps`): a temperature cannot change much within one. Otherwise, and for a current (which may switch
+    within a gap), a column that holds one is left out (None): it costs that column, not the diagnosis."""
+    side, missing, filled = {"temp": temp, "current": current}, {}, {}
     for name, values in side.items():
-        if values is not None and not np.all(np.isfinite(np.asarray(values, dtype=float))):
-            missing[name] = int(np.sum(~np.isfinite(np.asarray(values, dtype=float))))
+        if values is None:
+            continue
+        given = np.asarray(values, dtype=float)
+        bad = ~np.isfinite(given)
+        if not bad.any():
+            continue
+        if name == "temp" and _short_gaps(bad):
+            rows = np.arange(given.size)
+            side[name] = np.interp(rows, rows[~bad], given[~bad])
+            filled[name] = int(bad.sum())
+        else:
+            missing[name] = int(bad.sum())
             side[name] = None
-    return side, missing
+    return side, missing, filled
+
+
+def _short_gaps(bad: np.ndarray) -> bool:
+    """Whether a column's missing values can be filled from those beside them: ten or more given, and every run of
+    missing ones at most max(10, 5 % of the rows) long (a thermometer read once per ten lines leaves runs of 9; one
+    disconnected for a minute of ten leaves a run no interpolation knows)."""
+    if np.count_nonzero(~bad) < 10:
+        return False
+    edges = np.diff(np.concatenate([[0], bad.astype(int), [0]]))
+    runs = np.flatnonzero(edges == -1) - np.flatnonzero(edges == 1)
+    return bool(runs.max() <= max(10, bad.size // 20))
 
 
 def screened_temperature(temp) -> tuple:
@@ -3630,9 +3654,11 @@ def diagnose(samples, t=None, temp=None, reference=None, gravity=None, field_nor
     field_norm = field_norm_given(samples, field_norm)  # (a Recording's column: before it is taken apart)
     if isinstance(samples, Recording):
         samples, t, temp, current, gravity, units, source = recording_inputs(samples, t, temp, current, gravity, units)
-        side, missing = usable_regressors(temp, current)
+        side, missing, filled = usable_regressors(temp, current)
         unusable = [f"its {name} column has {n} missing or non-finite values and was not used (fill them in to try "
                     f"the {name} candidates)" for name, n in missing.items()]
+        unusable += [f"its {name} column has {n} missing or non-finite values, in short runs: interpolated from the "
+                     f"readings beside them" for name, n in filled.items()]
         temp, current = side["temp"], side["current"]
     temp, said = screened_temperature(temp)
     unusable += said

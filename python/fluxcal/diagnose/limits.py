@@ -154,7 +154,7 @@ def detection_limits(samples, t=None, temp=None, current=None, reference=None, g
     options = {"reference": reference, "gravity": gravity if reference is not None else None,
                "field_norm": field_norm, "model": model, "noise_sigma": noise_sigma, "units": units}
     # A regressor column with a blank cell is not used (as by the diagnosis): said, and made up in its place.
-    own, missing = usable_regressors(temp, current)
+    own, missing = usable_regressors(temp, current)[:2]
     full = diagnosis or diagnose(m, t=t, **own, alpha=alpha, source=source, **options)
     possible = injectable(reference is not None)
     wanted = possible if names is None else list(names)
