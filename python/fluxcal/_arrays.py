@@ -2,6 +2,8 @@
 layout the C++ core maps without a copy, and names the input when something is wrong."""
 from __future__ import annotations
 
+import os
+
 import numpy as np
 
 
@@ -12,6 +14,9 @@ def as_samples(values, name: str = "samples", columns: int = 3) -> np.ndarray:
     elif _is_table(values):  # a DataFrame: by its columns' names (its order mz,mx,my was taken as x,y,z)
         chosen = table_columns(values, name, columns)
         values = values.to_numpy() if chosen is None else values[chosen].to_numpy()
+    if isinstance(values, (str, bytes, os.PathLike)):  # (numpy's "could not convert string to float" names no file)
+        raise ValueError(f"{name}: {os.fspath(values)!r} is a file name, not readings; read it first: "
+                         "fluxcal.read_recording(path) gives a Recording every fit takes")
     if np.iscomplexobj(values):  # float64 would drop the imaginary part with only a warning
         raise ValueError(f"{name}: complex numbers; readings are real (pass .real or abs() explicitly)")
     try:
@@ -70,6 +75,26 @@ def sample_names(values) -> list | None:
         chosen = table_columns(values)
         return [str(c) for c in (list(values.columns) if chosen is None else chosen)]
     return None
+
+
+def samples_units(values) -> str:
+    """The field unit the readings `values` state: a Recording's (its header, metadata or --units), a DataFrame's from
+    its magnetometer columns' names as a file's header gives it (mx [nT], mag_x_uT; fluxcal.io.columns.field_unit_of),
+    "" for an array or when none is named. Columns naming different units are a ValueError naming them."""
+    if hasattr(values, "field_units") and callable(values.field_units):
+        return values.field_units()
+    if not _is_table(values):
+        return ""
+    from .io.columns import field_unit_of
+
+    chosen = table_columns(values)
+    names = [str(c) for c in (list(values.columns) if chosen is None else chosen)]
+    named = {n: field_unit_of(n) for n in names}
+    units = {u for u in named.values() if u}
+    if len(units) > 1 or (units and not all(named.values())):
+        raise ValueError("samples: the field columns " + ", ".join(f"{n} ({u or 'no unit'})" for n, u in named.items())
+                         + " do not name one unit; rename them or pass units=")
+    return units.pop() if units else ""
 
 
 def positive_field_norm(field_norm) -> float:

@@ -134,9 +134,10 @@ def _message(path, exc: BaseException) -> str:
 
 
 def calibrate_unit(path, out_path, method: str = "auto", field_norm: float | None = None,
-                   bad_lines: str = "error") -> dict:
+                   bad_lines: str = "error", field_units: str | None = None) -> dict:
     """Read one recording, calibrate it and write its calibration atomically. Never raises for a bad
-    unit: returns {"unit", "source", "status", "row" | "error", "seconds"}."""
+    unit: returns {"unit", "source", "status", "row" | "error", "seconds"}. `field_units` names `field_norm`'s unit,
+    which the corrected field h is then in whatever the readings' (as `fluxcal calibrate --field-units`)."""
     from .pipeline import calibrate
 
     path, out_path = Path(path), Path(out_path)
@@ -153,6 +154,12 @@ def calibrate_unit(path, out_path, method: str = "auto", field_norm: float | Non
                         reference=reference, units=units)
         if reference is not None and rec.reference_units() != units:
             cal.field_units = rec.reference_units()
+        elif field_units and field_norm is not None and reference is None:
+            from .cli import judge_field_again
+            from .io.columns import unit_name
+
+            cal.field_units = unit_name(field_units)
+            judge_field_again(cal, units, field_units)  # (the solver judged the norm in the readings' unit)
         elif given is not None and reference is None and units not in TESLA_PER_UNIT:
             cal.field_units = ""  # counts fitted to a norm given without its unit (as calibrate: not stated)
         _held_out(cal, rec.samples(), reference, given, method)
@@ -160,7 +167,7 @@ def calibrate_unit(path, out_path, method: str = "auto", field_norm: float | Non
             cal.metadata["skipped_lines"] = rec.metadata["skipped_lines"]
             cal.summary.setdefault("warnings", []).append(f"skipped {rec.metadata['skipped_lines']}")
         cal.metadata.update(unit=unit, source=str(path), source_sha256=digest, columns=",".join(rec.mag_names()),
-                            batch_settings=_settings(method, field_norm, bad_lines))
+                            batch_settings=_settings(method, field_norm, bad_lines, field_units))
         tmp = out_path.with_name(f".{out_path.name}.{os.getpid()}.tmp")
         try:
             cal.save(tmp)
@@ -209,9 +216,9 @@ def _set_aside(out_path: Path) -> str:
     return f" (the previous {out_path.name}, of another recording or settings, moved to {stale.name})"
 
 
-def _settings(method, field_norm, bad_lines: str = "error") -> dict:
+def _settings(method, field_norm, bad_lines: str = "error", field_units: str | None = None) -> dict:
     return {"method": method, "field_norm": None if field_norm is None else as_number(field_norm, "field_norm"),
-            "bad_lines": bad_lines}
+            "bad_lines": bad_lines, **({"field_units": field_units} if field_units else {})}
 
 
 def _already_done(json_path: Path, source: Path, settings: dict):
@@ -463,12 +470,14 @@ def _connect(workers, scheduler, dashboard_address):
 def calibrate_fleet(directory, out_dir, workers: int | None = None, scheduler: str | None = None,
                     method: str = "auto", field_norm: float | None = None, pattern: str = DEFAULT_PATTERN,
                     progress: bool = True, outlier_k: float = OUTLIER_K,
-                    dashboard_address: str | None = None, bad_lines: str = "error") -> FleetResult:
+                    dashboard_address: str | None = None, bad_lines: str = "error",
+                    field_units: str | None = None) -> FleetResult:
     """Calibrate every recording of `directory` matching `pattern`, one Dask task each, into `out_dir`.
 
     `scheduler` (an address such as "tcp://host:8786") uses an existing Dask cluster; otherwise a
     LocalCluster of `workers` single-threaded processes (default: one per core) is started and closed.
-    `method` and `field_norm` go to fluxcal.calibrate, `bad_lines` ("error", "skip") to the reader.
+    `method` and `field_norm` go to fluxcal.calibrate, `bad_lines` ("error", "skip") to the reader; `field_units` names
+    field_norm's unit (a field unit: uT, nT, G, mG…), each unit's corrected field then in it whatever its readings'.
     Outliers: |x − median| > outlier_k·1.4826·MAD.
     Raises ValueError for a missing or empty directory and bad settings; a unit's own failure is
     recorded, never raised.
@@ -484,6 +493,13 @@ def calibrate_fleet(directory, out_dir, workers: int | None = None, scheduler: s
                          f"(the vector fit needs reference fields a recording folder does not give)")
     if field_norm is not None and not (math.isfinite(field_norm) and field_norm > 0):
         raise ValueError(f"field_norm: {field_norm} must be a positive number")
+    if field_units is not None:
+        from .io.columns import unit_name
+
+        if field_norm is None:
+            raise ValueError("field_units: names the unit of field_norm (--field-norm), which is not given")
+        if unit_name(field_units) not in TESLA_PER_UNIT:
+            raise ValueError(f"field_units: {field_units!r} is not a magnetic-field unit (uT, nT, G, mG, T, …)")
     if method == "twostep" and field_norm is None:  # else every unit would fail alike
         raise ValueError("field_norm: method 'twostep' needs the known field magnitude (--field-norm)")
     if not (isinstance(outlier_k, numbers.Real) and math.isfinite(outlier_k) and outlier_k > 0):
@@ -497,7 +513,7 @@ def calibrate_fleet(directory, out_dir, workers: int | None = None, scheduler: s
     paths = _recordings(directory, out_dir, pattern)
     out_dir.mkdir(parents=True, exist_ok=True)
 
-    settings = _settings(method, field_norm, bad_lines)
+    settings = _settings(method, field_norm, bad_lines, field_units)
     rows, todo, why = {}, [], Counter()
     for p in paths:
         cal, state = _already_done(out_dir / f"{p.stem}.json", p, settings)
@@ -528,7 +544,7 @@ def calibrate_fleet(directory, out_dir, workers: int | None = None, scheduler: s
             # hand back that run's result instead of writing this one.
             # client.map: one message to the scheduler for all tasks instead of one per task.
             submitted = client.map(task, [str(p) for p in todo], [str(out_dir / f"{p.stem}.json") for p in todo],
-                                   method=method, field_norm=field_norm, bad_lines=bad_lines,
+                                   method=method, field_norm=field_norm, bad_lines=bad_lines, field_units=field_units,
                                    key=[f"fluxcal-calibrate-{p.stem}-{uuid.uuid4().hex}" for p in todo])
             futures = dict(zip(submitted, todo))
             failed = 0
@@ -604,6 +620,9 @@ def add_batch_parser(subparsers):
     b.add_argument("--method", default="auto", choices=[m for m in METHODS if m != "vector"],
                    help="auto = consistent ellipsoid fit (ALS) + maximum-likelihood refinement (default)")
     b.add_argument("--field-norm", type=positive_number, default=None, help="known |field| in the units of h")
+    b.add_argument("--field-units", default=None,
+                   help="the unit of --field-norm and so of every unit's corrected field h (default: each unit's readings' "
+                        "unit — a fleet logged in nT and in uT needs it, e.g. --field-norm 48.2 --field-units uT)")
     b.add_argument("--pattern", default=DEFAULT_PATTERN, help=f"recordings to take (glob, default {DEFAULT_PATTERN})")
     b.add_argument("--outlier-k", type=positive_number, default=OUTLIER_K,
                    help=f"flag |x - median| > k·1.4826·MAD (default {OUTLIER_K:g})")
@@ -624,7 +643,7 @@ def cmd_batch(args) -> int:
     result = calibrate_fleet(args.directory, args.output, workers=args.workers, scheduler=args.scheduler,
                              method=args.method, field_norm=args.field_norm, pattern=args.pattern,
                              progress=not args.no_progress, outlier_k=args.outlier_k,
-                             dashboard_address=args.dashboard, bad_lines=args.bad_lines)
+                             dashboard_address=args.dashboard, bad_lines=args.bad_lines, field_units=args.field_units)
     print(result.report())
     if result.failures and len(result.failures) == len(result.rows):
         print(f"error: all {len(result.rows)} units failed; nothing was calibrated (exit 1)")

@@ -7,7 +7,7 @@ from pathlib import Path
 
 import numpy as np
 
-from ._arrays import as_samples
+from ._arrays import as_samples, samples_units
 from ._saved import load_json_object
 
 CONVENTION = ("h = A (m - b); rows of samples are readings; for a sensor reading m = W h + b, A W is a rotation: from "
@@ -149,8 +149,7 @@ class Calibration:
         A biaxial sensor's readings (two values a row, or a Recording of two field columns) go through a planar
         calibration of the same two sensor axes (fluxcal.calibrate_planar): the plane's two corrected components
         come out, one row (2,) or N×2."""
-        factor = self.unit_factor(samples.field_units(), getattr(samples, "source", "samples")) \
-            if hasattr(samples, "field_units") else 1.0
+        factor = self.unit_factor(samples_units(samples), getattr(samples, "source", "samples"))
         biaxial = callable(getattr(samples, "biaxial", None)) and samples.biaxial()
         if biaxial:
             return self._apply_biaxial(samples.samples(biaxial=True) * factor, self._biaxial_axes(samples),

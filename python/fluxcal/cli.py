@@ -201,6 +201,17 @@ def _recheck_field_norm(cal: Calibration, units: str, field_units: str) -> None:
     cal.summary["warnings"] = warnings + ([said] if said else [])
 
 
+def judge_field_again(cal: Calibration, units: str, field_units: str | None) -> None:
+    """The warnings on the field's size judged again once cal.field_units says h's unit: the norm against the readings
+    (`_recheck_field_norm`) when `field_units`, the given norm's unit, differs from the readings', and its
+    plausibility as the Earth's field in h's unit (`fluxcal calibrate` and `fluxcal batch` with --field-units)."""
+    if field_units and unit_name(field_units) != units:
+        _recheck_field_norm(cal, units, unit_name(field_units))
+    said = plausible_field(cal)
+    cal.summary["warnings"] = [w for w in cal.summary["warnings"] if not w.startswith(PLAUSIBLE_WORDS)] + (
+        [said] if said else [])
+
+
 def _field_units(args, units: str, field_norm, reference) -> str | None:
     """The unit of the corrected field h: --field-units; else the readings' unit when it is a field unit or no
     norm was given (h is then in the readings' unit); "" (not stated) for counts fitted to a given norm."""
@@ -607,11 +618,7 @@ def cmd_calibrate(args) -> int:
     cal.field_units = _field_units(args, units, field_norm, reference)
     if reference is not None and reference_units != units:  # counts fitted to a field model in nT: h is in nT
         cal.field_units = reference_units
-    if args.field_units and field_norm is not None and unit_name(args.field_units) != units:
-        _recheck_field_norm(cal, units, unit_name(args.field_units))
-    said = plausible_field(cal)  # judged again in h's unit as the options set it (--field-units, a reference's)
-    cal.summary["warnings"] = [w for w in cal.summary["warnings"] if not w.startswith(PLAUSIBLE_WORDS)] + (
-        [said] if said else [])
+    judge_field_again(cal, units, args.field_units if field_norm is not None else None)
     cal.metadata.update(source=str(args.file), columns=",".join(rec.mag_names()))
     _name_file_lines(cal, rec)
     held_out = None

@@ -4,7 +4,7 @@ from __future__ import annotations
 import numpy as np
 
 from . import _core
-from ._arrays import as_samples, positive_field_norm, set_options, units_text
+from ._arrays import as_samples, positive_field_norm, samples_units, set_options, units_text
 from .calibration import Calibration
 
 
@@ -51,7 +51,7 @@ def fit_ellipsoid(samples, field_norm: float | None = None, units: str | None = 
     exact_statistics=True (residual statistics and coverage from a pass over the samples).
     """
     if units is None:
-        units = getattr(samples, "field_units", lambda: "")()
+        units = samples_units(samples)
     arr = as_samples(samples)
     return _calibration(_core.fit_ellipsoid(arr, _options(field_norm, units, method, **settings)))
 

@@ -8,7 +8,7 @@ from concurrent.futures import ThreadPoolExecutor
 import numpy as np
 
 from . import _core
-from ._arrays import (as_samples, held_copies, positive_field_norm, readings_times, repeated_blocks, repeated_words,
+from ._arrays import (as_samples, held_copies, samples_units, positive_field_norm, readings_times, repeated_blocks, repeated_words,
                       sample_names)
 from .calibration import TESLA_PER_UNIT, Calibration, scale_words
 from .ellipsoid import fit_ellipsoid
@@ -106,7 +106,7 @@ def calibrate(samples, method: str = "auto", field_norm: float | None = None, re
         raise ValueError(f"noise_sigma: three σ weight the axes of the magnitude model's refinement (method 'auto' or "
                          f"'als+refine', no reference); {why}")
     if units is None:
-        units = getattr(samples, "field_units", lambda: "")()
+        units = samples_units(samples)
     field_norm = field_norm_given(samples, field_norm)
     if field_norm is not None and np.ndim(field_norm) == 0:  # (the core's refusal named EllipsoidOptions)
         field_norm = positive_field_norm(field_norm)

@@ -55,7 +55,7 @@ from __future__ import annotations
 import numpy as np
 
 from . import _core
-from ._arrays import as_field_norms, field_norm_given, first_nonfinite, readings_times, units_text
+from ._arrays import as_field_norms, field_norm_given, first_nonfinite, readings_times, samples_units, units_text
 from .bounds import few_dof_words
 from .calibration import Calibration
 from .outliers import Quadric, far_readings, find_outliers
@@ -191,7 +191,7 @@ def calibrate_planar(samples, field_norm=None, axes=None, units: str | None = No
     and readings that trace no ellipse.
     """
     if units is None:
-        units = getattr(samples, "field_units", lambda: "")()
+        units = samples_units(samples)
     units = units_text(units)
     field_norm = field_norm_given(samples, field_norm)
     recording = samples  # (its times, once its two field columns replace it below)

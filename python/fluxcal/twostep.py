@@ -18,7 +18,7 @@ import numpy as np
 from scipy import stats
 
 from . import _core
-from ._arrays import (as_field_norms, as_samples, changing_field, field_norm_given, field_norms_summary,
+from ._arrays import (as_field_norms, as_samples, samples_units, changing_field, field_norm_given, field_norms_summary,
                       positive_field_norm, recording_times, set_options, units_text)
 from .calibration import Calibration, scale_words
 from .ellipsoid import _calibration
@@ -347,7 +347,7 @@ def twostep(samples, field_norm, units: str | None = None, **settings) -> Calibr
     summary["converged"] and summary["warnings"]. A cap of directions is answered, flagged not identifiable.
     """
     if units is None:
-        units = getattr(samples, "field_units", lambda: "")()
+        units = samples_units(samples)
     field_norm = field_norm_given(samples, field_norm)
     arr = as_samples(samples)
     if field_norm is None:
