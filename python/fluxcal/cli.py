@@ -799,6 +799,11 @@ def cmd_apply(args) -> int:
         print(skipped_words(rec.metadata['skipped_lines']))
     if "text_columns" in rec.metadata:
         print(f"note: text columns are not written to {args.output}: {rec.metadata['text_columns']}")
+    from .outliers import rail_words
+
+    railed = rail_words({n: rec.columns[n] for n in rec.mag_names()}, applied=True)
+    if railed:
+        print(f"warning: {args.file}: {railed}")
     factor = cal.unit_factor(rec.field_units(), f"{args.file}")
     # a biaxial sensor's two columns (a planar calibration's axes): corrected in its axes, those two written
     axes, named = None, (rec.biaxial_axes_from if rec.biaxial() else None)

@@ -113,3 +113,18 @@ def test_a_file_name_given_as_readings_points_to_read_recording():
     with pytest.raises(ValueError, match=r"samples: 'log.csv' is a file name, not readings; read it first: "
                                          r"fluxcal.read_recording"):
         fluxcal.calibrate("log.csv")
+
+
+def test_apply_says_readings_on_a_rail(tmp_path):
+    """(s75/workflow) A held-out log with x clipped on 9 % of its rows was corrected 2.7 µT off there, unsaid."""
+    from conftest import run_cli
+
+    m = sphere(2000, (3.0, -2.0, 1.0), radius=49.2, seed=5) + np.random.default_rng(5).normal(0, 0.05, (2000, 3))
+    good, clipped = tmp_path / "good.csv", tmp_path / "clipped.csv"
+    for path, x in ((good, m[:, 0]), (clipped, np.minimum(m[:, 0], 40.0))):
+        path.write_text("mx,my,mz\n" + "".join(f"{a:.3f},{b:.3f},{c:.3f}\n" for a, b, c in zip(x, m[:, 1], m[:, 2])))
+    run_cli("calibrate", good, "-o", tmp_path / "cal.json")
+    out = run_cli("apply", tmp_path / "cal.json", clipped, "-o", tmp_path / "out.csv").stdout
+    assert f"warning: {clipped}: readings on a rail: mx at 40 in {int(np.sum(m[:, 0] >= 40.0))} of 2000" in out
+    assert "Their corrected field is not the field" in out
+    assert "rail" not in run_cli("apply", tmp_path / "cal.json", good, "-o", tmp_path / "out2.csv").stdout
