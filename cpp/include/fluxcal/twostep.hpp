@@ -146,9 +146,10 @@ struct TwoStepOptions {
   double tolerance = 1e-10;
   /// Standard deviation of the reading noise per axis (reading units), for the noise mean μ.
   /// < 0: estimate μ from the residuals (default); 0: no noise-mean correction. With it (≠ 0), once the second step
-  /// has converged and every parameter is determined (determined_tolerance), the noise's O(σ²) bias is taken off as
-  /// refine's noise_bias_correction does: each reading's own noise mean μ_k along its normal, the fit solved again,
-  /// and the Jacobian's move with the noise (F⁻¹ 2σ² Σ∂J_k/∂n̂) — at σ 2 % the scale agrees with refine's to 1e-6.
+  /// has converged, the noise's O(σ²) bias is taken off as refine's noise_bias_correction does: each reading's own
+  /// noise mean μ_k along its normal and the fit solved again (on partial coverage too), then the Jacobian's move
+  /// with the noise (F⁻¹ 2σ² Σ∂J_k/∂n̂) where every parameter's standard error is below 10 × determined_tolerance
+  /// of its scale — at σ 2 % the scale agrees with refine's to 1e-6.
   double noise_sigma = -1.0;
   /// Units of the readings, carried into the Calibration ("" = not stated).
   std::string units;

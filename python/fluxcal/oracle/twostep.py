@@ -155,22 +155,23 @@ def _jacobian(p, u, H2, mu, step=1e-6):
     return J
 
 
+# The Jacobian's move is taken where every parameter's standard error is below this many `tolerance` (as in the core).
+BIAS_MOVE_TOLERANCE = 10.0
+
+
 def _without_noise_bias(u, H2, p, mu, sigma, tolerance):
-    """The noise's O(σ²) bias taken off a converged Sampson fit (the core's second step does the same): each reading's
-    noise mean μ_k = σ²(tr M − 2 n̂ᵀM n̂) along its normal n̂ = M(u − o)/|M(u − o)|, where E[r_k] = 0; least squares
-    again with those; then p += F⁻¹ 2σ² Σ ∂J_k/∂n̂ (E[J_k r_k] = 2σ² ∂J_k/∂n̂), ∂J/∂n̂ by central differences of J in
-    the readings (1e-4 of the mean radius), over the readings whose surface lies beyond 5σ from the centre along their
-    normal (nearer, no μ_k and no term). σ² from the residuals, var r ≈ 4σ², unless given. Not when a parameter's
-    standard error (var r F⁻¹) reaches `tolerance` of its scale (1/√λ̄ for o, λ̄ = tr M/(3 mean H_k²)·mean H_k² for M)."""
+    """The noise's O(σ²) bias taken off a converged Sampson fit (the core's second step does the same, as refine's
+    noise_bias_correction): each reading's noise mean μ_k = σ²(tr M − 2 n̂ᵀM n̂) along its normal n̂ = M(u − o)/|M(u −
+    o)|, where E[r_k] = 0, and least squares again with those — always, whatever the coverage; then, only when every
+    parameter's standard error (var r F⁻¹ at that fit) is below BIAS_MOVE_TOLERANCE × `tolerance` of its scale (1/√λ̄
+    for o, λ̄ = tr M/(3 mean H_k²)·mean H_k² for M), p += F⁻¹ 2σ² Σ ∂J_k/∂n̂ (E[J_k r_k] = 2σ² ∂J_k/∂n̂), ∂J/∂n̂ by
+    central differences of J in the readings (1e-4 of the mean radius). Both over the readings whose surface lies
+    beyond 5σ from the centre along their normal (nearer, no μ_k and no term). σ² from the residuals, var r ≈ 4σ²,
+    unless given."""
     n = len(u)
     r = _sampson(p, u, H2, mu)
     var_r = 4 * sigma**2 if sigma is not None else np.sum(r**2) / (n - 9)
-    J = _jacobian(p, u, H2, mu)
-    se = np.sqrt(var_r * np.diag(np.linalg.inv(J.T @ J)))
     M = _sym(p[3:])
-    mean_eigen = np.trace(M) / 3 / H2.mean()  # (the core's N = M / mean H_k²)
-    if not (np.all(se[:3] < tolerance / np.sqrt(mean_eigen)) and np.all(se[3:] < tolerance * mean_eigen * H2.mean())):
-        return p
     v = (u - p[:3]) @ M
     q = np.einsum("ij,jk,ik->i", v, M, v) / np.sum(v * v, axis=1)
     # where the expansion holds: the surface's distance from the centre along the normal beyond 5 σ (else no μ_k and
@@ -179,11 +180,19 @@ def _without_noise_bias(u, H2, p, mu, sigma, tolerance):
     mus = np.where(within, var_r / 4 * (np.trace(M) - 2 * q), 0.0)
     p = least_squares(lambda x: _sampson(x, u, H2, mus), p, method="lm", xtol=1e-15, ftol=1e-15, gtol=1e-15).x
     M = _sym(p[3:])
+    J = _jacobian(p, u, H2, mus)
+    try:
+        se = np.sqrt(var_r * np.diag(np.linalg.inv(J.T @ J)))
+    except np.linalg.LinAlgError:  # (a singular F: no move, as in the core)
+        return p
+    mean_eigen = np.trace(M) / 3 / H2.mean()  # (the core's N = M / mean H_k²)
+    loose = BIAS_MOVE_TOLERANCE * tolerance
+    if not (np.all(se[:3] < loose / np.sqrt(mean_eigen)) and np.all(se[3:] < loose * mean_eigen * H2.mean())):
+        return p
     v = (u - p[:3]) @ M
     normal = within[:, None] * v / np.linalg.norm(v, axis=1)[:, None]
     h = 1e-4 / np.sqrt(np.trace(M) / 3 / H2.mean())
     dJ = (_jacobian(p, u + h * normal, H2, mus) - _jacobian(p, u - h * normal, H2, mus)).sum(axis=0) / (2 * h)
-    J = _jacobian(p, u, H2, mus)
     return p + np.linalg.solve(J.T @ J, var_r / 2 * dJ)
 
 
