@@ -172,4 +172,73 @@ TEST(Drift, StandardErrorsAreTheCovariancesQuadraticForm) {
   EXPECT_ERROR_SAYS(bare.standard_error(probe, probe), "no 3×3 covariance");
 }
 
+// whiten = false with the temperature cycling every 50 samples under AR(1) 0.9 noise: each range's rows come from
+// separate visits, and the Newey–West sandwich of each range's scores made the errors 4–20× the exact ones (a
+// review). Now least squares' sandwich under an AR model of the residuals in time order: against the exact
+// (VᵀV)⁻¹ VᵀΣV (VᵀV)⁻¹ under the true noise, Σ_ij = σ² φ^|i−j| / (1 − φ²).
+TEST(Drift, UnwhitenedErrorsFollowTheNoiseAcrossRanges) {
+  const int n = 1500;
+  const double phi = 0.9, sigma = 0.01, pi = std::acos(-1.0);
+  std::mt19937_64 rng(21);
+  std::normal_distribution<double> normal(0.0, sigma);
+  Eigen::VectorXd temp(n), w(n);
+  double noise = 0.0;
+  for (int i = 0; i < n; ++i) {
+    noise = phi * noise + normal(rng);
+    temp[i] = 15.0 + 35.0 * std::sin(2.0 * pi * i / 50.0);
+    w[i] = 0.02 + 1e-3 * temp[i] + 2e-5 * temp[i] * temp[i] + noise;
+  }
+  fluxcal::DriftOptions options;
+  options.order = 2;
+  options.whiten = false;
+  for (const bool continuous : {false, true}) {
+    options.continuous = continuous;
+    const auto m = fluxcal::fit_drift(temp, temp, w, options);
+    ASSERT_EQ(m.noise_ar.size(), 0);
+    if (continuous) continue;  // (its exact covariance needs the constraints: the Python tests check its spread)
+    for (const auto& seg : m.segments) {
+      std::vector<int> idx;
+      for (int i = 0; i < n; ++i)
+        if (temp[i] >= seg.lo && (temp[i] < seg.hi || (seg.hi == m.segments.back().hi && temp[i] <= seg.hi)))
+          idx.push_back(i);
+      const Eigen::Index r = static_cast<Eigen::Index>(idx.size());
+      Eigen::MatrixXd v(r, 3), sigma_v(r, 3);
+      for (Eigen::Index a = 0; a < r; ++a) v.row(a) << 1.0, temp[idx[a]], temp[idx[a]] * temp[idx[a]];
+      for (Eigen::Index a = 0; a < r; ++a) {
+        sigma_v.row(a).setZero();
+        for (Eigen::Index b = 0; b < r; ++b)
+          sigma_v.row(a) += std::pow(phi, std::abs(idx[a] - idx[b])) * v.row(b);
+      }
+      sigma_v *= sigma * sigma / (1.0 - phi * phi);
+      const Eigen::MatrixXd p = (v.transpose() * v).inverse();
+      const Eigen::VectorXd exact = (p * v.transpose() * sigma_v * p).diagonal().cwiseSqrt();
+      for (Eigen::Index j = 0; j < 3; ++j) {
+        EXPECT_GT(seg.standard_errors[j] / exact[j], 0.75) << "range " << seg.lo << " coefficient " << j;
+        EXPECT_LT(seg.standard_errors[j] / exact[j], 1.33) << "range " << seg.lo << " coefficient " << j;
+      }
+    }
+  }
+}
+
+// Near a random walk the errors are too small whatever the sandwich (least squares understates the memory): the
+// fit says they are lower bounds, whether the whitening model was dropped or no whitening was asked for.
+TEST(Drift, ErrorsNearAUnitRootAreSaidToBeLowerBounds) {
+  Data d = make(3000, 0.0, 3);
+  std::mt19937_64 rng(4);
+  std::normal_distribution<double> normal(0.0, 0.002);
+  double walk = 0.0;
+  for (Eigen::Index i = 0; i < d.w.size(); ++i) d.w[i] += (walk += normal(rng));
+  for (const bool whiten : {true, false}) {
+    fluxcal::DriftOptions options;
+    options.whiten = whiten;
+    const auto m = fluxcal::fit_drift(d.temp, d.temp, d.w, options);
+    bool said = false;
+    for (const auto& s : m.summary.warnings) {
+      said = said || s.find("standard errors are lower bounds") != std::string::npos;
+      EXPECT_EQ(s.find("Newey"), std::string::npos) << s;
+    }
+    EXPECT_TRUE(said) << "whiten " << whiten;
+  }
+}
+
 }  // namespace

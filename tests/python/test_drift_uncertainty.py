@@ -64,10 +64,10 @@ def test_drift_covariance_matches_the_oracles(whiten, foct):
     assert got.standard_error([12.5])[0] == pytest.approx(np.sqrt(v @ np.asarray(seg["covariance"]) @ v), rel=1e-12)
 
 
-def _ramps(phi: float, continuous: bool, whiten: bool = True, runs: int = 200, n: int = 3000):
-    """Fits of a quadratic drift under AR(1) noise on a temperature crossing each range three times."""
+def _ramps(phi: float, continuous: bool, whiten: bool = True, runs: int = 200, n: int = 3000, cycles: float = 1.5):
+    """Fits of a quadratic drift under AR(1) noise on a temperature crossing each range 2 × `cycles` times."""
     rng = np.random.default_rng(11)
-    temp = 15 + 35 * np.sin(2 * np.pi * 1.5 * np.linspace(0, 1, n))
+    temp = 15 + 35 * np.sin(2 * np.pi * cycles * np.linspace(0, 1, n))
     truth = 0.02 + 1e-3 * temp + 2e-5 * temp ** 2
     probe = np.array([-10.0, 10.0, 40.0])
     coefficients, errors, at, at_errors = [], [], [], []
@@ -92,6 +92,80 @@ def test_drift_standard_errors_match_the_monte_carlo_spread(phi, whiten, continu
     coefficients, at = _ramps(phi, continuous, whiten)
     np.testing.assert_allclose(coefficients, 1.0, atol=0.15)
     np.testing.assert_allclose(at, 1.0, atol=0.15)
+
+
+@pytest.mark.parametrize("continuous", [False, True])
+def test_unwhitened_errors_hold_on_a_fast_temperature_cycle(continuous):
+    """whiten=False with the temperature cycling every 50 samples: each range's rows come from 60 separate visits,
+    and the Newey–West sandwich of each range's scores (AR(1)-prewhitened column by column across the joins) made the
+    errors 3.7–21.5× the spread of the coefficients and 1.7–6.3× that of f(T) (continuous 2.1–6.6×, 1.55–2.4×), a
+    review. Now the sandwich under an AR model of the residuals in time order: measured 0.95–1.06 and 0.99–1.01
+    (continuous 0.96–1.08, 0.99–1.02) over 200 fits."""
+    coefficients, at = _ramps(0.9, continuous, whiten=False, runs=300, cycles=60)
+    assert np.all((coefficients > 0.75) & (coefficients < 1.35)), coefficients
+    assert np.all((at > 0.75) & (at < 1.35)), at
+
+
+def test_unwhitened_covariance_on_a_fast_cycle_matches_the_oracle():
+    """The sandwich under the AR model of the residuals (fitted by AIC in time order across the ranges) against the
+    oracle's: a dense-in-spirit Σ = σ² L⁻¹L⁻ᵀ from the sparse whitening filter and numpy's pseudo-inverse."""
+    n = 3000
+    temp = 15 + 35 * np.sin(2 * np.pi * np.arange(n) / 50)
+    w = 0.02 + 1e-3 * temp + 2e-5 * temp ** 2 + lfilter([1], [1, -0.9], np.random.default_rng(4).normal(0, 0.01, n))
+    got = drift.fit_drift(w, temp, whiten=False)
+    ref, _ = oracle.fit_drift(temp, temp, w, whiten=False)
+    for g, r in zip(got.segments, ref):
+        assert g["order"] == r["order"]
+        scale = np.sqrt(np.outer(np.diag(r["covariance"]), np.diag(r["covariance"])))
+        assert np.max(np.abs(np.asarray(g["covariance"]) - r["covariance"]) / scale) < 1e-8  # measured 4e-13
+
+
+def _near_unit_root(kind: str, whiten: bool, runs: int, n: int = 3000):
+    rng = np.random.default_rng(7)
+    temp = 15 + 35 * np.sin(2 * np.pi * 1.5 * np.linspace(0, 1, n))
+    truth = lambda t: 0.02 + 1e-3 * t + 2e-5 * t ** 2
+    probe = np.array([-10.0, 10.0, 40.0])
+    err, se, said = [], [], []
+    for _ in range(runs):
+        e = rng.normal(0, 0.01, n)
+        model = drift.fit_drift(truth(temp) + (0.1 * np.cumsum(e) if kind == "rw" else lfilter([1], [1, -0.99], e)),
+                                temp, order=2, whiten=whiten)
+        err.append(model.evaluate(probe) - truth(probe))
+        se.append(model.standard_error(probe))
+        said.append(model.summary["warnings"])
+    return np.mean(se, axis=0) / np.std(err, axis=0, ddof=1), said
+
+
+@pytest.mark.parametrize("kind, whiten", [("0.99", True), ("rw", False)])
+def test_errors_near_a_unit_root_are_said_to_be_lower_bounds(kind, whiten):
+    """Near a random walk the whitening model is dropped (whiten=True) or none was asked for; the errors were
+    Newey–West's, clipped prewhitening and all — f(T)'s 0.47–0.60 of the spread for AR(1) 0.99 (95 % intervals
+    covering 63–77 %), 0.10–0.28 for a random walk — and a note called them Newey–West's. Now they are the
+    sandwich under the AR model of the residuals, measured 0.74–0.82 and 0.45–0.50 of the spread over 200–300
+    fits, still too small: each fit says they are lower bounds (the whitened ones too, their AR model summing to
+    0.95–0.98)."""
+    ratio, said = _near_unit_root(kind, whiten, runs=200)
+    assert np.all(ratio > (0.65 if kind == "0.99" else 0.35)), ratio
+    assert np.all(ratio < 1.0), ratio  # lower bounds indeed: what the warning says
+    for warnings in said:
+        assert any("standard errors are lower bounds" in w and "random walk" in w for w in warnings), warnings
+        assert not any("Newey" in w for w in warnings)
+
+
+def test_the_cli_says_the_errors_near_a_unit_root_are_lower_bounds(tmp_path):
+    """`drift fit` prints the drift's standard error per range; near a random walk it must say they are lower
+    bounds (the core's warning, printed as the fit's)."""
+    n = 3000
+    rng = np.random.default_rng(8)
+    temp = 15 + 35 * np.sin(2 * np.pi * 1.5 * np.linspace(0, 1, n))
+    w = 0.02 + 1e-3 * temp + 2e-5 * temp ** 2 + 0.001 * np.cumsum(rng.normal(size=n))
+    src = write_csv(tmp_path / "walk.csv", {"t": np.arange(n, dtype=float), "zero_bias": w, "temp": temp})
+    run = run_cli("drift", "fit", src, "-o", tmp_path / "model.json")
+    assert run.returncode == 0, run.stderr
+    lines = run.stdout.splitlines()
+    bound = [k for k, line in enumerate(lines) if line.startswith("warning: the drift's standard errors are lower bounds")]
+    ranges = [k for k, line in enumerate(lines) if "drift's standard error up to" in line]
+    assert bound and ranges and bound[0] < ranges[0], run.stdout
 
 
 def test_covariance_is_saved_and_a_model_without_it_says_so(tmp_path, foct):

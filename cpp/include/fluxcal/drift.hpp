@@ -62,10 +62,13 @@ struct DriftSegment {
   double condition_number = 0.0;  ///< of the balanced Vandermonde matrix
   std::vector<double> f_statistics;  ///< F of each step tested: m → m+1, and m → m+2 (2 dof) after one that fails
   /// Covariance of the coefficients (data units), at the chosen order: generalised least squares' σ̂²(VᵀΣ⁻¹V)⁻¹
-  /// with the AR noise model's Σ when the fit was whitened; σ̂²(VᵀV)⁻¹ when AIC found the noise white; the
-  /// prewhitened Newey–West sandwich when no model whitened it (whiten off, a noise near a random walk). Of a
-  /// continuous refit, its block of the constrained least squares' sandwich under the AR model (or as above).
-  /// Conditional on the order the F-tests chose (the model's uncertainty at that order, not the order's).
+  /// with the AR noise model's Σ when the fit was whitened; σ̂²(VᵀV)⁻¹ when AIC found the noise white; when no
+  /// model whitened it (whiten off, a noise near a random walk) least squares' sandwich under an AR model (by AIC)
+  /// of the residuals in time order across the ranges, fitted for the errors alone — the prewhitened Newey–West
+  /// sandwich only when none can be fitted. Of a continuous refit, its block of the constrained least squares'
+  /// sandwich under the AR model (or as above). Conditional on the order the F-tests chose (the model's uncertainty
+  /// at that order, not the order's). The AR model they rest on summing above 0.95 (or a noise near a random walk)
+  /// makes them lower bounds, and summary.warnings says so.
   Eigen::MatrixXd covariance;
   Eigen::VectorXd standard_errors;  ///< √diag(covariance)
   /// The regressor's values the polynomial was fitted over (the inside–outside difference is not the temperature

@@ -1,12 +1,16 @@
 """NumPy/SciPy reference for fluxcal.drift.fit_drift: per-range polynomial least squares (numpy lstsq on
 the raw Vandermonde matrix, no balancing), F-test with scipy.stats.f, optional AR whitening; the coefficients'
-covariance from statsmodels' OLS on the (whitened) rows, or with no AR model and noise not found white the
-prewhitened Newey–West sandwich (fluxcal.oracle.serial's, on arch's block lengths and statsmodels' S_hac_simple)."""
+covariance from statsmodels' OLS on the (whitened) rows, or with no AR model whitening the rows and noise not
+found white the sandwich P Vᵀ Σ V P under an AR model (order by AIC) of the residuals in time order, Σ = σ² L⁻¹L⁻ᵀ
+from the sparse whitening filter L (scipy's sparse triangular solve) — the prewhitened Newey–West sandwich
+(fluxcal.oracle.serial's, on arch's block lengths and statsmodels' S_hac_simple) only when no AR model can be fitted."""
 from __future__ import annotations
 
 import numpy as np
 import statsmodels.api as sm
 from scipy import stats
+from scipy import sparse
+from scipy.sparse.linalg import spsolve_triangular
 
 from .serial import newey_west_covariance
 from .timeseries import ar_aic, ar_fit, lagged
@@ -125,9 +129,73 @@ def fit_drift(select, x, w, breakpoints=(-20.0, 0.0, 30.0, 50.0), max_order=4, s
         if len(ar) or white:
             covariance = sm.OLS(t, V).fit().cov_params()
         else:
-            covariance = newey_west_covariance(V, t - V @ c)[0]
+            covariance = newey_west_covariance(V, t - V @ c)[0]  # replaced below when an AR model can be fitted
         segments.append({"order": m, "coefficients": c, "covariance": covariance})
+    if not (len(ar) or white):
+        noise = error_ar(x, w, groups, segments, stretch, whiten_max_order)
+        if noise is not None:
+            for seg, cov in zip(segments, ar_sandwich(x, w, groups, segments, stretch, noise)):
+                seg["covariance"] = cov
     return segments, ar
+
+
+def _in_time(groups, stretch):
+    """The samples inside a range in time order, and the stretch each is in: a new one where a sample was left out
+    or the stretch between gaps in time changes."""
+    at = np.sort(np.concatenate(groups))
+    new = np.r_[True, (np.diff(at) != 1) | (np.diff(stretch[at]) != 0)]
+    return at, np.cumsum(new)
+
+
+def _residuals(x, w, groups, segments):
+    r = np.full(w.size, np.nan)
+    for g, seg in zip(groups, segments):
+        r[g] = w[g] - np.vander(x[g], seg["order"] + 1, increasing=True) @ seg["coefficients"]
+    return r
+
+
+def error_ar(x, w, groups, segments, stretch, max_order):
+    """The AR model (order by AIC ≤ max_order, fewer when the series is short) of the unweighted fits' residuals in
+    time order across the ranges, for their errors; None when none can be fitted. Coefficients summing above 1 are
+    scaled to sum to 1."""
+    at, piece = _in_time(groups, stretch)
+    series = _residuals(x, w, groups, segments)[at]
+    breaks = np.flatnonzero(np.diff(piece) != 0) + 1
+    top = max(0, min(max_order, (series.size - 3) // 2))
+    while top > 0 and lagged(series, top, top, breaks)[1].size < top + 3:
+        top -= 1
+    if top == 0 or np.all(series == series[0]):
+        return None
+    p = int(np.argmin(ar_aic(series, top, breaks)))
+    a = ar_fit(series, p, breaks)[0] if p else np.zeros(0)
+    return a / a.sum() if a.size and a.sum() > 1 else a
+
+
+def ar_sandwich(x, w, groups, segments, stretch, a):
+    """Each range's V⁺ Σ V⁺ᵀ (V⁺ = (VᵀV)⁻¹Vᵀ, numpy's SVD pseudo-inverse of its column-scaled Vandermonde rows, placed in the
+    in-range samples' time order, zero elsewhere), Σ = σ² L⁻¹L⁻ᵀ, L the sparse lower-triangular whitening filter (1 on
+    the diagonal, −a_q q below within a stretch), σ² = |L r|² / (N − Σ columns) of all the residuals r."""
+    at, piece = _in_time(groups, stretch)
+    n = at.size
+    rows, cols, vals = [np.arange(n)], [np.arange(n)], [np.ones(n)]
+    for q in range(1, len(a) + 1):
+        i = np.arange(q, n)
+        i = i[piece[i] == piece[i - q]]
+        rows.append(i), cols.append(i - q), vals.append(np.full(i.size, -a[q - 1]))
+    L = sparse.csr_matrix((np.concatenate(vals), (np.concatenate(rows), np.concatenate(cols))), shape=(n, n))
+    e = L @ _residuals(x, w, groups, segments)[at]
+    sigma2 = e @ e / (n - sum(seg["order"] + 1 for seg in segments))
+    row = np.empty(w.size, int)
+    row[at] = np.arange(n)
+    out = []
+    for g, seg in zip(groups, segments):
+        full = np.zeros((n, seg["order"] + 1))
+        V = np.vander(x[g], seg["order"] + 1, increasing=True)
+        scale = np.abs(V).max(axis=0)  # V⁺ = S⁻¹ (V S⁻¹)⁺: a cubic's raw columns (1 … 50³) cost 1e-9 of it
+        full[row[g]] = (np.linalg.pinv(V / scale) / scale[:, None]).T
+        Q = spsolve_triangular(L.T.tocsr(), full, lower=False)  # L⁻ᵀ V⁺ᵀ: V⁺ Σ V⁺ᵀ = σ² QᵀQ
+        out.append(sigma2 * Q.T @ Q)
+    return out
 
 
 def play(x, half_width):
