@@ -14,9 +14,7 @@ def as_samples(values, name: str = "samples", columns: int = 3) -> np.ndarray:
     elif _is_table(values):  # a DataFrame: by its columns' names (its order mz,mx,my was taken as x,y,z)
         chosen = table_columns(values, name, columns)
         values = values.to_numpy() if chosen is None else values[chosen].to_numpy()
-    if isinstance(values, (str, bytes, os.PathLike)):  # (numpy's "could not convert string to float" names no file)
-        raise ValueError(f"{name}: {os.fspath(values)!r} is a file name, not readings; read it first: "
-                         "fluxcal.read_recording(path) gives a Recording every fit takes")
+    not_a_file_name(values, name)
     if np.iscomplexobj(values):  # float64 would drop the imaginary part with only a warning
         raise ValueError(f"{name}: complex numbers; readings are real (pass .real or abs() explicitly)")
     try:
@@ -28,6 +26,14 @@ def as_samples(values, name: str = "samples", columns: int = 3) -> np.ndarray:
         hint = " (it looks transposed: pass one row per reading)" if transposed else ""
         raise ValueError(f"{name}: shape {arr.shape}, expected (N, {columns}) with one row per reading{hint}")
     return np.ascontiguousarray(arr)
+
+
+def not_a_file_name(values, name: str = "samples") -> None:
+    """ValueError when `values` is a file name (str, bytes, a Path) rather than readings, pointing to read_recording
+    (numpy's own "could not convert string to float" names no file)."""
+    if isinstance(values, (str, bytes, os.PathLike)):
+        raise ValueError(f"{name}: {os.fspath(values)!r} is a file name, not readings; read it first: "
+                         "fluxcal.read_recording(path) gives a Recording every fit takes")
 
 
 def _is_table(values) -> bool:
@@ -83,17 +89,23 @@ def samples_units(values) -> str:
     "" for an array or when none is named. Columns naming different units are a ValueError naming them."""
     if hasattr(values, "field_units") and callable(values.field_units):
         return values.field_units()
+    not_a_file_name(values)
     if not _is_table(values):
         return ""
     from .io.columns import field_unit_of
 
-    chosen = table_columns(values)
+    try:
+        chosen = table_columns(values)
+    except ValueError:  # (a biaxial sensor's two columns; any other table the fit itself refuses, naming it)
+        if len(values.columns) != 2:
+            return ""
+        chosen = None
     names = [str(c) for c in (list(values.columns) if chosen is None else chosen)]
     named = {n: field_unit_of(n) for n in names}
     units = {u for u in named.values() if u}
     if len(units) > 1 or (units and not all(named.values())):
         raise ValueError("samples: the field columns " + ", ".join(f"{n} ({u or 'no unit'})" for n, u in named.items())
-                         + " do not name one unit; rename them or pass units=")
+                         + " do not name one unit; rename them (or give units= where the function takes it)")
     return units.pop() if units else ""
 
 

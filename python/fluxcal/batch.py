@@ -500,6 +500,7 @@ def calibrate_fleet(directory, out_dir, workers: int | None = None, scheduler: s
             raise ValueError("field_units: names the unit of field_norm (--field-norm), which is not given")
         if unit_name(field_units) not in TESLA_PER_UNIT:
             raise ValueError(f"field_units: {field_units!r} is not a magnetic-field unit (uT, nT, G, mG, T, …)")
+        field_units = unit_name(field_units)  # (µT and uT one setting: a re-run does not redo every unit)
     if method == "twostep" and field_norm is None:  # else every unit would fail alike
         raise ValueError("field_norm: method 'twostep' needs the known field magnitude (--field-norm)")
     if not (isinstance(outlier_k, numbers.Real) and math.isfinite(outlier_k) and outlier_k > 0):

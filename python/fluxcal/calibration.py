@@ -155,7 +155,8 @@ class Calibration:
             return self._apply_biaxial(samples.samples(biaxial=True) * factor, self._biaxial_axes(samples),
                                        samples.source)
         if np.shape(samples)[-1:] == (2,):
-            return self._apply_biaxial(samples, None, "samples")
+            return self._apply_biaxial(samples if factor == 1.0 else as_samples(samples, columns=2) * factor, None,
+                                       "samples")
         if np.ndim(samples) == 1:
             return self.matrix @ (np.asarray(samples, dtype=float).reshape(3) - self.offset)
         return (as_samples(samples) * factor - self.offset) @ self.matrix.T

@@ -51,9 +51,12 @@ def test_a_temperature_blank_in_short_runs_is_interpolated_and_said():
     slow[::10] = 20.0 + 0.1 * np.arange(60)  # a thermometer read once per ten rows
     assert usable_regressors(slow, None)[2] == {"temp": 540}
     gap = 20.0 + 0.01 * np.arange(600)
-    gap[100:160] = np.nan                     # disconnected for a tenth of the recording
+    gap[7::40] = np.nan
+    gap[100:160] = np.nan                     # disconnected for a tenth of the recording, beside single misses
     side, missing, filled = usable_regressors(gap, None)
-    assert side["temp"] is None and missing == {"temp": 60} and not filled
+    assert side["temp"] is None and missing == {"temp": 74} and not filled
+    slow[300:400] = np.nan                    # the slow thermometer out for ten of its reads: a run of 119 rows
+    assert usable_regressors(slow, None)[0]["temp"] is None
     current = np.ones(600)
     current[7] = np.nan                       # a current may switch within a gap: left out
     assert usable_regressors(None, current)[0]["current"] is None
@@ -128,3 +131,29 @@ def test_apply_says_readings_on_a_rail(tmp_path):
     assert f"warning: {clipped}: readings on a rail: mx at 40 in {int(np.sum(m[:, 0] >= 40.0))} of 2000" in out
     assert "Their corrected field is not the field" in out
     assert "rail" not in run_cli("apply", tmp_path / "cal.json", good, "-o", tmp_path / "out2.csv").stdout
+
+
+def test_a_slow_thermometers_column_in_a_file_is_read_and_used(tmp_path):
+    """(s75/review2) A thermometer read once per ten lines left its column mostly blank, which the reader took for
+    text: the temperature was dropped before the interpolation could fill it."""
+    m = sphere(1000, (5.0, -3.0, 2.0), seed=6) * [1.1, 0.9, 1.0] + np.random.default_rng(6).normal(0, 0.1, (1000, 3))
+    path = tmp_path / "slow.csv"
+    path.write_text("t,mx,my,mz,temp\n" + "".join(
+        f"{0.01 * k:.2f},{x:.3f},{y:.3f},{z:.3f},{f'{20 + 5 * k / 1000:.2f}' if k % 10 == 0 else ''}\n"
+        for k, (x, y, z) in enumerate(m)))
+    rec = read_recording(path)
+    assert "text_columns" not in rec.metadata and np.isnan(rec.temperature()).sum() == 900
+    side, missing, filled = usable_regressors(rec.temperature(), None)
+    assert filled == {"temp": 900} and np.nanmax(np.abs(side["temp"][:991] - (20 + 5 * np.arange(991) / 1000))) < 0.006
+
+
+def test_compasses_logged_in_bursts_by_their_own_instance_column_are_read_one_at_a_time(tmp_path):
+    """(s75/review2) A FIFO's bursts (I 0 ×10, 1 ×10, …) or one table per compass joined had been fitted as one
+    sensor once the instance rule asked every name for row-by-row interleaving; only a generic `id` needs it."""
+    ids = [(k // 10) % 2 for k in range(400)]
+    rec = read_recording(table(tmp_path, "I", ids))
+    assert len(rec) == 200 and rec.metadata["instance"] == "I = 0 (200 rows)"
+    rec = read_recording(table(tmp_path, "I", sorted(ids), "sorted.csv"))
+    assert len(rec) == 200
+    rec = read_recording(table(tmp_path, "id", ids, "id.csv"))
+    assert len(rec) == 400 and "instances" not in rec.metadata

@@ -14,7 +14,8 @@ import numpy as np
 from scipy import stats
 
 from .. import _core
-from .._arrays import as_field_norms, as_samples, field_norm_given, held_copies, repeated_blocks, repeated_words
+from .._arrays import (as_field_norms, as_samples, field_norm_given, held_copies, repeated_blocks, repeated_words,
+                       samples_units)
 from .._axis_weights import map_fit, noise_values, sampson, scaled_start, symmetric
 from ..attitude import magnetic_frame
 from ..calibration import Calibration
@@ -3337,13 +3338,14 @@ def usable_regressors(temp, current) -> tuple:
 
 def _short_gaps(bad: np.ndarray) -> bool:
     """Whether a column's missing values can be filled from those beside them: ten or more given, and every run of
-    missing ones at most max(10, 5 % of the rows) long (a thermometer read once per ten lines leaves runs of 9; one
-    disconnected for a minute of ten leaves a run no interpolation knows)."""
+    missing ones at most max(10, twice the runs' median + 1) long — the column's own sampling (a thermometer read once
+    per ten lines leaves runs of 9; one disconnected for minutes among them, a run no interpolation knows). A run at
+    either end holds its neighbour's value."""
     if np.count_nonzero(~bad) < 10:
         return False
     edges = np.diff(np.concatenate([[0], bad.astype(int), [0]]))
     runs = np.flatnonzero(edges == -1) - np.flatnonzero(edges == 1)
-    return bool(runs.max() <= max(10, bad.size // 20))
+    return bool(runs.max() <= max(10, 2 * np.median(runs) + 1))
 
 
 def screened_temperature(temp) -> tuple:
@@ -3660,6 +3662,8 @@ def diagnose(samples, t=None, temp=None, reference=None, gravity=None, field_nor
         unusable += [f"its {name} column has {n} missing or non-finite values, in short runs: interpolated from the "
                      f"readings beside them" for name, n in filled.items()]
         temp, current = side["temp"], side["current"]
+    elif not units:  # a DataFrame's unit in its columns' names (mx [nT]), as calibrate takes it
+        units = samples_units(samples)
     temp, said = screened_temperature(temp)
     unusable += said
     for name, values in (("temperature", temp), ("current", current)):

@@ -637,19 +637,28 @@ INSTANCE_NAMES = {"i", "inst", "instance", "id", "deviceid", "sensorid", "compas
                   "maginstance", "multiid"}
 
 
+# Of those, names any numbered column may have (a position or status id): an instance only when its rows interleave
+GENERIC_INSTANCE_NAMES = {"id", "sensorid"}
+
+
 def find_instance(columns: dict):
     """(name, values, row counts) of an instance column: named as one (INSTANCE_NAMES, case, '_' and spaces aside),
-    whole numbers in every row, 2 to 8 of them each on 3 rows or more (a row counter has hundreds), whose rows
-    interleave — the value changes from one row to the next at least as often as the rarest value appears, as
-    compasses logged in turn do (each of the slower one's rows between the faster one's) — else None. A position or
-    status number held over blocks of rows (id 1…6, 50 rows each) is no compass: all its rows are read."""
+    whole numbers in every row, 2 to 8 of them each on 3 rows or more (a row counter has hundreds), else None. A
+    generic name (GENERIC_INSTANCE_NAMES: id) counts only when its rows interleave — the value changes from one row to
+    the next at least as often as the rarest value appears, as compasses logged in turn do: a position or status
+    number held over blocks of rows (id 1…6, 50 rows each) is no compass, and all its rows are read. A compass's
+    own name (I, instance, device_id, compass…) holds in bursts or sorted by instance too (a FIFO's runs of ten, one
+    table per compass joined: each compass's rows fitted alone)."""
     for name, values in columns.items():
-        if re.sub(r"[\s_\-]", "", name.lower()) not in INSTANCE_NAMES:
+        key = re.sub(r"[\s_\-]", "", name.lower())
+        if key not in INSTANCE_NAMES:
             continue
         values = np.asarray(values, dtype=float)
         if not np.isfinite(values).all() or (values != np.round(values)).any():
             continue
         kinds, counts = np.unique(values, return_counts=True)
-        if 2 <= len(kinds) <= 8 and counts.min() >= 3 and np.count_nonzero(np.diff(values)) >= counts.min():
+        if not (2 <= len(kinds) <= 8 and counts.min() >= 3):
+            continue
+        if key not in GENERIC_INSTANCE_NAMES or np.count_nonzero(np.diff(values)) >= counts.min():
             return name, kinds, counts
     return None

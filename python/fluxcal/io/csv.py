@@ -331,9 +331,10 @@ def parse_mixed_rows(path, lines, start: int, names, delimiter, bad_lines: str, 
         cells = [[c.replace(",", ".") if j in decimal else c for j, c in enumerate(row)] for row in cells]
         whole = [c for c in cells if len(c) == len(names)]
         metadata["decimal_separator"] = "comma (quoted cells: " + ", ".join(names[j] for j in decimal) + ")"
-    # A column is text when most of its cells are not numbers (a status field that is sometimes "1");
-    # an all-empty column (from a trailing delimiter) is text too and is left out.
-    text = [j for j in range(len(names)) if whole and sum(_is_number(c[j]) for c in whole) < 0.5 * len(whole)]
+    # A column is text when most of its filled cells are not numbers (a status field that is sometimes "1"); its blank
+    # cells do not count (a thermometer read once per ten lines had left its column text, its temperature unused); an
+    # all-empty column (from a trailing delimiter) is text too and is left out.
+    text = [j for j in range(len(names)) if whole and _mostly_text([c[j] for c in whole if c[j].strip()])]
     columns, text_notes = {}, []
     for j in text:
         values = [c[j].strip() if len(c) == len(names) else "" for c in cells]
@@ -410,6 +411,11 @@ def parse_mixed_rows(path, lines, start: int, names, delimiter, bad_lines: str, 
         data[:, out] = columns[j][good] if j in columns else [float(cells[r][j] if cells[r][j].strip() else "nan")
                                                               for r in good]
     return [names[j] for j in kept], data, line_numbers[good], notes
+
+
+def _mostly_text(filled: list) -> bool:
+    """Whether a column's filled cells are mostly not numbers (or there are none)."""
+    return sum(_is_number(c) for c in filled) < 0.5 * len(filled) if filled else True
 
 
 def _optional_columns(names, numeric, units) -> list:
