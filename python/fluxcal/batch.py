@@ -341,12 +341,16 @@ class FleetResult:
         dist = self.summary["distribution"]
         if dist:
             units = self.summary["fleet_units"]
-            lines.append(f"  {'quantity':<20}{'median':>13}{'robust σ':>13}{'p5':>13}{'p95':>13}  ({units or 'units not stated'})")
+            covered = max(d["n"] for d in dist.values())  # (a blind check read 3 of 8 units' statistics as the fleet's)
+            lines.append(f"  {'quantity':<20}{'median':>13}{'robust σ':>13}{'p5':>13}{'p95':>13}  ({units or 'units not stated'}"
+                         f"; {covered} of {c['units']} units: those ok in these units)")
             for q, d in dist.items():
                 lines.append(f"  {q:<20}{d['median']:>13.6g}{d['robust_sigma']:>13.4g}{d['p5']:>13.6g}{d['p95']:>13.6g}")
         k = self.summary["settings"]["outlier_k"]
         outliers = self.summary["outliers"]
-        lines.append(f"outliers (|x - median| > {k:g}·1.4826·MAD): {len({o['unit'] for o in outliers}) or 'none'}")
+        lines.append(f"outliers (|x - median| > {k:g}·1.4826·MAD): {len({o['unit'] for o in outliers}) or 'none'}"
+                     + (f" (by value not judged: {covered} units, fewer than {MIN_UNITS_FOR_OUTLIERS})"
+                        if dist and covered < MIN_UNITS_FOR_OUTLIERS else ""))
         lines += [f"  {o['unit']}: {o['reason']}" for o in outliers]
         for r in self.rows:
             if r["status"] in ("not_identifiable", "not_converged"):

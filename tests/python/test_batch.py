@@ -234,6 +234,7 @@ def test_cli_runs_a_local_cluster_and_exits_0_with_failed_units(tmp_path):
     assert r.returncode == 0, r.stderr
     assert "units 6: 5 ok, 0 not identifiable, 1 failed" in r.stdout and "on 2 workers" in r.stdout
     assert f"{folder / 'cut.csv'}, line 3: 2 fields" in r.stdout and "note: 1 of 6 units failed" in r.stdout
+    assert "; 5 of 6 units: those ok in these units)" in r.stdout  # whom the statistics cover (a blind check)
     for name, s in truth.items():
         np.testing.assert_allclose(Calibration.load(tmp_path / "out" / f"{name}.json").offset,
                                    s.true_calibration().offset, atol=6 * NOISE * H * np.sqrt(3 / N))
@@ -327,3 +328,20 @@ def test_a_run_into_the_recordings_own_folder_with_every_file_taken_runs_again(c
     again = calibrate_fleet(tmp_path, tmp_path, scheduler=cluster.scheduler_address, field_norm=H, pattern="*",
                             progress=False)
     assert again.summary["counts"]["skipped"] == 3
+
+
+def test_the_report_says_whom_the_statistics_cover_and_when_values_are_not_judged(tmp_path):
+    """(s75/workflow) 3 of 8 units' statistics printed as the fleet's, and the outlier rule's floor of
+    MIN_UNITS_FOR_OUTLIERS units unsaid (a 148 µT hard iron among 18 µT ones went unflagged)."""
+    from fluxcal.batch import FleetResult, fleet_statistics
+
+    rows = [{"unit": f"u{i}", "status": "ok", "units": "uT", "offset_x": float(i), "warnings": ""} for i in range(3)]
+    rows += [{"unit": "n", "status": "ok", "units": "nT", "offset_x": 1e3, "warnings": ""},
+             {"unit": "f", "status": "failed", "error": "cut", "warnings": ""}]
+    dist, outliers = fleet_statistics(rows)
+    summary = {"counts": {"units": 5, "ok": 4, "not_identifiable": 0, "failed": 1}, "distribution": dist,
+               "fleet_units": "uT", "outliers": outliers, "settings": {"outlier_k": 5.0, "pattern": "*.csv"}}
+    text = FleetResult(tmp_path, tmp_path, rows, summary).report()
+    assert "(uT; 3 of 5 units: those ok in these units)" in text
+    assert "outliers (|x - median| > 5·1.4826·MAD): 1 (by value not judged: 3 units, fewer than 5)" in text
+    assert "n: readings in nT, the fleet's are in uT" in text
