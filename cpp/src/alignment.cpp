@@ -385,9 +385,9 @@ AlignmentResult align_to_gravity(const SamplesRef& field, const SamplesRef& spec
   if (kPi / 2 - std::abs(dip) < 3.0 * std::sqrt(sigma2))
     s.warnings.push_back("the field is within 3 noise SDs (" + detail::num(3.0 * std::sqrt(sigma2) * kDeg) +
                          "°) of vertical: its horizontal part, which fixes the rotation about the vertical, is near "
-                         "the noise, and unless the attitudes were spread widely the fit may lie several degrees "
-                         "towards vertical beyond its standard errors (quieter readings, or averaging each attitude at "
-                         "rest, help)");
+                         "the noise, and the fit may lie beyond its standard errors: several degrees towards vertical "
+                         "on a poorly spread turn, tenths of a degree either way on a widely spread one (quieter "
+                         "readings, or averaging each attitude at rest, help)");
   result.identifiable = unmoved.empty() && widened.empty() && !ambiguous;
   if (!unmoved.empty())
     s.warnings.push_back("not identifiable: " + unmoved + " not determined to " + detail::num(options.max_se_deg) +

@@ -112,8 +112,8 @@ def align_to_gravity(field, specific_force, serial_correlation: str = "automatic
     "newey_west" always; summary["serial_correlation"] says what the residuals showed (lag-1, Ljung–Box p,
     Newey–West lags, 0 = independent readings assumed, and the widening).
 
-    settings (defaults in alignment.hpp): max_dynamic=0.05, max_iterations=50, tolerance=1e-12,
-    noise_bias_correction=True (the dip's ≈ −σ²/2 · tan δ), max_se_deg=1.0 (an axis known worse is "not determined":
+    settings (defaults in alignment.hpp): max_dynamic=0.05 (≤ 0: every reading kept), max_iterations=50,
+    tolerance=1e-12, noise_bias_correction=True (the dip's ≈ −σ²/2 · tan δ), max_se_deg=1.0 (an axis known worse is "not determined":
     identifiable False, with a warning naming it). ValueError on NaN, rows that differ, fewer than 8 readings at
     rest."""
     h = as_samples(field, "field")

@@ -414,6 +414,20 @@ class LiveSession:
         return (s["samples"] >= self.min_records and s["direction_coverage"] >= self.min_coverage
                 and s["norm_std_over_mean"] <= self.max_spread and bool(s.get("identifiable", True)))
 
+    def unmet_by(self, cal) -> list:
+        """The thresholds the calibration written misses, each with its value (empty when met_by): "coverage 89.6 %
+        < 90 %" — a verdict "NOT met" beside a coverage printed rounded to 90 % had named none."""
+        s, out = cal.summary, []
+        if s["samples"] < self.min_records:
+            out.append(f"{s['samples']} records < {self.min_records}")
+        if s["direction_coverage"] < self.min_coverage:
+            out.append(f"coverage {100 * s['direction_coverage']:.1f} % < {100 * self.min_coverage:.0f} %")
+        if s["norm_std_over_mean"] > self.max_spread:
+            out.append(f"|h| std/mean {100 * s['norm_std_over_mean']:.3f} % > {100 * self.max_spread:.2f} %")
+        if not s.get("identifiable", True):
+            out.append("not identifiable")
+        return out
+
     def thresholds_text(self) -> str:
         return (f"coverage ≥ {100 * self.min_coverage:.0f} %, |h| std/mean ≤ {100 * self.max_spread:.2f} %, "
                 f"≥ {self.min_records} records, identifiable")
@@ -530,7 +544,8 @@ def cmd_live(args) -> int:
         cal.metadata["recording"] = str(args.raw)
     cal.save(args.output)
     s = cal.summary
-    verdict = "met" if met else "NOT met"
+    unmet = session.unmet_by(cal)
+    verdict = "met" if met else "NOT met" + (": " + "; ".join(unmet) if unmet else "")
     print(f"Calibration from {len(readings)} readings ({s.get('method', cal.model)}): offset "
           f"{np.array2string(cal.offset, precision=6)} {unit}".rstrip()
           + f", |h| std/mean {100 * s['norm_std_over_mean']:.3f} %, coverage "

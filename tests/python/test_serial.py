@@ -995,3 +995,37 @@ def test_nmea_sentences_without_a_checksum_only_from_a_device_that_sends_none(tm
     assert "3 sentences without a checksum were kept unverified" in stats.report()
     notes = fluxcal.read_csv(path).metadata["notes"]
     assert notes.count("carry no checksum") == 1 and "carry a checksum from here on ($VNYMR…*" in notes
+
+
+def test_live_names_the_threshold_the_calibration_misses():
+    """(s75/live) "coverage 90 % of directions; thresholds (coverage ≥ 90 %, …) NOT met" at a coverage of 89.6 %."""
+    from fluxcal import sim
+    from fluxcal.live import LiveSession
+
+    rng = np.random.default_rng(8)
+    result = sim.simulate(sim.uniform(400, rng), sim.random_sensor(FIELD_NT, rng, noise=0.0005), [2e4, 1e3, 4.5e4], rng)
+    cal = fluxcal.calibrate(result.readings)
+    coverage = cal.summary["direction_coverage"]
+    session = LiveSession(LiveFit(), [0, 1, 2], min_coverage=coverage + 0.004, max_spread=0.03, min_records=200,
+                          show=False)
+    assert session.unmet_by(cal) == [f"coverage {100 * coverage:.1f} % < {100 * (coverage + 0.004):.0f} %"]
+    session = LiveSession(LiveFit(), [0, 1, 2], min_coverage=0.5, max_spread=1e-6, min_records=500, show=False)
+    unmet = session.unmet_by(cal)
+    assert unmet[0] == "400 records < 500" and unmet[1].startswith("|h| std/mean") and len(unmet) == 2
+
+
+def test_the_report_shows_the_last_rejected_line_beside_the_first():
+    """(s75/live) A second magnetometer on every data line: the report's one example was the boot banner, so the
+    refused data lines (6 fields each) were never shown."""
+    from fluxcal.io.serial import RecordStats
+
+    stats = RecordStats(port="/dev/ttyUSB0")
+    stats.reject(Reject("fields", "2 fields, expected 3 (mx,my,mz): 'rst:0x1 (POWERON_RESET),boot:0x13'"), 0.1)
+    for k in range(3):
+        stats.reject(Reject("fields", f"6 fields, expected 3 (mx,my,mz): '1,2,3,4,5,{k}'"), 1.0 + k)
+    text = stats.report()
+    assert "First fields at t_host=0.100 s: 2 fields" in text
+    assert "; last at t_host=3.000 s: 6 fields, expected 3 (mx,my,mz): '1,2,3,4,5,2'." in text
+    once = RecordStats(port="p")
+    once.reject(Reject("binary", "bytes"), 0.5)
+    assert "First binary at t_host=0.500 s: bytes." in once.report() and "last" not in once.report()

@@ -1105,6 +1105,7 @@ class RecordStats:
     records: int = 0
     rejected: Counter = field(default_factory=Counter)
     examples: dict = field(default_factory=dict)  # reason -> the first rejected line's description
+    last_examples: dict = field(default_factory=dict)  # reason -> the last one's (the first is often a boot banner)
     reconnects: int = 0
     disconnected_s: float = 0.0
     duration_s: float = 0.0
@@ -1125,6 +1126,7 @@ class RecordStats:
             return
         self.rejected[reject.reason] += 1
         self.examples.setdefault(reject.reason, f"at t_host={t_host:.3f} s: {reject.detail}")
+        self.last_examples[reject.reason] = f"at t_host={t_host:.3f} s: {reject.detail}"
 
     def rejected_text(self) -> str:
         total = sum(self.rejected.values())
@@ -1139,7 +1141,10 @@ class RecordStats:
         text = (f"Kept {self.records} records from {self.port} in {self.duration_s:.1f} s{where}; "
                 f"{self.rejected_text()}.")
         for reason in sorted(self.rejected):
-            text += f" First {reason} {self.examples[reason]}."
+            text += f" First {reason} {self.examples[reason]}"
+            # (a device's every data line refused after its boot banner: the banner alone had been shown, a blind check)
+            last = self.last_examples.get(reason)
+            text += f"; last {last}." if self.rejected[reason] > 1 and last and last != self.examples[reason] else "."
         if self.headers:
             text += (f" Followed {self.headers} header line{'s' * (self.headers != 1)} the device printed (first "
                      f"{self.first_header}).")
