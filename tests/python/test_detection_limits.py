@@ -65,12 +65,15 @@ def test_a_missing_regressor_is_made_up_and_said(clean):
     limits = detection_limits(m, t=kw["t"], field_norm=50.0, names=["temp_offset"], seeds=1)
     assert limits.row("temp_offset")["made_up"] == ["temp"]
     assert "no temperature column: made up" in limits.text()
-    # a logged temperature with a blank cell is not used, as by the diagnosis, and the text says why
+    # a logged temperature with a gap too long to fill is not used, as by the diagnosis, and the text says why
     temp = np.array(kw["temp"], dtype=float)
-    temp[100] = np.nan
+    temp[100:120] = np.nan
     limits = detection_limits(m, t=kw["t"], temp=temp, field_norm=50.0, names=["temp_offset"], seeds=1)
-    assert limits.row("temp_offset")["missing"] == {"temp": 1}
-    assert "its temperature column has 1 missing values: made up" in limits.text()
+    assert limits.row("temp_offset")["missing"] == {"temp": 20}
+    assert "its temperature column has 20 missing values: made up" in limits.text()
+    temp[101:120] = kw["temp"][101:120]  # one blank cell: filled from its neighbours, the logged temperature used
+    limits = detection_limits(m, t=kw["t"], temp=temp, field_norm=50.0, names=["temp_offset"], seeds=1)
+    assert limits.row("temp_offset")["made_up"] == [] and not limits.row("temp_offset")["missing"]
 
 
 def test_bad_options_are_clear_errors(clean):

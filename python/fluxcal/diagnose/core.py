@@ -3338,14 +3338,15 @@ def usable_regressors(temp, current) -> tuple:
 
 def _short_gaps(bad: np.ndarray) -> bool:
     """Whether a column's missing values can be filled from those beside them: ten or more given, and every run of
-    missing ones at most max(10, twice the runs' median + 1) long — the column's own sampling (a thermometer read once
-    per ten lines leaves runs of 9; one disconnected for minutes among them, a run no interpolation knows). A run at
-    either end holds its neighbour's value."""
+    missing ones at most 10 long or, where ten runs or more show the column's own sampling, twice their median + 1 (a
+    thermometer read once per ten lines leaves runs of 9; one disconnected for minutes, among them or alone, a run no
+    interpolation knows). A run at either end holds its neighbour's value."""
     if np.count_nonzero(~bad) < 10:
         return False
     edges = np.diff(np.concatenate([[0], bad.astype(int), [0]]))
     runs = np.flatnonzero(edges == -1) - np.flatnonzero(edges == 1)
-    return bool(runs.max() <= max(10, 2 * np.median(runs) + 1))
+    sampling = 2 * np.median(runs) + 1 if len(runs) >= 10 else 0
+    return bool(runs.max() <= max(10, sampling))
 
 
 def screened_temperature(temp) -> tuple:

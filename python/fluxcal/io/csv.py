@@ -432,7 +432,8 @@ def _optional_columns(names, numeric, units) -> list:
     if mag is None:
         return []
     needed = set(mag) | {n for n, _ in _named(names, TIME_WORDS, TIME_UNITS)} | {"t"}
-    return [j for j in numeric if names[j] not in needed]
+    # (a twelve-position log's empty position cell marks a move: a bad line, left out with --bad-lines skip)
+    return [j for j in numeric if names[j] not in needed and names[j].strip().lower() != "position"]
 
 
 _LABEL_NUMBER = re.compile(r"^(\D*?)(\d+)(\D*)$")
