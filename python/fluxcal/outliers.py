@@ -368,6 +368,20 @@ def one_stretch(hit: np.ndarray) -> bool:
 
 
 RAIL_SPREAD = 2.0
+RAIL_TURNING = 0.05  # the other axes moving over more than this share of their span within the stretch: a turn
+
+
+def held_still(m: np.ndarray, hit: np.ndarray, axis: int) -> bool:
+    """Whether the readings `hit` at a rail of `axis` are one pose: within one stretch of time (`one_stretch`) with the
+    other axes still — the middle 80 % of each within RAIL_TURNING of its span there (live's find_rails' rule, its
+    ends aside: a rest's last readings as the turn begins). A hand turn passes through the saturating directions in
+    one stretch too, its other axes sweeping (a blind check's clipped x, 55 readings in a row, was called "held
+    still" and kept while the outlier screen left 50 of them out)."""
+    if not one_stretch(hit):
+        return False
+    others = [k for k in range(m.shape[1]) if k != axis]
+    lo, hi = np.percentile(m[hit][:, others], [10, 90], axis=0)
+    return not np.any(hi - lo > RAIL_TURNING * np.ptp(m[:, others], axis=0))
 
 
 def rail_words(columns: dict, found=None, applied: bool = False) -> str | None:

@@ -12,7 +12,7 @@ from ._arrays import (as_samples, held_copies, samples_units, positive_field_nor
                       sample_names)
 from .calibration import TESLA_PER_UNIT, Calibration, scale_words
 from .ellipsoid import fit_ellipsoid
-from .outliers import DOMINATING, MIN_SAMPLES, far_readings, find_outliers, one_stretch, rail_values, rail_words
+from .outliers import DOMINATING, MIN_SAMPLES, far_readings, find_outliers, held_still, rail_values, rail_words
 from ._arrays import as_field_norms, changing_field, field_norm_given
 from ._axis_weights import sampson, weights_of
 from .refine import SHAPES, fit_vector, refine, shape_name
@@ -244,7 +244,8 @@ def _railed(m: np.ndarray, names, drop: bool) -> tuple:
     still = []
     for name, value in found:
         hit = columns[name] == value
-        if one_stretch(hit):  # one pose: a rail, or a rest at the axis's extreme on a coarse grid — kept, and said
+        if held_still(m, hit, names.index(name)):  # one pose: a rail, or a rest at the axis's extreme on a coarse
+            # grid — kept, and said
             still.append(name)
         else:
             railed |= hit

@@ -157,3 +157,21 @@ def test_compasses_logged_in_bursts_by_their_own_instance_column_are_read_one_at
     assert len(rec) == 200
     rec = read_recording(table(tmp_path, "id", ids, "id.csv"))
     assert len(rec) == 400 and "instances" not in rec.metadata
+
+
+def test_a_rail_met_once_while_turning_is_left_out_not_called_held_still():
+    """(s75/workflow) A hand turn passes x's saturating directions once, in one stretch of time: called "a sensor held
+    still … kept in the fit" while the outlier screen left most of them out. Its other axes sweep: a rail."""
+    from fluxcal.outliers import one_stretch
+
+    k = np.linspace(0, 1, 2000)
+    theta, phi = np.arccos(1 - 2 * k), np.pi / 2 + 2 * np.pi * k
+    m = 50.0 * np.stack([np.sin(theta) * np.cos(phi), np.sin(theta) * np.sin(phi), np.cos(theta)], 1) + [3.0, -2.0, 1.0]
+    m += np.random.default_rng(9).normal(0, 0.05, m.shape)
+    m[:, 0] = np.minimum(m[:, 0], 45.0)
+    hit = m[:, 0] == 45.0
+    assert one_stretch(hit) and 20 < hit.sum() < 300
+    cal = fluxcal.calibrate(m)
+    said = [w for w in cal.summary["warnings"] if "on a rail" in w]
+    assert said and "held still" not in said[0] and "are left out of the fit" in said[0]
+    assert set(np.flatnonzero(hit)) <= set(cal.summary["outliers"]["rows"])
