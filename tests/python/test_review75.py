@@ -175,3 +175,19 @@ def test_a_rail_met_once_while_turning_is_left_out_not_called_held_still():
     said = [w for w in cal.summary["warnings"] if "on a rail" in w]
     assert said and "held still" not in said[0] and "are left out of the fit" in said[0]
     assert set(np.flatnonzero(hit)) <= set(cal.summary["outliers"]["rows"])
+
+
+def test_sparse_columns_beside_the_magnetometer_stay_text_but_a_slow_thermometer(tmp_path):
+    """(s75/review3) Counting blank cells out for every column had made a sparse mag_raw_x… triple the magnetometer
+    (20 of 400 rows, the wrong sensor calibrated) and a sparse gps_time a needed column (8 rows kept): only the
+    recording's temperature is judged by its filled cells."""
+    m = sphere(400, (10.0, -5.0, 3.0), seed=8)
+    lines = ["t,mag_x,mag_y,mag_z,mag_raw_x,mag_raw_y,mag_raw_z,gps_time"]
+    for k, (x, y, z) in enumerate(m):
+        raw = f"{2 * x:.3f},{2 * y:.3f},{2 * z:.3f}" if k % 20 == 0 else ",,"
+        lines.append(f"{0.1 * k:.1f},{x:.3f},{y:.3f},{z:.3f},{raw},{1000 + k if k % 50 == 0 else ''}")
+    path = tmp_path / "sparse.csv"
+    path.write_text("\n".join(lines) + "\n")
+    rec = read_recording(path)
+    assert len(rec) == 400 and rec.mag_names() == ("mag_x", "mag_y", "mag_z")
+    assert "mag_raw_x" in rec.metadata["text_columns"] and "gps_time" in rec.metadata["text_columns"]

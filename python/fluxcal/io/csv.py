@@ -331,10 +331,18 @@ def parse_mixed_rows(path, lines, start: int, names, delimiter, bad_lines: str, 
         cells = [[c.replace(",", ".") if j in decimal else c for j, c in enumerate(row)] for row in cells]
         whole = [c for c in cells if len(c) == len(names)]
         metadata["decimal_separator"] = "comma (quoted cells: " + ", ".join(names[j] for j in decimal) + ")"
-    # A column is text when most of its filled cells are not numbers (a status field that is sometimes "1"); its blank
-    # cells do not count (a thermometer read once per ten lines had left its column text, its temperature unused); an
-    # all-empty column (from a trailing delimiter) is text too and is left out.
-    text = [j for j in range(len(names)) if whole and _mostly_text([c[j] for c in whole if c[j].strip()])]
+    # A column is text when most of its cells are not numbers (a status field that is sometimes "1"); an all-empty
+    # column (from a trailing delimiter) is text too and is left out. The recording's temperature is judged by its
+    # filled cells (ten at least): a thermometer read once per ten lines had left its column text, its temperature
+    # unused. (Blanks counted out for every column, a sparse mag_raw_x… triple had become the magnetometer and a
+    # sparse GPS time a needed column: a review.)
+    from .columns import find_temperature
+
+    temperature = find_temperature(names, units)
+    slow = names.index(temperature[0]) if temperature else None
+    text = [j for j in range(len(names)) if whole and (
+        _mostly_text([c[j] for c in whole if c[j].strip()], at_least=10) if j == slow
+        else sum(_is_number(c[j]) for c in whole) < 0.5 * len(whole))]
     columns, text_notes = {}, []
     for j in text:
         values = [c[j].strip() if len(c) == len(names) else "" for c in cells]
@@ -413,9 +421,9 @@ def parse_mixed_rows(path, lines, start: int, names, delimiter, bad_lines: str, 
     return [names[j] for j in kept], data, line_numbers[good], notes
 
 
-def _mostly_text(filled: list) -> bool:
-    """Whether a column's filled cells are mostly not numbers (or there are none)."""
-    return sum(_is_number(c) for c in filled) < 0.5 * len(filled) if filled else True
+def _mostly_text(filled: list, at_least: int = 1) -> bool:
+    """Whether a column's filled cells are mostly not numbers (or there are fewer than `at_least`)."""
+    return sum(_is_number(c) for c in filled) < 0.5 * len(filled) if len(filled) >= at_least else True
 
 
 def _optional_columns(names, numeric, units) -> list:
