@@ -130,6 +130,14 @@ def _short_runs(mask: np.ndarray) -> np.ndarray:
     return out
 
 
+def _moments_of(readings: np.ndarray) -> tuple:
+    """(the ellipsoid moments of `readings`, normalised by their own centre and scale; that scale)."""
+    centre, scale = _core.normalisation(readings)
+    moments = EllipsoidMoments(centre, scale)
+    moments.add(readings)
+    return moments, scale
+
+
 class LiveFit:
     """Readings in, current fit and coverage out. add() is O(1) (moments update), except when the readings
     have spread `regrow` times beyond the normalisation in use: then the moments are rebuilt from every
@@ -240,10 +248,7 @@ class LiveFit:
             self._renormalise()
 
     def _renormalise(self) -> None:
-        kept = self._fit_readings
-        centre, self._scale = _core.normalisation(kept)
-        self._moments = EllipsoidMoments(centre, self._scale)
-        self._moments.add(kept)
+        self._moments, self._scale = _moments_of(self._fit_readings)
 
     FAR = 4.0  # a reading farther than FAR × the spread of the bulk from its median is a glitch, not a direction
 
@@ -281,9 +286,7 @@ class LiveFit:
         off = _short_runs(z > _threshold(len(kept), 0.01, 9)) if sigma > 0 else np.zeros(len(kept), dtype=bool)
         if not off.any() or off.sum() > 0.05 * len(kept):
             return cal
-        moments = EllipsoidMoments(*_core.normalisation(kept[~off]))
-        moments.add(kept[~off])
-        return moments.fit(field_norm=self.field_norm, units=self.units)
+        return _moments_of(kept[~off])[0].fit(field_norm=self.field_norm, units=self.units)
 
     def state(self) -> LiveState:
         self._update_rails()
@@ -410,19 +413,17 @@ class LiveSession:
     def met_by(self, cal) -> bool:
         """Whether the calibration written meets the thresholds, identifiable (the numbers printed beside the
         verdict). A session that stopped "done" stopped on this same calibration (_calibration_meets)."""
-        s = cal.summary
-        return (s["samples"] >= self.min_records and s["direction_coverage"] >= self.min_coverage
-                and s["norm_std_over_mean"] <= self.max_spread and bool(s.get("identifiable", True)))
+        return not self.unmet_by(cal)
 
     def unmet_by(self, cal) -> list:
         """The thresholds the calibration written misses, each with its value (empty when met_by): "coverage 89.6 %
         < 90 %" — a verdict "NOT met" beside a coverage printed rounded to 90 % had named none."""
         s, out = cal.summary, []
-        if s["samples"] < self.min_records:
+        if not s["samples"] >= self.min_records:
             out.append(f"{s['samples']} records < {self.min_records}")
-        if s["direction_coverage"] < self.min_coverage:
+        if not s["direction_coverage"] >= self.min_coverage:
             out.append(f"coverage {100 * s['direction_coverage']:.1f} % < {100 * self.min_coverage:.0f} %")
-        if s["norm_std_over_mean"] > self.max_spread:
+        if not s["norm_std_over_mean"] <= self.max_spread:  # (NaN: not met)
             out.append(f"|h| std/mean {100 * s['norm_std_over_mean']:.3f} % > {100 * self.max_spread:.2f} %")
         if not s.get("identifiable", True):
             out.append("not identifiable")

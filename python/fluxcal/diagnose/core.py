@@ -3343,8 +3343,7 @@ def _short_gaps(bad: np.ndarray) -> bool:
     interpolation knows). A run at either end holds its neighbour's value."""
     if np.count_nonzero(~bad) < 10:
         return False
-    edges = np.diff(np.concatenate([[0], bad.astype(int), [0]]))
-    runs = np.flatnonzero(edges == -1) - np.flatnonzero(edges == 1)
+    runs = np.array([last - first + 1 for first, last in index_runs(bad)])
     sampling = 2 * np.median(runs) + 1 if len(runs) >= 10 else 0
     return bool(runs.max() <= max(10, sampling))
 
