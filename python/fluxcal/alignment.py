@@ -16,8 +16,10 @@ down direction), so down = −f/|f|; readings whose |f| departs
 from the median by more than `max_dynamic` (5 %) are left out as moving. Least squares on the dip each reading
 shows, atan2(d·Rĥ, |d × Rĥ|) − δ, is the maximum-likelihood estimate for direction noise (its variance is the same
 for every reading at any dip, and unlike the cosine d·Rĥ − sin δ its fit is not biased by attitudes spread
-unevenly, as a hand turn's are); `covariance` is σ̂²(JᵀJ)⁻¹ of (small rotations about the accelerometer's x, y, z;
-δ), radians².
+unevenly, as a hand turn's are); `covariance` is σ̂² H⁻¹ JᵀJ H⁻¹ of (small rotations about the accelerometer's x,
+y, z; δ), radians², H the cost's Hessian — σ̂²(JᵀJ)⁻¹ where the attitudes are spread, and honest where they barely
+move about one axis (a probe rolled about its length: the noise in J had lent JᵀJ information there that the data do
+not hold, SEs of 0.5° for errors of 30°).
 Readings correlated in time (a slow hand turn logged at 100 Hz) make that too small, as for any least-squares
 fit that counts them as independent: as `fluxcal.refine`, when the dip residuals fail a Ljung–Box test and the
 Newey–West sandwich (AR(1)-prewhitened, over the scores J_kᵀe_k) widens an error, or when it widens one ≥ 1.5×,

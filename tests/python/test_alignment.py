@@ -284,7 +284,7 @@ def test_readings_correlated_in_time_widen_the_standard_errors():
 
 def test_newey_west_covariance_matches_the_oracle():
     """The alignment's sandwich against fluxcal.oracle.serial (statsmodels' Bartlett sums, arch's block length) on
-    the C++ fit's own Jacobian and residuals."""
+    the C++ fit's own Jacobian and residuals, with the oracle's Hessian of the cost as the bread."""
     from scipy.signal import lfilter
 
     from fluxcal import _core
@@ -304,7 +304,9 @@ def test_newey_west_covariance_matches_the_oracle():
     across = np.cross(v, down)
     jac = np.column_stack([across / np.linalg.norm(across, axis=1, keepdims=True), -np.ones(n)])
     e = np.asarray(r["residuals"])
-    expected, lags = newey_west_covariance(jac, e)
+    fitted_dip = np.mean(np.arcsin(np.einsum("ij,ij->i", down, v)) - e)  # before the noise-bias correction
+    hessian = oracle.alignment.cost_hessian(h + noise[0], f + noise[1], np.asarray(r["rotation"]), fitted_dip)
+    expected, lags = newey_west_covariance(jac, e, hessian=hessian)
     assert r["serial_correlation"]["lags"] == lags
     np.testing.assert_allclose(r["covariance"], expected, rtol=1e-6)
 
@@ -368,6 +370,41 @@ def test_tilts_nearly_about_one_axis_decide_the_branch_when_the_wobble_is_seen()
         h, f, truth, _ = tilted(rng, 3000, wobble=0.0)
         a = align_to_gravity(h, f, serial_correlation="independent")
         assert not a.identifiable and any("two answers" in w for w in a.summary["warnings"]), seed
+
+def rolled_probe(rng, n, wobble_deg):
+    """A probe rolled about its long axis (body x, level, heading 30°) with pitch and heading wobbling uniformly
+    within ±wobble_deg: the rotation about that axis trades with the dip, as the wobble alone tells them apart."""
+    angles = np.c_[30 + rng.uniform(-wobble_deg, wobble_deg, n), rng.uniform(-wobble_deg, wobble_deg, n),
+                   rng.uniform(0, 360, n)]
+    return scene(rng, n=n, attitudes=Rotation.from_euler("ZYX", angles, degrees=True))
+
+
+def test_a_probe_rolled_about_one_axis_is_not_called_identifiable():
+    """Rolled with no wobble, 5000 readings, 1 % noise: the direction noise tilted J's rows at random and lent JᵀJ
+    curvature along the roll axis' rotation that the cost does not have — SEs of 0.5–0.7° for errors of 10–30°,
+    flagged identifiable (a blind check). With the cost's own Hessian the SE there is several degrees and more, the
+    fit is flagged and the rotation about x named; the other axes stay determined."""
+    for seed in range(4):
+        h, f, truth, _ = rolled_probe(np.random.default_rng(seed), 5000, 0.0)
+        a = align_to_gravity(h, f, serial_correlation="independent")
+        assert not a.identifiable and a.rotation_se_deg[0] > 3.0, (seed, a.rotation_se_deg)
+        assert any("not identifiable" in w and "the rotation about x" in w for w in a.summary["warnings"]), seed
+        assert np.all(a.rotation_se_deg[1:] < 0.1)
+
+
+def test_standard_errors_are_honest_when_the_attitudes_barely_turn_about_one_axis():
+    """Rolled with a ±1.5° wobble, 2000 readings, 1 % noise, 40 fits: the reported SEs of the roll axis' rotation and
+    of the dip against the spread of the errors (JᵀJ's had been 3.6× too small: 0.43° for an RMS error of 1.57° at
+    N 5000)."""
+    errors, ses = [], []
+    for seed in range(40):
+        h, f, truth, _ = rolled_probe(np.random.default_rng(100 + seed), 2000, 1.5)
+        a = align_to_gravity(h, f, serial_correlation="independent")
+        errors.append(np.r_[rotation_error(a.rotation, truth)[0], np.radians(a.dip_deg) - DIP])
+        ses.append(np.sqrt(np.diag(a.covariance))[[0, 3]])
+    ratio = np.sqrt(np.mean(np.square(errors), axis=0)) / np.sqrt(np.mean(np.square(ses), axis=0))
+    assert np.all((ratio > 0.75) & (ratio < 1.3)), ratio
+
 
 def test_outliers_are_left_out():
     """15 readings of 300 with the magnetometer's direction knocked off by tens of degrees: the fit had stopped at

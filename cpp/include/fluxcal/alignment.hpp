@@ -9,7 +9,9 @@
 //   e_k = atan2(d_kᵀ v_k, |d_k × v_k|) − δ,   v_k = R ĥ_k,   d_k = −f_k/|f_k|,   ĥ_k = h_k/|h_k|
 // (down: an accelerometer at rest reads the specific force, up; ĥ_k the calibrated field's direction). With direction
 // noise σ_h (magnetometer) and σ_f (accelerometer) radians per axis every e_k has the variance σ_h² + σ_f² at any
-// dip, so this is the maximum-likelihood estimate and σ̂²(JᵀJ)⁻¹ its covariance (Cramér–Rao at the solution). (The
+// dip, so this is the maximum-likelihood estimate; its covariance is the sandwich σ̂² H⁻¹ JᵀJ H⁻¹ with H the cost's
+// Hessian (σ̂²(JᵀJ)⁻¹, Cramér–Rao at the solution, where the attitudes are spread: H = JᵀJ there; where they barely
+// move about one axis the noise in J lends JᵀJ curvature the cost does not have, and H takes it back). (The
 // cosine d_kᵀv_k − sin δ loses its first-order noise towards the poles, and its Jacobian's noise correlates with
 // its own: least squares on it was biased by 1–2° on a hand turn's uneven attitudes, 3.7° at a dip of 85°. On the
 // angle that correlation cancels to first order.)
@@ -61,7 +63,7 @@ struct AlignmentResult {
   Eigen::Vector3d rotation_vector = Eigen::Vector3d::Zero();
   /// Dip of the field below the horizontal (radians, positive down).
   double dip = 0.0;
-  /// Covariance of (small rotation about the accelerometer's x, y, z; dip), radians².
+  /// Covariance of (small rotation about the accelerometer's x, y, z; dip), radians²: σ̂² H⁻¹ JᵀJ H⁻¹ (above).
   Eigen::Matrix4d covariance = Eigen::Matrix4d::Zero();
   /// Standard errors: about x, y, z and of the dip (radians).
   Eigen::Vector4d standard_errors = Eigen::Vector4d::Zero();

@@ -49,13 +49,14 @@ def prewhitened_long_run(g, lags: int | None = None):
     return d[:, None] * S_hac_simple(e, nlags=lags) * d[None, :], lags, a
 
 
-def newey_west_covariance(jacobian, residuals, per_reading: int = 1, lags: int | None = None):
+def newey_west_covariance(jacobian, residuals, per_reading: int = 1, lags: int | None = None, hessian=None):
     """(covariance, lags): the sandwich F⁻¹ S F⁻¹ × N/(N − p) (N readings, p parameters: the usual
-    small-sample correction), S prewhitened and over `lags` of the whitened scores (`bandwidth` when None)."""
+    small-sample correction), S prewhitened and over `lags` of the whitened scores (`bandwidth` when None); F is
+    JᵀJ, or the cost's `hessian` when given."""
     J = np.asarray(jacobian, dtype=float)
     g = scores(J, residuals, per_reading)
     S, lags, _ = prewhitened_long_run(g, lags)
-    Finv = np.linalg.inv(J.T @ J)
+    Finv = np.linalg.inv(J.T @ J if hessian is None else hessian)
     n, p = g.shape
     return Finv @ S @ Finv * n / (n - p), lags
 
