@@ -421,6 +421,8 @@ def _print_roles(rec: Recording, reference: str | None = None, rails: bool = Tru
         print(f"text columns not used: {rec.metadata['text_columns']}")
     if "blank_cells" in rec.metadata:  # in columns the magnetometer does not need (a temperature left out)
         print(f"blank cells: {rec.metadata['blank_cells']}")
+    if "units_in_cells" in rec.metadata:  # "12.3uT": a logger that prints each value's unit
+        print(f"units in the cells: {rec.metadata['units_in_cells']}")
     # which compass of several, and what the logger had already done to its readings (a flight log's, or a table
     # interleaving compasses by an instance column): an answer for the wrong one looks as plausible as the right one
     for key, label in (("instance", "compass instance"), ("instances", "instances in the file"),

@@ -331,6 +331,10 @@ def parse_mixed_rows(path, lines, start: int, names, delimiter, bad_lines: str, 
         cells = [[c.replace(",", ".") if j in decimal else c for j, c in enumerate(row)] for row in cells]
         whole = [c for c in cells if len(c) == len(names)]
         metadata["decimal_separator"] = "comma (quoted cells: " + ", ".join(names[j] for j in decimal) + ")"
+    glued = _units_in_cells(path, whole, names, units, metadata)
+    if glued:  # "12.3uT", "25.1 °C": a logger that prints each value with its unit
+        cells = [[_UNIT_CELL.sub(r"\1", c) if j in glued else c for j, c in enumerate(row)] for row in cells]
+        whole = [c for c in cells if len(c) == len(names)]
     # A column is text when most of its cells are not numbers (a status field that is sometimes "1"); an all-empty
     # column (from a trailing delimiter) is text too and is left out. The recording's temperature is judged by its
     # filled cells (ten at least): a thermometer read once per ten lines had left its column text, its temperature
@@ -419,6 +423,43 @@ def parse_mixed_rows(path, lines, start: int, names, delimiter, bad_lines: str, 
         data[:, out] = columns[j][good] if j in columns else [float(cells[r][j] if cells[r][j].strip() else "nan")
                                                               for r in good]
     return [names[j] for j in kept], data, line_numbers[good], notes
+
+
+# A number with a unit after it in the same cell ("12.3uT", "-0.4 µT", "25.1°C", "9.81 m/s^2")
+_UNIT_CELL = re.compile(r"^\s*([-+]?(?:\d+\.?\d*|\.\d+)(?:[eE][-+]?\d+)?)\s*([^\d\s.,+-][^\s]*)\s*$")
+_ACCELERATION_UNITS = {"m/s2", "m/s^2", "m/s²", "mg", "g"}
+
+
+def _units_in_cells(path, whole, names, units: dict, metadata: dict) -> list:
+    """The columns whose every filled cell is a number followed by one and the same known unit ("12.3uT"): their
+    indices; the unit goes into `units` (said in metadata "units_in_cells"). A unit in the header that differs
+    (`mx [nT]` over cells in µT) is a ValueError naming both. Cells with units that differ down a column, or words
+    that are not units, leave the column as it was (text)."""
+    from .columns import _OTHER_UNITS, _UNIT_WORDS, unit_name
+
+    found, said = [], []
+    for j, name in enumerate(names):
+        filled = [c[j].strip() for c in whole if c[j].strip()]
+        if not filled or any(_is_number(c) for c in filled):
+            continue
+        matches = [_UNIT_CELL.match(c) for c in filled]
+        written = {m.group(2) for m in matches if m}
+        if not all(matches) or len(written) != 1:
+            continue
+        unit = written.pop()
+        word = unit.lower().replace("\u03bc", "\u00b5")
+        if word not in _UNIT_WORDS | _OTHER_UNITS | _ACCELERATION_UNITS:
+            continue
+        stated = units.get(name, "")
+        if stated and unit_name(stated) != unit_name(unit):
+            raise ValueError(f"{path}: column {name!r} is in {stated} by the header and its cells read {filled[0]!r} "
+                             f"({unit}): which is it? Correct the header (or the logger's format)")
+        units[name] = stated or unit
+        found.append(j)
+        said.append(f"{name}: {unit}")
+    if said:
+        metadata["units_in_cells"] = ", ".join(said) + " (written after each value; read as numbers in that unit)"
+    return found
 
 
 def _mostly_text(filled: list, at_least: int = 1) -> bool:

@@ -17,6 +17,8 @@ Reading looks at the bytes, not the name (a file's extension is only a hint in m
     SQLite format 3 (not a bag)    → a database table       (fluxcal.io.sqlite; --columns TABLE picks one)
     " Format  IAGA-2002  |" first  → geomagnetic observatory data (fluxcal.io.iaga: X, Y, Z in nT from XYZ, HDZ,
                                      DHI or HEZ)
+    "LabVIEW Measurement" first    → LabVIEW .lvm text     (fluxcal.io.lvm: segments joined, X_Value as time,
+                                     Y_Unit_Label as units)
     text starting with { or [      → JSON readings         (fluxcal.io.real: fluxcal's layout or shot triples;
     (not a log tag, `[MAG] X: …`)    fluxcal.io.jsonrecords: JSON Lines, a list of records, a columns/data table)
     text of `$TYPE,…*hh` lines     → NMEA-style IMU sentences ($VNYMR…, fluxcal.io.sentences)
@@ -59,7 +61,7 @@ WRITERS = (".csv",) + OTHER_WRITERS
 
 def sniff(path) -> str:
     """The format of a file by its content: "npz", "npy", "xlsx", "xls", "mat", "hdf5", "parquet", "dataflash",
-    "dataflash_text", "ulog", "rosbag" (also a ROS 2 bag folder), "iaga2002", "json" or "text"."""
+    "dataflash_text", "ulog", "rosbag" (also a ROS 2 bag folder), "iaga2002", "lvm", "json" or "text"."""
     path = Path(path)
     from .rosbag import bag_path
 
@@ -102,9 +104,12 @@ def sniff(path) -> str:
     if re.search(rb"(?:^|\n)\s*FMT, ?\d", head.lstrip(b"\xef\xbb\xbf")):  # a text log's FMT lines come first
         return "dataflash_text"
     from .iaga import looks_like_iaga
+    from .lvm import looks_like_lvm
 
     if looks_like_iaga(head):
         return "iaga2002"
+    if looks_like_lvm(head):
+        return "lvm"
     text = head.decode("utf-16", errors="ignore").encode() if head.startswith((b"\xff\xfe", b"\xfe\xff")) else head
     text = text.lstrip(b"\xef\xbb\xbf \t\r\n")
     # not "[12:30:01] …", nor a log line's tag ("[MAG] X: 1 …", "[1] mx=…"): text after the ']' that JSON cannot have
@@ -224,6 +229,10 @@ def _read_recording(path, columns, units, bad_lines: str, decimal, thousands) ->
         from .iaga import read_iaga2002
 
         return read_iaga2002(path, columns=columns, units=units, bad_lines=bad_lines)
+    if kind == "lvm":
+        from .lvm import read_lvm
+
+        return read_lvm(path, columns=columns, units=units, bad_lines=bad_lines)
     if kind == "json":
         from .real import read_json_recording
 

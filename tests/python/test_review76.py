@@ -1,0 +1,114 @@
+"""The seventy-sixth session's reader additions: values written with their unit in each cell ("12.3uT"), and
+LabVIEW measurement files (.lvm)."""
+import numpy as np
+import pytest
+
+import fluxcal
+from conftest import run_cli
+
+
+def _sphere(n=200, seed=0, radius=48.0, offset=(5.0, -3.0, 2.0)):
+    v = np.random.default_rng(seed).standard_normal((n, 3))
+    return radius * v / np.linalg.norm(v, axis=1, keepdims=True) + offset
+
+
+@pytest.mark.parametrize("space", ["", " "])
+def test_a_unit_after_every_value_is_read_as_that_unit(tmp_path, space):
+    # (had been: "no magnetometer columns … left out as text: mx (e.g. -0.39uT, …)")
+    m = _sphere()
+    path = tmp_path / "cells.csv"
+    path.write_text("time,mx,my,mz,temp\n" + "".join(
+        f"{k * 0.02:.2f},{a:.3f}{space}uT,{b:.3f}{space}uT,{c:.3f}{space}uT,{20 + k / 100:.2f}{space}°C\n"
+        for k, (a, b, c) in enumerate(m)))
+    rec = fluxcal.read_recording(path)
+    np.testing.assert_allclose(rec.samples(), m, atol=6e-4)
+    assert rec.units["mx"] == "uT" and rec.units["temp"] == "°C"
+    assert "mx: uT" in rec.metadata["units_in_cells"]
+    out = run_cli("calibrate", str(path))
+    assert out.returncode == 0, out.stderr
+    assert "units in the cells: mx: uT" in out.stdout and "|h| = 48" in out.stdout and "uT" in out.stdout
+
+
+def test_a_unit_in_the_cells_against_another_in_the_header_is_named(tmp_path):
+    path = tmp_path / "conflict.csv"
+    path.write_text("t,mx [nT],my [nT],mz [nT]\n" + "".join(f"{k},{a:.2f}uT,{b:.2f}uT,{c:.2f}uT\n"
+                                                            for k, (a, b, c) in enumerate(_sphere(30))))
+    with pytest.raises(ValueError, match=r"column 'mx' is in nT by the header and its cells read .*uT"):
+        fluxcal.read_recording(path)
+
+
+def test_units_that_change_down_a_column_are_not_taken(tmp_path):
+    path = tmp_path / "mixed.csv"
+    path.write_text("t,mx,my,mz\n" + "".join(f"{k},{a:.2f}uT,{b:.2f}uT,{c:.2f}{'nT' if k % 2 else 'uT'}\n"
+                                             for k, (a, b, c) in enumerate(_sphere(30))))
+    rec = fluxcal.read_recording(path)  # (mx, my: a biaxial sensor's pair; mz named as text)
+    assert "mz" not in rec.columns and "mz (e.g." in rec.metadata["text_columns"] and "nT" in rec.metadata["text_columns"]
+
+
+def _lvm(path, segments, separator="\t", decimal=".", x_columns="One", units=("uT", "uT", "uT"), bad_row=None):
+    """A LabVIEW measurement file of `segments` (each an N×3 array of Mag X/Y/Z at 50 Hz)."""
+    sep = separator
+    out = ["LabVIEW Measurement" + sep, "Writer_Version" + sep + "2", "Reader_Version" + sep + "2",
+           "Separator" + sep + ("Tab" if sep == "\t" else "Comma"), "Decimal_Separator" + sep + decimal,
+           "Multi_Headings" + sep + "No", "X_Columns" + sep + x_columns, "Time_Pref" + sep + "Relative",
+           "Operator" + sep + "bench", "Date" + sep + "2026/12/08", "Time" + sep + "10:00:00", "***End_of_Header***",
+           ""]
+    t0 = 0.0
+    for seg in segments:
+        out += ["Channels" + sep + sep.join(["3"] * 1), "Samples" + sep + sep.join([str(len(seg))] * 3),
+                "Y_Unit_Label" + sep + sep.join(units), "X_Dimension" + sep + sep.join(["Time"] * 3),
+                "X0" + sep + sep.join(["0"] * 3), "Delta_X" + sep + sep.join(["0.02"] * 3),
+                "***End_of_Header***" + sep]
+        heads = (["X_Value"] if x_columns != "No" else [])
+        for name in ("Mag X", "Mag Y", "Mag Z"):
+            heads += [name] + (["X_Value"] if x_columns == "Multi" else [])
+        out.append(sep.join(heads[:1] + heads[1:] + ["Comment"]) if x_columns != "Multi"
+                   else sep.join(["X_Value", "Mag X", "X_Value", "Mag Y", "X_Value", "Mag Z", "Comment"]))
+        for k, row in enumerate(seg):
+            t = f"{t0 + 0.02 * k:.2f}"
+            vals = [f"{v:.4f}" for v in row]
+            cells = ([t] + vals if x_columns == "One" else vals if x_columns == "No"
+                     else [t, vals[0], t, vals[1], t, vals[2]])
+            line = sep.join(cells) + sep
+            out.append(line.replace(".", ",") if decimal == "," else line)
+        t0 += 0.02 * len(seg)
+        out.append("")
+    if bad_row is not None:
+        out[bad_row] = out[bad_row].replace(out[bad_row].split(sep)[2], "garbled", 1)
+    path.write_text("\n".join(out) + "\n")
+    return out
+
+
+@pytest.mark.parametrize("layout", [dict(), dict(separator=",", x_columns="No"), dict(decimal=",", separator="\t"),
+                                    dict(x_columns="Multi")])
+def test_a_labview_measurement_file_is_read(tmp_path, layout):
+    # (had been: "line 18: header 'X_Dimension\tTime\tTime\tTime\t' has empty or repeated column names")
+    m = _sphere()
+    path = tmp_path / "bench.lvm"
+    _lvm(path, [m[:120], m[120:]], **layout)
+    rec = fluxcal.read_recording(path)
+    np.testing.assert_allclose(rec.samples(), m, atol=6e-5)
+    assert list(rec.mag_names()) == ["Mag X", "Mag Y", "Mag Z"] and rec.units["Mag X"] == "uT"
+    assert rec.metadata["format"] == "LabVIEW measurement (.lvm), 2 segments"
+    if layout.get("x_columns", "One") != "No":
+        assert rec.units["time"] == "s"
+        np.testing.assert_allclose(np.diff(rec.columns["time"]), 0.02, atol=1e-9)
+    cal = fluxcal.calibrate(rec)
+    np.testing.assert_allclose(cal.offset, [5.0, -3.0, 2.0], atol=1e-3)
+
+
+def test_a_garbled_lvm_line_is_named_by_its_line_in_the_file(tmp_path):
+    path = tmp_path / "bench.lvm"
+    lines = _lvm(path, [_sphere(50)], bad_row=30)
+    with pytest.raises(ValueError, match=r"bench\.lvm, line 31, column 'Mag Y': 'garbled'"):
+        fluxcal.read_recording(path)
+    assert "garbled" in lines[30]
+
+
+def test_lvm_segments_of_other_channels_are_refused(tmp_path):
+    path = tmp_path / "two.lvm"
+    _lvm(path, [_sphere(20), _sphere(20, seed=1)])
+    path.write_text(path.read_text().replace("X_Value\tMag X\tMag Y\tMag Z\tComment", "X_Value\tBx\tBy\tBz\tComment")
+                    .replace("X_Value\tBx\tBy\tBz\tComment", "X_Value\tMag X\tMag Y\tMag Z\tComment", 1))
+    with pytest.raises(ValueError, match=r"line 50: segment 2 names the channels X_Value, Bx, By, Bz, the first segment X_Value, Mag X"):
+        fluxcal.read_recording(path)
