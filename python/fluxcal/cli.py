@@ -1925,7 +1925,17 @@ def _zero_bias_recording(args, column: str):
     if column not in rec.columns:
         raise ValueError(f"{args.file}: no column {column!r} (columns: {', '.join(rec.columns)}); name the zero bias "
                          "with --column")
+    # a unit as the name's last part (zero_bias_mA, zero_bias_uA), as temp_F names °F (a blind check: zero_bias_mA
+    # "states no unit: taken in A", and its class judged 1000x off)
+    last = re.split(r"[_\s-]+", column.strip())[-1]
+    if not rec.units.get(column) and last != column.strip() and _current_unit(last) in LARGE_CURRENT_UNITS:
+        rec.units[column] = last
     return rec
+
+
+def _current_unit(word: str) -> str:
+    """A current unit as LARGE_CURRENT_UNITS keys it (uA, µA, μA → "µa")."""
+    return word.strip(" []()").lower().replace("\u03bc", "\u00b5").replace("ua", "µa") if word else ""
 
 
 def _reword(report: dict, model, said: str, named: str, keys=("warnings",)) -> None:
@@ -1942,16 +1952,16 @@ def _rated(text: str | None, unit: str | None, column: str) -> tuple:
     in A then, said."""
     if text is None:
         return None, None
-    hit = re.fullmatch(r"\s*([-+]?(?:\d+\.?\d*|\.\d+)(?:[eE][-+]?\d+)?)\s*([A-Za-z]*)\s*", text)
+    hit = re.fullmatch(r"\s*([-+]?(?:\d+\.?\d*|\.\d+)(?:[eE][-+]?\d+)?)\s*([A-Za-z\u00b5\u03bc]*)\s*", text)
     if not hit:
         raise ValueError(f"--rated {text!r}: not a current (a number in the zero bias's unit, or with its own: "
                          "1000A, 1.2kA, 800mA)")
-    value, given = float(hit[1]), hit[2].lower()
+    value, given = float(hit[1]), _current_unit(hit[2])
     if not given:
         return value, None
     if given not in LARGE_CURRENT_UNITS:
-        raise ValueError(f"--rated {text!r}: {hit[2]} is no current unit (A, mA or kA)")
-    stated = (unit or "").strip().lower()
+        raise ValueError(f"--rated {text!r}: {hit[2]} is no current unit (A, mA, µA or kA)")
+    stated = _current_unit(unit or "")
     if not stated:
         return value * LARGE_CURRENT_UNITS[given], f"{column} states no unit: taken in A beside --rated {text}"
     if stated not in LARGE_CURRENT_UNITS:
@@ -1960,22 +1970,54 @@ def _rated(text: str | None, unit: str | None, column: str) -> tuple:
     return value * LARGE_CURRENT_UNITS[given] / LARGE_CURRENT_UNITS[stated], None
 
 
+# Runs of rising time this long (median) between steps back are stretches of a log, not rows out of order
+STRETCH_ROWS = 10
+
+
+def _drift_time_order(rec: Recording, file) -> tuple:
+    """(order, times) for a zero bias's AR model and Kalman filter: `times` rising, in the rows' order `order` (None:
+    the file's). Time that steps back between long stretches of rising time (a logger restarted at 0, a clock set
+    back, local time across the end of summer time) keeps the file's order, each stretch taken as following the one
+    before after a gap, so that the models start again there (a blind check: sorted by time, a restart's two stretches
+    were interleaved, AR(3)/AR(10) fitted for AR(1) and exported); rows out of order one by one (shuffled) are sorted
+    by time. Both said. (None, None) without a time column (a sample rate's times have no gaps)."""
+    if rec._time_column() is None:
+        return None, None
+    times = np.asarray(rec.time(), dtype=float)
+    back = np.flatnonzero(np.diff(times) < 0) + 1
+    if not back.size:
+        return None, times
+    runs = np.diff(np.concatenate([[0], back, [len(times)]]))
+    if np.median(runs) < STRETCH_ROWS:
+        order = np.argsort(times, kind="stable")
+        print(f"note: {int(np.sum(order != np.arange(len(order))))} of {len(order)} rows of {file} are out of time "
+              "order: the samples are taken in the order of their times")
+        return order, times[order]
+    rising = np.diff(times)
+    step = float(np.median(rising[rising > 0])) if np.any(rising > 0) else 1.0
+    shifted = times.copy()
+    for start in back:  # each stretch after the last, ten steps on: a gap, where the filter starts again
+        shifted[start:] += shifted[start - 1] + 10 * step - shifted[start]
+    lines = rec.line_numbers[back] if rec.line_numbers is not None else back
+    word = "line" if rec.line_numbers is not None else "row"
+    shown = ", ".join(str(int(v)) for v in lines[:5]) + (f" and {len(lines) - 5} more" if len(lines) > 5 else "")
+    print(f"note: the time in {file} steps back {len(back)}x ({word} {shown}: a logger restarted, a clock set back, "
+          "local time across the end of summer time?): the rows are taken in the file's order, each stretch after a "
+          "step back as following the one before with a gap (the AR model and the Kalman filter start again there)")
+    return None, shifted
+
+
 def cmd_drift(args) -> int:
     """`fluxcal drift fit FILE -o MODEL.json` and `fluxcal drift apply MODEL.json FILE -o OUT` (seed 001)."""
     from . import drift
 
     if args.drift_command == "fit":
         rec = _zero_bias_recording(args, args.column)
-        times = rec.time() if rec._time_column() is not None else None  # a sample rate's times have no gaps
-        if times is not None and np.any(np.diff(times) < 0):  # (a blind check: shuffled rows fitted in file order,
-            # the AR model of a series that is no time series, AR(0) for AR(1) 0.7): the time column orders them
-            order = np.argsort(times, kind="stable")
-            print(f"note: {int(np.sum(np.diff(times) < 0))} row(s) of {args.file} come before an earlier time: the "
-                  "samples are taken in the order of their times")
+        order, times = _drift_time_order(rec, args.file)
+        if order is not None:
             rec.columns = {name: np.asarray(values)[order] for name, values in rec.columns.items()}
             if rec.line_numbers is not None:
                 rec.line_numbers = np.asarray(rec.line_numbers)[order]
-            times = rec.time()
         if (doubt := rec.time_unit_doubt()) is not None:  # the thermal lag and the ageing are said in its seconds
             print(f"note: {doubt}")
         if "skipped_lines" in rec.metadata:  # the AR model and the Kalman filter assume evenly spaced samples
@@ -2153,8 +2195,11 @@ def cmd_drift(args) -> int:
     columns = {**rec.columns, out_name: compensated}
     names = [out_name]
     if args.filtered:  # the firmware's output (export-c --kalman runs this filter on W − f(T))
-        times = rec.time() if rec._time_column() is not None else None
-        columns[f"{column}_filtered"] = drift.filter_compensated(model, compensated, times)
+        order, times = _drift_time_order(rec, args.file)  # filtered in time, written in the file's order
+        filtered = np.empty_like(compensated)
+        filtered[slice(None) if order is None else order] = drift.filter_compensated(
+            model, compensated if order is None else compensated[order], times)
+        columns[f"{column}_filtered"] = filtered
         names.append(f"{column}_filtered")
         kalman = model.settings["kalman"]
         gain = drift.dc_gain(drift.ArKalman(model.settings["ar"]["coefficients"], kalman["q"], kalman["r"],

@@ -1940,6 +1940,11 @@ def fit_pipeline(zero_bias, temp, temp_outside=None, regressor: str = "temp", br
     # The data's warnings go with the model (summary["warnings"] keeps the drift fit's own; drift apply and
     # export-c repeat both: fit_warnings), the ones that decide whether the model may be exported as it is also
     # by name: the AR model's whiteness test (noise_model_rejected) and a unit hint (temperature_unit_hint).
+    # and the drift fit's own (standard errors that are lower bounds near a unit root …), but for the notes that the
+    # ranges were adjusted: report["warnings"] is every warning of the fit (a blind check: the README's example
+    # printed it and missed "lower bounds")
+    notes = set(model.summary.get("range_notes", []))
+    report["warnings"] += [w for w in model.summary.get("warnings", []) if w not in notes and w not in report["warnings"]]
     model.summary["fit_warnings"] = list(report["warnings"])
     p_value = float(ar.whiteness["p_value"])
     model.settings["ar"]["whiteness"] = {"p_value": p_value if p_value == p_value else None,  # (untested: null)

@@ -6,6 +6,7 @@ import json
 import numpy as np
 import pytest
 
+import fluxcal
 from fluxcal import drift, write_csv
 from fluxcal.cli import main
 
@@ -211,9 +212,43 @@ def test_shuffled_rows_are_fitted_in_the_order_of_their_times(tmp_path, capsys):
     capsys.readouterr()
     assert main(["drift", "fit", str(shuffled), "-o", str(tmp_path / "b.json")]) == 0
     out = capsys.readouterr().out
-    assert "come before an earlier time: the samples are taken in the order of their times" in out, out
+    assert "rows of " in out and "are out of time order: the samples are taken in the order of their times" in out, out
     a, b = (json.loads((tmp_path / n).read_text()) for n in ("a.json", "b.json"))
     assert a["segments"] == b["segments"] and a["ar"] == b["ar"]
+
+
+@pytest.mark.parametrize("back_s", [None, 3600.0])  # a logger restarted at 0; a clock set back an hour
+def test_time_that_steps_back_between_stretches_keeps_the_files_order(tmp_path, capsys, back_s):
+    """Sorted by time, a restart's two stretches had been interleaved: AR(3)/AR(10) fitted for AR(1) 0.7, exported,
+    and `drift apply --filtered` refused the file ("sort the recording"). Now each stretch follows the one before
+    after a gap, as the file has them: the same model as the stretches' rows with rising times."""
+    temp = chamber_temp()
+    rng = np.random.default_rng(8)
+    e = np.zeros(temp.size)
+    for i in range(1, temp.size):
+        e[i] = 0.7 * e[i - 1] + rng.normal(0, 0.002)
+    t = np.arange(temp.size, dtype=float)
+    half = temp.size // 2
+    logged = t.copy()
+    logged[half:] = t[half:] - t[half] if back_s is None else t[half:] - back_s
+    cols = {"zero_bias": 0.01 * temp + e, "temp": temp}
+    rising = t.copy()
+    rising[half:] += 10.0  # the gap the fit puts between the stretches
+    ordered = write_csv(tmp_path / "ordered.csv", {"t": rising, **cols})
+    restarted = write_csv(tmp_path / "restarted.csv", {"t": logged, **cols})
+    assert main(["drift", "fit", str(ordered), "-o", str(tmp_path / "a.json")]) == 0
+    capsys.readouterr()
+    assert main(["drift", "fit", str(restarted), "-o", str(tmp_path / "b.json")]) == 0
+    out = capsys.readouterr().out
+    assert "steps back 1x (line " in out and "taken in the file's order" in out, out
+    a, b = (json.loads((tmp_path / n).read_text()) for n in ("a.json", "b.json"))
+    assert a["segments"] == b["segments"] and a["ar"] == b["ar"]
+    for name in ("a", "b"):
+        source = ordered if name == "a" else restarted
+        assert main(["drift", "apply", str(tmp_path / f"{name}.json"), str(source), "-o",
+                     str(tmp_path / f"{name}_out.csv"), "--filtered"]) == 0
+    filtered = [fluxcal.read_recording(tmp_path / f"{n}_out.csv").columns["zero_bias_filtered"] for n in "ab"]
+    np.testing.assert_allclose(filtered[1], filtered[0], atol=1e-12)
 
 
 def test_apply_warns_when_one_side_states_a_unit(tmp_path, linear_model, capsys):
@@ -224,3 +259,26 @@ def test_apply_warns_when_one_side_states_a_unit(tmp_path, linear_model, capsys)
     assert main(["drift", "apply", str(model), str(path), "-o", str(tmp_path / "out.csv")]) == 0
     out = capsys.readouterr().out
     assert "warning: zero_bias is in mA in" in out and "fitted to one in no unit stated" in out, out
+
+
+def test_a_current_unit_in_the_zero_bias_name_and_micro_amperes_are_read(tmp_path, capsys):
+    """zero_bias_mA had been "states no unit: taken in A" beside --rated 1000A (the class judged 1000x off: 186 % for
+    0.186 %), and µA was no current unit ("zero_bias is in µA, not a current")."""
+    temp = chamber_temp()
+    rng = np.random.default_rng(9)
+    zero_ma = 2.0 + 0.05 * temp + rng.normal(0, 0.5, temp.size)  # mA
+    t = np.arange(temp.size, dtype=float)
+    files = {"header_mA": ({"t": t, "zero_bias": zero_ma, "temp": temp}, {"zero_bias": "mA"}, "zero_bias"),
+             "name_mA": ({"t": t, "zero_bias_mA": zero_ma, "temp": temp}, {}, "zero_bias_mA"),
+             "name_uA": ({"t": t, "zero_bias_uA": 1e3 * zero_ma, "temp": temp}, {}, "zero_bias_uA"),
+             "header_µA": ({"t": t, "zero_bias": 1e3 * zero_ma, "temp": temp}, {"zero_bias": "µA"}, "zero_bias")}
+    classes = {}
+    for name, (cols, units, column) in files.items():
+        path = write_csv(tmp_path / f"{name}.csv", cols, units=units)
+        assert main(["drift", "fit", str(path), "--column", column, "--rated", "1000A",
+                     "-o", str(tmp_path / f"{name}.json")]) == 0, name
+        out = capsys.readouterr().out
+        assert "states no unit" not in out, (name, out)
+        classes[name] = [line.split(" at rated ")[1].split(" ", 2)[2] for line in out.splitlines()
+                         if line.strip().startswith("class ")]
+    assert classes["header_mA"] and all(c == classes["header_mA"] for c in classes.values()), classes

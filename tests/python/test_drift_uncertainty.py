@@ -203,3 +203,16 @@ def test_pipeline_and_cli_report_the_drifts_standard_error(tmp_path, foct):
     assert run.returncode == 0, run.stderr
     said = [line for line in run.stdout.splitlines() if "drift's standard error up to" in line]
     assert len(said) == 3 and f"{se['per_range'][2]:.3g}" in said[2]
+
+
+def test_the_pipelines_report_holds_the_lower_bound_warning():
+    """report["warnings"] (the README's example prints it as "the fit's warnings") had missed the drift fit's own:
+    "lower bounds" was only in model.summary["warnings"] (a blind check)."""
+    n = 3000
+    rng = np.random.default_rng(8)
+    temp = 15 + 35 * np.sin(2 * np.pi * 1.5 * np.linspace(0, 1, n))
+    w = 0.02 + 1e-3 * temp + 2e-5 * temp ** 2 + 0.001 * np.cumsum(rng.normal(size=n))
+    model, report = drift.fit_pipeline(w, temp, t=np.arange(n, dtype=float))
+    assert any("standard errors are lower bounds" in x for x in report["warnings"]), report["warnings"]
+    assert not set(model.summary.get("range_notes", [])) & set(report["warnings"])
+    assert drift.fit_warnings(model).count(next(x for x in report["warnings"] if "lower bounds" in x)) == 1

@@ -1,5 +1,9 @@
 // fluxcal/foct.hpp — seed 001 end to end: temperature-drift compensation of a fibre-optic current
-// transformer's zero bias, the C++ twin of fluxcal.drift.fit_pipeline (same steps, same defaults).
+// transformer's zero bias: fluxcal.drift.fit_pipeline's core steps (below) with its defaults, equal to it on a clean
+// log. Not here (Python only): the history checks that refit or warn — a zero step or ageing taken out, a thermal
+// lag or hysteresis named, spikes and a frozen readout found, the temperature's unit hint — so on a log with those
+// the two differ (a blind check: a 0.02 A step left in, orders [1,1,1] for [2,2,3], with only a warning that the
+// residuals are not white). Fit such logs with fit_pipeline and export its model (export-c).
 //
 //   1. preprocess(zero_bias)                          S2: zero-mean, stationarity, normality (diagnostics)
 //   2. f1 = fit_drift(zero_bias, temp | temp − temp_outside)

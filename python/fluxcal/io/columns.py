@@ -49,7 +49,8 @@ CURRENT_WORDS = {"current", "curr", "amps", "amperes"}
 # what a current column's name may add: whose current it is (not "total": ArduPilot's CurrTot is mAh used)
 CURRENT_QUALIFIERS = {"motor", "motors", "bat", "batt", "battery", "load", "supply", "heater", "coil"}
 CURRENT_UNITS = {"a": 1.0, "amp": 1.0, "amps": 1.0, "ma": 1e-3}
-LARGE_CURRENT_UNITS = {**CURRENT_UNITS, "ka": 1e3}  # a cable's currents, a transformer's rating: also kA
+# a cable's currents, a transformer's rating: also kA; a current transformer's zero bias: also µA
+LARGE_CURRENT_UNITS = {**CURRENT_UNITS, "ka": 1e3, "ua": 1e-6, "µa": 1e-6}
 _UNIT_WORDS = set(FIELD_UNITS) | set(TIME_UNITS) | set(TEMP_UNITS) | set(CURRENT_UNITS) | {"hz", "khz"}
 _AXES = {"x": 0, "y": 1, "z": 2}
 _OTHER_UNITS = {"tesla", "dps", "deg", "degrees", "rad", "%", "v", "mv", "pa", "hpa", "rpm"}
