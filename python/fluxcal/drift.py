@@ -1106,8 +1106,9 @@ def _state_fit(W: np.ndarray, ok: np.ndarray, temp: np.ndarray, model: "DriftMod
 
 
 def _sized(name: str, size: float) -> bool:
-    """Whether a lag (τ > 0) or a dead band (r ≠ 0: either sense, _banded) of this size is one to fit."""
-    return size > 0 if name == "lag" else size != 0
+    """Whether a lag (τ ≠ 0: either sense, _lagged) or a dead band (r ≠ 0: either sense, _banded) of this size is one
+    to fit."""
+    return size != 0
 
 
 def _sized_beside_drift(w: np.ndarray, ok: np.ndarray, temp: np.ndarray, f: np.ndarray, model: "DriftModel",
@@ -1264,9 +1265,13 @@ def _both_ways(rows: np.ndarray, branch: np.ndarray, temp: np.ndarray) -> np.nda
 
 def _lagged(temp: np.ndarray, step: float, tau: float, breaks=()) -> np.ndarray:
     """`temp` through a first-order lag of time constant τ at the sampling `step` (the log's median), started again
-    at each gap: what an element τ behind the thermometer is at."""
+    at each gap: what an element τ behind the thermometer is at. τ < 0: the thermometer |τ| behind the element, which
+    is at its mirror 2T − lag(T, |τ|) ≈ T + |τ| dT/dt (as a dead band's other sense, _banded: a blind check's
+    thermometer 600 s behind the fibre had been named a ±11 °C dead band, "off at the holds too", which it was not)."""
     from scipy.signal import lfilter
 
+    if tau < 0:
+        return 2.0 * temp - _lagged(temp, step, -tau, breaks)
     a = float(np.exp(-step / tau))
     out = np.empty(temp.size)
     edges = [0] + sorted(int(b) for b in breaks) + [temp.size]
@@ -1315,6 +1320,7 @@ def thermal_lag(model: "DriftModel", compensated, temp, t=None, temp_outside=Non
     if ok.sum() < 50 or not np.any(rate[ok] != 0):
         return None
     taus = step * np.geomspace(2.0, max(4.0, 0.2 * n), 24)
+    taus = np.concatenate([taus, -taus])  # the element behind the thermometer, and the thermometer behind it
     lagged = [model.evaluate(np.clip(_lagged(temp, step, tau, breaks), temp.min(), temp.max()), outside="nan") - f
               for tau in taus]
     # a flat drift model: no lag nor dead band can show, but a trend in time can (a blind check's field log aged by
@@ -1558,7 +1564,7 @@ def history_warnings(lag: dict | None, unit: str = "") -> list:
     h, a = lag.get("hysteresis") or {}, lag.get("ageing") or {}
     also = lag.get("fits_too", {})
     secs = "s" if lag.get("seconds", True) else "samples (no times given)"
-    words = {"lag": f"a lag of about {lag['tau_s']:.3g} {secs}",
+    words = {"lag": f"a lag of about {lag['tau_s']:.3g} {secs}" + (" (the thermometer's)" if lag["tau_s"] < 0 else ""),
              "hysteresis": f"a dead band of {_band_words(h.get('dead_band_c', 0.0))} (hysteresis)",
              "ageing": _time_words(a, unit)}
     shares = {"lag": lag["share_alone"], "hysteresis": h.get("share_alone", 0.0), "ageing": a.get("share_alone", 0.0)}
@@ -1569,9 +1575,11 @@ def history_warnings(lag: dict | None, unit: str = "") -> list:
                 "the lag, or another cycle, tell them apart)") if others else ""
 
     if lag["said"]:
+        behind = ("the sensing element lags the thermometer" if lag["tau_s"] > 0 else
+                  "the thermometer lags the sensing element")
         out.append("the compensated zero bias follows the temperature's rate of change (Newey–West p "
-                   f"{_p_words(lag['p_value'])}, {100 * lag['share']:.0f} % of its variance): the sensing element lags the "
-                   f"thermometer by about {lag['tau_s']:.3g} {secs} (first order"
+                   f"{_p_words(lag['p_value'])}, {100 * lag['share']:.0f} % of its variance): {behind} by about "
+                   f"{abs(lag['tau_s']):.3g} {secs} (first order"
                    + ("; a lower bound: on a log that runs one way the drift model takes up part of the lag"
                       if lag.get("one_way") else "") + ") — the drift model, a function of the "
                    "logged temperature, cannot follow it on the ramps; put the thermometer at the element, log slower "

@@ -74,6 +74,23 @@ def test_a_lag_longer_than_the_holds_is_a_lag_not_hysteresis():
     assert not any("heating and cooling" in w for w in report["warnings"])
 
 
+@pytest.mark.parametrize("behind_s, hold_s", [(120.0, 1200.0), (600.0, 3600.0)])
+def test_a_thermometer_behind_the_element_is_a_lag_of_the_thermometer_not_hysteresis(behind_s, hold_s):
+    """The thermometer τ behind the element (its mount slower than the fibre): a blind check's 600 s (and 120 s) had
+    been named a ±11 °C (±2.3 °C) dead band, "off each branch at the holds too", which the holds were not — the lag's
+    feature fits only in the other sense, and a negative coefficient was refused. Now the element's state in that
+    sense (2T − lag(T), ≈ T + τ dT/dt) is a lag with τ < 0, sized and said. (Its first-order form holds while the
+    holds and ramps are long beside τ: on 20 min holds and 10 min ramps a 600 s thermometer is named a −330 s lag
+    and a dead band together.)"""
+    sim = foct_zero_bias(rng=2, cycle=True, thermal_lag_s=0.0, hold_s=hold_s, ramp_s=hold_s)  # element = chamber
+    _, report = fit(sim, thermometer(sim, behind_s))
+    found = report["thermal_lag"]
+    assert found["said"] and not found["hysteresis"]["said"], found
+    assert -1.3 * behind_s < found["tau_s"] < -0.8 * behind_s, found["tau_s"]
+    said = " ".join(report["warnings"])
+    assert "the thermometer lags the sensing element by about" in said and "heating and cooling" not in said, said
+
+
 @pytest.mark.parametrize("seed", [0, 1, 3])
 def test_a_hold_on_a_range_edge_is_no_dead_band(seed):
     """Holds every 10 °C take in the ranges' edges at 0 and 30 °C (seed 001's own levels), where the thermometer's
