@@ -2220,14 +2220,22 @@ def cmd_drift(args) -> int:
         factor = _unit_factor(raw, raw - compensated[known], temp[known])  # (the model's f: what it took off)
         if factor:
             print(f"warning: {column} in {args.file} drifts over its temperatures {factor:.3g}× as much as the drift "
-                  f"model {args.model} does there, and neither file states a unit: one in A and the other in mA? "
-                  "(the compensation is then off by 1000×; state the unit in both files)")
+                  f"model {args.model} does there, and neither file states a unit: one in {_unit_pair(factor)}? "
+                  f"(the compensation is then off by {10 ** round(np.log10(max(factor, 1 / factor))):g}×; state the "
+                  "unit in both files)")
     return 0
+
+
+def _unit_pair(factor: float) -> str:
+    """The units a factor of 10³, 10⁶ or 10⁹ between two logs of a current suggests ("A and the other in mA")."""
+    decades = round(np.log10(max(factor, 1.0 / factor)))
+    return {3: "A and the other in mA (or mA and µA)", 6: "A and the other in µA", 9: "kA and the other in µA"}.get(
+        decades, "another unit")
 
 
 def _unit_factor(values, model_drift, temp) -> float | None:
     """How many times the drift of `values` over temperature (per-level means) is the model's over the same
-    temperatures, when that is an A/mA factor (300–3000 either way: a blind check's mA log compensated by an A model,
+    temperatures, when that is a unit's factor (within 3x of 10³, 10⁶, 10⁹ either way: a blind check's mA log compensated by an A model,
     neither stating a unit, had "drift span 594.5 -> 593.9" printed and nothing else), else None."""
     from . import drift
 
@@ -2235,7 +2243,9 @@ def _unit_factor(values, model_drift, temp) -> float | None:
     if not (ours > 0 and its > 0):
         return None
     factor = ours / its
-    return factor if 300.0 <= max(factor, 1.0 / factor) <= 3000.0 else None
+    # within 3x of 10³, 10⁶ or 10⁹: A against mA, µA (a blind check's µA log beside an A model: silent), kA
+    decades = np.log10(max(factor, 1.0 / factor))
+    return factor if any(abs(decades - k) <= np.log10(3.0) for k in (3, 6, 9)) else None
 
 
 def _print_diagnosis(result, args, limits=None) -> int:

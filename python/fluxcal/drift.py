@@ -1789,7 +1789,14 @@ def fit_pipeline(zero_bias, temp, temp_outside=None, regressor: str = "temp", br
     if _frozen is None:  # (judged on the input: the refits below see it with rows left out or a trend taken out)
         runs = frozen_runs(w)
         _frozen = {"runs": runs, "said": frozen_words(w, runs) if runs else None}
-    pre = ts.preprocess(w, subseries=subseries, breaks=breaks)
+    try:
+        pre = ts.preprocess(w, subseries=subseries, breaks=breaks)
+    except ValueError as exc:  # (a blind check: "series: 30 samples, need at least 42 …", naming no input)
+        if not str(exc).startswith("series: "):
+            raise
+        raise ValueError(f"zero_bias: {str(exc)[len('series: '):]} (seed 001 S2; `subseries` sets how many, ≥ 3): "
+                         "a drift model over temperature needs a log through the operating range, hundreds of samples "
+                         "or more") from None
     glitches = temperature_glitches(temp)  # (after the sizes and the length are judged: 8 rows are too few first)
     if len(glitches):
         raise TemperatureGlitches(f"temp: {glitch_words(temp, glitches)}", glitches)

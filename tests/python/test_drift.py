@@ -360,7 +360,7 @@ def test_cli_apply_outside_the_ranges(tmp_path, foct):
     # an error from deep in the fit names the file it came from (it had said only "series: 3 samples, …")
     few = write_csv(tmp_path / "few.csv", {"zero_bias": c["zero_bias"][:3], "temp": [20.0, 30.0, 40.0]})
     run = run_cli("drift", "fit", few, "-o", tmp_path / "few.json")
-    assert run.returncode == 2 and f"error: {few}: series: 3 samples" in run.stderr, run.stderr
+    assert run.returncode == 2 and f"error: {few}: zero_bias: 3 samples" in run.stderr, run.stderr
 
 
 def test_a_thermometer_error_code_is_named_not_fitted(tmp_path, foct):

@@ -282,3 +282,10 @@ def test_a_current_unit_in_the_zero_bias_name_and_micro_amperes_are_read(tmp_pat
         classes[name] = [line.split(" at rated ")[1].split(" ", 2)[2] for line in out.splitlines()
                          if line.strip().startswith("class ")]
     assert classes["header_mA"] and all(c == classes["header_mA"] for c in classes.values()), classes
+
+
+def test_a_log_too_short_for_the_stationarity_test_names_the_zero_bias():
+    # (had been "series: 30 samples, need at least 42 for the stationarity test on 20 sub-series")
+    temp = np.linspace(-10.0, 40.0, 30)
+    with pytest.raises(ValueError, match=r"^zero_bias: 30 samples.*stationarity test.*`subseries`.*operating range"):
+        drift.fit_pipeline(0.01 * temp + np.random.default_rng(0).normal(0, 1e-3, 30), temp)

@@ -116,7 +116,7 @@ def test_a_short_log_is_judged_by_its_size_before_its_glitches(tmp_path, log, ca
     few = write_csv(tmp_path / "few8.csv", {k: v[:8] for k, v in log.items()} | {
         "temp": np.array([23.02, 23.04, 23.02, 22.93, 23.04, 23.02, 22.96, 23.02])})
     code, _, err = cli(capsys, "drift", "fit", few, "-o", tmp_path / "few.json")
-    assert code == 2 and "series: 8 samples, need at least" in err and "reading(s)" not in err, err
+    assert code == 2 and "zero_bias: 8 samples, need at least" in err and "reading(s)" not in err, err
 
 
 # -- finding 2: the fit's warnings go with the model -------------------------------------------------------
