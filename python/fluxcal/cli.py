@@ -1812,6 +1812,13 @@ def _number_conductors(solutions: list, data: dict) -> str | None:
                 s[key] = [s[key][j] for j in order]
             for key in ("currents_a", "current_sigma_a"):
                 s[key] = [[row[j] for j in order] for row in s[key]]
+            # the solver's warnings name its conductors by its own order: said in the printed one (a blind check's
+            # "conductor 0 ended on the bore's edge" was the one printed as conductor 1)
+            renumber = {str(old): str(new) for new, old in enumerate(order)}
+            for key in ("warnings", "warnings_said"):
+                if key in s:
+                    s[key] = [re.sub(r"\bconductor (\d+)", lambda m: f"conductor {renumber.get(m[1], m[1])}", w)
+                              for w in s[key]]
     return by
 
 

@@ -112,3 +112,28 @@ def test_lvm_segments_of_other_channels_are_refused(tmp_path):
                     .replace("X_Value\tBx\tBy\tBz\tComment", "X_Value\tMag X\tMag Y\tMag Z\tComment", 1))
     with pytest.raises(ValueError, match=r"line 50: segment 2 names the channels X_Value, Bx, By, Bz, the first segment X_Value, Mag X"):
         fluxcal.read_recording(path)
+
+
+def test_a_ring_conductor_beyond_the_bore_is_said_with_its_distance_and_the_printed_number(tmp_path):
+    """A 3-core cable off-centre, one conductor 4.157 mm out (the default bore: 4 mm), reference currents i0..i2 and no
+    positions: found right, but said "conductor 0 ended on the bore's edge (4 mm from the ring's centre)" — the
+    solver's own numbering, not the printed one, and the bore's radius for the conductor's (a blind check)."""
+    from fluxcal import cable
+
+    ring = cable.Ring(np.arange(8) * 45.0, 0.010)
+    a = np.radians(90.0 + 120.0 * np.arange(3))
+    pos = np.column_stack([-1.8e-3 + 2.5e-3 * np.cos(a), 2.5e-3 * np.sin(a)])  # radii 3.08, 4.157, 1.30 mm
+    cur = np.array([[10.0, -4.0, -6.0]])
+    wide = cable.Ring(ring.angles_deg, ring.radius_m, bore_radius_m=6e-3)  # (the field refuses it beyond the bore)
+    y = wide.field(pos, cur) + 1e-8 * np.random.default_rng(0).standard_normal((1, 8, 2))
+    path = tmp_path / "meas.csv"
+    cable.write_ring_csv(path, ring, y, np.zeros(1), cur)
+    out = run_cli("cable", "solve", str(path), "--conductors", "3", "--noise-sigma", "1e-8")
+    printed = next(line for line in out.stdout.splitlines() if line.startswith("snapshot 0:"))
+    first = printed.split(": ", 1)[1].split("; ")[:3]
+    radii = [np.hypot(*[float(v.split(" ± ")[0]) for v in c.strip("() mm").split(", ")]) for c in first]
+    beyond = int(np.argmax(radii))
+    assert abs(radii[beyond] - 4.157) < 0.01, radii
+    warned = [line for line in out.stdout.splitlines() if "from the ring's centre" in line]
+    assert warned and f"conductor {beyond} ended 4.15" in warned[0] and "beyond the bore (radius 4 mm" in warned[0], \
+        out.stdout

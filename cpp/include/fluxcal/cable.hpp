@@ -60,7 +60,9 @@ struct CableRing {
   double radius = 0.0;          ///< R > 0, metres
   Eigen::VectorXd axis_angles;  ///< ψ_i, sensor x axis from radial (empty: all 0, x radial, y tangential)
   /// Conductors must lie within this radius of the centre (the cable's bore); 0: 0.4·R (the paper's
-  /// 8 mm hole in a ring of sensors at ~10 mm).
+  /// 8 mm hole in a ring of sensors at ~10 mm). The field refuses a conductor beyond it; solve_cable bounds each
+  /// coordinate to ±bore (a box about the circle) and flags, with its distance, a conductor that ends on the box's edge
+  /// or beyond the circle.
   double bore_radius = 0.0;
 
   /// Throws Error unless the ring is valid (finite angles, R > 0, 0 < bore < R, matching axis_angles).
