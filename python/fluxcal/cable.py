@@ -1079,8 +1079,25 @@ def calibration_fields(ring: Ring, positions_m, currents_a, rotations_deg) -> np
 # every sensor k (tesla). Metadata lines carry the ring (`ring_angles_deg`, `ring_radius_m`) and, for a
 # calibration, the conductor positions (`positions_m`: x0 y0 x1 y1 …).
 
-def _floats(text) -> np.ndarray:
-    return np.array([float(v) for v in str(text).replace(",", " ").split()])
+def _floats(text, key: str = "value", path="") -> np.ndarray:
+    try:
+        return np.array([float(v) for v in str(text).replace(",", " ").split()])
+    except ValueError:
+        raise ValueError(f"{path}: {key}: {str(text)!r} is not a list of numbers") from None
+
+
+_LENGTH_UNITS = {"m": 1.0, "cm": 1e-2, "mm": 1e-3, "um": 1e-6, "µm": 1e-6}
+
+
+def _metres(text, key: str, path) -> float:
+    """A ring file's length (its key ends in _m): a number in metres, or with its unit ("10 mm"), converted; a
+    ValueError naming the key otherwise (a blind check's `ring_radius_m: 10 mm` had given "could not convert string
+    to float: '10 mm'")."""
+    hit = re.fullmatch(r"\s*([-+]?(?:\d+\.?\d*|\.\d+)(?:[eE][-+]?\d+)?)\s*([a-zµμ]*)\s*", str(text))
+    unit = hit[2].replace("\u03bc", "\u00b5") if hit else None
+    if not hit or (unit and unit not in _LENGTH_UNITS):
+        raise ValueError(f"{path}: {key}: {str(text)!r} is not a length (a number in metres, or with its unit: 10 mm)")
+    return float(hit[1]) * _LENGTH_UNITS.get(unit or "m")
 
 
 def write_ring_csv(path, ring: Ring, readings, rotations_deg=None, currents_a=None, positions_m=None,
@@ -1149,9 +1166,12 @@ def read_ring_csv(path, bad_lines: str = "error") -> dict:
     if "ring_angles_deg" not in meta or "ring_radius_m" not in meta:
         raise ValueError(f"{path}: no ring_angles_deg / ring_radius_m metadata lines: not a ring recording? "
                          f"A ring recording has {RING_FORMAT} (`fluxcal cable simulate` writes one)")
-    ring = Ring(_floats(meta["ring_angles_deg"]), float(meta["ring_radius_m"]),
-                axis_angles_deg=_floats(meta["ring_axis_angles_deg"]) if "ring_axis_angles_deg" in meta else None,
-                bore_radius_m=float(meta["ring_bore_radius_m"]) if "ring_bore_radius_m" in meta else None)
+    ring = Ring(_floats(meta["ring_angles_deg"], "ring_angles_deg", path),
+                _metres(meta["ring_radius_m"], "ring_radius_m", path),
+                axis_angles_deg=_floats(meta["ring_axis_angles_deg"], "ring_axis_angles_deg", path)
+                if "ring_axis_angles_deg" in meta else None,
+                bore_radius_m=_metres(meta["ring_bore_radius_m"], "ring_bore_radius_m", path)
+                if "ring_bore_radius_m" in meta else None)
     sensors = sorted({int(n[1:].split("_")[0]) for n in rec.columns if re.fullmatch(r"s\d+_[xy]", n)})
     extra = [f"s{k}" for k in sensors if k >= ring.n_sensors]
     if extra:
@@ -1184,7 +1204,7 @@ def read_ring_csv(path, bad_lines: str = "error") -> dict:
     if not np.all(np.isfinite(rotations)):
         row = int(np.argmax(~np.isfinite(rotations)))
         raise ValueError(f"{path}: rotation_deg of snapshot {row} (file line {rec.line_numbers[row]}) is not a number")
-    positions = _floats(meta["positions_m"]) if "positions_m" in meta else None
+    positions = _floats(meta["positions_m"], "positions_m", path) if "positions_m" in meta else None
     if positions is not None:
         if positions.size % 2:
             raise ValueError(f"{path}: positions_m holds {positions.size} numbers; it needs x y pairs")

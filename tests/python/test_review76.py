@@ -137,3 +137,20 @@ def test_a_ring_conductor_beyond_the_bore_is_said_with_its_distance_and_the_prin
     warned = [line for line in out.stdout.splitlines() if "from the ring's centre" in line]
     assert warned and f"conductor {beyond} ended 4.15" in warned[0] and "beyond the bore (radius 4 mm" in warned[0], \
         out.stdout
+
+
+def test_a_ring_files_lengths_take_their_unit(tmp_path):
+    # (a blind check: `ring_radius_m: 10 mm` gave "could not convert string to float: '10 mm'", naming no key)
+    from fluxcal import cable
+
+    ring = cable.Ring(np.arange(8) * 45.0, 0.010)
+    pos = np.array([[1e-3, 0.0], [-1e-3, 0.0]])
+    path = tmp_path / "ring.csv"
+    cable.write_ring_csv(path, ring, ring.field(pos, np.array([[5.0, -5.0]])), np.zeros(1), np.array([[5.0, -5.0]]))
+    text = path.read_text()
+    assert "# ring_radius_m: 0.01" in text
+    (tmp_path / "mm.csv").write_text(text.replace("# ring_radius_m: 0.01", "# ring_radius_m: 10 mm"))
+    assert cable.read_ring_csv(tmp_path / "mm.csv")["ring"].radius_m == pytest.approx(0.010)
+    (tmp_path / "bad.csv").write_text(text.replace("# ring_radius_m: 0.01", "# ring_radius_m: 10 furlongs"))
+    with pytest.raises(ValueError, match=r"ring_radius_m: '10 furlongs' is not a length"):
+        cable.read_ring_csv(tmp_path / "bad.csv")
