@@ -1677,7 +1677,15 @@ def _solve_ring_snapshots(ring, ring_cal, snaps, rotation: float, rows, args, ze
     if not (live | given).all():
         named = lambda mask, words: f"sensor(s) {', '.join(map(str, np.nonzero(mask)[0]))} {words}"  # noqa: E731
         unread = ~live & ~silent & ~given
-        said = ([named(unread, "not finite (dead?)")] if unread.any() else []) + silent_words(snaps, silent & ~given)
+        # a sensor not finite in every snapshot may be dead; in some only, a dropped reading, which costs it the whole
+        # joint fit (which takes the same sensors in each): said so, by snapshot (a blind check's one NaN in 12 read
+        # "not finite (dead?)")
+        bad = ~np.isfinite(snaps).all(axis=2)  # (snapshots, sensors)
+        dead = unread & bad.all(axis=0)
+        dropped = [f"sensor {j} not finite in snapshot(s) {', '.join(str(rows[k]) for k in np.nonzero(bad[:, j])[0])} "
+                   f"(left out of all {len(rows)} solved together: the joint fit takes the same sensors in each)"
+                   for j in np.nonzero(unread & ~dead)[0]]
+        said = ([named(dead, "not finite (dead?)")] if dead.any() else []) + dropped + silent_words(snaps, silent & ~given)
         print(f"{where}: {'; '.join(said)}: solved with the other {int(live.sum())}")
     sub = ring.subset(live)
     snaps = snaps[:, live]

@@ -154,3 +154,20 @@ def test_a_ring_files_lengths_take_their_unit(tmp_path):
     (tmp_path / "bad.csv").write_text(text.replace("# ring_radius_m: 0.01", "# ring_radius_m: 10 furlongs"))
     with pytest.raises(ValueError, match=r"ring_radius_m: '10 furlongs' is not a length"):
         cable.read_ring_csv(tmp_path / "bad.csv")
+
+
+def test_a_joint_solves_dropped_reading_is_said_by_snapshot_not_as_a_dead_sensor(tmp_path):
+    # (a blind check: one NaN in snapshot 2 of 12 read "snapshots 0–11: sensor(s) 0 not finite (dead?)")
+    from fluxcal import cable
+
+    ring = cable.Ring(np.arange(8) * 45.0, 0.010)
+    pos = np.array([[1.5e-3, 0.5e-3], [-1.5e-3, 0.5e-3], [0.0, -1.6e-3]])
+    phase = 2 * np.pi * np.arange(12) / 12
+    cur = 10.0 * np.cos(phase[:, None] + np.radians([0.0, -120.0, 120.0])[None])
+    y = ring.field(pos, cur) + 1e-8 * np.random.default_rng(1).standard_normal((12, 8, 2))
+    y[2, 0, 1] = np.nan
+    path = tmp_path / "meas.csv"
+    cable.write_ring_csv(path, ring, y, np.zeros(12), cur)
+    out = run_cli("cable", "solve", str(path), "--conductors", "3", "--joint", "--noise-sigma", "1e-8")
+    assert "sensor 0 not finite in snapshot(s) 2 (left out of all 12 solved together" in out.stdout, out.stdout
+    assert "dead?" not in out.stdout
