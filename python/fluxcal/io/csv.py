@@ -1172,25 +1172,29 @@ def _is_finite_number(text: str) -> bool:
 
 
 def _raise_parse_error(path, rows, line_numbers, names, delimiter, expected="the header"):
-    """Find the first bad cell the slow way, so the message names line and column — or a nan or inf written out
-    before it, in a column with finite numbers (a failed read printed as a float; reading on, it would have been
-    named next: a blind check's 'nan' on line 103 was named after the empty cell on line 104)."""
+    """Find the first bad cell the slow way, so the message names line and column — and a nan or inf written out
+    before it, in a column with finite numbers (a failed read printed as a float: a blind check's 'nan' on line 103
+    had gone unnamed beside the empty cell on line 104), after it: the nan alone is read (as NaN), the bad cell is
+    what stops the read (a later blind check: the nan named alone, as if it were the problem)."""
     unfinite = {}  # column index -> (line, cell) of its first number that is not finite
+
+    def stop(message: str):
+        earlier = [f"line {line}, column {names[j]!r}: {_not_a_number(cell)}"
+                   for line, j, cell in sorted((line, j, cell) for j, (line, cell) in unfinite.items())
+                   if any(_is_finite_number(r.split(delimiter)[j]) for r in rows if len(r.split(delimiter)) > j)]
+        raise ValueError(message + (f" (before it, {earlier[0]}: read as NaN, a failed reading?)" if earlier else ""))
+
     for row, line_no in zip(rows, line_numbers):
         cells = row.split(delimiter)
-        if unfinite and (len(cells) != len(names) or not all(_is_number(c) for c in cells)):
-            for line, j, cell in sorted((line, j, cell) for j, (line, cell) in unfinite.items()):
-                if any(_is_finite_number(r.split(delimiter)[j]) for r in rows if len(r.split(delimiter)) > j):
-                    raise ValueError(f"{path}, line {line}, column {names[j]!r}: {_not_a_number(cell)}")
         if len(cells) < len(names):
-            raise ValueError(f"{path}, line {line_no}: {len(cells)} fields, {expected} has {len(names)}: column "
-                             f"{names[len(cells)]!r} (field {len(cells) + 1}) is missing (truncated or garbled line?)")
+            stop(f"{path}, line {line_no}: {len(cells)} fields, {expected} has {len(names)}: column "
+                 f"{names[len(cells)]!r} (field {len(cells) + 1}) is missing (truncated or garbled line?)")
         if len(cells) > len(names):
-            raise ValueError(f"{path}, line {line_no}: {len(cells)} fields, {expected} has {len(names)}: field "
-                             f"{len(names) + 1} ({cells[len(names)].strip()!r}) has no column (garbled line?)")
+            stop(f"{path}, line {line_no}: {len(cells)} fields, {expected} has {len(names)}: field "
+                 f"{len(names) + 1} ({cells[len(names)].strip()!r}) has no column (garbled line?)")
         for j, (cell, name) in enumerate(zip(cells, names)):
             if not _is_number(cell):
-                raise ValueError(f"{path}, line {line_no}, column {name!r}: {_not_a_number(cell)}")
+                stop(f"{path}, line {line_no}, column {name!r}: {_not_a_number(cell)}")
             if j not in unfinite and not _is_finite_number(cell):
                 unfinite[j] = (line_no, cell)
     raise ValueError(f"{path}: could not parse the data rows")
