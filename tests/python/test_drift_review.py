@@ -198,22 +198,32 @@ def test_a_held_error_code_or_a_stuck_thermometer_is_refused_by_its_lines(tmp_pa
         and "a thermometer stuck on its last reading" in err, err
 
 
-def test_shuffled_rows_are_fitted_in_the_order_of_their_times(tmp_path, capsys):
+def ar_about_a_drift(seed: int) -> dict:
+    """A chamber log: AR(1) 0.7 noise about a linear drift (zero_bias, temp)."""
     temp = chamber_temp()
-    rng = np.random.default_rng(6)
+    rng = np.random.default_rng(seed)
     e = np.zeros(temp.size)
-    for i in range(1, temp.size):  # AR(1) 0.7 about a linear drift
+    for i in range(1, temp.size):
         e[i] = 0.7 * e[i - 1] + rng.normal(0, 0.002)
-    cols = {"t": np.arange(temp.size, dtype=float), "zero_bias": 0.01 * temp + e, "temp": temp}
-    ordered = write_csv(tmp_path / "ordered.csv", cols)
-    order = rng.permutation(temp.size)
-    shuffled = write_csv(tmp_path / "shuffled.csv", {k: v[order] for k, v in cols.items()})
-    assert main(["drift", "fit", str(ordered), "-o", str(tmp_path / "a.json")]) == 0
+    return {"zero_bias": 0.01 * temp + e, "temp": temp}
+
+
+def fit_both(tmp_path, capsys, a, b) -> tuple:
+    """`drift fit` of files a and b: (b's printed output, a's model, b's model) as JSON."""
+    assert main(["drift", "fit", str(a), "-o", str(tmp_path / "a.json")]) == 0
     capsys.readouterr()
-    assert main(["drift", "fit", str(shuffled), "-o", str(tmp_path / "b.json")]) == 0
+    assert main(["drift", "fit", str(b), "-o", str(tmp_path / "b.json")]) == 0
     out = capsys.readouterr().out
+    return (out,) + tuple(json.loads((tmp_path / n).read_text()) for n in ("a.json", "b.json"))
+
+
+def test_shuffled_rows_are_fitted_in_the_order_of_their_times(tmp_path, capsys):
+    cols = {"t": np.arange(chamber_temp().size, dtype=float), **ar_about_a_drift(6)}
+    ordered = write_csv(tmp_path / "ordered.csv", cols)
+    order = np.random.default_rng(6).permutation(cols["t"].size)
+    shuffled = write_csv(tmp_path / "shuffled.csv", {k: v[order] for k, v in cols.items()})
+    out, a, b = fit_both(tmp_path, capsys, ordered, shuffled)
     assert "rows of " in out and "are out of time order: the samples are taken in the order of their times" in out, out
-    a, b = (json.loads((tmp_path / n).read_text()) for n in ("a.json", "b.json"))
     assert a["segments"] == b["segments"] and a["ar"] == b["ar"]
 
 
@@ -222,26 +232,17 @@ def test_time_that_steps_back_between_stretches_keeps_the_files_order(tmp_path, 
     """Sorted by time, a restart's two stretches had been interleaved: AR(3)/AR(10) fitted for AR(1) 0.7, exported,
     and `drift apply --filtered` refused the file ("sort the recording"). Now each stretch follows the one before
     after a gap, as the file has them: the same model as the stretches' rows with rising times."""
-    temp = chamber_temp()
-    rng = np.random.default_rng(8)
-    e = np.zeros(temp.size)
-    for i in range(1, temp.size):
-        e[i] = 0.7 * e[i - 1] + rng.normal(0, 0.002)
-    t = np.arange(temp.size, dtype=float)
-    half = temp.size // 2
+    cols = ar_about_a_drift(8)
+    t = np.arange(cols["temp"].size, dtype=float)
+    half = t.size // 2
     logged = t.copy()
     logged[half:] = t[half:] - t[half] if back_s is None else t[half:] - back_s
-    cols = {"zero_bias": 0.01 * temp + e, "temp": temp}
     rising = t.copy()
     rising[half:] += 10.0  # the gap the fit puts between the stretches
     ordered = write_csv(tmp_path / "ordered.csv", {"t": rising, **cols})
     restarted = write_csv(tmp_path / "restarted.csv", {"t": logged, **cols})
-    assert main(["drift", "fit", str(ordered), "-o", str(tmp_path / "a.json")]) == 0
-    capsys.readouterr()
-    assert main(["drift", "fit", str(restarted), "-o", str(tmp_path / "b.json")]) == 0
-    out = capsys.readouterr().out
+    out, a, b = fit_both(tmp_path, capsys, ordered, restarted)
     assert "steps back 1x (line " in out and "taken in the file's order" in out, out
-    a, b = (json.loads((tmp_path / n).read_text()) for n in ("a.json", "b.json"))
     assert a["segments"] == b["segments"] and a["ar"] == b["ar"]
     for name in ("a", "b"):
         source = ordered if name == "a" else restarted
