@@ -1991,11 +1991,12 @@ STRETCH_ROWS = 10
 
 def _drift_time_order(rec: Recording, file) -> tuple:
     """(order, times) for a zero bias's AR model and Kalman filter: `times` rising, in the rows' order `order` (None:
-    the file's). Time that steps back between long stretches of rising time (a logger restarted at 0, a clock set
-    back, local time across the end of summer time) keeps the file's order, each stretch taken as following the one
-    before after a gap, so that the models start again there (a blind check: sorted by time, a restart's two stretches
-    were interleaved, AR(3)/AR(10) fitted for AR(1) and exported); rows out of order one by one (shuffled) are sorted
-    by time. Both said. (None, None) without a time column (a sample rate's times have no gaps)."""
+    the file's). Time that steps back by more than STRETCH_ROWS samples between long stretches of rising time (a
+    logger restarted at 0, a clock set back, local time across the end of summer time) keeps the file's order, each
+    stretch taken as following the one before after a gap, so that the models start again there (a blind check:
+    sorted by time, a restart's two stretches were interleaved, AR(3)/AR(10) fitted for AR(1) and exported); rows out
+    of order one by one (shuffled), or a few rows late by a step or two, are sorted by time. Both said. (None, None)
+    without a time column (a sample rate's times have no gaps)."""
     if rec._time_column() is None:
         return None, None
     times = np.asarray(rec.time(), dtype=float)
@@ -2003,13 +2004,15 @@ def _drift_time_order(rec: Recording, file) -> tuple:
     if not back.size:
         return None, times
     runs = np.diff(np.concatenate([[0], back, [len(times)]]))
-    if np.median(runs) < STRETCH_ROWS:
+    rising = np.diff(times)
+    step = float(np.median(rising[rising > 0])) if np.any(rising > 0) else 1.0
+    # rows shuffled, or a few written a step or two late (a logger's buffers): sorted; steps back of more than
+    # STRETCH_ROWS samples between long runs: stretches
+    if np.median(runs) < STRETCH_ROWS or np.all(times[back - 1] - times[back] <= STRETCH_ROWS * step):
         order = np.argsort(times, kind="stable")
         print(f"note: {int(np.sum(order != np.arange(len(order))))} of {len(order)} rows of {file} are out of time "
               "order: the samples are taken in the order of their times")
         return order, times[order]
-    rising = np.diff(times)
-    step = float(np.median(rising[rising > 0])) if np.any(rising > 0) else 1.0
     shifted = times.copy()
     for start in back:  # each stretch after the last, ten steps on: a gap, where the filter starts again
         shifted[start:] += shifted[start - 1] + 10 * step - shifted[start]

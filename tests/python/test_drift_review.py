@@ -227,6 +227,16 @@ def test_shuffled_rows_are_fitted_in_the_order_of_their_times(tmp_path, capsys):
     assert a["segments"] == b["segments"] and a["ar"] == b["ar"]
 
 
+def test_a_row_written_a_step_late_is_sorted_not_a_new_stretch(tmp_path, capsys):
+    cols = {"t": np.arange(chamber_temp().size, dtype=float), **ar_about_a_drift(7)}
+    order = np.arange(cols["t"].size)
+    order[[500, 501]] = order[[501, 500]]  # one row a step late (a logger's buffer)
+    late = write_csv(tmp_path / "late.csv", {k: v[order] for k, v in cols.items()})
+    out, a, b = fit_both(tmp_path, capsys, write_csv(tmp_path / "ordered.csv", cols), late)
+    assert "1 of " not in out and "2 of " in out and "are out of time order" in out and "steps back" not in out, out
+    assert a["segments"] == b["segments"] and a["ar"] == b["ar"]
+
+
 @pytest.mark.parametrize("back_s", [None, 3600.0])  # a logger restarted at 0; a clock set back an hour
 def test_time_that_steps_back_between_stretches_keeps_the_files_order(tmp_path, capsys, back_s):
     """Sorted by time, a restart's two stretches had been interleaved: AR(3)/AR(10) fitted for AR(1) 0.7, exported,
