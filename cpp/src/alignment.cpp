@@ -100,7 +100,8 @@ struct Fit {
   Eigen::Matrix3d rotation;
   double dip = 0.0, cost = 0.0, sigma2 = 0.0;
   int iterations = 0;
-  bool converged = false, identifiable = false, singular = false;  // singular: H's floor reached
+  bool converged = false, identifiable = false, singular = false;  // singular: the inverted matrix's floor reached
+  bool flat_cost = false;  // H not positive definite: the covariance is σ̂²(JᵀJ)⁻¹ and the fit not identifiable
   Eigen::Matrix4d inverse = Eigen::Matrix4d::Zero();     // H⁻¹, huge along an undetermined direction
   Eigen::Matrix4d covariance = Eigen::Matrix4d::Zero();  // σ̂² H⁻¹ JᵀJ H⁻¹
 };
@@ -171,14 +172,21 @@ void covariance(const Samples& down, const Samples& dir, Fit& fit, const Alignme
   fit.sigma2 = residual_variance(fit.cost, down.rows());
   const Eigen::Matrix4d jtj = j.transpose() * j;
   const detail::SymmetricEigen<4> eig = detail::symmetric_eigen(cost_hessian(down, dir, fit.rotation, j, e));
-  const Eigen::Vector4d lambda = eig.values;
-  const double floor = 1e-12 * std::max(lambda(3), 1e-300);
-  fit.singular = !(lambda(0) > floor);
-  const Eigen::Vector4d inverse = lambda.cwiseMax(floor).cwiseInverse();
-  fit.inverse = eig.vectors * inverse.asDiagonal() * eig.vectors.transpose();
-  fit.covariance = fit.sigma2 * fit.inverse * jtj * fit.inverse;
+  const double floor = 1e-12 * std::max(eig.values(3), 1e-300);
+  // H not positive definite: some direction is no minimum of the cost (its curvature there all noise: a level turn's
+  // rotation about the vertical). Clamped and squared in the sandwich, that direction's tilt spread huge variances to
+  // every parameter (a review: a level swing's dip read ±63913°); σ̂²(JᵀJ)⁻¹ names the undetermined axes as before,
+  // and the fit is flagged (flat_cost).
+  fit.flat_cost = !(eig.values(0) > floor);
+  const detail::SymmetricEigen<4> used = fit.flat_cost ? detail::symmetric_eigen(jtj) : eig;
+  const double used_floor = 1e-12 * std::max(used.values(3), 1e-300);
+  fit.singular = !(used.values(0) > used_floor);
+  const Eigen::Vector4d inverse = used.values.cwiseMax(used_floor).cwiseInverse();
+  fit.inverse = used.vectors * inverse.asDiagonal() * used.vectors.transpose();
+  fit.covariance = fit.flat_cost ? (fit.sigma2 * fit.inverse).eval() : (fit.sigma2 * fit.inverse * jtj * fit.inverse).eval();
   fit.covariance = 0.5 * (fit.covariance + fit.covariance.transpose()).eval();
-  fit.identifiable = (fit.covariance.diagonal().cwiseMax(0.0).cwiseSqrt() * kDeg).maxCoeff() <= options.max_se_deg;
+  fit.identifiable = !fit.flat_cost &&
+                     (fit.covariance.diagonal().cwiseMax(0.0).cwiseSqrt() * kDeg).maxCoeff() <= options.max_se_deg;
 }
 
 /// The fit from the two starts (the linear one and R = I), the one kept as described below.
@@ -412,7 +420,12 @@ AlignmentResult align_to_gravity(const SamplesRef& field, const SamplesRef& spec
                          "the noise, and the fit may lie beyond its standard errors: several degrees towards vertical "
                          "on a poorly spread turn, tenths of a degree either way on a widely spread one (quieter "
                          "readings, or averaging each attitude at rest, help)");
-  result.identifiable = unmoved.empty() && widened.empty() && !ambiguous;
+  result.identifiable = unmoved.empty() && widened.empty() && !ambiguous && !best.flat_cost;
+  if (best.flat_cost && unmoved.empty())
+    s.warnings.push_back("not identifiable: the cost does not curve up along every direction at the fit (its Hessian "
+                         "is not positive definite): some combination of the rotation and the dip is not determined, "
+                         "though σ²(JᵀJ)⁻¹ shows none (the noise lends JᵀJ information there); turn the device about "
+                         "more axes");
   if (!unmoved.empty())
     s.warnings.push_back("not identifiable: " + unmoved + " not determined to " + detail::num(options.max_se_deg) +
                          "° (the attitudes did not move about every axis: tilt the device, not only turn it "
