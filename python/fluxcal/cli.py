@@ -1989,6 +1989,26 @@ def _rated(text: str | None, unit: str | None, column: str) -> tuple:
 STRETCH_ROWS = 10
 
 
+def _bad_stamps(times: np.ndarray, step: float) -> tuple:
+    """(times, rows): a lone time stamp out of its neighbours' course (they one or two steps apart) where the other
+    stamps leave no gap for it — 0 or far ahead in a running log, a clock's glitch, its row's data where the file has
+    it — taken between its neighbours (a review: one stamp set to 0 had moved its row to the start, and the fit was
+    refused for the temperature that then left its course). A row written late leaves a gap where its time belongs,
+    and is left to be sorted."""
+    times, rows = times.copy(), []
+    out = np.flatnonzero((times[1:-1] < times[:-2]) | (times[1:-1] > times[2:])) + 1
+    for k in out[:20]:
+        if not (0 < times[k + 1] - times[k - 1] <= 2.5 * step):
+            continue
+        others = np.sort(np.delete(times, k))
+        i = int(np.searchsorted(others, times[k]))
+        if 0 < i < others.size and others[i] - others[i - 1] >= 1.5 * step:
+            continue  # a gap where it belongs: written late
+        times[k] = 0.5 * (times[k - 1] + times[k + 1])
+        rows.append(int(k))
+    return times, rows
+
+
 def _drift_time_order(rec: Recording, file) -> tuple:
     """(order, times) for a zero bias's AR model and Kalman filter: `times` rising, in the rows' order `order` (None:
     the file's). Time that steps back by more than STRETCH_ROWS samples between long stretches of rising time (a
@@ -2003,26 +2023,45 @@ def _drift_time_order(rec: Recording, file) -> tuple:
     back = np.flatnonzero(np.diff(times) < 0) + 1
     if not back.size:
         return None, times
-    runs = np.diff(np.concatenate([[0], back, [len(times)]]))
     rising = np.diff(times)
     step = float(np.median(rising[rising > 0])) if np.any(rising > 0) else 1.0
-    # rows shuffled, or a few written a step or two late (a logger's buffers): sorted; steps back of more than
-    # STRETCH_ROWS samples between long runs: stretches
-    if np.median(runs) < STRETCH_ROWS or np.all(times[back - 1] - times[back] <= STRETCH_ROWS * step):
-        order = np.argsort(times, kind="stable")
-        print(f"note: {int(np.sum(order != np.arange(len(order))))} of {len(order)} rows of {file} are out of time "
-              "order: the samples are taken in the order of their times")
-        return order, times[order]
-    shifted = times.copy()
-    for start in back:  # each stretch after the last, ten steps on: a gap, where the filter starts again
+    times, stamps = _bad_stamps(times, step)
+    if stamps:
+        lines = [int(rec.line_numbers[k]) if rec.line_numbers is not None else int(k) for k in stamps]
+        print(f"note: {len(stamps)} time stamp(s) of {file} leave the time's course where no sample is missing "
+              f"({'line' if rec.line_numbers is not None else 'row'} {', '.join(map(str, lines[:5]))}"
+              f"{' …' if len(lines) > 5 else ''}: a clock's glitch): taken between their neighbours")
+    back = np.flatnonzero(np.diff(times) < 0) + 1
+    if not back.size:
+        return None, times
+    # A step back starts a new stretch when the time then runs on from there for long (5 × STRETCH_ROWS rows) through
+    # what the rows before it had covered (STRETCH_ROWS of them at least, against the median of the last five: one
+    # bad timestamp's neighbour is no reference): a restart, a clock set back. A lone bad timestamp, a row written
+    # late, blocks shuffled are sorted, within their stretch (a review: one timestamp set to 0 had been taken for a
+    # restart and half the log shifted; blocks of 5 rows shuffled for 209 restarts).
+    large = back[times[back - 1] - times[back] > STRETCH_ROWS * step]  # (a row a step or two late: no restart)
+    ends = np.r_[large[1:], len(times)]
+    restarts = np.array([b for b, e in zip(large, ends) if e - b >= 5 * STRETCH_ROWS and np.sum(
+        times[b:e] <= np.median(times[max(0, b - 5):b])) >= STRETCH_ROWS], dtype=int)
+    edges = np.r_[0, restarts, len(times)]
+    order = np.concatenate([lo + np.argsort(times[lo:hi], kind="stable") for lo, hi in zip(edges[:-1], edges[1:])])
+    moved = int(np.sum(order != np.arange(len(order))))
+    if moved:
+        print(f"note: {moved} of {len(order)} rows of {file} are out of time order: the samples are taken in the "
+              "order of their times" + (" within each stretch (below)" if restarts.size else ""))
+    shifted = times[order]
+    for start in restarts:  # each stretch after the last, ten steps on: a gap, where the filter starts again
         shifted[start:] += shifted[start - 1] + 10 * step - shifted[start]
+    if not restarts.size:
+        return order, shifted
+    back = restarts
     lines = rec.line_numbers[back] if rec.line_numbers is not None else back
     word = "line" if rec.line_numbers is not None else "row"
     shown = ", ".join(str(int(v)) for v in lines[:5]) + (f" and {len(lines) - 5} more" if len(lines) > 5 else "")
     print(f"note: the time in {file} steps back {len(back)}x ({word} {shown}: a logger restarted, a clock set back, "
           "local time across the end of summer time?): the rows are taken in the file's order, each stretch after a "
           "step back as following the one before with a gap (the AR model and the Kalman filter start again there)")
-    return None, shifted
+    return (order if moved else None), shifted
 
 
 def cmd_drift(args) -> int:

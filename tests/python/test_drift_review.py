@@ -237,6 +237,19 @@ def test_a_row_written_a_step_late_is_sorted_not_a_new_stretch(tmp_path, capsys)
     assert a["segments"] == b["segments"] and a["ar"] == b["ar"]
 
 
+@pytest.mark.parametrize("stamp", [0.0, 1e6])
+def test_a_lone_bad_time_stamp_is_taken_between_its_neighbours(tmp_path, capsys, stamp):
+    """One stamp set to 0 (or far ahead) in a running log had been taken for a restart, half the log shifted (AR(10),
+    the ageing 0.6 of itself; a review); sorted, its row moved to the start and the temperature left its course."""
+    cols = {"t": np.arange(chamber_temp().size, dtype=float), **ar_about_a_drift(5)}
+    glitched = {**cols, "t": cols["t"].copy()}
+    glitched["t"][1000] = stamp
+    out, a, b = fit_both(tmp_path, capsys, write_csv(tmp_path / "ordered.csv", cols),
+                         write_csv(tmp_path / "glitch.csv", glitched))
+    assert "1 time stamp(s)" in out and "taken between their neighbours" in out and "steps back" not in out, out
+    assert a["segments"] == b["segments"] and a["ar"] == b["ar"]
+
+
 @pytest.mark.parametrize("back_s", [None, 3600.0])  # a logger restarted at 0; a clock set back an hour
 def test_time_that_steps_back_between_stretches_keeps_the_files_order(tmp_path, capsys, back_s):
     """Sorted by time, a restart's two stretches had been interleaved: AR(3)/AR(10) fitted for AR(1) 0.7, exported,
