@@ -2004,6 +2004,9 @@ def _bad_stamps(times: np.ndarray, step: float) -> tuple:
         i = int(np.searchsorted(others, times[k]))
         if 0 < i < others.size and others[i] - others[i - 1] >= 1.5 * step:
             continue  # a gap where it belongs: written late
+        beyond = others[0] - times[k] if i == 0 else times[k] - others[-1] if i == others.size else None
+        if beyond is not None and 0 < beyond <= 1.5 * step:
+            continue  # the first or last sample, written late or early
         times[k] = 0.5 * (times[k - 1] + times[k + 1])
         rows.append(int(k))
     return times, rows
@@ -2025,7 +2028,8 @@ def _drift_time_order(rec: Recording, file) -> tuple:
         return None, times
     rising = np.diff(times)
     step = float(np.median(rising[rising > 0])) if np.any(rising > 0) else 1.0
-    times, stamps = _bad_stamps(times, step)
+    runs = np.diff(np.r_[0, back, len(times)])
+    times, stamps = _bad_stamps(times, step) if np.median(runs) >= STRETCH_ROWS else (times, [])  # (not shuffled)
     if stamps:
         lines = [int(rec.line_numbers[k]) if rec.line_numbers is not None else int(k) for k in stamps]
         print(f"note: {len(stamps)} time stamp(s) of {file} leave the time's course where no sample is missing "
