@@ -223,7 +223,12 @@ Fit solve(const Samples& down, const Samples& dir, const AlignmentOptions& optio
                              start_dip(std::asin(std::clamp(cosines(cosines.size() / 2), -1.0, 1.0))), options);
   for (Fit* f : {&linear, &aligned}) covariance(down, dir, *f, options);
   const bool clearly_lower = linear.cost < 0.5 * aligned.cost;  // half the cost: R = I sits in another basin
-  return clearly_lower || (linear.identifiable && (!aligned.identifiable || linear.cost < 0.99 * aligned.cost))
+  // identifiable alone wins only where it fits about as well (within a 5σ likelihood ratio): a clustered hand turn's
+  // linear start had stopped in a false minimum at 4× the cost, 25° off, "identifiable" beside an R = I fit whose
+  // SEs were 1.2–1.3° (a review)
+  const double tie = 25.0 * std::max(aligned.sigma2, 1e-300);
+  return clearly_lower || (linear.identifiable && (aligned.identifiable ? linear.cost < 0.99 * aligned.cost
+                                                                         : linear.cost < aligned.cost + tie))
              ? linear : aligned;
 }
 

@@ -1943,8 +1943,10 @@ def _zero_bias_recording(args, column: str):
     # a unit as the name's last part (zero_bias_mA, zero_bias_uA), as temp_F names °F (a blind check: zero_bias_mA
     # "states no unit: taken in A", and its class judged 1000x off)
     last = re.split(r"[_\s-]+", column.strip())[-1]
-    if not rec.units.get(column) and last != column.strip() and _current_unit(last) in LARGE_CURRENT_UNITS:
+    # spelt as units are (A, mA, uA, µA, kA): zero_bias_a (phase a) or _ma (a moving average) are names (a review)
+    if not rec.units.get(column) and last != column.strip() and last in ("A", "mA", "uA", "µA", "\u03bcA", "kA"):
         rec.units[column] = last
+        print(f"note: {column}: in {last}, by its name")
     return rec
 
 

@@ -171,3 +171,36 @@ def test_a_joint_solves_dropped_reading_is_said_by_snapshot_not_as_a_dead_sensor
     out = run_cli("cable", "solve", str(path), "--conductors", "3", "--joint", "--noise-sigma", "1e-8")
     assert "sensor 0 not finite in snapshot(s) 2 (left out of all 12 solved together" in out.stdout, out.stdout
     assert "dead?" not in out.stdout
+
+
+def test_review_of_the_readers_mends(tmp_path):
+    """A review: a garbled first cell in a segment before the last had been taken for the next segment's header, the
+    rest of the segment dropped unsaid; a bad line in a file of glued units was named as line 2's first cell."""
+    path = tmp_path / "two.lvm"
+    lines = _lvm(path, [_sphere(40), _sphere(40, seed=1)])
+    k = next(i for i, line in enumerate(lines) if line.startswith("0.20\t"))  # a row of the first segment
+    lines[k] = "garbled" + lines[k][4:]
+    path.write_text("\n".join(lines) + "\n")
+    with pytest.raises(ValueError, match=rf"two\.lvm, line {k + 1}, column 'time': 'garbled' is not a number"):
+        fluxcal.read_recording(path)
+    glued = tmp_path / "glued.csv"
+    rows = [f"{k},{a:.2f}uT,{b:.2f}uT,{c:.2f}uT" for k, (a, b, c) in enumerate(_sphere(60))]
+    rows[50] = rows[50].rsplit(",", 2)[0] + ",,1.0uT"
+    glued.write_text("t,mx,my,mz\n" + "\n".join(rows) + "\n")
+    with pytest.raises(ValueError, match=r"glued\.csv, line 52: column 'my': empty"):
+        fluxcal.read_recording(glued)
+
+
+def test_a_zero_bias_names_unit_is_spelt_as_a_unit(tmp_path, capsys):
+    # (a review: zero_bias_a, phase a, had been read as amperes; _ma, a moving average, as mA)
+    from fluxcal.cli import main
+
+    temp = np.linspace(-10, 40, 600)
+    t = np.arange(temp.size, dtype=float)
+    for name, unit in (("zero_bias_a", None), ("zero_bias_ma", None), ("zero_bias_mA", "mA")):
+        path = tmp_path / f"{name}.csv"
+        fluxcal.write_csv(path, {"t": t, name: 2 + 0.05 * temp + np.random.default_rng(0).normal(0, 0.5, t.size),
+                                 "temp": temp})
+        assert main(["drift", "fit", str(path), "--column", name, "-o", str(tmp_path / "m.json")]) == 0
+        out = capsys.readouterr().out
+        assert (f"note: {name}: in {unit}, by its name" in out) == (unit is not None), out

@@ -392,7 +392,7 @@ def parse_mixed_rows(path, lines, start: int, names, delimiter, bad_lines: str, 
         if problem is None:
             good.append(row)
         elif bad_lines == "error":
-            if not text:
+            if not text and not glued:  # (the plain parser's error is of the cells before their units came off)
                 raise ValueError(f"{plain_error}; {SKIP_HINT}") from None
             raise ValueError(f"{path}, line {line_no}: {problem}; {SKIP_HINT}")
         else:

@@ -14,6 +14,9 @@ from pathlib import Path
 from .recording import Recording
 
 END = "***End_of_Header***"
+# the keys a segment's header starts with (LabVIEW writes Channels first; Notes and the test keys may come before)
+SEGMENT_KEYS = {"Channels", "Samples", "Date", "Time", "Y_Unit_Label", "X_Dimension", "X0", "Delta_X", "Notes",
+                "Test_Name", "Test_Numbers", "Test_Series", "UUT_Name", "UUT_Serial_Number", "Comment", END}
 
 
 def looks_like_lvm(head: bytes) -> bool:
@@ -47,7 +50,7 @@ def read_lvm(path, columns=None, units: str | None = None, bad_lines: str = "err
     if not segments:
         raise ValueError(f"{path}: a LabVIEW measurement file with its file header only, no data segment (line "
                          f"{ends[0] + 1} is the header's end)")
-    names, rows, first_row_line = None, [], None
+    names, rows, cut = None, [], None
     for s, end in enumerate(segments):
         header = {}
         for line in lines[(ends[0] if s == 0 else segments[s - 1]) + 1:end]:
@@ -71,15 +74,18 @@ def read_lvm(path, columns=None, units: str | None = None, bad_lines: str = "err
             raise ValueError(f"{path}, line {k + 1}: segment {s + 1} names the channels {', '.join(labelled)}, the "
                              f"first segment {', '.join(names)}: fluxcal reads segments of the same channels")
         end_of_data = segments[s + 1] if s + 1 < len(segments) else len(lines)
-        # a next segment's header starts above its own ***End_of_Header***: at its first non-number line
+        # a next segment's header starts above its own ***End_of_Header***: at its first key (a garbled data row is
+        # no key: it stays, to be named by its line — a review: taken for a header, it had dropped the rest of its
+        # segment, unsaid)
         for line_no in range(k + 1, end_of_data):
             line = lines[line_no]
             cells = _fields(line, separator)
-            if s + 1 < len(segments) and cells and cells[0] and not _numberish(cells[0], decimal_comma):
+            if cells and cells[0] in SEGMENT_KEYS:
+                if s + 1 == len(segments):
+                    cut = line_no + 1  # a segment header with no end: the file was cut inside it
                 break
             if not line.strip():
                 continue
-            first_row_line = first_row_line or line_no + 1
             values = [cells[j] if j < len(cells) else "" for j in keep]
             rows.append((line_no + 1, "\t".join(v.replace(",", ".") if decimal_comma else v for v in values)))
     if not rows:
@@ -92,14 +98,21 @@ def read_lvm(path, columns=None, units: str | None = None, bad_lines: str = "err
         channel = sum(c not in ("X_Value", "Comment", "") for c in first_names[:j])  # Y_Unit_Label: one per channel
         unit = unit_of[channel] if 0 <= channel < len(unit_of) else ""
         heads.append(f"{name} [{unit}]" if unit and unit not in ("-", "") else name)
-    # the table's line k+1 is the file's line rows[k][0]: the numbers said in messages are the file's
-    table = ["\t".join(heads)] + [row for _, row in rows]
-    contiguous = all(b[0] - a[0] == 1 for a, b in zip(rows, rows[1:]))
-    rec = read_table_lines(table, str(path), columns, units, bad_lines, offset=rows[0][0] - 2) if contiguous \
-        else read_table_lines(table, str(path) + f" (segments joined; data from line {first_row_line})", columns,
-                              units, bad_lines, word="row", offset=-1)
+    # each row at its own line of the table, blank lines between (passed over): the lines said in messages are the
+    # file's, across segments and blank lines too
+    table = [""] * rows[-1][0]
+    table[0] = "\t".join(heads)
+    for line_no, row in rows:
+        table[line_no - 1] = row
+    rec = read_table_lines(table, str(path), columns, units, bad_lines)
     rec.metadata["format"] = "LabVIEW measurement (.lvm)" + (f", {len(segments)} segments" if len(segments) > 1
                                                              else "")
+    if cut is not None:
+        import warnings
+
+        rec.metadata["cut_short"] = f"line {cut}: a segment header with no end (the file cut short?)"
+        warnings.warn(f"{path}, line {cut}: a segment header with no {END}: the file was cut short? The rows "
+                      "before it are read", UserWarning, stacklevel=2)
     for key in ("Date", "Time", "Operator", "Description", "Project"):
         if settings.get(key):
             rec.metadata.setdefault(f"lvm_{key.lower()}", settings[key])
